@@ -1,0 +1,27 @@
+"""oodmon: tells when a deployed reinforcement-learning policy has left the world it was trained in.
+
+The package has four parts, in the direction data flows:
+
+- :mod:`oodmon.envs`: the OOD variants the agent acts in (physics shifts, frame corruptions);
+- :mod:`oodmon.agents`: uncertainty-aware policies;
+- :mod:`oodmon.monitor`: per-step uncertainty against a calibrated threshold, alarms, logs;
+- :mod:`oodmon.replay`: metrics and tables from recorded logs.
+
+``import oodmon`` registers the envs with gymnasium::
+
+    >>> import gymnasium, oodmon
+    >>> env = gymnasium.make("oodmon/CartPole-v1", length=2.0)
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version
+
+from oodmon import envs
+
+try:
+    __version__ = version("oodmon")
+except PackageNotFoundError:  # running from a source tree that was not installed
+    __version__ = "0+unknown"
+
+__all__ = ["__version__", "envs"]

@@ -1,0 +1,7 @@
+"""``python -m oodmon``: the same as the ``oodmon`` command."""
+
+import sys
+
+from oodmon.cli import main
+
+sys.exit(main())

@@ -1,0 +1,127 @@
+"""The ``oodmon`` command: a thin layer over the library.
+
+Errors a person can fix (:class:`oodmon.errors.OodmonError`, and files that cannot be written)
+print as one line on stderr with exit code 2, never as a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+
+from rich.console import Console
+from rich.table import Table
+
+from oodmon.errors import OodmonError
+
+__all__ = ["main"]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI with ``argv`` (default: ``sys.argv[1:]``); return the exit code."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if not hasattr(args, "handler"):
+        parser.print_help()
+        return 2
+    try:
+        return args.handler(args) or 0
+    except (OodmonError, OSError) as error:
+        print(f"oodmon: error: {error}", file=sys.stderr)
+        return 2
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="oodmon",
+        description="Tells when a deployed RL policy has left the world it was trained in.",
+    )
+    commands = parser.add_subparsers(title="commands", metavar="COMMAND")
+
+    envs = commands.add_parser("envs", help="list the paper's OOD variants; 'envs show SPEC' pictures one")
+    envs.add_argument("--task", choices=["cartpole", "pendulum", "pong"], help="only this task's variants")
+    envs.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    envs.set_defaults(handler=_envs_list)
+    envs_commands = envs.add_subparsers(title="envs commands", metavar="COMMAND")
+    show = envs_commands.add_parser(
+        "show",
+        help="what a variant changes",
+        description="Pong: the clean and the corrupted frame side by side. CartPole, Pendulum: a "
+        "hand-written reference controller's returns in the ID env and the variant, and its pole "
+        "angle over an episode.",
+    )
+    show.add_argument("spec", help="a variant spec, e.g. pong:pixelate@3 or cartpole:length=2.0")
+    show.add_argument("--out", help="write the picture to this PNG file")
+    show.add_argument("--seed", type=int, default=0, help="seed of the episode shown (default 0)")
+    show.add_argument("--onset", type=int, default=0, help="step at which the shift begins (physics; default 0)")
+    show.set_defaults(handler=_envs_show)
+
+    demo = commands.add_parser("demo", help="the main job of 'make demo'")
+    demo.add_argument("--out", default="runs/demo", help="folder for the demo's files (default runs/demo)")
+    demo.set_defaults(handler=_demo)
+    return parser
+
+
+def _envs_list(args: argparse.Namespace) -> int:
+    from oodmon.envs import TASKS, paper_grid, severity_params
+    from oodmon.paper import paper_grid_data
+
+    tasks = [args.task] if args.task else list(TASKS)
+    rows = []
+    for task in tasks:
+        defaults = paper_grid_data()[task].get("defaults", {})
+        for variant in paper_grid(task):
+            if task == "pong":
+                params = severity_params(variant.corruption, variant.severity)
+                value = ", ".join(f"{k}={v}" for k, v in params.items())
+                rows.append({"task": task, "spec": variant.spec, "parameter": variant.corruption,
+                             "value": value, "default": None})
+            else:
+                name, value = variant.params[0]
+                rows.append({"task": task, "spec": variant.spec, "parameter": name,
+                             "value": value, "default": defaults[name]})
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    table = Table(title=f"The paper's OOD variants ({len(rows)})")
+    for column in ("task", "spec", "parameter", "value", "default"):
+        table.add_column(column)
+    for row in rows:
+        table.add_row(*(("" if row[k] is None else str(row[k])) for k in ("task", "spec", "parameter", "value", "default")))
+    Console().print(table)
+    return 0
+
+
+def _envs_show(args: argparse.Namespace) -> int:
+    from oodmon.envs import parse_variant
+    from oodmon.envs.preview import compare_physics, pong_preview, save_physics_plot, save_rgb
+
+    variant = parse_variant(args.spec)
+    console = Console(soft_wrap=True)
+    if variant.task == "pong":
+        image = pong_preview(variant, seed=args.seed)
+        console.print(f"{variant.spec}: {variant.kwargs()}")
+        if args.out:
+            console.print(f"wrote {save_rgb(image, args.out)} (clean left, corrupted right)")
+        return 0
+    comparison = compare_physics(variant, seeds=range(args.seed, args.seed + 5), onset_step=args.onset)
+    console.print(
+        f"{variant.spec} (onset {args.onset}): reference controller's mean return over 5 seeds "
+        f"{comparison.shifted_return:.1f}, against {comparison.id_return:.1f} in the ID env"
+    )
+    if args.out:
+        console.print(f"wrote {save_physics_plot(comparison, args.out)}")
+    return 0
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from oodmon.demo import run_demo
+
+    run_demo(args.out)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

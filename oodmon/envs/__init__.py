@@ -1,0 +1,48 @@
+"""What the agent sees: the paper's OOD variants of CartPole, Pendulum and Pong.
+
+``import oodmon`` registers ``oodmon/CartPole-v1``, ``oodmon/Pendulum-v1`` and
+``oodmon/Pong-v5`` with gymnasium. Physics shifts and frame corruptions take an
+``onset_step`` so that a shift can begin mid-episode; ``info["shifted"]`` marks it.
+"""
+
+from __future__ import annotations
+
+from oodmon.envs.corruptions import (
+    CORRUPTIONS,
+    Corruption,
+    GaussianNoise,
+    ImpulseNoise,
+    MotionBlur,
+    Pixelate,
+    make_corruption,
+    severity_params,
+)
+from oodmon.envs.grid import ENV_IDS, TASKS, Variant, paper_grid, parse_variant
+from oodmon.envs.physics import CARTPOLE_DEFAULTS, PENDULUM_DEFAULTS, ShiftedCartPole, ShiftedPendulum
+from oodmon.envs.pong import CorruptedPong, to_agent_view
+from oodmon.envs.registration import register_envs
+
+__all__ = [
+    "CARTPOLE_DEFAULTS",
+    "CORRUPTIONS",
+    "ENV_IDS",
+    "PENDULUM_DEFAULTS",
+    "TASKS",
+    "CorruptedPong",
+    "Corruption",
+    "GaussianNoise",
+    "ImpulseNoise",
+    "MotionBlur",
+    "Pixelate",
+    "ShiftedCartPole",
+    "ShiftedPendulum",
+    "Variant",
+    "make_corruption",
+    "paper_grid",
+    "parse_variant",
+    "register_envs",
+    "severity_params",
+    "to_agent_view",
+]
+
+register_envs()

@@ -1,0 +1,106 @@
+"""Validation of env parameters, shared by the physics envs, OOD-Pong and the variant parser.
+
+Each check raises an :mod:`oodmon.errors` error whose message names the parameter, the value
+received and what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Iterable, Mapping
+
+from oodmon.errors import InvalidParameterError, UnknownParameterError
+
+__all__ = ["check_onset_step", "check_physics", "positive_number", "reject_unknown"]
+
+
+def reject_unknown(owner: str, given: Iterable[str], allowed: Iterable[str]) -> None:
+    """Raise :class:`UnknownParameterError` if ``given`` holds a name not in ``allowed``.
+
+    Args:
+        owner: what the parameters belong to, for the message (``"oodmon/CartPole-v1"``).
+        given: the names the caller passed.
+        allowed: the names ``owner`` accepts.
+
+    Example:
+        >>> reject_unknown("oodmon/CartPole-v1", ["lenght"], ["gravity", "length"])
+        Traceback (most recent call last):
+        ...
+        oodmon.errors.UnknownParameterError: oodmon/CartPole-v1 has no parameter 'lenght'; ...
+    """
+    allowed = list(allowed)
+    for name in given:
+        if name not in allowed:
+            raise UnknownParameterError(
+                f"{owner} has no parameter {name!r}; it takes {', '.join(allowed)}"
+            )
+
+
+def positive_number(owner: str, name: str, value: object, default: float | None = None) -> float:
+    """Return ``value`` as a float if it is a finite number > 0, else raise.
+
+    Args:
+        owner: what the parameter belongs to, for the message.
+        name: the parameter's name.
+        value: what the caller passed.
+        default: the parameter's default value, quoted in the message when given.
+
+    Raises:
+        InvalidParameterError: ``value`` is not a number, not finite, or not > 0.
+
+    Example:
+        >>> positive_number("oodmon/CartPole-v1", "length", 2)
+        2.0
+    """
+    hint = f" (the default is {default!r})" if default is not None else ""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise InvalidParameterError(
+            f"{owner}: {name}={value!r} is not allowed; {name} must be a number > 0{hint}"
+        )
+    number = float(value)
+    if not (math.isfinite(number) and number > 0):
+        raise InvalidParameterError(
+            f"{owner}: {name}={number!r} is not allowed; {name} must be a finite number > 0{hint}"
+        )
+    return number
+
+
+def check_onset_step(owner: str, onset_step: object) -> int:
+    """Return ``onset_step`` if it is an integer >= 0, else raise :class:`InvalidParameterError`.
+
+    The onset is the index of the first ``step()`` call of an episode that runs in the shifted
+    world (0: the whole episode, as in the paper).
+
+    Example:
+        >>> check_onset_step("oodmon/CartPole-v1", 100)
+        100
+    """
+    if isinstance(onset_step, bool) or not isinstance(onset_step, numbers.Integral) or onset_step < 0:
+        raise InvalidParameterError(
+            f"{owner}: onset_step={onset_step!r} is not allowed; onset_step must be an integer >= 0 "
+            "(0 shifts the whole episode, N shifts it from the N-th step on)"
+        )
+    return int(onset_step)
+
+
+def check_physics(owner: str, defaults: Mapping[str, float], overrides: Mapping[str, object]) -> dict[str, float]:
+    """Validate physics overrides against an env's defaults; return the full parameter set.
+
+    Args:
+        owner: the env id, for messages.
+        defaults: every physics parameter of the env with its default value.
+        overrides: the parameters the caller changed.
+
+    Returns:
+        ``defaults`` updated with ``overrides``, every value a positive float.
+
+    Example:
+        >>> check_physics("oodmon/Pendulum-v1", {"g": 10.0, "l": 1.0}, {"g": 50})
+        {'g': 50.0, 'l': 1.0}
+    """
+    reject_unknown(owner, overrides, defaults)
+    physics = dict(defaults)
+    for name, value in overrides.items():
+        physics[name] = positive_number(owner, name, value, defaults[name])
+    return physics

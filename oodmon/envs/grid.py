@@ -1,0 +1,219 @@
+"""Variants: one OOD (or the ID) env of a task, named by a short spec string.
+
+Spec strings, as the CLI and the logs write them, parse back to equal variants::
+
+    cartpole                        the ID env of a task (also pendulum, pong)
+    cartpole:length=2.0             physics changed (several: cartpole:gravity=20.0,length=2.0)
+    pendulum:g=50.0
+    pong:motion_blur@3              a corruption at one of the paper's severities 1..5
+    pong:gaussian_noise:sigma=0.2   a corruption with its own parameters
+
+:func:`paper_grid` returns the variants of the paper's Table 1: 90 for CartPole, 40 for
+Pendulum, 20 for Pong.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium
+
+from oodmon.envs.checks import check_physics
+from oodmon.envs.corruptions import make_corruption
+from oodmon.envs.physics import CARTPOLE_DEFAULTS, PENDULUM_DEFAULTS
+from oodmon.errors import SpecError, UnknownParameterError
+from oodmon.paper import paper_grid_data
+
+__all__ = ["ENV_IDS", "TASKS", "Variant", "paper_grid", "parse_variant"]
+
+#: The gymnasium id of each task's env.
+ENV_IDS: dict[str, str] = {
+    "cartpole": "oodmon/CartPole-v1",
+    "pendulum": "oodmon/Pendulum-v1",
+    "pong": "oodmon/Pong-v5",
+}
+TASKS: tuple[str, ...] = tuple(ENV_IDS)
+
+_PHYSICS_DEFAULTS = {"cartpole": CARTPOLE_DEFAULTS, "pendulum": PENDULUM_DEFAULTS}
+_SPEC_HELP = (
+    "expected TASK, TASK:NAME=VALUE[,NAME=VALUE...], pong:CORRUPTION@SEVERITY or "
+    "pong:CORRUPTION:NAME=VALUE[,...], e.g. 'cartpole:length=2.0' or 'pong:pixelate@3'"
+)
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One env of a task: the ID env, a physics change, or a corruption.
+
+    Build one with :func:`parse_variant` or take it from :func:`paper_grid`; constructing it
+    directly validates the same way.
+
+    Attributes:
+        task: ``"cartpole"``, ``"pendulum"`` or ``"pong"``.
+        params: physics parameters (CartPole, Pendulum) or a corruption's own parameters
+            (Pong), as sorted ``(name, value)`` pairs.
+        corruption: Pong's corruption name, or ``None``.
+        severity: Pong's severity 1..5, or ``None`` when ``params`` give the corruption.
+
+    Example:
+        >>> v = parse_variant("cartpole:length=2.0")
+        >>> v.spec, v.env_id, v.kwargs()
+        ('cartpole:length=2.0', 'oodmon/CartPole-v1', {'length': 2.0})
+        >>> env = v.make(onset_step=100)
+    """
+
+    task: str
+    params: tuple[tuple[str, float], ...] = ()
+    corruption: str | None = None
+    severity: int | None = None
+    _kwargs: dict[str, Any] = field(init=False, repr=False, compare=False, hash=False)
+
+    def __post_init__(self) -> None:
+        if self.task not in ENV_IDS:
+            raise UnknownParameterError(f"unknown task {self.task!r}; choose one of {', '.join(TASKS)}")
+        params = dict(self.params)
+        if self.task == "pong":
+            if self.corruption is None and (params or self.severity is not None):
+                raise SpecError(f"pong variant with parameters but no corruption; {_SPEC_HELP}")
+            if self.corruption is not None:
+                params = make_corruption(self.corruption, self.severity, **params).params()
+                if self.severity is not None:
+                    params = {}  # the severity names the parameters
+        else:
+            if self.corruption is not None or self.severity is not None:
+                raise SpecError(
+                    f"{self.task} variants change physics, not frames; corruptions are for pong"
+                )
+            checked = check_physics(ENV_IDS[self.task], _PHYSICS_DEFAULTS[self.task], params)
+            params = {name: checked[name] for name in params}
+        object.__setattr__(self, "params", tuple(sorted(params.items())))
+        kwargs: dict[str, Any] = dict(self.params)
+        if self.corruption is not None:
+            kwargs["corruption"] = self.corruption
+        if self.severity is not None:
+            kwargs["severity"] = self.severity
+        object.__setattr__(self, "_kwargs", kwargs)
+
+    @property
+    def env_id(self) -> str:
+        """The gymnasium id to make this variant with."""
+        return ENV_IDS[self.task]
+
+    @property
+    def is_id(self) -> bool:
+        """Whether this is the task's default, in-distribution env."""
+        return not self.params and self.corruption is None
+
+    @property
+    def spec(self) -> str:
+        """The canonical spec string; :func:`parse_variant` turns it back into this variant."""
+        text = self.task
+        if self.corruption is not None:
+            text += f":{self.corruption}"
+            if self.severity is not None:
+                return f"{text}@{self.severity}"
+        if self.params:
+            text += ":" + ",".join(f"{name}={_format_number(value)}" for name, value in self.params)
+        return text
+
+    def kwargs(self) -> dict[str, Any]:
+        """The keyword arguments of ``gymnasium.make(self.env_id, ...)`` for this variant."""
+        return dict(self._kwargs)
+
+    def make(self, *, onset_step: int = 0, **kwargs: Any) -> gymnasium.Env:
+        """Make this variant's env, shifted from ``onset_step`` on (0: the whole episode)."""
+        return gymnasium.make(self.env_id, **self._kwargs, onset_step=onset_step, **kwargs)
+
+    def __str__(self) -> str:
+        return self.spec
+
+
+def _format_number(value: float | int) -> str:
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|[-+]?inf|nan"
+_ASSIGNMENT = re.compile(rf"^([A-Za-z_]\w*)=({_NUMBER})$")
+_SEVERITY = re.compile(r"^([A-Za-z_]\w*)@(\S+)$")
+
+
+def parse_variant(spec: str) -> Variant:
+    """Parse a spec string (see the module docstring) into a :class:`Variant`.
+
+    Raises:
+        SpecError: the string does not have one of the accepted forms.
+        UnknownParameterError: an unknown task, parameter or corruption.
+        InvalidParameterError: a value outside what is allowed.
+
+    Example:
+        >>> parse_variant("pong:motion_blur@3").kwargs()
+        {'corruption': 'motion_blur', 'severity': 3}
+        >>> parse_variant("pendulum:g=50").spec
+        'pendulum:g=50.0'
+    """
+    if not isinstance(spec, str) or not spec.strip():
+        raise SpecError(f"malformed variant spec {spec!r}: {_SPEC_HELP}")
+    task, _, rest = spec.strip().partition(":")
+    if task not in ENV_IDS:
+        raise UnknownParameterError(
+            f"variant spec {spec!r}: unknown task {task!r}; choose one of {', '.join(TASKS)}"
+        )
+    if not rest:
+        return Variant(task)
+    if task == "pong":
+        corruption, _, assignments = rest.partition(":")
+        severity_match = _SEVERITY.match(corruption)
+        if severity_match and not assignments:
+            name, severity = severity_match.groups()
+            if not re.fullmatch(r"[-+]?\d+", severity):
+                raise SpecError(
+                    f"variant spec {spec!r}: severity {severity!r} is not an integer from 1 to 5"
+                )
+            return Variant(task, corruption=name, severity=int(severity))
+        if not assignments or not re.fullmatch(r"[A-Za-z_]\w*", corruption):
+            raise SpecError(f"malformed variant spec {spec!r}: {_SPEC_HELP}")
+        return Variant(task, _parse_assignments(spec, assignments), corruption=corruption)
+    return Variant(task, _parse_assignments(spec, rest))
+
+
+def _parse_assignments(spec: str, text: str) -> tuple[tuple[str, float], ...]:
+    pairs: dict[str, float] = {}
+    for item in text.split(","):
+        match = _ASSIGNMENT.match(item.strip())
+        if not match:
+            raise SpecError(f"malformed variant spec {spec!r} at {item!r}: {_SPEC_HELP}")
+        name, value = match.groups()
+        if name in pairs:
+            raise SpecError(f"variant spec {spec!r} sets {name!r} twice")
+        pairs[name] = float(value)
+    return tuple(pairs.items())
+
+
+def paper_grid(task: str) -> list[Variant]:
+    """The OOD variants of the paper's Table 1 for ``task``, in the paper's order.
+
+    Raises:
+        UnknownParameterError: ``task`` is not ``cartpole``, ``pendulum`` or ``pong``.
+
+    Example:
+        >>> [len(paper_grid(t)) for t in ("cartpole", "pendulum", "pong")]
+        [90, 40, 20]
+        >>> paper_grid("pong")[0].spec
+        'pong:gaussian_noise@1'
+    """
+    if task not in ENV_IDS:
+        raise UnknownParameterError(f"unknown task {task!r}; choose one of {', '.join(TASKS)}")
+    grid = paper_grid_data()[task]
+    if task == "pong":
+        return [
+            Variant(task, corruption=name, severity=severity)
+            for name, entry in grid["severities"].items()
+            for severity in range(1, len(entry["values"]) + 1)
+        ]
+    return [
+        Variant(task, ((name, float(value)),))
+        for name, values in grid["values"].items()
+        for value in values
+    ]

@@ -1,0 +1,186 @@
+"""OOD-CartPole and OOD-Pendulum: the standard classic-control envs with other physics.
+
+A variant is the default env with other numbers (the paper's Table 1). The shift may begin
+mid-episode: with ``onset_step=N`` the first N ``step()`` calls of every episode run the default
+physics and the rest the shifted physics, so one episode holds in-distribution steps and then
+OOD steps. Every ``info`` (from ``reset`` and ``step``) has ``info["shifted"]``: whether the
+observation returned came from the shifted world.
+
+Observation and action spaces are those of the default env, so one trained agent acts in every
+variant. For Pendulum this is a deliberate choice: ``max_speed`` and ``max_torque`` change where
+the physics clips (the angular velocity, the applied torque), not the spaces. A policy trained
+on the default env commands torques in [-2, 2]; a smaller ``max_torque`` clips them (a weak
+actuator), a larger one changes nothing the policy can reach. A larger ``max_speed`` lets the
+observed angular velocity leave the default space's [-8, 8]: that out-of-range reading is part
+of the shift a monitor should see.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+from gymnasium.envs.classic_control.cartpole import CartPoleEnv
+from gymnasium.envs.classic_control.pendulum import PendulumEnv
+
+from oodmon.envs.checks import check_onset_step, check_physics
+
+__all__ = ["CARTPOLE_DEFAULTS", "PENDULUM_DEFAULTS", "ShiftedCartPole", "ShiftedPendulum"]
+
+#: CartPole's physics parameters and their defaults (gymnasium's CartPole-v1). ``length`` is
+#: half the pole's length, in metres; masses in kg; gravity in m/s^2; force_mag in newtons.
+CARTPOLE_DEFAULTS: dict[str, float] = {
+    "gravity": 9.8,
+    "masscart": 1.0,
+    "masspole": 0.1,
+    "length": 0.5,
+    "force_mag": 10.0,
+}
+
+#: Pendulum's physics parameters and their defaults (gymnasium's Pendulum-v1): gravity g in
+#: m/s^2, mass m in kg, length l in m, max_speed in rad/s, max_torque in N m.
+PENDULUM_DEFAULTS: dict[str, float] = {
+    "g": 10.0,
+    "m": 1.0,
+    "l": 1.0,
+    "max_speed": 8.0,
+    "max_torque": 2.0,
+}
+
+
+class _ShiftPhysics:
+    """Switches an env's physics attributes from the defaults to the shifted values at the onset.
+
+    Subclasses set ``ENV_ID`` and ``DEFAULTS`` and may override :meth:`_derive` to recompute
+    quantities that the parent env computes once from the parameters.
+    """
+
+    ENV_ID: ClassVar[str]
+    DEFAULTS: ClassVar[Mapping[str, float]]
+
+    def _init_shift(self, physics: Mapping[str, object], onset_step: int) -> None:
+        self.onset_step = check_onset_step(self.ENV_ID, onset_step)
+        self.shifted_physics = check_physics(self.ENV_ID, self.DEFAULTS, physics)
+        self._steps = 0
+        self._shift_active = False
+        self._set_physics(shifted=onset_step == 0)
+
+    def _set_physics(self, shifted: bool) -> None:
+        values = self.shifted_physics if shifted else self.DEFAULTS
+        for name, value in values.items():
+            setattr(self, name, value)
+        self._derive()
+        self._shift_active = shifted
+
+    def _derive(self) -> None:
+        """Recompute quantities the parent env derives from the physics parameters."""
+
+    def _begin_episode(self, info: dict[str, Any]) -> dict[str, Any]:
+        self._steps = 0
+        self._set_physics(shifted=self.onset_step == 0)
+        info["shifted"] = self._shift_active
+        return info
+
+    def _begin_step(self) -> None:
+        if not self._shift_active and self._steps >= self.onset_step:
+            self._set_physics(shifted=True)
+        self._steps += 1
+
+
+class ShiftedCartPole(_ShiftPhysics, CartPoleEnv):
+    """CartPole-v1 with other gravity, masses, pole length or push force.
+
+    Registered as ``oodmon/CartPole-v1`` (500 steps per episode). ``total_mass`` and
+    ``polemass_length`` follow the parameters, so every change really changes the dynamics.
+
+    Args:
+        gravity: m/s^2, default 9.8.
+        masscart: kg, default 1.0.
+        masspole: kg, default 0.1.
+        length: half the pole's length in m, default 0.5.
+        force_mag: the push of each action in N, default 10.0.
+        onset_step: index of the first ``step()`` of each episode that runs the shifted physics.
+        render_mode: as in gymnasium's CartPole.
+
+    Raises:
+        UnknownParameterError: a parameter CartPole does not have.
+        InvalidParameterError: a value that is not a finite number > 0, or a negative onset.
+
+    Example:
+        >>> import gymnasium, oodmon
+        >>> env = gymnasium.make("oodmon/CartPole-v1", length=2.0, onset_step=10)
+        >>> obs, info = env.reset(seed=0)
+        >>> info["shifted"], env.unwrapped.length
+        (False, 0.5)
+        >>> for i in range(11):  # step indices 0..9 run the default physics, 10 the shifted one
+        ...     obs, reward, terminated, truncated, info = env.step(i % 2)
+        >>> info["shifted"], env.unwrapped.length
+        (True, 2.0)
+    """
+
+    ENV_ID = "oodmon/CartPole-v1"
+    DEFAULTS = CARTPOLE_DEFAULTS
+
+    def __init__(self, *, onset_step: int = 0, render_mode: str | None = None, **physics: float) -> None:
+        CartPoleEnv.__init__(self, render_mode=render_mode)
+        self._init_shift(physics, onset_step)
+
+    def _derive(self) -> None:
+        self.total_mass = self.masspole + self.masscart
+        self.polemass_length = self.masspole * self.length
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = super().reset(seed=seed, options=options)
+        return obs, self._begin_episode(info)
+
+    def step(self, action):
+        self._begin_step()
+        obs, reward, terminated, truncated, info = super().step(action)
+        info["shifted"] = self._shift_active
+        return obs, reward, terminated, truncated, info
+
+
+class ShiftedPendulum(_ShiftPhysics, PendulumEnv):
+    """Pendulum-v1 with other gravity, mass, length, speed limit or torque limit.
+
+    Registered as ``oodmon/Pendulum-v1`` (200 steps per episode). The spaces stay those of the
+    default env; see the module docstring for what that means for ``max_speed`` and
+    ``max_torque``.
+
+    Args:
+        g: gravity in m/s^2, default 10.0.
+        m: the pole's mass in kg, default 1.0.
+        l: the pole's length in m, default 1.0.
+        max_speed: the angular velocity's clip in rad/s, default 8.0.
+        max_torque: the applied torque's clip in N m, default 2.0.
+        onset_step: index of the first ``step()`` of each episode that runs the shifted physics.
+        render_mode: as in gymnasium's Pendulum.
+
+    Raises:
+        UnknownParameterError: a parameter Pendulum does not have.
+        InvalidParameterError: a value that is not a finite number > 0, or a negative onset.
+
+    Example:
+        >>> import gymnasium, oodmon
+        >>> env = gymnasium.make("oodmon/Pendulum-v1", g=50)
+        >>> obs, info = env.reset(seed=0)
+        >>> info["shifted"], env.unwrapped.g, env.action_space.high.tolist()
+        (True, 50.0, [2.0])
+    """
+
+    ENV_ID = "oodmon/Pendulum-v1"
+    DEFAULTS = PENDULUM_DEFAULTS
+
+    def __init__(self, *, onset_step: int = 0, render_mode: str | None = None, **physics: float) -> None:
+        PendulumEnv.__init__(self, render_mode=render_mode)
+        self._init_shift(physics, onset_step)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = super().reset(seed=seed, options=options)
+        return obs, self._begin_episode(info)
+
+    def step(self, u):
+        self._begin_step()
+        obs, reward, terminated, truncated, info = super().step(u)
+        info["shifted"] = self._shift_active
+        return obs, reward, terminated, truncated, info

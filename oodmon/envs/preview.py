@@ -1,0 +1,154 @@
+"""Pictures of what a variant changes: Pong frames side by side, physics traces of an episode.
+
+``oodmon envs show SPEC --out FILE.png`` writes them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from oodmon.envs.grid import Variant
+from oodmon.envs.reference import REFERENCE_CONTROLLERS, Rollout, rollout
+
+__all__ = ["PhysicsComparison", "compare_physics", "pong_preview", "save_physics_plot", "save_rgb"]
+
+_LABEL_HEIGHT = 22
+
+
+def pong_preview(variant: Variant, *, seed: int = 0, steps: int = 60) -> np.ndarray:
+    """An RGB image of Pong's clean and corrupted frame, raw and as the agent sees them.
+
+    The ID env and the variant run side by side from the same seed with the same random
+    actions, so the two frames show the same moment of the game. Top row: the raw 210x160
+    frames (scaled 2x); bottom row: the newest 84x84 frame of the agent's observation.
+
+    Example:
+        >>> from oodmon.envs import parse_variant
+        >>> pong_preview(parse_variant("pong:pixelate@3"), steps=5).shape
+        (784, 640, 3)
+    """
+    clean_env = Variant("pong").make()
+    shifted_env = variant.make()
+    actions = np.random.default_rng(seed)
+    try:
+        clean_obs, _ = clean_env.reset(seed=seed)
+        shifted_obs, _ = shifted_env.reset(seed=seed)
+        for _ in range(steps):
+            action = int(actions.integers(clean_env.action_space.n))
+            clean_obs, *_ = clean_env.step(action)
+            shifted_obs, *_ = shifted_env.step(action)
+        raw = [clean_env.unwrapped.last_observed_frame, shifted_env.unwrapped.last_observed_frame]
+    finally:
+        clean_env.close()
+        shifted_env.close()
+    name = variant.spec
+    top = [_labelled(_scale(f, 2), title) for f, title in zip(raw, ["clean camera", name])]
+    width = top[0].shape[1]
+    bottom = [
+        _labelled(_scale(cv2.cvtColor(obs[-1], cv2.COLOR_GRAY2RGB), width / obs.shape[-1]), title)
+        for obs, title in zip([clean_obs, shifted_obs], ["agent's view, clean", "agent's view, corrupted"])
+    ]
+    return np.vstack([np.hstack(top), np.hstack(bottom)])
+
+
+def _scale(image: np.ndarray, factor: float) -> np.ndarray:
+    height, width = image.shape[:2]
+    size = (round(width * factor), round(height * factor))
+    return cv2.resize(image, size, interpolation=cv2.INTER_NEAREST)
+
+
+def _labelled(image: np.ndarray, text: str) -> np.ndarray:
+    strip = np.full((_LABEL_HEIGHT, image.shape[1], 3), 255, np.uint8)
+    cv2.putText(strip, text, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.vstack([strip, image])
+
+
+def save_rgb(image: np.ndarray, path: str | Path) -> Path:
+    """Write an RGB uint8 image as PNG, creating the folder; return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+        raise OSError(f"could not write an image to {path}")
+    return path
+
+
+@dataclass(frozen=True)
+class PhysicsComparison:
+    """Episodes of the reference controller in the ID env and in a variant, seed by seed."""
+
+    variant: Variant
+    onset_step: int
+    id_rollouts: list[Rollout]
+    shifted_rollouts: list[Rollout]
+
+    @property
+    def id_return(self) -> float:
+        """Mean return over the ID episodes."""
+        return float(np.mean([r.total_return for r in self.id_rollouts]))
+
+    @property
+    def shifted_return(self) -> float:
+        """Mean return over the variant's episodes."""
+        return float(np.mean([r.total_return for r in self.shifted_rollouts]))
+
+
+def compare_physics(variant: Variant, *, seeds: range = range(5), onset_step: int = 0) -> PhysicsComparison:
+    """Run the task's reference controller in the ID env and in ``variant`` from the same seeds.
+
+    Example:
+        >>> from oodmon.envs import parse_variant
+        >>> c = compare_physics(parse_variant("cartpole:length=2.0"), seeds=range(2))
+        >>> c.id_return, c.shifted_return < 100
+        (500.0, True)
+    """
+    controller = REFERENCE_CONTROLLERS[variant.task]
+    runs = []
+    for v, onset in ((Variant(variant.task), 0), (variant, onset_step)):
+        env = v.make(onset_step=onset)
+        runs.append([rollout(env, controller, seed) for seed in seeds])
+        env.close()
+    return PhysicsComparison(variant, onset_step, runs[0], runs[1])
+
+
+def _angle(task: str, observations: np.ndarray) -> np.ndarray:
+    """The pole's angle in degrees from upright."""
+    if task == "cartpole":
+        return np.degrees(observations[:, 2])
+    return np.degrees(np.arctan2(observations[:, 1], observations[:, 0]))
+
+
+def save_physics_plot(comparison: PhysicsComparison, path: str | Path) -> Path:
+    """Plot the pole's angle over the first episode, ID beside the variant, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    task = comparison.variant.task
+    fig, ax = plt.subplots(figsize=(8, 3.5), dpi=110)
+    for runs, label, colour in (
+        (comparison.id_rollouts, f"{task} (ID)", "tab:blue"),
+        (comparison.shifted_rollouts, comparison.variant.spec, "tab:red"),
+    ):
+        ax.plot(_angle(task, runs[0].observations), color=colour, label=f"{label}: return {runs[0].total_return:.0f}")
+    if comparison.onset_step:
+        ax.axvline(comparison.onset_step, color="grey", linestyle="--", label="onset")
+    if task == "cartpole":
+        limit = math.degrees(12 * 2 * math.pi / 360)
+        for sign in (-1, 1):
+            ax.axhline(sign * limit, color="black", linewidth=0.5)
+    ax.set_xlabel("step")
+    ax.set_ylabel("pole angle from upright (deg)")
+    ax.set_title(f"reference controller, first episode: {comparison.variant.spec}")
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path

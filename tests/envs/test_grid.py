@@ -1,0 +1,88 @@
+"""The paper's grid as data, and spec strings that parse back exactly."""
+
+from __future__ import annotations
+
+import pytest
+
+from oodmon.envs import TASKS, Variant, paper_grid, parse_variant
+from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
+
+ALL_VARIANTS = [v for task in TASKS for v in paper_grid(task)]
+
+
+def test_grid_sizes_are_the_papers():
+    assert {task: len(paper_grid(task)) for task in TASKS} == {"cartpole": 90, "pendulum": 40, "pong": 20}
+    assert len(set(ALL_VARIANTS)) == 150  # all different
+    assert not any(v.is_id for v in ALL_VARIANTS)
+
+
+def test_grid_holds_the_papers_values():
+    lengths = [v.params[0][1] for v in paper_grid("cartpole") if v.params[0][0] == "length"]
+    assert lengths[:2] == [0.05, 0.0556] and lengths[-1] == 5.0 and len(lengths) == 18
+    assert [v.spec for v in paper_grid("pendulum")][:3] == ["pendulum:g=0.5", "pendulum:g=1.0", "pendulum:g=2.0"]
+    assert [v.spec for v in paper_grid("pong")][-5:] == [f"pong:pixelate@{s}" for s in range(1, 6)]
+
+
+@pytest.mark.parametrize("variant", ALL_VARIANTS, ids=str)
+def test_every_spec_parses_back_to_its_variant(variant):
+    assert parse_variant(variant.spec) == variant
+    assert parse_variant(variant.spec).spec == variant.spec
+
+
+@pytest.mark.parametrize(
+    "text, spec, kwargs",
+    [
+        ("cartpole", "cartpole", {}),
+        ("cartpole:length=2.0", "cartpole:length=2.0", {"length": 2.0}),
+        ("cartpole:length=2", "cartpole:length=2.0", {"length": 2.0}),
+        ("pendulum:g=50", "pendulum:g=50.0", {"g": 50.0}),
+        ("cartpole:length=2.0,gravity=20", "cartpole:gravity=20.0,length=2.0", {"gravity": 20.0, "length": 2.0}),
+        ("pong:motion_blur@3", "pong:motion_blur@3", {"corruption": "motion_blur", "severity": 3}),
+        ("pong:motion_blur:radius=15,sigma=8", "pong:motion_blur:radius=15,sigma=8.0",
+         {"corruption": "motion_blur", "radius": 15, "sigma": 8.0}),
+        ("pong:gaussian_noise:sigma=1e-1", "pong:gaussian_noise:sigma=0.1", {"corruption": "gaussian_noise", "sigma": 0.1}),
+        ("pong", "pong", {}),
+    ],
+)
+def test_spec_strings(text, spec, kwargs):
+    variant = parse_variant(text)
+    assert variant.spec == spec and variant.kwargs() == kwargs
+    assert parse_variant(spec) == variant
+
+
+def test_variant_makes_its_env_with_an_onset():
+    env = parse_variant("cartpole:masspole=0.5").make(onset_step=7)
+    assert env.unwrapped.onset_step == 7 and env.unwrapped.shifted_physics["masspole"] == 0.5
+    assert parse_variant("cartpole").is_id and parse_variant("pong").is_id
+
+
+@pytest.mark.parametrize(
+    "text, error, words",
+    [
+        ("cartpole:length", SpecError, "malformed variant spec 'cartpole:length' at 'length': expected TASK"),
+        ("cartpole:length=two", SpecError, "malformed variant spec 'cartpole:length=two'"),
+        ("", SpecError, "malformed variant spec '': expected TASK"),
+        ("cartpole:length=1,length=2", SpecError, "sets 'length' twice"),
+        ("pong:pixelate@x", SpecError, "severity 'x' is not an integer from 1 to 5"),
+        ("pong:pixelate", SpecError, "malformed variant spec 'pong:pixelate'"),
+        ("cartpole:pixelate@3", SpecError, "malformed variant spec 'cartpole:pixelate@3'"),
+        ("hopper:g=1", UnknownParameterError, "unknown task 'hopper'; choose one of cartpole, pendulum, pong"),
+        ("cartpole:lenght=2", UnknownParameterError, "oodmon/CartPole-v1 has no parameter 'lenght'"),
+        ("cartpole:masscart=0", InvalidParameterError, "masscart=0.0 is not allowed"),
+        ("pendulum:l=-2", InvalidParameterError, "l=-2.0 is not allowed"),
+        ("pong:fog@2", UnknownParameterError, "unknown corruption 'fog'"),
+        ("pong:pixelate@6", InvalidParameterError, "severity=6 is not allowed"),
+        ("pong:pixelate:sigma=0.1", UnknownParameterError, "pixelate has no parameter 'sigma'"),
+    ],
+)
+def test_bad_specs_are_named(text, error, words):
+    with pytest.raises(error) as raised:
+        parse_variant(text)
+    assert words in str(raised.value)
+
+
+def test_variant_refuses_corruptions_on_physics_tasks():
+    with pytest.raises(SpecError, match="cartpole variants change physics, not frames"):
+        Variant("cartpole", corruption="pixelate", severity=2)
+    with pytest.raises(UnknownParameterError, match="unknown task 'walker'"):
+        paper_grid("walker")

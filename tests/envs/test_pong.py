@@ -1,0 +1,134 @@
+"""OOD-Pong: the corruption reaches what the agent sees, from the onset on, reproducibly."""
+
+from __future__ import annotations
+
+import warnings
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import oodmon  # noqa: F401  (registers the envs)
+from oodmon.envs import CorruptedPong, GaussianNoise, paper_grid, parse_variant, to_agent_view
+from oodmon.errors import InvalidParameterError, UnknownParameterError
+
+SAMPLE = ["pong", "pong:gaussian_noise@5", "pong:impulse_noise@1", "pong:motion_blur@3", "pong:pixelate@4"]
+
+
+def _play(env: gymnasium.Env, seed: int, steps: int) -> tuple[list[np.ndarray], list[dict]]:
+    actions = np.random.default_rng(123)
+    obs, info = env.reset(seed=seed)
+    observations, infos = [obs], [info]
+    for _ in range(steps):
+        obs, _, terminated, truncated, info = env.step(int(actions.integers(6)))
+        observations.append(obs)
+        infos.append(info)
+        assert not (terminated or truncated)
+    return observations, infos
+
+
+@pytest.mark.parametrize("spec", SAMPLE)
+def test_a_sample_of_pong_variants_passes_the_env_checker(spec):
+    env = parse_variant(spec).make()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env.unwrapped, skip_render_check=True)
+    assert env.observation_space.shape == (4, 84, 84) and env.observation_space.dtype == np.uint8
+    assert env.action_space.n == 6
+
+
+def test_the_grid_has_twenty_pong_variants_that_all_make():
+    grid = paper_grid("pong")
+    assert len(grid) == 20
+    for variant in grid:
+        env = variant.make()
+        assert env.unwrapped.corruption.name == variant.corruption
+        env.close()
+
+
+@pytest.mark.parametrize("spec", SAMPLE[1:])
+def test_corruption_reaches_the_observation_but_not_the_game(spec):
+    clean_obs, _ = _play(parse_variant("pong").make(), seed=5, steps=30)
+    env = parse_variant(spec).make()
+    corrupt_obs, infos = _play(env, seed=5, steps=30)
+    assert all(info["shifted"] for info in infos)
+    assert all(np.abs(c.astype(int) - o).mean() > 0.05 for c, o in zip(clean_obs, corrupt_obs))
+    # The game itself is untouched: the clean camera frame is the ID env's frame.
+    id_env = parse_variant("pong").make()
+    _play(id_env, seed=5, steps=30)
+    np.testing.assert_array_equal(env.unwrapped.last_clean_frame, id_env.unwrapped.last_observed_frame)
+    assert not np.array_equal(env.unwrapped.last_observed_frame, env.unwrapped.last_clean_frame)
+
+
+def test_observation_is_the_preprocessed_corrupted_camera_frame():
+    env = CorruptedPong(corruption=GaussianNoise(0.3))
+    obs, _ = env.reset(seed=0)
+    obs, *_ = env.step(0)
+    # The newest frame of the stack is the agent's view of the corrupted frame (max-pooled with
+    # the frame before it, so at least as bright).
+    single = to_agent_view([env.last_observed_frame])
+    assert np.all(obs[-1].astype(int) >= single.astype(int) - 1)
+    # Noise roughens the frame: neighbouring pixels differ far more than in the clean view.
+    def roughness(image):
+        return np.abs(np.diff(image.astype(int), axis=1)).mean()
+
+    assert roughness(obs[-1]) > 3 * roughness(to_agent_view([env.last_clean_frame]))
+
+
+def test_same_seed_same_frames_other_seed_other_noise():
+    first, _ = _play(parse_variant("pong:gaussian_noise@2").make(), seed=11, steps=10)
+    again, _ = _play(parse_variant("pong:gaussian_noise@2").make(), seed=11, steps=10)
+    other, _ = _play(parse_variant("pong:gaussian_noise@2").make(), seed=12, steps=10)
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+    assert all(not np.array_equal(a, c) for a, c in zip(first, other))
+
+
+def test_onset_mid_episode_corrupts_from_that_step_on():
+    onset = 8
+    clean, _ = _play(parse_variant("pong").make(), seed=2, steps=15)
+    shifted, infos = _play(parse_variant("pong:impulse_noise@5").make(onset_step=onset), seed=2, steps=15)
+    flags = [info["shifted"] for info in infos]  # infos[0] is reset's
+    assert flags == [False] * (onset + 1) + [True] * (15 - onset)
+    for k in range(onset + 1):
+        np.testing.assert_array_equal(shifted[k], clean[k])
+    for k in range(onset + 1, 16):
+        # The newest frame is corrupted; older frames in the stack stay as they were seen.
+        assert not np.array_equal(shifted[k][-1], clean[k][-1])
+    np.testing.assert_array_equal(shifted[onset + 1][:-1], clean[onset + 1][:-1])
+
+
+def test_explicit_parameters_and_objects_make_the_same_env():
+    by_severity = gymnasium.make("oodmon/Pong-v5", corruption="motion_blur", severity=3)
+    by_params = gymnasium.make("oodmon/Pong-v5", corruption="motion_blur", radius=15, sigma=8)
+    assert by_severity.unwrapped.corruption == by_params.unwrapped.corruption
+
+
+def test_render_returns_the_raw_observed_frame():
+    env = gymnasium.make("oodmon/Pong-v5", corruption="pixelate", severity=5, render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (210, 160, 3) and frame.dtype == np.uint8
+    np.testing.assert_array_equal(frame, env.unwrapped.last_observed_frame)
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, words",
+    [
+        ({"corruption": "fog", "severity": 1}, UnknownParameterError, "unknown corruption 'fog'; choose one of"),
+        ({"corruption": "pixelate", "severity": 7}, InvalidParameterError,
+         "severity=7 is not allowed; severity must be an integer from 1 to 5"),
+        ({"severity": 3}, InvalidParameterError, "severity and corruption parameters need a corruption"),
+        ({"corruption": "pixelate", "sigma": 0.2}, UnknownParameterError, "pixelate has no parameter 'sigma'"),
+        ({"corruption": GaussianNoise(0.1), "severity": 2}, InvalidParameterError,
+         "a Corruption object carries its own parameters"),
+        ({"onset_step": -3}, InvalidParameterError, "onset_step=-3 is not allowed"),
+        ({"render_mode": "ansi"}, InvalidParameterError, "render_mode='ansi' is not allowed"),
+    ],
+)
+@pytest.mark.filterwarnings("ignore:.*not in the possible render_modes")
+def test_bad_pong_input_is_named(kwargs, error, words):
+    with pytest.raises(error) as raised:
+        gymnasium.make("oodmon/Pong-v5", **kwargs)
+    assert words in str(raised.value)

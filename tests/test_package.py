@@ -1,0 +1,52 @@
+"""The package's public surface: four parts under one import name, each with a complete __all__."""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import subprocess
+import sys
+
+import gymnasium
+import pytest
+
+import oodmon
+
+PARTS = ["oodmon.envs", "oodmon.agents", "oodmon.monitor", "oodmon.replay"]
+
+
+@pytest.mark.parametrize("name", PARTS + ["oodmon", "oodmon.errors"])
+def test_all_is_complete_and_importable(name):
+    module = importlib.import_module(name)
+    public = {
+        attr for attr, value in vars(module).items()
+        if not attr.startswith("_") and not inspect.ismodule(value)
+        and getattr(value, "__module__", name).startswith("oodmon")
+        and attr not in {"annotations"}
+    }
+    assert public <= set(module.__all__), f"missing from {name}.__all__: {public - set(module.__all__)}"
+    for attr in module.__all__:
+        assert hasattr(module, attr)
+
+
+def test_import_oodmon_registers_the_envs_in_a_fresh_interpreter():
+    code = (
+        "import oodmon, gymnasium; "
+        "env = gymnasium.make('oodmon/CartPole-v1', length=2.0); "
+        "print(env.unwrapped.length, env.spec.max_episode_steps)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["2.0", "500"]
+
+
+def test_registered_ids():
+    for env_id in ("oodmon/CartPole-v1", "oodmon/Pendulum-v1", "oodmon/Pong-v5"):
+        assert env_id in gymnasium.registry
+    assert gymnasium.registry["oodmon/Pendulum-v1"].max_episode_steps == 200
+    assert oodmon.envs.register_envs() is None  # registering twice is harmless
+
+
+def test_import_oodmon_does_not_load_the_heavy_parts():
+    code = "import sys, oodmon; print(sorted(m for m in ('torch', 'rerun', 'ale_py', 'stable_baselines3') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
