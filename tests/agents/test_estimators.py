@@ -1,0 +1,129 @@
+"""Estimators: shapes, batched equals member by member, MC samples differ, modes restored, seeds."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from oodmon.agents.estimators import EnsembleEstimator, MCEstimator
+from oodmon.agents.layers import DropConnectLinear, add_dropout, mc_sampling, to_dropconnect
+from oodmon.errors import ConfigError, InvalidParameterError
+
+OBS = np.random.default_rng(0).normal(size=(7, 4)).astype(np.float32)
+
+
+def _mlp(seed: int, out: int = 2, tanh: bool = False) -> nn.Sequential:
+    torch.manual_seed(seed)
+    layers = [nn.Linear(4, 32), nn.ReLU(), nn.Linear(32, 32), nn.ReLU(), nn.Linear(32, out)]
+    return nn.Sequential(*layers, *([nn.Tanh()] if tanh else []))
+
+
+def _mc(method: str, **kwargs) -> MCEstimator:
+    transform = add_dropout if method == "dropout" else to_dropconnect
+    return MCEstimator(transform(_mlp(0), 0.2), **kwargs)
+
+
+@pytest.mark.parametrize("method", ["dropout", "dropconnect"])
+def test_mc_shapes_and_greedy_action_of_the_mean(method):
+    estimate = _mc(method, n_samples=20, seed=1).estimate(OBS)
+    assert estimate.samples.shape == (20, 7, 2)
+    assert estimate.mean.shape == estimate.std.shape == (7, 2)
+    np.testing.assert_allclose(estimate.mean, estimate.samples.mean(axis=0), rtol=1e-6)
+    np.testing.assert_allclose(estimate.std, estimate.samples.std(axis=0), rtol=1e-5, atol=1e-7)
+    np.testing.assert_array_equal(estimate.action, estimate.mean.argmax(axis=1))
+    # The K samples differ from one another: they are samples, not copies.
+    assert len({s.tobytes() for s in estimate.samples}) == 20
+    assert (estimate.std > 0).all()
+
+
+@pytest.mark.parametrize("method", ["dropout", "dropconnect"])
+def test_seeded_sampling_is_reproducible_and_leaves_the_global_generator_alone(method):
+    first, again, other = _mc(method, seed=7), _mc(method, seed=7), _mc(method, seed=8)
+    torch.manual_seed(123)
+    before = torch.get_rng_state()
+    a = first.estimate(OBS).samples
+    assert torch.equal(torch.get_rng_state(), before)
+    b, c = again.estimate(OBS).samples, other.estimate(OBS).samples
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+@pytest.mark.parametrize("method", ["dropout", "dropconnect"])
+@pytest.mark.parametrize("start_mode", [True, False], ids=["train", "eval"])
+def test_model_mode_is_restored_also_after_an_exception(method, start_mode):
+    estimator = _mc(method, seed=0)
+    net = estimator.network.train(start_mode)
+    estimator.estimate(OBS)
+    assert all(m.training == start_mode for m in net.modules())
+    with pytest.raises(RuntimeError):
+        estimator.estimate(np.zeros((3, 5), np.float32))  # wrong width: fails inside sampling
+    assert all(m.training == start_mode for m in net.modules())
+
+
+def test_mc_sampling_turns_on_only_the_stochastic_layers():
+    net = add_dropout(_mlp(0), 0.3).eval()
+    with mc_sampling(net):
+        assert [m.training for m in net] == [False, False, True, False, False, True, False]
+
+
+def test_dropconnect_drops_weights_not_activations():
+    torch.manual_seed(0)
+    layer = DropConnectLinear(50, 40, p=0.3, bias=False)
+    x = torch.eye(50).unsqueeze(0).expand(10, 50, 50)  # row i of the output reads weight column i
+    with torch.no_grad():
+        out = layer.train()(x)  # (10 samples, 50, 40)
+    effective = out.transpose(1, 2)  # (10, 40, 50): the weights each sample used
+    kept = effective != 0
+    assert kept.float().mean().item() == pytest.approx(0.7, abs=0.02)
+    # Kept weights are the layer's weights scaled by 1/(1-p); dropped ones are exactly zero.
+    torch.testing.assert_close(effective[kept], (layer.weight / 0.7).expand(10, 40, 50)[kept])
+    # Each sample has its own mask, and an activation is not dropped as a whole: every output
+    # unit of every sample still reads most of its inputs.
+    assert not torch.equal(kept[0], kept[1])
+    assert (kept.sum(dim=2) > 20).all()
+    layer.eval()
+    with torch.no_grad():
+        torch.testing.assert_close(layer(torch.eye(50)), layer.weight.T)
+
+
+def test_batched_ensemble_equals_member_by_member():
+    members = [_mlp(seed) for seed in range(5)]
+    estimate = EnsembleEstimator(members).estimate(OBS)
+    with torch.no_grad():
+        expected = np.stack([m(torch.as_tensor(OBS)).numpy() for m in members])
+    np.testing.assert_allclose(estimate.samples, expected, atol=1e-6, rtol=0)
+    np.testing.assert_array_equal(estimate.action, expected.mean(axis=0).argmax(axis=1))
+
+
+def test_actions_are_scaled_to_the_action_space_and_the_mean_is_deployed():
+    members = [_mlp(seed, out=1, tanh=True) for seed in range(5)]
+    estimate = EnsembleEstimator(members, kind="actions", action_low=[-2.0], action_high=[2.0]).estimate(OBS)
+    with torch.no_grad():
+        expected = 2.0 * np.stack([m(torch.as_tensor(OBS)).numpy() for m in members])
+    np.testing.assert_allclose(estimate.samples, expected, atol=1e-6)
+    np.testing.assert_allclose(estimate.action, expected.mean(axis=0), atol=1e-6)
+    assert np.abs(estimate.samples).max() <= 2.0
+
+
+def test_single_observation_is_a_batch_of_one():
+    estimate = EnsembleEstimator([_mlp(s) for s in range(3)]).estimate(OBS[0])
+    assert estimate.samples.shape == (3, 1, 2) and estimate.action.shape == (1,)
+
+
+def test_estimator_errors_name_the_problem():
+    with pytest.raises(ConfigError, match="has no dropout or DropConnect layer"):
+        MCEstimator(_mlp(0))
+    with pytest.raises(InvalidParameterError, match="n_samples=1 is not allowed"):
+        MCEstimator(add_dropout(_mlp(0), 0.1), n_samples=1)
+    with pytest.raises(ConfigError, match="at least 2 members; got 1"):
+        EnsembleEstimator([_mlp(0)])
+    with pytest.raises(ConfigError, match="member 1 has another architecture than member 0"):
+        EnsembleEstimator([_mlp(0), _mlp(1, out=3)])
+    with pytest.raises(ConfigError, match="needs action_low and action_high"):
+        EnsembleEstimator([_mlp(0), _mlp(1)], kind="actions")
+    with pytest.raises(InvalidParameterError, match="kind='values' is not allowed"):
+        EnsembleEstimator([_mlp(0), _mlp(1)], kind="values")
+    with pytest.raises(InvalidParameterError, match=r"drop probability p=1.0 is not allowed; it must satisfy 0 < p < 1"):
+        add_dropout(_mlp(0), 1.0)
