@@ -43,15 +43,15 @@ def main() -> None:
     heads = [m.policy.q_net.q_net for m in members]
     plain = members[0]
 
+    ensemble = EnsembleEstimator(heads)
+    dropout = MCEstimator(add_dropout(nn.Sequential(*heads[0]), 0.1), n_samples=20)
+    dropconnect = MCEstimator(to_dropconnect(nn.Sequential(*heads[0]), 0.1), n_samples=20)
     figures = {
         "sb3 predict (one member)": per_call_us(lambda: plain.predict(obs, deterministic=True)),
+        "ensemble K=5": per_call_us(lambda: ensemble.estimate(obs)),
+        "mc dropout K=20": per_call_us(lambda: dropout.estimate(obs)),
+        "mc dropconnect K=20": per_call_us(lambda: dropconnect.estimate(obs), REPEATS // 20),
     }
-    ensemble = EnsembleEstimator(heads)
-    figures["ensemble K=5"] = per_call_us(lambda: ensemble.estimate(obs))
-    for name, transform in (("mc dropout K=20", add_dropout), ("mc dropconnect K=20", to_dropconnect)):
-        estimator = MCEstimator(transform(nn.Sequential(*heads[0]), 0.1), n_samples=20)
-        repeats = REPEATS if "dropout" in name else REPEATS // 20
-        figures[name] = per_call_us(lambda: estimator.estimate(obs), repeats)
     for name, us in figures.items():
         print(f"{name:28s} {us:10.1f} us")
     baseline = figures.pop("sb3 predict (one member)")

@@ -18,6 +18,7 @@ Two ways to get the K samples:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass
 from typing import Literal
 
@@ -142,11 +143,10 @@ class MCEstimator(UncertaintyEstimator):
 
     def _sample(self, features: torch.Tensor) -> torch.Tensor:
         repeated = features.unsqueeze(0).expand(self.n_samples, *features.shape)
-        if self._rng is None:
-            with mc_sampling(self.network):
-                return self.network(repeated)
-        with torch.random.fork_rng(devices=[]), mc_sampling(self.network):
-            torch.manual_seed(int(self._rng.integers(2**63)))
+        isolated = nullcontext() if self._rng is None else torch.random.fork_rng(devices=[])
+        with isolated, mc_sampling(self.network):
+            if self._rng is not None:
+                torch.manual_seed(int(self._rng.integers(2**63)))
             return self.network(repeated)
 
 

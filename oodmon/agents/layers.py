@@ -115,15 +115,13 @@ def add_dropout(mlp: nn.Sequential, p: float) -> nn.Sequential:
         )
     """
     p = _check_p(p)
+    modules = list(mlp)
+    last_linear = max(i for i, m in enumerate(modules) if isinstance(m, nn.Linear))
     layers: list[nn.Module] = []
-    linear_seen = 0
-    total_linear = sum(isinstance(m, nn.Linear) for m in mlp)
-    for module in mlp:
+    for index, module in enumerate(modules):
         layers.append(module)
-        if isinstance(module, nn.Linear):
-            linear_seen += 1
-        elif linear_seen < total_linear and not is_stochastic(module) and linear_seen > 0:
-            layers.append(nn.Dropout(p))  # after a hidden layer's activation
+        if index < last_linear and not isinstance(module, nn.Linear):
+            layers.append(nn.Dropout(p))  # after each hidden layer's activation
     return nn.Sequential(*layers)
 
 
