@@ -58,6 +58,16 @@ def _parser() -> argparse.ArgumentParser:
     show.add_argument("--onset", type=int, default=0, help="step at which the shift begins (physics; default 0)")
     show.set_defaults(handler=_envs_show)
 
+    train = commands.add_parser(
+        "train", help="train an uncertainty-aware agent from its recipe (resumes an interrupted run)"
+    )
+    train.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
+    train.add_argument("--method", required=True, choices=["dropout", "dropconnect", "ensemble"])
+    train.add_argument("--seed", type=int, default=0, help="the trial's seed (default 0)")
+    train.add_argument("--out", required=True, help="training directory; the same command resumes it")
+    train.add_argument("--steps", type=int, help="override the recipe's training steps per run")
+    train.set_defaults(handler=_train)
+
     demo = commands.add_parser("demo", help="the main job of 'make demo'")
     demo.add_argument("--out", default="runs/demo", help="folder for the demo's files (default runs/demo)")
     demo.set_defaults(handler=_demo)
@@ -113,6 +123,32 @@ def _envs_show(args: argparse.Namespace) -> int:
     )
     if args.out:
         console.print(f"wrote {save_physics_plot(comparison, args.out)}")
+    return 0
+
+
+def _train(args: argparse.Namespace) -> int:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from oodmon.agents.training import train
+
+    command = "oodmon " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("oodmon") else ""
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TimeRemainingColumn())
+    with Progress(*columns, console=Console(stderr=True)) as progress:
+        bars: dict[str, int] = {}
+
+        def report(run: str, done: int, total: int) -> None:
+            if run not in bars:
+                bars[run] = progress.add_task(f"{args.task}/{args.method} {run}", total=total)
+            progress.update(bars[run], completed=done, total=total)
+
+        agent = train(args.task, args.method, args.out, seed=args.seed, total_steps=args.steps, report=report,
+                      command=command or f"oodmon train --task {args.task} --method {args.method} --seed {args.seed}")
+    meta = agent.metadata
+    Console(soft_wrap=True).print(
+        f"{args.task}/{args.method}: id_return_mean {meta['id_return_mean']} over {meta['id_episodes']} episodes; "
+        f"{sum(meta['training_steps'])} steps in {meta['wall_time_s']} s; saved to {args.out}"
+    )
     return 0
 
 

@@ -10,6 +10,7 @@ The hierarchy::
         ├── UnknownParameterError    a name oodmon does not know (parameter, task, corruption)
         ├── InvalidParameterError    a known name with a value outside what is allowed
         └── SpecError                a variant spec string that does not parse
+    └── ModelFormatError (ValueError)  a model file that is damaged, another task's, or mismatched
 
 ``ConfigError`` derives from ``ValueError`` so that code written against plain Python
 conventions (``except ValueError``) still catches it. None of them derive from ``TypeError``:
@@ -21,6 +22,7 @@ from __future__ import annotations
 __all__ = [
     "ConfigError",
     "InvalidParameterError",
+    "ModelFormatError",
     "OodmonError",
     "SpecError",
     "UnknownParameterError",
@@ -61,3 +63,7 @@ class InvalidParameterError(ConfigError):
 
 class SpecError(ConfigError):
     """A variant spec string (``cartpole:length=2.0``, ``pong:pixelate@3``) that does not parse."""
+
+
+class ModelFormatError(OodmonError, ValueError):
+    """A saved model that cannot be loaded: damaged, another task's, or not its own architecture."""

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from oodmon.agents.layers import is_stochastic, mc_sampling
+from oodmon.agents.layers import DropConnectLinear, is_stochastic, mc_sampling
 from oodmon.errors import ConfigError, InvalidParameterError
 
 __all__ = ["EnsembleEstimator", "Estimate", "MCEstimator", "UncertaintyEstimator"]
@@ -53,36 +53,45 @@ class Estimate:
 
 
 class UncertaintyEstimator:
-    """Base of the estimators: features in, :class:`Estimate` out.
+    """Base of the estimators: observations in, :class:`Estimate` out.
 
-    Subclasses implement :meth:`_sample`, which maps features (batch, F) to samples (K, batch, n).
+    Subclasses implement :meth:`_sample`, which maps a float batch of observations
+    (batch, *obs_shape) to samples (K, batch, n).
     """
 
     kind: Kind
     n_samples: int
 
-    def __init__(self, kind: Kind, action_low: Sequence[float] | None = None, action_high: Sequence[float] | None = None) -> None:
+    def __init__(
+        self,
+        kind: Kind,
+        obs_shape: Sequence[int] | None = None,
+        action_low: Sequence[float] | None = None,
+        action_high: Sequence[float] | None = None,
+    ) -> None:
         if kind not in ("q_values", "actions"):
             raise InvalidParameterError(f"kind={kind!r} is not allowed; use 'q_values' (DQN) or 'actions' (DDPG)")
         if kind == "actions" and (action_low is None or action_high is None):
             raise ConfigError("an 'actions' estimator needs action_low and action_high to scale its tanh outputs")
         self.kind = kind
+        self.obs_shape = None if obs_shape is None else tuple(obs_shape)
         if kind == "actions":
             low = torch.as_tensor(action_low, dtype=torch.float32)
             high = torch.as_tensor(action_high, dtype=torch.float32)
             self._scale, self._offset = (high - low) / 2, (high + low) / 2
 
     def estimate(self, obs: np.ndarray | torch.Tensor) -> Estimate:
-        """The deployed action and the K samples for a batch of observations (batch, obs_dim).
+        """The deployed action and the K samples for a batch of observations (batch, *obs_shape).
 
-        A single observation (obs_dim,) is treated as a batch of one.
+        One observation (of ``obs_shape``, or a 1-D vector when no shape was given) is treated as
+        a batch of one.
         """
-        features = torch.as_tensor(obs, dtype=torch.float32)
-        if features.dim() == 1:
-            features = features.unsqueeze(0)
-        features = features.reshape(features.shape[0], -1)
+        batch = torch.as_tensor(np.asarray(obs)).float()
+        single_dims = len(self.obs_shape) if self.obs_shape is not None else 1
+        if batch.dim() == single_dims:
+            batch = batch.unsqueeze(0)
         with torch.no_grad():
-            samples = self._sample(features)
+            samples = self._sample(batch)
             if self.kind == "actions":
                 samples = samples * self._scale + self._offset
             mean = samples.mean(dim=0)
@@ -90,18 +99,33 @@ class UncertaintyEstimator:
         action = mean.argmax(dim=1) if self.kind == "q_values" else mean
         return Estimate(action.numpy(), samples.numpy(), mean.numpy(), std.numpy())
 
-    def _sample(self, features: torch.Tensor) -> torch.Tensor:
+    def _sample(self, batch: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
+
+
+# Modules that act on each row of a (K, batch, features) tensor as on (batch, features).
+_ROWWISE = (nn.Linear, nn.ReLU, nn.Tanh, nn.LeakyReLU, nn.ELU, nn.GELU, nn.SiLU, nn.Sigmoid, nn.Identity)
+
+
+def _rowwise(module: nn.Module) -> bool:
+    return isinstance(module, _ROWWISE) or is_stochastic(module)
 
 
 class MCEstimator(UncertaintyEstimator):
     """Monte Carlo Dropout or DropConnect over a network with dropout or DropConnect layers.
 
+    For an ``nn.Sequential`` network, the layers before the first stochastic one are
+    deterministic: they run once on the batch, and only the rest runs on the K-fold repeated
+    batch (K, batch, features), which must be linear layers, activations and dropout/DropConnect.
+    Any other network runs on the repeated batch flattened to (K * batch, ...), which suits
+    dropout layers (each row draws its own mask) but not DropConnect (one mask per call).
+
     Args:
-        network: maps features (batch, F), and (K, batch, F), to outputs; for ``kind="actions"``
-            its outputs are in [-1, 1] (a tanh head, as SB3's actors).
+        network: maps observations (batch, *obs_shape) to outputs; for ``kind="actions"`` its
+            outputs are in [-1, 1] (a tanh head, as SB3's actors).
         n_samples: K, the number of MC samples per decision.
         kind: ``"q_values"`` or ``"actions"``.
+        obs_shape: the shape of one observation, to tell one from a batch.
         action_low, action_high: the action space's bounds, for ``kind="actions"``.
         seed: with a seed, the estimator draws from its own generator: the same seed gives the
             same samples and torch's global generator is left alone (this costs about 0.1 ms a
@@ -109,7 +133,8 @@ class MCEstimator(UncertaintyEstimator):
             global generator.
 
     Raises:
-        ConfigError: the network has no dropout or DropConnect layer to sample.
+        ConfigError: the network has no dropout or DropConnect layer to sample, or layers after
+            the first stochastic one that cannot run on a (K, batch, features) tensor.
 
     Example:
         >>> from oodmon.agents.layers import add_dropout
@@ -125,12 +150,14 @@ class MCEstimator(UncertaintyEstimator):
         n_samples: int = 20,
         kind: Kind = "q_values",
         *,
+        obs_shape: Sequence[int] | None = None,
         action_low: Sequence[float] | None = None,
         action_high: Sequence[float] | None = None,
         seed: int | None = None,
     ) -> None:
-        super().__init__(kind, action_low, action_high)
-        if not any(is_stochastic(m) for m in network.modules()):
+        super().__init__(kind, obs_shape, action_low, action_high)
+        stochastic = [m for m in network.modules() if is_stochastic(m)]
+        if not stochastic:
             raise ConfigError(
                 f"{type(network).__name__} has no dropout or DropConnect layer, so MC samples would all be "
                 "equal; add some (oodmon.agents.layers.add_dropout, to_dropconnect) or use an ensemble"
@@ -140,14 +167,35 @@ class MCEstimator(UncertaintyEstimator):
         self.network = network
         self.n_samples = n_samples
         self._rng = None if seed is None else np.random.default_rng(seed)
+        self._prefix: nn.Module | None = None
+        self._suffix: nn.Module | None = None
+        if isinstance(network, nn.Sequential):
+            first = next(i for i, m in enumerate(network) if any(is_stochastic(x) for x in m.modules()))
+            suffix = list(network)[first:]
+            bad = [m for m in suffix if not _rowwise(m)]
+            if bad:
+                raise ConfigError(
+                    f"layers after the first stochastic one must be linear layers, activations and "
+                    f"dropout/DropConnect; found {bad[0]!r}"
+                )
+            self._prefix, self._suffix = network[:first], network[first:]
+        elif any(isinstance(m, DropConnectLinear) for m in stochastic):
+            raise ConfigError(
+                "DropConnect needs an nn.Sequential network (so each sample draws its own weight mask); "
+                f"got a {type(network).__name__}"
+            )
 
-    def _sample(self, features: torch.Tensor) -> torch.Tensor:
-        repeated = features.unsqueeze(0).expand(self.n_samples, *features.shape)
+    def _sample(self, batch: torch.Tensor) -> torch.Tensor:
         isolated = nullcontext() if self._rng is None else torch.random.fork_rng(devices=[])
         with isolated, mc_sampling(self.network):
             if self._rng is not None:
                 torch.manual_seed(int(self._rng.integers(2**63)))
-            return self.network(repeated)
+            if self._suffix is not None:
+                hidden = self._prefix(batch)
+                return self._suffix(hidden.unsqueeze(0).expand(self.n_samples, *hidden.shape))
+            repeated = batch.unsqueeze(0).expand(self.n_samples, *batch.shape)
+            out = self.network(repeated.reshape(-1, *batch.shape[1:]))
+            return out.reshape(self.n_samples, batch.shape[0], -1)
 
 
 class EnsembleEstimator(UncertaintyEstimator):
@@ -156,7 +204,10 @@ class EnsembleEstimator(UncertaintyEstimator):
     Args:
         members: K ``nn.Sequential`` MLPs of identical architecture (linear layers and
             activations; dropout layers are skipped, as at evaluation).
-        kind, action_low, action_high: as :class:`MCEstimator`.
+        kind, obs_shape, action_low, action_high: as :class:`MCEstimator`.
+        torso: a deterministic network shared by the members, run once on the batch; its
+            output (batch, features) feeds every member. The default flattens observations.
+            A shared torso with K heads is a bootstrapped ensemble (Osband et al., 2016).
 
     The weights are copied when the estimator is built: rebuild it after training the members.
 
@@ -174,12 +225,15 @@ class EnsembleEstimator(UncertaintyEstimator):
         members: Sequence[nn.Sequential],
         kind: Kind = "q_values",
         *,
+        torso: nn.Module | None = None,
+        obs_shape: Sequence[int] | None = None,
         action_low: Sequence[float] | None = None,
         action_high: Sequence[float] | None = None,
     ) -> None:
-        super().__init__(kind, action_low, action_high)
+        super().__init__(kind, obs_shape, action_low, action_high)
         if len(members) < 2:
             raise ConfigError(f"an ensemble needs at least 2 members; got {len(members)}")
+        self.torso = (torso if torso is not None else nn.Flatten()).eval()
         layer_lists = [[m for m in member if not is_stochastic(m)] for member in members]
         signature = [_signature(layer) for layer in layer_lists[0]]
         for index, layers in enumerate(layer_lists[1:], start=1):
@@ -202,7 +256,8 @@ class EnsembleEstimator(UncertaintyEstimator):
             else:
                 self._plan.append(layer)
 
-    def _sample(self, features: torch.Tensor) -> torch.Tensor:
+    def _sample(self, batch: torch.Tensor) -> torch.Tensor:
+        features = self.torso(batch)
         hidden = features.unsqueeze(0).expand(self.n_samples, *features.shape)
         for step in self._plan:
             if isinstance(step, tuple):

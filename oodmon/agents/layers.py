@@ -100,8 +100,14 @@ def mc_sampling(network: nn.Module) -> Iterator[nn.Module]:
             module.training = mode
 
 
-def add_dropout(mlp: nn.Sequential, p: float) -> nn.Sequential:
-    """A copy of the layer list of ``mlp`` with ``nn.Dropout(p)`` after each hidden activation.
+def add_dropout(mlp: nn.Sequential, p: float, *, last_only: bool = False) -> nn.Sequential:
+    """A copy of the layer list of ``mlp`` with ``nn.Dropout(p)`` after hidden activations.
+
+    Args:
+        mlp: linear layers and activations, ending with the output layer (and maybe a tanh).
+        p: dropout probability, 0 < p < 1.
+        last_only: dropout only before the output layer, so that everything before it is
+            deterministic and MC sampling computes it once; otherwise after every hidden layer.
 
     The layers are shared, not copied: training the result trains ``mlp``'s parameters.
 
@@ -116,17 +122,26 @@ def add_dropout(mlp: nn.Sequential, p: float) -> nn.Sequential:
     """
     p = _check_p(p)
     modules = list(mlp)
-    last_linear = max(i for i, m in enumerate(modules) if isinstance(m, nn.Linear))
+    linears = [i for i, m in enumerate(modules) if isinstance(m, nn.Linear)]
+    first = linears[-2] if last_only and len(linears) > 1 else 0
     layers: list[nn.Module] = []
     for index, module in enumerate(modules):
         layers.append(module)
-        if index < last_linear and not isinstance(module, nn.Linear):
-            layers.append(nn.Dropout(p))  # after each hidden layer's activation
+        if first < index < linears[-1] and not isinstance(module, nn.Linear):
+            layers.append(nn.Dropout(p))  # after a hidden layer's activation
+    if last_only and len(linears) == 1:  # no hidden layer in the MLP: drop its inputs
+        layers.insert(linears[0], nn.Dropout(p))
     return nn.Sequential(*layers)
 
 
-def to_dropconnect(mlp: nn.Sequential, p: float) -> nn.Sequential:
+def to_dropconnect(mlp: nn.Sequential, p: float, *, last_only: bool = False) -> nn.Sequential:
     """A copy of ``mlp`` whose linear layers are :class:`DropConnectLinear` with the same weights.
+
+    Args:
+        mlp: the network's layers.
+        p: probability of dropping each weight.
+        last_only: only the output layer drops weights. Its K weight masks are small
+            (K x hidden x outputs), and MC sampling computes the layers before it once.
 
     Example:
         >>> to_dropconnect(nn.Sequential(nn.Linear(4, 2)), 0.2)
@@ -135,6 +150,8 @@ def to_dropconnect(mlp: nn.Sequential, p: float) -> nn.Sequential:
         )
     """
     p = _check_p(p)
+    linears = [i for i, m in enumerate(mlp) if type(m) is nn.Linear]
+    chosen = set(linears[-1:] if last_only else linears)
     return nn.Sequential(
-        *(DropConnectLinear.from_linear(m, p) if type(m) is nn.Linear else m for m in mlp)
+        *(DropConnectLinear.from_linear(m, p) if i in chosen else m for i, m in enumerate(mlp))
     )

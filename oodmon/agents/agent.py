@@ -1,0 +1,112 @@
+"""A loaded agent: its estimator, its metadata, and the policy it deploys.
+
+``oodmon.agents.load("cartpole", "ensemble")`` loads a shipped agent from the zoo inside the
+package; :func:`load_agent` loads one from any directory written by training.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from oodmon.agents.estimators import Estimate, UncertaintyEstimator
+from oodmon.agents.networks import estimator_for
+from oodmon.agents.serialization import load_modules
+from oodmon.errors import ModelFormatError, UnknownParameterError
+
+__all__ = ["Agent", "load", "load_agent", "zoo_dir", "zoo_names"]
+
+
+@dataclass
+class Agent:
+    """An uncertainty-aware policy.
+
+    Attributes:
+        estimator: computes the deployed action and the K samples behind it.
+        metadata: the model's JSON metadata (task, method, training, ID return, versions).
+        path: where the model was loaded from.
+    """
+
+    estimator: UncertaintyEstimator
+    metadata: dict[str, Any]
+    path: Path
+
+    @property
+    def task(self) -> str:
+        return self.metadata["task"]
+
+    @property
+    def method(self) -> str:
+        return self.metadata["method"]
+
+    def estimate(self, obs: np.ndarray) -> Estimate:
+        """The deployed action and the K samples for one observation or a batch."""
+        return self.estimator.estimate(obs)
+
+    def act(self, obs: np.ndarray) -> int | np.ndarray:
+        """The deployed action for one observation: an int (DQN) or an action array (DDPG)."""
+        action = self.estimator.estimate(obs).action[0]
+        return int(action) if self.estimator.kind == "q_values" else action
+
+    def __repr__(self) -> str:
+        ret = self.metadata.get("id_return_mean")
+        return f"Agent({self.task}, {self.method}, K={self.estimator.n_samples}, id_return_mean={ret}, path={self.path})"
+
+
+def load_agent(directory: str | Path, *, task: str | None = None, n_samples: int | None = None,
+               seed: int | None = None) -> Agent:
+    """Load an agent saved by training (``model.json`` + ``model.safetensors``).
+
+    Args:
+        directory: the model's directory.
+        task: if given, refuse another task's model.
+        n_samples: MC samples per decision (default: the recipe's); ignored by ensembles.
+        seed: seeds MC sampling (see :class:`~oodmon.agents.estimators.MCEstimator`).
+
+    Raises:
+        ModelFormatError: a missing, damaged or mismatched model (see ``serialization``).
+    """
+    modules, metadata = load_modules(directory, task=task)
+    arch = metadata["architecture"]
+    estimator = estimator_for(
+        modules, arch, n_samples=n_samples or metadata.get("n_samples", 20), seed=seed,
+        action_low=metadata.get("action_low"), action_high=metadata.get("action_high"),
+    )
+    return Agent(estimator, metadata, Path(directory))
+
+
+def zoo_dir() -> Path:
+    """The folder of the shipped zoo inside the installed package."""
+    return Path(str(resources.files("oodmon") / "zoo"))
+
+
+def zoo_names() -> list[str]:
+    """The shipped agents as ``task-method`` names, e.g. ``cartpole-ensemble``."""
+    root = zoo_dir()
+    return sorted(p.name for p in root.iterdir() if (p / "model.json").is_file()) if root.is_dir() else []
+
+
+def load(task: str, method: str, *, n_samples: int | None = None, seed: int | None = None) -> Agent:
+    """Load a shipped agent by task and method.
+
+    Raises:
+        UnknownParameterError: no shipped agent of that name; the message lists those there are.
+
+    Example:
+        >>> agent = load("cartpole", "ensemble")  # doctest: +SKIP
+        >>> agent.act(np.zeros(4, np.float32))  # doctest: +SKIP
+        0
+    """
+    name = f"{task}-{method}"
+    directory = zoo_dir() / name
+    if not (directory / "model.json").is_file():
+        shipped = ", ".join(zoo_names()) or "none yet"
+        raise UnknownParameterError(f"no shipped agent {name!r}; the zoo has: {shipped}")
+    try:
+        return load_agent(directory, task=task, n_samples=n_samples, seed=seed)
+    except ModelFormatError as error:
+        raise ModelFormatError(f"the shipped agent {name!r} is damaged: {error}") from None

@@ -1,0 +1,104 @@
+"""Where an agent fails (the paper's step 3): mean return per variant beside the ID return.
+
+A variant *fails* the agent when the agent keeps less than ``fail_fraction`` (default half) of
+what it gains over a random policy in the ID env: ``return < random + fail_fraction * (id - random)``.
+Measuring from the random policy's return makes the rule work for Pendulum's negative returns
+and Pong's -21..21 as well as for CartPole's 0..500.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from oodmon.envs.grid import Variant
+
+__all__ = ["RANDOM_RETURN", "VariantResult", "episode_returns", "evaluate_variants"]
+
+#: Mean return of a uniformly random policy in each task's ID env, measured with
+#: ``episode_returns(lambda obs: space.sample(), Variant(task), 100)`` with ``space.seed(0)`` (Pong: 10 episodes).
+RANDOM_RETURN: dict[str, float] = {"cartpole": 23.7, "pendulum": -1207.6, "pong": -20.6}
+
+
+def episode_returns(
+    policy: Callable[[np.ndarray], object],
+    variant: Variant,
+    episodes: int,
+    *,
+    seed: int = 0,
+    onset_step: int = 0,
+    on_episode: Callable[[float], None] | None = None,
+) -> np.ndarray:
+    """Returns of ``episodes`` episodes of ``policy`` in ``variant``, seeded ``seed``, ``seed+1``, ...
+
+    Example:
+        >>> from oodmon.envs.reference import cartpole_controller
+        >>> episode_returns(cartpole_controller, Variant("cartpole"), 2).tolist()
+        [500.0, 500.0]
+    """
+    env = variant.make(onset_step=onset_step)
+    returns = []
+    try:
+        for episode in range(episodes):
+            obs, _ = env.reset(seed=seed + episode)
+            total, done = 0.0, False
+            while not done:
+                obs, reward, terminated, truncated, _ = env.step(policy(obs))
+                total += float(reward)
+                done = terminated or truncated
+            returns.append(total)
+            if on_episode is not None:
+                on_episode(total)
+    finally:
+        env.close()
+    return np.asarray(returns)
+
+
+@dataclass(frozen=True)
+class VariantResult:
+    """An agent's returns in one variant, judged against its ID return.
+
+    Attributes:
+        spec: the variant's spec string.
+        returns: the episode returns.
+        fails: whether the mean return is below the failure line (see the module docstring).
+    """
+
+    spec: str
+    returns: np.ndarray
+    fails: bool
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(self.returns))
+
+
+def evaluate_variants(
+    policy: Callable[[np.ndarray], object],
+    task: str,
+    variants: Iterable[Variant],
+    episodes: int,
+    *,
+    seed: int = 10_000,
+    fail_fraction: float = 0.5,
+    on_episode: Callable[[str, float], None] | None = None,
+) -> tuple[VariantResult, list[VariantResult]]:
+    """Evaluate ``policy`` in the ID env and in each variant; mark the variants where it fails.
+
+    Returns:
+        The ID result and one result per variant, in order.
+    """
+    def run(variant: Variant) -> np.ndarray:
+        callback = (lambda r: on_episode(variant.spec, r)) if on_episode else None
+        return episode_returns(policy, variant, episodes, seed=seed, on_episode=callback)
+
+    id_returns = run(Variant(task))
+    line = RANDOM_RETURN[task] + fail_fraction * (float(np.mean(id_returns)) - RANDOM_RETURN[task])
+    id_result = VariantResult(task, id_returns, False)
+    results = []
+    for variant in variants:
+        returns = run(variant)
+        results.append(VariantResult(variant.spec, returns, float(np.mean(returns)) < line))
+    return id_result, results

@@ -1,0 +1,104 @@
+"""The networks an estimator samples, built from an architecture record or taken from SB3 models.
+
+An architecture is a plain dict, stored in a model's JSON metadata::
+
+    {"algorithm": "dqn", "obs_shape": [4], "n_outputs": 2, "cnn": false, "net_arch": [256, 256],
+     "stochastic": "dropout", "drop_p": 0.1, "last_only": true, "n_members": 1, "shared_torso": false}
+
+``n_outputs`` is the number of actions (DQN) or the action dimension (DDPG, whose head ends in a
+tanh). With ``n_members`` = 1 the network is one ``nn.Sequential`` (observations in, outputs out)
+sampled by MC; with K > 1 it is a torso (flatten, or Pong's scaling and Nature CNN) and K member
+heads. :func:`build_modules` makes the modules from the architecture; :func:`modules_from_sb3`
+takes them from trained SB3 models with the same parameter names, so a state dict saved from one
+loads into the other.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from gymnasium import spaces
+from stable_baselines3.common.torch_layers import NatureCNN, create_mlp
+from torch import nn
+
+from oodmon.agents.estimators import EnsembleEstimator, MCEstimator, UncertaintyEstimator
+from oodmon.agents.policies import STOCHASTIC_LAYERS
+
+__all__ = ["ScaleImage", "build_modules", "estimator_for", "modules_from_sb3"]
+
+
+class ScaleImage(nn.Module):
+    """uint8 pixel values to [0, 1], as SB3 does before its CNN."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x / 255.0
+
+
+def _torso(arch: dict[str, Any]) -> nn.Sequential:
+    if arch["cnn"]:
+        space = spaces.Box(0, 255, tuple(arch["obs_shape"]), dtype=np.uint8)
+        return nn.Sequential(ScaleImage(), NatureCNN(space, features_dim=512))
+    return nn.Sequential(nn.Flatten())
+
+
+def _head(arch: dict[str, Any]) -> nn.Sequential:
+    in_dim = 512 if arch["cnn"] else math.prod(arch["obs_shape"])
+    squash = arch["algorithm"] == "ddpg"
+    head = nn.Sequential(*create_mlp(in_dim, arch["n_outputs"], list(arch["net_arch"]), nn.ReLU, squash_output=squash))
+    if arch.get("stochastic"):
+        head = STOCHASTIC_LAYERS[arch["stochastic"]](head, arch["drop_p"], last_only=arch["last_only"])
+    return head
+
+
+def build_modules(arch: dict[str, Any]) -> nn.Module:
+    """Fresh modules of an architecture: ``{"network": ...}`` or ``{"torso": ..., "members": [...]}``.
+
+    Example:
+        >>> arch = {"algorithm": "dqn", "obs_shape": [4], "n_outputs": 2, "cnn": False, "net_arch": [8],
+        ...         "stochastic": None, "n_members": 3, "shared_torso": False}
+        >>> sorted(build_modules(arch).state_dict())[:2]
+        ['members.0.0.bias', 'members.0.0.weight']
+    """
+    if arch["n_members"] == 1:
+        return nn.ModuleDict({"network": nn.Sequential(*_torso(arch), *_head(arch))})
+    return nn.ModuleDict({
+        "torso": _torso(arch),
+        "members": nn.ModuleList(_head(arch) for _ in range(arch["n_members"])),
+    })
+
+
+def modules_from_sb3(models: Sequence[Any], arch: dict[str, Any]) -> nn.Module:
+    """The estimation modules of trained SB3 models, shaped as :func:`build_modules` makes them.
+
+    ``models`` holds one model (MC, or bootstrapped heads) or K independently trained members.
+    """
+    def parts(model) -> tuple[nn.Module, nn.Sequential]:
+        if arch["algorithm"] == "dqn":
+            q_net = model.policy.q_net
+            return q_net.features_extractor, q_net.q_net
+        actor = model.policy.actor
+        return actor.features_extractor, actor.mu
+
+    extractor, head = parts(models[0])
+    torso = nn.Sequential(ScaleImage(), extractor) if arch["cnn"] else nn.Sequential(nn.Flatten())
+    if arch["n_members"] == 1:
+        return nn.ModuleDict({"network": nn.Sequential(*torso, *head)})
+    if arch["shared_torso"]:
+        heads = list(head.heads)
+    else:
+        heads = [parts(model)[1] for model in models]
+    return nn.ModuleDict({"torso": torso, "members": nn.ModuleList(heads)})
+
+
+def estimator_for(modules: nn.Module, arch: dict[str, Any], n_samples: int = 20, seed: int | None = None,
+                  action_low: Sequence[float] | None = None, action_high: Sequence[float] | None = None) -> UncertaintyEstimator:
+    """The estimator that samples ``modules`` (from :func:`build_modules` or :func:`modules_from_sb3`)."""
+    kind = "q_values" if arch["algorithm"] == "dqn" else "actions"
+    common = dict(obs_shape=arch["obs_shape"], action_low=action_low, action_high=action_high)
+    if arch["n_members"] == 1:
+        return MCEstimator(modules["network"].eval(), n_samples, kind, seed=seed, **common)
+    return EnsembleEstimator(list(modules["members"]), kind, torso=modules["torso"], **common)

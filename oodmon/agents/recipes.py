@@ -1,0 +1,119 @@
+"""How each shipped agent is trained: one table, one entry per task, overrides per method.
+
+The starting points are RL Zoo's hyperparameters (CartPole DQN, Pendulum DDPG) and, for Pong, the
+usual Nature-DQN settings shrunk to what two CPU cores can train (see the README). A recipe is
+plain data: :func:`oodmon.agents.training.train` reads it, nothing else does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+from oodmon.errors import UnknownParameterError
+
+__all__ = ["METHODS", "RECIPES", "Recipe", "recipe_for"]
+
+#: The uncertainty methods, for every task.
+METHODS: tuple[str, ...] = ("dropout", "dropconnect", "ensemble")
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """Everything that decides how one (task, method) agent is trained and sampled.
+
+    Attributes:
+        task: ``cartpole``, ``pendulum`` or ``pong``.
+        method: ``dropout``, ``dropconnect`` or ``ensemble``.
+        algorithm: ``dqn`` or ``ddpg``.
+        total_steps: environment steps of training, per ensemble member.
+        net_arch: hidden layer widths of the MLP (Q-network or actor); ``[]`` after Pong's CNN.
+        cnn: whether observations go through the Nature CNN (Pong).
+        hyperparams: keyword arguments of the SB3 algorithm (learning rate, buffer, ...).
+        drop_p: drop probability of the dropout / DropConnect layers.
+        last_only: stochastic layer at the output layer only (see ``layers.add_dropout``).
+        n_members: K, the ensemble size (independent members, or heads when ``shared_torso``).
+        shared_torso: the ensemble is K bootstrapped heads on one torso (Osband et al., 2016).
+        n_samples: MC samples per decision for dropout and DropConnect.
+        action_noise: std of DDPG's gaussian exploration noise, as a fraction of the action range.
+        checkpoint_every: steps between resumable checkpoints.
+        eval_every: steps between evaluations written to the training log.
+        eval_episodes: episodes per evaluation.
+        reward_clip: train on the sign of the reward (Pong), as DQN on Atari does.
+        notes: what a reader of the metadata should know about the recipe.
+    """
+
+    task: str
+    method: str
+    algorithm: str
+    total_steps: int
+    net_arch: list[int]
+    hyperparams: dict[str, Any]
+    cnn: bool = False
+    drop_p: float = 0.1
+    last_only: bool = True
+    n_members: int = 5
+    shared_torso: bool = False
+    n_samples: int = 20
+    action_noise: float = 0.1
+    checkpoint_every: int = 10_000
+    eval_every: int = 10_000
+    eval_episodes: int = 5
+    reward_clip: bool = False
+    notes: str = ""
+
+
+_CARTPOLE = Recipe(
+    task="cartpole", method="", algorithm="dqn", total_steps=50_000, net_arch=[256, 256],
+    hyperparams=dict(
+        learning_rate=2.3e-3, batch_size=64, buffer_size=100_000, learning_starts=1_000, gamma=0.99,
+        target_update_interval=10, train_freq=256, gradient_steps=128, exploration_fraction=0.16,
+        exploration_final_eps=0.04,
+    ),
+    checkpoint_every=10_000, eval_every=10_000,
+)
+
+_PENDULUM = Recipe(
+    task="pendulum", method="", algorithm="ddpg", total_steps=20_000, net_arch=[400, 300],
+    hyperparams=dict(learning_starts=10_000, gamma=0.98, buffer_size=200_000, learning_rate=1e-3),
+    action_noise=0.1, checkpoint_every=5_000, eval_every=5_000,
+)
+
+_PONG = Recipe(
+    task="pong", method="", algorithm="dqn", total_steps=2_000_000, net_arch=[], cnn=True,
+    hyperparams=dict(
+        learning_rate=1e-4, batch_size=32, buffer_size=100_000, learning_starts=20_000, gamma=0.99,
+        target_update_interval=1_000, train_freq=4, gradient_steps=1, exploration_fraction=0.125,
+        exploration_final_eps=0.01, optimize_memory_usage=True,
+        replay_buffer_kwargs=dict(handle_timeout_termination=False),
+    ),
+    shared_torso=True, reward_clip=True, checkpoint_every=25_000, eval_every=50_000, eval_episodes=3,
+    notes="Nature CNN; epsilon 1 -> 0.01 over the first 250k steps; rewards clipped to their sign while training",
+)
+
+#: The recipe of each task, before method overrides.
+RECIPES: dict[str, Recipe] = {"cartpole": _CARTPOLE, "pendulum": _PENDULUM, "pong": _PONG}
+
+# Per (task, method) changes to the task's recipe; empty where the task's recipe serves as is.
+_OVERRIDES: dict[tuple[str, str], dict[str, Any]] = {}
+
+
+def recipe_for(task: str, method: str) -> Recipe:
+    """The recipe for ``task`` trained for ``method``.
+
+    Raises:
+        UnknownParameterError: an unknown task or method.
+
+    Example:
+        >>> recipe_for("cartpole", "ensemble").n_members
+        5
+    """
+    if task not in RECIPES:
+        raise UnknownParameterError(f"unknown task {task!r}; choose one of {', '.join(RECIPES)}")
+    if method not in METHODS:
+        raise UnknownParameterError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    base = replace(RECIPES[task], method=method)
+    changes = dict(_OVERRIDES.get((task, method), {}))
+    if "hyperparams" in changes:
+        changes["hyperparams"] = base.hyperparams | changes["hyperparams"]
+    return replace(base, **changes)

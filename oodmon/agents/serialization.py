@@ -1,0 +1,94 @@
+"""The model format: ``model.safetensors`` (tensors only) beside ``model.json`` (metadata).
+
+Loading never unpickles: safetensors holds raw tensors, JSON holds the rest. A file that is
+damaged, belongs to another task, or does not match the architecture its metadata describes
+gives a :class:`~oodmon.errors.ModelFormatError` saying which and what to do.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from oodmon.agents.networks import build_modules
+from oodmon.errors import ModelFormatError
+
+__all__ = ["FORMAT_VERSION", "load_modules", "read_metadata", "save_modules"]
+
+FORMAT_VERSION = 1
+_REQUIRED = ("format_version", "task", "method", "algorithm", "architecture", "seed")
+
+
+def save_modules(directory: str | Path, modules: torch.nn.Module, metadata: dict[str, Any], *, half: bool = False) -> Path:
+    """Write ``modules``' tensors and ``metadata`` into ``directory``; return the directory.
+
+    Args:
+        half: store floating tensors as float16 (they load back as float32). Halves the size;
+            use it where the agent's return does not change (checked by the caller).
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    tensors = {
+        name: (t.detach().half() if half and t.is_floating_point() else t.detach()).contiguous().cpu()
+        for name, t in modules.state_dict().items()
+    }
+    save_file(tensors, str(directory / "model.safetensors"))
+    metadata = {"format_version": FORMAT_VERSION, **metadata, "dtype": "float16" if half else "float32"}
+    (directory / "model.json").write_text(json.dumps(metadata, indent=1, sort_keys=True) + "\n")
+    return directory
+
+
+def read_metadata(directory: str | Path, *, task: str | None = None) -> dict[str, Any]:
+    """The metadata of a saved model, checked; ``task`` also checks that it is that task's model."""
+    path = Path(directory) / "model.json"
+    if not path.is_file():
+        raise ModelFormatError(f"{path} does not exist: a model directory holds model.json and model.safetensors")
+    try:
+        metadata = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ModelFormatError(f"{path} is not valid JSON ({error}); the model's metadata is damaged") from None
+    missing = [key for key in _REQUIRED if key not in metadata]
+    if not isinstance(metadata, dict) or missing:
+        raise ModelFormatError(f"{path} lacks {', '.join(missing)}: not an oodmon model's metadata")
+    if metadata["format_version"] != FORMAT_VERSION:
+        raise ModelFormatError(
+            f"{path} has format_version {metadata['format_version']!r}; this oodmon reads version {FORMAT_VERSION}"
+        )
+    if task is not None and metadata["task"] != task:
+        raise ModelFormatError(f"{path} is a {metadata['task']} model, not a {task} model")
+    return metadata
+
+
+def load_modules(directory: str | Path, *, task: str | None = None) -> tuple[torch.nn.Module, dict[str, Any]]:
+    """Load a saved model's modules (float32, eval mode) and its metadata.
+
+    Raises:
+        ModelFormatError: missing or damaged files, another task's model, or tensors that do not
+            match the architecture in the metadata.
+    """
+    directory = Path(directory)
+    metadata = read_metadata(directory, task=task)
+    path = directory / "model.safetensors"
+    try:
+        tensors = load_file(str(path))
+    except (SafetensorError, OSError, ValueError) as error:
+        raise ModelFormatError(f"{path} cannot be read as safetensors ({error}); the file is missing or damaged") from None
+    modules = build_modules(metadata["architecture"])
+    expected = modules.state_dict()
+    missing = sorted(set(expected) - set(tensors))
+    unexpected = sorted(set(tensors) - set(expected))
+    wrong = sorted(k for k in set(expected) & set(tensors) if tensors[k].shape != expected[k].shape)
+    if missing or unexpected or wrong:
+        details = "; ".join(
+            f"{label}: {', '.join(names[:3])}{' ...' if len(names) > 3 else ''}"
+            for label, names in (("missing", missing), ("unexpected", unexpected), ("wrong shape", wrong))
+            if names
+        )
+        raise ModelFormatError(f"{path} does not match the architecture in model.json ({details})")
+    modules.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in tensors.items()})
+    return modules.eval(), metadata

@@ -1,0 +1,271 @@
+"""Train an uncertainty-aware agent from its recipe, resumably, and save it in the model format.
+
+One loop for every task and method. A training directory holds::
+
+    runs/<run>/checkpoint.zip      SB3's own checkpoint (our file, so unpickling it is fine)
+    runs/<run>/replay_buffer.pkl   the replay buffer, so that a resumed run goes on where it was
+    runs/<run>/state.json          steps done, wall time, finished or not
+    train_log.jsonl                one line per evaluation: steps, mean greedy return, wall time
+    model.json, model.safetensors  the finished agent (see ``serialization``)
+
+``<run>`` is ``main`` (MC methods, bootstrapped heads) or ``member<k>`` (independent ensemble
+members). Running the same command again resumes: finished runs are skipped, an interrupted run
+continues from its last checkpoint, and the final export is redone.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from collections.abc import Callable
+from importlib.metadata import version
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from stable_baselines3 import DDPG, DQN
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.torch_layers import NatureCNN
+
+from oodmon.agents.agent import Agent, load_agent
+from oodmon.agents.evaluation import episode_returns
+from oodmon.agents.networks import estimator_for, modules_from_sb3
+from oodmon.agents.policies import BootstrappedDQN, UncertainDQNPolicy, UncertainTD3Policy
+from oodmon.agents.recipes import Recipe, recipe_for
+from oodmon.agents.serialization import save_modules
+from oodmon.envs.grid import ENV_IDS, Variant
+
+__all__ = ["ID_EPISODES", "architecture", "train"]
+
+#: Episodes of the default env behind a saved model's ``id_return_mean``.
+ID_EPISODES = {"cartpole": 20, "pendulum": 20, "pong": 10}
+
+Reporter = Callable[[str, int, int], None]  # (run name, steps done, steps total)
+
+
+def architecture(recipe: Recipe, env: gymnasium.Env) -> dict[str, Any]:
+    """The architecture record (see ``networks``) of a recipe's agent in ``env``."""
+    discrete = isinstance(env.action_space, gymnasium.spaces.Discrete)
+    ensemble = recipe.method == "ensemble"
+    return {
+        "algorithm": recipe.algorithm,
+        "obs_shape": list(env.observation_space.shape),
+        "n_outputs": int(env.action_space.n) if discrete else int(np.prod(env.action_space.shape)),
+        "cnn": recipe.cnn,
+        "net_arch": list(recipe.net_arch),
+        "stochastic": None if ensemble else recipe.method,
+        "drop_p": recipe.drop_p,
+        "last_only": recipe.last_only,
+        "n_members": recipe.n_members if ensemble else 1,
+        "shared_torso": ensemble and recipe.shared_torso,
+    }
+
+
+def _training_env(recipe: Recipe) -> gymnasium.Env:
+    env = gymnasium.make(ENV_IDS[recipe.task])
+    if recipe.reward_clip:
+        env = gymnasium.wrappers.TransformReward(env, lambda r: float(np.sign(r)))
+    return env
+
+
+def _new_model(recipe: Recipe, env: gymnasium.Env, seed: int) -> BaseAlgorithm:
+    arch = architecture(recipe, env)
+    policy_kwargs: dict[str, Any] = {
+        "net_arch": list(recipe.net_arch),
+        "stochastic": arch["stochastic"],
+        "drop_p": recipe.drop_p,
+        "last_only": recipe.last_only,
+    }
+    if recipe.cnn:
+        policy_kwargs["features_extractor_class"] = NatureCNN
+    common = dict(seed=seed, device="cpu", verbose=0, **recipe.hyperparams)
+    if recipe.algorithm == "ddpg":
+        n = env.action_space.shape[0]
+        scale = recipe.action_noise * (env.action_space.high - env.action_space.low) / 2
+        noise = NormalActionNoise(np.zeros(n), scale * np.ones(n))
+        return DDPG(UncertainTD3Policy, env, action_noise=noise, policy_kwargs=policy_kwargs, **common)
+    if arch["shared_torso"]:
+        policy_kwargs["n_heads"] = recipe.n_members
+        return BootstrappedDQN(UncertainDQNPolicy, env, policy_kwargs=policy_kwargs, **common)
+    return DQN(UncertainDQNPolicy, env, policy_kwargs=policy_kwargs, **common)
+
+
+def _algorithm_class(recipe: Recipe) -> type[BaseAlgorithm]:
+    if recipe.algorithm == "ddpg":
+        return DDPG
+    return BootstrappedDQN if recipe.method == "ensemble" and recipe.shared_torso else DQN
+
+
+class _RunCallback(BaseCallback):
+    """Checkpoints, evaluations and progress reports during one SB3 ``learn`` call."""
+
+    def __init__(self, run: _Run, report: Reporter) -> None:
+        super().__init__()
+        self.run, self.report = run, report
+
+    def _on_step(self) -> bool:
+        steps, recipe = self.num_timesteps, self.run.recipe
+        if steps % 500 == 0:
+            self.report(self.run.name, steps, recipe.total_steps)
+        if steps % recipe.eval_every == 0:
+            self.run.evaluate(self.model, steps)
+        if steps % recipe.checkpoint_every == 0:
+            self.run.checkpoint(self.model, finished=False)
+        return True
+
+
+class _Run:
+    """One SB3 model being trained: its folder, checkpoints and log."""
+
+    def __init__(self, recipe: Recipe, root: Path, name: str, seed: int) -> None:
+        self.recipe, self.root, self.name, self.seed = recipe, root, name, seed
+        self.folder = root / "runs" / name
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.state_path = self.folder / "state.json"
+        self.state = json.loads(self.state_path.read_text()) if self.state_path.exists() else {
+            "steps": 0, "wall_time_s": 0.0, "finished": False, "seed": seed}
+        self._started = time.monotonic()
+        self._wall_before = self.state["wall_time_s"]
+
+    @property
+    def finished(self) -> bool:
+        return bool(self.state["finished"])
+
+    def load_or_create(self, env: gymnasium.Env) -> BaseAlgorithm:
+        checkpoint = self.folder / "checkpoint.zip"
+        if not checkpoint.exists():
+            return _new_model(self.recipe, env, self.seed)
+        model = _algorithm_class(self.recipe).load(checkpoint, env=env, device="cpu")
+        buffer = self.folder / "replay_buffer.pkl"
+        if buffer.exists():
+            model.load_replay_buffer(buffer)
+        return model
+
+    def train(self, report: Reporter) -> BaseAlgorithm:
+        env = _training_env(self.recipe)
+        model = self.load_or_create(env)
+        remaining = self.recipe.total_steps - model.num_timesteps
+        report(self.name, model.num_timesteps, self.recipe.total_steps)
+        if remaining > 0:
+            model.learn(remaining, callback=_RunCallback(self, report), reset_num_timesteps=False)
+        self.checkpoint(model, finished=True)
+        report(self.name, model.num_timesteps, self.recipe.total_steps)
+        return model
+
+    def checkpoint(self, model: BaseAlgorithm, *, finished: bool) -> None:
+        # Write to temporary names and rename, so that a kill mid-write leaves the last good files.
+        for name, save in (("checkpoint.zip", model.save), ("replay_buffer.pkl", model.save_replay_buffer)):
+            if name == "replay_buffer.pkl" and finished:
+                (self.folder / name).unlink(missing_ok=True)  # not needed once the run is done
+                continue
+            temporary = self.folder / f"tmp-{name}"
+            save(temporary)
+            os.replace(temporary, self.folder / name)
+        self.state.update(
+            steps=int(model.num_timesteps), finished=finished,
+            wall_time_s=round(self._wall_before + time.monotonic() - self._started, 1),
+        )
+        self.state_path.write_text(json.dumps(self.state, indent=1))
+
+    def evaluate(self, model: BaseAlgorithm, steps: int) -> None:
+        returns = episode_returns(
+            lambda obs: model.predict(obs, deterministic=True)[0], Variant(self.recipe.task),
+            self.recipe.eval_episodes, seed=10_000 + steps,
+        )
+        line = {"run": self.name, "steps": steps, "eval_return_mean": float(np.mean(returns)),
+                "wall_time_s": round(self._wall_before + time.monotonic() - self._started, 1)}
+        with open(self.root / "train_log.jsonl", "a") as log:
+            log.write(json.dumps(line) + "\n")
+
+
+def _versions() -> dict[str, str]:
+    names = ["oodmon", "torch", "stable_baselines3", "gymnasium", "numpy", "ale_py", "safetensors"]
+    found = {}
+    for name in names:
+        try:
+            found[name] = version(name)
+        except Exception:  # noqa: BLE001  (a missing package is reported as such)
+            found[name] = "not installed"
+    found["python"] = platform.python_version()
+    return found
+
+
+def train(
+    task: str,
+    method: str,
+    out: str | Path,
+    *,
+    seed: int = 0,
+    total_steps: int | None = None,
+    report: Reporter | None = None,
+    command: str = "",
+) -> Agent:
+    """Train (or resume training) the ``task``/``method`` agent into ``out``; return it loaded.
+
+    Args:
+        task, method: which recipe (see :mod:`oodmon.agents.recipes`).
+        out: the training directory (created; resumed if it holds an unfinished run).
+        seed: the trial's seed; ensemble member k uses ``1000 * seed + k``.
+        total_steps: override the recipe's steps per run (smoke tests, quick trials).
+        report: called with (run, steps done, steps total) as training goes.
+        command: the command line that started the training, recorded in the metadata.
+    """
+    recipe = recipe_for(task, method)
+    if total_steps is not None:
+        recipe = _shortened(recipe, total_steps)
+    root = Path(out)
+    root.mkdir(parents=True, exist_ok=True)
+    report = report or (lambda run, done, total: None)
+    torch.set_num_threads(int(os.environ.get("OODMON_TORCH_THREADS", "1")))
+    independent = method == "ensemble" and not recipe.shared_torso
+    runs = (
+        [_Run(recipe, root, f"member{k}", 1000 * seed + k) for k in range(recipe.n_members)]
+        if independent else [_Run(recipe, root, "main", seed)]
+    )
+    models = [run.train(report) for run in runs]
+
+    env = _training_env(recipe)
+    arch = architecture(recipe, env)
+    action_low = env.action_space.low.tolist() if recipe.algorithm == "ddpg" else None
+    action_high = env.action_space.high.tolist() if recipe.algorithm == "ddpg" else None
+    modules = modules_from_sb3(models, arch)
+    estimator = estimator_for(modules, arch, recipe.n_samples, seed=seed, action_low=action_low, action_high=action_high)
+    policy = (lambda obs: int(estimator.estimate(obs).action[0])) if arch["algorithm"] == "dqn" else (
+        lambda obs: estimator.estimate(obs).action[0])
+    id_returns = episode_returns(policy, Variant(task), ID_EPISODES[task], seed=100_000)
+    metadata = {
+        "task": task, "method": method, "algorithm": recipe.algorithm, "architecture": arch,
+        "ensemble": ("bootstrapped heads on a shared torso" if arch["shared_torso"] else "independent members")
+        if method == "ensemble" else None,
+        "n_members": arch["n_members"], "drop_p": None if method == "ensemble" else recipe.drop_p,
+        "n_samples": arch["n_members"] if method == "ensemble" else recipe.n_samples,
+        "seed": seed, "training_steps": [int(m.num_timesteps) for m in models],
+        "wall_time_s": round(sum(run.state["wall_time_s"] for run in runs), 1),
+        "hyperparams": {k: v for k, v in recipe.hyperparams.items() if isinstance(v, (int, float, str, bool))},
+        "recipe_notes": recipe.notes, "versions": _versions(), "command": command,
+        "id_return_mean": round(float(np.mean(id_returns)), 2), "id_episodes": len(id_returns),
+        "id_returns": [round(float(r), 2) for r in id_returns],
+        "action_low": action_low, "action_high": action_high,
+    }
+    save_modules(root, modules, metadata, half=recipe.cnn)
+    return load_agent(root, task=task)
+
+
+def _shortened(recipe: Recipe, total_steps: int) -> Recipe:
+    """The recipe cut to ``total_steps``, with its schedule (learning start, checkpoints) scaled."""
+    from dataclasses import replace
+
+    hyper = dict(recipe.hyperparams)
+    if "learning_starts" in hyper:
+        hyper["learning_starts"] = min(hyper["learning_starts"], max(total_steps // 4, 1))
+    if "buffer_size" in hyper:
+        hyper["buffer_size"] = min(hyper["buffer_size"], max(total_steps, 1_000))
+    every = max(total_steps // 2, 1)
+    return replace(recipe, total_steps=total_steps, hyperparams=hyper,
+                   checkpoint_every=min(recipe.checkpoint_every, every), eval_every=min(recipe.eval_every, every))
