@@ -2,8 +2,10 @@
 
 Run: .venv/bin/python benchmarks/uncertainty_step.py
 
-Ensemble K=5, MC Dropout and MC DropConnect with 20 samples, on CartPole's [256, 256] DQN MLP,
-batch of one observation, one torch thread, all in this process. The last line is
+The estimators are built exactly as the shipped CartPole agents are (the recipe's [256, 256]
+DQN MLP, stochastic layer at the output layer): ensemble K=5, MC Dropout and MC DropConnect with
+20 samples; the baseline is ``model.predict()`` of one plain SB3 DQN member of the same size.
+Batch of one observation, one torch thread, all in this process. The last line is
 ratio=<worst decision / predict>; the goal is <= 1.0.
 """
 
@@ -12,13 +14,13 @@ from __future__ import annotations
 import time
 
 import gymnasium
-import numpy as np
 import torch
 from stable_baselines3 import DQN
-from torch import nn
 
 import oodmon  # noqa: F401  (registers the envs)
-from oodmon.agents import EnsembleEstimator, MCEstimator, add_dropout, to_dropconnect
+from oodmon.agents.networks import build_modules, estimator_for
+from oodmon.agents.recipes import recipe_for
+from oodmon.agents.training import architecture
 
 REPEATS = 2000
 
@@ -39,21 +41,16 @@ def main() -> None:
     torch.set_num_threads(1)
     env = gymnasium.make("oodmon/CartPole-v1")
     obs, _ = env.reset(seed=0)
-    members = [DQN("MlpPolicy", env, policy_kwargs={"net_arch": [256, 256]}, seed=s, device="cpu") for s in range(5)]
-    heads = [m.policy.q_net.q_net for m in members]
-    plain = members[0]
-
-    ensemble = EnsembleEstimator(heads)
-    dropout = MCEstimator(add_dropout(nn.Sequential(*heads[0]), 0.1), n_samples=20)
-    dropconnect = MCEstimator(to_dropconnect(nn.Sequential(*heads[0]), 0.1), n_samples=20)
-    figures = {
-        "sb3 predict (one member)": per_call_us(lambda: plain.predict(obs, deterministic=True)),
-        "ensemble K=5": per_call_us(lambda: ensemble.estimate(obs)),
-        "mc dropout K=20": per_call_us(lambda: dropout.estimate(obs)),
-        "mc dropconnect K=20": per_call_us(lambda: dropconnect.estimate(obs), REPEATS // 20),
-    }
+    plain = DQN("MlpPolicy", env, policy_kwargs={"net_arch": [256, 256]}, seed=0, device="cpu")
+    figures = {"sb3 predict (one member)": per_call_us(lambda: plain.predict(obs, deterministic=True))}
+    for method in ("ensemble", "dropout", "dropconnect"):
+        recipe = recipe_for("cartpole", method)
+        arch = architecture(recipe, env)
+        estimator = estimator_for(build_modules(arch), arch, n_samples=recipe.n_samples)
+        label = f"{method} K={estimator.n_samples}" + (" (output layer)" if recipe.last_only and method != "ensemble" else "")
+        figures[label] = per_call_us(lambda: estimator.estimate(obs))
     for name, us in figures.items():
-        print(f"{name:28s} {us:10.1f} us")
+        print(f"{name:32s} {us:10.1f} us")
     baseline = figures.pop("sb3 predict (one member)")
     print(f"ratio={max(figures.values()) / baseline:.2f}")
 

@@ -68,6 +68,21 @@ def _parser() -> argparse.ArgumentParser:
     train.add_argument("--steps", type=int, help="override the recipe's training steps per run")
     train.set_defaults(handler=_train)
 
+    evaluate = commands.add_parser(
+        "evaluate", help="where an agent fails: mean return per variant beside the ID return"
+    )
+    evaluate.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
+    evaluate.add_argument("--method", choices=["dropout", "dropconnect", "ensemble"],
+                          help="a shipped agent (or give --model)")
+    evaluate.add_argument("--model", help="a trained model directory instead of a shipped agent")
+    evaluate.add_argument("--variants", default="paper",
+                          help="'paper' (the paper's grid) or comma-separated specs (default paper)")
+    evaluate.add_argument("--episodes", type=int, default=5, help="episodes per variant (default 5)")
+    evaluate.add_argument("--fail-fraction", type=float, default=0.5,
+                          help="fails below this fraction of the ID gain over a random policy (default 0.5)")
+    evaluate.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    evaluate.set_defaults(handler=_evaluate)
+
     demo = commands.add_parser("demo", help="the main job of 'make demo'")
     demo.add_argument("--out", default="runs/demo", help="folder for the demo's files (default runs/demo)")
     demo.set_defaults(handler=_demo)
@@ -149,6 +164,66 @@ def _train(args: argparse.Namespace) -> int:
         f"{args.task}/{args.method}: id_return_mean {meta['id_return_mean']} over {meta['id_episodes']} episodes; "
         f"{sum(meta['training_steps'])} steps in {meta['wall_time_s']} s; saved to {args.out}"
     )
+    return 0
+
+
+def _load_agent(args: argparse.Namespace):
+    from oodmon.agents import load, load_agent
+    from oodmon.errors import ConfigError
+
+    if args.model:
+        return load_agent(args.model, task=args.task)
+    if not args.method:
+        raise ConfigError("give --method for a shipped agent, or --model DIR for a trained one")
+    return load(args.task, args.method)
+
+
+def _variants(task: str, text: str):
+    from oodmon.envs import paper_grid, parse_variant
+    from oodmon.errors import ConfigError
+
+    if text == "paper":
+        return paper_grid(task)
+    variants = [parse_variant(spec) for spec in text.split(",")]
+    for variant in variants:
+        if variant.task != task:
+            raise ConfigError(f"variant {variant.spec!r} is not a {task} variant")
+    return variants
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from rich.progress import Progress
+
+    from oodmon.agents import evaluate_variants
+    from oodmon.errors import InvalidParameterError
+
+    if args.episodes < 1:
+        raise InvalidParameterError(f"--episodes {args.episodes} is not allowed; give at least 1")
+    agent = _load_agent(args)
+    variants = _variants(args.task, args.variants)
+    with Progress(console=Console(stderr=True), transient=True) as progress:
+        bar = progress.add_task("evaluating", total=(len(variants) + 1) * args.episodes)
+        id_result, results = evaluate_variants(
+            agent.act, args.task, variants, args.episodes, fail_fraction=args.fail_fraction,
+            on_episode=lambda spec, ret: progress.update(bar, advance=1, description=spec),
+        )
+    rows = [{"variant": r.spec, "return_mean": round(r.mean, 2), "return_std": round(float(r.returns.std()), 2),
+             "fails": r.fails} for r in [id_result, *results]]
+    if args.json:
+        print(json.dumps({"task": args.task, "method": agent.method, "episodes": args.episodes,
+                          "id_return_mean": rows[0]["return_mean"], "variants": rows[1:]}, indent=1))
+        return 0
+    table = Table(title=f"{args.task}/{agent.method}: mean return over {args.episodes} episodes "
+                        f"(ID {id_result.mean:.1f}; fails below {args.fail_fraction:.0%} of the gain over random)")
+    for column in ("variant", "return", "std", "fails"):
+        table.add_column(column, justify="left" if column == "variant" else "right")
+    for row in rows:
+        style = "bold red" if row["fails"] else None
+        table.add_row(row["variant"], f"{row['return_mean']:.1f}", f"{row['return_std']:.1f}",
+                      "FAILS" if row["fails"] else "", style=style)
+    Console().print(table)
+    failing = [r.spec for r in results if r.fails]
+    Console(soft_wrap=True).print(f"{len(failing)} of {len(results)} variants fail the agent: {', '.join(failing)}")
     return 0
 
 

@@ -1,23 +1,45 @@
-"""What acts: uncertainty-aware policies (MC Dropout, MC DropConnect, ensembles).
+"""What acts: uncertainty-aware DQN and DDPG policies (MC Dropout, MC DropConnect, ensembles).
 
-Built so far: the stochastic layers and the estimators that turn a network (or K of them) into
-the deployed action plus the K samples behind it. Training recipes and the shipped zoo are next
-(see the agents issue).
+- :func:`load` a shipped agent by task and method, or :func:`load_agent` one from a directory;
+  an :class:`Agent` gives the deployed action and the K samples behind it (:class:`Estimate`).
+- :func:`train` an agent from its recipe (:mod:`oodmon.agents.recipes`), resumably.
+- :class:`MCEstimator` and :class:`EnsembleEstimator` sample networks of your own, including
+  users' SB3 models and torch networks with dropout layers.
 """
 
 from __future__ import annotations
 
+from oodmon.agents.agent import Agent, load, load_agent, zoo_dir, zoo_names
 from oodmon.agents.estimators import EnsembleEstimator, Estimate, MCEstimator, UncertaintyEstimator
+from oodmon.agents.evaluation import RANDOM_RETURN, VariantResult, episode_returns, evaluate_variants
+from oodmon.agents.networks import estimator_from_sb3
 from oodmon.agents.layers import DropConnectLinear, add_dropout, is_stochastic, mc_sampling, to_dropconnect
+from oodmon.agents.recipes import METHODS, RECIPES, Recipe, recipe_for
+from oodmon.agents.training import train
 
 __all__ = [
+    "METHODS",
+    "RANDOM_RETURN",
+    "RECIPES",
+    "Agent",
     "DropConnectLinear",
     "EnsembleEstimator",
     "Estimate",
     "MCEstimator",
+    "Recipe",
     "UncertaintyEstimator",
+    "VariantResult",
     "add_dropout",
+    "episode_returns",
+    "estimator_from_sb3",
+    "evaluate_variants",
     "is_stochastic",
+    "load",
+    "load_agent",
     "mc_sampling",
+    "recipe_for",
     "to_dropconnect",
+    "train",
+    "zoo_dir",
+    "zoo_names",
 ]

@@ -9,16 +9,19 @@ Two kinds of output, one interface:
 
 Two ways to get the K samples:
 
-- :class:`MCEstimator`: Monte Carlo Dropout or DropConnect. The batch is repeated K times along a
-  new leading axis and goes through the network once with only its stochastic layers sampling.
+- :class:`MCEstimator`: Monte Carlo Dropout or DropConnect. The layers before the first
+  stochastic one run once; the rest runs once on the activations repeated K times along a new
+  leading axis, each row drawing its own masks.
 - :class:`EnsembleEstimator`: K members of one architecture, their weights stacked so that one
-  ``torch.baddbmm`` per layer computes all members (no Python loop over members).
+  batched matrix product per layer computes all members (no Python loop over members).
+
+Both compile the MLP layers they sample to numpy (:mod:`oodmon.agents.plan`): at a batch of one
+that is several times faster than torch. Convolutional torsos (Pong) stay in torch.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from contextlib import nullcontext
 from dataclasses import dataclass
 from typing import Literal
 
@@ -27,6 +30,7 @@ import torch
 from torch import nn
 
 from oodmon.agents.layers import DropConnectLinear, is_stochastic, mc_sampling
+from oodmon.agents.plan import Op, StackedAffine, compile_layers, run
 from oodmon.errors import ConfigError, InvalidParameterError
 
 __all__ = ["EnsembleEstimator", "Estimate", "MCEstimator", "UncertaintyEstimator"]
@@ -55,8 +59,8 @@ class Estimate:
 class UncertaintyEstimator:
     """Base of the estimators: observations in, :class:`Estimate` out.
 
-    Subclasses implement :meth:`_sample`, which maps a float batch of observations
-    (batch, *obs_shape) to samples (K, batch, n).
+    Subclasses implement :meth:`_sample`, which maps a float32 batch of observations
+    (batch, *obs_shape) to samples (K, batch, n) as a numpy array.
     """
 
     kind: Kind
@@ -76,8 +80,8 @@ class UncertaintyEstimator:
         self.kind = kind
         self.obs_shape = None if obs_shape is None else tuple(obs_shape)
         if kind == "actions":
-            low = torch.as_tensor(action_low, dtype=torch.float32)
-            high = torch.as_tensor(action_high, dtype=torch.float32)
+            low = np.asarray(action_low, dtype=np.float32)
+            high = np.asarray(action_high, dtype=np.float32)
             self._scale, self._offset = (high - low) / 2, (high + low) / 2
 
     def estimate(self, obs: np.ndarray | torch.Tensor) -> Estimate:
@@ -85,30 +89,36 @@ class UncertaintyEstimator:
 
         One observation (of ``obs_shape``, or a 1-D vector when no shape was given) is treated as
         a batch of one.
-        """
-        batch = torch.as_tensor(np.asarray(obs)).float()
-        single_dims = len(self.obs_shape) if self.obs_shape is not None else 1
-        if batch.dim() == single_dims:
-            batch = batch.unsqueeze(0)
-        with torch.no_grad():
-            samples = self._sample(batch)
-            if self.kind == "actions":
-                samples = samples * self._scale + self._offset
-            mean = samples.mean(dim=0)
-            std = samples.std(dim=0, unbiased=False)
-        action = mean.argmax(dim=1) if self.kind == "q_values" else mean
-        return Estimate(action.numpy(), samples.numpy(), mean.numpy(), std.numpy())
 
-    def _sample(self, batch: torch.Tensor) -> torch.Tensor:
+        Raises:
+            InvalidParameterError: observations of another shape than ``obs_shape``.
+        """
+        batch = np.asarray(obs, dtype=np.float32)
+        single_dims = len(self.obs_shape) if self.obs_shape is not None else 1
+        if batch.ndim == single_dims:
+            batch = batch[None]
+        if self.obs_shape is not None and batch.shape[1:] != self.obs_shape:
+            raise InvalidParameterError(
+                f"observations of shape {batch.shape[1:]} are not allowed; this estimator takes {self.obs_shape} "
+                "(one observation) or (batch, *that)"
+            )
+        samples = self._sample(batch)
+        if self.kind == "actions":
+            samples = samples * self._scale + self._offset
+        mean = samples.mean(axis=0)
+        deviation = samples - mean
+        std = np.sqrt((deviation * deviation).mean(axis=0))  # np.std, at a third of its overhead
+        action = mean.argmax(axis=1) if self.kind == "q_values" else mean
+        return Estimate(action, samples, mean, std)
+
+    def _sample(self, batch: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
 
-# Modules that act on each row of a (K, batch, features) tensor as on (batch, features).
-_ROWWISE = (nn.Linear, nn.ReLU, nn.Tanh, nn.LeakyReLU, nn.ELU, nn.GELU, nn.SiLU, nn.Sigmoid, nn.Identity)
-
-
-def _rowwise(module: nn.Module) -> bool:
-    return isinstance(module, _ROWWISE) or is_stochastic(module)
+def _run_torch(module: nn.Module, batch: np.ndarray) -> np.ndarray:
+    """A deterministic torch part (a CNN torso) on a numpy batch, in eval mode for the call."""
+    with torch.no_grad(), mc_sampling(module):
+        return module(torch.from_numpy(batch)).numpy()
 
 
 class MCEstimator(UncertaintyEstimator):
@@ -116,25 +126,28 @@ class MCEstimator(UncertaintyEstimator):
 
     For an ``nn.Sequential`` network, the layers before the first stochastic one are
     deterministic: they run once on the batch, and only the rest runs on the K-fold repeated
-    batch (K, batch, features), which must be linear layers, activations and dropout/DropConnect.
-    Any other network runs on the repeated batch flattened to (K * batch, ...), which suits
-    dropout layers (each row draws its own mask) but not DropConnect (one mask per call).
+    activations (K, batch, features). That rest must be linear layers, ReLU/Tanh activations and
+    dropout/DropConnect; it is compiled to numpy with the weights it has when the estimator is
+    built (build the estimator again after training the network). Layers numpy does not support
+    at the start (a CNN) stay in torch.
+
+    Any other network runs in torch on the repeated batch flattened to (K * batch, ...), with only
+    its dropout layers in training mode and every module's previous mode restored afterwards. That
+    suits dropout (each row draws its own mask) but not DropConnect (one mask per call).
 
     Args:
         network: maps observations (batch, *obs_shape) to outputs; for ``kind="actions"`` its
             outputs are in [-1, 1] (a tanh head, as SB3's actors).
         n_samples: K, the number of MC samples per decision.
         kind: ``"q_values"`` or ``"actions"``.
-        obs_shape: the shape of one observation, to tell one from a batch.
+        obs_shape: the shape of one observation, to tell one from a batch and check inputs.
         action_low, action_high: the action space's bounds, for ``kind="actions"``.
-        seed: with a seed, the estimator draws from its own generator: the same seed gives the
-            same samples and torch's global generator is left alone (this costs about 0.1 ms a
-            call for saving and restoring torch's state). Without one, masks come from torch's
-            global generator.
+        seed: seeds the estimator's generator: the same seed gives the same samples. Sampling
+            never touches torch's global generator.
 
     Raises:
         ConfigError: the network has no dropout or DropConnect layer to sample, or layers after
-            the first stochastic one that cannot run on a (K, batch, features) tensor.
+            the first stochastic one other than linear layers, ReLU/Tanh and dropout/DropConnect.
 
     Example:
         >>> from oodmon.agents.layers import add_dropout
@@ -166,36 +179,44 @@ class MCEstimator(UncertaintyEstimator):
             raise InvalidParameterError(f"n_samples={n_samples!r} is not allowed; it must be an integer >= 2")
         self.network = network
         self.n_samples = n_samples
-        self._rng = None if seed is None else np.random.default_rng(seed)
-        self._prefix: nn.Module | None = None
-        self._suffix: nn.Module | None = None
+        self._rng = np.random.default_rng(seed)
+        self._torch_prefix: nn.Module | None = None
+        self._prefix: list[Op] | None = None
+        self._suffix: list[Op] | None = None
         if isinstance(network, nn.Sequential):
-            first = next(i for i, m in enumerate(network) if any(is_stochastic(x) for x in m.modules()))
-            suffix = list(network)[first:]
-            bad = [m for m in suffix if not _rowwise(m)]
-            if bad:
+            layers = list(network)
+            first = next(i for i, m in enumerate(layers) if any(is_stochastic(x) for x in m.modules()))
+            self._suffix = compile_layers(layers[first:])
+            if self._suffix is None:
+                bad = next(m for m in layers[first:] if compile_layers([m]) is None)
                 raise ConfigError(
-                    f"layers after the first stochastic one must be linear layers, activations and "
-                    f"dropout/DropConnect; found {bad[0]!r}"
+                    f"layers after the first stochastic one must be linear layers, ReLU/Tanh activations and "
+                    f"dropout/DropConnect; found {bad!r}"
                 )
-            self._prefix, self._suffix = network[:first], network[first:]
+            # The longest deterministic run before it that numpy supports; torch does the rest.
+            start = next(j for j in range(first + 1) if compile_layers(layers[j:first]) is not None)
+            self._prefix = compile_layers(layers[start:first])
+            self._torch_prefix = network[:start] if start > 0 else None
         elif any(isinstance(m, DropConnectLinear) for m in stochastic):
             raise ConfigError(
                 "DropConnect needs an nn.Sequential network (so each sample draws its own weight mask); "
                 f"got a {type(network).__name__}"
             )
 
-    def _sample(self, batch: torch.Tensor) -> torch.Tensor:
-        isolated = nullcontext() if self._rng is None else torch.random.fork_rng(devices=[])
-        with isolated, mc_sampling(self.network):
-            if self._rng is not None:
-                torch.manual_seed(int(self._rng.integers(2**63)))
-            if self._suffix is not None:
-                hidden = self._prefix(batch)
-                return self._suffix(hidden.unsqueeze(0).expand(self.n_samples, *hidden.shape))
-            repeated = batch.unsqueeze(0).expand(self.n_samples, *batch.shape)
-            out = self.network(repeated.reshape(-1, *batch.shape[1:]))
-            return out.reshape(self.n_samples, batch.shape[0], -1)
+    def _sample(self, batch: np.ndarray) -> np.ndarray:
+        if self._suffix is None:
+            return self._sample_torch(batch)
+        hidden = _run_torch(self._torch_prefix, batch) if self._torch_prefix is not None else batch
+        hidden = run(self._prefix, hidden, self._rng)
+        repeated = np.broadcast_to(hidden, (self.n_samples, *hidden.shape))
+        return run(self._suffix, repeated, self._rng).astype(np.float32, copy=False)
+
+    def _sample_torch(self, batch: np.ndarray) -> np.ndarray:
+        repeated = np.broadcast_to(batch, (self.n_samples, *batch.shape)).reshape(-1, *batch.shape[1:])
+        with torch.no_grad(), torch.random.fork_rng(devices=[]), mc_sampling(self.network):
+            torch.manual_seed(int(self._rng.integers(2**63)))
+            out = self.network(torch.from_numpy(np.ascontiguousarray(repeated)))
+        return out.numpy().reshape(self.n_samples, batch.shape[0], -1)
 
 
 class EnsembleEstimator(UncertaintyEstimator):
@@ -203,7 +224,7 @@ class EnsembleEstimator(UncertaintyEstimator):
 
     Args:
         members: K ``nn.Sequential`` MLPs of identical architecture (linear layers and
-            activations; dropout layers are skipped, as at evaluation).
+            ReLU/Tanh activations; dropout layers are skipped, as at evaluation).
         kind, obs_shape, action_low, action_high: as :class:`MCEstimator`.
         torso: a deterministic network shared by the members, run once on the batch; its
             output (batch, features) feeds every member. The default flattens observations.
@@ -233,45 +254,39 @@ class EnsembleEstimator(UncertaintyEstimator):
         super().__init__(kind, obs_shape, action_low, action_high)
         if len(members) < 2:
             raise ConfigError(f"an ensemble needs at least 2 members; got {len(members)}")
-        self.torso = (torso if torso is not None else nn.Flatten()).eval()
+        self.torso = torso if torso is not None else nn.Flatten()
+        layers = list(self.torso) if isinstance(self.torso, nn.Sequential) else [self.torso]
+        self._torso_ops = compile_layers(layers)  # None: the torso runs in torch (a CNN)
         layer_lists = [[m for m in member if not is_stochastic(m)] for member in members]
         signature = [_signature(layer) for layer in layer_lists[0]]
-        for index, layers in enumerate(layer_lists[1:], start=1):
-            if [_signature(layer) for layer in layers] != signature:
+        for index, layer_list in enumerate(layer_lists[1:], start=1):
+            if [_signature(layer) for layer in layer_list] != signature:
                 raise ConfigError(
                     f"ensemble member {index} has another architecture than member 0: "
-                    f"{[_signature(l) for l in layers]} != {signature}"
+                    f"{[_signature(l) for l in layer_list]} != {signature}"
                 )
         self.n_samples = len(members)
-        # One entry per layer: stacked (weight^T, bias) for linear layers, the module otherwise.
-        self._plan: list[tuple[torch.Tensor, torch.Tensor] | nn.Module] = []
-        for position, layer in enumerate(layer_lists[0]):
-            if isinstance(layer, nn.Linear):
-                linears = [layers[position] for layers in layer_lists]
-                weight_t = torch.stack([l.weight.detach().T for l in linears]).contiguous()
-                bias = torch.stack([
-                    (l.bias.detach() if l.bias is not None else torch.zeros(l.out_features)) for l in linears
-                ]).unsqueeze(1)
-                self._plan.append((weight_t, bias))
-            else:
-                self._plan.append(layer)
+        self._ops: list[Op] = [
+            StackedAffine([layer_list[i] for layer_list in layer_lists]) if isinstance(layer, nn.Linear)
+            else compile_layers([layer])[0]
+            for i, layer in enumerate(layer_lists[0])
+        ]
+        self._rng = np.random.default_rng(0)  # the ops draw nothing; run() wants a generator
 
-    def _sample(self, batch: torch.Tensor) -> torch.Tensor:
-        features = self.torso(batch)
-        hidden = features.unsqueeze(0).expand(self.n_samples, *features.shape)
-        for step in self._plan:
-            if isinstance(step, tuple):
-                hidden = torch.baddbmm(step[1], hidden, step[0])
-            else:
-                hidden = step(hidden)
-        return hidden
+    def _sample(self, batch: np.ndarray) -> np.ndarray:
+        if self._torso_ops is not None:
+            features = run(self._torso_ops, batch, self._rng)
+        else:
+            features = _run_torch(self.torso, batch)
+        hidden = np.broadcast_to(features, (self.n_samples, *features.shape))
+        return run(self._ops, hidden, self._rng).astype(np.float32, copy=False)
 
 
 def _signature(layer: nn.Module) -> str:
     if isinstance(layer, nn.Linear):
         return f"Linear({layer.in_features},{layer.out_features})"
-    if len(list(layer.parameters())):
+    if compile_layers([layer]) is None:
         raise ConfigError(
-            f"ensemble members may hold linear layers and parameter-free activations only; found {layer!r}"
+            f"ensemble members may hold linear layers and ReLU/Tanh activations only; found {layer!r}"
         )
     return type(layer).__name__

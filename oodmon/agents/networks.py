@@ -27,8 +27,9 @@ from torch import nn
 
 from oodmon.agents.estimators import EnsembleEstimator, MCEstimator, UncertaintyEstimator
 from oodmon.agents.policies import STOCHASTIC_LAYERS
+from oodmon.errors import ConfigError
 
-__all__ = ["ScaleImage", "build_modules", "estimator_for", "modules_from_sb3"]
+__all__ = ["ScaleImage", "build_modules", "estimator_for", "estimator_from_sb3", "modules_from_sb3"]
 
 
 class ScaleImage(nn.Module):
@@ -102,3 +103,50 @@ def estimator_for(modules: nn.Module, arch: dict[str, Any], n_samples: int = 20,
     if arch["n_members"] == 1:
         return MCEstimator(modules["network"].eval(), n_samples, kind, seed=seed, **common)
     return EnsembleEstimator(list(modules["members"]), kind, torso=modules["torso"], **common)
+
+
+def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int | None = None) -> UncertaintyEstimator:
+    """An estimator over SB3 models a user trained: an ensemble of several, MC over one.
+
+    Args:
+        models: DQN models, or DDPG/TD3 models, all of one architecture. One model must have
+            dropout or DropConnect in its Q-network or actor (MC sampling); several form an
+            ensemble with stacked weights.
+        n_samples: MC samples per decision (one model only).
+        seed: seeds MC sampling.
+
+    Raises:
+        ConfigError: no models, mixed algorithms, or a single model with nothing to sample.
+
+    Example:
+        >>> import gymnasium
+        >>> from stable_baselines3 import DQN
+        >>> env = gymnasium.make("CartPole-v1")
+        >>> members = [DQN("MlpPolicy", env, seed=k) for k in range(3)]
+        >>> estimator_from_sb3(members).estimate(np.zeros(4, np.float32)).samples.shape
+        (3, 1, 2)
+    """
+    if not models:
+        raise ConfigError("estimator_from_sb3 needs at least one SB3 model")
+    kinds = {"dqn" if hasattr(m.policy, "q_net") else "ddpg" if hasattr(m.policy, "actor") else None for m in models}
+    if None in kinds or len(kinds) != 1:
+        raise ConfigError(
+            f"estimator_from_sb3 takes DQN models or DDPG/TD3 models, all of one kind; got {[type(m).__name__ for m in models]}"
+        )
+    algorithm = kinds.pop()
+    space = models[0].action_space
+    first = models[0].policy.q_net if algorithm == "dqn" else models[0].policy.actor
+    arch = {
+        "algorithm": algorithm,
+        "obs_shape": list(models[0].observation_space.shape),
+        "n_outputs": int(space.n) if algorithm == "dqn" else int(np.prod(space.shape)),
+        "cnn": isinstance(first.features_extractor, NatureCNN),
+        "n_members": len(models),
+        "shared_torso": False,
+    }
+    action_low = space.low.tolist() if algorithm == "ddpg" else None
+    action_high = space.high.tolist() if algorithm == "ddpg" else None
+    if len(models) > 1 and arch["cnn"]:
+        raise ConfigError("an ensemble of separate CNN models is not supported; use bootstrapped heads (QHeads)")
+    return estimator_for(modules_from_sb3(models, arch), arch, n_samples=n_samples, seed=seed,
+                         action_low=action_low, action_high=action_high)

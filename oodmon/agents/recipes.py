@@ -37,7 +37,8 @@ class Recipe:
         n_samples: MC samples per decision for dropout and DropConnect.
         action_noise: std of DDPG's gaussian exploration noise, as a fraction of the action range.
         checkpoint_every: steps between resumable checkpoints.
-        eval_every: steps between evaluations written to the training log.
+        eval_every: steps between evaluations written to the training log. The exported agent
+            has the weights of the best evaluation (``selected_checkpoints`` in its metadata).
         eval_episodes: episodes per evaluation.
         reward_clip: train on the sign of the reward (Pong), as DQN on Atari does.
         notes: what a reader of the metadata should know about the recipe.
@@ -70,13 +71,13 @@ _CARTPOLE = Recipe(
         target_update_interval=10, train_freq=256, gradient_steps=128, exploration_fraction=0.16,
         exploration_final_eps=0.04,
     ),
-    checkpoint_every=10_000, eval_every=10_000,
+    checkpoint_every=10_000, eval_every=5_000, eval_episodes=10,
 )
 
 _PENDULUM = Recipe(
     task="pendulum", method="", algorithm="ddpg", total_steps=20_000, net_arch=[400, 300],
     hyperparams=dict(learning_starts=10_000, gamma=0.98, buffer_size=200_000, learning_rate=1e-3),
-    action_noise=0.1, checkpoint_every=5_000, eval_every=5_000,
+    action_noise=0.1, checkpoint_every=5_000, eval_every=2_500, eval_episodes=5,
 )
 
 _PONG = Recipe(

@@ -31,6 +31,7 @@ from stable_baselines3 import DDPG, DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import NormalActionNoise
+from safetensors.torch import load_file, save_file
 from stable_baselines3.common.torch_layers import NatureCNN
 
 from oodmon.agents.agent import Agent, load_agent
@@ -156,6 +157,7 @@ class _Run:
             model.learn(remaining, callback=_RunCallback(self, report), reset_num_timesteps=False)
         self.checkpoint(model, finished=True)
         report(self.name, model.num_timesteps, self.recipe.total_steps)
+        self.restore_best(model)
         return model
 
     def checkpoint(self, model: BaseAlgorithm, *, finished: bool) -> None:
@@ -174,14 +176,28 @@ class _Run:
         self.state_path.write_text(json.dumps(self.state, indent=1))
 
     def evaluate(self, model: BaseAlgorithm, steps: int) -> None:
+        """Log the greedy policy's mean return; keep the weights of the best evaluation so far."""
         returns = episode_returns(
             lambda obs: model.predict(obs, deterministic=True)[0], Variant(self.recipe.task),
             self.recipe.eval_episodes, seed=10_000 + steps,
         )
-        line = {"run": self.name, "steps": steps, "eval_return_mean": float(np.mean(returns)),
+        mean = float(np.mean(returns))
+        line = {"run": self.name, "steps": steps, "eval_return_mean": mean,
                 "wall_time_s": round(self._wall_before + time.monotonic() - self._started, 1)}
         with open(self.root / "train_log.jsonl", "a") as log:
             log.write(json.dumps(line) + "\n")
+        best = self.state.get("best")
+        if best is None or mean >= best["eval_return_mean"]:
+            save_file({k: v.detach().contiguous() for k, v in model.policy.state_dict().items()},
+                      str(self.folder / "best_policy.safetensors"))
+            self.state["best"] = {"steps": steps, "eval_return_mean": mean}
+
+    def restore_best(self, model: BaseAlgorithm) -> None:
+        """Load the weights of the best evaluation into ``model`` (DQN and DDPG are unstable:
+        the last weights are often not the best ones)."""
+        path = self.folder / "best_policy.safetensors"
+        if self.state.get("best") and path.exists():
+            model.policy.load_state_dict(load_file(str(path)))
 
 
 def _versions() -> dict[str, str]:
@@ -205,6 +221,7 @@ def train(
     total_steps: int | None = None,
     report: Reporter | None = None,
     command: str = "",
+    id_episodes: int | None = None,
 ) -> Agent:
     """Train (or resume training) the ``task``/``method`` agent into ``out``; return it loaded.
 
@@ -215,6 +232,7 @@ def train(
         total_steps: override the recipe's steps per run (smoke tests, quick trials).
         report: called with (run, steps done, steps total) as training goes.
         command: the command line that started the training, recorded in the metadata.
+        id_episodes: episodes behind ``id_return_mean`` (default :data:`ID_EPISODES` of the task).
     """
     recipe = recipe_for(task, method)
     if total_steps is not None:
@@ -238,7 +256,7 @@ def train(
     estimator = estimator_for(modules, arch, recipe.n_samples, seed=seed, action_low=action_low, action_high=action_high)
     policy = (lambda obs: int(estimator.estimate(obs).action[0])) if arch["algorithm"] == "dqn" else (
         lambda obs: estimator.estimate(obs).action[0])
-    id_returns = episode_returns(policy, Variant(task), ID_EPISODES[task], seed=100_000)
+    id_returns = episode_returns(policy, Variant(task), id_episodes or ID_EPISODES[task], seed=100_000)
     metadata = {
         "task": task, "method": method, "algorithm": recipe.algorithm, "architecture": arch,
         "ensemble": ("bootstrapped heads on a shared torso" if arch["shared_torso"] else "independent members")
@@ -247,6 +265,7 @@ def train(
         "n_samples": arch["n_members"] if method == "ensemble" else recipe.n_samples,
         "seed": seed, "training_steps": [int(m.num_timesteps) for m in models],
         "wall_time_s": round(sum(run.state["wall_time_s"] for run in runs), 1),
+        "selected_checkpoints": [run.state.get("best") for run in runs],
         "hyperparams": {k: v for k, v in recipe.hyperparams.items() if isinstance(v, (int, float, str, bool))},
         "recipe_notes": recipe.notes, "versions": _versions(), "command": command,
         "id_return_mean": round(float(np.mean(id_returns)), 2), "id_episodes": len(id_returns),

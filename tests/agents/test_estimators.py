@@ -52,13 +52,40 @@ def test_seeded_sampling_is_reproducible_and_leaves_the_global_generator_alone(m
 
 @pytest.mark.parametrize("method", ["dropout", "dropconnect"])
 @pytest.mark.parametrize("start_mode", [True, False], ids=["train", "eval"])
-def test_model_mode_is_restored_also_after_an_exception(method, start_mode):
-    estimator = _mc(method, seed=0)
+def test_sampling_a_sequential_never_changes_the_models_mode(method, start_mode):
+    estimator = _mc(method, seed=0, obs_shape=(4,))
     net = estimator.network.train(start_mode)
     estimator.estimate(OBS)
     assert all(m.training == start_mode for m in net.modules())
-    with pytest.raises(RuntimeError):
-        estimator.estimate(np.zeros((3, 5), np.float32))  # wrong width: fails inside sampling
+    with pytest.raises(InvalidParameterError, match=r"observations of shape \(5,\) are not allowed; this estimator takes \(4,\)"):
+        estimator.estimate(np.zeros((3, 5), np.float32))
+    assert all(m.training == start_mode for m in net.modules())
+
+
+class Exploding(nn.Module):
+    """A user's network (not a Sequential) that fails inside its forward pass on request."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.body, self.drop, self.out = nn.Linear(4, 16), nn.Dropout(0.3), nn.Linear(16, 2)
+        self.explode = False
+
+    def forward(self, x):
+        h = self.drop(torch.relu(self.body(x)))
+        if self.explode:
+            raise RuntimeError("boom")
+        return self.out(h)
+
+
+@pytest.mark.parametrize("start_mode", [True, False], ids=["train", "eval"])
+def test_torch_sampling_restores_the_mode_also_after_an_exception(start_mode):
+    net = Exploding().train(start_mode)
+    estimator = MCEstimator(net, n_samples=10, seed=0)
+    assert (estimator.estimate(OBS).std > 0).all()
+    assert all(m.training == start_mode for m in net.modules())
+    net.explode = True
+    with pytest.raises(RuntimeError, match="boom"):
+        estimator.estimate(OBS)
     assert all(m.training == start_mode for m in net.modules())
 
 

@@ -1,0 +1,101 @@
+"""The model format loads without unpickling and refuses damaged, foreign or mismatched files."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from oodmon.agents import load, load_agent
+from oodmon.agents.networks import build_modules
+from oodmon.agents.serialization import load_modules, save_modules
+from oodmon.errors import ModelFormatError, UnknownParameterError
+
+ARCH = {"algorithm": "dqn", "obs_shape": [4], "n_outputs": 2, "cnn": False, "net_arch": [16, 16],
+        "stochastic": "dropout", "drop_p": 0.1, "last_only": True, "n_members": 1, "shared_torso": False}
+META = {"task": "cartpole", "method": "dropout", "algorithm": "dqn", "architecture": ARCH, "seed": 3, "n_samples": 20}
+
+
+@pytest.fixture
+def saved(tmp_path):
+    torch.manual_seed(0)
+    modules = build_modules(ARCH)
+    save_modules(tmp_path, modules, META)
+    return tmp_path, modules
+
+
+def test_round_trip_gives_the_same_tensors_and_metadata(saved):
+    path, modules = saved
+    loaded, metadata = load_modules(path, task="cartpole")
+    for name, tensor in modules.state_dict().items():
+        torch.testing.assert_close(loaded.state_dict()[name], tensor, rtol=0, atol=0)
+    assert metadata["seed"] == 3 and metadata["format_version"] == 1 and metadata["dtype"] == "float32"
+    # The tensor file is safetensors: an 8-byte header length, then a JSON header; no pickle.
+    raw = (path / "model.safetensors").read_bytes()
+    header = json.loads(raw[8 : 8 + int.from_bytes(raw[:8], "little")])
+    assert "network.1.weight" in header
+
+
+def test_half_precision_loads_back_as_float32(tmp_path):
+    arch = ARCH | {"stochastic": None, "n_members": 3}
+    modules = build_modules(arch)
+    save_modules(tmp_path, modules, META | {"architecture": arch, "method": "ensemble"}, half=True)
+    loaded, metadata = load_modules(tmp_path)
+    assert metadata["dtype"] == "float16"
+    for name, tensor in loaded.state_dict().items():
+        assert tensor.dtype == torch.float32
+        torch.testing.assert_close(tensor, modules.state_dict()[name], atol=1e-3, rtol=1e-3)
+
+
+def test_corrupted_tensor_file(saved):
+    path, _ = saved
+    raw = (path / "model.safetensors").read_bytes()
+    (path / "model.safetensors").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(ModelFormatError, match="cannot be read as safetensors .* missing or damaged"):
+        load_agent(path)
+
+
+def test_damaged_metadata(saved):
+    path, _ = saved
+    (path / "model.json").write_text("{not json")
+    with pytest.raises(ModelFormatError, match="is not valid JSON"):
+        load_agent(path)
+    (path / "model.json").write_text(json.dumps({"task": "cartpole"}))
+    with pytest.raises(ModelFormatError, match="lacks format_version, method, algorithm, architecture, seed"):
+        load_agent(path)
+
+
+def test_model_of_another_task(saved):
+    path, _ = saved
+    with pytest.raises(ModelFormatError, match="is a cartpole model, not a pendulum model"):
+        load_agent(path, task="pendulum")
+
+
+def test_architecture_mismatch(saved):
+    path, _ = saved
+    metadata = json.loads((path / "model.json").read_text())
+    metadata["architecture"]["net_arch"] = [32, 16]
+    (path / "model.json").write_text(json.dumps(metadata))
+    with pytest.raises(ModelFormatError, match=r"does not match the architecture in model.json \(wrong shape: network.1.bias, network.1.weight"):
+        load_agent(path)
+
+
+def test_missing_directory_and_unknown_shipped_name(tmp_path):
+    with pytest.raises(ModelFormatError, match="does not exist: a model directory holds model.json"):
+        load_agent(tmp_path / "nothing")
+    with pytest.raises(UnknownParameterError, match="no shipped agent 'cartpole-bayes'; the zoo has"):
+        load("cartpole", "bayes")
+
+
+def test_loaded_agent_acts(saved):
+    path, _ = saved
+    agent = load_agent(path, seed=0)
+    action = agent.act(np.zeros(4, np.float32))
+    assert isinstance(action, int) and action in (0, 1)
+    copy = path.parent / "copy"
+    shutil.copytree(path, copy)
+    np.testing.assert_array_equal(load_agent(copy, seed=0).estimate(np.ones(4)).samples,
+                                  load_agent(path, seed=0).estimate(np.ones(4)).samples)

@@ -1,0 +1,103 @@
+"""Training smoke tests (tens of steps), resuming, and the SB3 networks the estimators sample."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from oodmon.agents import load_agent
+from oodmon.agents.layers import DropConnectLinear
+from oodmon.agents.networks import estimator_for, modules_from_sb3
+from oodmon.agents.recipes import recipe_for
+from oodmon.agents.training import _new_model, _training_env, architecture, train
+from oodmon.errors import UnknownParameterError
+
+CASES = [("cartpole", "dropout"), ("cartpole", "ensemble"), ("pendulum", "dropconnect"), ("pendulum", "ensemble"),
+         ("pong", "ensemble")]
+
+
+@pytest.mark.parametrize("task, method", CASES, ids=lambda x: x)
+def test_training_runs_and_saves_a_loadable_agent(tmp_path, task, method):
+    steps = 64 if task == "pong" else 300
+    agent = train(task, method, tmp_path, total_steps=steps, id_episodes=2)
+    meta = json.loads((tmp_path / "model.json").read_text())
+    for key in ("task", "method", "algorithm", "architecture", "seed", "training_steps", "wall_time_s", "versions",
+                "id_return_mean", "id_episodes", "n_samples"):
+        assert key in meta
+    assert meta["task"] == task and meta["method"] == method
+    assert all(s >= steps for s in meta["training_steps"])
+    assert meta["id_episodes"] == 2 and len(meta["id_returns"]) == 2
+    assert len(meta["training_steps"]) == (5 if method == "ensemble" and task != "pong" else 1)
+    assert meta["versions"]["torch"].startswith(torch.__version__.split("+")[0])
+    loaded = load_agent(tmp_path, task=task)
+    obs = np.zeros(loaded.estimator.obs_shape, np.float32)
+    estimate = loaded.estimate(obs)
+    assert estimate.samples.shape[0] == (5 if method == "ensemble" else 20)
+    assert agent.metadata == loaded.metadata
+
+
+def test_interrupted_training_resumes_from_its_checkpoint(tmp_path):
+    seen: list[int] = []
+
+    def interrupt_after_checkpoint(run, done, total):
+        seen.append(done)
+        if done >= 600:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train("cartpole", "dropout", tmp_path, total_steps=1000, report=interrupt_after_checkpoint, id_episodes=2)
+    state = json.loads((tmp_path / "runs" / "main" / "state.json").read_text())
+    assert state["finished"] is False and state["steps"] == 500  # the checkpoint at half the steps
+    assert not (tmp_path / "model.json").exists()
+
+    resumed: list[int] = []
+    train("cartpole", "dropout", tmp_path, total_steps=1000, report=lambda run, done, total: resumed.append(done), id_episodes=2)
+    assert resumed[0] == 500  # it started from the checkpoint, not from zero
+    state = json.loads((tmp_path / "runs" / "main" / "state.json").read_text())
+    assert state["finished"] is True and state["steps"] >= 1000
+    assert not (tmp_path / "runs" / "main" / "replay_buffer.pkl").exists()  # dropped once finished
+    # Running the finished command again trains nothing more.
+    again: list[int] = []
+    train("cartpole", "dropout", tmp_path, total_steps=1000, report=lambda run, done, total: again.append(done), id_episodes=2)
+    assert min(again) == state["steps"]
+
+
+@pytest.mark.parametrize("method", ["dropout", "dropconnect"])
+def test_mc_network_is_the_sb3_q_network_with_stochastic_layers(method):
+    recipe = recipe_for("cartpole", method)
+    env = _training_env(recipe)
+    model = _new_model(recipe, env, seed=0)
+    arch = architecture(recipe, env)
+    modules = modules_from_sb3([model], arch)
+    obs = np.random.default_rng(0).normal(size=(6, 4)).astype(np.float32)
+    model.policy.set_training_mode(False)
+    with torch.no_grad():
+        sb3_q = model.policy.q_net(torch.as_tensor(obs)).numpy()
+        ours = modules["network"].eval()(torch.as_tensor(obs)).numpy()
+    np.testing.assert_allclose(ours, sb3_q, atol=1e-6)
+    stochastic = [m for m in modules["network"] if isinstance(m, (torch.nn.Dropout, DropConnectLinear))]
+    assert len(stochastic) == 1  # last_only: one stochastic layer, at the output
+    estimate = estimator_for(modules, arch, n_samples=20, seed=0).estimate(obs)
+    assert (estimate.std > 0).all()
+    np.testing.assert_allclose(estimate.mean, sb3_q, atol=0.5 * np.abs(sb3_q).max() + 1e-3)
+
+
+def test_independent_ensemble_members_are_the_sb3_members(tmp_path):
+    recipe = recipe_for("cartpole", "ensemble")
+    env = _training_env(recipe)
+    models = [_new_model(recipe, env, seed=k) for k in range(5)]
+    arch = architecture(recipe, env)
+    estimate = estimator_for(modules_from_sb3(models, arch), arch).estimate(np.ones((3, 4), np.float32))
+    with torch.no_grad():
+        expected = np.stack([m.policy.q_net(torch.ones(3, 4)).numpy() for m in models])
+    np.testing.assert_allclose(estimate.samples, expected, atol=1e-6)
+
+
+def test_unknown_task_or_method():
+    with pytest.raises(UnknownParameterError, match="unknown method 'bayes'; choose one of dropout, dropconnect, ensemble"):
+        recipe_for("cartpole", "bayes")
+    with pytest.raises(UnknownParameterError, match="unknown task 'hopper'"):
+        recipe_for("hopper", "dropout")
