@@ -4,6 +4,8 @@ One loop for every task and method. A training directory holds::
 
     runs/<run>/checkpoint.zip      SB3's own checkpoint (our file, so unpickling it is fine)
     runs/<run>/replay_buffer.pkl   the replay buffer, so that a resumed run goes on where it was
+    runs/<run>/policy.safetensors  the last checkpoint's weights alone: small enough to commit, and
+                                   enough to resume (with a fresh buffer) where the two above are gone
     runs/<run>/state.json          steps done, wall time, finished or not
     train_log.jsonl                one line per evaluation: steps, mean greedy return, wall time
     model.json, model.safetensors  the finished agent (see ``serialization``)
@@ -139,24 +141,38 @@ class _Run:
         return bool(self.state["finished"])
 
     def load_or_create(self, env: gymnasium.Env) -> BaseAlgorithm:
+        """The full checkpoint if there is one; else the last weights (``policy.safetensors``, small
+        enough to commit) with a fresh buffer and optimizer; else a new model."""
         checkpoint = self.folder / "checkpoint.zip"
-        if not checkpoint.exists():
-            return _new_model(self.recipe, env, self.seed)
-        model = _algorithm_class(self.recipe).load(checkpoint, env=env, device="cpu")
-        buffer = self.folder / "replay_buffer.pkl"
-        if buffer.exists():
-            model.load_replay_buffer(buffer)
+        if checkpoint.exists():
+            model = _algorithm_class(self.recipe).load(checkpoint, env=env, device="cpu")
+            buffer = self.folder / "replay_buffer.pkl"
+            if buffer.exists():
+                model.load_replay_buffer(buffer)
+            return model
+        model = _new_model(self.recipe, env, self.seed)
+        weights = self.folder / "policy.safetensors"
+        if weights.exists() and self.state["steps"] > 0:
+            model.policy.load_state_dict(load_file(str(weights)), strict=False)
+            for online, target in (("q_net", "q_net_target"), ("actor", "actor_target"), ("critic", "critic_target")):
+                if hasattr(model.policy, target):
+                    getattr(model.policy, target).load_state_dict(getattr(model.policy, online).state_dict())
+            model.num_timesteps = int(self.state["steps"])
+            # Refill the empty replay buffer before learning again.
+            model.learning_starts = model.num_timesteps + self.recipe.hyperparams.get("learning_starts", 0)
         return model
 
     def train(self, report: Reporter) -> BaseAlgorithm:
+        self._started = time.monotonic()  # wall time counts from here: members train one after another
         env = _training_env(self.recipe)
         model = self.load_or_create(env)
-        remaining = self.recipe.total_steps - model.num_timesteps
         report(self.name, model.num_timesteps, self.recipe.total_steps)
-        if remaining > 0:
-            model.learn(remaining, callback=_RunCallback(self, report), reset_num_timesteps=False)
-        self.checkpoint(model, finished=True)
-        report(self.name, model.num_timesteps, self.recipe.total_steps)
+        if not self.finished:
+            remaining = self.recipe.total_steps - model.num_timesteps
+            if remaining > 0:
+                model.learn(remaining, callback=_RunCallback(self, report), reset_num_timesteps=False)
+            self.checkpoint(model, finished=True)
+            report(self.name, model.num_timesteps, self.recipe.total_steps)
         self.restore_best(model)
         return model
 
@@ -169,6 +185,8 @@ class _Run:
             temporary = self.folder / f"tmp-{name}"
             save(temporary)
             os.replace(temporary, self.folder / name)
+        save_file(_online_weights(model), str(self.folder / "tmp-policy.safetensors"))
+        os.replace(self.folder / "tmp-policy.safetensors", self.folder / "policy.safetensors")
         self.state.update(
             steps=int(model.num_timesteps), finished=finished,
             wall_time_s=round(self._wall_before + time.monotonic() - self._started, 1),
@@ -188,8 +206,7 @@ class _Run:
             log.write(json.dumps(line) + "\n")
         best = self.state.get("best")
         if best is None or mean >= best["eval_return_mean"]:
-            save_file({k: v.detach().contiguous() for k, v in model.policy.state_dict().items()},
-                      str(self.folder / "best_policy.safetensors"))
+            save_file(_online_weights(model), str(self.folder / "best_policy.safetensors"))
             self.state["best"] = {"steps": steps, "eval_return_mean": mean}
 
     def restore_best(self, model: BaseAlgorithm) -> None:
@@ -197,7 +214,12 @@ class _Run:
         the last weights are often not the best ones)."""
         path = self.folder / "best_policy.safetensors"
         if self.state.get("best") and path.exists():
-            model.policy.load_state_dict(load_file(str(path)))
+            model.policy.load_state_dict(load_file(str(path)), strict=False)
+
+
+def _online_weights(model: BaseAlgorithm) -> dict[str, torch.Tensor]:
+    """The policy's weights without its target networks (those are copies, made again on load)."""
+    return {k: v.detach().contiguous() for k, v in model.policy.state_dict().items() if "_target" not in k}
 
 
 def _versions() -> dict[str, str]:

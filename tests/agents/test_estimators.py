@@ -154,3 +154,29 @@ def test_estimator_errors_name_the_problem():
         EnsembleEstimator([_mlp(0), _mlp(1)], kind="values")
     with pytest.raises(InvalidParameterError, match=r"drop probability p=1.0 is not allowed; it must satisfy 0 < p < 1"):
         add_dropout(_mlp(0), 1.0)
+
+
+def test_mc_dropconnect_estimator_samples_weight_masks_per_sample():
+    torch.manual_seed(0)
+    layer = DropConnectLinear(50, 40, p=0.3, bias=False)
+    estimator = MCEstimator(nn.Sequential(layer), n_samples=10, seed=0)
+    samples = estimator.estimate(np.eye(50, dtype=np.float32)).samples  # (10, 50 one-hot inputs, 40)
+    effective = samples.transpose(0, 2, 1)  # (10, 40, 50): the weights each sampled network used
+    kept = effective != 0
+    assert kept.mean() == pytest.approx(0.7, abs=0.02)
+    weights = layer.weight.detach().numpy()
+    np.testing.assert_allclose(effective[kept], np.broadcast_to(weights / 0.7, effective.shape)[kept], rtol=1e-5)
+    assert not np.array_equal(kept[0], kept[1])  # each sample its own mask
+
+
+def test_mc_dropout_estimator_matches_the_dropout_formula():
+    # One dropout layer before an identity-like linear layer: every output of every sample is the
+    # input scaled by 1/(1-p) or 0, and about a fraction p are 0.
+    linear = nn.Linear(200, 200, bias=False)
+    with torch.no_grad():
+        linear.weight.copy_(torch.eye(200))
+    estimator = MCEstimator(nn.Sequential(nn.Dropout(0.25), linear), n_samples=50, seed=3)
+    samples = estimator.estimate(np.ones(200, np.float32)).samples
+    values = np.unique(samples)
+    assert len(values) == 2 and values[0] == 0 and values[1] == pytest.approx(1 / 0.75)
+    assert (samples == 0).mean() == pytest.approx(0.25, abs=0.01)

@@ -7,12 +7,13 @@ import json
 import numpy as np
 import pytest
 import torch
+from safetensors.torch import load_file
 
 from oodmon.agents import load_agent
 from oodmon.agents.layers import DropConnectLinear
 from oodmon.agents.networks import estimator_for, modules_from_sb3
 from oodmon.agents.recipes import recipe_for
-from oodmon.agents.training import _new_model, _training_env, architecture, train
+from oodmon.agents.training import _new_model, _Run, _shortened, _training_env, architecture, train
 from oodmon.errors import UnknownParameterError
 
 CASES = [("cartpole", "dropout"), ("cartpole", "ensemble"), ("pendulum", "dropconnect"), ("pendulum", "ensemble"),
@@ -101,3 +102,28 @@ def test_unknown_task_or_method():
         recipe_for("cartpole", "bayes")
     with pytest.raises(UnknownParameterError, match="unknown task 'hopper'"):
         recipe_for("hopper", "dropout")
+
+
+def test_training_resumes_from_the_weights_alone_when_the_big_checkpoint_is_gone(tmp_path):
+    def interrupt(run, done, total):
+        if done >= 600:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train("cartpole", "dropconnect", tmp_path, total_steps=1000, report=interrupt, id_episodes=2)
+    main = tmp_path / "runs" / "main"
+    (main / "checkpoint.zip").unlink()
+    (main / "replay_buffer.pkl").unlink()
+    assert (main / "policy.safetensors").stat().st_size < 400_000
+    saved = load_file(str(main / "policy.safetensors"))
+    assert "q_net.q_net.0.weight" in saved and not any("target" in k for k in saved)
+    recipe = _shortened(recipe_for("cartpole", "dropconnect"), 1000)
+    model = _Run(recipe, tmp_path, "main", 0).load_or_create(_training_env(recipe))
+    for name, tensor in model.policy.q_net.state_dict().items():
+        torch.testing.assert_close(tensor, saved[f"q_net.{name}"])
+        torch.testing.assert_close(model.policy.q_net_target.state_dict()[name], tensor)
+    assert model.num_timesteps == 500 and model.learning_starts == 500 + recipe.hyperparams["learning_starts"]
+    resumed: list[int] = []
+    agent = train("cartpole", "dropconnect", tmp_path, total_steps=1000, id_episodes=2,
+                  report=lambda run, done, total: resumed.append(done))
+    assert resumed[0] == 500 and agent.metadata["training_steps"][0] >= 1000
