@@ -57,6 +57,9 @@ def _parser() -> argparse.ArgumentParser:
     show.add_argument("--seed", type=int, default=0, help="seed of the episode shown (default 0)")
     show.add_argument("--onset", type=int, default=0, help="step at which the shift begins (physics; default 0)")
     show.set_defaults(handler=_envs_show)
+    tour = envs_commands.add_parser("tour", help="what the envs change, shown with a hand-written controller")
+    tour.add_argument("--out", default="runs/tour", help="folder for the pictures (default runs/tour)")
+    tour.set_defaults(handler=_envs_tour)
 
     train = commands.add_parser(
         "train", help="train an uncertainty-aware agent from its recipe (resumes an interrupted run)"
@@ -83,7 +86,36 @@ def _parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--json", action="store_true", help="print JSON instead of a table")
     evaluate.set_defaults(handler=_evaluate)
 
-    demo = commands.add_parser("demo", help="the main job of 'make demo'")
+    calibrate = commands.add_parser(
+        "calibrate", help="calibrate an agent's alarm threshold on held-out in-distribution episodes"
+    )
+    _agent_arguments(calibrate)
+    calibrate.add_argument("--episodes", type=int, default=50, help="ID calibration episodes (default 50)")
+    calibrate.add_argument("--far", type=float, default=0.05, help="target false-alarm rate (default 0.05)")
+    calibrate.add_argument("--consecutive", type=int, default=3, help="m of the alarm rule (default 3)")
+    calibrate.add_argument("--mode", choices=["episode", "step"], default="episode",
+                           help="guarantee per episode (default) or per step")
+    calibrate.add_argument("--score", default="chosen_std", help="chosen_std (default), mean_std or max_std")
+    calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
+    calibrate.set_defaults(handler=_calibrate)
+
+    run = commands.add_parser("run", help="run a monitored agent in an env (ID or shifted), logging to MCAP/Rerun")
+    _agent_arguments(run)
+    run.add_argument("--variant", help="a variant spec (default: the task's ID env)")
+    run.add_argument("--onset", type=int, default=0, help="step at which the shift begins (default 0)")
+    run.add_argument("--episodes", type=int, default=5, help="episodes (default 5)")
+    run.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
+    run.add_argument("--threshold", help="a threshold file from `oodmon calibrate` (default: no alarms)")
+    run.add_argument("--mcap", help="write the run to this MCAP file")
+    run.add_argument("--rrd", help="write the run to this Rerun file")
+    live = run.add_mutually_exclusive_group()
+    live.add_argument("--spawn", action="store_true", help="stream to a Rerun viewer started for it")
+    live.add_argument("--serve", action="store_true", help="serve the stream for a remote Rerun viewer")
+    live.add_argument("--connect", metavar="URL", help="stream to a running Rerun viewer at URL")
+    run.add_argument("--strict", action="store_true", help="a failing sink stops the run instead of warning")
+    run.set_defaults(handler=_run)
+
+    demo = commands.add_parser("demo", help="the main job of 'make demo': calibrate, monitor, log, summarise")
     demo.add_argument("--out", default="runs/demo", help="folder for the demo's files (default runs/demo)")
     demo.set_defaults(handler=_demo)
     return parser
@@ -167,6 +199,90 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _agent_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
+    parser.add_argument("--method", choices=["dropout", "dropconnect", "ensemble"],
+                        help="a shipped agent (or give --model)")
+    parser.add_argument("--model", help="a trained model directory instead of a shipped agent")
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from rich.progress import Progress
+
+    from oodmon.monitor import calibrate_agent
+
+    agent = _load_agent(args)
+    with Progress(console=Console(stderr=True), transient=True) as progress:
+        bar = progress.add_task("ID calibration episodes", total=args.episodes)
+        threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
+                                    score=args.score, on_episode=lambda i: progress.update(bar, advance=1))
+    threshold.save(args.out)
+    Console(soft_wrap=True).print(
+        f"{args.task}/{agent.method}: alarm when {threshold.rule} ({threshold.mode} mode, target false-alarm rate "
+        f"{threshold.far}, {threshold.n_episodes} ID episodes, {threshold.n_steps} steps; ID score median "
+        f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); wrote {args.out}"
+    )
+    return 0
+
+
+def _run(args: argparse.Namespace) -> int:
+    from rich.progress import Progress
+
+    from oodmon.envs import Variant, parse_variant
+    from oodmon.errors import ConfigError
+    from oodmon.monitor import McapSink, Monitor, Threshold
+    from oodmon.monitor.sinks.rerun import RerunSink
+
+    agent = _load_agent(args)
+    variant = parse_variant(args.variant) if args.variant else Variant(args.task)
+    if variant.task != args.task:
+        raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant")
+    threshold = Threshold.load(args.threshold) if args.threshold else None
+    sinks = []
+    if args.mcap:
+        sinks.append(McapSink(args.mcap))
+    if args.rrd or args.spawn or args.serve or args.connect:
+        sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect))
+    console = Console(soft_wrap=True)
+    alarm_lines = []
+
+    def show(event) -> None:
+        alarm_lines.append(event)
+        progress.console.print(f"[bold red]ALARM[/bold red] episode {event.episode} step {event.step}: "
+                               f"score {event.score:.4g} > {event.threshold:.4g} ({event.rule})")
+
+    env = variant.make(onset_step=args.onset)
+    records = []
+    with Progress(console=console, transient=True) as progress, \
+            Monitor(agent, threshold, sinks=sinks, callbacks=[show], strict=args.strict) as monitor:
+        bar = progress.add_task(f"{variant.spec} (onset {args.onset})", total=args.episodes)
+        for episode in range(args.episodes):
+            records.append(monitor.run_episode(env, seed=args.seed + episode, variant=variant.spec))
+            progress.update(bar, advance=1)
+        failures = dict(monitor.sinks.failures)
+    env.close()
+    table = Table(title=f"{args.task}/{agent.method} in {variant.spec}, onset {args.onset}"
+                        + (f", {threshold.rule}" if threshold else ", no threshold"))
+    for column in ("episode", "seed", "return", "length", "alarms", "first alarm", "delay"):
+        table.add_column(column, justify="right")
+    for record in records:
+        if record.first_alarm_step is None or variant.is_id:
+            delay = ""
+        elif record.first_alarm_step < record.onset:
+            delay = "before onset"
+        else:
+            delay = str(record.first_alarm_step - record.onset)
+        table.add_row(str(record.episode), str(record.seed), f"{record.total_return:.1f}", str(record.length),
+                      str(record.alarms), "" if record.first_alarm_step is None else str(record.first_alarm_step), delay)
+    console.print(table)
+    alarmed = sum(r.alarms > 0 for r in records)
+    console.print(f"{alarmed} of {len(records)} episodes raised an alarm"
+                  + (f"; written to {', '.join(str(p) for p in (args.mcap, args.rrd) if p)}" if args.mcap or args.rrd else ""))
+    if failures:
+        console.print(f"[yellow]sink failures: {failures}[/yellow]")
+    return 0
+
+
 def _load_agent(args: argparse.Namespace):
     from oodmon.agents import load, load_agent
     from oodmon.errors import ConfigError
@@ -224,6 +340,13 @@ def _evaluate(args: argparse.Namespace) -> int:
     Console().print(table)
     failing = [r.spec for r in results if r.fails]
     Console(soft_wrap=True).print(f"{len(failing)} of {len(results)} variants fail the agent: {', '.join(failing)}")
+    return 0
+
+
+def _envs_tour(args: argparse.Namespace) -> int:
+    from oodmon.demo import run_env_tour
+
+    run_env_tour(args.out)
     return 0
 
 

@@ -68,11 +68,59 @@ def test_cli_errors_are_one_line_without_a_traceback(args, words):
     assert "Traceback" not in result.stderr
 
 
-def test_demo_runs_and_writes_its_pictures(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path)]) == 0
+def test_envs_tour_writes_its_pictures(tmp_path, capsys):
+    assert main(["envs", "tour", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "the monitor is not built yet" in out
-    assert "cartpole:length=2.0" in out and "falls" in out
+    assert "hand-written reference controller" in out and "cartpole:length=2.0" in out and "falls" in out
     pictures = sorted(p.name for p in tmp_path.iterdir())
     assert pictures == sorted(["cartpole_length2_onset100.png", "pong_gaussian_noise_3.png", "pong_impulse_noise_3.png",
                                "pong_motion_blur_3.png", "pong_pixelate_3.png"])
+
+
+def test_demo_calibrates_monitors_and_logs(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "Calibrated on 40 held-out ID episodes" in out and "shifts detected" in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["id.mcap", "id.rrd", "shifted.mcap", "shifted.rrd",
+                                                          "threshold.json"]
+
+
+def test_calibrate_then_run_with_logs(tmp_path):
+    threshold = tmp_path / "thr.json"
+    result = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--out", str(threshold))
+    assert result.returncode == 0, result.stderr
+    assert "alarm when score >" in result.stdout and json.loads(threshold.read_text())["n_episodes"] == 19
+    result = _run("run", "--task", "cartpole", "--method", "dropout", "--variant", "cartpole:length=2.0", "--onset", "50",
+                  "--episodes", "2", "--threshold", str(threshold), "--mcap", str(tmp_path / "x.mcap"),
+                  "--rrd", str(tmp_path / "x.rrd"))
+    assert result.returncode == 0, result.stderr
+    assert "cartpole/dropout in cartpole:length=2.0, onset 50" in result.stdout
+    assert (tmp_path / "x.mcap").stat().st_size > 1000 and (tmp_path / "x.rrd").stat().st_size > 1000
+
+
+def test_evaluate_marks_failing_variants_as_json(capsys):
+    assert main(["evaluate", "--task", "cartpole", "--method", "ensemble", "--episodes", "2",
+                 "--variants", "cartpole:gravity=0.98,cartpole:force_mag=100.0", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["id_return_mean"] == 500.0 and [v["variant"] for v in report["variants"]] == [
+        "cartpole:gravity=0.98", "cartpole:force_mag=100.0"]
+    line = 23.7 + 0.5 * (500.0 - 23.7)
+    assert all(v["fails"] == (v["return_mean"] < line) for v in report["variants"])
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["run", "--task", "cartpole", "--method", "dropout", "--threshold", "/nonexistent.json"], "does not exist"),
+        (["run", "--task", "cartpole", "--method", "dropout", "--variant", "pendulum:g=5"], "is not a cartpole variant"),
+        (["evaluate", "--task", "cartpole"], "give --method for a shipped agent, or --model DIR"),
+        (["evaluate", "--task", "cartpole", "--model", "/nonexistent"], "does not exist: a model directory"),
+        (["calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "5", "--out", "/tmp/x.json"],
+         "far=0.05 needs at least 19 ID calibration episodes"),
+    ],
+)
+def test_monitor_cli_errors_are_one_line(args, words):
+    result = _run(*args)
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and words in lines[0], result.stderr

@@ -1,0 +1,49 @@
+"""Run held-out in-distribution episodes of an agent and calibrate its threshold on them.
+
+The calibration episodes use seeds from :data:`CALIBRATION_SEED` on, apart from the seeds of
+training's evaluations (10,000 + steps) and of the ID return (100,000 + i), so they are held out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from oodmon.agents.agent import Agent
+from oodmon.envs.grid import Variant
+from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE
+from oodmon.monitor.monitor import Monitor
+from oodmon.monitor.scores import DEFAULT_SCORE
+from oodmon.monitor.sinks.base import MemorySink
+from oodmon.monitor.threshold import Threshold, calibrate
+
+__all__ = ["CALIBRATION_SEED", "calibrate_agent", "id_episode_scores"]
+
+CALIBRATION_SEED = 200_000
+
+
+def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SEED, score: str = DEFAULT_SCORE,
+                      on_episode: Callable[[int], None] | None = None) -> list[np.ndarray]:
+    """Per-step scores of ``episodes`` ID episodes of ``agent``, seeded ``seed``, ``seed + 1``, ..."""
+    sink = MemorySink()
+    env = Variant(agent.task).make()
+    with Monitor(agent, score=score, sinks=[sink], log_observations=False) as monitor:
+        for episode in range(episodes):
+            monitor.run_episode(env, seed=seed + episode, variant=agent.task)
+            if on_episode is not None:
+                on_episode(episode)
+    env.close()
+    scores: list[list[float]] = [[] for _ in range(episodes)]
+    for record in sink.steps:
+        scores[record.episode].append(record.score)
+    return [np.asarray(s) for s in scores]
+
+
+def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int = DEFAULT_CONSECUTIVE,
+                    mode: str = "episode", score: str = DEFAULT_SCORE, seed: int = CALIBRATION_SEED,
+                    on_episode: Callable[[int], None] | None = None) -> Threshold:
+    """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``)."""
+    scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_episode=on_episode)
+    return calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
+                     method=agent.method)

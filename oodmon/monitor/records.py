@@ -1,0 +1,101 @@
+"""What the monitor records: one :class:`StepRecord` per step, one :class:`EpisodeRecord` per
+episode, one :class:`RunInfo` per run. Sinks write them; replay reads them back from the logs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ["EpisodeRecord", "RunInfo", "StepRecord"]
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """One monitored step.
+
+    Attributes:
+        episode: the episode's index in the run (0, 1, ...).
+        step: the step's index in the episode; the observation is the one the policy acted on.
+        action: the deployed action (an int for DQN, a list of floats for DDPG).
+        mean: per action (DQN: Q-values) or action dimension (DDPG: actions), the mean of the samples.
+        std: the same, the standard deviation of the samples.
+        score: the step's uncertainty score.
+        threshold: the threshold in force (``nan`` without one).
+        alarm: whether the alarm rule holds at this step.
+        shifted: whether the observation came from the shifted world (the env's ``info``).
+        observation: the observation (vector tasks), or ``None``.
+        frame: the observed image (Pong: the newest 84x84 frame the agent saw), or ``None``.
+    """
+
+    episode: int
+    step: int
+    action: int | list[float]
+    mean: list[float]
+    std: list[float]
+    score: float
+    threshold: float
+    alarm: bool
+    shifted: bool
+    observation: list[float] | None = None
+    frame: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    def to_json(self) -> dict[str, Any]:
+        """The fields logged as JSON (the frame goes to an image channel instead)."""
+        data = {name: getattr(self, name) for name in
+                ("episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted")}
+        if self.observation is not None:
+            data["observation"] = self.observation
+        return data
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """One finished episode.
+
+    Attributes:
+        episode: the episode's index in the run.
+        env_id: the gymnasium id, e.g. ``oodmon/CartPole-v1``.
+        variant: the variant's spec, e.g. ``cartpole:length=2.0``.
+        onset: the step from which the shift is active (0 for the whole episode).
+        seed: the seed of ``reset``.
+        total_return: the sum of the rewards.
+        length: the number of steps.
+        alarms: the number of alarms raised.
+        first_alarm_step: the step of the first alarm, or ``None``.
+    """
+
+    episode: int
+    env_id: str
+    variant: str
+    onset: int
+    seed: int | None
+    total_return: float
+    length: int
+    alarms: int
+    first_alarm_step: int | None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"episode": self.episode, "env_id": self.env_id, "variant": self.variant, "onset": self.onset,
+                "seed": self.seed, "return": self.total_return, "length": self.length, "alarms": self.alarms,
+                "first_alarm_step": self.first_alarm_step}
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """What a run's log says about the run as a whole (written as MCAP metadata)."""
+
+    task: str
+    method: str
+    score: str
+    threshold: float
+    rule: str
+    policy_hash: str
+    versions: dict[str, str]
+
+    def to_strings(self) -> dict[str, str]:
+        """MCAP metadata holds strings only."""
+        return {"task": self.task, "method": self.method, "score": self.score, "threshold": repr(self.threshold),
+                "rule": self.rule, "policy_hash": self.policy_hash,
+                **{f"version.{k}": v for k, v in self.versions.items()}}

@@ -1,0 +1,50 @@
+"""Per-step uncertainty scores: one number per observation from an :class:`Estimate`.
+
+- ``chosen_std`` (default): the std across samples of the chosen action's Q-value (DQN), or of
+  the action (DDPG; the mean over action dimensions when there are several). This is the
+  paper's score: how unsure the policy is about what it actually does.
+- ``mean_std``: the std averaged over all actions (DQN) or action dimensions (DDPG).
+- ``max_std``: the largest std over actions or action dimensions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from oodmon.agents.estimators import Estimate
+from oodmon.errors import UnknownParameterError
+
+__all__ = ["DEFAULT_SCORE", "SCORES", "score_function"]
+
+
+def _chosen_std(estimate: Estimate) -> np.ndarray:
+    if estimate.action.ndim == 1 and np.issubdtype(estimate.action.dtype, np.integer):
+        return estimate.std[np.arange(len(estimate.action)), estimate.action]
+    return estimate.std.mean(axis=1)
+
+
+#: Score functions by name: Estimate -> (batch,) scores.
+SCORES: dict[str, Callable[[Estimate], np.ndarray]] = {
+    "chosen_std": _chosen_std,
+    "mean_std": lambda estimate: estimate.std.mean(axis=1),
+    "max_std": lambda estimate: estimate.std.max(axis=1),
+}
+DEFAULT_SCORE = "chosen_std"
+
+
+def score_function(name: str) -> Callable[[Estimate], np.ndarray]:
+    """The score function called ``name``.
+
+    Raises:
+        UnknownParameterError: not one of :data:`SCORES`.
+
+    Example:
+        >>> est = Estimate(np.array([1]), np.zeros((2, 1, 2)), np.zeros((1, 2)), np.array([[0.5, 2.0]]))
+        >>> score_function("chosen_std")(est).tolist(), score_function("mean_std")(est).tolist()
+        ([2.0], [1.25])
+    """
+    if name not in SCORES:
+        raise UnknownParameterError(f"unknown score {name!r}; choose one of {', '.join(SCORES)}")
+    return SCORES[name]

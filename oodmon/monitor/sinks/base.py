@@ -1,0 +1,99 @@
+"""The sink interface, the in-memory sink, and the group that keeps a failing sink from
+stopping the control loop."""
+
+from __future__ import annotations
+
+import warnings
+from typing import Protocol
+
+from oodmon.monitor.alarms import AlarmEvent
+from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
+
+__all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning"]
+
+
+class Sink(Protocol):
+    """Where the monitor's records go. Every method may raise; :class:`SinkGroup` contains it."""
+
+    def open(self, run: RunInfo) -> None: ...
+    def write_step(self, record: StepRecord) -> None: ...
+    def write_alarm(self, event: AlarmEvent) -> None: ...
+    def end_episode(self, record: EpisodeRecord) -> None: ...
+    def close(self) -> None: ...
+
+
+class MemorySink:
+    """Keeps every record in lists; for tests and notebooks.
+
+    Example:
+        >>> sink = MemorySink()
+        >>> sink.steps, sink.episodes, sink.alarms
+        ([], [], [])
+    """
+
+    def __init__(self) -> None:
+        self.run: RunInfo | None = None
+        self.steps: list[StepRecord] = []
+        self.alarms: list[AlarmEvent] = []
+        self.episodes: list[EpisodeRecord] = []
+        self.closed = False
+
+    def open(self, run: RunInfo) -> None:
+        self.run = run
+
+    def write_step(self, record: StepRecord) -> None:
+        self.steps.append(record)
+
+    def write_alarm(self, event: AlarmEvent) -> None:
+        self.alarms.append(event)
+
+    def end_episode(self, record: EpisodeRecord) -> None:
+        self.episodes.append(record)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+class SinkWarning(RuntimeWarning):
+    """A sink failed; the monitor goes on without the record it could not write."""
+
+
+class SinkGroup:
+    """Calls every sink; a sink that raises is warned about and counted, and the others go on.
+
+    With ``strict=True`` the first failure is raised instead (tests, CI). A sink that failed
+    keeps being called: a full disk may have room again at the next episode.
+    """
+
+    def __init__(self, sinks: list[Sink], *, strict: bool = False) -> None:
+        self.sinks = list(sinks)
+        self.strict = strict
+        self.failures: dict[str, int] = {}
+
+    def _call(self, method: str, *args: object) -> None:
+        for sink in self.sinks:
+            try:
+                getattr(sink, method)(*args)
+            except Exception as error:  # noqa: BLE001  (any failure of a sink is contained)
+                if self.strict:
+                    raise
+                name = type(sink).__name__
+                self.failures[name] = self.failures.get(name, 0) + 1
+                if self.failures[name] == 1 or self.failures[name] % 1000 == 0:
+                    warnings.warn(f"{name}.{method} failed ({error}); {self.failures[name]} failure(s) so far, "
+                                  "the monitor goes on", SinkWarning, stacklevel=3)
+
+    def open(self, run: RunInfo) -> None:
+        self._call("open", run)
+
+    def write_step(self, record: StepRecord) -> None:
+        self._call("write_step", record)
+
+    def write_alarm(self, event: AlarmEvent) -> None:
+        self._call("write_alarm", event)
+
+    def end_episode(self, record: EpisodeRecord) -> None:
+        self._call("end_episode", record)
+
+    def close(self) -> None:
+        self._call("close")

@@ -1,0 +1,144 @@
+"""Log a monitored run to an MCAP file that replay, Foxglove and Rerun can read.
+
+Channels:
+
+- ``/oodmon/step``: JSON (schema ``oodmon.Step``, JSON Schema), one message per step.
+- ``/oodmon/episode``: JSON (schema ``oodmon.Episode``), one message per finished episode.
+- ``/oodmon/alarm``: ``foxglove.Log`` (protobuf), one message per alarm, level WARNING.
+- ``/oodmon/frame``: ``foxglove.RawImage`` (protobuf, mono8), the frame the agent saw (Pong).
+
+The run's :class:`~oodmon.monitor.records.RunInfo` is the metadata record ``oodmon.run``. The
+writer flushes (closes its chunk) at every episode end, so a crash loses at most the running
+episode; ``close`` writes the summary and index.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from oodmon.monitor.alarms import AlarmEvent
+from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
+
+__all__ = ["EPISODE_SCHEMA", "STEP_SCHEMA", "McapSink"]
+
+STEP_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "title": "oodmon.Step",
+    "properties": {
+        "episode": {"type": "integer"},
+        "step": {"type": "integer", "description": "index in the episode of the observation acted on"},
+        "action": {"type": ["integer", "array"], "description": "the deployed action"},
+        "mean": {"type": "array", "items": {"type": "number"}, "description": "mean of the samples per action"},
+        "std": {"type": "array", "items": {"type": "number"}, "description": "std of the samples per action"},
+        "score": {"type": "number"},
+        "threshold": {"type": ["number", "null"]},
+        "alarm": {"type": "boolean"},
+        "shifted": {"type": "boolean", "description": "the shift is active at this step"},
+        "observation": {"type": "array", "items": {"type": "number"}},
+    },
+    "required": ["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"],
+}
+
+EPISODE_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "title": "oodmon.Episode",
+    "properties": {
+        "episode": {"type": "integer"},
+        "env_id": {"type": "string"},
+        "variant": {"type": "string"},
+        "onset": {"type": "integer"},
+        "seed": {"type": ["integer", "null"]},
+        "return": {"type": "number"},
+        "length": {"type": "integer"},
+        "alarms": {"type": "integer"},
+        "first_alarm_step": {"type": ["integer", "null"]},
+    },
+    "required": ["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"],
+}
+
+
+def _json_number(value: float) -> float | None:
+    return None if value != value else value  # NaN (no threshold) is not JSON
+
+
+class McapSink:
+    """Writes the run to ``path`` (created with its folder; an existing file is replaced).
+
+    Example:
+        >>> import tempfile, os
+        >>> sink = McapSink(os.path.join(tempfile.mkdtemp(), "run.mcap"))
+        >>> sink.path.name
+        'run.mcap'
+    """
+
+    def __init__(self, path: str | Path, *, compression: str = "zstd") -> None:
+        self.path = Path(path)
+        self.compression = compression
+        self._writer = None
+        self._file = None
+
+    def open(self, run: RunInfo) -> None:
+        from foxglove_schemas_protobuf.Log_pb2 import Log
+        from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+        from mcap.writer import CompressionType, Writer
+        from mcap_protobuf.schema import register_schema
+
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self.path, "wb")
+        compression = CompressionType.ZSTD if self.compression == "zstd" else CompressionType.NONE
+        writer = Writer(self._file, compression=compression)
+        writer.start(profile="", library="oodmon")
+
+        def json_channel(topic: str, schema: dict[str, Any]) -> int:
+            schema_id = writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
+            return writer.register_channel(topic, "json", schema_id)
+
+        self._step_channel = json_channel("/oodmon/step", STEP_SCHEMA)
+        self._episode_channel = json_channel("/oodmon/episode", EPISODE_SCHEMA)
+        self._alarm_channel = writer.register_channel("/oodmon/alarm", "protobuf", register_schema(writer, Log))
+        self._frame_channel = writer.register_channel("/oodmon/frame", "protobuf", register_schema(writer, RawImage))
+        self._log, self._image = Log, RawImage
+        writer.add_metadata("oodmon.run", run.to_strings())
+        self._writer = writer
+        self._sequence = 0
+
+    def _add(self, channel: int, data: bytes, now: int) -> None:
+        self._writer.add_message(channel, log_time=now, publish_time=now, data=data, sequence=self._sequence)
+        self._sequence += 1
+
+    def write_step(self, record: StepRecord) -> None:
+        now = time.time_ns()
+        data = record.to_json()
+        data["threshold"] = _json_number(data["threshold"])
+        self._add(self._step_channel, json.dumps(data).encode(), now)
+        if record.frame is not None:
+            frame = record.frame
+            image = self._image(frame_id="agent_view", width=frame.shape[1], height=frame.shape[0],
+                                encoding="mono8", step=frame.shape[1], data=frame.tobytes())
+            image.timestamp.FromNanoseconds(now)
+            self._add(self._frame_channel, image.SerializeToString(), now)
+
+    def write_alarm(self, event: AlarmEvent) -> None:
+        now = time.time_ns()
+        message = self._log(
+            level=self._log.WARNING, name="oodmon",
+            message=f"OOD alarm: episode {event.episode} step {event.step}: score {event.score:.4g} ({event.rule}, "
+                    f"threshold {event.threshold:.4g})",
+        )
+        message.timestamp.FromNanoseconds(now)
+        self._add(self._alarm_channel, message.SerializeToString(), now)
+
+    def end_episode(self, record: EpisodeRecord) -> None:
+        self._add(self._episode_channel, json.dumps(record.to_json()).encode(), time.time_ns())
+        self._writer.flush()  # closes the chunk: this episode survives a crash from here on
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.finish()
+            self._writer = None
+        if self._file is not None:
+            self._file.close()
+            self._file = None

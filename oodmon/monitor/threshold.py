@@ -1,0 +1,147 @@
+"""Thresholds calibrated on in-distribution episodes only, with a false-alarm guarantee.
+
+Episode mode (the default): each held-out ID calibration episode gives one number, the
+:func:`~oodmon.monitor.alarms.episode_statistic` of its scores under the alarm rule; an episode
+alarms exactly when that number exceeds the threshold. With n calibration episodes and a target
+false-alarm rate a, split conformal prediction takes the ceil((n + 1)(1 - a))-th smallest of
+them: for a fresh ID episode exchangeable with the calibration episodes, the probability that it
+raises any alarm is at most a. This needs n >= 1/a - 1 episodes (19 for a = 0.05).
+
+Step mode: the same quantile over all per-step scores (rule m = 1). Steps of one episode are
+correlated, so its per-step rate is only approximately a; it is there for comparison with the
+paper, which scores steps.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, check_consecutive, episode_statistic
+
+__all__ = ["MODES", "Threshold", "calibrate"]
+
+MODES = ("episode", "step")
+_QUANTILES = (0.5, 0.9, 0.95, 0.99)
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """A calibrated threshold and how it was made.
+
+    Attributes:
+        value: the threshold on the score.
+        score: the score's name (see ``scores``).
+        consecutive: m of the alarm rule.
+        mode: ``"episode"`` (guarantee per episode) or ``"step"``.
+        far: the target false-alarm rate (per episode, or per step in step mode).
+        n_episodes: ID calibration episodes.
+        n_steps: ID calibration steps.
+        quantiles: quantiles (and max) of the ID per-step scores, for orientation.
+        task, method: the agent it was calibrated for.
+    """
+
+    value: float
+    score: str
+    consecutive: int
+    mode: str
+    far: float
+    n_episodes: int
+    n_steps: int
+    quantiles: dict[str, float] = field(default_factory=dict)
+    task: str | None = None
+    method: str | None = None
+
+    @property
+    def rule(self) -> str:
+        return f"score > {self.value:.6g} for {self.consecutive} consecutive steps"
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self) | {"rule": self.rule}
+
+    def save(self, path: str | Path) -> Path:
+        """Write the threshold file (JSON)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> Threshold:
+        """Read a threshold file written by :meth:`save` (``oodmon calibrate``).
+
+        Raises:
+            ConfigError: the file is missing, not JSON, or not a threshold file.
+        """
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"threshold file {path} does not exist; make one with `oodmon calibrate`") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise ConfigError(f"threshold file {path} is not valid JSON ({error})") from None
+        names = [f for f in cls.__dataclass_fields__]
+        missing = [n for n in ("value", "score", "consecutive", "mode", "far", "n_episodes", "n_steps") if n not in data]
+        if not isinstance(data, dict) or missing:
+            raise ConfigError(f"{path} is not a threshold file: it lacks {', '.join(missing)}")
+        return cls(**{k: v for k, v in data.items() if k in names})
+
+
+def calibrate(
+    episode_scores: Sequence[np.ndarray],
+    far: float = 0.05,
+    *,
+    consecutive: int = DEFAULT_CONSECUTIVE,
+    mode: str = "episode",
+    score: str = "chosen_std",
+    task: str | None = None,
+    method: str | None = None,
+) -> Threshold:
+    """Calibrate a threshold on the per-step scores of held-out ID episodes.
+
+    Args:
+        episode_scores: one array of per-step scores per ID episode.
+        far: target false-alarm rate, 0 < far < 1.
+        consecutive: m of the alarm rule (episode mode; step mode uses 1).
+        mode: ``"episode"`` or ``"step"`` (see the module docstring).
+
+    Raises:
+        InvalidParameterError: ``far`` outside (0, 1), an unknown mode, a bad ``consecutive``.
+        ConfigError: too few episodes for the guarantee at this ``far``.
+
+    Example:
+        >>> rng = np.random.default_rng(0)
+        >>> thr = calibrate([rng.random(100) for _ in range(39)], far=0.05, consecutive=1)
+        >>> thr.n_episodes, round(thr.value, 3)
+        (39, 1.0)
+    """
+    if not (isinstance(far, (int, float)) and 0.0 < far < 1.0):
+        raise InvalidParameterError(f"far={far!r} is not allowed; the target false-alarm rate must satisfy 0 < far < 1")
+    if mode not in MODES:
+        raise InvalidParameterError(f"mode={mode!r} is not allowed; use 'episode' or 'step'")
+    consecutive = check_consecutive(consecutive) if mode == "episode" else 1
+    episodes = [np.asarray(s, dtype=np.float64) for s in episode_scores]
+    if mode == "episode":
+        values = np.array([episode_statistic(s, consecutive) for s in episodes])
+        unit = "episodes"
+    else:
+        values = np.concatenate(episodes) if episodes else np.array([])
+        unit = "steps"
+    n = len(values)
+    rank = math.ceil((n + 1) * (1 - far))
+    if rank > n:
+        raise ConfigError(
+            f"far={far} needs at least {math.ceil(1 / far - 1)} ID calibration {unit} for its guarantee; got {n}"
+        )
+    value = float(np.sort(values)[rank - 1])
+    steps = np.concatenate(episodes) if episodes else np.array([0.0])
+    quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
+    return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
+                     quantiles, task, method)

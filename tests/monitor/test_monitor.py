@@ -1,0 +1,81 @@
+"""The monitor with a shipped agent: records equal the estimator's numbers; alarms, callbacks,
+the wrapper, and the false-alarm guarantee on fresh ID episodes."""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+import pytest
+
+from oodmon.agents import load
+from oodmon.envs import Variant, parse_variant
+from oodmon.errors import ConfigError
+from oodmon.monitor import MemorySink, Monitor, MonitoredEnv, calibrate_agent, episode_statistic, id_episode_scores
+
+
+@pytest.fixture(scope="module")
+def agent():
+    return load("cartpole", "ensemble")
+
+
+def test_records_equal_what_the_estimator_computes(agent):
+    sink = MemorySink()
+    env = parse_variant("cartpole:length=2.0").make(onset_step=20)
+    with Monitor(agent, threshold=4.0, sinks=[sink]) as monitor:
+        record = monitor.run_episode(env, seed=5, variant="cartpole:length=2.0")
+    # Replay the same episode with the estimator alone.
+    obs, info = env.reset(seed=5)
+    for step in sink.steps:
+        estimate = agent.estimate(obs)
+        assert step.action == int(estimate.action[0])
+        np.testing.assert_allclose(step.mean, estimate.mean[0], rtol=1e-6)
+        np.testing.assert_allclose(step.std, estimate.std[0], rtol=1e-6)
+        assert step.score == pytest.approx(float(estimate.std[0][step.action]), rel=1e-6)
+        assert step.shifted == info["shifted"] and step.observation == pytest.approx(obs.tolist())
+        obs, _, terminated, truncated, info = env.step(step.action)
+    assert terminated or truncated
+    assert [s.step for s in sink.steps] == list(range(record.length))
+    assert [s.shifted for s in sink.steps] == [t > 20 for t in range(record.length)]  # obs k comes from step k-1
+    assert record.total_return == record.length and sink.episodes == [record]
+    assert sink.closed and sink.run.task == "cartpole" and sink.run.policy_hash.startswith("sha256:")
+
+
+def test_alarms_reach_callbacks_and_do_not_stop_the_policy_unless_asked(agent):
+    sink = MemorySink()
+    seen = []
+    env = Variant("cartpole").make()
+    with Monitor(agent, threshold=0.0, consecutive=2, sinks=[sink], callbacks=[seen.append]) as monitor:
+        record = monitor.run_episode(env, seed=0)
+    assert record.length == 500 and record.alarms == 1 and record.first_alarm_step == 1  # one long excursion
+    assert seen == sink.alarms and seen[0].step == 1
+    with Monitor(agent, threshold=0.0, consecutive=2, callbacks=[lambda event: True]) as monitor:
+        stopped = monitor.run_episode(env, seed=0)
+    assert stopped.length == 2  # the callback asked to stop at the alarm
+
+
+def test_monitored_env_wrapper_lets_the_policy_act_or_takes_yours(agent):
+    sink = MemorySink()
+    env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"), Monitor(agent, sinks=[sink]))
+    env.reset(seed=1)
+    for _ in range(10):
+        env.step()
+    obs, *_ = env.step(0)  # the user's action; the monitor still logs the policy's
+    env.close()
+    assert len(sink.steps) == 11 and sink.episodes[0].length == 11 and sink.closed
+    assert np.isnan(sink.steps[0].threshold) and not any(s.alarm for s in sink.steps)
+
+
+def test_step_before_begin_episode_is_an_error(agent):
+    with pytest.raises(ConfigError, match="Monitor.step before begin_episode"):
+        Monitor(agent).step(np.zeros(4, np.float32))
+
+
+def test_calibrated_threshold_keeps_its_false_alarm_rate_on_fresh_id_episodes():
+    # 19 calibration episodes at far = 0.2 (rank ceil(20 * 0.8) = 16), then 60 fresh ID episodes.
+    agent = load("cartpole", "dropout")
+    threshold = calibrate_agent(agent, 19, far=0.2, consecutive=3)
+    fresh = id_episode_scores(agent, 60, seed=500_000)
+    rate = np.mean([episode_statistic(s, 3) > threshold.value for s in fresh])
+    # Binomial(60, <= 0.2): P(rate > 0.2 + 2.6 sigma) < 1%, with sigma = sqrt(0.2 * 0.8 / 60) = 0.052.
+    assert rate <= 0.2 + 2.6 * 0.052
+    assert threshold.n_episodes == 19 and threshold.n_steps == 19 * 500

@@ -1,0 +1,121 @@
+"""The alarm rule, the scores, and the calibration's false-alarm guarantee."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from oodmon.agents.estimators import Estimate
+from oodmon.errors import ConfigError, InvalidParameterError, UnknownParameterError
+from oodmon.monitor import AlarmTracker, Threshold, calibrate, episode_statistic, score_function
+
+
+def test_alarm_fires_after_m_consecutive_steps_above_once_per_excursion():
+    tracker = AlarmTracker(threshold=1.0, consecutive=3)
+    scores = [2, 2, 0.5, 2, 2, 2, 2, 0.1, 5, 5, 5]
+    results = [tracker.update(0, step, s) for step, s in enumerate(scores)]
+    assert [alarm for alarm, _ in results] == [False, False, False, False, False, True, True, False, False, False, True]
+    events = [event for _, event in results if event is not None]
+    assert [(e.step, e.score) for e in events] == [(5, 2.0), (10, 5.0)]
+    assert events[0].rule == "score > threshold for 3 consecutive steps" and events[0].threshold == 1.0
+    tracker.reset()
+    assert tracker.update(1, 0, 9.0) == (False, None)  # a new episode starts counting again
+
+
+def test_score_equal_to_the_threshold_does_not_count():
+    tracker = AlarmTracker(threshold=1.0, consecutive=1)
+    assert tracker.update(0, 0, 1.0) == (False, None)
+    assert tracker.update(0, 1, 1.0000001)[0] is True
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_episode_statistic_decides_the_rule(seed):
+    rng = np.random.default_rng(seed)
+    scores = rng.random(60)
+    stat = episode_statistic(scores, 4)
+    for threshold in (stat - 1e-9, stat, stat + 1e-9):
+        tracker = AlarmTracker(threshold, 4)
+        alarmed = any(tracker.update(0, i, s)[0] for i, s in enumerate(scores))
+        assert alarmed == (stat > threshold)
+    assert episode_statistic(scores[:3], 4) == -math.inf
+
+
+def test_scores():
+    estimate = Estimate(action=np.array([1, 0]), samples=np.zeros((3, 2, 3)), mean=np.zeros((2, 3)),
+                        std=np.array([[0.1, 0.5, 0.9], [0.3, 0.2, 0.1]]))
+    assert score_function("chosen_std")(estimate).tolist() == [0.5, 0.3]
+    np.testing.assert_allclose(score_function("mean_std")(estimate), [0.5, 0.2])
+    assert score_function("max_std")(estimate).tolist() == [0.9, 0.3]
+    ddpg = Estimate(action=np.array([[0.3, 0.1]]), samples=np.zeros((3, 1, 2)), mean=np.zeros((1, 2)),
+                    std=np.array([[0.2, 0.4]]))
+    np.testing.assert_allclose(score_function("chosen_std")(ddpg), [0.3])
+    with pytest.raises(UnknownParameterError, match="unknown score 'entropy'; choose one of chosen_std, mean_std, max_std"):
+        score_function("entropy")
+
+
+def test_conformal_rank():
+    # 19 episodes, far 0.05: rank ceil(20 * 0.95) = 19, the largest statistic.
+    episodes = [np.full(10, float(i)) for i in range(19)]
+    assert calibrate(episodes, 0.05, consecutive=3).value == 18.0
+    # 39 episodes: rank ceil(40 * 0.95) = 38.
+    episodes = [np.full(10, float(i)) for i in range(39)]
+    assert calibrate(episodes, 0.05, consecutive=3).value == 37.0
+
+
+@pytest.mark.parametrize("consecutive", [1, 3])
+def test_false_alarm_guarantee_holds_on_fresh_episodes(consecutive):
+    # Episodes of correlated scores (AR(1) noise, different lengths), like a real agent's. Over
+    # many independent calibrations, the fraction of fresh episodes that alarm stays <= far;
+    # with exchangeable episodes its expectation is between far - 1/(n+1) and far.
+    rng = np.random.default_rng(0)
+
+    def episode() -> np.ndarray:
+        length = int(rng.integers(50, 200))
+        noise = rng.normal(size=length)
+        out = np.empty(length)
+        out[0] = noise[0]
+        for t in range(1, length):
+            out[t] = 0.8 * out[t - 1] + noise[t]
+        return out
+
+    far, n = 0.1, 49
+    rates = []
+    for _ in range(40):
+        threshold = calibrate([episode() for _ in range(n)], far, consecutive=consecutive)
+        fresh = [episode() for _ in range(200)]
+        rates.append(np.mean([episode_statistic(s, consecutive) > threshold.value for s in fresh]))
+    assert np.mean(rates) <= far + 0.01
+    assert np.mean(rates) >= far - 1 / (n + 1) - 0.02
+
+
+def test_step_mode_and_file_round_trip(tmp_path):
+    rng = np.random.default_rng(1)
+    threshold = calibrate([rng.random(100) for _ in range(10)], 0.01, mode="step", task="cartpole", method="dropout")
+    assert threshold.consecutive == 1 and threshold.n_steps == 1000 and threshold.mode == "step"
+    assert threshold.quantiles["q50"] == pytest.approx(0.5, abs=0.05)
+    path = threshold.save(tmp_path / "thr.json")
+    assert Threshold.load(path) == threshold
+
+
+def test_calibration_errors():
+    with pytest.raises(ConfigError, match="far=0.05 needs at least 19 ID calibration episodes for its guarantee; got 10"):
+        calibrate([np.ones(5)] * 10, 0.05)
+    with pytest.raises(InvalidParameterError, match="far=1.5 is not allowed"):
+        calibrate([np.ones(5)] * 10, 1.5)
+    with pytest.raises(InvalidParameterError, match="mode='window' is not allowed"):
+        calibrate([np.ones(5)] * 10, 0.5, mode="window")
+    with pytest.raises(InvalidParameterError, match="consecutive=0 is not allowed"):
+        calibrate([np.ones(5)] * 10, 0.5, consecutive=0)
+
+
+def test_threshold_file_errors(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist; make one with `oodmon calibrate`"):
+        Threshold.load(tmp_path / "none.json")
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(ConfigError, match="is not valid JSON"):
+        Threshold.load(tmp_path / "bad.json")
+    (tmp_path / "other.json").write_text('{"value": 1}')
+    with pytest.raises(ConfigError, match="is not a threshold file: it lacks score, consecutive"):
+        Threshold.load(tmp_path / "other.json")

@@ -1,0 +1,160 @@
+"""Sinks: MCAP and Rerun files read back with the stock readers, crash safety, failing sinks."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader
+
+from oodmon.agents import load
+from oodmon.envs import parse_variant
+from oodmon.monitor import McapSink, MemorySink, Monitor, RerunSink, SinkWarning
+
+
+@pytest.fixture(scope="module")
+def agent():
+    return load("cartpole", "dropout")
+
+
+def _run(agent, sinks, episodes=3, strict=False):
+    env = parse_variant("cartpole:length=2.0").make(onset_step=30)
+    with Monitor(agent, threshold=3.0, sinks=sinks, strict=strict) as monitor:
+        return [monitor.run_episode(env, seed=s, variant="cartpole:length=2.0") for s in range(episodes)]
+
+
+def test_mcap_holds_every_step_of_every_episode_and_the_run_metadata(agent, tmp_path):
+    memory = MemorySink()
+    records = _run(agent, [memory, McapSink(tmp_path / "run.mcap")])
+    with open(tmp_path / "run.mcap", "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        schemas = {s.name: s.encoding for s in summary.schemas.values()}
+        by_topic: dict[str, list] = {}
+        for schema, channel, message in reader.iter_messages():
+            by_topic.setdefault(channel.topic, []).append((schema, message))
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert schemas == {"oodmon.Step": "jsonschema", "oodmon.Episode": "jsonschema", "foxglove.Log": "protobuf",
+                       "foxglove.RawImage": "protobuf"}
+    steps = [json.loads(m.data) for _, m in by_topic["/oodmon/step"]]
+    assert len(steps) == sum(r.length for r in records) == len(memory.steps)
+    assert steps == [s.to_json() for s in memory.steps]
+    episodes = [json.loads(m.data) for _, m in by_topic["/oodmon/episode"]]
+    assert episodes == [r.to_json() for r in records]
+    assert {"episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted", "observation"} <= set(steps[0])
+    alarms = by_topic.get("/oodmon/alarm", [])
+    assert len(alarms) == sum(r.alarms for r in records)
+    run = metadata["oodmon.run"]
+    assert run["task"] == "cartpole" and run["method"] == "dropout" and run["threshold"] == "3.0"
+    assert run["policy_hash"].startswith("sha256:") and "version.torch" in run
+
+
+def test_alarms_are_foxglove_logs(agent, tmp_path):
+    from foxglove_schemas_protobuf.Log_pb2 import Log
+
+    with Monitor(agent, threshold=0.0, consecutive=1, sinks=[McapSink(tmp_path / "a.mcap")]) as monitor:
+        monitor.run_episode(parse_variant("cartpole:length=2.0").make(), seed=0)
+    with open(tmp_path / "a.mcap", "rb") as f:
+        logs = [m for _, c, m in make_reader(f).iter_messages(topics=["/oodmon/alarm"])]
+    message = Log.FromString(logs[0].data)
+    assert message.level == Log.WARNING and "OOD alarm: episode 0 step 0" in message.message
+
+
+CRASHING_RUN = """
+import sys, oodmon
+from oodmon.agents import load
+from oodmon.envs import Variant
+from oodmon.monitor import McapSink, Monitor
+monitor = Monitor(load("cartpole", "dropout"), threshold=3.0, sinks=[McapSink(sys.argv[1])]).open()
+env = Variant("cartpole").make()
+for episode in range(1000):
+    monitor.run_episode(env, seed=episode)
+    print(episode, flush=True)
+"""
+
+
+def test_a_run_killed_mid_episode_leaves_every_earlier_episode_readable(tmp_path):
+    path = tmp_path / "crash.mcap"
+    process = subprocess.Popen([sys.executable, "-c", CRASHING_RUN, str(path)], stdout=subprocess.PIPE, text=True)
+    finished = [process.stdout.readline() for _ in range(3)]  # three episodes ended
+    time.sleep(0.05)  # well into the fourth
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    assert [line.strip() for line in finished] == ["0", "1", "2"]
+    with open(path, "rb") as f, pytest.raises(Exception):
+        list(make_reader(f).iter_messages())  # the file is unfinished: no summary, no footer
+    steps, episodes = [], []
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f, skip_magic=False).records:
+                if type(record).__name__ == "Message":
+                    (steps if record.channel_id == 1 else episodes if record.channel_id == 2 else []).append(record)
+        except Exception:  # the torn chunk at the end
+            pass
+    episode_rows = [json.loads(m.data) for m in episodes]
+    assert [e["episode"] for e in episode_rows][:3] == [0, 1, 2]
+    step_rows = [json.loads(m.data) for m in steps]
+    for e in episode_rows:
+        assert sum(1 for s in step_rows if s["episode"] == e["episode"]) == e["length"]
+
+
+def test_rrd_holds_the_scalars(agent, tmp_path):
+    import rerun.chunk as rc
+
+    memory = MemorySink()
+    _run(agent, [memory, RerunSink(tmp_path / "run.rrd")], episodes=2)
+    frame = rc.RrdReader(tmp_path / "run.rrd").stream().collect().reader("step").to_pandas()
+    scores = frame[["step", "/score:Scalars:scalars"]].dropna()
+    assert len(scores) == len(memory.steps)
+    np.testing.assert_allclose([v[0] for v in scores["/score:Scalars:scalars"]], [s.score for s in memory.steps], rtol=1e-6)
+    band = frame["/uncertainty/Q0:Scalars:scalars"].dropna().iloc[0]
+    first = memory.steps[0]
+    np.testing.assert_allclose(band, [first.mean[0], first.mean[0] - first.std[0], first.mean[0] + first.std[0]], rtol=1e-6)
+    assert frame["/threshold:Scalars:scalars"].dropna().iloc[0][0] == 3.0
+    returns = frame["/episode/return:Scalars:scalars"].dropna()
+    assert len(returns) == 2
+
+
+def test_rrd_passes_rerun_verify(agent, tmp_path):
+    _run(agent, [RerunSink(tmp_path / "run.rrd")], episodes=1)
+    rerun = os.path.join(os.path.dirname(sys.executable), "rerun")
+    result = subprocess.run([rerun, "rrd", "verify", str(tmp_path / "run.rrd")], capture_output=True, text=True)
+    assert result.returncode == 0 and "verified without error" in result.stdout + result.stderr
+
+
+class BrokenSink(MemorySink):
+    def write_step(self, record):
+        raise OSError("No space left on device")
+
+
+def test_a_failing_sink_warns_counts_and_the_loop_goes_on(agent, tmp_path):
+    good = MemorySink()
+    broken = BrokenSink()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        records = _run(agent, [broken, good, McapSink(tmp_path / "ok.mcap")])
+    assert len(good.steps) == sum(r.length for r in records) and len(good.episodes) == 3
+    messages = [str(w.message) for w in caught if issubclass(w.category, SinkWarning)]
+    assert messages and "BrokenSink.write_step failed (No space left on device)" in messages[0]
+
+
+def test_an_unwritable_path_warns_and_the_loop_goes_on(agent, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    good = MemorySink()
+    with pytest.warns(SinkWarning, match="McapSink.open failed"):
+        _run(agent, [McapSink(blocker / "run.mcap"), good], episodes=1)
+    assert len(good.episodes) == 1
+
+
+def test_strict_mode_raises(agent):
+    with pytest.raises(OSError, match="No space left on device"):
+        _run(agent, [BrokenSink()], strict=True)
