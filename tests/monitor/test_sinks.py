@@ -158,3 +158,34 @@ def test_an_unwritable_path_warns_and_the_loop_goes_on(agent, tmp_path):
 def test_strict_mode_raises(agent):
     with pytest.raises(OSError, match="No space left on device"):
         _run(agent, [BrokenSink()], strict=True)
+
+
+def test_mcap_passes_rerun_mcap_check(agent, tmp_path):
+    _run(agent, [McapSink(tmp_path / "run.mcap")], episodes=1)
+    rerun = os.path.join(os.path.dirname(sys.executable), "rerun")
+    result = subprocess.run([rerun, "mcap", "check", str(tmp_path / "run.mcap")], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "/oodmon/step" in result.stdout
+
+
+def test_pong_frames_reach_both_logs_as_the_agent_saw_them(tmp_path):
+    import rerun.chunk as rc
+    from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+
+    from oodmon.agents.agent import Agent
+    from oodmon.agents.networks import build_modules, estimator_for
+
+    arch = {"algorithm": "dqn", "obs_shape": [4, 84, 84], "n_outputs": 6, "cnn": True, "net_arch": [],
+            "stochastic": None, "drop_p": 0.1, "last_only": True, "n_members": 3, "shared_torso": True}
+    agent = Agent(estimator_for(build_modules(arch), arch), {"task": "pong", "method": "ensemble"}, tmp_path)
+    memory = MemorySink()
+    env = parse_variant("pong:gaussian_noise@3").make()
+    with Monitor(agent, threshold=1.0, sinks=[memory, McapSink(tmp_path / "p.mcap"), RerunSink(tmp_path / "p.rrd")]) as m:
+        m.run_episode(env, seed=0, max_steps=6)
+    assert len(memory.steps) == 6 and memory.steps[0].observation is None
+    with open(tmp_path / "p.mcap", "rb") as f:
+        frames = [RawImage.FromString(msg.data) for _, _, msg in make_reader(f).iter_messages(topics=["/oodmon/frame"])]
+    assert len(frames) == 6 and (frames[0].width, frames[0].height, frames[0].encoding) == (84, 84, "mono8")
+    np.testing.assert_array_equal(np.frombuffer(frames[-1].data, np.uint8).reshape(84, 84), memory.steps[-1].frame)
+    table = rc.RrdReader(tmp_path / "p.rrd").stream().collect().reader("step").to_pandas()
+    assert table.filter(like="/frame").dropna(how="all").shape[0] == 6
