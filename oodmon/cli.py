@@ -33,6 +33,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
 
 
+def _table_console() -> Console:
+    """A console for tables: the terminal's width, or a wide one when output goes to a file or pipe
+    (rich would otherwise cut columns to 80 characters)."""
+    console = Console()
+    return console if console.is_terminal else Console(width=220)
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="oodmon",
@@ -115,6 +122,21 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--strict", action="store_true", help="a failing sink stops the run instead of warning")
     run.set_defaults(handler=_run)
 
+    replay = commands.add_parser("replay", help="metrics from recorded MCAP logs (files only; never modified)")
+    replay.add_argument("logs", nargs="+", help="MCAP files, or folders holding them")
+    formats = replay.add_mutually_exclusive_group()
+    formats.add_argument("--json", action="store_true", help="print JSON (key auroc for the paper's metric)")
+    formats.add_argument("--csv", action="store_true", help="print CSV")
+    formats.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    replay.set_defaults(handler=_replay)
+
+    check = commands.add_parser("check", help="regression check of recorded logs against a baseline")
+    check.add_argument("logs", nargs="+", help="MCAP files, or folders holding them")
+    check.add_argument("--baseline", required=True, help="the baseline JSON file")
+    check.add_argument("--update", action="store_true", help="write the baseline from these logs instead")
+    check.add_argument("--tolerance", type=float, help="allowed fall (default: the baseline's, else 0.02)")
+    check.set_defaults(handler=_check)
+
     demo = commands.add_parser("demo", help="the main job of 'make demo': calibrate, monitor, log, summarise")
     demo.add_argument("--out", default="runs/demo", help="folder for the demo's files (default runs/demo)")
     demo.set_defaults(handler=_demo)
@@ -147,7 +169,7 @@ def _envs_list(args: argparse.Namespace) -> int:
         table.add_column(column)
     for row in rows:
         table.add_row(*(("" if row[k] is None else str(row[k])) for k in ("task", "spec", "parameter", "value", "default")))
-    Console().print(table)
+    _table_console().print(table)
     return 0
 
 
@@ -283,6 +305,61 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _read_logs(paths: Sequence[str]):
+    from pathlib import Path
+
+    from oodmon.errors import LogFormatError
+    from oodmon.replay import read_log
+
+    files = []
+    for name in paths:
+        path = Path(name)
+        found = sorted(path.rglob("*.mcap")) if path.is_dir() else [path]
+        if path.is_dir() and not found:
+            raise LogFormatError(f"{path} holds no .mcap files")
+        files.extend(found)
+    return [read_log(f) for f in files]
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from oodmon.replay import compute_metrics, to_csv, to_json, to_markdown, to_table
+
+    logs = _read_logs(args.logs)
+    metrics = compute_metrics(logs)
+    if args.json:
+        print(to_json(metrics))
+    elif args.csv:
+        print(to_csv(metrics), end="")
+    elif args.markdown:
+        print(to_markdown(metrics), end="")
+    else:
+        steps = sum(e.length for log in logs for e in log.episodes)
+        _table_console().print(to_table(metrics, title=f"replay of {len(logs)} log(s), {steps} steps"))
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from oodmon.replay import baseline_of, compute_metrics, find_falls, load_baseline
+
+    metrics = compute_metrics(_read_logs(args.logs))
+    console = Console(soft_wrap=True)
+    if args.update:
+        tolerance = 0.02 if args.tolerance is None else args.tolerance
+        Path(args.baseline).write_text(json.dumps(baseline_of(metrics, tolerance), indent=1) + "\n")
+        console.print(f"wrote {args.baseline}: {len(metrics)} rows, tolerance {tolerance}")
+        return 0
+    falls = find_falls(metrics, load_baseline(args.baseline), args.tolerance)
+    if falls:
+        for line in falls:
+            print(f"FELL {line}", file=sys.stderr)
+        print(f"oodmon check: {len(falls)} metric(s) fell below {args.baseline}", file=sys.stderr)
+        return 1
+    console.print(f"ok: {len(metrics)} rows at or above {args.baseline}")
+    return 0
+
+
 def _load_agent(args: argparse.Namespace):
     from oodmon.agents import load, load_agent
     from oodmon.errors import ConfigError
@@ -337,7 +414,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         style = "bold red" if row["fails"] else None
         table.add_row(row["variant"], f"{row['return_mean']:.1f}", f"{row['return_std']:.1f}",
                       "FAILS" if row["fails"] else "", style=style)
-    Console().print(table)
+    _table_console().print(table)
     failing = [r.spec for r in results if r.fails]
     Console(soft_wrap=True).print(f"{len(failing)} of {len(results)} variants fail the agent: {', '.join(failing)}")
     return 0

@@ -5,12 +5,13 @@ person reading it knows what to change. The CLI prints them as one line and exit
 
 The hierarchy::
 
-    OodmonError                      anything oodmon raises on purpose
-    └── ConfigError (ValueError)     bad input: an argument, a flag, a spec string
-        ├── UnknownParameterError    a name oodmon does not know (parameter, task, corruption)
-        ├── InvalidParameterError    a known name with a value outside what is allowed
-        └── SpecError                a variant spec string that does not parse
-    └── ModelFormatError (ValueError)  a model file that is damaged, another task's, or mismatched
+    OodmonError                        anything oodmon raises on purpose
+    ├── ConfigError (ValueError)       bad input: an argument, a flag, a spec string
+    │   ├── UnknownParameterError      a name oodmon does not know (parameter, task, corruption)
+    │   ├── InvalidParameterError      a known name with a value outside what is allowed
+    │   └── SpecError                  a variant spec string that does not parse
+    ├── ModelFormatError (ValueError)  a model file that is damaged, another task's, or mismatched
+    └── LogFormatError (ValueError)    a log file that is not MCAP, or not written by oodmon
 
 ``ConfigError`` derives from ``ValueError`` so that code written against plain Python
 conventions (``except ValueError``) still catches it. None of them derive from ``TypeError``:
@@ -22,6 +23,7 @@ from __future__ import annotations
 __all__ = [
     "ConfigError",
     "InvalidParameterError",
+    "LogFormatError",
     "ModelFormatError",
     "OodmonError",
     "SpecError",
@@ -67,3 +69,7 @@ class SpecError(ConfigError):
 
 class ModelFormatError(OodmonError, ValueError):
     """A saved model that cannot be loaded: damaged, another task's, or not its own architecture."""
+
+
+class LogFormatError(OodmonError, ValueError):
+    """A log file replay cannot read: missing, not MCAP, or not written by oodmon."""

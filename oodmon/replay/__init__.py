@@ -1,6 +1,29 @@
-"""What judges afterwards: metrics, the paper's tables and regression checks from recorded logs.
+"""What judges afterwards: metrics, tables and regression checks from recorded MCAP logs.
 
-Not built yet: see the replay issue. It reads log files only, never a live process.
+Replay reads files only (logs from any machine and any earlier run); it never writes into them.
 """
 
-__all__: list[str] = []
+from __future__ import annotations
+
+from oodmon.replay.check import baseline_of, find_falls, load_baseline
+from oodmon.replay.metrics import VariantMetrics, alarm_events, compute_metrics, fpr_at_tpr
+from oodmon.replay.reader import EpisodeLog, RecoveryWarning, RunLog, read_log
+from oodmon.replay.report import to_csv, to_json, to_markdown, to_table
+
+__all__ = [
+    "EpisodeLog",
+    "RecoveryWarning",
+    "RunLog",
+    "VariantMetrics",
+    "alarm_events",
+    "baseline_of",
+    "compute_metrics",
+    "find_falls",
+    "fpr_at_tpr",
+    "load_baseline",
+    "read_log",
+    "to_csv",
+    "to_json",
+    "to_markdown",
+    "to_table",
+]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import signal
@@ -43,13 +44,21 @@ def test_mcap_holds_every_step_of_every_episode_and_the_run_metadata(agent, tmp_
             by_topic.setdefault(channel.topic, []).append((schema, message))
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
     assert schemas == {"oodmon.Step": "jsonschema", "oodmon.Episode": "jsonschema", "foxglove.Log": "protobuf",
-                       "foxglove.RawImage": "protobuf"}
+                       "foxglove.RawImage": "protobuf", "oodmon.EpisodeScores": "jsonschema"}
     steps = [json.loads(m.data) for _, m in by_topic["/oodmon/step"]]
     assert len(steps) == sum(r.length for r in records) == len(memory.steps)
     assert steps == [s.to_json() for s in memory.steps]
     episodes = [json.loads(m.data) for _, m in by_topic["/oodmon/episode"]]
     assert episodes == [r.to_json() for r in records]
     assert {"episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted", "observation"} <= set(steps[0])
+    # Each episode's score arrays, beside its step messages, hold the same numbers.
+    for (_, message), record in zip(by_topic["/oodmon/episode_scores"], records, strict=True):
+        row = json.loads(message.data)
+        steps_of_episode = [s for s in memory.steps if s.episode == record.episode]
+        scores = np.frombuffer(base64.b64decode(row["score_f64"]), "<f8")
+        assert row["length"] == record.length and scores.tolist() == [s.score for s in steps_of_episode]
+        assert np.frombuffer(base64.b64decode(row["shifted_u8"]), np.uint8).tolist() == [s.shifted for s in steps_of_episode]
+        assert np.frombuffer(base64.b64decode(row["alarm_u8"]), np.uint8).tolist() == [s.alarm for s in steps_of_episode]
     alarms = by_topic.get("/oodmon/alarm", [])
     assert len(alarms) == sum(r.alarms for r in records)
     run = metadata["oodmon.run"]

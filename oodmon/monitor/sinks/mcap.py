@@ -6,6 +6,10 @@ Channels:
 - ``/oodmon/episode``: JSON (schema ``oodmon.Episode``), one message per finished episode.
 - ``/oodmon/alarm``: ``foxglove.Log`` (protobuf), one message per alarm, level WARNING.
 - ``/oodmon/frame``: ``foxglove.RawImage`` (protobuf, mono8), the frame the agent saw (Pong).
+- ``/oodmon/episode_scores``: JSON (schema ``oodmon.EpisodeScores``), one message per episode
+  with its per-step score (float64), shifted and alarm flags (uint8) as base64 arrays. With the
+  episode message it is written in a chunk of its own, so that replay reads an episode through
+  the file's index without decompressing its step messages.
 
 The run's :class:`~oodmon.monitor.records.RunInfo` is the metadata record ``oodmon.run``. The
 writer flushes (closes its chunk) at every episode end, so a crash loses at most the running
@@ -14,15 +18,18 @@ episode; ``close`` writes the summary and index.
 
 from __future__ import annotations
 
+import base64
 import json
 import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 
-__all__ = ["EPISODE_SCHEMA", "STEP_SCHEMA", "McapSink"]
+__all__ = ["EPISODE_SCHEMA", "EPISODE_SCORES_SCHEMA", "STEP_SCHEMA", "McapSink"]
 
 STEP_SCHEMA: dict[str, Any] = {
     "type": "object",
@@ -57,6 +64,20 @@ EPISODE_SCHEMA: dict[str, Any] = {
         "first_alarm_step": {"type": ["integer", "null"]},
     },
     "required": ["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"],
+}
+
+
+EPISODE_SCORES_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "title": "oodmon.EpisodeScores",
+    "properties": {
+        "episode": {"type": "integer"},
+        "length": {"type": "integer"},
+        "score_f64": {"type": "string", "contentEncoding": "base64", "description": "little-endian float64 per step"},
+        "shifted_u8": {"type": "string", "contentEncoding": "base64", "description": "uint8 per step"},
+        "alarm_u8": {"type": "string", "contentEncoding": "base64", "description": "uint8 per step"},
+    },
+    "required": ["episode", "length", "score_f64", "shifted_u8", "alarm_u8"],
 }
 
 
@@ -98,12 +119,16 @@ class McapSink:
 
         self._step_channel = json_channel("/oodmon/step", STEP_SCHEMA)
         self._episode_channel = json_channel("/oodmon/episode", EPISODE_SCHEMA)
+        self._scores_channel = json_channel("/oodmon/episode_scores", EPISODE_SCORES_SCHEMA)
         self._alarm_channel = writer.register_channel("/oodmon/alarm", "protobuf", register_schema(writer, Log))
         self._frame_channel = writer.register_channel("/oodmon/frame", "protobuf", register_schema(writer, RawImage))
         self._log, self._image = Log, RawImage
         writer.add_metadata("oodmon.run", run.to_strings())
         self._writer = writer
         self._sequence = 0
+        self._scores: list[float] = []
+        self._shifted: list[bool] = []
+        self._alarm: list[bool] = []
 
     def _add(self, channel: int, data: bytes, now: int) -> None:
         self._writer.add_message(channel, log_time=now, publish_time=now, data=data, sequence=self._sequence)
@@ -114,6 +139,9 @@ class McapSink:
         data = record.to_json()
         data["threshold"] = _json_number(data["threshold"])
         self._add(self._step_channel, json.dumps(data).encode(), now)
+        self._scores.append(record.score)
+        self._shifted.append(record.shifted)
+        self._alarm.append(record.alarm)
         if record.frame is not None:
             frame = record.frame
             image = self._image(frame_id="agent_view", width=frame.shape[1], height=frame.shape[0],
@@ -132,8 +160,20 @@ class McapSink:
         self._add(self._alarm_channel, message.SerializeToString(), now)
 
     def end_episode(self, record: EpisodeRecord) -> None:
-        self._add(self._episode_channel, json.dumps(record.to_json()).encode(), time.time_ns())
-        self._writer.flush()  # closes the chunk: this episode survives a crash from here on
+        now = time.time_ns()
+        self._writer.flush()  # closes the chunk of step messages
+        scores = {
+            "episode": record.episode, "length": len(self._scores),
+            "score_f64": base64.b64encode(np.asarray(self._scores, "<f8").tobytes()).decode(),
+            "shifted_u8": base64.b64encode(np.asarray(self._shifted, np.uint8).tobytes()).decode(),
+            "alarm_u8": base64.b64encode(np.asarray(self._alarm, np.uint8).tobytes()).decode(),
+        }
+        self._add(self._episode_channel, json.dumps(record.to_json()).encode(), now)
+        self._add(self._scores_channel, json.dumps(scores).encode(), now)
+        # A small chunk of its own, written at once: from here on the episode survives a crash,
+        # and replay reads it through the index without decompressing the step messages.
+        self._writer.flush()
+        self._scores, self._shifted, self._alarm = [], [], []
 
     def close(self) -> None:
         if self._writer is not None:

@@ -1,0 +1,192 @@
+"""Read the MCAP logs that ``oodmon run``, the demo or the bench wrote: files only, any machine.
+
+A finished log has an index: replay reads each episode's ``/oodmon/episode`` message and its
+``/oodmon/episode_scores`` arrays through it, without decoding step messages. An unfinished log
+(a crashed run) has no index: replay streams it and keeps every episode whose episode message
+and scores arrived before the tear, with a warning saying how much was recovered. Nothing is
+ever written into the input files.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from oodmon.errors import LogFormatError
+
+__all__ = ["EpisodeLog", "RecoveryWarning", "RunLog", "read_log"]
+
+_MAGIC = b"\x89MCAP0\r\n"
+_EPISODE, _SCORES, _STEP = "/oodmon/episode", "/oodmon/episode_scores", "/oodmon/step"
+
+
+class RecoveryWarning(UserWarning):
+    """A damaged log was read up to its last complete episode."""
+
+
+@dataclass(frozen=True)
+class EpisodeLog:
+    """One logged episode: its record and its per-step arrays."""
+
+    episode: int
+    variant: str
+    onset: int
+    seed: int | None
+    total_return: float
+    length: int
+    alarms: int
+    first_alarm_step: int | None
+    scores: np.ndarray
+    shifted: np.ndarray
+    alarm: np.ndarray
+
+
+@dataclass(frozen=True)
+class RunLog:
+    """One log file: the run's metadata and its complete episodes."""
+
+    path: Path
+    task: str
+    method: str
+    threshold: float
+    metadata: dict[str, str]
+    episodes: list[EpisodeLog]
+    complete: bool
+
+
+def _episode(row: dict, scores: dict) -> EpisodeLog:
+    return EpisodeLog(
+        episode=row["episode"], variant=row["variant"], onset=row["onset"], seed=row["seed"],
+        total_return=row["return"], length=row["length"], alarms=row["alarms"],
+        first_alarm_step=row["first_alarm_step"],
+        scores=np.frombuffer(base64.b64decode(scores["score_f64"]), "<f8"),
+        shifted=np.frombuffer(base64.b64decode(scores["shifted_u8"]), np.uint8).astype(bool),
+        alarm=np.frombuffer(base64.b64decode(scores["alarm_u8"]), np.uint8).astype(bool),
+    )
+
+
+class _Collector:
+    """Gathers episode rows and score arrays (or, from older logs, step messages) by episode."""
+
+    def __init__(self) -> None:
+        self.rows: dict[int, dict] = {}
+        self.scores: dict[int, dict] = {}
+        self.steps: dict[int, list[dict]] = {}
+
+    def add(self, topic: str, data: bytes) -> None:
+        row = json.loads(data)
+        if topic == _EPISODE:
+            self.rows[row["episode"]] = row
+        elif topic == _SCORES:
+            self.scores[row["episode"]] = row
+        elif topic == _STEP:
+            self.steps.setdefault(row["episode"], []).append(row)
+
+    def scores_of(self, episode: int) -> dict | None:
+        if episode in self.scores:
+            return self.scores[episode]
+        steps = self.steps.get(episode)
+        if not steps or len(steps) != self.rows[episode]["length"]:
+            return None
+
+        def encoded(values, dtype) -> str:
+            return base64.b64encode(np.asarray(values, dtype).tobytes()).decode()
+
+        return {"score_f64": encoded([r["score"] for r in steps], "<f8"),
+                "shifted_u8": encoded([r["shifted"] for r in steps], np.uint8),
+                "alarm_u8": encoded([r["alarm"] for r in steps], np.uint8)}
+
+
+def _assemble(path: Path, metadata: dict[str, str] | None, found: _Collector, complete: bool) -> RunLog:
+    if metadata is None:
+        raise LogFormatError(f"{path} is an MCAP file but not an oodmon log (no oodmon.run metadata)")
+    episodes = []
+    for k in sorted(found.rows):
+        scores = found.scores_of(k)
+        if scores is not None:
+            episodes.append(_episode(found.rows[k], scores))
+    threshold = float(metadata.get("threshold", "nan"))
+    return RunLog(path, metadata.get("task", "unknown"), metadata.get("method", "unknown"), threshold, metadata,
+                  episodes, complete)
+
+
+def read_log(path: str | Path) -> RunLog:
+    """Read one oodmon MCAP log.
+
+    Raises:
+        LogFormatError: the file is missing, not MCAP, or not written by oodmon.
+
+    Warns:
+        RecoveryWarning: the file is unfinished or torn; its complete episodes are returned.
+    """
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(_MAGIC))
+    except FileNotFoundError:
+        raise LogFormatError(f"{path} does not exist") from None
+    except IsADirectoryError:
+        raise LogFormatError(f"{path} is a folder; give the .mcap files in it") from None
+    if head != _MAGIC:
+        raise LogFormatError(f"{path} is not an MCAP file (it does not start with the MCAP magic bytes)")
+    found = _Collector()
+    metadata = None
+    with open(path, "rb") as f:
+        try:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            if summary is None or not summary.chunk_indexes:
+                raise McapError("no summary")
+            for item in reader.iter_metadata():
+                if item.name == "oodmon.run":
+                    metadata = dict(item.metadata)
+            topics = {c.topic for c in summary.channels.values()}
+            if _EPISODE not in topics:
+                raise LogFormatError(f"{path} is an MCAP file but not an oodmon log (no {_EPISODE} channel)")
+            # Logs since the episode_scores channel: read it alone; older ones: the step messages.
+            wanted = [_EPISODE, _SCORES] if _SCORES in topics else [_EPISODE, _STEP]
+            for _, channel, message in reader.iter_messages(topics=wanted):
+                found.add(channel.topic, message.data)
+            return _assemble(path, metadata, found, complete=True)
+        except LogFormatError:
+            raise
+        except (McapError, ValueError, EOFError, KeyError):
+            pass
+    return _recover(path)
+
+
+def _recover(path: Path) -> RunLog:
+    """Stream an unfinished or torn file; keep the episodes that arrived whole."""
+    from mcap.records import Channel, Message, Metadata
+    from mcap.stream_reader import StreamReader
+
+    found = _Collector()
+    metadata = None
+    channels: dict[int, str] = {}
+    torn = None
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f, skip_magic=False).records:
+                if isinstance(record, Channel):
+                    channels[record.id] = record.topic
+                elif isinstance(record, Metadata) and record.name == "oodmon.run":
+                    metadata = dict(record.metadata)
+                elif isinstance(record, Message) and record.channel_id in channels:
+                    found.add(channels[record.channel_id], record.data)
+        except Exception as error:  # noqa: BLE001  (a torn record ends the readable part)
+            torn = error
+    log = _assemble(path, metadata, found, complete=False)
+    warnings.warn(
+        f"{path} is unfinished or damaged ({type(torn).__name__ if torn else 'no summary'}): recovered "
+        f"{len(log.episodes)} complete episode(s), {sum(e.length for e in log.episodes)} steps; a running episode "
+        "at the tear is lost", RecoveryWarning, stacklevel=2,
+    )
+    return log

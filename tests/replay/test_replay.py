@@ -1,0 +1,149 @@
+"""Replay of recorded logs: pinned numbers, equality with the online run, damaged files, check."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from oodmon.agents import load
+from oodmon.envs import parse_variant
+from oodmon.errors import LogFormatError
+from oodmon.monitor import McapSink, MemorySink, Monitor
+from oodmon.replay import RecoveryWarning, compute_metrics, read_log
+
+DATA = Path(__file__).parent.parent / "data"
+LOGS = sorted(DATA.glob("*.mcap"))
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "oodmon", *args], capture_output=True, text=True)
+
+
+def test_recorded_logs_give_their_pinned_numbers():
+    rows = {m.variant: m for m in compute_metrics(read_log(p) for p in LOGS)}
+    assert set(rows) == {"cartpole", "cartpole:length=2.0"}
+    id_row, shifted = rows["cartpole"], rows["cartpole:length=2.0"]
+    assert (id_row.episodes, id_row.steps, id_row.false_alarm_rate) == (3, 1500, 1.0)
+    assert (shifted.episodes, shifted.steps, shifted.id_steps, shifted.ood_steps) == (3, 1009, 1803, 706)
+    assert shifted.auroc == pytest.approx(0.9526348122974144, abs=1e-12)
+    assert shifted.aupr == pytest.approx(0.9586463257152119, abs=1e-12)
+    assert shifted.detection_rate == 1.0 and shifted.early_alarm_rate == 0.0
+    assert shifted.delay_mean == pytest.approx(10 / 3) and shifted.delay_median == 4.0
+
+
+def test_fast_path_equals_the_step_messages():
+    from mcap.reader import make_reader
+
+    log = read_log(DATA / "cartpole-ensemble-length2.mcap")
+    with open(DATA / "cartpole-ensemble-length2.mcap", "rb") as f:
+        steps = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/oodmon/step"])]
+    for episode in log.episodes:
+        mine = [s for s in steps if s["episode"] == episode.episode]
+        assert episode.scores.tolist() == [s["score"] for s in mine]
+        assert episode.shifted.tolist() == [s["shifted"] for s in mine]
+        assert episode.alarm.tolist() == [s["alarm"] for s in mine]
+
+
+def test_replay_equals_online(tmp_path):
+    agent = load("cartpole", "dropout")
+    memory = MemorySink()
+    env = parse_variant("cartpole:length=2.0").make(onset_step=40)
+    with Monitor(agent, threshold=3.5, sinks=[memory, McapSink(tmp_path / "run.mcap")]) as monitor:
+        online = [monitor.run_episode(env, seed=s, variant="cartpole:length=2.0") for s in range(4)]
+    log = read_log(tmp_path / "run.mcap")
+    assert log.complete and log.task == "cartpole" and log.method == "dropout" and log.threshold == 3.5
+    for record, replayed in zip(online, log.episodes, strict=True):
+        assert (replayed.length, replayed.alarms, replayed.first_alarm_step, replayed.total_return) == (
+            record.length, record.alarms, record.first_alarm_step, record.total_return)
+        mine = [s for s in memory.steps if s.episode == record.episode]
+        np.testing.assert_array_equal(replayed.scores, [s.score for s in mine])
+        assert replayed.alarm.sum() == sum(s.alarm for s in mine)
+
+
+def test_truncated_file_is_read_up_to_its_last_complete_episode(tmp_path):
+    source = DATA / "cartpole-ensemble-length2.mcap"
+    raw = source.read_bytes()
+    whole = read_log(source)
+    for cut in (len(raw) - 100, len(raw) * 2 // 3, len(raw) // 3):
+        (tmp_path / "torn.mcap").write_bytes(raw[:cut])
+        with pytest.warns(RecoveryWarning, match=r"unfinished or damaged .* recovered \d+ complete episode"):
+            log = read_log(tmp_path / "torn.mcap")
+        assert not log.complete and len(log.episodes) <= len(whole.episodes)
+        for torn, full in zip(log.episodes, whole.episodes):
+            np.testing.assert_array_equal(torn.scores, full.scores)
+    assert len(log.episodes) < len(whole.episodes)
+
+
+def test_replay_never_writes_into_its_inputs(tmp_path):
+    copies = []
+    for path in LOGS:
+        shutil.copy(path, tmp_path / path.name)
+        copies.append(tmp_path / path.name)
+    before = {p: (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_mtime_ns) for p in copies}
+    assert _cli("replay", str(tmp_path)).returncode == 0
+    assert _cli("check", str(tmp_path), "--baseline", str(tmp_path / "b.json"), "--update").returncode == 0
+    assert {p: (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_mtime_ns) for p in copies} == before
+
+
+@pytest.mark.parametrize(
+    "content, words",
+    [
+        (b"hello, not a log", "is not an MCAP file"),
+        (None, "is an MCAP file but not an oodmon log"),
+    ],
+)
+def test_files_that_are_not_oodmon_logs_get_one_line(tmp_path, content, words):
+    path = tmp_path / "other.mcap"
+    if content is None:
+        from mcap.writer import Writer
+
+        with open(path, "wb") as f:
+            writer = Writer(f)
+            writer.start()
+            schema = writer.register_schema("x", "jsonschema", b"{}")
+            channel = writer.register_channel("/x", "json", schema)
+            writer.add_message(channel, log_time=0, data=b"{}", publish_time=0)
+            writer.finish()
+    else:
+        path.write_bytes(content)
+    with pytest.raises(LogFormatError, match=words):
+        read_log(path)
+    result = _cli("replay", str(path))
+    lines = [l for l in result.stderr.splitlines() if l.strip()]
+    assert result.returncode == 2 and len(lines) == 1 and words in lines[0]
+
+
+def test_replay_formats():
+    table = _cli("replay", *map(str, LOGS))
+    assert table.returncode == 0 and "cartpole:length=2.0" in table.stdout and "0.953" in table.stdout
+    rows = json.loads(_cli("replay", str(DATA), "--json").stdout)
+    assert [r["auroc"] for r in rows] == [None, pytest.approx(0.9526348122974144)]
+    csv = _cli("replay", str(DATA), "--csv").stdout.splitlines()
+    assert csv[0].startswith("task,method,variant,episodes,steps,auroc") and len(csv) == 3
+    markdown = _cli("replay", str(DATA), "--markdown").stdout.splitlines()
+    assert markdown[0].startswith("| task | method | variant") and markdown[1].startswith("|---|")
+
+
+def test_check_exit_codes_and_what_fell(tmp_path):
+    baseline = tmp_path / "baseline.json"
+    assert _cli("check", str(DATA), "--baseline", str(baseline), "--update").returncode == 0
+    ok = _cli("check", str(DATA), "--baseline", str(baseline))
+    assert ok.returncode == 0 and "ok: 2 rows" in ok.stdout
+    data = json.loads(baseline.read_text())
+    data["metrics"]["cartpole/ensemble/cartpole:length=2.0"]["auroc"] = 0.99
+    data["metrics"]["cartpole/ensemble/cartpole"]["false_alarm_rate"] = 0.5
+    baseline.write_text(json.dumps(data))
+    fell = _cli("check", str(DATA), "--baseline", str(baseline))
+    assert fell.returncode == 1
+    assert "cartpole/ensemble/cartpole:length=2.0: auroc fell from 0.99 to 0.9526" in fell.stderr
+    assert "cartpole/ensemble/cartpole: false_alarm_rate rose from 0.5 to 1" in fell.stderr
+    assert _cli("check", str(DATA), "--baseline", str(baseline), "--tolerance", "0.6").returncode == 0
+    missing = _cli("check", str(DATA), "--baseline", str(tmp_path / "none.json"))
+    assert missing.returncode == 2 and "does not exist" in missing.stderr
