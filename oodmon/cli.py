@@ -11,6 +11,7 @@ import json
 import sys
 from collections.abc import Sequence
 
+import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -136,6 +137,18 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument("--update", action="store_true", help="write the baseline from these logs instead")
     check.add_argument("--tolerance", type=float, help="allowed fall (default: the baseline's, else 0.02)")
     check.set_defaults(handler=_check)
+
+    bench = commands.add_parser("bench", help="the paper's protocol: trials x methods x failing variants, scored by replay")
+    bench.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
+    bench.add_argument("--methods", default="dropout,dropconnect,ensemble", help="comma-separated (default all three)")
+    bench.add_argument("--trials", type=int, default=5, help="trials per method (default 5; trial 0 is the zoo agent)")
+    bench.add_argument("--variants", default="paper", help="'paper' (the paper's grid) or comma-separated specs")
+    bench.add_argument("--episodes", type=int, default=5, help="episodes per failing variant (default 5)")
+    bench.add_argument("--id-episodes", type=int, default=10, help="ID episodes per trial (default 10)")
+    bench.add_argument("--workers", type=int, default=0, help="worker processes for the cells (default: all cores)")
+    bench.add_argument("--out", default="runs/bench", help="models, logs and report (default runs/bench)")
+    bench.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    bench.set_defaults(handler=_bench)
 
     demo = commands.add_parser("demo", help="the main job of 'make demo': calibrate, monitor, log, summarise")
     demo.add_argument("--out", default="runs/demo", help="folder for the demo's files (default runs/demo)")
@@ -357,6 +370,56 @@ def _check(args: argparse.Namespace) -> int:
         print(f"oodmon check: {len(falls)} metric(s) fell below {args.baseline}", file=sys.stderr)
         return 1
     console.print(f"ok: {len(metrics)} rows at or above {args.baseline}")
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from rich.progress import Progress
+
+    from oodmon.agents import METHODS
+    from oodmon.bench import BenchConfig, best_per_method, paper_only_variants, run_bench
+    from oodmon.errors import UnknownParameterError
+
+    methods = tuple(m.strip() for m in args.methods.split(","))
+    for method in methods:
+        if method not in METHODS:
+            raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
+    variants = "paper" if args.variants == "paper" else tuple(args.variants.split(","))
+    config = BenchConfig(args.task, methods, args.trials, variants, args.episodes, args.id_episodes, out=args.out,
+                         workers=args.workers)
+    config.variant_list()  # refuse bad specs before any work
+    with Progress(console=Console(stderr=True), transient=True) as progress:
+        bars: dict[str, int] = {}
+
+        def report(stage: str, done: int, total: int) -> None:
+            if stage not in bars:
+                bars[stage] = progress.add_task(stage, total=total)
+            progress.update(bars[stage], completed=done, total=total)
+
+        result = run_bench(config, on_progress=report)
+    if args.json:
+        print(json.dumps(result.to_json(), indent=1))
+        return 0
+    console = _table_console()
+    table = Table(title=f"{args.task}: per-step AUROC per failing variant, ours (mean ± std over trials) beside the paper's")
+    for column in ("method", "variant", "trials", "ours", "paper", "difference"):
+        table.add_column(column, justify="left" if column in ("method", "variant") else "right")
+    for row in result.rows:
+        paper = f"{np.mean(row.paper):.3f} ± {np.std(row.paper):.3f}" if row.paper else ""
+        difference = f"{row.mean - np.mean(row.paper):+.3f}" if row.paper else ""
+        table.add_row(row.method, row.variant, str(len(row.aurocs)), f"{row.mean:.3f} ± {row.std:.3f}", paper, difference)
+    console.print(table)
+    best = Table(title=f"{args.task}: best single-trial AUROC per method (the paper's main tables)")
+    for column in ("method", "variant", "ours", "paper", "difference"):
+        best.add_column(column, justify="left" if column in ("method", "variant") else "right")
+    for method, variant, ours, paper in best_per_method(result, args.task):
+        best.add_row(method, variant, f"{ours:.3f}", "" if paper is None else f"{paper:.3f}",
+                     "" if paper is None else f"{ours - paper:+.3f}")
+    console.print(best)
+    missing = paper_only_variants(result, args.task, methods)
+    if missing:
+        console.print("Variants the paper reports where our agents did not fail (no AUROC of ours): "
+                      + ", ".join(f"{m} {label} ({best:.3f})" for m, label, best in missing))
     return 0
 
 

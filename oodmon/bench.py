@@ -1,0 +1,267 @@
+"""``oodmon bench``: the paper's protocol, run under the monitor and scored by replaying its logs.
+
+For one task, each method and each trial:
+
+1. a model: trial 0 is the shipped agent; trial k > 0 is trained with seed k (cached, resumable);
+2. the variants where it fails (the paper's step 3), from ``evaluate_variants`` on a few episodes;
+3. a threshold calibrated on held-out ID episodes (so that the logs carry alarms too);
+4. cells: ID episodes, and episodes of every failing variant (shifted from step 0, as in the
+   paper), each cell a monitored run writing one MCAP log;
+5. the scores, by replaying those logs: per-step AUROC per (method, trial, variant).
+
+The report puts, per variant, our AUROC mean and std over trials beside the paper's, and the
+best AUROC per method beside the paper's best. A cell whose log is complete is not run again,
+so an interrupted bench resumes; cells run in ``workers`` processes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from oodmon.agents import evaluate_variants, load_agent, train, zoo_dir
+from oodmon.envs.grid import Variant, paper_grid, parse_variant
+from oodmon.errors import ConfigError
+from oodmon.paper import paper_auc_per_trial
+
+__all__ = ["PAPER_METHOD", "BenchConfig", "BenchResult", "best_per_method", "paper_label", "paper_only_variants", "run_bench"]
+
+#: Our method names as the paper's tables name them.
+PAPER_METHOD = {"dropout": "mc_dropout", "dropconnect": "mc_dropconnect", "ensemble": "ensemble"}
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """What to run. ``variants`` is ``"paper"`` or a list of spec strings."""
+
+    task: str
+    methods: tuple[str, ...] = ("dropout", "dropconnect", "ensemble")
+    trials: int = 5
+    variants: str | tuple[str, ...] = "paper"
+    episodes: int = 5
+    id_episodes: int = 10
+    eval_episodes: int = 3
+    calibration_episodes: int = 20
+    far: float = 0.05
+    out: str = "runs/bench"
+    workers: int = 0  # 0: all cores
+    train_steps: int | None = None  # override the recipes' steps for trials > 0 (smoke tests)
+
+    def variant_list(self) -> list[Variant]:
+        if self.variants == "paper":
+            return paper_grid(self.task)
+        variants = [parse_variant(v) for v in self.variants]
+        for v in variants:
+            if v.task != self.task or v.is_id:
+                raise ConfigError(f"bench variant {v.spec!r} is not a shifted {self.task} variant")
+        return variants
+
+
+@dataclass(frozen=True)
+class Row:
+    """One (method, variant): our AUROC per trial beside the paper's."""
+
+    method: str
+    variant: str
+    aurocs: dict[int, float]
+    paper: list[float] | None
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(list(self.aurocs.values())))
+
+    @property
+    def std(self) -> float:
+        return float(np.std(list(self.aurocs.values())))
+
+
+@dataclass(frozen=True)
+class BenchResult:
+    rows: list[Row]
+    failing: dict[str, dict[int, list[str]]]
+    detection: dict[str, dict[str, float | None]]
+
+    def to_json(self) -> dict:
+        return {
+            "rows": [asdict(r) | {"mean": r.mean, "std": r.std} for r in self.rows],
+            "failing": self.failing,
+            "monitor": self.detection,
+        }
+
+
+def paper_label(task: str, method: str, spec: str) -> str | None:
+    """The label of ``spec`` in the paper's per-trial table for ``method``, if it has one.
+
+    Example:
+        >>> paper_label("cartpole", "ensemble", "cartpole:length=2.0")
+        'length=2.0'
+        >>> paper_label("cartpole", "dropconnect", "cartpole:masscart=9.0")
+        'masscart=9.0 (text says pole mass 9)'
+    """
+    table = paper_auc_per_trial().get(task, {}).get(PAPER_METHOD[method], {})
+    variant = parse_variant(spec)
+    if variant.task == "pong":
+        key = f"{variant.corruption}@{variant.severity}"
+    else:
+        name, value = variant.params[0]
+        key = f"{name}={value!r}"
+    for label in table:
+        if label == key or label.startswith(key + " "):
+            return label
+    return None
+
+
+def _model_dir(config: BenchConfig, method: str, trial: int) -> Path:
+    if trial == 0:
+        return zoo_dir() / f"{config.task}-{method}"
+    return Path(config.out) / "models" / f"{config.task}-{method}-trial{trial}"
+
+
+def _ensure_model(config: BenchConfig, method: str, trial: int) -> Path:
+    path = _model_dir(config, method, trial)
+    if not (path / "model.json").exists():
+        train(config.task, method, path, seed=trial, total_steps=config.train_steps)
+    return path
+
+
+def _cell_log(config: BenchConfig, method: str, trial: int, name: str) -> Path:
+    safe = name.replace(":", "_").replace("@", "_").replace("=", "-").replace(",", "_")
+    return Path(config.out) / "logs" / config.task / method / f"trial{trial}" / f"{safe}.mcap"
+
+
+def _log_is_complete(path: Path, episodes: int) -> bool:
+    from oodmon.replay import read_log
+
+    if not path.exists():
+        return False
+    try:
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            log = read_log(path)
+    except Exception:  # noqa: BLE001  (an unreadable log is simply run again)
+        return False
+    return log.complete and len(log.episodes) == episodes
+
+
+def _run_cell(task: str, model: str, threshold: str, spec: str, episodes: int, seed: int, log: str) -> str:
+    """One cell, in a worker process: monitored episodes of one variant into one MCAP log."""
+    import torch
+
+    from oodmon.monitor import McapSink, Monitor, Threshold
+
+    torch.set_num_threads(1)
+    agent = load_agent(model, task=task)
+    variant = parse_variant(spec)
+    env = variant.make()
+    temporary = Path(log).with_suffix(".part")
+    temporary.parent.mkdir(parents=True, exist_ok=True)
+    with Monitor(agent, Threshold.load(threshold), sinks=[McapSink(temporary)], strict=True) as monitor:
+        for episode in range(episodes):
+            monitor.run_episode(env, seed=seed + episode, variant=variant.spec)
+    env.close()
+    os.replace(temporary, log)  # a complete log appears whole, or not at all
+    return log
+
+
+def _prepare_trial(config: BenchConfig, method: str, trial: int) -> tuple[Path, Path, list[str]]:
+    """Model, threshold and failing variants of one (method, trial); cached in its folder."""
+    from oodmon.monitor import calibrate_agent
+
+    model = _ensure_model(config, method, trial)
+    folder = _cell_log(config, method, trial, "x").parent
+    folder.mkdir(parents=True, exist_ok=True)
+    threshold_path, failing_path = folder / "threshold.json", folder / "failing.json"
+    agent = load_agent(model, task=config.task)
+    if not threshold_path.exists():
+        calibrate_agent(agent, config.calibration_episodes, config.far).save(threshold_path)
+    variants = config.variant_list()
+    if failing_path.exists() and json.loads(failing_path.read_text()).get("variants") == [v.spec for v in variants]:
+        failing = json.loads(failing_path.read_text())["failing"]
+    else:
+        _, results = evaluate_variants(agent.act, config.task, variants, config.eval_episodes)
+        failing = [r.spec for r in results if r.fails]
+        failing_path.write_text(json.dumps({"variants": [v.spec for v in variants], "failing": failing,
+                                            "returns": {r.spec: r.mean for r in results}}, indent=1))
+    return model, threshold_path, failing
+
+
+def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], None] | None = None) -> BenchResult:
+    """Run (or resume) the bench; return its rows. ``on_progress(stage, done, total)`` reports."""
+    from oodmon.replay import compute_metrics, read_log
+
+    report = on_progress or (lambda stage, done, total: None)
+    trials = [(m, t) for m in config.methods for t in range(config.trials)]
+    prepared: dict[tuple[str, int], tuple[Path, Path, list[str]]] = {}
+    for index, (method, trial) in enumerate(trials):
+        report("models, thresholds, failing variants", index, len(trials))
+        prepared[(method, trial)] = _prepare_trial(config, method, trial)
+    report("models, thresholds, failing variants", len(trials), len(trials))
+
+    cells = []
+    for (method, trial), (model, threshold, failing) in prepared.items():
+        cells.append((method, trial, config.task, config.id_episodes, 400_000))
+        cells += [(method, trial, spec, config.episodes, 500_000) for spec in failing]
+    jobs = []
+    for method, trial, spec, episodes, seed in cells:
+        log = _cell_log(config, method, trial, spec)
+        if not _log_is_complete(log, episodes):
+            model, threshold, _ = prepared[(method, trial)]
+            jobs.append((config.task, str(model), str(threshold), spec, episodes, seed, str(log)))
+    done = len(cells) - len(jobs)
+    report("monitored cells", done, len(cells))
+    workers = config.workers or os.cpu_count() or 1
+    if jobs:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for future in as_completed([pool.submit(_run_cell, *job) for job in jobs]):
+                future.result()
+                done += 1
+                report("monitored cells", done, len(cells))
+
+    rows: dict[tuple[str, str], dict[int, float]] = {}
+    detection: dict[str, dict[str, float | None]] = {}
+    for (method, trial), (_, _, failing) in prepared.items():
+        logs = [read_log(_cell_log(config, method, trial, spec)) for spec in [config.task, *failing]]
+        for m in compute_metrics(logs):
+            if m.auroc is not None:
+                rows.setdefault((method, m.variant), {})[trial] = m.auroc
+            key = f"{method}/trial{trial}/{m.variant}"
+            detection[key] = {"false_alarm_rate": m.false_alarm_rate, "detection_rate": m.detection_rate,
+                              "delay_mean": m.delay_mean}
+    paper = paper_auc_per_trial().get(config.task, {})
+    result_rows = []
+    for (method, spec), aurocs in sorted(rows.items()):
+        label = paper_label(config.task, method, spec)
+        result_rows.append(Row(method, spec, aurocs, paper[PAPER_METHOD[method]][label] if label else None))
+    failing = {m: {t: prepared[(m, t)][2] for t in range(config.trials)} for m in config.methods}
+    return BenchResult(result_rows, failing, detection)
+
+
+def best_per_method(result: BenchResult, task: str, top: int = 3) -> list[tuple[str, str, float, float | None]]:
+    """Per method, the variants with the best single-trial AUROC (the paper's main tables),
+    with the paper's best trial for the same variant where it reports one."""
+    best = []
+    for method in sorted({r.method for r in result.rows}):
+        rows = sorted((r for r in result.rows if r.method == method), key=lambda r: -max(r.aurocs.values()))
+        for row in rows[:top]:
+            best.append((method, row.variant, max(row.aurocs.values()), max(row.paper) if row.paper else None))
+    return best
+
+
+def paper_only_variants(result: BenchResult, task: str, methods: Iterable[str]) -> list[tuple[str, str, float]]:
+    """Variants the paper reports for a method that our agents did not fail on (so no AUROC)."""
+    ours = {(r.method, r.variant) for r in result.rows}
+    missing = []
+    table = paper_auc_per_trial().get(task, {})
+    for method in methods:
+        for label, values in table.get(PAPER_METHOD[method], {}).items():
+            if not any(paper_label(task, method, v) == label for (m, v) in ours if m == method):
+                missing.append((method, label, max(values)))
+    return missing

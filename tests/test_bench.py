@@ -1,0 +1,63 @@
+"""The bench end to end on a tiny grid: models, failing variants, monitored logs, replayed AUROCs."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from oodmon.bench import BenchConfig, best_per_method, paper_label, run_bench
+from oodmon.replay import compute_metrics, read_log
+
+SPECS = ("cartpole:length=2.0", "cartpole:gravity=98.0", "cartpole:gravity=0.98")
+
+
+def test_bench_end_to_end_and_resume(tmp_path):
+    config = BenchConfig("cartpole", ("dropout",), trials=2, variants=SPECS, episodes=2, id_episodes=3,
+                         eval_episodes=2, calibration_episodes=19, out=str(tmp_path), workers=2, train_steps=300)
+    stages = []
+    result = run_bench(config, on_progress=lambda stage, done, total: stages.append((stage, done, total)))
+    failing = json.loads((tmp_path / "logs/cartpole/dropout/trial0/failing.json").read_text())
+    assert failing["variants"] == list(SPECS)
+    # The zoo agent survives gravity 0.98 and fails the other two.
+    assert failing["failing"] == ["cartpole:length=2.0", "cartpole:gravity=98.0"]
+    assert (tmp_path / "models/cartpole-dropout-trial1/model.json").exists()  # trial 1 was trained
+    # Every row's AUROC is what replaying that trial's logs gives.
+    for row in result.rows:
+        for trial, auroc in row.aurocs.items():
+            folder = tmp_path / "logs/cartpole/dropout" / f"trial{trial}"
+            logs = [read_log(p) for p in sorted(folder.glob("*.mcap"))]
+            replayed = {m.variant: m.auroc for m in compute_metrics(logs)}
+            assert replayed[row.variant] == auroc
+    length = next(r for r in result.rows if r.variant == "cartpole:length=2.0")
+    assert 0 in length.aurocs and length.paper is None  # the paper has no dropout length=2.0 trial
+    cells = [(done, total) for stage, done, total in stages if stage == "monitored cells"]
+    assert cells[0][0] == 0 and cells[-1][0] == cells[-1][1] == 2 + 2 + len(result.failing["dropout"][1])
+    # Run again: every cell is complete, nothing is recomputed.
+    mtimes = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*.mcap")}
+    again = run_bench(config)
+    assert {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*.mcap")} == mtimes
+    assert [r.aurocs for r in again.rows] == [r.aurocs for r in result.rows]
+    assert best_per_method(result, "cartpole")[0][0] == "dropout"
+
+
+def test_paper_labels_match_our_specs():
+    assert paper_label("cartpole", "ensemble", "cartpole:gravity=98.0") == "gravity=98.0"
+    assert paper_label("pendulum", "dropout", "pendulum:l=5.0") == "l=5.0"
+    assert paper_label("pong", "dropconnect", "pong:motion_blur@4") == "motion_blur@4"
+    assert paper_label("cartpole", "ensemble", "cartpole:gravity=0.98") is None
+
+
+def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "oodmon", "bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1",
+         "--variants", "cartpole:length=2.0", "--episodes", "2", "--id-episodes", "3", "--workers", "1",
+         "--out", str(tmp_path), "--json"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    row = report["rows"][0]
+    assert row["variant"] == "cartpole:length=2.0" and row["method"] == "ensemble"
+    assert row["paper"] == [0.862, 0.826, 0.993, 0.864, 0.87] and 0.0 <= row["mean"] <= 1.0
+    assert np.isclose(row["mean"], row["aurocs"]["0"])
