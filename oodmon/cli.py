@@ -129,6 +129,7 @@ def _parser() -> argparse.ArgumentParser:
     formats.add_argument("--json", action="store_true", help="print JSON (key auroc for the paper's metric)")
     formats.add_argument("--csv", action="store_true", help="print CSV")
     formats.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    replay.add_argument("--plots", metavar="DIR", help="also write PNG plots (ROC, traces, AUROC vs shift) to DIR")
     replay.set_defaults(handler=_replay)
 
     check = commands.add_parser("check", help="regression check of recorded logs against a baseline")
@@ -339,6 +340,11 @@ def _replay(args: argparse.Namespace) -> int:
 
     logs = _read_logs(args.logs)
     metrics = compute_metrics(logs)
+    if args.plots:
+        from oodmon.replay.plots import write_plots
+
+        written = write_plots(logs, metrics, args.plots)
+        print(f"wrote {len(written)} plot(s) to {args.plots}", file=sys.stderr)
     if args.json:
         print(to_json(metrics))
     elif args.csv:

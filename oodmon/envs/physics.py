@@ -4,7 +4,7 @@ A variant is the default env with other numbers (the paper's Table 1). The shift
 mid-episode: with ``onset_step=N`` the first N ``step()`` calls of every episode run the default
 physics and the rest the shifted physics, so one episode holds in-distribution steps and then
 OOD steps. Every ``info`` (from ``reset`` and ``step``) has ``info["shifted"]``: whether the
-observation returned came from the shifted world.
+observation returned came from the shifted world (always False for the default physics).
 
 Observation and action spaces are those of the default env, so one trained agent acts in every
 variant. For Pendulum this is a deliberate choice: ``max_speed`` and ``max_torque`` change where
@@ -72,13 +72,18 @@ class _ShiftPhysics:
         self._derive()
         self._shift_active = shifted
 
+    @property
+    def shifted(self) -> bool:
+        """Whether the world differs from the default one now (never, for the ID env)."""
+        return self._shift_active and self.shifted_physics != dict(self.DEFAULTS)
+
     def _derive(self) -> None:
         """Recompute quantities the parent env derives from the physics parameters."""
 
     def _begin_episode(self, info: dict[str, Any]) -> dict[str, Any]:
         self._steps = 0
         self._set_physics(shifted=self.onset_step == 0)
-        info["shifted"] = self._shift_active
+        info["shifted"] = self.shifted
         return info
 
     def _begin_step(self) -> None:
@@ -136,7 +141,7 @@ class ShiftedCartPole(_ShiftPhysics, CartPoleEnv):
     def step(self, action):
         self._begin_step()
         obs, reward, terminated, truncated, info = super().step(action)
-        info["shifted"] = self._shift_active
+        info["shifted"] = self.shifted
         return obs, reward, terminated, truncated, info
 
 
@@ -182,5 +187,5 @@ class ShiftedPendulum(_ShiftPhysics, PendulumEnv):
     def step(self, u):
         self._begin_step()
         obs, reward, terminated, truncated, info = super().step(u)
-        info["shifted"] = self._shift_active
+        info["shifted"] = self.shifted
         return obs, reward, terminated, truncated, info

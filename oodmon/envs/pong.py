@@ -60,7 +60,8 @@ class CorruptedPong(gymnasium.Env):
         render_mode: ``"rgb_array"`` renders the last raw frame the camera delivered.
         **params: the corruption's own parameters instead of a severity (``sigma=0.2``).
 
-    ``info["shifted"]`` says whether the observation's newest frame is corrupted.
+    ``info["shifted"]`` says whether the observation's newest frame is corrupted (never, without a
+    corruption).
     ``last_clean_frame`` and ``last_observed_frame`` hold the newest raw RGB frame before and
     after the corruption.
 
@@ -160,13 +161,13 @@ class CorruptedPong(gymnasium.Env):
                 frame, info = self._atari.reset()
                 frames = [frame]
         self._steps = 0
-        shifted = self.onset_step == 0
+        shifted = self.onset_step == 0 and self.corruption is not None
         self._observe(frames, shifted)
         self._stack[:-1] = self._stack[-1]
         return self._stack.copy(), self._info(info, shifted)
 
     def step(self, action):
-        shifted = self._steps >= self.onset_step
+        shifted = self._steps >= self.onset_step and self.corruption is not None
         self._steps += 1
         reward = 0.0
         frames: list[np.ndarray] = []

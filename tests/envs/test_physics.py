@@ -204,3 +204,14 @@ def test_non_numeric_physics_and_bad_onset_are_refused():
         gymnasium.make("oodmon/CartPole-v1", onset_step=-1)
     with pytest.raises(InvalidParameterError, match=r"onset_step=2.5 is not allowed"):
         gymnasium.make("oodmon/Pendulum-v1", onset_step=2.5)
+
+
+@pytest.mark.parametrize("env_id", ["oodmon/CartPole-v1", "oodmon/Pendulum-v1", "oodmon/Pong-v5"])
+def test_the_id_env_never_reports_a_shift(env_id):
+    env = gymnasium.make(env_id)
+    _, info = env.reset(seed=0)
+    flags = [info["shifted"]]
+    for _ in range(5):
+        *_, info = env.step(env.action_space.sample())
+        flags.append(info["shifted"])
+    assert flags == [False] * 6

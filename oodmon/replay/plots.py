@@ -1,0 +1,170 @@
+"""Pictures from recorded logs (PNG): ROC curves, uncertainty traces, AUROC against the shift.
+
+- :func:`plot_roc`: per method, the ROC curve of one variant's per-step scores.
+- :func:`plot_trace`: the paper's Figures 4 and 5: one ID episode beside one shifted episode,
+  the score over the steps with the threshold, the shifted steps shaded, alarms marked.
+- :func:`plot_auroc_vs_shift`: per method, AUROC against the parameter's value (or severity).
+"""
+
+from __future__ import annotations
+
+import re
+from collections import defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from sklearn.metrics import roc_curve
+
+from oodmon.envs.grid import parse_variant
+from oodmon.replay.metrics import VariantMetrics, alarm_events
+from oodmon.replay.reader import RunLog
+
+__all__ = ["plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_plots"]
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str) -> tuple[np.ndarray, np.ndarray] | None:
+    negatives, positives = [], []
+    for log in logs:
+        if log.method != method:
+            continue
+        for episode in log.episodes:
+            if parse_variant(episode.variant).is_id:
+                negatives.append(episode.scores)
+            elif episode.variant == variant:
+                negatives.append(episode.scores[~episode.shifted])
+                positives.append(episode.scores[episode.shifted])
+    if not positives or not negatives:
+        return None
+    neg, pos = np.concatenate(negatives), np.concatenate(positives)
+    if not len(neg) or not len(pos):
+        return None
+    return np.concatenate([np.zeros(len(neg)), np.ones(len(pos))]), np.concatenate([neg, pos])
+
+
+def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path) -> Path | None:
+    """ROC curves of ``variant`` per method; ``None`` when no method has both ID and OOD steps."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(4.5, 4.5), dpi=110)
+    drawn = False
+    for method in sorted({log.method for log in logs}):
+        data = _labels_and_scores(logs, method, variant)
+        if data is None:
+            continue
+        fpr, tpr, _ = roc_curve(*data)
+        ax.plot(fpr, tpr, label=f"{method} (AUROC {np.trapezoid(tpr, fpr):.3f})")
+        drawn = True
+    if not drawn:
+        plt.close(fig)
+        return None
+    ax.plot([0, 1], [0, 1], color="grey", linestyle=":", linewidth=1)
+    ax.set(xlabel="false-positive rate (ID steps)", ylabel="true-positive rate (OOD steps)", title=f"ROC: {variant}")
+    ax.legend(loc="lower right", fontsize=8)
+    return _save(fig, plt, path)
+
+
+def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Path) -> Path | None:
+    """The score over one ID episode beside one episode of ``variant`` (the paper's Figures 4, 5)."""
+    id_episode = shifted_episode = None
+    threshold = float("nan")
+    for log in logs:
+        if log.method != method:
+            continue
+        for episode in log.episodes:
+            if id_episode is None and parse_variant(episode.variant).is_id:
+                id_episode, threshold = episode, log.threshold
+            if shifted_episode is None and episode.variant == variant:
+                shifted_episode, threshold = episode, log.threshold
+    if id_episode is None or shifted_episode is None:
+        return None
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), dpi=110, sharey=True)
+    for ax, episode, title in ((axes[0], id_episode, f"ID: {episode_name(id_episode)}"),
+                               (axes[1], shifted_episode, f"shifted: {episode_name(shifted_episode)}")):
+        steps = np.arange(episode.length)
+        ax.plot(steps, episode.scores, color="tab:red", linewidth=1, label="score")
+        if np.isfinite(threshold):
+            ax.axhline(threshold, color="black", linewidth=1, linestyle="--", label="threshold")
+        if episode.shifted.any():
+            ax.fill_between(steps, 0, 1, where=episode.shifted, transform=ax.get_xaxis_transform(),
+                            color="tab:orange", alpha=0.15, label="shift active")
+        for event in alarm_events(episode.alarm):
+            ax.axvline(event, color="tab:purple", linewidth=1)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("step")
+    axes[0].set_ylabel("uncertainty score")
+    axes[1].legend(loc="upper left", fontsize=8)
+    fig.suptitle(f"{method}: alarms as vertical lines", fontsize=9)
+    return _save(fig, plt, path)
+
+
+def episode_name(episode) -> str:
+    return f"{episode.variant}\nseed {episode.seed}, onset {episode.onset}, return {episode.total_return:.0f}"
+
+
+def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str | Path) -> Path | None:
+    """AUROC against each parameter's value (log scale) or the severity, one line per method."""
+    series: dict[tuple[str, str], list[tuple[float, float]]] = defaultdict(list)
+    for m in metrics:
+        if m.task != task or m.auroc is None:
+            continue
+        variant = parse_variant(m.variant)
+        if variant.corruption is not None and variant.severity is not None:
+            series[(variant.corruption, m.method)].append((variant.severity, m.auroc))
+        elif len(variant.params) == 1:
+            name, value = variant.params[0]
+            series[(name, m.method)].append((value, m.auroc))
+    if not series:
+        return None
+    names = sorted({name for name, _ in series})
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 3.4), dpi=110, sharey=True, squeeze=False)
+    for ax, name in zip(axes[0], names):
+        for (parameter, method), points in sorted(series.items()):
+            if parameter != name:
+                continue
+            points.sort()
+            ax.plot(*zip(*points), marker="o", markersize=3, label=method)
+        if task != "pong":
+            ax.set_xscale("log")
+        ax.set(title=name, xlabel="severity" if task == "pong" else "value", ylim=(0, 1))
+        ax.axhline(0.5, color="grey", linestyle=":", linewidth=1)
+    axes[0][0].set_ylabel("AUROC")
+    axes[0][-1].legend(fontsize=8)
+    return _save(fig, plt, path)
+
+
+def _save(fig, plt, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def _safe(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text)
+
+
+def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folder: str | Path) -> list[Path]:
+    """Every plot the logs allow, into ``folder``; returns the files written."""
+    folder = Path(folder)
+    written: list[Path | None] = []
+    shifted = sorted({m.variant for m in metrics if m.auroc is not None})
+    for variant in shifted:
+        written.append(plot_roc(logs, variant, folder / f"roc_{_safe(variant)}.png"))
+        for method in sorted({log.method for log in logs}):
+            written.append(plot_trace(logs, method, variant, folder / f"trace_{_safe(method)}_{_safe(variant)}.png"))
+    for task in sorted({m.task for m in metrics}):
+        written.append(plot_auroc_vs_shift(metrics, task, folder / f"auroc_vs_shift_{task}.png"))
+    return [p for p in written if p is not None]
