@@ -11,14 +11,15 @@ For one task, each method and each trial:
 
 The report puts, per variant, our AUROC mean and std over trials beside the paper's, and the
 best AUROC per method beside the paper's best. A cell whose log is complete is not run again,
-so an interrupted bench resumes; cells run in ``workers`` processes.
+so an interrupted bench resumes; cells run in ``workers`` processes, or as Ray tasks on a Ray
+cluster (``executor="ray"``, ``address``; Ray is the optional extra ``oodmon[ray]``).
 """
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -52,6 +53,8 @@ class BenchConfig:
     out: str = "runs/bench"
     workers: int = 0  # 0: all cores
     train_steps: int | None = None  # override the recipes' steps for trials > 0 (smoke tests)
+    executor: str = "local"  # "local" (worker processes) or "ray" (tasks on a Ray cluster)
+    address: str | None = None  # the Ray cluster; None starts a local one
 
     def variant_list(self) -> list[Variant]:
         if self.variants == "paper":
@@ -158,7 +161,7 @@ def _run_cell(task: str, model: str, threshold: str, spec: str, episodes: int, s
     from oodmon.monitor import McapSink, Monitor, Threshold
 
     torch.set_num_threads(1)
-    agent = load_agent(model, task=task)
+    agent = load_agent(model, task=task, seed=seed)  # seeded MC sampling: the same cell, the same log
     variant = parse_variant(spec)
     env = variant.make()
     temporary = Path(log).with_suffix(".part")
@@ -169,6 +172,36 @@ def _run_cell(task: str, model: str, threshold: str, spec: str, episodes: int, s
     env.close()
     os.replace(temporary, log)  # a complete log appears whole, or not at all
     return log
+
+
+def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[str]:
+    """Run the cells; yield each finished cell's log path as it completes."""
+    if not jobs:
+        return
+    if config.executor == "local":
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for future in as_completed([pool.submit(_run_cell, *job) for job in jobs]):
+                yield future.result()
+        return
+    if config.executor != "ray":
+        raise ConfigError(f"executor={config.executor!r} is not allowed; use 'local' or 'ray'")
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError("--executor ray needs Ray: pip install 'oodmon[ray]'") from None
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address=config.address, num_cpus=None if config.address else workers, include_dashboard=False,
+                 logging_level="ERROR", log_to_driver=False)
+    try:
+        remote = ray.remote(num_cpus=1)(_run_cell)
+        pending = [remote.remote(*job) for job in jobs]
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            yield ray.get(ready[0])
+    finally:
+        if started:
+            ray.shutdown()
 
 
 def _prepare_trial(config: BenchConfig, method: str, trial: int) -> tuple[Path, Path, list[str]]:
@@ -218,12 +251,9 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
     done = len(cells) - len(jobs)
     report("monitored cells", done, len(cells))
     workers = config.workers or os.cpu_count() or 1
-    if jobs:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            for future in as_completed([pool.submit(_run_cell, *job) for job in jobs]):
-                future.result()
-                done += 1
-                report("monitored cells", done, len(cells))
+    for _ in _execute(jobs, config, workers):
+        done += 1
+        report("monitored cells", done, len(cells))
 
     rows: dict[tuple[str, str], dict[int, float]] = {}
     detection: dict[str, dict[str, float | None]] = {}

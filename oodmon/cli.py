@@ -77,6 +77,8 @@ def _parser() -> argparse.ArgumentParser:
     train.add_argument("--seed", type=int, default=0, help="the trial's seed (default 0)")
     train.add_argument("--out", required=True, help="training directory; the same command resumes it")
     train.add_argument("--steps", type=int, help="override the recipe's training steps per run")
+    train.add_argument("--export-only", action="store_true",
+                       help="do not train: export the best checkpoint so far of an unfinished training")
     train.set_defaults(handler=_train)
 
     evaluate = commands.add_parser(
@@ -147,6 +149,9 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--episodes", type=int, default=5, help="episodes per failing variant (default 5)")
     bench.add_argument("--id-episodes", type=int, default=10, help="ID episodes per trial (default 10)")
     bench.add_argument("--workers", type=int, default=0, help="worker processes for the cells (default: all cores)")
+    bench.add_argument("--executor", choices=["local", "ray"], default="local",
+                       help="local worker processes (default) or Ray tasks (needs oodmon[ray])")
+    bench.add_argument("--address", help="the Ray cluster to use (default: start a local one)")
     bench.add_argument("--out", default="runs/bench", help="models, logs and report (default runs/bench)")
     bench.add_argument("--json", action="store_true", help="print JSON instead of tables")
     bench.set_defaults(handler=_bench)
@@ -226,6 +231,7 @@ def _train(args: argparse.Namespace) -> int:
             progress.update(bars[run], completed=done, total=total)
 
         agent = train(args.task, args.method, args.out, seed=args.seed, total_steps=args.steps, report=report,
+                      export_only=args.export_only,
                       command=command or f"oodmon train --task {args.task} --method {args.method} --seed {args.seed}")
     meta = agent.metadata
     Console(soft_wrap=True).print(
@@ -392,7 +398,7 @@ def _bench(args: argparse.Namespace) -> int:
             raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
     variants = "paper" if args.variants == "paper" else tuple(args.variants.split(","))
     config = BenchConfig(args.task, methods, args.trials, variants, args.episodes, args.id_episodes, out=args.out,
-                         workers=args.workers)
+                         workers=args.workers, executor=args.executor, address=args.address)
     config.variant_list()  # refuse bad specs before any work
     with Progress(console=Console(stderr=True), transient=True) as progress:
         bars: dict[str, int] = {}

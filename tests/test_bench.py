@@ -61,3 +61,14 @@ def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
     assert row["variant"] == "cartpole:length=2.0" and row["method"] == "ensemble"
     assert row["paper"] == [0.862, 0.826, 0.993, 0.864, 0.87] and 0.0 <= row["mean"] <= 1.0
     assert np.isclose(row["mean"], row["aurocs"]["0"])
+
+
+def test_ray_executor_gives_the_same_logs_numbers_as_local_processes(tmp_path):
+    common = dict(task="cartpole", methods=("dropout",), trials=1, variants=("cartpole:length=2.0",), episodes=2,
+                  id_episodes=2, eval_episodes=2, calibration_episodes=19, workers=1)
+    local = run_bench(BenchConfig(**common, out=str(tmp_path / "local")))
+    on_ray = run_bench(BenchConfig(**common, out=str(tmp_path / "ray"), executor="ray"))
+    assert [r.aurocs for r in on_ray.rows] == [r.aurocs for r in local.rows]
+    assert on_ray.rows and 0.0 <= on_ray.rows[0].mean <= 1.0
+    assert sorted(p.name for p in (tmp_path / "ray/logs/cartpole/dropout/trial0").glob("*.mcap")) == [
+        "cartpole.mcap", "cartpole_length-2.0.mcap"]

@@ -97,8 +97,8 @@ def load(task: str, method: str, *, n_samples: int | None = None, seed: int | No
         UnknownParameterError: no shipped agent of that name; the message lists those there are.
 
     Example:
-        >>> agent = load("cartpole", "ensemble")  # doctest: +SKIP
-        >>> agent.act(np.zeros(4, np.float32))  # doctest: +SKIP
+        >>> agent = load("cartpole", "ensemble")
+        >>> agent.act(np.zeros(4, np.float32))
         0
     """
     name = f"{task}-{method}"

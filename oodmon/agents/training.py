@@ -43,6 +43,7 @@ from oodmon.agents.policies import BootstrappedDQN, UncertainDQNPolicy, Uncertai
 from oodmon.agents.recipes import Recipe, recipe_for
 from oodmon.agents.serialization import save_modules
 from oodmon.envs.grid import ENV_IDS, Variant
+from oodmon.errors import ConfigError
 
 __all__ = ["ID_EPISODES", "architecture", "train"]
 
@@ -140,14 +141,14 @@ class _Run:
     def finished(self) -> bool:
         return bool(self.state["finished"])
 
-    def load_or_create(self, env: gymnasium.Env) -> BaseAlgorithm:
+    def load_or_create(self, env: gymnasium.Env, *, with_buffer: bool = True) -> BaseAlgorithm:
         """The full checkpoint if there is one; else the last weights (``policy.safetensors``, small
         enough to commit) with a fresh buffer and optimizer; else a new model."""
         checkpoint = self.folder / "checkpoint.zip"
         if checkpoint.exists():
             model = _algorithm_class(self.recipe).load(checkpoint, env=env, device="cpu")
             buffer = self.folder / "replay_buffer.pkl"
-            if buffer.exists():
+            if with_buffer and buffer.exists():
                 model.load_replay_buffer(buffer)
             return model
         model = _new_model(self.recipe, env, self.seed)
@@ -162,12 +163,14 @@ class _Run:
             model.learning_starts = model.num_timesteps + self.recipe.hyperparams.get("learning_starts", 0)
         return model
 
-    def train(self, report: Reporter) -> BaseAlgorithm:
+    def train(self, report: Reporter, *, export_only: bool = False) -> BaseAlgorithm:
         self._started = time.monotonic()  # wall time counts from here: members train one after another
         env = _training_env(self.recipe)
-        model = self.load_or_create(env)
+        if export_only and self.state["steps"] == 0:
+            raise ConfigError(f"nothing to export in {self.folder}: no checkpoint yet; train first")
+        model = self.load_or_create(env, with_buffer=not export_only)
         report(self.name, model.num_timesteps, self.recipe.total_steps)
-        if not self.finished:
+        if not self.finished and not export_only:
             remaining = self.recipe.total_steps - model.num_timesteps
             if remaining > 0:
                 model.learn(remaining, callback=_RunCallback(self, report), reset_num_timesteps=False)
@@ -244,6 +247,7 @@ def train(
     report: Reporter | None = None,
     command: str = "",
     id_episodes: int | None = None,
+    export_only: bool = False,
 ) -> Agent:
     """Train (or resume training) the ``task``/``method`` agent into ``out``; return it loaded.
 
@@ -255,6 +259,8 @@ def train(
         report: called with (run, steps done, steps total) as training goes.
         command: the command line that started the training, recorded in the metadata.
         id_episodes: episodes behind ``id_return_mean`` (default :data:`ID_EPISODES` of the task).
+        export_only: do not train; export the best checkpoint so far of an unfinished training
+            (its metadata says ``training_complete: false``).
     """
     recipe = recipe_for(task, method)
     if total_steps is not None:
@@ -268,7 +274,7 @@ def train(
         [_Run(recipe, root, f"member{k}", 1000 * seed + k) for k in range(recipe.n_members)]
         if independent else [_Run(recipe, root, "main", seed)]
     )
-    models = [run.train(report) for run in runs]
+    models = [run.train(report, export_only=export_only) for run in runs]
 
     env = _training_env(recipe)
     arch = architecture(recipe, env)
@@ -288,6 +294,8 @@ def train(
         "seed": seed, "training_steps": [int(m.num_timesteps) for m in models],
         "wall_time_s": round(sum(run.state["wall_time_s"] for run in runs), 1),
         "selected_checkpoints": [run.state.get("best") for run in runs],
+        "training_complete": all(run.finished for run in runs),
+        "recipe_steps": recipe.total_steps,
         "hyperparams": {k: v for k, v in recipe.hyperparams.items() if isinstance(v, (int, float, str, bool))},
         "recipe_notes": recipe.notes, "versions": _versions(), "command": command,
         "id_return_mean": round(float(np.mean(id_returns)), 2), "id_episodes": len(id_returns),

@@ -75,8 +75,10 @@ class Monitor:
         >>> from oodmon.agents import load
         >>> from oodmon.monitor import MemorySink
         >>> sink = MemorySink()
-        >>> with Monitor(load("cartpole", "ensemble"), threshold=1.0, sinks=[sink]) as monitor:  # doctest: +SKIP
+        >>> with Monitor(load("cartpole", "ensemble"), threshold=4.6, sinks=[sink]) as monitor:
         ...     record = monitor.run_episode(gymnasium.make("oodmon/CartPole-v1", length=2.0), seed=0)
+        >>> len(sink.steps) == record.length, record.first_alarm_step is not None
+        (True, True)
     """
 
     def __init__(
@@ -216,9 +218,11 @@ class MonitoredEnv(gymnasium.Wrapper):
 
     Example:
         >>> from oodmon.agents import load
-        >>> env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"), Monitor(load("cartpole", "dropout")))  # doctest: +SKIP
-        >>> obs, info = env.reset(seed=0)  # doctest: +SKIP
-        >>> obs, reward, terminated, truncated, info = env.step()  # doctest: +SKIP
+        >>> env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"), Monitor(load("cartpole", "dropout")))
+        >>> obs, info = env.reset(seed=0)
+        >>> obs, reward, terminated, truncated, info = env.step()
+        >>> env.monitor.episode, reward
+        (0, 1.0)
     """
 
     def __init__(self, env: gymnasium.Env, monitor: Monitor, *, variant: str | None = None) -> None:

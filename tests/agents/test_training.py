@@ -14,7 +14,7 @@ from oodmon.agents.layers import DropConnectLinear
 from oodmon.agents.networks import estimator_for, modules_from_sb3
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import _new_model, _Run, _shortened, _training_env, architecture, train
-from oodmon.errors import UnknownParameterError
+from oodmon.errors import ConfigError, UnknownParameterError
 
 CASES = [("cartpole", "dropout"), ("cartpole", "ensemble"), ("pendulum", "dropconnect"), ("pendulum", "ensemble"),
          ("pong", "ensemble")]
@@ -127,3 +127,20 @@ def test_training_resumes_from_the_weights_alone_when_the_big_checkpoint_is_gone
     agent = train("cartpole", "dropconnect", tmp_path, total_steps=1000, id_episodes=2,
                   report=lambda run, done, total: resumed.append(done))
     assert resumed[0] == 500 and agent.metadata["training_steps"][0] >= 1000
+
+
+def test_export_only_ships_an_unfinished_training_honestly(tmp_path):
+    with pytest.raises(ConfigError, match="nothing to export .* no checkpoint yet"):
+        train("cartpole", "dropout", tmp_path / "empty", total_steps=1000, export_only=True)
+
+    def interrupt(run, done, total):
+        if done >= 600:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train("cartpole", "dropout", tmp_path, total_steps=1000, report=interrupt, id_episodes=2)
+    agent = train("cartpole", "dropout", tmp_path, total_steps=1000, export_only=True, id_episodes=2)
+    meta = agent.metadata
+    assert meta["training_complete"] is False and meta["training_steps"] == [500] and meta["recipe_steps"] == 1000
+    state = json.loads((tmp_path / "runs" / "main" / "state.json").read_text())
+    assert state["steps"] == 500 and state["finished"] is False  # exporting trained nothing
