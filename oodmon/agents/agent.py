@@ -28,12 +28,12 @@ class Agent:
     Attributes:
         estimator: computes the deployed action and the K samples behind it.
         metadata: the model's JSON metadata (task, method, training, ID return, versions).
-        path: where the model was loaded from.
+        path: where the model was loaded from (``None`` for an agent built in memory).
     """
 
     estimator: UncertaintyEstimator
     metadata: dict[str, Any]
-    path: Path
+    path: Path | None = None
 
     @property
     def task(self) -> str:

@@ -41,7 +41,7 @@ AlarmCallback = Callable[[AlarmEvent], "bool | None"]
 
 
 def _policy_hash(agent: Agent | None) -> str:
-    if agent is None:
+    if agent is None or agent.path is None:
         return "unknown"
     path = agent.path / "model.safetensors"
     return "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "unknown"
