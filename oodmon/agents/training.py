@@ -19,10 +19,8 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import time
 from collections.abc import Callable
-from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +42,7 @@ from oodmon.agents.recipes import Recipe, recipe_for
 from oodmon.agents.serialization import save_modules
 from oodmon.envs.grid import ENV_IDS, Variant
 from oodmon.errors import ConfigError
+from oodmon.versions import library_versions
 
 __all__ = ["ID_EPISODES", "architecture", "train"]
 
@@ -225,18 +224,6 @@ def _online_weights(model: BaseAlgorithm) -> dict[str, torch.Tensor]:
     return {k: v.detach().contiguous() for k, v in model.policy.state_dict().items() if "_target" not in k}
 
 
-def _versions() -> dict[str, str]:
-    names = ["oodmon", "torch", "stable_baselines3", "gymnasium", "numpy", "ale_py", "safetensors"]
-    found = {}
-    for name in names:
-        try:
-            found[name] = version(name)
-        except Exception:  # noqa: BLE001  (a missing package is reported as such)
-            found[name] = "not installed"
-    found["python"] = platform.python_version()
-    return found
-
-
 def train(
     task: str,
     method: str,
@@ -297,7 +284,7 @@ def train(
         "training_complete": all(run.finished for run in runs),
         "recipe_steps": recipe.total_steps,
         "hyperparams": {k: v for k, v in recipe.hyperparams.items() if isinstance(v, (int, float, str, bool))},
-        "recipe_notes": recipe.notes, "versions": _versions(), "command": command,
+        "recipe_notes": recipe.notes, "versions": library_versions(), "command": command,
         "id_return_mean": round(float(np.mean(id_returns)), 2), "id_episodes": len(id_returns),
         "id_returns": [round(float(r), 2) for r in id_returns],
         "action_low": action_low, "action_high": action_high,

@@ -18,7 +18,6 @@ from __future__ import annotations
 import hashlib
 import math
 from collections.abc import Callable, Sequence
-from importlib.metadata import version
 from typing import Any
 
 import gymnasium
@@ -32,6 +31,7 @@ from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sinks.base import Sink, SinkGroup
 from oodmon.monitor.threshold import Threshold
+from oodmon.versions import library_versions
 
 __all__ = ["AlarmCallback", "Monitor", "MonitoredEnv"]
 
@@ -45,16 +45,6 @@ def _policy_hash(agent: Agent | None) -> str:
         return "unknown"
     path = agent.path / "model.safetensors"
     return "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "unknown"
-
-
-def _versions() -> dict[str, str]:
-    found = {}
-    for name in ("oodmon", "torch", "stable_baselines3", "gymnasium", "numpy", "mcap"):
-        try:
-            found[name] = version(name)
-        except Exception:  # noqa: BLE001
-            found[name] = "not installed"
-    return found
 
 
 class Monitor:
@@ -120,7 +110,7 @@ class Monitor:
             self.sinks.open(RunInfo(
                 task=meta.get("task", "unknown"), method=meta.get("method", "unknown"), score=self.score_name,
                 threshold=self.threshold, rule=self.tracker.rule, policy_hash=_policy_hash(self.agent),
-                versions=_versions(),
+                versions=library_versions(),
             ))
             self._opened = True
         return self

@@ -12,12 +12,13 @@ from __future__ import annotations
 import base64
 import json
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from oodmon.errors import LogFormatError
+from oodmon.monitor.records import EpisodeRecord
 
 __all__ = ["EpisodeLog", "RecoveryWarning", "RunLog", "read_log"]
 
@@ -30,20 +31,18 @@ class RecoveryWarning(UserWarning):
 
 
 @dataclass(frozen=True)
-class EpisodeLog:
-    """One logged episode: its record and its per-step arrays."""
+class EpisodeLog(EpisodeRecord):
+    """One logged episode: its record and its per-step arrays.
 
-    episode: int
-    variant: str
-    onset: int
-    seed: int | None
-    total_return: float
-    length: int
-    alarms: int
-    first_alarm_step: int | None
-    scores: np.ndarray
-    shifted: np.ndarray
-    alarm: np.ndarray
+    Attributes (besides :class:`~oodmon.monitor.records.EpisodeRecord`'s):
+        scores: (length,) the uncertainty score of each step.
+        shifted: (length,) whether each step's observation came from the shifted world.
+        alarm: (length,) whether the alarm rule held at each step.
+    """
+
+    scores: np.ndarray = field(repr=False)
+    shifted: np.ndarray = field(repr=False)
+    alarm: np.ndarray = field(repr=False)
 
 
 @dataclass(frozen=True)
@@ -61,7 +60,7 @@ class RunLog:
 
 def _episode(row: dict, scores: dict) -> EpisodeLog:
     return EpisodeLog(
-        episode=row["episode"], variant=row["variant"], onset=row["onset"], seed=row["seed"],
+        episode=row["episode"], env_id=row["env_id"], variant=row["variant"], onset=row["onset"], seed=row["seed"],
         total_return=row["return"], length=row["length"], alarms=row["alarms"],
         first_alarm_step=row["first_alarm_step"],
         scores=np.frombuffer(base64.b64decode(scores["score_f64"]), "<f8"),

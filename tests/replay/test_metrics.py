@@ -12,8 +12,10 @@ from oodmon.replay import EpisodeLog, RunLog, alarm_events, compute_metrics, fpr
 
 def _episode(k, variant, scores, shifted, alarm, onset=0):
     scores = np.asarray(scores, float)
-    return EpisodeLog(k, variant, onset, k, 0.0, len(scores), int(len(alarm_events(np.asarray(alarm, bool)))), None,
-                      scores, np.asarray(shifted, bool), np.asarray(alarm, bool))
+    alarm = np.asarray(alarm, bool)
+    return EpisodeLog(episode=k, env_id="oodmon/CartPole-v1", variant=variant, onset=onset, seed=k, total_return=0.0,
+                      length=len(scores), alarms=len(alarm_events(alarm)), first_alarm_step=None, scores=scores,
+                      shifted=np.asarray(shifted, bool), alarm=alarm)
 
 
 def _log(episodes, method="m"):
