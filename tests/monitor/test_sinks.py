@@ -198,3 +198,13 @@ def test_pong_frames_reach_both_logs_as_the_agent_saw_them(tmp_path):
     np.testing.assert_array_equal(np.frombuffer(frames[-1].data, np.uint8).reshape(84, 84), memory.steps[-1].frame)
     table = rc.RrdReader(tmp_path / "p.rrd").stream().collect().reader("step").to_pandas()
     assert table.filter(like="/frame").dropna(how="all").shape[0] == 6
+
+
+def test_a_viewer_that_is_gone_warns_and_the_loop_goes_on(agent):
+    memory = MemorySink()
+    start = time.monotonic()
+    with pytest.warns(SinkWarning, match="RerunSink.end_episode failed .*unreachable"):
+        records = _run(agent, [RerunSink(connect="rerun+http://127.0.0.1:9/proxy", flush_timeout=0.5), memory],
+                       episodes=3)
+    assert len(memory.episodes) == 3 and sum(r.length for r in records) == len(memory.steps)
+    assert time.monotonic() - start < 30  # one short wait, not one per episode, and no hang

@@ -53,13 +53,18 @@ class RerunSink:
         serve: serve the stream over gRPC for a remote viewer (its URL is printed by Rerun).
         connect: stream to a viewer listening at this URL.
         recording_id: Rerun's recording id (default: a fresh one).
+        flush_timeout: seconds to wait at an episode end for the data to reach its sinks. A
+            viewer that is gone makes the flush fail (a warning from the monitor, which goes
+            on); after that the sink stops waiting for it.
     """
 
     def __init__(self, path: str | Path | None = None, *, spawn: bool = False, serve: bool = False,
-                 connect: str | None = None, recording_id: str | None = None) -> None:
+                 connect: str | None = None, recording_id: str | None = None, flush_timeout: float = 2.0) -> None:
         self.path = Path(path) if path is not None else None
         self.spawn, self.serve, self.connect = spawn, serve, connect
         self.recording_id = recording_id or str(uuid.uuid4())
+        self.flush_timeout = flush_timeout
+        self._unreachable = False
         self._rec = None
         self._global_step = 0
         self._buffer: list[StepRecord] = []
@@ -152,11 +157,23 @@ class RerunSink:
         self._rec.log("/episodes", self._rr.TextLog(
             f"episode {record.episode} ({record.variant}, onset {record.onset}, seed {record.seed}): return "
             f"{record.total_return:.1f}, {record.length} steps, {record.alarms} alarms", level=self._rr.TextLogLevel.INFO))
-        self._rec.flush()
+        self._flush_to_sinks()
+
+    def _flush_to_sinks(self) -> None:
+        if self._unreachable:
+            return
+        try:
+            self._rec.flush(timeout_sec=self.flush_timeout)
+        except RuntimeError as error:
+            self._unreachable = True  # do not make every later episode wait for it
+            raise RuntimeError(f"Rerun sink unreachable ({error}); logging goes on without waiting for it") from None
 
     def close(self) -> None:
-        if self._rec is not None:
+        if self._rec is None:
+            return
+        try:
             self._flush()
-            self._rec.flush()
+            self._flush_to_sinks()
+        finally:
             self._rec.disconnect()
             self._rec = None
