@@ -9,9 +9,10 @@
 
 from __future__ import annotations
 
+from importlib import import_module
+from typing import Any
+
 from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, AlarmEvent, AlarmTracker, episode_statistic
-from oodmon.monitor.calibration import CALIBRATION_SEED, calibrate_agent, id_episode_scores
-from oodmon.monitor.monitor import AlarmCallback, Monitor, MonitoredEnv
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.scores import DEFAULT_SCORE, SCORES, score_function
 from oodmon.monitor.sinks import McapSink, MemorySink, RerunSink, Sink, SinkGroup, SinkWarning
@@ -43,3 +44,22 @@ __all__ = [
     "id_episode_scores",
     "score_function",
 ]
+
+# The parts that run a policy load torch and stable-baselines3; replay, which only reads logs and
+# their records, should not pay for that. They load on first use.
+_LAZY = {
+    "AlarmCallback": "oodmon.monitor.monitor",
+    "Monitor": "oodmon.monitor.monitor",
+    "MonitoredEnv": "oodmon.monitor.monitor",
+    "CALIBRATION_SEED": "oodmon.monitor.calibration",
+    "calibrate_agent": "oodmon.monitor.calibration",
+    "id_episode_scores": "oodmon.monitor.calibration",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'oodmon.monitor' has no attribute {name!r}")

@@ -10,11 +10,14 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from oodmon.agents.estimators import Estimate
 from oodmon.errors import UnknownParameterError
+
+if TYPE_CHECKING:  # importing it would load torch, which replay does not need
+    from oodmon.agents.estimators import Estimate
 
 __all__ = ["DEFAULT_SCORE", "SCORES", "score_function"]
 
@@ -26,7 +29,7 @@ def _chosen_std(estimate: Estimate) -> np.ndarray:
 
 
 #: Score functions by name: Estimate -> (batch,) scores.
-SCORES: dict[str, Callable[[Estimate], np.ndarray]] = {
+SCORES: dict[str, Callable[["Estimate"], np.ndarray]] = {
     "chosen_std": _chosen_std,
     "mean_std": lambda estimate: estimate.std.mean(axis=1),
     "max_std": lambda estimate: estimate.std.max(axis=1),
@@ -34,13 +37,14 @@ SCORES: dict[str, Callable[[Estimate], np.ndarray]] = {
 DEFAULT_SCORE = "chosen_std"
 
 
-def score_function(name: str) -> Callable[[Estimate], np.ndarray]:
+def score_function(name: str) -> Callable[["Estimate"], np.ndarray]:
     """The score function called ``name``.
 
     Raises:
         UnknownParameterError: not one of :data:`SCORES`.
 
     Example:
+        >>> from oodmon.agents.estimators import Estimate
         >>> est = Estimate(np.array([1]), np.zeros((2, 1, 2)), np.zeros((1, 2)), np.array([[0.5, 2.0]]))
         >>> score_function("chosen_std")(est).tolist(), score_function("mean_std")(est).tolist()
         ([2.0], [1.25])

@@ -18,7 +18,6 @@ from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from sklearn.metrics import auc, average_precision_score, roc_curve
 
 from oodmon.envs.grid import parse_variant
 from oodmon.replay.reader import EpisodeLog, RunLog
@@ -73,12 +72,16 @@ def fpr_at_tpr(labels: np.ndarray, scores: np.ndarray, tpr: float = 0.95) -> flo
         >>> fpr_at_tpr(np.array([0, 0, 1, 1]), np.array([0.1, 0.6, 0.5, 0.9]))
         0.5
     """
+    from sklearn.metrics import roc_curve
+
     fprs, tprs, _ = roc_curve(labels, scores)
     return float(fprs[np.searchsorted(tprs, tpr, side="left")])
 
 
 def compute_metrics(logs: Iterable[RunLog]) -> list[VariantMetrics]:
     """Metrics per (task, method, variant) over all episodes of ``logs``, in a stable order."""
+    from sklearn.metrics import auc, average_precision_score, roc_curve  # heavy: imported when used
+
     groups: dict[tuple[str, str, str], list[EpisodeLog]] = defaultdict(list)
     for log in logs:
         for episode in log.episodes:
