@@ -2,7 +2,8 @@
 
 For one task, each method and each trial:
 
-1. a model: trial 0 is the shipped agent; trial k > 0 is trained with seed k (cached, resumable);
+1. a model: trial 0 is the shipped agent (if the zoo has one); other trials are trained with their
+   seed (cached, resumable);
 2. the variants where it fails (the paper's step 3), from ``evaluate_variants`` on a few episodes;
 3. a threshold calibrated on held-out ID episodes (so that the logs carry alarms too);
 4. cells: ID episodes, and episodes of every failing variant (shifted from step 0, as in the
@@ -121,8 +122,11 @@ def paper_label(task: str, method: str, spec: str) -> str | None:
 
 
 def _model_dir(config: BenchConfig, method: str, trial: int) -> Path:
-    if trial == 0:
-        return zoo_dir() / f"{config.task}-{method}"
+    """Trial 0 is the shipped agent where the zoo has one; every other model is trained into the
+    bench's cache (never into the installed package)."""
+    shipped = zoo_dir() / f"{config.task}-{method}"
+    if trial == 0 and (shipped / "model.json").exists():
+        return shipped
     return Path(config.out) / "models" / f"{config.task}-{method}-trial{trial}"
 
 
