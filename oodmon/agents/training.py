@@ -87,16 +87,15 @@ def _new_model(recipe: Recipe, env: gymnasium.Env, seed: int) -> BaseAlgorithm:
     }
     if recipe.cnn:
         policy_kwargs["features_extractor_class"] = NatureCNN
-    common = dict(seed=seed, device="cpu", verbose=0, **recipe.hyperparams)
+    common: dict[str, Any] = dict(seed=seed, device="cpu", verbose=0, **recipe.hyperparams)
     if recipe.algorithm == "ddpg":
         n = env.action_space.shape[0]
         scale = recipe.action_noise * (env.action_space.high - env.action_space.low) / 2
-        noise = NormalActionNoise(np.zeros(n), scale * np.ones(n))
-        return DDPG(UncertainTD3Policy, env, action_noise=noise, policy_kwargs=policy_kwargs, **common)
-    if arch["shared_torso"]:
+        common["action_noise"] = NormalActionNoise(np.zeros(n), scale * np.ones(n))
+    elif arch["shared_torso"]:
         policy_kwargs["n_heads"] = recipe.n_members
-        return BootstrappedDQN(UncertainDQNPolicy, env, policy_kwargs=policy_kwargs, **common)
-    return DQN(UncertainDQNPolicy, env, policy_kwargs=policy_kwargs, **common)
+    policy = UncertainTD3Policy if recipe.algorithm == "ddpg" else UncertainDQNPolicy
+    return _algorithm_class(recipe)(policy, env, policy_kwargs=policy_kwargs, **common)
 
 
 def _algorithm_class(recipe: Recipe) -> type[BaseAlgorithm]:
