@@ -46,6 +46,9 @@ def _parser() -> argparse.ArgumentParser:
         prog="oodmon",
         description="Tells when a deployed RL policy has left the world it was trained in.",
     )
+    from oodmon import __version__
+
+    parser.add_argument("--version", action="version", version=f"oodmon {__version__}")
     commands = parser.add_subparsers(title="commands", metavar="COMMAND")
 
     envs = commands.add_parser("envs", help="list the paper's OOD variants; 'envs show SPEC' pictures one")
