@@ -30,7 +30,7 @@ import torch
 from torch import nn
 
 from oodmon.agents.layers import DropConnectLinear, is_stochastic, mc_sampling
-from oodmon.agents.plan import Op, StackedAffine, compile_layers, run
+from oodmon.agents.plan import Op, StackedAffine, compile_layers, ends_with_tanh, run
 from oodmon.errors import ConfigError, InvalidParameterError
 
 __all__ = ["EnsembleEstimator", "Estimate", "MCEstimator", "UncertaintyEstimator"]
@@ -48,12 +48,16 @@ class Estimate:
         samples: (K, batch, n) Q-values (DQN) or actions (DDPG).
         mean: (batch, n) the mean over the K samples.
         std: (batch, n) the standard deviation over the K samples (population, ddof=0).
+        pre_squash_std: (batch, n) for an actor ending in tanh, the std of the samples before the
+            tanh; ``None`` otherwise. A saturated tanh hides disagreement: members that all push
+            hard (pre-tanh 3 and 8) give actions that agree (0.995 and 1.0).
     """
 
     action: np.ndarray
     samples: np.ndarray
     mean: np.ndarray
     std: np.ndarray
+    pre_squash_std: np.ndarray | None = None
 
 
 class UncertaintyEstimator:
@@ -79,6 +83,7 @@ class UncertaintyEstimator:
             raise ConfigError("an 'actions' estimator needs action_low and action_high to scale its tanh outputs")
         self.kind = kind
         self.obs_shape = None if obs_shape is None else tuple(obs_shape)
+        self._squash = False  # set by subclasses that apply an actor's final tanh themselves
         if kind == "actions":
             low = np.asarray(action_low, dtype=np.float32)
             high = np.asarray(action_high, dtype=np.float32)
@@ -103,16 +108,25 @@ class UncertaintyEstimator:
                 "(one observation) or (batch, *that)"
             )
         samples = self._sample(batch)
+        pre_squash_std = None
+        if self._squash:
+            pre_squash_std = _std(samples)
+            samples = np.tanh(samples)
         if self.kind == "actions":
             samples = samples * self._scale + self._offset
         mean = samples.mean(axis=0)
-        deviation = samples - mean
-        std = np.sqrt((deviation * deviation).mean(axis=0))  # np.std, at a third of its overhead
+        std = _std(samples, mean)
         action = mean.argmax(axis=1) if self.kind == "q_values" else mean
-        return Estimate(action, samples, mean, std)
+        return Estimate(action, samples, mean, std, pre_squash_std)
 
     def _sample(self, batch: np.ndarray) -> np.ndarray:
         raise NotImplementedError
+
+
+def _std(samples: np.ndarray, mean: np.ndarray | None = None) -> np.ndarray:
+    """The std over the samples' first axis: np.std at a third of its overhead."""
+    deviation = samples - (samples.mean(axis=0) if mean is None else mean)
+    return np.sqrt((deviation * deviation).mean(axis=0))
 
 
 def _run_torch(module: nn.Module, batch: np.ndarray) -> np.ndarray:
@@ -197,6 +211,8 @@ class MCEstimator(UncertaintyEstimator):
             start = next(j for j in range(first + 1) if compile_layers(layers[j:first]) is not None)
             self._prefix = compile_layers(layers[start:first])
             self._torch_prefix = network[:start] if start > 0 else None
+            if kind == "actions" and ends_with_tanh(self._suffix):
+                self._suffix, self._squash = self._suffix[:-1], True  # tanh applied in estimate()
         elif any(isinstance(m, DropConnectLinear) for m in stochastic):
             raise ConfigError(
                 "DropConnect needs an nn.Sequential network (so each sample draws its own weight mask); "
@@ -272,6 +288,8 @@ class EnsembleEstimator(UncertaintyEstimator):
             for i, layer in enumerate(layer_lists[0])
         ]
         self._rng = np.random.default_rng(0)  # the ops draw nothing; run() wants a generator
+        if kind == "actions" and ends_with_tanh(self._ops):
+            self._ops, self._squash = self._ops[:-1], True  # tanh applied in estimate()
 
     def _sample(self, batch: np.ndarray) -> np.ndarray:
         if self._torso_ops is not None:

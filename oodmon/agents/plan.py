@@ -20,7 +20,7 @@ from torch import nn
 
 from oodmon.agents.layers import DropConnectLinear
 
-__all__ = ["Op", "StackedAffine", "compile_layers", "run"]
+__all__ = ["Op", "StackedAffine", "compile_layers", "ends_with_tanh", "run"]
 
 
 class Op:
@@ -110,6 +110,11 @@ def compile_layers(layers: Sequence[nn.Module]) -> list[Op] | None:
         else:
             return None
     return ops
+
+
+def ends_with_tanh(ops: Sequence[Op]) -> bool:
+    """Whether the last op is a tanh (an actor's squashing output)."""
+    return bool(ops) and isinstance(ops[-1], _Function) and ops[-1].function is np.tanh
 
 
 def run(ops: Sequence[Op], x: np.ndarray, rng: np.random.Generator) -> np.ndarray:

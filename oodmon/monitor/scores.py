@@ -5,6 +5,9 @@
   paper's score: how unsure the policy is about what it actually does.
 - ``mean_std``: the std averaged over all actions (DQN) or action dimensions (DDPG).
 - ``max_std``: the largest std over actions or action dimensions.
+- ``pre_squash_std`` (DDPG): the std of the actor's output before its tanh, averaged over action
+  dimensions. A saturated tanh makes samples agree exactly when the actor pushes hard, which is
+  what it does in many failing worlds.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from oodmon.errors import UnknownParameterError
+from oodmon.errors import ConfigError, UnknownParameterError
 
 if TYPE_CHECKING:  # importing it would load torch, which replay does not need
     from oodmon.agents.estimators import Estimate
@@ -28,11 +31,18 @@ def _chosen_std(estimate: Estimate) -> np.ndarray:
     return estimate.std.mean(axis=1)
 
 
+def _pre_squash_std(estimate: Estimate) -> np.ndarray:
+    if estimate.pre_squash_std is None:
+        raise ConfigError("score 'pre_squash_std' needs an actor that ends in tanh (DDPG); use chosen_std")
+    return estimate.pre_squash_std.mean(axis=1)
+
+
 #: Score functions by name: Estimate -> (batch,) scores.
 SCORES: dict[str, Callable[["Estimate"], np.ndarray]] = {
     "chosen_std": _chosen_std,
     "mean_std": lambda estimate: estimate.std.mean(axis=1),
     "max_std": lambda estimate: estimate.std.max(axis=1),
+    "pre_squash_std": _pre_squash_std,
 }
 DEFAULT_SCORE = "chosen_std"
 

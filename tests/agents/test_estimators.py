@@ -180,3 +180,21 @@ def test_mc_dropout_estimator_matches_the_dropout_formula():
     values = np.unique(samples)
     assert len(values) == 2 and values[0] == 0 and values[1] == pytest.approx(1 / 0.75)
     assert (samples == 0).mean() == pytest.approx(0.25, abs=0.01)
+
+
+def test_actors_report_the_spread_before_their_tanh():
+    members = [_mlp(seed, out=1, tanh=True) for seed in range(5)]
+    estimate = EnsembleEstimator(members, kind="actions", action_low=[-2.0], action_high=[2.0]).estimate(OBS)
+    with torch.no_grad():
+        pre = np.stack([nn.Sequential(*list(m)[:-1])(torch.as_tensor(OBS)).numpy() for m in members])
+    np.testing.assert_allclose(estimate.pre_squash_std, pre.std(axis=0), rtol=1e-5)
+    np.testing.assert_allclose(estimate.samples, 2.0 * np.tanh(pre), atol=1e-6)
+    # Saturation: members that all push hard agree after the tanh but not before it.
+    for m, bias in zip(members, [3.0, 5.0, 8.0, 4.0, 6.0]):
+        with torch.no_grad():
+            m[-2].weight.zero_()
+            m[-2].bias.fill_(bias)
+    saturated = EnsembleEstimator(members, kind="actions", action_low=[-2.0], action_high=[2.0]).estimate(OBS)
+    assert (saturated.std < 0.01).all() and (saturated.pre_squash_std > 1.5).all()
+    q = EnsembleEstimator([_mlp(s) for s in range(3)]).estimate(OBS)
+    assert q.pre_squash_std is None

@@ -119,3 +119,11 @@ def test_threshold_file_errors(tmp_path):
     (tmp_path / "other.json").write_text('{"value": 1}')
     with pytest.raises(ConfigError, match="is not a threshold file: it lacks score, consecutive"):
         Threshold.load(tmp_path / "other.json")
+
+
+def test_pre_squash_score_needs_an_actor():
+    q_values = Estimate(action=np.array([0]), samples=np.zeros((2, 1, 2)), mean=np.zeros((1, 2)), std=np.ones((1, 2)))
+    with pytest.raises(ConfigError, match="score 'pre_squash_std' needs an actor that ends in tanh"):
+        score_function("pre_squash_std")(q_values)
+    actor = Estimate(np.zeros((1, 2)), np.zeros((2, 1, 2)), np.zeros((1, 2)), np.zeros((1, 2)), np.array([[1.0, 3.0]]))
+    assert score_function("pre_squash_std")(actor).tolist() == [2.0]
