@@ -51,6 +51,7 @@ class BenchConfig:
     eval_episodes: int = 3
     calibration_episodes: int = 20
     far: float = 0.05
+    score: str = "chosen_std"  # the paper's; pre_squash_std detects far better on Pendulum
     out: str = "runs/bench"
     workers: int = 0  # 0: all cores
     train_steps: int | None = None  # override the recipes' steps for trials > 0 (smoke tests)
@@ -139,7 +140,8 @@ def _ensure_model(config: BenchConfig, method: str, trial: int) -> Path:
 
 def _cell_log(config: BenchConfig, method: str, trial: int, name: str) -> Path:
     safe = name.replace(":", "_").replace("@", "_").replace("=", "-").replace(",", "_")
-    return Path(config.out) / "logs" / config.task / method / f"trial{trial}" / f"{safe}.mcap"
+    score = "" if config.score == "chosen_std" else f"-{config.score}"
+    return Path(config.out) / "logs" / f"{config.task}{score}" / method / f"trial{trial}" / f"{safe}.mcap"
 
 
 def _log_is_complete(path: Path, episodes: int) -> bool:
@@ -215,10 +217,10 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int) -> tuple[Path, 
     model = _ensure_model(config, method, trial)
     folder = _cell_log(config, method, trial, "x").parent
     folder.mkdir(parents=True, exist_ok=True)
-    threshold_path, failing_path = folder / "threshold.json", folder / "failing.json"
+    threshold_path, failing_path = folder / f"threshold-{config.score}.json", folder / "failing.json"
     agent = load_agent(model, task=config.task)
     if not threshold_path.exists():
-        calibrate_agent(agent, config.calibration_episodes, config.far).save(threshold_path)
+        calibrate_agent(agent, config.calibration_episodes, config.far, score=config.score).save(threshold_path)
     variants = config.variant_list()
     if failing_path.exists() and json.loads(failing_path.read_text()).get("variants") == [v.spec for v in variants]:
         failing = json.loads(failing_path.read_text())["failing"]

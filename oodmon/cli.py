@@ -152,6 +152,8 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--episodes", type=int, default=5, help="episodes per failing variant (default 5)")
     bench.add_argument("--id-episodes", type=int, default=10, help="ID episodes per trial (default 10)")
     bench.add_argument("--workers", type=int, default=0, help="worker processes for the cells (default: all cores)")
+    bench.add_argument("--score", default="chosen_std",
+                       help="chosen_std (the paper's, default), mean_std, max_std or pre_squash_std (DDPG)")
     bench.add_argument("--executor", choices=["local", "ray"], default="local",
                        help="local worker processes (default) or Ray tasks (needs oodmon[ray])")
     bench.add_argument("--address", help="the Ray cluster to use (default: start a local one)")
@@ -401,7 +403,7 @@ def _bench(args: argparse.Namespace) -> int:
             raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
     variants = "paper" if args.variants == "paper" else tuple(args.variants.split(","))
     config = BenchConfig(args.task, methods, args.trials, variants, args.episodes, args.id_episodes, out=args.out,
-                         workers=args.workers, executor=args.executor, address=args.address)
+                         workers=args.workers, executor=args.executor, address=args.address, score=args.score)
     config.variant_list()  # refuse bad specs before any work
     with Progress(console=Console(stderr=True), transient=True) as progress:
         bars: dict[str, int] = {}
