@@ -12,8 +12,6 @@ ratio=<worst monitored / plain>; the goal is <= 1.3.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import torch
 
@@ -23,20 +21,9 @@ from oodmon.agents.networks import build_modules, estimator_for
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import _new_model, _training_env, architecture
 from oodmon.monitor import MemorySink, Monitor
+from timing import per_call_us  # benchmarks/timing.py, beside this script
 
 REPEATS = 300
-
-
-def per_call_us(call) -> float:
-    for _ in range(20):
-        call()
-    best = float("inf")
-    for _ in range(3):
-        start = time.perf_counter()
-        for _ in range(REPEATS):
-            call()
-        best = min(best, (time.perf_counter() - start) / REPEATS * 1e6)
-    return best
 
 
 def main() -> None:
@@ -52,14 +39,14 @@ def main() -> None:
         with torch.no_grad():
             plain.q_net(tensor)
 
-    figures = {"plain forward (SB3 Q-network)": per_call_us(forward)}
+    figures = {"plain forward (SB3 Q-network)": per_call_us(forward, REPEATS)}
     for method in ("dropconnect", "ensemble"):
         arch = architecture(recipe_for("pong", method), env)
         agent = Agent(estimator_for(build_modules(arch), arch, n_samples=20), {"task": "pong", "method": method}, None)
         monitor = Monitor(agent, threshold=1.0, sinks=[MemorySink()])
         monitor.begin_episode(variant="pong")
         figures[f"monitored {method} (K={agent.estimator.n_samples})"] = per_call_us(
-            lambda: monitor.step(obs, frame=obs[-1]))
+            lambda: monitor.step(obs, frame=obs[-1]), REPEATS)
     for name, us in figures.items():
         print(f"{name:36s} {us:10.1f} us")
     baseline = figures.pop("plain forward (SB3 Q-network)")

@@ -11,8 +11,6 @@ ratio=<worst decision / predict>; the goal is <= 1.0.
 
 from __future__ import annotations
 
-import time
-
 import gymnasium
 import torch
 from stable_baselines3 import DQN
@@ -21,20 +19,9 @@ import oodmon  # noqa: F401  (registers the envs)
 from oodmon.agents.networks import build_modules, estimator_for
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import architecture
+from timing import per_call_us  # benchmarks/timing.py, beside this script
 
 REPEATS = 2000
-
-
-def per_call_us(call, repeats: int = REPEATS) -> float:
-    for _ in range(repeats // 10):  # warm-up
-        call()
-    best = float("inf")
-    for _ in range(3):  # best of three rounds: the least disturbed by the rest of the machine
-        start = time.perf_counter()
-        for _ in range(repeats):
-            call()
-        best = min(best, (time.perf_counter() - start) / repeats * 1e6)
-    return best
 
 
 def main() -> None:
@@ -42,13 +29,13 @@ def main() -> None:
     env = gymnasium.make("oodmon/CartPole-v1")
     obs, _ = env.reset(seed=0)
     plain = DQN("MlpPolicy", env, policy_kwargs={"net_arch": [256, 256]}, seed=0, device="cpu")
-    figures = {"sb3 predict (one member)": per_call_us(lambda: plain.predict(obs, deterministic=True))}
+    figures = {"sb3 predict (one member)": per_call_us(lambda: plain.predict(obs, deterministic=True), REPEATS)}
     for method in ("ensemble", "dropout", "dropconnect"):
         recipe = recipe_for("cartpole", method)
         arch = architecture(recipe, env)
         estimator = estimator_for(build_modules(arch), arch, n_samples=recipe.n_samples)
         label = f"{method} K={estimator.n_samples}" + (" (output layer)" if recipe.last_only and method != "ensemble" else "")
-        figures[label] = per_call_us(lambda: estimator.estimate(obs))
+        figures[label] = per_call_us(lambda: estimator.estimate(obs), REPEATS)
     for name, us in figures.items():
         print(f"{name:32s} {us:10.1f} us")
     baseline = figures.pop("sb3 predict (one member)")
