@@ -6,13 +6,13 @@ import time
 from collections.abc import Callable
 
 
-def per_call_us(call: Callable[[], object], repeats: int) -> float:
-    """Microseconds per call of ``call``: warm up, then the best of three rounds of ``repeats``
-    calls (the round least disturbed by the rest of the machine)."""
+def per_call_us(call: Callable[[], object], repeats: int, rounds: int = 3) -> float:
+    """Microseconds per call of ``call``: warm up, then the best of ``rounds`` rounds of
+    ``repeats`` calls (the round least disturbed by the rest of the machine)."""
     for _ in range(max(repeats // 10, 1)):
         call()
     best = float("inf")
-    for _ in range(3):
+    for _ in range(rounds):
         start = time.perf_counter()
         for _ in range(repeats):
             call()

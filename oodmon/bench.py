@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from oodmon.agents import evaluate_variants, load_agent, train, zoo_dir
+from oodmon.agents import evaluate_variants, load_agent, train, zoo_dir, zoo_names
+from oodmon.agents.recipes import recipe_for
 from oodmon.envs.grid import Variant, paper_grid, parse_variant
 from oodmon.errors import ConfigError
 from oodmon.paper import paper_auc_per_trial
@@ -131,9 +132,24 @@ def _model_dir(config: BenchConfig, method: str, trial: int) -> Path:
     return Path(config.out) / "models" / f"{config.task}-{method}-trial{trial}"
 
 
+def _refuse_to_train_for_hours(config: BenchConfig, method: str, trial: int) -> None:
+    """A missing Pong model takes hours to train on a CPU: never start that as a side effect of a
+    bench; say how to train it instead."""
+    path = _model_dir(config, method, trial)
+    if (path / "model.json").exists() or not recipe_for(config.task, method).cnn or config.train_steps is not None:
+        return
+    raise ConfigError(
+        f"no {config.task} {method} model for trial {trial} (looked in {path}); a {config.task} agent trains for "
+        f"hours, so bench does not train one itself: train it with `oodmon train --task {config.task} --method "
+        f"{method} --seed {trial} --out {path}`, or bench fewer trials or other methods (the zoo has: "
+        f"{', '.join(n for n in zoo_names() if n.startswith(config.task)) or 'none'})"
+    )
+
+
 def _ensure_model(config: BenchConfig, method: str, trial: int) -> Path:
     path = _model_dir(config, method, trial)
     if not (path / "model.json").exists():
+        _refuse_to_train_for_hours(config, method, trial)
         train(config.task, method, path, seed=trial, total_steps=config.train_steps)
     return path
 
@@ -210,8 +226,10 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
             ray.shutdown()
 
 
-def _prepare_trial(config: BenchConfig, method: str, trial: int) -> tuple[Path, Path, list[str]]:
-    """Model, threshold and failing variants of one (method, trial); cached in its folder."""
+def _prepare_trial(config: BenchConfig, method: str, trial: int,
+                   report: Callable[[str, int, int], None]) -> tuple[Path, Path, list[str]]:
+    """Model, threshold and failing variants of one (method, trial); cached in its folder.
+    ``report(stage, done, total)`` counts the episodes of calibration and evaluation."""
     from oodmon.monitor import calibrate_agent
 
     model = _ensure_model(config, method, trial)
@@ -220,12 +238,19 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int) -> tuple[Path, 
     threshold_path, failing_path = folder / f"threshold-{config.score}.json", folder / "failing.json"
     agent = load_agent(model, task=config.task)
     if not threshold_path.exists():
-        calibrate_agent(agent, config.calibration_episodes, config.far, score=config.score).save(threshold_path)
+        stage = f"{method} trial {trial}: calibration episodes"
+        calibrate_agent(agent, config.calibration_episodes, config.far, score=config.score,
+                        on_episode=lambda episode: report(stage, episode + 1, config.calibration_episodes)).save(threshold_path)
     variants = config.variant_list()
     if failing_path.exists() and json.loads(failing_path.read_text()).get("variants") == [v.spec for v in variants]:
         failing = json.loads(failing_path.read_text())["failing"]
     else:
-        _, results = evaluate_variants(agent.act, config.task, variants, config.eval_episodes)
+        stage, total, done = f"{method} trial {trial}: evaluation episodes", (len(variants) + 1) * config.eval_episodes, [0]
+
+        def count(spec: str, episode_return: float) -> None:
+            done[0] += 1
+            report(stage, done[0], total)
+        _, results = evaluate_variants(agent.act, config.task, variants, config.eval_episodes, on_episode=count)
         failing = [r.spec for r in results if r.fails]
         failing_path.write_text(json.dumps({"variants": [v.spec for v in variants], "failing": failing,
                                             "returns": {r.spec: r.mean for r in results}}, indent=1))
@@ -238,10 +263,12 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
 
     report = on_progress or (lambda stage, done, total: None)
     trials = [(m, t) for m in config.methods for t in range(config.trials)]
+    for method, trial in trials:  # before minutes of work on the others
+        _refuse_to_train_for_hours(config, method, trial)
     prepared: dict[tuple[str, int], tuple[Path, Path, list[str]]] = {}
     for index, (method, trial) in enumerate(trials):
         report("models, thresholds, failing variants", index, len(trials))
-        prepared[(method, trial)] = _prepare_trial(config, method, trial)
+        prepared[(method, trial)] = _prepare_trial(config, method, trial, report)
     report("models, thresholds, failing variants", len(trials), len(trials))
 
     cells = []

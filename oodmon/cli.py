@@ -9,7 +9,9 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
 import numpy as np
 from rich.console import Console
@@ -219,21 +221,45 @@ def _envs_show(args: argparse.Namespace) -> int:
     return 0
 
 
-def _train(args: argparse.Namespace) -> int:
+@contextmanager
+def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[[str, int, int], None]]:
+    """A ``report(name, done, total)`` for long work: rich bars on a terminal; where stderr is a
+    file (a job under nohup), where a bar would only appear at the end, a dated line per name at
+    most once a minute, at its start and at its end."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+    stderr = Console(stderr=True)
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TimeRemainingColumn())
+    with Progress(*columns, console=stderr, transient=transient) as progress:
+        bars: dict[str, int] = {}
+        last_line: dict[str, tuple[float, int]] = {}  # name -> (time, done) of its last plain line
+
+        def report(name: str, done: int, total: int) -> None:
+            if name not in bars:
+                bars[name] = progress.add_task(name, total=total)
+            progress.update(bars[name], completed=done, total=total)
+            if stderr.is_terminal:
+                return
+            now = time.monotonic()
+            then, before = last_line.get(name, (None, done))
+            if then is None or now - then >= 60 or (done >= total and before < total):
+                rate = (done - before) / (now - then) if then is not None and now > then else 0.0
+                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}/{total} {unit}, {rate:.1f} {unit}/s",
+                      file=sys.stderr, flush=True)
+                last_line[name] = (now, done)
+
+        yield report
+
+
+def _train(args: argparse.Namespace) -> int:
     from oodmon.agents.training import train
 
     command = "oodmon " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("oodmon") else ""
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-               TimeRemainingColumn())
-    with Progress(*columns, console=Console(stderr=True)) as progress:
-        bars: dict[str, int] = {}
+    with _progress(unit="steps", transient=False) as report_progress:
 
         def report(run: str, done: int, total: int) -> None:
-            if run not in bars:
-                bars[run] = progress.add_task(f"{args.task}/{args.method} {run}", total=total)
-            progress.update(bars[run], completed=done, total=total)
+            report_progress(f"{args.task}/{args.method} {run}", done, total)
 
         agent = train(args.task, args.method, args.out, seed=args.seed, total_steps=args.steps, report=report,
                       export_only=args.export_only,
@@ -391,8 +417,6 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from rich.progress import Progress
-
     from oodmon.agents import METHODS
     from oodmon.bench import BenchConfig, best_per_method, paper_only_variants, run_bench
     from oodmon.errors import UnknownParameterError
@@ -405,14 +429,7 @@ def _bench(args: argparse.Namespace) -> int:
     config = BenchConfig(args.task, methods, args.trials, variants, args.episodes, args.id_episodes, out=args.out,
                          workers=args.workers, executor=args.executor, address=args.address, score=args.score)
     config.variant_list()  # refuse bad specs before any work
-    with Progress(console=Console(stderr=True), transient=True) as progress:
-        bars: dict[str, int] = {}
-
-        def report(stage: str, done: int, total: int) -> None:
-            if stage not in bars:
-                bars[stage] = progress.add_task(stage, total=total)
-            progress.update(bars[stage], completed=done, total=total)
-
+    with _progress(unit="done") as report:
         result = run_bench(config, on_progress=report)
     if args.json:
         print(json.dumps(result.to_json(), indent=1))

@@ -7,8 +7,10 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from oodmon.bench import BenchConfig, best_per_method, paper_label, run_bench
+from oodmon.errors import ConfigError
 from oodmon.replay import compute_metrics, read_log
 
 SPECS = ("cartpole:length=2.0", "cartpole:gravity=98.0", "cartpole:gravity=0.98")
@@ -72,3 +74,14 @@ def test_ray_executor_gives_the_same_logs_numbers_as_local_processes(tmp_path):
     assert on_ray.rows and 0.0 <= on_ray.rows[0].mean <= 1.0
     assert sorted(p.name for p in (tmp_path / "ray/logs/cartpole/dropout/trial0").glob("*.mcap")) == [
         "cartpole.mcap", "cartpole_length-2.0.mcap"]
+
+
+def test_bench_never_starts_hours_of_pong_training_and_says_how_instead(tmp_path):
+    config = BenchConfig(task="pong", methods=("dropconnect", "dropout"), trials=2, out=str(tmp_path))
+    with pytest.raises(ConfigError) as error:
+        run_bench(config)
+    message = str(error.value)
+    # The first missing model is named with the command that trains it; nothing was run before.
+    assert "no pong dropconnect model for trial 1" in message
+    assert f"oodmon train --task pong --method dropconnect --seed 1 --out {tmp_path}/models/pong-dropconnect-trial1" in message
+    assert not any(tmp_path.iterdir())

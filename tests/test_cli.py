@@ -124,3 +124,14 @@ def test_monitor_cli_errors_are_one_line(args, words):
     assert result.returncode == 2
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and words in lines[0], result.stderr
+
+
+def test_train_writes_plain_progress_lines_and_its_result_when_logged_to_a_file(tmp_path):
+    # Under nohup stderr is a file: progress must arrive as dated lines, not a bar drawn at the end.
+    result = _run("train", "--task", "cartpole", "--method", "dropout", "--steps", "600", "--out", str(tmp_path / "t"))
+    assert result.returncode == 0, result.stderr
+    lines = [line for line in result.stderr.splitlines() if "cartpole/dropout main:" in line]
+    assert lines[0].endswith("0/600 steps, 0.0 steps/s")
+    done, rate = lines[-1].split(": ")[1].split(" steps, ")
+    assert int(done.split("/")[0]) >= 600 and float(rate.split()[0]) > 0
+    assert "id_return_mean" in result.stdout and (tmp_path / "t" / "model.json").is_file()

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from oodmon.agents.layers import DropConnectLinear, is_stochastic, mc_sampling
+from oodmon.agents.layers import DropConnectLinear, is_mode_free, is_stochastic, mc_sampling
 from oodmon.agents.plan import Op, StackedAffine, compile_layers, ends_with_tanh, run
 from oodmon.errors import ConfigError, InvalidParameterError
 
@@ -129,10 +129,22 @@ def _std(samples: np.ndarray, mean: np.ndarray | None = None) -> np.ndarray:
     return np.sqrt((deviation * deviation).mean(axis=0))
 
 
-def _run_torch(module: nn.Module, batch: np.ndarray) -> np.ndarray:
-    """A deterministic torch part (a CNN torso) on a numpy batch, in eval mode for the call."""
-    with torch.no_grad(), mc_sampling(module):
-        return module(torch.from_numpy(batch)).numpy()
+class _TorchPart:
+    """A deterministic torch part (a CNN torso) as a function of a numpy batch.
+
+    It runs in eval mode for the call, the previous modes restored after; a part whose layers
+    ignore the mode (:func:`is_mode_free`, decided once here) is called as it is.
+    """
+
+    def __init__(self, module: nn.Module) -> None:
+        self.module, self._mode_free = module, is_mode_free(module)
+
+    def __call__(self, batch: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            if self._mode_free:
+                return self.module(torch.from_numpy(batch)).numpy()
+            with mc_sampling(self.module):
+                return self.module(torch.from_numpy(batch)).numpy()
 
 
 class MCEstimator(UncertaintyEstimator):
@@ -194,7 +206,7 @@ class MCEstimator(UncertaintyEstimator):
         self.network = network
         self.n_samples = n_samples
         self._rng = np.random.default_rng(seed)
-        self._torch_prefix: nn.Module | None = None
+        self._torch_prefix: _TorchPart | None = None
         self._prefix: list[Op] | None = None
         self._suffix: list[Op] | None = None
         if isinstance(network, nn.Sequential):
@@ -210,7 +222,7 @@ class MCEstimator(UncertaintyEstimator):
             # The longest deterministic run before it that numpy supports; torch does the rest.
             start = next(j for j in range(first + 1) if compile_layers(layers[j:first]) is not None)
             self._prefix = compile_layers(layers[start:first])
-            self._torch_prefix = network[:start] if start > 0 else None
+            self._torch_prefix = _TorchPart(network[:start]) if start > 0 else None
             if kind == "actions" and ends_with_tanh(self._suffix):
                 self._suffix, self._squash = self._suffix[:-1], True  # tanh applied in estimate()
         elif any(isinstance(m, DropConnectLinear) for m in stochastic):
@@ -222,7 +234,7 @@ class MCEstimator(UncertaintyEstimator):
     def _sample(self, batch: np.ndarray) -> np.ndarray:
         if self._suffix is None:
             return self._sample_torch(batch)
-        hidden = _run_torch(self._torch_prefix, batch) if self._torch_prefix is not None else batch
+        hidden = self._torch_prefix(batch) if self._torch_prefix is not None else batch
         hidden = run(self._prefix, hidden, self._rng)
         repeated = np.broadcast_to(hidden, (self.n_samples, *hidden.shape))
         return run(self._suffix, repeated, self._rng).astype(np.float32, copy=False)
@@ -273,6 +285,7 @@ class EnsembleEstimator(UncertaintyEstimator):
         self.torso = torso if torso is not None else nn.Flatten()
         layers = list(self.torso) if isinstance(self.torso, nn.Sequential) else [self.torso]
         self._torso_ops = compile_layers(layers)  # None: the torso runs in torch (a CNN)
+        self._torch_torso = _TorchPart(self.torso) if self._torso_ops is None else None
         layer_lists = [[m for m in member if not is_stochastic(m)] for member in members]
         signature = [_signature(layer) for layer in layer_lists[0]]
         for index, layer_list in enumerate(layer_lists[1:], start=1):
@@ -295,7 +308,7 @@ class EnsembleEstimator(UncertaintyEstimator):
         if self._torso_ops is not None:
             features = run(self._torso_ops, batch, self._rng)
         else:
-            features = _run_torch(self.torso, batch)
+            features = self._torch_torso(batch)
         hidden = np.broadcast_to(features, (self.n_samples, *features.shape))
         return run(self._ops, hidden, self._rng).astype(np.float32, copy=False)
 

@@ -35,6 +35,8 @@ __all__ = ["ScaleImage", "build_modules", "estimator_for", "estimator_from_sb3",
 class ScaleImage(nn.Module):
     """uint8 pixel values to [0, 1], as SB3 does before its CNN."""
 
+    mode_free = True  # the same in train and eval mode (see layers.is_mode_free)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return x / 255.0
 

@@ -59,7 +59,9 @@ class Monitor:
         sinks: where records go (:class:`MemorySink`, :class:`McapSink`, :class:`RerunSink`).
         callbacks: called with every :class:`AlarmEvent`.
         strict: a failing sink raises instead of warning.
-        log_observations: put vector observations into the step records.
+        log_observations: put what the agent observed into the step records: vector observations
+            as numbers, image observations (Pong) as the ``frame`` given to :meth:`step`. Off, the
+            records carry scores only (calibration keeps no frames in memory).
 
     Example:
         >>> from oodmon.agents import load
@@ -149,6 +151,8 @@ class Monitor:
         observation = None
         if self.log_observations and np.ndim(obs) == 1:
             observation = [float(x) for x in obs]
+        if not self.log_observations:
+            frame = None
         self.sinks.write_step(StepRecord(
             episode=self.episode, step=step, action=action if isinstance(action, int) else action.tolist(),
             mean=estimate.mean[0].tolist(), std=estimate.std[0].tolist(), score=score, threshold=self.threshold,
