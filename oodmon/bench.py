@@ -318,13 +318,20 @@ def best_per_method(result: BenchResult, task: str, top: int = 3) -> list[tuple[
     return best
 
 
-def paper_only_variants(result: BenchResult, task: str, methods: Iterable[str]) -> list[tuple[str, str, float]]:
-    """Variants the paper reports for a method that our agents did not fail on (so no AUROC)."""
+def paper_only_variants(result: BenchResult, task: str, methods: Iterable[str],
+                        ran: Iterable[str] | None = None) -> list[tuple[str, str, float]]:
+    """Variants the paper reports for a method that our agents did not fail on (so no AUROC).
+
+    ``ran`` (spec strings) limits this to the variants the bench ran; a variant left out of the
+    run is not "not failed"."""
     ours = {(r.method, r.variant) for r in result.rows}
+    ran_specs = None if ran is None else list(ran)
     missing = []
     table = paper_auc_per_trial().get(task, {})
     for method in methods:
         for label, values in table.get(PAPER_METHOD[method], {}).items():
+            if ran_specs is not None and not any(paper_label(task, method, spec) == label for spec in ran_specs):
+                continue
             if not any(paper_label(task, method, v) == label for (m, v) in ours if m == method):
                 missing.append((method, label, max(values)))
     return missing

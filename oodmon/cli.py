@@ -450,7 +450,7 @@ def _bench(args: argparse.Namespace) -> int:
         best.add_row(method, variant, f"{ours:.3f}", "" if paper is None else f"{paper:.3f}",
                      "" if paper is None else f"{ours - paper:+.3f}")
     console.print(best)
-    missing = paper_only_variants(result, args.task, methods)
+    missing = paper_only_variants(result, args.task, methods, ran=[v.spec for v in config.variant_list()])
     if missing:
         console.print("Variants the paper reports where our agents did not fail (no AUROC of ours): "
                       + ", ".join(f"{m} {label} ({best:.3f})" for m, label, best in missing))

@@ -85,3 +85,14 @@ def test_bench_never_starts_hours_of_pong_training_and_says_how_instead(tmp_path
     assert "no pong dropconnect model for trial 1" in message
     assert f"oodmon train --task pong --method dropconnect --seed 1 --out {tmp_path}/models/pong-dropconnect-trial1" in message
     assert not any(tmp_path.iterdir())
+
+
+def test_paper_variants_without_our_auroc_are_only_those_the_bench_ran():
+    from oodmon.bench import BenchResult, Row, paper_only_variants
+
+    result = BenchResult([Row("ensemble", "cartpole:length=2.0", {0: 0.85}, None)], {}, {})
+    # The paper reports gravity=98.0 and length=2.0 for the ensemble; we have length=2.0.
+    assert paper_only_variants(result, "cartpole", ["ensemble"]) == [("ensemble", "gravity=98.0", 0.833)]
+    assert paper_only_variants(result, "cartpole", ["ensemble"], ran=["cartpole:length=2.0"]) == []
+    ran = ["cartpole:length=2.0", "cartpole:gravity=98.0"]
+    assert [label for _, label, _ in paper_only_variants(result, "cartpole", ["ensemble"], ran=ran)] == ["gravity=98.0"]
