@@ -79,3 +79,20 @@ def test_calibrated_threshold_keeps_its_false_alarm_rate_on_fresh_id_episodes():
     # Binomial(60, <= 0.2): P(rate > 0.2 + 2.6 sigma) < 1%, with sigma = sqrt(0.2 * 0.8 / 60) = 0.052.
     assert rate <= 0.2 + 2.6 * 0.052
     assert threshold.n_episodes == 19 and threshold.n_steps == 19 * 500
+
+
+@pytest.mark.parametrize("log_observations", [True, False], ids=["logged", "scores-only"])
+def test_observations_and_frames_are_logged_only_when_asked(agent, log_observations):
+    sink = MemorySink()
+    obs = np.array([0.01, 0.0, 0.02, 0.0], np.float32)
+    frame = np.full((84, 84), 7, np.uint8)
+    with Monitor(agent, threshold=4.0, sinks=[sink], log_observations=log_observations) as monitor:
+        monitor.begin_episode(variant="cartpole")
+        monitor.step(obs, frame=frame)
+        monitor.end_episode()
+    (record,) = sink.steps
+    if log_observations:
+        assert record.observation == pytest.approx(obs.tolist()) and np.array_equal(record.frame, frame)
+    else:  # calibration: scores only, no frames kept in memory
+        assert record.observation is None and record.frame is None
+    assert record.score == pytest.approx(float(agent.estimate(obs).std[0][record.action]), rel=1e-6)
