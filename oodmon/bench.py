@@ -31,6 +31,7 @@ from oodmon.agents import evaluate_variants, load_agent, train, zoo_dir, zoo_nam
 from oodmon.agents.recipes import recipe_for
 from oodmon.envs.grid import Variant, paper_grid, parse_variant
 from oodmon.errors import ConfigError
+from oodmon.monitor.alarms import check_window
 from oodmon.paper import paper_auc_per_trial
 
 __all__ = ["PAPER_METHOD", "BenchConfig", "BenchResult", "best_per_method", "paper_label", "paper_only_variants", "run_bench"]
@@ -53,6 +54,7 @@ class BenchConfig:
     calibration_episodes: int = 20
     far: float = 0.05
     score: str = "chosen_std"  # the paper's; pre_squash_std detects far better on Pendulum
+    window: int = 1  # the alarm rule's averaging window (alarms only; the AUROCs score single steps)
     out: str = "runs/bench"
     workers: int = 0  # 0: all cores
     train_steps: int | None = None  # override the recipes' steps for trials > 0 (smoke tests)
@@ -157,7 +159,8 @@ def _ensure_model(config: BenchConfig, method: str, trial: int) -> Path:
 def _cell_log(config: BenchConfig, method: str, trial: int, name: str) -> Path:
     safe = name.replace(":", "_").replace("@", "_").replace("=", "-").replace(",", "_")
     score = "" if config.score == "chosen_std" else f"-{config.score}"
-    return Path(config.out) / "logs" / f"{config.task}{score}" / method / f"trial{trial}" / f"{safe}.mcap"
+    window = "" if config.window == 1 else f"-w{config.window}"
+    return Path(config.out) / "logs" / f"{config.task}{score}{window}" / method / f"trial{trial}" / f"{safe}.mcap"
 
 
 def _log_is_complete(path: Path, episodes: int) -> bool:
@@ -239,7 +242,7 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
     agent = load_agent(model, task=config.task)
     if not threshold_path.exists():
         stage = f"{method} trial {trial}: calibration episodes"
-        calibrate_agent(agent, config.calibration_episodes, config.far, score=config.score,
+        calibrate_agent(agent, config.calibration_episodes, config.far, score=config.score, window=config.window,
                         on_episode=lambda episode: report(stage, episode + 1, config.calibration_episodes)).save(threshold_path)
     variants = config.variant_list()
     if failing_path.exists() and json.loads(failing_path.read_text()).get("variants") == [v.spec for v in variants]:
@@ -263,6 +266,7 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
 
     report = on_progress or (lambda stage, done, total: None)
     trials = [(m, t) for m in config.methods for t in range(config.trials)]
+    check_window(config.window)
     for method, trial in trials:  # before minutes of work on the others
         _refuse_to_train_for_hours(config, method, trial)
     prepared: dict[tuple[str, int], tuple[Path, Path, list[str]]] = {}

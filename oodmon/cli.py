@@ -108,6 +108,8 @@ def _parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--episodes", type=int, default=50, help="ID calibration episodes (default 50)")
     calibrate.add_argument("--far", type=float, default=0.05, help="target false-alarm rate (default 0.05)")
     calibrate.add_argument("--consecutive", type=int, default=3, help="m of the alarm rule (default 3)")
+    calibrate.add_argument("--window", type=int, default=1,
+                           help="compare the mean score of the last N steps (default 1: each step's; Pong: try 100)")
     calibrate.add_argument("--mode", choices=["episode", "step"], default="episode",
                            help="guarantee per episode (default) or per step")
     calibrate.add_argument("--score", default="chosen_std", help="chosen_std (default), mean_std or max_std")
@@ -156,6 +158,8 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--workers", type=int, default=0, help="worker processes for the cells (default: all cores)")
     bench.add_argument("--score", default="chosen_std",
                        help="chosen_std (the paper's, default), mean_std, max_std or pre_squash_std (DDPG)")
+    bench.add_argument("--window", type=int, default=1,
+                       help="alarm rule on the mean score of the last N steps (default 1); AUROCs do not change")
     bench.add_argument("--executor", choices=["local", "ray"], default="local",
                        help="local worker processes (default) or Ray tasks (needs oodmon[ray])")
     bench.add_argument("--address", help="the Ray cluster to use (default: start a local one)")
@@ -288,6 +292,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     with Progress(console=Console(stderr=True), transient=True) as progress:
         bar = progress.add_task("ID calibration episodes", total=args.episodes)
         threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
+                                    window=args.window,
                                     score=args.score, on_episode=lambda i: progress.update(bar, advance=1))
     threshold.save(args.out)
     Console(soft_wrap=True).print(
@@ -427,7 +432,8 @@ def _bench(args: argparse.Namespace) -> int:
             raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
     variants = "paper" if args.variants == "paper" else tuple(args.variants.split(","))
     config = BenchConfig(args.task, methods, args.trials, variants, args.episodes, args.id_episodes, out=args.out,
-                         workers=args.workers, executor=args.executor, address=args.address, score=args.score)
+                         workers=args.workers, executor=args.executor, address=args.address, score=args.score,
+                         window=args.window)
     config.variant_list()  # refuse bad specs before any work
     with _progress(unit="done") as report:
         result = run_bench(config, on_progress=report)

@@ -90,6 +90,10 @@ def test_calibrate_then_run_with_logs(tmp_path):
     result = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--out", str(threshold))
     assert result.returncode == 0, result.stderr
     assert "alarm when score >" in result.stdout and json.loads(threshold.read_text())["n_episodes"] == 19
+    windowed = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--window", "20",
+                    "--out", str(tmp_path / "w.json"))
+    assert "alarm when mean score over 20 steps >" in windowed.stdout
+    assert json.loads((tmp_path / "w.json").read_text())["window"] == 20
     result = _run("run", "--task", "cartpole", "--method", "dropout", "--variant", "cartpole:length=2.0", "--onset", "50",
                   "--episodes", "2", "--threshold", str(threshold), "--mcap", str(tmp_path / "x.mcap"),
                   "--rrd", str(tmp_path / "x.rrd"))
@@ -117,6 +121,9 @@ def test_evaluate_marks_failing_variants_as_json(capsys):
         (["evaluate", "--task", "cartpole", "--model", "/nonexistent"], "does not exist: a model directory"),
         (["calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "5", "--out", "/tmp/x.json"],
          "far=0.05 needs at least 19 ID calibration episodes"),
+        (["calibrate", "--task", "cartpole", "--method", "dropout", "--window", "0", "--out", "/tmp/x.json"],
+         "window=0 is not allowed"),
+        (["bench", "--task", "cartpole", "--window", "-1"], "window=-1 is not allowed"),
     ],
 )
 def test_monitor_cli_errors_are_one_line(args, words):

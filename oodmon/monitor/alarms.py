@@ -4,10 +4,18 @@ An alarm is raised when the score stays above the threshold for ``consecutive`` 
 (m). The default m = 3 trades two steps of delay for robustness: MC and ensemble scores are noisy
 step to step, and a single noisy step should not page anyone. The calibration's false-alarm
 guarantee holds for any m, because it is computed for the rule as a whole (see ``threshold``).
+
+With ``window`` w > 1 the rule looks at the mean of the last w scores instead of the score
+itself (and only once w steps of the episode are scored). That is for scores that separate ID
+from OOD steps well on average but spike now and then in long ID episodes: on Pong a 3000-step
+ID game always has a few high steps, so an m = 3 rule calibrated on them sits above most steps
+of a corrupted game; the mean over 100 steps does not (see the README's Pong section). The
+price is a delay of at least w steps.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,7 +23,10 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from oodmon.errors import InvalidParameterError
 
-__all__ = ["DEFAULT_CONSECUTIVE", "AlarmEvent", "AlarmTracker", "check_consecutive", "episode_statistic"]
+__all__ = [
+    "DEFAULT_CONSECUTIVE", "AlarmEvent", "AlarmTracker", "check_consecutive", "check_window", "episode_statistic",
+    "rule_text", "trailing_mean",
+]
 
 DEFAULT_CONSECUTIVE = 3
 
@@ -29,21 +40,53 @@ def check_consecutive(consecutive: object) -> int:
     return int(consecutive)
 
 
-def episode_statistic(scores: np.ndarray, consecutive: int) -> float:
-    """The largest t such that the scores stay >= t for ``consecutive`` steps in a row.
+def check_window(window: object) -> int:
+    """``window`` as an int >= 1, or :class:`InvalidParameterError`."""
+    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
+        raise InvalidParameterError(
+            f"window={window!r} is not allowed; the alarm rule averages the scores of an integer >= 1 of last steps"
+        )
+    return int(window)
+
+
+def rule_text(threshold: str, consecutive: int, window: int = 1) -> str:
+    """The rule in words, e.g. ``"mean score over 100 steps > 0.05 for 3 consecutive steps"``."""
+    what = "score" if window == 1 else f"mean score over {window} steps"
+    return f"{what} > {threshold} for {consecutive} consecutive steps"
+
+
+def trailing_mean(scores: np.ndarray, window: int) -> np.ndarray:
+    """The mean of each run of ``window`` scores, one per step from step ``window - 1`` on.
+
+    Example:
+        >>> trailing_mean(np.array([1.0, 3.0, 2.0, 6.0]), 2)
+        array([2. , 2.5, 4. ])
+    """
+    scores = np.asarray(scores, dtype=np.float64)
+    if window == 1:
+        return scores
+    if len(scores) < window:
+        return scores[:0]
+    return sliding_window_view(scores, window).mean(axis=1)
+
+
+def episode_statistic(scores: np.ndarray, consecutive: int, window: int = 1) -> float:
+    """The largest t such that the (``window``-step mean) scores stay >= t for ``consecutive`` steps in a row.
 
     An episode raises an alarm under threshold ``thr`` exactly when this statistic exceeds
-    ``thr``, so calibrating on it calibrates the whole rule. ``-inf`` for an episode shorter
-    than ``consecutive``.
+    ``thr``, so calibrating on it calibrates the whole rule. ``-inf`` for an episode too short
+    for the rule to look at (fewer than ``window + consecutive - 1`` steps).
 
     Example:
         >>> episode_statistic(np.array([0.1, 0.9, 0.8, 0.2, 0.7]), 2)
         0.8
+        >>> episode_statistic(np.array([1.0, 3.0, 2.0, 6.0]), 1, window=2)  # the means are 2, 2.5, 4
+        4.0
     """
-    scores = np.asarray(scores, dtype=np.float64)
-    if len(scores) < consecutive:
+    values = trailing_mean(scores, window)
+    if len(values) < consecutive:
         return float("-inf")
-    return float(sliding_window_view(scores, consecutive).min(axis=1).max())
+    return float(sliding_window_view(values, consecutive).min(axis=1).max())
 
 
 @dataclass(frozen=True)
@@ -53,7 +96,8 @@ class AlarmEvent:
     Attributes:
         episode: the episode's index in the run.
         step: the step at which the rule fired (the last of the consecutive steps).
-        score: that step's score.
+        score: the value the rule compared at that step: the score, or with a window the mean
+            of the last ``window`` scores.
         threshold: the threshold in force.
         rule: the rule, e.g. ``"score > threshold for 3 consecutive steps"``.
     """
@@ -78,17 +122,26 @@ class AlarmTracker:
         [False, False, False, True, True]
     """
 
-    def __init__(self, threshold: float, consecutive: int = DEFAULT_CONSECUTIVE) -> None:
+    def __init__(self, threshold: float, consecutive: int = DEFAULT_CONSECUTIVE, window: int = 1) -> None:
         self.threshold = float(threshold)
         self.consecutive = check_consecutive(consecutive)
-        self.rule = f"score > threshold for {self.consecutive} consecutive steps"
-        self._run = 0
+        self.window = check_window(window)
+        self.rule = rule_text("threshold", self.consecutive, self.window)
+        self.reset()
 
     def reset(self) -> None:
         """Start a new episode."""
         self._run = 0
+        self._recent: deque[float] = deque(maxlen=self.window)
 
     def update(self, episode: int, step: int, score: float) -> tuple[bool, AlarmEvent | None]:
+        if self.window > 1:
+            self._recent.append(float(score))
+            if len(self._recent) < self.window:
+                return False, None
+            # Summed afresh (w additions) rather than as a running sum, which drifts over
+            # thousands of steps; equal to trailing_mean up to rounding.
+            score = sum(self._recent) / self.window
         self._run = self._run + 1 if score > self.threshold else 0
         if self._run < self.consecutive:
             return False, None

@@ -12,7 +12,7 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.envs.grid import Variant
-from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE
+from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, check_window
 from oodmon.monitor.monitor import Monitor
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.monitor.sinks.base import MemorySink
@@ -42,8 +42,9 @@ def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SE
 
 def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int = DEFAULT_CONSECUTIVE,
                     mode: str = "episode", score: str = DEFAULT_SCORE, seed: int = CALIBRATION_SEED,
-                    on_episode: Callable[[int], None] | None = None) -> Threshold:
+                    on_episode: Callable[[int], None] | None = None, window: int = 1) -> Threshold:
     """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``)."""
+    check_window(window)  # before minutes of episodes
     scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_episode=on_episode)
     return calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
-                     method=agent.method)
+                     method=agent.method, window=window)

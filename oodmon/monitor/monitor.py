@@ -56,6 +56,7 @@ class Monitor:
             (scores are logged, no alarms).
         score: the score's name when ``threshold`` is not a :class:`Threshold`.
         consecutive: m of the alarm rule when ``threshold`` is not a :class:`Threshold`.
+        window: the alarm rule's averaging window when ``threshold`` is not a :class:`Threshold`.
         sinks: where records go (:class:`MemorySink`, :class:`McapSink`, :class:`RerunSink`).
         callbacks: called with every :class:`AlarmEvent`.
         strict: a failing sink raises instead of warning.
@@ -80,6 +81,7 @@ class Monitor:
         *,
         score: str | None = None,
         consecutive: int | None = None,
+        window: int | None = None,
         sinks: Sequence[Sink] = (),
         callbacks: Sequence[AlarmCallback] = (),
         strict: bool = False,
@@ -91,12 +93,13 @@ class Monitor:
             if score is not None and score != threshold.score:
                 raise ConfigError(f"score={score!r} contradicts the threshold file's score {threshold.score!r}")
             score, consecutive, value = threshold.score, threshold.consecutive, threshold.value
+            window = threshold.window
         else:
             value = math.nan if threshold is None else float(threshold)
         self.threshold = value
         self.score_name = score or DEFAULT_SCORE
         self._score = score_function(self.score_name)
-        self.tracker = AlarmTracker(value, consecutive or DEFAULT_CONSECUTIVE)
+        self.tracker = AlarmTracker(value, consecutive or DEFAULT_CONSECUTIVE, window or 1)
         self.sinks = SinkGroup(list(sinks), strict=strict)
         self.callbacks = list(callbacks)
         self.log_observations = log_observations

@@ -7,7 +7,10 @@ false-alarm rate a, split conformal prediction takes the ceil((n + 1)(1 - a))-th
 them: for a fresh ID episode exchangeable with the calibration episodes, the probability that it
 raises any alarm is at most a. This needs n >= 1/a - 1 episodes (19 for a = 0.05).
 
-Step mode: the same quantile over all per-step scores (rule m = 1). Steps of one episode are
+With a ``window`` (see ``alarms``) the statistic is taken over the trailing means of the scores;
+the guarantee is the same, for that rule.
+
+Step mode: the same quantile over all per-step scores (rule m = 1, no window). Steps of one episode are
 correlated, so its per-step rate is only approximately a; it is there for comparison with the
 paper, which scores steps.
 """
@@ -24,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, check_consecutive, episode_statistic
+from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, check_consecutive, check_window, episode_statistic, rule_text
 
 __all__ = ["MODES", "Threshold", "calibrate"]
 
@@ -46,6 +49,7 @@ class Threshold:
         n_steps: ID calibration steps.
         quantiles: quantiles (and max) of the ID per-step scores, for orientation.
         task, method: the agent it was calibrated for.
+        window: the rule compares the mean of the last ``window`` scores (1: each score).
     """
 
     value: float
@@ -58,10 +62,11 @@ class Threshold:
     quantiles: dict[str, float] = field(default_factory=dict)
     task: str | None = None
     method: str | None = None
+    window: int = 1
 
     @property
     def rule(self) -> str:
-        return f"score > {self.value:.6g} for {self.consecutive} consecutive steps"
+        return rule_text(f"{self.value:.6g}", self.consecutive, self.window)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self) | {"rule": self.rule}
@@ -103,6 +108,7 @@ def calibrate(
     score: str = "chosen_std",
     task: str | None = None,
     method: str | None = None,
+    window: int = 1,
 ) -> Threshold:
     """Calibrate a threshold on the per-step scores of held-out ID episodes.
 
@@ -111,9 +117,10 @@ def calibrate(
         far: target false-alarm rate, 0 < far < 1.
         consecutive: m of the alarm rule (episode mode; step mode uses 1).
         mode: ``"episode"`` or ``"step"`` (see the module docstring).
+        window: the rule's averaging window in steps (episode mode; step mode uses 1).
 
     Raises:
-        InvalidParameterError: ``far`` outside (0, 1), an unknown mode, a bad ``consecutive``.
+        InvalidParameterError: ``far`` outside (0, 1), an unknown mode, a bad ``consecutive`` or ``window``.
         ConfigError: too few episodes for the guarantee at this ``far``.
 
     Example:
@@ -127,9 +134,10 @@ def calibrate(
     if mode not in MODES:
         raise InvalidParameterError(f"mode={mode!r} is not allowed; use 'episode' or 'step'")
     consecutive = check_consecutive(consecutive) if mode == "episode" else 1
+    window = check_window(window) if mode == "episode" else 1
     episodes = [np.asarray(s, dtype=np.float64) for s in episode_scores]
     if mode == "episode":
-        values = np.array([episode_statistic(s, consecutive) for s in episodes])
+        values = np.array([episode_statistic(s, consecutive, window) for s in episodes])
         unit = "episodes"
     else:
         values = np.concatenate(episodes) if episodes else np.array([])
@@ -144,4 +152,4 @@ def calibrate(
     steps = np.concatenate(episodes) if episodes else np.array([0.0])
     quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
     return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
-                     quantiles, task, method)
+                     quantiles, task, method, window)

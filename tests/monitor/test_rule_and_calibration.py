@@ -30,16 +30,33 @@ def test_score_equal_to_the_threshold_does_not_count():
     assert tracker.update(0, 1, 1.0000001)[0] is True
 
 
+@pytest.mark.parametrize("window", [1, 5], ids=["each-step", "window-5"])
 @pytest.mark.parametrize("seed", range(5))
-def test_episode_statistic_decides_the_rule(seed):
+def test_episode_statistic_decides_the_rule(seed, window):
     rng = np.random.default_rng(seed)
     scores = rng.random(60)
-    stat = episode_statistic(scores, 4)
-    for threshold in (stat - 1e-9, stat, stat + 1e-9):
-        tracker = AlarmTracker(threshold, 4)
+    stat = episode_statistic(scores, 4, window)
+    # A threshold exactly at the statistic only for window 1: a mean may differ in its last bit.
+    for threshold in (stat - 1e-9, stat, stat + 1e-9) if window == 1 else (stat - 1e-9, stat + 1e-9):
+        tracker = AlarmTracker(threshold, 4, window)
         alarmed = any(tracker.update(0, i, s)[0] for i, s in enumerate(scores))
         assert alarmed == (stat > threshold)
     assert episode_statistic(scores[:3], 4) == -math.inf
+    assert episode_statistic(scores[: window + 2], 4, window) == -math.inf  # too short for the rule
+
+
+def test_window_rule_compares_the_mean_of_the_last_steps():
+    tracker = AlarmTracker(threshold=1.0, consecutive=2, window=3)
+    scores = [5.0, 0.0, 0.0, 3.0, 0.3, 0.3, 0.0, 3.0, 3.0]
+    # means from step 2 on: 5/3, 1, 1.1, 1.2, 0.2, 1.1, 2.
+    results = [tracker.update(0, step, s) for step, s in enumerate(scores)]
+    assert [alarm for alarm, _ in results] == [False, False, False, False, False, True, False, False, True]
+    events = [event for _, event in results if event is not None]
+    assert [e.step for e in events] == [5, 8] and events[0].score == pytest.approx(1.2)
+    assert events[0].rule == "mean score over 3 steps > threshold for 2 consecutive steps"
+    assert calibrate([np.ones(10)] * 19, 0.05, window=100).rule == "mean score over 100 steps > -inf for 3 consecutive steps"
+    with pytest.raises(InvalidParameterError, match=r"window=0 is not allowed"):
+        AlarmTracker(1.0, 3, 0)
 
 
 def test_scores():
@@ -64,8 +81,8 @@ def test_conformal_rank():
     assert calibrate(episodes, 0.05, consecutive=3).value == 37.0
 
 
-@pytest.mark.parametrize("consecutive", [1, 3])
-def test_false_alarm_guarantee_holds_on_fresh_episodes(consecutive):
+@pytest.mark.parametrize(("consecutive", "window"), [(1, 1), (3, 1), (3, 10)], ids=["m1", "m3", "m3-window10"])
+def test_false_alarm_guarantee_holds_on_fresh_episodes(consecutive, window):
     # Episodes of correlated scores (AR(1) noise, different lengths), like a real agent's. Over
     # many independent calibrations, the fraction of fresh episodes that alarm stays <= far;
     # with exchangeable episodes its expectation is between far - 1/(n+1) and far.
@@ -83,9 +100,9 @@ def test_false_alarm_guarantee_holds_on_fresh_episodes(consecutive):
     far, n = 0.1, 49
     rates = []
     for _ in range(40):
-        threshold = calibrate([episode() for _ in range(n)], far, consecutive=consecutive)
+        threshold = calibrate([episode() for _ in range(n)], far, consecutive=consecutive, window=window)
         fresh = [episode() for _ in range(200)]
-        rates.append(np.mean([episode_statistic(s, consecutive) > threshold.value for s in fresh]))
+        rates.append(np.mean([episode_statistic(s, consecutive, window) > threshold.value for s in fresh]))
     assert np.mean(rates) <= far + 0.01
     assert np.mean(rates) >= far - 1 / (n + 1) - 0.02
 
