@@ -249,7 +249,8 @@ def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[[str, i
             then, before = last_line.get(name, (None, done))
             if then is None or now - then >= 60 or (done >= total and before < total):
                 rate = (done - before) / (now - then) if then is not None and now > then else 0.0
-                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}/{total} {unit}, {rate:.1f} {unit}/s",
+                speed = f"{rate:.1f} {unit}/s" if rate >= 1 or rate == 0 else f"{rate * 60:.1f} {unit}/min"
+                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}/{total} {unit}, {speed}",
                       file=sys.stderr, flush=True)
                 last_line[name] = (now, done)
 

@@ -21,6 +21,7 @@ that is several times faster than torch. Convolutional torsos (Pong) stay in tor
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -133,18 +134,26 @@ class _TorchPart:
     """A deterministic torch part (a CNN torso) as a function of a numpy batch.
 
     It runs in eval mode for the call, the previous modes restored after; a part whose layers
-    ignore the mode (:func:`is_mode_free`, decided once here) is called as it is.
+    ignore the mode (:func:`is_mode_free`, decided once here) is called as it is. Such a part
+    with convolutions is copied (like the numpy parts: rebuild the estimator after training) into
+    the channels-last memory format, where CPU convolutions of one Atari observation are ~7%
+    faster (``benchmarks/pong_step.py``); the outputs are the same up to float rounding.
     """
 
     def __init__(self, module: nn.Module) -> None:
-        self.module, self._mode_free = module, is_mode_free(module)
+        self._mode_free = is_mode_free(module)
+        self._channels_last = self._mode_free and any(isinstance(m, nn.Conv2d) for m in module.modules())
+        self.module = copy.deepcopy(module).to(memory_format=torch.channels_last) if self._channels_last else module
 
     def __call__(self, batch: np.ndarray) -> np.ndarray:
+        x = torch.from_numpy(batch)
+        if self._channels_last and x.dim() == 4:
+            x = x.contiguous(memory_format=torch.channels_last)
         with torch.no_grad():
             if self._mode_free:
-                return self.module(torch.from_numpy(batch)).numpy()
+                return self.module(x).numpy()
             with mc_sampling(self.module):
-                return self.module(torch.from_numpy(batch)).numpy()
+                return self.module(x).numpy()
 
 
 class MCEstimator(UncertaintyEstimator):

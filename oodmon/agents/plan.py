@@ -80,7 +80,8 @@ class _DropConnect(_Affine):
         # (84% of a trained Pong agent's 512 features), so this draws a fraction of the random
         # numbers, with the same distribution of outputs.
         weight_t = self.scaled_weight_t
-        active = np.flatnonzero(np.any(x != 0, axis=tuple(range(x.ndim - 1))))
+        rows = x[0] if x.strides[0] == 0 else x  # K repeats of one batch (the usual case): look at one
+        active = np.flatnonzero((rows != 0).reshape(-1, x.shape[-1]).any(axis=0))
         if active.size < x.shape[-1]:
             x, weight_t = x[..., active], weight_t[active]
         keep = rng.random((x.shape[0], *weight_t.shape), dtype=np.float32) >= self.p

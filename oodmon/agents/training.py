@@ -267,6 +267,11 @@ def train(
     action_low = env.action_space.low.tolist() if recipe.algorithm == "ddpg" else None
     action_high = env.action_space.high.tolist() if recipe.algorithm == "ddpg" else None
     modules = modules_from_sb3(models, arch)
+    if recipe.cnn:  # shipped as fp16: evaluate the weights as they will load, not the fp32 ones
+        with torch.no_grad():
+            for tensor in modules.state_dict().values():
+                if tensor.is_floating_point():
+                    tensor.copy_(tensor.half().float())
     estimator = estimator_for(modules, arch, recipe.n_samples, seed=seed, action_low=action_low, action_high=action_high)
     policy = (lambda obs: int(estimator.estimate(obs).action[0])) if arch["algorithm"] == "dqn" else (
         lambda obs: estimator.estimate(obs).action[0])
