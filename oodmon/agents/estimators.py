@@ -22,6 +22,7 @@ that is several times faster than torch. Convolutional torsos (Pong) stay in tor
 from __future__ import annotations
 
 import copy
+from contextlib import nullcontext
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -149,11 +150,8 @@ class _TorchPart:
         x = torch.from_numpy(batch)
         if self._channels_last and x.dim() == 4:
             x = x.contiguous(memory_format=torch.channels_last)
-        with torch.no_grad():
-            if self._mode_free:
-                return self.module(x).numpy()
-            with mc_sampling(self.module):
-                return self.module(x).numpy()
+        with torch.no_grad(), nullcontext() if self._mode_free else mc_sampling(self.module):
+            return self.module(x).numpy()
 
 
 class MCEstimator(UncertaintyEstimator):
