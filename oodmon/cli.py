@@ -226,8 +226,8 @@ def _envs_show(args: argparse.Namespace) -> int:
 
 
 @contextmanager
-def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[[str, int, int], None]]:
-    """A ``report(name, done, total)`` for long work: rich bars on a terminal; where stderr is a
+def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[..., None]]:
+    """A ``report(name, done, total, unit=None)`` for long work (``unit`` overrides the default): rich bars on a terminal; where stderr is a
     file (a job under nohup), where a bar would only appear at the end, a dated line per name at
     most once a minute, at its start and at its end."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -239,7 +239,7 @@ def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[[str, i
         bars: dict[str, int] = {}
         last_line: dict[str, tuple[float, int]] = {}  # name -> (time, done) of its last plain line
 
-        def report(name: str, done: int, total: int) -> None:
+        def report(name: str, done: int, total: int, unit_here: str | None = None) -> None:
             if name not in bars:
                 bars[name] = progress.add_task(name, total=total)
             progress.update(bars[name], completed=done, total=total)
@@ -249,8 +249,9 @@ def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[[str, i
             then, before = last_line.get(name, (None, done))
             if then is None or now - then >= 60 or (done >= total and before < total):
                 rate = (done - before) / (now - then) if then is not None and now > then else 0.0
-                speed = f"{rate:.1f} {unit}/s" if rate >= 1 or rate == 0 else f"{rate * 60:.1f} {unit}/min"
-                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}/{total} {unit}, {speed}",
+                counted = unit_here or unit
+                speed = f"{rate:.1f} {counted}/s" if rate >= 1 or rate == 0 else f"{rate * 60:.1f} {counted}/min"
+                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}/{total} {counted}, {speed}",
                       file=sys.stderr, flush=True)
                 last_line[name] = (now, done)
 
@@ -263,8 +264,8 @@ def _train(args: argparse.Namespace) -> int:
     command = "oodmon " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("oodmon") else ""
     with _progress(unit="steps", transient=False) as report_progress:
 
-        def report(run: str, done: int, total: int) -> None:
-            report_progress(f"{args.task}/{args.method} {run}", done, total)
+        def report(run: str, done: int, total: int, unit: str | None = None) -> None:
+            report_progress(f"{args.task}/{args.method} {run}", done, total, unit)
 
         agent = train(args.task, args.method, args.out, seed=args.seed, total_steps=args.steps, report=report,
                       export_only=args.export_only,

@@ -40,6 +40,11 @@ class Recipe:
         eval_every: steps between evaluations written to the training log. The exported agent
             has the weights of the best evaluation (``selected_checkpoints`` in its metadata).
         eval_episodes: episodes per evaluation.
+        select_top: keep the weights of every evaluation, and at export play the ``select_top``
+            best-evaluated of them again, as the agent ships (fp16, its MC or ensemble decisions), on
+            ``select_episodes`` ID episodes of seeds of their own; ship the best of them. 0: ship the
+            best evaluation's weights. For unstable trainings whose few-episode evaluations are noisy.
+        select_episodes: episodes per candidate of ``select_top``.
         reward_clip: train on the sign of the reward (Pong), as DQN on Atari does.
         notes: what a reader of the metadata should know about the recipe.
     """
@@ -60,6 +65,8 @@ class Recipe:
     checkpoint_every: int = 10_000
     eval_every: int = 10_000
     eval_episodes: int = 5
+    select_top: int = 0
+    select_episodes: int = 10
     reward_clip: bool = False
     notes: str = ""
 
@@ -89,6 +96,7 @@ _PONG = Recipe(
         replay_buffer_kwargs=dict(handle_timeout_termination=False),
     ),
     shared_torso=True, reward_clip=True, checkpoint_every=25_000, eval_every=50_000, eval_episodes=3,
+    select_top=5,
     notes="Nature CNN; epsilon 1 -> 0.01 over the first 250k steps; rewards clipped to their sign while training",
 )
 

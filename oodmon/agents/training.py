@@ -7,6 +7,9 @@ One loop for every task and method. A training directory holds::
     runs/<run>/policy.safetensors  the last checkpoint's weights alone: small enough to commit, and
                                    enough to resume (with a fresh buffer) where the two above are gone
     runs/<run>/state.json          steps done, wall time, finished or not
+    runs/<run>/best_policy.safetensors  the weights of the best evaluation so far
+    runs/<run>/snapshots/<steps>.safetensors  the weights of every evaluation, for recipes that
+                                   choose among them at export (``Recipe.select_top``)
     train_log.jsonl                one line per evaluation: steps, mean greedy return, wall time
     model.json, model.safetensors  the finished agent (see ``serialization``)
 
@@ -49,7 +52,13 @@ __all__ = ["ID_EPISODES", "architecture", "train"]
 #: Episodes of the default env behind a saved model's ``id_return_mean``.
 ID_EPISODES = {"cartpole": 20, "pendulum": 20, "pong": 10}
 
-Reporter = Callable[[str, int, int], None]  # (run name, steps done, steps total)
+#: First seed of the episodes behind ``id_return_mean``, and of those that choose among snapshots
+#: (``Recipe.select_top``): apart, so that the reported return is not the one the choice maximised.
+ID_SEED, SELECTION_SEED = 100_000, 50_000
+
+#: ``report(run name, steps done, steps total)``; while choosing among snapshots (``Recipe.select_top``)
+#: ``report(name, episodes done, episodes total, "episodes")``.
+Reporter = Callable[..., None]
 
 
 def architecture(recipe: Recipe, env: gymnasium.Env) -> dict[str, Any]:
@@ -209,6 +218,26 @@ class _Run:
         if best is None or mean >= best["eval_return_mean"]:
             save_file(_online_weights(model), str(self.folder / "best_policy.safetensors"))
             self.state["best"] = {"steps": steps, "eval_return_mean": mean}
+        if self.recipe.select_top:
+            (self.folder / "snapshots").mkdir(exist_ok=True)
+            weights = {k: v.half() if self.recipe.cnn and v.is_floating_point() else v
+                       for k, v in _online_weights(model).items()}  # as they would ship
+            save_file(weights, str(self.folder / "snapshots" / f"{steps}.safetensors"))
+
+    def candidates(self) -> list[dict[str, Any]]:
+        """The ``select_top`` best evaluations whose weights are on disk, best first: their steps,
+        evaluation return and weights file."""
+        log = self.root / "train_log.jsonl"
+        lines = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
+        best = self.state.get("best") or {}
+        found = []
+        for line in sorted((x for x in lines if x["run"] == self.name), key=lambda x: -x["eval_return_mean"]):
+            path = self.folder / "snapshots" / f"{line['steps']}.safetensors"
+            if not path.exists() and line["steps"] == best.get("steps"):
+                path = self.folder / "best_policy.safetensors"  # evaluated before snapshots were kept
+            if path.exists() and all(c["steps"] != line["steps"] for c in found):
+                found.append({"steps": line["steps"], "eval_return_mean": line["eval_return_mean"], "path": path})
+        return found[: self.recipe.select_top]
 
     def restore_best(self, model: BaseAlgorithm) -> None:
         """Load the weights of the best evaluation into ``model`` (DQN and DDPG are unstable:
@@ -242,7 +271,7 @@ def train(
         out: the training directory (created; resumed if it holds an unfinished run).
         seed: the trial's seed; ensemble member k uses ``1000 * seed + k``.
         total_steps: override the recipe's steps per run (smoke tests, quick trials).
-        report: called with (run, steps done, steps total) as training goes.
+        report: called with (run, steps done, steps total) as training goes; see :data:`Reporter`.
         command: the command line that started the training, recorded in the metadata.
         id_episodes: episodes behind ``id_return_mean`` (default :data:`ID_EPISODES` of the task).
         export_only: do not train; export the best checkpoint so far of an unfinished training
@@ -253,7 +282,7 @@ def train(
         recipe = _shortened(recipe, total_steps)
     root = Path(out)
     root.mkdir(parents=True, exist_ok=True)
-    report = report or (lambda run, done, total: None)
+    report = report or (lambda *args: None)
     torch.set_num_threads(int(os.environ.get("OODMON_TORCH_THREADS", "1")))
     independent = method == "ensemble" and not recipe.shared_torso
     runs = (
@@ -264,18 +293,14 @@ def train(
 
     env = _training_env(recipe)
     arch = architecture(recipe, env)
-    action_low = env.action_space.low.tolist() if recipe.algorithm == "ddpg" else None
-    action_high = env.action_space.high.tolist() if recipe.algorithm == "ddpg" else None
-    modules = modules_from_sb3(models, arch)
-    if recipe.cnn:  # shipped as fp16: evaluate the weights as they will load, not the fp32 ones
-        with torch.no_grad():
-            for tensor in modules.state_dict().values():
-                if tensor.is_floating_point():
-                    tensor.copy_(tensor.half().float())
-    estimator = estimator_for(modules, arch, recipe.n_samples, seed=seed, action_low=action_low, action_high=action_high)
-    policy = (lambda obs: int(estimator.estimate(obs).action[0])) if arch["algorithm"] == "dqn" else (
-        lambda obs: estimator.estimate(obs).action[0])
-    id_returns = episode_returns(policy, Variant(task), id_episodes or ID_EPISODES[task], seed=100_000)
+    ddpg = recipe.algorithm == "ddpg"
+    bounds = {"action_low": env.action_space.low.tolist() if ddpg else None,
+              "action_high": env.action_space.high.tolist() if ddpg else None}
+    selection = None
+    if recipe.select_top and len(runs) == 1:
+        selection = _select_snapshot(runs[0], models[0], arch, seed, bounds, report)
+    modules, policy = _as_shipped(models, arch, recipe, seed, bounds)
+    id_returns = episode_returns(policy, Variant(task), id_episodes or ID_EPISODES[task], seed=ID_SEED)
     metadata = {
         "task": task, "method": method, "algorithm": recipe.algorithm, "architecture": arch,
         "ensemble": ("bootstrapped heads on a shared torso" if arch["shared_torso"] else "independent members")
@@ -284,21 +309,70 @@ def train(
         "n_samples": arch["n_members"] if method == "ensemble" else recipe.n_samples,
         "seed": seed, "training_steps": [int(m.num_timesteps) for m in models],
         "wall_time_s": round(sum(run.state["wall_time_s"] for run in runs), 1),
-        "selected_checkpoints": [run.state.get("best") for run in runs],
+        "selected_checkpoints": [selection["chosen"]] if selection else [run.state.get("best") for run in runs],
+        "checkpoint_selection": selection and {k: v for k, v in selection.items() if k != "chosen"},
         "training_complete": all(run.finished for run in runs),
         "recipe_steps": recipe.total_steps,
         "hyperparams": {k: v for k, v in recipe.hyperparams.items() if isinstance(v, (int, float, str, bool))},
         "recipe_notes": recipe.notes, "versions": library_versions(), "command": command,
         "id_return_mean": round(float(np.mean(id_returns)), 2), "id_episodes": len(id_returns),
         "id_returns": [round(float(r), 2) for r in id_returns],
-        "action_low": action_low, "action_high": action_high,
+        **bounds,
     }
     save_modules(root, modules, metadata, half=recipe.cnn)
     return load_agent(root, task=task)
 
 
+def _as_shipped(models: list[BaseAlgorithm], arch: dict[str, Any], recipe: Recipe, seed: int,
+                bounds: dict[str, Any]):
+    """The agent's modules as they will be saved, and its policy: the action of its MC or ensemble
+    decision, on weights rounded to fp16 where they ship so (in Pong that changes whole games).
+    ``bounds``: the ``action_low``/``action_high`` of a DDPG agent."""
+    modules = modules_from_sb3(models, arch)
+    if recipe.cnn:
+        with torch.no_grad():
+            for tensor in modules.state_dict().values():
+                if tensor.is_floating_point():
+                    tensor.copy_(tensor.half().float())
+    estimator = estimator_for(modules, arch, recipe.n_samples, seed=seed, **bounds)
+    if arch["algorithm"] == "dqn":
+        return modules, lambda obs: int(estimator.estimate(obs).action[0])
+    return modules, lambda obs: estimator.estimate(obs).action[0]
+
+
+def _select_snapshot(run: _Run, model: BaseAlgorithm, arch: dict[str, Any], seed: int,
+                     bounds: dict[str, Any], report: Reporter) -> dict[str, Any] | None:
+    """Play each of the run's candidate snapshots as shipped on ``select_episodes`` ID episodes
+    (seeds from :data:`SELECTION_SEED`); load the best into ``model`` and describe the choice.
+    None, with ``model`` untouched, where there are no snapshots to choose from."""
+    recipe = run.recipe
+    candidates = run.candidates()
+    if not candidates:
+        return None
+    name, total, done = f"{run.name} choosing among {len(candidates)} snapshots", (
+        len(candidates) * recipe.select_episodes), [0]
+
+    def count(_: float) -> None:
+        done[0] += 1
+        report(name, done[0], total, "episodes")
+
+    report(name, 0, total, "episodes")
+    for candidate in candidates:
+        model.policy.load_state_dict(load_file(str(candidate["path"])), strict=False)
+        _, policy = _as_shipped([model], arch, recipe, seed, bounds)
+        returns = episode_returns(policy, Variant(recipe.task), recipe.select_episodes, seed=SELECTION_SEED,
+                                  on_episode=count)
+        candidate["selection_return_mean"] = round(float(np.mean(returns)), 2)
+    chosen = max(candidates, key=lambda c: c["selection_return_mean"])  # first of equals: the better evaluated
+    model.policy.load_state_dict(load_file(str(chosen["path"])), strict=False)
+    described = [{k: v for k, v in c.items() if k != "path"} for c in candidates]
+    return {"chosen": described[candidates.index(chosen)], "candidates": described,
+            "episodes": recipe.select_episodes, "seed": SELECTION_SEED}
+
+
 def _shortened(recipe: Recipe, total_steps: int) -> Recipe:
-    """The recipe cut to ``total_steps``, with its schedule (learning start, checkpoints) scaled."""
+    """The recipe cut to ``total_steps``, with its schedule (learning start, checkpoints) scaled and
+    at most 2 episodes per snapshot in its choice among snapshots."""
     from dataclasses import replace
 
     hyper = dict(recipe.hyperparams)
@@ -308,4 +382,5 @@ def _shortened(recipe: Recipe, total_steps: int) -> Recipe:
         hyper["buffer_size"] = min(hyper["buffer_size"], max(total_steps, 1_000))
     every = max(total_steps // 2, 1)
     return replace(recipe, total_steps=total_steps, hyperparams=hyper,
-                   checkpoint_every=min(recipe.checkpoint_every, every), eval_every=min(recipe.eval_every, every))
+                   checkpoint_every=min(recipe.checkpoint_every, every), eval_every=min(recipe.eval_every, every),
+                   select_episodes=min(recipe.select_episodes, 2))

@@ -31,6 +31,8 @@ def test_training_runs_and_saves_a_loadable_agent(tmp_path, task, method):
     assert meta["task"] == task and meta["method"] == method
     assert all(s >= steps for s in meta["training_steps"])
     assert meta["id_episodes"] == 2 and len(meta["id_returns"]) == 2
+    # Pong's recipe chooses among its evaluation snapshots (at 32 and 64 steps here) at export.
+    assert (meta["checkpoint_selection"] and len(meta["checkpoint_selection"]["candidates"])) == (2 if task == "pong" else None)
     assert len(meta["training_steps"]) == (5 if method == "ensemble" and task != "pong" else 1)
     assert meta["versions"]["torch"].startswith(torch.__version__.split("+")[0])
     loaded = load_agent(tmp_path, task=task)
@@ -144,3 +146,32 @@ def test_export_only_ships_an_unfinished_training_honestly(tmp_path):
     assert meta["training_complete"] is False and meta["training_steps"] == [500] and meta["recipe_steps"] == 1000
     state = json.loads((tmp_path / "runs" / "main" / "state.json").read_text())
     assert state["steps"] == 500 and state["finished"] is False  # exporting trained nothing
+
+
+def test_export_ships_the_snapshot_that_plays_best_as_shipped(tmp_path, monkeypatch):
+    import oodmon.agents.training as training
+    from dataclasses import replace
+
+    from oodmon.agents.evaluation import episode_returns
+    from oodmon.envs.grid import Variant
+
+    monkeypatch.setattr(training, "recipe_for", lambda task, method: replace(recipe_for(task, method), select_top=2, eval_every=500))
+    reports: list[tuple] = []
+    agent = train("cartpole", "dropconnect", tmp_path, total_steps=1500, id_episodes=2,
+                  report=lambda *args: reports.append(args))
+    snapshots = sorted((tmp_path / "runs" / "main" / "snapshots").iterdir())
+    assert [p.name for p in snapshots] == ["1000.safetensors", "1500.safetensors", "500.safetensors"]
+    log = [json.loads(line) for line in (tmp_path / "train_log.jsonl").read_text().splitlines()]
+    best_two = sorted(log, key=lambda x: -x["eval_return_mean"])[:2]
+
+    selection = agent.metadata["checkpoint_selection"]
+    assert selection["episodes"] == 2 and selection["seed"] == training.SELECTION_SEED != training.ID_SEED
+    assert [c["steps"] for c in selection["candidates"]] == [x["steps"] for x in best_two]
+    chosen = agent.metadata["selected_checkpoints"][0]
+    assert chosen["selection_return_mean"] == max(c["selection_return_mean"] for c in selection["candidates"])
+    # The shipped agent is the chosen snapshot: it replays the return that chose it.
+    replay = load_agent(tmp_path, task="cartpole", seed=0)
+    returns = episode_returns(replay.act, Variant("cartpole"), 2, seed=training.SELECTION_SEED)
+    assert float(np.mean(returns)) == pytest.approx(chosen["selection_return_mean"], abs=0.01)
+    episodes = [r for r in reports if len(r) == 4]
+    assert episodes[-1][1:] == (4, 4, "episodes")  # progress of the choice, counted in episodes
