@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
@@ -229,6 +230,29 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
             ray.shutdown()
 
 
+def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path) -> None:
+    """Keep a (method, trial) folder's cached threshold, failing variants and logs only while they
+    belong to the weights in ``model``: a new zoo agent or a retrained model moves the old results
+    to ``<out>/set-aside/weights-<old hash>/`` (kept, not deleted, and out of the logs a replay of
+    ``<out>/logs`` reads) and the trial is run again."""
+    import hashlib
+
+    weights = hashlib.sha256((model / "model.safetensors").read_bytes()).hexdigest()[:16]
+    stamp = folder / "weights.sha256"
+    made_by = stamp.read_text().strip() if stamp.exists() else "unknown"
+    if folder.exists() and any(folder.iterdir()) and made_by != weights:
+        aside = out / "set-aside" / f"weights-{made_by}" / folder.relative_to(out)
+        if aside.exists():
+            raise ConfigError(f"{folder} holds results of other weights than {model} and {aside} exists; "
+                              f"move one of them away and run the bench again")
+        print(f"bench: {folder} was made with other weights than {model}; moved to {aside}, running again",
+              file=sys.stderr)
+        aside.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(folder, aside)
+    folder.mkdir(parents=True, exist_ok=True)
+    stamp.write_text(weights + "\n")
+
+
 def _prepare_trial(config: BenchConfig, method: str, trial: int,
                    report: Callable[[str, int, int], None]) -> tuple[Path, Path, list[str]]:
     """Model, threshold and failing variants of one (method, trial); cached in its folder.
@@ -237,7 +261,7 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
 
     model = _ensure_model(config, method, trial)
     folder = _cell_log(config, method, trial, "x").parent
-    folder.mkdir(parents=True, exist_ok=True)
+    _set_aside_if_made_by_other_weights(Path(config.out), folder, model)
     threshold_path, failing_path = folder / f"threshold-{config.score}.json", folder / "failing.json"
     agent = load_agent(model, task=config.task)
     if not threshold_path.exists():

@@ -43,6 +43,20 @@ def test_bench_end_to_end_and_resume(tmp_path):
     assert {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*.mcap")} == mtimes
     assert [r.aurocs for r in again.rows] == [r.aurocs for r in result.rows]
     assert best_per_method(result, "cartpole")[0][0] == "dropout"
+    # New weights for trial 1 (a retrained or newly shipped model): its cached results are set
+    # aside, not reused and not lost; trial 0's stay where they are.
+    from safetensors.torch import load_file, save_file
+
+    weights_file = tmp_path / "models/cartpole-dropout-trial1/model.safetensors"
+    tensors = load_file(str(weights_file))
+    save_file({k: v * 1.01 if v.is_floating_point() else v for k, v in tensors.items()}, str(weights_file))
+    old_threshold = (tmp_path / "logs/cartpole/dropout/trial1/threshold-chosen_std.json").read_text()
+    run_bench(config)
+    set_aside = list((tmp_path / "set-aside").glob("weights-*/logs/cartpole/dropout/trial1/threshold-chosen_std.json"))
+    assert len(set_aside) == 1 and set_aside[0].read_text() == old_threshold
+    assert (tmp_path / "logs/cartpole/dropout/trial1/threshold-chosen_std.json").read_text() != old_threshold
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "logs/cartpole/dropout/trial0").glob("*.mcap")} == {
+        p: t for p, t in mtimes.items() if "trial0" in str(p)}
 
 
 def test_paper_labels_match_our_specs():
