@@ -227,9 +227,9 @@ def _envs_show(args: argparse.Namespace) -> int:
 
 @contextmanager
 def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[..., None]]:
-    """A ``report(name, done, total, unit=None)`` for long work (``unit`` overrides the default): rich bars on a terminal; where stderr is a
-    file (a job under nohup), where a bar would only appear at the end, a dated line per name at
-    most once a minute, at its start and at its end."""
+    """A ``report(name, done, total, unit=None)`` for long work (its ``unit`` overrides the default):
+    rich bars on a terminal; where stderr is a file (a job under nohup), where a bar would only
+    appear at the end, a dated line per name at most once a minute, at its start and at its end."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     stderr = Console(stderr=True)
