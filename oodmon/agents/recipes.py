@@ -96,7 +96,7 @@ _PONG = Recipe(
         replay_buffer_kwargs=dict(handle_timeout_termination=False),
     ),
     shared_torso=True, reward_clip=True, checkpoint_every=25_000, eval_every=50_000, eval_episodes=3,
-    select_top=5,
+    select_top=8,
     notes="Nature CNN; epsilon 1 -> 0.01 over the first 250k steps; rewards clipped to their sign while training",
 )
 

@@ -10,6 +10,8 @@ One loop for every task and method. A training directory holds::
     runs/<run>/best_policy.safetensors  the weights of the best evaluation so far
     runs/<run>/snapshots/<steps>.safetensors  the weights of every evaluation, for recipes that
                                    choose among them at export (``Recipe.select_top``)
+    runs/<run>/selection.json      what each snapshot scored when played again at export, by the
+                                   sha256 of its weights, so that the next export replays only new ones
     train_log.jsonl                one line per evaluation: steps, mean greedy return, wall time
     model.json, model.safetensors  the finished agent (see ``serialization``)
 
@@ -20,6 +22,7 @@ continues from its last checkpoint, and the final export is redone.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import time
@@ -344,28 +347,46 @@ def _select_snapshot(run: _Run, model: BaseAlgorithm, arch: dict[str, Any], seed
                      bounds: dict[str, Any], report: Reporter) -> dict[str, Any] | None:
     """Play each of the run's candidate snapshots as shipped on ``select_episodes`` ID episodes
     (seeds from :data:`SELECTION_SEED`); load the best into ``model`` and describe the choice.
-    None, with ``model`` untouched, where there are no snapshots to choose from."""
+    None, with ``model`` untouched, where there are no snapshots to choose from.
+
+    A candidate already played by an earlier export (same weights, episodes, seeds and MC samples:
+    ``runs/<run>/selection.json``) keeps its score instead of being played again: the replays are
+    deterministic, so the score would be the same. Delete that file after changing how an agent
+    decides (its MC sampling, say), since the scores then no longer hold."""
     recipe = run.recipe
     candidates = run.candidates()
     if not candidates:
         return None
+    cache_path = run.folder / "selection.json"
+    cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
+    setting = {"episodes": recipe.select_episodes, "seed": SELECTION_SEED, "n_samples": recipe.n_samples,
+               "member_seed": seed}
+    for candidate in candidates:
+        candidate["sha256"] = hashlib.sha256(candidate["path"].read_bytes()).hexdigest()
+        known = cache.get(candidate["sha256"])
+        if known is not None and all(known.get(k) == v for k, v in setting.items()):
+            candidate["selection_return_mean"] = known["selection_return_mean"]
+    to_play = [c for c in candidates if "selection_return_mean" not in c]
     name, total, done = f"{run.name} choosing among {len(candidates)} snapshots", (
-        len(candidates) * recipe.select_episodes), [0]
+        len(to_play) * recipe.select_episodes), [0]
 
     def count(_: float) -> None:
         done[0] += 1
         report(name, done[0], total, "episodes")
 
     report(name, 0, total, "episodes")
-    for candidate in candidates:
+    for candidate in to_play:
         model.policy.load_state_dict(load_file(str(candidate["path"])), strict=False)
         _, policy = _as_shipped([model], arch, recipe, seed, bounds)
         returns = episode_returns(policy, Variant(recipe.task), recipe.select_episodes, seed=SELECTION_SEED,
                                   on_episode=count)
         candidate["selection_return_mean"] = round(float(np.mean(returns)), 2)
+        cache[candidate["sha256"]] = {"steps": candidate["steps"], **setting,
+                                      "selection_return_mean": candidate["selection_return_mean"]}
+        cache_path.write_text(json.dumps(cache, indent=1))  # after each candidate: a kill loses one at most
     chosen = max(candidates, key=lambda c: c["selection_return_mean"])  # first of equals: the better evaluated
     model.policy.load_state_dict(load_file(str(chosen["path"])), strict=False)
-    described = [{k: v for k, v in c.items() if k != "path"} for c in candidates]
+    described = [{k: v for k, v in c.items() if k not in ("path", "sha256")} for c in candidates]
     return {"chosen": described[candidates.index(chosen)], "candidates": described,
             "episodes": recipe.select_episodes, "seed": SELECTION_SEED}
 

@@ -175,3 +175,33 @@ def test_export_ships_the_snapshot_that_plays_best_as_shipped(tmp_path, monkeypa
     assert float(np.mean(returns)) == pytest.approx(chosen["selection_return_mean"], abs=0.01)
     episodes = [r for r in reports if len(r) == 4]
     assert episodes[-1][1:] == (4, 4, "episodes")  # progress of the choice, counted in episodes
+
+
+def test_export_does_not_play_a_snapshot_again_that_an_earlier_export_scored(tmp_path, monkeypatch):
+    import oodmon.agents.training as training
+    from dataclasses import replace
+
+    monkeypatch.setattr(training, "recipe_for", lambda task, method: replace(recipe_for(task, method), select_top=2, eval_every=500))
+    first = train("cartpole", "dropconnect", tmp_path, total_steps=1000, id_episodes=1).metadata["checkpoint_selection"]
+    cache_path = tmp_path / "runs" / "main" / "selection.json"
+    cache = json.loads(cache_path.read_text())
+    assert sorted(entry["steps"] for entry in cache.values()) == sorted(c["steps"] for c in first["candidates"])
+
+    # Mark the candidate that lost as the best: an export that reads the cache ships it, unplayed.
+    loser = min(first["candidates"], key=lambda c: c["selection_return_mean"])
+    for entry in cache.values():
+        if entry["steps"] == loser["steps"]:
+            entry["selection_return_mean"] = 1e6
+    cache_path.write_text(json.dumps(cache))
+    reports: list[tuple] = []
+    again = train("cartpole", "dropconnect", tmp_path, total_steps=1000, id_episodes=1, export_only=True,
+                  report=lambda *args: reports.append(args)).metadata
+    assert again["selected_checkpoints"][0]["steps"] == loser["steps"]
+    assert [r[1:] for r in reports if len(r) == 4] == [(0, 0, "episodes")]
+
+    # Other selection settings (more episodes) do not reuse those scores.
+    monkeypatch.setattr(training, "recipe_for", lambda task, method: replace(
+        recipe_for(task, method), select_top=2, eval_every=500, select_episodes=3, total_steps=1000))
+    reports.clear()
+    train("cartpole", "dropconnect", tmp_path, id_episodes=1, export_only=True, report=lambda *args: reports.append(args))
+    assert [r[1:] for r in reports if len(r) == 4][-1] == (6, 6, "episodes")
