@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -17,7 +18,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from oodmon.errors import OodmonError
+from oodmon.errors import ConfigError, OodmonError
 
 __all__ = ["main"]
 
@@ -30,10 +31,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        _limit_torch_threads()
         return args.handler(args) or 0
     except (OodmonError, OSError) as error:
         print(f"oodmon: error: {error}", file=sys.stderr)
         return 2
+
+
+def _limit_torch_threads() -> None:
+    """Honour ``OODMON_TORCH_THREADS`` in every command (the monitor, calibration and bench as much
+    as training), so that a job run beside a training keeps to its share of the cores."""
+    value = os.environ.get("OODMON_TORCH_THREADS")
+    if value is None:
+        return
+    if not value.isdigit() or int(value) < 1:
+        raise ConfigError(f"OODMON_TORCH_THREADS must be a whole number >= 1, not {value!r}")
+    import torch
+
+    torch.set_num_threads(int(value))
 
 
 def _table_console() -> Console:
@@ -309,7 +324,6 @@ def _run(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from oodmon.envs import Variant, parse_variant
-    from oodmon.errors import ConfigError
     from oodmon.monitor import McapSink, Monitor, Threshold
     from oodmon.monitor.sinks.rerun import RerunSink
 
@@ -467,7 +481,6 @@ def _bench(args: argparse.Namespace) -> int:
 
 def _load_agent(args: argparse.Namespace):
     from oodmon.agents import load, load_agent
-    from oodmon.errors import ConfigError
 
     if args.model:
         return load_agent(args.model, task=args.task)
@@ -478,7 +491,6 @@ def _load_agent(args: argparse.Namespace):
 
 def _variants(task: str, text: str):
     from oodmon.envs import paper_grid, parse_variant
-    from oodmon.errors import ConfigError
 
     if text == "paper":
         return paper_grid(task)

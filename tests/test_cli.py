@@ -142,3 +142,19 @@ def test_train_writes_plain_progress_lines_and_its_result_when_logged_to_a_file(
     done, rate = lines[-1].split(": ")[1].split(" steps, ")
     assert int(done.split("/")[0]) >= 600 and float(rate.split()[0]) > 0
     assert "id_return_mean" in result.stdout and (tmp_path / "t" / "model.json").is_file()
+
+
+def test_every_command_keeps_to_the_torch_threads_it_is_given(monkeypatch, capsys):
+    import torch
+
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        monkeypatch.setenv("OODMON_TORCH_THREADS", "1")
+        assert main(["envs", "--task", "pong", "--json"]) == 0
+        assert torch.get_num_threads() == 1
+        monkeypatch.setenv("OODMON_TORCH_THREADS", "two")
+        assert main(["envs", "--json"]) == 2
+        assert "OODMON_TORCH_THREADS must be a whole number >= 1, not 'two'" in capsys.readouterr().err
+    finally:
+        torch.set_num_threads(before)
