@@ -35,7 +35,8 @@ from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import check_window
 from oodmon.paper import paper_auc_per_trial
 
-__all__ = ["PAPER_METHOD", "BenchConfig", "BenchResult", "best_per_method", "paper_label", "paper_only_variants", "run_bench"]
+__all__ = ["PAPER_METHOD", "BenchConfig", "BenchResult", "alarms_per_variant", "best_per_method", "paper_label",
+           "paper_only_variants", "run_bench"]
 
 #: Our method names as the paper's tables name them.
 PAPER_METHOD = {"dropout": "mc_dropout", "dropconnect": "mc_dropconnect", "ensemble": "ensemble"}
@@ -363,3 +364,22 @@ def paper_only_variants(result: BenchResult, task: str, methods: Iterable[str],
             if not any(paper_label(task, method, v) == label for (m, v) in ours if m == method):
                 missing.append((method, label, max(values)))
     return missing
+
+
+def alarms_per_variant(result: BenchResult) -> list[tuple[str, str, float | None, float | None, float | None]]:
+    """What the monitor's alarm rule did, per method and variant, averaged over the trials that have
+    a value: ``(method, variant, false_alarm_rate, detection_rate, delay_mean)``. The ID variant has
+    the false-alarm rate (alarmed ID episodes), the failing ones the detection rate (alarmed
+    episodes) and the mean delay in steps to the first alarm of those detected."""
+    grouped: dict[tuple[str, str], list[dict[str, float | None]]] = {}
+    for key, values in result.detection.items():
+        method, _, variant = key.split("/", 2)
+        grouped.setdefault((method, variant), []).append(values)
+
+    def mean(values: list[dict[str, float | None]], name: str) -> float | None:
+        present = [v[name] for v in values if v[name] is not None]
+        return float(np.mean(present)) if present else None
+
+    return [(method, variant, mean(v, "false_alarm_rate"), mean(v, "detection_rate"), mean(v, "delay_mean"))
+            for (method, variant), v in sorted(grouped.items(), key=lambda item: (item[0][0], ":" in item[0][1],
+                                                                                     item[0][1]))]

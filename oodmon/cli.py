@@ -439,7 +439,7 @@ def _check(args: argparse.Namespace) -> int:
 
 def _bench(args: argparse.Namespace) -> int:
     from oodmon.agents import METHODS
-    from oodmon.bench import BenchConfig, best_per_method, paper_only_variants, run_bench
+    from oodmon.bench import BenchConfig, alarms_per_variant, best_per_method, paper_only_variants, run_bench
     from oodmon.errors import UnknownParameterError
 
     methods = tuple(m.strip() for m in args.methods.split(","))
@@ -472,6 +472,15 @@ def _bench(args: argparse.Namespace) -> int:
         best.add_row(method, variant, f"{ours:.3f}", "" if paper is None else f"{paper:.3f}",
                      "" if paper is None else f"{ours - paper:+.3f}")
     console.print(best)
+    rule = f"the mean score of the last {args.window} steps" if args.window > 1 else "each step's score"
+    alarms = Table(title=f"{args.task}: the monitor's alarms ({rule} against the calibrated threshold), "
+                         "mean over trials")
+    for column in ("method", "variant", "false alarms (ID episodes)", "detected (episodes)", "mean delay (steps)"):
+        alarms.add_column(column, justify="left" if column in ("method", "variant") else "right")
+    for method, variant, false_alarms, detected, delay in alarms_per_variant(result):
+        alarms.add_row(method, variant, "" if false_alarms is None else f"{false_alarms:.0%}",
+                       "" if detected is None else f"{detected:.0%}", "" if delay is None else f"{delay:.0f}")
+    console.print(alarms)
     missing = paper_only_variants(result, args.task, methods, ran=[v.spec for v in config.variant_list()])
     if missing:
         console.print("Variants the paper reports where our agents did not fail (no AUROC of ours): "

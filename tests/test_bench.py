@@ -77,6 +77,32 @@ def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
     assert row["variant"] == "cartpole:length=2.0" and row["method"] == "ensemble"
     assert row["paper"] == [0.862, 0.826, 0.993, 0.864, 0.87] and 0.0 <= row["mean"] <= 1.0
     assert np.isclose(row["mean"], row["aurocs"]["0"])
+    # The tables (cells cached now) end with what the alarm rule did, as the JSON reports it.
+    tables = subprocess.run(
+        [sys.executable, "-m", "oodmon", "bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1",
+         "--variants", "cartpole:length=2.0", "--episodes", "2", "--id-episodes", "3", "--workers", "1",
+         "--out", str(tmp_path)], capture_output=True, text=True)
+    assert tables.returncode == 0, tables.stderr
+    detected = report["monitor"]["ensemble/trial0/cartpole:length=2.0"]["detection_rate"]
+    alarm_row = next(line for line in tables.stdout.splitlines() if "cartpole:length=2.0" in line and "%" in line)
+    assert f"{detected:.0%}" in alarm_row
+    id_row = next(line for line in tables.stdout.splitlines() if "│ cartpole " in line)
+    assert f"{report['monitor']['ensemble/trial0/cartpole']['false_alarm_rate']:.0%}" in id_row
+
+
+def test_alarms_are_averaged_over_the_trials_that_have_them():
+    from oodmon.bench import BenchResult, alarms_per_variant
+
+    detection = {
+        "dropout/trial0/cartpole": {"false_alarm_rate": 0.0, "detection_rate": None, "delay_mean": None},
+        "dropout/trial1/cartpole": {"false_alarm_rate": 0.5, "detection_rate": None, "delay_mean": None},
+        "dropout/trial0/cartpole:length=2.0": {"false_alarm_rate": None, "detection_rate": 1.0, "delay_mean": 10.0},
+        "dropout/trial1/cartpole:length=2.0": {"false_alarm_rate": None, "detection_rate": 0.0, "delay_mean": None},
+    }
+    assert alarms_per_variant(BenchResult([], {}, detection)) == [
+        ("dropout", "cartpole", 0.25, None, None),
+        ("dropout", "cartpole:length=2.0", None, 0.5, 10.0),
+    ]
 
 
 def test_ray_executor_gives_the_same_logs_numbers_as_local_processes(tmp_path):
