@@ -72,12 +72,15 @@ def test_step_before_begin_episode_is_an_error(agent):
 
 def test_calibrated_threshold_keeps_its_false_alarm_rate_on_fresh_id_episodes():
     # 19 calibration episodes at far = 0.2 (rank ceil(20 * 0.8) = 16), then 60 fresh ID episodes.
-    agent = load("cartpole", "dropout")
+    # Seeded MC sampling: the same numbers every run (unseeded, this test failed now and then).
+    agent = load("cartpole", "dropout", seed=0)
     threshold = calibrate_agent(agent, 19, far=0.2, consecutive=3)
     fresh = id_episode_scores(agent, 60, seed=500_000)
     rate = np.mean([episode_statistic(s, 3) > threshold.value for s in fresh])
-    # Binomial(60, <= 0.2): P(rate > 0.2 + 2.6 sigma) < 1%, with sigma = sqrt(0.2 * 0.8 / 60) = 0.052.
-    assert rate <= 0.2 + 2.6 * 0.052
+    # The guarantee is over calibrations: given one, the false-alarm rate is Beta(4, 16) (mean 0.2,
+    # std 0.087), and 60 episodes add binomial noise (std 0.052): 0.2 + 2.6 * 0.101 is above the
+    # rate of all but about 1% of (calibration, fresh episodes) draws.
+    assert rate <= 0.2 + 2.6 * 0.101
     assert threshold.n_episodes == 19 and threshold.n_steps == 19 * 500
 
 
