@@ -32,10 +32,14 @@ def test_shipped_agent_solves_its_task_and_reproduces_its_id_episodes(name):
     assert meta["task"] == task and meta["method"] == method
     assert meta["id_episodes"] == 20 and meta["id_return_mean"] >= SOLVED[task]
     assert meta["id_return_mean"] == pytest.approx(np.mean(meta["id_returns"]), abs=0.01)
-    # The first episodes of the ID evaluation, replayed with the same seeds, give the same returns.
+    # The first episodes of the ID evaluation, replayed with the same seeds, give the same returns:
+    # bit for bit on one machine; across CPUs within 1%, since float kernels differ in their last
+    # bits (AVX-512 against AVX2) and Pendulum's swing-up amplifies that (measured: 0.2%).
     replay = load(task, method, seed=meta["seed"])
     returns = episode_returns(replay.act, Variant(task), 3, seed=100_000)
-    np.testing.assert_allclose(returns, meta["id_returns"][:3], atol=0.01)
+    again = episode_returns(load(task, method, seed=meta["seed"]).act, Variant(task), 3, seed=100_000)
+    np.testing.assert_array_equal(returns, again)
+    np.testing.assert_allclose(returns, meta["id_returns"][:3], rtol=0.01, atol=0.01)
     assert agent.estimator.n_samples == (5 if method == "ensemble" else 20)
 
 
