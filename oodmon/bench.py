@@ -62,6 +62,7 @@ class BenchConfig:
     train_steps: int | None = None  # override the recipes' steps for trials > 0 (smoke tests)
     executor: str = "local"  # "local" (worker processes) or "ray" (tasks on a Ray cluster)
     address: str | None = None  # the Ray cluster; None starts a local one
+    bind: str = "127.0.0.1"  # the address a local Ray cluster listens on: loopback unless opened on purpose
 
     def variant_list(self) -> list[Variant]:
         if self.variants == "paper":
@@ -212,14 +213,9 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
         return
     if config.executor != "ray":
         raise ConfigError(f"executor={config.executor!r} is not allowed; use 'local' or 'ray'")
-    try:
-        import ray
-    except ImportError:
-        raise ConfigError("--executor ray needs Ray: pip install 'oodmon[ray]'") from None
-    started = not ray.is_initialized()
-    if started:
-        ray.init(address=config.address, num_cpus=None if config.address else workers, include_dashboard=False,
-                 logging_level="ERROR", log_to_driver=False)
+    started = _start_ray(config, workers)
+    import ray
+
     try:
         remote = ray.remote(num_cpus=1)(_run_cell)
         pending = [remote.remote(*job) for job in jobs]
@@ -229,6 +225,33 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
     finally:
         if started:
             ray.shutdown()
+
+
+def _start_ray(config: BenchConfig, workers: int) -> bool:
+    """Connect to ``config.address``, or start a local Ray cluster whose servers listen on
+    ``config.bind`` only (loopback by default; Ray would otherwise listen on every interface).
+    True where this call started Ray (and so must shut it down)."""
+    import os
+
+    loopback = config.address is None and config.bind in ("127.0.0.1", "localhost")
+    if loopback:
+        # Ray turns a loopback node address into the machine's external one unless it runs as a
+        # single-machine cluster; this setting (read when ray is imported, and by its workers)
+        # keeps every server of the local cluster on 127.0.0.1.
+        os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"
+    try:
+        import ray
+        import ray._private.ray_constants as ray_constants
+    except ImportError:
+        raise ConfigError("--executor ray needs Ray: pip install 'oodmon[ray]'") from None
+    if ray.is_initialized():
+        return False
+    if loopback:
+        ray_constants.ENABLE_RAY_CLUSTER = False  # where ray was imported before the setting
+    options = {} if config.address or loopback else {"_node_ip_address": config.bind}
+    ray.init(address=config.address, num_cpus=None if config.address else workers, include_dashboard=False,
+             logging_level="ERROR", log_to_driver=False, **options)
+    return True
 
 
 def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path) -> None:

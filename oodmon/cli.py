@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
@@ -24,31 +24,92 @@ __all__ = ["main"]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the CLI with ``argv`` (default: ``sys.argv[1:]``); return the exit code."""
+    """Run the CLI with ``argv`` (default: ``sys.argv[1:]``); return the exit code.
+
+    Exit codes: 0 done, 1 a regression check found a fall, 2 input that cannot be used (one line
+    on stderr), 130 interrupted (Ctrl-C; the logs keep every finished episode).
+    """
     parser = _parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exit:  # --help, --version, or a bad flag (one line, from _Parser.error)
+        return exit.code if isinstance(exit.code, int) else 2
     if not hasattr(args, "handler"):
         parser.print_help()
         return 2
-    try:
-        _limit_torch_threads()
-        return args.handler(args) or 0
-    except (OodmonError, OSError) as error:
-        print(f"oodmon: error: {error}", file=sys.stderr)
-        return 2
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            _limit_torch_threads()
+            return args.handler(args) or 0
+        except (OodmonError, OSError) as error:
+            print(f"oodmon: error: {error}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            print("oodmon: interrupted; every finished episode is in the logs, the cut one is marked interrupted",
+                  file=sys.stderr)
+            return 130
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings in the terminal as one line each, without the source line Python would show."""
+    print(f"oodmon: warning: {message}", file=sys.stderr)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a bad flag reported in one line (the usage is one ``--help`` away)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _whole(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+    """An argparse type: a whole number in [minimum, maximum]."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if value < minimum or (maximum is not None and value > maximum):
+            allowed = f">= {minimum}" if maximum is None else f"from {minimum} to {maximum}"
+            raise argparse.ArgumentTypeError(f"{value} is not allowed; give a whole number {allowed}")
+        return value
+
+    return parse
+
+
+def _number(test: Callable[[float], bool], allowed: str) -> Callable[[str], float]:
+    """An argparse type: a number for which ``test`` holds (``allowed`` says which, for the message)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not test(value):
+            raise argparse.ArgumentTypeError(f"{text} is not allowed; give {allowed}")
+        return value
+
+    return parse
+
+
+_fraction = _number(lambda x: 0.0 < x < 1.0, "a number between 0 and 1 (exclusive)")
+_non_negative = _number(lambda x: 0.0 <= x < float("inf"), "a finite number >= 0")
+_SEED = _whole(0, 2**32 - 1)
 
 
 def _limit_torch_threads() -> None:
     """Honour ``OODMON_TORCH_THREADS`` in every command (the monitor, calibration and bench as much
     as training), so that a job run beside a training keeps to its share of the cores."""
-    value = os.environ.get("OODMON_TORCH_THREADS")
-    if value is None:
+    from oodmon.threads import torch_threads
+
+    threads = torch_threads()
+    if threads is None:
         return
-    if not value.isdigit() or int(value) < 1:
-        raise ConfigError(f"OODMON_TORCH_THREADS must be a whole number >= 1, not {value!r}")
     import torch
 
-    torch.set_num_threads(int(value))
+    torch.set_num_threads(threads)
 
 
 def _table_console() -> Console:
@@ -59,7 +120,7 @@ def _table_console() -> Console:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="oodmon",
         description="Tells when a deployed RL policy has left the world it was trained in.",
     )
@@ -82,8 +143,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     show.add_argument("spec", help="a variant spec, e.g. pong:pixelate@3 or cartpole:length=2.0")
     show.add_argument("--out", help="write the picture to this PNG file")
-    show.add_argument("--seed", type=int, default=0, help="seed of the episode shown (default 0)")
-    show.add_argument("--onset", type=int, default=0, help="step at which the shift begins (physics; default 0)")
+    show.add_argument("--seed", type=_SEED, default=0, help="seed of the episode shown (default 0)")
+    show.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (physics; default 0)")
     show.set_defaults(handler=_envs_show)
     tour = envs_commands.add_parser("tour", help="what the envs change, shown with a hand-written controller")
     tour.add_argument("--out", default="runs/tour", help="folder for the pictures (default runs/tour)")
@@ -94,11 +155,14 @@ def _parser() -> argparse.ArgumentParser:
     )
     train.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
     train.add_argument("--method", required=True, choices=["dropout", "dropconnect", "ensemble"])
-    train.add_argument("--seed", type=int, default=0, help="the trial's seed (default 0)")
+    train.add_argument("--seed", type=_SEED, default=0, help="the trial's seed (default 0)")
     train.add_argument("--out", required=True, help="training directory; the same command resumes it")
-    train.add_argument("--steps", type=int, help="override the recipe's training steps per run")
+    train.add_argument("--steps", type=_whole(1), help="override the recipe's training steps per run")
     train.add_argument("--export-only", action="store_true",
                        help="do not train: export the best checkpoint so far of an unfinished training")
+    train.add_argument("--unsafe-load-pickles", action="store_true",
+                       help="resume from an older training's checkpoint.zip and replay_buffer.pkl; these are "
+                            "pickles, and loading one runs the code it holds: only for files you made yourself")
     train.set_defaults(handler=_train)
 
     evaluate = commands.add_parser(
@@ -110,8 +174,8 @@ def _parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--model", help="a trained model directory instead of a shipped agent")
     evaluate.add_argument("--variants", default="paper",
                           help="'paper' (the paper's grid) or comma-separated specs (default paper)")
-    evaluate.add_argument("--episodes", type=int, default=5, help="episodes per variant (default 5)")
-    evaluate.add_argument("--fail-fraction", type=float, default=0.5,
+    evaluate.add_argument("--episodes", type=_whole(1), default=5, help="episodes per variant (default 5)")
+    evaluate.add_argument("--fail-fraction", type=_fraction, default=0.5,
                           help="fails below this fraction of the ID gain over a random policy (default 0.5)")
     evaluate.add_argument("--json", action="store_true", help="print JSON instead of a table")
     evaluate.set_defaults(handler=_evaluate)
@@ -120,10 +184,10 @@ def _parser() -> argparse.ArgumentParser:
         "calibrate", help="calibrate an agent's alarm threshold on held-out in-distribution episodes"
     )
     _agent_arguments(calibrate)
-    calibrate.add_argument("--episodes", type=int, default=50, help="ID calibration episodes (default 50)")
-    calibrate.add_argument("--far", type=float, default=0.05, help="target false-alarm rate (default 0.05)")
-    calibrate.add_argument("--consecutive", type=int, default=3, help="m of the alarm rule (default 3)")
-    calibrate.add_argument("--window", type=int, default=1,
+    calibrate.add_argument("--episodes", type=_whole(1), default=50, help="ID calibration episodes (default 50)")
+    calibrate.add_argument("--far", type=_fraction, default=0.05, help="target false-alarm rate (default 0.05)")
+    calibrate.add_argument("--consecutive", type=_whole(1), default=3, help="m of the alarm rule (default 3)")
+    calibrate.add_argument("--window", type=_whole(1), default=1,
                            help="compare the mean score of the last N steps (default 1: each step's; Pong: try 100)")
     calibrate.add_argument("--mode", choices=["episode", "step"], default="episode",
                            help="guarantee per episode (default) or per step")
@@ -134,9 +198,9 @@ def _parser() -> argparse.ArgumentParser:
     run = commands.add_parser("run", help="run a monitored agent in an env (ID or shifted), logging to MCAP/Rerun")
     _agent_arguments(run)
     run.add_argument("--variant", help="a variant spec (default: the task's ID env)")
-    run.add_argument("--onset", type=int, default=0, help="step at which the shift begins (default 0)")
-    run.add_argument("--episodes", type=int, default=5, help="episodes (default 5)")
-    run.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
+    run.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (default 0)")
+    run.add_argument("--episodes", type=_whole(1), default=5, help="episodes (default 5)")
+    run.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode (default 0)")
     run.add_argument("--threshold", help="a threshold file from `oodmon calibrate` (default: no alarms)")
     run.add_argument("--mcap", help="write the run to this MCAP file")
     run.add_argument("--rrd", help="write the run to this Rerun file")
@@ -144,6 +208,11 @@ def _parser() -> argparse.ArgumentParser:
     live.add_argument("--spawn", action="store_true", help="stream to a Rerun viewer started for it")
     live.add_argument("--serve", action="store_true", help="serve the stream for a remote Rerun viewer")
     live.add_argument("--connect", metavar="URL", help="stream to a running Rerun viewer at URL")
+    run.add_argument("--bind", default="127.0.0.1",
+                     help="address --serve listens on (default 127.0.0.1: this machine only; 0.0.0.0 opens it)")
+    run.add_argument("--port", type=_whole(1, 65535), default=9876, help="port --serve listens on (default 9876)")
+    run.add_argument("--force", action="store_true",
+                     help="use a threshold calibrated for another task, method, score or weights (with a warning)")
     run.add_argument("--strict", action="store_true", help="a failing sink stops the run instead of warning")
     run.set_defaults(handler=_run)
 
@@ -160,24 +229,26 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument("logs", nargs="+", help="MCAP files, or folders holding them")
     check.add_argument("--baseline", required=True, help="the baseline JSON file")
     check.add_argument("--update", action="store_true", help="write the baseline from these logs instead")
-    check.add_argument("--tolerance", type=float, help="allowed fall (default: the baseline's, else 0.02)")
+    check.add_argument("--tolerance", type=_non_negative, help="allowed fall (default: the baseline's, else 0.02)")
     check.set_defaults(handler=_check)
 
     bench = commands.add_parser("bench", help="the paper's protocol: trials x methods x failing variants, scored by replay")
     bench.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
     bench.add_argument("--methods", default="dropout,dropconnect,ensemble", help="comma-separated (default all three)")
-    bench.add_argument("--trials", type=int, default=5, help="trials per method (default 5; trial 0 is the zoo agent)")
+    bench.add_argument("--trials", type=_whole(1), default=5, help="trials per method (default 5; trial 0 is the zoo agent)")
     bench.add_argument("--variants", default="paper", help="'paper' (the paper's grid) or comma-separated specs")
-    bench.add_argument("--episodes", type=int, default=5, help="episodes per failing variant (default 5)")
-    bench.add_argument("--id-episodes", type=int, default=10, help="ID episodes per trial (default 10)")
-    bench.add_argument("--workers", type=int, default=0, help="worker processes for the cells (default: all cores)")
+    bench.add_argument("--episodes", type=_whole(1), default=5, help="episodes per failing variant (default 5)")
+    bench.add_argument("--id-episodes", type=_whole(1), default=10, help="ID episodes per trial (default 10)")
+    bench.add_argument("--workers", type=_whole(0), default=0, help="worker processes for the cells (default: all cores)")
     bench.add_argument("--score", default="chosen_std",
                        help="chosen_std (the paper's, default), mean_std, max_std or pre_squash_std (DDPG)")
-    bench.add_argument("--window", type=int, default=1,
+    bench.add_argument("--window", type=_whole(1), default=1,
                        help="alarm rule on the mean score of the last N steps (default 1); AUROCs do not change")
     bench.add_argument("--executor", choices=["local", "ray"], default="local",
                        help="local worker processes (default) or Ray tasks (needs oodmon[ray])")
     bench.add_argument("--address", help="the Ray cluster to use (default: start a local one)")
+    bench.add_argument("--bind", default="127.0.0.1",
+                       help="address a local Ray cluster listens on (default 127.0.0.1: this machine only)")
     bench.add_argument("--out", default="runs/bench", help="models, logs and report (default runs/bench)")
     bench.add_argument("--json", action="store_true", help="print JSON instead of tables")
     bench.set_defaults(handler=_bench)
@@ -223,6 +294,10 @@ def _envs_show(args: argparse.Namespace) -> int:
     from oodmon.envs.preview import compare_physics, pong_preview, save_physics_plot, save_rgb
 
     variant = parse_variant(args.spec)
+    if args.out:
+        from oodmon.outputs import check_output_file
+
+        check_output_file(args.out, parameter="--out")
     console = Console(soft_wrap=True)
     if variant.task == "pong":
         image = pong_preview(variant, seed=args.seed)
@@ -275,7 +350,9 @@ def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[..., No
 
 def _train(args: argparse.Namespace) -> int:
     from oodmon.agents.training import train
+    from oodmon.outputs import check_output_dir
 
+    check_output_dir(args.out, parameter="--out")
     command = "oodmon " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("oodmon") else ""
     with _progress(unit="steps", transient=False) as report_progress:
 
@@ -283,7 +360,7 @@ def _train(args: argparse.Namespace) -> int:
             report_progress(f"{args.task}/{args.method} {run}", done, total, unit)
 
         agent = train(args.task, args.method, args.out, seed=args.seed, total_steps=args.steps, report=report,
-                      export_only=args.export_only,
+                      export_only=args.export_only, load_pickles=args.unsafe_load_pickles,
                       command=command or f"oodmon train --task {args.task} --method {args.method} --seed {args.seed}")
     meta = agent.metadata
     Console(soft_wrap=True).print(
@@ -304,7 +381,9 @@ def _calibrate(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from oodmon.monitor import calibrate_agent
+    from oodmon.outputs import check_output_file
 
+    check_output_file(args.out, parameter="--out", inputs=[("--model", args.model and f"{args.model}/model.json")])
     agent = _load_agent(args)
     with Progress(console=Console(stderr=True), transient=True) as progress:
         bar = progress.add_task("ID calibration episodes", total=args.episodes)
@@ -327,16 +406,25 @@ def _run(args: argparse.Namespace) -> int:
     from oodmon.monitor import McapSink, Monitor, Threshold
     from oodmon.monitor.sinks.rerun import RerunSink
 
-    agent = _load_agent(args)
+    from oodmon.outputs import check_output_file
+
     variant = parse_variant(args.variant) if args.variant else Variant(args.task)
     if variant.task != args.task:
         raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant")
+    inputs = [("--threshold", args.threshold), ("--model", args.model and f"{args.model}/model.safetensors"),
+              ("--model", args.model and f"{args.model}/model.json")]
+    if args.mcap:
+        check_output_file(args.mcap, parameter="--mcap", inputs=inputs)
+    if args.rrd:
+        check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
     threshold = Threshold.load(args.threshold) if args.threshold else None
+    agent = _load_agent(args)
     sinks = []
     if args.mcap:
         sinks.append(McapSink(args.mcap))
     if args.rrd or args.spawn or args.serve or args.connect:
-        sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect))
+        sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect,
+                               bind=args.bind, port=args.port))
     console = Console(soft_wrap=True)
     alarm_lines = []
 
@@ -348,7 +436,9 @@ def _run(args: argparse.Namespace) -> int:
     env = variant.make(onset_step=args.onset)
     records = []
     with Progress(console=console, transient=True) as progress, \
-            Monitor(agent, threshold, sinks=sinks, callbacks=[show], strict=args.strict) as monitor:
+            Monitor(agent, threshold, sinks=sinks, callbacks=[show], strict=args.strict, force=args.force) as monitor:
+        if args.serve:
+            progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")
         bar = progress.add_task(f"{variant.spec} (onset {args.onset})", total=args.episodes)
         for episode in range(args.episodes):
             records.append(monitor.run_episode(env, seed=args.seed + episode, variant=variant.spec))
@@ -370,32 +460,33 @@ def _run(args: argparse.Namespace) -> int:
                       str(record.alarms), "" if record.first_alarm_step is None else str(record.first_alarm_step), delay)
     console.print(table)
     alarmed = sum(r.alarms > 0 for r in records)
+    failed = {"McapSink": args.mcap, "RerunSink": args.rrd}
+    written = [str(p) for name, p in failed.items() if p and name not in failures]
     console.print(f"{alarmed} of {len(records)} episodes raised an alarm"
-                  + (f"; written to {', '.join(str(p) for p in (args.mcap, args.rrd) if p)}" if args.mcap or args.rrd else ""))
+                  + (f"; written to {', '.join(written)}" if written else ""))
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
     return 0
 
 
 def _read_logs(paths: Sequence[str]):
-    from pathlib import Path
+    from oodmon.replay import read_logs
 
-    from oodmon.errors import LogFormatError
-    from oodmon.replay import read_log
-
-    files = []
-    for name in paths:
-        path = Path(name)
-        found = sorted(path.rglob("*.mcap")) if path.is_dir() else [path]
-        if path.is_dir() and not found:
-            raise LogFormatError(f"{path} holds no .mcap files")
-        files.extend(found)
-    return [read_log(f) for f in files]
+    logs = read_logs(paths)
+    interrupted = sum(len(log.interrupted) for log in logs)
+    if interrupted:
+        print(f"oodmon: note: {interrupted} interrupted episode(s) (runs stopped inside them) are left out of the "
+              "metrics", file=sys.stderr)
+    return logs
 
 
 def _replay(args: argparse.Namespace) -> int:
     from oodmon.replay import compute_metrics, to_csv, to_json, to_markdown, to_table
 
+    if args.plots:
+        from oodmon.outputs import check_output_dir
+
+        check_output_dir(args.plots, parameter="--plots")
     logs = _read_logs(args.logs)
     metrics = compute_metrics(logs)
     if args.plots:
@@ -418,8 +509,14 @@ def _replay(args: argparse.Namespace) -> int:
 def _check(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from oodmon.outputs import check_output_file
     from oodmon.replay import baseline_of, compute_metrics, find_falls, load_baseline
 
+    if args.update:
+        check_output_file(args.baseline, parameter="--baseline", inputs=[("a log", log) for log in args.logs])
+        baseline = None
+    else:
+        baseline = load_baseline(args.baseline)  # before the logs: a bad baseline fails at once
     metrics = compute_metrics(_read_logs(args.logs))
     console = Console(soft_wrap=True)
     if args.update:
@@ -427,7 +524,7 @@ def _check(args: argparse.Namespace) -> int:
         Path(args.baseline).write_text(json.dumps(baseline_of(metrics, tolerance), indent=1) + "\n")
         console.print(f"wrote {args.baseline}: {len(metrics)} rows, tolerance {tolerance}")
         return 0
-    falls = find_falls(metrics, load_baseline(args.baseline), args.tolerance)
+    falls = find_falls(metrics, baseline, args.tolerance)
     if falls:
         for line in falls:
             print(f"FELL {line}", file=sys.stderr)
@@ -448,9 +545,12 @@ def _bench(args: argparse.Namespace) -> int:
             raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
     variants = "paper" if args.variants == "paper" else tuple(args.variants.split(","))
     config = BenchConfig(args.task, methods, args.trials, variants, args.episodes, args.id_episodes, out=args.out,
-                         workers=args.workers, executor=args.executor, address=args.address, score=args.score,
+                         workers=args.workers, executor=args.executor, address=args.address, bind=args.bind, score=args.score,
                          window=args.window)
     config.variant_list()  # refuse bad specs before any work
+    from oodmon.outputs import check_output_dir
+
+    check_output_dir(args.out, parameter="--out")
     with _progress(unit="done") as report:
         result = run_bench(config, on_progress=report)
     if args.json:
@@ -549,6 +649,9 @@ def _evaluate(args: argparse.Namespace) -> int:
 def _envs_tour(args: argparse.Namespace) -> int:
     from oodmon.demo import run_env_tour
 
+    from oodmon.outputs import check_output_dir
+
+    check_output_dir(args.out, parameter="--out")
     run_env_tour(args.out)
     return 0
 
@@ -556,6 +659,9 @@ def _envs_tour(args: argparse.Namespace) -> int:
 def _demo(args: argparse.Namespace) -> int:
     from oodmon.demo import run_demo
 
+    from oodmon.outputs import check_output_dir
+
+    check_output_dir(args.out, parameter="--out")
     run_demo(args.out)
     return 0
 

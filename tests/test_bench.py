@@ -50,6 +50,11 @@ def test_bench_end_to_end_and_resume(tmp_path):
     weights_file = tmp_path / "models/cartpole-dropout-trial1/model.safetensors"
     tensors = load_file(str(weights_file))
     save_file({k: v * 1.01 if v.is_floating_point() else v for k, v in tensors.items()}, str(weights_file))
+    import hashlib
+
+    metadata = json.loads((weights_file.parent / "model.json").read_text())  # as a retraining writes it
+    metadata["safetensors_sha256"] = hashlib.sha256(weights_file.read_bytes()).hexdigest()
+    (weights_file.parent / "model.json").write_text(json.dumps(metadata))
     old_threshold = (tmp_path / "logs/cartpole/dropout/trial1/threshold-chosen_std.json").read_text()
     run_bench(config)
     set_aside = list((tmp_path / "set-aside").glob("weights-*/logs/cartpole/dropout/trial1/threshold-chosen_std.json"))
@@ -136,3 +141,20 @@ def test_paper_variants_without_our_auroc_are_only_those_the_bench_ran():
     assert paper_only_variants(result, "cartpole", ["ensemble"], ran=["cartpole:length=2.0"]) == []
     ran = ["cartpole:length=2.0", "cartpole:gravity=98.0"]
     assert [label for _, label, _ in paper_only_variants(result, "cartpole", ["ensemble"], ran=ran)] == ["gravity=98.0"]
+
+
+def test_a_local_ray_cluster_listens_on_loopback_only(tmp_path):
+    import ray
+
+    from oodmon.bench import _start_ray
+    from tests.monitor.test_sinks import _listening
+
+    before = _listening()
+    started = _start_ray(BenchConfig("cartpole", ("dropout",), 1, ("cartpole:length=2.0",), 1, 1, out=str(tmp_path),
+                                     executor="ray"), workers=1)
+    try:
+        new = _listening() - before
+        assert started and new and {address for address, _ in new} == {"127.0.0.1"}
+        assert ray.nodes()[0]["NodeManagerAddress"] == "127.0.0.1"
+    finally:
+        ray.shutdown()

@@ -1,19 +1,23 @@
 """The model format: ``model.safetensors`` (tensors only) beside ``model.json`` (metadata).
 
-Loading never unpickles: safetensors holds raw tensors, JSON holds the rest. A file that is
-damaged, belongs to another task, or does not match the architecture its metadata describes
-gives a :class:`~oodmon.errors.ModelFormatError` saying which and what to do.
+Loading never unpickles: safetensors holds raw tensors, JSON holds the rest. ``model.json``
+records the sha256 of ``model.safetensors`` (``safetensors_sha256``) and loading checks it, so
+flipped bytes (a bad copy, a tampered file) fail loudly instead of loading as a worse agent. A
+file that is damaged, belongs to another task, or does not match the architecture its metadata
+describes gives a :class:`~oodmon.errors.ModelFormatError` saying which and what to do.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import warnings
 from pathlib import Path
 from typing import Any
 
 import torch
 from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load, save_file
 
 from oodmon.agents.networks import build_modules
 from oodmon.errors import ModelFormatError
@@ -38,7 +42,8 @@ def save_modules(directory: str | Path, modules: torch.nn.Module, metadata: dict
         for name, t in modules.state_dict().items()
     }
     save_file(tensors, str(directory / "model.safetensors"))
-    metadata = {"format_version": FORMAT_VERSION, **metadata, "dtype": "float16" if half else "float32"}
+    metadata = {"format_version": FORMAT_VERSION, **metadata, "dtype": "float16" if half else "float32",
+                "safetensors_sha256": hashlib.sha256((directory / "model.safetensors").read_bytes()).hexdigest()}
     (directory / "model.json").write_text(json.dumps(metadata, indent=1, sort_keys=True) + "\n")
     return directory
 
@@ -68,16 +73,32 @@ def load_modules(directory: str | Path, *, task: str | None = None) -> tuple[tor
     """Load a saved model's modules (float32, eval mode) and its metadata.
 
     Raises:
-        ModelFormatError: missing or damaged files, another task's model, or tensors that do not
-            match the architecture in the metadata.
+        ModelFormatError: missing or damaged files (a sha256 other than the one ``model.json``
+            records), another task's model, or tensors that do not match the architecture in the
+            metadata.
+
+    Warns:
+        UserWarning: ``model.json`` records no sha256 (a model saved before oodmon recorded it):
+            the tensors cannot be checked. Save it again to add one.
     """
     directory = Path(directory)
     metadata = read_metadata(directory, task=task)
     path = directory / "model.safetensors"
     try:
-        tensors = load_file(str(path))
+        data = path.read_bytes()
+    except OSError as error:
+        raise ModelFormatError(f"{path} cannot be read ({error.strerror or error}); the file is missing") from None
+    expected = metadata.get("safetensors_sha256")
+    if expected is None:
+        warnings.warn(f"{directory / 'model.json'} records no safetensors_sha256: the tensors in {path} cannot be "
+                      "checked for damage", UserWarning, stacklevel=2)
+    elif hashlib.sha256(data).hexdigest() != expected:
+        raise ModelFormatError(f"{path} has sha256 {hashlib.sha256(data).hexdigest()[:16]}..., but model.json records "
+                               f"{str(expected)[:16]}...: the file is damaged or was changed; copy the model again")
+    try:
+        tensors = load(data)
     except (SafetensorError, OSError, ValueError) as error:
-        raise ModelFormatError(f"{path} cannot be read as safetensors ({error}); the file is missing or damaged") from None
+        raise ModelFormatError(f"{path} cannot be read as safetensors ({error}); the file is damaged") from None
     modules = build_modules(metadata["architecture"])
     expected = modules.state_dict()
     missing = sorted(set(expected) - set(tensors))

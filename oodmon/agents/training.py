@@ -2,10 +2,13 @@
 
 One loop for every task and method. A training directory holds::
 
-    runs/<run>/checkpoint.zip      SB3's own checkpoint (our file, so unpickling it is fine)
-    runs/<run>/replay_buffer.pkl   the replay buffer, so that a resumed run goes on where it was
-    runs/<run>/policy.safetensors  the last checkpoint's weights alone: small enough to commit, and
-                                   enough to resume (with a fresh buffer) where the two above are gone
+    runs/<run>/checkpoint.pt       weights, optimizer states and step counters: tensors and plain
+                                   numbers, read back with ``torch.load(weights_only=True)``
+    runs/<run>/replay_buffer.npz   the replay buffer as arrays (``np.load(allow_pickle=False)``), so
+                                   that a resumed run goes on where it was
+    runs/<run>/policy.safetensors  the last checkpoint's weights alone (fp16 for CNN recipes): small
+                                   enough to commit, and enough to resume (with a fresh buffer) where
+                                   the two above are gone
     runs/<run>/state.json          steps done, wall time, finished or not
     runs/<run>/best_policy.safetensors  the weights of the best evaluation so far
     runs/<run>/snapshots/<steps>.safetensors  the weights of every evaluation, for recipes that
@@ -18,6 +21,11 @@ One loop for every task and method. A training directory holds::
 ``<run>`` is ``main`` (MC methods, bootstrapped heads) or ``member<k>`` (independent ensemble
 members). Running the same command again resumes: finished runs are skipped, an interrupted run
 continues from its last checkpoint, and the final export is redone.
+
+Nothing in a training directory is unpickled: a crafted file there cannot run code. Older
+trainings kept SB3's ``checkpoint.zip`` and ``replay_buffer.pkl`` (pickles); they are ignored
+with a warning (the run resumes from ``policy.safetensors`` with a fresh buffer) unless
+``train(..., load_pickles=True)`` (``oodmon train --unsafe-load-pickles``) says the user trusts them.
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ import hashlib
 import json
 import os
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -48,6 +57,7 @@ from oodmon.agents.recipes import Recipe, recipe_for
 from oodmon.agents.serialization import save_modules
 from oodmon.envs.grid import ENV_IDS, Variant
 from oodmon.errors import ConfigError
+from oodmon.threads import torch_threads
 from oodmon.versions import library_versions
 
 __all__ = ["ID_EPISODES", "architecture", "train"]
@@ -62,6 +72,23 @@ ID_SEED, SELECTION_SEED = 100_000, 50_000
 #: ``report(run name, steps done, steps total)``; while choosing among snapshots (``Recipe.select_top``)
 #: ``report(name, episodes done, episodes total, "episodes")``.
 Reporter = Callable[..., None]
+
+
+#: The replay buffer's arrays that a checkpoint keeps (``next_observations`` is None where the
+#: buffer saves memory by reading the next observation from the following row, as Pong's does).
+_BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+#: The SB3 counters a resumed run must go on from (schedules, target updates, policy delay).
+_COUNTERS = ("num_timesteps", "_n_updates", "_episode_num", "_n_calls")
+
+
+def _load_pickled_checkpoint(recipe: Recipe, folder: Path, env: gymnasium.Env, *, with_buffer: bool) -> BaseAlgorithm:
+    """SB3's own ``checkpoint.zip`` and ``replay_buffer.pkl`` of an older training. These are pickles:
+    loading them runs whatever code they hold. Only ever called with ``load_pickles=True``."""
+    model = _algorithm_class(recipe).load(folder / "checkpoint.zip", env=env, device="cpu")
+    buffer = folder / "replay_buffer.pkl"
+    if with_buffer and buffer.exists():
+        model.load_replay_buffer(buffer)
+    return model
 
 
 def architecture(recipe: Recipe, env: gymnasium.Env) -> dict[str, Any]:
@@ -151,17 +178,28 @@ class _Run:
     def finished(self) -> bool:
         return bool(self.state["finished"])
 
-    def load_or_create(self, env: gymnasium.Env, *, with_buffer: bool = True) -> BaseAlgorithm:
+    def load_or_create(self, env: gymnasium.Env, *, with_buffer: bool = True,
+                       load_pickles: bool = False) -> BaseAlgorithm:
         """The full checkpoint if there is one; else the last weights (``policy.safetensors``, small
-        enough to commit) with a fresh buffer and optimizer; else a new model."""
-        checkpoint = self.folder / "checkpoint.zip"
-        if checkpoint.exists():
-            model = _algorithm_class(self.recipe).load(checkpoint, env=env, device="cpu")
-            buffer = self.folder / "replay_buffer.pkl"
-            if with_buffer and buffer.exists():
-                model.load_replay_buffer(buffer)
-            return model
+        enough to commit) with a fresh buffer and optimizer; else a new model. Legacy pickled
+        checkpoints are read only with ``load_pickles``."""
+        legacy = self.folder / "checkpoint.zip"
+        if legacy.exists() and not (self.folder / "checkpoint.pt").exists():
+            if load_pickles:
+                return _load_pickled_checkpoint(self.recipe, self.folder, env, with_buffer=with_buffer)
+            warnings.warn(f"{legacy} (and replay_buffer.pkl) are pickles, which oodmon does not load: a crafted one "
+                          "runs code. Resuming from policy.safetensors with a fresh buffer instead; pass "
+                          "--unsafe-load-pickles to load them if you made them yourself", UserWarning, stacklevel=2)
         model = _new_model(self.recipe, env, self.seed)
+        checkpoint = self.folder / "checkpoint.pt"
+        if checkpoint.exists():
+            saved = torch.load(checkpoint, map_location="cpu", weights_only=True)  # tensors and numbers only
+            model.set_parameters(saved["parameters"], exact_match=True, device="cpu")
+            for name, value in saved["counters"].items():
+                setattr(model, name, int(value))
+            if not (with_buffer and self._load_buffer(model)):
+                self._refill(model)
+            return model
         weights = self.folder / "policy.safetensors"
         if weights.exists() and self.state["steps"] > 0:
             model.policy.load_state_dict(load_file(str(weights)), strict=False)
@@ -169,16 +207,36 @@ class _Run:
                 if hasattr(model.policy, target):
                     getattr(model.policy, target).load_state_dict(getattr(model.policy, online).state_dict())
             model.num_timesteps = int(self.state["steps"])
-            # Refill the empty replay buffer before learning again.
-            model.learning_starts = model.num_timesteps + self.recipe.hyperparams.get("learning_starts", 0)
+            self._refill(model)
         return model
 
-    def train(self, report: Reporter, *, export_only: bool = False) -> BaseAlgorithm:
+    def _refill(self, model: BaseAlgorithm) -> None:
+        """Fill the empty replay buffer again before learning goes on."""
+        model.learning_starts = model.num_timesteps + self.recipe.hyperparams.get("learning_starts", 0)
+
+    def _load_buffer(self, model: BaseAlgorithm) -> bool:
+        """Put ``replay_buffer.npz`` into ``model``'s buffer; False where it is missing or belongs to
+        another checkpoint (a kill between the two writes)."""
+        path = self.folder / "replay_buffer.npz"
+        if not path.exists():
+            return False
+        buffer = model.replay_buffer
+        with np.load(path, allow_pickle=False) as data:
+            if int(data["num_timesteps"]) != model.num_timesteps:
+                return False
+            size = int(data["size"])
+            for name in _BUFFER_ARRAYS:
+                if name in data.files:
+                    getattr(buffer, name)[:size] = data[name]
+            buffer.pos, buffer.full = int(data["pos"]), bool(data["full"])
+        return True
+
+    def train(self, report: Reporter, *, export_only: bool = False, load_pickles: bool = False) -> BaseAlgorithm:
         self._started = time.monotonic()  # wall time counts from here: members train one after another
         env = _training_env(self.recipe)
         if export_only and self.state["steps"] == 0:
             raise ConfigError(f"nothing to export in {self.folder}: no checkpoint yet; train first")
-        model = self.load_or_create(env, with_buffer=not export_only)
+        model = self.load_or_create(env, with_buffer=not export_only, load_pickles=load_pickles)
         report(self.name, model.num_timesteps, self.recipe.total_steps)
         if not self.finished and not export_only:
             remaining = self.recipe.total_steps - model.num_timesteps
@@ -191,14 +249,22 @@ class _Run:
 
     def checkpoint(self, model: BaseAlgorithm, *, finished: bool) -> None:
         # Write to temporary names and rename, so that a kill mid-write leaves the last good files.
-        for name, save in (("checkpoint.zip", model.save), ("replay_buffer.pkl", model.save_replay_buffer)):
-            if name == "replay_buffer.pkl" and finished:
-                (self.folder / name).unlink(missing_ok=True)  # not needed once the run is done
-                continue
-            temporary = self.folder / f"tmp-{name}"
-            save(temporary)
-            os.replace(temporary, self.folder / name)
-        save_file(_online_weights(model), str(self.folder / "tmp-policy.safetensors"))
+        counters = {name: int(getattr(model, name)) for name in _COUNTERS if hasattr(model, name)}
+        torch.save({"parameters": model.get_parameters(), "counters": counters}, self.folder / "tmp-checkpoint.pt")
+        os.replace(self.folder / "tmp-checkpoint.pt", self.folder / "checkpoint.pt")
+        if finished:
+            (self.folder / "replay_buffer.npz").unlink(missing_ok=True)  # not needed once the run is done
+        else:
+            buffer = model.replay_buffer
+            size = buffer.buffer_size if buffer.full else buffer.pos
+            arrays = {name: getattr(buffer, name)[:size] for name in _BUFFER_ARRAYS
+                      if isinstance(getattr(buffer, name, None), np.ndarray)}
+            with open(self.folder / "tmp-replay_buffer.npz", "wb") as f:
+                np.savez(f, size=size, pos=buffer.pos, full=buffer.full, num_timesteps=model.num_timesteps, **arrays)
+            os.replace(self.folder / "tmp-replay_buffer.npz", self.folder / "replay_buffer.npz")
+        for legacy in ("checkpoint.zip", "replay_buffer.pkl"):  # superseded: never to be unpickled by accident
+            (self.folder / legacy).unlink(missing_ok=True)
+        save_file(self._kept_weights(model), str(self.folder / "tmp-policy.safetensors"))
         os.replace(self.folder / "tmp-policy.safetensors", self.folder / "policy.safetensors")
         self.state.update(
             steps=int(model.num_timesteps), finished=finished,
@@ -219,13 +285,22 @@ class _Run:
             log.write(json.dumps(line) + "\n")
         best = self.state.get("best")
         if best is None or mean >= best["eval_return_mean"]:
-            save_file(_online_weights(model), str(self.folder / "best_policy.safetensors"))
+            save_file(self._kept_weights(model), str(self.folder / "best_policy.safetensors"))
             self.state["best"] = {"steps": steps, "eval_return_mean": mean}
         if self.recipe.select_top:
             (self.folder / "snapshots").mkdir(exist_ok=True)
-            weights = {k: v.half() if self.recipe.cnn and v.is_floating_point() else v
-                       for k, v in _online_weights(model).items()}  # as they would ship
-            save_file(weights, str(self.folder / "snapshots" / f"{steps}.safetensors"))
+            save_file(self._kept_weights(model), str(self.folder / "snapshots" / f"{steps}.safetensors"))
+
+    def _kept_weights(self, model: BaseAlgorithm) -> dict[str, torch.Tensor]:
+        """The policy's weights as the run keeps them on disk: without its target networks (copies,
+        made again on load), and in fp16 for CNN recipes, as they ship. The export rounds a CNN's
+        weights to fp16 anyway, so this changes no exported agent and halves the committed files;
+        resuming from ``policy.safetensors`` alone starts from weights rounded by at most 2**-11 of
+        their size, far less than the fresh replay buffer such a resume starts with."""
+        weights = {k: v.detach().contiguous() for k, v in model.policy.state_dict().items() if "_target" not in k}
+        if self.recipe.cnn:
+            weights = {k: v.half() if v.is_floating_point() else v for k, v in weights.items()}
+        return weights
 
     def candidates(self) -> list[dict[str, Any]]:
         """The ``select_top`` best evaluations whose weights are on disk, best first: their steps,
@@ -250,11 +325,6 @@ class _Run:
             model.policy.load_state_dict(load_file(str(path)), strict=False)
 
 
-def _online_weights(model: BaseAlgorithm) -> dict[str, torch.Tensor]:
-    """The policy's weights without its target networks (those are copies, made again on load)."""
-    return {k: v.detach().contiguous() for k, v in model.policy.state_dict().items() if "_target" not in k}
-
-
 def train(
     task: str,
     method: str,
@@ -266,6 +336,7 @@ def train(
     command: str = "",
     id_episodes: int | None = None,
     export_only: bool = False,
+    load_pickles: bool = False,
 ) -> Agent:
     """Train (or resume training) the ``task``/``method`` agent into ``out``; return it loaded.
 
@@ -279,6 +350,8 @@ def train(
         id_episodes: episodes behind ``id_return_mean`` (default :data:`ID_EPISODES` of the task).
         export_only: do not train; export the best checkpoint so far of an unfinished training
             (its metadata says ``training_complete: false``).
+        load_pickles: resume from an older training's pickled ``checkpoint.zip`` and
+            ``replay_buffer.pkl``. Loading a pickle runs the code it holds: only for files you made.
     """
     recipe = recipe_for(task, method)
     if total_steps is not None:
@@ -286,13 +359,13 @@ def train(
     root = Path(out)
     root.mkdir(parents=True, exist_ok=True)
     report = report or (lambda *args: None)
-    torch.set_num_threads(int(os.environ.get("OODMON_TORCH_THREADS", "1")))
+    torch.set_num_threads(torch_threads(default=1))
     independent = method == "ensemble" and not recipe.shared_torso
     runs = (
         [_Run(recipe, root, f"member{k}", 1000 * seed + k) for k in range(recipe.n_members)]
         if independent else [_Run(recipe, root, "main", seed)]
     )
-    models = [run.train(report, export_only=export_only) for run in runs]
+    models = [run.train(report, export_only=export_only, load_pickles=load_pickles) for run in runs]
 
     env = _training_env(recipe)
     arch = architecture(recipe, env)

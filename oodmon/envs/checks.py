@@ -12,7 +12,11 @@ from collections.abc import Iterable, Mapping
 
 from oodmon.errors import InvalidParameterError, UnknownParameterError
 
-__all__ = ["check_onset_step", "check_physics", "positive_number", "reject_unknown"]
+__all__ = ["PHYSICS_RANGE", "check_onset_step", "check_physics", "positive_number", "reject_unknown"]
+
+#: A physics parameter may be at most this many times its default, or this many times smaller (the
+#: paper's grid spans 0.05 to 20 times); further out the simulation overflows (``length=1e308``).
+PHYSICS_RANGE = 1000.0
 
 
 def reject_unknown(owner: str, given: Iterable[str], allowed: Iterable[str]) -> None:
@@ -103,4 +107,10 @@ def check_physics(owner: str, defaults: Mapping[str, float], overrides: Mapping[
     physics = dict(defaults)
     for name, value in overrides.items():
         physics[name] = positive_number(owner, name, value, defaults[name])
+        low, high = defaults[name] / PHYSICS_RANGE, defaults[name] * PHYSICS_RANGE
+        if not low <= physics[name] <= high:
+            raise InvalidParameterError(
+                f"{owner}: {name}={physics[name]!r} is not allowed; {name} must lie within {PHYSICS_RANGE:g} times "
+                f"its default {defaults[name]!r} either way ({low:g} to {high:g}): beyond, the simulation overflows"
+            )
     return physics

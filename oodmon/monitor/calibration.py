@@ -12,9 +12,10 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.envs.grid import Variant
-from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, check_window
-from oodmon.monitor.monitor import Monitor
-from oodmon.monitor.scores import DEFAULT_SCORE
+from oodmon.errors import InvalidParameterError
+from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE
+from oodmon.monitor.monitor import Monitor, policy_hash
+from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sinks.base import MemorySink
 from oodmon.monitor.threshold import Threshold, calibrate
 
@@ -43,8 +44,19 @@ def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SE
 def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int = DEFAULT_CONSECUTIVE,
                     mode: str = "episode", score: str = DEFAULT_SCORE, seed: int = CALIBRATION_SEED,
                     on_episode: Callable[[int], None] | None = None, window: int = 1) -> Threshold:
-    """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``)."""
-    check_window(window)  # before minutes of episodes
+    """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``).
+
+    Raises:
+        InvalidParameterError, ConfigError: a bad argument, or too few episodes for ``far``; all
+            checked before the first episode runs.
+    """
+    # Every argument is checked before minutes of episodes: a dry run of the calibration on
+    # placeholder scores raises what the real one would.
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
+    score_function(score)
+    steps = (consecutive if isinstance(consecutive, int) else 1) + (window if isinstance(window, int) else 1) - 1
+    calibrate([np.zeros(max(steps, 1))] * episodes, far, consecutive=consecutive, mode=mode, score=score, window=window)
     scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_episode=on_episode)
     return calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
-                     method=agent.method, window=window)
+                     method=agent.method, window=window, policy_hash=policy_hash(agent))

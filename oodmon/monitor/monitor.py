@@ -10,13 +10,17 @@ Three ways to use it:
   logs the policy's view of the step.
 
 A :class:`Monitor` is a context manager over a run: it opens its sinks on entry and closes them
-(finishing the files) on exit, also after an exception.
+(finishing the files) on exit, also after an exception. A monitor that is opened and never
+closed (a script that forgets ``close()``) is closed when the interpreter exits, so its files are
+finished all the same; an episode cut by an exception or Ctrl-C is logged as ``interrupted``.
 """
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -26,7 +30,7 @@ import numpy as np
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import UncertaintyEstimator
 from oodmon.errors import ConfigError
-from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, AlarmEvent, AlarmTracker
+from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, AlarmEvent, AlarmTracker, check_consecutive, check_window
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sinks.base import Sink, SinkGroup
@@ -40,7 +44,8 @@ __all__ = ["AlarmCallback", "Monitor", "MonitoredEnv"]
 AlarmCallback = Callable[[AlarmEvent], "bool | None"]
 
 
-def _policy_hash(agent: Agent | None) -> str:
+def policy_hash(agent: Agent | None) -> str:
+    """``sha256:<hex>`` of an agent's ``model.safetensors``, or ``"unknown"`` (no file behind it)."""
     if agent is None or agent.path is None:
         return "unknown"
     path = agent.path / "model.safetensors"
@@ -63,6 +68,11 @@ class Monitor:
         log_observations: put what the agent observed into the step records: vector observations
             as numbers, image observations (Pong) as the ``frame`` given to :meth:`step`. Off, the
             records carry scores only (calibration keeps no frames in memory).
+        force: use a :class:`Threshold` calibrated for another task, method, score or weights
+            anyway, with a warning (by default that is a :class:`~oodmon.errors.ConfigError`).
+
+    Raises:
+        ConfigError: the threshold was made for another policy or score (see ``force``).
 
     Example:
         >>> from oodmon.agents import load
@@ -86,12 +96,23 @@ class Monitor:
         callbacks: Sequence[AlarmCallback] = (),
         strict: bool = False,
         log_observations: bool = True,
+        force: bool = False,
     ) -> None:
         self.agent = policy if isinstance(policy, Agent) else None
         self.estimator = policy.estimator if isinstance(policy, Agent) else policy
+        self.policy_hash = policy_hash(self.agent)
         if isinstance(threshold, Threshold):
             if score is not None and score != threshold.score:
                 raise ConfigError(f"score={score!r} contradicts the threshold file's score {threshold.score!r}")
+            meta = self.agent.metadata if self.agent is not None else {}
+            differences = threshold.check_matches(task=meta.get("task"), method=meta.get("method"),
+                                                  score=threshold.score, policy_hash=self.policy_hash)
+            if differences and not force:
+                raise ConfigError(f"the threshold does not fit this policy: {'; '.join(differences)}; calibrate "
+                                  "one for it (or force its use: --force, Monitor(force=True))")
+            if differences:
+                warnings.warn(f"using a threshold that does not fit this policy: {'; '.join(differences)}",
+                              UserWarning, stacklevel=2)
             score, consecutive, value = threshold.score, threshold.consecutive, threshold.value
             window = threshold.window
         else:
@@ -99,7 +120,8 @@ class Monitor:
         self.threshold = value
         self.score_name = score or DEFAULT_SCORE
         self._score = score_function(self.score_name)
-        self.tracker = AlarmTracker(value, consecutive or DEFAULT_CONSECUTIVE, window or 1)
+        self.tracker = AlarmTracker(value, DEFAULT_CONSECUTIVE if consecutive is None else check_consecutive(consecutive),
+                                    1 if window is None else check_window(window))
         self.sinks = SinkGroup(list(sinks), strict=strict)
         self.callbacks = list(callbacks)
         self.log_observations = log_observations
@@ -114,16 +136,23 @@ class Monitor:
             meta = self.agent.metadata if self.agent is not None else {}
             self.sinks.open(RunInfo(
                 task=meta.get("task", "unknown"), method=meta.get("method", "unknown"), score=self.score_name,
-                threshold=self.threshold, rule=self.tracker.rule, policy_hash=_policy_hash(self.agent),
+                threshold=self.threshold, rule=self.tracker.rule, policy_hash=self.policy_hash,
                 versions=library_versions(),
             ))
             self._opened = True
+            atexit.register(self.close)
         return self
 
     def close(self) -> None:
+        """End a running episode (as interrupted) and finish the sinks' files. Idempotent."""
         if self._opened:
-            self.sinks.close()
-            self._opened = False
+            atexit.unregister(self.close)
+            try:
+                if self._in_episode:
+                    self.end_episode(interrupted=True)
+            finally:
+                self.sinks.close()
+                self._opened = False
 
     def __enter__(self) -> Monitor:
         return self.open()
@@ -161,6 +190,7 @@ class Monitor:
             mean=estimate.mean[0].tolist(), std=estimate.std[0].tolist(), score=score, threshold=self.threshold,
             alarm=alarm, shifted=bool(shifted), observation=observation, frame=frame,
         ))
+        self._length += 1  # the step is logged: it counts, whatever a callback below does
         if event is not None:
             self._alarms += 1
             if self._first_alarm is None:
@@ -169,15 +199,16 @@ class Monitor:
             for callback in self.callbacks:
                 if callback(event):
                     self.stop_requested = True
-        self._length += 1
         return action
 
     def add_reward(self, reward: float) -> None:
         self._return += float(reward)
 
-    def end_episode(self) -> EpisodeRecord:
+    def end_episode(self, *, interrupted: bool = False) -> EpisodeRecord:
+        """Close the running episode and log its record. ``interrupted``: the run was stopped inside
+        it (an exception, Ctrl-C), so it did not end by itself; replay leaves it out of metrics."""
         record = EpisodeRecord(self.episode, total_return=self._return, length=self._length, alarms=self._alarms,
-                               first_alarm_step=self._first_alarm, **self._episode_info)
+                               first_alarm_step=self._first_alarm, interrupted=interrupted, **self._episode_info)
         self.sinks.end_episode(record)
         self._in_episode = False
         return record
@@ -189,17 +220,18 @@ class Monitor:
         onset = int(getattr(base, "onset_step", 0))
         spec_id = env.spec.id if env.spec is not None else type(base).__name__
         self.begin_episode(env_id=spec_id, variant=variant or spec_id, onset=onset, seed=seed)
-        obs, info = env.reset(seed=seed)
         try:
+            obs, info = env.reset(seed=seed)
             while True:
                 action = self.step(obs, shifted=bool(info.get("shifted", False)), frame=_frame(obs))
                 obs, reward, terminated, truncated, info = env.step(action)
                 self.add_reward(reward)
                 if terminated or truncated or self.stop_requested or (max_steps and self._length >= max_steps):
                     break
-        finally:
-            record = self.end_episode()
-        return record
+        except BaseException:  # Ctrl-C included: the cut episode is logged, marked as such
+            self.end_episode(interrupted=True)
+            raise
+        return self.end_episode()
 
 
 def _frame(obs: np.ndarray) -> np.ndarray | None:
@@ -250,7 +282,5 @@ class MonitoredEnv(gymnasium.Wrapper):
         return obs, reward, terminated, truncated, info
 
     def close(self) -> None:
-        if self.monitor._in_episode:
-            self.monitor.end_episode()
-        self.monitor.close()
+        self.monitor.close()  # an episode still running is logged as interrupted
         super().close()

@@ -64,6 +64,8 @@ class EpisodeRecord:
         length: the number of steps.
         alarms: the number of alarms raised.
         first_alarm_step: the step of the first alarm, or ``None``.
+        interrupted: the run was stopped inside this episode (Ctrl-C, an exception): it did not
+            end by itself, so replay leaves it out of the metrics.
     """
 
     episode: int
@@ -75,11 +77,12 @@ class EpisodeRecord:
     length: int
     alarms: int
     first_alarm_step: int | None
+    interrupted: bool = False
 
     def to_json(self) -> dict[str, Any]:
         return {"episode": self.episode, "env_id": self.env_id, "variant": self.variant, "onset": self.onset,
                 "seed": self.seed, "return": self.total_return, "length": self.length, "alarms": self.alarms,
-                "first_alarm_step": self.first_alarm_step}
+                "first_alarm_step": self.first_alarm_step, "interrupted": self.interrupted}
 
 
 @dataclass(frozen=True)

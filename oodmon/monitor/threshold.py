@@ -50,6 +50,7 @@ class Threshold:
         quantiles: quantiles (and max) of the ID per-step scores, for orientation.
         task, method: the agent it was calibrated for.
         window: the rule compares the mean of the last ``window`` scores (1: each score).
+        policy_hash: ``sha256:...`` of the weights it was calibrated on (``None``: not recorded).
     """
 
     value: float
@@ -63,6 +64,10 @@ class Threshold:
     task: str | None = None
     method: str | None = None
     window: int = 1
+    policy_hash: str | None = None
+
+    def __post_init__(self) -> None:
+        _check_fields(self)
 
     @property
     def rule(self) -> str:
@@ -83,20 +88,79 @@ class Threshold:
         """Read a threshold file written by :meth:`save` (``oodmon calibrate``).
 
         Raises:
-            ConfigError: the file is missing, not JSON, or not a threshold file.
+            ConfigError: the file is missing, not JSON, not a threshold file, or has a field whose
+                value is not allowed (every field is checked: a ``NaN`` value would silence every
+                alarm, ``consecutive: 0`` is no rule).
         """
         path = Path(path)
         try:
             data = json.loads(path.read_text())
         except FileNotFoundError:
             raise ConfigError(f"threshold file {path} does not exist; make one with `oodmon calibrate`") from None
+        except IsADirectoryError:
+            raise ConfigError(f"threshold file {path} is a folder; give the JSON file `oodmon calibrate` wrote") from None
         except (json.JSONDecodeError, UnicodeDecodeError) as error:
             raise ConfigError(f"threshold file {path} is not valid JSON ({error})") from None
+        if not isinstance(data, dict):
+            raise ConfigError(f"{path} is not a threshold file: it holds {type(data).__name__} {data!r:.40}, "
+                              "not an object with value, score, consecutive, ...")
         names = [f for f in cls.__dataclass_fields__]
         missing = [n for n in ("value", "score", "consecutive", "mode", "far", "n_episodes", "n_steps") if n not in data]
-        if not isinstance(data, dict) or missing:
+        if missing:
             raise ConfigError(f"{path} is not a threshold file: it lacks {', '.join(missing)}")
-        return cls(**{k: v for k, v in data.items() if k in names})
+        try:
+            return cls(**{k: v for k, v in data.items() if k in names})
+        except ConfigError as error:
+            raise type(error)(f"threshold file {path}: {error}") from None
+
+    def check_matches(self, *, task: str | None, method: str | None, score: str, policy_hash: str | None) -> list[str]:
+        """How this threshold differs from the policy and score it is about to be used with: one
+        line per difference (empty: it matches). A field not recorded on either side is not compared.
+
+        Example:
+            >>> Threshold(1.0, "chosen_std", 3, "episode", 0.05, 20, 100, task="cartpole").check_matches(
+            ...     task="pong", method=None, score="chosen_std", policy_hash=None)
+            ["it was calibrated for task 'cartpole', not 'pong'"]
+        """
+        found = []
+        for name, mine, theirs in (("task", self.task, task), ("method", self.method, method),
+                                   ("score", self.score, score)):
+            if mine is not None and theirs is not None and mine != theirs:
+                found.append(f"it was calibrated for {name} {mine!r}, not {theirs!r}")
+        if self.policy_hash and policy_hash and policy_hash != "unknown" and self.policy_hash != policy_hash:
+            found.append(f"it was calibrated on other weights ({self.policy_hash[:19]}..., these are {policy_hash[:19]}...)")
+        return found
+
+
+def _check_fields(threshold: Threshold) -> None:
+    """Every field of a threshold has a value the monitor can use, or :class:`InvalidParameterError`."""
+    from oodmon.monitor.scores import SCORES
+
+    def bad(name: str, allowed: str) -> InvalidParameterError:
+        return InvalidParameterError(f"{name}={getattr(threshold, name)!r} is not allowed; {allowed}")
+
+    def is_number(value: object) -> bool:
+        return isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+
+    if not is_number(threshold.value) or not math.isfinite(threshold.value):
+        raise bad("value", "the threshold must be a finite number (NaN would silence every alarm)")
+    if threshold.score not in SCORES:
+        raise bad("score", f"choose one of {', '.join(SCORES)}")
+    check_consecutive(threshold.consecutive)
+    check_window(threshold.window)
+    if threshold.mode not in MODES:
+        raise bad("mode", "use 'episode' or 'step'")
+    if not is_number(threshold.far) or not 0.0 < threshold.far < 1.0:
+        raise bad("far", "the target false-alarm rate must satisfy 0 < far < 1")
+    for name in ("n_episodes", "n_steps"):
+        value = getattr(threshold, name)
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 0:
+            raise bad(name, "it must be a whole number >= 0")
+    for name in ("task", "method", "policy_hash"):
+        if getattr(threshold, name) is not None and not isinstance(getattr(threshold, name), str):
+            raise bad(name, "it must be a string or null")
+    if not isinstance(threshold.quantiles, dict):
+        raise bad("quantiles", "it must be an object of numbers")
 
 
 def calibrate(
@@ -109,6 +173,7 @@ def calibrate(
     task: str | None = None,
     method: str | None = None,
     window: int = 1,
+    policy_hash: str | None = None,
 ) -> Threshold:
     """Calibrate a threshold on the per-step scores of held-out ID episodes.
 
@@ -149,7 +214,14 @@ def calibrate(
             f"far={far} needs at least {math.ceil(1 / far - 1)} ID calibration {unit} for its guarantee; got {n}"
         )
     value = float(np.sort(values)[rank - 1])
+    if not math.isfinite(value):
+        shortest = min((len(s) for s in episodes), default=0)
+        raise ConfigError(
+            f"the calibration gives threshold {value} (always or never alarm): the rule needs "
+            f"{consecutive + window - 1} steps per episode (consecutive={consecutive}, window={window}) and the "
+            f"shortest calibration episode has {shortest}; use a smaller window or longer episodes"
+        )
     steps = np.concatenate(episodes) if episodes else np.array([0.0])
     quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
     return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
-                     quantiles, task, method, window)
+                     quantiles, task, method, window, policy_hash)

@@ -9,13 +9,14 @@ up (delays by more than the tolerance times their baseline, since they count ste
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
 from oodmon.errors import ConfigError
 from oodmon.replay.metrics import VariantMetrics
 
-__all__ = ["HIGHER_IS_BETTER", "LOWER_IS_BETTER", "baseline_of", "find_falls", "load_baseline"]
+__all__ = ["HIGHER_IS_BETTER", "LOWER_IS_BETTER", "baseline_of", "check_tolerance", "find_falls", "load_baseline"]
 
 HIGHER_IS_BETTER = ("auroc", "aupr", "detection_rate")
 LOWER_IS_BETTER = ("fpr_at_95_tpr", "false_alarm_rate", "early_alarm_rate", "delay_mean")
@@ -31,16 +32,47 @@ def baseline_of(metrics: Sequence[VariantMetrics], tolerance: float) -> dict:
 
 
 def load_baseline(path: str | Path) -> dict:
+    """Read and check a baseline file (see the module docstring).
+
+    Raises:
+        ConfigError: the file is missing, not JSON, or not a baseline: every metric must be a known
+            name with a finite number, the tolerance a number >= 0.
+    """
     path = Path(path)
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError:
         raise ConfigError(f"baseline {path} does not exist; write one with `oodmon check LOGS --baseline {path} --update`") from None
-    except json.JSONDecodeError as error:
+    except IsADirectoryError:
+        raise ConfigError(f"baseline {path} is a folder; give the JSON file `oodmon check --update` wrote") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise ConfigError(f"baseline {path} is not valid JSON ({error})") from None
-    if not isinstance(data, dict) or "metrics" not in data:
-        raise ConfigError(f"{path} is not an oodmon baseline (no 'metrics')")
+    if not isinstance(data, dict) or not isinstance(data.get("metrics"), dict):
+        got = data.get("metrics") if isinstance(data, dict) else data
+        raise ConfigError(f"{path} is not an oodmon baseline: 'metrics' must be an object of rows, not {got!r:.40}")
+    known = HIGHER_IS_BETTER + LOWER_IS_BETTER
+    for key, row in data["metrics"].items():
+        if not isinstance(row, dict):
+            raise ConfigError(f"{path}: metrics[{key!r}]={row!r:.40} is not allowed; each row maps metric names to numbers")
+        for name, value in row.items():
+            if name not in known:
+                raise ConfigError(f"{path}: metrics[{key!r}] has unknown metric {name!r}; known: {', '.join(known)}")
+            if not _is_number(value):
+                raise ConfigError(f"{path}: metrics[{key!r}][{name!r}]={value!r:.40} is not allowed; give a finite number")
+    if "tolerance" in data:
+        check_tolerance(data["tolerance"], f"{path}: tolerance")
     return data
+
+
+def check_tolerance(value: object, name: str = "tolerance") -> float:
+    """``value`` as a float if it is a finite number >= 0, else :class:`ConfigError`."""
+    if not _is_number(value) or value < 0:
+        raise ConfigError(f"{name}={value!r} is not allowed; give a finite number >= 0 (the allowed fall)")
+    return float(value)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def find_falls(metrics: Sequence[VariantMetrics], baseline: dict, tolerance: float | None = None) -> list[str]:

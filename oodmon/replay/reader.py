@@ -3,8 +3,11 @@
 A finished log has an index: replay reads each episode's ``/oodmon/episode`` message and its
 ``/oodmon/episode_scores`` arrays through it, without decoding step messages. An unfinished log
 (a crashed run) has no index: replay streams it and keeps every episode whose episode message
-and scores arrived before the tear, with a warning saying how much was recovered. Nothing is
-ever written into the input files.
+and scores arrived before the tear, with a warning saying how much was recovered. Only the JSON
+topics replay needs are decoded; alarms (``foxglove.Log``) and frames (``foxglove.RawImage``) are
+protobuf and are skipped. An episode the run was stopped inside (``interrupted``, Ctrl-C) is kept
+apart in :attr:`RunLog.interrupted`, out of the metrics. Nothing is ever written into the input
+files.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import base64
 import json
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,7 +24,7 @@ import numpy as np
 from oodmon.errors import LogFormatError
 from oodmon.monitor.records import EpisodeRecord
 
-__all__ = ["EpisodeLog", "RecoveryWarning", "RunLog", "read_log"]
+__all__ = ["EpisodeLog", "RecoveryWarning", "RunLog", "SkippedLogWarning", "read_log", "read_logs"]
 
 _MAGIC = b"\x89MCAP0\r\n"
 _EPISODE, _SCORES, _STEP = "/oodmon/episode", "/oodmon/episode_scores", "/oodmon/step"
@@ -28,6 +32,10 @@ _EPISODE, _SCORES, _STEP = "/oodmon/episode", "/oodmon/episode_scores", "/oodmon
 
 class RecoveryWarning(UserWarning):
     """A damaged log was read up to its last complete episode."""
+
+
+class SkippedLogWarning(UserWarning):
+    """A file was not read: named twice, or found in a folder but not an oodmon log."""
 
 
 @dataclass(frozen=True)
@@ -40,14 +48,18 @@ class EpisodeLog(EpisodeRecord):
         alarm: (length,) whether the alarm rule held at each step.
     """
 
-    scores: np.ndarray = field(repr=False)
-    shifted: np.ndarray = field(repr=False)
-    alarm: np.ndarray = field(repr=False)
+    scores: np.ndarray = field(repr=False, kw_only=True)
+    shifted: np.ndarray = field(repr=False, kw_only=True)
+    alarm: np.ndarray = field(repr=False, kw_only=True)
 
 
 @dataclass(frozen=True)
 class RunLog:
-    """One log file: the run's metadata and its complete episodes."""
+    """One log file: the run's metadata and its complete episodes.
+
+    ``episodes`` holds the episodes that ended by themselves (or by an alarm callback);
+    ``interrupted`` those the run was stopped inside, which metrics leave out.
+    """
 
     path: Path
     task: str
@@ -56,29 +68,55 @@ class RunLog:
     metadata: dict[str, str]
     episodes: list[EpisodeLog]
     complete: bool
+    interrupted: list[EpisodeLog] = field(default_factory=list)
 
 
-def _episode(row: dict, scores: dict) -> EpisodeLog:
+_ROW_FIELDS = {"episode": int, "env_id": str, "variant": str, "onset": int, "return": (int, float), "length": int,
+               "alarms": int}
+
+
+def _episode(path: Path, row: dict, scores: dict) -> EpisodeLog:
+    for name, kind in _ROW_FIELDS.items():
+        if not isinstance(row.get(name), kind) or isinstance(row.get(name), bool):
+            raise LogFormatError(f"{path}: episode record {row.get('episode', '?')!r} has {name}={row.get(name)!r}; "
+                                 "not a log oodmon wrote (or a damaged one)")
+    try:
+        arrays = (np.frombuffer(base64.b64decode(scores["score_f64"]), "<f8"),
+                  np.frombuffer(base64.b64decode(scores["shifted_u8"]), np.uint8).astype(bool),
+                  np.frombuffer(base64.b64decode(scores["alarm_u8"]), np.uint8).astype(bool))
+    except (KeyError, TypeError, ValueError) as error:
+        raise LogFormatError(f"{path}: the score arrays of episode {row['episode']} are damaged ({error})") from None
+    if any(len(a) != row["length"] for a in arrays):
+        raise LogFormatError(f"{path}: episode {row['episode']} has length {row['length']} but "
+                             f"{len(arrays[0])} scores; the log is damaged")
     return EpisodeLog(
-        episode=row["episode"], env_id=row["env_id"], variant=row["variant"], onset=row["onset"], seed=row["seed"],
-        total_return=row["return"], length=row["length"], alarms=row["alarms"],
-        first_alarm_step=row["first_alarm_step"],
-        scores=np.frombuffer(base64.b64decode(scores["score_f64"]), "<f8"),
-        shifted=np.frombuffer(base64.b64decode(scores["shifted_u8"]), np.uint8).astype(bool),
-        alarm=np.frombuffer(base64.b64decode(scores["alarm_u8"]), np.uint8).astype(bool),
+        episode=row["episode"], env_id=row["env_id"], variant=row["variant"], onset=row["onset"],
+        seed=row.get("seed"), total_return=float(row["return"]), length=row["length"], alarms=row["alarms"],
+        first_alarm_step=row.get("first_alarm_step"), interrupted=bool(row.get("interrupted", False)),
+        scores=arrays[0], shifted=arrays[1], alarm=arrays[2],
     )
 
 
 class _Collector:
     """Gathers episode rows and score arrays (or, from older logs, step messages) by episode."""
 
-    def __init__(self) -> None:
+    def __init__(self, path: Path) -> None:
+        self.path = path
         self.rows: dict[int, dict] = {}
         self.scores: dict[int, dict] = {}
         self.steps: dict[int, list[dict]] = {}
 
     def add(self, topic: str, data: bytes) -> None:
-        row = json.loads(data)
+        """Keep one message of ``topic``; messages of topics replay does not read are ignored
+        without being decoded (alarms and frames are protobuf, not JSON)."""
+        if topic not in (_EPISODE, _SCORES, _STEP):
+            return
+        try:
+            row = json.loads(data)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            raise LogFormatError(f"{self.path}: a {topic} message is not JSON; not a log oodmon wrote (or a damaged one)") from None
+        if not isinstance(row, dict) or not isinstance(row.get("episode"), int):
+            raise LogFormatError(f"{self.path}: a {topic} message has no episode number; not a log oodmon wrote")
         if topic == _EPISODE:
             self.rows[row["episode"]] = row
         elif topic == _SCORES:
@@ -90,7 +128,7 @@ class _Collector:
         if episode in self.scores:
             return self.scores[episode]
         steps = self.steps.get(episode)
-        if not steps or len(steps) != self.rows[episode]["length"]:
+        if not steps or len(steps) != self.rows[episode].get("length"):
             return None
 
         def encoded(values, dtype) -> str:
@@ -104,14 +142,18 @@ class _Collector:
 def _assemble(path: Path, metadata: dict[str, str] | None, found: _Collector, complete: bool) -> RunLog:
     if metadata is None:
         raise LogFormatError(f"{path} is an MCAP file but not an oodmon log (no oodmon.run metadata)")
-    episodes = []
+    episodes, interrupted = [], []
     for k in sorted(found.rows):
         scores = found.scores_of(k)
         if scores is not None:
-            episodes.append(_episode(found.rows[k], scores))
-    threshold = float(metadata.get("threshold", "nan"))
+            episode = _episode(path, found.rows[k], scores)
+            (interrupted if episode.interrupted else episodes).append(episode)
+    try:
+        threshold = float(metadata.get("threshold", "nan"))
+    except ValueError:
+        raise LogFormatError(f"{path}: its run metadata has threshold={metadata['threshold']!r}, not a number") from None
     return RunLog(path, metadata.get("task", "unknown"), metadata.get("method", "unknown"), threshold, metadata,
-                  episodes, complete)
+                  episodes, complete, interrupted)
 
 
 def read_log(path: str | Path) -> RunLog:
@@ -134,9 +176,11 @@ def read_log(path: str | Path) -> RunLog:
         raise LogFormatError(f"{path} does not exist") from None
     except IsADirectoryError:
         raise LogFormatError(f"{path} is a folder; give the .mcap files in it") from None
+    except OSError as error:
+        raise LogFormatError(f"{path} cannot be read ({error.strerror or error})") from None
     if head != _MAGIC:
         raise LogFormatError(f"{path} is not an MCAP file (it does not start with the MCAP magic bytes)")
-    found = _Collector()
+    found = _Collector(path)
     metadata = None
     with open(path, "rb") as f:
         try:
@@ -167,7 +211,7 @@ def _recover(path: Path) -> RunLog:
     from mcap.records import Channel, Message, Metadata
     from mcap.stream_reader import StreamReader
 
-    found = _Collector()
+    found = _Collector(path)
     metadata = None
     channels: dict[int, str] = {}
     torn = None
@@ -180,12 +224,53 @@ def _recover(path: Path) -> RunLog:
                     metadata = dict(record.metadata)
                 elif isinstance(record, Message) and record.channel_id in channels:
                     found.add(channels[record.channel_id], record.data)
+        except LogFormatError:
+            raise
         except Exception as error:  # noqa: BLE001  (a torn record ends the readable part)
             torn = error
     log = _assemble(path, metadata, found, complete=False)
     warnings.warn(
         f"{path} is unfinished or damaged ({type(torn).__name__ if torn else 'no summary'}): recovered "
         f"{len(log.episodes)} complete episode(s), {sum(e.length for e in log.episodes)} steps; a running episode "
-        "at the tear is lost", RecoveryWarning, stacklevel=2,
+        "at the tear is lost", RecoveryWarning, stacklevel=3,
     )
     return log
+
+
+def read_logs(paths: Sequence[str | Path]) -> list[RunLog]:
+    """Read the logs named by ``paths``: MCAP files, or folders searched for ``*.mcap``.
+
+    Each file is read once, however often it is named (as itself or inside a folder). A file
+    inside a folder that is not an oodmon log (a foreign MCAP, a damaged file) is skipped with a
+    :class:`SkippedLogWarning`; a file named on its own must be an oodmon log.
+
+    Raises:
+        LogFormatError: a named file that is not an oodmon log, a folder with no ``.mcap`` file,
+            or no oodmon log at all.
+    """
+    files: list[tuple[Path, bool]] = []
+    seen: set[Path] = set()
+    for name in paths:
+        path = Path(name)
+        named = not path.is_dir()
+        found = [path] if named else sorted(path.rglob("*.mcap"))
+        if not named and not found:
+            raise LogFormatError(f"{path} holds no .mcap files")
+        for file in found:
+            key = file.resolve()
+            if key in seen:
+                warnings.warn(f"{file} is named more than once; it is read once", SkippedLogWarning, stacklevel=2)
+                continue
+            seen.add(key)
+            files.append((file, named))
+    logs = []
+    for file, named in files:
+        try:
+            logs.append(read_log(file))
+        except LogFormatError as error:
+            if named:
+                raise
+            warnings.warn(f"skipped {file}: {error}", SkippedLogWarning, stacklevel=2)
+    if not logs:
+        raise LogFormatError(f"no oodmon log among {', '.join(str(p) for p in paths)}")
+    return logs

@@ -54,8 +54,41 @@ def test_corrupted_tensor_file(saved):
     path, _ = saved
     raw = (path / "model.safetensors").read_bytes()
     (path / "model.safetensors").write_bytes(raw[: len(raw) // 2])
-    with pytest.raises(ModelFormatError, match="cannot be read as safetensors .* missing or damaged"):
-        load_agent(path)
+    with pytest.raises(ModelFormatError, match="has sha256 .* but model.json records .*damaged or was changed"):
+        load_modules(path)
+    # Without a recorded hash (a model saved before oodmon recorded one), safetensors still refuses it.
+    metadata = json.loads((path / "model.json").read_text())
+    del metadata["safetensors_sha256"]
+    (path / "model.json").write_text(json.dumps(metadata))
+    with pytest.warns(UserWarning, match="records no safetensors_sha256"), \
+            pytest.raises(ModelFormatError, match="cannot be read as safetensors .* damaged"):
+        load_modules(path)
+
+
+def test_flipped_bytes_that_still_parse_are_refused(saved):
+    # Flipped bytes inside the tensors (the last 256; the header is at the start): safetensors
+    # would load them, the hash does not.
+    path, _ = saved
+    raw = bytearray((path / "model.safetensors").read_bytes())
+    start = len(raw) - 256
+    raw[start:] = bytes(b ^ 0xFF for b in raw[start:])
+    (path / "model.safetensors").write_bytes(bytes(raw))
+    from safetensors.torch import load_file
+
+    assert load_file(str(path / "model.safetensors"))  # it parses
+    with pytest.raises(ModelFormatError, match="damaged or was changed"):
+        load_modules(path)
+
+
+def test_every_shipped_model_records_the_hash_of_its_tensors():
+    import hashlib
+
+    from oodmon.agents import zoo_dir, zoo_names
+
+    for name in zoo_names():
+        metadata = json.loads((zoo_dir() / name / "model.json").read_text())
+        data = (zoo_dir() / name / "model.safetensors").read_bytes()
+        assert metadata["safetensors_sha256"] == hashlib.sha256(data).hexdigest(), name
 
 
 def test_damaged_metadata(saved):

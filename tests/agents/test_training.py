@@ -35,6 +35,10 @@ def test_training_runs_and_saves_a_loadable_agent(tmp_path, task, method):
     assert (meta["checkpoint_selection"] and len(meta["checkpoint_selection"]["candidates"])) == (2 if task == "pong" else None)
     assert len(meta["training_steps"]) == (5 if method == "ensemble" and task != "pong" else 1)
     assert meta["versions"]["torch"].startswith(torch.__version__.split("+")[0])
+    # The weights a run keeps on disk are fp16 where they ship so (Pong), to keep committed runs small.
+    kept = sorted((tmp_path / "runs").glob("*/**/*.safetensors"))
+    assert kept and {t.dtype for f in kept for t in load_file(str(f)).values()} == (
+        {torch.float16} if task == "pong" else {torch.float32})
     loaded = load_agent(tmp_path, task=task)
     obs = np.zeros(loaded.estimator.obs_shape, np.float32)
     estimate = loaded.estimate(obs)
@@ -61,7 +65,7 @@ def test_interrupted_training_resumes_from_its_checkpoint(tmp_path):
     assert resumed[0] == 500  # it started from the checkpoint, not from zero
     state = json.loads((tmp_path / "runs" / "main" / "state.json").read_text())
     assert state["finished"] is True and state["steps"] >= 1000
-    assert not (tmp_path / "runs" / "main" / "replay_buffer.pkl").exists()  # dropped once finished
+    assert not (tmp_path / "runs" / "main" / "replay_buffer.npz").exists()  # dropped once finished
     # Running the finished command again trains nothing more.
     again: list[int] = []
     train("cartpole", "dropout", tmp_path, total_steps=1000, report=lambda run, done, total: again.append(done), id_episodes=2)
@@ -114,8 +118,8 @@ def test_training_resumes_from_the_weights_alone_when_the_big_checkpoint_is_gone
     with pytest.raises(KeyboardInterrupt):
         train("cartpole", "dropconnect", tmp_path, total_steps=1000, report=interrupt, id_episodes=2)
     main = tmp_path / "runs" / "main"
-    (main / "checkpoint.zip").unlink()
-    (main / "replay_buffer.pkl").unlink()
+    (main / "checkpoint.pt").unlink()
+    (main / "replay_buffer.npz").unlink()
     assert (main / "policy.safetensors").stat().st_size < 400_000
     saved = load_file(str(main / "policy.safetensors"))
     assert "q_net.q_net.0.weight" in saved and not any("target" in k for k in saved)
@@ -205,3 +209,70 @@ def test_export_does_not_play_a_snapshot_again_that_an_earlier_export_scored(tmp
     reports.clear()
     train("cartpole", "dropconnect", tmp_path, id_episodes=1, export_only=True, report=lambda *args: reports.append(args))
     assert [r[1:] for r in reports if len(r) == 4][-1] == (6, 6, "episodes")
+
+
+def _interrupted_training(tmp_path, method="dropout"):
+    def interrupt(run, done, total):
+        if done >= 600:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train("cartpole", method, tmp_path, total_steps=1000, report=interrupt, id_episodes=2)
+    recipe = _shortened(recipe_for("cartpole", method), 1000)
+    return recipe, tmp_path / "runs" / "main"
+
+
+def test_a_resumed_run_has_the_weights_optimizer_counters_and_buffer_it_was_stopped_with(tmp_path):
+    recipe, main = _interrupted_training(tmp_path)
+    assert {p.name for p in main.iterdir()} >= {"checkpoint.pt", "replay_buffer.npz", "policy.safetensors"}
+    assert not list(main.glob("*.zip")) and not list(main.glob("*.pkl"))
+    # What the checkpoint at step 500 held, read without unpickling, is what a resumed model holds.
+    saved = torch.load(main / "checkpoint.pt", weights_only=True)
+    model = _Run(recipe, tmp_path, "main", 0).load_or_create(_training_env(recipe))
+    assert model.num_timesteps == 500 and saved["counters"]["num_timesteps"] == 500
+    assert model._n_updates == saved["counters"]["_n_updates"] > 0
+    for name, tensor in model.policy.state_dict().items():
+        torch.testing.assert_close(tensor, saved["parameters"]["policy"][name])
+    steps_of_adam = [s["step"] for s in model.policy.optimizer.state_dict()["state"].values()]
+    assert steps_of_adam and all(float(step) == model._n_updates for step in steps_of_adam)
+    # SB3 calls the callback before it stores the step's transition: the buffer holds 499.
+    buffer = model.replay_buffer
+    assert buffer.pos == 499 and not buffer.full
+    with np.load(main / "replay_buffer.npz", allow_pickle=False) as data:
+        np.testing.assert_array_equal(buffer.observations[:499], data["observations"])
+        np.testing.assert_array_equal(buffer.rewards[:499], data["rewards"])
+    assert np.abs(buffer.observations[:499]).sum() > 0 and model.learning_starts < 500  # no refill needed
+
+
+PICKLE_BOMB = """
+import pickle, sys
+class Bomb:
+    def __reduce__(self):
+        return (open, (sys.argv[2], "w"))
+pickle.dump(Bomb(), open(sys.argv[1], "wb"))
+"""
+
+
+def test_a_crafted_pickle_in_the_run_folder_runs_no_code(tmp_path):
+    import subprocess
+    import sys
+    import warnings
+
+    recipe, main = _interrupted_training(tmp_path)
+    # An older training's files: SB3's own checkpoint, and a replay buffer pickle that runs code.
+    _Run(recipe, tmp_path, "main", 0).load_or_create(_training_env(recipe)).save(main / "checkpoint.zip")
+    (main / "checkpoint.pt").unlink()
+    (main / "replay_buffer.npz").unlink()
+    marker = tmp_path / "pwned"
+    subprocess.run([sys.executable, "-c", PICKLE_BOMB, str(main / "replay_buffer.pkl"), str(marker)], check=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model = _Run(recipe, tmp_path, "main", 0).load_or_create(_training_env(recipe))
+    assert not marker.exists()
+    assert any("pickles, which oodmon does not load" in str(w.message) for w in caught)
+    assert model.num_timesteps == 500  # resumed from policy.safetensors, with a fresh buffer to refill
+    assert model.learning_starts == 500 + recipe.hyperparams["learning_starts"]
+    # Only with the explicit flag is the pickle loaded, and then it runs (here: creates the marker).
+    with pytest.raises(Exception):
+        _Run(recipe, tmp_path, "main", 0).load_or_create(_training_env(recipe), load_pickles=True)
+    assert marker.exists()

@@ -54,7 +54,9 @@ def test_window_rule_compares_the_mean_of_the_last_steps():
     events = [event for _, event in results if event is not None]
     assert [e.step for e in events] == [5, 8] and events[0].score == pytest.approx(1.2)
     assert events[0].rule == "mean score over 3 steps > threshold for 2 consecutive steps"
-    assert calibrate([np.ones(10)] * 19, 0.05, window=100).rule == "mean score over 100 steps > -inf for 3 consecutive steps"
+    # Episodes shorter than the window give no statistic: a threshold of -inf (always alarm) is refused.
+    with pytest.raises(ConfigError, match="needs 102 steps per episode .* shortest calibration episode has 10"):
+        calibrate([np.ones(10)] * 19, 0.05, window=100)
     with pytest.raises(InvalidParameterError, match=r"window=0 is not allowed"):
         AlarmTracker(1.0, 3, 0)
 

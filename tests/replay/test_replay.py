@@ -147,3 +147,44 @@ def test_check_exit_codes_and_what_fell(tmp_path):
     assert _cli("check", str(DATA), "--baseline", str(baseline), "--tolerance", "0.6").returncode == 0
     missing = _cli("check", str(DATA), "--baseline", str(tmp_path / "none.json"))
     assert missing.returncode == 2 and "does not exist" in missing.stderr
+
+
+def test_a_log_named_twice_is_read_once_and_a_foreign_file_in_a_folder_is_skipped(tmp_path):
+    from oodmon.replay import SkippedLogWarning, read_logs
+
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    for log in LOGS:
+        shutil.copyfile(log, folder / log.name)
+    (folder / "notes.mcap").write_text("not a log")
+    with pytest.warns(SkippedLogWarning) as caught:
+        logs = read_logs([folder, folder / LOGS[0].name, str(folder / LOGS[0].name)])
+    messages = [str(w.message) for w in caught]
+    assert len(logs) == len(LOGS) and sorted(log.path.name for log in logs) == sorted(p.name for p in LOGS)
+    assert sum("named more than once" in m for m in messages) == 2
+    assert any("skipped" in m and "notes.mcap" in m and "not an MCAP file" in m for m in messages)
+    metrics = compute_metrics(logs)
+    assert [m.episodes for m in metrics] == [m.episodes for m in compute_metrics([read_log(p) for p in LOGS])]
+    with pytest.raises(LogFormatError, match="notes.mcap is not an MCAP file"):
+        read_logs([folder / "notes.mcap"])  # named on its own, a bad file is an error
+
+
+def test_an_interrupted_episode_is_logged_as_such_and_left_out_of_the_metrics(tmp_path):
+    agent = load("cartpole", "ensemble")
+    env = parse_variant("cartpole:length=2.0").make(onset_step=20)
+
+    class Stop(Exception):
+        pass
+
+    def stop_at_first_alarm(event):
+        raise Stop
+
+    with Monitor(agent, threshold=4.6, sinks=[McapSink(tmp_path / "cut.mcap")]) as monitor:
+        finished = monitor.run_episode(env, seed=0, variant="cartpole:length=2.0")
+        monitor.callbacks.append(stop_at_first_alarm)
+        with pytest.raises(Stop):
+            monitor.run_episode(env, seed=1, variant="cartpole:length=2.0")
+    log = read_log(tmp_path / "cut.mcap")
+    assert [e.episode for e in log.episodes] == [0] and not log.episodes[0].interrupted
+    assert [e.episode for e in log.interrupted] == [1] and log.interrupted[0].length < finished.length
+    assert compute_metrics([log])[0].episodes == 1

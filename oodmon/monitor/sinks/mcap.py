@@ -11,9 +11,10 @@ Channels:
   episode message it is written in a chunk of its own, so that replay reads an episode through
   the file's index without decompressing its step messages.
 
-The run's :class:`~oodmon.monitor.records.RunInfo` is the metadata record ``oodmon.run``. The
-writer flushes (closes its chunk) at every episode end, so a crash loses at most the running
-episode; ``close`` writes the summary and index.
+The run's :class:`~oodmon.monitor.records.RunInfo` is the metadata record ``oodmon.run``, on disk
+from :meth:`McapSink.open` on. The writer flushes (closes its chunk and hands it to the operating
+system) at every episode end, so a crash, even SIGKILL, loses at most the running episode;
+``close`` writes the summary and index.
 """
 
 from __future__ import annotations
@@ -62,6 +63,7 @@ EPISODE_SCHEMA: dict[str, Any] = {
         "length": {"type": "integer"},
         "alarms": {"type": "integer"},
         "first_alarm_step": {"type": ["integer", "null"]},
+        "interrupted": {"type": "boolean", "description": "the run was stopped inside this episode (since format 2)"},
     },
     "required": ["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"],
 }
@@ -124,6 +126,9 @@ class McapSink:
         self._frame_channel = writer.register_channel("/oodmon/frame", "protobuf", register_schema(writer, RawImage))
         self._log, self._image = Log, RawImage
         writer.add_metadata("oodmon.run", run.to_strings())
+        # The header and the run's metadata reach the disk now: a run killed before its first
+        # episode ends leaves an MCAP file that says what ran (and holds no episode), not 0 bytes.
+        writer.flush()
         self._writer = writer
         self._sequence = 0
         self._scores: list[float] = []

@@ -50,22 +50,36 @@ class RerunSink:
     Args:
         path: write an ``.rrd`` file here.
         spawn: start a Rerun viewer and stream to it (needs a display and the ``rerun`` binary).
-        serve: serve the stream over gRPC for a remote viewer (its URL is printed by Rerun).
+        serve: serve the stream over gRPC for a viewer to connect to, on ``bind``:``port``.
         connect: stream to a viewer listening at this URL.
+        bind: the address a served stream listens on; ``127.0.0.1`` (the default) keeps it on this
+            machine, ``0.0.0.0`` opens it to the network on purpose.
+        port: the port a served stream listens on (default 9876, Rerun's).
         recording_id: Rerun's recording id (default: a fresh one).
-        flush_timeout: seconds to wait at an episode end for the data to reach its sinks. A
-            viewer that is gone makes the flush fail (a warning from the monitor, which goes
-            on); after that the sink stops waiting for it.
+        flush_timeout: seconds to wait at an episode end for the data to reach its sinks.
+        connect_timeout: seconds to wait for a viewer at ``connect`` to accept a connection.
+
+    A live viewer (``connect``, ``spawn``) has a recording stream of its own, apart from the file's:
+    a viewer that cannot be reached at open, or stops taking data (a flush that times out, checked
+    every :data:`FLUSH_EVERY` steps), is dropped with one warning, and what would have gone to it is
+    counted in :attr:`dropped` instead of queueing in memory; the file goes on. So a dead URL costs
+    a run about ``connect_timeout`` and no memory.
     """
 
     def __init__(self, path: str | Path | None = None, *, spawn: bool = False, serve: bool = False,
-                 connect: str | None = None, recording_id: str | None = None, flush_timeout: float = 2.0) -> None:
+                 connect: str | None = None, bind: str = "127.0.0.1", port: int = 9876,
+                 recording_id: str | None = None, flush_timeout: float = 2.0, connect_timeout: float = 0.5) -> None:
         self.path = Path(path) if path is not None else None
         self.spawn, self.serve, self.connect = spawn, serve, connect
+        self.bind, self.port = bind, port
         self.recording_id = recording_id or str(uuid.uuid4())
         self.flush_timeout = flush_timeout
-        self._unreachable = False
+        self.connect_timeout = connect_timeout
+        self.dropped = 0  # steps not sent to a live viewer that was gone
+        self.served_at: str | None = None  # the URL a viewer connects to (``serve``)
         self._rec = None
+        self._streams: list = []
+        self._live = None
         self._global_step = 0
         self._buffer: list[StepRecord] = []
         self._steps: list[int] = []
@@ -73,42 +87,91 @@ class RerunSink:
     def open(self, run: RunInfo) -> None:
         import rerun as rr
 
-        rec = rr.RecordingStream("oodmon", recording_id=self.recording_id)
+        self._rr = rr
         self._task = run.task
         self._names_sent = False
-        sinks = []
+        self._blueprint_outputs = None
+        local = []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            sinks.append(rr.FileSink(str(self.path)))
-        if self.spawn:
-            rec.spawn(connect=False)
-            sinks.append(rr.GrpcSink())
-        if self.connect:
-            sinks.append(rr.GrpcSink(self.connect))
+            local.append(rr.FileSink(str(self.path)))
         if self.serve:
-            sinks.append(rr.GrpcServerSink())
-        self._blueprint_outputs = None
+            server = rr.GrpcServerSink(bind_ip=self.bind, port=self.port, server_memory_limit="512MiB")
+            self.served_at = server.uri
+            local.append(server)
+        if local:
+            self._streams.append(self._stream(run, local))
+        if self.connect or self.spawn:
+            url = self.connect or "rerun+http://127.0.0.1:9876/proxy"
+            if self.spawn:
+                rr.RecordingStream("oodmon-spawn", recording_id=self.recording_id).spawn(connect=False)
+            unreachable = _unreachable(url, self.connect_timeout * (10 if self.spawn else 1))
+            if unreachable is None:
+                self._live = self._stream(run, [rr.GrpcSink(url)])
+                self._streams.append(self._live)
+            else:
+                _warn(f"no Rerun viewer at {url} ({unreachable}); the run goes on without it"
+                      + (f", logging to {self.path}" if self.path else ""))
+        self._rec = self._streams[0] if self._streams else None
+
+    def _stream(self, run: RunInfo, sinks: list):
+        rr = self._rr
+        rec = rr.RecordingStream("oodmon", recording_id=self.recording_id)
         rec.set_sinks(*sinks)
         rec.send_recording_name(f"oodmon {run.task}/{run.method}")
         rec.log("/run", rr.TextDocument(
             f"task {run.task}, method {run.method}, score {run.score}, alarm rule: {run.rule}, "
             f"threshold {run.threshold}, policy {run.policy_hash}"), static=True)
-        self._rr, self._rec = rr, rec
+        return rec
+
+    def _each(self, method: str, *args, **kwargs) -> None:
+        for rec in self._streams:
+            getattr(rec, method)(*args, **kwargs)
+
+    def _drop_live(self, why: str) -> None:
+        self._streams.remove(self._live)
+        try:
+            self._live.disconnect()
+        finally:
+            self._live = None
+            _warn(f"the Rerun viewer stopped taking data ({why}); it is dropped, the run goes on"
+                  + (f", logging to {self.path}" if self.path else ""))
 
     def write_step(self, record: StepRecord) -> None:
+        if (self.connect or self.spawn) and self._live is None:
+            self.dropped += 1
+        if not self._streams:
+            self._global_step += 1
+            return
         if not self._names_sent:
             self._send_layout(len(record.mean))
         self._buffer.append(record)
         self._steps.append(self._global_step)
         if record.frame is not None:
-            self._rec.set_time("step", sequence=self._global_step)
-            self._rec.log("/frame", self._rr.Image(record.frame))
+            self._each("set_time", "step", sequence=self._global_step)
+            self._each("log", "/frame", self._rr.Image(record.frame))
         self._global_step += 1
         if len(self._buffer) >= FLUSH_EVERY:
             self._flush()
+            self._check_live()
+
+    def _check_live(self) -> None:
+        """Drop a live viewer that does not take the data within ``flush_timeout``: its stream would
+        otherwise queue everything in memory."""
+        if self._live is None:
+            return
+        try:
+            self._live.flush(timeout_sec=self.flush_timeout)
+        except RuntimeError as error:
+            self._drop_live(str(error).splitlines()[0][:120])
 
     def _send_layout(self, n_outputs: int) -> None:
-        rr, rec = self._rr, self._rec
+        for rec in self._streams:
+            self._send_layout_to(rec, n_outputs)
+        self._names_sent = True
+
+    def _send_layout_to(self, rec, n_outputs: int) -> None:
+        rr = self._rr
         label = "Q" if self._task in ("cartpole", "pong") else "action"
         for a in range(n_outputs):
             rec.log(f"/uncertainty/{label}{a}", rr.SeriesLines(names=["mean", "mean - std", "mean + std"],
@@ -118,62 +181,89 @@ class RerunSink:
         rec.log("/threshold", rr.SeriesLines(names=["threshold"], colors=[[60, 60, 60]]), static=True)
         rec.log("/shifted", rr.SeriesLines(names=["shift active"], colors=[[255, 160, 0]]), static=True)
         rec.send_blueprint(default_blueprint(self._task, n_outputs))
-        self._label, self._names_sent = label, True
+        self._label = label
 
     def _flush(self) -> None:
         if not self._buffer:
             return
-        rr, rec = self._rr, self._rec
+        rr = self._rr
         index = [rr.TimeColumn("step", sequence=self._steps)]
         mean = np.array([r.mean for r in self._buffer])
         std = np.array([r.std for r in self._buffer])
         for a in range(mean.shape[1]):
             band = np.stack([mean[:, a], mean[:, a] - std[:, a], mean[:, a] + std[:, a]], axis=1)
-            rec.send_columns(f"/uncertainty/{self._label}{a}", indexes=index,
-                             columns=rr.Scalars.columns(scalars=band))
-        rec.send_columns("/score", indexes=index, columns=rr.Scalars.columns(scalars=[r.score for r in self._buffer]))
-        rec.send_columns("/shifted", indexes=index,
-                         columns=rr.Scalars.columns(scalars=[float(r.shifted) for r in self._buffer]))
+            self._each("send_columns", f"/uncertainty/{self._label}{a}", indexes=index,
+                       columns=rr.Scalars.columns(scalars=band))
+        self._each("send_columns", "/score", indexes=index,
+                   columns=rr.Scalars.columns(scalars=[r.score for r in self._buffer]))
+        self._each("send_columns", "/shifted", indexes=index,
+                   columns=rr.Scalars.columns(scalars=[float(r.shifted) for r in self._buffer]))
         thresholds = np.array([r.threshold for r in self._buffer])
         if not np.isnan(thresholds).all():
-            rec.send_columns("/threshold", indexes=index, columns=rr.Scalars.columns(scalars=thresholds))
+            self._each("send_columns", "/threshold", indexes=index, columns=rr.Scalars.columns(scalars=thresholds))
         if self._buffer[0].observation is not None:
-            rec.send_columns("/observation", indexes=index,
-                             columns=rr.Scalars.columns(scalars=np.array([r.observation for r in self._buffer])))
+            self._each("send_columns", "/observation", indexes=index,
+                       columns=rr.Scalars.columns(scalars=np.array([r.observation for r in self._buffer])))
         self._buffer.clear()
         self._steps.clear()
 
     def write_alarm(self, event: AlarmEvent) -> None:
+        if not self._streams:
+            return
         self._flush()
-        self._rec.set_time("step", sequence=self._global_step - 1)
-        self._rec.log("/alarms", self._rr.TextLog(
+        self._each("set_time", "step", sequence=self._global_step - 1)
+        self._each("log", "/alarms", self._rr.TextLog(
             f"episode {event.episode} step {event.step}: score {event.score:.4g} > {event.threshold:.4g} ({event.rule})",
             level=self._rr.TextLogLevel.WARN))
 
     def end_episode(self, record: EpisodeRecord) -> None:
+        if not self._streams:
+            return
         self._flush()
-        self._rec.set_time("step", sequence=max(self._global_step - 1, 0))
-        self._rec.log("/episode/return", self._rr.Scalars(record.total_return))
-        self._rec.log("/episodes", self._rr.TextLog(
+        self._each("set_time", "step", sequence=max(self._global_step - 1, 0))
+        self._each("log", "/episode/return", self._rr.Scalars(record.total_return))
+        self._each("log", "/episodes", self._rr.TextLog(
             f"episode {record.episode} ({record.variant}, onset {record.onset}, seed {record.seed}): return "
             f"{record.total_return:.1f}, {record.length} steps, {record.alarms} alarms", level=self._rr.TextLogLevel.INFO))
-        self._flush_to_sinks()
-
-    def _flush_to_sinks(self) -> None:
-        if self._unreachable:
-            return
-        try:
-            self._rec.flush(timeout_sec=self.flush_timeout)
-        except RuntimeError as error:
-            self._unreachable = True  # do not make every later episode wait for it
-            raise RuntimeError(f"Rerun sink unreachable ({error}); logging goes on without waiting for it") from None
+        self._check_live()
 
     def close(self) -> None:
-        if self._rec is None:
+        if not self._streams:
             return
         try:
             self._flush()
-            self._flush_to_sinks()
+            self._check_live()
+            for rec in self._streams:
+                if rec is not self._live:
+                    rec.flush(timeout_sec=self.flush_timeout)
         finally:
-            self._rec.disconnect()
-            self._rec = None
+            for rec in self._streams:
+                rec.disconnect()
+            self._streams, self._live, self._rec = [], None, None
+
+
+def _unreachable(url: str, timeout: float) -> str | None:
+    """Why nothing accepts a connection at a Rerun gRPC ``url`` within ``timeout`` s, or None."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url.replace("rerun+", "", 1).replace("rerun://", "http://", 1))
+    try:
+        host, port = parts.hostname, parts.port or (443 if parts.scheme == "https" else 9876)
+    except ValueError as error:
+        return str(error)
+    if not host:
+        return "no host in the URL"
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            return None
+    except OSError as error:
+        return error.strerror or type(error).__name__
+
+
+def _warn(message: str) -> None:
+    import warnings
+
+    from oodmon.monitor.sinks.base import SinkWarning
+
+    warnings.warn(message, SinkWarning, stacklevel=4)

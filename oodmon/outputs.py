@@ -1,0 +1,111 @@
+"""Checks that an output path can be written, made before any work that would be lost otherwise.
+
+A run that writes its log at the end of minutes of episodes, or a calibration that writes its
+threshold after all of them, should fail at once when the path cannot be written: a folder in
+its place, a parent that is a file, a name too long, a place the user may not write, or a path
+that is also one of the command's inputs (writing it would destroy the input).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+from collections.abc import Iterable
+from pathlib import Path
+
+from oodmon.errors import ConfigError
+
+__all__ = ["check_output_dir", "check_output_file"]
+
+
+def _same(a: Path, b: Path) -> bool:
+    return a.resolve() == b.resolve()
+
+
+def check_output_file(path: str | Path, *, parameter: str,
+                      inputs: Iterable[tuple[str, str | Path | None]] = ()) -> Path:
+    """``path`` as a :class:`~pathlib.Path` if a file can be written there, else :class:`ConfigError`.
+
+    Creates the missing parent folders (the write would create them too) and nothing else: a file
+    made to test the path is removed again.
+
+    Args:
+        path: the file to be written.
+        parameter: the option that named it, for the message (``--mcap``).
+        inputs: ``(option, path)`` of the command's inputs and of its other outputs; ``path`` may
+            be none of them. ``None`` paths are ignored.
+
+    Example:
+        >>> import tempfile
+        >>> check_output_file(tempfile.mkdtemp(), parameter="--out")
+        Traceback (most recent call last):
+        ...
+        oodmon.errors.ConfigError: --out ... is a folder; give a file name
+    """
+    path = Path(path)
+    if not str(path).strip():
+        raise ConfigError(f"{parameter} {str(path)!r} is empty; give a file name")
+    try:
+        return _check_file(path, parameter, inputs)
+    except OSError as error:  # the name itself is unusable (too long, ...)
+        raise ConfigError(f"{parameter} {path} cannot be written ({_reason(error)})") from None
+
+
+def _check_file(path: Path, parameter: str, inputs: Iterable[tuple[str, str | Path | None]]) -> Path:
+    for name, other in inputs:
+        if other is not None and _same(path, Path(other)):
+            raise ConfigError(f"{parameter} {path} is also {name}; writing it would overwrite that file: "
+                              "give another path")
+    if path.is_dir():
+        raise ConfigError(f"{parameter} {path} is a folder; give a file name")
+    _make_parent(path, parameter)
+    existed = path.exists()
+    try:
+        with open(path, "ab"):
+            pass
+    except OSError as error:
+        raise ConfigError(f"{parameter} {path} cannot be written ({_reason(error)})") from None
+    if not existed:
+        path.unlink(missing_ok=True)
+    return path
+
+
+def check_output_dir(path: str | Path, *, parameter: str) -> Path:
+    """``path`` as a :class:`~pathlib.Path` if it is (or can be made) a writable folder, else
+    :class:`ConfigError`. Creates it.
+
+    Example:
+        >>> import os, tempfile
+        >>> check_output_dir(os.path.join(tempfile.mkdtemp(), "plots"), parameter="--plots").is_dir()
+        True
+    """
+    path = Path(path)
+    if not str(path).strip():
+        raise ConfigError(f"{parameter} {str(path)!r} is empty; give a folder")
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{parameter} {path} is a file; give a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ConfigError(f"{parameter} {path} cannot be made a folder ({_reason(error)})") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise ConfigError(f"{parameter} {path} cannot be written (permission denied)")
+    return path
+
+
+def _make_parent(path: Path, parameter: str) -> None:
+    for ancestor in path.parents:
+        if ancestor.exists():
+            if not ancestor.is_dir():
+                raise ConfigError(f"{parameter} {path} cannot be written: {ancestor} is a file, not a folder")
+            break
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ConfigError(f"{parameter} {path} cannot be written ({_reason(error)})") from None
+
+
+def _reason(error: OSError) -> str:
+    if error.errno == errno.ENAMETOOLONG:
+        return "the file name is too long"
+    return error.strerror or str(error)

@@ -1,0 +1,189 @@
+"""Every bad input gets exit code 2 and one line on stderr that names the parameter and the value,
+never a traceback, and no input file is changed. Run in-process through ``main()``."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import pytest
+
+from oodmon.cli import main
+
+DATA = Path(__file__).parent / "data"
+ID_LOG = DATA / "cartpole-ensemble-id.mcap"
+
+
+def _threshold(**changes) -> dict:
+    from oodmon.agents import load
+    from oodmon.monitor.monitor import policy_hash
+
+    base = {"value": 4.6, "score": "chosen_std", "consecutive": 3, "mode": "episode", "far": 0.05, "n_episodes": 50,
+            "n_steps": 25000, "quantiles": {}, "task": "cartpole", "method": "ensemble", "window": 1,
+            "policy_hash": policy_hash(load("cartpole", "ensemble"))}
+    return base | changes
+
+
+def _log_with_a_broken_episode_record(path: Path) -> None:
+    from mcap.writer import Writer
+
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="", library="test")
+        schema = writer.register_schema("oodmon.Episode", "jsonschema", b"{}")
+        episode = writer.register_channel("/oodmon/episode", "json", schema)
+        scores = writer.register_channel("/oodmon/episode_scores", "json", schema)
+        writer.add_metadata("oodmon.run", {"task": "cartpole", "method": "ensemble", "threshold": "1.0"})
+        writer.add_message(episode, log_time=0, publish_time=0, data=json.dumps({"episode": 0, "variant": "cartpole"}).encode())
+        writer.add_message(scores, log_time=0, publish_time=0, data=json.dumps(
+            {"episode": 0, "length": 0, "score_f64": "", "shifted_u8": "", "alarm_u8": ""}).encode())
+        writer.finish()
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("inputs")
+    (root / "thr.json").write_text(json.dumps(_threshold()))
+    bad = {
+        "thr-number.json": "5", "thr-string.json": '"abc"', "thr-null.json": "null", "thr-broken.json": "{value: 1",
+        "thr-value-abc.json": json.dumps(_threshold(value="abc")),
+        "thr-value-null.json": json.dumps(_threshold(value=None)),
+        "thr-value-nan.json": json.dumps(_threshold(value=float("nan"))),
+        "thr-consecutive-0.json": json.dumps(_threshold(consecutive=0)),
+        "thr-mode.json": json.dumps(_threshold(mode="weird")),
+        "thr-far.json": json.dumps(_threshold(far=1.5)),
+        "thr-score.json": json.dumps(_threshold(score="foo")),
+        "thr-window.json": json.dumps(_threshold(window=-2)),
+        "thr-pong.json": json.dumps(_threshold(task="pong")),
+        "thr-dropout.json": json.dumps(_threshold(method="dropout")),
+        "thr-weights.json": json.dumps(_threshold(policy_hash="sha256:" + "0" * 64)),
+        "base-metrics-5.json": json.dumps({"metrics": 5}),
+        "base-row-5.json": json.dumps({"metrics": {"k": 5}}),
+        "base-high.json": json.dumps({"metrics": {"k": {"auroc": "high"}}}),
+        "base-unknown.json": json.dumps({"metrics": {"k": {"speed": 1.0}}}),
+        "base-tolerance.json": json.dumps({"tolerance": "x", "metrics": {}}),
+        "base-list.json": "[1, 2]",
+        "not-a-log.mcap": "hello",
+    }
+    for name, text in bad.items():
+        (root / name).write_text(text)
+    (root / "base-binary.json").write_bytes(bytes(range(256)))
+    (root / "a-file").write_text("")
+    (root / "a-folder").mkdir()
+    _log_with_a_broken_episode_record(root / "broken-episode.mcap")
+    return root
+
+
+RUN = ["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "1"]
+CALIBRATE = ["calibrate", "--task", "cartpole", "--method", "ensemble", "--episodes", "30"]
+
+# (id, argv with {d} for the inputs folder, environment, what the one line must name)
+CASES = [
+    ("run-seed-negative", [*RUN, "--seed", "-1"], {}, ["--seed", "-1"]),
+    ("run-episodes-0", [*RUN, "--episodes", "0"], {}, ["--episodes", "0"]),
+    ("run-episodes-negative", [*RUN, "--episodes", "-3"], {}, ["--episodes", "-3"]),
+    ("run-episodes-text", [*RUN, "--episodes", "many"], {}, ["--episodes", "many"]),
+    ("run-onset-negative", [*RUN, "--onset", "-5"], {}, ["--onset", "-5"]),
+    ("run-port-0", [*RUN, "--port", "0"], {}, ["--port", "0"]),
+    ("run-port-too-big", [*RUN, "--port", "70000"], {}, ["--port", "70000"]),
+    ("run-mcap-in-proc", [*RUN, "--mcap", "/proc/x.mcap"], {}, ["--mcap", "/proc/x.mcap"]),
+    ("run-mcap-parent-is-a-file", [*RUN, "--mcap", "{d}/a-file/x.mcap"], {}, ["--mcap", "a-file"]),
+    ("run-mcap-is-a-folder", [*RUN, "--mcap", "{d}/a-folder"], {}, ["--mcap", "a-folder", "folder"]),
+    ("run-mcap-name-too-long", [*RUN, "--mcap", "{d}/" + "x" * 300 + ".mcap"], {}, ["--mcap", "too long"]),
+    ("run-rrd-parent-is-a-file", [*RUN, "--rrd", "{d}/a-file/x.rrd"], {}, ["--rrd", "a-file"]),
+    ("run-mcap-same-as-rrd", [*RUN, "--mcap", "{d}/same", "--rrd", "{d}/same"], {}, ["--rrd", "same", "--mcap"]),
+    ("run-mcap-is-the-threshold", [*RUN, "--threshold", "{d}/thr.json", "--mcap", "{d}/thr.json"], {},
+     ["--mcap", "thr.json", "--threshold"]),
+    ("run-threshold-missing", [*RUN, "--threshold", "{d}/nothing.json"], {}, ["nothing.json", "does not exist"]),
+    ("run-threshold-a-number", [*RUN, "--threshold", "{d}/thr-number.json"], {}, ["thr-number.json", "5"]),
+    ("run-threshold-a-string", [*RUN, "--threshold", "{d}/thr-string.json"], {}, ["thr-string.json", "abc"]),
+    ("run-threshold-null", [*RUN, "--threshold", "{d}/thr-null.json"], {}, ["thr-null.json", "None"]),
+    ("run-threshold-not-json", [*RUN, "--threshold", "{d}/thr-broken.json"], {}, ["thr-broken.json", "not valid JSON"]),
+    ("run-threshold-value-abc", [*RUN, "--threshold", "{d}/thr-value-abc.json"], {}, ["value='abc'"]),
+    ("run-threshold-value-null", [*RUN, "--threshold", "{d}/thr-value-null.json"], {}, ["value=None"]),
+    ("run-threshold-value-nan", [*RUN, "--threshold", "{d}/thr-value-nan.json"], {}, ["value=nan", "silence"]),
+    ("run-threshold-consecutive-0", [*RUN, "--threshold", "{d}/thr-consecutive-0.json"], {}, ["consecutive=0"]),
+    ("run-threshold-mode", [*RUN, "--threshold", "{d}/thr-mode.json"], {}, ["mode='weird'"]),
+    ("run-threshold-far", [*RUN, "--threshold", "{d}/thr-far.json"], {}, ["far=1.5"]),
+    ("run-threshold-score", [*RUN, "--threshold", "{d}/thr-score.json"], {}, ["score='foo'"]),
+    ("run-threshold-window", [*RUN, "--threshold", "{d}/thr-window.json"], {}, ["window=-2"]),
+    ("run-threshold-other-task", [*RUN, "--threshold", "{d}/thr-pong.json"], {}, ["task 'pong'", "--force"]),
+    ("run-threshold-other-method", [*RUN, "--threshold", "{d}/thr-dropout.json"], {}, ["method 'dropout'", "--force"]),
+    ("run-threshold-other-weights", [*RUN, "--threshold", "{d}/thr-weights.json"], {}, ["other weights", "sha256:0000"]),
+    ("run-variant-huge-length", [*RUN, "--variant", "cartpole:length=1e308"], {}, ["length=1e+308"]),
+    ("run-variant-zero-gravity", [*RUN, "--variant", "cartpole:gravity=0"], {}, ["gravity=0"]),
+    ("run-variant-other-task", [*RUN, "--variant", "pendulum:g=20.0"], {}, ["pendulum:g=20.0", "cartpole"]),
+    ("run-model-missing", ["run", "--task", "cartpole", "--model", "{d}/no-model"], {}, ["no-model", "model.json"]),
+    ("calibrate-episodes-negative", [*CALIBRATE, "--episodes", "-1", "--out", "{d}/t.json"], {}, ["--episodes", "-1"]),
+    ("calibrate-out-in-proc", [*CALIBRATE, "--out", "/proc/t.json"], {}, ["--out", "/proc/t.json"]),
+    ("calibrate-out-is-a-folder", [*CALIBRATE, "--out", "{d}/a-folder"], {}, ["--out", "a-folder"]),
+    ("calibrate-far-1.5", [*CALIBRATE, "--far", "1.5", "--out", "{d}/t.json"], {}, ["--far", "1.5"]),
+    ("calibrate-far-too-small-for-n", [*CALIBRATE, "--far", "0.01", "--out", "{d}/t.json"], {}, ["far=0.01", "30"]),
+    ("calibrate-consecutive-0", [*CALIBRATE, "--consecutive", "0", "--out", "{d}/t.json"], {}, ["--consecutive", "0"]),
+    ("calibrate-window-0", [*CALIBRATE, "--window", "0", "--out", "{d}/t.json"], {}, ["--window", "0"]),
+    ("calibrate-score-unknown", [*CALIBRATE, "--score", "foo", "--out", "{d}/t.json"], {}, ["score 'foo'"]),
+    ("check-baseline-binary", ["check", str(ID_LOG), "--baseline", "{d}/base-binary.json"], {}, ["base-binary.json", "JSON"]),
+    ("check-baseline-metrics-5", ["check", str(ID_LOG), "--baseline", "{d}/base-metrics-5.json"], {}, ["metrics", "5"]),
+    ("check-baseline-row-5", ["check", str(ID_LOG), "--baseline", "{d}/base-row-5.json"], {}, ["metrics['k']=5"]),
+    ("check-baseline-auroc-high", ["check", str(ID_LOG), "--baseline", "{d}/base-high.json"], {},
+     ["['auroc']='high'"]),
+    ("check-baseline-unknown-metric", ["check", str(ID_LOG), "--baseline", "{d}/base-unknown.json"], {}, ["'speed'"]),
+    ("check-baseline-tolerance-x", ["check", str(ID_LOG), "--baseline", "{d}/base-tolerance.json"], {}, ["tolerance='x'"]),
+    ("check-baseline-a-list", ["check", str(ID_LOG), "--baseline", "{d}/base-list.json"], {}, ["base-list.json", "[1, 2]"]),
+    ("check-tolerance-flag-x", ["check", str(ID_LOG), "--baseline", "{d}/b.json", "--tolerance", "x"], {},
+     ["--tolerance", "'x'"]),
+    ("check-update-over-the-log", ["check", "{d}/../log.mcap", "--baseline", "{d}/../log.mcap", "--update"], {},
+     ["--baseline", "log.mcap"]),
+    ("replay-not-mcap", ["replay", "{d}/not-a-log.mcap"], {}, ["not-a-log.mcap", "not an MCAP file"]),
+    ("replay-missing", ["replay", "{d}/missing.mcap"], {}, ["missing.mcap", "does not exist"]),
+    ("replay-episode-record-lacks-fields", ["replay", "{d}/broken-episode.mcap"], {}, ["broken-episode.mcap", "env_id"]),
+    ("replay-plots-is-a-file", ["replay", str(ID_LOG), "--plots", "{d}/a-file"], {}, ["--plots", "a-file"]),
+    ("threads-huge", ["envs", "--task", "cartpole"], {"OODMON_TORCH_THREADS": "99999999999"},
+     ["OODMON_TORCH_THREADS", "99999999999"]),
+    ("threads-text", ["envs", "--task", "cartpole"], {"OODMON_TORCH_THREADS": "two"}, ["OODMON_TORCH_THREADS", "two"]),
+    ("threads-zero", ["envs", "--task", "cartpole"], {"OODMON_TORCH_THREADS": "0"}, ["OODMON_TORCH_THREADS", "0"]),
+    ("bench-trials-0", ["bench", "--task", "cartpole", "--trials", "0"], {}, ["--trials", "0"]),
+    ("bench-workers-negative", ["bench", "--task", "cartpole", "--workers", "-1"], {}, ["--workers", "-1"]),
+    ("bench-method-unknown", ["bench", "--task", "cartpole", "--methods", "bayes"], {}, ["--methods", "bayes"]),
+    ("evaluate-episodes-0", ["evaluate", "--task", "cartpole", "--method", "ensemble", "--episodes", "0"], {},
+     ["--episodes", "0"]),
+    ("evaluate-fail-fraction", ["evaluate", "--task", "cartpole", "--method", "ensemble", "--fail-fraction", "2"], {},
+     ["--fail-fraction", "2"]),
+    ("train-steps-0", ["train", "--task", "cartpole", "--method", "dropout", "--out", "{d}/t", "--steps", "0"], {},
+     ["--steps", "0"]),
+    ("train-out-is-a-file", ["train", "--task", "cartpole", "--method", "dropout", "--out", "{d}/a-file"], {},
+     ["--out", "a-file"]),
+    ("task-unknown", ["calibrate", "--task", "hopper", "--method", "dropout", "--out", "{d}/t.json"], {},
+     ["--task", "hopper"]),
+    ("envs-show-bad-spec", ["envs", "show", "cartpole:lenght=2"], {}, ["lenght"]),
+]
+
+
+def _hashes(folder: Path) -> dict[str, str]:
+    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_there_are_at_least_forty_cases():
+    assert len(CASES) >= 40 and len({case[0] for case in CASES}) == len(CASES)
+
+
+@pytest.mark.parametrize("argv, environment, named", [case[1:] for case in CASES], ids=[case[0] for case in CASES])
+def test_bad_input_is_one_clear_line_with_exit_code_2(files, argv, environment, named, capsys, monkeypatch):
+    import shutil
+
+    shutil.copyfile(ID_LOG, files.parent / "log.mcap")
+    for name, value in environment.items():
+        monkeypatch.setenv(name, value)
+    before = _hashes(files.parent) | _hashes(DATA)
+    code = main([arg.replace("{d}", str(files)) for arg in argv])
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == 2, err
+    assert len(lines) == 1, err
+    assert "Traceback" not in err and "error" in lines[0]
+    for text in named:
+        assert text in lines[0], lines[0]
+    after = _hashes(files.parent) | _hashes(DATA)
+    assert {k: v for k, v in after.items() if k in before} == before  # no input changed
+    assert not [k for k in after if k not in before and not k.endswith(".mcap")]  # nothing written
