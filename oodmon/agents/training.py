@@ -337,6 +337,7 @@ def train(
     id_episodes: int | None = None,
     export_only: bool = False,
     load_pickles: bool = False,
+    recipe: Recipe | None = None,
 ) -> Agent:
     """Train (or resume training) the ``task``/``method`` agent into ``out``; return it loaded.
 
@@ -352,8 +353,13 @@ def train(
             (its metadata says ``training_complete: false``).
         load_pickles: resume from an older training's pickled ``checkpoint.zip`` and
             ``replay_buffer.pkl``. Loading a pickle runs the code it holds: only for files you made.
+        recipe: train from this recipe instead of the shipped one of ``task``/``method`` (a sweep
+            over drop probabilities, say); its task and method must be those given.
     """
-    recipe = recipe_for(task, method)
+    if recipe is None:
+        recipe = recipe_for(task, method)
+    elif (recipe.task, recipe.method) != (task, method):
+        raise ConfigError(f"recipe is for {recipe.task}/{recipe.method}, not {task}/{method}")
     if total_steps is not None:
         recipe = _shortened(recipe, total_steps)
     root = Path(out)

@@ -276,3 +276,12 @@ def test_a_crafted_pickle_in_the_run_folder_runs_no_code(tmp_path):
     with pytest.raises(Exception):
         _Run(recipe, tmp_path, "main", 0).load_or_create(_training_env(recipe), load_pickles=True)
     assert marker.exists()
+
+
+def test_a_recipe_of_another_task_or_method_is_refused(tmp_path):
+    from dataclasses import replace
+
+    from oodmon.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="recipe is for cartpole/dropconnect, not cartpole/dropout"):
+        train("cartpole", "dropout", tmp_path, recipe=replace(recipe_for("cartpole", "dropconnect"), last_only=False))

@@ -122,3 +122,48 @@ def test_a_run_killed_before_its_first_episode_ended_is_an_oodmon_log_with_no_ep
     with pytest.warns(RecoveryWarning, match="recovered 0 complete episode"):
         log = read_log(first["path"])
     assert log.episodes == [] and log.metadata["task"] == "cartpole" and log.metadata["policy_hash"].startswith("sha256:")
+
+
+UNCLOSED = """
+import sys
+from oodmon.agents import load
+from oodmon.envs import Variant
+from oodmon.monitor import McapSink, Monitor
+monitor = Monitor(load("cartpole", "dropout"), threshold=3.0, sinks=[McapSink(sys.argv[1])]).open()
+for episode in range(2):
+    monitor.run_episode(Variant("cartpole").make(), seed=episode)
+"""
+
+
+def test_a_script_that_never_closes_its_monitor_leaves_a_finished_log(tmp_path):
+    import warnings
+
+    subprocess.run([sys.executable, "-c", UNCLOSED, str(tmp_path / "open.mcap")], check=True, timeout=120)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RecoveryWarning)  # finished: read through its index, no recovery
+        log = read_log(tmp_path / "open.mcap")
+    assert log.complete and len(log.episodes) == 2
+
+
+def test_ctrl_c_in_oodmon_run_exits_130_and_marks_the_cut_episode(tmp_path, monkeypatch, capsys):
+    from oodmon.cli import main
+    from oodmon.monitor import Monitor
+
+    step = Monitor.step
+    calls = [0]
+
+    def interrupted_at_step_700(self, *args, **kwargs):
+        calls[0] += 1
+        if calls[0] == 700:
+            raise KeyboardInterrupt
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(Monitor, "step", interrupted_at_step_700)
+    code = main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "5", "--mcap",
+                 str(tmp_path / "cut.mcap")])
+    err = capsys.readouterr().err
+    assert code == 130 and err.strip().splitlines() == [
+        "oodmon: interrupted; every finished episode is in the logs, the cut one is marked interrupted"]
+    log = read_log(tmp_path / "cut.mcap")
+    assert log.complete and [e.length for e in log.episodes] == [500] and len(log.interrupted) == 1
+    assert log.interrupted[0].length == 199

@@ -165,12 +165,15 @@ def test_pong_frames_reach_both_logs_as_the_agent_saw_them(tmp_path):
 def test_a_viewer_that_is_gone_costs_the_run_little_time_and_no_memory(agent, tmp_path):
     import resource
 
+    start = time.monotonic()
+    _run(agent, [RerunSink(tmp_path / "alone.rrd")], episodes=3)
+    alone = time.monotonic() - start
     memory = MemorySink()
     start = time.monotonic()
     sink = RerunSink(tmp_path / "kept.rrd", connect="rerun+http://127.0.0.1:9/proxy")
     with pytest.warns(SinkWarning, match="no Rerun viewer at rerun\\+http://127.0.0.1:9/proxy"):
         records = _run(agent, [sink, memory], episodes=3)
-    assert time.monotonic() - start < 2 + 3 * 1.0  # the connect timeout once; three short episodes at most 1 s each
+    assert time.monotonic() - start - alone < 2.0  # the dead viewer's whole cost: at most 2 s
     assert len(memory.episodes) == 3 and sink.dropped == sum(r.length for r in records) == len(memory.steps)
     assert (tmp_path / "kept.rrd").stat().st_size > 0  # the file goes on without the viewer
     # Steps for a dead viewer are dropped and counted, not queued: memory stays flat over 20,000 steps.

@@ -1,0 +1,88 @@
+"""Full-depth MC Dropout / DropConnect (a stochastic layer after every hidden layer): which drop
+probability still solves the task, and how well its spread separates the paper's variants.
+
+Run (resumable; one torch thread, so it can sit beside other work):
+    OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_full_depth.py [--tasks cartpole,pendulum]
+
+Each (task, method, p) trains with the shipped recipe but ``last_only=False`` and ``drop_p=p`` into
+``runs/sweep/<task>-<method>-full-p<p>`` (resumed if interrupted), then measures, with the agent as
+it ships (MC-mean decisions): ``id_return_mean`` over 20 ID episodes (from the export) and the
+per-step AUROC of the paper's score (and ``pre_squash_std`` for Pendulum) on the variants the paper
+reports for that method, from 10 ID episodes (seeds 200000+) against 5 episodes of each variant
+(seeds 400000+). One JSON line per configuration goes to ``results/sweeps/full_depth.jsonl``; a
+configuration already there is not run again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from sklearn.metrics import roc_auc_score
+
+from oodmon.agents.recipes import recipe_for
+from oodmon.agents.training import train
+from oodmon.envs import parse_variant
+from oodmon.monitor import MemorySink, Monitor
+
+OUT = Path("results/sweeps/full_depth.jsonl")
+GRID = (0.01, 0.05, 0.1, 0.2)
+VARIANTS = {  # the variants of the paper's appendix tables, per task and method
+    ("cartpole", "dropout"): ["cartpole:force_mag=2.5", "cartpole:gravity=49.0", "cartpole:masscart=3.0",
+                              "cartpole:masspole=3.0"],
+    ("cartpole", "dropconnect"): ["cartpole:force_mag=1.0", "cartpole:gravity=78.4", "cartpole:length=2.0",
+                                  "cartpole:masscart=9.0", "cartpole:masspole=9.0"],
+    ("pendulum", "dropout"): ["pendulum:g=50.0", "pendulum:l=5.0", "pendulum:m=5.0"],
+    ("pendulum", "dropconnect"): ["pendulum:g=50.0", "pendulum:l=5.0", "pendulum:m=5.0"],
+}
+
+
+def _scores(agent, spec: str, episodes: int, seed: int, score: str) -> tuple[np.ndarray, list[float]]:
+    sink = MemorySink()
+    env = parse_variant(spec).make()
+    with Monitor(agent, score=score, sinks=[sink], log_observations=False) as monitor:
+        returns = [monitor.run_episode(env, seed=seed + k, variant=spec).total_return for k in range(episodes)]
+    return np.array([s.score for s in sink.steps]), returns
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--tasks", default="cartpole,pendulum")
+    parser.add_argument("--methods", default="dropout,dropconnect")
+    parser.add_argument("--grid", default=",".join(str(p) for p in GRID))
+    args = parser.parse_args()
+    done = set()
+    if OUT.exists():
+        done = {(r["task"], r["method"], r["drop_p"]) for r in map(json.loads, OUT.read_text().splitlines())}
+    for task in args.tasks.split(","):
+        for method in args.methods.split(","):
+            for p in (float(x) for x in args.grid.split(",")):
+                if (task, method, p) in done:
+                    continue
+                start = time.monotonic()
+                recipe = replace(recipe_for(task, method), last_only=False, drop_p=p)
+                agent = train(task, method, f"runs/sweep/{task}-{method}-full-p{p}", seed=0, recipe=recipe,
+                              command=f"scripts/sweep_full_depth.py ({task}, {method}, p={p})")
+                row = {"task": task, "method": method, "drop_p": p, "last_only": False,
+                       "id_return_mean": agent.metadata["id_return_mean"], "auroc": {}}
+                for score in (["chosen_std"] + (["pre_squash_std"] if task == "pendulum" else [])):
+                    id_scores, _ = _scores(agent, task, 10, 200_000, score)
+                    row["auroc"][score] = {}
+                    for spec in VARIANTS[(task, method)]:
+                        ood, returns = _scores(agent, spec, 5, 400_000, score)
+                        labels = np.r_[np.zeros(len(id_scores)), np.ones(len(ood))]
+                        row["auroc"][score][spec] = round(float(roc_auc_score(labels, np.r_[id_scores, ood])), 3)
+                        row.setdefault("variant_return_mean", {})[spec] = round(float(np.mean(returns)), 1)
+                row["wall_time_s"] = round(time.monotonic() - start, 1)
+                OUT.parent.mkdir(parents=True, exist_ok=True)
+                with OUT.open("a") as f:
+                    f.write(json.dumps(row) + "\n")
+                print(json.dumps(row), flush=True)
+
+
+if __name__ == "__main__":
+    main()
