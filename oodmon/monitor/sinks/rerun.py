@@ -77,7 +77,6 @@ class RerunSink:
         self.connect_timeout = connect_timeout
         self.dropped = 0  # steps not sent to a live viewer that was gone
         self.served_at: str | None = None  # the URL a viewer connects to (``serve``)
-        self._rec = None
         self._streams: list = []
         self._live = None
         self._global_step = 0
@@ -112,7 +111,6 @@ class RerunSink:
             else:
                 _warn(f"no Rerun viewer at {url} ({unreachable}); the run goes on without it"
                       + (f", logging to {self.path}" if self.path else ""))
-        self._rec = self._streams[0] if self._streams else None
 
     def _stream(self, run: RunInfo, sinks: list):
         rr = self._rr
@@ -239,7 +237,7 @@ class RerunSink:
         finally:
             for rec in self._streams:
                 rec.disconnect()
-            self._streams, self._live, self._rec = [], None, None
+            self._streams, self._live = [], None
 
 
 def _unreachable(url: str, timeout: float) -> str | None:
