@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from oodmon import seeds
 from oodmon.agents import evaluate_variants, load_agent, train, zoo_dir, zoo_names
 from oodmon.agents.recipes import recipe_for
 from oodmon.envs.grid import Variant, paper_grid, parse_variant
@@ -63,6 +64,41 @@ class BenchConfig:
     executor: str = "local"  # "local" (worker processes) or "ray" (tasks on a Ray cluster)
     address: str | None = None  # the Ray cluster; None starts a local one
     bind: str = "127.0.0.1"  # the address a local Ray cluster listens on: loopback unless opened on purpose
+    detectors: tuple[str, ...] = ("spread",)  # whose per-step AUROC is reported; learned ones are fitted per trial
+    alarm_detector: str = "spread"  # the detector the monitor's alarm reads
+    obs_noise: float = 0.0  # sensor noise in every monitored env (fit, calibration, cells), see envs
+    fit_episodes: int = 0  # ID episodes the learned detectors are fitted on (0: the task's default)
+
+    def __post_init__(self) -> None:
+        from oodmon.monitor.threshold import DETECTOR_NAMES
+
+        for name in (*self.detectors, self.alarm_detector):
+            if name not in DETECTOR_NAMES:
+                raise ConfigError(f"unknown detector {name!r}; choose from {', '.join(DETECTOR_NAMES)}")
+        if self.alarm_detector not in self.detectors:
+            raise ConfigError(f"the alarm reads the {self.alarm_detector} detector: add it to the detectors")
+        if "spread" not in self.detectors:
+            raise ConfigError("the bench's agents all have samples: keep spread among the detectors")
+
+    @property
+    def learned(self) -> tuple[str, ...]:
+        """The detectors to fit per trial (``combined`` brings its members)."""
+        names = [d for d in self.detectors if d != "spread"]
+        if "combined" in names and self.task == "pong":
+            names = [d for d in names if d != "dynamics"]
+        return tuple(names)
+
+    def cache_key(self) -> str:
+        """What the cached thresholds and logs of a (method, trial) depend on beyond the weights:
+        score, alarm rule, target rate, calibration episodes, detectors and sensor noise."""
+        parts = [self.score, f"far{self.far:g}", f"n{self.calibration_episodes}"]
+        if self.window != 1:
+            parts.append(f"w{self.window}")
+        if self.learned:
+            parts.append("+".join(self.detectors) + f"-alarm-{self.alarm_detector}")
+        if self.obs_noise:
+            parts.append(f"noise{self.obs_noise:g}")
+        return "-".join(parts)
 
     def variant_list(self) -> list[Variant]:
         if self.variants == "paper":
@@ -76,12 +112,13 @@ class BenchConfig:
 
 @dataclass(frozen=True)
 class Row:
-    """One (method, variant): our AUROC per trial beside the paper's."""
+    """One (method, variant, detector): our AUROC per trial beside the paper's."""
 
     method: str
     variant: str
     aurocs: dict[int, float]
     paper: list[float] | None
+    detector: str = "spread"
 
     @property
     def mean(self) -> float:
@@ -161,9 +198,7 @@ def _ensure_model(config: BenchConfig, method: str, trial: int) -> Path:
 
 def _cell_log(config: BenchConfig, method: str, trial: int, name: str) -> Path:
     safe = name.replace(":", "_").replace("@", "_").replace("=", "-").replace(",", "_")
-    score = "" if config.score == "chosen_std" else f"-{config.score}"
-    window = "" if config.window == 1 else f"-w{config.window}"
-    return Path(config.out) / "logs" / f"{config.task}{score}{window}" / method / f"trial{trial}" / f"{safe}.mcap"
+    return Path(config.out) / "logs" / f"{config.task}-{config.cache_key()}" / method / f"trial{trial}" / f"{safe}.mcap"
 
 
 def _log_is_complete(path: Path, episodes: int) -> bool:
@@ -182,19 +217,23 @@ def _log_is_complete(path: Path, episodes: int) -> bool:
     return log.complete and len(log.episodes) == episodes
 
 
-def _run_cell(task: str, model: str, threshold: str, spec: str, episodes: int, seed: int, log: str) -> str:
+def _run_cell(task: str, model: str, threshold: str, spec: str, episodes: int, seed: int, log: str,
+              detectors: str | None = None, obs_noise: float = 0.0) -> str:
     """One cell, in a worker process: monitored episodes of one variant into one MCAP log."""
     import torch
 
     from oodmon.monitor import McapSink, Monitor, Threshold
+    from oodmon.monitor.detectors import DetectorSet
 
     torch.set_num_threads(1)
     agent = load_agent(model, task=task, seed=seed)  # seeded MC sampling: the same cell, the same log
     variant = parse_variant(spec)
-    env = variant.make()
+    env = variant.make(obs_noise=obs_noise) if obs_noise else variant.make()
     temporary = Path(log).with_suffix(".part")
     temporary.parent.mkdir(parents=True, exist_ok=True)
-    with Monitor(agent, Threshold.load(threshold), sinks=[McapSink(temporary)], strict=True) as monitor:
+    fitted = DetectorSet.load(detectors) if detectors else None
+    with Monitor(agent, Threshold.load(threshold), detectors=fitted, sinks=[McapSink(temporary)],
+                 strict=True) as monitor:
         for episode in range(episodes):
             monitor.run_episode(env, seed=seed + episode, variant=variant.spec)
     env.close()
@@ -278,7 +317,7 @@ def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path) ->
 
 
 def _prepare_trial(config: BenchConfig, method: str, trial: int,
-                   report: Callable[[str, int, int], None]) -> tuple[Path, Path, list[str]]:
+                   report: Callable[[str, int, int], None]) -> tuple[Path, Path, list[str], Path | None]:
     """Model, threshold and failing variants of one (method, trial); cached in its folder.
     ``report(stage, done, total)`` counts the episodes of calibration and evaluation."""
     from oodmon.monitor import calibrate_agent
@@ -286,11 +325,16 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
     model = _ensure_model(config, method, trial)
     folder = _cell_log(config, method, trial, "x").parent
     _set_aside_if_made_by_other_weights(Path(config.out), folder, model)
-    threshold_path, failing_path = folder / f"threshold-{config.score}.json", folder / "failing.json"
+    threshold_path, failing_path = folder / f"threshold-{config.cache_key()}.json", folder / "failing.json"
     agent = load_agent(model, task=config.task)
+    detectors_path = _fit_trial_detectors(config, agent, folder, f"{method} trial {trial}", report)
     if not threshold_path.exists():
+        from oodmon.monitor.detectors import DetectorSet
+
         stage = f"{method} trial {trial}: calibration episodes"
         calibrate_agent(agent, config.calibration_episodes, config.far, score=config.score, window=config.window,
+                        detectors=DetectorSet.load(detectors_path) if detectors_path else None,
+                        detector=config.alarm_detector, obs_noise=config.obs_noise,
                         on_episode=lambda episode: report(stage, episode + 1, config.calibration_episodes)).save(threshold_path)
     variants = config.variant_list()
     if failing_path.exists() and json.loads(failing_path.read_text()).get("variants") == [v.spec for v in variants]:
@@ -305,7 +349,30 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
         failing = [r.spec for r in results if r.fails]
         failing_path.write_text(json.dumps({"variants": [v.spec for v in variants], "failing": failing,
                                             "returns": {r.spec: r.mean for r in results}}, indent=1))
-    return model, threshold_path, failing
+    return model, threshold_path, failing, detectors_path
+
+
+#: Fitting episodes per task: Pong's games are long, its detectors fit on their first 1,000 steps.
+_FIT = {"pong": {"episodes": 6, "max_steps": 1000}}
+
+
+def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
+                         report: Callable[[str, int, int], None]) -> Path | None:
+    """The (method, trial)'s fitted detectors, fitted once into its folder (cached beside the
+    threshold, and set aside with it when the weights change)."""
+    if not config.learned:
+        return None
+    from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES, fit_agent_detectors
+
+    path = folder / f"detectors-{config.cache_key()}"
+    if not (path / "detectors.json").exists():
+        fit = dict(_FIT.get(config.task, {"episodes": DEFAULT_FIT_EPISODES, "max_steps": None}))
+        if config.fit_episodes:
+            fit["episodes"] = config.fit_episodes
+        stage = f"{label}: detector fitting episodes"
+        fit_agent_detectors(agent, detectors=config.learned, score=config.score, obs_noise=config.obs_noise,
+                            on_episode=lambda episode: report(stage, episode + 1, fit["episodes"]), **fit).save(path)
+    return path
 
 
 def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], None] | None = None) -> BenchResult:
@@ -317,22 +384,23 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
     check_window(config.window)
     for method, trial in trials:  # before minutes of work on the others
         _refuse_to_train_for_hours(config, method, trial)
-    prepared: dict[tuple[str, int], tuple[Path, Path, list[str]]] = {}
+    prepared: dict[tuple[str, int], tuple[Path, Path, list[str], Path | None]] = {}
     for index, (method, trial) in enumerate(trials):
         report("models, thresholds, failing variants", index, len(trials))
         prepared[(method, trial)] = _prepare_trial(config, method, trial, report)
     report("models, thresholds, failing variants", len(trials), len(trials))
 
     cells = []
-    for (method, trial), (model, threshold, failing) in prepared.items():
-        cells.append((method, trial, config.task, config.id_episodes, 400_000))
-        cells += [(method, trial, spec, config.episodes, 500_000) for spec in failing]
+    for (method, trial), (model, threshold, failing, _) in prepared.items():
+        cells.append((method, trial, config.task, config.id_episodes, seeds.BENCH_ID))
+        cells += [(method, trial, spec, config.episodes, seeds.BENCH_SHIFTED) for spec in failing]
     jobs = []
     for method, trial, spec, episodes, seed in cells:
         log = _cell_log(config, method, trial, spec)
         if not _log_is_complete(log, episodes):
-            model, threshold, _ = prepared[(method, trial)]
-            jobs.append((config.task, str(model), str(threshold), spec, episodes, seed, str(log)))
+            model, threshold, _, detectors = prepared[(method, trial)]
+            jobs.append((config.task, str(model), str(threshold), spec, episodes, seed, str(log),
+                         None if detectors is None else str(detectors), config.obs_noise))
     done = len(cells) - len(jobs)
     report("monitored cells", done, len(cells))
     workers = config.workers or os.cpu_count() or 1
@@ -340,31 +408,36 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
         done += 1
         report("monitored cells", done, len(cells))
 
-    rows: dict[tuple[str, str], dict[int, float]] = {}
+    rows: dict[tuple[str, str, int], dict[int, float]] = {}
     detection: dict[str, dict[str, float | None]] = {}
-    for (method, trial), (_, _, failing) in prepared.items():
+    for (method, trial), (_, _, failing, _) in prepared.items():
         logs = [read_log(_cell_log(config, method, trial, spec)) for spec in [config.task, *failing]]
-        for m in compute_metrics(logs):
-            if m.auroc is not None:
-                rows.setdefault((method, m.variant), {})[trial] = m.auroc
-            key = f"{method}/trial{trial}/{m.variant}"
-            detection[key] = {"false_alarm_rate": m.false_alarm_rate, "detection_rate": m.detection_rate,
-                              "delay_mean": m.delay_mean}
+        for order, detector in enumerate(config.detectors):
+            for m in compute_metrics(logs, detector):
+                if m.auroc is not None:
+                    rows.setdefault((method, m.variant, order), {})[trial] = m.auroc
+                if detector == config.alarm_detector:
+                    key = f"{method}/trial{trial}/{m.variant}"
+                    detection[key] = {"false_alarm_rate": m.false_alarm_rate, "detection_rate": m.detection_rate,
+                                      "delay_mean": m.delay_mean}
     paper = paper_auc_per_trial().get(config.task, {})
     result_rows = []
-    for (method, spec), aurocs in sorted(rows.items()):
+    for (method, spec, order), aurocs in sorted(rows.items()):
         label = paper_label(config.task, method, spec)
-        result_rows.append(Row(method, spec, aurocs, paper[PAPER_METHOD[method]][label] if label else None))
+        result_rows.append(Row(method, spec, aurocs, paper[PAPER_METHOD[method]][label] if label else None,
+                               config.detectors[order]))
     failing = {m: {t: prepared[(m, t)][2] for t in range(config.trials)} for m in config.methods}
     return BenchResult(result_rows, failing, detection)
 
 
-def best_per_method(result: BenchResult, task: str, top: int = 3) -> list[tuple[str, str, float, float | None]]:
-    """Per method, the variants with the best single-trial AUROC (the paper's main tables),
-    with the paper's best trial for the same variant where it reports one."""
+def best_per_method(result: BenchResult, task: str, top: int = 3,
+                    detector: str = "spread") -> list[tuple[str, str, float, float | None]]:
+    """Per method, the variants with the best single-trial AUROC of ``detector`` (the paper's main
+    tables: the spread), with the paper's best trial for the same variant where it reports one."""
     best = []
     for method in sorted({r.method for r in result.rows}):
-        rows = sorted((r for r in result.rows if r.method == method), key=lambda r: -max(r.aurocs.values()))
+        rows = sorted((r for r in result.rows if r.method == method and r.detector == detector),
+                      key=lambda r: -max(r.aurocs.values()))
         for row in rows[:top]:
             best.append((method, row.variant, max(row.aurocs.values()), max(row.paper) if row.paper else None))
     return best

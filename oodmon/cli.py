@@ -19,6 +19,8 @@ from rich.console import Console
 from rich.table import Table
 
 from oodmon.errors import ConfigError, OodmonError
+from oodmon.monitor.threshold import DETECTOR_NAMES
+from oodmon.seeds import CALIBRATION
 
 __all__ = ["main"]
 
@@ -191,9 +193,28 @@ def _parser() -> argparse.ArgumentParser:
                            help="compare the mean score of the last N steps (default 1: each step's; Pong: try 100)")
     calibrate.add_argument("--mode", choices=["episode", "step"], default="episode",
                            help="guarantee per episode (default) or per step")
-    calibrate.add_argument("--score", default="chosen_std", help="chosen_std (default), mean_std or max_std")
+    calibrate.add_argument("--score", default="chosen_std",
+                           help="the spread's score: chosen_std (default), mean_std, max_std or pre_squash_std")
+    calibrate.add_argument("--detector", choices=list(DETECTOR_NAMES), default="spread",
+                           help="the detector the alarm reads (default spread); a learned one needs fitted detectors")
+    calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
+                           help=f"seed of the first calibration episode (default {CALIBRATION})")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate)
+
+    fit = commands.add_parser(
+        "fit-detectors", help="fit the learned detectors (dynamics, features, combined) on an agent's ID episodes"
+    )
+    _agent_arguments(fit)
+    fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have)")
+    fit.add_argument("--episodes", type=_whole(3), default=30,
+                     help="ID episodes: two thirds fit, one third ranks for combined (default 30)")
+    fit.add_argument("--max-steps", type=_whole(1), help="cut each episode after this many steps (Pong: try 300)")
+    fit.add_argument("--score", default="chosen_std", help="the spread score combined uses (default chosen_std)")
+    fit.add_argument("--obs-noise", type=_non_negative, default=0.0,
+                     help="sensor noise of the ID env, a fraction of each dimension's ID spread (default 0)")
+    fit.add_argument("--out", required=True, help="folder for detectors.json and detectors.safetensors")
+    fit.set_defaults(handler=_fit_detectors)
 
     run = commands.add_parser("run", help="run a monitored agent in an env (ID or shifted), logging to MCAP/Rerun")
     _agent_arguments(run)
@@ -223,6 +244,8 @@ def _parser() -> argparse.ArgumentParser:
     formats.add_argument("--csv", action="store_true", help="print CSV")
     formats.add_argument("--markdown", action="store_true", help="print a Markdown table")
     replay.add_argument("--plots", metavar="DIR", help="also write PNG plots (ROC, traces, AUROC vs shift) to DIR")
+    replay.add_argument("--detector", help="the per-step metrics of this detector only (default: every detector "
+                                           "the logs hold, one row each)")
     replay.set_defaults(handler=_replay)
 
     check = commands.add_parser("check", help="regression check of recorded logs against a baseline")
@@ -244,6 +267,13 @@ def _parser() -> argparse.ArgumentParser:
                        help="chosen_std (the paper's, default), mean_std, max_std or pre_squash_std (DDPG)")
     bench.add_argument("--window", type=_whole(1), default=1,
                        help="alarm rule on the mean score of the last N steps (default 1); AUROCs do not change")
+    bench.add_argument("--detectors", default="spread",
+                       help="comma-separated detectors whose per-step AUROC is reported: spread (default), dynamics, "
+                            "features, combined; the learned ones are fitted per trial on ID episodes of their own")
+    bench.add_argument("--alarm-detector", default="spread", choices=list(DETECTOR_NAMES),
+                       help="the detector the monitor's alarm reads (default spread; one of --detectors)")
+    bench.add_argument("--obs-noise", type=_non_negative, default=0.0,
+                       help="sensor noise in every monitored env, a fraction of each dimension's ID spread (default 0)")
     bench.add_argument("--executor", choices=["local", "ray"], default="local",
                        help="local worker processes (default) or Ray tasks (needs oodmon[ray])")
     bench.add_argument("--address", help="the Ray cluster to use (default: start a local one)")
@@ -375,27 +405,52 @@ def _agent_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=["dropout", "dropconnect", "ensemble"],
                         help="a shipped agent (or give --model)")
     parser.add_argument("--model", help="a trained model directory instead of a shipped agent")
+    parser.add_argument("--detectors", metavar="DIR",
+                        help="fitted detectors from `oodmon fit-detectors` (default: those shipped with the agent, "
+                             "if any)")
 
 
 def _calibrate(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from oodmon.monitor import calibrate_agent
+    from oodmon.monitor.detectors import detectors_for
     from oodmon.outputs import check_output_file
 
     check_output_file(args.out, parameter="--out", inputs=[("--model", args.model and f"{args.model}/model.json")])
     agent = _load_agent(args)
+    detectors = detectors_for(agent, args.detectors)
     with Progress(console=Console(stderr=True), transient=True) as progress:
         bar = progress.add_task("ID calibration episodes", total=args.episodes)
         threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
-                                    window=args.window,
-                                    score=args.score, on_episode=lambda i: progress.update(bar, advance=1))
+                                    window=args.window, score=args.score, seed=args.seed, detectors=detectors,
+                                    detector=args.detector, on_episode=lambda i: progress.update(bar, advance=1))
     threshold.save(args.out)
     Console(soft_wrap=True).print(
-        f"{args.task}/{agent.method}: alarm when {threshold.rule} ({threshold.mode} mode, target false-alarm rate "
+        f"{args.task}/{agent.method}: alarm when {threshold.rule} ({threshold.detector} detector, {threshold.mode} mode, target false-alarm rate "
         f"{threshold.far}, {threshold.n_episodes} ID episodes, {threshold.n_steps} steps; ID score median "
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); wrote {args.out}"
     )
+    return 0
+
+
+def _fit_detectors(args: argparse.Namespace) -> int:
+    from rich.progress import Progress
+
+    from oodmon.monitor.detectors import fit_agent_detectors
+    from oodmon.outputs import check_output_dir
+
+    check_output_dir(args.out, parameter="--out")
+    agent = _load_agent(args)
+    only = args.only.split(",") if args.only else None
+    with Progress(console=Console(stderr=True), transient=True) as progress:
+        bar = progress.add_task("ID episodes for the detectors", total=args.episodes)
+        detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
+                                        obs_noise=args.obs_noise, max_steps=args.max_steps,
+                                        on_episode=lambda i: progress.update(bar, advance=1))
+    detectors.save(args.out)
+    Console(soft_wrap=True).print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
+                                  f"{args.episodes} ID episodes; wrote {args.out}")
     return 0
 
 
@@ -404,6 +459,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from oodmon.envs import Variant, parse_variant
     from oodmon.monitor import McapSink, Monitor, Threshold
+    from oodmon.monitor.detectors import detectors_for
     from oodmon.monitor.sinks.rerun import RerunSink
 
     from oodmon.outputs import check_output_file
@@ -419,6 +475,7 @@ def _run(args: argparse.Namespace) -> int:
         check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
     threshold = Threshold.load(args.threshold) if args.threshold else None
     agent = _load_agent(args)
+    detectors = detectors_for(agent, args.detectors)
     sinks = []
     if args.mcap:
         sinks.append(McapSink(args.mcap))
@@ -436,7 +493,8 @@ def _run(args: argparse.Namespace) -> int:
     env = variant.make(onset_step=args.onset)
     records = []
     with Progress(console=console, transient=True) as progress, \
-            Monitor(agent, threshold, sinks=sinks, callbacks=[show], strict=args.strict, force=args.force) as monitor:
+            Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show], strict=args.strict,
+                    force=args.force) as monitor:
         if args.serve:
             progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")
         bar = progress.add_task(f"{variant.spec} (onset {args.onset})", total=args.episodes)
@@ -481,18 +539,18 @@ def _read_logs(paths: Sequence[str]):
 
 
 def _replay(args: argparse.Namespace) -> int:
-    from oodmon.replay import compute_metrics, to_csv, to_json, to_markdown, to_table
+    from oodmon.replay import compute_all_metrics, compute_metrics, to_csv, to_json, to_markdown, to_table
 
     if args.plots:
         from oodmon.outputs import check_output_dir
 
         check_output_dir(args.plots, parameter="--plots")
     logs = _read_logs(args.logs)
-    metrics = compute_metrics(logs)
+    metrics = compute_all_metrics(logs) if args.detector is None else compute_metrics(logs, args.detector)
     if args.plots:
         from oodmon.replay.plots import write_plots
 
-        written = write_plots(logs, metrics, args.plots)
+        written = write_plots(logs, compute_metrics(logs), args.plots)
         print(f"wrote {len(written)} plot(s) to {args.plots}", file=sys.stderr)
     if args.json:
         print(to_json(metrics))
@@ -510,14 +568,14 @@ def _check(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from oodmon.outputs import check_output_file
-    from oodmon.replay import baseline_of, compute_metrics, find_falls, load_baseline
+    from oodmon.replay import baseline_of, compute_all_metrics, find_falls, load_baseline
 
     if args.update:
         check_output_file(args.baseline, parameter="--baseline", inputs=[("a log", log) for log in args.logs])
         baseline = None
     else:
         baseline = load_baseline(args.baseline)  # before the logs: a bad baseline fails at once
-    metrics = compute_metrics(_read_logs(args.logs))
+    metrics = compute_all_metrics(_read_logs(args.logs))
     console = Console(soft_wrap=True)
     if args.update:
         tolerance = 0.02 if args.tolerance is None else args.tolerance
@@ -546,7 +604,8 @@ def _bench(args: argparse.Namespace) -> int:
     variants = "paper" if args.variants == "paper" else tuple(args.variants.split(","))
     config = BenchConfig(args.task, methods, args.trials, variants, args.episodes, args.id_episodes, out=args.out,
                          workers=args.workers, executor=args.executor, address=args.address, bind=args.bind, score=args.score,
-                         window=args.window)
+                         window=args.window, detectors=tuple(d.strip() for d in args.detectors.split(",")),
+                         alarm_detector=args.alarm_detector, obs_noise=args.obs_noise)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.outputs import check_output_dir
 
@@ -557,13 +616,16 @@ def _bench(args: argparse.Namespace) -> int:
         print(json.dumps(result.to_json(), indent=1))
         return 0
     console = _table_console()
+    several = len(config.detectors) > 1
     table = Table(title=f"{args.task}: per-step AUROC per failing variant, ours (mean ± std over trials) beside the paper's")
-    for column in ("method", "variant", "trials", "ours", "paper", "difference"):
-        table.add_column(column, justify="left" if column in ("method", "variant") else "right")
-    for row in result.rows:
+    columns = ("method", *(("detector",) if several else ()), "variant", "trials", "ours", "paper", "difference")
+    for column in columns:
+        table.add_column(column, justify="left" if column in ("method", "detector", "variant") else "right")
+    for row in sorted(result.rows, key=lambda r: (r.method, r.variant, config.detectors.index(r.detector))):
         paper = f"{np.mean(row.paper):.3f} ± {np.std(row.paper):.3f}" if row.paper else ""
         difference = f"{row.mean - np.mean(row.paper):+.3f}" if row.paper else ""
-        table.add_row(row.method, row.variant, str(len(row.aurocs)), f"{row.mean:.3f} ± {row.std:.3f}", paper, difference)
+        table.add_row(row.method, *((row.detector,) if several else ()), row.variant, str(len(row.aurocs)),
+                      f"{row.mean:.3f} ± {row.std:.3f}", paper, difference)
     console.print(table)
     best = Table(title=f"{args.task}: best single-trial AUROC per method (the paper's main tables)")
     for column in ("method", "variant", "ours", "paper", "difference"):
@@ -572,8 +634,20 @@ def _bench(args: argparse.Namespace) -> int:
         best.add_row(method, variant, f"{ours:.3f}", "" if paper is None else f"{paper:.3f}",
                      "" if paper is None else f"{ours - paper:+.3f}")
     console.print(best)
+    if several:
+        summary = Table(title=f"{args.task}: per-step AUROC per detector over the failing variants (mean over "
+                              "variants and trials)")
+        for column in ("method", "detector", "mean", "min", "variants"):
+            summary.add_column(column, justify="left" if column in ("method", "detector") else "right")
+        for method in config.methods:
+            for detector in config.detectors:
+                means = [r.mean for r in result.rows if r.method == method and r.detector == detector]
+                if means:
+                    summary.add_row(method, detector, f"{np.mean(means):.3f}", f"{np.min(means):.3f}", str(len(means)))
+        console.print(summary)
     rule = f"the mean score of the last {args.window} steps" if args.window > 1 else "each step's score"
-    alarms = Table(title=f"{args.task}: the monitor's alarms ({rule} against the calibrated threshold), "
+    alarms = Table(title=f"{args.task}: the monitor's alarms ({config.alarm_detector} detector, {rule} against the "
+                         "calibrated threshold), "
                          "mean over trials")
     for column in ("method", "variant", "false alarms (ID episodes)", "detected (episodes)", "mean delay (steps)"):
         alarms.add_column(column, justify="left" if column in ("method", "variant") else "right")

@@ -21,7 +21,8 @@ def test_bench_end_to_end_and_resume(tmp_path):
                          eval_episodes=2, calibration_episodes=19, out=str(tmp_path), workers=2, train_steps=300)
     stages = []
     result = run_bench(config, on_progress=lambda stage, done, total: stages.append((stage, done, total)))
-    failing = json.loads((tmp_path / "logs/cartpole/dropout/trial0/failing.json").read_text())
+    logs_root = tmp_path / "logs" / f"cartpole-{config.cache_key()}"
+    failing = json.loads((logs_root / "dropout/trial0/failing.json").read_text())
     assert failing["variants"] == list(SPECS)
     # The zoo agent survives gravity 0.98 and fails the other two.
     assert failing["failing"] == ["cartpole:length=2.0", "cartpole:gravity=98.0"]
@@ -29,7 +30,7 @@ def test_bench_end_to_end_and_resume(tmp_path):
     # Every row's AUROC is what replaying that trial's logs gives.
     for row in result.rows:
         for trial, auroc in row.aurocs.items():
-            folder = tmp_path / "logs/cartpole/dropout" / f"trial{trial}"
+            folder = logs_root / "dropout" / f"trial{trial}"
             logs = [read_log(p) for p in sorted(folder.glob("*.mcap"))]
             replayed = {m.variant: m.auroc for m in compute_metrics(logs)}
             assert replayed[row.variant] == auroc
@@ -55,13 +56,26 @@ def test_bench_end_to_end_and_resume(tmp_path):
     metadata = json.loads((weights_file.parent / "model.json").read_text())  # as a retraining writes it
     metadata["safetensors_sha256"] = hashlib.sha256(weights_file.read_bytes()).hexdigest()
     (weights_file.parent / "model.json").write_text(json.dumps(metadata))
-    old_threshold = (tmp_path / "logs/cartpole/dropout/trial1/threshold-chosen_std.json").read_text()
+    trial1 = tmp_path / f"logs/cartpole-{config.cache_key()}/dropout/trial1"
+    old_threshold = (trial1 / f"threshold-{config.cache_key()}.json").read_text()
     run_bench(config)
-    set_aside = list((tmp_path / "set-aside").glob("weights-*/logs/cartpole/dropout/trial1/threshold-chosen_std.json"))
+    set_aside = list((tmp_path / "set-aside").glob(f"weights-*/logs/cartpole-*/dropout/trial1/threshold-*.json"))
     assert len(set_aside) == 1 and set_aside[0].read_text() == old_threshold
-    assert (tmp_path / "logs/cartpole/dropout/trial1/threshold-chosen_std.json").read_text() != old_threshold
-    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "logs/cartpole/dropout/trial0").glob("*.mcap")} == {
+    assert (trial1 / f"threshold-{config.cache_key()}.json").read_text() != old_threshold
+    assert {p: p.stat().st_mtime_ns for p in (trial1.parent / "trial0").glob("*.mcap")} == {
         p: t for p, t in mtimes.items() if "trial0" in str(p)}
+
+
+def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold():
+    """Changing far, the calibration episodes, the window, the detectors or the sensor noise must not
+    reuse a threshold calibrated otherwise (it did for far and the episodes)."""
+    base = BenchConfig("cartpole", ("dropout",), 1)
+    keys = {base.cache_key()} | {BenchConfig("cartpole", ("dropout",), 1, **change).cache_key() for change in (
+        {"far": 0.1}, {"calibration_episodes": 40}, {"window": 5}, {"score": "max_std"}, {"obs_noise": 0.01},
+        {"detectors": ("spread", "dynamics")}, {"detectors": ("spread", "dynamics"), "alarm_detector": "dynamics"})}
+    assert len(keys) == 8
+    with pytest.raises(ConfigError, match="unknown detector 'sonar'"):
+        BenchConfig("cartpole", detectors=("spread", "sonar"))
 
 
 def test_paper_labels_match_our_specs():
@@ -117,7 +131,8 @@ def test_ray_executor_gives_the_same_logs_numbers_as_local_processes(tmp_path):
     on_ray = run_bench(BenchConfig(**common, out=str(tmp_path / "ray"), executor="ray"))
     assert [r.aurocs for r in on_ray.rows] == [r.aurocs for r in local.rows]
     assert on_ray.rows and 0.0 <= on_ray.rows[0].mean <= 1.0
-    assert sorted(p.name for p in (tmp_path / "ray/logs/cartpole/dropout/trial0").glob("*.mcap")) == [
+    key = BenchConfig(**common).cache_key()
+    assert sorted(p.name for p in (tmp_path / f"ray/logs/cartpole-{key}/dropout/trial0").glob("*.mcap")) == [
         "cartpole.mcap", "cartpole_length-2.0.mcap"]
 
 
@@ -158,3 +173,21 @@ def test_a_local_ray_cluster_listens_on_loopback_only(tmp_path):
         assert ray.nodes()[0]["NodeManagerAddress"] == "127.0.0.1"
     finally:
         ray.shutdown()
+
+
+def test_bench_reports_every_detector_as_replaying_its_logs_gives(tmp_path):
+    """--detectors: learned detectors fitted per trial (cached), every cell logs every score, and each
+    row's AUROC is what replaying the logs gives for that detector; the alarm reads the one named."""
+    config = BenchConfig("cartpole", ("ensemble",), 1, ("cartpole:length=2.0",), episodes=2, id_episodes=2,
+                         eval_episodes=1, calibration_episodes=19, out=str(tmp_path), workers=1,
+                         detectors=("spread", "dynamics", "combined"), alarm_detector="dynamics", fit_episodes=3)
+    result = run_bench(config)
+    assert [r.detector for r in result.rows] == ["spread", "dynamics", "combined"]
+    folder = tmp_path / "logs" / f"cartpole-{config.cache_key()}" / "ensemble" / "trial0"
+    assert (folder / f"detectors-{config.cache_key()}" / "detectors.json").exists()
+    assert json.loads((folder / f"threshold-{config.cache_key()}.json").read_text())["detector"] == "dynamics"
+    logs = [read_log(p) for p in sorted(folder.glob("*.mcap"))]
+    for row in result.rows:
+        replayed = {m.variant: m.auroc for m in compute_metrics(logs, row.detector)}
+        assert replayed["cartpole:length=2.0"] == row.aurocs[0]
+    assert result.rows[1].aurocs[0] > 0.9  # dynamics sees the longer pole (measured 0.99-1.00)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import copy
 from contextlib import nullcontext
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -53,6 +53,11 @@ class Estimate:
         pre_squash_std: (batch, n) for an actor ending in tanh, the std of the samples before the
             tanh; ``None`` otherwise. A saturated tanh hides disagreement: members that all push
             hard (pre-tanh 3 and 8) give actions that agree (0.995 and 1.0).
+        features: (batch, F) the network's deterministic features: the activations its sampled
+            part starts from (MC: the output of the layers before the first stochastic one;
+            a shared-torso ensemble: the torso's output, Pong's 512 CNN features; independent
+            members: their last hidden layer, averaged over members); ``None`` when the
+            estimator cannot tell (a non-sequential MC network).
     """
 
     action: np.ndarray
@@ -60,13 +65,15 @@ class Estimate:
     mean: np.ndarray
     std: np.ndarray
     pre_squash_std: np.ndarray | None = None
+    features: np.ndarray | None = field(default=None, repr=False)
 
 
 class UncertaintyEstimator:
     """Base of the estimators: observations in, :class:`Estimate` out.
 
     Subclasses implement :meth:`_sample`, which maps a float32 batch of observations
-    (batch, *obs_shape) to samples (K, batch, n) as a numpy array.
+    (batch, *obs_shape) to samples (K, batch, n) as a numpy array, and may set
+    ``self._features`` to the batch's deterministic features on the way (see :class:`Estimate`).
     """
 
     kind: Kind
@@ -109,7 +116,9 @@ class UncertaintyEstimator:
                 f"observations of shape {batch.shape[1:]} are not allowed; this estimator takes {self.obs_shape} "
                 "(one observation) or (batch, *that)"
             )
+        self._features = None
         samples = self._sample(batch)
+        features, self._features = self._features, None
         pre_squash_std = None
         if self._squash:
             pre_squash_std = _std(samples)
@@ -119,7 +128,7 @@ class UncertaintyEstimator:
         mean = samples.mean(axis=0)
         std = _std(samples, mean)
         action = mean.argmax(axis=1) if self.kind == "q_values" else mean
-        return Estimate(action, samples, mean, std, pre_squash_std)
+        return Estimate(action, samples, mean, std, pre_squash_std, features)
 
     def _sample(self, batch: np.ndarray) -> np.ndarray:
         raise NotImplementedError
@@ -243,6 +252,7 @@ class MCEstimator(UncertaintyEstimator):
             return self._sample_torch(batch)
         hidden = self._torch_prefix(batch) if self._torch_prefix is not None else batch
         hidden = run(self._prefix, hidden, self._rng)
+        self._features = hidden.reshape(hidden.shape[0], -1)
         repeated = np.broadcast_to(hidden, (self.n_samples, *hidden.shape))
         return run(self._suffix, repeated, self._rng).astype(np.float32, copy=False)
 
@@ -310,6 +320,7 @@ class EnsembleEstimator(UncertaintyEstimator):
         self._rng = np.random.default_rng(0)  # the ops draw nothing; run() wants a generator
         if kind == "actions" and ends_with_tanh(self._ops):
             self._ops, self._squash = self._ops[:-1], True  # tanh applied in estimate()
+        self._head = max(i for i, op in enumerate(self._ops) if isinstance(op, StackedAffine))  # the output layer
 
     def _sample(self, batch: np.ndarray) -> np.ndarray:
         if self._torso_ops is not None:
@@ -317,7 +328,13 @@ class EnsembleEstimator(UncertaintyEstimator):
         else:
             features = self._torch_torso(batch)
         hidden = np.broadcast_to(features, (self.n_samples, *features.shape))
-        return run(self._ops, hidden, self._rng).astype(np.float32, copy=False)
+        if self._torch_torso is not None:  # a shared torso (Pong): its output
+            self._features = features
+            return run(self._ops, hidden, self._rng).astype(np.float32, copy=False)
+        head = self._head  # independent members: their last hidden layers, averaged
+        hidden = run(self._ops[:head], hidden, self._rng)
+        self._features = hidden.sum(axis=0) * np.float32(1.0 / self.n_samples)  # np.mean's overhead is 3x
+        return run(self._ops[head:], hidden, self._rng).astype(np.float32, copy=False)
 
 
 def _signature(layer: nn.Module) -> str:

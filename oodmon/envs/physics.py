@@ -20,12 +20,15 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
+import numpy as np
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 from gymnasium.envs.classic_control.pendulum import PendulumEnv
 
 from oodmon.envs.checks import check_onset_step, check_physics
+from oodmon.errors import InvalidParameterError
 
-__all__ = ["CARTPOLE_DEFAULTS", "PENDULUM_DEFAULTS", "ShiftedCartPole", "ShiftedPendulum"]
+__all__ = ["CARTPOLE_DEFAULTS", "CARTPOLE_OBS_SPREAD", "PENDULUM_DEFAULTS", "PENDULUM_OBS_SPREAD", "ShiftedCartPole",
+           "ShiftedPendulum"]
 
 #: CartPole's physics parameters and their defaults (gymnasium's CartPole-v1). ``length`` is
 #: half the pole's length, in metres; masses in kg; gravity in m/s^2; force_mag in newtons.
@@ -48,6 +51,23 @@ PENDULUM_DEFAULTS: dict[str, float] = {
 }
 
 
+#: The std of each observation dimension over ID episodes of the shipped ensembles (20 episodes,
+#: 10,000 CartPole and 4,000 Pendulum steps): the unit of ``obs_noise``.
+CARTPOLE_OBS_SPREAD = (0.17, 0.20, 0.020, 0.20)   # x, x_dot, theta, theta_dot
+PENDULUM_OBS_SPREAD = (0.47, 0.28, 1.46)          # cos(theta), sin(theta), theta_dot
+
+
+def check_obs_noise(env_id: str, obs_noise: object) -> float:
+    """``obs_noise`` as a float in [0, 10], or :class:`InvalidParameterError`."""
+    if isinstance(obs_noise, bool) or not isinstance(obs_noise, (int, float, np.integer, np.floating)) \
+            or not 0.0 <= float(obs_noise) <= 10.0:
+        raise InvalidParameterError(
+            f"obs_noise={obs_noise!r} is not allowed for {env_id}; it is the sensor noise's std as a fraction of "
+            "each observation dimension's ID spread, a number in [0, 10] (0.01: 1%)"
+        )
+    return float(obs_noise)
+
+
 class _ShiftPhysics:
     """Switches an env's physics attributes from the defaults to the shifted values at the onset.
 
@@ -57,9 +77,12 @@ class _ShiftPhysics:
 
     ENV_ID: ClassVar[str]
     DEFAULTS: ClassVar[Mapping[str, float]]
+    OBS_SPREAD: ClassVar[tuple[float, ...]]
 
-    def _init_shift(self, physics: Mapping[str, object], onset_step: int) -> None:
+    def _init_shift(self, physics: Mapping[str, object], onset_step: int, obs_noise: float = 0.0) -> None:
         self.onset_step = check_onset_step(self.ENV_ID, onset_step)
+        self.obs_noise = check_obs_noise(self.ENV_ID, obs_noise)
+        self._noise_std = self.obs_noise * np.asarray(self.OBS_SPREAD, dtype=np.float32)
         self.shifted_physics = check_physics(self.ENV_ID, self.DEFAULTS, physics)
         self._steps = 0
         self._shift_active = False
@@ -91,6 +114,25 @@ class _ShiftPhysics:
             self._set_physics(shifted=True)
         self._steps += 1
 
+    def _sensed(self, obs: np.ndarray) -> np.ndarray:
+        """What the sensors report: the state plus Gaussian noise of ``obs_noise`` x the ID spread
+        per dimension, drawn from the env's seeded generator (none drawn when ``obs_noise`` is 0,
+        so noiseless episodes are those of the standard env)."""
+        if self.obs_noise == 0.0:
+            return obs
+        noise = self.np_random.normal(size=obs.shape).astype(np.float32) * self._noise_std
+        return (obs + noise).astype(obs.dtype)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = super().reset(seed=seed, options=options)
+        return self._sensed(obs), self._begin_episode(info)
+
+    def step(self, action):
+        self._begin_step()
+        obs, reward, terminated, truncated, info = super().step(action)
+        info["shifted"] = self.shifted
+        return self._sensed(obs), reward, terminated, truncated, info
+
 
 class ShiftedCartPole(_ShiftPhysics, CartPoleEnv):
     """CartPole-v1 with other gravity, masses, pole length or push force.
@@ -105,11 +147,15 @@ class ShiftedCartPole(_ShiftPhysics, CartPoleEnv):
         length: half the pole's length in m, default 0.5.
         force_mag: the push of each action in N, default 10.0.
         onset_step: index of the first ``step()`` of each episode that runs the shifted physics.
+        obs_noise: sensor noise: Gaussian, its std this fraction of each observation dimension's
+            ID spread (:data:`CARTPOLE_OBS_SPREAD`), in the ID and the shifted world alike. The
+            physics is unchanged (termination uses the true state).
         render_mode: as in gymnasium's CartPole.
 
     Raises:
         UnknownParameterError: a parameter CartPole does not have.
-        InvalidParameterError: a value that is not a finite number > 0, or a negative onset.
+        InvalidParameterError: a value that is not a finite number > 0, a negative onset, or an
+            ``obs_noise`` outside [0, 10].
 
     Example:
         >>> import gymnasium, oodmon
@@ -125,24 +171,16 @@ class ShiftedCartPole(_ShiftPhysics, CartPoleEnv):
 
     ENV_ID = "oodmon/CartPole-v1"
     DEFAULTS = CARTPOLE_DEFAULTS
+    OBS_SPREAD = CARTPOLE_OBS_SPREAD
 
-    def __init__(self, *, onset_step: int = 0, render_mode: str | None = None, **physics: float) -> None:
+    def __init__(self, *, onset_step: int = 0, obs_noise: float = 0.0, render_mode: str | None = None,
+                 **physics: float) -> None:
         CartPoleEnv.__init__(self, render_mode=render_mode)
-        self._init_shift(physics, onset_step)
+        self._init_shift(physics, onset_step, obs_noise)
 
     def _derive(self) -> None:
         self.total_mass = self.masspole + self.masscart
         self.polemass_length = self.masspole * self.length
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = super().reset(seed=seed, options=options)
-        return obs, self._begin_episode(info)
-
-    def step(self, action):
-        self._begin_step()
-        obs, reward, terminated, truncated, info = super().step(action)
-        info["shifted"] = self.shifted
-        return obs, reward, terminated, truncated, info
 
 
 class ShiftedPendulum(_ShiftPhysics, PendulumEnv):
@@ -159,11 +197,14 @@ class ShiftedPendulum(_ShiftPhysics, PendulumEnv):
         max_speed: the angular velocity's clip in rad/s, default 8.0.
         max_torque: the applied torque's clip in N m, default 2.0.
         onset_step: index of the first ``step()`` of each episode that runs the shifted physics.
+        obs_noise: sensor noise as a fraction of each dimension's ID spread
+            (:data:`PENDULUM_OBS_SPREAD`); see :class:`ShiftedCartPole`.
         render_mode: as in gymnasium's Pendulum.
 
     Raises:
         UnknownParameterError: a parameter Pendulum does not have.
-        InvalidParameterError: a value that is not a finite number > 0, or a negative onset.
+        InvalidParameterError: a value that is not a finite number > 0, a negative onset, or an
+            ``obs_noise`` outside [0, 10].
 
     Example:
         >>> import gymnasium, oodmon
@@ -175,17 +216,9 @@ class ShiftedPendulum(_ShiftPhysics, PendulumEnv):
 
     ENV_ID = "oodmon/Pendulum-v1"
     DEFAULTS = PENDULUM_DEFAULTS
+    OBS_SPREAD = PENDULUM_OBS_SPREAD
 
-    def __init__(self, *, onset_step: int = 0, render_mode: str | None = None, **physics: float) -> None:
+    def __init__(self, *, onset_step: int = 0, obs_noise: float = 0.0, render_mode: str | None = None,
+                 **physics: float) -> None:
         PendulumEnv.__init__(self, render_mode=render_mode)
-        self._init_shift(physics, onset_step)
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = super().reset(seed=seed, options=options)
-        return obs, self._begin_episode(info)
-
-    def step(self, u):
-        self._begin_step()
-        obs, reward, terminated, truncated, info = super().step(u)
-        info["shifted"] = self.shifted
-        return obs, reward, terminated, truncated, info
+        self._init_shift(physics, onset_step, obs_noise)

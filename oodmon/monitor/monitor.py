@@ -3,7 +3,8 @@
 Three ways to use it:
 
 - a loop of your own: ``monitor.begin_episode(...)``, then ``action = monitor.step(obs,
-  shifted=...)`` and ``monitor.add_reward(r)`` per step, then ``monitor.end_episode()``;
+  shifted=...)`` (or ``monitor.step(obs, action=a)`` when your own policy acts) and
+  ``monitor.add_reward(r)`` per step, then ``monitor.end_episode()``;
 - ``monitor.run_episode(env, seed=...)`` runs the whole loop in an env;
 - :class:`MonitoredEnv` wraps an env: ``env.step()`` without an action lets the monitored policy
   act; with an action (yours, say a safe fallback after an alarm) the monitor still scores and
@@ -31,8 +32,9 @@ from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import UncertaintyEstimator
 from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, AlarmEvent, AlarmTracker, check_consecutive, check_window
+from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
-from oodmon.monitor.scores import DEFAULT_SCORE, score_function
+from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.monitor.sinks.base import Sink, SinkGroup
 from oodmon.monitor.threshold import Threshold
 from oodmon.versions import library_versions
@@ -56,10 +58,18 @@ class Monitor:
     """Wraps a deployed policy; scores every step against a calibrated threshold.
 
     Args:
-        policy: a loaded :class:`~oodmon.agents.Agent` or any uncertainty estimator.
-        threshold: a :class:`Threshold` (its score and rule are used), a number, or ``None``
-            (scores are logged, no alarms).
-        score: the score's name when ``threshold`` is not a :class:`Threshold`.
+        policy: a loaded :class:`~oodmon.agents.Agent` or any uncertainty estimator (it acts, and
+            its samples give the ``spread`` detector); a plain callable ``obs -> action`` (it acts;
+            no samples); or ``None``: the monitor only watches, each action is passed to
+            :meth:`step`.
+        threshold: a :class:`Threshold` (its detector, score and rule are used), a number, or
+            ``None`` (scores are logged, no alarms).
+        score: the spread score's name when ``threshold`` is not a :class:`Threshold`.
+        detectors: fitted detectors to run at every step (a :class:`DetectorSet`, e.g. from
+            :func:`~oodmon.monitor.detectors.fit_detectors` or ``DetectorSet.load``); ``spread``
+            joins them whenever the policy has samples. Every detector's score is logged.
+        detector: the detector the alarm reads when ``threshold`` is not a :class:`Threshold`
+            (default ``spread``, or the set's last, ``combined`` when it has one).
         consecutive: m of the alarm rule when ``threshold`` is not a :class:`Threshold`.
         window: the alarm rule's averaging window when ``threshold`` is not a :class:`Threshold`.
         sinks: where records go (:class:`MemorySink`, :class:`McapSink`, :class:`RerunSink`).
@@ -68,11 +78,13 @@ class Monitor:
         log_observations: put what the agent observed into the step records: vector observations
             as numbers, image observations (Pong) as the ``frame`` given to :meth:`step`. Off, the
             records carry scores only (calibration keeps no frames in memory).
-        force: use a :class:`Threshold` calibrated for another task, method, score or weights
-            anyway, with a warning (by default that is a :class:`~oodmon.errors.ConfigError`).
+        force: use a :class:`Threshold` or detectors made for another task, method, score or
+            weights anyway, with a warning (by default that is a :class:`~oodmon.errors.ConfigError`).
 
     Raises:
-        ConfigError: the threshold was made for another policy or score (see ``force``).
+        ConfigError: the threshold or the detectors were made for another policy or score (see
+            ``force``), the threshold names a detector the monitor does not have, or a detector
+            needs samples a plain policy does not give.
 
     Example:
         >>> from oodmon.agents import load
@@ -86,10 +98,12 @@ class Monitor:
 
     def __init__(
         self,
-        policy: Agent | UncertaintyEstimator,
+        policy: Agent | UncertaintyEstimator | Callable[[np.ndarray], Any] | None,
         threshold: Threshold | float | None = None,
         *,
         score: str | None = None,
+        detectors: DetectorSet | Sequence[Detector] | None = None,
+        detector: str | None = None,
         consecutive: int | None = None,
         window: int | None = None,
         sinks: Sequence[Sink] = (),
@@ -98,28 +112,40 @@ class Monitor:
         log_observations: bool = True,
         force: bool = False,
     ) -> None:
-        self.agent = policy if isinstance(policy, Agent) else None
-        self.estimator = policy.estimator if isinstance(policy, Agent) else policy
+        if isinstance(policy, Agent):
+            self.agent, self.estimator, self._act = policy, policy.estimator, None
+        elif isinstance(policy, UncertaintyEstimator):
+            self.agent, self.estimator, self._act = None, policy, None
+        elif policy is None or callable(policy):
+            self.agent, self.estimator, self._act = None, None, policy
+        else:
+            raise ConfigError(f"the monitor watches an oodmon Agent, an uncertainty estimator, a callable obs -> "
+                              f"action, or None (you pass each action to step()); got {type(policy).__name__}")
         self.policy_hash = policy_hash(self.agent)
         if isinstance(threshold, Threshold):
             if score is not None and score != threshold.score:
                 raise ConfigError(f"score={score!r} contradicts the threshold file's score {threshold.score!r}")
+            if detector is not None and detector != threshold.detector:
+                raise ConfigError(f"detector={detector!r} contradicts the threshold file's detector "
+                                  f"{threshold.detector!r}")
             meta = self.agent.metadata if self.agent is not None else {}
             differences = threshold.check_matches(task=meta.get("task"), method=meta.get("method"),
                                                   score=threshold.score, policy_hash=self.policy_hash)
-            if differences and not force:
-                raise ConfigError(f"the threshold does not fit this policy: {'; '.join(differences)}; calibrate "
-                                  "one for it (or force its use: --force, Monitor(force=True))")
-            if differences:
-                warnings.warn(f"using a threshold that does not fit this policy: {'; '.join(differences)}",
-                              UserWarning, stacklevel=2)
+            self._refuse_or_warn("the threshold", differences, force)
             score, consecutive, value = threshold.score, threshold.consecutive, threshold.value
-            window = threshold.window
+            window, detector = threshold.window, threshold.detector
         else:
             value = math.nan if threshold is None else float(threshold)
         self.threshold = value
         self.score_name = score or DEFAULT_SCORE
-        self._score = score_function(self.score_name)
+        self.detectors = self._detector_set(detectors, force)
+        self.detector = detector or ("spread" if "spread" in self.detectors else self.detectors.names[-1])
+        if self.detector not in self.detectors:
+            raise ConfigError(
+                f"the alarm reads the {self.detector!r} detector, which this monitor does not have (it has "
+                f"{', '.join(self.detectors.names)}); give the fitted detectors (Monitor(detectors=...), "
+                "--detectors) or a threshold calibrated for one of those"
+            )
         self.tracker = AlarmTracker(value, DEFAULT_CONSECUTIVE if consecutive is None else check_consecutive(consecutive),
                                     1 if window is None else check_window(window))
         self.sinks = SinkGroup(list(sinks), strict=strict)
@@ -130,6 +156,37 @@ class Monitor:
         self._in_episode = False
         self.stop_requested = False
 
+    def _refuse_or_warn(self, what: str, differences: list[str], force: bool) -> None:
+        if differences and not force:
+            raise ConfigError(f"{what} does not fit this policy: {'; '.join(differences)}; make one for it "
+                              "(or force its use: --force, Monitor(force=True))")
+        if differences:
+            warnings.warn(f"using {what} that does not fit this policy: {'; '.join(differences)}", UserWarning,
+                          stacklevel=3)
+
+    def _detector_set(self, detectors: DetectorSet | Sequence[Detector] | None, force: bool) -> DetectorSet:
+        """The detectors to run: those given, with ``spread`` (of ``score``) whenever the policy has samples."""
+        chosen = detectors if isinstance(detectors, DetectorSet) else DetectorSet(list(detectors or ()))
+        if self.estimator is not None and "spread" not in chosen:
+            chosen = chosen.with_detector(SpreadDetector(self.score_name))
+        elif "spread" in chosen and chosen["spread"].score_name != self.score_name:
+            chosen = chosen.with_detector(SpreadDetector(self.score_name))
+        if self.estimator is None:
+            needing = [d.name for d in chosen if d.needs_estimate]
+            if needing:
+                raise ConfigError(f"the {', '.join(needing)} detector(s) need the policy's samples or features; this "
+                                  "policy has none (use dynamics)")
+        if not len(chosen):
+            raise ConfigError("nothing to score: a policy without samples needs fitted detectors "
+                              "(Monitor(detectors=fit_detectors(...)), a dynamics detector at least)")
+        for d in chosen:
+            d.check_fitted()
+        meta = self.agent.metadata if self.agent is not None else {}
+        obs_shape = self.estimator.obs_shape if self.estimator is not None else None
+        self._refuse_or_warn("the fitted detectors", chosen.check_fits(task=meta.get("task"), obs_shape=obs_shape,
+                                                                       policy_hash=self.policy_hash), force)
+        return chosen
+
     # -- the run -----------------------------------------------------------------------------
     def open(self) -> Monitor:
         if not self._opened:
@@ -137,7 +194,7 @@ class Monitor:
             self.sinks.open(RunInfo(
                 task=meta.get("task", "unknown"), method=meta.get("method", "unknown"), score=self.score_name,
                 threshold=self.threshold, rule=self.tracker.rule, policy_hash=self.policy_hash,
-                versions=library_versions(),
+                versions=library_versions(), detector=self.detector, detectors=tuple(self.detectors.names),
             ))
             self._opened = True
             atexit.register(self.close)
@@ -165,30 +222,49 @@ class Monitor:
         self.open()
         self.episode += 1
         self.tracker.reset()
+        self.detectors.reset()
+        self._prev_obs, self._prev_action = None, None
         self._episode_info = dict(env_id=env_id, variant=variant, onset=onset, seed=seed)
         self._return, self._length, self._alarms, self._first_alarm = 0.0, 0, 0, None
         self._in_episode = True
         self.stop_requested = False
 
-    def step(self, obs: np.ndarray, *, shifted: bool = False, frame: np.ndarray | None = None) -> int | np.ndarray:
-        """Score the observation the policy acts on; log it; return the deployed action."""
+    def step(self, obs: np.ndarray, *, action: Any = None, shifted: bool = False,
+             frame: np.ndarray | None = None) -> int | np.ndarray:
+        """Score the observation the policy acts on; log it; return the deployed action.
+
+        ``action``: the action actually deployed at ``obs``, when it is not the monitored
+        policy's own (a policy the monitor only watches, a fallback after an alarm); the
+        detectors that model transitions use it.
+        """
         if not self._in_episode:
             raise ConfigError("Monitor.step before begin_episode: start an episode first (or use run_episode)")
-        estimate = self.estimator.estimate(obs)
-        score = float(self._score(estimate)[0])
+        estimate = self.estimator.estimate(obs) if self.estimator is not None else None
+        if action is None:
+            if estimate is not None:
+                raw = estimate.action[0]
+                action = int(raw) if self.estimator.kind == "q_values" else np.asarray(raw)
+            elif self._act is not None:
+                action = self._act(obs)
+            else:
+                raise ConfigError("this monitor has no policy to act: pass the deployed action, step(obs, action=a)")
+        context = StepContext(obs, action, estimate, self._prev_obs, self._prev_action, {})
+        scores = self.detectors.score(context)
+        score = scores[self.detector]
+        self._prev_obs, self._prev_action = obs, action
         step = self._length
         alarm, event = self.tracker.update(self.episode, step, score)
-        raw = estimate.action[0]
-        action: int | np.ndarray = int(raw) if self.estimator.kind == "q_values" else np.asarray(raw)
         observation = None
         if self.log_observations and np.ndim(obs) == 1:
             observation = [float(x) for x in obs]
         if not self.log_observations:
             frame = None
+        logged_action = int(action) if isinstance(action, (int, np.integer)) else np.asarray(action).tolist()
         self.sinks.write_step(StepRecord(
-            episode=self.episode, step=step, action=action if isinstance(action, int) else action.tolist(),
-            mean=estimate.mean[0].tolist(), std=estimate.std[0].tolist(), score=score, threshold=self.threshold,
-            alarm=alarm, shifted=bool(shifted), observation=observation, frame=frame,
+            episode=self.episode, step=step, action=logged_action,
+            mean=estimate.mean[0].tolist() if estimate is not None else [],
+            std=estimate.std[0].tolist() if estimate is not None else [], score=score, threshold=self.threshold,
+            alarm=alarm, shifted=bool(shifted), observation=observation, frame=frame, scores=scores,
         ))
         self._length += 1  # the step is logged: it counts, whatever a callback below does
         if event is not None:

@@ -21,12 +21,13 @@ class StepRecord:
         action: the deployed action (an int for DQN, a list of floats for DDPG).
         mean: per action (DQN: Q-values) or action dimension (DDPG: actions), the mean of the samples.
         std: the same, the standard deviation of the samples.
-        score: the step's uncertainty score.
+        score: the score the alarm rule reads (the alarm detector's).
         threshold: the threshold in force (``nan`` without one).
         alarm: whether the alarm rule holds at this step.
         shifted: whether the observation came from the shifted world (the env's ``info``).
         observation: the observation (vector tasks), or ``None``.
         frame: the observed image (Pong: the newest 84x84 frame the agent saw), or ``None``.
+        scores: every detector's score at this step, by detector name (``spread``, ``dynamics``, ...).
     """
 
     episode: int
@@ -40,6 +41,7 @@ class StepRecord:
     shifted: bool
     observation: list[float] | None = None
     frame: np.ndarray | None = field(default=None, repr=False, compare=False)
+    scores: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """The fields logged as JSON (the frame goes to an image channel instead)."""
@@ -47,6 +49,8 @@ class StepRecord:
                 ("episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted")}
         if self.observation is not None:
             data["observation"] = self.observation
+        if self.scores:
+            data["scores"] = self.scores
         return data
 
 
@@ -96,9 +100,11 @@ class RunInfo:
     rule: str
     policy_hash: str
     versions: dict[str, str]
+    detector: str = "spread"
+    detectors: tuple[str, ...] = ("spread",)
 
     def to_strings(self) -> dict[str, str]:
         """MCAP metadata holds strings only."""
         return {"task": self.task, "method": self.method, "score": self.score, "threshold": repr(self.threshold),
-                "rule": self.rule, "policy_hash": self.policy_hash,
-                **{f"version.{k}": v for k, v in self.versions.items()}}
+                "rule": self.rule, "policy_hash": self.policy_hash, "detector": self.detector,
+                "detectors": ",".join(self.detectors), **{f"version.{k}": v for k, v in self.versions.items()}}

@@ -32,6 +32,9 @@ from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, check_consecutive, check_
 __all__ = ["MODES", "Threshold", "calibrate"]
 
 MODES = ("episode", "step")
+#: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
+#: that reading a threshold file does not import them).
+DETECTOR_NAMES = ("spread", "dynamics", "features", "combined")
 _QUANTILES = (0.5, 0.9, 0.95, 0.99)
 
 
@@ -41,7 +44,8 @@ class Threshold:
 
     Attributes:
         value: the threshold on the score.
-        score: the score's name (see ``scores``).
+        score: the spread score's name (see ``scores``); the score the alarm reads when
+            ``detector`` is ``spread``.
         consecutive: m of the alarm rule.
         mode: ``"episode"`` (guarantee per episode) or ``"step"``.
         far: the target false-alarm rate (per episode, or per step in step mode).
@@ -51,6 +55,8 @@ class Threshold:
         task, method: the agent it was calibrated for.
         window: the rule compares the mean of the last ``window`` scores (1: each score).
         policy_hash: ``sha256:...`` of the weights it was calibrated on (``None``: not recorded).
+        detector: the detector whose score the alarm reads (``spread``, ``dynamics``,
+            ``features``, ``combined``); files written before detectors existed read as ``spread``.
     """
 
     value: float
@@ -65,6 +71,7 @@ class Threshold:
     method: str | None = None
     window: int = 1
     policy_hash: str | None = None
+    detector: str = "spread"
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -146,6 +153,8 @@ def _check_fields(threshold: Threshold) -> None:
         raise bad("value", "the threshold must be a finite number (NaN would silence every alarm)")
     if threshold.score not in SCORES:
         raise bad("score", f"choose one of {', '.join(SCORES)}")
+    if threshold.detector not in DETECTOR_NAMES:
+        raise bad("detector", f"choose one of {', '.join(DETECTOR_NAMES)}")
     check_consecutive(threshold.consecutive)
     check_window(threshold.window)
     if threshold.mode not in MODES:
@@ -174,6 +183,7 @@ def calibrate(
     method: str | None = None,
     window: int = 1,
     policy_hash: str | None = None,
+    detector: str = "spread",
 ) -> Threshold:
     """Calibrate a threshold on the per-step scores of held-out ID episodes.
 
@@ -183,6 +193,7 @@ def calibrate(
         consecutive: m of the alarm rule (episode mode; step mode uses 1).
         mode: ``"episode"`` or ``"step"`` (see the module docstring).
         window: the rule's averaging window in steps (episode mode; step mode uses 1).
+        detector: the detector whose scores these are.
 
     Raises:
         InvalidParameterError: ``far`` outside (0, 1), an unknown mode, a bad ``consecutive`` or ``window``.
@@ -224,4 +235,4 @@ def calibrate(
     steps = np.concatenate(episodes) if episodes else np.array([0.0])
     quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
     return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
-                     quantiles, task, method, window, policy_hash)
+                     quantiles, task, method, window, policy_hash, detector)

@@ -6,7 +6,9 @@ Replay reads files only (logs from any machine and any earlier run); it never wr
 from __future__ import annotations
 
 from oodmon.replay.check import baseline_of, check_tolerance, find_falls, load_baseline
-from oodmon.replay.metrics import VariantMetrics, alarm_events, compute_metrics, fpr_at_tpr
+from oodmon.replay.metrics import (
+    VariantMetrics, alarm_events, compute_all_metrics, compute_metrics, detectors_in, fpr_at_tpr,
+)
 from oodmon.replay.reader import EpisodeLog, RecoveryWarning, RunLog, SkippedLogWarning, read_log, read_logs
 from oodmon.replay.report import to_csv, to_json, to_markdown, to_table
 
@@ -19,7 +21,9 @@ __all__ = [
     "alarm_events",
     "baseline_of",
     "check_tolerance",
+    "compute_all_metrics",
     "compute_metrics",
+    "detectors_in",
     "find_falls",
     "fpr_at_tpr",
     "load_baseline",

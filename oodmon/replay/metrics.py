@@ -22,7 +22,7 @@ import numpy as np
 from oodmon.envs.grid import parse_variant
 from oodmon.replay.reader import EpisodeLog, RunLog
 
-__all__ = ["VariantMetrics", "alarm_events", "compute_metrics", "fpr_at_tpr"]
+__all__ = ["VariantMetrics", "alarm_events", "compute_all_metrics", "compute_metrics", "detectors_in", "fpr_at_tpr"]
 
 
 @dataclass(frozen=True)
@@ -44,10 +44,13 @@ class VariantMetrics:
     detection_rate: float | None
     delay_mean: float | None
     delay_median: float | None
+    detector: str = "spread"
 
     @property
     def key(self) -> str:
-        return f"{self.task}/{self.method}/{self.variant}"
+        """``task/method/variant``, and ``@detector`` for a detector other than ``spread``."""
+        base = f"{self.task}/{self.method}/{self.variant}"
+        return base if self.detector == "spread" else f"{base}@{self.detector}"
 
     def to_dict(self) -> dict[str, object]:
         return asdict(self)
@@ -78,30 +81,51 @@ def fpr_at_tpr(labels: np.ndarray, scores: np.ndarray, tpr: float = 0.95) -> flo
     return float(fprs[np.searchsorted(tprs, tpr, side="left")])
 
 
-def compute_metrics(logs: Iterable[RunLog]) -> list[VariantMetrics]:
-    """Metrics per (task, method, variant) over all episodes of ``logs``, in a stable order."""
+def detectors_in(logs: Iterable[RunLog]) -> list[str]:
+    """The detectors whose scores every one of ``logs`` holds, in the first log's order."""
+    logs = list(logs)
+    if not logs:
+        return []
+    common = set.intersection(*(set(log.detectors) for log in logs))
+    return [name for name in logs[0].detectors if name in common]
+
+
+def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list[VariantMetrics]:
+    """Metrics per (task, method, variant) over all episodes of ``logs``, in a stable order.
+
+    ``detector``: whose scores the per-step metrics (AUROC, AUPR, FPR@95TPR) rank (default: the
+    one each run's alarm read). The alarm metrics are the run's alarms whatever ``detector`` is.
+
+    Raises:
+        LogFormatError: a log without scores of ``detector``.
+    """
     from sklearn.metrics import auc, average_precision_score, roc_curve  # heavy: imported when used
 
     groups: dict[tuple[str, str, str], list[EpisodeLog]] = defaultdict(list)
+    scores_of: dict[int, np.ndarray] = {}
+    names: dict[tuple[str, str, str], str] = {}
     for log in logs:
         for episode in log.episodes:
             groups[(log.task, log.method, episode.variant)].append(episode)
+            scores_of[id(episode)] = episode.scores_of(detector)
+            names[(log.task, log.method, episode.variant)] = detector or log.detector
     id_scores: dict[tuple[str, str], np.ndarray] = {}
     for (task, method, variant), episodes in groups.items():
         if parse_variant(variant).is_id:
-            id_scores[(task, method)] = np.concatenate([e.scores for e in episodes])
+            id_scores[(task, method)] = np.concatenate([scores_of[id(e)] for e in episodes])
     results = []
     for (task, method, variant), episodes in sorted(groups.items()):
+        name = names[(task, method, variant)]
         is_id = parse_variant(variant).is_id
         steps = sum(e.length for e in episodes)
         firsts = [alarm_events(e.alarm) for e in episodes]
         if is_id:
             far = float(np.mean([len(f) > 0 for f in firsts]))
             results.append(VariantMetrics(task, method, variant, len(episodes), steps, steps, 0,
-                                          None, None, None, far, None, None, None, None))
+                                          None, None, None, far, None, None, None, None, name))
             continue
-        before = np.concatenate([e.scores[~e.shifted] for e in episodes])
-        ood = np.concatenate([e.scores[e.shifted] for e in episodes])
+        before = np.concatenate([scores_of[id(e)][~e.shifted] for e in episodes])
+        ood = np.concatenate([scores_of[id(e)][e.shifted] for e in episodes])
         negatives = np.concatenate([id_scores.get((task, method), np.array([])), before])
         auroc = aupr = fpr95 = None
         if len(negatives) and len(ood):
@@ -117,6 +141,12 @@ def compute_metrics(logs: Iterable[RunLog]) -> list[VariantMetrics]:
         results.append(VariantMetrics(
             task, method, variant, len(episodes), steps, len(negatives), len(ood), auroc, aupr, fpr95, None,
             float(np.mean(early)), float(np.mean([len(d) > 0 for d in detected])),
-            float(np.mean(delays)) if delays else None, float(np.median(delays)) if delays else None,
+            float(np.mean(delays)) if delays else None, float(np.median(delays)) if delays else None, name,
         ))
     return results
+
+
+def compute_all_metrics(logs: Iterable[RunLog]) -> list[VariantMetrics]:
+    """:func:`compute_metrics` for every detector the logs hold (``spread`` alone for older logs)."""
+    logs = list(logs)
+    return [m for name in detectors_in(logs) for m in compute_metrics(logs, name)]

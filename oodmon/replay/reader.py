@@ -12,7 +12,6 @@ files.
 
 from __future__ import annotations
 
-import base64
 import json
 import warnings
 from collections.abc import Sequence
@@ -22,12 +21,14 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.errors import LogFormatError
+from oodmon.monitor import logformat
+from oodmon.monitor.logformat import decode_array, encode_episode_scores
 from oodmon.monitor.records import EpisodeRecord
 
 __all__ = ["EpisodeLog", "RecoveryWarning", "RunLog", "SkippedLogWarning", "read_log", "read_logs"]
 
 _MAGIC = b"\x89MCAP0\r\n"
-_EPISODE, _SCORES, _STEP = "/oodmon/episode", "/oodmon/episode_scores", "/oodmon/step"
+_EPISODE, _SCORES, _STEP = logformat.EPISODE, logformat.EPISODE_SCORES, logformat.STEP
 
 
 class RecoveryWarning(UserWarning):
@@ -46,11 +47,27 @@ class EpisodeLog(EpisodeRecord):
         scores: (length,) the uncertainty score of each step.
         shifted: (length,) whether each step's observation came from the shifted world.
         alarm: (length,) whether the alarm rule held at each step.
+        detector_scores: every detector's (length,) scores by name; a log older than format 3
+            has one, the alarm's (``spread``), equal to ``scores``.
     """
 
     scores: np.ndarray = field(repr=False, kw_only=True)
     shifted: np.ndarray = field(repr=False, kw_only=True)
     alarm: np.ndarray = field(repr=False, kw_only=True)
+    detector_scores: dict[str, np.ndarray] = field(default_factory=dict, repr=False, kw_only=True)
+
+    def scores_of(self, detector: str | None) -> np.ndarray:
+        """The per-step scores of ``detector`` (``None``: the alarm's).
+
+        Raises:
+            LogFormatError: the log has no scores of that detector.
+        """
+        if detector is None:
+            return self.scores
+        if detector not in self.detector_scores:
+            raise LogFormatError(f"episode {self.episode} has no scores of detector {detector!r}; it has "
+                                 f"{', '.join(self.detector_scores) or 'none'}")
+        return self.detector_scores[detector]
 
 
 @dataclass(frozen=True)
@@ -70,30 +87,43 @@ class RunLog:
     complete: bool
     interrupted: list[EpisodeLog] = field(default_factory=list)
 
+    @property
+    def detector(self) -> str:
+        """The detector the run's alarm read (``spread`` in logs older than format 3)."""
+        return self.metadata.get("detector", "spread")
+
+    @property
+    def detectors(self) -> list[str]:
+        """Every detector whose scores the log holds."""
+        named = self.metadata.get("detectors")
+        return named.split(",") if named else [self.detector]
+
 
 _ROW_FIELDS = {"episode": int, "env_id": str, "variant": str, "onset": int, "return": (int, float), "length": int,
                "alarms": int}
 
 
-def _episode(path: Path, row: dict, scores: dict) -> EpisodeLog:
+def _episode(path: Path, row: dict, scores: dict, alarm_detector: str = "spread") -> EpisodeLog:
     for name, kind in _ROW_FIELDS.items():
         if not isinstance(row.get(name), kind) or isinstance(row.get(name), bool):
             raise LogFormatError(f"{path}: episode record {row.get('episode', '?')!r} has {name}={row.get(name)!r}; "
                                  "not a log oodmon wrote (or a damaged one)")
     try:
-        arrays = (np.frombuffer(base64.b64decode(scores["score_f64"]), "<f8"),
-                  np.frombuffer(base64.b64decode(scores["shifted_u8"]), np.uint8).astype(bool),
-                  np.frombuffer(base64.b64decode(scores["alarm_u8"]), np.uint8).astype(bool))
-    except (KeyError, TypeError, ValueError) as error:
+        arrays = (decode_array(scores["score_f64"], "<f8"),
+                  decode_array(scores["shifted_u8"], np.uint8).astype(bool),
+                  decode_array(scores["alarm_u8"], np.uint8).astype(bool))
+        detectors = {name: decode_array(text, "<f8") for name, text in scores.get("detectors_f64", {}).items()}
+    except (KeyError, TypeError, ValueError, AttributeError) as error:
         raise LogFormatError(f"{path}: the score arrays of episode {row['episode']} are damaged ({error})") from None
-    if any(len(a) != row["length"] for a in arrays):
+    detectors = detectors or {alarm_detector: arrays[0]}
+    if any(len(a) != row["length"] for a in (*arrays, *detectors.values())):
         raise LogFormatError(f"{path}: episode {row['episode']} has length {row['length']} but "
                              f"{len(arrays[0])} scores; the log is damaged")
     return EpisodeLog(
         episode=row["episode"], env_id=row["env_id"], variant=row["variant"], onset=row["onset"],
         seed=row.get("seed"), total_return=float(row["return"]), length=row["length"], alarms=row["alarms"],
         first_alarm_step=row.get("first_alarm_step"), interrupted=bool(row.get("interrupted", False)),
-        scores=arrays[0], shifted=arrays[1], alarm=arrays[2],
+        scores=arrays[0], shifted=arrays[1], alarm=arrays[2], detector_scores=detectors,
     )
 
 
@@ -131,12 +161,10 @@ class _Collector:
         if not steps or len(steps) != self.rows[episode].get("length"):
             return None
 
-        def encoded(values, dtype) -> str:
-            return base64.b64encode(np.asarray(values, dtype).tobytes()).decode()
-
-        return {"score_f64": encoded([r["score"] for r in steps], "<f8"),
-                "shifted_u8": encoded([r["shifted"] for r in steps], np.uint8),
-                "alarm_u8": encoded([r["alarm"] for r in steps], np.uint8)}
+        names = steps[0].get("scores", {}) if isinstance(steps[0].get("scores"), dict) else {}
+        return encode_episode_scores(
+            episode, [r["score"] for r in steps], [r["shifted"] for r in steps], [r["alarm"] for r in steps],
+            {name: [r.get("scores", {}).get(name, float("nan")) for r in steps] for name in names})
 
 
 def _assemble(path: Path, metadata: dict[str, str] | None, found: _Collector, complete: bool) -> RunLog:
@@ -146,7 +174,7 @@ def _assemble(path: Path, metadata: dict[str, str] | None, found: _Collector, co
     for k in sorted(found.rows):
         scores = found.scores_of(k)
         if scores is not None:
-            episode = _episode(path, found.rows[k], scores)
+            episode = _episode(path, found.rows[k], scores, metadata.get("detector", "spread"))
             (interrupted if episode.interrupted else episodes).append(episode)
     try:
         threshold = float(metadata.get("threshold", "nan"))
@@ -189,7 +217,7 @@ def read_log(path: str | Path) -> RunLog:
             if summary is None or not summary.chunk_indexes:
                 raise McapError("no summary")
             for item in reader.iter_metadata():
-                if item.name == "oodmon.run":
+                if item.name == logformat.RUN_METADATA:
                     metadata = dict(item.metadata)
             topics = {c.topic for c in summary.channels.values()}
             if _EPISODE not in topics:
@@ -220,7 +248,7 @@ def _recover(path: Path) -> RunLog:
             for record in StreamReader(f, skip_magic=False).records:
                 if isinstance(record, Channel):
                     channels[record.id] = record.topic
-                elif isinstance(record, Metadata) and record.name == "oodmon.run":
+                elif isinstance(record, Metadata) and record.name == logformat.RUN_METADATA:
                     metadata = dict(record.metadata)
                 elif isinstance(record, Message) and record.channel_id in channels:
                     found.add(channels[record.channel_id], record.data)

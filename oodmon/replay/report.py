@@ -15,7 +15,8 @@ __all__ = ["COLUMNS", "to_csv", "to_json", "to_markdown", "to_table"]
 
 #: (field, heading) in the order the reports show them.
 COLUMNS = [
-    ("task", "task"), ("method", "method"), ("variant", "variant"), ("episodes", "episodes"), ("steps", "steps"),
+    ("task", "task"), ("method", "method"), ("detector", "detector"), ("variant", "variant"), ("episodes", "episodes"),
+    ("steps", "steps"),
     ("auroc", "AUROC"), ("aupr", "AUPR"), ("fpr_at_95_tpr", "FPR@95TPR"), ("false_alarm_rate", "false alarms (ID)"),
     ("early_alarm_rate", "early alarms"), ("detection_rate", "detected"), ("delay_mean", "delay mean"),
     ("delay_median", "delay median"),
@@ -33,7 +34,7 @@ def _cell(value: object) -> str:
 def to_table(metrics: Sequence[VariantMetrics], title: str = "replay") -> Table:
     table = Table(title=title)
     for name, heading in COLUMNS:
-        table.add_column(heading, justify="left" if name in ("task", "method", "variant") else "right")
+        table.add_column(heading, justify="left" if name in ("task", "method", "detector", "variant") else "right")
     for m in metrics:
         table.add_row(*(_cell(getattr(m, name)) for name, _ in COLUMNS))
     return table

@@ -126,9 +126,9 @@ def test_replay_formats():
     rows = json.loads(_cli("replay", str(DATA), "--json").stdout)
     assert [r["auroc"] for r in rows] == [None, pytest.approx(0.9526348122974144)]
     csv = _cli("replay", str(DATA), "--csv").stdout.splitlines()
-    assert csv[0].startswith("task,method,variant,episodes,steps,auroc") and len(csv) == 3
+    assert csv[0].startswith("task,method,detector,variant,episodes,steps,auroc") and len(csv) == 3
     markdown = _cli("replay", str(DATA), "--markdown").stdout.splitlines()
-    assert markdown[0].startswith("| task | method | variant") and markdown[1].startswith("|---|")
+    assert markdown[0].startswith("| task | method | detector | variant") and markdown[1].startswith("|---|")
 
 
 def test_check_exit_codes_and_what_fell(tmp_path):

@@ -1,13 +1,14 @@
 """Log a monitored run to an MCAP file that replay, Foxglove and Rerun can read.
 
-Channels:
+Channels (their schemas and encodings are defined once, in :mod:`oodmon.monitor.logformat`):
 
 - ``/oodmon/step``: JSON (schema ``oodmon.Step``, JSON Schema), one message per step.
 - ``/oodmon/episode``: JSON (schema ``oodmon.Episode``), one message per finished episode.
 - ``/oodmon/alarm``: ``foxglove.Log`` (protobuf), one message per alarm, level WARNING.
 - ``/oodmon/frame``: ``foxglove.RawImage`` (protobuf, mono8), the frame the agent saw (Pong).
 - ``/oodmon/episode_scores``: JSON (schema ``oodmon.EpisodeScores``), one message per episode
-  with its per-step score (float64), shifted and alarm flags (uint8) as base64 arrays. With the
+  with its per-step score (float64), shifted and alarm flags (uint8), and every detector's scores,
+  as base64 arrays. With the
   episode message it is written in a chunk of its own, so that replay reads an episode through
   the file's index without decompressing its step messages.
 
@@ -19,7 +20,6 @@ system) at every episode end, so a crash, even SIGKILL, loses at most the runnin
 
 from __future__ import annotations
 
-import base64
 import json
 import time
 from pathlib import Path
@@ -27,61 +27,12 @@ from typing import Any
 
 import numpy as np
 
+from oodmon.monitor import logformat
 from oodmon.monitor.alarms import AlarmEvent
+from oodmon.monitor.logformat import EPISODE_SCHEMA, EPISODE_SCORES_SCHEMA, STEP_SCHEMA
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 
-__all__ = ["EPISODE_SCHEMA", "EPISODE_SCORES_SCHEMA", "STEP_SCHEMA", "McapSink"]
-
-STEP_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "title": "oodmon.Step",
-    "properties": {
-        "episode": {"type": "integer"},
-        "step": {"type": "integer", "description": "index in the episode of the observation acted on"},
-        "action": {"type": ["integer", "array"], "description": "the deployed action"},
-        "mean": {"type": "array", "items": {"type": "number"}, "description": "mean of the samples per action"},
-        "std": {"type": "array", "items": {"type": "number"}, "description": "std of the samples per action"},
-        "score": {"type": "number"},
-        "threshold": {"type": ["number", "null"]},
-        "alarm": {"type": "boolean"},
-        "shifted": {"type": "boolean", "description": "the shift is active at this step"},
-        "observation": {"type": "array", "items": {"type": "number"}},
-    },
-    "required": ["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"],
-}
-
-EPISODE_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "title": "oodmon.Episode",
-    "properties": {
-        "episode": {"type": "integer"},
-        "env_id": {"type": "string"},
-        "variant": {"type": "string"},
-        "onset": {"type": "integer"},
-        "seed": {"type": ["integer", "null"]},
-        "return": {"type": "number"},
-        "length": {"type": "integer"},
-        "alarms": {"type": "integer"},
-        "first_alarm_step": {"type": ["integer", "null"]},
-        "interrupted": {"type": "boolean", "description": "the run was stopped inside this episode (since format 2)"},
-    },
-    "required": ["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"],
-}
-
-
-EPISODE_SCORES_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "title": "oodmon.EpisodeScores",
-    "properties": {
-        "episode": {"type": "integer"},
-        "length": {"type": "integer"},
-        "score_f64": {"type": "string", "contentEncoding": "base64", "description": "little-endian float64 per step"},
-        "shifted_u8": {"type": "string", "contentEncoding": "base64", "description": "uint8 per step"},
-        "alarm_u8": {"type": "string", "contentEncoding": "base64", "description": "uint8 per step"},
-    },
-    "required": ["episode", "length", "score_f64", "shifted_u8", "alarm_u8"],
-}
-
+__all__ = ["EPISODE_SCHEMA", "EPISODE_SCORES_SCHEMA", "STEP_SCHEMA", "McapSink"]  # schemas re-exported
 
 def _json_number(value: float) -> float | None:
     return None if value != value else value  # NaN (no threshold) is not JSON
@@ -119,13 +70,13 @@ class McapSink:
             schema_id = writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
             return writer.register_channel(topic, "json", schema_id)
 
-        self._step_channel = json_channel("/oodmon/step", STEP_SCHEMA)
-        self._episode_channel = json_channel("/oodmon/episode", EPISODE_SCHEMA)
-        self._scores_channel = json_channel("/oodmon/episode_scores", EPISODE_SCORES_SCHEMA)
-        self._alarm_channel = writer.register_channel("/oodmon/alarm", "protobuf", register_schema(writer, Log))
-        self._frame_channel = writer.register_channel("/oodmon/frame", "protobuf", register_schema(writer, RawImage))
+        self._step_channel = json_channel(logformat.STEP, STEP_SCHEMA)
+        self._episode_channel = json_channel(logformat.EPISODE, EPISODE_SCHEMA)
+        self._scores_channel = json_channel(logformat.EPISODE_SCORES, EPISODE_SCORES_SCHEMA)
+        self._alarm_channel = writer.register_channel(logformat.ALARM, "protobuf", register_schema(writer, Log))
+        self._frame_channel = writer.register_channel(logformat.FRAME, "protobuf", register_schema(writer, RawImage))
         self._log, self._image = Log, RawImage
-        writer.add_metadata("oodmon.run", run.to_strings())
+        writer.add_metadata(logformat.RUN_METADATA, run.to_strings() | {"format_version": str(logformat.FORMAT_VERSION)})
         # The header and the run's metadata reach the disk now: a run killed before its first
         # episode ends leaves an MCAP file that says what ran (and holds no episode), not 0 bytes.
         writer.flush()
@@ -134,6 +85,7 @@ class McapSink:
         self._scores: list[float] = []
         self._shifted: list[bool] = []
         self._alarm: list[bool] = []
+        self._detector_scores: dict[str, list[float]] = {}
 
     def _add(self, channel: int, data: bytes, now: int) -> None:
         self._writer.add_message(channel, log_time=now, publish_time=now, data=data, sequence=self._sequence)
@@ -147,6 +99,8 @@ class McapSink:
         self._scores.append(record.score)
         self._shifted.append(record.shifted)
         self._alarm.append(record.alarm)
+        for name, value in record.scores.items():
+            self._detector_scores.setdefault(name, []).append(value)
         if record.frame is not None:
             frame = record.frame
             image = self._image(frame_id="agent_view", width=frame.shape[1], height=frame.shape[0],
@@ -167,18 +121,14 @@ class McapSink:
     def end_episode(self, record: EpisodeRecord) -> None:
         now = time.time_ns()
         self._writer.flush()  # closes the chunk of step messages
-        scores = {
-            "episode": record.episode, "length": len(self._scores),
-            "score_f64": base64.b64encode(np.asarray(self._scores, "<f8").tobytes()).decode(),
-            "shifted_u8": base64.b64encode(np.asarray(self._shifted, np.uint8).tobytes()).decode(),
-            "alarm_u8": base64.b64encode(np.asarray(self._alarm, np.uint8).tobytes()).decode(),
-        }
+        scores = logformat.encode_episode_scores(record.episode, self._scores, self._shifted, self._alarm,
+                                                 self._detector_scores)
         self._add(self._episode_channel, json.dumps(record.to_json()).encode(), now)
         self._add(self._scores_channel, json.dumps(scores).encode(), now)
         # A small chunk of its own, written at once: from here on the episode survives a crash,
         # and replay reads it through the index without decompressing the step messages.
         self._writer.flush()
-        self._scores, self._shifted, self._alarm = [], [], []
+        self._scores, self._shifted, self._alarm, self._detector_scores = [], [], [], {}
 
     def close(self) -> None:
         if self._writer is not None:

@@ -1,0 +1,28 @@
+"""Detectors: per-step scores of how far the world has moved from the ID one.
+
+- ``spread``: the spread of the policy's own samples (the paper's signal; needs MC or an ensemble).
+- ``dynamics``: a probabilistic ensemble dynamics model's surprise at each transition (PEDM).
+- ``features``: the Mahalanobis distance of the policy's features (Lee et al., 2018).
+- ``combined``: the largest ID rank of the others' scores.
+
+:func:`fit_detectors` fits them for a policy on its own ID episodes; :class:`DetectorSet` runs
+them at each step and saves them (safetensors + JSON).
+"""
+
+from __future__ import annotations
+
+from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
+from oodmon.monitor.detectors.combined import CombinedDetector
+from oodmon.monitor.detectors.dynamics import DynamicsDetector
+from oodmon.monitor.detectors.features import FeaturesDetector
+from oodmon.monitor.detectors.fitting import (
+    DEFAULT_FIT_EPISODES, collect, default_detectors, detectors_for, fit_agent_detectors, fit_detectors, trajectory_scores,
+)
+from oodmon.monitor.detectors.spread import SpreadDetector
+from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
+
+__all__ = [
+    "DEFAULT_FIT_EPISODES", "DETECTORS", "CombinedDetector", "Detector", "DetectorSet", "DynamicsDetector",
+    "FeaturesDetector", "SpreadDetector", "StepContext", "Trajectory", "collect", "default_detectors", "detectors_for",
+    "fit_agent_detectors", "fit_detectors", "trajectory_scores",
+]

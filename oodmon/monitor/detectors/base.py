@@ -1,0 +1,123 @@
+"""The detector seam: what a detector sees at a step, and what it must do.
+
+A detector turns one monitored step into one number, higher meaning further from the ID world.
+The :class:`~oodmon.monitor.Monitor` calls :meth:`Detector.reset` at each episode start and
+:meth:`Detector.score` at each step with a :class:`StepContext`; learned detectors are fitted
+on ID episodes first (:meth:`Detector.fit`, usually through
+:func:`~oodmon.monitor.detectors.fit_detectors`). A detector's state is numbers only: arrays
+(saved as safetensors) and a JSON object, so a fitted detector loads without running code.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from oodmon.errors import ConfigError
+
+if TYPE_CHECKING:  # importing it would load torch
+    from oodmon.agents.estimators import Estimate
+
+__all__ = ["Detector", "StepContext", "Trajectory"]
+
+
+@dataclass(frozen=True)
+class StepContext:
+    """What a detector may look at when it scores a step.
+
+    Attributes:
+        obs: the observation the policy acts on at this step (one observation, not a batch).
+        action: the action deployed at this step (an int, or an array for continuous actions).
+        estimate: the policy's :class:`~oodmon.agents.estimators.Estimate` at ``obs`` (a batch of
+            one), or ``None`` for a plain policy without samples.
+        prev_obs: the previous step's observation (``None`` at an episode's first step).
+        prev_action: the action deployed at the previous step (``None`` at the first step).
+        scores: the scores of the detectors computed before this one at this step, by name.
+    """
+
+    obs: np.ndarray
+    action: Any
+    estimate: Estimate | None = None
+    prev_obs: np.ndarray | None = None
+    prev_action: Any = None
+    scores: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def features(self) -> np.ndarray | None:
+        """The policy's deterministic features at ``obs``, (F,), or ``None``."""
+        if self.estimate is None or self.estimate.features is None:
+            return None
+        return self.estimate.features[0]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """One ID episode of the deployed policy, as the learned detectors are fitted on it.
+
+    Attributes:
+        observations: (T + 1, *obs_shape): every observation, the last one after the last action.
+        actions: (T,) ints or (T, action_dim) floats: the deployed actions.
+        features: (T, F) the policy's features at each acted-on observation, or ``None``.
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    features: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if len(self.observations) != len(self.actions) + 1:
+            raise ConfigError(f"a trajectory holds one observation more than actions; got {len(self.observations)} "
+                              f"observations and {len(self.actions)} actions")
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+
+class Detector:
+    """Base of the detectors.
+
+    Subclasses set :attr:`name`, implement :meth:`score`, and, when they learn from ID episodes,
+    :meth:`fit`, :meth:`state` and :meth:`from_state`.
+
+    Attributes:
+        name: the detector's name in step records, threshold files and the CLI.
+        needs_estimate: it reads the policy's samples or features (a plain policy has none).
+    """
+
+    name: ClassVar[str]
+    needs_estimate: ClassVar[bool] = False
+    learned: ClassVar[bool] = False
+
+    @property
+    def fitted(self) -> bool:
+        return True
+
+    def reset(self) -> None:
+        """A new episode starts."""
+
+    def score(self, context: StepContext) -> float:
+        raise NotImplementedError
+
+    def fit(self, trajectories: Sequence[Trajectory], *, seed: int = 0) -> Detector:
+        """Learn from ID episodes; returns ``self``."""
+        return self
+
+    def config(self) -> dict[str, Any]:
+        """The JSON part of the detector's state (numbers, strings, lists)."""
+        return {}
+
+    def tensors(self) -> dict[str, np.ndarray]:
+        """The array part of the detector's state."""
+        return {}
+
+    @classmethod
+    def from_state(cls, config: Mapping[str, Any], tensors: Mapping[str, np.ndarray]) -> Detector:
+        return cls(**config)
+
+    def check_fitted(self) -> None:
+        if not self.fitted:
+            raise ConfigError(f"the {self.name} detector is not fitted: fit it on ID episodes first "
+                              f"(oodmon.monitor.detectors.fit_detectors, or `oodmon fit-detectors`)")

@@ -1,0 +1,181 @@
+"""Fit the learned detectors of a deployed policy on ID episodes of its own.
+
+:func:`collect` plays ID episodes with the policy and keeps what the detectors learn from
+(observations, deployed actions, features). :func:`fit_detectors` splits them: the first two
+thirds fit ``dynamics`` and ``features``, the last third gives the ``combined`` detector its
+members' ID scores (scores of steps the members were not fitted on, or the in-sample fit would
+make every fresh ID step look rare). The episodes use seeds of their own
+(:data:`oodmon.seeds.DETECTOR_FIT` on), apart from calibration's: the threshold is calibrated
+afterwards on other episodes, so its guarantee holds for the fitted detectors as they are.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.monitor.detectors.base import StepContext, Trajectory
+from oodmon.monitor.detectors.combined import CombinedDetector
+from oodmon.monitor.detectors.dynamics import DynamicsDetector
+from oodmon.monitor.detectors.features import FeaturesDetector
+from oodmon.monitor.detectors.spread import SpreadDetector
+from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
+from oodmon.monitor.scores import DEFAULT_SCORE
+from oodmon.seeds import DETECTOR_FIT
+
+__all__ = ["DEFAULT_FIT_EPISODES", "collect", "default_detectors", "detectors_for", "fit_agent_detectors",
+           "fit_detectors", "policy_parts", "trajectory_scores"]
+
+DEFAULT_FIT_EPISODES = 30
+
+
+def policy_parts(policy: Any) -> tuple[Any, Callable[[np.ndarray], Any], dict]:
+    """``(estimator or None, act, metadata)`` of an Agent, an estimator or a plain callable policy."""
+    from oodmon.agents.agent import Agent
+    from oodmon.agents.estimators import UncertaintyEstimator
+
+    if isinstance(policy, Agent):
+        return policy.estimator, policy.act, policy.metadata
+    if isinstance(policy, UncertaintyEstimator):
+        def act(obs):
+            raw = policy.estimate(obs).action[0]
+            return int(raw) if policy.kind == "q_values" else np.asarray(raw)
+        return policy, act, {}
+    if callable(policy):
+        return None, policy, {}
+    raise ConfigError(f"a policy is an oodmon Agent, an uncertainty estimator or a callable obs -> action; got "
+                      f"{type(policy).__name__}")
+
+
+def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETECTOR_FIT,
+            on_episode: Callable[[int], None] | None = None, max_steps: int | None = None) -> list[Trajectory]:
+    """Play ``episodes`` episodes of ``env`` (seeds ``seed``, ``seed + 1``, ...) with ``policy``
+    (each cut after ``max_steps`` steps if given)."""
+    estimator, act, _ = policy_parts(policy)
+    trajectories = []
+    for episode in range(episodes):
+        obs, _ = env.reset(seed=seed + episode)
+        observations, actions, features = [obs], [], []
+        while True:
+            if estimator is not None:
+                estimate = estimator.estimate(obs)
+                raw = estimate.action[0]
+                action = int(raw) if estimator.kind == "q_values" else np.asarray(raw)
+                if estimate.features is not None:
+                    features.append(estimate.features[0])
+            else:
+                action = act(obs)
+            obs, _, terminated, truncated, _ = env.step(action)
+            observations.append(obs)
+            actions.append(action)
+            if terminated or truncated or (max_steps is not None and len(actions) >= max_steps):
+                break
+        trajectories.append(Trajectory(np.asarray(observations), np.asarray(actions),
+                                       np.asarray(features) if len(features) == len(actions) else None))
+        if on_episode is not None:
+            on_episode(episode)
+    return trajectories
+
+
+def trajectory_scores(detectors: DetectorSet, trajectory: Trajectory, estimator: Any = None) -> dict[str, np.ndarray]:
+    """Every detector's per-step scores along a recorded trajectory, as the monitor would give them."""
+    detectors.reset()
+    out: dict[str, list[float]] = {name: [] for name in detectors.names}
+    prev_obs = prev_action = None
+    for step in range(len(trajectory)):
+        obs, action = trajectory.observations[step], trajectory.actions[step]
+        estimate = estimator.estimate(obs) if estimator is not None else None
+        scores = detectors.score(StepContext(obs, action, estimate, prev_obs, prev_action, {}))
+        for name, value in scores.items():
+            out[name].append(value)
+        prev_obs, prev_action = obs, action
+    return {name: np.asarray(values) for name, values in out.items()}
+
+
+def default_detectors(policy: Any, env: gymnasium.Env) -> tuple[str, ...]:
+    """The learned detectors ``policy`` in ``env`` can have: ``dynamics`` for vector observations,
+    ``features`` for an oodmon agent or estimator, and ``combined``."""
+    estimator, _, _ = policy_parts(policy)
+    names = ["dynamics"] if len(env.observation_space.shape or ()) == 1 else []
+    if estimator is not None:
+        names.append("features")
+    return (*names, "combined")
+
+
+def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] | None = None,
+                  episodes: int = DEFAULT_FIT_EPISODES, seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE,
+                  task: str | None = None, policy_hash: str | None = None, obs_noise: float = 0.0,
+                  on_episode: Callable[[int], None] | None = None, max_steps: int | None = None) -> DetectorSet:
+    """Fit the named detectors (default: :func:`default_detectors`) for ``policy`` on
+    ``episodes`` ID episodes of ``env`` (each cut after ``max_steps`` steps if given).
+
+    ``spread`` (with ``score``) joins the set whenever the policy has samples; ``combined``
+    combines every other detector of the set. ``features`` needs an oodmon agent or estimator
+    (a plain callable has no features); ``dynamics`` needs vector observations.
+
+    Raises:
+        InvalidParameterError: an unknown detector name or fewer than 3 episodes.
+        ConfigError: a detector this policy or env cannot have.
+    """
+    detectors = default_detectors(policy, env) if detectors is None else tuple(detectors)
+    unknown = [name for name in detectors if name not in DETECTORS]
+    if unknown:
+        raise InvalidParameterError(f"unknown detector {unknown[0]!r}; choose from {', '.join(DETECTORS)}")
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 3:
+        raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
+                                    "ID episodes (two thirds fit, one third ranks)")
+    estimator, _, metadata = policy_parts(policy)
+    if "features" in detectors and estimator is None:
+        raise ConfigError("the features detector needs the policy's features; a plain policy has none")
+    n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) else None
+    trajectories = collect(policy, env, episodes, seed=seed, on_episode=on_episode, max_steps=max_steps)
+    n_fit = max(1, (2 * episodes) // 3)
+    fit, held_out = trajectories[:n_fit], trajectories[n_fit:]
+    parts = [SpreadDetector(score)] if estimator is not None else []
+    if "dynamics" in detectors:
+        parts.append(DynamicsDetector(n_actions, seed=seed).fit(fit))
+    if "features" in detectors:
+        parts.append(FeaturesDetector(n_actions).fit(fit))
+    obs_shape = list(np.shape(trajectories[0].observations)[1:])
+    fitted_for = {"task": task or metadata.get("task"), "obs_shape": obs_shape, "policy_hash": policy_hash,
+                  "episodes": episodes, "seed": seed, "obs_noise": obs_noise}
+    result = DetectorSet(parts, fitted_for=fitted_for)
+    if "combined" in detectors:
+        members = [d.name for d in parts]
+        reference: dict[str, list[np.ndarray]] = {name: [] for name in members}
+        for trajectory in held_out:
+            for name, values in trajectory_scores(result, trajectory, estimator).items():
+                reference[name].append(values)
+        combined = CombinedDetector(members).fit_reference({k: np.concatenate(v) for k, v in reference.items()})
+        result = result.with_detector(combined)
+    return result
+
+
+def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, episodes: int = DEFAULT_FIT_EPISODES,
+                        seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE, obs_noise: float = 0.0,
+                        max_steps: int | None = None, on_episode: Callable[[int], None] | None = None) -> DetectorSet:
+    """:func:`fit_detectors` for an oodmon agent in its task's ID env (with ``obs_noise``)."""
+    from oodmon.envs.grid import Variant
+    from oodmon.monitor.monitor import policy_hash
+
+    env = Variant(agent.task).make(obs_noise=obs_noise) if obs_noise else Variant(agent.task).make()
+    try:
+        return fit_detectors(agent, env, detectors=detectors, episodes=episodes, seed=seed, score=score,
+                             task=agent.task, policy_hash=policy_hash(agent), obs_noise=obs_noise,
+                             on_episode=on_episode, max_steps=max_steps)
+    finally:
+        env.close()
+
+
+def detectors_for(agent: Any, directory: str | Path | None = None) -> DetectorSet | None:
+    """The fitted detectors in ``directory``, else those shipped beside ``agent``'s model (its
+    ``detectors/`` folder), else ``None``."""
+    if directory is not None:
+        return DetectorSet.load(directory)
+    own = Path(agent.path) / "detectors" if getattr(agent, "path", None) is not None else None
+    return DetectorSet.load(own) if own is not None and (own / "detectors.json").is_file() else None

@@ -1,0 +1,176 @@
+"""A set of detectors as the monitor runs them, and its files.
+
+``detectors.safetensors`` holds every fitted detector's arrays (keys ``<detector>/<array>``);
+``detectors.json`` holds their settings, what they were fitted for (task, observation shape,
+the policy's weights) and the sha256 of the tensor file, checked at load. Nothing is unpickled.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from oodmon.errors import ConfigError
+from oodmon.monitor.detectors.base import Detector, StepContext
+from oodmon.monitor.detectors.combined import CombinedDetector
+from oodmon.monitor.detectors.dynamics import DynamicsDetector
+from oodmon.monitor.detectors.features import FeaturesDetector
+from oodmon.monitor.detectors.spread import SpreadDetector
+
+__all__ = ["DETECTORS", "DetectorSet"]
+
+#: Detector classes by name.
+DETECTORS: dict[str, type[Detector]] = {
+    "spread": SpreadDetector, "dynamics": DynamicsDetector, "features": FeaturesDetector, "combined": CombinedDetector,
+}
+FORMAT = "oodmon.detectors"
+FORMAT_VERSION = 1
+
+
+class DetectorSet:
+    """Detectors run together at each step, in order, ``combined`` last (it reads the others).
+
+    Args:
+        detectors: at most one of each name.
+        fitted_for: what the learned ones were fitted for: ``task``, ``obs_shape``, ``policy_hash``
+            and how (``episodes``, ``seed``, ``obs_noise``); recorded in the files.
+    """
+
+    def __init__(self, detectors: Sequence[Detector], *, fitted_for: Mapping[str, Any] | None = None) -> None:
+        names = [d.name for d in detectors]
+        if len(set(names)) != len(names):
+            raise ConfigError(f"one detector of each name: got {names}")
+        self._detectors = {d.name: d for d in sorted(detectors, key=lambda d: d.name == "combined")}
+        self.fitted_for = dict(fitted_for or {})
+        combined = self._detectors.get("combined")
+        if combined is not None:
+            missing = [m for m in combined.members if m not in self._detectors]
+            if missing:
+                raise ConfigError(f"the combined detector combines {', '.join(missing)}, which the set lacks")
+
+    @property
+    def names(self) -> list[str]:
+        return list(self._detectors)
+
+    def __getitem__(self, name: str) -> Detector:
+        if name not in self._detectors:
+            raise ConfigError(f"no {name!r} detector here; this monitor has {', '.join(self._detectors) or 'none'}")
+        return self._detectors[name]
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._detectors
+
+    def __iter__(self) -> Iterator[Detector]:
+        return iter(self._detectors.values())
+
+    def __len__(self) -> int:
+        return len(self._detectors)
+
+    def with_detector(self, detector: Detector) -> DetectorSet:
+        """A set with ``detector`` added (or replacing the one of its name)."""
+        kept = [d for d in self if d.name != detector.name]
+        return DetectorSet([*kept, detector], fitted_for=self.fitted_for)
+
+    def subset(self, names: Sequence[str]) -> DetectorSet:
+        """The detectors ``names`` and whatever they read (``combined``'s members)."""
+        wanted = set(names)
+        if "combined" in wanted and "combined" in self:
+            wanted |= set(self["combined"].members)
+        return DetectorSet([self[name] for name in self.names if name in wanted], fitted_for=self.fitted_for)
+
+    @property
+    def needs_estimate(self) -> bool:
+        return any(d.needs_estimate for d in self)
+
+    def reset(self) -> None:
+        for detector in self:
+            detector.reset()
+
+    def score(self, context: StepContext) -> dict[str, float]:
+        """Every detector's score at this step, by name, written into ``context.scores`` as it goes
+        (a detector sees those computed before it) and returned."""
+        scores = context.scores
+        if not isinstance(scores, dict):
+            raise ConfigError("StepContext.scores must be a dict the detectors can fill")
+        for name, detector in self._detectors.items():
+            scores[name] = detector.score(context)
+        return scores
+
+    def check_fits(self, *, task: str | None, obs_shape: Sequence[int] | None, policy_hash: str | None) -> list[str]:
+        """How the policy about to be watched differs from the one the detectors were fitted for."""
+        found = []
+        mine = self.fitted_for
+        if mine.get("task") and task and mine["task"] != task:
+            found.append(f"the detectors were fitted for task {mine['task']!r}, not {task!r}")
+        if mine.get("obs_shape") is not None and obs_shape is not None and tuple(mine["obs_shape"]) != tuple(obs_shape):
+            found.append(f"the detectors were fitted on observations of shape {tuple(mine['obs_shape'])}, "
+                         f"not {tuple(obs_shape)}")
+        theirs = mine.get("policy_hash")
+        if theirs and theirs != "unknown" and policy_hash and policy_hash != "unknown" and theirs != policy_hash:
+            found.append("the detectors were fitted on another policy's episodes (its weights differ)")
+        return found
+
+    # -- files ---------------------------------------------------------------------------------------
+    def save(self, directory: str | Path) -> Path:
+        """Write ``detectors.safetensors`` and ``detectors.json`` into ``directory``."""
+        from safetensors.numpy import save_file
+
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        tensors = {f"{d.name}/{key}": np.ascontiguousarray(value) for d in self for key, value in d.tensors().items()}
+        save_file(tensors, str(directory / "detectors.safetensors"))
+        digest = hashlib.sha256((directory / "detectors.safetensors").read_bytes()).hexdigest()
+        meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "fitted_for": self.fitted_for,
+                "detectors": [{"name": d.name, "config": d.config()} for d in self], "safetensors_sha256": digest}
+        (directory / "detectors.json").write_text(json.dumps(meta, indent=1) + "\n")
+        return directory
+
+    @classmethod
+    def load(cls, directory: str | Path) -> DetectorSet:
+        """Read a set written by :meth:`save`.
+
+        Raises:
+            ConfigError: missing, damaged or altered files, or a detector oodmon does not know.
+        """
+        from safetensors import SafetensorError
+        from safetensors.numpy import load as load_tensors
+
+        directory = Path(directory)
+        meta_path, tensor_path = directory / "detectors.json", directory / "detectors.safetensors"
+        for path in (meta_path, tensor_path):
+            if not path.is_file():
+                raise ConfigError(f"{path} does not exist: fitted detectors are a folder with detectors.json and "
+                                  "detectors.safetensors (`oodmon fit-detectors` writes them)")
+        try:
+            meta = json.loads(meta_path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise ConfigError(f"{meta_path} is not valid JSON ({error})") from None
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+            raise ConfigError(f"{meta_path} is not a detectors file of oodmon")
+        if meta.get("format_version", 0) > FORMAT_VERSION:
+            raise ConfigError(f"{meta_path} has format version {meta['format_version']}; this oodmon reads up to "
+                              f"{FORMAT_VERSION}: upgrade oodmon")
+        data = tensor_path.read_bytes()
+        if hashlib.sha256(data).hexdigest() != meta.get("safetensors_sha256"):
+            raise ConfigError(f"{tensor_path} does not have the sha256 detectors.json records: damaged or altered")
+        try:
+            tensors = load_tensors(data)
+        except SafetensorError as error:
+            raise ConfigError(f"{tensor_path} is damaged ({error})") from None
+        detectors = []
+        for entry in meta.get("detectors", []):
+            name = entry.get("name")
+            if name not in DETECTORS:
+                raise ConfigError(f"{meta_path} names detector {name!r}; oodmon knows {', '.join(DETECTORS)}")
+            prefix = f"{name}/"
+            own = {k[len(prefix):]: v for k, v in tensors.items() if k.startswith(prefix)}
+            try:
+                detectors.append(DETECTORS[name].from_state(entry.get("config", {}), own))
+            except TypeError as error:
+                raise ConfigError(f"{meta_path}: the {name} detector's settings are not valid ({error})") from None
+        return cls(detectors, fitted_for=meta.get("fitted_for", {}))

@@ -1,0 +1,106 @@
+"""The log format, defined once: MCAP topics, JSON schemas, encodings and the format version.
+
+The MCAP sink writes with it and replay reads with it. Versions (``format_version`` in the run's
+metadata, absent before 3):
+
+1. step, episode, alarm and frame channels;
+2. ``/oodmon/episode_scores`` (an episode's arrays in one message) and ``interrupted`` episodes;
+3. every detector's score: ``scores`` in step messages, ``detectors_f64`` in episode scores,
+   ``detector`` (the one the alarm reads) and ``detectors`` in the run's metadata.
+
+Replay reads every version: a log without detector scores has one detector, the one its alarm
+read (``spread`` before version 3), whose scores are the ``score`` arrays.
+"""
+
+from __future__ import annotations
+
+import base64
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "ALARM", "EPISODE", "EPISODE_SCHEMA", "EPISODE_SCORES", "EPISODE_SCORES_SCHEMA", "FORMAT_VERSION", "FRAME",
+    "RUN_METADATA", "STEP", "STEP_SCHEMA", "decode_array", "encode_episode_scores",
+]
+
+FORMAT_VERSION = 3
+STEP, EPISODE, EPISODE_SCORES = "/oodmon/step", "/oodmon/episode", "/oodmon/episode_scores"
+ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
+#: JSON topics replay decodes; the others (protobuf alarms and frames) it skips.
+JSON_TOPICS = (EPISODE, EPISODE_SCORES, STEP)
+RUN_METADATA = "oodmon.run"
+
+STEP_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "title": "oodmon.Step",
+    "properties": {
+        "episode": {"type": "integer"},
+        "step": {"type": "integer", "description": "index in the episode of the observation acted on"},
+        "action": {"type": ["integer", "array"], "description": "the deployed action"},
+        "mean": {"type": "array", "items": {"type": "number"}, "description": "mean of the samples per action"},
+        "std": {"type": "array", "items": {"type": "number"}, "description": "std of the samples per action"},
+        "score": {"type": "number"},
+        "threshold": {"type": ["number", "null"]},
+        "alarm": {"type": "boolean"},
+        "shifted": {"type": "boolean", "description": "the shift is active at this step"},
+        "observation": {"type": "array", "items": {"type": "number"}},
+        "scores": {"type": "object", "additionalProperties": {"type": "number"},
+                   "description": "every detector's score, by detector name (since format 3)"},
+    },
+    "required": ["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"],
+}
+
+EPISODE_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "title": "oodmon.Episode",
+    "properties": {
+        "episode": {"type": "integer"},
+        "env_id": {"type": "string"},
+        "variant": {"type": "string"},
+        "onset": {"type": "integer"},
+        "seed": {"type": ["integer", "null"]},
+        "return": {"type": "number"},
+        "length": {"type": "integer"},
+        "alarms": {"type": "integer"},
+        "first_alarm_step": {"type": ["integer", "null"]},
+        "interrupted": {"type": "boolean", "description": "the run was stopped inside this episode (since format 2)"},
+    },
+    "required": ["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"],
+}
+
+
+EPISODE_SCORES_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "title": "oodmon.EpisodeScores",
+    "properties": {
+        "episode": {"type": "integer"},
+        "length": {"type": "integer"},
+        "score_f64": {"type": "string", "contentEncoding": "base64", "description": "little-endian float64 per step"},
+        "shifted_u8": {"type": "string", "contentEncoding": "base64", "description": "uint8 per step"},
+        "alarm_u8": {"type": "string", "contentEncoding": "base64", "description": "uint8 per step"},
+        "detectors_f64": {"type": "object", "additionalProperties": {"type": "string", "contentEncoding": "base64"},
+                          "description": "per detector name, little-endian float64 per step (since format 3)"},
+    },
+    "required": ["episode", "length", "score_f64", "shifted_u8", "alarm_u8"],
+}
+
+
+def _encode(values: Sequence[Any], dtype: Any) -> str:
+    return base64.b64encode(np.asarray(values, dtype).tobytes()).decode()
+
+
+def decode_array(text: str, dtype: Any) -> np.ndarray:
+    """One base64 array of an episode-scores message."""
+    return np.frombuffer(base64.b64decode(text), dtype)
+
+
+def encode_episode_scores(episode: int, scores: Sequence[float], shifted: Sequence[bool], alarm: Sequence[bool],
+                          detectors: Mapping[str, Sequence[float]] | None = None) -> dict[str, Any]:
+    """The ``/oodmon/episode_scores`` message of one episode."""
+    message = {"episode": episode, "length": len(scores), "score_f64": _encode(scores, "<f8"),
+               "shifted_u8": _encode(shifted, np.uint8), "alarm_u8": _encode(alarm, np.uint8)}
+    if detectors:
+        message["detectors_f64"] = {name: _encode(values, "<f8") for name, values in detectors.items()}
+    return message

@@ -1,0 +1,47 @@
+"""Named seed ranges: which episodes are used for what, so that "held out" holds.
+
+Every range below is a half-open interval of ``reset`` seeds; ``tests/test_seeds.py`` checks
+that no two overlap. Use the names, not the numbers.
+
+Not yet here: training's periodic evaluations play seeds ``10,000 + steps`` (steps up to 2
+million, so they overlap every range below) and its snapshot selection 50,000 + i
+(``oodmon.agents.training``). Those episodes only choose which weights to ship, never calibrate or
+score a monitor; moving them changes which snapshot a retraining ships, so it waits for the next
+retraining of the zoo.
+"""
+
+from __future__ import annotations
+
+__all__ = ["CALIBRATION", "DETECTOR_FIT", "RANGES", "range_of"]
+
+#: ID return of a trained model (``id_return_mean``): 100,000 + i.
+ID_RETURN = 100_000
+#: Threshold calibration episodes (``oodmon calibrate``): 200,000 + i.
+CALIBRATION = 200_000
+#: The demo's monitored episodes: 300,000 + i.
+DEMO = 300_000
+#: The bench's ID and shifted evaluation episodes: 400,000 + i and 500,000 + i.
+BENCH_ID = 400_000
+BENCH_SHIFTED = 500_000
+#: ID episodes the learned detectors are fitted on (``fit_detectors``): 600,000 + i.
+DETECTOR_FIT = 600_000
+
+#: name -> (first seed, end) of each range.
+RANGES: dict[str, tuple[int, int]] = {
+    "id_return": (ID_RETURN, ID_RETURN + 100_000),
+    "calibration": (CALIBRATION, CALIBRATION + 100_000),
+    "demo": (DEMO, DEMO + 100_000),
+    "bench_id": (BENCH_ID, BENCH_ID + 100_000),
+    "bench_shifted": (BENCH_SHIFTED, BENCH_SHIFTED + 100_000),
+    "detector_fit": (DETECTOR_FIT, DETECTOR_FIT + 100_000),
+}
+
+
+def range_of(seed: int) -> str | None:
+    """The name of the range ``seed`` falls in, or ``None``.
+
+    Example:
+        >>> range_of(200_017), range_of(7)
+        ('calibration', None)
+    """
+    return next((name for name, (low, high) in RANGES.items() if low <= seed < high), None)

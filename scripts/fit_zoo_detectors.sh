@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Fit the learned detectors (dynamics, features, combined) shipped beside every zoo agent, in
+# oodmon/zoo/<task>-<method>/detectors/. Deterministic (seeded); about 5 minutes on one core.
+# Pendulum's combined detector uses the spread score that works there (pre_squash_std); Pong has
+# no dynamics detector (image observations) and fits on the first 1,000 steps of 6 ID games.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OODMON=${OODMON:-.venv/bin/oodmon}
+for method in dropout dropconnect ensemble; do
+  $OODMON fit-detectors --task cartpole --method "$method" --out "oodmon/zoo/cartpole-$method/detectors"
+  $OODMON fit-detectors --task pendulum --method "$method" --score pre_squash_std \
+    --out "oodmon/zoo/pendulum-$method/detectors"
+  $OODMON fit-detectors --task pong --method "$method" --episodes 6 --max-steps 1000 \
+    --out "oodmon/zoo/pong-$method/detectors"
+done
