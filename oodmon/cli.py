@@ -13,6 +13,7 @@ import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 from rich.console import Console
@@ -195,8 +196,10 @@ def _parser() -> argparse.ArgumentParser:
                            help="guarantee per episode (default) or per step")
     calibrate.add_argument("--score", default="chosen_std",
                            help="the spread's score: chosen_std (default), mean_std, max_std or pre_squash_std")
-    calibrate.add_argument("--detector", choices=list(DETECTOR_NAMES), default="spread",
-                           help="the detector the alarm reads (default spread); a learned one needs fitted detectors")
+    calibrate.add_argument("--detector", choices=list(DETECTOR_NAMES),
+                           help="the detector the alarm reads (default: the task's best measured one when the agent has "
+                                "fitted detectors: cartpole combined, pendulum dynamics, pong features; else spread); "
+                                "a learned one without fitted detectors is fitted first, into <out>.detectors/")
     calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
                            help=f"seed of the first calibration episode (default {CALIBRATION})")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
@@ -414,12 +417,21 @@ def _calibrate(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from oodmon.monitor import calibrate_agent
-    from oodmon.monitor.detectors import detectors_for
-    from oodmon.outputs import check_output_file
+    from oodmon.monitor.detectors import BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors
+    from oodmon.outputs import check_output_dir, check_output_file
 
     check_output_file(args.out, parameter="--out", inputs=[("--model", args.model and f"{args.model}/model.json")])
     agent = _load_agent(args)
     detectors = detectors_for(agent, args.detectors)
+    fitted_to = None
+    if args.detector not in (None, "spread") and detectors is None:  # fit them first, on episodes of their own
+        fitted_to = Path(f"{args.out}.detectors")
+        check_output_dir(fitted_to, parameter="--out (its detectors folder)")
+        with Progress(console=Console(stderr=True), transient=True) as progress:
+            bar = progress.add_task("ID episodes for the detectors", total=DEFAULT_FIT_EPISODES)
+            detectors = fit_agent_detectors(agent, score=args.score,
+                                            on_episode=lambda i: progress.update(bar, advance=1))
+        detectors.save(fitted_to)
     with Progress(console=Console(stderr=True), transient=True) as progress:
         bar = progress.add_task("ID calibration episodes", total=args.episodes)
         threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
@@ -427,10 +439,17 @@ def _calibrate(args: argparse.Namespace) -> int:
                                     detector=args.detector, on_episode=lambda i: progress.update(bar, advance=1))
     threshold.save(args.out)
     Console(soft_wrap=True).print(
-        f"{args.task}/{agent.method}: alarm when {threshold.rule} ({threshold.detector} detector, {threshold.mode} mode, target false-alarm rate "
-        f"{threshold.far}, {threshold.n_episodes} ID episodes, {threshold.n_steps} steps; ID score median "
+        f"{args.task}/{agent.method}: alarm when {threshold.rule} ({threshold.detector} detector, {threshold.mode} "
+        f"mode, target false-alarm rate {threshold.far}, {threshold.n_episodes} ID episodes, {threshold.n_steps} steps; ID score median "
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); wrote {args.out}"
+        + (f"; fitted the detectors into {fitted_to} (`oodmon run` finds them there)"
+           if fitted_to else "")
     )
+    best = BEST_DETECTOR.get(args.task, "spread")
+    if args.detector is None and threshold.detector != best:
+        Console(stderr=True, soft_wrap=True).print(
+            f"note: the {best} detector separates {args.task}'s shifts better than {threshold.detector}; "
+            f"`--detector {best}` fits it first (about {DEFAULT_FIT_EPISODES} more ID episodes)")
     return 0
 
 
@@ -475,7 +494,11 @@ def _run(args: argparse.Namespace) -> int:
         check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
     threshold = Threshold.load(args.threshold) if args.threshold else None
     agent = _load_agent(args)
-    detectors = detectors_for(agent, args.detectors)
+    beside = Path(f"{args.threshold}.detectors") if args.threshold else None
+    if args.detectors is None and beside is not None and (beside / "detectors.json").is_file():
+        detectors = detectors_for(agent, beside)  # fitted by `calibrate` beside its threshold file
+    else:
+        detectors = detectors_for(agent, args.detectors)
     sinks = []
     if args.mcap:
         sinks.append(McapSink(args.mcap))
@@ -565,7 +588,6 @@ def _replay(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
     from oodmon.outputs import check_output_file
     from oodmon.replay import baseline_of, compute_all_metrics, find_falls, load_baseline

@@ -81,6 +81,10 @@ def test_demo_calibrates_monitors_and_logs(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "Calibrated on 40 held-out ID episodes" in out and "shifts detected" in out
+    # The demo alarms on the dynamics detector, which sees the longer pole at once (measured: 5 of 5,
+    # delays of 3 steps, no false alarm in the 5 ID episodes).
+    assert json.loads((tmp_path / "threshold.json").read_text())["detector"] == "dynamics"
+    assert "5 of 5 shifts detected" in out
     assert sorted(p.name for p in tmp_path.iterdir()) == ["id.mcap", "id.rrd", "shifted.mcap", "shifted.rrd",
                                                           "threshold.json"]
 
@@ -90,6 +94,8 @@ def test_calibrate_then_run_with_logs(tmp_path):
     result = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--out", str(threshold))
     assert result.returncode == 0, result.stderr
     assert "alarm when score >" in result.stdout and json.loads(threshold.read_text())["n_episodes"] == 19
+    # The zoo agent ships fitted detectors: the alarm reads CartPole's best measured one.
+    assert json.loads(threshold.read_text())["detector"] == "combined" and "(combined detector" in result.stdout
     windowed = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--window", "20",
                     "--out", str(tmp_path / "w.json"))
     assert "alarm when mean score over 20 steps >" in windowed.stdout
@@ -158,3 +164,39 @@ def test_every_command_keeps_to_the_torch_threads_it_is_given(monkeypatch, capsy
         assert "OODMON_TORCH_THREADS='two' is not allowed; give a whole number from 1 to 1024" in capsys.readouterr().err
     finally:
         torch.set_num_threads(before)
+
+
+def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, capsys):
+    """A model without fitted detectors: `calibrate --detector dynamics` fits them on episodes of their
+    own beside the threshold, and `run --detectors` alarms on the shifted world with them."""
+    import shutil
+
+    from oodmon.agents import zoo_dir
+
+    model = tmp_path / "model"
+    model.mkdir()
+    for name in ("model.json", "model.safetensors"):
+        shutil.copy(zoo_dir() / "cartpole-ensemble" / name, model / name)
+    threshold = tmp_path / "thr.json"
+    assert main(["calibrate", "--task", "cartpole", "--model", str(model), "--detector", "dynamics",
+                 "--episodes", "19", "--out", str(threshold)]) == 0
+    assert "fitted the detectors into" in capsys.readouterr().out
+    assert json.loads(threshold.read_text())["detector"] == "dynamics"
+    assert (tmp_path / "thr.json.detectors" / "detectors.json").exists()
+    # `run` finds them beside the threshold file, or where --detectors says.
+    assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold),
+                 "--variant", "cartpole:length=2.0", "--episodes", "2"]) == 0
+    assert "2 of 2 episodes raised an alarm" in capsys.readouterr().out
+    (tmp_path / "thr.json.detectors").rename(tmp_path / "elsewhere")
+    assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold),
+                 "--detectors", str(tmp_path / "elsewhere"), "--variant", "cartpole:length=2.0",
+                 "--episodes", "1"]) == 0
+    assert "1 of 1 episodes raised an alarm" in capsys.readouterr().out
+    # Without them, a threshold that reads dynamics is refused in one line.
+    assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold)]) == 2
+    assert "does not have" in capsys.readouterr().err
+    # Without --detector and without fitted detectors, the alarm reads spread and says what is better.
+    assert main(["calibrate", "--task", "cartpole", "--model", str(model), "--episodes", "19",
+                 "--out", str(tmp_path / "spread.json")]) == 0
+    assert json.loads((tmp_path / "spread.json").read_text())["detector"] == "spread"
+    assert "the combined detector separates cartpole's shifts better" in capsys.readouterr().err

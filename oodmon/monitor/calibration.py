@@ -15,7 +15,7 @@ from oodmon.agents.agent import Agent
 from oodmon.envs.grid import Variant
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE
-from oodmon.monitor.detectors import DetectorSet
+from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sinks.base import MemorySink
@@ -49,12 +49,14 @@ def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SE
 def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int = DEFAULT_CONSECUTIVE,
                     mode: str = "episode", score: str = DEFAULT_SCORE, seed: int = CALIBRATION_SEED,
                     on_episode: Callable[[int], None] | None = None, window: int = 1,
-                    detectors: DetectorSet | None = None, detector: str = "spread",
+                    detectors: DetectorSet | None = None, detector: str | None = None,
                     obs_noise: float = 0.0) -> Threshold:
     """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``).
 
     ``detector`` names the detector whose score the alarm will read; a learned one comes from
     ``detectors`` (fitted on other episodes, :func:`~oodmon.monitor.detectors.fit_detectors`).
+    By default it is the task's best measured detector when ``detectors`` has it, else ``spread``
+    (:func:`~oodmon.monitor.detectors.best_detector`).
 
     Raises:
         InvalidParameterError, ConfigError: a bad argument, or too few episodes for ``far``; all
@@ -65,6 +67,8 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
     score_function(score)
+    if detector is None:
+        detector = best_detector(agent.task, detectors)
     if detector not in DETECTOR_NAMES:
         raise InvalidParameterError(f"detector={detector!r} is not allowed; choose one of {', '.join(DETECTOR_NAMES)}")
     if detector != "spread" and (detectors is None or detector not in detectors):

@@ -70,18 +70,24 @@ def test_dynamics_copes_with_sensor_noise(agent):
 
 def test_features_separate_gaussian_noise_frames_in_pong():
     """Mahalanobis distance of the Pong ensemble's 512 CNN features, fitted on 300 ID frames,
-    against 150 fresh ID frames and 150 frames under gaussian_noise@5."""
+    against 150 fresh ID frames and 150 frames under gaussian_noise@5 (each step's own distance,
+    and the default mean over 20 steps)."""
     pong = load("pong", "ensemble")
     env = Variant("pong").make()
     train = collect(pong, env, 3, seed=600_000, max_steps=100)
     fresh = collect(pong, env, 1, seed=600_010, max_steps=150)
     noisy = collect(pong, parse_variant("pong:gaussian_noise@5").make(), 1, seed=500_000, max_steps=150)
-    detector = FeaturesDetector(6).fit(train)
+    detectors = [FeaturesDetector(6, window=1).fit(train), FeaturesDetector(6).fit(train)]
 
-    def scores(trajectories):
-        return [np.array([detector.score(StepContext(o, a, pong.estimate(o)))
-                          for o, a in zip(t.observations[:-1], t.actions)]) for t in trajectories]
-    assert _auroc(scores(fresh), scores(noisy)) > 0.9
+    def scores(detector, trajectories):
+        out = []
+        for t in trajectories:
+            detector.reset()
+            out.append(np.array([detector.score(StepContext(o, a, pong.estimate(o)))
+                                 for o, a in zip(t.observations[:-1], t.actions)]))
+        return out
+    for detector in detectors:
+        assert _auroc(scores(detector, fresh), scores(detector, noisy)) > 0.9
 
 
 def test_spread_detector_gives_the_scores_of_before(agent, id_trajectories):
@@ -232,3 +238,17 @@ def test_a_plain_policy_is_watched_with_the_actions_it_takes(agent, fitted):
         with Monitor(None, detectors=dynamics) as monitor:
             monitor.begin_episode()
             monitor.step(np.zeros(4, np.float32))
+
+
+def test_dynamics_scores_the_mean_of_its_last_window_transitions(fitted, id_trajectories):
+    """The monitor's per-step dynamics score: the first step is the neutral (median ID) value, then
+    the mean surprise of the last 20 transitions, starting afresh each episode; equal to the batch
+    path's numbers up to float32 rounding."""
+    dynamics = fitted["dynamics"]
+    trajectory = id_trajectories[6]
+    raw = np.r_[dynamics.neutral, dynamics.score_transitions(trajectory.observations[:-2], trajectory.actions[:-1],
+                                                             trajectory.observations[1:-1])]
+    expected = [raw[max(0, t - 19):t + 1].mean() for t in range(len(raw))]
+    for _ in range(2):  # a second episode starts afresh
+        got = trajectory_scores(DetectorSet([dynamics]), trajectory)["dynamics"]
+        np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-4)

@@ -92,6 +92,8 @@ def test_rrd_holds_the_scalars(agent, tmp_path):
     assert frame["/threshold:Scalars:scalars"].dropna().iloc[0][0] == 3.0
     returns = frame["/episode/return:Scalars:scalars"].dropna()
     assert len(returns) == 2
+    spread = frame["/detectors/spread:Scalars:scalars"].dropna()  # every detector has a series
+    np.testing.assert_allclose([v[0] for v in spread], [s.scores["spread"] for s in memory.steps], rtol=1e-6)
 
 
 def test_rrd_passes_rerun_verify(agent, tmp_path):

@@ -16,13 +16,13 @@ from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.fitting import (
-    DEFAULT_FIT_EPISODES, collect, default_detectors, detectors_for, fit_agent_detectors, fit_detectors, trajectory_scores,
+    BEST_DETECTOR, DEFAULT_FIT_EPISODES, best_detector, collect, default_detectors, detectors_for, fit_agent_detectors, fit_detectors, trajectory_scores,
 )
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 
 __all__ = [
-    "DEFAULT_FIT_EPISODES", "DETECTORS", "CombinedDetector", "Detector", "DetectorSet", "DynamicsDetector",
-    "FeaturesDetector", "SpreadDetector", "StepContext", "Trajectory", "collect", "default_detectors", "detectors_for",
+    "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DETECTORS", "CombinedDetector", "Detector", "DetectorSet", "DynamicsDetector",
+    "FeaturesDetector", "SpreadDetector", "StepContext", "Trajectory", "best_detector", "collect", "default_detectors", "detectors_for",
     "fit_agent_detectors", "fit_detectors", "trajectory_scores",
 ]

@@ -6,16 +6,23 @@ actions), the features are the policy's deterministic ones (``Estimate.features`
 CNN features, the last hidden layer of an MLP), and the covariance is Ledoit-Wolf shrunk, which
 stays well-conditioned from a few hundred frames. The score is the squared distance from the
 chosen action's mean; an action never chosen at ID steps uses the pooled mean.
+
+A step's score is the mean distance over the episode's last ``window`` steps (20 by default, as
+the dynamics detector): a corruption persists, single frames vary. Measured on the shipped Pong
+ensemble (2 ID games' first 1,000 steps against 500 steps of gaussian noise, impulse noise and
+motion blur at severity 3-5; ``scripts/measure_pong_features.py``): per-step AUROC 0.888-0.990
+for each step's own distance, 0.977-1.000 over 10 steps, 0.992-1.000 over 30.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from oodmon.errors import ConfigError
+from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
 
 __all__ = ["FeaturesDetector"]
@@ -26,14 +33,19 @@ class FeaturesDetector(Detector):
 
     Args:
         n_actions: discrete actions (one class each), or ``None`` (one class).
+        window: the step's score is the mean distance over the episode's last ``window`` steps
+            (1: each step's own; default 20).
     """
 
     name = "features"
     needs_estimate = True
     learned = True
 
-    def __init__(self, n_actions: int | None = None) -> None:
-        self.n_actions = n_actions
+    def __init__(self, n_actions: int | None = None, *, window: int = 20) -> None:
+        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
+            raise InvalidParameterError(f"window={window!r} is not allowed; it must be an integer >= 1")
+        self.n_actions, self.window = n_actions, window
+        self._recent: deque[float] = deque(maxlen=window)
         self._means: np.ndarray | None = None  # (classes + 1, F): per class, then pooled
         self._factor: np.ndarray | None = None  # (F, F) with factor @ factor.T = precision
 
@@ -70,6 +82,9 @@ class FeaturesDetector(Detector):
             return np.zeros(len(actions), dtype=np.int64)
         return np.asarray(actions).astype(np.int64).reshape(-1)
 
+    def reset(self) -> None:
+        self._recent.clear()
+
     def score(self, context: StepContext) -> float:
         self.check_fitted()
         features = context.features
@@ -81,20 +96,33 @@ class FeaturesDetector(Detector):
         klass = 0 if self.n_actions is None else int(np.asarray(context.action).reshape(-1)[0])
         mean = self._means[klass] if 0 <= klass < len(self._means) - 1 else self._means[-1]
         projected = (features.astype(np.float32) - mean) @ self._factor
-        return float(projected @ projected)
+        self._recent.append(float(projected @ projected))
+        return sum(self._recent) / len(self._recent)
 
     def config(self) -> dict[str, Any]:
-        return {"n_actions": self.n_actions}
+        return {"n_actions": self.n_actions, "window": self.window}
 
     def tensors(self) -> dict[str, np.ndarray]:
+        # The factor is lower-triangular: saving its lower triangle halves the file (Pong's 512
+        # features: 0.5 MiB instead of 1 MiB) and loses nothing.
         self.check_fitted()
-        return {"means": self._means, "factor": self._factor}
+        return {"means": self._means, "factor_tril": self._factor[np.tril_indices(len(self._factor))]}
 
     @classmethod
     def from_state(cls, config: Mapping[str, Any], tensors: Mapping[str, np.ndarray]) -> FeaturesDetector:
         detector = cls(**config)
-        if "means" not in tensors or "factor" not in tensors:
+        if "means" in tensors and "factor" in tensors:  # written by oodmon before the packed factor
+            detector._means = np.asarray(tensors["means"], np.float32)
+            detector._factor = np.tril(np.asarray(tensors["factor"], np.float32))
+            return detector
+        if "means" not in tensors or "factor_tril" not in tensors:
             raise ConfigError("the features detector's tensors are incomplete")
         detector._means = np.asarray(tensors["means"], np.float32)
-        detector._factor = np.asarray(tensors["factor"], np.float32)
+        size = detector._means.shape[1]
+        packed = np.asarray(tensors["factor_tril"], np.float32)
+        if packed.shape != (size * (size + 1) // 2,):
+            raise ConfigError(f"the features detector's factor has {packed.size} entries; {size} features need "
+                              f"{size * (size + 1) // 2}")
+        detector._factor = np.zeros((size, size), np.float32)
+        detector._factor[np.tril_indices(size)] = packed
         return detector

@@ -28,10 +28,21 @@ from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.seeds import DETECTOR_FIT
 
-__all__ = ["DEFAULT_FIT_EPISODES", "collect", "default_detectors", "detectors_for", "fit_agent_detectors",
+__all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "best_detector", "collect", "default_detectors", "detectors_for", "fit_agent_detectors",
            "fit_detectors", "policy_parts", "trajectory_scores"]
 
 DEFAULT_FIT_EPISODES = 30
+
+# The detector with the highest mean per-step AUROC over the paper's failing variants, per task, on
+# the shipped agents (results/detectors/, `scripts/detector_table.py`; the README's detector table).
+BEST_DETECTOR = {"cartpole": "combined", "pendulum": "dynamics", "pong": "features"}
+
+
+def best_detector(task: str | None, detectors: DetectorSet | None) -> str:
+    """The detector an alarm reads by default: the task's best (:data:`BEST_DETECTOR`) when
+    ``detectors`` has it fitted, else ``spread``."""
+    best = BEST_DETECTOR.get(task or "")
+    return best if best is not None and detectors is not None and best in detectors else "spread"
 
 
 def policy_parts(policy: Any) -> tuple[Any, Callable[[np.ndarray], Any], dict]:

@@ -1,6 +1,7 @@
 """Log a monitored run to Rerun: an ``.rrd`` file, a spawned viewer, a served stream, or a URL.
 
-Timeline ``step`` counts the run's steps. Entities: ``/score`` and ``/threshold``;
+Timeline ``step`` counts the run's steps. Entities: ``/score`` (the alarm's) and ``/threshold``;
+``/detectors/<name>`` (every detector's score);
 ``/uncertainty/<action>`` with the samples' mean and the band mean - std .. mean + std;
 ``/observation`` (vector tasks) or ``/frame`` (Pong: the 84x84 frame the agent saw);
 ``/shifted`` (1 while the shift is active); ``/alarms`` (warnings); ``/episode/return``.
@@ -36,9 +37,10 @@ def default_blueprint(task: str, n_outputs: int):
         rrb.Vertical(
             rrb.TimeSeriesView(origin="/", contents=["/score", "/threshold", "/shifted"], name="uncertainty score"),
             rrb.TimeSeriesView(origin="/uncertainty", name="samples: mean and mean ± std per action"),
+            rrb.TimeSeriesView(origin="/detectors", name="every detector's score"),
             rrb.Horizontal(seen, rrb.TextLogView(origin="/alarms", name="alarms")),
             rrb.TimeSeriesView(origin="/episode", name="episode return"),
-            row_shares=[3, 3, 2, 1],
+            row_shares=[3, 3, 2, 2, 1],
         ),
         collapse_panels=True,
     )
@@ -196,6 +198,9 @@ class RerunSink:
                    columns=rr.Scalars.columns(scalars=[r.score for r in self._buffer]))
         self._each("send_columns", "/shifted", indexes=index,
                    columns=rr.Scalars.columns(scalars=[float(r.shifted) for r in self._buffer]))
+        for name in self._buffer[0].scores:  # every detector's score, on a series of its own
+            self._each("send_columns", f"/detectors/{name}", indexes=index,
+                       columns=rr.Scalars.columns(scalars=[r.scores.get(name, np.nan) for r in self._buffer]))
         thresholds = np.array([r.threshold for r in self._buffer])
         if not np.isnan(thresholds).all():
             self._each("send_columns", "/threshold", indexes=index, columns=rr.Scalars.columns(scalars=thresholds))
