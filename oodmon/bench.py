@@ -54,8 +54,9 @@ class BenchConfig:
     episodes: int = 5
     id_episodes: int = 10
     eval_episodes: int = 3
-    calibration_episodes: int = 20
+    calibration_episodes: int = 45  # the fewest that bound the rate at far 0.05 with confidence 0.9
     far: float = 0.05
+    confidence: float | None = 0.9  # see oodmon.monitor.threshold; None: the rate bounded on average only
     score: str = "chosen_std"  # the paper's; pre_squash_std detects far better on Pendulum
     window: int = 1  # the alarm rule's averaging window (alarms only; the AUROCs score single steps)
     out: str = "runs/bench"
@@ -79,6 +80,9 @@ class BenchConfig:
             raise ConfigError(f"the alarm reads the {self.alarm_detector} detector: add it to the detectors")
         if "spread" not in self.detectors:
             raise ConfigError("the bench's agents all have samples: keep spread among the detectors")
+        from oodmon.monitor.threshold import conformal_rank
+
+        conformal_rank(self.calibration_episodes, self.far, self.confidence)  # enough episodes, before any work
 
     @property
     def learned(self) -> tuple[str, ...]:
@@ -90,8 +94,9 @@ class BenchConfig:
 
     def cache_key(self) -> str:
         """What the cached thresholds and logs of a (method, trial) depend on beyond the weights:
-        score, alarm rule, target rate, calibration episodes, detectors and sensor noise."""
-        parts = [self.score, f"far{self.far:g}", f"n{self.calibration_episodes}"]
+        score, alarm rule, target rate and confidence, calibration episodes, detectors and sensor noise."""
+        parts = [self.score, f"far{self.far:g}", f"n{self.calibration_episodes}",
+                 "marginal" if self.confidence is None else f"conf{self.confidence:g}"]
         if self.window != 1:
             parts.append(f"w{self.window}")
         if self.learned:
@@ -334,7 +339,7 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
         stage = f"{method} trial {trial}: calibration episodes"
         calibrate_agent(agent, config.calibration_episodes, config.far, score=config.score, window=config.window,
                         detectors=DetectorSet.load(detectors_path) if detectors_path else None,
-                        detector=config.alarm_detector, obs_noise=config.obs_noise,
+                        detector=config.alarm_detector, obs_noise=config.obs_noise, confidence=config.confidence,
                         on_episode=lambda episode: report(stage, episode + 1, config.calibration_episodes)).save(threshold_path)
     variants = config.variant_list()
     if failing_path.exists() and json.loads(failing_path.read_text()).get("variants") == [v.spec for v in variants]:

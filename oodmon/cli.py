@@ -21,7 +21,7 @@ from rich.table import Table
 
 from oodmon.errors import ConfigError, OodmonError
 from oodmon.monitor.threshold import DETECTOR_NAMES
-from oodmon.seeds import CALIBRATION
+from oodmon.seeds import CALIBRATION, VALIDATION
 
 __all__ = ["main"]
 
@@ -100,6 +100,22 @@ def _number(test: Callable[[float], bool], allowed: str) -> Callable[[str], floa
 _fraction = _number(lambda x: 0.0 < x < 1.0, "a number between 0 and 1 (exclusive)")
 _non_negative = _number(lambda x: 0.0 <= x < float("inf"), "a finite number >= 0")
 _SEED = _whole(0, 2**32 - 1)
+
+
+def _confidence(text: str) -> float | None:
+    """An argparse type: ``--confidence`` in (0, 1), or ``none`` (the rate bounded on average only)."""
+    if text.strip().lower() == "none":
+        return None
+    return _fraction(text)
+
+
+def _add_confidence(parser: argparse.ArgumentParser) -> None:
+    from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
+
+    parser.add_argument("--confidence", type=_confidence, default=DEFAULT_CONFIDENCE, metavar="1-d",
+                        help=f"with this probability over the calibration episodes, the threshold's false-alarm rate "
+                             f"is <= --far (default {DEFAULT_CONFIDENCE}; 45 episodes for --far 0.05); 'none': only "
+                             "on average over calibrations (19 episodes for --far 0.05)")
 
 
 def _limit_torch_threads() -> None:
@@ -189,6 +205,7 @@ def _parser() -> argparse.ArgumentParser:
     _agent_arguments(calibrate)
     calibrate.add_argument("--episodes", type=_whole(1), default=50, help="ID calibration episodes (default 50)")
     calibrate.add_argument("--far", type=_fraction, default=0.05, help="target false-alarm rate (default 0.05)")
+    _add_confidence(calibrate)
     calibrate.add_argument("--consecutive", type=_whole(1), default=3, help="m of the alarm rule (default 3)")
     calibrate.add_argument("--window", type=_whole(1), default=1,
                            help="compare the mean score of the last N steps (default 1: each step's; Pong: try 100)")
@@ -204,6 +221,20 @@ def _parser() -> argparse.ArgumentParser:
                            help=f"seed of the first calibration episode (default {CALIBRATION})")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate)
+
+    validate = commands.add_parser(
+        "validate", help="run fresh ID episodes and print a threshold's realised false-alarm rate beside its target"
+    )
+    validate.add_argument("threshold", help="the threshold file (`oodmon calibrate`)")
+    _agent_arguments(validate, defaults_from="the threshold's")
+    validate.add_argument("--episodes", type=_whole(1), default=200, help="fresh ID episodes (default 200)")
+    validate.add_argument("--seed", type=_SEED, default=VALIDATION,
+                          help=f"seed of the first episode (default {VALIDATION}, apart from calibration's)")
+    validate.add_argument("--obs-noise", type=_non_negative, default=0.0,
+                          help="sensor noise, a fraction of each dimension's ID spread (default 0)")
+    validate.add_argument("--force", action="store_true", help="validate even if the threshold was made for other weights")
+    validate.add_argument("--json", action="store_true", help="print JSON instead of a sentence")
+    validate.set_defaults(handler=_validate)
 
     fit = commands.add_parser(
         "fit-detectors", help="fit the learned detectors (dynamics, features, combined) on an agent's ID episodes"
@@ -265,6 +296,10 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--variants", default="paper", help="'paper' (the paper's grid) or comma-separated specs")
     bench.add_argument("--episodes", type=_whole(1), default=5, help="episodes per failing variant (default 5)")
     bench.add_argument("--id-episodes", type=_whole(1), default=10, help="ID episodes per trial (default 10)")
+    bench.add_argument("--calibration-episodes", type=_whole(1), default=45,
+                       help="ID episodes the threshold is calibrated on (default 45)")
+    bench.add_argument("--far", type=_fraction, default=0.05, help="the alarm's target false-alarm rate (default 0.05)")
+    _add_confidence(bench)
     bench.add_argument("--workers", type=_whole(0), default=0, help="worker processes for the cells (default: all cores)")
     bench.add_argument("--score", default="chosen_std",
                        help="chosen_std (the paper's, default), mean_std, max_std or pre_squash_std (DDPG)")
@@ -403,14 +438,20 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
-def _agent_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
+def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | None = None) -> None:
+    """--task, --method, --model, --detectors; with ``defaults_from`` (a threshold file), the task and
+    method default to what it was calibrated for, and the detectors to those fitted beside it."""
+    if defaults_from is None:
+        parser.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
+    else:
+        parser.add_argument("--task", choices=["cartpole", "pendulum", "pong"], help=f"default: {defaults_from} task")
     parser.add_argument("--method", choices=["dropout", "dropconnect", "ensemble"],
-                        help="a shipped agent (or give --model)")
+                        help="a shipped agent (or give --model)" if defaults_from is None
+                        else f"a shipped agent (default: {defaults_from} method, unless --model)")
     parser.add_argument("--model", help="a trained model directory instead of a shipped agent")
     parser.add_argument("--detectors", metavar="DIR",
-                        help="fitted detectors from `oodmon fit-detectors` (default: those shipped with the agent, "
-                             "if any)")
+                        help="fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside "
+                             "the threshold file, else those shipped with the agent, if any)")
 
 
 def _calibrate(args: argparse.Namespace) -> int:
@@ -418,9 +459,12 @@ def _calibrate(args: argparse.Namespace) -> int:
 
     from oodmon.monitor import calibrate_agent
     from oodmon.monitor.detectors import BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors
+    from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file
 
     check_output_file(args.out, parameter="--out", inputs=[("--model", args.model and f"{args.model}/model.json")])
+    if args.mode == "episode":
+        conformal_rank(args.episodes, args.far, args.confidence)  # too few episodes: said before any runs
     agent = _load_agent(args)
     detectors = detectors_for(agent, args.detectors)
     fitted_to = None
@@ -436,12 +480,14 @@ def _calibrate(args: argparse.Namespace) -> int:
         bar = progress.add_task("ID calibration episodes", total=args.episodes)
         threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
                                     window=args.window, score=args.score, seed=args.seed, detectors=detectors,
-                                    detector=args.detector, on_episode=lambda i: progress.update(bar, advance=1))
+                                    detector=args.detector, confidence=args.confidence,
+                                    on_episode=lambda i: progress.update(bar, advance=1))
     threshold.save(args.out)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule} ({threshold.detector} detector, {threshold.mode} "
-        f"mode, target false-alarm rate {threshold.far}, {threshold.n_episodes} ID episodes, {threshold.n_steps} steps; ID score median "
-        f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); wrote {args.out}"
+        f"mode, {threshold.n_episodes} ID episodes, {threshold.n_steps} steps, rank {threshold.rank} of "
+        f"{threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score median "
+        f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote {args.out}"
         + (f"; fitted the detectors into {fitted_to} (`oodmon run` finds them there)"
            if fitted_to else "")
     )
@@ -478,7 +524,6 @@ def _run(args: argparse.Namespace) -> int:
 
     from oodmon.envs import Variant, parse_variant
     from oodmon.monitor import McapSink, Monitor, Threshold
-    from oodmon.monitor.detectors import detectors_for
     from oodmon.monitor.sinks.rerun import RerunSink
 
     from oodmon.outputs import check_output_file
@@ -494,11 +539,7 @@ def _run(args: argparse.Namespace) -> int:
         check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
     threshold = Threshold.load(args.threshold) if args.threshold else None
     agent = _load_agent(args)
-    beside = Path(f"{args.threshold}.detectors") if args.threshold else None
-    if args.detectors is None and beside is not None and (beside / "detectors.json").is_file():
-        detectors = detectors_for(agent, beside)  # fitted by `calibrate` beside its threshold file
-    else:
-        detectors = detectors_for(agent, args.detectors)
+    detectors = _detectors(args, agent)
     sinks = []
     if args.mcap:
         sinks.append(McapSink(args.mcap))
@@ -627,7 +668,8 @@ def _bench(args: argparse.Namespace) -> int:
     config = BenchConfig(args.task, methods, args.trials, variants, args.episodes, args.id_episodes, out=args.out,
                          workers=args.workers, executor=args.executor, address=args.address, bind=args.bind, score=args.score,
                          window=args.window, detectors=tuple(d.strip() for d in args.detectors.split(",")),
-                         alarm_detector=args.alarm_detector, obs_noise=args.obs_noise)
+                         alarm_detector=args.alarm_detector, obs_noise=args.obs_noise,
+                         calibration_episodes=args.calibration_episodes, far=args.far, confidence=args.confidence)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.outputs import check_output_dir
 
@@ -682,6 +724,60 @@ def _bench(args: argparse.Namespace) -> int:
         console.print("Variants the paper reports where our agents did not fail (no AUROC of ours): "
                       + ", ".join(f"{m} {label} ({best:.3f})" for m, label, best in missing))
     return 0
+
+
+def _detectors(args: argparse.Namespace, agent):
+    """The fitted detectors: ``--detectors``, else those `calibrate` fitted beside the threshold
+    file (``<threshold>.detectors/``), else the agent's own, else ``None``."""
+    from oodmon.monitor.detectors import detectors_for
+
+    beside = Path(f"{args.threshold}.detectors") if getattr(args, "threshold", None) else None
+    if args.detectors is None and beside is not None and (beside / "detectors.json").is_file():
+        return detectors_for(agent, beside)
+    return detectors_for(agent, args.detectors)
+
+
+def _validate(args: argparse.Namespace) -> int:
+    from rich.progress import Progress
+
+    from oodmon.monitor import Threshold, validate_threshold
+    from oodmon.monitor.monitor import policy_hash
+
+    threshold = Threshold.load(args.threshold)
+    args.task = args.task or threshold.task
+    if args.task is None:
+        raise ConfigError(f"{args.threshold} does not record its task; give --task")
+    if args.model is None:
+        args.method = args.method or threshold.method
+    agent = _load_agent(args)
+    differences = threshold.check_matches(task=agent.task, method=agent.method, score=threshold.score,
+                                          policy_hash=policy_hash(agent))
+    if differences and not args.force:
+        raise ConfigError(f"{args.threshold} does not fit this agent: {'; '.join(differences)} (--force to validate "
+                          "anyway)")
+    detectors = _detectors(args, agent)
+    with Progress(console=Console(stderr=True), transient=True) as progress:
+        bar = progress.add_task("fresh ID episodes", total=args.episodes)
+        result = validate_threshold(agent, threshold, args.episodes, seed=args.seed, detectors=detectors,
+                                    obs_noise=args.obs_noise, on_episode=lambda i: progress.update(bar, advance=1))
+    unit = "episodes" if threshold.mode == "episode" else "steps"
+    if args.json:
+        print(json.dumps({"threshold": str(args.threshold), "task": agent.task, "method": agent.method,
+                          "detector": threshold.detector, "rule": threshold.rule, "unit": unit,
+                          "alarmed": result.alarmed, "total": result.total, "rate": result.rate,
+                          "interval95": [result.low, result.high], "far": result.far,
+                          "confidence": result.confidence, "seed": args.seed, "verdict": result.verdict}, indent=1))
+    else:
+        verdict = {"above": "ABOVE the target: this threshold alarms too often",
+                   "below": "below the target",
+                   "consistent": "consistent with the target (the interval holds it)"}[result.verdict]
+        Console(soft_wrap=True).print(
+            f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule}: "
+            f"{result.alarmed} of {result.total} fresh ID {unit} alarmed, {result.rate:.1%} (95% interval "
+            f"{result.low:.1%}-{result.high:.1%}); target {result.far:g}"
+            + (f" with confidence {result.confidence:g}" if result.confidence is not None else " on average")
+            + f": {verdict}")
+    return 1 if result.verdict == "above" else 0
 
 
 def _load_agent(args: argparse.Namespace):

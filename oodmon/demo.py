@@ -82,7 +82,7 @@ DEMO_SHIFT, DEMO_ONSET = "cartpole:length=2.0", 100
 DEMO_DETECTOR = "dynamics"
 
 
-def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, *, calibration_episodes: int = 40,
+def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, *, calibration_episodes: int = 45,
              episodes: int = 5, detector: str = DEMO_DETECTOR) -> dict[str, object]:
     """Calibrate, monitor ID and shifted CartPole episodes, log them, print a summary; return it.
 
@@ -102,7 +102,7 @@ def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, 
     threshold = calibrate_agent(agent, calibration_episodes, far=0.05, detectors=detectors, detector=detector)
     threshold.save(out / "threshold.json")
     console.print(f"1. Calibrated on {threshold.n_episodes} held-out ID episodes: alarm when the {detector} "
-                  f"{threshold.rule} (per-episode false-alarm rate <= {threshold.far}). -> {out / 'threshold.json'}")
+                  f"{threshold.rule} ({threshold.promise}). -> {out / 'threshold.json'}")
     runs = {}
     for name, variant, onset in (("id", Variant("cartpole"), 0), ("shifted", parse_variant(DEMO_SHIFT), DEMO_ONSET)):
         env = variant.make(onset_step=onset)

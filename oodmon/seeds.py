@@ -12,7 +12,7 @@ retraining of the zoo.
 
 from __future__ import annotations
 
-__all__ = ["CALIBRATION", "DETECTOR_FIT", "RANGES", "range_of"]
+__all__ = ["CALIBRATION", "DETECTOR_FIT", "RANGES", "VALIDATION", "range_of"]
 
 #: ID return of a trained model (``id_return_mean``): 100,000 + i.
 ID_RETURN = 100_000
@@ -25,6 +25,8 @@ BENCH_ID = 400_000
 BENCH_SHIFTED = 500_000
 #: ID episodes the learned detectors are fitted on (``fit_detectors``): 600,000 + i.
 DETECTOR_FIT = 600_000
+#: Fresh ID episodes that check a threshold's false-alarm rate (``oodmon validate``): 700,000 + i.
+VALIDATION = 700_000
 
 #: name -> (first seed, end) of each range.
 RANGES: dict[str, tuple[int, int]] = {
@@ -34,6 +36,7 @@ RANGES: dict[str, tuple[int, int]] = {
     "bench_id": (BENCH_ID, BENCH_ID + 100_000),
     "bench_shifted": (BENCH_SHIFTED, BENCH_SHIFTED + 100_000),
     "detector_fit": (DETECTOR_FIT, DETECTOR_FIT + 100_000),
+    "validation": (VALIDATION, VALIDATION + 100_000),
 }
 
 

@@ -76,7 +76,7 @@ def files(tmp_path_factory) -> Path:
 
 
 RUN = ["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "1"]
-CALIBRATE = ["calibrate", "--task", "cartpole", "--method", "ensemble", "--episodes", "30"]
+CALIBRATE = ["calibrate", "--task", "cartpole", "--method", "ensemble", "--episodes", "45"]
 
 # (id, argv with {d} for the inputs folder, environment, what the one line must name)
 CASES = [
@@ -119,7 +119,8 @@ CASES = [
     ("calibrate-out-in-proc", [*CALIBRATE, "--out", "/proc/t.json"], {}, ["--out", "/proc/t.json"]),
     ("calibrate-out-is-a-folder", [*CALIBRATE, "--out", "{d}/a-folder"], {}, ["--out", "a-folder"]),
     ("calibrate-far-1.5", [*CALIBRATE, "--far", "1.5", "--out", "{d}/t.json"], {}, ["--far", "1.5"]),
-    ("calibrate-far-too-small-for-n", [*CALIBRATE, "--far", "0.01", "--out", "{d}/t.json"], {}, ["far=0.01", "30"]),
+    ("calibrate-far-too-small-for-n", [*CALIBRATE, "--far", "0.01", "--out", "{d}/t.json"], {}, ["far=0.01", "230", "45"]),
+    ("calibrate-confidence-1", [*CALIBRATE, "--confidence", "1", "--out", "{d}/t.json"], {}, ["--confidence", "1"]),
     ("calibrate-consecutive-0", [*CALIBRATE, "--consecutive", "0", "--out", "{d}/t.json"], {}, ["--consecutive", "0"]),
     ("calibrate-window-0", [*CALIBRATE, "--window", "0", "--out", "{d}/t.json"], {}, ["--window", "0"]),
     ("calibrate-score-unknown", [*CALIBRATE, "--score", "foo", "--out", "{d}/t.json"], {}, ["score 'foo'"]),

@@ -18,7 +18,8 @@ SPECS = ("cartpole:length=2.0", "cartpole:gravity=98.0", "cartpole:gravity=0.98"
 
 def test_bench_end_to_end_and_resume(tmp_path):
     config = BenchConfig("cartpole", ("dropout",), trials=2, variants=SPECS, episodes=2, id_episodes=3,
-                         eval_episodes=2, calibration_episodes=19, out=str(tmp_path), workers=2, train_steps=300)
+                         eval_episodes=2, calibration_episodes=19, confidence=None, out=str(tmp_path), workers=2,
+                         train_steps=300)
     stages = []
     result = run_bench(config, on_progress=lambda stage, done, total: stages.append((stage, done, total)))
     logs_root = tmp_path / "logs" / f"cartpole-{config.cache_key()}"
@@ -67,15 +68,19 @@ def test_bench_end_to_end_and_resume(tmp_path):
 
 
 def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold():
-    """Changing far, the calibration episodes, the window, the detectors or the sensor noise must not
-    reuse a threshold calibrated otherwise (it did for far and the episodes)."""
+    """Changing far, the confidence, the calibration episodes, the window, the detectors or the sensor
+    noise must not reuse a threshold calibrated otherwise (it did for far and the episodes)."""
     base = BenchConfig("cartpole", ("dropout",), 1)
     keys = {base.cache_key()} | {BenchConfig("cartpole", ("dropout",), 1, **change).cache_key() for change in (
-        {"far": 0.1}, {"calibration_episodes": 40}, {"window": 5}, {"score": "max_std"}, {"obs_noise": 0.01},
+        {"far": 0.1}, {"calibration_episodes": 50}, {"window": 5}, {"score": "max_std"}, {"obs_noise": 0.01},
+        {"confidence": None}, {"confidence": 0.8},
         {"detectors": ("spread", "dynamics")}, {"detectors": ("spread", "dynamics"), "alarm_detector": "dynamics"})}
-    assert len(keys) == 8
+    assert len(keys) == 10
     with pytest.raises(ConfigError, match="unknown detector 'sonar'"):
         BenchConfig("cartpole", detectors=("spread", "sonar"))
+    # Too few calibration episodes for the bound is said before any work.
+    with pytest.raises(ConfigError, match="far=0.05 needs at least 45 ID calibration episodes"):
+        BenchConfig("cartpole", calibration_episodes=20)
 
 
 def test_paper_labels_match_our_specs():
@@ -89,7 +94,7 @@ def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
     result = subprocess.run(
         [sys.executable, "-m", "oodmon", "bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1",
          "--variants", "cartpole:length=2.0", "--episodes", "2", "--id-episodes", "3", "--workers", "1",
-         "--out", str(tmp_path), "--json"], capture_output=True, text=True)
+         "--calibration-episodes", "22", "--far", "0.1", "--out", str(tmp_path), "--json"], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
     row = report["rows"][0]
@@ -100,7 +105,7 @@ def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
     tables = subprocess.run(
         [sys.executable, "-m", "oodmon", "bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1",
          "--variants", "cartpole:length=2.0", "--episodes", "2", "--id-episodes", "3", "--workers", "1",
-         "--out", str(tmp_path)], capture_output=True, text=True)
+         "--calibration-episodes", "22", "--far", "0.1", "--out", str(tmp_path)], capture_output=True, text=True)
     assert tables.returncode == 0, tables.stderr
     detected = report["monitor"]["ensemble/trial0/cartpole:length=2.0"]["detection_rate"]
     alarm_row = next(line for line in tables.stdout.splitlines() if "cartpole:length=2.0" in line and "%" in line)
@@ -126,7 +131,7 @@ def test_alarms_are_averaged_over_the_trials_that_have_them():
 
 def test_ray_executor_gives_the_same_logs_numbers_as_local_processes(tmp_path):
     common = dict(task="cartpole", methods=("dropout",), trials=1, variants=("cartpole:length=2.0",), episodes=2,
-                  id_episodes=2, eval_episodes=2, calibration_episodes=19, workers=1)
+                  id_episodes=2, eval_episodes=2, calibration_episodes=19, confidence=None, workers=1)
     local = run_bench(BenchConfig(**common, out=str(tmp_path / "local")))
     on_ray = run_bench(BenchConfig(**common, out=str(tmp_path / "ray"), executor="ray"))
     assert [r.aurocs for r in on_ray.rows] == [r.aurocs for r in local.rows]
@@ -179,7 +184,7 @@ def test_bench_reports_every_detector_as_replaying_its_logs_gives(tmp_path):
     """--detectors: learned detectors fitted per trial (cached), every cell logs every score, and each
     row's AUROC is what replaying the logs gives for that detector; the alarm reads the one named."""
     config = BenchConfig("cartpole", ("ensemble",), 1, ("cartpole:length=2.0",), episodes=2, id_episodes=2,
-                         eval_episodes=1, calibration_episodes=19, out=str(tmp_path), workers=1,
+                         eval_episodes=1, calibration_episodes=19, confidence=None, out=str(tmp_path), workers=1,
                          detectors=("spread", "dynamics", "combined"), alarm_detector="dynamics", fit_episodes=3)
     result = run_bench(config)
     assert [r.detector for r in result.rows] == ["spread", "dynamics", "combined"]

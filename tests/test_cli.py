@@ -80,7 +80,8 @@ def test_envs_tour_writes_its_pictures(tmp_path, capsys):
 def test_demo_calibrates_monitors_and_logs(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "Calibrated on 40 held-out ID episodes" in out and "shifts detected" in out
+    assert "Calibrated on 45 held-out ID episodes" in out and "shifts detected" in out
+    assert "with probability >= 0.9 over its 45 calibration episodes" in out
     # The demo alarms on the dynamics detector, which sees the longer pole at once (measured: 5 of 5,
     # delays of 3 steps, no false alarm in the 5 ID episodes).
     assert json.loads((tmp_path / "threshold.json").read_text())["detector"] == "dynamics"
@@ -91,15 +92,21 @@ def test_demo_calibrates_monitors_and_logs(tmp_path, capsys):
 
 def test_calibrate_then_run_with_logs(tmp_path):
     threshold = tmp_path / "thr.json"
-    result = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--out", str(threshold))
+    result = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--confidence", "none",
+                  "--out", str(threshold))
     assert result.returncode == 0, result.stderr
     assert "alarm when score >" in result.stdout and json.loads(threshold.read_text())["n_episodes"] == 19
     # The zoo agent ships fitted detectors: the alarm reads CartPole's best measured one.
     assert json.loads(threshold.read_text())["detector"] == "combined" and "(combined detector" in result.stdout
-    windowed = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--window", "20",
-                    "--out", str(tmp_path / "w.json"))
+    windowed = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "22", "--far", "0.1",
+                    "--window", "20", "--out", str(tmp_path / "w.json"))
     assert "alarm when mean score over 20 steps >" in windowed.stdout
     assert json.loads((tmp_path / "w.json").read_text())["window"] == 20
+    # The bound: marginal (rank ceil(20 * 0.95) = 19 of 19), or for this threshold with confidence 0.9.
+    assert {k: json.loads(threshold.read_text())[k] for k in ("confidence", "rank")} == {"confidence": None, "rank": 19}
+    assert {k: json.loads((tmp_path / "w.json").read_text())[k] for k in ("confidence", "rank")} == {
+        "confidence": 0.9, "rank": 22}
+    assert "with probability >= 0.9 over its 22 calibration episodes" in windowed.stdout
     result = _run("run", "--task", "cartpole", "--method", "dropout", "--variant", "cartpole:length=2.0", "--onset", "50",
                   "--episodes", "2", "--threshold", str(threshold), "--mcap", str(tmp_path / "x.mcap"),
                   "--rrd", str(tmp_path / "x.rrd"))
@@ -126,7 +133,9 @@ def test_evaluate_marks_failing_variants_as_json(capsys):
         (["evaluate", "--task", "cartpole"], "give --method for a shipped agent, or --model DIR"),
         (["evaluate", "--task", "cartpole", "--model", "/nonexistent"], "does not exist: a model directory"),
         (["calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "5", "--out", "/tmp/x.json"],
-         "far=0.05 needs at least 19 ID calibration episodes"),
+         "far=0.05 needs at least 45 ID calibration episodes to bound its rate with confidence 0.9; got 5"),
+        (["calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "5", "--confidence", "none",
+          "--out", "/tmp/x.json"], "far=0.05 needs at least 19 ID calibration episodes for its guarantee; got 5"),
         (["calibrate", "--task", "cartpole", "--method", "dropout", "--window", "0", "--out", "/tmp/x.json"],
          "--window: 0 is not allowed"),
         (["bench", "--task", "cartpole", "--window", "-1"], "--window: -1 is not allowed"),
@@ -179,7 +188,7 @@ def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, ca
         shutil.copy(zoo_dir() / "cartpole-ensemble" / name, model / name)
     threshold = tmp_path / "thr.json"
     assert main(["calibrate", "--task", "cartpole", "--model", str(model), "--detector", "dynamics",
-                 "--episodes", "19", "--out", str(threshold)]) == 0
+                 "--episodes", "19", "--confidence", "none", "--out", str(threshold)]) == 0
     assert "fitted the detectors into" in capsys.readouterr().out
     assert json.loads(threshold.read_text())["detector"] == "dynamics"
     assert (tmp_path / "thr.json.detectors" / "detectors.json").exists()
@@ -196,7 +205,31 @@ def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, ca
     assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold)]) == 2
     assert "does not have" in capsys.readouterr().err
     # Without --detector and without fitted detectors, the alarm reads spread and says what is better.
-    assert main(["calibrate", "--task", "cartpole", "--model", str(model), "--episodes", "19",
+    assert main(["calibrate", "--task", "cartpole", "--model", str(model), "--episodes", "19", "--confidence", "none",
                  "--out", str(tmp_path / "spread.json")]) == 0
     assert json.loads((tmp_path / "spread.json").read_text())["detector"] == "spread"
     assert "the combined detector separates cartpole's shifts better" in capsys.readouterr().err
+
+
+def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, capsys):
+    """`validate` plays fresh ID episodes (seeds apart from calibration's) and counts those whose
+    statistic under the threshold's rule exceeds it, with a Clopper-Pearson interval."""
+    from oodmon.agents import load
+    from oodmon.monitor import Threshold, episode_statistic, id_episode_scores
+
+    path = tmp_path / "thr.json"
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--far", "0.2",
+                 "--episodes", "11", "--out", str(path)]) == 0
+    capsys.readouterr()
+    threshold = Threshold.load(path)
+    assert main(["validate", str(path), "--episodes", "12", "--seed", "700100", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    fresh = id_episode_scores(load("cartpole", "ensemble"), 12, seed=700_100, score=threshold.score)
+    assert report["alarmed"] == sum(episode_statistic(s, 3) > threshold.value for s in fresh)
+    assert report["total"] == 12 and report["far"] == 0.2 and report["confidence"] == 0.9
+    assert report["interval95"][0] <= report["rate"] <= report["interval95"][1]
+    assert main(["validate", str(path), "--episodes", "12", "--seed", "700100"]) == 0
+    assert f"{report['alarmed']} of 12 fresh ID episodes alarmed" in capsys.readouterr().out
+    # A threshold made for other weights is refused unless forced.
+    assert main(["validate", str(path), "--method", "dropout", "--episodes", "1"]) == 2
+    assert "method 'ensemble'" in capsys.readouterr().err

@@ -3,7 +3,8 @@
 - :class:`Monitor` wraps a deployed policy (a loaded agent or an estimator) and scores each step;
   :class:`MonitoredEnv` does it as a gymnasium wrapper.
 - :func:`calibrate` turns held-out ID episodes into a :class:`Threshold` with a per-episode
-  false-alarm guarantee; :func:`calibrate_agent` runs those episodes.
+  false-alarm bound; :func:`calibrate_agent` runs those episodes; :func:`validate_threshold`
+  checks a threshold on fresh ones.
 - Sinks: :class:`MemorySink`, :class:`McapSink`; a failing sink warns and the loop goes on.
 """
 
@@ -38,11 +39,13 @@ __all__ = [
     "SinkWarning",
     "StepRecord",
     "Threshold",
+    "Validation",
     "calibrate",
     "calibrate_agent",
     "episode_statistic",
     "id_episode_scores",
     "score_function",
+    "validate_threshold",
 ]
 
 # The parts that run a policy load torch and stable-baselines3; replay, which only reads logs and
@@ -54,6 +57,8 @@ _LAZY = {
     "CALIBRATION_SEED": "oodmon.monitor.calibration",
     "calibrate_agent": "oodmon.monitor.calibration",
     "id_episode_scores": "oodmon.monitor.calibration",
+    "Validation": "oodmon.monitor.calibration",
+    "validate_threshold": "oodmon.monitor.calibration",
 }
 
 

@@ -7,6 +7,7 @@ training's evaluations (10,000 + steps) and of the ID return (100,000 + i), so t
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -14,14 +15,15 @@ from oodmon import seeds
 from oodmon.agents.agent import Agent
 from oodmon.envs.grid import Variant
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE
+from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, episode_statistic
 from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sinks.base import MemorySink
-from oodmon.monitor.threshold import DETECTOR_NAMES, Threshold, calibrate
+from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate
 
-__all__ = ["CALIBRATION_SEED", "calibrate_agent", "id_episode_scores"]
+__all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "clopper_pearson", "id_episode_scores",
+           "validate_threshold"]
 
 CALIBRATION_SEED = seeds.CALIBRATION
 
@@ -50,13 +52,16 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                     mode: str = "episode", score: str = DEFAULT_SCORE, seed: int = CALIBRATION_SEED,
                     on_episode: Callable[[int], None] | None = None, window: int = 1,
                     detectors: DetectorSet | None = None, detector: str | None = None,
-                    obs_noise: float = 0.0) -> Threshold:
+                    obs_noise: float = 0.0, confidence: float | None = DEFAULT_CONFIDENCE) -> Threshold:
     """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``).
 
     ``detector`` names the detector whose score the alarm will read; a learned one comes from
     ``detectors`` (fitted on other episodes, :func:`~oodmon.monitor.detectors.fit_detectors`).
     By default it is the task's best measured detector when ``detectors`` has it, else ``spread``
     (:func:`~oodmon.monitor.detectors.best_detector`).
+
+    ``confidence`` (1 - d): with this probability over the calibration episodes, the threshold's
+    false-alarm rate is at most ``far`` (``None``: on average over calibrations; see ``threshold``).
 
     Raises:
         InvalidParameterError, ConfigError: a bad argument, or too few episodes for ``far``; all
@@ -75,9 +80,83 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         raise ConfigError(f"calibrating the {detector} detector needs it fitted: pass detectors=fit_detectors(...) "
                           "(`oodmon fit-detectors`)")
     steps = (consecutive if isinstance(consecutive, int) else 1) + (window if isinstance(window, int) else 1) - 1
-    calibrate([np.zeros(max(steps, 1))] * episodes, far, consecutive=consecutive, mode=mode, score=score, window=window)
+    calibrate([np.zeros(max(steps, 1))] * episodes, far, consecutive=consecutive, mode=mode, score=score, window=window,
+              confidence=confidence)
     needed = detectors.subset([detector]) if detectors is not None and detector != "spread" else None
     scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_episode=on_episode, detectors=needed,
                                detector=detector, obs_noise=obs_noise)
     return calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
-                     method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector)
+                     method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
+                     confidence=confidence)
+
+
+def clopper_pearson(successes: int, trials: int, level: float = 0.95) -> tuple[float, float]:
+    """The exact (Clopper-Pearson) two-sided ``level`` interval of a binomial proportion.
+
+    Example:
+        >>> [round(x, 4) for x in clopper_pearson(183, 1200)]
+        [0.1326, 0.1741]
+    """
+    from scipy.stats import beta
+
+    tail = (1 - level) / 2
+    low = 0.0 if successes == 0 else float(beta.ppf(tail, successes, trials - successes + 1))
+    high = 1.0 if successes == trials else float(beta.ppf(1 - tail, successes + 1, trials - successes))
+    return low, high
+
+
+@dataclass(frozen=True)
+class Validation:
+    """A threshold checked on fresh ID episodes.
+
+    Attributes:
+        alarmed: episodes (steps in step mode) that raised an alarm.
+        total: episodes (steps) played.
+        far, confidence: the threshold's target and the confidence of its bound.
+        low, high: the 95% Clopper-Pearson interval of the realised false-alarm rate.
+    """
+
+    alarmed: int
+    total: int
+    far: float
+    confidence: float | None
+    low: float
+    high: float
+
+    @property
+    def rate(self) -> float:
+        return self.alarmed / self.total
+
+    @property
+    def verdict(self) -> str:
+        """``above`` (the whole interval exceeds the target), ``below`` (it is under), or
+        ``consistent`` (the target is inside it: more episodes would tell)."""
+        return "above" if self.low > self.far else "below" if self.high < self.far else "consistent"
+
+
+def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, *, seed: int = seeds.VALIDATION,
+                       detectors: DetectorSet | None = None, obs_noise: float = 0.0,
+                       on_episode: Callable[[int], None] | None = None) -> Validation:
+    """Play ``episodes`` fresh ID episodes (seeds ``seed`` on, apart from calibration's) and count
+    those in which ``threshold`` alarms: the realised false-alarm rate beside the target.
+
+    Raises:
+        InvalidParameterError: ``episodes`` is not a whole number >= 1.
+        ConfigError: the threshold reads a detector ``detectors`` does not have.
+    """
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
+    if threshold.detector != "spread" and (detectors is None or threshold.detector not in detectors):
+        raise ConfigError(f"the threshold reads the {threshold.detector} detector; give the fitted detectors it was "
+                          "calibrated with (`--detectors DIR`)")
+    needed = detectors.subset([threshold.detector]) if threshold.detector != "spread" else None
+    scores = id_episode_scores(agent, episodes, seed=seed, score=threshold.score, on_episode=on_episode,
+                               detectors=needed, detector=threshold.detector, obs_noise=obs_noise)
+    if threshold.mode == "episode":
+        alarmed = sum(episode_statistic(s, threshold.consecutive, threshold.window) > threshold.value for s in scores)
+        total = len(scores)
+    else:
+        steps = np.concatenate(scores)
+        alarmed, total = int(np.sum(steps > threshold.value)), len(steps)
+    low, high = clopper_pearson(int(alarmed), total)
+    return Validation(int(alarmed), total, threshold.far, threshold.confidence, low, high)

@@ -1,18 +1,30 @@
-"""Thresholds calibrated on in-distribution episodes only, with a false-alarm guarantee.
+"""Thresholds calibrated on in-distribution episodes only, with a false-alarm bound.
 
 Episode mode (the default): each held-out ID calibration episode gives one number, the
 :func:`~oodmon.monitor.alarms.episode_statistic` of its scores under the alarm rule; an episode
-alarms exactly when that number exceeds the threshold. With n calibration episodes and a target
-false-alarm rate a, split conformal prediction takes the ceil((n + 1)(1 - a))-th smallest of
-them: for a fresh ID episode exchangeable with the calibration episodes, the probability that it
-raises any alarm is at most a. This needs n >= 1/a - 1 episodes (19 for a = 0.05).
+alarms exactly when that number exceeds the threshold. The threshold is the k-th smallest of the
+n numbers, and the rank k decides what is promised about a fresh ID episode that is exchangeable
+with the calibration ones:
+
+- **For the threshold you got** (``confidence = 1 - d``, the default 0.9): k is the smallest rank
+  with P(Binomial(n, 1 - a) <= k - 1) >= 1 - d. Then, with probability at least 1 - d over the
+  draw of the calibration episodes, *this* threshold's false-alarm rate is at most a
+  (training-conditional conformal prediction, Vovk 2012): if the k-th smallest of n uniform
+  ranks is >= 1 - a, at most a of the fresh episodes' mass lies above it. It needs
+  n >= log(d) / log(1 - a) episodes (45 for a = 0.05, d = 0.1; 22 for a = 0.1).
+- **On average over calibrations** (``confidence=None``): k = ceil((n + 1)(1 - a)), split
+  conformal prediction; the rate averaged over calibration sets is at most a, but one threshold
+  file's rate can be several times a (for n = 50, a = 0.05, about a quarter of the thresholds
+  exceed a). It needs n >= 1/a - 1 (19 for a = 0.05).
+
+Ties among the statistics only make either promise more conservative.
 
 With a ``window`` (see ``alarms``) the statistic is taken over the trailing means of the scores;
-the guarantee is the same, for that rule.
+the promise is the same, for that rule.
 
-Step mode: the same quantile over all per-step scores (rule m = 1, no window). Steps of one episode are
-correlated, so its per-step rate is only approximately a; it is there for comparison with the
-paper, which scores steps.
+Step mode: the same rank over all per-step scores (rule m = 1, no window). Steps of one episode are
+correlated, so its per-step rate is only approximately bounded; it is there for comparison with
+the paper, which scores steps.
 """
 
 from __future__ import annotations
@@ -29,13 +41,68 @@ import numpy as np
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, check_consecutive, check_window, episode_statistic, rule_text
 
-__all__ = ["MODES", "Threshold", "calibrate"]
+__all__ = ["DEFAULT_CONFIDENCE", "MODES", "Threshold", "calibrate", "conformal_rank", "episodes_needed"]
 
 MODES = ("episode", "step")
 #: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
 #: that reading a threshold file does not import them).
 DETECTOR_NAMES = ("spread", "dynamics", "features", "combined")
 _QUANTILES = (0.5, 0.9, 0.95, 0.99)
+#: The default probability that a threshold's false-alarm rate is at most its target.
+DEFAULT_CONFIDENCE = 0.9
+
+
+def _check_far_and_confidence(far: object, confidence: object) -> None:
+    if isinstance(far, bool) or not isinstance(far, (int, float)) or not 0.0 < far < 1.0:
+        raise InvalidParameterError(f"far={far!r} is not allowed; the target false-alarm rate must satisfy 0 < far < 1")
+    if confidence is not None and (isinstance(confidence, bool) or not isinstance(confidence, (int, float))
+                                   or not 0.0 < confidence < 1.0):
+        raise InvalidParameterError(f"confidence={confidence!r} is not allowed; it must satisfy 0 < confidence < 1, "
+                                    "or be None (the rate bounded on average over calibrations only)")
+
+
+def episodes_needed(far: float, confidence: float | None = DEFAULT_CONFIDENCE) -> int:
+    """The fewest calibration episodes for which a threshold exists at ``far`` and ``confidence``.
+
+    Example:
+        >>> episodes_needed(0.05, 0.9), episodes_needed(0.05, None), episodes_needed(0.1, 0.9)
+        (45, 19, 22)
+    """
+    _check_far_and_confidence(far, confidence)
+    if confidence is None:
+        return max(1, math.ceil(1 / far - 1 - 1e-9))
+    # The largest statistic (k = n) works once 1 - (1 - far)^n >= confidence.
+    n = max(1, math.ceil(math.log(1 - confidence) / math.log(1 - far) - 1e-9))
+    while 1 - (1 - far) ** n < confidence:
+        n += 1
+    return n
+
+
+def conformal_rank(n: int, far: float, confidence: float | None = DEFAULT_CONFIDENCE, *, unit: str = "episodes") -> int:
+    """The rank k (1-based, of n ascending statistics) the threshold takes (see the module docstring).
+
+    Raises:
+        ConfigError: n is too small for ``far`` at ``confidence``; the message says how many are needed.
+
+    Example:
+        >>> conformal_rank(50, 0.05, None), conformal_rank(50, 0.05, 0.9), conformal_rank(200, 0.05, 0.9)
+        (49, 50, 195)
+    """
+    _check_far_and_confidence(far, confidence)
+    if confidence is None:
+        rank = math.ceil((n + 1) * (1 - far))
+    else:
+        from scipy.stats import binom
+
+        # P(the k-th smallest of n uniforms >= 1 - far) = P(Binomial(n, 1 - far) <= k - 1).
+        ok = np.nonzero(binom.cdf(np.arange(n), n, 1 - far) >= confidence)[0]
+        rank = int(ok[0]) + 1 if len(ok) else n + 1
+    if rank > n:
+        needed = episodes_needed(far, confidence)
+        bound = ("for its guarantee" if confidence is None
+                 else f"to bound its rate with confidence {confidence:g}")
+        raise ConfigError(f"far={far} needs at least {needed} ID calibration {unit} {bound}; got {n}")
+    return rank
 
 
 @dataclass(frozen=True)
@@ -57,6 +124,11 @@ class Threshold:
         policy_hash: ``sha256:...`` of the weights it was calibrated on (``None``: not recorded).
         detector: the detector whose score the alarm reads (``spread``, ``dynamics``,
             ``features``, ``combined``); files written before detectors existed read as ``spread``.
+        confidence: the probability, over the calibration episodes, that this threshold's
+            false-alarm rate is at most ``far`` (``None``: at most ``far`` on average over
+            calibrations only; files written before it existed).
+        rank: the threshold is the ``rank``-th smallest of the ``n_episodes`` calibration statistics
+            (``None``: not recorded).
     """
 
     value: float
@@ -72,6 +144,8 @@ class Threshold:
     window: int = 1
     policy_hash: str | None = None
     detector: str = "spread"
+    confidence: float | None = None
+    rank: int | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -79,6 +153,15 @@ class Threshold:
     @property
     def rule(self) -> str:
         return rule_text(f"{self.value:.6g}", self.consecutive, self.window)
+
+    @property
+    def promise(self) -> str:
+        """What holds for a fresh ID episode, in words."""
+        unit = "episode" if self.mode == "episode" else "step (approximately: steps are correlated)"
+        if self.confidence is None:
+            return f"a fresh ID {unit} alarms with probability at most {self.far:g}, on average over calibrations"
+        return (f"with probability >= {self.confidence:g} over its {self.n_episodes} calibration episodes, this "
+                f"threshold's false-alarm rate per {unit} is <= {self.far:g}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self) | {"rule": self.rule}
@@ -161,6 +244,12 @@ def _check_fields(threshold: Threshold) -> None:
         raise bad("mode", "use 'episode' or 'step'")
     if not is_number(threshold.far) or not 0.0 < threshold.far < 1.0:
         raise bad("far", "the target false-alarm rate must satisfy 0 < far < 1")
+    if threshold.confidence is not None and (not is_number(threshold.confidence)
+                                             or not 0.0 < threshold.confidence < 1.0):
+        raise bad("confidence", "it must satisfy 0 < confidence < 1, or be null")
+    if threshold.rank is not None and (not isinstance(threshold.rank, (int, np.integer))
+                                       or isinstance(threshold.rank, bool) or threshold.rank < 1):
+        raise bad("rank", "it must be a whole number >= 1, or null")
     for name in ("n_episodes", "n_steps"):
         value = getattr(threshold, name)
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 0:
@@ -184,6 +273,7 @@ def calibrate(
     window: int = 1,
     policy_hash: str | None = None,
     detector: str = "spread",
+    confidence: float | None = DEFAULT_CONFIDENCE,
 ) -> Threshold:
     """Calibrate a threshold on the per-step scores of held-out ID episodes.
 
@@ -194,19 +284,21 @@ def calibrate(
         mode: ``"episode"`` or ``"step"`` (see the module docstring).
         window: the rule's averaging window in steps (episode mode; step mode uses 1).
         detector: the detector whose scores these are.
+        confidence: 1 - d, the probability over the calibration episodes that the threshold's
+            false-alarm rate is at most ``far`` (``None``: on average over calibrations only).
 
     Raises:
-        InvalidParameterError: ``far`` outside (0, 1), an unknown mode, a bad ``consecutive`` or ``window``.
-        ConfigError: too few episodes for the guarantee at this ``far``.
+        InvalidParameterError: ``far`` or ``confidence`` outside (0, 1), an unknown mode, a bad
+            ``consecutive`` or ``window``.
+        ConfigError: too few episodes for ``far`` at ``confidence`` (the message says how many).
 
     Example:
         >>> rng = np.random.default_rng(0)
-        >>> thr = calibrate([rng.random(100) for _ in range(39)], far=0.05, consecutive=1)
-        >>> thr.n_episodes, round(thr.value, 3)
-        (39, 1.0)
+        >>> thr = calibrate([rng.random(100) for _ in range(45)], far=0.05, consecutive=1)
+        >>> thr.n_episodes, thr.rank, round(thr.value, 3)
+        (45, 45, 1.0)
     """
-    if not (isinstance(far, (int, float)) and 0.0 < far < 1.0):
-        raise InvalidParameterError(f"far={far!r} is not allowed; the target false-alarm rate must satisfy 0 < far < 1")
+    _check_far_and_confidence(far, confidence)
     if mode not in MODES:
         raise InvalidParameterError(f"mode={mode!r} is not allowed; use 'episode' or 'step'")
     consecutive = check_consecutive(consecutive) if mode == "episode" else 1
@@ -218,12 +310,7 @@ def calibrate(
     else:
         values = np.concatenate(episodes) if episodes else np.array([])
         unit = "steps"
-    n = len(values)
-    rank = math.ceil((n + 1) * (1 - far))
-    if rank > n:
-        raise ConfigError(
-            f"far={far} needs at least {math.ceil(1 / far - 1)} ID calibration {unit} for its guarantee; got {n}"
-        )
+    rank = conformal_rank(len(values), far, confidence, unit=unit)
     value = float(np.sort(values)[rank - 1])
     if not math.isfinite(value):
         shortest = min((len(s) for s in episodes), default=0)
@@ -235,4 +322,5 @@ def calibrate(
     steps = np.concatenate(episodes) if episodes else np.array([0.0])
     quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
     return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
-                     quantiles, task, method, window, policy_hash, detector)
+                     quantiles, task, method, window, policy_hash, detector,
+                     None if confidence is None else float(confidence), rank)
