@@ -741,7 +741,6 @@ def _validate(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from oodmon.monitor import Threshold, validate_threshold
-    from oodmon.monitor.monitor import policy_hash
 
     threshold = Threshold.load(args.threshold)
     args.task = args.task or threshold.task
@@ -750,16 +749,12 @@ def _validate(args: argparse.Namespace) -> int:
     if args.model is None:
         args.method = args.method or threshold.method
     agent = _load_agent(args)
-    differences = threshold.check_matches(task=agent.task, method=agent.method, score=threshold.score,
-                                          policy_hash=policy_hash(agent))
-    if differences and not args.force:
-        raise ConfigError(f"{args.threshold} does not fit this agent: {'; '.join(differences)} (--force to validate "
-                          "anyway)")
     detectors = _detectors(args, agent)
     with Progress(console=Console(stderr=True), transient=True) as progress:
         bar = progress.add_task("fresh ID episodes", total=args.episodes)
         result = validate_threshold(agent, threshold, args.episodes, seed=args.seed, detectors=detectors,
-                                    obs_noise=args.obs_noise, on_episode=lambda i: progress.update(bar, advance=1))
+                                    obs_noise=args.obs_noise, force=args.force,
+                                    on_episode=lambda i: progress.update(bar, advance=1))
     unit = "episodes" if threshold.mode == "episode" else "steps"
     if args.json:
         print(json.dumps({"threshold": str(args.threshold), "task": agent.task, "method": agent.method,

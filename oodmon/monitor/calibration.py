@@ -6,8 +6,9 @@ training's evaluations (10,000 + steps) and of the ID return (100,000 + i), so t
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -15,11 +16,12 @@ from oodmon import seeds
 from oodmon.agents.agent import Agent
 from oodmon.envs.grid import Variant
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, episode_statistic
+from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE
 from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
-from oodmon.monitor.sinks.base import MemorySink
+from oodmon.monitor.records import EpisodeRecord
+from oodmon.monitor.sinks.base import MemorySink, Sink
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate
 
 __all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "clopper_pearson", "id_episode_scores",
@@ -28,15 +30,15 @@ __all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "clopper_pearson
 CALIBRATION_SEED = seeds.CALIBRATION
 
 
-def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SEED, score: str = DEFAULT_SCORE,
-                      on_episode: Callable[[int], None] | None = None, detectors: DetectorSet | None = None,
-                      detector: str = "spread", obs_noise: float = 0.0) -> list[np.ndarray]:
-    """Per-step scores of ``detector`` in ``episodes`` ID episodes of ``agent``, seeded ``seed``,
-    ``seed + 1``, ... (with sensor noise ``obs_noise``, see the envs)."""
+def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
+                      on_episode: Callable[[int], None] | None, sinks: Sequence[Sink] = (),
+                      **settings: Any) -> list[np.ndarray]:
+    """Run ``episodes`` ID episodes of ``agent`` under a :class:`Monitor` made with ``settings``
+    and ``sinks`` (seeds ``seed`` on, sensor noise ``obs_noise``); the alarm detector's per-step
+    scores of each."""
     sink = MemorySink()
     env = Variant(agent.task).make(obs_noise=obs_noise) if obs_noise else Variant(agent.task).make()
-    with Monitor(agent, score=score, detectors=detectors, detector=detector, sinks=[sink],
-                 log_observations=False) as monitor:
+    with Monitor(agent, sinks=[sink, *sinks], log_observations=False, **settings) as monitor:
         for episode in range(episodes):
             monitor.run_episode(env, seed=seed + episode, variant=agent.task)
             if on_episode is not None:
@@ -46,6 +48,15 @@ def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SE
     for record in sink.steps:
         scores[record.episode].append(record.score)
     return [np.asarray(s) for s in scores]
+
+
+def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SEED, score: str = DEFAULT_SCORE,
+                      on_episode: Callable[[int], None] | None = None, detectors: DetectorSet | None = None,
+                      detector: str = "spread", obs_noise: float = 0.0) -> list[np.ndarray]:
+    """Per-step scores of ``detector`` in ``episodes`` ID episodes of ``agent``, seeded ``seed``,
+    ``seed + 1``, ... (with sensor noise ``obs_noise``, see the envs)."""
+    return _play_id_episodes(agent, episodes, seed, obs_noise, on_episode, score=score, detectors=detectors,
+                             detector=detector)
 
 
 def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int = DEFAULT_CONSECUTIVE,
@@ -135,28 +146,43 @@ class Validation:
 
 
 def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, *, seed: int = seeds.VALIDATION,
-                       detectors: DetectorSet | None = None, obs_noise: float = 0.0,
+                       detectors: DetectorSet | None = None, obs_noise: float = 0.0, force: bool = False,
                        on_episode: Callable[[int], None] | None = None) -> Validation:
-    """Play ``episodes`` fresh ID episodes (seeds ``seed`` on, apart from calibration's) and count
-    those in which ``threshold`` alarms: the realised false-alarm rate beside the target.
+    """Play ``episodes`` fresh ID episodes (seeds ``seed`` on, apart from calibration's) under a
+    :class:`Monitor` with ``threshold`` and count those that raised an alarm (in step mode: the
+    steps above it): the realised false-alarm rate beside the target.
 
     Raises:
         InvalidParameterError: ``episodes`` is not a whole number >= 1.
-        ConfigError: the threshold reads a detector ``detectors`` does not have.
+        ConfigError: the threshold was made for another policy (unless ``force``) or reads a
+            detector ``detectors`` does not have (the monitor's own checks).
     """
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
-    if threshold.detector != "spread" and (detectors is None or threshold.detector not in detectors):
-        raise ConfigError(f"the threshold reads the {threshold.detector} detector; give the fitted detectors it was "
-                          "calibrated with (`--detectors DIR`)")
-    needed = detectors.subset([threshold.detector]) if threshold.detector != "spread" else None
-    scores = id_episode_scores(agent, episodes, seed=seed, score=threshold.score, on_episode=on_episode,
-                               detectors=needed, detector=threshold.detector, obs_noise=obs_noise)
+    wanted = threshold.detector
+    needed = detectors.subset([wanted]) if detectors is not None and wanted != "spread" and wanted in detectors else None
+    episode_alarms: list[bool] = []
+    scores = _play_id_episodes(agent, episodes, seed, obs_noise, on_episode, sinks=[_EpisodeAlarms(episode_alarms)],
+                               threshold=threshold, detectors=needed, force=force)
     if threshold.mode == "episode":
-        alarmed = sum(episode_statistic(s, threshold.consecutive, threshold.window) > threshold.value for s in scores)
-        total = len(scores)
+        alarmed, total = sum(episode_alarms), len(episode_alarms)
     else:
         steps = np.concatenate(scores)
         alarmed, total = int(np.sum(steps > threshold.value)), len(steps)
     low, high = clopper_pearson(int(alarmed), total)
     return Validation(int(alarmed), total, threshold.far, threshold.confidence, low, high)
+
+
+class _EpisodeAlarms:
+    """A sink that keeps, per finished episode, whether the monitor raised an alarm in it."""
+
+    def __init__(self, out: list[bool]) -> None:
+        self.out = out
+
+    def open(self, run: object) -> None: ...
+    def write_step(self, record: object) -> None: ...
+    def write_alarm(self, event: object) -> None: ...
+    def close(self) -> None: ...
+
+    def end_episode(self, record: EpisodeRecord) -> None:
+        self.out.append(record.alarms > 0)

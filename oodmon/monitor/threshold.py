@@ -52,11 +52,17 @@ _QUANTILES = (0.5, 0.9, 0.95, 0.99)
 DEFAULT_CONFIDENCE = 0.9
 
 
+def _is_fraction(value: object) -> bool:
+    """A number strictly between 0 and 1 (not a bool, not NaN)."""
+    return (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+            and 0.0 < value < 1.0)
+
+
 def _check_far_and_confidence(far: object, confidence: object) -> None:
-    if isinstance(far, bool) or not isinstance(far, (int, float)) or not 0.0 < far < 1.0:
+    """Of calibration's arguments and of a threshold file alike."""
+    if not _is_fraction(far):
         raise InvalidParameterError(f"far={far!r} is not allowed; the target false-alarm rate must satisfy 0 < far < 1")
-    if confidence is not None and (isinstance(confidence, bool) or not isinstance(confidence, (int, float))
-                                   or not 0.0 < confidence < 1.0):
+    if confidence is not None and not _is_fraction(confidence):
         raise InvalidParameterError(f"confidence={confidence!r} is not allowed; it must satisfy 0 < confidence < 1, "
                                     "or be None (the rate bounded on average over calibrations only)")
 
@@ -242,11 +248,7 @@ def _check_fields(threshold: Threshold) -> None:
     check_window(threshold.window)
     if threshold.mode not in MODES:
         raise bad("mode", "use 'episode' or 'step'")
-    if not is_number(threshold.far) or not 0.0 < threshold.far < 1.0:
-        raise bad("far", "the target false-alarm rate must satisfy 0 < far < 1")
-    if threshold.confidence is not None and (not is_number(threshold.confidence)
-                                             or not 0.0 < threshold.confidence < 1.0):
-        raise bad("confidence", "it must satisfy 0 < confidence < 1, or be null")
+    _check_far_and_confidence(threshold.far, threshold.confidence)
     if threshold.rank is not None and (not isinstance(threshold.rank, (int, np.integer))
                                        or isinstance(threshold.rank, bool) or threshold.rank < 1):
         raise bad("rank", "it must be a whole number >= 1, or null")

@@ -10,18 +10,43 @@ on ID episodes first (:meth:`Detector.fit`, usually through
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from oodmon.errors import ConfigError
+from oodmon.errors import ConfigError, InvalidParameterError
 
 if TYPE_CHECKING:  # importing it would load torch
     from oodmon.agents.estimators import Estimate
 
-__all__ = ["Detector", "StepContext", "Trajectory"]
+__all__ = ["Detector", "RecentMean", "StepContext", "Trajectory"]
+
+
+class RecentMean:
+    """The mean of the last ``window`` values added since :meth:`clear` (of all of them while
+    fewer have come): a detector's score over the episode's recent steps.
+
+    Example:
+        >>> recent = RecentMean(2)
+        >>> [recent.add(v) for v in (1.0, 3.0, 5.0)]
+        [1.0, 2.0, 4.0]
+    """
+
+    def __init__(self, window: int) -> None:
+        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
+            raise InvalidParameterError(f"window={window!r} is not allowed; it must be an integer >= 1")
+        self.window = window
+        self._values: deque[float] = deque(maxlen=window)
+
+    def clear(self) -> None:
+        self._values.clear()
+
+    def add(self, value: float) -> float:
+        self._values.append(value)
+        return sum(self._values) / len(self._values)
 
 
 @dataclass(frozen=True)

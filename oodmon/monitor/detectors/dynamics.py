@@ -37,7 +37,6 @@ numpy, a few microseconds per step.
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -45,7 +44,7 @@ import numpy as np
 from scipy.special import expit
 
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
+from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory
 
 __all__ = ["DynamicsDetector"]
 
@@ -89,7 +88,7 @@ class DynamicsDetector(Detector):
         self.n_actions, self.kind, self.members, self.hidden = n_actions, kind, members, hidden
         self.n_draws, self.epochs, self.seed = n_draws, epochs, seed
         self.batch_size, self.lr, self.window, self.neutral = batch_size, lr, window, float(neutral)
-        self._recent: deque[float] = deque(maxlen=window)
+        self._recent = RecentMean(window)
         self._weights: list[tuple[np.ndarray, np.ndarray]] | None = None
         self._norm: dict[str, np.ndarray] = {}
         self._fast: _FastNll | None = None  # built on first use from the fitted weights
@@ -193,8 +192,7 @@ class DynamicsDetector(Detector):
         else:
             value = float(self.score_transitions(np.asarray(context.prev_obs)[None], np.asarray([context.prev_action]),
                                                  np.asarray(context.obs)[None])[0])
-        self._recent.append(value)
-        return sum(self._recent) / len(self._recent)
+        return self._recent.add(value)
 
     def _nll_one(self, prev_obs: Any, prev_action: Any, obs: Any) -> float:
         """``score_transitions`` of one transition (``nll``), in a third of the numpy calls: the

@@ -16,14 +16,13 @@ for each step's own distance, 0.977-1.000 over 10 steps, 0.992-1.000 over 30.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
+from oodmon.errors import ConfigError
+from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory
 
 __all__ = ["FeaturesDetector"]
 
@@ -42,10 +41,8 @@ class FeaturesDetector(Detector):
     learned = True
 
     def __init__(self, n_actions: int | None = None, *, window: int = 20) -> None:
-        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
-            raise InvalidParameterError(f"window={window!r} is not allowed; it must be an integer >= 1")
+        self._recent = RecentMean(window)
         self.n_actions, self.window = n_actions, window
-        self._recent: deque[float] = deque(maxlen=window)
         self._means: np.ndarray | None = None  # (classes + 1, F): per class, then pooled
         self._factor: np.ndarray | None = None  # (F, F) with factor @ factor.T = precision
 
@@ -96,8 +93,7 @@ class FeaturesDetector(Detector):
         klass = 0 if self.n_actions is None else int(np.asarray(context.action).reshape(-1)[0])
         mean = self._means[klass] if 0 <= klass < len(self._means) - 1 else self._means[-1]
         projected = (features.astype(np.float32) - mean) @ self._factor
-        self._recent.append(float(projected @ projected))
-        return sum(self._recent) / len(self._recent)
+        return self._recent.add(float(projected @ projected))
 
     def config(self) -> dict[str, Any]:
         return {"n_actions": self.n_actions, "window": self.window}
