@@ -218,7 +218,7 @@ def _parser() -> argparse.ArgumentParser:
                                 "fitted detectors: cartpole combined, pendulum dynamics, pong features; else spread); "
                                 "a learned one without fitted detectors is fitted first, into <out>.detectors/")
     calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
-                           help=f"seed of the first calibration episode (default {CALIBRATION})")
+                           help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate)
 
@@ -229,7 +229,8 @@ def _parser() -> argparse.ArgumentParser:
     _agent_arguments(validate, defaults_from="the threshold's")
     validate.add_argument("--episodes", type=_whole(1), default=200, help="fresh ID episodes (default 200)")
     validate.add_argument("--seed", type=_SEED, default=VALIDATION,
-                          help=f"seed of the first episode (default {VALIDATION}, apart from calibration's)")
+                          help=f"seed of the first episode and of MC sampling (default {VALIDATION}, apart from "
+                               "calibration's)")
     validate.add_argument("--obs-noise", type=_non_negative, default=0.0,
                           help="sensor noise, a fraction of each dimension's ID spread (default 0)")
     validate.add_argument("--force", action="store_true", help="validate even if the threshold was made for other weights")
@@ -465,7 +466,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     check_output_file(args.out, parameter="--out", inputs=[("--model", args.model and f"{args.model}/model.json")])
     if args.mode == "episode":
         conformal_rank(args.episodes, args.far, args.confidence)  # too few episodes: said before any runs
-    agent = _load_agent(args)
+    agent = _load_agent(args, seed=args.seed)  # the same --seed, the same threshold, for MC agents too
     detectors = detectors_for(agent, args.detectors)
     fitted_to = None
     if args.detector not in (None, "spread") and detectors is None:  # fit them first, on episodes of their own
@@ -748,7 +749,7 @@ def _validate(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.threshold} does not record its task; give --task")
     if args.model is None:
         args.method = args.method or threshold.method
-    agent = _load_agent(args)
+    agent = _load_agent(args, seed=args.seed)  # the same --seed, the same count, for MC agents too
     detectors = _detectors(args, agent)
     with Progress(console=Console(stderr=True), transient=True) as progress:
         bar = progress.add_task("fresh ID episodes", total=args.episodes)
@@ -775,14 +776,15 @@ def _validate(args: argparse.Namespace) -> int:
     return 1 if result.verdict == "above" else 0
 
 
-def _load_agent(args: argparse.Namespace):
+def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
+    """The agent of --model or --task/--method; ``seed`` seeds its MC sampling (None: fresh entropy)."""
     from oodmon.agents import load, load_agent
 
     if args.model:
-        return load_agent(args.model, task=args.task)
+        return load_agent(args.model, task=args.task, seed=seed)
     if not args.method:
         raise ConfigError("give --method for a shipped agent, or --model DIR for a trained one")
-    return load(args.task, args.method)
+    return load(args.task, args.method, seed=seed)
 
 
 def _variants(task: str, text: str):

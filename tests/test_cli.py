@@ -233,3 +233,11 @@ def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, c
     # A threshold made for other weights is refused unless forced.
     assert main(["validate", str(path), "--method", "dropout", "--episodes", "1"]) == 2
     assert "method 'ensemble'" in capsys.readouterr().err
+    # --seed seeds the MC samples as well as the episodes (calibrate and validate alike): an MC agent's
+    # threshold, a continuous number, repeats exactly.
+    values = []
+    for name in ("a.json", "b.json"):
+        assert main(["calibrate", "--task", "cartpole", "--method", "dropout", "--detector", "spread", "--far", "0.3",
+                     "--episodes", "7", "--seed", "5", "--out", str(tmp_path / name)]) == 0
+        values.append(Threshold.load(tmp_path / name).value)
+    assert values[0] == values[1]
