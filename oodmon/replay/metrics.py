@@ -94,7 +94,9 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     """Metrics per (task, method, variant) over all episodes of ``logs``, in a stable order.
 
     ``detector``: whose scores the per-step metrics (AUROC, AUPR, FPR@95TPR) rank (default: the
-    one each run's alarm read). The alarm metrics are the run's alarms whatever ``detector`` is.
+    one each run's alarm read). The alarm metrics (false alarms, early alarms, detections, delays)
+    are the run's alarms: they are given on the rows of the detector the alarm read, and ``None``
+    on the rows of the others, which raised no alarm.
 
     Raises:
         LogFormatError: a log without scores of ``detector``.
@@ -104,11 +106,13 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     groups: dict[tuple[str, str, str], list[EpisodeLog]] = defaultdict(list)
     scores_of: dict[int, np.ndarray] = {}
     names: dict[tuple[str, str, str], str] = {}
+    alarmed_by: dict[tuple[str, str, str], str] = {}
     for log in logs:
         for episode in log.episodes:
             groups[(log.task, log.method, episode.variant)].append(episode)
             scores_of[id(episode)] = episode.scores_of(detector)
             names[(log.task, log.method, episode.variant)] = detector or log.detector
+            alarmed_by[(log.task, log.method, episode.variant)] = log.detector
     id_scores: dict[tuple[str, str], np.ndarray] = {}
     for (task, method, variant), episodes in groups.items():
         if parse_variant(variant).is_id:
@@ -116,11 +120,12 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     results = []
     for (task, method, variant), episodes in sorted(groups.items()):
         name = names[(task, method, variant)]
+        alarms = name == alarmed_by[(task, method, variant)]  # the alarm read this detector's scores
         is_id = parse_variant(variant).is_id
         steps = sum(e.length for e in episodes)
         firsts = [alarm_events(e.alarm) for e in episodes]
         if is_id:
-            far = float(np.mean([len(f) > 0 for f in firsts]))
+            far = float(np.mean([len(f) > 0 for f in firsts])) if alarms else None
             results.append(VariantMetrics(task, method, variant, len(episodes), steps, steps, 0,
                                           None, None, None, far, None, None, None, None, name))
             continue
@@ -135,13 +140,17 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
             auroc = float(auc(fprs, tprs))
             aupr = float(average_precision_score(labels, scores))
             fpr95 = float(fprs[np.searchsorted(tprs, 0.95, side="left")])
-        early = [bool(len(f) and f[0] < e.onset) for f, e in zip(firsts, episodes)]
-        detected = [f[f >= e.onset] for f, e in zip(firsts, episodes)]
-        delays = [int(d[0] - e.onset) for d, e in zip(detected, episodes) if len(d)]
+        early_rate = detection_rate = delay_mean = delay_median = None
+        if alarms:
+            early = [bool(len(f) and f[0] < e.onset) for f, e in zip(firsts, episodes)]
+            detected = [f[f >= e.onset] for f, e in zip(firsts, episodes)]
+            delays = [int(d[0] - e.onset) for d, e in zip(detected, episodes) if len(d)]
+            early_rate, detection_rate = float(np.mean(early)), float(np.mean([len(d) > 0 for d in detected]))
+            if delays:
+                delay_mean, delay_median = float(np.mean(delays)), float(np.median(delays))
         results.append(VariantMetrics(
             task, method, variant, len(episodes), steps, len(negatives), len(ood), auroc, aupr, fpr95, None,
-            float(np.mean(early)), float(np.mean([len(d) > 0 for d in detected])),
-            float(np.mean(delays)) if delays else None, float(np.median(delays)) if delays else None, name,
+            early_rate, detection_rate, delay_mean, delay_median, name,
         ))
     return results
 

@@ -212,6 +212,11 @@ def test_the_monitor_logs_every_detector_and_alarms_on_the_named_one(agent, fitt
         (name, "cartpole:length=2.0") for name in ("spread", "dynamics", "features", "combined")]
     by_detector = {m.detector: m.auroc for m in rows if m.auroc is not None}
     assert by_detector["dynamics"] > 0.9 and by_detector["combined"] > 0.9
+    # The alarm figures belong to the detector the alarm read; the others raised none.
+    assert {m.detector: m.detection_rate is not None for m in rows if m.auroc is not None} == {
+        "spread": False, "dynamics": False, "features": False, "combined": True}
+    assert {m.detector: m.false_alarm_rate is not None for m in rows if m.variant == "cartpole"} == {
+        "spread": False, "dynamics": False, "features": False, "combined": True}
 
 
 def test_a_plain_policy_is_watched_with_the_actions_it_takes(agent, fitted):
