@@ -10,6 +10,14 @@ For one task, each method and each trial:
    paper), each cell a monitored run writing one MCAP log;
 5. the scores, by replaying those logs: per-step AUROC per (method, trial, variant).
 
+With ``protocol="monitor"`` (the monitor's own benchmark) step 4 changes: each shifted episode
+starts in the ID world and shifts at a random onset (uniform in the task's :data:`ONSETS`, drawn
+per episode from its seed), and there are at least as many ID episodes as a false-alarm rate
+needs (200 by default in the CLI). Replay then gives, per variant, the share of episodes alarmed
+before they failed and the delays from the onset (``oodmon.replay.compute_monitor_metrics``), and
+the false-alarm rate with its interval. Thresholds, fitted detectors and failing variants are
+shared with the paper's protocol; the logs live apart (``.../monitor/``).
+
 The report puts, per variant, our AUROC mean and std over trials beside the paper's, and the
 best AUROC per method beside the paper's best. A cell whose log is complete is not run again,
 so an interrupted bench resumes; cells run in ``workers`` processes, or as Ray tasks on a Ray
@@ -23,8 +31,9 @@ import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -36,8 +45,18 @@ from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import check_window
 from oodmon.paper import paper_auc_per_trial
 
-__all__ = ["PAPER_METHOD", "BenchConfig", "BenchResult", "alarms_per_variant", "best_per_method", "paper_label",
+if TYPE_CHECKING:
+    from oodmon.replay import MonitorMetrics
+
+__all__ = ["ONSETS", "PAPER_METHOD", "PROTOCOLS", "BenchConfig", "BenchResult", "alarms_per_variant", "best_per_method", "paper_label",
            "paper_only_variants", "run_bench"]
+
+#: The bench's protocols: the paper's (shifted from step 0, per-step AUROC) and the monitor's own.
+PROTOCOLS = ("paper", "monitor")
+#: Per task, the range [low, high) a shifted episode's onset is drawn from under the monitor's
+#: protocol: after the ID start-up (Pendulum's agents have swung the pole up by step 100 of 200),
+#: early enough that the rest of the episode can show the failure. Pong: decisions into the game.
+ONSETS = {"cartpole": (20, 200), "pendulum": (100, 150), "pong": (100, 1000)}
 
 #: Our method names as the paper's tables name them.
 PAPER_METHOD = {"dropout": "mc_dropout", "dropconnect": "mc_dropconnect", "ensemble": "ensemble"}
@@ -69,9 +88,19 @@ class BenchConfig:
     alarm_detector: str = "spread"  # the detector the monitor's alarm reads
     obs_noise: float = 0.0  # sensor noise in every monitored env (fit, calibration, cells), see envs
     fit_episodes: int = 0  # ID episodes the learned detectors are fitted on (0: the task's default)
+    protocol: str = "paper"  # or "monitor": random onsets, alarms before failure (see the module docstring)
+    rule: str = "consecutive"  # the alarm rule: consecutive, cusum or martingale (oodmon.monitor.sequential)
+    consecutive: int | None = None  # m of the consecutive rule (None: 3 for spread, 1 for a learned detector)
 
     def __post_init__(self) -> None:
         from oodmon.monitor.threshold import DETECTOR_NAMES
+
+        if self.protocol not in PROTOCOLS:
+            raise ConfigError(f"protocol={self.protocol!r} is not allowed; use {' or '.join(PROTOCOLS)}")
+        from oodmon.monitor.sequential import RULES
+
+        if self.rule not in RULES:
+            raise ConfigError(f"rule={self.rule!r} is not allowed; choose one of {', '.join(RULES)}")
 
         for name in (*self.detectors, self.alarm_detector):
             if name not in DETECTOR_NAMES:
@@ -83,6 +112,13 @@ class BenchConfig:
         from oodmon.monitor.threshold import conformal_rank
 
         conformal_rank(self.calibration_episodes, self.far, self.confidence)  # enough episodes, before any work
+
+    @property
+    def m(self) -> int:
+        """m of the consecutive rule the thresholds are calibrated for."""
+        from oodmon.monitor.alarms import default_consecutive
+
+        return default_consecutive(self.alarm_detector) if self.consecutive is None else self.consecutive
 
     @property
     def learned(self) -> tuple[str, ...]:
@@ -99,6 +135,10 @@ class BenchConfig:
                  "marginal" if self.confidence is None else f"conf{self.confidence:g}"]
         if self.window != 1:
             parts.append(f"w{self.window}")
+        if self.m != 3:
+            parts.append(f"m{self.m}")
+        if self.rule != "consecutive":
+            parts.append(self.rule)
         if self.learned:
             parts.append("+".join(self.detectors) + f"-alarm-{self.alarm_detector}")
         if self.obs_noise:
@@ -139,13 +179,20 @@ class BenchResult:
     rows: list[Row]
     failing: dict[str, dict[int, list[str]]]
     detection: dict[str, dict[str, float | None]]
+    #: The monitor's protocol only: the alarm's figures per (method, variant), trials pooled.
+    alarms: list[MonitorMetrics] = field(default_factory=list)
 
     def to_json(self) -> dict:
-        return {
+        data = {
             "rows": [asdict(r) | {"mean": r.mean, "std": r.std} for r in self.rows],
             "failing": self.failing,
             "monitor": self.detection,
         }
+        if self.alarms:
+            from oodmon.replay import monitor_summary
+
+            data["alarms"] = [m.to_dict() for m in [*self.alarms, *monitor_summary(self.alarms)]]
+        return data
 
 
 def paper_label(task: str, method: str, spec: str) -> str | None:
@@ -201,9 +248,15 @@ def _ensure_model(config: BenchConfig, method: str, trial: int) -> Path:
     return path
 
 
+def _trial_dir(config: BenchConfig, method: str, trial: int) -> Path:
+    """A (method, trial)'s folder: its threshold, fitted detectors, failing variants and logs."""
+    return Path(config.out) / "logs" / f"{config.task}-{config.cache_key()}" / method / f"trial{trial}"
+
+
 def _cell_log(config: BenchConfig, method: str, trial: int, name: str) -> Path:
     safe = name.replace(":", "_").replace("@", "_").replace("=", "-").replace(",", "_")
-    return Path(config.out) / "logs" / f"{config.task}-{config.cache_key()}" / method / f"trial{trial}" / f"{safe}.mcap"
+    folder = _trial_dir(config, method, trial)
+    return (folder / "monitor" if config.protocol == "monitor" else folder) / f"{safe}.mcap"
 
 
 def _log_is_complete(path: Path, episodes: int) -> bool:
@@ -222,9 +275,21 @@ def _log_is_complete(path: Path, episodes: int) -> bool:
     return log.complete and len(log.episodes) == episodes
 
 
+def episode_onset(onsets: tuple[int, int], seed: int) -> int:
+    """The onset of the shifted episode played with ``seed`` under the monitor's protocol: uniform
+    in ``[low, high)``, drawn from the seed alone (the same episode, the same onset).
+
+    Example:
+        >>> episode_onset((20, 200), 500_000) == episode_onset((20, 200), 500_000)
+        True
+    """
+    return int(np.random.default_rng([seed, 0x0175E7]).integers(*onsets))
+
+
 def _run_cell(task: str, model: str, threshold: str, spec: str, episodes: int, seed: int, log: str,
-              detectors: str | None = None, obs_noise: float = 0.0) -> str:
-    """One cell, in a worker process: monitored episodes of one variant into one MCAP log."""
+              detectors: str | None = None, obs_noise: float = 0.0, onsets: tuple[int, int] | None = None) -> str:
+    """One cell, in a worker process: monitored episodes of one variant into one MCAP log.
+    ``onsets``: each shifted episode shifts at a random step in this range (the monitor's protocol)."""
     import torch
 
     from oodmon.monitor import McapSink, Monitor, Threshold
@@ -240,7 +305,8 @@ def _run_cell(task: str, model: str, threshold: str, spec: str, episodes: int, s
     with Monitor(agent, Threshold.load(threshold), detectors=fitted, sinks=[McapSink(temporary)],
                  strict=True) as monitor:
         for episode in range(episodes):
-            monitor.run_episode(env, seed=seed + episode, variant=variant.spec)
+            options = None if onsets is None or variant.is_id else {"onset_step": episode_onset(onsets, seed + episode)}
+            monitor.run_episode(env, seed=seed + episode, variant=variant.spec, options=options)
     env.close()
     os.replace(temporary, log)  # a complete log appears whole, or not at all
     return log
@@ -328,7 +394,7 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
     from oodmon.monitor import calibrate_agent
 
     model = _ensure_model(config, method, trial)
-    folder = _cell_log(config, method, trial, "x").parent
+    folder = _trial_dir(config, method, trial)
     _set_aside_if_made_by_other_weights(Path(config.out), folder, model)
     threshold_path, failing_path = folder / f"threshold-{config.cache_key()}.json", folder / "failing.json"
     agent = load_agent(model, task=config.task)
@@ -340,6 +406,7 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
         calibrate_agent(agent, config.calibration_episodes, config.far, score=config.score, window=config.window,
                         detectors=DetectorSet.load(detectors_path) if detectors_path else None,
                         detector=config.alarm_detector, obs_noise=config.obs_noise, confidence=config.confidence,
+                        rule=config.rule, consecutive=config.m,
                         on_episode=lambda episode: report(stage, episode + 1, config.calibration_episodes)).save(threshold_path)
     variants = config.variant_list()
     if failing_path.exists() and json.loads(failing_path.read_text()).get("variants") == [v.spec for v in variants]:
@@ -405,7 +472,8 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
         if not _log_is_complete(log, episodes):
             model, threshold, _, detectors = prepared[(method, trial)]
             jobs.append((config.task, str(model), str(threshold), spec, episodes, seed, str(log),
-                         None if detectors is None else str(detectors), config.obs_noise))
+                         None if detectors is None else str(detectors), config.obs_noise,
+                         ONSETS[config.task] if config.protocol == "monitor" else None))
     done = len(cells) - len(jobs)
     report("monitored cells", done, len(cells))
     workers = config.workers or os.cpu_count() or 1
@@ -415,8 +483,10 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
 
     rows: dict[tuple[str, str, int], dict[int, float]] = {}
     detection: dict[str, dict[str, float | None]] = {}
+    every_log = []
     for (method, trial), (_, _, failing, _) in prepared.items():
         logs = [read_log(_cell_log(config, method, trial, spec)) for spec in [config.task, *failing]]
+        every_log += logs
         for order, detector in enumerate(config.detectors):
             for m in compute_metrics(logs, detector):
                 if m.auroc is not None:
@@ -432,7 +502,12 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
         result_rows.append(Row(method, spec, aurocs, paper[PAPER_METHOD[method]][label] if label else None,
                                config.detectors[order]))
     failing = {m: {t: prepared[(m, t)][2] for t in range(config.trials)} for m in config.methods}
-    return BenchResult(result_rows, failing, detection)
+    alarms = []
+    if config.protocol == "monitor":
+        from oodmon.replay import compute_monitor_metrics
+
+        alarms = compute_monitor_metrics(every_log)
+    return BenchResult(result_rows, failing, detection, alarms)
 
 
 def best_per_method(result: BenchResult, task: str, top: int = 3,

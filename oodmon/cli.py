@@ -102,6 +102,12 @@ _non_negative = _number(lambda x: 0.0 <= x < float("inf"), "a finite number >= 0
 _SEED = _whole(0, 2**32 - 1)
 
 
+def _add_rule(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--rule", choices=["consecutive", "cusum", "martingale"], default="consecutive",
+                        help="the alarm rule: consecutive (default: --consecutive steps above the threshold), cusum or "
+                             "martingale (sequential, on p-values against ID steps of the same age; see the README)")
+
+
 def _confidence(text: str) -> float | None:
     """An argparse type: ``--confidence`` in (0, 1), or ``none`` (the rate bounded on average only)."""
     if text.strip().lower() == "none":
@@ -109,13 +115,18 @@ def _confidence(text: str) -> float | None:
     return _fraction(text)
 
 
-def _add_confidence(parser: argparse.ArgumentParser) -> None:
+def _add_confidence(parser: argparse.ArgumentParser, default: str | None = None) -> None:
     from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
 
-    parser.add_argument("--confidence", type=_confidence, default=DEFAULT_CONFIDENCE, metavar="1-d",
+    parser.add_argument("--confidence", type=_confidence, default=DEFAULT_CONFIDENCE if default is None else _UNSET,
+                        metavar="1-d",
                         help=f"with this probability over the calibration episodes, the threshold's false-alarm rate "
-                             f"is <= --far (default {DEFAULT_CONFIDENCE}; 45 episodes for --far 0.05); 'none': only "
-                             "on average over calibrations (19 episodes for --far 0.05)")
+                             f"is <= --far (default {default or DEFAULT_CONFIDENCE}; 45 episodes for --far 0.05 at "
+                             "0.9); 'none': only on average over calibrations (19 episodes for --far 0.05)")
+
+
+#: An option left at its default where the default depends on another option (bench's --protocol).
+_UNSET = -1.0
 
 
 def _limit_torch_threads() -> None:
@@ -206,9 +217,15 @@ def _parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--episodes", type=_whole(1), default=50, help="ID calibration episodes (default 50)")
     calibrate.add_argument("--far", type=_fraction, default=0.05, help="target false-alarm rate (default 0.05)")
     _add_confidence(calibrate)
-    calibrate.add_argument("--consecutive", type=_whole(1), default=3, help="m of the alarm rule (default 3)")
+    calibrate.add_argument("--consecutive", type=_whole(1),
+                           help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
     calibrate.add_argument("--window", type=_whole(1), default=1,
                            help="compare the mean score of the last N steps (default 1: each step's; Pong: try 100)")
+    _add_rule(calibrate)
+    calibrate.add_argument("--reference-episodes", type=_whole(1), default=20,
+                           help="ID episodes a sequential rule's p-values are taken against (default 20; seeds apart)")
+    calibrate.add_argument("--reference-by-age", action="store_true",
+                           help="take a sequential rule's p-values against ID steps as old (since reset), not all of them")
     calibrate.add_argument("--mode", choices=["episode", "step"], default="episode",
                            help="guarantee per episode (default) or per step")
     calibrate.add_argument("--score", default="chosen_std",
@@ -281,6 +298,9 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument("--plots", metavar="DIR", help="also write PNG plots (ROC, traces, AUROC vs shift) to DIR")
     replay.add_argument("--detector", help="the per-step metrics of this detector only (default: every detector "
                                            "the logs hold, one row each)")
+    replay.add_argument("--monitor", action="store_true",
+                        help="the alarm's figures instead (the monitor's benchmark): false alarms with their interval, "
+                             "alarms before failure, delays")
     replay.set_defaults(handler=_replay)
 
     check = commands.add_parser("check", help="regression check of recorded logs against a baseline")
@@ -295,22 +315,31 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--methods", default="dropout,dropconnect,ensemble", help="comma-separated (default all three)")
     bench.add_argument("--trials", type=_whole(1), default=5, help="trials per method (default 5; trial 0 is the zoo agent)")
     bench.add_argument("--variants", default="paper", help="'paper' (the paper's grid) or comma-separated specs")
-    bench.add_argument("--episodes", type=_whole(1), default=5, help="episodes per failing variant (default 5)")
-    bench.add_argument("--id-episodes", type=_whole(1), default=10, help="ID episodes per trial (default 10)")
-    bench.add_argument("--calibration-episodes", type=_whole(1), default=45,
-                       help="ID episodes the threshold is calibrated on (default 45)")
+    bench.add_argument("--protocol", choices=["paper", "monitor"], default="paper",
+                       help="paper (default): shifted from step 0, per-step AUROC; monitor: the monitor's own benchmark, "
+                            "each shifted episode shifts at a random onset, alarms before failure and delays, "
+                            "the false-alarm rate over many ID episodes, the task's best detector")
+    bench.add_argument("--episodes", type=_whole(1), help="episodes per failing variant (default 5; monitor: 10)")
+    bench.add_argument("--id-episodes", type=_whole(1), help="ID episodes per trial (default 10; monitor: 200)")
+    bench.add_argument("--calibration-episodes", type=_whole(1),
+                       help="ID episodes the threshold is calibrated on (default 45; monitor protocol: 90)")
     bench.add_argument("--far", type=_fraction, default=0.05, help="the alarm's target false-alarm rate (default 0.05)")
-    _add_confidence(bench)
+    _add_confidence(bench, default="0.9; monitor protocol: 0.99, so that the rate of 200 ID episodes shows the bound")
     bench.add_argument("--workers", type=_whole(0), default=0, help="worker processes for the cells (default: all cores)")
     bench.add_argument("--score", default="chosen_std",
                        help="chosen_std (the paper's, default), mean_std, max_std or pre_squash_std (DDPG)")
     bench.add_argument("--window", type=_whole(1), default=1,
                        help="alarm rule on the mean score of the last N steps (default 1); AUROCs do not change")
-    bench.add_argument("--detectors", default="spread",
-                       help="comma-separated detectors whose per-step AUROC is reported: spread (default), dynamics, "
-                            "features, combined; the learned ones are fitted per trial on ID episodes of their own")
-    bench.add_argument("--alarm-detector", default="spread", choices=list(DETECTOR_NAMES),
-                       help="the detector the monitor's alarm reads (default spread; one of --detectors)")
+    bench.add_argument("--detectors",
+                       help="comma-separated detectors whose per-step AUROC is reported: spread (the paper's protocol's "
+                            "default), dynamics, features, combined; the learned ones are fitted per trial on ID "
+                            "episodes of their own (monitor protocol's default: spread and the task's best)")
+    bench.add_argument("--alarm-detector", choices=list(DETECTOR_NAMES),
+                       help="the detector the monitor's alarm reads, one of --detectors (default spread; monitor "
+                            "protocol: the task's best)")
+    _add_rule(bench)
+    bench.add_argument("--consecutive", type=_whole(1),
+                       help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
     bench.add_argument("--obs-noise", type=_non_negative, default=0.0,
                        help="sensor noise in every monitored env, a fraction of each dimension's ID spread (default 0)")
     bench.add_argument("--executor", choices=["local", "ray"], default="local",
@@ -481,11 +510,12 @@ def _calibrate(args: argparse.Namespace) -> int:
         bar = progress.add_task("ID calibration episodes", total=args.episodes)
         threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
                                     window=args.window, score=args.score, seed=args.seed, detectors=detectors,
-                                    detector=args.detector, confidence=args.confidence,
+                                    detector=args.detector, confidence=args.confidence, rule=args.rule,
+                                    reference_episodes=args.reference_episodes, reference_by_age=args.reference_by_age,
                                     on_episode=lambda i: progress.update(bar, advance=1))
     threshold.save(args.out)
     Console(soft_wrap=True).print(
-        f"{args.task}/{agent.method}: alarm when {threshold.rule} ({threshold.detector} detector, {threshold.mode} "
+        f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "
         f"mode, {threshold.n_episodes} ID episodes, {threshold.n_steps} steps, rank {threshold.rank} of "
         f"{threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score median "
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote {args.out}"
@@ -569,7 +599,7 @@ def _run(args: argparse.Namespace) -> int:
         failures = dict(monitor.sinks.failures)
     env.close()
     table = Table(title=f"{args.task}/{agent.method} in {variant.spec}, onset {args.onset}"
-                        + (f", {threshold.rule}" if threshold else ", no threshold"))
+                        + (f", {threshold.rule_text}" if threshold else ", no threshold"))
     for column in ("episode", "seed", "return", "length", "alarms", "first alarm", "delay"):
         table.add_column(column, justify="right")
     for record in records:
@@ -611,6 +641,8 @@ def _replay(args: argparse.Namespace) -> int:
 
         check_output_dir(args.plots, parameter="--plots")
     logs = _read_logs(args.logs)
+    if args.monitor:
+        return _replay_monitor(args, logs)
     metrics = compute_all_metrics(logs) if args.detector is None else compute_metrics(logs, args.detector)
     if args.plots:
         from oodmon.replay.plots import write_plots
@@ -626,6 +658,24 @@ def _replay(args: argparse.Namespace) -> int:
     else:
         steps = sum(e.length for log in logs for e in log.episodes)
         _table_console().print(to_table(metrics, title=f"replay of {len(logs)} log(s), {steps} steps"))
+    return 0
+
+
+def _replay_monitor(args: argparse.Namespace, logs) -> int:
+    """``replay --monitor``: the alarm's figures per variant (the monitor's benchmark)."""
+    from oodmon.replay import compute_monitor_metrics, monitor_markdown, monitor_summary, monitor_table
+
+    if args.csv:
+        raise ConfigError("--monitor prints a table, --json or --markdown; not --csv")
+    metrics = compute_monitor_metrics(logs)
+    if args.json:
+        print(json.dumps([m.to_dict() for m in [*metrics, *monitor_summary(metrics)]], indent=1))
+    elif args.markdown:
+        print(monitor_markdown(metrics), end="")
+    else:
+        _table_console().print(monitor_table(metrics, title=f"the alarms of {len(logs)} log(s)"))
+        print("failed: CartPole's episode ended by itself after the onset; Pendulum's mean reward over the last "
+              "10 steps fell below -1 after the onset; alarm delays in steps from the onset", file=sys.stderr)
     return 0
 
 
@@ -659,6 +709,7 @@ def _check(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     from oodmon.agents import METHODS
     from oodmon.bench import BenchConfig, alarms_per_variant, best_per_method, paper_only_variants, run_bench
+    from oodmon.monitor.detectors import BEST_DETECTOR
     from oodmon.errors import UnknownParameterError
 
     methods = tuple(m.strip() for m in args.methods.split(","))
@@ -666,11 +717,18 @@ def _bench(args: argparse.Namespace) -> int:
         if method not in METHODS:
             raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
     variants = "paper" if args.variants == "paper" else tuple(args.variants.split(","))
-    config = BenchConfig(args.task, methods, args.trials, variants, args.episodes, args.id_episodes, out=args.out,
-                         workers=args.workers, executor=args.executor, address=args.address, bind=args.bind, score=args.score,
-                         window=args.window, detectors=tuple(d.strip() for d in args.detectors.split(",")),
-                         alarm_detector=args.alarm_detector, obs_noise=args.obs_noise,
-                         calibration_episodes=args.calibration_episodes, far=args.far, confidence=args.confidence)
+    monitor = args.protocol == "monitor"
+    best = BEST_DETECTOR[args.task] if monitor else "spread"
+    alarm_detector = args.alarm_detector or best
+    detectors = (tuple(d.strip() for d in args.detectors.split(",")) if args.detectors
+                 else tuple(dict.fromkeys(("spread", alarm_detector))))
+    config = BenchConfig(args.task, methods, args.trials, variants, args.episodes or (10 if monitor else 5),
+                         args.id_episodes or (200 if monitor else 10), out=args.out, workers=args.workers,
+                         executor=args.executor, address=args.address, bind=args.bind, score=args.score,
+                         window=args.window, detectors=detectors, alarm_detector=alarm_detector, obs_noise=args.obs_noise,
+                         calibration_episodes=args.calibration_episodes or (90 if monitor else 45), far=args.far,
+                         confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
+                         protocol=args.protocol, rule=args.rule, consecutive=args.consecutive)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.outputs import check_output_dir
 
@@ -681,6 +739,8 @@ def _bench(args: argparse.Namespace) -> int:
         print(json.dumps(result.to_json(), indent=1))
         return 0
     console = _table_console()
+    if monitor:
+        return _bench_monitor_report(config, result, console)
     several = len(config.detectors) > 1
     table = Table(title=f"{args.task}: per-step AUROC per failing variant, ours (mean ± std over trials) beside the paper's")
     columns = ("method", *(("detector",) if several else ()), "variant", "trials", "ours", "paper", "difference")
@@ -727,6 +787,28 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_monitor_report(config, result, console: Console) -> int:
+    """The monitor's benchmark: the alarm's figures per variant, and each method's summary against the goals."""
+    from oodmon.bench import ONSETS
+    from oodmon.replay import monitor_summary, monitor_table
+
+    low, high = ONSETS[config.task]
+    console.print(monitor_table(result.alarms, title=(
+        f"{config.task}: the monitor's benchmark ({config.alarm_detector} detector; shifted episodes shift at a random "
+        f"step in [{low}, {high}); far {config.far:g}"
+        + ("" if config.confidence is None else f" with confidence {config.confidence:g}") + ")")))
+    for row in monitor_summary(result.alarms):
+        ids = [m for m in result.alarms if m.is_id and m.method == row.method]
+        far = (f"false alarms {ids[0].false_alarms}/{ids[0].episodes} ID episodes (95% interval {ids[0].far_low:.1%}-"
+               f"{ids[0].far_high:.1%}, target {config.far:g})" if ids else "")
+        before = (f"{row.before_failure}/{row.failed} failing episodes alarmed before the failure"
+                  if row.failed else "no episode failed after its onset")
+        console.print(f"{row.method}: {far}; {before}; delay median {row.delay_median} p90 {row.delay_p90} steps")
+    print("failed: CartPole's episode ended by itself after the onset; Pendulum's mean reward over the last 10 "
+          "steps fell below -1 after the onset (oodmon.replay.failure_step)", file=sys.stderr)
+    return 0
+
+
 def _detectors(args: argparse.Namespace, agent):
     """The fitted detectors: ``--detectors``, else those `calibrate` fitted beside the threshold
     file (``<threshold>.detectors/``), else the agent's own, else ``None``."""
@@ -759,7 +841,7 @@ def _validate(args: argparse.Namespace) -> int:
     unit = "episodes" if threshold.mode == "episode" else "steps"
     if args.json:
         print(json.dumps({"threshold": str(args.threshold), "task": agent.task, "method": agent.method,
-                          "detector": threshold.detector, "rule": threshold.rule, "unit": unit,
+                          "detector": threshold.detector, "rule": threshold.rule_text, "unit": unit,
                           "alarmed": result.alarmed, "total": result.total, "rate": result.rate,
                           "interval95": [result.low, result.high], "far": result.far,
                           "confidence": result.confidence, "seed": args.seed, "verdict": result.verdict}, indent=1))
@@ -768,7 +850,7 @@ def _validate(args: argparse.Namespace) -> int:
                    "below": "below the target",
                    "consistent": "consistent with the target (the interval holds it)"}[result.verdict]
         Console(soft_wrap=True).print(
-            f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule}: "
+            f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule_text}: "
             f"{result.alarmed} of {result.total} fresh ID {unit} alarmed, {result.rate:.1%} (95% interval "
             f"{result.low:.1%}-{result.high:.1%}); target {result.far:g}"
             + (f" with confidence {result.confidence:g}" if result.confidence is not None else " on average")

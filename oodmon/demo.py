@@ -104,7 +104,7 @@ def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, 
     threshold = calibrate_agent(agent, calibration_episodes, far=0.05, detectors=detectors, detector=detector)
     threshold.save(out / "threshold.json")
     console.print(f"1. Calibrated on {threshold.n_episodes} held-out ID episodes: alarm when the {detector} "
-                  f"{threshold.rule} ({threshold.promise}). -> {out / 'threshold.json'}")
+                  f"{threshold.rule_text} ({threshold.promise}). -> {out / 'threshold.json'}")
     runs = {}
     for name, variant, onset in (("id", Variant("cartpole"), 0), ("shifted", parse_variant(DEMO_SHIFT), DEMO_ONSET)):
         env = variant.make(onset_step=onset)

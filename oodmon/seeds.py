@@ -12,7 +12,7 @@ retraining of the zoo.
 
 from __future__ import annotations
 
-__all__ = ["CALIBRATION", "DETECTOR_FIT", "RANGES", "VALIDATION", "range_of"]
+__all__ = ["CALIBRATION", "DETECTOR_FIT", "RANGES", "REFERENCE", "VALIDATION", "range_of"]
 
 #: ID return of a trained model (``id_return_mean``): 100,000 + i.
 ID_RETURN = 100_000
@@ -28,6 +28,11 @@ DETECTOR_FIT = 600_000
 #: Fresh ID episodes that check a threshold's false-alarm rate (``oodmon validate``): 700,000 + i.
 VALIDATION = 700_000
 
+#: ID episodes whose scores a sequential rule's p-values are taken against (``calibrate --rule
+#: cusum``): 800,000 + i; apart from the calibration episodes, which must stay exchangeable with
+#: a fresh one.
+REFERENCE = 800_000
+
 #: name -> (first seed, end) of each range.
 RANGES: dict[str, tuple[int, int]] = {
     "id_return": (ID_RETURN, ID_RETURN + 100_000),
@@ -37,6 +42,7 @@ RANGES: dict[str, tuple[int, int]] = {
     "bench_shifted": (BENCH_SHIFTED, BENCH_SHIFTED + 100_000),
     "detector_fit": (DETECTOR_FIT, DETECTOR_FIT + 100_000),
     "validation": (VALIDATION, VALIDATION + 100_000),
+    "reference": (REFERENCE, REFERENCE + 100_000),
 }
 
 

@@ -196,3 +196,39 @@ def test_bench_reports_every_detector_as_replaying_its_logs_gives(tmp_path):
         replayed = {m.variant: m.auroc for m in compute_metrics(logs, row.detector)}
         assert replayed["cartpole:length=2.0"] == row.aurocs[0]
     assert result.rows[1].aurocs[0] > 0.9  # dynamics sees the longer pole (measured 0.99-1.00)
+
+
+def test_the_monitors_protocol_shifts_each_episode_at_its_own_onset_and_replays_the_alarms(tmp_path):
+    """--protocol monitor: onsets drawn per episode from its seed, logs apart from the paper's
+    protocol's (which shares the threshold and the detectors), alarm figures equal to replaying the logs."""
+    from dataclasses import replace
+
+    from oodmon import seeds
+    from oodmon.bench import ONSETS, episode_onset
+    from oodmon.replay import compute_monitor_metrics
+
+    config = BenchConfig("cartpole", ("ensemble",), 1, ("cartpole:length=2.0",), episodes=4, id_episodes=3,
+                         eval_episodes=1, calibration_episodes=19, confidence=None, out=str(tmp_path), workers=1,
+                         detectors=("spread", "dynamics"), alarm_detector="dynamics", fit_episodes=3,
+                         protocol="monitor")
+    result = run_bench(config)
+    folder = tmp_path / "logs" / f"cartpole-{config.cache_key()}" / "ensemble" / "trial0"
+    threshold_file = folder / f"threshold-{config.cache_key()}.json"
+    assert json.loads(threshold_file.read_text())["consecutive"] == 1  # a learned detector's default m
+    logs = [read_log(p) for p in sorted((folder / "monitor").glob("*.mcap"))]
+    shifted = [e for log in logs for e in log.episodes if e.variant != "cartpole"]
+    onsets = [e.onset for e in shifted]
+    assert onsets == [episode_onset(ONSETS["cartpole"], seeds.BENCH_SHIFTED + k) for k in range(4)]
+    assert len(set(onsets)) > 1 and all(20 <= onset < 200 for onset in onsets)
+    assert all(not e.shifted[: e.onset + 1].any() and e.shifted[e.onset + 1:].all() for e in shifted)
+    assert all(e.rewards is not None and e.terminated is not None for log in logs for e in log.episodes)
+    assert result.alarms == compute_monitor_metrics(logs)
+    (row,) = [m for m in result.alarms if m.variant == "cartpole:length=2.0"]
+    # Even fitted on 3 episodes, dynamics alarms in every shifted episode, before the pole falls.
+    assert row.alarmed == 4 and row.failed >= 1 and row.before_failure == row.failed
+    assert sorted(row.delays) == sorted(e.alarm.nonzero()[0][0] - e.onset for e in shifted)
+    # The paper's protocol reuses the threshold and writes its logs beside, not over, these.
+    before = threshold_file.stat().st_mtime_ns
+    run_bench(replace(config, protocol="paper"))
+    assert threshold_file.stat().st_mtime_ns == before
+    assert sorted(p.name for p in folder.glob("*.mcap")) == ["cartpole.mcap", "cartpole_length-2.0.mcap"]

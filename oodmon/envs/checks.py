@@ -12,7 +12,7 @@ from collections.abc import Iterable, Mapping
 
 from oodmon.errors import InvalidParameterError, UnknownParameterError
 
-__all__ = ["PHYSICS_RANGE", "check_onset_step", "check_physics", "positive_number", "reject_unknown"]
+__all__ = ["PHYSICS_RANGE", "check_onset_step", "episode_onset", "check_physics", "positive_number", "reject_unknown"]
 
 #: A physics parameter may be at most this many times its default, or this many times smaller (the
 #: paper's grid spans 0.05 to 20 times); further out the simulation overflows (``length=1e308``).
@@ -114,3 +114,22 @@ def check_physics(owner: str, defaults: Mapping[str, float], overrides: Mapping[
                 f"its default {defaults[name]!r} either way ({low:g} to {high:g}): beyond, the simulation overflows"
             )
     return physics
+
+
+def episode_onset(owner: str, configured: int, options: dict | None) -> tuple[int, dict | None]:
+    """The onset of the episode a ``reset(options=...)`` starts, and the options left for the parent env.
+
+    ``options={"onset_step": n}`` shifts this episode from step n on (the monitor's benchmark draws
+    a random onset per episode); without it the env's own ``onset_step`` holds. Other options
+    pass through.
+
+    Example:
+        >>> episode_onset("oodmon/CartPole-v1", 0, {"onset_step": 40})
+        (40, None)
+        >>> episode_onset("oodmon/CartPole-v1", 5, {"low": -0.1})
+        (5, {'low': -0.1})
+    """
+    if not options or "onset_step" not in options:
+        return configured, options
+    rest = {k: v for k, v in options.items() if k != "onset_step"}
+    return check_onset_step(owner, options["onset_step"]), rest or None

@@ -3,7 +3,7 @@
 A variant is the default env with other numbers (the paper's Table 1). The shift may begin
 mid-episode: with ``onset_step=N`` the first N ``step()`` calls of every episode run the default
 physics and the rest the shifted physics, so one episode holds in-distribution steps and then
-OOD steps. Every ``info`` (from ``reset`` and ``step``) has ``info["shifted"]``: whether the
+OOD steps; ``reset(options={"onset_step": n})`` sets the onset of that episode alone. Every ``info`` (from ``reset`` and ``step``) has ``info["shifted"]``: whether the
 observation returned came from the shifted world (always False for the default physics).
 
 Observation and action spaces are those of the default env, so one trained agent acts in every
@@ -24,7 +24,7 @@ import numpy as np
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 from gymnasium.envs.classic_control.pendulum import PendulumEnv
 
-from oodmon.envs.checks import check_onset_step, check_physics
+from oodmon.envs.checks import check_onset_step, check_physics, episode_onset
 from oodmon.errors import InvalidParameterError
 
 __all__ = ["CARTPOLE_DEFAULTS", "CARTPOLE_OBS_SPREAD", "PENDULUM_DEFAULTS", "PENDULUM_OBS_SPREAD", "ShiftedCartPole",
@@ -80,7 +80,7 @@ class _ShiftPhysics:
     OBS_SPREAD: ClassVar[tuple[float, ...]]
 
     def _init_shift(self, physics: Mapping[str, object], onset_step: int, obs_noise: float = 0.0) -> None:
-        self.onset_step = check_onset_step(self.ENV_ID, onset_step)
+        self.onset_step = self._configured_onset = check_onset_step(self.ENV_ID, onset_step)
         self.obs_noise = check_obs_noise(self.ENV_ID, obs_noise)
         self._noise_std = self.obs_noise * np.asarray(self.OBS_SPREAD, dtype=np.float32)
         self.shifted_physics = check_physics(self.ENV_ID, self.DEFAULTS, physics)
@@ -124,6 +124,7 @@ class _ShiftPhysics:
         return (obs + noise).astype(obs.dtype)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self.onset_step, options = episode_onset(self.ENV_ID, self._configured_onset, options)
         obs, info = super().reset(seed=seed, options=options)
         return self._sensed(obs), self._begin_episode(info)
 

@@ -22,7 +22,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from oodmon.envs.checks import check_onset_step
+from oodmon.envs.checks import check_onset_step, episode_onset
 from oodmon.envs.corruptions import Corruption, make_corruption
 from oodmon.errors import InvalidParameterError
 
@@ -96,7 +96,7 @@ class CorruptedPong(gymnasium.Env):
 
         ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Error)  # no banner on every CLI call
         self.corruption = self._build_corruption(corruption, severity, params)
-        self.onset_step = check_onset_step(self.ENV_ID, onset_step)
+        self.onset_step = self._configured_onset = check_onset_step(self.ENV_ID, onset_step)
         if render_mode not in (None, "rgb_array"):
             raise InvalidParameterError(
                 f"{self.ENV_ID}: render_mode={render_mode!r} is not allowed; use None or 'rgb_array'"
@@ -149,6 +149,7 @@ class CorruptedPong(gymnasium.Env):
         return self._stack.copy()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self.onset_step, _ = episode_onset(self.ENV_ID, self._configured_onset, options)
         super().reset(seed=seed)
         # The emulator is seeded from our generator, so one seed fixes the whole episode.
         atari_seed = None if seed is None else int(self.np_random.integers(2**31))

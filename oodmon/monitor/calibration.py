@@ -16,18 +16,21 @@ from oodmon import seeds
 from oodmon.agents.agent import Agent
 from oodmon.envs.grid import Variant
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE
+from oodmon.monitor.alarms import default_consecutive
 from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.records import EpisodeRecord
 from oodmon.monitor.sinks.base import MemorySink, Sink
-from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate
+from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
+from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson
 
 __all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "clopper_pearson", "id_episode_scores",
            "validate_threshold"]
 
 CALIBRATION_SEED = seeds.CALIBRATION
+#: ID episodes a sequential rule's p-values are taken against.
+DEFAULT_REFERENCE_EPISODES = 20
 
 
 def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
@@ -59,11 +62,12 @@ def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SE
                              detector=detector)
 
 
-def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int = DEFAULT_CONSECUTIVE,
+def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int | None = None,
                     mode: str = "episode", score: str = DEFAULT_SCORE, seed: int = CALIBRATION_SEED,
                     on_episode: Callable[[int], None] | None = None, window: int = 1,
                     detectors: DetectorSet | None = None, detector: str | None = None,
-                    obs_noise: float = 0.0, confidence: float | None = DEFAULT_CONFIDENCE) -> Threshold:
+                    obs_noise: float = 0.0, confidence: float | None = DEFAULT_CONFIDENCE, rule: str = "consecutive",
+                    reference_episodes: int = DEFAULT_REFERENCE_EPISODES, reference_by_age: bool = False) -> Threshold:
     """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``).
 
     ``detector`` names the detector whose score the alarm will read; a learned one comes from
@@ -73,6 +77,14 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
 
     ``confidence`` (1 - d): with this probability over the calibration episodes, the threshold's
     false-alarm rate is at most ``far`` (``None``: on average over calibrations; see ``threshold``).
+
+    ``consecutive``: m of the rule (default: 3 for ``spread``, 1 for a learned detector,
+    :func:`~oodmon.monitor.alarms.default_consecutive`).
+
+    ``rule``: ``consecutive`` (m steps in a row), or a sequential rule, ``cusum`` or
+    ``martingale``, whose p-values are taken against ``reference_episodes`` further ID episodes
+    (seeds :data:`oodmon.seeds.REFERENCE` on, apart from the calibration ones; see ``sequential``),
+    pooled or, with ``reference_by_age``, by time since reset.
 
     Raises:
         InvalidParameterError, ConfigError: a bad argument, or too few episodes for ``far``; all
@@ -90,30 +102,27 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     if detector != "spread" and (detectors is None or detector not in detectors):
         raise ConfigError(f"calibrating the {detector} detector needs it fitted: pass detectors=fit_detectors(...) "
                           "(`oodmon fit-detectors`)")
+    if consecutive is None:
+        consecutive = default_consecutive(detector)
     steps = (consecutive if isinstance(consecutive, int) else 1) + (window if isinstance(window, int) else 1) - 1
+    if rule != "consecutive" and (isinstance(reference_episodes, bool) or not isinstance(reference_episodes, int)
+                                  or reference_episodes < 1):
+        raise InvalidParameterError(f"reference_episodes={reference_episodes!r} is not allowed; the {rule} rule needs a "
+                                    "whole number >= 1 of ID reference episodes")
+    placeholder = Reference.from_episodes([np.zeros(1)]) if rule in SEQUENTIAL_RULES else None
     calibrate([np.zeros(max(steps, 1))] * episodes, far, consecutive=consecutive, mode=mode, score=score, window=window,
-              confidence=confidence)
+              confidence=confidence, rule=rule, reference=placeholder)
     needed = detectors.subset([detector]) if detectors is not None and detector != "spread" else None
+    reference = None
+    if rule != "consecutive":
+        reference = Reference.from_episodes(id_episode_scores(
+            agent, reference_episodes, seed=seeds.REFERENCE, score=score, detectors=needed, detector=detector,
+            obs_noise=obs_noise), by_age=reference_by_age)
     scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_episode=on_episode, detectors=needed,
                                detector=detector, obs_noise=obs_noise)
     return calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
                      method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
-                     confidence=confidence)
-
-
-def clopper_pearson(successes: int, trials: int, level: float = 0.95) -> tuple[float, float]:
-    """The exact (Clopper-Pearson) two-sided ``level`` interval of a binomial proportion.
-
-    Example:
-        >>> [round(x, 4) for x in clopper_pearson(183, 1200)]
-        [0.1326, 0.1741]
-    """
-    from scipy.stats import beta
-
-    tail = (1 - level) / 2
-    low = 0.0 if successes == 0 else float(beta.ppf(tail, successes, trials - successes + 1))
-    high = 1.0 if successes == trials else float(beta.ppf(1 - tail, successes + 1, trials - successes))
-    return low, high
+                     confidence=confidence, rule=rule, reference=reference)
 
 
 @dataclass(frozen=True)

@@ -6,10 +6,13 @@ metadata, absent before 3):
 1. step, episode, alarm and frame channels;
 2. ``/oodmon/episode_scores`` (an episode's arrays in one message) and ``interrupted`` episodes;
 3. every detector's score: ``scores`` in step messages, ``detectors_f64`` in episode scores,
-   ``detector`` (the one the alarm reads) and ``detectors`` in the run's metadata.
+   ``detector`` (the one the alarm reads) and ``detectors`` in the run's metadata;
+4. ``terminated`` in episode messages (the env ended the episode, the failure of the monitor's
+   benchmark) and ``reward_f64`` (each step's reward) in episode scores.
 
 Replay reads every version: a log without detector scores has one detector, the one its alarm
-read (``spread`` before version 3), whose scores are the ``score`` arrays.
+read (``spread`` before version 3), whose scores are the ``score`` arrays; a log older than
+version 4 has no rewards per step and no ``terminated``, so its failures are unknown.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ __all__ = [
     "RUN_METADATA", "STEP", "STEP_SCHEMA", "decode_array", "encode_episode_scores",
 ]
 
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 STEP, EPISODE, EPISODE_SCORES = "/oodmon/step", "/oodmon/episode", "/oodmon/episode_scores"
 ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
 #: JSON topics replay decodes; the others (protobuf alarms and frames) it skips.
@@ -66,6 +69,8 @@ EPISODE_SCHEMA: dict[str, Any] = {
         "alarms": {"type": "integer"},
         "first_alarm_step": {"type": ["integer", "null"]},
         "interrupted": {"type": "boolean", "description": "the run was stopped inside this episode (since format 2)"},
+        "terminated": {"type": ["boolean", "null"],
+                       "description": "the env ended the episode (not a time limit, not an alarm; since format 4)"},
     },
     "required": ["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"],
 }
@@ -82,6 +87,8 @@ EPISODE_SCORES_SCHEMA: dict[str, Any] = {
         "alarm_u8": {"type": "string", "contentEncoding": "base64", "description": "uint8 per step"},
         "detectors_f64": {"type": "object", "additionalProperties": {"type": "string", "contentEncoding": "base64"},
                           "description": "per detector name, little-endian float64 per step (since format 3)"},
+        "reward_f64": {"type": "string", "contentEncoding": "base64",
+                       "description": "little-endian float64 reward per step (since format 4)"},
     },
     "required": ["episode", "length", "score_f64", "shifted_u8", "alarm_u8"],
 }
@@ -97,10 +104,13 @@ def decode_array(text: str, dtype: Any) -> np.ndarray:
 
 
 def encode_episode_scores(episode: int, scores: Sequence[float], shifted: Sequence[bool], alarm: Sequence[bool],
-                          detectors: Mapping[str, Sequence[float]] | None = None) -> dict[str, Any]:
+                          detectors: Mapping[str, Sequence[float]] | None = None,
+                          rewards: Sequence[float] | None = None) -> dict[str, Any]:
     """The ``/oodmon/episode_scores`` message of one episode."""
     message = {"episode": episode, "length": len(scores), "score_f64": _encode(scores, "<f8"),
                "shifted_u8": _encode(shifted, np.uint8), "alarm_u8": _encode(alarm, np.uint8)}
     if detectors:
         message["detectors_f64"] = {name: _encode(values, "<f8") for name, values in detectors.items()}
+    if rewards is not None:
+        message["reward_f64"] = _encode(rewards, "<f8")
     return message

@@ -31,7 +31,7 @@ import numpy as np
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import UncertaintyEstimator
 from oodmon.errors import ConfigError
-from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, AlarmEvent, AlarmTracker, check_consecutive, check_window
+from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.scores import DEFAULT_SCORE
@@ -70,7 +70,8 @@ class Monitor:
             joins them whenever the policy has samples. Every detector's score is logged.
         detector: the detector the alarm reads when ``threshold`` is not a :class:`Threshold`
             (default ``spread``, or the set's last, ``combined`` when it has one).
-        consecutive: m of the alarm rule when ``threshold`` is not a :class:`Threshold`.
+        consecutive: m of the alarm rule when ``threshold`` is not a :class:`Threshold` (default:
+            3 for the spread detector, 1 for a learned one).
         window: the alarm rule's averaging window when ``threshold`` is not a :class:`Threshold`.
         sinks: where records go (:class:`MemorySink`, :class:`McapSink`, :class:`RerunSink`).
         callbacks: called with every :class:`AlarmEvent`.
@@ -134,8 +135,10 @@ class Monitor:
             self._refuse_or_warn("the threshold", differences, force)
             score, consecutive, value = threshold.score, threshold.consecutive, threshold.value
             window, detector = threshold.window, threshold.detector
+            rule, reference = threshold.rule, threshold.reference_scores()
         else:
             value = math.nan if threshold is None else float(threshold)
+            rule, reference = "consecutive", None
         self.threshold = value
         self.score_name = score or DEFAULT_SCORE
         self.detectors = self._detector_set(detectors, force)
@@ -146,8 +149,9 @@ class Monitor:
                 f"{', '.join(self.detectors.names)}); give the fitted detectors (Monitor(detectors=...), "
                 "--detectors) or a threshold calibrated for one of those"
             )
-        self.tracker = AlarmTracker(value, DEFAULT_CONSECUTIVE if consecutive is None else check_consecutive(consecutive),
-                                    1 if window is None else check_window(window))
+        self.tracker = AlarmTracker(value, default_consecutive(self.detector) if consecutive is None
+                                    else check_consecutive(consecutive),
+                                    1 if window is None else check_window(window), rule=rule, reference=reference)
         self.sinks = SinkGroup(list(sinks), strict=strict)
         self.callbacks = list(callbacks)
         self.log_observations = log_observations
@@ -226,6 +230,7 @@ class Monitor:
         self._prev_obs, self._prev_action = None, None
         self._episode_info = dict(env_id=env_id, variant=variant, onset=onset, seed=seed)
         self._return, self._length, self._alarms, self._first_alarm = 0.0, 0, 0, None
+        self._rewards: list[float] = []
         self._in_episode = True
         self.stop_requested = False
 
@@ -278,26 +283,36 @@ class Monitor:
         return action
 
     def add_reward(self, reward: float) -> None:
+        """The reward of the step just taken (one call per step: replay reads the rewards per step)."""
         self._return += float(reward)
+        self._rewards.append(float(reward))
 
-    def end_episode(self, *, interrupted: bool = False) -> EpisodeRecord:
+    def end_episode(self, *, interrupted: bool = False, terminated: bool | None = None) -> EpisodeRecord:
         """Close the running episode and log its record. ``interrupted``: the run was stopped inside
-        it (an exception, Ctrl-C), so it did not end by itself; replay leaves it out of metrics."""
+        it (an exception, Ctrl-C), so it did not end by itself; replay leaves it out of metrics.
+        ``terminated``: the env ended it (the pole fell), not a time limit or an alarm; replay's
+        monitor metrics count that as the failure."""
+        rewards = tuple(self._rewards) if len(self._rewards) == self._length else None
         record = EpisodeRecord(self.episode, total_return=self._return, length=self._length, alarms=self._alarms,
-                               first_alarm_step=self._first_alarm, interrupted=interrupted, **self._episode_info)
+                               first_alarm_step=self._first_alarm, interrupted=interrupted, terminated=terminated,
+                               rewards=rewards, **self._episode_info)
         self.sinks.end_episode(record)
         self._in_episode = False
         return record
 
     def run_episode(self, env: gymnasium.Env, *, seed: int | None = None, variant: str | None = None,
-                    max_steps: int | None = None) -> EpisodeRecord:
-        """Run the monitored policy for one episode of ``env``; return the episode's record."""
+                    max_steps: int | None = None, options: dict | None = None) -> EpisodeRecord:
+        """Run the monitored policy for one episode of ``env``; return the episode's record.
+
+        ``options`` go to ``env.reset`` (oodmon's envs take ``{"onset_step": n}``: this episode
+        shifts from step n on).
+        """
         base = env.unwrapped
-        onset = int(getattr(base, "onset_step", 0))
         spec_id = env.spec.id if env.spec is not None else type(base).__name__
-        self.begin_episode(env_id=spec_id, variant=variant or spec_id, onset=onset, seed=seed)
+        obs, info = env.reset(seed=seed, options=options)
+        self.begin_episode(env_id=spec_id, variant=variant or spec_id, onset=int(getattr(base, "onset_step", 0)),
+                           seed=seed)
         try:
-            obs, info = env.reset(seed=seed)
             while True:
                 action = self.step(obs, shifted=bool(info.get("shifted", False)), frame=_frame(obs))
                 obs, reward, terminated, truncated, info = env.step(action)
@@ -307,7 +322,7 @@ class Monitor:
         except BaseException:  # Ctrl-C included: the cut episode is logged, marked as such
             self.end_episode(interrupted=True)
             raise
-        return self.end_episode()
+        return self.end_episode(terminated=bool(terminated))
 
 
 def _frame(obs: np.ndarray) -> np.ndarray | None:
@@ -353,7 +368,7 @@ class MonitoredEnv(gymnasium.Wrapper):
         self.monitor.add_reward(reward)
         truncated = truncated or self.monitor.stop_requested
         if terminated or truncated:
-            self.monitor.end_episode()
+            self.monitor.end_episode(terminated=bool(terminated))
         self._obs, self._info = obs, info
         return obs, reward, terminated, truncated, info
 

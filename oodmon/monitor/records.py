@@ -70,6 +70,11 @@ class EpisodeRecord:
         first_alarm_step: the step of the first alarm, or ``None``.
         interrupted: the run was stopped inside this episode (Ctrl-C, an exception): it did not
             end by itself, so replay leaves it out of the metrics.
+        terminated: the env ended the episode itself (``terminated``: the pole fell, the game was
+            lost or won), not a time limit or an alarm; ``None`` where the loop did not say
+            (logs older than format 4, a loop of your own).
+        rewards: the reward of each step (what ``add_reward`` received), logged in the episode's
+            score arrays; ``None`` where they were not given step by step.
     """
 
     episode: int
@@ -82,11 +87,15 @@ class EpisodeRecord:
     alarms: int
     first_alarm_step: int | None
     interrupted: bool = False
+    terminated: bool | None = None
+    rewards: tuple[float, ...] | None = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
+        """The episode message (the rewards go to the episode's score arrays instead)."""
         return {"episode": self.episode, "env_id": self.env_id, "variant": self.variant, "onset": self.onset,
                 "seed": self.seed, "return": self.total_return, "length": self.length, "alarms": self.alarms,
-                "first_alarm_step": self.first_alarm_step, "interrupted": self.interrupted}
+                "first_alarm_step": self.first_alarm_step, "interrupted": self.interrupted,
+                "terminated": self.terminated}
 
 
 @dataclass(frozen=True)

@@ -40,8 +40,10 @@ import numpy as np
 
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, check_consecutive, check_window, episode_statistic, rule_text
+from oodmon.monitor.sequential import RULES, Reference
 
-__all__ = ["DEFAULT_CONFIDENCE", "MODES", "Threshold", "calibrate", "conformal_rank", "episodes_needed"]
+__all__ = ["DEFAULT_CONFIDENCE", "MODES", "Threshold", "calibrate", "clopper_pearson", "conformal_rank",
+           "episodes_needed"]
 
 MODES = ("episode", "step")
 #: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
@@ -111,6 +113,21 @@ def conformal_rank(n: int, far: float, confidence: float | None = DEFAULT_CONFID
     return rank
 
 
+def clopper_pearson(successes: int, trials: int, level: float = 0.95) -> tuple[float, float]:
+    """The exact (Clopper-Pearson) two-sided ``level`` interval of a binomial proportion.
+
+    Example:
+        >>> [round(x, 4) for x in clopper_pearson(183, 1200)]
+        [0.1326, 0.1741]
+    """
+    from scipy.stats import beta
+
+    tail = (1 - level) / 2
+    low = 0.0 if successes == 0 else float(beta.ppf(tail, successes, trials - successes + 1))
+    high = 1.0 if successes == trials else float(beta.ppf(1 - tail, successes + 1, trials - successes))
+    return low, high
+
+
 @dataclass(frozen=True)
 class Threshold:
     """A calibrated threshold and how it was made.
@@ -135,6 +152,11 @@ class Threshold:
             calibrations only; files written before it existed).
         rank: the threshold is the ``rank``-th smallest of the ``n_episodes`` calibration statistics
             (``None``: not recorded).
+        rule: ``consecutive`` (m steps in a row, with ``window``), ``cusum`` or ``martingale``
+            (see ``sequential``); files written before it existed read as ``consecutive``.
+        reference: a sequential rule's ID scores by time since reset
+            (:meth:`~oodmon.monitor.sequential.Reference.to_dict`), from episodes apart from the
+            calibration ones; ``None`` for ``consecutive``.
     """
 
     value: float
@@ -152,13 +174,20 @@ class Threshold:
     detector: str = "spread"
     confidence: float | None = None
     rank: int | None = None
+    rule: str = "consecutive"
+    reference: dict[str, Any] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         _check_fields(self)
 
     @property
-    def rule(self) -> str:
-        return rule_text(f"{self.value:.6g}", self.consecutive, self.window)
+    def rule_text(self) -> str:
+        """The rule in words, with this threshold's value."""
+        return rule_text(f"{self.value:.6g}", self.consecutive, self.window, self.rule)
+
+    def reference_scores(self) -> Reference | None:
+        """The sequential rule's :class:`~oodmon.monitor.sequential.Reference` (``None``: consecutive)."""
+        return None if self.reference is None else Reference.from_dict(self.reference)
 
     @property
     def promise(self) -> str:
@@ -170,7 +199,7 @@ class Threshold:
                 f"threshold's false-alarm rate per {unit} is <= {self.far:g}")
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self) | {"rule": self.rule}
+        return asdict(self) | {"rule_text": self.rule_text}
 
     def save(self, path: str | Path) -> Path:
         """Write the threshold file (JSON)."""
@@ -201,6 +230,8 @@ class Threshold:
             raise ConfigError(f"{path} is not a threshold file: it holds {type(data).__name__} {data!r:.40}, "
                               "not an object with value, score, consecutive, ...")
         names = [f for f in cls.__dataclass_fields__]
+        if "rule_text" not in data:  # written before sequential rules: "rule" held the rule in words
+            data.pop("rule", None)
         missing = [n for n in ("value", "score", "consecutive", "mode", "far", "n_episodes", "n_steps") if n not in data]
         if missing:
             raise ConfigError(f"{path} is not a threshold file: it lacks {', '.join(missing)}")
@@ -248,6 +279,12 @@ def _check_fields(threshold: Threshold) -> None:
     check_window(threshold.window)
     if threshold.mode not in MODES:
         raise bad("mode", "use 'episode' or 'step'")
+    if threshold.rule not in RULES:
+        raise bad("rule", f"choose one of {', '.join(RULES)}")
+    if threshold.rule != "consecutive":
+        if threshold.reference is None:
+            raise bad("reference", f"the {threshold.rule} rule needs its reference of ID scores")
+        threshold.reference_scores()  # a damaged reference fails here, when the file is read
     _check_far_and_confidence(threshold.far, threshold.confidence)
     if threshold.rank is not None and (not isinstance(threshold.rank, (int, np.integer))
                                        or isinstance(threshold.rank, bool) or threshold.rank < 1):
@@ -276,6 +313,8 @@ def calibrate(
     policy_hash: str | None = None,
     detector: str = "spread",
     confidence: float | None = DEFAULT_CONFIDENCE,
+    rule: str = "consecutive",
+    reference: Reference | None = None,
 ) -> Threshold:
     """Calibrate a threshold on the per-step scores of held-out ID episodes.
 
@@ -288,6 +327,9 @@ def calibrate(
         detector: the detector whose scores these are.
         confidence: 1 - d, the probability over the calibration episodes that the threshold's
             false-alarm rate is at most ``far`` (``None``: on average over calibrations only).
+        rule: ``consecutive``, ``cusum`` or ``martingale`` (episode mode).
+        reference: a sequential rule's ID scores by time since reset, from other ID episodes than
+            ``episode_scores`` (see ``sequential``).
 
     Raises:
         InvalidParameterError: ``far`` or ``confidence`` outside (0, 1), an unknown mode, a bad
@@ -303,11 +345,15 @@ def calibrate(
     _check_far_and_confidence(far, confidence)
     if mode not in MODES:
         raise InvalidParameterError(f"mode={mode!r} is not allowed; use 'episode' or 'step'")
+    if rule not in RULES:
+        raise InvalidParameterError(f"rule={rule!r} is not allowed; choose one of {', '.join(RULES)}")
+    if rule != "consecutive" and mode != "episode":
+        raise InvalidParameterError(f"the {rule} rule is calibrated per episode; use mode='episode'")
     consecutive = check_consecutive(consecutive) if mode == "episode" else 1
     window = check_window(window) if mode == "episode" else 1
     episodes = [np.asarray(s, dtype=np.float64) for s in episode_scores]
     if mode == "episode":
-        values = np.array([episode_statistic(s, consecutive, window) for s in episodes])
+        values = np.array([episode_statistic(s, consecutive, window, rule=rule, reference=reference) for s in episodes])
         unit = "episodes"
     else:
         values = np.concatenate(episodes) if episodes else np.array([])
@@ -325,4 +371,5 @@ def calibrate(
     quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
     return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
                      quantiles, task, method, window, policy_hash, detector,
-                     None if confidence is None else float(confidence), rank)
+                     None if confidence is None else float(confidence), rank, rule,
+                     None if reference is None else reference.to_dict())

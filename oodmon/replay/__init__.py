@@ -7,13 +7,15 @@ from __future__ import annotations
 
 from oodmon.replay.check import baseline_of, check_tolerance, find_falls, load_baseline
 from oodmon.replay.metrics import (
-    VariantMetrics, alarm_events, compute_all_metrics, compute_metrics, detectors_in, fpr_at_tpr,
+    MonitorMetrics, VariantMetrics, alarm_events, compute_all_metrics, compute_metrics, compute_monitor_metrics,
+    detectors_in, failure_step, fpr_at_tpr,
 )
 from oodmon.replay.reader import EpisodeLog, RecoveryWarning, RunLog, SkippedLogWarning, read_log, read_logs
-from oodmon.replay.report import to_csv, to_json, to_markdown, to_table
+from oodmon.replay.report import monitor_markdown, monitor_summary, monitor_table, to_csv, to_json, to_markdown, to_table
 
 __all__ = [
     "EpisodeLog",
+    "MonitorMetrics",
     "RecoveryWarning",
     "RunLog",
     "SkippedLogWarning",
@@ -23,10 +25,15 @@ __all__ = [
     "check_tolerance",
     "compute_all_metrics",
     "compute_metrics",
+    "compute_monitor_metrics",
     "detectors_in",
+    "failure_step",
     "find_falls",
     "fpr_at_tpr",
     "load_baseline",
+    "monitor_markdown",
+    "monitor_summary",
+    "monitor_table",
     "read_log",
     "read_logs",
     "to_csv",

@@ -22,7 +22,9 @@ import numpy as np
 from oodmon.envs.grid import parse_variant
 from oodmon.replay.reader import EpisodeLog, RunLog
 
-__all__ = ["VariantMetrics", "alarm_events", "compute_all_metrics", "compute_metrics", "detectors_in", "fpr_at_tpr"]
+__all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "MonitorMetrics", "VariantMetrics", "alarm_events",
+           "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "detectors_in", "failure_step",
+           "fpr_at_tpr"]
 
 
 @dataclass(frozen=True)
@@ -159,3 +161,130 @@ def compute_all_metrics(logs: Iterable[RunLog]) -> list[VariantMetrics]:
     """:func:`compute_metrics` for every detector the logs hold (``spread`` alone for older logs)."""
     logs = list(logs)
     return [m for name in detectors_in(logs) for m in compute_metrics(logs, name)]
+
+
+# -- the monitor's own benchmark ----------------------------------------------------------------
+
+#: Pendulum never ends by itself: it has failed once the mean reward of the last
+#: ``PENDULUM_FAILURE_WINDOW`` steps falls below ``PENDULUM_FAILURE_REWARD`` (the reward is
+#: -(angle^2 + 0.1 speed^2 + 0.001 torque^2): a mean below -1 means the pole is on average about a
+#: radian, ~57 degrees, from upright; a balanced pole scores near 0).
+PENDULUM_FAILURE_WINDOW = 10
+PENDULUM_FAILURE_REWARD = -1.0
+
+
+def failure_step(episode: EpisodeLog, task: str) -> int | None:
+    """The step at which a shifted episode failed, or ``None`` (no failure after the onset, or unknown).
+
+    - An episode the env ended itself (``terminated``: CartPole's pole fell or its cart left the
+      track) fails at its last step, the one whose action ended it.
+    - Pendulum fails at the first step from the onset on where the mean reward of the last
+      :data:`PENDULUM_FAILURE_WINDOW` steps is below :data:`PENDULUM_FAILURE_REWARD`, provided it
+      was above at the onset (a pole not yet swung up at the onset does not count as a failure).
+    - Pong has no failure here (a lost point is part of an ID game), nor has a log without rewards
+      and ``terminated`` (format < 4).
+
+    Example:
+        >>> from oodmon.replay.reader import EpisodeLog
+        >>> e = EpisodeLog(episode=0, env_id="", variant="cartpole:length=2.0", onset=5, seed=0, total_return=9.0,
+        ...                length=9, alarms=0, first_alarm_step=None, terminated=True, scores=np.zeros(9),
+        ...                shifted=np.zeros(9, bool), alarm=np.zeros(9, bool))
+        >>> failure_step(e, "cartpole")
+        8
+    """
+    if task == "pendulum":
+        if episode.rewards is None or episode.onset >= episode.length:
+            return None
+        sums = np.convolve(episode.rewards, np.ones(PENDULUM_FAILURE_WINDOW), "full")[:episode.length]
+        means = sums / np.minimum(np.arange(1, episode.length + 1), PENDULUM_FAILURE_WINDOW)  # of the last <= w
+        if means[episode.onset] < PENDULUM_FAILURE_REWARD:
+            return None
+        below = np.flatnonzero(means[episode.onset:] < PENDULUM_FAILURE_REWARD)
+        return int(episode.onset + below[0]) if len(below) else None
+    if task == "pong" or not episode.terminated:
+        return None
+    last = episode.length - 1
+    return last if last >= episode.onset else None
+
+
+@dataclass(frozen=True)
+class MonitorMetrics:
+    """What the alarm did in one (task, method, variant), episode by episode (the monitor's benchmark).
+
+    ID variant: ``false_alarms`` of ``episodes`` raised any alarm; ``far_low``/``far_high`` is the
+    95% Clopper-Pearson interval of that rate. Shifted variants: ``alarmed`` episodes had an alarm at
+    or after the onset (``early`` ones before it, a false alarm); ``failed`` episodes failed after
+    the onset (:func:`failure_step`) and ``before_failure`` of them were alarmed before the failure
+    step. Delays are in steps from the onset to the first alarm at or after it, over alarmed
+    episodes (``None`` when none).
+    """
+
+    task: str
+    method: str
+    variant: str
+    episodes: int
+    false_alarms: int | None = None
+    far_low: float | None = None
+    far_high: float | None = None
+    early: int | None = None
+    alarmed: int | None = None
+    failed: int | None = None
+    before_failure: int | None = None
+    delay_median: float | None = None
+    delay_p90: float | None = None
+    delays: tuple[int, ...] = ()
+
+    @property
+    def is_id(self) -> bool:
+        return self.false_alarms is not None
+
+    @property
+    def false_alarm_rate(self) -> float | None:
+        return None if self.false_alarms is None else self.false_alarms / self.episodes
+
+    @property
+    def before_failure_rate(self) -> float | None:
+        return self.before_failure / self.failed if self.failed else None
+
+    def to_dict(self) -> dict[str, object]:
+        return asdict(self) | {"delays": list(self.delays), "false_alarm_rate": self.false_alarm_rate,
+                               "before_failure_rate": self.before_failure_rate}
+
+
+def compute_monitor_metrics(logs: Iterable[RunLog]) -> list[MonitorMetrics]:
+    """The monitor's benchmark figures per (task, method, variant) from the logs' alarms
+    (the alarm the runs raised, whatever detector it read), in a stable order."""
+    from oodmon.monitor.threshold import clopper_pearson
+
+    groups: dict[tuple[str, str, str], list[EpisodeLog]] = defaultdict(list)
+    for log in logs:
+        for episode in log.episodes:
+            groups[(log.task, log.method, episode.variant)].append(episode)
+    results = []
+    for (task, method, variant), episodes in sorted(groups.items()):
+        firsts = [alarm_events(e.alarm) for e in episodes]
+        if parse_variant(variant).is_id:
+            alarmed = sum(len(f) > 0 for f in firsts)
+            low, high = clopper_pearson(alarmed, len(episodes))
+            results.append(MonitorMetrics(task, method, variant, len(episodes), false_alarms=alarmed,
+                                          far_low=low, far_high=high))
+            continue
+        early = alarmed = failed = before = 0
+        delays = []
+        for events, e in zip(firsts, episodes):
+            early += bool(len(events) and events[0] < e.onset)
+            after = events[events >= e.onset]
+            first = int(after[0]) if len(after) else None
+            if first is not None:
+                alarmed += 1
+                delays.append(first - e.onset)
+            failure = failure_step(e, task)
+            if failure is not None:
+                failed += 1
+                before += first is not None and first < failure
+        median = float(np.median(delays)) if delays else None
+        p90 = float(np.quantile(delays, 0.9)) if delays else None
+        results.append(MonitorMetrics(task, method, variant, len(episodes), early=early, alarmed=alarmed,
+                                      failed=failed, before_failure=before, delay_median=median, delay_p90=p90,
+                                      delays=tuple(delays)))
+    return results

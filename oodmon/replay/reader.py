@@ -49,12 +49,14 @@ class EpisodeLog(EpisodeRecord):
         alarm: (length,) whether the alarm rule held at each step.
         detector_scores: every detector's (length,) scores by name; a log older than format 3
             has one, the alarm's (``spread``), equal to ``scores``.
+        rewards: (length,) each step's reward, or ``None`` (logs older than format 4).
     """
 
     scores: np.ndarray = field(repr=False, kw_only=True)
     shifted: np.ndarray = field(repr=False, kw_only=True)
     alarm: np.ndarray = field(repr=False, kw_only=True)
     detector_scores: dict[str, np.ndarray] = field(default_factory=dict, repr=False, kw_only=True)
+    rewards: np.ndarray | None = field(default=None, repr=False, kw_only=True)
 
     def scores_of(self, detector: str | None) -> np.ndarray:
         """The per-step scores of ``detector`` (``None``: the alarm's).
@@ -113,17 +115,19 @@ def _episode(path: Path, row: dict, scores: dict, alarm_detector: str = "spread"
                   decode_array(scores["shifted_u8"], np.uint8).astype(bool),
                   decode_array(scores["alarm_u8"], np.uint8).astype(bool))
         detectors = {name: decode_array(text, "<f8") for name, text in scores.get("detectors_f64", {}).items()}
+        rewards = decode_array(scores["reward_f64"], "<f8") if "reward_f64" in scores else None
     except (KeyError, TypeError, ValueError, AttributeError) as error:
         raise LogFormatError(f"{path}: the score arrays of episode {row['episode']} are damaged ({error})") from None
     detectors = detectors or {alarm_detector: arrays[0]}
-    if any(len(a) != row["length"] for a in (*arrays, *detectors.values())):
+    if any(len(a) != row["length"] for a in (*arrays, *detectors.values(), *([] if rewards is None else [rewards]))):
         raise LogFormatError(f"{path}: episode {row['episode']} has length {row['length']} but "
                              f"{len(arrays[0])} scores; the log is damaged")
     return EpisodeLog(
         episode=row["episode"], env_id=row["env_id"], variant=row["variant"], onset=row["onset"],
         seed=row.get("seed"), total_return=float(row["return"]), length=row["length"], alarms=row["alarms"],
         first_alarm_step=row.get("first_alarm_step"), interrupted=bool(row.get("interrupted", False)),
-        scores=arrays[0], shifted=arrays[1], alarm=arrays[2], detector_scores=detectors,
+        terminated=row.get("terminated") if isinstance(row.get("terminated"), bool) else None,
+        scores=arrays[0], shifted=arrays[1], alarm=arrays[2], detector_scores=detectors, rewards=rewards,
     )
 
 

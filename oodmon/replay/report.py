@@ -7,11 +7,13 @@ import io
 import json
 from collections.abc import Sequence
 
+import numpy as np
 from rich.table import Table
 
-from oodmon.replay.metrics import VariantMetrics
+from oodmon.replay.metrics import MonitorMetrics, VariantMetrics
 
-__all__ = ["COLUMNS", "to_csv", "to_json", "to_markdown", "to_table"]
+__all__ = ["COLUMNS", "MONITOR_COLUMNS", "monitor_cells", "monitor_markdown", "monitor_summary", "monitor_table",
+           "to_csv", "to_json", "to_markdown", "to_table"]
 
 #: (field, heading) in the order the reports show them.
 COLUMNS = [
@@ -56,4 +58,63 @@ def to_csv(metrics: Sequence[VariantMetrics]) -> str:
 def to_markdown(metrics: Sequence[VariantMetrics]) -> str:
     lines = ["| " + " | ".join(h for _, h in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     lines += ["| " + " | ".join(_cell(getattr(m, name)) for name, _ in COLUMNS) + " |" for m in metrics]
+    return "\n".join(lines) + "\n"
+
+
+# -- the monitor's own benchmark ----------------------------------------------------------------
+
+#: The heading of each column of the monitor's table.
+MONITOR_COLUMNS = ["method", "variant", "episodes", "false alarms (ID) / early", "alarmed", "failed",
+                   "alarmed before failure", "delay median", "delay p90"]
+
+
+def _share(part: int | None, whole: int | None) -> str:
+    if part is None or not whole:
+        return ""
+    return f"{part}/{whole} ({part / whole:.0%})"
+
+
+def monitor_summary(metrics: Sequence[MonitorMetrics]) -> list[MonitorMetrics]:
+    """Per (task, method), the shifted variants pooled into one row (variant ``all shifted``)."""
+    pooled: dict[tuple[str, str], list[MonitorMetrics]] = {}
+    for m in metrics:
+        if not m.is_id:
+            pooled.setdefault((m.task, m.method), []).append(m)
+    rows = []
+    for (task, method), group in sorted(pooled.items()):
+        delays = [d for m in group for d in m.delays]
+        rows.append(MonitorMetrics(
+            task, method, "all shifted", sum(m.episodes for m in group), early=sum(m.early or 0 for m in group),
+            alarmed=sum(m.alarmed or 0 for m in group), failed=sum(m.failed or 0 for m in group),
+            before_failure=sum(m.before_failure or 0 for m in group),
+            delay_median=float(np.median(delays)) if delays else None,
+            delay_p90=float(np.quantile(delays, 0.9)) if delays else None, delays=tuple(delays)))
+    return rows
+
+
+def monitor_cells(m: MonitorMetrics) -> list[str]:
+    """One row of the monitor's table (:data:`MONITOR_COLUMNS`)."""
+    delay = (lambda v: "" if v is None else f"{v:g}")
+    if m.is_id:
+        first = f"{_share(m.false_alarms, m.episodes)} [{m.far_low:.1%}, {m.far_high:.1%}]"
+        return [m.method, m.variant, str(m.episodes), first, "", "", "", "", ""]
+    return [m.method, m.variant, str(m.episodes), _share(m.early, m.episodes), _share(m.alarmed, m.episodes),
+            _share(m.failed, m.episodes), _share(m.before_failure, m.failed), delay(m.delay_median),
+            delay(m.delay_p90)]
+
+
+def monitor_table(metrics: Sequence[MonitorMetrics], title: str = "the monitor's benchmark") -> Table:
+    """The monitor's figures per variant, then each method's shifted variants pooled."""
+    table = Table(title=title)
+    for heading in MONITOR_COLUMNS:
+        table.add_column(heading, justify="left" if heading in ("method", "variant") else "right")
+    for m in [*metrics, *monitor_summary(metrics)]:
+        table.add_row(*monitor_cells(m), style="bold" if m.variant == "all shifted" else None)
+    return table
+
+
+def monitor_markdown(metrics: Sequence[MonitorMetrics]) -> str:
+    rows = [*metrics, *monitor_summary(metrics)]
+    lines = ["| " + " | ".join(MONITOR_COLUMNS) + " |", "|" + "---|" * len(MONITOR_COLUMNS)]
+    lines += ["| " + " | ".join(monitor_cells(m)) + " |" for m in rows]
     return "\n".join(lines) + "\n"

@@ -215,3 +215,22 @@ def test_the_id_env_never_reports_a_shift(env_id):
         *_, info = env.step(env.action_space.sample())
         flags.append(info["shifted"])
     assert flags == [False] * 6
+
+
+def test_reset_option_sets_the_onset_of_that_episode_only():
+    """The monitor's benchmark draws an onset per episode: reset(options={"onset_step": n})."""
+    env = gymnasium.make("oodmon/CartPole-v1", length=2.0, onset_step=100)
+    flags = []
+    for options in ({"onset_step": 2}, None, {"onset_step": 0}):
+        _, info = env.reset(seed=0, options=options)
+        shifted = [info["shifted"]]
+        for _ in range(4):
+            *_, info = env.step(0)
+            shifted.append(info["shifted"])
+        flags.append(shifted)
+    assert flags == [[False, False, False, True, True], [False] * 5, [True] * 5]
+    # Other options still reach gymnasium's CartPole (its initial-state bounds).
+    obs, _ = env.reset(seed=0, options={"onset_step": 1, "low": -0.01, "high": 0.01})
+    assert np.abs(obs).max() <= 0.01
+    with pytest.raises(InvalidParameterError, match="onset_step=-1"):
+        env.reset(options={"onset_step": -1})

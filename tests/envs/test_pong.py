@@ -132,3 +132,16 @@ def test_bad_pong_input_is_named(kwargs, error, words):
     with pytest.raises(error) as raised:
         gymnasium.make("oodmon/Pong-v5", **kwargs)
     assert words in str(raised.value)
+
+
+def test_reset_option_sets_the_onset_of_that_episode_only():
+    env = parse_variant("pong:impulse_noise@5").make(onset_step=50)
+    flags = []
+    for options in ({"onset_step": 1}, None):
+        _, info = env.reset(seed=2, options=options)
+        shifted = [info["shifted"]]
+        for _ in range(3):
+            *_, info = env.step(0)
+            shifted.append(info["shifted"])
+        flags.append(shifted)
+    assert flags == [[False, False, True, True], [False] * 4]

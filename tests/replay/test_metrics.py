@@ -78,3 +78,58 @@ def test_methods_and_tasks_are_kept_apart():
     rows = compute_metrics([ID, SHIFTED, other])
     assert [(r.method, r.variant) for r in rows] == [("m", "cartpole"), ("m", "cartpole:length=2.0"), ("other", "cartpole")]
     assert rows[2].false_alarm_rate == 1.0
+
+
+# -- the monitor's own benchmark: failures, alarms before them, delays ------------------------
+
+def _run(k, variant, onset, alarm, *, terminated=None, rewards=None):
+    alarm = np.asarray(alarm, bool)
+    n = len(alarm)
+    return EpisodeLog(episode=k, env_id="", variant=variant, onset=onset, seed=k, total_return=0.0, length=n,
+                      alarms=len(alarm_events(alarm)), first_alarm_step=None, terminated=terminated,
+                      scores=np.zeros(n), shifted=np.arange(n) > onset, alarm=alarm,
+                      rewards=None if rewards is None else np.asarray(rewards, float))
+
+
+def test_failure_is_the_env_ending_the_episode_or_pendulums_reward_collapsing():
+    from oodmon.replay import failure_step
+    from oodmon.replay.metrics import PENDULUM_FAILURE_REWARD, PENDULUM_FAILURE_WINDOW
+
+    assert failure_step(_run(0, "cartpole:length=2.0", 3, [0] * 9, terminated=True), "cartpole") == 8
+    assert failure_step(_run(0, "cartpole:length=2.0", 3, [0] * 9, terminated=False), "cartpole") is None
+    assert failure_step(_run(0, "cartpole:length=2.0", 9, [0] * 9, terminated=True), "cartpole") is None  # before onset
+    assert PENDULUM_FAILURE_WINDOW == 10 and PENDULUM_FAILURE_REWARD == -1.0
+    # Upright (reward ~0) until step 30, then -3 per step: the mean of the last 10 steps
+    # (steps 25..34 at step 34: 5 x 0 + 5 x -3 = -1.5; at step 33: 4 x -3 / 10 = -1.2; at 32: -0.9).
+    upright_then_falls = [-0.01] * 30 + [-3.0] * 30
+    assert failure_step(_run(0, "pendulum:m=5.0", 20, [0] * 60, rewards=upright_then_falls), "pendulum") == 33
+    # Not yet swung up at the onset: no failure counted.
+    assert failure_step(_run(0, "pendulum:m=5.0", 20, [0] * 60, rewards=[-5.0] * 60), "pendulum") is None
+    assert failure_step(_run(0, "pendulum:m=5.0", 20, [0] * 60, rewards=None), "pendulum") is None
+    assert failure_step(_run(0, "pong:motion_blur@3", 5, [0] * 60, terminated=True), "pong") is None
+
+
+def test_monitor_metrics_by_hand():
+    from oodmon.replay import compute_monitor_metrics, monitor_summary
+
+    id_log = _log([_run(k, "cartpole", 0, [0] * 20 if k else [0] * 5 + [1] * 3 + [0] * 12) for k in range(4)])
+    shifted = _log([
+        # onset 5, alarm at 8 (delay 3), fails at 19: alarmed before failure.
+        _run(0, "cartpole:length=2.0", 5, [0] * 8 + [1] * 12, terminated=True),
+        # onset 5, alarm at 19 = the failure step: too late.
+        _run(1, "cartpole:length=2.0", 5, [0] * 19 + [1], terminated=True),
+        # early alarm at 2 (before the onset), then one at 12 (delay 7); never fails.
+        _run(2, "cartpole:length=2.0", 5, [0, 0, 1] + [0] * 9 + [1] * 8, terminated=False),
+        # onset 5, never alarms, fails.
+        _run(3, "cartpole:length=2.0", 5, [0] * 20, terminated=True),
+    ])
+    rows = {m.variant: m for m in compute_monitor_metrics([id_log, shifted])}
+    ident = rows["cartpole"]
+    assert (ident.false_alarms, ident.episodes, ident.false_alarm_rate) == (1, 4, 0.25)
+    assert ident.far_low == pytest.approx(0.00631, abs=1e-4) and ident.far_high == pytest.approx(0.80588, abs=1e-4)
+    m = rows["cartpole:length=2.0"]
+    assert (m.episodes, m.early, m.alarmed, m.failed, m.before_failure) == (4, 1, 3, 3, 1)
+    assert m.delays == (3, 14, 7) and m.delay_median == 7 and m.delay_p90 == pytest.approx(12.6)
+    assert m.before_failure_rate == pytest.approx(1 / 3)
+    (pooled,) = monitor_summary(list(rows.values()))
+    assert (pooled.variant, pooled.episodes, pooled.failed, pooled.before_failure) == ("all shifted", 4, 3, 1)

@@ -65,6 +65,18 @@ def test_replay_equals_online(tmp_path):
         mine = [s for s in memory.steps if s.episode == record.episode]
         np.testing.assert_array_equal(replayed.scores, [s.score for s in mine])
         assert replayed.alarm.sum() == sum(s.alarm for s in mine)
+        # Format 4: each step's reward and whether the env ended the episode (the pole fell).
+        np.testing.assert_array_equal(replayed.rewards, record.rewards)
+        assert replayed.rewards.sum() == record.total_return and replayed.terminated is record.terminated
+        assert record.terminated is (record.length < 500)
+
+
+def test_logs_older_than_format_4_have_no_rewards_and_no_failures():
+    from oodmon.replay import failure_step
+
+    for log in (read_log(p) for p in LOGS):
+        assert all(e.rewards is None and e.terminated is None for e in log.episodes)
+        assert all(failure_step(e, "cartpole") is None for e in log.episodes)
 
 
 def test_truncated_file_is_read_up_to_its_last_complete_episode(tmp_path):
@@ -188,3 +200,29 @@ def test_an_interrupted_episode_is_logged_as_such_and_left_out_of_the_metrics(tm
     assert [e.episode for e in log.episodes] == [0] and not log.episodes[0].interrupted
     assert [e.episode for e in log.interrupted] == [1] and log.interrupted[0].length < finished.length
     assert compute_metrics([log])[0].episodes == 1
+
+
+def test_replay_monitor_prints_the_alarm_figures_of_the_monitors_benchmark(tmp_path):
+    """`replay --monitor`: false alarms with their interval, alarms before failure, delays; the
+    JSON is compute_monitor_metrics of the logs plus one pooled row per agent."""
+    from oodmon.replay import compute_monitor_metrics
+
+    agent = load("cartpole", "dropout")
+    with Monitor(agent, threshold=3.5, sinks=[McapSink(tmp_path / "shifted.mcap")]) as monitor:
+        env = parse_variant("cartpole:length=2.0").make()
+        for seed, onset in ((0, 30), (1, 60)):
+            monitor.run_episode(env, seed=seed, variant="cartpole:length=2.0", options={"onset_step": onset})
+    with Monitor(agent, threshold=3.5, sinks=[McapSink(tmp_path / "id.mcap")]) as monitor:
+        monitor.run_episode(parse_variant("cartpole").make(), seed=0, variant="cartpole")
+    logs = [read_log(tmp_path / "id.mcap"), read_log(tmp_path / "shifted.mcap")]
+    assert [e.onset for e in logs[1].episodes] == [30, 60]
+    done = _cli("replay", "--monitor", "--json", str(tmp_path))
+    assert done.returncode == 0, done.stderr
+    rows = json.loads(done.stdout)
+    expected = [m.to_dict() for m in compute_monitor_metrics(logs)]
+    assert rows[:2] == json.loads(json.dumps(expected))
+    assert rows[2]["variant"] == "all shifted" and rows[2]["episodes"] == 2
+    table = _cli("replay", "--monitor", str(tmp_path))
+    assert "alarmed before failure" in table.stdout and "failed:" in table.stderr
+    refused = _cli("replay", "--monitor", "--csv", str(tmp_path))
+    assert refused.returncode != 0 and "--monitor" in refused.stderr

@@ -126,7 +126,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     ``episodes`` ID episodes of ``env`` (each cut after ``max_steps`` steps if given).
 
     ``spread`` (with ``score``) joins the set whenever the policy has samples; ``combined``
-    combines every other detector of the set. ``features`` needs an oodmon agent or estimator
+    combines every other detector of the set, and named alone it brings the learned members the
+    policy can have (``["combined"]`` fits dynamics and features too). ``features`` needs an oodmon agent or estimator
     (a plain callable has no features); ``dynamics`` needs vector observations.
 
     Raises:
@@ -137,6 +138,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     unknown = [name for name in detectors if name not in DETECTORS]
     if unknown:
         raise InvalidParameterError(f"unknown detector {unknown[0]!r}; choose from {', '.join(DETECTORS)}")
+    if "combined" in detectors and not {"dynamics", "features"} & set(detectors):
+        detectors = tuple(dict.fromkeys((*default_detectors(policy, env), *detectors)))
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 3:
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
                                     "ID episodes (two thirds fit, one third ranks)")

@@ -122,7 +122,7 @@ class McapSink:
         now = time.time_ns()
         self._writer.flush()  # closes the chunk of step messages
         scores = logformat.encode_episode_scores(record.episode, self._scores, self._shifted, self._alarm,
-                                                 self._detector_scores)
+                                                 self._detector_scores, record.rewards)
         self._add(self._episode_channel, json.dumps(record.to_json()).encode(), now)
         self._add(self._scores_channel, json.dumps(scores).encode(), now)
         # A small chunk of its own, written at once: from here on the episode survives a crash,
