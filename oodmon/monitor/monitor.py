@@ -159,6 +159,8 @@ class Monitor:
         self._opened = False
         self._in_episode = False
         self.stop_requested = False
+        self.last_step: StepRecord | None = None  # the record of the last step scored
+        self.stop_event: AlarmEvent | None = None  # the alarm a callback ended the episode with
 
     def _refuse_or_warn(self, what: str, differences: list[str], force: bool) -> None:
         if differences and not force:
@@ -209,7 +211,7 @@ class Monitor:
         if self._opened:
             atexit.unregister(self.close)
             try:
-                if self._in_episode:
+                if self._in_episode and not self.abandon_empty_episode():
                     self.end_episode(interrupted=True)
             finally:
                 self.sinks.close()
@@ -233,6 +235,20 @@ class Monitor:
         self._rewards: list[float] = []
         self._in_episode = True
         self.stop_requested = False
+        self.last_step = None
+        self.stop_event = None
+
+    def abandon_empty_episode(self) -> bool:
+        """Forget the running episode if no step of it was scored, and say whether it did.
+
+        A reset that no step follows (a vector env's auto-reset after the last episode, an
+        evaluation loop that resets once more) would otherwise log a 0-step episode.
+        """
+        if not self._in_episode or self._length:
+            return False
+        self.episode -= 1
+        self._in_episode = False
+        return True
 
     def step(self, obs: np.ndarray, *, action: Any = None, shifted: bool = False,
              frame: np.ndarray | None = None) -> int | np.ndarray:
@@ -265,12 +281,13 @@ class Monitor:
         if not self.log_observations:
             frame = None
         logged_action = int(action) if isinstance(action, (int, np.integer)) else np.asarray(action).tolist()
-        self.sinks.write_step(StepRecord(
+        self.last_step = StepRecord(
             episode=self.episode, step=step, action=logged_action,
             mean=estimate.mean[0].tolist() if estimate is not None else [],
             std=estimate.std[0].tolist() if estimate is not None else [], score=score, threshold=self.threshold,
             alarm=alarm, shifted=bool(shifted), observation=observation, frame=frame, scores=scores,
-        ))
+        )
+        self.sinks.write_step(self.last_step)
         self._length += 1  # the step is logged: it counts, whatever a callback below does
         if event is not None:
             self._alarms += 1
@@ -280,6 +297,7 @@ class Monitor:
             for callback in self.callbacks:
                 if callback(event):
                     self.stop_requested = True
+                    self.stop_event = event
         return action
 
     def add_reward(self, reward: float) -> None:
@@ -334,7 +352,11 @@ class MonitoredEnv(gymnasium.Wrapper):
     """An env whose steps are scored and logged by a :class:`Monitor`.
 
     ``step()`` with no action lets the monitored policy act; ``step(action)`` takes your action
-    (the monitor still scores and logs the policy's estimate at that observation).
+    (the monitor still scores and logs the policy's estimate at that observation). Every step's
+    ``info["oodmon"]`` holds every detector's score (``scores``), the alarm's (``score``,
+    ``detector``), the ``threshold`` and whether the ``alarm`` rule holds; when an alarm callback
+    ended the episode (it returned True: the step is ``truncated``), ``ended_by_alarm`` says which
+    alarm. A reset that no step follows logs no episode.
 
     Example:
         >>> from oodmon.agents import load
@@ -353,7 +375,7 @@ class MonitoredEnv(gymnasium.Wrapper):
         self._info: dict = {}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        if self.monitor._in_episode:
+        if self.monitor._in_episode and not self.monitor.abandon_empty_episode():
             self.monitor.end_episode()
         obs, info = self.env.reset(seed=seed, options=options)
         spec_id = self.env.spec.id if self.env.spec is not None else type(self.env.unwrapped).__name__
@@ -366,11 +388,24 @@ class MonitoredEnv(gymnasium.Wrapper):
         chosen = self.monitor.step(self._obs, shifted=bool(self._info.get("shifted", False)), frame=_frame(self._obs))
         obs, reward, terminated, truncated, info = self.env.step(chosen if action is None else action)
         self.monitor.add_reward(reward)
+        info = {**info, "oodmon": self._telemetry()}
         truncated = truncated or self.monitor.stop_requested
         if terminated or truncated:
             self.monitor.end_episode(terminated=bool(terminated))
         self._obs, self._info = obs, info
         return obs, reward, terminated, truncated, info
+
+    def _telemetry(self) -> dict[str, Any]:
+        """``info["oodmon"]``: what the monitor made of the step just taken (its observation is the
+        one the action was chosen at)."""
+        record, monitor = self.monitor.last_step, self.monitor
+        telemetry = {"step": record.step, "scores": dict(record.scores), "score": record.score,
+                     "detector": monitor.detector, "threshold": record.threshold, "alarm": record.alarm}
+        if monitor.stop_event is not None:
+            event = monitor.stop_event
+            telemetry["ended_by_alarm"] = (f"an alarm callback ended the episode: step {event.step}, {event.rule} "
+                                           f"(value {event.score:.4g}, threshold {event.threshold:.4g})")
+        return telemetry
 
     def close(self) -> None:
         self.monitor.close()  # an episode still running is logged as interrupted

@@ -99,3 +99,36 @@ def test_observations_and_frames_are_logged_only_when_asked(agent, log_observati
     else:  # calibration: scores only, no frames kept in memory
         assert record.observation is None and record.frame is None
     assert record.score == pytest.approx(float(agent.estimate(obs).std[0][record.action]), rel=1e-6)
+
+
+def test_monitored_env_reports_every_step_in_info_and_why_an_alarm_ended_the_episode(agent):
+    sink = MemorySink()
+    monitor = Monitor(agent, threshold=0.0, sinks=[sink], callbacks=[lambda event: True])
+    env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1", length=2.0), monitor, variant="cartpole:length=2.0")
+    env.reset(seed=0)
+    infos, truncated = [], False
+    while not truncated:
+        *_, terminated, truncated, info = env.step()
+        infos.append(info["oodmon"])
+        assert not terminated
+    # Threshold 0: every score is above it, the alarm fires at step 2 (m = 3), the callback ends the episode.
+    assert [i["step"] for i in infos] == [0, 1, 2] and len(sink.steps) == 3 and sink.episodes[0].length == 3
+    for telemetry, record in zip(infos, sink.steps):
+        assert telemetry["scores"] == record.scores and telemetry["score"] == record.score
+        assert telemetry["alarm"] == record.alarm and telemetry["threshold"] == 0.0 and telemetry["detector"] == "spread"
+    assert "ended_by_alarm" in infos[-1] and f"step {infos[-1]['step']}" in infos[-1]["ended_by_alarm"]
+    assert all("ended_by_alarm" not in i for i in infos[:-1])
+    env.close()
+
+
+def test_a_reset_no_step_follows_logs_no_episode(agent):
+    """Vector envs reset after the last episode (SB3's evaluate_policy): no phantom 0-step episode."""
+    sink = MemorySink()
+    env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"), Monitor(agent, sinks=[sink]))
+    env.reset(seed=0)
+    env.reset(seed=1)  # reset twice: the first, empty, episode is forgotten
+    for _ in range(3):
+        env.step()
+    env.reset(seed=2)  # ends the 3-step episode; the new one gets no step before close
+    env.close()
+    assert [(e.episode, e.length, e.seed, e.interrupted) for e in sink.episodes] == [(0, 3, 1, False)]
