@@ -105,7 +105,7 @@ _SEED = _whole(0, 2**32 - 1)
 def _add_rule(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rule", choices=["consecutive", "cusum", "martingale"], default="consecutive",
                         help="the alarm rule: consecutive (default: --consecutive steps above the threshold), cusum or "
-                             "martingale (sequential, on p-values against ID steps of the same age; see the README)")
+                             "martingale (sequential, on p-values against ID reference episodes' scores; see the README)")
 
 
 def _confidence(text: str) -> float | None:
@@ -664,6 +664,7 @@ def _replay(args: argparse.Namespace) -> int:
 def _replay_monitor(args: argparse.Namespace, logs) -> int:
     """``replay --monitor``: the alarm's figures per variant (the monitor's benchmark)."""
     from oodmon.replay import compute_monitor_metrics, monitor_markdown, monitor_summary, monitor_table
+    from oodmon.replay.metrics import FAILURE_DEFINITION
 
     if args.csv:
         raise ConfigError("--monitor prints a table, --json or --markdown; not --csv")
@@ -674,8 +675,7 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
         print(monitor_markdown(metrics), end="")
     else:
         _table_console().print(monitor_table(metrics, title=f"the alarms of {len(logs)} log(s)"))
-        print("failed: CartPole's episode ended by itself after the onset; Pendulum's mean reward over the last "
-              "10 steps fell below -1 after the onset; alarm delays in steps from the onset", file=sys.stderr)
+        print(FAILURE_DEFINITION, file=sys.stderr)
     return 0
 
 
@@ -791,6 +791,7 @@ def _bench_monitor_report(config, result, console: Console) -> int:
     """The monitor's benchmark: the alarm's figures per variant, and each method's summary against the goals."""
     from oodmon.bench import ONSETS
     from oodmon.replay import monitor_summary, monitor_table
+    from oodmon.replay.metrics import FAILURE_DEFINITION
 
     low, high = ONSETS[config.task]
     console.print(monitor_table(result.alarms, title=(
@@ -804,8 +805,7 @@ def _bench_monitor_report(config, result, console: Console) -> int:
         before = (f"{row.before_failure}/{row.failed} failing episodes alarmed before the failure"
                   if row.failed else "no episode failed after its onset")
         console.print(f"{row.method}: {far}; {before}; delay median {row.delay_median} p90 {row.delay_p90} steps")
-    print("failed: CartPole's episode ended by itself after the onset; Pendulum's mean reward over the last 10 "
-          "steps fell below -1 after the onset (oodmon.replay.failure_step)", file=sys.stderr)
+    print(FAILURE_DEFINITION, file=sys.stderr)
     return 0
 
 

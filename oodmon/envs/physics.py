@@ -3,8 +3,9 @@
 A variant is the default env with other numbers (the paper's Table 1). The shift may begin
 mid-episode: with ``onset_step=N`` the first N ``step()`` calls of every episode run the default
 physics and the rest the shifted physics, so one episode holds in-distribution steps and then
-OOD steps; ``reset(options={"onset_step": n})`` sets the onset of that episode alone. Every ``info`` (from ``reset`` and ``step``) has ``info["shifted"]``: whether the
-observation returned came from the shifted world (always False for the default physics).
+OOD steps; ``reset(options={"onset_step": n})`` sets the onset of that episode alone. Every
+``info`` (from ``reset`` and ``step``) has ``info["shifted"]``: whether the observation returned
+came from the shifted world (always False for the default physics).
 
 Observation and action spaces are those of the default env, so one trained agent acts in every
 variant. For Pendulum this is a deliberate choice: ``max_speed`` and ``max_torque`` change where

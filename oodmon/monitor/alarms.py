@@ -13,8 +13,8 @@ of a corrupted game; the mean over 100 steps does not (see the README's Pong sec
 price is a delay of at least w steps.
 
 The sequential rules (``rule="cusum"`` or ``"martingale"``, see ``sequential``) instead
-accumulate evidence over steps from each score's p-value against ID steps of the same time since
-reset; they need a :class:`~oodmon.monitor.sequential.Reference` and ignore m and the window.
+accumulate evidence over steps from each score's p-value against the scores of ID reference
+episodes; they need a :class:`~oodmon.monitor.sequential.Reference` and ignore m and the window.
 """
 
 from __future__ import annotations
@@ -79,9 +79,9 @@ def check_window(window: object) -> int:
 def rule_text(threshold: str, consecutive: int, window: int = 1, rule: str = "consecutive") -> str:
     """The rule in words, e.g. ``"mean score over 100 steps > 0.05 for 3 consecutive steps"``."""
     if rule == "cusum":
-        return f"CUSUM of -log10(p) - 1 > {threshold} (p: the score against ID steps as old)"
+        return f"CUSUM of -log10(p) - 1 > {threshold} (p: the score against ID reference steps)"
     if rule == "martingale":
-        return f"log10 of the conformal test martingale > {threshold} (p: the score against ID steps as old)"
+        return f"log10 of the conformal test martingale > {threshold} (p: the score against ID reference steps)"
     what = "score" if window == 1 else f"mean score over {window} steps"
     if consecutive == 1:
         return f"{what} > {threshold}"

@@ -302,7 +302,7 @@ class Monitor:
 
     def add_reward(self, reward: float) -> None:
         """The reward of the step just taken (one call per step: replay reads the rewards per step)."""
-        self._return += float(reward)
+        self._return += float(reward)  # kept apart from the list: sum() rounds otherwise on Python >= 3.12
         self._rewards.append(float(reward))
 
     def end_episode(self, *, interrupted: bool = False, terminated: bool | None = None) -> EpisodeRecord:

@@ -50,6 +50,7 @@ SEQUENTIAL_RULES = ("cusum", "martingale")
 CUSUM_DRIFT = 1.0
 #: The mixing grid of the martingale's bets e (midpoints of 200 equal cells of (0, 1)).
 _BETS = (np.arange(200) + 0.5) / 200
+_LOG_BETS = np.log(_BETS)
 #: At most this many ID scores kept per bucket (as evenly spaced order statistics).
 _KEEP = 400
 
@@ -179,7 +180,7 @@ class SequentialStatistic:
         self._steps += 1
         self._log_p += math.log(p)
         # ln of the mixture: log-mean-exp over the bets of t ln e + (e - 1) sum ln p.
-        terms = self._steps * np.log(_BETS) + (_BETS - 1.0) * self._log_p
+        terms = self._steps * _LOG_BETS + (_BETS - 1.0) * self._log_p
         top = terms.max()
         self._value = float((top + math.log(np.exp(terms - top).mean())) / math.log(10))
         return self._value
@@ -199,6 +200,6 @@ def sequential_path(rule: str, reference: Reference, scores: np.ndarray) -> np.n
             path[t] = value
         return path
     steps = np.arange(1, len(p) + 1)[:, None]
-    terms = steps * np.log(_BETS) + (_BETS - 1.0) * np.cumsum(np.log(p))[:, None]
+    terms = steps * _LOG_BETS + (_BETS - 1.0) * np.cumsum(np.log(p))[:, None]
     top = terms.max(axis=1, keepdims=True)
     return ((top + np.log(np.exp(terms - top).mean(axis=1, keepdims=True)))[:, 0]) / math.log(10)

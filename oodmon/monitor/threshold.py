@@ -154,7 +154,7 @@ class Threshold:
             (``None``: not recorded).
         rule: ``consecutive`` (m steps in a row, with ``window``), ``cusum`` or ``martingale``
             (see ``sequential``); files written before it existed read as ``consecutive``.
-        reference: a sequential rule's ID scores by time since reset
+        reference: a sequential rule's ID reference scores, pooled or by time since reset
             (:meth:`~oodmon.monitor.sequential.Reference.to_dict`), from episodes apart from the
             calibration ones; ``None`` for ``consecutive``.
     """

@@ -14,7 +14,7 @@ the first such alarm; alarms before the onset are counted as early (false) alarm
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -23,8 +23,8 @@ from oodmon.envs.grid import parse_variant
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "MonitorMetrics", "VariantMetrics", "alarm_events",
-           "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "detectors_in", "failure_step",
-           "fpr_at_tpr"]
+           "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "detectors_in",
+           "failure_step", "fpr_at_tpr", "monitor_row"]
 
 
 @dataclass(frozen=True)
@@ -92,6 +92,23 @@ def detectors_in(logs: Iterable[RunLog]) -> list[str]:
     return [name for name in logs[0].detectors if name in common]
 
 
+def _episodes_by_variant(logs: Iterable[RunLog]) -> dict[tuple[str, str, str], list[tuple[RunLog, EpisodeLog]]]:
+    """Every episode of ``logs`` with its log, grouped by (task, method, variant)."""
+    groups: dict[tuple[str, str, str], list[tuple[RunLog, EpisodeLog]]] = defaultdict(list)
+    for log in logs:
+        for episode in log.episodes:
+            groups[(log.task, log.method, episode.variant)].append((log, episode))
+    return groups
+
+
+def _onset_alarms(episode: EpisodeLog) -> tuple[bool, int | None]:
+    """Whether ``episode``'s first alarm came before its onset (an early, false alarm), and the
+    step of its first alarm at or after the onset (``None``: none)."""
+    events = alarm_events(episode.alarm)
+    after = events[events >= episode.onset]
+    return bool(len(events) and events[0] < episode.onset), int(after[0]) if len(after) else None
+
+
 def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list[VariantMetrics]:
     """Metrics per (task, method, variant) over all episodes of ``logs``, in a stable order.
 
@@ -105,16 +122,12 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     """
     from sklearn.metrics import auc, average_precision_score, roc_curve  # heavy: imported when used
 
-    groups: dict[tuple[str, str, str], list[EpisodeLog]] = defaultdict(list)
-    scores_of: dict[int, np.ndarray] = {}
-    names: dict[tuple[str, str, str], str] = {}
-    alarmed_by: dict[tuple[str, str, str], str] = {}
-    for log in logs:
-        for episode in log.episodes:
-            groups[(log.task, log.method, episode.variant)].append(episode)
-            scores_of[id(episode)] = episode.scores_of(detector)
-            names[(log.task, log.method, episode.variant)] = detector or log.detector
-            alarmed_by[(log.task, log.method, episode.variant)] = log.detector
+    grouped = _episodes_by_variant(logs)
+    groups = {key: [e for _, e in pairs] for key, pairs in grouped.items()}
+    scores_of = {id(e): e.scores_of(detector) for pairs in grouped.values() for _, e in pairs}
+    # The last log of a group names the detector, as before: the runs of one group share it.
+    names = {key: detector or pairs[-1][0].detector for key, pairs in grouped.items()}
+    alarmed_by = {key: pairs[-1][0].detector for key, pairs in grouped.items()}
     id_scores: dict[tuple[str, str], np.ndarray] = {}
     for (task, method, variant), episodes in groups.items():
         if parse_variant(variant).is_id:
@@ -125,9 +138,8 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
         alarms = name == alarmed_by[(task, method, variant)]  # the alarm read this detector's scores
         is_id = parse_variant(variant).is_id
         steps = sum(e.length for e in episodes)
-        firsts = [alarm_events(e.alarm) for e in episodes]
         if is_id:
-            far = float(np.mean([len(f) > 0 for f in firsts])) if alarms else None
+            far = float(np.mean([len(alarm_events(e.alarm)) > 0 for e in episodes])) if alarms else None
             results.append(VariantMetrics(task, method, variant, len(episodes), steps, steps, 0,
                                           None, None, None, far, None, None, None, None, name))
             continue
@@ -144,10 +156,9 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
             fpr95 = float(fprs[np.searchsorted(tprs, 0.95, side="left")])
         early_rate = detection_rate = delay_mean = delay_median = None
         if alarms:
-            early = [bool(len(f) and f[0] < e.onset) for f, e in zip(firsts, episodes)]
-            detected = [f[f >= e.onset] for f, e in zip(firsts, episodes)]
-            delays = [int(d[0] - e.onset) for d, e in zip(detected, episodes) if len(d)]
-            early_rate, detection_rate = float(np.mean(early)), float(np.mean([len(d) > 0 for d in detected]))
+            early, firsts = zip(*(_onset_alarms(e) for e in episodes))
+            delays = [first - e.onset for first, e in zip(firsts, episodes) if first is not None]
+            early_rate, detection_rate = float(np.mean(early)), len(delays) / len(episodes)
             if delays:
                 delay_mean, delay_median = float(np.mean(delays)), float(np.median(delays))
         results.append(VariantMetrics(
@@ -171,6 +182,10 @@ def compute_all_metrics(logs: Iterable[RunLog]) -> list[VariantMetrics]:
 #: radian, ~57 degrees, from upright; a balanced pole scores near 0).
 PENDULUM_FAILURE_WINDOW = 10
 PENDULUM_FAILURE_REWARD = -1.0
+#: :func:`failure_step` in one line, for the reports.
+FAILURE_DEFINITION = ("failed: CartPole's episode ended by itself after the onset; Pendulum's mean reward over the last "
+                      f"{PENDULUM_FAILURE_WINDOW} steps fell below {PENDULUM_FAILURE_REWARD:g} after the onset "
+                      "(oodmon.replay.failure_step); delays in steps from the onset")
 
 
 def failure_step(episode: EpisodeLog, task: str) -> int | None:
@@ -256,35 +271,35 @@ def compute_monitor_metrics(logs: Iterable[RunLog]) -> list[MonitorMetrics]:
     (the alarm the runs raised, whatever detector it read), in a stable order."""
     from oodmon.monitor.threshold import clopper_pearson
 
-    groups: dict[tuple[str, str, str], list[EpisodeLog]] = defaultdict(list)
-    for log in logs:
-        for episode in log.episodes:
-            groups[(log.task, log.method, episode.variant)].append(episode)
     results = []
-    for (task, method, variant), episodes in sorted(groups.items()):
-        firsts = [alarm_events(e.alarm) for e in episodes]
+    for (task, method, variant), pairs in sorted(_episodes_by_variant(logs).items()):
+        episodes = [e for _, e in pairs]
         if parse_variant(variant).is_id:
-            alarmed = sum(len(f) > 0 for f in firsts)
+            alarmed = sum(len(alarm_events(e.alarm)) > 0 for e in episodes)
             low, high = clopper_pearson(alarmed, len(episodes))
             results.append(MonitorMetrics(task, method, variant, len(episodes), false_alarms=alarmed,
                                           far_low=low, far_high=high))
             continue
-        early = alarmed = failed = before = 0
+        early = failed = before = 0
         delays = []
-        for events, e in zip(firsts, episodes):
-            early += bool(len(events) and events[0] < e.onset)
-            after = events[events >= e.onset]
-            first = int(after[0]) if len(after) else None
+        for e in episodes:
+            was_early, first = _onset_alarms(e)
+            early += was_early
             if first is not None:
-                alarmed += 1
                 delays.append(first - e.onset)
             failure = failure_step(e, task)
             if failure is not None:
                 failed += 1
                 before += first is not None and first < failure
-        median = float(np.median(delays)) if delays else None
-        p90 = float(np.quantile(delays, 0.9)) if delays else None
-        results.append(MonitorMetrics(task, method, variant, len(episodes), early=early, alarmed=alarmed,
-                                      failed=failed, before_failure=before, delay_median=median, delay_p90=p90,
-                                      delays=tuple(delays)))
+        results.append(monitor_row(task, method, variant, len(episodes), early, failed, before, delays))
     return results
+
+
+def monitor_row(task: str, method: str, variant: str, episodes: int, early: int, failed: int, before_failure: int,
+                delays: Sequence[int]) -> MonitorMetrics:
+    """The :class:`MonitorMetrics` of shifted episodes from their counts and the delays of the
+    alarmed ones (median and 90th percentile computed here, for one variant or several pooled)."""
+    return MonitorMetrics(task, method, variant, episodes, early=early, alarmed=len(delays), failed=failed,
+                          before_failure=before_failure,
+                          delay_median=float(np.median(delays)) if len(delays) else None,
+                          delay_p90=float(np.quantile(delays, 0.9)) if len(delays) else None, delays=tuple(delays))

@@ -7,10 +7,9 @@ import io
 import json
 from collections.abc import Sequence
 
-import numpy as np
 from rich.table import Table
 
-from oodmon.replay.metrics import MonitorMetrics, VariantMetrics
+from oodmon.replay.metrics import MonitorMetrics, VariantMetrics, monitor_row
 
 __all__ = ["COLUMNS", "MONITOR_COLUMNS", "monitor_cells", "monitor_markdown", "monitor_summary", "monitor_table",
            "to_csv", "to_json", "to_markdown", "to_table"]
@@ -80,16 +79,10 @@ def monitor_summary(metrics: Sequence[MonitorMetrics]) -> list[MonitorMetrics]:
     for m in metrics:
         if not m.is_id:
             pooled.setdefault((m.task, m.method), []).append(m)
-    rows = []
-    for (task, method), group in sorted(pooled.items()):
-        delays = [d for m in group for d in m.delays]
-        rows.append(MonitorMetrics(
-            task, method, "all shifted", sum(m.episodes for m in group), early=sum(m.early or 0 for m in group),
-            alarmed=sum(m.alarmed or 0 for m in group), failed=sum(m.failed or 0 for m in group),
-            before_failure=sum(m.before_failure or 0 for m in group),
-            delay_median=float(np.median(delays)) if delays else None,
-            delay_p90=float(np.quantile(delays, 0.9)) if delays else None, delays=tuple(delays)))
-    return rows
+    return [monitor_row(task, method, "all shifted", sum(m.episodes for m in group), sum(m.early for m in group),
+                        sum(m.failed for m in group), sum(m.before_failure for m in group),
+                        [d for m in group for d in m.delays])
+            for (task, method), group in sorted(pooled.items())]
 
 
 def monitor_cells(m: MonitorMetrics) -> list[str]:
