@@ -116,10 +116,11 @@ def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, 
     detected = [r for r in runs["shifted"] if r.first_alarm_step is not None and r.first_alarm_step >= r.onset]
     early = sum(r.first_alarm_step is not None and r.first_alarm_step < r.onset for r in runs["shifted"])
     delays = [r.first_alarm_step - r.onset for r in detected]
+    falls = ", ".join(str(r.length - r.onset) if r.terminated else "never" for r in runs["shifted"])  # kept up to 500
     console.print(f"2. ID: {false_alarms} of {episodes} episodes raised a (false) alarm; returns "
                   f"{[round(r.total_return) for r in runs['id']]}. -> {out / 'id.mcap'}, {out / 'id.rrd'}")
     console.print(f"3. {DEMO_SHIFT} from step {DEMO_ONSET}: {len(detected)} of {episodes} shifts detected, delays "
-                  f"{delays} steps (the pole falls {[r.length - r.onset for r in runs['shifted']]} steps after the "
-                  f"onset); {early} alarm(s) before the onset. -> {out / 'shifted.mcap'}, {out / 'shifted.rrd'}")
+                  f"{delays} steps (the pole falls [{falls}] steps after the onset); {early} alarm(s) before the onset. "
+                  f"-> {out / 'shifted.mcap'}, {out / 'shifted.rrd'}")
     console.print("Open the logs with `rerun runs/demo/shifted.rrd` or Foxglove; `oodmon run --help` for your own runs.")
     return {"false_alarms": false_alarms, "detected": len(detected), "delays": delays, "early": early}

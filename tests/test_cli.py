@@ -83,9 +83,15 @@ def test_demo_calibrates_monitors_and_logs(tmp_path, capsys):
     assert "Calibrated on 45 held-out ID episodes" in out and "shifts detected" in out
     assert "with probability >= 0.9 over its 45 calibration episodes" in out
     # The demo alarms on the dynamics detector, which sees the longer pole at once (measured: 5 of 5,
-    # delays of 3 steps, no false alarm in the 5 ID episodes).
+    # delays of 1 step with m = 1, no false alarm in the 5 ID episodes).
     assert json.loads((tmp_path / "threshold.json").read_text())["detector"] == "dynamics"
     assert "5 of 5 shifts detected" in out
+    # "falls" counts only episodes the pole ended; one that stays up to the time limit says never.
+    from oodmon.replay import read_log
+
+    shifted = read_log(tmp_path / "shifted.mcap").episodes
+    falls = ", ".join(str(e.length - e.onset) if e.terminated else "never" for e in shifted)
+    assert f"the pole falls [{falls}] steps after the onset" in out and all(e.length < 500 for e in shifted if e.terminated)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["id.mcap", "id.rrd", "shifted.mcap", "shifted.rrd",
                                                           "threshold.json"]
 
