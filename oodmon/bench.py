@@ -397,7 +397,9 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
     folder = _trial_dir(config, method, trial)
     _set_aside_if_made_by_other_weights(Path(config.out), folder, model)
     threshold_path, failing_path = folder / f"threshold-{config.cache_key()}.json", folder / "failing.json"
-    agent = load_agent(model, task=config.task)
+    # Seeded MC sampling (as `oodmon calibrate --seed`): the same bench fits the same detectors and
+    # calibrates the same threshold; unseeded, an MC agent's threshold varied from run to run.
+    agent = load_agent(model, task=config.task, seed=seeds.CALIBRATION)
     detectors_path = _fit_trial_detectors(config, agent, folder, f"{method} trial {trial}", report)
     if not threshold_path.exists():
         from oodmon.monitor.detectors import DetectorSet

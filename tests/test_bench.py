@@ -232,3 +232,17 @@ def test_the_monitors_protocol_shifts_each_episode_at_its_own_onset_and_replays_
     run_bench(replace(config, protocol="paper"))
     assert threshold_file.stat().st_mtime_ns == before
     assert sorted(p.name for p in folder.glob("*.mcap")) == ["cartpole.mcap", "cartpole_length-2.0.mcap"]
+
+
+def test_the_same_bench_calibrates_the_same_threshold_for_an_mc_agent(tmp_path):
+    """The trial's agent samples with a fixed seed: two benches, the same threshold file (an MC
+    Dropout agent's threshold used to vary from run to run)."""
+    common = dict(task="cartpole", methods=("dropout",), trials=1, variants=("cartpole:length=2.0",), episodes=1,
+                  id_episodes=1, eval_episodes=1, calibration_episodes=19, confidence=None, workers=1)
+    thresholds = []
+    for name in ("a", "b"):
+        config = BenchConfig(**common, out=str(tmp_path / name))
+        run_bench(config)
+        path = tmp_path / name / "logs" / f"cartpole-{config.cache_key()}" / "dropout" / "trial0"
+        thresholds.append(json.loads((path / f"threshold-{config.cache_key()}.json").read_text()))
+    assert thresholds[0] == thresholds[1] and thresholds[0]["method"] == "dropout"
