@@ -225,7 +225,7 @@ def _parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--reference-episodes", type=_whole(1), default=20,
                            help="ID episodes a sequential rule's p-values are taken against (default 20; seeds apart)")
     calibrate.add_argument("--reference-by-age", action="store_true",
-                           help="take a sequential rule's p-values against ID steps as old (since reset), not all of them")
+                           help="take a sequential rule's p-values against ID steps as long since reset, not all of them")
     calibrate.add_argument("--mode", choices=["episode", "step"], default="episode",
                            help="guarantee per episode (default) or per step")
     calibrate.add_argument("--score", default="chosen_std",

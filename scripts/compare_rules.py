@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.monitor import calibrate
-from oodmon.monitor.sequential import Reference, sequential_path
+from oodmon.monitor.alarms import AlarmTracker
+from oodmon.monitor.sequential import Reference
 from oodmon.replay import failure_step, read_logs
 
 RULES = [("consecutive", 1, False), ("consecutive", 3, False), ("cusum", 1, False), ("cusum", 1, True),
@@ -28,15 +29,9 @@ RULES = [("consecutive", 1, False), ("consecutive", 3, False), ("cusum", 1, Fals
 
 
 def first_alarm(scores: np.ndarray, rule: str, m: int, threshold: float, reference: Reference | None) -> int | None:
-    if rule == "consecutive":
-        run = 0
-        for t, above in enumerate(scores > threshold):
-            run = run + 1 if above else 0
-            if run >= m:
-                return t
-        return None
-    hits = np.flatnonzero(sequential_path(rule, reference, scores) > threshold)
-    return int(hits[0]) if len(hits) else None
+    """The step of the first alarm the monitor's own rule raises on ``scores``, or None."""
+    tracker = AlarmTracker(threshold, m, rule=rule, reference=reference)
+    return next((step for step, score in enumerate(scores) if tracker.update(0, step, score)[0]), None)
 
 
 def main(folder: str, task: str, detector: str) -> None:
@@ -48,9 +43,8 @@ def main(folder: str, task: str, detector: str) -> None:
         shifted = [e for log in logs for e in log.episodes if e.variant != task]
         for rule, m, by_age in RULES:
             reference = None
-            if rule != "consecutive":
-                pooled = np.concatenate(ids[:20])
-                reference = Reference.from_episodes(ids[:20]) if by_age else Reference([0], [pooled], [len(pooled)])
+            if rule != "consecutive":  # as calibrate_agent builds it
+                reference = Reference.from_episodes(ids[:20], by_age=by_age)
             threshold = calibrate(ids[20:65], 0.05, consecutive=m, rule=rule, reference=reference).value
             false_alarms = sum(first_alarm(s, rule, m, threshold, reference) is not None for s in ids[65:])
             delays, failed, before = [], 0, 0

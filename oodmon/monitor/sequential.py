@@ -69,11 +69,13 @@ def bucket_edges(length: int) -> list[int]:
 
 
 class Reference:
-    """The ID per-step scores of a detector, by time since reset: turns a score into a p-value.
+    """The ID per-step scores of a detector, pooled or in buckets of time since reset: turns a score
+    into a p-value.
 
-    ``p_value(step, score)`` = (1 + n_ge) / (n + 1), where n_ge of the bucket's n reference
+    ``p_value(step, score)`` = (1 + n_ge) / (n + 1), where n_ge of the step's bucket's n reference
     scores are >= ``score``: a conformal p-value, uniform (up to ties) when the step is as ID as
-    the reference's. Buckets (by age): :func:`bucket_edges`; a step past the last edge uses the last.
+    the reference's. Pooled, there is one bucket; by age, :func:`bucket_edges`, and a step past the
+    last edge uses the last bucket.
 
     Example:
         >>> ref = Reference.from_episodes([np.arange(20.0), np.arange(20.0) + 0.5], by_age=True)
@@ -99,12 +101,8 @@ class Reference:
             raise ConfigError("a reference needs ID episodes with at least one step")
         edges = bucket_edges(max(len(e) for e in episodes)) if by_age else [0]
         values, counts = [], []
-        for low, high in zip(edges, [*edges[1:], None]):
-            found = np.concatenate([e[low:high] for e in episodes])
-            if not len(found):  # a bucket only longer-than-usual episodes reach: merge into the previous
-                edges = edges[:len(values)]
-                break
-            found = np.sort(found)
+        for low, high in zip(edges, [*edges[1:], None]):  # every edge is below the longest episode's length
+            found = np.sort(np.concatenate([e[low:high] for e in episodes]))
             counts.append(len(found))
             keep = found if len(found) <= _KEEP else found[np.linspace(0, len(found) - 1, _KEEP).round().astype(int)]
             values.append(keep)
