@@ -91,6 +91,7 @@ class BenchConfig:
     protocol: str = "paper"  # or "monitor": random onsets, alarms before failure (see the module docstring)
     rule: str = "consecutive"  # the alarm rule: consecutive, cusum or martingale (oodmon.monitor.sequential)
     consecutive: int | None = None  # m of the consecutive rule (None: 3 for spread, 1 for a learned detector)
+    all_variants: bool = False  # monitor every variant, not only those the agent fails on (Pong: no failure to wait for)
 
     def __post_init__(self) -> None:
         from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -449,6 +450,11 @@ def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
     return path
 
 
+def _monitored(config: BenchConfig, failing: list[str]) -> list[str]:
+    """The shifted variants a (method, trial) is monitored on: those it fails on, or all of them."""
+    return [v.spec for v in config.variant_list()] if config.all_variants else failing
+
+
 def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], None] | None = None) -> BenchResult:
     """Run (or resume) the bench; return its rows. ``on_progress(stage, done, total)`` reports."""
     from oodmon.replay import compute_metrics, read_log
@@ -467,7 +473,7 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
     cells = []
     for (method, trial), (model, threshold, failing, _) in prepared.items():
         cells.append((method, trial, config.task, config.id_episodes, seeds.BENCH_ID))
-        cells += [(method, trial, spec, config.episodes, seeds.BENCH_SHIFTED) for spec in failing]
+        cells += [(method, trial, spec, config.episodes, seeds.BENCH_SHIFTED) for spec in _monitored(config, failing)]
     jobs = []
     for method, trial, spec, episodes, seed in cells:
         log = _cell_log(config, method, trial, spec)
@@ -487,7 +493,7 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
     detection: dict[str, dict[str, float | None]] = {}
     every_log = []
     for (method, trial), (_, _, failing, _) in prepared.items():
-        logs = [read_log(_cell_log(config, method, trial, spec)) for spec in [config.task, *failing]]
+        logs = [read_log(_cell_log(config, method, trial, spec)) for spec in [config.task, *_monitored(config, failing)]]
         every_log += logs
         for order, detector in enumerate(config.detectors):
             for m in compute_metrics(logs, detector):

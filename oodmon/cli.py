@@ -234,6 +234,8 @@ def _parser() -> argparse.ArgumentParser:
                            help="the detector the alarm reads (default: the task's best measured one when the agent has "
                                 "fitted detectors: cartpole combined, pendulum dynamics, pong features; else spread); "
                                 "a learned one without fitted detectors is fitted first, into <out>.detectors/")
+    calibrate.add_argument("--fit-episodes", type=_whole(3), default=30,
+                           help="ID episodes the learned detectors are fitted on when calibrate fits them (default 30)")
     calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
                            help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
@@ -320,6 +322,9 @@ def _parser() -> argparse.ArgumentParser:
                             "each shifted episode shifts at a random onset, alarms before failure and delays, "
                             "the false-alarm rate over many ID episodes, the task's best detector")
     bench.add_argument("--episodes", type=_whole(1), help="episodes per failing variant (default 5; monitor: 10)")
+    bench.add_argument("--all-variants", action="store_true",
+                       help="monitor every variant, not only those the agent fails on (Pong's corruptions: an alarm "
+                            "is wanted whether or not the return drops)")
     bench.add_argument("--id-episodes", type=_whole(1), help="ID episodes per trial (default 10; monitor: 200)")
     bench.add_argument("--calibration-episodes", type=_whole(1),
                        help="ID episodes the threshold is calibrated on (default 45; monitor protocol: 90)")
@@ -472,13 +477,21 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
     """--task, --method, --model, --detectors; with ``defaults_from`` (a threshold file), the task and
     method default to what it was calibrated for, and the detectors to those fitted beside it."""
     if defaults_from is None:
-        parser.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
+        parser.add_argument("--task", choices=["cartpole", "pendulum", "pong"],
+                            help="a shipped agent's task (required unless --sb3)")
     else:
         parser.add_argument("--task", choices=["cartpole", "pendulum", "pong"], help=f"default: {defaults_from} task")
     parser.add_argument("--method", choices=["dropout", "dropconnect", "ensemble"],
                         help="a shipped agent (or give --model)" if defaults_from is None
                         else f"a shipped agent (default: {defaults_from} method, unless --model)")
     parser.add_argument("--model", help="a trained model directory instead of a shipped agent")
+    parser.add_argument("--sb3", nargs="+", metavar="ZIP",
+                        help="your own stable-baselines3 model file(s) (DQN, DDPG, TD3, SAC, PPO, A2C), with --env; the "
+                             "first is the deployed policy, several DQN or DDPG/TD3 models also form an ensemble detector. "
+                             "SB3's loader unpickles: give only files you trust")
+    parser.add_argument("--env", metavar="ID", help="the gymnasium env id the --sb3 models act in, e.g. CartPole-v1")
+    parser.add_argument("--mean", action="store_true",
+                        help="with several --sb3 models: deploy the ensemble's mean decision, not the first model's")
     parser.add_argument("--detectors", metavar="DIR",
                         help="fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside "
                              "the threshold file, else those shipped with the agent, if any)")
@@ -498,12 +511,14 @@ def _calibrate(args: argparse.Namespace) -> int:
     agent = _load_agent(args, seed=args.seed)  # the same --seed, the same threshold, for MC agents too
     detectors = detectors_for(agent, args.detectors)
     fitted_to = None
-    if args.detector not in (None, "spread") and detectors is None:  # fit them first, on episodes of their own
+    # A learned detector asked for, or a model from elsewhere (a plain policy has no spread; an SB3
+    # ensemble's spread is weak): fit them first, on episodes of their own.
+    if detectors is None and (args.detector not in (None, "spread") or agent.estimator is None or agent.env_id):
         fitted_to = Path(f"{args.out}.detectors")
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
         with Progress(console=Console(stderr=True), transient=True) as progress:
-            bar = progress.add_task("ID episodes for the detectors", total=DEFAULT_FIT_EPISODES)
-            detectors = fit_agent_detectors(agent, score=args.score,
+            bar = progress.add_task("ID episodes for the detectors", total=args.fit_episodes)
+            detectors = fit_agent_detectors(agent, score=args.score, episodes=args.fit_episodes,
                                             on_episode=lambda i: progress.update(bar, advance=1))
         detectors.save(fitted_to)
     with Progress(console=Console(stderr=True), transient=True) as progress:
@@ -522,8 +537,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         + (f"; fitted the detectors into {fitted_to} (`oodmon run` finds them there)"
            if fitted_to else "")
     )
-    best = BEST_DETECTOR.get(args.task, "spread")
-    if args.detector is None and threshold.detector != best:
+    best = BEST_DETECTOR.get(args.task)
+    if best is not None and args.detector is None and threshold.detector != best:
         Console(stderr=True, soft_wrap=True).print(
             f"note: the {best} detector separates {args.task}'s shifts better than {threshold.detector}; "
             f"`--detector {best}` fits it first (about {DEFAULT_FIT_EPISODES} more ID episodes)")
@@ -553,23 +568,31 @@ def _fit_detectors(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
-    from oodmon.envs import Variant, parse_variant
+    from oodmon.envs import TASKS, Variant, parse_variant
     from oodmon.monitor import McapSink, Monitor, Threshold
     from oodmon.monitor.sinks.rerun import RerunSink
+    from oodmon.replay.metrics import is_id_variant
 
     from oodmon.outputs import check_output_file
 
-    variant = parse_variant(args.variant) if args.variant else Variant(args.task)
-    if variant.task != args.task:
-        raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant")
     inputs = [("--threshold", args.threshold), ("--model", args.model and f"{args.model}/model.safetensors"),
-              ("--model", args.model and f"{args.model}/model.json")]
+              ("--model", args.model and f"{args.model}/model.json"), *[("--sb3", path) for path in args.sb3 or ()]]
     if args.mcap:
         check_output_file(args.mcap, parameter="--mcap", inputs=inputs)
     if args.rrd:
         check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
     threshold = Threshold.load(args.threshold) if args.threshold else None
     agent = _load_agent(args)
+    if args.variant:
+        variant = parse_variant(args.variant)
+        if variant.task != args.task:
+            raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant"
+                              + ("" if args.task in TASKS else f" (oodmon has no variants of {args.task})"))
+        env, label = variant.make(onset_step=args.onset), variant.spec
+    elif agent.env_id is not None:  # your own model in its own env, as you deploy it
+        env, label = agent.make_env(), agent.env_id
+    else:
+        env, label = Variant(args.task).make(onset_step=args.onset), args.task
     detectors = _detectors(args, agent)
     sinks = []
     if args.mcap:
@@ -585,25 +608,24 @@ def _run(args: argparse.Namespace) -> int:
         progress.console.print(f"[bold red]ALARM[/bold red] episode {event.episode} step {event.step}: "
                                f"score {event.score:.4g} > {event.threshold:.4g} ({event.rule})")
 
-    env = variant.make(onset_step=args.onset)
     records = []
     with Progress(console=console, transient=True) as progress, \
             Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show], strict=args.strict,
                     force=args.force) as monitor:
         if args.serve:
             progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")
-        bar = progress.add_task(f"{variant.spec} (onset {args.onset})", total=args.episodes)
+        bar = progress.add_task(f"{label} (onset {args.onset})", total=args.episodes)
         for episode in range(args.episodes):
-            records.append(monitor.run_episode(env, seed=args.seed + episode, variant=variant.spec))
+            records.append(monitor.run_episode(env, seed=args.seed + episode))
             progress.update(bar, advance=1)
         failures = dict(monitor.sinks.failures)
     env.close()
-    table = Table(title=f"{args.task}/{agent.method} in {variant.spec}, onset {args.onset}"
+    table = Table(title=f"{args.task}/{agent.method} in {label}, onset {args.onset}"
                         + (f", {threshold.rule_text}" if threshold else ", no threshold"))
     for column in ("episode", "seed", "return", "length", "alarms", "first alarm", "delay"):
         table.add_column(column, justify="right")
     for record in records:
-        if record.first_alarm_step is None or variant.is_id:
+        if record.first_alarm_step is None or is_id_variant(record.variant):
             delay = ""
         elif record.first_alarm_step < record.onset:
             delay = "before onset"
@@ -728,7 +750,8 @@ def _bench(args: argparse.Namespace) -> int:
                          window=args.window, detectors=detectors, alarm_detector=alarm_detector, obs_noise=args.obs_noise,
                          calibration_episodes=args.calibration_episodes or (90 if monitor else 45), far=args.far,
                          confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
-                         protocol=args.protocol, rule=args.rule, consecutive=args.consecutive)
+                         protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
+                         all_variants=args.all_variants)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.outputs import check_output_dir
 
@@ -859,9 +882,26 @@ def _validate(args: argparse.Namespace) -> int:
 
 
 def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
-    """The agent of --model or --task/--method; ``seed`` seeds its MC sampling (None: fresh entropy)."""
+    """The agent of --sb3/--env, --model or --task/--method; ``seed`` seeds its MC sampling (None:
+    fresh entropy). Sets ``args.task`` from --env for --sb3 models."""
     from oodmon.agents import load, load_agent
 
+    if getattr(args, "sb3", None):  # commands without the --sb3 options (evaluate) have none
+        from oodmon.agents.sb3 import load_sb3
+
+        if not args.env:
+            raise ConfigError("--sb3 needs --env: the gymnasium env id the models act in (e.g. CartPole-v1)")
+        if args.model or args.method:
+            raise ConfigError("--sb3 is instead of --model and --method: give one of them")
+        agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed)
+        if args.task and args.task != agent.task:
+            raise ConfigError(f"--task {args.task} contradicts --env {args.env} (task {agent.task})")
+        args.task = agent.task
+        return agent
+    if getattr(args, "env", None) or getattr(args, "mean", False):
+        raise ConfigError("--env and --mean go with --sb3 (your own SB3 models)")
+    if not args.task:
+        raise ConfigError("give --task with --method or --model (or --sb3 with --env for your own SB3 models)")
     if args.model:
         return load_agent(args.model, task=args.task, seed=seed)
     if not args.method:

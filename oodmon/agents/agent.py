@@ -6,55 +6,86 @@ package; :func:`load_agent` loads one from any directory written by training.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import gymnasium
 import numpy as np
 
 from oodmon.agents.estimators import Estimate, UncertaintyEstimator
 from oodmon.agents.networks import estimator_for
 from oodmon.agents.serialization import load_modules
-from oodmon.errors import ModelFormatError, UnknownParameterError
+from oodmon.errors import ConfigError, ModelFormatError, UnknownParameterError
 
 __all__ = ["Agent", "load", "load_agent", "zoo_dir", "zoo_names"]
 
 
 @dataclass
 class Agent:
-    """An uncertainty-aware policy.
+    """An uncertainty-aware policy, or a policy someone else trained (:mod:`oodmon.agents.sb3`).
 
     Attributes:
-        estimator: computes the deployed action and the K samples behind it.
-        metadata: the model's JSON metadata (task, method, training, ID return, versions).
+        estimator: computes the deployed action and the K samples behind it; ``None`` for a plain
+            policy with nothing to sample (one SB3 model), which only learned detectors can watch.
+        metadata: the model's JSON metadata (task, method, training, ID return, versions; for
+            models from elsewhere, their files, hashes and env id).
         path: where the model was loaded from (``None`` for an agent built in memory).
+        deploy: the deployed policy ``obs -> action`` when it is not the estimator's decision
+            (the first of several SB3 models, as deployed, while the ensemble only scores).
     """
 
-    estimator: UncertaintyEstimator
+    estimator: UncertaintyEstimator | None
     metadata: dict[str, Any]
     path: Path | None = None
+    deploy: Callable[[np.ndarray], Any] | None = None
 
     @property
     def task(self) -> str:
+        """oodmon's task name, or for a model of another env, that env's id."""
         return self.metadata["task"]
 
     @property
     def method(self) -> str:
         return self.metadata["method"]
 
+    @property
+    def env_id(self) -> str | None:
+        """The gymnasium env id the model was loaded for (``None``: the task's own oodmon env)."""
+        return self.metadata.get("env_id")
+
     def estimate(self, obs: np.ndarray) -> Estimate:
         """The deployed action and the K samples for one observation or a batch."""
+        if self.estimator is None:
+            raise ConfigError(f"{self!r} has no samples to estimate from (a plain policy); it acts with act()")
         return self.estimator.estimate(obs)
 
     def act(self, obs: np.ndarray) -> int | np.ndarray:
         """The deployed action for one observation: an int (DQN) or an action array (DDPG)."""
+        if self.deploy is not None:
+            return self.deploy(obs)
         action = self.estimator.estimate(obs).action[0]
         return int(action) if self.estimator.kind == "q_values" else action
 
+    def make_env(self, obs_noise: float = 0.0) -> gymnasium.Env:
+        """The ID env this agent acts in: its task's oodmon env, or the gymnasium env id it was
+        loaded for (``gymnasium.make(env_id)``; sensor noise is oodmon's envs' option only)."""
+        from oodmon.envs.grid import Variant
+        from oodmon.envs.registration import task_of_env
+
+        if self.env_id is None or (obs_noise and task_of_env(self.env_id)):
+            task = self.task if self.env_id is None else task_of_env(self.env_id)
+            return Variant(task).make(obs_noise=obs_noise) if obs_noise else Variant(task).make()
+        if obs_noise:
+            raise ConfigError(f"obs_noise is an option of oodmon's envs; {self.env_id} has no such option")
+        return gymnasium.make(self.env_id)
+
     def __repr__(self) -> str:
         ret = self.metadata.get("id_return_mean")
-        return f"Agent({self.task}, {self.method}, K={self.estimator.n_samples}, id_return_mean={ret}, path={self.path})"
+        k = "none (plain policy)" if self.estimator is None else self.estimator.n_samples
+        return f"Agent({self.task}, {self.method}, K={k}, id_return_mean={ret}, path={self.path})"
 
 
 def load_agent(directory: str | Path, *, task: str | None = None, n_samples: int | None = None,

@@ -4,7 +4,48 @@ from __future__ import annotations
 
 import gymnasium
 
-__all__ = ["register_envs"]
+__all__ = ["TASK_OF_ENV", "register_envs", "task_of_env", "variant_of_env"]
+
+#: The oodmon task whose variants shift an env: gymnasium's own ids and oodmon's (the same
+#: physics, observations and spaces; oodmon's can shift).
+TASK_OF_ENV = {"CartPole-v1": "cartpole", "oodmon/CartPole-v1": "cartpole",
+               "Pendulum-v1": "pendulum", "oodmon/Pendulum-v1": "pendulum", "oodmon/Pong-v5": "pong"}
+
+
+def task_of_env(env_id: str) -> str | None:
+    """The oodmon task of a gymnasium env id, or ``None`` (an env oodmon has no variants of).
+
+    Example:
+        >>> task_of_env("CartPole-v1"), task_of_env("Acrobot-v1")
+        ('cartpole', None)
+    """
+    return TASK_OF_ENV.get(env_id)
+
+
+def variant_of_env(env: gymnasium.Env) -> str:
+    """The variant spec a monitor records for ``env``: the shift an oodmon env was made with
+    (``cartpole:length=2.0``), the task for an unshifted one or for gymnasium's own id of it
+    (``CartPole-v1`` -> ``cartpole``), else the env's id (an env oodmon has no variants of,
+    whose episodes replay counts as in-distribution).
+
+    Example:
+        >>> variant_of_env(gymnasium.make("oodmon/CartPole-v1", length=2.0))
+        'cartpole:length=2.0'
+        >>> variant_of_env(gymnasium.make("CartPole-v1")), variant_of_env(gymnasium.make("Acrobot-v1"))
+        ('cartpole', 'Acrobot-v1')
+    """
+    from oodmon.envs.grid import Variant
+
+    base = env.unwrapped
+    spec_id = env.spec.id if env.spec is not None else type(base).__name__
+    task = task_of_env(spec_id)
+    if task is None:
+        return spec_id
+    physics = getattr(base, "shifted_physics", None)
+    if physics is not None and hasattr(base, "DEFAULTS"):
+        changed = {name: value for name, value in physics.items() if base.DEFAULTS.get(name) != value}
+        return Variant(task, tuple(sorted(changed.items()))).spec
+    return getattr(base, "variant_spec", None) or task
 
 
 def register_envs() -> None:

@@ -14,7 +14,6 @@ import numpy as np
 
 from oodmon import seeds
 from oodmon.agents.agent import Agent
-from oodmon.envs.grid import Variant
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import default_consecutive
 from oodmon.monitor.detectors import DetectorSet, best_detector
@@ -40,7 +39,7 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
     and ``sinks`` (seeds ``seed`` on, sensor noise ``obs_noise``); the alarm detector's per-step
     scores of each."""
     sink = MemorySink()
-    env = Variant(agent.task).make(obs_noise=obs_noise) if obs_noise else Variant(agent.task).make()
+    env = agent.make_env(obs_noise)
     with Monitor(agent, sinks=[sink, *sinks], log_observations=False, **settings) as monitor:
         for episode in range(episodes):
             monitor.run_episode(env, seed=seed + episode, variant=agent.task)

@@ -20,7 +20,10 @@ from __future__ import annotations
 
 import atexit
 import hashlib
+import json
 import math
+import shlex
+import sys
 import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -30,6 +33,7 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import UncertaintyEstimator
+from oodmon.envs.registration import variant_of_env
 from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
@@ -48,10 +52,23 @@ AlarmCallback = Callable[[AlarmEvent], "bool | None"]
 
 def policy_hash(agent: Agent | None) -> str:
     """``sha256:<hex>`` of an agent's ``model.safetensors``, or ``"unknown"`` (no file behind it)."""
+    if agent is not None and agent.metadata.get("policy_hash"):
+        return agent.metadata["policy_hash"]  # models from elsewhere: the hash of their files
     if agent is None or agent.path is None:
         return "unknown"
     path = agent.path / "model.safetensors"
     return "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "unknown"
+
+
+def run_about(metadata: dict[str, Any]) -> dict[str, str]:
+    """:attr:`RunInfo.about` of a run of the agent with ``metadata``: the command line, and the
+    env id and model files of a model from elsewhere (:mod:`oodmon.agents.sb3`)."""
+    about = {"command": shlex.join(sys.argv)}
+    if metadata.get("env_id"):
+        about["env_id"] = str(metadata["env_id"])
+    if metadata.get("models"):
+        about["models"] = json.dumps(metadata["models"])
+    return about
 
 
 class Monitor:
@@ -114,7 +131,7 @@ class Monitor:
         force: bool = False,
     ) -> None:
         if isinstance(policy, Agent):
-            self.agent, self.estimator, self._act = policy, policy.estimator, None
+            self.agent, self.estimator, self._act = policy, policy.estimator, policy.deploy
         elif isinstance(policy, UncertaintyEstimator):
             self.agent, self.estimator, self._act = None, policy, None
         elif policy is None or callable(policy):
@@ -201,6 +218,7 @@ class Monitor:
                 task=meta.get("task", "unknown"), method=meta.get("method", "unknown"), score=self.score_name,
                 threshold=self.threshold, rule=self.tracker.rule, policy_hash=self.policy_hash,
                 versions=library_versions(), detector=self.detector, detectors=tuple(self.detectors.names),
+                about=run_about(meta),
             ))
             self._opened = True
             atexit.register(self.close)
@@ -262,11 +280,11 @@ class Monitor:
             raise ConfigError("Monitor.step before begin_episode: start an episode first (or use run_episode)")
         estimate = self.estimator.estimate(obs) if self.estimator is not None else None
         if action is None:
-            if estimate is not None:
+            if self._act is not None:  # a plain policy, or an agent whose samples do not decide
+                action = self._act(obs)
+            elif estimate is not None:
                 raw = estimate.action[0]
                 action = int(raw) if self.estimator.kind == "q_values" else np.asarray(raw)
-            elif self._act is not None:
-                action = self._act(obs)
             else:
                 raise ConfigError("this monitor has no policy to act: pass the deployed action, step(obs, action=a)")
         context = StepContext(obs, action, estimate, self._prev_obs, self._prev_action, {})
@@ -328,7 +346,7 @@ class Monitor:
         base = env.unwrapped
         spec_id = env.spec.id if env.spec is not None else type(base).__name__
         obs, info = env.reset(seed=seed, options=options)
-        self.begin_episode(env_id=spec_id, variant=variant or spec_id, onset=int(getattr(base, "onset_step", 0)),
+        self.begin_episode(env_id=spec_id, variant=variant or variant_of_env(env), onset=int(getattr(base, "onset_step", 0)),
                            seed=seed)
         try:
             while True:
@@ -379,7 +397,7 @@ class MonitoredEnv(gymnasium.Wrapper):
             self.monitor.end_episode()
         obs, info = self.env.reset(seed=seed, options=options)
         spec_id = self.env.spec.id if self.env.spec is not None else type(self.env.unwrapped).__name__
-        self.monitor.begin_episode(env_id=spec_id, variant=self.variant or spec_id,
+        self.monitor.begin_episode(env_id=spec_id, variant=self.variant or variant_of_env(self.env),
                                    onset=int(getattr(self.env.unwrapped, "onset_step", 0)), seed=seed)
         self._obs, self._info = obs, info
         return obs, info

@@ -111,9 +111,14 @@ class RunInfo:
     versions: dict[str, str]
     detector: str = "spread"
     detectors: tuple[str, ...] = ("spread",)
+    #: Where the policy came from and how the run was started: ``command`` (the process's command
+    #: line), and for models from elsewhere ``env_id`` and ``models`` (JSON: each file's path,
+    #: sha256 and algorithm).
+    about: dict[str, str] = field(default_factory=dict)
 
     def to_strings(self) -> dict[str, str]:
         """MCAP metadata holds strings only."""
         return {"task": self.task, "method": self.method, "score": self.score, "threshold": repr(self.threshold),
                 "rule": self.rule, "policy_hash": self.policy_hash, "detector": self.detector,
-                "detectors": ",".join(self.detectors), **{f"version.{k}": v for k, v in self.versions.items()}}
+                "detectors": ",".join(self.detectors), **{f"version.{k}": v for k, v in self.versions.items()},
+                **{f"about.{k}": v for k, v in self.about.items()}}

@@ -20,11 +20,12 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from oodmon.envs.grid import parse_variant
+from oodmon.errors import OodmonError
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "MonitorMetrics", "VariantMetrics", "alarm_events",
            "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "detectors_in",
-           "failure_step", "fpr_at_tpr", "monitor_row"]
+           "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row"]
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,20 @@ def _onset_alarms(episode: EpisodeLog) -> tuple[bool, int | None]:
     return bool(len(events) and events[0] < episode.onset), int(after[0]) if len(after) else None
 
 
+def is_id_variant(variant: str) -> bool:
+    """Whether a logged variant is in-distribution: an oodmon task's default env, or an env
+    oodmon has no variants of (a user's own env id, whose runs are not shifted).
+
+    Example:
+        >>> is_id_variant("cartpole"), is_id_variant("cartpole:length=2.0"), is_id_variant("Acrobot-v1")
+        (True, False, True)
+    """
+    try:
+        return parse_variant(variant).is_id
+    except OodmonError:
+        return True
+
+
 def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list[VariantMetrics]:
     """Metrics per (task, method, variant) over all episodes of ``logs``, in a stable order.
 
@@ -130,13 +145,13 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     alarmed_by = {key: pairs[-1][0].detector for key, pairs in grouped.items()}
     id_scores: dict[tuple[str, str], np.ndarray] = {}
     for (task, method, variant), episodes in groups.items():
-        if parse_variant(variant).is_id:
+        if is_id_variant(variant):
             id_scores[(task, method)] = np.concatenate([scores_of[id(e)] for e in episodes])
     results = []
     for (task, method, variant), episodes in sorted(groups.items()):
         name = names[(task, method, variant)]
         alarms = name == alarmed_by[(task, method, variant)]  # the alarm read this detector's scores
-        is_id = parse_variant(variant).is_id
+        is_id = is_id_variant(variant)
         steps = sum(e.length for e in episodes)
         if is_id:
             far = float(np.mean([len(alarm_events(e.alarm)) > 0 for e in episodes])) if alarms else None
@@ -274,7 +289,7 @@ def compute_monitor_metrics(logs: Iterable[RunLog]) -> list[MonitorMetrics]:
     results = []
     for (task, method, variant), pairs in sorted(_episodes_by_variant(logs).items()):
         episodes = [e for _, e in pairs]
-        if parse_variant(variant).is_id:
+        if is_id_variant(variant):
             alarmed = sum(len(alarm_events(e.alarm)) > 0 for e in episodes)
             low, high = clopper_pearson(alarmed, len(episodes))
             results.append(MonitorMetrics(task, method, variant, len(episodes), false_alarms=alarmed,

@@ -17,7 +17,7 @@ import numpy as np
 from sklearn.metrics import roc_curve
 
 from oodmon.envs.grid import parse_variant
-from oodmon.replay.metrics import VariantMetrics, alarm_events
+from oodmon.replay.metrics import VariantMetrics, alarm_events, is_id_variant
 from oodmon.replay.reader import RunLog
 
 __all__ = ["plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_plots"]
@@ -38,7 +38,7 @@ def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str) -> tup
         if log.method != method:
             continue
         for episode in log.episodes:
-            if parse_variant(episode.variant).is_id:
+            if is_id_variant(episode.variant):
                 negatives.append(episode.scores)
             elif episode.variant == variant:
                 negatives.append(episode.scores[~episode.shifted])
@@ -80,7 +80,7 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
         if log.method != method:
             continue
         for episode in log.episodes:
-            if id_episode is None and parse_variant(episode.variant).is_id:
+            if id_episode is None and is_id_variant(episode.variant):
                 id_episode, threshold = episode, log.threshold
             if shifted_episode is None and episode.variant == variant:
                 shifted_episode, threshold = episode, log.threshold

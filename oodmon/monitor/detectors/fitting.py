@@ -39,10 +39,15 @@ BEST_DETECTOR = {"cartpole": "combined", "pendulum": "dynamics", "pong": "featur
 
 
 def best_detector(task: str | None, detectors: DetectorSet | None) -> str:
-    """The detector an alarm reads by default: the task's best (:data:`BEST_DETECTOR`) when
-    ``detectors`` has it fitted, else ``spread``."""
-    best = BEST_DETECTOR.get(task or "")
-    return best if best is not None and detectors is not None and best in detectors else "spread"
+    """The detector an alarm reads by default: the task's best (:data:`BEST_DETECTOR`; for an env
+    oodmon has not measured, ``combined``) when ``detectors`` has it fitted, else ``spread``, or
+    for a plain policy (no ``spread``) the set's last detector."""
+    best = BEST_DETECTOR.get(task or "", "combined")
+    if detectors is not None and best in detectors:
+        return best
+    if detectors is not None and len(detectors) and "spread" not in detectors:
+        return detectors.names[-1]
+    return "spread"
 
 
 def policy_parts(policy: Any) -> tuple[Any, Callable[[np.ndarray], Any], dict]:
@@ -68,6 +73,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     """Play ``episodes`` episodes of ``env`` (seeds ``seed``, ``seed + 1``, ...) with ``policy``
     (each cut after ``max_steps`` steps if given)."""
     estimator, act, _ = policy_parts(policy)
+    deploy = getattr(policy, "deploy", None)  # an Agent whose deployed policy is not its estimator's decision
     trajectories = []
     for episode in range(episodes):
         obs, _ = env.reset(seed=seed + episode)
@@ -76,7 +82,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
             if estimator is not None:
                 estimate = estimator.estimate(obs)
                 raw = estimate.action[0]
-                action = int(raw) if estimator.kind == "q_values" else np.asarray(raw)
+                action = deploy(obs) if deploy is not None else int(raw) if estimator.kind == "q_values" else np.asarray(raw)
                 if estimate.features is not None:
                     features.append(estimate.features[0])
             else:
@@ -174,10 +180,9 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
                         seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE, obs_noise: float = 0.0,
                         max_steps: int | None = None, on_episode: Callable[[int], None] | None = None) -> DetectorSet:
     """:func:`fit_detectors` for an oodmon agent in its task's ID env (with ``obs_noise``)."""
-    from oodmon.envs.grid import Variant
     from oodmon.monitor.monitor import policy_hash
 
-    env = Variant(agent.task).make(obs_noise=obs_noise) if obs_noise else Variant(agent.task).make()
+    env = agent.make_env(obs_noise)
     try:
         return fit_detectors(agent, env, detectors=detectors, episodes=episodes, seed=seed, score=score,
                              task=agent.task, policy_hash=policy_hash(agent), obs_noise=obs_noise,

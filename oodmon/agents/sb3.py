@@ -1,0 +1,155 @@
+"""Your own stable-baselines3 models as an oodmon :class:`~oodmon.agents.Agent`.
+
+``load_sb3(["a.zip", "b.zip"], "CartPole-v1")`` gives an agent the monitor, the calibration and
+the detectors' fitting take like a shipped one:
+
+- it **acts as deployed**: the first model's ``predict(obs, deterministic=True)``, never an
+  average the user did not deploy (``mean=True`` deploys the ensemble's mean instead);
+- one model has no samples to spread: the learned detectors (``dynamics``, and ``combined``)
+  watch it; several DQN, or several DDPG/TD3, models are also an ensemble whose spread and
+  features are detectors (:func:`~oodmon.agents.networks.estimator_from_sb3`). Other algorithms
+  (SAC, PPO, A2C) are watched by the learned detectors only;
+- its metadata record each model's path and sha256, the algorithm and the env id; its policy hash
+  (what thresholds and fitted detectors are checked against) is the hash of those files.
+
+Loading goes through SB3's own ``load``, which **unpickles** parts of the ``.zip``: it runs code
+from the file. Load only models you trust, as with SB3 itself. (oodmon's own models are tensors
+plus JSON and never unpickle.) The algorithm is read from the zip's ``data`` JSON before that.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import zipfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from oodmon.agents.agent import Agent
+from oodmon.errors import ConfigError
+
+__all__ = ["SB3_ALGORITHMS", "load_sb3", "sb3_algorithm"]
+
+#: SB3's policy modules and the algorithm classes that load them (first match that loads wins:
+#: A2C and PPO share a policy class; DDPG's policy is TD3's and loads as TD3 for acting).
+SB3_ALGORITHMS = {
+    "stable_baselines3.dqn.policies": ("DQN",),
+    "stable_baselines3.td3.policies": ("TD3", "DDPG"),
+    "stable_baselines3.sac.policies": ("SAC",),
+    "stable_baselines3.common.policies": ("PPO", "A2C"),
+}
+
+
+def file_sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
+    """The SB3 algorithm classes that can load the model file ``path``, read from its ``data``
+    JSON without loading (unpickling) anything.
+
+    Raises:
+        ConfigError: a missing file, or one that is not an SB3 model of a supported algorithm.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path} does not exist (an SB3 model is the .zip that model.save() wrote)")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+        module = data["policy_class"]["__module__"]
+    except (zipfile.BadZipFile, KeyError, TypeError, ValueError):
+        raise ConfigError(f"{path} is not a stable-baselines3 model file (a .zip with a 'data' entry naming its "
+                          "policy class)") from None
+    if module not in SB3_ALGORITHMS:
+        raise ConfigError(f"{path} holds a policy of {module}; oodmon loads DQN, DDPG, TD3, SAC, PPO and A2C models")
+    return SB3_ALGORITHMS[module]
+
+
+def _load_one(path: Path) -> tuple[Any, str]:
+    import stable_baselines3
+
+    errors = []
+    for name in sb3_algorithm(path):
+        try:
+            return getattr(stable_baselines3, name).load(path, device="cpu"), name
+        except Exception as error:  # noqa: BLE001  (the next class of the same policy may load it)
+            errors.append(f"{name}: {error}")
+    raise ConfigError(f"stable-baselines3 could not load {path}: {'; '.join(errors)}")
+
+
+def _check_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str) -> None:
+    for what in ("observation_space", "action_space"):
+        theirs, ours = getattr(model, what), getattr(env, what)
+        if type(theirs) is not type(ours) or getattr(theirs, "shape", None) != getattr(ours, "shape", None) \
+                or getattr(theirs, "n", None) != getattr(ours, "n", None):
+            raise ConfigError(f"{path} was trained with the {what} {theirs}; {env_id} has {ours}: "
+                              "a model of another env?")
+
+
+def _deployed(model: Any, discrete: bool):
+    def act(obs: np.ndarray) -> int | np.ndarray:
+        action, _ = model.predict(obs, deterministic=True)
+        return int(action) if discrete else np.asarray(action)
+    return act
+
+
+def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_samples: int = 20,
+             seed: int | None = None) -> Agent:
+    """An :class:`~oodmon.agents.Agent` of the SB3 models in ``paths``, acting in ``env_id``.
+
+    Args:
+        paths: SB3 ``.zip`` files; the first is the deployed policy.
+        env_id: any registered gymnasium env id (oodmon's or not) the models act in.
+        mean: deploy the ensemble's mean decision instead of the first model's (several DQN or
+            DDPG/TD3 models only).
+        n_samples, seed: MC sampling of one model that has dropout layers.
+
+    Raises:
+        ConfigError: no paths, a file that is not an SB3 model, spaces that do not match the env,
+            or ``mean`` without an ensemble.
+    """
+    from oodmon.agents.networks import estimator_from_sb3
+    from oodmon.envs.registration import task_of_env
+
+    if isinstance(paths, (str, Path)) or not paths:
+        raise ConfigError("give one or more SB3 model files (a list of paths)")
+    paths = [Path(p) for p in paths]
+    for path in paths:
+        sb3_algorithm(path)  # every file checked before any is unpickled
+    try:
+        env = gymnasium.make(env_id)
+    except gymnasium.error.Error as error:
+        raise ConfigError(f"--env {env_id}: {error}") from None
+    loaded = [_load_one(path) for path in paths]
+    for (model, _), path in zip(loaded, paths):
+        _check_spaces(model, path, env, env_id)
+    env.close()
+    models = [model for model, _ in loaded]
+    estimator = None  # SAC, PPO, A2C: networks oodmon does not sample; the learned detectors watch them
+    if {name for _, name in loaded} in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"}):
+        try:
+            estimator = estimator_from_sb3(models, n_samples=n_samples, seed=seed)
+        except ConfigError:
+            pass  # one model without dropout: nothing to sample
+    if mean and estimator is None:
+        raise ConfigError("--mean deploys the ensemble's mean: give several DQN, or several DDPG/TD3, models")
+    hashes = [file_sha256(path) for path in paths]
+    combined = hashes[0] if len(hashes) == 1 else hashlib.sha256(
+        ("\n".join(hashes) + ("\nmean" if mean else "")).encode()).hexdigest()
+    metadata = {
+        "task": task_of_env(env_id) or env_id,
+        "method": "sb3",
+        "algorithm": loaded[0][1].lower(),
+        "env_id": env_id,
+        "deployed": "ensemble mean" if mean else f"{paths[0]} (the first model)",
+        "models": [{"path": str(path.resolve()), "sha256": digest, "algorithm": name}
+                   for path, digest, (_, name) in zip(paths, hashes, loaded)],
+        "policy_hash": "sha256:" + combined,
+    }
+    discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
+    return Agent(estimator, metadata, None, None if mean else _deployed(models[0], discrete))

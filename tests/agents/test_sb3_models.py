@@ -1,0 +1,139 @@
+"""Your own SB3 policy: the README's "Monitor your own SB3 policy" section run as written, the
+deployed returns equal SB3's own, and a TD3 on Pendulum-v1 watched by the dynamics detector."""
+
+from __future__ import annotations
+
+import json
+import re
+import shlex
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import DQN, TD3
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from oodmon.agents.sb3 import load_sb3, sb3_algorithm
+from oodmon.cli import main
+from oodmon.errors import ConfigError
+from oodmon.monitor import McapSink, Monitor
+from oodmon.replay import read_log
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+def _section_blocks() -> tuple[str, list[list[str]]]:
+    """The section's Python snippet and its oodmon commands (continuation lines joined)."""
+    text = README.read_text()
+    section = text[text.index("### Monitor your own SB3 policy"):]
+    block = re.search(r"```sh\n(.*?)```", section, re.S).group(1)
+    python = re.search(r'\.venv/bin/python -c "\n(.*?)\n"\n', block, re.S).group(1)
+    commands = block[block.index('\n"\n') + 3:].replace("\\\n", " ")
+    return python, [shlex.split(line)[1:] for line in commands.splitlines() if line.startswith("oodmon ")]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_torch_thread():
+    """Small networks: one thread is fastest (and 3x faster than two beside another job)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def readme_run(one_torch_thread, tmp_path_factory):
+    """The section's snippet and commands, run in a fresh folder; the models and the outputs."""
+    folder = tmp_path_factory.mktemp("sb3")
+    (folder / "runs").mkdir()
+    python, commands = _section_blocks()
+    outputs = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(folder)
+        exec(compile(python, "README snippet", "exec"), {})
+        for argv in commands:
+            outputs.append((argv, main(argv)))
+    return folder, commands, outputs
+
+
+def test_the_readme_section_runs_as_written_and_replay_shows_the_detection(readme_run, capsys):
+    folder, commands, outputs = readme_run
+    assert [argv[0] for argv in commands] == ["calibrate", "run", "replay"]
+    assert all(code == 0 for _, code in outputs), outputs
+    threshold = json.loads((folder / "runs/dqn.json").read_text())
+    assert threshold["task"] == "cartpole" and threshold["method"] == "sb3" and threshold["detector"] == "combined"
+    assert main(["replay", str(folder / "runs/dqn.mcap"), "--json"]) == 0
+    rows = {(r["variant"], r["detector"]): r for r in json.loads(capsys.readouterr().out)}
+    assert set(rows) >= {("cartpole:length=2.0", "dynamics"), ("cartpole:length=2.0", "combined")}
+    assert rows[("cartpole:length=2.0", "dynamics")]["auroc"] > 0.9  # 1.000 when written
+    assert rows[("cartpole:length=2.0", "combined")]["detection_rate"] >= 0.8  # 5 of 5 when written
+
+
+def test_the_log_records_the_models_files_env_and_command(readme_run):
+    folder, _, _ = readme_run
+    log = read_log(folder / "runs/dqn.mcap")
+    models = json.loads(log.metadata["about.models"])
+    assert [Path(m["path"]).name for m in models] == ["dqn0.zip", "dqn1.zip"]
+    assert all(len(m["sha256"]) == 64 and m["algorithm"] == "DQN" for m in models)
+    assert log.metadata["about.env_id"] == "CartPole-v1"
+    assert "--sb3" in log.metadata["about.command"] or "pytest" in log.metadata["about.command"]
+    assert log.task == "cartpole" and log.method == "sb3"
+
+
+def test_the_deployed_returns_are_the_first_models_evaluate_policy_returns(readme_run):
+    folder, _, _ = readme_run
+    paths = [folder / "runs/dqn0.zip", folder / "runs/dqn1.zip"]
+    agent = load_sb3(paths, "CartPole-v1")
+    model = DQN.load(paths[0], device="cpu")
+    env = gymnasium.make("CartPole-v1")
+    with Monitor(agent) as monitor:  # the ensemble's spread scores; the first model acts
+        ours = [monitor.run_episode(env, seed=seed).total_return for seed in range(3)]
+    theirs = []
+    for seed in range(3):
+        vec = DummyVecEnv([lambda: gymnasium.make("CartPole-v1")])
+        vec.seed(seed)
+        theirs.append(evaluate_policy(model, vec, n_eval_episodes=1, deterministic=True, warn=False)[0])
+    assert ours == theirs
+    mean = load_sb3(paths, "CartPole-v1", mean=True)
+    obs = np.zeros(4, np.float32)
+    assert mean.act(obs) == int(mean.estimate(obs).action[0])  # --mean: the ensemble decides
+
+
+def test_a_td3_on_pendulum_is_watched_by_the_dynamics_detector(tmp_path, capsys):
+    model = TD3("MlpPolicy", gymnasium.make("Pendulum-v1"), seed=0, learning_starts=200,
+                policy_kwargs={"net_arch": [32, 32]})
+    model.learn(400)
+    model.save(tmp_path / "td3.zip")
+    assert sb3_algorithm(tmp_path / "td3.zip") == ("TD3", "DDPG")
+    common = ["--sb3", str(tmp_path / "td3.zip"), "--env", "Pendulum-v1"]
+    assert main(["calibrate", *common, "--episodes", "10", "--far", "0.2", "--confidence", "none",
+                 "--fit-episodes", "9", "--out", str(tmp_path / "t.json")]) == 0
+    assert json.loads((tmp_path / "t.json").read_text())["detector"] == "dynamics"  # a plain policy: no spread
+    assert main(["run", *common, "--threshold", str(tmp_path / "t.json"), "--variant", "pendulum:m=5.0", "--onset", "50",
+                 "--episodes", "2", "--mcap", str(tmp_path / "x.mcap")]) == 0
+    capsys.readouterr()
+    assert main(["replay", str(tmp_path / "x.mcap"), "--json"]) == 0
+    rows = {r["detector"]: r for r in json.loads(capsys.readouterr().out)}
+    assert set(rows) == {"dynamics", "combined"} and rows["dynamics"]["auroc"] > 0.9
+
+
+def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_sb3([tmp_path / "missing.zip"], "CartPole-v1")
+    (tmp_path / "not.zip").write_text("hello")
+    with pytest.raises(ConfigError, match="not a stable-baselines3 model"):
+        load_sb3([tmp_path / "not.zip"], "CartPole-v1")
+    DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0).save(tmp_path / "dqn.zip")
+    with pytest.raises(ConfigError, match="a model of another env"):
+        load_sb3([tmp_path / "dqn.zip"], "Acrobot-v1")
+    with pytest.raises(ConfigError, match="--mean deploys the ensemble's mean"):
+        load_sb3([tmp_path / "dqn.zip"], "CartPole-v1", mean=True)
+    assert main(["calibrate", "--sb3", str(tmp_path / "dqn.zip"), "--out", str(tmp_path / "t.json")]) == 2
+    assert "--sb3 needs --env" in capsys.readouterr().err
+    assert main(["run", "--sb3", str(tmp_path / "dqn.zip"), "--env", "CartPole-v1", "--variant", "pendulum:m=5.0"]) == 2
+    assert "'pendulum:m=5.0' is not a cartpole variant" in capsys.readouterr().err
+    assert main(["calibrate", "--method", "ensemble", "--out", str(tmp_path / "t.json")]) == 2
+    assert "give --task" in capsys.readouterr().err
