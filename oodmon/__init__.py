@@ -11,6 +11,9 @@ The package has four parts, in the direction data flows:
 
     >>> import gymnasium, oodmon
     >>> env = gymnasium.make("oodmon/CartPole-v1", length=2.0)
+
+``oodmon.watch(models, env_id)`` fits, calibrates and returns the monitor of any policy
+(:mod:`oodmon.monitor.watch`).
 """
 
 from __future__ import annotations
@@ -24,4 +27,14 @@ try:
 except PackageNotFoundError:  # running from a source tree that was not installed
     __version__ = "0+unknown"
 
-__all__ = ["__version__", "envs"]
+__all__ = ["__version__", "envs", "watch"]
+
+
+def __getattr__(name: str):
+    """``oodmon.watch`` (:func:`oodmon.monitor.watch.watch`), imported when first used: ``import
+    oodmon`` stays light."""
+    if name == "watch":
+        from oodmon.monitor.watch import watch
+
+        return watch
+    raise AttributeError(f"module 'oodmon' has no attribute {name!r}")

@@ -852,7 +852,7 @@ def _validate(args: argparse.Namespace) -> int:
     args.task = args.task or threshold.task
     if args.task is None:
         raise ConfigError(f"{args.threshold} does not record its task; give --task")
-    if args.model is None:
+    if args.model is None and not args.sb3:
         args.method = args.method or threshold.method
     agent = _load_agent(args, seed=args.seed)  # the same --seed, the same count, for MC agents too
     detectors = _detectors(args, agent)

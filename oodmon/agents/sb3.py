@@ -32,7 +32,7 @@ import numpy as np
 from oodmon.agents.agent import Agent
 from oodmon.errors import ConfigError
 
-__all__ = ["SB3_ALGORITHMS", "load_sb3", "sb3_algorithm"]
+__all__ = ["SB3_ALGORITHMS", "load_sb3", "sb3_agent", "sb3_algorithm"]
 
 #: SB3's policy modules and the algorithm classes that load them (first match that loads wins:
 #: A2C and PPO share a policy class; DDPG's policy is TD3's and loads as TD3 for acting).
@@ -100,7 +100,7 @@ def _deployed(model: Any, discrete: bool):
 
 def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_samples: int = 20,
              seed: int | None = None) -> Agent:
-    """An :class:`~oodmon.agents.Agent` of the SB3 models in ``paths``, acting in ``env_id``.
+    """An :class:`~oodmon.agents.Agent` of the SB3 model files in ``paths``, acting in ``env_id``.
 
     Args:
         paths: SB3 ``.zip`` files; the first is the deployed policy.
@@ -113,42 +113,69 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
         ConfigError: no paths, a file that is not an SB3 model, spaces that do not match the env,
             or ``mean`` without an ensemble.
     """
-    from oodmon.agents.networks import estimator_from_sb3
-    from oodmon.envs.registration import task_of_env
-
     if isinstance(paths, (str, Path)) or not paths:
         raise ConfigError("give one or more SB3 model files (a list of paths)")
     paths = [Path(p) for p in paths]
     for path in paths:
         sb3_algorithm(path)  # every file checked before any is unpickled
+    loaded = [_load_one(path) for path in paths]
+    files = [{"path": str(path.resolve()), "sha256": file_sha256(path), "algorithm": name}
+             for path, (_, name) in zip(paths, loaded)]
+    return sb3_agent([model for model, _ in loaded], env_id, mean=mean, n_samples=n_samples, seed=seed, files=files)
+
+
+def _parameters_sha256(model: Any) -> str:
+    """A model in memory has no file: the hash of its policy's parameters stands for it."""
+    digest = hashlib.sha256()
+    for name, tensor in sorted(model.policy.state_dict().items()):
+        digest.update(name.encode())
+        digest.update(tensor.detach().cpu().numpy().tobytes())
+    return digest.hexdigest()
+
+
+def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_samples: int = 20,
+              seed: int | None = None, files: Sequence[dict[str, str]] | None = None) -> Agent:
+    """An :class:`~oodmon.agents.Agent` of SB3 models already loaded (or trained) in this process;
+    the first is the deployed policy. ``files``: each model's path, sha256 and algorithm, when they
+    came from files (:func:`load_sb3`); else they are described by the hash of their parameters.
+
+    Raises:
+        ConfigError: no models, spaces that do not match the env, or ``mean`` without an ensemble.
+    """
+    from oodmon.agents.networks import estimator_from_sb3
+    from oodmon.envs.registration import task_of_env
+
+    if not models or not all(hasattr(m, "policy") and hasattr(m, "predict") for m in models):
+        raise ConfigError("give one or more stable-baselines3 models (DQN, DDPG, TD3, SAC, PPO, A2C)")
+    if files is None:
+        files = [{"path": "(in memory)", "sha256": _parameters_sha256(m), "algorithm": type(m).__name__}
+                 for m in models]
     try:
         env = gymnasium.make(env_id)
     except gymnasium.error.Error as error:
-        raise ConfigError(f"--env {env_id}: {error}") from None
-    loaded = [_load_one(path) for path in paths]
-    for (model, _), path in zip(loaded, paths):
-        _check_spaces(model, path, env, env_id)
+        raise ConfigError(f"env {env_id!r}: {error}") from None
+    for model, file in zip(models, files):
+        _check_spaces(model, Path(file["path"]), env, env_id)
     env.close()
-    models = [model for model, _ in loaded]
+    names = {file["algorithm"] for file in files}
     estimator = None  # SAC, PPO, A2C: networks oodmon does not sample; the learned detectors watch them
-    if {name for _, name in loaded} in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"}):
+    if names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"}):
         try:
-            estimator = estimator_from_sb3(models, n_samples=n_samples, seed=seed)
+            estimator = estimator_from_sb3(list(models), n_samples=n_samples, seed=seed)
         except ConfigError:
             pass  # one model without dropout: nothing to sample
     if mean and estimator is None:
         raise ConfigError("--mean deploys the ensemble's mean: give several DQN, or several DDPG/TD3, models")
-    hashes = [file_sha256(path) for path in paths]
+    hashes = [file["sha256"] for file in files]
     combined = hashes[0] if len(hashes) == 1 else hashlib.sha256(
         ("\n".join(hashes) + ("\nmean" if mean else "")).encode()).hexdigest()
     metadata = {
         "task": task_of_env(env_id) or env_id,
         "method": "sb3",
-        "algorithm": loaded[0][1].lower(),
+        "algorithm": files[0]["algorithm"].lower(),
         "env_id": env_id,
-        "deployed": "ensemble mean" if mean else f"{paths[0]} (the first model)",
-        "models": [{"path": str(path.resolve()), "sha256": digest, "algorithm": name}
-                   for path, digest, (_, name) in zip(paths, hashes, loaded)],
+        "deployed": "ensemble mean" if mean else f"{files[0]['path']} (the first model)",
+        "models": list(files),
         "policy_hash": "sha256:" + combined,
     }
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)

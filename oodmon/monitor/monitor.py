@@ -178,6 +178,7 @@ class Monitor:
         self.stop_requested = False
         self.last_step: StepRecord | None = None  # the record of the last step scored
         self.stop_event: AlarmEvent | None = None  # the alarm a callback ended the episode with
+        self.alarms_raised = 0  # alarms of the whole run
 
     def _refuse_or_warn(self, what: str, differences: list[str], force: bool) -> None:
         if differences and not force:
@@ -256,6 +257,11 @@ class Monitor:
         self.last_step = None
         self.stop_event = None
 
+    @property
+    def in_episode(self) -> bool:
+        """Whether an episode has begun and not ended."""
+        return self._in_episode
+
     def abandon_empty_episode(self) -> bool:
         """Forget the running episode if no step of it was scored, and say whether it did.
 
@@ -309,6 +315,7 @@ class Monitor:
         self._length += 1  # the step is logged: it counts, whatever a callback below does
         if event is not None:
             self._alarms += 1
+            self.alarms_raised += 1
             if self._first_alarm is None:
                 self._first_alarm = step
             self.sinks.write_alarm(event)
@@ -403,8 +410,10 @@ class MonitoredEnv(gymnasium.Wrapper):
         return obs, info
 
     def step(self, action: Any = None):
-        chosen = self.monitor.step(self._obs, shifted=bool(self._info.get("shifted", False)), frame=_frame(self._obs))
-        obs, reward, terminated, truncated, info = self.env.step(chosen if action is None else action)
+        # Your action, when you give one, is the deployed one: the detectors that model transitions see it.
+        chosen = self.monitor.step(self._obs, action=action, shifted=bool(self._info.get("shifted", False)),
+                                   frame=_frame(self._obs))
+        obs, reward, terminated, truncated, info = self.env.step(chosen)
         self.monitor.add_reward(reward)
         info = {**info, "oodmon": self._telemetry()}
         truncated = truncated or self.monitor.stop_requested

@@ -61,7 +61,7 @@ def readme_run(one_torch_thread, tmp_path_factory):
 
 def test_the_readme_section_runs_as_written_and_replay_shows_the_detection(readme_run, capsys):
     folder, commands, outputs = readme_run
-    assert [argv[0] for argv in commands] == ["calibrate", "run", "replay"]
+    assert [argv[0] for argv in commands] == ["calibrate", "validate", "run", "replay"]
     assert all(code == 0 for _, code in outputs), outputs
     threshold = json.loads((folder / "runs/dqn.json").read_text())
     assert threshold["task"] == "cartpole" and threshold["method"] == "sb3" and threshold["detector"] == "combined"
@@ -137,3 +137,58 @@ def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
     assert "'pendulum:m=5.0' is not a cartpole variant" in capsys.readouterr().err
     assert main(["calibrate", "--method", "ensemble", "--out", str(tmp_path / "t.json")]) == 2
     assert "give --task" in capsys.readouterr().err
+
+
+def test_watch_fits_calibrates_and_wraps_an_env_in_one_call():
+    import oodmon
+    from oodmon.monitor import MemorySink
+
+    models = [DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=k, policy_kwargs={"net_arch": [16]}) for k in range(2)]
+    sink = MemorySink()
+    env = oodmon.watch(models, "CartPole-v1", env=gymnasium.make("CartPole-v1"), episodes=10, far=0.2,
+                       confidence=None, fit_episodes=6, sinks=[sink])
+    threshold = env.monitor.tracker.threshold
+    assert np.isfinite(threshold) and env.monitor.detector == "combined"
+    obs, _ = env.reset(seed=3)
+    expected = models[0].predict(obs, deterministic=True)[0]
+    obs, _, terminated, truncated, info = env.step()
+    assert info["oodmon"]["threshold"] == threshold and set(info["oodmon"]["scores"]) >= {"dynamics", "combined"}
+    assert sink.steps[0].action == int(expected)  # the first model acts, not the ensemble
+    while not (terminated or truncated):
+        obs, _, terminated, truncated, info = env.step(0)  # your action is the deployed one
+    env.close()
+    assert sink.episodes[0].variant == "cartpole"  # recorded from the env: replay needs no variant=
+    assert [s.action for s in sink.steps[1:]] == [0] * (len(sink.steps) - 1)
+    with pytest.raises(ConfigError, match="env id"):
+        oodmon.watch(models)
+
+
+def test_the_callback_scores_training_rollouts_and_writes_tensorboard(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from oodmon.monitor import MemorySink
+    from oodmon.monitor.detectors import fit_detectors
+    from oodmon.monitor.sb3_callback import MonitorCallback
+
+    env = gymnasium.make("CartPole-v1")
+    space = env.action_space
+    space.seed(0)
+    detectors = fit_detectors(lambda obs: int(space.sample()), env, detectors=["dynamics"], episodes=6)
+    sink = MemorySink()
+    model = DQN("MlpPolicy", env, seed=0, learning_starts=100, policy_kwargs={"net_arch": [16]},
+                tensorboard_log=str(tmp_path))
+    with Monitor(None, 2.0, detectors=detectors, detector="dynamics", sinks=[sink]) as monitor:
+        callback = MonitorCallback(monitor)
+        model.learn(300, callback=callback, log_interval=1)
+    assert len(sink.steps) == 300  # every training step of the env, scored
+    assert {s.action for s in sink.steps} <= {0, 1} and sink.episodes[0].variant == "cartpole"
+    assert sum(e.length for e in sink.episodes) == 300 and not any(e.interrupted for e in sink.episodes[:-1])
+    assert all(e.terminated for e in sink.episodes[:-1])  # a random-ish CartPole policy drops the pole
+    assert callback.alarms == monitor.alarms_raised == sum(e.alarms for e in sink.episodes)
+    events = EventAccumulator(str(next(tmp_path.glob("DQN_*")))).Reload()
+    tags = events.Tags()["scalars"]
+    assert {"oodmon/score", "oodmon/score_dynamics", "oodmon/alarm_share", "oodmon/alarms", "oodmon/threshold"} <= set(tags)
+    scores = [e.value for e in events.Scalars("oodmon/score")]
+    assert len(scores) >= 5 and all(np.isfinite(scores))  # one dump per episode (log_interval=1)
+    assert events.Scalars("oodmon/threshold")[-1].value == 2.0
+    assert events.Scalars("oodmon/alarms")[-1].value <= monitor.alarms_raised

@@ -1,0 +1,91 @@
+"""The monitor inside stable-baselines3: a callback that scores the rollouts of ``model.learn()``.
+
+``MonitorCallback(monitor)`` watches the first env of the model's training env: at every step it
+gives the monitor the observation the model acted on and the action the env got, so that every
+detector scores the model's own behaviour, and writes through SB3's logger (TensorBoard, CSV,
+stdout, whichever the model has):
+
+- ``oodmon/score`` (the alarm detector's score) and ``oodmon/score_<detector>`` for each detector,
+  as means over the steps since the last dump;
+- ``oodmon/alarm_share``: the share of those steps where the alarm rule held;
+- ``oodmon/alarms``: alarms raised so far; ``oodmon/threshold``.
+
+The monitor's sinks (MCAP, Rerun) log every step as in any run. For evaluation rollouts, wrap the
+evaluation env instead: ``evaluate_policy(model, MonitoredEnv(env, monitor))`` or
+``EvalCallback(MonitoredEnv(env, monitor))``; the wrapper takes SB3's actions as the deployed
+ones and logs no phantom episode for a vector env's last auto-reset.
+
+Example::
+
+    from oodmon.monitor import Monitor
+    from oodmon.monitor.sb3_callback import MonitorCallback
+    model = DQN("MlpPolicy", "CartPole-v1", tensorboard_log="runs/tb")
+    with Monitor(None, threshold, detectors=detectors) as monitor:   # None: it watches the model's actions
+        model.learn(50_000, callback=MonitorCallback(monitor))
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from oodmon.envs.registration import task_of_env, variant_of_env
+from oodmon.monitor.monitor import Monitor, _frame
+
+__all__ = ["MonitorCallback"]
+
+
+class MonitorCallback(BaseCallback):
+    """Scores every training step of the first env with ``monitor`` and logs it through SB3's
+    logger (see the module docstring)."""
+
+    def __init__(self, monitor: Monitor, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.monitor = monitor
+        self.alarms = 0
+
+    def _variant(self) -> tuple[str, str]:
+        """``(env_id, variant)`` of the first env, read from it where the vector env holds it here."""
+        envs = getattr(self.training_env, "envs", None)
+        if envs:
+            env = envs[0]
+            spec_id = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+            return spec_id, variant_of_env(env)
+        spec = self.training_env.get_attr("spec", [0])[0]
+        spec_id = spec.id if spec is not None else "unknown"
+        return spec_id, task_of_env(spec_id) or spec_id
+
+    def _on_training_start(self) -> None:
+        self.monitor.open()
+
+    def _on_step(self) -> bool:
+        monitor = self.monitor
+        if not monitor.in_episode:
+            env_id, variant = self._variant()
+            monitor.begin_episode(env_id=env_id, variant=variant)
+        original = getattr(self.model, "_last_original_obs", None)  # before VecNormalize, where there is one
+        obs = (original if original is not None else self.model._last_obs)[0]
+        actions = self.locals.get("clipped_actions", self.locals["actions"])  # what the env got (PPO clips)
+        action = actions[0]
+        action = int(action) if np.ndim(action) == 0 else np.asarray(action)
+        monitor.step(obs, action=action, frame=_frame(obs))
+        record = monitor.last_step
+        self.logger.record_mean("oodmon/score", record.score)
+        for name, value in record.scores.items():
+            self.logger.record_mean(f"oodmon/score_{name}", value)
+        self.logger.record_mean("oodmon/alarm_share", float(record.alarm))
+        self.alarms = monitor.alarms_raised
+        self.logger.record("oodmon/alarms", self.alarms)
+        if np.isfinite(monitor.threshold):
+            self.logger.record("oodmon/threshold", monitor.threshold)
+        monitor.add_reward(float(self.locals["rewards"][0]))
+        if self.locals["dones"][0]:
+            info: dict[str, Any] = self.locals["infos"][0]
+            monitor.end_episode(terminated=not info.get("TimeLimit.truncated", False))
+        return True
+
+    def _on_training_end(self) -> None:
+        if self.monitor.in_episode and not self.monitor.abandon_empty_episode():
+            self.monitor.end_episode(interrupted=True)  # cut by the end of learn(): not a whole episode

@@ -1,0 +1,83 @@
+"""``oodmon.watch``: a deployed policy's monitor, ready in one call.
+
+It fits the learned detectors on ID episodes of the policy, calibrates the alarm threshold on
+others, and returns a :class:`~oodmon.monitor.Monitor` (or, given ``env``, that env wrapped in a
+:class:`~oodmon.monitor.MonitoredEnv`)::
+
+    import oodmon
+    monitor = oodmon.watch(["dqn0.zip", "dqn1.zip"], "CartPole-v1")   # or SB3 models, or an oodmon Agent
+    record = monitor.run_episode(gymnasium.make("CartPole-v1"), seed=0)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+
+from oodmon.agents.agent import Agent
+from oodmon.errors import ConfigError
+from oodmon.monitor.alarms import AlarmEvent
+from oodmon.monitor.sinks.base import Sink
+from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
+
+__all__ = ["as_agent", "watch"]
+
+
+def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed: int | None = None) -> Agent:
+    """An :class:`~oodmon.agents.Agent` of ``policy``: an Agent as it is; SB3 model files (a path
+    or a list of them) or SB3 models in memory (one or a list), acting in ``env_id``.
+
+    Raises:
+        ConfigError: SB3 models without ``env_id``, or something that is none of these.
+    """
+    if isinstance(policy, Agent):
+        if env_id is not None and policy.env_id not in (None, env_id):
+            raise ConfigError(f"the agent acts in {policy.env_id}, not {env_id}")
+        return policy
+    items = list(policy) if isinstance(policy, (list, tuple)) else [policy]
+    if env_id is None:
+        raise ConfigError("give the gymnasium env id your models act in, e.g. watch(models, 'CartPole-v1')")
+    if items and all(isinstance(item, (str, Path)) for item in items):
+        from oodmon.agents.sb3 import load_sb3
+
+        return load_sb3(items, env_id, mean=mean, seed=seed)
+    from oodmon.agents.sb3 import sb3_agent
+
+    return sb3_agent(items, env_id, mean=mean, seed=seed)
+
+
+def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None = None, far: float = 0.05,
+          confidence: float | None = DEFAULT_CONFIDENCE, episodes: int = 50, fit_episodes: int = 30,
+          detector: str | None = None, mean: bool = False, sinks: Sequence[Sink] = (),
+          callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
+          on_episode: Callable[[str, int, int], None] | None = None) -> Any:
+    """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
+
+    The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy, the
+    threshold on ``episodes`` others (``far``, ``confidence`` as in
+    :func:`~oodmon.monitor.calibrate_agent`; the alarm reads ``detector``, by default the task's
+    best). ``env``: wrap this env (the one you step) and return the
+    :class:`~oodmon.monitor.MonitoredEnv` instead of the bare monitor; its ``info["oodmon"]``
+    says what the monitor saw at every step. ``on_episode(stage, done, total)`` reports progress.
+
+    Raises:
+        ConfigError, InvalidParameterError: as :func:`as_agent` and the calibration, before any
+            episode runs where they can be told from the arguments.
+    """
+    from oodmon.monitor.calibration import calibrate_agent
+    from oodmon.monitor.detectors import fit_agent_detectors
+    from oodmon.monitor.monitor import Monitor, MonitoredEnv
+    from oodmon.monitor.threshold import conformal_rank
+
+    conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
+    agent = as_agent(policy, env_id, mean=mean, seed=seed)
+    report = on_episode or (lambda stage, done, total: None)
+    detectors = fit_agent_detectors(agent, episodes=fit_episodes,
+                                    on_episode=lambda i: report("fit", i + 1, fit_episodes))
+    threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector, confidence=confidence,
+                                on_episode=lambda i: report("calibrate", i + 1, episodes))
+    monitor = Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=callbacks)
+    return monitor if env is None else MonitoredEnv(env, monitor)
