@@ -444,7 +444,9 @@ def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[..., No
                 rate = (done - before) / (now - then) if then is not None and now > then else 0.0
                 counted = unit_here or unit
                 speed = f"{rate:.1f} {counted}/s" if rate >= 1 or rate == 0 else f"{rate * 60:.1f} {counted}/min"
-                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}/{total} {counted}, {speed}",
+                left = (total - done) / rate if rate > 0 and total > done else None
+                eta = "" if left is None else f", about {left / 60:.0f} min left" if left >= 90 else f", about {left:.0f} s left"
+                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}/{total} {counted}, {speed}{eta}",
                       file=sys.stderr, flush=True)
                 last_line[name] = (now, done)
 
@@ -615,8 +617,14 @@ def _run(args: argparse.Namespace) -> int:
         if args.serve:
             progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")
         bar = progress.add_task(f"{label} (onset {args.onset})", total=args.episodes)
+        decisions = progress.add_task("decisions in this episode", total=None)  # a Pong game is thousands
+
+        def count(steps: int) -> None:
+            if steps % 50 == 0:
+                progress.update(decisions, completed=steps)
         for episode in range(args.episodes):
-            records.append(monitor.run_episode(env, seed=args.seed + episode))
+            progress.reset(decisions, total=None, description=f"episode {episode}: decisions")
+            records.append(monitor.run_episode(env, seed=args.seed + episode, on_step=count))
             progress.update(bar, advance=1)
         failures = dict(monitor.sinks.failures)
     env.close()
@@ -679,7 +687,8 @@ def _replay(args: argparse.Namespace) -> int:
         print(to_markdown(metrics), end="")
     else:
         steps = sum(e.length for log in logs for e in log.episodes)
-        _table_console().print(to_table(metrics, title=f"replay of {len(logs)} log(s), {steps} steps"))
+        console = _table_console()
+        console.print(to_table(metrics, title=f"replay of {len(logs)} log(s), {steps} steps", width=console.width))
     return 0
 
 
@@ -827,7 +836,10 @@ def _bench_monitor_report(config, result, console: Console) -> int:
                f"{ids[0].far_high:.1%}, target {config.far:g})" if ids else "")
         before = (f"{row.before_failure}/{row.failed} failing episodes alarmed before the failure"
                   if row.failed else "no episode failed after its onset")
-        console.print(f"{row.method}: {far}; {before}; delay median {row.delay_median} p90 {row.delay_p90} steps")
+        delays = ("no alarm after an onset" if row.delay_median is None
+                  else f"delay median {row.delay_median:.3g} p90 {row.delay_p90:.3g} steps")
+        console.print(f"{row.method}: {far}; {row.alarmed}/{row.episodes} shifted episodes alarmed after the onset "
+                      f"({row.early} before it); {before}; {delays}")
     print(FAILURE_DEFINITION, file=sys.stderr)
     return 0
 

@@ -35,6 +35,6 @@ def table(task: str) -> str:
 
 
 if __name__ == "__main__":
-    for task in ("cartpole", "pendulum"):
+    for task in ("cartpole", "pendulum", "pong"):
         if (RESULTS / f"{task}.json").exists():
             print(f"{task}:\n\n{table(task)}\n")

@@ -34,7 +34,8 @@ def test_sb3_pickle_loaders_sit_only_behind_the_explicit_flag():
     # only where the user passed load_pickles=True (oodmon train --unsafe-load-pickles).
     calls = [(str(path), line.strip()) for path, _, line in _lines()
              if re.search(r"\)\.load\(|load_replay_buffer\(|\bDQN\.load\(|\bDDPG\.load\(", line.split("#")[0])]
-    assert calls and {path for path, _ in calls} == {"oodmon/agents/training.py"}, calls
+    assert calls and {path for path, _ in calls} == {"oodmon/agents/training.py", "oodmon/agents/sb3.py"}, calls
+    calls = [(path, line) for path, line in calls if path == "oodmon/agents/training.py"]
     source = (PACKAGE / "agents" / "training.py").read_text()
     body = source[source.index("def _load_pickled_checkpoint"):source.index("def architecture")]
     assert all(line in body for _, line in calls)
@@ -42,3 +43,19 @@ def test_sb3_pickle_loaders_sit_only_behind_the_explicit_flag():
     assert len(uses) == 2  # its definition and one call
     call = source[uses[1] - 200:uses[1]]
     assert "if load_pickles:" in call
+
+
+def test_users_sb3_files_are_unpickled_only_when_the_user_names_them():
+    # A user's own SB3 .zip goes through SB3's loader (it unpickles, as SB3 does): only in
+    # sb3._load_one, reached only from load_sb3, which only an explicit --sb3 (or a call naming the
+    # files) reaches; the file's kind is read from its JSON first.
+    source = (PACKAGE / "agents" / "sb3.py").read_text()
+    loader = source[source.index("def _load_one"):source.index("def _check_spaces")]
+    assert ".load(path, device=\"cpu\")" in loader and "sb3_algorithm(path)" in loader
+    assert [m.start() for m in re.finditer(r"_load_one\(", source)][1:] == [source.index("_load_one(path) for path")]
+    assert source.index("_load_one(path) for path") > source.index("def load_sb3")
+    callers = [str(path) for path, _, line in _lines()
+               if "load_sb3(" in line.split("#")[0] and str(path) != "oodmon/agents/sb3.py"]
+    assert set(callers) == {"oodmon/cli.py", "oodmon/monitor/watch.py"}, callers
+    cli = (PACKAGE / "cli.py").read_text()
+    assert cli[cli.index("load_sb3(") - 700:cli.index("load_sb3(")].count('getattr(args, "sb3", None)') == 1

@@ -344,11 +344,13 @@ class Monitor:
         return record
 
     def run_episode(self, env: gymnasium.Env, *, seed: int | None = None, variant: str | None = None,
-                    max_steps: int | None = None, options: dict | None = None) -> EpisodeRecord:
+                    max_steps: int | None = None, options: dict | None = None,
+                    on_step: Callable[[int], None] | None = None) -> EpisodeRecord:
         """Run the monitored policy for one episode of ``env``; return the episode's record.
 
         ``options`` go to ``env.reset`` (oodmon's envs take ``{"onset_step": n}``: this episode
-        shifts from step n on).
+        shifts from step n on). ``on_step(steps)`` is called after each step with the steps so far
+        (progress within long episodes: a Pong game is thousands of decisions).
         """
         base = env.unwrapped
         spec_id = env.spec.id if env.spec is not None else type(base).__name__
@@ -360,6 +362,8 @@ class Monitor:
                 action = self.step(obs, shifted=bool(info.get("shifted", False)), frame=_frame(obs))
                 obs, reward, terminated, truncated, info = env.step(action)
                 self.add_reward(reward)
+                if on_step is not None:
+                    on_step(self._length)
                 if terminated or truncated or self.stop_requested or (max_steps and self._length >= max_steps):
                     break
         except BaseException:  # Ctrl-C included: the cut episode is logged, marked as such

@@ -32,7 +32,43 @@ def _cell(value: object) -> str:
     return str(value)
 
 
-def to_table(metrics: Sequence[VariantMetrics], title: str = "replay") -> Table:
+#: Below this many columns the replay table switches to its narrow layout.
+NARROW_WIDTH = 150
+_SHORT_DETECTOR = {"spread": "spread", "dynamics": "dyn", "features": "feat", "combined": "comb"}
+
+
+def _alarm_cell(m: VariantMetrics) -> str:
+    """The alarm's figures in one narrow cell: ``FA 2%`` (ID), ``100% in 3`` (detected share, median delay)."""
+    if m.false_alarm_rate is not None:
+        return f"FA {m.false_alarm_rate:.0%}"
+    if m.detection_rate is None:
+        return ""
+    delay = "" if m.delay_median is None else f" in {m.delay_median:g}"
+    return f"{m.detection_rate:.0%}{delay}"
+
+
+def _narrow_table(metrics: Sequence[VariantMetrics], title: str) -> Table:
+    """The replay table for a terminal of about 80 columns: what every row shares goes into the
+    title, the variant wraps instead of being cut, the alarm's figures share one column."""
+    tasks, methods = sorted({m.task for m in metrics}), sorted({m.method for m in metrics})
+    shared = [f"{'/'.join(tasks)}", f"{'/'.join(methods)}"] if len(methods) == 1 else ["/".join(tasks)]
+    table = Table(title=f"{title}, {' '.join(shared)}", caption="alarm: FA = ID episodes with a false alarm; shifted: "
+                        "share detected in median steps from the onset", pad_edge=False)
+    table.add_column("variant" if len(methods) == 1 else "method variant", overflow="fold", ratio=1)
+    for heading in ("det.", "AUROC", "AUPR", "FPR95", "alarm"):
+        table.add_column(heading, justify="left" if heading == "det." else "right", no_wrap=True)
+    for m in metrics:
+        name = m.variant if len(methods) == 1 else f"{m.method} {m.variant}"
+        table.add_row(name, _SHORT_DETECTOR.get(m.detector, m.detector), _cell(m.auroc), _cell(m.aupr),
+                      _cell(m.fpr_at_95_tpr), _alarm_cell(m))
+    return table
+
+
+def to_table(metrics: Sequence[VariantMetrics], title: str = "replay", width: int | None = None) -> Table:
+    """The replay table; a terminal ``width`` below :data:`NARROW_WIDTH` gets the narrow layout,
+    readable at 80 columns."""
+    if width is not None and width < NARROW_WIDTH:
+        return _narrow_table(metrics, title)
     table = Table(title=title)
     for name, heading in COLUMNS:
         table.add_column(heading, justify="left" if name in ("task", "method", "detector", "variant") else "right")

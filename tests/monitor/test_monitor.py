@@ -132,3 +132,10 @@ def test_a_reset_no_step_follows_logs_no_episode(agent):
     env.reset(seed=2)  # ends the 3-step episode; the new one gets no step before close
     env.close()
     assert [(e.episode, e.length, e.seed, e.interrupted) for e in sink.episodes] == [(0, 3, 1, False)]
+
+
+def test_run_episode_reports_each_step_for_progress_within_long_episodes():
+    seen = []
+    with Monitor(load("cartpole", "ensemble"), threshold=1e9) as monitor:
+        record = monitor.run_episode(Variant("cartpole").make(), seed=0, max_steps=40, on_step=seen.append)
+    assert seen == list(range(1, record.length + 1)) and record.length == 40

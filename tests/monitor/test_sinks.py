@@ -94,6 +94,12 @@ def test_rrd_holds_the_scalars(agent, tmp_path):
     assert len(returns) == 2
     spread = frame["/detectors/spread:Scalars:scalars"].dropna()  # every detector has a series
     np.testing.assert_allclose([v[0] for v in spread], [s.scores["spread"] for s in memory.steps], rtol=1e-6)
+    # Timelines per episode and per step within it beside the global one.
+    scored = frame.dropna(subset=["/score:Scalars:scalars"])
+    assert scored["episode"].tolist() == [s.episode for s in memory.steps]
+    assert scored["step_in_episode"].tolist() == [s.step for s in memory.steps]
+    run = frame["/run:TextDocument:text"].dropna().iloc[0][0]  # the run's metadata: versions and command too
+    assert "versions: " in run and "torch" in run and "command: " in run
 
 
 def test_rrd_passes_rerun_verify(agent, tmp_path):

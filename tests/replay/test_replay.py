@@ -226,3 +226,33 @@ def test_replay_monitor_prints_the_alarm_figures_of_the_monitors_benchmark(tmp_p
     assert "alarmed before failure" in table.stdout and "failed:" in table.stderr
     refused = _cli("replay", "--monitor", "--csv", str(tmp_path))
     assert refused.returncode != 0 and "--monitor" in refused.stderr
+
+
+def test_the_replay_table_is_readable_at_80_columns():
+    import io
+
+    from rich.console import Console
+
+    from oodmon.replay.metrics import VariantMetrics
+    from oodmon.replay.report import to_table
+
+    def row(method, variant, detector, auroc, far=None, detected=None, delay=None):
+        return VariantMetrics("pendulum", method, variant, 10, 2000, 1000, 1000, auroc, auroc and auroc - 0.1,
+                              auroc and 1 - auroc, far, None if far is not None else 0.0, detected, delay, delay,
+                              detector)
+
+    metrics = [row("dropconnect", "pendulum", "combined", None, far=0.02),
+               row("dropconnect", "pendulum:max_speed=0.4,max_torque=0.25", "dynamics", 0.98765),
+               row("ensemble", "pendulum:l=0.05", "combined", 0.91234, detected=0.9, delay=3.0)]
+    for width, narrow in ((80, True), (220, False)):
+        buffer = io.StringIO()
+        Console(width=width, file=buffer).print(to_table(metrics, "replay", width=width))
+        lines = buffer.getvalue().splitlines()
+        assert max(len(line) for line in lines) <= width
+        text = buffer.getvalue()
+        assert "0.988" in text and "0.912" in text and "…" not in text
+        if narrow:  # the variant wraps instead of being cut; the alarm's figures in one column
+            assert "max_torque=0.25" in text.replace("\n", "").replace("│", "").replace(" ", "")
+            assert "FA 2%" in text and "90% in 3" in text
+        else:
+            assert "pendulum:max_speed=0.4,max_torque=0.25" in text

@@ -84,6 +84,7 @@ class RerunSink:
         self._global_step = 0
         self._buffer: list[StepRecord] = []
         self._steps: list[int] = []
+        self._last = (0, 0)  # (episode, step in it) of the last step written
 
     def open(self, run: RunInfo) -> None:
         import rerun as rr
@@ -119,9 +120,11 @@ class RerunSink:
         rec = rr.RecordingStream("oodmon", recording_id=self.recording_id)
         rec.set_sinks(*sinks)
         rec.send_recording_name(f"oodmon {run.task}/{run.method}")
+        about = "".join(f"\n{key}: {value}" for key, value in run.about.items())
+        versions = ", ".join(f"{name} {value}" for name, value in run.versions.items())
         rec.log("/run", rr.TextDocument(
             f"task {run.task}, method {run.method}, score {run.score}, alarm rule: {run.rule}, "
-            f"threshold {run.threshold}, policy {run.policy_hash}"), static=True)
+            f"threshold {run.threshold}, policy {run.policy_hash}\nversions: {versions}{about}"), static=True)
         return rec
 
     def _each(self, method: str, *args, **kwargs) -> None:
@@ -147,13 +150,21 @@ class RerunSink:
             self._send_layout(len(record.mean))
         self._buffer.append(record)
         self._steps.append(self._global_step)
+        self._last = (record.episode, record.step)
         if record.frame is not None:
-            self._each("set_time", "step", sequence=self._global_step)
+            self._set_time(self._global_step)
             self._each("log", "/frame", self._rr.Image(record.frame))
         self._global_step += 1
         if len(self._buffer) >= FLUSH_EVERY:
             self._flush()
             self._check_live()
+
+    def _set_time(self, step: int, episode: int | None = None, in_episode: int | None = None) -> None:
+        """Set the three timelines (episode and step in it default to the last step written's)."""
+        last_episode, last_step = self._last
+        self._each("set_time", "step", sequence=step)
+        self._each("set_time", "episode", sequence=last_episode if episode is None else episode)
+        self._each("set_time", "step_in_episode", sequence=last_step if in_episode is None else in_episode)
 
     def _check_live(self) -> None:
         """Drop a live viewer that does not take the data within ``flush_timeout``: its stream would
@@ -187,7 +198,11 @@ class RerunSink:
         if not self._buffer:
             return
         rr = self._rr
-        index = [rr.TimeColumn("step", sequence=self._steps)]
+        # Three timelines: the run's global step, the episode, the step within the episode (an alarm
+        # at "step 103" of an episode is at step_in_episode 103 whatever the global step).
+        index = [rr.TimeColumn("step", sequence=self._steps),
+                 rr.TimeColumn("episode", sequence=[r.episode for r in self._buffer]),
+                 rr.TimeColumn("step_in_episode", sequence=[r.step for r in self._buffer])]
         mean = np.array([r.mean for r in self._buffer])
         std = np.array([r.std for r in self._buffer])
         for a in range(mean.shape[1]):
@@ -214,7 +229,7 @@ class RerunSink:
         if not self._streams:
             return
         self._flush()
-        self._each("set_time", "step", sequence=self._global_step - 1)
+        self._set_time(self._global_step - 1, event.episode, event.step)
         self._each("log", "/alarms", self._rr.TextLog(
             f"episode {event.episode} step {event.step}: score {event.score:.4g} > {event.threshold:.4g} ({event.rule})",
             level=self._rr.TextLogLevel.WARN))
@@ -223,7 +238,7 @@ class RerunSink:
         if not self._streams:
             return
         self._flush()
-        self._each("set_time", "step", sequence=max(self._global_step - 1, 0))
+        self._set_time(max(self._global_step - 1, 0), record.episode, max(record.length - 1, 0))
         self._each("log", "/episode/return", self._rr.Scalars(record.total_return))
         self._each("log", "/episodes", self._rr.TextLog(
             f"episode {record.episode} ({record.variant}, onset {record.onset}, seed {record.seed}): return "
