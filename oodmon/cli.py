@@ -289,6 +289,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--force", action="store_true",
                      help="use a threshold calibrated for another task, method, score or weights (with a warning)")
     run.add_argument("--strict", action="store_true", help="a failing sink stops the run instead of warning")
+    run.add_argument("--render", action="store_true",
+                     help="log a picture of each CartPole or Pendulum state beside the scores (Rerun, Foxglove)")
     run.set_defaults(handler=_run)
 
     replay = commands.add_parser("replay", help="metrics from recorded MCAP logs (files only; never modified)")
@@ -613,7 +615,7 @@ def _run(args: argparse.Namespace) -> int:
     records = []
     with Progress(console=console, transient=True) as progress, \
             Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show], strict=args.strict,
-                    force=args.force) as monitor:
+                    force=args.force, render=args.render) as monitor:
         if args.serve:
             progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")
         bar = progress.add_task(f"{label} (onset {args.onset})", total=args.episodes)

@@ -15,9 +15,56 @@ import numpy as np
 from oodmon.envs.grid import Variant
 from oodmon.envs.reference import REFERENCE_CONTROLLERS, Rollout, rollout
 
-__all__ = ["PhysicsComparison", "compare_physics", "pong_preview", "save_physics_plot", "save_rgb"]
+__all__ = ["PhysicsComparison", "compare_physics", "draw_state", "pong_preview", "save_physics_plot", "save_rgb"]
 
 _LABEL_HEIGHT = 22
+
+
+#: The picture :func:`draw_state` draws: height, width.
+STATE_PICTURE = (120, 240)
+
+
+def draw_state(task: str, obs: np.ndarray) -> np.ndarray:
+    """A picture (RGB, :data:`STATE_PICTURE`) of a CartPole or Pendulum state from its observation:
+    what the env's own ``render()`` shows, drawn with OpenCV (no pygame, no display) and from the
+    observation the agent saw, so that a monitor's log can show it beside the scores.
+
+    CartPole: the cart at ``x`` on its track (+-2.4), the pole at ``theta``; Pendulum: the rod at
+    the angle of ``(cos, sin)`` (upright is up) and its angular velocity as an arc.
+
+    Raises:
+        ValueError: another task (Pong's frames are pictures already).
+
+    Example:
+        >>> draw_state("cartpole", np.array([0.0, 0.0, 0.1, 0.0])).shape
+        (120, 240, 3)
+    """
+    height, width = STATE_PICTURE
+    image = np.full((height, width, 3), 255, np.uint8)
+    if task == "cartpole":
+        x, theta = float(obs[0]), float(obs[2])
+        track = height - 30
+        cv2.line(image, (0, track), (width, track), (0, 0, 0), 1)
+        centre = int(width / 2 + x / 2.4 * (width / 2 - 20))
+        cv2.rectangle(image, (centre - 16, track - 10), (centre + 16, track + 4), (40, 40, 40), -1)
+        length = 70
+        tip = (int(centre + length * math.sin(theta)), int(track - 10 - length * math.cos(theta)))
+        cv2.line(image, (centre, track - 10), tip, (202, 152, 101), 6)
+        cv2.circle(image, (centre, track - 10), 3, (129, 132, 203), -1)
+    elif task == "pendulum":
+        cos, sin, speed = float(obs[0]), float(obs[1]), float(obs[2])
+        theta = math.atan2(sin, cos)  # 0: upright
+        centre, length = (width // 2, height // 2), height // 2 - 12
+        tip = (int(centre[0] + length * math.sin(theta)), int(centre[1] - length * math.cos(theta)))
+        cv2.line(image, centre, tip, (204, 77, 77), 8)
+        cv2.circle(image, centre, 4, (0, 0, 0), -1)
+        sweep = int(np.clip(speed / 8.0, -1.0, 1.0) * 90)
+        if sweep:
+            start = math.degrees(theta) - 90
+            cv2.ellipse(image, centre, (length + 6, length + 6), 0, start, start + sweep, (120, 120, 120), 2)
+    else:
+        raise ValueError(f"draw_state draws CartPole and Pendulum states, not {task!r}")
+    return image
 
 
 def pong_preview(variant: Variant, *, seed: int = 0, steps: int = 60) -> np.ndarray:

@@ -98,6 +98,9 @@ class Monitor:
             records carry scores only (calibration keeps no frames in memory).
         force: use a :class:`Threshold` or detectors made for another task, method, score or
             weights anyway, with a warning (by default that is a :class:`~oodmon.errors.ConfigError`).
+        render: put a picture of each CartPole or Pendulum state into the step records (drawn from
+            the observation, :func:`~oodmon.envs.preview.draw_state`): the logs' frames, shown by
+            Rerun and Foxglove beside the scores. Off by default (benchmarks write no pictures).
 
     Raises:
         ConfigError: the threshold or the detectors were made for another policy or score (see
@@ -129,6 +132,7 @@ class Monitor:
         strict: bool = False,
         log_observations: bool = True,
         force: bool = False,
+        render: bool = False,
     ) -> None:
         if isinstance(policy, Agent):
             self.agent, self.estimator, self._act = policy, policy.estimator, policy.deploy
@@ -172,6 +176,7 @@ class Monitor:
         self.sinks = SinkGroup(list(sinks), strict=strict)
         self.callbacks = list(callbacks)
         self.log_observations = log_observations
+        self.render = render
         self.episode = -1
         self._opened = False
         self._in_episode = False
@@ -304,6 +309,8 @@ class Monitor:
             observation = [float(x) for x in obs]
         if not self.log_observations:
             frame = None
+        elif self.render and frame is None and np.ndim(obs) == 1:
+            frame = self._picture(obs)
         logged_action = int(action) if isinstance(action, (int, np.integer)) else np.asarray(action).tolist()
         self.last_step = StepRecord(
             episode=self.episode, step=step, action=logged_action,
@@ -324,6 +331,13 @@ class Monitor:
                     self.stop_requested = True
                     self.stop_event = event
         return action
+
+    def _picture(self, obs: np.ndarray) -> np.ndarray | None:
+        """A picture of a CartPole or Pendulum state (``render``); ``None`` for another env."""
+        from oodmon.envs.preview import draw_state
+
+        task = self.agent.task if self.agent is not None else self._episode_info["variant"].split(":")[0]
+        return draw_state(task, obs) if task in ("cartpole", "pendulum") else None
 
     def add_reward(self, reward: float) -> None:
         """The reward of the step just taken (one call per step: replay reads the rewards per step)."""

@@ -229,3 +229,54 @@ def test_a_served_stream_listens_on_loopback_only_unless_told(agent):
     with Monitor(agent, threshold=3.0, sinks=[sink], strict=True):
         bound = {address for address, p in _listening() if p == port}
         assert bound == {"127.0.0.1"} and sink.served_at and str(port) in sink.served_at
+
+
+def test_render_logs_a_picture_of_each_cartpole_state_and_is_off_by_default(agent, tmp_path):
+    from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+
+    env = parse_variant("cartpole:length=2.0").make()
+    for render, name in ((True, "pictures.mcap"), (False, "plain.mcap")):
+        with Monitor(agent, threshold=3.0, sinks=[McapSink(tmp_path / name)], render=render) as monitor:
+            record = monitor.run_episode(env, seed=0, max_steps=30)
+        with open(tmp_path / name, "rb") as f:
+            frames = [RawImage.FromString(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/oodmon/frame"])]
+        if not render:
+            assert frames == []
+            continue
+        assert len(frames) == record.length and frames[0].encoding == "rgb8"
+        pictures = [np.frombuffer(f.data, np.uint8).reshape(f.height, f.width, 3) for f in frames]
+        assert pictures[0].shape == (120, 240, 3)
+        assert not np.array_equal(pictures[0], pictures[-1])  # the pole moved: the picture shows it
+
+
+def test_the_shipped_foxglove_layout_shows_what_the_logs_hold(agent, tmp_path):
+    import json
+
+    from oodmon.monitor.sinks.mcap import FOXGLOVE_LAYOUT
+
+    layout = json.loads(FOXGLOVE_LAYOUT.read_text())
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else [*leaves(node["first"]), *leaves(node["second"])]
+    assert sorted(leaves(layout["layout"])) == sorted(layout["configById"])
+    with Monitor(agent, threshold=0.0, consecutive=1, sinks=[McapSink(tmp_path / "x.mcap")], render=True) as monitor:
+        monitor.run_episode(parse_variant("cartpole:length=2.0").make(), seed=0, max_steps=20)
+    with open(tmp_path / "x.mcap", "rb") as f:
+        messages = {c.topic: m for _, c, m in make_reader(f).iter_messages()}
+    step = json.loads(messages["/oodmon/step"].data)
+    config = layout["configById"]
+    for panel, settings in config.items():
+        kind = panel.split("!")[0]
+        if kind == "Plot":
+            for path in settings["paths"]:
+                topic, *fields = path["value"].split(".")
+                assert topic == "/oodmon/step"
+                value = step
+                for field in fields[:-1]:
+                    value = value[field]
+                assert fields[-1] in value or fields[0] == "scores", path  # scores: the detectors a run has
+        elif kind == "RosOut":
+            assert settings["topicToRender"] in messages
+        elif kind == "Image":
+            assert settings["imageMode"]["imageTopic"] in messages
+    assert {"score", "threshold", "shifted"} <= set(step) and "spread" in step["scores"]

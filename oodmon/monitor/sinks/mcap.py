@@ -5,7 +5,8 @@ Channels (their schemas and encodings are defined once, in :mod:`oodmon.monitor.
 - ``/oodmon/step``: JSON (schema ``oodmon.Step``, JSON Schema), one message per step.
 - ``/oodmon/episode``: JSON (schema ``oodmon.Episode``), one message per finished episode.
 - ``/oodmon/alarm``: ``foxglove.Log`` (protobuf), one message per alarm, level WARNING.
-- ``/oodmon/frame``: ``foxglove.RawImage`` (protobuf, mono8), the frame the agent saw (Pong).
+- ``/oodmon/frame``: ``foxglove.RawImage`` (protobuf), the frame the agent saw (Pong, mono8), or with
+  ``Monitor(render=True)`` a picture of a CartPole or Pendulum state (rgb8).
 - ``/oodmon/episode_scores``: JSON (schema ``oodmon.EpisodeScores``), one message per episode
   with its per-step score (float64), shifted and alarm flags (uint8), and every detector's scores,
   as base64 arrays. With the
@@ -28,6 +29,10 @@ from typing import Any
 import numpy as np
 
 from oodmon.monitor import logformat
+
+#: A Foxglove (or Lichtblick) layout for these logs: score, threshold and every detector plotted,
+#: the frames, the alarms. Layouts -> Import from file.
+FOXGLOVE_LAYOUT = Path(__file__).with_name("foxglove_layout.json")
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.logformat import EPISODE_SCHEMA, EPISODE_SCORES_SCHEMA, STEP_SCHEMA
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
@@ -103,8 +108,10 @@ class McapSink:
             self._detector_scores.setdefault(name, []).append(value)
         if record.frame is not None:
             frame = record.frame
+            colour = frame.ndim == 3  # a drawn state (rgb8) or the agent's grey frame (mono8)
             image = self._image(frame_id="agent_view", width=frame.shape[1], height=frame.shape[0],
-                                encoding="mono8", step=frame.shape[1], data=frame.tobytes())
+                                encoding="rgb8" if colour else "mono8", step=frame.shape[1] * (3 if colour else 1),
+                                data=np.ascontiguousarray(frame).tobytes())
             image.timestamp.FromNanoseconds(now)
             self._add(self._frame_channel, image.SerializeToString(), now)
 
