@@ -198,10 +198,11 @@ def _parser() -> argparse.ArgumentParser:
     evaluate = commands.add_parser(
         "evaluate", help="where an agent fails: mean return per variant beside the ID return"
     )
-    evaluate.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
+    evaluate.add_argument("--task", choices=["cartpole", "pendulum", "pong"], help="required unless --sb3")
     evaluate.add_argument("--method", choices=["dropout", "dropconnect", "ensemble"],
                           help="a shipped agent (or give --model)")
     evaluate.add_argument("--model", help="a trained model directory instead of a shipped agent")
+    _sb3_arguments(evaluate)
     evaluate.add_argument("--variants", default="paper",
                           help="'paper' (the paper's grid) or comma-separated specs (default paper)")
     evaluate.add_argument("--episodes", type=_whole(1), default=5, help="episodes per variant (default 5)")
@@ -434,9 +435,14 @@ def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[..., No
         bars: dict[str, int] = {}
         last_line: dict[str, tuple[float, int]] = {}  # name -> (time, done) of its last plain line
 
-        def report(name: str, done: int, total: int, unit_here: str | None = None) -> None:
+        notes: dict[str, str] = {}  # name -> its latest note (training: the last evaluation return)
+
+        def report(name: str, done: int, total: int, unit_here: str | None = None, note: str | None = None) -> None:
             if name not in bars:
                 bars[name] = progress.add_task(name, total=total)
+            if note is not None:
+                notes[name] = note
+                progress.update(bars[name], description=f"{name} ({note})")
             progress.update(bars[name], completed=done, total=total)
             if stderr.is_terminal:
                 return
@@ -448,7 +454,8 @@ def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[..., No
                 speed = f"{rate:.1f} {counted}/s" if rate >= 1 or rate == 0 else f"{rate * 60:.1f} {counted}/min"
                 left = (total - done) / rate if rate > 0 and total > done else None
                 eta = "" if left is None else f", about {left / 60:.0f} min left" if left >= 90 else f", about {left:.0f} s left"
-                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}/{total} {counted}, {speed}{eta}",
+                noted = f", {notes[name]}" if name in notes else ""
+                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}/{total} {counted}, {speed}{eta}{noted}",
                       file=sys.stderr, flush=True)
                 last_line[name] = (now, done)
 
@@ -456,6 +463,7 @@ def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[..., No
 
 
 def _train(args: argparse.Namespace) -> int:
+    from oodmon.agents.recipes import recipe_for
     from oodmon.agents.training import train
     from oodmon.outputs import check_output_dir
 
@@ -463,10 +471,15 @@ def _train(args: argparse.Namespace) -> int:
     command = "oodmon " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("oodmon") else ""
     with _progress(unit="steps", transient=False) as report_progress:
 
-        def report(run: str, done: int, total: int, unit: str | None = None) -> None:
-            report_progress(f"{args.task}/{args.method} {run}", done, total, unit)
+        def report(run: str, done: int, total: int, unit: str | None = None, note: str | None = None) -> None:
+            report_progress(f"{args.task}/{args.method} {run}", done, total, unit, note)
+
+        def evaluated(run: str, steps: int, mean: float) -> None:
+            report(run, steps, args.steps or recipe_for(args.task, args.method).total_steps, None,
+                   f"last evaluation return {mean:.1f} at step {steps}")
 
         agent = train(args.task, args.method, args.out, seed=args.seed, total_steps=args.steps, report=report,
+                      on_evaluation=evaluated,
                       export_only=args.export_only, load_pickles=args.unsafe_load_pickles,
                       command=command or f"oodmon train --task {args.task} --method {args.method} --seed {args.seed}")
     meta = agent.metadata
@@ -489,6 +502,14 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
                         help="a shipped agent (or give --model)" if defaults_from is None
                         else f"a shipped agent (default: {defaults_from} method, unless --model)")
     parser.add_argument("--model", help="a trained model directory instead of a shipped agent")
+    _sb3_arguments(parser)
+    parser.add_argument("--detectors", metavar="DIR",
+                        help="fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside "
+                             "the threshold file, else those shipped with the agent, if any)")
+
+
+def _sb3_arguments(parser: argparse.ArgumentParser) -> None:
+    """--sb3, --env, --mean: your own stable-baselines3 models instead of an oodmon agent."""
     parser.add_argument("--sb3", nargs="+", metavar="ZIP",
                         help="your own stable-baselines3 model file(s) (DQN, DDPG, TD3, SAC, PPO, A2C), with --env; the "
                              "first is the deployed policy, several DQN or DDPG/TD3 models also form an ensemble detector. "
@@ -496,9 +517,6 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
     parser.add_argument("--env", metavar="ID", help="the gymnasium env id the --sb3 models act in, e.g. CartPole-v1")
     parser.add_argument("--mean", action="store_true",
                         help="with several --sb3 models: deploy the ensemble's mean decision, not the first model's")
-    parser.add_argument("--detectors", metavar="DIR",
-                        help="fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside "
-                             "the threshold file, else those shipped with the agent, if any)")
 
 
 def _calibrate(args: argparse.Namespace) -> int:

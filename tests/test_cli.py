@@ -247,3 +247,17 @@ def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, c
                      "--episodes", "7", "--seed", "5", "--out", str(tmp_path / name)]) == 0
         values.append(Threshold.load(tmp_path / name).value)
     assert values[0] == values[1]
+
+
+def test_progress_lines_carry_the_time_left_and_the_last_evaluation(capsys, monkeypatch):
+    from oodmon import cli
+
+    clock = iter([0.0, 120.0, 180.0])
+    monkeypatch.setattr(cli.time, "monotonic", lambda: next(clock))
+    with cli._progress(unit="steps") as report:
+        report("cartpole/dropout main", 0, 1000)
+        report("cartpole/dropout main", 400, 1000, None, "last evaluation return 212.0 at step 400")
+        report("cartpole/dropout main", 1000, 1000)
+    lines = [line for line in capsys.readouterr().err.splitlines() if "cartpole/dropout main:" in line]
+    assert lines[1].endswith("400/1000 steps, 3.3 steps/s, about 3 min left, last evaluation return 212.0 at step 400")
+    assert lines[2].endswith("1000/1000 steps, 10.0 steps/s, last evaluation return 212.0 at step 400")

@@ -155,7 +155,9 @@ class _RunCallback(BaseCallback):
         if steps % 500 == 0:
             self.report(self.run.name, steps, recipe.total_steps)
         if steps % recipe.eval_every == 0:
-            self.run.evaluate(self.model, steps)
+            mean = self.run.evaluate(self.model, steps)
+            if self.run.on_evaluation is not None:
+                self.run.on_evaluation(self.run.name, steps, mean)
         if steps % recipe.checkpoint_every == 0:
             self.run.checkpoint(self.model, finished=False)
         return True
@@ -165,6 +167,7 @@ class _Run:
     """One SB3 model being trained: its folder, checkpoints and log."""
 
     def __init__(self, recipe: Recipe, root: Path, name: str, seed: int) -> None:
+        self.on_evaluation: Callable[[str, int, float], None] | None = None  # see train()
         self.recipe, self.root, self.name, self.seed = recipe, root, name, seed
         self.folder = root / "runs" / name
         self.folder.mkdir(parents=True, exist_ok=True)
@@ -272,8 +275,9 @@ class _Run:
         )
         self.state_path.write_text(json.dumps(self.state, indent=1))
 
-    def evaluate(self, model: BaseAlgorithm, steps: int) -> None:
-        """Log the greedy policy's mean return; keep the weights of the best evaluation so far."""
+    def evaluate(self, model: BaseAlgorithm, steps: int) -> float:
+        """Log the greedy policy's mean return; keep the weights of the best evaluation so far; return
+        the mean."""
         returns = episode_returns(
             lambda obs: model.predict(obs, deterministic=True)[0], Variant(self.recipe.task),
             self.recipe.eval_episodes, seed=10_000 + steps,
@@ -290,6 +294,7 @@ class _Run:
         if self.recipe.select_top:
             (self.folder / "snapshots").mkdir(exist_ok=True)
             save_file(self._kept_weights(model), str(self.folder / "snapshots" / f"{steps}.safetensors"))
+        return mean
 
     def _kept_weights(self, model: BaseAlgorithm) -> dict[str, torch.Tensor]:
         """The policy's weights as the run keeps them on disk: without its target networks (copies,
@@ -338,6 +343,7 @@ def train(
     export_only: bool = False,
     load_pickles: bool = False,
     recipe: Recipe | None = None,
+    on_evaluation: Callable[[str, int, float], None] | None = None,
 ) -> Agent:
     """Train (or resume training) the ``task``/``method`` agent into ``out``; return it loaded.
 
@@ -347,6 +353,7 @@ def train(
         seed: the trial's seed; ensemble member k uses ``1000 * seed + k``.
         total_steps: override the recipe's steps per run (smoke tests, quick trials).
         report: called with (run, steps done, steps total) as training goes; see :data:`Reporter`.
+        on_evaluation: called with (run, steps, mean return) after each periodic evaluation.
         command: the command line that started the training, recorded in the metadata.
         id_episodes: episodes behind ``id_return_mean`` (default :data:`ID_EPISODES` of the task).
         export_only: do not train; export the best checkpoint so far of an unfinished training
@@ -371,6 +378,8 @@ def train(
         [_Run(recipe, root, f"member{k}", 1000 * seed + k) for k in range(recipe.n_members)]
         if independent else [_Run(recipe, root, "main", seed)]
     )
+    for run in runs:
+        run.on_evaluation = on_evaluation
     models = [run.train(report, export_only=export_only, load_pickles=load_pickles) for run in runs]
 
     env = _training_env(recipe)

@@ -192,3 +192,11 @@ def test_the_callback_scores_training_rollouts_and_writes_tensorboard(tmp_path):
     assert len(scores) >= 5 and all(np.isfinite(scores))  # one dump per episode (log_interval=1)
     assert events.Scalars("oodmon/threshold")[-1].value == 2.0
     assert events.Scalars("oodmon/alarms")[-1].value <= monitor.alarms_raised
+
+
+def test_evaluate_takes_sb3_models_too(readme_run, capsys):
+    folder, _, _ = readme_run
+    assert main(["evaluate", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "CartPole-v1", "--variants",
+                 "cartpole:length=2.0", "--episodes", "2", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["task"] == "cartpole" and result["method"] == "sb3"
