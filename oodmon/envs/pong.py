@@ -96,10 +96,9 @@ class CorruptedPong(gymnasium.Env):
 
         ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Error)  # no banner on every CLI call
         self.corruption = self._build_corruption(corruption, severity, params)
-        #: This env's variant spec (what a monitor records); None for a corruption object passed in.
-        self.variant_spec = "pong" if corruption is None else (
-            f"pong:{corruption}@{severity}" if isinstance(corruption, str) and severity is not None and not params
-            else None)
+        #: The corruption as named when made (a monitor records the variant from it); None for a
+        #: corruption object passed in, which has no name.
+        self.corruption_named = (corruption, severity, dict(params)) if not isinstance(corruption, Corruption) else None
         self.onset_step = self._configured_onset = check_onset_step(self.ENV_ID, onset_step)
         if render_mode not in (None, "rgb_array"):
             raise InvalidParameterError(

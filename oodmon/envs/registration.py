@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import gymnasium
 
-__all__ = ["TASK_OF_ENV", "register_envs", "task_of_env", "variant_of_env"]
+__all__ = ["TASK_OF_ENV", "env_id_of", "register_envs", "task_of_env", "variant_of_env"]
 
 #: The oodmon task whose variants shift an env: gymnasium's own ids and oodmon's (the same
 #: physics, observations and spaces; oodmon's can shift).
@@ -22,6 +22,11 @@ def task_of_env(env_id: str) -> str | None:
     return TASK_OF_ENV.get(env_id)
 
 
+def env_id_of(env: gymnasium.Env) -> str:
+    """The id ``env`` was made with, or its class name for an env made without the registry."""
+    return env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+
+
 def variant_of_env(env: gymnasium.Env) -> str:
     """The variant spec a monitor records for ``env``: the shift an oodmon env was made with
     (``cartpole:length=2.0``), the task for an unshifted one or for gymnasium's own id of it
@@ -36,8 +41,7 @@ def variant_of_env(env: gymnasium.Env) -> str:
     """
     from oodmon.envs.grid import Variant
 
-    base = env.unwrapped
-    spec_id = env.spec.id if env.spec is not None else type(base).__name__
+    base, spec_id = env.unwrapped, env_id_of(env)
     task = task_of_env(spec_id)
     if task is None:
         return spec_id
@@ -45,7 +49,11 @@ def variant_of_env(env: gymnasium.Env) -> str:
     if physics is not None and hasattr(base, "DEFAULTS"):
         changed = {name: value for name, value in physics.items() if base.DEFAULTS.get(name) != value}
         return Variant(task, tuple(sorted(changed.items()))).spec
-    return getattr(base, "variant_spec", None) or task
+    named = getattr(base, "corruption_named", None)  # Pong: (corruption, severity, params) as made
+    if named is not None:
+        corruption, severity, params = named
+        return Variant(task, tuple(sorted(params.items())), corruption, severity).spec
+    return task
 
 
 def register_envs() -> None:
