@@ -44,6 +44,7 @@ from oodmon.envs.grid import Variant, paper_grid, parse_variant
 from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import check_window
 from oodmon.paper import paper_auc_per_trial
+from oodmon.hashing import file_sha256
 
 if TYPE_CHECKING:
     from oodmon.replay import MonitorMetrics
@@ -370,9 +371,7 @@ def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path) ->
     belong to the weights in ``model``: a new zoo agent or a retrained model moves the old results
     to ``<out>/set-aside/weights-<old hash>/`` (kept, not deleted, and out of the logs a replay of
     ``<out>/logs`` reads) and the trial is run again."""
-    import hashlib
-
-    weights = hashlib.sha256((model / "model.safetensors").read_bytes()).hexdigest()[:16]
+    weights = file_sha256(model / "model.safetensors")[:16]
     stamp = folder / "weights.sha256"
     made_by = stamp.read_text().strip() if stamp.exists() else "unknown"
     if folder.exists() and any(folder.iterdir()) and made_by != weights:

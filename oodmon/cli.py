@@ -474,9 +474,10 @@ def _train(args: argparse.Namespace) -> int:
         def report(run: str, done: int, total: int, unit: str | None = None, note: str | None = None) -> None:
             report_progress(f"{args.task}/{args.method} {run}", done, total, unit, note)
 
+        total = args.steps or recipe_for(args.task, args.method).total_steps
+
         def evaluated(run: str, steps: int, mean: float) -> None:
-            report(run, steps, args.steps or recipe_for(args.task, args.method).total_steps, None,
-                   f"last evaluation return {mean:.1f} at step {steps}")
+            report(run, steps, total, None, f"last evaluation return {mean:.1f} at step {steps}")
 
         agent = train(args.task, args.method, args.out, seed=args.seed, total_steps=args.steps, report=report,
                       on_evaluation=evaluated,

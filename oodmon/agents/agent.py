@@ -75,12 +75,12 @@ class Agent:
         from oodmon.envs.grid import Variant
         from oodmon.envs.registration import task_of_env
 
-        if self.env_id is None or (obs_noise and task_of_env(self.env_id)):
-            task = self.task if self.env_id is None else task_of_env(self.env_id)
-            return Variant(task).make(obs_noise=obs_noise) if obs_noise else Variant(task).make()
-        if obs_noise:
+        if self.env_id is not None and not obs_noise:
+            return gymnasium.make(self.env_id)  # the user's own env, exactly as they deploy in it
+        task = self.task if self.env_id is None else task_of_env(self.env_id)  # oodmon's env of that task
+        if task is None:
             raise ConfigError(f"obs_noise is an option of oodmon's envs; {self.env_id} has no such option")
-        return gymnasium.make(self.env_id)
+        return Variant(task).make(obs_noise=obs_noise) if obs_noise else Variant(task).make()
 
     def __repr__(self) -> str:
         ret = self.metadata.get("id_return_mean")

@@ -31,6 +31,7 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.errors import ConfigError
+from oodmon.hashing import file_sha256
 
 __all__ = ["SB3_ALGORITHMS", "load_sb3", "sb3_agent", "sb3_algorithm"]
 
@@ -42,10 +43,6 @@ SB3_ALGORITHMS = {
     "stable_baselines3.sac.policies": ("SAC",),
     "stable_baselines3.common.policies": ("PPO", "A2C"),
 }
-
-
-def file_sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def sb3_algorithm(path: str | Path) -> tuple[str, ...]:

@@ -21,6 +21,7 @@ from safetensors.torch import load, save_file
 
 from oodmon.agents.networks import build_modules
 from oodmon.errors import ModelFormatError
+from oodmon.hashing import file_sha256
 
 __all__ = ["FORMAT_VERSION", "load_modules", "read_metadata", "save_modules"]
 
@@ -43,7 +44,7 @@ def save_modules(directory: str | Path, modules: torch.nn.Module, metadata: dict
     }
     save_file(tensors, str(directory / "model.safetensors"))
     metadata = {"format_version": FORMAT_VERSION, **metadata, "dtype": "float16" if half else "float32",
-                "safetensors_sha256": hashlib.sha256((directory / "model.safetensors").read_bytes()).hexdigest()}
+                "safetensors_sha256": file_sha256(directory / "model.safetensors")}
     (directory / "model.json").write_text(json.dumps(metadata, indent=1, sort_keys=True) + "\n")
     return directory
 

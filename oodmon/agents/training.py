@@ -30,7 +30,6 @@ with a warning (the run resumes from ``policy.safetensors`` with a fresh buffer)
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import time
@@ -59,6 +58,7 @@ from oodmon.envs.grid import ENV_IDS, Variant
 from oodmon.errors import ConfigError
 from oodmon.threads import torch_threads
 from oodmon.versions import library_versions
+from oodmon.hashing import file_sha256
 
 __all__ = ["ID_EPISODES", "architecture", "train"]
 
@@ -450,7 +450,7 @@ def _select_snapshot(run: _Run, model: BaseAlgorithm, arch: dict[str, Any], seed
     setting = {"episodes": recipe.select_episodes, "seed": SELECTION_SEED, "n_samples": recipe.n_samples,
                "member_seed": seed}
     for candidate in candidates:
-        candidate["sha256"] = hashlib.sha256(candidate["path"].read_bytes()).hexdigest()
+        candidate["sha256"] = file_sha256(candidate["path"])
         known = cache.get(candidate["sha256"])
         if known is not None and all(known.get(k) == v for k, v in setting.items()):
             candidate["selection_return_mean"] = known["selection_return_mean"]

@@ -19,7 +19,6 @@ finished all the same; an episode cut by an exception or Ctrl-C is logged as ``i
 from __future__ import annotations
 
 import atexit
-import hashlib
 import json
 import math
 import shlex
@@ -33,7 +32,7 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import UncertaintyEstimator
-from oodmon.envs.registration import variant_of_env
+from oodmon.envs.registration import env_id_of, variant_of_env
 from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
@@ -42,6 +41,7 @@ from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.monitor.sinks.base import Sink, SinkGroup
 from oodmon.monitor.threshold import Threshold
 from oodmon.versions import library_versions
+from oodmon.hashing import file_sha256
 
 __all__ = ["AlarmCallback", "Monitor", "MonitoredEnv"]
 
@@ -57,7 +57,7 @@ def policy_hash(agent: Agent | None) -> str:
     if agent is None or agent.path is None:
         return "unknown"
     path = agent.path / "model.safetensors"
-    return "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "unknown"
+    return "sha256:" + file_sha256(path) if path.exists() else "unknown"
 
 
 def run_about(metadata: dict[str, Any]) -> dict[str, str]:
@@ -255,6 +255,7 @@ class Monitor:
         self.detectors.reset()
         self._prev_obs, self._prev_action = None, None
         self._episode_info = dict(env_id=env_id, variant=variant, onset=onset, seed=seed)
+        self._episode_task = self.agent.task if self.agent is not None else variant.split(":")[0]  # render's
         self._return, self._length, self._alarms, self._first_alarm = 0.0, 0, 0, None
         self._rewards: list[float] = []
         self._in_episode = True
@@ -336,7 +337,7 @@ class Monitor:
         """A picture of a CartPole or Pendulum state (``render``); ``None`` for another env."""
         from oodmon.envs.preview import draw_state
 
-        task = self.agent.task if self.agent is not None else self._episode_info["variant"].split(":")[0]
+        task = self._episode_task
         return draw_state(task, obs) if task in ("cartpole", "pendulum") else None
 
     def add_reward(self, reward: float) -> None:
@@ -367,9 +368,8 @@ class Monitor:
         (progress within long episodes: a Pong game is thousands of decisions).
         """
         base = env.unwrapped
-        spec_id = env.spec.id if env.spec is not None else type(base).__name__
         obs, info = env.reset(seed=seed, options=options)
-        self.begin_episode(env_id=spec_id, variant=variant or variant_of_env(env), onset=int(getattr(base, "onset_step", 0)),
+        self.begin_episode(env_id=env_id_of(env), variant=variant or variant_of_env(env), onset=int(getattr(base, "onset_step", 0)),
                            seed=seed)
         try:
             while True:
@@ -421,8 +421,7 @@ class MonitoredEnv(gymnasium.Wrapper):
         if self.monitor._in_episode and not self.monitor.abandon_empty_episode():
             self.monitor.end_episode()
         obs, info = self.env.reset(seed=seed, options=options)
-        spec_id = self.env.spec.id if self.env.spec is not None else type(self.env.unwrapped).__name__
-        self.monitor.begin_episode(env_id=spec_id, variant=self.variant or variant_of_env(self.env),
+        self.monitor.begin_episode(env_id=env_id_of(self.env), variant=self.variant or variant_of_env(self.env),
                                    onset=int(getattr(self.env.unwrapped, "onset_step", 0)), seed=seed)
         self._obs, self._info = obs, info
         return obs, info

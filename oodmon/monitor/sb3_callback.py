@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from oodmon.envs.registration import task_of_env, variant_of_env
+from oodmon.envs.registration import env_id_of, task_of_env, variant_of_env
 from oodmon.monitor.monitor import Monitor, _frame
 
 __all__ = ["MonitorCallback"]
@@ -44,15 +44,17 @@ class MonitorCallback(BaseCallback):
     def __init__(self, monitor: Monitor, verbose: int = 0) -> None:
         super().__init__(verbose)
         self.monitor = monitor
-        self.alarms = 0
+
+    @property
+    def alarms(self) -> int:
+        """Alarms the monitor raised so far."""
+        return self.monitor.alarms_raised
 
     def _variant(self) -> tuple[str, str]:
         """``(env_id, variant)`` of the first env, read from it where the vector env holds it here."""
         envs = getattr(self.training_env, "envs", None)
         if envs:
-            env = envs[0]
-            spec_id = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
-            return spec_id, variant_of_env(env)
+            return env_id_of(envs[0]), variant_of_env(envs[0])
         spec = self.training_env.get_attr("spec", [0])[0]
         spec_id = spec.id if spec is not None else "unknown"
         return spec_id, task_of_env(spec_id) or spec_id
@@ -76,8 +78,7 @@ class MonitorCallback(BaseCallback):
         for name, value in record.scores.items():
             self.logger.record_mean(f"oodmon/score_{name}", value)
         self.logger.record_mean("oodmon/alarm_share", float(record.alarm))
-        self.alarms = monitor.alarms_raised
-        self.logger.record("oodmon/alarms", self.alarms)
+        self.logger.record("oodmon/alarms", monitor.alarms_raised)
         if np.isfinite(monitor.threshold):
             self.logger.record("oodmon/threshold", monitor.threshold)
         monitor.add_reward(float(self.locals["rewards"][0]))

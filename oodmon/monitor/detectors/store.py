@@ -21,6 +21,7 @@ from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
+from oodmon.hashing import file_sha256
 
 __all__ = ["DETECTORS", "DetectorSet"]
 
@@ -124,7 +125,7 @@ class DetectorSet:
         directory.mkdir(parents=True, exist_ok=True)
         tensors = {f"{d.name}/{key}": np.ascontiguousarray(value) for d in self for key, value in d.tensors().items()}
         save_file(tensors, str(directory / "detectors.safetensors"))
-        digest = hashlib.sha256((directory / "detectors.safetensors").read_bytes()).hexdigest()
+        digest = file_sha256(directory / "detectors.safetensors")
         meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "fitted_for": self.fitted_for,
                 "detectors": [{"name": d.name, "config": d.config()} for d in self], "safetensors_sha256": digest}
         (directory / "detectors.json").write_text(json.dumps(meta, indent=1) + "\n")
