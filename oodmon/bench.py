@@ -22,6 +22,9 @@ The report puts, per variant, our AUROC mean and std over trials beside the pape
 best AUROC per method beside the paper's best. A cell whose log is complete is not run again,
 so an interrupted bench resumes; cells run in ``workers`` processes, or as Ray tasks on a Ray
 cluster (``executor="ray"``, ``address``; Ray is the optional extra ``oodmon[ray]``).
+
+Your own stable-baselines3 models (``sb3=(paths...)``, ``env_id``) are benched as the one method
+``sb3`` with one trial: nothing is trained, and the paper has no figures for them.
 """
 
 from __future__ import annotations
@@ -93,6 +96,9 @@ class BenchConfig:
     rule: str = "consecutive"  # the alarm rule: consecutive, cusum or martingale (oodmon.monitor.sequential)
     consecutive: int | None = None  # m of the consecutive rule (None: 3 for spread, 1 for a learned detector)
     all_variants: bool = False  # monitor every variant, not only those the agent fails on (Pong: no failure to wait for)
+    sb3: tuple[str, ...] = ()  # your own SB3 model files instead of oodmon agents (the method "sb3", one trial)
+    env_id: str | None = None  # the gymnasium env id the sb3 models act in
+    mean: bool = False  # deploy the sb3 ensemble's mean decision, not the first model's
 
     def __post_init__(self) -> None:
         from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -109,7 +115,12 @@ class BenchConfig:
                 raise ConfigError(f"unknown detector {name!r}; choose from {', '.join(DETECTOR_NAMES)}")
         if self.alarm_detector not in self.detectors:
             raise ConfigError(f"the alarm reads the {self.alarm_detector} detector: add it to the detectors")
-        if "spread" not in self.detectors:
+        if self.sb3:
+            if self.env_id is None:
+                raise ConfigError("sb3 models need env_id: the gymnasium env id they act in (e.g. CartPole-v1)")
+            if self.methods != ("sb3",) or self.trials != 1:
+                raise ConfigError("sb3 models are benched as one method ('sb3') and one trial: nothing is trained")
+        elif "spread" not in self.detectors:
             raise ConfigError("the bench's agents all have samples: keep spread among the detectors")
         from oodmon.monitor.threshold import conformal_rank
 
@@ -206,6 +217,8 @@ def paper_label(task: str, method: str, spec: str) -> str | None:
         >>> paper_label("cartpole", "dropconnect", "cartpole:masscart=9.0")
         'masscart=9.0 (text says pole mass 9)'
     """
+    if method not in PAPER_METHOD:  # your own SB3 models: the paper has no figures for them
+        return None
     table = paper_auc_per_trial().get(task, {}).get(PAPER_METHOD[method], {})
     variant = parse_variant(spec)
     if variant.task == "pong":
@@ -217,6 +230,36 @@ def paper_label(task: str, method: str, spec: str) -> str | None:
         if label == key or label.startswith(key + " "):
             return label
     return None
+
+
+@dataclass(frozen=True)
+class Sb3Models:
+    """A user's SB3 model files as the bench hands them to its workers, which load them there."""
+
+    paths: tuple[str, ...]
+    env_id: str
+    mean: bool = False
+
+    def __str__(self) -> str:
+        return ", ".join(self.paths)
+
+
+def _bench_agent(source: str | Sb3Models, task: str, seed: int):
+    """The agent of a model directory or of SB3 model files, its MC sampling seeded."""
+    if isinstance(source, Sb3Models):
+        from oodmon.agents.sb3 import load_sb3
+
+        return load_sb3(source.paths, source.env_id, mean=source.mean, seed=seed)
+    return load_agent(source, task=task, seed=seed)
+
+
+def _weights_sha256(source: Path | Sb3Models) -> str:
+    """What a (method, trial)'s cached results were made with: the weights' sha256, or the SB3 files'."""
+    if isinstance(source, Sb3Models):
+        import hashlib
+
+        return hashlib.sha256("\n".join(file_sha256(p) for p in source.paths).encode()).hexdigest()
+    return file_sha256(source / "model.safetensors")
 
 
 def _model_dir(config: BenchConfig, method: str, trial: int) -> Path:
@@ -231,6 +274,8 @@ def _model_dir(config: BenchConfig, method: str, trial: int) -> Path:
 def _refuse_to_train_for_hours(config: BenchConfig, method: str, trial: int) -> None:
     """A missing Pong model takes hours to train on a CPU: never start that as a side effect of a
     bench; say how to train it instead."""
+    if config.sb3:
+        return
     path = _model_dir(config, method, trial)
     if (path / "model.json").exists() or not recipe_for(config.task, method).cnn or config.train_steps is not None:
         return
@@ -242,7 +287,9 @@ def _refuse_to_train_for_hours(config: BenchConfig, method: str, trial: int) -> 
     )
 
 
-def _ensure_model(config: BenchConfig, method: str, trial: int) -> Path:
+def _ensure_model(config: BenchConfig, method: str, trial: int) -> Path | Sb3Models:
+    if config.sb3:
+        return Sb3Models(tuple(str(Path(p).resolve()) for p in config.sb3), config.env_id, config.mean)
     path = _model_dir(config, method, trial)
     if not (path / "model.json").exists():
         _refuse_to_train_for_hours(config, method, trial)
@@ -288,7 +335,7 @@ def episode_onset(onsets: tuple[int, int], seed: int) -> int:
     return int(np.random.default_rng([seed, 0x0175E7]).integers(*onsets))
 
 
-def _run_cell(task: str, model: str, threshold: str, spec: str, episodes: int, seed: int, log: str,
+def _run_cell(task: str, model: str | Sb3Models, threshold: str, spec: str, episodes: int, seed: int, log: str,
               detectors: str | None = None, obs_noise: float = 0.0, onsets: tuple[int, int] | None = None) -> str:
     """One cell, in a worker process: monitored episodes of one variant into one MCAP log.
     ``onsets``: each shifted episode shifts at a random step in this range (the monitor's protocol)."""
@@ -298,7 +345,7 @@ def _run_cell(task: str, model: str, threshold: str, spec: str, episodes: int, s
     from oodmon.monitor.detectors import DetectorSet
 
     torch.set_num_threads(1)
-    agent = load_agent(model, task=task, seed=seed)  # seeded MC sampling: the same cell, the same log
+    agent = _bench_agent(model, task, seed)  # seeded MC sampling: the same cell, the same log
     variant = parse_variant(spec)
     env = variant.make(obs_noise=obs_noise) if obs_noise else variant.make()
     temporary = Path(log).with_suffix(".part")
@@ -366,12 +413,12 @@ def _start_ray(config: BenchConfig, workers: int) -> bool:
     return True
 
 
-def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path) -> None:
+def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path | Sb3Models) -> None:
     """Keep a (method, trial) folder's cached threshold, failing variants and logs only while they
     belong to the weights in ``model``: a new zoo agent or a retrained model moves the old results
     to ``<out>/set-aside/weights-<old hash>/`` (kept, not deleted, and out of the logs a replay of
     ``<out>/logs`` reads) and the trial is run again."""
-    weights = file_sha256(model / "model.safetensors")[:16]
+    weights = _weights_sha256(model)[:16]
     stamp = folder / "weights.sha256"
     made_by = stamp.read_text().strip() if stamp.exists() else "unknown"
     if folder.exists() and any(folder.iterdir()) and made_by != weights:
@@ -388,7 +435,7 @@ def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path) ->
 
 
 def _prepare_trial(config: BenchConfig, method: str, trial: int,
-                   report: Callable[[str, int, int], None]) -> tuple[Path, Path, list[str], Path | None]:
+                   report: Callable[[str, int, int], None]) -> tuple[Path | Sb3Models, Path, list[str], Path | None]:
     """Model, threshold and failing variants of one (method, trial); cached in its folder.
     ``report(stage, done, total)`` counts the episodes of calibration and evaluation."""
     from oodmon.monitor import calibrate_agent
@@ -399,7 +446,10 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
     threshold_path, failing_path = folder / f"threshold-{config.cache_key()}.json", folder / "failing.json"
     # Seeded MC sampling (as `oodmon calibrate --seed`): the same bench fits the same detectors and
     # calibrates the same threshold; unseeded, an MC agent's threshold varied from run to run.
-    agent = load_agent(model, task=config.task, seed=seeds.CALIBRATION)
+    agent = _bench_agent(model, config.task, seeds.CALIBRATION)
+    if "spread" in config.detectors and agent.estimator is None:
+        raise ConfigError(f"{method} has no samples of its own (one model, or a kind oodmon does not sample): "
+                          f"drop spread from the detectors")
     detectors_path = _fit_trial_detectors(config, agent, folder, f"{method} trial {trial}", report)
     if not threshold_path.exists():
         from oodmon.monitor.detectors import DetectorSet
@@ -463,7 +513,7 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
     check_window(config.window)
     for method, trial in trials:  # before minutes of work on the others
         _refuse_to_train_for_hours(config, method, trial)
-    prepared: dict[tuple[str, int], tuple[Path, Path, list[str], Path | None]] = {}
+    prepared: dict[tuple[str, int], tuple[Path | Sb3Models, Path, list[str], Path | None]] = {}
     for index, (method, trial) in enumerate(trials):
         report("models, thresholds, failing variants", index, len(trials))
         prepared[(method, trial)] = _prepare_trial(config, method, trial, report)
@@ -478,7 +528,7 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
         log = _cell_log(config, method, trial, spec)
         if not _log_is_complete(log, episodes):
             model, threshold, _, detectors = prepared[(method, trial)]
-            jobs.append((config.task, str(model), str(threshold), spec, episodes, seed, str(log),
+            jobs.append((config.task, model if isinstance(model, Sb3Models) else str(model), str(threshold), spec, episodes, seed, str(log),
                          None if detectors is None else str(detectors), config.obs_noise,
                          ONSETS[config.task] if config.protocol == "monitor" else None))
     done = len(cells) - len(jobs)
@@ -541,7 +591,7 @@ def paper_only_variants(result: BenchResult, task: str, methods: Iterable[str],
     missing = []
     table = paper_auc_per_trial().get(task, {})
     for method in methods:
-        for label, values in table.get(PAPER_METHOD[method], {}).items():
+        for label, values in table.get(PAPER_METHOD.get(method, ""), {}).items():
             if ran_specs is not None and not any(paper_label(task, method, spec) == label for spec in ran_specs):
                 continue
             if not any(paper_label(task, method, v) == label for (m, v) in ours if m == method):

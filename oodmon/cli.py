@@ -316,9 +316,11 @@ def _parser() -> argparse.ArgumentParser:
     check.set_defaults(handler=_check)
 
     bench = commands.add_parser("bench", help="the paper's protocol: trials x methods x failing variants, scored by replay")
-    bench.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
+    bench.add_argument("--task", choices=["cartpole", "pendulum", "pong"], help="required unless --sb3")
     bench.add_argument("--methods", default="dropout,dropconnect,ensemble", help="comma-separated (default all three)")
-    bench.add_argument("--trials", type=_whole(1), default=5, help="trials per method (default 5; trial 0 is the zoo agent)")
+    _sb3_arguments(bench)
+    bench.add_argument("--trials", type=_whole(1),
+                       help="trials per method (default 5; trial 0 is the zoo agent; --sb3: 1, nothing is trained)")
     bench.add_argument("--variants", default="paper", help="'paper' (the paper's grid) or comma-separated specs")
     bench.add_argument("--protocol", choices=["paper", "monitor"], default="paper",
                        help="paper (default): shifted from step 0, per-step AUROC; monitor: the monitor's own benchmark, "
@@ -768,20 +770,26 @@ def _bench(args: argparse.Namespace) -> int:
     for method in methods:
         if method not in METHODS:
             raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
+    samples = True  # the agents have samples of their own to spread
+    if args.sb3:
+        samples = _sb3_bench_task(args)
+        methods = ("sb3",)
+    elif args.task is None:
+        raise ConfigError("give --task (or --sb3 with --env for your own SB3 models)")
     variants = "paper" if args.variants == "paper" else tuple(args.variants.split(","))
     monitor = args.protocol == "monitor"
-    best = BEST_DETECTOR[args.task] if monitor else "spread"
+    best = BEST_DETECTOR[args.task] if monitor or not samples else "spread"
     alarm_detector = args.alarm_detector or best
     detectors = (tuple(d.strip() for d in args.detectors.split(",")) if args.detectors
-                 else tuple(dict.fromkeys(("spread", alarm_detector))))
-    config = BenchConfig(args.task, methods, args.trials, variants, args.episodes or (10 if monitor else 5),
+                 else tuple(dict.fromkeys(("spread", alarm_detector) if samples else (alarm_detector,))))
+    config = BenchConfig(args.task, methods, args.trials or (1 if args.sb3 else 5), variants, args.episodes or (10 if monitor else 5),
                          args.id_episodes or (200 if monitor else 10), out=args.out, workers=args.workers,
                          executor=args.executor, address=args.address, bind=args.bind, score=args.score,
                          window=args.window, detectors=detectors, alarm_detector=alarm_detector, obs_noise=args.obs_noise,
                          calibration_episodes=args.calibration_episodes or (90 if monitor else 45), far=args.far,
                          confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
-                         all_variants=args.all_variants)
+                         all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.outputs import check_output_dir
 
@@ -838,6 +846,18 @@ def _bench(args: argparse.Namespace) -> int:
         console.print("Variants the paper reports where our agents did not fail (no AUROC of ours): "
                       + ", ".join(f"{m} {label} ({best:.3f})" for m, label, best in missing))
     return 0
+
+
+def _sb3_bench_task(args: argparse.Namespace) -> bool:
+    """For ``bench --sb3``: set ``args.task`` from ``--env`` (the bench plays oodmon's variants of
+    that task); True where the models have samples of their own (the spread detector applies)."""
+    from oodmon.envs.registration import task_of_env
+
+    task = task_of_env(args.env) if args.env else None
+    if args.env and task is None:
+        raise ConfigError(f"bench plays oodmon's shifted variants of CartPole, Pendulum and Pong; --env {args.env} is "
+                          f"none of them: monitor it with `oodmon run --sb3 ... --env {args.env}` instead")
+    return _load_agent(args).estimator is not None
 
 
 def _bench_monitor_report(config, result, console: Console) -> int:
@@ -924,7 +944,7 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
 
         if not args.env:
             raise ConfigError("--sb3 needs --env: the gymnasium env id the models act in (e.g. CartPole-v1)")
-        if args.model or args.method:
+        if getattr(args, "model", None) or getattr(args, "method", None):
             raise ConfigError("--sb3 is instead of --model and --method: give one of them")
         agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed)
         if args.task and args.task != agent.task:

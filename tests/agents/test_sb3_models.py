@@ -200,3 +200,53 @@ def test_evaluate_takes_sb3_models_too(readme_run, capsys):
                  "cartpole:length=2.0", "--episodes", "2", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["task"] == "cartpole" and result["method"] == "sb3"
+
+
+def test_bench_runs_the_monitor_protocol_on_a_plain_sb3_policy(readme_run, capsys):
+    """One DQN of the README (no samples of its own): the monitor's benchmark with the learned
+    detectors, cached per weights like the zoo's agents."""
+    folder, _, _ = readme_run
+    out = folder / "bench"
+    argv = ["bench", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "CartPole-v1", "--protocol", "monitor",
+            "--variants", "cartpole:length=2.0", "--all-variants", "--episodes", "5", "--id-episodes", "20",
+            "--calibration-episodes", "19", "--confidence", "none", "--workers", "1", "--out", str(out), "--json"]
+    assert main(argv) == 0
+    result = json.loads(capsys.readouterr().out)
+    rows = {r["variant"]: r for r in result["alarms"] if r["method"] == "sb3"}
+    assert rows["cartpole"]["episodes"] == 20 and rows["cartpole:length=2.0"]["episodes"] == 5
+    assert rows["cartpole:length=2.0"]["alarmed"] >= 4  # 5 of 5 when written (the README's run: 5 of 5)
+    folder_of_trial = next(out.glob("logs/cartpole-*-alarm-combined/sb3/trial0"))
+    assert (folder_of_trial / "weights.sha256").read_text().strip() == file_sha256_of_models(folder / "runs/dqn0.zip")
+    capsys.readouterr()
+    assert main(argv[:-1] + ["--trials", "2"]) == 2
+    assert "one trial" in capsys.readouterr().err
+    assert main(["bench", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "Acrobot-v1"]) == 2
+    assert "none of them" in capsys.readouterr().err
+    assert main(["bench", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "CartPole-v1", "--detectors", "spread,combined",
+                 "--protocol", "monitor", "--out", str(folder / "bench2")]) == 2
+    assert "drop spread" in capsys.readouterr().err
+
+
+def file_sha256_of_models(*paths: Path) -> str:
+    """The bench's stamp of SB3 files: the first 16 hex of the sha256 of their sha256s."""
+    import hashlib
+
+    from oodmon.hashing import file_sha256
+
+    return hashlib.sha256("\n".join(file_sha256(p) for p in paths).encode()).hexdigest()[:16]
+
+
+@pytest.mark.parametrize("algorithm, env_id", [("PPO", "CartPole-v1"), ("A2C", "CartPole-v1"), ("SAC", "Pendulum-v1")])
+def test_ppo_a2c_and_sac_policies_act_as_sb3_does_and_have_no_samples(algorithm, env_id, tmp_path):
+    import stable_baselines3
+
+    model = getattr(stable_baselines3, algorithm)("MlpPolicy", gymnasium.make(env_id), seed=0,
+                                                  policy_kwargs={"net_arch": [16]})
+    model.save(tmp_path / "model.zip")
+    agent = load_sb3([tmp_path / "model.zip"], env_id)
+    assert agent.estimator is None and agent.method == "sb3"
+    loaded = getattr(stable_baselines3, algorithm).load(tmp_path / "model.zip", device="cpu")
+    env = gymnasium.make(env_id)
+    for seed in range(3):
+        obs = env.reset(seed=seed)[0]
+        assert np.allclose(agent.act(obs), loaded.predict(obs, deterministic=True)[0])
