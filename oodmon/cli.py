@@ -220,8 +220,8 @@ def _parser() -> argparse.ArgumentParser:
     _add_confidence(calibrate)
     calibrate.add_argument("--consecutive", type=_whole(1),
                            help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
-    calibrate.add_argument("--window", type=_whole(1), default=1,
-                           help="compare the mean score of the last N steps (default 1: each step's; Pong: try 100)")
+    calibrate.add_argument("--window", type=_whole(1),
+                           help="compare the mean score of the last N steps (default 1: each step's; Pong 200)")
     _add_rule(calibrate)
     calibrate.add_argument("--reference-episodes", type=_whole(1), default=20,
                            help="ID episodes a sequential rule's p-values are taken against (default 20; seeds apart)")
@@ -338,8 +338,8 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--workers", type=_whole(0), default=0, help="worker processes for the cells (default: all cores)")
     bench.add_argument("--score", default="chosen_std",
                        help="chosen_std (the paper's, default), mean_std, max_std or pre_squash_std (DDPG)")
-    bench.add_argument("--window", type=_whole(1), default=1,
-                       help="alarm rule on the mean score of the last N steps (default 1); AUROCs do not change")
+    bench.add_argument("--window", type=_whole(1),
+                       help="alarm rule on the mean score of the last N steps (default 1, Pong 200); AUROCs do not change")
     bench.add_argument("--detectors",
                        help="comma-separated detectors whose per-step AUROC is reported: spread (the paper's protocol's "
                             "default), dynamics, features, combined; the learned ones are fitted per trial on ID "
@@ -763,6 +763,7 @@ def _check(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     from oodmon.agents import METHODS
     from oodmon.bench import BenchConfig, alarms_per_variant, best_per_method, paper_only_variants, run_bench
+    from oodmon.monitor.alarms import default_window
     from oodmon.monitor.detectors import BEST_DETECTOR
     from oodmon.errors import UnknownParameterError
 
@@ -785,7 +786,7 @@ def _bench(args: argparse.Namespace) -> int:
     config = BenchConfig(args.task, methods, args.trials or (1 if args.sb3 else 5), variants, args.episodes or (10 if monitor else 5),
                          args.id_episodes or (200 if monitor else 10), out=args.out, workers=args.workers,
                          executor=args.executor, address=args.address, bind=args.bind, score=args.score,
-                         window=args.window, detectors=detectors, alarm_detector=alarm_detector, obs_noise=args.obs_noise,
+                         window=args.window or default_window(args.task), detectors=detectors, alarm_detector=alarm_detector, obs_noise=args.obs_noise,
                          calibration_episodes=args.calibration_episodes or (90 if monitor else 45), far=args.far,
                          confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
@@ -831,7 +832,7 @@ def _bench(args: argparse.Namespace) -> int:
                 if means:
                     summary.add_row(method, detector, f"{np.mean(means):.3f}", f"{np.min(means):.3f}", str(len(means)))
         console.print(summary)
-    rule = f"the mean score of the last {args.window} steps" if args.window > 1 else "each step's score"
+    rule = f"the mean score of the last {config.window} steps" if config.window > 1 else "each step's score"
     alarms = Table(title=f"{args.task}: the monitor's alarms ({config.alarm_detector} detector, {rule} against the "
                          "calibrated threshold), "
                          "mean over trials")

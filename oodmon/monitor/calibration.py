@@ -15,7 +15,7 @@ import numpy as np
 from oodmon import seeds
 from oodmon.agents.agent import Agent
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.alarms import default_consecutive
+from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
@@ -63,7 +63,7 @@ def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SE
 
 def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int | None = None,
                     mode: str = "episode", score: str = DEFAULT_SCORE, seed: int = CALIBRATION_SEED,
-                    on_episode: Callable[[int], None] | None = None, window: int = 1,
+                    on_episode: Callable[[int], None] | None = None, window: int | None = None,
                     detectors: DetectorSet | None = None, detector: str | None = None,
                     obs_noise: float = 0.0, confidence: float | None = DEFAULT_CONFIDENCE, rule: str = "consecutive",
                     reference_episodes: int = DEFAULT_REFERENCE_EPISODES, reference_by_age: bool = False) -> Threshold:
@@ -78,7 +78,8 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     false-alarm rate is at most ``far`` (``None``: on average over calibrations; see ``threshold``).
 
     ``consecutive``: m of the rule (default: 3 for ``spread``, 1 for a learned detector,
-    :func:`~oodmon.monitor.alarms.default_consecutive`).
+    :func:`~oodmon.monitor.alarms.default_consecutive`). ``window``: the rule compares the mean
+    score of the last ``window`` steps (default: 1, Pong 200, :func:`~oodmon.monitor.alarms.default_window`).
 
     ``rule``: ``consecutive`` (m steps in a row), or a sequential rule, ``cusum`` or
     ``martingale``, whose p-values are taken against ``reference_episodes`` further ID episodes
@@ -103,6 +104,8 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                           "(`oodmon fit-detectors`)")
     if consecutive is None:
         consecutive = default_consecutive(detector)
+    if window is None:
+        window = default_window(agent.task)
     steps = (consecutive if isinstance(consecutive, int) else 1) + (window if isinstance(window, int) else 1) - 1
     if rule != "consecutive" and (isinstance(reference_episodes, bool) or not isinstance(reference_episodes, int)
                                   or reference_episodes < 1):
