@@ -21,6 +21,7 @@ from safetensors.torch import load, save_file
 
 from oodmon.agents.networks import build_modules
 from oodmon.errors import ModelFormatError
+from oodmon.jsonfile import read_json
 from oodmon.hashing import file_sha256
 
 __all__ = ["FORMAT_VERSION", "load_modules", "read_metadata", "save_modules"]
@@ -54,10 +55,7 @@ def read_metadata(directory: str | Path, *, task: str | None = None) -> dict[str
     path = Path(directory) / "model.json"
     if not path.is_file():
         raise ModelFormatError(f"{path} does not exist: a model directory holds model.json and model.safetensors")
-    try:
-        metadata = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise ModelFormatError(f"{path} is not valid JSON ({error}); the model's metadata is damaged") from None
+    metadata = read_json(path, error=ModelFormatError)  # not JSON: the model's metadata is damaged
     missing = [key for key in _REQUIRED if key not in metadata]
     if not isinstance(metadata, dict) or missing:
         raise ModelFormatError(f"{path} lacks {', '.join(missing)}: not an oodmon model's metadata")

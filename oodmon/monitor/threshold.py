@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.jsonfile import read_json
 from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, check_consecutive, check_window, episode_statistic, rule_text
 from oodmon.monitor.sequential import RULES, Reference
 
@@ -218,14 +219,8 @@ class Threshold:
                 alarm, ``consecutive: 0`` is no rule).
         """
         path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise ConfigError(f"threshold file {path} does not exist; make one with `oodmon calibrate`") from None
-        except IsADirectoryError:
-            raise ConfigError(f"threshold file {path} is a folder; give the JSON file `oodmon calibrate` wrote") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as error:
-            raise ConfigError(f"threshold file {path} is not valid JSON ({error})") from None
+        data = read_json(path, name="threshold file", missing="make one with `oodmon calibrate`",
+                         folder="give the JSON file `oodmon calibrate` wrote")
         if not isinstance(data, dict):
             raise ConfigError(f"{path} is not a threshold file: it holds {type(data).__name__} {data!r:.40}, "
                               "not an object with value, score, consecutive, ...")

@@ -8,12 +8,12 @@ up (delays by more than the tolerance times their baseline, since they count ste
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
 
 from oodmon.errors import ConfigError
+from oodmon.jsonfile import read_json
 from oodmon.replay.metrics import VariantMetrics
 
 __all__ = ["HIGHER_IS_BETTER", "LOWER_IS_BETTER", "baseline_of", "check_tolerance", "find_falls", "load_baseline"]
@@ -39,14 +39,8 @@ def load_baseline(path: str | Path) -> dict:
             name with a finite number, the tolerance a number >= 0.
     """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"baseline {path} does not exist; write one with `oodmon check LOGS --baseline {path} --update`") from None
-    except IsADirectoryError:
-        raise ConfigError(f"baseline {path} is a folder; give the JSON file `oodmon check --update` wrote") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise ConfigError(f"baseline {path} is not valid JSON ({error})") from None
+    data = read_json(path, name="baseline", missing=f"write one with `oodmon check LOGS --baseline {path} --update`",
+                     folder="give the JSON file `oodmon check --update` wrote")
     if not isinstance(data, dict) or not isinstance(data.get("metrics"), dict):
         got = data.get("metrics") if isinstance(data, dict) else data
         raise ConfigError(f"{path} is not an oodmon baseline: 'metrics' must be an object of rows, not {got!r:.40}")

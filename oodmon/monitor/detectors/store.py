@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from oodmon.errors import ConfigError
+from oodmon.jsonfile import read_json
 from oodmon.monitor.detectors.base import Detector, StepContext
 from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector
@@ -147,10 +148,7 @@ class DetectorSet:
             if not path.is_file():
                 raise ConfigError(f"{path} does not exist: fitted detectors are a folder with detectors.json and "
                                   "detectors.safetensors (`oodmon fit-detectors` writes them)")
-        try:
-            meta = json.loads(meta_path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as error:
-            raise ConfigError(f"{meta_path} is not valid JSON ({error})") from None
+        meta = read_json(meta_path)
         if not isinstance(meta, dict) or meta.get("format") != FORMAT:
             raise ConfigError(f"{meta_path} is not a detectors file of oodmon")
         if meta.get("format_version", 0) > FORMAT_VERSION:
