@@ -20,7 +20,7 @@ demo: $(STAMP)
 	$(BIN)/oodmon demo
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q --durations=10
+	$(BIN)/python -m pytest -q --durations=10 -n auto --dist loadfile
 
 clean:
 	rm -rf $(VENV) runs build *.egg-info

@@ -24,11 +24,13 @@ def torch_threads(default: int | None = None) -> int | None:
 
     Example:
         >>> import os
-        >>> os.environ["OODMON_TORCH_THREADS"] = "2"
-        >>> torch_threads()
+        >>> from unittest import mock
+        >>> with mock.patch.dict(os.environ, {"OODMON_TORCH_THREADS": "2"}):
+        ...     torch_threads()
         2
-        >>> del os.environ["OODMON_TORCH_THREADS"]
-        >>> torch_threads(default=1)
+        >>> with mock.patch.dict(os.environ):
+        ...     _ = os.environ.pop("OODMON_TORCH_THREADS", None)
+        ...     torch_threads(default=1)
         1
     """
     value = os.environ.get("OODMON_TORCH_THREADS")

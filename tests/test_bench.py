@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -12,6 +10,7 @@ import pytest
 from oodmon.bench import BenchConfig, best_per_method, paper_label, run_bench
 from oodmon.errors import ConfigError
 from oodmon.replay import compute_metrics, read_log
+from tests.helpers import run_cli
 
 SPECS = ("cartpole:length=2.0", "cartpole:gravity=98.0", "cartpole:gravity=0.98")
 
@@ -60,7 +59,7 @@ def test_bench_end_to_end_and_resume(tmp_path):
     trial1 = tmp_path / f"logs/cartpole-{config.cache_key()}/dropout/trial1"
     old_threshold = (trial1 / f"threshold-{config.cache_key()}.json").read_text()
     run_bench(config)
-    set_aside = list((tmp_path / "set-aside").glob(f"weights-*/logs/cartpole-*/dropout/trial1/threshold-*.json"))
+    set_aside = list((tmp_path / "set-aside").glob("weights-*/logs/cartpole-*/dropout/trial1/threshold-*.json"))
     assert len(set_aside) == 1 and set_aside[0].read_text() == old_threshold
     assert (trial1 / f"threshold-{config.cache_key()}.json").read_text() != old_threshold
     assert {p: p.stat().st_mtime_ns for p in (trial1.parent / "trial0").glob("*.mcap")} == {
@@ -91,10 +90,9 @@ def test_paper_labels_match_our_specs():
 
 
 def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
-    result = subprocess.run(
-        [sys.executable, "-m", "oodmon", "bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1",
-         "--variants", "cartpole:length=2.0", "--episodes", "2", "--id-episodes", "3", "--workers", "1",
-         "--calibration-episodes", "22", "--far", "0.1", "--out", str(tmp_path), "--json"], capture_output=True, text=True)
+    result = run_cli("bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1",
+                     "--variants", "cartpole:length=2.0", "--episodes", "2", "--id-episodes", "3", "--workers", "1",
+                     "--calibration-episodes", "22", "--far", "0.1", "--out", str(tmp_path), "--json")
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
     row = report["rows"][0]
@@ -102,10 +100,9 @@ def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
     assert row["paper"] == [0.862, 0.826, 0.993, 0.864, 0.87] and 0.0 <= row["mean"] <= 1.0
     assert np.isclose(row["mean"], row["aurocs"]["0"])
     # The tables (cells cached now) end with what the alarm rule did, as the JSON reports it.
-    tables = subprocess.run(
-        [sys.executable, "-m", "oodmon", "bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1",
-         "--variants", "cartpole:length=2.0", "--episodes", "2", "--id-episodes", "3", "--workers", "1",
-         "--calibration-episodes", "22", "--far", "0.1", "--out", str(tmp_path)], capture_output=True, text=True)
+    tables = run_cli("bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1",
+                     "--variants", "cartpole:length=2.0", "--episodes", "2", "--id-episodes", "3", "--workers", "1",
+                     "--calibration-episodes", "22", "--far", "0.1", "--out", str(tmp_path))
     assert tables.returncode == 0, tables.stderr
     detected = report["monitor"]["ensemble/trial0/cartpole:length=2.0"]["detection_rate"]
     alarm_row = next(line for line in tables.stdout.splitlines() if "cartpole:length=2.0" in line and "%" in line)
@@ -129,6 +126,7 @@ def test_alarms_are_averaged_over_the_trials_that_have_them():
     ]
 
 
+@pytest.mark.slow
 def test_ray_executor_gives_the_same_logs_numbers_as_local_processes(tmp_path):
     common = dict(task="cartpole", methods=("dropout",), trials=1, variants=("cartpole:length=2.0",), episodes=2,
                   id_episodes=2, eval_episodes=2, calibration_episodes=19, confidence=None, workers=1)
@@ -163,6 +161,7 @@ def test_paper_variants_without_our_auroc_are_only_those_the_bench_ran():
     assert [label for _, label, _ in paper_only_variants(result, "cartpole", ["ensemble"], ran=ran)] == ["gravity=98.0"]
 
 
+@pytest.mark.slow
 def test_a_local_ray_cluster_listens_on_loopback_only(tmp_path):
     import ray
 
@@ -246,3 +245,22 @@ def test_the_same_bench_calibrates_the_same_threshold_for_an_mc_agent(tmp_path):
         path = tmp_path / name / "logs" / f"cartpole-{config.cache_key()}" / "dropout" / "trial0"
         thresholds.append(json.loads((path / f"threshold-{config.cache_key()}.json").read_text()))
     assert thresholds[0] == thresholds[1] and thresholds[0]["method"] == "dropout"
+
+
+def test_pong_alarms_on_200_decision_means_unless_told_otherwise(monkeypatch, tmp_path):
+    """The CLI's window default per task (oodmon.monitor.alarms.default_window), as bench passes it."""
+    import oodmon.bench
+    from oodmon.cli import main
+
+    configs = []
+
+    def record(config, on_progress=None):
+        configs.append(config)
+        raise SystemExit(0)  # the configuration is what is checked; nothing runs
+
+    monkeypatch.setattr(oodmon.bench, "run_bench", record)
+    common = ["--methods", "ensemble", "--trials", "1", "--protocol", "monitor", "--out", str(tmp_path / "b")]
+    for argv, window in ((["--task", "pong"], 200), (["--task", "pong", "--window", "7"], 7), (["--task", "cartpole"], 1)):
+        with pytest.raises(SystemExit):
+            main(["bench", *argv, *common])
+        assert configs[-1].window == window

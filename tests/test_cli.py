@@ -12,8 +12,14 @@ import pytest
 from oodmon.cli import main
 
 
-def _run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "oodmon", *args], capture_output=True, text=True)
+from tests.helpers import run_cli as _run
+
+
+def test_python_dash_m_oodmon_is_the_cli():
+    """The one test that starts the command as a new process; the others run it in-process."""
+    result = subprocess.run([sys.executable, "-m", "oodmon", "calibrate", "--task", "cartpole"], capture_output=True,
+                            text=True)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1 and "--out" in result.stderr
 
 
 def test_envs_lists_the_whole_grid_as_json(capsys):

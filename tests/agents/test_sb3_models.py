@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import re
 import shlex
+import sys
 from pathlib import Path
 
 import gymnasium
@@ -19,7 +20,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from oodmon.agents.sb3 import load_sb3, sb3_algorithm
 from oodmon.cli import main
 from oodmon.errors import ConfigError
-from oodmon.monitor import McapSink, Monitor
+from oodmon.monitor import Monitor
 from oodmon.replay import read_log
 
 README = Path(__file__).resolve().parents[2] / "README.md"
@@ -79,7 +80,7 @@ def test_the_log_records_the_models_files_env_and_command(readme_run):
     assert [Path(m["path"]).name for m in models] == ["dqn0.zip", "dqn1.zip"]
     assert all(len(m["sha256"]) == 64 and m["algorithm"] == "DQN" for m in models)
     assert log.metadata["about.env_id"] == "CartPole-v1"
-    assert "--sb3" in log.metadata["about.command"] or "pytest" in log.metadata["about.command"]
+    assert log.metadata["about.command"] == shlex.join(sys.argv)  # this process's command line (here pytest's)
     assert log.task == "cartpole" and log.method == "sb3"
 
 

@@ -46,6 +46,7 @@ def test_shipped_agent_solves_its_task_and_reproduces_its_id_episodes(name):
 PONG = [name for name in zoo_names() if name.startswith("pong-")]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", PONG)
 def test_shipped_pong_agent_says_honestly_what_it_is_and_replays_its_first_id_episode(name):
     method = name.split("-")[1]

@@ -11,7 +11,7 @@ import pytest
 
 from oodmon.errors import ConfigError
 from oodmon.monitor import AlarmTracker, Threshold, calibrate, episode_statistic
-from oodmon.monitor.sequential import CUSUM_DRIFT, Reference, SequentialStatistic, bucket_edges, sequential_path
+from oodmon.monitor.sequential import CUSUM_DRIFT, Reference, bucket_edges, sequential_path
 
 
 def _episodes(rng, n, length=200, burst=True):

@@ -5,7 +5,6 @@ from __future__ import annotations
 import base64
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -14,7 +13,6 @@ import warnings
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from mcap.stream_reader import StreamReader
 
 from oodmon.agents import load
 from oodmon.envs import parse_variant

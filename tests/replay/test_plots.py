@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 
 from oodmon.replay import compute_metrics, read_log
 from oodmon.replay.plots import plot_roc, plot_trace, write_plots
+from tests.helpers import run_cli
 
 DATA = Path(__file__).parent.parent / "data"
 
 
 def test_replay_plots_writes_roc_trace_and_auroc_vs_shift(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "oodmon", "replay", str(DATA), "--plots", str(tmp_path)],
-                            capture_output=True, text=True)
+    result = run_cli("replay", str(DATA), "--plots", str(tmp_path))
     assert result.returncode == 0 and "wrote 3 plot(s)" in result.stderr
     names = sorted(p.name for p in tmp_path.iterdir())
     assert names == ["auroc_vs_shift_cartpole.png", "roc_cartpole_length_2.0.png",

@@ -5,8 +5,6 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +20,7 @@ DATA = Path(__file__).parent.parent / "data"
 LOGS = sorted(DATA.glob("*.mcap"))
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "oodmon", *args], capture_output=True, text=True)
+from tests.helpers import run_cli as _cli
 
 
 def test_recorded_logs_give_their_pinned_numbers():
