@@ -43,7 +43,7 @@ import numpy as np
 from oodmon import seeds
 from oodmon.agents import evaluate_variants, load_agent, train, zoo_dir, zoo_names
 from oodmon.agents.recipes import recipe_for
-from oodmon.envs.grid import Variant, paper_grid, parse_variant
+from oodmon.envs.grid import Variant, parse_variant, select_variants
 from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import check_window
 from oodmon.paper import paper_auc_per_trial
@@ -159,13 +159,7 @@ class BenchConfig:
         return "-".join(parts)
 
     def variant_list(self) -> list[Variant]:
-        if self.variants == "paper":
-            return paper_grid(self.task)
-        variants = [parse_variant(v) for v in self.variants]
-        for v in variants:
-            if v.task != self.task or v.is_id:
-                raise ConfigError(f"bench variant {v.spec!r} is not a shifted {self.task} variant")
-        return variants
+        return select_variants(self.task, self.variants, shifted_only=True)
 
 
 @dataclass(frozen=True)

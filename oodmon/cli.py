@@ -20,6 +20,7 @@ from rich.console import Console
 from rich.table import Table
 
 from oodmon.errors import ConfigError, OodmonError
+from oodmon.names import METHODS, TASKS
 from oodmon.monitor.threshold import DETECTOR_NAMES
 from oodmon.seeds import CALIBRATION, VALIDATION
 
@@ -160,7 +161,7 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(title="commands", metavar="COMMAND")
 
     envs = commands.add_parser("envs", help="list the paper's OOD variants; 'envs show SPEC' pictures one")
-    envs.add_argument("--task", choices=["cartpole", "pendulum", "pong"], help="only this task's variants")
+    envs.add_argument("--task", choices=TASKS, help="only this task's variants")
     envs.add_argument("--json", action="store_true", help="print JSON instead of a table")
     envs.set_defaults(handler=_envs_list)
     envs_commands = envs.add_subparsers(title="envs commands", metavar="COMMAND")
@@ -183,8 +184,8 @@ def _parser() -> argparse.ArgumentParser:
     train = commands.add_parser(
         "train", help="train an uncertainty-aware agent from its recipe (resumes an interrupted run)"
     )
-    train.add_argument("--task", required=True, choices=["cartpole", "pendulum", "pong"])
-    train.add_argument("--method", required=True, choices=["dropout", "dropconnect", "ensemble"])
+    train.add_argument("--task", required=True, choices=TASKS)
+    train.add_argument("--method", required=True, choices=METHODS)
     train.add_argument("--seed", type=_SEED, default=0, help="the trial's seed (default 0)")
     train.add_argument("--out", required=True, help="training directory; the same command resumes it")
     train.add_argument("--steps", type=_whole(1), help="override the recipe's training steps per run")
@@ -198,8 +199,8 @@ def _parser() -> argparse.ArgumentParser:
     evaluate = commands.add_parser(
         "evaluate", help="where an agent fails: mean return per variant beside the ID return"
     )
-    evaluate.add_argument("--task", choices=["cartpole", "pendulum", "pong"], help="required unless --sb3")
-    evaluate.add_argument("--method", choices=["dropout", "dropconnect", "ensemble"],
+    evaluate.add_argument("--task", choices=TASKS, help="required unless --sb3")
+    evaluate.add_argument("--method", choices=METHODS,
                           help="a shipped agent (or give --model)")
     evaluate.add_argument("--model", help="a trained model directory instead of a shipped agent")
     _sb3_arguments(evaluate)
@@ -316,7 +317,7 @@ def _parser() -> argparse.ArgumentParser:
     check.set_defaults(handler=_check)
 
     bench = commands.add_parser("bench", help="the paper's protocol: trials x methods x failing variants, scored by replay")
-    bench.add_argument("--task", choices=["cartpole", "pendulum", "pong"], help="required unless --sb3")
+    bench.add_argument("--task", choices=TASKS, help="required unless --sb3")
     bench.add_argument("--methods", default="dropout,dropconnect,ensemble", help="comma-separated (default all three)")
     _sb3_arguments(bench)
     bench.add_argument("--trials", type=_whole(1),
@@ -368,23 +369,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _envs_list(args: argparse.Namespace) -> int:
-    from oodmon.envs import TASKS, paper_grid, severity_params
-    from oodmon.paper import paper_grid_data
+    from oodmon.envs.grid import grid_rows
 
-    tasks = [args.task] if args.task else list(TASKS)
-    rows = []
-    for task in tasks:
-        defaults = paper_grid_data()[task].get("defaults", {})
-        for variant in paper_grid(task):
-            if task == "pong":
-                params = severity_params(variant.corruption, variant.severity)
-                value = ", ".join(f"{k}={v}" for k, v in params.items())
-                rows.append({"task": task, "spec": variant.spec, "parameter": variant.corruption,
-                             "value": value, "default": None})
-            else:
-                name, value = variant.params[0]
-                rows.append({"task": task, "spec": variant.spec, "parameter": name,
-                             "value": value, "default": defaults[name]})
+    rows = grid_rows([args.task] if args.task else TASKS)
     if args.json:
         print(json.dumps(rows, indent=1))
         return 0
@@ -497,11 +484,11 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
     """--task, --method, --model, --detectors; with ``defaults_from`` (a threshold file), the task and
     method default to what it was calibrated for, and the detectors to those fitted beside it."""
     if defaults_from is None:
-        parser.add_argument("--task", choices=["cartpole", "pendulum", "pong"],
+        parser.add_argument("--task", choices=TASKS,
                             help="a shipped agent's task (required unless --sb3)")
     else:
-        parser.add_argument("--task", choices=["cartpole", "pendulum", "pong"], help=f"default: {defaults_from} task")
-    parser.add_argument("--method", choices=["dropout", "dropconnect", "ensemble"],
+        parser.add_argument("--task", choices=TASKS, help=f"default: {defaults_from} task")
+    parser.add_argument("--method", choices=METHODS,
                         help="a shipped agent (or give --model)" if defaults_from is None
                         else f"a shipped agent (default: {defaults_from} method, unless --model)")
     parser.add_argument("--model", help="a trained model directory instead of a shipped agent")
@@ -593,7 +580,7 @@ def _fit_detectors(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
-    from oodmon.envs import TASKS, Variant, parse_variant
+    from oodmon.envs import Variant, parse_variant
     from oodmon.monitor import McapSink, Monitor, Threshold
     from oodmon.monitor.sinks.rerun import RerunSink
     from oodmon.replay.metrics import is_id_variant
@@ -658,10 +645,8 @@ def _run(args: argparse.Namespace) -> int:
     for record in records:
         if record.first_alarm_step is None or is_id_variant(record.variant):
             delay = ""
-        elif record.first_alarm_step < record.onset:
-            delay = "before onset"
         else:
-            delay = str(record.first_alarm_step - record.onset)
+            delay = "before onset" if record.alarmed_early else str(record.delay)
         table.add_row(str(record.episode), str(record.seed), f"{record.total_return:.1f}", str(record.length),
                       str(record.alarms), "" if record.first_alarm_step is None else str(record.first_alarm_step), delay)
     console.print(table)
@@ -761,7 +746,6 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from oodmon.agents import METHODS
     from oodmon.bench import BenchConfig, alarms_per_variant, best_per_method, paper_only_variants, run_bench
     from oodmon.monitor.alarms import default_window
     from oodmon.monitor.detectors import BEST_DETECTOR
@@ -963,18 +947,6 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
     return load(args.task, args.method, seed=seed)
 
 
-def _variants(task: str, text: str):
-    from oodmon.envs import paper_grid, parse_variant
-
-    if text == "paper":
-        return paper_grid(task)
-    variants = [parse_variant(spec) for spec in text.split(",")]
-    for variant in variants:
-        if variant.task != task:
-            raise ConfigError(f"variant {variant.spec!r} is not a {task} variant")
-    return variants
-
-
 def _evaluate(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
@@ -984,7 +956,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         raise InvalidParameterError(f"--episodes {args.episodes} is not allowed; give at least 1")
     agent = _load_agent(args)
-    variants = _variants(args.task, args.variants)
+    from oodmon.envs.grid import select_variants
+
+    variants = select_variants(args.task, args.variants)
     with Progress(console=Console(stderr=True), transient=True) as progress:
         bar = progress.add_task("evaluating", total=(len(variants) + 1) * args.episodes)
         id_result, results = evaluate_variants(

@@ -114,9 +114,9 @@ def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, 
             runs[name] = [monitor.run_episode(env, seed=DEMO + e, variant=variant.spec) for e in range(episodes)]
         env.close()
     false_alarms = sum(r.alarms > 0 for r in runs["id"])
-    detected = [r for r in runs["shifted"] if r.first_alarm_step is not None and r.first_alarm_step >= r.onset]
-    early = sum(r.first_alarm_step is not None and r.first_alarm_step < r.onset for r in runs["shifted"])
-    delays = [r.first_alarm_step - r.onset for r in detected]
+    detected = [r for r in runs["shifted"] if r.delay is not None]
+    early = sum(r.alarmed_early for r in runs["shifted"])
+    delays = [r.delay for r in detected]
     falls = ", ".join(str(r.length - r.onset) if r.terminated else "never" for r in runs["shifted"])  # kept up to 500
     console.print(f"2. ID: {false_alarms} of {episodes} episodes raised a (false) alarm; returns "
                   f"{[round(r.total_return) for r in runs['id']]}. -> {out / 'id.mcap'}, {out / 'id.rrd'}")

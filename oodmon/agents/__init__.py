@@ -15,7 +15,15 @@ from oodmon.agents.evaluation import RANDOM_RETURN, VariantResult, episode_retur
 from oodmon.agents.networks import estimator_from_sb3
 from oodmon.agents.layers import DropConnectLinear, add_dropout, is_stochastic, mc_sampling, to_dropconnect
 from oodmon.agents.recipes import METHODS, RECIPES, Recipe, recipe_for
-from oodmon.agents.training import train
+
+
+def __getattr__(name: str):
+    """``train`` is imported on first use: the monitor and replay never need the training loop."""
+    if name == "train":
+        from oodmon.agents.training import train
+
+        return train
+    raise AttributeError(f"module 'oodmon.agents' has no attribute {name!r}")
 
 __all__ = [
     "METHODS",

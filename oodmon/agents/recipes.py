@@ -11,11 +11,10 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from oodmon.errors import UnknownParameterError
+from oodmon.names import METHODS
 
 __all__ = ["METHODS", "RECIPES", "Recipe", "recipe_for"]
 
-#: The uncertainty methods, for every task.
-METHODS: tuple[str, ...] = ("dropout", "dropconnect", "ensemble")
 
 
 @dataclass(frozen=True)

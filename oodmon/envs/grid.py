@@ -15,6 +15,7 @@ Pendulum, 20 for Pong.
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,10 +24,11 @@ import gymnasium
 from oodmon.envs.checks import check_physics
 from oodmon.envs.corruptions import make_corruption
 from oodmon.envs.physics import CARTPOLE_DEFAULTS, PENDULUM_DEFAULTS
-from oodmon.errors import SpecError, UnknownParameterError
+from oodmon.errors import ConfigError, SpecError, UnknownParameterError
+from oodmon.names import TASKS
 from oodmon.paper import paper_grid_data
 
-__all__ = ["ENV_IDS", "TASKS", "Variant", "paper_grid", "parse_variant"]
+__all__ = ["ENV_IDS", "TASKS", "Variant", "grid_rows", "paper_grid", "parse_variant", "select_variants"]
 
 #: The gymnasium id of each task's env.
 ENV_IDS: dict[str, str] = {
@@ -34,7 +36,7 @@ ENV_IDS: dict[str, str] = {
     "pendulum": "oodmon/Pendulum-v1",
     "pong": "oodmon/Pong-v5",
 }
-TASKS: tuple[str, ...] = tuple(ENV_IDS)
+assert tuple(ENV_IDS) == TASKS  # one env per task, in the same order
 
 _PHYSICS_DEFAULTS = {"cartpole": CARTPOLE_DEFAULTS, "pendulum": PENDULUM_DEFAULTS}
 _SPEC_HELP = (
@@ -217,3 +219,53 @@ def paper_grid(task: str) -> list[Variant]:
         for name, values in grid["values"].items()
         for value in values
     ]
+
+
+def select_variants(task: str, specs: str | Sequence[str], *, shifted_only: bool = False) -> list[Variant]:
+    """``"paper"`` (the paper's grid of ``task``) or spec strings, parsed and checked to be ``task``'s
+    (and, with ``shifted_only``, not its ID env).
+
+    Raises:
+        SpecError, UnknownParameterError: a spec that does not parse.
+        ConfigError: a variant of another task, or the ID env where only shifts are wanted.
+
+    Example:
+        >>> [v.spec for v in select_variants("cartpole", "cartpole:length=2.0,cartpole")]
+        ['cartpole:length=2.0', 'cartpole']
+        >>> len(select_variants("pendulum", "paper"))
+        40
+    """
+    if isinstance(specs, str):
+        if specs == "paper":
+            return paper_grid(task)
+        specs = specs.split(",")
+    variants = [parse_variant(spec.strip()) for spec in specs]
+    for variant in variants:
+        if variant.task != task or (shifted_only and variant.is_id):
+            raise ConfigError(f"variant {variant.spec!r} is not a {'shifted ' if shifted_only else ''}{task} variant")
+    return variants
+
+
+def grid_rows(tasks: Sequence[str] = TASKS) -> list[dict[str, Any]]:
+    """The paper's variants of ``tasks`` as rows: task, spec, the parameter (Pong: the corruption),
+    its value (Pong: the severity's parameters) and the ID default (Pong: none).
+
+    Example:
+        >>> grid_rows(["pendulum"])[0]
+        {'task': 'pendulum', 'spec': 'pendulum:g=0.5', 'parameter': 'g', 'value': 0.5, 'default': 10.0}
+    """
+    from oodmon.envs.corruptions import severity_params
+
+    rows = []
+    for task in tasks:
+        defaults = paper_grid_data()[task].get("defaults", {})
+        for variant in paper_grid(task):
+            if task == "pong":
+                params = severity_params(variant.corruption, variant.severity)
+                rows.append({"task": task, "spec": variant.spec, "parameter": variant.corruption,
+                             "value": ", ".join(f"{k}={v}" for k, v in params.items()), "default": None})
+            else:
+                name, value = variant.params[0]
+                rows.append({"task": task, "spec": variant.spec, "parameter": name, "value": value,
+                             "default": defaults[name]})
+    return rows

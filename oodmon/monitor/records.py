@@ -90,6 +90,27 @@ class EpisodeRecord:
     terminated: bool | None = None
     rewards: tuple[float, ...] | None = field(default=None, repr=False, compare=False)
 
+    @property
+    def alarmed_early(self) -> bool:
+        """The first alarm came before the onset (in a shifted episode: a false alarm)."""
+        return self.first_alarm_step is not None and self.first_alarm_step < self.onset
+
+    @property
+    def delay(self) -> int | None:
+        """Steps from the onset to the first alarm; ``None`` without an alarm or when the first one
+        came before the onset. (Replay, which has every step's alarm, also times an alarm after an
+        early one: ``oodmon.replay.compute_metrics``.)
+
+        Example:
+            >>> record = EpisodeRecord(0, "oodmon/CartPole-v1", "cartpole:length=2.0", onset=100, seed=0,
+            ...                        total_return=104.0, length=104, alarms=1, first_alarm_step=101)
+            >>> record.delay, record.alarmed_early
+            (1, False)
+        """
+        if self.first_alarm_step is None or self.alarmed_early:
+            return None
+        return self.first_alarm_step - self.onset
+
     def to_json(self) -> dict[str, Any]:
         """The episode message (the rewards go to the episode's score arrays instead)."""
         return {"episode": self.episode, "env_id": self.env_id, "variant": self.variant, "onset": self.onset,
