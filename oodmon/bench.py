@@ -48,6 +48,7 @@ from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import check_window
 from oodmon.paper import paper_auc_per_trial
 from oodmon.hashing import file_sha256
+from oodmon.outputs import safe_filename
 
 if TYPE_CHECKING:
     from oodmon.replay import MonitorMetrics
@@ -297,7 +298,7 @@ def _trial_dir(config: BenchConfig, method: str, trial: int) -> Path:
 
 
 def _cell_log(config: BenchConfig, method: str, trial: int, name: str) -> Path:
-    safe = name.replace(":", "_").replace("@", "_").replace("=", "-").replace(",", "_")
+    safe = safe_filename(name)
     folder = _trial_dir(config, method, trial)
     return (folder / "monitor" if config.protocol == "monitor" else folder) / f"{safe}.mcap"
 

@@ -1,4 +1,5 @@
-"""Checks that an output path can be written, made before any work that would be lost otherwise.
+"""Output files: checks that a path can be written, made before any work that would be lost
+otherwise; file names made from specs; figures saved.
 
 A run that writes its log at the end of minutes of episodes, or a calibration that writes its
 threshold after all of them, should fail at once when the path cannot be written: a folder in
@@ -10,12 +11,13 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 from collections.abc import Iterable
 from pathlib import Path
 
 from oodmon.errors import ConfigError
 
-__all__ = ["check_output_dir", "check_output_file"]
+__all__ = ["check_output_dir", "check_output_file", "safe_filename", "save_figure"]
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -109,3 +111,26 @@ def _reason(error: OSError) -> str:
     if error.errno == errno.ENAMETOOLONG:
         return "the file name is too long"
     return error.strerror or str(error)
+
+
+def safe_filename(text: str) -> str:
+    """``text`` (a spec, a method, a label) as a file name: every run of characters other than
+    letters, digits, ``_``, ``.`` and ``-`` becomes one ``_``.
+
+    Example:
+        >>> safe_filename("cartpole:length=2.0"), safe_filename("pong:motion_blur@3")
+        ('cartpole_length_2.0', 'pong_motion_blur_3')
+    """
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text)
+
+
+def save_figure(fig, path: str | Path) -> Path:
+    """Save a matplotlib figure to ``path`` (its folder made), laid out tightly, and close it."""
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path

@@ -136,7 +136,7 @@ def test_ray_executor_gives_the_same_logs_numbers_as_local_processes(tmp_path):
     assert on_ray.rows and 0.0 <= on_ray.rows[0].mean <= 1.0
     key = BenchConfig(**common).cache_key()
     assert sorted(p.name for p in (tmp_path / f"ray/logs/cartpole-{key}/dropout/trial0").glob("*.mcap")) == [
-        "cartpole.mcap", "cartpole_length-2.0.mcap"]
+        "cartpole.mcap", "cartpole_length_2.0.mcap"]
 
 
 def test_bench_never_starts_hours_of_pong_training_and_says_how_instead(tmp_path):
@@ -230,7 +230,7 @@ def test_the_monitors_protocol_shifts_each_episode_at_its_own_onset_and_replays_
     before = threshold_file.stat().st_mtime_ns
     run_bench(replace(config, protocol="paper"))
     assert threshold_file.stat().st_mtime_ns == before
-    assert sorted(p.name for p in folder.glob("*.mcap")) == ["cartpole.mcap", "cartpole_length-2.0.mcap"]
+    assert sorted(p.name for p in folder.glob("*.mcap")) == ["cartpole.mcap", "cartpole_length_2.0.mcap"]
 
 
 def test_the_same_bench_calibrates_the_same_threshold_for_an_mc_agent(tmp_path):

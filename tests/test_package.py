@@ -6,6 +6,7 @@ import importlib
 import inspect
 import subprocess
 import sys
+import warnings
 
 import gymnasium
 import pytest
@@ -43,7 +44,13 @@ def test_registered_ids():
     for env_id in ("oodmon/CartPole-v1", "oodmon/Pendulum-v1", "oodmon/Pong-v5"):
         assert env_id in gymnasium.registry
     assert gymnasium.registry["oodmon/Pendulum-v1"].max_episode_steps == 200
-    assert oodmon.envs.register_envs() is None  # registering twice is harmless
+    ids = ("oodmon/CartPole-v1", "oodmon/Pendulum-v1", "oodmon/Pong-v5")
+    specs = [gymnasium.registry[env_id] for env_id in ids]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # gymnasium warns when an id is registered over
+        oodmon.envs.register_envs()  # registering twice is harmless: the same specs, no warning
+    assert [gymnasium.registry[env_id] for env_id in ids] == specs
+    assert gymnasium.make("oodmon/CartPole-v1", length=2.0).unwrapped.length == 2.0
 
 
 def test_import_oodmon_does_not_load_the_heavy_parts():

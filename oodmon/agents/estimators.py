@@ -34,6 +34,7 @@ from torch import nn
 from oodmon.agents.layers import DropConnectLinear, is_mode_free, is_stochastic, mc_sampling
 from oodmon.agents.plan import Op, StackedAffine, compile_layers, ends_with_tanh, run
 from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.validation import is_whole
 
 __all__ = ["EnsembleEstimator", "Estimate", "MCEstimator", "UncertaintyEstimator"]
 
@@ -217,7 +218,7 @@ class MCEstimator(UncertaintyEstimator):
                 f"{type(network).__name__} has no dropout or DropConnect layer, so MC samples would all be "
                 "equal; add some (oodmon.agents.layers.add_dropout, to_dropconnect) or use an ensemble"
             )
-        if isinstance(n_samples, bool) or not isinstance(n_samples, int) or n_samples < 2:
+        if not is_whole(n_samples, 2):
             raise InvalidParameterError(f"n_samples={n_samples!r} is not allowed; it must be an integer >= 2")
         self.network = network
         self.n_samples = n_samples

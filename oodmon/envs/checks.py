@@ -11,6 +11,7 @@ import numbers
 from collections.abc import Iterable, Mapping
 
 from oodmon.errors import InvalidParameterError, UnknownParameterError
+from oodmon.validation import is_whole
 
 __all__ = ["PHYSICS_RANGE", "check_onset_step", "episode_onset", "check_physics", "positive_number", "reject_unknown"]
 
@@ -80,7 +81,7 @@ def check_onset_step(owner: str, onset_step: object) -> int:
         >>> check_onset_step("oodmon/CartPole-v1", 100)
         100
     """
-    if isinstance(onset_step, bool) or not isinstance(onset_step, numbers.Integral) or onset_step < 0:
+    if not is_whole(onset_step, 0):
         raise InvalidParameterError(
             f"{owner}: onset_step={onset_step!r} is not allowed; onset_step must be an integer >= 0 "
             "(0 shifts the whole episode, N shifts it from the N-th step on)"

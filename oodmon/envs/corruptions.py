@@ -22,6 +22,7 @@ import numpy as np
 from oodmon.envs.checks import positive_number, reject_unknown
 from oodmon.errors import InvalidParameterError, UnknownParameterError
 from oodmon.paper import paper_grid_data
+from oodmon.validation import is_whole
 
 __all__ = [
     "CORRUPTIONS",
@@ -208,7 +209,7 @@ def severity_params(name: str, severity: object) -> dict[str, float]:
         {'radius': 15, 'sigma': 8}
     """
     cls = _corruption_class(name)
-    if isinstance(severity, bool) or not isinstance(severity, (int, np.integer)) or not 1 <= severity <= 5:
+    if not is_whole(severity) or severity > 5:
         raise InvalidParameterError(
             f"{name}: severity={severity!r} is not allowed; severity must be an integer from 1 to 5"
         )

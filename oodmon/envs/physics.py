@@ -80,6 +80,11 @@ class _ShiftPhysics:
     DEFAULTS: ClassVar[Mapping[str, float]]
     OBS_SPREAD: ClassVar[tuple[float, ...]]
 
+    def __init__(self, *, onset_step: int = 0, obs_noise: float = 0.0, render_mode: str | None = None,
+                 **physics: float) -> None:
+        super().__init__(render_mode=render_mode)  # the gymnasium env beside this class (CartPoleEnv, PendulumEnv)
+        self._init_shift(physics, onset_step, obs_noise)
+
     def _init_shift(self, physics: Mapping[str, object], onset_step: int, obs_noise: float = 0.0) -> None:
         self.onset_step = self._configured_onset = check_onset_step(self.ENV_ID, onset_step)
         self.obs_noise = check_obs_noise(self.ENV_ID, obs_noise)
@@ -175,11 +180,6 @@ class ShiftedCartPole(_ShiftPhysics, CartPoleEnv):
     DEFAULTS = CARTPOLE_DEFAULTS
     OBS_SPREAD = CARTPOLE_OBS_SPREAD
 
-    def __init__(self, *, onset_step: int = 0, obs_noise: float = 0.0, render_mode: str | None = None,
-                 **physics: float) -> None:
-        CartPoleEnv.__init__(self, render_mode=render_mode)
-        self._init_shift(physics, onset_step, obs_noise)
-
     def _derive(self) -> None:
         self.total_mass = self.masspole + self.masscart
         self.polemass_length = self.masspole * self.length
@@ -204,9 +204,7 @@ class ShiftedPendulum(_ShiftPhysics, PendulumEnv):
         render_mode: as in gymnasium's Pendulum.
 
     Raises:
-        UnknownParameterError: a parameter Pendulum does not have.
-        InvalidParameterError: a value that is not a finite number > 0, a negative onset, or an
-            ``obs_noise`` outside [0, 10].
+        UnknownParameterError, InvalidParameterError: as :class:`ShiftedCartPole` does.
 
     Example:
         >>> import gymnasium, oodmon
@@ -220,7 +218,3 @@ class ShiftedPendulum(_ShiftPhysics, PendulumEnv):
     DEFAULTS = PENDULUM_DEFAULTS
     OBS_SPREAD = PENDULUM_OBS_SPREAD
 
-    def __init__(self, *, onset_step: int = 0, obs_noise: float = 0.0, render_mode: str | None = None,
-                 **physics: float) -> None:
-        PendulumEnv.__init__(self, render_mode=render_mode)
-        self._init_shift(physics, onset_step, obs_noise)

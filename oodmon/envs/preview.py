@@ -14,6 +14,7 @@ import numpy as np
 
 from oodmon.envs.grid import Variant
 from oodmon.envs.reference import REFERENCE_CONTROLLERS, Rollout, rollout
+from oodmon.outputs import save_figure
 
 __all__ = ["PhysicsComparison", "compare_physics", "draw_state", "pong_preview", "save_physics_plot", "save_rgb"]
 
@@ -193,9 +194,4 @@ def save_physics_plot(comparison: PhysicsComparison, path: str | Path) -> Path:
     ax.set_ylabel("pole angle from upright (deg)")
     ax.set_title(f"reference controller, first episode: {comparison.variant.spec}")
     ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

@@ -27,6 +27,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.sequential import Reference, SequentialStatistic, sequential_path
+from oodmon.validation import is_whole
 
 __all__ = [
     "DEFAULT_CONSECUTIVE", "AlarmEvent", "AlarmTracker", "check_consecutive", "check_window", "default_consecutive",
@@ -79,7 +80,7 @@ def _needs(reference: Reference | None, rule: str) -> Reference:
 
 def check_consecutive(consecutive: object) -> int:
     """``consecutive`` as an int >= 1, or :class:`InvalidParameterError`."""
-    if isinstance(consecutive, bool) or not isinstance(consecutive, (int, np.integer)) or consecutive < 1:
+    if not is_whole(consecutive):
         raise InvalidParameterError(
             f"consecutive={consecutive!r} is not allowed; the alarm rule needs an integer >= 1 of steps in a row"
         )
@@ -88,7 +89,7 @@ def check_consecutive(consecutive: object) -> int:
 
 def check_window(window: object) -> int:
     """``window`` as an int >= 1, or :class:`InvalidParameterError`."""
-    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
+    if not is_whole(window):
         raise InvalidParameterError(
             f"window={window!r} is not allowed; the alarm rule averages the scores of an integer >= 1 of last steps"
         )

@@ -23,6 +23,7 @@ from oodmon.monitor.records import EpisodeRecord
 from oodmon.monitor.sinks.base import MemorySink, Sink
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson
+from oodmon.validation import is_whole
 
 __all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "clopper_pearson", "id_episode_scores",
            "validate_threshold"]
@@ -92,7 +93,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     """
     # Every argument is checked before minutes of episodes: a dry run of the calibration on
     # placeholder scores raises what the real one would.
-    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+    if not is_whole(episodes):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
     score_function(score)
     if detector is None:
@@ -107,8 +108,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     if window is None:
         window = default_window(agent.task)
     steps = (consecutive if isinstance(consecutive, int) else 1) + (window if isinstance(window, int) else 1) - 1
-    if rule != "consecutive" and (isinstance(reference_episodes, bool) or not isinstance(reference_episodes, int)
-                                  or reference_episodes < 1):
+    if rule != "consecutive" and not is_whole(reference_episodes):
         raise InvalidParameterError(f"reference_episodes={reference_episodes!r} is not allowed; the {rule} rule needs a "
                                     "whole number >= 1 of ID reference episodes")
     placeholder = Reference.from_episodes([np.zeros(1)]) if rule in SEQUENTIAL_RULES else None
@@ -168,7 +168,7 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
         ConfigError: the threshold was made for another policy (unless ``force``) or reads a
             detector ``detectors`` does not have (the monitor's own checks).
     """
-    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+    if not is_whole(episodes):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
     wanted = threshold.detector
     needed = detectors.subset([wanted]) if detectors is not None and wanted != "spread" and wanted in detectors else None

@@ -35,63 +35,59 @@ ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
 JSON_TOPICS = (EPISODE, EPISODE_SCORES, STEP)
 RUN_METADATA = "oodmon.run"
 
-STEP_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "title": "oodmon.Step",
-    "properties": {
-        "episode": {"type": "integer"},
-        "step": {"type": "integer", "description": "index in the episode of the observation acted on"},
-        "action": {"type": ["integer", "array"], "description": "the deployed action"},
-        "mean": {"type": "array", "items": {"type": "number"}, "description": "mean of the samples per action"},
-        "std": {"type": "array", "items": {"type": "number"}, "description": "std of the samples per action"},
-        "score": {"type": "number"},
-        "threshold": {"type": ["number", "null"]},
-        "alarm": {"type": "boolean"},
-        "shifted": {"type": "boolean", "description": "the shift is active at this step"},
-        "observation": {"type": "array", "items": {"type": "number"}},
-        "scores": {"type": "object", "additionalProperties": {"type": "number"},
-                   "description": "every detector's score, by detector name (since format 3)"},
-    },
-    "required": ["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"],
-}
 
-EPISODE_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "title": "oodmon.Episode",
-    "properties": {
-        "episode": {"type": "integer"},
-        "env_id": {"type": "string"},
-        "variant": {"type": "string"},
-        "onset": {"type": "integer"},
-        "seed": {"type": ["integer", "null"]},
-        "return": {"type": "number"},
-        "length": {"type": "integer"},
-        "alarms": {"type": "integer"},
-        "first_alarm_step": {"type": ["integer", "null"]},
-        "interrupted": {"type": "boolean", "description": "the run was stopped inside this episode (since format 2)"},
-        "terminated": {"type": ["boolean", "null"],
-                       "description": "the env ended the episode (not a time limit, not an alarm; since format 4)"},
-    },
-    "required": ["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"],
-}
+def _object(title: str, properties: dict[str, Any], required: list[str]) -> dict[str, Any]:
+    """The JSON schema of one message (an object of ``properties``), as the MCAP channels declare it."""
+    return {"type": "object", "title": title, "properties": properties, "required": required}
 
 
-EPISODE_SCORES_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "title": "oodmon.EpisodeScores",
-    "properties": {
-        "episode": {"type": "integer"},
-        "length": {"type": "integer"},
-        "score_f64": {"type": "string", "contentEncoding": "base64", "description": "little-endian float64 per step"},
-        "shifted_u8": {"type": "string", "contentEncoding": "base64", "description": "uint8 per step"},
-        "alarm_u8": {"type": "string", "contentEncoding": "base64", "description": "uint8 per step"},
-        "detectors_f64": {"type": "object", "additionalProperties": {"type": "string", "contentEncoding": "base64"},
-                          "description": "per detector name, little-endian float64 per step (since format 3)"},
-        "reward_f64": {"type": "string", "contentEncoding": "base64",
-                       "description": "little-endian float64 reward per step (since format 4)"},
-    },
-    "required": ["episode", "length", "score_f64", "shifted_u8", "alarm_u8"],
-}
+STEP_SCHEMA: dict[str, Any] = _object("oodmon.Step", {
+    "episode": {"type": "integer"},
+    "step": {"type": "integer", "description": "index in the episode of the observation acted on"},
+    "action": {"type": ["integer", "array"], "description": "the deployed action"},
+    "mean": {"type": "array", "items": {"type": "number"}, "description": "mean of the samples per action"},
+    "std": {"type": "array", "items": {"type": "number"}, "description": "std of the samples per action"},
+    "score": {"type": "number"},
+    "threshold": {"type": ["number", "null"]},
+    "alarm": {"type": "boolean"},
+    "shifted": {"type": "boolean", "description": "the shift is active at this step"},
+    "observation": {"type": "array", "items": {"type": "number"}},
+    "scores": {"type": "object", "additionalProperties": {"type": "number"},
+               "description": "every detector's score, by detector name (since format 3)"},
+}, required=["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"])
+
+EPISODE_SCHEMA: dict[str, Any] = _object("oodmon.Episode", {
+    "episode": {"type": "integer"},
+    "env_id": {"type": "string"},
+    "variant": {"type": "string"},
+    "onset": {"type": "integer"},
+    "seed": {"type": ["integer", "null"]},
+    "return": {"type": "number"},
+    "length": {"type": "integer"},
+    "alarms": {"type": "integer"},
+    "first_alarm_step": {"type": ["integer", "null"]},
+    "interrupted": {"type": "boolean", "description": "the run was stopped inside this episode (since format 2)"},
+    "terminated": {"type": ["boolean", "null"],
+                   "description": "the env ended the episode (not a time limit, not an alarm; since format 4)"},
+}, required=["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"])
+
+
+def _per_step(values: str) -> dict[str, str]:
+    """A field of one value per step of the episode, as base64 of the array's bytes."""
+    return {"type": "string", "contentEncoding": "base64", "description": f"{values} per step"}
+
+
+EPISODE_SCORES_SCHEMA: dict[str, Any] = _object("oodmon.EpisodeScores", {
+    "episode": {"type": "integer"},
+    "length": {"type": "integer"},
+    "score_f64": _per_step("little-endian float64"),
+    "shifted_u8": _per_step("uint8"),
+    "alarm_u8": _per_step("uint8"),
+    "detectors_f64": {"type": "object", "additionalProperties": {"type": "string", "contentEncoding": "base64"},
+                      "description": "per detector name, little-endian float64 per step (since format 3)"},
+    "reward_f64": _per_step("little-endian float64 reward") | {
+        "description": "little-endian float64 reward per step (since format 4)"},
+}, required=["episode", "length", "score_f64", "shifted_u8", "alarm_u8"])
 
 
 def _encode(values: Sequence[Any], dtype: Any) -> str:

@@ -8,7 +8,6 @@
 
 from __future__ import annotations
 
-import re
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,6 +16,7 @@ import numpy as np
 from sklearn.metrics import roc_curve
 
 from oodmon.envs.grid import parse_variant
+from oodmon.outputs import safe_filename, save_figure
 from oodmon.replay.metrics import VariantMetrics, alarm_events, is_id_variant
 from oodmon.replay.reader import RunLog
 
@@ -69,7 +69,7 @@ def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path) -> Path | N
     ax.plot([0, 1], [0, 1], color="grey", linestyle=":", linewidth=1)
     ax.set(xlabel="false-positive rate (ID steps)", ylabel="true-positive rate (OOD steps)", title=f"ROC: {variant}")
     ax.legend(loc="lower right", fontsize=8)
-    return _save(fig, plt, path)
+    return save_figure(fig, path)
 
 
 def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Path) -> Path | None:
@@ -104,7 +104,7 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
     axes[0].set_ylabel("uncertainty score")
     axes[1].legend(loc="upper left", fontsize=8)
     fig.suptitle(f"{method}: alarms as vertical lines", fontsize=9)
-    return _save(fig, plt, path)
+    return save_figure(fig, path)
 
 
 def episode_name(episode) -> str:
@@ -140,20 +140,9 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
         ax.axhline(0.5, color="grey", linestyle=":", linewidth=1)
     axes[0][0].set_ylabel("AUROC")
     axes[0][-1].legend(fontsize=8)
-    return _save(fig, plt, path)
+    return save_figure(fig, path)
 
 
-def _save(fig, plt, path: str | Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
-
-
-def _safe(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text)
 
 
 def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folder: str | Path) -> list[Path]:
@@ -162,9 +151,9 @@ def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folde
     written: list[Path | None] = []
     shifted = sorted({m.variant for m in metrics if m.auroc is not None})
     for variant in shifted:
-        written.append(plot_roc(logs, variant, folder / f"roc_{_safe(variant)}.png"))
+        written.append(plot_roc(logs, variant, folder / f"roc_{safe_filename(variant)}.png"))
         for method in sorted({log.method for log in logs}):
-            written.append(plot_trace(logs, method, variant, folder / f"trace_{_safe(method)}_{_safe(variant)}.png"))
+            written.append(plot_trace(logs, method, variant, folder / f"trace_{safe_filename(method)}_{safe_filename(variant)}.png"))
     for task in sorted({m.task for m in metrics}):
         written.append(plot_auroc_vs_shift(metrics, task, folder / f"auroc_vs_shift_{task}.png"))
     return [p for p in written if p is not None]

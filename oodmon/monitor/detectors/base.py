@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.validation import is_whole
 
 if TYPE_CHECKING:  # importing it would load torch
     from oodmon.agents.estimators import Estimate
@@ -36,7 +37,7 @@ class RecentMean:
     """
 
     def __init__(self, window: int) -> None:
-        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
+        if not is_whole(window):
             raise InvalidParameterError(f"window={window!r} is not allowed; it must be an integer >= 1")
         self.window = window
         self._values: deque[float] = deque(maxlen=window)

@@ -45,6 +45,7 @@ from scipy.special import expit
 
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory
+from oodmon.validation import is_whole
 
 __all__ = ["DynamicsDetector"]
 
@@ -80,9 +81,9 @@ class DynamicsDetector(Detector):
             raise InvalidParameterError(f"kind={kind!r} is not allowed; use one of {', '.join(_KINDS)}")
         for label, value in (("members", members), ("hidden", hidden), ("n_draws", n_draws), ("epochs", epochs),
                              ("batch_size", batch_size), ("window", window)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            if not is_whole(value):
                 raise InvalidParameterError(f"{label}={value!r} is not allowed; it must be an integer >= 1")
-        if n_actions is not None and (isinstance(n_actions, bool) or not isinstance(n_actions, int) or n_actions < 2):
+        if n_actions is not None and not is_whole(n_actions, 2):
             raise InvalidParameterError(f"n_actions={n_actions!r} is not allowed; give the number (>= 2) of "
                                         "discrete actions, or None for continuous actions")
         self.n_actions, self.kind, self.members, self.hidden = n_actions, kind, members, hidden

@@ -27,6 +27,7 @@ from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.seeds import DETECTOR_FIT
+from oodmon.validation import is_whole
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "best_detector", "collect", "default_detectors", "detectors_for", "fit_agent_detectors",
            "fit_detectors", "policy_parts", "trajectory_scores"]
@@ -146,7 +147,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         raise InvalidParameterError(f"unknown detector {unknown[0]!r}; choose from {', '.join(DETECTORS)}")
     if "combined" in detectors and not {"dynamics", "features"} & set(detectors):
         detectors = tuple(dict.fromkeys((*default_detectors(policy, env), *detectors)))
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 3:
+    if not is_whole(episodes, 3):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
                                     "ID episodes (two thirds fit, one third ranks)")
     estimator, _, metadata = policy_parts(policy)
