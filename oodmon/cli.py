@@ -15,7 +15,6 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -746,7 +745,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from oodmon.bench import BenchConfig, alarms_per_variant, best_per_method, paper_only_variants, run_bench
+    from oodmon.bench import BenchConfig, run_bench
     from oodmon.monitor.alarms import default_window
     from oodmon.monitor.detectors import BEST_DETECTOR
     from oodmon.errors import UnknownParameterError
@@ -784,52 +783,9 @@ def _bench(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result.to_json(), indent=1))
         return 0
-    console = _table_console()
-    if monitor:
-        return _bench_monitor_report(config, result, console)
-    several = len(config.detectors) > 1
-    table = Table(title=f"{args.task}: per-step AUROC per failing variant, ours (mean ± std over trials) beside the paper's")
-    columns = ("method", *(("detector",) if several else ()), "variant", "trials", "ours", "paper", "difference")
-    for column in columns:
-        table.add_column(column, justify="left" if column in ("method", "detector", "variant") else "right")
-    for row in sorted(result.rows, key=lambda r: (r.method, r.variant, config.detectors.index(r.detector))):
-        paper = f"{np.mean(row.paper):.3f} ± {np.std(row.paper):.3f}" if row.paper else ""
-        difference = f"{row.mean - np.mean(row.paper):+.3f}" if row.paper else ""
-        table.add_row(row.method, *((row.detector,) if several else ()), row.variant, str(len(row.aurocs)),
-                      f"{row.mean:.3f} ± {row.std:.3f}", paper, difference)
-    console.print(table)
-    best = Table(title=f"{args.task}: best single-trial AUROC per method (the paper's main tables)")
-    for column in ("method", "variant", "ours", "paper", "difference"):
-        best.add_column(column, justify="left" if column in ("method", "variant") else "right")
-    for method, variant, ours, paper in best_per_method(result, args.task):
-        best.add_row(method, variant, f"{ours:.3f}", "" if paper is None else f"{paper:.3f}",
-                     "" if paper is None else f"{ours - paper:+.3f}")
-    console.print(best)
-    if several:
-        summary = Table(title=f"{args.task}: per-step AUROC per detector over the failing variants (mean over "
-                              "variants and trials)")
-        for column in ("method", "detector", "mean", "min", "variants"):
-            summary.add_column(column, justify="left" if column in ("method", "detector") else "right")
-        for method in config.methods:
-            for detector in config.detectors:
-                means = [r.mean for r in result.rows if r.method == method and r.detector == detector]
-                if means:
-                    summary.add_row(method, detector, f"{np.mean(means):.3f}", f"{np.min(means):.3f}", str(len(means)))
-        console.print(summary)
-    rule = f"the mean score of the last {config.window} steps" if config.window > 1 else "each step's score"
-    alarms = Table(title=f"{args.task}: the monitor's alarms ({config.alarm_detector} detector, {rule} against the "
-                         "calibrated threshold), "
-                         "mean over trials")
-    for column in ("method", "variant", "false alarms (ID episodes)", "detected (episodes)", "mean delay (steps)"):
-        alarms.add_column(column, justify="left" if column in ("method", "variant") else "right")
-    for method, variant, false_alarms, detected, delay in alarms_per_variant(result):
-        alarms.add_row(method, variant, "" if false_alarms is None else f"{false_alarms:.0%}",
-                       "" if detected is None else f"{detected:.0%}", "" if delay is None else f"{delay:.0f}")
-    console.print(alarms)
-    missing = paper_only_variants(result, args.task, methods, ran=[v.spec for v in config.variant_list()])
-    if missing:
-        console.print("Variants the paper reports where our agents did not fail (no AUROC of ours): "
-                      + ", ".join(f"{m} {label} ({best:.3f})" for m, label, best in missing))
+    from oodmon.bench.report import print_monitor_report, print_paper_report
+
+    (print_monitor_report if monitor else print_paper_report)(config, result, _table_console())
     return 0
 
 
@@ -843,31 +799,6 @@ def _sb3_bench_task(args: argparse.Namespace) -> bool:
         raise ConfigError(f"bench plays oodmon's shifted variants of CartPole, Pendulum and Pong; --env {args.env} is "
                           f"none of them: monitor it with `oodmon run --sb3 ... --env {args.env}` instead")
     return _load_agent(args).estimator is not None
-
-
-def _bench_monitor_report(config, result, console: Console) -> int:
-    """The monitor's benchmark: the alarm's figures per variant, and each method's summary against the goals."""
-    from oodmon.bench import ONSETS
-    from oodmon.replay import monitor_summary, monitor_table
-    from oodmon.replay.metrics import FAILURE_DEFINITION
-
-    low, high = ONSETS[config.task]
-    console.print(monitor_table(result.alarms, title=(
-        f"{config.task}: the monitor's benchmark ({config.alarm_detector} detector; shifted episodes shift at a random "
-        f"step in [{low}, {high}); far {config.far:g}"
-        + ("" if config.confidence is None else f" with confidence {config.confidence:g}") + ")")))
-    for row in monitor_summary(result.alarms):
-        ids = [m for m in result.alarms if m.is_id and m.method == row.method]
-        far = (f"false alarms {ids[0].false_alarms}/{ids[0].episodes} ID episodes (95% interval {ids[0].far_low:.1%}-"
-               f"{ids[0].far_high:.1%}, target {config.far:g})" if ids else "")
-        before = (f"{row.before_failure}/{row.failed} failing episodes alarmed before the failure"
-                  if row.failed else "no episode failed after its onset")
-        delays = ("no alarm after an onset" if row.delay_median is None
-                  else f"delay median {row.delay_median:.3g} p90 {row.delay_p90:.3g} steps")
-        console.print(f"{row.method}: {far}; {row.alarmed}/{row.episodes} shifted episodes alarmed after the onset "
-                      f"({row.early} before it); {before}; {delays}")
-    print(FAILURE_DEFINITION, file=sys.stderr)
-    return 0
 
 
 def _detectors(args: argparse.Namespace, agent):

@@ -165,7 +165,7 @@ def test_paper_variants_without_our_auroc_are_only_those_the_bench_ran():
 def test_a_local_ray_cluster_listens_on_loopback_only(tmp_path):
     import ray
 
-    from oodmon.bench import _start_ray
+    from oodmon.bench.cells import _start_ray
     from tests.monitor.test_sinks import _listening
 
     before = _listening()

@@ -65,3 +65,19 @@ def test_replay_does_not_load_torch():
             "print(sorted(m for m in ('torch', 'stable_baselines3', 'rerun') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_the_readmes_layout_names_every_part_of_the_package():
+    from pathlib import Path
+
+    root = Path(oodmon.__file__).parent
+    readme = (root.parent / "README.md").read_text()
+    block = readme[readme.index("## Layout"):]
+    block = block[block.index("```\noodmon/\n"):block.index("\ntests/")]
+    listed = set()
+    for line in block.splitlines()[2:]:
+        if line.startswith("  ") and not line.startswith("   "):
+            listed.update(name.strip(",") for name in line.split()[:2] if name.endswith(("/", ".py", ".py,", ".json")))
+    present = {p.name + ("/" if p.is_dir() else "") for p in root.iterdir()
+               if not p.name.startswith("__") and p.suffix in ("", ".py", ".json") and p.name != "py.typed"}
+    assert listed == present

@@ -1,0 +1,201 @@
+"""Per (method, trial): the model, its fitted detectors, threshold and failing variants, cached in
+the bench's folder and set aside when the weights change; the cells' log paths."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from oodmon import seeds
+from oodmon.agents import evaluate_variants, load_agent, train, zoo_dir, zoo_names
+from oodmon.agents.recipes import recipe_for
+from oodmon.bench.config import BenchConfig
+from oodmon.errors import ConfigError
+from oodmon.hashing import file_sha256
+from oodmon.outputs import safe_filename
+
+@dataclass(frozen=True)
+class Sb3Models:
+    """A user's SB3 model files as the bench hands them to its workers, which load them there."""
+
+    paths: tuple[str, ...]
+    env_id: str
+    mean: bool = False
+
+    def __str__(self) -> str:
+        return ", ".join(self.paths)
+
+
+def _bench_agent(source: str | Sb3Models, task: str, seed: int):
+    """The agent of a model directory or of SB3 model files, its MC sampling seeded."""
+    if isinstance(source, Sb3Models):
+        from oodmon.agents.sb3 import load_sb3
+
+        return load_sb3(source.paths, source.env_id, mean=source.mean, seed=seed)
+    return load_agent(source, task=task, seed=seed)
+
+
+def _weights_sha256(source: Path | Sb3Models) -> str:
+    """What a (method, trial)'s cached results were made with: the weights' sha256, or the SB3 files'."""
+    if isinstance(source, Sb3Models):
+        import hashlib
+
+        return hashlib.sha256("\n".join(file_sha256(p) for p in source.paths).encode()).hexdigest()
+    return file_sha256(source / "model.safetensors")
+
+
+def _model_dir(config: BenchConfig, method: str, trial: int) -> Path:
+    """Trial 0 is the shipped agent where the zoo has one; every other model is trained into the
+    bench's cache (never into the installed package)."""
+    shipped = zoo_dir() / f"{config.task}-{method}"
+    if trial == 0 and (shipped / "model.json").exists():
+        return shipped
+    return Path(config.out) / "models" / f"{config.task}-{method}-trial{trial}"
+
+
+def _refuse_to_train_for_hours(config: BenchConfig, method: str, trial: int) -> None:
+    """A missing Pong model takes hours to train on a CPU: never start that as a side effect of a
+    bench; say how to train it instead."""
+    if config.sb3:
+        return
+    path = _model_dir(config, method, trial)
+    if (path / "model.json").exists() or not recipe_for(config.task, method).cnn or config.train_steps is not None:
+        return
+    raise ConfigError(
+        f"no {config.task} {method} model for trial {trial} (looked in {path}); a {config.task} agent trains for "
+        f"hours, so bench does not train one itself: train it with `oodmon train --task {config.task} --method "
+        f"{method} --seed {trial} --out {path}`, or bench fewer trials or other methods (the zoo has: "
+        f"{', '.join(n for n in zoo_names() if n.startswith(config.task)) or 'none'})"
+    )
+
+
+def _ensure_model(config: BenchConfig, method: str, trial: int) -> Path | Sb3Models:
+    if config.sb3:
+        return Sb3Models(tuple(str(Path(p).resolve()) for p in config.sb3), config.env_id, config.mean)
+    path = _model_dir(config, method, trial)
+    if not (path / "model.json").exists():
+        _refuse_to_train_for_hours(config, method, trial)
+        train(config.task, method, path, seed=trial, total_steps=config.train_steps)
+    return path
+
+
+def _trial_dir(config: BenchConfig, method: str, trial: int) -> Path:
+    """A (method, trial)'s folder: its threshold, fitted detectors, failing variants and logs."""
+    return Path(config.out) / "logs" / f"{config.task}-{config.cache_key()}" / method / f"trial{trial}"
+
+
+def _cell_log(config: BenchConfig, method: str, trial: int, name: str) -> Path:
+    safe = safe_filename(name)
+    folder = _trial_dir(config, method, trial)
+    return (folder / "monitor" if config.protocol == "monitor" else folder) / f"{safe}.mcap"
+
+
+def _log_is_complete(path: Path, episodes: int) -> bool:
+    from oodmon.replay import read_log
+
+    if not path.exists():
+        return False
+    try:
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            log = read_log(path)
+    except Exception:  # noqa: BLE001  (an unreadable log is simply run again)
+        return False
+    return log.complete and len(log.episodes) == episodes
+
+
+def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path | Sb3Models) -> None:
+    """Keep a (method, trial) folder's cached threshold, failing variants and logs only while they
+    belong to the weights in ``model``: a new zoo agent or a retrained model moves the old results
+    to ``<out>/set-aside/weights-<old hash>/`` (kept, not deleted, and out of the logs a replay of
+    ``<out>/logs`` reads) and the trial is run again."""
+    weights = _weights_sha256(model)[:16]
+    stamp = folder / "weights.sha256"
+    made_by = stamp.read_text().strip() if stamp.exists() else "unknown"
+    if folder.exists() and any(folder.iterdir()) and made_by != weights:
+        aside = out / "set-aside" / f"weights-{made_by}" / folder.relative_to(out)
+        if aside.exists():
+            raise ConfigError(f"{folder} holds results of other weights than {model} and {aside} exists; "
+                              f"move one of them away and run the bench again")
+        print(f"bench: {folder} was made with other weights than {model}; moved to {aside}, running again",
+              file=sys.stderr)
+        aside.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(folder, aside)
+    folder.mkdir(parents=True, exist_ok=True)
+    stamp.write_text(weights + "\n")
+
+
+def _prepare_trial(config: BenchConfig, method: str, trial: int,
+                   report: Callable[[str, int, int], None]) -> tuple[Path | Sb3Models, Path, list[str], Path | None]:
+    """Model, threshold and failing variants of one (method, trial); cached in its folder.
+    ``report(stage, done, total)`` counts the episodes of calibration and evaluation."""
+    from oodmon.monitor import calibrate_agent
+
+    model = _ensure_model(config, method, trial)
+    folder = _trial_dir(config, method, trial)
+    _set_aside_if_made_by_other_weights(Path(config.out), folder, model)
+    threshold_path, failing_path = folder / f"threshold-{config.cache_key()}.json", folder / "failing.json"
+    # Seeded MC sampling (as `oodmon calibrate --seed`): the same bench fits the same detectors and
+    # calibrates the same threshold; unseeded, an MC agent's threshold varied from run to run.
+    agent = _bench_agent(model, config.task, seeds.CALIBRATION)
+    if "spread" in config.detectors and agent.estimator is None:
+        raise ConfigError(f"{method} has no samples of its own (one model, or a kind oodmon does not sample): "
+                          f"drop spread from the detectors")
+    detectors_path = _fit_trial_detectors(config, agent, folder, f"{method} trial {trial}", report)
+    if not threshold_path.exists():
+        from oodmon.monitor.detectors import DetectorSet
+
+        stage = f"{method} trial {trial}: calibration episodes"
+        calibrate_agent(agent, config.calibration_episodes, config.far, score=config.score, window=config.window,
+                        detectors=DetectorSet.load(detectors_path) if detectors_path else None,
+                        detector=config.alarm_detector, obs_noise=config.obs_noise, confidence=config.confidence,
+                        rule=config.rule, consecutive=config.m,
+                        on_episode=lambda episode: report(stage, episode + 1, config.calibration_episodes)).save(threshold_path)
+    variants = config.variant_list()
+    if failing_path.exists() and json.loads(failing_path.read_text()).get("variants") == [v.spec for v in variants]:
+        failing = json.loads(failing_path.read_text())["failing"]
+    else:
+        stage, total, done = f"{method} trial {trial}: evaluation episodes", (len(variants) + 1) * config.eval_episodes, [0]
+
+        def count(spec: str, episode_return: float) -> None:
+            done[0] += 1
+            report(stage, done[0], total)
+        _, results = evaluate_variants(agent.act, config.task, variants, config.eval_episodes, on_episode=count)
+        failing = [r.spec for r in results if r.fails]
+        failing_path.write_text(json.dumps({"variants": [v.spec for v in variants], "failing": failing,
+                                            "returns": {r.spec: r.mean for r in results}}, indent=1))
+    return model, threshold_path, failing, detectors_path
+
+
+#: Fitting episodes per task: Pong's games are long, its detectors fit on their first 1,000 steps.
+_FIT = {"pong": {"episodes": 6, "max_steps": 1000}}
+
+
+def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
+                         report: Callable[[str, int, int], None]) -> Path | None:
+    """The (method, trial)'s fitted detectors, fitted once into its folder (cached beside the
+    threshold, and set aside with it when the weights change)."""
+    if not config.learned:
+        return None
+    from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES, fit_agent_detectors
+
+    path = folder / f"detectors-{config.cache_key()}"
+    if not (path / "detectors.json").exists():
+        fit = dict(_FIT.get(config.task, {"episodes": DEFAULT_FIT_EPISODES, "max_steps": None}))
+        if config.fit_episodes:
+            fit["episodes"] = config.fit_episodes
+        stage = f"{label}: detector fitting episodes"
+        fit_agent_detectors(agent, detectors=config.learned, score=config.score, obs_noise=config.obs_noise,
+                            on_episode=lambda episode: report(stage, episode + 1, fit["episodes"]), **fit).save(path)
+    return path
+
+
+def _monitored(config: BenchConfig, failing: list[str]) -> list[str]:
+    """The shifted variants a (method, trial) is monitored on: those it fails on, or all of them."""
+    return [v.spec for v in config.variant_list()] if config.all_variants else failing

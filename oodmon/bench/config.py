@@ -1,0 +1,188 @@
+"""What a bench runs (:class:`BenchConfig`), what it returns (:class:`BenchResult`), and the
+paper's names for our methods and variants."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from oodmon.envs.grid import Variant, parse_variant, select_variants
+from oodmon.errors import ConfigError
+from oodmon.paper import paper_auc_per_trial
+
+if TYPE_CHECKING:
+    from oodmon.replay import MonitorMetrics
+
+__all__ = ["ONSETS", "PAPER_METHOD", "PROTOCOLS", "BenchConfig", "BenchResult", "Row", "paper_label"]
+
+#: The bench's protocols: the paper's (shifted from step 0, per-step AUROC) and the monitor's own.
+PROTOCOLS = ("paper", "monitor")
+#: Per task, the range [low, high) a shifted episode's onset is drawn from under the monitor's
+#: protocol: after the ID start-up (Pendulum's agents have swung the pole up by step 100 of 200),
+#: early enough that the rest of the episode can show the failure. Pong: decisions into the game.
+ONSETS = {"cartpole": (20, 200), "pendulum": (100, 150), "pong": (100, 1000)}
+
+#: Our method names as the paper's tables name them.
+PAPER_METHOD = {"dropout": "mc_dropout", "dropconnect": "mc_dropconnect", "ensemble": "ensemble"}
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """What to run. ``variants`` is ``"paper"`` or a list of spec strings."""
+
+    task: str
+    methods: tuple[str, ...] = ("dropout", "dropconnect", "ensemble")
+    trials: int = 5
+    variants: str | tuple[str, ...] = "paper"
+    episodes: int = 5
+    id_episodes: int = 10
+    eval_episodes: int = 3
+    calibration_episodes: int = 45  # the fewest that bound the rate at far 0.05 with confidence 0.9
+    far: float = 0.05
+    confidence: float | None = 0.9  # see oodmon.monitor.threshold; None: the rate bounded on average only
+    score: str = "chosen_std"  # the paper's; pre_squash_std detects far better on Pendulum
+    window: int = 1  # the alarm rule's averaging window (alarms only; the AUROCs score single steps)
+    out: str = "runs/bench"
+    workers: int = 0  # 0: all cores
+    train_steps: int | None = None  # override the recipes' steps for trials > 0 (smoke tests)
+    executor: str = "local"  # "local" (worker processes) or "ray" (tasks on a Ray cluster)
+    address: str | None = None  # the Ray cluster; None starts a local one
+    bind: str = "127.0.0.1"  # the address a local Ray cluster listens on: loopback unless opened on purpose
+    detectors: tuple[str, ...] = ("spread",)  # whose per-step AUROC is reported; learned ones are fitted per trial
+    alarm_detector: str = "spread"  # the detector the monitor's alarm reads
+    obs_noise: float = 0.0  # sensor noise in every monitored env (fit, calibration, cells), see envs
+    fit_episodes: int = 0  # ID episodes the learned detectors are fitted on (0: the task's default)
+    protocol: str = "paper"  # or "monitor": random onsets, alarms before failure (see the module docstring)
+    rule: str = "consecutive"  # the alarm rule: consecutive, cusum or martingale (oodmon.monitor.sequential)
+    consecutive: int | None = None  # m of the consecutive rule (None: 3 for spread, 1 for a learned detector)
+    all_variants: bool = False  # monitor every variant, not only those the agent fails on (Pong: no failure to wait for)
+    sb3: tuple[str, ...] = ()  # your own SB3 model files instead of oodmon agents (the method "sb3", one trial)
+    env_id: str | None = None  # the gymnasium env id the sb3 models act in
+    mean: bool = False  # deploy the sb3 ensemble's mean decision, not the first model's
+
+    def __post_init__(self) -> None:
+        from oodmon.monitor.threshold import DETECTOR_NAMES
+
+        if self.protocol not in PROTOCOLS:
+            raise ConfigError(f"protocol={self.protocol!r} is not allowed; use {' or '.join(PROTOCOLS)}")
+        from oodmon.monitor.sequential import RULES
+
+        if self.rule not in RULES:
+            raise ConfigError(f"rule={self.rule!r} is not allowed; choose one of {', '.join(RULES)}")
+
+        for name in (*self.detectors, self.alarm_detector):
+            if name not in DETECTOR_NAMES:
+                raise ConfigError(f"unknown detector {name!r}; choose from {', '.join(DETECTOR_NAMES)}")
+        if self.alarm_detector not in self.detectors:
+            raise ConfigError(f"the alarm reads the {self.alarm_detector} detector: add it to the detectors")
+        if self.sb3:
+            if self.env_id is None:
+                raise ConfigError("sb3 models need env_id: the gymnasium env id they act in (e.g. CartPole-v1)")
+            if self.methods != ("sb3",) or self.trials != 1:
+                raise ConfigError("sb3 models are benched as one method ('sb3') and one trial: nothing is trained")
+        elif "spread" not in self.detectors:
+            raise ConfigError("the bench's agents all have samples: keep spread among the detectors")
+        from oodmon.monitor.threshold import conformal_rank
+
+        conformal_rank(self.calibration_episodes, self.far, self.confidence)  # enough episodes, before any work
+
+    @property
+    def m(self) -> int:
+        """m of the consecutive rule the thresholds are calibrated for."""
+        from oodmon.monitor.alarms import default_consecutive
+
+        return default_consecutive(self.alarm_detector) if self.consecutive is None else self.consecutive
+
+    @property
+    def learned(self) -> tuple[str, ...]:
+        """The detectors to fit per trial (``combined`` brings its members)."""
+        names = [d for d in self.detectors if d != "spread"]
+        if "combined" in names and self.task == "pong":
+            names = [d for d in names if d != "dynamics"]
+        return tuple(names)
+
+    def cache_key(self) -> str:
+        """What the cached thresholds and logs of a (method, trial) depend on beyond the weights:
+        score, alarm rule, target rate and confidence, calibration episodes, detectors and sensor noise."""
+        parts = [self.score, f"far{self.far:g}", f"n{self.calibration_episodes}",
+                 "marginal" if self.confidence is None else f"conf{self.confidence:g}"]
+        if self.window != 1:
+            parts.append(f"w{self.window}")
+        if self.m != 3:
+            parts.append(f"m{self.m}")
+        if self.rule != "consecutive":
+            parts.append(self.rule)
+        if self.learned:
+            parts.append("+".join(self.detectors) + f"-alarm-{self.alarm_detector}")
+        if self.obs_noise:
+            parts.append(f"noise{self.obs_noise:g}")
+        return "-".join(parts)
+
+    def variant_list(self) -> list[Variant]:
+        return select_variants(self.task, self.variants, shifted_only=True)
+
+
+@dataclass(frozen=True)
+class Row:
+    """One (method, variant, detector): our AUROC per trial beside the paper's."""
+
+    method: str
+    variant: str
+    aurocs: dict[int, float]
+    paper: list[float] | None
+    detector: str = "spread"
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(list(self.aurocs.values())))
+
+    @property
+    def std(self) -> float:
+        return float(np.std(list(self.aurocs.values())))
+
+
+@dataclass(frozen=True)
+class BenchResult:
+    rows: list[Row]
+    failing: dict[str, dict[int, list[str]]]
+    detection: dict[str, dict[str, float | None]]
+    #: The monitor's protocol only: the alarm's figures per (method, variant), trials pooled.
+    alarms: list[MonitorMetrics] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        data = {
+            "rows": [asdict(r) | {"mean": r.mean, "std": r.std} for r in self.rows],
+            "failing": self.failing,
+            "monitor": self.detection,
+        }
+        if self.alarms:
+            from oodmon.replay import monitor_summary
+
+            data["alarms"] = [m.to_dict() for m in [*self.alarms, *monitor_summary(self.alarms)]]
+        return data
+
+
+def paper_label(task: str, method: str, spec: str) -> str | None:
+    """The label of ``spec`` in the paper's per-trial table for ``method``, if it has one.
+
+    Example:
+        >>> paper_label("cartpole", "ensemble", "cartpole:length=2.0")
+        'length=2.0'
+        >>> paper_label("cartpole", "dropconnect", "cartpole:masscart=9.0")
+        'masscart=9.0 (text says pole mass 9)'
+    """
+    if method not in PAPER_METHOD:  # your own SB3 models: the paper has no figures for them
+        return None
+    table = paper_auc_per_trial().get(task, {}).get(PAPER_METHOD[method], {})
+    variant = parse_variant(spec)
+    if variant.task == "pong":
+        key = f"{variant.corruption}@{variant.severity}"
+    else:
+        name, value = variant.params[0]
+        key = f"{name}={value!r}"
+    for label in table:
+        if label == key or label.startswith(key + " "):
+            return label
+    return None

@@ -1,0 +1,135 @@
+"""What a bench result says: the best AUROCs, the paper's variants we have no AUROC for, the
+alarms per variant."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterable
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from oodmon.bench.config import ONSETS, PAPER_METHOD, BenchConfig, BenchResult, paper_label
+from oodmon.paper import paper_auc_per_trial
+
+def best_per_method(result: BenchResult, task: str, top: int = 3,
+                    detector: str = "spread") -> list[tuple[str, str, float, float | None]]:
+    """Per method, the variants with the best single-trial AUROC of ``detector`` (the paper's main
+    tables: the spread), with the paper's best trial for the same variant where it reports one."""
+    best = []
+    for method in sorted({r.method for r in result.rows}):
+        rows = sorted((r for r in result.rows if r.method == method and r.detector == detector),
+                      key=lambda r: -max(r.aurocs.values()))
+        for row in rows[:top]:
+            best.append((method, row.variant, max(row.aurocs.values()), max(row.paper) if row.paper else None))
+    return best
+
+
+def paper_only_variants(result: BenchResult, task: str, methods: Iterable[str],
+                        ran: Iterable[str] | None = None) -> list[tuple[str, str, float]]:
+    """Variants the paper reports for a method that our agents did not fail on (so no AUROC).
+
+    ``ran`` (spec strings) limits this to the variants the bench ran; a variant left out of the
+    run is not "not failed"."""
+    ours = {(r.method, r.variant) for r in result.rows}
+    ran_specs = None if ran is None else list(ran)
+    missing = []
+    table = paper_auc_per_trial().get(task, {})
+    for method in methods:
+        for label, values in table.get(PAPER_METHOD.get(method, ""), {}).items():
+            if ran_specs is not None and not any(paper_label(task, method, spec) == label for spec in ran_specs):
+                continue
+            if not any(paper_label(task, method, v) == label for (m, v) in ours if m == method):
+                missing.append((method, label, max(values)))
+    return missing
+
+
+def alarms_per_variant(result: BenchResult) -> list[tuple[str, str, float | None, float | None, float | None]]:
+    """What the monitor's alarm rule did, per method and variant, averaged over the trials that have
+    a value: ``(method, variant, false_alarm_rate, detection_rate, delay_mean)``. The ID variant has
+    the false-alarm rate (alarmed ID episodes), the failing ones the detection rate (alarmed
+    episodes) and the mean delay in steps to the first alarm of those detected."""
+    grouped: dict[tuple[str, str], list[dict[str, float | None]]] = {}
+    for key, values in result.detection.items():
+        method, _, variant = key.split("/", 2)
+        grouped.setdefault((method, variant), []).append(values)
+
+    def mean(values: list[dict[str, float | None]], name: str) -> float | None:
+        present = [v[name] for v in values if v[name] is not None]
+        return float(np.mean(present)) if present else None
+
+    return [(method, variant, mean(v, "false_alarm_rate"), mean(v, "detection_rate"), mean(v, "delay_mean"))
+            for (method, variant), v in sorted(grouped.items(), key=lambda item: (item[0][0], ":" in item[0][1],
+                                                                                     item[0][1]))]
+
+
+def print_paper_report(config: BenchConfig, result: BenchResult, console: Console) -> None:
+    """The paper's protocol: our AUROC per failing variant beside the paper's, the best per method,
+    per detector where there are several, and what the alarm rule did."""
+    several = len(config.detectors) > 1
+    table = Table(title=f"{config.task}: per-step AUROC per failing variant, ours (mean ± std over trials) beside the paper's")
+    columns = ("method", *(("detector",) if several else ()), "variant", "trials", "ours", "paper", "difference")
+    for column in columns:
+        table.add_column(column, justify="left" if column in ("method", "detector", "variant") else "right")
+    for row in sorted(result.rows, key=lambda r: (r.method, r.variant, config.detectors.index(r.detector))):
+        paper = f"{np.mean(row.paper):.3f} ± {np.std(row.paper):.3f}" if row.paper else ""
+        difference = f"{row.mean - np.mean(row.paper):+.3f}" if row.paper else ""
+        table.add_row(row.method, *((row.detector,) if several else ()), row.variant, str(len(row.aurocs)),
+                      f"{row.mean:.3f} ± {row.std:.3f}", paper, difference)
+    console.print(table)
+    best = Table(title=f"{config.task}: best single-trial AUROC per method (the paper's main tables)")
+    for column in ("method", "variant", "ours", "paper", "difference"):
+        best.add_column(column, justify="left" if column in ("method", "variant") else "right")
+    for method, variant, ours, paper in best_per_method(result, config.task):
+        best.add_row(method, variant, f"{ours:.3f}", "" if paper is None else f"{paper:.3f}",
+                     "" if paper is None else f"{ours - paper:+.3f}")
+    console.print(best)
+    if several:
+        summary = Table(title=f"{config.task}: per-step AUROC per detector over the failing variants (mean over "
+                              "variants and trials)")
+        for column in ("method", "detector", "mean", "min", "variants"):
+            summary.add_column(column, justify="left" if column in ("method", "detector") else "right")
+        for method in config.methods:
+            for detector in config.detectors:
+                means = [r.mean for r in result.rows if r.method == method and r.detector == detector]
+                if means:
+                    summary.add_row(method, detector, f"{np.mean(means):.3f}", f"{np.min(means):.3f}", str(len(means)))
+        console.print(summary)
+    rule = f"the mean score of the last {config.window} steps" if config.window > 1 else "each step's score"
+    alarms = Table(title=f"{config.task}: the monitor's alarms ({config.alarm_detector} detector, {rule} against the "
+                         "calibrated threshold), "
+                         "mean over trials")
+    for column in ("method", "variant", "false alarms (ID episodes)", "detected (episodes)", "mean delay (steps)"):
+        alarms.add_column(column, justify="left" if column in ("method", "variant") else "right")
+    for method, variant, false_alarms, detected, delay in alarms_per_variant(result):
+        alarms.add_row(method, variant, "" if false_alarms is None else f"{false_alarms:.0%}",
+                       "" if detected is None else f"{detected:.0%}", "" if delay is None else f"{delay:.0f}")
+    console.print(alarms)
+    missing = paper_only_variants(result, config.task, config.methods, ran=[v.spec for v in config.variant_list()])
+    if missing:
+        console.print("Variants the paper reports where our agents did not fail (no AUROC of ours): "
+                      + ", ".join(f"{m} {label} ({best:.3f})" for m, label, best in missing))
+
+
+def print_monitor_report(config: BenchConfig, result: BenchResult, console: Console) -> None:
+    """The monitor's benchmark: the alarm's figures per variant, and each method's summary against the goals."""
+    from oodmon.replay import monitor_summary, monitor_table
+    from oodmon.replay.metrics import FAILURE_DEFINITION
+
+    low, high = ONSETS[config.task]
+    console.print(monitor_table(result.alarms, title=(
+        f"{config.task}: the monitor's benchmark ({config.alarm_detector} detector; shifted episodes shift at a random "
+        f"step in [{low}, {high}); far {config.far:g}"
+        + ("" if config.confidence is None else f" with confidence {config.confidence:g}") + ")")))
+    for row in monitor_summary(result.alarms):
+        ids = [m for m in result.alarms if m.is_id and m.method == row.method]
+        far = (f"false alarms {ids[0].false_alarms}/{ids[0].episodes} ID episodes (95% interval {ids[0].far_low:.1%}-"
+               f"{ids[0].far_high:.1%}, target {config.far:g})" if ids else "")
+        before = (f"{row.before_failure}/{row.failed} failing episodes alarmed before the failure"
+                  if row.failed else "no episode failed after its onset")
+        delays = ("no alarm after an onset" if row.delay_median is None
+                  else f"delay median {row.delay_median:.3g} p90 {row.delay_p90:.3g} steps")
+        console.print(f"{row.method}: {far}; {row.alarmed}/{row.episodes} shifted episodes alarmed after the onset "
+                      f"({row.early} before it); {before}; {delays}")
+    print(FAILURE_DEFINITION, file=sys.stderr)
