@@ -36,7 +36,7 @@ import oodmon  # noqa: F401  (registers the envs)
 from oodmon.agents.agent import Agent, load, zoo_names
 from oodmon.agents.networks import build_modules, estimator_for
 from oodmon.agents.recipes import recipe_for
-from oodmon.agents.training import _training_env, architecture
+from oodmon.agents.algorithms import architecture, training_env
 from oodmon.monitor import MemorySink, Monitor
 from oodmon.monitor.detectors import detectors_for
 from timing import per_call_us  # benchmarks/timing.py, beside this script
@@ -69,7 +69,7 @@ def _plain_forward(agent: Agent):
 def main() -> None:
     torch.set_num_threads(1)
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (other work skews the ratio)")
-    env = _training_env(recipe_for("pong", "dropconnect"))
+    env = training_env(recipe_for("pong", "dropconnect"))
     agents = {method: _agent(method, env) for method in ("dropconnect", "dropout", "ensemble")}
     obs, _ = env.reset(seed=0)
     for _ in range(WARMUP_STEPS):

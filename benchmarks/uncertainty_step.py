@@ -18,7 +18,7 @@ from stable_baselines3 import DQN
 import oodmon  # noqa: F401  (registers the envs)
 from oodmon.agents.networks import build_modules, estimator_for
 from oodmon.agents.recipes import recipe_for
-from oodmon.agents.training import architecture
+from oodmon.agents.algorithms import architecture
 from timing import per_call_us  # benchmarks/timing.py, beside this script
 
 REPEATS = 2000

@@ -5,7 +5,7 @@ that no two overlap. Use the names, not the numbers.
 
 Not yet here: training's periodic evaluations play seeds ``10,000 + steps`` (steps up to 2
 million, so they overlap every range below) and its snapshot selection 50,000 + i
-(``oodmon.agents.training``). Those episodes only choose which weights to ship, never calibrate or
+(``oodmon.agents.checkpoints``, ``oodmon.agents.export``). Those episodes only choose which weights to ship, never calibrate or
 score a monitor; moving them changes which snapshot a retraining ships, so it waits for the next
 retraining of the zoo.
 """

@@ -34,10 +34,10 @@ def test_sb3_pickle_loaders_sit_only_behind_the_explicit_flag():
     # only where the user passed load_pickles=True (oodmon train --unsafe-load-pickles).
     calls = [(str(path), line.strip()) for path, _, line in _lines()
              if re.search(r"\)\.load\(|load_replay_buffer\(|\bDQN\.load\(|\bDDPG\.load\(", line.split("#")[0])]
-    assert calls and {path for path, _ in calls} == {"oodmon/agents/training.py", "oodmon/agents/sb3.py"}, calls
-    calls = [(path, line) for path, line in calls if path == "oodmon/agents/training.py"]
-    source = (PACKAGE / "agents" / "training.py").read_text()
-    body = source[source.index("def _load_pickled_checkpoint"):source.index("def architecture")]
+    assert calls and {path for path, _ in calls} == {"oodmon/agents/checkpoints.py", "oodmon/agents/sb3.py"}, calls
+    calls = [(path, line) for path, line in calls if path == "oodmon/agents/checkpoints.py"]
+    source = (PACKAGE / "agents" / "checkpoints.py").read_text()
+    body = source[source.index("def _load_pickled_checkpoint"):source.index("class _RunCallback")]
     assert all(line in body for _, line in calls)
     uses = [m.start() for m in re.finditer(r"_load_pickled_checkpoint\(", source)]
     assert len(uses) == 2  # its definition and one call

@@ -14,7 +14,10 @@ from oodmon.agents import load_agent
 from oodmon.agents.layers import DropConnectLinear
 from oodmon.agents.networks import estimator_for, modules_from_sb3
 from oodmon.agents.recipes import recipe_for
-from oodmon.agents.training import _new_model, _Run, _shortened, _training_env, architecture, train
+from oodmon.agents.algorithms import new_model as _new_model
+from oodmon.agents.algorithms import training_env as _training_env
+from oodmon.agents.checkpoints import Run as _Run
+from oodmon.agents.training import _shortened, architecture, train
 from oodmon.errors import ConfigError, UnknownParameterError
 
 CASES = [("cartpole", "dropout"), ("cartpole", "ensemble"), ("pendulum", "dropconnect"), ("pendulum", "ensemble"),
@@ -156,6 +159,7 @@ def test_export_only_ships_an_unfinished_training_honestly(tmp_path):
 
 
 def test_export_ships_the_snapshot_that_plays_best_as_shipped(tmp_path, monkeypatch):
+    import oodmon.agents.export as export
     import oodmon.agents.training as training
     from dataclasses import replace
 
@@ -172,13 +176,13 @@ def test_export_ships_the_snapshot_that_plays_best_as_shipped(tmp_path, monkeypa
     best_two = sorted(log, key=lambda x: -x["eval_return_mean"])[:2]
 
     selection = agent.metadata["checkpoint_selection"]
-    assert selection["episodes"] == 2 and selection["seed"] == training.SELECTION_SEED != training.ID_SEED
+    assert selection["episodes"] == 2 and selection["seed"] == export.SELECTION_SEED != training.ID_SEED
     assert [c["steps"] for c in selection["candidates"]] == [x["steps"] for x in best_two]
     chosen = agent.metadata["selected_checkpoints"][0]
     assert chosen["selection_return_mean"] == max(c["selection_return_mean"] for c in selection["candidates"])
     # The shipped agent is the chosen snapshot: it replays the return that chose it.
     replay = load_agent(tmp_path, task="cartpole", seed=0)
-    returns = episode_returns(replay.act, Variant("cartpole"), 2, seed=training.SELECTION_SEED)
+    returns = episode_returns(replay.act, Variant("cartpole"), 2, seed=export.SELECTION_SEED)
     assert float(np.mean(returns)) == pytest.approx(chosen["selection_return_mean"], abs=0.01)
     episodes = [r for r in reports if len(r) == 4]
     assert episodes[-1][1:] == (4, 4, "episodes")  # progress of the choice, counted in episodes

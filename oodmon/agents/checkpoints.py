@@ -1,0 +1,235 @@
+"""One SB3 model being trained (:class:`Run`): its folder, checkpoints (tensors and arrays, never
+pickles unless asked), resume, evaluations and the snapshots kept for the choice at export. The
+files are listed in :mod:`oodmon.agents.training`."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from safetensors.torch import load_file, save_file
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+
+from oodmon.agents.algorithms import algorithm_class, new_model, training_env
+from oodmon.agents.evaluation import episode_returns
+from oodmon.agents.recipes import Recipe
+from oodmon.envs.grid import Variant
+from oodmon.errors import ConfigError
+
+__all__ = ["Reporter", "Run"]
+
+#: ``report(run name, steps done, steps total)``; while choosing among snapshots (``Recipe.select_top``)
+#: ``report(name, episodes done, episodes total, "episodes")``.
+Reporter = Callable[..., None]
+
+#: The replay buffer's arrays that a checkpoint keeps (``next_observations`` is None where the
+#: buffer saves memory by reading the next observation from the following row, as Pong's does).
+_BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+#: The SB3 counters a resumed run must go on from (schedules, target updates, policy delay).
+_COUNTERS = ("num_timesteps", "_n_updates", "_episode_num", "_n_calls")
+
+
+def _load_pickled_checkpoint(recipe: Recipe, folder: Path, env: gymnasium.Env, *, with_buffer: bool) -> BaseAlgorithm:
+    """SB3's own ``checkpoint.zip`` and ``replay_buffer.pkl`` of an older training. These are pickles:
+    loading them runs whatever code they hold. Only ever called with ``load_pickles=True``."""
+    model = algorithm_class(recipe).load(folder / "checkpoint.zip", env=env, device="cpu")
+    buffer = folder / "replay_buffer.pkl"
+    if with_buffer and buffer.exists():
+        model.load_replay_buffer(buffer)
+    return model
+
+
+class _RunCallback(BaseCallback):
+    """Checkpoints, evaluations and progress reports during one SB3 ``learn`` call."""
+
+    def __init__(self, run: Run, report: Reporter) -> None:
+        super().__init__()
+        self.run, self.report = run, report
+
+    def _on_step(self) -> bool:
+        steps, recipe = self.num_timesteps, self.run.recipe
+        if steps % 500 == 0:
+            self.report(self.run.name, steps, recipe.total_steps)
+        if steps % recipe.eval_every == 0:
+            mean = self.run.evaluate(self.model, steps)
+            if self.run.on_evaluation is not None:
+                self.run.on_evaluation(self.run.name, steps, mean)
+        if steps % recipe.checkpoint_every == 0:
+            self.run.checkpoint(self.model, finished=False)
+        return True
+
+
+class Run:
+    """One SB3 model being trained: its folder, checkpoints and log."""
+
+    def __init__(self, recipe: Recipe, root: Path, name: str, seed: int) -> None:
+        self.on_evaluation: Callable[[str, int, float], None] | None = None  # see train()
+        self.recipe, self.root, self.name, self.seed = recipe, root, name, seed
+        self.folder = root / "runs" / name
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.state_path = self.folder / "state.json"
+        self.state = json.loads(self.state_path.read_text()) if self.state_path.exists() else {
+            "steps": 0, "wall_time_s": 0.0, "finished": False, "seed": seed}
+        self._started = time.monotonic()
+        self._wall_before = self.state["wall_time_s"]
+
+    @property
+    def finished(self) -> bool:
+        return bool(self.state["finished"])
+
+    def load_or_create(self, env: gymnasium.Env, *, with_buffer: bool = True,
+                       load_pickles: bool = False) -> BaseAlgorithm:
+        """The full checkpoint if there is one; else the last weights (``policy.safetensors``, small
+        enough to commit) with a fresh buffer and optimizer; else a new model. Legacy pickled
+        checkpoints are read only with ``load_pickles``."""
+        legacy = self.folder / "checkpoint.zip"
+        if legacy.exists() and not (self.folder / "checkpoint.pt").exists():
+            if load_pickles:
+                return _load_pickled_checkpoint(self.recipe, self.folder, env, with_buffer=with_buffer)
+            warnings.warn(f"{legacy} (and replay_buffer.pkl) are pickles, which oodmon does not load: a crafted one "
+                          "runs code. Resuming from policy.safetensors with a fresh buffer instead; pass "
+                          "--unsafe-load-pickles to load them if you made them yourself", UserWarning, stacklevel=2)
+        model = new_model(self.recipe, env, self.seed)
+        checkpoint = self.folder / "checkpoint.pt"
+        if checkpoint.exists():
+            saved = torch.load(checkpoint, map_location="cpu", weights_only=True)  # tensors and numbers only
+            model.set_parameters(saved["parameters"], exact_match=True, device="cpu")
+            for name, value in saved["counters"].items():
+                setattr(model, name, int(value))
+            if not (with_buffer and self._load_buffer(model)):
+                self._refill(model)
+            return model
+        weights = self.folder / "policy.safetensors"
+        if weights.exists() and self.state["steps"] > 0:
+            model.policy.load_state_dict(load_file(str(weights)), strict=False)
+            for online, target in (("q_net", "q_net_target"), ("actor", "actor_target"), ("critic", "critic_target")):
+                if hasattr(model.policy, target):
+                    getattr(model.policy, target).load_state_dict(getattr(model.policy, online).state_dict())
+            model.num_timesteps = int(self.state["steps"])
+            self._refill(model)
+        return model
+
+    def _refill(self, model: BaseAlgorithm) -> None:
+        """Fill the empty replay buffer again before learning goes on."""
+        model.learning_starts = model.num_timesteps + self.recipe.hyperparams.get("learning_starts", 0)
+
+    def _load_buffer(self, model: BaseAlgorithm) -> bool:
+        """Put ``replay_buffer.npz`` into ``model``'s buffer; False where it is missing or belongs to
+        another checkpoint (a kill between the two writes)."""
+        path = self.folder / "replay_buffer.npz"
+        if not path.exists():
+            return False
+        buffer = model.replay_buffer
+        with np.load(path, allow_pickle=False) as data:
+            if int(data["num_timesteps"]) != model.num_timesteps:
+                return False
+            size = int(data["size"])
+            for name in _BUFFER_ARRAYS:
+                if name in data.files:
+                    getattr(buffer, name)[:size] = data[name]
+            buffer.pos, buffer.full = int(data["pos"]), bool(data["full"])
+        return True
+
+    def train(self, report: Reporter, *, export_only: bool = False, load_pickles: bool = False) -> BaseAlgorithm:
+        self._started = time.monotonic()  # wall time counts from here: members train one after another
+        env = training_env(self.recipe)
+        if export_only and self.state["steps"] == 0:
+            raise ConfigError(f"nothing to export in {self.folder}: no checkpoint yet; train first")
+        model = self.load_or_create(env, with_buffer=not export_only, load_pickles=load_pickles)
+        report(self.name, model.num_timesteps, self.recipe.total_steps)
+        if not self.finished and not export_only:
+            remaining = self.recipe.total_steps - model.num_timesteps
+            if remaining > 0:
+                model.learn(remaining, callback=_RunCallback(self, report), reset_num_timesteps=False)
+            self.checkpoint(model, finished=True)
+            report(self.name, model.num_timesteps, self.recipe.total_steps)
+        self.restore_best(model)
+        return model
+
+    def checkpoint(self, model: BaseAlgorithm, *, finished: bool) -> None:
+        # Write to temporary names and rename, so that a kill mid-write leaves the last good files.
+        counters = {name: int(getattr(model, name)) for name in _COUNTERS if hasattr(model, name)}
+        torch.save({"parameters": model.get_parameters(), "counters": counters}, self.folder / "tmp-checkpoint.pt")
+        os.replace(self.folder / "tmp-checkpoint.pt", self.folder / "checkpoint.pt")
+        if finished:
+            (self.folder / "replay_buffer.npz").unlink(missing_ok=True)  # not needed once the run is done
+        else:
+            buffer = model.replay_buffer
+            size = buffer.buffer_size if buffer.full else buffer.pos
+            arrays = {name: getattr(buffer, name)[:size] for name in _BUFFER_ARRAYS
+                      if isinstance(getattr(buffer, name, None), np.ndarray)}
+            with open(self.folder / "tmp-replay_buffer.npz", "wb") as f:
+                np.savez(f, size=size, pos=buffer.pos, full=buffer.full, num_timesteps=model.num_timesteps, **arrays)
+            os.replace(self.folder / "tmp-replay_buffer.npz", self.folder / "replay_buffer.npz")
+        for legacy in ("checkpoint.zip", "replay_buffer.pkl"):  # superseded: never to be unpickled by accident
+            (self.folder / legacy).unlink(missing_ok=True)
+        save_file(self._kept_weights(model), str(self.folder / "tmp-policy.safetensors"))
+        os.replace(self.folder / "tmp-policy.safetensors", self.folder / "policy.safetensors")
+        self.state.update(
+            steps=int(model.num_timesteps), finished=finished,
+            wall_time_s=round(self._wall_before + time.monotonic() - self._started, 1),
+        )
+        self.state_path.write_text(json.dumps(self.state, indent=1))
+
+    def evaluate(self, model: BaseAlgorithm, steps: int) -> float:
+        """Log the greedy policy's mean return; keep the weights of the best evaluation so far; return
+        the mean."""
+        returns = episode_returns(
+            lambda obs: model.predict(obs, deterministic=True)[0], Variant(self.recipe.task),
+            self.recipe.eval_episodes, seed=10_000 + steps,
+        )
+        mean = float(np.mean(returns))
+        line = {"run": self.name, "steps": steps, "eval_return_mean": mean,
+                "wall_time_s": round(self._wall_before + time.monotonic() - self._started, 1)}
+        with open(self.root / "train_log.jsonl", "a") as log:
+            log.write(json.dumps(line) + "\n")
+        best = self.state.get("best")
+        if best is None or mean >= best["eval_return_mean"]:
+            save_file(self._kept_weights(model), str(self.folder / "best_policy.safetensors"))
+            self.state["best"] = {"steps": steps, "eval_return_mean": mean}
+        if self.recipe.select_top:
+            (self.folder / "snapshots").mkdir(exist_ok=True)
+            save_file(self._kept_weights(model), str(self.folder / "snapshots" / f"{steps}.safetensors"))
+        return mean
+
+    def _kept_weights(self, model: BaseAlgorithm) -> dict[str, torch.Tensor]:
+        """The policy's weights as the run keeps them on disk: without its target networks (copies,
+        made again on load), and in fp16 for CNN recipes, as they ship. The export rounds a CNN's
+        weights to fp16 anyway, so this changes no exported agent and halves the committed files;
+        resuming from ``policy.safetensors`` alone starts from weights rounded by at most 2**-11 of
+        their size, far less than the fresh replay buffer such a resume starts with."""
+        weights = {k: v.detach().contiguous() for k, v in model.policy.state_dict().items() if "_target" not in k}
+        if self.recipe.cnn:
+            weights = {k: v.half() if v.is_floating_point() else v for k, v in weights.items()}
+        return weights
+
+    def candidates(self) -> list[dict[str, Any]]:
+        """The ``select_top`` best evaluations whose weights are on disk, best first: their steps,
+        evaluation return and weights file."""
+        log = self.root / "train_log.jsonl"
+        lines = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
+        best = self.state.get("best") or {}
+        found = []
+        for line in sorted((x for x in lines if x["run"] == self.name), key=lambda x: -x["eval_return_mean"]):
+            path = self.folder / "snapshots" / f"{line['steps']}.safetensors"
+            if not path.exists() and line["steps"] == best.get("steps"):
+                path = self.folder / "best_policy.safetensors"  # evaluated before snapshots were kept
+            if path.exists() and all(c["steps"] != line["steps"] for c in found):
+                found.append({"steps": line["steps"], "eval_return_mean": line["eval_return_mean"], "path": path})
+        return found[: self.recipe.select_top]
+
+    def restore_best(self, model: BaseAlgorithm) -> None:
+        """Load the weights of the best evaluation into ``model`` (DQN and DDPG are unstable:
+        the last weights are often not the best ones)."""
+        path = self.folder / "best_policy.safetensors"
+        if self.state.get("best") and path.exists():
+            model.policy.load_state_dict(load_file(str(path)), strict=False)
