@@ -12,6 +12,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.torch_layers import NatureCNN
 
+from oodmon.agents.networks import Architecture
 from oodmon.agents.policies import BootstrappedDQN, UncertainDQNPolicy, UncertainTD3Policy
 from oodmon.agents.recipes import Recipe
 from oodmon.envs.grid import ENV_IDS
@@ -19,22 +20,22 @@ from oodmon.envs.grid import ENV_IDS
 __all__ = ["algorithm_class", "architecture", "new_model", "training_env"]
 
 
-def architecture(recipe: Recipe, env: gymnasium.Env) -> dict[str, Any]:
+def architecture(recipe: Recipe, env: gymnasium.Env) -> Architecture:
     """The architecture record (see ``networks``) of a recipe's agent in ``env``."""
     discrete = isinstance(env.action_space, gymnasium.spaces.Discrete)
     ensemble = recipe.method == "ensemble"
-    return {
-        "algorithm": recipe.algorithm,
-        "obs_shape": list(env.observation_space.shape),
-        "n_outputs": int(env.action_space.n) if discrete else int(np.prod(env.action_space.shape)),
-        "cnn": recipe.cnn,
-        "net_arch": list(recipe.net_arch),
-        "stochastic": None if ensemble else recipe.method,
-        "drop_p": recipe.drop_p,
-        "last_only": recipe.last_only,
-        "n_members": recipe.n_members if ensemble else 1,
-        "shared_torso": ensemble and recipe.shared_torso,
-    }
+    return Architecture(
+        algorithm=recipe.algorithm,
+        obs_shape=env.observation_space.shape,
+        n_outputs=int(env.action_space.n) if discrete else int(np.prod(env.action_space.shape)),
+        cnn=recipe.cnn,
+        net_arch=recipe.net_arch,
+        stochastic=None if ensemble else recipe.method,
+        drop_p=recipe.drop_p,
+        last_only=recipe.last_only,
+        n_members=recipe.n_members if ensemble else 1,
+        shared_torso=ensemble and recipe.shared_torso,
+    )
 
 
 def training_env(recipe: Recipe) -> gymnasium.Env:
@@ -48,7 +49,7 @@ def new_model(recipe: Recipe, env: gymnasium.Env, seed: int) -> BaseAlgorithm:
     arch = architecture(recipe, env)
     policy_kwargs: dict[str, Any] = {
         "net_arch": list(recipe.net_arch),
-        "stochastic": arch["stochastic"],
+        "stochastic": arch.stochastic,
         "drop_p": recipe.drop_p,
         "last_only": recipe.last_only,
     }
@@ -59,7 +60,7 @@ def new_model(recipe: Recipe, env: gymnasium.Env, seed: int) -> BaseAlgorithm:
         n = env.action_space.shape[0]
         scale = recipe.action_noise * (env.action_space.high - env.action_space.low) / 2
         common["action_noise"] = NormalActionNoise(np.zeros(n), scale * np.ones(n))
-    elif arch["shared_torso"]:
+    elif arch.shared_torso:
         policy_kwargs["n_heads"] = recipe.n_members
     policy = UncertainTD3Policy if recipe.algorithm == "ddpg" else UncertainDQNPolicy
     return algorithm_class(recipe)(policy, env, policy_kwargs=policy_kwargs, **common)

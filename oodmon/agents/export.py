@@ -15,7 +15,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from oodmon.agents.checkpoints import Reporter, Run
 from oodmon.agents.evaluation import episode_returns
-from oodmon.agents.networks import estimator_for, modules_from_sb3
+from oodmon.agents.networks import Architecture, estimator_for, modules_from_sb3
 from oodmon.agents.recipes import Recipe
 from oodmon.agents.serialization import save_modules
 from oodmon.envs.grid import Variant
@@ -30,7 +30,7 @@ __all__ = ["SELECTION_SEED", "as_shipped", "select_snapshot", "write_agent"]
 SELECTION_SEED = 50_000
 
 
-def as_shipped(models: list[BaseAlgorithm], arch: dict[str, Any], recipe: Recipe, seed: int,
+def as_shipped(models: list[BaseAlgorithm], arch: Architecture, recipe: Recipe, seed: int,
                 bounds: dict[str, Any]):
     """The agent's modules as they will be saved, and its policy: the action of its MC or ensemble
     decision, on weights rounded to fp16 where they ship so (in Pong that changes whole games).
@@ -42,12 +42,12 @@ def as_shipped(models: list[BaseAlgorithm], arch: dict[str, Any], recipe: Recipe
                 if tensor.is_floating_point():
                     tensor.copy_(tensor.half().float())
     estimator = estimator_for(modules, arch, recipe.n_samples, seed=seed, **bounds)
-    if arch["algorithm"] == "dqn":
+    if arch.algorithm == "dqn":
         return modules, lambda obs: int(estimator.estimate(obs).action[0])
     return modules, lambda obs: estimator.estimate(obs).action[0]
 
 
-def select_snapshot(run: Run, model: BaseAlgorithm, arch: dict[str, Any], seed: int,
+def select_snapshot(run: Run, model: BaseAlgorithm, arch: Architecture, seed: int,
                      bounds: dict[str, Any], report: Reporter) -> dict[str, Any] | None:
     """Play each of the run's candidate snapshots as shipped on ``select_episodes`` ID episodes
     (seeds from :data:`SELECTION_SEED`); load the best into ``model`` and describe the choice.
@@ -96,16 +96,16 @@ def select_snapshot(run: Run, model: BaseAlgorithm, arch: dict[str, Any], seed: 
 
 
 def write_agent(root: Path, recipe: Recipe, runs: list[Run], models: list[BaseAlgorithm], modules: Any,
-                arch: dict[str, Any], *, seed: int, selection: dict[str, Any] | None, id_returns: Any,
+                arch: Architecture, *, seed: int, selection: dict[str, Any] | None, id_returns: Any,
                 bounds: dict[str, Any], command: str) -> None:
     """Save the agent's modules (fp16 for CNN recipes) and its metadata into ``root``."""
     task, method = recipe.task, recipe.method
     metadata = {
-        "task": task, "method": method, "algorithm": recipe.algorithm, "architecture": arch,
-        "ensemble": ("bootstrapped heads on a shared torso" if arch["shared_torso"] else "independent members")
+        "task": task, "method": method, "algorithm": recipe.algorithm, "architecture": arch.to_json(),
+        "ensemble": ("bootstrapped heads on a shared torso" if arch.shared_torso else "independent members")
         if method == "ensemble" else None,
-        "n_members": arch["n_members"], "drop_p": None if method == "ensemble" else recipe.drop_p,
-        "n_samples": arch["n_members"] if method == "ensemble" else recipe.n_samples,
+        "n_members": arch.n_members, "drop_p": None if method == "ensemble" else recipe.drop_p,
+        "n_samples": arch.n_members if method == "ensemble" else recipe.n_samples,
         "seed": seed, "training_steps": [int(m.num_timesteps) for m in models],
         "wall_time_s": round(sum(run.state["wall_time_s"] for run in runs), 1),
         "selected_checkpoints": [selection["chosen"]] if selection else [run.state.get("best") for run in runs],

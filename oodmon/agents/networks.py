@@ -1,6 +1,6 @@
 """The networks an estimator samples, built from an architecture record or taken from SB3 models.
 
-An architecture is a plain dict, stored in a model's JSON metadata::
+An architecture is an :class:`Architecture` record, stored in a model's JSON metadata as::
 
     {"algorithm": "dqn", "obs_shape": [4], "n_outputs": 2, "cnn": false, "net_arch": [256, 256],
      "stochastic": "dropout", "drop_p": 0.1, "last_only": true, "n_members": 1, "shared_torso": false}
@@ -16,7 +16,8 @@ loads into the other.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -27,9 +28,70 @@ from torch import nn
 
 from oodmon.agents.estimators import EnsembleEstimator, MCEstimator, UncertaintyEstimator
 from oodmon.agents.policies import STOCHASTIC_LAYERS
-from oodmon.errors import ConfigError
+from oodmon.errors import ConfigError, ModelFormatError
 
-__all__ = ["ScaleImage", "build_modules", "estimator_for", "estimator_from_sb3", "modules_from_sb3"]
+__all__ = ["Architecture", "ScaleImage", "build_modules", "estimator_for", "estimator_from_sb3", "modules_from_sb3"]
+
+
+@dataclass(frozen=True)
+class Architecture:
+    """What the networks of an agent are: enough to build them again around saved weights.
+
+    Attributes:
+        algorithm: ``dqn`` (Q-values out) or ``ddpg`` (actions out, through a tanh).
+        obs_shape: the observation's shape.
+        n_outputs: the number of actions (DQN) or the action's dimension (DDPG).
+        cnn: Pong's scaling and Nature CNN before the heads (else a flatten).
+        net_arch: the hidden layers' widths of each head.
+        stochastic: ``dropout`` or ``dropconnect`` (MC sampling), or ``None``.
+        drop_p, last_only: the stochastic layer's drop probability, and whether it sits at the
+            output layer only (see ``layers.add_dropout``).
+        n_members: heads of an ensemble (1: one MC-sampled network).
+        shared_torso: the heads share one torso (bootstrapped DQN), else each member is whole.
+
+    Example:
+        >>> arch = Architecture.of({"algorithm": "dqn", "obs_shape": [4], "n_outputs": 2})
+        >>> arch.obs_shape, arch.n_members, Architecture.of(arch.to_json()) == arch
+        ((4,), 1, True)
+    """
+
+    algorithm: str
+    obs_shape: tuple[int, ...]
+    n_outputs: int
+    cnn: bool = False
+    net_arch: tuple[int, ...] = ()
+    stochastic: str | None = None
+    drop_p: float = 0.0
+    last_only: bool = True
+    n_members: int = 1
+    shared_torso: bool = False
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "obs_shape", tuple(int(n) for n in self.obs_shape))
+        object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
+
+    @classmethod
+    def of(cls, value: Architecture | Mapping[str, Any]) -> Architecture:
+        """``value`` as a record: a record itself, or the dict a model's metadata holds.
+
+        Raises:
+            ModelFormatError: a dict with keys an architecture does not have, or without the
+                required ``algorithm``, ``obs_shape`` and ``n_outputs``.
+        """
+        if isinstance(value, cls):
+            return value
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(value) - names)
+        missing = [n for n in ("algorithm", "obs_shape", "n_outputs") if n not in value]
+        if unknown or missing:
+            raise ModelFormatError(f"not an architecture record: {'unknown ' + ', '.join(unknown) if unknown else ''}"
+                                   f"{'; ' if unknown and missing else ''}{'missing ' + ', '.join(missing) if missing else ''}")
+        return cls(**value)
+
+    def to_json(self) -> dict[str, Any]:
+        """The record as a model's metadata stores it (lists, not tuples)."""
+        data = asdict(self)
+        return data | {"obs_shape": list(self.obs_shape), "net_arch": list(self.net_arch)}
 
 
 class ScaleImage(nn.Module):
@@ -41,23 +103,23 @@ class ScaleImage(nn.Module):
         return x / 255.0
 
 
-def _torso(arch: dict[str, Any]) -> nn.Sequential:
-    if arch["cnn"]:
-        space = spaces.Box(0, 255, tuple(arch["obs_shape"]), dtype=np.uint8)
+def _torso(arch: Architecture) -> nn.Sequential:
+    if arch.cnn:
+        space = spaces.Box(0, 255, tuple(arch.obs_shape), dtype=np.uint8)
         return nn.Sequential(ScaleImage(), NatureCNN(space, features_dim=512))
     return nn.Sequential(nn.Flatten())
 
 
-def _head(arch: dict[str, Any]) -> nn.Sequential:
-    in_dim = 512 if arch["cnn"] else math.prod(arch["obs_shape"])
-    squash = arch["algorithm"] == "ddpg"
-    head = nn.Sequential(*create_mlp(in_dim, arch["n_outputs"], list(arch["net_arch"]), nn.ReLU, squash_output=squash))
-    if arch.get("stochastic"):
-        head = STOCHASTIC_LAYERS[arch["stochastic"]](head, arch["drop_p"], last_only=arch["last_only"])
+def _head(arch: Architecture) -> nn.Sequential:
+    in_dim = 512 if arch.cnn else math.prod(arch.obs_shape)
+    squash = arch.algorithm == "ddpg"
+    head = nn.Sequential(*create_mlp(in_dim, arch.n_outputs, list(arch.net_arch), nn.ReLU, squash_output=squash))
+    if arch.stochastic:
+        head = STOCHASTIC_LAYERS[arch.stochastic](head, arch.drop_p, last_only=arch.last_only)
     return head
 
 
-def build_modules(arch: dict[str, Any]) -> nn.Module:
+def build_modules(arch: Architecture | Mapping[str, Any]) -> nn.Module:
     """Fresh modules of an architecture: ``{"network": ...}`` or ``{"torso": ..., "members": [...]}``.
 
     Example:
@@ -66,43 +128,46 @@ def build_modules(arch: dict[str, Any]) -> nn.Module:
         >>> sorted(build_modules(arch).state_dict())[:2]
         ['members.0.0.bias', 'members.0.0.weight']
     """
-    if arch["n_members"] == 1:
+    arch = Architecture.of(arch)
+    if arch.n_members == 1:
         return nn.ModuleDict({"network": nn.Sequential(*_torso(arch), *_head(arch))})
     return nn.ModuleDict({
         "torso": _torso(arch),
-        "members": nn.ModuleList(_head(arch) for _ in range(arch["n_members"])),
+        "members": nn.ModuleList(_head(arch) for _ in range(arch.n_members)),
     })
 
 
-def modules_from_sb3(models: Sequence[Any], arch: dict[str, Any]) -> nn.Module:
+def modules_from_sb3(models: Sequence[Any], arch: Architecture | Mapping[str, Any]) -> nn.Module:
     """The estimation modules of trained SB3 models, shaped as :func:`build_modules` makes them.
 
     ``models`` holds one model (MC, or bootstrapped heads) or K independently trained members.
     """
+    arch = Architecture.of(arch)
     def parts(model) -> tuple[nn.Module, nn.Sequential]:
-        if arch["algorithm"] == "dqn":
+        if arch.algorithm == "dqn":
             q_net = model.policy.q_net
             return q_net.features_extractor, q_net.q_net
         actor = model.policy.actor
         return actor.features_extractor, actor.mu
 
     extractor, head = parts(models[0])
-    torso = nn.Sequential(ScaleImage(), extractor) if arch["cnn"] else nn.Sequential(nn.Flatten())
-    if arch["n_members"] == 1:
+    torso = nn.Sequential(ScaleImage(), extractor) if arch.cnn else nn.Sequential(nn.Flatten())
+    if arch.n_members == 1:
         return nn.ModuleDict({"network": nn.Sequential(*torso, *head)})
-    if arch["shared_torso"]:
+    if arch.shared_torso:
         heads = list(head.heads)
     else:
         heads = [parts(model)[1] for model in models]
     return nn.ModuleDict({"torso": torso, "members": nn.ModuleList(heads)})
 
 
-def estimator_for(modules: nn.Module, arch: dict[str, Any], n_samples: int = 20, seed: int | None = None,
+def estimator_for(modules: nn.Module, arch: Architecture | Mapping[str, Any], n_samples: int = 20, seed: int | None = None,
                   action_low: Sequence[float] | None = None, action_high: Sequence[float] | None = None) -> UncertaintyEstimator:
     """The estimator that samples ``modules`` (from :func:`build_modules` or :func:`modules_from_sb3`)."""
-    kind = "q_values" if arch["algorithm"] == "dqn" else "actions"
-    common = dict(obs_shape=arch["obs_shape"], action_low=action_low, action_high=action_high)
-    if arch["n_members"] == 1:
+    arch = Architecture.of(arch)
+    kind = "q_values" if arch.algorithm == "dqn" else "actions"
+    common = dict(obs_shape=arch.obs_shape, action_low=action_low, action_high=action_high)
+    if arch.n_members == 1:
         return MCEstimator(modules["network"].eval(), n_samples, kind, seed=seed, **common)
     return EnsembleEstimator(list(modules["members"]), kind, torso=modules["torso"], **common)
 
@@ -138,17 +203,12 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
     algorithm = kinds.pop()
     space = models[0].action_space
     first = models[0].policy.q_net if algorithm == "dqn" else models[0].policy.actor
-    arch = {
-        "algorithm": algorithm,
-        "obs_shape": list(models[0].observation_space.shape),
-        "n_outputs": int(space.n) if algorithm == "dqn" else int(np.prod(space.shape)),
-        "cnn": isinstance(first.features_extractor, NatureCNN),
-        "n_members": len(models),
-        "shared_torso": False,
-    }
+    arch = Architecture(algorithm, models[0].observation_space.shape,
+                        int(space.n) if algorithm == "dqn" else int(np.prod(space.shape)),
+                        cnn=isinstance(first.features_extractor, NatureCNN), n_members=len(models))
     action_low = space.low.tolist() if algorithm == "ddpg" else None
     action_high = space.high.tolist() if algorithm == "ddpg" else None
-    if len(models) > 1 and arch["cnn"]:
+    if len(models) > 1 and arch.cnn:
         raise ConfigError("an ensemble of separate CNN models is not supported; use bootstrapped heads (QHeads)")
     return estimator_for(modules_from_sb3(models, arch), arch, n_samples=n_samples, seed=seed,
                          action_low=action_low, action_high=action_high)

@@ -98,7 +98,10 @@ def load_modules(directory: str | Path, *, task: str | None = None) -> tuple[tor
         tensors = load(data)
     except (SafetensorError, OSError, ValueError) as error:
         raise ModelFormatError(f"{path} cannot be read as safetensors ({error}); the file is damaged") from None
-    modules = build_modules(metadata["architecture"])
+    try:
+        modules = build_modules(metadata["architecture"])
+    except ModelFormatError as error:
+        raise ModelFormatError(f"{directory / 'model.json'}: {error}") from None
     expected = modules.state_dict()
     missing = sorted(set(expected) - set(tensors))
     unexpected = sorted(set(tensors) - set(expected))

@@ -116,6 +116,15 @@ def test_architecture_mismatch(saved):
         load_agent(path)
 
 
+def test_an_architecture_record_with_unknown_or_missing_fields_is_refused(saved):
+    path, _ = saved
+    metadata = json.loads((path / "model.json").read_text())
+    metadata["architecture"] = {k: v for k, v in metadata["architecture"].items() if k != "n_outputs"} | {"layers": 3}
+    (path / "model.json").write_text(json.dumps(metadata))
+    with pytest.raises(ModelFormatError, match=r"model.json: not an architecture record: unknown layers; missing n_outputs"):
+        load_agent(path)
+
+
 def test_missing_directory_and_unknown_shipped_name(tmp_path):
     with pytest.raises(ModelFormatError, match="does not exist: a model directory holds model.json"):
         load_agent(tmp_path / "nothing")
