@@ -20,6 +20,7 @@ from rich.table import Table
 
 from oodmon.errors import ConfigError, OodmonError
 from oodmon.names import METHODS, TASKS
+from oodmon.progress import unit_of
 from oodmon.monitor.threshold import DETECTOR_NAMES
 from oodmon.seeds import CALIBRATION, VALIDATION
 
@@ -410,10 +411,11 @@ def _envs_show(args: argparse.Namespace) -> int:
 
 
 @contextmanager
-def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[..., None]]:
-    """A ``report(name, done, total, unit=None)`` for long work (its ``unit`` overrides the default):
-    rich bars on a terminal; where stderr is a file (a job under nohup), where a bar would only
-    appear at the end, a dated line per name at most once a minute, at its start and at its end."""
+def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
+    """An ``on_progress(stage, done, total, note=None)`` for long work (see :mod:`oodmon.progress`;
+    ``note``: a latest figure to show beside the stage): rich bars on a terminal; where stderr is a
+    file (a job under nohup), where a bar would only appear at the end, a dated line per stage at
+    most once a minute, at its start and at its end, with a rate in the stage's unit."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     stderr = Console(stderr=True)
@@ -425,7 +427,8 @@ def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[..., No
 
         notes: dict[str, str] = {}  # name -> its latest note (training: the last evaluation return)
 
-        def report(name: str, done: int, total: int, unit_here: str | None = None, note: str | None = None) -> None:
+        def report(name: str, done: int, total: int, note: str | None = None) -> None:
+            total = total or None  # 0: not known in advance
             if name not in bars:
                 bars[name] = progress.add_task(name, total=total)
             if note is not None:
@@ -436,14 +439,16 @@ def _progress(*, unit: str, transient: bool = True) -> Iterator[Callable[..., No
                 return
             now = time.monotonic()
             then, before = last_line.get(name, (None, done))
-            if then is None or now - then >= 60 or (done >= total and before < total):
+            finished = total is not None and done >= total and before < total
+            if then is None or now - then >= 60 or finished:
                 rate = (done - before) / (now - then) if then is not None and now > then else 0.0
-                counted = unit_here or unit
+                counted = unit_of(name)
                 speed = f"{rate:.1f} {counted}/s" if rate >= 1 or rate == 0 else f"{rate * 60:.1f} {counted}/min"
-                left = (total - done) / rate if rate > 0 and total > done else None
+                left = (total - done) / rate if rate > 0 and total is not None and total > done else None
                 eta = "" if left is None else f", about {left / 60:.0f} min left" if left >= 90 else f", about {left:.0f} s left"
                 noted = f", {notes[name]}" if name in notes else ""
-                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}/{total} {counted}, {speed}{eta}{noted}",
+                of = "" if total is None else f"/{total}"
+                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}{of} {counted}, {speed}{eta}{noted}",
                       file=sys.stderr, flush=True)
                 last_line[name] = (now, done)
 
@@ -457,17 +462,15 @@ def _train(args: argparse.Namespace) -> int:
 
     check_output_dir(args.out, parameter="--out")
     command = "oodmon " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("oodmon") else ""
-    with _progress(unit="steps", transient=False) as report_progress:
-
-        def report(run: str, done: int, total: int, unit: str | None = None, note: str | None = None) -> None:
-            report_progress(f"{args.task}/{args.method} {run}", done, total, unit, note)
-
+    with _progress(transient=False) as report:
+        label = f"{args.task}/{args.method}"
         total = args.steps or recipe_for(args.task, args.method).total_steps
 
         def evaluated(run: str, steps: int, mean: float) -> None:
-            report(run, steps, total, None, f"last evaluation return {mean:.1f} at step {steps}")
+            report(f"{label} {run} training steps", steps, total, f"last evaluation return {mean:.1f} at step {steps}")
 
-        agent = train(args.task, args.method, args.out, seed=args.seed, total_steps=args.steps, report=report,
+        agent = train(args.task, args.method, args.out, seed=args.seed, total_steps=args.steps,
+                      on_progress=lambda stage, done, of: report(f"{label} {stage}", done, of),
                       on_evaluation=evaluated,
                       export_only=args.export_only, load_pickles=args.unsafe_load_pickles,
                       command=command or f"oodmon train --task {args.task} --method {args.method} --seed {args.seed}")
@@ -509,8 +512,6 @@ def _sb3_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from rich.progress import Progress
-
     from oodmon.monitor import calibrate_agent
     from oodmon.monitor.detectors import BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors
     from oodmon.monitor.threshold import conformal_rank
@@ -527,18 +528,15 @@ def _calibrate(args: argparse.Namespace) -> int:
     if detectors is None and (args.detector not in (None, "spread") or agent.estimator is None or agent.env_id):
         fitted_to = Path(f"{args.out}.detectors")
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
-        with Progress(console=Console(stderr=True), transient=True) as progress:
-            bar = progress.add_task("ID episodes for the detectors", total=args.fit_episodes)
-            detectors = fit_agent_detectors(agent, score=args.score, episodes=args.fit_episodes,
-                                            on_episode=lambda i: progress.update(bar, advance=1))
+        with _progress() as report:
+            detectors = fit_agent_detectors(agent, score=args.score, episodes=args.fit_episodes, on_progress=report)
         detectors.save(fitted_to)
-    with Progress(console=Console(stderr=True), transient=True) as progress:
-        bar = progress.add_task("ID calibration episodes", total=args.episodes)
+    with _progress() as report:
         threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
                                     window=args.window, score=args.score, seed=args.seed, detectors=detectors,
                                     detector=args.detector, confidence=args.confidence, rule=args.rule,
                                     reference_episodes=args.reference_episodes, reference_by_age=args.reference_by_age,
-                                    on_episode=lambda i: progress.update(bar, advance=1))
+                                    on_progress=report)
     threshold.save(args.out)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "
@@ -557,19 +555,15 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _fit_detectors(args: argparse.Namespace) -> int:
-    from rich.progress import Progress
-
     from oodmon.monitor.detectors import fit_agent_detectors
     from oodmon.outputs import check_output_dir
 
     check_output_dir(args.out, parameter="--out")
     agent = _load_agent(args)
     only = args.only.split(",") if args.only else None
-    with Progress(console=Console(stderr=True), transient=True) as progress:
-        bar = progress.add_task("ID episodes for the detectors", total=args.episodes)
+    with _progress() as report:
         detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
-                                        obs_noise=args.obs_noise, max_steps=args.max_steps,
-                                        on_episode=lambda i: progress.update(bar, advance=1))
+                                        obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report)
     detectors.save(args.out)
     Console(soft_wrap=True).print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
                                   f"{args.episodes} ID episodes; wrote {args.out}")
@@ -628,12 +622,12 @@ def _run(args: argparse.Namespace) -> int:
         bar = progress.add_task(f"{label} (onset {args.onset})", total=args.episodes)
         decisions = progress.add_task("decisions in this episode", total=None)  # a Pong game is thousands
 
-        def count(steps: int) -> None:
+        def count(stage: str, steps: int, total: int) -> None:
             if steps % 50 == 0:
                 progress.update(decisions, completed=steps)
         for episode in range(args.episodes):
             progress.reset(decisions, total=None, description=f"episode {episode}: decisions")
-            records.append(monitor.run_episode(env, seed=args.seed + episode, on_step=count))
+            records.append(monitor.run_episode(env, seed=args.seed + episode, on_progress=count))
             progress.update(bar, advance=1)
         failures = dict(monitor.sinks.failures)
     env.close()
@@ -778,7 +772,7 @@ def _bench(args: argparse.Namespace) -> int:
     from oodmon.outputs import check_output_dir
 
     check_output_dir(args.out, parameter="--out")
-    with _progress(unit="done") as report:
+    with _progress() as report:
         result = run_bench(config, on_progress=report)
     if args.json:
         print(json.dumps(result.to_json(), indent=1))
@@ -813,8 +807,6 @@ def _detectors(args: argparse.Namespace, agent):
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from rich.progress import Progress
-
     from oodmon.monitor import Threshold, validate_threshold
 
     threshold = Threshold.load(args.threshold)
@@ -825,11 +817,9 @@ def _validate(args: argparse.Namespace) -> int:
         args.method = args.method or threshold.method
     agent = _load_agent(args, seed=args.seed)  # the same --seed, the same count, for MC agents too
     detectors = _detectors(args, agent)
-    with Progress(console=Console(stderr=True), transient=True) as progress:
-        bar = progress.add_task("fresh ID episodes", total=args.episodes)
+    with _progress() as report:
         result = validate_threshold(agent, threshold, args.episodes, seed=args.seed, detectors=detectors,
-                                    obs_noise=args.obs_noise, force=args.force,
-                                    on_episode=lambda i: progress.update(bar, advance=1))
+                                    obs_noise=args.obs_noise, force=args.force, on_progress=report)
     unit = "episodes" if threshold.mode == "episode" else "steps"
     if args.json:
         print(json.dumps({"threshold": str(args.threshold), "task": agent.task, "method": agent.method,
@@ -879,8 +869,6 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from rich.progress import Progress
-
     from oodmon.agents import evaluate_variants
     from oodmon.errors import InvalidParameterError
 
@@ -890,12 +878,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     from oodmon.envs.grid import select_variants
 
     variants = select_variants(args.task, args.variants)
-    with Progress(console=Console(stderr=True), transient=True) as progress:
-        bar = progress.add_task("evaluating", total=(len(variants) + 1) * args.episodes)
-        id_result, results = evaluate_variants(
-            agent.act, args.task, variants, args.episodes, fail_fraction=args.fail_fraction,
-            on_episode=lambda spec, ret: progress.update(bar, advance=1, description=spec),
-        )
+    with _progress() as report:
+        id_result, results = evaluate_variants(agent.act, args.task, variants, args.episodes,
+                                               fail_fraction=args.fail_fraction, on_progress=report)
     rows = [{"variant": r.spec, "return_mean": round(r.mean, 2), "return_std": round(float(r.returns.std()), 2),
              "fails": r.fails} for r in [id_result, *results]]
     if args.json:

@@ -81,3 +81,14 @@ def test_the_readmes_layout_names_every_part_of_the_package():
     present = {p.name + ("/" if p.is_dir() else "") for p in root.iterdir()
                if not p.name.startswith("__") and p.suffix in ("", ".py", ".json") and p.name != "py.typed"}
     assert listed == present
+
+
+def test_every_progress_callback_of_the_library_has_the_one_shape():
+    """Long work reports through ``on_progress(stage, done, total)`` (oodmon.progress), nowhere else."""
+    import re
+    from pathlib import Path
+
+    root = Path(oodmon.__file__).parent
+    for path in root.rglob("*.py"):
+        found = re.findall(r"\bon_episode\b|\bon_step=|\bReporter\b", path.read_text())
+        assert not found, f"{path.relative_to(root)} still has {found}"

@@ -24,12 +24,10 @@ from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.recipes import Recipe
 from oodmon.envs.grid import Variant
 from oodmon.errors import ConfigError
+from oodmon.progress import Progress
 
-__all__ = ["Reporter", "Run"]
+__all__ = ["Run"]
 
-#: ``report(run name, steps done, steps total)``; while choosing among snapshots (``Recipe.select_top``)
-#: ``report(name, episodes done, episodes total, "episodes")``.
-Reporter = Callable[..., None]
 
 #: The replay buffer's arrays that a checkpoint keeps (``next_observations`` is None where the
 #: buffer saves memory by reading the next observation from the following row, as Pong's does).
@@ -51,14 +49,14 @@ def _load_pickled_checkpoint(recipe: Recipe, folder: Path, env: gymnasium.Env, *
 class _RunCallback(BaseCallback):
     """Checkpoints, evaluations and progress reports during one SB3 ``learn`` call."""
 
-    def __init__(self, run: Run, report: Reporter) -> None:
+    def __init__(self, run: Run, report: Progress) -> None:
         super().__init__()
         self.run, self.report = run, report
 
     def _on_step(self) -> bool:
         steps, recipe = self.num_timesteps, self.run.recipe
         if steps % 500 == 0:
-            self.report(self.run.name, steps, recipe.total_steps)
+            self.report(f"{self.run.name} training steps", steps, recipe.total_steps)
         if steps % recipe.eval_every == 0:
             mean = self.run.evaluate(self.model, steps)
             if self.run.on_evaluation is not None:
@@ -139,19 +137,19 @@ class Run:
             buffer.pos, buffer.full = int(data["pos"]), bool(data["full"])
         return True
 
-    def train(self, report: Reporter, *, export_only: bool = False, load_pickles: bool = False) -> BaseAlgorithm:
+    def train(self, report: Progress, *, export_only: bool = False, load_pickles: bool = False) -> BaseAlgorithm:
         self._started = time.monotonic()  # wall time counts from here: members train one after another
         env = training_env(self.recipe)
         if export_only and self.state["steps"] == 0:
             raise ConfigError(f"nothing to export in {self.folder}: no checkpoint yet; train first")
         model = self.load_or_create(env, with_buffer=not export_only, load_pickles=load_pickles)
-        report(self.name, model.num_timesteps, self.recipe.total_steps)
+        report(f"{self.name} training steps", model.num_timesteps, self.recipe.total_steps)
         if not self.finished and not export_only:
             remaining = self.recipe.total_steps - model.num_timesteps
             if remaining > 0:
                 model.learn(remaining, callback=_RunCallback(self, report), reset_num_timesteps=False)
             self.checkpoint(model, finished=True)
-            report(self.name, model.num_timesteps, self.recipe.total_steps)
+            report(f"{self.name} training steps", model.num_timesteps, self.recipe.total_steps)
         self.restore_best(model)
         return model
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oodmon.envs.grid import Variant
+from oodmon.progress import Progress
 
 __all__ = ["RANDOM_RETURN", "VariantResult", "episode_returns", "evaluate_variants"]
 
@@ -29,9 +30,10 @@ def episode_returns(
     *,
     seed: int = 0,
     onset_step: int = 0,
-    on_episode: Callable[[float], None] | None = None,
+    on_progress: Progress | None = None,
 ) -> np.ndarray:
     """Returns of ``episodes`` episodes of ``policy`` in ``variant``, seeded ``seed``, ``seed+1``, ...
+    ``on_progress(f"{variant.spec} episodes", done, episodes)`` after each.
 
     Example:
         >>> from oodmon.envs.reference import cartpole_controller
@@ -49,8 +51,8 @@ def episode_returns(
                 total += float(reward)
                 done = terminated or truncated
             returns.append(total)
-            if on_episode is not None:
-                on_episode(total)
+            if on_progress is not None:
+                on_progress(f"{variant.spec} episodes", episode + 1, episodes)
     finally:
         env.close()
     return np.asarray(returns)
@@ -83,16 +85,23 @@ def evaluate_variants(
     *,
     seed: int = 10_000,
     fail_fraction: float = 0.5,
-    on_episode: Callable[[str, float], None] | None = None,
+    on_progress: Progress | None = None,
 ) -> tuple[VariantResult, list[VariantResult]]:
     """Evaluate ``policy`` in the ID env and in each variant; mark the variants where it fails.
+    ``on_progress("evaluation episodes", done, total)`` after each episode of all of them.
 
     Returns:
         The ID result and one result per variant, in order.
     """
+    variants = list(variants)
+    total, done = (len(variants) + 1) * episodes, [0]
+
+    def count(stage: str, episode: int, of: int) -> None:
+        done[0] += 1
+        on_progress("evaluation episodes", done[0], total)
+
     def run(variant: Variant) -> np.ndarray:
-        callback = (lambda r: on_episode(variant.spec, r)) if on_episode else None
-        return episode_returns(policy, variant, episodes, seed=seed, on_episode=callback)
+        return episode_returns(policy, variant, episodes, seed=seed, on_progress=count if on_progress else None)
 
     id_returns = run(Variant(task))
     line = RANDOM_RETURN[task] + fail_fraction * (float(np.mean(id_returns)) - RANDOM_RETURN[task])

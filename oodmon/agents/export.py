@@ -13,13 +13,14 @@ import torch
 from safetensors.torch import load_file
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from oodmon.agents.checkpoints import Reporter, Run
+from oodmon.agents.checkpoints import Run
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.networks import Architecture, estimator_for, modules_from_sb3
 from oodmon.agents.recipes import Recipe
 from oodmon.agents.serialization import save_modules
 from oodmon.envs.grid import Variant
 from oodmon.hashing import file_sha256
+from oodmon.progress import Progress
 from oodmon.versions import library_versions
 
 __all__ = ["SELECTION_SEED", "as_shipped", "select_snapshot", "write_agent"]
@@ -48,7 +49,7 @@ def as_shipped(models: list[BaseAlgorithm], arch: Architecture, recipe: Recipe, 
 
 
 def select_snapshot(run: Run, model: BaseAlgorithm, arch: Architecture, seed: int,
-                     bounds: dict[str, Any], report: Reporter) -> dict[str, Any] | None:
+                     bounds: dict[str, Any], report: Progress) -> dict[str, Any] | None:
     """Play each of the run's candidate snapshots as shipped on ``select_episodes`` ID episodes
     (seeds from :data:`SELECTION_SEED`); load the best into ``model`` and describe the choice.
     None, with ``model`` untouched, where there are no snapshots to choose from.
@@ -71,19 +72,19 @@ def select_snapshot(run: Run, model: BaseAlgorithm, arch: Architecture, seed: in
         if known is not None and all(known.get(k) == v for k, v in setting.items()):
             candidate["selection_return_mean"] = known["selection_return_mean"]
     to_play = [c for c in candidates if "selection_return_mean" not in c]
-    name, total, done = f"{run.name} choosing among {len(candidates)} snapshots", (
+    stage, total, done = f"{run.name} choosing among {len(candidates)} snapshots: episodes", (
         len(to_play) * recipe.select_episodes), [0]
 
-    def count(_: float) -> None:
+    def count(*_: object) -> None:
         done[0] += 1
-        report(name, done[0], total, "episodes")
+        report(stage, done[0], total)
 
-    report(name, 0, total, "episodes")
+    report(stage, 0, total)
     for candidate in to_play:
         model.policy.load_state_dict(load_file(str(candidate["path"])), strict=False)
         _, policy = as_shipped([model], arch, recipe, seed, bounds)
         returns = episode_returns(policy, Variant(recipe.task), recipe.select_episodes, seed=SELECTION_SEED,
-                                  on_episode=count)
+                                  on_progress=count)
         candidate["selection_return_mean"] = round(float(np.mean(returns)), 2)
         cache[candidate["sha256"]] = {"steps": candidate["steps"], **setting,
                                       "selection_return_mean": candidate["selection_return_mean"]}

@@ -40,12 +40,13 @@ import torch
 
 from oodmon.agents.agent import Agent, load_agent
 from oodmon.agents.algorithms import architecture, training_env
-from oodmon.agents.checkpoints import Reporter, Run
+from oodmon.agents.checkpoints import Run
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.export import as_shipped, select_snapshot, write_agent
 from oodmon.agents.recipes import Recipe, recipe_for
 from oodmon.envs.grid import Variant
 from oodmon.errors import ConfigError
+from oodmon.progress import Progress
 from oodmon.seeds import ID_RETURN as ID_SEED
 from oodmon.threads import torch_threads
 
@@ -62,7 +63,7 @@ def train(
     *,
     seed: int = 0,
     total_steps: int | None = None,
-    report: Reporter | None = None,
+    on_progress: Progress | None = None,
     command: str = "",
     id_episodes: int | None = None,
     export_only: bool = False,
@@ -77,7 +78,8 @@ def train(
         out: the training directory (created; resumed if it holds an unfinished run).
         seed: the trial's seed; ensemble member k uses ``1000 * seed + k``.
         total_steps: override the recipe's steps per run (smoke tests, quick trials).
-        report: called with (run, steps done, steps total) as training goes; see :data:`Reporter`.
+        on_progress: ``(stage, done, total)`` as training goes (see :mod:`oodmon.progress`): each run's
+            "<run> training steps", then the choice among snapshots' episodes where the recipe has one.
         on_evaluation: called with (run, steps, mean return) after each periodic evaluation.
         command: the command line that started the training, recorded in the metadata.
         id_episodes: episodes behind ``id_return_mean`` (default :data:`ID_EPISODES` of the task).
@@ -96,7 +98,7 @@ def train(
         recipe = _shortened(recipe, total_steps)
     root = Path(out)
     root.mkdir(parents=True, exist_ok=True)
-    report = report or (lambda *args: None)
+    report = on_progress or (lambda *args: None)
     torch.set_num_threads(torch_threads(default=1))
     independent = method == "ensemble" and not recipe.shared_torso
     runs = (

@@ -156,17 +156,14 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
                         detectors=DetectorSet.load(detectors_path) if detectors_path else None,
                         detector=config.alarm_detector, obs_noise=config.obs_noise, confidence=config.confidence,
                         rule=config.rule, consecutive=config.m,
-                        on_episode=lambda episode: report(stage, episode + 1, config.calibration_episodes)).save(threshold_path)
+                        on_progress=lambda _, done, total: report(stage, done, total)).save(threshold_path)
     variants = config.variant_list()
     if failing_path.exists() and json.loads(failing_path.read_text()).get("variants") == [v.spec for v in variants]:
         failing = json.loads(failing_path.read_text())["failing"]
     else:
-        stage, total, done = f"{method} trial {trial}: evaluation episodes", (len(variants) + 1) * config.eval_episodes, [0]
-
-        def count(spec: str, episode_return: float) -> None:
-            done[0] += 1
-            report(stage, done[0], total)
-        _, results = evaluate_variants(agent.act, config.task, variants, config.eval_episodes, on_episode=count)
+        stage = f"{method} trial {trial}: evaluation episodes"
+        _, results = evaluate_variants(agent.act, config.task, variants, config.eval_episodes,
+                                       on_progress=lambda _, done, total: report(stage, done, total))
         failing = [r.spec for r in results if r.fails]
         failing_path.write_text(json.dumps({"variants": [v.spec for v in variants], "failing": failing,
                                             "returns": {r.spec: r.mean for r in results}}, indent=1))
@@ -192,7 +189,7 @@ def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
             fit["episodes"] = config.fit_episodes
         stage = f"{label}: detector fitting episodes"
         fit_agent_detectors(agent, detectors=config.learned, score=config.score, obs_noise=config.obs_noise,
-                            on_episode=lambda episode: report(stage, episode + 1, fit["episodes"]), **fit).save(path)
+                            on_progress=lambda _, done, total: report(stage, done, total), **fit).save(path)
     return path
 
 

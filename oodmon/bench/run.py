@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from pathlib import Path
 
 from oodmon import seeds
@@ -13,8 +12,9 @@ from oodmon.bench.cells import _execute
 from oodmon.bench.config import ONSETS, PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.monitor.alarms import check_window
 from oodmon.paper import paper_auc_per_trial
+from oodmon.progress import Progress
 
-def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], None] | None = None) -> BenchResult:
+def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> BenchResult:
     """Run (or resume) the bench; return its rows. ``on_progress(stage, done, total)`` reports."""
     from oodmon.replay import compute_metrics, read_log
 
@@ -25,9 +25,9 @@ def run_bench(config: BenchConfig, *, on_progress: Callable[[str, int, int], Non
         _refuse_to_train_for_hours(config, method, trial)
     prepared: dict[tuple[str, int], tuple[Path | Sb3Models, Path, list[str], Path | None]] = {}
     for index, (method, trial) in enumerate(trials):
-        report("models, thresholds, failing variants", index, len(trials))
+        report("models, detectors, thresholds and failing variants of trials", index, len(trials))
         prepared[(method, trial)] = _prepare_trial(config, method, trial, report)
-    report("models, thresholds, failing variants", len(trials), len(trials))
+    report("models, detectors, thresholds and failing variants of trials", len(trials), len(trials))
 
     cells = []
     for (method, trial), (model, threshold, failing, _) in prepared.items():

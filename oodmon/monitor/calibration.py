@@ -6,7 +6,7 @@ training's evaluations (10,000 + steps) and of the ID return (100,000 + i), so t
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,6 +22,7 @@ from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.records import EpisodeRecord
 from oodmon.monitor.sinks.base import MemorySink, Sink
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
+from oodmon.progress import Progress
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson
 from oodmon.validation import is_whole
 
@@ -34,18 +35,18 @@ DEFAULT_REFERENCE_EPISODES = 20
 
 
 def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
-                      on_episode: Callable[[int], None] | None, sinks: Sequence[Sink] = (),
+                      on_progress: Progress | None, sinks: Sequence[Sink] = (), stage: str = "ID episodes",
                       **settings: Any) -> list[np.ndarray]:
     """Run ``episodes`` ID episodes of ``agent`` under a :class:`Monitor` made with ``settings``
     and ``sinks`` (seeds ``seed`` on, sensor noise ``obs_noise``); the alarm detector's per-step
-    scores of each."""
+    scores of each. ``on_progress(stage, done, episodes)`` after each."""
     sink = MemorySink()
     env = agent.make_env(obs_noise)
     with Monitor(agent, sinks=[sink, *sinks], log_observations=False, **settings) as monitor:
         for episode in range(episodes):
             monitor.run_episode(env, seed=seed + episode, variant=agent.task)
-            if on_episode is not None:
-                on_episode(episode)
+            if on_progress is not None:
+                on_progress(stage, episode + 1, episodes)
     env.close()
     scores: list[list[float]] = [[] for _ in range(episodes)]
     for record in sink.steps:
@@ -54,17 +55,17 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
 
 
 def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SEED, score: str = DEFAULT_SCORE,
-                      on_episode: Callable[[int], None] | None = None, detectors: DetectorSet | None = None,
-                      detector: str = "spread", obs_noise: float = 0.0) -> list[np.ndarray]:
+                      on_progress: Progress | None = None, detectors: DetectorSet | None = None,
+                      detector: str = "spread", obs_noise: float = 0.0, stage: str = "ID episodes") -> list[np.ndarray]:
     """Per-step scores of ``detector`` in ``episodes`` ID episodes of ``agent``, seeded ``seed``,
     ``seed + 1``, ... (with sensor noise ``obs_noise``, see the envs)."""
-    return _play_id_episodes(agent, episodes, seed, obs_noise, on_episode, score=score, detectors=detectors,
-                             detector=detector)
+    return _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, score=score, detectors=detectors,
+                             detector=detector, stage=stage)
 
 
 def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int | None = None,
                     mode: str = "episode", score: str = DEFAULT_SCORE, seed: int = CALIBRATION_SEED,
-                    on_episode: Callable[[int], None] | None = None, window: int | None = None,
+                    on_progress: Progress | None = None, window: int | None = None,
                     detectors: DetectorSet | None = None, detector: str | None = None,
                     obs_noise: float = 0.0, confidence: float | None = DEFAULT_CONFIDENCE, rule: str = "consecutive",
                     reference_episodes: int = DEFAULT_REFERENCE_EPISODES, reference_by_age: bool = False) -> Threshold:
@@ -120,8 +121,8 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         reference = Reference.from_episodes(id_episode_scores(
             agent, reference_episodes, seed=seeds.REFERENCE, score=score, detectors=needed, detector=detector,
             obs_noise=obs_noise), by_age=reference_by_age)
-    scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_episode=on_episode, detectors=needed,
-                               detector=detector, obs_noise=obs_noise)
+    scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_progress=on_progress, detectors=needed,
+                               detector=detector, obs_noise=obs_noise, stage="calibration episodes")
     return calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
                      method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
                      confidence=confidence, rule=rule, reference=reference)
@@ -158,7 +159,7 @@ class Validation:
 
 def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, *, seed: int = seeds.VALIDATION,
                        detectors: DetectorSet | None = None, obs_noise: float = 0.0, force: bool = False,
-                       on_episode: Callable[[int], None] | None = None) -> Validation:
+                       on_progress: Progress | None = None) -> Validation:
     """Play ``episodes`` fresh ID episodes (seeds ``seed`` on, apart from calibration's) under a
     :class:`Monitor` with ``threshold`` and count those that raised an alarm (in step mode: the
     steps above it): the realised false-alarm rate beside the target.
@@ -173,7 +174,8 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
     wanted = threshold.detector
     needed = detectors.subset([wanted]) if detectors is not None and wanted != "spread" and wanted in detectors else None
     episode_alarms: list[bool] = []
-    scores = _play_id_episodes(agent, episodes, seed, obs_noise, on_episode, sinks=[_EpisodeAlarms(episode_alarms)],
+    scores = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, sinks=[_EpisodeAlarms(episode_alarms)],
+                               stage="validation episodes",
                                threshold=threshold, detectors=needed, force=force)
     if threshold.mode == "episode":
         alarmed, total = sum(episode_alarms), len(episode_alarms)

@@ -40,6 +40,7 @@ from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.monitor.sinks.base import Sink, SinkGroup
 from oodmon.monitor.threshold import Threshold
+from oodmon.progress import Progress
 from oodmon.versions import library_versions
 from oodmon.hashing import file_sha256
 
@@ -360,11 +361,11 @@ class Monitor:
 
     def run_episode(self, env: gymnasium.Env, *, seed: int | None = None, variant: str | None = None,
                     max_steps: int | None = None, options: dict | None = None,
-                    on_step: Callable[[int], None] | None = None) -> EpisodeRecord:
+                    on_progress: Progress | None = None) -> EpisodeRecord:
         """Run the monitored policy for one episode of ``env``; return the episode's record.
 
         ``options`` go to ``env.reset`` (oodmon's envs take ``{"onset_step": n}``: this episode
-        shifts from step n on). ``on_step(steps)`` is called after each step with the steps so far
+        shifts from step n on). ``on_progress("decisions", steps, max_steps or 0)`` is called after each step
         (progress within long episodes: a Pong game is thousands of decisions).
         """
         base = env.unwrapped
@@ -376,8 +377,8 @@ class Monitor:
                 action = self.step(obs, shifted=bool(info.get("shifted", False)), frame=_frame(obs))
                 obs, reward, terminated, truncated, info = env.step(action)
                 self.add_reward(reward)
-                if on_step is not None:
-                    on_step(self._length)
+                if on_progress is not None:
+                    on_progress("decisions", self._length, max_steps or 0)
                 if terminated or truncated or self.stop_requested or (max_steps and self._length >= max_steps):
                     break
         except BaseException:  # Ctrl-C included: the cut episode is logged, marked as such

@@ -22,6 +22,7 @@ from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.sinks.base import Sink
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
+from oodmon.progress import Progress
 
 __all__ = ["as_agent", "watch"]
 
@@ -53,7 +54,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
           confidence: float | None = DEFAULT_CONFIDENCE, episodes: int = 50, fit_episodes: int = 30,
           detector: str | None = None, mean: bool = False, sinks: Sequence[Sink] = (),
           callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
-          on_episode: Callable[[str, int, int], None] | None = None) -> Any:
+          on_progress: Progress | None = None) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
     The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy, the
@@ -61,7 +62,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     :func:`~oodmon.monitor.calibrate_agent`; the alarm reads ``detector``, by default the task's
     best). ``env``: wrap this env (the one you step) and return the
     :class:`~oodmon.monitor.MonitoredEnv` instead of the bare monitor; its ``info["oodmon"]``
-    says what the monitor saw at every step. ``on_episode(stage, done, total)`` reports progress.
+    says what the monitor saw at every step. ``on_progress(stage, done, total)`` reports progress
+    (see :mod:`oodmon.progress`).
 
     Raises:
         ConfigError, InvalidParameterError: as :func:`as_agent` and the calibration, before any
@@ -74,10 +76,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
 
     conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
     agent = as_agent(policy, env_id, mean=mean, seed=seed)
-    report = on_episode or (lambda stage, done, total: None)
-    detectors = fit_agent_detectors(agent, episodes=fit_episodes,
-                                    on_episode=lambda i: report("fit", i + 1, fit_episodes))
+    detectors = fit_agent_detectors(agent, episodes=fit_episodes, on_progress=on_progress)
     threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector, confidence=confidence,
-                                on_episode=lambda i: report("calibrate", i + 1, episodes))
+                                on_progress=on_progress)
     monitor = Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=callbacks)
     return monitor if env is None else MonitoredEnv(env, monitor)

@@ -61,20 +61,20 @@ def test_interrupted_training_resumes_from_its_checkpoint(tmp_path):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        train("cartpole", "dropout", tmp_path, total_steps=1000, report=interrupt_after_checkpoint, id_episodes=2)
+        train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=interrupt_after_checkpoint, id_episodes=2)
     state = json.loads((tmp_path / "runs" / "main" / "state.json").read_text())
     assert state["finished"] is False and state["steps"] == 500  # the checkpoint at half the steps
     assert not (tmp_path / "model.json").exists()
 
     resumed: list[int] = []
-    train("cartpole", "dropout", tmp_path, total_steps=1000, report=lambda run, done, total: resumed.append(done), id_episodes=2)
+    train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=lambda run, done, total: resumed.append(done), id_episodes=2)
     assert resumed[0] == 500  # it started from the checkpoint, not from zero
     state = json.loads((tmp_path / "runs" / "main" / "state.json").read_text())
     assert state["finished"] is True and state["steps"] >= 1000
     assert not (tmp_path / "runs" / "main" / "replay_buffer.npz").exists()  # dropped once finished
     # Running the finished command again trains nothing more.
     again: list[int] = []
-    train("cartpole", "dropout", tmp_path, total_steps=1000, report=lambda run, done, total: again.append(done), id_episodes=2)
+    train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=lambda run, done, total: again.append(done), id_episodes=2)
     assert min(again) == state["steps"]
 
 
@@ -122,7 +122,7 @@ def test_training_resumes_from_the_weights_alone_when_the_big_checkpoint_is_gone
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        train("cartpole", "dropconnect", tmp_path, total_steps=1000, report=interrupt, id_episodes=2)
+        train("cartpole", "dropconnect", tmp_path, total_steps=1000, on_progress=interrupt, id_episodes=2)
     main = tmp_path / "runs" / "main"
     (main / "checkpoint.pt").unlink()
     (main / "replay_buffer.npz").unlink()
@@ -137,7 +137,7 @@ def test_training_resumes_from_the_weights_alone_when_the_big_checkpoint_is_gone
     assert model.num_timesteps == 500 and model.learning_starts == 500 + recipe.hyperparams["learning_starts"]
     resumed: list[int] = []
     agent = train("cartpole", "dropconnect", tmp_path, total_steps=1000, id_episodes=2,
-                  report=lambda run, done, total: resumed.append(done))
+                  on_progress=lambda run, done, total: resumed.append(done))
     assert resumed[0] == 500 and agent.metadata["training_steps"][0] >= 1000
 
 
@@ -150,7 +150,7 @@ def test_export_only_ships_an_unfinished_training_honestly(tmp_path):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        train("cartpole", "dropout", tmp_path, total_steps=1000, report=interrupt, id_episodes=2)
+        train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=interrupt, id_episodes=2)
     agent = train("cartpole", "dropout", tmp_path, total_steps=1000, export_only=True, id_episodes=2)
     meta = agent.metadata
     assert meta["training_complete"] is False and meta["training_steps"] == [500] and meta["recipe_steps"] == 1000
@@ -169,7 +169,7 @@ def test_export_ships_the_snapshot_that_plays_best_as_shipped(tmp_path, monkeypa
     monkeypatch.setattr(training, "recipe_for", lambda task, method: replace(recipe_for(task, method), select_top=2, eval_every=500))
     reports: list[tuple] = []
     agent = train("cartpole", "dropconnect", tmp_path, total_steps=1500, id_episodes=2,
-                  report=lambda *args: reports.append(args))
+                  on_progress=lambda *args: reports.append(args))
     snapshots = sorted((tmp_path / "runs" / "main" / "snapshots").iterdir())
     assert [p.name for p in snapshots] == ["1000.safetensors", "1500.safetensors", "500.safetensors"]
     log = [json.loads(line) for line in (tmp_path / "train_log.jsonl").read_text().splitlines()]
@@ -184,8 +184,8 @@ def test_export_ships_the_snapshot_that_plays_best_as_shipped(tmp_path, monkeypa
     replay = load_agent(tmp_path, task="cartpole", seed=0)
     returns = episode_returns(replay.act, Variant("cartpole"), 2, seed=export.SELECTION_SEED)
     assert float(np.mean(returns)) == pytest.approx(chosen["selection_return_mean"], abs=0.01)
-    episodes = [r for r in reports if len(r) == 4]
-    assert episodes[-1][1:] == (4, 4, "episodes")  # progress of the choice, counted in episodes
+    episodes = [r for r in reports if r[0].endswith("snapshots: episodes")]
+    assert episodes[-1][1:] == (4, 4)  # progress of the choice, counted in episodes
 
 
 def test_export_does_not_play_a_snapshot_again_that_an_earlier_export_scored(tmp_path, monkeypatch):
@@ -206,16 +206,16 @@ def test_export_does_not_play_a_snapshot_again_that_an_earlier_export_scored(tmp
     cache_path.write_text(json.dumps(cache))
     reports: list[tuple] = []
     again = train("cartpole", "dropconnect", tmp_path, total_steps=1000, id_episodes=1, export_only=True,
-                  report=lambda *args: reports.append(args)).metadata
+                  on_progress=lambda *args: reports.append(args)).metadata
     assert again["selected_checkpoints"][0]["steps"] == loser["steps"]
-    assert [r[1:] for r in reports if len(r) == 4] == [(0, 0, "episodes")]
+    assert [r[1:] for r in reports if r[0].endswith(": episodes")] == [(0, 0)]
 
     # Other selection settings (more episodes) do not reuse those scores.
     monkeypatch.setattr(training, "recipe_for", lambda task, method: replace(
         recipe_for(task, method), select_top=2, eval_every=500, select_episodes=3, total_steps=1000))
     reports.clear()
-    train("cartpole", "dropconnect", tmp_path, id_episodes=1, export_only=True, report=lambda *args: reports.append(args))
-    assert [r[1:] for r in reports if len(r) == 4][-1] == (6, 6, "episodes")
+    train("cartpole", "dropconnect", tmp_path, id_episodes=1, export_only=True, on_progress=lambda *args: reports.append(args))
+    assert [r[1:] for r in reports if r[0].endswith(": episodes")][-1] == (6, 6)
 
 
 def _interrupted_training(tmp_path, method="dropout"):
@@ -224,7 +224,7 @@ def _interrupted_training(tmp_path, method="dropout"):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        train("cartpole", method, tmp_path, total_steps=1000, report=interrupt, id_episodes=2)
+        train("cartpole", method, tmp_path, total_steps=1000, on_progress=interrupt, id_episodes=2)
     recipe = _shortened(recipe_for("cartpole", method), 1000)
     return recipe, tmp_path / "runs" / "main"
 

@@ -137,5 +137,6 @@ def test_a_reset_no_step_follows_logs_no_episode(agent):
 def test_run_episode_reports_each_step_for_progress_within_long_episodes():
     seen = []
     with Monitor(load("cartpole", "ensemble"), threshold=1e9) as monitor:
-        record = monitor.run_episode(Variant("cartpole").make(), seed=0, max_steps=40, on_step=seen.append)
-    assert seen == list(range(1, record.length + 1)) and record.length == 40
+        record = monitor.run_episode(Variant("cartpole").make(), seed=0, max_steps=40,
+                                     on_progress=lambda *args: seen.append(args))
+    assert seen == [("decisions", n, 40) for n in range(1, record.length + 1)] and record.length == 40

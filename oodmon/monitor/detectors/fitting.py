@@ -28,6 +28,7 @@ from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.seeds import DETECTOR_FIT
 from oodmon.validation import is_whole
+from oodmon.progress import Progress
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "best_detector", "collect", "default_detectors", "detectors_for", "fit_agent_detectors",
            "fit_detectors", "policy_parts", "trajectory_scores"]
@@ -70,7 +71,7 @@ def policy_parts(policy: Any) -> tuple[Any, Callable[[np.ndarray], Any], dict]:
 
 
 def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETECTOR_FIT,
-            on_episode: Callable[[int], None] | None = None, max_steps: int | None = None) -> list[Trajectory]:
+            on_progress: Progress | None = None, max_steps: int | None = None) -> list[Trajectory]:
     """Play ``episodes`` episodes of ``env`` (seeds ``seed``, ``seed + 1``, ...) with ``policy``
     (each cut after ``max_steps`` steps if given)."""
     estimator, act, _ = policy_parts(policy)
@@ -95,8 +96,8 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
                 break
         trajectories.append(Trajectory(np.asarray(observations), np.asarray(actions),
                                        np.asarray(features) if len(features) == len(actions) else None))
-        if on_episode is not None:
-            on_episode(episode)
+        if on_progress is not None:
+            on_progress("detector fitting episodes", episode + 1, episodes)
     return trajectories
 
 
@@ -128,7 +129,7 @@ def default_detectors(policy: Any, env: gymnasium.Env) -> tuple[str, ...]:
 def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] | None = None,
                   episodes: int = DEFAULT_FIT_EPISODES, seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE,
                   task: str | None = None, policy_hash: str | None = None, obs_noise: float = 0.0,
-                  on_episode: Callable[[int], None] | None = None, max_steps: int | None = None) -> DetectorSet:
+                  on_progress: Progress | None = None, max_steps: int | None = None) -> DetectorSet:
     """Fit the named detectors (default: :func:`default_detectors`) for ``policy`` on
     ``episodes`` ID episodes of ``env`` (each cut after ``max_steps`` steps if given).
 
@@ -154,7 +155,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     if "features" in detectors and estimator is None:
         raise ConfigError("the features detector needs the policy's features; a plain policy has none")
     n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) else None
-    trajectories = collect(policy, env, episodes, seed=seed, on_episode=on_episode, max_steps=max_steps)
+    trajectories = collect(policy, env, episodes, seed=seed, on_progress=on_progress, max_steps=max_steps)
     n_fit = max(1, (2 * episodes) // 3)
     fit, held_out = trajectories[:n_fit], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []
@@ -179,7 +180,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
 
 def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, episodes: int = DEFAULT_FIT_EPISODES,
                         seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE, obs_noise: float = 0.0,
-                        max_steps: int | None = None, on_episode: Callable[[int], None] | None = None) -> DetectorSet:
+                        max_steps: int | None = None, on_progress: Progress | None = None) -> DetectorSet:
     """:func:`fit_detectors` for an oodmon agent in its task's ID env (with ``obs_noise``)."""
     from oodmon.monitor.monitor import policy_hash
 
@@ -187,7 +188,7 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
     try:
         return fit_detectors(agent, env, detectors=detectors, episodes=episodes, seed=seed, score=score,
                              task=agent.task, policy_hash=policy_hash(agent), obs_noise=obs_noise,
-                             on_episode=on_episode, max_steps=max_steps)
+                             on_progress=on_progress, max_steps=max_steps)
     finally:
         env.close()
 
