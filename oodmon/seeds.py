@@ -3,17 +3,25 @@
 Every range below is a half-open interval of ``reset`` seeds; ``tests/test_seeds.py`` checks
 that no two overlap. Use the names, not the numbers.
 
-Not yet here: training's periodic evaluations play seeds ``10,000 + steps`` (steps up to 2
-million, so they overlap every range below) and its snapshot selection 50,000 + i
-(``oodmon.agents.checkpoints``, ``oodmon.agents.export``). Those episodes only choose which weights to ship, never calibrate or
-score a monitor; moving them changes which snapshot a retraining ships, so it waits for the next
-retraining of the zoo.
+Named but not ranges: training's periodic evaluations play seeds :data:`TRAINING_EVALUATION` +
+steps (steps up to 2 million, so they overlap every range below), its choice among snapshots
+:data:`SNAPSHOT_SELECTION` + i, and ``evaluate_variants`` (where an agent fails)
+:data:`VARIANT_EVALUATION` + i. Those episodes only choose which weights to ship or which variants
+to monitor, never calibrate or score a monitor; moving them changes which snapshot a retraining
+ships, so it waits for the next retraining of the zoo.
 """
 
 from __future__ import annotations
 
-__all__ = ["CALIBRATION", "DETECTOR_FIT", "RANGES", "REFERENCE", "VALIDATION", "range_of"]
+__all__ = ["BENCH_ID", "BENCH_SHIFTED", "CALIBRATION", "DEMO", "DETECTOR_FIT", "ID_RETURN", "RANGES", "REFERENCE",
+           "SNAPSHOT_SELECTION", "TRAINING_EVALUATION", "VALIDATION", "VARIANT_EVALUATION", "range_of"]
 
+#: Training's periodic evaluations: 10,000 + steps (see above: not a range).
+TRAINING_EVALUATION = 10_000
+#: ``evaluate_variants``, where an agent fails (``oodmon evaluate``, the bench): 10,000 + i.
+VARIANT_EVALUATION = 10_000
+#: The choice among a training's snapshots at export (``Recipe.select_top``): 50,000 + i.
+SNAPSHOT_SELECTION = 50_000
 #: ID return of a trained model (``id_return_mean``): 100,000 + i.
 ID_RETURN = 100_000
 #: Threshold calibration episodes (``oodmon calibrate``): 200,000 + i.

@@ -19,6 +19,7 @@ from safetensors.torch import load_file, save_file
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
+from oodmon import seeds
 from oodmon.agents.algorithms import algorithm_class, new_model, training_env
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.recipes import Recipe
@@ -183,7 +184,7 @@ class Run:
         the mean."""
         returns = episode_returns(
             lambda obs: model.predict(obs, deterministic=True)[0], Variant(self.recipe.task),
-            self.recipe.eval_episodes, seed=10_000 + steps,
+            self.recipe.eval_episodes, seed=seeds.TRAINING_EVALUATION + steps,
         )
         mean = float(np.mean(returns))
         line = {"run": self.name, "steps": steps, "eval_return_mean": mean,

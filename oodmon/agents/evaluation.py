@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from oodmon import seeds
 from oodmon.envs.grid import Variant
 from oodmon.progress import Progress
 
@@ -83,7 +84,7 @@ def evaluate_variants(
     variants: Iterable[Variant],
     episodes: int,
     *,
-    seed: int = 10_000,
+    seed: int = seeds.VARIANT_EVALUATION,
     fail_fraction: float = 0.5,
     on_progress: Progress | None = None,
 ) -> tuple[VariantResult, list[VariantResult]]:

@@ -13,6 +13,7 @@ import torch
 from safetensors.torch import load_file
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from oodmon import seeds
 from oodmon.agents.checkpoints import Run
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.networks import Architecture, estimator_for, modules_from_sb3
@@ -28,7 +29,7 @@ __all__ = ["SELECTION_SEED", "as_shipped", "select_snapshot", "write_agent"]
 #: First seed of the episodes that choose among snapshots (``Recipe.select_top``): apart from the
 #: ID return's (:data:`oodmon.seeds.ID_RETURN`), so that the reported return is not the one the
 #: choice maximised (see :mod:`oodmon.seeds` for why it is not yet a named range).
-SELECTION_SEED = 50_000
+SELECTION_SEED = seeds.SNAPSHOT_SELECTION
 
 
 def as_shipped(models: list[BaseAlgorithm], arch: Architecture, recipe: Recipe, seed: int,
