@@ -22,7 +22,7 @@ from oodmon.errors import ConfigError, OodmonError
 from oodmon.names import METHODS, TASKS
 from oodmon.progress import unit_of
 from oodmon.monitor.threshold import DETECTOR_NAMES
-from oodmon.seeds import CALIBRATION, VALIDATION
+from oodmon.seeds import CALIBRATION, DETECTOR_FIT, VALIDATION
 
 __all__ = ["main"]
 
@@ -222,7 +222,8 @@ def _parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--consecutive", type=_whole(1),
                            help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
     calibrate.add_argument("--window", type=_whole(1),
-                           help="compare the mean score of the last N steps (default 1: each step's; Pong 200)")
+                           help="compare the mean score of the last N steps (default 1: each step's; Pong 200 "
+                                "unless the frames detector)")
     _add_rule(calibrate)
     calibrate.add_argument("--reference-episodes", type=_whole(1), default=20,
                            help="ID episodes a sequential rule's p-values are taken against (default 20; seeds apart)")
@@ -340,7 +341,8 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--score", default="chosen_std",
                        help="chosen_std (the paper's, default), mean_std, max_std or pre_squash_std (DDPG)")
     bench.add_argument("--window", type=_whole(1),
-                       help="alarm rule on the mean score of the last N steps (default 1, Pong 200); AUROCs do not change")
+                       help="alarm rule on the mean score of the last N steps (default 1; Pong 200 unless the frames "
+                            "detector); AUROCs do not change")
     bench.add_argument("--detectors",
                        help="comma-separated detectors whose per-step AUROC is reported: spread (the paper's protocol's "
                             "default), dynamics, features, combined; the learned ones are fitted per trial on ID "
@@ -559,7 +561,7 @@ def _fit_detectors(args: argparse.Namespace) -> int:
     from oodmon.outputs import check_output_dir
 
     check_output_dir(args.out, parameter="--out")
-    agent = _load_agent(args)
+    agent = _load_agent(args, seed=DETECTOR_FIT)  # seeded MC sampling: the same command fits the same detectors
     only = args.only.split(",") if args.only else None
     with _progress() as report:
         detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
@@ -763,7 +765,7 @@ def _bench(args: argparse.Namespace) -> int:
     config = BenchConfig(args.task, methods, args.trials or (1 if args.sb3 else 5), variants, args.episodes or (10 if monitor else 5),
                          args.id_episodes or (200 if monitor else 10), out=args.out, workers=args.workers,
                          executor=args.executor, address=args.address, bind=args.bind, score=args.score,
-                         window=args.window or default_window(args.task), detectors=detectors, alarm_detector=alarm_detector, obs_noise=args.obs_noise,
+                         window=args.window or default_window(args.task, alarm_detector), detectors=detectors, alarm_detector=alarm_detector, obs_noise=args.obs_noise,
                          calibration_episodes=args.calibration_episodes or (90 if monitor else 45), far=args.far,
                          confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,

@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
-# Fit the learned detectors (dynamics, features, combined) shipped beside every zoo agent, in
-# oodmon/zoo/<task>-<method>/detectors/. Deterministic (seeded); about 5 minutes on one core.
-# Pendulum's combined detector uses the spread score that works there (pre_squash_std); Pong has
-# no dynamics detector (image observations) and fits on the first 1,000 steps of 6 ID games.
+# Fit the learned detectors (dynamics, features, frames, combined) shipped beside every zoo agent,
+# in oodmon/zoo/<task>-<method>/detectors/. Deterministic: fit-detectors seeds an MC agent's
+# sampling (since commit "frames detector"; the CartPole and Pendulum MC agents' shipped detectors
+# were fitted before, unseeded, and are kept as the README's numbers were measured with them).
+# About 5 minutes on one core. Pendulum's combined detector uses the spread score that works there
+# (pre_squash_std); Pong has no dynamics detector (image observations), has frames, and fits on
+# the first 1,000 steps of 6 ID games.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OODMON=${OODMON:-.venv/bin/oodmon}

@@ -260,8 +260,9 @@ def test_the_same_bench_calibrates_the_same_threshold_for_an_mc_agent(tmp_path):
     assert thresholds[0] == thresholds[1] and thresholds[0]["method"] == "dropout"
 
 
-def test_pong_alarms_on_200_decision_means_unless_told_otherwise(monkeypatch, tmp_path):
-    """The CLI's window default per task (oodmon.monitor.alarms.default_window), as bench passes it."""
+def test_pong_alarms_on_200_decision_means_of_features_and_on_each_step_of_frames(monkeypatch, tmp_path):
+    """The CLI's window default per task and detector (oodmon.monitor.alarms.default_window), as
+    bench passes it; Pong's default detector is frames."""
     import oodmon.bench
     from oodmon.cli import main
 
@@ -273,7 +274,8 @@ def test_pong_alarms_on_200_decision_means_unless_told_otherwise(monkeypatch, tm
 
     monkeypatch.setattr(oodmon.bench, "run_bench", record)
     common = ["--methods", "ensemble", "--trials", "1", "--protocol", "monitor", "--out", str(tmp_path / "b")]
-    for argv, window in ((["--task", "pong"], 200), (["--task", "pong", "--window", "7"], 7), (["--task", "cartpole"], 1)):
+    for argv, window in ((["--task", "pong"], 1), (["--task", "pong", "--alarm-detector", "features"], 200),
+                         (["--task", "pong", "--window", "7"], 7), (["--task", "cartpole"], 1)):
         with pytest.raises(SystemExit):
             main(["bench", *argv, *common])
         assert configs[-1].window == window

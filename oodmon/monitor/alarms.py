@@ -53,22 +53,26 @@ def default_consecutive(detector: str) -> int:
     return DEFAULT_CONSECUTIVE if detector == "spread" else 1
 
 
-#: The alarm window per task where it is not 1: Pong's scores are compared as means over 200 decisions.
+#: The alarm window per task where it is not 1: Pong's spread and features scores are compared as
+#: means over 200 decisions.
 DEFAULT_WINDOW = {"pong": 200}
 
 
-def default_window(task: str | None) -> int:
+def default_window(task: str | None, detector: str | None = None) -> int:
     """The alarm rule's window when none is given: 1 (each step's score) for CartPole and Pendulum,
-    whose learned detectors already average their last 20 transitions; 200 for Pong, whose
-    features distances vary frame to frame while a corruption persists. Measured with the
-    monitor's benchmark on the shipped Pong agents (results/monitor/README.md): with window 1,
-    52/90 (Dropout) and 80/90 (ensemble) shifted games were alarmed; with 200, 90/90 and 90/90,
-    median delays 66 and 81 decisions, false alarms 3/200 and 0/200.
+    whose learned detectors already average their last 20 transitions, and for the ``frames``
+    detector, whose 20-step means already separate every corrupted Pong frame from every ID one;
+    200 for Pong's other detectors, whose features distances vary frame to frame while a
+    corruption persists. Measured with the monitor's benchmark on the shipped Pong agents
+    (results/monitor/README.md): features with window 1 alarmed 52/90 (Dropout) and 80/90
+    (ensemble) shifted games; with 200, 90/90 and 90/90, median delays 66 and 81 decisions.
 
     Example:
-        >>> default_window("pong"), default_window("cartpole"), default_window(None)
-        (200, 1, 1)
+        >>> default_window("pong"), default_window("pong", "frames"), default_window("cartpole"), default_window(None)
+        (200, 1, 1, 1)
     """
+    if detector == "frames":
+        return 1
     return DEFAULT_WINDOW.get(task or "", 1)
 
 

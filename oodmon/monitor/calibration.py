@@ -81,7 +81,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
 
     ``consecutive``: m of the rule (default: 3 for ``spread``, 1 for a learned detector,
     :func:`~oodmon.monitor.alarms.default_consecutive`). ``window``: the rule compares the mean
-    score of the last ``window`` steps (default: 1, Pong 200, :func:`~oodmon.monitor.alarms.default_window`).
+    score of the last ``window`` steps (default: :func:`~oodmon.monitor.alarms.default_window`).
 
     ``rule``: ``consecutive`` (m steps in a row), or a sequential rule, ``cusum`` or
     ``martingale``, whose p-values are taken against ``reference_episodes`` further ID episodes
@@ -107,7 +107,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     if consecutive is None:
         consecutive = default_consecutive(detector)
     if window is None:
-        window = default_window(agent.task)
+        window = default_window(agent.task, detector)
     steps = (consecutive if isinstance(consecutive, int) else 1) + (window if isinstance(window, int) else 1) - 1
     if rule != "consecutive" and not is_whole(reference_episodes):
         raise InvalidParameterError(f"reference_episodes={reference_episodes!r} is not allowed; the {rule} rule needs a "

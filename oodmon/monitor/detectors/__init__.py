@@ -3,6 +3,7 @@
 - ``spread``: the spread of the policy's own samples (the paper's signal; needs MC or an ensemble).
 - ``dynamics``: a probabilistic ensemble dynamics model's surprise at each transition (PEDM).
 - ``features``: the Mahalanobis distance of the policy's features (Lee et al., 2018).
+- ``frames``: the Mahalanobis distance of each camera frame's image statistics (any policy).
 - ``combined``: the largest ID rank of the others' scores.
 
 :func:`fit_detectors` fits them for a policy on its own ID episodes; :class:`DetectorSet` runs
@@ -15,6 +16,7 @@ from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector
 from oodmon.monitor.detectors.features import FeaturesDetector
+from oodmon.monitor.detectors.frames import FramesDetector
 from oodmon.monitor.detectors.fitting import (
     BEST_DETECTOR, DEFAULT_FIT_EPISODES, best_detector, collect, default_detectors, detectors_for, fit_agent_detectors, fit_detectors, trajectory_scores,
 )
@@ -23,6 +25,6 @@ from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 
 __all__ = [
     "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DETECTORS", "CombinedDetector", "Detector", "DetectorSet", "DynamicsDetector",
-    "FeaturesDetector", "SpreadDetector", "StepContext", "Trajectory", "best_detector", "collect", "default_detectors", "detectors_for",
+    "FeaturesDetector", "FramesDetector", "SpreadDetector", "StepContext", "Trajectory", "best_detector", "collect", "default_detectors", "detectors_for",
     "fit_agent_detectors", "fit_detectors", "trajectory_scores",
 ]

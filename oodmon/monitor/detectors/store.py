@@ -21,6 +21,7 @@ from oodmon.monitor.detectors.base import Detector, StepContext
 from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector
 from oodmon.monitor.detectors.features import FeaturesDetector
+from oodmon.monitor.detectors.frames import FramesDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.hashing import file_sha256
 
@@ -28,7 +29,8 @@ __all__ = ["DETECTORS", "DetectorSet"]
 
 #: Detector classes by name.
 DETECTORS: dict[str, type[Detector]] = {
-    "spread": SpreadDetector, "dynamics": DynamicsDetector, "features": FeaturesDetector, "combined": CombinedDetector,
+    "spread": SpreadDetector, "dynamics": DynamicsDetector, "features": FeaturesDetector, "frames": FramesDetector,
+    "combined": CombinedDetector,
 }
 FORMAT = "oodmon.detectors"
 FORMAT_VERSION = 1

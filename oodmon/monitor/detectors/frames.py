@@ -1,0 +1,126 @@
+"""``frames``: how far a camera frame's image statistics are from the ID frames'.
+
+A corrupted camera changes the picture itself before it changes anything the policy computes:
+noise adds high-frequency energy, blur takes it away, both shift the brightness. Each step's
+newest frame (the last of a stack of frames) is summarised by five numbers: its mean and standard
+deviation, and the logarithms of its Laplacian's variance and of its mean absolute horizontal and
+vertical differences (sharpness). A step's value is ``log(1 + d^2)``, d the Mahalanobis distance
+of those five from the ID frames' (mean and Ledoit-Wolf covariance fitted on ID episodes), and the
+score its mean over the episode's last ``window`` steps, as the other learned detectors have it.
+The logarithm keeps one odd ID frame from dominating a window: Pong's first frame of some games
+is nearly blank (std 12 against 47) and lies at d^2 ~ 10^7 from the fit, where a corrupted
+frame lies at 10^3-10^5 and a usual ID frame below 30. For the same reason an episode's window
+starts full of the fit frames' median value instead of empty: the first frame alone is not a
+window's mean.
+
+It reads the observation only, so it watches any policy, an SB3 model of a user's as much as an
+oodmon agent; it needs image observations (two dimensions or more). Its blind spot, measured in
+``tests/monitor/test_frames.py``: pixelate@2 (2-pixel blocks) changes the statistics hardly at
+all, while every other Pong corruption, severity 1 included, lies above every fresh ID frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from oodmon.errors import ConfigError
+from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory
+
+__all__ = ["FramesDetector", "frame_statistics"]
+
+#: The statistics of one frame, in the order :func:`frame_statistics` returns them.
+STATISTICS = ("mean", "std", "log_laplacian_var", "log_dx", "log_dy")
+
+
+def frame_statistics(obs: np.ndarray) -> np.ndarray:
+    """The five image statistics (:data:`STATISTICS`) of the newest frame of ``obs``: the last
+    (H, W) plane of a channel-first stack such as Pong's (4, 84, 84), or the frame itself.
+
+    Raises:
+        ConfigError: ``obs`` has fewer than two dimensions (not an image).
+
+    Example:
+        >>> flat = np.full((4, 8, 8), 100, np.uint8)
+        >>> frame_statistics(flat).round(2).tolist()
+        [100.0, 0.0, -6.91, -6.91, -6.91]
+    """
+    import cv2
+
+    array = np.asarray(obs)
+    if array.ndim < 2:
+        raise ConfigError(f"the frames detector needs image observations; got shape {array.shape}")
+    frame = array.reshape(-1, *array.shape[-2:])[-1].astype(np.float32)
+    laplacian = cv2.Laplacian(frame, cv2.CV_32F)
+    eps = 1e-3
+    return np.array([frame.mean(), frame.std(), np.log(laplacian.var() + eps),
+                     np.log(np.abs(np.diff(frame, axis=1)).mean() + eps),
+                     np.log(np.abs(np.diff(frame, axis=0)).mean() + eps)], np.float64)
+
+
+class FramesDetector(Detector):
+    """``log(1 + d^2)``, d the Mahalanobis distance of each frame's image statistics from the ID frames'.
+
+    Args:
+        window: the step's score is the mean distance over the episode's last ``window`` steps
+            (1: each step's own; default 20).
+    """
+
+    name = "frames"
+    learned = True
+
+    def __init__(self, *, window: int = 20) -> None:
+        self._recent = RecentMean(window)
+        self.window = window
+        self._mean: np.ndarray | None = None
+        self._precision: np.ndarray | None = None
+        self._typical = 0.0  # the fit frames' median value: what a new episode's window starts with
+
+    @property
+    def fitted(self) -> bool:
+        return self._mean is not None
+
+    def fit(self, trajectories: Sequence[Trajectory], *, seed: int = 0) -> FramesDetector:
+        """Fit the statistics' mean and covariance on every acted-on frame of ID ``trajectories``."""
+        from sklearn.covariance import LedoitWolf
+
+        stats = np.stack([frame_statistics(obs) for t in trajectories for obs in t.observations[:-1]])
+        self._mean = stats.mean(axis=0)
+        self._precision = np.linalg.inv(LedoitWolf().fit(stats).covariance_)
+        self._typical = float(np.median(self._values(stats)))
+        return self
+
+    def _values(self, stats: np.ndarray) -> np.ndarray:
+        centred = np.atleast_2d(stats) - self._mean
+        return np.log1p(np.einsum("ij,jk,ik->i", centred, self._precision, centred))
+
+    def reset(self) -> None:
+        self._recent.clear()
+        for _ in range(self.window):
+            self._recent.add(self._typical)
+
+    def score(self, context: StepContext) -> float:
+        self.check_fitted()
+        return self._recent.add(float(self._values(frame_statistics(context.obs))[0]))
+
+    def config(self) -> dict[str, Any]:
+        return {"window": self.window}
+
+    def tensors(self) -> dict[str, np.ndarray]:
+        self.check_fitted()
+        return {"mean": self._mean, "precision": self._precision, "typical": np.array([self._typical])}
+
+    @classmethod
+    def from_state(cls, config: Mapping[str, Any], tensors: Mapping[str, np.ndarray]) -> FramesDetector:
+        detector = cls(**config)
+        if any(name not in tensors for name in ("mean", "precision", "typical")):
+            raise ConfigError("the frames detector's tensors are incomplete")
+        mean, precision = np.asarray(tensors["mean"], np.float64), np.asarray(tensors["precision"], np.float64)
+        if mean.shape != (len(STATISTICS),) or precision.shape != (len(STATISTICS),) * 2:
+            raise ConfigError(f"the frames detector's tensors have shapes {mean.shape} and {precision.shape}; "
+                              f"expected ({len(STATISTICS)},) and {(len(STATISTICS),) * 2}")
+        detector._mean, detector._precision = mean, precision
+        detector._typical = float(np.asarray(tensors["typical"]).reshape(-1)[0])
+        return detector
