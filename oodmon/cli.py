@@ -762,10 +762,12 @@ def _bench(args: argparse.Namespace) -> int:
     alarm_detector = args.alarm_detector or best
     detectors = (tuple(d.strip() for d in args.detectors.split(",")) if args.detectors
                  else tuple(dict.fromkeys(("spread", alarm_detector) if samples else (alarm_detector,))))
-    config = BenchConfig(args.task, methods, args.trials or (1 if args.sb3 else 5), variants, args.episodes or (10 if monitor else 5),
-                         args.id_episodes or (200 if monitor else 10), out=args.out, workers=args.workers,
+    config = BenchConfig(args.task, methods, args.trials or (1 if args.sb3 else 5), variants,
+                         args.episodes or (10 if monitor else 5), args.id_episodes or (200 if monitor else 10),
+                         out=args.out, workers=args.workers,
                          executor=args.executor, address=args.address, bind=args.bind, score=args.score,
-                         window=args.window or default_window(args.task, alarm_detector), detectors=detectors, alarm_detector=alarm_detector, obs_noise=args.obs_noise,
+                         window=args.window or default_window(args.task, alarm_detector), detectors=detectors,
+                         alarm_detector=alarm_detector, obs_noise=args.obs_noise,
                          calibration_episodes=args.calibration_episodes or (90 if monitor else 45), far=args.far,
                          confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,

@@ -33,7 +33,7 @@ from oodmon.agents.agent import Agent
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
 
-__all__ = ["SB3_ALGORITHMS", "load_sb3", "sb3_agent", "sb3_algorithm"]
+__all__ = ["SB3_ALGORITHMS", "load_sb3", "models_sha256", "sb3_agent", "sb3_algorithm"]
 
 #: SB3's policy modules and the algorithm classes that load them (first match that loads wins:
 #: A2C and PPO share a policy class; DDPG's policy is TD3's and loads as TD3 for acting).
@@ -121,6 +121,19 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
     return sb3_agent([model for model, _ in loaded], env_id, mean=mean, n_samples=n_samples, seed=seed, files=files)
 
 
+def models_sha256(hashes: Sequence[str], *, mean: bool = False) -> str:
+    """The one sha256 that stands for a set of SB3 models (each given by its own sha256): the
+    model's own for one, else the hash of them all in order and of ``mean`` (the deployed policy).
+
+    Example:
+        >>> models_sha256(["ab"]), len(models_sha256(["ab", "cd"]))
+        ('ab', 64)
+    """
+    if len(hashes) == 1:
+        return hashes[0]
+    return hashlib.sha256(("\n".join(hashes) + ("\nmean" if mean else "")).encode()).hexdigest()
+
+
 def _parameters_sha256(model: Any) -> str:
     """A model in memory has no file: the hash of its policy's parameters stands for it."""
     digest = hashlib.sha256()
@@ -163,9 +176,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
             pass  # one model without dropout: nothing to sample
     if mean and estimator is None:
         raise ConfigError("--mean deploys the ensemble's mean: give several DQN, or several DDPG/TD3, models")
-    hashes = [file["sha256"] for file in files]
-    combined = hashes[0] if len(hashes) == 1 else hashlib.sha256(
-        ("\n".join(hashes) + ("\nmean" if mean else "")).encode()).hexdigest()
+    combined = models_sha256([file["sha256"] for file in files], mean=mean)
     metadata = {
         "task": task_of_env(env_id) or env_id,
         "method": "sb3",

@@ -42,9 +42,9 @@ def _bench_agent(source: str | Sb3Models, task: str, seed: int):
 def _weights_sha256(source: Path | Sb3Models) -> str:
     """What a (method, trial)'s cached results were made with: the weights' sha256, or the SB3 files'."""
     if isinstance(source, Sb3Models):
-        import hashlib
+        from oodmon.agents.sb3 import models_sha256
 
-        return hashlib.sha256("\n".join(file_sha256(p) for p in source.paths).encode()).hexdigest()
+        return models_sha256([file_sha256(p) for p in source.paths], mean=source.mean)
     return file_sha256(source / "model.safetensors")
 
 

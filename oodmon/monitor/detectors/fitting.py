@@ -162,6 +162,9 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     estimator, _, metadata = policy_parts(policy)
     if "features" in detectors and estimator is None:
         raise ConfigError("the features detector needs the policy's features; a plain policy has none")
+    if "frames" in detectors and len(env.observation_space.shape or ()) < 2:
+        raise ConfigError(f"the frames detector needs image observations; this env's are of shape "
+                          f"{env.observation_space.shape}")
     n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) else None
     trajectories = collect(policy, env, episodes, seed=seed, on_progress=on_progress, max_steps=max_steps)
     n_fit = max(1, (2 * episodes) // 3)
@@ -172,9 +175,6 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     if "features" in detectors:
         parts.append(FeaturesDetector(n_actions).fit(fit))
     if "frames" in detectors:
-        if len(env.observation_space.shape or ()) < 2:
-            raise ConfigError(f"the frames detector needs image observations; this env's are of shape "
-                              f"{env.observation_space.shape}")
         parts.append(FramesDetector().fit(fit))
     obs_shape = list(np.shape(trajectories[0].observations)[1:])
     fitted_for = {"task": task or metadata.get("task"), "obs_shape": obs_shape, "policy_hash": policy_hash,
