@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import time
 import warnings
@@ -41,6 +42,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not hasattr(args, "handler"):
         parser.print_help()
         return 2
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # what a result records as its command
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         try:
@@ -362,6 +364,13 @@ def _parser() -> argparse.ArgumentParser:
                        help="address a local Ray cluster listens on (default 127.0.0.1: this machine only)")
     bench.add_argument("--out", default="runs/bench", help="models, logs and report (default runs/bench)")
     bench.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    bench.add_argument("--results", metavar="FILE",
+                       help="also write the result as JSON to FILE (per trial AUROC, AUPR, FPR@95TPR, the alarms, the "
+                            "settings and this command): results as data, what --baseline reads")
+    bench.add_argument("--baseline", metavar="FILE",
+                       help="a result --results wrote earlier: exit 1, naming each figure, where this run falls below it")
+    bench.add_argument("--tolerance", type=_non_negative,
+                       help="--baseline's allowed fall of AUROC, AUPR and rates, and relative rise of delays (default 0.02)")
     bench.set_defaults(handler=_bench)
 
     demo = commands.add_parser("demo", help="the main job of 'make demo': calibrate, monitor, log, summarise")
@@ -773,17 +782,35 @@ def _bench(args: argparse.Namespace) -> int:
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
                          all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean)
     config.variant_list()  # refuse bad specs before any work
-    from oodmon.outputs import check_output_dir
+    from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, load_bench_result
+    from oodmon.outputs import check_output_dir, check_output_file
 
     check_output_dir(args.out, parameter="--out")
+    baseline = load_bench_result(args.baseline) if args.baseline else None  # a bad baseline fails before hours of work
+    if args.results:
+        check_output_file(args.results, parameter="--results", inputs=[("--baseline", args.baseline)])
     with _progress() as report:
         result = run_bench(config, on_progress=report)
+    data = result.to_json(config, command="oodmon " + shlex.join(args.argv))
+    if args.results:
+        Path(args.results).write_text(json.dumps(data, indent=1) + "\n")
+        print(f"wrote {args.results}", file=sys.stderr)
     if args.json:
-        print(json.dumps(result.to_json(), indent=1))
-        return 0
-    from oodmon.bench.report import print_monitor_report, print_paper_report
+        print(json.dumps(data, indent=1))
+    else:
+        from oodmon.bench.report import print_monitor_report, print_paper_report
 
-    (print_monitor_report if monitor else print_paper_report)(config, result, _table_console())
+        (print_monitor_report if monitor else print_paper_report)(config, result, _table_console())
+    if baseline is None:
+        return 0
+    tolerance = BASELINE_TOLERANCE if args.tolerance is None else args.tolerance
+    falls = bench_falls(data, baseline, tolerance, baseline_name=args.baseline)
+    for line in falls:
+        print(f"FELL {line}", file=sys.stderr)
+    if falls:
+        print(f"oodmon bench: {len(falls)} figure(s) fell below {args.baseline}", file=sys.stderr)
+        return 1
+    print(f"oodmon bench: every figure of {args.baseline} held (tolerance {tolerance})", file=sys.stderr)
     return 0
 
 

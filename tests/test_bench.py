@@ -279,3 +279,89 @@ def test_pong_alarms_on_200_decision_means_of_features_and_on_each_step_of_frame
         with pytest.raises(SystemExit):
             main(["bench", *argv, *common])
         assert configs[-1].window == window
+
+
+def test_bench_results_are_data_and_a_later_bench_is_checked_against_them(tmp_path):
+    """--results writes per-trial AUROC, AUPR and FPR@95 with the settings and command; --baseline
+    passes an identical rerun, names a figure that fell, and refuses a baseline made otherwise."""
+    common = ("bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1", "--variants",
+              "cartpole:length=2.0,cartpole:gravity=98.0", "--episodes", "2", "--id-episodes", "3", "--workers", "1",
+              "--calibration-episodes", "22", "--far", "0.1", "--out", str(tmp_path / "bench"))
+    saved = tmp_path / "results" / "cartpole.json"
+    first = run_cli(*common, "--results", str(saved))
+    assert first.returncode == 0, first.stderr
+    data = json.loads(saved.read_text())
+    assert data["command"].startswith("oodmon bench --task cartpole") and data["config"]["far"] == 0.1
+    logs = [read_log(p) for p in sorted((tmp_path / "bench" / "logs").rglob("trial0/*.mcap"))]
+    replayed = {m.variant: m for m in compute_metrics(logs)}
+    for row in data["rows"]:
+        m = replayed[row["variant"]]
+        assert (row["aurocs"]["0"], row["auprs"]["0"], row["fprs"]["0"]) == (m.auroc, m.aupr, m.fpr_at_95_tpr)
+        assert row["aupr_mean"] == m.aupr and row["fpr95_mean"] == m.fpr_at_95_tpr
+
+    again = run_cli(*common, "--baseline", str(saved))  # the same cached cells: every figure holds
+    assert again.returncode == 0, again.stderr
+    assert "every figure of" in again.stderr
+
+    raised = json.loads(saved.read_text())
+    row = raised["rows"][0]
+    row["mean"] += 0.05  # a baseline better than this run by more than the tolerance
+    raised["rows"].append(dict(row, variant="cartpole:masspole=9.0"))  # and a row this run lacks
+    (tmp_path / "raised.json").write_text(json.dumps(raised))
+    fell = run_cli(*common, "--baseline", str(tmp_path / "raised.json"))
+    assert fell.returncode == 1
+    falls = [line for line in fell.stderr.splitlines() if line.startswith("FELL")]
+    assert len(falls) == 2, fell.stderr
+    assert any(f"ensemble/{row['variant']}/spread: auroc fell from" in line for line in falls)
+    assert any("cartpole:masspole=9.0/spread: missing from this bench" in line for line in falls)
+
+    other = dict(data, config=dict(data["config"], far=0.05))
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    refused = run_cli(*common, "--baseline", str(tmp_path / "other.json"))
+    assert refused.returncode == 2 and "far 0.05 there, 0.1 here" in refused.stderr
+    not_a_result = run_cli(*common, "--baseline", str(tmp_path / "results"))
+    assert not_a_result.returncode == 2 and "is a folder" in not_a_result.stderr
+
+
+def test_a_trial_model_trained_by_another_recipe_is_set_aside_and_trained_again(tmp_path, capsys):
+    """The bench's trained trials are cached; a cached one made by another recipe (here the
+    shipped 50,000-step recipe, where this bench asks for 300 steps) is not silently reused."""
+    import shutil
+
+    from oodmon.agents import zoo_dir
+    from oodmon.bench.cache import _ensure_model
+
+    config = BenchConfig("cartpole", ("dropout",), trials=2, out=str(tmp_path), train_steps=300)
+    cached = tmp_path / "models" / "cartpole-dropout-trial1"
+    shutil.copytree(zoo_dir() / "cartpole-dropout", cached)
+    shipped_weights = (cached / "model.safetensors").read_bytes()
+    assert _ensure_model(config, "dropout", 1) == cached
+    said = capsys.readouterr().err
+    assert "trained by another recipe" in said and "learning_starts: 1000 -> 75" in said
+    aside = tmp_path / "set-aside" / "recipe-0" / "models" / "cartpole-dropout-trial1"
+    assert (aside / "model.safetensors").read_bytes() == shipped_weights  # kept, not deleted
+    assert json.loads((cached / "model.json").read_text())["recipe_steps"] == 300
+    retrained = (cached / "model.safetensors").read_bytes()
+    assert _ensure_model(config, "dropout", 1) == cached  # its own recipe's model stays
+    assert (cached / "model.safetensors").read_bytes() == retrained and "another recipe" not in capsys.readouterr().err
+
+
+def test_trial_models_train_on_every_worker_and_come_out_as_one_at_a_time(tmp_path):
+    """The trials' trainings run in parallel processes; each model is the one a sequential
+    training of the same seed makes (byte for byte), and progress counts the trainings."""
+    from oodmon.bench.run import _train_missing_models
+
+    trials = [("dropout", 1), ("dropout", 2)]
+    weights = {}
+    for workers in (2, 1):
+        config = BenchConfig("cartpole", ("dropout",), trials=3, out=str(tmp_path / f"w{workers}"), train_steps=300,
+                             workers=workers)
+        stages = []
+        _train_missing_models(config, trials, workers, lambda stage, done, total: stages.append((stage, done, total)))
+        assert stages == [("trial models trained", 0, 2), *[("trial models trained", d, 2) for d in (1, 2)]]
+        weights[workers] = [(tmp_path / f"w{workers}/models/cartpole-dropout-trial{t}/model.safetensors").read_bytes()
+                            for _, t in trials]
+        stages.clear()
+        _train_missing_models(config, trials, workers, lambda *a: stages.append(a))
+        assert stages == []  # cached: nothing to train
+    assert weights[2] == weights[1] and weights[2][0] != weights[2][1]

@@ -24,7 +24,7 @@ from oodmon.hashing import file_sha256
 from oodmon.progress import Progress
 from oodmon.versions import library_versions
 
-__all__ = ["SELECTION_SEED", "as_shipped", "select_snapshot", "write_agent"]
+__all__ = ["SELECTION_SEED", "as_shipped", "recipe_differences", "select_snapshot", "write_agent"]
 
 #: First seed of the episodes that choose among snapshots (``Recipe.select_top``): apart from the
 #: ID return's (:data:`oodmon.seeds.ID_RETURN`), so that the reported return is not the one the
@@ -121,3 +121,27 @@ def write_agent(root: Path, recipe: Recipe, runs: list[Run], models: list[BaseAl
         **bounds,
     }
     save_modules(root, modules, metadata, half=recipe.cnn)
+
+
+def recipe_differences(metadata: dict[str, Any], recipe: Recipe) -> list[str]:
+    """How the recipe a saved agent was trained by (as its ``model.json`` records it) differs from
+    ``recipe``: one ``"name: saved -> recipe"`` per difference, empty when they agree. Compares what
+    the metadata records: the network (widths, stochastic layers, drop probability, members), the
+    scalar hyperparameters, the training steps and the MC samples."""
+    arch = metadata.get("architecture", {})
+    ensemble = recipe.method == "ensemble"
+    wanted = {
+        "net_arch": list(recipe.net_arch), "last_only": recipe.last_only, "shared_torso": ensemble and recipe.shared_torso,
+        "n_members": recipe.n_members if ensemble else 1, "drop_p": None if ensemble else recipe.drop_p,
+        "n_samples": recipe.n_members if ensemble else recipe.n_samples, "recipe_steps": recipe.total_steps,
+    }
+    saved = {"net_arch": arch.get("net_arch"), "last_only": arch.get("last_only"),
+             "shared_torso": arch.get("shared_torso"), "n_members": arch.get("n_members"),
+             "drop_p": metadata.get("drop_p"), "n_samples": metadata.get("n_samples"),
+             "recipe_steps": metadata.get("recipe_steps", recipe.total_steps)}  # older agents did not record it
+    differences = [f"{name}: {saved[name]!r} -> {value!r}" for name, value in wanted.items() if saved[name] != value]
+    hyper = {k: v for k, v in recipe.hyperparams.items() if isinstance(v, (int, float, str, bool))}
+    recorded = metadata.get("hyperparams", {})
+    differences += [f"{name}: {recorded.get(name)!r} -> {hyper.get(name)!r}" for name in sorted(set(hyper) | set(recorded))
+                    if recorded.get(name) != hyper.get(name)]
+    return differences

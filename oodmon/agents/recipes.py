@@ -69,6 +69,20 @@ class Recipe:
     reward_clip: bool = False
     notes: str = ""
 
+    def shortened(self, total_steps: int) -> Recipe:
+        """The recipe cut to ``total_steps`` (smoke tests, quick trials), with its schedule (learning
+        start, buffer, checkpoints, evaluations) scaled and at most 2 episodes per snapshot in its
+        choice among snapshots."""
+        hyper = dict(self.hyperparams)
+        if "learning_starts" in hyper:
+            hyper["learning_starts"] = min(hyper["learning_starts"], max(total_steps // 4, 1))
+        if "buffer_size" in hyper:
+            hyper["buffer_size"] = min(hyper["buffer_size"], max(total_steps, 1_000))
+        every = max(total_steps // 2, 1)
+        return replace(self, total_steps=total_steps, hyperparams=hyper,
+                       checkpoint_every=min(self.checkpoint_every, every), eval_every=min(self.eval_every, every),
+                       select_episodes=min(self.select_episodes, 2))
+
 
 _CARTPOLE = Recipe(
     task="cartpole", method="", algorithm="dqn", total_steps=50_000, net_arch=[256, 256],

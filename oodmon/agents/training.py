@@ -95,7 +95,7 @@ def train(
     elif (recipe.task, recipe.method) != (task, method):
         raise ConfigError(f"recipe is for {recipe.task}/{recipe.method}, not {task}/{method}")
     if total_steps is not None:
-        recipe = _shortened(recipe, total_steps)
+        recipe = recipe.shortened(total_steps)
     root = Path(out)
     root.mkdir(parents=True, exist_ok=True)
     report = on_progress or (lambda *args: None)
@@ -122,19 +122,3 @@ def train(
     write_agent(root, recipe, runs, models, modules, arch, seed=seed, selection=selection, id_returns=id_returns,
                 bounds=bounds, command=command)
     return load_agent(root, task=task)
-
-
-def _shortened(recipe: Recipe, total_steps: int) -> Recipe:
-    """The recipe cut to ``total_steps``, with its schedule (learning start, checkpoints) scaled and
-    at most 2 episodes per snapshot in its choice among snapshots."""
-    from dataclasses import replace
-
-    hyper = dict(recipe.hyperparams)
-    if "learning_starts" in hyper:
-        hyper["learning_starts"] = min(hyper["learning_starts"], max(total_steps // 4, 1))
-    if "buffer_size" in hyper:
-        hyper["buffer_size"] = min(hyper["buffer_size"], max(total_steps, 1_000))
-    every = max(total_steps // 2, 1)
-    return replace(recipe, total_steps=total_steps, hyperparams=hyper,
-                   checkpoint_every=min(recipe.checkpoint_every, every), eval_every=min(recipe.eval_every, every),
-                   select_episodes=min(recipe.select_episodes, 2))

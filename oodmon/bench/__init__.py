@@ -23,12 +23,17 @@ best AUROC per method beside the paper's best. A cell whose log is complete is n
 so an interrupted bench resumes; cells run in ``workers`` processes, or as Ray tasks on a Ray
 cluster (``executor="ray"``, ``address``; Ray is the optional extra ``oodmon[ray]``).
 
+A result is data (``BenchResult.to_json(config)``: per trial AUROC, AUPR and FPR at 95% TPR, the
+settings): ``oodmon bench --results FILE`` writes it, and ``--baseline FILE`` checks a later run
+against it (:mod:`oodmon.bench.baseline`). Trial models train in ``workers`` processes at once.
+
 Your own stable-baselines3 models (``sb3=(paths...)``, ``env_id``) are benched as the one method
 ``sb3`` with one trial: nothing is trained, and the paper has no figures for them.
 """
 
 from __future__ import annotations
 
+from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, bench_metrics, load_bench_result
 from oodmon.bench.cache import Sb3Models
 from oodmon.bench.cells import episode_onset
 from oodmon.bench.config import ONSETS, PAPER_METHOD, PROTOCOLS, BenchConfig, BenchResult, Row, paper_label
@@ -36,6 +41,6 @@ from oodmon.bench.report import (alarms_per_variant, best_per_method, paper_only
                                  print_paper_report)
 from oodmon.bench.run import run_bench
 
-__all__ = ["ONSETS", "PAPER_METHOD", "PROTOCOLS", "BenchConfig", "BenchResult", "Row", "Sb3Models", "alarms_per_variant",
-           "best_per_method", "episode_onset", "paper_label", "paper_only_variants", "print_monitor_report",
+__all__ = ["BASELINE_TOLERANCE", "ONSETS", "PAPER_METHOD", "PROTOCOLS", "BenchConfig", "BenchResult", "Row", "Sb3Models", "alarms_per_variant",
+           "bench_falls", "bench_metrics", "best_per_method", "episode_onset", "load_bench_result", "paper_label", "paper_only_variants", "print_monitor_report",
            "print_paper_report", "run_bench"]

@@ -76,11 +76,42 @@ def _refuse_to_train_for_hours(config: BenchConfig, method: str, trial: int) -> 
 def _ensure_model(config: BenchConfig, method: str, trial: int) -> Path | Sb3Models:
     if config.sb3:
         return Sb3Models(tuple(str(Path(p).resolve()) for p in config.sb3), config.env_id, config.mean)
-    path = _model_dir(config, method, trial)
+    path = _ensure_model_dir_current(config, method, trial)
     if not (path / "model.json").exists():
         _refuse_to_train_for_hours(config, method, trial)
         train(config.task, method, path, seed=trial, total_steps=config.train_steps)
     return path
+
+
+def _ensure_model_dir_current(config: BenchConfig, method: str, trial: int) -> Path:
+    """The (method, trial)'s model folder, a cached model of another recipe set aside first."""
+    path = _model_dir(config, method, trial)
+    if path.parent == Path(config.out) / "models":  # one the bench trains (not the shipped agent)
+        _set_aside_if_made_by_another_recipe(Path(config.out), path, config, method)
+    return path
+
+
+def _set_aside_if_made_by_another_recipe(out: Path, path: Path, config: BenchConfig, method: str) -> None:
+    """A trial model trained by another recipe than today's (a new drop probability, full depth,
+    other steps) is not today's method: move it (and its training state) to
+    ``<out>/set-aside/recipe-<n>/models/`` and train the trial again, saying why."""
+    from oodmon.agents.export import recipe_differences
+
+    if not (path / "model.json").exists():
+        return
+    recipe = recipe_for(config.task, method)
+    if config.train_steps is not None:
+        recipe = recipe.shortened(config.train_steps)
+    differences = recipe_differences(json.loads((path / "model.json").read_text()), recipe)
+    if not differences:
+        return
+    n = 0
+    while (aside := out / "set-aside" / f"recipe-{n}" / path.relative_to(out)).exists():
+        n += 1
+    print(f"bench: {path} was trained by another recipe ({'; '.join(differences)}); moved to {aside}, training it "
+          "again", file=sys.stderr)
+    aside.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(path, aside)
 
 
 def _trial_dir(config: BenchConfig, method: str, trial: int) -> Path:

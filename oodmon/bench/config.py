@@ -120,19 +120,27 @@ class BenchConfig:
             parts.append(f"noise{self.obs_noise:g}")
         return "-".join(parts)
 
+    def what_made_the_numbers(self) -> dict:
+        """The settings a result depends on (not where it ran: out, workers, executor)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()
+                if k not in ("out", "workers", "executor", "address", "bind")}
+
     def variant_list(self) -> list[Variant]:
         return select_variants(self.task, self.variants, shifted_only=True)
 
 
 @dataclass(frozen=True)
 class Row:
-    """One (method, variant, detector): our AUROC per trial beside the paper's."""
+    """One (method, variant, detector): our per-step AUROC per trial beside the paper's, and the
+    same trials' AUPR and FPR at 95% TPR (the paper's other two metrics)."""
 
     method: str
     variant: str
     aurocs: dict[int, float]
     paper: list[float] | None
     detector: str = "spread"
+    auprs: dict[int, float] = field(default_factory=dict)
+    fprs: dict[int, float] = field(default_factory=dict)
 
     @property
     def mean(self) -> float:
@@ -151,9 +159,17 @@ class BenchResult:
     #: The monitor's protocol only: the alarm's figures per (method, variant), trials pooled.
     alarms: list[MonitorMetrics] = field(default_factory=list)
 
-    def to_json(self) -> dict:
-        data = {
-            "rows": [asdict(r) | {"mean": r.mean, "std": r.std} for r in self.rows],
+    def to_json(self, config: BenchConfig | None = None, command: str | None = None) -> dict:
+        """The result as data (``bench --json``): per row the per-trial AUROC, AUPR and FPR at 95%
+        TPR and their means; with ``config``, what made them (``bench --baseline`` checks it)."""
+        data: dict = {}
+        if command is not None:
+            data["command"] = command
+        if config is not None:
+            data["config"] = config.what_made_the_numbers()
+        data |= {
+            "rows": [asdict(r) | {"mean": r.mean, "std": r.std, "aupr_mean": _mean(r.auprs), "fpr95_mean": _mean(r.fprs)}
+                     for r in self.rows],
             "failing": self.failing,
             "monitor": self.detection,
         }
@@ -162,6 +178,11 @@ class BenchResult:
 
             data["alarms"] = [m.to_dict() for m in [*self.alarms, *monitor_summary(self.alarms)]]
         return data
+
+
+def _mean(values: dict[int, float | None]) -> float | None:
+    present = [v for v in values.values() if v is not None]
+    return float(np.mean(present)) if present else None
 
 
 def paper_label(task: str, method: str, spec: str) -> str | None:

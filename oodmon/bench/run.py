@@ -3,16 +3,42 @@
 from __future__ import annotations
 
 import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from oodmon import seeds
-from oodmon.bench.cache import (Sb3Models, _cell_log, _log_is_complete, _monitored, _prepare_trial,
-                                _refuse_to_train_for_hours)
+from oodmon.bench.cache import (Sb3Models, _cell_log, _ensure_model, _ensure_model_dir_current, _log_is_complete,
+                                _model_dir, _monitored, _prepare_trial, _refuse_to_train_for_hours)
 from oodmon.bench.cells import _execute
 from oodmon.bench.config import ONSETS, PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.monitor.alarms import check_window
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
+
+def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], workers: int, report: Progress) -> None:
+    """Train the trials' models that are not cached yet, ``workers`` at a time in processes of their
+    own (one torch thread each, unless OODMON_TORCH_THREADS says otherwise): the long part of a
+    five-trial bench, on every core. Each training checkpoints and resumes (``oodmon.agents.train``)."""
+    if config.sb3:
+        return
+    for method, trial in trials:  # a model trained by another recipe is set aside first
+        _ensure_model_dir_current(config, method, trial)
+    missing = [(m, t) for m, t in trials if not (_model_dir(config, m, t) / "model.json").exists()]
+    if not missing:
+        return
+    stage = "trial models trained"
+    report(stage, 0, len(missing))
+    if workers <= 1 or len(missing) == 1 or config.executor != "local":
+        for done, (method, trial) in enumerate(missing, 1):
+            _ensure_model(config, method, trial)
+            report(stage, done, len(missing))
+        return
+    with ProcessPoolExecutor(max_workers=min(workers, len(missing))) as pool:
+        futures = [pool.submit(_ensure_model, config, method, trial) for method, trial in missing]
+        for done, future in enumerate(as_completed(futures), 1):
+            future.result()
+            report(stage, done, len(missing))
+
 
 def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> BenchResult:
     """Run (or resume) the bench; return its rows. ``on_progress(stage, done, total)`` reports."""
@@ -23,6 +49,8 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
     check_window(config.window)
     for method, trial in trials:  # before minutes of work on the others
         _refuse_to_train_for_hours(config, method, trial)
+    workers = config.workers or os.cpu_count() or 1
+    _train_missing_models(config, trials, workers, report)
     prepared: dict[tuple[str, int], tuple[Path | Sb3Models, Path, list[str], Path | None]] = {}
     for index, (method, trial) in enumerate(trials):
         report("models, detectors, thresholds and failing variants of trials", index, len(trials))
@@ -43,12 +71,11 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
                          ONSETS[config.task] if config.protocol == "monitor" else None))
     done = len(cells) - len(jobs)
     report("monitored cells", done, len(cells))
-    workers = config.workers or os.cpu_count() or 1
     for _ in _execute(jobs, config, workers):
         done += 1
         report("monitored cells", done, len(cells))
 
-    rows: dict[tuple[str, str, int], dict[int, float]] = {}
+    rows: dict[tuple[str, str, int], dict[str, dict[int, float]]] = {}
     detection: dict[str, dict[str, float | None]] = {}
     every_log = []
     for (method, trial), (_, _, failing, _) in prepared.items():
@@ -57,17 +84,19 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
         for order, detector in enumerate(config.detectors):
             for m in compute_metrics(logs, detector):
                 if m.auroc is not None:
-                    rows.setdefault((method, m.variant, order), {})[trial] = m.auroc
+                    per_trial = rows.setdefault((method, m.variant, order), {"auroc": {}, "aupr": {}, "fpr95": {}})
+                    per_trial["auroc"][trial], per_trial["aupr"][trial] = m.auroc, m.aupr
+                    per_trial["fpr95"][trial] = m.fpr_at_95_tpr
                 if detector == config.alarm_detector:
                     key = f"{method}/trial{trial}/{m.variant}"
                     detection[key] = {"false_alarm_rate": m.false_alarm_rate, "detection_rate": m.detection_rate,
                                       "delay_mean": m.delay_mean}
     paper = paper_auc_per_trial().get(config.task, {})
     result_rows = []
-    for (method, spec, order), aurocs in sorted(rows.items()):
+    for (method, spec, order), per_trial in sorted(rows.items()):
         label = paper_label(config.task, method, spec)
-        result_rows.append(Row(method, spec, aurocs, paper[PAPER_METHOD[method]][label] if label else None,
-                               config.detectors[order]))
+        result_rows.append(Row(method, spec, per_trial["auroc"], paper[PAPER_METHOD[method]][label] if label else None,
+                               config.detectors[order], auprs=per_trial["aupr"], fprs=per_trial["fpr95"]))
     failing = {m: {t: prepared[(m, t)][2] for t in range(config.trials)} for m in config.methods}
     alarms = []
     if config.protocol == "monitor":

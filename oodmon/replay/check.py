@@ -16,7 +16,8 @@ from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
 from oodmon.replay.metrics import VariantMetrics
 
-__all__ = ["HIGHER_IS_BETTER", "LOWER_IS_BETTER", "baseline_of", "check_tolerance", "find_falls", "load_baseline"]
+__all__ = ["HIGHER_IS_BETTER", "LOWER_IS_BETTER", "baseline_of", "check_tolerance", "compare_metrics", "find_falls",
+           "load_baseline"]
 
 HIGHER_IS_BETTER = ("auroc", "aupr", "detection_rate")
 LOWER_IS_BETTER = ("fpr_at_95_tpr", "false_alarm_rate", "early_alarm_rate", "delay_mean")
@@ -72,20 +73,31 @@ def _is_number(value: object) -> bool:
 def find_falls(metrics: Sequence[VariantMetrics], baseline: dict, tolerance: float | None = None) -> list[str]:
     """One line per metric that fell below its baseline by more than the tolerance, or went missing."""
     tolerance = baseline.get("tolerance", 0.02) if tolerance is None else tolerance
-    current = {m.key: m for m in metrics}
+    current = {m.key: {name: getattr(m, name) for name in HIGHER_IS_BETTER + LOWER_IS_BETTER} for m in metrics}
+    return compare_metrics(current, baseline["metrics"], tolerance, what="the logs")
+
+
+def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[str, dict[str, float]],
+                    tolerance: float, *, what: str = "the new results", relative: Sequence[str] = ("delay_mean",),
+                    higher: Sequence[str] = HIGHER_IS_BETTER) -> list[str]:
+    """One line per metric of ``expected`` (rows of ``{name: value}`` by key) that ``current``
+    lacks or that moved the wrong way by more than ``tolerance``: names in ``higher`` may not fall,
+    every other name may not rise, those in ``relative`` (delays, counted in steps) by more than
+    ``tolerance`` times their baseline value. Shared by ``oodmon check`` (logs) and ``bench --baseline``."""
     falls = []
-    for key, expected in sorted(baseline["metrics"].items()):
+    for key, row in sorted(expected.items()):
         if key not in current:
-            falls.append(f"{key}: missing from the logs (the baseline has it)")
+            falls.append(f"{key}: missing from {what} (the baseline has it)")
             continue
-        for name, was in expected.items():
-            now = getattr(current[key], name, None)
+        for name, was in row.items():
+            now = current[key].get(name)
             if now is None:
                 falls.append(f"{key}: {name} is missing (baseline {was:.4g})")
-            elif name in HIGHER_IS_BETTER and now < was - tolerance:
-                falls.append(f"{key}: {name} fell from {was:.4g} to {now:.4g} (tolerance {tolerance})")
-            elif name in LOWER_IS_BETTER:
-                allowed = was * (1 + tolerance) if name == "delay_mean" else was + tolerance
+            elif name in higher:
+                if now < was - tolerance:
+                    falls.append(f"{key}: {name} fell from {was:.4g} to {now:.4g} (tolerance {tolerance})")
+            else:
+                allowed = was * (1 + tolerance) if name in relative else was + tolerance
                 if now > allowed:
                     falls.append(f"{key}: {name} rose from {was:.4g} to {now:.4g} (tolerance {tolerance})")
     return falls

@@ -17,7 +17,7 @@ from oodmon.agents.recipes import recipe_for
 from oodmon.agents.algorithms import new_model as _new_model
 from oodmon.agents.algorithms import training_env as _training_env
 from oodmon.agents.checkpoints import Run as _Run
-from oodmon.agents.training import _shortened, architecture, train
+from oodmon.agents.training import architecture, train
 from oodmon.errors import ConfigError, UnknownParameterError
 
 CASES = [("cartpole", "dropout"), ("cartpole", "ensemble"), ("pendulum", "dropconnect"), ("pendulum", "ensemble"),
@@ -129,7 +129,7 @@ def test_training_resumes_from_the_weights_alone_when_the_big_checkpoint_is_gone
     assert (main / "policy.safetensors").stat().st_size < 400_000
     saved = load_file(str(main / "policy.safetensors"))
     assert "q_net.q_net.0.weight" in saved and not any("target" in k for k in saved)
-    recipe = _shortened(recipe_for("cartpole", "dropconnect"), 1000)
+    recipe = recipe_for("cartpole", "dropconnect").shortened(1000)
     model = _Run(recipe, tmp_path, "main", 0).load_or_create(_training_env(recipe))
     for name, tensor in model.policy.q_net.state_dict().items():
         torch.testing.assert_close(tensor, saved[f"q_net.{name}"])
@@ -225,7 +225,7 @@ def _interrupted_training(tmp_path, method="dropout"):
 
     with pytest.raises(KeyboardInterrupt):
         train("cartpole", method, tmp_path, total_steps=1000, on_progress=interrupt, id_episodes=2)
-    recipe = _shortened(recipe_for("cartpole", method), 1000)
+    recipe = recipe_for("cartpole", method).shortened(1000)
     return recipe, tmp_path / "runs" / "main"
 
 
