@@ -3,6 +3,11 @@ probability still solves the task, and how well its spread separates the paper's
 
 Run (resumable; one torch thread, so it can sit beside other work):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_full_depth.py [--tasks cartpole,pendulum]
+        [--methods dropconnect] [--grid 0.01,0.02] [--learning-rate 1e-3] [--steps 100000]
+
+``--learning-rate`` and ``--steps`` change the recipe's; a row records them where given.
+``--shipped`` measures the shipped agents (stochastic layer at the output only) on the same
+episodes, the row to compare with. ``--table`` prints the rows as the zoo README's markdown table instead of running anything.
 
 Each (task, method, p) trains with the shipped recipe but ``last_only=False`` and ``drop_p=p`` into
 ``runs/sweep/<task>-<method>-full-p<p>`` (resumed if interrupted), then measures, with the agent as
@@ -24,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from sklearn.metrics import roc_auc_score
 
+from oodmon.agents import load
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import train
 from oodmon.envs import parse_variant
@@ -49,39 +55,90 @@ def _scores(agent, spec: str, episodes: int, seed: int, score: str) -> tuple[np.
     return np.array([s.score for s in sink.steps]), returns
 
 
+def table() -> str:
+    """The sweep's rows as markdown: solved or not, and the mean AUROC over the paper's variants."""
+    lines = ["| task | method | depth | p | learning rate | steps | ID return (20 ep.) | solved | AUROC chosen_std | "
+             "AUROC pre_squash_std |", "|---|---|---|---:|---:|---:|---:|---|---:|---:|"]
+    goal = {"cartpole": 475.0, "pendulum": -200.0}
+    for r in map(json.loads, OUT.read_text().splitlines()):
+        recipe = recipe_for(r["task"], r["method"])
+        means = {k: float(np.mean(list(v.values()))) for k, v in r["auroc"].items()}
+        depth = "output only (shipped)" if r.get("shipped") else ("output only" if r["last_only"] else "full")
+        lines.append(f"| {r['task']} | {r['method']} | {depth} | {r['drop_p']:g} | "
+                     f"{r.get('learning_rate', recipe.hyperparams['learning_rate']):g} | "
+                     f"{r.get('steps', recipe.total_steps):,} | {r['id_return_mean']:.1f} | "
+                     f"{'yes' if r['id_return_mean'] >= goal[r['task']] else 'no'} | {means['chosen_std']:.3f} | "
+                     + (f"{means['pre_squash_std']:.3f} |" if "pre_squash_std" in means else "- |"))
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", default="cartpole,pendulum")
     parser.add_argument("--methods", default="dropout,dropconnect")
     parser.add_argument("--grid", default=",".join(str(p) for p in GRID))
+    parser.add_argument("--learning-rate", type=float, help="instead of the recipe's (recorded in the row)")
+    parser.add_argument("--steps", type=int, help="training steps instead of the recipe's (recorded in the row)")
+    parser.add_argument("--table", action="store_true", help="print the rows as a markdown table, run nothing")
+    parser.add_argument("--shipped", action="store_true",
+                        help="measure the shipped (last-only) agents the same way instead of training")
     args = parser.parse_args()
+    if args.table:
+        print(table())
+        return
     done = set()
     if OUT.exists():
-        done = {(r["task"], r["method"], r["drop_p"]) for r in map(json.loads, OUT.read_text().splitlines())}
+        done = {_key(r) for r in map(json.loads, OUT.read_text().splitlines())}
     for task in args.tasks.split(","):
         for method in args.methods.split(","):
+            if args.shipped:
+                if (task, method, "shipped") not in done:
+                    _measure(load(task, method), task, method, {"drop_p": recipe_for(task, method).drop_p,
+                                                                "last_only": True, "shipped": True})
+                continue
             for p in (float(x) for x in args.grid.split(",")):
-                if (task, method, p) in done:
+                if (task, method, p, args.learning_rate, args.steps) in done:
                     continue
                 start = time.monotonic()
                 recipe = replace(recipe_for(task, method), last_only=False, drop_p=p)
-                agent = train(task, method, f"runs/sweep/{task}-{method}-full-p{p}", seed=0, recipe=recipe,
-                              command=f"scripts/sweep_full_depth.py ({task}, {method}, p={p})")
-                row = {"task": task, "method": method, "drop_p": p, "last_only": False,
-                       "id_return_mean": agent.metadata["id_return_mean"], "auroc": {}}
-                for score in (["chosen_std"] + (["pre_squash_std"] if task == "pendulum" else [])):
-                    id_scores, _ = _scores(agent, task, 10, 200_000, score)
-                    row["auroc"][score] = {}
-                    for spec in VARIANTS[(task, method)]:
-                        ood, returns = _scores(agent, spec, 5, 400_000, score)
-                        labels = np.r_[np.zeros(len(id_scores)), np.ones(len(ood))]
-                        row["auroc"][score][spec] = round(float(roc_auc_score(labels, np.r_[id_scores, ood])), 3)
-                        row.setdefault("variant_return_mean", {})[spec] = round(float(np.mean(returns)), 1)
-                row["wall_time_s"] = round(time.monotonic() - start, 1)
-                OUT.parent.mkdir(parents=True, exist_ok=True)
-                with OUT.open("a") as f:
-                    f.write(json.dumps(row) + "\n")
-                print(json.dumps(row), flush=True)
+                name = f"{task}-{method}-full-p{p}"
+                extra = {}
+                if args.learning_rate is not None:
+                    recipe = replace(recipe, hyperparams=recipe.hyperparams | {"learning_rate": args.learning_rate})
+                    name += f"-lr{args.learning_rate:g}"
+                    extra["learning_rate"] = args.learning_rate
+                if args.steps is not None:
+                    recipe = replace(recipe, total_steps=args.steps)
+                    name += f"-steps{args.steps}"
+                    extra["steps"] = args.steps
+                agent = train(task, method, f"runs/sweep/{name}", seed=0, recipe=recipe,
+                              command=f"scripts/sweep_full_depth.py ({name})")
+                _measure(agent, task, method, {"drop_p": p, "last_only": False, **extra}, start)
+
+
+def _key(row: dict) -> tuple:
+    if row.get("shipped"):
+        return row["task"], row["method"], "shipped"
+    return row["task"], row["method"], row["drop_p"], row.get("learning_rate"), row.get("steps")
+
+
+def _measure(agent, task: str, method: str, settings: dict, start: float | None = None) -> None:
+    """Append the agent's row: ID return, per-step AUROC per score and variant, variant returns."""
+    start = time.monotonic() if start is None else start
+    row = {"task": task, "method": method, **settings, "id_return_mean": agent.metadata["id_return_mean"], "auroc": {}}
+    for score in (["chosen_std"] + (["pre_squash_std"] if task == "pendulum" else [])):
+        id_scores, _ = _scores(agent, task, 10, 200_000, score)
+        row["auroc"][score] = {}
+        for spec in VARIANTS[(task, method)]:
+            ood, returns = _scores(agent, spec, 5, 400_000, score)
+            labels = np.r_[np.zeros(len(id_scores)), np.ones(len(ood))]
+            row["auroc"][score][spec] = round(float(roc_auc_score(labels, np.r_[id_scores, ood])), 3)
+            row.setdefault("variant_return_mean", {})[spec] = round(float(np.mean(returns)), 1)
+    row["wall_time_s"] = round(time.monotonic() - start, 1)
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    with OUT.open("a") as f:
+        f.write(json.dumps(row) + "\n")
+    print(json.dumps(row), flush=True)
 
 
 if __name__ == "__main__":

@@ -86,6 +86,8 @@ def test_paper_labels_match_our_specs():
     assert paper_label("pendulum", "dropout", "pendulum:l=5.0") == "l=5.0"
     assert paper_label("pong", "dropconnect", "pong:motion_blur@4") == "motion_blur@4"
     assert paper_label("cartpole", "ensemble", "cartpole:gravity=0.98") is None
+    # The paper's table says cart mass 3 where its text says pole mass: our masscart=3.0 is that row.
+    assert paper_label("cartpole", "dropout", "cartpole:masscart=3.0").startswith("masspole_or_masscart=3.0")
 
 
 def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
@@ -358,7 +360,7 @@ def test_trial_models_train_on_every_worker_and_come_out_as_one_at_a_time(tmp_pa
                              workers=workers)
         stages = []
         _train_missing_models(config, trials, workers, lambda stage, done, total: stages.append((stage, done, total)))
-        assert stages == [("trial models trained", 0, 2), *[("trial models trained", d, 2) for d in (1, 2)]]
+        assert stages == [("trained trial models", 0, 2), *[("trained trial models", d, 2) for d in (1, 2)]]
         weights[workers] = [(tmp_path / f"w{workers}/models/cartpole-dropout-trial{t}/model.safetensors").read_bytes()
                             for _, t in trials]
         stages.clear()

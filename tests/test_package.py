@@ -92,3 +92,22 @@ def test_every_progress_callback_of_the_library_has_the_one_shape():
     for path in root.rglob("*.py"):
         found = re.findall(r"\bon_episode\b|\bon_step=|\bReporter\b", path.read_text())
         assert not found, f"{path.relative_to(root)} still has {found}"
+
+
+def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
+    """README tables made from results/bench/*.json by scripts/bench_table.py, never typed by hand."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(oodmon.__file__).parent.parent
+    spec = importlib.util.spec_from_file_location("bench_table", root / "scripts" / "bench_table.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    readme = (root / "README.md").read_text()
+    results = sorted((root / "results" / "bench").glob("*.json"))
+    assert results, "results/bench/ holds the committed five-trial results"
+    for path in results:
+        begin = f"<!-- bench_table {path.stem} -->\n"
+        assert begin in readme, f"README lacks the table of {path.name}"
+        shown = readme[readme.index(begin) + len(begin):readme.index("\n<!-- end bench_table -->", readme.index(begin))]
+        assert shown == script.table(path), f"README's table of {path.name} is not the script's"

@@ -193,6 +193,8 @@ def paper_label(task: str, method: str, spec: str) -> str | None:
         'length=2.0'
         >>> paper_label("cartpole", "dropconnect", "cartpole:masscart=9.0")
         'masscart=9.0 (text says pole mass 9)'
+        >>> paper_label("cartpole", "dropout", "cartpole:masscart=3.0")
+        'masspole_or_masscart=3.0 (paper label: mass of the cart 3; text says pole)'
     """
     if method not in PAPER_METHOD:  # your own SB3 models: the paper has no figures for them
         return None
@@ -203,7 +205,10 @@ def paper_label(task: str, method: str, spec: str) -> str | None:
     else:
         name, value = variant.params[0]
         key = f"{name}={value!r}"
+    keys = [key]
+    if variant.task != "pong" and variant.params[0][0] in ("masscart", "masspole"):
+        keys.append(f"masspole_or_masscart={variant.params[0][1]!r}")  # a label the paper's text and table disagree on
     for label in table:
-        if label == key or label.startswith(key + " "):
+        if any(label == k or label.startswith(k + " ") for k in keys):
             return label
     return None

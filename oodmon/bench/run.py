@@ -26,7 +26,7 @@ def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], wo
     missing = [(m, t) for m, t in trials if not (_model_dir(config, m, t) / "model.json").exists()]
     if not missing:
         return
-    stage = "trial models trained"
+    stage = "trained trial models"
     report(stage, 0, len(missing))
     if workers <= 1 or len(missing) == 1 or config.executor != "local":
         for done, (method, trial) in enumerate(missing, 1):

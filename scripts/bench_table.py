@@ -1,0 +1,116 @@
+"""The README's five-trial tables beside the paper's, from the committed bench results in results/bench/.
+
+Run: .venv/bin/python scripts/bench_table.py [results/bench/<file>.json ...] [--plots]   (default: every file there)
+
+``--plots`` also draws each file as results/bench/<file>.png: per method and variant of the paper,
+our mean ± std over trials beside the paper's.
+
+Each file is what `oodmon bench ... --results FILE` wrote (its command is inside, and in
+results/bench/README.md). One row per variant the paper's appendix reports for a method: our
+per-step AUROC, mean ± std over the trials where the agent failed on that variant (the paper's
+protocol scores only failing variants), beside the paper's five trials; "does not fail" where none
+of our trials failed on it. Then the best mean per task against the paper's best mean, and per
+method how many of the paper's variants we meet (mean >= the paper's, and std <= the paper's).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from oodmon.bench.config import PAPER_METHOD, paper_label  # noqa: E402
+from oodmon.paper import paper_auc_per_trial  # noqa: E402
+
+RESULTS = ROOT / "results" / "bench"
+
+
+def table(path: Path) -> str:
+    data = json.loads(path.read_text())
+    config = data["config"]
+    task, detector = config["task"], "spread"
+    paper = paper_auc_per_trial()[task]
+    rows = {(r["method"], paper_label(task, r["method"], r["variant"])): r for r in data["rows"]
+            if r["detector"] == detector}
+    lines = [f"`{data['command']}` ({config['trials']} trials, score `{config['score']}`):", "",
+             "| method | variant | ours: AUROC mean ± std (trials failing) | paper: mean ± std | AUPR / FPR@95 (ours) "
+             "| mean >= paper | std <= paper |",
+             "|---|---|---|---|---|---|---|"]
+    met: dict[str, list[int]] = {}
+    best_ours: tuple[float, str] = (-1.0, "")
+    best_paper: tuple[float, str] = (-1.0, "")
+    for method in config["methods"]:
+        for label, trials in paper.get(PAPER_METHOD[method], {}).items():
+            theirs = f"{np.mean(trials):.3f} ± {np.std(trials):.3f}"
+            best_paper = max(best_paper, (float(np.mean(trials)), f"{method} {label}"))
+            counts = met.setdefault(method, [0, 0, 0])
+            counts[2] += 1
+            row = rows.get((method, label))
+            if row is None:
+                lines.append(f"| {method} | {label} | does not fail (0/{config['trials']}) | {theirs} | | no | |")
+                continue
+            mean_ok, std_ok = row["mean"] >= np.mean(trials), row["std"] <= np.std(trials)
+            counts[0] += mean_ok
+            counts[1] += mean_ok and std_ok
+            best_ours = max(best_ours, (row["mean"], f"{method} {label}"))
+            lines.append(f"| {method} | {label} | {row['mean']:.3f} ± {row['std']:.3f} ({len(row['aurocs'])}) | "
+                         f"{theirs} | {row['aupr_mean']:.3f} / {row['fpr95_mean']:.3f} | "
+                         f"{'yes' if mean_ok else 'no'} | {'yes' if std_ok else 'no'} |")
+    lines += ["", f"Best mean AUROC: ours {best_ours[0]:.3f} ({best_ours[1]}), the paper's {best_paper[0]:.3f} "
+                  f"({best_paper[1]}). Variants of the paper where our mean reaches the paper's (and our std is at most "
+                  "the paper's): " + ", ".join(f"{m} {c[0]}/{c[2]} ({c[1]}/{c[2]})" for m, c in met.items()) + "."]
+    return "\n".join(lines)
+
+
+def plot(path: Path) -> Path:
+    """Our AUROC (mean ± std over trials) beside the paper's, per method and variant of the paper."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from oodmon.outputs import save_figure
+
+    data = json.loads(path.read_text())
+    config = data["config"]
+    task = config["task"]
+    paper = paper_auc_per_trial()[task]
+    rows = {(r["method"], paper_label(task, r["method"], r["variant"])): r for r in data["rows"]
+            if r["detector"] == "spread"}
+    methods = [m for m in config["methods"] if paper.get(PAPER_METHOD[m])]
+    fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 3.6), sharey=True, squeeze=False)
+    for ax, method in zip(axes[0], methods):
+        labels = list(paper[PAPER_METHOD[method]])
+        x = np.arange(len(labels))
+        theirs = [paper[PAPER_METHOD[method]][label] for label in labels]
+        ax.errorbar(x - 0.12, [np.mean(t) for t in theirs], [np.std(t) for t in theirs], fmt="s", color="grey",
+                    capsize=3, label="paper (5 trials)")
+        ours = [rows.get((method, label)) for label in labels]
+        shown = [i for i, r in enumerate(ours) if r is not None]
+        ax.errorbar(x[shown] + 0.12, [ours[i]["mean"] for i in shown], [ours[i]["std"] for i in shown], fmt="o",
+                    color="tab:blue", capsize=3, label=f"ours ({config['trials']} trials)")
+        for i, r in enumerate(ours):
+            if r is None:
+                ax.annotate("ours: does\nnot fail", (x[i], 0.22), ha="center", fontsize=7, color="tab:blue")
+        ax.axhline(0.5, color="black", lw=0.6, ls=":")
+        ax.set_xticks(x, [label.split(" ")[0] for label in labels], rotation=45, ha="right", fontsize=8)
+        ax.set_title(f"{task} {method}", fontsize=10)
+        ax.set_ylim(0, 1.02)
+        ax.set_xlim(-0.6, len(labels) - 0.4)
+    axes[0][0].set_ylabel(f"per-step AUROC ({config['score']})")
+    axes[0][-1].legend(fontsize=7, loc="lower right")
+    return save_figure(fig, path.with_suffix(".png"))
+
+
+if __name__ == "__main__":
+    arguments = [a for a in sys.argv[1:] if a != "--plots"]
+    paths = [Path(p) for p in arguments] or sorted(RESULTS.glob("*.json"))
+    for path in paths:
+        print(f"{path.stem}:\n\n{table(path)}\n")
+        if "--plots" in sys.argv[1:]:
+            print(f"wrote {plot(path)}", file=sys.stderr)
