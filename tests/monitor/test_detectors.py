@@ -257,3 +257,28 @@ def test_dynamics_scores_the_mean_of_its_last_window_transitions(fitted, id_traj
     for _ in range(2):  # a second episode starts afresh
         got = trajectory_scores(DetectorSet([dynamics]), trajectory)["dynamics"]
         np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-4)
+
+
+def test_the_dynamics_floor_of_the_log_variance_is_kept_and_used_by_both_paths(id_trajectories, tmp_path):
+    """min_logvar: saved and loaded with the detector (files without it read as the old -12), used by
+    the monitor's one-step path as by the batch path, refused outside [-30, 2); a higher floor caps
+    the surprise a near-exact transition can cause."""
+    from oodmon.monitor.detectors import MIN_LOGVAR
+
+    assert MIN_LOGVAR["pendulum"] == -6.0 and "cartpole" not in MIN_LOGVAR
+    low = DynamicsDetector(2, epochs=5, seed=0).fit(id_trajectories[:3])
+    high = DynamicsDetector(2, epochs=5, seed=0, min_logvar=-2.0).fit(id_trajectories[:3])
+    t = id_trajectories[4]
+    batch = high.score_transitions(t.observations[:-1], t.actions, t.observations[1:])
+    one_by_one = [high._nll_one(t.observations[k], t.actions[k], t.observations[k + 1]) for k in range(len(t.actions))]
+    np.testing.assert_allclose(one_by_one, batch, rtol=1e-4, atol=1e-4)
+    assert batch.max() < low.score_transitions(t.observations[:-1], t.actions, t.observations[1:]).max()
+    DetectorSet([high]).save(tmp_path / "d")
+    loaded = DetectorSet.load(tmp_path / "d")["dynamics"]
+    assert loaded.min_logvar == -2.0
+    np.testing.assert_array_equal(loaded.score_transitions(t.observations[:-1], t.actions, t.observations[1:]), batch)
+    config = {k: v for k, v in low.config().items() if k != "min_logvar"}  # as files before the setting
+    assert DynamicsDetector.from_state(config, low.tensors()).min_logvar == -12.0
+    for bad in (2.0, -31.0, float("nan"), "low", True):
+        with pytest.raises(InvalidParameterError, match="min_logvar"):
+            DynamicsDetector(2, min_logvar=bad)

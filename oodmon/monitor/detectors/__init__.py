@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
-from oodmon.monitor.detectors.dynamics import DynamicsDetector
+from oodmon.monitor.detectors.dynamics import MIN_LOGVAR, DynamicsDetector
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
 from oodmon.monitor.detectors.fitting import (
@@ -24,7 +24,7 @@ from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 
 __all__ = [
-    "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DETECTORS", "CombinedDetector", "Detector", "DetectorSet", "DynamicsDetector",
+    "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DETECTORS", "MIN_LOGVAR", "CombinedDetector", "Detector", "DetectorSet", "DynamicsDetector",
     "FeaturesDetector", "FramesDetector", "SpreadDetector", "StepContext", "Trajectory", "best_detector", "collect", "default_detectors", "detectors_for",
     "fit_agent_detectors", "fit_detectors", "trajectory_scores",
 ]

@@ -47,10 +47,14 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory
 from oodmon.validation import is_whole
 
-__all__ = ["DynamicsDetector"]
+__all__ = ["MIN_LOGVAR", "DynamicsDetector"]
 
 _KINDS = ("pedm", "nll")
-_MIN_LOGVAR, _MAX_LOGVAR = -12.0, 2.0
+_MIN_LOGVAR, _MAX_LOGVAR = -12.0, 2.0  # soft bounds of the predicted log-variance (the lower one: min_logvar)
+
+#: ``min_logvar`` per task where it is not the default -12 (chosen by measurement, see the README's
+#: detector section); fitting an agent's detectors uses its task's.
+MIN_LOGVAR: dict[str, float] = {"pendulum": -6.0}
 
 
 class DynamicsDetector(Detector):
@@ -68,6 +72,10 @@ class DynamicsDetector(Detector):
             transitions (1: each transition's own).
         batch_size, lr: Adam's minibatch and learning rate.
         neutral: the score of an episode's first step (set by :meth:`fit`).
+        min_logvar: the soft floor of each predicted (normalised) log-variance. Without sensor
+            noise a simulator's transitions are exact and the model learns variances near the
+            floor, so the few ID steps it predicts slightly wrong look very surprising; a higher
+            floor caps that surprise (see :data:`MIN_LOGVAR` for the tasks' values).
         seed: seeds fitting and the draws: the same seed gives the same scores.
     """
 
@@ -76,7 +84,7 @@ class DynamicsDetector(Detector):
 
     def __init__(self, n_actions: int | None = None, *, kind: str = "nll", members: int = 5, hidden: int = 64,
                  n_draws: int = 4, epochs: int = 30, batch_size: int = 512, lr: float = 2e-3, window: int = 20,
-                 seed: int = 0, neutral: float = 0.0) -> None:
+                 seed: int = 0, neutral: float = 0.0, min_logvar: float = _MIN_LOGVAR) -> None:
         if kind not in _KINDS:
             raise InvalidParameterError(f"kind={kind!r} is not allowed; use one of {', '.join(_KINDS)}")
         for label, value in (("members", members), ("hidden", hidden), ("n_draws", n_draws), ("epochs", epochs),
@@ -86,6 +94,10 @@ class DynamicsDetector(Detector):
         if n_actions is not None and not is_whole(n_actions, 2):
             raise InvalidParameterError(f"n_actions={n_actions!r} is not allowed; give the number (>= 2) of "
                                         "discrete actions, or None for continuous actions")
+        if not isinstance(min_logvar, (int, float)) or isinstance(min_logvar, bool) or not (
+                -30.0 <= min_logvar < _MAX_LOGVAR):
+            raise InvalidParameterError(f"min_logvar={min_logvar!r} is not allowed; give a number in [-30, {_MAX_LOGVAR:g})")
+        self.min_logvar = float(min_logvar)
         self.n_actions, self.kind, self.members, self.hidden = n_actions, kind, members, hidden
         self.n_draws, self.epochs, self.seed = n_draws, epochs, seed
         self.batch_size, self.lr, self.window, self.neutral = batch_size, lr, window, float(neutral)
@@ -165,7 +177,7 @@ class DynamicsDetector(Detector):
             order = boot[:, torch.randperm(n, generator=generator)]
             for start in range(0, n, batch):
                 index = order[:, start:start + batch]
-                mean, logvar = _forward_torch(params, xs[index])
+                mean, logvar = _forward_torch(params, xs[index], self.min_logvar)
                 loss = (((mean - ys[index]) ** 2) * torch.exp(-logvar) + logvar).mean()
                 optimiser.zero_grad()
                 loss.backward()
@@ -210,7 +222,7 @@ class DynamicsDetector(Detector):
         if obs.ndim != 2 or obs.shape[1] != self.obs_dim:
             raise ConfigError(f"this dynamics detector was fitted on observations of {self.obs_dim} numbers; got "
                               f"shape {obs.shape[1:]}")
-        mean, logvar = _forward_numpy(self._weights, self._inputs(obs, actions))  # (E, B, d)
+        mean, logvar = _forward_numpy(self._weights, self._inputs(obs, actions), self.min_logvar)  # (E, B, d)
         target = ((np.asarray(next_obs, dtype=np.float32) - obs) - self._norm["delta_mean"]) / self._norm["delta_std"]
         if self.kind == "nll":
             per_member = -0.5 * (((target - mean) ** 2) * np.exp(-logvar) + logvar + math.log(2 * math.pi)).sum(-1)
@@ -226,7 +238,7 @@ class DynamicsDetector(Detector):
     def config(self) -> dict[str, Any]:
         return {"n_actions": self.n_actions, "kind": self.kind, "members": self.members, "hidden": self.hidden,
                 "n_draws": self.n_draws, "epochs": self.epochs, "batch_size": self.batch_size, "lr": self.lr,
-                "window": self.window, "seed": self.seed, "neutral": self.neutral}
+                "window": self.window, "seed": self.seed, "neutral": self.neutral, "min_logvar": self.min_logvar}
 
     def tensors(self) -> dict[str, np.ndarray]:
         self.check_fitted()
@@ -275,6 +287,7 @@ class _FastNll:
         self.d = d
         self.const = 0.5 * math.log(2 * math.pi) * d
         self.inv_members = 1.0 / members
+        self.min_logvar = detector.min_logvar
 
     def __call__(self, prev_obs: Any, prev_action: Any, obs: Any) -> float:
         prev = np.asarray(prev_obs, dtype=np.float32)
@@ -294,7 +307,7 @@ class _FastNll:
         # that the bounds are flat to float precision): log1p(exp(.)) is 5x cheaper than logaddexp.
         raw = np.minimum(np.maximum(out[:, d:], -30.0), 30.0)  # np.clip costs 3x these two
         logvar = _MAX_LOGVAR - np.log1p(np.exp(_MAX_LOGVAR - raw))
-        logvar = _MIN_LOGVAR + np.log1p(np.exp(logvar - _MIN_LOGVAR))
+        logvar = self.min_logvar + np.log1p(np.exp(logvar - self.min_logvar))
         error = np.asarray(obs, dtype=np.float32) - prev
         error = error * self.delta_scale - self.delta_offset - mean
         per_member = ((error * error * np.exp(-logvar) + logvar).sum(axis=1) * -0.5).tolist()  # E numbers
@@ -309,7 +322,7 @@ def _split(out):
     return mean, raw
 
 
-def _forward_torch(params, x):
+def _forward_torch(params, x, min_logvar: float = _MIN_LOGVAR):
     import torch
     import torch.nn.functional as F
 
@@ -318,18 +331,18 @@ def _forward_torch(params, x):
         h = torch.nn.functional.silu(torch.baddbmm(params[i + 1], h, params[i]))
     mean, raw = _split(torch.baddbmm(params[-1], h, params[-2]))
     logvar = _MAX_LOGVAR - F.softplus(_MAX_LOGVAR - raw)  # soft bounds, as PETS
-    return mean, _MIN_LOGVAR + F.softplus(logvar - _MIN_LOGVAR)
+    return mean, min_logvar + F.softplus(logvar - min_logvar)
 
 
 def _softplus(x: np.ndarray) -> np.ndarray:
     return np.logaddexp(0.0, x)
 
 
-def _forward_numpy(weights, x: np.ndarray):
+def _forward_numpy(weights, x: np.ndarray, min_logvar: float = _MIN_LOGVAR):
     h = np.broadcast_to(x, (weights[0][0].shape[0], *x.shape))
     for w, b in weights[:-1]:
         z = np.matmul(h, w) + b
         h = z / (1.0 + np.exp(-z))  # SiLU
     mean, raw = _split(np.matmul(h, weights[-1][0]) + weights[-1][1])
     logvar = _MAX_LOGVAR - _softplus(_MAX_LOGVAR - raw)
-    return mean, _MIN_LOGVAR + _softplus(logvar - _MIN_LOGVAR)
+    return mean, min_logvar + _softplus(logvar - min_logvar)

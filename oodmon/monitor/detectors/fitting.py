@@ -21,7 +21,7 @@ import numpy as np
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
-from oodmon.monitor.detectors.dynamics import DynamicsDetector
+from oodmon.monitor.detectors.dynamics import MIN_LOGVAR, DynamicsDetector
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
@@ -171,7 +171,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     fit, held_out = trajectories[:n_fit], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []
     if "dynamics" in detectors:
-        parts.append(DynamicsDetector(n_actions, seed=seed).fit(fit))
+        floor = {"min_logvar": MIN_LOGVAR[task or metadata.get("task")]} if (task or metadata.get("task")) in MIN_LOGVAR else {}
+        parts.append(DynamicsDetector(n_actions, seed=seed, **floor).fit(fit))
     if "features" in detectors:
         parts.append(FeaturesDetector(n_actions).fit(fit))
     if "frames" in detectors:
