@@ -782,11 +782,15 @@ def _bench(args: argparse.Namespace) -> int:
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
                          all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean)
     config.variant_list()  # refuse bad specs before any work
-    from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, load_bench_result
+    from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result
     from oodmon.outputs import check_output_dir, check_output_file
 
     check_output_dir(args.out, parameter="--out")
+    if args.tolerance is not None and not args.baseline:
+        raise ConfigError("--tolerance is the allowed fall against --baseline FILE; give the baseline too")
     baseline = load_bench_result(args.baseline) if args.baseline else None  # a bad baseline fails before hours of work
+    if baseline is not None:
+        check_same_settings(config.what_made_the_numbers(), baseline, args.baseline)
     if args.results:
         check_output_file(args.results, parameter="--results", inputs=[("--baseline", args.baseline)])
     with _progress() as report:

@@ -321,6 +321,11 @@ def test_bench_results_are_data_and_a_later_bench_is_checked_against_them(tmp_pa
     (tmp_path / "other.json").write_text(json.dumps(other))
     refused = run_cli(*common, "--baseline", str(tmp_path / "other.json"))
     assert refused.returncode == 2 and "far 0.05 there, 0.1 here" in refused.stderr
+    elsewhere = [a if a != str(tmp_path / "bench") else str(tmp_path / "fresh") for a in common]
+    refused = run_cli(*elsewhere, "--baseline", str(tmp_path / "other.json"))
+    assert refused.returncode == 2 and not (tmp_path / "fresh" / "logs").exists()  # refused before any work
+    no_baseline = run_cli(*common, "--tolerance", "0.1")
+    assert no_baseline.returncode == 2 and "--tolerance" in no_baseline.stderr
     not_a_result = run_cli(*common, "--baseline", str(tmp_path / "results"))
     assert not_a_result.returncode == 2 and "is a folder" in not_a_result.stderr
 

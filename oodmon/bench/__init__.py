@@ -33,7 +33,7 @@ Your own stable-baselines3 models (``sb3=(paths...)``, ``env_id``) are benched a
 
 from __future__ import annotations
 
-from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, bench_metrics, load_bench_result
+from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, bench_metrics, check_same_settings, load_bench_result
 from oodmon.bench.cache import Sb3Models
 from oodmon.bench.cells import episode_onset
 from oodmon.bench.config import ONSETS, PAPER_METHOD, PROTOCOLS, BenchConfig, BenchResult, Row, paper_label
@@ -42,5 +42,5 @@ from oodmon.bench.report import (alarms_per_variant, best_per_method, paper_only
 from oodmon.bench.run import run_bench
 
 __all__ = ["BASELINE_TOLERANCE", "ONSETS", "PAPER_METHOD", "PROTOCOLS", "BenchConfig", "BenchResult", "Row", "Sb3Models", "alarms_per_variant",
-           "bench_falls", "bench_metrics", "best_per_method", "episode_onset", "load_bench_result", "paper_label", "paper_only_variants", "print_monitor_report",
+           "bench_falls", "bench_metrics", "best_per_method", "check_same_settings", "episode_onset", "load_bench_result", "paper_label", "paper_only_variants", "print_monitor_report",
            "print_paper_report", "run_bench"]

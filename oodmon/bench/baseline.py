@@ -17,7 +17,7 @@ from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
 from oodmon.replay.check import compare_metrics
 
-__all__ = ["BASELINE_TOLERANCE", "bench_falls", "bench_metrics", "load_bench_result"]
+__all__ = ["BASELINE_TOLERANCE", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result"]
 
 #: The default allowed fall (AUROC, AUPR, rates) and relative rise (delays).
 BASELINE_TOLERANCE = 0.02
@@ -54,6 +54,21 @@ def bench_metrics(result: dict) -> dict[str, dict[str, float | None]]:
     return metrics
 
 
+def check_same_settings(ours: dict, baseline: dict, baseline_name: str = "the baseline") -> None:
+    """Refuse a baseline made with other settings than ``ours`` (a config's ``what_made_the_numbers``):
+    before a bench starts, not after its hours of work.
+
+    Raises:
+        ConfigError: naming each setting that differs, with both values.
+    """
+    theirs = baseline["config"]
+    differing = sorted(k for k in set(ours) | set(theirs) if k not in _FREE and ours.get(k) != theirs.get(k))
+    if differing:
+        raise ConfigError(f"{baseline_name} was made with other settings: "
+                          + "; ".join(f"{k} {theirs.get(k)!r} there, {ours.get(k)!r} here" for k in differing)
+                          + ". Run the bench as the baseline's command says, or compare with another baseline")
+
+
 def bench_falls(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERANCE, *,
                 baseline_name: str = "the baseline") -> list[str]:
     """One line per figure of ``baseline`` that ``result`` lacks or that moved the wrong way by
@@ -62,12 +77,7 @@ def bench_falls(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERA
     Raises:
         ConfigError: the two were made with different settings.
     """
-    ours, theirs = result.get("config", {}), baseline["config"]
-    differing = sorted(k for k in set(ours) | set(theirs) if k not in _FREE and ours.get(k) != theirs.get(k))
-    if differing:
-        raise ConfigError(f"{baseline_name} was made with other settings: "
-                          + "; ".join(f"{k} {theirs.get(k)!r} there, {ours.get(k)!r} here" for k in differing)
-                          + ". Run the bench as the baseline's command says, or compare with another baseline")
+    check_same_settings(result.get("config", {}), baseline, baseline_name)
     expected = {key: {name: value for name, value in row.items() if value is not None}
                 for key, row in bench_metrics(baseline).items()}
     return compare_metrics(bench_metrics(result), expected, tolerance, what="this bench",
