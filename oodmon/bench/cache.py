@@ -73,13 +73,18 @@ def _refuse_to_train_for_hours(config: BenchConfig, method: str, trial: int) -> 
     )
 
 
-def _ensure_model(config: BenchConfig, method: str, trial: int) -> Path | Sb3Models:
+def _ensure_model(config: BenchConfig, method: str, trial: int,
+                  on_progress: Callable[[str, int, int], None] | None = None) -> Path | Sb3Models:
+    """The (method, trial)'s model: the SB3 files, the shipped agent, or the cached (or now trained)
+    trial model. ``on_progress(stage, done, total)`` follows a training, its stages named by the trial."""
     if config.sb3:
         return Sb3Models(tuple(str(Path(p).resolve()) for p in config.sb3), config.env_id, config.mean)
     path = _ensure_model_dir_current(config, method, trial)
     if not (path / "model.json").exists():
         _refuse_to_train_for_hours(config, method, trial)
-        train(config.task, method, path, seed=trial, total_steps=config.train_steps)
+        report = None if on_progress is None else (
+            lambda stage, done, total: on_progress(f"{method} trial {trial}: {stage}", done, total))
+        train(config.task, method, path, seed=trial, total_steps=config.train_steps, on_progress=report)
     return path
 
 

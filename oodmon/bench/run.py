@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import multiprocessing
 import os
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 from oodmon import seeds
@@ -30,14 +31,31 @@ def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], wo
     report(stage, 0, len(missing))
     if workers <= 1 or len(missing) == 1 or config.executor != "local":
         for done, (method, trial) in enumerate(missing, 1):
-            _ensure_model(config, method, trial)
+            _ensure_model(config, method, trial, report)
             report(stage, done, len(missing))
         return
-    with ProcessPoolExecutor(max_workers=min(workers, len(missing))) as pool:
-        futures = [pool.submit(_ensure_model, config, method, trial) for method, trial in missing]
-        for done, future in enumerate(as_completed(futures), 1):
-            future.result()
-            report(stage, done, len(missing))
+    with multiprocessing.Manager() as manager, ProcessPoolExecutor(max_workers=min(workers, len(missing))) as pool:
+        queue = manager.Queue()  # each training's own progress, relayed here as it comes
+        futures = [pool.submit(_ensure_model, config, method, trial, _Relay(queue)) for method, trial in missing]
+        pending, done = set(futures), 0
+        while pending:
+            finished, pending = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
+            while not queue.empty():
+                report(*queue.get())
+            for future in finished:
+                future.result()
+                done += 1
+                report(stage, done, len(missing))
+
+
+class _Relay:
+    """A training's ``on_progress`` in a worker process: puts each report on the bench's queue."""
+
+    def __init__(self, queue) -> None:
+        self.queue = queue
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        self.queue.put((stage, done, total))
 
 
 def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> BenchResult:
