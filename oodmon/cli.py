@@ -57,6 +57,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 130
 
 
+def _command_line(args: argparse.Namespace) -> str:
+    """The command as typed (what a model or a bench result records of what made it)."""
+    return "oodmon " + shlex.join(args.argv)
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Warnings in the terminal as one line each, without the source line Python would show."""
     print(f"oodmon: warning: {message}", file=sys.stderr)
@@ -472,7 +477,6 @@ def _train(args: argparse.Namespace) -> int:
     from oodmon.outputs import check_output_dir
 
     check_output_dir(args.out, parameter="--out")
-    command = "oodmon " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("oodmon") else ""
     with _progress(transient=False) as report:
         label = f"{args.task}/{args.method}"
         total = args.steps or recipe_for(args.task, args.method).total_steps
@@ -484,7 +488,7 @@ def _train(args: argparse.Namespace) -> int:
                       on_progress=lambda stage, done, of: report(f"{label} {stage}", done, of),
                       on_evaluation=evaluated,
                       export_only=args.export_only, load_pickles=args.unsafe_load_pickles,
-                      command=command or f"oodmon train --task {args.task} --method {args.method} --seed {args.seed}")
+                      command=_command_line(args))
     meta = agent.metadata
     Console(soft_wrap=True).print(
         f"{args.task}/{args.method}: id_return_mean {meta['id_return_mean']} over {meta['id_episodes']} episodes; "
@@ -795,7 +799,7 @@ def _bench(args: argparse.Namespace) -> int:
         check_output_file(args.results, parameter="--results", inputs=[("--baseline", args.baseline)])
     with _progress() as report:
         result = run_bench(config, on_progress=report)
-    data = result.to_json(config, command="oodmon " + shlex.join(args.argv))
+    data = result.to_json(config, command=_command_line(args))
     if args.results:
         Path(args.results).write_text(json.dumps(data, indent=1) + "\n")
         print(f"wrote {args.results}", file=sys.stderr)

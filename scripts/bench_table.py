@@ -30,13 +30,19 @@ from oodmon.paper import paper_auc_per_trial  # noqa: E402
 RESULTS = ROOT / "results" / "bench"
 
 
-def table(path: Path) -> str:
+def _read(path: Path) -> tuple[dict, dict[tuple[str, str | None], dict]]:
+    """The result, and its spread rows by (method, the paper's label of the variant)."""
     data = json.loads(path.read_text())
-    config = data["config"]
-    task, detector = config["task"], "spread"
-    paper = paper_auc_per_trial()[task]
+    task = data["config"]["task"]
     rows = {(r["method"], paper_label(task, r["method"], r["variant"])): r for r in data["rows"]
-            if r["detector"] == detector}
+            if r["detector"] == "spread"}
+    return data, rows
+
+
+def table(path: Path) -> str:
+    data, rows = _read(path)
+    config = data["config"]
+    paper = paper_auc_per_trial()[config["task"]]
     lines = [f"`{data['command']}` ({config['trials']} trials, score `{config['score']}`):", "",
              "| method | variant | ours: AUROC mean ± std (trials failing) | paper: mean ± std | AUPR / FPR@95 (ours) "
              "| mean >= paper | std <= paper |",
@@ -76,12 +82,10 @@ def plot(path: Path) -> Path:
 
     from oodmon.outputs import save_figure
 
-    data = json.loads(path.read_text())
+    data, rows = _read(path)
     config = data["config"]
     task = config["task"]
     paper = paper_auc_per_trial()[task]
-    rows = {(r["method"], paper_label(task, r["method"], r["variant"])): r for r in data["rows"]
-            if r["detector"] == "spread"}
     methods = [m for m in config["methods"] if paper.get(PAPER_METHOD[m])]
     fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 3.6), sharey=True, squeeze=False)
     for ax, method in zip(axes[0], methods):

@@ -17,24 +17,24 @@ from oodmon.agents.policies import BootstrappedDQN, UncertainDQNPolicy, Uncertai
 from oodmon.agents.recipes import Recipe
 from oodmon.envs.grid import ENV_IDS
 
-__all__ = ["algorithm_class", "architecture", "new_model", "training_env"]
+__all__ = ["algorithm_class", "architecture", "new_model", "recipe_architecture", "training_env"]
+
+
+def recipe_architecture(recipe: Recipe) -> dict[str, Any]:
+    """The fields of an :class:`Architecture` that the recipe decides (all but the env's shapes)."""
+    ensemble = recipe.method == "ensemble"
+    return dict(algorithm=recipe.algorithm, cnn=recipe.cnn, net_arch=recipe.net_arch,
+                stochastic=None if ensemble else recipe.method, drop_p=recipe.drop_p, last_only=recipe.last_only,
+                n_members=recipe.n_members if ensemble else 1, shared_torso=ensemble and recipe.shared_torso)
 
 
 def architecture(recipe: Recipe, env: gymnasium.Env) -> Architecture:
     """The architecture record (see ``networks``) of a recipe's agent in ``env``."""
     discrete = isinstance(env.action_space, gymnasium.spaces.Discrete)
-    ensemble = recipe.method == "ensemble"
     return Architecture(
-        algorithm=recipe.algorithm,
         obs_shape=env.observation_space.shape,
         n_outputs=int(env.action_space.n) if discrete else int(np.prod(env.action_space.shape)),
-        cnn=recipe.cnn,
-        net_arch=recipe.net_arch,
-        stochastic=None if ensemble else recipe.method,
-        drop_p=recipe.drop_p,
-        last_only=recipe.last_only,
-        n_members=recipe.n_members if ensemble else 1,
-        shared_torso=ensemble and recipe.shared_torso,
+        **recipe_architecture(recipe),
     )
 
 

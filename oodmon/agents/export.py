@@ -106,15 +106,12 @@ def write_agent(root: Path, recipe: Recipe, runs: list[Run], models: list[BaseAl
         "task": task, "method": method, "algorithm": recipe.algorithm, "architecture": arch.to_json(),
         "ensemble": ("bootstrapped heads on a shared torso" if arch.shared_torso else "independent members")
         if method == "ensemble" else None,
-        "n_members": arch.n_members, "drop_p": None if method == "ensemble" else recipe.drop_p,
-        "n_samples": arch.n_members if method == "ensemble" else recipe.n_samples,
+        "n_members": arch.n_members, **_recipe_metadata(recipe),
         "seed": seed, "training_steps": [int(m.num_timesteps) for m in models],
         "wall_time_s": round(sum(run.state["wall_time_s"] for run in runs), 1),
         "selected_checkpoints": [selection["chosen"]] if selection else [run.state.get("best") for run in runs],
         "checkpoint_selection": selection and {k: v for k, v in selection.items() if k != "chosen"},
         "training_complete": all(run.finished for run in runs),
-        "recipe_steps": recipe.total_steps,
-        "hyperparams": {k: v for k, v in recipe.hyperparams.items() if isinstance(v, (int, float, str, bool))},
         "recipe_notes": recipe.notes, "versions": library_versions(), "command": command,
         "id_return_mean": round(float(np.mean(id_returns)), 2), "id_episodes": len(id_returns),
         "id_returns": [round(float(r), 2) for r in id_returns],
@@ -123,25 +120,32 @@ def write_agent(root: Path, recipe: Recipe, runs: list[Run], models: list[BaseAl
     save_modules(root, modules, metadata, half=recipe.cnn)
 
 
+def _recipe_metadata(recipe: Recipe) -> dict[str, Any]:
+    """What a saved agent's metadata records of its recipe beyond the architecture."""
+    ensemble = recipe.method == "ensemble"
+    return {"drop_p": None if ensemble else recipe.drop_p,
+            "n_samples": recipe.n_members if ensemble else recipe.n_samples, "recipe_steps": recipe.total_steps,
+            "hyperparams": {k: v for k, v in recipe.hyperparams.items() if isinstance(v, (int, float, str, bool))}}
+
+
 def recipe_differences(metadata: dict[str, Any], recipe: Recipe) -> list[str]:
     """How the recipe a saved agent was trained by (as its ``model.json`` records it) differs from
     ``recipe``: one ``"name: saved -> recipe"`` per difference, empty when they agree. Compares what
     the metadata records: the network (widths, stochastic layers, drop probability, members), the
     scalar hyperparameters, the training steps and the MC samples."""
-    arch = metadata.get("architecture", {})
-    ensemble = recipe.method == "ensemble"
-    wanted = {
-        "net_arch": list(recipe.net_arch), "last_only": recipe.last_only, "shared_torso": ensemble and recipe.shared_torso,
-        "n_members": recipe.n_members if ensemble else 1, "drop_p": None if ensemble else recipe.drop_p,
-        "n_samples": recipe.n_members if ensemble else recipe.n_samples, "recipe_steps": recipe.total_steps,
-    }
-    saved = {"net_arch": arch.get("net_arch"), "last_only": arch.get("last_only"),
-             "shared_torso": arch.get("shared_torso"), "n_members": arch.get("n_members"),
-             "drop_p": metadata.get("drop_p"), "n_samples": metadata.get("n_samples"),
-             "recipe_steps": metadata.get("recipe_steps", recipe.total_steps)}  # older agents did not record it
+    from oodmon.agents.algorithms import recipe_architecture
+
+    arch, network = metadata.get("architecture", {}), recipe_architecture(recipe)
+    wanted = {name: network[name] for name in ("last_only", "shared_torso", "n_members")}
+    wanted["net_arch"] = list(network["net_arch"])
+    saved = {name: arch.get(name) for name in wanted}
+    recorded = _recipe_metadata(recipe)
+    hyper = recorded.pop("hyperparams")
+    wanted |= recorded
+    saved |= {name: metadata.get(name) for name in recorded}
+    saved["recipe_steps"] = metadata.get("recipe_steps", recipe.total_steps)  # older agents did not record it
     differences = [f"{name}: {saved[name]!r} -> {value!r}" for name, value in wanted.items() if saved[name] != value]
-    hyper = {k: v for k, v in recipe.hyperparams.items() if isinstance(v, (int, float, str, bool))}
-    recorded = metadata.get("hyperparams", {})
-    differences += [f"{name}: {recorded.get(name)!r} -> {hyper.get(name)!r}" for name in sorted(set(hyper) | set(recorded))
-                    if recorded.get(name) != hyper.get(name)]
+    before = metadata.get("hyperparams", {})
+    differences += [f"{name}: {before.get(name)!r} -> {hyper.get(name)!r}" for name in sorted(set(hyper) | set(before))
+                    if before.get(name) != hyper.get(name)]
     return differences

@@ -47,7 +47,7 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory
 from oodmon.validation import is_whole
 
-__all__ = ["MIN_LOGVAR", "DynamicsDetector"]
+__all__ = ["MIN_LOGVAR", "DynamicsDetector", "min_logvar_for"]
 
 _KINDS = ("pedm", "nll")
 _MIN_LOGVAR, _MAX_LOGVAR = -12.0, 2.0  # soft bounds of the predicted log-variance (the lower one: min_logvar)
@@ -55,6 +55,16 @@ _MIN_LOGVAR, _MAX_LOGVAR = -12.0, 2.0  # soft bounds of the predicted log-varian
 #: ``min_logvar`` per task where it is not the default -12 (chosen by measurement, see the README's
 #: detector section); fitting an agent's detectors uses its task's.
 MIN_LOGVAR: dict[str, float] = {"pendulum": -6.0}
+
+
+def min_logvar_for(task: str | None) -> float:
+    """The floor of the predicted log-variance for ``task``'s dynamics detector.
+
+    Example:
+        >>> min_logvar_for("pendulum"), min_logvar_for("cartpole"), min_logvar_for(None)
+        (-6.0, -12.0, -12.0)
+    """
+    return MIN_LOGVAR.get(task or "", _MIN_LOGVAR)
 
 
 class DynamicsDetector(Detector):

@@ -21,7 +21,7 @@ import numpy as np
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
-from oodmon.monitor.detectors.dynamics import MIN_LOGVAR, DynamicsDetector
+from oodmon.monitor.detectors.dynamics import DynamicsDetector, min_logvar_for
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
@@ -160,6 +160,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
                                     "ID episodes (two thirds fit, one third ranks)")
     estimator, _, metadata = policy_parts(policy)
+    task = task or metadata.get("task")
     if "features" in detectors and estimator is None:
         raise ConfigError("the features detector needs the policy's features; a plain policy has none")
     if "frames" in detectors and len(env.observation_space.shape or ()) < 2:
@@ -171,14 +172,13 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     fit, held_out = trajectories[:n_fit], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []
     if "dynamics" in detectors:
-        floor = {"min_logvar": MIN_LOGVAR[task or metadata.get("task")]} if (task or metadata.get("task")) in MIN_LOGVAR else {}
-        parts.append(DynamicsDetector(n_actions, seed=seed, **floor).fit(fit))
+        parts.append(DynamicsDetector(n_actions, seed=seed, min_logvar=min_logvar_for(task)).fit(fit))
     if "features" in detectors:
         parts.append(FeaturesDetector(n_actions).fit(fit))
     if "frames" in detectors:
         parts.append(FramesDetector().fit(fit))
     obs_shape = list(np.shape(trajectories[0].observations)[1:])
-    fitted_for = {"task": task or metadata.get("task"), "obs_shape": obs_shape, "policy_hash": policy_hash,
+    fitted_for = {"task": task, "obs_shape": obs_shape, "policy_hash": policy_hash,
                   "episodes": episodes, "seed": seed, "obs_noise": obs_noise}
     result = DetectorSet(parts, fitted_for=fitted_for)
     if "combined" in detectors:
