@@ -9,6 +9,7 @@ from torch import nn
 
 from oodmon.agents.estimators import EnsembleEstimator, MCEstimator
 from oodmon.agents.layers import DropConnectLinear, add_dropout, mc_sampling, to_dropconnect
+from oodmon.agents.plan import bernoulli_positions
 from oodmon.errors import ConfigError, InvalidParameterError
 
 OBS = np.random.default_rng(0).normal(size=(7, 4)).astype(np.float32)
@@ -156,25 +157,45 @@ def test_estimator_errors_name_the_problem():
         add_dropout(_mlp(0), 1.0)
 
 
-def test_mc_dropconnect_estimator_samples_weight_masks_per_sample():
+# p = 0.02 is below plan.SPARSE_BELOW: those layers draw the dropped positions, not a dense mask.
+@pytest.mark.parametrize("p", [0.3, 0.02], ids=["dense-mask", "dropped-positions"])
+def test_mc_dropconnect_estimator_samples_weight_masks_per_sample(p):
     torch.manual_seed(0)
-    layer = DropConnectLinear(50, 40, p=0.3, bias=False)
+    layer = DropConnectLinear(50, 40, p=p, bias=False)
     estimator = MCEstimator(nn.Sequential(layer), n_samples=10, seed=0)
     samples = estimator.estimate(np.eye(50, dtype=np.float32)).samples  # (10, 50 one-hot inputs, 40)
     effective = samples.transpose(0, 2, 1)  # (10, 40, 50): the weights each sampled network used
     kept = effective != 0
-    assert kept.mean() == pytest.approx(0.7, abs=0.02)
+    assert kept.mean() == pytest.approx(1 - p, abs=5 * np.sqrt(p * (1 - p) / kept.size))  # 5 sigma
     weights = layer.weight.detach().numpy()
-    np.testing.assert_allclose(effective[kept], np.broadcast_to(weights / 0.7, effective.shape)[kept], rtol=1e-5)
+    np.testing.assert_allclose(effective[kept], np.broadcast_to(weights / (1 - p), effective.shape)[kept], rtol=1e-5, atol=1e-6)
     assert not np.array_equal(kept[0], kept[1])  # each sample its own mask
 
 
+def test_dropped_positions_are_independent_bernoulli_trials():
+    # 4,000 seeded draws of 300 trials at p = 0.3: every position succeeds with frequency p and
+    # neighbours together with p^2 (independence), within 5 sigma; positions sorted, in range.
+    p, size, draws = 0.3, 300, 4_000
+    rng = np.random.default_rng(0)
+    hits = np.zeros((draws, size), bool)
+    for draw in range(draws):
+        positions = bernoulli_positions(rng, size, p)
+        assert np.all(np.diff(positions) > 0) and positions.min(initial=0) >= 0 and positions.max(initial=0) < size
+        hits[draw, positions] = True
+    sigma = np.sqrt(p * (1 - p) / draws)
+    assert np.all(np.abs(hits.mean(0) - p) < 5 * sigma)
+    pairs = (hits[:, :-1] & hits[:, 1:]).mean()
+    assert pairs == pytest.approx(p * p, abs=5 * np.sqrt(p * p * (1 - p * p) / hits[:, 1:].size))
+    assert len(bernoulli_positions(rng, 0, p)) == 0
+
+
+@pytest.mark.parametrize("p", [0.1, 0.02], ids=["dense-mask", "dropped-positions"])
 @pytest.mark.parametrize("zero_fraction", [0.0, 0.8, 1.0], ids=["dense", "mostly-zero", "all-zero"])
-def test_dropconnect_samples_have_the_formulas_moments_when_inputs_are_zero(zero_fraction):
+def test_dropconnect_samples_have_the_formulas_moments_when_inputs_are_zero(zero_fraction, p):
     # Masks are drawn only for inputs that are not zero (after a ReLU most are); the samples must
     # still have DropConnect's moments: y_j = b_j + sum_i x_i W_ij m_ij / (1 - p), m ~ Bernoulli(1 - p),
     # so E[y_j] = b_j + sum_i x_i W_ij and Var[y_j] = p / (1 - p) * sum_i (x_i W_ij)^2.
-    p, rng = 0.1, np.random.default_rng(0)
+    rng = np.random.default_rng(0)
     torch.manual_seed(0)
     layer = DropConnectLinear(64, 6, p=p)
     x = rng.uniform(0.5, 2.0, 64).astype(np.float32)
