@@ -92,7 +92,9 @@ def test_mc_network_is_the_sb3_q_network_with_stochastic_layers(method):
         ours = modules["network"].eval()(torch.as_tensor(obs)).numpy()
     np.testing.assert_allclose(ours, sb3_q, atol=1e-6)
     stochastic = [m for m in modules["network"] if isinstance(m, (torch.nn.Dropout, DropConnectLinear))]
-    assert len(stochastic) == 1  # last_only: one stochastic layer, at the output
+    # last_only: one stochastic layer, at the output; full depth (CartPole DropConnect): every layer
+    linear = [m for m in modules["network"] if isinstance(m, torch.nn.Linear)]
+    assert len(stochastic) == (1 if recipe.last_only else len(linear))
     estimate = estimator_for(modules, arch, n_samples=20, seed=0).estimate(obs)
     assert (estimate.std > 0).all()
     np.testing.assert_allclose(estimate.mean, sb3_q, atol=0.5 * np.abs(sb3_q).max() + 1e-3)
