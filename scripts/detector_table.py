@@ -5,8 +5,9 @@ Run: .venv/bin/python scripts/detector_table.py [--long]
 The default is the README's table: one row per agent, "mean / lowest" per detector, the best mean
 in bold. ``--long`` gives one row per agent and detector, with the variant where it is lowest.
 
-cartpole.json and pendulum.json (and their -noise0.01 twins, with --obs-noise 0.01) are `oodmon bench --trials 1 --detectors spread,dynamics,features,combined
---json` outputs (the commands are in results/detectors/README.md); pong-<method>.json come from
+cartpole.json and pendulum.json (and their -noise0.01 twins, with --obs-noise 0.01) are `oodmon bench
+--trials 1 --detectors spread,dynamics,features,combined` results (each holds its command; see
+results/detectors/README.md); pong-<method>.json come from
 scripts/measure_pong_features.py. Per agent and detector: the mean and the smallest per-step AUROC
 over the variants scored (the agent's failing variants of the paper's grid; Pong: the noises and
 the blur at severity 3-5), and the variant where it is smallest.
@@ -46,7 +47,28 @@ def rows() -> list[tuple[str, str, str, int, float, float, str]]:
     return out
 
 
-DETECTORS = ("spread", "dynamics", "features", "combined")
+DETECTORS = ("spread", "dynamics", "features", "frames", "combined")
+
+
+def table() -> str:
+    """The README's table (between its ``<!-- detector_table -->`` markers; a test keeps them equal)."""
+    agents: dict[str, dict[str, tuple[int, float, float]]] = {}
+    for task, method, detector, n, mean, low, _ in rows():
+        agents.setdefault(f"{task}-{method}", {})[detector] = (n, mean, low)
+    lines = ["| agent | variants | " + " | ".join(DETECTORS) + " |", "|---|---:|" + "---:|" * len(DETECTORS)]
+    for agent, by_detector in agents.items():
+        best = max(mean for name, (_, mean, _) in by_detector.items() if name in DETECTORS)
+        cells = []
+        for detector in DETECTORS:
+            if detector not in by_detector:
+                cells.append("-")
+                continue
+            _, mean, low = by_detector[detector]
+            cell = f"{mean:.3f} / {low:.3f}"
+            cells.append(f"**{cell}**" if mean == best else cell)
+        n = next(iter(by_detector.values()))[0]
+        lines.append(f"| {agent} | {n} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def main() -> None:
@@ -58,23 +80,7 @@ def main() -> None:
         for task, method, detector, n, mean, low, where in rows():
             print(f"| {task}-{method} | {detector} | {n} | {mean:.3f} | {low:.3f} | {where} |")
         return
-    agents: dict[str, dict[str, tuple[int, float, float]]] = {}
-    for task, method, detector, n, mean, low, _ in rows():
-        agents.setdefault(f"{task}-{method}", {})[detector] = (n, mean, low)
-    print("| agent | variants | " + " | ".join(DETECTORS) + " |")
-    print("|---|---:|" + "---:|" * len(DETECTORS))
-    for agent, by_detector in agents.items():
-        best = max(mean for _, mean, _ in by_detector.values())
-        cells = []
-        for detector in DETECTORS:
-            if detector not in by_detector:
-                cells.append("-")
-                continue
-            _, mean, low = by_detector[detector]
-            cell = f"{mean:.3f} / {low:.3f}"
-            cells.append(f"**{cell}**" if mean == best else cell)
-        n = next(iter(by_detector.values()))[0]
-        print(f"| {agent} | {n} | " + " | ".join(cells) + " |")
+    print(table())
 
 
 if __name__ == "__main__":

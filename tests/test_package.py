@@ -94,15 +94,21 @@ def test_every_progress_callback_of_the_library_has_the_one_shape():
         assert not found, f"{path.relative_to(root)} still has {found}"
 
 
-def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
-    """README tables made from results/bench/*.json by scripts/bench_table.py, never typed by hand."""
+def _script(name: str):
+    """The repository's root and scripts/<name>.py loaded as a module."""
     import importlib.util
     from pathlib import Path
 
     root = Path(oodmon.__file__).parent.parent
-    spec = importlib.util.spec_from_file_location("bench_table", root / "scripts" / "bench_table.py")
+    spec = importlib.util.spec_from_file_location(name, root / "scripts" / f"{name}.py")
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
+    return root, script
+
+
+def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
+    """README tables made from results/bench/*.json by scripts/bench_table.py, never typed by hand."""
+    root, script = _script("bench_table")
     readme = (root / "README.md").read_text()
     results = sorted((root / "results" / "bench").glob("*.json"))
     assert results, "results/bench/ holds the committed five-trial results"
@@ -111,3 +117,12 @@ def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
         assert begin in readme, f"README lacks the table of {path.name}"
         shown = readme[readme.index(begin) + len(begin):readme.index("\n<!-- end bench_table -->", readme.index(begin))]
         assert shown == script.table(path), f"README's table of {path.name} is not the script's"
+
+
+def test_readme_detector_table_is_made_from_the_committed_results():
+    """The README's detector table is scripts/detector_table.py's output on results/detectors/."""
+    root, script = _script("detector_table")
+    readme = (root / "README.md").read_text()
+    begin, end = "<!-- detector_table -->\n", "\n<!-- end detector_table -->"
+    assert begin in readme and end in readme, "README lacks the detector table's markers"
+    assert readme[readme.index(begin) + len(begin):readme.index(end)] == script.table()
