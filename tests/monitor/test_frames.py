@@ -68,9 +68,23 @@ def test_it_saves_and_loads_as_tensors_and_json_with_the_same_scores(fitted, tmp
     assert [s.tolist() for s in _scores(loaded, [obs])] == [s.tolist() for s in _scores(fitted, [obs])]
 
 
+def test_the_statistics_are_their_definitions_of_the_newest_frame():
+    stack = np.random.default_rng(0).integers(0, 256, (4, 84, 84), dtype=np.uint8)
+    frame = stack[-1].astype(np.float64)
+    laplacian = (np.pad(frame, 1, mode="reflect")[:-2, 1:-1] + np.pad(frame, 1, mode="reflect")[2:, 1:-1]
+                 + np.pad(frame, 1, mode="reflect")[1:-1, :-2] + np.pad(frame, 1, mode="reflect")[1:-1, 2:] - 4 * frame)
+    eps = 1e-3
+    expected = [frame.mean(), frame.std(), np.log(laplacian.var() + eps),
+                np.log(np.abs(np.diff(frame, axis=1)).mean() + eps), np.log(np.abs(np.diff(frame, axis=0)).mean() + eps)]
+    np.testing.assert_allclose(frame_statistics(stack), expected, rtol=1e-9)
+    np.testing.assert_allclose(frame_statistics(stack.astype(np.int64)), expected, rtol=1e-6)  # other dtypes: float32
+
+
 def test_vector_observations_are_a_clear_error():
     with pytest.raises(ConfigError, match="needs image observations"):
         frame_statistics(np.zeros(4))
+    with pytest.raises(ConfigError, match="2 x 2 pixels or more; got shape \\(3, 1, 84\\)"):
+        frame_statistics(np.zeros((3, 1, 84), np.uint8))
     env = gymnasium.make("oodmon/CartPole-v1")
     with pytest.raises(ConfigError, match="the frames detector needs image observations"):
         fit_detectors(lambda obs: 0, env, detectors=["frames"], episodes=3)

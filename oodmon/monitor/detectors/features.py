@@ -90,9 +90,15 @@ class FeaturesDetector(Detector):
         if features.shape[-1] != self._means.shape[1]:
             raise ConfigError(f"this features detector was fitted on {self._means.shape[1]} features; the policy "
                               f"gives {features.shape[-1]} (another policy?)")
-        klass = 0 if self.n_actions is None else int(np.asarray(context.action).reshape(-1)[0])
+        action = context.action
+        if self.n_actions is None:
+            klass = 0
+        elif isinstance(action, (int, np.integer)):  # the usual discrete action: no array round trip
+            klass = int(action)
+        else:
+            klass = int(np.asarray(action).reshape(-1)[0])
         mean = self._means[klass] if 0 <= klass < len(self._means) - 1 else self._means[-1]
-        projected = (features.astype(np.float32) - mean) @ self._factor
+        projected = (features.astype(np.float32, copy=False) - mean) @ self._factor
         return self._recent.add(float(projected @ projected))
 
     def config(self) -> dict[str, Any]:
