@@ -353,6 +353,31 @@ def test_a_trial_model_trained_by_another_recipe_is_set_aside_and_trained_again(
     assert (cached / "model.safetensors").read_bytes() == retrained and "another recipe" not in capsys.readouterr().err
 
 
+def test_an_unfinished_training_of_another_recipe_is_set_aside_too(tmp_path, capsys):
+    """A trial folder holding a training begun by another recipe, killed before its model.json,
+    is set aside (its runs' state.json record the recipe), not resumed as today's."""
+    from oodmon.agents.checkpoints import recipe_record
+    from oodmon.agents.recipes import recipe_for
+    from oodmon.bench.cache import _ensure_model_dir_current
+
+    config = BenchConfig("cartpole", ("dropout",), trials=2, out=str(tmp_path), train_steps=300)
+    begun = tmp_path / "models" / "cartpole-dropout-trial1"
+    (begun / "runs" / "main").mkdir(parents=True)
+    state = {"steps": 20_000, "wall_time_s": 30.0, "finished": False, "seed": 1,
+             "recipe": recipe_record(recipe_for("cartpole", "dropout"))}  # the 50,000-step recipe
+    (begun / "runs" / "main" / "state.json").write_text(json.dumps(state))
+    assert _ensure_model_dir_current(config, "dropout", 1) == begun and not begun.exists()
+    said = capsys.readouterr().err
+    assert "trained by another recipe" in said and "recipe_steps: 50000 -> 300" in said
+    aside = tmp_path / "set-aside" / "recipe-0" / "models" / "cartpole-dropout-trial1" / "runs" / "main" / "state.json"
+    assert json.loads(aside.read_text()) == state
+    # the same recipe's unfinished training stays, to be resumed
+    state["recipe"] = recipe_record(recipe_for("cartpole", "dropout").shortened(300))
+    (begun / "runs" / "main").mkdir(parents=True)
+    (begun / "runs" / "main" / "state.json").write_text(json.dumps(state))
+    assert _ensure_model_dir_current(config, "dropout", 1) == begun and begun.exists()
+
+
 def test_trial_models_train_on_every_worker_and_come_out_as_one_at_a_time(tmp_path):
     """The trials' trainings run in parallel processes; each model is the one a sequential
     training of the same seed makes (byte for byte), and progress counts the trainings."""

@@ -67,8 +67,29 @@ class _RunCallback(BaseCallback):
         return True
 
 
+def recipe_record(recipe: Recipe) -> dict[str, Any]:
+    """What a run's ``state.json`` records of its recipe: the fields ``model.json`` records of it, so
+    that :func:`~oodmon.agents.export.recipe_differences` compares either."""
+    from oodmon.agents.algorithms import recipe_architecture
+    from oodmon.agents.export import _recipe_metadata
+
+    return {"architecture": recipe_architecture(recipe), **_recipe_metadata(recipe)}
+
+
+def run_recipe_differences(state: dict[str, Any], recipe: Recipe) -> list[str]:
+    """How the recipe a run's ``state`` records differs from ``recipe`` (empty for runs begun before
+    oodmon recorded it: those cannot be told apart)."""
+    from oodmon.agents.export import recipe_differences
+
+    return recipe_differences(state["recipe"], recipe) if "recipe" in state else []
+
+
 class Run:
-    """One SB3 model being trained: its folder, checkpoints and log."""
+    """One SB3 model being trained: its folder, checkpoints and log.
+
+    Raises:
+        ConfigError: the folder holds a run begun by another recipe (its ``state.json`` says so).
+    """
 
     def __init__(self, recipe: Recipe, root: Path, name: str, seed: int) -> None:
         self.on_evaluation: Callable[[str, int, float], None] | None = None  # see train()
@@ -77,7 +98,11 @@ class Run:
         self.folder.mkdir(parents=True, exist_ok=True)
         self.state_path = self.folder / "state.json"
         self.state = json.loads(self.state_path.read_text()) if self.state_path.exists() else {
-            "steps": 0, "wall_time_s": 0.0, "finished": False, "seed": seed}
+            "steps": 0, "wall_time_s": 0.0, "finished": False, "seed": seed, "recipe": recipe_record(recipe)}
+        differences = run_recipe_differences(self.state, recipe)
+        if differences:
+            raise ConfigError(f"{self.folder} holds a training by another recipe ({'; '.join(differences)}): resuming it "
+                              "would mix the two. Train into another folder, or remove that one to start again")
         self._started = time.monotonic()
         self._wall_before = self.state["wall_time_s"]
 

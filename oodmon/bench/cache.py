@@ -98,16 +98,20 @@ def _ensure_model_dir_current(config: BenchConfig, method: str, trial: int) -> P
 
 def _set_aside_if_made_by_another_recipe(out: Path, path: Path, config: BenchConfig, method: str) -> None:
     """A trial model trained by another recipe than today's (a new drop probability, full depth,
-    other steps) is not today's method: move it (and its training state) to
+    other steps), or a training of one not finished yet, is not today's method: move it (and its
+    training state) to
     ``<out>/set-aside/recipe-<n>/models/`` and train the trial again, saying why."""
+    from oodmon.agents.checkpoints import run_recipe_differences
     from oodmon.agents.export import recipe_differences
 
-    if not (path / "model.json").exists():
-        return
     recipe = recipe_for(config.task, method)
     if config.train_steps is not None:
         recipe = recipe.shortened(config.train_steps)
-    differences = recipe_differences(json.loads((path / "model.json").read_text()), recipe)
+    if (path / "model.json").exists():
+        differences = recipe_differences(json.loads((path / "model.json").read_text()), recipe)
+    else:  # a training not finished yet: its runs' state says which recipe began it
+        differences = sorted({difference for state in sorted(path.glob("runs/*/state.json"))
+                              for difference in run_recipe_differences(json.loads(state.read_text()), recipe)})
     if not differences:
         return
     n = 0

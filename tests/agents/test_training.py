@@ -78,6 +78,25 @@ def test_interrupted_training_resumes_from_its_checkpoint(tmp_path):
     assert min(again) == state["steps"]
 
 
+def test_a_run_begun_by_another_recipe_is_not_resumed(tmp_path):
+    """Resuming mixes two trainings if the recipe changed in between (a new drop probability, other
+    steps): the run's state.json records its recipe, and another is a clear error. A state written
+    before oodmon recorded the recipe is resumed as before."""
+    from oodmon.agents.checkpoints import recipe_record
+
+    recipe = recipe_for("cartpole", "dropout")
+    folder = tmp_path / "runs" / "main"
+    folder.mkdir(parents=True)
+    state = {"steps": 500, "wall_time_s": 1.0, "finished": False, "seed": 0, "recipe": recipe_record(recipe)}
+    (folder / "state.json").write_text(json.dumps(state))
+    assert _Run(recipe, tmp_path, "main", 0).state["steps"] == 500
+    with pytest.raises(ConfigError, match=r"holds a training by another recipe \(drop_p: 0.1 -> 0.3\): resuming it would mix the two. Train into"):
+        _Run(dataclasses.replace(recipe, drop_p=0.3), tmp_path, "main", 0)
+    del state["recipe"]
+    (folder / "state.json").write_text(json.dumps(state))
+    assert _Run(dataclasses.replace(recipe, drop_p=0.3), tmp_path, "main", 0).state["steps"] == 500
+
+
 @pytest.mark.parametrize("method", ["dropout", "dropconnect"])
 def test_mc_network_is_the_sb3_q_network_with_stochastic_layers(method):
     recipe = recipe_for("cartpole", method)
@@ -214,7 +233,7 @@ def test_export_does_not_play_a_snapshot_again_that_an_earlier_export_scored(tmp
 
     # Other selection settings (more episodes) do not reuse those scores.
     monkeypatch.setattr(training, "recipe_for", lambda task, method: replace(
-        recipe_for(task, method), select_top=2, eval_every=500, select_episodes=3, total_steps=1000))
+        recipe_for(task, method).shortened(1000), select_top=2, eval_every=500, select_episodes=3))
     reports.clear()
     train("cartpole", "dropconnect", tmp_path, id_episodes=1, export_only=True, on_progress=lambda *args: reports.append(args))
     assert [r[1:] for r in reports if r[0].endswith(": episodes")][-1] == (6, 6)
