@@ -5,8 +5,9 @@ Run (resumable; one torch thread, so it can sit beside other work):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_full_depth.py [--tasks cartpole,pendulum]
         [--methods dropconnect] [--grid 0.01,0.02] [--learning-rate 1e-3] [--steps 100000]
 
-``--learning-rate`` and ``--steps`` change the recipe's; a row records them where given.
-``--shipped`` measures the shipped agents (stochastic layer at the output only) on the same
+``--learning-rate`` and ``--steps`` change the recipe's; every row records the learning rate and steps its
+agent was trained with (rows from before the recipe's defaults changed: those of their time).
+``--shipped`` measures the shipped agents (at the depth they ship) on the same
 episodes, the row to compare with. ``--table`` prints the rows as the zoo README's markdown table instead of running anything.
 
 Each (task, method, p) trains with the shipped recipe but ``last_only=False`` and ``drop_p=p`` into
@@ -61,12 +62,12 @@ def table() -> str:
              "AUROC pre_squash_std |", "|---|---|---|---:|---:|---:|---:|---|---:|---:|"]
     goal = {"cartpole": 475.0, "pendulum": -200.0}
     for r in map(json.loads, OUT.read_text().splitlines()):
-        recipe = recipe_for(r["task"], r["method"])
         means = {k: float(np.mean(list(v.values()))) for k, v in r["auroc"].items()}
-        depth = "output only (shipped)" if r.get("shipped") else ("output only" if r["last_only"] else "full")
-        lines.append(f"| {r['task']} | {r['method']} | {depth} | {r['drop_p']:g} | "
-                     f"{r.get('learning_rate', recipe.hyperparams['learning_rate']):g} | "
-                     f"{r.get('steps', recipe.total_steps):,} | {r['id_return_mean']:.1f} | "
+        depth = "output only" if r["last_only"] else "full"
+        if r.get("shipped"):
+            depth += " (shipped)" if recipe_for(r["task"], r["method"]).last_only == r["last_only"] else " (shipped before)"
+        lines.append(f"| {r['task']} | {r['method']} | {depth} | {r['drop_p']:g} | {r['learning_rate']:g} | "
+                     f"{r['steps']:,} | {r['id_return_mean']:.1f} | "
                      f"{'yes' if r['id_return_mean'] >= goal[r['task']] else 'no'} | {means['chosen_std']:.3f} | "
                      + (f"{means['pre_squash_std']:.3f} |" if "pre_squash_std" in means else "- |"))
     return "\n".join(lines)
@@ -92,34 +93,39 @@ def main() -> None:
     for task in args.tasks.split(","):
         for method in args.methods.split(","):
             if args.shipped:
-                if (task, method, "shipped") not in done:
-                    _measure(load(task, method), task, method, {"drop_p": recipe_for(task, method).drop_p,
-                                                                "last_only": True, "shipped": True})
+                recipe = recipe_for(task, method)
+                if (task, method, "shipped", recipe.last_only) not in done:
+                    _measure(load(task, method), task, method, {"drop_p": recipe.drop_p, "last_only": recipe.last_only,
+                                                                "shipped": True, **_trained_by(recipe)})
                 continue
             for p in (float(x) for x in args.grid.split(",")):
-                if (task, method, p, args.learning_rate, args.steps) in done:
-                    continue
-                start = time.monotonic()
                 recipe = replace(recipe_for(task, method), last_only=False, drop_p=p)
                 name = f"{task}-{method}-full-p{p}"
-                extra = {}
                 if args.learning_rate is not None:
                     recipe = replace(recipe, hyperparams=recipe.hyperparams | {"learning_rate": args.learning_rate})
                     name += f"-lr{args.learning_rate:g}"
-                    extra["learning_rate"] = args.learning_rate
                 if args.steps is not None:
                     recipe = replace(recipe, total_steps=args.steps)
                     name += f"-steps{args.steps}"
-                    extra["steps"] = args.steps
+                settings = {"drop_p": p, "last_only": False, **_trained_by(recipe)}
+                if _key({"task": task, "method": method, **settings}) in done:
+                    continue
+                start = time.monotonic()
                 agent = train(task, method, f"runs/sweep/{name}", seed=0, recipe=recipe,
                               command=f"scripts/sweep_full_depth.py ({name})")
-                _measure(agent, task, method, {"drop_p": p, "last_only": False, **extra}, start)
+                _measure(agent, task, method, settings, start)
+
+
+def _trained_by(recipe) -> dict:
+    """The learning rate and steps a row's agent was trained with (every row records them: the
+    recipe's defaults change)."""
+    return {"learning_rate": recipe.hyperparams["learning_rate"], "steps": recipe.total_steps}
 
 
 def _key(row: dict) -> tuple:
     if row.get("shipped"):
-        return row["task"], row["method"], "shipped"
-    return row["task"], row["method"], row["drop_p"], row.get("learning_rate"), row.get("steps")
+        return row["task"], row["method"], "shipped", row["last_only"]
+    return row["task"], row["method"], row["drop_p"], row["learning_rate"], row["steps"]
 
 
 def _measure(agent, task: str, method: str, settings: dict, start: float | None = None) -> None:
