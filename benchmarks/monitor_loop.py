@@ -5,7 +5,8 @@ Run: .venv/bin/python benchmarks/monitor_loop.py
 Monitored: the shipped CartPole ensemble (K=5) under the Monitor with a threshold, writing MCAP
 and RRD files. Plain: stable-baselines3's ``evaluate_policy`` with one member of the same
 architecture ([256, 256] DQN), no uncertainty, no logging. Same episodes (seeds), one torch
-thread, in this process. The last line is ratio=<monitored steps/s / plain steps/s>; goal >= 1.0.
+thread, in this process, each the best of ROUNDS interleaved rounds (single runs of each read
+0.92 to 1.62 on one quiet VM). The last line is ratio=<monitored steps/s / plain steps/s>; goal >= 1.0.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from oodmon.envs import Variant
 from oodmon.monitor import McapSink, Monitor, RerunSink
 
 EPISODES = 10
+ROUNDS = 3
 
 
 def monitored_steps_per_s(folder: Path) -> float:
@@ -58,9 +60,11 @@ def plain_steps_per_s() -> float:
 
 def main() -> None:
     torch.set_num_threads(1)
-    with tempfile.TemporaryDirectory() as folder:
-        monitored = monitored_steps_per_s(Path(folder))
-    plain = plain_steps_per_s()
+    monitored = plain = 0.0
+    for _ in range(ROUNDS):  # interleaved, best of each: the rounds least disturbed by the machine
+        with tempfile.TemporaryDirectory() as folder:
+            monitored = max(monitored, monitored_steps_per_s(Path(folder)))
+        plain = max(plain, plain_steps_per_s())
     print(f"monitored + logged (ensemble K=5, MCAP + RRD) {monitored:10.0f} steps/s")
     print(f"plain evaluate_policy (one member)            {plain:10.0f} steps/s")
     print(f"ratio={monitored / plain:.2f}")
