@@ -356,7 +356,7 @@ def test_a_trial_model_trained_by_another_recipe_is_set_aside_and_trained_again(
 def test_an_unfinished_training_of_another_recipe_is_set_aside_too(tmp_path, capsys):
     """A trial folder holding a training begun by another recipe, killed before its model.json,
     is set aside (its runs' state.json record the recipe), not resumed as today's."""
-    from oodmon.agents.checkpoints import recipe_record
+    from oodmon.agents.recipes import recipe_record
     from oodmon.agents.recipes import recipe_for
     from oodmon.bench.cache import _ensure_model_dir_current
 

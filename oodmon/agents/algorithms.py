@@ -14,18 +14,10 @@ from stable_baselines3.common.torch_layers import NatureCNN
 
 from oodmon.agents.networks import Architecture
 from oodmon.agents.policies import BootstrappedDQN, UncertainDQNPolicy, UncertainTD3Policy
-from oodmon.agents.recipes import Recipe
+from oodmon.agents.recipes import Recipe, recipe_architecture
 from oodmon.envs.grid import ENV_IDS
 
 __all__ = ["algorithm_class", "architecture", "new_model", "recipe_architecture", "training_env"]
-
-
-def recipe_architecture(recipe: Recipe) -> dict[str, Any]:
-    """The fields of an :class:`Architecture` that the recipe decides (all but the env's shapes)."""
-    ensemble = recipe.method == "ensemble"
-    return dict(algorithm=recipe.algorithm, cnn=recipe.cnn, net_arch=recipe.net_arch,
-                stochastic=None if ensemble else recipe.method, drop_p=recipe.drop_p, last_only=recipe.last_only,
-                n_members=recipe.n_members if ensemble else 1, shared_torso=ensemble and recipe.shared_torso)
 
 
 def architecture(recipe: Recipe, env: gymnasium.Env) -> Architecture:

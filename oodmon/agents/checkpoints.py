@@ -22,7 +22,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from oodmon import seeds
 from oodmon.agents.algorithms import algorithm_class, new_model, training_env
 from oodmon.agents.evaluation import episode_returns
-from oodmon.agents.recipes import Recipe
+from oodmon.agents.recipes import Recipe, recipe_differences, recipe_record
 from oodmon.envs.grid import Variant
 from oodmon.errors import ConfigError
 from oodmon.progress import Progress
@@ -67,20 +67,9 @@ class _RunCallback(BaseCallback):
         return True
 
 
-def recipe_record(recipe: Recipe) -> dict[str, Any]:
-    """What a run's ``state.json`` records of its recipe: the fields ``model.json`` records of it, so
-    that :func:`~oodmon.agents.export.recipe_differences` compares either."""
-    from oodmon.agents.algorithms import recipe_architecture
-    from oodmon.agents.export import _recipe_metadata
-
-    return {"architecture": recipe_architecture(recipe), **_recipe_metadata(recipe)}
-
-
 def run_recipe_differences(state: dict[str, Any], recipe: Recipe) -> list[str]:
     """How the recipe a run's ``state`` records differs from ``recipe`` (empty for runs begun before
     oodmon recorded it: those cannot be told apart)."""
-    from oodmon.agents.export import recipe_differences
-
     return recipe_differences(state["recipe"], recipe) if "recipe" in state else []
 
 

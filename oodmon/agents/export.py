@@ -17,7 +17,7 @@ from oodmon import seeds
 from oodmon.agents.checkpoints import Run
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.networks import Architecture, estimator_for, modules_from_sb3
-from oodmon.agents.recipes import Recipe
+from oodmon.agents.recipes import Recipe, recipe_differences, recipe_metadata
 from oodmon.agents.serialization import save_modules
 from oodmon.envs.grid import Variant
 from oodmon.hashing import file_sha256
@@ -106,7 +106,7 @@ def write_agent(root: Path, recipe: Recipe, runs: list[Run], models: list[BaseAl
         "task": task, "method": method, "algorithm": recipe.algorithm, "architecture": arch.to_json(),
         "ensemble": ("bootstrapped heads on a shared torso" if arch.shared_torso else "independent members")
         if method == "ensemble" else None,
-        "n_members": arch.n_members, **_recipe_metadata(recipe),
+        "n_members": arch.n_members, **recipe_metadata(recipe),
         "seed": seed, "training_steps": [int(m.num_timesteps) for m in models],
         "wall_time_s": round(sum(run.state["wall_time_s"] for run in runs), 1),
         "selected_checkpoints": [selection["chosen"]] if selection else [run.state.get("best") for run in runs],
@@ -118,34 +118,3 @@ def write_agent(root: Path, recipe: Recipe, runs: list[Run], models: list[BaseAl
         **bounds,
     }
     save_modules(root, modules, metadata, half=recipe.cnn)
-
-
-def _recipe_metadata(recipe: Recipe) -> dict[str, Any]:
-    """What a saved agent's metadata records of its recipe beyond the architecture."""
-    ensemble = recipe.method == "ensemble"
-    return {"drop_p": None if ensemble else recipe.drop_p,
-            "n_samples": recipe.n_members if ensemble else recipe.n_samples, "recipe_steps": recipe.total_steps,
-            "hyperparams": {k: v for k, v in recipe.hyperparams.items() if isinstance(v, (int, float, str, bool))}}
-
-
-def recipe_differences(metadata: dict[str, Any], recipe: Recipe) -> list[str]:
-    """How the recipe a saved agent was trained by (as its ``model.json`` records it) differs from
-    ``recipe``: one ``"name: saved -> recipe"`` per difference, empty when they agree. Compares what
-    the metadata records: the network (widths, stochastic layers, drop probability, members), the
-    scalar hyperparameters, the training steps and the MC samples."""
-    from oodmon.agents.algorithms import recipe_architecture
-
-    arch, network = metadata.get("architecture", {}), recipe_architecture(recipe)
-    wanted = {name: network[name] for name in ("last_only", "shared_torso", "n_members")}
-    wanted["net_arch"] = list(network["net_arch"])
-    saved = {name: arch.get(name) for name in wanted}
-    recorded = _recipe_metadata(recipe)
-    hyper = recorded.pop("hyperparams")
-    wanted |= recorded
-    saved |= {name: metadata.get(name) for name in recorded}
-    saved["recipe_steps"] = metadata.get("recipe_steps", recipe.total_steps)  # older agents did not record it
-    differences = [f"{name}: {saved[name]!r} -> {value!r}" for name, value in wanted.items() if saved[name] != value]
-    before = metadata.get("hyperparams", {})
-    differences += [f"{name}: {before.get(name)!r} -> {hyper.get(name)!r}" for name in sorted(set(hyper) | set(before))
-                    if before.get(name) != hyper.get(name)]
-    return differences

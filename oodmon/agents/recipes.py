@@ -13,7 +13,8 @@ from typing import Any
 from oodmon.errors import UnknownParameterError
 from oodmon.names import METHODS
 
-__all__ = ["METHODS", "RECIPES", "Recipe", "recipe_for"]
+__all__ = ["METHODS", "RECIPES", "Recipe", "recipe_architecture", "recipe_differences", "recipe_for", "recipe_metadata",
+           "recipe_record"]
 
 
 
@@ -145,3 +146,47 @@ def recipe_for(task: str, method: str) -> Recipe:
     if "hyperparams" in changes:
         changes["hyperparams"] = base.hyperparams | changes["hyperparams"]
     return replace(base, **changes)
+
+
+def recipe_architecture(recipe: Recipe) -> dict[str, Any]:
+    """The fields of an :class:`~oodmon.agents.networks.Architecture` that the recipe decides (all
+    but the env's shapes)."""
+    ensemble = recipe.method == "ensemble"
+    return dict(algorithm=recipe.algorithm, cnn=recipe.cnn, net_arch=recipe.net_arch,
+                stochastic=None if ensemble else recipe.method, drop_p=recipe.drop_p, last_only=recipe.last_only,
+                n_members=recipe.n_members if ensemble else 1, shared_torso=ensemble and recipe.shared_torso)
+
+
+def recipe_metadata(recipe: Recipe) -> dict[str, Any]:
+    """What a saved agent's ``model.json`` records of its recipe beyond the architecture."""
+    ensemble = recipe.method == "ensemble"
+    return {"drop_p": None if ensemble else recipe.drop_p,
+            "n_samples": recipe.n_members if ensemble else recipe.n_samples, "recipe_steps": recipe.total_steps,
+            "hyperparams": {k: v for k, v in recipe.hyperparams.items() if isinstance(v, (int, float, str, bool))}}
+
+
+def recipe_record(recipe: Recipe) -> dict[str, Any]:
+    """What a training run's ``state.json`` records of its recipe: what ``model.json`` records of it,
+    so that :func:`recipe_differences` compares either."""
+    return {"architecture": recipe_architecture(recipe), **recipe_metadata(recipe)}
+
+
+def recipe_differences(metadata: dict[str, Any], recipe: Recipe) -> list[str]:
+    """How the recipe a saved agent was trained by (as its ``model.json`` records it) differs from
+    ``recipe``: one ``"name: saved -> recipe"`` per difference, empty when they agree. Compares what
+    the metadata records: the network (widths, stochastic layers, drop probability, members), the
+    scalar hyperparameters, the training steps and the MC samples."""
+    arch, network = metadata.get("architecture", {}), recipe_architecture(recipe)
+    wanted = {name: network[name] for name in ("last_only", "shared_torso", "n_members")}
+    wanted["net_arch"] = list(network["net_arch"])
+    saved = {name: arch.get(name) for name in wanted}
+    recorded = recipe_metadata(recipe)
+    hyper = recorded.pop("hyperparams")
+    wanted |= recorded
+    saved |= {name: metadata.get(name) for name in recorded}
+    saved["recipe_steps"] = metadata.get("recipe_steps", recipe.total_steps)  # older agents did not record it
+    differences = [f"{name}: {saved[name]!r} -> {value!r}" for name, value in wanted.items() if saved[name] != value]
+    before = metadata.get("hyperparams", {})
+    differences += [f"{name}: {before.get(name)!r} -> {hyper.get(name)!r}" for name in sorted(set(hyper) | set(before))
+                    if before.get(name) != hyper.get(name)]
+    return differences

@@ -102,7 +102,7 @@ def _set_aside_if_made_by_another_recipe(out: Path, path: Path, config: BenchCon
     training state) to
     ``<out>/set-aside/recipe-<n>/models/`` and train the trial again, saying why."""
     from oodmon.agents.checkpoints import run_recipe_differences
-    from oodmon.agents.export import recipe_differences
+    from oodmon.agents.recipes import recipe_differences
 
     recipe = recipe_for(config.task, method)
     if config.train_steps is not None:

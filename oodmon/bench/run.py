@@ -9,7 +9,7 @@ from pathlib import Path
 
 from oodmon import seeds
 from oodmon.bench.cache import (Sb3Models, _cell_log, _ensure_model, _ensure_model_dir_current, _log_is_complete,
-                                _model_dir, _monitored, _prepare_trial, _refuse_to_train_for_hours)
+                                _monitored, _prepare_trial, _refuse_to_train_for_hours)
 from oodmon.bench.cells import _execute
 from oodmon.bench.config import ONSETS, PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.monitor.alarms import check_window
@@ -22,9 +22,8 @@ def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], wo
     five-trial bench, on every core. Each training checkpoints and resumes (``oodmon.agents.train``)."""
     if config.sb3:
         return
-    for method, trial in trials:  # a model trained by another recipe is set aside first
-        _ensure_model_dir_current(config, method, trial)
-    missing = [(m, t) for m, t in trials if not (_model_dir(config, m, t) / "model.json").exists()]
+    # (a cached model, or a begun training, of another recipe is set aside first)
+    missing = [(m, t) for m, t in trials if not (_ensure_model_dir_current(config, m, t) / "model.json").exists()]
     if not missing:
         return
     stage = "trained trial models"

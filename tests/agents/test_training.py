@@ -82,7 +82,7 @@ def test_a_run_begun_by_another_recipe_is_not_resumed(tmp_path):
     """Resuming mixes two trainings if the recipe changed in between (a new drop probability, other
     steps): the run's state.json records its recipe, and another is a clear error. A state written
     before oodmon recorded the recipe is resumed as before."""
-    from oodmon.agents.checkpoints import recipe_record
+    from oodmon.agents.recipes import recipe_record
 
     recipe = recipe_for("cartpole", "dropout")
     folder = tmp_path / "runs" / "main"
