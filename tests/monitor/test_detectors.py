@@ -17,7 +17,7 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor import McapSink, MemorySink, Monitor, Threshold, calibrate_agent
 from oodmon.monitor.detectors import (
     CombinedDetector, DetectorSet, DynamicsDetector, FeaturesDetector, SpreadDetector, StepContext, collect,
-    fit_detectors, trajectory_scores,
+    Trajectory, fit_detectors, trajectory_scores,
 )
 from oodmon.monitor.scores import score_function
 from oodmon.replay import compute_all_metrics, read_log
@@ -257,6 +257,36 @@ def test_dynamics_scores_the_mean_of_its_last_window_transitions(fitted, id_traj
     for _ in range(2):  # a second episode starts afresh
         got = trajectory_scores(DetectorSet([dynamics]), trajectory)["dynamics"]
         np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-4)
+
+
+def test_the_one_step_dynamics_path_equals_the_batch_path_for_continuous_actions_and_saturated_variances():
+    """The monitor's one-transition NLL (weights folded, SiLU by tanh, both soft bounds in one
+    expression) against the plain batch expressions: continuous actions, every allowed floor, and
+    log-variance outputs pushed far past both bounds, where no exp may overflow."""
+    import warnings
+
+    rng = np.random.default_rng(0)
+    trajectories = []
+    for _ in range(4):
+        obs = [rng.standard_normal(3)]
+        actions = rng.uniform(-2, 2, (60, 1))
+        for a in actions:
+            obs.append(0.9 * obs[-1] + 0.1 * a[0] + 0.01 * rng.standard_normal(3))
+        trajectories.append(Trajectory(np.array(obs, np.float32), actions.astype(np.float32)))
+    t = trajectories[0]
+    for floor in (-30.0, -12.0, -6.0, -2.0):
+        detector = DynamicsDetector(None, epochs=3, seed=0, min_logvar=floor).fit(trajectories[1:])
+        for scale in (1.0, 1e4):  # 1e4: raw log-variances of +-thousands, far past both bounds
+            w, b = detector._weights[-1]
+            detector._weights[-1] = (np.concatenate([w[..., :3], w[..., 3:] * scale], -1), b * scale)
+            detector._fast = None
+            batch = detector.score_transitions(t.observations[:-1], t.actions, t.observations[1:])
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                one_by_one = [detector._nll_one(t.observations[k], t.actions[k], t.observations[k + 1])
+                              for k in range(len(t.actions))]
+            assert np.all(np.isfinite(one_by_one))
+            np.testing.assert_allclose(one_by_one, batch, rtol=1e-4, atol=1e-4 * max(1.0, np.abs(batch).max()))
 
 
 def test_the_dynamics_floor_of_the_log_variance_is_kept_and_used_by_both_paths(id_trajectories, tmp_path):

@@ -77,22 +77,19 @@ class CombinedDetector(Detector):
 
     def rank(self, name: str, value: float) -> float:
         """``-log10`` of ``value``'s conformal p-value among the ID scores of member ``name``."""
-        reference = self._sorted[name]  # a list: bisect on it costs a tenth of np.searchsorted on a scalar
-        n = len(reference)
-        at_least = n - bisect_left(reference, value)
-        rank = -math.log10((1 + at_least) / (n + 1))
-        if value > reference[-1]:
-            rank += (value - reference[-1]) / self._scale[name]
-        return rank
+        return _rank(self._sorted[name], value, self._scale[name])
 
     def score(self, context: StepContext) -> float:
         self.check_fitted()
-        missing = [m for m in self.members if m not in context.scores]
-        if missing:
+        scores, sorted_scores, scale = context.scores, self._sorted, self._scale
+        try:
+            return max([_rank(sorted_scores[name], scores[name], scale[name]) for name in self.members])
+        except KeyError:
+            missing = [m for m in self.members if m not in scores]
+            if not missing:
+                raise
             raise ConfigError(f"the combined detector needs the scores of {', '.join(missing)} at each step; the "
-                              "monitor does not compute them")
-        scores = context.scores
-        return max([self.rank(name, scores[name]) for name in self.members])
+                              "monitor does not compute them") from None
 
     def config(self) -> dict[str, Any]:
         return {"members": self.members, "scale": self._scale}
@@ -111,3 +108,14 @@ class CombinedDetector(Detector):
             raise ConfigError(f"the combined detector's tensors lack the ID scores of {error}") from None
         detector._scale = {name: float(config.get("scale", {}).get(name, 1.0)) for name in detector.members}
         return detector
+
+
+def _rank(reference: list[float], value: float, scale: float) -> float:
+    """``-log10`` of ``value``'s conformal p-value among the sorted ID scores ``reference``, grown
+    beyond their largest by the excess in units of ``scale``. A function, not a method: the monitor
+    calls it for each member at every step."""
+    n = len(reference)  # a list: bisect on it costs a tenth of np.searchsorted on a scalar
+    rank = -math.log10((1 + n - bisect_left(reference, value)) / (n + 1))
+    if value > reference[-1]:
+        rank += (value - reference[-1]) / scale
+    return rank

@@ -104,8 +104,12 @@ class McapSink:
         self._scores.append(record.score)
         self._shifted.append(record.shifted)
         self._alarm.append(record.alarm)
+        columns = self._detector_scores
         for name, value in record.scores.items():
-            self._detector_scores.setdefault(name, []).append(value)
+            column = columns.get(name)  # not setdefault(name, []): that builds a list per call
+            if column is None:
+                column = columns[name] = []
+            column.append(value)
         if record.frame is not None:
             frame = record.frame
             colour = frame.ndim == 3  # a drawn state (rgb8) or the agent's grey frame (mono8)
