@@ -41,6 +41,9 @@ class _Affine(Op):
         self.bias = (linear.bias.detach().numpy() if linear.bias is not None else np.zeros(linear.out_features)).astype(np.float32)
 
     def __call__(self, x, rng):
+        if x.ndim == 3:  # (K, batch, in): one product for all rows, not numpy's loop of K small ones
+            rows, batch, _ = x.shape  # (Pong's 20 x 512 -> 6 output layer: 4 us instead of 19)
+            return (np.matmul(x.reshape(rows * batch, -1), self.weight_t) + self.bias).reshape(rows, batch, -1)
         return np.matmul(x, self.weight_t) + self.bias
 
 
