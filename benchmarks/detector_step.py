@@ -21,8 +21,8 @@ from oodmon.envs import Variant
 from oodmon.monitor import McapSink, Monitor
 from oodmon.monitor.detectors import detectors_for
 
-EPISODES = 4
-ROUNDS = 6
+EPISODES = 2
+ROUNDS = 20
 
 
 def seconds_per_step(agent, detectors, folder: Path, episodes: int = EPISODES) -> float:
