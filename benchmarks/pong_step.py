@@ -18,8 +18,10 @@ On the three shipped agents, alone, it read 1.26 / 1.27 / 1.29 (DropConnect 1.25
 Dropout 1.25-1.27, ensemble 1.17-1.18); with four runs instead of ten the same machine read 1.32
 to 1.43, and beside two Pong trainings on the two cores the ratio rises (the first line prints the
 load average). What a decision costs beyond the plain forward is mostly the K samples of the
-output layer (Dropout: a 20 x 512 mask from the generator, about 30 us), the channels-last copy
-of the input and the Monitor's record.
+output layer (Dropout: a 20 x 512 mask from the generator, about 20 us), the channels-last copy
+of the input and the Monitor's record, each dearer than alone because the CNN (6.4 MB of weights
+in its linear layer) leaves the caches cold: right after it the ensemble's 3 us heads take 35-46
+us. Readings on 2026-11-23: 1.26 and 1.27 in quiet minutes, 1.25-1.32 in others.
 With the agents' shipped fitted detectors, the same decisions with the ``features`` detector too
 (the Mahalanobis distance of the 512 torso features) print ``ratio_with_features=``, and with
 ``frames`` (Pong's default: five image statistics of the newest frame) ``ratio_with_frames=``
