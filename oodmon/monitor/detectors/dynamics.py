@@ -354,8 +354,10 @@ class _FastNll:
         # np.add.reduce is what .sum(axis=1) calls, without its Python wrapper
         twice_nll = np.add.reduce(terms, 1).tolist()  # per member, less constants
         low = min(twice_nll)
-        mixture = sum(math.exp(0.5 * (low - value)) for value in twice_nll) * self.inv_members
-        return (0.5 * low + self.const - math.log(mixture)) / d
+        mixture = 0.0  # a loop, not sum() over a generator: the same additions in the same order, no frames
+        for value in twice_nll:
+            mixture += math.exp(0.5 * (low - value))
+        return (0.5 * low + self.const - math.log(mixture * self.inv_members)) / d
 
 
 def _f32(value: float) -> np.ndarray:
