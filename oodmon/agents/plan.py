@@ -90,18 +90,21 @@ class _DropConnect(_Affine):
         # (84% of a trained Pong agent's 512 features), so this draws a fraction of the random
         # numbers, with the same distribution of outputs.
         weight_t = self.scaled_weight_t
-        rows = x[0] if x.strides[0] == 0 else x  # K repeats of one batch (the usual case): look at one
+        repeated = x.strides[0] == 0  # K repeats of one batch (the usual case): look at one
+        rows = x[0] if repeated else x
         active = np.flatnonzero((rows != 0).reshape(-1, x.shape[-1]).any(axis=0))
         if active.size < x.shape[-1]:
             x, weight_t = x[..., active], weight_t[active]
-        if self.p < SPARSE_BELOW:
-            return _minus_dropped(np.matmul(x, weight_t), x, weight_t, float(self.p), rng) + self.bias
+        if self.p < SPARSE_BELOW:  # the product with every weight kept: once for K repeats of one batch
+            full = np.matmul(x[:1] if repeated else x, weight_t)
+            return _minus_dropped(full, x, weight_t, float(self.p), rng) + self.bias
         keep = rng.random((x.shape[0], *weight_t.shape), dtype=np.float32) >= self.p
         return np.matmul(x, weight_t * keep) + self.bias
 
 
 def _minus_dropped(full: np.ndarray, x: np.ndarray, weight_t: np.ndarray, p: float, rng: np.random.Generator) -> np.ndarray:
-    """``full`` (the product with every weight kept, (K, batch, out)) less the dropped weights' terms.
+    """``full`` (the product with every weight kept, (K, batch, out), or (1, batch, out) when x's K
+    rows repeat one batch) less the dropped weights' terms, (K, batch, out).
 
     Each of the K x in x out weights is dropped independently with probability ``p``, as a dense
     mask would drop it: the same distribution of outputs, from about p * K * in * out random numbers.

@@ -22,7 +22,6 @@ all, while every other Pong corruption, severity 1 included, lies above every fr
 from __future__ import annotations
 
 import math
-
 from collections.abc import Mapping, Sequence
 from typing import Any
 
