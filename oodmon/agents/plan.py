@@ -13,6 +13,7 @@ Supported layers: ``nn.Linear`` (and :class:`DropConnectLinear`), ``nn.Dropout``
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -111,18 +112,29 @@ def _minus_dropped(full: np.ndarray, x: np.ndarray, weight_t: np.ndarray, p: flo
     """
     n_rows, batch, n_in = x.shape
     n_out = weight_t.shape[1]
-    dropped = bernoulli_positions(rng, n_rows * n_in * n_out, p)  # (row * n_in + source) * n_out + target
-    pair, target = np.divmod(dropped, n_out)
+    block = n_in * n_out
+    dropped = bernoulli_positions(rng, n_rows * block, p)  # (row * n_in + source) * n_out + target
+    if n_out & (n_out - 1) == 0:  # a power of two (the MLPs' 256 and 2 outputs): shifts, not a division
+        pair, target = dropped >> (n_out.bit_length() - 1), dropped & (n_out - 1)
+    else:
+        pair, target = np.divmod(dropped, n_out)
     row = pair // n_in
-    weights = weight_t.ravel()[dropped - row * (n_in * n_out)]
+    weights = weight_t.ravel()[dropped - row * block]
+    slots = row * n_out
+    slots += target
+    if batch == 1:  # the monitor's case: no batch axis to move (the same terms, summed in the same order)
+        terms = x.reshape(n_rows * n_in)[pair]
+        terms *= weights
+        removed = np.bincount(slots, weights=terms, minlength=n_rows * n_out).reshape(n_rows, 1, n_out)
+        return full - removed.astype(np.float32)
     inputs = np.moveaxis(x, 1, 0).reshape(batch, n_rows * n_in)  # [b, row * n_in + source]
-    slots = (row * n_out + target) + (np.arange(batch) * (n_rows * n_out))[:, None]
+    slots = slots + (np.arange(batch) * (n_rows * n_out))[:, None]
     removed = np.bincount(slots.ravel(), weights=(inputs[:, pair] * weights).ravel(), minlength=batch * n_rows * n_out)
     return full - np.moveaxis(removed.reshape(batch, n_rows, n_out), 0, 1).astype(np.float32)
 
 
 def bernoulli_positions(rng: np.random.Generator, size: int, p: float) -> np.ndarray:
-    """The sorted positions in ``range(size)`` where independent Bernoulli(p) trials succeed.
+    """The sorted positions in ``range(size)`` where independent Bernoulli(p) trials succeed (0 < p < 1).
 
     The gaps between successes are geometric, drawn as ``floor(log(1 - U) / log(1 - p))`` for
     uniform U in [0, 1): ``P(gap >= g) = (1 - p)^g``. Costs O(p * size), not O(size).
@@ -131,16 +143,23 @@ def bernoulli_positions(rng: np.random.Generator, size: int, p: float) -> np.nda
         >>> len(bernoulli_positions(np.random.default_rng(0), 100_000, 0.02)) in range(1800, 2200)
         True
     """
-    rate = -np.log1p(-p)
+    scale = 1.0 / math.log1p(-p)  # < 0 for 0 < p < 1; math's log1p and sqrt: the C library's, as numpy's, sooner
     chunks, end, expected = [], -1, size * p
     while end < size:  # one draw covers ``size`` but for a chance below 1e-9; else draw on from the end
-        count = int(expected + 6.0 * np.sqrt(expected) + 16)
-        gaps = (np.log1p(-rng.random(count)) * (-1.0 / rate)).astype(np.int64) + 1  # truncation is floor here
-        chunks.append(end + np.cumsum(gaps))
-        end = int(chunks[-1][-1])
+        count = int(expected + 6.0 * math.sqrt(expected) + 16)
+        uniform = rng.random(count)
+        np.negative(uniform, out=uniform)
+        np.log1p(uniform, out=uniform)
+        uniform *= scale
+        gaps = uniform.astype(np.int64)  # truncation is floor here
+        gaps += 1
+        positions = np.cumsum(gaps, out=gaps)
+        positions += end
+        chunks.append(positions)
+        end = int(positions[-1])
         expected = (size - end) * p
     positions = chunks[0] if len(chunks) == 1 else np.concatenate(chunks)
-    return positions[: np.searchsorted(positions, size)]
+    return positions[: positions.searchsorted(size)]
 
 
 class _Function(Op):

@@ -189,20 +189,22 @@ def test_dropped_positions_are_independent_bernoulli_trials():
     assert len(bernoulli_positions(rng, 0, p)) == 0
 
 
-@pytest.mark.parametrize("p", [0.1, 0.02], ids=["dense-mask", "dropped-positions"])
+@pytest.mark.parametrize(("p", "outputs"), [(0.1, 6), (0.02, 6), (0.02, 8)],
+                         ids=["dense-mask", "dropped-positions", "dropped-positions-power-of-two-outputs"])
 @pytest.mark.parametrize("zero_fraction", [0.0, 0.8, 1.0], ids=["dense", "mostly-zero", "all-zero"])
-def test_dropconnect_samples_have_the_formulas_moments_when_inputs_are_zero(zero_fraction, p):
+def test_dropconnect_samples_have_the_formulas_moments_when_inputs_are_zero(zero_fraction, p, outputs):
     # Masks are drawn only for inputs that are not zero (after a ReLU most are); the samples must
     # still have DropConnect's moments: y_j = b_j + sum_i x_i W_ij m_ij / (1 - p), m ~ Bernoulli(1 - p),
-    # so E[y_j] = b_j + sum_i x_i W_ij and Var[y_j] = p / (1 - p) * sum_i (x_i W_ij)^2.
+    # so E[y_j] = b_j + sum_i x_i W_ij and Var[y_j] = p / (1 - p) * sum_i (x_i W_ij)^2. The dropped
+    # positions are decoded by a division, or by shifts when the layer's outputs are a power of two.
     rng = np.random.default_rng(0)
     torch.manual_seed(0)
-    layer = DropConnectLinear(64, 6, p=p)
+    layer = DropConnectLinear(64, outputs, p=p)
     x = rng.uniform(0.5, 2.0, 64).astype(np.float32)
     x[rng.permutation(64)[: int(zero_fraction * 64)]] = 0.0
     samples = MCEstimator(nn.Sequential(layer), n_samples=40_000, seed=1).estimate(x).samples[:, 0].astype(np.float64)
     w, b = layer.weight.detach().numpy().astype(np.float64), layer.bias.detach().numpy()
-    contributions = x[None, :] * w  # (6, 64)
+    contributions = x[None, :] * w  # (outputs, 64)
     variance = p / (1 - p) * (contributions**2).sum(1)
     assert np.all(np.abs(samples.mean(0) - (b + contributions.sum(1))) <= 4 * np.sqrt(variance / 40_000) + 1e-6)
     np.testing.assert_allclose(samples.var(0), variance, rtol=0.05, atol=1e-9)
