@@ -8,8 +8,9 @@ p = 0.02): ensemble K=5, MC Dropout and MC DropConnect with 20 samples; the base
 ``model.predict()`` of one plain SB3 DQN member of the same size. Batch of one observation, one
 torch thread, all in this process. The last line is ratio=<worst decision / predict>; the goal
 is <= 1.0, which the full-depth DropConnect agent does not meet (a mask over every weight of
-every sample: see "Full depth" in oodmon/zoo/README.md); ``ratio_output_layer=`` is the worst of
-the agents whose sampling stops at the output layer.
+every sample: see "Full depth" in oodmon/zoo/README.md, and ``benchmarks/dropconnect_floor.py``
+for why numpy cannot meet it there); ``ratio_output_layer=`` is the worst of the agents whose
+sampling stops at the output layer.
 """
 
 from __future__ import annotations
