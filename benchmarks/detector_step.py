@@ -60,5 +60,6 @@ def main() -> None:
     print(f"best of each: {every.min() / spread.min():.2f}")
     print(f"ratio={np.median(every / spread):.2f}")
 
+
 if __name__ == "__main__":
     main()

@@ -26,6 +26,7 @@ from stable_baselines3 import DQN
 
 import oodmon  # noqa: F401  (registers the envs)
 from oodmon.agents import load
+from oodmon.agents.plan import active_inputs
 from timing import per_call_us  # benchmarks/timing.py, beside this script
 
 REPEATS = 1000
@@ -38,7 +39,7 @@ def middle_layer_drops(agent, obs: np.ndarray) -> int:
     x = np.broadcast_to(np.asarray(obs, np.float32)[None, None], (estimator.n_samples, 1, len(obs)))
     rng = np.random.default_rng(0)
     hidden = ops[1](ops[0](x, rng), rng)  # after the first DropConnect layer and its ReLU
-    active = int(np.count_nonzero((hidden != 0).reshape(-1, hidden.shape[-1]).any(axis=0)))
+    active = len(active_inputs(hidden))  # the inputs the middle layer draws masks for
     middle = ops[2]
     return round(estimator.n_samples * active * middle.weight_t.shape[1] * float(middle.p))
 

@@ -21,7 +21,7 @@ from torch import nn
 
 from oodmon.agents.layers import DropConnectLinear
 
-__all__ = ["Op", "StackedAffine", "bernoulli_positions", "compile_layers", "ends_with_tanh", "run"]
+__all__ = ["Op", "StackedAffine", "active_inputs", "bernoulli_positions", "compile_layers", "ends_with_tanh", "run"]
 
 
 class Op:
@@ -91,9 +91,8 @@ class _DropConnect(_Affine):
         # (84% of a trained Pong agent's 512 features), so this draws a fraction of the random
         # numbers, with the same distribution of outputs.
         weight_t = self.scaled_weight_t
-        repeated = x.strides[0] == 0  # K repeats of one batch (the usual case): look at one
-        rows = x[0] if repeated else x
-        active = np.flatnonzero((rows != 0).reshape(-1, x.shape[-1]).any(axis=0))
+        repeated = x.strides[0] == 0  # K repeats of one batch (the usual case)
+        active = active_inputs(x)
         if active.size < x.shape[-1]:
             x, weight_t = x[..., active], weight_t[active]
         if self.p < SPARSE_BELOW:  # the product with every weight kept: once for K repeats of one batch
@@ -101,6 +100,13 @@ class _DropConnect(_Affine):
             return _minus_dropped(full, x, weight_t, float(self.p), rng) + self.bias
         keep = rng.random((x.shape[0], *weight_t.shape), dtype=np.float32) >= self.p
         return np.matmul(x, weight_t * keep) + self.bias
+
+
+def active_inputs(x: np.ndarray) -> np.ndarray:
+    """The indices of the inputs (last axis of x, (K, batch, in)) that are not zero in some row: the
+    only ones a DropConnect layer draws masks for. K repeats of one batch (stride 0): one is looked at."""
+    rows = x[0] if x.strides[0] == 0 else x
+    return np.flatnonzero((rows != 0).reshape(-1, x.shape[-1]).any(axis=0))
 
 
 def _minus_dropped(full: np.ndarray, x: np.ndarray, weight_t: np.ndarray, p: float, rng: np.random.Generator) -> np.ndarray:

@@ -5,6 +5,7 @@ logs every score, also for a plain policy that has no samples of its own."""
 from __future__ import annotations
 
 import json
+import warnings
 
 import gymnasium
 import numpy as np
@@ -263,8 +264,6 @@ def test_the_one_step_dynamics_path_equals_the_batch_path_for_continuous_actions
     """The monitor's one-transition NLL (weights folded, SiLU by tanh, both soft bounds in one
     expression) against the plain batch expressions: continuous actions, every allowed floor, and
     log-variance outputs pushed far past both bounds, where no exp may overflow."""
-    import warnings
-
     rng = np.random.default_rng(0)
     trajectories = []
     for _ in range(4):
