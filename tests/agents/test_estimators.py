@@ -5,11 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from gymnasium import spaces
+from stable_baselines3.common.torch_layers import NatureCNN
 from torch import nn
 
-from oodmon.agents.estimators import EnsembleEstimator, MCEstimator
+from oodmon.agents.estimators import EnsembleEstimator, MCEstimator, _TorchPart
 from oodmon.agents.layers import DropConnectLinear, add_dropout, mc_sampling, to_dropconnect
-from oodmon.agents.plan import bernoulli_positions
+from oodmon.agents.networks import ScaleImage
+from oodmon.agents.plan import active_inputs, bernoulli_positions, repeat_rows
 from oodmon.errors import ConfigError, InvalidParameterError
 
 OBS = np.random.default_rng(0).normal(size=(7, 4)).astype(np.float32)
@@ -239,3 +242,61 @@ def test_actors_report_the_spread_before_their_tanh():
     assert (saturated.std < 0.01).all() and (saturated.pre_squash_std > 1.5).all()
     q = EnsembleEstimator([_mlp(s) for s in range(3)]).estimate(OBS)
     assert q.pre_squash_std is None
+
+
+def _cnn_torso() -> nn.Sequential:
+    torch.manual_seed(0)
+    return nn.Sequential(ScaleImage(), NatureCNN(spaces.Box(0, 255, (4, 84, 84), dtype=np.uint8), features_dim=512))
+
+
+def test_a_cnn_torso_called_layer_by_layer_gives_the_modules_numbers():
+    part = _TorchPart(_cnn_torso())
+    assert part._chain is not None and len(part._chain) == 10  # scale, 3 x (conv, relu), flatten, linear, relu
+    batch = np.random.default_rng(0).integers(0, 256, size=(2, 4, 84, 84)).astype(np.float32)
+    with torch.no_grad():
+        expected = part.module(torch.from_numpy(batch).contiguous(memory_format=torch.channels_last)).numpy()
+    np.testing.assert_array_equal(part(batch), expected)
+
+
+def test_a_torso_with_a_hook_or_an_unknown_container_is_called_as_a_module():
+    class Twice(nn.Module):  # runs its child twice: its order of layers is not its list of children
+        def __init__(self) -> None:
+            super().__init__()
+            self.inner = nn.Linear(3, 3)
+
+        def forward(self, x):
+            return self.inner(self.inner(x))
+
+    torch.manual_seed(0)
+    twice = nn.Sequential(nn.Flatten(), Twice())
+    part = _TorchPart(twice)
+    assert part._chain is None
+    x = np.ones((1, 3), np.float32)
+    with torch.no_grad():
+        np.testing.assert_array_equal(part(x), twice(torch.from_numpy(x)).numpy())
+    torso, calls = _cnn_torso(), []
+    torso[1].linear[0].register_forward_hook(lambda *args: calls.append(1))
+    hooked = _TorchPart(torso)
+    assert hooked._chain is None
+    hooked(np.zeros((1, 4, 84, 84), np.float32))
+    assert calls == [1]
+
+
+@pytest.mark.parametrize("contiguous", [True, False])
+def test_repeat_rows_is_broadcast_to_read_only_and_without_a_copy(contiguous):
+    base = np.random.default_rng(0).normal(size=(3, 8)).astype(np.float32)
+    x = base if contiguous else base[:, ::2]
+    rows = repeat_rows(x, 5)
+    np.testing.assert_array_equal(rows, np.broadcast_to(x, (5, *x.shape)))
+    assert rows.strides[0] == 0 and np.shares_memory(rows, x)
+    with pytest.raises(ValueError, match="read-only"):
+        rows[0, 0, 0] = 1.0
+
+
+def test_active_inputs_of_one_observation_follow_the_batch_rule():
+    x = np.array([[0.0, 1.5, -0.0, np.nan, 0.0, -2.0]], np.float32)
+    general = np.flatnonzero((x != 0).any(axis=0))  # the rule for any batch
+    np.testing.assert_array_equal(active_inputs(repeat_rows(x, 4)), general)
+    np.testing.assert_array_equal(active_inputs(repeat_rows(x, 4)), [1, 3, 5])
+    two = np.vstack([x, [[1.0, 0, 0, 0, 0, 0]]]).astype(np.float32)
+    np.testing.assert_array_equal(active_inputs(repeat_rows(two, 4)), [0, 1, 3, 5])

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 from scipy.special import expit
 
+from oodmon.agents.plan import repeat_rows
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory
 from oodmon.validation import is_whole
@@ -387,7 +388,7 @@ def _softplus(x: np.ndarray) -> np.ndarray:
 
 
 def _forward_numpy(weights, x: np.ndarray, min_logvar: float = _MIN_LOGVAR):
-    h = np.broadcast_to(x, (weights[0][0].shape[0], *x.shape))
+    h = repeat_rows(x, weights[0][0].shape[0])
     for w, b in weights[:-1]:
         z = np.matmul(h, w) + b
         h = z / (1.0 + np.exp(-z))  # SiLU
