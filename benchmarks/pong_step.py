@@ -4,7 +4,9 @@ Run: .venv/bin/python benchmarks/pong_step.py
 
 "Monitored" is ``Monitor.step`` (estimate, score, alarm rule, a step record with the frame to a
 memory sink); "plain" is one forward of the same network as SB3's Q-network computes it in eval
-mode (``predict`` without its bookkeeping). Batch of one observation, one torch thread.
+mode (``predict`` without its bookkeeping). Batch of one observation, one thread for torch and
+one for numpy's BLAS (which would otherwise spread a large matrix-vector product, the features
+detector's, over both cores).
 
 Each method uses its shipped agent (``oodmon/zoo/pong-<method>``; K=20 samples for MC Dropout and
 DropConnect, 5 bootstrapped heads on one torso for the ensemble), on observations of the
@@ -13,15 +15,14 @@ for the inputs of the DropConnect layer that are not zero (most are, after the R
 in the zoo is built with random weights, whose cost is the same for Dropout and the ensemble but
 not for DropConnect. Each figure is the best of many interleaved rounds (ten runs of five rounds
 of 100 calls), so that other work on the machine disturbs the ratio as little as it can; still,
-run it on a quiet machine.
-On the three shipped agents, alone, it read 1.26 / 1.27 / 1.29 (DropConnect 1.25-1.29,
-Dropout 1.25-1.27, ensemble 1.17-1.18); with four runs instead of ten the same machine read 1.32
-to 1.43, and beside two Pong trainings on the two cores the ratio rises (the first line prints the
-load average). What a decision costs beyond the plain forward is mostly the K samples of the
-output layer (Dropout: a 20 x 512 mask from the generator, about 20 us), the channels-last copy
-of the input and the Monitor's record, each dearer than alone because the CNN (6.4 MB of weights
-in its linear layer) leaves the caches cold: right after it the ensemble's 3 us heads take 35-46
-us. Readings on 2026-11-23: 1.26 and 1.27 in quiet minutes, 1.25-1.32 in others.
+run it on a quiet machine (the first line prints the load average).
+What a decision costs beyond the plain forward: the K samples of the output layer (Dropout: a
+20 x 512 mask from the generator, about 20 us), the mean and std, the Monitor's record, each
+dearer than alone because the CNN (6.4 MB of weights in its linear layer) leaves the caches cold:
+right after it the ensemble's 3 us heads take 35-46 us. Against that, the monitored torso runs
+its layers without ``nn.Module.__call__`` (the same operations, ~40-60 us fewer) and in the
+channels-last memory format (~5%). Readings of 2026-11-24, evening (the torso called layer by layer),
+interleaved with the code before: 1.19, 1.18, 1.18 against 1.27, 1.32, 1.30.
 With the agents' shipped fitted detectors, the same decisions with the ``features`` detector too
 (the Mahalanobis distance of the 512 torso features) print ``ratio_with_features=``, and with
 ``frames`` (Pong's default: five image statistics of the newest frame) ``ratio_with_frames=``
@@ -32,6 +33,8 @@ The last line is ratio=<worst monitored (spread only) / plain>; the goal is <= 1
 from __future__ import annotations
 
 import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads its BLAS
 
 import numpy as np
 import torch
