@@ -31,6 +31,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.torch_layers import NatureCNN
 from torch import nn
+from torch.nn.modules.module import _global_forward_hooks, _global_forward_pre_hooks
 
 from oodmon.agents.layers import DropConnectLinear, is_mode_free, is_stochastic, mc_sampling
 from oodmon.agents.plan import Op, StackedAffine, compile_layers, ends_with_tanh, repeat_rows, run
@@ -175,7 +176,7 @@ class _TorchPart:
         if self._channels_last and x.dim() == 4:
             x = x.contiguous(memory_format=torch.channels_last)
         with torch.no_grad(), nullcontext() if self._mode_free else mc_sampling(self.module):
-            if self._chain is None:
+            if self._chain is None or _global_forward_hooks or _global_forward_pre_hooks:
                 return self.module(x).numpy()
             for forward in self._chain:
                 x = forward(x)
@@ -186,7 +187,8 @@ def _leaf_chain(module: nn.Module) -> list[Callable[[torch.Tensor], torch.Tensor
     """The ``forward`` methods of ``module``'s leaf layers in the order its call runs them, or
     ``None`` when that order is not known: a container other than ``nn.Sequential`` and SB3's
     ``NatureCNN`` (exactly those classes: a subclass may run its children otherwise), or a hook
-    on some module (calling ``forward`` would skip it)."""
+    on some module (calling ``forward`` would skip it; global hooks, which may come later, are
+    looked for at each call)."""
     if module._forward_hooks or module._forward_pre_hooks:
         return None
     if type(module) is NatureCNN:

@@ -280,6 +280,13 @@ def test_a_torso_with_a_hook_or_an_unknown_container_is_called_as_a_module():
     assert hooked._chain is None
     hooked(np.zeros((1, 4, 84, 84), np.float32))
     assert calls == [1]
+    fast = _TorchPart(_cnn_torso())
+    handle = torch.nn.modules.module.register_module_forward_hook(lambda *args: calls.append(2))
+    try:
+        fast(np.zeros((1, 4, 84, 84), np.float32))  # a global hook, registered after the part was built
+    finally:
+        handle.remove()
+    assert fast._chain is not None and calls.count(2) == 14  # every module's call: 10 layers, 4 containers
 
 
 @pytest.mark.parametrize("contiguous", [True, False])
