@@ -21,8 +21,8 @@ from torch import nn
 
 from oodmon.agents.layers import DropConnectLinear
 
-__all__ = ["Op", "StackedAffine", "active_inputs", "bernoulli_positions", "compile_layers", "ends_with_tanh", "repeat_rows",
-           "run"]
+__all__ = ["Op", "StackedAffine", "active_inputs", "bernoulli_positions", "compile_layers", "ends_with_tanh",
+           "repeat_rows", "run"]
 
 
 class Op:
