@@ -26,7 +26,7 @@ from stable_baselines3 import DQN
 
 import oodmon  # noqa: F401  (registers the envs)
 from oodmon.agents import load
-from oodmon.agents.plan import active_inputs
+from oodmon.agents.plan import active_inputs, repeat_rows
 from timing import per_call_us  # benchmarks/timing.py, beside this script
 
 REPEATS = 1000
@@ -36,7 +36,7 @@ def middle_layer_drops(agent, obs: np.ndarray) -> int:
     """How many weights the middle layer drops, on average, at ``obs``: K x active inputs x out x p."""
     estimator = agent.estimator
     ops = estimator._suffix  # Linear(4, 256) ReLU Linear(256, 256) ReLU Linear(256, 2), as numpy ops
-    x = np.broadcast_to(np.asarray(obs, np.float32)[None, None], (estimator.n_samples, 1, len(obs)))
+    x = repeat_rows(np.asarray(obs, np.float32)[None], estimator.n_samples)  # (K, 1, 4), as the estimator has it
     rng = np.random.default_rng(0)
     hidden = ops[1](ops[0](x, rng), rng)  # after the first DropConnect layer and its ReLU
     active = len(active_inputs(hidden))  # the inputs the middle layer draws masks for

@@ -5,13 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from gymnasium import spaces
-from stable_baselines3.common.torch_layers import NatureCNN
 from torch import nn
 
 from oodmon.agents.estimators import EnsembleEstimator, MCEstimator, _TorchPart
 from oodmon.agents.layers import DropConnectLinear, add_dropout, mc_sampling, to_dropconnect
-from oodmon.agents.networks import ScaleImage
+from oodmon.agents.networks import build_modules
 from oodmon.agents.plan import active_inputs, bernoulli_positions, repeat_rows
 from oodmon.errors import ConfigError, InvalidParameterError
 
@@ -245,8 +243,11 @@ def test_actors_report_the_spread_before_their_tanh():
 
 
 def _cnn_torso() -> nn.Sequential:
+    """Pong's torso (scaling and Nature CNN), as the zoo's bootstrapped ensemble has it."""
     torch.manual_seed(0)
-    return nn.Sequential(ScaleImage(), NatureCNN(spaces.Box(0, 255, (4, 84, 84), dtype=np.uint8), features_dim=512))
+    arch = {"algorithm": "dqn", "obs_shape": [4, 84, 84], "n_outputs": 6, "cnn": True, "n_members": 2,
+            "shared_torso": True}
+    return build_modules(arch)["torso"]
 
 
 def test_a_cnn_torso_called_layer_by_layer_gives_the_modules_numbers():
