@@ -67,13 +67,14 @@ class CombinedDetector(Detector):
             if len(values) < 2 or not np.all(np.isfinite(values)):
                 raise ConfigError(f"the combined detector needs finite ID scores of {name!r} at two or more steps")
             reference[name] = values
-            self._scale[name] = float(values.std()) or 1.0
-        self._set_reference(reference)
+        self._set_reference(reference, {name: float(values.std()) or 1.0 for name, values in reference.items()})
         return self
 
-    def _set_reference(self, reference: dict[str, np.ndarray]) -> None:
-        self._reference = reference
+    def _set_reference(self, reference: dict[str, np.ndarray], scale: dict[str, float]) -> None:
+        self._reference, self._scale = reference, scale
         self._sorted = {name: values.tolist() for name, values in reference.items()}
+        # What score() reads for each member, in one tuple: no dict look-ups at a step but the score's
+        self._ranked = [(name, self._sorted[name], scale[name]) for name in self.members]
 
     def rank(self, name: str, value: float) -> float:
         """``-log10`` of ``value``'s conformal p-value among the ID scores of member ``name``."""
@@ -81,9 +82,9 @@ class CombinedDetector(Detector):
 
     def score(self, context: StepContext) -> float:
         self.check_fitted()
-        scores, sorted_scores, scale = context.scores, self._sorted, self._scale
+        scores = context.scores
         try:
-            return max([_rank(sorted_scores[name], scores[name], scale[name]) for name in self.members])
+            return max([_rank(reference, scores[name], scale) for name, reference, scale in self._ranked])
         except KeyError:
             missing = [m for m in self.members if m not in scores]
             if not missing:
@@ -102,11 +103,11 @@ class CombinedDetector(Detector):
     def from_state(cls, config: Mapping[str, Any], tensors: Mapping[str, np.ndarray]) -> CombinedDetector:
         detector = cls(config["members"])
         try:
-            detector._set_reference({name: np.asarray(tensors[f"reference.{name}"], np.float64)
-                                     for name in detector.members})
+            reference = {name: np.asarray(tensors[f"reference.{name}"], np.float64) for name in detector.members}
         except KeyError as error:
             raise ConfigError(f"the combined detector's tensors lack the ID scores of {error}") from None
-        detector._scale = {name: float(config.get("scale", {}).get(name, 1.0)) for name in detector.members}
+        detector._set_reference(reference, {name: float(config.get("scale", {}).get(name, 1.0))
+                                            for name in detector.members})
         return detector
 
 

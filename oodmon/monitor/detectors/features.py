@@ -70,9 +70,12 @@ class FeaturesDetector(Detector):
         centred = features - means[classes]
         covariance = LedoitWolf(assume_centered=True).fit(centred).covariance_
         precision = np.linalg.inv(covariance)
-        self._means = means.astype(np.float32)
-        self._factor = np.linalg.cholesky((precision + precision.T) / 2).astype(np.float32)
+        self._set(means.astype(np.float32), np.linalg.cholesky((precision + precision.T) / 2).astype(np.float32))
         return self
+
+    def _set(self, means: np.ndarray, factor: np.ndarray) -> None:
+        self._means, self._factor = means, factor
+        self._rows = list(means)  # each class's mean, made once: indexing the array makes a view per step
 
     def _classes(self, actions: np.ndarray) -> np.ndarray:
         if self.n_actions is None:
@@ -97,8 +100,9 @@ class FeaturesDetector(Detector):
             klass = int(action)
         else:
             klass = int(np.asarray(action).reshape(-1)[0])
-        mean = self._means[klass] if 0 <= klass < len(self._means) - 1 else self._means[-1]
-        projected = (features.astype(np.float32, copy=False) - mean) @ self._factor
+        rows = self._rows
+        mean = rows[klass] if 0 <= klass < len(rows) - 1 else rows[-1]
+        projected = np.subtract(features, mean, dtype=np.float32) @ self._factor  # float32, as the fit's
         return self._recent.add(float(np.dot(projected, projected)))  # np.dot: the same sum as @, 0.2 us sooner
 
     def config(self) -> dict[str, Any]:
@@ -114,17 +118,17 @@ class FeaturesDetector(Detector):
     def from_state(cls, config: Mapping[str, Any], tensors: Mapping[str, np.ndarray]) -> FeaturesDetector:
         detector = cls(**config)
         if "means" in tensors and "factor" in tensors:  # written by oodmon before the packed factor
-            detector._means = np.asarray(tensors["means"], np.float32)
-            detector._factor = np.tril(np.asarray(tensors["factor"], np.float32))
+            detector._set(np.asarray(tensors["means"], np.float32), np.tril(np.asarray(tensors["factor"], np.float32)))
             return detector
         if "means" not in tensors or "factor_tril" not in tensors:
             raise ConfigError("the features detector's tensors are incomplete")
-        detector._means = np.asarray(tensors["means"], np.float32)
-        size = detector._means.shape[1]
+        means = np.asarray(tensors["means"], np.float32)
+        size = means.shape[1]
         packed = np.asarray(tensors["factor_tril"], np.float32)
         if packed.shape != (size * (size + 1) // 2,):
             raise ConfigError(f"the features detector's factor has {packed.size} entries; {size} features need "
                               f"{size * (size + 1) // 2}")
-        detector._factor = np.zeros((size, size), np.float32)
-        detector._factor[np.tril_indices(size)] = packed
+        factor = np.zeros((size, size), np.float32)
+        factor[np.tril_indices(size)] = packed
+        detector._set(means, factor)
         return detector

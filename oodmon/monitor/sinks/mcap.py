@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
@@ -90,7 +91,7 @@ class McapSink:
         self._scores: list[float] = []
         self._shifted: list[bool] = []
         self._alarm: list[bool] = []
-        self._detector_scores: dict[str, list[float]] = {}
+        self._detector_scores: defaultdict[str, list[float]] = defaultdict(list)
 
     def _add(self, channel: int, data: bytes, now: int) -> None:
         self._writer.add_message(channel, log_time=now, publish_time=now, data=data, sequence=self._sequence)
@@ -104,12 +105,9 @@ class McapSink:
         self._scores.append(record.score)
         self._shifted.append(record.shifted)
         self._alarm.append(record.alarm)
-        columns = self._detector_scores
+        columns = self._detector_scores  # a defaultdict(list): a new detector's column starts empty
         for name, value in record.scores.items():
-            column = columns.get(name)  # not setdefault(name, []): that builds a list per call
-            if column is None:
-                column = columns[name] = []
-            column.append(value)
+            columns[name].append(value)
         if record.frame is not None:
             frame = record.frame
             colour = frame.ndim == 3  # a drawn state (rgb8) or the agent's grey frame (mono8)
@@ -139,7 +137,7 @@ class McapSink:
         # A small chunk of its own, written at once: from here on the episode survives a crash,
         # and replay reads it through the index without decompressing the step messages.
         self._writer.flush()
-        self._scores, self._shifted, self._alarm, self._detector_scores = [], [], [], {}
+        self._scores, self._shifted, self._alarm, self._detector_scores = [], [], [], defaultdict(list)
 
     def close(self) -> None:
         if self._writer is not None:
