@@ -39,9 +39,9 @@ EPISODES = 1
 PAIRS = 30
 
 
-def seconds_per_step(agent, detectors, folder: Path, episodes: int = EPISODES) -> float:
+def seconds_per_step(agent, detectors, sink: McapSink, episodes: int = EPISODES) -> float:
     env = Variant("cartpole").make()
-    with Monitor(agent, threshold=1e9, detectors=detectors, sinks=[McapSink(folder / "run.mcap")]) as monitor:
+    with Monitor(agent, threshold=1e9, detectors=detectors, sinks=[sink]) as monitor:
         steps, start = 0, time.perf_counter()
         for episode in range(episodes):
             steps += monitor.run_episode(env, seed=episode).length
@@ -65,10 +65,7 @@ def in_loop_us(agent, detectors, folder: Path, episodes: int = 3) -> dict[str, f
     for detector in detectors:
         detector.score = timed(detector.score, detector.name)  # an instance attribute, removed below
     try:
-        env = Variant("cartpole").make()
-        with Monitor(agent, threshold=1e9, detectors=detectors, sinks=[sink]) as monitor:
-            for episode in range(episodes):
-                monitor.run_episode(env, seed=episode)
+        seconds_per_step(agent, detectors, sink, episodes)
     finally:
         for detector in detectors:
             del detector.score
@@ -83,11 +80,12 @@ def main() -> None:
         raise SystemExit("the zoo's CartPole ensemble has no fitted detectors: run bash scripts/fit_zoo_detectors.sh")
     spread, every = [], []
     with tempfile.TemporaryDirectory() as folder:
-        seconds_per_step(agent, detectors, Path(folder), 1)  # warm-up: imports, first calls
+        log = Path(folder) / "run.mcap"
+        seconds_per_step(agent, detectors, McapSink(log), 1)  # warm-up: imports, first calls
         for pair in range(PAIRS):
             runs = [(spread, None), (every, detectors)]
             for times, chosen in runs if pair % 2 == 0 else runs[::-1]:
-                times.append(seconds_per_step(agent, chosen, Path(folder)))
+                times.append(seconds_per_step(agent, chosen, McapSink(log)))
         parts = in_loop_us(agent, detectors, Path(folder))
     spread, every = np.array(spread), np.array(every)
     print("in the loop, median us: " + ", ".join(f"{name} {value:.1f}" for name, value in parts.items()))

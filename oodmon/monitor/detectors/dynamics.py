@@ -212,8 +212,7 @@ class DynamicsDetector(Detector):
         if context.prev_obs is None:
             value = self.neutral
         elif self.kind == "nll":
-            fast = self._fast or self._make_fast()  # not through _nll_one: a call less at every step
-            value = fast(context.prev_obs, context.prev_action, context.obs)
+            value = self._nll_one(context.prev_obs, context.prev_action, context.obs)
         else:
             value = float(self.score_transitions(np.asarray(context.prev_obs)[None], np.asarray([context.prev_action]),
                                                  np.asarray(context.obs)[None])[0])
@@ -222,11 +221,10 @@ class DynamicsDetector(Detector):
     def _nll_one(self, prev_obs: Any, prev_action: Any, obs: Any) -> float:
         """``score_transitions`` of one transition (``nll``), in a third of the numpy calls: the
         monitor pays this at every step. Equal to the batch path up to float32 rounding."""
-        return (self._fast or self._make_fast())(prev_obs, prev_action, obs)
-
-    def _make_fast(self) -> _FastNll:
-        self._fast = _FastNll(self)
-        return self._fast
+        fast = self._fast
+        if fast is None:
+            fast = self._fast = _FastNll(self)
+        return fast(prev_obs, prev_action, obs)
 
     def score_transitions(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray) -> np.ndarray:
         """Scores of a batch of transitions ``(obs, actions) -> next_obs``, (batch,)."""
@@ -326,11 +324,11 @@ class _FastNll:
         # Constants as 0-d float32 arrays: numpy takes a Python float scalar in twice the time of
         # an array (1.2 vs 0.6 us for 20 numbers here).
         self.one, self.span = _f32(1.0), _f32(math.exp(_MAX_LOGVAR - floor))
-        # The buffers: pre-activations z, their tanh t, hidden vectors h (with their constant 1).
+        # The buffers: pre-activations z, hidden vectors h (with their constant 1), a scratch for tanh.
         self.z_first = np.empty(members * hidden, np.float32)
         self.z = [self.z_first.reshape(members, 1, hidden)] + [np.empty((members, 1, hidden), np.float32)
                                                                for _ in middle]
-        self.t = [np.empty((members, 1, hidden), np.float32) for _ in self.z]
+        self.tanh = np.empty((members, 1, hidden), np.float32)
         self.h = [np.ones((members, 1, hidden + 1), np.float32) for _ in self.z]
         self.h_values = [h[:, :, :hidden] for h in self.h]
         self.out = np.empty((members, 1, 2 * d), np.float32)
@@ -349,8 +347,8 @@ class _FastNll:
             z += bias
         else:
             z += self.bias_per_action[int(prev_action)]
-        for z, t, h, h_values, weights, product in zip(self.z, self.t, self.h, self.h_values, self.layers,
-                                                       self.products):
+        t = self.tanh
+        for z, h, h_values, weights, product in zip(self.z, self.h, self.h_values, self.layers, self.products):
             np.tanh(z, out=t)
             t += one
             np.multiply(t, z, out=h_values)  # SiLU, into h beside its constant 1
