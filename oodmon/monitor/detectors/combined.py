@@ -72,19 +72,32 @@ class CombinedDetector(Detector):
 
     def _set_reference(self, reference: dict[str, np.ndarray], scale: dict[str, float]) -> None:
         self._reference, self._scale = reference, scale
-        self._sorted = {name: values.tolist() for name, values in reference.items()}
-        # What score() reads for each member, in one tuple: no dict look-ups at a step but the score's
-        self._ranked = [(name, self._sorted[name], scale[name]) for name in self.members]
+        # What score() reads for each member, in one tuple (no dict look-ups at a step but the
+        # score's): the ID scores as a list (bisect on a list costs a tenth of np.searchsorted on
+        # a scalar), the rank of each of their n + 1 positions computed once, the largest ID
+        # score and the scale of the excess beyond it.
+        self._ranked = []
+        for name in self.members:
+            values = reference[name].tolist()
+            n = len(values)
+            ranks = [-math.log10((1 + n - position) / (n + 1)) for position in range(n + 1)]
+            self._ranked.append((name, values, ranks, values[-1], scale[name]))
+        self._by_name = {entry[0]: entry for entry in self._ranked}
 
     def rank(self, name: str, value: float) -> float:
-        """``-log10`` of ``value``'s conformal p-value among the ID scores of member ``name``."""
-        return _rank(self._sorted[name], value, self._scale[name])
+        """``-log10`` of ``value``'s conformal p-value among the ID scores of member ``name``, grown
+        beyond the largest by the excess in units of the member's ID standard deviation."""
+        _, values, ranks, top, scale = self._by_name[name]
+        rank = ranks[bisect_left(values, value)]
+        return rank + (value - top) / scale if value > top else rank
 
     def score(self, context: StepContext) -> float:
         self.check_fitted()
         scores = context.scores
         try:
-            return max([_rank(reference, scores[name], scale) for name, reference, scale in self._ranked])
+            # rank() of each member, written out: three calls fewer at every step
+            return max([ranks[bisect_left(values, value)] + (value - top) / scale if (value := scores[name]) > top
+                        else ranks[bisect_left(values, value)] for name, values, ranks, top, scale in self._ranked])
         except KeyError:
             missing = [m for m in self.members if m not in scores]
             if not missing:
@@ -110,13 +123,3 @@ class CombinedDetector(Detector):
                                             for name in detector.members})
         return detector
 
-
-def _rank(reference: list[float], value: float, scale: float) -> float:
-    """``-log10`` of ``value``'s conformal p-value among the sorted ID scores ``reference``, grown
-    beyond their largest by the excess in units of ``scale``. A function, not a method: the monitor
-    calls it for each member at every step."""
-    n = len(reference)  # a list: bisect on it costs a tenth of np.searchsorted on a scalar
-    rank = -math.log10((1 + n - bisect_left(reference, value)) / (n + 1))
-    if value > reference[-1]:
-        rank += (value - reference[-1]) / scale
-    return rank
