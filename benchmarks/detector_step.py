@@ -16,8 +16,8 @@ one quarter of an hour where the pairs' median read 1.47-1.48).
 Before the ratio it prints where an all-detector step's time goes: the median time of each
 detector's score() and of the MCAP sink's write_step(), each timed in the loop (in episodes of
 their own, after the pairs: the timers do not touch the pairs' steps). A detector costs more in
-the loop than called alone again and again (the dynamics detector 22-23 us against 16-18, the
-features detector 9 against 5-6, measured here): between two of its calls the caches and branch
+the loop than called alone again and again (the dynamics detector 20.5-21 us against 14-15, the
+features detector 9 against 5.5, measured here): between two of its calls the caches and branch
 predictors serve the rest of the step, the policy's 1.35 MB of weights among it.
 """
 
