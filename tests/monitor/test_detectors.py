@@ -107,6 +107,10 @@ def test_combined_is_the_largest_id_rank_of_its_members():
     assert combined.score(context) == pytest.approx(-np.log10(11 / 101))
     beyond = combined.score(StepContext(np.zeros(1), 0, scores={"a": 99.0 + 2 * np.std(np.arange(100.0)), "b": 0}))
     assert beyond == pytest.approx(-np.log10(1 / 101) + 2.0)  # past the ID maximum it keeps growing
+    assert combined.rank("a", 89.5) == pytest.approx(-np.log10(11 / 101)) and combined.rank("a", -3.0) == 0.0
+    for scores in ({"a": 89.5, "b": 500.0}, {"a": -3.0, "b": 1e6}, {"a": 50.0, "b": 990.0}, {"a": 99.0, "b": 0.0}):
+        ranks = [combined.rank(name, value) for name, value in scores.items()]
+        assert combined.score(StepContext(np.zeros(1), 0, scores=scores)) == max(ranks)  # the same floats
     with pytest.raises(ConfigError, match="needs the scores of b"):
         combined.score(StepContext(np.zeros(1), 0, scores={"a": 1.0}))
 
