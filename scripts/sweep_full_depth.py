@@ -66,7 +66,7 @@ def table() -> str:
     lines = ["| task | method | depth | p | learning rate | steps | ID return (20 ep.) | solved | AUROC chosen_std | "
              "AUROC pre_squash_std |", "|---|---|---|---:|---:|---:|---:|---|---:|---:|"]
     goal = {"cartpole": 475.0, "pendulum": -200.0}
-    for r in map(json.loads, OUT.read_text().splitlines()):
+    for r in read_rows(OUT):
         means = {k: float(np.mean(list(v.values()))) for k, v in r["auroc"].items()}
         depth = "output only" if r["last_only"] else "full"
         if r.get("shipped"):
@@ -92,9 +92,7 @@ def main() -> None:
     if args.table:
         print(table())
         return
-    done = set()
-    if OUT.exists():
-        done = {_key(r) for r in map(json.loads, OUT.read_text().splitlines())}
+    done = {_key(r) for r in read_rows(OUT)}
     for task in args.tasks.split(","):
         for method in args.methods.split(","):
             if args.shipped:
@@ -136,21 +134,40 @@ def _measure(agent, task: str, method: str, settings: dict, start: float | None 
     """Append the agent's row: ID return, per-step AUROC per score and variant, variant returns."""
     start = time.monotonic() if start is None else start
     row = {"task": task, "method": method, **settings, "mc_seed": MC_SEED,
-           "id_return_mean": agent.metadata["id_return_mean"], "auroc": {}}
-    for score in (["chosen_std"] + (["pre_squash_std"] if task == "pendulum" else [])):
-        id_scores, _ = _scores(agent, task, 10, 200_000, score)
-        row["auroc"][score] = {}
-        for spec in VARIANTS[(task, method)]:
-            ood, returns = _scores(agent, spec, 5, 400_000, score)
-            labels = np.r_[np.zeros(len(id_scores)), np.ones(len(ood))]
-            row["auroc"][score][spec] = round(float(roc_auc_score(labels, np.r_[id_scores, ood])), 3)
-            row.setdefault("variant_return_mean", {})[spec] = round(float(np.mean(returns)), 1)
+           "id_return_mean": agent.metadata["id_return_mean"]}
+    row["auroc"], row["variant_return_mean"], _ = spread_aurocs(agent, task, VARIANTS[(task, method)])
     row["wall_time_s"] = round(time.monotonic() - start, 1)
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    with OUT.open("a") as f:
+    append_row(OUT, row)
+
+
+def spread_aurocs(policy, task: str, variants: list[str]) -> tuple[dict, dict, float]:
+    """The sweeps' measurement of a policy (an agent or an estimator, acting under the monitor):
+    per score (the paper's, and ``pre_squash_std`` on Pendulum) and variant the per-step AUROC of
+    10 ID episodes (seeds 200000+) against 5 of the variant (seeds 400000+); the variants' mean
+    returns; the ID episodes' mean return."""
+    auroc, returns = {}, {}
+    for score in (["chosen_std"] + (["pre_squash_std"] if task == "pendulum" else [])):
+        id_scores, id_returns = _scores(policy, task, 10, 200_000, score)
+        auroc[score] = {}
+        for spec in variants:
+            ood, shifted_returns = _scores(policy, spec, 5, 400_000, score)
+            labels = np.r_[np.zeros(len(id_scores)), np.ones(len(ood))]
+            auroc[score][spec] = round(float(roc_auc_score(labels, np.r_[id_scores, ood])), 3)
+            returns[spec] = round(float(np.mean(shifted_returns)), 1)
+    return auroc, returns, round(float(np.mean(id_returns)), 1)
+
+
+def read_rows(path: Path) -> list[dict]:
+    """The JSON lines of a sweep's file (none before its first row)."""
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+def append_row(path: Path, row: dict) -> None:
+    """One JSON line more in ``path`` (and on the screen)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as f:
         f.write(json.dumps(row) + "\n")
     print(json.dumps(row), flush=True)
-
 
 if __name__ == "__main__":
     main()
