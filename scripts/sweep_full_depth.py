@@ -169,5 +169,6 @@ def append_row(path: Path, row: dict) -> None:
         f.write(json.dumps(row) + "\n")
     print(json.dumps(row), flush=True)
 
+
 if __name__ == "__main__":
     main()
