@@ -292,6 +292,18 @@ def test_the_one_step_dynamics_path_equals_the_batch_path_for_continuous_actions
             np.testing.assert_allclose(one_by_one, batch, rtol=1e-4, atol=1e-4 * max(1.0, np.abs(batch).max()))
 
 
+@pytest.mark.parametrize("members, hidden", [(1, 7), (3, 16), (5, 64)])
+def test_the_one_step_dynamics_path_equals_the_batch_path_at_other_sizes(id_trajectories, members, hidden):
+    """The one-transition path lays each member's units out with a constant unit and pads the first
+    layer to a multiple of 16 columns (8, 51 and 325 units here): the same scores as the batch path
+    for any ensemble size and width, one member included."""
+    detector = DynamicsDetector(2, members=members, hidden=hidden, epochs=2, seed=0).fit(id_trajectories[:1])
+    t = id_trajectories[5]
+    batch = detector.score_transitions(t.observations[:-1], t.actions, t.observations[1:])
+    one_by_one = [detector._nll_one(t.observations[k], t.actions[k], t.observations[k + 1]) for k in range(len(t.actions))]
+    np.testing.assert_allclose(one_by_one, batch, rtol=1e-4, atol=1e-4 * max(1.0, np.abs(batch).max()))
+
+
 def test_the_dynamics_floor_of_the_log_variance_is_kept_and_used_by_both_paths(id_trajectories, tmp_path):
     """min_logvar: saved and loaded with the detector (files without it read as the old -12), used by
     the monitor's one-step path as by the batch path, refused outside [-30, 2); a higher floor caps
