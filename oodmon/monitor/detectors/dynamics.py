@@ -328,6 +328,7 @@ class _FastNll:
             act_scale = 1.0 / norm["act_std"].astype(np.float64)
             self.w_act = first_layer(w0[d:] * act_scale[:, None], 0.0)
             self.bias = first_layer(bias - (norm["act_mean"] * act_scale) @ w0[d:], _CONSTANT_Z)
+            self.action_bias = np.empty(width, np.float32)  # the action's part of a step's first layer
         else:
             self.bias_per_action = list(first_layer(bias[None, :] + w0[d:], _CONSTANT_Z))  # row a: action a's one-hot
         floor = float(detector.min_logvar)
@@ -376,7 +377,7 @@ class _FastNll:
         one = self.one
         z = np.matmul(prev, self.w_obs, out=self.z_first)  # half the first pre-activation
         if self.n_actions is None:
-            bias = np.asarray(prev_action, dtype=np.float32).reshape(-1) @ self.w_act
+            bias = np.matmul(np.asarray(prev_action, dtype=np.float32).reshape(-1), self.w_act, out=self.action_bias)
             bias += self.bias
             z += bias
         else:
