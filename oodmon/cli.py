@@ -239,7 +239,7 @@ def _parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--mode", choices=["episode", "step"], default="episode",
                            help="guarantee per episode (default) or per step")
     calibrate.add_argument("--score", default="chosen_std",
-                           help="the spread's score: chosen_std (default), mean_std, max_std or pre_squash_std")
+                           help="the spread's score: chosen_std (default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
     calibrate.add_argument("--detector", choices=list(DETECTOR_NAMES),
                            help="the detector the alarm reads (default: the task's best measured one when the agent has "
                                 "fitted detectors: cartpole combined, pendulum dynamics, pong features; else spread); "
@@ -346,7 +346,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_confidence(bench, default="0.9; monitor protocol: 0.99, so that the rate of 200 ID episodes shows the bound")
     bench.add_argument("--workers", type=_whole(0), default=0, help="worker processes for the cells (default: all cores)")
     bench.add_argument("--score", default="chosen_std",
-                       help="chosen_std (the paper's, default), mean_std, max_std or pre_squash_std (DDPG)")
+                       help="chosen_std (the paper's, default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
     bench.add_argument("--window", type=_whole(1),
                        help="alarm rule on the mean score of the last N steps (default 1; Pong 200 unless the frames "
                             "detector); AUROCs do not change")

@@ -5,6 +5,9 @@
   paper's score: how unsure the policy is about what it actually does.
 - ``mean_std``: the std averaged over all actions (DQN) or action dimensions (DDPG).
 - ``max_std``: the largest std over actions or action dimensions.
+- ``margin_std`` (DQN): the std across samples of the chosen action's margin, its Q-value minus the
+  best other action's. A sample that shifts every Q-value alike (the state's value) does not move the
+  margin, and the margin is what the decision rests on: with two actions it is the std of Q0 - Q1.
 - ``pre_squash_std`` (DDPG): the std of the actor's output before its tanh, averaged over action
   dimensions. A saturated tanh makes samples agree exactly when the actor pushes hard, which is
   what it does in many failing worlds.
@@ -37,12 +40,26 @@ def _pre_squash_std(estimate: Estimate) -> np.ndarray:
     return estimate.pre_squash_std.mean(axis=1)
 
 
+def _margin_std(estimate: Estimate) -> np.ndarray:
+    action = estimate.action
+    if not (action.ndim == 1 and action.dtype.kind in "iu"):
+        raise ConfigError("score 'margin_std' needs discrete actions (DQN); use chosen_std or pre_squash_std")
+    samples = estimate.samples  # (K, batch, n)
+    if samples.shape[2] < 2:
+        raise ConfigError("score 'margin_std' needs at least two actions")
+    rows = np.arange(len(action))
+    others = samples.copy()
+    others[:, rows, action] = -np.inf
+    return (samples[:, rows, action] - others.max(axis=2)).std(axis=0)
+
+
 #: Score functions by name: Estimate -> (batch,) scores.
 SCORES: dict[str, Callable[["Estimate"], np.ndarray]] = {
     "chosen_std": _chosen_std,
     "mean_std": lambda estimate: estimate.std.mean(axis=1),
     "max_std": lambda estimate: estimate.std.max(axis=1),
     "pre_squash_std": _pre_squash_std,
+    "margin_std": _margin_std,
 }
 DEFAULT_SCORE = "chosen_std"
 

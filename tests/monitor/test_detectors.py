@@ -93,7 +93,7 @@ def test_features_separate_gaussian_noise_frames_in_pong():
 
 def test_spread_detector_gives_the_scores_of_before(agent, id_trajectories):
     obs = id_trajectories[0].observations[:50]
-    for name in ("chosen_std", "mean_std", "max_std"):
+    for name in ("chosen_std", "mean_std", "max_std", "margin_std"):
         detector = SpreadDetector(name)
         for o in obs:
             estimate = agent.estimate(o)

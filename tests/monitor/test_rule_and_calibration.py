@@ -77,6 +77,24 @@ def test_scores():
         score_function("entropy")
 
 
+def test_margin_std_is_the_spread_of_the_chosen_actions_lead():
+    # Two samples, three actions. Observation 0 chose action 1: its margins over the best other action
+    # are 5 - 4 = 1 and 9 - 2 = 7 (std 3). Observation 1 chose action 0 and both samples shift every
+    # Q-value by the same 10: the margins agree (std 0) although each Q-value's std is 5.
+    samples = np.array([[[1.0, 5.0, 4.0], [3.0, 1.0, 2.0]],
+                        [[2.0, 9.0, 0.0], [13.0, 11.0, 12.0]]])
+    estimate = Estimate(action=np.array([1, 0]), samples=samples, mean=samples.mean(0), std=samples.std(0))
+    assert score_function("margin_std")(estimate).tolist() == [3.0, 0.0]
+    assert score_function("chosen_std")(estimate).tolist() == [2.0, 5.0]
+    assert samples[:, 0, 1].tolist() == [5.0, 9.0]  # the score did not write into the samples
+    two = Estimate(action=np.array([0]), samples=np.array([[[3.0, 1.0]], [[2.0, 4.0]]]), mean=np.zeros((1, 2)),
+                   std=np.zeros((1, 2)))
+    assert score_function("margin_std")(two).tolist() == [2.0]  # margins 2 and -2: the std of Q0 - Q1
+    ddpg = Estimate(action=np.array([[0.3]]), samples=np.zeros((3, 1, 1)), mean=np.zeros((1, 1)), std=np.zeros((1, 1)))
+    with pytest.raises(ConfigError, match="'margin_std' needs discrete actions"):
+        score_function("margin_std")(ddpg)
+
+
 def test_conformal_rank():
     # On average over calibrations (confidence None): 19 episodes, far 0.05, rank ceil(20 * 0.95) = 19,
     # the largest statistic; 39 episodes: rank ceil(40 * 0.95) = 38.

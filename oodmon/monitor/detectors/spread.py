@@ -15,7 +15,7 @@ class SpreadDetector(Detector):
     """The std across the policy's MC or ensemble samples, by the named score.
 
     Args:
-        score: ``chosen_std`` (the paper's), ``mean_std``, ``max_std`` or ``pre_squash_std``.
+        score: ``chosen_std`` (the paper's), ``mean_std``, ``max_std``, ``margin_std`` or ``pre_squash_std``.
 
     Example:
         >>> import numpy as np
