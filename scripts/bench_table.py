@@ -112,8 +112,13 @@ def plot(path: Path) -> Path:
 
 
 if __name__ == "__main__":
+    if {"-h", "--help"} & set(sys.argv[1:]):
+        sys.exit(__doc__)
     arguments = [a for a in sys.argv[1:] if a != "--plots"]
     paths = [Path(p) for p in arguments] or sorted(RESULTS.glob("*.json"))
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        sys.exit(f"bench_table: no such results file: {', '.join(missing)} (see --help)")
     for path in paths:
         print(f"{path.stem}:\n\n{table(path)}\n")
         if "--plots" in sys.argv[1:]:
