@@ -3,10 +3,11 @@ probability still solves the task, and how well its spread separates the paper's
 
 Run (resumable; one torch thread, so it can sit beside other work):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_full_depth.py [--tasks cartpole,pendulum]
-        [--methods dropconnect] [--grid 0.01,0.02] [--learning-rate 1e-3] [--steps 100000]
+        [--methods dropconnect] [--grid 0.01,0.02] [--learning-rate 1e-3] [--steps 100000] [--net-arch 64,64]
 
-``--learning-rate`` and ``--steps`` change the recipe's; every row records the learning rate and steps its
-agent was trained with (rows from before the recipe's defaults changed: those of their time).
+``--learning-rate``, ``--steps`` and ``--net-arch`` (hidden widths) change the recipe's; every row records
+the learning rate and steps its agent was trained with (rows from before the recipe's defaults changed:
+those of their time), and its hidden widths when they are not the recipe's.
 ``--shipped`` measures the shipped agents (at the depth they ship) on the same
 episodes, the row to compare with. ``--table`` prints the rows as the zoo README's markdown table instead of running anything.
 
@@ -63,15 +64,16 @@ def _scores(agent, spec: str, episodes: int, seed: int, score: str) -> tuple[np.
 
 def table() -> str:
     """The sweep's rows as markdown: solved or not, and the mean AUROC over the paper's variants."""
-    lines = ["| task | method | depth | p | learning rate | steps | ID return (20 ep.) | solved | AUROC chosen_std | "
-             "AUROC pre_squash_std |", "|---|---|---|---:|---:|---:|---:|---|---:|---:|"]
+    lines = ["| task | method | depth | hidden | p | learning rate | steps | ID return (20 ep.) | solved | AUROC chosen_std | "
+             "AUROC pre_squash_std |", "|---|---|---|---|---:|---:|---:|---:|---|---:|---:|"]
     goal = {"cartpole": 475.0, "pendulum": -200.0}
     for r in read_rows(OUT):
         means = {k: float(np.mean(list(v.values()))) for k, v in r["auroc"].items()}
         depth = "output only" if r["last_only"] else "full"
         if r.get("shipped"):
             depth += " (shipped)" if recipe_for(r["task"], r["method"]).last_only == r["last_only"] else " (shipped before)"
-        lines.append(f"| {r['task']} | {r['method']} | {depth} | {r['drop_p']:g} | {r['learning_rate']:g} | "
+        hidden = ", ".join(str(w) for w in (r.get("net_arch") or recipe_for(r["task"], r["method"]).net_arch))
+        lines.append(f"| {r['task']} | {r['method']} | {depth} | [{hidden}] | {r['drop_p']:g} | {r['learning_rate']:g} | "
                      f"{r['steps']:,} | {r['id_return_mean']:.1f} | "
                      f"{'yes' if r['id_return_mean'] >= goal[r['task']] else 'no'} | {means['chosen_std']:.3f} | "
                      + (f"{means['pre_squash_std']:.3f} |" if "pre_squash_std" in means else "- |"))
@@ -85,6 +87,7 @@ def main() -> None:
     parser.add_argument("--grid", default=",".join(str(p) for p in GRID))
     parser.add_argument("--learning-rate", type=float, help="instead of the recipe's (recorded in the row)")
     parser.add_argument("--steps", type=int, help="training steps instead of the recipe's (recorded in the row)")
+    parser.add_argument("--net-arch", help="hidden widths instead of the recipe's, e.g. 64,64 (recorded in the row)")
     parser.add_argument("--table", action="store_true", help="print the rows as a markdown table, run nothing")
     parser.add_argument("--shipped", action="store_true",
                         help="measure the shipped (last-only) agents the same way instead of training")
@@ -111,6 +114,10 @@ def main() -> None:
                     recipe = replace(recipe, total_steps=args.steps)
                     name += f"-steps{args.steps}"
                 settings = {"drop_p": p, "last_only": False, **_trained_by(recipe)}
+                if args.net_arch is not None:
+                    recipe = replace(recipe, net_arch=[int(w) for w in args.net_arch.split(",")])
+                    name += "-net" + "x".join(str(w) for w in recipe.net_arch)
+                    settings["net_arch"] = recipe.net_arch
                 if _key({"task": task, "method": method, **settings}) in done:
                     continue
                 start = time.monotonic()
@@ -127,7 +134,8 @@ def _trained_by(recipe) -> dict:
 def _key(row: dict) -> tuple:
     if row.get("shipped"):
         return row["task"], row["method"], "shipped", row["last_only"]
-    return row["task"], row["method"], row["drop_p"], row["learning_rate"], row["steps"]
+    net_arch = tuple(row.get("net_arch") or recipe_for(row["task"], row["method"]).net_arch)
+    return row["task"], row["method"], row["drop_p"], row["learning_rate"], row["steps"], net_arch
 
 
 def _measure(agent, task: str, method: str, settings: dict, start: float | None = None) -> None:
