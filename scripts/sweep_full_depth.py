@@ -87,7 +87,8 @@ def main() -> None:
     parser.add_argument("--grid", default=",".join(str(p) for p in GRID))
     parser.add_argument("--learning-rate", type=float, help="instead of the recipe's (recorded in the row)")
     parser.add_argument("--steps", type=int, help="training steps instead of the recipe's (recorded in the row)")
-    parser.add_argument("--net-arch", help="hidden widths instead of the recipe's, e.g. 64,64 (recorded in the row)")
+    parser.add_argument("--net-arch", type=_widths,
+                        help="hidden widths instead of the recipe's, e.g. 64,64 (recorded in the row)")
     parser.add_argument("--table", action="store_true", help="print the rows as a markdown table, run nothing")
     parser.add_argument("--shipped", action="store_true",
                         help="measure the shipped (last-only) agents the same way instead of training")
@@ -115,7 +116,7 @@ def main() -> None:
                     name += f"-steps{args.steps}"
                 settings = {"drop_p": p, "last_only": False, **_trained_by(recipe)}
                 if args.net_arch is not None:
-                    recipe = replace(recipe, net_arch=[int(w) for w in args.net_arch.split(",")])
+                    recipe = replace(recipe, net_arch=args.net_arch)
                     name += "-net" + "x".join(str(w) for w in recipe.net_arch)
                     settings["net_arch"] = recipe.net_arch
                 if _key({"task": task, "method": method, **settings}) in done:
@@ -123,6 +124,17 @@ def main() -> None:
                 start = time.monotonic()
                 train(task, method, f"runs/sweep/{name}", seed=0, recipe=recipe, command=f"scripts/sweep_full_depth.py ({name})")
                 _measure(load_agent(f"runs/sweep/{name}", task=task, seed=MC_SEED), task, method, settings, start)
+
+
+def _widths(text: str) -> list[int]:
+    """``--net-arch``: hidden widths as comma-separated whole numbers, e.g. ``64,64``."""
+    try:
+        widths = [int(w) for w in text.split(",")]
+    except ValueError:
+        widths = []
+    if not widths or min(widths) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a list of hidden widths such as 64,64")
+    return widths
 
 
 def _trained_by(recipe) -> dict:
