@@ -539,8 +539,11 @@ def _calibrate(args: argparse.Namespace) -> int:
     detectors = detectors_for(agent, args.detectors)
     fitted_to = None
     # A learned detector asked for, or a model from elsewhere (a plain policy has no spread; an SB3
-    # ensemble's spread is weak): fit them first, on episodes of their own.
-    if detectors is None and (args.detector not in (None, "spread") or agent.estimator is None or agent.env_id):
+    # ensemble's spread is weak): fit them first, on episodes of their own. So too for a combined
+    # detector asked for with another spread score than the fitted one ranks.
+    left_out = detectors.for_score(args.score)[1] if detectors is not None else None
+    if (detectors is None and (args.detector not in (None, "spread") or agent.estimator is None or agent.env_id)
+            or (args.detector == "combined" and left_out)):
         fitted_to = Path(f"{args.out}.detectors")
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
         with _progress() as report:
@@ -565,7 +568,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     if best is not None and args.detector is None and threshold.detector != best:
         Console(stderr=True, soft_wrap=True).print(
             f"note: the {best} detector separates {args.task}'s shifts better than {threshold.detector}; "
-            f"`--detector {best}` fits it first (about {DEFAULT_FIT_EPISODES} more ID episodes)")
+            f"`--detector {best}` fits it first (about {DEFAULT_FIT_EPISODES} more ID episodes)"
+            + (f"; the fitted one is left out: {left_out}" if left_out and best == "combined" else ""))
     return 0
 
 

@@ -267,3 +267,22 @@ def test_progress_lines_carry_the_time_left_and_the_last_evaluation(capsys, monk
     lines = [line for line in capsys.readouterr().err.splitlines() if "cartpole/dropout main training steps:" in line]
     assert lines[1].endswith("400/1000 steps, 3.3 steps/s, about 3 min left, last evaluation return 212.0 at step 400")
     assert lines[2].endswith("1000/1000 steps, 10.0 steps/s, last evaluation return 212.0 at step 400")
+
+
+def test_calibrate_combined_with_another_spread_score_fits_detectors_for_it(tmp_path, capsys):
+    """The shipped CartPole detectors rank the spread by chosen_std: `calibrate --score margin_std
+    --detector combined` fits a set for margin_std beside the threshold instead of ranking margin
+    spreads among chosen_std ones; without --detector the alarm reads spread and the note says why."""
+    threshold = tmp_path / "thr.json"
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--score", "margin_std", "--detector",
+                 "combined", "--fit-episodes", "6", "--episodes", "19", "--confidence", "none",
+                 "--out", str(threshold)]) == 0
+    assert "fitted the detectors into" in capsys.readouterr().out
+    saved = json.loads((tmp_path / "thr.json.detectors" / "detectors.json").read_text())
+    assert {d["name"]: d["config"] for d in saved["detectors"]}["spread"] == {"score": "margin_std"}
+    assert json.loads(threshold.read_text())["detector"] == "combined"
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--score", "margin_std",
+                 "--episodes", "19", "--confidence", "none", "--out", str(tmp_path / "spread.json")]) == 0
+    assert json.loads((tmp_path / "spread.json").read_text())["detector"] == "spread"
+    assert "the fitted one is left out: the fitted combined detector ranks the spread by 'chosen_std'" in (
+        capsys.readouterr().err.replace("\n", " "))

@@ -98,7 +98,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
     score_function(score)
     if detector is None:
-        detector = best_detector(agent.task, detectors)
+        detector = best_detector(agent.task, detectors, score)
     if detector not in DETECTOR_NAMES:
         raise InvalidParameterError(f"detector={detector!r} is not allowed; choose one of {', '.join(DETECTOR_NAMES)}")
     if detector != "spread" and (detectors is None or detector not in detectors):

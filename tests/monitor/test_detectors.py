@@ -18,7 +18,7 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor import McapSink, MemorySink, Monitor, Threshold, calibrate_agent
 from oodmon.monitor.detectors import (
     CombinedDetector, DetectorSet, DynamicsDetector, FeaturesDetector, SpreadDetector, StepContext, collect,
-    Trajectory, fit_detectors, trajectory_scores,
+    Trajectory, best_detector, detectors_for, fit_detectors, trajectory_scores,
 )
 from oodmon.monitor.scores import score_function
 from oodmon.replay import compute_all_metrics, read_log
@@ -327,3 +327,26 @@ def test_the_dynamics_floor_of_the_log_variance_is_kept_and_used_by_both_paths(i
     for bad in (2.0, -31.0, float("nan"), "low", True):
         with pytest.raises(InvalidParameterError, match="min_logvar"):
             DynamicsDetector(2, min_logvar=bad)
+
+
+def test_a_combined_detector_fitted_on_one_spread_score_is_not_used_with_another(agent):
+    # The shipped CartPole detectors rank the spread by chosen_std. With margin_std the combined
+    # detector's ranks would compare margin spreads with chosen_std ones: it is left out, and an
+    # alarm on it is refused with what to do instead.
+    fitted = detectors_for(agent)
+    assert fitted["spread"].score_name == "chosen_std" and "combined" in fitted
+    sink = MemorySink()
+    with Monitor(agent, score="margin_std", detectors=fitted, sinks=[sink]) as monitor:
+        assert sorted(monitor.detectors.names) == ["dynamics", "features", "spread"]
+        assert monitor.detectors["spread"].score_name == "margin_std"
+        record = monitor.run_episode(Variant("cartpole").make(), seed=3)
+    assert record.length == len(sink.steps) > 0 and sorted(sink.steps[0].scores) == ["dynamics", "features", "spread"]
+    estimate = agent.estimate(sink.steps[0].observation)
+    assert sink.steps[0].scores["spread"] == pytest.approx(float(score_function("margin_std")(estimate)[0]))
+    with Monitor(agent, score="chosen_std", detectors=fitted) as monitor:
+        assert "combined" in monitor.detectors and monitor.detectors["spread"] is fitted["spread"]
+    with pytest.raises(ConfigError, match=r"ranks the spread by 'chosen_std', not by 'margin_std'; refit .*"
+                                          r"oodmon fit-detectors --score margin_std"):
+        Monitor(agent, score="margin_std", detectors=fitted, detector="combined")
+    assert best_detector("cartpole", fitted, "margin_std") == "spread"
+    assert best_detector("cartpole", fitted, "chosen_std") == best_detector("cartpole", fitted) == "combined"

@@ -44,11 +44,14 @@ DEFAULT_FIT_EPISODES = 30
 BEST_DETECTOR = {"cartpole": "combined", "pendulum": "dynamics", "pong": "frames"}
 
 
-def best_detector(task: str | None, detectors: DetectorSet | None) -> str:
+def best_detector(task: str | None, detectors: DetectorSet | None, score: str | None = None) -> str:
     """The detector an alarm reads by default: the task's best (:data:`BEST_DETECTOR`; for an env
-    oodmon has not measured, ``combined``) when ``detectors`` has it fitted, else ``spread``, or
-    for a plain policy (no ``spread``) the set's last detector."""
+    oodmon has not measured, ``combined``) when ``detectors`` has it fitted (and, given the
+    spread's ``score``, fitted for it: see :meth:`DetectorSet.for_score`), else ``spread``, or for
+    a plain policy (no ``spread``) the set's last detector."""
     best = BEST_DETECTOR.get(task or "", "combined")
+    if detectors is not None and score is not None:
+        detectors = detectors.for_score(score)[0]
     if detectors is not None and best in detectors:
         return best
     if detectors is not None and len(detectors) and "spread" not in detectors:

@@ -80,6 +80,24 @@ class DetectorSet:
         kept = [d for d in self if d.name != detector.name]
         return DetectorSet([*kept, detector], fitted_for=self.fitted_for)
 
+    def for_score(self, score: str) -> tuple[DetectorSet, str | None]:
+        """The set with its ``spread`` computed by ``score``, and why ``combined`` was left out, if it was.
+
+        A fitted ``combined`` detector ranks ``spread`` among the ID scores of the score it was fitted
+        with; against another score those ranks mean nothing, so it is left out (refit it with the
+        score you want: ``fit_detectors(..., score=...)``, ``oodmon fit-detectors --score``). A set without
+        ``spread``, or whose ``spread`` already has ``score``, comes back as it is.
+        """
+        if "spread" not in self or self["spread"].score_name == score:
+            return self, None
+        fitted = self["spread"].score_name
+        changed = self.with_detector(SpreadDetector(score))
+        if "combined" not in self or "spread" not in self["combined"].members:
+            return changed, None
+        why = (f"the fitted combined detector ranks the spread by {fitted!r}, not by {score!r}; refit the detectors with "
+               f"that score (`oodmon fit-detectors --score {score}`, fit_detectors(..., score={score!r})) or use score {fitted!r}")
+        return changed.subset([name for name in changed.names if name != "combined"]), why
+
     def subset(self, names: Sequence[str]) -> DetectorSet:
         """The detectors ``names`` and whatever they read (``combined``'s members)."""
         wanted = set(names)
