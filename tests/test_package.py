@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import importlib
 import inspect
 import subprocess
@@ -126,3 +127,11 @@ def test_readme_detector_table_is_made_from_the_committed_results():
     begin, end = "<!-- detector_table -->\n", "\n<!-- end detector_table -->"
     assert begin in readme and end in readme, "README lacks the detector table's markers"
     assert readme[readme.index(begin) + len(begin):readme.index(end)] == script.table()
+
+
+def test_readme_pong_spread_score_table_is_made_from_the_committed_results():
+    """The README's Pong table of spread scores is scripts/pong_spread_scores.py's on its results file."""
+    root, script = _script("pong_spread_scores")
+    results = json.loads((root / "results" / "detectors" / "spread-scores-pong.json").read_text())
+    assert sorted(results) == ["dropconnect", "dropout", "ensemble"]
+    assert script.table(results) in (root / "README.md").read_text()
