@@ -1,0 +1,95 @@
+"""A candidate depth and drop probability over five seeds, beside the shipped recipe's five trials: does
+it detect better and more evenly across trainings?
+
+Run (resumable; one torch thread; minutes per seed on Pendulum):
+    OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_trials.py --task pendulum --method dropconnect \\
+        --p 0.05 [--seeds 0,1,2,3,4]           # the candidate: full depth (a stochastic layer after every hidden layer)
+    OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_trials.py --task pendulum --method dropconnect --shipped
+    .venv/bin/python scripts/sweep_trials.py --table                       # mean ± std over seeds per variant
+
+The candidate is the shipped recipe with ``last_only=False`` and ``drop_p=p``, trained with seed k into
+``runs/sweep/trials/<task>-<method>-full-p<p>-seed<k>``. ``--shipped`` measures the shipped recipe's
+five trials as the bench has them: trial 0 is the zoo agent and trial k is
+``runs/bench5/models/<task>-<method>-trial<k>`` (`oodmon bench --task T --trials 5 --workers 1 --out
+runs/bench5` trains them). Each agent is measured as scripts/sweep_full_depth.py measures (10 ID
+episodes against 5 of each of the paper's variants for the method, MC seed 0, whether or not the agent
+fails). One JSON line per (recipe, seed) goes to ``results/sweeps/trials.jsonl``; a line already there
+is not run again.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from oodmon.agents import load, load_agent
+from oodmon.agents.recipes import recipe_for
+from oodmon.agents.training import train
+from sweep_full_depth import MC_SEED, VARIANTS, append_row, read_rows, spread_aurocs
+
+OUT = Path("results/sweeps/trials.jsonl")
+
+
+def _label(row: dict) -> str:
+    return "shipped" if row.get("shipped") else f"full depth, p={row['drop_p']:g}"
+
+
+def table() -> str:
+    """Per (task, method, recipe) and score, each variant's AUROC mean ± std over the seeds measured."""
+    groups: dict[tuple, list[dict]] = {}
+    for row in read_rows(OUT):
+        groups.setdefault((row["task"], row["method"], _label(row)), []).append(row)
+    lines = ["| task | method | recipe | seeds | ID return (min to max) | score | " + "AUROC mean ± std per variant |",
+             "|---|---|---|---|---|---|---|"]
+    for (task, method, label), rows in groups.items():
+        returns = [r["id_return_mean"] for r in rows]
+        for score in rows[0]["auroc"]:
+            cells = [f"{spec.split(':')[1]} {np.mean([r['auroc'][score][spec] for r in rows]):.3f} ± "
+                     f"{np.std([r['auroc'][score][spec] for r in rows]):.3f}" for spec in rows[0]["auroc"][score]]
+            lines.append(f"| {task} | {method} | {label} | {len(rows)} | {min(returns):.1f} to {max(returns):.1f} | "
+                         f"`{score}` | {'; '.join(cells)} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--task", choices=["cartpole", "pendulum"])
+    parser.add_argument("--method", choices=["dropout", "dropconnect"])
+    parser.add_argument("--p", type=float, help="the candidate's drop probability (full depth)")
+    parser.add_argument("--shipped", action="store_true", help="measure the shipped recipe's five trials instead")
+    parser.add_argument("--seeds", default="0,1,2,3,4")
+    parser.add_argument("--table", action="store_true", help="print the rows as a markdown table, run nothing")
+    args = parser.parse_args()
+    if args.table:
+        print(table())
+        return
+    if args.task is None or args.method is None or (args.p is None) == (not args.shipped):
+        parser.error("give --task and --method, and either --p (a candidate) or --shipped")
+    done = {(r["task"], r["method"], _label(r), r["seed"]) for r in read_rows(OUT)}
+    shipped = recipe_for(args.task, args.method)
+    for seed in (int(s) for s in args.seeds.split(",")):
+        if args.shipped:
+            settings = {"drop_p": shipped.drop_p, "last_only": shipped.last_only, "shipped": True}
+        else:
+            settings = {"drop_p": args.p, "last_only": False}
+        if (args.task, args.method, _label(settings), seed) in done:
+            continue
+        if args.shipped:
+            agent = load(args.task, args.method, seed=MC_SEED) if seed == 0 else load_agent(
+                f"runs/bench5/models/{args.task}-{args.method}-trial{seed}", task=args.task, seed=MC_SEED)
+        else:
+            out = f"runs/sweep/trials/{args.task}-{args.method}-full-p{args.p:g}-seed{seed}"
+            recipe = replace(shipped, last_only=False, drop_p=args.p)
+            train(args.task, args.method, out, seed=seed, recipe=recipe, command=f"scripts/sweep_trials.py ({out})")
+            agent = load_agent(out, task=args.task, seed=MC_SEED)
+        auroc, returns, _ = spread_aurocs(agent, args.task, VARIANTS[(args.task, args.method)])
+        append_row(OUT, {"task": args.task, "method": args.method, **settings, "seed": seed, "mc_seed": MC_SEED,
+                         "id_return_mean": agent.metadata["id_return_mean"], "auroc": auroc,
+                         "variant_return_mean": returns})
+
+
+if __name__ == "__main__":
+    main()
