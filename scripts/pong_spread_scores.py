@@ -75,17 +75,20 @@ def table(results: dict) -> str:
     return "\n".join(lines)
 
 
+def _read() -> dict:
+    return json.loads(OUT.read_text()) if OUT.exists() else {}
+
+
 def main() -> None:
-    results = json.loads(OUT.read_text()) if OUT.exists() else {}
     if "--table" in sys.argv[1:]:
-        print(table(results))
+        print(table(_read()))
         return
     unknown = [m for m in sys.argv[1:] if m not in METHODS]
     if unknown:
         sys.exit(f"pong_spread_scores: unknown method {', '.join(unknown)}; choose from {', '.join(METHODS)} or --table")
     for method in sys.argv[1:] or METHODS:
         measured = measure(method)
-        results = json.loads(OUT.read_text()) if OUT.exists() else {}  # read again: another run may have written
+        results = _read()  # read after measuring: another run may have written meanwhile
         results[method] = measured
         OUT.write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
 

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import json
 import importlib
 import inspect
+import json
 import subprocess
 import sys
 import warnings

@@ -163,11 +163,8 @@ class Monitor:
             rule, reference = "consecutive", None
         self.threshold = value
         self.score_name = score or DEFAULT_SCORE
-        self._combined_left_out: str | None = None  # why (see DetectorSet.for_score)
-        self.detectors = self._detector_set(detectors, force)
+        self.detectors = self._detector_set(detectors, detector, force)
         self.detector = detector or ("spread" if "spread" in self.detectors else self.detectors.names[-1])
-        if self.detector == "combined" and self._combined_left_out:
-            raise ConfigError(f"the alarm reads the combined detector, but {self._combined_left_out}")
         if self.detector not in self.detectors:
             raise ConfigError(
                 f"the alarm reads the {self.detector!r} detector, which this monitor does not have (it has "
@@ -197,13 +194,17 @@ class Monitor:
             warnings.warn(f"using {what} that does not fit this policy: {'; '.join(differences)}", UserWarning,
                           stacklevel=3)
 
-    def _detector_set(self, detectors: DetectorSet | Sequence[Detector] | None, force: bool) -> DetectorSet:
-        """The detectors to run: those given, with ``spread`` (of ``score``) whenever the policy has samples."""
+    def _detector_set(self, detectors: DetectorSet | Sequence[Detector] | None, alarm: str | None,
+                      force: bool) -> DetectorSet:
+        """The detectors to run: those given, with ``spread`` (of ``score``) whenever the policy has samples
+        (and without a fitted ``combined`` that ranks another spread score, unless the ``alarm`` reads it: refused)."""
         chosen = detectors if isinstance(detectors, DetectorSet) else DetectorSet(list(detectors or ()))
         if self.estimator is not None and "spread" not in chosen:
             chosen = chosen.with_detector(SpreadDetector(self.score_name))
         else:
-            chosen, self._combined_left_out = chosen.for_score(self.score_name)
+            chosen, left_out = chosen.for_score(self.score_name)
+            if alarm == "combined" and left_out:
+                raise ConfigError(f"the alarm reads the combined detector, but {left_out}")
         if self.estimator is None:
             needing = [d.name for d in chosen if d.needs_estimate]
             if needing:
