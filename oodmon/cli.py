@@ -242,7 +242,7 @@ def _parser() -> argparse.ArgumentParser:
                            help="the spread's score: chosen_std (default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
     calibrate.add_argument("--detector", choices=list(DETECTOR_NAMES),
                            help="the detector the alarm reads (default: the task's best measured one when the agent has "
-                                "fitted detectors: cartpole combined, pendulum dynamics, pong features; else spread); "
+                                "fitted detectors: cartpole combined, pendulum dynamics, pong frames; else spread); "
                                 "a learned one without fitted detectors is fitted first, into <out>.detectors/")
     calibrate.add_argument("--fit-episodes", type=_whole(3), default=30,
                            help="ID episodes the learned detectors are fitted on when calibrate fits them (default 30)")
