@@ -14,7 +14,8 @@ five trials as the bench has them: trial 0 is the zoo agent and trial k is
 runs/bench5` trains them). Each agent is measured as scripts/sweep_full_depth.py measures (10 ID
 episodes against 5 of each of the paper's variants for the method, MC seed 0, whether or not the agent
 fails). One JSON line per (recipe, seed) goes to ``results/sweeps/trials.jsonl``; a line already there
-is not run again.
+is not run again. The table marks the rows of today's shipped recipe "(shipped)"; the output-layer
+Pendulum DropConnect rows were made with ``--shipped`` before the full-depth candidate was shipped.
 """
 
 from __future__ import annotations
@@ -34,14 +35,21 @@ OUT = Path("results/sweeps/trials.jsonl")
 
 
 def _label(row: dict) -> str:
-    return "shipped" if row.get("shipped") else f"full depth, p={row['drop_p']:g}"
+    return f"{'output layer' if row['last_only'] else 'full depth'}, p={row['drop_p']:g}"
+
+
+def _shown(row: dict) -> str:
+    """The row's recipe, marked when it is today's shipped recipe (rows made with ``--shipped`` when
+    another recipe was shipped keep their depth and p)."""
+    shipped = recipe_for(row["task"], row["method"])
+    return _label(row) + (" (shipped)" if (row["drop_p"], row["last_only"]) == (shipped.drop_p, shipped.last_only) else "")
 
 
 def table() -> str:
     """Per (task, method, recipe) and score, each variant's AUROC mean ± std over the seeds measured."""
     groups: dict[tuple, list[dict]] = {}
     for row in read_rows(OUT):
-        groups.setdefault((row["task"], row["method"], _label(row)), []).append(row)
+        groups.setdefault((row["task"], row["method"], _shown(row)), []).append(row)
     lines = ["| task | method | recipe | seeds | ID return (min to max) | score | " + "AUROC mean ± std per variant |",
              "|---|---|---|---|---|---|---|"]
     for (task, method, label), rows in groups.items():

@@ -158,8 +158,9 @@ def test_estimator_errors_name_the_problem():
         add_dropout(_mlp(0), 1.0)
 
 
-# p = 0.02 is below plan.SPARSE_BELOW: those layers draw the dropped positions, not a dense mask.
-@pytest.mark.parametrize("p", [0.3, 0.02], ids=["dense-mask", "dropped-positions"])
+# p = 0.02 and 0.05 (the shipped CartPole and Pendulum agents') are below plan.SPARSE_BELOW: those
+# layers draw the dropped positions, not a dense mask.
+@pytest.mark.parametrize("p", [0.3, 0.02, 0.05], ids=["dense-mask", "dropped-positions", "dropped-positions-p0.05"])
 def test_mc_dropconnect_estimator_samples_weight_masks_per_sample(p):
     torch.manual_seed(0)
     layer = DropConnectLinear(50, 40, p=p, bias=False)
