@@ -120,6 +120,17 @@ def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
         assert shown == script.table(path), f"README's table of {path.name} is not the script's"
 
 
+@pytest.mark.parametrize("name", ["sweep_full_depth", "sweep_trials", "sweep_samples"])
+def test_zoo_readme_sweep_tables_are_made_from_the_committed_rows(name, monkeypatch):
+    """The zoo README's sweep tables are the scripts' --table output on results/sweeps/, verbatim."""
+    root = _script("bench_table")[0]
+    monkeypatch.chdir(root)  # the scripts read results/sweeps/ from the working directory
+    monkeypatch.syspath_prepend(str(root / "scripts"))  # they import sweep_full_depth beside them
+    table = _script(name)[1].table()
+    assert table.count("\n") >= 3, f"{name} has no rows in results/sweeps/"
+    assert table in (root / "oodmon" / "zoo" / "README.md").read_text(), f"the zoo README's table of {name} is not the script's"
+
+
 def test_readme_detector_table_is_made_from_the_committed_results():
     """The README's detector table is scripts/detector_table.py's output on results/detectors/."""
     root, script = _script("detector_table")
