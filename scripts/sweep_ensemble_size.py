@@ -30,7 +30,7 @@ from oodmon.agents.agent import zoo_dir
 from oodmon.agents.estimators import EnsembleEstimator
 from oodmon.agents.serialization import load_modules
 from oodmon.errors import ConfigError
-from sweep_full_depth import append_row, read_rows, spread_aurocs  # scripts/: the MC sweeps' measurement
+from sweep_full_depth import append_row, parse_or_print_table, read_rows, spread_aurocs  # scripts/: the MC sweeps' measurement
 
 OUT = Path("results/sweeps/ensemble_size.jsonl")
 TRIALS = Path("runs/bench5/models")
@@ -100,10 +100,8 @@ def table() -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", default="cartpole,pendulum")
-    parser.add_argument("--table", action="store_true", help="print the rows as a markdown table, run nothing")
-    args = parser.parse_args()
-    if args.table:
-        print(table())
+    args = parse_or_print_table(parser, table)
+    if args is None:
         return
     done = {(r["task"], tuple(r["trials"])) for r in read_rows(OUT)}
     for task in args.tasks.split(","):

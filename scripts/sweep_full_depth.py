@@ -89,12 +89,10 @@ def main() -> None:
     parser.add_argument("--steps", type=int, help="training steps instead of the recipe's (recorded in the row)")
     parser.add_argument("--net-arch", type=_widths,
                         help="hidden widths instead of the recipe's, e.g. 64,64 (recorded in the row)")
-    parser.add_argument("--table", action="store_true", help="print the rows as a markdown table, run nothing")
     parser.add_argument("--shipped", action="store_true",
                         help="measure the shipped (last-only) agents the same way instead of training")
-    args = parser.parse_args()
-    if args.table:
-        print(table())
+    args = parse_or_print_table(parser, table)
+    if args is None:
         return
     done = {_key(r) for r in read_rows(OUT)}
     for task in args.tasks.split(","):
@@ -175,6 +173,17 @@ def spread_aurocs(policy, task: str, variants: list[str]) -> tuple[dict, dict, f
             auroc[score][spec] = round(float(roc_auc_score(labels, np.r_[id_scores, ood])), 3)
             returns[spec] = round(float(np.mean(shifted_returns)), 1)
     return auroc, returns, round(float(np.mean(id_returns)), 1)
+
+
+def parse_or_print_table(parser: argparse.ArgumentParser, table) -> argparse.Namespace | None:
+    """The sweeps' command line with ``--table`` added: print ``table()`` and give None when it is
+    given (run nothing), else the parsed arguments."""
+    parser.add_argument("--table", action="store_true", help="print the rows as a markdown table, run nothing")
+    args = parser.parse_args()
+    if args.table:
+        print(table())
+        return None
+    return args
 
 
 def read_rows(path: Path) -> list[dict]:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.agents import load
-from sweep_full_depth import MC_SEED, VARIANTS, append_row, read_rows, spread_aurocs
+from sweep_full_depth import MC_SEED, VARIANTS, append_row, parse_or_print_table, read_rows, spread_aurocs
 
 OUT = Path("results/sweeps/samples.jsonl")
 
@@ -48,10 +48,8 @@ def main() -> None:
     parser.add_argument("--task", choices=["cartpole", "pendulum"])
     parser.add_argument("--method", choices=["dropout", "dropconnect"])
     parser.add_argument("--samples", type=_counts, default=[20, 100, 400], help="values of K, e.g. 20,100,400")
-    parser.add_argument("--table", action="store_true", help="print the rows as a markdown table, run nothing")
-    args = parser.parse_args()
-    if args.table:
-        print(table())
+    args = parse_or_print_table(parser, table)
+    if args is None:
         return
     if args.task is None or args.method is None:
         parser.error("give --task and --method (or --table)")

@@ -29,7 +29,7 @@ import numpy as np
 from oodmon.agents import load, load_agent
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import train
-from sweep_full_depth import MC_SEED, VARIANTS, append_row, read_rows, spread_aurocs
+from sweep_full_depth import MC_SEED, VARIANTS, append_row, parse_or_print_table, read_rows, spread_aurocs
 
 OUT = Path("results/sweeps/trials.jsonl")
 
@@ -69,10 +69,8 @@ def main() -> None:
     parser.add_argument("--p", type=float, help="the candidate's drop probability (full depth)")
     parser.add_argument("--shipped", action="store_true", help="measure the shipped recipe's five trials instead")
     parser.add_argument("--seeds", default="0,1,2,3,4")
-    parser.add_argument("--table", action="store_true", help="print the rows as a markdown table, run nothing")
-    args = parser.parse_args()
-    if args.table:
-        print(table())
+    args = parse_or_print_table(parser, table)
+    if args is None:
         return
     if args.task is None or args.method is None or (args.p is None) == (not args.shipped):
         parser.error("give --task and --method, and either --p (a candidate) or --shipped")
