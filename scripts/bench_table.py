@@ -24,7 +24,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from oodmon.agents.evaluation import SOLVED_RETURN  # noqa: E402
 from oodmon.bench.config import PAPER_METHOD, paper_label  # noqa: E402
+from oodmon.bench.report import unsolved_trials  # noqa: E402
 from oodmon.paper import paper_auc_per_trial  # noqa: E402
 
 RESULTS = ROOT / "results" / "bench"
@@ -70,7 +72,24 @@ def table(path: Path) -> str:
     lines += ["", f"Best mean AUROC: ours {best_ours[0]:.3f} ({best_ours[1]}), the paper's {best_paper[0]:.3f} "
                   f"({best_paper[1]}). Variants of the paper where our mean reaches the paper's (and our std is at most "
                   "the paper's): " + ", ".join(f"{m} {c[0]}/{c[2]} ({c[1]}/{c[2]})" for m, c in met.items()) + "."]
+    if data.get("id_returns"):
+        lines += ["", _id_return_line(data["id_returns"], config["task"])]
     return "\n".join(lines)
+
+
+def _id_return_line(id_returns: dict, task: str) -> str:
+    """Each trial's ID return, and which trials do not solve the task (their rows mix in an agent
+    that fails in its own world)."""
+    unsolved = unsolved_trials(id_returns, task)
+    parts = []
+    for method, trials in id_returns.items():
+        shown = ", ".join("-" if v is None else f"{v:g}" for v in trials.values())
+        bad = [t for m, t, _ in unsolved if m == method]
+        parts.append(f"{method} {shown}" + (f" (trial{'s' if len(bad) > 1 else ''} "
+                                            f"{', '.join(map(str, bad))} below it)" if bad else ""))
+    bar = "" if task not in SOLVED_RETURN else f"; the task counts as solved at >= {SOLVED_RETURN[task]:g}"
+    return (f"ID return of trials 0-{len(next(iter(id_returns.values()))) - 1} (their training's 20 episodes{bar}): "
+            + "; ".join(parts) + ".")
 
 
 def plot(path: Path) -> Path:

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from sklearn.metrics import roc_auc_score
 
-from oodmon.agents import load, load_agent
+from oodmon.agents import SOLVED_RETURN, load, load_agent
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import train
 from oodmon.envs import parse_variant
@@ -66,7 +66,6 @@ def table() -> str:
     """The sweep's rows as markdown: solved or not, and the mean AUROC over the paper's variants."""
     lines = ["| task | method | depth | hidden | p | learning rate | steps | ID return (20 ep.) | solved | AUROC chosen_std | "
              "AUROC pre_squash_std |", "|---|---|---|---|---:|---:|---:|---:|---|---:|---:|"]
-    goal = {"cartpole": 475.0, "pendulum": -200.0}
     for r in read_rows(OUT):
         means = {k: float(np.mean(list(v.values()))) for k, v in r["auroc"].items()}
         depth = "output only" if r["last_only"] else "full"
@@ -75,7 +74,7 @@ def table() -> str:
         hidden = ", ".join(str(w) for w in (r.get("net_arch") or recipe_for(r["task"], r["method"]).net_arch))
         lines.append(f"| {r['task']} | {r['method']} | {depth} | [{hidden}] | {r['drop_p']:g} | {r['learning_rate']:g} | "
                      f"{r['steps']:,} | {r['id_return_mean']:.1f} | "
-                     f"{'yes' if r['id_return_mean'] >= goal[r['task']] else 'no'} | {means['chosen_std']:.3f} | "
+                     f"{'yes' if r['id_return_mean'] >= SOLVED_RETURN[r['task']] else 'no'} | {means['chosen_std']:.3f} | "
                      + (f"{means['pre_squash_std']:.3f} |" if "pre_squash_std" in means else "- |"))
     return "\n".join(lines)
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from oodmon.bench import BenchConfig, best_per_method, paper_label, run_bench
+from oodmon.bench.report import unsolved_trials
 from oodmon.errors import ConfigError
 from oodmon.replay import compute_metrics, read_log
 from tests.helpers import run_cli
@@ -36,6 +37,10 @@ def test_bench_end_to_end_and_resume(tmp_path):
             assert replayed[row.variant] == auroc
     length = next(r for r in result.rows if r.variant == "cartpole:length=2.0")
     assert 0 in length.aurocs and length.paper is None  # the paper has no dropout length=2.0 trial
+    # Each trial's ID return is its model's own: the zoo agent solves CartPole, a 300-step training does not.
+    trained = json.loads((tmp_path / "models/cartpole-dropout-trial1/model.json").read_text())["id_return_mean"]
+    assert result.id_returns == {"dropout": {0: 500.0, 1: trained}} and trained < 475
+    assert unsolved_trials(result.id_returns, "cartpole") == [("dropout", 1, trained)]
     cells = [(done, total) for stage, done, total in stages if stage == "monitored cells"]
     assert cells[0][0] == 0 and cells[-1][0] == cells[-1][1] == 2 + 2 + len(result.failing["dropout"][1])
     # Run again: every cell is complete, nothing is recomputed.
@@ -294,6 +299,7 @@ def test_bench_results_are_data_and_a_later_bench_is_checked_against_them(tmp_pa
     assert first.returncode == 0, first.stderr
     data = json.loads(saved.read_text())
     assert data["command"].startswith("oodmon bench --task cartpole") and data["config"]["far"] == 0.1
+    assert data["id_returns"] == {"ensemble": {"0": 500.0}}  # the zoo agent's, from its model.json
     logs = [read_log(p) for p in sorted((tmp_path / "bench" / "logs").rglob("trial0/*.mcap"))]
     replayed = {m.variant: m for m in compute_metrics(logs)}
     for row in data["rows"]:

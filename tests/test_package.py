@@ -119,6 +119,18 @@ def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
         assert begin in readme, f"README lacks the table of {path.name}"
         shown = readme[readme.index(begin) + len(begin):readme.index("\n<!-- end bench_table -->", readme.index(begin))]
         assert shown == script.table(path), f"README's table of {path.name} is not the script's"
+        data = json.loads(path.read_text())
+        assert {m: len(t) for m, t in data["id_returns"].items()} == {
+            m: data["config"]["trials"] for m in data["config"]["methods"]}, f"{path.name} lacks trials' ID returns"
+
+
+def test_the_five_trial_tables_name_the_trials_that_do_not_solve_the_task():
+    script = _script("bench_table")[1]
+    line = script._id_return_line({"dropout": {"0": 500.0, "1": 500.0, "2": 500.0},
+                                   "dropconnect": {"0": 500.0, "1": 297.45, "2": 147.0}}, "cartpole")
+    assert line == ("ID return of trials 0-2 (their training's 20 episodes; the task counts as solved at >= 475): "
+                    "dropout 500, 500, 500; dropconnect 500, 297.45, 147 (trials 1, 2 below it).")
+    assert "(trial 1 below it)" in script._id_return_line({"ensemble": {"0": -164.8, "1": -210.0}}, "pendulum")
 
 
 @pytest.mark.parametrize("name", ["sweep_full_depth", "sweep_trials", "sweep_samples"])

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from oodmon.agents.agent import Agent, load, load_agent, zoo_dir, zoo_names
 from oodmon.agents.estimators import EnsembleEstimator, Estimate, MCEstimator, UncertaintyEstimator
-from oodmon.agents.evaluation import RANDOM_RETURN, VariantResult, episode_returns, evaluate_variants
+from oodmon.agents.evaluation import RANDOM_RETURN, SOLVED_RETURN, VariantResult, episode_returns, evaluate_variants
 from oodmon.agents.networks import estimator_from_sb3
 from oodmon.agents.layers import DropConnectLinear, add_dropout, is_stochastic, mc_sampling, to_dropconnect
 from oodmon.agents.recipes import METHODS, RECIPES, Recipe, recipe_for
@@ -29,6 +29,7 @@ __all__ = [
     "METHODS",
     "RANDOM_RETURN",
     "RECIPES",
+    "SOLVED_RETURN",
     "Agent",
     "DropConnectLinear",
     "EnsembleEstimator",

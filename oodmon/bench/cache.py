@@ -88,6 +88,13 @@ def _ensure_model(config: BenchConfig, method: str, trial: int,
     return path
 
 
+def _id_return(model: Path | Sb3Models) -> float | None:
+    """The model's ID return as its training measured it; ``None`` for SB3 files."""
+    if isinstance(model, Sb3Models):
+        return None
+    return json.loads((Path(model) / "model.json").read_text()).get("id_return_mean")
+
+
 def _ensure_model_dir_current(config: BenchConfig, method: str, trial: int) -> Path:
     """The (method, trial)'s model folder, a cached model of another recipe set aside first."""
     path = _model_dir(config, method, trial)

@@ -158,6 +158,9 @@ class BenchResult:
     detection: dict[str, dict[str, float | None]]
     #: The monitor's protocol only: the alarm's figures per (method, variant), trials pooled.
     alarms: list[MonitorMetrics] = field(default_factory=list)
+    #: Per method and trial, the model's ID return as its training measured it (``id_return_mean``,
+    #: 20 episodes; ``None`` for SB3 files, which carry none): whether each trial solves the task.
+    id_returns: dict[str, dict[int, float | None]] = field(default_factory=dict)
 
     def to_json(self, config: BenchConfig | None = None, command: str | None = None) -> dict:
         """The result as data (``bench --json``): per row the per-trial AUROC, AUPR and FPR at 95%
@@ -172,6 +175,7 @@ class BenchResult:
                      for r in self.rows],
             "failing": self.failing,
             "monitor": self.detection,
+            "id_returns": self.id_returns,
         }
         if self.alarms:
             from oodmon.replay import monitor_summary

@@ -10,6 +10,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from oodmon.agents.evaluation import SOLVED_RETURN
 from oodmon.bench.config import ONSETS, PAPER_METHOD, BenchConfig, BenchResult, paper_label
 from oodmon.paper import paper_auc_per_trial
 
@@ -64,6 +65,22 @@ def alarms_per_variant(result: BenchResult) -> list[tuple[str, str, float | None
                                                                                      item[0][1]))]
 
 
+def unsolved_trials(id_returns: dict, task: str) -> list[tuple[str, int, float]]:
+    """The trials whose model does not solve ``task`` (ID return below :data:`SOLVED_RETURN`), as
+    ``(method, trial, ID return)``: their failing variants and AUROCs come from an agent that fails
+    in its own world too. ``id_returns`` is :attr:`BenchResult.id_returns` or its JSON (string keys).
+
+    Example:
+        >>> unsolved_trials({"dropconnect": {"0": 500.0, "1": 297.45, "2": None}}, "cartpole")
+        [('dropconnect', 1, 297.45)]
+    """
+    bar = SOLVED_RETURN.get(task)
+    if bar is None:
+        return []
+    return [(method, int(trial), value) for method, trials in id_returns.items() for trial, value in trials.items()
+            if value is not None and value < bar]
+
+
 def print_paper_report(config: BenchConfig, result: BenchResult, console: Console) -> None:
     """The paper's protocol: our AUROC per failing variant beside the paper's, the best per method,
     per detector where there are several, and what the alarm rule did."""
@@ -106,6 +123,11 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
         alarms.add_row(method, variant, "" if false_alarms is None else f"{false_alarms:.0%}",
                        "" if detected is None else f"{detected:.0%}", "" if delay is None else f"{delay:.0f}")
     console.print(alarms)
+    unsolved = unsolved_trials(result.id_returns, config.task)
+    if unsolved:
+        console.print(f"Trials whose model does not solve the task (ID return below {SOLVED_RETURN[config.task]:g}; "
+                      "their rows mix in an agent that fails in its own world): "
+                      + ", ".join(f"{m} trial {t} ({value:g})" for m, t, value in unsolved))
     missing = paper_only_variants(result, config.task, config.methods, ran=[v.spec for v in config.variant_list()])
     if missing:
         console.print("Variants the paper reports where our agents did not fail (no AUROC of ours): "
