@@ -26,3 +26,18 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
             warnings.formatwarning(message, category, filename, lineno, line))
         code = main(list(args))
     return subprocess.CompletedProcess(["oodmon", *args], code, out.getvalue(), err.getvalue())
+
+
+def load_script(name: str):
+    """The repository's root and scripts/<name>.py loaded as a module (the scripts' own imports of
+    each other need scripts/ on sys.path: pytest's ``monkeypatch.syspath_prepend``)."""
+    import importlib.util
+    from pathlib import Path
+
+    import oodmon
+
+    root = Path(oodmon.__file__).parent.parent
+    spec = importlib.util.spec_from_file_location(name, root / "scripts" / f"{name}.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    return root, script

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ from oodmon.bench import BenchConfig, best_per_method, paper_label, run_bench
 from oodmon.bench.report import unsolved_trials
 from oodmon.errors import ConfigError
 from oodmon.replay import compute_metrics, read_log
-from tests.helpers import run_cli
+from tests.helpers import load_script, run_cli
 
 SPECS = ("cartpole:length=2.0", "cartpole:gravity=98.0", "cartpole:gravity=0.98")
 
@@ -407,3 +408,31 @@ def test_trial_models_train_on_every_worker_and_come_out_as_one_at_a_time(tmp_pa
         _train_missing_models(config, trials, workers, lambda *a: stages.append(a))
         assert stages == []  # cached: nothing to train
     assert weights[2] == weights[1] and weights[2][0] != weights[2][1]
+
+
+def test_episode_noise_plays_a_benchs_trials_again_with_more_episodes(tmp_path, monkeypatch):
+    """scripts/episode_noise.py: its first episodes are the bench's own (the file's AUROC, checked),
+    the rest give the trial's AUROC over more episodes and the noise of the bench's few."""
+    common = ("bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1", "--variants",
+              "cartpole:length=2.0", "--episodes", "2", "--id-episodes", "3", "--workers", "1",
+              "--calibration-episodes", "22", "--far", "0.1", "--out", str(tmp_path / "bench"))
+    saved = tmp_path / "result.json"
+    assert run_cli(*common, "--results", str(saved)).returncode == 0
+    import oodmon
+
+    monkeypatch.syspath_prepend(str(Path(oodmon.__file__).parent.parent / "scripts"))  # it imports sweep_full_depth
+    script = load_script("episode_noise")[1]
+    with pytest.raises(SystemExit, match="at least twice"):
+        script.measure(saved, "ensemble", "cartpole:length=2.0", tmp_path / "models", 5, 4)
+    row = script.measure(saved, "ensemble", "cartpole:length=2.0", tmp_path / "models", 6, 4)
+    bench = json.loads(saved.read_text())["rows"][0]["aurocs"]["0"]
+    trial = row["trials"]["0"]
+    assert trial["bench"] == round(bench, 4) and row["bench_episodes"] == [3, 2]
+    assert 0.5 < trial["all"] <= 1.0 and 0.0 <= trial["noise"] < 0.5  # the ensemble sees length=2.0
+    assert row["paper"] == [0.862, 0.826, 0.993, 0.864, 0.87]
+    # A file whose figure is not what these episodes give (other models, other seeds) is refused.
+    data = json.loads(saved.read_text())
+    data["rows"][0]["aurocs"]["0"] = bench - 0.01
+    (tmp_path / "other.json").write_text(json.dumps(data))
+    with pytest.raises(SystemExit, match="not the bench's models or episodes"):
+        script.measure(tmp_path / "other.json", "ensemble", "cartpole:length=2.0", tmp_path / "models", 6, 4)

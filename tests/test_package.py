@@ -14,6 +14,7 @@ import gymnasium
 import pytest
 
 import oodmon
+from tests.helpers import load_script
 
 PARTS = ["oodmon.envs", "oodmon.agents", "oodmon.monitor", "oodmon.replay"]
 
@@ -96,21 +97,9 @@ def test_every_progress_callback_of_the_library_has_the_one_shape():
         assert not found, f"{path.relative_to(root)} still has {found}"
 
 
-def _script(name: str):
-    """The repository's root and scripts/<name>.py loaded as a module."""
-    import importlib.util
-    from pathlib import Path
-
-    root = Path(oodmon.__file__).parent.parent
-    spec = importlib.util.spec_from_file_location(name, root / "scripts" / f"{name}.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
-    return root, script
-
-
 def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
     """README tables made from results/bench/*.json by scripts/bench_table.py, never typed by hand."""
-    root, script = _script("bench_table")
+    root, script = load_script("bench_table")
     readme = (root / "README.md").read_text()
     results = sorted((root / "results" / "bench").glob("*.json"))
     assert results, "results/bench/ holds the committed five-trial results"
@@ -125,7 +114,7 @@ def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
 
 
 def test_the_five_trial_tables_name_the_trials_that_do_not_solve_the_task():
-    script = _script("bench_table")[1]
+    script = load_script("bench_table")[1]
     line = script._id_return_line({"dropout": {"0": 500.0, "1": 500.0, "2": 500.0},
                                    "dropconnect": {"0": 500.0, "1": 297.45, "2": 147.0}}, "cartpole")
     assert line == ("ID return of trials 0-2 (their training's 20 episodes; the task counts as solved at >= 475): "
@@ -133,20 +122,23 @@ def test_the_five_trial_tables_name_the_trials_that_do_not_solve_the_task():
     assert "(trial 1 below it)" in script._id_return_line({"ensemble": {"0": -164.8, "1": -210.0}}, "pendulum")
 
 
-@pytest.mark.parametrize("name", ["sweep_full_depth", "sweep_trials", "sweep_samples"])
-def test_zoo_readme_sweep_tables_are_made_from_the_committed_rows(name, monkeypatch):
-    """The zoo README's sweep tables are the scripts' --table output on results/sweeps/, verbatim."""
+@pytest.mark.parametrize("name, readme", [("sweep_full_depth", "oodmon/zoo/README.md"),
+                                          ("sweep_trials", "oodmon/zoo/README.md"),
+                                          ("sweep_samples", "oodmon/zoo/README.md"),
+                                          ("episode_noise", "README.md")])
+def test_readme_sweep_tables_are_made_from_the_committed_rows(name, readme, monkeypatch):
+    """The READMEs' sweep tables are the scripts' --table output on results/sweeps/, verbatim."""
     root = Path(oodmon.__file__).parent.parent
     monkeypatch.chdir(root)  # the scripts read results/sweeps/ from the working directory
     monkeypatch.syspath_prepend(str(root / "scripts"))  # they import sweep_full_depth beside them
-    table = _script(name)[1].table()
+    table = load_script(name)[1].table()
     assert table.count("\n") >= 3, f"{name} has no rows in results/sweeps/"
-    assert table in (root / "oodmon" / "zoo" / "README.md").read_text(), f"the zoo README's table of {name} is not the script's"
+    assert table in (root / readme).read_text(), f"{readme}'s table of {name} is not the script's"
 
 
 def test_readme_detector_table_is_made_from_the_committed_results():
     """The README's detector table is scripts/detector_table.py's output on results/detectors/."""
-    root, script = _script("detector_table")
+    root, script = load_script("detector_table")
     readme = (root / "README.md").read_text()
     begin, end = "<!-- detector_table -->\n", "\n<!-- end detector_table -->"
     assert begin in readme and end in readme, "README lacks the detector table's markers"
@@ -155,7 +147,7 @@ def test_readme_detector_table_is_made_from_the_committed_results():
 
 def test_readme_pong_spread_score_table_is_made_from_the_committed_results():
     """The README's Pong table of spread scores is scripts/pong_spread_scores.py's on its results file."""
-    root, script = _script("pong_spread_scores")
+    root, script = load_script("pong_spread_scores")
     results = json.loads((root / "results" / "detectors" / "spread-scores-pong.json").read_text())
     assert sorted(results) == ["dropconnect", "dropout", "ensemble"]
     assert script.table(results) in (root / "README.md").read_text()
