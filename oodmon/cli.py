@@ -330,6 +330,10 @@ def _parser() -> argparse.ArgumentParser:
     _sb3_arguments(bench)
     bench.add_argument("--trials", type=_whole(1),
                        help="trials per method (default 5; trial 0 is the zoo agent; --sb3: 1, nothing is trained)")
+    bench.add_argument("--samples", type=_whole(2), metavar="K",
+                       help="MC samples per decision of the Dropout and DropConnect agents (default: each recipe's, "
+                            "20); the decisions are their mean, so episodes change too, and a decision costs about "
+                            "K/20 times the default")
     bench.add_argument("--variants", default="paper", help="'paper' (the paper's grid) or comma-separated specs")
     bench.add_argument("--protocol", choices=["paper", "monitor"], default="paper",
                        help="paper (default): shifted from step 0, per-step AUROC; monitor: the monitor's own benchmark, "
@@ -788,7 +792,8 @@ def _bench(args: argparse.Namespace) -> int:
                          calibration_episodes=args.calibration_episodes or (90 if monitor else 45), far=args.far,
                          confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
-                         all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean)
+                         all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean,
+                         samples=args.samples)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result
     from oodmon.outputs import check_output_dir, check_output_file

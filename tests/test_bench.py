@@ -436,3 +436,25 @@ def test_episode_noise_plays_a_benchs_trials_again_with_more_episodes(tmp_path, 
     (tmp_path / "other.json").write_text(json.dumps(data))
     with pytest.raises(SystemExit, match="not the bench's models or episodes"):
         script.measure(tmp_path / "other.json", "ensemble", "cartpole:length=2.0", tmp_path / "models", 6, 4)
+
+
+def test_bench_samples_sets_the_mc_agents_samples_per_decision_and_keys_its_cache(tmp_path):
+    """--samples K: the Dropout and DropConnect agents decide and spread with K samples (each log
+    says so), cached apart from the recipe's K; the results record it; bad values are refused."""
+    common = ("bench", "--task", "cartpole", "--methods", "dropout,ensemble", "--trials", "1", "--variants",
+              "cartpole:length=2.0", "--episodes", "1", "--id-episodes", "2", "--workers", "1",
+              "--calibration-episodes", "22", "--far", "0.1", "--out", str(tmp_path))
+    default = run_cli(*common, "--json")
+    assert default.returncode == 0, default.stderr
+    more = run_cli(*common, "--samples", "50", "--json")
+    assert more.returncode == 0, more.stderr
+    assert json.loads(more.stdout)["config"]["samples"] == 50 and json.loads(default.stdout)["config"]["samples"] is None
+    folders = sorted(p.name for p in (tmp_path / "logs").iterdir())
+    assert folders == ["cartpole-chosen_std-far0.1-n22-conf0.9", "cartpole-chosen_std-far0.1-n22-conf0.9-k50"]
+    for folder, dropout_k in zip(folders, ("20", "50")):
+        logs = {m: read_log(tmp_path / "logs" / folder / m / "trial0" / "cartpole.mcap") for m in ("dropout", "ensemble")}
+        assert logs["dropout"].metadata["about.samples"] == dropout_k
+        assert logs["ensemble"].metadata["about.samples"] == "5"  # an ensemble's members, whatever K
+    for bad in ("1", "x"):
+        refused = run_cli(*common, "--samples", bad)
+        assert refused.returncode == 2 and "--samples" in refused.stderr

@@ -61,6 +61,7 @@ class BenchConfig:
     sb3: tuple[str, ...] = ()  # your own SB3 model files instead of oodmon agents (the method "sb3", one trial)
     env_id: str | None = None  # the gymnasium env id the sb3 models act in
     mean: bool = False  # deploy the sb3 ensemble's mean decision, not the first model's
+    samples: int | None = None  # MC samples per decision of Dropout and DropConnect agents (None: each one's recipe)
 
     def __post_init__(self) -> None:
         from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -87,6 +88,9 @@ class BenchConfig:
         from oodmon.monitor.threshold import conformal_rank
 
         conformal_rank(self.calibration_episodes, self.far, self.confidence)  # enough episodes, before any work
+        if self.samples is not None and (self.samples < 2 or self.sb3):
+            raise ConfigError(f"samples={self.samples}: MC samples per decision of oodmon's Dropout and DropConnect "
+                              "agents, 2 or more (not for --sb3 models)")
 
     @property
     def m(self) -> int:
@@ -105,7 +109,8 @@ class BenchConfig:
 
     def cache_key(self) -> str:
         """What the cached thresholds and logs of a (method, trial) depend on beyond the weights:
-        score, alarm rule, target rate and confidence, calibration episodes, detectors and sensor noise."""
+        score, alarm rule, target rate and confidence, calibration episodes, detectors, sensor noise
+        and MC samples per decision."""
         parts = [self.score, f"far{self.far:g}", f"n{self.calibration_episodes}",
                  "marginal" if self.confidence is None else f"conf{self.confidence:g}"]
         if self.window != 1:
@@ -118,6 +123,8 @@ class BenchConfig:
             parts.append("+".join(self.detectors) + f"-alarm-{self.alarm_detector}")
         if self.obs_noise:
             parts.append(f"noise{self.obs_noise:g}")
+        if self.samples is not None:
+            parts.append(f"k{self.samples}")
         return "-".join(parts)
 
     def what_made_the_numbers(self) -> dict:

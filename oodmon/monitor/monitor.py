@@ -229,11 +229,16 @@ class Monitor:
                 task=meta.get("task", "unknown"), method=meta.get("method", "unknown"), score=self.score_name,
                 threshold=self.threshold, rule=self.tracker.rule, policy_hash=self.policy_hash,
                 versions=library_versions(), detector=self.detector, detectors=tuple(self.detectors.names),
-                about=run_about(meta),
+                about=run_about(meta) | self._samples_about(),
             ))
             self._opened = True
             atexit.register(self.close)
         return self
+
+    def _samples_about(self) -> dict[str, str]:
+        """The policy's samples per decision (MC samples or ensemble members), which the spread's
+        scale depends on: ``about.samples`` in the log."""
+        return {} if self.estimator is None else {"samples": str(self.estimator.n_samples)}
 
     def close(self) -> None:
         """End a running episode (as interrupted) and finish the sinks' files. Idempotent."""
