@@ -70,7 +70,7 @@ def table() -> str:
         means = {k: float(np.mean(list(v.values()))) for k, v in r["auroc"].items()}
         depth = "output only" if r["last_only"] else "full"
         if r.get("shipped"):
-            depth += " (shipped)" if recipe_for(r["task"], r["method"]).last_only == r["last_only"] else " (shipped before)"
+            depth += " (shipped)" if _made_by_todays_recipe(r) else " (shipped before)"
         hidden = ", ".join(str(w) for w in (r.get("net_arch") or recipe_for(r["task"], r["method"]).net_arch))
         lines.append(f"| {r['task']} | {r['method']} | {depth} | [{hidden}] | {r['drop_p']:g} | {r['learning_rate']:g} | "
                      f"{r['steps']:,} | {r['id_return_mean']:.1f} | "
@@ -98,9 +98,9 @@ def main() -> None:
         for method in args.methods.split(","):
             if args.shipped:
                 recipe = recipe_for(task, method)
-                if (task, method, "shipped", recipe.last_only) not in done:
-                    _measure(load(task, method, seed=MC_SEED), task, method,
-                             {"drop_p": recipe.drop_p, "last_only": recipe.last_only, "shipped": True, **_trained_by(recipe)})
+                settings = {"drop_p": recipe.drop_p, "last_only": recipe.last_only, "shipped": True, **_trained_by(recipe)}
+                if _key({"task": task, "method": method, **settings}) not in done:
+                    _measure(load(task, method, seed=MC_SEED), task, method, settings)
                 continue
             for p in (float(x) for x in args.grid.split(",")):
                 recipe = replace(recipe_for(task, method), last_only=False, drop_p=p)
@@ -140,9 +140,17 @@ def _trained_by(recipe) -> dict:
     return {"learning_rate": recipe.hyperparams["learning_rate"], "steps": recipe.total_steps}
 
 
+def _made_by_todays_recipe(row: dict) -> bool:
+    """Whether a ``--shipped`` row measured the agent today's recipe trains (its depth, p, learning
+    rate and steps), not one shipped before."""
+    recipe = recipe_for(row["task"], row["method"])
+    return (row["last_only"], row["drop_p"], row["learning_rate"], row["steps"]) == (
+        recipe.last_only, recipe.drop_p, recipe.hyperparams["learning_rate"], recipe.total_steps)
+
+
 def _key(row: dict) -> tuple:
     if row.get("shipped"):
-        return row["task"], row["method"], "shipped", row["last_only"]
+        return row["task"], row["method"], "shipped", row["last_only"], row["drop_p"], row["steps"]
     net_arch = tuple(row.get("net_arch") or recipe_for(row["task"], row["method"]).net_arch)
     return row["task"], row["method"], row["drop_p"], row["learning_rate"], row["steps"], net_arch
 

@@ -8,8 +8,9 @@ The shipped agent is loaded with K samples per decision (``oodmon.agents.load(..
 it still decides by the mean of its samples, so its episodes may differ a little from K=20's) and
 measured as scripts/sweep_full_depth.py measures (10 ID episodes against 5 of each of the paper's
 variants for the method, MC seed 0, whether or not the agent fails). A decision costs about K/20
-times the shipped one. One JSON line per (task, method, K) goes to ``results/sweeps/samples.jsonl``;
-a line already there is not run again.
+times the shipped one. One JSON line per (task, method, K, agent) goes to
+``results/sweeps/samples.jsonl`` (the agent: its weights' sha256); a line already there is not run
+again, and the table marks the rows of the agent shipped today.
 """
 
 from __future__ import annotations
@@ -27,11 +28,14 @@ OUT = Path("results/sweeps/samples.jsonl")
 
 def table() -> str:
     """Per (task, method, K) and score: the AUROC per variant and its mean over the variants."""
-    lines = ["| task | method | K | ID return | score | AUROC per variant | mean |", "|---|---|---:|---:|---|---|---:|"]
+    lines = ["| task | method | agent (weights) | K | ID return | score | AUROC per variant | mean |",
+             "|---|---|---|---:|---:|---|---|---:|"]
     for row in read_rows(OUT):
+        shipped = load(row["task"], row["method"]).metadata["safetensors_sha256"] == row["safetensors_sha256"]
+        agent = f"`{row['safetensors_sha256'][:8]}`" + (" (shipped)" if shipped else " (shipped before)")
         for score, aurocs in row["auroc"].items():
             cells = "; ".join(f"{spec.split(':')[1]} {value:.3f}" for spec, value in aurocs.items())
-            lines.append(f"| {row['task']} | {row['method']} | {row['n_samples']} | {row['id_return_mean']:.1f} | "
+            lines.append(f"| {row['task']} | {row['method']} | {agent} | {row['n_samples']} | {row['id_return_mean']:.1f} | "
                          f"`{score}` | {cells} | {np.mean(list(aurocs.values())):.3f} |")
     return "\n".join(lines)
 
@@ -53,14 +57,16 @@ def main() -> None:
         return
     if args.task is None or args.method is None:
         parser.error("give --task and --method (or --table)")
-    done = {(r["task"], r["method"], r["n_samples"]) for r in read_rows(OUT)}
+    done = {(r["task"], r["method"], r["n_samples"], r["safetensors_sha256"]) for r in read_rows(OUT)}
     for k in args.samples:
-        if (args.task, args.method, k) in done:
-            continue
         agent = load(args.task, args.method, n_samples=k, seed=MC_SEED)
+        weights = agent.metadata["safetensors_sha256"]
+        if (args.task, args.method, k, weights) in done:
+            continue
         auroc, returns, id_return = spread_aurocs(agent, args.task, VARIANTS[(args.task, args.method)])
-        append_row(OUT, {"task": args.task, "method": args.method, "n_samples": k, "mc_seed": MC_SEED,
-                         "id_return_mean": id_return, "auroc": auroc, "variant_return_mean": returns})
+        append_row(OUT, {"task": args.task, "method": args.method, "safetensors_sha256": weights, "n_samples": k,
+                         "mc_seed": MC_SEED, "id_return_mean": id_return, "auroc": auroc,
+                         "variant_return_mean": returns})
 
 
 if __name__ == "__main__":

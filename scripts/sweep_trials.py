@@ -35,14 +35,24 @@ OUT = Path("results/sweeps/trials.jsonl")
 
 
 def _label(row: dict) -> str:
-    return f"{'output layer' if row['last_only'] else 'full depth'}, p={row['drop_p']:g}"
+    """The row's recipe: depth and p, and its steps and choice among snapshots where the row records
+    them (rows before 2026-11-24 do not: they were trained for the recipe's steps of their time)."""
+    label = f"{'output layer' if row['last_only'] else 'full depth'}, p={row['drop_p']:g}"
+    if "total_steps" in row:
+        label += f", {row['total_steps']:,} steps"
+    if row.get("select_top"):
+        label += f", best of {row['select_top']} snapshots"
+    return label
 
 
 def _shown(row: dict) -> str:
     """The row's recipe, marked when it is today's shipped recipe (rows made with ``--shipped`` when
-    another recipe was shipped keep their depth and p)."""
+    another recipe was shipped keep their settings)."""
     shipped = recipe_for(row["task"], row["method"])
-    return _label(row) + (" (shipped)" if (row["drop_p"], row["last_only"]) == (shipped.drop_p, shipped.last_only) else "")
+    made = (row["drop_p"], row["last_only"], row.get("total_steps", shipped.total_steps),
+            row.get("select_top", shipped.select_top))
+    today = (shipped.drop_p, shipped.last_only, shipped.total_steps, shipped.select_top)
+    return _label(row) + (" (shipped)" if made == today else " (shipped before)" if row.get("shipped") else "")
 
 
 def table() -> str:
@@ -67,6 +77,9 @@ def main() -> None:
     parser.add_argument("--task", choices=["cartpole", "pendulum"])
     parser.add_argument("--method", choices=["dropout", "dropconnect"])
     parser.add_argument("--p", type=float, help="the candidate's drop probability (full depth)")
+    parser.add_argument("--steps", type=int, help="the candidate's training steps (default the recipe's)")
+    parser.add_argument("--select-top", type=int, default=0, help="the candidate ships the best of this many "
+                        "snapshots, each replayed on 20 ID episodes (Recipe.select_top; default 0: the best evaluation)")
     parser.add_argument("--shipped", action="store_true", help="measure the shipped recipe's five trials instead")
     parser.add_argument("--seeds", default="0,1,2,3,4")
     args = parse_or_print_table(parser, table)
@@ -78,17 +91,21 @@ def main() -> None:
     shipped = recipe_for(args.task, args.method)
     for seed in (int(s) for s in args.seeds.split(",")):
         if args.shipped:
-            settings = {"drop_p": shipped.drop_p, "last_only": shipped.last_only, "shipped": True}
+            settings = {"drop_p": shipped.drop_p, "last_only": shipped.last_only, "total_steps": shipped.total_steps,
+                        "select_top": shipped.select_top, "shipped": True}
         else:
-            settings = {"drop_p": args.p, "last_only": False}
+            settings = {"drop_p": args.p, "last_only": False, "total_steps": args.steps or shipped.total_steps,
+                        "select_top": args.select_top}
         if (args.task, args.method, _label(settings), seed) in done:
             continue
         if args.shipped:
             agent = load(args.task, args.method, seed=MC_SEED) if seed == 0 else load_agent(
                 f"runs/bench5/models/{args.task}-{args.method}-trial{seed}", task=args.task, seed=MC_SEED)
         else:
-            out = f"runs/sweep/trials/{args.task}-{args.method}-full-p{args.p:g}-seed{seed}"
-            recipe = replace(shipped, last_only=False, drop_p=args.p)
+            out = (f"runs/sweep/trials/{args.task}-{args.method}-full-p{args.p:g}-steps{settings['total_steps']}"
+                   f"-top{args.select_top}-seed{seed}")
+            recipe = replace(shipped, last_only=False, drop_p=args.p, total_steps=settings["total_steps"],
+                             select_top=args.select_top, select_episodes=20)
             train(args.task, args.method, out, seed=seed, recipe=recipe, command=f"scripts/sweep_trials.py ({out})")
             agent = load_agent(out, task=args.task, seed=MC_SEED)
         auroc, returns, _ = spread_aurocs(agent, args.task, VARIANTS[(args.task, args.method)])

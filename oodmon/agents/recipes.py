@@ -120,10 +120,13 @@ RECIPES: dict[str, Recipe] = {"cartpole": _CARTPOLE, "pendulum": _PENDULUM, "pon
 # Per (task, method) changes to the task's recipe; none where the task's recipe serves as is.
 _OVERRIDES: dict[tuple[str, str], dict[str, Any]] = {
     # Full depth (a DropConnect layer after every hidden layer) detects better than the output layer
-    # alone and solves CartPole at p = 0.02 with a lower learning rate and twice the steps (the sweep
-    # in oodmon/zoo/README.md); nothing at p >= 0.05 or at the task's learning rate solves it.
-    ("cartpole", "dropconnect"): dict(last_only=False, drop_p=0.02, total_steps=100_000,
-                                      hyperparams=dict(learning_rate=1e-3)),
+    # alone and solves CartPole at p = 0.02 with a lower learning rate and more steps (the sweep in
+    # oodmon/zoo/README.md); nothing at p >= 0.05 or at the task's learning rate solves it. Its
+    # trainings are unstable: over 100,000 steps three of five seeds never solved it, so it trains
+    # for 200,000 and ships the best of its 8 best-evaluated snapshots played again on 20 episodes,
+    # which solves it with all five (results/sweeps/trials.jsonl).
+    ("cartpole", "dropconnect"): dict(last_only=False, drop_p=0.02, total_steps=200_000,
+                                      hyperparams=dict(learning_rate=1e-3), select_top=8, select_episodes=20),
     # Full depth at p = 0.05 detects better and more evenly over five seeds than the output layer at
     # p = 0.1 (pre_squash_std; results/sweeps/trials.jsonl, the zoo README), and every seed solves Pendulum.
     ("pendulum", "dropconnect"): dict(last_only=False, drop_p=0.05),
