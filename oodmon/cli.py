@@ -332,8 +332,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="trials per method (default 5; trial 0 is the zoo agent; --sb3: 1, nothing is trained)")
     bench.add_argument("--samples", type=_whole(2), metavar="K",
                        help="MC samples per decision of the Dropout and DropConnect agents (default: each recipe's, "
-                            "20); the decisions are their mean, so episodes change too, and a decision costs about "
-                            "K/20 times the default")
+                            "20); the decisions are their mean, so episodes change too, and a decision costs more "
+                            "(CartPole DropConnect: 0.3 ms at K=20, 9 ms at K=400)")
     bench.add_argument("--variants", default="paper", help="'paper' (the paper's grid) or comma-separated specs")
     bench.add_argument("--protocol", choices=["paper", "monitor"], default="paper",
                        help="paper (default): shifted from step 0, per-step AUROC; monitor: the monitor's own benchmark, "

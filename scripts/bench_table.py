@@ -45,7 +45,8 @@ def table(path: Path) -> str:
     data, rows = _read(path)
     config = data["config"]
     paper = paper_auc_per_trial()[config["task"]]
-    lines = [f"`{data['command']}` ({config['trials']} trials, score `{config['score']}`):", "",
+    samples = f", {config['samples']} MC samples per decision" if config.get("samples") else ""
+    lines = [f"`{data['command']}` ({config['trials']} trials, score `{config['score']}`{samples}):", "",
              "| method | variant | ours: AUROC mean ± std (trials failing) | paper: mean ± std | AUPR / FPR@95 (ours) "
              "| mean >= paper | std <= paper |",
              "|---|---|---|---|---|---|---|"]
