@@ -30,8 +30,12 @@ def table() -> str:
     """Per (task, method, K) and score: the AUROC per variant and its mean over the variants."""
     lines = ["| task | method | agent (weights) | K | ID return | score | AUROC per variant | mean |",
              "|---|---|---|---:|---:|---|---|---:|"]
+    shipped_weights: dict[tuple[str, str], str] = {}
     for row in read_rows(OUT):
-        shipped = load(row["task"], row["method"]).metadata["safetensors_sha256"] == row["safetensors_sha256"]
+        key = (row["task"], row["method"])
+        if key not in shipped_weights:
+            shipped_weights[key] = load(*key).metadata["safetensors_sha256"]
+        shipped = shipped_weights[key] == row["safetensors_sha256"]
         agent = f"`{row['safetensors_sha256'][:8]}`" + (" (shipped)" if shipped else " (shipped before)")
         for score, aurocs in row["auroc"].items():
             cells = "; ".join(f"{spec.split(':')[1]} {value:.3f}" for spec, value in aurocs.items())
