@@ -43,11 +43,13 @@ OUT = Path("results/sweeps/episode_noise.jsonl")
 DRAWS = 400
 
 
-def episode_scores(model: Path, task: str, spec: str, episodes: int, seed: int, score: str) -> list[np.ndarray]:
+def episode_scores(model: Path, task: str, spec: str, episodes: int, seed: int, config: dict) -> list[np.ndarray]:
     """Per episode, the per-step scores of the model playing ``spec``, as a bench cell with this seed
-    plays it (the agent's MC samples seeded by the cell's seed, episodes ``seed``, ``seed`` + 1, ...)."""
-    agent = _bench_agent(str(model), task, seed)
-    env, sink = parse_variant(spec).make(), MemorySink()
+    and the bench's ``config`` plays it (the agent's MC samples seeded by the cell's seed, as many as
+    the bench's; its score and sensor noise; episodes ``seed``, ``seed`` + 1, ...)."""
+    agent = _bench_agent(str(model), task, seed, config.get("samples"))
+    variant, noise_level, score = parse_variant(spec), config.get("obs_noise", 0.0), config["score"]
+    env, sink = (variant.make(obs_noise=noise_level) if noise_level else variant.make()), MemorySink()
     with Monitor(agent, score=score, sinks=[sink], log_observations=False) as monitor:
         for episode in range(episodes):
             monitor.run_episode(env, seed=seed + episode, variant=spec)
@@ -77,6 +79,8 @@ def noise(ids: list[np.ndarray], shifted: list[np.ndarray], n_id: int, n_shifted
 
 
 def measure(results: Path, method: str, spec: str, models: Path, id_episodes: int, episodes: int) -> dict:
+    """The row of ``results`` for ``method`` and ``spec``, each trial played again with ``id_episodes``
+    and ``episodes``: its AUROC over the bench's first episodes (checked), over all, and the noise."""
     data = json.loads(results.read_text())
     config = data["config"]
     task, score = config["task"], config["score"]
@@ -90,8 +94,8 @@ def measure(results: Path, method: str, spec: str, models: Path, id_episodes: in
     per_trial = {}
     for trial, bench_auroc in sorted(row["aurocs"].items(), key=lambda kv: int(kv[0])):
         model = zoo_dir() / f"{task}-{method}" if trial == "0" else models / f"{task}-{method}-trial{trial}"
-        ids = episode_scores(model, task, task, id_episodes, seeds.BENCH_ID, score)
-        shifted = episode_scores(model, task, spec, episodes, seeds.BENCH_SHIFTED, score)
+        ids = episode_scores(model, task, task, id_episodes, seeds.BENCH_ID, config)
+        shifted = episode_scores(model, task, spec, episodes, seeds.BENCH_SHIFTED, config)
         first = auroc(ids[:n_id], shifted[:n_shifted])
         if abs(first - bench_auroc) > 1e-9:
             raise SystemExit(f"trial {trial}: the first {n_id} + {n_shifted} episodes give {first:.6f}, the file "
