@@ -7,12 +7,13 @@ MLP) draws the positions of its dropped weights instead of a mask over all of th
 (``oodmon.agents.plan``). Its middle layer alone drops about 20 x (active inputs) x 256 x 0.02
 weights per decision (with the agent shipped on 2026-11-24: 10,752 at seed 0's first state, where
 it is timed; median 12,083 over that episode's 500 states; the agent before it: 11,600 and
-12,400). Whatever the code around it, each dropped weight needs at least a uniform draw and its logarithm (the geometric gap to the next one), a
-running sum (its position), the weight and the input it multiplies (two gathers and a product),
-and an add into its sample's output (``np.bincount``). This script times exactly those seven
-numpy calls on that many elements ("floor"; decoding a position into its weight, input and
-output, a few more calls, is left out), the agent's whole decision, and ``predict()`` of one plain SB3 DQN
-of the same size; one torch thread. The last line is floor_ratio=<floor / predict()>: when it
+12,400). Whatever the code around it, each dropped weight needs at least a uniform draw and its
+logarithm (the geometric gap to the next one), a running sum (its position), the weight and the
+input it multiplies (two gathers and a product), and an add into its sample's output
+(``np.bincount``). This script times exactly those seven numpy calls on that many elements
+("floor"; decoding a position into its weight, input and output, a few more calls, is left out),
+the agent's whole decision, and ``predict()`` of one plain SB3 DQN of the same size; one torch
+thread. The last line is floor_ratio=<floor / predict()>: when it
 is near or above 1, ``benchmarks/uncertainty_step.py``'s goal (a decision <= one predict())
 cannot be met by this agent in numpy, whatever else is trimmed.
 """

@@ -34,28 +34,19 @@ from oodmon import seeds
 from oodmon.agents import zoo_dir
 from oodmon.bench.cache import _bench_agent
 from oodmon.bench.config import PAPER_METHOD, paper_label
-from oodmon.envs import parse_variant
-from oodmon.monitor import MemorySink, Monitor
 from oodmon.paper import paper_auc_per_trial
-from sweep_full_depth import append_row, parse_or_print_table, read_rows
+from sweep_full_depth import append_row, episode_scores, parse_or_print_table, read_rows
 
 OUT = Path("results/sweeps/episode_noise.jsonl")
 DRAWS = 400
 
 
-def episode_scores(model: Path, task: str, spec: str, episodes: int, seed: int, config: dict) -> list[np.ndarray]:
+def cell_scores(model: Path, task: str, spec: str, episodes: int, seed: int, config: dict) -> list[np.ndarray]:
     """Per episode, the per-step scores of the model playing ``spec``, as a bench cell with this seed
     and the bench's ``config`` plays it (the agent's MC samples seeded by the cell's seed, as many as
     the bench's; its score and sensor noise; episodes ``seed``, ``seed`` + 1, ...)."""
     agent = _bench_agent(str(model), task, seed, config.get("samples"))
-    variant, noise_level, score = parse_variant(spec), config.get("obs_noise", 0.0), config["score"]
-    env, sink = (variant.make(obs_noise=noise_level) if noise_level else variant.make()), MemorySink()
-    with Monitor(agent, score=score, sinks=[sink], log_observations=False) as monitor:
-        for episode in range(episodes):
-            monitor.run_episode(env, seed=seed + episode, variant=spec)
-    env.close()
-    steps = np.array([(s.episode, s.score) for s in sink.steps])
-    return [steps[steps[:, 0] == episode, 1] for episode in range(episodes)]
+    return episode_scores(agent, spec, episodes, seed, config["score"], config.get("obs_noise", 0.0))[0]
 
 
 def auroc(ids: list[np.ndarray], shifted: list[np.ndarray]) -> float:
@@ -94,8 +85,8 @@ def measure(results: Path, method: str, spec: str, models: Path, id_episodes: in
     per_trial = {}
     for trial, bench_auroc in sorted(row["aurocs"].items(), key=lambda kv: int(kv[0])):
         model = zoo_dir() / f"{task}-{method}" if trial == "0" else models / f"{task}-{method}-trial{trial}"
-        ids = episode_scores(model, task, task, id_episodes, seeds.BENCH_ID, config)
-        shifted = episode_scores(model, task, spec, episodes, seeds.BENCH_SHIFTED, config)
+        ids = cell_scores(model, task, task, id_episodes, seeds.BENCH_ID, config)
+        shifted = cell_scores(model, task, spec, episodes, seeds.BENCH_SHIFTED, config)
         first = auroc(ids[:n_id], shifted[:n_shifted])
         if abs(first - bench_auroc) > 1e-9:
             raise SystemExit(f"trial {trial}: the first {n_id} + {n_shifted} episodes give {first:.6f}, the file "

@@ -54,12 +54,22 @@ VARIANTS = {  # the variants of the paper's appendix tables, per task and method
 }
 
 
-def _scores(agent, spec: str, episodes: int, seed: int, score: str) -> tuple[np.ndarray, list[float]]:
-    sink = MemorySink()
-    env = parse_variant(spec).make()
+def episode_scores(agent, spec: str, episodes: int, seed: int, score: str,
+                   obs_noise: float = 0.0) -> tuple[list[np.ndarray], list[float]]:
+    """The agent playing ``spec`` under the monitor, episodes ``seed``, ``seed`` + 1, ...: each
+    episode's per-step ``score`` and its return."""
+    sink, variant = MemorySink(), parse_variant(spec)
+    env = variant.make(obs_noise=obs_noise) if obs_noise else variant.make()
     with Monitor(agent, score=score, sinks=[sink], log_observations=False) as monitor:
         returns = [monitor.run_episode(env, seed=seed + k, variant=spec).total_return for k in range(episodes)]
-    return np.array([s.score for s in sink.steps]), returns
+    env.close()
+    steps = np.array([(s.episode, s.score) for s in sink.steps])
+    return [steps[steps[:, 0] == k, 1] for k in range(episodes)], returns
+
+
+def _scores(agent, spec: str, episodes: int, seed: int, score: str) -> tuple[np.ndarray, list[float]]:
+    per_episode, returns = episode_scores(agent, spec, episodes, seed, score)
+    return np.concatenate(per_episode), returns
 
 
 def table() -> str:

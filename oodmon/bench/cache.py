@@ -13,6 +13,7 @@ from pathlib import Path
 from oodmon import seeds
 from oodmon.agents import evaluate_variants, load_agent, train, zoo_dir, zoo_names
 from oodmon.agents.recipes import recipe_for
+from oodmon.agents.serialization import read_metadata
 from oodmon.bench.config import BenchConfig
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
@@ -93,7 +94,7 @@ def _id_return(model: Path | Sb3Models) -> float | None:
     """The model's ID return as its training measured it; ``None`` for SB3 files."""
     if isinstance(model, Sb3Models):
         return None
-    return json.loads((Path(model) / "model.json").read_text()).get("id_return_mean")
+    return read_metadata(model).get("id_return_mean")
 
 
 def _ensure_model_dir_current(config: BenchConfig, method: str, trial: int) -> Path:
