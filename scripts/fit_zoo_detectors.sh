@@ -6,7 +6,10 @@
 # were refitted on 2026-11-23; Pendulum's three with the dynamics floor of -6; all nine again after
 # the one-step dynamics NLL, the MC output layer and (Pong) OpenCV's frame statistics changed at
 # float32 rounding: two runs gave the same bytes; Pendulum DropConnect's on 2026-11-24 for its
-# full-depth agent, and CartPole DropConnect's the same day for its 200,000-step agent; the
+# full-depth agent, and CartPole DropConnect's the same day for its 200,000-step agent; all nine
+# again that day when combined began to rank dynamics' mean since the episode began (every
+# tensor of before the same, one more each on CartPole and Pendulum; Pong's only gained the
+# fitting's version in detectors.json); the
 # README's tables come from the bench, which fits detectors of its own).
 # About 5 minutes on one core. Pendulum's combined detector uses the spread score that works there
 # (pre_squash_std); Pong has no dynamics detector (image observations), has frames, and fits on

@@ -71,15 +71,25 @@ def test_bench_end_to_end_and_resume(tmp_path):
         p: t for p, t in mtimes.items() if "trial0" in str(p)}
 
 
-def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold():
-    """Changing far, the confidence, the calibration episodes, the window, the detectors or the sensor
-    noise must not reuse a threshold calibrated otherwise (it did for far and the episodes)."""
+def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(monkeypatch):
+    """Changing far, the confidence, the calibration episodes, the window, the detectors (or how they
+    are fitted) or the sensor noise must not reuse a threshold calibrated otherwise (it did for far
+    and the episodes)."""
     base = BenchConfig("cartpole", ("dropout",), 1)
     keys = {base.cache_key()} | {BenchConfig("cartpole", ("dropout",), 1, **change).cache_key() for change in (
         {"far": 0.1}, {"calibration_episodes": 50}, {"window": 5}, {"score": "max_std"}, {"obs_noise": 0.01},
         {"confidence": None}, {"confidence": 0.8},
         {"detectors": ("spread", "dynamics")}, {"detectors": ("spread", "dynamics"), "alarm_detector": "dynamics"})}
     assert len(keys) == 10
+    # Learned detectors fitted by an older oodmon (another fitting version) are not reused either
+    from oodmon.monitor.detectors import fitting
+
+    learned = {"detectors": ("spread", "dynamics")}
+    today = BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key()
+    assert today.endswith(f"-fit{fitting.FIT_VERSION}")
+    monkeypatch.setattr(fitting, "FIT_VERSION", fitting.FIT_VERSION + 1)
+    assert BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key() != today
+    assert BenchConfig("cartpole", ("dropout",), 1).cache_key() == base.cache_key()  # spread alone: nothing fitted
     with pytest.raises(ConfigError, match="unknown detector 'sonar'"):
         BenchConfig("cartpole", detectors=("spread", "sonar"))
     # Too few calibration episodes for the bound is said before any work.

@@ -216,7 +216,7 @@ def test_bench_runs_the_monitor_protocol_on_a_plain_sb3_policy(readme_run, capsy
     rows = {r["variant"]: r for r in result["alarms"] if r["method"] == "sb3"}
     assert rows["cartpole"]["episodes"] == 20 and rows["cartpole:length=2.0"]["episodes"] == 5
     assert rows["cartpole:length=2.0"]["alarmed"] >= 4  # 5 of 5 when written (the README's run: 5 of 5)
-    folder_of_trial = next(out.glob("logs/cartpole-*-alarm-combined/sb3/trial0"))
+    folder_of_trial = next(out.glob("logs/cartpole-*-alarm-combined-fit*/sb3/trial0"))
     assert (folder_of_trial / "weights.sha256").read_text().strip() == file_sha256_of_models(folder / "runs/dqn0.zip")
     capsys.readouterr()
     assert main(argv[:-1] + ["--trials", "2"]) == 2

@@ -16,8 +16,9 @@ from oodmon.agents import load
 from oodmon.envs import Variant, parse_variant
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor import McapSink, MemorySink, Monitor, Threshold, calibrate_agent
+from oodmon.monitor.detectors.combined import EpisodeMean
 from oodmon.monitor.detectors import (
-    CombinedDetector, DetectorSet, DynamicsDetector, FeaturesDetector, SpreadDetector, StepContext, collect,
+    FIT_VERSION, CombinedDetector, DetectorSet, DynamicsDetector, FeaturesDetector, SpreadDetector, StepContext, collect,
     Trajectory, best_detector, detectors_for, fit_detectors, trajectory_scores,
 )
 from oodmon.monitor.scores import score_function
@@ -115,6 +116,86 @@ def test_combined_is_the_largest_id_rank_of_its_members():
         combined.score(StepContext(np.zeros(1), 0, scores={"a": 1.0}))
 
 
+def test_episode_mean_is_the_mean_of_the_last_horizon_values_since_the_clear():
+    rng = np.random.default_rng(0)
+    values = rng.normal(size=700)
+    mean = EpisodeMean(500)
+    online = [mean.add(float(v)) for v in values]
+    expected = [values[max(0, t - 499):t + 1].mean() for t in range(len(values))]
+    np.testing.assert_allclose(online, expected, rtol=0, atol=1e-12)  # a running sum: rounding only
+    np.testing.assert_array_equal(mean.along(values), online)  # the same floats as the steps gave
+    mean.clear()
+    assert mean.add(3.0) == 3.0
+
+
+def _long_member_scores(rng, episodes, shift, steps=400):
+    """Per episode, a member's per-step scores: N(shift, 1) i.i.d. (a persistent small shift when shift > 0)."""
+    return [rng.normal(shift, 1.0, steps) for _ in range(episodes)]
+
+
+def test_combined_ranks_a_long_members_mean_since_the_episode_began():
+    """A shift that raises every step's score by half an ID standard deviation: each step alone is
+    ranked near its ID peers, the mean since the start leaves the ID means behind."""
+    rng = np.random.default_rng(1)
+    reference = {"dynamics": _long_member_scores(rng, 20, 0.0), "b": _long_member_scores(rng, 20, 0.0)}
+    with_mean = CombinedDetector(["dynamics", "b"]).fit_reference(reference)
+    without = CombinedDetector(["dynamics", "b"], long_members=[]).fit_reference(reference)
+    assert with_mean.long_members == ["dynamics"] and without.long_members == []
+
+    def scores(combined, episodes_of_dynamics, episodes_of_b):
+        out = []
+        for dynamics, b in zip(episodes_of_dynamics, episodes_of_b):
+            combined.reset()
+            out.append([combined.score(StepContext(np.zeros(1), 0, scores={"dynamics": float(x), "b": float(y)}))
+                        for x, y in zip(dynamics, b)])
+        return out
+
+    id_episodes = (_long_member_scores(rng, 10, 0.0), _long_member_scores(rng, 10, 0.0))
+    shifted = (_long_member_scores(rng, 5, 0.5), _long_member_scores(rng, 5, 0.0))
+    # Each step alone: AUROC of N(0.5, 1) against N(0, 1) is Phi(0.5 / sqrt 2) = 0.64, diluted by b's ranks.
+    assert _auroc(scores(without, *id_episodes), scores(without, *shifted)) < 0.66
+    # With the mean: after t steps it is N(0.5, 1/t) against ID means N(0, 1/t); from t ~ 40 on, beyond
+    # nearly all of them (measured 0.90 with these seeds; the first steps of an episode stay near chance).
+    assert _auroc(scores(with_mean, *id_episodes), scores(with_mean, *shifted)) > 0.85
+    # The score is the largest of the members' ranks and the mean's rank, the same floats as rank() gives
+    with_mean.reset()
+    means = EpisodeMean(with_mean.horizon)
+    for x, y in zip(shifted[0][0][:50], shifted[1][0][:50]):
+        step = with_mean.score(StepContext(np.zeros(1), 0, scores={"dynamics": float(x), "b": float(y)}))
+        assert step == max(with_mean.rank("dynamics", float(x)), with_mean.rank("b", float(y)),
+                           with_mean.rank("dynamics", means.add(float(x)), long=True))
+
+
+def test_combined_long_members_are_checked_and_need_per_episode_scores():
+    with pytest.raises(ConfigError, match="long_members must be distinct members"):
+        CombinedDetector(["a", "b"], long_members=["c"])
+    with pytest.raises(InvalidParameterError, match="horizon=0 is not allowed"):
+        CombinedDetector(["dynamics"], horizon=0)
+    with pytest.raises(ConfigError, match="give the ID scores of 'dynamics' per episode"):
+        CombinedDetector(["dynamics", "b"]).fit_reference({"dynamics": np.arange(100.0), "b": np.arange(100.0)})
+
+
+def test_a_combined_detector_saved_without_long_members_loads_as_before(fitted, agent, id_trajectories, tmp_path):
+    """A detectors file from before the long members (no ``long_members`` in its config) ranks its
+    members only; the fitted set ranks dynamics' mean too and survives a round trip with it."""
+    assert fitted["combined"].long_members == ["dynamics"] and fitted["combined"].horizon == 500
+    fitted.save(tmp_path / "det")
+    meta_path = tmp_path / "det" / "detectors.json"
+    meta = json.loads(meta_path.read_text())
+    combined_config = next(d["config"] for d in meta["detectors"] if d["name"] == "combined")
+    assert combined_config["long_members"] == ["dynamics"] and set(combined_config["long_scale"]) == {"dynamics"}
+    for key in ("long_members", "horizon", "long_scale"):
+        del combined_config[key]
+    meta_path.write_text(json.dumps(meta))
+    old = DetectorSet.load(tmp_path / "det")["combined"]
+    assert old.long_members == []
+    scores = trajectory_scores(fitted.subset(["spread", "dynamics", "features"]), id_trajectories[6], agent.estimator)
+    for step in range(len(scores["dynamics"])):
+        context = {name: float(values[step]) for name, values in scores.items()}
+        assert old.score(StepContext(np.zeros(1), 0, scores=context)) == max(
+            fitted["combined"].rank(name, value) for name, value in context.items())
+
+
 # -- determinism and files ----------------------------------------------------------------------------
 def test_fit_and_score_are_deterministic_under_a_seed(id_trajectories):
     first = DynamicsDetector(2, epochs=3, seed=7).fit(id_trajectories[:2])
@@ -133,6 +214,7 @@ def test_save_and_load_give_identical_scores(fitted, agent, id_trajectories, tmp
     loaded = DetectorSet.load(tmp_path / "det")
     assert loaded.names == fitted.names == ["spread", "dynamics", "features", "combined"]
     assert loaded.fitted_for["task"] == "cartpole" and loaded.fitted_for["obs_shape"] == [4]
+    assert loaded.fitted_for["version"] == FIT_VERSION  # what the bench keys its cache on
     shifted = collect(agent, parse_variant("cartpole:length=2.0").make(), 1, seed=500_000)[0]
     for trajectory in (id_trajectories[6], shifted):
         before = trajectory_scores(fitted, trajectory, agent.estimator)

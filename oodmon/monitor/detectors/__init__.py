@@ -4,7 +4,8 @@
 - ``dynamics``: a probabilistic ensemble dynamics model's surprise at each transition (PEDM).
 - ``features``: the Mahalanobis distance of the policy's features (Lee et al., 2018).
 - ``frames``: the Mahalanobis distance of each camera frame's image statistics (any policy).
-- ``combined``: the largest ID rank of the others' scores.
+- ``combined``: the largest ID rank of the others' scores (and of ``dynamics``' mean since the
+  episode began).
 
 :func:`fit_detectors` fits them for a policy on its own ID episodes; :class:`DetectorSet` runs
 them at each step and saves them (safetensors + JSON).
@@ -18,13 +19,13 @@ from oodmon.monitor.detectors.dynamics import MIN_LOGVAR, DynamicsDetector
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
 from oodmon.monitor.detectors.fitting import (
-    BEST_DETECTOR, DEFAULT_FIT_EPISODES, best_detector, collect, default_detectors, detectors_for, fit_agent_detectors, fit_detectors, trajectory_scores,
+    BEST_DETECTOR, DEFAULT_FIT_EPISODES, FIT_VERSION, best_detector, collect, default_detectors, detectors_for, fit_agent_detectors, fit_detectors, trajectory_scores,
 )
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 
 __all__ = [
-    "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DETECTORS", "MIN_LOGVAR", "CombinedDetector", "Detector", "DetectorSet", "DynamicsDetector",
+    "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DETECTORS", "FIT_VERSION", "MIN_LOGVAR", "CombinedDetector", "Detector", "DetectorSet", "DynamicsDetector",
     "FeaturesDetector", "FramesDetector", "SpreadDetector", "StepContext", "Trajectory", "best_detector", "collect", "default_detectors", "detectors_for",
     "fit_agent_detectors", "fit_detectors", "trajectory_scores",
 ]

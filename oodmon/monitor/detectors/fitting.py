@@ -31,10 +31,16 @@ from oodmon.seeds import DETECTOR_FIT
 from oodmon.validation import is_whole
 from oodmon.progress import Progress
 
-__all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "best_detector", "collect", "default_detectors", "detectors_for", "fit_agent_detectors",
+__all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "FIT_VERSION", "best_detector", "collect", "default_detectors", "detectors_for", "fit_agent_detectors",
            "fit_detectors", "policy_parts", "trajectory_scores"]
 
 DEFAULT_FIT_EPISODES = 30
+
+#: Recorded in a fitted set's ``fitted_for["version"]`` and in the bench's cache key; raised when
+#: fitting the same episodes gives other detectors, so that nothing fitted or scored by an older
+#: oodmon is reused. 2: ``combined`` ranks dynamics' mean since the episode began (a set without
+#: the key is of version 1).
+FIT_VERSION = 2
 
 # The detector with the highest mean per-step AUROC over the paper's failing variants, per task, on
 # the shipped agents (results/detectors/, `scripts/detector_table.py`; the README's detector table);
@@ -181,7 +187,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     if "frames" in detectors:
         parts.append(FramesDetector().fit(fit))
     obs_shape = list(np.shape(trajectories[0].observations)[1:])
-    fitted_for = {"task": task, "obs_shape": obs_shape, "policy_hash": policy_hash,
+    fitted_for = {"task": task, "obs_shape": obs_shape, "policy_hash": policy_hash, "version": FIT_VERSION,
                   "episodes": episodes, "seed": seed, "obs_noise": obs_noise}
     result = DetectorSet(parts, fitted_for=fitted_for)
     if "combined" in detectors:
@@ -190,7 +196,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         for trajectory in held_out:
             for name, values in trajectory_scores(result, trajectory, estimator).items():
                 reference[name].append(values)
-        combined = CombinedDetector(members).fit_reference({k: np.concatenate(v) for k, v in reference.items()})
+        combined = CombinedDetector(members).fit_reference(reference)  # per episode: see its long members
         result = result.with_detector(combined)
     return result
 
