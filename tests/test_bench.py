@@ -226,6 +226,16 @@ def test_bench_reports_every_detector_as_replaying_its_logs_gives(tmp_path):
         replayed = {m.variant: m.auroc for m in compute_metrics(logs, row.detector)}
         assert replayed["cartpole:length=2.0"] == row.aurocs[0]
     assert result.rows[1].aurocs[0] > 0.9  # dynamics sees the longer pole (measured 0.99-1.00)
+    # scripts/member_excursions.py ranks each member as the logged combined score did: per episode,
+    # the combined score's largest value is the largest of its members' (and dynamics' mean's)
+    from oodmon.monitor.detectors import DetectorSet
+
+    combined = DetectorSet.load(folder / f"detectors-{config.cache_key()}")["combined"]
+    for name in ("cartpole", "cartpole_length_2.0"):
+        maxima = load_script("member_excursions")[1].episode_maxima(combined, folder / f"{name}.mcap", after_onset=False)
+        assert set(maxima) == {"spread", "dynamics", "dynamics mean"}
+        logged = [episode.detector_scores["combined"].max() for episode in read_log(folder / f"{name}.mcap").episodes]
+        np.testing.assert_allclose(np.max(list(maxima.values()), axis=0), logged, rtol=0, atol=1e-9)
 
 
 def test_the_monitors_protocol_shifts_each_episode_at_its_own_onset_and_replays_the_alarms(tmp_path):
