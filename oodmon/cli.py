@@ -358,6 +358,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="comma-separated detectors whose per-step AUROC is reported: spread (the paper's protocol's "
                             "default), dynamics, features, combined; the learned ones are fitted per trial on ID "
                             "episodes of their own (monitor protocol's default: spread and the task's best)")
+    bench.add_argument("--fit-episodes", type=_whole(3), default=0,
+                       help="ID episodes the learned detectors are fitted on, per trial (default 30; Pong 6 games)")
     bench.add_argument("--alarm-detector", choices=list(DETECTOR_NAMES),
                        help="the detector the monitor's alarm reads, one of --detectors (default spread; monitor "
                             "protocol: the task's best)")
@@ -793,7 +795,7 @@ def _bench(args: argparse.Namespace) -> int:
                          confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
                          all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean,
-                         samples=args.samples)
+                         samples=args.samples, fit_episodes=args.fit_episodes)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result
     from oodmon.outputs import check_output_dir, check_output_file

@@ -145,6 +145,7 @@ CASES = [
     ("threads-text", ["envs", "--task", "cartpole"], {"OODMON_TORCH_THREADS": "two"}, ["OODMON_TORCH_THREADS", "two"]),
     ("threads-zero", ["envs", "--task", "cartpole"], {"OODMON_TORCH_THREADS": "0"}, ["OODMON_TORCH_THREADS", "0"]),
     ("bench-trials-0", ["bench", "--task", "cartpole", "--trials", "0"], {}, ["--trials", "0"]),
+    ("bench-fit-episodes-2", ["bench", "--task", "cartpole", "--fit-episodes", "2"], {}, ["--fit-episodes", "2"]),
     ("bench-workers-negative", ["bench", "--task", "cartpole", "--workers", "-1"], {}, ["--workers", "-1"]),
     ("bench-method-unknown", ["bench", "--task", "cartpole", "--methods", "bayes"], {}, ["--methods", "bayes"]),
     ("bench-baseline-missing", ["bench", "--task", "cartpole", "--out", "{d}/b", "--baseline", "{d}/missing.json"], {},

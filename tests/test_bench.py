@@ -90,6 +90,9 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
     monkeypatch.setattr(fitting, "FIT_VERSION", fitting.FIT_VERSION + 1)
     assert BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key() != today
     assert BenchConfig("cartpole", ("dropout",), 1).cache_key() == base.cache_key()  # spread alone: nothing fitted
+    # nor detectors fitted on another number of episodes (the key ignored it before)
+    assert BenchConfig("cartpole", ("dropout",), 1, fit_episodes=60, **learned).cache_key() != \
+        BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key()
     with pytest.raises(ConfigError, match="unknown detector 'sonar'"):
         BenchConfig("cartpole", detectors=("spread", "sonar"))
     # Too few calibration episodes for the bound is said before any work.
@@ -290,7 +293,7 @@ def test_the_same_bench_calibrates_the_same_threshold_for_an_mc_agent(tmp_path):
 
 def test_pong_alarms_on_200_decision_means_of_features_and_on_each_step_of_frames(monkeypatch, tmp_path):
     """The CLI's window default per task and detector (oodmon.monitor.alarms.default_window), as
-    bench passes it; Pong's default detector is frames."""
+    bench passes it; Pong's default detector is frames. And --fit-episodes, as bench passes it."""
     import oodmon.bench
     from oodmon.cli import main
 
@@ -307,6 +310,11 @@ def test_pong_alarms_on_200_decision_means_of_features_and_on_each_step_of_frame
         with pytest.raises(SystemExit):
             main(["bench", *argv, *common])
         assert configs[-1].window == window
+    # --fit-episodes reaches the config (and its cache key); without it, the task's default (0 here)
+    assert configs[-1].fit_episodes == 0
+    with pytest.raises(SystemExit):
+        main(["bench", "--task", "cartpole", "--fit-episodes", "60", *common])
+    assert configs[-1].fit_episodes == 60 and configs[-1].cache_key().endswith("-on60")
 
 
 def test_bench_results_are_data_and_a_later_bench_is_checked_against_them(tmp_path):

@@ -109,8 +109,8 @@ class BenchConfig:
 
     def cache_key(self) -> str:
         """What the cached thresholds and logs of a (method, trial) depend on beyond the weights:
-        score, alarm rule, target rate and confidence, calibration episodes, detectors (and the
-        version of their fitting), sensor noise and MC samples per decision."""
+        score, alarm rule, target rate and confidence, calibration episodes, detectors (the version
+        of their fitting and the episodes they are fitted on), sensor noise and MC samples per decision."""
         parts = [self.score, f"far{self.far:g}", f"n{self.calibration_episodes}",
                  "marginal" if self.confidence is None else f"conf{self.confidence:g}"]
         if self.window != 1:
@@ -124,7 +124,8 @@ class BenchConfig:
 
             # with the fitting's version past the first: what an older oodmon fitted and scored is not reused
             parts.append("+".join(self.detectors) + f"-alarm-{self.alarm_detector}"
-                         + (f"-fit{FIT_VERSION}" if FIT_VERSION > 1 else ""))
+                         + (f"-fit{FIT_VERSION}" if FIT_VERSION > 1 else "")
+                         + (f"-on{self.fit_episodes}" if self.fit_episodes else ""))
         if self.obs_noise:
             parts.append(f"noise{self.obs_noise:g}")
         if self.samples is not None:
