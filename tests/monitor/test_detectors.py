@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from sklearn.metrics import roc_auc_score
 
-from oodmon.agents import load
+from oodmon.agents import load, zoo_names
 from oodmon.envs import Variant, parse_variant
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor import McapSink, MemorySink, Monitor, Threshold, calibrate_agent
@@ -221,6 +221,22 @@ def test_a_combined_detector_saved_without_long_members_loads_as_before(fitted, 
         context = {name: float(values[step]) for name, values in scores.items()}
         assert old.score(StepContext(np.zeros(1), 0, scores=context)) == max(
             fitted["combined"].rank(name, value) for name, value in context.items())
+
+
+@pytest.mark.parametrize("name", zoo_names())
+def test_every_shipped_detector_set_loads_fitted_for_its_agent_by_todays_fitting(name):
+    """scripts/fit_zoo_detectors.sh's output: each set loads (its tensors match their sha256), was
+    fitted on the shipped agent's weights by today's fitting (FIT_VERSION), and its combined
+    detector ranks dynamics' mean wherever it has dynamics (vector observations)."""
+    from oodmon.agents import zoo_dir
+    from oodmon.hashing import file_sha256
+
+    folder = zoo_dir() / name
+    detectors = DetectorSet.load(folder / "detectors")
+    assert detectors.fitted_for["policy_hash"] == "sha256:" + file_sha256(folder / "model.safetensors")
+    assert detectors.fitted_for["version"] == FIT_VERSION and detectors.fitted_for["task"] == name.split("-")[0]
+    combined = detectors["combined"]
+    assert combined.long_members == (["dynamics"] if "dynamics" in detectors else [])
 
 
 # -- determinism and files ----------------------------------------------------------------------------
