@@ -9,7 +9,8 @@
 # full-depth agent, and CartPole DropConnect's the same day for its 200,000-step agent; all nine
 # again that day when combined began to rank dynamics' mean since the episode began (every
 # tensor of before the same, one more each on CartPole and Pendulum; Pong's only gained the
-# fitting's version in detectors.json); the
+# fitting's version in detectors.json), and again when combined began to rank features by the
+# logarithm of its score (only combined/reference.features changed, in all nine); the
 # README's tables come from the bench, which fits detectors of its own).
 # About 5 minutes on one core. Pendulum's combined detector uses the spread score that works there
 # (pre_squash_std); Pong has no dynamics detector (image observations), has frames, and fits on

@@ -193,9 +193,54 @@ def test_combined_ranks_a_long_members_mean_since_the_episode_began():
                            with_mean.rank("dynamics", means.add(float(x)), long=True))
 
 
+def test_a_log_member_with_a_heavy_id_tail_no_longer_sets_the_threshold_for_all():
+    """A member with a heavy ID tail (Pareto scores, as the features detector's squared distances
+    have) reaches, in some ID episodes, far beyond its reference maximum; ranked on its raw score
+    it then puts the threshold (the largest combined score over 90 ID episodes) where a clear
+    shift of another member cannot reach. Ranked by its logarithm it does not. Seeded; measured
+    0 and 20 of 20 shifted episodes alarmed, 1 of 100 ID episodes each time (the threshold's
+    false-alarm rate is about 1/91 either way)."""
+    rng = np.random.default_rng(3)
+
+    def episodes(n, steps=200):
+        return [{"features": 1.0 + rng.pareto(1.5, steps), "dynamics": rng.normal(0.0, 1.0, steps)} for _ in range(n)]
+
+    held_out = episodes(10)
+    reference = {m: [e[m] for e in held_out] for m in ("features", "dynamics")}
+    calibration, fresh_id, shifted = episodes(90), episodes(100), episodes(20)
+    for episode in shifted:
+        episode["dynamics"][100:120] += 6.0  # 20 steps six ID standard deviations off
+    alarmed = {}
+    for log in ([], ["features"]):
+        combined = CombinedDetector(["features", "dynamics"], long_members=[], log_members=log).fit_reference(reference)
+
+        def largest(episode):
+            return max(combined.score(StepContext(np.zeros(1), 0, scores={"features": float(f), "dynamics": float(d)}))
+                       for f, d in zip(episode["features"], episode["dynamics"]))
+
+        threshold = max(largest(e) for e in calibration)
+        alarmed[tuple(log)] = sum(largest(e) > threshold for e in shifted)
+        assert sum(largest(e) > threshold for e in fresh_id) <= 5  # (binomial(100, 1/91): P(> 5) < 0.01)
+    assert alarmed[()] <= 5 and alarmed[("features",)] >= 18
+    # in range a log member's rank is its raw score's (a monotone map), beyond the top it grows with the log
+    raw = CombinedDetector(["features"], long_members=[], log_members=[]).fit_reference({"features": reference["features"]})
+    logged = CombinedDetector(["features"], long_members=[]).fit_reference({"features": reference["features"]})
+    assert logged.log_members == ["features"]  # LOG_MEMBERS' default
+    for value in np.quantile(np.concatenate(reference["features"]), [0.1, 0.5, 0.9, 0.999]):
+        assert logged.rank("features", float(value)) == pytest.approx(raw.rank("features", float(value)))
+    steps = np.concatenate(reference["features"])
+    beyond = -np.log10(1 / (len(steps) + 1))  # the rank of any value past the largest ID one, before the excess
+    log_std = np.log(steps).astype(np.float32).astype(np.float64).std()
+    assert logged.rank("features", float(steps.max() * np.e)) == pytest.approx(beyond + 1.0 / log_std, rel=1e-5)
+    with pytest.raises(ConfigError, match="must not be negative"):
+        CombinedDetector(["features"], long_members=[]).fit_reference({"features": np.r_[-1.0, np.ones(9)]})
+
+
 def test_combined_long_members_are_checked_and_need_per_episode_scores():
     with pytest.raises(ConfigError, match="long_members must be distinct members"):
         CombinedDetector(["a", "b"], long_members=["c"])
+    with pytest.raises(ConfigError, match="log_members must be distinct members"):
+        CombinedDetector(["a", "b"], log_members=["a", "a"])
     with pytest.raises(InvalidParameterError, match="horizon=0 is not allowed"):
         CombinedDetector(["dynamics"], horizon=0)
     with pytest.raises(ConfigError, match="give the ID scores of 'dynamics' per episode"):
@@ -227,7 +272,8 @@ def test_a_combined_detector_saved_without_long_members_loads_as_before(fitted, 
 def test_every_shipped_detector_set_loads_fitted_for_its_agent_by_todays_fitting(name):
     """scripts/fit_zoo_detectors.sh's output: each set loads (its tensors match their sha256), was
     fitted on the shipped agent's weights by today's fitting (FIT_VERSION), and its combined
-    detector ranks dynamics' mean wherever it has dynamics (vector observations)."""
+    detector ranks dynamics' mean wherever it has dynamics (vector observations) and features by
+    the logarithm of its score."""
     from oodmon.agents import zoo_dir
     from oodmon.hashing import file_sha256
 
@@ -237,6 +283,7 @@ def test_every_shipped_detector_set_loads_fitted_for_its_agent_by_todays_fitting
     assert detectors.fitted_for["version"] == FIT_VERSION and detectors.fitted_for["task"] == name.split("-")[0]
     combined = detectors["combined"]
     assert combined.long_members == (["dynamics"] if "dynamics" in detectors else [])
+    assert combined.log_members == (["features"] if "features" in detectors else [])
 
 
 # -- determinism and files ----------------------------------------------------------------------------

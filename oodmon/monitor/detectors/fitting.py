@@ -38,9 +38,9 @@ DEFAULT_FIT_EPISODES = 30
 
 #: Recorded in a fitted set's ``fitted_for["version"]`` and in the bench's cache key; raised when
 #: fitting the same episodes gives other detectors, so that nothing fitted or scored by an older
-#: oodmon is reused. 2: ``combined`` ranks dynamics' mean since the episode began (a set without
-#: the key is of version 1).
-FIT_VERSION = 2
+#: oodmon is reused. 2: ``combined`` ranks dynamics' mean since the episode began; 3: and
+#: ``features`` by the logarithm of its score (a set without the key is of version 1).
+FIT_VERSION = 3
 
 # The detector with the highest mean per-step AUROC over the paper's failing variants, per task, on
 # the shipped agents (results/detectors/, `scripts/detector_table.py`; the README's detector table);
