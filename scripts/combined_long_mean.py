@@ -12,7 +12,9 @@ given its ID reference from the same 10 held-out ID episodes (the seeds of the l
 from step 0; the failing variants of ``results/detectors/<task>.json``). The agent's MC sampling
 is seeded with ``CALIBRATION``, as the bench's. Per form: the per-step AUROC per variant. One
 JSON line per (task, method, agent weights) goes to ``results/sweeps/combined_long_mean.jsonl``;
-a line already there is not run again.
+a line already there is not run again. Every form ranks ``features`` on its raw score, as the
+combined detector did when the rows were made; "(shipped)" names the long mean it ships with,
+which since then also ranks ``features`` by its logarithm (``LOG_MEMBERS``).
 """
 
 from __future__ import annotations
@@ -73,7 +75,7 @@ def measure(task: str, method: str) -> dict:
     auroc: dict[str, dict[str, float]] = {}
     for form, (long_members, horizon) in FORMS.items():
         combined = CombinedDetector(members, long_members=members if long_members == "members" else long_members,
-                                    horizon=horizon)
+                                    horizon=horizon, log_members=[])  # features raw, as when the rows were made
         combined.fit_reference({m: [episode[m] for episode in held_out] for m in members})
         id_combined = combined_scores(combined, id_scores)
         auroc[form] = {}
