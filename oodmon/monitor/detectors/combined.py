@@ -25,12 +25,12 @@ it reacts within a few steps of a shift that comes mid-episode, the long mean wo
 ``features`` (:data:`LOG_MEMBERS`) is ranked by the logarithm of its score. Inside the ID scores'
 range that changes no rank (the logarithm keeps their order); beyond the largest it measures the
 excess as a ratio. The features detector's squared distances have a heavy ID tail: in one of 200
-ID episodes of the shipped CartPole ensemble they reached 48 ranks (54 ID standard deviations past
-the held-out maximum) where every other member stayed below 7, and since the alarm's threshold
+ID episodes of the shipped CartPole ensemble they reached 48 ranks (about 45 ID standard deviations
+past the held-out maximum) where every other member stayed below 7, and since the alarm's threshold
 is the largest combined score of the calibration episodes, that one member set it (58.0) for
 all: a dynamics detector far outside its ID range after a shift (9-171 ranks) alarmed 2 of 10
-such episodes. Ranked by its logarithm (the monitor's own benchmark, `oodmon bench --protocol
-monitor --task cartpole`, the same agents and episodes): the ensemble's threshold fell to 6.33 and
+such episodes. Ranked by its logarithm (the monitor's own benchmark, ``oodmon bench --protocol
+monitor --task cartpole``, the same agents and episodes): the ensemble's threshold fell to 6.33 and
 it alarmed 253 of 270 shifted episodes instead of 233 (gravity x7-x10 from mid-episode: 23 of 40
 instead of 3), 1 of 200 ID episodes (0 before), delays median / p90 1 / 1 (1 / 3); Dropout's
 gravity delays fell from 4.5-18.5 to 1.5-3.5 steps at the median; DropConnect's figures stayed
