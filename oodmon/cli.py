@@ -133,6 +133,10 @@ def _add_confidence(parser: argparse.ArgumentParser, default: str | None = None)
                              "0.9); 'none': only on average over calibrations (19 episodes for --far 0.05)")
 
 
+#: oodmon.monitor.detectors.DEFAULT_FIT_EPISODES, written out: importing it here would load the
+#: detectors (scipy, gymnasium) before every command; a test keeps the two equal.
+_FIT_EPISODES = 90
+
 #: An option left at its default where the default depends on another option (bench's --protocol).
 _UNSET = -1.0
 
@@ -244,8 +248,9 @@ def _parser() -> argparse.ArgumentParser:
                            help="the detector the alarm reads (default: the task's best measured one when the agent has "
                                 "fitted detectors: cartpole combined, pendulum dynamics, pong frames; else spread); "
                                 "a learned one without fitted detectors is fitted first, into <out>.detectors/")
-    calibrate.add_argument("--fit-episodes", type=_whole(3), default=30,
-                           help="ID episodes the learned detectors are fitted on when calibrate fits them (default 30)")
+    calibrate.add_argument("--fit-episodes", type=_whole(3), default=_FIT_EPISODES,
+                           help=f"ID episodes the learned detectors are fitted on when calibrate fits them (default "
+                                f"{_FIT_EPISODES})")
     calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
                            help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
@@ -271,8 +276,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     _agent_arguments(fit)
     fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have)")
-    fit.add_argument("--episodes", type=_whole(3), default=30,
-                     help="ID episodes: two thirds fit, one third ranks for combined (default 30)")
+    fit.add_argument("--episodes", type=_whole(3), default=_FIT_EPISODES,
+                     help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES})")
     fit.add_argument("--max-steps", type=_whole(1), help="cut each episode after this many steps (Pong: try 300)")
     fit.add_argument("--score", default="chosen_std", help="the spread score combined uses (default chosen_std)")
     fit.add_argument("--obs-noise", type=_non_negative, default=0.0,
@@ -359,7 +364,8 @@ def _parser() -> argparse.ArgumentParser:
                             "default), dynamics, features, combined; the learned ones are fitted per trial on ID "
                             "episodes of their own (monitor protocol's default: spread and the task's best)")
     bench.add_argument("--fit-episodes", type=_whole(3), default=0,
-                       help="ID episodes the learned detectors are fitted on, per trial (default 30; Pong 6 games)")
+                       help=f"ID episodes the learned detectors are fitted on, per trial (default {_FIT_EPISODES}; "
+                            "Pong 6 games)")
     bench.add_argument("--alarm-detector", choices=list(DETECTOR_NAMES),
                        help="the detector the monitor's alarm reads, one of --detectors (default spread; monitor "
                             "protocol: the task's best)")

@@ -286,3 +286,16 @@ def test_calibrate_combined_with_another_spread_score_fits_detectors_for_it(tmp_
     assert json.loads((tmp_path / "spread.json").read_text())["detector"] == "spread"
     assert "the fitted one is left out: the fitted combined detector ranks the spread by 'chosen_std'" in (
         capsys.readouterr().err.replace("\n", " "))
+
+
+def test_the_cli_fits_detectors_on_the_librarys_default_number_of_episodes():
+    """calibrate --fit-episodes and fit-detectors --episodes default to DEFAULT_FIT_EPISODES (the CLI
+    writes the number out to stay light at start-up)."""
+    from oodmon.cli import _parser
+    from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES
+
+    parser = _parser()
+    assert parser.parse_args(["calibrate", "--task", "cartpole", "--method", "ensemble", "--out", "t.json"]).fit_episodes == \
+        DEFAULT_FIT_EPISODES
+    assert parser.parse_args(["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--out", "d"]).episodes == \
+        DEFAULT_FIT_EPISODES

@@ -66,7 +66,8 @@ def test_the_shipped_combined_detector_sees_doubled_gravity_that_the_agent_survi
     little surprising: ranked alone, the members separate its steps from ID ones weakly; with the
     dynamics detector's mean since the episode began the shipped combined detector does. On the
     bench's episodes (10 ID, 5 shifted, all five kept up for 500 steps here; seeded, so
-    deterministic): measured 0.999 against 0.810 for the members alone."""
+    deterministic): measured 0.999 against 0.905 for the members alone, below the detector
+    table's goal of 0.95 (0.810 with the detectors fitted on 30 episodes)."""
     from oodmon import seeds
 
     agent = load("cartpole", "dropconnect", seed=seeds.CALIBRATION)
@@ -84,8 +85,8 @@ def test_the_shipped_combined_detector_sees_doubled_gravity_that_the_agent_survi
     id_combined, id_members, _ = scored("cartpole", 10, seeds.BENCH_ID)
     shifted_combined, shifted_members, lengths = scored("cartpole:gravity=19.6", 5, seeds.BENCH_SHIFTED)
     assert sum(length == 500 for length in lengths) >= 3  # the agent survives most of them
-    assert _auroc(id_members, shifted_members) < 0.85
-    assert _auroc(id_combined, shifted_combined) > 0.95
+    assert _auroc(id_members, shifted_members) < 0.95
+    assert _auroc(id_combined, shifted_combined) > 0.99
 
 
 def test_dynamics_copes_with_sensor_noise(agent):
