@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.monitor.detectors import DetectorSet
-from oodmon.monitor.detectors.combined import EpisodeMean
+from oodmon.monitor.detectors.base import RunningMean
 from oodmon.replay import read_log
 
 
@@ -33,9 +33,8 @@ def episode_maxima(combined, path: Path, after_onset: bool) -> dict[str, np.ndar
         for name in combined.members:
             out.setdefault(name, []).append(max(combined.rank(name, float(v)) for v in scores[name][start:]))
         for name in combined.long_members:
-            mean = EpisodeMean(combined.horizon)
-            means = [mean.add(float(v)) for v in scores[name]]
-            out.setdefault(f"{name} mean", []).append(max(combined.rank(name, v, long=True) for v in means[start:]))
+            means = RunningMean(combined.horizon).along(scores[name])
+            out.setdefault(f"{name} mean", []).append(max(combined.rank(name, float(v), long=True) for v in means[start:]))
     return {name: np.asarray(values) for name, values in out.items()}
 
 

@@ -122,9 +122,8 @@ class BenchConfig:
         if self.learned:
             from oodmon.monitor.detectors.fitting import FIT_VERSION
 
-            # with the fitting's version past the first: what an older oodmon fitted and scored is not reused
-            parts.append("+".join(self.detectors) + f"-alarm-{self.alarm_detector}"
-                         + (f"-fit{FIT_VERSION}" if FIT_VERSION > 1 else "")
+            # the fitting's version: what an older oodmon fitted and scored is not reused
+            parts.append("+".join(self.detectors) + f"-alarm-{self.alarm_detector}-fit{FIT_VERSION}"
                          + (f"-on{self.fit_episodes}" if self.fit_episodes else ""))
         if self.obs_noise:
             parts.append(f"noise{self.obs_noise:g}")

@@ -16,7 +16,7 @@ from oodmon.agents import load, zoo_names
 from oodmon.envs import Variant, parse_variant
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor import McapSink, MemorySink, Monitor, Threshold, calibrate_agent
-from oodmon.monitor.detectors.combined import EpisodeMean
+from oodmon.monitor.detectors.base import RunningMean
 from oodmon.monitor.detectors import (
     FIT_VERSION, CombinedDetector, DetectorSet, DynamicsDetector, FeaturesDetector, SpreadDetector, StepContext, collect,
     Trajectory, best_detector, detectors_for, fit_detectors, trajectory_scores,
@@ -144,10 +144,10 @@ def test_combined_is_the_largest_id_rank_of_its_members():
         combined.score(StepContext(np.zeros(1), 0, scores={"a": 1.0}))
 
 
-def test_episode_mean_is_the_mean_of_the_last_horizon_values_since_the_clear():
+def test_running_mean_is_the_mean_of_the_last_window_values_since_the_clear():
     rng = np.random.default_rng(0)
     values = rng.normal(size=700)
-    mean = EpisodeMean(500)
+    mean = RunningMean(500)
     online = [mean.add(float(v)) for v in values]
     expected = [values[max(0, t - 499):t + 1].mean() for t in range(len(values))]
     np.testing.assert_allclose(online, expected, rtol=0, atol=1e-12)  # a running sum: rounding only
@@ -187,7 +187,7 @@ def test_combined_ranks_a_long_members_mean_since_the_episode_began():
     assert _auroc(scores(with_mean, *id_episodes), scores(with_mean, *shifted)) > 0.85
     # The score is the largest of the members' ranks and the mean's rank, the same floats as rank() gives
     with_mean.reset()
-    means = EpisodeMean(with_mean.horizon)
+    means = RunningMean(with_mean.horizon)
     for x, y in zip(shifted[0][0][:50], shifted[1][0][:50]):
         step = with_mean.score(StepContext(np.zeros(1), 0, scores={"dynamics": float(x), "b": float(y)}))
         assert step == max(with_mean.rank("dynamics", float(x)), with_mean.rank("b", float(y)),

@@ -23,7 +23,7 @@ from oodmon.validation import is_whole
 if TYPE_CHECKING:  # importing it would load torch
     from oodmon.agents.estimators import Estimate
 
-__all__ = ["Detector", "RecentMean", "StepContext", "Trajectory"]
+__all__ = ["Detector", "RecentMean", "RunningMean", "StepContext", "Trajectory"]
 
 
 class RecentMean:
@@ -48,6 +48,42 @@ class RecentMean:
     def add(self, value: float) -> float:
         self._values.append(value)
         return sum(self._values) / len(self._values)
+
+
+class RunningMean(RecentMean):
+    """:class:`RecentMean` kept as a running sum, so that a step costs the same at any window (the
+    combined detector's mean over an episode's last 500 steps). Its last bits can differ from
+    :class:`RecentMean`'s, which sums its window anew: the detectors' own 20-step means stay that.
+
+    Example:
+        >>> mean = RunningMean(2)
+        >>> [mean.add(v) for v in (1.0, 3.0, 5.0)]
+        [1.0, 2.0, 4.0]
+    """
+
+    def __init__(self, window: int) -> None:
+        super().__init__(window)
+        self._sum = 0.0
+
+    def clear(self) -> None:
+        super().clear()
+        self._sum = 0.0
+
+    def add(self, value: float) -> float:
+        values = self._values
+        evicted = values[0] if len(values) == self.window else None  # what append() pushes out
+        values.append(value)
+        self._sum += value
+        if evicted is not None:
+            self._sum -= evicted
+        return self._sum / len(values)
+
+    def along(self, values: np.ndarray) -> np.ndarray:
+        """The means at each step of one episode's ``values``, from a clear start (cleared after)."""
+        self.clear()
+        out = np.array([self.add(float(v)) for v in values])
+        self.clear()
+        return out
 
 
 @dataclass(frozen=True)

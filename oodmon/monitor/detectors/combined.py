@@ -45,17 +45,16 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_left
-from collections import deque
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.detectors.base import Detector, StepContext
+from oodmon.monitor.detectors.base import Detector, RunningMean, StepContext
 from oodmon.validation import is_whole
 
-__all__ = ["DEFAULT_HORIZON", "LOG_MEMBERS", "LONG_MEMBERS", "CombinedDetector", "EpisodeMean"]
+__all__ = ["DEFAULT_HORIZON", "LOG_MEMBERS", "LONG_MEMBERS", "CombinedDetector"]
 
 #: Members whose mean since the episode began the combined detector ranks too, by default.
 LONG_MEMBERS = ("dynamics",)
@@ -68,41 +67,6 @@ _LOG_FLOOR = 1e-300  # a score of 0 (never seen: a squared distance) is ranked a
 
 def _log(value: float) -> float:
     return math.log(value if value > _LOG_FLOOR else _LOG_FLOOR)
-
-
-class EpisodeMean:
-    """The mean of the values added since :meth:`clear`, over the last ``horizon`` of them: a running
-    sum, so a step costs the same at any horizon.
-
-    Example:
-        >>> mean = EpisodeMean(2)
-        >>> [mean.add(v) for v in (1.0, 3.0, 5.0)]
-        [1.0, 2.0, 4.0]
-    """
-
-    def __init__(self, horizon: int) -> None:
-        self.horizon = horizon
-        self._values: deque[float] = deque()
-        self._sum = 0.0
-
-    def clear(self) -> None:
-        self._values.clear()
-        self._sum = 0.0
-
-    def add(self, value: float) -> float:
-        values = self._values
-        values.append(value)
-        self._sum += value
-        if len(values) > self.horizon:
-            self._sum -= values.popleft()
-        return self._sum / len(values)
-
-    def along(self, values: np.ndarray) -> np.ndarray:
-        """The means at each step of one episode's ``values`` (from a clear start; clears after)."""
-        self.clear()
-        out = np.array([self.add(float(v)) for v in values])
-        self.clear()
-        return out
 
 
 class CombinedDetector(Detector):
@@ -145,7 +109,7 @@ class CombinedDetector(Detector):
         self._scale: dict[str, float] = {}
         self._long_reference: dict[str, np.ndarray] = {}
         self._long_scale: dict[str, float] = {}
-        self._means = {name: EpisodeMean(horizon) for name in self.long_members}
+        self._means = {name: RunningMean(horizon) for name in self.long_members}
 
     @property
     def fitted(self) -> bool:
@@ -205,7 +169,7 @@ class CombinedDetector(Detector):
         self._by_name = {name: _ranked(reference[name], scale[name]) for name in self.members}
         self._long_by_name = {name: _ranked(long_reference[name], long_scale[name]) for name in self.long_members}
         # per member: (name, ranked by its logarithm, then as above); the long members: (name, its
-        # EpisodeMean, ranked by the logarithm of that mean, then as above for its means' reference)
+        # RunningMean, ranked by the logarithm of that mean, then as above for its means' reference)
         self._ranked = [(name, name in self.log_members, *self._by_name[name]) for name in self.members]
         self._long_ranked = [(name, self._means[name], name in self.log_members, *self._long_by_name[name])
                              for name in self.long_members]
