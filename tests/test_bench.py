@@ -291,6 +291,46 @@ def test_the_same_bench_calibrates_the_same_threshold_for_an_mc_agent(tmp_path):
     assert thresholds[0] == thresholds[1] and thresholds[0]["method"] == "dropout"
 
 
+def test_a_bench_stopped_between_its_stages_resumes_drawing_what_an_uninterrupted_one_draws(tmp_path, monkeypatch):
+    """An MC agent's fitting, calibration and evaluation draw from one seeded generator in turn.
+    A bench that stopped after a stage (its output cached, the rest not) must set the sampling back
+    to where it stood after that stage: before, the evaluation of a resumed bench began from the
+    fresh seed, so which variants an MC agent fails on depended on where an earlier run had stopped."""
+    from oodmon.bench import cache
+
+    states = []
+    real_evaluate = cache.evaluate_variants
+
+    def recording_evaluate(act, *args, **kwargs):
+        states.append(act.__self__.estimator.sampling_state)  # where the sampling stands as evaluation begins
+        return real_evaluate(act, *args, **kwargs)
+
+    monkeypatch.setattr(cache, "evaluate_variants", recording_evaluate)
+    config = BenchConfig("cartpole", ("dropout",), 1, ("cartpole:length=2.0",), episodes=1, id_episodes=1,
+                         eval_episodes=1, calibration_episodes=19, confidence=None, out=str(tmp_path), workers=1,
+                         detectors=("spread", "dynamics"), alarm_detector="dynamics", fit_episodes=3)
+    folder = tmp_path / "logs" / f"cartpole-{config.cache_key()}" / "dropout" / "trial0"
+    threshold_file = folder / f"threshold-{config.cache_key()}.json"
+
+    def prepare():
+        cache._prepare_trial(config, "dropout", 0, lambda *_: None)
+        return threshold_file.read_text(), (folder / "failing.json").read_text()
+
+    uninterrupted = prepare()
+    (folder / "failing.json").unlink()  # stopped after calibrating
+    assert prepare() == uninterrupted and states[1] == states[0]
+    threshold_file.unlink()  # stopped after fitting: calibration again from where fitting left the sampling
+    (folder / "failing.json").unlink()
+    assert prepare() == uninterrupted and states[2] == states[0]
+    # The same from a fresh seed would have drawn otherwise: the evaluation began elsewhere, the
+    # dropout agent's threshold came out otherwise.
+    threshold_file.unlink()
+    (folder / "failing.json").unlink()
+    for state in folder.glob("sampling-after-*.json"):
+        state.unlink()
+    assert prepare()[0] != uninterrupted[0] and states[3] != states[0]
+
+
 def test_pong_alarms_on_200_decision_means_of_features_and_on_each_step_of_frames(monkeypatch, tmp_path):
     """The CLI's window default per task and detector (oodmon.monitor.alarms.default_window), as
     bench passes it; Pong's default detector is frames. And --fit-episodes, as bench passes it."""

@@ -196,27 +196,63 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
     if "spread" in config.detectors and agent.estimator is None:
         raise ConfigError(f"{method} has no samples of its own (one model, or a kind oodmon does not sample): "
                           f"drop spread from the detectors")
+    # The three stages draw from that one generator in turn. A stage cached by an earlier run that
+    # stopped (killed, or a machine restarted) sets the agent's sampling back to where it stood
+    # after that stage, so a resumed bench draws what an uninterrupted one draws.
     detectors_path = _fit_trial_detectors(config, agent, folder, f"{method} trial {trial}", report)
     if not threshold_path.exists():
         from oodmon.monitor.detectors import DetectorSet
 
         stage = f"{method} trial {trial}: calibration episodes"
-        calibrate_agent(agent, config.calibration_episodes, config.far, score=config.score, window=config.window,
-                        detectors=DetectorSet.load(detectors_path) if detectors_path else None,
-                        detector=config.alarm_detector, obs_noise=config.obs_noise, confidence=config.confidence,
-                        rule=config.rule, consecutive=config.m,
-                        on_progress=lambda _, done, total: report(stage, done, total)).save(threshold_path)
+        threshold = calibrate_agent(
+            agent, config.calibration_episodes, config.far, score=config.score, window=config.window,
+            detectors=DetectorSet.load(detectors_path) if detectors_path else None,
+            detector=config.alarm_detector, obs_noise=config.obs_noise, confidence=config.confidence,
+            rule=config.rule, consecutive=config.m, on_progress=lambda _, done, total: report(stage, done, total))
+        _continue_sampling(agent, folder / f"sampling-after-threshold-{config.cache_key()}.json", made_now=True)
+        threshold.save(threshold_path)  # after the state: a threshold on disk always has its state beside it
+    else:
+        _continue_sampling(agent, folder / f"sampling-after-threshold-{config.cache_key()}.json", made_now=False)
     variants = config.variant_list()
-    if failing_path.exists() and json.loads(failing_path.read_text()).get("variants") == [v.spec for v in variants]:
-        failing = json.loads(failing_path.read_text())["failing"]
+    cached = _read_json(failing_path)
+    if cached is not None and cached.get("variants") == [v.spec for v in variants]:
+        failing = cached["failing"]
     else:
         stage = f"{method} trial {trial}: evaluation episodes"
         _, results = evaluate_variants(agent.act, config.task, variants, config.eval_episodes,
                                        on_progress=lambda _, done, total: report(stage, done, total))
         failing = [r.spec for r in results if r.fails]
-        failing_path.write_text(json.dumps({"variants": [v.spec for v in variants], "failing": failing,
-                                            "returns": {r.spec: r.mean for r in results}}, indent=1))
+        _write_json(failing_path, {"variants": [v.spec for v in variants], "failing": failing,
+                                   "returns": {r.spec: r.mean for r in results}})
     return model, threshold_path, failing, detectors_path
+
+
+def _continue_sampling(agent, state_file: Path, *, made_now: bool) -> None:
+    """After a stage of :func:`_prepare_trial`: when it ran now, save where the agent's MC sampling
+    stands; when an earlier run made it, set the sampling back to where it stood then. (Caches made
+    before the states were saved have none: the sampling goes on from where it is, as then.)"""
+    estimator = agent.estimator
+    if estimator is None or estimator.sampling_state is None:
+        return
+    if made_now:
+        _write_json(state_file, estimator.sampling_state)
+    elif (state := _read_json(state_file)) is not None:
+        estimator.sampling_state = state
+
+
+def _write_json(path: Path, data) -> None:
+    """``data`` as JSON at ``path``, whole or not at all (a kill mid-write leaves the old file or none)."""
+    temporary = path.with_suffix(path.suffix + ".part")
+    temporary.write_text(json.dumps(data, indent=1))
+    os.replace(temporary, path)
+
+
+def _read_json(path: Path):
+    """The JSON at ``path``; ``None`` when there is none or it cannot be read (it is made again)."""
+    try:
+        return json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
 
 
 #: Fitting episodes per task: Pong's games are long, its detectors fit on their first 1,000 steps.
@@ -232,13 +268,18 @@ def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
     from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES, fit_agent_detectors
 
     path = folder / f"detectors-{config.cache_key()}"
+    state_file = folder / f"sampling-after-detectors-{config.cache_key()}.json"
     if not (path / "detectors.json").exists():
         fit = dict(_FIT.get(config.task, {"episodes": DEFAULT_FIT_EPISODES, "max_steps": None}))
         if config.fit_episodes:
             fit["episodes"] = config.fit_episodes
         stage = f"{label}: detector fitting episodes"
-        fit_agent_detectors(agent, detectors=config.learned, score=config.score, obs_noise=config.obs_noise,
-                            on_progress=lambda _, done, total: report(stage, done, total), **fit).save(path)
+        fitted = fit_agent_detectors(agent, detectors=config.learned, score=config.score, obs_noise=config.obs_noise,
+                                     on_progress=lambda _, done, total: report(stage, done, total), **fit)
+        _continue_sampling(agent, state_file, made_now=True)
+        fitted.save(path)  # after the state: fitted detectors on disk always have their state beside them
+    else:
+        _continue_sampling(agent, state_file, made_now=False)
     return path
 
 
