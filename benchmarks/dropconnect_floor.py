@@ -2,20 +2,25 @@
 
 Run: .venv/bin/python benchmarks/dropconnect_floor.py
 
-The shipped CartPole DropConnect agent (K=20 samples, p=0.02 at every layer of its [256, 256]
-MLP) draws the positions of its dropped weights instead of a mask over all of them
-(``oodmon.agents.plan``). Its middle layer alone drops about 20 x (active inputs) x 256 x 0.02
-weights per decision (with the agent shipped on 2026-11-24: 10,752 at seed 0's first state, where
-it is timed; median 12,083 over that episode's 500 states; the agent before it: 11,600 and
-12,400). Whatever the code around it, each dropped weight needs at least a uniform draw and its
-logarithm (the geometric gap to the next one), a running sum (its position), the weight and the
-input it multiplies (two gathers and a product), and an add into its sample's output
-(``np.bincount``). This script times exactly those seven numpy calls on that many elements
-("floor"; decoding a position into its weight, input and output, a few more calls, is left out),
-the agent's whole decision, and ``predict()`` of one plain SB3 DQN of the same size; one torch
-thread. The last line is floor_ratio=<floor / predict()>: when it
-is near or above 1, ``benchmarks/uncertainty_step.py``'s goal (a decision <= one predict())
-cannot be met by this agent in numpy, whatever else is trimmed.
+The shipped full-depth DropConnect agents (K=20 samples; CartPole p=0.02 at every layer of its
+[256, 256] DQN MLP, Pendulum p=0.05 at every layer of its [400, 300] DDPG actor) draw the positions
+of their dropped weights instead of a mask over all of them (``oodmon.agents.plan``). Their middle
+layer alone drops about 20 x (active inputs) x out x p weights per decision (CartPole, with the
+agent shipped on 2026-11-24: 10,752 at seed 0's first state, where it is timed; median 12,083 over
+that episode's 500 states; Pendulum: 70,500 at seed 0's first state, median about 81,000 over
+200 states). Whatever the code
+around it, each dropped weight needs at least a uniform draw and its logarithm (the geometric gap
+to the next one), a running sum (its position), the weight and the input it multiplies (two
+gathers and a product), and an add into its sample's output (``np.bincount``): "seven calls" times
+exactly those numpy calls on that many elements (decoding a position into its weight, input and
+output, a few more calls, is left out). The layer's inputs differ from sample to sample (the layer
+before dropped other weights for each), so it also needs the product of its K rows of active inputs
+with every weight kept: "K rows' product". "floor" is the two together; then the agent's whole
+decision, and ``predict()`` of one plain SB3 model of the same size; one torch thread.
+
+Lines ``floor_ratio_<task>=<floor / predict()>``; the last line, floor_ratio=, is the larger of
+the two. Where a task's floor is near or above 1, ``benchmarks/uncertainty_step.py``'s goal (a
+decision <= one predict()) cannot be met by that agent in numpy, whatever else is trimmed.
 """
 
 from __future__ import annotations
@@ -23,61 +28,83 @@ from __future__ import annotations
 import gymnasium
 import numpy as np
 import torch
-from stable_baselines3 import DQN
+from stable_baselines3 import DDPG, DQN
 
 import oodmon  # noqa: F401  (registers the envs)
 from oodmon.agents import load
 from oodmon.agents.plan import active_inputs, repeat_rows
+from oodmon.agents.recipes import recipe_for
+from oodmon.envs.grid import ENV_IDS
 from timing import per_call_us  # benchmarks/timing.py, beside this script
 
-REPEATS = 1000
+REPEATS = {"cartpole": 1000, "pendulum": 300}
+PLAIN = {"cartpole": DQN, "pendulum": DDPG}
 
 
-def middle_layer_drops(agent, obs: np.ndarray) -> int:
-    """How many weights the middle layer drops, on average, at ``obs``: K x active inputs x out x p."""
+def middle_layer(agent, obs: np.ndarray) -> tuple[int, int, int]:
+    """The middle layer at ``obs``: how many inputs are active (not zero in some sample), its
+    outputs, and how many weights it drops on average (K x active inputs x out x p)."""
     estimator = agent.estimator
-    ops = estimator._suffix  # Linear(4, 256) ReLU Linear(256, 256) ReLU Linear(256, 2), as numpy ops
-    x = repeat_rows(np.asarray(obs, np.float32)[None], estimator.n_samples)  # (K, 1, 4), as the estimator has it
+    ops = estimator._suffix  # DropConnect, ReLU, DropConnect (the middle layer), ReLU, DropConnect, as numpy ops
+    x = repeat_rows(np.asarray(obs, np.float32)[None], estimator.n_samples)  # (K, 1, obs), as the estimator has it
     rng = np.random.default_rng(0)
     hidden = ops[1](ops[0](x, rng), rng)  # after the first DropConnect layer and its ReLU
     active = len(active_inputs(hidden))  # the inputs the middle layer draws masks for
     middle = ops[2]
-    return round(estimator.n_samples * active * middle.weight_t.shape[1] * float(middle.p))
+    n_out = middle.weight_t.shape[1]
+    return active, n_out, round(estimator.n_samples * active * n_out * float(middle.p))
 
 
-def main() -> None:
-    torch.set_num_threads(1)
-    env = gymnasium.make("oodmon/CartPole-v1")
+def task_figures(task: str) -> tuple[dict[str, float], float]:
+    """The task's timings by label, and its floor / predict()."""
+    env = gymnasium.make(ENV_IDS[task])
     obs, _ = env.reset(seed=0)
-    agent = load("cartpole", "dropconnect")
-    drops = middle_layer_drops(agent, obs)
+    agent = load(task, "dropconnect")
+    k = agent.estimator.n_samples
+    active, n_out, drops = middle_layer(agent, obs)
+    n_in = agent.estimator._suffix[2].weight_t.shape[0]
     rng = np.random.default_rng(0)
-    weights = rng.standard_normal(256 * 256).astype(np.float32)
-    inputs = rng.standard_normal(20 * 256).astype(np.float32)
-    gaps = rng.geometric(0.02, drops)
+    weights = rng.standard_normal(n_in * n_out).astype(np.float32)
+    inputs = rng.standard_normal(k * n_in).astype(np.float32)
+    rows, kept = rng.standard_normal((k, active)).astype(np.float32), weights.reshape(n_in, n_out)[:active]
+    gaps = rng.geometric(float(agent.estimator._suffix[2].p), drops)
     # Decoding a position into its weight, input and output is left out (a lower bound): the
     # indices are drawn once here.
     weight_index, input_index = rng.integers(0, len(weights), drops), rng.integers(0, len(inputs), drops)
-    slots = rng.integers(0, 20 * 256, drops)
+    slots = rng.integers(0, k * n_out, drops)
 
-    def floor() -> None:
+    def seven_calls() -> None:
         uniform = rng.random(drops)
         np.log1p(uniform, out=uniform)
         np.cumsum(gaps)
         terms = weights[weight_index] * inputs[input_index]
-        np.bincount(slots, weights=terms, minlength=20 * 256)
+        np.bincount(slots, weights=terms, minlength=k * n_out)
 
-    plain = DQN("MlpPolicy", env, policy_kwargs={"net_arch": [256, 256]}, seed=0, device="cpu")
+    net_arch = list(recipe_for(task, "dropconnect").net_arch)
+    plain = PLAIN[task]("MlpPolicy", env, policy_kwargs={"net_arch": net_arch}, seed=0, device="cpu")
     figures = {
-        "sb3 predict (one member)": per_call_us(lambda: plain.predict(obs, deterministic=True), REPEATS),
-        "shipped dropconnect decision (K=20)": per_call_us(lambda: agent.estimator.estimate(obs), REPEATS),
-        f"floor: {drops} dropped weights": per_call_us(floor, REPEATS),
+        f"{task} sb3 predict (one plain model)": per_call_us(lambda: plain.predict(obs, deterministic=True), REPEATS[task]),
+        f"{task} shipped dropconnect decision (K={k})": per_call_us(lambda: agent.estimator.estimate(obs), REPEATS[task]),
+        f"{task} seven calls: {drops} dropped weights": per_call_us(seven_calls, REPEATS[task]),
+        f"{task} K rows' product: ({k}, {active}) x ({active}, {n_out})": per_call_us(lambda: np.matmul(rows, kept),
+                                                                                  REPEATS[task]),
     }
-    for name, us in figures.items():
-        print(f"{name:40s} {us:10.1f} us")
-    predict = figures["sb3 predict (one member)"]
-    print(f"decision_ratio={figures['shipped dropconnect decision (K=20)'] / predict:.2f}")
-    print(f"floor_ratio={figures[f'floor: {drops} dropped weights'] / predict:.2f}")
+    floor = figures[f"{task} seven calls: {drops} dropped weights"] + \
+        figures[f"{task} K rows' product: ({k}, {active}) x ({active}, {n_out})"]
+    figures[f"{task} floor (the two)"] = floor
+    return figures, floor / figures[f"{task} sb3 predict (one plain model)"]
+
+
+def main() -> None:
+    torch.set_num_threads(1)
+    ratios = {}
+    for task in ("cartpole", "pendulum"):
+        figures, ratios[task] = task_figures(task)
+        for name, us in figures.items():
+            print(f"{name:56s} {us:10.1f} us")
+    for task, ratio in ratios.items():
+        print(f"floor_ratio_{task}={ratio:.2f}")
+    print(f"floor_ratio={max(ratios.values()):.2f}")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ DQN (DDPG) of the same size. Batch of one observation, one torch thread, all in 
 The last line is ratio=<worst decision / predict>, over both tasks; the goal is <= 1.0, which the
 full-depth DropConnect agents do not meet (they drop weights of every layer of every sample: see
 "Full depth" in oodmon/zoo/README.md, and ``benchmarks/dropconnect_floor.py`` for why numpy cannot
-meet it on CartPole). ``ratio_<task>=`` is each task's worst; ``ratio_output_layer=`` the worst of
+meet it on either task). ``ratio_<task>=`` is each task's worst; ``ratio_output_layer=`` the worst of
 the agents whose sampling stops at the output layer.
 """
 
