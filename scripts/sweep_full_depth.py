@@ -5,7 +5,9 @@ Run (resumable; one torch thread, so it can sit beside other work):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_full_depth.py [--tasks cartpole,pendulum]
         [--methods dropconnect] [--grid 0.01,0.02] [--learning-rate 1e-3] [--steps 100000] [--net-arch 64,64]
 
-``--learning-rate``, ``--steps`` and ``--net-arch`` (hidden widths) change the recipe's; every row records
+``--learning-rate``, ``--steps`` and ``--net-arch`` (hidden widths) change the recipe's, and
+``--target-samples K`` trains a DQN with the TD target read from K MC samples of its target network
+(``Recipe.target_samples``, recorded in the row); every row records
 the learning rate and steps its agent was trained with (rows from before the recipe's defaults changed:
 those of their time), and its hidden widths when they are not the recipe's.
 ``--shipped`` measures the shipped agents (at the depth they ship) on the same
@@ -79,6 +81,8 @@ def table() -> str:
     for r in read_rows(OUT):
         means = {k: float(np.mean(list(v.values()))) for k, v in r["auroc"].items()}
         depth = "output only" if r["last_only"] else "full"
+        if r.get("target_samples"):
+            depth += f", target of {r['target_samples']} samples"
         if r.get("shipped"):
             depth += " (shipped)" if _made_by_todays_recipe(r) else " (shipped before)"
         hidden = ", ".join(str(w) for w in (r.get("net_arch") or recipe_for(r["task"], r["method"]).net_arch))
@@ -98,6 +102,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, help="training steps instead of the recipe's (recorded in the row)")
     parser.add_argument("--net-arch", type=_widths,
                         help="hidden widths instead of the recipe's, e.g. 64,64 (recorded in the row)")
+    parser.add_argument("--target-samples", type=int, default=0,
+                        help="DQN: the TD target is the mean of this many MC samples of the target network (recorded)")
     parser.add_argument("--shipped", action="store_true",
                         help="measure the shipped (last-only) agents the same way instead of training")
     args = parse_or_print_table(parser, table)
@@ -126,6 +132,10 @@ def main() -> None:
                     recipe = replace(recipe, net_arch=args.net_arch)
                     name += "-net" + "x".join(str(w) for w in recipe.net_arch)
                     settings["net_arch"] = recipe.net_arch
+                if args.target_samples:
+                    recipe = replace(recipe, target_samples=args.target_samples)
+                    name += f"-target{args.target_samples}"
+                    settings["target_samples"] = args.target_samples
                 if _key({"task": task, "method": method, **settings}) in done:
                     continue
                 start = time.monotonic()
@@ -162,7 +172,7 @@ def _key(row: dict) -> tuple:
     if row.get("shipped"):
         return row["task"], row["method"], "shipped", row["last_only"], row["drop_p"], row["steps"]
     net_arch = tuple(row.get("net_arch") or recipe_for(row["task"], row["method"]).net_arch)
-    return row["task"], row["method"], row["drop_p"], row["learning_rate"], row["steps"], net_arch
+    return row["task"], row["method"], row["drop_p"], row["learning_rate"], row["steps"], net_arch, row.get("target_samples", 0)
 
 
 def _measure(agent, task: str, method: str, settings: dict, start: float | None = None) -> None:

@@ -13,8 +13,9 @@ from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.torch_layers import NatureCNN
 
 from oodmon.agents.networks import Architecture
-from oodmon.agents.policies import BootstrappedDQN, UncertainDQNPolicy, UncertainTD3Policy
+from oodmon.agents.policies import BootstrappedDQN, SampledTargetDQN, UncertainDQNPolicy, UncertainTD3Policy
 from oodmon.agents.recipes import Recipe, recipe_architecture
+from oodmon.errors import ConfigError
 from oodmon.envs.grid import ENV_IDS
 
 __all__ = ["algorithm_class", "architecture", "new_model", "recipe_architecture", "training_env"]
@@ -54,6 +55,11 @@ def new_model(recipe: Recipe, env: gymnasium.Env, seed: int) -> BaseAlgorithm:
         common["action_noise"] = NormalActionNoise(np.zeros(n), scale * np.ones(n))
     elif arch.shared_torso:
         policy_kwargs["n_heads"] = recipe.n_members
+    if recipe.target_samples:
+        if recipe.algorithm != "dqn" or arch.stochastic is None:
+            raise ConfigError(f"target_samples={recipe.target_samples} samples a DQN's dropout or DropConnect target "
+                              f"network; the {recipe.task} {recipe.method} recipe has none")
+        common["target_samples"] = recipe.target_samples
     policy = UncertainTD3Policy if recipe.algorithm == "ddpg" else UncertainDQNPolicy
     return algorithm_class(recipe)(policy, env, policy_kwargs=policy_kwargs, **common)
 
@@ -61,4 +67,6 @@ def new_model(recipe: Recipe, env: gymnasium.Env, seed: int) -> BaseAlgorithm:
 def algorithm_class(recipe: Recipe) -> type[BaseAlgorithm]:
     if recipe.algorithm == "ddpg":
         return DDPG
-    return BootstrappedDQN if recipe.method == "ensemble" and recipe.shared_torso else DQN
+    if recipe.method == "ensemble" and recipe.shared_torso:
+        return BootstrappedDQN
+    return SampledTargetDQN if recipe.target_samples else DQN

@@ -6,7 +6,8 @@
 
 They extend SB3 at its documented seams (``make_q_net``, ``make_actor``), so the optimizer is
 built over the modified networks and SB3's training loop runs unchanged; only the bootstrapped
-heads need their own loss (:class:`BootstrappedDQN`).
+heads need their own loss (:class:`BootstrappedDQN`), and :class:`SampledTargetDQN` reads its
+target network through MC samples.
 """
 
 from __future__ import annotations
@@ -21,10 +22,11 @@ from stable_baselines3.dqn.policies import DQNPolicy
 from stable_baselines3.td3.policies import TD3Policy
 from torch import nn
 
-from oodmon.agents.layers import add_dropout, to_dropconnect
+from oodmon.agents.layers import add_dropout, mc_sampling, to_dropconnect
 from oodmon.errors import InvalidParameterError
 
-__all__ = ["STOCHASTIC_LAYERS", "BootstrappedDQN", "QHeads", "UncertainDQNPolicy", "UncertainTD3Policy"]
+__all__ = ["STOCHASTIC_LAYERS", "BootstrappedDQN", "QHeads", "SampledTargetDQN", "UncertainDQNPolicy",
+           "UncertainTD3Policy"]
 
 #: The ways to make a network stochastic for MC sampling.
 STOCHASTIC_LAYERS = {"dropout": add_dropout, "dropconnect": to_dropconnect}
@@ -172,3 +174,40 @@ class BootstrappedDQN(DQN):
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/loss", float(np.mean(losses)))
+
+
+class _SampledTarget(nn.Module):
+    """A DQN target network read as the mean of K MC samples of its dropout or DropConnect layers
+    (K masks, each shared by the batch), instead of with its plain weights. Its parameters are the
+    target network's own, in the same order, so SB3's target updates (``polyak_update``) reach them."""
+
+    def __init__(self, target: nn.Module, samples: int) -> None:
+        super().__init__()
+        self.target, self.samples = target, samples
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        features = self.target.extract_features(obs, self.target.features_extractor)
+        with mc_sampling(self.target):
+            return self.target.q_net(features.expand(self.samples, *features.shape)).mean(dim=0)
+
+
+class SampledTargetDQN(DQN):
+    """DQN whose TD target reads the target network as the online one is trained: the mean of
+    ``target_samples`` MC samples of its dropout or DropConnect layers, not its plain weights.
+
+    Why: the CartPole DropConnect trainings with SB3's plain target learn Q-values up to 35 times the
+    largest return (``scripts/q_values.py``; the zoo README), and at p >= 0.05 their policies do not
+    learn. With the target sampled the Q-values stayed at 140-180 and p = 0.05 and 0.1 learned (one
+    seed; the zoo README). Everything else is SB3's DQN: the sampled target is the algorithm's
+    ``q_net_target``, SB3's ``train()`` calls it, and the policy (what is saved) is unchanged.
+    """
+
+    def __init__(self, *args: Any, target_samples: int = 8, **kwargs: Any) -> None:
+        if not (isinstance(target_samples, int) and target_samples >= 1):
+            raise InvalidParameterError(f"target_samples={target_samples!r} is not allowed; use a whole number >= 1")
+        self.target_samples = target_samples
+        super().__init__(*args, **kwargs)
+
+    def _create_aliases(self) -> None:
+        super()._create_aliases()
+        self.q_net_target = _SampledTarget(self.policy.q_net_target, self.target_samples)

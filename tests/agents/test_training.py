@@ -18,7 +18,7 @@ from oodmon.agents.algorithms import new_model as _new_model
 from oodmon.agents.algorithms import training_env as _training_env
 from oodmon.agents.checkpoints import Run as _Run
 from oodmon.agents.training import architecture, train
-from oodmon.errors import ConfigError, UnknownParameterError
+from oodmon.errors import ConfigError, InvalidParameterError, UnknownParameterError
 
 CASES = [("cartpole", "dropout"), ("cartpole", "ensemble"), ("pendulum", "dropconnect"), ("pendulum", "ensemble"),
          ("pong", "ensemble")]
@@ -313,3 +313,63 @@ def test_a_recipe_of_another_task_or_method_is_refused(tmp_path):
 
     with pytest.raises(ConfigError, match="recipe is for cartpole/dropconnect, not cartpole/dropout"):
         train("cartpole", "dropout", tmp_path, recipe=replace(recipe_for("cartpole", "dropconnect"), last_only=False))
+
+
+def test_a_sampled_target_reads_the_target_network_as_the_online_one_is_trained(tmp_path, monkeypatch):
+    """Recipe.target_samples = K: the TD target is the mean of K MC samples of the target network
+    (SampledTargetDQN), whose parameters SB3's target updates still reach; the agent records K, and
+    a run of the plain target is not resumed by it."""
+    from stable_baselines3.common.utils import polyak_update
+
+    from oodmon.agents.layers import mc_sampling
+    from oodmon.agents.policies import SampledTargetDQN
+    from oodmon.agents.recipes import recipe_differences
+
+    recipe = dataclasses.replace(recipe_for("cartpole", "dropconnect"), target_samples=4).shortened(300)
+    model = _new_model(recipe, _training_env(recipe), seed=0)
+    assert isinstance(model, SampledTargetDQN)
+    target = model.policy.q_net_target
+    assert list(model.q_net_target.parameters()) == list(target.parameters())  # the same tensors, the same order
+    obs = torch.tensor(np.random.default_rng(0).standard_normal((6, 4)), dtype=torch.float32)
+    torch.manual_seed(1)
+    with torch.no_grad():
+        sampled = model.q_net_target(obs)
+    torch.manual_seed(1)
+    with torch.no_grad(), mc_sampling(target):
+        by_hand = target.q_net(obs.expand(4, 6, 4)).mean(dim=0)  # K = 4 masks, each shared by the batch
+        plain = target(obs)
+    assert sampled.shape == (6, 2) and torch.equal(sampled, by_hand) and not torch.allclose(sampled, plain)
+    assert not target.training and not any(m.training for m in target.modules())  # left in eval mode
+    with torch.no_grad():
+        model.policy.q_net.q_net[2].weight.add_(1.0)
+    polyak_update(model.q_net.parameters(), model.q_net_target.parameters(), 1.0)  # what SB3's _on_step does
+    assert torch.equal(target.q_net[2].weight, model.policy.q_net.q_net[2].weight)
+    # trained (stopped and resumed: the resumed model samples its target too) and exported: the agent
+    # records K; the plain recipe differs from it by K alone
+    recipe = dataclasses.replace(recipe, select_top=0)
+
+    def interrupt(run, done, total):
+        if done >= 200:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train("cartpole", "dropconnect", tmp_path, id_episodes=1, recipe=recipe, on_progress=interrupt)
+    from oodmon.agents import checkpoints
+
+    resumed = []
+    real_new_model = checkpoints.new_model
+    monkeypatch.setattr(checkpoints, "new_model", lambda *args, **kwargs: resumed.append(real_new_model(*args, **kwargs))
+                        or resumed[-1])
+    agent = train("cartpole", "dropconnect", tmp_path, id_episodes=1, recipe=recipe)
+    assert resumed and all(isinstance(m, SampledTargetDQN) and m.q_net_target.samples == 4 for m in resumed)
+    assert agent.metadata["target_samples"] == 4
+    plain_recipe = dataclasses.replace(recipe, target_samples=0)
+    assert recipe_differences(agent.metadata, plain_recipe) == ["target_samples: 4 -> 0"]
+    with pytest.raises(ConfigError, match="a run begun by another recipe|another recipe"):
+        train("cartpole", "dropconnect", tmp_path, id_episodes=1, recipe=plain_recipe)
+    for task, method in (("cartpole", "ensemble"), ("pendulum", "dropconnect")):  # nothing to sample; not a DQN
+        bad = dataclasses.replace(recipe_for(task, method), target_samples=4)
+        with pytest.raises(ConfigError, match="target_samples=4 samples a DQN's dropout or DropConnect"):
+            _new_model(bad, _training_env(bad), seed=0)
+    with pytest.raises(InvalidParameterError, match="target_samples=0 is not allowed"):
+        SampledTargetDQN("MlpPolicy", _training_env(recipe), target_samples=0)
