@@ -200,6 +200,7 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
     # stopped (killed, or a machine restarted) sets the agent's sampling back to where it stood
     # after that stage, so a resumed bench draws what an uninterrupted one draws.
     detectors_path = _fit_trial_detectors(config, agent, folder, f"{method} trial {trial}", report)
+    threshold_state = folder / f"sampling-after-threshold-{config.cache_key()}.json"
     if not threshold_path.exists():
         from oodmon.monitor.detectors import DetectorSet
 
@@ -209,10 +210,10 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
             detectors=DetectorSet.load(detectors_path) if detectors_path else None,
             detector=config.alarm_detector, obs_noise=config.obs_noise, confidence=config.confidence,
             rule=config.rule, consecutive=config.m, on_progress=lambda _, done, total: report(stage, done, total))
-        _continue_sampling(agent, folder / f"sampling-after-threshold-{config.cache_key()}.json", made_now=True)
+        _continue_sampling(agent, threshold_state, made_now=True)
         threshold.save(threshold_path)  # after the state: a threshold on disk always has its state beside it
     else:
-        _continue_sampling(agent, folder / f"sampling-after-threshold-{config.cache_key()}.json", made_now=False)
+        _continue_sampling(agent, threshold_state, made_now=False)
     variants = config.variant_list()
     cached = _read_json(failing_path)
     if cached is not None and cached.get("variants") == [v.spec for v in variants]:
