@@ -42,6 +42,8 @@ def _label(row: dict) -> str:
         label += f", {row['total_steps']:,} steps"
     if row.get("select_top"):
         label += f", best of {row['select_top']} snapshots"
+    if row.get("target_samples"):
+        label += f", target of {row['target_samples']} samples"
     return label
 
 
@@ -50,8 +52,8 @@ def _shown(row: dict) -> str:
     another recipe was shipped keep their settings)."""
     shipped = recipe_for(row["task"], row["method"])
     made = (row["drop_p"], row["last_only"], row.get("total_steps", shipped.total_steps),
-            row.get("select_top", shipped.select_top))
-    today = (shipped.drop_p, shipped.last_only, shipped.total_steps, shipped.select_top)
+            row.get("select_top", shipped.select_top), row.get("target_samples", 0))
+    today = (shipped.drop_p, shipped.last_only, shipped.total_steps, shipped.select_top, shipped.target_samples)
     return _label(row) + (" (shipped)" if made == today else " (shipped before)" if row.get("shipped") else "")
 
 
@@ -80,6 +82,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, help="the candidate's training steps (default the recipe's)")
     parser.add_argument("--select-top", type=int, default=0, help="the candidate ships the best of this many "
                         "snapshots, each replayed on 20 ID episodes (Recipe.select_top; default 0: the best evaluation)")
+    parser.add_argument("--target-samples", type=int, default=0, help="DQN: the candidate's TD target is the mean "
+                        "of this many MC samples of its target network (Recipe.target_samples; default 0: SB3's)")
     parser.add_argument("--shipped", action="store_true", help="measure the shipped recipe's five trials instead")
     parser.add_argument("--seeds", default="0,1,2,3,4")
     args = parse_or_print_table(parser, table)
@@ -96,6 +100,8 @@ def main() -> None:
         else:
             settings = {"drop_p": args.p, "last_only": False, "total_steps": args.steps or shipped.total_steps,
                         "select_top": args.select_top}
+            if args.target_samples:
+                settings["target_samples"] = args.target_samples
         if (args.task, args.method, _label(settings), seed) in done:
             continue
         if args.shipped:
@@ -103,9 +109,9 @@ def main() -> None:
                 f"runs/bench5/models/{args.task}-{args.method}-trial{seed}", task=args.task, seed=MC_SEED)
         else:
             out = (f"runs/sweep/trials/{args.task}-{args.method}-full-p{args.p:g}-steps{settings['total_steps']}"
-                   f"-top{args.select_top}-seed{seed}")
+                   f"-top{args.select_top}{f'-target{args.target_samples}' if args.target_samples else ''}-seed{seed}")
             recipe = replace(shipped, last_only=False, drop_p=args.p, total_steps=settings["total_steps"],
-                             select_top=args.select_top, select_episodes=20)
+                             select_top=args.select_top, select_episodes=20, target_samples=args.target_samples)
             train(args.task, args.method, out, seed=seed, recipe=recipe, command=f"scripts/sweep_trials.py ({out})")
             agent = load_agent(out, task=args.task, seed=MC_SEED)
         auroc, returns, _ = spread_aurocs(agent, args.task, VARIANTS[(args.task, args.method)])
