@@ -1,14 +1,15 @@
-"""Reading a JSON file that a person gave, with errors that say what was expected."""
+"""Reading a JSON file that a person gave, with errors that say what was expected; writing one whole."""
 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
 from oodmon.errors import ConfigError, OodmonError
 
-__all__ = ["read_json"]
+__all__ = ["read_json", "write_json"]
 
 
 def read_json(path: str | Path, *, name: str = "", missing: str = "", folder: str = "",
@@ -35,3 +36,12 @@ def read_json(path: str | Path, *, name: str = "", missing: str = "", folder: st
         raise error(f"{label} is a folder" + (f"; {folder}" if folder else "")) from None
     except (json.JSONDecodeError, UnicodeDecodeError) as reason:
         raise error(f"{label} is not valid JSON ({reason})") from None
+
+
+def write_json(path: str | Path, data: Any) -> None:
+    """``data`` as JSON at ``path``, whole or not at all: written beside it, then moved over it, so a
+    process killed mid-write leaves the old file or none, never half of one."""
+    path = Path(path)
+    temporary = path.with_suffix(path.suffix + ".part")
+    temporary.write_text(json.dumps(data, indent=1))
+    os.replace(temporary, path)

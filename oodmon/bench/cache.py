@@ -17,6 +17,7 @@ from oodmon.agents.serialization import read_metadata
 from oodmon.bench.config import BenchConfig
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
+from oodmon.jsonfile import read_json, write_json
 from oodmon.outputs import safe_filename
 
 @dataclass(frozen=True)
@@ -223,7 +224,7 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
         _, results = evaluate_variants(agent.act, config.task, variants, config.eval_episodes,
                                        on_progress=lambda _, done, total: report(stage, done, total))
         failing = [r.spec for r in results if r.fails]
-        _write_json(failing_path, {"variants": [v.spec for v in variants], "failing": failing,
+        write_json(failing_path, {"variants": [v.spec for v in variants], "failing": failing,
                                    "returns": {r.spec: r.mean for r in results}})
     return model, threshold_path, failing, detectors_path
 
@@ -236,23 +237,16 @@ def _continue_sampling(agent, state_file: Path, *, made_now: bool) -> None:
     if estimator is None or estimator.sampling_state is None:
         return
     if made_now:
-        _write_json(state_file, estimator.sampling_state)
+        write_json(state_file, estimator.sampling_state)
     elif (state := _read_json(state_file)) is not None:
         estimator.sampling_state = state
-
-
-def _write_json(path: Path, data) -> None:
-    """``data`` as JSON at ``path``, whole or not at all (a kill mid-write leaves the old file or none)."""
-    temporary = path.with_suffix(path.suffix + ".part")
-    temporary.write_text(json.dumps(data, indent=1))
-    os.replace(temporary, path)
 
 
 def _read_json(path: Path):
     """The JSON at ``path``; ``None`` when there is none or it cannot be read (it is made again)."""
     try:
-        return json.loads(path.read_text())
-    except (FileNotFoundError, json.JSONDecodeError):
+        return read_json(path)
+    except ConfigError:
         return None
 
 

@@ -10,32 +10,32 @@ excess over that maximum in units of the member's ID standard deviation, so that
 excursion still ranks higher.
 
 For ``dynamics`` (:data:`LONG_MEMBERS`) it ranks one more statistic: the member's mean score since
-the episode began (over its last ``horizon`` steps at most), against the same mean along held-out
-ID episodes. A shift the agent copes with can leave each transition only a little surprising, too
+the episode began (over its last ``horizon`` steps at most), against the same mean along held-out ID
+episodes. A shift the agent copes with can leave each transition only a little surprising, too
 little for the member's 20-step mean to stand out, while its mean over hundreds of steps does.
 Measured on the shipped agents (``scripts/combined_long_mean.py``: 10 ID episodes against 5 of each
-variant where the agent fails, per-step AUROC; detectors fitted on 30 ID episodes, as then): CartPole DropConnect's lowest over its 44 variants
-rose from 0.776 to 0.983 (``gravity=19.6``, doubled gravity, which the agent mostly survives; a
-100-step mean gave 0.850), CartPole Dropout's from 0.983 to 0.998, Pendulum DropConnect's,
-Dropout's and ensemble's from 0.946, 0.963 and 0.978 to 0.965, 0.969 and 0.986; the CartPole
-ensemble's moved from 0.992 to 0.991. The same mean of ``features`` and ``spread`` as well added
-nothing on CartPole and lowered Pendulum Dropout's lowest to 0.922. The member's own score stays:
-it reacts within a few steps of a shift that comes mid-episode, the long mean would not.
+variant where the agent fails, per-step AUROC; detectors fitted on 30 ID episodes, as then):
+CartPole DropConnect's lowest over its 44 variants rose from 0.776 to 0.983 (``gravity=19.6``,
+doubled gravity, which the agent mostly survives; a 100-step mean gave 0.850), CartPole Dropout's
+from 0.983 to 0.998, Pendulum DropConnect's, Dropout's and ensemble's from 0.946, 0.963 and 0.978 to
+0.965, 0.969 and 0.986; the CartPole ensemble's moved from 0.992 to 0.991. The same mean of
+``features`` and ``spread`` as well added nothing on CartPole and lowered Pendulum Dropout's lowest
+to 0.922. The member's own score stays: it reacts within a few steps of a shift that comes
+mid-episode, the long mean would not.
 
 ``features`` (:data:`LOG_MEMBERS`) is ranked by the logarithm of its score. Inside the ID scores'
 range that changes no rank (the logarithm keeps their order); beyond the largest it measures the
-excess as a ratio. The features detector's squared distances have a heavy ID tail: in one of 200
-ID episodes of the shipped CartPole ensemble they reached 48 ranks (about 45 ID standard deviations
+excess as a ratio. The features detector's squared distances have a heavy ID tail: in one of 200 ID
+episodes of the shipped CartPole ensemble they reached 48 ranks (about 45 ID standard deviations
 past the held-out maximum) where every other member stayed below 7, and since the alarm's threshold
-is the largest combined score of the calibration episodes, that one member set it (58.0) for
-all: a dynamics detector far outside its ID range after a shift (9-171 ranks) alarmed 2 of 10
-such episodes. Ranked by its logarithm (the monitor's own benchmark, ``oodmon bench --protocol
-monitor --task cartpole``, the same agents and episodes, detectors fitted on 30 ID episodes as
-then): the ensemble's threshold fell to 6.33 and
-it alarmed 253 of 270 shifted episodes instead of 233 (gravity x7-x10 from mid-episode: 23 of 40
-instead of 3), 1 of 200 ID episodes (0 before), delays median / p90 1 / 1 (1 / 3); Dropout's
-gravity delays fell from 4.5-18.5 to 1.5-3.5 steps at the median; DropConnect's figures stayed
-the same; per-step AUROC moved by 0.0001 at most on CartPole.
+is the largest combined score of the calibration episodes, that one member set it (58.0) for all: a
+dynamics detector far outside its ID range after a shift (9-171 ranks) alarmed 2 of 10 such
+episodes. Ranked by its logarithm (the monitor's own benchmark, ``oodmon bench --protocol monitor
+--task cartpole``, the same agents and episodes, detectors fitted on 30 ID episodes as then): the
+ensemble's threshold fell to 6.33 and it alarmed 253 of 270 shifted episodes instead of 233 (gravity
+x7-x10 from mid-episode: 23 of 40 instead of 3), 1 of 200 ID episodes (0 before), delays median /
+p90 1 / 1 (1 / 3); Dropout's gravity delays fell from 4.5-18.5 to 1.5-3.5 steps at the median;
+DropConnect's figures stayed the same; per-step AUROC moved by 0.0001 at most on CartPole.
 
 The alarm's threshold is calibrated on the combined score of its own ID episodes like any other
 score, so its per-episode false-alarm guarantee is exact whatever the members' dependence.
