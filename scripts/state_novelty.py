@@ -27,27 +27,21 @@ from sklearn.neighbors import NearestNeighbors
 
 from oodmon.agents import load, load_agent
 from oodmon.envs import parse_variant
-from oodmon.monitor.scores import score_function
+from oodmon.monitor import MemorySink, Monitor
 from sweep_full_depth import MC_SEED, VARIANTS
 
 NEIGHBOURS = 5
 
 
 def play(agent, spec: str, episodes: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Every step's observation and ``chosen_std`` over ``episodes`` of ``spec`` (seeds ``seed``, ``seed`` + 1, ...)."""
-    env, score = parse_variant(spec).make(), score_function("chosen_std")
-    observations, scores = [], []
-    for k in range(episodes):
-        obs, _ = env.reset(seed=seed + k)
-        done = False
-        while not done:
-            estimate = agent.estimate(np.asarray(obs, np.float32)[None])
-            observations.append(np.asarray(obs, np.float64))
-            scores.append(float(score(estimate)[0]))
-            obs, _, terminated, truncated, _ = env.step(estimate.action[0])
-            done = terminated or truncated
+    """Every step's observation and ``chosen_std``: the agent under the monitor, ``episodes`` of ``spec``
+    (seeds ``seed``, ``seed`` + 1, ...), as the sweeps play theirs."""
+    sink, env = MemorySink(), parse_variant(spec).make()
+    with Monitor(agent, score="chosen_std", sinks=[sink]) as monitor:
+        for k in range(episodes):
+            monitor.run_episode(env, seed=seed + k, variant=spec)
     env.close()
-    return np.array(observations), np.array(scores)
+    return np.array([step.observation for step in sink.steps]), np.array([step.score for step in sink.steps])
 
 
 def novelty(reference: np.ndarray):

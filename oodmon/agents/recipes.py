@@ -130,8 +130,8 @@ _OVERRIDES: dict[tuple[str, str], dict[str, Any]] = {
     # never solved it, so it trains for 200,000 and ships the best of its 8 best-evaluated snapshots
     # played again on 20 episodes, which solves it with all five (results/sweeps/trials.jsonl). Its
     # Q-values grow to up to 35 times the largest return; target_samples=8 stops that and solves the
-    # task at p = 0.05 and 0.1 too, but its spread separates no better (seed 0: the zoo README), so
-    # the shipped recipe keeps the plain target and its five-trial figures.
+    # task at p = 0.05 and 0.1 too, but its spread separates no better (five seeds: the zoo README),
+    # so the shipped recipe keeps the plain target and its five-trial figures.
     ("cartpole", "dropconnect"): dict(last_only=False, drop_p=0.02, total_steps=200_000,
                                       hyperparams=dict(learning_rate=1e-3), select_top=8, select_episodes=20),
     # Full depth at p = 0.05 detects better and more evenly over five seeds than the output layer at
