@@ -7,7 +7,9 @@ Run (resumable; one torch thread, so it can sit beside other work):
 
 ``--learning-rate``, ``--steps`` and ``--net-arch`` (hidden widths) change the recipe's, and
 ``--target-samples K`` trains a DQN with the TD target read from K MC samples of its target network
-(``Recipe.target_samples``, recorded in the row); every row records
+(``Recipe.target_samples``, recorded in the row), ``--buffer-size N`` and ``--final-eps E`` change a
+DQN's replay buffer and final exploration rate (recorded as ``buffer_size`` and
+``exploration_final_eps``); every row records
 the learning rate and steps its agent was trained with (rows from before the recipe's defaults changed:
 those of their time), and its hidden widths when they are not the recipe's.
 ``--shipped`` measures the shipped agents (at the depth they ship) on the same
@@ -83,6 +85,10 @@ def table() -> str:
         depth = "output only" if r["last_only"] else "full"
         if r.get("target_samples"):
             depth += f", target of {r['target_samples']} samples"
+        if r.get("buffer_size") is not None:
+            depth += f", buffer of {r['buffer_size']:,}"
+        if r.get("exploration_final_eps") is not None:
+            depth += f", final epsilon {r['exploration_final_eps']:g}"
         if r.get("shipped"):
             depth += " (shipped)" if _made_by_todays_recipe(r) else " (shipped before)"
         hidden = ", ".join(str(w) for w in (r.get("net_arch") or recipe_for(r["task"], r["method"]).net_arch))
@@ -104,6 +110,8 @@ def main() -> None:
                         help="hidden widths instead of the recipe's, e.g. 64,64 (recorded in the row)")
     parser.add_argument("--target-samples", type=int, default=0,
                         help="DQN: the TD target is the mean of this many MC samples of the target network (recorded)")
+    parser.add_argument("--buffer-size", type=int, help="DQN: replay buffer size instead of the recipe's (recorded)")
+    parser.add_argument("--final-eps", type=float, help="DQN: final exploration rate instead of the recipe's (recorded)")
     parser.add_argument("--shipped", action="store_true",
                         help="measure the shipped (last-only) agents the same way instead of training")
     args = parse_or_print_table(parser, table)
@@ -136,6 +144,12 @@ def main() -> None:
                     recipe = replace(recipe, target_samples=args.target_samples)
                     name += f"-target{args.target_samples}"
                     settings["target_samples"] = args.target_samples
+                for option, hyperparam, tag in (("buffer_size", "buffer_size", "buffer"),
+                                                ("final_eps", "exploration_final_eps", "eps")):
+                    if (value := getattr(args, option)) is not None:
+                        recipe = replace(recipe, hyperparams=recipe.hyperparams | {hyperparam: value})
+                        name += f"-{tag}{value:g}"
+                        settings[hyperparam] = value
                 if _key({"task": task, "method": method, **settings}) in done:
                     continue
                 start = time.monotonic()
@@ -172,7 +186,8 @@ def _key(row: dict) -> tuple:
     if row.get("shipped"):
         return row["task"], row["method"], "shipped", row["last_only"], row["drop_p"], row["steps"]
     net_arch = tuple(row.get("net_arch") or recipe_for(row["task"], row["method"]).net_arch)
-    return row["task"], row["method"], row["drop_p"], row["learning_rate"], row["steps"], net_arch, row.get("target_samples", 0)
+    return (row["task"], row["method"], row["drop_p"], row["learning_rate"], row["steps"], net_arch,
+            row.get("target_samples", 0), row.get("buffer_size"), row.get("exploration_final_eps"))
 
 
 def _measure(agent, task: str, method: str, settings: dict, start: float | None = None) -> None:

@@ -7,6 +7,9 @@ Run (resumable; one torch thread; minutes per seed on Pendulum):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_trials.py --task pendulum --method dropconnect --shipped
     .venv/bin/python scripts/sweep_trials.py --table                       # mean ± std over seeds per variant
 
+``--steps``, ``--select-top``, ``--target-samples`` and ``--final-eps`` (a DQN's final exploration
+rate) change the candidate's training further; the rows record them.
+
 The candidate is the shipped recipe with ``last_only=False`` and ``drop_p=p``, trained with seed k into
 ``runs/sweep/trials/<task>-<method>-full-p<p>-seed<k>``. ``--shipped`` measures the shipped recipe's
 five trials as the bench has them: trial 0 is the zoo agent and trial k is
@@ -44,6 +47,8 @@ def _label(row: dict) -> str:
         label += f", best of {row['select_top']} snapshots"
     if row.get("target_samples"):
         label += f", target of {row['target_samples']} samples"
+    if row.get("exploration_final_eps") is not None:
+        label += f", final epsilon {row['exploration_final_eps']:g}"
     return label
 
 
@@ -52,8 +57,8 @@ def _shown(row: dict) -> str:
     another recipe was shipped keep their settings)."""
     shipped = recipe_for(row["task"], row["method"])
     made = (row["drop_p"], row["last_only"], row.get("total_steps", shipped.total_steps),
-            row.get("select_top", shipped.select_top), row.get("target_samples", 0))
-    today = (shipped.drop_p, shipped.last_only, shipped.total_steps, shipped.select_top, shipped.target_samples)
+            row.get("select_top", shipped.select_top), row.get("target_samples", 0), row.get("exploration_final_eps"))
+    today = (shipped.drop_p, shipped.last_only, shipped.total_steps, shipped.select_top, shipped.target_samples, None)
     return _label(row) + (" (shipped)" if made == today else " (shipped before)" if row.get("shipped") else "")
 
 
@@ -84,6 +89,8 @@ def main() -> None:
                         "snapshots, each replayed on 20 ID episodes (Recipe.select_top; default 0: the best evaluation)")
     parser.add_argument("--target-samples", type=int, default=0, help="DQN: the candidate's TD target is the mean "
                         "of this many MC samples of its target network (Recipe.target_samples; default 0: SB3's)")
+    parser.add_argument("--final-eps", type=float, help="DQN: the candidate's final exploration rate (default the "
+                        "recipe's)")
     parser.add_argument("--shipped", action="store_true", help="measure the shipped recipe's five trials instead")
     parser.add_argument("--seeds", default="0,1,2,3,4")
     args = parse_or_print_table(parser, table)
@@ -102,6 +109,8 @@ def main() -> None:
                         "select_top": args.select_top}
             if args.target_samples:
                 settings["target_samples"] = args.target_samples
+            if args.final_eps is not None:
+                settings["exploration_final_eps"] = args.final_eps
         if (args.task, args.method, _label(settings), seed) in done:
             continue
         if args.shipped:
@@ -109,9 +118,12 @@ def main() -> None:
                 f"runs/bench5/models/{args.task}-{args.method}-trial{seed}", task=args.task, seed=MC_SEED)
         else:
             out = (f"runs/sweep/trials/{args.task}-{args.method}-full-p{args.p:g}-steps{settings['total_steps']}"
-                   f"-top{args.select_top}{f'-target{args.target_samples}' if args.target_samples else ''}-seed{seed}")
+                   f"-top{args.select_top}{f'-target{args.target_samples}' if args.target_samples else ''}"
+                   f"{f'-eps{args.final_eps:g}' if args.final_eps is not None else ''}-seed{seed}")
+            hyperparams = shipped.hyperparams | ({} if args.final_eps is None else {"exploration_final_eps": args.final_eps})
             recipe = replace(shipped, last_only=False, drop_p=args.p, total_steps=settings["total_steps"],
-                             select_top=args.select_top, select_episodes=20, target_samples=args.target_samples)
+                             select_top=args.select_top, select_episodes=20, target_samples=args.target_samples,
+                             hyperparams=hyperparams)
             train(args.task, args.method, out, seed=seed, recipe=recipe, command=f"scripts/sweep_trials.py ({out})")
             agent = load_agent(out, task=args.task, seed=MC_SEED)
         auroc, returns, _ = spread_aurocs(agent, args.task, VARIANTS[(args.task, args.method)])
