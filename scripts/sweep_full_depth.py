@@ -36,7 +36,7 @@ import numpy as np
 from sklearn.metrics import roc_auc_score
 
 from oodmon.agents import SOLVED_RETURN, load, load_agent
-from oodmon.agents.recipes import recipe_for
+from oodmon.agents.recipes import RECIPES, recipe_for
 from oodmon.agents.training import train
 from oodmon.envs import parse_variant
 from oodmon.monitor import MemorySink, Monitor
@@ -117,6 +117,7 @@ def main() -> None:
     args = parse_or_print_table(parser, table)
     if args is None:
         return
+    check_dqn_options(parser, args, args.tasks.split(","))
     done = {_key(r) for r in read_rows(OUT)}
     for task in args.tasks.split(","):
         for method in args.methods.split(","):
@@ -166,6 +167,21 @@ def _widths(text: str) -> list[int]:
     if not widths or min(widths) < 1:
         raise argparse.ArgumentTypeError(f"{text!r} is not a list of hidden widths such as 64,64")
     return widths
+
+
+def check_dqn_options(parser: argparse.ArgumentParser, args: argparse.Namespace, tasks: list[str]) -> None:
+    """Refuse ``--final-eps`` outside [0, 1], ``--buffer-size`` below 1, and either for a task whose
+    recipe is not a DQN's (DDPG has no epsilon; SB3 would fail deep in the training)."""
+    final_eps, buffer_size = getattr(args, "final_eps", None), getattr(args, "buffer_size", None)
+    if final_eps is not None and not 0.0 <= final_eps <= 1.0:
+        parser.error(f"--final-eps must be in [0, 1]; got {final_eps:g}")
+    if buffer_size is not None and buffer_size < 1:
+        parser.error(f"--buffer-size must be at least 1; got {buffer_size}")
+    if final_eps is not None or buffer_size is not None:
+        for task in tasks:
+            if task in RECIPES and RECIPES[task].algorithm != "dqn":
+                parser.error(f"--final-eps and --buffer-size change a DQN's training; {task} trains "
+                             f"{RECIPES[task].algorithm.upper()}")
 
 
 def _trained_by(recipe) -> dict:

@@ -32,7 +32,8 @@ import numpy as np
 from oodmon.agents import load, load_agent
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import train
-from sweep_full_depth import MC_SEED, VARIANTS, append_row, parse_or_print_table, read_rows, spread_aurocs
+from sweep_full_depth import (MC_SEED, VARIANTS, append_row, check_dqn_options, parse_or_print_table, read_rows,
+                              spread_aurocs)
 
 OUT = Path("results/sweeps/trials.jsonl")
 
@@ -98,6 +99,7 @@ def main() -> None:
         return
     if args.task is None or args.method is None or (args.p is None) == (not args.shipped):
         parser.error("give --task and --method, and either --p (a candidate) or --shipped")
+    check_dqn_options(parser, args, [args.task])
     done = {(r["task"], r["method"], _label(r), r["seed"]) for r in read_rows(OUT)}
     shipped = recipe_for(args.task, args.method)
     for seed in (int(s) for s in args.seeds.split(",")):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -65,3 +66,23 @@ def test_sweep_full_depth_buffer_and_final_eps_train_and_key_the_row(scripts, mo
     row = {"task": "cartpole", "method": "dropconnect", **settings}
     plain = {key: value for key, value in row.items() if key not in ("buffer_size", "exploration_final_eps")}
     assert full_depth._key(row) != full_depth._key(plain) != full_depth._key({**plain, "buffer_size": 20_000})
+
+
+@pytest.mark.parametrize("argv, message", [
+    (("--task", "pendulum", "--final-eps", "0.0"), "pendulum trains DDPG"),
+    (("--task", "cartpole", "--final-eps", "1.5"), "must be in \\[0, 1\\]"),
+])
+def test_sweep_trials_refuses_an_exploration_rate_it_cannot_train(scripts, monkeypatch, capsys, argv, message):
+    _, trials = scripts
+    with pytest.raises(SystemExit):
+        _run(trials, monkeypatch, *argv, "--method", "dropconnect", "--p", "0.02", "--seeds", "0")
+    assert re.search(message, capsys.readouterr().err)
+
+
+def test_sweep_full_depth_refuses_a_buffer_below_one_and_ddpg_tasks(scripts, monkeypatch, capsys):
+    full_depth, _ = scripts
+    for argv, message in ((("--tasks", "cartpole", "--buffer-size", "0"), "at least 1"),
+                          (("--tasks", "cartpole,pendulum", "--buffer-size", "20000"), "pendulum trains DDPG")):
+        with pytest.raises(SystemExit):
+            _run(full_depth, monkeypatch, *argv, "--methods", "dropconnect", "--grid", "0.02")
+        assert message in capsys.readouterr().err
