@@ -28,14 +28,13 @@ import json
 from pathlib import Path
 
 import numpy as np
-from sklearn.metrics import roc_auc_score
 
 from oodmon import seeds
 from oodmon.agents import zoo_dir
 from oodmon.bench.cache import _bench_agent
 from oodmon.bench.config import PAPER_METHOD, paper_label
 from oodmon.paper import paper_auc_per_trial
-from sweep_full_depth import append_row, episode_scores, parse_or_print_table, read_rows
+from sweep_full_depth import append_row, episode_scores, parse_or_print_table, read_rows, step_auroc
 
 OUT = Path("results/sweeps/episode_noise.jsonl")
 DRAWS = 400
@@ -50,8 +49,7 @@ def cell_scores(model: Path, task: str, spec: str, episodes: int, seed: int, con
 
 
 def auroc(ids: list[np.ndarray], shifted: list[np.ndarray]) -> float:
-    a, b = np.concatenate(ids), np.concatenate(shifted)
-    return float(roc_auc_score(np.r_[np.zeros(len(a)), np.ones(len(b))], np.r_[a, b]))
+    return step_auroc(np.concatenate(ids), np.concatenate(shifted))
 
 
 def noise(ids: list[np.ndarray], shifted: list[np.ndarray], n_id: int, n_shifted: int,

@@ -22,13 +22,12 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from sklearn.metrics import roc_auc_score
 from sklearn.neighbors import NearestNeighbors
 
 from oodmon.agents import load, load_agent
 from oodmon.envs import parse_variant
 from oodmon.monitor import MemorySink, Monitor
-from sweep_full_depth import MC_SEED, VARIANTS
+from sweep_full_depth import MC_SEED, VARIANTS, step_auroc
 
 NEIGHBOURS = 5
 
@@ -52,8 +51,7 @@ def novelty(reference: np.ndarray):
 
 
 def auroc(id_values: np.ndarray, shifted: np.ndarray) -> float:
-    labels = np.r_[np.zeros(len(id_values)), np.ones(len(shifted))]
-    return round(float(roc_auc_score(labels, np.r_[id_values, shifted])), 3)
+    return round(step_auroc(id_values, shifted), 3)
 
 
 def main(argv: list[str] | None = None) -> dict[str, dict[str, float]]:

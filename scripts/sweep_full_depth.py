@@ -71,6 +71,17 @@ def episode_scores(agent, spec: str, episodes: int, seed: int, score: str,
     return [steps[steps[:, 0] == k, 1] for k in range(episodes)], returns
 
 
+def step_auroc(id_values: np.ndarray, shifted: np.ndarray) -> float:
+    """The per-step AUROC of ``shifted`` steps' values against ``id_values`` (higher: more shifted).
+
+    Example:
+        >>> step_auroc(np.array([0.1, 0.2]), np.array([0.3, 0.15]))
+        0.75
+    """
+    labels = np.r_[np.zeros(len(id_values)), np.ones(len(shifted))]
+    return float(roc_auc_score(labels, np.r_[id_values, shifted]))
+
+
 def _scores(agent, spec: str, episodes: int, seed: int, score: str) -> tuple[np.ndarray, list[float]]:
     per_episode, returns = episode_scores(agent, spec, episodes, seed, score)
     return np.concatenate(per_episode), returns
@@ -145,12 +156,10 @@ def main() -> None:
                     recipe = replace(recipe, target_samples=args.target_samples)
                     name += f"-target{args.target_samples}"
                     settings["target_samples"] = args.target_samples
-                for option, hyperparam, tag in (("buffer_size", "buffer_size", "buffer"),
-                                                ("final_eps", "exploration_final_eps", "eps")):
-                    if (value := getattr(args, option)) is not None:
-                        recipe = replace(recipe, hyperparams=recipe.hyperparams | {hyperparam: value})
-                        name += f"-{tag}{value:g}"
-                        settings[hyperparam] = value
+                changes = dqn_changes(args)
+                recipe = replace(recipe, hyperparams=recipe.hyperparams | changes)
+                name += dqn_tag(changes)
+                settings |= changes
                 if _key({"task": task, "method": method, **settings}) in done:
                     continue
                 start = time.monotonic()
@@ -169,6 +178,23 @@ def _widths(text: str) -> list[int]:
     return widths
 
 
+#: The sweeps' DQN options: argparse name -> (the recipe's hyperparameter, its tag in a folder name).
+DQN_OPTIONS = {"buffer_size": ("buffer_size", "buffer"), "final_eps": ("exploration_final_eps", "eps")}
+
+
+def dqn_changes(args: argparse.Namespace) -> dict:
+    """The recipe's hyperparameters the sweep's DQN options given change (none given: empty); the
+    rows record them under these names."""
+    return {hyperparam: value for option, (hyperparam, _) in DQN_OPTIONS.items()
+            if (value := getattr(args, option, None)) is not None}
+
+
+def dqn_tag(changes: dict) -> str:
+    """The training folder's suffix for :func:`dqn_changes`, e.g. ``-buffer20000-eps0``."""
+    tags = {hyperparam: tag for hyperparam, tag in DQN_OPTIONS.values()}
+    return "".join(f"-{tags[hyperparam]}{value:g}" for hyperparam, value in changes.items())
+
+
 def check_dqn_options(parser: argparse.ArgumentParser, args: argparse.Namespace, tasks: list[str]) -> None:
     """Refuse ``--final-eps`` outside [0, 1], ``--buffer-size`` below 1, and either for a task whose
     recipe is not a DQN's (DDPG has no epsilon; SB3 would fail deep in the training)."""
@@ -177,7 +203,7 @@ def check_dqn_options(parser: argparse.ArgumentParser, args: argparse.Namespace,
         parser.error(f"--final-eps must be in [0, 1]; got {final_eps:g}")
     if buffer_size is not None and buffer_size < 1:
         parser.error(f"--buffer-size must be at least 1; got {buffer_size}")
-    if final_eps is not None or buffer_size is not None:
+    if dqn_changes(args):
         for task in tasks:
             if task in RECIPES and RECIPES[task].algorithm != "dqn":
                 parser.error(f"--final-eps and --buffer-size change a DQN's training; {task} trains "
@@ -227,8 +253,7 @@ def spread_aurocs(policy, task: str, variants: list[str]) -> tuple[dict, dict, f
         auroc[score] = {}
         for spec in variants:
             ood, shifted_returns = _scores(policy, spec, 5, 400_000, score)
-            labels = np.r_[np.zeros(len(id_scores)), np.ones(len(ood))]
-            auroc[score][spec] = round(float(roc_auc_score(labels, np.r_[id_scores, ood])), 3)
+            auroc[score][spec] = round(step_auroc(id_scores, ood), 3)
             returns[spec] = round(float(np.mean(shifted_returns)), 1)
     return auroc, returns, round(float(np.mean(id_returns)), 1)
 

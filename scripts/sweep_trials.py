@@ -32,8 +32,8 @@ import numpy as np
 from oodmon.agents import load, load_agent
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import train
-from sweep_full_depth import (MC_SEED, VARIANTS, append_row, check_dqn_options, parse_or_print_table, read_rows,
-                              spread_aurocs)
+from sweep_full_depth import (MC_SEED, VARIANTS, append_row, check_dqn_options, dqn_changes, dqn_tag,
+                              parse_or_print_table, read_rows, spread_aurocs)
 
 OUT = Path("results/sweeps/trials.jsonl")
 
@@ -111,8 +111,7 @@ def main() -> None:
                         "select_top": args.select_top}
             if args.target_samples:
                 settings["target_samples"] = args.target_samples
-            if args.final_eps is not None:
-                settings["exploration_final_eps"] = args.final_eps
+            settings |= dqn_changes(args)
         if (args.task, args.method, _label(settings), seed) in done:
             continue
         if args.shipped:
@@ -121,11 +120,10 @@ def main() -> None:
         else:
             out = (f"runs/sweep/trials/{args.task}-{args.method}-full-p{args.p:g}-steps{settings['total_steps']}"
                    f"-top{args.select_top}{f'-target{args.target_samples}' if args.target_samples else ''}"
-                   f"{f'-eps{args.final_eps:g}' if args.final_eps is not None else ''}-seed{seed}")
-            hyperparams = shipped.hyperparams | ({} if args.final_eps is None else {"exploration_final_eps": args.final_eps})
+                   f"{dqn_tag(dqn_changes(args))}-seed{seed}")
             recipe = replace(shipped, last_only=False, drop_p=args.p, total_steps=settings["total_steps"],
                              select_top=args.select_top, select_episodes=20, target_samples=args.target_samples,
-                             hyperparams=hyperparams)
+                             hyperparams=shipped.hyperparams | dqn_changes(args))
             train(args.task, args.method, out, seed=seed, recipe=recipe, command=f"scripts/sweep_trials.py ({out})")
             agent = load_agent(out, task=args.task, seed=MC_SEED)
         auroc, returns, _ = spread_aurocs(agent, args.task, VARIANTS[(args.task, args.method)])
