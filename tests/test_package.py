@@ -125,6 +125,7 @@ def test_the_five_trial_tables_name_the_trials_that_do_not_solve_the_task():
 @pytest.mark.parametrize("name, readme", [("sweep_full_depth", "oodmon/zoo/README.md"),
                                           ("sweep_trials", "oodmon/zoo/README.md"),
                                           ("sweep_samples", "oodmon/zoo/README.md"),
+                                          ("sweep_inference_p", "oodmon/zoo/README.md"),
                                           ("episode_noise", "README.md"),
                                           ("combined_long_mean", "README.md")])
 def test_readme_sweep_tables_are_made_from_the_committed_rows(name, readme, monkeypatch):

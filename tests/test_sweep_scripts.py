@@ -86,3 +86,55 @@ def test_sweep_full_depth_refuses_a_buffer_below_one_and_ddpg_tasks(scripts, mon
         with pytest.raises(SystemExit):
             _run(full_depth, monkeypatch, *argv, "--methods", "dropconnect", "--grid", "0.02")
         assert message in capsys.readouterr().err
+
+
+@pytest.fixture
+def inference_p(monkeypatch, tmp_path):
+    import oodmon
+
+    monkeypatch.syspath_prepend(str(Path(oodmon.__file__).parent.parent / "scripts"))
+    monkeypatch.chdir(tmp_path)
+    return load_script("sweep_inference_p")[1]
+
+
+def test_sweep_inference_p_resamples_the_trained_weights_with_another_p(inference_p):
+    import numpy as np
+
+    from oodmon.agents import load
+    from oodmon.agents.plan import _DropConnect
+
+    folder = inference_p.trial_folder(0)
+    shipped = load("cartpole", "dropconnect", seed=0)
+    obs = np.array([0.02, -0.3, 0.04, 0.5], np.float32)
+    same = inference_p.with_inference_p(folder, 0.02)  # the recipe's own p: the shipped agent, draw for draw
+    assert np.array_equal(same.estimator.estimate(obs).samples, shipped.estimator.estimate(obs).samples)
+    wider = inference_p.with_inference_p(folder, 0.2)
+    ops = [op for op in wider.estimator._suffix if isinstance(op, _DropConnect)]
+    assert len(ops) == 3 and all(op.p == np.float32(0.2) for op in ops)  # every layer (full depth)
+    # The same trained weights: the samples' mean stays near the plain network's; their spread grows with p.
+    spread = {p: inference_p.with_inference_p(folder, p).estimator.estimate(obs).std[0].mean() for p in (0.02, 0.2)}
+    assert spread[0.2] > 2 * spread[0.02]
+
+
+def test_sweep_inference_p_refuses_what_it_cannot_measure(inference_p, monkeypatch, capsys):
+    from oodmon.agents.agent import zoo_dir
+    from oodmon.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="strictly between 0 and 1"):
+        inference_p.with_inference_p(inference_p.trial_folder(0), 1.0)
+    with pytest.raises(ConfigError, match="run `oodmon bench --task cartpole"):
+        inference_p.with_inference_p(inference_p.trial_folder(1), 0.05)  # no bench cache in tmp_path
+    with pytest.raises(ConfigError, match="no DropConnect layer"):
+        inference_p.with_inference_p(zoo_dir() / "cartpole-dropout", 0.05)
+    monkeypatch.setattr(sys, "argv", ["sweep", "--grid", "0.05,0"])
+    with pytest.raises(SystemExit):
+        inference_p.main()
+    assert "each p must lie strictly between 0 and 1" in capsys.readouterr().err
+
+
+def test_sweep_inference_p_table_is_mean_and_std_over_the_trials(inference_p, monkeypatch):
+    rows = [{"p": 0.05, "id_return_mean": ret, "auroc": {"chosen_std": {"cartpole:length=2.0": a, "cartpole:gravity=78.4": b}}}
+            for ret, a, b in ((500.0, 0.4, 0.7), (480.5, 0.6, 0.9))]
+    monkeypatch.setattr(inference_p, "read_rows", lambda path: rows)
+    table = inference_p.table().splitlines()
+    assert table[2] == "| 0.05 | 2 | 480.5 to 500.0 | length=2.0 0.500 ± 0.100; gravity=78.4 0.800 ± 0.100 | 0.650 |"
