@@ -19,6 +19,11 @@ their own, after the pairs: the timers do not touch the pairs' steps). A detecto
 the loop than called alone again and again (the dynamics detector 20.5-21 us against 14-15, the
 features detector 9 against 5.5, measured here): between two of its calls the caches and branch
 predictors serve the rest of the step, the policy's 1.35 MB of weights among it.
+
+Then what each detector adds to the step on its own: the same pairs (10 of them) with every
+learned detector but one answering a constant (its score() replaced, so the monitor, the records
+and the log are the same as with all of them), printed as ``alone <name>: <ratio>``, and with all
+of them answering constants (``alone none``: what scoring and logging three more scores costs).
 """
 
 from __future__ import annotations
@@ -72,23 +77,48 @@ def in_loop_us(agent, detectors, folder: Path, episodes: int = 3) -> dict[str, f
     return {name: float(np.median(values)) / 1e3 for name, values in times.items()}
 
 
+def paired_ratio(agent, detectors, log: Path, pairs: int = PAIRS) -> tuple[np.ndarray, np.ndarray]:
+    """Seconds per step of the spread alone and of ``detectors``, in ``pairs`` back-to-back pairs."""
+    spread, every = [], []
+    for pair in range(pairs):
+        runs = [(spread, None), (every, detectors)]
+        for times, chosen in runs if pair % 2 == 0 else runs[::-1]:
+            times.append(seconds_per_step(agent, chosen, McapSink(log)))
+    return np.array(spread), np.array(every)
+
+
+def alone_ratios(agent, detectors, log: Path, pairs: int = 10) -> dict[str, float]:
+    """The paired ratio with each learned detector computing and the others answering a constant
+    (``none``: all of them constant)."""
+    learned = [d for d in detectors if d.name != "spread"]
+    ratios = {}
+    for kept in [*(d.name for d in learned), "none"]:
+        for detector in learned:
+            if detector.name != kept:
+                detector.score = lambda context: 1.0  # an instance attribute, removed below
+        try:
+            spread, every = paired_ratio(agent, detectors, log, pairs)
+        finally:
+            for detector in learned:
+                detector.__dict__.pop("score", None)
+        ratios[kept] = float(np.median(every / spread))
+    return ratios
+
+
 def main() -> None:
     torch.set_num_threads(1)
     agent = load("cartpole", "ensemble")
     detectors = detectors_for(agent)
     if detectors is None:
         raise SystemExit("the zoo's CartPole ensemble has no fitted detectors: run bash scripts/fit_zoo_detectors.sh")
-    spread, every = [], []
     with tempfile.TemporaryDirectory() as folder:
         log = Path(folder) / "run.mcap"
         seconds_per_step(agent, detectors, McapSink(log), 1)  # warm-up: imports, first calls
-        for pair in range(PAIRS):
-            runs = [(spread, None), (every, detectors)]
-            for times, chosen in runs if pair % 2 == 0 else runs[::-1]:
-                times.append(seconds_per_step(agent, chosen, McapSink(log)))
+        spread, every = paired_ratio(agent, detectors, log)
         parts = in_loop_us(agent, detectors, Path(folder))
-    spread, every = np.array(spread), np.array(every)
+        alone = alone_ratios(agent, detectors, log)
     print("in the loop, median us: " + ", ".join(f"{name} {value:.1f}" for name, value in parts.items()))
+    print("alone " + ", ".join(f"{name}: {value:.2f}" for name, value in alone.items()))
     print(f"spread only                             {np.median(spread) * 1e6:8.1f} us/step (median; best {spread.min() * 1e6:.1f})")
     print(f"{', '.join(detectors.names):40s}{np.median(every) * 1e6:8.1f} us/step (median; best {every.min() * 1e6:.1f})")
     print(f"best of each: {every.min() / spread.min():.2f}")
