@@ -168,11 +168,10 @@ class CombinedDetector(Detector):
         # score and the scale of the excess beyond it.
         self._by_name = {name: _ranked(reference[name], scale[name]) for name in self.members}
         self._long_by_name = {name: _ranked(long_reference[name], long_scale[name]) for name in self.long_members}
-        # per member: (name, ranked by its logarithm, then as above); the long members: (name, its
-        # RunningMean, ranked by the logarithm of that mean, then as above for its means' reference)
-        self._ranked = [(name, name in self.log_members, *self._by_name[name]) for name in self.members]
-        self._long_ranked = [(name, self._means[name], name in self.log_members, *self._long_by_name[name])
-                             for name in self.long_members]
+        # One entry per statistic ranked: (member, None or, for a long member's mean, its
+        # RunningMean, ranked by the logarithm, then as above for its reference)
+        self._ranked = [(name, None, name in self.log_members, *self._by_name[name]) for name in self.members] + \
+            [(name, self._means[name], name in self.log_members, *self._long_by_name[name]) for name in self.long_members]
 
     def reset(self) -> None:
         for mean in self._means.values():
@@ -191,17 +190,17 @@ class CombinedDetector(Detector):
     def score(self, context: StepContext) -> float:
         self.check_fitted()
         scores = context.scores
+        best = -math.inf
         try:
-            # rank() of each member, written out: one call fewer per member at every step
-            best = max([ranks[bisect_left(values, value)] + (value - top) / scale
-                        if (value := _log(scores[name]) if is_log else scores[name]) > top
-                        else ranks[bisect_left(values, value)] for name, is_log, values, ranks, top, scale in self._ranked])
-            for name, mean, is_log, values, ranks, top, scale in self._long_ranked:
-                value = mean.add(scores[name])
+            # rank() of each statistic, written out in a plain loop: in the monitor's step this takes
+            # 6.3-6.5 us against 7.0-7.5 for max() over a list comprehension (benchmarks/detector_step.py)
+            for name, mean, is_log, values, ranks, top, scale in self._ranked:
+                value = scores[name] if mean is None else mean.add(scores[name])
                 if is_log:
                     value = _log(value)
-                rank = ranks[bisect_left(values, value)] + (value - top) / scale if value > top \
-                    else ranks[bisect_left(values, value)]
+                rank = ranks[bisect_left(values, value)]
+                if value > top:
+                    rank += (value - top) / scale
                 if rank > best:
                     best = rank
             return best
