@@ -168,8 +168,8 @@ class CombinedDetector(Detector):
         # score and the scale of the excess beyond it.
         self._by_name = {name: _ranked(reference[name], scale[name]) for name in self.members}
         self._long_by_name = {name: _ranked(long_reference[name], long_scale[name]) for name in self.long_members}
-        # One entry per statistic ranked: (member, None or, for a long member's mean, its
-        # RunningMean, ranked by the logarithm, then as above for its reference)
+        # One entry per statistic ranked, the members' own scores first: (member, None, or for a
+        # long member's mean its RunningMean, whether it is ranked by its logarithm, then as above)
         self._ranked = [(name, None, name in self.log_members, *self._by_name[name]) for name in self.members] + \
             [(name, self._means[name], name in self.log_members, *self._long_by_name[name]) for name in self.long_members]
 
