@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +54,18 @@ def seconds_per_step(agent, detectors, sink: McapSink, episodes: int = EPISODES)
         return (time.perf_counter() - start) / steps
 
 
+@contextmanager
+def scores_replaced(replacements: dict):
+    """Each detector's score() replaced by its function here (an instance attribute), put back after."""
+    for detector, score in replacements.items():
+        detector.score = score
+    try:
+        yield
+    finally:
+        for detector in replacements:
+            del detector.score
+
+
 def in_loop_us(agent, detectors, folder: Path, episodes: int = 3) -> dict[str, float]:
     """Median microseconds of each detector's score() and of the sink's write_step() in the loop."""
     times: dict[str, list[int]] = {name: [] for name in (*detectors.names, "MCAP sink")}
@@ -67,13 +80,8 @@ def in_loop_us(agent, detectors, folder: Path, episodes: int = 3) -> dict[str, f
 
     sink = McapSink(folder / "timed.mcap")
     sink.write_step = timed(sink.write_step, "MCAP sink")
-    for detector in detectors:
-        detector.score = timed(detector.score, detector.name)  # an instance attribute, removed below
-    try:
+    with scores_replaced({detector: timed(detector.score, detector.name) for detector in detectors}):
         seconds_per_step(agent, detectors, sink, episodes)
-    finally:
-        for detector in detectors:
-            del detector.score
     return {name: float(np.median(values)) / 1e3 for name, values in times.items()}
 
 
@@ -93,14 +101,8 @@ def alone_ratios(agent, detectors, log: Path, pairs: int = 10) -> dict[str, floa
     learned = [d for d in detectors if d.name != "spread"]
     ratios = {}
     for kept in [*(d.name for d in learned), "none"]:
-        for detector in learned:
-            if detector.name != kept:
-                detector.score = lambda context: 1.0  # an instance attribute, removed below
-        try:
+        with scores_replaced({detector: lambda context: 1.0 for detector in learned if detector.name != kept}):
             spread, every = paired_ratio(agent, detectors, log, pairs)
-        finally:
-            for detector in learned:
-                detector.__dict__.pop("score", None)
         ratios[kept] = float(np.median(every / spread))
     return ratios
 

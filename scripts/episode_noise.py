@@ -30,11 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from oodmon import seeds
-from oodmon.agents import zoo_dir
 from oodmon.bench.cache import _bench_agent
 from oodmon.bench.config import PAPER_METHOD, paper_label
 from oodmon.paper import paper_auc_per_trial
-from sweep_full_depth import append_row, episode_scores, parse_or_print_table, read_rows, step_auroc
+from sweep_full_depth import append_row, bench_trial, episode_scores, parse_or_print_table, read_rows, step_auroc
 
 OUT = Path("results/sweeps/episode_noise.jsonl")
 DRAWS = 400
@@ -82,7 +81,7 @@ def measure(results: Path, method: str, spec: str, models: Path, id_episodes: in
         raise SystemExit(f"{results} has no spread row for {method} {spec}")
     per_trial = {}
     for trial, bench_auroc in sorted(row["aurocs"].items(), key=lambda kv: int(kv[0])):
-        model = zoo_dir() / f"{task}-{method}" if trial == "0" else models / f"{task}-{method}-trial{trial}"
+        model = bench_trial(task, method, int(trial), models)
         ids = cell_scores(model, task, task, id_episodes, seeds.BENCH_ID, config)
         shifted = cell_scores(model, task, spec, episodes, seeds.BENCH_SHIFTED, config)
         first = auroc(ids[:n_id], shifted[:n_shifted])

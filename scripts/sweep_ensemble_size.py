@@ -26,14 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.agents import load
-from oodmon.agents.agent import zoo_dir
 from oodmon.agents.estimators import EnsembleEstimator
 from oodmon.agents.serialization import load_modules
-from oodmon.errors import ConfigError
-from sweep_full_depth import append_row, parse_or_print_table, read_rows, spread_aurocs  # scripts/: the MC sweeps' measurement
+from sweep_full_depth import append_row, bench_trial, parse_or_print_table, read_rows, spread_aurocs  # scripts/: the MC sweeps' measurement
 
 OUT = Path("results/sweeps/ensemble_size.jsonl")
-TRIALS = Path("runs/bench5/models")
 VARIANTS = {"cartpole": ["cartpole:gravity=98.0", "cartpole:length=2.0"],
             "pendulum": ["pendulum:l=0.1", "pendulum:m=0.05"]}  # the paper's ensemble tables
 
@@ -51,11 +48,7 @@ def groups(trials: int = 5) -> list[list[int]]:
 
 def pooled(task: str, trials: list[int]) -> EnsembleEstimator:
     """One ensemble of every member of the given trials' ensembles (trial 0: the shipped one)."""
-    folders = [zoo_dir() / f"{task}-ensemble" if t == 0 else TRIALS / f"{task}-ensemble-trial{t}" for t in trials]
-    missing = [str(f) for f in folders if not (f / "model.safetensors").exists()]
-    if missing:
-        raise ConfigError(f"no trained ensemble in {', '.join(missing)}: run `oodmon bench --task {task} --trials 5 "
-                          "--workers 1 --out runs/bench5` first (it trains and caches the trials)")
+    folders = [bench_trial(task, "ensemble", t) for t in trials]
     modules = [load_modules(folder, task=task)[0] for folder in folders]
     shipped = load(task, "ensemble")
     space = shipped.make_env().action_space

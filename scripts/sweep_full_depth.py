@@ -35,10 +35,11 @@ from pathlib import Path
 import numpy as np
 from sklearn.metrics import roc_auc_score
 
-from oodmon.agents import SOLVED_RETURN, load, load_agent
+from oodmon.agents import SOLVED_RETURN, load, load_agent, zoo_dir
 from oodmon.agents.recipes import RECIPES, recipe_for
 from oodmon.agents.training import train
 from oodmon.envs import parse_variant
+from oodmon.errors import ConfigError
 from oodmon.monitor import MemorySink, Monitor
 
 OUT = Path("results/sweeps/full_depth.jsonl")
@@ -56,6 +57,24 @@ VARIANTS = {  # the variants of the paper's appendix tables, per task and method
     ("pendulum", "dropout"): ["pendulum:g=50.0", "pendulum:l=5.0", "pendulum:m=5.0"],
     ("pendulum", "dropconnect"): ["pendulum:g=50.0", "pendulum:l=5.0", "pendulum:m=5.0"],
 }
+
+
+#: Where `oodmon bench --out runs/bench5` caches its trial models (trials 1-4; trial 0 is the zoo's).
+BENCH_MODELS = Path("runs/bench5/models")
+
+
+def bench_trial(task: str, method: str, trial: int, models: Path = BENCH_MODELS) -> Path:
+    """The model folder of the bench's trial ``trial``: the shipped agent for trial 0, else the
+    bench's cached training in ``models``.
+
+    Raises:
+        ConfigError: that trial has no trained model yet (the message names the command that trains it).
+    """
+    folder = zoo_dir() / f"{task}-{method}" if int(trial) == 0 else Path(models) / f"{task}-{method}-trial{trial}"
+    if not (folder / "model.safetensors").exists():
+        raise ConfigError(f"no trained model in {folder}: run `oodmon bench --task {task} --trials 5 --workers 2 "
+                          f"--out {Path(models).parent}` first (it trains and caches the trials)")
+    return folder
 
 
 def episode_scores(agent, spec: str, episodes: int, seed: int, score: str,

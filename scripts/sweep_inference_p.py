@@ -26,21 +26,14 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.agents import Agent
-from oodmon.agents.agent import zoo_dir
 from oodmon.agents.networks import estimator_for
 from oodmon.agents.layers import DropConnectLinear
 from oodmon.agents.serialization import load_modules
 from oodmon.errors import ConfigError
-from sweep_full_depth import MC_SEED, VARIANTS, append_row, parse_or_print_table, read_rows, spread_aurocs
+from sweep_full_depth import MC_SEED, VARIANTS, append_row, bench_trial, parse_or_print_table, read_rows, spread_aurocs
 
 OUT = Path("results/sweeps/inference_p.jsonl")
-TRIALS = Path("runs/bench5/models")
 TASK, METHOD = "cartpole", "dropconnect"
-
-
-def trial_folder(trial: int) -> Path:
-    """Trial 0 is the shipped agent; trials 1-4 the bench's cached models."""
-    return zoo_dir() / f"{TASK}-{METHOD}" if trial == 0 else TRIALS / f"{TASK}-{METHOD}-trial{trial}"
 
 
 def with_inference_p(folder: Path, p: float) -> Agent:
@@ -48,13 +41,10 @@ def with_inference_p(folder: Path, p: float) -> Agent:
     (MC seed 0, the recipe's samples per decision).
 
     Raises:
-        ConfigError: no trained model there, ``p`` outside (0, 1), or a model without DropConnect.
+        ConfigError: ``p`` outside (0, 1), or a model without DropConnect.
     """
     if not 0.0 < p < 1.0:
         raise ConfigError(f"inference p={p!r} is not allowed; it must lie strictly between 0 and 1")
-    if not (folder / "model.safetensors").exists():
-        raise ConfigError(f"no trained model in {folder}: run `oodmon bench --task {TASK} --trials 5 --workers 2 "
-                          "--out runs/bench5` first (it trains and caches the trials)")
     modules, metadata = load_modules(folder, task=TASK)
     layers = [m for m in modules.modules() if isinstance(m, DropConnectLinear)]
     if not layers:
@@ -99,7 +89,7 @@ def main() -> None:
     for trial in (int(t) for t in args.trials.split(",")):
         for p in args.grid:
             start = time.monotonic()
-            agent = with_inference_p(trial_folder(trial), p)
+            agent = with_inference_p(bench_trial(TASK, METHOD, trial), p)
             weights = agent.metadata["safetensors_sha256"]
             if (weights, p) in done:
                 continue

@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from oodmon.agents import load, load_agent
+from oodmon.agents import load_agent
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import train
-from sweep_full_depth import (MC_SEED, VARIANTS, append_row, check_dqn_options, dqn_changes, dqn_tag,
+from sweep_full_depth import (MC_SEED, VARIANTS, append_row, bench_trial, check_dqn_options, dqn_changes, dqn_tag,
                               parse_or_print_table, read_rows, spread_aurocs)
 
 OUT = Path("results/sweeps/trials.jsonl")
@@ -115,8 +115,7 @@ def main() -> None:
         if (args.task, args.method, _label(settings), seed) in done:
             continue
         if args.shipped:
-            agent = load(args.task, args.method, seed=MC_SEED) if seed == 0 else load_agent(
-                f"runs/bench5/models/{args.task}-{args.method}-trial{seed}", task=args.task, seed=MC_SEED)
+            agent = load_agent(bench_trial(args.task, args.method, seed), task=args.task, seed=MC_SEED)
         else:
             out = (f"runs/sweep/trials/{args.task}-{args.method}-full-p{args.p:g}-steps{settings['total_steps']}"
                    f"-top{args.select_top}{f'-target{args.target_samples}' if args.target_samples else ''}"

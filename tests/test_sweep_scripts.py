@@ -11,13 +11,18 @@ import pytest
 from tests.helpers import load_script
 
 
-@pytest.fixture
-def scripts(monkeypatch, tmp_path):
+def _load(monkeypatch, tmp_path, *names):
+    """scripts/<name>.py loaded, run from an empty folder (nothing they write lands in the repository)."""
     import oodmon
 
     monkeypatch.syspath_prepend(str(Path(oodmon.__file__).parent.parent / "scripts"))  # they import sweep_full_depth
-    monkeypatch.chdir(tmp_path)  # nothing they write lands in the repository
-    return load_script("sweep_full_depth")[1], load_script("sweep_trials")[1]
+    monkeypatch.chdir(tmp_path)
+    return [load_script(name)[1] for name in names]
+
+
+@pytest.fixture
+def scripts(monkeypatch, tmp_path):
+    return _load(monkeypatch, tmp_path, "sweep_full_depth", "sweep_trials")
 
 
 def _run(module, monkeypatch, *argv):
@@ -90,11 +95,7 @@ def test_sweep_full_depth_refuses_a_buffer_below_one_and_ddpg_tasks(scripts, mon
 
 @pytest.fixture
 def inference_p(monkeypatch, tmp_path):
-    import oodmon
-
-    monkeypatch.syspath_prepend(str(Path(oodmon.__file__).parent.parent / "scripts"))
-    monkeypatch.chdir(tmp_path)
-    return load_script("sweep_inference_p")[1]
+    return _load(monkeypatch, tmp_path, "sweep_inference_p")[0]
 
 
 def test_sweep_inference_p_resamples_the_trained_weights_with_another_p(inference_p):
@@ -103,7 +104,7 @@ def test_sweep_inference_p_resamples_the_trained_weights_with_another_p(inferenc
     from oodmon.agents import load
     from oodmon.agents.plan import _DropConnect
 
-    folder = inference_p.trial_folder(0)
+    folder = inference_p.bench_trial("cartpole", "dropconnect", 0)  # trial 0: the shipped agent
     shipped = load("cartpole", "dropconnect", seed=0)
     obs = np.array([0.02, -0.3, 0.04, 0.5], np.float32)
     same = inference_p.with_inference_p(folder, 0.02)  # the recipe's own p: the shipped agent, draw for draw
@@ -121,9 +122,9 @@ def test_sweep_inference_p_refuses_what_it_cannot_measure(inference_p, monkeypat
     from oodmon.errors import ConfigError
 
     with pytest.raises(ConfigError, match="strictly between 0 and 1"):
-        inference_p.with_inference_p(inference_p.trial_folder(0), 1.0)
+        inference_p.with_inference_p(inference_p.bench_trial("cartpole", "dropconnect", 0), 1.0)
     with pytest.raises(ConfigError, match="run `oodmon bench --task cartpole"):
-        inference_p.with_inference_p(inference_p.trial_folder(1), 0.05)  # no bench cache in tmp_path
+        inference_p.bench_trial("cartpole", "dropconnect", 1)  # no bench cache in tmp_path
     with pytest.raises(ConfigError, match="no DropConnect layer"):
         inference_p.with_inference_p(zoo_dir() / "cartpole-dropout", 0.05)
     monkeypatch.setattr(sys, "argv", ["sweep", "--grid", "0.05,0"])
