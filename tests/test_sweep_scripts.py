@@ -134,8 +134,45 @@ def test_sweep_inference_p_refuses_what_it_cannot_measure(inference_p, monkeypat
 
 
 def test_sweep_inference_p_table_is_mean_and_std_over_the_trials(inference_p, monkeypatch):
-    rows = [{"p": 0.05, "id_return_mean": ret, "auroc": {"chosen_std": {"cartpole:length=2.0": a, "cartpole:gravity=78.4": b}}}
-            for ret, a, b in ((500.0, 0.4, 0.7), (480.5, 0.6, 0.9))]
+    rows = [{"task": "cartpole", "p": 0.05, "id_return_mean": ret,
+             "auroc": {"chosen_std": {"cartpole:length=2.0": a, "cartpole:gravity=78.4": b}}}
+            for ret, a, b in ((500.0, 0.4, 0.7), (480.5, 0.6, 0.9))]  # rows from before --sampled: every layer
+    rows += [{"task": "pendulum", "p": 0.05, "sampled": "output", "id_return_mean": -150.0,
+              "auroc": {"chosen_std": {"pendulum:g=50.0": 0.1}, "pre_squash_std": {"pendulum:g=50.0": 0.9}}}]
     monkeypatch.setattr(inference_p, "read_rows", lambda path: rows)
     table = inference_p.table().splitlines()
-    assert table[2] == "| 0.05 | 2 | 480.5 to 500.0 | length=2.0 0.500 ± 0.100; gravity=78.4 0.800 ± 0.100 | 0.650 |"
+    assert table[2] == ("| cartpole | all | 0.05 | 2 | 480.5 to 500.0 | chosen_std: length=2.0 0.500 ± 0.100; "
+                        "gravity=78.4 0.800 ± 0.100 | 0.650 |")
+    assert table[3] == "| pendulum | output | 0.05 | 1 | -150.0 to -150.0 | pre_squash_std: g=50.0 0.900 ± 0.000 | 0.900 |"
+
+
+def test_sweep_inference_p_can_sample_the_output_layer_only(inference_p):
+    import numpy as np
+    import torch
+
+    from oodmon.agents import load
+    from oodmon.agents.plan import _Affine, _DropConnect
+    from oodmon.agents.serialization import load_modules
+    from oodmon.errors import ConfigError
+
+    folder = inference_p.bench_trial("cartpole", "dropconnect", 0)
+    output = inference_p.with_inference_p(folder, 0.02, sampled="output")
+    prefix, suffix = output.estimator._prefix, output.estimator._suffix
+    assert len(suffix) == 1 and isinstance(suffix[0], _DropConnect)  # only the output layer samples
+    assert sum(isinstance(op, _Affine) for op in prefix) == 2  # the hidden layers: computed once, plain weights
+    obs = np.array([0.02, -0.3, 0.04, 0.5], np.float32)
+    samples = output.estimator.estimate(obs).samples[:, 0]
+    full = load("cartpole", "dropconnect", seed=0).estimator.estimate(obs).samples[:, 0]
+    modules, _ = load_modules(folder, task="cartpole")
+    with torch.no_grad():
+        q_plain = modules["network"].eval()(torch.from_numpy(obs[None])).numpy()[0]
+    # Training scales the kept weights, so the plain weights are the samples' mean: the output-only
+    # samples centre on the plain network's Q-values, and spread less than every layer's samples do.
+    assert np.allclose(samples.mean(axis=0), q_plain, rtol=0.02), (samples.mean(axis=0), q_plain)
+    assert 0 < samples.std(axis=0).mean() < full.std(axis=0).mean()
+    pendulum = inference_p.with_inference_p(inference_p.bench_trial("pendulum", "dropconnect", 0), 0.05,
+                                            sampled="output", task="pendulum")
+    actions = pendulum.estimator.estimate(np.array([1.0, 0.0, 0.0], np.float32)).samples
+    assert actions.shape[0] == 20 and np.all(np.abs(actions) <= 2.0)  # scaled to Pendulum's torque bounds
+    with pytest.raises(ConfigError, match="not one of all, output"):
+        inference_p.with_inference_p(folder, 0.02, sampled="hidden")
