@@ -277,6 +277,14 @@ def spread_aurocs(policy, task: str, variants: list[str]) -> tuple[dict, dict, f
     return auroc, returns, round(float(np.mean(id_returns)), 1)
 
 
+def variant_cells(rows: list[dict], score: str) -> tuple[str, float]:
+    """The rows' AUROC of ``score`` per variant as one table cell, ``"length=2.0 0.601 ± 0.084; ..."``
+    (mean ± std over the rows, in the first row's order of variants), and the mean over the variants."""
+    per_variant = {spec: np.array([r["auroc"][score][spec] for r in rows]) for spec in rows[0]["auroc"][score]}
+    cells = "; ".join(f"{spec.split(':')[1]} {v.mean():.3f} ± {v.std():.3f}" for spec, v in per_variant.items())
+    return cells, float(np.mean([v.mean() for v in per_variant.values()]))
+
+
 def parse_or_print_table(parser: argparse.ArgumentParser, table) -> argparse.Namespace | None:
     """The sweeps' command line with ``--table`` added: print ``table()`` and give None when it is
     given (run nothing), else the parsed arguments."""

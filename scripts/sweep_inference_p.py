@@ -31,8 +31,6 @@ import argparse
 import time
 from pathlib import Path
 
-import numpy as np
-
 from torch import nn
 
 from oodmon.agents import Agent
@@ -40,7 +38,8 @@ from oodmon.agents.networks import estimator_for
 from oodmon.agents.layers import DropConnectLinear
 from oodmon.agents.serialization import load_modules
 from oodmon.errors import ConfigError
-from sweep_full_depth import MC_SEED, VARIANTS, append_row, bench_trial, parse_or_print_table, read_rows, spread_aurocs
+from sweep_full_depth import (MC_SEED, VARIANTS, append_row, bench_trial, parse_or_print_table, read_rows, spread_aurocs,
+                              variant_cells)
 
 OUT = Path("results/sweeps/inference_p.jsonl")
 METHOD = "dropconnect"
@@ -95,11 +94,8 @@ def table() -> str:
     for task, sampled, p in groups:
         at = [r for r in rows if (r["task"], _sampled(r), r["p"]) == (task, sampled, p)]
         score = TABLE_SCORE[task]
-        specs = list(at[0]["auroc"][score])
-        per_variant = {spec: np.array([r["auroc"][score][spec] for r in at]) for spec in specs}
-        cells = "; ".join(f"{spec.split(':')[1]} {v.mean():.3f} ± {v.std():.3f}" for spec, v in per_variant.items())
+        cells, overall = variant_cells(at, score)
         returns = [r["id_return_mean"] for r in at]
-        overall = np.mean([v.mean() for v in per_variant.values()])
         lines.append(f"| {task} | {sampled} | {p:g} | {len(at)} | {min(returns):.1f} to {max(returns):.1f} | "
                      f"{score}: {cells} | {overall:.3f} |")
     return "\n".join(lines)

@@ -27,13 +27,11 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from oodmon.agents import load_agent
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import train
 from sweep_full_depth import (MC_SEED, VARIANTS, append_row, bench_trial, check_dqn_options, dqn_changes, dqn_tag,
-                              parse_or_print_table, read_rows, spread_aurocs)
+                              parse_or_print_table, read_rows, spread_aurocs, variant_cells)
 
 OUT = Path("results/sweeps/trials.jsonl")
 
@@ -73,10 +71,8 @@ def table() -> str:
     for (task, method, label), rows in groups.items():
         returns = [r["id_return_mean"] for r in rows]
         for score in rows[0]["auroc"]:
-            cells = [f"{spec.split(':')[1]} {np.mean([r['auroc'][score][spec] for r in rows]):.3f} ± "
-                     f"{np.std([r['auroc'][score][spec] for r in rows]):.3f}" for spec in rows[0]["auroc"][score]]
             lines.append(f"| {task} | {method} | {label} | {len(rows)} | {min(returns):.1f} to {max(returns):.1f} | "
-                         f"`{score}` | {'; '.join(cells)} |")
+                         f"`{score}` | {variant_cells(rows, score)[0]} |")
     return "\n".join(lines)
 
 
