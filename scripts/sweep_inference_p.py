@@ -34,7 +34,7 @@ from pathlib import Path
 from torch import nn
 
 from oodmon.agents import Agent
-from oodmon.agents.networks import estimator_for
+from oodmon.agents.agent import agent_from_modules
 from oodmon.agents.layers import DropConnectLinear
 from oodmon.agents.serialization import load_modules
 from oodmon.errors import ConfigError
@@ -72,9 +72,7 @@ def with_inference_p(folder: Path, p: float, *, sampled: str = "all", task: str 
             setattr(parent, name, _plain(layer))
         else:
             layer.p = p
-    estimator = estimator_for(modules, metadata["architecture"], n_samples=metadata.get("n_samples", 20), seed=MC_SEED,
-                              action_low=metadata.get("action_low"), action_high=metadata.get("action_high"))
-    return Agent(estimator, metadata, folder)
+    return agent_from_modules(modules, metadata, folder, seed=MC_SEED)
 
 
 def _plain(layer: DropConnectLinear) -> nn.Linear:

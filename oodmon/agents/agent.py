@@ -20,7 +20,7 @@ from oodmon.agents.networks import estimator_for
 from oodmon.agents.serialization import load_modules
 from oodmon.errors import ConfigError, ModelFormatError, UnknownParameterError
 
-__all__ = ["Agent", "load", "load_agent", "zoo_dir", "zoo_names"]
+__all__ = ["Agent", "agent_from_modules", "load", "load_agent", "zoo_dir", "zoo_names"]
 
 
 @dataclass
@@ -102,9 +102,18 @@ def load_agent(directory: str | Path, *, task: str | None = None, n_samples: int
         ModelFormatError: a missing, damaged or mismatched model (see ``serialization``).
     """
     modules, metadata = load_modules(directory, task=task)
-    arch = metadata["architecture"]
+    return agent_from_modules(modules, metadata, directory, n_samples=n_samples, seed=seed)
+
+
+def agent_from_modules(modules: Any, metadata: dict[str, Any], directory: str | Path, *, n_samples: int | None = None,
+                       seed: int | None = None) -> Agent:
+    """The agent of modules and metadata as :func:`~oodmon.agents.serialization.load_modules` gives
+    them (its architecture, MC samples and action bounds read from the metadata), loaded from
+    ``directory``. :func:`load_agent` is this after ``load_modules``; call it yourself to change
+    the modules first (an experiment's other drop probability, say: the estimator compiles them).
+    """
     estimator = estimator_for(
-        modules, arch, n_samples=n_samples or metadata.get("n_samples", 20), seed=seed,
+        modules, metadata["architecture"], n_samples=n_samples or metadata.get("n_samples", 20), seed=seed,
         action_low=metadata.get("action_low"), action_high=metadata.get("action_high"),
     )
     return Agent(estimator, metadata, Path(directory))
