@@ -339,6 +339,10 @@ def _parser() -> argparse.ArgumentParser:
                        help="MC samples per decision of the Dropout and DropConnect agents (default: each recipe's, "
                             "20); the decisions are their mean, so episodes change too, and a decision costs more "
                             "(CartPole DropConnect: 0.3 ms at K=20, 9 ms at K=400)")
+    bench.add_argument("--members", type=_whole(2), metavar="K",
+                       help="members of each ensemble trial (default: the recipe's, 5); another size trains every "
+                            "trial, trial 0 too (member k has the same seed at any size: members trained before are "
+                            "kept), and a decision costs K members' forward passes")
     bench.add_argument("--variants", default="paper", help="'paper' (the paper's grid) or comma-separated specs")
     bench.add_argument("--protocol", choices=["paper", "monitor"], default="paper",
                        help="paper (default): shifted from step 0, per-step AUROC; monitor: the monitor's own benchmark, "
@@ -801,7 +805,7 @@ def _bench(args: argparse.Namespace) -> int:
                          confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
                          all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean,
-                         samples=args.samples, fit_episodes=args.fit_episodes)
+                         samples=args.samples, members=args.members, fit_episodes=args.fit_episodes)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result
     from oodmon.outputs import check_output_dir, check_output_file

@@ -46,6 +46,7 @@ def table(path: Path) -> str:
     config = data["config"]
     paper = paper_auc_per_trial()[config["task"]]
     samples = f", {config['samples']} MC samples per decision" if config.get("samples") else ""
+    samples += f", ensembles of {config['members']} members" if config.get("members") else ""
     lines = [f"`{data['command']}` ({config['trials']} trials, score `{config['score']}`{samples}):", "",
              "| method | variant | ours: AUROC mean ± std (trials failing) | paper: mean ± std | AUPR / FPR@95 (ours) "
              "| mean >= paper | std <= paper |",

@@ -526,3 +526,43 @@ def test_bench_samples_sets_the_mc_agents_samples_per_decision_and_keys_its_cach
     for bad in ("1", "x"):
         refused = run_cli(*common, "--samples", bad)
         assert refused.returncode == 2 and "--samples" in refused.stderr
+
+
+def test_bench_members_trains_ensembles_of_that_size_keeping_members_trained_before(tmp_path):
+    """--members K: every ensemble trial (trial 0 too: the zoo's has the recipe's 5) is trained with
+    K members into folders of its own, its logs say K; member k trains alone with the same seed at
+    any size, so the members of a smaller ensemble's training are kept, not trained again."""
+    common = dict(methods=("ensemble",), trials=1, variants=("cartpole:length=2.0",), episodes=1, id_episodes=2,
+                  eval_episodes=1, calibration_episodes=22, far=0.1, out=str(tmp_path), workers=1, train_steps=300)
+    two = BenchConfig("cartpole", members=2, **common)
+    assert (two.model_name("ensemble"), two.recipe("ensemble").n_members) == ("ensemble-members2", 2)
+    run_bench(two)
+    small = tmp_path / "models/cartpole-ensemble-members2-trial0"
+    assert json.loads((small / "model.json").read_text())["architecture"]["n_members"] == 2
+    log = read_log(tmp_path / "logs" / f"cartpole-{two.cache_key()}" / "ensemble-members2/trial0/cartpole.mcap")
+    assert log.metadata["about.samples"] == "2"
+    # A 3-member training of the same trial begins where the 2-member one's members are.
+    large = tmp_path / "models/cartpole-ensemble-members3-trial0"
+    import shutil
+
+    shutil.copytree(small / "runs", large / "runs")
+    kept = {p: p.stat().st_mtime_ns for p in (large / "runs").rglob("*") if p.is_file()}
+    three = BenchConfig("cartpole", members=3, **common)
+    run_bench(three)
+    assert {p: p.stat().st_mtime_ns for p in kept} == kept  # members 0 and 1: nothing trained again
+    assert json.loads((large / "runs/member2/state.json").read_text())["finished"]
+    from safetensors.torch import load_file
+
+    before, after = load_file(str(small / "model.safetensors")), load_file(str(large / "model.safetensors"))
+    shared = [name for name in before if name in after]
+    assert shared and all(np.array_equal(before[n].numpy(), after[n].numpy()) for n in shared)
+    assert len(after) > len(before)  # member 2's tensors too
+    # The recipe's size is the shipped ensemble: trial 0 is the zoo's agent again.
+    assert BenchConfig("cartpole", members=5, **common).model_name("ensemble") == "ensemble"
+
+
+@pytest.mark.parametrize("change, message", [({"members": 1}, "2 or more"),
+                                             ({"methods": ("dropout",), "members": 10}, "ensemble method")])
+def test_bench_members_refuses_what_it_cannot_size(change, message):
+    with pytest.raises(ConfigError, match=message):
+        BenchConfig("cartpole", **({"methods": ("ensemble",)} | change))

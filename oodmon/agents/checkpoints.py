@@ -69,8 +69,16 @@ class _RunCallback(BaseCallback):
 
 def run_recipe_differences(state: dict[str, Any], recipe: Recipe) -> list[str]:
     """How the recipe a run's ``state`` records differs from ``recipe`` (empty for runs begun before
-    oodmon recorded it: those cannot be told apart)."""
-    return recipe_differences(state["recipe"], recipe) if "recipe" in state else []
+    oodmon recorded it: those cannot be told apart). An independent ensemble member trains alone, the
+    same whatever the size of its ensemble: the size is not compared (member k of a 5-member training
+    is member k of a 20-member one, with the same seed)."""
+    if "recipe" not in state:
+        return []
+    record = state["recipe"]
+    if recipe.method == "ensemble" and not recipe.shared_torso:
+        record = record | {"architecture": record.get("architecture", {}) | {"n_members": recipe.n_members},
+                           "n_samples": recipe.n_members}
+    return recipe_differences(record, recipe)
 
 
 class Run:

@@ -55,9 +55,9 @@ def _model_dir(config: BenchConfig, method: str, trial: int) -> Path:
     """Trial 0 is the shipped agent where the zoo has one; every other model is trained into the
     bench's cache (never into the installed package)."""
     shipped = zoo_dir() / f"{config.task}-{method}"
-    if trial == 0 and (shipped / "model.json").exists():
+    if trial == 0 and not config.resized(method) and (shipped / "model.json").exists():
         return shipped
-    return Path(config.out) / "models" / f"{config.task}-{method}-trial{trial}"
+    return Path(config.out) / "models" / f"{config.task}-{config.model_name(method)}-trial{trial}"
 
 
 def _refuse_to_train_for_hours(config: BenchConfig, method: str, trial: int) -> None:
@@ -87,7 +87,7 @@ def _ensure_model(config: BenchConfig, method: str, trial: int,
         _refuse_to_train_for_hours(config, method, trial)
         report = None if on_progress is None else (
             lambda stage, done, total: on_progress(f"{method} trial {trial}: {stage}", done, total))
-        train(config.task, method, path, seed=trial, total_steps=config.train_steps, on_progress=report)
+        train(config.task, method, path, seed=trial, recipe=config.recipe(method), on_progress=report)
     return path
 
 
@@ -114,9 +114,7 @@ def _set_aside_if_made_by_another_recipe(out: Path, path: Path, config: BenchCon
     from oodmon.agents.checkpoints import run_recipe_differences
     from oodmon.agents.recipes import recipe_differences
 
-    recipe = recipe_for(config.task, method)
-    if config.train_steps is not None:
-        recipe = recipe.shortened(config.train_steps)
+    recipe = config.recipe(method)
     if (path / "model.json").exists():
         differences = recipe_differences(json.loads((path / "model.json").read_text()), recipe)
     else:  # a training not finished yet: its runs' state says which recipe began it
@@ -135,7 +133,7 @@ def _set_aside_if_made_by_another_recipe(out: Path, path: Path, config: BenchCon
 
 def _trial_dir(config: BenchConfig, method: str, trial: int) -> Path:
     """A (method, trial)'s folder: its threshold, fitted detectors, failing variants and logs."""
-    return Path(config.out) / "logs" / f"{config.task}-{config.cache_key()}" / method / f"trial{trial}"
+    return Path(config.out) / "logs" / f"{config.task}-{config.cache_key()}" / config.model_name(method) / f"trial{trial}"
 
 
 def _cell_log(config: BenchConfig, method: str, trial: int, name: str) -> Path:

@@ -3,7 +3,7 @@ paper's names for our methods and variants."""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -13,6 +13,7 @@ from oodmon.errors import ConfigError
 from oodmon.paper import paper_auc_per_trial
 
 if TYPE_CHECKING:
+    from oodmon.agents.recipes import Recipe
     from oodmon.replay import MonitorMetrics
 
 __all__ = ["ONSETS", "PAPER_METHOD", "PROTOCOLS", "BenchConfig", "BenchResult", "Row", "paper_label"]
@@ -62,6 +63,7 @@ class BenchConfig:
     env_id: str | None = None  # the gymnasium env id the sb3 models act in
     mean: bool = False  # deploy the sb3 ensemble's mean decision, not the first model's
     samples: int | None = None  # MC samples per decision of Dropout and DropConnect agents (None: each one's recipe)
+    members: int | None = None  # members of each ensemble trial (None: the recipe's; others train trial 0 too)
 
     def __post_init__(self) -> None:
         from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -91,6 +93,31 @@ class BenchConfig:
         if self.samples is not None and (self.samples < 2 or self.sb3):
             raise ConfigError(f"samples={self.samples}: MC samples per decision of oodmon's Dropout and DropConnect "
                               "agents, 2 or more (not for --sb3 models)")
+        if self.members is not None and (self.members < 2 or self.sb3 or "ensemble" not in self.methods):
+            raise ConfigError(f"members={self.members}: the size of oodmon's ensembles, 2 or more, for a bench of the "
+                              "ensemble method (not for --sb3 models)")
+
+    def recipe(self, method: str) -> Recipe:
+        """The recipe the bench trains ``method``'s trials by: the shipped one, its ensembles of
+        ``members`` members where given (member k is trained with the same seed at any size), cut to
+        ``train_steps`` where given."""
+        from oodmon.agents.recipes import recipe_for
+
+        recipe = recipe_for(self.task, method)
+        if self.resized(method):
+            recipe = replace(recipe, n_members=self.members)
+        return recipe if self.train_steps is None else recipe.shortened(self.train_steps)
+
+    def resized(self, method: str) -> bool:
+        """Whether ``method``'s trials are ensembles of another size than the shipped recipe's: then
+        no trial is the zoo's agent, and their models and logs have folders of their own."""
+        from oodmon.agents.recipes import recipe_for
+
+        return method == "ensemble" and self.members not in (None, recipe_for(self.task, method).n_members)
+
+    def model_name(self, method: str) -> str:
+        """``method``'s name in the bench's folders: ``ensemble-members20`` for resized ensembles."""
+        return f"{method}-members{self.members}" if self.resized(method) else method
 
     @property
     def m(self) -> int:
