@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
+from safetensors.torch import load_file
 
 from oodmon.bench import BenchConfig, best_per_method, paper_label, run_bench
 from oodmon.bench.report import unsolved_trials
@@ -51,7 +53,7 @@ def test_bench_end_to_end_and_resume(tmp_path):
     assert [r.aurocs for r in again.rows] == [r.aurocs for r in result.rows]
     # New weights for trial 1 (a retrained or newly shipped model): its cached results are set
     # aside, not reused and not lost; trial 0's stay where they are.
-    from safetensors.torch import load_file, save_file
+    from safetensors.torch import save_file
 
     weights_file = tmp_path / "models/cartpole-dropout-trial1/model.safetensors"
     tensors = load_file(str(weights_file))
@@ -543,16 +545,12 @@ def test_bench_members_trains_ensembles_of_that_size_keeping_members_trained_bef
     assert log.metadata["about.samples"] == "2"
     # A 3-member training of the same trial begins where the 2-member one's members are.
     large = tmp_path / "models/cartpole-ensemble-members3-trial0"
-    import shutil
-
     shutil.copytree(small / "runs", large / "runs")
     kept = {p: p.stat().st_mtime_ns for p in (large / "runs").rglob("*") if p.is_file()}
     three = BenchConfig("cartpole", members=3, **common)
     run_bench(three)
     assert {p: p.stat().st_mtime_ns for p in kept} == kept  # members 0 and 1: nothing trained again
     assert json.loads((large / "runs/member2/state.json").read_text())["finished"]
-    from safetensors.torch import load_file
-
     before, after = load_file(str(small / "model.safetensors")), load_file(str(large / "model.safetensors"))
     shared = [name for name in before if name in after]
     assert shared and all(np.array_equal(before[n].numpy(), after[n].numpy()) for n in shared)

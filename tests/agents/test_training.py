@@ -97,6 +97,25 @@ def test_a_run_begun_by_another_recipe_is_not_resumed(tmp_path):
     assert _Run(dataclasses.replace(recipe, drop_p=0.3), tmp_path, "main", 0).state["steps"] == 500
 
 
+def test_an_ensemble_member_resumes_in_an_ensemble_of_another_size_but_not_of_another_network(tmp_path):
+    """Member k trains alone with the same seed whatever the ensemble's size, so a 5-member
+    training's member goes on in a 20-member one; a member of another network or learning rate
+    is still refused."""
+    from oodmon.agents.recipes import recipe_record
+
+    five = recipe_for("pendulum", "ensemble")
+    folder = tmp_path / "runs" / "member3"
+    folder.mkdir(parents=True)
+    state = {"steps": 500, "wall_time_s": 1.0, "finished": False, "seed": 3, "recipe": recipe_record(five)}
+    (folder / "state.json").write_text(json.dumps(state))
+    twenty = dataclasses.replace(five, n_members=20)
+    assert _Run(twenty, tmp_path, "member3", 3).state["steps"] == 500
+    with pytest.raises(ConfigError, match=r"another recipe \(net_arch: \[400, 300\] -> \[64, 64\]\)"):
+        _Run(dataclasses.replace(twenty, net_arch=[64, 64]), tmp_path, "member3", 3)
+    with pytest.raises(ConfigError, match=r"another recipe \(learning_rate: 0.001 -> 0.0003\)"):
+        _Run(dataclasses.replace(twenty, hyperparams=five.hyperparams | {"learning_rate": 3e-4}), tmp_path, "member3", 3)
+
+
 @pytest.mark.parametrize("method", ["dropout", "dropconnect"])
 def test_mc_network_is_the_sb3_q_network_with_stochastic_layers(method):
     recipe = recipe_for("cartpole", method)
