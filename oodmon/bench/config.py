@@ -104,7 +104,7 @@ class BenchConfig:
         from oodmon.agents.recipes import recipe_for
 
         recipe = recipe_for(self.task, method)
-        if self.resized(method):
+        if method == "ensemble" and self.members is not None:
             recipe = replace(recipe, n_members=self.members)
         return recipe if self.train_steps is None else recipe.shortened(self.train_steps)
 
