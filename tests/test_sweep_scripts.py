@@ -6,6 +6,7 @@ import re
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tests.helpers import load_script
@@ -176,3 +177,43 @@ def test_sweep_inference_p_can_sample_the_output_layer_only(inference_p):
     assert actions.shape[0] == 20 and np.all(np.abs(actions) <= 2.0)  # scaled to Pendulum's torque bounds
     with pytest.raises(ConfigError, match="not one of all, output"):
         inference_p.with_inference_p(folder, 0.02, sampled="hidden")
+
+
+@pytest.fixture
+def member_spread(monkeypatch, tmp_path):
+    return _load(monkeypatch, tmp_path, "member_spread")[0]
+
+
+def test_member_spread_names_the_member_that_sets_the_id_spread(member_spread):
+    # Five members: on ID steps four agree near 0 and member 2 swings between -20 and 20 (a
+    # saturating actor); on shifted steps all five disagree by about 5. With member 2 the ID spread
+    # is the larger one; without it every shifted step is above every ID step.
+    rng = np.random.default_rng(0)
+    id_outputs = rng.normal(0.0, 0.1, (5, 400))
+    id_outputs[2] = rng.choice([-20.0, 20.0], 400)
+    shifted = rng.normal(0.0, 5.0, (5, 200))
+    lines = member_spread.report(id_outputs, shifted)
+    everyone = float(lines[0].rsplit(" ", 1)[1])
+    without = [float(line.rsplit("|", 1)[1]) for line in lines[2:7]]
+    assert everyone < 0.2
+    assert int(np.argmax(without)) == 2 and without[2] == 1.0
+    assert max(without[:2] + without[3:]) < 0.2
+    medians = [float(line.split("|")[1]) for line in lines[2:7]]
+    assert medians[2] == 20.0 and max(medians[:2] + medians[3:]) < 0.2
+    # The median absolute deviation is not set by member 2 alone: the four agreeing members keep
+    # the ID spread small (not 1.0: a few shifted steps' five outputs happen to agree as closely).
+    assert float(lines[7].rsplit(" ", 1)[1]) > 0.95
+
+
+def test_member_spread_reads_the_outputs_the_monitor_scores(member_spread):
+    from oodmon.agents import load_agent, zoo_dir
+    from oodmon.errors import ConfigError
+
+    folder = zoo_dir() / "pendulum-ensemble"
+    outputs = member_spread.member_outputs(folder, None, 1, 200_000)
+    assert outputs.shape == (5, 200)
+    agent = load_agent(folder)
+    obs, _ = agent.make_env().reset(seed=200_000)
+    np.testing.assert_allclose(outputs[:, 0].std(), agent.estimate(obs).pre_squash_std[0, 0], rtol=1e-5)
+    with pytest.raises(ConfigError, match="not an ensemble"):
+        member_spread.member_outputs(zoo_dir() / "pendulum-dropout", None, 1, 200_000)

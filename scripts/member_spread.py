@@ -1,0 +1,98 @@
+"""Which members of a DDPG ensemble set its ``pre_squash_std``, on ID steps and shifted ones.
+
+Run (about a minute; any Pendulum ensemble's model folder: the zoo's, a bench trial's):
+    OODMON_TORCH_THREADS=1 .venv/bin/python scripts/member_spread.py runs/bench5/models/pendulum-ensemble-members20-trial3 [--variant pendulum:l=0.1]
+
+The ensemble acts (its members' mean decides) for 10 ID episodes (seeds 200000+) and 5 of the
+variant (seeds 400000+), the sweeps' episodes, and at every step each member's actor output before
+its tanh is taken. ``pre_squash_std`` is the std of those outputs over the members; the script
+prints its per-step AUROC (shifted steps against ID ones) with every member, then per member the
+median |output| on ID and on shifted steps and the AUROC without that member. A member whose ID
+outputs sit far out on the tanh (a large ID median: it saturates the torque where the others do
+not) widens the ID spread at every step, and leaving it out raises the AUROC. The last lines give
+two spreads that no single member can set, the median absolute deviation and the interquartile
+range of the same outputs, for comparison.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from oodmon.agents import load_agent
+from oodmon.agents.serialization import load_modules
+from oodmon.envs import parse_variant
+from oodmon.errors import ConfigError
+from sweep_full_depth import step_auroc  # scripts/: the sweeps' AUROC
+
+SPREADS = {
+    "std": lambda outputs: outputs.std(axis=0),
+    "median absolute deviation": lambda outputs: np.median(np.abs(outputs - np.median(outputs, axis=0)), axis=0),
+    "interquartile range": lambda outputs: np.subtract(*np.percentile(outputs, [75, 25], axis=0)),
+}
+
+
+def member_outputs(folder: Path, spec: str | None, episodes: int, seed: int) -> np.ndarray:
+    """(members, steps): each member's actor output before its tanh at every step of ``episodes``
+    episodes of ``spec`` (None: the model's own task; seeds ``seed``, ``seed`` + 1, ...), the
+    ensemble acting.
+
+    Raises:
+        ConfigError: the folder's model is not an ensemble of tanh actors with one action.
+    """
+    agent = load_agent(folder)
+    modules = load_modules(folder)[0]
+    members = list(modules["members"]) if agent.method == "ensemble" and "members" in modules else None
+    if not members or not isinstance(list(members[0])[-1], torch.nn.Tanh) or agent.estimator.n_samples != len(members):
+        raise ConfigError(f"{folder} is not an ensemble of independent DDPG actors (their outputs end in tanh)")
+    env, states = parse_variant(spec or agent.task).make(), []
+    for k in range(episodes):
+        obs, _ = env.reset(seed=seed + k)
+        done = False
+        while not done:
+            states.append(obs)
+            obs, _, terminated, truncated, _ = env.step(agent.act(obs))
+            done = terminated or truncated
+    env.close()
+    with torch.no_grad():
+        batch = torch.as_tensor(np.asarray(states, np.float32))
+        outputs = [torch.nn.Sequential(*list(member)[:-1])(batch) for member in members]
+    if outputs[0].shape[1] != 1:
+        raise ConfigError(f"{folder}'s actor has {outputs[0].shape[1]} actions; this script reads one")
+    return torch.stack(outputs).numpy()[:, :, 0]
+
+
+def report(id_outputs: np.ndarray, shifted: np.ndarray) -> list[str]:
+    """The printed lines: the AUROC of ``pre_squash_std`` with every member; per member its
+    median |output| on ID and shifted steps and the AUROC without it; the other spreads' AUROCs."""
+    every = range(len(id_outputs))
+
+    def auroc(members, spread=SPREADS["std"]) -> float:
+        return step_auroc(spread(id_outputs[members]), spread(shifted[members]))
+
+    lines = [f"pre_squash_std AUROC with all {len(id_outputs)} members: {auroc(list(every)):.3f}",
+             "member | median |output| ID | shifted | AUROC without it"]
+    for k in every:
+        lines.append(f"{k:6d} | {np.median(np.abs(id_outputs[k])):18.2f} | {np.median(np.abs(shifted[k])):7.2f} | "
+                     f"{auroc([j for j in every if j != k]):.3f}")
+    lines += [f"AUROC of the outputs' {name}, all members: {auroc(list(every), spread):.3f}"
+              for name, spread in SPREADS.items() if name != "std"]
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("folder", type=Path, help="an ensemble's model folder (model.json + model.safetensors)")
+    parser.add_argument("--variant", default="pendulum:l=0.1", help="the shifted variant (default pendulum:l=0.1)")
+    args = parser.parse_args()
+    id_outputs = member_outputs(args.folder, None, 10, 200_000)
+    shifted = member_outputs(args.folder, args.variant, 5, 400_000)
+    print(f"{args.folder}, ID against {args.variant}")
+    print("\n".join(report(id_outputs, shifted)))
+
+
+if __name__ == "__main__":
+    main()
