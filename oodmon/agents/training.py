@@ -23,7 +23,9 @@ files and metadata); :func:`train` runs them in order. A training directory hold
 
 ``<run>`` is ``main`` (MC methods, bootstrapped heads) or ``member<k>`` (independent ensemble
 members). Running the same command again resumes: finished runs are skipped, an interrupted run
-continues from its last checkpoint, and the final export is redone.
+continues from its last checkpoint, and the final export is redone. A resumed run does not
+restore the random streams or the episode under way at the checkpoint: its weights differ from an
+uninterrupted run's of the same seed (resuming the same checkpoint twice gives the same weights).
 
 Nothing in a training directory is unpickled: a crafted file there cannot run code. Older
 trainings kept SB3's ``checkpoint.zip`` and ``replay_buffer.pkl`` (pickles); they are ignored
