@@ -1,6 +1,6 @@
 """Which members of a DDPG ensemble set its ``pre_squash_std``, on ID steps and shifted ones.
 
-Run (about a minute; any Pendulum ensemble's model folder: the zoo's, a bench trial's):
+Run (seconds; any Pendulum ensemble's model folder: the zoo's, a bench trial's):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/member_spread.py runs/bench5/models/pendulum-ensemble-members20-trial3 [--variant pendulum:l=0.1]
 
 The ensemble acts (its members' mean decides) for 10 ID episodes (seeds 200000+) and 5 of the
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from oodmon.agents import load_agent
+from oodmon.agents.agent import agent_from_modules
 from oodmon.agents.serialization import load_modules
 from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
@@ -43,8 +43,8 @@ def member_outputs(folder: Path, spec: str | None, episodes: int, seed: int) -> 
     Raises:
         ConfigError: the folder's model is not an ensemble of tanh actors with one action.
     """
-    agent = load_agent(folder)
-    modules = load_modules(folder)[0]
+    modules, metadata = load_modules(folder)
+    agent = agent_from_modules(modules, metadata, folder)
     members = list(modules["members"]) if agent.method == "ensemble" and "members" in modules else None
     if not members or not isinstance(list(members[0])[-1], torch.nn.Tanh) or agent.estimator.n_samples != len(members):
         raise ConfigError(f"{folder} is not an ensemble of independent DDPG actors (their outputs end in tanh)")

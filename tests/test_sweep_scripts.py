@@ -8,7 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
+from oodmon.agents import load, load_agent, zoo_dir
+from oodmon.agents.plan import _Affine, _DropConnect
+from oodmon.agents.serialization import load_modules
+from oodmon.errors import ConfigError
 from tests.helpers import load_script
 
 
@@ -100,11 +105,6 @@ def inference_p(monkeypatch, tmp_path):
 
 
 def test_sweep_inference_p_resamples_the_trained_weights_with_another_p(inference_p):
-    import numpy as np
-
-    from oodmon.agents import load
-    from oodmon.agents.plan import _DropConnect
-
     folder = inference_p.bench_trial("cartpole", "dropconnect", 0)  # trial 0: the shipped agent
     shipped = load("cartpole", "dropconnect", seed=0)
     obs = np.array([0.02, -0.3, 0.04, 0.5], np.float32)
@@ -119,9 +119,6 @@ def test_sweep_inference_p_resamples_the_trained_weights_with_another_p(inferenc
 
 
 def test_sweep_inference_p_refuses_what_it_cannot_measure(inference_p, monkeypatch, capsys):
-    from oodmon.agents.agent import zoo_dir
-    from oodmon.errors import ConfigError
-
     with pytest.raises(ConfigError, match="strictly between 0 and 1"):
         inference_p.with_inference_p(inference_p.bench_trial("cartpole", "dropconnect", 0), 1.0)
     with pytest.raises(ConfigError, match="run `oodmon bench --task cartpole"):
@@ -148,14 +145,6 @@ def test_sweep_inference_p_table_is_mean_and_std_over_the_trials(inference_p, mo
 
 
 def test_sweep_inference_p_can_sample_the_output_layer_only(inference_p):
-    import numpy as np
-    import torch
-
-    from oodmon.agents import load
-    from oodmon.agents.plan import _Affine, _DropConnect
-    from oodmon.agents.serialization import load_modules
-    from oodmon.errors import ConfigError
-
     folder = inference_p.bench_trial("cartpole", "dropconnect", 0)
     output = inference_p.with_inference_p(folder, 0.02, sampled="output")
     prefix, suffix = output.estimator._prefix, output.estimator._suffix
@@ -206,9 +195,6 @@ def test_member_spread_names_the_member_that_sets_the_id_spread(member_spread):
 
 
 def test_member_spread_reads_the_outputs_the_monitor_scores(member_spread):
-    from oodmon.agents import load_agent, zoo_dir
-    from oodmon.errors import ConfigError
-
     folder = zoo_dir() / "pendulum-ensemble"
     outputs = member_spread.member_outputs(folder, None, 1, 200_000)
     assert outputs.shape == (5, 200)

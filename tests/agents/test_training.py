@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -291,12 +292,9 @@ def test_a_resumed_run_has_the_weights_optimizer_counters_and_buffer_it_was_stop
     assert np.abs(buffer.observations[:499]).sum() > 0 and model.learning_starts < 500  # no refill needed
 
 
-
 def test_resuming_one_checkpoint_twice_trains_the_same_weights(tmp_path):
     # A resumed run does not restore the random streams of the interrupted one (README, "resumes
     # an interrupted run"), but it is reproducible: two resumes of one checkpoint agree.
-    import shutil
-
     _interrupted_training(tmp_path / "a")
     shutil.copytree(tmp_path / "a", tmp_path / "b")
     at_checkpoint = load_file(str(tmp_path / "a" / "runs" / "main" / "policy.safetensors"))
@@ -308,6 +306,7 @@ def test_resuming_one_checkpoint_twice_trains_the_same_weights(tmp_path):
         torch.testing.assert_close(first[name], second[name], rtol=0, atol=0)
     # and both trained on from the checkpoint (step 500 of 1000) rather than stopping there
     assert any(not torch.equal(first[name], at_checkpoint[name]) for name in first)
+
 
 PICKLE_BOMB = """
 import pickle, sys
