@@ -11,7 +11,9 @@ median |output| on ID and on shifted steps and the AUROC without that member. A 
 outputs sit far out on the tanh (a large ID median: it saturates the torque where the others do
 not) widens the ID spread at every step, and leaving it out raises the AUROC. The last lines give
 two spreads that no single member can set, the median absolute deviation and the interquartile
-range of the same outputs, for comparison.
+range of the same outputs, for comparison; and the std of the outputs after dividing each member's
+by its own scale on ID steps, the median |output| over 10 other ID episodes (seeds 300000+), which
+puts a saturating member on the others' footing (README, "Why more members score worse").
 """
 
 from __future__ import annotations
@@ -65,9 +67,11 @@ def member_outputs(folder: Path, spec: str | None, episodes: int, seed: int) -> 
     return torch.stack(outputs).numpy()[:, :, 0]
 
 
-def report(id_outputs: np.ndarray, shifted: np.ndarray) -> list[str]:
+def report(id_outputs: np.ndarray, shifted: np.ndarray, scales: np.ndarray | None = None) -> list[str]:
     """The printed lines: the AUROC of ``pre_squash_std`` with every member; per member its
-    median |output| on ID and shifted steps and the AUROC without it; the other spreads' AUROCs."""
+    median |output| on ID and shifted steps and the AUROC without it; the other spreads' AUROCs;
+    with ``scales`` (members,), each member's scale on other ID steps, the AUROC of the std of the
+    outputs divided by them."""
     every = range(len(id_outputs))
 
     def auroc(members, spread=SPREADS["std"]) -> float:
@@ -80,6 +84,9 @@ def report(id_outputs: np.ndarray, shifted: np.ndarray) -> list[str]:
                      f"{auroc([j for j in every if j != k]):.3f}")
     lines += [f"AUROC of the outputs' {name}, all members: {auroc(list(every), spread):.3f}"
               for name, spread in SPREADS.items() if name != "std"]
+    if scales is not None:
+        scaled = step_auroc(SPREADS["std"](id_outputs / scales[:, None]), SPREADS["std"](shifted / scales[:, None]))
+        lines.append(f"AUROC of the std of each member's output over its median |output| on other ID episodes: {scaled:.3f}")
     return lines
 
 
@@ -90,8 +97,9 @@ def main() -> None:
     args = parser.parse_args()
     id_outputs = member_outputs(args.folder, None, 10, 200_000)
     shifted = member_outputs(args.folder, args.variant, 5, 400_000)
+    scales = np.median(np.abs(member_outputs(args.folder, None, 10, 300_000)), axis=1)
     print(f"{args.folder}, ID against {args.variant}")
-    print("\n".join(report(id_outputs, shifted)))
+    print("\n".join(report(id_outputs, shifted, scales)))
 
 
 if __name__ == "__main__":

@@ -192,6 +192,11 @@ def test_member_spread_names_the_member_that_sets_the_id_spread(member_spread):
     # The median absolute deviation is not set by member 2 alone: the four agreeing members keep
     # the ID spread small (not 1.0: a few shifted steps' five outputs happen to agree as closely).
     assert float(lines[7].rsplit(" ", 1)[1]) > 0.95
+    # Each member's output over its own ID scale: member 2's swings shrink to +-1, on the others' footing.
+    assert len(lines) == 9
+    scaled = member_spread.report(id_outputs, shifted, np.median(np.abs(id_outputs), axis=1))
+    assert scaled[:9] == lines and len(scaled) == 10
+    assert float(scaled[9].rsplit(" ", 1)[1]) > 0.95
 
 
 def test_member_spread_reads_the_outputs_the_monitor_scores(member_spread):
