@@ -275,7 +275,8 @@ def _parser() -> argparse.ArgumentParser:
         "fit-detectors", help="fit the learned detectors (dynamics, features, combined) on an agent's ID episodes"
     )
     _agent_arguments(fit)
-    fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have)")
+    fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread, "
+                                    "which is fitted only when named)")
     fit.add_argument("--episodes", type=_whole(3), default=_FIT_EPISODES,
                      help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES})")
     fit.add_argument("--max-steps", type=_whole(1), help="cut each episode after this many steps (Pong: try 300)")
@@ -365,8 +366,9 @@ def _parser() -> argparse.ArgumentParser:
                             "detector); AUROCs do not change")
     bench.add_argument("--detectors",
                        help="comma-separated detectors whose per-step AUROC is reported: spread (the paper's protocol's "
-                            "default), dynamics, features, combined; the learned ones are fitted per trial on ID "
-                            "episodes of their own (monitor protocol's default: spread and the task's best)")
+                            "default), dynamics, features, frames, combined, scaled_spread (DDPG ensembles); the learned "
+                            "ones are fitted per trial on ID episodes of their own (monitor protocol's default: spread "
+                            "and the task's best)")
     bench.add_argument("--fit-episodes", type=_whole(3), default=0,
                        help=f"ID episodes the learned detectors are fitted on, per trial (default {_FIT_EPISODES}; "
                             "Pong 6 games)")
@@ -557,13 +559,16 @@ def _calibrate(args: argparse.Namespace) -> int:
     # A learned detector asked for, or a model from elsewhere (a plain policy has no spread; an SB3
     # ensemble's spread is weak): fit them first, on episodes of their own. So too for a combined
     # detector asked for with another spread score than the fitted one ranks.
+    # scaled_spread is fitted only when asked for, alone (with the spread).
     left_out = detectors.for_score(args.score)[1] if detectors is not None else None
+    scaled = args.detector == "scaled_spread"
     if (detectors is None and (args.detector not in (None, "spread") or agent.estimator is None or agent.env_id)
-            or (args.detector == "combined" and left_out)):
+            or (args.detector == "combined" and left_out) or (scaled and args.detector not in (detectors or ()))):
         fitted_to = Path(f"{args.out}.detectors")
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
         with _progress() as report:
-            detectors = fit_agent_detectors(agent, score=args.score, episodes=args.fit_episodes, on_progress=report)
+            detectors = fit_agent_detectors(agent, detectors=("scaled_spread",) if scaled else None, score=args.score,
+                                            episodes=args.fit_episodes, on_progress=report)
         detectors.save(fitted_to)
     with _progress() as report:
         threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,

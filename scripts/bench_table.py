@@ -32,23 +32,43 @@ from oodmon.paper import paper_auc_per_trial  # noqa: E402
 RESULTS = ROOT / "results" / "bench"
 
 
-def _read(path: Path) -> tuple[dict, dict[tuple[str, str | None], dict]]:
-    """The result, and its spread rows by (method, the paper's label of the variant)."""
+def _read(path: Path, detector: str = "spread") -> tuple[dict, dict[tuple[str, str | None], dict]]:
+    """The result, and its rows of ``detector`` by (method, the paper's label of the variant)."""
     data = json.loads(path.read_text())
     task = data["config"]["task"]
     rows = {(r["method"], paper_label(task, r["method"], r["variant"])): r for r in data["rows"]
-            if r["detector"] == "spread"}
+            if r["detector"] == detector}
     return data, rows
 
 
+def _detectors(config: dict) -> list[str]:
+    """The detectors a result scored, ``spread`` first (a result before learned detectors: spread)."""
+    named = config.get("detectors") or ["spread"]
+    return ["spread", *(d for d in named if d != "spread")]
+
+
 def table(path: Path) -> str:
-    data, rows = _read(path)
+    data = json.loads(path.read_text())
     config = data["config"]
-    paper = paper_auc_per_trial()[config["task"]]
     samples = f", {config['samples']} MC samples per decision" if config.get("samples") else ""
     samples += f", ensembles of {config['members']} members" if config.get("members") else ""
-    lines = [f"`{data['command']}` ({config['trials']} trials, score `{config['score']}`{samples}):", "",
-             "| method | variant | ours: AUROC mean ± std (trials failing) | paper: mean ± std | AUPR / FPR@95 (ours) "
+    lines = [f"`{data['command']}` ({config['trials']} trials, score `{config['score']}`{samples}):", ""]
+    for index, detector in enumerate(_detectors(config)):
+        if index:
+            lines += ["", f"The `{detector}` detector on the same episodes (fitted per trial on ID episodes of its own):",
+                      ""]
+        lines += _detector_table(path, detector)
+    if data.get("id_returns"):
+        lines += ["", _id_return_line(data["id_returns"], config["task"])]
+    return "\n".join(lines)
+
+
+def _detector_table(path: Path, detector: str) -> list[str]:
+    """One detector's rows beside the paper's, and the best means and the variants met under it."""
+    data, rows = _read(path, detector)
+    config = data["config"]
+    paper = paper_auc_per_trial()[config["task"]]
+    lines = ["| method | variant | ours: AUROC mean ± std (trials failing) | paper: mean ± std | AUPR / FPR@95 (ours) "
              "| mean >= paper | std <= paper |",
              "|---|---|---|---|---|---|---|"]
     met: dict[str, list[int]] = {}
@@ -74,9 +94,7 @@ def table(path: Path) -> str:
     lines += ["", f"Best mean AUROC: ours {best_ours[0]:.3f} ({best_ours[1]}), the paper's {best_paper[0]:.3f} "
                   f"({best_paper[1]}). Variants of the paper where our mean reaches the paper's (and our std is at most "
                   "the paper's): " + ", ".join(f"{m} {c[0]}/{c[2]} ({c[1]}/{c[2]})" for m, c in met.items()) + "."]
-    if data.get("id_returns"):
-        lines += ["", _id_return_line(data["id_returns"], config["task"])]
-    return "\n".join(lines)
+    return lines
 
 
 def _id_return_line(id_returns: dict, task: str) -> str:
@@ -103,9 +121,11 @@ def plot(path: Path) -> Path:
 
     from oodmon.outputs import save_figure
 
-    data, rows = _read(path)
+    data = json.loads(path.read_text())
     config = data["config"]
     task = config["task"]
+    detectors = _detectors(config)
+    rows_of = {detector: _read(path, detector)[1] for detector in detectors}
     paper = paper_auc_per_trial()[task]
     methods = [m for m in config["methods"] if paper.get(PAPER_METHOD[m])]
     fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 3.6), sharey=True, squeeze=False)
@@ -115,13 +135,16 @@ def plot(path: Path) -> Path:
         theirs = [paper[PAPER_METHOD[method]][label] for label in labels]
         ax.errorbar(x - 0.12, [np.mean(t) for t in theirs], [np.std(t) for t in theirs], fmt="s", color="grey",
                     capsize=3, label="paper (5 trials)")
-        ours = [rows.get((method, label)) for label in labels]
-        shown = [i for i, r in enumerate(ours) if r is not None]
-        ax.errorbar(x[shown] + 0.12, [ours[i]["mean"] for i in shown], [ours[i]["std"] for i in shown], fmt="o",
-                    color="tab:blue", capsize=3, label=f"ours ({config['trials']} trials)")
-        for i, r in enumerate(ours):
-            if r is None:
-                ax.annotate("ours: does\nnot fail", (x[i], 0.22), ha="center", fontsize=7, color="tab:blue")
+        for index, (detector, color) in enumerate(zip(detectors, ("tab:blue", "tab:orange", "tab:green"))):
+            ours = [rows_of[detector].get((method, label)) for label in labels]
+            shown = [i for i, r in enumerate(ours) if r is not None]
+            name = "ours" if len(detectors) == 1 else f"ours, {detector}"
+            ax.errorbar(x[shown] + 0.12 * (1 + index), [ours[i]["mean"] for i in shown], [ours[i]["std"] for i in shown],
+                        fmt="o", color=color, capsize=3, label=f"{name} ({config['trials']} trials)")
+            if index == 0:
+                for i, r in enumerate(ours):
+                    if r is None:
+                        ax.annotate("ours: does\nnot fail", (x[i], 0.22), ha="center", fontsize=7, color=color)
         ax.axhline(0.5, color="black", lw=0.6, ls=":")
         ax.set_xticks(x, [label.split(" ")[0] for label in labels], rotation=45, ha="right", fontsize=8)
         ax.set_title(f"{task} {method}", fontsize=10)

@@ -61,6 +61,9 @@ class Estimate:
             a shared-torso ensemble: the torso's output, Pong's 512 CNN features; independent
             members: their last hidden layer, averaged over members); ``None`` when the
             estimator cannot tell (a non-sequential MC network).
+        pre_squash: (K, batch, n) for an actor ending in tanh, the samples before the tanh (the
+            ``scaled_spread`` detector divides each ensemble member's by its own ID scale);
+            ``None`` otherwise.
     """
 
     action: np.ndarray
@@ -69,6 +72,7 @@ class Estimate:
     std: np.ndarray
     pre_squash_std: np.ndarray | None = None
     features: np.ndarray | None = field(default=None, repr=False)
+    pre_squash: np.ndarray | None = field(default=None, repr=False)
 
 
 class UncertaintyEstimator:
@@ -122,16 +126,16 @@ class UncertaintyEstimator:
         self._features = None
         samples = self._sample(batch)
         features, self._features = self._features, None
-        pre_squash_std = None
+        pre_squash_std = pre_squash = None
         if self._squash:
-            pre_squash_std = _std(samples)
+            pre_squash, pre_squash_std = samples, _std(samples)
             samples = np.tanh(samples)
         if self.kind == "actions":
             samples = samples * self._scale + self._offset
         mean = _mean(samples)
         std = _std(samples, mean)
         action = mean.argmax(axis=1) if self.kind == "q_values" else mean
-        return Estimate(action, samples, mean, std, pre_squash_std, features)
+        return Estimate(action, samples, mean, std, pre_squash_std, features, pre_squash)
 
     def _sample(self, batch: np.ndarray) -> np.ndarray:
         raise NotImplementedError

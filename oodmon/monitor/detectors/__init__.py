@@ -6,6 +6,8 @@
 - ``frames``: the Mahalanobis distance of each camera frame's image statistics (any policy).
 - ``combined``: the largest ID rank of the others' scores (and of ``dynamics``' mean since the
   episode began).
+- ``scaled_spread``: a DDPG ensemble's spread before its tanh, each member's output over its own ID
+  scale (fitted only when named).
 
 :func:`fit_detectors` fits them for a policy on its own ID episodes; :class:`DetectorSet` runs
 them at each step and saves them (safetensors + JSON).
@@ -21,11 +23,12 @@ from oodmon.monitor.detectors.frames import FramesDetector
 from oodmon.monitor.detectors.fitting import (
     BEST_DETECTOR, DEFAULT_FIT_EPISODES, FIT_VERSION, best_detector, collect, default_detectors, detectors_for, fit_agent_detectors, fit_detectors, trajectory_scores,
 )
+from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 
 __all__ = [
     "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DETECTORS", "FIT_VERSION", "MIN_LOGVAR", "CombinedDetector", "Detector", "DetectorSet", "DynamicsDetector",
-    "FeaturesDetector", "FramesDetector", "SpreadDetector", "StepContext", "Trajectory", "best_detector", "collect", "default_detectors", "detectors_for",
+    "FeaturesDetector", "FramesDetector", "ScaledSpreadDetector", "SpreadDetector", "StepContext", "Trajectory", "best_detector", "collect", "default_detectors", "detectors_for",
     "fit_agent_detectors", "fit_detectors", "trajectory_scores",
 ]

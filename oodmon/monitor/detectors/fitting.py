@@ -24,6 +24,7 @@ from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector, min_logvar_for
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
+from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.scores import DEFAULT_SCORE
@@ -103,7 +104,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     trajectories = []
     for episode in range(episodes):
         obs, _ = env.reset(seed=seed + episode)
-        observations, actions, features = [obs], [], []
+        observations, actions, features, pre_squash = [obs], [], [], []
         while True:
             if estimator is not None:
                 estimate = estimator.estimate(obs)
@@ -111,6 +112,8 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
                 action = deploy(obs) if deploy is not None else int(raw) if estimator.kind == "q_values" else np.asarray(raw)
                 if estimate.features is not None:
                     features.append(estimate.features[0])
+                if estimate.pre_squash is not None:
+                    pre_squash.append(estimate.pre_squash[:, 0])
             else:
                 action = act(obs)
             obs, _, terminated, truncated, _ = env.step(action)
@@ -119,7 +122,8 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
             if terminated or truncated or (max_steps is not None and len(actions) >= max_steps):
                 break
         trajectories.append(Trajectory(np.asarray(observations), np.asarray(actions),
-                                       np.asarray(features) if len(features) == len(actions) else None))
+                                       np.asarray(features) if len(features) == len(actions) else None,
+                                       np.asarray(pre_squash) if len(pre_squash) == len(actions) else None))
         if on_progress is not None:
             on_progress("detector fitting episodes", episode + 1, episodes)
     return trajectories
@@ -164,7 +168,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     ``spread`` (with ``score``) joins the set whenever the policy has samples; ``combined``
     combines every other detector of the set, and named alone it brings the learned members the
     policy can have (``["combined"]`` fits dynamics and features too). ``features`` needs an oodmon agent or estimator
-    (a plain callable has no features); ``dynamics`` needs vector observations.
+    (a plain callable has no features); ``dynamics`` needs vector observations; ``scaled_spread``, fitted
+    only when named, an oodmon ensemble whose actors end in tanh.
 
     Raises:
         InvalidParameterError: an unknown detector name or fewer than 3 episodes.
@@ -183,6 +188,9 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     task = task or metadata.get("task")
     if "features" in detectors and estimator is None:
         raise ConfigError("the features detector needs the policy's features; a plain policy has none")
+    if "scaled_spread" in detectors and not _is_ensemble(estimator):
+        raise ConfigError("the scaled_spread detector scales each ensemble member's output: it needs an oodmon "
+                          "ensemble (MC samples are not members)")
     if "frames" in detectors and len(env.observation_space.shape or ()) < 2:
         raise ConfigError(f"the frames detector needs image observations; this env's are of shape "
                           f"{env.observation_space.shape}")
@@ -197,6 +205,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         parts.append(FeaturesDetector(n_actions).fit(fit))
     if "frames" in detectors:
         parts.append(FramesDetector().fit(fit))
+    if "scaled_spread" in detectors:
+        parts.append(ScaledSpreadDetector().fit(fit))
     obs_shape = list(np.shape(trajectories[0].observations)[1:])
     fitted_for = {"task": task, "obs_shape": obs_shape, "policy_hash": policy_hash, "version": FIT_VERSION,
                   "episodes": episodes, "seed": seed, "obs_noise": obs_noise}
@@ -210,6 +220,12 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         combined = CombinedDetector(members).fit_reference(reference)  # per episode: see its long members
         result = result.with_detector(combined)
     return result
+
+
+def _is_ensemble(estimator: Any) -> bool:
+    from oodmon.agents.estimators import EnsembleEstimator
+
+    return isinstance(estimator, EnsembleEstimator)
 
 
 def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, episodes: int = DEFAULT_FIT_EPISODES,

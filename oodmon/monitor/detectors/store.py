@@ -22,6 +22,7 @@ from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
+from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.hashing import file_sha256
 
@@ -30,7 +31,7 @@ __all__ = ["DETECTORS", "DetectorSet"]
 #: Detector classes by name.
 DETECTORS: dict[str, type[Detector]] = {
     "spread": SpreadDetector, "dynamics": DynamicsDetector, "features": FeaturesDetector, "frames": FramesDetector,
-    "combined": CombinedDetector,
+    "combined": CombinedDetector, "scaled_spread": ScaledSpreadDetector,
 }
 FORMAT = "oodmon.detectors"
 FORMAT_VERSION = 1
