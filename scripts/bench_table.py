@@ -150,7 +150,7 @@ def plot(path: Path) -> Path:
         ax.set_title(f"{task} {method}", fontsize=10)
         ax.set_ylim(0, 1.02)
         ax.set_xlim(-0.6, len(labels) - 0.4)
-    axes[0][0].set_ylabel(f"per-step AUROC ({config['score']})")
+    axes[0][0].set_ylabel(f"per-step AUROC ({'spread: ' if len(detectors) > 1 else ''}{config['score']})")
     axes[0][-1].legend(fontsize=7, loc="lower right")
     return save_figure(fig, path.with_suffix(".png"))
 
