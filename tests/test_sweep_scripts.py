@@ -208,3 +208,20 @@ def test_member_spread_reads_the_outputs_the_monitor_scores(member_spread):
     np.testing.assert_allclose(outputs[:, 0].std(), agent.estimate(obs).pre_squash_std[0, 0], rtol=1e-5)
     with pytest.raises(ConfigError, match="not an ensemble"):
         member_spread.member_outputs(zoo_dir() / "pendulum-dropout", None, 1, 200_000)
+
+
+def test_member_normalisations_put_each_member_on_its_own_id_footing(monkeypatch, tmp_path):
+    script = _load(monkeypatch, tmp_path, "member_normalisations")[0]
+    rng = np.random.default_rng(0)
+    # Three members: offsets 0, 5, -3 and scales 1, 10, 0.1 at ID steps; member 2 also never moves in one action.
+    fit = rng.normal(0.0, 1.0, (3, 500, 2)) * np.array([1.0, 10.0, 0.1])[:, None, None] + np.array([0.0, 5.0, -3.0])[:, None, None]
+    fit[2, :, 1] = 0.0
+    normalised = script.normalisations(fit)
+    z = normalised["(x-mean)/std"](fit)
+    np.testing.assert_allclose(z[:, :, 0].mean(axis=1), 0.0, atol=1e-9)
+    np.testing.assert_allclose(z[:2].std(axis=1), 1.0, rtol=1e-9)
+    assert np.all(np.isfinite(z)) and np.all(np.isfinite(normalised["(x-med)/MAD"](fit)))  # the floor: no 0 division
+    robust = normalised["(x-med)/MAD"](fit)[:, :, 0]
+    np.testing.assert_allclose(np.median(np.abs(robust), axis=1), 1.0, rtol=1e-9)
+    scaled = normalised["x/med|x|"](fit)
+    np.testing.assert_allclose(np.median(np.abs(scaled[:, :, 0]), axis=1), 1.0, rtol=1e-9)
