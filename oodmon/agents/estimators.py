@@ -62,7 +62,7 @@ class Estimate:
             members: their last hidden layer, averaged over members); ``None`` when the
             estimator cannot tell (a non-sequential MC network).
         pre_squash: (K, batch, n) for an actor ending in tanh, the samples before the tanh (the
-            ``scaled_spread`` detector divides each ensemble member's by its own ID scale);
+            ``scaled_spread`` detector puts each ensemble member's on its own ID footing);
             ``None`` otherwise.
     """
 

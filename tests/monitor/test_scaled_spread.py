@@ -1,4 +1,4 @@
-"""The scaled_spread detector: an ensemble actor's spread before its tanh, each member over its ID scale."""
+"""The scaled_spread detector: an ensemble's spread with each member on its own ID footing."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ def test_a_member_saturating_at_id_steps_no_longer_hides_the_shift():
     id_outputs = rng.normal(0.0, 0.2, (600, 4, 1))
     id_outputs[:, 3] = rng.choice([-20.0, 20.0], (600, 1))
     fit, held_out = id_outputs[:400], id_outputs[400:]
-    detector = ScaledSpreadDetector().fit([Trajectory(np.zeros((401, 3)), np.zeros((400, 1)), pre_squash=fit)])
+    detector = ScaledSpreadDetector().fit([Trajectory(np.zeros((401, 3)), np.zeros((400, 1)), member_values=fit)])
     shifted = rng.normal(0.0, 5.0, (200, 4, 1))
 
     def scores(outputs):
@@ -47,29 +47,46 @@ def test_a_member_saturating_at_id_steps_no_longer_hides_the_shift():
     assert _step_auroc([scores(held_out)], [scores(shifted)]) > 0.95
 
 
-def test_it_separates_the_shipped_pendulum_ensembles_shift_that_pre_squash_std_misses():
-    """m=0.05 on the shipped ensemble, fitted on ID episodes of the detectors' own seeds (30 of
-    45: two thirds fit), scored on the bench's 10 ID and 5 shifted episodes (seeded: deterministic):
-    measured 0.915 per step against 0.777 for pre_squash_std; slack of about 0.04 either way."""
-    agent = load("pendulum", "ensemble")
-    detectors = fit_agent_detectors(agent, detectors=("scaled_spread",), episodes=45, score="pre_squash_std")
+def _shipped_aurocs(task: str, score: str, fit_episodes: int, variant: str) -> tuple[str, float, float]:
+    """The shipped ensemble with scaled_spread fitted on ``fit_episodes`` ID episodes of the
+    detectors' own seeds (two thirds fit), scored on the bench's 10 ID and 5 ``variant`` episodes
+    (seeded: deterministic): its normalisation, the spread's per-step AUROC and scaled_spread's."""
+    agent = load(task, "ensemble")
+    detectors = fit_agent_detectors(agent, detectors=("scaled_spread",), episodes=fit_episodes, score=score)
     assert detectors.names == ["spread", "scaled_spread"]
 
     def scored(spec, episodes, seed):
         trajectories = collect(agent, parse_variant(spec).make(), episodes, seed=seed)
         return [trajectory_scores(detectors, t, agent.estimator) for t in trajectories]
 
-    id_scores, shifted = scored("pendulum", 10, seeds.BENCH_ID), scored("pendulum:m=0.05", 5, seeds.BENCH_SHIFTED)
-    spread = _step_auroc([s["spread"] for s in id_scores], [s["spread"] for s in shifted])
-    scaled = _step_auroc([s["scaled_spread"] for s in id_scores], [s["scaled_spread"] for s in shifted])
+    id_scores, shifted = scored(task, 10, seeds.BENCH_ID), scored(variant, 5, seeds.BENCH_SHIFTED)
+    spread, scaled = (_step_auroc([s[name] for s in id_scores], [s[name] for s in shifted])
+                      for name in ("spread", "scaled_spread"))
+    return detectors["scaled_spread"].normalisation, spread, scaled
+
+
+def test_it_separates_the_shipped_pendulum_ensembles_shift_that_pre_squash_std_misses():
+    # m=0.05, fitted on 30 of 45 episodes: measured 0.915 per step against pre_squash_std's 0.777;
+    # slack of about 0.04 either way.
+    normalisation, spread, scaled = _shipped_aurocs("pendulum", "pre_squash_std", 45, "pendulum:m=0.05")
+    assert normalisation == "scale"  # float actions: DDPG
     assert spread < 0.82
     assert scaled > 0.88 and scaled - spread > 0.08
+
+
+def test_on_a_dqn_ensemble_it_reads_each_members_centred_q_values_as_id_z_scores():
+    # gravity=98.0 on the shipped CartPole ensemble, fitted on 20 of 30 episodes: measured 0.981 per
+    # step against margin_std's 0.769 (the paper's ensemble: 0.772 +- 0.040); slack 0.05.
+    normalisation, margin, scaled = _shipped_aurocs("cartpole", "margin_std", 30, "cartpole:gravity=98.0")
+    assert normalisation == "zscore"  # integer actions: DQN
+    assert margin < 0.82
+    assert scaled > 0.93
 
 
 def test_it_is_saved_as_tensors_and_json_and_loads_to_the_same_scores(tmp_path):
     rng = np.random.default_rng(1)
     detector = ScaledSpreadDetector().fit([Trajectory(np.zeros((51, 3)), np.zeros((50, 1)),
-                                                      pre_squash=rng.normal(0, [[1.0], [3.0], [0.5]], (50, 3, 1)))])
+                                                      member_values=rng.normal(0, [[1.0], [3.0], [0.5]], (50, 3, 1)))])
     DetectorSet([detector]).save(tmp_path / "set")
     loaded = DetectorSet.load(tmp_path / "set")["scaled_spread"]
     outputs = rng.normal(0, 2.0, (3, 1))
@@ -77,16 +94,20 @@ def test_it_is_saved_as_tensors_and_json_and_loads_to_the_same_scores(tmp_path):
     assert loaded.score(context) == detector.score(context)
     meta = json.loads((tmp_path / "set" / "detectors.json").read_text())
     assert [d["name"] for d in meta["detectors"]] == ["scaled_spread"]
+    assert meta["detectors"][0]["config"] == {"normalisation": "scale"}  # float actions: DDPG
     with pytest.raises(ConfigError, match="incomplete"):
         ScaledSpreadDetector.from_state({}, {})
     with pytest.raises(ConfigError, match="finite"):
-        ScaledSpreadDetector.from_state({}, {"scales": np.array([[1.0], [np.nan]], np.float32)})
+        ScaledSpreadDetector.from_state({}, {"location": np.zeros((2, 1), np.float32),
+                                             "scale": np.array([[1.0], [np.nan]], np.float32)})
+    with pytest.raises(ConfigError, match="not one of scale, zscore"):
+        ScaledSpreadDetector.from_state({"normalisation": "rank"}, {})
 
 
 def test_a_member_whose_id_outputs_sit_at_zero_does_not_divide_by_zero():
     fit = np.zeros((10, 3, 1))
     fit[:, 0], fit[:, 1] = 2.0, -4.0  # member 2 always outputs 0
-    detector = ScaledSpreadDetector().fit([Trajectory(np.zeros((11, 3)), np.zeros((10, 1)), pre_squash=fit)])
+    detector = ScaledSpreadDetector().fit([Trajectory(np.zeros((11, 3)), np.zeros((10, 1)), member_values=fit)])
     score = detector.score(StepContext(np.zeros(3), np.zeros(1), _estimate(np.array([[2.0], [-4.0], [0.004]]))))
     assert np.isfinite(score) and score == pytest.approx(np.std([1.0, -1.0, 1.0]), rel=1e-5)  # 0.004 / (1e-3 * 4)
 
@@ -94,11 +115,9 @@ def test_a_member_whose_id_outputs_sit_at_zero_does_not_divide_by_zero():
 def test_it_refuses_what_it_cannot_score():
     with pytest.raises(ConfigError, match="MC samples are not members"):
         fit_agent_detectors(load("pendulum", "dropout"), detectors=("scaled_spread",), episodes=3)
-    with pytest.raises(ConfigError, match="outputs before its tanh"):  # a DQN ensemble: Q-values, no tanh
-        fit_agent_detectors(load("cartpole", "ensemble"), detectors=("scaled_spread",), episodes=3, max_steps=5)
     detector = ScaledSpreadDetector().fit([Trajectory(np.zeros((3, 3)), np.zeros((2, 1)),
-                                                      pre_squash=np.ones((2, 5, 1)))])
-    with pytest.raises(ConfigError, match="fitted on 5 members"):
+                                                      member_values=np.ones((2, 5, 1)))])
+    with pytest.raises(ConfigError, match="fitted on 5 members"):  # another ensemble
         detector.score(StepContext(np.zeros(3), np.zeros(1), _estimate(np.ones((3, 1)))))
     with pytest.raises(ConfigError, match="not fitted"):
         ScaledSpreadDetector().score(StepContext(np.zeros(3), np.zeros(1), _estimate(np.ones((3, 1)))))

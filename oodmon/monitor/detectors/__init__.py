@@ -6,8 +6,9 @@
 - ``frames``: the Mahalanobis distance of each camera frame's image statistics (any policy).
 - ``combined``: the largest ID rank of the others' scores (and of ``dynamics``' mean since the
   episode began).
-- ``scaled_spread``: a DDPG ensemble's spread before its tanh, each member's output over its own ID
-  scale (fitted only when named).
+- ``scaled_spread``: an ensemble's spread with each member's values on its own ID footing (DDPG:
+  outputs before the tanh over their ID scale; DQN: centred Q-values as ID z-scores; fitted only
+  when named).
 
 :func:`fit_detectors` fits them for a policy on its own ID episodes; :class:`DetectorSet` runs
 them at each step and saves them (safetensors + JSON).

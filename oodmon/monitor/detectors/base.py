@@ -123,14 +123,14 @@ class Trajectory:
         observations: (T + 1, *obs_shape): every observation, the last one after the last action.
         actions: (T,) ints or (T, action_dim) floats: the deployed actions.
         features: (T, F) the policy's features at each acted-on observation, or ``None``.
-        pre_squash: (T, K, n) the policy's K samples before its tanh at each acted-on
-            observation (an actor ending in tanh), or ``None``.
+        member_values: (T, K, n) an ensemble's members' values at each acted-on observation (see
+            :func:`~oodmon.monitor.detectors.scaled_spread.member_values`), or ``None``.
     """
 
     observations: np.ndarray
     actions: np.ndarray
     features: np.ndarray | None = None
-    pre_squash: np.ndarray | None = None
+    member_values: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if len(self.observations) != len(self.actions) + 1:

@@ -24,7 +24,7 @@ from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector, min_logvar_for
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
-from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
+from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector, member_values
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.scores import DEFAULT_SCORE
@@ -100,11 +100,12 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     """Play ``episodes`` episodes of ``env`` (seeds ``seed``, ``seed + 1``, ...) with ``policy``
     (each cut after ``max_steps`` steps if given)."""
     estimator, act, _ = policy_parts(policy)
+    ensemble = _is_ensemble(estimator)  # its members' values, for scaled_spread
     deploy = getattr(policy, "deploy", None)  # an Agent whose deployed policy is not its estimator's decision
     trajectories = []
     for episode in range(episodes):
         obs, _ = env.reset(seed=seed + episode)
-        observations, actions, features, pre_squash = [obs], [], [], []
+        observations, actions, features, values = [obs], [], [], []
         while True:
             if estimator is not None:
                 estimate = estimator.estimate(obs)
@@ -112,8 +113,8 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
                 action = deploy(obs) if deploy is not None else int(raw) if estimator.kind == "q_values" else np.asarray(raw)
                 if estimate.features is not None:
                     features.append(estimate.features[0])
-                if estimate.pre_squash is not None:
-                    pre_squash.append(estimate.pre_squash[:, 0])
+                if ensemble:
+                    values.append(member_values(estimate))
             else:
                 action = act(obs)
             obs, _, terminated, truncated, _ = env.step(action)
@@ -123,7 +124,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
                 break
         trajectories.append(Trajectory(np.asarray(observations), np.asarray(actions),
                                        np.asarray(features) if len(features) == len(actions) else None,
-                                       np.asarray(pre_squash) if len(pre_squash) == len(actions) else None))
+                                       np.asarray(values) if ensemble and values[0] is not None else None))
         if on_progress is not None:
             on_progress("detector fitting episodes", episode + 1, episodes)
     return trajectories
@@ -169,7 +170,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     combines every other detector of the set, and named alone it brings the learned members the
     policy can have (``["combined"]`` fits dynamics and features too). ``features`` needs an oodmon agent or estimator
     (a plain callable has no features); ``dynamics`` needs vector observations; ``scaled_spread``, fitted
-    only when named, an oodmon ensemble whose actors end in tanh.
+    only when named, an oodmon ensemble (DQN or DDPG).
 
     Raises:
         InvalidParameterError: an unknown detector name or fewer than 3 episodes.

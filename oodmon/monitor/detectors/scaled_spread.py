@@ -1,47 +1,73 @@
-"""``scaled_spread``: an ensemble actor's spread before its tanh, each member's output over its own ID scale.
+"""``scaled_spread``: an ensemble's spread with each member's values on that member's own ID footing.
 
-``pre_squash_std`` is a std over the members, so one member that saturates its torque on ID states
-(its output before the tanh far out, where the others sit near 0) widens the spread of every ID
-step and hides the shift. This detector divides each member's output by that member's median
-|output| over ID steps before taking the std, which puts a saturating member on the others'
-footing. On the Pendulum ensembles (``scripts/member_spread.py``, the sweeps' 10 ID and 5 shifted
-episodes; README, "Why more members score worse") every trial, of 5 members or 20, read 0.940-0.956
-per step on ``l=0.1`` and 0.927-0.942 on ``m=0.05`` so, where ``pre_squash_std`` read 0.652-0.951
-and 0.509-0.902.
+The spread scores take the std over the members as they come, so one member whose values sit
+elsewhere at ID steps sets the spread of every ID step and hides the shift: on Pendulum an actor
+that saturates its torque (its output before the tanh far out, where the others sit near 0); on
+CartPole a DQN member with an offset of its own between the two actions' Q-values. This detector
+puts each member on its own ID footing before taking the std:
 
-It needs the members' outputs before the tanh (:attr:`Estimate.pre_squash`): an ensemble of
-oodmon whose actors end in tanh (DDPG). MC samples are not members (sample k is another network at
-every step), so :func:`~oodmon.monitor.detectors.fit_detectors` refuses it for MC agents.
+- DDPG ensembles (actors ending in tanh): each member's output before the tanh, divided by that
+  member's median |output| over ID steps (0 stays the neutral action);
+- DQN ensembles (discrete actions): each member's Q-values centred on their mean over the actions
+  (with two actions, half the margin Q0 - Q1), as a z-score of that member's ID mean and std.
+
+Measured under the bench's protocol over five trials (README, "Why more members score worse";
+``scripts/member_normalisations.py`` compares the normalisations on both tasks): Pendulum
+ensembles read 0.953 ± 0.002 per step on ``l=0.1`` (``pre_squash_std``: 0.940 ± 0.015), CartPole's
+0.984 ± 0.005 on ``gravity=98.0`` (``margin_std``: 0.793 ± 0.051). Dividing by a scale alone did
+not help CartPole (0.869 on ``gravity=98.0`` on the sweeps' episodes, the z-score 0.969).
+
+MC samples are not members (sample k is another network at every step), so
+:func:`~oodmon.monitor.detectors.fit_detectors` refuses it for MC agents.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from oodmon.errors import ConfigError
 from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
 
-__all__ = ["ScaledSpreadDetector"]
+if TYPE_CHECKING:
+    from oodmon.agents.estimators import Estimate
+
+__all__ = ["ScaledSpreadDetector", "member_values"]
 
 #: A member's scale is at least this fraction of the largest member's, so that a member whose ID
-#: outputs sit at 0 does not divide by 0 (measured scales span 0.07 to 17 within one ensemble).
+#: values never move does not divide by 0 (measured Pendulum scales span 0.07 to 17 in one ensemble).
 SCALE_FLOOR = 1e-3
 
 
+def member_values(estimate: Estimate) -> np.ndarray | None:
+    """(K, n) at the estimate's first observation: a DDPG ensemble's outputs before the tanh, a DQN
+    ensemble's Q-values centred on their mean over the actions; ``None`` for other policies."""
+    if estimate.pre_squash is not None:
+        return estimate.pre_squash[:, 0]
+    if estimate.action.ndim == 1 and estimate.action.dtype.kind in "iu":
+        q_values = estimate.samples[:, 0]
+        return q_values - q_values.mean(axis=1, keepdims=True)
+    return None
+
+
 class ScaledSpreadDetector(Detector):
-    """The std over an ensemble's members of their outputs before the tanh, each over its ID scale.
+    """The std over an ensemble's members of their values, each member's on its own ID footing.
+
+    Args:
+        normalisation: ``scale`` (divide by the member's median |value| at ID steps: DDPG) or
+            ``zscore`` (subtract its ID mean, divide by its ID std: DQN); ``None``: chosen by the
+            ID trajectories' actions when fitted (integers: ``zscore``).
 
     Example:
         >>> import numpy as np
         >>> from oodmon.agents.estimators import Estimate
-        >>> ids = [Trajectory(np.zeros((3, 3)), np.zeros((2, 1)), pre_squash=np.array([[[1.0], [10.0]]] * 2))]
-        >>> detector = ScaledSpreadDetector().fit(ids)  # member scales 1 and 10
+        >>> ids = [Trajectory(np.zeros((3, 3)), np.zeros((2, 1)), member_values=np.array([[[1.0], [10.0]]] * 2))]
+        >>> detector = ScaledSpreadDetector().fit(ids)  # DDPG: member scales 1 and 10
         >>> est = Estimate(np.zeros((1, 1)), np.zeros((2, 1, 1)), np.zeros((1, 1)), np.zeros((1, 1)),
         ...                pre_squash=np.array([[[1.0]], [[-10.0]]]))
-        >>> round(detector.score(StepContext(np.zeros(3), np.zeros(1), est)), 6)  # outputs 1 and -1: std 1
+        >>> round(detector.score(StepContext(np.zeros(3), np.zeros(1), est)), 6)  # values 1 and -1: std 1
         1.0
     """
 
@@ -49,55 +75,69 @@ class ScaledSpreadDetector(Detector):
     needs_estimate = True
     learned = True
 
-    def __init__(self) -> None:
-        self._scales: np.ndarray | None = None  # (K, n): each member's median |output| at ID steps
+    def __init__(self, normalisation: str | None = None) -> None:
+        if normalisation not in (None, "scale", "zscore"):
+            raise ConfigError(f"normalisation={normalisation!r} is not one of scale, zscore")
+        self.normalisation = normalisation
+        self._location: np.ndarray | None = None  # (K, n): subtracted from each member's values
+        self._scale: np.ndarray | None = None  # (K, n): what they are then divided by
         self._inverse: np.ndarray | None = None
 
     @property
     def fitted(self) -> bool:
-        return self._scales is not None
+        return self._scale is not None
 
     def fit(self, trajectories: Sequence[Trajectory], *, seed: int = 0) -> ScaledSpreadDetector:
-        """Each member's scale: its median |output before the tanh| over the steps of ID ``trajectories``.
+        """Each member's location and scale over the steps of ID ``trajectories``.
 
         Raises:
-            ConfigError: the trajectories carry no outputs before a tanh (the policy has none).
+            ConfigError: the trajectories carry no members' values (the policy is no ensemble of oodmon).
         """
-        if not trajectories or any(t.pre_squash is None for t in trajectories):
-            raise ConfigError("the scaled_spread detector needs an ensemble actor's outputs before its tanh at ID "
-                              "steps; this policy gives none (an oodmon DDPG ensemble does)")
-        outputs = np.concatenate([t.pre_squash for t in trajectories]).astype(np.float64)  # (T, K, n)
-        self._set(np.median(np.abs(outputs), axis=0).astype(np.float32))
+        if not trajectories or any(t.member_values is None for t in trajectories):
+            raise ConfigError("the scaled_spread detector needs an ensemble's members' values at ID steps (an "
+                              "oodmon DQN or DDPG ensemble); this policy gives none")
+        values = np.concatenate([t.member_values for t in trajectories]).astype(np.float64)  # (T, K, n)
+        if self.normalisation is None:
+            discrete = np.asarray(trajectories[0].actions).dtype.kind in "iu"
+            self.normalisation = "zscore" if discrete else "scale"
+        if self.normalisation == "zscore":
+            location, scale = values.mean(axis=0), values.std(axis=0)
+        else:
+            location, scale = np.zeros(values.shape[1:]), np.median(np.abs(values), axis=0)
+        self._set(location.astype(np.float32), scale.astype(np.float32))
         return self
 
-    def _set(self, scales: np.ndarray) -> None:
-        if scales.ndim != 2 or not np.all(np.isfinite(scales)) or np.any(scales < 0):
-            raise ConfigError(f"the scaled_spread detector's scales must be finite, >= 0 and of shape (members, "
-                              f"actions); got shape {scales.shape}")
-        floor = max(SCALE_FLOOR * float(scales.max(initial=0.0)), np.finfo(np.float32).tiny)
-        self._scales = scales
-        self._inverse = (1.0 / np.maximum(scales, floor)).astype(np.float32)
+    def _set(self, location: np.ndarray, scale: np.ndarray) -> None:
+        if (scale.ndim != 2 or location.shape != scale.shape or not np.all(np.isfinite(scale))
+                or not np.all(np.isfinite(location)) or np.any(scale < 0)):
+            raise ConfigError(f"the scaled_spread detector's location and scale must be finite, the scale >= 0, both "
+                              f"of shape (members, values); got shapes {location.shape} and {scale.shape}")
+        floor = max(SCALE_FLOOR * float(scale.max(initial=0.0)), np.finfo(np.float32).tiny)
+        self._location, self._scale = location, scale
+        self._inverse = (1.0 / np.maximum(scale, floor)).astype(np.float32)
 
     def score(self, context: StepContext) -> float:
         self.check_fitted()
-        estimate = context.estimate
-        if estimate is None or estimate.pre_squash is None:
-            raise ConfigError("the scaled_spread detector needs the policy's samples before its tanh (an oodmon "
+        values = member_values(context.estimate) if context.estimate is not None else None
+        if values is None:
+            raise ConfigError("the scaled_spread detector needs an ensemble's members' values (an oodmon DQN or "
                               "DDPG ensemble); this policy gives none")
-        outputs = estimate.pre_squash[:, 0]  # (K, n)
-        if outputs.shape != self._inverse.shape:
+        if values.shape != self._inverse.shape:
             raise ConfigError(f"this scaled_spread detector was fitted on {self._inverse.shape[0]} members of "
-                              f"{self._inverse.shape[1]} action(s); the policy gives {outputs.shape} (another policy?)")
-        return float((outputs * self._inverse).std(axis=0).mean())
+                              f"{self._inverse.shape[1]} value(s); the policy gives {values.shape} (another policy?)")
+        return float(((values - self._location) * self._inverse).std(axis=0).mean())
+
+    def config(self) -> dict[str, Any]:
+        return {"normalisation": self.normalisation}
 
     def tensors(self) -> dict[str, np.ndarray]:
         self.check_fitted()
-        return {"scales": self._scales}
+        return {"location": self._location, "scale": self._scale}
 
     @classmethod
     def from_state(cls, config: Mapping[str, Any], tensors: Mapping[str, np.ndarray]) -> ScaledSpreadDetector:
         detector = cls(**config)
-        if "scales" not in tensors:
-            raise ConfigError("the scaled_spread detector's tensors are incomplete (no scales)")
-        detector._set(np.asarray(tensors["scales"], np.float32))
+        if "scale" not in tensors or "location" not in tensors:
+            raise ConfigError("the scaled_spread detector's tensors are incomplete (it needs location and scale)")
+        detector._set(np.asarray(tensors["location"], np.float32), np.asarray(tensors["scale"], np.float32))
         return detector
