@@ -190,8 +190,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     if "features" in detectors and estimator is None:
         raise ConfigError("the features detector needs the policy's features; a plain policy has none")
     if "scaled_spread" in detectors and not _is_ensemble(estimator):
-        raise ConfigError("the scaled_spread detector scales each ensemble member's output: it needs an oodmon "
-                          "ensemble (MC samples are not members)")
+        raise ConfigError("the scaled_spread detector puts each ensemble member's values on its own ID footing: "
+                          "it needs an oodmon ensemble (MC samples are not members)")
     if "frames" in detectors and len(env.observation_space.shape or ()) < 2:
         raise ConfigError(f"the frames detector needs image observations; this env's are of shape "
                           f"{env.observation_space.shape}")
