@@ -563,7 +563,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     left_out = detectors.for_score(args.score)[1] if detectors is not None else None
     scaled = args.detector == "scaled_spread"
     if (detectors is None and (args.detector not in (None, "spread") or agent.estimator is None or agent.env_id)
-            or (args.detector == "combined" and left_out) or (scaled and args.detector not in (detectors or ()))):
+            or (args.detector == "combined" and left_out) or (scaled and "scaled_spread" not in (detectors or ()))):
         fitted_to = Path(f"{args.out}.detectors")
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
         with _progress() as report:

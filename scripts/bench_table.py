@@ -32,13 +32,11 @@ from oodmon.paper import paper_auc_per_trial  # noqa: E402
 RESULTS = ROOT / "results" / "bench"
 
 
-def _read(path: Path, detector: str = "spread") -> tuple[dict, dict[tuple[str, str | None], dict]]:
-    """The result, and its rows of ``detector`` by (method, the paper's label of the variant)."""
-    data = json.loads(path.read_text())
+def _rows(data: dict, detector: str = "spread") -> dict[tuple[str, str | None], dict]:
+    """A result's rows of ``detector`` by (method, the paper's label of the variant)."""
     task = data["config"]["task"]
-    rows = {(r["method"], paper_label(task, r["method"], r["variant"])): r for r in data["rows"]
+    return {(r["method"], paper_label(task, r["method"], r["variant"])): r for r in data["rows"]
             if r["detector"] == detector}
-    return data, rows
 
 
 def _detectors(config: dict) -> list[str]:
@@ -57,15 +55,15 @@ def table(path: Path) -> str:
         if index:
             lines += ["", f"The `{detector}` detector on the same episodes (fitted per trial on ID episodes of its own):",
                       ""]
-        lines += _detector_table(path, detector)
+        lines += _detector_table(data, detector)
     if data.get("id_returns"):
         lines += ["", _id_return_line(data["id_returns"], config["task"])]
     return "\n".join(lines)
 
 
-def _detector_table(path: Path, detector: str) -> list[str]:
+def _detector_table(data: dict, detector: str) -> list[str]:
     """One detector's rows beside the paper's, and the best means and the variants met under it."""
-    data, rows = _read(path, detector)
+    rows = _rows(data, detector)
     config = data["config"]
     paper = paper_auc_per_trial()[config["task"]]
     lines = ["| method | variant | ours: AUROC mean ± std (trials failing) | paper: mean ± std | AUPR / FPR@95 (ours) "
@@ -125,7 +123,7 @@ def plot(path: Path) -> Path:
     config = data["config"]
     task = config["task"]
     detectors = _detectors(config)
-    rows_of = {detector: _read(path, detector)[1] for detector in detectors}
+    rows_of = {detector: _rows(data, detector) for detector in detectors}
     paper = paper_auc_per_trial()[task]
     methods = [m for m in config["methods"] if paper.get(PAPER_METHOD[m])]
     fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 3.6), sharey=True, squeeze=False)

@@ -22,12 +22,11 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from oodmon.agents.agent import agent_from_modules
-from oodmon.agents.serialization import load_modules
+from oodmon.agents import load_agent
 from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
+from oodmon.monitor.detectors import collect
 from sweep_full_depth import step_auroc  # scripts/: the sweeps' AUROC
 
 SPREADS = {
@@ -40,31 +39,21 @@ SPREADS = {
 def member_outputs(folder: Path, spec: str | None, episodes: int, seed: int) -> np.ndarray:
     """(members, steps): each member's actor output before its tanh at every step of ``episodes``
     episodes of ``spec`` (None: the model's own task; seeds ``seed``, ``seed`` + 1, ...), the
-    ensemble acting.
+    ensemble acting (the members' values ``collect`` keeps for ``scaled_spread``).
 
     Raises:
         ConfigError: the folder's model is not an ensemble of tanh actors with one action.
     """
-    modules, metadata = load_modules(folder)
-    agent = agent_from_modules(modules, metadata, folder)
-    members = list(modules["members"]) if agent.method == "ensemble" and "members" in modules else None
-    if not members or not isinstance(list(members[0])[-1], torch.nn.Tanh) or agent.estimator.n_samples != len(members):
+    agent = load_agent(folder)
+    trajectories = collect(agent, parse_variant(spec or agent.task).make(), episodes, seed=seed,
+                           with_member_values=True)
+    values = [t.member_values for t in trajectories]
+    if any(v is None for v in values) or np.asarray(trajectories[0].actions).dtype.kind in "iu":
         raise ConfigError(f"{folder} is not an ensemble of independent DDPG actors (their outputs end in tanh)")
-    env, states = parse_variant(spec or agent.task).make(), []
-    for k in range(episodes):
-        obs, _ = env.reset(seed=seed + k)
-        done = False
-        while not done:
-            states.append(obs)
-            obs, _, terminated, truncated, _ = env.step(agent.act(obs))
-            done = terminated or truncated
-    env.close()
-    with torch.no_grad():
-        batch = torch.as_tensor(np.asarray(states, np.float32))
-        outputs = [torch.nn.Sequential(*list(member)[:-1])(batch) for member in members]
-    if outputs[0].shape[1] != 1:
-        raise ConfigError(f"{folder}'s actor has {outputs[0].shape[1]} actions; this script reads one")
-    return torch.stack(outputs).numpy()[:, :, 0]
+    outputs = np.concatenate(values)  # (steps, members, actions)
+    if outputs.shape[2] != 1:
+        raise ConfigError(f"{folder}'s actor has {outputs.shape[2]} actions; this script reads one")
+    return outputs[:, :, 0].T
 
 
 def report(id_outputs: np.ndarray, shifted: np.ndarray, scales: np.ndarray | None = None) -> list[str]:

@@ -14,6 +14,7 @@ from oodmon.agents import load, load_agent, zoo_dir
 from oodmon.agents.plan import _Affine, _DropConnect
 from oodmon.agents.serialization import load_modules
 from oodmon.errors import ConfigError
+from oodmon.monitor.detectors import Trajectory
 from tests.helpers import load_script
 
 
@@ -214,14 +215,16 @@ def test_member_normalisations_put_each_member_on_its_own_id_footing(monkeypatch
     script = _load(monkeypatch, tmp_path, "member_normalisations")[0]
     rng = np.random.default_rng(0)
     # Three members: offsets 0, 5, -3 and scales 1, 10, 0.1 at ID steps; member 2 also never moves in one action.
-    fit = rng.normal(0.0, 1.0, (3, 500, 2)) * np.array([1.0, 10.0, 0.1])[:, None, None] + np.array([0.0, 5.0, -3.0])[:, None, None]
-    fit[2, :, 1] = 0.0
-    normalised = script.normalisations(fit)
+    fit = rng.normal(0.0, 1.0, (500, 3, 2)) * np.array([1.0, 10.0, 0.1])[:, None] + np.array([0.0, 5.0, -3.0])[:, None]
+    fit[:, 2, 1] = 0.0
+    normalised = script.normalisations([Trajectory(np.zeros((501, 4)), np.zeros(500, np.int64), member_values=fit)])
+    # The detector keeps its location and scale in float32: equalities to float32 precision.
     z = normalised["(x-mean)/std"](fit)
-    np.testing.assert_allclose(z[:, :, 0].mean(axis=1), 0.0, atol=1e-9)
-    np.testing.assert_allclose(z[:2].std(axis=1), 1.0, rtol=1e-9)
+    np.testing.assert_allclose(z[:, :, 0].mean(axis=0), 0.0, atol=1e-5)
+    np.testing.assert_allclose(z[:, :2].std(axis=0), 1.0, rtol=1e-5)
     assert np.all(np.isfinite(z)) and np.all(np.isfinite(normalised["(x-med)/MAD"](fit)))  # the floor: no 0 division
     robust = normalised["(x-med)/MAD"](fit)[:, :, 0]
-    np.testing.assert_allclose(np.median(np.abs(robust), axis=1), 1.0, rtol=1e-9)
+    np.testing.assert_allclose(np.median(np.abs(robust), axis=0), 1.0, rtol=1e-9)
     scaled = normalised["x/med|x|"](fit)
-    np.testing.assert_allclose(np.median(np.abs(scaled[:, :, 0]), axis=1), 1.0, rtol=1e-9)
+    np.testing.assert_allclose(np.median(np.abs(scaled[:, :, 0]), axis=0), 1.0, rtol=1e-5)
+    assert script.spread(z).shape == (500,)

@@ -96,11 +96,13 @@ def policy_parts(policy: Any) -> tuple[Any, Callable[[np.ndarray], Any], dict]:
 
 
 def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETECTOR_FIT,
-            on_progress: Progress | None = None, max_steps: int | None = None) -> list[Trajectory]:
+            on_progress: Progress | None = None, max_steps: int | None = None,
+            with_member_values: bool = False) -> list[Trajectory]:
     """Play ``episodes`` episodes of ``env`` (seeds ``seed``, ``seed + 1``, ...) with ``policy``
-    (each cut after ``max_steps`` steps if given)."""
+    (each cut after ``max_steps`` steps if given); ``with_member_values``: keep an ensemble's
+    members' values too (what ``scaled_spread`` is fitted on)."""
     estimator, act, _ = policy_parts(policy)
-    ensemble = _is_ensemble(estimator)  # its members' values, for scaled_spread
+    ensemble = with_member_values and _is_ensemble(estimator)
     deploy = getattr(policy, "deploy", None)  # an Agent whose deployed policy is not its estimator's decision
     trajectories = []
     for episode in range(episodes):
@@ -196,7 +198,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         raise ConfigError(f"the frames detector needs image observations; this env's are of shape "
                           f"{env.observation_space.shape}")
     n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) else None
-    trajectories = collect(policy, env, episodes, seed=seed, on_progress=on_progress, max_steps=max_steps)
+    trajectories = collect(policy, env, episodes, seed=seed, on_progress=on_progress, max_steps=max_steps,
+                           with_member_values="scaled_spread" in detectors)
     n_fit = max(1, (2 * episodes) // 3)
     fit, held_out = trajectories[:n_fit], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []

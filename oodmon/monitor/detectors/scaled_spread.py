@@ -125,7 +125,18 @@ class ScaledSpreadDetector(Detector):
         if values.shape != self._inverse.shape:
             raise ConfigError(f"this scaled_spread detector was fitted on {self._inverse.shape[0]} members of "
                               f"{self._inverse.shape[1]} value(s); the policy gives {values.shape} (another policy?)")
-        return float(((values - self._location) * self._inverse).std(axis=0).mean())
+        return float(self.spread(values[None])[0])
+
+    def spread(self, values: np.ndarray) -> np.ndarray:
+        """(T,) scores of (T, K, n) members' values: the std over the members of each member's
+        values on its ID footing, averaged over the n values."""
+        return self.normalised(values).std(axis=1).mean(axis=-1)
+
+    def normalised(self, values: np.ndarray) -> np.ndarray:
+        """(..., K, n) members' values, each member's on its ID footing (its location subtracted,
+        divided by its scale)."""
+        self.check_fitted()
+        return (values - self._location) * self._inverse
 
     def config(self) -> dict[str, Any]:
         return {"normalisation": self.normalisation}
