@@ -12,7 +12,8 @@ The last line is ratio=<worst decision / predict>, over both tasks; the goal is 
 full-depth DropConnect agents do not meet (they drop weights of every layer of every sample: see
 "Full depth" in oodmon/zoo/README.md, and ``benchmarks/dropconnect_floor.py`` for why numpy cannot
 meet it on either task). ``ratio_<task>=`` is each task's worst; ``ratio_output_layer=`` the worst of
-the agents whose sampling stops at the output layer.
+the agents whose sampling stops at the output layer; ``ratio_fixed_masks=`` the worst of the MC
+agents loaded with ``masks="fixed"`` (their sampled decision and the fixed sub-networks' pass).
 """
 
 from __future__ import annotations
@@ -32,14 +33,15 @@ REPEATS = {"cartpole": 2000, "pendulum": 500}
 PLAIN = {"cartpole": DQN, "pendulum": DDPG}
 
 
-def task_figures(task: str) -> tuple[float, dict[str, float], set[str]]:
-    """One plain predict()'s time, each method's decision time by label, and the full-depth labels."""
+def task_figures(task: str) -> tuple[float, dict[str, float], set[str], dict[str, float]]:
+    """One plain predict()'s time, each method's decision time by label, the full-depth labels, and
+    the MC methods' decision times with fixed masks (a second pass beside the sampled decision)."""
     env = gymnasium.make(ENV_IDS[task])
     obs, _ = env.reset(seed=0)
     net_arch = list(recipe_for(task, "ensemble").net_arch)
     plain = PLAIN[task]("MlpPolicy", env, policy_kwargs={"net_arch": net_arch}, seed=0, device="cpu")
     baseline = per_call_us(lambda: plain.predict(obs, deterministic=True), REPEATS[task])
-    figures, full_depth = {}, set()
+    figures, full_depth, fixed = {}, set(), {}
     for method in ("ensemble", "dropout", "dropconnect"):
         recipe = recipe_for(task, method)
         arch = architecture(recipe, env)
@@ -50,22 +52,27 @@ def task_figures(task: str) -> tuple[float, dict[str, float], set[str]]:
         if method != "ensemble" and not recipe.last_only:
             full_depth.add(label)
         figures[label] = per_call_us(lambda: estimator.estimate(obs), REPEATS[task])
-    return baseline, figures, full_depth
+        if method != "ensemble":
+            masked = estimator_for(build_modules(arch), arch, n_samples=recipe.n_samples, masks="fixed", **bounds)
+            fixed[f"{label}, fixed masks"] = per_call_us(lambda: masked.estimate(obs), REPEATS[task])
+    return baseline, figures, full_depth, fixed
 
 
 def main() -> None:
     torch.set_num_threads(1)
-    ratios, output_layer = {}, []
+    ratios, output_layer, fixed_ratios = {}, [], []
     for task in ("cartpole", "pendulum"):
-        baseline, figures, full_depth = task_figures(task)
-        print(f"{task + ' sb3 predict (one plain model)':48s} {baseline:10.1f} us")
-        for label, us in figures.items():
-            print(f"{label:48s} {us:10.1f} us")
+        baseline, figures, full_depth, fixed = task_figures(task)
+        print(f"{task + ' sb3 predict (one plain model)':64s} {baseline:10.1f} us")
+        for label, us in (figures | fixed).items():
+            print(f"{label:64s} {us:10.1f} us")
         ratios[task] = max(figures.values()) / baseline
         output_layer += [us / baseline for label, us in figures.items() if label not in full_depth]
+        fixed_ratios += [us / baseline for us in fixed.values()]
     for task, ratio in ratios.items():
         print(f"ratio_{task}={ratio:.2f}")
     print(f"ratio_output_layer={max(output_layer):.2f}")
+    print(f"ratio_fixed_masks={max(fixed_ratios):.2f}")
     print(f"ratio={max(ratios.values()):.2f}")
 
 

@@ -340,6 +340,10 @@ def _parser() -> argparse.ArgumentParser:
                        help="MC samples per decision of the Dropout and DropConnect agents (default: each recipe's, "
                             "20); the decisions are their mean, so episodes change too, and a decision costs more "
                             "(CartPole DropConnect: 0.3 ms at K=20, 9 ms at K=400)")
+    bench.add_argument("--masks", choices=["sampled", "fixed"],
+                       help="MC masks of the Dropout and DropConnect agents (default: each model's, sampled): fixed "
+                            "draws K masks once, so that sample k is the same sub-network at every decision "
+                            "(the decisions change too)")
     bench.add_argument("--members", type=_whole(2), metavar="K",
                        help="members of each ensemble trial (default: the recipe's, 5); another size trains every "
                             "trial, trial 0 too (member k has the same seed at any size: members trained before are "
@@ -527,6 +531,10 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
                         help="a shipped agent (or give --model)" if defaults_from is None
                         else f"a shipped agent (default: {defaults_from} method, unless --model)")
     parser.add_argument("--model", help="a trained model directory instead of a shipped agent")
+    parser.add_argument("--masks", choices=["sampled", "fixed"],
+                        help="an MC agent's masks: sampled anew at every decision, or fixed: K masks drawn once, so "
+                             "that the spread is that of K fixed sub-networks (the decision is still the mean of sampled "
+                             "masks). Default: the threshold file's, if it records them, else the model's (sampled)")
     _sb3_arguments(parser)
     parser.add_argument("--detectors", metavar="DIR",
                         help="fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside "
@@ -627,6 +635,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.rrd:
         check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
     threshold = Threshold.load(args.threshold) if args.threshold else None
+    args.masks = args.masks or (threshold.masks if threshold is not None else None)
     agent = _load_agent(args)
     if args.variant:
         variant = parse_variant(args.variant)
@@ -810,7 +819,8 @@ def _bench(args: argparse.Namespace) -> int:
                          confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
                          all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean,
-                         samples=args.samples, members=args.members, fit_episodes=args.fit_episodes)
+                         samples=args.samples, members=args.members, fit_episodes=args.fit_episodes,
+                         masks=args.masks)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result
     from oodmon.outputs import check_output_dir, check_output_file
@@ -880,6 +890,7 @@ def _validate(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.threshold} does not record its task; give --task")
     if args.model is None and not args.sb3:
         args.method = args.method or threshold.method
+    args.masks = args.masks or threshold.masks
     agent = _load_agent(args, seed=args.seed)  # the same --seed, the same count, for MC agents too
     detectors = _detectors(args, agent)
     with _progress() as report:
@@ -917,6 +928,8 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
             raise ConfigError("--sb3 needs --env: the gymnasium env id the models act in (e.g. CartPole-v1)")
         if getattr(args, "model", None) or getattr(args, "method", None):
             raise ConfigError("--sb3 is instead of --model and --method: give one of them")
+        if getattr(args, "masks", None) == "fixed":
+            raise ConfigError("--masks fixed is for oodmon's Dropout and DropConnect agents, not --sb3 models")
         agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed)
         if args.task and args.task != agent.task:
             raise ConfigError(f"--task {args.task} contradicts --env {args.env} (task {agent.task})")
@@ -926,11 +939,12 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
         raise ConfigError("--env and --mean go with --sb3 (your own SB3 models)")
     if not args.task:
         raise ConfigError("give --task with --method or --model (or --sb3 with --env for your own SB3 models)")
+    masks = getattr(args, "masks", None)
     if args.model:
-        return load_agent(args.model, task=args.task, seed=seed)
+        return load_agent(args.model, task=args.task, seed=seed, masks=masks)
     if not args.method:
         raise ConfigError("give --method for a shipped agent, or --model DIR for a trained one")
-    return load(args.task, args.method, seed=seed)
+    return load(args.task, args.method, seed=seed, masks=masks)
 
 
 def _evaluate(args: argparse.Namespace) -> int:

@@ -81,8 +81,11 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
     keys = {base.cache_key()} | {BenchConfig("cartpole", ("dropout",), 1, **change).cache_key() for change in (
         {"far": 0.1}, {"calibration_episodes": 50}, {"window": 5}, {"score": "max_std"}, {"obs_noise": 0.01},
         {"confidence": None}, {"confidence": 0.8},
-        {"detectors": ("spread", "dynamics")}, {"detectors": ("spread", "dynamics"), "alarm_detector": "dynamics"})}
-    assert len(keys) == 10
+        {"detectors": ("spread", "dynamics")}, {"detectors": ("spread", "dynamics"), "alarm_detector": "dynamics"},
+        {"masks": "fixed"}, {"masks": "sampled"})}
+    assert len(keys) == 12  # sampled masks given is another key too: the model's own masks might be fixed
+    with pytest.raises(ConfigError, match="masks='frozen'"):
+        BenchConfig("cartpole", ("dropout",), 1, masks="frozen")
     # Learned detectors fitted by an older oodmon (another fitting version) are not reused either
     from oodmon.monitor.detectors import fitting
 

@@ -89,7 +89,7 @@ class Agent:
 
 
 def load_agent(directory: str | Path, *, task: str | None = None, n_samples: int | None = None,
-               seed: int | None = None) -> Agent:
+               seed: int | None = None, masks: str | None = None) -> Agent:
     """Load an agent saved by training (``model.json`` + ``model.safetensors``).
 
     Args:
@@ -97,16 +97,18 @@ def load_agent(directory: str | Path, *, task: str | None = None, n_samples: int
         task: if given, refuse another task's model.
         n_samples: MC samples per decision (default: the recipe's); ignored by ensembles.
         seed: seeds MC sampling (see :class:`~oodmon.agents.estimators.MCEstimator`).
+        masks: ``"sampled"`` or ``"fixed"`` MC masks (default: the model's ``masks``, else
+            sampled; see :class:`~oodmon.agents.estimators.MCEstimator`); ignored by ensembles.
 
     Raises:
         ModelFormatError: a missing, damaged or mismatched model (see ``serialization``).
     """
     modules, metadata = load_modules(directory, task=task)
-    return agent_from_modules(modules, metadata, directory, n_samples=n_samples, seed=seed)
+    return agent_from_modules(modules, metadata, directory, n_samples=n_samples, seed=seed, masks=masks)
 
 
 def agent_from_modules(modules: Any, metadata: dict[str, Any], directory: str | Path, *, n_samples: int | None = None,
-                       seed: int | None = None) -> Agent:
+                       seed: int | None = None, masks: str | None = None) -> Agent:
     """The agent of modules and metadata as :func:`~oodmon.agents.serialization.load_modules` gives
     them (its architecture, MC samples and action bounds read from the metadata), loaded from
     ``directory``. :func:`load_agent` is this after ``load_modules``; call it yourself to change
@@ -115,6 +117,7 @@ def agent_from_modules(modules: Any, metadata: dict[str, Any], directory: str | 
     estimator = estimator_for(
         modules, metadata["architecture"], n_samples=n_samples or metadata.get("n_samples", 20), seed=seed,
         action_low=metadata.get("action_low"), action_high=metadata.get("action_high"),
+        masks=masks or metadata.get("masks", "sampled"),
     )
     return Agent(estimator, metadata, Path(directory))
 
@@ -130,7 +133,8 @@ def zoo_names() -> list[str]:
     return sorted(p.name for p in root.iterdir() if (p / "model.json").is_file()) if root.is_dir() else []
 
 
-def load(task: str, method: str, *, n_samples: int | None = None, seed: int | None = None) -> Agent:
+def load(task: str, method: str, *, n_samples: int | None = None, seed: int | None = None,
+         masks: str | None = None) -> Agent:
     """Load a shipped agent by task and method.
 
     Raises:
@@ -147,6 +151,6 @@ def load(task: str, method: str, *, n_samples: int | None = None, seed: int | No
         shipped = ", ".join(zoo_names()) or "none yet"
         raise UnknownParameterError(f"no shipped agent {name!r}; the zoo has: {shipped}")
     try:
-        return load_agent(directory, task=task, n_samples=n_samples, seed=seed)
+        return load_agent(directory, task=task, n_samples=n_samples, seed=seed, masks=masks)
     except ModelFormatError as error:
         raise ModelFormatError(f"the shipped agent {name!r} is damaged: {error}") from None

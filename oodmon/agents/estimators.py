@@ -34,13 +34,17 @@ from torch import nn
 from torch.nn.modules.module import _global_forward_hooks, _global_forward_pre_hooks
 
 from oodmon.agents.layers import DropConnectLinear, is_mode_free, is_stochastic, mc_sampling
-from oodmon.agents.plan import Op, StackedAffine, compile_layers, ends_with_tanh, repeat_rows, run
+from oodmon.agents.plan import Op, StackedAffine, compile_layers, ends_with_tanh, fix_masks, repeat_rows, run
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.validation import is_whole
 
-__all__ = ["EnsembleEstimator", "Estimate", "MCEstimator", "UncertaintyEstimator"]
+__all__ = ["MASKS", "EnsembleEstimator", "Estimate", "MCEstimator", "UncertaintyEstimator"]
 
 Kind = Literal["q_values", "actions"]
+#: How an MC estimator draws its masks: ``sampled`` anew at every decision (MC Dropout and
+#: DropConnect as the paper samples them), or ``fixed``: K masks drawn once, so that sample k is the
+#: same sub-network at every decision (see :class:`MCEstimator`).
+MASKS = ("sampled", "fixed")
 
 
 @dataclass(frozen=True)
@@ -49,7 +53,9 @@ class Estimate:
 
     Attributes:
         action: the deployed action per observation: (batch,) int64 for DQN, (batch, action_dim)
-            float32 for DDPG (in the env's action units).
+            float32 for DDPG (in the env's action units). The decision of the samples' mean, but
+            for an MC estimator with fixed masks: there it is the mean of K freshly sampled masks
+            (the paper's MC decision), and the samples are the K fixed sub-networks'.
         samples: (K, batch, n) Q-values (DQN) or actions (DDPG).
         mean: (batch, n) the mean over the K samples.
         std: (batch, n) the standard deviation over the K samples (population, ddof=0).
@@ -80,7 +86,8 @@ class UncertaintyEstimator:
 
     Subclasses implement :meth:`_sample`, which maps a float32 batch of observations
     (batch, *obs_shape) to samples (K, batch, n) as a numpy array, and may set
-    ``self._features`` to the batch's deterministic features on the way (see :class:`Estimate`).
+    ``self._features`` to the batch's deterministic features on the way (see :class:`Estimate`),
+    and ``self._decision`` to other samples of the same shape that the action is decided from.
     """
 
     kind: Kind
@@ -123,19 +130,23 @@ class UncertaintyEstimator:
                 f"observations of shape {batch.shape[1:]} are not allowed; this estimator takes {self.obs_shape} "
                 "(one observation) or (batch, *that)"
             )
-        self._features = None
+        self._features = self._decision = None
         samples = self._sample(batch)
         features, self._features = self._features, None
+        decision, self._decision = self._decision, None
         pre_squash_std = pre_squash = None
         if self._squash:
             pre_squash, pre_squash_std = samples, _std(samples)
             samples = np.tanh(samples)
-        if self.kind == "actions":
-            samples = samples * self._scale + self._offset
+        samples = self._to_action_units(samples)
         mean = _mean(samples)
         std = _std(samples, mean)
-        action = mean.argmax(axis=1) if self.kind == "q_values" else mean
+        decided = mean if decision is None else _mean(self._to_action_units(np.tanh(decision) if self._squash else decision))
+        action = decided.argmax(axis=1) if self.kind == "q_values" else decided
         return Estimate(action, samples, mean, std, pre_squash_std, features, pre_squash)
+
+    def _to_action_units(self, samples: np.ndarray) -> np.ndarray:
+        return samples * self._scale + self._offset if self.kind == "actions" else samples
 
     def _sample(self, batch: np.ndarray) -> np.ndarray:
         raise NotImplementedError
@@ -258,10 +269,24 @@ class MCEstimator(UncertaintyEstimator):
         action_low, action_high: the action space's bounds, for ``kind="actions"``.
         seed: seeds the estimator's generator: the same seed gives the same samples. Sampling
             never touches torch's global generator.
+        masks: ``"sampled"`` (new masks at every decision) or ``"fixed"``: the K samples come
+            from K masks drawn once, from ``mask_seed``, so that sample k drops the same units
+            or weights at every decision (common random numbers). Each decision's samples have
+            the same distribution as sampled ones, but their spread moves with the state alone,
+            not with the draw. The action is still decided by the mean of K freshly sampled
+            masks (the deployed policy does not change, at the cost of a second pass): decided
+            by the fixed sub-networks themselves, the shifted episodes change too, and how well
+            the spread separates them with them (README, "Fixed masks"). Needs an
+            ``nn.Sequential`` network (the numpy path).
+        mask_seed: seeds the fixed masks (not the sampling ``seed``): the same weights and
+            mask seed give the same K sub-networks in every process, which a threshold
+            calibrated on them relies on.
 
     Raises:
         ConfigError: the network has no dropout or DropConnect layer to sample, or layers after
-            the first stochastic one other than linear layers, ReLU/Tanh and dropout/DropConnect.
+            the first stochastic one other than linear layers, ReLU/Tanh and dropout/DropConnect;
+            fixed masks for a network that is not an ``nn.Sequential``.
+        InvalidParameterError: ``masks`` not one of :data:`MASKS`.
 
     Example:
         >>> from oodmon.agents.layers import add_dropout
@@ -281,8 +306,12 @@ class MCEstimator(UncertaintyEstimator):
         action_low: Sequence[float] | None = None,
         action_high: Sequence[float] | None = None,
         seed: int | None = None,
+        masks: str = "sampled",
+        mask_seed: int = 0,
     ) -> None:
         super().__init__(kind, obs_shape, action_low, action_high)
+        if masks not in MASKS:
+            raise InvalidParameterError(f"masks={masks!r} is not allowed; use {' or '.join(map(repr, MASKS))}")
         stochastic = [m for m in network.modules() if is_stochastic(m)]
         if not stochastic:
             raise ConfigError(
@@ -293,10 +322,12 @@ class MCEstimator(UncertaintyEstimator):
             raise InvalidParameterError(f"n_samples={n_samples!r} is not allowed; it must be an integer >= 2")
         self.network = network
         self.n_samples = n_samples
+        self.masks = masks
         self._rng = np.random.default_rng(seed)
         self._torch_prefix: _TorchPart | None = None
         self._prefix: list[Op] | None = None
         self._suffix: list[Op] | None = None
+        self._fixed: list[Op] | None = None  # the suffix with its masks drawn once (masks="fixed")
         if isinstance(network, nn.Sequential):
             layers = list(network)
             first = next(i for i, m in enumerate(layers) if any(is_stochastic(x) for x in m.modules()))
@@ -313,6 +344,10 @@ class MCEstimator(UncertaintyEstimator):
             self._torch_prefix = _TorchPart(network[:start]) if start > 0 else None
             if kind == "actions" and ends_with_tanh(self._suffix):
                 self._suffix, self._squash = self._suffix[:-1], True  # tanh applied in estimate()
+            self._fixed = fix_masks(self._suffix, n_samples, np.random.default_rng(mask_seed)) if masks == "fixed" else None
+        elif masks == "fixed":
+            raise ConfigError(f"fixed masks need an nn.Sequential network (its layers compiled to numpy); got a "
+                              f"{type(network).__name__}")
         elif any(isinstance(m, DropConnectLinear) for m in stochastic):
             raise ConfigError(
                 "DropConnect needs an nn.Sequential network (so each sample draws its own weight mask); "
@@ -326,7 +361,11 @@ class MCEstimator(UncertaintyEstimator):
         hidden = run(self._prefix, hidden, self._rng)
         self._features = hidden.reshape(hidden.shape[0], -1)
         repeated = repeat_rows(hidden, self.n_samples)
-        return run(self._suffix, repeated, self._rng).astype(np.float32, copy=False)
+        sampled = run(self._suffix, repeated, self._rng).astype(np.float32, copy=False)
+        if self._fixed is None:
+            return sampled
+        self._decision = sampled
+        return run(self._fixed, repeated, self._rng).astype(np.float32, copy=False)
 
     def _sample_torch(self, batch: np.ndarray) -> np.ndarray:
         repeated = np.broadcast_to(batch, (self.n_samples, *batch.shape)).reshape(-1, *batch.shape[1:])

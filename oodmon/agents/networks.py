@@ -162,13 +162,15 @@ def modules_from_sb3(models: Sequence[Any], arch: Architecture | Mapping[str, An
 
 
 def estimator_for(modules: nn.Module, arch: Architecture | Mapping[str, Any], n_samples: int = 20, seed: int | None = None,
-                  action_low: Sequence[float] | None = None, action_high: Sequence[float] | None = None) -> UncertaintyEstimator:
-    """The estimator that samples ``modules`` (from :func:`build_modules` or :func:`modules_from_sb3`)."""
+                  action_low: Sequence[float] | None = None, action_high: Sequence[float] | None = None,
+                  masks: str = "sampled") -> UncertaintyEstimator:
+    """The estimator that samples ``modules`` (from :func:`build_modules` or :func:`modules_from_sb3`);
+    ``masks``: an MC estimator's (:class:`~oodmon.agents.estimators.MCEstimator`), ignored by ensembles."""
     arch = Architecture.of(arch)
     kind = "q_values" if arch.algorithm == "dqn" else "actions"
     common = dict(obs_shape=arch.obs_shape, action_low=action_low, action_high=action_high)
     if arch.n_members == 1:
-        return MCEstimator(modules["network"].eval(), n_samples, kind, seed=seed, **common)
+        return MCEstimator(modules["network"].eval(), n_samples, kind, seed=seed, masks=masks, **common)
     return EnsembleEstimator(list(modules["members"]), kind, torso=modules["torso"], **common)
 
 

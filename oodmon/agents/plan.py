@@ -22,7 +22,7 @@ from torch import nn
 from oodmon.agents.layers import DropConnectLinear
 
 __all__ = ["Op", "StackedAffine", "active_inputs", "bernoulli_positions", "compile_layers", "ends_with_tanh",
-           "repeat_rows", "run"]
+           "fix_masks", "repeat_rows", "run"]
 
 
 class Op:
@@ -131,10 +131,16 @@ def _minus_dropped(full: np.ndarray, x: np.ndarray, weight_t: np.ndarray, p: flo
     Each of the K x in x out weights is dropped independently with probability ``p``, as a dense
     mask would drop it: the same distribution of outputs, from about p * K * in * out random numbers.
     """
-    n_rows, batch, n_in = x.shape
-    n_out = weight_t.shape[1]
+    n_rows, _, n_in = x.shape
+    dropped = bernoulli_positions(rng, n_rows * n_in * weight_t.shape[1], p)
+    return _subtract(full, x, *_dropped_terms(dropped, weight_t))
+
+
+def _dropped_terms(dropped: np.ndarray, weight_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each dropped weight (position ``(row * in + source) * out + target``) takes its input
+    from (``row * in + source``), where its term goes (``row * out + target``), and its value."""
+    n_in, n_out = weight_t.shape
     block = n_in * n_out
-    dropped = bernoulli_positions(rng, n_rows * block, p)  # (row * n_in + source) * n_out + target
     if n_out & (n_out - 1) == 0:  # a power of two (the MLPs' 256 and 2 outputs): shifts, not a division
         pair, target = dropped >> (n_out.bit_length() - 1), dropped & (n_out - 1)
     else:
@@ -143,6 +149,13 @@ def _minus_dropped(full: np.ndarray, x: np.ndarray, weight_t: np.ndarray, p: flo
     weights = weight_t.ravel()[dropped - row * block]
     slots = row * n_out
     slots += target
+    return pair, slots, weights
+
+
+def _subtract(full: np.ndarray, x: np.ndarray, pair: np.ndarray, slots: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``full`` (K or 1, batch, out) less the dropped weights' terms (:func:`_dropped_terms`) of x (K, batch, in)."""
+    n_rows, batch, n_in = x.shape
+    n_out = full.shape[-1]
     if batch == 1:  # the monitor's case: no batch axis to move (the same terms, summed in the same order)
         terms = x.reshape(n_rows * n_in)[pair]
         terms *= weights
@@ -181,6 +194,68 @@ def bernoulli_positions(rng: np.random.Generator, size: int, p: float) -> np.nda
         expected = (size - end) * p
     positions = chunks[0] if len(chunks) == 1 else np.concatenate(chunks)
     return positions[: positions.searchsorted(size)]
+
+
+class _FixedDropConnect(_Affine):
+    """A DropConnect layer whose K weight masks were drawn once: row k of (K, batch, in) drops the
+    same weights at every call (sample k is one fixed sub-network)."""
+
+    def __init__(self, layer: _DropConnect, k: int, rng: np.random.Generator) -> None:
+        self.weight_t, self.bias, self.k = layer.scaled_weight_t, layer.bias, k
+        n_in, n_out = self.weight_t.shape
+        self.dropped = self.masked = None
+        if layer.p < SPARSE_BELOW:  # the dropped weights' terms, at positions drawn as the sampled layer draws them
+            self.dropped = _dropped_terms(bernoulli_positions(rng, k * n_in * n_out, float(layer.p)), self.weight_t)
+        else:
+            self.masked = self.weight_t * (rng.random((k, n_in, n_out), dtype=np.float32) >= layer.p)
+
+    def __call__(self, x, rng):
+        if x.shape[0] != self.k:
+            raise ValueError(f"this layer's masks are fixed for {self.k} rows; got {x.shape[0]}")
+        if self.masked is not None:
+            return np.matmul(x, self.masked) + self.bias
+        full = np.matmul(x[:1] if x.strides[0] == 0 else x, self.weight_t)
+        return _subtract(full, x, *self.dropped) + self.bias
+
+
+class _FixedDropout(Op):
+    """Dropout whose K unit masks were drawn once (on the first call, when the width is known, from
+    a generator of their own): row k of (K, batch, features) drops the same units at every call."""
+
+    def __init__(self, layer: _Dropout, k: int, rng: np.random.Generator) -> None:
+        self.p, self.scale, self.k = layer.p, layer.scale, k
+        self._rng = np.random.default_rng(rng.integers(2**63))
+        self.keep: np.ndarray | None = None  # (K, 1, features), the scale folded in
+
+    def __call__(self, x, rng):
+        if self.keep is None:
+            keep = self._rng.random((self.k, 1, x.shape[-1]), dtype=np.float32) >= self.p
+            self.keep = keep * self.scale
+        return x * self.keep
+
+
+def fix_masks(ops: Sequence[Op], k: int, rng: np.random.Generator) -> list[Op]:
+    """``ops`` with the masks of their dropout and DropConnect layers drawn once from ``rng``, K of
+    each: applied to K rows (K, batch, in), row k is the same sub-network at every call. Each mask
+    has the sampled layer's distribution; only the draws are shared between calls (common random
+    numbers), so the spread over the K rows changes with the input alone, not with the draw.
+
+    Example:
+        >>> from oodmon.agents.layers import DropConnectLinear
+        >>> ops = fix_masks(compile_layers([DropConnectLinear(3, 2, p=0.5)]), 4, np.random.default_rng(0))
+        >>> x = repeat_rows(np.ones((1, 3), np.float32), 4)
+        >>> bool((run(ops, x, None) == run(ops, x, None)).all())
+        True
+    """
+    fixed: list[Op] = []
+    for op in ops:
+        if isinstance(op, _DropConnect):
+            fixed.append(_FixedDropConnect(op, k, rng))
+        elif isinstance(op, _Dropout):
+            fixed.append(_FixedDropout(op, k, rng))
+        else:
+            fixed.append(op)
+    return fixed
 
 
 class _Function(Op):

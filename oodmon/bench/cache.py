@@ -32,14 +32,14 @@ class Sb3Models:
         return ", ".join(self.paths)
 
 
-def _bench_agent(source: str | Sb3Models, task: str, seed: int, n_samples: int | None = None):
+def _bench_agent(source: str | Sb3Models, task: str, seed: int, n_samples: int | None = None, masks: str | None = None):
     """The agent of a model directory or of SB3 model files, its MC sampling seeded (``n_samples``
-    per decision: None, the recipe's)."""
+    per decision and ``masks``: None, the model's)."""
     if isinstance(source, Sb3Models):
         from oodmon.agents.sb3 import load_sb3
 
         return load_sb3(source.paths, source.env_id, mean=source.mean, seed=seed)
-    return load_agent(source, task=task, seed=seed, n_samples=n_samples)
+    return load_agent(source, task=task, seed=seed, n_samples=n_samples, masks=masks)
 
 
 def _weights_sha256(source: Path | Sb3Models) -> str:
@@ -191,7 +191,7 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
     threshold_path, failing_path = folder / f"threshold-{config.cache_key()}.json", folder / "failing.json"
     # Seeded MC sampling (as `oodmon calibrate --seed`): the same bench fits the same detectors and
     # calibrates the same threshold; unseeded, an MC agent's threshold varied from run to run.
-    agent = _bench_agent(model, config.task, seeds.CALIBRATION, config.samples)
+    agent = _bench_agent(model, config.task, seeds.CALIBRATION, config.samples, config.masks)
     if "spread" in config.detectors and agent.estimator is None:
         raise ConfigError(f"{method} has no samples of its own (one model, or a kind oodmon does not sample): "
                           f"drop spread from the detectors")

@@ -28,17 +28,17 @@ def episode_onset(onsets: tuple[int, int], seed: int) -> int:
 
 def _run_cell(task: str, model: str | Sb3Models, threshold: str, spec: str, episodes: int, seed: int, log: str,
               detectors: str | None = None, obs_noise: float = 0.0, onsets: tuple[int, int] | None = None,
-              n_samples: int | None = None) -> str:
+              n_samples: int | None = None, masks: str | None = None) -> str:
     """One cell, in a worker process: monitored episodes of one variant into one MCAP log.
     ``onsets``: each shifted episode shifts at a random step in this range (the monitor's protocol);
-    ``n_samples``: an MC agent's samples per decision (None: its recipe's)."""
+    ``n_samples``, ``masks``: an MC agent's samples per decision and masks (None: its model's)."""
     import torch
 
     from oodmon.monitor import McapSink, Monitor, Threshold
     from oodmon.monitor.detectors import DetectorSet
 
     torch.set_num_threads(1)
-    agent = _bench_agent(model, task, seed, n_samples)  # seeded MC sampling: the same cell, the same log
+    agent = _bench_agent(model, task, seed, n_samples, masks)  # seeded MC sampling: the same cell, the same log
     variant = parse_variant(spec)
     env = variant.make(obs_noise=obs_noise) if obs_noise else variant.make()
     temporary = Path(log).with_suffix(".part")

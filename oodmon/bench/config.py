@@ -64,6 +64,7 @@ class BenchConfig:
     mean: bool = False  # deploy the sb3 ensemble's mean decision, not the first model's
     samples: int | None = None  # MC samples per decision of Dropout and DropConnect agents (None: each one's recipe)
     members: int | None = None  # members of each ensemble trial (None: the recipe's; others train trial 0 too)
+    masks: str | None = None  # MC masks of Dropout and DropConnect agents: sampled or fixed (None: each model's)
 
     def __post_init__(self) -> None:
         from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -93,6 +94,11 @@ class BenchConfig:
         if self.samples is not None and (self.samples < 2 or self.sb3):
             raise ConfigError(f"samples={self.samples}: MC samples per decision of oodmon's Dropout and DropConnect "
                               "agents, 2 or more (not for --sb3 models)")
+        from oodmon.agents.estimators import MASKS
+
+        if self.masks is not None and (self.masks not in MASKS or self.sb3):
+            raise ConfigError(f"masks={self.masks!r}: the MC masks of oodmon's Dropout and DropConnect agents, "
+                              f"{' or '.join(MASKS)} (not for --sb3 models)")
         if self.members is not None and (self.members < 2 or self.sb3 or "ensemble" not in self.methods):
             raise ConfigError(f"members={self.members}: the size of oodmon's ensembles, 2 or more, for a bench of the "
                               "ensemble method (not for --sb3 models)")
@@ -137,7 +143,7 @@ class BenchConfig:
     def cache_key(self) -> str:
         """What the cached thresholds and logs of a (method, trial) depend on beyond the weights:
         score, alarm rule, target rate and confidence, calibration episodes, detectors (the version
-        of their fitting and the episodes they are fitted on), sensor noise and MC samples per decision."""
+        of their fitting and the episodes they are fitted on), sensor noise, MC samples per decision and masks."""
         parts = [self.score, f"far{self.far:g}", f"n{self.calibration_episodes}",
                  "marginal" if self.confidence is None else f"conf{self.confidence:g}"]
         if self.window != 1:
@@ -156,6 +162,8 @@ class BenchConfig:
             parts.append(f"noise{self.obs_noise:g}")
         if self.samples is not None:
             parts.append(f"k{self.samples}")
+        if self.masks is not None:
+            parts.append(f"{self.masks}-masks")
         return "-".join(parts)
 
     def what_made_the_numbers(self) -> dict:

@@ -85,7 +85,8 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
             model, threshold, _, detectors = prepared[(method, trial)]
             jobs.append((config.task, model if isinstance(model, Sb3Models) else str(model), str(threshold), spec, episodes, seed, str(log),
                          None if detectors is None else str(detectors), config.obs_noise,
-                         ONSETS[config.task] if config.protocol == "monitor" else None, config.samples))
+                         ONSETS[config.task] if config.protocol == "monitor" else None, config.samples,
+                         config.masks))
     done = len(cells) - len(jobs)
     report("monitored cells", done, len(cells))
     for _ in _execute(jobs, config, workers):

@@ -153,7 +153,8 @@ class Monitor:
                                   f"{threshold.detector!r}")
             meta = self.agent.metadata if self.agent is not None else {}
             differences = threshold.check_matches(task=meta.get("task"), method=meta.get("method"),
-                                                  score=threshold.score, policy_hash=self.policy_hash)
+                                                  score=threshold.score, policy_hash=self.policy_hash,
+                                                  masks=getattr(self.estimator, "masks", None))
             self._refuse_or_warn("the threshold", differences, force)
             score, consecutive, value = threshold.score, threshold.consecutive, threshold.value
             window, detector = threshold.window, threshold.detector
@@ -197,7 +198,8 @@ class Monitor:
     def _detector_set(self, detectors: DetectorSet | Sequence[Detector] | None, alarm: str | None,
                       force: bool) -> DetectorSet:
         """The detectors to run: those given, with ``spread`` (of ``score``) whenever the policy has samples
-        (and without a fitted ``combined`` that ranks another spread score, unless the ``alarm`` reads it: refused)."""
+        (and without a fitted ``combined`` that ranks another spread score, or detectors fitted on another
+        kind of MC masks (:meth:`DetectorSet.for_masks`), unless the ``alarm`` reads them: refused)."""
         chosen = detectors if isinstance(detectors, DetectorSet) else DetectorSet(list(detectors or ()))
         if self.estimator is not None and "spread" not in chosen:
             chosen = chosen.with_detector(SpreadDetector(self.score_name))
@@ -205,6 +207,9 @@ class Monitor:
             chosen, left_out = chosen.for_score(self.score_name)
             if alarm == "combined" and left_out:
                 raise ConfigError(f"the alarm reads the combined detector, but {left_out}")
+        chosen, other_masks = chosen.for_masks(getattr(self.estimator, "masks", None))
+        if alarm is not None and alarm != "spread" and alarm not in chosen and other_masks:
+            raise ConfigError(f"the alarm reads the {alarm} detector, but {other_masks}")
         if self.estimator is None:
             needing = [d.name for d in chosen if d.needs_estimate]
             if needing:

@@ -158,6 +158,9 @@ class Threshold:
         reference: a sequential rule's ID reference scores, pooled or by time since reset
             (:meth:`~oodmon.monitor.sequential.Reference.to_dict`), from episodes apart from the
             calibration ones; ``None`` for ``consecutive``.
+        masks: the MC masks of the policy it was calibrated on, ``sampled`` or ``fixed`` (the
+            spread of fixed sub-networks is another score's scale); ``None``: not an MC policy,
+            or not recorded.
     """
 
     value: float
@@ -177,6 +180,7 @@ class Threshold:
     rank: int | None = None
     rule: str = "consecutive"
     reference: dict[str, Any] | None = field(default=None, repr=False)
+    masks: str | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -235,7 +239,8 @@ class Threshold:
         except ConfigError as error:
             raise type(error)(f"threshold file {path}: {error}") from None
 
-    def check_matches(self, *, task: str | None, method: str | None, score: str, policy_hash: str | None) -> list[str]:
+    def check_matches(self, *, task: str | None, method: str | None, score: str, policy_hash: str | None,
+                      masks: str | None = None) -> list[str]:
         """How this threshold differs from the policy and score it is about to be used with: one
         line per difference (empty: it matches). A field not recorded on either side is not compared.
 
@@ -246,7 +251,7 @@ class Threshold:
         """
         found = []
         for name, mine, theirs in (("task", self.task, task), ("method", self.method, method),
-                                   ("score", self.score, score)):
+                                   ("score", self.score, score), ("masks", self.masks, masks)):
             if mine is not None and theirs is not None and mine != theirs:
                 found.append(f"it was calibrated for {name} {mine!r}, not {theirs!r}")
         if self.policy_hash and policy_hash and policy_hash != "unknown" and self.policy_hash != policy_hash:
@@ -293,6 +298,8 @@ def _check_fields(threshold: Threshold) -> None:
             raise bad(name, "it must be a string or null")
     if not isinstance(threshold.quantiles, dict):
         raise bad("quantiles", "it must be an object of numbers")
+    if threshold.masks not in (None, "sampled", "fixed"):  # oodmon.agents.estimators.MASKS (torch not loaded here)
+        raise bad("masks", "use 'sampled', 'fixed' or null")
 
 
 def calibrate(

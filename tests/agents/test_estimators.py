@@ -309,3 +309,74 @@ def test_active_inputs_of_one_observation_follow_the_batch_rule():
     np.testing.assert_array_equal(active_inputs(repeat_rows(x, 4)), [1, 3, 5])
     two = np.vstack([x, [[1.0, 0, 0, 0, 0, 0]]]).astype(np.float32)
     np.testing.assert_array_equal(active_inputs(repeat_rows(two, 4)), [0, 1, 3, 5])
+
+
+def _deep(method: str, p: float, tanh: bool = False) -> nn.Sequential:
+    """A two-hidden-layer MLP sampled at full depth: dropout after each hidden layer, or DropConnect."""
+    torch.manual_seed(0)
+    mlp = nn.Sequential(nn.Linear(4, 64), nn.ReLU(), nn.Linear(64, 64), nn.ReLU(), nn.Linear(64, 1 if tanh else 2),
+                        *([nn.Tanh()] if tanh else []))
+    return add_dropout(mlp, p) if method == "dropout" else to_dropconnect(mlp, p)
+
+
+@pytest.mark.parametrize("p", [0.3, 0.02], ids=["dense-mask", "dropped-positions"])
+@pytest.mark.parametrize("method", ["dropout", "dropconnect"])
+def test_fixed_masks_are_the_same_sub_networks_at_every_decision(method, p):
+    # Sample k is one sub-network: calling twice, or building the estimator again with another
+    # sampling seed, gives the same samples; another mask seed gives other ones. One observation at a
+    # time gives what the batch gives.
+    network = _deep(method, p)
+    fixed = MCEstimator(network, n_samples=8, seed=0, masks="fixed")
+    first = fixed.estimate(OBS).samples
+    np.testing.assert_array_equal(fixed.estimate(OBS).samples, first)
+    np.testing.assert_array_equal(MCEstimator(network, n_samples=8, seed=5, masks="fixed").estimate(OBS).samples, first)
+    np.testing.assert_allclose(np.concatenate([fixed.estimate(o).samples for o in OBS], axis=1), first, rtol=1e-5, atol=1e-5)
+    assert not np.allclose(MCEstimator(network, n_samples=8, masks="fixed", mask_seed=1).estimate(OBS).samples, first)
+    assert len({tuple(np.round(s.ravel(), 4)) for s in first}) == 8  # eight different sub-networks
+
+
+@pytest.mark.parametrize("p", [0.3, 0.02], ids=["dense-mask", "dropped-positions"])
+@pytest.mark.parametrize("method", ["dropout", "dropconnect"])
+def test_fixed_masks_have_the_sampled_masks_distribution(method, p):
+    # Over many sub-networks at one observation, the fixed samples' mean and std are the sampled
+    # ones' (4,000 of each: the means within 5 standard errors, the stds within 8%).
+    network = _deep(method, p)
+    obs = OBS[0]
+    fixed = MCEstimator(network, n_samples=4_000, masks="fixed", mask_seed=2).estimate(obs).samples[:, 0]
+    sampled = MCEstimator(network, n_samples=4_000, seed=3).estimate(obs).samples[:, 0]
+    error = np.sqrt((fixed.var(0) + sampled.var(0)) / 4_000)
+    assert np.all(np.abs(fixed.mean(0) - sampled.mean(0)) <= 5 * error + 1e-6)
+    np.testing.assert_allclose(fixed.std(0), sampled.std(0), rtol=0.08)
+
+
+@pytest.mark.parametrize("method", ["dropout", "dropconnect"])
+@pytest.mark.parametrize("tanh", [False, True], ids=["dqn", "ddpg"])
+def test_fixed_masks_keep_the_sampled_decision(method, tanh):
+    # The deployed action is still the mean of freshly sampled masks, drawn from the sampling seed
+    # exactly as without fixed masks: the same seed, the same decisions (and so the same episodes).
+    network = _deep(method, 0.05, tanh=tanh)
+    bounds = {"kind": "actions", "action_low": [-2.0], "action_high": [2.0]} if tanh else {}
+    sampled = MCEstimator(network, n_samples=10, seed=4, **bounds)
+    fixed = MCEstimator(network, n_samples=10, seed=4, masks="fixed", **bounds)
+    for _ in range(3):
+        expected, got = sampled.estimate(OBS), fixed.estimate(OBS)
+        np.testing.assert_array_equal(got.action, expected.action)
+        assert not np.allclose(got.samples, expected.samples)
+    if tanh:  # the fixed samples' pre-squash values are what their actions squash
+        np.testing.assert_allclose(np.tanh(got.pre_squash) * 2.0, got.samples, rtol=1e-5, atol=1e-6)
+
+
+def test_fixed_masks_refuse_what_they_cannot_do():
+    with pytest.raises(InvalidParameterError, match="masks='frozen' is not allowed"):
+        MCEstimator(_deep("dropout", 0.1), masks="frozen")
+
+    class Wrapped(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.inner = _deep("dropout", 0.1)
+
+        def forward(self, x):
+            return self.inner(x)
+
+    with pytest.raises(ConfigError, match="fixed masks need an nn.Sequential"):
+        MCEstimator(Wrapped(), masks="fixed")

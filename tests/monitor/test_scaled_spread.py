@@ -142,3 +142,52 @@ def test_calibrate_fits_it_when_asked_and_run_alarms_on_it(tmp_path):
     quiet = run_cli("run", "--task", "pendulum", "--method", "ensemble", "--threshold", str(out), "--episodes", "3",
                     "--seed", "777000", "--mcap", str(tmp_path / "id.mcap"))
     assert quiet.returncode == 0 and "0 of 3 episodes raised an alarm" in quiet.stdout, quiet.stdout
+
+
+def _trajectory(values: np.ndarray, discrete: bool = False) -> Trajectory:
+    steps = len(values)
+    actions = np.zeros(steps, np.int64) if discrete else np.zeros((steps, 1))
+    return Trajectory(np.zeros((steps + 1, 3)), actions, member_values=values)
+
+
+def test_whitened_it_sees_members_disagree_in_a_new_pattern_of_the_same_size():
+    # Four sub-networks of one network: at ID steps they disagree along one fixed pattern (loadings
+    # 1, -1, 1, -1 times a common factor) plus a little noise of their own. Shifted, they disagree
+    # as much, each member as much as at ID steps, but in another pattern (1, -1, -1, 1). A
+    # per-member z-score sees the same sizes (AUROC about 0.5); whitened by the ID covariance of the
+    # deviations, the new pattern stands out.
+    rng = np.random.default_rng(0)
+    loadings = np.array([1.0, -1.0, 1.0, -1.0])[None, :, None]
+    pattern = np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]
+    id_values = loadings * rng.normal(0, 1, (900, 1, 1)) + rng.normal(0, 0.05, (900, 4, 1))
+    shifted = pattern * rng.normal(0, 1, (300, 1, 1)) + rng.normal(0, 0.05, (300, 4, 1))
+    fit, held_out = id_values[:600], id_values[600:]
+    whitened = ScaledSpreadDetector("whiten").fit([_trajectory(fit)])
+    zscored = ScaledSpreadDetector("zscore").fit([_trajectory(fit)])
+    assert abs(_step_auroc([zscored.spread(held_out)], [zscored.spread(shifted)]) - 0.5) < 0.15
+    # measured 0.959: the shifted steps whose common factor is near 0 disagree too little to tell
+    assert _step_auroc([whitened.spread(held_out)], [whitened.spread(shifted)]) > 0.92
+    # fresh ID steps read about 1 (the root mean square of whitened deviations, shrinkage aside)
+    assert 0.3 < np.median(whitened.spread(held_out)) < 1.5
+    step = StepContext(np.zeros(3), np.zeros(1), _estimate(shifted[0]))
+    assert whitened.score(step) == pytest.approx(float(whitened.spread(shifted[:1])[0]), rel=1e-5)
+
+
+def test_whitened_it_reads_a_dqn_members_half_margin_once_and_saves_as_tensors(tmp_path):
+    # Centred Q-values of two actions repeat each other (q1 = -q0): the last is left out, so the
+    # covariance is of K half margins; saved and loaded, the same scores.
+    rng = np.random.default_rng(2)
+    half_margin = rng.normal(0, 1, (400, 4, 1)) * np.array([1.0, 2.0, 0.5, 1.0])[None, :, None]
+    values = np.concatenate([half_margin, -half_margin], axis=2)
+    detector = ScaledSpreadDetector("whiten").fit([_trajectory(values, discrete=True)])
+    assert detector.config() == {"normalisation": "whiten", "drop_last": True}
+    assert detector.tensors()["precision"].shape == (4, 4)
+    DetectorSet([detector]).save(tmp_path / "set")
+    loaded = DetectorSet.load(tmp_path / "set")["scaled_spread"]
+    np.testing.assert_array_equal(loaded.spread(values[:50]), detector.spread(values[:50]))
+    with pytest.raises(ConfigError, match="fitted on 4 members' deviations"):
+        detector.score(StepContext(np.zeros(3), np.zeros(1), _estimate(np.ones((3, 1)))))
+    with pytest.raises(ConfigError, match="incomplete"):
+        ScaledSpreadDetector.from_state({"normalisation": "whiten"}, {"mean": np.zeros(4, np.float32)})
+    with pytest.raises(ConfigError, match="no per-member values"):
+        detector.normalised(values)

@@ -102,7 +102,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     (each cut after ``max_steps`` steps if given); ``with_member_values``: keep an ensemble's
     members' values too (what ``scaled_spread`` is fitted on)."""
     estimator, act, _ = policy_parts(policy)
-    ensemble = with_member_values and _is_ensemble(estimator)
+    ensemble = with_member_values and has_members(estimator)
     deploy = getattr(policy, "deploy", None)  # an Agent whose deployed policy is not its estimator's decision
     trajectories = []
     for episode in range(episodes):
@@ -191,9 +191,10 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     task = task or metadata.get("task")
     if "features" in detectors and estimator is None:
         raise ConfigError("the features detector needs the policy's features; a plain policy has none")
-    if "scaled_spread" in detectors and not _is_ensemble(estimator):
+    if "scaled_spread" in detectors and not has_members(estimator):
         raise ConfigError("the scaled_spread detector puts each ensemble member's values on its own ID footing: "
-                          "it needs an oodmon ensemble (MC samples are not members)")
+                          "it needs an oodmon ensemble, or an MC agent with fixed masks (load it with masks='fixed', "
+                          "--masks fixed): sampled MC samples are not members")
     if "frames" in detectors and len(env.observation_space.shape or ()) < 2:
         raise ConfigError(f"the frames detector needs image observations; this env's are of shape "
                           f"{env.observation_space.shape}")
@@ -210,10 +211,13 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     if "frames" in detectors:
         parts.append(FramesDetector().fit(fit))
     if "scaled_spread" in detectors:
-        parts.append(ScaledSpreadDetector().fit(fit))
+        # An MC agent's fixed sub-networks share most of their weights and move together: whitened.
+        fixed_masks = getattr(estimator, "masks", None) == "fixed"
+        parts.append(ScaledSpreadDetector("whiten" if fixed_masks else None).fit(fit))
     obs_shape = list(np.shape(trajectories[0].observations)[1:])
     fitted_for = {"task": task, "obs_shape": obs_shape, "policy_hash": policy_hash, "version": FIT_VERSION,
-                  "episodes": episodes, "seed": seed, "obs_noise": obs_noise}
+                  "episodes": episodes, "seed": seed, "obs_noise": obs_noise,
+                  "masks": getattr(estimator, "masks", None)}
     result = DetectorSet(parts, fitted_for=fitted_for)
     if "combined" in detectors:
         members = [d.name for d in parts]
@@ -226,10 +230,12 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     return result
 
 
-def _is_ensemble(estimator: Any) -> bool:
+def has_members(estimator: Any) -> bool:
+    """Whether sample k of ``estimator`` is the same network at every decision: an ensemble's
+    member, or an MC estimator's fixed sub-network (``masks="fixed"``)."""
     from oodmon.agents.estimators import EnsembleEstimator
 
-    return isinstance(estimator, EnsembleEstimator)
+    return isinstance(estimator, EnsembleEstimator) or getattr(estimator, "masks", None) == "fixed"
 
 
 def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, episodes: int = DEFAULT_FIT_EPISODES,

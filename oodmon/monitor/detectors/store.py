@@ -99,6 +99,26 @@ class DetectorSet:
                f"that score (`oodmon fit-detectors --score {score}`, fit_detectors(..., score={score!r})) or use score {fitted!r}")
         return changed.subset([name for name in changed.names if name != "combined"]), why
 
+    def for_masks(self, masks: str | None) -> tuple[DetectorSet, str | None]:
+        """The set without what read another policy's samples, and why, if anything was left out.
+
+        ``scaled_spread``, and a ``combined`` that ranks ``spread`` or ``scaled_spread``, were fitted
+        on the samples of an MC policy with ``sampled`` or ``fixed`` masks (``fitted_for["masks"]``;
+        sets fitted before fixed masks existed hold sampled ones); on the other kind their values
+        mean nothing. ``masks`` ``None``: the policy is no MC agent, nothing to compare.
+        """
+        fitted = self.fitted_for.get("masks", "sampled")
+        if masks is None or fitted is None or masks == fitted:
+            return self, None
+        reading = {"spread", "scaled_spread"}
+        dropped = [name for name in self.names if name == "scaled_spread"
+                   or (name == "combined" and reading & set(self["combined"].members))]
+        if not dropped:
+            return self, None
+        why = (f"the fitted {' and '.join(dropped)} detector(s) read an MC policy's samples with {fitted} masks, and this "
+               f"policy's are {masks}; fit them with its masks (`oodmon fit-detectors --masks {masks}`)")
+        return self.subset([name for name in self.names if name not in dropped]), why
+
     def subset(self, names: Sequence[str]) -> DetectorSet:
         """The detectors ``names`` and whatever they read (``combined``'s members)."""
         wanted = set(names)
