@@ -50,6 +50,7 @@ def table(path: Path) -> str:
     config = data["config"]
     samples = f", {config['samples']} MC samples per decision" if config.get("samples") else ""
     samples += f", ensembles of {config['members']} members" if config.get("members") else ""
+    samples += ", fixed MC masks" if config.get("masks") == "fixed" else ""
     lines = [f"`{data['command']}` ({config['trials']} trials, score `{config['score']}`{samples}):", ""]
     for index, detector in enumerate(_detectors(config)):
         if index:
