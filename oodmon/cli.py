@@ -370,7 +370,8 @@ def _parser() -> argparse.ArgumentParser:
                             "detector); AUROCs do not change")
     bench.add_argument("--detectors",
                        help="comma-separated detectors whose per-step AUROC is reported: spread (the paper's protocol's "
-                            "default), dynamics, features, frames, combined, scaled_spread (ensembles); the learned "
+                            "default), dynamics, features, frames, combined, scaled_spread (ensembles, MC agents with --masks "
+                            "fixed); the learned "
                             "ones are fitted per trial on ID episodes of their own (monitor protocol's default: spread "
                             "and the task's best)")
     bench.add_argument("--fit-episodes", type=_whole(3), default=0,
