@@ -14,7 +14,7 @@ from oodmon.agents import load, load_agent, zoo_dir
 from oodmon.agents.plan import _Affine, _DropConnect
 from oodmon.agents.serialization import load_modules
 from oodmon.errors import ConfigError
-from oodmon.monitor.detectors import Trajectory
+from oodmon.monitor.detectors import Trajectory, fit_agent_detectors
 from tests.helpers import load_script
 
 
@@ -228,3 +228,21 @@ def test_member_normalisations_put_each_member_on_its_own_id_footing(monkeypatch
     scaled = normalised["x/med|x|"](fit)
     np.testing.assert_allclose(np.median(np.abs(scaled[:, :, 0]), axis=0), 1.0, rtol=1e-5)
     assert script.spread(z).shape == (500,)
+
+
+def test_sweep_fixed_masks_measures_an_agent_and_tabulates_its_rows(monkeypatch, tmp_path):
+    # The zoo's Pendulum DropConnect agent on 2 ID and 1 shifted episode of one variant: a row with
+    # every measure's AUROC, and a table of each measure's mean ± std over a label's agents.
+    script = _load(monkeypatch, tmp_path, "sweep_fixed_masks")[0]
+    monkeypatch.setitem(script.VARIANTS, ("pendulum", "dropconnect"), ["pendulum:g=50.0"])
+    monkeypatch.setattr(script, "ID_EPISODES", 2)
+    monkeypatch.setattr(script, "SHIFTED_EPISODES", 1)
+    monkeypatch.setattr(script, "fit_agent_detectors", lambda agent, **kw: fit_agent_detectors(agent, episodes=6, max_steps=40, **kw))
+    row = script.measure(zoo_dir() / "pendulum-dropconnect")
+    assert row["score"] == "pre_squash_std" and set(row["auroc"]) == set(script.MEASURES)
+    assert all(0.0 <= row["auroc"][m]["pendulum:g=50.0"] <= 1.0 for m in script.MEASURES)
+    assert row["length_mean"] == {"pendulum": 200.0, "pendulum:g=50.0": 200.0}
+    other = {**row, "auroc": {m: {"pendulum:g=50.0": 0.5} for m in script.MEASURES}}
+    table = script.table([{"label": "zoo", **row}, {"label": "zoo", **other}])
+    value = row["auroc"]["fixed spread"]["pendulum:g=50.0"]
+    assert f"| zoo (2) | fixed spread | g=50.0 {np.mean([value, 0.5]):.3f} ± {np.std([value, 0.5]):.3f}" in table

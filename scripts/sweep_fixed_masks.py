@@ -1,0 +1,101 @@
+"""Fixed masks on MC agents of any recipe: the spread of sampled masks, of fixed ones, and the
+fixed sub-networks read whitened (``scaled_spread``), per variant the paper reports for the method.
+
+Run (seconds to a minute per agent; one torch thread):
+    OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_fixed_masks.py --label LABEL MODEL_DIR [MODEL_DIR ...]
+    .venv/bin/python scripts/sweep_fixed_masks.py --table
+
+Each agent is measured as the sweeps measure (``scripts/sweep_full_depth.py``): 10 ID episodes
+(seeds 200000+) against 5 of each variant (seeds 400000+), every step, whether or not the agent
+fails, MC seed 0 (so sampled and fixed masks play the same episodes: the decision is sampled
+either way). The score is ``margin_std`` for DQN agents and ``pre_squash_std`` for DDPG actors;
+``scaled_spread`` is fitted on the agent with fixed masks by ``fit_agent_detectors`` (90 ID
+episodes of the detectors' own seeds). One JSON line per (label, model folder) goes to
+``results/sweeps/fixed_masks.jsonl``; one already there is not run again. ``--table`` prints mean ±
+std over each label's agents per variant.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from oodmon.agents import load_agent
+from oodmon.envs import parse_variant
+from oodmon.monitor.detectors import DetectorSet, SpreadDetector, collect, fit_agent_detectors, trajectory_scores
+from sweep_full_depth import MC_SEED, VARIANTS, append_row, read_rows, step_auroc  # scripts/
+
+OUT = Path("results/sweeps/fixed_masks.jsonl")
+ID_SEED, SHIFTED_SEED = 200_000, 400_000  # the sweeps' episodes
+ID_EPISODES, SHIFTED_EPISODES = 10, 5
+MEASURES = ("sampled spread", "fixed spread", "fixed scaled_spread")
+
+
+def measure(folder: Path) -> dict:
+    """The agent's per-variant AUROC of each of :data:`MEASURES`, and its mean episode length per
+    variant (CartPole's return; the same with either masks, which decide alike)."""
+    sampled = load_agent(folder, seed=MC_SEED)
+    fixed = load_agent(folder, seed=MC_SEED, masks="fixed")
+    score = "margin_std" if sampled.estimator.kind == "q_values" else "pre_squash_std"
+    fitted = fit_agent_detectors(fixed, detectors=("scaled_spread",), score=score)
+    plain = DetectorSet([SpreadDetector(score)])
+
+    def scores(spec: str, episodes: int, seed: int) -> tuple[dict[str, np.ndarray], float]:
+        steps: dict[str, list[np.ndarray]] = {name: [] for name in MEASURES}
+        lengths = []
+        for agent, detectors, names in ((sampled, plain, {"spread": "sampled spread"}),
+                                        (fixed, fitted, {"spread": "fixed spread", "scaled_spread": "fixed scaled_spread"})):
+            for trajectory in collect(agent, parse_variant(spec).make(), episodes, seed=seed):
+                for name, values in trajectory_scores(detectors, trajectory, agent.estimator).items():
+                    steps[names[name]].append(values)
+                lengths.append(len(trajectory))
+        return {name: np.concatenate(values) for name, values in steps.items()}, float(np.mean(lengths))
+
+    task, method = sampled.task, sampled.method
+    id_scores, id_length = scores(task, ID_EPISODES, ID_SEED)
+    auroc, lengths = {name: {} for name in MEASURES}, {task: id_length}
+    for spec in VARIANTS[(task, method)]:
+        shifted, lengths[spec] = scores(spec, SHIFTED_EPISODES, SHIFTED_SEED)
+        for name in MEASURES:
+            auroc[name][spec] = round(step_auroc(id_scores[name], shifted[name]), 3)
+    return {"task": task, "method": method, "score": score, "mc_seed": MC_SEED, "auroc": auroc,
+            "length_mean": {k: round(v, 1) for k, v in lengths.items()}}
+
+
+def table(rows: list[dict]) -> str:
+    """Per label and measure, mean ± std over the label's agents per variant."""
+    lines = ["| agents | measure | per variant: AUROC mean ± std (each agent) |", "|---|---|---|"]
+    for label in dict.fromkeys(r["label"] for r in rows):
+        mine = [r for r in rows if r["label"] == label]
+        for name in MEASURES:
+            cells = []
+            for spec in mine[0]["auroc"][name]:
+                values = [r["auroc"][name][spec] for r in mine]
+                cells.append(f"{spec.split(':')[1]} {np.mean(values):.3f} ± {np.std(values):.3f} "
+                             f"({' '.join(f'{v:.2f}' for v in values)})")
+            lines.append(f"| {label} ({len(mine)}) | {name} | {'; '.join(cells)} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("folders", nargs="*", type=Path, help="model folders (model.json + model.safetensors)")
+    parser.add_argument("--label", help="what the agents are (a recipe), the table's row name")
+    parser.add_argument("--table", action="store_true", help="print the rows as a markdown table")
+    args = parser.parse_args()
+    rows = read_rows(OUT)
+    if args.table:
+        print(table(rows))
+        return
+    if not args.folders or not args.label:
+        parser.error("give --label and model folders (or --table)")
+    done = {(r["label"], r["folder"]) for r in rows}
+    for folder in args.folders:
+        if (args.label, str(folder)) not in done:
+            append_row(OUT, {"label": args.label, "folder": str(folder), **measure(folder)})
+
+
+if __name__ == "__main__":
+    main()
