@@ -85,7 +85,8 @@ class Agent:
     def __repr__(self) -> str:
         ret = self.metadata.get("id_return_mean")
         k = "none (plain policy)" if self.estimator is None else self.estimator.n_samples
-        return f"Agent({self.task}, {self.method}, K={k}, id_return_mean={ret}, path={self.path})"
+        masks = ", fixed masks" if getattr(self.estimator, "masks", None) == "fixed" else ""
+        return f"Agent({self.task}, {self.method}, K={k}{masks}, id_return_mean={ret}, path={self.path})"
 
 
 def load_agent(directory: str | Path, *, task: str | None = None, n_samples: int | None = None,

@@ -241,9 +241,12 @@ class Monitor:
         return self
 
     def _samples_about(self) -> dict[str, str]:
-        """The policy's samples per decision (MC samples or ensemble members), which the spread's
-        scale depends on: ``about.samples`` in the log."""
-        return {} if self.estimator is None else {"samples": str(self.estimator.n_samples)}
+        """The policy's samples per decision (MC samples or ensemble members) and an MC policy's
+        masks, which the spread's scale depends on: ``about.samples`` and ``about.masks`` in the log."""
+        if self.estimator is None:
+            return {}
+        masks = getattr(self.estimator, "masks", None)
+        return {"samples": str(self.estimator.n_samples)} | ({"masks": masks} if masks else {})
 
     def close(self) -> None:
         """End a running episode (as interrupted) and finish the sinks' files. Idempotent."""

@@ -14,6 +14,7 @@ from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
 from oodmon.monitor import Monitor, Threshold
 from oodmon.monitor.detectors import DetectorSet, SpreadDetector, collect, fit_agent_detectors, trajectory_scores
+from oodmon.replay import read_log
 from tests.helpers import run_cli
 
 
@@ -60,6 +61,7 @@ def test_a_threshold_records_its_masks_and_is_refused_for_the_other_kind(tmp_pat
     agent = ("--task", "cartpole", "--method", "dropconnect")
     run = run_cli("run", *agent, "--threshold", str(out), "--episodes", "1", "--mcap", str(tmp_path / "id.mcap"))
     assert run.returncode == 0, run.stderr
+    assert read_log(tmp_path / "id.mcap").metadata["about.masks"] == "fixed"  # the log says how it was sampled
     refused = run_cli("run", *agent, "--threshold", str(out), "--masks", "sampled", "--episodes", "1")
     assert refused.returncode != 0 and "masks 'fixed', not 'sampled'" in refused.stderr
     out.write_text(json.dumps(json.loads(out.read_text()) | {"masks": "frozen"}))
