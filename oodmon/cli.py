@@ -20,7 +20,7 @@ from rich.console import Console
 from rich.table import Table
 
 from oodmon.errors import ConfigError, OodmonError
-from oodmon.names import METHODS, TASKS
+from oodmon.names import MASKS, METHODS, TASKS
 from oodmon.progress import unit_of
 from oodmon.monitor.threshold import DETECTOR_NAMES
 from oodmon.seeds import CALIBRATION, DETECTOR_FIT, VALIDATION
@@ -340,7 +340,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="MC samples per decision of the Dropout and DropConnect agents (default: each recipe's, "
                             "20); the decisions are their mean, so episodes change too, and a decision costs more "
                             "(CartPole DropConnect: 0.3 ms at K=20, 9 ms at K=400)")
-    bench.add_argument("--masks", choices=["sampled", "fixed"],
+    bench.add_argument("--masks", choices=MASKS,
                        help="MC masks of the Dropout and DropConnect agents (default: each model's, sampled): fixed "
                             "draws K masks once, so that sample k is the same sub-network at every decision "
                             "(the decisions change too)")
@@ -532,7 +532,7 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
                         help="a shipped agent (or give --model)" if defaults_from is None
                         else f"a shipped agent (default: {defaults_from} method, unless --model)")
     parser.add_argument("--model", help="a trained model directory instead of a shipped agent")
-    parser.add_argument("--masks", choices=["sampled", "fixed"],
+    parser.add_argument("--masks", choices=MASKS,
                         help="an MC agent's masks: sampled anew at every decision, or fixed: K masks drawn once, so "
                              "that the spread is that of K fixed sub-networks (the decision is still the mean of sampled "
                              "masks). Default: the threshold file's, if it records them, else the model's (sampled)")

@@ -36,15 +36,12 @@ from torch.nn.modules.module import _global_forward_hooks, _global_forward_pre_h
 from oodmon.agents.layers import DropConnectLinear, is_mode_free, is_stochastic, mc_sampling
 from oodmon.agents.plan import Op, StackedAffine, compile_layers, ends_with_tanh, fix_masks, repeat_rows, run
 from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.names import MASKS
 from oodmon.validation import is_whole
 
 __all__ = ["MASKS", "EnsembleEstimator", "Estimate", "MCEstimator", "UncertaintyEstimator"]
 
 Kind = Literal["q_values", "actions"]
-#: How an MC estimator draws its masks: ``sampled`` anew at every decision (MC Dropout and
-#: DropConnect as the paper samples them), or ``fixed``: K masks drawn once, so that sample k is the
-#: same sub-network at every decision (see :class:`MCEstimator`).
-MASKS = ("sampled", "fixed")
 
 
 @dataclass(frozen=True)

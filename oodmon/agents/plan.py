@@ -196,7 +196,7 @@ def bernoulli_positions(rng: np.random.Generator, size: int, p: float) -> np.nda
     return positions[: positions.searchsorted(size)]
 
 
-class _FixedDropConnect(_Affine):
+class _FixedDropConnect(Op):
     """A DropConnect layer whose K weight masks were drawn once: row k of (K, batch, in) drops the
     same weights at every call (sample k is one fixed sub-network)."""
 

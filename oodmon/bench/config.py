@@ -94,7 +94,7 @@ class BenchConfig:
         if self.samples is not None and (self.samples < 2 or self.sb3):
             raise ConfigError(f"samples={self.samples}: MC samples per decision of oodmon's Dropout and DropConnect "
                               "agents, 2 or more (not for --sb3 models)")
-        from oodmon.agents.estimators import MASKS
+        from oodmon.names import MASKS
 
         if self.masks is not None and (self.masks not in MASKS or self.sb3):
             raise ConfigError(f"masks={self.masks!r}: the MC masks of oodmon's Dropout and DropConnect agents, "

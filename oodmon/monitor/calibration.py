@@ -7,7 +7,7 @@ training's evaluations (10,000 + steps) and of the ID return (100,000 + i), so t
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -123,10 +123,10 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
             obs_noise=obs_noise), by_age=reference_by_age)
     scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_progress=on_progress, detectors=needed,
                                detector=detector, obs_noise=obs_noise, stage="calibration episodes")
-    threshold = calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
-                          method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
-                          confidence=confidence, rule=rule, reference=reference)
-    return replace(threshold, masks=getattr(agent.estimator, "masks", None))
+    return calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
+                     method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
+                     confidence=confidence, rule=rule, reference=reference,
+                     masks=getattr(agent.estimator, "masks", None))
 
 
 @dataclass(frozen=True)

@@ -208,7 +208,7 @@ class Monitor:
             if alarm == "combined" and left_out:
                 raise ConfigError(f"the alarm reads the combined detector, but {left_out}")
         chosen, other_masks = chosen.for_masks(getattr(self.estimator, "masks", None))
-        if alarm is not None and alarm != "spread" and alarm not in chosen and other_masks:
+        if other_masks and alarm is not None and alarm not in chosen:  # spread is never left out
             raise ConfigError(f"the alarm reads the {alarm} detector, but {other_masks}")
         if self.estimator is None:
             needing = [d.name for d in chosen if d.needs_estimate]

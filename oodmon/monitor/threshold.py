@@ -42,6 +42,7 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.jsonfile import read_json
 from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, check_consecutive, check_window, episode_statistic, rule_text
 from oodmon.monitor.sequential import RULES, Reference
+from oodmon.names import MASKS
 
 __all__ = ["DEFAULT_CONFIDENCE", "MODES", "Threshold", "calibrate", "clopper_pearson", "conformal_rank",
            "episodes_needed"]
@@ -298,8 +299,8 @@ def _check_fields(threshold: Threshold) -> None:
             raise bad(name, "it must be a string or null")
     if not isinstance(threshold.quantiles, dict):
         raise bad("quantiles", "it must be an object of numbers")
-    if threshold.masks not in (None, "sampled", "fixed"):  # oodmon.agents.estimators.MASKS (torch not loaded here)
-        raise bad("masks", "use 'sampled', 'fixed' or null")
+    if threshold.masks is not None and threshold.masks not in MASKS:
+        raise bad("masks", f"use {', '.join(map(repr, MASKS))} or null")
 
 
 def calibrate(
@@ -317,6 +318,7 @@ def calibrate(
     confidence: float | None = DEFAULT_CONFIDENCE,
     rule: str = "consecutive",
     reference: Reference | None = None,
+    masks: str | None = None,
 ) -> Threshold:
     """Calibrate a threshold on the per-step scores of held-out ID episodes.
 
@@ -332,6 +334,7 @@ def calibrate(
         rule: ``consecutive``, ``cusum`` or ``martingale`` (episode mode).
         reference: a sequential rule's ID scores by time since reset, from other ID episodes than
             ``episode_scores`` (see ``sequential``).
+        masks: the MC masks of the policy the scores are of (see :class:`Threshold`).
 
     Raises:
         InvalidParameterError: ``far`` or ``confidence`` outside (0, 1), an unknown mode, a bad
@@ -374,4 +377,4 @@ def calibrate(
     return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
                      quantiles, task, method, window, policy_hash, detector,
                      None if confidence is None else float(confidence), rank, rule,
-                     None if reference is None else reference.to_dict())
+                     None if reference is None else reference.to_dict(), masks)

@@ -152,10 +152,12 @@ class ScaledSpreadDetector(Detector):
             raise ConfigError("the scaled_spread detector needs an ensemble's members' values (an oodmon DQN or "
                               "DDPG ensemble); this policy gives none")
         if self.normalisation == "whiten":
-            if _deviations(values[None], self.drop_last).shape[1] != len(self._mean):
+            deviations = _deviations(values[None], self.drop_last)
+            if deviations.shape[1] != len(self._mean):
                 raise ConfigError(f"this scaled_spread detector was fitted on {len(self._mean)} members' deviations; "
                                   f"the policy gives values of shape {values.shape} (another policy?)")
-        elif values.shape != self._inverse.shape:
+            return float(self._whitened(deviations)[0])
+        if values.shape != self._inverse.shape:
             raise ConfigError(f"this scaled_spread detector was fitted on {self._inverse.shape[0]} members of "
                               f"{self._inverse.shape[1]} value(s); the policy gives {values.shape} (another policy?)")
         return float(self.spread(values[None])[0])
@@ -166,9 +168,13 @@ class ScaledSpreadDetector(Detector):
         the members' whitened deviations, sqrt(d' P d / D)."""
         if self.normalisation == "whiten":
             self.check_fitted()
-            d = _deviations(values, self.drop_last) - self._mean
-            return np.sqrt(np.maximum(np.einsum("td,de,te->t", d, self._precision, d), 0.0) / len(self._mean))
+            return self._whitened(_deviations(values, self.drop_last))
         return self.normalised(values).std(axis=1).mean(axis=-1)
+
+    def _whitened(self, deviations: np.ndarray) -> np.ndarray:
+        """(T,) sqrt(d' P d / D) of (T, D) members' deviations, d their distance from the ID mean."""
+        d = deviations - self._mean
+        return np.sqrt(np.maximum(np.einsum("td,de,te->t", d, self._precision, d), 0.0) / len(self._mean))
 
     def normalised(self, values: np.ndarray) -> np.ndarray:
         """(..., K, n) members' values, each member's on its ID footing (its location subtracted,
