@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import sys
 from pathlib import Path
@@ -13,6 +14,7 @@ import torch
 from oodmon.agents import load, load_agent, zoo_dir
 from oodmon.agents.plan import _Affine, _DropConnect
 from oodmon.agents.serialization import load_modules
+from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
 from oodmon.monitor.detectors import Trajectory, fit_agent_detectors
 from tests.helpers import load_script
@@ -246,3 +248,54 @@ def test_sweep_fixed_masks_measures_an_agent_and_tabulates_its_rows(monkeypatch,
     table = script.table([{"label": "zoo", **row}, {"label": "zoo", **other}])
     value = row["auroc"]["fixed spread"]["pendulum:g=50.0"]
     assert f"| zoo (2) | fixed spread | g=50.0 {np.mean([value, 0.5]):.3f} ± {np.std([value, 0.5]):.3f}" in table
+
+
+def test_shifted_episodes_splits_a_rows_auroc_at_the_episodes_the_agent_survives(monkeypatch, tmp_path, capsys):
+    # A CartPole "bench" of one trial written by hand where the bench would: 3 ID episodes, and a
+    # shifted log of length=2.0 in which the agent also plays one ID episode (it keeps the pole up
+    # 500 steps, as an agent that copes with the shift does). The script must give the row's AUROC
+    # over every episode (the file's) and over the two that fall only, each computed here on its own.
+    from sklearn.metrics import roc_auc_score
+
+    from oodmon.bench.cache import _cell_log
+    from oodmon.bench.config import BenchConfig
+    from oodmon.monitor import McapSink, MemorySink, Monitor
+
+    script = _load(monkeypatch, tmp_path, "shifted_episodes")[0]
+    config = BenchConfig(task="cartpole", methods=("dropout",), trials=1, out=str(tmp_path / "bench"))
+    agent, spec = load("cartpole", "dropout", seed=0), "cartpole:length=2.0"
+
+    def play(name: str, envs: list[str]) -> list[np.ndarray]:
+        path = _cell_log(config, "dropout", 0, name)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        memory = MemorySink()
+        with Monitor(agent, threshold=3.5, sinks=[memory, McapSink(path)]) as monitor:
+            for seed, env in enumerate(envs):
+                monitor.run_episode(parse_variant(env).make(), seed=seed, variant=name)
+        return [np.array([s.score for s in memory.steps if s.episode == e]) for e in range(len(envs))]
+
+    ids = np.concatenate(play("cartpole", ["cartpole"] * 3))
+    shifted = play(spec, [spec, "cartpole", spec])
+    assert [len(s) for s in shifted][1] == 500 and max(len(shifted[0]), len(shifted[2])) < 500
+
+    def auroc(steps: list[np.ndarray]) -> float:
+        values = np.concatenate(steps)
+        return float(roc_auc_score(np.r_[np.zeros(len(ids)), np.ones(len(values))], np.r_[ids, values]))
+
+    row = {"method": "dropout", "variant": spec, "detector": "spread", "paper": [0.9], "aurocs": {"0": auroc(shifted)}}
+    results = tmp_path / "results.json"
+    results.write_text(json.dumps({"config": config.what_made_the_numbers(), "rows": [row]}))
+    script.main([str(results), "--out", config.out])
+    out = capsys.readouterr().out
+    lengths = ", ".join([str(len(shifted[0])), "500*", str(len(shifted[2]))])
+    assert f"trial 0: lengths {lengths}; AUROC {auroc(shifted):.3f}, over the failing episodes " \
+           f"{auroc([shifted[0], shifted[2]]):.3f}" in out
+    assert "1 of 3 episodes survived" in out
+    # Logs that did not make the file's figure, and a task whose failures are not the env's, are refused.
+    results.write_text(json.dumps({"config": config.what_made_the_numbers(), "rows": [{**row, "aurocs": {"0": 0.123}}]}))
+    with pytest.raises(SystemExit, match="not the logs that made it"):
+        script.main([str(results), "--out", config.out])
+    pendulum = {**config.what_made_the_numbers(), "task": "pendulum"}
+    results.write_text(json.dumps({"config": pendulum, "rows": [row]}))
+    with pytest.raises(SystemExit, match="CartPole benches"):
+        script.main([str(results), "--out", config.out])
