@@ -51,6 +51,8 @@ def table(path: Path) -> str:
     samples = f", {config['samples']} MC samples per decision" if config.get("samples") else ""
     samples += f", ensembles of {config['members']} members" if config.get("members") else ""
     samples += ", fixed MC masks" if config.get("masks") == "fixed" else ""
+    if (config.get("id_episodes", 10), config.get("episodes", 5)) != (10, 5):  # the paper protocol's defaults
+        samples += f", {config['id_episodes']} ID episodes and {config['episodes']} per variant for each trial"
     lines = [f"`{data['command']}` ({config['trials']} trials, score `{config['score']}`{samples}):", ""]
     for index, detector in enumerate(_detectors(config)):
         if index:
