@@ -341,9 +341,9 @@ def _parser() -> argparse.ArgumentParser:
                             "20); the decisions are their mean, so episodes change too, and a decision costs more "
                             "(CartPole DropConnect: 0.3 ms at K=20, 9 ms at K=400)")
     bench.add_argument("--masks", choices=MASKS,
-                       help="MC masks of the Dropout and DropConnect agents (default: each model's, sampled): fixed "
-                            "draws K masks once, so that sample k is the same sub-network at every decision "
-                            "(the decisions change too)")
+                       help="MC masks of the Dropout and DropConnect agents, and of one --sb3 model with dropout "
+                            "(default: each model's, sampled): fixed draws K masks once, so that sample k is the same "
+                            "sub-network at every decision (the decisions stay the mean of freshly sampled masks)")
     bench.add_argument("--members", type=_whole(2), metavar="K",
                        help="members of each ensemble trial (default: the recipe's, 5); another size trains every "
                             "trial, trial 0 too (member k has the same seed at any size: members trained before are "
@@ -533,7 +533,8 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
                         else f"a shipped agent (default: {defaults_from} method, unless --model)")
     parser.add_argument("--model", help="a trained model directory instead of a shipped agent")
     parser.add_argument("--masks", choices=MASKS,
-                        help="an MC agent's masks: sampled anew at every decision, or fixed: K masks drawn once, so "
+                        help="an MC agent's (or one --sb3 model's with dropout) masks: sampled anew at every "
+                             "decision, or fixed: K masks drawn once, so "
                              "that the spread is that of K fixed sub-networks (the decision is still the mean of sampled "
                              "masks). Default: the threshold file's, if it records them, else the model's (sampled)")
     _sb3_arguments(parser)
@@ -929,9 +930,7 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
             raise ConfigError("--sb3 needs --env: the gymnasium env id the models act in (e.g. CartPole-v1)")
         if getattr(args, "model", None) or getattr(args, "method", None):
             raise ConfigError("--sb3 is instead of --model and --method: give one of them")
-        if getattr(args, "masks", None) == "fixed":
-            raise ConfigError("--masks fixed is for oodmon's Dropout and DropConnect agents, not --sb3 models")
-        agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed)
+        agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed, masks=getattr(args, "masks", None))
         if args.task and args.task != agent.task:
             raise ConfigError(f"--task {args.task} contradicts --env {args.env} (task {agent.task})")
         args.task = agent.task

@@ -86,6 +86,10 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
     assert len(keys) == 12  # sampled masks given is another key too: the model's own masks might be fixed
     with pytest.raises(ConfigError, match="masks='frozen'"):
         BenchConfig("cartpole", ("dropout",), 1, masks="frozen")
+    one = {"sb3": ("runs/dqn0.zip",), "env_id": "CartPole-v1"}  # one user's model (with dropout): fixed masks are its own
+    assert BenchConfig("cartpole", ("sb3",), 1, masks="fixed", **one).cache_key().endswith("-fixed-masks")
+    with pytest.raises(ConfigError, match="one --sb3 model with dropout"):  # several models: members already
+        BenchConfig("cartpole", ("sb3",), 1, masks="fixed", sb3=("runs/dqn0.zip", "runs/dqn1.zip"), env_id="CartPole-v1")
     # Learned detectors fitted by an older oodmon (another fitting version) are not reused either
     from oodmon.monitor.detectors import fitting
 

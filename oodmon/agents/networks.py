@@ -174,7 +174,8 @@ def estimator_for(modules: nn.Module, arch: Architecture | Mapping[str, Any], n_
     return EnsembleEstimator(list(modules["members"]), kind, torso=modules["torso"], **common)
 
 
-def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int | None = None) -> UncertaintyEstimator:
+def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int | None = None,
+                       masks: str = "sampled") -> UncertaintyEstimator:
     """An estimator over SB3 models a user trained: an ensemble of several, MC over one.
 
     Args:
@@ -183,9 +184,12 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
             ensemble with stacked weights.
         n_samples: MC samples per decision (one model only).
         seed: seeds MC sampling.
+        masks: one model's MC masks, ``sampled`` or ``fixed`` (see
+            :class:`~oodmon.agents.estimators.MCEstimator`); several models are members already.
 
     Raises:
-        ConfigError: no models, mixed algorithms, or a single model with nothing to sample.
+        ConfigError: no models, mixed algorithms, a single model with nothing to sample, or fixed
+            masks for several models.
 
     Example:
         >>> import gymnasium
@@ -212,5 +216,8 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
     action_high = space.high.tolist() if algorithm == "ddpg" else None
     if len(models) > 1 and arch.cnn:
         raise ConfigError("an ensemble of separate CNN models is not supported; use bootstrapped heads (QHeads)")
+    if len(models) > 1 and masks != "sampled":
+        raise ConfigError(f"masks={masks!r} is for one model with dropout or DropConnect layers; {len(models)} models are "
+                          "an ensemble, whose members are fixed already")
     return estimator_for(modules_from_sb3(models, arch), arch, n_samples=n_samples, seed=seed,
-                         action_low=action_low, action_high=action_high)
+                         action_low=action_low, action_high=action_high, masks=masks)

@@ -6,9 +6,10 @@ the detectors' fitting take like a shipped one:
 - it **acts as deployed**: the first model's ``predict(obs, deterministic=True)``, never an
   average the user did not deploy (``mean=True`` deploys the ensemble's mean instead);
 - one model has no samples to spread: the learned detectors (``dynamics``, and ``combined``)
-  watch it; several DQN, or several DDPG/TD3, models are also an ensemble whose spread and
-  features are detectors (:func:`~oodmon.agents.networks.estimator_from_sb3`). Other algorithms
-  (SAC, PPO, A2C) are watched by the learned detectors only;
+  watch it, unless it has dropout or DropConnect layers (MC samples, ``masks="fixed"`` for K
+  sub-networks drawn once); several DQN, or several DDPG/TD3, models are also an ensemble whose
+  spread and features are detectors (:func:`~oodmon.agents.networks.estimator_from_sb3`). Other
+  algorithms (SAC, PPO, A2C) are watched by the learned detectors only;
 - its metadata record each model's path and sha256, the algorithm and the env id; its policy hash
   (what thresholds and fitted detectors are checked against) is the hash of those files.
 
@@ -96,7 +97,7 @@ def _deployed(model: Any, discrete: bool):
 
 
 def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_samples: int = 20,
-             seed: int | None = None) -> Agent:
+             seed: int | None = None, masks: str | None = None) -> Agent:
     """An :class:`~oodmon.agents.Agent` of the SB3 model files in ``paths``, acting in ``env_id``.
 
     Args:
@@ -105,10 +106,11 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
         mean: deploy the ensemble's mean decision instead of the first model's (several DQN or
             DDPG/TD3 models only).
         n_samples, seed: MC sampling of one model that has dropout layers.
+        masks: that model's MC masks, ``sampled`` (None: the default) or ``fixed``.
 
     Raises:
         ConfigError: no paths, a file that is not an SB3 model, spaces that do not match the env,
-            or ``mean`` without an ensemble.
+            ``mean`` without an ensemble, or fixed masks without one model to sample.
     """
     if isinstance(paths, (str, Path)) or not paths:
         raise ConfigError("give one or more SB3 model files (a list of paths)")
@@ -118,7 +120,8 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
     loaded = [_load_one(path) for path in paths]
     files = [{"path": str(path.resolve()), "sha256": file_sha256(path), "algorithm": name}
              for path, (_, name) in zip(paths, loaded)]
-    return sb3_agent([model for model, _ in loaded], env_id, mean=mean, n_samples=n_samples, seed=seed, files=files)
+    return sb3_agent([model for model, _ in loaded], env_id, mean=mean, n_samples=n_samples, seed=seed, files=files,
+                     masks=masks)
 
 
 def models_sha256(hashes: Sequence[str], *, mean: bool = False) -> str:
@@ -144,13 +147,16 @@ def _parameters_sha256(model: Any) -> str:
 
 
 def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_samples: int = 20,
-              seed: int | None = None, files: Sequence[dict[str, str]] | None = None) -> Agent:
+              seed: int | None = None, files: Sequence[dict[str, str]] | None = None,
+              masks: str | None = None) -> Agent:
     """An :class:`~oodmon.agents.Agent` of SB3 models already loaded (or trained) in this process;
     the first is the deployed policy. ``files``: each model's path, sha256 and algorithm, when they
     came from files (:func:`load_sb3`); else they are described by the hash of their parameters.
+    ``masks``: the MC masks of one model with dropout or DropConnect layers (see :func:`load_sb3`).
 
     Raises:
-        ConfigError: no models, spaces that do not match the env, or ``mean`` without an ensemble.
+        ConfigError: no models, spaces that do not match the env, ``mean`` without an ensemble, or
+            fixed masks without one DQN or DDPG/TD3 model with dropout or DropConnect layers.
     """
     from oodmon.agents.networks import estimator_from_sb3
     from oodmon.envs.registration import task_of_env
@@ -168,12 +174,20 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         _check_spaces(model, Path(file["path"]), env, env_id)
     env.close()
     names = {file["algorithm"] for file in files}
+    masks = masks or "sampled"
+    sampled = names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"})
+    if masks != "sampled" and (len(models) > 1 or not sampled):
+        raise ConfigError(f"masks={masks!r} is for one DQN or DDPG/TD3 model with dropout or DropConnect layers (MC "
+                          f"samples); got {len(models)} {'/'.join(sorted(names))} model(s)")
     estimator = None  # SAC, PPO, A2C: networks oodmon does not sample; the learned detectors watch them
-    if names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"}):
+    if sampled:
         try:
-            estimator = estimator_from_sb3(list(models), n_samples=n_samples, seed=seed)
-        except ConfigError:
-            pass  # one model without dropout: nothing to sample
+            estimator = estimator_from_sb3(list(models), n_samples=n_samples, seed=seed, masks=masks)
+        except ConfigError as error:
+            if masks != "sampled":
+                raise ConfigError(f"masks={masks!r} fixes the masks of MC samples, and this model has none: {error}") \
+                    from None
+            # one model without dropout: nothing to sample
     if mean and estimator is None:
         raise ConfigError("--mean deploys the ensemble's mean: give several DQN, or several DDPG/TD3, models")
     combined = models_sha256([file["sha256"] for file in files], mean=mean)

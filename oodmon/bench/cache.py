@@ -38,7 +38,7 @@ def _bench_agent(source: str | Sb3Models, task: str, seed: int, n_samples: int |
     if isinstance(source, Sb3Models):
         from oodmon.agents.sb3 import load_sb3
 
-        return load_sb3(source.paths, source.env_id, mean=source.mean, seed=seed)
+        return load_sb3(source.paths, source.env_id, mean=source.mean, seed=seed, masks=masks)
     return load_agent(source, task=task, seed=seed, n_samples=n_samples, masks=masks)
 
 

@@ -96,9 +96,9 @@ class BenchConfig:
                               "agents, 2 or more (not for --sb3 models)")
         from oodmon.names import MASKS
 
-        if self.masks is not None and (self.masks not in MASKS or self.sb3):
-            raise ConfigError(f"masks={self.masks!r}: the MC masks of oodmon's Dropout and DropConnect agents, "
-                              f"{' or '.join(MASKS)} (not for --sb3 models)")
+        if self.masks is not None and (self.masks not in MASKS or (self.masks != "sampled" and len(self.sb3) > 1)):
+            raise ConfigError(f"masks={self.masks!r}: the MC masks of Dropout and DropConnect agents (oodmon's, or one "
+                              f"--sb3 model with dropout), {' or '.join(MASKS)}")
         if self.members is not None and (self.members < 2 or self.sb3 or "ensemble" not in self.methods):
             raise ConfigError(f"members={self.members}: the size of oodmon's ensembles, 2 or more, for a bench of the "
                               "ensemble method (not for --sb3 models)")

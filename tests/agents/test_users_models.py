@@ -10,9 +10,11 @@ from stable_baselines3 import DDPG, DQN
 from torch import nn
 
 from oodmon.agents import MCEstimator, estimator_from_sb3
+from oodmon.agents.layers import add_dropout
 from oodmon.errors import ConfigError
 
 OBS = np.random.default_rng(1).normal(size=(5, 3)).astype(np.float32)
+OBS4 = np.random.default_rng(1).normal(size=(5, 4)).astype(np.float32)
 
 
 def test_ensemble_of_users_ddpg_models_gives_their_actions():
@@ -69,3 +71,52 @@ def test_users_models_errors():
         estimator_from_sb3([DQN("MlpPolicy", env, seed=0), DDPG("MlpPolicy", gymnasium.make("Pendulum-v1"))])
     with pytest.raises(ConfigError, match="needs at least one SB3 model"):
         estimator_from_sb3([])
+
+
+def _dqn_with_dropout(seed: int = 0) -> DQN:
+    """A user's DQN whose Q-network has dropout after its hidden layers (acting with it off, as SB3's
+    predict() does)."""
+    model = DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=seed, policy_kwargs={"net_arch": [32, 32]})
+    model.policy.q_net.q_net = add_dropout(model.policy.q_net.q_net, 0.2)
+    return model
+
+
+def test_one_users_model_with_dropout_can_fix_its_masks():
+    # Fixed masks: sample k is one sub-network at every decision (the same obs, the same samples),
+    # each of them one dropout mask of the model's (its Q-values are the plain network's with that
+    # mask); the decision stays the mean of freshly sampled masks, the sampled estimator's own.
+    from oodmon.agents.sb3 import sb3_agent
+
+    model = _dqn_with_dropout()
+    fixed = estimator_from_sb3([model], n_samples=10, seed=3, masks="fixed")
+    sampled = estimator_from_sb3([model], n_samples=10, seed=3)
+    first, again, other = fixed.estimate(OBS4), fixed.estimate(OBS4), sampled.estimate(OBS4)
+    np.testing.assert_array_equal(first.samples, again.samples)
+    assert len({s.tobytes() for s in first.samples}) == 10
+    np.testing.assert_array_equal(first.action, other.action)  # the decision: sampled masks, the same seed
+    # Sample k is the user's network with dropout mask k (the kept units scaled by 1/(1-p)) at every layer.
+    net = model.policy.q_net.q_net  # Linear, ReLU, Dropout, Linear, ReLU, Dropout, Linear
+    masks = [op.keep for op in fixed._fixed if hasattr(op, "keep")]  # (K, 1, 32) each, the scale folded in
+    assert len(masks) == 2 and all(np.isin(m, [0.0, 1.25]).all() and (m == 0).any() for m in masks)
+    with torch.no_grad():
+        for k in range(10):
+            h = torch.relu(net[0](torch.as_tensor(OBS4))) * torch.as_tensor(masks[0][k])
+            q = net[6](torch.relu(net[3](h)) * torch.as_tensor(masks[1][k]))
+            np.testing.assert_allclose(first.samples[k], q.numpy(), rtol=1e-5, atol=1e-6)
+    agent = sb3_agent([model], "CartPole-v1", masks="fixed", seed=3)
+    assert agent.estimator.masks == "fixed" and agent.method == "sb3"
+    # Its threshold records the masks, and the monitor refuses it for the same model sampled anew.
+    from oodmon.monitor import Monitor
+    from oodmon.monitor.calibration import calibrate_agent
+
+    threshold = calibrate_agent(agent, episodes=45)
+    assert threshold.masks == "fixed" and threshold.detector == "spread"
+    Monitor(agent, threshold)
+    with pytest.raises(ConfigError, match="calibrated for masks 'fixed', not 'sampled'"):
+        Monitor(sb3_agent([model], "CartPole-v1", seed=3), threshold)
+    with pytest.raises(ConfigError, match="has no dropout or DropConnect layer"):
+        sb3_agent([DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0)], "CartPole-v1", masks="fixed")
+    with pytest.raises(ConfigError, match="for one DQN or DDPG/TD3 model with dropout"):
+        sb3_agent([model, _dqn_with_dropout(1)], "CartPole-v1", masks="fixed")
+    with pytest.raises(ConfigError, match="whose members are fixed already"):
+        estimator_from_sb3([model, _dqn_with_dropout(1)], masks="fixed")
