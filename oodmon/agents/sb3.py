@@ -34,7 +34,7 @@ from oodmon.agents.agent import Agent
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
 
-__all__ = ["SB3_ALGORITHMS", "load_sb3", "models_sha256", "sb3_agent", "sb3_algorithm"]
+__all__ = ["SB3_ALGORITHMS", "SB3_HYPERPARAMETERS", "load_sb3", "models_sha256", "sb3_agent", "sb3_algorithm"]
 
 #: SB3's policy modules and the algorithm classes that load them (first match that loads wins:
 #: A2C and PPO share a policy class; DDPG's policy is TD3's and loads as TD3 for acting).
@@ -46,9 +46,22 @@ SB3_ALGORITHMS = {
 }
 
 
+#: A policy class of the user's own (a subclass of an SB3 policy, to add dropout, say) lives in the
+#: user's module; the algorithm is then told by the hyperparameters only it saves in ``data``
+#: (checked on SB3 2.9: each key below is saved by these algorithms and by no other of the six).
+SB3_HYPERPARAMETERS = (
+    ("exploration_fraction", ("DQN",)),
+    ("target_entropy", ("SAC",)),
+    ("policy_delay", ("TD3", "DDPG")),
+    ("clip_range", ("PPO",)),
+    ("vf_coef", ("A2C", "PPO")),  # after clip_range: PPO saves both
+)
+
+
 def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
     """The SB3 algorithm classes that can load the model file ``path``, read from its ``data``
-    JSON without loading (unpickling) anything.
+    JSON without loading (unpickling) anything: from the policy class's module, or, for a policy
+    class of the user's own, from the hyperparameters the algorithm saved (:data:`SB3_HYPERPARAMETERS`).
 
     Raises:
         ConfigError: a missing file, or one that is not an SB3 model of a supported algorithm.
@@ -63,9 +76,13 @@ def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
     except (zipfile.BadZipFile, KeyError, TypeError, ValueError):
         raise ConfigError(f"{path} is not a stable-baselines3 model file (a .zip with a 'data' entry naming its "
                           "policy class)") from None
-    if module not in SB3_ALGORITHMS:
-        raise ConfigError(f"{path} holds a policy of {module}; oodmon loads DQN, DDPG, TD3, SAC, PPO and A2C models")
-    return SB3_ALGORITHMS[module]
+    if module in SB3_ALGORITHMS:
+        return SB3_ALGORITHMS[module]
+    algorithms = next((names for key, names in SB3_HYPERPARAMETERS if key in data), None)
+    if algorithms is None:
+        raise ConfigError(f"{path} holds a policy of {module}, and none of the hyperparameters DQN, DDPG, TD3, SAC, PPO "
+                          "or A2C save: oodmon loads models of those algorithms only")
+    return algorithms
 
 
 def _load_one(path: Path) -> tuple[Any, str]:

@@ -7,6 +7,7 @@ import json
 import re
 import shlex
 import sys
+import zipfile
 from pathlib import Path
 
 import gymnasium
@@ -252,3 +253,92 @@ def test_ppo_a2c_and_sac_policies_act_as_sb3_does_and_have_no_samples(algorithm,
     for seed in range(3):
         obs = env.reset(seed=seed)[0]
         assert np.allclose(agent.act(obs), loaded.predict(obs, deterministic=True)[0])
+
+
+def _rewrite_policy_module(path: Path, module: str) -> None:
+    """``path``'s ``data`` JSON with its policy class's module renamed (the zip otherwise as SB3 wrote it)."""
+    with zipfile.ZipFile(path) as archive:
+        entries = {name: archive.read(name) for name in archive.namelist()}
+    data = json.loads(entries["data"])
+    data["policy_class"]["__module__"] = module
+    entries["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(path, "w") as archive:
+        for name, content in entries.items():
+            archive.writestr(name, content)
+
+
+def test_a_policy_class_of_the_users_own_is_told_by_its_algorithms_hyperparameters(tmp_path):
+    # Each of the six algorithms, its policy class renamed into a user's module: still told apart
+    # from the hyperparameters it saved, without unpickling anything.
+    from stable_baselines3 import A2C, DDPG, PPO, SAC
+
+    for cls, env_id, expected in ((DQN, "CartPole-v1", ("DQN",)), (DDPG, "Pendulum-v1", ("TD3", "DDPG")),
+                                  (TD3, "Pendulum-v1", ("TD3", "DDPG")), (SAC, "Pendulum-v1", ("SAC",)),
+                                  (PPO, "CartPole-v1", ("PPO",)), (A2C, "CartPole-v1", ("A2C", "PPO"))):
+        extra = {"buffer_size": 100} if cls in (DQN, DDPG, TD3, SAC) else {}
+        path = tmp_path / f"{cls.__name__}.zip"
+        cls("MlpPolicy", gymnasium.make(env_id), seed=0, **extra).save(path)
+        _rewrite_policy_module(path, "my_policies")
+        assert sb3_algorithm(path) == expected, cls.__name__
+    data = json.loads(zipfile.ZipFile(path).read("data"))  # the A2C's, without the hyperparameters that tell it
+    for key in ("vf_coef", "gae_lambda", "normalize_advantage", "n_steps", "ent_coef"):
+        data.pop(key, None)
+    with zipfile.ZipFile(tmp_path / "odd.zip", "w") as archive:
+        archive.writestr("data", json.dumps(data))
+    with pytest.raises(ConfigError, match="holds a policy of my_policies, and none of the hyperparameters"):
+        sb3_algorithm(tmp_path / "odd.zip")
+
+
+def test_a_users_dqn_policy_with_dropout_loads_from_its_file_with_fixed_masks(tmp_path, monkeypatch):
+    # The way to dropout in an SB3 DQN: a policy class of one's own. Its file loads (the user's module
+    # importable, as in their project), and --masks fixed gives K fixed sub-networks of it.
+    (tmp_path / "my_dropout_policy.py").write_text(
+        "from stable_baselines3.dqn.policies import DQNPolicy\n"
+        "from oodmon.agents.layers import add_dropout\n\n\n"
+        "class DropoutDQNPolicy(DQNPolicy):\n"
+        "    def make_q_net(self):\n"
+        "        q_net = super().make_q_net()\n"
+        "        q_net.q_net = add_dropout(q_net.q_net, 0.1)\n"
+        "        return q_net\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    from my_dropout_policy import DropoutDQNPolicy
+
+    DQN(DropoutDQNPolicy, gymnasium.make("CartPole-v1"), seed=0, buffer_size=100,
+        policy_kwargs={"net_arch": [32, 32]}).save(tmp_path / "mine.zip")
+    assert sb3_algorithm(tmp_path / "mine.zip") == ("DQN",)
+    agent = load_sb3([tmp_path / "mine.zip"], "CartPole-v1", masks="fixed", seed=0)
+    obs = np.zeros(4, np.float32)
+    first, again = agent.estimator.estimate(obs), agent.estimator.estimate(obs)
+    assert agent.estimator.masks == "fixed" and first.samples.shape == (20, 1, 2)
+    np.testing.assert_array_equal(first.samples, again.samples)
+    assert len({s.tobytes() for s in first.samples}) == 20
+
+
+def test_the_readmes_dropout_policy_example_runs_and_reads_fixed_sub_networks(tmp_path, monkeypatch, capsys):
+    # The README's policy class of one's own, its snippet and commands as written, but for a shorter
+    # training (600 steps instead of 8,000: what is tested is that the file loads and is read as fixed
+    # sub-networks, not the example's numbers).
+    from oodmon.monitor import Threshold
+
+    text = README.read_text()
+    block = re.search(r"```sh\n(.*?)```", text[text.index("**A policy of your own class, with dropout.**"):], re.S).group(1)
+    policy = re.search(r"<<'PY'\n(.*?)PY\n", block, re.S).group(1)
+    python = re.search(r'\.venv/bin/python -c "\n(.*?)\n"\n', block, re.S).group(1)
+    assert "model.learn(8000)" in python
+    commands = block[block.index('\n"\n') + 3:].replace("\\\n", " ")
+    argvs = [shlex.split(line)[1:] for line in commands.splitlines() if line.startswith("oodmon ")]
+    assert [a[0] for a in argvs] == ["calibrate", "run", "replay"]
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "runs" / "my_policy.py").write_text(policy)
+    monkeypatch.syspath_prepend(str(tmp_path / "runs"))  # the snippet's PYTHONPATH=runs
+    monkeypatch.delitem(sys.modules, "my_policy", raising=False)
+    exec(compile(python.replace("model.learn(8000)", "model.learn(600)"), "README dropout snippet", "exec"), {})
+    for argv in argvs:
+        assert main(argv) == 0, argv
+    threshold = Threshold.load("runs/dropout.json")
+    assert (threshold.masks, threshold.detector, threshold.score) == ("fixed", "scaled_spread", "margin_std")
+    log = read_log("runs/dropout.mcap")
+    assert log.metadata["about.masks"] == "fixed" and len(log.episodes) == 5
+    assert {"spread", "scaled_spread"} <= set(log.detectors)
+    assert "scaled_spread" in capsys.readouterr().out

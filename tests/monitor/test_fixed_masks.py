@@ -49,8 +49,9 @@ def test_fixed_masks_separate_the_shipped_cartpole_dropconnect_shifts(variant, s
 
 def test_a_threshold_records_its_masks_and_is_refused_for_the_other_kind(tmp_path):
     out = tmp_path / "thr.json"
+    # A loose target (25%, the fewest episodes that bound it at confidence 0.9): the masks are what is tested here.
     result = run_cli("calibrate", "--task", "cartpole", "--method", "dropconnect", "--masks", "fixed", "--score",
-                     "margin_std", "--episodes", "45", "--out", str(out))
+                     "margin_std", "--far", "0.25", "--episodes", "9", "--out", str(out))
     assert result.returncode == 0, result.stderr
     threshold = Threshold.load(out)
     assert threshold.masks == "fixed"
