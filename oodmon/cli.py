@@ -533,10 +533,10 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
                         else f"a shipped agent (default: {defaults_from} method, unless --model)")
     parser.add_argument("--model", help="a trained model directory instead of a shipped agent")
     parser.add_argument("--masks", choices=MASKS,
-                        help="an MC agent's (or one --sb3 model's with dropout) masks: sampled anew at every "
-                             "decision, or fixed: K masks drawn once, so "
-                             "that the spread is that of K fixed sub-networks (the decision is still the mean of sampled "
-                             "masks). Default: the threshold file's, if it records them, else the model's (sampled)")
+                        help="the masks of an MC agent, or of one --sb3 model with dropout: sampled anew at every "
+                             "decision, or fixed: K masks drawn once, so that the spread is that of K fixed "
+                             "sub-networks (the decision is still the mean of sampled masks). Default: the threshold "
+                             "file's, if it records them, else the model's (sampled)")
     _sb3_arguments(parser)
     parser.add_argument("--detectors", metavar="DIR",
                         help="fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside "
