@@ -27,16 +27,24 @@ from oodmon.progress import Progress
 __all__ = ["as_agent", "watch"]
 
 
-def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed: int | None = None) -> Agent:
+def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed: int | None = None,
+             masks: str | None = None) -> Agent:
     """An :class:`~oodmon.agents.Agent` of ``policy``: an Agent as it is; SB3 model files (a path
-    or a list of them) or SB3 models in memory (one or a list), acting in ``env_id``.
+    or a list of them) or SB3 models in memory (one or a list), acting in ``env_id``. ``masks``:
+    the MC masks of one SB3 model with dropout (``sampled`` or ``fixed``, see
+    :func:`~oodmon.agents.sb3.load_sb3`); an Agent keeps the masks it was loaded with.
 
     Raises:
-        ConfigError: SB3 models without ``env_id``, or something that is none of these.
+        ConfigError: SB3 models without ``env_id``, something that is none of these, or an Agent
+            loaded with other masks than ``masks``.
     """
     if isinstance(policy, Agent):
         if env_id is not None and policy.env_id not in (None, env_id):
             raise ConfigError(f"the agent acts in {policy.env_id}, not {env_id}")
+        own = getattr(policy.estimator, "masks", None)
+        if masks is not None and masks != (own or "sampled"):
+            raise ConfigError(f"the agent was loaded with {own or 'no MC'} masks, not {masks!r}: load it with "
+                              f"masks={masks!r} (oodmon.agents.load, load_agent or load_sb3)")
         return policy
     items = list(policy) if isinstance(policy, (list, tuple)) else [policy]
     if env_id is None:
@@ -44,26 +52,28 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
     if items and all(isinstance(item, (str, Path)) for item in items):
         from oodmon.agents.sb3 import load_sb3
 
-        return load_sb3(items, env_id, mean=mean, seed=seed)
+        return load_sb3(items, env_id, mean=mean, seed=seed, masks=masks)
     from oodmon.agents.sb3 import sb3_agent
 
-    return sb3_agent(items, env_id, mean=mean, seed=seed)
+    return sb3_agent(items, env_id, mean=mean, seed=seed, masks=masks)
 
 
 def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None = None, far: float = 0.05,
           confidence: float | None = DEFAULT_CONFIDENCE, episodes: int = 50, fit_episodes: int = 30,
           detector: str | None = None, mean: bool = False, sinks: Sequence[Sink] = (),
           callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
-          on_progress: Progress | None = None) -> Any:
+          on_progress: Progress | None = None, masks: str | None = None) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
     The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy, the
     threshold on ``episodes`` others (``far``, ``confidence`` as in
     :func:`~oodmon.monitor.calibrate_agent`; the alarm reads ``detector``, by default the task's
-    best). ``env``: wrap this env (the one you step) and return the
+    best; ``scaled_spread``, which reads an ensemble's members or an MC policy's fixed sub-networks
+    (``masks="fixed"``), is then fitted too, as ``oodmon calibrate --detector scaled_spread`` fits
+    it). ``env``: wrap this env (the one you step) and return the
     :class:`~oodmon.monitor.MonitoredEnv` instead of the bare monitor; its ``info["oodmon"]``
     says what the monitor saw at every step. ``on_progress(stage, done, total)`` reports progress
-    (see :mod:`oodmon.progress`).
+    (see :mod:`oodmon.progress`). ``masks``: see :func:`as_agent`.
 
     Raises:
         ConfigError, InvalidParameterError: as :func:`as_agent` and the calibration, before any
@@ -75,8 +85,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     from oodmon.monitor.threshold import conformal_rank
 
     conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
-    agent = as_agent(policy, env_id, mean=mean, seed=seed)
-    detectors = fit_agent_detectors(agent, episodes=fit_episodes, on_progress=on_progress)
+    agent = as_agent(policy, env_id, mean=mean, seed=seed, masks=masks)
+    only = ("scaled_spread",) if detector == "scaled_spread" else None  # fitted only when named, as the CLI fits it
+    detectors = fit_agent_detectors(agent, detectors=only, episodes=fit_episodes, on_progress=on_progress)
     threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector, confidence=confidence,
                                 on_progress=on_progress)
     monitor = Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=callbacks)

@@ -165,6 +165,24 @@ def test_watch_fits_calibrates_and_wraps_an_env_in_one_call():
         oodmon.watch(models)
 
 
+def test_watch_reads_one_dropout_models_fixed_sub_networks_when_asked():
+    # watch(..., masks="fixed", detector="scaled_spread") fits that detector itself (as `oodmon
+    # calibrate --detector scaled_spread` does) on the fixed sub-networks, and calibrates on it.
+    import oodmon
+    from oodmon.agents.layers import add_dropout
+    from oodmon.agents.sb3 import sb3_agent
+
+    model = DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0, policy_kwargs={"net_arch": [16, 16]})
+    model.policy.q_net.q_net = add_dropout(model.policy.q_net.q_net, 0.2)
+    monitor = oodmon.watch(model, "CartPole-v1", masks="fixed", detector="scaled_spread", episodes=10, far=0.2,
+                           confidence=None, fit_episodes=6, seed=0)
+    assert monitor.detector == "scaled_spread" and monitor.estimator.masks == "fixed"
+    assert monitor.detectors.fitted_for["masks"] == "fixed" and "scaled_spread" in monitor.detectors.names
+    assert np.isfinite(monitor.tracker.threshold)
+    with pytest.raises(ConfigError, match="loaded with sampled masks, not 'fixed'"):
+        oodmon.watch(sb3_agent([model], "CartPole-v1"), masks="fixed")
+
+
 def test_the_callback_scores_training_rollouts_and_writes_tensorboard(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
