@@ -1,6 +1,6 @@
 """Microseconds per decision with all K samples, beside one stable-baselines3 predict() call.
 
-Run: .venv/bin/python benchmarks/uncertainty_step.py
+Run: .venv/bin/python benchmarks/uncertainty_step.py [--net-arch 64,64]
 
 The estimators are built exactly as the shipped CartPole and Pendulum agents are (each task's
 recipe: CartPole's [256, 256] DQN MLP, Pendulum's [400, 300] DDPG actor; Dropout at the output
@@ -14,9 +14,16 @@ full-depth DropConnect agents do not meet (they drop weights of every layer of e
 meet it on either task). ``ratio_<task>=`` is each task's worst; ``ratio_output_layer=`` the worst of
 the agents whose sampling stops at the output layer; ``ratio_fixed_masks=`` the worst of the MC
 agents loaded with ``masks="fixed"`` (their sampled decision and the fixed sub-networks' pass).
+
+``--net-arch 64,64``: every agent built with these hidden widths instead of its recipe's (a candidate
+that would decide faster; the recipes' drop probabilities and K), beside the same plain predict() of
+the recipes' size and, on a line of its own, a plain predict() of the candidate's size.
 """
 
 from __future__ import annotations
+
+import argparse
+from dataclasses import replace
 
 import gymnasium
 import torch
@@ -33,22 +40,32 @@ REPEATS = {"cartpole": 2000, "pendulum": 500}
 PLAIN = {"cartpole": DQN, "pendulum": DDPG}
 
 
-def task_figures(task: str) -> tuple[float, dict[str, float], set[str], dict[str, float]]:
-    """One plain predict()'s time, each method's decision time by label, the full-depth labels, and
-    the MC methods' decision times with fixed masks (a second pass beside the sampled decision)."""
+def plain_predict_us(task: str, net_arch: list[int]) -> float:
+    """One plain SB3 model's predict() of these hidden widths, at the task's first observation."""
     env = gymnasium.make(ENV_IDS[task])
     obs, _ = env.reset(seed=0)
-    net_arch = list(recipe_for(task, "ensemble").net_arch)
     plain = PLAIN[task]("MlpPolicy", env, policy_kwargs={"net_arch": net_arch}, seed=0, device="cpu")
-    baseline = per_call_us(lambda: plain.predict(obs, deterministic=True), REPEATS[task])
+    return per_call_us(lambda: plain.predict(obs, deterministic=True), REPEATS[task])
+
+
+def task_figures(task: str, net_arch: list[int] | None = None) -> tuple[float, dict[str, float], set[str], dict[str, float]]:
+    """One plain predict()'s time, each method's decision time by label, the full-depth labels, and
+    the MC methods' decision times with fixed masks (a second pass beside the sampled decision);
+    ``net_arch``: the agents' hidden widths instead of their recipes'."""
+    env = gymnasium.make(ENV_IDS[task])
+    obs, _ = env.reset(seed=0)
+    baseline = plain_predict_us(task, list(recipe_for(task, "ensemble").net_arch))
     figures, full_depth, fixed = {}, set(), {}
     for method in ("ensemble", "dropout", "dropconnect"):
         recipe = recipe_for(task, method)
+        if net_arch is not None:
+            recipe = replace(recipe, net_arch=list(net_arch))
         arch = architecture(recipe, env)
         bounds = {} if task == "cartpole" else {"action_low": env.action_space.low, "action_high": env.action_space.high}
         estimator = estimator_for(build_modules(arch), arch, n_samples=recipe.n_samples, **bounds)
         depth = "" if method == "ensemble" else " (output layer)" if recipe.last_only else f" (full depth, p={recipe.drop_p:g})"
-        label = f"{task} {method} K={estimator.n_samples}{depth}"
+        size = "" if net_arch is None else f" {recipe.net_arch}"
+        label = f"{task} {method}{size} K={estimator.n_samples}{depth}"
         if method != "ensemble" and not recipe.last_only:
             full_depth.add(label)
         figures[label] = per_call_us(lambda: estimator.estimate(obs), REPEATS[task])
@@ -59,11 +76,18 @@ def task_figures(task: str) -> tuple[float, dict[str, float], set[str], dict[str
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--net-arch", type=lambda text: [int(w) for w in text.split(",")],
+                        help="hidden widths of every agent instead of its recipe's, e.g. 64,64")
+    args = parser.parse_args()
     torch.set_num_threads(1)
     ratios, output_layer, fixed_ratios = {}, [], []
     for task in ("cartpole", "pendulum"):
-        baseline, figures, full_depth, fixed = task_figures(task)
+        baseline, figures, full_depth, fixed = task_figures(task, args.net_arch)
         print(f"{task + ' sb3 predict (one plain model)':64s} {baseline:10.1f} us")
+        if args.net_arch is not None:
+            own = plain_predict_us(task, args.net_arch)
+            print(f"{task + f' sb3 predict (one plain model, {args.net_arch})':64s} {own:10.1f} us")
         for label, us in (figures | fixed).items():
             print(f"{label:64s} {us:10.1f} us")
         ratios[task] = max(figures.values()) / baseline

@@ -7,8 +7,9 @@ Run (resumable; one torch thread; minutes per seed on Pendulum):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_trials.py --task pendulum --method dropconnect --shipped
     .venv/bin/python scripts/sweep_trials.py --table                       # mean ± std over seeds per variant
 
-``--steps``, ``--select-top``, ``--target-samples`` and ``--final-eps`` (a DQN's final exploration
-rate) change the candidate's training further; the rows record them.
+``--steps``, ``--select-top``, ``--target-samples``, ``--final-eps`` (a DQN's final exploration
+rate) and ``--net-arch`` (hidden widths, e.g. ``64,64``: a smaller network decides faster) change the
+candidate's training further; the rows record them.
 
 The candidate is the shipped recipe with ``last_only=False`` and ``drop_p=p``, trained with seed k into
 ``runs/sweep/trials/<task>-<method>-full-p<p>-seed<k>``. ``--shipped`` measures the shipped recipe's
@@ -30,8 +31,8 @@ from pathlib import Path
 from oodmon.agents import load_agent
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import train
-from sweep_full_depth import (MC_SEED, VARIANTS, append_row, bench_trial, check_dqn_options, dqn_changes, dqn_tag,
-                              parse_or_print_table, read_rows, spread_aurocs, variant_cells)
+from sweep_full_depth import (MC_SEED, VARIANTS, _widths, append_row, bench_trial, check_dqn_options, dqn_changes,
+                              dqn_tag, parse_or_print_table, read_rows, spread_aurocs, variant_cells)
 
 OUT = Path("results/sweeps/trials.jsonl")
 
@@ -40,6 +41,8 @@ def _label(row: dict) -> str:
     """The row's recipe: depth and p, and its steps and choice among snapshots where the row records
     them (rows before 2026-11-24 do not: they were trained for the recipe's steps of their time)."""
     label = f"{'output layer' if row['last_only'] else 'full depth'}, p={row['drop_p']:g}"
+    if row.get("net_arch"):
+        label += f", hidden {list(row['net_arch'])}"
     if "total_steps" in row:
         label += f", {row['total_steps']:,} steps"
     if row.get("select_top"):
@@ -56,8 +59,10 @@ def _shown(row: dict) -> str:
     another recipe was shipped keep their settings)."""
     shipped = recipe_for(row["task"], row["method"])
     made = (row["drop_p"], row["last_only"], row.get("total_steps", shipped.total_steps),
-            row.get("select_top", shipped.select_top), row.get("target_samples", 0), row.get("exploration_final_eps"))
-    today = (shipped.drop_p, shipped.last_only, shipped.total_steps, shipped.select_top, shipped.target_samples, None)
+            row.get("select_top", shipped.select_top), row.get("target_samples", 0), row.get("exploration_final_eps"),
+            list(row.get("net_arch") or shipped.net_arch))
+    today = (shipped.drop_p, shipped.last_only, shipped.total_steps, shipped.select_top, shipped.target_samples, None,
+             list(shipped.net_arch))
     return _label(row) + (" (shipped)" if made == today else " (shipped before)" if row.get("shipped") else "")
 
 
@@ -88,6 +93,8 @@ def main() -> None:
                         "of this many MC samples of its target network (Recipe.target_samples; default 0: SB3's)")
     parser.add_argument("--final-eps", type=float, help="DQN: the candidate's final exploration rate (default the "
                         "recipe's)")
+    parser.add_argument("--net-arch", type=_widths, help="the candidate's hidden widths, e.g. 64,64 (default the "
+                        "recipe's)")
     parser.add_argument("--shipped", action="store_true", help="measure the shipped recipe's five trials instead")
     parser.add_argument("--seeds", default="0,1,2,3,4")
     args = parse_or_print_table(parser, table)
@@ -107,6 +114,8 @@ def main() -> None:
                         "select_top": args.select_top}
             if args.target_samples:
                 settings["target_samples"] = args.target_samples
+            if args.net_arch is not None:
+                settings["net_arch"] = list(args.net_arch)
             settings |= dqn_changes(args)
         if (args.task, args.method, _label(settings), seed) in done:
             continue
@@ -115,10 +124,12 @@ def main() -> None:
         else:
             out = (f"runs/sweep/trials/{args.task}-{args.method}-full-p{args.p:g}-steps{settings['total_steps']}"
                    f"-top{args.select_top}{f'-target{args.target_samples}' if args.target_samples else ''}"
-                   f"{dqn_tag(dqn_changes(args))}-seed{seed}")
+                   f"{dqn_tag(dqn_changes(args))}{'-net' + 'x'.join(map(str, args.net_arch)) if args.net_arch else ''}"
+                   f"-seed{seed}")
             recipe = replace(shipped, last_only=False, drop_p=args.p, total_steps=settings["total_steps"],
                              select_top=args.select_top, select_episodes=20, target_samples=args.target_samples,
-                             hyperparams=shipped.hyperparams | dqn_changes(args))
+                             hyperparams=shipped.hyperparams | dqn_changes(args),
+                             net_arch=list(args.net_arch) if args.net_arch else shipped.net_arch)
             train(args.task, args.method, out, seed=seed, recipe=recipe, command=f"scripts/sweep_trials.py ({out})")
             agent = load_agent(out, task=args.task, seed=MC_SEED)
         auroc, returns, _ = spread_aurocs(agent, args.task, VARIANTS[(args.task, args.method)])

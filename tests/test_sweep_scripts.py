@@ -67,6 +67,22 @@ def test_sweep_trials_final_eps_trains_and_records_the_exploration_rate(scripts,
     assert trials._shown(rows[0]).endswith("(shipped)") and not trials._shown(row).endswith("(shipped)")
 
 
+def test_sweep_trials_net_arch_trains_the_candidate_at_those_widths_and_labels_its_row(scripts, monkeypatch):
+    _, trials = scripts
+    trained, rows = _run(trials, monkeypatch, "--task", "pendulum", "--method", "dropconnect", "--p", "0.05",
+                         "--net-arch", "64,64", "--seeds", "2")
+    (out, recipe), = trained
+    assert out.endswith("-top0-net64x64-seed2") and recipe.net_arch == [64, 64]
+    assert (recipe.drop_p, recipe.last_only, recipe.total_steps) == (0.05, False, 20_000)  # the rest: the recipe's
+    row, = rows
+    assert row["net_arch"] == [64, 64] and trials._label(row) == "full depth, p=0.05, hidden [64, 64], 20,000 steps"
+    assert not trials._shown(row).endswith("(shipped)")  # the shipped recipe's widths are [400, 300]
+    trained, rows = _run(trials, monkeypatch, "--task", "pendulum", "--method", "dropconnect", "--p", "0.05",
+                         "--seeds", "2")
+    assert trained[0][1].net_arch == [400, 300] and "net_arch" not in rows[0]
+    assert trials._shown(rows[0]).endswith("(shipped)")
+
+
 def test_sweep_full_depth_buffer_and_final_eps_train_and_key_the_row(scripts, monkeypatch):
     full_depth, _ = scripts
     monkeypatch.setattr(full_depth, "_measure", lambda agent, task, method, settings, start=None: captured.append(settings))
