@@ -78,6 +78,8 @@ def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
                           "policy class)") from None
     if module in SB3_ALGORITHMS:
         return SB3_ALGORITHMS[module]
+    if module.split(".")[0] in ("stable_baselines3", "sb3_contrib"):  # their other algorithms (QR-DQN, TQC, ...)
+        raise ConfigError(f"{path} holds a policy of {module}; oodmon loads DQN, DDPG, TD3, SAC, PPO and A2C models")
     algorithms = next((names for key, names in SB3_HYPERPARAMETERS if key in data), None)
     if algorithms is None:
         raise ConfigError(f"{path} holds a policy of {module}, and none of the hyperparameters DQN, DDPG, TD3, SAC, PPO "

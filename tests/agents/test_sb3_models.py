@@ -305,6 +305,10 @@ def test_a_policy_class_of_the_users_own_is_told_by_its_algorithms_hyperparamete
         archive.writestr("data", json.dumps(data))
     with pytest.raises(ConfigError, match="holds a policy of my_policies, and none of the hyperparameters"):
         sb3_algorithm(tmp_path / "odd.zip")
+    # sb3-contrib's algorithms (QR-DQN saves DQN's hyperparameters) stay refused by their module.
+    _rewrite_policy_module(tmp_path / "DQN.zip", "sb3_contrib.qrdqn.policies")
+    with pytest.raises(ConfigError, match="holds a policy of sb3_contrib.qrdqn.policies; oodmon loads DQN"):
+        sb3_algorithm(tmp_path / "DQN.zip")
 
 
 def test_a_users_dqn_policy_with_dropout_loads_from_its_file_with_fixed_masks(tmp_path, monkeypatch):
