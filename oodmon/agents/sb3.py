@@ -87,15 +87,31 @@ def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
     return algorithms
 
 
+def _policy_base(name: str) -> type:
+    """The SB3 policy class every policy of algorithm ``name`` derives from (a user's own class too)."""
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.dqn.policies import DQNPolicy
+    from stable_baselines3.sac.policies import SACPolicy
+    from stable_baselines3.td3.policies import TD3Policy
+
+    return {"DQN": DQNPolicy, "TD3": TD3Policy, "DDPG": TD3Policy, "SAC": SACPolicy, "PPO": ActorCriticPolicy,
+            "A2C": ActorCriticPolicy}[name]
+
+
 def _load_one(path: Path) -> tuple[Any, str]:
     import stable_baselines3
 
     errors = []
     for name in sb3_algorithm(path):
         try:
-            return getattr(stable_baselines3, name).load(path, device="cpu"), name
+            model = getattr(stable_baselines3, name).load(path, device="cpu")
         except Exception as error:  # noqa: BLE001  (the next class of the same policy may load it)
             errors.append(f"{name}: {error}")
+            continue
+        if not isinstance(model.policy, _policy_base(name)):  # a policy of another algorithm, told by its hyperparameters
+            errors.append(f"{name}: its policy {type(model.policy).__name__} is no {_policy_base(name).__name__}")
+            continue
+        return model, name
     raise ConfigError(f"stable-baselines3 could not load {path}: {'; '.join(errors)}")
 
 

@@ -305,6 +305,16 @@ def test_a_policy_class_of_the_users_own_is_told_by_its_algorithms_hyperparamete
         archive.writestr("data", json.dumps(data))
     with pytest.raises(ConfigError, match="holds a policy of my_policies, and none of the hyperparameters"):
         sb3_algorithm(tmp_path / "odd.zip")
+    # A file told as DQN by its hyperparameters must load as a DQN policy (a QR-DQN's subclass would not).
+    import stable_baselines3
+
+    from oodmon.agents import sb3
+
+    ppo = PPO("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(stable_baselines3.DQN, "load", lambda *a, **k: ppo)
+        with pytest.raises(ConfigError, match="its policy ActorCriticPolicy is no DQNPolicy"):
+            sb3._load_one(tmp_path / "DQN.zip")
     # sb3-contrib's algorithms (QR-DQN saves DQN's hyperparameters) stay refused by their module.
     _rewrite_policy_module(tmp_path / "DQN.zip", "sb3_contrib.qrdqn.policies")
     with pytest.raises(ConfigError, match="holds a policy of sb3_contrib.qrdqn.policies; oodmon loads DQN"):
