@@ -136,7 +136,7 @@ def main() -> None:
     parser.add_argument("--grid", default=",".join(str(p) for p in GRID))
     parser.add_argument("--learning-rate", type=float, help="instead of the recipe's (recorded in the row)")
     parser.add_argument("--steps", type=int, help="training steps instead of the recipe's (recorded in the row)")
-    parser.add_argument("--net-arch", type=_widths,
+    parser.add_argument("--net-arch", type=parse_widths,
                         help="hidden widths instead of the recipe's, e.g. 64,64 (recorded in the row)")
     parser.add_argument("--target-samples", type=int, default=0,
                         help="DQN: the TD target is the mean of this many MC samples of the target network (recorded)")
@@ -186,7 +186,7 @@ def main() -> None:
                 _measure(load_agent(f"runs/sweep/{name}", task=task, seed=MC_SEED), task, method, settings, start)
 
 
-def _widths(text: str) -> list[int]:
+def parse_widths(text: str) -> list[int]:
     """``--net-arch``: hidden widths as comma-separated whole numbers, e.g. ``64,64``."""
     try:
         widths = [int(w) for w in text.split(",")]

@@ -31,8 +31,8 @@ from pathlib import Path
 from oodmon.agents import load_agent
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import train
-from sweep_full_depth import (MC_SEED, VARIANTS, _widths, append_row, bench_trial, check_dqn_options, dqn_changes,
-                              dqn_tag, parse_or_print_table, read_rows, spread_aurocs, variant_cells)
+from sweep_full_depth import (MC_SEED, VARIANTS, append_row, bench_trial, check_dqn_options, dqn_changes, dqn_tag,
+                              parse_or_print_table, parse_widths, read_rows, spread_aurocs, variant_cells)
 
 OUT = Path("results/sweeps/trials.jsonl")
 
@@ -93,7 +93,7 @@ def main() -> None:
                         "of this many MC samples of its target network (Recipe.target_samples; default 0: SB3's)")
     parser.add_argument("--final-eps", type=float, help="DQN: the candidate's final exploration rate (default the "
                         "recipe's)")
-    parser.add_argument("--net-arch", type=_widths, help="the candidate's hidden widths, e.g. 64,64 (default the "
+    parser.add_argument("--net-arch", type=parse_widths, help="the candidate's hidden widths, e.g. 64,64 (default the "
                         "recipe's)")
     parser.add_argument("--shipped", action="store_true", help="measure the shipped recipe's five trials instead")
     parser.add_argument("--seeds", default="0,1,2,3,4")
