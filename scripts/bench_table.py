@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from oodmon.agents.evaluation import SOLVED_RETURN  # noqa: E402
-from oodmon.bench.config import PAPER_METHOD, paper_label  # noqa: E402
+from oodmon.bench.config import PAPER_METHOD, BenchConfig, paper_label  # noqa: E402
 from oodmon.bench.report import unsolved_trials  # noqa: E402
 from oodmon.paper import paper_auc_per_trial  # noqa: E402
 
@@ -51,7 +51,8 @@ def table(path: Path) -> str:
     samples = f", {config['samples']} MC samples per decision" if config.get("samples") else ""
     samples += f", ensembles of {config['members']} members" if config.get("members") else ""
     samples += ", fixed MC masks" if config.get("masks") == "fixed" else ""
-    if (config.get("id_episodes", 10), config.get("episodes", 5)) != (10, 5):  # the paper protocol's defaults
+    defaults = (BenchConfig.id_episodes, BenchConfig.episodes)  # the paper protocol's episodes per trial
+    if (config.get("id_episodes", defaults[0]), config.get("episodes", defaults[1])) != defaults:
         samples += f", {config['id_episodes']} ID episodes and {config['episodes']} per variant for each trial"
     lines = [f"`{data['command']}` ({config['trials']} trials, score `{config['score']}`{samples}):", ""]
     for index, detector in enumerate(_detectors(config)):

@@ -18,7 +18,6 @@ AUROC over the episodes that fail only, then both rows' mean ± std over the tri
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import warnings
 from dataclasses import fields
@@ -27,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.bench.cache import _cell_log
+from oodmon.bench.baseline import load_bench_result
 from oodmon.bench.config import BenchConfig
 from oodmon.replay import read_log
 from oodmon.replay.metrics import failure_step
@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--variants", default=None,
                         help="comma-separated variant specs (default: the rows of the paper's variants)")
     args = parser.parse_args(argv)
-    results = json.loads(args.results.read_text())
+    results = load_bench_result(args.results)
     config = bench_config(results, args.out)
     if config.task != "cartpole" or config.protocol != "paper":
         raise SystemExit("shifted_episodes: CartPole benches of the paper's protocol only (a CartPole episode fails "

@@ -134,15 +134,17 @@ class UncertaintyEstimator:
         pre_squash_std = pre_squash = None
         if self._squash:
             pre_squash, pre_squash_std = samples, _std(samples)
-            samples = np.tanh(samples)
-        samples = self._to_action_units(samples)
+        samples = self._outputs(samples)
         mean = _mean(samples)
         std = _std(samples, mean)
-        decided = mean if decision is None else _mean(self._to_action_units(np.tanh(decision) if self._squash else decision))
+        decided = mean if decision is None else _mean(self._outputs(decision))
         action = decided.argmax(axis=1) if self.kind == "q_values" else decided
         return Estimate(action, samples, mean, std, pre_squash_std, features, pre_squash)
 
-    def _to_action_units(self, samples: np.ndarray) -> np.ndarray:
+    def _outputs(self, raw: np.ndarray) -> np.ndarray:
+        """Samples as the network's outputs give them: squashed by the tanh the compiled layers left
+        out (actors), in the env's action units (``kind="actions"``)."""
+        samples = np.tanh(raw) if self._squash else raw
         return samples * self._scale + self._offset if self.kind == "actions" else samples
 
     def _sample(self, batch: np.ndarray) -> np.ndarray:
