@@ -9,7 +9,9 @@ Each file is what `oodmon bench ... --results FILE` wrote (its command is inside
 results/bench/README.md). One row per variant the paper's appendix reports for a method: our
 per-step AUROC, mean ± std over the trials where the agent failed on that variant (the paper's
 protocol scores only failing variants), beside the paper's five trials; "does not fail" where none
-of our trials failed on it. Then the best mean per task against the paper's best mean, and per
+of our trials failed on it. CartPole files that count them also give how many of those trials'
+shifted episodes failed ("23 of 25 episodes fail"): the protocol scores every step of the others as
+shifted too, though the agent coped. Then the best mean per task against the paper's best mean, and per
 method how many of the paper's variants we meet (mean >= the paper's, and std <= the paper's).
 """
 
@@ -90,13 +92,24 @@ def _detector_table(data: dict, detector: str) -> list[str]:
             counts[0] += mean_ok
             counts[1] += mean_ok and std_ok
             best_ours = max(best_ours, (row["mean"], f"{method} {label}"))
-            lines.append(f"| {method} | {label} | {row['mean']:.3f} ± {row['std']:.3f} ({len(row['aurocs'])}) | "
+            lines.append(f"| {method} | {label} | {row['mean']:.3f} ± {row['std']:.3f} ({len(row['aurocs'])}"
+                         f"{_episodes_failing(data, row)}) | "
                          f"{theirs} | {row['aupr_mean']:.3f} / {row['fpr95_mean']:.3f} | "
                          f"{'yes' if mean_ok else 'no'} | {'yes' if std_ok else 'no'} |")
     lines += ["", f"Best mean AUROC: ours {best_ours[0]:.3f} ({best_ours[1]}), the paper's {best_paper[0]:.3f} "
                   f"({best_paper[1]}). Variants of the paper where our mean reaches the paper's (and our std is at most "
                   "the paper's): " + ", ".join(f"{m} {c[0]}/{c[2]} ({c[1]}/{c[2]})" for m, c in met.items()) + "."]
     return lines
+
+
+def _episodes_failing(data: dict, row: dict) -> str:
+    """"; F of N episodes fail": over the row's trials, the shifted episodes that failed after the
+    onset of all those scored (every step of the others is scored as shifted too); empty for a
+    file written before the bench counted them, and for Pendulum and Pong (``oodmon.bench.run``)."""
+    cells = [data["monitor"].get(f"{row['method']}/trial{trial}/{row['variant']}", {}) for trial in row["aurocs"]]
+    if any(cell.get("failed") is None for cell in cells):
+        return ""
+    return f"; {sum(c['failed'] for c in cells)} of {sum(c['episodes'] for c in cells)} episodes fail"
 
 
 def _id_return_line(id_returns: dict, task: str) -> str:

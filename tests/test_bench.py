@@ -13,7 +13,7 @@ from safetensors.torch import load_file
 from oodmon.bench import BenchConfig, best_per_method, paper_label, run_bench
 from oodmon.bench.report import unsolved_trials
 from oodmon.errors import ConfigError
-from oodmon.replay import compute_metrics, read_log
+from oodmon.replay import compute_metrics, read_log, read_logs
 from tests.helpers import load_script, run_cli
 
 SPECS = ("cartpole:length=2.0", "cartpole:gravity=98.0", "cartpole:gravity=0.98")
@@ -138,6 +138,11 @@ def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
     assert f"{detected:.0%}" in alarm_row
     id_row = next(line for line in tables.stdout.splitlines() if "│ cartpole " in line)
     assert f"{report['monitor']['ensemble/trial0/cartpole']['false_alarm_rate']:.0%}" in id_row
+    # How many shifted episodes failed (the pole fell: the env ended them), as the log has them.
+    shifted = next(log for log in read_logs([tmp_path]) if log.episodes[0].variant == "cartpole:length=2.0")
+    cell = report["monitor"]["ensemble/trial0/cartpole:length=2.0"]
+    assert cell["episodes"] == 2 and cell["failed"] == sum(e.terminated for e in shifted.episodes)
+    assert report["monitor"]["ensemble/trial0/cartpole"]["failed"] is None  # ID episodes: no shift to fail in
 
 
 def test_best_per_method_ranks_each_methods_variants_by_their_best_trial():

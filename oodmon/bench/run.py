@@ -59,7 +59,7 @@ class _Relay:
 
 def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> BenchResult:
     """Run (or resume) the bench; return its rows. ``on_progress(stage, done, total)`` reports."""
-    from oodmon.replay import compute_metrics, read_log
+    from oodmon.replay import compute_metrics, failed_episodes, read_log
 
     report = on_progress or (lambda stage, done, total: None)
     trials = [(m, t) for m in config.methods for t in range(config.trials)]
@@ -99,6 +99,9 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
     for (method, trial), (_, _, failing, _) in prepared.items():
         logs = [read_log(_cell_log(config, method, trial, spec)) for spec in [config.task, *_monitored(config, failing)]]
         every_log += logs
+        # CartPole's failures are the env's own at any onset; Pendulum's need a swung-up pole at the
+        # onset, which the paper's protocol (onset 0) has not.
+        failed = failed_episodes(logs) if config.task == "cartpole" else {}
         for order, detector in enumerate(config.detectors):
             for m in compute_metrics(logs, detector):
                 if m.auroc is not None:
@@ -108,7 +111,7 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
                 if detector == config.alarm_detector:
                     key = f"{method}/trial{trial}/{m.variant}"
                     detection[key] = {"false_alarm_rate": m.false_alarm_rate, "detection_rate": m.detection_rate,
-                                      "delay_mean": m.delay_mean}
+                                      "delay_mean": m.delay_mean, "episodes": m.episodes, "failed": failed.get(m.variant)}
     paper = paper_auc_per_trial().get(config.task, {})
     result_rows = []
     for (method, spec, order), per_trial in sorted(rows.items()):

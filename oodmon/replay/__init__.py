@@ -8,7 +8,7 @@ from __future__ import annotations
 from oodmon.replay.check import baseline_of, check_tolerance, find_falls, load_baseline
 from oodmon.replay.metrics import (
     MonitorMetrics, VariantMetrics, alarm_events, compute_all_metrics, compute_metrics, compute_monitor_metrics,
-    detectors_in, failure_step, fpr_at_tpr,
+    detectors_in, failed_episodes, failure_step, fpr_at_tpr,
 )
 from oodmon.replay.reader import EpisodeLog, RecoveryWarning, RunLog, SkippedLogWarning, read_log, read_logs
 from oodmon.replay.report import monitor_markdown, monitor_summary, monitor_table, to_csv, to_json, to_markdown, to_table
@@ -27,6 +27,7 @@ __all__ = [
     "compute_metrics",
     "compute_monitor_metrics",
     "detectors_in",
+    "failed_episodes",
     "failure_step",
     "find_falls",
     "fpr_at_tpr",

@@ -25,7 +25,7 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "MonitorMetrics", "VariantMetrics", "alarm_events",
            "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "detectors_in",
-           "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row"]
+           "failed_episodes", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row"]
 
 
 @dataclass(frozen=True)
@@ -235,6 +235,27 @@ def failure_step(episode: EpisodeLog, task: str) -> int | None:
         return None
     last = episode.length - 1
     return last if last >= episode.onset else None
+
+
+def failed_episodes(logs: Iterable[RunLog]) -> dict[str, int]:
+    """Per shifted variant of ``logs`` (CartPole and Pendulum), how many of its episodes failed after
+    the onset (:func:`failure_step`). The paper's protocol scores every step of a shifted episode as
+    shifted, so an episode the agent survives adds steps that look ID by design. Pong has no
+    failure here, and no entry; Pendulum's needs a pole swung up at the onset, which an episode
+    shifted from its first step (the paper's protocol) seldom has, so count it only for later onsets.
+
+    Example:
+        >>> from oodmon.replay.reader import EpisodeLog, RunLog
+        >>> def e(terminated):
+        ...     return EpisodeLog(episode=0, env_id="", variant="cartpole:masscart=9.0", onset=0, seed=0,
+        ...                       total_return=9.0, length=9, alarms=0, first_alarm_step=None, terminated=terminated,
+        ...                       scores=np.zeros(9), shifted=np.ones(9, bool), alarm=np.zeros(9, bool))
+        >>> failed_episodes([RunLog("x.mcap", "cartpole", "dropconnect", 1.0, {}, [e(True), e(False), e(True)], True)])
+        {'cartpole:masscart=9.0': 2}
+    """
+    return {variant: sum(failure_step(e, task) is not None for _, e in pairs)
+            for (task, _, variant), pairs in _episodes_by_variant(logs).items()
+            if task != "pong" and not is_id_variant(variant)}
 
 
 @dataclass(frozen=True)
