@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 from oodmon.agents.evaluation import SOLVED_RETURN  # noqa: E402
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, paper_label  # noqa: E402
-from oodmon.bench.report import unsolved_trials  # noqa: E402
+from oodmon.bench.report import episodes_failing, unsolved_trials  # noqa: E402
 from oodmon.paper import paper_auc_per_trial  # noqa: E402
 
 RESULTS = ROOT / "results" / "bench"
@@ -103,13 +103,10 @@ def _detector_table(data: dict, detector: str) -> list[str]:
 
 
 def _episodes_failing(data: dict, row: dict) -> str:
-    """"; F of N episodes fail": over the row's trials, the shifted episodes that failed after the
-    onset of all those scored (every step of the others is scored as shifted too); empty for a
-    file written before the bench counted them, and for Pendulum and Pong (``oodmon.bench.run``)."""
-    cells = [data["monitor"].get(f"{row['method']}/trial{trial}/{row['variant']}", {}) for trial in row["aurocs"]]
-    if any(cell.get("failed") is None for cell in cells):
-        return ""
-    return f"; {sum(c['failed'] for c in cells)} of {sum(c['episodes'] for c in cells)} episodes fail"
+    """"; F of N episodes fail" over the row's trials (``episodes_failing``); empty for a file
+    written before the bench counted them, and for Pendulum and Pong."""
+    count = episodes_failing(data["monitor"], row["method"], row["variant"], row["aurocs"])
+    return "" if count is None else f"; {count[0]} of {count[1]} episodes fail"
 
 
 def _id_return_line(id_returns: dict, task: str) -> str:

@@ -65,6 +65,24 @@ def alarms_per_variant(result: BenchResult) -> list[tuple[str, str, float | None
                                                                                      item[0][1]))]
 
 
+def episodes_failing(detection: dict, method: str, variant: str, trials: Iterable) -> tuple[int, int] | None:
+    """Of the shifted episodes of ``variant`` that ``trials`` of ``method`` played, how many failed and
+    how many there were, from :attr:`BenchResult.detection` or its JSON (``monitor``); ``None`` where
+    a cell has no count (CartPole's only, since 2026-11-26). The paper's protocol scores every step
+    of the episodes the agent coped with as shifted too.
+
+    Example:
+        >>> cells = {"dropconnect/trial0/cartpole:masscart=9.0": {"episodes": 5, "failed": 5},
+        ...          "dropconnect/trial1/cartpole:masscart=9.0": {"episodes": 5, "failed": 3}}
+        >>> episodes_failing(cells, "dropconnect", "cartpole:masscart=9.0", [0, 1])
+        (8, 10)
+    """
+    cells = [detection.get(f"{method}/trial{trial}/{variant}", {}) for trial in trials]
+    if any(cell.get("failed") is None for cell in cells):
+        return None
+    return sum(cell["failed"] for cell in cells), sum(cell["episodes"] for cell in cells)
+
+
 def unsolved_trials(id_returns: dict, task: str) -> list[tuple[str, int, float]]:
     """The trials whose model does not solve ``task`` (ID return below :data:`SOLVED_RETURN`), as
     ``(method, trial, ID return)``: their failing variants and AUROCs come from an agent that fails
@@ -86,13 +104,18 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
     per detector where there are several, and what the alarm rule did."""
     several = len(config.detectors) > 1
     table = Table(title=f"{config.task}: per-step AUROC per failing variant, ours (mean ± std over trials) beside the paper's")
-    columns = ("method", *(("detector",) if several else ()), "variant", "trials", "ours", "paper", "difference")
+    failing = {(r.method, r.variant): episodes_failing(result.detection, r.method, r.variant, r.aurocs) for r in result.rows}
+    counted = any(count is not None for count in failing.values())
+    columns = ("method", *(("detector",) if several else ()), "variant", "trials",
+               *(("episodes failed",) if counted else ()), "ours", "paper", "difference")
     for column in columns:
         table.add_column(column, justify="left" if column in ("method", "detector", "variant") else "right")
     for row in sorted(result.rows, key=lambda r: (r.method, r.variant, config.detectors.index(r.detector))):
         paper = f"{np.mean(row.paper):.3f} ± {np.std(row.paper):.3f}" if row.paper else ""
         difference = f"{row.mean - np.mean(row.paper):+.3f}" if row.paper else ""
+        count = failing[(row.method, row.variant)]
         table.add_row(row.method, *((row.detector,) if several else ()), row.variant, str(len(row.aurocs)),
+                      *(("" if count is None else f"{count[0]} of {count[1]}",) if counted else ()),
                       f"{row.mean:.3f} ± {row.std:.3f}", paper, difference)
     console.print(table)
     best = Table(title=f"{config.task}: best single-trial AUROC per method (the paper's main tables)")
