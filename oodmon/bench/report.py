@@ -68,8 +68,8 @@ def alarms_per_variant(result: BenchResult) -> list[tuple[str, str, float | None
 def episodes_failing(detection: dict, method: str, variant: str, trials: Iterable) -> tuple[int, int] | None:
     """Of the shifted episodes of ``variant`` that ``trials`` of ``method`` played, how many failed and
     how many there were, from :attr:`BenchResult.detection` or its JSON (``monitor``); ``None`` where
-    a cell has no count (CartPole's only, since 2026-11-26). The paper's protocol scores every step
-    of the episodes the agent coped with as shifted too.
+    a cell has no count (the bench counts CartPole's only, since 2026-11-26). The paper's protocol
+    scores every step of the episodes the agent coped with as shifted too.
 
     Example:
         >>> cells = {"dropconnect/trial0/cartpole:masscart=9.0": {"episodes": 5, "failed": 5},

@@ -241,8 +241,9 @@ def failed_episodes(logs: Iterable[RunLog]) -> dict[str, int]:
     """Per shifted variant of ``logs`` (CartPole and Pendulum), how many of its episodes failed after
     the onset (:func:`failure_step`). The paper's protocol scores every step of a shifted episode as
     shifted, so an episode the agent survives adds steps that look ID by design. Pong has no
-    failure here, and no entry; Pendulum's needs a pole swung up at the onset, which an episode
-    shifted from its first step (the paper's protocol) seldom has, so count it only for later onsets.
+    failure here, and no entry. Pendulum's failure needs a pole swung up at the onset, which an
+    episode shifted from its first step (the paper's protocol) seldom has: its count means something
+    only for later onsets (the bench counts CartPole's alone).
 
     Example:
         >>> from oodmon.replay.reader import EpisodeLog, RunLog
