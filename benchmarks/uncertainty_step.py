@@ -32,7 +32,7 @@ from stable_baselines3 import DDPG, DQN
 import oodmon  # noqa: F401  (registers the envs)
 from oodmon.agents.algorithms import architecture
 from oodmon.agents.networks import build_modules, estimator_for
-from oodmon.agents.recipes import recipe_for
+from oodmon.agents.recipes import parse_widths, recipe_for
 from oodmon.envs.grid import ENV_IDS
 from timing import per_call_us  # benchmarks/timing.py, beside this script
 
@@ -77,7 +77,7 @@ def task_figures(task: str, net_arch: list[int] | None = None) -> tuple[float, d
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--net-arch", type=lambda text: [int(w) for w in text.split(",")],
+    parser.add_argument("--net-arch", type=parse_widths,
                         help="hidden widths of every agent instead of its recipe's, e.g. 64,64")
     args = parser.parse_args()
     torch.set_num_threads(1)

@@ -36,7 +36,7 @@ import numpy as np
 from sklearn.metrics import roc_auc_score
 
 from oodmon.agents import SOLVED_RETURN, load, load_agent, zoo_dir
-from oodmon.agents.recipes import RECIPES, recipe_for
+from oodmon.agents.recipes import RECIPES, parse_widths, recipe_for
 from oodmon.agents.training import train
 from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
@@ -184,17 +184,6 @@ def main() -> None:
                 start = time.monotonic()
                 train(task, method, f"runs/sweep/{name}", seed=0, recipe=recipe, command=f"scripts/sweep_full_depth.py ({name})")
                 _measure(load_agent(f"runs/sweep/{name}", task=task, seed=MC_SEED), task, method, settings, start)
-
-
-def parse_widths(text: str) -> list[int]:
-    """``--net-arch``: hidden widths as comma-separated whole numbers, e.g. ``64,64``."""
-    try:
-        widths = [int(w) for w in text.split(",")]
-    except ValueError:
-        widths = []
-    if not widths or min(widths) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a list of hidden widths such as 64,64")
-    return widths
 
 
 #: The sweeps' DQN options: argparse name -> (the recipe's hyperparameter, its tag in a folder name).

@@ -29,10 +29,10 @@ from dataclasses import replace
 from pathlib import Path
 
 from oodmon.agents import load_agent
-from oodmon.agents.recipes import recipe_for
+from oodmon.agents.recipes import parse_widths, recipe_for
 from oodmon.agents.training import train
 from sweep_full_depth import (MC_SEED, VARIANTS, append_row, bench_trial, check_dqn_options, dqn_changes, dqn_tag,
-                              parse_or_print_table, parse_widths, read_rows, spread_aurocs, variant_cells)
+                              parse_or_print_table, read_rows, spread_aurocs, variant_cells)
 
 OUT = Path("results/sweeps/trials.jsonl")
 

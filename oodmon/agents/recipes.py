@@ -7,13 +7,14 @@ plain data: :func:`oodmon.agents.training.train` reads it, nothing else does.
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass, replace
 from typing import Any
 
 from oodmon.errors import UnknownParameterError
 from oodmon.names import METHODS
 
-__all__ = ["METHODS", "RECIPES", "Recipe", "recipe_architecture", "recipe_differences", "recipe_for", "recipe_metadata",
+__all__ = ["METHODS", "RECIPES", "Recipe", "parse_widths", "recipe_architecture", "recipe_differences", "recipe_for", "recipe_metadata",
            "recipe_record"]
 
 
@@ -207,3 +208,20 @@ def recipe_differences(metadata: dict[str, Any], recipe: Recipe) -> list[str]:
     differences += [f"{name}: {before.get(name)!r} -> {hyper.get(name)!r}" for name in sorted(set(hyper) | set(before))
                     if before.get(name) != hyper.get(name)]
     return differences
+
+
+def parse_widths(text: str) -> list[int]:
+    """A ``--net-arch`` option's hidden widths (the scripts' and benchmarks' candidates of another size),
+    comma-separated whole numbers.
+
+    Example:
+        >>> parse_widths("64,64")
+        [64, 64]
+    """
+    try:
+        widths = [int(w) for w in text.split(",")]
+    except ValueError:
+        widths = []
+    if not widths or min(widths) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a list of hidden widths such as 64,64")
+    return widths

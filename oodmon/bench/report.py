@@ -104,8 +104,8 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
     per detector where there are several, and what the alarm rule did."""
     several = len(config.detectors) > 1
     table = Table(title=f"{config.task}: per-step AUROC per failing variant, ours (mean ± std over trials) beside the paper's")
-    failing = {(r.method, r.variant): episodes_failing(result.detection, r.method, r.variant, r.aurocs) for r in result.rows}
-    counted = any(count is not None for count in failing.values())
+    counts = {(r.method, r.variant): episodes_failing(result.detection, r.method, r.variant, r.aurocs) for r in result.rows}
+    counted = any(count is not None for count in counts.values())
     columns = ("method", *(("detector",) if several else ()), "variant", "trials",
                *(("episodes failed",) if counted else ()), "ours", "paper", "difference")
     for column in columns:
@@ -113,7 +113,7 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
     for row in sorted(result.rows, key=lambda r: (r.method, r.variant, config.detectors.index(r.detector))):
         paper = f"{np.mean(row.paper):.3f} ± {np.std(row.paper):.3f}" if row.paper else ""
         difference = f"{row.mean - np.mean(row.paper):+.3f}" if row.paper else ""
-        count = failing[(row.method, row.variant)]
+        count = counts[(row.method, row.variant)]
         table.add_row(row.method, *((row.detector,) if several else ()), row.variant, str(len(row.aurocs)),
                       *(("" if count is None else f"{count[0]} of {count[1]}",) if counted else ()),
                       f"{row.mean:.3f} ± {row.std:.3f}", paper, difference)
