@@ -712,6 +712,11 @@ def _read_logs(paths: Sequence[str]):
     if interrupted:
         print(f"oodmon: note: {interrupted} interrupted episode(s) (runs stopped inside them) are left out of the "
               "metrics", file=sys.stderr)
+    unthresholded = [str(log.path) for log in logs if not log.has_threshold]
+    if unthresholded:
+        print(f"oodmon: note: {len(unthresholded)} log(s) ran without a threshold (`oodmon run --threshold`), so "
+              f"raised no alarms: {', '.join(unthresholded[:3])}{', ...' if len(unthresholded) > 3 else ''}; "
+              "their variants have no alarm figures", file=sys.stderr)
     return logs
 
 
@@ -751,6 +756,9 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 
     if args.csv:
         raise ConfigError("--monitor prints a table, --json or --markdown; not --csv")
+    if logs and not any(log.has_threshold for log in logs):
+        raise ConfigError("--monitor counts the alarms, and these logs ran without a threshold, so raised none: "
+                          "run with `oodmon run --threshold FILE` (from `oodmon calibrate`)")
     metrics = compute_monitor_metrics(logs)
     if args.json:
         print(json.dumps([m.to_dict() for m in [*metrics, *monitor_summary(metrics)]], indent=1))

@@ -125,6 +125,18 @@ def test_calibrate_then_run_with_logs(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "cartpole/dropout in cartpole:length=2.0, onset 50" in result.stdout
     assert (tmp_path / "x.mcap").stat().st_size > 1000 and (tmp_path / "x.rrd").stat().st_size > 1000
+    # Without --threshold the run raises no alarms, and replay says so instead of "detected 0".
+    assert _run("run", "--task", "cartpole", "--method", "dropout", "--variant", "cartpole:length=2.0", "--onset", "50",
+                "--episodes", "1", "--mcap", str(tmp_path / "bare.mcap")).returncode == 0
+    replayed = _run("replay", str(tmp_path / "bare.mcap"), str(tmp_path / "x.mcap"), "--json")
+    assert replayed.returncode == 0 and "1 log(s) ran without a threshold" in replayed.stderr
+    assert str(tmp_path / "bare.mcap") in replayed.stderr and str(tmp_path / "x.mcap") not in replayed.stderr
+    rows = json.loads(replayed.stdout)  # one variant, run with and without a threshold: no alarm figures
+    assert rows and all(r["detection_rate"] is None and r["auroc"] is not None for r in rows)
+    alone = json.loads(_run("replay", str(tmp_path / "x.mcap"), "--json").stdout)  # the alarm's detector has them
+    assert [(r["detector"], r["episodes"]) for r in alone if r["detection_rate"] is not None] == [("combined", 2)]
+    refused = _run("replay", "--monitor", str(tmp_path / "bare.mcap"))
+    assert refused.returncode == 2 and "ran without a threshold" in refused.stderr
 
 
 def test_evaluate_marks_failing_variants_as_json(capsys):

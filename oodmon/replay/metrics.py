@@ -130,7 +130,8 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     ``detector``: whose scores the per-step metrics (AUROC, AUPR, FPR@95TPR) rank (default: the
     one each run's alarm read). The alarm metrics (false alarms, early alarms, detections, delays)
     are the run's alarms: they are given on the rows of the detector the alarm read, and ``None``
-    on the rows of the others, which raised no alarm.
+    on the rows of the others, which raised no alarm, and on every row of a (task, method, variant)
+    with a run that had no threshold (:attr:`RunLog.has_threshold`): it raised none.
 
     Raises:
         LogFormatError: a log without scores of ``detector``.
@@ -143,6 +144,7 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     # The last log of a group names the detector, as before: the runs of one group share it.
     names = {key: detector or pairs[-1][0].detector for key, pairs in grouped.items()}
     alarmed_by = {key: pairs[-1][0].detector for key, pairs in grouped.items()}
+    thresholded = {key: all(log.has_threshold for log, _ in pairs) for key, pairs in grouped.items()}
     id_scores: dict[tuple[str, str], np.ndarray] = {}
     for (task, method, variant), episodes in groups.items():
         if is_id_variant(variant):
@@ -150,7 +152,8 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     results = []
     for (task, method, variant), episodes in sorted(groups.items()):
         name = names[(task, method, variant)]
-        alarms = name == alarmed_by[(task, method, variant)]  # the alarm read this detector's scores
+        # the alarm read this detector's scores, against a threshold (a run without one raised none)
+        alarms = name == alarmed_by[(task, method, variant)] and thresholded[(task, method, variant)]
         is_id = is_id_variant(variant)
         steps = sum(e.length for e in episodes)
         if is_id:
@@ -184,9 +187,19 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
 
 
 def compute_all_metrics(logs: Iterable[RunLog]) -> list[VariantMetrics]:
-    """:func:`compute_metrics` for every detector the logs hold (``spread`` alone for older logs)."""
-    logs = list(logs)
-    return [m for name in detectors_in(logs) for m in compute_metrics(logs, name)]
+    """:func:`compute_metrics` for every detector the logs hold (``spread`` alone for older logs).
+
+    Each agent's (task, method) rows come from the detectors all of its logs hold: logs of agents
+    watched by other detectors (a Pendulum agent's beside your CartPole model's ``combined``) may
+    be replayed together without losing any agent's rows."""
+    by_agent: dict[tuple[str, str], list[RunLog]] = defaultdict(list)
+    for log in logs:
+        by_agent[(log.task, log.method)].append(log)
+    held = {agent: detectors_in(group) for agent, group in by_agent.items()}
+    names = dict.fromkeys(name for names in held.values() for name in names)  # in the logs' order
+    return [m for name in names
+            for m in compute_metrics([log for agent, group in by_agent.items() if name in held[agent] for log in group],
+                                     name)]
 
 
 # -- the monitor's own benchmark ----------------------------------------------------------------
@@ -305,11 +318,15 @@ class MonitorMetrics:
 
 def compute_monitor_metrics(logs: Iterable[RunLog]) -> list[MonitorMetrics]:
     """The monitor's benchmark figures per (task, method, variant) from the logs' alarms
-    (the alarm the runs raised, whatever detector it read), in a stable order."""
+    (the alarm the runs raised, whatever detector it read), in a stable order. A (task, method,
+    variant) with a run that had no threshold (:attr:`RunLog.has_threshold`) is left out: it raised
+    no alarms to count."""
     from oodmon.monitor.threshold import clopper_pearson
 
     results = []
     for (task, method, variant), pairs in sorted(_episodes_by_variant(logs).items()):
+        if not all(log.has_threshold for log, _ in pairs):
+            continue
         episodes = [e for _, e in pairs]
         if is_id_variant(variant):
             alarmed = sum(len(alarm_events(e.alarm)) > 0 for e in episodes)

@@ -32,11 +32,17 @@ def _pyplot():
     return plt
 
 
+def _runs_of(logs: Sequence[RunLog], method: str, variant: str) -> list[RunLog]:
+    """The logs of ``method`` on the task of the shifted ``variant``: its ID steps come from that
+    task's runs alone, as in :func:`~oodmon.replay.compute_metrics`, not from the method's runs
+    of another task replayed beside them."""
+    task = parse_variant(variant).task
+    return [log for log in logs if log.method == method and log.task == task]
+
+
 def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str) -> tuple[np.ndarray, np.ndarray] | None:
     negatives, positives = [], []
-    for log in logs:
-        if log.method != method:
-            continue
+    for log in _runs_of(logs, method, variant):
         for episode in log.episodes:
             if is_id_variant(episode.variant):
                 negatives.append(episode.scores)
@@ -61,7 +67,8 @@ def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path) -> Path | N
         if data is None:
             continue
         fpr, tpr, _ = roc_curve(*data)
-        ax.plot(fpr, tpr, label=f"{method} (AUROC {np.trapezoid(tpr, fpr):.3f})")
+        detectors = sorted({log.detector for log in _runs_of(logs, method, variant)})  # whose scores the alarm read
+        ax.plot(fpr, tpr, label=f"{method}, {'/'.join(detectors)} (AUROC {np.trapezoid(tpr, fpr):.3f})")
         drawn = True
     if not drawn:
         plt.close(fig)
@@ -76,9 +83,7 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
     """The score over one ID episode beside one episode of ``variant`` (the paper's Figures 4, 5)."""
     id_episode = shifted_episode = None
     threshold = float("nan")
-    for log in logs:
-        if log.method != method:
-            continue
+    for log in _runs_of(logs, method, variant):
         for episode in log.episodes:
             if id_episode is None and is_id_variant(episode.variant):
                 id_episode, threshold = episode, log.threshold
@@ -141,8 +146,6 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
     axes[0][0].set_ylabel("AUROC")
     axes[0][-1].legend(fontsize=8)
     return save_figure(fig, path)
-
-
 
 
 def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folder: str | Path) -> list[Path]:

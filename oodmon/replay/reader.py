@@ -83,11 +83,17 @@ class RunLog:
     path: Path
     task: str
     method: str
-    threshold: float
+    threshold: float  # NaN: the run had no threshold, and so raised no alarms
     metadata: dict[str, str]
     episodes: list[EpisodeLog]
     complete: bool
     interrupted: list[EpisodeLog] = field(default_factory=list)
+
+    @property
+    def has_threshold(self) -> bool:
+        """Whether the run compared its scores with a threshold (``oodmon run --threshold``): a run
+        without one raised no alarms, so its alarm figures say nothing."""
+        return not np.isnan(self.threshold)
 
     @property
     def detector(self) -> str:

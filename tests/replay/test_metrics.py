@@ -109,6 +109,49 @@ def test_failure_is_the_env_ending_the_episode_or_pendulums_reward_collapsing():
     assert failure_step(_run(0, "pong:motion_blur@3", 5, [0] * 60, terminated=True), "pong") is None
 
 
+def test_a_run_without_a_threshold_has_no_alarm_figures():
+    """Its alarm flags are all off because nothing was compared, not because nothing was seen: the
+    per-step metrics stand, the alarm columns are empty, and the monitor's figures leave it out."""
+    from oodmon.replay import compute_monitor_metrics
+
+    unthresholded = [RunLog(Path("x.mcap"), "cartpole", "m", float("nan"), {}, log.episodes, True) for log in (ID, SHIFTED)]
+    assert not unthresholded[0].has_threshold and ID.has_threshold
+    with_threshold = {m.variant: m for m in compute_metrics([ID, SHIFTED])}
+    rows = {m.variant: m for m in compute_metrics(unthresholded)}
+    assert rows["cartpole:length=2.0"].auroc == with_threshold["cartpole:length=2.0"].auroc is not None
+    assert with_threshold["cartpole:length=2.0"].detection_rate == 0.5
+    assert all((m.false_alarm_rate, m.early_alarm_rate, m.detection_rate, m.delay_mean, m.delay_median)
+               == (None,) * 5 for m in rows.values())
+    # One run of a variant without a threshold: that variant's alarms are not counted; the other's are.
+    mixed = {m.variant: m for m in compute_metrics([ID, unthresholded[1]])}
+    assert mixed["cartpole"].false_alarm_rate == 0.5 and mixed["cartpole:length=2.0"].detection_rate is None
+    assert [m.variant for m in compute_monitor_metrics([ID, unthresholded[1]])] == ["cartpole"]
+    assert compute_monitor_metrics(unthresholded) == []
+
+
+def test_logs_of_agents_watched_by_other_detectors_replay_together():
+    """Each agent keeps the rows of every detector its own logs hold, whatever the others hold."""
+    from dataclasses import replace
+
+    from oodmon.replay import compute_all_metrics
+
+    def watched(log, task, method, names):
+        episodes = [replace(e, detector_scores={name: e.scores * (k + 1) for k, name in enumerate(names)})
+                    for e in log.episodes]
+        return RunLog(Path("x.mcap"), task, method, 1.0, {"detectors": ",".join(names), "detector": names[-1]},
+                      episodes, True)
+
+    mine = [watched(log, "cartpole", "sb3", ["spread", "combined"]) for log in (ID, SHIFTED)]
+    other = [watched(log, "pendulum", "dropconnect", ["dynamics", "spread"]) for log in (ID, SHIFTED)]
+    rows = {(m.task, m.detector) for m in compute_all_metrics(mine + other) if m.auroc is not None}
+    assert rows == {("cartpole", "spread"), ("cartpole", "combined"), ("pendulum", "dynamics"), ("pendulum", "spread")}
+    alarmed = [(m.task, m.detector) for m in compute_all_metrics(mine + other) if m.detection_rate is not None]
+    assert alarmed == [("pendulum", "spread"), ("cartpole", "combined")]  # each run's own alarm detector
+    # Within one agent, a detector only some of its logs hold is left out (its ID steps would be missing).
+    partial = [watched(ID, "cartpole", "sb3", ["spread"]), mine[1]]
+    assert {m.detector for m in compute_all_metrics(partial)} == {"spread"}
+
+
 def test_monitor_metrics_by_hand():
     from oodmon.replay import compute_monitor_metrics, monitor_summary
 
