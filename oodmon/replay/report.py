@@ -103,6 +103,10 @@ MONITOR_COLUMNS = ["method", "variant", "episodes", "false alarms (ID) / early",
                    "alarmed before failure", "delay median", "delay p90"]
 
 
+#: The variant of :func:`monitor_summary`'s rows: a (task, method)'s shifted variants pooled.
+POOLED = "all shifted"
+
+
 def _share(part: int | None, whole: int | None) -> str:
     if part is None or not whole:
         return ""
@@ -115,19 +119,21 @@ def monitor_summary(metrics: Sequence[MonitorMetrics]) -> list[MonitorMetrics]:
     for m in metrics:
         if not m.is_id:
             pooled.setdefault((m.task, m.method), []).append(m)
-    return [monitor_row(task, method, "all shifted", sum(m.episodes for m in group), sum(m.early for m in group),
+    return [monitor_row(task, method, POOLED, sum(m.episodes for m in group), sum(m.early for m in group),
                         sum(m.failed for m in group), sum(m.before_failure for m in group),
                         [d for m in group for d in m.delays])
             for (task, method), group in sorted(pooled.items())]
 
 
-def monitor_cells(m: MonitorMetrics) -> list[str]:
-    """One row of the monitor's table (:data:`MONITOR_COLUMNS`)."""
+def monitor_cells(m: MonitorMetrics, *, name_task: bool = False) -> list[str]:
+    """One row of the monitor's table (:data:`MONITOR_COLUMNS`); ``name_task``: a pooled row says
+    its task (``all shifted (pendulum)``), for a table of several tasks' runs."""
     delay = (lambda v: "" if v is None else f"{v:g}")
     if m.is_id:
         first = f"{_share(m.false_alarms, m.episodes)} [{m.far_low:.1%}, {m.far_high:.1%}]"
         return [m.method, m.variant, str(m.episodes), first, "", "", "", "", ""]
-    return [m.method, m.variant, str(m.episodes), _share(m.early, m.episodes), _share(m.alarmed, m.episodes),
+    variant = f"{m.variant} ({m.task})" if name_task and m.variant == POOLED else m.variant
+    return [m.method, variant, str(m.episodes), _share(m.early, m.episodes), _share(m.alarmed, m.episodes),
             _share(m.failed, m.episodes), _share(m.before_failure, m.failed), delay(m.delay_median),
             delay(m.delay_p90)]
 
@@ -137,13 +143,15 @@ def monitor_table(metrics: Sequence[MonitorMetrics], title: str = "the monitor's
     table = Table(title=title)
     for heading in MONITOR_COLUMNS:
         table.add_column(heading, justify="left" if heading in ("method", "variant") else "right")
+    several = len({m.task for m in metrics}) > 1
     for m in [*metrics, *monitor_summary(metrics)]:
-        table.add_row(*monitor_cells(m), style="bold" if m.variant == "all shifted" else None)
+        table.add_row(*monitor_cells(m, name_task=several), style="bold" if m.variant == POOLED else None)
     return table
 
 
 def monitor_markdown(metrics: Sequence[MonitorMetrics]) -> str:
     rows = [*metrics, *monitor_summary(metrics)]
     lines = ["| " + " | ".join(MONITOR_COLUMNS) + " |", "|" + "---|" * len(MONITOR_COLUMNS)]
-    lines += ["| " + " | ".join(monitor_cells(m)) + " |" for m in rows]
+    several = len({m.task for m in metrics}) > 1
+    lines += ["| " + " | ".join(monitor_cells(m, name_task=several)) + " |" for m in rows]
     return "\n".join(lines) + "\n"

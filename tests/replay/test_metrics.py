@@ -176,3 +176,18 @@ def test_monitor_metrics_by_hand():
     assert m.before_failure_rate == pytest.approx(1 / 3)
     (pooled,) = monitor_summary(list(rows.values()))
     assert (pooled.variant, pooled.episodes, pooled.failed, pooled.before_failure) == ("all shifted", 4, 3, 1)
+
+
+def test_the_monitor_table_names_the_task_of_each_pooled_row_when_there_are_several():
+    from oodmon.replay import compute_monitor_metrics, monitor_markdown
+
+    shifted = {"cartpole": "cartpole:length=2.0", "pendulum": "pendulum:m=5.0"}
+
+    def pooled_cells(*tasks):
+        logs = [RunLog(Path("x.mcap"), task, "m", 1.0, {}, [_run(0, shifted[task], 2, [0, 0, 0, 1])], True)
+                for task in tasks]
+        lines = monitor_markdown(compute_monitor_metrics(logs)).splitlines()
+        return [line.split(" | ")[1] for line in lines if "all shifted" in line]
+
+    assert pooled_cells("cartpole") == ["all shifted"]
+    assert pooled_cells("cartpole", "pendulum") == ["all shifted (cartpole)", "all shifted (pendulum)"]
