@@ -188,11 +188,16 @@ class Monitor:
         self.alarms_raised = 0  # alarms of the whole run
 
     def _refuse_or_warn(self, what: str, differences: list[str], force: bool) -> None:
+        """Refuse ``what`` (the threshold, the fitted detectors) made for another policy, or with
+        ``force`` warn and use it."""
+        plural = what.endswith("s")
+        fit = "do not fit" if plural else "does not fit"
         if differences and not force:
-            raise ConfigError(f"{what} does not fit this policy: {'; '.join(differences)}; make one for it "
-                              "(or force its use: --force, Monitor(force=True))")
+            raise ConfigError(f"{what} {fit} this policy: {'; '.join(differences)}; make "
+                              f"{'them' if plural else 'one'} for it (or force {'their' if plural else 'its'} use: "
+                              "--force, Monitor(force=True))")
         if differences:
-            warnings.warn(f"using {what} that does not fit this policy: {'; '.join(differences)}", UserWarning,
+            warnings.warn(f"using {what}, which {fit} this policy: {'; '.join(differences)}", UserWarning,
                           stacklevel=3)
 
     def _detector_set(self, detectors: DetectorSet | Sequence[Detector] | None, alarm: str | None,

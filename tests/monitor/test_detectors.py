@@ -344,7 +344,7 @@ def test_detectors_fitted_for_another_task_or_shape_are_refused(fitted, agent):
     pendulum = load("pendulum", "ensemble")
     with pytest.raises(ConfigError, match="fitted for task 'cartpole', not 'pendulum'"):
         Monitor(pendulum, detectors=DetectorSet([fitted["dynamics"]], fitted_for=fitted.fitted_for))
-    with pytest.warns(UserWarning, match="does not fit"):
+    with pytest.warns(UserWarning, match="using the fitted detectors, which do not fit this policy"):
         Monitor(pendulum, detectors=DetectorSet([fitted["dynamics"]], fitted_for=fitted.fitted_for), force=True)
     with pytest.raises(ConfigError, match="fitted on observations of 4 numbers"):
         fitted["dynamics"].score_transitions(np.zeros((1, 3)), np.zeros(1, int), np.zeros((1, 3)))
