@@ -195,8 +195,9 @@ def _parser() -> argparse.ArgumentParser:
     train = commands.add_parser(
         "train", help="train an uncertainty-aware agent from its recipe (resumes an interrupted run)"
     )
-    train.add_argument("--task", required=True, choices=TASKS)
-    train.add_argument("--method", required=True, choices=METHODS)
+    train.add_argument("--task", required=True, choices=TASKS, help="the task whose recipe to train")
+    train.add_argument("--method", required=True, choices=METHODS,
+                       help="the uncertainty method (its recipe: oodmon/zoo/README.md)")
     train.add_argument("--seed", type=_SEED, default=0, help="the trial's seed (default 0)")
     train.add_argument("--out", required=True, help="training directory; the same command resumes it")
     train.add_argument("--steps", type=_whole(1), help="override the recipe's training steps per run")
