@@ -18,7 +18,7 @@ from oodmon.agents.recipes import Recipe, recipe_architecture
 from oodmon.errors import ConfigError
 from oodmon.envs.grid import ENV_IDS
 
-__all__ = ["algorithm_class", "architecture", "new_model", "recipe_architecture", "training_env"]
+__all__ = ["EpisodeSoFar", "algorithm_class", "architecture", "new_model", "recipe_architecture", "training_env"]
 
 
 def architecture(recipe: Recipe, env: gymnasium.Env) -> Architecture:
@@ -31,8 +31,40 @@ def architecture(recipe: Recipe, env: gymnasium.Env) -> Architecture:
     )
 
 
+class EpisodeSoFar(gymnasium.Wrapper):
+    """Keeps what it takes to put the env back where it stands: the seed of the episode's reset,
+    the state of the env's generator just before it, and every action since. A training resumed
+    from a checkpoint plays that episode again (:meth:`replay`) and goes on from the same step of
+    it, as the interrupted training did (CartPole's and Pendulum's steps draw no random numbers)."""
+
+    def __init__(self, env: gymnasium.Env) -> None:
+        super().__init__(env)
+        self.reset_seed: int | None = None
+        self.generator_state: dict | None = None
+        self.actions: list = []
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self.reset_seed, self.actions = seed, []
+        self.generator_state = self.unwrapped.np_random.bit_generator.state
+        return super().reset(seed=seed, options=options)
+
+    def step(self, action):
+        self.actions.append(np.array(action))
+        return super().step(action)
+
+    @staticmethod
+    def replay(env: gymnasium.Env, reset_seed: int | None, generator_state: dict, actions) -> np.ndarray:
+        """Reset ``env`` (this wrapper, or wrappers around it) as the episode was reset and take its
+        actions again; the observation it stands at."""
+        env.unwrapped.np_random.bit_generator.state = generator_state
+        obs, _ = env.reset(seed=reset_seed)
+        for action in actions:
+            obs, *_ = env.step(action)
+        return obs
+
+
 def training_env(recipe: Recipe) -> gymnasium.Env:
-    env = gymnasium.make(ENV_IDS[recipe.task])
+    env = EpisodeSoFar(gymnasium.make(ENV_IDS[recipe.task]))
     if recipe.reward_clip:
         env = gymnasium.wrappers.TransformReward(env, lambda r: float(np.sign(r)))
     return env

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import time
 import warnings
 from collections.abc import Callable
@@ -20,7 +21,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
 from oodmon import seeds
-from oodmon.agents.algorithms import algorithm_class, new_model, training_env
+from oodmon.agents.algorithms import EpisodeSoFar, algorithm_class, new_model, training_env
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.recipes import Recipe, recipe_differences, recipe_record
 from oodmon.envs.grid import Variant
@@ -48,11 +49,16 @@ def _load_pickled_checkpoint(recipe: Recipe, folder: Path, env: gymnasium.Env, *
 
 
 class _RunCallback(BaseCallback):
-    """Checkpoints, evaluations and progress reports during one SB3 ``learn`` call."""
+    """Checkpoints, evaluations and progress reports during one SB3 ``learn`` call.
+
+    A checkpoint falls due every ``checkpoint_every`` steps and is written when the next rollout
+    starts: after the gradient steps of the one that ended (SB3 trains between rollouts), with
+    every step's transition in the buffer, so that a resumed training has nothing left undone."""
 
     def __init__(self, run: Run, report: Progress) -> None:
         super().__init__()
         self.run, self.report = run, report
+        self.checkpoint_due = False
 
     def _on_step(self) -> bool:
         steps, recipe = self.num_timesteps, self.run.recipe
@@ -63,8 +69,56 @@ class _RunCallback(BaseCallback):
             if self.run.on_evaluation is not None:
                 self.run.on_evaluation(self.run.name, steps, mean)
         if steps % recipe.checkpoint_every == 0:
-            self.run.checkpoint(self.model, finished=False)
+            self.checkpoint_due = True
         return True
+
+    def _on_rollout_start(self) -> None:
+        if self.checkpoint_due:
+            self.run.checkpoint(self.model, finished=False)
+            self.checkpoint_due = False
+
+
+def _episode_so_far(model: BaseAlgorithm) -> EpisodeSoFar | None:
+    """The training env's :class:`EpisodeSoFar` under SB3's wrappers (``None``: a model of another env)."""
+    env = model.env.envs[0] if hasattr(model.env, "envs") else None
+    while env is not None and not isinstance(env, EpisodeSoFar):
+        env = getattr(env, "env", None)
+    return env
+
+
+def _where_it_stands(model: BaseAlgorithm) -> dict[str, Any] | None:
+    """Every random stream the training draws from and the episode under way, as tensors, numbers
+    and strings (``torch.load(weights_only=True)`` reads them back): torch's generator (dropout
+    while training), numpy's and Python's global ones (exploration, action noise, the buffer's
+    samples), the action space's (random actions), and the env's episode (:class:`EpisodeSoFar`)."""
+    episode = _episode_so_far(model)
+    if episode is None or episode.generator_state is None:
+        return None
+    _, keys, position, has_gauss, gauss = np.random.get_state()
+    version, internal, gauss_next = random.getstate()
+    actions = np.stack(episode.actions) if episode.actions else np.zeros(0)
+    return {
+        "torch": torch.get_rng_state(),
+        "numpy": torch.from_numpy(keys.astype(np.int64)), "numpy_rest": [int(position), int(has_gauss), float(gauss)],
+        "python": torch.tensor(internal, dtype=torch.int64), "python_rest": [int(version), gauss_next],
+        "action_space": json.dumps(model.action_space.np_random.bit_generator.state),
+        "reset_seed": episode.reset_seed, "env_generator": json.dumps(episode.generator_state),
+        "actions": torch.from_numpy(actions),
+    }
+
+
+def _stand_where_it_stood(model: BaseAlgorithm, saved: dict[str, Any]) -> None:
+    """Put ``model`` and its env back where :func:`_where_it_stands` found them: the episode played
+    again to its step, then every random stream as it was."""
+    obs = EpisodeSoFar.replay(model.env.envs[0], saved["reset_seed"], json.loads(saved["env_generator"]),
+                              [a.numpy() for a in saved["actions"]])
+    model._last_obs = np.asarray(obs, dtype=model.observation_space.dtype)[None]  # as the VecEnv batches it
+    position, has_gauss, gauss = saved["numpy_rest"]
+    np.random.set_state(("MT19937", saved["numpy"].numpy().astype(np.uint32), position, has_gauss, gauss))
+    version, gauss_next = saved["python_rest"]
+    random.setstate((version, tuple(int(v) for v in saved["python"]), gauss_next))
+    torch.set_rng_state(saved["torch"])
+    model.action_space.np_random.bit_generator.state = json.loads(saved["action_space"])
 
 
 def run_recipe_differences(state: dict[str, Any], recipe: Recipe) -> list[str]:
@@ -128,6 +182,8 @@ class Run:
                 setattr(model, name, int(value))
             if not (with_buffer and self._load_buffer(model)):
                 self._refill(model)
+            elif saved.get("stands") is not None:  # the episode and the random streams too: as if never stopped
+                _stand_where_it_stood(model, saved["stands"])
             return model
         weights = self.folder / "policy.safetensors"
         if weights.exists() and self.state["steps"] > 0:
@@ -179,7 +235,8 @@ class Run:
     def checkpoint(self, model: BaseAlgorithm, *, finished: bool) -> None:
         # Write to temporary names and rename, so that a kill mid-write leaves the last good files.
         counters = {name: int(getattr(model, name)) for name in _COUNTERS if hasattr(model, name)}
-        torch.save({"parameters": model.get_parameters(), "counters": counters}, self.folder / "tmp-checkpoint.pt")
+        torch.save({"parameters": model.get_parameters(), "counters": counters, "stands": _where_it_stands(model)},
+                   self.folder / "tmp-checkpoint.pt")
         os.replace(self.folder / "tmp-checkpoint.pt", self.folder / "checkpoint.pt")
         if finished:
             (self.folder / "replay_buffer.npz").unlink(missing_ok=True)  # not needed once the run is done

@@ -5,8 +5,9 @@ One loop for every task and method, its jobs in modules of their own: :mod:`~ood
 evaluations), :mod:`~oodmon.agents.export` (the choice among snapshots, the agent as it ships, its
 files and metadata); :func:`train` runs them in order. A training directory holds::
 
-    runs/<run>/checkpoint.pt       weights, optimizer states and step counters: tensors and plain
-                                   numbers, read back with ``torch.load(weights_only=True)``
+    runs/<run>/checkpoint.pt       weights, optimizer states, step counters, every random stream and
+                                   the episode under way (its reset and actions): tensors, numbers
+                                   and strings, read back with ``torch.load(weights_only=True)``
     runs/<run>/replay_buffer.npz   the replay buffer as arrays (``np.load(allow_pickle=False)``), so
                                    that a resumed run goes on where it was
     runs/<run>/policy.safetensors  the last checkpoint's weights alone (fp16 for CNN recipes): small
@@ -23,9 +24,13 @@ files and metadata); :func:`train` runs them in order. A training directory hold
 
 ``<run>`` is ``main`` (MC methods, bootstrapped heads) or ``member<k>`` (independent ensemble
 members). Running the same command again resumes: finished runs are skipped, an interrupted run
-continues from its last checkpoint, and the final export is redone. A resumed run does not
-restore the random streams or the episode under way at the checkpoint: its weights differ from an
-uninterrupted run's of the same seed (resuming the same checkpoint twice gives the same weights).
+continues from its last checkpoint, and the final export is redone. A checkpoint is written where
+a rollout starts (after the gradient steps of the one before) and holds the random streams and the
+episode under way, which the resumed run plays again to its step
+(:class:`~oodmon.agents.algorithms.EpisodeSoFar`): CartPole and Pendulum trainings resumed after a
+kill end with the weights of the same training never stopped, bit for bit (tests/agents). Pong's
+emulator keeps a generator of its own that no checkpoint holds: there this is not checked. A run
+resumed from ``policy.safetensors`` alone (the big checkpoint gone) starts a new buffer and streams.
 
 Nothing in a training directory is unpickled: a crafted file there cannot run code. Older
 trainings kept SB3's ``checkpoint.zip`` and ``replay_buffer.pkl`` (pickles); they are ignored

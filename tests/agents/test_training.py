@@ -64,12 +64,13 @@ def test_interrupted_training_resumes_from_its_checkpoint(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=interrupt_after_checkpoint, id_episodes=2)
     state = json.loads((tmp_path / "runs" / "main" / "state.json").read_text())
-    assert state["finished"] is False and state["steps"] == 500  # the checkpoint at half the steps
+    # due at half the steps (500), written when the next rollout starts (CartPole trains every 256 steps)
+    assert state["finished"] is False and state["steps"] == 512
     assert not (tmp_path / "model.json").exists()
 
     resumed: list[int] = []
     train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=lambda run, done, total: resumed.append(done), id_episodes=2)
-    assert resumed[0] == 500  # it started from the checkpoint, not from zero
+    assert resumed[0] == 512  # it started from the checkpoint, not from zero
     state = json.loads((tmp_path / "runs" / "main" / "state.json").read_text())
     assert state["finished"] is True and state["steps"] >= 1000
     assert not (tmp_path / "runs" / "main" / "replay_buffer.npz").exists()  # dropped once finished
@@ -175,11 +176,11 @@ def test_training_resumes_from_the_weights_alone_when_the_big_checkpoint_is_gone
     for name, tensor in model.policy.q_net.state_dict().items():
         torch.testing.assert_close(tensor, saved[f"q_net.{name}"])
         torch.testing.assert_close(model.policy.q_net_target.state_dict()[name], tensor)
-    assert model.num_timesteps == 500 and model.learning_starts == 500 + recipe.hyperparams["learning_starts"]
+    assert model.num_timesteps == 512 and model.learning_starts == 512 + recipe.hyperparams["learning_starts"]
     resumed: list[int] = []
     agent = train("cartpole", "dropconnect", tmp_path, total_steps=1000, id_episodes=2,
                   on_progress=lambda run, done, total: resumed.append(done))
-    assert resumed[0] == 500 and agent.metadata["training_steps"][0] >= 1000
+    assert resumed[0] == 512 and agent.metadata["training_steps"][0] >= 1000
 
 
 def test_export_only_ships_an_unfinished_training_honestly(tmp_path):
@@ -194,9 +195,9 @@ def test_export_only_ships_an_unfinished_training_honestly(tmp_path):
         train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=interrupt, id_episodes=2)
     agent = train("cartpole", "dropout", tmp_path, total_steps=1000, export_only=True, id_episodes=2)
     meta = agent.metadata
-    assert meta["training_complete"] is False and meta["training_steps"] == [500] and meta["recipe_steps"] == 1000
+    assert meta["training_complete"] is False and meta["training_steps"] == [512] and meta["recipe_steps"] == 1000
     state = json.loads((tmp_path / "runs" / "main" / "state.json").read_text())
-    assert state["steps"] == 500 and state["finished"] is False  # exporting trained nothing
+    assert state["steps"] == 512 and state["finished"] is False  # exporting trained nothing
 
 
 def test_export_ships_the_snapshot_that_plays_best_as_shipped(tmp_path, monkeypatch):
@@ -274,27 +275,53 @@ def test_a_resumed_run_has_the_weights_optimizer_counters_and_buffer_it_was_stop
     recipe, main = _interrupted_training(tmp_path)
     assert {p.name for p in main.iterdir()} >= {"checkpoint.pt", "replay_buffer.npz", "policy.safetensors"}
     assert not list(main.glob("*.zip")) and not list(main.glob("*.pkl"))
-    # What the checkpoint at step 500 held, read without unpickling, is what a resumed model holds.
+    # What the checkpoint at step 512 held, read without unpickling, is what a resumed model holds.
     saved = torch.load(main / "checkpoint.pt", weights_only=True)
     model = _Run(recipe, tmp_path, "main", 0).load_or_create(_training_env(recipe))
-    assert model.num_timesteps == 500 and saved["counters"]["num_timesteps"] == 500
+    assert model.num_timesteps == 512 and saved["counters"]["num_timesteps"] == 512
     assert model._n_updates == saved["counters"]["_n_updates"] > 0
     for name, tensor in model.policy.state_dict().items():
         torch.testing.assert_close(tensor, saved["parameters"]["policy"][name])
     steps_of_adam = [s["step"] for s in model.policy.optimizer.state_dict()["state"].values()]
     assert steps_of_adam and all(float(step) == model._n_updates for step in steps_of_adam)
-    # SB3 calls the callback before it stores the step's transition: the buffer holds 499.
+    # Written as the next rollout starts, after the last one's gradient steps: every transition is in.
     buffer = model.replay_buffer
-    assert buffer.pos == 499 and not buffer.full
+    assert buffer.pos == 512 and not buffer.full
     with np.load(main / "replay_buffer.npz", allow_pickle=False) as data:
-        np.testing.assert_array_equal(buffer.observations[:499], data["observations"])
-        np.testing.assert_array_equal(buffer.rewards[:499], data["rewards"])
-    assert np.abs(buffer.observations[:499]).sum() > 0 and model.learning_starts < 500  # no refill needed
+        np.testing.assert_array_equal(buffer.observations[:512], data["observations"])
+        np.testing.assert_array_equal(buffer.rewards[:512], data["rewards"])
+    assert np.abs(buffer.observations[:512]).sum() > 0 and model.learning_starts < 512  # no refill needed
+
+
+@pytest.mark.parametrize("task, method, steps", [("cartpole", "dropout", 1000), ("pendulum", "dropconnect", 500)])
+def test_an_interrupted_training_resumed_ends_with_the_weights_of_one_never_interrupted(tmp_path, task, method, steps):
+    """The checkpoint holds the random streams and the episode under way: the resumed training
+    plays that episode to its step again and draws what the interrupted one would have drawn.
+    (Checkpoints fall due at half the steps: CartPole's is written at step 512, where its rollouts
+    of 256 steps end, Pendulum's at 250, 50 steps into its second episode.)"""
+    def interrupt(run, done, mean):  # at the last evaluation, before the training's end is written
+        if done == steps:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(task, method, tmp_path / "stopped", total_steps=steps, on_evaluation=interrupt, id_episodes=1)
+    state = json.loads((tmp_path / "stopped" / "runs" / "main" / "state.json").read_text())
+    assert not state["finished"] and 0 < state["steps"] < steps
+    saved = torch.load(tmp_path / "stopped" / "runs" / "main" / "checkpoint.pt", weights_only=True)
+    assert len(saved["stands"]["actions"]) > 0  # stopped inside an episode, which the resume plays again
+    train(task, method, tmp_path / "stopped", total_steps=steps, id_episodes=1)
+    train(task, method, tmp_path / "straight", total_steps=steps, id_episodes=1)
+    resumed, straight = (load_file(str(tmp_path / f / "model.safetensors")) for f in ("stopped", "straight"))
+    assert resumed.keys() == straight.keys() and resumed
+    for name in resumed:
+        torch.testing.assert_close(resumed[name], straight[name], rtol=0, atol=0)
+    logs = [(tmp_path / f / "train_log.jsonl").read_text().splitlines() for f in ("stopped", "straight")]
+    returns = [{json.loads(line)["steps"]: json.loads(line)["eval_return_mean"] for line in log} for log in logs]
+    assert returns[0] == returns[1] and len(returns[0]) >= 2  # every evaluation alike, before and after the stop
 
 
 def test_resuming_one_checkpoint_twice_trains_the_same_weights(tmp_path):
-    # A resumed run does not restore the random streams of the interrupted one (README, "resumes
-    # an interrupted run"), but it is reproducible: two resumes of one checkpoint agree.
+    # Two resumes of one checkpoint agree (and, above, with a training never stopped).
     _interrupted_training(tmp_path / "a")
     shutil.copytree(tmp_path / "a", tmp_path / "b")
     at_checkpoint = load_file(str(tmp_path / "a" / "runs" / "main" / "policy.safetensors"))
@@ -304,7 +331,7 @@ def test_resuming_one_checkpoint_twice_trains_the_same_weights(tmp_path):
     assert first.keys() == second.keys() == at_checkpoint.keys() and first
     for name in first:
         torch.testing.assert_close(first[name], second[name], rtol=0, atol=0)
-    # and both trained on from the checkpoint (step 500 of 1000) rather than stopping there
+    # and both trained on from the checkpoint (step 512 of 1000) rather than stopping there
     assert any(not torch.equal(first[name], at_checkpoint[name]) for name in first)
 
 
@@ -334,8 +361,8 @@ def test_a_crafted_pickle_in_the_run_folder_runs_no_code(tmp_path):
         model = _Run(recipe, tmp_path, "main", 0).load_or_create(_training_env(recipe))
     assert not marker.exists()
     assert any("pickles, which oodmon does not load" in str(w.message) for w in caught)
-    assert model.num_timesteps == 500  # resumed from policy.safetensors, with a fresh buffer to refill
-    assert model.learning_starts == 500 + recipe.hyperparams["learning_starts"]
+    assert model.num_timesteps == 512  # resumed from policy.safetensors, with a fresh buffer to refill
+    assert model.learning_starts == 512 + recipe.hyperparams["learning_starts"]
     # Only with the explicit flag is the pickle loaded, and then it runs (here: creates the marker).
     with pytest.raises(Exception):
         _Run(recipe, tmp_path, "main", 0).load_or_create(_training_env(recipe), load_pickles=True)
