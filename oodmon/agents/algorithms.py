@@ -39,13 +39,14 @@ class EpisodeSoFar(gymnasium.Wrapper):
 
     def __init__(self, env: gymnasium.Env) -> None:
         super().__init__(env)
+        self.started = False  # reset at least once
         self.reset_seed: int | None = None
-        self.generator_state: dict | None = None
+        self.generator_state: dict | None = None  # None where the reset was seeded (it seeds the generator)
         self.actions: list = []
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        self.reset_seed, self.actions = seed, []
-        self.generator_state = self.unwrapped.np_random.bit_generator.state
+        self.started, self.reset_seed, self.actions = True, seed, []
+        self.generator_state = None if seed is not None else self.unwrapped.np_random.bit_generator.state
         return super().reset(seed=seed, options=options)
 
     def step(self, action):
@@ -53,10 +54,11 @@ class EpisodeSoFar(gymnasium.Wrapper):
         return super().step(action)
 
     @staticmethod
-    def replay(env: gymnasium.Env, reset_seed: int | None, generator_state: dict, actions) -> np.ndarray:
+    def replay(env: gymnasium.Env, reset_seed: int | None, generator_state: dict | None, actions) -> np.ndarray:
         """Reset ``env`` (this wrapper, or wrappers around it) as the episode was reset and take its
         actions again; the observation it stands at."""
-        env.unwrapped.np_random.bit_generator.state = generator_state
+        if generator_state is not None:
+            env.unwrapped.np_random.bit_generator.state = generator_state
         obs, _ = env.reset(seed=reset_seed)
         for action in actions:
             obs, *_ = env.step(action)

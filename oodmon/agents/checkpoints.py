@@ -92,7 +92,7 @@ def _where_it_stands(model: BaseAlgorithm) -> dict[str, Any] | None:
     while training), numpy's and Python's global ones (exploration, action noise, the buffer's
     samples), the action space's (random actions), and the env's episode (:class:`EpisodeSoFar`)."""
     episode = _episode_so_far(model)
-    if episode is None or episode.generator_state is None:
+    if episode is None or not episode.started:
         return None
     _, keys, position, has_gauss, gauss = np.random.get_state()
     version, internal, gauss_next = random.getstate()
@@ -102,7 +102,8 @@ def _where_it_stands(model: BaseAlgorithm) -> dict[str, Any] | None:
         "numpy": torch.from_numpy(keys.astype(np.int64)), "numpy_rest": [int(position), int(has_gauss), float(gauss)],
         "python": torch.tensor(internal, dtype=torch.int64), "python_rest": [int(version), gauss_next],
         "action_space": json.dumps(model.action_space.np_random.bit_generator.state),
-        "reset_seed": episode.reset_seed, "env_generator": json.dumps(episode.generator_state),
+        "reset_seed": episode.reset_seed,
+        "env_generator": None if episode.generator_state is None else json.dumps(episode.generator_state),
         "actions": torch.from_numpy(actions),
     }
 
@@ -110,7 +111,8 @@ def _where_it_stands(model: BaseAlgorithm) -> dict[str, Any] | None:
 def _stand_where_it_stood(model: BaseAlgorithm, saved: dict[str, Any]) -> None:
     """Put ``model`` and its env back where :func:`_where_it_stands` found them: the episode played
     again to its step, then every random stream as it was."""
-    obs = EpisodeSoFar.replay(model.env.envs[0], saved["reset_seed"], json.loads(saved["env_generator"]),
+    generator = saved["env_generator"]
+    obs = EpisodeSoFar.replay(model.env.envs[0], saved["reset_seed"], generator and json.loads(generator),
                               [a.numpy() for a in saved["actions"]])
     model._last_obs = np.asarray(obs, dtype=model.observation_space.dtype)[None]  # as the VecEnv batches it
     position, has_gauss, gauss = saved["numpy_rest"]

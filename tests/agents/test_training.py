@@ -293,12 +293,14 @@ def test_a_resumed_run_has_the_weights_optimizer_counters_and_buffer_it_was_stop
     assert np.abs(buffer.observations[:512]).sum() > 0 and model.learning_starts < 512  # no refill needed
 
 
-@pytest.mark.parametrize("task, method, steps", [("cartpole", "dropout", 1000), ("pendulum", "dropconnect", 500)])
+@pytest.mark.parametrize("task, method, steps", [("cartpole", "dropout", 1000), ("pendulum", "dropconnect", 500),
+                                                 ("pendulum", "dropout", 300)])
 def test_an_interrupted_training_resumed_ends_with_the_weights_of_one_never_interrupted(tmp_path, task, method, steps):
     """The checkpoint holds the random streams and the episode under way: the resumed training
     plays that episode to its step again and draws what the interrupted one would have drawn.
     (Checkpoints fall due at half the steps: CartPole's is written at step 512, where its rollouts
-    of 256 steps end, Pendulum's at 250, 50 steps into its second episode.)"""
+    of 256 steps end; Pendulum's at 250, 50 steps into its second episode, and at 150, inside its
+    first, whose reset was seeded.)"""
     def interrupt(run, done, mean):  # at the last evaluation, before the training's end is written
         if done == steps:
             raise KeyboardInterrupt
