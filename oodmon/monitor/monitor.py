@@ -187,10 +187,9 @@ class Monitor:
         self.stop_event: AlarmEvent | None = None  # the alarm a callback ended the episode with
         self.alarms_raised = 0  # alarms of the whole run
 
-    def _refuse_or_warn(self, what: str, differences: list[str], force: bool) -> None:
-        """Refuse ``what`` (the threshold, the fitted detectors) made for another policy, or with
-        ``force`` warn and use it."""
-        plural = what.endswith("s")
+    def _refuse_or_warn(self, what: str, differences: list[str], force: bool, *, plural: bool = False) -> None:
+        """Refuse ``what`` (the threshold; the fitted detectors, ``plural``) made for another policy, or
+        with ``force`` warn and use it."""
         fit = "do not fit" if plural else "does not fit"
         if differences and not force:
             raise ConfigError(f"{what} {fit} this policy: {'; '.join(differences)}; make "
@@ -228,7 +227,8 @@ class Monitor:
         meta = self.agent.metadata if self.agent is not None else {}
         obs_shape = self.estimator.obs_shape if self.estimator is not None else None
         self._refuse_or_warn("the fitted detectors", chosen.check_fits(task=meta.get("task"), obs_shape=obs_shape,
-                                                                       policy_hash=self.policy_hash), force)
+                                                                       policy_hash=self.policy_hash), force,
+                             plural=True)
         return chosen
 
     # -- the run -----------------------------------------------------------------------------
