@@ -35,7 +35,8 @@ class EpisodeSoFar(gymnasium.Wrapper):
     """Keeps what it takes to put the env back where it stands: the seed of the episode's reset,
     the state of the env's generator just before it, and every action since. A training resumed
     from a checkpoint plays that episode again (:meth:`replay`) and goes on from the same step of
-    it, as the interrupted training did (CartPole's and Pendulum's steps draw no random numbers)."""
+    it, as the interrupted training did (the envs' steps draw no random numbers: CartPole's and
+    Pendulum's physics, and Pong's emulator with sticky actions off, as oodmon's Pong has them)."""
 
     def __init__(self, env: gymnasium.Env) -> None:
         super().__init__(env)

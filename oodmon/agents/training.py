@@ -28,8 +28,9 @@ continues from its last checkpoint, and the final export is redone. A checkpoint
 a rollout starts (after the gradient steps of the one before) and holds the random streams and the
 episode under way, which the resumed run plays again to its step
 (:class:`~oodmon.agents.algorithms.EpisodeSoFar`): CartPole and Pendulum trainings resumed after a
-kill end with the weights of the same training never stopped, bit for bit (tests/agents). Pong's
-emulator keeps a generator of its own that no checkpoint holds: there this is not checked. A run
+kill end with the weights of the same training never stopped, bit for bit (tests/agents); so did
+a 2,000-step Pong training killed after its checkpoint at step 1,000 (its emulator draws no random
+numbers with sticky actions off, as oodmon's Pong has them). A run
 resumed from ``policy.safetensors`` alone (the big checkpoint gone) starts a new buffer and streams.
 
 Nothing in a training directory is unpickled: a crafted file there cannot run code. Older
