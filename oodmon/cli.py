@@ -184,7 +184,7 @@ def _parser() -> argparse.ArgumentParser:
         "angle over an episode.",
     )
     show.add_argument("spec", help="a variant spec, e.g. pong:pixelate@3 or cartpole:length=2.0")
-    show.add_argument("--out", help="write the picture to this PNG file")
+    show.add_argument("--out", help="write the picture to this file (.png or .jpg; a name without a suffix gets .png)")
     show.add_argument("--seed", type=_SEED, default=0, help="seed of the episode shown (default 0)")
     show.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (physics; default 0)")
     show.set_defaults(handler=_envs_show)
@@ -429,24 +429,25 @@ def _envs_show(args: argparse.Namespace) -> int:
     from oodmon.envs.preview import compare_physics, pong_preview, save_physics_plot, save_rgb
 
     variant = parse_variant(args.spec)
+    out = None
     if args.out:
-        from oodmon.outputs import check_output_file
+        from oodmon.outputs import check_picture_file
 
-        check_output_file(args.out, parameter="--out")
+        out = check_picture_file(args.out, parameter="--out")  # "shot" is written as shot.png
     console = Console(soft_wrap=True)
     if variant.task == "pong":
         image = pong_preview(variant, seed=args.seed)
         console.print(f"{variant.spec}: {variant.kwargs()}")
-        if args.out:
-            console.print(f"wrote {save_rgb(image, args.out)} (clean left, corrupted right)")
+        if out:
+            console.print(f"wrote {save_rgb(image, out)} (clean left, corrupted right)")
         return 0
     comparison = compare_physics(variant, seeds=range(args.seed, args.seed + 5), onset_step=args.onset)
     console.print(
         f"{variant.spec} (onset {args.onset}): reference controller's mean return over 5 seeds "
         f"{comparison.shifted_return:.1f}, against {comparison.id_return:.1f} in the ID env"
     )
-    if args.out:
-        console.print(f"wrote {save_physics_plot(comparison, args.out)}")
+    if out:
+        console.print(f"wrote {save_physics_plot(comparison, out)}")
     return 0
 
 

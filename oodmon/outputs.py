@@ -17,7 +17,8 @@ from pathlib import Path
 
 from oodmon.errors import ConfigError
 
-__all__ = ["check_output_dir", "check_output_file", "safe_filename", "save_figure"]
+__all__ = ["PICTURE_SUFFIXES", "check_output_dir", "check_output_file", "check_picture_file", "safe_filename",
+           "save_figure"]
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -51,6 +52,28 @@ def check_output_file(path: str | Path, *, parameter: str,
         return _check_file(path, parameter, inputs)
     except OSError as error:  # the name itself is unusable (too long, ...)
         raise ConfigError(f"{parameter} {path} cannot be written ({_reason(error)})") from None
+
+
+#: The picture formats oodmon writes (OpenCV and matplotlib both write these).
+PICTURE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def check_picture_file(path: str | Path, *, parameter: str) -> Path:
+    """:func:`check_output_file` for a picture: a name without a suffix gets ``.png`` (the name
+    returned is the file that will be written), a suffix of another format is a :class:`ConfigError`.
+
+    Example:
+        >>> import tempfile
+        >>> check_picture_file(Path(tempfile.mkdtemp()) / "shot", parameter="--out").name
+        'shot.png'
+    """
+    path = Path(path)
+    if not path.suffix and str(path).strip():
+        path = path.with_name(path.name + ".png")
+    elif path.suffix.lower() not in PICTURE_SUFFIXES:
+        raise ConfigError(f"{parameter} {path}: write a picture as {', '.join(PICTURE_SUFFIXES)}, not "
+                          f"{path.suffix or 'an empty name'}")
+    return check_output_file(path, parameter=parameter)
 
 
 def _check_file(path: Path, parameter: str, inputs: Iterable[tuple[str, str | Path | None]]) -> Path:

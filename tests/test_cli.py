@@ -46,6 +46,10 @@ def test_envs_show_pong_writes_clean_and_corrupted_side_by_side(tmp_path):
     assert image.shape == (784, 640, 3)
     left, right = image[22:442, :320], image[22:442, 320:]
     assert (left != right).any()
+    # A name without a suffix is written as a PNG, and says so (OpenCV needs the suffix to pick a writer).
+    bare = _run("envs", "show", "pong:pixelate@3", "--out", str(tmp_path / "shot"))
+    assert bare.returncode == 0 and f"wrote {tmp_path / 'shot.png'}" in bare.stdout
+    assert cv2.imread(str(tmp_path / "shot.png")).shape == (784, 640, 3)
 
 
 def test_envs_show_physics_reports_returns_and_plots(tmp_path, capsys):
@@ -64,6 +68,7 @@ def test_envs_show_physics_reports_returns_and_plots(tmp_path, capsys):
         (["envs", "show", "pong:pixelate@9"], "severity=9 is not allowed"),
         (["envs", "show", "pong:fog@1"], "unknown corruption 'fog'"),
         (["envs", "show", "cartpole:length"], "malformed variant spec"),
+        (["envs", "show", "pong:pixelate@3", "--out", "frame.gif"], "write a picture as .png, .jpg, .jpeg, not .gif"),
     ],
 )
 def test_cli_errors_are_one_line_without_a_traceback(args, words):
