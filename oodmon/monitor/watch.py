@@ -18,6 +18,8 @@ from typing import Any
 import gymnasium
 
 from oodmon.agents.agent import Agent
+from oodmon.envs.grid import ENV_IDS
+from oodmon.envs.registration import task_of_env
 from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.sinks.base import Sink
@@ -41,6 +43,10 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
     if isinstance(policy, Agent):
         if env_id is not None and policy.env_id not in (None, env_id):
             raise ConfigError(f"the agent acts in {policy.env_id}, not {env_id}")
+        if env_id is not None and policy.env_id is None and task_of_env(env_id) != policy.task:
+            # an oodmon agent acts in its task's env (oodmon's or gymnasium's id of it), nowhere else
+            raise ConfigError(f"the {policy.task} agent acts in {ENV_IDS.get(policy.task, policy.task)}, not "
+                              f"{env_id}: leave the env id out")
         own = getattr(policy.estimator, "masks", None)
         if masks is not None and masks != (own or "sampled"):
             raise ConfigError(f"the agent was loaded with {own or 'no MC'} masks, not {masks!r}: load it with "

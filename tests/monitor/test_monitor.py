@@ -140,3 +140,14 @@ def test_run_episode_reports_each_step_for_progress_within_long_episodes():
         record = monitor.run_episode(Variant("cartpole").make(), seed=0, max_steps=40,
                                      on_progress=lambda *args: seen.append(args))
     assert seen == [("decisions", n, 40) for n in range(1, record.length + 1)] and record.length == 40
+
+
+def test_watch_takes_a_shipped_agent_with_its_own_env_id_and_refuses_another(agent):
+    """A shipped agent acts in its task's env: the env id given beside it (oodmon's or gymnasium's
+    name of that env) is checked, not silently ignored."""
+    from oodmon.monitor.watch import as_agent
+
+    assert as_agent(agent, "CartPole-v1") is agent and as_agent(agent, "oodmon/CartPole-v1") is agent
+    for other in ("Pendulum-v1", "NoSuchEnv-v0"):
+        with pytest.raises(ConfigError, match=f"the cartpole agent acts in oodmon/CartPole-v1, not {other}"):
+            as_agent(agent, other)
