@@ -293,37 +293,8 @@ def test_a_resumed_run_has_the_weights_optimizer_counters_and_buffer_it_was_stop
     assert np.abs(buffer.observations[:512]).sum() > 0 and model.learning_starts < 512  # no refill needed
 
 
-@pytest.mark.parametrize("task, method, steps", [("cartpole", "dropout", 1000), ("pendulum", "dropconnect", 500),
-                                                 ("pendulum", "dropout", 300)])
-def test_an_interrupted_training_resumed_ends_with_the_weights_of_one_never_interrupted(tmp_path, task, method, steps):
-    """The checkpoint holds the random streams and the episode under way: the resumed training
-    plays that episode to its step again and draws what the interrupted one would have drawn.
-    (Checkpoints fall due at half the steps: CartPole's is written at step 512, where its rollouts
-    of 256 steps end; Pendulum's at 250, 50 steps into its second episode, and at 150, inside its
-    first, whose reset was seeded.)"""
-    def interrupt(run, done, mean):  # at the last evaluation, before the training's end is written
-        if done == steps:
-            raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        train(task, method, tmp_path / "stopped", total_steps=steps, on_evaluation=interrupt, id_episodes=1)
-    state = json.loads((tmp_path / "stopped" / "runs" / "main" / "state.json").read_text())
-    assert not state["finished"] and 0 < state["steps"] < steps
-    saved = torch.load(tmp_path / "stopped" / "runs" / "main" / "checkpoint.pt", weights_only=True)
-    assert len(saved["stands"]["actions"]) > 0  # stopped inside an episode, which the resume plays again
-    train(task, method, tmp_path / "stopped", total_steps=steps, id_episodes=1)
-    train(task, method, tmp_path / "straight", total_steps=steps, id_episodes=1)
-    resumed, straight = (load_file(str(tmp_path / f / "model.safetensors")) for f in ("stopped", "straight"))
-    assert resumed.keys() == straight.keys() and resumed
-    for name in resumed:
-        torch.testing.assert_close(resumed[name], straight[name], rtol=0, atol=0)
-    logs = [(tmp_path / f / "train_log.jsonl").read_text().splitlines() for f in ("stopped", "straight")]
-    returns = [{json.loads(line)["steps"]: json.loads(line)["eval_return_mean"] for line in log} for log in logs]
-    assert returns[0] == returns[1] and len(returns[0]) >= 2  # every evaluation alike, before and after the stop
-
-
 def test_resuming_one_checkpoint_twice_trains_the_same_weights(tmp_path):
-    # Two resumes of one checkpoint agree (and, above, with a training never stopped).
+    # Two resumes of one checkpoint agree (and with a training never stopped: test_training_resume.py).
     _interrupted_training(tmp_path / "a")
     shutil.copytree(tmp_path / "a", tmp_path / "b")
     at_checkpoint = load_file(str(tmp_path / "a" / "runs" / "main" / "policy.safetensors"))
