@@ -237,7 +237,8 @@ class Run:
     def checkpoint(self, model: BaseAlgorithm, *, finished: bool) -> None:
         # Write to temporary names and rename, so that a kill mid-write leaves the last good files.
         counters = {name: int(getattr(model, name)) for name in _COUNTERS if hasattr(model, name)}
-        torch.save({"parameters": model.get_parameters(), "counters": counters, "stands": _where_it_stands(model)},
+        stands = None if finished else _where_it_stands(model)  # a finished run is never resumed
+        torch.save({"parameters": model.get_parameters(), "counters": counters, "stands": stands},
                    self.folder / "tmp-checkpoint.pt")
         os.replace(self.folder / "tmp-checkpoint.pt", self.folder / "checkpoint.pt")
         if finished:

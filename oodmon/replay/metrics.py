@@ -102,6 +102,12 @@ def _episodes_by_variant(logs: Iterable[RunLog]) -> dict[tuple[str, str, str], l
     return groups
 
 
+def _thresholded(pairs: Sequence[tuple[RunLog, EpisodeLog]]) -> bool:
+    """Whether every run of a (task, method, variant)'s episodes had a threshold: only then are its
+    alarms the monitor's (a run without one raised none)."""
+    return all(log.has_threshold for log, _ in pairs)
+
+
 def _onset_alarms(episode: EpisodeLog) -> tuple[bool, int | None]:
     """Whether ``episode``'s first alarm came before its onset (an early, false alarm), and the
     step of its first alarm at or after the onset (``None``: none)."""
@@ -144,7 +150,7 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     # The last log of a group names the detector, as before: the runs of one group share it.
     names = {key: detector or pairs[-1][0].detector for key, pairs in grouped.items()}
     alarmed_by = {key: pairs[-1][0].detector for key, pairs in grouped.items()}
-    thresholded = {key: all(log.has_threshold for log, _ in pairs) for key, pairs in grouped.items()}
+    thresholded = {key: _thresholded(pairs) for key, pairs in grouped.items()}
     id_scores: dict[tuple[str, str], np.ndarray] = {}
     for (task, method, variant), episodes in groups.items():
         if is_id_variant(variant):
@@ -325,7 +331,7 @@ def compute_monitor_metrics(logs: Iterable[RunLog]) -> list[MonitorMetrics]:
 
     results = []
     for (task, method, variant), pairs in sorted(_episodes_by_variant(logs).items()):
-        if not all(log.has_threshold for log, _ in pairs):
+        if not _thresholded(pairs):
             continue
         episodes = [e for _, e in pairs]
         if is_id_variant(variant):

@@ -138,20 +138,24 @@ def monitor_cells(m: MonitorMetrics, *, name_task: bool = False) -> list[str]:
             delay(m.delay_p90)]
 
 
+def _monitor_rows(metrics: Sequence[MonitorMetrics]) -> list[tuple[bool, list[str]]]:
+    """Each row of the monitor's table, the pooled ones last: whether it is pooled, and its cells
+    (a pooled row names its task when the table holds several tasks' runs)."""
+    several = len({m.task for m in metrics}) > 1
+    return [(m.variant == POOLED, monitor_cells(m, name_task=several)) for m in [*metrics, *monitor_summary(metrics)]]
+
+
 def monitor_table(metrics: Sequence[MonitorMetrics], title: str = "the monitor's benchmark") -> Table:
     """The monitor's figures per variant, then each method's shifted variants pooled."""
     table = Table(title=title)
     for heading in MONITOR_COLUMNS:
         table.add_column(heading, justify="left" if heading in ("method", "variant") else "right")
-    several = len({m.task for m in metrics}) > 1
-    for m in [*metrics, *monitor_summary(metrics)]:
-        table.add_row(*monitor_cells(m, name_task=several), style="bold" if m.variant == POOLED else None)
+    for pooled, cells in _monitor_rows(metrics):
+        table.add_row(*cells, style="bold" if pooled else None)
     return table
 
 
 def monitor_markdown(metrics: Sequence[MonitorMetrics]) -> str:
-    rows = [*metrics, *monitor_summary(metrics)]
     lines = ["| " + " | ".join(MONITOR_COLUMNS) + " |", "|" + "---|" * len(MONITOR_COLUMNS)]
-    several = len({m.task for m in metrics}) > 1
-    lines += ["| " + " | ".join(monitor_cells(m, name_task=several)) + " |" for m in rows]
+    lines += ["| " + " | ".join(cells) + " |" for _, cells in _monitor_rows(metrics)]
     return "\n".join(lines) + "\n"
