@@ -212,6 +212,34 @@ def test_paper_variants_without_our_auroc_are_only_those_the_bench_ran():
     assert [label for _, label, _ in paper_only_variants(result, "cartpole", ["ensemble"], ran=ran)] == ["gravity=98.0"]
 
 
+def test_variants_no_trial_failed_on_are_named_not_dropped_in_silence():
+    from rich.console import Console
+
+    from oodmon.bench import BenchConfig, BenchResult, unfailed_variants
+    from oodmon.bench.report import print_unfailed
+
+    named = ("cartpole:length=2.0", "cartpole:gravity=78.4", "cartpole:masscart=9.0")
+    # Trial 0 fails on length=2.0, trial 1 on gravity=78.4: only masscart=9.0 was failed by neither.
+    failing = {"ensemble": {0: ["cartpole:length=2.0"], 1: ["cartpole:gravity=78.4"]}, "dropout": {0: [], 1: []}}
+    result = BenchResult([], failing, {})
+    config = BenchConfig(task="cartpole", methods=("ensemble", "dropout"), trials=2, variants=named)
+    assert unfailed_variants(config, result) == {"ensemble": ["cartpole:masscart=9.0"], "dropout": list(named)}
+    console = Console(record=True, width=400)
+    print_unfailed(config, result, console)
+    line = console.export_text()
+    assert "not scored" in line and "ensemble cartpole:masscart=9.0, dropout cartpole:length=2.0" in line
+    # The monitor's protocol says "monitored"; the paper's grid gets counts, not 90 names.
+    console = Console(record=True, width=400)
+    print_unfailed(BenchConfig(task="cartpole", methods=("ensemble",), trials=2, protocol="monitor", variants=named),
+                   result, console)
+    assert "not monitored" in console.export_text()
+    console = Console(record=True, width=400)
+    print_unfailed(BenchConfig(task="cartpole", methods=("ensemble",), trials=2), result, console)
+    assert "ensemble 88 of 90" in console.export_text()
+    # With --all-variants every variant is run, so nothing is left out.
+    assert unfailed_variants(BenchConfig(task="cartpole", variants=named, all_variants=True), result) == {}
+
+
 @pytest.mark.slow
 def test_a_local_ray_cluster_listens_on_loopback_only(tmp_path):
     import ray

@@ -46,6 +46,38 @@ def paper_only_variants(result: BenchResult, task: str, methods: Iterable[str],
     return missing
 
 
+def unfailed_variants(config: BenchConfig, result: BenchResult) -> dict[str, list[str]]:
+    """Per method, the variants of the run that no trial failed on (their mean return over the
+    evaluation episodes stayed above the failure line, ``oodmon.agents.evaluation``): the bench
+    scores no episode of them, unless ``all_variants``, where this is empty."""
+    if config.all_variants:
+        return {}
+    specs = [v.spec for v in config.variant_list()]
+    unfailed = {}
+    for method, trials in result.failing.items():
+        failed = {spec for specs_failed in trials.values() for spec in specs_failed}
+        left = [spec for spec in specs if spec not in failed]
+        if left:
+            unfailed[method] = left
+    return unfailed
+
+
+def print_unfailed(config: BenchConfig, result: BenchResult, console: Console) -> None:
+    """One line on the variants the run left out because no trial failed on them: their specs when
+    the command named the variants, their count for the paper's grid (the paper's own variants
+    among them have a line of their own)."""
+    unfailed = unfailed_variants(config, result)
+    if not unfailed:
+        return
+    total = len(config.variant_list())
+    named = config.variants != "paper"
+    what = ", ".join(f"{method} {', '.join(specs)}" if named else f"{method} {len(specs)} of {total}"
+                     for method, specs in unfailed.items())
+    console.print(f"Variants no trial failed on, so not {'monitored' if config.protocol == 'monitor' else 'scored'} "
+                  f"(mean return over {config.eval_episodes} episodes above the failure line; --all-variants "
+                  f"runs every variant): {what}")
+
+
 def alarms_per_variant(result: BenchResult) -> list[tuple[str, str, float | None, float | None, float | None]]:
     """What the monitor's alarm rule did, per method and variant, averaged over the trials that have
     a value: ``(method, variant, false_alarm_rate, detection_rate, delay_mean)``. The ID variant has
@@ -155,6 +187,7 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
     if missing:
         console.print("Variants the paper reports where our agents did not fail (no AUROC of ours): "
                       + ", ".join(f"{m} {label} ({best:.3f})" for m, label, best in missing))
+    print_unfailed(config, result, console)
 
 
 def print_monitor_report(config: BenchConfig, result: BenchResult, console: Console) -> None:
@@ -177,4 +210,5 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
                   else f"delay median {row.delay_median:.3g} p90 {row.delay_p90:.3g} steps")
         console.print(f"{row.method}: {far}; {row.alarmed}/{row.episodes} shifted episodes alarmed after the onset "
                       f"({row.early} before it); {before}; {delays}")
+    print_unfailed(config, result, console)
     print(FAILURE_DEFINITION, file=sys.stderr)
