@@ -40,6 +40,11 @@ def _runs_of(logs: Sequence[RunLog], method: str, variant: str) -> list[RunLog]:
     return [log for log in logs if log.method == method and log.task == task]
 
 
+def _alarm_detectors(logs: Sequence[RunLog], method: str, variant: str) -> str:
+    """The detector(s) whose scores the alarm of ``method``'s runs read, the scores these plots draw."""
+    return "/".join(sorted({log.detector for log in _runs_of(logs, method, variant)}))
+
+
 def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str) -> tuple[np.ndarray, np.ndarray] | None:
     negatives, positives = [], []
     for log in _runs_of(logs, method, variant):
@@ -67,8 +72,7 @@ def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path) -> Path | N
         if data is None:
             continue
         fpr, tpr, _ = roc_curve(*data)
-        detectors = sorted({log.detector for log in _runs_of(logs, method, variant)})  # whose scores the alarm read
-        ax.plot(fpr, tpr, label=f"{method}, {'/'.join(detectors)} (AUROC {np.trapezoid(tpr, fpr):.3f})")
+        ax.plot(fpr, tpr, label=f"{method}, {_alarm_detectors(logs, method, variant)} (AUROC {np.trapezoid(tpr, fpr):.3f})")
         drawn = True
     if not drawn:
         plt.close(fig)
@@ -80,7 +84,9 @@ def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path) -> Path | N
 
 
 def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Path) -> Path | None:
-    """The score over one ID episode beside one episode of ``variant`` (the paper's Figures 4, 5)."""
+    """The score over one ID episode beside one episode of ``variant`` (the paper's Figures 4, 5);
+    the episode of ``variant`` alone when the logs hold no ID episode (a run whose shift begins
+    mid-episode: its steps before the onset are the ID ones)."""
     id_episode = shifted_episode = None
     threshold = float("nan")
     for log in _runs_of(logs, method, variant):
@@ -89,12 +95,14 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
                 id_episode, threshold = episode, log.threshold
             if shifted_episode is None and episode.variant == variant:
                 shifted_episode, threshold = episode, log.threshold
-    if id_episode is None or shifted_episode is None:
+    if shifted_episode is None:
         return None
+    panels = [] if id_episode is None else [(id_episode, f"ID: {episode_name(id_episode)}")]
+    panels.append((shifted_episode, f"shifted: {episode_name(shifted_episode)}"))
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), dpi=110, sharey=True)
-    for ax, episode, title in ((axes[0], id_episode, f"ID: {episode_name(id_episode)}"),
-                               (axes[1], shifted_episode, f"shifted: {episode_name(shifted_episode)}")):
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.4), dpi=110, sharey=True, squeeze=False)
+    axes = axes[0]
+    for ax, (episode, title) in zip(axes, panels):
         steps = np.arange(episode.length)
         ax.plot(steps, episode.scores, color="tab:red", linewidth=1, label="score")
         if np.isfinite(threshold):
@@ -107,8 +115,8 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("step")
     axes[0].set_ylabel("uncertainty score")
-    axes[1].legend(loc="upper left", fontsize=8)
-    fig.suptitle(f"{method}: alarms as vertical lines", fontsize=9)
+    axes[-1].legend(loc="upper left", fontsize=8)
+    fig.suptitle(f"{method}, {_alarm_detectors(logs, method, variant)} detector: alarms as vertical lines", fontsize=9)
     return save_figure(fig, path)
 
 
@@ -117,28 +125,29 @@ def episode_name(episode) -> str:
 
 
 def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str | Path) -> Path | None:
-    """AUROC against each parameter's value (log scale) or the severity, one line per method."""
+    """AUROC against each parameter's value (log scale) or the severity, one line per method and
+    detector (that of the metrics' rows)."""
     series: dict[tuple[str, str], list[tuple[float, float]]] = defaultdict(list)
     for m in metrics:
         if m.task != task or m.auroc is None:
             continue
         variant = parse_variant(m.variant)
         if variant.corruption is not None and variant.severity is not None:
-            series[(variant.corruption, m.method)].append((variant.severity, m.auroc))
+            series[(variant.corruption, f"{m.method}, {m.detector}")].append((variant.severity, m.auroc))
         elif len(variant.params) == 1:
             name, value = variant.params[0]
-            series[(name, m.method)].append((value, m.auroc))
+            series[(name, f"{m.method}, {m.detector}")].append((value, m.auroc))
     if not series:
         return None
     names = sorted({name for name, _ in series})
     plt = _pyplot()
     fig, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 3.4), dpi=110, sharey=True, squeeze=False)
     for ax, name in zip(axes[0], names):
-        for (parameter, method), points in sorted(series.items()):
+        for (parameter, label), points in sorted(series.items()):
             if parameter != name:
                 continue
             points.sort()
-            ax.plot(*zip(*points), marker="o", markersize=3, label=method)
+            ax.plot(*zip(*points), marker="o", markersize=3, label=label, clip_on=False)  # an AUROC of 1 shows whole
         if task != "pong":
             ax.set_xscale("log")
         ax.set(title=name, xlabel="severity" if task == "pong" else "value", ylim=(0, 1))

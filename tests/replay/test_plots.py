@@ -51,5 +51,39 @@ def test_roc_and_trace_read_the_variants_own_task(tmp_path):
             log("cartpole", "cartpole:length=2.0", [0.5, 0.6], True)]
     labels, scores = _labels_and_scores(logs, "dropconnect", "cartpole:length=2.0")
     assert labels.tolist() == [0, 0, 0, 1, 1] and roc_auc_score(labels, scores) == 1.0
-    assert plot_trace(logs, "dropconnect", "cartpole:length=2.0", tmp_path / "trace.png") is not None
-    assert plot_trace(logs[:1] + logs[2:], "dropconnect", "cartpole:length=2.0", tmp_path / "t.png") is None  # no CartPole ID run
+    both = plot_trace(logs, "dropconnect", "cartpole:length=2.0", tmp_path / "trace.png")
+    # Without a CartPole ID run the shifted episode is drawn alone: one panel, not the Pendulum run beside it.
+    alone = plot_trace(logs[:1] + logs[2:], "dropconnect", "cartpole:length=2.0", tmp_path / "t.png")
+    width = {path.name: cv2.imread(str(path)).shape[1] for path in (both, alone)}
+    assert width["t.png"] < 0.6 * width["trace.png"]
+
+
+def test_a_run_shifted_mid_episode_alone_gets_its_trace_and_each_detector_its_auroc_line(tmp_path, monkeypatch):
+    """A run with no ID log (its shift begins at step 20: the steps before are its ID ones) gets a
+    trace of a shifted episode; the AUROC-vs-shift plot has one line per method and detector."""
+    import numpy as np
+
+    from oodmon.replay import EpisodeLog, RunLog
+    from oodmon.replay.plots import plot_auroc_vs_shift
+
+    from oodmon.replay import plots
+
+    rng = np.random.default_rng(0)
+    episodes = []
+    for k, value in enumerate((2.0, 3.0)):
+        combined, dynamics = np.r_[rng.normal(0, 1, 20), rng.normal(3, 1, 40)], rng.normal(0, 1, 60)
+        episodes.append(EpisodeLog(episode=k, env_id="", variant=f"cartpole:length={value}", onset=20, seed=k,
+                                   total_return=60.0, length=60, alarms=1, first_alarm_step=21, scores=combined,
+                                   shifted=np.arange(60) >= 20, alarm=np.arange(60) == 21,
+                                   detector_scores={"combined": combined, "dynamics": dynamics}))
+    logs = [RunLog(Path("sb3.mcap"), "cartpole", "sb3", 2.5, {"detector": "combined", "detectors": "dynamics,combined"},
+                   episodes, True)]
+    assert plot_trace(logs, "sb3", "cartpole:length=2.0", tmp_path / "trace.png") is not None
+    metrics = compute_metrics(logs) + compute_metrics(logs, "dynamics")
+    drawn = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
+    assert plot_auroc_vs_shift(metrics, "cartpole", tmp_path / "shift.png") is not None
+    lines = {line.get_label(): line for line in drawn[0].axes[0].get_lines() if line.get_label().startswith("sb3")}
+    assert sorted(lines) == ["sb3, combined", "sb3, dynamics"]  # one line each, not one zigzag through both
+    assert all(line.get_xdata().tolist() == [2.0, 3.0] for line in lines.values())
+    assert min(lines["sb3, combined"].get_ydata()) > 0.9 > max(lines["sb3, dynamics"].get_ydata())
