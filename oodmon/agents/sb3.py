@@ -31,6 +31,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.agents.agent import Agent
+from oodmon.envs.checks import space_mismatch
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
 
@@ -116,12 +117,10 @@ def _load_one(path: Path) -> tuple[Any, str]:
 
 
 def _check_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str) -> None:
-    for what in ("observation_space", "action_space"):
-        theirs, ours = getattr(model, what), getattr(env, what)
-        if type(theirs) is not type(ours) or getattr(theirs, "shape", None) != getattr(ours, "shape", None) \
-                or getattr(theirs, "n", None) != getattr(ours, "n", None):
-            raise ConfigError(f"{path} was trained with the {what} {theirs}; {env_id} has {ours}: "
-                              "a model of another env?")
+    what = space_mismatch(env, model)
+    if what is not None:
+        raise ConfigError(f"{path} was trained with the {what} {getattr(model, what)}; {env_id} has "
+                          f"{getattr(env, what)}: a model of another env?")
 
 
 def _deployed(model: Any, discrete: bool):

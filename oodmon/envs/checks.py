@@ -13,11 +13,31 @@ from collections.abc import Iterable, Mapping
 from oodmon.errors import InvalidParameterError, UnknownParameterError
 from oodmon.validation import is_whole
 
-__all__ = ["PHYSICS_RANGE", "check_onset_step", "episode_onset", "check_physics", "positive_number", "reject_unknown"]
+__all__ = ["PHYSICS_RANGE", "check_onset_step", "episode_onset", "check_physics", "positive_number", "reject_unknown",
+           "space_mismatch"]
 
 #: A physics parameter may be at most this many times its default, or this many times smaller (the
 #: paper's grid spans 0.05 to 20 times); further out the simulation overflows (``length=1e308``).
 PHYSICS_RANGE = 1000.0
+
+
+def space_mismatch(expected: object, given: object) -> str | None:
+    """Which of ``observation_space`` and ``action_space`` (the first) ``given`` (an env or an SB3
+    model) has of another type, shape or number of actions than ``expected``; ``None`` if neither.
+    Bounds may differ: a policy acts in an env of the same shapes (oodmon's variants keep the default
+    env's spaces, and a user's env may bound its observations otherwise).
+
+    Example:
+        >>> import gymnasium
+        >>> space_mismatch(gymnasium.make("CartPole-v1"), gymnasium.make("Pendulum-v1"))
+        'observation_space'
+    """
+    for what in ("observation_space", "action_space"):
+        ours, theirs = getattr(expected, what), getattr(given, what)
+        if type(ours) is not type(theirs) or getattr(ours, "shape", None) != getattr(theirs, "shape", None) \
+                or getattr(ours, "n", None) != getattr(theirs, "n", None):
+            return what
+    return None
 
 
 def reject_unknown(owner: str, given: Iterable[str], allowed: Iterable[str]) -> None:

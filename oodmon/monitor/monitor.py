@@ -32,6 +32,7 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import UncertaintyEstimator
+from oodmon.envs.checks import space_mismatch
 from oodmon.envs.registration import env_id_of, variant_of_env
 from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
@@ -44,7 +45,7 @@ from oodmon.progress import Progress
 from oodmon.versions import library_versions
 from oodmon.hashing import file_sha256
 
-__all__ = ["AlarmCallback", "Monitor", "MonitoredEnv"]
+__all__ = ["AlarmCallback", "Monitor", "MonitoredEnv", "check_env_of"]
 
 #: Called with each alarm; returning True asks ``run_episode`` / ``MonitoredEnv`` to end the
 #: episode (the default is to let the policy go on).
@@ -409,6 +410,23 @@ class Monitor:
         return self.end_episode(terminated=bool(terminated))
 
 
+def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
+    """Refuse an env whose observation or action space is not of the type and shape of the agent's
+    own env's (``agent.make_env()``): an env of another task, which the policy cannot act in.
+
+    Raises:
+        ConfigError: naming the space, the env's and the agent's.
+    """
+    own = agent.make_env()
+    try:
+        what = space_mismatch(own, env)
+    finally:
+        own.close()
+    if what is not None:
+        raise ConfigError(f"this env's {what} is {getattr(env, what)}, but {agent.task}/{agent.method} acts in "
+                          f"{env_id_of(own)}, whose {what} is {getattr(own, what)}: an env of another task?")
+
+
 def _frame(obs: np.ndarray) -> np.ndarray | None:
     """The newest frame of a stacked image observation (Pong), else None."""
     return obs[-1] if np.ndim(obs) == 3 and obs.dtype == np.uint8 else None
@@ -434,6 +452,8 @@ class MonitoredEnv(gymnasium.Wrapper):
     """
 
     def __init__(self, env: gymnasium.Env, monitor: Monitor, *, variant: str | None = None) -> None:
+        if monitor.agent is not None:
+            check_env_of(monitor.agent, env)
         super().__init__(env)
         self.monitor = monitor
         self.variant = variant

@@ -87,11 +87,13 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     """
     from oodmon.monitor.calibration import calibrate_agent
     from oodmon.monitor.detectors import fit_agent_detectors
-    from oodmon.monitor.monitor import Monitor, MonitoredEnv
+    from oodmon.monitor.monitor import Monitor, MonitoredEnv, check_env_of
     from oodmon.monitor.threshold import conformal_rank
 
     conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
     agent = as_agent(policy, env_id, mean=mean, seed=seed, masks=masks)
+    if env is not None:
+        check_env_of(agent, env)  # an env of another task: said now, not at its first step after the calibration
     only = ("scaled_spread",) if detector == "scaled_spread" else None  # fitted only when named, as the CLI fits it
     detectors = fit_agent_detectors(agent, detectors=only, episodes=fit_episodes, on_progress=on_progress)
     threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector, confidence=confidence,

@@ -151,3 +151,23 @@ def test_watch_takes_a_shipped_agent_with_its_own_env_id_and_refuses_another(age
     for other in ("Pendulum-v1", "NoSuchEnv-v0"):
         with pytest.raises(ConfigError, match=f"the cartpole agent acts in oodmon/CartPole-v1, not {other}"):
             as_agent(agent, other)
+
+
+def test_an_env_of_another_task_is_refused_before_any_fitting(agent, monkeypatch):
+    """MonitoredEnv and watch(env=...) refuse an env whose spaces are not the agent's, naming both,
+    before watch() fits or calibrates anything (the first step would fail after minutes of work)."""
+    import oodmon
+    from oodmon.monitor import watch as watch_module
+
+    with pytest.raises(ConfigError, match=r"observation_space is Box\(.*\(3,\), float32\), but cartpole/ensemble acts in "
+                                          r"oodmon/CartPole-v1, whose observation_space is Box\(.*\(4,\)"):
+        MonitoredEnv(gymnasium.make("Pendulum-v1"), Monitor(agent))
+    monkeypatch.setattr("oodmon.monitor.detectors.fit_agent_detectors",
+                        lambda *a, **k: pytest.fail("fitted detectors for an env it cannot act in"))
+    with pytest.raises(ConfigError, match="an env of another task"):
+        oodmon.watch(agent, env=gymnasium.make("Pendulum-v1"))
+    assert watch_module.as_agent(agent) is agent
+    # Bounds may differ (a variant, or a user's env bounding its observations otherwise): same shapes pass.
+    wide = gymnasium.make("oodmon/CartPole-v1", length=2.0)
+    wide.observation_space = gymnasium.spaces.Box(-10, 10, (4,), np.float32)
+    assert MonitoredEnv(wide, Monitor(agent)).env is wide
