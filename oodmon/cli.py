@@ -626,6 +626,7 @@ def _run(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from oodmon.envs import Variant, parse_variant
+    from oodmon.envs.registration import TASK_OF_ENV
     from oodmon.monitor import McapSink, Monitor, Threshold
     from oodmon.monitor.sinks.rerun import RerunSink
     from oodmon.replay.metrics import is_id_variant
@@ -644,8 +645,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.variant:
         variant = parse_variant(args.variant)
         if variant.task != args.task:
-            raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant"
-                              + ("" if args.task in TASKS else f" (oodmon has no variants of {args.task})"))
+            raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant" if args.task in TASKS else
+                              f"variant {variant.spec!r} is not a variant of {args.task}: oodmon has variants of "
+                              f"{', '.join(sorted(TASK_OF_ENV))} only; leave out --variant to run {args.task} itself")
         env, label = variant.make(onset_step=args.onset), variant.spec
     elif agent.env_id is not None:  # your own model in its own env, as you deploy it
         env, label = agent.make_env(), agent.env_id

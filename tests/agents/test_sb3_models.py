@@ -137,6 +137,10 @@ def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
     assert "--sb3 needs --env" in capsys.readouterr().err
     assert main(["run", "--sb3", str(tmp_path / "dqn.zip"), "--env", "CartPole-v1", "--variant", "pendulum:m=5.0"]) == 2
     assert "'pendulum:m=5.0' is not a cartpole variant" in capsys.readouterr().err
+    DQN("MlpPolicy", gymnasium.make("Acrobot-v1"), seed=0).save(tmp_path / "acrobot.zip")  # an env without variants
+    assert main(["run", "--sb3", str(tmp_path / "acrobot.zip"), "--env", "Acrobot-v1", "--variant", "cartpole:length=2.0"]) == 2
+    assert ("'cartpole:length=2.0' is not a variant of Acrobot-v1: oodmon has variants of CartPole-v1, Pendulum-v1"
+            in capsys.readouterr().err)
     assert main(["calibrate", "--method", "ensemble", "--out", str(tmp_path / "t.json")]) == 2
     assert "give --task" in capsys.readouterr().err
 
