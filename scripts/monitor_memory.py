@@ -1,0 +1,120 @@
+"""Does a long monitored run grow the process? Resident memory over a run, per choice of sinks.
+
+Run (a few minutes; Linux, it reads /proc/self/status):
+    .venv/bin/python scripts/monitor_memory.py --sinks none
+    .venv/bin/python scripts/monitor_memory.py --sinks mcap
+    .venv/bin/python scripts/monitor_memory.py --sinks rerun
+    .venv/bin/python scripts/monitor_memory.py --sinks rerun --rerun-alone
+
+A monitor runs next to a deployed policy for days, so what it keeps per step must not pile up.
+This plays the shipped CartPole ensemble's ID episodes (500 steps each) in a ``MonitoredEnv``
+writing to the chosen sinks under ``--out``, prints the resident set size at a few episodes, and
+last the growth in bytes per step from episode 50 (everything loaded and warm) to the end.
+``--rerun-alone`` instead sends the same number of steps' series (six scalar series in batches of
+200, as ``RerunSink`` sends them) through a bare ``rerun.RecordingStream`` to a file: whether a
+growth is Rerun's own.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+STEPS_PER_EPISODE = 500  # CartPole's time limit; the shipped agent keeps the pole up to it
+WARM = 50  # episodes before the growth is measured from
+
+
+def rss_bytes() -> int:
+    """The process's resident set size (``VmRSS`` of /proc/self/status)."""
+    try:
+        status = Path("/proc/self/status").read_text()
+    except OSError:
+        sys.exit("monitor_memory: needs Linux's /proc/self/status")
+    kib = next(line.split()[1] for line in status.splitlines() if line.startswith("VmRSS:"))
+    return int(kib) * 1024
+
+
+def monitored(episodes: int, sinks: str, out: Path) -> list[tuple[int, int]]:
+    """(steps so far, RSS) at the checkpoints of a monitored run writing to ``sinks``."""
+    import gymnasium
+
+    import oodmon  # noqa: F401  (registers the envs)
+    from oodmon.agents import load
+    from oodmon.monitor import McapSink, Monitor, MonitoredEnv, RerunSink
+
+    chosen = {"none": [], "mcap": [McapSink(out / "memory.mcap")], "rerun": [RerunSink(out / "memory.rrd")],
+              "all": [McapSink(out / "memory.mcap"), RerunSink(out / "memory.rrd")]}[sinks]
+    monitor = Monitor(load("cartpole", "ensemble"), sinks=chosen)
+    env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"), monitor)
+    points, steps = [], 0
+    for episode in range(episodes):
+        env.reset(seed=episode)
+        while True:
+            _, _, terminated, truncated, _ = env.step()
+            steps += 1
+            if terminated or truncated:
+                break
+        if episode + 1 in checkpoints(episodes):
+            points.append((steps, rss_bytes()))
+            print(f"episode {episode + 1}: {steps} steps, RSS {points[-1][1] / 1e6:.1f} MB", flush=True)
+    monitor.close()
+    return points
+
+
+def rerun_alone(episodes: int, out: Path) -> list[tuple[int, int]]:
+    """The same number of steps' series sent through a bare Rerun recording stream to a file."""
+    import rerun as rr
+
+    rec = rr.RecordingStream("memory")
+    rec.set_sinks(rr.FileSink(str(out / "alone.rrd")))
+    rng = np.random.default_rng(0)
+    batch, points = 200, []
+    marks = {n * STEPS_PER_EPISODE: n for n in checkpoints(episodes)}
+    for start in range(0, episodes * STEPS_PER_EPISODE, batch):
+        steps = np.arange(start, start + batch)
+        index = [rr.TimeColumn("step", sequence=steps), rr.TimeColumn("episode", sequence=steps // STEPS_PER_EPISODE),
+                 rr.TimeColumn("step_in_episode", sequence=steps % STEPS_PER_EPISODE)]
+        for path in ("/a", "/b", "/c", "/d", "/e", "/f"):
+            rec.send_columns(path, indexes=index, columns=rr.Scalars.columns(scalars=rng.random(batch)))
+        done = start + batch
+        if done in marks:
+            points.append((done, rss_bytes()))
+            print(f"episode {marks[done]}: {done} steps, RSS {points[-1][1] / 1e6:.1f} MB", flush=True)
+    rec.flush()
+    return points
+
+
+def checkpoints(episodes: int) -> list[int]:
+    """Episodes after which the RSS is read: the warm-up's end, a few doublings, the last."""
+    marks, n = [WARM], WARM * 2
+    while n < episodes:
+        marks.append(n)
+        n *= 2
+    return sorted({*marks, episodes})
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sinks", choices=["none", "mcap", "rerun", "all"], default="all")
+    parser.add_argument("--episodes", type=int, default=400, help=f"episodes (more than {WARM}; default 400)")
+    parser.add_argument("--rerun-alone", action="store_true", help="a bare Rerun stream instead of the monitor")
+    parser.add_argument("--out", type=Path, default=None, help="folder for the files written (default: a temporary one)")
+    args = parser.parse_args()
+    if args.episodes <= WARM:
+        parser.error(f"--episodes must be more than {WARM}")
+    with tempfile.TemporaryDirectory() as scratch:
+        out = args.out or Path(scratch)
+        out.mkdir(parents=True, exist_ok=True)
+        points = rerun_alone(args.episodes, out) if args.rerun_alone else monitored(args.episodes, args.sinks, out)
+    (first_steps, first_rss), (last_steps, last_rss) = points[0], points[-1]
+    what = "a bare Rerun stream" if args.rerun_alone else f"sinks {args.sinks}"
+    print(f"{what}: {(last_rss - first_rss) / (last_steps - first_steps):.1f} bytes of RSS per step "
+          f"from step {first_steps} to {last_steps}")
+
+
+if __name__ == "__main__":
+    main()
