@@ -19,6 +19,7 @@ episodes; they need a :class:`~oodmon.monitor.sequential.Reference` and ignore m
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -120,6 +121,8 @@ def trailing_mean(scores: np.ndarray, window: int) -> np.ndarray:
         array([2. , 2.5, 4. ])
     """
     scores = np.asarray(scores, dtype=np.float64)
+    if np.isnan(scores).any():  # a score that could not be computed counts as the most shifted, as in AlarmTracker
+        scores = np.where(np.isnan(scores), np.inf, scores)
     if window == 1:
         return scores
     if len(scores) < window:
@@ -202,6 +205,8 @@ class AlarmTracker:
             self._sequential.reset()
 
     def update(self, episode: int, step: int, score: float) -> tuple[bool, AlarmEvent | None]:
+        if score != score:  # NaN: a score that could not be computed counts as the most shifted
+            score = math.inf
         if self._sequential is not None:
             value = self._sequential.update(step, score)
             holds, rising = value > self.threshold, value > self.threshold and not self._holding

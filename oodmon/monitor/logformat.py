@@ -10,6 +10,9 @@ metadata, absent before 3):
 4. ``terminated`` in episode messages (the env ended the episode, the failure of the monitor's
    benchmark) and ``reward_f64`` (each step's reward) in episode scores.
 
+A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
+a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
+
 Replay reads every version: a log without detector scores has one detector, the one its alarm
 read (``spread`` before version 3), whose scores are the ``score`` arrays; a log older than
 version 4 has no rewards per step and no ``terminated``, so its failures are unknown.
@@ -41,18 +44,22 @@ def _object(title: str, properties: dict[str, Any], required: list[str]) -> dict
     return {"type": "object", "title": title, "properties": properties, "required": required}
 
 
+#: A number of a step message: ``null`` where it is not finite (NaN or infinity are not JSON; the
+#: episode's score arrays keep them).
+_NUMBER: dict[str, Any] = {"type": ["number", "null"]}
+
 STEP_SCHEMA: dict[str, Any] = _object("oodmon.Step", {
     "episode": {"type": "integer"},
     "step": {"type": "integer", "description": "index in the episode of the observation acted on"},
     "action": {"type": ["integer", "array"], "description": "the deployed action"},
-    "mean": {"type": "array", "items": {"type": "number"}, "description": "mean of the samples per action"},
-    "std": {"type": "array", "items": {"type": "number"}, "description": "std of the samples per action"},
-    "score": {"type": "number"},
-    "threshold": {"type": ["number", "null"]},
+    "mean": {"type": "array", "items": _NUMBER, "description": "mean of the samples per action"},
+    "std": {"type": "array", "items": _NUMBER, "description": "std of the samples per action"},
+    "score": _NUMBER | {"description": "null: infinite (a NaN or infinite observation scores +inf)"},
+    "threshold": _NUMBER | {"description": "null: the run had no threshold"},
     "alarm": {"type": "boolean"},
     "shifted": {"type": "boolean", "description": "the shift is active at this step"},
-    "observation": {"type": "array", "items": {"type": "number"}},
-    "scores": {"type": "object", "additionalProperties": {"type": "number"},
+    "observation": {"type": "array", "items": _NUMBER},
+    "scores": {"type": "object", "additionalProperties": _NUMBER,
                "description": "every detector's score, by detector name (since format 3)"},
 }, required=["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"])
 

@@ -323,10 +323,16 @@ class Monitor:
                 action = int(raw) if self.estimator.kind == "q_values" else np.asarray(raw)
             else:
                 raise ConfigError("this monitor has no policy to act: pass the deployed action, step(obs, action=a)")
-        context = StepContext(obs, action, estimate, self._prev_obs, self._prev_action, {})
-        scores = self.detectors.score(context)
+        if _finite(obs):
+            context = StepContext(obs, action, estimate, self._prev_obs, self._prev_action, {})
+            scores = self.detectors.score(context)
+            self._prev_obs, self._prev_action = obs, action
+        else:
+            # A NaN or infinite observation (a failed sensor) lies outside any ID data: every detector
+            # scores it +inf, so the alarm rule counts it, and none is fed it (a NaN in a detector's
+            # window or running mean would hide its scores for the steps after, or the episode).
+            scores = dict.fromkeys(self.detectors.names, math.inf)
         score = scores[self.detector]
-        self._prev_obs, self._prev_action = obs, action
         step = self._length
         alarm, event = self.tracker.update(self.episode, step, score)
         observation = None
@@ -425,6 +431,12 @@ def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
     if what is not None:
         raise ConfigError(f"this env's {what} is {getattr(env, what)}, but {agent.task}/{agent.method} acts in "
                           f"{env_id_of(own)}, whose {what} is {getattr(own, what)}: an env of another task?")
+
+
+def _finite(obs: Any) -> bool:
+    """Whether every number of an observation is finite (an integer observation always is: Pong's frames)."""
+    obs = np.asarray(obs)
+    return obs.dtype.kind not in "fc" or bool(np.isfinite(obs).all())
 
 
 def _frame(obs: np.ndarray) -> np.ndarray | None:

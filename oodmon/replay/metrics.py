@@ -25,7 +25,7 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "MonitorMetrics", "VariantMetrics", "alarm_events",
            "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "detectors_in",
-           "failed_episodes", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row"]
+           "failed_episodes", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable"]
 
 
 @dataclass(frozen=True)
@@ -71,6 +71,22 @@ def alarm_events(alarm: np.ndarray) -> np.ndarray:
     return np.flatnonzero(alarm & ~previous)
 
 
+def rankable(scores: np.ndarray) -> np.ndarray:
+    """Scores sklearn can rank: an infinite one (the monitor scores a NaN or infinite observation
+    +inf) or a NaN one (a score that could not be computed) as the largest float, the most shifted;
+    -inf as the smallest.
+
+    Example:
+        >>> rankable(np.array([0.5, np.inf, np.nan]))[1:] == np.finfo(np.float64).max
+        array([ True,  True])
+    """
+    scores = np.asarray(scores, dtype=np.float64)
+    if np.isfinite(scores).all():
+        return scores
+    top = np.finfo(np.float64).max
+    return np.nan_to_num(scores, nan=top, posinf=top, neginf=-top)
+
+
 def fpr_at_tpr(labels: np.ndarray, scores: np.ndarray, tpr: float = 0.95) -> float:
     """The false-positive rate at the first threshold that reaches ``tpr``.
 
@@ -80,7 +96,7 @@ def fpr_at_tpr(labels: np.ndarray, scores: np.ndarray, tpr: float = 0.95) -> flo
     """
     from sklearn.metrics import roc_curve
 
-    fprs, tprs, _ = roc_curve(labels, scores)
+    fprs, tprs, _ = roc_curve(labels, rankable(scores))
     return float(fprs[np.searchsorted(tprs, tpr, side="left")])
 
 
@@ -173,7 +189,7 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
         auroc = aupr = fpr95 = None
         if len(negatives) and len(ood):
             labels = np.concatenate([np.zeros(len(negatives)), np.ones(len(ood))])
-            scores = np.concatenate([negatives, ood])
+            scores = rankable(np.concatenate([negatives, ood]))
             fprs, tprs, _ = roc_curve(labels, scores)  # one sort for AUROC and FPR@95TPR
             auroc = float(auc(fprs, tprs))
             aupr = float(average_precision_score(labels, scores))

@@ -17,7 +17,7 @@ from sklearn.metrics import roc_curve
 
 from oodmon.envs.grid import parse_variant
 from oodmon.outputs import safe_filename, save_figure
-from oodmon.replay.metrics import VariantMetrics, alarm_events, is_id_variant
+from oodmon.replay.metrics import VariantMetrics, alarm_events, is_id_variant, rankable
 from oodmon.replay.reader import RunLog
 
 __all__ = ["plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_plots"]
@@ -71,7 +71,8 @@ def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path) -> Path | N
         data = _labels_and_scores(logs, method, variant)
         if data is None:
             continue
-        fpr, tpr, _ = roc_curve(*data)
+        labels, scores = data
+        fpr, tpr, _ = roc_curve(labels, rankable(scores))
         ax.plot(fpr, tpr, label=f"{method}, {_alarm_detectors(logs, method, variant)} (AUROC {np.trapezoid(tpr, fpr):.3f})")
         drawn = True
     if not drawn:

@@ -171,3 +171,88 @@ def test_an_env_of_another_task_is_refused_before_any_fitting(agent, monkeypatch
     wide = gymnasium.make("oodmon/CartPole-v1", length=2.0)
     wide.observation_space = gymnasium.spaces.Box(-10, 10, (4,), np.float32)
     assert MonitoredEnv(wide, Monitor(agent)).env is wide
+
+
+class _SensorFailure(gymnasium.ObservationWrapper):
+    """The pole's angle reads NaN at steps [first, first + count) of each episode (a failed sensor)."""
+
+    def __init__(self, env: gymnasium.Env, first: int, count: int) -> None:
+        super().__init__(env)
+        self.first, self.count, self.t = first, count, 0
+
+    def reset(self, **kwargs):
+        self.t = 0
+        return super().reset(**kwargs)
+
+    def step(self, action):
+        self.t += 1
+        return super().step(action)
+
+    def observation(self, obs):
+        obs = np.array(obs, dtype=np.float32)
+        if self.first <= self.t < self.first + self.count:
+            obs[2] = np.nan
+        return obs
+
+
+def test_a_nan_observation_scores_inf_on_every_detector_and_alarms(agent, tmp_path):
+    """A failed sensor's NaN made every score NaN (combined: -0.0, its lowest rank), and NaN never
+    exceeds a threshold: the monitor stayed silent. Now every detector scores such a step +inf
+    without being fed it, the alarm fires (m = 1: at once), the detectors' windows are not
+    poisoned, the MCAP step message writes null for what is not finite, and replay ranks it."""
+    import json
+    import math
+
+    from mcap.reader import make_reader
+
+    from oodmon.monitor import McapSink, Threshold
+    from oodmon.monitor.detectors import DetectorSet
+    from oodmon.agents import zoo_dir
+    from oodmon.replay import compute_metrics, read_log
+
+    detectors = DetectorSet.load(zoo_dir() / "cartpole-ensemble" / "detectors")
+    threshold = Threshold(6.0, "chosen_std", 1, "episode", 0.05, 20, 100, task="cartpole", method="ensemble",
+                          detector="combined")
+    monitor = Monitor(agent, threshold, detectors=detectors, sinks=[McapSink(tmp_path / "nan.mcap")])
+    env = MonitoredEnv(_SensorFailure(gymnasium.make("oodmon/CartPole-v1", length=2.0, onset_step=100), 50, 3), monitor)
+    env.reset(seed=0)
+    seen = []
+    while True:
+        _, _, terminated, truncated, info = env.step()
+        seen.append(info["oodmon"])
+        if terminated or truncated:
+            break
+    monitor.close()
+    assert all(not s["alarm"] for s in seen[:50]) and max(s["score"] for s in seen[:50]) < 6.0  # an ID start
+    for s in seen[50:53]:
+        assert s["alarm"] and all(math.isinf(v) and v > 0 for v in s["scores"].values())
+    # The windowed detectors were not fed the NaN: their scores are finite again from the next step.
+    assert all(math.isfinite(v) for s in seen[53:] for v in s["scores"].values())
+    with open(tmp_path / "nan.mcap", "rb") as file:
+        steps = [json.loads(m.data) for _, _, m in make_reader(file).iter_messages(topics=["/oodmon/step"])]
+    assert steps[50]["score"] is None and steps[50]["observation"][2] is None and steps[49]["score"] > 0
+    log = read_log(tmp_path / "nan.mcap")
+    assert np.isinf(log.episodes[0].scores[50:53]).all()
+    row = next(m for m in compute_metrics([log]) if m.variant == "cartpole:length=2.0")
+    assert row.auroc is not None and 0.0 <= row.auroc <= 1.0  # sklearn ranked the +inf steps
+
+
+def test_a_nan_score_counts_as_above_the_threshold_in_every_rule():
+    """A NaN score (a detector that could not score a finite observation) is never "below": the
+    alarm rule and the calibration's episode statistic count it as +inf, and the combined detector
+    ranks a NaN member as +inf, not as its lowest rank (it read -0.0)."""
+    import math
+
+    from oodmon.agents import zoo_dir
+    from oodmon.monitor.alarms import AlarmTracker, episode_statistic
+    from oodmon.monitor.detectors import DetectorSet, StepContext
+
+    tracker = AlarmTracker(threshold=1.0, consecutive=2)
+    assert [tracker.update(0, step, s)[0] for step, s in enumerate([0.5, float("nan"), float("nan"), 0.5])] == \
+        [False, False, True, False]
+    assert episode_statistic(np.array([0.5, np.nan, 0.2]), 1) == math.inf
+    combined = DetectorSet.load(zoo_dir() / "cartpole-ensemble" / "detectors")["combined"]
+    finite = {name: 0.0 for name in combined.members}
+    assert math.isfinite(combined.score(StepContext(np.zeros(4), 0, scores=finite)))
+    for member in combined.members:
+        assert combined.score(StepContext(np.zeros(4), 0, scores=finite | {member: float("nan")})) == math.inf

@@ -22,6 +22,7 @@ system) at every episode end, so a crash, even SIGKILL, loses at most the runnin
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -41,7 +42,25 @@ from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 __all__ = ["EPISODE_SCHEMA", "EPISODE_SCORES_SCHEMA", "STEP_SCHEMA", "McapSink"]  # schemas re-exported
 
 def _json_number(value: float) -> float | None:
-    return None if value != value else value  # NaN (no threshold) is not JSON
+    """``value``, or ``None`` where it is not finite: NaN (no threshold) and infinity (the score of a
+    NaN observation) are not JSON, and Foxglove's parser refuses them."""
+    return value if math.isfinite(value) else None
+
+
+def _step_json(record: StepRecord) -> str:
+    """A step's message, every non-finite number written as ``null`` (the score arrays keep them)."""
+    data = record.to_json()
+    data["threshold"] = _json_number(data["threshold"])  # NaN in every run without a threshold
+    text = json.dumps(data)
+    if "NaN" not in text and "Infinity" not in text:  # json.dumps's words for them; no key holds them
+        return text
+    data["score"] = _json_number(data["score"])  # a NaN observation: scores +inf, its samples NaN
+    for name in ("mean", "std", "observation"):
+        if name in data:
+            data[name] = [_json_number(value) for value in data[name]]
+    if "scores" in data:
+        data["scores"] = {name: _json_number(value) for name, value in data["scores"].items()}
+    return json.dumps(data)
 
 
 class McapSink:
@@ -99,9 +118,7 @@ class McapSink:
 
     def write_step(self, record: StepRecord) -> None:
         now = time.time_ns()
-        data = record.to_json()
-        data["threshold"] = _json_number(data["threshold"])
-        self._add(self._step_channel, json.dumps(data).encode(), now)
+        self._add(self._step_channel, _step_json(record).encode(), now)
         self._scores.append(record.score)
         self._shifted.append(record.shifted)
         self._alarm.append(record.alarm)
