@@ -290,7 +290,8 @@ def test_shifted_episodes_splits_a_rows_auroc_at_the_episodes_the_agent_survives
                 monitor.run_episode(parse_variant(env).make(), seed=seed, variant=name)
         return [np.array([s.score for s in memory.steps if s.episode == e]) for e in range(len(envs))]
 
-    ids = np.concatenate(play("cartpole", ["cartpole"] * 3))
+    id_episodes = play("cartpole", ["cartpole"] * 3)
+    ids = np.concatenate(id_episodes)
     shifted = play(spec, [spec, "cartpole", spec])
     assert [len(s) for s in shifted][1] == 500 and max(len(shifted[0]), len(shifted[2])) < 500
 
@@ -307,6 +308,15 @@ def test_shifted_episodes_splits_a_rows_auroc_at_the_episodes_the_agent_survives
     assert f"trial 0: lengths {lengths}; AUROC {auroc(shifted):.3f}, over the failing episodes " \
            f"{auroc([shifted[0], shifted[2]]):.3f}" in out
     assert "1 of 3 episodes survived" in out
+    # --window 20: each step's mean over the episode's last 20 steps, ranked the same way.
+    script.main([str(results), "--out", config.out, "--window", "20"])
+    def means(episodes: list[np.ndarray]) -> np.ndarray:
+        return np.concatenate([[e[max(0, t - 19):t + 1].mean() for t in range(len(e))] for e in episodes])
+
+    id_means, shifted_means = means(id_episodes), means(shifted)
+    windowed = float(roc_auc_score(np.r_[np.zeros(len(id_means)), np.ones(len(shifted_means))],
+                                   np.r_[id_means, shifted_means]))
+    assert f"; 20-step means {windowed:.3f}" in capsys.readouterr().out
     # Logs that did not make the file's figure, and a task whose failures are not the env's, are refused.
     results.write_text(json.dumps({"config": config.what_made_the_numbers(), "rows": [{**row, "aurocs": {"0": 0.123}}]}))
     with pytest.raises(SystemExit, match="not the logs that made it"):
