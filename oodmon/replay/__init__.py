@@ -10,12 +10,14 @@ from oodmon.replay.metrics import (
     MonitorMetrics, VariantMetrics, alarm_events, compute_all_metrics, compute_metrics, compute_monitor_metrics,
     detectors_in, failed_episodes, failure_step, fpr_at_tpr,
 )
-from oodmon.replay.reader import EpisodeLog, RecoveryWarning, RunLog, SkippedLogWarning, read_log, read_logs
+from oodmon.replay.reader import (EpisodeLog, NewerFormatWarning, RecoveryWarning, RunLog, SkippedLogWarning, read_log,
+                                  read_logs)
 from oodmon.replay.report import monitor_markdown, monitor_summary, monitor_table, to_csv, to_json, to_markdown, to_table
 
 __all__ = [
     "EpisodeLog",
     "MonitorMetrics",
+    "NewerFormatWarning",
     "RecoveryWarning",
     "RunLog",
     "SkippedLogWarning",

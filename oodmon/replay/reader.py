@@ -25,7 +25,7 @@ from oodmon.monitor import logformat
 from oodmon.monitor.logformat import decode_array, encode_episode_scores
 from oodmon.monitor.records import EpisodeRecord
 
-__all__ = ["EpisodeLog", "RecoveryWarning", "RunLog", "SkippedLogWarning", "read_log", "read_logs"]
+__all__ = ["EpisodeLog", "NewerFormatWarning", "RecoveryWarning", "RunLog", "SkippedLogWarning", "read_log", "read_logs"]
 
 _MAGIC = b"\x89MCAP0\r\n"
 _EPISODE, _SCORES, _STEP = logformat.EPISODE, logformat.EPISODE_SCORES, logformat.STEP
@@ -37,6 +37,10 @@ class RecoveryWarning(UserWarning):
 
 class SkippedLogWarning(UserWarning):
     """A file was not read: named twice, or found in a folder but not an oodmon log."""
+
+
+class NewerFormatWarning(UserWarning):
+    """A log was written in a newer log format than this oodmon knows; it is read as the newest it knows."""
 
 
 @dataclass(frozen=True)
@@ -180,6 +184,13 @@ class _Collector:
 def _assemble(path: Path, metadata: dict[str, str] | None, found: _Collector, complete: bool) -> RunLog:
     if metadata is None:
         raise LogFormatError(f"{path} is an MCAP file but not an oodmon log (no oodmon.run metadata)")
+    version = metadata.get("format_version", "")
+    if version.isdigit() and int(version) > logformat.FORMAT_VERSION:
+        writer = metadata.get("version.oodmon")
+        warnings.warn(f"{path} is in log format {version}" + (f" (oodmon {writer})" if writer else "")
+                      + f", newer than this oodmon's {logformat.FORMAT_VERSION}: it is read as format "
+                      f"{logformat.FORMAT_VERSION}, and what is new in it is left out; upgrade oodmon to read it whole",
+                      NewerFormatWarning, stacklevel=3)
     episodes, interrupted = [], []
     for k in sorted(found.rows):
         scores = found.scores_of(k)

@@ -76,6 +76,28 @@ def test_logs_older_than_format_4_have_no_rewards_and_no_failures():
         assert all(failure_step(e, "cartpole") is None for e in log.episodes)
 
 
+def test_a_log_of_a_newer_format_is_read_with_a_warning(tmp_path, monkeypatch):
+    """A log written by a newer oodmon (a format this one does not know) is read as the newest
+    format it knows, and replay says so instead of passing over what is new in it in silence."""
+    import warnings
+
+    from oodmon.monitor import logformat
+    from oodmon.replay import NewerFormatWarning
+
+    agent = load("cartpole", "dropout", seed=0)
+    with monkeypatch.context() as future:
+        future.setattr(logformat, "FORMAT_VERSION", logformat.FORMAT_VERSION + 1)
+        with Monitor(agent, sinks=[McapSink(tmp_path / "future.mcap")]) as monitor:
+            monitor.run_episode(parse_variant("cartpole").make(), seed=0, max_steps=30)
+    with pytest.warns(NewerFormatWarning, match=rf"log format {logformat.FORMAT_VERSION + 1} \(oodmon .*\), newer than "
+                                               rf"this oodmon's {logformat.FORMAT_VERSION}"):
+        log = read_log(tmp_path / "future.mcap")
+    assert len(log.episodes) == 1 and log.episodes[0].length == 30
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # today's logs: no warning
+        read_log(DATA / "cartpole-ensemble-length2.mcap")
+
+
 def test_truncated_file_is_read_up_to_its_last_complete_episode(tmp_path):
     source = DATA / "cartpole-ensemble-length2.mcap"
     raw = source.read_bytes()
