@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -232,6 +233,11 @@ class Threshold:
         names = [f for f in cls.__dataclass_fields__]
         if "rule_text" not in data:  # written before sequential rules: "rule" held the rule in words
             data.pop("rule", None)
+        unknown = [k for k in data if k not in names and k != "rule_text"]
+        if unknown:  # a newer oodmon's field could change the rule: say so rather than drop it in silence
+            warnings.warn(f"threshold file {path} has fields this oodmon does not know, which it ignores: "
+                          f"{', '.join(map(str, unknown))} (written by a newer oodmon? its alarm rule may differ here)",
+                          UserWarning, stacklevel=2)
         missing = [n for n in ("value", "score", "consecutive", "mode", "far", "n_episodes", "n_steps") if n not in data]
         if missing:
             raise ConfigError(f"{path} is not a threshold file: it lacks {', '.join(missing)}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -147,7 +148,14 @@ def test_step_mode_and_file_round_trip(tmp_path):
     assert threshold.consecutive == 1 and threshold.n_steps == 1000 and threshold.mode == "step"
     assert threshold.quantiles["q50"] == pytest.approx(0.5, abs=0.05)
     path = threshold.save(tmp_path / "thr.json")
-    assert Threshold.load(path) == threshold
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a file of today's fields loads without a word
+        assert Threshold.load(path) == threshold
+    # A field this oodmon does not know (a newer oodmon's) is ignored, and said.
+    data = json.loads(path.read_text()) | {"hysteresis": 5}
+    path.write_text(json.dumps(data))
+    with pytest.warns(UserWarning, match=r"fields this oodmon does not know, which it ignores: hysteresis"):
+        assert Threshold.load(path) == threshold
 
 
 def test_calibration_errors():
