@@ -316,3 +316,9 @@ def test_the_cli_fits_detectors_on_the_librarys_default_number_of_episodes():
         DEFAULT_FIT_EPISODES
     assert parser.parse_args(["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--out", "d"]).episodes == \
         DEFAULT_FIT_EPISODES
+    # and oodmon.watch, the same fitting from Python (it fitted on 30, the default before 2026-11-24)
+    import inspect
+
+    import oodmon
+
+    assert inspect.signature(oodmon.watch).parameters["fit_episodes"].default == DEFAULT_FIT_EPISODES

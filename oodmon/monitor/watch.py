@@ -22,6 +22,7 @@ from oodmon.envs.grid import ENV_IDS
 from oodmon.envs.registration import task_of_env
 from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import AlarmEvent
+from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES
 from oodmon.monitor.sinks.base import Sink
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
 from oodmon.progress import Progress
@@ -65,7 +66,7 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
 
 
 def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None = None, far: float = 0.05,
-          confidence: float | None = DEFAULT_CONFIDENCE, episodes: int = 50, fit_episodes: int = 30,
+          confidence: float | None = DEFAULT_CONFIDENCE, episodes: int = 50, fit_episodes: int = DEFAULT_FIT_EPISODES,
           detector: str | None = None, mean: bool = False, sinks: Sequence[Sink] = (),
           callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
           on_progress: Progress | None = None, masks: str | None = None) -> Any:
