@@ -24,6 +24,7 @@ import math
 import shlex
 import sys
 import warnings
+import weakref
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -183,6 +184,7 @@ class Monitor:
         self.episode = -1
         self._opened = False
         self._in_episode = False
+        self._episode_owner: weakref.ref | None = None  # see MonitoredEnv
         self.stop_requested = False
         self.last_step: StepRecord | None = None  # the record of the last step scored
         self.stop_event: AlarmEvent | None = None  # the alarm a callback ended the episode with
@@ -286,6 +288,7 @@ class Monitor:
         self.stop_requested = False
         self.last_step = None
         self.stop_event = None
+        self._episode_owner: weakref.ref | None = None  # the MonitoredEnv whose reset began it (set by that env)
 
     @property
     def in_episode(self) -> bool:
@@ -478,10 +481,16 @@ class MonitoredEnv(gymnasium.Wrapper):
         obs, info = self.env.reset(seed=seed, options=options)
         self.monitor.begin_episode(env_id=env_id_of(self.env), variant=self.variant or variant_of_env(self.env),
                                    onset=int(getattr(self.env.unwrapped, "onset_step", 0)), seed=seed)
+        self.monitor._episode_owner = weakref.ref(self)  # weak: a monitor does not keep an old env alive
         self._obs, self._info = obs, info
         return obs, info
 
     def step(self, action: Any = None):
+        owner = self.monitor._episode_owner
+        if self.monitor.in_episode and (owner is None or owner() is not self):
+            raise ConfigError("this env's Monitor follows an episode that another MonitoredEnv began (one Monitor "
+                              "shared by several envs, as in a vector env of MonitoredEnvs? their steps would mix "
+                              "into one episode's log): give each env its own Monitor, or reset this env first")
         # Your action, when you give one, is the deployed one: the detectors that model transitions see it.
         chosen = self.monitor.step(self._obs, action=action, shifted=bool(self._info.get("shifted", False)),
                                    frame=_frame(self._obs))

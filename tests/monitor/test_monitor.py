@@ -256,3 +256,24 @@ def test_a_nan_score_counts_as_above_the_threshold_in_every_rule():
     assert math.isfinite(combined.score(StepContext(np.zeros(4), 0, scores=finite)))
     for member in combined.members:
         assert combined.score(StepContext(np.zeros(4), 0, scores=finite | {member: float("nan")})) == math.inf
+
+
+def test_one_monitor_shared_by_two_envs_is_refused_at_the_first_mixed_step(agent):
+    """A vector env of MonitoredEnvs sharing one Monitor logged episodes of 293, 7, 414 and 47 steps
+    for four CartPole episodes (the two envs' steps mixed into one episode). Now the first step of
+    an env whose Monitor follows another env's episode is refused; one env after another is fine."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    sink = MemorySink()
+    monitor = Monitor(agent, sinks=[sink])
+    venv = DummyVecEnv([lambda: MonitoredEnv(Variant("cartpole").make(), monitor) for _ in range(2)])
+    venv.reset()
+    with pytest.raises(ConfigError, match="another MonitoredEnv began .* give each env its own Monitor"):
+        venv.step(np.zeros(2, dtype=int))
+    first, second = (MonitoredEnv(Variant("cartpole").make(), monitor) for _ in range(2))
+    for env, steps in ((first, 5), (second, 6), (first, 7)):  # one after another: each reset takes the monitor over
+        env.reset(seed=0)
+        for _ in range(steps):
+            env.step()
+    monitor.close()
+    assert [e.length for e in sink.episodes][-3:] == [5, 6, 7]
