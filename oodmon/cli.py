@@ -52,9 +52,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"oodmon: error: {error}", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
-            print("oodmon: interrupted; every finished episode is in the logs, the cut one is marked interrupted",
-                  file=sys.stderr)
+            kept = _INTERRUPTED.get(getattr(args.handler, "__name__", ""), "nothing was written")
+            print(f"oodmon: interrupted; {kept}", file=sys.stderr)
             return 130
+
+
+_LOGGED = "every finished episode is in the logs, the cut one is marked interrupted"
+#: What Ctrl-C leaves behind, per command handler (the others write nothing before they end).
+_INTERRUPTED = {
+    "_run": _LOGGED, "_demo": _LOGGED,
+    "_train": "the last checkpoint is kept: the same command resumes from it",
+    "_bench": "trained models and finished cells are kept: the same command resumes from them",
+    "_calibrate": "no threshold file was written (it is written when the calibration ends): run the command again",
+    "_fit_detectors": "no detectors were written (they are written when the fitting ends): run the command again",
+}
 
 
 def _command_line(args: argparse.Namespace) -> str:

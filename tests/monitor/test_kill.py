@@ -167,3 +167,21 @@ def test_ctrl_c_in_oodmon_run_exits_130_and_marks_the_cut_episode(tmp_path, monk
     log = read_log(tmp_path / "cut.mcap")
     assert log.complete and [e.length for e in log.episodes] == [500] and len(log.interrupted) == 1
     assert log.interrupted[0].length == 199
+
+
+def test_ctrl_c_says_what_each_command_leaves_behind(tmp_path, monkeypatch, capsys):
+    """Ctrl-C in `oodmon calibrate` said "every finished episode is in the logs", `oodmon run`'s
+    words, though calibrate writes no log and no threshold until it ends; now each command says
+    what it keeps."""
+    from oodmon.cli import main
+    from oodmon.monitor import Monitor
+
+    def interrupted(self, *args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Monitor, "step", interrupted)
+    code = main(["calibrate", "--task", "cartpole", "--method", "dropout", "--out", str(tmp_path / "t.json")])
+    assert code == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
+        "oodmon: interrupted; no threshold file was written (it is written when the calibration ends): "
+        "run the command again")
+    assert not (tmp_path / "t.json").exists()
