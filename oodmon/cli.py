@@ -52,13 +52,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"oodmon: error: {error}", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
-            kept = _INTERRUPTED.get(getattr(args.handler, "__name__", ""), "nothing was written")
-            print(f"oodmon: interrupted; {kept}", file=sys.stderr)
+            kept = _INTERRUPTED.get(getattr(args.handler, "__name__", ""))
+            print("oodmon: interrupted" + (f"; {kept}" if kept else ""), file=sys.stderr)
             return 130
 
 
 _LOGGED = "every finished episode is in the logs, the cut one is marked interrupted"
-#: What Ctrl-C leaves behind, per command handler (the others write nothing before they end).
+#: What Ctrl-C leaves behind, per command handler that writes as it goes or only at its end.
 _INTERRUPTED = {
     "_run": _LOGGED, "_demo": _LOGGED,
     "_train": "the last checkpoint is kept: the same command resumes from it",
