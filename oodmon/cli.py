@@ -52,19 +52,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"oodmon: error: {error}", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
-            kept = _INTERRUPTED.get(getattr(args.handler, "__name__", ""))
+            kept = getattr(args, "kept_on_interrupt", None)
             print("oodmon: interrupted" + (f"; {kept}" if kept else ""), file=sys.stderr)
             return 130
 
 
+#: What Ctrl-C leaves behind, said by the commands that write as they go or only at their end.
 _LOGGED = "every finished episode is in the logs, the cut one is marked interrupted"
-#: What Ctrl-C leaves behind, per command handler that writes as it goes or only at its end.
-_INTERRUPTED = {
-    "_run": _LOGGED, "_demo": _LOGGED,
-    "_train": "the last checkpoint is kept: the same command resumes from it",
-    "_bench": "trained models and finished cells are kept: the same command resumes from them",
-    "_calibrate": "no threshold file was written (it is written when the calibration ends): run the command again",
-    "_fit_detectors": "no detectors were written (they are written when the fitting ends): run the command again",
+_KEPT = {
+    "run": _LOGGED, "demo": _LOGGED,
+    "train": "the last checkpoint is kept: the same command resumes from it",
+    "bench": "trained models and finished cells are kept: the same command resumes from them",
+    "calibrate": "no threshold file was written (it is written when the calibration ends): run the command again",
+    "fit-detectors": "no detectors were written (they are written when the fitting ends): run the command again",
 }
 
 
@@ -217,7 +217,7 @@ def _parser() -> argparse.ArgumentParser:
     train.add_argument("--unsafe-load-pickles", action="store_true",
                        help="resume from an older training's checkpoint.zip and replay_buffer.pkl; these are "
                             "pickles, and loading one runs the code it holds: only for files you made yourself")
-    train.set_defaults(handler=_train)
+    train.set_defaults(handler=_train, kept_on_interrupt=_KEPT["train"])
 
     evaluate = commands.add_parser(
         "evaluate", help="where an agent fails: mean return per variant beside the ID return"
@@ -266,7 +266,7 @@ def _parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
                            help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
-    calibrate.set_defaults(handler=_calibrate)
+    calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
 
     validate = commands.add_parser(
         "validate", help="run fresh ID episodes and print a threshold's realised false-alarm rate beside its target"
@@ -296,7 +296,7 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--obs-noise", type=_non_negative, default=0.0,
                      help="sensor noise of the ID env, a fraction of each dimension's ID spread (default 0)")
     fit.add_argument("--out", required=True, help="folder for detectors.json and detectors.safetensors")
-    fit.set_defaults(handler=_fit_detectors)
+    fit.set_defaults(handler=_fit_detectors, kept_on_interrupt=_KEPT["fit-detectors"])
 
     run = commands.add_parser("run", help="run a monitored agent in an env (ID or shifted), logging to MCAP/Rerun")
     _agent_arguments(run)
@@ -319,7 +319,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--strict", action="store_true", help="a failing sink stops the run instead of warning")
     run.add_argument("--render", action="store_true",
                      help="log a picture of each CartPole or Pendulum state beside the scores (Rerun, Foxglove)")
-    run.set_defaults(handler=_run)
+    run.set_defaults(handler=_run, kept_on_interrupt=_KEPT["run"])
 
     replay = commands.add_parser("replay", help="metrics from recorded MCAP logs (files only; never modified)")
     replay.add_argument("logs", nargs="+", help="MCAP files, or folders holding them")
@@ -411,11 +411,11 @@ def _parser() -> argparse.ArgumentParser:
                        help="a result --results wrote earlier: exit 1, naming each figure, where this run falls below it")
     bench.add_argument("--tolerance", type=_non_negative,
                        help="--baseline's allowed fall of AUROC, AUPR and rates, and relative rise of delays (default 0.02)")
-    bench.set_defaults(handler=_bench)
+    bench.set_defaults(handler=_bench, kept_on_interrupt=_KEPT["bench"])
 
     demo = commands.add_parser("demo", help="the main job of 'make demo': calibrate, monitor, log, summarise")
     demo.add_argument("--out", default="runs/demo", help="folder for the demo's files (default runs/demo)")
-    demo.set_defaults(handler=_demo)
+    demo.set_defaults(handler=_demo, kept_on_interrupt=_KEPT["demo"])
     return parser
 
 

@@ -288,7 +288,7 @@ class Monitor:
         self.stop_requested = False
         self.last_step = None
         self.stop_event = None
-        self._episode_owner: weakref.ref | None = None  # the MonitoredEnv whose reset began it (set by that env)
+        self._episode_owner = None  # the MonitoredEnv whose reset began it sets itself here (weakly)
 
     @property
     def in_episode(self) -> bool:
