@@ -333,8 +333,11 @@ class Monitor:
         else:
             # A NaN or infinite observation (a failed sensor) lies outside any ID data: every detector
             # scores it +inf, so the alarm rule counts it, and none is fed it (a NaN in a detector's
-            # window or running mean would hide its scores for the steps after, or the episode).
+            # window or running mean would hide its scores for the steps after, or the episode). The
+            # next finite observation has no previous one, as at an episode's start: the jump across
+            # the gap is no one-step transition for the dynamics model to be surprised by.
             scores = dict.fromkeys(self.detectors.names, math.inf)
+            self._prev_obs, self._prev_action = None, None
         score = scores[self.detector]
         step = self._length
         alarm, event = self.tracker.update(self.episode, step, score)

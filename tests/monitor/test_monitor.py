@@ -226,8 +226,11 @@ def test_a_nan_observation_scores_inf_on_every_detector_and_alarms(agent, tmp_pa
     assert all(not s["alarm"] for s in seen[:50]) and max(s["score"] for s in seen[:50]) < 6.0  # an ID start
     for s in seen[50:53]:
         assert s["alarm"] and all(math.isinf(v) and v > 0 for v in s["scores"].values())
-    # The windowed detectors were not fed the NaN: their scores are finite again from the next step.
+    # The windowed detectors were not fed the NaN: their scores are finite again from the next step,
+    # and the first observation after the gap is no transition from the one before it (the jump
+    # across three blind steps scored a dynamics surprise over 2,000 that stayed in its 20-step mean).
     assert all(math.isfinite(v) for s in seen[53:] for v in s["scores"].values())
+    assert abs(seen[53]["scores"]["dynamics"] - seen[49]["scores"]["dynamics"]) < 0.5
     with open(tmp_path / "nan.mcap", "rb") as file:
         steps = [json.loads(m.data) for _, _, m in make_reader(file).iter_messages(topics=["/oodmon/step"])]
     assert steps[50]["score"] is None and steps[50]["observation"][2] is None and steps[49]["score"] > 0
