@@ -189,8 +189,9 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     ``masks``: the MC masks of one model with dropout or DropConnect layers (see :func:`load_sb3`).
 
     Raises:
-        ConfigError: no models, spaces that do not match the env, ``mean`` without an ensemble, or
-            fixed masks without one DQN or DDPG/TD3 model with dropout or DropConnect layers.
+        ConfigError: no models, spaces that do not match the env, observations that are not an
+            array (a Dict space), ``mean`` without an ensemble, or fixed masks without one DQN or
+            DDPG/TD3 model with dropout or DropConnect layers.
     """
     from oodmon.agents.networks import estimator_from_sb3
     from oodmon.envs.registration import task_of_env
@@ -207,6 +208,10 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     for model, file in zip(models, files):
         _check_spaces(model, Path(file["path"]), env, env_id)
     env.close()
+    if not isinstance(env.observation_space, gymnasium.spaces.Box):
+        raise ConfigError(f"{env_id}'s observations are {env.observation_space}; oodmon's detectors read array "
+                          "observations (a gymnasium Box: a vector, or stacked image frames): wrap the env in "
+                          "gymnasium.wrappers.FlattenObservation, and train the model on that, to watch it")
     names = {file["algorithm"] for file in files}
     masks = masks or "sampled"
     sampled = names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"})

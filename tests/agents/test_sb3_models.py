@@ -122,6 +122,17 @@ def test_a_td3_on_pendulum_is_watched_by_the_dynamics_detector(tmp_path, capsys)
     assert set(rows) == {"dynamics", "combined"} and rows["dynamics"]["auroc"] > 0.9
 
 
+class _DictCartPole(gymnasium.ObservationWrapper):
+    """CartPole whose observations are ``{"state": the usual vector}`` (a Dict space)."""
+
+    def __init__(self) -> None:
+        super().__init__(gymnasium.make("CartPole-v1"))
+        self.observation_space = gymnasium.spaces.Dict({"state": self.env.observation_space})
+
+    def observation(self, obs):
+        return {"state": obs}
+
+
 def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
     with pytest.raises(ConfigError, match="does not exist"):
         load_sb3([tmp_path / "missing.zip"], "CartPole-v1")
@@ -137,6 +148,17 @@ def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
     assert "--sb3 needs --env" in capsys.readouterr().err
     assert main(["run", "--sb3", str(tmp_path / "dqn.zip"), "--env", "CartPole-v1", "--variant", "pendulum:m=5.0"]) == 2
     assert "'pendulum:m=5.0' is not a cartpole variant" in capsys.readouterr().err
+    # An env of Dict observations: said at once (it failed inside the fitting: "a combined detector needs
+    # distinct member detectors other than itself; got []").
+    from oodmon.agents.sb3 import sb3_agent
+
+    if "DictCartPoleForTests-v0" not in gymnasium.registry:
+        gymnasium.register("DictCartPoleForTests-v0", entry_point=_DictCartPole)
+    from stable_baselines3 import PPO
+
+    dict_model = PPO("MultiInputPolicy", gymnasium.make("DictCartPoleForTests-v0"), seed=0, n_steps=32, batch_size=32)
+    with pytest.raises(ConfigError, match=r"DictCartPoleForTests-v0's observations are Dict\(.*FlattenObservation"):
+        sb3_agent([dict_model], "DictCartPoleForTests-v0")
     DQN("MlpPolicy", gymnasium.make("Acrobot-v1"), seed=0).save(tmp_path / "acrobot.zip")  # an env without variants
     assert main(["run", "--sb3", str(tmp_path / "acrobot.zip"), "--env", "Acrobot-v1", "--variant", "cartpole:length=2.0"]) == 2
     assert ("'cartpole:length=2.0' is not a variant of Acrobot-v1: oodmon has variants of CartPole-v1, Pendulum-v1"
