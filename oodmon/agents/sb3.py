@@ -118,9 +118,24 @@ def _load_one(path: Path) -> tuple[Any, str]:
 
 def _check_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str) -> None:
     what = space_mismatch(env, model)
+    if what == "observation_space" and _transposed_image(env.observation_space, model.observation_space):
+        what = space_mismatch(env, model, check_observations=False)  # SB3's own (H, W, C) -> (C, H, W)
     if what is not None:
         raise ConfigError(f"{path} was trained with the {what} {getattr(model, what)}; {env_id} has "
                           f"{getattr(env, what)}: a model of another env?")
+
+
+def _transposed_image(env_space: Any, model_space: Any) -> bool:
+    """Whether ``model_space`` is ``env_space``, an image with channels last, with its channels moved
+    first, as SB3 stores a model trained on such an env (``VecTransposeImage``; its ``predict`` takes
+    the env's images as they come)."""
+    from stable_baselines3.common.preprocessing import is_image_space
+
+    if not isinstance(env_space, gymnasium.spaces.Box) or not isinstance(model_space, gymnasium.spaces.Box):
+        return False
+    shape = env_space.shape
+    return (is_image_space(env_space, check_channels=True) and len(shape) == 3
+            and model_space.shape == (shape[2], shape[0], shape[1]))
 
 
 def _deployed(model: Any, discrete: bool):

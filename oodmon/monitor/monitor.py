@@ -38,6 +38,7 @@ from oodmon.envs.registration import env_id_of, variant_of_env
 from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
+from oodmon.monitor.detectors.frames import newest_frame
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.monitor.sinks.base import Sink, SinkGroup
@@ -446,8 +447,9 @@ def _finite(obs: Any) -> bool:
 
 
 def _frame(obs: np.ndarray) -> np.ndarray | None:
-    """The newest frame of a stacked image observation (Pong), else None."""
-    return obs[-1] if np.ndim(obs) == 3 and obs.dtype == np.uint8 else None
+    """The picture to log of an image observation (uint8, three dimensions): its newest frame (see
+    :func:`~oodmon.monitor.detectors.frames.newest_frame`), else None."""
+    return newest_frame(obs) if np.ndim(obs) == 3 and obs.dtype == np.uint8 else None
 
 
 class MonitoredEnv(gymnasium.Wrapper):

@@ -133,6 +133,55 @@ class _DictCartPole(gymnasium.ObservationWrapper):
         return {"state": obs}
 
 
+class _Pictures(gymnasium.Env):
+    """40 x 40 RGB pictures of noise (channels last), 30 steps an episode: an env of image observations."""
+
+    observation_space = gymnasium.spaces.Box(0, 255, (40, 40, 3), np.uint8)
+    action_space = gymnasium.spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return self.np_random.integers(0, 256, (40, 40, 3), dtype=np.uint8), {}
+
+    def step(self, action):
+        self.t += 1
+        return self.np_random.integers(0, 256, (40, 40, 3), dtype=np.uint8), 1.0, False, self.t >= 30, {}
+
+
+def test_a_policy_of_rgb_pictures_is_watched_by_the_frames_detector(tmp_path):
+    """SB3 stores a model of channel-last pictures with its channels first ((3, 40, 40) for a
+    (40, 40, 3) env), and its predict() takes the env's pictures as they come: the model was refused
+    as "a model of another env?". Now it loads, the frames detector reads each picture, and the log
+    holds the pictures in colour."""
+    from stable_baselines3 import PPO
+
+    import oodmon
+    from oodmon.monitor import McapSink
+
+    if "PicturesForTests-v0" not in gymnasium.registry:
+        gymnasium.register("PicturesForTests-v0", entry_point=_Pictures)
+    model = PPO("CnnPolicy", gymnasium.make("PicturesForTests-v0"), seed=0, n_steps=32, batch_size=32)
+    assert model.observation_space.shape == (3, 40, 40)
+    model.save(tmp_path / "pictures.zip")
+    agent = load_sb3([tmp_path / "pictures.zip"], "PicturesForTests-v0")
+    sink = McapSink(tmp_path / "pictures.mcap")
+    env = oodmon.watch(agent, env=gymnasium.make("PicturesForTests-v0"), episodes=20, confidence=None,
+                       fit_episodes=6, sinks=[sink])
+    assert env.monitor.detector == "combined" and "frames" in env.monitor.detectors.names
+    env.reset(seed=0)
+    for _ in range(5):
+        info = env.step()[-1]
+    assert np.isfinite(info["oodmon"]["scores"]["frames"])
+    env.close()
+    from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+    from mcap.reader import make_reader
+
+    with open(tmp_path / "pictures.mcap", "rb") as file:
+        frames = [RawImage.FromString(m.data) for _, _, m in make_reader(file).iter_messages(topics=["/oodmon/frame"])]
+    assert frames and (frames[0].width, frames[0].height, frames[0].encoding) == (40, 40, "rgb8")
+
+
 def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
     with pytest.raises(ConfigError, match="does not exist"):
         load_sb3([tmp_path / "missing.zip"], "CartPole-v1")

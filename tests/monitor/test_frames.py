@@ -80,6 +80,24 @@ def test_the_statistics_are_their_definitions_of_the_newest_frame():
     np.testing.assert_allclose(frame_statistics(stack.astype(np.int64)), expected, rtol=1e-6)  # other dtypes: float32
 
 
+def test_images_with_channels_last_are_read_as_pictures_not_as_their_last_row():
+    """An RGB picture (H, W, 3) and SB3's Atari stack (84, 84, 4) hold their channels last: the
+    statistics were those of the image's bottom row (the last (W, C) plane); now of the picture in
+    grey, and of the stack's newest frame."""
+    from oodmon.monitor.detectors.frames import newest_frame
+
+    rng = np.random.default_rng(1)
+    picture = rng.integers(0, 256, (40, 48, 3), dtype=np.uint8)
+    grey = picture.mean(axis=-1, dtype=np.float32)
+    np.testing.assert_allclose(frame_statistics(picture), frame_statistics(grey), rtol=1e-9)
+    assert frame_statistics(picture)[0] == pytest.approx(grey.mean(), rel=1e-6)
+    stack = rng.integers(0, 256, (84, 84, 4), dtype=np.uint8)
+    np.testing.assert_allclose(frame_statistics(stack), frame_statistics(stack[..., -1]), rtol=1e-9)
+    assert newest_frame(picture) is picture and newest_frame(stack).shape == (84, 84)
+    pong = rng.integers(0, 256, (4, 84, 84), dtype=np.uint8)
+    assert np.array_equal(newest_frame(pong), pong[-1])  # channels first: the last plane, as before
+
+
 def test_vector_observations_are_a_clear_error():
     with pytest.raises(ConfigError, match="needs image observations"):
         frame_statistics(np.zeros(4))

@@ -30,15 +30,37 @@ import numpy as np
 from oodmon.errors import ConfigError
 from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory
 
-__all__ = ["FramesDetector", "frame_statistics"]
+__all__ = ["FramesDetector", "channels_last", "frame_statistics", "newest_frame"]
 
 #: The statistics of one frame, in the order :func:`frame_statistics` returns them.
 STATISTICS = ("mean", "std", "log_laplacian_var", "log_dx", "log_dy")
 
 
+def channels_last(shape: tuple[int, ...]) -> bool:
+    """Whether an image observation of ``shape`` holds its channels last, (H, W, C), as SB3 tells
+    (its smallest dimension is the last): an RGB picture (64, 64, 3), or SB3's Atari stack
+    (84, 84, 4). Pong's (4, 84, 84) holds them first.
+
+    Example:
+        >>> channels_last((84, 84, 4)), channels_last((4, 84, 84)), channels_last((84, 84))
+        (True, False, False)
+    """
+    return len(shape) == 3 and shape[-1] < min(shape[:2])
+
+
+def newest_frame(obs: np.ndarray) -> np.ndarray:
+    """The picture a step's observation shows now: for a stack of frames its newest (the last plane
+    of a channel-first stack such as Pong's (4, 84, 84), the last channel of a channel-last one such
+    as SB3's Atari (84, 84, 4)), for an RGB picture (H, W, 3) the picture itself, else ``obs``."""
+    array = np.asarray(obs)
+    if channels_last(array.shape):
+        return array if array.shape[-1] == 3 else array[..., -1]
+    return array.reshape(-1, *array.shape[-2:])[-1] if array.ndim >= 3 else array
+
+
 def frame_statistics(obs: np.ndarray) -> np.ndarray:
-    """The five image statistics (:data:`STATISTICS`) of the newest frame of ``obs``: the last
-    (H, W) plane of a channel-first stack such as Pong's (4, 84, 84), or the frame itself.
+    """The five image statistics (:data:`STATISTICS`) of :func:`newest_frame` of ``obs``, in grey
+    (an RGB picture's mean over its channels).
 
     Raises:
         ConfigError: ``obs`` has fewer than two dimensions (not an image).
@@ -51,9 +73,11 @@ def frame_statistics(obs: np.ndarray) -> np.ndarray:
     import cv2
 
     array = np.asarray(obs)
-    if array.ndim < 2 or min(array.shape[-2:]) < 2:
+    if array.ndim < 2 or min(array.shape[:2] if channels_last(array.shape) else array.shape[-2:]) < 2:
         raise ConfigError(f"the frames detector needs image observations of 2 x 2 pixels or more; got shape {array.shape}")
-    frame = array.reshape(-1, *array.shape[-2:])[-1]
+    frame = newest_frame(array)
+    if frame.ndim == 3:  # RGB: its grey
+        frame = frame.mean(axis=-1, dtype=np.float32)
     if frame.dtype not in (np.uint8, np.float32):
         frame = frame.astype(np.float32)
     # OpenCV sums in float64 without temporaries: a third of the time of the numpy equivalents
