@@ -119,7 +119,7 @@ def _load_one(path: Path) -> tuple[Any, str]:
 def _check_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str) -> None:
     what = space_mismatch(env, model)
     if what == "observation_space" and _transposed_image(env.observation_space, model.observation_space):
-        what = space_mismatch(env, model, check_observations=False)  # SB3's own (H, W, C) -> (C, H, W)
+        what = space_mismatch(env, model, spaces=("action_space",))  # SB3's own (H, W, C) -> (C, H, W)
     if what is not None:
         raise ConfigError(f"{path} was trained with the {what} {getattr(model, what)}; {env_id} has "
                           f"{getattr(env, what)}: a model of another env?")

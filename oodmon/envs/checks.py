@@ -21,19 +21,19 @@ __all__ = ["PHYSICS_RANGE", "check_onset_step", "episode_onset", "check_physics"
 PHYSICS_RANGE = 1000.0
 
 
-def space_mismatch(expected: object, given: object, *, check_observations: bool = True) -> str | None:
-    """Which of ``observation_space`` and ``action_space`` (the first) ``given`` (an env or an SB3
-    model) has of another type, shape or number of actions than ``expected``; ``None`` if neither.
-    Bounds may differ: a policy acts in an env of the same shapes (oodmon's variants keep the default
-    env's spaces, and a user's env may bound its observations otherwise). ``check_observations=False``
-    compares the action spaces only.
+def space_mismatch(expected: object, given: object, *,
+                   spaces: tuple[str, ...] = ("observation_space", "action_space")) -> str | None:
+    """The first of ``spaces`` that ``given`` (an env or an SB3 model) has of another type, shape or
+    number of actions than ``expected``; ``None`` if none. Bounds may differ: a policy acts in an env
+    of the same shapes (oodmon's variants keep the default env's spaces, and a user's env may bound
+    its observations otherwise).
 
     Example:
         >>> import gymnasium
         >>> space_mismatch(gymnasium.make("CartPole-v1"), gymnasium.make("Pendulum-v1"))
         'observation_space'
     """
-    for what in ("observation_space", "action_space")[0 if check_observations else 1:]:
+    for what in spaces:
         ours, theirs = getattr(expected, what), getattr(given, what)
         if type(ours) is not type(theirs) or getattr(ours, "shape", None) != getattr(theirs, "shape", None) \
                 or getattr(ours, "n", None) != getattr(theirs, "n", None):

@@ -73,9 +73,9 @@ def frame_statistics(obs: np.ndarray) -> np.ndarray:
     import cv2
 
     array = np.asarray(obs)
-    if array.ndim < 2 or min(array.shape[:2] if channels_last(array.shape) else array.shape[-2:]) < 2:
-        raise ConfigError(f"the frames detector needs image observations of 2 x 2 pixels or more; got shape {array.shape}")
     frame = newest_frame(array)
+    if frame.ndim < 2 or min(frame.shape[:2]) < 2:
+        raise ConfigError(f"the frames detector needs image observations of 2 x 2 pixels or more; got shape {array.shape}")
     if frame.ndim == 3:  # RGB: its grey
         frame = frame.mean(axis=-1, dtype=np.float32)
     if frame.dtype not in (np.uint8, np.float32):
