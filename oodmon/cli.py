@@ -565,6 +565,10 @@ def _sb3_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--env", metavar="ID", help="the gymnasium env id the --sb3 models act in, e.g. CartPole-v1")
     parser.add_argument("--mean", action="store_true",
                         help="with several --sb3 models: deploy the ensemble's mean decision, not the first model's")
+    parser.add_argument("--vec-normalize", metavar="PKL",
+                        help="--sb3 models trained inside SB3's VecNormalize: the statistics file it saved "
+                             "(vec_normalize.save(), e.g. vecnormalize.pkl; read without unpickling), so that they see "
+                             "observations normalised as in training; 'none' if it did not normalise observations")
 
 
 def _calibrate(args: argparse.Namespace) -> int:
@@ -844,6 +848,7 @@ def _bench(args: argparse.Namespace) -> int:
                          confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
                          all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean,
+                         vec_normalize=args.vec_normalize,
                          samples=args.samples, members=args.members, fit_episodes=args.fit_episodes,
                          masks=args.masks)
     config.variant_list()  # refuse bad specs before any work
@@ -953,13 +958,14 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
             raise ConfigError("--sb3 needs --env: the gymnasium env id the models act in (e.g. CartPole-v1)")
         if getattr(args, "model", None) or getattr(args, "method", None):
             raise ConfigError("--sb3 is instead of --model and --method: give one of them")
-        agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed, masks=getattr(args, "masks", None))
+        agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed, masks=getattr(args, "masks", None),
+                         vec_normalize=args.vec_normalize)
         if args.task and args.task != agent.task:
             raise ConfigError(f"--task {args.task} contradicts --env {args.env} (task {agent.task})")
         args.task = agent.task
         return agent
-    if getattr(args, "env", None) or getattr(args, "mean", False):
-        raise ConfigError("--env and --mean go with --sb3 (your own SB3 models)")
+    if getattr(args, "env", None) or getattr(args, "mean", False) or getattr(args, "vec_normalize", None):
+        raise ConfigError("--env, --mean and --vec-normalize go with --sb3 (your own SB3 models)")
     if not args.task:
         raise ConfigError("give --task with --method or --model (or --sb3 with --env for your own SB3 models)")
     masks = getattr(args, "masks", None)

@@ -103,6 +103,9 @@ class UncertaintyEstimator:
             raise ConfigError("an 'actions' estimator needs action_low and action_high to scale its tanh outputs")
         self.kind = kind
         self.obs_shape = None if obs_shape is None else tuple(obs_shape)
+        #: applied to every checked batch before the networks see it: the observation statistics of
+        #: an SB3 model trained inside VecNormalize (:mod:`oodmon.agents.vec_normalize`), else None
+        self.observation_transform: Callable[[np.ndarray], np.ndarray] | None = None
         self._squash = False  # set by subclasses that apply an actor's final tanh themselves
         if kind == "actions":
             low = np.asarray(action_low, dtype=np.float32)
@@ -127,6 +130,8 @@ class UncertaintyEstimator:
                 f"observations of shape {batch.shape[1:]} are not allowed; this estimator takes {self.obs_shape} "
                 "(one observation) or (batch, *that)"
             )
+        if self.observation_transform is not None:
+            batch = self.observation_transform(batch)
         self._features = self._decision = None
         samples = self._sample(batch)
         features, self._features = self._features, None

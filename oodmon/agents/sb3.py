@@ -31,6 +31,13 @@ import gymnasium
 import numpy as np
 
 from oodmon.agents.agent import Agent
+from oodmon.agents.vec_normalize import (
+    NO_NORMALIZATION,
+    ObservationNormalizer,
+    load_vec_normalize,
+    normalizer_of,
+    trained_in_vec_normalize,
+)
 from oodmon.envs.checks import space_mismatch
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
@@ -138,15 +145,15 @@ def _transposed_image(env_space: Any, model_space: Any) -> bool:
             and model_space.shape == (shape[2], shape[0], shape[1]))
 
 
-def _deployed(model: Any, discrete: bool):
+def _deployed(model: Any, discrete: bool, normalizer: ObservationNormalizer | None):
     def act(obs: np.ndarray) -> int | np.ndarray:
-        action, _ = model.predict(obs, deterministic=True)
+        action, _ = model.predict(obs if normalizer is None else normalizer(obs), deterministic=True)
         return int(action) if discrete else np.asarray(action)
     return act
 
 
 def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_samples: int = 20,
-             seed: int | None = None, masks: str | None = None) -> Agent:
+             seed: int | None = None, masks: str | None = None, vec_normalize: Any = None) -> Agent:
     """An :class:`~oodmon.agents.Agent` of the SB3 model files in ``paths``, acting in ``env_id``.
 
     Args:
@@ -156,21 +163,37 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
             DDPG/TD3 models only).
         n_samples, seed: MC sampling of one model that has dropout layers.
         masks: that model's MC masks, ``sampled`` (None: the default) or ``fixed``.
+        vec_normalize: models trained inside SB3's ``VecNormalize``: the statistics file it saved
+            (``vec_normalize.save(path)``), read without unpickling
+            (:func:`~oodmon.agents.vec_normalize.load_vec_normalize`); the models then see every
+            observation normalised as in training (or a VecNormalize in memory, as
+            :func:`sb3_agent` takes it). ``"none"``: they were, but it did not normalise
+            observations (``norm_obs=False``).
 
     Raises:
         ConfigError: no paths, a file that is not an SB3 model, spaces that do not match the env,
-            ``mean`` without an ensemble, or fixed masks without one model to sample.
+            ``mean`` without an ensemble, fixed masks without one model to sample, a PPO or A2C
+            model trained inside VecNormalize without ``vec_normalize``, or statistics of another
+            observation shape.
     """
     if isinstance(paths, (str, Path)) or not paths:
         raise ConfigError("give one or more SB3 model files (a list of paths)")
     paths = [Path(p) for p in paths]
     for path in paths:
         sb3_algorithm(path)  # every file checked before any is unpickled
+    if vec_normalize is None:
+        normalized = [path for path in paths if trained_in_vec_normalize(path)]
+        if normalized:
+            raise ConfigError(f"{normalized[0]} was trained inside VecNormalize: it acts on normalised observations, and "
+                              "on the env's own it acts as another policy. Give the statistics VecNormalize.save() "
+                              "wrote (--vec-normalize vecnormalize.pkl; read without unpickling), or --vec-normalize "
+                              "none if that VecNormalize did not normalise observations (norm_obs=False)")
+    normalizer = None if vec_normalize is None else _normalizer_of(vec_normalize, [])  # said before any unpickling
     loaded = [_load_one(path) for path in paths]
     files = [{"path": str(path.resolve()), "sha256": file_sha256(path), "algorithm": name}
              for path, (_, name) in zip(paths, loaded)]
     return sb3_agent([model for model, _ in loaded], env_id, mean=mean, n_samples=n_samples, seed=seed, files=files,
-                     masks=masks)
+                     masks=masks, vec_normalize=normalizer or NO_NORMALIZATION)
 
 
 def models_sha256(hashes: Sequence[str], *, mean: bool = False) -> str:
@@ -186,6 +209,28 @@ def models_sha256(hashes: Sequence[str], *, mean: bool = False) -> str:
     return hashlib.sha256(("\n".join(hashes) + ("\nmean" if mean else "")).encode()).hexdigest()
 
 
+def _normalizer_of(vec_normalize: Any, models: Sequence[Any]) -> ObservationNormalizer | None:
+    """The observation statistics the models see (see :func:`sb3_agent`'s ``vec_normalize``)."""
+    if vec_normalize is None:  # models in memory keep the VecNormalize they were trained in
+        envs = [getattr(m, "get_vec_normalize_env", lambda: None)() for m in models]
+        found = {n.sha256: n for n in (normalizer_of(e) for e in envs if e is not None)}
+        if len(found) > 1 or (found and None in envs):
+            raise ConfigError("the models were trained inside different VecNormalize envs (or some inside none): oodmon "
+                              "gives every model the same observations; give vec_normalize= to choose their statistics")
+        return next(iter(found.values()), None)
+    if isinstance(vec_normalize, str) and vec_normalize == NO_NORMALIZATION:
+        return None
+    if isinstance(vec_normalize, ObservationNormalizer):
+        return vec_normalize
+    if isinstance(vec_normalize, (str, Path)):
+        return load_vec_normalize(vec_normalize)
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    if isinstance(vec_normalize, VecNormalize):
+        return normalizer_of(vec_normalize)
+    raise ConfigError(f"vec_normalize={vec_normalize!r}: give a VecNormalize, its saved statistics file, or 'none'")
+
+
 def _parameters_sha256(model: Any) -> str:
     """A model in memory has no file: the hash of its policy's parameters stands for it."""
     digest = hashlib.sha256()
@@ -197,16 +242,23 @@ def _parameters_sha256(model: Any) -> str:
 
 def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_samples: int = 20,
               seed: int | None = None, files: Sequence[dict[str, str]] | None = None,
-              masks: str | None = None) -> Agent:
+              masks: str | None = None, vec_normalize: Any = None) -> Agent:
     """An :class:`~oodmon.agents.Agent` of SB3 models already loaded (or trained) in this process;
     the first is the deployed policy. ``files``: each model's path, sha256 and algorithm, when they
     came from files (:func:`load_sb3`); else they are described by the hash of their parameters.
     ``masks``: the MC masks of one model with dropout or DropConnect layers (see :func:`load_sb3`).
+    ``vec_normalize``: the observation statistics of models trained inside SB3's ``VecNormalize``:
+    that VecNormalize, its saved file, an
+    :class:`~oodmon.agents.vec_normalize.ObservationNormalizer`, or ``"none"``; ``None`` (the
+    default): the VecNormalize the models in memory were trained in, if any
+    (``model.get_vec_normalize_env()``, its statistics as they are now). The deployed policy and
+    the samples see normalised observations; the learned detectors and the logs the env's own.
 
     Raises:
         ConfigError: no models, spaces that do not match the env, observations that are not an
-            array (a Dict space), ``mean`` without an ensemble, or fixed masks without one DQN or
-            DDPG/TD3 model with dropout or DropConnect layers.
+            array (a Dict space), ``mean`` without an ensemble, fixed masks without one DQN or
+            DDPG/TD3 model with dropout or DropConnect layers, or statistics of another shape
+            than the observations (or different ones for different models).
     """
     from oodmon.agents.networks import estimator_from_sb3
     from oodmon.envs.registration import task_of_env
@@ -227,6 +279,12 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         raise ConfigError(f"{env_id}'s observations are {env.observation_space}; oodmon's detectors read array "
                           "observations (a gymnasium Box: a vector, or stacked image frames): wrap the env in "
                           "gymnasium.wrappers.FlattenObservation, and train the model on that, to watch it")
+    normalizer = _normalizer_of(vec_normalize, models)
+    if normalizer is not None and normalizer.shape is not None \
+            and normalizer.shape not in (env.observation_space.shape, models[0].observation_space.shape):
+        raise ConfigError(f"the VecNormalize statistics{' in ' + normalizer.path if normalizer.path else ''} are of "
+                          f"observations of shape {normalizer.shape}; {env_id}'s are {env.observation_space.shape}: "
+                          "statistics of another env?")
     names = {file["algorithm"] for file in files}
     masks = masks or "sampled"
     sampled = names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"})
@@ -244,7 +302,10 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
             # one model without dropout: nothing to sample
     if mean and estimator is None:
         raise ConfigError("--mean deploys the ensemble's mean: give several DQN, or several DDPG/TD3, models")
-    combined = models_sha256([file["sha256"] for file in files], mean=mean)
+    if estimator is not None:
+        estimator.observation_transform = normalizer
+    hashes = [file["sha256"] for file in files] + ([] if normalizer is None else [normalizer.sha256])
+    combined = models_sha256(hashes, mean=mean)  # a threshold of the raw-observation policy refuses this one
     metadata = {
         "task": task_of_env(env_id) or env_id,
         "method": "sb3",
@@ -253,6 +314,6 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         "deployed": "ensemble mean" if mean else f"{files[0]['path']} (the first model)",
         "models": list(files),
         "policy_hash": "sha256:" + combined,
-    }
+    } | ({} if normalizer is None else {"vec_normalize": normalizer.describe()})
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
-    return Agent(estimator, metadata, None, None if mean else _deployed(models[0], discrete))
+    return Agent(estimator, metadata, None, None if mean else _deployed(models[0], discrete, normalizer))

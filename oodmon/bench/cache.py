@@ -14,6 +14,7 @@ from oodmon import seeds
 from oodmon.agents import evaluate_variants, load_agent, train, zoo_dir, zoo_names
 from oodmon.agents.recipes import recipe_for
 from oodmon.agents.serialization import read_metadata
+from oodmon.agents.vec_normalize import NO_NORMALIZATION
 from oodmon.bench.config import BenchConfig
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
@@ -27,6 +28,7 @@ class Sb3Models:
     paths: tuple[str, ...]
     env_id: str
     mean: bool = False
+    vec_normalize: str | None = None  # their VecNormalize statistics file, or "none"
 
     def __str__(self) -> str:
         return ", ".join(self.paths)
@@ -38,7 +40,8 @@ def _bench_agent(source: str | Sb3Models, task: str, seed: int, n_samples: int |
     if isinstance(source, Sb3Models):
         from oodmon.agents.sb3 import load_sb3
 
-        return load_sb3(source.paths, source.env_id, mean=source.mean, seed=seed, masks=masks)
+        return load_sb3(source.paths, source.env_id, mean=source.mean, seed=seed, masks=masks,
+                        vec_normalize=source.vec_normalize)
     return load_agent(source, task=task, seed=seed, n_samples=n_samples, masks=masks)
 
 
@@ -47,7 +50,8 @@ def _weights_sha256(source: Path | Sb3Models) -> str:
     if isinstance(source, Sb3Models):
         from oodmon.agents.sb3 import models_sha256
 
-        return models_sha256([file_sha256(p) for p in source.paths], mean=source.mean)
+        statistics = [] if source.vec_normalize in (None, NO_NORMALIZATION) else [file_sha256(source.vec_normalize)]
+        return models_sha256([file_sha256(p) for p in source.paths] + statistics, mean=source.mean)
     return file_sha256(source / "model.safetensors")
 
 
@@ -81,7 +85,10 @@ def _ensure_model(config: BenchConfig, method: str, trial: int,
     """The (method, trial)'s model: the SB3 files, the shipped agent, or the cached (or now trained)
     trial model. ``on_progress(stage, done, total)`` follows a training, its stages named by the trial."""
     if config.sb3:
-        return Sb3Models(tuple(str(Path(p).resolve()) for p in config.sb3), config.env_id, config.mean)
+        statistics = config.vec_normalize
+        if statistics not in (None, NO_NORMALIZATION):
+            statistics = str(Path(statistics).resolve())
+        return Sb3Models(tuple(str(Path(p).resolve()) for p in config.sb3), config.env_id, config.mean, statistics)
     path = _ensure_model_dir_current(config, method, trial)
     if not (path / "model.json").exists():
         _refuse_to_train_for_hours(config, method, trial)

@@ -62,6 +62,7 @@ class BenchConfig:
     sb3: tuple[str, ...] = ()  # your own SB3 model files instead of oodmon agents (the method "sb3", one trial)
     env_id: str | None = None  # the gymnasium env id the sb3 models act in
     mean: bool = False  # deploy the sb3 ensemble's mean decision, not the first model's
+    vec_normalize: str | None = None  # the sb3 models' VecNormalize statistics file, or "none" (see load_sb3)
     samples: int | None = None  # MC samples per decision of Dropout and DropConnect agents (None: each one's recipe)
     members: int | None = None  # members of each ensemble trial (None: the recipe's; others train trial 0 too)
     masks: str | None = None  # MC masks of Dropout and DropConnect agents: sampled or fixed (None: each model's)
@@ -86,6 +87,9 @@ class BenchConfig:
                 raise ConfigError("sb3 models need env_id: the gymnasium env id they act in (e.g. CartPole-v1)")
             if self.methods != ("sb3",) or self.trials != 1:
                 raise ConfigError("sb3 models are benched as one method ('sb3') and one trial: nothing is trained")
+        elif self.vec_normalize is not None:
+            raise ConfigError("vec_normalize is the observation statistics of sb3 models trained inside VecNormalize: "
+                              "give it with sb3 models only")
         elif "spread" not in self.detectors:
             raise ConfigError("the bench's agents all have samples: keep spread among the detectors")
         from oodmon.monitor.threshold import conformal_rank

@@ -66,12 +66,13 @@ def policy_hash(agent: Agent | None) -> str:
 
 def run_about(metadata: dict[str, Any]) -> dict[str, str]:
     """:attr:`RunInfo.about` of a run of the agent with ``metadata``: the command line, and the
-    env id and model files of a model from elsewhere (:mod:`oodmon.agents.sb3`)."""
+    env id, model files and VecNormalize statistics of a model from elsewhere (:mod:`oodmon.agents.sb3`)."""
     about = {"command": shlex.join(sys.argv)}
     if metadata.get("env_id"):
         about["env_id"] = str(metadata["env_id"])
-    if metadata.get("models"):
-        about["models"] = json.dumps(metadata["models"])
+    for key in ("models", "vec_normalize"):
+        if metadata.get(key):
+            about[key] = json.dumps(metadata[key])
     return about
 
 

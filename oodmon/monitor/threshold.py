@@ -262,7 +262,8 @@ class Threshold:
             if mine is not None and theirs is not None and mine != theirs:
                 found.append(f"it was calibrated for {name} {mine!r}, not {theirs!r}")
         if self.policy_hash and policy_hash and policy_hash != "unknown" and self.policy_hash != policy_hash:
-            found.append(f"it was calibrated on other weights ({self.policy_hash[:19]}..., these are {policy_hash[:19]}...)")
+            found.append(f"it was calibrated on other weights ({self.policy_hash[:19]}..., these are {policy_hash[:19]}...; "
+                         "an SB3 model's VecNormalize statistics count as its weights)")
         return found
 
 

@@ -1,0 +1,186 @@
+"""The observation statistics of an SB3 model trained inside ``VecNormalize``, read without running code.
+
+A policy trained in ``VecNormalize(env, norm_obs=True)`` acts on normalised observations,
+``clip((obs - mean) / sqrt(var + epsilon), -clip_obs, clip_obs)``, with the running statistics
+SB3 saves beside the model (``vec_normalize.save("vecnormalize.pkl")``). Fed the env's raw
+observations it acts as another policy: a PPO that keeps CartPole's pole up for 500 steps with
+them, measured, lasts 78 without. oodmon's monitor must deploy it as it is deployed.
+
+SB3's ``VecNormalize.load`` unpickles the file, which can run any code. :func:`load_vec_normalize`
+reads it with an unpickler that calls nothing but numpy's array and dtype constructors, and
+builds every other object the file names (``VecNormalize``, ``RunningMeanStd``, the gymnasium
+spaces, numpy's random generators) as an inert record of its state, never as the class itself;
+a file that names anything else is refused, unread (Python's "Restricting Globals",
+docs.python.org/3/library/pickle.html).
+
+Example:
+    >>> import numpy as np
+    >>> normalizer = ObservationNormalizer(np.array([1.0, 0.0]), np.array([4.0, 1.0]), clip_obs=10.0)
+    >>> normalizer(np.array([3.0, 20.0], np.float32)).tolist()
+    [1.0, 10.0]
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import pickle  # restricted below: find_class allows numpy's array constructors only
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from oodmon.errors import ConfigError
+
+__all__ = ["NO_NORMALIZATION", "ObservationNormalizer", "load_vec_normalize", "normalizer_of", "trained_in_vec_normalize"]
+
+#: ``--vec-normalize none``: the model was trained inside VecNormalize, which did not normalise
+#: its observations (``norm_obs=False``).
+NO_NORMALIZATION = "none"
+
+#: The only callables a statistics file may reach: numpy's array, dtype and scalar constructors
+#: (numpy 2 names them ``numpy._core``, numpy 1 ``numpy.core``).
+_CALLED = {(module, name) for module in ("numpy._core.multiarray", "numpy.core.multiarray")
+           for name in ("_reconstruct", "scalar")} | {("numpy", "ndarray"), ("numpy", "dtype")}
+
+#: Modules whose names a statistics file holds and oodmon builds as inert records, not as themselves.
+_RECORDED = ("stable_baselines3.common.vec_env.vec_normalize", "stable_baselines3.common.running_mean_std",
+             "gymnasium.spaces.", "numpy.random.")
+
+
+class _Record:
+    """Stands for any class or function of :data:`_RECORDED` a statistics file names: called, it
+    gives a record that keeps the state the file sets, and runs nothing."""
+
+    state: Any = None
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        pass
+
+    def __setstate__(self, state: Any) -> None:
+        self.state = state
+
+
+class _StatisticsUnpickler(pickle.Unpickler):
+    def find_class(self, module: str, name: str) -> Any:
+        if (module, name) in _CALLED:
+            return super().find_class(module, name)
+        if module.startswith(_RECORDED) or module in (m.rstrip(".") for m in _RECORDED):
+            return _Record
+        raise pickle.UnpicklingError(f"it names {module}.{name}, which a VecNormalize file does not hold")
+
+
+@dataclass(frozen=True)
+class ObservationNormalizer:
+    """What ``VecNormalize`` does to an observation before its policy sees it.
+
+    Attributes:
+        mean, var: the running mean and variance of the observations seen in training, each of
+            the observation's shape; ``None``: observations are not normalised (``norm_obs=False``).
+        epsilon: added to ``var`` before its square root (SB3's default 1e-8).
+        clip_obs: normalised observations are clipped to [-clip_obs, clip_obs].
+        sha256: the hash that binds thresholds and detectors to these statistics (the file's,
+            or of the numbers for statistics in memory).
+        path: the file the statistics were read from (``None``: in memory).
+    """
+
+    mean: np.ndarray | None
+    var: np.ndarray | None
+    epsilon: float = 1e-8
+    clip_obs: float = 10.0
+    sha256: str = ""
+    path: str | None = None
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """``obs`` (one observation or a batch) as the policy saw observations in training (float32)."""
+        if self.mean is None:
+            return obs
+        normalised = (np.asarray(obs, np.float64) - self.mean) / np.sqrt(self.var + self.epsilon)
+        return np.clip(normalised, -self.clip_obs, self.clip_obs).astype(np.float32)
+
+    @property
+    def shape(self) -> tuple[int, ...] | None:
+        return None if self.mean is None else tuple(self.mean.shape)
+
+    def describe(self) -> dict[str, Any]:
+        """The JSON record of these statistics in an agent's metadata (and so in its logs)."""
+        return {"path": self.path or "(in memory)", "sha256": self.sha256, "norm_obs": self.mean is not None,
+                "clip_obs": self.clip_obs, "epsilon": self.epsilon}
+
+
+def _numbers_sha256(mean: np.ndarray | None, var: np.ndarray | None, epsilon: float, clip_obs: float) -> str:
+    digest = hashlib.sha256(json.dumps([epsilon, clip_obs]).encode())
+    for array in (mean, var):
+        digest.update(b"none" if array is None else np.asarray(array, np.float64).tobytes())
+    return digest.hexdigest()
+
+
+def _normalizer(state: dict[str, Any], *, sha256: str | None = None, path: str | None = None) -> ObservationNormalizer:
+    """The normalizer of a ``VecNormalize``'s attributes (``state``: its ``__dict__`` or the file's record)."""
+    if state.get("norm_obs_keys"):
+        raise ConfigError("the VecNormalize normalises a Dict observation's keys; oodmon watches array observations "
+                          "only (a gymnasium Box)")
+    epsilon, clip_obs = float(state.get("epsilon", 1e-8)), float(state.get("clip_obs", 10.0))
+    mean = var = None
+    if state.get("norm_obs", True):
+        rms = state.get("obs_rms")
+        rms = rms.state if isinstance(rms, _Record) else getattr(rms, "__dict__", None)
+        if not isinstance(rms, dict) or not all(isinstance(rms.get(k), np.ndarray) for k in ("mean", "var")):
+            raise ConfigError("it holds no observation statistics (obs_rms with a mean and a var array)")
+        mean, var = np.asarray(rms["mean"], np.float64), np.asarray(rms["var"], np.float64)
+        if mean.shape != var.shape or not (np.isfinite(mean).all() and np.isfinite(var).all() and (var >= 0).all()):
+            raise ConfigError(f"its observation statistics are not usable (mean of shape {mean.shape}, var of shape "
+                              f"{var.shape}, finite and var >= 0 required)")
+    return ObservationNormalizer(mean, var, epsilon, clip_obs, sha256 or _numbers_sha256(mean, var, epsilon, clip_obs),
+                                 path)
+
+
+def load_vec_normalize(path: str | Path) -> ObservationNormalizer:
+    """The observation statistics in the file ``VecNormalize.save(path)`` wrote, read without
+    running code from it (see the module's docstring).
+
+    Raises:
+        ConfigError: a missing file, one that is not such a file, or one that names any class or
+            function a VecNormalize file does not hold (it is not unpickled).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"--vec-normalize {path} does not exist (the file VecNormalize.save() wrote, e.g. "
+                          "vecnormalize.pkl)")
+    data = path.read_bytes()
+    try:
+        unpickler = _StatisticsUnpickler(io.BytesIO(data))
+        root = unpickler.load()
+    except Exception as error:  # noqa: BLE001  (a damaged or foreign file fails in many ways; none runs code)
+        raise ConfigError(f"--vec-normalize {path} is not a VecNormalize statistics file: {error}") from None
+    if not isinstance(root, _Record) or not isinstance(root.state, dict):
+        raise ConfigError(f"--vec-normalize {path} is not a VecNormalize statistics file (VecNormalize.save() writes "
+                          "one VecNormalize object)")
+    try:
+        return _normalizer(root.state, sha256=hashlib.sha256(data).hexdigest(), path=str(path.resolve()))
+    except ConfigError as error:
+        raise ConfigError(f"--vec-normalize {path}: {error}") from None
+
+
+def normalizer_of(vec_normalize: Any) -> ObservationNormalizer:
+    """The statistics of a ``VecNormalize`` in memory, as they are now (a copy: training on does
+    not change them). ``model.get_vec_normalize_env()`` gives the one a model was trained in."""
+    state = dict(vec_normalize.__dict__)
+    obs_rms = state.get("obs_rms")
+    if obs_rms is not None and not isinstance(obs_rms, dict):
+        state["obs_rms"] = _Record()
+        state["obs_rms"].state = {"mean": np.array(obs_rms.mean, copy=True), "var": np.array(obs_rms.var, copy=True)}
+    return _normalizer(state)
+
+
+def trained_in_vec_normalize(path: str | Path) -> bool:
+    """Whether the PPO or A2C model in ``path`` was trained inside a ``VecNormalize``, read from
+    its ``data`` JSON without loading it: SB3 keeps the raw observation beside the normalised one
+    (``_last_original_obs``) only then. DQN, SAC and TD3 keep it always, so their files cannot
+    tell (``False``)."""
+    with zipfile.ZipFile(path) as archive:
+        data = json.loads(archive.read("data"))
+    return ("clip_range" in data or "vf_coef" in data) and data.get("_last_original_obs") is not None
