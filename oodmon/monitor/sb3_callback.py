@@ -44,6 +44,7 @@ class MonitorCallback(BaseCallback):
     def __init__(self, monitor: Monitor, verbose: int = 0) -> None:
         super().__init__(verbose)
         self.monitor = monitor
+        self._obs: np.ndarray | None = None  # the first env's raw observation the model acts on next
 
     @property
     def alarms(self) -> int:
@@ -59,16 +60,25 @@ class MonitorCallback(BaseCallback):
         spec_id = spec.id if spec is not None else "unknown"
         return spec_id, task_of_env(spec_id) or spec_id
 
+    def _raw(self, observations: np.ndarray) -> np.ndarray:
+        """The first env's observation as the env gave it: before the model's VecNormalize, if any
+        (which holds the raw ones of the observations it last returned)."""
+        normalize = self.model.get_vec_normalize_env()
+        return (observations if normalize is None else normalize.get_original_obs())[0]
+
     def _on_training_start(self) -> None:
         self.monitor.open()
+        # Not the model's _last_original_obs: DQN, SAC and TD3 hold there the observation of the step
+        # before (without VecNormalize), PPO and A2C the one learn() began with (with it).
+        self._obs = self._raw(self.model._last_obs)
 
     def _on_step(self) -> bool:
         monitor = self.monitor
         if not monitor.in_episode:
             env_id, variant = self._variant()
             monitor.begin_episode(env_id=env_id, variant=variant)
-        original = getattr(self.model, "_last_original_obs", None)  # before VecNormalize, where there is one
-        obs = (original if original is not None else self.model._last_obs)[0]
+        obs = self._obs
+        self._obs = self._raw(self.locals["new_obs"])  # after an episode's end, the next one's first
         actions = self.locals.get("clipped_actions", self.locals["actions"])  # what the env got (PPO clips)
         action = actions[0]
         action = int(action) if np.ndim(action) == 0 else np.asarray(action)

@@ -289,6 +289,53 @@ def test_the_callback_scores_training_rollouts_and_writes_tensorboard(tmp_path):
     assert events.Scalars("oodmon/alarms")[-1].value <= monitor.alarms_raised
 
 
+class _ActedOn(gymnasium.Wrapper):
+    """Records the observation each action was taken on (after an episode's end, the next one's first)."""
+
+    def __init__(self, env: gymnasium.Env, acted: list) -> None:
+        super().__init__(env)
+        self.acted, self.current = acted, None
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self.current = obs.copy()
+        return obs, info
+
+    def step(self, action):
+        self.acted.append(self.current)
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.current = obs.copy()
+        return obs, reward, terminated, truncated, info
+
+
+@pytest.mark.parametrize("algorithm", ["DQN", "PPO"])
+@pytest.mark.parametrize("normalized", [False, True], ids=["raw", "VecNormalize"])
+def test_the_callback_scores_the_observation_each_action_was_taken_on(algorithm, normalized):
+    # It read the model's _last_original_obs: for DQN (SAC, TD3) without VecNormalize that is the step
+    # before's observation (299 of 300 steps were), for PPO (A2C) with it the one learn() began with.
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from oodmon.monitor import MemorySink
+    from oodmon.monitor.detectors import fit_detectors
+    from oodmon.monitor.sb3_callback import MonitorCallback
+
+    acted: list = []
+    venv = DummyVecEnv([lambda: _ActedOn(gymnasium.make("CartPole-v1"), acted)])
+    venv = VecNormalize(venv) if normalized else venv
+    model = (DQN("MlpPolicy", venv, seed=0, learning_starts=50, policy_kwargs={"net_arch": [16]}) if algorithm == "DQN"
+             else PPO("MlpPolicy", venv, seed=0, n_steps=100, batch_size=50, policy_kwargs={"net_arch": [16]}))
+    env = gymnasium.make("CartPole-v1")
+    env.action_space.seed(0)
+    detectors = fit_detectors(lambda obs: int(env.action_space.sample()), env, detectors=["dynamics"], episodes=3)
+    sink = MemorySink()
+    with Monitor(None, 2.0, detectors=detectors, detector="dynamics", sinks=[sink]) as monitor:
+        model.learn(300, callback=MonitorCallback(monitor))
+    logged = np.array([step.observation for step in sink.steps])
+    assert len(logged) == len(acted) >= 300
+    assert np.allclose(logged, np.array(acted), atol=1e-6)
+
+
 def test_evaluate_takes_sb3_models_too(readme_run, capsys):
     folder, _, _ = readme_run
     assert main(["evaluate", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "CartPole-v1", "--variants",
