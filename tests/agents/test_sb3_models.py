@@ -336,6 +336,29 @@ def test_the_callback_scores_the_observation_each_action_was_taken_on(algorithm,
     assert np.allclose(logged, np.array(acted), atol=1e-6)
 
 
+def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monkeypatch, capsys):
+    # The README's "module:EnvId": gymnasium imports the module (registering the env) before making it.
+    (tmp_path / "users_envs_for_tests.py").write_text(
+        "import gymnasium\n"
+        "from gymnasium.wrappers import TransformObservation\n"
+        "def make(**kwargs):\n"
+        "    env = gymnasium.make('CartPole-v1', **kwargs)\n"
+        "    return TransformObservation(env, lambda obs: obs * 2, env.observation_space)\n"
+        "gymnasium.register('DoubledCartPoleForTests-v0', entry_point=make)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    env_id = "users_envs_for_tests:DoubledCartPoleForTests-v0"
+    DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0, policy_kwargs={"net_arch": [16]}).save(tmp_path / "dqn.zip")
+    threshold, log = str(tmp_path / "t.json"), str(tmp_path / "r.mcap")
+    assert main(["calibrate", "--sb3", str(tmp_path / "dqn.zip"), "--env", env_id, "--episodes", "20", "--far", "0.2",
+                 "--confidence", "none", "--fit-episodes", "6", "--out", threshold]) == 0
+    assert main(["run", "--sb3", str(tmp_path / "dqn.zip"), "--env", env_id, "--threshold", threshold,
+                 "--episodes", "2", "--mcap", log]) == 0
+    capsys.readouterr()
+    assert len(read_log(log).episodes) == 2
+    doubled, _ = load_sb3([tmp_path / "dqn.zip"], env_id).make_env().reset(seed=0)
+    assert np.allclose(doubled, 2 * gymnasium.make("CartPole-v1").reset(seed=0)[0])  # the user's wrapper acts
+
+
 def test_evaluate_takes_sb3_models_too(readme_run, capsys):
     folder, _, _ = readme_run
     assert main(["evaluate", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "CartPole-v1", "--variants",
