@@ -13,8 +13,8 @@ from collections.abc import Iterable, Mapping
 from oodmon.errors import InvalidParameterError, UnknownParameterError
 from oodmon.validation import is_whole
 
-__all__ = ["PHYSICS_RANGE", "check_onset_step", "episode_onset", "check_physics", "positive_number", "reject_unknown",
-           "space_mismatch"]
+__all__ = ["PHYSICS_RANGE", "check_onset_step", "episode_onset", "check_physics", "has_time_limit", "positive_number",
+           "reject_unknown", "space_mismatch"]
 
 #: A physics parameter may be at most this many times its default, or this many times smaller (the
 #: paper's grid spans 0.05 to 20 times); further out the simulation overflows (``length=1e308``).
@@ -39,6 +39,25 @@ def space_mismatch(expected: object, given: object, *,
                 or getattr(ours, "n", None) != getattr(theirs, "n", None):
             return what
     return None
+
+
+def has_time_limit(env: object) -> bool:
+    """Whether ``env`` or an env it wraps ends its episodes after a number of steps (a gymnasium
+    ``TimeLimit``, as ``gymnasium.make`` adds for an id registered with ``max_episode_steps``).
+
+    Example:
+        >>> import gymnasium
+        >>> from gymnasium.envs.classic_control.cartpole import CartPoleEnv
+        >>> has_time_limit(gymnasium.make("CartPole-v1")), has_time_limit(CartPoleEnv())
+        (True, False)
+    """
+    from gymnasium.wrappers import TimeLimit
+
+    while env is not None:
+        if isinstance(env, TimeLimit):
+            return True
+        env = getattr(env, "env", None)
+    return False
 
 
 def reject_unknown(owner: str, given: Iterable[str], allowed: Iterable[str]) -> None:

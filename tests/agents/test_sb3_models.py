@@ -359,6 +359,20 @@ def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monke
     assert np.allclose(doubled, 2 * gymnasium.make("CartPole-v1").reset(seed=0)[0])  # the user's wrapper acts
 
 
+def test_an_env_without_a_time_limit_is_said_before_an_endless_calibration(recwarn):
+    from gymnasium.envs.classic_control.cartpole import CartPoleEnv
+
+    if "EndlessCartPoleForTests-v0" not in gymnasium.registry:
+        gymnasium.register("EndlessCartPoleForTests-v0", entry_point=CartPoleEnv)  # no max_episode_steps
+    model = DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0, policy_kwargs={"net_arch": [16]})
+    from oodmon.agents.sb3 import sb3_agent
+
+    sb3_agent([model], "CartPole-v1")
+    assert not [w for w in recwarn if "time limit" in str(w.message)]
+    with pytest.warns(UserWarning, match="EndlessCartPoleForTests-v0 has no time limit.*register it with max_episode_steps"):
+        sb3_agent([model], "EndlessCartPoleForTests-v0")
+
+
 def test_evaluate_takes_sb3_models_too(readme_run, capsys):
     folder, _, _ = readme_run
     assert main(["evaluate", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "CartPole-v1", "--variants",
