@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import warnings
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -39,7 +38,7 @@ from oodmon.agents.vec_normalize import (
     normalizer_of,
     trained_in_vec_normalize,
 )
-from oodmon.envs.checks import has_time_limit, space_mismatch
+from oodmon.envs.checks import space_mismatch
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
 
@@ -275,10 +274,6 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         raise ConfigError(f"env {env_id!r}: {error}") from None
     for model, file in zip(models, files):
         _check_spaces(model, Path(file["path"]), env, env_id)
-    if not has_time_limit(env):
-        warnings.warn(f"{env_id} has no time limit (it was registered without max_episode_steps): fitting, calibration "
-                      "and validation play whole episodes, and one that the env never ends runs forever; register it "
-                      "with max_episode_steps", UserWarning, stacklevel=2)
     env.close()
     if not isinstance(env.observation_space, gymnasium.spaces.Box):
         raise ConfigError(f"{env_id}'s observations are {env.observation_space}; oodmon's detectors read array "

@@ -13,8 +13,8 @@ from collections.abc import Iterable, Mapping
 from oodmon.errors import InvalidParameterError, UnknownParameterError
 from oodmon.validation import is_whole
 
-__all__ = ["PHYSICS_RANGE", "check_onset_step", "episode_onset", "check_physics", "has_time_limit", "positive_number",
-           "reject_unknown", "space_mismatch"]
+__all__ = ["LONG_EPISODE", "PHYSICS_RANGE", "check_onset_step", "episode_onset", "check_physics", "has_time_limit",
+           "positive_number", "reject_unknown", "space_mismatch", "warn_if_endless"]
 
 #: A physics parameter may be at most this many times its default, or this many times smaller (the
 #: paper's grid spans 0.05 to 20 times); further out the simulation overflows (``length=1e308``).
@@ -58,6 +58,26 @@ def has_time_limit(env: object) -> bool:
             return True
         env = getattr(env, "env", None)
     return False
+
+
+#: Steps after which an ID episode (fitting, calibration, validation: each played whole) is said to
+#: be probably endless; a Pong game, the longest of oodmon's own, is a few thousand decisions.
+LONG_EPISODE = 100_000
+
+
+def warn_if_endless(env: object, steps: int) -> None:
+    """Warn, once per episode (at ``steps == LONG_EPISODE``), that an ID episode of ``env`` has
+    not ended, naming the fix where the env has no time limit (:func:`has_time_limit`)."""
+    if steps != LONG_EPISODE:
+        return
+    import warnings
+
+    spec = getattr(env, "spec", None)
+    name = spec.id if spec is not None else type(env).__name__
+    fix = (f"; {name} has no time limit: register it with max_episode_steps (gymnasium.register(..., "
+           "max_episode_steps=N))" if not has_time_limit(env) else "")
+    warnings.warn(f"an ID episode of {name} has run {steps:,} steps and not ended: fitting, calibration and validation "
+                  f"play whole episodes{fix}", UserWarning, stacklevel=3)
 
 
 def reject_unknown(owner: str, given: Iterable[str], allowed: Iterable[str]) -> None:

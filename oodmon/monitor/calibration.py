@@ -14,6 +14,7 @@ import numpy as np
 
 from oodmon import seeds
 from oodmon.agents.agent import Agent
+from oodmon.envs.checks import warn_if_endless
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
@@ -44,7 +45,8 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
     env = agent.make_env(obs_noise)
     with Monitor(agent, sinks=[sink, *sinks], log_observations=False, **settings) as monitor:
         for episode in range(episodes):
-            monitor.run_episode(env, seed=seed + episode, variant=agent.task)
+            monitor.run_episode(env, seed=seed + episode, variant=agent.task,
+                                on_progress=lambda _, steps, __: warn_if_endless(env, steps))
             if on_progress is not None:
                 on_progress(stage, episode + 1, episodes)
     env.close()

@@ -359,18 +359,34 @@ def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monke
     assert np.allclose(doubled, 2 * gymnasium.make("CartPole-v1").reset(seed=0)[0])  # the user's wrapper acts
 
 
-def test_an_env_without_a_time_limit_is_said_before_an_endless_calibration(recwarn):
-    from gymnasium.envs.classic_control.cartpole import CartPoleEnv
+def test_an_id_episode_that_never_ends_is_said_naming_the_missing_time_limit(monkeypatch):
+    # Fitting, calibration and validation play whole episodes: in an env registered without
+    # max_episode_steps a policy that never ends one ran for ever with no word beyond "1/90 episodes".
+    import warnings
 
-    if "EndlessCartPoleForTests-v0" not in gymnasium.registry:
-        gymnasium.register("EndlessCartPoleForTests-v0", entry_point=CartPoleEnv)  # no max_episode_steps
-    model = DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0, policy_kwargs={"net_arch": [16]})
+    from gymnasium.envs.classic_control.acrobot import AcrobotEnv
+
+    import oodmon.envs.checks
     from oodmon.agents.sb3 import sb3_agent
+    from oodmon.monitor import calibrate_agent
+    from oodmon.monitor.detectors import fit_agent_detectors
 
-    sb3_agent([model], "CartPole-v1")
-    assert not [w for w in recwarn if "time limit" in str(w.message)]
-    with pytest.warns(UserWarning, match="EndlessCartPoleForTests-v0 has no time limit.*register it with max_episode_steps"):
-        sb3_agent([model], "EndlessCartPoleForTests-v0")
+    if "EndlessAcrobotForTests-v0" not in gymnasium.registry:
+        gymnasium.register("EndlessAcrobotForTests-v0", entry_point=AcrobotEnv)  # no time limit
+    monkeypatch.setattr(oodmon.envs.checks, "LONG_EPISODE", 300)  # an untrained DQN swings it up in none of them
+    models = [DQN("MlpPolicy", gymnasium.make("Acrobot-v1"), seed=k, policy_kwargs={"net_arch": [8]}) for k in range(2)]
+    endless = sb3_agent(models, "EndlessAcrobotForTests-v0")
+    expected = r"an ID episode of EndlessAcrobotForTests-v0 has run 300 steps and not ended.*register it with max_episode_steps"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)  # the warning stops the endless episode here
+        with pytest.raises(UserWarning, match=expected):
+            fit_agent_detectors(endless, detectors=["dynamics"], episodes=3)
+        with pytest.raises(UserWarning, match=expected):
+            calibrate_agent(endless, 10, 0.2, confidence=None, detector="spread")
+        # Acrobot-v1 itself ends its episodes at 500 steps: it gets a word only past the limit
+        monkeypatch.setattr(oodmon.envs.checks, "LONG_EPISODE", 501)
+        detectors = fit_agent_detectors(sb3_agent(models, "Acrobot-v1"), detectors=["dynamics"], episodes=3)
+    assert "dynamics" in detectors
 
 
 def test_evaluate_takes_sb3_models_too(readme_run, capsys):

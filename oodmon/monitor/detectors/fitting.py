@@ -18,6 +18,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from oodmon.envs.checks import warn_if_endless
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
@@ -122,6 +123,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
             obs, _, terminated, truncated, _ = env.step(action)
             observations.append(obs)
             actions.append(action)
+            warn_if_endless(env, len(actions))
             if terminated or truncated or (max_steps is not None and len(actions) >= max_steps):
                 break
         trajectories.append(Trajectory(np.asarray(observations), np.asarray(actions),
