@@ -424,13 +424,23 @@ class Monitor:
         return self.end_episode(terminated=bool(terminated))
 
 
+def _check_one_env(env: Any) -> None:
+    if not isinstance(env, gymnasium.Env):
+        vector = hasattr(env, "num_envs")
+        raise ConfigError(f"the env to monitor is one gymnasium env, the one you step; got a {type(env).__name__}"
+                          + (" (a vector env): wrap each of its envs in a MonitoredEnv with a Monitor of its own, "
+                             "e.g. DummyVecEnv([lambda: MonitoredEnv(gymnasium.make(...), Monitor(...))])" if vector else ""))
+
+
 def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
     """Refuse an env whose observation or action space is not of the type and shape of the agent's
     own env's (``agent.make_env()``): an env of another task, which the policy cannot act in.
 
     Raises:
-        ConfigError: naming the space, the env's and the agent's.
+        ConfigError: something that is not one gymnasium env (a vector env), or naming the space,
+            the env's and the agent's.
     """
+    _check_one_env(env)
     own = agent.make_env()
     try:
         what = space_mismatch(own, env)
@@ -473,6 +483,7 @@ class MonitoredEnv(gymnasium.Wrapper):
     """
 
     def __init__(self, env: gymnasium.Env, monitor: Monitor, *, variant: str | None = None) -> None:
+        _check_one_env(env)
         if monitor.agent is not None:
             check_env_of(monitor.agent, env)
         super().__init__(env)

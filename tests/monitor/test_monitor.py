@@ -166,6 +166,18 @@ def test_an_env_of_another_task_is_refused_before_any_fitting(agent, monkeypatch
                         lambda *a, **k: pytest.fail("fitted detectors for an env it cannot act in"))
     with pytest.raises(ConfigError, match="an env of another task"):
         oodmon.watch(agent, env=gymnasium.make("Pendulum-v1"))
+    # A vector env (it raised gymnasium's TypeError after the fitting and the calibration):
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    vector = DummyVecEnv([lambda: gymnasium.make("CartPole-v1")])
+    with pytest.raises(ConfigError, match=r"got a DummyVecEnv \(a vector env\): wrap each of its envs in a MonitoredEnv"):
+        oodmon.watch(agent, env=vector)
+    from oodmon.monitor.detectors import detectors_for
+
+    watching = Monitor(None, detectors=detectors_for(agent, None).subset(["dynamics"]), detector="dynamics")
+    for monitor in (Monitor(agent), watching):  # a monitor that only watches, too
+        with pytest.raises(ConfigError, match="got a DummyVecEnv"):
+            MonitoredEnv(vector, monitor)
     assert watch_module.as_agent(agent) is agent
     # Bounds may differ (a variant, or a user's env bounding its observations otherwise): same shapes pass.
     wide = gymnasium.make("oodmon/CartPole-v1", length=2.0)
