@@ -148,14 +148,15 @@ def load_vec_normalize(path: str | Path) -> ObservationNormalizer:
     """
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"--vec-normalize {path} does not exist (the file VecNormalize.save() wrote, e.g. "
-                          "vecnormalize.pkl)")
+        raise ConfigError(f"--vec-normalize {path} {'is a folder' if path.is_dir() else 'does not exist'}: give the file "
+                          "VecNormalize.save() wrote, e.g. vecnormalize.pkl")
     data = path.read_bytes()
     try:
         unpickler = _StatisticsUnpickler(io.BytesIO(data))
         root = unpickler.load()
     except Exception as error:  # noqa: BLE001  (a damaged or foreign file fails in many ways; none runs code)
-        raise ConfigError(f"--vec-normalize {path} is not a VecNormalize statistics file: {error}") from None
+        reason = " ".join(str(error).split())  # pickle's messages run over several lines
+        raise ConfigError(f"--vec-normalize {path} is not a VecNormalize statistics file ({reason})") from None
     if not isinstance(root, _Record) or not isinstance(root.state, dict):
         raise ConfigError(f"--vec-normalize {path} is not a VecNormalize statistics file (VecNormalize.save() writes "
                           "one VecNormalize object)")

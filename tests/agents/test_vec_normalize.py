@@ -87,6 +87,11 @@ def test_a_ppo_trained_inside_vecnormalize_is_refused_without_its_statistics(nor
     assert main(["calibrate", "--sb3", str(folder / "ppo.zip"), "--env", "CartPole-v1", "--vec-normalize",
                  str(tmp_path / "missing.pkl"), "--out", out]) == 2
     assert "missing.pkl does not exist" in capsys.readouterr().err
+    for wrong, said in ((tmp_path, "is a folder"), (folder / "ppo.zip", "is not a VecNormalize statistics file (")):
+        assert main(["calibrate", "--sb3", str(folder / "ppo.zip"), "--env", "CartPole-v1", "--vec-normalize", str(wrong),
+                     "--out", out]) == 2
+        err = capsys.readouterr().err
+        assert said in err and err.count("\n") == 1  # one line
     pendulum = VecNormalize(make_vec_env("Pendulum-v1", n_envs=1, seed=0))
     pendulum.save(tmp_path / "pendulum.pkl")
     with pytest.raises(ConfigError, match=r"observations of shape \(3,\); CartPole-v1's are \(4,\)"):
