@@ -73,7 +73,7 @@ class _StatisticsUnpickler(pickle.Unpickler):
         raise pickle.UnpicklingError(f"it names {module}.{name}, which a VecNormalize file does not hold")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # arrays: compared by identity
 class ObservationNormalizer:
     """What ``VecNormalize`` does to an observation before its policy sees it.
 
@@ -130,7 +130,7 @@ def _normalizer(state: dict[str, Any], *, sha256: str | None = None, path: str |
         rms = rms.state if isinstance(rms, _Record) else getattr(rms, "__dict__", None)
         if not isinstance(rms, dict) or not all(isinstance(rms.get(k), np.ndarray) for k in ("mean", "var")):
             raise ConfigError("it holds no observation statistics (obs_rms with a mean and a var array)")
-        mean, var = np.asarray(rms["mean"], np.float64), np.asarray(rms["var"], np.float64)
+        mean, var = np.array(rms["mean"], np.float64), np.array(rms["var"], np.float64)  # copies
         if mean.shape != var.shape or not (np.isfinite(mean).all() and np.isfinite(var).all() and (var >= 0).all()):
             raise ConfigError(f"its observation statistics are not usable (mean of shape {mean.shape}, var of shape "
                               f"{var.shape}, finite and var >= 0 required)")
@@ -169,12 +169,7 @@ def load_vec_normalize(path: str | Path) -> ObservationNormalizer:
 def normalizer_of(vec_normalize: Any) -> ObservationNormalizer:
     """The statistics of a ``VecNormalize`` in memory, as they are now (a copy: training on does
     not change them). ``model.get_vec_normalize_env()`` gives the one a model was trained in."""
-    state = dict(vec_normalize.__dict__)
-    obs_rms = state.get("obs_rms")
-    if obs_rms is not None and not isinstance(obs_rms, dict):
-        state["obs_rms"] = _Record()
-        state["obs_rms"].state = {"mean": np.array(obs_rms.mean, copy=True), "var": np.array(obs_rms.var, copy=True)}
-    return _normalizer(state)
+    return _normalizer(dict(vec_normalize.__dict__))
 
 
 def trained_in_vec_normalize(path: str | Path) -> bool:
