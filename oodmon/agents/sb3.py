@@ -288,6 +288,10 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     names = {file["algorithm"] for file in files}
     masks = masks or "sampled"
     sampled = names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"})
+    if len(models) > 1 and not sampled:  # the others were ignored in silence
+        raise ConfigError(f"several models form an ensemble, whose spread oodmon reads from DQN models, or DDPG/TD3 "
+                          f"models, all of one algorithm; got {', '.join(f['algorithm'] for f in files)}: give the "
+                          "deployed model alone (the learned detectors watch it)")
     if masks != "sampled" and (len(models) > 1 or not sampled):
         raise ConfigError(f"masks={masks!r} is for one DQN or DDPG/TD3 model with dropout or DropConnect layers (MC "
                           f"samples); got {len(models)} {'/'.join(sorted(names))} model(s)")
@@ -296,6 +300,9 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         try:
             estimator = estimator_from_sb3(list(models), n_samples=n_samples, seed=seed, masks=masks)
         except ConfigError as error:
+            if len(models) > 1:  # an ensemble asked for (it was dropped in silence: no spread, no features)
+                raise ConfigError(f"the {len(models)} models form the ensemble whose spread watches the first: {error}; "
+                                  "give models of one architecture, or the deployed one alone") from None
             if masks != "sampled":
                 raise ConfigError(f"masks={masks!r} fixes the masks of MC samples, and this model has none: {error}") \
                     from None

@@ -193,6 +193,16 @@ def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
         load_sb3([tmp_path / "dqn.zip"], "Acrobot-v1")
     with pytest.raises(ConfigError, match="--mean deploys the ensemble's mean"):
         load_sb3([tmp_path / "dqn.zip"], "CartPole-v1", mean=True)
+    # Models of two architectures: said (they became one plain policy, their ensemble dropped in silence).
+    DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=1, policy_kwargs={"net_arch": [32, 32]}).save(tmp_path / "wide.zip")
+    with pytest.raises(ConfigError, match=r"the 2 models form the ensemble .*member 1 has another architecture"):
+        load_sb3([tmp_path / "dqn.zip", tmp_path / "wide.zip"], "CartPole-v1")
+    from stable_baselines3 import PPO
+
+    PPO("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0, n_steps=32, batch_size=32).save(tmp_path / "ppo.zip")
+    for pair in (["dqn.zip", "ppo.zip"], ["ppo.zip", "ppo.zip"]):  # the second was ignored
+        with pytest.raises(ConfigError, match="several models form an ensemble.*give the deployed model alone"):
+            load_sb3([tmp_path / name for name in pair], "CartPole-v1")
     assert main(["calibrate", "--sb3", str(tmp_path / "dqn.zip"), "--out", str(tmp_path / "t.json")]) == 2
     assert "--sb3 needs --env" in capsys.readouterr().err
     assert main(["run", "--sb3", str(tmp_path / "dqn.zip"), "--env", "CartPole-v1", "--variant", "pendulum:m=5.0"]) == 2
