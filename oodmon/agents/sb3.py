@@ -301,8 +301,8 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
             estimator = estimator_from_sb3(list(models), n_samples=n_samples, seed=seed, masks=masks)
         except ConfigError as error:
             if len(models) > 1:  # an ensemble asked for (it was dropped in silence: no spread, no features)
-                raise ConfigError(f"the {len(models)} models form the ensemble whose spread watches the first: {error}; "
-                                  "give models of one architecture, or the deployed one alone") from None
+                raise ConfigError(f"the {len(models)} models cannot form the ensemble whose spread would watch the first: "
+                                  f"{error}; give the deployed model alone (the learned detectors watch it)") from None
             if masks != "sampled":
                 raise ConfigError(f"masks={masks!r} fixes the masks of MC samples, and this model has none: {error}") \
                     from None

@@ -195,7 +195,7 @@ def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
         load_sb3([tmp_path / "dqn.zip"], "CartPole-v1", mean=True)
     # Models of two architectures: said (they became one plain policy, their ensemble dropped in silence).
     DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=1, policy_kwargs={"net_arch": [32, 32]}).save(tmp_path / "wide.zip")
-    with pytest.raises(ConfigError, match=r"the 2 models form the ensemble .*member 1 has another architecture"):
+    with pytest.raises(ConfigError, match=r"the 2 models cannot form the ensemble .*member 1 has another architecture"):
         load_sb3([tmp_path / "dqn.zip", tmp_path / "wide.zip"], "CartPole-v1")
     from stable_baselines3 import PPO
 
