@@ -6,9 +6,10 @@ copy the weights of the layers they sample into numpy once, when they are built,
 dropout and DropConnect masks from a numpy ``Generator`` (seeded, and never touching torch's
 global generator).
 
-Supported layers: ``nn.Linear`` (and :class:`DropConnectLinear`), ``nn.Dropout``, ``nn.ReLU``,
-``nn.Tanh``, ``nn.Identity`` and a leading ``nn.Flatten``. :func:`compile_layers` returns
-``None`` for anything else, and the caller keeps that part in torch.
+Supported layers: ``nn.Linear`` (and :class:`DropConnectLinear`), ``nn.Dropout``, the
+activations ``nn.ReLU``, ``nn.Tanh``, ``nn.LeakyReLU``, ``nn.ELU``, ``nn.SiLU``, ``nn.Sigmoid``
+(``activation_fn`` choices of SB3 users), ``nn.Identity`` and a leading ``nn.Flatten``.
+:func:`compile_layers` returns ``None`` for anything else, and the caller keeps that part in torch.
 """
 
 from __future__ import annotations
@@ -21,8 +22,8 @@ from torch import nn
 
 from oodmon.agents.layers import DropConnectLinear
 
-__all__ = ["Op", "StackedAffine", "active_inputs", "bernoulli_positions", "compile_layers", "ends_with_tanh",
-           "fix_masks", "repeat_rows", "run"]
+__all__ = ["Op", "StackedAffine", "activation_function", "active_inputs", "bernoulli_positions", "compile_layers",
+           "ends_with_tanh", "fix_masks", "repeat_rows", "run"]
 
 
 class Op:
@@ -266,7 +267,35 @@ class _Function(Op):
         return self.function(x)
 
 
-_ACTIVATIONS = {nn.ReLU: lambda x: np.maximum(x, np.float32(0.0)), nn.Tanh: np.tanh, nn.Identity: lambda x: x}
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return np.float32(0.5) * (np.tanh(np.float32(0.5) * x) + np.float32(1.0))  # no overflow in exp
+
+
+def activation_function(layer: nn.Module):
+    """The numpy function of an activation layer (its parameters included), or ``None``.
+
+    Example:
+        >>> activation_function(nn.LeakyReLU(0.1))(np.array([-1.0, 2.0], np.float32)).tolist()
+        [-0.10000000149011612, 2.0]
+    """
+    kind = type(layer)
+    if kind is nn.ReLU:
+        return lambda x: np.maximum(x, np.float32(0.0))
+    if kind is nn.Tanh:
+        return np.tanh  # ends_with_tanh tells an actor's squashing output by it
+    if kind is nn.Identity:
+        return lambda x: x
+    if kind is nn.LeakyReLU:
+        slope = np.float32(layer.negative_slope)
+        return lambda x: np.where(x >= 0, x, x * slope)
+    if kind is nn.ELU:
+        alpha = np.float32(layer.alpha)
+        return lambda x: np.where(x > 0, x, alpha * np.expm1(np.minimum(x, np.float32(0.0))))
+    if kind is nn.SiLU:
+        return lambda x: x * _sigmoid(x)
+    if kind is nn.Sigmoid:
+        return _sigmoid
+    return None
 
 
 def compile_layers(layers: Sequence[nn.Module]) -> list[Op] | None:
@@ -282,8 +311,8 @@ def compile_layers(layers: Sequence[nn.Module]) -> list[Op] | None:
             ops.append(_Affine(layer))
         elif isinstance(layer, nn.Dropout):
             ops.append(_Dropout(layer.p))
-        elif type(layer) in _ACTIVATIONS:
-            ops.append(_Function(_ACTIVATIONS[type(layer)]))
+        elif activation_function(layer) is not None:
+            ops.append(_Function(activation_function(layer)))
         elif isinstance(layer, nn.Flatten) and index == 0 and layer.start_dim == 1:
             ops.append(_Flatten())
         else:

@@ -126,6 +126,29 @@ def test_batched_ensemble_equals_member_by_member():
     np.testing.assert_array_equal(estimate.action, expected.mean(axis=0).argmax(axis=1))
 
 
+@pytest.mark.parametrize("activation", [nn.LeakyReLU(0.05), nn.ELU(0.7), nn.SiLU(), nn.Sigmoid()], ids=repr)
+def test_ensembles_of_other_activations_compute_the_modules_numbers(activation):
+    # SB3 users pick activation_fn; such ensembles were refused (ReLU and Tanh only).
+    def member(seed: int) -> nn.Sequential:
+        torch.manual_seed(seed)
+        return nn.Sequential(nn.Linear(4, 32), activation, nn.Linear(32, 32), activation, nn.Linear(32, 2))
+
+    members = [member(seed) for seed in range(3)]
+    wide = OBS * 10  # both sides of every activation's bend, and sigmoid's saturation
+    estimate = EnsembleEstimator(members).estimate(wide)
+    with torch.no_grad():
+        expected = np.stack([m(torch.as_tensor(wide)).numpy() for m in members])
+    np.testing.assert_allclose(estimate.samples, expected, atol=2e-5, rtol=1e-5)
+
+
+def test_an_ensemble_of_members_whose_activations_differ_in_a_parameter_is_refused():
+    members = [nn.Sequential(nn.Linear(4, 8), nn.LeakyReLU(slope), nn.Linear(8, 2)) for slope in (0.01, 0.2)]
+    with pytest.raises(ConfigError, match=r"member 1 has another architecture.*LeakyReLU\(negative_slope=0.2\)"):
+        EnsembleEstimator(members)
+    with pytest.raises(ConfigError, match=r"ReLU, Tanh, LeakyReLU, ELU, SiLU or Sigmoid activations only; found GELU"):
+        EnsembleEstimator([nn.Sequential(nn.Linear(4, 8), nn.GELU(), nn.Linear(8, 2))] * 2)
+
+
 def test_actions_are_scaled_to_the_action_space_and_the_mean_is_deployed():
     members = [_mlp(seed, out=1, tanh=True) for seed in range(5)]
     estimate = EnsembleEstimator(members, kind="actions", action_low=[-2.0], action_high=[2.0]).estimate(OBS)
