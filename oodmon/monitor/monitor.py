@@ -19,6 +19,7 @@ finished all the same; an episode cut by an exception or Ctrl-C is logged as ``i
 from __future__ import annotations
 
 import atexit
+import copy
 import json
 import math
 import shlex
@@ -139,6 +140,9 @@ class Monitor:
         force: bool = False,
         render: bool = False,
     ) -> None:
+        self._made_with = {"policy": policy, "threshold": threshold, "score": score, "detectors": detectors,
+                           "detector": detector, "consecutive": consecutive, "window": window, "strict": strict,
+                           "log_observations": log_observations, "force": force, "render": render}  # see twin()
         if isinstance(policy, Agent):
             self.agent, self.estimator, self._act = policy, policy.estimator, policy.deploy
         elif isinstance(policy, UncertaintyEstimator):
@@ -191,6 +195,21 @@ class Monitor:
         self.last_step: StepRecord | None = None  # the record of the last step scored
         self.stop_event: AlarmEvent | None = None  # the alarm a callback ended the episode with
         self.alarms_raised = 0  # alarms of the whole run
+
+    def twin(self, *, sinks: Sequence[Sink] = (), callbacks: Sequence[AlarmCallback] = ()) -> Monitor:
+        """A monitor of the same policy, threshold and alarm rule, with copies of the fitted detectors
+        (whose windows and running means are then its own), its own episodes, ``sinks`` and
+        ``callbacks``: one for each env of a vector env, since one Monitor follows one env's episode
+        (:class:`MonitoredEnv` refuses a Monitor that another env's episode is using).
+
+        Example::
+
+            monitor = oodmon.watch("dqn.zip", "CartPole-v1")
+            envs = DummyVecEnv([lambda m=m: MonitoredEnv(gymnasium.make("CartPole-v1"), m)
+                                for m in (monitor, monitor.twin(), monitor.twin())])
+        """
+        made = self._made_with | {"detectors": copy.deepcopy(self._made_with["detectors"])}
+        return Monitor(**made, sinks=sinks, callbacks=callbacks)
 
     def _refuse_or_warn(self, what: str, differences: list[str], force: bool, *, plural: bool = False) -> None:
         """Refuse ``what`` (the threshold; the fitted detectors, ``plural``) made for another policy, or
@@ -428,8 +447,8 @@ def _check_one_env(env: Any) -> None:
     if not isinstance(env, gymnasium.Env):
         vector = hasattr(env, "num_envs")
         raise ConfigError(f"the env to monitor is one gymnasium env, the one you step; got a {type(env).__name__}"
-                          + (" (a vector env): wrap each of its envs in a MonitoredEnv with a Monitor of its own, "
-                             "e.g. DummyVecEnv([lambda: MonitoredEnv(gymnasium.make(...), Monitor(...))])" if vector else ""))
+                          + (" (a vector env): wrap each of its envs in a MonitoredEnv with a Monitor of its own "
+                             "(monitor.twin() makes one like a monitor you have)" if vector else ""))
 
 
 def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
@@ -507,7 +526,7 @@ class MonitoredEnv(gymnasium.Wrapper):
         if self.monitor.in_episode and (owner is None or owner() is not self):
             raise ConfigError("this env's Monitor follows an episode that another MonitoredEnv began (one Monitor "
                               "shared by several envs, as in a vector env of MonitoredEnvs? their steps would mix "
-                              "into one episode's log): give each env its own Monitor, or reset this env first")
+                              "into one episode's log): give each env its own Monitor (monitor.twin()), or reset this env first")
         # Your action, when you give one, is the deployed one: the detectors that model transitions see it.
         chosen = self.monitor.step(self._obs, action=action, shifted=bool(self._info.get("shifted", False)),
                                    frame=_frame(self._obs))

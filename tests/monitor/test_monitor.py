@@ -292,3 +292,48 @@ def test_one_monitor_shared_by_two_envs_is_refused_at_the_first_mixed_step(agent
             env.step()
     monitor.close()
     assert [e.length for e in sink.episodes][-3:] == [5, 6, 7]
+
+
+def _scores(sink: MemorySink) -> dict[str, list[float]]:
+    return {name: [step.scores[name] for step in sink.steps] for name in sink.steps[0].scores}
+
+
+def test_a_twin_monitors_another_env_of_a_vector_env_as_a_monitor_of_its_own_would(agent):
+    """monitor.twin(): the same policy, threshold and rule with copies of the fitted detectors, so
+    that a vector env's envs, stepped in turn, are each scored as if monitored alone."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from oodmon.monitor.detectors import detectors_for
+
+    detectors = detectors_for(agent, None)  # the shipped dynamics, features and combined
+    alone = []
+    for seed in (0, 1):
+        sink = MemorySink()
+        with Monitor(agent, 4.0, detectors=detectors, detector="combined", sinks=[sink]) as monitor:
+            monitor.run_episode(Variant("cartpole", {"length": 2.0}).make(onset_step=20), seed=seed)
+        alone.append(_scores(sink))
+    sinks = [MemorySink(), MemorySink()]
+    first = Monitor(agent, 4.0, detectors=detectors, detector="combined", sinks=[sinks[0]])
+    monitors = [first, first.twin(sinks=[sinks[1]])]
+    assert monitors[1].threshold == 4.0 and monitors[1].detector == "combined" and monitors[1].sinks is not first.sinks
+    venv = DummyVecEnv([lambda m=m: MonitoredEnv(Variant("cartpole", {"length": 2.0}).make(onset_step=20), m)
+                        for m in monitors])
+    venv.seed(0)  # env i: seed i
+    obs = venv.reset()
+    done = np.zeros(2, bool)
+    while not done.all():  # both envs step in turn until each has ended one episode
+        obs, _, dones, _ = venv.step(np.array([agent.act(o) for o in obs]))
+        done |= dones
+    for monitor in monitors:
+        monitor.close()
+    for sink, expected in zip(sinks, alone):
+        assert {name: values[:len(expected[name])] for name, values in _scores(sink).items()} == expected
+    # Two Monitors sharing one set of detectors (what twin() copies) mix their windows: other scores.
+    shared = [Monitor(agent, 4.0, detectors=detectors, detector="combined", sinks=[MemorySink()]) for _ in range(2)]
+    venv = DummyVecEnv([lambda m=m: MonitoredEnv(Variant("cartpole", {"length": 2.0}).make(onset_step=20), m)
+                        for m in shared])
+    venv.seed(0)
+    obs = venv.reset()
+    for _ in range(30):
+        obs, *_ = venv.step(np.array([agent.act(o) for o in obs]))
+    assert _scores(shared[0].sinks.sinks[0])["dynamics"][:30] != alone[0]["dynamics"][:30]
