@@ -27,8 +27,9 @@ Two hidden layers of 64 units: 128 and 200 measured no better (Pendulum above: p
 0.954-1.000 at 64 and at 128, window 1) and cost the monitor more per step.
 
 Neither assumes a deterministic simulator: each member predicts a variance, so sensor noise in
-the ID world (``obs_noise``) is part of what it learns. Vector observations only (see the README
-for Pong). The first step of an episode has no transition yet: it scores the median ID score.
+the ID world (``obs_noise``) is part of what it learns. Vector observations only, stacked ones
+(CartPole's state 4 deep, (4, 4)) modelled flattened; images go to the frames detector (see the
+README for Pong). The first step of an episode has no transition yet: it scores the median ID score.
 
 Training is torch (the members' weights stacked, one batched product per layer); scoring is
 numpy, a few microseconds per step.
@@ -46,6 +47,7 @@ from scipy.special import expit
 from oodmon.agents.plan import repeat_rows
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory
+from oodmon.monitor.detectors.frames import is_picture
 from oodmon.validation import is_whole
 
 __all__ = ["MIN_LOGVAR", "DynamicsDetector", "min_logvar_for"]
@@ -96,7 +98,7 @@ class DynamicsDetector(Detector):
 
     def __init__(self, n_actions: int | None = None, *, kind: str = "nll", members: int = 5, hidden: int = 64,
                  n_draws: int = 4, epochs: int = 30, batch_size: int = 512, lr: float = 2e-3, window: int = 20,
-                 seed: int = 0, neutral: float = 0.0, min_logvar: float = _MIN_LOGVAR) -> None:
+                 seed: int = 0, neutral: float = 0.0, min_logvar: float = _MIN_LOGVAR, flatten: bool = False) -> None:
         if kind not in _KINDS:
             raise InvalidParameterError(f"kind={kind!r} is not allowed; use one of {', '.join(_KINDS)}")
         for label, value in (("members", members), ("hidden", hidden), ("n_draws", n_draws), ("epochs", epochs),
@@ -113,6 +115,7 @@ class DynamicsDetector(Detector):
         self.n_actions, self.kind, self.members, self.hidden = n_actions, kind, members, hidden
         self.n_draws, self.epochs, self.seed = n_draws, epochs, seed
         self.batch_size, self.lr, self.window, self.neutral = batch_size, lr, window, float(neutral)
+        self.flatten = bool(flatten)  # set by fit: the observations are stacked vectors, modelled flattened
         self._recent = RecentMean(window)
         self._weights: list[tuple[np.ndarray, np.ndarray]] | None = None
         self._norm: dict[str, np.ndarray] = {}
@@ -157,11 +160,14 @@ class DynamicsDetector(Detector):
         trajectories = [t for t in trajectories if len(t) > 0]
         if not trajectories:
             raise ConfigError("the dynamics detector needs ID transitions to fit on; got none")
-        if np.ndim(trajectories[0].observations) != 2:
-            raise ConfigError(f"the dynamics detector models vector observations; got observations of shape "
-                              f"{np.shape(trajectories[0].observations)[1:]} (for images use the features detector)")
-        obs = np.concatenate([t.observations[:-1] for t in trajectories]).astype(np.float64)
-        nxt = np.concatenate([t.observations[1:] for t in trajectories]).astype(np.float64)
+        first = np.asarray(trajectories[0].observations)
+        if is_picture(first.shape[1:], first.dtype):
+            raise ConfigError(f"the dynamics detector models vector observations (stacked ones too); got images of shape "
+                              f"{first.shape[1:]} (for images use the frames or the features detector)")
+        self.flatten = first.ndim > 2
+        flat = [np.asarray(t.observations).reshape(len(t.observations), -1) for t in trajectories]
+        obs = np.concatenate([f[:-1] for f in flat]).astype(np.float64)
+        nxt = np.concatenate([f[1:] for f in flat]).astype(np.float64)
         actions = np.concatenate([np.asarray(t.actions) for t in trajectories])
         delta = nxt - obs
         norm = {"obs_mean": obs.mean(0), "obs_std": np.maximum(obs.std(0), 1e-6),
@@ -216,13 +222,17 @@ class DynamicsDetector(Detector):
     def score(self, context: StepContext) -> float:
         """The mean surprise over the episode's last ``window`` transitions (the first step: ``neutral``)."""
         self.check_fitted()
-        if context.prev_obs is None:
+        prev_obs, obs = context.prev_obs, context.obs
+        if prev_obs is None:
             value = self.neutral
-        elif self.kind == "nll":
-            value = self._nll_one(context.prev_obs, context.prev_action, context.obs)
         else:
-            value = float(self.score_transitions(np.asarray(context.prev_obs)[None], np.asarray([context.prev_action]),
-                                                 np.asarray(context.obs)[None])[0])
+            if self.flatten:
+                prev_obs, obs = np.ravel(prev_obs), np.ravel(obs)
+            if self.kind == "nll":
+                value = self._nll_one(prev_obs, context.prev_action, obs)
+            else:
+                value = float(self.score_transitions(np.asarray(prev_obs)[None], np.asarray([context.prev_action]),
+                                                     np.asarray(obs)[None])[0])
         return self._recent.add(value)
 
     def _nll_one(self, prev_obs: Any, prev_action: Any, obs: Any) -> float:
@@ -237,6 +247,8 @@ class DynamicsDetector(Detector):
         """Scores of a batch of transitions ``(obs, actions) -> next_obs``, (batch,)."""
         self.check_fitted()
         obs = np.asarray(obs, dtype=np.float32)
+        if self.flatten:
+            obs, next_obs = obs.reshape(len(obs), -1), np.asarray(next_obs).reshape(len(obs), -1)
         if obs.ndim != 2 or obs.shape[1] != self.obs_dim:
             raise ConfigError(f"this dynamics detector was fitted on observations of {self.obs_dim} numbers; got "
                               f"shape {obs.shape[1:]}")
@@ -256,7 +268,8 @@ class DynamicsDetector(Detector):
     def config(self) -> dict[str, Any]:
         return {"n_actions": self.n_actions, "kind": self.kind, "members": self.members, "hidden": self.hidden,
                 "n_draws": self.n_draws, "epochs": self.epochs, "batch_size": self.batch_size, "lr": self.lr,
-                "window": self.window, "seed": self.seed, "neutral": self.neutral, "min_logvar": self.min_logvar}
+                "window": self.window, "seed": self.seed, "neutral": self.neutral, "min_logvar": self.min_logvar} \
+            | ({"flatten": True} if self.flatten else {})  # the shipped detectors' JSON unchanged
 
     def tensors(self) -> dict[str, np.ndarray]:
         self.check_fitted()

@@ -24,7 +24,7 @@ from oodmon.monitor.detectors.base import StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector, min_logvar_for
 from oodmon.monitor.detectors.features import FeaturesDetector
-from oodmon.monitor.detectors.frames import FramesDetector
+from oodmon.monitor.detectors.frames import FramesDetector, is_picture
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector, member_values
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
@@ -150,15 +150,16 @@ def trajectory_scores(detectors: DetectorSet, trajectory: Trajectory, estimator:
 
 
 def default_detectors(policy: Any, env: gymnasium.Env) -> tuple[str, ...]:
-    """The learned detectors ``policy`` in ``env`` can have: ``dynamics`` for vector observations,
-    ``features`` for an oodmon agent or estimator, ``frames`` for image observations, and
-    ``combined``."""
+    """The learned detectors ``policy`` in ``env`` can have: ``dynamics`` for vector observations
+    (stacked ones too, flattened), ``features`` for an oodmon agent or estimator, ``frames`` for
+    image observations (:func:`~oodmon.monitor.detectors.frames.is_picture`), and ``combined``."""
     estimator, _, _ = policy_parts(policy)
-    dims = len(env.observation_space.shape or ())
-    names = ["dynamics"] if dims == 1 else []
+    space = env.observation_space
+    picture = is_picture(tuple(space.shape or ()), space.dtype)
+    names = [] if picture else ["dynamics"]
     if estimator is not None:
         names.append("features")
-    if dims >= 2:
+    if picture:
         names.append("frames")
     return (*names, "combined")
 

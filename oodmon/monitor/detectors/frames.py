@@ -30,7 +30,7 @@ import numpy as np
 from oodmon.errors import ConfigError
 from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory
 
-__all__ = ["FramesDetector", "channels_last", "frame_statistics", "newest_frame"]
+__all__ = ["FramesDetector", "channels_last", "frame_statistics", "is_picture", "newest_frame"]
 
 #: The statistics of one frame, in the order :func:`frame_statistics` returns them.
 STATISTICS = ("mean", "std", "log_laplacian_var", "log_dx", "log_dy")
@@ -46,6 +46,28 @@ def channels_last(shape: tuple[int, ...]) -> bool:
         (True, False, False)
     """
     return len(shape) == 3 and shape[-1] < min(shape[:2])
+
+
+#: The fewest pixels on each side of a picture of numbers other than bytes (a normalised frame);
+#: smaller arrays of floats are stacked vectors (CartPole's state 4 deep is (4, 4)), not pictures.
+PICTURE_SIDE = 16
+
+
+def is_picture(shape: tuple[int, ...], dtype: object) -> bool:
+    """Whether observations of ``shape`` and ``dtype`` are images the frames detector reads: bytes
+    of two or more dimensions (Pong's (4, 84, 84), an RGB (64, 64, 3)), or floats whose newest frame
+    is at least :data:`PICTURE_SIDE` pixels each way; not vectors, nor vectors stacked (4, 4).
+
+    Example:
+        >>> is_picture((4, 84, 84), np.uint8), is_picture((64, 64), np.float32), is_picture((4, 4), np.float32)
+        (True, True, False)
+    """
+    if len(shape) < 2:
+        return False
+    if np.dtype(dtype) == np.uint8:
+        return True
+    frame = shape[:2] if channels_last(shape) else shape[-2:]
+    return min(frame) >= PICTURE_SIDE
 
 
 def newest_frame(obs: np.ndarray) -> np.ndarray:
