@@ -39,7 +39,7 @@ from oodmon.envs.registration import env_id_of, variant_of_env
 from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
-from oodmon.monitor.detectors.frames import newest_frame
+from oodmon.monitor.detectors.frames import is_picture, newest_frame
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.monitor.sinks.base import Sink, SinkGroup
@@ -365,6 +365,8 @@ class Monitor:
         observation = None
         if self.log_observations and np.ndim(obs) == 1:
             observation = [float(x) for x in obs]
+        elif self.log_observations and frame is None and np.ndim(obs) > 1 and not is_picture(np.shape(obs), obs.dtype):
+            observation = [float(x) for x in np.ravel(obs)]  # stacked vectors, flattened
         if not self.log_observations:
             frame = None
         elif self.render and frame is None and np.ndim(obs) == 1:

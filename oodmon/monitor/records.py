@@ -25,7 +25,7 @@ class StepRecord:
         threshold: the threshold in force (``nan`` without one).
         alarm: whether the alarm rule holds at this step.
         shifted: whether the observation came from the shifted world (the env's ``info``).
-        observation: the observation (vector tasks), or ``None``.
+        observation: the observation (vector tasks; stacked vectors flattened), or ``None``.
         frame: the observed image (Pong: the newest 84x84 frame the agent saw), or ``None``.
         scores: every detector's score at this step, by detector name (``spread``, ``dynamics``, ...).
     """

@@ -582,5 +582,6 @@ def test_stacked_vector_observations_are_watched_by_a_dynamics_model_of_them_fla
                 monitor.run_episode(_stacked_cartpole(name == "flat", gravity=49.0), seed=seed, max_steps=100)
         scores[name] = [step.scores["dynamics"] for step in sink.steps]
     assert scores["stacked"] == scores["flat"] == scores["loaded"]  # the same model of the same numbers
+    assert len(sink.steps[0].observation) == 16  # logged flattened (it was not logged at all)
     with pytest.raises(ConfigError, match=r"got images of shape \(4, 84, 84\)"):
         DynamicsDetector(6).fit([Trajectory(np.zeros((3, 4, 84, 84), np.uint8), np.zeros(2, int))])
