@@ -457,7 +457,8 @@ def _signature(layer: nn.Module) -> str:
         return f"Linear({layer.in_features},{layer.out_features})"
     if compile_layers([layer]) is None:
         raise ConfigError(
-            f"ensemble members may hold linear layers and ReLU, Tanh, LeakyReLU, ELU, SiLU or Sigmoid activations only; "
+            f"ensemble members may hold linear layers and ReLU, Tanh, LeakyReLU, ELU, SiLU, Sigmoid or GELU activations "
+            "only; "
             f"found {layer!r}"
         )
     return repr(layer)  # with its parameters: LeakyReLU(0.01) is not LeakyReLU(0.2)

@@ -7,8 +7,8 @@ dropout and DropConnect masks from a numpy ``Generator`` (seeded, and never touc
 global generator).
 
 Supported layers: ``nn.Linear`` (and :class:`DropConnectLinear`), ``nn.Dropout``, the
-activations ``nn.ReLU``, ``nn.Tanh``, ``nn.LeakyReLU``, ``nn.ELU``, ``nn.SiLU``, ``nn.Sigmoid``
-(``activation_fn`` choices of SB3 users), ``nn.Identity`` and a leading ``nn.Flatten``.
+activations ``nn.ReLU``, ``nn.Tanh``, ``nn.LeakyReLU``, ``nn.ELU``, ``nn.SiLU``, ``nn.Sigmoid``,
+``nn.GELU`` (``activation_fn`` choices of SB3 users), ``nn.Identity`` and a leading ``nn.Flatten``.
 :func:`compile_layers` returns ``None`` for anything else, and the caller keeps that part in torch.
 """
 
@@ -295,6 +295,13 @@ def activation_function(layer: nn.Module):
         return lambda x: x * _sigmoid(x)
     if kind is nn.Sigmoid:
         return _sigmoid
+    if kind is nn.GELU and layer.approximate == "none":
+        from scipy.special import erf
+
+        return lambda x: np.float32(0.5) * x * (np.float32(1.0) + erf(x * np.float32(1 / math.sqrt(2)))).astype(np.float32)
+    if kind is nn.GELU and layer.approximate == "tanh":
+        scale = np.float32(math.sqrt(2 / math.pi))
+        return lambda x: np.float32(0.5) * x * (np.float32(1.0) + np.tanh(scale * (x + np.float32(0.044715) * x ** 3)))
     return None
 
 
