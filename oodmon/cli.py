@@ -567,7 +567,7 @@ def _sb3_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with several --sb3 models: deploy the ensemble's mean decision, not the first model's")
     parser.add_argument("--vec-normalize", metavar="PKL",
                         help="--sb3 models trained inside SB3's VecNormalize: the statistics file it saved "
-                             "(vec_normalize.save(), e.g. vecnormalize.pkl; read without unpickling), so that they see "
+                             "(vec_normalize.save(), e.g. vecnormalize.pkl; read without running code from it), so that they see "
                              "observations normalised as in training; 'none' if it did not normalise observations")
 
 

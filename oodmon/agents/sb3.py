@@ -164,7 +164,7 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
         n_samples, seed: MC sampling of one model that has dropout layers.
         masks: that model's MC masks, ``sampled`` (None: the default) or ``fixed``.
         vec_normalize: models trained inside SB3's ``VecNormalize``: the statistics file it saved
-            (``vec_normalize.save(path)``), read without unpickling
+            (``vec_normalize.save(path)``), read without running code from it
             (:func:`~oodmon.agents.vec_normalize.load_vec_normalize`); the models then see every
             observation normalised as in training (or a VecNormalize in memory, as
             :func:`sb3_agent` takes it). ``"none"``: they were, but it did not normalise
@@ -186,7 +186,7 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
         if normalized:
             raise ConfigError(f"{normalized[0]} was trained inside VecNormalize: it acts on normalised observations, and "
                               "on the env's own it acts as another policy. Give the statistics VecNormalize.save() "
-                              "wrote (--vec-normalize vecnormalize.pkl; read without unpickling), or --vec-normalize "
+                              "wrote (--vec-normalize vecnormalize.pkl; read without running code from it), or --vec-normalize "
                               "none if that VecNormalize did not normalise observations (norm_obs=False)")
     normalizer = None if vec_normalize is None else _normalizer_of(vec_normalize, [])  # said before any unpickling
     loaded = [_load_one(path) for path in paths]
