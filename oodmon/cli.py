@@ -657,6 +657,10 @@ def _run(args: argparse.Namespace) -> int:
     threshold = Threshold.load(args.threshold) if args.threshold else None
     args.masks = args.masks or (threshold.masks if threshold is not None else None)
     agent = _load_agent(args)
+    if args.render and args.task not in ("cartpole", "pendulum"):  # it logged no picture, without a word
+        raise ConfigError(f"--render draws CartPole and Pendulum states; {args.task} has no drawing in oodmon"
+                          + (" (Pong's frames are logged without it)" if args.task == "pong" else "")
+                          + ": leave out --render")
     if args.variant:
         variant = parse_variant(args.variant)
         if variant.task != args.task:

@@ -85,6 +85,7 @@ CASES = [
     ("run-episodes-negative", [*RUN, "--episodes", "-3"], {}, ["--episodes", "-3"]),
     ("run-episodes-text", [*RUN, "--episodes", "many"], {}, ["--episodes", "many"]),
     ("run-onset-negative", [*RUN, "--onset", "-5"], {}, ["--onset", "-5"]),
+    ("run-render-pong", ["run", "--task", "pong", "--method", "ensemble", "--render"], {}, ["--render", "pong"]),
     ("run-port-0", [*RUN, "--port", "0"], {}, ["--port", "0"]),
     ("run-port-too-big", [*RUN, "--port", "70000"], {}, ["--port", "70000"]),
     ("run-mcap-in-proc", [*RUN, "--mcap", "/proc/x.mcap"], {}, ["--mcap", "/proc/x.mcap"]),
