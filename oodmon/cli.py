@@ -989,6 +989,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     agent = _load_agent(args)
     from oodmon.envs.grid import select_variants
 
+    if args.task not in TASKS:  # --sb3 in an env oodmon has no variants of
+        raise ConfigError(f"evaluate plays oodmon's shifted variants of CartPole, Pendulum and Pong; --env {args.env} is "
+                          f"none of them: monitor the model in it with `oodmon run --sb3 ... --env {args.env}` instead")
     variants = select_variants(args.task, args.variants)
     with _progress() as report:
         id_result, results = evaluate_variants(agent.act, args.task, variants, args.episodes,

@@ -222,6 +222,8 @@ def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
     assert main(["run", "--sb3", str(tmp_path / "acrobot.zip"), "--env", "Acrobot-v1", "--variant", "cartpole:length=2.0"]) == 2
     assert ("'cartpole:length=2.0' is not a variant of Acrobot-v1: oodmon has variants of CartPole-v1, Pendulum-v1"
             in capsys.readouterr().err)
+    assert main(["evaluate", "--sb3", str(tmp_path / "acrobot.zip"), "--env", "Acrobot-v1"]) == 2  # said: "unknown task"
+    assert "evaluate plays oodmon's shifted variants of CartPole, Pendulum and Pong; --env Acrobot-v1" in capsys.readouterr().err
     assert main(["calibrate", "--method", "ensemble", "--out", str(tmp_path / "t.json")]) == 2
     assert "give --task" in capsys.readouterr().err
 
