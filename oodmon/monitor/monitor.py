@@ -365,7 +365,8 @@ class Monitor:
         observation = None
         if self.log_observations and np.ndim(obs) == 1:
             observation = [float(x) for x in obs]
-        elif self.log_observations and frame is None and np.ndim(obs) > 1 and not is_picture(np.shape(obs), obs.dtype):
+        elif self.log_observations and frame is None and np.ndim(obs) > 1 \
+                and not is_picture(np.shape(obs), np.asarray(obs).dtype):  # a list of lists, too
             observation = [float(x) for x in np.ravel(obs)]  # stacked vectors, flattened
         if not self.log_observations:
             frame = None
