@@ -217,7 +217,7 @@ def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, ca
         shutil.copy(zoo_dir() / "cartpole-ensemble" / name, model / name)
     threshold = tmp_path / "thr.json"
     assert main(["calibrate", "--task", "cartpole", "--model", str(model), "--detector", "dynamics",
-                 "--episodes", "19", "--confidence", "none", "--out", str(threshold)]) == 0
+                 "--episodes", "19", "--confidence", "none", "--fit-episodes", "12", "--out", str(threshold)]) == 0
     assert "fitted the detectors into" in capsys.readouterr().out
     assert json.loads(threshold.read_text())["detector"] == "dynamics"
     assert (tmp_path / "thr.json.detectors" / "detectors.json").exists()
