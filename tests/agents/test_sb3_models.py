@@ -416,7 +416,8 @@ def test_bench_runs_the_monitor_protocol_on_a_plain_sb3_policy(readme_run, capsy
     out = folder / "bench"
     argv = ["bench", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "CartPole-v1", "--protocol", "monitor",
             "--variants", "cartpole:length=2.0", "--all-variants", "--episodes", "5", "--id-episodes", "20",
-            "--calibration-episodes", "19", "--confidence", "none", "--workers", "1", "--out", str(out), "--json"]
+            "--calibration-episodes", "19", "--confidence", "none", "--fit-episodes", "30", "--workers", "1",
+            "--out", str(out), "--json"]
     assert main(argv) == 0
     result = json.loads(capsys.readouterr().out)
     rows = {r["variant"]: r for r in result["alarms"] if r["method"] == "sb3"}
