@@ -892,6 +892,12 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _no_variants(command: str, env_id: str) -> ConfigError:
+    """The refusal of a command that plays oodmon's variants, for an --sb3 model of an env that has none."""
+    return ConfigError(f"{command} plays oodmon's shifted variants of CartPole, Pendulum and Pong; --env {env_id} is "
+                       f"none of them: monitor the model in it with `oodmon run --sb3 ... --env {env_id}` instead")
+
+
 def _sb3_bench_task(args: argparse.Namespace) -> bool:
     """For ``bench --sb3``: set ``args.task`` from ``--env`` (the bench plays oodmon's variants of
     that task); True where the models have samples of their own (the spread detector applies)."""
@@ -899,8 +905,7 @@ def _sb3_bench_task(args: argparse.Namespace) -> bool:
 
     task = task_of_env(args.env) if args.env else None
     if args.env and task is None:
-        raise ConfigError(f"bench plays oodmon's shifted variants of CartPole, Pendulum and Pong; --env {args.env} is "
-                          f"none of them: monitor it with `oodmon run --sb3 ... --env {args.env}` instead")
+        raise _no_variants("bench", args.env)
     return _load_agent(args).estimator is not None
 
 
@@ -990,8 +995,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from oodmon.envs.grid import select_variants
 
     if args.task not in TASKS:  # --sb3 in an env oodmon has no variants of
-        raise ConfigError(f"evaluate plays oodmon's shifted variants of CartPole, Pendulum and Pong; --env {args.env} is "
-                          f"none of them: monitor the model in it with `oodmon run --sb3 ... --env {args.env}` instead")
+        raise _no_variants("evaluate", args.env)
     variants = select_variants(args.task, args.variants)
     with _progress() as report:
         id_result, results = evaluate_variants(agent.act, args.task, variants, args.episodes,

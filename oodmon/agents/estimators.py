@@ -457,8 +457,7 @@ def _signature(layer: nn.Module) -> str:
         return f"Linear({layer.in_features},{layer.out_features})"
     if compile_layers([layer]) is None:
         raise ConfigError(
-            f"ensemble members may hold linear layers and ReLU, Tanh, LeakyReLU, ELU, SiLU, Sigmoid or GELU activations "
-            "only; "
-            f"found {layer!r}"
+            "ensemble members may hold linear layers and ReLU, Tanh, LeakyReLU, ELU, SiLU, Sigmoid or GELU activations "
+            f"only; found {layer!r}"
         )
     return repr(layer)  # with its parameters: LeakyReLU(0.01) is not LeakyReLU(0.2)

@@ -298,7 +298,7 @@ def activation_function(layer: nn.Module):
     if kind is nn.GELU and layer.approximate == "none":
         from scipy.special import erf
 
-        return lambda x: np.float32(0.5) * x * (np.float32(1.0) + erf(x * np.float32(1 / math.sqrt(2)))).astype(np.float32)
+        return lambda x: np.float32(0.5) * x * (np.float32(1.0) + erf(x * np.float32(1 / math.sqrt(2))))  # float32 in, out
     if kind is nn.GELU and layer.approximate == "tanh":
         scale = np.float32(math.sqrt(2 / math.pi))
         return lambda x: np.float32(0.5) * x * (np.float32(1.0) + np.tanh(scale * (x + np.float32(0.044715) * x ** 3)))
@@ -318,8 +318,8 @@ def compile_layers(layers: Sequence[nn.Module]) -> list[Op] | None:
             ops.append(_Affine(layer))
         elif isinstance(layer, nn.Dropout):
             ops.append(_Dropout(layer.p))
-        elif activation_function(layer) is not None:
-            ops.append(_Function(activation_function(layer)))
+        elif (function := activation_function(layer)) is not None:
+            ops.append(_Function(function))
         elif isinstance(layer, nn.Flatten) and index == 0 and layer.start_dim == 1:
             ops.append(_Flatten())
         else:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 from collections.abc import Iterable, Mapping
 
 from oodmon.errors import InvalidParameterError, UnknownParameterError
@@ -70,8 +71,6 @@ def warn_if_endless(env: object, steps: int) -> None:
     not ended, naming the fix where the env has no time limit (:func:`has_time_limit`)."""
     if steps != LONG_EPISODE:
         return
-    import warnings
-
     spec = getattr(env, "spec", None)
     name = spec.id if spec is not None else type(env).__name__
     fix = (f"; {name} has no time limit: register it with max_episode_steps (gymnasium.register(..., "

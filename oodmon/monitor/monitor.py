@@ -505,9 +505,10 @@ class MonitoredEnv(gymnasium.Wrapper):
     """
 
     def __init__(self, env: gymnasium.Env, monitor: Monitor, *, variant: str | None = None) -> None:
-        _check_one_env(env)
         if monitor.agent is not None:
-            check_env_of(monitor.agent, env)
+            check_env_of(monitor.agent, env)  # its kind, then its spaces
+        else:
+            _check_one_env(env)
         super().__init__(env)
         self.monitor = monitor
         self.variant = variant
