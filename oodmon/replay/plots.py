@@ -115,10 +115,42 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
             ax.axvline(event, color="tab:purple", linewidth=1)
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("step")
-    axes[0].set_ylabel("uncertainty score")
+    scale = score_scale([episode for episode, _ in panels], threshold)
+    if scale is not None:  # the axes share y: these calls set every panel's
+        drawn = np.concatenate([episode.scores for episode, _ in panels] + [[threshold]])
+        drawn = drawn[np.isfinite(drawn)]
+        low, high = float(drawn.min()), float(drawn.max())
+        axes[0].set_yscale("symlog", linthresh=scale)
+        axes[0].set_ylim(low * 2 if low < -scale else low - scale / 4, high * 2 if high > scale else high + scale / 4)
+    axes[0].set_ylabel("uncertainty score" if scale is None else "uncertainty score (symlog)")
     axes[-1].legend(loc="upper left", fontsize=8)
     fig.suptitle(f"{method}, {_alarm_detectors(logs, method, variant)} detector: alarms as vertical lines", fontsize=9)
     return save_figure(fig, path)
+
+
+# Shifted scores this many times the ID ones' size draw on a symlog axis (see score_scale).
+WIDE_RANGE = 30.0
+
+
+def score_scale(episodes, threshold: float) -> float | None:
+    """The linear range of a symlog score axis for these episodes, or ``None`` for a linear one.
+
+    A learned detector's shifted scores can be thousands of times its ID ones (the demo's dynamics
+    score: about -2 on ID steps and at the threshold, up to 27,000 after the pole's length doubles);
+    on a linear axis the ID trace and the threshold are one flat line at zero. When the largest
+    finite score exceeds ``WIDE_RANGE`` times the ID scale (the larger of the threshold's size and
+    the 99th percentile of the unshifted steps' sizes), the axis is symlog, linear up to that scale
+    rounded up to a power of ten.
+    """
+    unshifted = [episode.scores[~episode.shifted] for episode in episodes]
+    every = np.concatenate([episode.scores for episode in episodes])
+    every = np.abs(every[np.isfinite(every)])
+    calm = np.concatenate(unshifted) if unshifted else np.empty(0)
+    calm = np.abs(calm[np.isfinite(calm)])
+    scale = max(abs(threshold) if np.isfinite(threshold) else 0.0, float(np.percentile(calm, 99)) if len(calm) else 0.0)
+    if scale <= 0.0 or not len(every) or every.max() <= WIDE_RANGE * scale:
+        return None
+    return float(10.0 ** np.ceil(np.log10(scale)))  # a decade: the axis' ticks stay 0 and powers of ten
 
 
 def episode_name(episode) -> str:

@@ -87,3 +87,47 @@ def test_a_run_shifted_mid_episode_alone_gets_its_trace_and_each_detector_its_au
     assert sorted(lines) == ["sb3, combined", "sb3, dynamics"]  # one line each, not one zigzag through both
     assert all(line.get_xdata().tolist() == [2.0, 3.0] for line in lines.values())
     assert min(lines["sb3, combined"].get_ydata()) > 0.9 > max(lines["sb3, dynamics"].get_ydata())
+
+
+def _episode(scores, onset):
+    import numpy as np
+
+    from oodmon.replay import EpisodeLog
+
+    n = len(scores)
+    return EpisodeLog(episode=0, env_id="", variant="cartpole" if onset is None else "cartpole:length=2.0",
+                      onset=onset or 0, seed=0, total_return=float(n), length=n, alarms=0, first_alarm_step=None,
+                      scores=np.asarray(scores, float), shifted=np.arange(n) >= (n if onset is None else onset),
+                      alarm=np.zeros(n, bool))
+
+
+def test_a_trace_whose_shifted_scores_dwarf_the_id_ones_draws_them_on_a_symlog_axis(tmp_path, monkeypatch):
+    """The demo's dynamics scores: about -2 on ID steps, threshold -1.47, then up to 27,000 after the
+    shift. On a linear axis the ID trace and the threshold were one line at zero; on the symlog axis
+    they sit in its linear part (up to 10) and both lie inside the drawn range."""
+    import numpy as np
+
+    from oodmon.replay import RunLog
+    from oodmon.replay import plots
+    from oodmon.replay.plots import score_scale
+
+    rng = np.random.default_rng(0)
+    calm = -2.0 + 0.2 * rng.standard_normal(400)
+    wide = [_episode(calm[:200], None), _episode(np.r_[calm[200:300], np.geomspace(100, 27_000, 150)], 100)]
+    assert score_scale(wide, -1.47) == 10.0  # the ID scale, about 2.5, rounded up to a decade
+    spread = [_episode(0.05 + 0.01 * rng.random(200), None), _episode(np.r_[0.05 + 0.01 * rng.random(100), np.full(50, 0.5)], 100)]
+    assert score_scale(spread, 0.08) is None  # shifted scores 6 times the ID ones: a linear axis reads well
+    assert score_scale(spread, float("nan")) is None
+    inf = [_episode(np.r_[calm[:100], np.inf, 1.0], 100)]  # a failed sensor's +inf is not a size
+    assert score_scale(inf, -1.47) is None
+
+    drawn = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
+    for episodes, scale in ((wide, "symlog"), (spread, "linear")):
+        logs = [RunLog(Path("x.mcap"), "cartpole", "ensemble", -1.47 if scale == "symlog" else 0.08,
+                       {"detector": "dynamics"}, episodes, True)]
+        assert plots.plot_trace(logs, "ensemble", "cartpole:length=2.0", tmp_path / "trace.png") is not None
+        axes = drawn[-1].axes
+        assert len(axes) == 2 and {ax.get_yscale() for ax in axes} == {scale}
+    low, high = drawn[0].axes[0].get_ylim()
+    assert low < min(calm[:300]) < -1.47 < 27_000 <= high  # the ID trace, the threshold and the peak all drawn
