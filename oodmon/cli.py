@@ -757,7 +757,7 @@ def _replay(args: argparse.Namespace) -> int:
     if args.plots:
         from oodmon.replay.plots import write_plots
 
-        written = write_plots(logs, compute_metrics(logs), args.plots)
+        written = write_plots(logs, metrics, args.plots)  # AUROC against the shift: a line per detector replayed
         print(f"wrote {len(written)} plot(s) to {args.plots}", file=sys.stderr)
     if args.json:
         print(to_json(metrics))

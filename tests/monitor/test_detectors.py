@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from pathlib import Path
 
 import gymnasium
 import numpy as np
@@ -395,6 +396,24 @@ def test_the_monitor_logs_every_detector_and_alarms_on_the_named_one(agent, fitt
         "spread": False, "dynamics": False, "features": False, "combined": True}
     assert {m.detector: m.false_alarm_rate is not None for m in rows if m.variant == "cartpole"} == {
         "spread": False, "dynamics": False, "features": False, "combined": True}
+
+
+def test_replay_plots_draw_the_auroc_of_every_detector_the_log_holds(agent, fitted, tmp_path, monkeypatch):
+    """`replay --plots`: AUROC against the shift gets a line per detector logged (it drew the alarm's
+    detector alone); `--detector` draws that one."""
+    from oodmon.cli import main
+    from oodmon.replay import plots
+
+    with Monitor(agent, threshold=1.0, detector="combined", detectors=fitted,
+                 sinks=[McapSink(tmp_path / "run.mcap")]) as monitor:
+        monitor.run_episode(parse_variant("cartpole:length=2.0").make(onset_step=30), seed=3, variant="cartpole:length=2.0")
+    drawn = {}
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.update({Path(path).name: fig}) or Path(path))
+    for argv, labels in (([], ["ensemble, combined", "ensemble, dynamics", "ensemble, features", "ensemble, spread"]),
+                         (["--detector", "dynamics"], ["ensemble, dynamics"])):
+        assert main(["replay", str(tmp_path / "run.mcap"), "--plots", str(tmp_path / "plots"), *argv]) == 0
+        lines = drawn["auroc_vs_shift_cartpole.png"].axes[0].get_lines()
+        assert sorted(line.get_label() for line in lines if line.get_label().startswith("ensemble")) == labels
 
 
 def test_a_plain_policy_is_watched_with_the_actions_it_takes(agent, fitted):
