@@ -6,7 +6,7 @@ package; :func:`load_agent` loads one from any directory written by training.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -35,12 +35,16 @@ class Agent:
         path: where the model was loaded from (``None`` for an agent built in memory).
         deploy: the deployed policy ``obs -> action`` when it is not the estimator's decision
             (the first of several SB3 models, as deployed, while the ensemble only scores).
+        dict_space: the env's observation space when its observations are dicts (an SB3
+            ``MultiInputPolicy``): the agent, the detectors and the logs see each one flattened,
+            as :meth:`view` makes it (the policy gets the dict back, see :mod:`oodmon.agents.sb3`).
     """
 
     estimator: UncertaintyEstimator | None
     metadata: dict[str, Any]
     path: Path | None = None
     deploy: Callable[[np.ndarray], Any] | None = None
+    dict_space: gymnasium.spaces.Dict | None = None
 
     @property
     def task(self) -> str:
@@ -69,14 +73,24 @@ class Agent:
         action = self.estimator.estimate(obs).action[0]
         return int(action) if self.estimator.kind == "q_values" else action
 
+    def view(self, obs: Any) -> Any:
+        """The observation as the agent, the detectors and the logs read it: a dict observation
+        flattened (``gymnasium.spaces.flatten`` over :attr:`dict_space`, the order the policy's
+        ``CombinedExtractor`` concatenates its keys in); any other as it is."""
+        if self.dict_space is not None and isinstance(obs, Mapping):
+            return gymnasium.spaces.flatten(self.dict_space, obs)
+        return obs
+
     def make_env(self, obs_noise: float = 0.0) -> gymnasium.Env:
         """The ID env this agent acts in: its task's oodmon env, or the gymnasium env id it was
-        loaded for (``gymnasium.make(env_id)``; sensor noise is oodmon's envs' option only)."""
+        loaded for (``gymnasium.make(env_id)``; sensor noise is oodmon's envs' option only). An env
+        of dict observations comes with them flattened (``FlattenObservation``, as :meth:`view`)."""
         from oodmon.envs.grid import Variant
         from oodmon.envs.registration import task_of_env
 
         if self.env_id is not None and not obs_noise:
-            return gymnasium.make(self.env_id)  # the user's own env, exactly as they deploy in it
+            env = gymnasium.make(self.env_id)  # the user's own env, exactly as they deploy in it
+            return env if self.dict_space is None else gymnasium.wrappers.FlattenObservation(env)
         task = self.task if self.env_id is None else task_of_env(self.env_id)  # oodmon's env of that task
         if task is None:
             raise ConfigError(f"obs_noise is an option of oodmon's envs; {self.env_id} has no such option")

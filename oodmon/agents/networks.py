@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 from gymnasium import spaces
-from stable_baselines3.common.torch_layers import NatureCNN, create_mlp
+from stable_baselines3.common.torch_layers import CombinedExtractor, NatureCNN, create_mlp
 from torch import nn
 
 from oodmon.agents.estimators import EnsembleEstimator, MCEstimator, UncertaintyEstimator
@@ -209,7 +209,7 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
     algorithm = kinds.pop()
     space = models[0].action_space
     first = models[0].policy.q_net if algorithm == "dqn" else models[0].policy.actor
-    arch = Architecture(algorithm, models[0].observation_space.shape,
+    arch = Architecture(algorithm, _flat_input_shape(models[0].observation_space, first.features_extractor),
                         int(space.n) if algorithm == "dqn" else int(np.prod(space.shape)),
                         cnn=isinstance(first.features_extractor, NatureCNN), n_members=len(models))
     action_low = space.low.tolist() if algorithm == "ddpg" else None
@@ -221,3 +221,21 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
                           "an ensemble, whose members are fixed already")
     return estimator_for(modules_from_sb3(models, arch), arch, n_samples=n_samples, seed=seed,
                          action_low=action_low, action_high=action_high, masks=masks)
+
+
+def _flat_input_shape(space: Any, extractor: nn.Module) -> tuple[int, ...]:
+    """The shape of the observations the estimator reads: the space's own, or for a dict of
+    vectors (a ``MultiInputPolicy``) the flattened dict, ``gymnasium.spaces.flatten``'s order: the
+    order SB3's ``CombinedExtractor`` concatenates its keys' flattened vectors in, so its network
+    reads the flattened dict as the dict itself.
+
+    Raises:
+        ConfigError: a dict read by another feature extractor (images among its keys, a user's own).
+    """
+    if not isinstance(space, spaces.Dict):
+        return space.shape
+    if not isinstance(extractor, CombinedExtractor) or not all(
+            isinstance(e, nn.Flatten) for e in extractor.extractors.values()):
+        raise ConfigError(f"the policy reads its dict observations with {type(extractor).__name__}; oodmon samples "
+                          "policies whose CombinedExtractor flattens every key (a dict of vectors)")
+    return (spaces.flatdim(space),)

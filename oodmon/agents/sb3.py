@@ -145,11 +145,36 @@ def _transposed_image(env_space: Any, model_space: Any) -> bool:
             and model_space.shape == (shape[2], shape[0], shape[1]))
 
 
-def _deployed(model: Any, discrete: bool, normalizer: ObservationNormalizer | None):
+def _deployed(model: Any, discrete: bool, normalizer: ObservationNormalizer | None,
+              dict_space: gymnasium.spaces.Dict | None = None):
+    """The model's own decision on the observation the monitor reads (a dict one flattened: it
+    gets the dict back, as the env gave it)."""
     def act(obs: np.ndarray) -> int | np.ndarray:
+        if dict_space is not None:
+            obs = gymnasium.spaces.unflatten(dict_space, np.asarray(obs))
         action, _ = model.predict(obs if normalizer is None else normalizer(obs), deterministic=True)
         return int(action) if discrete else np.asarray(action)
     return act
+
+
+def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
+    """``space`` when it is a dict of vectors (an SB3 ``MultiInputPolicy``'s, which concatenates them
+    flattened); ``None`` for an array space.
+
+    Raises:
+        ConfigError: any other space (images or nested spaces inside a dict, a tuple, text).
+    """
+    from stable_baselines3.common.preprocessing import is_image_space
+
+    if isinstance(space, gymnasium.spaces.Box):
+        return None
+    if isinstance(space, gymnasium.spaces.Dict) and all(
+            isinstance(sub, gymnasium.spaces.Box) and not is_image_space(sub, check_channels=False)
+            for sub in space.spaces.values()):
+        return space
+    raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
+                      "Box: a vector, or stacked image frames) or a dict of vectors: wrap the env in "
+                      "gymnasium.wrappers.FlattenObservation, and train the model on that, to watch it")
 
 
 def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_samples: int = 20,
@@ -255,8 +280,9 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     the samples see normalised observations; the learned detectors and the logs the env's own.
 
     Raises:
-        ConfigError: no models, spaces that do not match the env, observations that are not an
-            array (a Dict space), ``mean`` without an ensemble, fixed masks without one DQN or
+        ConfigError: no models, spaces that do not match the env, observations that are neither
+            an array nor a dict of vectors (the agent reads those flattened: ``Agent.view``; the
+            policy gets them as dicts), ``mean`` without an ensemble, fixed masks without one DQN or
             DDPG/TD3 model with dropout or DropConnect layers, or statistics of another shape
             than the observations (or different ones for different models).
     """
@@ -275,11 +301,11 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     for model, file in zip(models, files):
         _check_spaces(model, Path(file["path"]), env, env_id)
     env.close()
-    if not isinstance(env.observation_space, gymnasium.spaces.Box):
-        raise ConfigError(f"{env_id}'s observations are {env.observation_space}; oodmon's detectors read array "
-                          "observations (a gymnasium Box: a vector, or stacked image frames): wrap the env in "
-                          "gymnasium.wrappers.FlattenObservation, and train the model on that, to watch it")
+    dict_space = _dict_space(env.observation_space, env_id)
     normalizer = _normalizer_of(vec_normalize, models)
+    if normalizer is not None and dict_space is not None:
+        raise ConfigError(f"{env_id}'s observations are dicts, and oodmon reads VecNormalize statistics of array "
+                          "observations only")
     if normalizer is not None and normalizer.shape is not None \
             and normalizer.shape not in (env.observation_space.shape, models[0].observation_space.shape):
         raise ConfigError(f"the VecNormalize statistics{' in ' + normalizer.path if normalizer.path else ''} are of "
@@ -323,4 +349,5 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         "policy_hash": "sha256:" + combined,
     } | ({} if normalizer is None else {"vec_normalize": normalizer.describe()})
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
-    return Agent(estimator, metadata, None, None if mean else _deployed(models[0], discrete, normalizer))
+    return Agent(estimator, metadata, None, None if mean else _deployed(models[0], discrete, normalizer, dict_space),
+                 dict_space=dict_space)

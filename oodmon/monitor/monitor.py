@@ -334,10 +334,13 @@ class Monitor:
 
         ``action``: the action actually deployed at ``obs``, when it is not the monitored
         policy's own (a policy the monitor only watches, a fallback after an alarm); the
-        detectors that model transitions use it.
+        detectors that model transitions use it. A dict observation (an env of an SB3
+        ``MultiInputPolicy``) is read flattened, as the agent reads it (:meth:`Agent.view`).
         """
         if not self._in_episode:
             raise ConfigError("Monitor.step before begin_episode: start an episode first (or use run_episode)")
+        if self.agent is not None:
+            obs = self.agent.view(obs)
         estimate = self.estimator.estimate(obs) if self.estimator is not None else None
         if action is None:
             if self._act is not None:  # a plain policy, or an agent whose samples do not decide
@@ -464,6 +467,8 @@ def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
     """
     _check_one_env(env)
     own = agent.make_env()
+    if agent.dict_space is not None and isinstance(env.observation_space, gymnasium.spaces.Dict):
+        env = gymnasium.wrappers.FlattenObservation(env)  # its spaces as the agent reads them (nothing stepped)
     try:
         what = space_mismatch(own, env)
     finally:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import gymnasium
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
@@ -62,9 +63,13 @@ class MonitorCallback(BaseCallback):
 
     def _raw(self, observations: np.ndarray) -> np.ndarray:
         """The first env's observation as the env gave it: before the model's VecNormalize, if any
-        (which holds the raw ones of the observations it last returned)."""
+        (which holds the raw ones of the observations it last returned); a dict one flattened, as
+        the monitor's agent reads it (``Agent.view``)."""
         normalize = self.model.get_vec_normalize_env()
-        return (observations if normalize is None else normalize.get_original_obs())[0]
+        raw = observations if normalize is None else normalize.get_original_obs()
+        if isinstance(raw, dict):
+            return gymnasium.spaces.flatten(self.model.observation_space, {key: value[0] for key, value in raw.items()})
+        return raw[0]
 
     def _on_training_start(self) -> None:
         self.monitor.open()

@@ -18,7 +18,7 @@ from stable_baselines3 import DQN, TD3
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from oodmon.agents.sb3 import load_sb3, sb3_algorithm
+from oodmon.agents.sb3 import load_sb3, sb3_agent, sb3_algorithm
 from oodmon.cli import main
 from oodmon.errors import ConfigError
 from oodmon.monitor import Monitor
@@ -123,14 +123,91 @@ def test_a_td3_on_pendulum_is_watched_by_the_dynamics_detector(tmp_path, capsys)
 
 
 class _DictCartPole(gymnasium.ObservationWrapper):
-    """CartPole whose observations are ``{"state": the usual vector}`` (a Dict space)."""
+    """CartPole whose observations are ``{"state": the usual vector, "mode": 0}`` (a Dict space with
+    a discrete key, which oodmon's detectors cannot read)."""
 
     def __init__(self) -> None:
         super().__init__(gymnasium.make("CartPole-v1"))
-        self.observation_space = gymnasium.spaces.Dict({"state": self.env.observation_space})
+        self.observation_space = gymnasium.spaces.Dict({"state": self.env.observation_space,
+                                                        "mode": gymnasium.spaces.Discrete(3)})
 
     def observation(self, obs):
-        return {"state": obs}
+        return {"state": obs, "mode": 0}
+
+
+class _Halves(gymnasium.ObservationWrapper):
+    """An env's vector observation as a dict of its two halves, named so that their keys sort the
+    other way round ("b" the first numbers, "a" the rest): the policy's flattened dict is not the
+    vector, and only the order SB3's CombinedExtractor concatenates in reads it right."""
+
+    def __init__(self, env: gymnasium.Env | None = None, task_id: str = "CartPole-v1") -> None:
+        super().__init__(env if env is not None else gymnasium.make(task_id))
+        box, self.cut = self.env.observation_space, (self.env.observation_space.shape[0] + 1) // 2
+        self.observation_space = gymnasium.spaces.Dict({
+            "b": gymnasium.spaces.Box(box.low[:self.cut], box.high[:self.cut], dtype=box.dtype),
+            "a": gymnasium.spaces.Box(box.low[self.cut:], box.high[self.cut:], dtype=box.dtype)})
+
+    def observation(self, obs):
+        return {"b": obs[:self.cut], "a": obs[self.cut:]}
+
+
+for _task in ("CartPole-v1", "Pendulum-v1"):
+    if f"Halves{_task}" not in gymnasium.registry:
+        gymnasium.register(f"Halves{_task}", entry_point=_Halves, kwargs={"task_id": _task},
+                           max_episode_steps=gymnasium.spec(_task).max_episode_steps)
+
+
+def test_an_ensemble_of_multi_input_dqns_reads_dict_observations_as_their_networks_do():
+    """Two MultiInputPolicy DQNs on dict observations: the ensemble's samples are each model's own
+    Q-values at the dict, the deployed action is the first model's predict() of the dict."""
+    env = gymnasium.make("HalvesCartPole-v1")
+    models = [DQN("MultiInputPolicy", env, seed=k, policy_kwargs={"net_arch": [16]}) for k in range(2)]
+    agent = sb3_agent(models, "HalvesCartPole-v1")
+    assert agent.dict_space == env.observation_space and agent.estimator.obs_shape == (4,)
+    obs, _ = env.reset(seed=0)
+    for _ in range(12):
+        assert isinstance(obs, dict)
+        flat = agent.view(obs)
+        np.testing.assert_array_equal(flat, np.r_[obs["a"], obs["b"]])  # the keys' order, not the vector's
+        samples = agent.estimate(flat).samples[:, 0]
+        with torch.no_grad():
+            theirs = [m.q_net(m.policy.obs_to_tensor(obs)[0])[0].numpy() for m in models]
+        np.testing.assert_allclose(samples, theirs, rtol=1e-5, atol=1e-6)
+        assert agent.act(flat) == int(models[0].predict(obs, deterministic=True)[0])
+        obs, _, terminated, truncated, _ = env.step(agent.act(flat))
+        if terminated or truncated:
+            obs, _ = env.reset()
+
+
+def test_a_multi_input_td3_on_dict_observations_is_watched_and_alarms_when_the_pendulum_gets_heavier():
+    """oodmon.watch of a TD3 trained on dict observations, around the user's dict env: the user's
+    loop gets dicts, the monitor reads them flattened, the log keeps them flattened, and a heavier
+    pendulum (m=5 from step 50) alarms in each episode, never before step 50."""
+    import oodmon
+    from oodmon.monitor import MemorySink
+
+    model = TD3("MultiInputPolicy", gymnasium.make("HalvesPendulum-v1"), seed=0, learning_starts=200,
+                policy_kwargs={"net_arch": [32, 32]})
+    model.learn(400)
+    sink = MemorySink()
+    shifted = _Halves(gymnasium.make("oodmon/Pendulum-v1", m=5.0, onset_step=50))
+    env = oodmon.watch(model, "HalvesPendulum-v1", env=shifted, episodes=22, far=0.1, fit_episodes=20, sinks=[sink])
+    assert env.monitor.detectors.names == ["dynamics", "combined"]  # a plain policy: no spread, no features
+    first_alarms, starts = [], []
+    for seed in range(3):
+        obs, _ = env.reset(seed=seed)
+        starts.append(obs)
+        alarms = []
+        for t in range(200):
+            assert isinstance(obs, dict) and set(obs) == {"a", "b"}
+            obs, _, terminated, truncated, info = env.step(model.predict(obs, deterministic=True)[0])
+            if info["oodmon"]["alarm"]:
+                alarms.append(t)
+            if terminated or truncated:
+                break
+        first_alarms.append(alarms[0] if alarms else None)
+    assert all(t is not None and 50 <= t <= 70 for t in first_alarms), first_alarms
+    assert sink.steps[0].observation == pytest.approx([*starts[0]["a"], *starts[0]["b"]])  # flattened, keys in order
 
 
 class _Pictures(gymnasium.Env):
@@ -207,16 +284,13 @@ def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
     assert "--sb3 needs --env" in capsys.readouterr().err
     assert main(["run", "--sb3", str(tmp_path / "dqn.zip"), "--env", "CartPole-v1", "--variant", "pendulum:m=5.0"]) == 2
     assert "'pendulum:m=5.0' is not a cartpole variant" in capsys.readouterr().err
-    # An env of Dict observations: said at once (it failed inside the fitting: "a combined detector needs
-    # distinct member detectors other than itself; got []").
-    from oodmon.agents.sb3 import sb3_agent
-
+    # An env of Dict observations with a key that is no vector: said at once (it failed inside the
+    # fitting: "a combined detector needs distinct member detectors other than itself; got []").
     if "DictCartPoleForTests-v0" not in gymnasium.registry:
         gymnasium.register("DictCartPoleForTests-v0", entry_point=_DictCartPole)
-    from stable_baselines3 import PPO
-
     dict_model = PPO("MultiInputPolicy", gymnasium.make("DictCartPoleForTests-v0"), seed=0, n_steps=32, batch_size=32)
-    with pytest.raises(ConfigError, match=r"DictCartPoleForTests-v0's observations are Dict\(.*FlattenObservation"):
+    with pytest.raises(ConfigError, match=r"DictCartPoleForTests-v0's observations are Dict\(.*or a dict of vectors: "
+                                          r"wrap the env in gymnasium.wrappers.FlattenObservation"):
         sb3_agent([dict_model], "DictCartPoleForTests-v0")
     DQN("MlpPolicy", gymnasium.make("Acrobot-v1"), seed=0).save(tmp_path / "acrobot.zip")  # an env without variants
     assert main(["run", "--sb3", str(tmp_path / "acrobot.zip"), "--env", "Acrobot-v1", "--variant", "cartpole:length=2.0"]) == 2
@@ -328,24 +402,41 @@ def test_the_callback_scores_the_observation_each_action_was_taken_on(algorithm,
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from oodmon.monitor import MemorySink
-    from oodmon.monitor.detectors import fit_detectors
-    from oodmon.monitor.sb3_callback import MonitorCallback
-
     acted: list = []
     venv = DummyVecEnv([lambda: _ActedOn(gymnasium.make("CartPole-v1"), acted)])
     venv = VecNormalize(venv) if normalized else venv
     model = (DQN("MlpPolicy", venv, seed=0, learning_starts=50, policy_kwargs={"net_arch": [16]}) if algorithm == "DQN"
              else PPO("MlpPolicy", venv, seed=0, n_steps=100, batch_size=50, policy_kwargs={"net_arch": [16]}))
-    env = gymnasium.make("CartPole-v1")
+    steps = _learn_monitored(model, "CartPole-v1", 300)
+    logged = np.array([step.observation for step in steps])
+    assert len(logged) == len(acted) >= 300
+    assert np.allclose(logged, np.array(acted), atol=1e-6)
+
+
+def test_the_callback_scores_a_dict_observation_flattened_in_its_keys_order():
+    acted: list = []
+    venv = DummyVecEnv([lambda: _ActedOn(gymnasium.make("HalvesCartPole-v1"), acted)])
+    model = DQN("MultiInputPolicy", venv, seed=0, learning_starts=50, policy_kwargs={"net_arch": [16]})
+    steps = _learn_monitored(model, "HalvesCartPole-v1", 200)
+    logged = np.array([step.observation for step in steps])
+    assert len(logged) == len(acted) >= 200 and np.isfinite([s.score for s in steps]).all()
+    assert np.allclose(logged, [np.r_[obs["a"], obs["b"]] for obs in acted], atol=1e-6)
+
+
+def _learn_monitored(model, env_id: str, steps: int) -> list:
+    """``model.learn(steps)`` with a MonitorCallback whose monitor's dynamics detector was fitted on
+    3 random-policy episodes of ``env_id`` (flattened); the steps it logged."""
+    from oodmon.monitor import MemorySink
+    from oodmon.monitor.detectors import fit_detectors
+    from oodmon.monitor.sb3_callback import MonitorCallback
+
+    env = gymnasium.wrappers.FlattenObservation(gymnasium.make(env_id))
     env.action_space.seed(0)
     detectors = fit_detectors(lambda obs: int(env.action_space.sample()), env, detectors=["dynamics"], episodes=3)
     sink = MemorySink()
     with Monitor(None, 2.0, detectors=detectors, detector="dynamics", sinks=[sink]) as monitor:
-        model.learn(300, callback=MonitorCallback(monitor))
-    logged = np.array([step.observation for step in sink.steps])
-    assert len(logged) == len(acted) >= 300
-    assert np.allclose(logged, np.array(acted), atol=1e-6)
+        model.learn(steps, callback=MonitorCallback(monitor))
+    return sink.steps
 
 
 def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monkeypatch, capsys):
