@@ -152,6 +152,7 @@ class Monitor:
         else:
             raise ConfigError(f"the monitor watches an oodmon Agent, an uncertainty estimator, a callable obs -> "
                               f"action, or None (you pass each action to step()); got {type(policy).__name__}")
+        self._dicts = self.agent is not None and self.agent.dict_space is not None  # see step()
         self.policy_hash = policy_hash(self.agent)
         if isinstance(threshold, Threshold):
             if score is not None and score != threshold.score:
@@ -339,7 +340,7 @@ class Monitor:
         """
         if not self._in_episode:
             raise ConfigError("Monitor.step before begin_episode: start an episode first (or use run_episode)")
-        if self.agent is not None:
+        if self._dicts:
             obs = self.agent.view(obs)
         estimate = self.estimator.estimate(obs) if self.estimator is not None else None
         if action is None:
