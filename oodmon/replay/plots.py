@@ -18,7 +18,7 @@ from sklearn.metrics import roc_curve
 from oodmon.envs.grid import parse_variant
 from oodmon.outputs import safe_filename, save_figure
 from oodmon.replay.metrics import VariantMetrics, alarm_events, is_id_variant, rankable
-from oodmon.replay.reader import RunLog
+from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_plots"]
 
@@ -132,7 +132,7 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
 WIDE_RANGE = 30.0
 
 
-def score_scale(episodes, threshold: float) -> float | None:
+def score_scale(episodes: Sequence[EpisodeLog], threshold: float) -> float | None:
     """The linear range of a symlog score axis for these episodes, or ``None`` for a linear one.
 
     A learned detector's shifted scores can be thousands of times its ID ones (the demo's dynamics
