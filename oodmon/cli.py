@@ -327,7 +327,8 @@ def _parser() -> argparse.ArgumentParser:
     formats.add_argument("--json", action="store_true", help="print JSON (key auroc for the paper's metric)")
     formats.add_argument("--csv", action="store_true", help="print CSV")
     formats.add_argument("--markdown", action="store_true", help="print a Markdown table")
-    replay.add_argument("--plots", metavar="DIR", help="also write PNG plots (ROC, traces, AUROC vs shift) to DIR")
+    replay.add_argument("--plots", metavar="DIR", help="also write PNG plots (ROC, traces, AUROC vs shift; with --monitor "
+                                                      "each agent's alarm timeline) to DIR")
     replay.add_argument("--detector", help="the per-step metrics of this detector only (default: every detector "
                                            "the logs hold, one row each)")
     replay.add_argument("--monitor", action="store_true",
@@ -783,6 +784,11 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
         raise ConfigError("--monitor counts the alarms, and these logs ran without a threshold, so raised none: "
                           "run with `oodmon run --threshold FILE` (from `oodmon calibrate`)")
     metrics = compute_monitor_metrics(logs)
+    if args.plots:
+        from oodmon.replay.plots import write_monitor_plots
+
+        written = write_monitor_plots(logs, args.plots)
+        print(f"wrote {len(written)} plot(s) to {args.plots}", file=sys.stderr)
     if args.json:
         print(json.dumps([m.to_dict() for m in [*metrics, *monitor_summary(metrics)]], indent=1))
     elif args.markdown:

@@ -23,9 +23,10 @@ from oodmon.envs.grid import parse_variant
 from oodmon.errors import OodmonError
 from oodmon.replay.reader import EpisodeLog, RunLog
 
-__all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "MonitorMetrics", "VariantMetrics", "alarm_events",
-           "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "detectors_in",
-           "failed_episodes", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable"]
+__all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
+           "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
+           "detectors_in", "failed_episodes", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable",
+           "shifted_alarms"]
 
 
 @dataclass(frozen=True)
@@ -124,12 +125,55 @@ def _thresholded(pairs: Sequence[tuple[RunLog, EpisodeLog]]) -> bool:
     return all(log.has_threshold for log, _ in pairs)
 
 
-def _onset_alarms(episode: EpisodeLog) -> tuple[bool, int | None]:
-    """Whether ``episode``'s first alarm came before its onset (an early, false alarm), and the
-    step of its first alarm at or after the onset (``None``: none)."""
+def _onset_alarms(episode: EpisodeLog) -> tuple[int | None, int | None]:
+    """The step of ``episode``'s first alarm if it came before its onset (an early, false alarm),
+    and the step of its first alarm at or after the onset (``None``: none)."""
     events = alarm_events(episode.alarm)
     after = events[events >= episode.onset]
-    return bool(len(events) and events[0] < episode.onset), int(after[0]) if len(after) else None
+    return (int(events[0]) if len(events) and events[0] < episode.onset else None), int(after[0]) if len(after) else None
+
+
+@dataclass(frozen=True)
+class EpisodeAlarms:
+    """One shifted episode's alarm against its shift and failure, in steps since its onset: the
+    first alarm before the onset (negative; ``None``: none), the first at or after it, the failure
+    (:func:`failure_step`) and the episode's last step. What the monitor's figures count and
+    :func:`~oodmon.replay.plots.plot_alarm_timeline` draws."""
+
+    early: int | None
+    first: int | None
+    failure: int | None
+    end: int
+
+    @classmethod
+    def of(cls, episode: EpisodeLog, task: str) -> EpisodeAlarms:
+        """Example:
+            >>> from oodmon.replay.reader import EpisodeLog
+            >>> alarm = np.zeros(9, bool); alarm[[2, 6]] = True
+            >>> e = EpisodeLog(episode=0, env_id="", variant="cartpole:length=2.0", onset=5, seed=0, total_return=9.0,
+            ...                length=9, alarms=2, first_alarm_step=2, terminated=True, scores=np.zeros(9),
+            ...                shifted=np.arange(9) >= 5, alarm=alarm)
+            >>> EpisodeAlarms.of(e, "cartpole")
+            EpisodeAlarms(early=-3, first=1, failure=3, end=3)
+        """
+        early, first = _onset_alarms(episode)
+        failure = failure_step(episode, task)
+        onset = episode.onset
+        return cls(None if early is None else early - onset, None if first is None else first - onset,
+                   None if failure is None else failure - onset, episode.length - 1 - onset)
+
+    @property
+    def before_failure(self) -> bool:
+        """Alarmed at or after the onset and before the failure (a failed episode)."""
+        return self.failure is not None and self.first is not None and self.first < self.failure
+
+
+def shifted_alarms(logs: Iterable[RunLog]) -> dict[tuple[str, str, str], list[EpisodeAlarms]]:
+    """:class:`EpisodeAlarms` of every shifted episode, by (task, method, variant), of the
+    variants whose runs all had a threshold (the others raised no alarms to draw)."""
+    return {key: [EpisodeAlarms.of(e, key[0]) for _, e in pairs]
+            for key, pairs in sorted(_episodes_by_variant(logs).items())
+            if not is_id_variant(key[2]) and _thresholded(pairs)}
 
 
 def is_id_variant(variant: str) -> bool:
@@ -198,7 +242,7 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
         if alarms:
             early, firsts = zip(*(_onset_alarms(e) for e in episodes))
             delays = [first - e.onset for first, e in zip(firsts, episodes) if first is not None]
-            early_rate, detection_rate = float(np.mean(early)), len(delays) / len(episodes)
+            early_rate, detection_rate = float(np.mean([e is not None for e in early])), len(delays) / len(episodes)
             if delays:
                 delay_mean, delay_median = float(np.mean(delays)), float(np.median(delays))
         results.append(VariantMetrics(
@@ -346,28 +390,21 @@ def compute_monitor_metrics(logs: Iterable[RunLog]) -> list[MonitorMetrics]:
     from oodmon.monitor.threshold import clopper_pearson
 
     results = []
+    logs = list(logs)
+    shifted = shifted_alarms(logs)
     for (task, method, variant), pairs in sorted(_episodes_by_variant(logs).items()):
         if not _thresholded(pairs):
             continue
-        episodes = [e for _, e in pairs]
         if is_id_variant(variant):
-            alarmed = sum(len(alarm_events(e.alarm)) > 0 for e in episodes)
-            low, high = clopper_pearson(alarmed, len(episodes))
-            results.append(MonitorMetrics(task, method, variant, len(episodes), false_alarms=alarmed,
+            alarmed = sum(len(alarm_events(e.alarm)) > 0 for _, e in pairs)
+            low, high = clopper_pearson(alarmed, len(pairs))
+            results.append(MonitorMetrics(task, method, variant, len(pairs), false_alarms=alarmed,
                                           far_low=low, far_high=high))
             continue
-        early = failed = before = 0
-        delays = []
-        for e in episodes:
-            was_early, first = _onset_alarms(e)
-            early += was_early
-            if first is not None:
-                delays.append(first - e.onset)
-            failure = failure_step(e, task)
-            if failure is not None:
-                failed += 1
-                before += first is not None and first < failure
-        results.append(monitor_row(task, method, variant, len(episodes), early, failed, before, delays))
+        episodes = shifted[(task, method, variant)]
+        results.append(monitor_row(task, method, variant, len(episodes), sum(e.early is not None for e in episodes),
+                                   sum(e.failure is not None for e in episodes), sum(e.before_failure for e in episodes),
+                                   [e.first for e in episodes if e.first is not None]))
     return results
 
 

@@ -4,6 +4,8 @@
 - :func:`plot_trace`: the paper's Figures 4 and 5: one ID episode beside one shifted episode,
   the score over the steps with the threshold, the shifted steps shaded, alarms marked.
 - :func:`plot_auroc_vs_shift`: per method, AUROC against the parameter's value (or severity).
+- :func:`plot_alarm_timeline` (``replay --monitor --plots``): per agent and shifted variant, each
+  episode from its onset to its end, its first alarm and its failure: alarmed before the failure?
 """
 
 from __future__ import annotations
@@ -17,10 +19,10 @@ from sklearn.metrics import roc_curve
 
 from oodmon.envs.grid import parse_variant
 from oodmon.outputs import safe_filename, save_figure
-from oodmon.replay.metrics import VariantMetrics, alarm_events, is_id_variant, rankable
+from oodmon.replay.metrics import EpisodeAlarms, VariantMetrics, alarm_events, is_id_variant, rankable, shifted_alarms
 from oodmon.replay.reader import EpisodeLog, RunLog
 
-__all__ = ["plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_plots"]
+__all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_monitor_plots", "write_plots"]
 
 
 def _pyplot():
@@ -201,4 +203,72 @@ def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folde
             written.append(plot_trace(logs, method, variant, folder / f"trace_{safe_filename(method)}_{safe_filename(variant)}.png"))
     for task in sorted({m.task for m in metrics}):
         written.append(plot_auroc_vs_shift(metrics, task, folder / f"auroc_vs_shift_{task}.png"))
+    return [p for p in written if p is not None]
+
+
+#: Episodes drawn per variant by :func:`plot_alarm_timeline` (the first ones; its title says of how many).
+TIMELINE_EPISODES = 60
+
+
+def plot_alarm_timeline(variants: dict[str, Sequence[EpisodeAlarms]], title: str, path: str | Path) -> Path | None:
+    """The monitor's benchmark as a picture: a panel per shifted variant, a line per episode from
+    its onset (x = 0) to its end, its first alarm at or after the onset (a dot: green before the
+    failure or in an episode that did not fail, red at or after it), an alarm before the onset (an
+    orange triangle, a false alarm) and the failure (a black cross). ``variants``: each variant's
+    :class:`~oodmon.replay.metrics.EpisodeAlarms` (:func:`~oodmon.replay.metrics.shifted_alarms`);
+    at most :data:`TIMELINE_EPISODES` of each are drawn. ``None`` when there is no episode."""
+    variants = {variant: list(episodes) for variant, episodes in variants.items() if episodes}
+    if not variants:
+        return None
+    plt = _pyplot()
+    heights = [1.0 + 0.05 * min(len(e), TIMELINE_EPISODES) for e in variants.values()]
+    fig, axes = plt.subplots(len(variants), 1, figsize=(9, 0.6 + sum(heights)), dpi=110, squeeze=False,
+                             sharex=True, gridspec_kw={"height_ratios": heights})
+    styles = {"alarm before the failure": dict(marker="o", color="tab:green", s=14),
+              "alarm at or after the failure": dict(marker="o", color="tab:red", s=14),
+              "alarm before the onset": dict(marker="<", color="tab:orange", s=16),
+              "failure": dict(marker="x", color="black", s=16)}
+    for ax, (variant, episodes) in zip(axes[:, 0], variants.items()):
+        shown = episodes[:TIMELINE_EPISODES]
+        rows = np.arange(len(shown))
+        starts = [min(0, e.early or 0) for e in shown]
+        ax.hlines(rows, starts, [e.end for e in shown], color="lightgrey", linewidth=1)
+        points = {name: [] for name in styles}
+        for row, e in zip(rows, shown):
+            if e.first is not None:
+                late = e.failure is not None and e.first >= e.failure
+                points["alarm at or after the failure" if late else "alarm before the failure"].append((e.first, row))
+            if e.early is not None:
+                points["alarm before the onset"].append((e.early, row))
+            if e.failure is not None:
+                points["failure"].append((e.failure, row))
+        for name, style in styles.items():
+            if points[name]:
+                ax.scatter(*zip(*points[name]), label=name, zorder=3, **style)
+        ax.axvline(0, color="black", linewidth=0.8, linestyle="--")
+        failed = sum(e.failure is not None for e in episodes)
+        alarmed = sum(e.first is not None for e in episodes)
+        delays = [e.first for e in episodes if e.first is not None]
+        more = f" (the first {len(shown)} drawn)" if len(shown) < len(episodes) else ""
+        ax.set_title(f"{variant}: {alarmed} of {len(episodes)} episodes alarmed{more}; "
+                     f"{sum(e.before_failure for e in episodes)} of {failed} failures alarmed before them"
+                     + (f"; delay median {np.median(delays):g}" if delays else ""), fontsize=8)
+        ax.set_yticks([])
+        ax.set_ylim(-1, len(shown))
+        ax.invert_yaxis()
+    handles = {label: handle for ax in axes[:, 0] for handle, label in zip(*ax.get_legend_handles_labels())}
+    axes[0, 0].legend(handles.values(), handles.keys(), loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
+    axes[-1, 0].set_xlabel("steps since the shift's onset")
+    fig.suptitle(title, fontsize=9)
+    return save_figure(fig, path)
+
+
+def write_monitor_plots(logs: Sequence[RunLog], folder: str | Path) -> list[Path]:
+    """``replay --monitor --plots``: an alarm timeline per agent (task and method), into ``folder``."""
+    by_agent: dict[tuple[str, str], dict[str, list[EpisodeAlarms]]] = defaultdict(dict)
+    for (task, method, variant), episodes in shifted_alarms(logs).items():
+        by_agent[(task, method)][variant] = episodes
+    written = [plot_alarm_timeline(variants, f"{task}/{method}: the first alarm of each shifted episode",
+                                   Path(folder) / f"alarms_{safe_filename(task)}_{safe_filename(method)}.png")
+               for (task, method), variants in sorted(by_agent.items())]
     return [p for p in written if p is not None]

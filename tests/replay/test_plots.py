@@ -131,3 +131,36 @@ def test_a_trace_whose_shifted_scores_dwarf_the_id_ones_draws_them_on_a_symlog_a
         assert len(axes) == 2 and {ax.get_yscale() for ax in axes} == {scale}
     low, high = drawn[0].axes[0].get_ylim()
     assert low < min(calm[:300]) < -1.47 < 27_000 <= high  # the ID trace, the threshold and the peak all drawn
+
+
+def test_replay_monitor_plots_write_each_agents_alarm_timeline(tmp_path):
+    # --plots was accepted with --monitor and wrote nothing.
+    result = run_cli("replay", str(DATA), "--monitor", "--plots", str(tmp_path))
+    assert result.returncode == 0 and "wrote 1 plot(s)" in result.stderr
+    image = cv2.imread(str(tmp_path / "alarms_cartpole_ensemble.png"))
+    assert image is not None and image.shape[0] > 150 and image.shape[1] > 800
+
+
+def test_the_alarm_timeline_marks_each_episodes_first_alarm_early_alarm_and_failure(tmp_path, monkeypatch):
+    from oodmon.replay import plots
+    from oodmon.replay.metrics import EpisodeAlarms
+
+    drawn = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
+    episodes = [EpisodeAlarms(early=-3, first=1, failure=5, end=5),  # a false alarm, then in time
+                EpisodeAlarms(early=None, first=None, failure=4, end=4),  # never alarmed
+                EpisodeAlarms(early=None, first=6, failure=4, end=9),  # alarmed after it failed (Pendulum goes on)
+                EpisodeAlarms(early=None, first=2, failure=None, end=30)]  # alarmed, coped
+    assert plots.plot_alarm_timeline({"cartpole:length=2.0": episodes}, "t", tmp_path / "a.png") is not None
+    ax = drawn[0].axes[0]
+    points = {c.get_label(): c.get_offsets().tolist() for c in ax.collections if c.get_label() in (
+        "alarm before the failure", "alarm at or after the failure", "alarm before the onset", "failure")}
+    assert points == {"alarm before the failure": [[1, 0], [2, 3]], "alarm at or after the failure": [[6, 2]],
+                      "alarm before the onset": [[-3, 0]], "failure": [[5, 0], [4, 1], [4, 2]]}
+    assert ax.get_title().startswith("cartpole:length=2.0: 3 of 4 episodes alarmed; 1 of 3 failures alarmed before them")
+    many = [EpisodeAlarms(None, 1, 9, 9)] * 70
+    plots.plot_alarm_timeline({"cartpole:masscart=9.0": many}, "t", tmp_path / "b.png")
+    ax = drawn[1].axes[0]
+    assert "70 episodes alarmed (the first 60 drawn)" in ax.get_title()
+    assert len(next(c for c in ax.collections if c.get_label() == "failure").get_offsets()) == 60
+    assert plots.plot_alarm_timeline({"cartpole:length=2.0": []}, "t", tmp_path / "c.png") is None
