@@ -570,6 +570,9 @@ def _sb3_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--sb3 models trained inside SB3's VecNormalize: the statistics file it saved "
                              "(vec_normalize.save(), e.g. vecnormalize.pkl; read without running code from it), so that they see "
                              "observations normalised as in training; 'none' if it did not normalise observations")
+    parser.add_argument("--frame-stack", type=int, metavar="N",
+                        help="--sb3 models trained inside SB3's VecFrameStack(N): their observations (and the detectors' "
+                             "and the logs') are the env's stacked N deep as VecFrameStack stacks them")
 
 
 def _calibrate(args: argparse.Namespace) -> int:
@@ -668,7 +671,7 @@ def _run(args: argparse.Namespace) -> int:
             raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant" if args.task in TASKS else
                               f"variant {variant.spec!r} is not a variant of {args.task}: oodmon has variants of "
                               f"{', '.join(sorted(TASK_OF_ENV))} only; leave out --variant to run {args.task} itself")
-        env, label = variant.make(onset_step=args.onset), variant.spec
+        env, label = agent.wrap(variant.make(onset_step=args.onset)), variant.spec
     elif agent.env_id is not None:  # your own model in its own env, as you deploy it
         env, label = agent.make_env(), agent.env_id
     else:
@@ -837,6 +840,9 @@ def _bench(args: argparse.Namespace) -> int:
         if method not in METHODS:
             raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
     samples = True  # the agents have samples of their own to spread
+    if args.frame_stack is not None:
+        raise ConfigError("bench does not yet stack observations for --sb3 models trained inside VecFrameStack: "
+                          "calibrate, validate, run and evaluate them with --frame-stack")
     if args.sb3:
         samples = _sb3_bench_task(args)
         methods = ("sb3",)
@@ -974,13 +980,14 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
         if getattr(args, "model", None) or getattr(args, "method", None):
             raise ConfigError("--sb3 is instead of --model and --method: give one of them")
         agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed, masks=getattr(args, "masks", None),
-                         vec_normalize=args.vec_normalize)
+                         vec_normalize=args.vec_normalize, frame_stack=args.frame_stack)
         if args.task and args.task != agent.task:
             raise ConfigError(f"--task {args.task} contradicts --env {args.env} (task {agent.task})")
         args.task = agent.task
         return agent
-    if getattr(args, "env", None) or getattr(args, "mean", False) or getattr(args, "vec_normalize", None):
-        raise ConfigError("--env, --mean and --vec-normalize go with --sb3 (your own SB3 models)")
+    if getattr(args, "env", None) or getattr(args, "mean", False) or getattr(args, "vec_normalize", None) \
+            or getattr(args, "frame_stack", None) is not None:
+        raise ConfigError("--env, --mean, --frame-stack and --vec-normalize go with --sb3 (your own SB3 models)")
     if not args.task:
         raise ConfigError("give --task with --method or --model (or --sb3 with --env for your own SB3 models)")
     masks = getattr(args, "masks", None)
@@ -1005,7 +1012,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     variants = select_variants(args.task, args.variants)
     with _progress() as report:
         id_result, results = evaluate_variants(agent.act, args.task, variants, args.episodes,
-                                               fail_fraction=args.fail_fraction, on_progress=report)
+                                               fail_fraction=args.fail_fraction, on_progress=report, wrap=agent.wrap)
     rows = [{"variant": r.spec, "return_mean": round(r.mean, 2), "return_std": round(float(r.returns.std()), 2),
              "fails": r.fails} for r in [id_result, *results]]
     if args.json:

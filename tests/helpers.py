@@ -8,6 +8,9 @@ import subprocess
 import sys
 import warnings
 
+import gymnasium
+import numpy as np
+
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
     """``oodmon ARGS`` run in this process, its output captured as a subprocess's would be.
@@ -41,3 +44,23 @@ def load_script(name: str):
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
     return root, script
+
+
+class NoisePictures(gymnasium.Env):
+    """RGB pictures of noise (channels last, ``shape``), ``steps`` steps an episode, two actions:
+    an env of image observations for the tests of users' own models."""
+
+    action_space = gymnasium.spaces.Discrete(2)
+
+    def __init__(self, shape: tuple[int, int, int] = (40, 40, 3), steps: int = 30) -> None:
+        self.shape, self.steps = shape, steps
+        self.observation_space = gymnasium.spaces.Box(0, 255, shape, np.uint8)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return self.np_random.integers(0, 256, self.shape, dtype=np.uint8), {}
+
+    def step(self, action):
+        self.t += 1
+        return self.np_random.integers(0, 256, self.shape, dtype=np.uint8), 1.0, False, self.t >= self.steps, {}

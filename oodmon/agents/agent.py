@@ -38,6 +38,8 @@ class Agent:
         dict_space: the env's observation space when its observations are dicts (an SB3
             ``MultiInputPolicy``): the agent, the detectors and the logs see each one flattened,
             as :meth:`view` makes it (the policy gets the dict back, see :mod:`oodmon.agents.sb3`).
+        frame_stack: the model was trained inside SB3's ``VecFrameStack`` of this depth: it acts on
+            observations stacked as that stacks them, in the envs :meth:`wrap` makes so.
     """
 
     estimator: UncertaintyEstimator | None
@@ -45,6 +47,7 @@ class Agent:
     path: Path | None = None
     deploy: Callable[[np.ndarray], Any] | None = None
     dict_space: gymnasium.spaces.Dict | None = None
+    frame_stack: int | None = None
 
     @property
     def task(self) -> str:
@@ -81,16 +84,28 @@ class Agent:
             return gymnasium.spaces.flatten(self.dict_space, obs)
         return obs
 
+    def wrap(self, env: gymnasium.Env) -> gymnasium.Env:
+        """``env`` (the gymnasium env of the agent's env id, or an oodmon variant of it) giving the
+        observations the agent acts on: dict ones flattened (``FlattenObservation``, as :meth:`view`),
+        and stacked :attr:`frame_stack` deep as SB3's VecFrameStack stacks them
+        (:class:`~oodmon.agents.frame_stack.FrameStack`); ``env`` itself for any other agent."""
+        if self.dict_space is not None:
+            env = gymnasium.wrappers.FlattenObservation(env)
+        if self.frame_stack is not None:
+            from oodmon.agents.frame_stack import FrameStack
+
+            env = FrameStack(env, self.frame_stack)
+        return env
+
     def make_env(self, obs_noise: float = 0.0) -> gymnasium.Env:
         """The ID env this agent acts in: its task's oodmon env, or the gymnasium env id it was
-        loaded for (``gymnasium.make(env_id)``; sensor noise is oodmon's envs' option only). An env
-        of dict observations comes with them flattened (``FlattenObservation``, as :meth:`view`)."""
+        loaded for (``gymnasium.make(env_id)``; sensor noise is oodmon's envs' option only), with
+        the agent's observations (:meth:`wrap`)."""
         from oodmon.envs.grid import Variant
         from oodmon.envs.registration import task_of_env
 
         if self.env_id is not None and not obs_noise:
-            env = gymnasium.make(self.env_id)  # the user's own env, exactly as they deploy in it
-            return env if self.dict_space is None else gymnasium.wrappers.FlattenObservation(env)
+            return self.wrap(gymnasium.make(self.env_id))  # the user's own env, exactly as they deploy in it
         task = self.task if self.env_id is None else task_of_env(self.env_id)  # oodmon's env of that task
         if task is None:
             raise ConfigError(f"obs_noise is an option of oodmon's envs; {self.env_id} has no such option")

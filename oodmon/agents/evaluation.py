@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+import gymnasium
 import numpy as np
 
 from oodmon import seeds
@@ -37,9 +38,11 @@ def episode_returns(
     seed: int = 0,
     onset_step: int = 0,
     on_progress: Progress | None = None,
+    wrap: Callable[[gymnasium.Env], gymnasium.Env] | None = None,
 ) -> np.ndarray:
     """Returns of ``episodes`` episodes of ``policy`` in ``variant``, seeded ``seed``, ``seed+1``, ...
-    ``on_progress(f"{variant.spec} episodes", done, episodes)`` after each.
+    ``on_progress(f"{variant.spec} episodes", done, episodes)`` after each. ``wrap``: the env as
+    the policy observes it (``Agent.wrap``: a model trained inside VecFrameStack, say).
 
     Example:
         >>> from oodmon.envs.reference import cartpole_controller
@@ -47,6 +50,7 @@ def episode_returns(
         [500.0, 500.0]
     """
     env = variant.make(onset_step=onset_step)
+    env = env if wrap is None else wrap(env)
     returns = []
     try:
         for episode in range(episodes):
@@ -92,9 +96,11 @@ def evaluate_variants(
     seed: int = seeds.VARIANT_EVALUATION,
     fail_fraction: float = 0.5,
     on_progress: Progress | None = None,
+    wrap: Callable[[gymnasium.Env], gymnasium.Env] | None = None,
 ) -> tuple[VariantResult, list[VariantResult]]:
     """Evaluate ``policy`` in the ID env and in each variant; mark the variants where it fails.
-    ``on_progress("evaluation episodes", done, total)`` after each episode of all of them.
+    ``on_progress("evaluation episodes", done, total)`` after each episode of all of them;
+    ``wrap``: as :func:`episode_returns`'s.
 
     Returns:
         The ID result and one result per variant, in order.
@@ -107,7 +113,8 @@ def evaluate_variants(
         on_progress("evaluation episodes", done[0], total)
 
     def run(variant: Variant) -> np.ndarray:
-        return episode_returns(policy, variant, episodes, seed=seed, on_progress=count if on_progress else None)
+        return episode_returns(policy, variant, episodes, seed=seed, on_progress=count if on_progress else None,
+                               wrap=wrap)
 
     id_returns = run(Variant(task))
     line = RANDOM_RETURN[task] + fail_fraction * (float(np.mean(id_returns)) - RANDOM_RETURN[task])

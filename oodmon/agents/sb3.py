@@ -123,13 +123,38 @@ def _load_one(path: Path) -> tuple[Any, str]:
     raise ConfigError(f"stable-baselines3 could not load {path}: {'; '.join(errors)}")
 
 
-def _check_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str) -> None:
+def _check_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str, frame_stack: int | None = None) -> None:
     what = space_mismatch(env, model)
     if what == "observation_space" and _transposed_image(env.observation_space, model.observation_space):
         what = space_mismatch(env, model, spaces=("action_space",))  # SB3's own (H, W, C) -> (C, H, W)
     if what is not None:
-        raise ConfigError(f"{path} was trained with the {what} {getattr(model, what)}; {env_id} has "
-                          f"{getattr(env, what)}: a model of another env?")
+        ours = f"{env_id}'s, stacked {frame_stack} deep," if frame_stack else f"{env_id} has"
+        hint = ""
+        if what == "observation_space" and frame_stack is None:
+            depth = _stack_depth(env.observation_space, model.observation_space)
+            hint = (f" Or trained inside VecFrameStack({depth})? Give --frame-stack {depth} (frame_stack={depth})"
+                    if depth else "")
+        raise ConfigError(f"{path} was trained with the {what} {getattr(model, what)}; {ours} "
+                          f"{getattr(env, what)}: a model of another env?{hint}")
+
+
+def _stack_depth(env_space: Any, model_space: Any) -> int | None:
+    """The n_stack of a VecFrameStack that makes ``env_space`` into ``model_space`` (along the last
+    axis, or the first: channels-first images, and SB3's own transposition of channels-last ones),
+    or ``None``."""
+    if not isinstance(env_space, gymnasium.spaces.Box) or not isinstance(model_space, gymnasium.spaces.Box):
+        return None
+    env_shape, shape = env_space.shape, model_space.shape
+    if len(env_shape) != len(shape) or not env_shape:
+        return None
+    candidates = [(shape[-1], env_shape[-1], shape[:-1] == env_shape[:-1]),
+                  (shape[0], env_shape[0], shape[1:] == env_shape[1:])]
+    if len(env_shape) == 3:  # channels last, stacked on them, then moved first by SB3
+        candidates.append((shape[0], env_shape[2], shape[1:] == env_shape[:2]))
+    for stacked, own, rest in candidates:
+        if rest and own and stacked % own == 0 and stacked // own >= 2:
+            return stacked // own
+    return None
 
 
 def _transposed_image(env_space: Any, model_space: Any) -> bool:
@@ -178,7 +203,8 @@ def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
 
 
 def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_samples: int = 20,
-             seed: int | None = None, masks: str | None = None, vec_normalize: Any = None) -> Agent:
+             seed: int | None = None, masks: str | None = None, vec_normalize: Any = None,
+             frame_stack: int | None = None) -> Agent:
     """An :class:`~oodmon.agents.Agent` of the SB3 model files in ``paths``, acting in ``env_id``.
 
     Args:
@@ -194,6 +220,9 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
             observation normalised as in training (or a VecNormalize in memory, as
             :func:`sb3_agent` takes it). ``"none"``: they were, but it did not normalise
             observations (``norm_obs=False``).
+        frame_stack: models trained inside SB3's ``VecFrameStack``: its ``n_stack``; the models then
+            see the env's observations stacked as it stacks them
+            (:class:`~oodmon.agents.frame_stack.FrameStack`), and so do the detectors and the logs.
 
     Raises:
         ConfigError: no paths, a file that is not an SB3 model, spaces that do not match the env,
@@ -218,7 +247,7 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
     files = [{"path": str(path.resolve()), "sha256": file_sha256(path), "algorithm": name}
              for path, (_, name) in zip(paths, loaded)]
     return sb3_agent([model for model, _ in loaded], env_id, mean=mean, n_samples=n_samples, seed=seed, files=files,
-                     masks=masks, vec_normalize=normalizer or NO_NORMALIZATION)
+                     masks=masks, vec_normalize=normalizer or NO_NORMALIZATION, frame_stack=frame_stack)
 
 
 def models_sha256(hashes: Sequence[str], *, mean: bool = False) -> str:
@@ -267,7 +296,7 @@ def _parameters_sha256(model: Any) -> str:
 
 def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_samples: int = 20,
               seed: int | None = None, files: Sequence[dict[str, str]] | None = None,
-              masks: str | None = None, vec_normalize: Any = None) -> Agent:
+              masks: str | None = None, vec_normalize: Any = None, frame_stack: int | None = None) -> Agent:
     """An :class:`~oodmon.agents.Agent` of SB3 models already loaded (or trained) in this process;
     the first is the deployed policy. ``files``: each model's path, sha256 and algorithm, when they
     came from files (:func:`load_sb3`); else they are described by the hash of their parameters.
@@ -278,6 +307,8 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     default): the VecNormalize the models in memory were trained in, if any
     (``model.get_vec_normalize_env()``, its statistics as they are now). The deployed policy and
     the samples see normalised observations; the learned detectors and the logs the env's own.
+    ``frame_stack``: the ``n_stack`` of the ``VecFrameStack`` the models were trained inside (see
+    :func:`load_sb3`).
 
     Raises:
         ConfigError: no models, spaces that do not match the env, observations that are neither
@@ -294,12 +325,18 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     if files is None:
         files = [{"path": "(in memory)", "sha256": _parameters_sha256(m), "algorithm": type(m).__name__}
                  for m in models]
+    if frame_stack is not None:
+        from oodmon.agents.frame_stack import FrameStack, check_frame_stack
+
+        frame_stack = check_frame_stack(frame_stack)
     try:
         env = gymnasium.make(env_id)
     except gymnasium.error.Error as error:
         raise ConfigError(f"env {env_id!r}: {error}") from None
+    if frame_stack is not None:
+        env = FrameStack(env, frame_stack)
     for model, file in zip(models, files):
-        _check_spaces(model, Path(file["path"]), env, env_id)
+        _check_spaces(model, Path(file["path"]), env, env_id, frame_stack)
     env.close()
     dict_space = _dict_space(env.observation_space, env_id)
     normalizer = _normalizer_of(vec_normalize, models)
@@ -347,7 +384,8 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         "deployed": "ensemble mean" if mean else f"{files[0]['path']} (the first model)",
         "models": list(files),
         "policy_hash": "sha256:" + combined,
-    } | ({} if normalizer is None else {"vec_normalize": normalizer.describe()})
+    } | ({} if normalizer is None else {"vec_normalize": normalizer.describe()}) \
+        | ({} if frame_stack is None else {"frame_stack": frame_stack})
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
     return Agent(estimator, metadata, None, None if mean else _deployed(models[0], discrete, normalizer, dict_space),
-                 dict_space=dict_space)
+                 dict_space=dict_space, frame_stack=frame_stack)

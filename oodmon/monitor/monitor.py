@@ -67,11 +67,12 @@ def policy_hash(agent: Agent | None) -> str:
 
 def run_about(metadata: dict[str, Any]) -> dict[str, str]:
     """:attr:`RunInfo.about` of a run of the agent with ``metadata``: the command line, and the
-    env id, model files and VecNormalize statistics of a model from elsewhere (:mod:`oodmon.agents.sb3`)."""
+    env id, model files, VecNormalize statistics and VecFrameStack depth of a model from elsewhere
+    (:mod:`oodmon.agents.sb3`)."""
     about = {"command": shlex.join(sys.argv)}
     if metadata.get("env_id"):
         about["env_id"] = str(metadata["env_id"])
-    for key in ("models", "vec_normalize"):
+    for key in ("models", "vec_normalize", "frame_stack"):
         if metadata.get(key):
             about[key] = json.dumps(metadata[key])
     return about
@@ -475,8 +476,11 @@ def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
     finally:
         own.close()
     if what is not None:
+        stacked = "" if agent.frame_stack is None else (
+            f" (the agent acts on observations stacked {agent.frame_stack} deep: wrap the env you step in "
+            f"oodmon.agents.frame_stack.FrameStack(env, {agent.frame_stack}))")
         raise ConfigError(f"this env's {what} is {getattr(env, what)}, but {agent.task}/{agent.method} acts in "
-                          f"{env_id_of(own)}, whose {what} is {getattr(own, what)}: an env of another task?")
+                          f"{env_id_of(own)}, whose {what} is {getattr(own, what)}: an env of another task?{stacked}")
 
 
 def _finite(obs: Any) -> bool:

@@ -31,22 +31,25 @@ __all__ = ["as_agent", "watch"]
 
 
 def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed: int | None = None,
-             masks: str | None = None, vec_normalize: Any = None) -> Agent:
+             masks: str | None = None, vec_normalize: Any = None, frame_stack: int | None = None) -> Agent:
     """An :class:`~oodmon.agents.Agent` of ``policy``: an Agent as it is; SB3 model files (a path
     or a list of them) or SB3 models in memory (one or a list), acting in ``env_id``. ``masks``:
     the MC masks of one SB3 model with dropout (``sampled`` or ``fixed``, see
     :func:`~oodmon.agents.sb3.load_sb3`); an Agent keeps the masks it was loaded with.
     ``vec_normalize``: SB3 models trained inside ``VecNormalize``: its statistics file (or the
     VecNormalize itself, for models in memory, which otherwise use the one they were trained in;
-    see :func:`~oodmon.agents.sb3.sb3_agent`), or ``"none"``.
+    see :func:`~oodmon.agents.sb3.sb3_agent`), or ``"none"``. ``frame_stack``: SB3 models trained
+    inside ``VecFrameStack``: its ``n_stack`` (the env given to :func:`watch` must then give stacked
+    observations: wrap it in :class:`~oodmon.agents.frame_stack.FrameStack`).
 
     Raises:
         ConfigError: SB3 models without ``env_id``, something that is none of these, an Agent
             loaded with other masks than ``masks``, or ``vec_normalize`` with an Agent.
     """
     if isinstance(policy, Agent):
-        if vec_normalize is not None:
-            raise ConfigError("vec_normalize is for SB3 models; an oodmon Agent sees the observations it was made with")
+        if vec_normalize is not None or frame_stack is not None:
+            raise ConfigError("vec_normalize and frame_stack are for SB3 models; an oodmon Agent sees the observations "
+                              "it was made with")
         if env_id is not None and policy.env_id not in (None, env_id):
             raise ConfigError(f"the agent acts in {policy.env_id}, not {env_id}")
         if env_id is not None and policy.env_id is None and task_of_env(env_id) != policy.task:
@@ -64,17 +67,20 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
     if items and all(isinstance(item, (str, Path)) for item in items):
         from oodmon.agents.sb3 import load_sb3
 
-        return load_sb3(items, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize)
+        return load_sb3(items, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize,
+                        frame_stack=frame_stack)
     from oodmon.agents.sb3 import sb3_agent
 
-    return sb3_agent(items, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize)
+    return sb3_agent(items, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize,
+                     frame_stack=frame_stack)
 
 
 def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None = None, far: float = 0.05,
           confidence: float | None = DEFAULT_CONFIDENCE, episodes: int = 50, fit_episodes: int = DEFAULT_FIT_EPISODES,
           detector: str | None = None, mean: bool = False, sinks: Sequence[Sink] = (),
           callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
-          on_progress: Progress | None = None, masks: str | None = None, vec_normalize: Any = None) -> Any:
+          on_progress: Progress | None = None, masks: str | None = None, vec_normalize: Any = None,
+          frame_stack: int | None = None) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
     The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy, the
@@ -85,7 +91,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     it). ``env``: wrap this env (the one you step) and return the
     :class:`~oodmon.monitor.MonitoredEnv` instead of the bare monitor; its ``info["oodmon"]``
     says what the monitor saw at every step. ``on_progress(stage, done, total)`` reports progress
-    (see :mod:`oodmon.progress`). ``masks``, ``vec_normalize``: see :func:`as_agent`.
+    (see :mod:`oodmon.progress`). ``masks``, ``vec_normalize``, ``frame_stack``: see :func:`as_agent`.
 
     Raises:
         ConfigError, InvalidParameterError: as :func:`as_agent` and the calibration, before any
@@ -97,7 +103,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     from oodmon.monitor.threshold import conformal_rank
 
     conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
-    agent = as_agent(policy, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize)
+    agent = as_agent(policy, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize,
+                     frame_stack=frame_stack)
     if env is not None:
         check_env_of(agent, env)  # an env of another task: said now, not at its first step after the calibration
     only = ("scaled_spread",) if detector == "scaled_spread" else None  # fitted only when named, as the CLI fits it

@@ -23,6 +23,7 @@ from oodmon.cli import main
 from oodmon.errors import ConfigError
 from oodmon.monitor import Monitor
 from oodmon.replay import read_log
+from tests.helpers import NoisePictures
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -210,22 +211,6 @@ def test_a_multi_input_td3_on_dict_observations_is_watched_and_alarms_when_the_p
     assert sink.steps[0].observation == pytest.approx([*starts[0]["a"], *starts[0]["b"]])  # flattened, keys in order
 
 
-class _Pictures(gymnasium.Env):
-    """40 x 40 RGB pictures of noise (channels last), 30 steps an episode: an env of image observations."""
-
-    observation_space = gymnasium.spaces.Box(0, 255, (40, 40, 3), np.uint8)
-    action_space = gymnasium.spaces.Discrete(2)
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        self.t = 0
-        return self.np_random.integers(0, 256, (40, 40, 3), dtype=np.uint8), {}
-
-    def step(self, action):
-        self.t += 1
-        return self.np_random.integers(0, 256, (40, 40, 3), dtype=np.uint8), 1.0, False, self.t >= 30, {}
-
-
 def test_a_policy_of_rgb_pictures_is_watched_by_the_frames_detector(tmp_path):
     """SB3 stores a model of channel-last pictures with its channels first ((3, 40, 40) for a
     (40, 40, 3) env), and its predict() takes the env's pictures as they come: the model was refused
@@ -237,7 +222,7 @@ def test_a_policy_of_rgb_pictures_is_watched_by_the_frames_detector(tmp_path):
     from oodmon.monitor import McapSink
 
     if "PicturesForTests-v0" not in gymnasium.registry:
-        gymnasium.register("PicturesForTests-v0", entry_point=_Pictures)
+        gymnasium.register("PicturesForTests-v0", entry_point=NoisePictures)
     model = PPO("CnnPolicy", gymnasium.make("PicturesForTests-v0"), seed=0, n_steps=32, batch_size=32)
     assert model.observation_space.shape == (3, 40, 40)
     model.save(tmp_path / "pictures.zip")

@@ -1,0 +1,86 @@
+"""SB3 models trained inside VecFrameStack: FrameStack stacks one env's observations exactly as
+VecFrameStack does, and such a model is refused without --frame-stack (saying so), then fitted,
+calibrated, run, evaluated and watched with it."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium
+import numpy as np
+import pytest
+from stable_baselines3 import DQN, TD3
+from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
+
+import oodmon
+from oodmon.agents.frame_stack import FrameStack
+from oodmon.agents.sb3 import load_sb3
+from oodmon.cli import main
+from oodmon.errors import ConfigError, InvalidParameterError
+from tests.helpers import NoisePictures
+
+
+@pytest.mark.parametrize("make, shape", [(lambda: gymnasium.make("CartPole-v1"), (16,)),
+                                         (lambda: NoisePictures((20, 24, 3), steps=15), (20, 24, 12))], ids=["vector", "channels-last pictures"])
+def test_frame_stack_gives_the_observations_vecframestack_gives(make, shape):
+    theirs = VecFrameStack(DummyVecEnv([make]), 4)
+    theirs.seed(5)
+    ours = FrameStack(make(), 4)
+    assert ours.observation_space.shape == theirs.observation_space.shape == shape
+    a, (b, _) = theirs.reset()[0], ours.reset(seed=5)
+    compared, ends = [np.array_equal(a, b)], 0
+    rng = np.random.default_rng(0)
+    for _ in range(80):  # several episodes: the stack starts again from zeros after each end
+        action = int(rng.integers(2))
+        a, _, done, info = theirs.step([action])
+        b, _, terminated, truncated, _ = ours.step(action)
+        if terminated or truncated:
+            ends += 1
+            compared.append(np.array_equal(info[0]["terminal_observation"], b))
+            b, _ = ours.reset()
+        compared.append(np.array_equal(a[0], b))
+    assert ends >= 2 and all(compared) and len(compared) == 81 + ends
+    b, _ = ours.reset(seed=1)
+    own = shape[-1] // 4  # one observation's numbers (channels) along the stacked axis
+    assert not b[..., :-own].any() and b[..., -own:].any()  # zeros before an episode's first observation
+    with pytest.raises(InvalidParameterError, match="frame_stack=1 is not allowed"):
+        FrameStack(make(), 1)
+
+
+def test_a_td3_trained_inside_vecframestack_is_refused_without_it_then_watched_with_it(tmp_path, capsys):
+    model = TD3("MlpPolicy", VecFrameStack(DummyVecEnv([lambda: gymnasium.make("Pendulum-v1")]), 3), seed=0,
+                learning_starts=200, policy_kwargs={"net_arch": [32, 32]})
+    model.learn(400)
+    model.save(tmp_path / "td3.zip")
+    common = ["--sb3", str(tmp_path / "td3.zip"), "--env", "Pendulum-v1"]
+    out = ["--out", str(tmp_path / "t.json")]
+    assert main(["calibrate", *common, *out]) == 2  # it failed inside SB3's predict, or acted on another shape
+    assert "Or trained inside VecFrameStack(3)? Give --frame-stack 3" in capsys.readouterr().err
+    common += ["--frame-stack", "3"]
+    assert main(["calibrate", *common, "--episodes", "10", "--far", "0.2", "--confidence", "none",
+                 "--fit-episodes", "9", *out]) == 0
+    assert main(["run", *common, "--threshold", str(tmp_path / "t.json"), "--variant", "pendulum:m=5.0", "--onset", "50",
+                 "--episodes", "2", "--mcap", str(tmp_path / "x.mcap")]) == 0
+    capsys.readouterr()
+    assert main(["replay", str(tmp_path / "x.mcap"), "--json"]) == 0
+    rows = {r["detector"]: r for r in json.loads(capsys.readouterr().out)}
+    assert rows["dynamics"]["auroc"] > 0.9  # 1.000 when written: the stacked observations are modelled
+    log = oodmon.replay.read_log(tmp_path / "x.mcap")
+    assert log.metadata["about.frame_stack"] == "3"  # the log says how the model saw the env
+    assert main(["evaluate", *common, "--variants", "pendulum:m=5.0", "--episodes", "1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["variants"][0]["variant"] == "pendulum:m=5.0"
+    assert main(["bench", *common, "--out", str(tmp_path / "b")]) == 2
+    assert "bench does not yet stack observations" in capsys.readouterr().err
+    assert main(["calibrate", "--task", "pendulum", "--method", "ensemble", "--frame-stack", "3", *out]) == 2
+    assert "--frame-stack and --vec-normalize go with --sb3" in capsys.readouterr().err
+
+    # Python: the env the user steps must give stacked observations; FrameStack makes them.
+    agent = load_sb3([tmp_path / "td3.zip"], "Pendulum-v1", frame_stack=3)
+    assert agent.make_env().observation_space.shape == (9,)
+    with pytest.raises(ConfigError, match=r"stacked 3 deep: wrap the env you step in .*FrameStack\(env, 3\)"):
+        oodmon.watch(agent, env=gymnasium.make("Pendulum-v1"), episodes=22, far=0.1, fit_episodes=5)
+    env = oodmon.watch(agent, env=FrameStack(gymnasium.make("Pendulum-v1"), 3), episodes=22, far=0.1, fit_episodes=5)
+    obs, _ = env.reset(seed=0)
+    for _ in range(5):
+        obs, *_, info = env.step(model.predict(obs, deterministic=True)[0])
+    assert obs.shape == (9,) and np.isfinite(info["oodmon"]["score"])
