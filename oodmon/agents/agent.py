@@ -16,6 +16,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.agents.estimators import Estimate, UncertaintyEstimator
+from oodmon.agents.frame_stack import Stacking
 from oodmon.agents.networks import estimator_for
 from oodmon.agents.serialization import load_modules
 from oodmon.errors import ConfigError, ModelFormatError, UnknownParameterError
@@ -38,8 +39,10 @@ class Agent:
         dict_space: the env's observation space when its observations are dicts (an SB3
             ``MultiInputPolicy``): the agent, the detectors and the logs see each one flattened,
             as :meth:`view` makes it (the policy gets the dict back, see :mod:`oodmon.agents.sb3`).
-        frame_stack: the model was trained inside SB3's ``VecFrameStack`` of this depth: it acts on
-            observations stacked as that stacks them, in the envs :meth:`wrap` makes so.
+        stacking: the model was trained inside SB3's ``VecFrameStack``: it acts on observations
+            stacked as that stacks them (:class:`~oodmon.agents.frame_stack.Stacking`), in the envs
+            :meth:`wrap` makes so; the detectors and the logs read the env's own, the newest of
+            each stack (:meth:`own_observation`).
     """
 
     estimator: UncertaintyEstimator | None
@@ -47,7 +50,7 @@ class Agent:
     path: Path | None = None
     deploy: Callable[[np.ndarray], Any] | None = None
     dict_space: gymnasium.spaces.Dict | None = None
-    frame_stack: int | None = None
+    stacking: Stacking | None = None
 
     @property
     def task(self) -> str:
@@ -84,6 +87,16 @@ class Agent:
             return gymnasium.spaces.flatten(self.dict_space, obs)
         return obs
 
+    @property
+    def frame_stack(self) -> int | None:
+        """The depth of the VecFrameStack the model was trained inside, or ``None``."""
+        return None if self.stacking is None else self.stacking.n
+
+    def own_observation(self, obs: Any) -> Any:
+        """The env's own observation inside ``obs``, the one the agent acts on: the newest of a
+        stack (:attr:`stacking`); any other as it is. What the detectors read and the logs keep."""
+        return obs if self.stacking is None else self.stacking.newest(obs)
+
     def wrap(self, env: gymnasium.Env) -> gymnasium.Env:
         """``env`` (the gymnasium env of the agent's env id, or an oodmon variant of it) giving the
         observations the agent acts on: dict ones flattened (``FlattenObservation``, as :meth:`view`),
@@ -91,10 +104,10 @@ class Agent:
         (:class:`~oodmon.agents.frame_stack.FrameStack`); ``env`` itself for any other agent."""
         if self.dict_space is not None:
             env = gymnasium.wrappers.FlattenObservation(env)
-        if self.frame_stack is not None:
+        if self.stacking is not None:
             from oodmon.agents.frame_stack import FrameStack
 
-            env = FrameStack(env, self.frame_stack)
+            env = FrameStack(env, self.stacking.n, "first" if self.stacking.channels_first else "last")
         return env
 
     def make_env(self, obs_noise: float = 0.0) -> gymnasium.Env:

@@ -13,6 +13,7 @@ wrap the env they step::
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium
@@ -21,7 +22,7 @@ import numpy as np
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.validation import is_whole
 
-__all__ = ["FrameStack", "check_frame_stack"]
+__all__ = ["FrameStack", "Stacking", "check_frame_stack"]
 
 
 def check_frame_stack(n_stack: Any) -> int:
@@ -35,6 +36,28 @@ def check_frame_stack(n_stack: Any) -> int:
         raise InvalidParameterError(f"frame_stack={n_stack!r} is not allowed; give the n_stack of the VecFrameStack "
                                     "the model was trained in, a whole number >= 2")
     return int(n_stack)
+
+
+@dataclass(frozen=True)
+class Stacking:
+    """How an agent's observations are stacked: ``n`` deep, of the env's own observations of
+    ``own_shape``, along the first axis (``channels_first``) or the last.
+
+    Example:
+        >>> Stacking(4, (2,), False).newest(np.arange(8.0)).tolist()
+        [6.0, 7.0]
+    """
+
+    n: int
+    own_shape: tuple[int, ...]
+    channels_first: bool
+
+    def newest(self, obs: np.ndarray) -> np.ndarray:
+        """The env's own newest observation inside a stack: what the detectors read and the logs keep."""
+        obs = np.asarray(obs)
+        if self.channels_first:
+            return obs[-self.own_shape[0]:]
+        return obs[..., -self.own_shape[-1]:]
 
 
 class FrameStack(gymnasium.ObservationWrapper):
@@ -56,6 +79,7 @@ class FrameStack(gymnasium.ObservationWrapper):
                               f"{env.observation_space}")
         self._stack = StackedObservations(1, self.n_stack, env.observation_space, channels_order)
         self.observation_space = self._stack.stacked_observation_space
+        self.stacking = Stacking(self.n_stack, tuple(env.observation_space.shape), bool(self._stack.channels_first))
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         obs, info = self.env.reset(seed=seed, options=options)

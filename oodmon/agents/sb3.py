@@ -222,7 +222,8 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
             observations (``norm_obs=False``).
         frame_stack: models trained inside SB3's ``VecFrameStack``: its ``n_stack``; the models then
             see the env's observations stacked as it stacks them
-            (:class:`~oodmon.agents.frame_stack.FrameStack`), and so do the detectors and the logs.
+            (:class:`~oodmon.agents.frame_stack.FrameStack`); the detectors and the logs read the
+            env's own, the newest of each stack (``Agent.own_observation``).
 
     Raises:
         ConfigError: no paths, a file that is not an SB3 model, spaces that do not match the env,
@@ -333,8 +334,10 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         env = gymnasium.make(env_id)
     except gymnasium.error.Error as error:
         raise ConfigError(f"env {env_id!r}: {error}") from None
+    stacking = None
     if frame_stack is not None:
         env = FrameStack(env, frame_stack)
+        stacking = env.stacking
     for model, file in zip(models, files):
         _check_spaces(model, Path(file["path"]), env, env_id, frame_stack)
     env.close()
@@ -388,4 +391,4 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         | ({} if frame_stack is None else {"frame_stack": frame_stack})
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
     return Agent(estimator, metadata, None, None if mean else _deployed(models[0], discrete, normalizer, dict_space),
-                 dict_space=dict_space, frame_stack=frame_stack)
+                 dict_space=dict_space, stacking=stacking)

@@ -154,6 +154,7 @@ class Monitor:
             raise ConfigError(f"the monitor watches an oodmon Agent, an uncertainty estimator, a callable obs -> "
                               f"action, or None (you pass each action to step()); got {type(policy).__name__}")
         self._dicts = self.agent is not None and self.agent.dict_space is not None  # see step()
+        self._stacked = self.agent is not None and self.agent.stacking is not None
         self.policy_hash = policy_hash(self.agent)
         if isinstance(threshold, Threshold):
             if score is not None and score != threshold.score:
@@ -252,6 +253,8 @@ class Monitor:
             d.check_fitted()
         meta = self.agent.metadata if self.agent is not None else {}
         obs_shape = self.estimator.obs_shape if self.estimator is not None else None
+        if self.agent is not None and self.agent.stacking is not None:  # the detectors read the env's own observations
+            obs_shape = self.agent.stacking.own_shape
         self._refuse_or_warn("the fitted detectors", chosen.check_fits(task=meta.get("task"), obs_shape=obs_shape,
                                                                        policy_hash=self.policy_hash), force,
                              plural=True)
@@ -337,7 +340,9 @@ class Monitor:
         ``action``: the action actually deployed at ``obs``, when it is not the monitored
         policy's own (a policy the monitor only watches, a fallback after an alarm); the
         detectors that model transitions use it. A dict observation (an env of an SB3
-        ``MultiInputPolicy``) is read flattened, as the agent reads it (:meth:`Agent.view`).
+        ``MultiInputPolicy``) is read flattened, as the agent reads it (:meth:`Agent.view`); of a
+        stack (a model trained inside VecFrameStack) the detectors and the log read the newest
+        observation (:meth:`Agent.own_observation`).
         """
         if not self._in_episode:
             raise ConfigError("Monitor.step before begin_episode: start an episode first (or use run_episode)")
@@ -352,6 +357,8 @@ class Monitor:
                 action = int(raw) if self.estimator.kind == "q_values" else np.asarray(raw)
             else:
                 raise ConfigError("this monitor has no policy to act: pass the deployed action, step(obs, action=a)")
+        if self._stacked:  # the policy acted on the stack; the detectors and the log read the env's own observation
+            obs = self.agent.own_observation(obs)
         if _finite(obs):
             context = StepContext(obs, action, estimate, self._prev_obs, self._prev_action, {})
             scores = self.detectors.score(context)

@@ -1,6 +1,7 @@
 """SB3 models trained inside VecFrameStack: FrameStack stacks one env's observations exactly as
 VecFrameStack does, and such a model is refused without --frame-stack (saying so), then fitted,
-calibrated, run, evaluated and watched with it."""
+calibrated, run, evaluated and watched with it, its detectors reading the newest observation of each
+stack."""
 
 from __future__ import annotations
 
@@ -82,5 +83,9 @@ def test_a_td3_trained_inside_vecframestack_is_refused_without_it_then_watched_w
     env = oodmon.watch(agent, env=FrameStack(gymnasium.make("Pendulum-v1"), 3), episodes=22, far=0.1, fit_episodes=5)
     obs, _ = env.reset(seed=0)
     for _ in range(5):
+        acted_on = obs
         obs, *_, info = env.step(model.predict(obs, deterministic=True)[0])
     assert obs.shape == (9,) and np.isfinite(info["oodmon"]["score"])
+    # The detectors and the log read the env's own observation, the newest of the stack acted on.
+    assert env.monitor.last_step.observation == pytest.approx(acted_on[-3:].tolist())
+    assert env.monitor.detectors.fitted_for["obs_shape"] == [3]

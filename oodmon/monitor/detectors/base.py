@@ -125,12 +125,16 @@ class Trajectory:
         features: (T, F) the policy's features at each acted-on observation, or ``None``.
         member_values: (T, K, n) an ensemble's members' values at each acted-on observation (see
             :func:`~oodmon.monitor.detectors.scaled_spread.member_values`), or ``None``.
+        acted_on: (T + 1, ...) the observations the policy acted on where they are not
+            ``observations`` (a stack of them, whose newest the detectors read:
+            ``Agent.own_observation``), or ``None``.
     """
 
     observations: np.ndarray
     actions: np.ndarray
     features: np.ndarray | None = None
     member_values: np.ndarray | None = None
+    acted_on: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if len(self.observations) != len(self.actions) + 1:

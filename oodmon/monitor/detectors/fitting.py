@@ -105,6 +105,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     estimator, act, _ = policy_parts(policy)
     ensemble = with_member_values and has_members(estimator)
     deploy = getattr(policy, "deploy", None)  # an Agent whose deployed policy is not its estimator's decision
+    own = getattr(policy, "own_observation", None) if getattr(policy, "stacking", None) is not None else None
     trajectories = []
     for episode in range(episodes):
         obs, _ = env.reset(seed=seed + episode)
@@ -126,9 +127,13 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
             warn_if_endless(env, len(actions))
             if terminated or truncated or (max_steps is not None and len(actions) >= max_steps):
                 break
+        acted_on = None
+        if own is not None:  # the detectors read the newest of each stack the policy acted on
+            acted_on, observations = np.asarray(observations), [own(o) for o in observations]
         trajectories.append(Trajectory(np.asarray(observations), np.asarray(actions),
                                        np.asarray(features) if len(features) == len(actions) else None,
-                                       np.asarray(values) if ensemble and values[0] is not None else None))
+                                       np.asarray(values) if ensemble and values[0] is not None else None,
+                                       acted_on))
         if on_progress is not None:
             on_progress("detector fitting episodes", episode + 1, episodes)
     return trajectories
@@ -141,7 +146,8 @@ def trajectory_scores(detectors: DetectorSet, trajectory: Trajectory, estimator:
     prev_obs = prev_action = None
     for step in range(len(trajectory)):
         obs, action = trajectory.observations[step], trajectory.actions[step]
-        estimate = estimator.estimate(obs) if estimator is not None else None
+        acted_on = obs if trajectory.acted_on is None else trajectory.acted_on[step]
+        estimate = estimator.estimate(acted_on) if estimator is not None else None
         scores = detectors.score(StepContext(obs, action, estimate, prev_obs, prev_action, {}))
         for name, value in scores.items():
             out[name].append(value)
