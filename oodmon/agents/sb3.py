@@ -166,7 +166,7 @@ def _transposed_image(env_space: Any, model_space: Any) -> bool:
     if not isinstance(env_space, gymnasium.spaces.Box) or not isinstance(model_space, gymnasium.spaces.Box):
         return False
     shape = env_space.shape
-    return (is_image_space(env_space, check_channels=True) and len(shape) == 3
+    return (is_image_space(env_space) and len(shape) == 3
             and model_space.shape == (shape[2], shape[0], shape[1]))
 
 

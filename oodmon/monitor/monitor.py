@@ -359,6 +359,7 @@ class Monitor:
                 raise ConfigError("this monitor has no policy to act: pass the deployed action, step(obs, action=a)")
         if self._stacked:  # the policy acted on the stack; the detectors and the log read the env's own observation
             obs = self.agent.own_observation(obs)
+            frame = None if frame is None else _frame(obs)  # an RGB stack's newest picture, not its last channel
         if _finite(obs):
             context = StepContext(obs, action, estimate, self._prev_obs, self._prev_action, {})
             scores = self.detectors.score(context)

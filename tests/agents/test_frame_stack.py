@@ -15,7 +15,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
 
 import oodmon
 from oodmon.agents.frame_stack import FrameStack
-from oodmon.agents.sb3 import load_sb3
+from oodmon.agents.sb3 import load_sb3, sb3_agent
 from oodmon.cli import main
 from oodmon.errors import ConfigError, InvalidParameterError
 from tests.helpers import NoisePictures
@@ -89,3 +89,28 @@ def test_a_td3_trained_inside_vecframestack_is_refused_without_it_then_watched_w
     # The detectors and the log read the env's own observation, the newest of the stack acted on.
     assert env.monitor.last_step.observation == pytest.approx(acted_on[-3:].tolist())
     assert env.monitor.detectors.fitted_for["obs_shape"] == [3]
+
+
+def test_a_cnn_policy_on_stacked_rgb_pictures_logs_the_newest_picture():
+    """VecFrameStack(2) of RGB pictures gives 6 channels, which SB3 moves first ((6, 36, 36)): it was
+    refused as "a model of another env?" (only 1, 3 or 4 channels were recognised as moved). The
+    frames detector and the log read the newest RGB picture, not the stack's last channel."""
+    from stable_baselines3 import PPO
+
+    from oodmon.monitor import MemorySink, Monitor
+    from oodmon.monitor.detectors import fit_detectors
+
+    if "StackedPicturesForTests-v0" not in gymnasium.registry:
+        gymnasium.register("StackedPicturesForTests-v0", entry_point=lambda: NoisePictures((36, 36, 3), steps=6))
+    venv = VecFrameStack(DummyVecEnv([lambda: gymnasium.make("StackedPicturesForTests-v0")]), 2)
+    model = PPO("CnnPolicy", venv, seed=0, n_steps=16, batch_size=16)
+    assert model.observation_space.shape == (6, 36, 36)
+    agent = sb3_agent([model], "StackedPicturesForTests-v0", frame_stack=2)
+    env = agent.make_env()
+    detectors = fit_detectors(agent, env, detectors=["frames"], episodes=3)
+    assert detectors.fitted_for["obs_shape"] == [36, 36, 3]
+    sink = MemorySink()
+    with Monitor(agent, 100.0, detectors=detectors, detector="frames", sinks=[sink]) as monitor:
+        monitor.run_episode(env, seed=1)
+    obs, _ = env.reset(seed=1)  # the same episode's first stack: zeros, then the first picture
+    assert sink.steps[0].frame.shape == (36, 36, 3) and np.array_equal(sink.steps[0].frame, obs[..., 3:])
