@@ -840,9 +840,6 @@ def _bench(args: argparse.Namespace) -> int:
         if method not in METHODS:
             raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
     samples = True  # the agents have samples of their own to spread
-    if args.frame_stack is not None:
-        raise ConfigError("bench does not yet stack observations for --sb3 models trained inside VecFrameStack: "
-                          "calibrate, validate, run and evaluate them with --frame-stack")
     if args.sb3:
         samples = _sb3_bench_task(args)
         methods = ("sb3",)
@@ -864,7 +861,7 @@ def _bench(args: argparse.Namespace) -> int:
                          confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
                          all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean,
-                         vec_normalize=args.vec_normalize,
+                         vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
                          samples=args.samples, members=args.members, fit_episodes=args.fit_episodes,
                          masks=args.masks)
     config.variant_list()  # refuse bad specs before any work

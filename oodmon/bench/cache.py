@@ -29,6 +29,7 @@ class Sb3Models:
     env_id: str
     mean: bool = False
     vec_normalize: str | None = None  # their VecNormalize statistics file, or "none"
+    frame_stack: int | None = None  # the n_stack of the VecFrameStack they were trained inside
 
     def __str__(self) -> str:
         return ", ".join(self.paths)
@@ -41,7 +42,7 @@ def _bench_agent(source: str | Sb3Models, task: str, seed: int, n_samples: int |
         from oodmon.agents.sb3 import load_sb3
 
         return load_sb3(source.paths, source.env_id, mean=source.mean, seed=seed, masks=masks,
-                        vec_normalize=source.vec_normalize)
+                        vec_normalize=source.vec_normalize, frame_stack=source.frame_stack)
     return load_agent(source, task=task, seed=seed, n_samples=n_samples, masks=masks)
 
 
@@ -51,7 +52,8 @@ def _weights_sha256(source: Path | Sb3Models) -> str:
         from oodmon.agents.sb3 import models_sha256
 
         statistics = [] if source.vec_normalize in (None, NO_NORMALIZATION) else [file_sha256(source.vec_normalize)]
-        return models_sha256([file_sha256(p) for p in source.paths] + statistics, mean=source.mean)
+        stacked = [] if source.frame_stack is None else [f"frame_stack={source.frame_stack}"]  # other observations
+        return models_sha256([file_sha256(p) for p in source.paths] + statistics + stacked, mean=source.mean)
     return file_sha256(source / "model.safetensors")
 
 
@@ -88,7 +90,8 @@ def _ensure_model(config: BenchConfig, method: str, trial: int,
         statistics = config.vec_normalize
         if statistics not in (None, NO_NORMALIZATION):
             statistics = str(Path(statistics).resolve())
-        return Sb3Models(tuple(str(Path(p).resolve()) for p in config.sb3), config.env_id, config.mean, statistics)
+        return Sb3Models(tuple(str(Path(p).resolve()) for p in config.sb3), config.env_id, config.mean, statistics,
+                         config.frame_stack)
     path = _ensure_model_dir_current(config, method, trial)
     if not (path / "model.json").exists():
         _refuse_to_train_for_hours(config, method, trial)
@@ -227,7 +230,7 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
     else:
         stage = f"{method} trial {trial}: evaluation episodes"
         _, results = evaluate_variants(agent.act, config.task, variants, config.eval_episodes,
-                                       on_progress=lambda _, done, total: report(stage, done, total))
+                                       on_progress=lambda _, done, total: report(stage, done, total), wrap=agent.wrap)
         failing = [r.spec for r in results if r.fails]
         write_json(failing_path, {"variants": [v.spec for v in variants], "failing": failing,
                                    "returns": {r.spec: r.mean for r in results}})

@@ -40,7 +40,7 @@ def _run_cell(task: str, model: str | Sb3Models, threshold: str, spec: str, epis
     torch.set_num_threads(1)
     agent = _bench_agent(model, task, seed, n_samples, masks)  # seeded MC sampling: the same cell, the same log
     variant = parse_variant(spec)
-    env = variant.make(obs_noise=obs_noise) if obs_noise else variant.make()
+    env = agent.wrap(variant.make(obs_noise=obs_noise) if obs_noise else variant.make())  # as the agent observes it
     temporary = Path(log).with_suffix(".part")
     temporary.parent.mkdir(parents=True, exist_ok=True)
     fitted = DetectorSet.load(detectors) if detectors else None

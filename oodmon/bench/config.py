@@ -63,6 +63,7 @@ class BenchConfig:
     env_id: str | None = None  # the gymnasium env id the sb3 models act in
     mean: bool = False  # deploy the sb3 ensemble's mean decision, not the first model's
     vec_normalize: str | None = None  # the sb3 models' VecNormalize statistics file, or "none" (see load_sb3)
+    frame_stack: int | None = None  # the n_stack of the VecFrameStack the sb3 models were trained inside
     samples: int | None = None  # MC samples per decision of Dropout and DropConnect agents (None: each one's recipe)
     members: int | None = None  # members of each ensemble trial (None: the recipe's; others train trial 0 too)
     masks: str | None = None  # MC masks of Dropout and DropConnect agents: sampled or fixed (None: each model's)
@@ -87,9 +88,9 @@ class BenchConfig:
                 raise ConfigError("sb3 models need env_id: the gymnasium env id they act in (e.g. CartPole-v1)")
             if self.methods != ("sb3",) or self.trials != 1:
                 raise ConfigError("sb3 models are benched as one method ('sb3') and one trial: nothing is trained")
-        elif self.vec_normalize is not None:
-            raise ConfigError("vec_normalize is the observation statistics of sb3 models trained inside VecNormalize: "
-                              "give it with sb3 models only")
+        elif self.vec_normalize is not None or self.frame_stack is not None:
+            raise ConfigError("vec_normalize and frame_stack are how sb3 models trained inside VecNormalize or "
+                              "VecFrameStack see the env: give them with sb3 models only")
         elif "spread" not in self.detectors:
             raise ConfigError("the bench's agents all have samples: keep spread among the detectors")
         from oodmon.monitor.threshold import conformal_rank

@@ -70,8 +70,19 @@ def test_a_td3_trained_inside_vecframestack_is_refused_without_it_then_watched_w
     assert log.metadata["about.frame_stack"] == "3"  # the log says how the model saw the env
     assert main(["evaluate", *common, "--variants", "pendulum:m=5.0", "--episodes", "1", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["variants"][0]["variant"] == "pendulum:m=5.0"
-    assert main(["bench", *common, "--out", str(tmp_path / "b")]) == 2
-    assert "bench does not yet stack observations" in capsys.readouterr().err
+    # The monitor's benchmark stacks too: ID, fitting, calibration and the shifted cells (pendulum
+    # episodes last 200 steps whatever the policy: the heavier pendulum is alarmed on).
+    capsys.readouterr()
+    assert main(["bench", *common, "--protocol", "monitor", "--variants", "pendulum:m=5.0", "--all-variants",
+                 "--episodes", "2", "--id-episodes", "5", "--calibration-episodes", "10", "--far", "0.2",
+                 "--confidence", "none", "--fit-episodes", "9", "--workers", "1", "--out", str(tmp_path / "b"),
+                 "--json"]) == 0
+    alarms = {r["variant"]: r for r in json.loads(capsys.readouterr().out)["alarms"] if r["method"] == "sb3"}
+    assert alarms["pendulum:m=5.0"]["episodes"] == 2 and alarms["pendulum:m=5.0"]["alarmed"] >= 1  # 2 of 2 when written
+    from oodmon.bench.cache import Sb3Models, _weights_sha256
+
+    paths = (str(tmp_path / "td3.zip"),)  # the bench's cache tells the stacked model from the same file unstacked
+    assert _weights_sha256(Sb3Models(paths, "Pendulum-v1", frame_stack=3)) != _weights_sha256(Sb3Models(paths, "Pendulum-v1"))
     assert main(["calibrate", "--task", "pendulum", "--method", "ensemble", "--frame-stack", "3", *out]) == 2
     assert "--frame-stack and --vec-normalize go with --sb3" in capsys.readouterr().err
 
