@@ -286,6 +286,29 @@ def _normalizer_of(vec_normalize: Any, models: Sequence[Any]) -> ObservationNorm
     raise ConfigError(f"vec_normalize={vec_normalize!r}: give a VecNormalize, its saved statistics file, or 'none'")
 
 
+def _frame_stack_of(models: Sequence[Any]) -> int | None:
+    """The ``n_stack`` of the ``VecFrameStack`` models in memory were trained inside (``None``: none).
+
+    Raises:
+        ConfigError: models trained inside different ones (or some inside none).
+    """
+    from stable_baselines3.common.vec_env import VecEnvWrapper, VecFrameStack
+
+    depths = set()
+    for model in models:
+        env, depth = getattr(model, "get_env", lambda: None)(), None
+        while isinstance(env, VecEnvWrapper):
+            if isinstance(env, VecFrameStack):
+                depth = env.stacked_obs.n_stack
+                break
+            env = env.venv
+        depths.add(depth)
+    if len(depths) > 1:
+        raise ConfigError("the models were trained inside different VecFrameStack envs (or some inside none): oodmon "
+                          "gives every model the same observations; give frame_stack= to choose their depth")
+    return depths.pop()
+
+
 def _parameters_sha256(model: Any) -> str:
     """A model in memory has no file: the hash of its policy's parameters stands for it."""
     digest = hashlib.sha256()
@@ -309,7 +332,8 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     (``model.get_vec_normalize_env()``, its statistics as they are now). The deployed policy and
     the samples see normalised observations; the learned detectors and the logs the env's own.
     ``frame_stack``: the ``n_stack`` of the ``VecFrameStack`` the models were trained inside (see
-    :func:`load_sb3`).
+    :func:`load_sb3`); ``None`` (the default): for models in memory, that of the VecFrameStack they
+    were trained in, if any.
 
     Raises:
         ConfigError: no models, spaces that do not match the env, observations that are neither
@@ -323,6 +347,8 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
 
     if not models or not all(hasattr(m, "policy") and hasattr(m, "predict") for m in models):
         raise ConfigError("give one or more stable-baselines3 models (DQN, DDPG, TD3, SAC, PPO, A2C)")
+    if frame_stack is None and files is None:  # models in memory: the VecFrameStack they were trained in, if any
+        frame_stack = _frame_stack_of(models)
     if files is None:
         files = [{"path": "(in memory)", "sha256": _parameters_sha256(m), "algorithm": type(m).__name__}
                  for m in models]

@@ -89,6 +89,7 @@ def test_a_td3_trained_inside_vecframestack_is_refused_without_it_then_watched_w
     # Python: the env the user steps must give stacked observations; FrameStack makes them.
     agent = load_sb3([tmp_path / "td3.zip"], "Pendulum-v1", frame_stack=3)
     assert agent.make_env().observation_space.shape == (9,)
+    assert sb3_agent([model], "Pendulum-v1").frame_stack == 3  # in memory: the VecFrameStack it was trained in
     with pytest.raises(ConfigError, match=r"stacked 3 deep: wrap the env you step in .*FrameStack\(env, 3\)"):
         oodmon.watch(agent, env=gymnasium.make("Pendulum-v1"), episodes=22, far=0.1, fit_episodes=5)
     env = oodmon.watch(agent, env=FrameStack(gymnasium.make("Pendulum-v1"), 3), episodes=22, far=0.1, fit_episodes=5)
