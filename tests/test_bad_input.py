@@ -168,6 +168,7 @@ CASES = [
     ("task-unknown", ["calibrate", "--task", "hopper", "--method", "dropout", "--out", "{d}/t.json"], {},
      ["--task", "hopper"]),
     ("envs-show-bad-spec", ["envs", "show", "cartpole:lenght=2"], {}, ["lenght"]),
+    ("frame-stack-without-sb3", [*CALIBRATE, "--frame-stack", "4", "--out", "{d}/t.json"], {}, ["--frame-stack", "--sb3"]),
 ]
 
 
