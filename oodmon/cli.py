@@ -19,7 +19,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from oodmon.errors import ConfigError, OodmonError
+from oodmon.errors import ConfigError, InvalidParameterError, OodmonError
 from oodmon.names import MASKS, METHODS, TASKS
 from oodmon.progress import unit_of
 from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -974,6 +974,9 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
 
         if not args.env:
             raise ConfigError("--sb3 needs --env: the gymnasium env id the models act in (e.g. CartPole-v1)")
+        if args.frame_stack is not None and args.frame_stack < 2:
+            raise InvalidParameterError(f"--frame-stack {args.frame_stack} is not allowed; give the n_stack of the "
+                                        "VecFrameStack the models were trained in, 2 or more")
         if getattr(args, "model", None) or getattr(args, "method", None):
             raise ConfigError("--sb3 is instead of --model and --method: give one of them")
         agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed, masks=getattr(args, "masks", None),
@@ -997,7 +1000,6 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
 
 def _evaluate(args: argparse.Namespace) -> int:
     from oodmon.agents import evaluate_variants
-    from oodmon.errors import InvalidParameterError
 
     if args.episodes < 1:
         raise InvalidParameterError(f"--episodes {args.episodes} is not allowed; give at least 1")

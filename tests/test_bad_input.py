@@ -169,6 +169,8 @@ CASES = [
      ["--task", "hopper"]),
     ("envs-show-bad-spec", ["envs", "show", "cartpole:lenght=2"], {}, ["lenght"]),
     ("frame-stack-without-sb3", [*CALIBRATE, "--frame-stack", "4", "--out", "{d}/t.json"], {}, ["--frame-stack", "--sb3"]),
+    ("frame-stack-1", ["calibrate", "--sb3", "{d}/m.zip", "--env", "CartPole-v1", "--frame-stack", "1", "--out",
+                       "{d}/t.json"], {}, ["--frame-stack 1", "VecFrameStack"]),
 ]
 
 
