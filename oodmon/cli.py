@@ -964,6 +964,13 @@ def _validate(args: argparse.Namespace) -> int:
     return 1 if result.verdict == "above" else 0
 
 
+def _check_frame_stack(frame_stack: int | None) -> None:
+    """``--frame-stack``, refused before any model is read unless 2 or more (or not given)."""
+    if frame_stack is not None and frame_stack < 2:
+        raise InvalidParameterError(f"--frame-stack {frame_stack} is not allowed; give the n_stack of the "
+                                    "VecFrameStack the models were trained in, 2 or more")
+
+
 def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
     """The agent of --sb3/--env, --model or --task/--method; ``seed`` seeds its MC sampling (None:
     fresh entropy). Sets ``args.task`` from --env for --sb3 models."""
@@ -974,9 +981,7 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
 
         if not args.env:
             raise ConfigError("--sb3 needs --env: the gymnasium env id the models act in (e.g. CartPole-v1)")
-        if args.frame_stack is not None and args.frame_stack < 2:
-            raise InvalidParameterError(f"--frame-stack {args.frame_stack} is not allowed; give the n_stack of the "
-                                        "VecFrameStack the models were trained in, 2 or more")
+        _check_frame_stack(args.frame_stack)
         if getattr(args, "model", None) or getattr(args, "method", None):
             raise ConfigError("--sb3 is instead of --model and --method: give one of them")
         agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed, masks=getattr(args, "masks", None),
