@@ -183,8 +183,9 @@ def _deployed(model: Any, discrete: bool, normalizer: ObservationNormalizer | No
 
 
 def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
-    """``space`` when it is a dict of vectors (an SB3 ``MultiInputPolicy``'s, which concatenates them
-    flattened); ``None`` for an array space.
+    """``space`` when it is a dict of vectors and discrete values (an SB3 ``MultiInputPolicy``'s,
+    which concatenates them flattened, discrete ones one-hot, as ``gymnasium.spaces.flatten``
+    does); ``None`` for an array space.
 
     Raises:
         ConfigError: any other space (images or nested spaces inside a dict, a tuple, text).
@@ -193,13 +194,24 @@ def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
 
     if isinstance(space, gymnasium.spaces.Box):
         return None
-    if isinstance(space, gymnasium.spaces.Dict) and all(
-            isinstance(sub, gymnasium.spaces.Box) and not is_image_space(sub, check_channels=False)
-            for sub in space.spaces.values()):
+    if isinstance(space, gymnasium.spaces.Dict) and all(_flat_as_sb3(sub, is_image_space) for sub in space.spaces.values()):
         return space
     raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
-                      "Box: a vector, or stacked image frames) or a dict of vectors: wrap the env in "
-                      "gymnasium.wrappers.FlattenObservation, and train the model on that, to watch it")
+                      "Box: a vector, or stacked image frames) or a dict of vectors and discrete values: wrap the env "
+                      "in gymnasium.wrappers.FlattenObservation, and train the model on that, to watch it")
+
+
+def _flat_as_sb3(space: Any, is_image_space: Any) -> bool:
+    """Whether gymnasium flattens a dict's ``space`` into the numbers SB3's ``CombinedExtractor``
+    reads of it: a vector (not an image), a binary vector, or discrete values counted from 0 (one-hot)."""
+    spaces = gymnasium.spaces
+    if isinstance(space, spaces.Box):
+        return not is_image_space(space, check_channels=False)
+    if isinstance(space, spaces.Discrete):
+        return int(space.start) == 0
+    if isinstance(space, spaces.MultiDiscrete):
+        return np.ndim(space.nvec) == 1 and not np.any(space.start)
+    return isinstance(space, spaces.MultiBinary) and np.ndim(space.n) == 0
 
 
 def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_samples: int = 20,

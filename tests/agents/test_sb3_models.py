@@ -124,16 +124,16 @@ def test_a_td3_on_pendulum_is_watched_by_the_dynamics_detector(tmp_path, capsys)
 
 
 class _DictCartPole(gymnasium.ObservationWrapper):
-    """CartPole whose observations are ``{"state": the usual vector, "mode": 0}`` (a Dict space with
-    a discrete key, which oodmon's detectors cannot read)."""
+    """CartPole whose observations are ``{"state": the usual vector, "mode": 1}`` (a Dict space with
+    a discrete key counted from 1, which SB3 reads one-hot from 0 and gymnasium flattens from 1)."""
 
     def __init__(self) -> None:
         super().__init__(gymnasium.make("CartPole-v1"))
         self.observation_space = gymnasium.spaces.Dict({"state": self.env.observation_space,
-                                                        "mode": gymnasium.spaces.Discrete(3)})
+                                                        "mode": gymnasium.spaces.Discrete(3, start=1)})
 
     def observation(self, obs):
-        return {"state": obs, "mode": 0}
+        return {"state": obs, "mode": 1}
 
 
 class _Halves(gymnasium.ObservationWrapper):
@@ -152,24 +152,44 @@ class _Halves(gymnasium.ObservationWrapper):
         return {"b": obs[:self.cut], "a": obs[self.cut:]}
 
 
+class _Moded(_Halves):
+    """_Halves with discrete keys as well: a mode (0-2: how many of the cart and the pole move right)
+    and two flags (the cart left of centre, the pole leaning left), which SB3 reads one-hot and as 0/1."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.observation_space = gymnasium.spaces.Dict(
+            {**self.observation_space.spaces, "mode": gymnasium.spaces.Discrete(3),
+             "flags": gymnasium.spaces.MultiBinary(2)})
+
+    def observation(self, obs):
+        return super().observation(obs) | {"mode": int(obs[1] > 0) + int(obs[3] > 0),
+                                           "flags": np.array([obs[0] < 0, obs[2] < 0], np.int8)}
+
+
 for _task in ("CartPole-v1", "Pendulum-v1"):
     if f"Halves{_task}" not in gymnasium.registry:
         gymnasium.register(f"Halves{_task}", entry_point=_Halves, kwargs={"task_id": _task},
                            max_episode_steps=gymnasium.spec(_task).max_episode_steps)
+if "ModedCartPole-v1" not in gymnasium.registry:
+    gymnasium.register("ModedCartPole-v1", entry_point=_Moded, max_episode_steps=500)
 
 
-def test_an_ensemble_of_multi_input_dqns_reads_dict_observations_as_their_networks_do():
+@pytest.mark.parametrize("env_id, width", [("HalvesCartPole-v1", 4), ("ModedCartPole-v1", 9)])
+def test_an_ensemble_of_multi_input_dqns_reads_dict_observations_as_their_networks_do(env_id, width):
     """Two MultiInputPolicy DQNs on dict observations: the ensemble's samples are each model's own
-    Q-values at the dict, the deployed action is the first model's predict() of the dict."""
-    env = gymnasium.make("HalvesCartPole-v1")
+    Q-values at the dict, the deployed action is the first model's predict() of the dict (discrete
+    keys too: flattened one-hot, as SB3 reads them)."""
+    env = gymnasium.make(env_id)
     models = [DQN("MultiInputPolicy", env, seed=k, policy_kwargs={"net_arch": [16]}) for k in range(2)]
-    agent = sb3_agent(models, "HalvesCartPole-v1")
-    assert agent.dict_space == env.observation_space and agent.estimator.obs_shape == (4,)
+    agent = sb3_agent(models, env_id)
+    assert agent.dict_space == env.observation_space and agent.estimator.obs_shape == (width,)
     obs, _ = env.reset(seed=0)
     for _ in range(12):
         assert isinstance(obs, dict)
         flat = agent.view(obs)
-        np.testing.assert_array_equal(flat, np.r_[obs["a"], obs["b"]])  # the keys' order, not the vector's
+        ordered = [obs["a"], obs["b"]] if width == 4 else [obs["a"], obs["b"], obs["flags"], np.eye(3)[obs["mode"]]]
+        np.testing.assert_array_equal(flat, np.concatenate(ordered))  # the keys' order, not the vector's
         samples = agent.estimate(flat).samples[:, 0]
         with torch.no_grad():
             theirs = [m.q_net(m.policy.obs_to_tensor(obs)[0])[0].numpy() for m in models]
@@ -274,8 +294,8 @@ def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
     if "DictCartPoleForTests-v0" not in gymnasium.registry:
         gymnasium.register("DictCartPoleForTests-v0", entry_point=_DictCartPole)
     dict_model = PPO("MultiInputPolicy", gymnasium.make("DictCartPoleForTests-v0"), seed=0, n_steps=32, batch_size=32)
-    with pytest.raises(ConfigError, match=r"DictCartPoleForTests-v0's observations are Dict\(.*or a dict of vectors: "
-                                          r"wrap the env in gymnasium.wrappers.FlattenObservation"):
+    with pytest.raises(ConfigError, match=r"DictCartPoleForTests-v0's observations are Dict\(.*or a dict of vectors and "
+                                          r"discrete values: wrap the env in gymnasium.wrappers.FlattenObservation"):
         sb3_agent([dict_model], "DictCartPoleForTests-v0")
     DQN("MlpPolicy", gymnasium.make("Acrobot-v1"), seed=0).save(tmp_path / "acrobot.zip")  # an env without variants
     assert main(["run", "--sb3", str(tmp_path / "acrobot.zip"), "--env", "Acrobot-v1", "--variant", "cartpole:length=2.0"]) == 2
