@@ -966,9 +966,10 @@ def _validate(args: argparse.Namespace) -> int:
 
 def _check_frame_stack(frame_stack: int | None) -> None:
     """``--frame-stack``, refused before any model is read unless 2 or more (or not given)."""
-    if frame_stack is not None and frame_stack < 2:
-        raise InvalidParameterError(f"--frame-stack {frame_stack} is not allowed; give the n_stack of the "
-                                    "VecFrameStack the models were trained in, 2 or more")
+    if frame_stack is not None:
+        from oodmon.agents.frame_stack import check_frame_stack
+
+        check_frame_stack(frame_stack, parameter="--frame-stack ")
 
 
 def _load_agent(args: argparse.Namespace, *, seed: int | None = None):

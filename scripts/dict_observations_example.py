@@ -16,13 +16,14 @@ of each alarmed, and the steps of the shifted episodes' first alarms and ends.
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 import gymnasium
 import numpy as np
 import torch
 from gymnasium import spaces
+
+from oodmon.threads import torch_threads
 
 ENV_ID = "DictCartPole-v0"
 
@@ -60,7 +61,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/dictobs"))
     parser.add_argument("--steps", type=int, default=60_000, help="PPO's training steps")
     args = parser.parse_args()
-    torch.set_num_threads(int(os.environ.get("OODMON_TORCH_THREADS", "1")))
+    torch.set_num_threads(torch_threads(default=1))
     import oodmon
     from oodmon.monitor import MonitoredEnv
     from stable_baselines3 import PPO

@@ -18,7 +18,6 @@ README's commands and ``--frame-stack 4``::
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 import gymnasium
@@ -27,6 +26,7 @@ import torch
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.sb3 import load_sb3
 from oodmon.envs.grid import Variant
+from oodmon.threads import torch_threads
 
 
 def main() -> None:
@@ -34,7 +34,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/framestack"))
     parser.add_argument("--steps", type=int, default=60_000, help="PPO's training steps")
     args = parser.parse_args()
-    torch.set_num_threads(int(os.environ.get("OODMON_TORCH_THREADS", "1")))
+    torch.set_num_threads(torch_threads(default=1))
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
 

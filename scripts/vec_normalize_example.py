@@ -15,7 +15,6 @@ with the README's commands (``oodmon calibrate --sb3 runs/vecnorm/ppo.zip --env 
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 import torch
@@ -23,6 +22,7 @@ import torch
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.sb3 import load_sb3
 from oodmon.envs.grid import Variant
+from oodmon.threads import torch_threads
 
 
 def train(out: Path) -> None:
@@ -42,7 +42,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("runs/vecnorm"))
     args = parser.parse_args()
-    torch.set_num_threads(int(os.environ.get("OODMON_TORCH_THREADS", "1")))
+    torch.set_num_threads(torch_threads(default=1))
     args.out.mkdir(parents=True, exist_ok=True)
     train(args.out)
     model = args.out / "ppo.zip"

@@ -25,15 +25,15 @@ from oodmon.validation import is_whole
 __all__ = ["FrameStack", "Stacking", "check_frame_stack"]
 
 
-def check_frame_stack(n_stack: Any) -> int:
-    """``n_stack`` as an int, or an error naming it (a whole number >= 2).
+def check_frame_stack(n_stack: Any, parameter: str = "frame_stack=") -> int:
+    """``n_stack`` as an int, or an error naming it as ``parameter`` (a whole number >= 2).
 
     Example:
         >>> check_frame_stack(4)
         4
     """
     if not is_whole(n_stack, 2):
-        raise InvalidParameterError(f"frame_stack={n_stack!r} is not allowed; give the n_stack of the VecFrameStack "
+        raise InvalidParameterError(f"{parameter}{n_stack!r} is not allowed; give the n_stack of the VecFrameStack "
                                     "the model was trained in, a whole number >= 2")
     return int(n_stack)
 

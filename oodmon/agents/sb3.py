@@ -364,18 +364,16 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     if files is None:
         files = [{"path": "(in memory)", "sha256": _parameters_sha256(m), "algorithm": type(m).__name__}
                  for m in models]
-    if frame_stack is not None:
-        from oodmon.agents.frame_stack import FrameStack, check_frame_stack
-
-        frame_stack = check_frame_stack(frame_stack)
     try:
         env = gymnasium.make(env_id)
     except gymnasium.error.Error as error:
         raise ConfigError(f"env {env_id!r}: {error}") from None
     stacking = None
-    if frame_stack is not None:
+    if frame_stack is not None:  # the observations the models act on (FrameStack checks the depth)
+        from oodmon.agents.frame_stack import FrameStack
+
         env = FrameStack(env, frame_stack)
-        stacking = env.stacking
+        stacking, frame_stack = env.stacking, env.n_stack
     for model, file in zip(models, files):
         _check_spaces(model, Path(file["path"]), env, env_id, frame_stack)
     env.close()

@@ -390,8 +390,6 @@ def compute_monitor_metrics(logs: Iterable[RunLog]) -> list[MonitorMetrics]:
     from oodmon.monitor.threshold import clopper_pearson
 
     results = []
-    logs = list(logs)
-    shifted = shifted_alarms(logs)
     for (task, method, variant), pairs in sorted(_episodes_by_variant(logs).items()):
         if not _thresholded(pairs):
             continue
@@ -401,7 +399,7 @@ def compute_monitor_metrics(logs: Iterable[RunLog]) -> list[MonitorMetrics]:
             results.append(MonitorMetrics(task, method, variant, len(pairs), false_alarms=alarmed,
                                           far_low=low, far_high=high))
             continue
-        episodes = shifted[(task, method, variant)]
+        episodes = [EpisodeAlarms.of(e, task) for _, e in pairs]
         results.append(monitor_row(task, method, variant, len(episodes), sum(e.early is not None for e in episodes),
                                    sum(e.failure is not None for e in episodes), sum(e.before_failure for e in episodes),
                                    [e.first for e in episodes if e.first is not None]))

@@ -105,7 +105,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     estimator, act, _ = policy_parts(policy)
     ensemble = with_member_values and has_members(estimator)
     deploy = getattr(policy, "deploy", None)  # an Agent whose deployed policy is not its estimator's decision
-    own = getattr(policy, "own_observation", None) if getattr(policy, "stacking", None) is not None else None
+    stacking = getattr(policy, "stacking", None)  # an Agent acting on stacks: the detectors read their newest
     trajectories = []
     for episode in range(episodes):
         obs, _ = env.reset(seed=seed + episode)
@@ -128,8 +128,8 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
             if terminated or truncated or (max_steps is not None and len(actions) >= max_steps):
                 break
         acted_on = None
-        if own is not None:  # the detectors read the newest of each stack the policy acted on
-            acted_on, observations = np.asarray(observations), [own(o) for o in observations]
+        if stacking is not None:
+            acted_on, observations = np.asarray(observations), [stacking.newest(o) for o in observations]
         trajectories.append(Trajectory(np.asarray(observations), np.asarray(actions),
                                        np.asarray(features) if len(features) == len(actions) else None,
                                        np.asarray(values) if ensemble and values[0] is not None else None,
