@@ -83,10 +83,13 @@ def test_the_vecnormalize_unpickler_reaches_numpys_array_constructors_only():
     assert source.count(".load()") == 1 and "unpickler = _StatisticsUnpickler(io.BytesIO(data))" in source
     assert not re.search(r"pickle\.(loads?|Unpickler\(|load\()", source.replace("pickle.Unpickler):", ""))
     assert vec_normalize._CALLED == {(m, n) for m in ("numpy._core.multiarray", "numpy.core.multiarray")
-                                     for n in ("_reconstruct", "scalar")} | {("numpy", "ndarray"), ("numpy", "dtype")}
+                                     for n in ("_reconstruct", "scalar")} | {("numpy", "ndarray"), ("numpy", "dtype"),
+                                                                             ("collections", "OrderedDict")}
     unpickler = vec_normalize._StatisticsUnpickler(__import__("io").BytesIO(b""))
+    assert unpickler.find_class("collections", "OrderedDict") is __import__("collections").OrderedDict  # a container
     for module, name in [("os", "system"), ("builtins", "eval"), ("numpy", "load"), ("numpy.lib.npyio", "load"),
-                         ("subprocess", "Popen"), ("torch", "load")]:
+                         ("subprocess", "Popen"), ("torch", "load"), ("collections", "namedtuple"),
+                         ("collections", "defaultdict")]:
         with __import__("pytest").raises(pickle.UnpicklingError):
             unpickler.find_class(module, name)
     for module, name in [("stable_baselines3.common.vec_env.vec_normalize", "VecNormalize"),

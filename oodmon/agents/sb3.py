@@ -379,9 +379,15 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     env.close()
     dict_space = _dict_space(env.observation_space, env_id)
     normalizer = _normalizer_of(vec_normalize, models)
+    if normalizer is not None and (dict_space is not None) != (normalizer.keys is not None):
+        raise ConfigError(f"the VecNormalize statistics{' in ' + normalizer.path if normalizer.path else ''} are of "
+                          f"{'dict' if normalizer.keys is not None else 'array'} observations; {env_id}'s are "
+                          f"{env.observation_space}: statistics of another env?")
     if normalizer is not None and dict_space is not None:
-        raise ConfigError(f"{env_id}'s observations are dicts, and oodmon reads VecNormalize statistics of array "
-                          "observations only")
+        try:
+            normalizer = normalizer.flattened(dict_space)
+        except ConfigError as error:
+            raise ConfigError(f"{env_id}: {error}") from None
     if normalizer is not None and normalizer.shape is not None \
             and normalizer.shape not in (env.observation_space.shape, models[0].observation_space.shape):
         raise ConfigError(f"the VecNormalize statistics{' in ' + normalizer.path if normalizer.path else ''} are of "

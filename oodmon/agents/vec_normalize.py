@@ -6,8 +6,14 @@ SB3 saves beside the model (``vec_normalize.save("vecnormalize.pkl")``). Fed the
 observations it acts as another policy: a PPO that keeps CartPole's pole up for 500 steps with
 them, measured, lasts 78 without. oodmon's monitor must deploy it as it is deployed.
 
+A dict observation (a ``MultiInputPolicy``'s) is normalised key by key, those VecNormalize
+was told to (``norm_obs_keys``; by default every key), the others passed as they are; oodmon's
+detectors read such a dict flattened, and :meth:`ObservationNormalizer.flattened` gives the same
+normalisation of the flattened vector.
+
 SB3's ``VecNormalize.load`` unpickles the file, which can run any code. :func:`load_vec_normalize`
-reads it with an unpickler that calls nothing but numpy's array and dtype constructors, and
+reads it with an unpickler that calls nothing but numpy's array and dtype constructors (and
+``OrderedDict``, a dict observation's container), and
 builds every other object the file names (``VecNormalize``, ``RunningMeanStd``, the gymnasium
 spaces, numpy's random generators) as an inert record of its state, never as the class itself;
 a file that names anything else is refused, unread (Python's "Restricting Globals",
@@ -27,7 +33,7 @@ import io
 import json
 import pickle  # restricted below: find_class allows numpy's array constructors only
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,9 +48,11 @@ __all__ = ["NO_NORMALIZATION", "ObservationNormalizer", "load_vec_normalize", "n
 NO_NORMALIZATION = "none"
 
 #: The only callables a statistics file may reach: numpy's array, dtype and scalar constructors
-#: (numpy 2 names them ``numpy._core``, numpy 1 ``numpy.core``).
+#: (numpy 2 names them ``numpy._core``, numpy 1 ``numpy.core``), and ``OrderedDict``, the container
+#: of a dict observation's spaces (built empty, then filled with items: it runs nothing of the file's).
 _CALLED = {(module, name) for module in ("numpy._core.multiarray", "numpy.core.multiarray")
-           for name in ("_reconstruct", "scalar")} | {("numpy", "ndarray"), ("numpy", "dtype")}
+           for name in ("_reconstruct", "scalar")} | {("numpy", "ndarray"), ("numpy", "dtype"),
+                                                      ("collections", "OrderedDict")}
 
 #: Modules whose names a statistics file holds and oodmon builds as inert records, not as themselves.
 _RECORDED = ("stable_baselines3.common.vec_env.vec_normalize", "stable_baselines3.common.running_mean_std",
@@ -80,11 +88,17 @@ class ObservationNormalizer:
     Attributes:
         mean, var: the running mean and variance of the observations seen in training, each of
             the observation's shape; ``None``: observations are not normalised (``norm_obs=False``).
+            For dict observations, once :meth:`flattened`: those of the normalised keys' numbers, in
+            the flattened vector's order.
         epsilon: added to ``var`` before its square root (SB3's default 1e-8).
         clip_obs: normalised observations are clipped to [-clip_obs, clip_obs].
         sha256: the hash that binds thresholds and detectors to these statistics (the file's,
             or of the numbers for statistics in memory).
         path: the file the statistics were read from (``None``: in memory).
+        keys: dict observations: the normalised keys' ``(mean, var)`` (the other keys pass as they
+            are); ``None`` for array observations.
+        positions: once :meth:`flattened`, where the normalised keys' numbers sit in the flattened
+            vector (``mean`` and ``var`` are theirs).
     """
 
     mean: np.ndarray | None
@@ -93,48 +107,112 @@ class ObservationNormalizer:
     clip_obs: float = 10.0
     sha256: str = ""
     path: str | None = None
+    keys: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
+    positions: np.ndarray | None = None
 
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        """``obs`` (one observation or a batch) as the policy saw observations in training (float32)."""
+    def __call__(self, obs: np.ndarray | dict[str, np.ndarray]) -> np.ndarray | dict[str, np.ndarray]:
+        """``obs`` (one observation or a batch; a dict one, or a dict flattened once :meth:`flattened`)
+        as the policy saw observations in training (normalised numbers float32)."""
+        if isinstance(obs, dict):
+            if self.keys is None:
+                raise ConfigError("these VecNormalize statistics are of array observations, not of dicts")
+            return obs | {key: self._normalised(obs[key], mean, var) for key, (mean, var) in self.keys.items()}
+        if self.keys is not None and self.positions is None:
+            raise ConfigError("these VecNormalize statistics are of dict observations: flattened(dict_space) reads "
+                              "the flattened vectors")
         if self.mean is None:
             return obs
-        normalised = (np.asarray(obs, np.float64) - self.mean) / np.sqrt(self.var + self.epsilon)
+        if self.positions is None:
+            return self._normalised(obs, self.mean, self.var)
+        out = np.array(obs, np.float32)  # a copy: the other keys' numbers as they are
+        out[..., self.positions] = self._normalised(out[..., self.positions], self.mean, self.var)
+        return out
+
+    def _normalised(self, obs: np.ndarray, mean: np.ndarray, var: np.ndarray) -> np.ndarray:
+        normalised = (np.asarray(obs, np.float64) - mean) / np.sqrt(var + self.epsilon)
         return np.clip(normalised, -self.clip_obs, self.clip_obs).astype(np.float32)
+
+    def flattened(self, dict_space: Any) -> ObservationNormalizer:
+        """These statistics of dict observations, for the vectors ``gymnasium.spaces.flatten`` makes of
+        ``dict_space``'s dicts (what oodmon's detectors and estimators read; the dicts themselves
+        are still normalised key by key).
+
+        Raises:
+            ConfigError: a normalised key the space lacks, is not a vector of, or holds another
+                shape of (statistics of another env).
+        """
+        import gymnasium
+
+        if self.keys is None:
+            raise ConfigError("these VecNormalize statistics are of array observations, not of dicts")
+        missing = sorted(set(self.keys) - set(dict_space.spaces))
+        if missing:
+            raise ConfigError(f"the VecNormalize statistics normalise the keys {missing}, which the observations "
+                              f"{dict_space} lack: statistics of another env?")
+        means, variances, positions, start = [], [], [], 0
+        for key, space in dict_space.spaces.items():
+            size = gymnasium.spaces.flatdim(space)
+            if key in self.keys:
+                mean, var = self.keys[key]
+                if not isinstance(space, gymnasium.spaces.Box) or mean.shape != space.shape:
+                    raise ConfigError(f"the VecNormalize statistics of key {key!r} are of shape {mean.shape}; the "
+                                      f"observations' {key!r} is {space}: statistics of another env?")
+                means.append(mean.ravel())
+                variances.append(var.ravel())
+                positions.append(np.arange(start, start + size))
+            start += size
+        if not positions:  # no key normalised
+            return replace(self, mean=None, var=None, positions=np.zeros(0, np.int64))
+        return replace(self, mean=np.concatenate(means), var=np.concatenate(variances),
+                       positions=np.concatenate(positions))
 
     @property
     def shape(self) -> tuple[int, ...] | None:
-        return None if self.mean is None else tuple(self.mean.shape)
+        """The observations' shape the statistics are of (``None``: any, or dicts: see :meth:`flattened`)."""
+        return None if self.mean is None or self.keys is not None else tuple(self.mean.shape)
 
     def describe(self) -> dict[str, Any]:
         """The JSON record of these statistics in an agent's metadata (and so in its logs)."""
-        return {"path": self.path or "(in memory)", "sha256": self.sha256, "norm_obs": self.mean is not None,
-                "clip_obs": self.clip_obs, "epsilon": self.epsilon}
+        keys = {} if self.keys is None else {"norm_obs_keys": sorted(self.keys)}
+        return {"path": self.path or "(in memory)", "sha256": self.sha256,
+                "norm_obs": self.mean is not None or bool(self.keys),
+                "clip_obs": self.clip_obs, "epsilon": self.epsilon} | keys
 
 
-def _numbers_sha256(mean: np.ndarray | None, var: np.ndarray | None, epsilon: float, clip_obs: float) -> str:
-    digest = hashlib.sha256(json.dumps([epsilon, clip_obs]).encode())
-    for array in (mean, var):
+def _numbers_sha256(arrays: list[np.ndarray | None], epsilon: float, clip_obs: float, keys: list[str] | None = None) -> str:
+    digest = hashlib.sha256(json.dumps([epsilon, clip_obs] + ([] if keys is None else keys)).encode())
+    for array in arrays:
         digest.update(b"none" if array is None else np.asarray(array, np.float64).tobytes())
     return digest.hexdigest()
 
 
+def _statistics(rms: Any, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """The mean and var of one ``RunningMeanStd`` (in memory, or the file's record), checked."""
+    rms = rms.state if isinstance(rms, _Record) else getattr(rms, "__dict__", None)
+    if not isinstance(rms, dict) or not all(isinstance(rms.get(k), np.ndarray) for k in ("mean", "var")):
+        raise ConfigError(f"it holds no observation statistics{what} (obs_rms with a mean and a var array)")
+    mean, var = np.array(rms["mean"], np.float64), np.array(rms["var"], np.float64)  # copies
+    if mean.shape != var.shape or not (np.isfinite(mean).all() and np.isfinite(var).all() and (var >= 0).all()):
+        raise ConfigError(f"its observation statistics{what} are not usable (mean of shape {mean.shape}, var of shape "
+                          f"{var.shape}, finite and var >= 0 required)")
+    return mean, var
+
+
 def _normalizer(state: dict[str, Any], *, sha256: str | None = None, path: str | None = None) -> ObservationNormalizer:
     """The normalizer of a ``VecNormalize``'s attributes (``state``: its ``__dict__`` or the file's record)."""
-    if state.get("norm_obs_keys"):
-        raise ConfigError("the VecNormalize normalises a Dict observation's keys; oodmon watches array observations "
-                          "only (a gymnasium Box)")
     epsilon, clip_obs = float(state.get("epsilon", 1e-8)), float(state.get("clip_obs", 10.0))
-    mean = var = None
+    mean = var = keys = None
+    if state.get("norm_obs", True) and isinstance(state.get("obs_rms"), dict):  # a dict observation's, key by key
+        names = state.get("norm_obs_keys")
+        if not isinstance(names, (list, tuple)) or not all(isinstance(n, str) and n in state["obs_rms"] for n in names):
+            raise ConfigError("its dict observations' statistics do not match its norm_obs_keys")
+        keys = {name: _statistics(state["obs_rms"][name], f" of key {name!r}") for name in names}
+        arrays = [array for pair in keys.values() for array in pair]
+        return ObservationNormalizer(None, None, epsilon, clip_obs,
+                                     sha256 or _numbers_sha256(arrays, epsilon, clip_obs, list(keys)), path, keys)
     if state.get("norm_obs", True):
-        rms = state.get("obs_rms")
-        rms = rms.state if isinstance(rms, _Record) else getattr(rms, "__dict__", None)
-        if not isinstance(rms, dict) or not all(isinstance(rms.get(k), np.ndarray) for k in ("mean", "var")):
-            raise ConfigError("it holds no observation statistics (obs_rms with a mean and a var array)")
-        mean, var = np.array(rms["mean"], np.float64), np.array(rms["var"], np.float64)  # copies
-        if mean.shape != var.shape or not (np.isfinite(mean).all() and np.isfinite(var).all() and (var >= 0).all()):
-            raise ConfigError(f"its observation statistics are not usable (mean of shape {mean.shape}, var of shape "
-                              f"{var.shape}, finite and var >= 0 required)")
-    return ObservationNormalizer(mean, var, epsilon, clip_obs, sha256 or _numbers_sha256(mean, var, epsilon, clip_obs),
+        mean, var = _statistics(state.get("obs_rms"), "")
+    return ObservationNormalizer(mean, var, epsilon, clip_obs, sha256 or _numbers_sha256([mean, var], epsilon, clip_obs),
                                  path)
 
 

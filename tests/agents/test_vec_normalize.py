@@ -192,3 +192,81 @@ def test_the_normalizer_clips_as_vecnormalize_does():
     normalizer = ObservationNormalizer(np.zeros(2), np.ones(2), epsilon=0.0, clip_obs=5.0)
     assert normalizer(np.array([100.0, -2.0])).tolist() == [5.0, -2.0]
     assert ObservationNormalizer(None, None)(np.array([100.0])).tolist() == [100.0]  # norm_obs=False
+
+
+class _Split(gymnasium.ObservationWrapper):
+    """CartPole's observation as a dict: the cart ("cart": x, x'), the pole ("pole": theta, theta')
+    and a discrete key ("side": whether the pole leans right), named so that the dict's flattened
+    order (cart, pole, side... sorted: cart, pole, side) differs from the keys VecNormalize normalises."""
+
+    def __init__(self) -> None:
+        super().__init__(gymnasium.make("CartPole-v1"))
+        box = self.env.observation_space
+        self.observation_space = gymnasium.spaces.Dict({
+            "pole": gymnasium.spaces.Box(box.low[2:], box.high[2:], dtype=box.dtype),
+            "cart": gymnasium.spaces.Box(box.low[:2], box.high[:2], dtype=box.dtype),
+            "side": gymnasium.spaces.Discrete(2)})
+
+    def observation(self, obs):
+        return {"cart": obs[:2], "pole": obs[2:], "side": int(obs[2] > 0)}
+
+
+if "SplitCartPoleForVecNormalize-v1" not in gymnasium.registry:
+    gymnasium.register("SplitCartPoleForVecNormalize-v1", entry_point=_Split, max_episode_steps=500)
+
+
+@pytest.mark.parametrize("keys", [["pole", "cart"], ["pole"]])
+def test_dict_observations_are_normalised_key_by_key_as_vecnormalize_does(keys, tmp_path):
+    # MultiInputPolicy DQNs inside VecNormalize(norm_obs_keys=keys), statistics that move and scale
+    # every number: the ensemble's samples are each model's Q-values at VecNormalize's own
+    # normalisation of the dict, the deployed action its predict() there; the keys not listed, and
+    # the discrete one, pass as they are.
+    env_id = "SplitCartPoleForVecNormalize-v1"
+    venv = VecNormalize(make_vec_env(env_id, n_envs=1, seed=0), norm_obs_keys=keys)
+    models = [DQN("MultiInputPolicy", venv, seed=k, learning_starts=1000, policy_kwargs={"net_arch": [16]}) for k in range(2)]
+    models[0].learn(20)  # VecNormalize's statistics move; then set to numbers far from 0 and 1
+    venv.obs_rms["pole"].mean, venv.obs_rms["pole"].var = np.array([0.05, 0.1]), np.array([0.01, 0.25])
+    if "cart" in keys:
+        venv.obs_rms["cart"].mean, venv.obs_rms["cart"].var = np.array([0.5, -0.2]), np.array([4.0, 1.0])
+    for k, model in enumerate(models):
+        model.save(tmp_path / f"{k}.zip")
+    venv.save(tmp_path / "vecnormalize.pkl")
+    agent = load_sb3([tmp_path / "0.zip", tmp_path / "1.zip"], env_id, vec_normalize=tmp_path / "vecnormalize.pkl")
+    assert agent.metadata["vec_normalize"]["norm_obs_keys"] == sorted(keys)
+    env = gymnasium.make(env_id)
+    obs, _ = env.reset(seed=0)
+    moved = 0
+    for _ in range(15):
+        normalised = venv.normalize_obs({key: value[None] if key != "side" else np.array([value])
+                                         for key, value in obs.items()})
+        with torch.no_grad():
+            theirs = [m.q_net(m.policy.obs_to_tensor(normalised)[0])[0].numpy() for m in models]
+        flat = agent.view(obs)
+        np.testing.assert_allclose(agent.estimate(flat).samples[:, 0], theirs, rtol=1e-5, atol=1e-5)
+        assert agent.act(flat) == int(models[0].predict(normalised, deterministic=True)[0][0])
+        moved += not np.allclose(agent.estimate(flat).samples, load_sb3(
+            [tmp_path / "0.zip", tmp_path / "1.zip"], env_id, vec_normalize="none").estimate(flat).samples)
+        obs, _, terminated, truncated, _ = env.step(agent.act(flat))
+        if terminated or truncated:
+            obs, _ = env.reset()
+    assert moved == 15  # the statistics change what the networks see at every step
+
+
+def test_statistics_of_dicts_and_of_arrays_are_not_mixed_up(normalised_ppo, tmp_path):
+    folder, _, _ = normalised_ppo
+    env_id = "SplitCartPoleForVecNormalize-v1"
+    venv = VecNormalize(make_vec_env(env_id, n_envs=1, seed=0), norm_obs_keys=["pole"])
+    DQN("MultiInputPolicy", venv, seed=0, policy_kwargs={"net_arch": [16]}).save(tmp_path / "dict.zip")
+    venv.save(tmp_path / "dict.pkl")
+    with pytest.raises(ConfigError, match=r"are of array observations; SplitCartPoleForVecNormalize-v1's are Dict"):
+        load_sb3([tmp_path / "dict.zip"], env_id, vec_normalize=folder / "vecnormalize.pkl")
+    with pytest.raises(ConfigError, match=r"are of dict observations; CartPole-v1's are Box"):
+        load_sb3([folder / "ppo.zip"], "CartPole-v1", vec_normalize=tmp_path / "dict.pkl")
+    normalizer = load_vec_normalize(tmp_path / "dict.pkl")
+    other = gymnasium.spaces.Dict({"pole": gymnasium.spaces.Box(-1, 1, (3,)), "cart": gymnasium.spaces.Box(-1, 1, (2,))})
+    with pytest.raises(ConfigError, match=r"statistics of key 'pole' are of shape \(2,\)"):
+        normalizer.flattened(other)
+    with pytest.raises(ConfigError, match=r"normalise the keys \['pole'\], which the observations"):
+        normalizer.flattened(gymnasium.spaces.Dict({"cart": gymnasium.spaces.Box(-1, 1, (2,))}))
+    with pytest.raises(ConfigError, match=r"flattened\(dict_space\) reads the flattened vectors"):
+        normalizer(np.zeros(5, np.float32))
