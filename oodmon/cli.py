@@ -937,6 +937,10 @@ def _validate(args: argparse.Namespace) -> int:
     if args.task is None:
         raise ConfigError(f"{args.threshold} does not record its task; give --task")
     if args.model is None and not args.sb3:
+        if threshold.method == "sb3" and args.method is None:  # no shipped agent of that name
+            raise ConfigError(f"{args.threshold} was calibrated on your own SB3 model(s) in {threshold.task}: give them "
+                              f"again, --sb3 ZIP --env {threshold.task} (with --vec-normalize and --frame-stack as "
+                              "when calibrating)")
         args.method = args.method or threshold.method
     args.masks = args.masks or threshold.masks
     agent = _load_agent(args, seed=args.seed)  # the same --seed, the same count, for MC agents too

@@ -58,6 +58,7 @@ def files(tmp_path_factory) -> Path:
         "thr-pong.json": json.dumps(_threshold(task="pong")),
         "thr-dropout.json": json.dumps(_threshold(method="dropout")),
         "thr-weights.json": json.dumps(_threshold(policy_hash="sha256:" + "0" * 64)),
+        "thr-sb3.json": json.dumps(_threshold(task="my_envs:MyEnv-v0", method="sb3")),
         "base-metrics-5.json": json.dumps({"metrics": 5}),
         "base-row-5.json": json.dumps({"metrics": {"k": 5}}),
         "base-high.json": json.dumps({"metrics": {"k": {"auroc": "high"}}}),
@@ -171,6 +172,8 @@ CASES = [
     ("frame-stack-without-sb3", [*CALIBRATE, "--frame-stack", "4", "--out", "{d}/t.json"], {}, ["--frame-stack", "--sb3"]),
     ("frame-stack-1", ["calibrate", "--sb3", "{d}/m.zip", "--env", "CartPole-v1", "--frame-stack", "1", "--out",
                        "{d}/t.json"], {}, ["--frame-stack 1", "VecFrameStack"]),
+    ("validate-sb3-threshold-without-sb3", ["validate", "{d}/thr-sb3.json"], {},
+     ["thr-sb3.json", "--sb3 ZIP --env my_envs:MyEnv-v0"]),
 ]
 
 
