@@ -197,26 +197,72 @@ def bernoulli_positions(rng: np.random.Generator, size: int, p: float) -> np.nda
     return positions[: positions.searchsorted(size)]
 
 
+# A fixed DropConnect layer keeps its K masked weight matrices whole up to this many numbers
+# (1 MiB of float32; a product with them is then one call); larger ones keep only the dropped
+# weights, as a sparse matrix subtracted from the product with every weight kept.
+DENSE_FIXED_LIMIT = 1 << 18
+
+
 class _FixedDropConnect(Op):
     """A DropConnect layer whose K weight masks were drawn once: row k of (K, batch, in) drops the
-    same weights at every call (sample k is one fixed sub-network)."""
+    same weights at every call (sample k is one fixed sub-network).
+
+    The masks are drawn as the sampled layer draws them (the dropped weights' positions below
+    ``SPARSE_BELOW``, a dense mask above). Small layers keep the K masked matrices (CartPole's input
+    layer, 20 x 4 x 256: with one batch repeated in every row, one product with the K matrices side by
+    side); large ones the dropped weights' terms as one block-diagonal ``scipy.sparse`` matrix, whose
+    product with the K rows is subtracted from the product with every weight kept (CartPole's middle
+    layer, 26,000 of 1.3 million weights at p = 0.02; ``benchmarks/uncertainty_step.py``). Both give
+    the masked sums, summed in another order.
+    """
 
     def __init__(self, layer: _DropConnect, k: int, rng: np.random.Generator) -> None:
-        self.weight_t, self.bias, self.k = layer.scaled_weight_t, layer.bias, k
-        n_in, n_out = self.weight_t.shape
-        self.dropped = self.masked = None
-        if layer.p < SPARSE_BELOW:  # the dropped weights' terms, at positions drawn as the sampled layer draws them
-            self.dropped = _dropped_terms(bernoulli_positions(rng, k * n_in * n_out, float(layer.p)), self.weight_t)
+        from scipy import sparse
+
+        weight_t, self.bias, self.k = layer.scaled_weight_t, layer.bias, k
+        n_in, n_out = weight_t.shape
+        if layer.p < SPARSE_BELOW:  # the dropped weights' positions, drawn as the sampled layer draws them
+            dropped = bernoulli_positions(rng, k * n_in * n_out, float(layer.p))
         else:
-            self.masked = self.weight_t * (rng.random((k, n_in, n_out), dtype=np.float32) >= layer.p)
+            dropped = np.flatnonzero(rng.random((k, n_in, n_out), dtype=np.float32) < layer.p)
+        self.weight_t = weight_t
+        self.masked = self.side_by_side = self.dropped = None
+        if k * n_in * n_out <= DENSE_FIXED_LIMIT:
+            masked = np.broadcast_to(weight_t, (k, n_in, n_out)).copy()
+            masked.reshape(-1)[dropped] = 0.0
+            self.masked = masked
+            self.side_by_side = np.ascontiguousarray(masked.transpose(1, 0, 2).reshape(n_in, k * n_out))
+        else:  # row k * out + target of the matrix takes column k * in + source
+            row, rest = np.divmod(dropped, n_in * n_out)
+            source, target = np.divmod(rest, n_out)
+            matrix = sparse.csr_matrix((weight_t[source, target], (row * n_out + target, row * n_in + source)),
+                                       shape=(k * n_out, k * n_in), dtype=np.float32)
+            matrix.sort_indices()
+            self.dropped = matrix
 
     def __call__(self, x, rng):
         if x.shape[0] != self.k:
             raise ValueError(f"this layer's masks are fixed for {self.k} rows; got {x.shape[0]}")
+        rows, batch, n_in = x.shape
+        repeated = x.strides[0] == 0
         if self.masked is not None:
+            if repeated:  # one product of the batch with the K matrices side by side
+                out = np.matmul(x[0], self.side_by_side).reshape(batch, rows, -1)
+                return np.moveaxis(out, 0, 1) + self.bias
             return np.matmul(x, self.masked) + self.bias
-        full = np.matmul(x[:1] if x.strides[0] == 0 else x, self.weight_t)
-        return _subtract(full, x, *self.dropped) + self.bias
+        if repeated:
+            full = np.matmul(x[:1], self.weight_t)
+        else:  # one product of the K * batch rows (numpy would loop over K), with the inputs not zero in some row
+            active = active_inputs(x)
+            flat = x.reshape(rows * batch, n_in)
+            flat, weight_t = (flat, self.weight_t) if active.size == n_in else (flat[:, active], self.weight_t[active])
+            full = np.matmul(flat, weight_t).reshape(rows, batch, -1)
+        if batch == 1:
+            removed = (self.dropped @ x.reshape(rows * n_in)).reshape(rows, 1, -1)
+        else:
+            stacked = np.moveaxis(x, 1, 2).reshape(rows * n_in, batch)
+            removed = np.moveaxis((self.dropped @ stacked).reshape(rows, -1, batch), 2, 1)
+        return full - removed + self.bias
 
 
 class _FixedDropout(Op):

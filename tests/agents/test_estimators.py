@@ -10,6 +10,7 @@ from torch import nn
 from oodmon.agents.estimators import EnsembleEstimator, MCEstimator, _TorchPart
 from oodmon.agents.layers import DropConnectLinear, add_dropout, mc_sampling, to_dropconnect
 from oodmon.agents.networks import build_modules
+from oodmon.agents import plan
 from oodmon.agents.plan import active_inputs, bernoulli_positions, repeat_rows
 from oodmon.errors import ConfigError, InvalidParameterError
 
@@ -404,3 +405,37 @@ def test_fixed_masks_refuse_what_they_cannot_do():
 
     with pytest.raises(ConfigError, match="fixed masks need an nn.Sequential"):
         MCEstimator(Wrapped(), masks="fixed")
+
+
+@pytest.mark.parametrize("limit", [1 << 30, 0], ids=["masked-matrices", "sparse-dropped"])
+@pytest.mark.parametrize("p", [0.3, 0.02], ids=["dense-mask", "dropped-positions"])
+def test_a_fixed_dropconnect_layer_computes_its_masked_products(monkeypatch, limit, p):
+    # Either way a fixed layer keeps its K masks (the K masked matrices, or the dropped weights as a
+    # sparse matrix subtracted from the product with all of them), its rows are the products with
+    # the masks drawn as the sampled layer draws them: replayed here from the same generator.
+    monkeypatch.setattr(plan, "DENSE_FIXED_LIMIT", limit)
+    torch.manual_seed(1)
+    layer = DropConnectLinear(6, 5, p=p)
+    k = 7
+    (op,) = plan.compile_layers([layer])
+    fixed = plan.fix_masks([op], k, np.random.default_rng(3))[0]
+    assert (fixed.masked is None) == (limit == 0)
+    rng = np.random.default_rng(3)
+    if p < plan.SPARSE_BELOW:
+        mask = np.ones(k * 6 * 5, bool)
+        mask[plan.bernoulli_positions(rng, k * 6 * 5, p)] = False
+        mask = mask.reshape(k, 6, 5)
+    else:
+        mask = rng.random((k, 6, 5), dtype=np.float32) >= p
+    assert 0 < (~mask).sum() < mask.size
+    weight_t = layer.weight.detach().numpy().T / (1 - p)
+    bias = layer.bias.detach().numpy()
+    inputs = np.random.default_rng(4).normal(size=(3, 6)).astype(np.float32)
+    repeated = repeat_rows(inputs, k)  # one batch in every row (the monitor's case), and K batches of their own
+    own = np.random.default_rng(5).normal(size=(k, 3, 6)).astype(np.float32)
+    own[..., 2] = 0.0  # an input zero in every row: left out of the product with every weight kept
+    for x in (repeated, own, repeated[:, :1], own[:, :1]):
+        expected = np.einsum("kbi,kio->kbo", x.astype(np.float64), weight_t * mask) + bias
+        np.testing.assert_allclose(fixed(x, None), expected, rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="fixed for 7 rows; got 3"):
+        fixed(own[:3], None)
