@@ -13,7 +13,9 @@ full-depth DropConnect agents do not meet (they drop weights of every layer of e
 "Full depth" in oodmon/zoo/README.md, and ``benchmarks/dropconnect_floor.py`` for why numpy cannot
 meet it on either task). ``ratio_<task>=`` is each task's worst; ``ratio_output_layer=`` the worst of
 the agents whose sampling stops at the output layer; ``ratio_fixed_masks=`` the worst of the MC
-agents loaded with ``masks="fixed"`` (their sampled decision and the fixed sub-networks' pass).
+agents loaded with ``masks="fixed"`` (their sampled decision and the fixed sub-networks' pass);
+``ratio_fixed_decisions=`` the worst of them loaded with ``masks="fixed-decisions"`` (the fixed
+sub-networks decide: one pass, no random draw), with ``ratio_fixed_decisions_<task>=`` per task.
 
 ``--net-arch 64,64``: every agent built with these hidden widths instead of its recipe's (a candidate
 that would decide faster; the recipes' drop probabilities and K), beside the same plain predict() of
@@ -48,14 +50,14 @@ def plain_predict_us(task: str, net_arch: list[int]) -> float:
     return per_call_us(lambda: plain.predict(obs, deterministic=True), REPEATS[task])
 
 
-def task_figures(task: str, net_arch: list[int] | None = None) -> tuple[float, dict[str, float], set[str], dict[str, float]]:
-    """One plain predict()'s time, each method's decision time by label, the full-depth labels, and
-    the MC methods' decision times with fixed masks (a second pass beside the sampled decision);
-    ``net_arch``: the agents' hidden widths instead of their recipes'."""
+def task_figures(task: str, net_arch: list[int] | None = None) -> tuple[float, dict[str, float], set[str], dict[str, float], dict[str, float]]:
+    """One plain predict()'s time, each method's decision time by label, the full-depth labels, the
+    MC methods' decision times with fixed masks (a second pass beside the sampled decision) and with
+    fixed masks that decide (one pass); ``net_arch``: the agents' hidden widths instead of their recipes'."""
     env = gymnasium.make(ENV_IDS[task])
     obs, _ = env.reset(seed=0)
     baseline = plain_predict_us(task, list(recipe_for(task, "ensemble").net_arch))
-    figures, full_depth, fixed = {}, set(), {}
+    figures, full_depth, fixed, deciding = {}, set(), {}, {}
     for method in ("ensemble", "dropout", "dropconnect"):
         recipe = recipe_for(task, method)
         if net_arch is not None:
@@ -72,7 +74,9 @@ def task_figures(task: str, net_arch: list[int] | None = None) -> tuple[float, d
         if method != "ensemble":
             masked = estimator_for(build_modules(arch), arch, n_samples=recipe.n_samples, masks="fixed", **bounds)
             fixed[f"{label}, fixed masks"] = per_call_us(lambda: masked.estimate(obs), REPEATS[task])
-    return baseline, figures, full_depth, fixed
+            one_pass = estimator_for(build_modules(arch), arch, n_samples=recipe.n_samples, masks="fixed-decisions", **bounds)
+            deciding[f"{label}, fixed masks deciding"] = per_call_us(lambda: one_pass.estimate(obs), REPEATS[task])
+    return baseline, figures, full_depth, fixed, deciding
 
 
 def main() -> None:
@@ -81,22 +85,26 @@ def main() -> None:
                         help="hidden widths of every agent instead of its recipe's, e.g. 64,64")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    ratios, output_layer, fixed_ratios = {}, [], []
+    ratios, output_layer, fixed_ratios, deciding_ratios = {}, [], [], {}
     for task in ("cartpole", "pendulum"):
-        baseline, figures, full_depth, fixed = task_figures(task, args.net_arch)
-        print(f"{task + ' sb3 predict (one plain model)':64s} {baseline:10.1f} us")
+        baseline, figures, full_depth, fixed, deciding = task_figures(task, args.net_arch)
+        print(f"{task + ' sb3 predict (one plain model)':72s} {baseline:10.1f} us")
         if args.net_arch is not None:
             own = plain_predict_us(task, args.net_arch)
-            print(f"{task + f' sb3 predict (one plain model, {args.net_arch})':64s} {own:10.1f} us")
-        for label, us in (figures | fixed).items():
-            print(f"{label:64s} {us:10.1f} us")
+            print(f"{task + f' sb3 predict (one plain model, {args.net_arch})':72s} {own:10.1f} us")
+        for label, us in (figures | fixed | deciding).items():
+            print(f"{label:72s} {us:10.1f} us")
         ratios[task] = max(figures.values()) / baseline
         output_layer += [us / baseline for label, us in figures.items() if label not in full_depth]
         fixed_ratios += [us / baseline for us in fixed.values()]
+        deciding_ratios[task] = max(deciding.values()) / baseline
     for task, ratio in ratios.items():
         print(f"ratio_{task}={ratio:.2f}")
     print(f"ratio_output_layer={max(output_layer):.2f}")
     print(f"ratio_fixed_masks={max(fixed_ratios):.2f}")
+    for task, ratio in deciding_ratios.items():
+        print(f"ratio_fixed_decisions_{task}={ratio:.2f}")
+    print(f"ratio_fixed_decisions={max(deciding_ratios.values()):.2f}")
     print(f"ratio={max(ratios.values()):.2f}")
 
 

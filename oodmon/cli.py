@@ -356,7 +356,8 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--masks", choices=MASKS,
                        help="MC masks of the Dropout and DropConnect agents, and of one --sb3 model with dropout "
                             "(default: each model's, sampled): fixed draws K masks once, so that sample k is the same "
-                            "sub-network at every decision (the decisions stay the mean of freshly sampled masks)")
+                            "sub-network at every decision (the decisions stay the mean of freshly sampled masks); "
+                            "fixed-decisions: the same K fixed sub-networks decide too, by their mean (one pass)")
     bench.add_argument("--members", type=_whole(2), metavar="K",
                        help="members of each ensemble trial (default: the recipe's, 5); another size trains every "
                             "trial, trial 0 too (member k has the same seed at any size: members trained before are "
@@ -549,7 +550,8 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
     parser.add_argument("--masks", choices=MASKS,
                         help="the masks of an MC agent, or of one --sb3 model with dropout: sampled anew at every "
                              "decision, or fixed: K masks drawn once, so that the spread is that of K fixed "
-                             "sub-networks (the decision is still the mean of sampled masks). Default: the threshold "
+                             "sub-networks (the decision is still the mean of sampled masks); fixed-decisions: the "
+                             "fixed sub-networks decide too, by their mean, in the same pass. Default: the threshold "
                              "file's, if it records them, else the model's (sampled)")
     _sb3_arguments(parser)
     parser.add_argument("--detectors", metavar="DIR",

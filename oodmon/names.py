@@ -6,7 +6,7 @@ without loading torch or gymnasium. ``oodmon.envs.TASKS`` and ``oodmon.agents.ME
 
 from __future__ import annotations
 
-__all__ = ["MASKS", "METHODS", "TASKS"]
+__all__ = ["FIXED_MASKS", "MASKS", "METHODS", "TASKS", "fixed_masks"]
 
 #: The tasks, each one env of the paper (CartPole, Pendulum: physics shifts; Pong: corrupted frames).
 TASKS: tuple[str, ...] = ("cartpole", "pendulum", "pong")
@@ -16,5 +16,20 @@ METHODS: tuple[str, ...] = ("dropout", "dropconnect", "ensemble")
 
 #: How an MC estimator draws its masks: ``sampled`` anew at every decision (MC Dropout and
 #: DropConnect as the paper samples them), or ``fixed``: K masks drawn once, so that sample k is the
-#: same sub-network at every decision (see ``oodmon.agents.estimators.MCEstimator``).
-MASKS: tuple[str, ...] = ("sampled", "fixed")
+#: same sub-network at every decision, the action still decided by K freshly sampled masks; or
+#: ``fixed-decisions``: the K fixed sub-networks decide too, by their mean, in the same pass (an
+#: implicit ensemble of K sub-networks, as Masksembles; see ``oodmon.agents.estimators.MCEstimator``).
+MASKS: tuple[str, ...] = ("sampled", "fixed", "fixed-decisions")
+
+#: The masks drawn once (sample k one sub-network at every decision).
+FIXED_MASKS: tuple[str, ...] = ("fixed", "fixed-decisions")
+
+
+def fixed_masks(masks: str | None) -> bool:
+    """Whether ``masks`` (an estimator's, a threshold's; None: not an MC estimator) are drawn once.
+
+    Example:
+        >>> fixed_masks("fixed-decisions"), fixed_masks("sampled"), fixed_masks(None)
+        (True, False, False)
+    """
+    return masks in FIXED_MASKS

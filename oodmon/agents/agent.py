@@ -127,7 +127,8 @@ class Agent:
     def __repr__(self) -> str:
         ret = self.metadata.get("id_return_mean")
         k = "none (plain policy)" if self.estimator is None else self.estimator.n_samples
-        masks = ", fixed masks" if getattr(self.estimator, "masks", None) == "fixed" else ""
+        masks = getattr(self.estimator, "masks", None)
+        masks = {"fixed": ", fixed masks", "fixed-decisions": ", fixed masks deciding"}.get(masks, "")
         return f"Agent({self.task}, {self.method}, K={k}{masks}, id_return_mean={ret}, path={self.path})"
 
 
@@ -140,7 +141,7 @@ def load_agent(directory: str | Path, *, task: str | None = None, n_samples: int
         task: if given, refuse another task's model.
         n_samples: MC samples per decision (default: the recipe's); ignored by ensembles.
         seed: seeds MC sampling (see :class:`~oodmon.agents.estimators.MCEstimator`).
-        masks: ``"sampled"`` or ``"fixed"`` MC masks (default: the model's ``masks``, else
+        masks: ``"sampled"``, ``"fixed"`` or ``"fixed-decisions"`` MC masks (default: the model's ``masks``, else
             sampled; see :class:`~oodmon.agents.estimators.MCEstimator`); ignored by ensembles.
 
     Raises:

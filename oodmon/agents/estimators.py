@@ -36,7 +36,7 @@ from torch.nn.modules.module import _global_forward_hooks, _global_forward_pre_h
 from oodmon.agents.layers import DropConnectLinear, is_mode_free, is_stochastic, mc_sampling
 from oodmon.agents.plan import Op, StackedAffine, compile_layers, ends_with_tanh, fix_masks, repeat_rows, run
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.names import MASKS
+from oodmon.names import MASKS, fixed_masks
 from oodmon.validation import is_whole
 
 __all__ = ["MASKS", "EnsembleEstimator", "Estimate", "MCEstimator", "UncertaintyEstimator"]
@@ -51,8 +51,8 @@ class Estimate:
     Attributes:
         action: the deployed action per observation: (batch,) int64 for DQN, (batch, action_dim)
             float32 for DDPG (in the env's action units). The decision of the samples' mean, but
-            for an MC estimator with fixed masks: there it is the mean of K freshly sampled masks
-            (the paper's MC decision), and the samples are the K fixed sub-networks'.
+            for an MC estimator with ``masks="fixed"``: there it is the mean of K freshly sampled
+            masks (the paper's MC decision), and the samples are the K fixed sub-networks'.
         samples: (K, batch, n) Q-values (DQN) or actions (DDPG).
         mean: (batch, n) the mean over the K samples.
         std: (batch, n) the standard deviation over the K samples (population, ddof=0).
@@ -280,8 +280,11 @@ class MCEstimator(UncertaintyEstimator):
             not with the draw. The action is still decided by the mean of K freshly sampled
             masks (the deployed policy does not change, at the cost of a second pass): decided
             by the fixed sub-networks themselves, the shifted episodes change too, and how well
-            the spread separates them with them (README, "Fixed masks"). Needs an
-            ``nn.Sequential`` network (the numpy path).
+            the spread separates them with them (README, "Fixed masks"). Or
+            ``"fixed-decisions"``: the same K fixed sub-networks, which decide too, by their mean
+            (one pass, and no random draw after the masks: an implicit ensemble of K sub-networks,
+            as Masksembles, Durasov et al. 2021). Fixed masks need an ``nn.Sequential`` network
+            (the numpy path).
         mask_seed: seeds the fixed masks (not the sampling ``seed``): the same weights and
             mask seed give the same K sub-networks in every process, which a threshold
             calibrated on them relies on.
@@ -331,7 +334,7 @@ class MCEstimator(UncertaintyEstimator):
         self._torch_prefix: _TorchPart | None = None
         self._prefix: list[Op] | None = None
         self._suffix: list[Op] | None = None
-        self._fixed: list[Op] | None = None  # the suffix with its masks drawn once (masks="fixed")
+        self._fixed: list[Op] | None = None  # the suffix with its masks drawn once (fixed masks)
         if isinstance(network, nn.Sequential):
             layers = list(network)
             first = next(i for i, m in enumerate(layers) if any(is_stochastic(x) for x in m.modules()))
@@ -348,8 +351,8 @@ class MCEstimator(UncertaintyEstimator):
             self._torch_prefix = _TorchPart(network[:start]) if start > 0 else None
             if kind == "actions" and ends_with_tanh(self._suffix):
                 self._suffix, self._squash = self._suffix[:-1], True  # tanh applied in estimate()
-            self._fixed = fix_masks(self._suffix, n_samples, np.random.default_rng(mask_seed)) if masks == "fixed" else None
-        elif masks == "fixed":
+            self._fixed = fix_masks(self._suffix, n_samples, np.random.default_rng(mask_seed)) if fixed_masks(masks) else None
+        elif fixed_masks(masks):
             raise ConfigError(f"fixed masks need an nn.Sequential network (its layers compiled to numpy); got a "
                               f"{type(network).__name__}")
         elif any(isinstance(m, DropConnectLinear) for m in stochastic):
@@ -365,6 +368,8 @@ class MCEstimator(UncertaintyEstimator):
         hidden = run(self._prefix, hidden, self._rng)
         self._features = hidden.reshape(hidden.shape[0], -1)
         repeated = repeat_rows(hidden, self.n_samples)
+        if self.masks == "fixed-decisions":  # the fixed sub-networks decide: one pass
+            return run(self._fixed, repeated, self._rng).astype(np.float32, copy=False)
         sampled = run(self._suffix, repeated, self._rng).astype(np.float32, copy=False)
         if self._fixed is None:
             return sampled

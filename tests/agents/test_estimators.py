@@ -391,6 +391,28 @@ def test_fixed_masks_keep_the_sampled_decision(method, tanh):
         np.testing.assert_allclose(np.tanh(got.pre_squash) * 2.0, got.samples, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("method", ["dropout", "dropconnect"])
+@pytest.mark.parametrize("tanh", [False, True], ids=["dqn", "ddpg"])
+def test_fixed_masks_that_decide_decide_by_the_fixed_sub_networks_mean(method, tanh):
+    # masks="fixed-decisions": the samples are the K fixed sub-networks' (those of masks="fixed", the
+    # same mask seed), and the action is decided by their mean, with no random draw: any sampling
+    # seed gives the same actions, and the generator does not move.
+    network = _deep(method, 0.05, tanh=tanh)
+    bounds = {"kind": "actions", "action_low": [-2.0], "action_high": [2.0]} if tanh else {}
+    hybrid = MCEstimator(network, n_samples=10, seed=4, masks="fixed", **bounds)
+    deciding = MCEstimator(network, n_samples=10, seed=4, masks="fixed-decisions", **bounds)
+    state = deciding.sampling_state
+    got, fixed = deciding.estimate(OBS), hybrid.estimate(OBS)
+    assert deciding.sampling_state == state
+    np.testing.assert_array_equal(got.samples, fixed.samples)
+    mean = got.samples.mean(axis=0)
+    np.testing.assert_array_equal(got.action, mean if tanh else mean.argmax(axis=1))
+    other_seed = MCEstimator(network, n_samples=10, seed=99, masks="fixed-decisions", **bounds).estimate(OBS)
+    np.testing.assert_array_equal(other_seed.action, got.action)
+    if tanh:  # the sampled decision of masks="fixed" is another one
+        assert not np.allclose(fixed.action, got.action)
+
+
 def test_fixed_masks_refuse_what_they_cannot_do():
     with pytest.raises(InvalidParameterError, match="masks='frozen' is not allowed"):
         MCEstimator(_deep("dropout", 0.1), masks="frozen")

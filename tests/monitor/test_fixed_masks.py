@@ -57,6 +57,8 @@ def test_a_threshold_records_its_masks_and_is_refused_for_the_other_kind(tmp_pat
     assert threshold.masks == "fixed"
     with pytest.raises(ConfigError, match="it was calibrated for masks 'fixed', not 'sampled'"):
         Monitor(load("cartpole", "dropconnect"), threshold)
+    with pytest.raises(ConfigError, match="masks 'fixed', not 'fixed-decisions'"):  # the same sub-networks, another policy
+        Monitor(load("cartpole", "dropconnect", masks="fixed-decisions"), threshold)
     Monitor(load("cartpole", "dropconnect", masks="fixed"), threshold)  # its own kind: accepted
     # `oodmon run` takes the masks from the threshold file: no --masks needed, and none refused.
     agent = ("--task", "cartpole", "--method", "dropconnect")

@@ -29,6 +29,7 @@ from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector, member_
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.scores import DEFAULT_SCORE
+from oodmon.names import fixed_masks
 from oodmon.seeds import DETECTOR_FIT
 from oodmon.validation import is_whole
 from oodmon.progress import Progress
@@ -221,8 +222,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         parts.append(FramesDetector().fit(fit))
     if "scaled_spread" in detectors:
         # An MC agent's fixed sub-networks share most of their weights and move together: whitened.
-        fixed_masks = getattr(estimator, "masks", None) == "fixed"
-        parts.append(ScaledSpreadDetector("whiten" if fixed_masks else None).fit(fit))
+        whiten = fixed_masks(getattr(estimator, "masks", None))
+        parts.append(ScaledSpreadDetector("whiten" if whiten else None).fit(fit))
     obs_shape = list(np.shape(trajectories[0].observations)[1:])
     fitted_for = {"task": task, "obs_shape": obs_shape, "policy_hash": policy_hash, "version": FIT_VERSION,
                   "episodes": episodes, "seed": seed, "obs_noise": obs_noise,
@@ -241,10 +242,10 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
 
 def has_members(estimator: Any) -> bool:
     """Whether sample k of ``estimator`` is the same network at every decision: an ensemble's
-    member, or an MC estimator's fixed sub-network (``masks="fixed"``)."""
+    member, or an MC estimator's fixed sub-network (``masks="fixed"`` or ``"fixed-decisions"``)."""
     from oodmon.agents.estimators import EnsembleEstimator
 
-    return isinstance(estimator, EnsembleEstimator) or getattr(estimator, "masks", None) == "fixed"
+    return isinstance(estimator, EnsembleEstimator) or fixed_masks(getattr(estimator, "masks", None))
 
 
 def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, episodes: int = DEFAULT_FIT_EPISODES,

@@ -24,7 +24,8 @@ not help CartPole (0.869 on ``gravity=98.0`` on the sweeps' episodes, the z-scor
 
 Sampled MC samples are not members (sample k is another network at every step), so
 :func:`~oodmon.monitor.detectors.fit_detectors` refuses it for MC agents, unless their masks are
-fixed (``load(..., masks="fixed")``): then sample k is one sub-network throughout, a member.
+fixed (``load(..., masks="fixed")`` or ``"fixed-decisions"``): then sample k is one sub-network
+throughout, a member.
 """
 
 from __future__ import annotations
