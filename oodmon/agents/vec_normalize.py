@@ -31,7 +31,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import pickle  # restricted below: find_class allows numpy's array constructors only
+import pickle  # restricted below: find_class allows numpy's array constructors and OrderedDict only
 import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -201,7 +201,7 @@ def _statistics(rms: Any, what: str) -> tuple[np.ndarray, np.ndarray]:
 def _normalizer(state: dict[str, Any], *, sha256: str | None = None, path: str | None = None) -> ObservationNormalizer:
     """The normalizer of a ``VecNormalize``'s attributes (``state``: its ``__dict__`` or the file's record)."""
     epsilon, clip_obs = float(state.get("epsilon", 1e-8)), float(state.get("clip_obs", 10.0))
-    mean = var = keys = None
+    mean = var = None
     if state.get("norm_obs", True) and isinstance(state.get("obs_rms"), dict):  # a dict observation's, key by key
         names = state.get("norm_obs_keys")
         if not isinstance(names, (list, tuple)) or not all(isinstance(n, str) and n in state["obs_rms"] for n in names):
