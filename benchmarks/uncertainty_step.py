@@ -88,12 +88,12 @@ def main() -> None:
     ratios, output_layer, fixed_ratios, deciding_ratios = {}, [], [], {}
     for task in ("cartpole", "pendulum"):
         baseline, figures, full_depth, fixed, deciding = task_figures(task, args.net_arch)
-        print(f"{task + ' sb3 predict (one plain model)':72s} {baseline:10.1f} us")
+        print(f"{task + ' sb3 predict (one plain model)':80s} {baseline:10.1f} us")
         if args.net_arch is not None:
             own = plain_predict_us(task, args.net_arch)
-            print(f"{task + f' sb3 predict (one plain model, {args.net_arch})':72s} {own:10.1f} us")
+            print(f"{task + f' sb3 predict (one plain model, {args.net_arch})':80s} {own:10.1f} us")
         for label, us in (figures | fixed | deciding).items():
-            print(f"{label:72s} {us:10.1f} us")
+            print(f"{label:80s} {us:10.1f} us")
         ratios[task] = max(figures.values()) / baseline
         output_layer += [us / baseline for label, us in figures.items() if label not in full_depth]
         fixed_ratios += [us / baseline for us in fixed.values()]

@@ -13,6 +13,10 @@ either way). The score is ``margin_std`` for DQN agents and ``pre_squash_std`` f
 episodes of the detectors' own seeds). One JSON line per (label, model folder) goes to
 ``results/sweeps/fixed_masks.jsonl``; one already there is not run again. ``--table`` prints mean ±
 std over each label's agents per variant.
+
+``--masks fixed-decisions``: the fixed sub-networks decide too (``load(..., masks="fixed-decisions")``:
+another policy, so other episodes); the row holds the two measures of :data:`DECIDING` instead,
+and ``"masks": "fixed-decisions"``.
 """
 
 from __future__ import annotations
@@ -31,37 +35,44 @@ OUT = Path("results/sweeps/fixed_masks.jsonl")
 ID_SEED, SHIFTED_SEED = 200_000, 400_000  # the sweeps' episodes
 ID_EPISODES, SHIFTED_EPISODES = 10, 5
 MEASURES = ("sampled spread", "fixed spread", "fixed scaled_spread")
+DECIDING = ("fixed-decisions spread", "fixed-decisions scaled_spread")
 
 
-def measure(folder: Path) -> dict:
-    """The agent's per-variant AUROC of each of :data:`MEASURES`, and its mean episode length per
-    variant (CartPole's return; the same with either masks, which decide alike)."""
-    sampled = load_agent(folder, seed=MC_SEED)
-    fixed = load_agent(folder, seed=MC_SEED, masks="fixed")
-    score = "margin_std" if sampled.estimator.kind == "q_values" else "pre_squash_std"
+def measure(folder: Path, masks: str = "fixed") -> dict:
+    """The agent's per-variant AUROC of each of :data:`MEASURES` (``masks="fixed-decisions"``:
+    :data:`DECIDING`), and its mean episode length per variant (CartPole's return; the same with
+    sampled and ``fixed`` masks, which decide alike)."""
+    fixed = load_agent(folder, seed=MC_SEED, masks=masks)
+    score = "margin_std" if fixed.estimator.kind == "q_values" else "pre_squash_std"
     fitted = fit_agent_detectors(fixed, detectors=("scaled_spread",), score=score)
-    plain = DetectorSet([SpreadDetector(score)])
+    if masks == "fixed":
+        plain = DetectorSet([SpreadDetector(score)])
+        measures = MEASURES
+        runs = ((load_agent(folder, seed=MC_SEED), plain, {"spread": "sampled spread"}),
+                (fixed, fitted, {"spread": "fixed spread", "scaled_spread": "fixed scaled_spread"}))
+    else:
+        measures = DECIDING
+        runs = ((fixed, fitted, {"spread": "fixed-decisions spread", "scaled_spread": "fixed-decisions scaled_spread"}),)
 
     def scores(spec: str, episodes: int, seed: int) -> tuple[dict[str, np.ndarray], float]:
-        steps: dict[str, list[np.ndarray]] = {name: [] for name in MEASURES}
+        steps: dict[str, list[np.ndarray]] = {name: [] for name in measures}
         lengths = []
-        for agent, detectors, names in ((sampled, plain, {"spread": "sampled spread"}),
-                                        (fixed, fitted, {"spread": "fixed spread", "scaled_spread": "fixed scaled_spread"})):
+        for agent, detectors, names in runs:
             for trajectory in collect(agent, parse_variant(spec).make(), episodes, seed=seed):
                 for name, values in trajectory_scores(detectors, trajectory, agent.estimator).items():
                     steps[names[name]].append(values)
                 lengths.append(len(trajectory))
         return {name: np.concatenate(values) for name, values in steps.items()}, float(np.mean(lengths))
 
-    task, method = sampled.task, sampled.method
+    task, method = fixed.task, fixed.method
     id_scores, id_length = scores(task, ID_EPISODES, ID_SEED)
-    auroc, lengths = {name: {} for name in MEASURES}, {task: id_length}
+    auroc, lengths = {name: {} for name in measures}, {task: id_length}
     for spec in VARIANTS[(task, method)]:
         shifted, lengths[spec] = scores(spec, SHIFTED_EPISODES, SHIFTED_SEED)
-        for name in MEASURES:
+        for name in measures:
             auroc[name][spec] = round(step_auroc(id_scores[name], shifted[name]), 3)
     return {"task": task, "method": method, "score": score, "mc_seed": MC_SEED, "auroc": auroc,
-            "length_mean": {k: round(v, 1) for k, v in lengths.items()}}
+            "length_mean": {k: round(v, 1) for k, v in lengths.items()}} | ({} if masks == "fixed" else {"masks": masks})
 
 
 def table(rows: list[dict]) -> str:
@@ -69,7 +80,7 @@ def table(rows: list[dict]) -> str:
     lines = ["| agents | measure | per variant: AUROC mean ± std (each agent) |", "|---|---|---|"]
     for label in dict.fromkeys(r["label"] for r in rows):
         mine = [r for r in rows if r["label"] == label]
-        for name in MEASURES:
+        for name in mine[0]["auroc"]:
             cells = []
             for spec in mine[0]["auroc"][name]:
                 values = [r["auroc"][name][spec] for r in mine]
@@ -84,6 +95,8 @@ def main() -> None:
     parser.add_argument("folders", nargs="*", type=Path, help="model folders (model.json + model.safetensors)")
     parser.add_argument("--label", help="what the agents are (a recipe), the table's row name")
     parser.add_argument("--table", action="store_true", help="print the rows as a markdown table")
+    parser.add_argument("--masks", choices=("fixed", "fixed-decisions"), default="fixed",
+                        help="fixed-decisions: the fixed sub-networks decide too (their two measures only)")
     args = parser.parse_args()
     rows = read_rows(OUT)
     if args.table:
@@ -94,7 +107,7 @@ def main() -> None:
     done = {(r["label"], r["folder"]) for r in rows}
     for folder in args.folders:
         if (args.label, str(folder)) not in done:
-            append_row(OUT, {"label": args.label, "folder": str(folder), **measure(folder)})
+            append_row(OUT, {"label": args.label, "folder": str(folder), **measure(folder, args.masks)})
 
 
 if __name__ == "__main__":

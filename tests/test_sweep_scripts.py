@@ -264,6 +264,12 @@ def test_sweep_fixed_masks_measures_an_agent_and_tabulates_its_rows(monkeypatch,
     table = script.table([{"label": "zoo", **row}, {"label": "zoo", **other}])
     value = row["auroc"]["fixed spread"]["pendulum:g=50.0"]
     assert f"| zoo (2) | fixed spread | g=50.0 {np.mean([value, 0.5]):.3f} ± {np.std([value, 0.5]):.3f}" in table
+    # The fixed sub-networks deciding: their two measures only, the row saying so, its own table rows.
+    deciding = script.measure(zoo_dir() / "pendulum-dropconnect", "fixed-decisions")
+    assert set(deciding["auroc"]) == set(script.DECIDING) and deciding["masks"] == "fixed-decisions"
+    assert all(0.0 <= deciding["auroc"][m]["pendulum:g=50.0"] <= 1.0 for m in script.DECIDING)
+    table = script.table([{"label": "zoo", **row}, {"label": "zoo deciding", **deciding}])
+    assert "| zoo deciding (1) | fixed-decisions scaled_spread | g=50.0" in table and "| zoo (1) | sampled spread" in table
 
 
 def test_shifted_episodes_splits_a_rows_auroc_at_the_episodes_the_agent_survives(monkeypatch, tmp_path, capsys):
