@@ -7,7 +7,8 @@ the detectors' fitting take like a shipped one:
   average the user did not deploy (``mean=True`` deploys the ensemble's mean instead);
 - one model has no samples to spread: the learned detectors (``dynamics``, and ``combined``)
   watch it, unless it has dropout or DropConnect layers (MC samples, ``masks="fixed"`` for K
-  sub-networks drawn once); several DQN, or several DDPG/TD3, models are also an ensemble whose
+  sub-networks drawn once; ``"fixed-decisions"`` reads the same K in one pass, the model's own
+  ``predict()`` deciding either way); several DQN, or several DDPG/TD3, models are also an ensemble whose
   spread and features are detectors (:func:`~oodmon.agents.networks.estimator_from_sb3`). Other
   algorithms (SAC, PPO, A2C) are watched by the learned detectors only;
 - its metadata record each model's path and sha256, the algorithm and the env id; its policy hash

@@ -87,7 +87,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     threshold on ``episodes`` others (``far``, ``confidence`` as in
     :func:`~oodmon.monitor.calibrate_agent`; the alarm reads ``detector``, by default the task's
     best; ``scaled_spread``, which reads an ensemble's members or an MC policy's fixed sub-networks
-    (``masks="fixed"``), is then fitted too, as ``oodmon calibrate --detector scaled_spread`` fits
+    (``masks="fixed"`` or ``"fixed-decisions"``), is then fitted too, as ``oodmon calibrate --detector scaled_spread`` fits
     it). ``env``: wrap this env (the one you step) and return the
     :class:`~oodmon.monitor.MonitoredEnv` instead of the bare monitor; its ``info["oodmon"]``
     says what the monitor saw at every step. ``on_progress(stage, done, total)`` reports progress
