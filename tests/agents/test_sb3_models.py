@@ -628,6 +628,12 @@ def test_a_users_dqn_policy_with_dropout_loads_from_its_file_with_fixed_masks(tm
     assert agent.estimator.masks == "fixed" and first.samples.shape == (20, 1, 2)
     np.testing.assert_array_equal(first.samples, again.samples)
     assert len({s.tobytes() for s in first.samples}) == 20
+    # fixed-decisions: the same K sub-networks; the model's own predict() still decides
+    deciding = load_sb3([tmp_path / "mine.zip"], "CartPole-v1", masks="fixed-decisions", seed=0)
+    np.testing.assert_array_equal(deciding.estimator.estimate(obs).samples, first.samples)
+    model = DQN.load(tmp_path / "mine.zip", device="cpu")
+    for o in np.random.default_rng(0).normal(size=(10, 4)).astype(np.float32):
+        assert deciding.act(o) == int(model.predict(o, deterministic=True)[0])
 
 
 def test_the_readmes_dropout_policy_example_runs_and_reads_fixed_sub_networks(tmp_path, monkeypatch, capsys):
