@@ -102,12 +102,12 @@ class Agent:
         observations the agent acts on: dict ones flattened (``FlattenObservation``, as :meth:`view`),
         and stacked :attr:`frame_stack` deep as SB3's VecFrameStack stacks them
         (:class:`~oodmon.agents.frame_stack.FrameStack`); ``env`` itself for any other agent."""
-        if self.dict_space is not None:
-            env = gymnasium.wrappers.FlattenObservation(env)
-        if self.stacking is not None:
+        if self.stacking is not None:  # a dict stacked key by key, then flattened, as the policy reads it
             from oodmon.agents.frame_stack import FrameStack
 
             env = FrameStack(env, self.stacking.n, "first" if self.stacking.channels_first else "last")
+        if self.dict_space is not None:
+            env = gymnasium.wrappers.FlattenObservation(env)
         return env
 
     def make_env(self, obs_noise: float = 0.0) -> gymnasium.Env:

@@ -2,7 +2,8 @@
 
 A model trained inside ``VecFrameStack(venv, n_stack)`` (SB3's Atari recipe stacks 4 frames) acts
 on the last ``n_stack`` observations side by side: along the last axis (vectors, channels-last
-images) or the first (channels-first images), zeros before an episode's first observation.
+images) or the first (channels-first images), zeros before an episode's first observation; a dict
+observation of vectors key by key.
 :class:`FrameStack` gives one gymnasium env's observations exactly so, through SB3's own
 ``StackedObservations``, so that oodmon can fit, calibrate and monitor such a model in the env
 (``--frame-stack N``; ``frame_stack=N`` of :func:`~oodmon.agents.sb3.load_sb3`) and a user can
@@ -13,7 +14,7 @@ wrap the env they step::
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium
@@ -41,7 +42,10 @@ def check_frame_stack(n_stack: Any, parameter: str = "frame_stack=") -> int:
 @dataclass(frozen=True)
 class Stacking:
     """How an agent's observations are stacked: ``n`` deep, of the env's own observations of
-    ``own_shape``, along the first axis (``channels_first``) or the last.
+    ``own_shape``, along the first axis (``channels_first``) or the last. For dict observations,
+    which the agent reads flattened (``Agent.view``), ``positions`` are where the newest
+    observation's numbers sit in a flattened stack, in the order the env's own dict flattens in
+    (``own_shape``: their count).
 
     Example:
         >>> Stacking(4, (2,), False).newest(np.arange(8.0)).tolist()
@@ -51,10 +55,13 @@ class Stacking:
     n: int
     own_shape: tuple[int, ...]
     channels_first: bool
+    positions: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def newest(self, obs: np.ndarray) -> np.ndarray:
         """The env's own newest observation inside a stack: what the detectors read and the logs keep."""
         obs = np.asarray(obs)
+        if self.positions is not None:
+            return obs[..., self.positions]
         if self.channels_first:
             return obs[-self.own_shape[0]:]
         return obs[..., -self.own_shape[-1]:]
@@ -64,9 +71,11 @@ class FrameStack(gymnasium.ObservationWrapper):
     """``env``'s observations stacked ``n_stack`` deep as SB3's ``VecFrameStack`` stacks them
     (``channels_order``: as VecFrameStack's, ``None`` to detect it as it does).
 
+    A dict observation of vectors (a ``Dict`` of ``Box`` spaces) is stacked key by key, as
+    VecFrameStack stacks it.
+
     Raises:
-        ConfigError: observations that are not an array (VecFrameStack stacks a dict per key; oodmon
-            does not).
+        ConfigError: observations that are neither an array nor a dict of vectors.
     """
 
     def __init__(self, env: gymnasium.Env, n_stack: int, channels_order: str | None = None) -> None:
@@ -74,22 +83,49 @@ class FrameStack(gymnasium.ObservationWrapper):
 
         super().__init__(env)
         self.n_stack = check_frame_stack(n_stack)
-        if not isinstance(env.observation_space, gymnasium.spaces.Box):
-            raise ConfigError(f"oodmon stacks array observations as VecFrameStack does; this env's are "
-                              f"{env.observation_space}")
-        self._stack = StackedObservations(1, self.n_stack, env.observation_space, channels_order)
+        space = env.observation_space
+        self._dict = isinstance(space, gymnasium.spaces.Dict) and all(
+            isinstance(sub, gymnasium.spaces.Box) and len(sub.shape) == 1 for sub in space.spaces.values())
+        if not isinstance(space, gymnasium.spaces.Box) and not self._dict:
+            raise ConfigError(f"oodmon stacks array observations, and dicts of vectors, as VecFrameStack does; this "
+                              f"env's are {space}")
+        self._stack = StackedObservations(1, self.n_stack, space, channels_order)
         self.observation_space = self._stack.stacked_observation_space
-        self.stacking = Stacking(self.n_stack, tuple(env.observation_space.shape), bool(self._stack.channels_first))
+        if self._dict:
+            self.stacking = Stacking(self.n_stack, (gymnasium.spaces.flatdim(space),), False, _newest_positions(
+                self.observation_space, space))
+        else:
+            self.stacking = Stacking(self.n_stack, tuple(space.shape), bool(self._stack.channels_first))
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+    def _one(self, stacked: Any) -> Any:
+        """The single env's stack out of StackedObservations' batch of one (a copy)."""
+        return {key: value[0].copy() for key, value in stacked.items()} if self._dict else stacked[0].copy()
+
+    def _batch(self, observation: Any) -> Any:
+        return ({key: np.asarray(value)[None] for key, value in observation.items()} if self._dict
+                else np.asarray(observation)[None])
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
         obs, info = self.env.reset(seed=seed, options=options)
-        return self._stack.reset(np.asarray(obs)[None])[0].copy(), info
+        return self._one(self._stack.reset(self._batch(obs))), info
 
     def step(self, action: Any) -> tuple[np.ndarray, Any, bool, bool, dict]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         return self.observation(obs), reward, terminated, truncated, info
 
-    def observation(self, observation: Any) -> np.ndarray:
+    def observation(self, observation: Any) -> Any:
         """The stack with ``observation`` added as the newest (the oldest drops out)."""
-        stacked, _ = self._stack.update(np.asarray(observation)[None], np.zeros(1, bool), [{}])
-        return stacked[0].copy()
+        stacked, _ = self._stack.update(self._batch(observation), np.zeros(1, bool), [{}])
+        return self._one(stacked)
+
+
+def _newest_positions(stacked: gymnasium.spaces.Dict, own: gymnasium.spaces.Dict) -> np.ndarray:
+    """Where the newest observation's numbers sit in a flattened stack of dicts of vectors (each
+    key's vector stacked along itself, oldest first; the keys in the dict's order, as
+    ``gymnasium.spaces.flatten`` puts them), in the order the env's own dict flattens in."""
+    positions, start = [], 0
+    for key, space in stacked.spaces.items():
+        size, own_size = space.shape[0], own.spaces[key].shape[0]
+        positions.append(np.arange(start + size - own_size, start + size))
+        start += size
+    return np.concatenate(positions)

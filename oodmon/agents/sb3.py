@@ -143,6 +143,11 @@ def _stack_depth(env_space: Any, model_space: Any) -> int | None:
     """The n_stack of a VecFrameStack that makes ``env_space`` into ``model_space`` (along the last
     axis, or the first: channels-first images, and SB3's own transposition of channels-last ones),
     or ``None``."""
+    if isinstance(env_space, gymnasium.spaces.Dict) and isinstance(model_space, gymnasium.spaces.Dict):
+        if env_space.spaces.keys() != model_space.spaces.keys():
+            return None  # a dict of vectors is stacked key by key: one depth for every key
+        depths = {_stack_depth(env_space[key], model_space[key]) for key in env_space.spaces}
+        return depths.pop() if len(depths) == 1 else None
     if not isinstance(env_space, gymnasium.spaces.Box) or not isinstance(model_space, gymnasium.spaces.Box):
         return None
     env_shape, shape = env_space.shape, model_space.shape

@@ -25,9 +25,9 @@ PHYSICS_RANGE = 1000.0
 def space_mismatch(expected: object, given: object, *,
                    spaces: tuple[str, ...] = ("observation_space", "action_space")) -> str | None:
     """The first of ``spaces`` that ``given`` (an env or an SB3 model) has of another type, shape or
-    number of actions than ``expected``; ``None`` if none. Bounds may differ: a policy acts in an env
-    of the same shapes (oodmon's variants keep the default env's spaces, and a user's env may bound
-    its observations otherwise).
+    number of actions than ``expected`` (a dict space: other keys, or one of them another space);
+    ``None`` if none. Bounds may differ: a policy acts in an env of the same shapes (oodmon's
+    variants keep the default env's spaces, and a user's env may bound its observations otherwise).
 
     Example:
         >>> import gymnasium
@@ -35,11 +35,21 @@ def space_mismatch(expected: object, given: object, *,
         'observation_space'
     """
     for what in spaces:
-        ours, theirs = getattr(expected, what), getattr(given, what)
-        if type(ours) is not type(theirs) or getattr(ours, "shape", None) != getattr(theirs, "shape", None) \
-                or getattr(ours, "n", None) != getattr(theirs, "n", None):
+        if not _same_kind(getattr(expected, what), getattr(given, what)):
             return what
     return None
+
+
+def _same_kind(ours: object, theirs: object) -> bool:
+    """Whether two spaces are of one type, shape and number of actions (dicts: key by key)."""
+    if type(ours) is not type(theirs) or getattr(ours, "shape", None) != getattr(theirs, "shape", None) \
+            or getattr(ours, "n", None) != getattr(theirs, "n", None):
+        return False
+    inner = getattr(ours, "spaces", None)
+    if isinstance(inner, dict):  # gymnasium's Dict
+        theirs_inner = theirs.spaces
+        return inner.keys() == theirs_inner.keys() and all(_same_kind(inner[k], theirs_inner[k]) for k in inner)
+    return True
 
 
 def has_time_limit(env: object) -> bool:

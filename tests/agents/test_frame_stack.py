@@ -10,6 +10,7 @@ import json
 import gymnasium
 import numpy as np
 import pytest
+import torch
 from stable_baselines3 import DQN, TD3
 from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
 
@@ -18,6 +19,7 @@ from oodmon.agents.frame_stack import FrameStack
 from oodmon.agents.sb3 import load_sb3, sb3_agent
 from oodmon.cli import main
 from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.monitor import Monitor
 from tests.helpers import NoisePictures
 
 
@@ -126,3 +128,71 @@ def test_a_cnn_policy_on_stacked_rgb_pictures_logs_the_newest_picture():
         monitor.run_episode(env, seed=1)
     obs, _ = env.reset(seed=1)  # the same episode's first stack: zeros, then the first picture
     assert sink.steps[0].frame.shape == (36, 36, 3) and np.array_equal(sink.steps[0].frame, obs[..., 3:])
+
+
+class _Parts(gymnasium.ObservationWrapper):
+    """CartPole's observation as a dict of two vectors, named so that the keys sort the other way
+    round ("pole": theta, theta'; "cart": x, x')."""
+
+    def __init__(self) -> None:
+        super().__init__(gymnasium.make("CartPole-v1"))
+        box = self.env.observation_space
+        self.observation_space = gymnasium.spaces.Dict({"pole": gymnasium.spaces.Box(box.low[2:], box.high[2:]),
+                                                        "cart": gymnasium.spaces.Box(box.low[:2], box.high[:2])})
+
+    def observation(self, obs):
+        return {"cart": obs[:2].astype(np.float32), "pole": obs[2:].astype(np.float32)}
+
+
+if "PartsCartPoleForFrameStack-v1" not in gymnasium.registry:
+    gymnasium.register("PartsCartPoleForFrameStack-v1", entry_point=_Parts, max_episode_steps=500)
+
+
+def test_dicts_are_stacked_key_by_key_as_vecframestack_stacks_them_and_read_flattened(tmp_path):
+    env_id = "PartsCartPoleForFrameStack-v1"
+    theirs = VecFrameStack(DummyVecEnv([lambda: gymnasium.make(env_id)]), 3)
+    theirs.seed(5)
+    ours = FrameStack(gymnasium.make(env_id), 3)
+    assert ours.observation_space == theirs.observation_space
+    a, (b, _) = theirs.reset(), ours.reset(seed=5)
+    same = [all(np.array_equal(a[k][0], b[k]) for k in b)]
+    rng, ends = np.random.default_rng(0), 0
+    for _ in range(60):
+        action = int(rng.integers(2))
+        a, _, _, _ = theirs.step([action])
+        b, _, terminated, truncated, _ = ours.step(action)
+        if terminated or truncated:
+            ends, (b, _) = ends + 1, ours.reset()
+        same.append(all(np.array_equal(a[k][0], b[k]) for k in b))
+    assert ends >= 2 and all(same)
+    # Two MultiInput DQNs trained inside that VecFrameStack: their samples are their Q-values at the
+    # stacked dict; the detectors and the log read the env's own newest dict, flattened.
+    models = [DQN("MultiInputPolicy", theirs, seed=k, policy_kwargs={"net_arch": [16]}) for k in range(2)]
+    agent = sb3_agent(models, env_id)  # in memory: the VecFrameStack they were trained in
+    assert agent.frame_stack == 3 and agent.stacking.own_shape == (4,)
+    env, own = agent.make_env(), gymnasium.make(env_id)
+    flat, _ = env.reset(seed=3)
+    own_obs, _ = own.reset(seed=3)
+    for _ in range(12):
+        stacked = gymnasium.spaces.unflatten(agent.dict_space, flat)
+        with torch.no_grad():
+            q = [m.q_net(m.policy.obs_to_tensor(stacked)[0])[0].numpy() for m in models]
+        np.testing.assert_allclose(agent.estimate(flat).samples[:, 0], q, rtol=1e-5, atol=1e-6)
+        assert agent.act(flat) == int(models[0].predict(stacked, deterministic=True)[0])
+        np.testing.assert_array_equal(agent.own_observation(flat), gymnasium.spaces.flatten(own.observation_space, own_obs))
+        action = agent.act(flat)
+        flat, _, terminated, *_ = env.step(action)
+        own_obs, *_ = own.step(action)
+        if terminated:
+            break
+    # A file of such a model without --frame-stack: refused, the depth named (a dict's keys, each
+    # another shape than the env's, were taken for the env's: SB3 failed inside predict()).
+    models[0].save(tmp_path / "dqn.zip")
+    with pytest.raises(ConfigError, match=r"Or trained inside VecFrameStack\(3\)\? Give --frame-stack 3"):
+        load_sb3([tmp_path / "dqn.zip"], env_id)
+    assert load_sb3([tmp_path / "dqn.zip"], env_id, frame_stack=3).stacking.own_shape == (4,)
+    steps = 0
+    with Monitor(agent) as monitor:
+        for seed in range(3):
+            steps += monitor.run_episode(agent.make_env(), seed=seed).length
+    assert steps >= 12 and len(monitor.last_step.observation) == 4  # the own dict, flattened

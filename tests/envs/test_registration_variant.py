@@ -17,3 +17,20 @@ def test_the_recorded_variant_is_the_envs_own_spec():
     assert variant_of_env(gymnasium.make("CartPole-v1")) == "cartpole"
     acrobot = gymnasium.make("Acrobot-v1")
     assert variant_of_env(acrobot) == env_id_of(acrobot) == "Acrobot-v1"
+
+
+def test_space_mismatch_compares_dict_spaces_key_by_key():
+    from types import SimpleNamespace
+
+    from gymnasium.spaces import Box, Dict, Discrete
+
+    from oodmon.envs.checks import space_mismatch
+
+    def holder(**spaces):
+        return SimpleNamespace(observation_space=Dict(spaces), action_space=Discrete(2))
+
+    ours = holder(a=Box(-1, 1, (2,)), b=Discrete(3))
+    assert space_mismatch(ours, holder(a=Box(-5, 5, (2,)), b=Discrete(3))) is None  # bounds may differ
+    assert space_mismatch(ours, holder(a=Box(-1, 1, (6,)), b=Discrete(3))) == "observation_space"  # a key's shape
+    assert space_mismatch(ours, holder(a=Box(-1, 1, (2,)), b=Discrete(4))) == "observation_space"  # a key's n
+    assert space_mismatch(ours, holder(a=Box(-1, 1, (2,)), c=Discrete(3))) == "observation_space"  # other keys
