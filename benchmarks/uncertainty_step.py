@@ -64,7 +64,8 @@ def task_figures(task: str, net_arch: list[int] | None = None) -> tuple[float, d
             recipe = replace(recipe, net_arch=list(net_arch))
         arch = architecture(recipe, env)
         bounds = {} if task == "cartpole" else {"action_low": env.action_space.low, "action_high": env.action_space.high}
-        estimator = estimator_for(build_modules(arch), arch, n_samples=recipe.n_samples, **bounds)
+        modules = build_modules(arch)  # one network, timed with each kind of masks
+        estimator = estimator_for(modules, arch, n_samples=recipe.n_samples, **bounds)
         depth = "" if method == "ensemble" else " (output layer)" if recipe.last_only else f" (full depth, p={recipe.drop_p:g})"
         size = "" if net_arch is None else f" {recipe.net_arch}"
         label = f"{task} {method}{size} K={estimator.n_samples}{depth}"
@@ -72,9 +73,9 @@ def task_figures(task: str, net_arch: list[int] | None = None) -> tuple[float, d
             full_depth.add(label)
         figures[label] = per_call_us(lambda: estimator.estimate(obs), REPEATS[task])
         if method != "ensemble":
-            masked = estimator_for(build_modules(arch), arch, n_samples=recipe.n_samples, masks="fixed", **bounds)
+            masked = estimator_for(modules, arch, n_samples=recipe.n_samples, masks="fixed", **bounds)
             fixed[f"{label}, fixed masks"] = per_call_us(lambda: masked.estimate(obs), REPEATS[task])
-            one_pass = estimator_for(build_modules(arch), arch, n_samples=recipe.n_samples, masks="fixed-decisions", **bounds)
+            one_pass = estimator_for(modules, arch, n_samples=recipe.n_samples, masks="fixed-decisions", **bounds)
             deciding[f"{label}, fixed masks deciding"] = per_call_us(lambda: one_pass.estimate(obs), REPEATS[task])
     return baseline, figures, full_depth, fixed, deciding
 

@@ -99,10 +99,10 @@ class Agent:
 
     def wrap(self, env: gymnasium.Env) -> gymnasium.Env:
         """``env`` (the gymnasium env of the agent's env id, or an oodmon variant of it) giving the
-        observations the agent acts on: dict ones flattened (``FlattenObservation``, as :meth:`view`),
-        and stacked :attr:`frame_stack` deep as SB3's VecFrameStack stacks them
-        (:class:`~oodmon.agents.frame_stack.FrameStack`); ``env`` itself for any other agent."""
-        if self.stacking is not None:  # a dict stacked key by key, then flattened, as the policy reads it
+        observations the agent acts on: stacked :attr:`frame_stack` deep as SB3's VecFrameStack
+        stacks them (:class:`~oodmon.agents.frame_stack.FrameStack`; a dict key by key), and dict
+        ones flattened (``FlattenObservation``, as :meth:`view`); ``env`` itself for any other agent."""
+        if self.stacking is not None:
             from oodmon.agents.frame_stack import FrameStack
 
             env = FrameStack(env, self.stacking.n, "first" if self.stacking.channels_first else "last")

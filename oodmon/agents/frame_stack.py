@@ -109,10 +109,6 @@ class FrameStack(gymnasium.ObservationWrapper):
         obs, info = self.env.reset(seed=seed, options=options)
         return self._one(self._stack.reset(self._batch(obs))), info
 
-    def step(self, action: Any) -> tuple[np.ndarray, Any, bool, bool, dict]:
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        return self.observation(obs), reward, terminated, truncated, info
-
     def observation(self, observation: Any) -> Any:
         """The stack with ``observation`` added as the newest (the oldest drops out)."""
         stacked, _ = self._stack.update(self._batch(observation), np.zeros(1, bool), [{}])

@@ -253,7 +253,7 @@ class Monitor:
             d.check_fitted()
         meta = self.agent.metadata if self.agent is not None else {}
         obs_shape = self.estimator.obs_shape if self.estimator is not None else None
-        if self.agent is not None and self.agent.stacking is not None:  # the detectors read the env's own observations
+        if self._stacked:  # the detectors read the env's own observations
             obs_shape = self.agent.stacking.own_shape
         self._refuse_or_warn("the fitted detectors", chosen.check_fits(task=meta.get("task"), obs_shape=obs_shape,
                                                                        policy_hash=self.policy_hash), force,

@@ -34,7 +34,7 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
              masks: str | None = None, vec_normalize: Any = None, frame_stack: int | None = None) -> Agent:
     """An :class:`~oodmon.agents.Agent` of ``policy``: an Agent as it is; SB3 model files (a path
     or a list of them) or SB3 models in memory (one or a list), acting in ``env_id``. ``masks``:
-    the MC masks of one SB3 model with dropout (``sampled`` or ``fixed``, see
+    the MC masks of one SB3 model with dropout (``sampled``, ``fixed`` or ``fixed-decisions``, see
     :func:`~oodmon.agents.sb3.load_sb3`); an Agent keeps the masks it was loaded with.
     ``vec_normalize``: SB3 models trained inside ``VecNormalize``: its statistics file (or the
     VecNormalize itself, for models in memory, which otherwise use the one they were trained in;
