@@ -3,6 +3,7 @@ test runner can give it a core of its own beside the other training tests)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import gymnasium
@@ -12,6 +13,7 @@ import torch
 from safetensors.torch import load_file
 
 from oodmon.agents.algorithms import EpisodeSoFar
+from oodmon.agents.recipes import recipe_for
 from oodmon.agents.training import train
 from oodmon.envs.grid import ENV_IDS
 
@@ -21,19 +23,23 @@ def test_an_interrupted_training_resumed_ends_with_the_weights_of_one_never_inte
     """The checkpoint holds the random streams and the episode under way: the resumed training
     plays that episode to its step again and draws what the interrupted one would have drawn.
     (Checkpoints fall due at half the steps: CartPole's is written at step 512, where its rollouts
-    of 256 steps end; Pendulum's at 210, 10 steps into its second episode.)"""
+    of 256 steps end; Pendulum's at 210, 10 steps into its second episode. Pendulum's actor and
+    critics are [64, 64] instead of the recipe's [400, 300]: the same code resumes them; 12.5 s -> 4.7 s.)"""
+    recipe = dataclasses.replace(recipe_for(task, method), net_arch=[64, 64]) if task == "pendulum" else None
+
     def interrupt(run, done, mean):  # at the last evaluation, before the training's end is written
         if done == steps:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        train(task, method, tmp_path / "stopped", total_steps=steps, on_evaluation=interrupt, id_episodes=1)
+        train(task, method, tmp_path / "stopped", total_steps=steps, on_evaluation=interrupt, id_episodes=1,
+              recipe=recipe)
     state = json.loads((tmp_path / "stopped" / "runs" / "main" / "state.json").read_text())
     assert not state["finished"] and 0 < state["steps"] < steps
     saved = torch.load(tmp_path / "stopped" / "runs" / "main" / "checkpoint.pt", weights_only=True)
     assert len(saved["stands"]["actions"]) > 0  # stopped inside an episode, which the resume plays again
-    train(task, method, tmp_path / "stopped", total_steps=steps, id_episodes=1)
-    train(task, method, tmp_path / "straight", total_steps=steps, id_episodes=1)
+    train(task, method, tmp_path / "stopped", total_steps=steps, id_episodes=1, recipe=recipe)
+    train(task, method, tmp_path / "straight", total_steps=steps, id_episodes=1, recipe=recipe)
     resumed, straight = (load_file(str(tmp_path / f / "model.safetensors")) for f in ("stopped", "straight"))
     assert resumed.keys() == straight.keys() and resumed
     for name in resumed:

@@ -66,8 +66,10 @@ def killed(tmp_path_factory):
     import numpy as np
 
     rng = np.random.default_rng(20261123)
-    plan = [("cartpole", 0.0)] + [("cartpole", float(d)) for d in rng.uniform(0.2, 1.5, 9)] + [
-        ("pong", float(d)) for d in rng.uniform(0.5, 1.5, 3)]
+    # Kill times in seconds after the monitor opened: a run finishes about 2 CartPole episodes in its
+    # first 0.1 s and a 25-step Pong episode in its first 0.3 s (2026-11-27), several at these.
+    plan = [("cartpole", 0.0)] + [("cartpole", float(d)) for d in rng.uniform(0.2, 0.8, 9)] + [
+        ("pong", float(d)) for d in rng.uniform(0.4, 1.0, 3)]
     folder = tmp_path_factory.mktemp("killed")
     out = subprocess.run([sys.executable, "-c", DRIVER, str(folder), json.dumps(plan)], capture_output=True,
                          text=True, timeout=300)
