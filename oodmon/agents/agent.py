@@ -105,7 +105,7 @@ class Agent:
         if self.stacking is not None:
             from oodmon.agents.frame_stack import FrameStack
 
-            env = FrameStack(env, self.stacking.n, "first" if self.stacking.channels_first else "last")
+            env = FrameStack(env, self.stacking.n, "first" if self.stacking.channels_first else "last", self.stacking.pad)
         if self.dict_space is not None:
             env = gymnasium.wrappers.FlattenObservation(env)
         return env

@@ -3,7 +3,10 @@
 A model trained inside ``VecFrameStack(venv, n_stack)`` (SB3's Atari recipe stacks 4 frames) acts
 on the last ``n_stack`` observations side by side: along the last axis (vectors, channels-last
 images) or the first (channels-first images), zeros before an episode's first observation; a dict
-observation of vectors key by key.
+observation of vectors key by key. A model trained inside ``VecFrameStack(VecNormalize(venv))``
+(rl-baselines3-zoo's order: each observation normalised, then stacked) saw normalised zeros before
+an episode's first observation: ``pad`` stands the statistics' mean there, which the normaliser
+makes zero (:meth:`~oodmon.agents.vec_normalize.ObservationNormalizer.stacked`).
 :class:`FrameStack` gives one gymnasium env's observations exactly so, through SB3's own
 ``StackedObservations``, so that oodmon can fit, calibrate and monitor such a model in the env
 (``--frame-stack N``; ``frame_stack=N`` of :func:`~oodmon.agents.sb3.load_sb3`) and a user can
@@ -45,7 +48,8 @@ class Stacking:
     ``own_shape``, along the first axis (``channels_first``) or the last. For dict observations,
     which the agent reads flattened (``Agent.view``), ``positions`` are where the newest
     observation's numbers sit in a flattened stack, in the order the env's own dict flattens in
-    (``own_shape``: their count).
+    (``own_shape``: their count). ``pad``: the observation (a vector) that stands before an
+    episode's first one instead of zeros (:class:`FrameStack`'s ``pad``).
 
     Example:
         >>> Stacking(4, (2,), False).newest(np.arange(8.0)).tolist()
@@ -56,6 +60,7 @@ class Stacking:
     own_shape: tuple[int, ...]
     channels_first: bool
     positions: np.ndarray | None = field(default=None, compare=False, repr=False)
+    pad: tuple[float, ...] | None = None
 
     def newest(self, obs: np.ndarray) -> np.ndarray:
         """The env's own newest observation inside a stack: what the detectors read and the logs keep."""
@@ -74,11 +79,17 @@ class FrameStack(gymnasium.ObservationWrapper):
     A dict observation of vectors (a ``Dict`` of ``Box`` spaces) is stacked key by key, as
     VecFrameStack stacks it.
 
+    ``pad``: for vector observations, the observation that stands before an episode's first one
+    in the stack instead of zeros (VecFrameStack's), for a model trained inside
+    ``VecFrameStack(VecNormalize(venv))``, which saw normalised zeros there: the statistics' mean.
+
     Raises:
-        ConfigError: observations that are neither an array nor a dict of vectors.
+        ConfigError: observations that are neither an array nor a dict of vectors, or a ``pad``
+            for other observations than vectors, or of another length.
     """
 
-    def __init__(self, env: gymnasium.Env, n_stack: int, channels_order: str | None = None) -> None:
+    def __init__(self, env: gymnasium.Env, n_stack: int, channels_order: str | None = None,
+                 pad: Any = None) -> None:
         from stable_baselines3.common.vec_env.stacked_observations import StackedObservations
 
         super().__init__(env)
@@ -91,11 +102,18 @@ class FrameStack(gymnasium.ObservationWrapper):
                               f"env's are {space}")
         self._stack = StackedObservations(1, self.n_stack, space, channels_order)
         self.observation_space = self._stack.stacked_observation_space
+        self._pad, self._filled = None, 0
+        if pad is not None:
+            if self._dict or len(space.shape) != 1 or np.shape(pad) != space.shape:
+                raise ConfigError(f"pad is an observation of a vector env's shape, which stands before an episode's "
+                                  f"first; got one of shape {np.shape(pad)} for observations {space}")
+            self._pad = np.asarray(pad, space.dtype)
         if self._dict:
             self.stacking = Stacking(self.n_stack, (gymnasium.spaces.flatdim(space),), False, _newest_positions(
                 self.observation_space, space))
         else:
-            self.stacking = Stacking(self.n_stack, tuple(space.shape), bool(self._stack.channels_first))
+            self.stacking = Stacking(self.n_stack, tuple(space.shape), bool(self._stack.channels_first),
+                                     pad=None if pad is None else tuple(float(v) for v in self._pad))
 
     def _one(self, stacked: Any) -> Any:
         """The single env's stack out of StackedObservations' batch of one (a copy)."""
@@ -105,14 +123,23 @@ class FrameStack(gymnasium.ObservationWrapper):
         return ({key: np.asarray(value)[None] for key, value in observation.items()} if self._dict
                 else np.asarray(observation)[None])
 
+    def _padded(self, stacked: Any) -> Any:
+        """``stacked`` with ``pad`` where VecFrameStack has zeros: before the episode's first observation."""
+        missing = self.n_stack - self._filled
+        if self._pad is not None and missing > 0:
+            stacked[: missing * self._pad.size] = np.tile(self._pad, missing)
+        return stacked
+
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
         obs, info = self.env.reset(seed=seed, options=options)
-        return self._one(self._stack.reset(self._batch(obs))), info
+        self._filled = 1
+        return self._padded(self._one(self._stack.reset(self._batch(obs)))), info
 
     def observation(self, observation: Any) -> Any:
         """The stack with ``observation`` added as the newest (the oldest drops out)."""
         stacked, _ = self._stack.update(self._batch(observation), np.zeros(1, bool), [{}])
-        return self._one(stacked)
+        self._filled = min(self._filled + 1, self.n_stack)
+        return self._padded(self._one(stacked))
 
 
 def _newest_positions(stacked: gymnasium.spaces.Dict, own: gymnasium.spaces.Dict) -> np.ndarray:

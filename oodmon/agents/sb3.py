@@ -241,7 +241,11 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
         frame_stack: models trained inside SB3's ``VecFrameStack``: its ``n_stack``; the models then
             see the env's observations stacked as it stacks them
             (:class:`~oodmon.agents.frame_stack.FrameStack`); the detectors and the logs read the
-            env's own, the newest of each stack (``Agent.own_observation``).
+            env's own, the newest of each stack (``Agent.own_observation``). With ``vec_normalize``
+            statistics of one observation, not of the stack, the models were trained inside
+            ``VecFrameStack(VecNormalize(venv))`` (rl-baselines3-zoo's order): each observation of
+            the stack is normalised, and the statistics' mean stands before an episode's first,
+            where VecFrameStack put normalised zeros (vector observations).
 
     Raises:
         ConfigError: no paths, a file that is not an SB3 model, spaces that do not match the env,
@@ -374,17 +378,22 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         env = gymnasium.make(env_id)
     except gymnasium.error.Error as error:
         raise ConfigError(f"env {env_id!r}: {error}") from None
+    normalizer = _normalizer_of(vec_normalize, models)
     stacking = None
-    if frame_stack is not None:  # the observations the models act on (FrameStack checks the depth)
-        from oodmon.agents.frame_stack import FrameStack
+    if frame_stack is not None:  # the observations the models act on
+        from oodmon.agents.frame_stack import FrameStack, check_frame_stack
 
-        env = FrameStack(env, frame_stack)
-        stacking, frame_stack = env.stacking, env.n_stack
+        frame_stack, pad = check_frame_stack(frame_stack), None
+        if normalizer is not None and normalizer.shape is not None and normalizer.shape == env.observation_space.shape:
+            # statistics of one observation: normalised, then stacked (VecFrameStack(VecNormalize(venv)))
+            pad = normalizer.mean.astype(env.observation_space.dtype)  # normalised: VecFrameStack's zeros
+            normalizer = normalizer.stacked(frame_stack)
+        env = FrameStack(env, frame_stack, pad=pad)
+        stacking = env.stacking
     for model, file in zip(models, files):
         _check_spaces(model, Path(file["path"]), env, env_id, frame_stack)
     env.close()
     dict_space = _dict_space(env.observation_space, env_id)
-    normalizer = _normalizer_of(vec_normalize, models)
     if normalizer is not None and (dict_space is not None) != (normalizer.keys is not None):
         raise ConfigError(f"the VecNormalize statistics{' in ' + normalizer.path if normalizer.path else ''} are of "
                           f"{'dict' if normalizer.keys is not None else 'array'} observations; {env_id}'s are "

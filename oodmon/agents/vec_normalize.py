@@ -99,6 +99,8 @@ class ObservationNormalizer:
             are); ``None`` for array observations.
         positions: once :meth:`flattened`, where the normalised keys' numbers sit in the flattened
             vector (``mean`` and ``var`` are theirs).
+        frames: once :meth:`stacked`, how many observations side by side the statistics of one
+            normalise (``mean`` and ``var`` repeated as many times); ``None``: not stacked.
     """
 
     mean: np.ndarray | None
@@ -109,6 +111,7 @@ class ObservationNormalizer:
     path: str | None = None
     keys: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
     positions: np.ndarray | None = None
+    frames: int | None = None
 
     def __call__(self, obs: np.ndarray | dict[str, np.ndarray]) -> np.ndarray | dict[str, np.ndarray]:
         """``obs`` (one observation or a batch; a dict one, or a dict flattened once :meth:`flattened`)
@@ -166,6 +169,26 @@ class ObservationNormalizer:
         return replace(self, mean=np.concatenate(means), var=np.concatenate(variances),
                        positions=np.concatenate(positions))
 
+    def stacked(self, n_stack: int) -> ObservationNormalizer:
+        """These statistics of one vector observation, for ``n_stack`` of them side by side: a model
+        trained inside ``VecFrameStack(VecNormalize(venv), n_stack)`` (rl-baselines3-zoo's order)
+        saw each observation normalised, then stacked, with zeros before an episode's first
+        observation, which :class:`~oodmon.agents.frame_stack.FrameStack` stands the mean in (its
+        ``pad``; normalised: zero, up to the float32 rounding of the mean, ~1e-8).
+
+        Raises:
+            ConfigError: statistics of dict observations, or of other observations than vectors.
+
+        Example:
+            >>> one = ObservationNormalizer(np.array([1.0, 0.0]), np.array([4.0, 1.0]))
+            >>> one.stacked(2)(np.array([1.0, 0.0, 3.0, 2.0], np.float32)).tolist()
+            [0.0, 0.0, 1.0, 2.0]
+        """
+        if self.keys is not None or self.mean is None or self.mean.ndim != 1:
+            raise ConfigError("oodmon stacks normalised observations (VecFrameStack(VecNormalize(env))) of vector envs "
+                              f"only; these statistics are of {'dicts' if self.keys is not None else 'other observations'}")
+        return replace(self, mean=np.tile(self.mean, n_stack), var=np.tile(self.var, n_stack), frames=n_stack)
+
     @property
     def shape(self) -> tuple[int, ...] | None:
         """The observations' shape the statistics are of (``None``: any, or dicts: see :meth:`flattened`)."""
@@ -174,9 +197,10 @@ class ObservationNormalizer:
     def describe(self) -> dict[str, Any]:
         """The JSON record of these statistics in an agent's metadata (and so in its logs)."""
         keys = {} if self.keys is None else {"norm_obs_keys": sorted(self.keys)}
+        frames = {} if self.frames is None else {"normalised_then_stacked": self.frames}
         return {"path": self.path or "(in memory)", "sha256": self.sha256,
                 "norm_obs": self.mean is not None or bool(self.keys),
-                "clip_obs": self.clip_obs, "epsilon": self.epsilon} | keys
+                "clip_obs": self.clip_obs, "epsilon": self.epsilon} | keys | frames
 
 
 def _numbers_sha256(arrays: list[np.ndarray | None], epsilon: float, clip_obs: float, keys: list[str] | None = None) -> str:

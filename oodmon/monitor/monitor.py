@@ -489,6 +489,22 @@ def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
             f"oodmon.agents.frame_stack.FrameStack(env, {agent.frame_stack}))")
         raise ConfigError(f"this env's {what} is {getattr(env, what)}, but {agent.task}/{agent.method} acts in "
                           f"{env_id_of(own)}, whose {what} is {getattr(own, what)}: an env of another task?{stacked}")
+    if agent.stacking is not None and agent.stacking.pad is not None and _stacking_of(env) != agent.stacking:
+        raise ConfigError(f"{agent.task}/{agent.method} was trained inside VecFrameStack(VecNormalize(env), "
+                          f"{agent.frame_stack}): before an episode's first observation its stack holds the "
+                          "statistics' mean, not zeros; step the env agent.wrap(env) gives (or "
+                          f"oodmon.agents.frame_stack.FrameStack(env, {agent.frame_stack}, pad=agent.stacking.pad))")
+
+
+def _stacking_of(env: gymnasium.Env) -> Any:
+    """The :class:`~oodmon.agents.frame_stack.Stacking` of the first ``FrameStack`` wrapping ``env``, or ``None``."""
+    from oodmon.agents.frame_stack import FrameStack
+
+    while isinstance(env, gymnasium.Wrapper):
+        if isinstance(env, FrameStack):
+            return env.stacking
+        env = env.env
+    return None
 
 
 def _finite(obs: Any) -> bool:

@@ -196,3 +196,72 @@ def test_dicts_are_stacked_key_by_key_as_vecframestack_stacks_them_and_read_flat
         for seed in range(3):
             steps += monitor.run_episode(agent.make_env(), seed=seed).length
     assert steps >= 12 and len(monitor.last_step.observation) == 4  # the own dict, flattened
+
+
+def test_a_model_trained_normalised_then_stacked_sees_what_vecframestack_of_vecnormalize_gave_it(tmp_path, capsys):
+    """rl-baselines3-zoo's order, VecFrameStack(VecNormalize(venv)): each observation normalised,
+    then stacked, normalised zeros before an episode's first. Its statistics are of one observation
+    (the other order's are of the stack); such a model was refused as having "statistics of another
+    env". Now FrameStack stands the statistics' mean before the first observation, and the agent
+    normalises each observation of the stack with them. (SB3's DQN and TD3 cannot learn in this
+    order, their buffers store VecNormalize's unstacked observations: a PPO learns here, and two
+    DQNs built on the same env stand for an ensemble, untrained.)"""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from oodmon.agents.vec_normalize import ObservationNormalizer
+    from oodmon.monitor import MonitoredEnv
+    from oodmon.replay import read_log
+
+    normalised = VecNormalize(DummyVecEnv([lambda: gymnasium.make("CartPole-v1")]), norm_reward=False)
+    stacked = VecFrameStack(normalised, 3)
+    ppo = PPO("MlpPolicy", stacked, n_steps=128, batch_size=64, n_epochs=2, seed=0, policy_kwargs={"net_arch": [32]})
+    ppo.learn(256)  # the statistics move away from (0, 1) as it learns
+    assert np.abs(normalised.obs_rms.mean).max() > 0.01
+    normalised.save(tmp_path / "vecnormalize.pkl")
+    models = [DQN("MlpPolicy", stacked, seed=k, policy_kwargs={"net_arch": [32]}) for k in range(2)]
+    paths = [tmp_path / f"dqn{k}.zip" for k in range(2)]
+    for model, path in zip([*models, ppo], [*paths, tmp_path / "ppo.zip"]):
+        model.save(path)
+    statistics = {"vec_normalize": tmp_path / "vecnormalize.pkl", "frame_stack": 3}
+    agent, deployed = load_sb3(paths, "CartPole-v1", **statistics), load_sb3([tmp_path / "ppo.zip"], "CartPole-v1", **statistics)
+    assert agent.metadata["vec_normalize"]["normalised_then_stacked"] == 3
+    in_memory = sb3_agent([ppo], "CartPole-v1")  # the VecFrameStack and VecNormalize it learned in
+    assert in_memory.frame_stack == 3 and in_memory.metadata["vec_normalize"]["normalised_then_stacked"] == 3
+    theirs = VecFrameStack(VecNormalize.load(tmp_path / "vecnormalize.pkl", DummyVecEnv([lambda: gymnasium.make("CartPole-v1")])), 3)
+    theirs.venv.training = False
+    theirs.seed(5)
+    a, ours = theirs.reset()[0], agent.make_env()
+    b, _ = ours.reset(seed=5)
+    assert not a[:8].any()  # VecFrameStack's zeros before the first observation, which ours make of the mean
+    ends = 0
+    for _ in range(300):  # several episodes: the stack starts again after each end
+        np.testing.assert_allclose(agent.estimator.observation_transform(b[None])[0], a, rtol=1e-6, atol=1e-7)
+        with torch.no_grad():
+            q = [m.q_net(m.policy.obs_to_tensor(a)[0])[0].numpy() for m in models]
+        np.testing.assert_allclose(agent.estimate(b).samples[:, 0], q, rtol=1e-5, atol=1e-6)
+        assert agent.act(b) == int(models[0].predict(a, deterministic=True)[0])
+        action = deployed.act(b)
+        assert action == int(ppo.predict(a, deterministic=True)[0])
+        a, _, done, _ = theirs.step([action])
+        a = a[0]
+        b, _, terminated, truncated, _ = ours.step(action)
+        if terminated or truncated:
+            ends, (b, _) = ends + 1, ours.reset()
+    assert ends >= 2
+    # An env stacked without the mean in front would give the model other first observations: refused.
+    with pytest.raises(ConfigError, match=r"VecFrameStack\(VecNormalize\(env\), 3\).*agent.wrap\(env\)"):
+        MonitoredEnv(FrameStack(gymnasium.make("CartPole-v1"), 3), Monitor(agent))
+    MonitoredEnv(agent.wrap(gymnasium.make("CartPole-v1")), Monitor(agent))
+    # The command line: calibrated, run and logged.
+    common = ["--sb3", str(tmp_path / "ppo.zip"), "--env", "CartPole-v1", "--vec-normalize",
+              str(tmp_path / "vecnormalize.pkl"), "--frame-stack", "3"]
+    assert main(["calibrate", *common, "--episodes", "10", "--far", "0.2", "--confidence", "none", "--fit-episodes", "9",
+                 "--out", str(tmp_path / "t.json")]) == 0
+    assert main(["run", *common, "--threshold", str(tmp_path / "t.json"), "--episodes", "2", "--mcap",
+                 str(tmp_path / "x.mcap")]) == 0
+    log = read_log(tmp_path / "x.mcap")
+    assert len(log.episodes) == 2 and json.loads(log.metadata["about.vec_normalize"])["normalised_then_stacked"] == 3
+    capsys.readouterr()
+    with pytest.raises(ConfigError, match="stacks normalised observations .* of vector envs only"):
+        ObservationNormalizer(None, None, keys={"state": (np.zeros(4), np.ones(4))}).stacked(3)
