@@ -85,6 +85,13 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def _widths(text: str) -> list[int]:
+    """An argparse type: hidden widths, e.g. ``64,64``."""
+    from oodmon.agents.recipes import parse_widths
+
+    return parse_widths(text)
+
+
 def _whole(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
     """An argparse type: a whole number in [minimum, maximum]."""
 
@@ -362,6 +369,9 @@ def _parser() -> argparse.ArgumentParser:
                        help="members of each ensemble trial (default: the recipe's, 5); another size trains every "
                             "trial, trial 0 too (member k has the same seed at any size: members trained before are "
                             "kept), and a decision costs K members' forward passes")
+    bench.add_argument("--net-arch", type=_widths, metavar="W,W",
+                       help="hidden widths of every trial's network, e.g. 64,64 (default: each recipe's, CartPole "
+                            "[256, 256], Pendulum [400, 300]); other widths train every trial, trial 0 too")
     bench.add_argument("--variants", default="paper", help="'paper' (the paper's grid) or comma-separated specs")
     bench.add_argument("--protocol", choices=["paper", "monitor"], default="paper",
                        help="paper (default): shifted from step 0, per-step AUROC; monitor: the monitor's own benchmark, "
@@ -864,7 +874,8 @@ def _bench(args: argparse.Namespace) -> int:
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
                          all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean,
                          vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
-                         samples=args.samples, members=args.members, fit_episodes=args.fit_episodes,
+                         samples=args.samples, members=args.members,
+                         net_arch=None if args.net_arch is None else tuple(args.net_arch), fit_episodes=args.fit_episodes,
                          masks=args.masks)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result

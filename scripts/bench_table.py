@@ -52,6 +52,7 @@ def table(path: Path) -> str:
     config = data["config"]
     samples = f", {config['samples']} MC samples per decision" if config.get("samples") else ""
     samples += f", ensembles of {config['members']} members" if config.get("members") else ""
+    samples += f", hidden widths {config['net_arch']}" if config.get("net_arch") else ""
     samples += {"fixed": ", fixed MC masks", "fixed-decisions": ", fixed MC masks that decide"}.get(config.get("masks"), "")
     defaults = (BenchConfig.id_episodes, BenchConfig.episodes)  # the paper protocol's episodes per trial
     if (config.get("id_episodes", defaults[0]), config.get("episodes", defaults[1])) != defaults:

@@ -602,6 +602,29 @@ def test_bench_members_trains_ensembles_of_that_size_keeping_members_trained_bef
     assert BenchConfig("cartpole", members=5, **common).model_name("ensemble") == "ensemble"
 
 
+def test_bench_net_arch_trains_every_trial_with_those_widths_in_folders_of_its_own(tmp_path, capsys):
+    """--net-arch 16,16: every trial (trial 0 too: the zoo's agent has the recipe's widths) trains
+    with those hidden widths into folders of their own; the recipe's widths are the zoo's agent
+    again; the results' settings record them (a baseline of other widths is refused by them)."""
+    common = dict(methods=("dropconnect",), trials=1, variants=("cartpole:length=2.0",), episodes=1, id_episodes=2,
+                  eval_episodes=1, calibration_episodes=22, far=0.1, workers=1, train_steps=300)
+    small = BenchConfig("cartpole", net_arch=[16, 16], out=str(tmp_path), **common)  # a list, as JSON gives it
+    assert small.net_arch == (16, 16) and small.model_name("dropconnect") == "dropconnect-net16x16"
+    assert small.recipe("dropconnect").net_arch == [16, 16] and small.recipe("dropconnect").drop_p == 0.02
+    run_bench(small)  # 300 steps: the trial fails in ID already, so no variant gives a row
+    model = tmp_path / "models/cartpole-dropconnect-net16x16-trial0"
+    assert json.loads((model / "model.json").read_text())["architecture"]["net_arch"] == [16, 16]
+    assert (tmp_path / "logs" / f"cartpole-{small.cache_key()}" / "dropconnect-net16x16/trial0/cartpole.mcap").exists()
+    assert small.what_made_the_numbers()["net_arch"] == [16, 16]
+    assert BenchConfig("cartpole", net_arch=(256, 256), out=str(tmp_path), **common).model_name("dropconnect") == "dropconnect"
+    from oodmon.cli import main
+
+    assert main(["bench", "--task", "cartpole", "--methods", "dropconnect", "--net-arch", "16,x"]) == 2
+    assert "'16,x' is not a list of hidden widths such as 64,64" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match="Pong's CNN agents"):
+        BenchConfig("pong", methods=("dropout",), net_arch=(64,))
+
+
 @pytest.mark.parametrize("change, message", [({"members": 1}, "2 or more"),
                                              ({"methods": ("dropout",), "members": 10}, "ensemble method")])
 def test_bench_members_refuses_what_it_cannot_size(change, message):

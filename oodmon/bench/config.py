@@ -67,6 +67,7 @@ class BenchConfig:
     samples: int | None = None  # MC samples per decision of Dropout and DropConnect agents (None: each one's recipe)
     members: int | None = None  # members of each ensemble trial (None: the recipe's; others train trial 0 too)
     masks: str | None = None  # MC masks of Dropout and DropConnect agents: sampled or fixed (None: each model's)
+    net_arch: tuple[int, ...] | None = None  # hidden widths of every trial (None: the recipe's; others train trial 0 too)
 
     def __post_init__(self) -> None:
         from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -107,6 +108,14 @@ class BenchConfig:
         if self.members is not None and (self.members < 2 or self.sb3 or "ensemble" not in self.methods):
             raise ConfigError(f"members={self.members}: the size of oodmon's ensembles, 2 or more, for a bench of the "
                               "ensemble method (not for --sb3 models)")
+        if self.net_arch is not None:
+            from oodmon.agents.recipes import recipe_for
+
+            if self.sb3 or not self.net_arch or min(self.net_arch) < 1 or any(
+                    recipe_for(self.task, method).cnn for method in self.methods):
+                raise ConfigError(f"net_arch={self.net_arch}: the hidden widths of oodmon's CartPole and Pendulum "
+                                  "agents' networks, whole numbers >= 1 (not for --sb3 models, nor Pong's CNN agents)")
+            object.__setattr__(self, "net_arch", tuple(int(width) for width in self.net_arch))  # frozen; JSON gives a list
 
     def recipe(self, method: str) -> Recipe:
         """The recipe the bench trains ``method``'s trials by: the shipped one, its ensembles of
@@ -117,18 +126,31 @@ class BenchConfig:
         recipe = recipe_for(self.task, method)
         if method == "ensemble" and self.members is not None:
             recipe = replace(recipe, n_members=self.members)
+        if self.net_arch is not None:
+            recipe = replace(recipe, net_arch=list(self.net_arch))
         return recipe if self.train_steps is None else recipe.shortened(self.train_steps)
 
-    def resized(self, method: str) -> bool:
-        """Whether ``method``'s trials are ensembles of another size than the shipped recipe's: then
-        no trial is the zoo's agent, and their models and logs have folders of their own."""
+    def _other_members(self, method: str) -> bool:
         from oodmon.agents.recipes import recipe_for
 
         return method == "ensemble" and self.members not in (None, recipe_for(self.task, method).n_members)
 
+    def _other_widths(self, method: str) -> bool:
+        from oodmon.agents.recipes import recipe_for
+
+        return self.net_arch is not None and list(self.net_arch) != list(recipe_for(self.task, method).net_arch)
+
+    def resized(self, method: str) -> bool:
+        """Whether ``method``'s trials are ensembles of another size, or networks of other hidden
+        widths, than the shipped recipe's: then no trial is the zoo's agent, and their models and
+        logs have folders of their own."""
+        return self._other_members(method) or self._other_widths(method)
+
     def model_name(self, method: str) -> str:
-        """``method``'s name in the bench's folders: ``ensemble-members20`` for resized ensembles."""
-        return f"{method}-members{self.members}" if self.resized(method) else method
+        """``method``'s name in the bench's folders: ``ensemble-members20`` for resized ensembles,
+        ``dropconnect-net64x64`` for networks of hidden widths [64, 64]."""
+        name = f"{method}-members{self.members}" if self._other_members(method) else method
+        return f"{name}-net{'x'.join(map(str, self.net_arch))}" if self._other_widths(method) else name
 
     @property
     def m(self) -> int:
