@@ -486,14 +486,18 @@ def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
     if what is not None:
         stacked = "" if agent.frame_stack is None else (
             f" (the agent acts on observations stacked {agent.frame_stack} deep: wrap the env you step in "
-            f"oodmon.agents.frame_stack.FrameStack(env, {agent.frame_stack}))")
+            + (f"oodmon.agents.frame_stack.FrameStack(env, {agent.frame_stack}))" if agent.stacking.pad is None
+               else f"agent.wrap(env), {_WRAP_FOR_WATCH})"))
         raise ConfigError(f"this env's {what} is {getattr(env, what)}, but {agent.task}/{agent.method} acts in "
                           f"{env_id_of(own)}, whose {what} is {getattr(own, what)}: an env of another task?{stacked}")
     if agent.stacking is not None and agent.stacking.pad is not None and _stacking_of(env) != agent.stacking:
         raise ConfigError(f"{agent.task}/{agent.method} was trained inside VecFrameStack(VecNormalize(env), "
                           f"{agent.frame_stack}): before an episode's first observation its stack holds the "
-                          "statistics' mean, not zeros; step the env agent.wrap(env) gives (or "
-                          f"oodmon.agents.frame_stack.FrameStack(env, {agent.frame_stack}, pad=agent.stacking.pad))")
+                          f"statistics' mean, not zeros; step the env agent.wrap(env) gives ({_WRAP_FOR_WATCH})")
+
+
+#: Where a user of :func:`oodmon.watch` finds the agent whose ``wrap`` stacks their env.
+_WRAP_FOR_WATCH = "with oodmon.watch, call it without env= and step MonitoredEnv(monitor.agent.wrap(env), monitor)"
 
 
 def _stacking_of(env: gymnasium.Env) -> Any:

@@ -250,8 +250,11 @@ def test_a_model_trained_normalised_then_stacked_sees_what_vecframestack_of_vecn
             ends, (b, _) = ends + 1, ours.reset()
     assert ends >= 2
     # An env stacked without the mean in front would give the model other first observations: refused.
-    with pytest.raises(ConfigError, match=r"VecFrameStack\(VecNormalize\(env\), 3\).*agent.wrap\(env\)"):
+    with pytest.raises(ConfigError, match=r"VecFrameStack\(VecNormalize\(env\), 3\).*agent.wrap\(env\).*"
+                                          r"MonitoredEnv\(monitor.agent.wrap\(env\), monitor\)"):
         MonitoredEnv(FrameStack(gymnasium.make("CartPole-v1"), 3), Monitor(agent))
+    with pytest.raises(ConfigError, match=r"stacked 3 deep: wrap the env you step in agent.wrap\(env\)"):
+        MonitoredEnv(gymnasium.make("CartPole-v1"), Monitor(agent))  # not stacked at all
     MonitoredEnv(agent.wrap(gymnasium.make("CartPole-v1")), Monitor(agent))
     # The command line: calibrated, run and logged.
     common = ["--sb3", str(tmp_path / "ppo.zip"), "--env", "CartPole-v1", "--vec-normalize",
