@@ -268,3 +268,36 @@ def test_a_model_trained_normalised_then_stacked_sees_what_vecframestack_of_vecn
     capsys.readouterr()
     with pytest.raises(ConfigError, match="stacks normalised observations .* of vector envs only"):
         ObservationNormalizer(None, None, keys={"state": (np.zeros(4), np.ones(4))}).stacked(3)
+
+
+def test_a_model_trained_stacked_then_normalised_has_statistics_of_the_stack_and_no_pad(tmp_path):
+    """The other order, VecNormalize(VecFrameStack(venv)): statistics of the whole stack, which
+    normalise it as one vector, zeros (raw) before an episode's first observation. Told apart from
+    rl-baselines3-zoo's order by the statistics' shape."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    theirs = VecNormalize(VecFrameStack(DummyVecEnv([lambda: gymnasium.make("CartPole-v1")]), 3), norm_reward=False)
+    theirs.seed(0)
+    theirs.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(300):  # the statistics move away from (0, 1)
+        theirs.step([int(rng.integers(2))])
+    assert theirs.obs_rms.mean.shape == (12,) and np.abs(theirs.obs_rms.mean).max() > 0.01
+    theirs.save(tmp_path / "vecnormalize.pkl")
+    models = [DQN("MlpPolicy", theirs, seed=k, policy_kwargs={"net_arch": [32]}) for k in range(2)]
+    agent = sb3_agent(models, "CartPole-v1", vec_normalize=tmp_path / "vecnormalize.pkl", frame_stack=3)
+    assert agent.stacking.pad is None and "normalised_then_stacked" not in agent.metadata["vec_normalize"]
+    theirs.training = False
+    theirs.seed(5)
+    a, ours = theirs.reset()[0], agent.make_env()
+    b, _ = ours.reset(seed=5)
+    for _ in range(60):
+        np.testing.assert_allclose(agent.estimator.observation_transform(b[None])[0], a, rtol=1e-6, atol=1e-7)
+        with torch.no_grad():
+            q = [m.q_net(m.policy.obs_to_tensor(a)[0])[0].numpy() for m in models]
+        np.testing.assert_allclose(agent.estimate(b).samples[:, 0], q, rtol=1e-5, atol=1e-6)
+        action = agent.act(b)
+        a = theirs.step([action])[0][0]
+        b, _, terminated, truncated, _ = ours.step(action)
+        if terminated or truncated:
+            b, _ = ours.reset()
