@@ -148,6 +148,8 @@ def modules_from_sb3(models: Sequence[Any], arch: Architecture | Mapping[str, An
             q_net = model.policy.q_net
             return q_net.features_extractor, q_net.q_net
         actor = model.policy.actor
+        if _is_sac_actor(actor):  # its deterministic action: tanh of the Gaussian's mean
+            return actor.features_extractor, nn.Sequential(*actor.latent_pi, actor.mu, nn.Tanh())
         return actor.features_extractor, actor.mu
 
     extractor, head = parts(models[0])
@@ -159,6 +161,14 @@ def modules_from_sb3(models: Sequence[Any], arch: Architecture | Mapping[str, An
     else:
         heads = [parts(model)[1] for model in models]
     return nn.ModuleDict({"torso": torso, "members": nn.ModuleList(heads)})
+
+
+def _is_sac_actor(actor: nn.Module) -> bool:
+    """Whether ``actor`` is SAC's: a Gaussian whose mean (``mu``, after ``latent_pi``) squashed by a
+    tanh is its deterministic action, in [-1, 1] as TD3's actor's (both are scaled to the action
+    space's bounds by ``predict``). gSDE actors (``use_sde``) are not among them."""
+    return isinstance(getattr(actor, "latent_pi", None), nn.Sequential) and isinstance(getattr(actor, "mu", None), nn.Linear) \
+        and not getattr(actor, "use_sde", False)
 
 
 def estimator_for(modules: nn.Module, arch: Architecture | Mapping[str, Any], n_samples: int = 20, seed: int | None = None,
@@ -179,9 +189,9 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
     """An estimator over SB3 models a user trained: an ensemble of several, MC over one.
 
     Args:
-        models: DQN models, or DDPG/TD3 models, all of one architecture. One model must have
-            dropout or DropConnect in its Q-network or actor (MC sampling); several form an
-            ensemble with stacked weights.
+        models: DQN models, or DDPG/TD3 models, or SAC models (their deterministic actions), all of
+            one architecture. One model must have dropout or DropConnect in its Q-network or actor
+            (MC sampling); several form an ensemble with stacked weights.
         n_samples: MC samples per decision (one model only).
         seed: seeds MC sampling.
         masks: one model's MC masks, ``sampled`` or ``fixed`` (see
@@ -201,12 +211,13 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
     """
     if not models:
         raise ConfigError("estimator_from_sb3 needs at least one SB3 model")
-    kinds = {"dqn" if hasattr(m.policy, "q_net") else "ddpg" if hasattr(m.policy, "actor") else None for m in models}
+    kinds = {_kind(m) for m in models}
     if None in kinds or len(kinds) != 1:
         raise ConfigError(
-            f"estimator_from_sb3 takes DQN models or DDPG/TD3 models, all of one kind; got {[type(m).__name__ for m in models]}"
+            f"estimator_from_sb3 takes DQN models, DDPG/TD3 models or SAC models, all of one kind; got "
+            f"{[type(m).__name__ for m in models]}"
         )
-    algorithm = kinds.pop()
+    algorithm = "ddpg" if kinds == {"sac"} else kinds.pop()  # an actor of bounded actions either way
     space = models[0].action_space
     first = models[0].policy.q_net if algorithm == "dqn" else models[0].policy.actor
     arch = Architecture(algorithm, _flat_input_shape(models[0].observation_space, first.features_extractor),
@@ -221,6 +232,18 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
                           "an ensemble, whose members are fixed already")
     return estimator_for(modules_from_sb3(models, arch), arch, n_samples=n_samples, seed=seed,
                          action_low=action_low, action_high=action_high, masks=masks)
+
+
+def _kind(model: Any) -> str | None:
+    """``dqn``, ``ddpg`` (DDPG and TD3: a deterministic actor), ``sac`` or ``None`` (another policy)."""
+    if hasattr(model.policy, "q_net"):
+        return "dqn"
+    actor = getattr(model.policy, "actor", None)
+    if actor is None:
+        return None
+    if _is_sac_actor(actor):
+        return "sac"
+    return "ddpg" if isinstance(getattr(actor, "mu", None), nn.Sequential) else None
 
 
 def _flat_input_shape(space: Any, extractor: nn.Module) -> tuple[int, ...]:

@@ -8,9 +8,10 @@ the detectors' fitting take like a shipped one:
 - one model has no samples to spread: the learned detectors (``dynamics``, and ``combined``)
   watch it, unless it has dropout or DropConnect layers (MC samples, ``masks="fixed"`` for K
   sub-networks drawn once; ``"fixed-decisions"`` reads the same K in one pass, the model's own
-  ``predict()`` deciding either way); several DQN, or several DDPG/TD3, models are also an ensemble whose
-  spread and features are detectors (:func:`~oodmon.agents.networks.estimator_from_sb3`). Other
-  algorithms (SAC, PPO, A2C) are watched by the learned detectors only;
+  ``predict()`` deciding either way); several DQN, several DDPG/TD3, or several SAC models (their
+  deterministic actions) are also an ensemble whose spread and features are detectors
+  (:func:`~oodmon.agents.networks.estimator_from_sb3`). One SAC model, and PPO and A2C, are watched
+  by the learned detectors only;
 - its metadata record each model's path and sha256, the algorithm and the env id; its policy hash
   (what thresholds and fitted detectors are checked against) is the hash of those files.
 
@@ -410,15 +411,15 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
                           "statistics of another env?")
     names = {file["algorithm"] for file in files}
     masks = masks or "sampled"
-    sampled = names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"})
+    sampled = names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"}, {"SAC"})
     if len(models) > 1 and not sampled:  # the others were ignored in silence
-        raise ConfigError(f"several models form an ensemble, whose spread oodmon reads from DQN models, or DDPG/TD3 "
-                          f"models, all of one algorithm; got {', '.join(f['algorithm'] for f in files)}: give the "
+        raise ConfigError(f"several models form an ensemble, whose spread oodmon reads from DQN models, DDPG/TD3 "
+                          f"models or SAC models, all of one algorithm; got {', '.join(f['algorithm'] for f in files)}: give the "
                           "deployed model alone (the learned detectors watch it)")
     if masks != "sampled" and (len(models) > 1 or not sampled):
-        raise ConfigError(f"masks={masks!r} is for one DQN or DDPG/TD3 model with dropout or DropConnect layers (MC "
+        raise ConfigError(f"masks={masks!r} is for one DQN, DDPG/TD3 or SAC model with dropout or DropConnect layers (MC "
                           f"samples); got {len(models)} {'/'.join(sorted(names))} model(s)")
-    estimator = None  # SAC, PPO, A2C: networks oodmon does not sample; the learned detectors watch them
+    estimator = None  # PPO, A2C: networks oodmon does not sample; the learned detectors watch them
     if sampled:
         try:
             estimator = estimator_from_sb3(list(models), n_samples=n_samples, seed=seed, masks=masks)
@@ -431,7 +432,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
                     from None
             # one model without dropout: nothing to sample
     if mean and estimator is None:
-        raise ConfigError("--mean deploys the ensemble's mean: give several DQN, or several DDPG/TD3, models")
+        raise ConfigError("--mean deploys the ensemble's mean: give several DQN, several DDPG/TD3, or several SAC models")
     if estimator is not None:
         estimator.observation_transform = normalizer
     hashes = [file["sha256"] for file in files] + ([] if normalizer is None else [normalizer.sha256])

@@ -557,6 +557,47 @@ def test_ppo_a2c_and_sac_policies_act_as_sb3_does_and_have_no_samples(algorithm,
         assert np.allclose(agent.act(obs), loaded.predict(obs, deterministic=True)[0])
 
 
+def test_several_sac_models_are_an_ensemble_of_their_deterministic_actions(tmp_path, capsys):
+    """SAC's deterministic action is tanh of its Gaussian's mean, scaled to the action bounds, as
+    TD3's actor's: several SAC models form an ensemble whose samples are each model's own
+    predict(deterministic=True) (they were refused as an ensemble before; one SAC still has none)."""
+    from stable_baselines3 import SAC
+
+    models = [SAC("MlpPolicy", gymnasium.make("Pendulum-v1"), seed=k, learning_starts=100,
+                  policy_kwargs={"net_arch": [32, 32]}) for k in range(3)]
+    models[0].learn(300)  # a trained actor's means reach past the tanh's linear range
+    paths = [tmp_path / f"sac{k}.zip" for k in range(3)]
+    for model, path in zip(models, paths):
+        model.save(path)
+    agent = load_sb3(paths, "Pendulum-v1")
+    assert agent.estimator is not None and agent.estimator.n_samples == 3
+    env = gymnasium.make("Pendulum-v1")
+    obs, _ = env.reset(seed=0)
+    for _ in range(50):
+        samples = agent.estimate(obs).samples[:, 0]
+        theirs = [m.predict(obs, deterministic=True)[0] for m in models]
+        np.testing.assert_allclose(samples, theirs, rtol=1e-5, atol=1e-5)
+        assert np.array_equal(agent.act(obs), theirs[0])  # the first model acts
+        obs, *_ = env.step(agent.act(obs))
+    mean = load_sb3(paths, "Pendulum-v1", mean=True)
+    np.testing.assert_allclose(mean.act(obs), np.mean([m.predict(obs, deterministic=True)[0] for m in models], axis=0),
+                               rtol=1e-5, atol=1e-5)
+    assert load_sb3(paths[:1], "Pendulum-v1").estimator is None  # one SAC: no samples, the learned detectors watch it
+    common = ["--sb3", *map(str, paths), "--env", "Pendulum-v1"]
+    assert main(["calibrate", *common, "--episodes", "10", "--far", "0.2", "--confidence", "none",
+                 "--fit-episodes", "9", "--out", str(tmp_path / "t.json")]) == 0
+    assert json.loads((tmp_path / "t.json").read_text())["detector"] == "dynamics"  # Pendulum's best
+    assert main(["run", *common, "--threshold", str(tmp_path / "t.json"), "--variant", "pendulum:m=5.0",
+                 "--onset", "50", "--episodes", "2", "--mcap", str(tmp_path / "x.mcap")]) == 0
+    capsys.readouterr()
+    assert main(["replay", str(tmp_path / "x.mcap"), "--json"]) == 0
+    rows = {r["detector"]: r for r in json.loads(capsys.readouterr().out)}
+    assert {"spread", "features", "dynamics", "combined"} <= set(rows)  # the ensemble's detectors too
+    gsde = SAC("MlpPolicy", gymnasium.make("Pendulum-v1"), seed=0, use_sde=True, policy_kwargs={"net_arch": [16]})
+    with pytest.raises(ConfigError, match="cannot form the ensemble"):
+        sb3_agent([gsde, gsde], "Pendulum-v1")
+
+
 def _rewrite_policy_module(path: Path, module: str) -> None:
     """``path``'s ``data`` JSON with its policy class's module renamed (the zip otherwise as SB3 wrote it)."""
     with zipfile.ZipFile(path) as archive:

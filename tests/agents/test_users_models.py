@@ -67,7 +67,7 @@ def test_users_models_errors():
     env = gymnasium.make("CartPole-v1")
     with pytest.raises(ConfigError, match="has no dropout or DropConnect layer"):
         estimator_from_sb3([DQN("MlpPolicy", env, seed=0)])
-    with pytest.raises(ConfigError, match="DQN models or DDPG/TD3 models, all of one kind"):
+    with pytest.raises(ConfigError, match="DQN models, DDPG/TD3 models or SAC models, all of one kind"):
         estimator_from_sb3([DQN("MlpPolicy", env, seed=0), DDPG("MlpPolicy", gymnasium.make("Pendulum-v1"))])
     with pytest.raises(ConfigError, match="needs at least one SB3 model"):
         estimator_from_sb3([])
@@ -116,7 +116,7 @@ def test_one_users_model_with_dropout_can_fix_its_masks():
         Monitor(sb3_agent([model], "CartPole-v1", seed=3), threshold)
     with pytest.raises(ConfigError, match="has no dropout or DropConnect layer"):
         sb3_agent([DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0)], "CartPole-v1", masks="fixed")
-    with pytest.raises(ConfigError, match="for one DQN or DDPG/TD3 model with dropout"):
+    with pytest.raises(ConfigError, match="for one DQN, DDPG/TD3 or SAC model with dropout"):
         sb3_agent([model, _dqn_with_dropout(1)], "CartPole-v1", masks="fixed")
     with pytest.raises(ConfigError, match="whose members are fixed already"):
         estimator_from_sb3([model, _dqn_with_dropout(1)], masks="fixed")
