@@ -86,7 +86,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _widths(text: str) -> list[int]:
-    """An argparse type: hidden widths, e.g. ``64,64``."""
+    """An argparse type: hidden widths, e.g. ``64,64`` (imported here: ``oodmon.agents`` loads torch,
+    which ``oodmon --help`` need not wait for)."""
     from oodmon.agents.recipes import parse_widths
 
     return parse_widths(text)
@@ -875,7 +876,7 @@ def _bench(args: argparse.Namespace) -> int:
                          all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean,
                          vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
                          samples=args.samples, members=args.members,
-                         net_arch=None if args.net_arch is None else tuple(args.net_arch), fit_episodes=args.fit_episodes,
+                         net_arch=args.net_arch, fit_episodes=args.fit_episodes,
                          masks=args.masks)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result

@@ -232,11 +232,9 @@ class _FixedDropConnect(Op):
             masked.reshape(-1)[dropped] = 0.0
             self.masked = masked
             self.side_by_side = np.ascontiguousarray(masked.transpose(1, 0, 2).reshape(n_in, k * n_out))
-        else:  # row k * out + target of the matrix takes column k * in + source
-            row, rest = np.divmod(dropped, n_in * n_out)
-            source, target = np.divmod(rest, n_out)
-            matrix = sparse.csr_matrix((weight_t[source, target], (row * n_out + target, row * n_in + source)),
-                                       shape=(k * n_out, k * n_in), dtype=np.float32)
+        else:  # row k * out + target of the matrix takes column k * in + source, as the sampled layer's terms
+            pair, slots, weights = _dropped_terms(dropped, weight_t)
+            matrix = sparse.csr_matrix((weights, (slots, pair)), shape=(k * n_out, k * n_in), dtype=np.float32)
             matrix.sort_indices()
             self.dropped = matrix
 
