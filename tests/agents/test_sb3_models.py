@@ -579,10 +579,10 @@ def test_several_sac_models_are_an_ensemble_of_their_deterministic_actions(tmp_p
         np.testing.assert_allclose(samples, theirs, rtol=1e-5, atol=1e-5)
         assert np.array_equal(agent.act(obs), theirs[0])  # the first model acts
         obs, *_ = env.step(agent.act(obs))
-    mean = load_sb3(paths, "Pendulum-v1", mean=True)
+    mean = sb3_agent(models, "Pendulum-v1", mean=True)  # in memory: the same models, no files loaded again
     np.testing.assert_allclose(mean.act(obs), np.mean([m.predict(obs, deterministic=True)[0] for m in models], axis=0),
                                rtol=1e-5, atol=1e-5)
-    assert load_sb3(paths[:1], "Pendulum-v1").estimator is None  # one SAC: no samples, the learned detectors watch it
+    assert sb3_agent(models[:1], "Pendulum-v1").estimator is None  # one SAC: no samples, the learned detectors watch it
     common = ["--sb3", *map(str, paths), "--env", "Pendulum-v1"]
     assert main(["calibrate", *common, "--episodes", "10", "--far", "0.2", "--confidence", "none",
                  "--fit-episodes", "9", "--out", str(tmp_path / "t.json")]) == 0
