@@ -75,7 +75,7 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
     report("models, detectors, thresholds and failing variants of trials", len(trials), len(trials))
 
     cells = []
-    for (method, trial), (model, threshold, failing, _) in prepared.items():
+    for (method, trial), (_, _, failing, _) in prepared.items():
         cells.append((method, trial, config.task, config.id_episodes, seeds.BENCH_ID))
         cells += [(method, trial, spec, config.episodes, seeds.BENCH_SHIFTED) for spec in _monitored(config, failing)]
     jobs = []
