@@ -113,6 +113,44 @@ def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
             m: data["config"]["trials"] for m in data["config"]["methods"]}, f"{path.name} lacks trials' ID returns"
 
 
+def test_the_readmes_goals_at_a_glance_are_what_the_committed_results_give():
+    root, script = load_script("bench_table")
+    readme = (root / "README.md").read_text()
+    begin, end = "<!-- bench_goals -->\n", "\n<!-- end bench_goals -->"
+    shown = readme[readme.index(begin) + len(begin):readme.index(end)]
+    assert shown == script.goals(sorted((root / "results" / "bench").glob("*.json")))
+
+
+def test_the_goals_take_per_variant_the_row_meeting_both_then_the_mean_then_the_highest(tmp_path):
+    script = load_script("bench_table")[1]
+    # The paper's CartPole ensemble: gravity=98.0 0.772 ± 0.040, length=2.0 0.883 ± 0.057.
+    def result(name, rows, **config):
+        data = {"config": {"task": "cartpole", "methods": ["ensemble"], "trials": 5, **config},
+                "rows": [{"method": "ensemble", "variant": v, "detector": d, "mean": m, "std": sd,
+                          "aurocs": dict.fromkeys("01234", m)} for v, d, m, sd in rows]}
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(data))
+        return path
+
+    files = [
+        result("a", [("cartpole:gravity=98.0", "spread", 0.95, 0.10),  # the higher mean, its std too large
+                     ("cartpole:length=2.0", "spread", 0.80, 0.01)]),   # below the paper's mean
+        result("b", [("cartpole:gravity=98.0", "scaled_spread", 0.90, 0.02),  # both met: taken
+                     ("cartpole:length=2.0", "spread", 0.60, 0.01)], detectors=["spread", "scaled_spread"]),
+        result("c", [("cartpole:gravity=98.0", "spread", 0.99, 0.0)], members=20),  # an ensemble the zoo does not ship
+    ]
+    lines = script.goals(files).splitlines()
+    gravity = next(line for line in lines if "gravity=98.0" in line)
+    length = next(line for line in lines if "length=2.0" in line)
+    assert "0.900 ± 0.020 (5) | `b`, `scaled_spread` | yes | yes |" in gravity
+    assert "0.800 ± 0.010 (5) | `a`, `spread` | no | no |" in length
+    assert lines[-1] == "Best mean AUROC, cartpole: ours 0.900 (ensemble gravity=98.0, `b`, `scaled_spread`), the paper's 0.883 (ensemble length=2.0)."
+    only_dropout = script.goals([result("d", [], methods=["dropout"])]).splitlines()
+    assert all("does not fail (in any file)" in line for line in only_dropout[2:5])
+    assert only_dropout[-1] == ("Best mean AUROC, cartpole: ours none (no variant failed), the paper's 0.712 "
+                                "(dropout force_mag=2.5).")
+
+
 def test_the_five_trial_tables_name_the_trials_that_do_not_solve_the_task():
     script = load_script("bench_table")[1]
     line = script._id_return_line({"dropout": {"0": 500.0, "1": 500.0, "2": 500.0},
