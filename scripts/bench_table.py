@@ -114,6 +114,7 @@ def goals(paths: list[Path]) -> str:
     mean, else the one meeting the mean with the highest mean, else the highest mean; "does not
     fail" where no file has a row for it. Then the best mean per task against the paper's best.
     Files of agents the zoo does not ship (other hidden widths, ensembles of other sizes) are left out."""
+    papers = paper_auc_per_trial()
     best: dict[tuple[str, str, str], tuple] = {}
     for path in paths:
         data = json.loads(path.read_text())
@@ -121,7 +122,7 @@ def goals(paths: list[Path]) -> str:
         if config.get("net_arch") or config.get("members"):
             continue
         task = config["task"]
-        paper = paper_auc_per_trial()[task]
+        paper = papers[task]
         for detector in _detectors(config):
             rows = _rows(data, detector)
             for method in config["methods"]:
@@ -138,11 +139,11 @@ def goals(paths: list[Path]) -> str:
     lines = ["| task | method | variant | paper: mean ± std | ours, the best: mean ± std (trials failing) | from "
              "(file, detector) | mean >= paper | std <= paper |", "|---|---|---|---|---|---|---|---|"]
     tops: dict[str, list[tuple[float, str]]] = {}
-    order = [(task, method, label) for task, by_method in sorted(paper_auc_per_trial().items())
+    order = [(task, method, label) for task, by_method in sorted(papers.items())
              for method in ("dropout", "dropconnect", "ensemble") for label in by_method.get(PAPER_METHOD[method], {})]
     for task, method, label in (key for key in order if key in best):
         found = best[(task, method, label)]
-        trials = paper_auc_per_trial()[task][PAPER_METHOD[method]][label]
+        trials = papers[task][PAPER_METHOD[method]][label]
         theirs = f"{np.mean(trials):.3f} ± {np.std(trials):.3f}"
         tops.setdefault(task, [(-1.0, ""), (-1.0, "")])
         tops[task][1] = max(tops[task][1], (float(np.mean(trials)), f"{method} {label}"))

@@ -179,9 +179,9 @@ def test_alarms_are_averaged_over_the_trials_that_have_them():
 
 @pytest.mark.slow
 def test_ray_executor_on_a_loopback_cluster_gives_the_same_logs_numbers_as_local_processes(tmp_path):
-    """One Ray cluster (starting one is most of this test's time): the bench starts it listening on
-    127.0.0.1 only, a bench on a cluster already running uses it and leaves it running, and its
-    cells give the numbers local processes give."""
+    """One Ray cluster (starting one is most of this test's time): the bench's ``_start_ray`` starts
+    it listening on 127.0.0.1 only, a bench on a cluster already running uses it and leaves it
+    running, and its cells give the numbers local processes give."""
     import ray
 
     from oodmon.bench.cells import _start_ray
