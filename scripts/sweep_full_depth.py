@@ -121,7 +121,7 @@ def table() -> str:
             depth += f", final epsilon {r['exploration_final_eps']:g}"
         if r.get("shipped"):
             depth += " (shipped)" if _made_by_todays_recipe(r) else " (shipped before)"
-        hidden = ", ".join(str(w) for w in (r.get("net_arch") or recipe_for(r["task"], r["method"]).net_arch))
+        hidden = ", ".join(str(w) for w in row_widths(r))
         lines.append(f"| {r['task']} | {r['method']} | {depth} | [{hidden}] | {r['drop_p']:g} | {r['learning_rate']:g} | "
                      f"{r['steps']:,} | {r['id_return_mean']:.1f} | "
                      f"{'yes' if r['id_return_mean'] >= SOLVED_RETURN[r['task']] else 'no'} | {means['chosen_std']:.3f} | "
@@ -153,7 +153,8 @@ def main() -> None:
         for method in args.methods.split(","):
             if args.shipped:
                 recipe = recipe_for(task, method)
-                settings = {"drop_p": recipe.drop_p, "last_only": recipe.last_only, "shipped": True, **_trained_by(recipe)}
+                settings = {"drop_p": recipe.drop_p, "last_only": recipe.last_only, "shipped": True, **_trained_by(recipe),
+                            **widths_setting(recipe)}
                 if _key({"task": task, "method": method, **settings}) not in done:
                     _measure(load(task, method, seed=MC_SEED), task, method, settings)
                 continue
@@ -166,11 +167,10 @@ def main() -> None:
                 if args.steps is not None:
                     recipe = replace(recipe, total_steps=args.steps)
                     name += f"-steps{args.steps}"
-                settings = {"drop_p": p, "last_only": False, **_trained_by(recipe)}
                 if args.net_arch is not None:
                     recipe = replace(recipe, net_arch=args.net_arch)
                     name += "-net" + "x".join(str(w) for w in recipe.net_arch)
-                    settings["net_arch"] = recipe.net_arch
+                settings = {"drop_p": p, "last_only": False, **_trained_by(recipe), **widths_setting(recipe)}
                 if args.target_samples:
                     recipe = replace(recipe, target_samples=args.target_samples)
                     name += f"-target{args.target_samples}"
@@ -226,16 +226,16 @@ def _trained_by(recipe) -> dict:
 
 def _made_by_todays_recipe(row: dict) -> bool:
     """Whether a ``--shipped`` row measured the agent today's recipe trains (its depth, p, learning
-    rate and steps), not one shipped before."""
+    rate, steps and hidden widths), not one shipped before."""
     recipe = recipe_for(row["task"], row["method"])
-    return (row["last_only"], row["drop_p"], row["learning_rate"], row["steps"]) == (
-        recipe.last_only, recipe.drop_p, recipe.hyperparams["learning_rate"], recipe.total_steps)
+    return (row["last_only"], row["drop_p"], row["learning_rate"], row["steps"], row_widths(row)) == (
+        recipe.last_only, recipe.drop_p, recipe.hyperparams["learning_rate"], recipe.total_steps, list(recipe.net_arch))
 
 
 def _key(row: dict) -> tuple:
     if row.get("shipped"):
         return row["task"], row["method"], "shipped", row["last_only"], row["drop_p"], row["steps"]
-    net_arch = tuple(row.get("net_arch") or recipe_for(row["task"], row["method"]).net_arch)
+    net_arch = tuple(row_widths(row))
     return (row["task"], row["method"], row["drop_p"], row["learning_rate"], row["steps"], net_arch,
             row.get("target_samples", 0), row.get("buffer_size"), row.get("exploration_final_eps"))
 
@@ -283,6 +283,19 @@ def parse_or_print_table(parser: argparse.ArgumentParser, table) -> argparse.Nam
         print(table())
         return None
     return args
+
+
+def row_widths(row: dict) -> list[int]:
+    """The hidden widths a row's agent was trained at: its ``net_arch``, or else its task's (the rows
+    record widths only where they are not the task's, so an older row still reads right if a
+    method's recipe takes widths of its own)."""
+    return list(row.get("net_arch") or RECIPES[row["task"]].net_arch)
+
+
+def widths_setting(recipe) -> dict:
+    """What a row records of ``recipe``'s hidden widths: nothing where they are its task's."""
+    widths = list(recipe.net_arch)
+    return {} if widths == list(RECIPES[recipe.task].net_arch) else {"net_arch": widths}
 
 
 def read_rows(path: Path) -> list[dict]:

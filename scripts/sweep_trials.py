@@ -32,7 +32,7 @@ from oodmon.agents import load_agent
 from oodmon.agents.recipes import parse_widths, recipe_for
 from oodmon.agents.training import train
 from sweep_full_depth import (MC_SEED, VARIANTS, append_row, bench_trial, check_dqn_options, dqn_changes, dqn_tag,
-                              parse_or_print_table, read_rows, spread_aurocs, variant_cells)
+                              parse_or_print_table, read_rows, row_widths, spread_aurocs, variant_cells, widths_setting)
 
 OUT = Path("results/sweeps/trials.jsonl")
 
@@ -60,7 +60,7 @@ def _shown(row: dict) -> str:
     shipped = recipe_for(row["task"], row["method"])
     made = (row["drop_p"], row["last_only"], row.get("total_steps", shipped.total_steps),
             row.get("select_top", shipped.select_top), row.get("target_samples", 0), row.get("exploration_final_eps"),
-            list(row.get("net_arch") or shipped.net_arch))
+            row_widths(row))
     today = (shipped.drop_p, shipped.last_only, shipped.total_steps, shipped.select_top, shipped.target_samples, None,
              list(shipped.net_arch))
     return _label(row) + (" (shipped)" if made == today else " (shipped before)" if row.get("shipped") else "")
@@ -108,14 +108,13 @@ def main() -> None:
     for seed in (int(s) for s in args.seeds.split(",")):
         if args.shipped:
             settings = {"drop_p": shipped.drop_p, "last_only": shipped.last_only, "total_steps": shipped.total_steps,
-                        "select_top": shipped.select_top, "shipped": True}
+                        "select_top": shipped.select_top, "shipped": True, **widths_setting(shipped)}
         else:
             settings = {"drop_p": args.p, "last_only": False, "total_steps": args.steps or shipped.total_steps,
                         "select_top": args.select_top}
             if args.target_samples:
                 settings["target_samples"] = args.target_samples
-            if args.net_arch is not None:
-                settings["net_arch"] = list(args.net_arch)
+            settings |= widths_setting(replace(shipped, net_arch=list(args.net_arch or shipped.net_arch)))
             settings |= dqn_changes(args)
         if (args.task, args.method, _label(settings), seed) in done:
             continue

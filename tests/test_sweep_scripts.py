@@ -83,6 +83,41 @@ def test_sweep_trials_net_arch_trains_the_candidate_at_those_widths_and_labels_i
     assert trials._shown(rows[0]).endswith("(shipped)")
 
 
+def test_rows_without_widths_stay_the_tasks_widths_when_a_recipe_takes_widths_of_its_own(scripts, monkeypatch):
+    # Every committed row was trained at its task's widths or records its own. Were Pendulum
+    # DropConnect's recipe to take [64, 64], its old rows must not read as the new recipe's, and its
+    # new rows must record the widths.
+    from dataclasses import replace
+
+    full_depth, trials = scripts
+    real = trials.recipe_for
+
+    def narrow(task, method):
+        recipe = real(task, method)
+        return replace(recipe, net_arch=[64, 64]) if (task, method) == ("pendulum", "dropconnect") else recipe
+
+    monkeypatch.setattr(trials, "recipe_for", narrow)
+    monkeypatch.setattr(full_depth, "recipe_for", narrow)
+    old = {"task": "pendulum", "method": "dropconnect", "drop_p": 0.05, "last_only": False, "total_steps": 20_000,
+           "select_top": 0, "shipped": True}
+    assert full_depth.row_widths(old) == [400, 300]
+    assert trials._shown(old).endswith("(shipped before)")
+    trained, rows = _run(trials, monkeypatch, "--task", "pendulum", "--method", "dropconnect", "--p", "0.05",
+                         "--seeds", "1")
+    assert trained[0][1].net_arch == [64, 64] and rows[0]["net_arch"] == [64, 64]
+    assert trials._shown(rows[0]) == "full depth, p=0.05, hidden [64, 64], 20,000 steps (shipped)"
+    trained, rows = _run(trials, monkeypatch, "--task", "pendulum", "--method", "dropconnect", "--p", "0.05",
+                         "--net-arch", "400,300", "--seeds", "1")  # the task's widths: not recorded
+    assert trained[0][1].net_arch == [400, 300] and "net_arch" not in rows[0]
+    assert not trials._shown(rows[0]).endswith("(shipped)")
+    shipped_row = {**old, "learning_rate": 1e-3, "steps": 20_000}
+    assert not full_depth._made_by_todays_recipe(shipped_row)
+    assert full_depth._made_by_todays_recipe({**shipped_row, "net_arch": [64, 64]})
+    candidate = {key: value for key, value in shipped_row.items() if key != "shipped"}
+    assert full_depth._key(candidate) == full_depth._key({**candidate, "net_arch": [400, 300]})  # the task's widths
+    assert full_depth._key(candidate) != full_depth._key({**candidate, "net_arch": [64, 64]})
+
+
 def test_sweep_full_depth_buffer_and_final_eps_train_and_key_the_row(scripts, monkeypatch):
     full_depth, _ = scripts
     monkeypatch.setattr(full_depth, "_measure", lambda agent, task, method, settings, start=None: captured.append(settings))
