@@ -57,12 +57,15 @@ def main() -> None:
     if args.vec_normalize:
         venv.save(args.out / "vecnormalize.pkl")
         statistics = {"vec_normalize": args.out / "vecnormalize.pkl"}
-        raw = load_sb3([args.out / "ppo.zip"], "CartPole-v1", frame_stack=4, vec_normalize="none")
-        returns = episode_returns(raw.act, Variant("cartpole"), 10, seed=100, wrap=raw.wrap)
-        print(f"mean return over 10 ID episodes, raw observations stacked 4 deep: {returns.mean():.1f}")
-    agent = load_sb3([args.out / "ppo.zip"], "CartPole-v1", frame_stack=4, **statistics)
+        _print_return(args.out, "raw observations stacked", vec_normalize="none")
+    _print_return(args.out, "observations each normalised, then stacked" if args.vec_normalize
+                  else "observations stacked", **statistics)
+
+
+def _print_return(out: Path, how: str, **statistics) -> None:
+    """The saved PPO's mean return over 10 ID episodes as oodmon deploys it, stacked 4 deep."""
+    agent = load_sb3([out / "ppo.zip"], "CartPole-v1", frame_stack=4, **statistics)
     returns = episode_returns(agent.act, Variant("cartpole"), 10, seed=100, wrap=agent.wrap)
-    how = "observations each normalised, then stacked" if args.vec_normalize else "observations stacked"
     print(f"mean return over 10 ID episodes, {how} 4 deep: {returns.mean():.1f}")
 
 

@@ -154,7 +154,7 @@ def main() -> None:
             if args.shipped:
                 recipe = recipe_for(task, method)
                 settings = {"drop_p": recipe.drop_p, "last_only": recipe.last_only, "shipped": True, **_trained_by(recipe),
-                            **widths_setting(recipe)}
+                            **widths_setting(task, recipe.net_arch)}
                 if _key({"task": task, "method": method, **settings}) not in done:
                     _measure(load(task, method, seed=MC_SEED), task, method, settings)
                 continue
@@ -170,7 +170,7 @@ def main() -> None:
                 if args.net_arch is not None:
                     recipe = replace(recipe, net_arch=args.net_arch)
                     name += "-net" + "x".join(str(w) for w in recipe.net_arch)
-                settings = {"drop_p": p, "last_only": False, **_trained_by(recipe), **widths_setting(recipe)}
+                settings = {"drop_p": p, "last_only": False, **_trained_by(recipe), **widths_setting(task, recipe.net_arch)}
                 if args.target_samples:
                     recipe = replace(recipe, target_samples=args.target_samples)
                     name += f"-target{args.target_samples}"
@@ -233,9 +233,9 @@ def _made_by_todays_recipe(row: dict) -> bool:
 
 
 def _key(row: dict) -> tuple:
-    if row.get("shipped"):
-        return row["task"], row["method"], "shipped", row["last_only"], row["drop_p"], row["steps"]
     net_arch = tuple(row_widths(row))
+    if row.get("shipped"):
+        return row["task"], row["method"], "shipped", row["last_only"], row["drop_p"], row["steps"], net_arch
     return (row["task"], row["method"], row["drop_p"], row["learning_rate"], row["steps"], net_arch,
             row.get("target_samples", 0), row.get("buffer_size"), row.get("exploration_final_eps"))
 
@@ -292,10 +292,9 @@ def row_widths(row: dict) -> list[int]:
     return list(row.get("net_arch") or RECIPES[row["task"]].net_arch)
 
 
-def widths_setting(recipe) -> dict:
-    """What a row records of ``recipe``'s hidden widths: nothing where they are its task's."""
-    widths = list(recipe.net_arch)
-    return {} if widths == list(RECIPES[recipe.task].net_arch) else {"net_arch": widths}
+def widths_setting(task: str, widths) -> dict:
+    """What a row records of hidden widths ``widths``: nothing where they are ``task``'s."""
+    return {} if list(widths) == list(RECIPES[task].net_arch) else {"net_arch": list(widths)}
 
 
 def read_rows(path: Path) -> list[dict]:

@@ -105,16 +105,17 @@ def main() -> None:
     check_dqn_options(parser, args, [args.task])
     done = {(r["task"], r["method"], _label(r), r["seed"]) for r in read_rows(OUT)}
     shipped = recipe_for(args.task, args.method)
+    widths = list(args.net_arch or shipped.net_arch)  # a candidate's hidden widths
     for seed in (int(s) for s in args.seeds.split(",")):
         if args.shipped:
             settings = {"drop_p": shipped.drop_p, "last_only": shipped.last_only, "total_steps": shipped.total_steps,
-                        "select_top": shipped.select_top, "shipped": True, **widths_setting(shipped)}
+                        "select_top": shipped.select_top, "shipped": True, **widths_setting(args.task, shipped.net_arch)}
         else:
             settings = {"drop_p": args.p, "last_only": False, "total_steps": args.steps or shipped.total_steps,
                         "select_top": args.select_top}
             if args.target_samples:
                 settings["target_samples"] = args.target_samples
-            settings |= widths_setting(replace(shipped, net_arch=list(args.net_arch or shipped.net_arch)))
+            settings |= widths_setting(args.task, widths)
             settings |= dqn_changes(args)
         if (args.task, args.method, _label(settings), seed) in done:
             continue
@@ -128,7 +129,7 @@ def main() -> None:
             recipe = replace(shipped, last_only=False, drop_p=args.p, total_steps=settings["total_steps"],
                              select_top=args.select_top, select_episodes=20, target_samples=args.target_samples,
                              hyperparams=shipped.hyperparams | dqn_changes(args),
-                             net_arch=list(args.net_arch) if args.net_arch else shipped.net_arch)
+                             net_arch=widths)
             train(args.task, args.method, out, seed=seed, recipe=recipe, command=f"scripts/sweep_trials.py ({out})")
             agent = load_agent(out, task=args.task, seed=MC_SEED)
         auroc, returns, _ = spread_aurocs(agent, args.task, VARIANTS[(args.task, args.method)])
