@@ -35,14 +35,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     on stderr), 130 interrupted (Ctrl-C; the logs keep every finished episode).
     """
     parser = _parser()
+    words = list(sys.argv[1:] if argv is None else argv)
     try:
-        args = parser.parse_args(argv)
+        args, unknown = parser.parse_known_args(words)
+        if unknown:  # said by the command's own parser, which knows the flags that were meant
+            _unknown_arguments(_command_parser(parser, words), unknown)
     except SystemExit as exit:  # --help, --version, or a bad flag (one line, from _Parser.error)
         return exit.code if isinstance(exit.code, int) else 2
     if not hasattr(args, "handler"):
         parser.print_help()
         return 2
-    args.argv = list(sys.argv[1:] if argv is None else argv)  # what a result records as its command
+    args.argv = words  # what a result records as its command
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         try:
@@ -83,6 +86,37 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _command_parser(parser: argparse.ArgumentParser, words: Sequence[str]) -> argparse.ArgumentParser:
+    """The parser of the (sub)command ``words`` name: ``oodmon run``'s for ``run --task ...``,
+    ``oodmon envs show``'s for ``envs show ...``."""
+    for word in words:
+        commands = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        if commands is not None and word in commands.choices:
+            parser = commands.choices[word]
+        elif commands is None or not word.startswith("-"):
+            break  # a command with no subcommands, or a word that names none: this parser read it
+    return parser
+
+
+def _unknown_arguments(parser: argparse.ArgumentParser, unknown: Sequence[str]) -> None:
+    """Exit through ``parser.error``: the arguments it does not know, and for a mistyped flag the
+    flag it has that is closest (``--rerun``: did you mean ``--rrd``?)."""
+    import difflib
+
+    flags = [flag for action in parser._actions for flag in action.option_strings if flag.startswith("--")]
+    hints = []
+    for word in unknown:
+        name = word.split("=", 1)[0]
+        close = difflib.get_close_matches(name, flags, n=1, cutoff=0.6) if name.startswith("--") else []
+        hints += [(name, close[0])] if close else []
+    message = f"unrecognized arguments: {' '.join(unknown)}"
+    if len(hints) == 1 and sum(word.startswith("--") for word in unknown) == 1:  # no doubt which flag is meant
+        message += f"; did you mean {hints[0][1]}?"
+    elif hints:
+        message += "; " + "; ".join(f"{name}: did you mean {close}?" for name, close in hints)
+    parser.error(message)
 
 
 def _widths(text: str) -> list[int]:

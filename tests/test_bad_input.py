@@ -169,6 +169,12 @@ CASES = [
     ("task-unknown", ["calibrate", "--task", "hopper", "--method", "dropout", "--out", "{d}/t.json"], {},
      ["--task", "hopper"]),
     ("envs-show-bad-spec", ["envs", "show", "cartpole:lenght=2"], {}, ["lenght"]),
+    # A flag the command does not have: said by the command's own parser, with the flag it has that is closest.
+    ("run-mistyped-flag", ["run", "--task", "cartpole", "--method", "ensemble", "--rerun", "{d}/r.rrd"], {},
+     ["oodmon run: error", "--rerun", "did you mean --rrd?", "see oodmon run --help"]),
+    ("envs-show-mistyped-flags", ["envs", "show", "cartpole:length=2.0", "--ot", "{d}/x.png", "--taks=pong"], {},
+     ["oodmon envs show: error", "--ot: did you mean --out?", "--taks"]),
+    ("replay-unknown-flag", ["replay", str(ID_LOG), "--zzz"], {}, ["oodmon replay: error", "--zzz (see oodmon replay"]),
     ("frame-stack-without-sb3", [*CALIBRATE, "--frame-stack", "4", "--out", "{d}/t.json"], {}, ["--frame-stack", "--sb3"]),
     ("frame-stack-1", ["calibrate", "--sb3", "{d}/m.zip", "--env", "CartPole-v1", "--frame-stack", "1", "--out",
                        "{d}/t.json"], {}, ["--frame-stack 1", "VecFrameStack"]),
