@@ -15,6 +15,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from oodmon.agents.dict_pictures import DictPictures
 from oodmon.agents.estimators import Estimate, UncertaintyEstimator
 from oodmon.agents.frame_stack import Stacking
 from oodmon.agents.networks import estimator_for
@@ -43,6 +44,10 @@ class Agent:
             stacked as that stacks them (:class:`~oodmon.agents.frame_stack.Stacking`), in the envs
             :meth:`wrap` makes so; the detectors and the logs read the env's own, the newest of
             each stack (:meth:`own_observation`).
+        pictures: the dict observations hold pictures beside vectors
+            (:class:`~oodmon.agents.dict_pictures.DictPictures`): the policy gets the whole dict,
+            the detectors and the logs read the vector keys (:meth:`own_observation`), and the logs
+            keep the first picture as the frame.
     """
 
     estimator: UncertaintyEstimator | None
@@ -51,6 +56,7 @@ class Agent:
     deploy: Callable[[np.ndarray], Any] | None = None
     dict_space: gymnasium.spaces.Dict | None = None
     stacking: Stacking | None = None
+    pictures: DictPictures | None = None
 
     @property
     def task(self) -> str:
@@ -92,10 +98,25 @@ class Agent:
         """The depth of the VecFrameStack the model was trained inside, or ``None``."""
         return None if self.stacking is None else self.stacking.n
 
+    @property
+    def reads_own(self) -> bool:
+        """Whether the detectors read less than the agent acts on (:meth:`own_observation`)."""
+        return self.stacking is not None or self.pictures is not None
+
+    @property
+    def own_shape(self) -> tuple[int, ...] | None:
+        """The shape of what the detectors read, where they read less than the agent acts on."""
+        if self.pictures is not None:
+            return self.pictures.own_shape
+        return None if self.stacking is None else self.stacking.own_shape
+
     def own_observation(self, obs: Any) -> Any:
-        """The env's own observation inside ``obs``, the one the agent acts on: the newest of a
-        stack (:attr:`stacking`); any other as it is. What the detectors read and the logs keep."""
-        return obs if self.stacking is None else self.stacking.newest(obs)
+        """What the detectors read and the logs keep of ``obs``, the observation the agent acts on:
+        the env's own, the newest of a stack (:attr:`stacking`); of a dict with pictures, its
+        vectors (:attr:`pictures`); any other as it is."""
+        if self.stacking is not None:
+            obs = self.stacking.newest(obs)
+        return obs if self.pictures is None else self.pictures.vectors(obs)
 
     def wrap(self, env: gymnasium.Env) -> gymnasium.Env:
         """``env`` (the gymnasium env of the agent's env id, or an oodmon variant of it) giving the

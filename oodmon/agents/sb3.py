@@ -33,6 +33,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.agents.agent import Agent
+from oodmon.agents.dict_pictures import dict_pictures
 from oodmon.agents.vec_normalize import (
     NO_NORMALIZATION,
     ObservationNormalizer,
@@ -167,9 +168,12 @@ def _stack_depth(env_space: Any, model_space: Any) -> int | None:
 def _transposed_image(env_space: Any, model_space: Any) -> bool:
     """Whether ``model_space`` is ``env_space``, an image with channels last, with its channels moved
     first, as SB3 stores a model trained on such an env (``VecTransposeImage``; its ``predict`` takes
-    the env's images as they come)."""
+    the env's images as they come); of a dict, each such image key so and the other keys the same."""
     from stable_baselines3.common.preprocessing import is_image_space
 
+    if isinstance(env_space, gymnasium.spaces.Dict) and isinstance(model_space, gymnasium.spaces.Dict):
+        return env_space.spaces.keys() == model_space.spaces.keys() and all(
+            model_space[key] == sub or _transposed_image(sub, model_space[key]) for key, sub in env_space.spaces.items())
     if not isinstance(env_space, gymnasium.spaces.Box) or not isinstance(model_space, gymnasium.spaces.Box):
         return False
     shape = env_space.shape
@@ -192,20 +196,31 @@ def _deployed(model: Any, discrete: bool, normalizer: ObservationNormalizer | No
 def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
     """``space`` when it is a dict of vectors and discrete values (an SB3 ``MultiInputPolicy``'s,
     which concatenates them flattened, discrete ones one-hot, as ``gymnasium.spaces.flatten``
-    does); ``None`` for an array space.
+    does), with pictures beside them or not (:mod:`oodmon.agents.dict_pictures`); ``None`` for an
+    array space.
 
     Raises:
-        ConfigError: any other space (images or nested spaces inside a dict, a tuple, text).
+        ConfigError: any other space (nested spaces inside a dict, a dict of pictures alone, a
+            tuple, text).
     """
     from stable_baselines3.common.preprocessing import is_image_space
 
+    from oodmon.agents.dict_pictures import is_picture_space
+
     if isinstance(space, gymnasium.spaces.Box):
         return None
-    if isinstance(space, gymnasium.spaces.Dict) and all(_flat_as_sb3(sub, is_image_space) for sub in space.spaces.values()):
-        return space
+    if isinstance(space, gymnasium.spaces.Dict):
+        vectors = [sub for sub in space.spaces.values() if not is_picture_space(sub)]
+        if vectors and all(_flat_as_sb3(sub, is_image_space) for sub in vectors):
+            return space
+        if not vectors:
+            raise ConfigError(f"{env_id}'s observations are {space}: pictures alone, in a dict. oodmon's detectors read "
+                              "a dict's vectors (its pictures go to the policy and the log); for pictures alone, "
+                              "give the env's picture as its observation (a Box), which the frames detector reads")
     raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
-                      "Box: a vector, or stacked image frames) or a dict of vectors and discrete values: wrap the env "
-                      "in gymnasium.wrappers.FlattenObservation, and train the model on that, to watch it")
+                      "Box: a vector, or stacked image frames) or a dict of vectors and discrete values (pictures "
+                      "beside them too): wrap the env in gymnasium.wrappers.FlattenObservation, and train the model on "
+                      "that, to watch it")
 
 
 def _flat_as_sb3(space: Any, is_image_space: Any) -> bool:
@@ -361,7 +376,9 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     Raises:
         ConfigError: no models, spaces that do not match the env, observations that are neither
             an array nor a dict of vectors (the agent reads those flattened: ``Agent.view``; the
-            policy gets them as dicts), ``mean`` without an ensemble, fixed masks without one DQN or
+            policy gets them as dicts; pictures beside the vectors go to the policy and the log:
+            :mod:`oodmon.agents.dict_pictures`), several models or fixed masks of a dict with
+            pictures, ``mean`` without an ensemble, fixed masks without one DQN or
             DDPG/TD3 model with dropout or DropConnect layers, or statistics of another shape
             than the observations (or different ones for different models).
     """
@@ -419,8 +436,13 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     if masks != "sampled" and (len(models) > 1 or not sampled):
         raise ConfigError(f"masks={masks!r} is for one DQN, DDPG/TD3 or SAC model with dropout or DropConnect layers (MC "
                           f"samples); got {len(models)} {'/'.join(sorted(names))} model(s)")
+    pictures = None if dict_space is None else dict_pictures(dict_space)
+    if pictures is not None and (len(models) > 1 or masks != "sampled"):
+        raise ConfigError(f"{env_id}'s observations hold pictures ({pictures.picture_key!r}), which the models read "
+                          "through a CNN, and oodmon samples no CNN (no ensemble spread, no masks): give the deployed "
+                          "model alone (the learned detectors watch it, on the dict's vectors)")
     estimator = None  # PPO, A2C: networks oodmon does not sample; the learned detectors watch them
-    if sampled:
+    if sampled and pictures is None:
         try:
             estimator = estimator_from_sb3(list(models), n_samples=n_samples, seed=seed, masks=masks)
         except ConfigError as error:
@@ -449,4 +471,4 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         | ({} if frame_stack is None else {"frame_stack": frame_stack})
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
     return Agent(estimator, metadata, None, None if mean else _deployed(models[0], discrete, normalizer, dict_space),
-                 dict_space=dict_space, stacking=stacking)
+                 dict_space=dict_space, stacking=stacking, pictures=pictures)

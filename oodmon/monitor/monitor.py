@@ -154,7 +154,7 @@ class Monitor:
             raise ConfigError(f"the monitor watches an oodmon Agent, an uncertainty estimator, a callable obs -> "
                               f"action, or None (you pass each action to step()); got {type(policy).__name__}")
         self._dicts = self.agent is not None and self.agent.dict_space is not None  # see step()
-        self._stacked = self.agent is not None and self.agent.stacking is not None
+        self._own = self.agent is not None and self.agent.reads_own  # a stack, or a dict with pictures: see step()
         self.policy_hash = policy_hash(self.agent)
         if isinstance(threshold, Threshold):
             if score is not None and score != threshold.score:
@@ -253,8 +253,8 @@ class Monitor:
             d.check_fitted()
         meta = self.agent.metadata if self.agent is not None else {}
         obs_shape = self.estimator.obs_shape if self.estimator is not None else None
-        if self._stacked:  # the detectors read the env's own observations
-            obs_shape = self.agent.stacking.own_shape
+        if self._own:  # the detectors read the env's own observations (of a dict with pictures, its vectors)
+            obs_shape = self.agent.own_shape
         self._refuse_or_warn("the fitted detectors", chosen.check_fits(task=meta.get("task"), obs_shape=obs_shape,
                                                                        policy_hash=self.policy_hash), force,
                              plural=True)
@@ -357,9 +357,13 @@ class Monitor:
                 action = int(raw) if self.estimator.kind == "q_values" else np.asarray(raw)
             else:
                 raise ConfigError("this monitor has no policy to act: pass the deployed action, step(obs, action=a)")
-        if self._stacked:  # the policy acted on the stack; the detectors and the log read the env's own observation
-            obs = self.agent.own_observation(obs)
-            frame = None if frame is None else _frame(obs)  # an RGB stack's newest picture, not its last channel
+        if self._own:  # the policy acted on the stack; the detectors and the log read the env's own observation
+            if self.agent.pictures is not None:  # the dict's vectors; the log keeps its picture
+                frame = _frame(self.agent.pictures.picture(obs)) if self.log_observations else None
+                obs = self.agent.own_observation(obs)
+            else:
+                obs = self.agent.own_observation(obs)
+                frame = None if frame is None else _frame(obs)  # an RGB stack's newest picture, not its last channel
         if _finite(obs):
             context = StepContext(obs, action, estimate, self._prev_obs, self._prev_action, {})
             scores = self.detectors.score(context)

@@ -295,7 +295,8 @@ def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
         gymnasium.register("DictCartPoleForTests-v0", entry_point=_DictCartPole)
     dict_model = PPO("MultiInputPolicy", gymnasium.make("DictCartPoleForTests-v0"), seed=0, n_steps=32, batch_size=32)
     with pytest.raises(ConfigError, match=r"DictCartPoleForTests-v0's observations are Dict\(.*or a dict of vectors and "
-                                          r"discrete values: wrap the env in gymnasium.wrappers.FlattenObservation"):
+                                          r"discrete values \(pictures beside them too\): wrap the env in "
+                                          r"gymnasium.wrappers.FlattenObservation"):
         sb3_agent([dict_model], "DictCartPoleForTests-v0")
     DQN("MlpPolicy", gymnasium.make("Acrobot-v1"), seed=0).save(tmp_path / "acrobot.zip")  # an env without variants
     assert main(["run", "--sb3", str(tmp_path / "acrobot.zip"), "--env", "Acrobot-v1", "--variant", "cartpole:length=2.0"]) == 2

@@ -106,7 +106,9 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     estimator, act, _ = policy_parts(policy)
     ensemble = with_member_values and has_members(estimator)
     deploy = getattr(policy, "deploy", None)  # an Agent whose deployed policy is not its estimator's decision
-    stacking = getattr(policy, "stacking", None)  # an Agent acting on stacks: the detectors read their newest
+    # An Agent acting on stacks, or on dicts with pictures: the detectors read the newest of each
+    # stack, the dict's vectors (Agent.own_observation).
+    own = policy.own_observation if getattr(policy, "reads_own", False) else None
     trajectories = []
     for episode in range(episodes):
         obs, _ = env.reset(seed=seed + episode)
@@ -129,8 +131,9 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
             if terminated or truncated or (max_steps is not None and len(actions) >= max_steps):
                 break
         acted_on = None
-        if stacking is not None:
-            acted_on, observations = np.asarray(observations), [stacking.newest(o) for o in observations]
+        if own is not None:  # what the policy acted on is kept where an estimator reads it again
+            acted_on = np.asarray(observations) if estimator is not None else None
+            observations = [own(o) for o in observations]
         trajectories.append(Trajectory(np.asarray(observations), np.asarray(actions),
                                        np.asarray(features) if len(features) == len(actions) else None,
                                        np.asarray(values) if ensemble and values[0] is not None else None,

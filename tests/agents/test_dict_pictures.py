@@ -1,0 +1,124 @@
+"""A dict observation holding a picture beside a vector (a camera and the state: an SB3
+``MultiInputPolicy``, which reads the picture through a CNN): the policy gets the dict as the env
+gives it, the detectors read the vector, and the log keeps the vector and the picture."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium
+import numpy as np
+import pytest
+from stable_baselines3 import DQN
+
+from oodmon.agents.sb3 import load_sb3, sb3_agent
+from oodmon.cli import main
+from oodmon.envs import parse_variant
+from oodmon.errors import ConfigError
+from oodmon.monitor import McapSink, MemorySink, Monitor
+from oodmon.monitor.calibration import calibrate_agent
+from oodmon.monitor.detectors import fit_agent_detectors
+from oodmon.replay import read_log
+
+ENV_ID = "CameraCartPoleForTests-v0"
+
+
+class _CameraCartPole(gymnasium.ObservationWrapper):
+    """CartPole seen as ``{"camera": a 36 x 36 picture of the pole, "state": the usual vector}``
+    (36 pixels: the least SB3's CNN takes)."""
+
+    def __init__(self, env: gymnasium.Env | None = None) -> None:
+        super().__init__(env if env is not None else gymnasium.make("CartPole-v1"))
+        self.observation_space = gymnasium.spaces.Dict({
+            "camera": gymnasium.spaces.Box(0, 255, (36, 36, 1), np.uint8), "state": self.env.observation_space})
+
+    def observation(self, obs):
+        picture = np.zeros((36, 36, 1), np.uint8)
+        foot = int(np.clip(18 + 6 * obs[0], 0, 35))  # the cart's position, then the pole up from it
+        for height in range(12):
+            picture[30 - height, int(np.clip(foot + height * np.sin(obs[2]), 0, 35)), 0] = 255
+        return {"camera": picture, "state": obs}
+
+
+class _TwoCameras(_CameraCartPole):
+    """Pictures alone in the dict: nothing for the detectors to read."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        camera = self.observation_space["camera"]
+        self.observation_space = gymnasium.spaces.Dict({"front": camera, "side": camera})
+
+    def observation(self, obs):
+        picture = super().observation(obs)["camera"]
+        return {"front": picture, "side": picture}
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    """A DQN on the camera and the state (400 steps: it keeps the pole up some 10 steps; the
+    detectors watch the physics, whatever the policy)."""
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(ENV_ID, entry_point=_CameraCartPole)
+    model = DQN("MultiInputPolicy", gymnasium.make(ENV_ID), seed=0, learning_starts=200,
+                policy_kwargs={"net_arch": [32, 32]})
+    assert model.observation_space["camera"].shape == (1, 36, 36)  # SB3 stores the picture channels first
+    model.learn(400)
+    path = tmp_path_factory.mktemp("camera") / "dqn.zip"
+    model.save(path)
+    return path
+
+
+def test_the_policy_gets_the_dict_the_detectors_its_vector_and_the_log_its_picture(model_path, tmp_path):
+    agent = load_sb3([model_path], ENV_ID)
+    assert agent.estimator is None and agent.own_shape == (4,)  # a plain policy; the detectors read the 4 numbers
+    detectors = fit_agent_detectors(agent, episodes=40)
+    assert detectors.names == ["dynamics", "combined"]
+    threshold = calibrate_agent(agent, episodes=40, far=0.2, detectors=detectors, confidence=None)
+    memory = MemorySink()
+    with Monitor(agent, threshold=threshold, detectors=detectors, sinks=[memory, McapSink(tmp_path / "x.mcap")]) as monitor:
+        for seed in range(10):  # fresh ID episodes, then the pole twice as long from the start
+            monitor.run_episode(_CameraCartPole(), seed=1000 + seed, variant="cartpole")
+        for seed in range(10):
+            shifted = _CameraCartPole(parse_variant("cartpole:length=2.0").make())
+            monitor.run_episode(shifted, seed=2000 + seed, variant="cartpole:length=2.0")
+    # The deployed policy acts on the dicts, exactly as SB3's predict() does on them.
+    model, env = DQN.load(model_path, device="cpu"), _CameraCartPole()
+    obs, _ = env.reset(seed=1000)
+    first = [s for s in memory.steps if s.episode == 0]
+    assert first[0].observation == pytest.approx(obs["state"].tolist())  # the vector, not the picture
+    assert np.array_equal(first[0].frame, obs["camera"][..., 0])  # the picture, as the log's frame
+    actions = []
+    for _ in first:
+        actions.append(int(model.predict(obs, deterministic=True)[0]))
+        obs, _, terminated, truncated, _ = env.step(actions[-1])
+    assert [s.action for s in first] == actions and (terminated or truncated)
+    # The doubled pole is seen in the vector: the shifted steps score above the fresh ID steps.
+    log = read_log(tmp_path / "x.mcap")
+    scores = {variant: np.concatenate([e.scores_of("dynamics")[1:] for e in log.episodes if e.variant == variant])
+              for variant in ("cartpole", "cartpole:length=2.0")}  # from each episode's second step: a transition
+    auroc = np.mean(scores["cartpole:length=2.0"][:, None] > scores["cartpole"][None, :])
+    assert auroc > 0.9, auroc  # 1.000 when written (80 ID, 173 shifted transitions)
+    assert sum(e.alarms > 0 for e in log.episodes if e.variant != "cartpole") >= 8  # 10 of 10 when written
+
+
+def test_the_cli_calibrates_and_runs_it(model_path, tmp_path, capsys):
+    common = ["--sb3", str(model_path), "--env", ENV_ID]
+    assert main(["calibrate", *common, "--episodes", "20", "--far", "0.2", "--confidence", "none",
+                 "--fit-episodes", "20", "--out", str(tmp_path / "t.json")]) == 0
+    assert json.loads((tmp_path / "t.json").read_text())["detector"] == "combined"
+    assert main(["run", *common, "--threshold", str(tmp_path / "t.json"), "--episodes", "2",
+                 "--mcap", str(tmp_path / "x.mcap")]) == 0
+    log = read_log(tmp_path / "x.mcap")
+    assert len(log.episodes) == 2 and set(log.detectors) == {"dynamics", "combined"}
+
+
+def test_pictures_alone_or_an_ensemble_of_cnns_are_refused_with_what_to_do(model_path):
+    if "TwoCamerasForTests-v0" not in gymnasium.registry:
+        gymnasium.register("TwoCamerasForTests-v0", entry_point=_TwoCameras)
+    pictures_only = DQN("MultiInputPolicy", gymnasium.make("TwoCamerasForTests-v0"), seed=0, learning_starts=10)
+    with pytest.raises(ConfigError, match="pictures alone, in a dict.*give the env's picture as its observation"):
+        sb3_agent([pictures_only], "TwoCamerasForTests-v0")
+    with pytest.raises(ConfigError, match="oodmon samples no CNN.*give the deployed model alone"):
+        load_sb3([model_path, model_path], ENV_ID)
+    with pytest.raises(ConfigError, match="oodmon samples no CNN"):
+        load_sb3([model_path], ENV_ID, masks="fixed")
