@@ -46,8 +46,8 @@ class Agent:
             each stack (:meth:`own_observation`).
         pictures: the dict observations hold pictures beside vectors
             (:class:`~oodmon.agents.dict_pictures.DictPictures`): the policy gets the whole dict,
-            the detectors and the logs read the vector keys (:meth:`own_observation`), and the logs
-            keep the first picture as the frame.
+            the detectors and the logs read the vector keys (:meth:`own_observation`), and the
+            frames detector and the logs the first picture.
     """
 
     estimator: UncertaintyEstimator | None

@@ -3,11 +3,11 @@ read by an SB3 ``MultiInputPolicy`` (its ``CombinedExtractor`` sends each image 
 and concatenates the rest flattened).
 
 oodmon's agent reads every dict observation flattened (``Agent.view``, in the order gymnasium
-flattens the dict's keys) and gives the policy the dict back. Of a dict with pictures, the detectors
-and the logs read the vector keys' numbers alone (:meth:`DictPictures.vectors`: the dynamics model
-is fitted on them), and the log's frame channel keeps the first picture
-(:meth:`DictPictures.picture`). The pictures themselves are not scored: a shift that shows in the
-picture alone (a dirty lens) is not seen.
+flattens the dict's keys) and gives the policy the dict back. Of a dict with pictures, the
+detectors and the logs read the vector keys' numbers (:meth:`DictPictures.vectors`: the dynamics
+model is fitted on them), and the frames detector and the log's frame channel the first picture
+(:meth:`DictPictures.picture`, ``StepContext.picture``): a shift in the physics and one in the
+camera (a dirty lens) are each seen by one of them.
 """
 
 from __future__ import annotations

@@ -215,8 +215,8 @@ def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
             return space
         if not vectors:
             raise ConfigError(f"{env_id}'s observations are {space}: pictures alone, in a dict. oodmon's detectors read "
-                              "a dict's vectors (its pictures go to the policy and the log); for pictures alone, "
-                              "give the env's picture as its observation (a Box), which the frames detector reads")
+                              "a dict's vectors (dynamics) and its first picture beside them (frames); for pictures "
+                              "alone, give the env's picture as its observation (a Box), which the frames detector reads")
     raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
                       "Box: a vector, or stacked image frames) or a dict of vectors and discrete values (pictures "
                       "beside them too): wrap the env in gymnasium.wrappers.FlattenObservation, and train the model on "
@@ -376,7 +376,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     Raises:
         ConfigError: no models, spaces that do not match the env, observations that are neither
             an array nor a dict of vectors (the agent reads those flattened: ``Agent.view``; the
-            policy gets them as dicts; pictures beside the vectors go to the policy and the log:
+            policy gets them as dicts; pictures beside the vectors go to the frames detector and the log:
             :mod:`oodmon.agents.dict_pictures`), several models or fixed masks of a dict with
             pictures, ``mean`` without an ensemble, fixed masks without one DQN or
             DDPG/TD3 model with dropout or DropConnect layers, or statistics of another shape
@@ -440,7 +440,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     if pictures is not None and (len(models) > 1 or masks != "sampled"):
         raise ConfigError(f"{env_id}'s observations hold pictures ({pictures.picture_key!r}), which the models read "
                           "through a CNN, and oodmon samples no CNN (no ensemble spread, no masks): give the deployed "
-                          "model alone (the learned detectors watch it, on the dict's vectors)")
+                          "model alone (the learned detectors watch it: dynamics the dict's vectors, frames its picture)")
     estimator = None  # PPO, A2C: networks oodmon does not sample; the learned detectors watch them
     if sampled and pictures is None:
         try:

@@ -98,6 +98,8 @@ class StepContext:
         prev_obs: the previous step's observation (``None`` at an episode's first step).
         prev_action: the action deployed at the previous step (``None`` at the first step).
         scores: the scores of the detectors computed before this one at this step, by name.
+        picture: the step's picture where ``obs`` is not it: a dict observation's first picture,
+            whose vectors are ``obs`` (:mod:`oodmon.agents.dict_pictures`); else ``None``.
     """
 
     obs: np.ndarray
@@ -106,6 +108,7 @@ class StepContext:
     prev_obs: np.ndarray | None = None
     prev_action: Any = None
     scores: Mapping[str, float] = field(default_factory=dict)
+    picture: np.ndarray | None = None
 
     @property
     def features(self) -> np.ndarray | None:
@@ -128,6 +131,8 @@ class Trajectory:
         acted_on: (T + 1, ...) the observations the policy acted on where they are not
             ``observations`` (a stack of them, whose newest the detectors read:
             ``Agent.own_observation``), or ``None``.
+        pictures: (T + 1, ...) each step's picture where the observations are not pictures: a
+            dict observation's first picture, whose vectors are ``observations``; or ``None``.
     """
 
     observations: np.ndarray
@@ -135,6 +140,7 @@ class Trajectory:
     features: np.ndarray | None = None
     member_values: np.ndarray | None = None
     acted_on: np.ndarray | None = None
+    pictures: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if len(self.observations) != len(self.actions) + 1:

@@ -109,6 +109,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     # An Agent acting on stacks, or on dicts with pictures: the detectors read the newest of each
     # stack, the dict's vectors (Agent.own_observation).
     own = policy.own_observation if getattr(policy, "reads_own", False) else None
+    pictures_of = getattr(policy, "pictures", None)  # a dict's picture, which the frames detector reads
     trajectories = []
     for episode in range(episodes):
         obs, _ = env.reset(seed=seed + episode)
@@ -130,14 +131,16 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
             warn_if_endless(env, len(actions))
             if terminated or truncated or (max_steps is not None and len(actions) >= max_steps):
                 break
-        acted_on = None
+        acted_on = pictures = None
+        if pictures_of is not None:
+            pictures = np.asarray([pictures_of.picture(o) for o in observations])
         if own is not None:  # what the policy acted on is kept where an estimator reads it again
             acted_on = np.asarray(observations) if estimator is not None else None
             observations = [own(o) for o in observations]
         trajectories.append(Trajectory(np.asarray(observations), np.asarray(actions),
                                        np.asarray(features) if len(features) == len(actions) else None,
                                        np.asarray(values) if ensemble and values[0] is not None else None,
-                                       acted_on))
+                                       acted_on, pictures))
         if on_progress is not None:
             on_progress("detector fitting episodes", episode + 1, episodes)
     return trajectories
@@ -151,8 +154,9 @@ def trajectory_scores(detectors: DetectorSet, trajectory: Trajectory, estimator:
     for step in range(len(trajectory)):
         obs, action = trajectory.observations[step], trajectory.actions[step]
         acted_on = obs if trajectory.acted_on is None else trajectory.acted_on[step]
+        picture = None if trajectory.pictures is None else trajectory.pictures[step]
         estimate = estimator.estimate(acted_on) if estimator is not None else None
-        scores = detectors.score(StepContext(obs, action, estimate, prev_obs, prev_action, {}))
+        scores = detectors.score(StepContext(obs, action, estimate, prev_obs, prev_action, {}, picture))
         for name, value in scores.items():
             out[name].append(value)
         prev_obs, prev_action = obs, action
@@ -162,14 +166,16 @@ def trajectory_scores(detectors: DetectorSet, trajectory: Trajectory, estimator:
 def default_detectors(policy: Any, env: gymnasium.Env) -> tuple[str, ...]:
     """The learned detectors ``policy`` in ``env`` can have: ``dynamics`` for vector observations
     (stacked ones too, flattened), ``features`` for an oodmon agent or estimator, ``frames`` for
-    image observations (:func:`~oodmon.monitor.detectors.frames.is_picture`), and ``combined``."""
+    image observations (:func:`~oodmon.monitor.detectors.frames.is_picture`), both ``dynamics``
+    and ``frames`` for an agent's dicts with pictures beside vectors (``Agent.pictures``), and
+    ``combined``."""
     estimator, _, _ = policy_parts(policy)
     space = env.observation_space
     picture = is_picture(tuple(space.shape or ()), space.dtype)
     names = [] if picture else ["dynamics"]
     if estimator is not None:
         names.append("features")
-    if picture:
+    if picture or getattr(policy, "pictures", None) is not None:
         names.append("frames")
     return (*names, "combined")
 
@@ -208,7 +214,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         raise ConfigError("the scaled_spread detector puts each ensemble member's values on its own ID footing: "
                           "it needs an oodmon ensemble, or an MC agent with fixed masks (load it with masks='fixed', "
                           "--masks fixed): sampled MC samples are not members")
-    if "frames" in detectors and len(env.observation_space.shape or ()) < 2:
+    if "frames" in detectors and len(env.observation_space.shape or ()) < 2 and getattr(policy, "pictures", None) is None:
         raise ConfigError(f"the frames detector needs image observations; this env's are of shape "
                           f"{env.observation_space.shape}")
     n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) else None

@@ -117,6 +117,9 @@ def frame_statistics(obs: np.ndarray) -> np.ndarray:
 class FramesDetector(Detector):
     """``log(1 + d^2)``, d the Mahalanobis distance of each frame's image statistics from the ID frames'.
 
+    It reads the step's picture: the observation, or a dict observation's picture beside the
+    vectors the other detectors read (``StepContext.picture``).
+
     Args:
         window: the step's score is the mean distance over the episode's last ``window`` steps
             (1: each step's own; default 20).
@@ -140,7 +143,8 @@ class FramesDetector(Detector):
         """Fit the statistics' mean and covariance on every acted-on frame of ID ``trajectories``."""
         from sklearn.covariance import LedoitWolf
 
-        stats = np.stack([frame_statistics(obs) for t in trajectories for obs in t.observations[:-1]])
+        stats = np.stack([frame_statistics(obs) for t in trajectories
+                          for obs in (t.observations if t.pictures is None else t.pictures)[:-1]])
         self._mean = stats.mean(axis=0)
         self._precision = np.linalg.inv(LedoitWolf().fit(stats).covariance_)
         self._typical = float(np.median(self._values(stats)))
@@ -158,7 +162,8 @@ class FramesDetector(Detector):
 
     def score(self, context: StepContext) -> float:
         self.check_fitted()
-        return self._recent.add(float(self._values(frame_statistics(context.obs))[0]))
+        picture = context.obs if context.picture is None else context.picture
+        return self._recent.add(float(self._values(frame_statistics(picture))[0]))
 
     def config(self) -> dict[str, Any]:
         return {"window": self.window}
