@@ -64,12 +64,18 @@ class MonitorCallback(BaseCallback):
     def _raw(self, observations: np.ndarray) -> np.ndarray:
         """The first env's observation as the env gave it: before the model's VecNormalize, if any
         (which holds the raw ones of the observations it last returned); a dict one flattened, as
-        the monitor's agent reads it (``Agent.view``)."""
+        the monitor's agent reads it (``Agent.view``): its pictures as the env gave them, where
+        the monitor's agent knows the env's dicts (SB3's VecTransposeImage moved their channels first)."""
         normalize = self.model.get_vec_normalize_env()
         raw = observations if normalize is None else normalize.get_original_obs()
-        if isinstance(raw, dict):
-            return gymnasium.spaces.flatten(self.model.observation_space, {key: value[0] for key, value in raw.items()})
-        return raw[0]
+        if not isinstance(raw, dict):
+            return raw[0]
+        first, space = {key: value[0] for key, value in raw.items()}, self.model.observation_space
+        own = getattr(self.monitor.agent, "dict_space", None)
+        if own is not None:
+            first = {key: _as_the_env_gave_it(value, own[key].shape) for key, value in first.items()}
+            space = own
+        return gymnasium.spaces.flatten(space, first)
 
     def _on_training_start(self) -> None:
         self.monitor.open()
@@ -105,3 +111,16 @@ class MonitorCallback(BaseCallback):
     def _on_training_end(self) -> None:
         if self.monitor.in_episode and not self.monitor.abandon_empty_episode():
             self.monitor.end_episode(interrupted=True)  # cut by the end of learn(): not a whole episode
+
+
+def _as_the_env_gave_it(value: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """``value`` of the env's ``shape``: a picture whose channels SB3 moved first, moved back last.
+
+    Example:
+        >>> _as_the_env_gave_it(np.zeros((3, 4, 5)), (4, 5, 3)).shape
+        (4, 5, 3)
+    """
+    value = np.asarray(value)
+    if value.shape != tuple(shape) and len(shape) == 3 and value.shape == (shape[2], shape[0], shape[1]):
+        return np.moveaxis(value, 0, -1)
+    return value

@@ -44,6 +44,38 @@ class _CameraCartPole(gymnasium.ObservationWrapper):
         return {"camera": picture, "state": obs}
 
 
+class _ColourCamera(_CameraCartPole):
+    """The camera in colour, (36, 36, 3): SB3 moves its channels first for the CNN."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.observation_space = gymnasium.spaces.Dict({
+            "camera": gymnasium.spaces.Box(0, 255, (36, 36, 3), np.uint8), "state": self.env.observation_space})
+
+    def observation(self, obs):
+        grey = super().observation(obs)
+        picture = np.repeat(grey["camera"], 3, axis=2)
+        picture[..., 0] //= 2  # the pole in cyan: the channels differ
+        return {"camera": picture, "state": grey["state"]}
+
+
+class _Acted(gymnasium.Wrapper):
+    """Records the observation each action was taken on (after an episode's end, the next one's first)."""
+
+    def __init__(self, env: gymnasium.Env, acted: list) -> None:
+        super().__init__(env)
+        self.acted, self.current = acted, None
+
+    def reset(self, **kwargs):
+        self.current, info = self.env.reset(**kwargs)
+        return self.current, info
+
+    def step(self, action):
+        self.acted.append(self.current)
+        self.current, *rest = self.env.step(action)
+        return (self.current, *rest)
+
+
 class _TwoCameras(_CameraCartPole):
     """Pictures alone in the dict: nothing for the detectors to read."""
 
@@ -135,3 +167,25 @@ def test_pictures_alone_or_an_ensemble_of_cnns_are_refused_with_what_to_do(model
         load_sb3([model_path, model_path], ENV_ID)
     with pytest.raises(ConfigError, match="oodmon samples no CNN"):
         load_sb3([model_path], ENV_ID, masks="fixed")
+
+
+def test_the_training_callback_logs_the_pictures_as_the_env_gave_them():
+    """Inside ``model.learn``, SB3 hands the callback pictures with their channels first; the
+    monitor's agent knows the env's dicts, and the log keeps each picture as the env gave it."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from oodmon.monitor.sb3_callback import MonitorCallback
+
+    if "ColourCameraForTests-v0" not in gymnasium.registry:
+        gymnasium.register("ColourCameraForTests-v0", entry_point=_ColourCamera)
+    acted: list = []
+    model = DQN("MultiInputPolicy", DummyVecEnv([lambda: _Acted(_ColourCamera(), acted)]), seed=0, learning_starts=30,
+                policy_kwargs={"net_arch": [16]})
+    assert model.observation_space["camera"].shape == (3, 36, 36)
+    agent = sb3_agent([model], "ColourCameraForTests-v0")
+    memory = MemorySink()
+    with Monitor(agent, threshold=1e9, detectors=fit_agent_detectors(agent, episodes=3), sinks=[memory]) as monitor:
+        model.learn(60, callback=MonitorCallback(monitor))
+    assert len(memory.steps) == len(acted) == 60
+    for step, obs in zip(memory.steps, acted):
+        assert np.array_equal(step.frame, obs["camera"]) and step.observation == pytest.approx(obs["state"].tolist())
