@@ -33,7 +33,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.agents.agent import Agent
-from oodmon.agents.dict_pictures import dict_pictures
+from oodmon.agents.dict_pictures import dict_pictures, is_picture_space
 from oodmon.agents.vec_normalize import (
     NO_NORMALIZATION,
     ObservationNormalizer,
@@ -205,12 +205,10 @@ def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
     """
     from stable_baselines3.common.preprocessing import is_image_space
 
-    from oodmon.agents.dict_pictures import is_picture_space
-
     if isinstance(space, gymnasium.spaces.Box):
         return None
     if isinstance(space, gymnasium.spaces.Dict):
-        vectors = [sub for sub in space.spaces.values() if not is_picture_space(sub)]
+        vectors = [sub for sub in space.spaces.values() if not is_picture_space(sub)]  # and discrete values
         if vectors and all(_flat_as_sb3(sub, is_image_space) for sub in vectors):
             return space
         if not vectors:
@@ -376,11 +374,11 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     Raises:
         ConfigError: no models, spaces that do not match the env, observations that are neither
             an array nor a dict of vectors (the agent reads those flattened: ``Agent.view``; the
-            policy gets them as dicts; pictures beside the vectors go to the frames detector and the log:
-            :mod:`oodmon.agents.dict_pictures`), several models or fixed masks of a dict with
-            pictures, ``mean`` without an ensemble, fixed masks without one DQN or
-            DDPG/TD3 model with dropout or DropConnect layers, or statistics of another shape
-            than the observations (or different ones for different models).
+            policy gets them as dicts; pictures beside the vectors go to the frames detector and
+            the log: :mod:`oodmon.agents.dict_pictures`), several models or fixed masks of a dict
+            with pictures, ``mean`` without an ensemble, fixed masks without one DQN or DDPG/TD3
+            model with dropout or DropConnect layers, or statistics of another shape than the
+            observations (or different ones for different models).
     """
     from oodmon.agents.networks import estimator_from_sb3
     from oodmon.envs.registration import task_of_env

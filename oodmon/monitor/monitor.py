@@ -357,15 +357,15 @@ class Monitor:
                 action = int(raw) if self.estimator.kind == "q_values" else np.asarray(raw)
             else:
                 raise ConfigError("this monitor has no policy to act: pass the deployed action, step(obs, action=a)")
-        picture = None
-        if self._own:  # the policy acted on the stack; the detectors and the log read the env's own observation
-            if self.agent.pictures is not None:  # the dict's vectors; the frames detector and the log read its picture
+        picture = None  # a dict's picture beside the vectors the detectors read: the frames detector's
+        if self._own:  # the policy acted on a stack, or a dict with pictures; the detectors and the log read less
+            if self.agent.pictures is not None:
                 picture = self.agent.pictures.picture(obs)
+            obs = self.agent.own_observation(obs)
+            if picture is not None:
                 frame = _frame(picture)
-                obs = self.agent.own_observation(obs)
-            else:
-                obs = self.agent.own_observation(obs)
-                frame = None if frame is None else _frame(obs)  # an RGB stack's newest picture, not its last channel
+            elif frame is not None:
+                frame = _frame(obs)  # an RGB stack's newest picture, not its last channel
         if _finite(obs):
             context = StepContext(obs, action, estimate, self._prev_obs, self._prev_action, {}, picture)
             scores = self.detectors.score(context)

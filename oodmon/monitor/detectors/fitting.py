@@ -214,7 +214,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         raise ConfigError("the scaled_spread detector puts each ensemble member's values on its own ID footing: "
                           "it needs an oodmon ensemble, or an MC agent with fixed masks (load it with masks='fixed', "
                           "--masks fixed): sampled MC samples are not members")
-    if "frames" in detectors and len(env.observation_space.shape or ()) < 2 and getattr(policy, "pictures", None) is None:
+    pictures = getattr(policy, "pictures", None)  # an Agent's dicts with pictures: the frames detector reads those
+    if "frames" in detectors and len(env.observation_space.shape or ()) < 2 and pictures is None:
         raise ConfigError(f"the frames detector needs image observations; this env's are of shape "
                           f"{env.observation_space.shape}")
     n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) else None
