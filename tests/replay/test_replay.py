@@ -275,3 +275,53 @@ def test_the_replay_table_is_readable_at_80_columns():
             assert "FA 2%" in text and "90% in 3" in text
         else:
             assert "pendulum:max_speed=0.4,max_torque=0.25" in text
+
+
+def test_a_log_from_before_the_episode_scores_channel_is_read_from_its_step_messages(tmp_path):
+    """Logs older than format 3 have no per-episode score arrays: replay rebuilds each episode's
+    scores (every detector's), shifts and alarms from its step messages. Here a log of today with
+    that channel left out, as such a log was; also torn (the recovery reads the same way)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    from oodmon.monitor import logformat
+    from oodmon.monitor.detectors import detectors_for
+
+    agent = load("cartpole", "ensemble", seed=0)
+    env = parse_variant("cartpole:length=2.0").make(onset_step=10)
+    with Monitor(agent, threshold=3.5, detectors=detectors_for(agent), detector="spread",
+                 sinks=[McapSink(tmp_path / "today.mcap")]) as monitor:
+        for seed in range(3):
+            monitor.run_episode(env, seed=seed, variant="cartpole:length=2.0")
+    with open(tmp_path / "today.mcap", "rb") as source, open(tmp_path / "old.mcap", "wb") as target:
+        reader, writer = make_reader(source), Writer(target)
+        writer.start(profile="", library="test")
+        for item in reader.iter_metadata():
+            writer.add_metadata(item.name, dict(item.metadata))
+        channels: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages():
+            if channel.topic == logformat.EPISODE_SCORES:
+                continue
+            if channel.id not in channels:
+                schema_id = writer.register_schema(schema.name, schema.encoding, schema.data)
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, schema_id)
+            writer.add_message(channels[channel.id], log_time=message.log_time, publish_time=message.publish_time,
+                               data=message.data)
+        writer.finish()
+    today, old = read_log(tmp_path / "today.mcap"), read_log(tmp_path / "old.mcap")
+    assert len(old.episodes) == len(today.episodes) == 3 and old.complete
+    for rebuilt, written in zip(old.episodes, today.episodes):
+        assert rebuilt.length == written.length and rebuilt.alarms == written.alarms
+        np.testing.assert_array_equal(rebuilt.scores, written.scores)
+        np.testing.assert_array_equal(rebuilt.shifted, written.shifted)
+        np.testing.assert_array_equal(rebuilt.alarm, written.alarm)
+        assert rebuilt.detector_scores.keys() == written.detector_scores.keys() == {"spread", "dynamics", "features",
+                                                                                    "combined"}
+        for name, values in written.detector_scores.items():
+            np.testing.assert_allclose(rebuilt.detector_scores[name], values, rtol=1e-6)
+    raw = (tmp_path / "old.mcap").read_bytes()
+    (tmp_path / "torn.mcap").write_bytes(raw[:len(raw) - 200])  # the footer and summary gone
+    with pytest.warns(RecoveryWarning, match="recovered 3 complete episode"):
+        torn = read_log(tmp_path / "torn.mcap")
+    np.testing.assert_array_equal(np.concatenate([e.scores for e in torn.episodes]),
+                                  np.concatenate([e.scores for e in today.episodes]))
