@@ -1,6 +1,6 @@
 """A PPO on dict observations (``MultiInputPolicy``) watched by oodmon: false alarms and delays.
 
-Run (about a minute on one thread; two with --vec-normalize; more with --camera):
+Run (about a minute on one thread; two with --vec-normalize; 4.5 with --camera):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/dict_observations_example.py --out runs/dictobs
 
 Trains PPO (SB3's defaults, seed 0) for 60,000 steps on CartPole-v1 whose observation is a dict,

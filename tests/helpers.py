@@ -64,3 +64,23 @@ class NoisePictures(gymnasium.Env):
     def step(self, action):
         self.t += 1
         return self.np_random.integers(0, 256, self.shape, dtype=np.uint8), 1.0, False, self.t >= self.steps, {}
+
+
+class ActedOn(gymnasium.Wrapper):
+    """Records the observation each action was taken on (after an episode's end, the next one's
+    first), a copy (of a dict, its keys)."""
+
+    def __init__(self, env: gymnasium.Env, acted: list) -> None:
+        super().__init__(env)
+        self.acted, self.current = acted, None
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self.current = obs.copy()
+        return obs, info
+
+    def step(self, action):
+        self.acted.append(self.current)
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.current = obs.copy()
+        return obs, reward, terminated, truncated, info

@@ -20,6 +20,7 @@ from oodmon.monitor import McapSink, MemorySink, Monitor
 from oodmon.monitor.calibration import calibrate_agent
 from oodmon.monitor.detectors import fit_agent_detectors
 from oodmon.replay import read_log
+from tests.helpers import ActedOn
 
 ENV_ID = "CameraCartPoleForTests-v0"
 
@@ -57,23 +58,6 @@ class _ColourCamera(_CameraCartPole):
         picture = np.repeat(grey["camera"], 3, axis=2)
         picture[..., 0] //= 2  # the pole in cyan: the channels differ
         return {"camera": picture, "state": grey["state"]}
-
-
-class _Acted(gymnasium.Wrapper):
-    """Records the observation each action was taken on (after an episode's end, the next one's first)."""
-
-    def __init__(self, env: gymnasium.Env, acted: list) -> None:
-        super().__init__(env)
-        self.acted, self.current = acted, None
-
-    def reset(self, **kwargs):
-        self.current, info = self.env.reset(**kwargs)
-        return self.current, info
-
-    def step(self, action):
-        self.acted.append(self.current)
-        self.current, *rest = self.env.step(action)
-        return (self.current, *rest)
 
 
 class _TwoCameras(_CameraCartPole):
@@ -179,7 +163,7 @@ def test_the_training_callback_logs_the_pictures_as_the_env_gave_them():
     if "ColourCameraForTests-v0" not in gymnasium.registry:
         gymnasium.register("ColourCameraForTests-v0", entry_point=_ColourCamera)
     acted: list = []
-    model = DQN("MultiInputPolicy", DummyVecEnv([lambda: _Acted(_ColourCamera(), acted)]), seed=0, learning_starts=30,
+    model = DQN("MultiInputPolicy", DummyVecEnv([lambda: ActedOn(_ColourCamera(), acted)]), seed=0, learning_starts=30,
                 policy_kwargs={"net_arch": [16]})
     assert model.observation_space["camera"].shape == (3, 36, 36)
     agent = sb3_agent([model], "ColourCameraForTests-v0")

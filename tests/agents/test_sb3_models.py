@@ -23,7 +23,7 @@ from oodmon.cli import main
 from oodmon.errors import ConfigError
 from oodmon.monitor import Monitor
 from oodmon.replay import read_log
-from tests.helpers import NoisePictures
+from tests.helpers import ActedOn, NoisePictures
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -381,25 +381,6 @@ def test_the_callback_scores_training_rollouts_and_writes_tensorboard(tmp_path):
     assert events.Scalars("oodmon/alarms")[-1].value <= monitor.alarms_raised
 
 
-class _ActedOn(gymnasium.Wrapper):
-    """Records the observation each action was taken on (after an episode's end, the next one's first)."""
-
-    def __init__(self, env: gymnasium.Env, acted: list) -> None:
-        super().__init__(env)
-        self.acted, self.current = acted, None
-
-    def reset(self, **kwargs):
-        obs, info = self.env.reset(**kwargs)
-        self.current = obs.copy()
-        return obs, info
-
-    def step(self, action):
-        self.acted.append(self.current)
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        self.current = obs.copy()
-        return obs, reward, terminated, truncated, info
-
-
 @pytest.mark.parametrize("algorithm", ["DQN", "PPO"])
 @pytest.mark.parametrize("normalized", [False, True], ids=["raw", "VecNormalize"])
 def test_the_callback_scores_the_observation_each_action_was_taken_on(algorithm, normalized):
@@ -409,7 +390,7 @@ def test_the_callback_scores_the_observation_each_action_was_taken_on(algorithm,
     from stable_baselines3.common.vec_env import VecNormalize
 
     acted: list = []
-    venv = DummyVecEnv([lambda: _ActedOn(gymnasium.make("CartPole-v1"), acted)])
+    venv = DummyVecEnv([lambda: ActedOn(gymnasium.make("CartPole-v1"), acted)])
     venv = VecNormalize(venv) if normalized else venv
     model = (DQN("MlpPolicy", venv, seed=0, learning_starts=50, policy_kwargs={"net_arch": [16]}) if algorithm == "DQN"
              else PPO("MlpPolicy", venv, seed=0, n_steps=100, batch_size=50, policy_kwargs={"net_arch": [16]}))
@@ -421,7 +402,7 @@ def test_the_callback_scores_the_observation_each_action_was_taken_on(algorithm,
 
 def test_the_callback_scores_a_dict_observation_flattened_in_its_keys_order():
     acted: list = []
-    venv = DummyVecEnv([lambda: _ActedOn(gymnasium.make("HalvesCartPole-v1"), acted)])
+    venv = DummyVecEnv([lambda: ActedOn(gymnasium.make("HalvesCartPole-v1"), acted)])
     model = DQN("MultiInputPolicy", venv, seed=0, learning_starts=50, policy_kwargs={"net_arch": [16]})
     steps = _learn_monitored(model, "HalvesCartPole-v1", 200)
     logged = np.array([step.observation for step in steps])
