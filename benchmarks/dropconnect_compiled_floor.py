@@ -36,7 +36,7 @@ from dropconnect_floor import PLAIN, REPEATS, middle_layer  # benchmarks/, besid
 from oodmon.agents import load
 from oodmon.agents.recipes import recipe_for
 from oodmon.envs.grid import ENV_IDS
-from timing import per_call_us
+from timing import per_call_us, print_figures, print_ratios
 
 ROUNDS = 9
 
@@ -132,11 +132,8 @@ def main() -> None:
         kernel = compile_kernel(Path(folder))
         for task in ("cartpole", "pendulum"):
             figures, ratios[task] = task_figures(task, kernel)
-            for name, us in figures.items():
-                print(f"{name:72s} {us:10.1f} us")
-    for task, ratio in ratios.items():
-        print(f"compiled_floor_ratio_{task}={ratio:.2f}")
-    print(f"compiled_floor_ratio={max(ratios.values()):.2f}")
+            print_figures(figures, 72)
+    print_ratios("compiled_floor_ratio", ratios)
 
 
 if __name__ == "__main__":

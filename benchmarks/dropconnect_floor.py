@@ -43,7 +43,7 @@ from oodmon.agents import load
 from oodmon.agents.plan import _DropConnect, active_inputs, repeat_rows
 from oodmon.agents.recipes import recipe_for
 from oodmon.envs.grid import ENV_IDS
-from timing import per_call_us  # benchmarks/timing.py, beside this script
+from timing import per_call_us, print_figures, print_ratios  # benchmarks/timing.py, beside this script
 
 REPEATS = {"cartpole": 1000, "pendulum": 300}
 PLAIN = {"cartpole": DQN, "pendulum": DDPG}
@@ -134,13 +134,10 @@ def main() -> None:
     ratios, gaussian = {}, {}
     for task in ("cartpole", "pendulum"):
         figures, ratios[task], gaussian[task] = task_figures(task)
-        for name, us in figures.items():
-            print(f"{name:56s} {us:10.1f} us")
+        print_figures(figures, 56)
     for task, ratio in gaussian.items():
         print(f"gaussian_ratio_{task}={ratio:.2f}")
-    for task, ratio in ratios.items():
-        print(f"floor_ratio_{task}={ratio:.2f}")
-    print(f"floor_ratio={max(ratios.values()):.2f}")
+    print_ratios("floor_ratio", ratios)
 
 
 if __name__ == "__main__":

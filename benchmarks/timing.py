@@ -1,4 +1,5 @@
-"""Timing shared by the benchmarks: microseconds per call, best of three rounds."""
+"""Timing shared by the benchmarks: microseconds per call, best of three rounds; and the
+figures and per-task ratio lines the floor scripts print."""
 
 from __future__ import annotations
 
@@ -18,3 +19,16 @@ def per_call_us(call: Callable[[], object], repeats: int, rounds: int = 3) -> fl
             call()
         best = min(best, (time.perf_counter() - start) / repeats * 1e6)
     return best
+
+
+def print_figures(figures: dict[str, float], width: int) -> None:
+    """One line per figure: its label, then its microseconds."""
+    for name, us in figures.items():
+        print(f"{name:{width}s} {us:10.1f} us")
+
+
+def print_ratios(name: str, ratios: dict[str, float]) -> None:
+    """Lines ``<name>_<task>=<ratio>`` for each task, then ``<name>=`` the largest."""
+    for task, ratio in ratios.items():
+        print(f"{name}_{task}={ratio:.2f}")
+    print(f"{name}={max(ratios.values()):.2f}")
