@@ -64,17 +64,17 @@ class MonitorCallback(BaseCallback):
     def _raw(self, observations: np.ndarray) -> np.ndarray:
         """The first env's observation as the env gave it: before the model's VecNormalize, if any
         (which holds the raw ones of the observations it last returned); a dict one flattened, as
-        the monitor's agent reads it (``Agent.view``): its pictures as the env gave them, where
-        the monitor's agent knows the env's dicts (SB3's VecTransposeImage moved their channels first)."""
+        the monitor's agent reads it (``Agent.view``), its pictures as the env gave them (SB3's
+        VecTransposeImage moved their channels first). The dict's space: the monitor's agent's,
+        else the first env's own (a monitor with no agent)."""
         normalize = self.model.get_vec_normalize_env()
         raw = observations if normalize is None else normalize.get_original_obs()
         if not isinstance(raw, dict):
             return raw[0]
-        first, space = {key: value[0] for key, value in raw.items()}, self.model.observation_space
-        own = getattr(self.monitor.agent, "dict_space", None)
-        if own is not None:
-            first = {key: _as_the_env_gave_it(value, own[key].shape) for key, value in first.items()}
-            space = own
+        space = getattr(self.monitor.agent, "dict_space", None)
+        if space is None:
+            space = self.training_env.get_attr("observation_space", [0])[0]
+        first = {key: _as_the_env_gave_it(value[0], space[key].shape) for key, value in raw.items()}
         return gymnasium.spaces.flatten(space, first)
 
     def _on_training_start(self) -> None:

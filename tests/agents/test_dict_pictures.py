@@ -18,7 +18,7 @@ from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
 from oodmon.monitor import McapSink, MemorySink, Monitor
 from oodmon.monitor.calibration import calibrate_agent
-from oodmon.monitor.detectors import fit_agent_detectors
+from oodmon.monitor.detectors import fit_agent_detectors, fit_detectors
 from oodmon.replay import read_log
 from tests.helpers import ActedOn
 
@@ -173,3 +173,15 @@ def test_the_training_callback_logs_the_pictures_as_the_env_gave_them():
     assert len(memory.steps) == len(acted) == 60
     for step, obs in zip(memory.steps, acted):
         assert np.array_equal(step.frame, obs["camera"]) and step.observation == pytest.approx(obs["state"].tolist())
+
+    acted.clear()  # a monitor with no agent: the whole dict flattened in the env's own space, channels last
+    memory = MemorySink()
+    flat = gymnasium.wrappers.FlattenObservation(_ColourCamera())  # what a monitor with no agent reads
+    flat.action_space.seed(0)
+    dynamics = fit_detectors(lambda obs: int(flat.action_space.sample()), flat, detectors=["dynamics"], episodes=3)
+    with Monitor(None, threshold=1e9, detectors=dynamics, detector="dynamics", sinks=[memory]) as monitor:
+        model.learn(20, callback=MonitorCallback(monitor))
+    space = _ColourCamera().observation_space
+    assert len(memory.steps) == len(acted) == 20
+    for step, obs in zip(memory.steps, acted):
+        assert np.array_equal(step.observation, gymnasium.spaces.flatten(space, obs))
