@@ -13,7 +13,7 @@ not) widens the ID spread at every step, and leaving it out raises the AUROC. Th
 two spreads that no single member can set, the median absolute deviation and the interquartile
 range of the same outputs, for comparison; and the std of the outputs after dividing each member's
 by its own scale on ID steps, the median |output| over 10 other ID episodes (seeds 300000+), which
-puts a saturating member on the others' footing (README, "Why more members score worse").
+puts a saturating member on the others' footing (results/bench/README.md, "Why more members score worse").
 """
 
 from __future__ import annotations

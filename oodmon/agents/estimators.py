@@ -280,7 +280,7 @@ class MCEstimator(UncertaintyEstimator):
             not with the draw. The action is still decided by the mean of K freshly sampled
             masks (the deployed policy does not change, at the cost of a second pass): decided
             by the fixed sub-networks themselves, the shifted episodes change too, and how well
-            the spread separates them with them (README, "Fixed masks"). Or
+            the spread separates them with them (results/bench/README.md, "Fixed masks"). Or
             ``"fixed-decisions"``: the same K fixed sub-networks, which decide too, by their mean
             (one pass, and no random draw after the masks: an implicit ensemble of K sub-networks,
             as Masksembles, Durasov et al. 2021). Fixed masks need an ``nn.Sequential`` network

@@ -16,7 +16,7 @@ puts each member on its own ID footing before taking the std:
   the covariance shrunk by Ledoit-Wolf): a spread whitened by how the sub-networks disagree at ID
   steps. Its score is the root mean square of the whitened deviations.
 
-Measured under the bench's protocol over five trials (README, "Why more members score worse";
+Measured under the bench's protocol over five trials (results/bench/README.md, "Why more members score worse";
 ``scripts/member_normalisations.py`` compares the normalisations on both tasks): Pendulum
 ensembles read 0.953 ± 0.002 per step on ``l=0.1`` (``pre_squash_std``: 0.940 ± 0.015), CartPole's
 0.984 ± 0.005 on ``gravity=98.0`` (``margin_std``: 0.793 ± 0.051). Dividing by a scale alone did
