@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -325,3 +326,97 @@ def test_a_log_from_before_the_episode_scores_channel_is_read_from_its_step_mess
         torn = read_log(tmp_path / "torn.mcap")
     np.testing.assert_array_equal(np.concatenate([e.scores for e in torn.episodes]),
                                   np.concatenate([e.scores for e in today.episodes]))
+
+
+def _rewrite(source: Path, target: Path, *, message=None, metadata=None) -> None:
+    """``source`` written again record by record into ``target``, each JSON message's row through
+    ``message(topic, row) -> bytes`` and the run's metadata through ``metadata(dict) -> dict``."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(source, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        runs = [dict(m.metadata) for m in reader.iter_metadata() if m.name == "oodmon.run"]
+        records = [(channel.topic, m.log_time, m.data) for _, channel, m in reader.iter_messages()]
+    with open(target, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        channels = {}
+        for channel in summary.channels.values():
+            schema = summary.schemas.get(channel.schema_id)
+            registered = writer.register_schema(schema.name, schema.encoding, schema.data) if schema else 0
+            channels[channel.topic] = writer.register_channel(channel.topic, channel.message_encoding, registered)
+        for topic, log_time, data in records:
+            if message is not None and topic.startswith("/oodmon/") and topic not in ("/oodmon/alarm", "/oodmon/frame"):
+                data = message(topic, json.loads(data))
+            writer.add_message(channels[topic], log_time=log_time, data=data, publish_time=log_time)
+        writer.add_metadata("oodmon.run", runs[0] if metadata is None else metadata(runs[0]))
+        writer.finish()
+
+
+def _damage_scores(topic, row):
+    if topic == "/oodmon/episode_scores":
+        row["score_f64"] = "not base64 at all"
+    return json.dumps(row).encode()
+
+
+def _shorten_scores(topic, row):
+    if topic == "/oodmon/episode" and row["episode"] == 1:
+        row["length"] += 1
+    return json.dumps(row).encode()
+
+
+def _not_json(topic, row):
+    return b"\xff not json" if topic == "/oodmon/episode" else json.dumps(row).encode()
+
+
+def _no_episode(topic, row):
+    if topic == "/oodmon/episode":
+        del row["episode"]
+    return json.dumps(row).encode()
+
+
+@pytest.mark.parametrize("edit, words", [
+    ({"message": _damage_scores}, "the score arrays of episode 0 are damaged"),
+    ({"message": _shorten_scores}, "episode 1 has length 501 but 500 scores; the log is damaged"),
+    ({"message": _not_json}, "a /oodmon/episode message is not JSON"),
+    ({"message": _no_episode}, "a /oodmon/episode message has no episode number"),
+    ({"metadata": lambda run: run | {"threshold": "high"}}, "its run metadata has threshold='high', not a number"),
+    ({"metadata": lambda run: {k: v for k, v in run.items() if k not in ("task", "method")}}, None),
+], ids=["scores", "length", "json", "episode", "threshold", "metadata-only"])
+def test_a_damaged_oodmon_log_is_one_clear_error_naming_the_file(tmp_path, edit, words):
+    """A log whose records oodmon's own reader cannot trust: read_log names the file and what is
+    wrong, and ``oodmon replay`` prints that one line with exit code 2 (no traceback)."""
+    source = DATA / "cartpole-ensemble-id.mcap"
+    assert read_log(source).episodes  # the undamaged file reads
+    path = tmp_path / "damaged.mcap"
+    _rewrite(source, path, **edit)
+    if words is None:  # run metadata without task or method: still a log, read and labelled unknown
+        log = read_log(path)
+        assert (log.task, log.method) == ("unknown", "unknown") and len(log.episodes) == len(read_log(source).episodes)
+        return
+    with pytest.raises(LogFormatError, match=re.escape(words)) as raised:
+        read_log(path)
+    assert str(path) in str(raised.value)
+    result = _cli("replay", str(path))
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert result.returncode == 2 and len(lines) == 1 and words in lines[0] and "Traceback" not in result.stderr
+
+
+def test_folders_and_unreadable_paths_are_said_plainly(tmp_path):
+    from oodmon.replay import read_logs
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(LogFormatError, match="empty holds no .mcap files"):
+        read_logs([empty])
+    with pytest.raises(LogFormatError, match="is a folder; give the .mcap files in it"):
+        read_log(empty)
+    with pytest.raises(LogFormatError, match="none.mcap does not exist"):
+        read_log(tmp_path / "none.mcap")
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "a.mcap").write_text("not a log")
+    with pytest.warns(Warning, match="skipped"), pytest.raises(LogFormatError, match="no oodmon log among"):
+        read_logs([foreign])
