@@ -7,6 +7,10 @@ others, and returns a :class:`~oodmon.monitor.Monitor` (or, given ``env``, that 
     import oodmon
     monitor = oodmon.watch(["dqn0.zip", "dqn1.zip"], "CartPole-v1")   # or SB3 models, or an oodmon Agent
     record = monitor.run_episode(gymnasium.make("CartPole-v1"), seed=0)
+
+``save="dqn.json"`` keeps the calibration (the threshold, and the detectors in ``dqn.json.detectors/``,
+as ``oodmon calibrate --out dqn.json`` writes them); ``threshold="dqn.json"`` at a later start reads
+it and runs no episode.
 """
 
 from __future__ import annotations
@@ -80,7 +84,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
           detector: str | None = None, mean: bool = False, sinks: Sequence[Sink] = (),
           callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
           on_progress: Progress | None = None, masks: str | None = None, vec_normalize: Any = None,
-          frame_stack: int | None = None) -> Any:
+          frame_stack: int | None = None, threshold: str | Path | None = None, save: str | Path | None = None) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
     The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy, the
@@ -93,23 +97,64 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     says what the monitor saw at every step. ``on_progress(stage, done, total)`` reports progress
     (see :mod:`oodmon.progress`). ``masks``, ``vec_normalize``, ``frame_stack``: see :func:`as_agent`.
 
+    A calibration is minutes of ID episodes, which a deployed process cannot run at every start:
+    ``save`` writes the threshold to that file and the fitted detectors to ``<save>.detectors/``
+    (as ``oodmon calibrate --out`` does, so ``oodmon run --threshold`` reads them too), and
+    ``threshold`` reads such a file and the detectors beside it (else the agent's shipped ones)
+    instead of fitting and calibrating: no episode runs. The file must have been calibrated on this
+    policy (the hash of its weights; its MC masks, which the policy is loaded with by default);
+    ``far``, ``confidence``, ``episodes`` and ``fit_episodes`` are then the file's.
+
     Raises:
         ConfigError, InvalidParameterError: as :func:`as_agent` and the calibration, before any
-            episode runs where they can be told from the arguments.
+            episode runs where they can be told from the arguments; ``threshold`` and ``save``
+            both given; a ``threshold`` file of another policy, or whose detectors are missing.
     """
     from oodmon.monitor.calibration import calibrate_agent
     from oodmon.monitor.detectors import fit_agent_detectors
     from oodmon.monitor.monitor import Monitor, MonitoredEnv, check_env_of
     from oodmon.monitor.threshold import conformal_rank
+    from oodmon.outputs import check_output_dir, check_output_file
 
-    conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
-    agent = as_agent(policy, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize,
-                     frame_stack=frame_stack)
+    if threshold is not None and save is not None:
+        raise ConfigError("give threshold= (read a calibration made before) or save= (write the one made now), not both")
+    if threshold is not None:
+        agent, found, detectors = _calibrated(policy, env_id, threshold, mean=mean, seed=seed, masks=masks,
+                                              vec_normalize=vec_normalize, frame_stack=frame_stack)
+    else:
+        conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
+        if save is not None:  # an unwritable path: said now, not after the calibration
+            check_output_file(save, parameter="save")
+            check_output_dir(f"{save}.detectors", parameter="save (its detectors folder)")
+        agent = as_agent(policy, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize,
+                         frame_stack=frame_stack)
     if env is not None:
         check_env_of(agent, env)  # an env of another task: said now, not at its first step after the calibration
-    only = ("scaled_spread",) if detector == "scaled_spread" else None  # fitted only when named, as the CLI fits it
-    detectors = fit_agent_detectors(agent, detectors=only, episodes=fit_episodes, on_progress=on_progress)
-    threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector, confidence=confidence,
+    if threshold is None:
+        only = ("scaled_spread",) if detector == "scaled_spread" else None  # fitted only when named, as the CLI fits it
+        detectors = fit_agent_detectors(agent, detectors=only, episodes=fit_episodes, on_progress=on_progress)
+        found = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector, confidence=confidence,
                                 on_progress=on_progress)
-    monitor = Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=callbacks)
+        if save is not None:
+            found.save(save)
+            detectors.save(f"{save}.detectors")
+    monitor = Monitor(agent, found, detectors=detectors, detector=detector, sinks=sinks, callbacks=callbacks)
     return monitor if env is None else MonitoredEnv(env, monitor)
+
+
+def _calibrated(policy: Any, env_id: str | None, path: str | Path, *, masks: str | None, **loading: Any) -> tuple:
+    """``(agent, threshold, detectors)`` of a calibration made before: the threshold file at
+    ``path`` and the detectors beside it (``<path>.detectors/``), else the agent's shipped ones."""
+    from oodmon.monitor.detectors import detectors_for
+    from oodmon.monitor.threshold import Threshold
+
+    found = Threshold.load(path)
+    if masks is None and not isinstance(policy, Agent):
+        masks = found.masks  # an SB3 model with dropout, loaded with the masks it was calibrated with
+    agent = as_agent(policy, env_id, masks=masks, **loading)
+    beside = Path(f"{path}.detectors")
+    detectors = detectors_for(agent, beside if (beside / "detectors.json").is_file() else None)
+    if found.detector != "spread" and (detectors is None or found.detector not in detectors):
+        raise ConfigError(f"{path} reads the {found.detector} detector, fitted beside it in {beside}, which is missing: "
+                          "copy that folder along with the file, or calibrate again (watch(..., save=...))")
+    return agent, found, detectors

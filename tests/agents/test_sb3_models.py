@@ -332,6 +332,49 @@ def test_watch_fits_calibrates_and_wraps_an_env_in_one_call():
         oodmon.watch(models)
 
 
+def test_watch_saves_its_calibration_and_a_later_start_reads_it_running_no_episode(readme_run, tmp_path, capsys):
+    """A deployed process cannot calibrate at every start: watch(save=) writes the threshold and the
+    fitted detectors as `oodmon calibrate --out` does, and watch(threshold=) reads them (or the
+    CLI's) without fitting or calibrating; a file of other weights is refused."""
+    import oodmon
+    from oodmon.monitor import MemorySink, Threshold
+
+    folder, _, _ = readme_run
+    paths = [folder / "runs/dqn0.zip", folder / "runs/dqn1.zip"]
+    progress: list = []
+    first = oodmon.watch(paths, "CartPole-v1", episodes=10, far=0.2, confidence=None, fit_episodes=6,
+                         save=tmp_path / "w.json", on_progress=lambda *report: progress.append(report))
+    assert progress and (tmp_path / "w.json.detectors" / "detectors.json").is_file()
+    assert Threshold.load(tmp_path / "w.json").value == first.threshold
+    progress.clear()
+    later = oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json", sinks=[MemorySink()],
+                         on_progress=lambda *report: progress.append(report))
+    assert progress == []  # no episode ran
+    assert (later.threshold, later.detector, later.detectors.names) == (first.threshold, first.detector,
+                                                                       first.detectors.names)
+    records = []
+    for monitor in (first, later):
+        sink = MemorySink()
+        monitor.sinks.sinks.append(sink)
+        with monitor:
+            monitor.run_episode(gymnasium.make("CartPole-v1"), seed=7)
+        records.append([step.scores for step in sink.steps])
+    assert records[0] == records[1]  # the same detectors, score for score
+    # The CLI's calibration reads the same way, and the CLI runs on watch's.
+    cli = oodmon.watch(paths, "CartPole-v1", threshold=folder / "runs/dqn.json")
+    assert cli.threshold == Threshold.load(folder / "runs/dqn.json").value and cli.detector == "combined"
+    assert main(["run", "--sb3", *map(str, paths), "--env", "CartPole-v1", "--threshold", str(tmp_path / "w.json"),
+                 "--episodes", "1"]) == 0
+    capsys.readouterr()
+    with pytest.raises(ConfigError, match="calibrated on other weights"):
+        oodmon.watch(paths[::-1], "CartPole-v1", threshold=tmp_path / "w.json")  # the other model deploys: other hash
+    with pytest.raises(ConfigError, match="not both"):
+        oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json", save=tmp_path / "x.json")
+    (tmp_path / "w.json.detectors").rename(tmp_path / "elsewhere")
+    with pytest.raises(ConfigError, match="which is missing: copy that folder"):
+        oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json")
+
+
 def test_watch_reads_one_dropout_models_fixed_sub_networks_when_asked():
     # watch(..., masks="fixed", detector="scaled_spread") fits that detector itself (as `oodmon
     # calibrate --detector scaled_spread` does) on the fixed sub-networks, and calibrates on it.
