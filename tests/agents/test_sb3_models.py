@@ -375,7 +375,7 @@ def test_watch_saves_its_calibration_and_a_later_start_reads_it_running_no_episo
         oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json")
 
 
-def test_watch_reads_one_dropout_models_fixed_sub_networks_when_asked():
+def test_watch_reads_one_dropout_models_fixed_sub_networks_when_asked(tmp_path):
     # watch(..., masks="fixed", detector="scaled_spread") fits that detector itself (as `oodmon
     # calibrate --detector scaled_spread` does) on the fixed sub-networks, and calibrates on it.
     import oodmon
@@ -385,8 +385,10 @@ def test_watch_reads_one_dropout_models_fixed_sub_networks_when_asked():
     model = DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0, policy_kwargs={"net_arch": [16, 16]})
     model.policy.q_net.q_net = add_dropout(model.policy.q_net.q_net, 0.2)
     monitor = oodmon.watch(model, "CartPole-v1", masks="fixed", detector="scaled_spread", episodes=10, far=0.2,
-                           confidence=None, fit_episodes=6, seed=0)
+                           confidence=None, fit_episodes=6, seed=0, save=tmp_path / "fixed.json")
     assert monitor.detector == "scaled_spread" and monitor.estimator.masks == "fixed"
+    later = oodmon.watch(model, "CartPole-v1", threshold=tmp_path / "fixed.json", seed=0)  # loaded with the file's masks
+    assert later.estimator.masks == "fixed" and later.detector == "scaled_spread" and later.threshold == monitor.threshold
     assert monitor.detectors.fitted_for["masks"] == "fixed" and "scaled_spread" in monitor.detectors.names
     assert np.isfinite(monitor.tracker.threshold)
     with pytest.raises(ConfigError, match="loaded with sampled masks, not 'fixed'"):

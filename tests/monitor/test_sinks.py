@@ -196,6 +196,47 @@ def test_a_viewer_that_is_gone_costs_the_run_little_time_and_no_memory(agent, tm
     assert sink.dropped >= 20_000 and grown_kib < 8 * 1024  # the unbounded queue grew ~0.9 KiB a step
 
 
+def test_a_viewer_that_goes_away_mid_run_is_dropped_with_one_warning_and_the_file_goes_on(agent, tmp_path):
+    """A viewer that took the first episodes and then died (its process killed): at the next flush
+    the sink warns once, drops it and counts what it would have sent; the run and the file go on."""
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    viewer = subprocess.Popen([sys.executable, "-c", "import rerun as rr, time; rr.init('viewer'); "
+                               f"print(rr.serve_grpc(grpc_port={port}), flush=True); time.sleep(120)"],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert str(port) in viewer.stdout.readline()  # listening
+        sink, memory = RerunSink(tmp_path / "kept.rrd", connect=f"rerun+http://127.0.0.1:{port}/proxy"), MemorySink()
+        env = parse_variant("cartpole:length=2.0").make(onset_step=30)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with Monitor(agent, threshold=3.0, sinks=[sink, memory]) as monitor:
+                for seed in range(2):
+                    monitor.run_episode(env, seed=seed)
+                assert sink._live is not None and sink.dropped == 0  # the viewer took them
+                viewer.kill()
+                viewer.wait()
+                before = len(memory.steps)
+                for seed in range(2, 6):
+                    monitor.run_episode(env, seed=seed)
+    finally:
+        viewer.kill()
+        viewer.stdout.close()
+    said = [str(w.message) for w in caught if issubclass(w.category, SinkWarning)]
+    assert len(said) == 1 and "the Rerun viewer stopped taking data" in said[0] and "logging to" in said[0]
+    after = len(memory.steps) - before
+    assert sink._live is None and 0 < sink.dropped <= after  # dropped from the flush that failed on
+    assert len(memory.episodes) == 6 and sum(e.length for e in memory.episodes) == len(memory.steps)
+    import rerun.chunk as rc
+
+    frame = rc.RrdReader(tmp_path / "kept.rrd").stream().collect().reader("step").to_pandas()
+    scores = frame["/score:Scalars:scalars"].dropna()  # every step in the file, the viewer gone or not
+    np.testing.assert_allclose([v[0] for v in scores], [s.score for s in memory.steps], rtol=1e-6)
+
+
 def _listening() -> set[tuple[str, int]]:
     """(address, port) of every TCP socket listening on this machine (from /proc/net)."""
     import ipaddress
