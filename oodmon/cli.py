@@ -160,6 +160,7 @@ def _number(test: Callable[[float], bool], allowed: str) -> Callable[[str], floa
 
 _fraction = _number(lambda x: 0.0 < x < 1.0, "a number between 0 and 1 (exclusive)")
 _non_negative = _number(lambda x: 0.0 <= x < float("inf"), "a finite number >= 0")
+_positive = _number(lambda x: 0.0 < x < float("inf"), "a finite number > 0")
 _SEED = _whole(0, 2**32 - 1)
 
 
@@ -348,6 +349,11 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode (default 0)")
     run.add_argument("--threshold", help="a threshold file from `oodmon calibrate` (default: no alarms)")
     run.add_argument("--mcap", help="write the run to this MCAP file")
+    run.add_argument("--mcap-split-episodes", type=_whole(1), metavar="N",
+                     help="split the MCAP log into files of N whole episodes: <name>-00000.mcap, <name>-00001.mcap, ... "
+                          "(a long run; `oodmon replay` reads them from their folder)")
+    run.add_argument("--mcap-split-mb", type=_positive, metavar="MB",
+                     help="start the next MCAP file after the episode that takes one to MB megabytes (as above)")
     run.add_argument("--rrd", help="write the run to this Rerun file")
     live = run.add_mutually_exclusive_group()
     live.add_argument("--spawn", action="store_true", help="stream to a Rerun viewer started for it")
@@ -701,8 +707,11 @@ def _run(args: argparse.Namespace) -> int:
 
     inputs = [("--threshold", args.threshold), ("--model", args.model and f"{args.model}/model.safetensors"),
               ("--model", args.model and f"{args.model}/model.json"), *[("--sb3", path) for path in args.sb3 or ()]]
-    if args.mcap:
-        check_output_file(args.mcap, parameter="--mcap", inputs=inputs)
+    if (args.mcap_split_episodes or args.mcap_split_mb) and not args.mcap:
+        raise ConfigError("--mcap-split-episodes and --mcap-split-mb split an MCAP log: give --mcap too")
+    mcap = McapSink(args.mcap, split_episodes=args.mcap_split_episodes, split_mb=args.mcap_split_mb) if args.mcap else None
+    if mcap is not None:
+        check_output_file(mcap.part_path(0), parameter="--mcap", inputs=inputs)
     if args.rrd:
         check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
     threshold = Threshold.load(args.threshold) if args.threshold else None
@@ -724,9 +733,7 @@ def _run(args: argparse.Namespace) -> int:
     else:
         env, label = Variant(args.task).make(onset_step=args.onset), args.task
     detectors = _detectors(args, agent)
-    sinks = []
-    if args.mcap:
-        sinks.append(McapSink(args.mcap))
+    sinks = [] if mcap is None else [mcap]
     if args.rrd or args.spawn or args.serve or args.connect:
         sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect,
                                bind=args.bind, port=args.port))
@@ -769,7 +776,9 @@ def _run(args: argparse.Namespace) -> int:
                       str(record.alarms), "" if record.first_alarm_step is None else str(record.first_alarm_step), delay)
     console.print(table)
     alarmed = sum(r.alarms > 0 for r in records)
-    failed = {"McapSink": args.mcap, "RerunSink": args.rrd}
+    mcap_written = (str(mcap.paths[0]) if len(mcap.paths) == 1 else
+                    f"{mcap.paths[0]} ... {mcap.paths[-1].name} ({len(mcap.paths)} files)") if mcap is not None else None
+    failed = {"McapSink": mcap_written, "RerunSink": args.rrd}
     written = [str(p) for name, p in failed.items() if p and name not in failures]
     console.print(f"{alarmed} of {len(records)} episodes raised an alarm"
                   + (f"; written to {', '.join(written)}" if written else ""))

@@ -3,6 +3,7 @@
 Run (a few minutes; Linux, it reads /proc/self/status):
     .venv/bin/python scripts/monitor_memory.py --sinks none
     .venv/bin/python scripts/monitor_memory.py --sinks mcap
+    .venv/bin/python scripts/monitor_memory.py --sinks mcap-split
     .venv/bin/python scripts/monitor_memory.py --sinks rerun
     .venv/bin/python scripts/monitor_memory.py --sinks rerun --rerun-alone
 
@@ -47,6 +48,7 @@ def monitored(episodes: int, sinks: str, out: Path) -> list[tuple[int, int]]:
     from oodmon.monitor import McapSink, Monitor, MonitoredEnv, RerunSink
 
     chosen = {"none": [], "mcap": [McapSink(out / "memory.mcap")], "rerun": [RerunSink(out / "memory.rrd")],
+              "mcap-split": [McapSink(out / "memory.mcap", split_episodes=100)],
               "all": [McapSink(out / "memory.mcap"), RerunSink(out / "memory.rrd")]}[sinks]
     monitor = Monitor(load("cartpole", "ensemble"), sinks=chosen)
     env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"), monitor)
@@ -99,7 +101,8 @@ def checkpoints(episodes: int) -> list[int]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sinks", choices=["none", "mcap", "rerun", "all"], default="all")
+    parser.add_argument("--sinks", choices=["none", "mcap", "mcap-split", "rerun", "all"], default="all",
+                        help="mcap-split: an MCAP log in files of 100 episodes (McapSink(split_episodes=100))")
     parser.add_argument("--episodes", type=int, default=400, help=f"episodes (more than {WARM}; default 400)")
     parser.add_argument("--rerun-alone", action="store_true", help="a bare Rerun stream instead of the monitor")
     parser.add_argument("--out", type=Path, default=None, help="folder for the files written (default: a temporary one)")

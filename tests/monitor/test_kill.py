@@ -187,3 +187,50 @@ def test_ctrl_c_says_what_each_command_leaves_behind(tmp_path, monkeypatch, caps
         "oodmon: interrupted; no threshold file was written (it is written when the calibration ends): "
         "run the command again")
     assert not (tmp_path / "t.json").exists()
+
+
+SPLIT = """
+import sys
+import torch
+torch.set_num_threads(1)
+from oodmon.agents import load
+from oodmon.envs import parse_variant
+from oodmon.monitor import McapSink, Monitor
+env = parse_variant("cartpole:length=2.0").make(onset_step=20)
+monitor = Monitor(load("cartpole", "ensemble"), threshold=4.6, consecutive=1,
+                  sinks=[McapSink(sys.argv[1], split_episodes=3)]).open()
+for episode in range(10_000):
+    monitor.run_episode(env, seed=episode)
+    print("e", flush=True)
+"""
+
+
+def test_a_killed_split_run_leaves_its_finished_parts_whole_and_recovers_the_last(tmp_path):
+    """A run split into files of 3 episodes, SIGKILLed after its 7th: parts 0 and 1 are finished
+    logs (read through their index, no recovery), the third is recovered, and the folder replays
+    every finished episode once, numbered on across the files."""
+    import warnings
+
+    from oodmon.replay import read_logs
+
+    run = subprocess.Popen([sys.executable, "-c", SPLIT, str(tmp_path / "long.mcap")], stdout=subprocess.PIPE, text=True)
+    try:
+        for _ in range(7):
+            assert run.stdout.readline() == "e\n"
+    finally:
+        run.kill()
+        run.wait()
+    finished = 7 + run.stdout.read().count("e")  # it may have gone on a little before the kill
+    run.stdout.close()
+    parts = sorted(p.name for p in tmp_path.iterdir())
+    assert parts == [f"long-{k:05d}.mcap" for k in range(len(parts))] and len(parts) in (finished // 3, finished // 3 + 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RecoveryWarning)  # finished parts: no recovery
+        whole = [read_log(tmp_path / name) for name in parts[:finished // 3]]
+    assert len(whole) >= 2 and all(log.complete and len(log.episodes) == 3 for log in whole)
+    assert [log.metadata["part"] for log in whole] == [str(k) for k in range(len(whole))]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RecoveryWarning)  # the last part, torn
+        logs = read_logs([tmp_path])
+    episodes = sorted(e.episode for log in logs for e in log.episodes)
+    assert finished <= len(episodes) <= finished + 1 and episodes == list(range(len(episodes)))  # one more may be on disk

@@ -64,6 +64,33 @@ def test_mcap_holds_every_step_of_every_episode_and_the_run_metadata(agent, tmp_
     assert run["policy_hash"].startswith("sha256:") and "version.torch" in run
 
 
+def test_a_split_log_replays_as_the_one_file_of_the_same_run(agent, tmp_path):
+    """split_episodes=2 over 5 episodes: three finished files of whole episodes (no empty fourth),
+    whose folder replays to the metrics of the same run in one file; split_mb starts a file after
+    the episode that takes one past the size."""
+    from oodmon.errors import InvalidParameterError
+    from oodmon.replay import compute_metrics, read_log, read_logs
+
+    split = McapSink(tmp_path / "split" / "run.mcap", split_episodes=2)
+    _run(agent, [split, McapSink(tmp_path / "one.mcap")], episodes=5)
+    assert [p.name for p in split.paths] == ["run-00000.mcap", "run-00001.mcap", "run-00002.mcap"]
+    assert sorted(p.name for p in (tmp_path / "split").iterdir()) == [p.name for p in split.paths]
+    logs = read_logs([tmp_path / "split"])
+    assert [[e.episode for e in log.episodes] for log in logs] == [[0, 1], [2, 3], [4]] and all(log.complete for log in logs)
+    assert [log.metadata["part"] for log in logs] == ["0", "1", "2"] and "part" not in read_log(tmp_path / "one.mcap").metadata
+    assert compute_metrics(logs) == compute_metrics([read_log(tmp_path / "one.mcap")])
+    _run(agent, [McapSink(tmp_path / "even" / "run.mcap", split_episodes=2)], episodes=4)
+    assert len(list((tmp_path / "even").iterdir())) == 2  # the run ended with its part: no empty third file
+    by_size = McapSink(tmp_path / "mb" / "run.mcap", split_mb=0.02)
+    _run(agent, [by_size], episodes=4)
+    sizes = [p.stat().st_size for p in by_size.paths]
+    assert len(sizes) >= 2 and all(size >= 20_000 for size in sizes[:-1])
+    assert sum(len(read_log(p).episodes) for p in by_size.paths) == 4
+    for bad in ({"split_episodes": 0}, {"split_episodes": 1.5}, {"split_mb": 0}, {"split_mb": float("inf")}):
+        with pytest.raises(InvalidParameterError, match="is not allowed"):
+            McapSink(tmp_path / "x.mcap", **bad)
+
+
 def test_alarms_are_foxglove_logs(agent, tmp_path):
     from foxglove_schemas_protobuf.Log_pb2 import Log
 

@@ -16,7 +16,8 @@ Channels (their schemas and encodings are defined once, in :mod:`oodmon.monitor.
 The run's :class:`~oodmon.monitor.records.RunInfo` is the metadata record ``oodmon.run``, on disk
 from :meth:`McapSink.open` on. The writer flushes (closes its chunk and hands it to the operating
 system) at every episode end, so a crash, even SIGKILL, loses at most the running episode;
-``close`` writes the summary and index.
+``close`` writes the summary and index. A long run can be split into files of whole episodes
+(``split_episodes``, ``split_mb``; see :class:`McapSink`).
 """
 
 from __future__ import annotations
@@ -66,27 +67,68 @@ def _step_json(record: StepRecord) -> str:
 class McapSink:
     """Writes the run to ``path`` (created with its folder; an existing file is replaced).
 
+    A run of days or weeks can be split into files of whole episodes: ``split_episodes=N`` starts
+    the next file after every N episodes, ``split_mb=M`` after the episode that takes the file to M
+    megabytes (either, or both: whichever comes first). The files are then ``<stem>-00000.mcap``,
+    ``<stem>-00001.mcap``, ... beside ``path`` (:attr:`paths`: those written so far), each a
+    complete log with the run's metadata and its part number (``part``), which ``oodmon replay``
+    reads together from their folder. A crash then leaves the finished parts whole and indexed, and
+    only the last one to recover; the writer's index, which grows with a file, starts anew in each.
+
     Example:
         >>> import tempfile, os
         >>> sink = McapSink(os.path.join(tempfile.mkdtemp(), "run.mcap"))
         >>> sink.path.name
         'run.mcap'
+        >>> McapSink("runs/deploy.mcap", split_episodes=100).part_path(3).as_posix()
+        'runs/deploy-00003.mcap'
     """
 
-    def __init__(self, path: str | Path, *, compression: str = "zstd") -> None:
+    def __init__(self, path: str | Path, *, compression: str = "zstd", split_episodes: int | None = None,
+                 split_mb: float | None = None) -> None:
+        from oodmon.errors import InvalidParameterError
+        from oodmon.validation import is_whole
+
+        if split_episodes is not None and not is_whole(split_episodes, 1):
+            raise InvalidParameterError(f"split_episodes={split_episodes!r} is not allowed; a whole number >= 1 of "
+                                        "episodes per file, or None (one file)")
+        if split_mb is not None and (isinstance(split_mb, bool) or not isinstance(split_mb, (int, float))
+                                     or not split_mb > 0 or not math.isfinite(split_mb)):
+            raise InvalidParameterError(f"split_mb={split_mb!r} is not allowed; megabytes > 0 per file, or None "
+                                        "(one file)")
         self.path = Path(path)
         self.compression = compression
+        self.split_episodes, self.split_mb = split_episodes, split_mb
+        self.paths: list[Path] = []  # the files written so far
         self._writer = None
         self._file = None
+        self._run: RunInfo | None = None
+
+    @property
+    def splits(self) -> bool:
+        """Whether the run is written to several files (``split_episodes`` or ``split_mb``)."""
+        return self.split_episodes is not None or self.split_mb is not None
+
+    def part_path(self, part: int) -> Path:
+        """The file of part ``part`` (counted from 0) of a split run; ``path`` itself if it is not split."""
+        return self.path.with_name(f"{self.path.stem}-{part:05d}{self.path.suffix}") if self.splits else self.path
 
     def open(self, run: RunInfo) -> None:
+        self._run = run
+        self.paths = []
+        self._open_part(0)
+
+    def _open_part(self, part: int) -> None:
         from foxglove_schemas_protobuf.Log_pb2 import Log
         from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
         from mcap.writer import CompressionType, Writer
         from mcap_protobuf.schema import register_schema
 
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = open(self.path, "wb")
+        path = self.part_path(part)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(path, "wb")
+        self.paths.append(path)
+        self._part, self._episodes_in_part = part, 0
         compression = CompressionType.ZSTD if self.compression == "zstd" else CompressionType.NONE
         writer = Writer(self._file, compression=compression)
         writer.start(profile="", library="oodmon")
@@ -101,7 +143,9 @@ class McapSink:
         self._alarm_channel = writer.register_channel(logformat.ALARM, "protobuf", register_schema(writer, Log))
         self._frame_channel = writer.register_channel(logformat.FRAME, "protobuf", register_schema(writer, RawImage))
         self._log, self._image = Log, RawImage
-        writer.add_metadata(logformat.RUN_METADATA, run.to_strings() | {"format_version": str(logformat.FORMAT_VERSION)})
+        writer.add_metadata(logformat.RUN_METADATA, self._run.to_strings()
+                            | {"format_version": str(logformat.FORMAT_VERSION)}
+                            | ({"part": str(part)} if self.splits else {}))
         # The header and the run's metadata reach the disk now: a run killed before its first
         # episode ends leaves an MCAP file that says what ran (and holds no episode), not 0 bytes.
         writer.flush()
@@ -112,11 +156,18 @@ class McapSink:
         self._alarm: list[bool] = []
         self._detector_scores: defaultdict[str, list[float]] = defaultdict(list)
 
+    def _next_part_if_due(self) -> None:
+        """A split run's next file, opened by the first step after the last part was finished (so
+        that a run ending with a part leaves no empty file)."""
+        if self._writer is None and self._run is not None:
+            self._open_part(self._part + 1)
+
     def _add(self, channel: int, data: bytes, now: int) -> None:
         self._writer.add_message(channel, log_time=now, publish_time=now, data=data, sequence=self._sequence)
         self._sequence += 1
 
     def write_step(self, record: StepRecord) -> None:
+        self._next_part_if_due()
         now = time.time_ns()
         self._add(self._step_channel, _step_json(record).encode(), now)
         self._scores.append(record.score)
@@ -135,6 +186,7 @@ class McapSink:
             self._add(self._frame_channel, image.SerializeToString(), now)
 
     def write_alarm(self, event: AlarmEvent) -> None:
+        self._next_part_if_due()
         now = time.time_ns()
         message = self._log(
             level=self._log.WARNING, name="oodmon",
@@ -145,6 +197,7 @@ class McapSink:
         self._add(self._alarm_channel, message.SerializeToString(), now)
 
     def end_episode(self, record: EpisodeRecord) -> None:
+        self._next_part_if_due()  # an episode of no step (cut at once) still has its record
         now = time.time_ns()
         self._writer.flush()  # closes the chunk of step messages
         scores = logformat.encode_episode_scores(record.episode, self._scores, self._shifted, self._alarm,
@@ -155,11 +208,19 @@ class McapSink:
         # and replay reads it through the index without decompressing the step messages.
         self._writer.flush()
         self._scores, self._shifted, self._alarm, self._detector_scores = [], [], [], defaultdict(list)
+        self._episodes_in_part += 1
+        if (self.split_episodes is not None and self._episodes_in_part >= self.split_episodes
+                or self.split_mb is not None and self._file.tell() >= self.split_mb * 1e6):
+            self._finish_part()  # summary and index written: this part is a finished log
 
-    def close(self) -> None:
+    def _finish_part(self) -> None:
         if self._writer is not None:
             self._writer.finish()
             self._writer = None
         if self._file is not None:
             self._file.close()
             self._file = None
+
+    def close(self) -> None:
+        self._finish_part()
+        self._run = None
