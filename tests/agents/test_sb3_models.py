@@ -28,14 +28,16 @@ from tests.helpers import ActedOn, NoisePictures
 README = Path(__file__).resolve().parents[2] / "README.md"
 
 
-def _section_blocks() -> tuple[str, list[list[str]]]:
-    """The section's Python snippet and its oodmon commands (continuation lines joined)."""
+def _section_blocks() -> tuple[str, list[list[str]], str]:
+    """The section's Python snippet, its oodmon commands (continuation lines joined) and the
+    deployed process's Python block after them."""
     text = README.read_text()
     section = text[text.index("### Monitor your own SB3 policy"):]
     block = re.search(r"```sh\n(.*?)```", section, re.S).group(1)
     python = re.search(r'\.venv/bin/python -c "\n(.*?)\n"\n', block, re.S).group(1)
     commands = block[block.index('\n"\n') + 3:].replace("\\\n", " ")
-    return python, [shlex.split(line)[1:] for line in commands.splitlines() if line.startswith("oodmon ")]
+    deployed = re.search(r"```python\n(.*?)```", section[section.index(block):], re.S).group(1)
+    return python, [shlex.split(line)[1:] for line in commands.splitlines() if line.startswith("oodmon ")], deployed
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -52,7 +54,7 @@ def readme_run(one_torch_thread, tmp_path_factory):
     """The section's snippet and commands, run in a fresh folder; the models and the outputs."""
     folder = tmp_path_factory.mktemp("sb3")
     (folder / "runs").mkdir()
-    python, commands = _section_blocks()
+    python, commands, _ = _section_blocks()
     outputs = []
     with pytest.MonkeyPatch.context() as patch:
         patch.chdir(folder)
@@ -73,6 +75,24 @@ def test_the_readme_section_runs_as_written_and_replay_shows_the_detection(readm
     assert set(rows) >= {("cartpole:length=2.0", "dynamics"), ("cartpole:length=2.0", "combined")}
     assert rows[("cartpole:length=2.0", "dynamics")]["auroc"] > 0.9  # 1.000 when written
     assert rows[("cartpole:length=2.0", "combined")]["detection_rate"] >= 0.8  # 5 of 5 when written
+
+
+def test_the_readmes_deployed_process_reads_the_calibration_and_logs_split(readme_run, monkeypatch, capsys):
+    """The README's deployed-process block, run as written after the section's commands: no
+    episode of calibration, one monitored episode, a split log that replays."""
+    import oodmon.monitor.calibration as calibration
+
+    folder, _, _ = readme_run
+    monkeypatch.chdir(folder)
+    monkeypatch.setattr(calibration, "calibrate_agent", None)  # it must not calibrate: calling it would fail
+    exec(compile(_section_blocks()[2], "README deployed block", "exec"), {})
+    parts = sorted((folder / "runs/deployed").glob("log-*.mcap"))
+    assert [p.name for p in parts] == ["log-00000.mcap"]
+    log = read_log(parts[0])
+    (episode,) = log.episodes  # 139 steps when written (these 4,000-step DQNs do not solve the task)
+    assert log.complete and episode.env_id == "CartPole-v1" and episode.total_return == episode.length > 20
+    assert log.threshold == json.loads((folder / "runs/dqn.json").read_text())["value"]
+    assert "OOD alarm" not in capsys.readouterr().out  # no false alarm in this ID episode (seed 0)
 
 
 def test_the_log_records_the_models_files_env_and_command(readme_run):
