@@ -13,6 +13,10 @@ metadata, absent before 3):
 A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
 
+A run split into files of whole episodes (``McapSink(split_episodes=...)``, ``split_mb``) gives
+each file the run's metadata and ``part`` (0, 1, ...); replay reads each as a log of its own, and
+the episodes' numbers go on across them.
+
 Replay reads every version: a log without detector scores has one detector, the one its alarm
 read (``spread`` before version 3), whose scores are the ``score`` arrays; a log older than
 version 4 has no rewards per step and no ``terminated``, so its failures are unknown.

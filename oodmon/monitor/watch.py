@@ -119,8 +119,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     if threshold is not None and save is not None:
         raise ConfigError("give threshold= (read a calibration made before) or save= (write the one made now), not both")
     if threshold is not None:
-        agent, found, detectors = _calibrated(policy, env_id, threshold, mean=mean, seed=seed, masks=masks,
-                                              vec_normalize=vec_normalize, frame_stack=frame_stack)
+        agent, alarm_threshold, detectors = _calibrated(policy, env_id, threshold, mean=mean, seed=seed, masks=masks,
+                                                        vec_normalize=vec_normalize, frame_stack=frame_stack)
     else:
         conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
         if save is not None:  # an unwritable path: said now, not after the calibration
@@ -133,12 +133,12 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     if threshold is None:
         only = ("scaled_spread",) if detector == "scaled_spread" else None  # fitted only when named, as the CLI fits it
         detectors = fit_agent_detectors(agent, detectors=only, episodes=fit_episodes, on_progress=on_progress)
-        found = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector, confidence=confidence,
-                                on_progress=on_progress)
+        alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,
+                                          confidence=confidence, on_progress=on_progress)
         if save is not None:
-            found.save(save)
+            alarm_threshold.save(save)
             detectors.save(f"{save}.detectors")
-    monitor = Monitor(agent, found, detectors=detectors, detector=detector, sinks=sinks, callbacks=callbacks)
+    monitor = Monitor(agent, alarm_threshold, detectors=detectors, detector=detector, sinks=sinks, callbacks=callbacks)
     return monitor if env is None else MonitoredEnv(env, monitor)
 
 

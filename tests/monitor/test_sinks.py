@@ -76,8 +76,9 @@ def test_a_split_log_replays_as_the_one_file_of_the_same_run(agent, tmp_path):
     assert [p.name for p in split.paths] == ["run-00000.mcap", "run-00001.mcap", "run-00002.mcap"]
     assert sorted(p.name for p in (tmp_path / "split").iterdir()) == [p.name for p in split.paths]
     logs = read_logs([tmp_path / "split"])
-    assert [[e.episode for e in log.episodes] for log in logs] == [[0, 1], [2, 3], [4]] and all(log.complete for log in logs)
-    assert [log.metadata["part"] for log in logs] == ["0", "1", "2"] and "part" not in read_log(tmp_path / "one.mcap").metadata
+    assert [[e.episode for e in log.episodes] for log in logs] == [[0, 1], [2, 3], [4]]
+    assert all(log.complete for log in logs) and [log.metadata["part"] for log in logs] == ["0", "1", "2"]
+    assert "part" not in read_log(tmp_path / "one.mcap").metadata
     assert compute_metrics(logs) == compute_metrics([read_log(tmp_path / "one.mcap")])
     _run(agent, [McapSink(tmp_path / "even" / "run.mcap", split_episodes=2)], episodes=4)
     assert len(list((tmp_path / "even").iterdir())) == 2  # the run ended with its part: no empty third file
