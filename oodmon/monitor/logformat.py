@@ -8,7 +8,11 @@ metadata, absent before 3):
 3. every detector's score: ``scores`` in step messages, ``detectors_f64`` in episode scores,
    ``detector`` (the one the alarm reads) and ``detectors`` in the run's metadata;
 4. ``terminated`` in episode messages (the env ended the episode, the failure of the monitor's
-   benchmark) and ``reward_f64`` (each step's reward) in episode scores.
+   benchmark) and ``reward_f64`` (each step's reward) in episode scores;
+5. ``/oodmon/episode_start`` (an episode's env, variant, onset and seed, written with its first
+   step), so that replay keeps the running episode of a torn file, from its step messages on
+   disk, as an interrupted episode; within a long episode the writer hands its chunk of step
+   messages to the operating system every few seconds (``McapSink(flush_seconds=...)``).
 
 A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
@@ -19,7 +23,8 @@ the episodes' numbers go on across them.
 
 Replay reads every version: a log without detector scores has one detector, the one its alarm
 read (``spread`` before version 3), whose scores are the ``score`` arrays; a log older than
-version 4 has no rewards per step and no ``terminated``, so its failures are unknown.
+version 4 has no rewards per step and no ``terminated``, so its failures are unknown; a torn log
+older than version 5 loses its running episode.
 """
 
 from __future__ import annotations
@@ -31,15 +36,17 @@ from typing import Any
 import numpy as np
 
 __all__ = [
-    "ALARM", "EPISODE", "EPISODE_SCHEMA", "EPISODE_SCORES", "EPISODE_SCORES_SCHEMA", "FORMAT_VERSION", "FRAME",
+    "ALARM", "EPISODE", "EPISODE_SCHEMA", "EPISODE_SCORES", "EPISODE_SCORES_SCHEMA", "EPISODE_START",
+    "EPISODE_START_SCHEMA", "FORMAT_VERSION", "FRAME",
     "RUN_METADATA", "STEP", "STEP_SCHEMA", "decode_array", "encode_episode_scores",
 ]
 
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 STEP, EPISODE, EPISODE_SCORES = "/oodmon/step", "/oodmon/episode", "/oodmon/episode_scores"
+EPISODE_START = "/oodmon/episode_start"
 ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
 #: JSON topics replay decodes; the others (protobuf alarms and frames) it skips.
-JSON_TOPICS = (EPISODE, EPISODE_SCORES, STEP)
+JSON_TOPICS = (EPISODE, EPISODE_SCORES, STEP, EPISODE_START)
 RUN_METADATA = "oodmon.run"
 
 
@@ -66,6 +73,14 @@ STEP_SCHEMA: dict[str, Any] = _object("oodmon.Step", {
     "scores": {"type": "object", "additionalProperties": _NUMBER,
                "description": "every detector's score, by detector name (since format 3)"},
 }, required=["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"])
+
+EPISODE_START_SCHEMA: dict[str, Any] = _object("oodmon.EpisodeStart", {
+    "episode": {"type": "integer"},
+    "env_id": {"type": "string"},
+    "variant": {"type": "string"},
+    "onset": {"type": "integer"},
+    "seed": {"type": ["integer", "null"]},
+}, required=["episode", "env_id", "variant", "onset", "seed"])
 
 EPISODE_SCHEMA: dict[str, Any] = _object("oodmon.Episode", {
     "episode": {"type": "integer"},

@@ -40,7 +40,7 @@ from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
 from oodmon.monitor.detectors.frames import is_picture, newest_frame
-from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
+from oodmon.monitor.records import EpisodeRecord, EpisodeStart, RunInfo, StepRecord
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.monitor.sinks.base import Sink, SinkGroup
 from oodmon.monitor.threshold import Threshold
@@ -398,6 +398,8 @@ class Monitor:
             std=estimate.std[0].tolist() if estimate is not None else [], score=score, threshold=self.threshold,
             alarm=alarm, shifted=bool(shifted), observation=observation, frame=frame, scores=scores,
         )
+        if step == 0:  # the episode has a step: where it runs goes to the log before it
+            self.sinks.begin_episode(EpisodeStart(self.episode, **self._episode_info))
         self.sinks.write_step(self.last_step)
         self._length += 1  # the step is logged: it counts, whatever a callback below does
         if event is not None:

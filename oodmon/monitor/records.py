@@ -1,5 +1,5 @@
-"""What the monitor records: one :class:`StepRecord` per step, one :class:`EpisodeRecord` per
-episode, one :class:`RunInfo` per run. Sinks write them; replay reads them back from the logs."""
+"""What the monitor records: one :class:`StepRecord` per step, one :class:`EpisodeStart` and one
+:class:`EpisodeRecord` per episode, one :class:`RunInfo` per run. Sinks write them; replay reads them back from the logs."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["EpisodeRecord", "RunInfo", "StepRecord"]
+__all__ = ["EpisodeRecord", "EpisodeStart", "RunInfo", "StepRecord"]
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,22 @@ class StepRecord:
         if self.scores:
             data["scores"] = self.scores
         return data
+
+
+@dataclass(frozen=True)
+class EpisodeStart:
+    """What is known of an episode at its first step: where it runs (written with that step, so a
+    log torn inside a long episode still says what its steps were)."""
+
+    episode: int
+    env_id: str = ""
+    variant: str = ""
+    onset: int = 0
+    seed: int | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"episode": self.episode, "env_id": self.env_id, "variant": self.variant, "onset": self.onset,
+                "seed": self.seed}
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ files.
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -29,6 +30,7 @@ __all__ = ["EpisodeLog", "NewerFormatWarning", "RecoveryWarning", "RunLog", "Ski
 
 _MAGIC = b"\x89MCAP0\r\n"
 _EPISODE, _SCORES, _STEP = logformat.EPISODE, logformat.EPISODE_SCORES, logformat.STEP
+_START = logformat.EPISODE_START
 
 
 class RecoveryWarning(UserWarning):
@@ -149,11 +151,12 @@ class _Collector:
         self.rows: dict[int, dict] = {}
         self.scores: dict[int, dict] = {}
         self.steps: dict[int, list[dict]] = {}
+        self.starts: dict[int, dict] = {}  # format 5: where each episode ran, from its first step
 
     def add(self, topic: str, data: bytes) -> None:
         """Keep one message of ``topic``; messages of topics replay does not read are ignored
         without being decoded (alarms and frames are protobuf, not JSON)."""
-        if topic not in (_EPISODE, _SCORES, _STEP):
+        if topic not in (_EPISODE, _SCORES, _STEP, _START):
             return
         try:
             row = json.loads(data)
@@ -167,6 +170,8 @@ class _Collector:
             self.scores[row["episode"]] = row
         elif topic == _STEP:
             self.steps.setdefault(row["episode"], []).append(row)
+        elif topic == _START:
+            self.starts[row["episode"]] = row
 
     def scores_of(self, episode: int) -> dict | None:
         if episode in self.scores:
@@ -278,12 +283,50 @@ def _recover(path: Path) -> RunLog:
         except Exception as error:  # noqa: BLE001  (a torn record ends the readable part)
             torn = error
     log = _assemble(path, metadata, found, complete=False)
+    cut = [episode for k in sorted(found.starts) if k not in found.rows
+           and (episode := _cut_episode(found.starts[k], found.steps.get(k, []), log.detector)) is not None]
+    log.interrupted.extend(cut)
+    running = "; a running episode at the tear is lost" if not cut else "".join(
+        f"; the running episode {e.episode} is kept as interrupted from its {e.length} steps on disk ({e.alarms} "
+        f"alarm(s){'' if e.first_alarm_step is None else f', the first at step {e.first_alarm_step}'})" for e in cut)
     warnings.warn(
         f"{path} is unfinished or damaged ({type(torn).__name__ if torn else 'no summary'}): recovered "
-        f"{len(log.episodes)} complete episode(s), {sum(e.length for e in log.episodes)} steps; a running episode "
-        "at the tear is lost", RecoveryWarning, stacklevel=3,
+        f"{len(log.episodes)} complete episode(s), {sum(e.length for e in log.episodes)} steps{running}",
+        RecoveryWarning, stacklevel=3,
     )
     return log
+
+
+def _cut_episode(start: dict, steps: list[dict], alarm_detector: str) -> EpisodeLog | None:
+    """The running episode of a torn log (format 5, whose start message says where it ran), from
+    its step messages that reached the disk: interrupted (so out of the metrics), its return unknown
+    (NaN: rewards come with the episode's end), its alarms the rises of the alarm flag. ``None``
+    where no step of it is on disk, or its start message is not one oodmon wrote."""
+    if not (isinstance(start.get("env_id"), str) and isinstance(start.get("variant"), str)
+            and isinstance(start.get("onset"), int)):
+        return None
+    steps = sorted((r for r in steps if isinstance(r.get("step"), int)), key=lambda r: r["step"])
+    length = 0
+    while length < len(steps) and steps[length]["step"] == length:  # up to a gap (a chunk that is not there)
+        length += 1
+    if not length:
+        return None
+    steps = steps[:length]
+
+    def numbers(values: list) -> np.ndarray:  # null: not finite, written for +inf (a NaN observation)
+        return np.array([math.inf if v is None else float(v) for v in values])
+
+    scores, alarm = numbers([r.get("score") for r in steps]), np.array([bool(r.get("alarm")) for r in steps])
+    names = steps[0].get("scores") if isinstance(steps[0].get("scores"), dict) else {}
+    detectors = {name: numbers([(r.get("scores") or {}).get(name) for r in steps]) for name in names}
+    rises = np.flatnonzero(alarm & ~np.concatenate([[False], alarm[:-1]]))
+    return EpisodeLog(
+        episode=start["episode"], env_id=start["env_id"], variant=start["variant"], onset=start["onset"],
+        seed=start.get("seed") if isinstance(start.get("seed"), int) else None, total_return=math.nan, length=length,
+        alarms=len(rises), first_alarm_step=int(rises[0]) if len(rises) else None, interrupted=True, terminated=None,
+        scores=scores, shifted=np.array([bool(r.get("shifted")) for r in steps]), alarm=alarm,
+        detector_scores=detectors or {alarm_detector: scores}, rewards=None,
+    )
 
 
 def read_logs(paths: Sequence[str | Path]) -> list[RunLog]:

@@ -8,6 +8,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
@@ -234,3 +235,84 @@ def test_a_killed_split_run_leaves_its_finished_parts_whole_and_recovers_the_las
         logs = read_logs([tmp_path])
     episodes = sorted(e.episode for log in logs for e in log.episodes)
     assert finished <= len(episodes) <= finished + 1 and episodes == list(range(len(episodes)))  # one more may be on disk
+
+
+def test_a_log_torn_inside_a_long_episode_keeps_its_steps_on_disk_as_an_interrupted_episode(tmp_path):
+    """Format 5: an episode's start goes to the log with its first step and its steps reach the
+    disk every flush_seconds, so a log torn inside an episode (what a SIGKILL leaves: the bytes on
+    disk, copied here mid-episode) replays that episode's steps on disk, kept as interrupted with
+    its alarms, and its metrics leave it out."""
+    import shutil
+
+    from oodmon.agents import load
+    from oodmon.envs import parse_variant
+    from oodmon.monitor import McapSink, MemorySink, Monitor
+    from oodmon.replay import compute_metrics
+
+    env = parse_variant("cartpole:length=2.0").make(onset_step=20)
+    memory = MemorySink()
+    monitor = Monitor(load("cartpole", "ensemble"), threshold=3.0,
+                      sinks=[McapSink(tmp_path / "run.mcap", flush_seconds=0), memory]).open()
+    monitor.run_episode(env, seed=0, variant="cartpole:length=2.0")
+    obs, info = env.reset(seed=1)
+    monitor.begin_episode(env_id="oodmon/CartPole-v1", variant="cartpole:length=2.0", onset=20, seed=1)
+    for _ in range(40):
+        action = monitor.step(obs, shifted=info["shifted"])
+        obs, reward, terminated, truncated, info = env.step(action)
+        monitor.add_reward(reward)
+        assert not (terminated or truncated)
+    shutil.copy(tmp_path / "run.mcap", tmp_path / "torn.mcap")  # the file as a kill would leave it
+    monitor.close()
+    with pytest.warns(RecoveryWarning, match="the running episode 1 is kept as interrupted from its 40 steps on disk"):
+        log = read_log(tmp_path / "torn.mcap")
+    (cut,) = log.interrupted
+    steps = [s for s in memory.steps if s.episode == 1]
+    assert (cut.episode, cut.length, cut.variant, cut.onset, cut.seed) == (1, 40, "cartpole:length=2.0", 20, 1)
+    assert cut.scores.tolist() == [s.score for s in steps] and cut.alarm.tolist() == [s.alarm for s in steps]
+    assert cut.detector_scores["spread"].tolist() == [s.scores["spread"] for s in steps]
+    assert (cut.alarms, cut.first_alarm_step) == (memory.episodes[1].alarms, memory.episodes[1].first_alarm_step) \
+        and cut.alarms >= 1  # as the monitor counted them (the cut episode's record, written at close)
+    assert np.isnan(cut.total_return) and cut.interrupted and [e.episode for e in log.episodes] == [0]
+    assert compute_metrics([log]) == compute_metrics([read_log(tmp_path / "run.mcap")])  # out of the metrics
+
+
+LONG = """
+import sys
+import gymnasium
+import torch
+torch.set_num_threads(1)
+import oodmon
+from oodmon.agents import load
+from oodmon.monitor import McapSink, Monitor
+env = gymnasium.make("oodmon/CartPole-v1", max_episode_steps=10**9)  # the pole kept up: no end
+monitor = Monitor(load("cartpole", "ensemble"), threshold=3.0, sinks=[McapSink(sys.argv[1], flush_seconds=0.05)]).open()
+obs, info = env.reset(seed=1)
+monitor.begin_episode(env_id="oodmon/CartPole-v1", variant="cartpole", seed=1)
+for step in range(10**9):  # an episode that never ends, as a deployed policy's
+    obs, reward, terminated, truncated, info = env.step(monitor.step(obs))
+    monitor.add_reward(reward)
+    if terminated:
+        obs, info = env.reset()
+    if step == 100:
+        print("100", flush=True)
+"""
+
+
+def test_a_never_ending_episode_killed_replays_its_steps_up_to_the_last_flush(tmp_path):
+    """A deployed policy's one long episode, SIGKILLed: before format 5 replay found no episode
+    in its log; now its steps up to the last flush (every 0.05 s here, 10 s by default) replay."""
+    import time
+
+    run = subprocess.Popen([sys.executable, "-c", LONG, str(tmp_path / "long.mcap")], stdout=subprocess.PIPE, text=True)
+    try:
+        assert run.stdout.readline() == "100\n"
+        time.sleep(0.5)  # several flushes
+    finally:
+        run.kill()
+        run.wait()
+        run.stdout.close()
+    with pytest.warns(RecoveryWarning, match="recovered 0 complete episode"):
+        log = read_log(tmp_path / "long.mcap")
+    (cut,) = log.interrupted
+    assert cut.length > 100 and (cut.episode, cut.variant, cut.seed) == (0, "cartpole", 1) and not cut.shifted.any()
+    assert len(cut.scores) == cut.length and np.isfinite(cut.scores).all()

@@ -42,12 +42,19 @@ def test_mcap_holds_every_step_of_every_episode_and_the_run_metadata(agent, tmp_
             by_topic.setdefault(channel.topic, []).append((schema, message))
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
     assert schemas == {"oodmon.Step": "jsonschema", "oodmon.Episode": "jsonschema", "foxglove.Log": "protobuf",
-                       "foxglove.RawImage": "protobuf", "oodmon.EpisodeScores": "jsonschema"}
+                       "foxglove.RawImage": "protobuf", "oodmon.EpisodeScores": "jsonschema",
+                       "oodmon.EpisodeStart": "jsonschema"}
     steps = [json.loads(m.data) for _, m in by_topic["/oodmon/step"]]
     assert len(steps) == sum(r.length for r in records) == len(memory.steps)
     assert steps == [s.to_json() for s in memory.steps]
     episodes = [json.loads(m.data) for _, m in by_topic["/oodmon/episode"]]
     assert episodes == [r.to_json() for r in records]
+    starts = [json.loads(m.data) for _, m in by_topic["/oodmon/episode_start"]]
+    assert starts == [{k: r.to_json()[k] for k in ("episode", "env_id", "variant", "onset", "seed")} for r in records]
+    first_steps = {}
+    for _, message in by_topic["/oodmon/step"]:
+        first_steps.setdefault(json.loads(message.data)["episode"], message.sequence)
+    assert all(m.sequence < first_steps[json.loads(m.data)["episode"]] for _, m in by_topic["/oodmon/episode_start"])
     assert {"episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted", "observation"} <= set(steps[0])
     # Each episode's score arrays, beside its step messages, hold the same numbers.
     for (_, message), record in zip(by_topic["/oodmon/episode_scores"], records, strict=True):

@@ -7,13 +7,18 @@ import warnings
 from typing import Protocol
 
 from oodmon.monitor.alarms import AlarmEvent
-from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
+from oodmon.monitor.records import EpisodeRecord, EpisodeStart, RunInfo, StepRecord
 
 __all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning"]
 
 
 class Sink(Protocol):
-    """Where the monitor's records go. Every method may raise; :class:`SinkGroup` contains it."""
+    """Where the monitor's records go. Every method may raise; :class:`SinkGroup` contains it.
+
+    A sink may also have ``begin_episode(start: EpisodeStart)``, called with an episode's first
+    step, before it (:class:`~oodmon.monitor.sinks.mcap.McapSink` logs it); sinks without it are
+    not asked.
+    """
 
     def open(self, run: RunInfo) -> None: ...
     def write_step(self, record: StepRecord) -> None: ...
@@ -72,19 +77,27 @@ class SinkGroup:
 
     def _call(self, method: str, *args: object) -> None:
         for sink in self.sinks:
-            try:
-                getattr(sink, method)(*args)
-            except Exception as error:  # noqa: BLE001  (any failure of a sink is contained)
-                if self.strict:
-                    raise
-                name = type(sink).__name__
-                self.failures[name] = self.failures.get(name, 0) + 1
-                if self.failures[name] == 1 or self.failures[name] % 1000 == 0:
-                    warnings.warn(f"{name}.{method} failed ({error}); {self.failures[name]} failure(s) so far, "
-                                  "the monitor goes on", SinkWarning, stacklevel=3)
+            self._call_one(sink, method, *args)
+
+    def _call_one(self, sink: Sink, method: str, *args: object) -> None:
+        try:
+            getattr(sink, method)(*args)
+        except Exception as error:  # noqa: BLE001  (any failure of a sink is contained)
+            if self.strict:
+                raise
+            name = type(sink).__name__
+            self.failures[name] = self.failures.get(name, 0) + 1
+            if self.failures[name] == 1 or self.failures[name] % 1000 == 0:
+                warnings.warn(f"{name}.{method} failed ({error}); {self.failures[name]} failure(s) so far, "
+                              "the monitor goes on", SinkWarning, stacklevel=4)
 
     def open(self, run: RunInfo) -> None:
         self._call("open", run)
+
+    def begin_episode(self, start: EpisodeStart) -> None:
+        for sink in self.sinks:
+            if hasattr(sink, "begin_episode"):  # optional: a sink of your own need not have it
+                self._call_one(sink, "begin_episode", start)
 
     def write_step(self, record: StepRecord) -> None:
         self._call("write_step", record)

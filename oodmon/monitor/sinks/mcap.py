@@ -3,6 +3,8 @@
 Channels (their schemas and encodings are defined once, in :mod:`oodmon.monitor.logformat`):
 
 - ``/oodmon/step``: JSON (schema ``oodmon.Step``, JSON Schema), one message per step.
+- ``/oodmon/episode_start``: JSON (schema ``oodmon.EpisodeStart``), one message per episode, with
+  its first step: its env, variant, onset and seed.
 - ``/oodmon/episode``: JSON (schema ``oodmon.Episode``), one message per finished episode.
 - ``/oodmon/alarm``: ``foxglove.Log`` (protobuf), one message per alarm, level WARNING.
 - ``/oodmon/frame``: ``foxglove.RawImage`` (protobuf), the frame the agent saw (Pong, mono8), or with
@@ -15,8 +17,9 @@ Channels (their schemas and encodings are defined once, in :mod:`oodmon.monitor.
 
 The run's :class:`~oodmon.monitor.records.RunInfo` is the metadata record ``oodmon.run``, on disk
 from :meth:`McapSink.open` on. The writer flushes (closes its chunk and hands it to the operating
-system) at every episode end, so a crash, even SIGKILL, loses at most the running episode;
-``close`` writes the summary and index. A long run can be split into files of whole episodes
+system) at every episode end, and within an episode every ``flush_seconds`` (10 s by default),
+so a crash, even SIGKILL, loses at most the last seconds of the running episode, which replay
+keeps as interrupted; ``close`` writes the summary and index. A long run can be split into files of whole episodes
 (``split_episodes``, ``split_mb``; see :class:`McapSink`).
 """
 
@@ -37,10 +40,11 @@ from oodmon.monitor import logformat
 #: the frames, the alarms. Layouts -> Import from file.
 FOXGLOVE_LAYOUT = Path(__file__).with_name("foxglove_layout.json")
 from oodmon.monitor.alarms import AlarmEvent
-from oodmon.monitor.logformat import EPISODE_SCHEMA, EPISODE_SCORES_SCHEMA, STEP_SCHEMA
-from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
+from oodmon.monitor.logformat import EPISODE_SCHEMA, EPISODE_SCORES_SCHEMA, EPISODE_START_SCHEMA, STEP_SCHEMA
+from oodmon.monitor.records import EpisodeRecord, EpisodeStart, RunInfo, StepRecord
 
-__all__ = ["EPISODE_SCHEMA", "EPISODE_SCORES_SCHEMA", "STEP_SCHEMA", "McapSink"]  # schemas re-exported
+__all__ = ["EPISODE_SCHEMA", "EPISODE_SCORES_SCHEMA", "EPISODE_START_SCHEMA", "STEP_SCHEMA",
+           "McapSink"]  # schemas re-exported
 
 def _json_number(value: float) -> float | None:
     """``value``, or ``None`` where it is not finite: NaN (no threshold) and infinity (the score of a
@@ -85,7 +89,7 @@ class McapSink:
     """
 
     def __init__(self, path: str | Path, *, compression: str = "zstd", split_episodes: int | None = None,
-                 split_mb: float | None = None) -> None:
+                 split_mb: float | None = None, flush_seconds: float = 10.0) -> None:
         from oodmon.errors import InvalidParameterError
         from oodmon.validation import is_whole
 
@@ -96,8 +100,12 @@ class McapSink:
                                      or not split_mb > 0 or not math.isfinite(split_mb)):
             raise InvalidParameterError(f"split_mb={split_mb!r} is not allowed; megabytes > 0 per file, or None "
                                         "(one file)")
+        if isinstance(flush_seconds, bool) or not isinstance(flush_seconds, (int, float)) or not flush_seconds >= 0:
+            raise InvalidParameterError(f"flush_seconds={flush_seconds!r} is not allowed; seconds >= 0 between "
+                                        "the writes of a long episode's steps to the file")
         self.path = Path(path)
         self.compression = compression
+        self.flush_seconds = float(flush_seconds)
         self.split_episodes, self.split_mb = split_episodes, split_mb
         self.paths: list[Path] = []  # the files written so far
         self._writer = None
@@ -140,6 +148,7 @@ class McapSink:
         self._step_channel = json_channel(logformat.STEP, STEP_SCHEMA)
         self._episode_channel = json_channel(logformat.EPISODE, EPISODE_SCHEMA)
         self._scores_channel = json_channel(logformat.EPISODE_SCORES, EPISODE_SCORES_SCHEMA)
+        self._start_channel = json_channel(logformat.EPISODE_START, EPISODE_START_SCHEMA)
         self._alarm_channel = writer.register_channel(logformat.ALARM, "protobuf", register_schema(writer, Log))
         self._frame_channel = writer.register_channel(logformat.FRAME, "protobuf", register_schema(writer, RawImage))
         self._log, self._image = Log, RawImage
@@ -150,6 +159,7 @@ class McapSink:
         # episode ends leaves an MCAP file that says what ran (and holds no episode), not 0 bytes.
         writer.flush()
         self._writer = writer
+        self._flushed = time.monotonic()
         self._sequence = 0
         self._scores: list[float] = []
         self._shifted: list[bool] = []
@@ -165,6 +175,11 @@ class McapSink:
     def _add(self, channel: int, data: bytes, now: int) -> None:
         self._writer.add_message(channel, log_time=now, publish_time=now, data=data, sequence=self._sequence)
         self._sequence += 1
+
+    def begin_episode(self, start: EpisodeStart) -> None:
+        self._next_part_if_due()
+        now = time.time_ns()
+        self._add(self._start_channel, json.dumps(start.to_json()).encode(), now)
 
     def write_step(self, record: StepRecord) -> None:
         self._next_part_if_due()
@@ -184,6 +199,9 @@ class McapSink:
                                 data=np.ascontiguousarray(frame).tobytes())
             image.timestamp.FromNanoseconds(now)
             self._add(self._frame_channel, image.SerializeToString(), now)
+        if time.monotonic() - self._flushed >= self.flush_seconds:  # a long episode: its steps so far to the OS
+            self._writer.flush()
+            self._flushed = time.monotonic()
 
     def write_alarm(self, event: AlarmEvent) -> None:
         self._next_part_if_due()
@@ -207,6 +225,7 @@ class McapSink:
         # A small chunk of its own, written at once: from here on the episode survives a crash,
         # and replay reads it through the index without decompressing the step messages.
         self._writer.flush()
+        self._flushed = time.monotonic()
         self._scores, self._shifted, self._alarm, self._detector_scores = [], [], [], defaultdict(list)
         self._episodes_in_part += 1
         if (self.split_episodes is not None and self._episodes_in_part >= self.split_episodes
