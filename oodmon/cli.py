@@ -379,9 +379,13 @@ def _parser() -> argparse.ArgumentParser:
                                                       "each agent's alarm timeline) to DIR")
     replay.add_argument("--detector", help="the per-step metrics of this detector only (default: every detector "
                                            "the logs hold, one row each)")
-    replay.add_argument("--monitor", action="store_true",
-                        help="the alarm's figures instead (the monitor's benchmark): false alarms with their interval, "
-                             "alarms before failure, delays")
+    views = replay.add_mutually_exclusive_group()
+    views.add_argument("--monitor", action="store_true",
+                       help="the alarm's figures instead (the monitor's benchmark): false alarms with their interval, "
+                            "alarms before failure, delays")
+    views.add_argument("--episodes", action="store_true",
+                       help="one row per episode instead: its steps, return, alarms, first alarm, delay, failure and "
+                            "how it ended (interrupted ones too, which the metrics leave out)")
     replay.set_defaults(handler=_replay)
 
     check = commands.add_parser("check", help="regression check of recorded logs against a baseline")
@@ -813,6 +817,8 @@ def _replay(args: argparse.Namespace) -> int:
     logs = _read_logs(args.logs)
     if args.monitor:
         return _replay_monitor(args, logs)
+    if args.episodes:
+        return _replay_episodes(args, logs)
     metrics = compute_all_metrics(logs) if args.detector is None else compute_metrics(logs, args.detector)
     if args.plots:
         from oodmon.replay.plots import write_plots
@@ -829,6 +835,26 @@ def _replay(args: argparse.Namespace) -> int:
         steps = sum(e.length for log in logs for e in log.episodes)
         console = _table_console()
         console.print(to_table(metrics, title=f"replay of {len(logs)} log(s), {steps} steps", width=console.width))
+    return 0
+
+
+def _replay_episodes(args: argparse.Namespace, logs) -> int:
+    """``replay --episodes``: one row per episode."""
+    from oodmon.replay.report import episode_rows, episodes_csv, episodes_markdown, episodes_table
+
+    if args.plots or args.detector:
+        raise ConfigError("--episodes lists the episodes; --plots and --detector go with the metrics")
+    rows = episode_rows(logs)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+    elif args.csv:
+        print(episodes_csv(rows), end="")
+    elif args.markdown:
+        print(episodes_markdown(rows), end="")
+    else:
+        alarmed = sum(row["alarms"] > 0 for row in rows)
+        _table_console().print(episodes_table(rows, title=f"{len(rows)} episode(s) of {len(logs)} log(s), "
+                                                          f"{alarmed} alarmed"))
     return 0
 
 

@@ -9,10 +9,12 @@ from collections.abc import Sequence
 
 from rich.table import Table
 
-from oodmon.replay.metrics import MonitorMetrics, VariantMetrics, monitor_row
+from oodmon.replay.metrics import MonitorMetrics, VariantMetrics, failure_step, is_id_variant, monitor_row
+from oodmon.replay.reader import RunLog
 
-__all__ = ["COLUMNS", "MONITOR_COLUMNS", "monitor_cells", "monitor_markdown", "monitor_summary", "monitor_table",
-           "to_csv", "to_json", "to_markdown", "to_table"]
+__all__ = ["COLUMNS", "EPISODE_COLUMNS", "episode_rows", "episodes_csv", "episodes_markdown", "episodes_table",
+           "MONITOR_COLUMNS", "monitor_cells", "monitor_markdown", "monitor_summary", "monitor_table", "to_csv",
+           "to_json", "to_markdown", "to_table"]
 
 #: (field, heading) in the order the reports show them.
 COLUMNS = [
@@ -158,4 +160,79 @@ def monitor_table(metrics: Sequence[MonitorMetrics], title: str = "the monitor's
 def monitor_markdown(metrics: Sequence[MonitorMetrics]) -> str:
     lines = ["| " + " | ".join(MONITOR_COLUMNS) + " |", "|" + "---|" * len(MONITOR_COLUMNS)]
     lines += ["| " + " | ".join(cells) + " |" for _, cells in _monitor_rows(metrics)]
+    return "\n".join(lines) + "\n"
+
+
+# -- one row per episode ----------------------------------------------------------------------
+
+#: (field, heading) of the per-episode listing (``oodmon replay --episodes``).
+EPISODE_COLUMNS = [
+    ("log", "log"), ("episode", "episode"), ("variant", "variant"), ("seed", "seed"), ("onset", "onset"),
+    ("length", "steps"), ("return", "return"), ("alarms", "alarms"), ("first_alarm_step", "first alarm"),
+    ("delay", "delay"), ("failure_step", "failed at"), ("ended", "ended"),
+]
+
+
+def episode_rows(logs: Sequence[RunLog]) -> list[dict]:
+    """One row per logged episode, in each log's order, the interrupted ones (a run stopped or torn
+    inside them, left out of the metrics) among them: what each episode did and when it alarmed.
+
+    ``onset``, ``delay`` (steps from the onset to the first alarm; negative: before the onset) and
+    ``failure_step`` (:func:`~oodmon.replay.metrics.failure_step`) are ``None`` for ID episodes;
+    ``return`` is ``None`` where the log does not have it (an episode cut at a tear); ``ended``
+    is ``terminated`` (the env ended it), ``time limit`` (or an alarm callback), ``interrupted``, or
+    ``""`` (logs older than format 4).
+    """
+    rows = []
+    for log in logs:
+        for e in sorted([*log.episodes, *log.interrupted], key=lambda e: e.episode):
+            shifted = not is_id_variant(e.variant)
+            ended = ("interrupted" if e.interrupted else "terminated" if e.terminated
+                     else "time limit" if e.terminated is False else "")
+            rows.append({
+                "log": str(log.path), "episode": e.episode, "variant": e.variant, "seed": e.seed,
+                "onset": e.onset if shifted else None, "length": e.length,
+                "return": None if e.total_return != e.total_return else e.total_return,  # NaN: not logged
+                "alarms": e.alarms, "first_alarm_step": e.first_alarm_step,
+                "delay": e.first_alarm_step - e.onset if shifted and e.first_alarm_step is not None else None,
+                "failure_step": failure_step(e, log.task) if shifted and not e.interrupted else None,
+                "ended": ended,
+            })
+    return rows
+
+
+def _episode_cell(name: str, value: object) -> str:
+    if value is None:
+        return ""
+    if name == "return":
+        return f"{value:.1f}"
+    if name == "delay" and value < 0:
+        return "before onset"  # as `oodmon run` says it; the JSON and CSV keep the number
+    return str(value)
+
+
+def episodes_table(rows: Sequence[dict], title: str) -> Table:
+    """:func:`episode_rows` as a terminal table."""
+    table = Table(title=title)
+    for name, heading in EPISODE_COLUMNS:
+        table.add_column(heading, justify="left" if name in ("log", "variant", "ended") else "right",
+                         overflow="fold" if name == "log" else "ellipsis")
+    for row in rows:
+        table.add_row(*(_episode_cell(name, row[name]) for name, _ in EPISODE_COLUMNS),
+                      style="bold red" if row["alarms"] else None)
+    return table
+
+
+def episodes_csv(rows: Sequence[dict]) -> str:
+    buffer = io.StringIO()
+    writer = csv.writer(buffer)
+    writer.writerow([name for name, _ in EPISODE_COLUMNS])
+    for row in rows:
+        writer.writerow(["" if row[name] is None else row[name] for name, _ in EPISODE_COLUMNS])
+    return buffer.getvalue()
+
+
+def episodes_markdown(rows: Sequence[dict]) -> str:
+    lines = ["| " + " | ".join(h for _, h in EPISODE_COLUMNS) + " |", "|" + "---|" * len(EPISODE_COLUMNS)]
+    lines += ["| " + " | ".join(_episode_cell(name, row[name]) for name, _ in EPISODE_COLUMNS) + " |" for row in rows]
     return "\n".join(lines) + "\n"

@@ -274,6 +274,10 @@ def test_a_log_torn_inside_a_long_episode_keeps_its_steps_on_disk_as_an_interrup
         and cut.alarms >= 1  # as the monitor counted them (the cut episode's record, written at close)
     assert np.isnan(cut.total_return) and cut.interrupted and [e.episode for e in log.episodes] == [0]
     assert compute_metrics([log]) == compute_metrics([read_log(tmp_path / "run.mcap")])  # out of the metrics
+    from oodmon.replay.report import episode_rows
+
+    listed = episode_rows([log])[1]  # `oodmon replay --episodes` lists it
+    assert (listed["ended"], listed["length"], listed["return"], listed["alarms"]) == ("interrupted", 40, None, cut.alarms)
 
 
 LONG = """

@@ -163,6 +163,28 @@ def test_replay_formats():
     assert markdown[0].startswith("| task | method | detector | variant") and markdown[1].startswith("|---|")
 
 
+def test_replay_episodes_lists_every_episode_with_its_alarm_and_failure():
+    rows = json.loads(_cli("replay", str(DATA), "--episodes", "--json").stdout)
+    logs = [read_log(p) for p in LOGS]
+    assert len(rows) == sum(len(log.episodes) for log in logs) == 6
+    for row, episode in zip(rows, [e for log in logs for e in log.episodes], strict=True):
+        assert (row["episode"], row["variant"], row["length"], row["alarms"], row["first_alarm_step"]) == (
+            episode.episode, episode.variant, episode.length, episode.alarms, episode.first_alarm_step)
+        if row["variant"] == "cartpole":  # ID: no onset, delay or failure
+            assert row["onset"] is None and row["delay"] is None and row["failure_step"] is None
+        else:
+            assert row["delay"] == episode.first_alarm_step - episode.onset
+    shifted = compute_metrics(logs)[1]
+    delays = [r["delay"] for r in rows if r["variant"] == "cartpole:length=2.0"]
+    assert np.mean(delays) == pytest.approx(shifted.delay_mean) and np.median(delays) == shifted.delay_median
+    table = _cli("replay", str(DATA), "--episodes")
+    assert table.returncode == 0 and "6 episode(s) of 2 log(s), 6 alarmed" in table.stdout
+    csv = _cli("replay", str(DATA), "--episodes", "--csv").stdout.splitlines()
+    assert csv[0].startswith("log,episode,variant,seed,onset,length,return,alarms") and len(csv) == 7
+    refused = _cli("replay", str(DATA), "--episodes", "--monitor")
+    assert refused.returncode == 2 and "not allowed with argument" in refused.stderr
+
+
 def test_check_exit_codes_and_what_fell(tmp_path):
     baseline = tmp_path / "baseline.json"
     assert _cli("check", str(DATA), "--baseline", str(baseline), "--update").returncode == 0
