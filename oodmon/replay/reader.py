@@ -269,6 +269,10 @@ def _recover(path: Path) -> RunLog:
     metadata = None
     channels: dict[int, str] = {}
     torn = None
+    # A log with episode scores (format 2 on) needs the step messages of the running episode at
+    # the tear only: those since the last episode's scores are kept, undecoded, and the others
+    # dropped as they pass (a torn log of a long run held them all, decoded: 619 MB for 43).
+    since_scores: list[bytes] = []
     with open(path, "rb") as f:
         try:
             for record in StreamReader(f, skip_magic=False).records:
@@ -277,11 +281,19 @@ def _recover(path: Path) -> RunLog:
                 elif isinstance(record, Metadata) and record.name == logformat.RUN_METADATA:
                     metadata = dict(record.metadata)
                 elif isinstance(record, Message) and record.channel_id in channels:
-                    found.add(channels[record.channel_id], record.data)
+                    topic = channels[record.channel_id]
+                    if topic == _STEP and _SCORES in channels.values():
+                        since_scores.append(record.data)
+                        continue
+                    if topic == _SCORES:
+                        since_scores.clear()
+                    found.add(topic, record.data)
         except LogFormatError:
             raise
         except Exception as error:  # noqa: BLE001  (a torn record ends the readable part)
             torn = error
+    for data in since_scores:
+        found.add(_STEP, data)
     log = _assemble(path, metadata, found, complete=False)
     cut = [episode for k in sorted(found.starts) if k not in found.rows
            and (episode := _cut_episode(found.starts[k], found.steps.get(k, []), log.detector)) is not None]
