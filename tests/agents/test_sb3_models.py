@@ -569,6 +569,13 @@ def test_bench_runs_the_monitor_protocol_on_a_plain_sb3_policy(readme_run, capsy
     folder_of_trial = next(out.glob("logs/cartpole-*-alarm-combined-fit*/sb3/trial0"))
     assert (folder_of_trial / "weights.sha256").read_text().strip() == file_sha256_of_models(folder / "runs/dqn0.zip")
     capsys.readouterr()
+    assert main(argv[:-1]) == 0  # the same bench again, from its cache: the report as a person reads it
+    printed = capsys.readouterr()
+    ids, shifted = rows["cartpole"], rows["cartpole:length=2.0"]
+    assert (f"sb3: false alarms {ids['false_alarms']}/20 ID episodes (95% interval {ids['far_low']:.1%}-"
+            f"{ids['far_high']:.1%}, target 0.05); {shifted['alarmed']}/5 shifted episodes alarmed after the onset") \
+        in printed.out.replace("\n", " ")
+    assert "the monitor's benchmark (combined detector" in printed.out and "failed:" in printed.err
     assert main(argv[:-1] + ["--trials", "2"]) == 2
     assert "one trial" in capsys.readouterr().err
     assert main(["bench", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "Acrobot-v1"]) == 2
