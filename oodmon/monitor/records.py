@@ -1,5 +1,6 @@
 """What the monitor records: one :class:`StepRecord` per step, one :class:`EpisodeStart` and one
-:class:`EpisodeRecord` per episode, one :class:`RunInfo` per run. Sinks write them; replay reads them back from the logs."""
+:class:`EpisodeRecord` per episode, one :class:`RunInfo` per run. Sinks write them; replay reads
+them back from the logs."""
 
 from __future__ import annotations
 

@@ -94,7 +94,8 @@ def test_a_split_log_replays_as_the_one_file_of_the_same_run(agent, tmp_path):
     sizes = [p.stat().st_size for p in by_size.paths]
     assert len(sizes) >= 2 and all(size >= 20_000 for size in sizes[:-1])
     assert sum(len(read_log(p).episodes) for p in by_size.paths) == 4
-    for bad in ({"split_episodes": 0}, {"split_episodes": 1.5}, {"split_mb": 0}, {"split_mb": float("inf")}):
+    for bad in ({"split_episodes": 0}, {"split_episodes": 1.5}, {"split_mb": 0}, {"split_mb": float("inf")},
+                {"flush_seconds": -1}, {"flush_seconds": float("nan")}):
         with pytest.raises(InvalidParameterError, match="is not allowed"):
             McapSink(tmp_path / "x.mcap", **bad)
 

@@ -19,8 +19,8 @@ The run's :class:`~oodmon.monitor.records.RunInfo` is the metadata record ``oodm
 from :meth:`McapSink.open` on. The writer flushes (closes its chunk and hands it to the operating
 system) at every episode end, and within an episode every ``flush_seconds`` (10 s by default),
 so a crash, even SIGKILL, loses at most the last seconds of the running episode, which replay
-keeps as interrupted; ``close`` writes the summary and index. A long run can be split into files of whole episodes
-(``split_episodes``, ``split_mb``; see :class:`McapSink`).
+keeps as interrupted; ``close`` writes the summary and index. A long run can be split into files
+of whole episodes (``split_episodes``, ``split_mb``; see :class:`McapSink`).
 """
 
 from __future__ import annotations
