@@ -298,7 +298,10 @@ def _recover(path: Path) -> RunLog:
     cut = [episode for k in sorted(found.starts) if k not in found.rows
            and (episode := _cut_episode(found.starts[k], found.steps.get(k, []), log.detector)) is not None]
     log.interrupted.extend(cut)
-    running = "; a running episode at the tear is lost" if not cut else "".join(
+    lost = ("; no step of a running episode had reached the disk (in format 5 they do every few seconds, "
+            "McapSink(flush_seconds=...))" if metadata is not None and metadata.get("format_version", "").isdigit()
+            and int(metadata["format_version"]) >= 5 else "; a running episode at the tear is lost")
+    running = lost if not cut else "".join(
         f"; the running episode {e.episode} is kept as interrupted from its {e.length} steps on disk ({e.alarms} "
         f"alarm(s){'' if e.first_alarm_step is None else f', the first at step {e.first_alarm_step}'})" for e in cut)
     warnings.warn(

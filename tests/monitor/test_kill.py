@@ -254,6 +254,7 @@ def test_a_log_torn_inside_a_long_episode_keeps_its_steps_on_disk_as_an_interrup
     monitor = Monitor(load("cartpole", "ensemble"), threshold=3.0,
                       sinks=[McapSink(tmp_path / "run.mcap", flush_seconds=0), memory]).open()
     monitor.run_episode(env, seed=0, variant="cartpole:length=2.0")
+    shutil.copy(tmp_path / "run.mcap", tmp_path / "between.mcap")  # torn between two episodes
     obs, info = env.reset(seed=1)
     monitor.begin_episode(env_id="oodmon/CartPole-v1", variant="cartpole:length=2.0", onset=20, seed=1)
     for _ in range(40):
@@ -276,6 +277,9 @@ def test_a_log_torn_inside_a_long_episode_keeps_its_steps_on_disk_as_an_interrup
     assert compute_metrics([log]) == compute_metrics([read_log(tmp_path / "run.mcap")])  # out of the metrics
     from oodmon.replay.report import episode_rows
 
+    with pytest.warns(RecoveryWarning, match="1 complete episode.*; no step of a running episode had reached the disk"):
+        between = read_log(tmp_path / "between.mcap")
+    assert between.interrupted == [] and len(between.episodes) == 1
     listed = episode_rows([log])[1]  # `oodmon replay --episodes` lists it
     assert (listed["ended"], listed["length"], listed["return"], listed["alarms"]) == ("interrupted", 40, None, cut.alarms)
 
