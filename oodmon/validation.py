@@ -1,10 +1,10 @@
-"""The one test of "a whole number" that every argument check of oodmon uses."""
+"""The tests of "a whole number" and "a number" that oodmon's argument checks use."""
 
 from __future__ import annotations
 
 import numbers
 
-__all__ = ["is_whole"]
+__all__ = ["is_real", "is_whole"]
 
 
 def is_whole(value: object, minimum: int = 1) -> bool:
@@ -15,3 +15,13 @@ def is_whole(value: object, minimum: int = 1) -> bool:
         (True, False, True, False, False)
     """
     return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= minimum
+
+
+def is_real(value: object) -> bool:
+    """``value`` is a real number (Python's or numpy's, not a bool; NaN and infinities too).
+
+    Example:
+        >>> is_real(0.5), is_real(3), is_real(float("nan")), is_real(True), is_real("1")
+        (True, True, True, False, False)
+    """
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)

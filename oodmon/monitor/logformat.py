@@ -74,14 +74,6 @@ STEP_SCHEMA: dict[str, Any] = _object("oodmon.Step", {
                "description": "every detector's score, by detector name (since format 3)"},
 }, required=["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"])
 
-EPISODE_START_SCHEMA: dict[str, Any] = _object("oodmon.EpisodeStart", {
-    "episode": {"type": "integer"},
-    "env_id": {"type": "string"},
-    "variant": {"type": "string"},
-    "onset": {"type": "integer"},
-    "seed": {"type": ["integer", "null"]},
-}, required=["episode", "env_id", "variant", "onset", "seed"])
-
 EPISODE_SCHEMA: dict[str, Any] = _object("oodmon.Episode", {
     "episode": {"type": "integer"},
     "env_id": {"type": "string"},
@@ -102,6 +94,11 @@ def _per_step(values: str) -> dict[str, str]:
     """A field of one value per step of the episode, as base64 of the array's bytes."""
     return {"type": "string", "contentEncoding": "base64", "description": f"{values} per step"}
 
+
+#: An episode's start (format 5): the fields of its episode message known at its first step.
+_START_FIELDS = ["episode", "env_id", "variant", "onset", "seed"]
+EPISODE_START_SCHEMA: dict[str, Any] = _object(
+    "oodmon.EpisodeStart", {name: EPISODE_SCHEMA["properties"][name] for name in _START_FIELDS}, required=_START_FIELDS)
 
 EPISODE_SCORES_SCHEMA: dict[str, Any] = _object("oodmon.EpisodeScores", {
     "episode": {"type": "integer"},

@@ -186,11 +186,17 @@ class _Collector:
             {name: [r.get("scores", {}).get(name, float("nan")) for r in steps] for name in names})
 
 
+def _format_version(metadata: dict[str, str] | None) -> int | None:
+    """The log format a run's metadata records (``None``: none, as before format 3)."""
+    version = (metadata or {}).get("format_version", "")
+    return int(version) if version.isdigit() else None
+
+
 def _assemble(path: Path, metadata: dict[str, str] | None, found: _Collector, complete: bool) -> RunLog:
     if metadata is None:
         raise LogFormatError(f"{path} is an MCAP file but not an oodmon log (no oodmon.run metadata)")
-    version = metadata.get("format_version", "")
-    if version.isdigit() and int(version) > logformat.FORMAT_VERSION:
+    version = _format_version(metadata)
+    if version is not None and version > logformat.FORMAT_VERSION:
         writer = metadata.get("version.oodmon")
         warnings.warn(f"{path} is in log format {version}" + (f" (oodmon {writer})" if writer else "")
                       + f", newer than this oodmon's {logformat.FORMAT_VERSION}: it is read as format "
@@ -273,16 +279,18 @@ def _recover(path: Path) -> RunLog:
     # the tear only: those since the last episode's scores are kept, undecoded, and the others
     # dropped as they pass (a torn log of a long run held them all, decoded: 619 MB for 43).
     since_scores: list[bytes] = []
+    has_scores = False  # the file has an episode scores channel
     with open(path, "rb") as f:
         try:
             for record in StreamReader(f, skip_magic=False).records:
                 if isinstance(record, Channel):
                     channels[record.id] = record.topic
+                    has_scores = has_scores or record.topic == _SCORES
                 elif isinstance(record, Metadata) and record.name == logformat.RUN_METADATA:
                     metadata = dict(record.metadata)
                 elif isinstance(record, Message) and record.channel_id in channels:
                     topic = channels[record.channel_id]
-                    if topic == _STEP and _SCORES in channels.values():
+                    if topic == _STEP and has_scores:
                         since_scores.append(record.data)
                         continue
                     if topic == _SCORES:
@@ -296,11 +304,11 @@ def _recover(path: Path) -> RunLog:
         found.add(_STEP, data)
     log = _assemble(path, metadata, found, complete=False)
     cut = [episode for k in sorted(found.starts) if k not in found.rows
-           and (episode := _cut_episode(found.starts[k], found.steps.get(k, []), log.detector)) is not None]
+           and (episode := _cut_episode(path, found.starts[k], found.steps.get(k, []), log.detector)) is not None]
     log.interrupted.extend(cut)
     lost = ("; no step of a running episode had reached the disk (in format 5 they do every few seconds, "
-            "McapSink(flush_seconds=...))" if metadata is not None and metadata.get("format_version", "").isdigit()
-            and int(metadata["format_version"]) >= 5 else "; a running episode at the tear is lost")
+            "McapSink(flush_seconds=...))" if (_format_version(metadata) or 0) >= 5
+            else "; a running episode at the tear is lost")
     running = lost if not cut else "".join(
         f"; the running episode {e.episode} is kept as interrupted from its {e.length} steps on disk ({e.alarms} "
         f"alarm(s){'' if e.first_alarm_step is None else f', the first at step {e.first_alarm_step}'})" for e in cut)
@@ -312,36 +320,35 @@ def _recover(path: Path) -> RunLog:
     return log
 
 
-def _cut_episode(start: dict, steps: list[dict], alarm_detector: str) -> EpisodeLog | None:
+def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str) -> EpisodeLog | None:
     """The running episode of a torn log (format 5, whose start message says where it ran), from
-    its step messages that reached the disk: interrupted (so out of the metrics), its return unknown
-    (NaN: rewards come with the episode's end), its alarms the rises of the alarm flag. ``None``
-    where no step of it is on disk, or its start message is not one oodmon wrote."""
-    if not (isinstance(start.get("env_id"), str) and isinstance(start.get("variant"), str)
-            and isinstance(start.get("onset"), int)):
-        return None
+    its step messages that reached the disk, up to a gap: interrupted (so out of the metrics), its
+    return unknown (NaN: rewards come with the episode's end), its alarms the rises of the alarm
+    flag, a step's ``null`` score +inf (what it stands for). ``None`` where no step of it is on disk
+    or its start message is not one oodmon wrote."""
     steps = sorted((r for r in steps if isinstance(r.get("step"), int)), key=lambda r: r["step"])
     length = 0
-    while length < len(steps) and steps[length]["step"] == length:  # up to a gap (a chunk that is not there)
+    while length < len(steps) and steps[length]["step"] == length:  # up to a chunk that is not there
         length += 1
     if not length:
         return None
     steps = steps[:length]
 
-    def numbers(values: list) -> np.ndarray:  # null: not finite, written for +inf (a NaN observation)
-        return np.array([math.inf if v is None else float(v) for v in values])
+    def numbers(values: list) -> list[float]:
+        return [math.inf if v is None else float(v) for v in values]
 
-    scores, alarm = numbers([r.get("score") for r in steps]), np.array([bool(r.get("alarm")) for r in steps])
-    names = steps[0].get("scores") if isinstance(steps[0].get("scores"), dict) else {}
-    detectors = {name: numbers([(r.get("scores") or {}).get(name) for r in steps]) for name in names}
+    alarm = np.array([bool(r.get("alarm")) for r in steps])
     rises = np.flatnonzero(alarm & ~np.concatenate([[False], alarm[:-1]]))
-    return EpisodeLog(
-        episode=start["episode"], env_id=start["env_id"], variant=start["variant"], onset=start["onset"],
-        seed=start.get("seed") if isinstance(start.get("seed"), int) else None, total_return=math.nan, length=length,
-        alarms=len(rises), first_alarm_step=int(rises[0]) if len(rises) else None, interrupted=True, terminated=None,
-        scores=scores, shifted=np.array([bool(r.get("shifted")) for r in steps]), alarm=alarm,
-        detector_scores=detectors or {alarm_detector: scores}, rewards=None,
-    )
+    names = steps[0].get("scores") if isinstance(steps[0].get("scores"), dict) else {}
+    scores = encode_episode_scores(
+        start.get("episode"), numbers([r.get("score") for r in steps]), [bool(r.get("shifted")) for r in steps], alarm,
+        {name: numbers([(r.get("scores") or {}).get(name) for r in steps]) for name in names})
+    row = {**start, "return": math.nan, "length": length, "alarms": len(rises),
+           "first_alarm_step": int(rises[0]) if len(rises) else None, "interrupted": True}
+    try:
+        return _episode(path, row, scores, alarm_detector)  # the row's fields checked as every episode's
+    except LogFormatError:
+        return None  # a start message oodmon did not write: the running episode stays lost
 
 
 def read_logs(paths: Sequence[str | Path]) -> list[RunLog]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 import io
 import json
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 from rich.table import Table
 
@@ -83,19 +83,29 @@ def to_json(metrics: Sequence[VariantMetrics]) -> str:
     return json.dumps([m.to_dict() for m in metrics], indent=1)
 
 
-def to_csv(metrics: Sequence[VariantMetrics]) -> str:
+def _csv(names: Sequence[str], rows: Iterable[Sequence[object]]) -> str:
+    """CSV of a header of ``names`` and ``rows`` of values, ``None`` written empty."""
     buffer = io.StringIO()
     writer = csv.writer(buffer)
-    writer.writerow([name for name, _ in COLUMNS])
-    for m in metrics:
-        writer.writerow(["" if getattr(m, name) is None else getattr(m, name) for name, _ in COLUMNS])
+    writer.writerow(names)
+    for row in rows:
+        writer.writerow(["" if value is None else value for value in row])
     return buffer.getvalue()
 
 
-def to_markdown(metrics: Sequence[VariantMetrics]) -> str:
-    lines = ["| " + " | ".join(h for _, h in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-    lines += ["| " + " | ".join(_cell(getattr(m, name)) for name, _ in COLUMNS) + " |" for m in metrics]
+def _markdown(headings: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
+    """A Markdown table of ``headings`` and ``rows`` of cells."""
+    lines = ["| " + " | ".join(headings) + " |", "|" + "---|" * len(headings)]
+    lines += ["| " + " | ".join(cells) + " |" for cells in rows]
     return "\n".join(lines) + "\n"
+
+
+def to_csv(metrics: Sequence[VariantMetrics]) -> str:
+    return _csv([name for name, _ in COLUMNS], ([getattr(m, name) for name, _ in COLUMNS] for m in metrics))
+
+
+def to_markdown(metrics: Sequence[VariantMetrics]) -> str:
+    return _markdown([h for _, h in COLUMNS], ([_cell(getattr(m, name)) for name, _ in COLUMNS] for m in metrics))
 
 
 # -- the monitor's own benchmark ----------------------------------------------------------------
@@ -158,9 +168,7 @@ def monitor_table(metrics: Sequence[MonitorMetrics], title: str = "the monitor's
 
 
 def monitor_markdown(metrics: Sequence[MonitorMetrics]) -> str:
-    lines = ["| " + " | ".join(MONITOR_COLUMNS) + " |", "|" + "---|" * len(MONITOR_COLUMNS)]
-    lines += ["| " + " | ".join(cells) + " |" for _, cells in _monitor_rows(metrics)]
-    return "\n".join(lines) + "\n"
+    return _markdown(MONITOR_COLUMNS, (cells for _, cells in _monitor_rows(metrics)))
 
 
 # -- one row per episode ----------------------------------------------------------------------
@@ -224,15 +232,9 @@ def episodes_table(rows: Sequence[dict], title: str) -> Table:
 
 
 def episodes_csv(rows: Sequence[dict]) -> str:
-    buffer = io.StringIO()
-    writer = csv.writer(buffer)
-    writer.writerow([name for name, _ in EPISODE_COLUMNS])
-    for row in rows:
-        writer.writerow(["" if row[name] is None else row[name] for name, _ in EPISODE_COLUMNS])
-    return buffer.getvalue()
+    return _csv([name for name, _ in EPISODE_COLUMNS], ([row[name] for name, _ in EPISODE_COLUMNS] for row in rows))
 
 
 def episodes_markdown(rows: Sequence[dict]) -> str:
-    lines = ["| " + " | ".join(h for _, h in EPISODE_COLUMNS) + " |", "|" + "---|" * len(EPISODE_COLUMNS)]
-    lines += ["| " + " | ".join(_episode_cell(name, row[name]) for name, _ in EPISODE_COLUMNS) + " |" for row in rows]
-    return "\n".join(lines) + "\n"
+    return _markdown([h for _, h in EPISODE_COLUMNS],
+                     ([_episode_cell(name, row[name]) for name, _ in EPISODE_COLUMNS] for row in rows))

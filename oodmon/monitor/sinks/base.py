@@ -75,29 +75,25 @@ class SinkGroup:
         self.strict = strict
         self.failures: dict[str, int] = {}
 
-    def _call(self, method: str, *args: object) -> None:
-        for sink in self.sinks:
-            self._call_one(sink, method, *args)
-
-    def _call_one(self, sink: Sink, method: str, *args: object) -> None:
-        try:
-            getattr(sink, method)(*args)
-        except Exception as error:  # noqa: BLE001  (any failure of a sink is contained)
-            if self.strict:
-                raise
-            name = type(sink).__name__
-            self.failures[name] = self.failures.get(name, 0) + 1
-            if self.failures[name] == 1 or self.failures[name] % 1000 == 0:
-                warnings.warn(f"{name}.{method} failed ({error}); {self.failures[name]} failure(s) so far, "
-                              "the monitor goes on", SinkWarning, stacklevel=4)
+    def _call(self, method: str, *args: object, sinks: list[Sink] | None = None) -> None:
+        for sink in self.sinks if sinks is None else sinks:
+            try:
+                getattr(sink, method)(*args)
+            except Exception as error:  # noqa: BLE001  (any failure of a sink is contained)
+                if self.strict:
+                    raise
+                name = type(sink).__name__
+                self.failures[name] = self.failures.get(name, 0) + 1
+                if self.failures[name] == 1 or self.failures[name] % 1000 == 0:
+                    warnings.warn(f"{name}.{method} failed ({error}); {self.failures[name]} failure(s) so far, "
+                                  "the monitor goes on", SinkWarning, stacklevel=3)
 
     def open(self, run: RunInfo) -> None:
         self._call("open", run)
 
     def begin_episode(self, start: EpisodeStart) -> None:
-        for sink in self.sinks:
-            if hasattr(sink, "begin_episode"):  # optional: a sink of your own need not have it
-                self._call_one(sink, "begin_episode", start)
+        # optional: a sink of your own need not have it
+        self._call("begin_episode", start, sinks=[sink for sink in self.sinks if hasattr(sink, "begin_episode")])
 
     def write_step(self, record: StepRecord) -> None:
         self._call("write_step", record)

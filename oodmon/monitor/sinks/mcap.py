@@ -91,16 +91,15 @@ class McapSink:
     def __init__(self, path: str | Path, *, compression: str = "zstd", split_episodes: int | None = None,
                  split_mb: float | None = None, flush_seconds: float = 10.0) -> None:
         from oodmon.errors import InvalidParameterError
-        from oodmon.validation import is_whole
+        from oodmon.validation import is_real, is_whole
 
         if split_episodes is not None and not is_whole(split_episodes, 1):
             raise InvalidParameterError(f"split_episodes={split_episodes!r} is not allowed; a whole number >= 1 of "
                                         "episodes per file, or None (one file)")
-        if split_mb is not None and (isinstance(split_mb, bool) or not isinstance(split_mb, (int, float))
-                                     or not split_mb > 0 or not math.isfinite(split_mb)):
+        if split_mb is not None and not (is_real(split_mb) and 0 < split_mb < math.inf):
             raise InvalidParameterError(f"split_mb={split_mb!r} is not allowed; megabytes > 0 per file, or None "
                                         "(one file)")
-        if isinstance(flush_seconds, bool) or not isinstance(flush_seconds, (int, float)) or not flush_seconds >= 0:
+        if not (is_real(flush_seconds) and flush_seconds >= 0):
             raise InvalidParameterError(f"flush_seconds={flush_seconds!r} is not allowed; seconds >= 0 between "
                                         "the writes of a long episode's steps to the file")
         self.path = Path(path)
