@@ -780,15 +780,22 @@ def _run(args: argparse.Namespace) -> int:
                       str(record.alarms), "" if record.first_alarm_step is None else str(record.first_alarm_step), delay)
     console.print(table)
     alarmed = sum(r.alarms > 0 for r in records)
-    mcap_written = (str(mcap.paths[0]) if len(mcap.paths) == 1 else
-                    f"{mcap.paths[0]} ... {mcap.paths[-1].name} ({len(mcap.paths)} files)") if mcap is not None else None
-    failed = {"McapSink": mcap_written, "RerunSink": args.rrd}
+    failed = {"McapSink": _files_written(mcap), "RerunSink": args.rrd}
     written = [str(p) for name, p in failed.items() if p and name not in failures]
     console.print(f"{alarmed} of {len(records)} episodes raised an alarm"
                   + (f"; written to {', '.join(written)}" if written else ""))
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
     return 0
+
+
+def _files_written(mcap) -> str | None:
+    """The closing line's words for what ``mcap`` (an McapSink, or ``None``) wrote: its file, the first
+    and last of a split run's, or ``None`` where it wrote none (it could not open one)."""
+    if mcap is None or not mcap.paths:
+        return None
+    paths = mcap.paths
+    return str(paths[0]) if len(paths) == 1 else f"{paths[0]} ... {paths[-1].name} ({len(paths)} files)"
 
 
 def _read_logs(paths: Sequence[str]):

@@ -204,6 +204,24 @@ def test_every_command_keeps_to_the_torch_threads_it_is_given(monkeypatch, capsy
         torch.set_num_threads(before)
 
 
+def test_run_whose_mcap_file_cannot_be_opened_goes_on_and_says_so(tmp_path, capsys, monkeypatch):
+    """A disk that fills between the path's check and the run: the MCAP sink fails to open, the run
+    goes on (the sink's failures counted), and its closing line names no file (it raised an
+    IndexError here once the log could be split, as it looked up the files written)."""
+    from oodmon.monitor.sinks.mcap import McapSink
+
+    def full_disk(self, part):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(McapSink, "_open_part", full_disk)
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "1",
+                 "--mcap", str(tmp_path / "x.mcap")]) == 0
+    printed = capsys.readouterr()
+    assert "McapSink.open failed ([Errno 28] No space left on device)" in printed.err
+    assert "of 1 episodes raised an alarm" in printed.out and "written to" not in printed.out
+    assert "sink failures: {'McapSink'" in printed.out
+
+
 def test_fit_detectors_writes_a_set_that_calibrate_and_run_read(tmp_path, capsys):
     """The README's `fit-detectors` block, smaller: the set is written as JSON and tensors (no
     pickle), the same command fits the same tensors, and calibrate and run read it by --detectors."""
