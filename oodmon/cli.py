@@ -225,6 +225,22 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"oodmon {__version__}")
     commands = parser.add_subparsers(title="commands", metavar="COMMAND")
 
+    _add_envs(commands)
+    _add_train(commands)
+    _add_evaluate(commands)
+    _add_calibrate(commands)
+    _add_validate(commands)
+    _add_fit_detectors(commands)
+    _add_run(commands)
+    _add_replay(commands)
+    _add_check(commands)
+    _add_bench(commands)
+    _add_demo(commands)
+    return parser
+
+
+def _add_envs(commands: argparse._SubParsersAction) -> None:
+    """`oodmon envs`, with `envs show` and `envs tour`."""
     envs = commands.add_parser("envs", help="list the paper's OOD variants; 'envs show SPEC' pictures one")
     envs.add_argument("--task", choices=TASKS, help="only this task's variants")
     envs.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -246,6 +262,9 @@ def _parser() -> argparse.ArgumentParser:
     tour.add_argument("--out", default="runs/tour", help="folder for the pictures (default runs/tour)")
     tour.set_defaults(handler=_envs_tour)
 
+
+def _add_train(commands: argparse._SubParsersAction) -> None:
+    """`oodmon train`."""
     train = commands.add_parser(
         "train", help="train an uncertainty-aware agent from its recipe (resumes an interrupted run)"
     )
@@ -262,6 +281,9 @@ def _parser() -> argparse.ArgumentParser:
                             "pickles, and loading one runs the code it holds: only for files you made yourself")
     train.set_defaults(handler=_train, kept_on_interrupt=_KEPT["train"])
 
+
+def _add_evaluate(commands: argparse._SubParsersAction) -> None:
+    """`oodmon evaluate`."""
     evaluate = commands.add_parser(
         "evaluate", help="where an agent fails: mean return per variant beside the ID return"
     )
@@ -278,6 +300,9 @@ def _parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--json", action="store_true", help="print JSON instead of a table")
     evaluate.set_defaults(handler=_evaluate)
 
+
+def _add_calibrate(commands: argparse._SubParsersAction) -> None:
+    """`oodmon calibrate`."""
     calibrate = commands.add_parser(
         "calibrate", help="calibrate an agent's alarm threshold on held-out in-distribution episodes"
     )
@@ -311,6 +336,9 @@ def _parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
 
+
+def _add_validate(commands: argparse._SubParsersAction) -> None:
+    """`oodmon validate`."""
     validate = commands.add_parser(
         "validate", help="run fresh ID episodes and print a threshold's realised false-alarm rate beside its target"
     )
@@ -326,6 +354,9 @@ def _parser() -> argparse.ArgumentParser:
     validate.add_argument("--json", action="store_true", help="print JSON instead of a sentence")
     validate.set_defaults(handler=_validate)
 
+
+def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
+    """`oodmon fit-detectors`."""
     fit = commands.add_parser(
         "fit-detectors", help="fit the learned detectors (dynamics, features, combined) on an agent's ID episodes"
     )
@@ -341,6 +372,9 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--out", required=True, help="folder for detectors.json and detectors.safetensors")
     fit.set_defaults(handler=_fit_detectors, kept_on_interrupt=_KEPT["fit-detectors"])
 
+
+def _add_run(commands: argparse._SubParsersAction) -> None:
+    """`oodmon run`."""
     run = commands.add_parser("run", help="run a monitored agent in an env (ID or shifted), logging to MCAP/Rerun")
     _agent_arguments(run)
     run.add_argument("--variant", help="a variant spec (default: the task's ID env)")
@@ -369,6 +403,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="log a picture of each CartPole or Pendulum state beside the scores (Rerun, Foxglove)")
     run.set_defaults(handler=_run, kept_on_interrupt=_KEPT["run"])
 
+
+def _add_replay(commands: argparse._SubParsersAction) -> None:
+    """`oodmon replay`."""
     replay = commands.add_parser("replay", help="metrics from recorded MCAP logs (files only; never modified)")
     replay.add_argument("logs", nargs="+", help="MCAP files, or folders holding them")
     formats = replay.add_mutually_exclusive_group()
@@ -388,6 +425,9 @@ def _parser() -> argparse.ArgumentParser:
                             "how it ended (interrupted ones too, which the metrics leave out)")
     replay.set_defaults(handler=_replay)
 
+
+def _add_check(commands: argparse._SubParsersAction) -> None:
+    """`oodmon check`."""
     check = commands.add_parser("check", help="regression check of recorded logs against a baseline")
     check.add_argument("logs", nargs="+", help="MCAP files, or folders holding them")
     check.add_argument("--baseline", required=True, help="the baseline JSON file")
@@ -395,6 +435,9 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument("--tolerance", type=_non_negative, help="allowed fall (default: the baseline's, else 0.02)")
     check.set_defaults(handler=_check)
 
+
+def _add_bench(commands: argparse._SubParsersAction) -> None:
+    """`oodmon bench`."""
     bench = commands.add_parser("bench", help="the paper's protocol: trials x methods x failing variants, scored by replay")
     bench.add_argument("--task", choices=TASKS, help="required unless --sb3")
     bench.add_argument("--methods", default="dropout,dropconnect,ensemble", help="comma-separated (default all three)")
@@ -470,10 +513,12 @@ def _parser() -> argparse.ArgumentParser:
                        help="--baseline's allowed fall of AUROC, AUPR and rates, and relative rise of delays (default 0.02)")
     bench.set_defaults(handler=_bench, kept_on_interrupt=_KEPT["bench"])
 
+
+def _add_demo(commands: argparse._SubParsersAction) -> None:
+    """`oodmon demo`."""
     demo = commands.add_parser("demo", help="the main job of 'make demo': calibrate, monitor, log, summarise")
     demo.add_argument("--out", default="runs/demo", help="folder for the demo's files (default runs/demo)")
     demo.set_defaults(handler=_demo, kept_on_interrupt=_KEPT["demo"])
-    return parser
 
 
 def _envs_list(args: argparse.Namespace) -> int:

@@ -380,7 +380,6 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
             model with dropout or DropConnect layers, or statistics of another shape than the
             observations (or different ones for different models).
     """
-    from oodmon.agents.networks import estimator_from_sb3
     from oodmon.envs.registration import task_of_env
 
     if not models or not all(hasattr(m, "policy") and hasattr(m, "predict") for m in models):
@@ -410,20 +409,8 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         _check_spaces(model, Path(file["path"]), env, env_id, frame_stack)
     env.close()
     dict_space = _dict_space(env.observation_space, env_id)
-    if normalizer is not None and (dict_space is not None) != (normalizer.keys is not None):
-        raise ConfigError(f"the VecNormalize statistics{' in ' + normalizer.path if normalizer.path else ''} are of "
-                          f"{'dict' if normalizer.keys is not None else 'array'} observations; {env_id}'s are "
-                          f"{env.observation_space}: statistics of another env?")
-    if normalizer is not None and dict_space is not None:
-        try:
-            normalizer = normalizer.flattened(dict_space)
-        except ConfigError as error:
-            raise ConfigError(f"{env_id}: {error}") from None
-    if normalizer is not None and normalizer.shape is not None \
-            and normalizer.shape not in (env.observation_space.shape, models[0].observation_space.shape):
-        raise ConfigError(f"the VecNormalize statistics{' in ' + normalizer.path if normalizer.path else ''} are of "
-                          f"observations of shape {normalizer.shape}; {env_id}'s are {env.observation_space.shape}: "
-                          "statistics of another env?")
+    if normalizer is not None:
+        normalizer = _normalizer_for_env(normalizer, env, env_id, dict_space, models[0])
     names = {file["algorithm"] for file in files}
     masks = masks or "sampled"
     sampled = names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"}, {"SAC"})
@@ -439,18 +426,8 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         raise ConfigError(f"{env_id}'s observations hold pictures ({pictures.picture_key!r}), which the models read "
                           "through a CNN, and oodmon samples no CNN (no ensemble spread, no masks): give the deployed "
                           "model alone (the learned detectors watch it: dynamics the dict's vectors, frames its picture)")
-    estimator = None  # PPO, A2C: networks oodmon does not sample; the learned detectors watch them
-    if sampled and pictures is None:
-        try:
-            estimator = estimator_from_sb3(list(models), n_samples=n_samples, seed=seed, masks=masks)
-        except ConfigError as error:
-            if len(models) > 1:  # an ensemble asked for (it was dropped in silence: no spread, no features)
-                raise ConfigError(f"the {len(models)} models cannot form the ensemble whose spread would watch the first: "
-                                  f"{error}; give the deployed model alone (the learned detectors watch it)") from None
-            if masks != "sampled":
-                raise ConfigError(f"masks={masks!r} fixes the masks of MC samples, and this model has none: {error}") \
-                    from None
-            # one model without dropout: nothing to sample
+    # PPO, A2C: networks oodmon does not sample; the learned detectors watch them
+    estimator = _estimator_of(models, n_samples, seed, masks) if sampled and pictures is None else None
     if mean and estimator is None:
         raise ConfigError("--mean deploys the ensemble's mean: give several DQN, several DDPG/TD3, or several SAC models")
     if estimator is not None:
@@ -470,3 +447,49 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
     return Agent(estimator, metadata, None, None if mean else _deployed(models[0], discrete, normalizer, dict_space),
                  dict_space=dict_space, stacking=stacking, pictures=pictures)
+
+
+def _normalizer_for_env(normalizer: Any, env: gymnasium.Env, env_id: str, dict_space: Any, model: Any) -> Any:
+    """``normalizer``'s statistics as the agent applies them to ``env_id``'s observations (a dict's
+    flattened like its vectors), checked against the env's and the deployed ``model``'s observations.
+
+    Raises:
+        ConfigError: statistics of dict observations for an env of arrays or the other way, or of
+            another shape than the observations.
+    """
+    where = f" in {normalizer.path}" if normalizer.path else ""
+    if (dict_space is not None) != (normalizer.keys is not None):
+        raise ConfigError(f"the VecNormalize statistics{where} are of "
+                          f"{'dict' if normalizer.keys is not None else 'array'} observations; {env_id}'s are "
+                          f"{env.observation_space}: statistics of another env?")
+    if dict_space is not None:
+        try:
+            normalizer = normalizer.flattened(dict_space)
+        except ConfigError as error:
+            raise ConfigError(f"{env_id}: {error}") from None
+    if normalizer.shape is not None and normalizer.shape not in (env.observation_space.shape, model.observation_space.shape):
+        raise ConfigError(f"the VecNormalize statistics{where} are of observations of shape {normalizer.shape}; "
+                          f"{env_id}'s are {env.observation_space.shape}: statistics of another env?")
+    return normalizer
+
+
+def _estimator_of(models: Sequence[Any], n_samples: int, seed: int | None, masks: str) -> Any:
+    """The estimator of the models' samples (an ensemble's, or one model's MC samples), or ``None``
+    for one model without dropout or DropConnect (nothing to sample).
+
+    Raises:
+        ConfigError: several models that cannot form an ensemble, or fixed masks of a model with no
+            dropout or DropConnect layer.
+    """
+    from oodmon.agents.networks import estimator_from_sb3
+
+    try:
+        return estimator_from_sb3(list(models), n_samples=n_samples, seed=seed, masks=masks)
+    except ConfigError as error:
+        if len(models) > 1:  # an ensemble asked for (it was dropped in silence: no spread, no features)
+            raise ConfigError(f"the {len(models)} models cannot form the ensemble whose spread would watch the first: "
+                              f"{error}; give the deployed model alone (the learned detectors watch it)") from None
+        if masks != "sampled":
+            raise ConfigError(f"masks={masks!r} fixes the masks of MC samples, and this model has none: {error}") \
+                from None
+        return None
