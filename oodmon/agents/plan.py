@@ -15,7 +15,8 @@ activations ``nn.ReLU``, ``nn.Tanh``, ``nn.LeakyReLU``, ``nn.ELU``, ``nn.SiLU``,
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import threading
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from torch import nn
@@ -87,6 +88,7 @@ class _DropConnect(_Affine):
         super().__init__(layer)
         self.p = np.float32(layer.p)
         self.scaled_weight_t = self.weight_t * np.float32(1.0 / (1.0 - layer.p))
+        self._scratch = Scratch()  # the sparse path's arrays, kept from call to call
 
     def __call__(self, x, rng):
         # A weight from an input that is zero everywhere in x contributes nothing whether it is
@@ -96,11 +98,14 @@ class _DropConnect(_Affine):
         weight_t = self.scaled_weight_t
         repeated = x.strides[0] == 0  # K repeats of one batch (the usual case)
         active = active_inputs(x)
-        if active.size < x.shape[-1]:
-            x, weight_t = x[..., active], weight_t[active]
-        if self.p < SPARSE_BELOW:  # the product with every weight kept: once for K repeats of one batch
+        sparse = self.p < SPARSE_BELOW
+        if active.size < x.shape[-1]:  # the active inputs' rows of the weights (sparse: into a kept array)
+            shape = (active.size, weight_t.shape[1])
+            rows = self._scratch("rows", shape[0] * shape[1], np.float32).reshape(shape) if sparse else None
+            x, weight_t = x[..., active], np.take(weight_t, active, axis=0, out=rows, mode="clip")
+        if sparse:  # the product with every weight kept: once for K repeats of one batch
             full = np.matmul(x[:1] if repeated else x, weight_t)
-            return _minus_dropped(full, x, weight_t, float(self.p), rng) + self.bias
+            return _minus_dropped(full, x, weight_t, float(self.p), rng, self._scratch) + self.bias
         keep = rng.random((x.shape[0], *weight_t.shape), dtype=np.float32) >= self.p
         return np.matmul(x, weight_t * keep) + self.bias
 
@@ -125,42 +130,89 @@ def repeat_rows(x: np.ndarray, k: int) -> np.ndarray:
     return view
 
 
-def _minus_dropped(full: np.ndarray, x: np.ndarray, weight_t: np.ndarray, p: float, rng: np.random.Generator) -> np.ndarray:
+Buffers = Callable[[str, int, type], np.ndarray]
+
+
+def _fresh(name: str, size: int, dtype: type) -> np.ndarray:
+    """New arrays (:data:`Buffers` that keep nothing): for work done once."""
+    return np.empty(size, dtype)
+
+
+class Scratch:
+    """Arrays a compiled layer writes its temporaries into at every call, kept for the next (one
+    set per thread): ``scratch(name, size, dtype)`` is the first ``size`` elements of the array
+    called ``name``, grown (doubled at least) when too short.
+
+    Why: the sparse DropConnect layers' temporaries (Pendulum's middle layer: eight arrays of
+    about 60,000 numbers at every decision) are larger than glibc's malloc serves from its heap
+    by default, and it maps fresh pages for them and unmaps them after: about 500 page faults per
+    decision, in this VM about 2 us each. ``oodmon run --task pendulum --method dropconnect``
+    took 5.1 s for 5 episodes before (640,395 minor faults), 3.6 s with malloc told to keep its
+    memory (``MALLOC_MMAP_THRESHOLD_``, 50,975 faults); kept arrays need no such setting.
+    """
+
+    def __init__(self) -> None:
+        self._local = threading.local()
+
+    def __reduce__(self):  # copies and pickles start empty (a thread-local cannot be pickled)
+        return Scratch, ()
+
+    def __call__(self, name: str, size: int, dtype: type) -> np.ndarray:
+        arrays = self._local.__dict__
+        array = arrays.get(name)
+        if array is None or len(array) < size:
+            array = arrays[name] = np.empty(max(size, 0 if array is None else 2 * len(array)), dtype)
+        return array[:size]
+
+
+def _minus_dropped(full: np.ndarray, x: np.ndarray, weight_t: np.ndarray, p: float, rng: np.random.Generator,
+                   buffers: Buffers = _fresh) -> np.ndarray:
     """``full`` (the product with every weight kept, (K, batch, out), or (1, batch, out) when x's K
     rows repeat one batch) less the dropped weights' terms, (K, batch, out).
 
     Each of the K x in x out weights is dropped independently with probability ``p``, as a dense
     mask would drop it: the same distribution of outputs, from about p * K * in * out random numbers.
+    ``buffers``: where the temporaries go (a :class:`Scratch`; the result is a new array).
     """
     n_rows, _, n_in = x.shape
-    dropped = bernoulli_positions(rng, n_rows * n_in * weight_t.shape[1], p)
-    return _subtract(full, x, *_dropped_terms(dropped, weight_t))
+    dropped = bernoulli_positions(rng, n_rows * n_in * weight_t.shape[1], p, buffers)
+    return _subtract(full, x, *_dropped_terms(dropped, weight_t, buffers), buffers)
 
 
-def _dropped_terms(dropped: np.ndarray, weight_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _dropped_terms(dropped: np.ndarray, weight_t: np.ndarray, buffers: Buffers = _fresh
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where each dropped weight (position ``(row * in + source) * out + target``) takes its input
-    from (``row * in + source``), where its term goes (``row * out + target``), and its value."""
+    from (``row * in + source``), where its term goes (``row * out + target``), and its value;
+    written into ``buffers``' arrays "pair", "slots" and "weights" (and "target", "source")."""
     n_in, n_out = weight_t.shape
-    block = n_in * n_out
+    size = len(dropped)
+    pair, target, slots = (buffers(name, size, np.int64) for name in ("pair", "target", "slots"))
     if n_out & (n_out - 1) == 0:  # a power of two (the MLPs' 256 and 2 outputs): shifts, not a division
-        pair, target = dropped >> (n_out.bit_length() - 1), dropped & (n_out - 1)
-    else:
-        pair, target = np.divmod(dropped, n_out)
-    row = pair // n_in
-    weights = weight_t.ravel()[dropped - row * block]
-    slots = row * n_out
-    slots += target
+        np.right_shift(dropped, n_out.bit_length() - 1, out=pair)
+        np.bitwise_and(dropped, n_out - 1, out=target)
+    else:  # a floor division by a scalar (libdivide) and a product: a quarter of np.divmod's time
+        np.floor_divide(dropped, n_out, out=pair)
+        np.multiply(pair, n_out, out=target)
+        np.subtract(dropped, target, out=target)
+    row = np.floor_divide(pair, n_in, out=slots)
+    source = np.multiply(row, n_in * n_out, out=buffers("source", size, np.int64))
+    np.subtract(dropped, source, out=source)  # the position in weight_t
+    weights = np.take(weight_t.reshape(-1), source, out=buffers("weights", size, np.float32), mode="clip")
+    row *= n_out  # slots = row * n_out + target
+    row += target
     return pair, slots, weights
 
 
-def _subtract(full: np.ndarray, x: np.ndarray, pair: np.ndarray, slots: np.ndarray, weights: np.ndarray) -> np.ndarray:
+def _subtract(full: np.ndarray, x: np.ndarray, pair: np.ndarray, slots: np.ndarray, weights: np.ndarray,
+              buffers: Buffers = _fresh) -> np.ndarray:
     """``full`` (K or 1, batch, out) less the dropped weights' terms (:func:`_dropped_terms`) of x (K, batch, in)."""
     n_rows, batch, n_in = x.shape
     n_out = full.shape[-1]
     if batch == 1:  # the monitor's case: no batch axis to move (the same terms, summed in the same order)
-        terms = x.reshape(n_rows * n_in)[pair]
-        terms *= weights
-        removed = np.bincount(slots, weights=terms, minlength=n_rows * n_out).reshape(n_rows, 1, n_out)
+        terms = np.take(x.reshape(n_rows * n_in), pair, out=buffers("terms", len(pair), np.float32), mode="clip")
+        # float32 products, widened to the float64 that np.bincount would convert them to (a copy)
+        wide = np.multiply(terms, weights, out=buffers("wide", len(pair), np.float64))
+        removed = np.bincount(slots, weights=wide, minlength=n_rows * n_out).reshape(n_rows, 1, n_out)
         return full - removed.astype(np.float32)
     inputs = np.moveaxis(x, 1, 0).reshape(batch, n_rows * n_in)  # [b, row * n_in + source]
     slots = slots + (np.arange(batch) * (n_rows * n_out))[:, None]
@@ -168,11 +220,13 @@ def _subtract(full: np.ndarray, x: np.ndarray, pair: np.ndarray, slots: np.ndarr
     return full - np.moveaxis(removed.reshape(batch, n_rows, n_out), 0, 1).astype(np.float32)
 
 
-def bernoulli_positions(rng: np.random.Generator, size: int, p: float) -> np.ndarray:
+def bernoulli_positions(rng: np.random.Generator, size: int, p: float, buffers: Buffers = _fresh) -> np.ndarray:
     """The sorted positions in ``range(size)`` where independent Bernoulli(p) trials succeed (0 < p < 1).
 
     The gaps between successes are geometric, drawn as ``floor(log(1 - U) / log(1 - p))`` for
     uniform U in [0, 1): ``P(gap >= g) = (1 - p)^g``. Costs O(p * size), not O(size).
+    ``buffers``: where the first draw's arrays go ("uniform", "positions"): the positions are then
+    a view of one of them, for use before the next call (a rare second draw makes new arrays).
 
     Example:
         >>> len(bernoulli_positions(np.random.default_rng(0), 100_000, 0.02)) in range(1800, 2200)
@@ -182,11 +236,13 @@ def bernoulli_positions(rng: np.random.Generator, size: int, p: float) -> np.nda
     chunks, end, expected = [], -1, size * p
     while end < size:  # one draw covers ``size`` but for a chance below 1e-9; else draw on from the end
         count = int(expected + 6.0 * math.sqrt(expected) + 16)
-        uniform = rng.random(count)
+        first = not chunks
+        uniform = rng.random(out=buffers("uniform", count, np.float64)) if first else rng.random(count)
         np.negative(uniform, out=uniform)
         np.log1p(uniform, out=uniform)
         uniform *= scale
-        gaps = uniform.astype(np.int64)  # truncation is floor here
+        gaps = buffers("positions", count, np.int64) if first else np.empty(count, np.int64)
+        np.copyto(gaps, uniform, casting="unsafe")  # as astype(np.int64): truncation, which is floor here
         gaps += 1
         positions = np.cumsum(gaps, out=gaps)
         positions += end

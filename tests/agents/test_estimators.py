@@ -461,3 +461,87 @@ def test_a_fixed_dropconnect_layer_computes_its_masked_products(monkeypatch, lim
         np.testing.assert_allclose(fixed(x, None), expected, rtol=1e-5, atol=1e-5)
     with pytest.raises(ValueError, match="fixed for 7 rows; got 3"):
         fixed(own[:3], None)
+
+
+def _sparse_inputs(seed: int, zero_fraction: float) -> np.ndarray:
+    """K=20 rows of 400 inputs (K, 1, in), about ``zero_fraction`` of them zero in every row (a ReLU's)."""
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(0.1, 2.0, size=(20, 1, 400)).astype(np.float32)
+    x[..., rng.random(400) < zero_fraction] = 0.0
+    return x
+
+
+def test_sparse_dropconnect_keeps_its_arrays_and_gives_the_samples_of_new_ones():
+    # Pendulum's middle layer, 400 -> 300 at p = 0.05: about 60,000 dropped weights per call. Its
+    # temporaries go to arrays the layer keeps (grown when a call needs more): the same samples, bit
+    # for bit, as with new arrays at every call from the same generator; each call's result a new
+    # array (the next call does not write into it); once grown, the arrays are not replaced.
+    torch.manual_seed(0)
+    (op,) = plan.compile_layers([DropConnectLinear(400, 300, p=0.05)])
+    (fresh,) = plan.compile_layers([DropConnectLinear(400, 300, p=0.05)])
+    fresh.__dict__.update(op.__dict__ | {"_scratch": plan._fresh})  # the same layer, new arrays at every call
+    kept, new = np.random.default_rng(1), np.random.default_rng(1)
+    results = []
+    for call, zero_fraction in enumerate([0.5, 0.2, 0.8, 0.0, 0.5] * 4):  # active inputs from 80 to 400
+        x = _sparse_inputs(call, zero_fraction)
+        for inputs in (x, repeat_rows(x[0], 20)):  # K rows of their own, and one batch repeated
+            ours = op(inputs, kept)
+            assert np.array_equal(ours, fresh(inputs, new))
+            results.append((ours, ours.copy()))
+    assert all(np.array_equal(result, copy) for result, copy in results)
+    arrays = dict(op._scratch._local.__dict__)
+    assert {"uniform", "positions", "pair", "slots", "weights", "terms", "wide"} <= set(arrays)
+    op(_sparse_inputs(99, 0.5), kept)
+    assert all(op._scratch._local.__dict__[name] is array for name, array in arrays.items())
+
+
+def test_sparse_dropconnect_allocates_no_large_array_per_call():
+    # glibc maps fresh pages for each array above 128 KiB and unmaps them when it is freed: ~500 page
+    # faults per Pendulum decision when a call made its ~1 MB temporaries anew. Traced by numpy's
+    # tracemalloc hooks: a call's peak of new memory stays below half an array of the dropped weights'
+    # positions (60,000 int64 here: 480 KB). Measured: 0.14 MB; with the temporaries made anew, 3.1 MB.
+    import tracemalloc
+
+    torch.manual_seed(0)
+    (op,) = plan.compile_layers([DropConnectLinear(400, 300, p=0.05)])
+    rng = np.random.default_rng(0)
+    x = _sparse_inputs(0, 0.5)
+    for _ in range(5):
+        op(x, rng)  # the kept arrays grow to their size
+    positions_bytes = 20 * 200 * 300 * 0.05 * 8
+    tracemalloc.start()
+    try:
+        peaks = []
+        for _ in range(10):
+            tracemalloc.reset_peak()
+            before = tracemalloc.get_traced_memory()[0]
+            op(x, rng)
+            peaks.append(tracemalloc.get_traced_memory()[1] - before)
+    finally:
+        tracemalloc.stop()
+    assert max(peaks) < positions_bytes / 2, peaks
+
+
+def test_scratch_arrays_grow_per_name_and_thread_and_start_empty_when_copied():
+    import copy
+    import pickle
+    import threading
+
+    scratch = plan.Scratch()
+    first = scratch("a", 10, np.int64)
+    assert first.shape == (10,) and first.dtype == np.int64
+    assert scratch("a", 4, np.int64).base is first.base  # views of one kept array
+    grown = scratch("a", 11, np.int64)  # too short: replaced by one twice as long
+    assert len(grown) == 11 and len(grown.base) == 20 and grown.base is not first.base
+    assert scratch("b", 3, np.float32).dtype == np.float32
+    seen = {}
+    thread = threading.Thread(target=lambda: seen.setdefault("a", scratch("a", 5, np.int64)))
+    thread.start()
+    thread.join()
+    assert not np.shares_memory(seen["a"], grown)  # another thread, its own arrays
+    for twin in (copy.deepcopy(scratch), pickle.loads(pickle.dumps(scratch))):
+        assert twin._local.__dict__ == {}
+    estimator = MCEstimator(to_dropconnect(_mlp(0), 0.02), seed=0)
+    estimator.estimate(OBS[0])
+    twin = copy.deepcopy(estimator)
+    assert np.array_equal(twin.estimate(OBS[0]).samples, estimator.estimate(OBS[0]).samples)
