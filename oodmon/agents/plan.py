@@ -23,8 +23,8 @@ from torch import nn
 
 from oodmon.agents.layers import DropConnectLinear
 
-__all__ = ["Op", "StackedAffine", "activation_function", "active_inputs", "bernoulli_positions", "compile_layers",
-           "ends_with_tanh", "fix_masks", "repeat_rows", "run"]
+__all__ = ["Op", "Scratch", "StackedAffine", "activation_function", "active_inputs", "bernoulli_positions",
+           "compile_layers", "ends_with_tanh", "fix_masks", "repeat_rows", "run"]
 
 
 class Op:
@@ -148,7 +148,8 @@ class Scratch:
     by default, and it maps fresh pages for them and unmaps them after: about 500 page faults per
     decision, in this VM about 2 us each. ``oodmon run --task pendulum --method dropconnect``
     took 5.1 s for 5 episodes before (640,395 minor faults), 3.6 s with malloc told to keep its
-    memory (``MALLOC_MMAP_THRESHOLD_``, 50,975 faults); kept arrays need no such setting.
+    memory (``MALLOC_MMAP_THRESHOLD_``, 50,975 faults), and 3.3 s with kept arrays, which need no
+    such setting (52,644 faults, those of loading; ``benchmarks/page_faults.py``).
     """
 
     def __init__(self) -> None:
