@@ -746,12 +746,8 @@ def _fit_detectors(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
-    from oodmon.envs import Variant, parse_variant
-    from oodmon.envs.registration import TASK_OF_ENV
     from oodmon.monitor import McapSink, Monitor, Threshold
     from oodmon.monitor.sinks.rerun import RerunSink
-    from oodmon.replay.metrics import is_id_variant
-
     from oodmon.outputs import check_output_file
 
     inputs = [("--threshold", args.threshold), ("--model", args.model and f"{args.model}/model.safetensors"),
@@ -770,17 +766,7 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--render draws CartPole and Pendulum states; {args.task} has no drawing in oodmon"
                           + (" (Pong's frames are logged without it)" if args.task == "pong" else "")
                           + ": leave out --render")
-    if args.variant:
-        variant = parse_variant(args.variant)
-        if variant.task != args.task:
-            raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant" if args.task in TASKS else
-                              f"variant {variant.spec!r} is not a variant of {args.task}: oodmon has variants of "
-                              f"{', '.join(sorted(TASK_OF_ENV))} only; leave out --variant to run {args.task} itself")
-        env, label = agent.wrap(variant.make(onset_step=args.onset)), variant.spec
-    elif agent.env_id is not None:  # your own model in its own env, as you deploy it
-        env, label = agent.make_env(), agent.env_id
-    else:
-        env, label = Variant(args.task).make(onset_step=args.onset), args.task
+    env, label = _run_env(args, agent)
     detectors = _detectors(args, agent)
     sinks = [] if mcap is None else [mcap]
     if args.rrd or args.spawn or args.serve or args.connect:
@@ -812,8 +798,41 @@ def _run(args: argparse.Namespace) -> int:
             progress.update(bar, advance=1)
         failures = dict(monitor.sinks.failures)
     env.close()
-    table = Table(title=f"{args.task}/{agent.method} in {label}, onset {args.onset}"
-                        + (f", {threshold.rule_text}" if threshold else ", no threshold"))
+    console.print(_episodes_table(f"{args.task}/{agent.method} in {label}, onset {args.onset}"
+                                  + (f", {threshold.rule_text}" if threshold else ", no threshold"), records))
+    alarmed = sum(r.alarms > 0 for r in records)
+    files = {"McapSink": _files_written(mcap), "RerunSink": args.rrd}
+    written = [str(p) for name, p in files.items() if p and name not in failures]
+    console.print(f"{alarmed} of {len(records)} episodes raised an alarm"
+                  + (f"; written to {', '.join(written)}" if written else ""))
+    if failures:
+        console.print(f"[yellow]sink failures: {failures}[/yellow]")
+    return 0
+
+
+def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
+    """``oodmon run``'s env and its label: the ``--variant`` (a variant of the agent's task, shifting
+    at ``--onset``), else your own model's env as you deploy it, else the task's ID env."""
+    from oodmon.envs import Variant, parse_variant
+    from oodmon.envs.registration import TASK_OF_ENV
+
+    if args.variant:
+        variant = parse_variant(args.variant)
+        if variant.task != args.task:
+            raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant" if args.task in TASKS else
+                              f"variant {variant.spec!r} is not a variant of {args.task}: oodmon has variants of "
+                              f"{', '.join(sorted(TASK_OF_ENV))} only; leave out --variant to run {args.task} itself")
+        return agent.wrap(variant.make(onset_step=args.onset)), variant.spec
+    if agent.env_id is not None:  # your own model in its own env, as you deploy it
+        return agent.make_env(), agent.env_id
+    return Variant(args.task).make(onset_step=args.onset), args.task
+
+
+def _episodes_table(title: str, records) -> Table:
+    """``oodmon run``'s closing table: a row per episode, with its alarms and their delay."""
+    from oodmon.replay.metrics import is_id_variant
+
+    table = Table(title=title)
     for column in ("episode", "seed", "return", "length", "alarms", "first alarm", "delay"):
         table.add_column(column, justify="right")
     for record in records:
@@ -823,15 +842,7 @@ def _run(args: argparse.Namespace) -> int:
             delay = "before onset" if record.alarmed_early else str(record.delay)
         table.add_row(str(record.episode), str(record.seed), f"{record.total_return:.1f}", str(record.length),
                       str(record.alarms), "" if record.first_alarm_step is None else str(record.first_alarm_step), delay)
-    console.print(table)
-    alarmed = sum(r.alarms > 0 for r in records)
-    failed = {"McapSink": _files_written(mcap), "RerunSink": args.rrd}
-    written = [str(p) for name, p in failed.items() if p and name not in failures]
-    console.print(f"{alarmed} of {len(records)} episodes raised an alarm"
-                  + (f"; written to {', '.join(written)}" if written else ""))
-    if failures:
-        console.print(f"[yellow]sink failures: {failures}[/yellow]")
-    return 0
+    return table
 
 
 def _files_written(mcap) -> str | None:
