@@ -32,3 +32,41 @@ def print_ratios(name: str, ratios: dict[str, float]) -> None:
     for task, ratio in ratios.items():
         print(f"{name}_{task}={ratio:.2f}")
     print(f"{name}={max(ratios.values()):.2f}")
+
+
+def paired_us(call: Callable[[], object], baseline: Callable[[], object], repeats: int,
+              pairs: int = 5) -> tuple[float, float, float]:
+    """``call`` and ``baseline`` timed in alternation: ``pairs`` pairs of rounds, the first round
+    of a pair ``call`` then ``baseline``, the second ``baseline`` then ``call``, each ``repeats``
+    calls. Returns the median microseconds per call of each over its rounds, and the median over
+    the pairs of a pair's ratio (``call``'s time in its two rounds / ``baseline``'s). On a shared
+    VM the machine's speed drifts by 20-60% within a minute: a ratio of two figures taken minutes
+    apart moves with it, one of a pair's back-to-back figures much less; and whichever goes
+    second in a round has run slower here, by up to 2.3 times for a whole round (seen once, on
+    2026-11-27): each order once per pair cancels that."""
+    for function in (call, baseline):
+        for _ in range(max(repeats // 10, 1)):
+            function()
+
+    def seconds(function) -> float:
+        start = time.perf_counter()
+        for _ in range(repeats):
+            function()
+        return time.perf_counter() - start
+
+    ours, theirs, ratios = [], [], []
+    for _ in range(pairs):
+        a1 = seconds(call)
+        b1 = seconds(baseline)
+        b2 = seconds(baseline)
+        a2 = seconds(call)
+        ours += [a1, a2]
+        theirs += [b1, b2]
+        ratios.append((a1 + a2) / (b1 + b2))
+
+    def median(values: list[float]) -> float:
+        values = sorted(values)
+        middle = len(values) // 2
+        return values[middle] if len(values) % 2 else (values[middle - 1] + values[middle]) / 2
+
+    return median(ours) / repeats * 1e6, median(theirs) / repeats * 1e6, median(ratios)
