@@ -780,7 +780,7 @@ def _run(args: argparse.Namespace) -> int:
         progress.console.print(f"[bold red]ALARM[/bold red] episode {event.episode} step {event.step}: "
                                f"score {event.score:.4g} > {event.threshold:.4g} ({event.rule})")
 
-    records = []
+    rows = _EpisodeRows()
     with Progress(console=console, transient=True) as progress, \
             Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show], strict=args.strict,
                     force=args.force, render=args.render) as monitor:
@@ -794,16 +794,21 @@ def _run(args: argparse.Namespace) -> int:
                 progress.update(decisions, completed=steps)
         for episode in range(args.episodes):
             progress.reset(decisions, total=None, description=f"episode {episode}: decisions")
-            records.append(monitor.run_episode(env, seed=args.seed + episode, on_progress=count))
+            rows.add(monitor.run_episode(env, seed=args.seed + episode, on_progress=count))
             progress.update(bar, advance=1)
         failures = dict(monitor.sinks.failures)
     env.close()
-    console.print(_episodes_table(f"{args.task}/{agent.method} in {label}, onset {args.onset}"
-                                  + (f", {threshold.rule_text}" if threshold else ", no threshold"), records))
-    alarmed = sum(r.alarms > 0 for r in records)
     files = {"McapSink": _files_written(mcap), "RerunSink": args.rrd}
     written = [str(p) for name, p in files.items() if p and name not in failures]
-    console.print(f"{alarmed} of {len(records)} episodes raised an alarm"
+    log = None  # what `oodmon replay` reads to list every episode: the file, or a split log's folder
+    if mcap is not None and mcap.paths and "McapSink" not in failures:
+        log = str(mcap.paths[0].parent) if mcap.split_episodes or mcap.split_mb else args.mcap
+    console.print(rows.table(f"{args.task}/{agent.method} in {label}, onset {args.onset}"
+                             + (f", {threshold.rule_text}" if threshold else ", no threshold")))
+    if rows.left_out:
+        console.print(f"{rows.left_out} episode{'s' if rows.left_out != 1 else ''} not shown" + (
+            f": `oodmon replay {log} --episodes` lists every one" if log else " (--mcap logs every one)"))
+    console.print(f"{rows.alarmed} of {rows.episodes} episodes raised an alarm"
                   + (f"; written to {', '.join(written)}" if written else ""))
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
@@ -828,21 +833,51 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
     return Variant(args.task).make(onset_step=args.onset), args.task
 
 
-def _episodes_table(title: str, records) -> Table:
-    """``oodmon run``'s closing table: a row per episode, with its alarms and their delay."""
-    from oodmon.replay.metrics import is_id_variant
+class _EpisodeRows:
+    """``oodmon run``'s closing table, in constant memory: the first and the last ``shown`` // 2
+    episodes (their records without the per-step rewards), and how many ran and alarmed. A run of
+    weeks keeps no per-step data here (the records with their rewards took about 20 bytes a step)
+    and prints a table of at most ``shown`` rows; ``oodmon replay LOG --episodes`` lists them all."""
 
-    table = Table(title=title)
-    for column in ("episode", "seed", "return", "length", "alarms", "first alarm", "delay"):
-        table.add_column(column, justify="right")
-    for record in records:
-        if record.first_alarm_step is None or is_id_variant(record.variant):
-            delay = ""
-        else:
-            delay = "before onset" if record.alarmed_early else str(record.delay)
-        table.add_row(str(record.episode), str(record.seed), f"{record.total_return:.1f}", str(record.length),
-                      str(record.alarms), "" if record.first_alarm_step is None else str(record.first_alarm_step), delay)
-    return table
+    def __init__(self, shown: int = 20) -> None:
+        from collections import deque
+
+        self.first: list = []
+        self.last = deque(maxlen=shown - shown // 2)
+        self.shown, self.episodes, self.alarmed = shown, 0, 0
+
+    def add(self, record) -> None:
+        import dataclasses
+
+        self.episodes += 1
+        self.alarmed += record.alarms > 0
+        slim = dataclasses.replace(record, rewards=None)
+        (self.first if len(self.first) < self.shown // 2 else self.last).append(slim)
+
+    @property
+    def left_out(self) -> int:
+        """Episodes the table does not show."""
+        return self.episodes - len(self.first) - len(self.last)
+
+    def table(self, title: str) -> Table:
+        """A row per episode kept, with its alarms and their delay, and a row "..." for those left out."""
+        from oodmon.replay.metrics import is_id_variant
+
+        left_out = self.left_out
+        table = Table(title=title)
+        for column in ("episode", "seed", "return", "length", "alarms", "first alarm", "delay"):
+            table.add_column(column, justify="right")
+        for index, record in enumerate([*self.first, *self.last]):
+            if index == len(self.first) and left_out:
+                table.add_row("...", *[""] * 6)
+            if record.first_alarm_step is None or is_id_variant(record.variant):
+                delay = ""
+            else:
+                delay = "before onset" if record.alarmed_early else str(record.delay)
+            table.add_row(str(record.episode), str(record.seed), f"{record.total_return:.1f}", str(record.length),
+                          str(record.alarms), "" if record.first_alarm_step is None else str(record.first_alarm_step),
+                          delay)
+        return table
 
 
 def _files_written(mcap) -> str | None:

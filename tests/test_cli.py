@@ -364,3 +364,48 @@ def test_the_cli_fits_detectors_on_the_librarys_default_number_of_episodes():
     import oodmon
 
     assert inspect.signature(oodmon.watch).parameters["fit_episodes"].default == DEFAULT_FIT_EPISODES
+
+
+def test_runs_closing_table_keeps_the_first_and_last_episodes_and_no_rewards():
+    # A run of weeks: the closing table's rows are kept in constant memory (their records without
+    # the per-step rewards), the counts cover every episode, and the table says how many it leaves out.
+    from rich.console import Console
+
+    from oodmon.cli import _EpisodeRows
+    from oodmon.monitor.records import EpisodeRecord
+
+    rows = _EpisodeRows(shown=6)
+    for episode in range(1000):
+        rows.add(EpisodeRecord(episode, "oodmon/CartPole-v1", "cartpole:length=2.0", onset=10, seed=episode,
+                               total_return=40.0, length=40, alarms=int(episode % 4 == 0),
+                               first_alarm_step=12 if episode % 4 == 0 else None, rewards=(1.0,) * 40))
+    assert rows.episodes == 1000 and rows.alarmed == 250 and rows.left_out == 994
+    kept = [*rows.first, *rows.last]
+    assert [r.episode for r in kept] == [0, 1, 2, 997, 998, 999] and all(r.rewards is None for r in kept)
+    console = Console(width=120, record=True)
+    console.print(rows.table("title"))
+    text = console.export_text()
+    lines = [line for line in text.splitlines() if line.startswith("│")]
+    assert [line.split("│")[1].strip() for line in lines] == ["0", "1", "2", "...", "997", "998", "999"]
+    assert "before onset" not in text and lines[0].split("│")[-2].strip() == "2"  # episode 0: alarm 2 steps after onset
+
+
+def test_run_of_more_episodes_than_its_table_shows_points_to_replay(tmp_path, capsys, monkeypatch):
+    from oodmon import cli
+
+    monkeypatch.setattr(cli._EpisodeRows.__init__, "__defaults__", (4,))
+    log = tmp_path / "short.mcap"
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--variant", "cartpole:length=0.05",
+                 "--episodes", "7", "--mcap", str(log)]) == 0
+    out = capsys.readouterr().out
+    assert f"3 episodes not shown: `oodmon replay {log} --episodes` lists every one" in out.replace("\n", "")
+    assert "of 7 episodes raised an alarm" in out
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "5"]) == 0
+    assert "1 episode not shown (--mcap logs every one)" in capsys.readouterr().out
+    split = tmp_path / "split" / "k.mcap"
+    split.parent.mkdir()
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--variant", "cartpole:length=0.05",
+                 "--episodes", "7", "--mcap", str(split), "--mcap-split-episodes", "2"]) == 0
+    assert f"`oodmon replay {split.parent} --episodes`" in capsys.readouterr().out.replace("\n", "")
+    assert main(["replay", str(split.parent), "--episodes", "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)) == 7
