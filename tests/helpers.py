@@ -84,3 +84,28 @@ class ActedOn(gymnasium.Wrapper):
         obs, reward, terminated, truncated, info = self.env.step(action)
         self.current = obs.copy()
         return obs, reward, terminated, truncated, info
+
+
+def tear_inside_episode_one(monitor, env, variant: str, folder, memory, steps: int = 40):
+    """Begin episode 1 of ``env`` (seed 1, onset 20), play ``steps`` steps that must not end it,
+    copy ``folder/run.mcap`` as a kill would leave it to ``folder/torn.mcap``, and close the
+    monitor. Returns the torn log as replay reads it (its RecoveryWarning checked: the running
+    episode kept from its ``steps`` steps on disk) and the monitor's own step records of episode 1
+    (``memory``, a MemorySink of the monitor)."""
+    import shutil
+
+    import pytest
+
+    from oodmon.replay import RecoveryWarning, read_log
+
+    obs, info = env.reset(seed=1)
+    monitor.begin_episode(env_id="oodmon/CartPole-v1", variant=variant, onset=20, seed=1)
+    for _ in range(steps):
+        obs, reward, terminated, truncated, info = env.step(monitor.step(obs, shifted=info["shifted"]))
+        monitor.add_reward(reward)
+        assert not (terminated or truncated)
+    shutil.copy(folder / "run.mcap", folder / "torn.mcap")  # the file as a kill would leave it
+    monitor.close()
+    with pytest.warns(RecoveryWarning, match=f"the running episode 1 is kept as interrupted from its {steps} steps on disk"):
+        log = read_log(folder / "torn.mcap")
+    return log, [s for s in memory.steps if s.episode == 1]

@@ -12,7 +12,13 @@ metadata, absent before 3):
 5. ``/oodmon/episode_start`` (an episode's env, variant, onset and seed, written with its first
    step), so that replay keeps the running episode of a torn file, from its step messages on
    disk, as an interrupted episode; within a long episode the writer hands its chunk of step
-   messages to the operating system every few seconds (``McapSink(flush_seconds=...)``).
+   messages to the operating system every few seconds (``McapSink(flush_seconds=...)``);
+6. an episode's arrays in segments: every ``segment_steps`` steps of a long episode (``Monitor``,
+   100,000 by default) its ``/oodmon/episode_scores`` so far are written with ``start`` (the
+   first step they hold) and dropped from memory; replay joins an episode's segments in order.
+   An episode that never ends then keeps bounded memory in the writer, and a torn log loses at
+   most its last segment's steps that had not reached the disk. An episode shorter than a
+   segment is written as in format 5 (one message, no ``start``).
 
 A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
@@ -41,7 +47,7 @@ __all__ = [
     "RUN_METADATA", "STEP", "STEP_SCHEMA", "decode_array", "encode_episode_scores",
 ]
 
-FORMAT_VERSION = 5
+FORMAT_VERSION = 6
 STEP, EPISODE, EPISODE_SCORES = "/oodmon/step", "/oodmon/episode", "/oodmon/episode_scores"
 EPISODE_START = "/oodmon/episode_start"
 ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
@@ -103,6 +109,9 @@ EPISODE_START_SCHEMA: dict[str, Any] = _object(
 EPISODE_SCORES_SCHEMA: dict[str, Any] = _object("oodmon.EpisodeScores", {
     "episode": {"type": "integer"},
     "length": {"type": "integer"},
+    "start": {"type": "integer",
+              "description": "a segment of the episode: the step its arrays start at (since format 6; absent: step 0, "
+                             "the whole episode)"},
     "score_f64": _per_step("little-endian float64"),
     "shifted_u8": _per_step("uint8"),
     "alarm_u8": _per_step("uint8"),
@@ -124,9 +133,11 @@ def decode_array(text: str, dtype: Any) -> np.ndarray:
 
 def encode_episode_scores(episode: int, scores: Sequence[float], shifted: Sequence[bool], alarm: Sequence[bool],
                           detectors: Mapping[str, Sequence[float]] | None = None,
-                          rewards: Sequence[float] | None = None) -> dict[str, Any]:
-    """The ``/oodmon/episode_scores`` message of one episode."""
-    message = {"episode": episode, "length": len(scores), "score_f64": _encode(scores, "<f8"),
+                          rewards: Sequence[float] | None = None, start: int | None = None) -> dict[str, Any]:
+    """The ``/oodmon/episode_scores`` message of one episode, or of one segment of it from step
+    ``start`` (format 6; ``None``: the whole episode, no ``start`` written)."""
+    message = {"episode": episode, "length": len(scores)} | ({} if start is None else {"start": start})
+    message |= {"score_f64": _encode(scores, "<f8"),
                "shifted_u8": _encode(shifted, np.uint8), "alarm_u8": _encode(alarm, np.uint8)}
     if detectors:
         message["detectors_f64"] = {name: _encode(values, "<f8") for name, values in detectors.items()}

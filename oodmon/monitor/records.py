@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["EpisodeRecord", "EpisodeStart", "RunInfo", "StepRecord"]
+__all__ = ["EpisodeRecord", "EpisodeSegment", "EpisodeStart", "RunInfo", "StepRecord"]
 
 
 @dataclass(frozen=True)
@@ -72,6 +72,22 @@ class EpisodeStart:
 
 
 @dataclass(frozen=True)
+class EpisodeSegment:
+    """A long episode's steps from ``start`` up to the step about to be written (or the episode's
+    end), handed on so that sinks drop what they keep of them (``Monitor(segment_steps=)``).
+
+    Attributes:
+        episode: the episode's index in the run.
+        start: the segment's first step.
+        rewards: the reward of each of its steps; ``None`` where they were not all given.
+    """
+
+    episode: int
+    start: int
+    rewards: tuple[float, ...] | None = field(default=None, repr=False)
+
+
+@dataclass(frozen=True)
 class EpisodeRecord:
     """One finished episode.
 
@@ -91,7 +107,8 @@ class EpisodeRecord:
             lost or won), not a time limit or an alarm; ``None`` where the loop did not say
             (logs older than format 4, a loop of your own).
         rewards: the reward of each step (what ``add_reward`` received), logged in the episode's
-            score arrays; ``None`` where they were not given step by step.
+            score arrays; ``None`` where they were not given step by step, or the episode was
+            longer than a segment (``Monitor(segment_steps=)``: the log holds them by segment).
     """
 
     episode: int

@@ -122,15 +122,10 @@ def _episode(path: Path, row: dict, scores: dict, alarm_detector: str = "spread"
         if not isinstance(row.get(name), kind) or isinstance(row.get(name), bool):
             raise LogFormatError(f"{path}: episode record {row.get('episode', '?')!r} has {name}={row.get(name)!r}; "
                                  "not a log oodmon wrote (or a damaged one)")
-    try:
-        arrays = (decode_array(scores["score_f64"], "<f8"),
-                  decode_array(scores["shifted_u8"], np.uint8).astype(bool),
-                  decode_array(scores["alarm_u8"], np.uint8).astype(bool))
-        detectors = {name: decode_array(text, "<f8") for name, text in scores.get("detectors_f64", {}).items()}
-        rewards = decode_array(scores["reward_f64"], "<f8") if "reward_f64" in scores else None
-    except (KeyError, TypeError, ValueError, AttributeError) as error:
-        raise LogFormatError(f"{path}: the score arrays of episode {row['episode']} are damaged ({error})") from None
-    detectors = detectors or {alarm_detector: arrays[0]}
+    decoded = _decoded(path, row["episode"], scores)
+    arrays = (decoded["score"], decoded["shifted"], decoded["alarm"])
+    rewards = decoded["rewards"]
+    detectors = decoded["detectors"] or {alarm_detector: arrays[0]}
     if any(len(a) != row["length"] for a in (*arrays, *detectors.values(), *([] if rewards is None else [rewards]))):
         raise LogFormatError(f"{path}: episode {row['episode']} has length {row['length']} but "
                              f"{len(arrays[0])} scores; the log is damaged")
@@ -149,7 +144,7 @@ class _Collector:
     def __init__(self, path: Path) -> None:
         self.path = path
         self.rows: dict[int, dict] = {}
-        self.scores: dict[int, dict] = {}
+        self.scores: dict[int, list[dict]] = {}  # an episode's score messages: one, or its segments (format 6)
         self.steps: dict[int, list[dict]] = {}
         self.starts: dict[int, dict] = {}  # format 5: where each episode ran, from its first step
 
@@ -167,7 +162,7 @@ class _Collector:
         if topic == _EPISODE:
             self.rows[row["episode"]] = row
         elif topic == _SCORES:
-            self.scores[row["episode"]] = row
+            self.scores.setdefault(row["episode"], []).append(row)
         elif topic == _STEP:
             self.steps.setdefault(row["episode"], []).append(row)
         elif topic == _START:
@@ -175,7 +170,7 @@ class _Collector:
 
     def scores_of(self, episode: int) -> dict | None:
         if episode in self.scores:
-            return self.scores[episode]
+            return _joined(self.path, episode, self.scores[episode])
         steps = self.steps.get(episode)
         if not steps or len(steps) != self.rows[episode].get("length"):
             return None
@@ -184,6 +179,50 @@ class _Collector:
         return encode_episode_scores(
             episode, [r["score"] for r in steps], [r["shifted"] for r in steps], [r["alarm"] for r in steps],
             {name: [r.get("scores", {}).get(name, float("nan")) for r in steps] for name in names})
+
+
+def _decoded(path: Path, episode: int, message: dict) -> dict:
+    """An episode-scores message's arrays, decoded (``None`` for rewards it does not hold)."""
+    try:
+        return {"score": decode_array(message["score_f64"], "<f8"),
+                "shifted": decode_array(message["shifted_u8"], np.uint8).astype(bool),
+                "alarm": decode_array(message["alarm_u8"], np.uint8).astype(bool),
+                "detectors": {name: decode_array(text, "<f8") for name, text in message.get("detectors_f64", {}).items()},
+                "rewards": decode_array(message["reward_f64"], "<f8") if "reward_f64" in message else None}
+    except (KeyError, TypeError, ValueError, AttributeError) as error:
+        raise LogFormatError(f"{path}: the score arrays of episode {episode} are damaged ({error})") from None
+
+
+def _segments(path: Path, episode: int, messages: list[dict]) -> dict:
+    """An episode's segments (format 6), decoded and joined in the order of their ``start``: the
+    arrays of the steps from 0 on. Rewards only where every segment holds them.
+
+    Raises:
+        LogFormatError: segments that do not follow one another, or that hold other detectors.
+    """
+    messages = sorted(messages, key=lambda m: m.get("start", 0) if isinstance(m.get("start", 0), int) else -1)
+    parts = [_decoded(path, episode, m) for m in messages]
+    at = 0
+    for message, part in zip(messages, parts):
+        if message.get("start", 0) != at or set(part["detectors"]) != set(parts[0]["detectors"]):
+            raise LogFormatError(f"{path}: the score segments of episode {episode} do not follow one another "
+                                 f"(one starts at step {message.get('start', 0)!r}, after {at} steps); the log is damaged")
+        at += len(part["score"])
+    rewards = None if any(p["rewards"] is None for p in parts) else np.concatenate([p["rewards"] for p in parts])
+    return {"score": np.concatenate([p["score"] for p in parts]),
+            "shifted": np.concatenate([p["shifted"] for p in parts]),
+            "alarm": np.concatenate([p["alarm"] for p in parts]),
+            "detectors": {name: np.concatenate([p["detectors"][name] for p in parts]) for name in parts[0]["detectors"]},
+            "rewards": rewards}
+
+
+def _joined(path: Path, episode: int, messages: list[dict]) -> dict:
+    """An episode's episode-scores message: the one it has, or its segments joined into one."""
+    if len(messages) == 1 and "start" not in messages[0]:
+        return messages[0]
+    joined = _segments(path, episode, messages)
+    return encode_episode_scores(episode, joined["score"], joined["shifted"], joined["alarm"], joined["detectors"],
+                                 joined["rewards"])
 
 
 def _format_version(metadata: dict[str, str] | None) -> int | None:
@@ -304,7 +343,8 @@ def _recover(path: Path) -> RunLog:
         found.add(_STEP, data)
     log = _assemble(path, metadata, found, complete=False)
     cut = [episode for k in sorted(found.starts) if k not in found.rows
-           and (episode := _cut_episode(path, found.starts[k], found.steps.get(k, []), log.detector)) is not None]
+           and (episode := _cut_episode(path, found.starts[k], found.steps.get(k, []), log.detector,
+                                        found.scores.get(k, []))) is not None]
     log.interrupted.extend(cut)
     lost = ("; no step of a running episode had reached the disk (in format 5 they do every few seconds, "
             "McapSink(flush_seconds=...))" if (_format_version(metadata) or 0) >= 5
@@ -320,29 +360,45 @@ def _recover(path: Path) -> RunLog:
     return log
 
 
-def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str) -> EpisodeLog | None:
+def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str,
+                 segments: list[dict] = ()) -> EpisodeLog | None:
     """The running episode of a torn log (format 5, whose start message says where it ran), from
-    its step messages that reached the disk, up to a gap: interrupted (so out of the metrics), its
-    return unknown (NaN: rewards come with the episode's end), its alarms the rises of the alarm
-    flag, a step's ``null`` score +inf (what it stands for). ``None`` where no step of it is on disk
-    or its start message is not one oodmon wrote."""
-    steps = sorted((r for r in steps if isinstance(r.get("step"), int)), key=lambda r: r["step"])
+    its segments' arrays on disk (format 6) and its step messages after them that reached the
+    disk, up to a gap: interrupted (so out of the metrics), its return unknown (NaN: rewards come
+    with the episode's end), its alarms the rises of the alarm flag, a step's ``null`` score +inf
+    (what it stands for). ``None`` where no step of it is on disk or its start message is not one
+    oodmon wrote."""
+    episode = start.get("episode")
+    try:
+        done = _segments(path, episode, list(segments)) if segments else None
+    except LogFormatError:
+        return None  # damaged segments: the running episode stays lost
+    first = 0 if done is None else len(done["score"])
+    steps = sorted((r for r in steps if isinstance(r.get("step"), int) and r["step"] >= first), key=lambda r: r["step"])
     length = 0
-    while length < len(steps) and steps[length]["step"] == length:  # up to a chunk that is not there
+    while length < len(steps) and steps[length]["step"] == first + length:  # up to a chunk that is not there
         length += 1
-    if not length:
+    if not first + length:
         return None
     steps = steps[:length]
 
     def numbers(values: list) -> list[float]:
         return [math.inf if v is None else float(v) for v in values]
 
-    alarm = np.array([bool(r.get("alarm")) for r in steps])
+    names = list(done["detectors"]) if done is not None else \
+        list(steps[0].get("scores") or {}) if isinstance(steps[0].get("scores"), dict) else []
+    score = numbers([r.get("score") for r in steps])
+    shifted = [bool(r.get("shifted")) for r in steps]
+    alarm = np.array([bool(r.get("alarm")) for r in steps], dtype=bool)
+    detectors = {name: numbers([(r.get("scores") or {}).get(name) for r in steps]) for name in names}
+    if done is not None:  # the segments' steps, then those after them
+        score = np.concatenate([done["score"], score])
+        shifted = np.concatenate([done["shifted"], np.array(shifted, dtype=bool)])
+        alarm = np.concatenate([done["alarm"], alarm])
+        detectors = {name: np.concatenate([done["detectors"][name], detectors[name]]) for name in names}
     rises = np.flatnonzero(alarm & ~np.concatenate([[False], alarm[:-1]]))
-    names = steps[0].get("scores") if isinstance(steps[0].get("scores"), dict) else {}
-    scores = encode_episode_scores(
-        start.get("episode"), numbers([r.get("score") for r in steps]), [bool(r.get("shifted")) for r in steps], alarm,
-        {name: numbers([(r.get("scores") or {}).get(name) for r in steps]) for name in names})
+    length = len(alarm)
+    scores = encode_episode_scores(episode, score, shifted, alarm, detectors)
     row = {**start, "return": math.nan, "length": length, "alarms": len(rises),
            "first_alarm_step": int(rises[0]) if len(rises) else None, "interrupted": True}
     try:

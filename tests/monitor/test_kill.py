@@ -248,6 +248,7 @@ def test_a_log_torn_inside_a_long_episode_keeps_its_steps_on_disk_as_an_interrup
     from oodmon.envs import parse_variant
     from oodmon.monitor import McapSink, MemorySink, Monitor
     from oodmon.replay import compute_metrics
+    from tests.helpers import tear_inside_episode_one
 
     env = parse_variant("cartpole:length=2.0").make(onset_step=20)
     memory = MemorySink()
@@ -255,19 +256,8 @@ def test_a_log_torn_inside_a_long_episode_keeps_its_steps_on_disk_as_an_interrup
                       sinks=[McapSink(tmp_path / "run.mcap", flush_seconds=0), memory]).open()
     monitor.run_episode(env, seed=0, variant="cartpole:length=2.0")
     shutil.copy(tmp_path / "run.mcap", tmp_path / "between.mcap")  # torn between two episodes
-    obs, info = env.reset(seed=1)
-    monitor.begin_episode(env_id="oodmon/CartPole-v1", variant="cartpole:length=2.0", onset=20, seed=1)
-    for _ in range(40):
-        action = monitor.step(obs, shifted=info["shifted"])
-        obs, reward, terminated, truncated, info = env.step(action)
-        monitor.add_reward(reward)
-        assert not (terminated or truncated)
-    shutil.copy(tmp_path / "run.mcap", tmp_path / "torn.mcap")  # the file as a kill would leave it
-    monitor.close()
-    with pytest.warns(RecoveryWarning, match="the running episode 1 is kept as interrupted from its 40 steps on disk"):
-        log = read_log(tmp_path / "torn.mcap")
+    log, steps = tear_inside_episode_one(monitor, env, "cartpole:length=2.0", tmp_path, memory)
     (cut,) = log.interrupted
-    steps = [s for s in memory.steps if s.episode == 1]
     assert (cut.episode, cut.length, cut.variant, cut.onset, cut.seed) == (1, 40, "cartpole:length=2.0", 20, 1)
     assert cut.scores.tolist() == [s.score for s in steps] and cut.alarm.tolist() == [s.alarm for s in steps]
     assert cut.detector_scores["spread"].tolist() == [s.scores["spread"] for s in steps]

@@ -7,7 +7,7 @@ import warnings
 from typing import Protocol
 
 from oodmon.monitor.alarms import AlarmEvent
-from oodmon.monitor.records import EpisodeRecord, EpisodeStart, RunInfo, StepRecord
+from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
 
 __all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning"]
 
@@ -16,8 +16,10 @@ class Sink(Protocol):
     """Where the monitor's records go. Every method may raise; :class:`SinkGroup` contains it.
 
     A sink may also have ``begin_episode(start: EpisodeStart)``, called with an episode's first
-    step, before it (:class:`~oodmon.monitor.sinks.mcap.McapSink` logs it); sinks without it are
-    not asked.
+    step, before it (:class:`~oodmon.monitor.sinks.mcap.McapSink` logs it), and
+    ``write_segment(segment: EpisodeSegment)``, called every ``Monitor(segment_steps=)`` steps of a
+    long episode and at its end (``McapSink`` writes the segment's arrays and drops them); sinks
+    without them are not asked.
     """
 
     def open(self, run: RunInfo) -> None: ...
@@ -97,6 +99,10 @@ class SinkGroup:
 
     def write_step(self, record: StepRecord) -> None:
         self._call("write_step", record)
+
+    def write_segment(self, segment: EpisodeSegment) -> None:
+        # optional, as begin_episode
+        self._call("write_segment", segment, sinks=[sink for sink in self.sinks if hasattr(sink, "write_segment")])
 
     def write_alarm(self, event: AlarmEvent) -> None:
         self._call("write_alarm", event)

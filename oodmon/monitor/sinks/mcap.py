@@ -41,7 +41,7 @@ from oodmon.monitor import logformat
 FOXGLOVE_LAYOUT = Path(__file__).with_name("foxglove_layout.json")
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.logformat import EPISODE_SCHEMA, EPISODE_SCORES_SCHEMA, EPISODE_START_SCHEMA, STEP_SCHEMA
-from oodmon.monitor.records import EpisodeRecord, EpisodeStart, RunInfo, StepRecord
+from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
 
 __all__ = ["EPISODE_SCHEMA", "EPISODE_SCORES_SCHEMA", "EPISODE_START_SCHEMA", "STEP_SCHEMA",
            "McapSink"]  # schemas re-exported
@@ -164,6 +164,7 @@ class McapSink:
         self._shifted: list[bool] = []
         self._alarm: list[bool] = []
         self._detector_scores: defaultdict[str, list[float]] = defaultdict(list)
+        self._segment_start = 0  # the running episode's step the arrays above start at (format 6)
 
     def _next_part_if_due(self) -> None:
         """A split run's next file, opened by the first step after the last part was finished (so
@@ -202,6 +203,20 @@ class McapSink:
             self._writer.flush()
             self._flushed = time.monotonic()
 
+    def write_segment(self, segment: EpisodeSegment) -> None:
+        """The running episode's arrays since its last segment, as an episode-scores message from
+        step ``start`` (format 6; ``Monitor(segment_steps=)``), then dropped from memory."""
+        self._next_part_if_due()
+        now = time.time_ns()
+        rewards = segment.rewards if segment.rewards is not None and len(segment.rewards) == len(self._scores) else None
+        scores = logformat.encode_episode_scores(segment.episode, self._scores, self._shifted, self._alarm,
+                                                 self._detector_scores, rewards, start=self._segment_start)
+        self._add(self._scores_channel, json.dumps(scores).encode(), now)
+        self._writer.flush()  # a segment on disk is a segment a crash does not take
+        self._flushed = time.monotonic()
+        self._segment_start += len(self._scores)
+        self._scores, self._shifted, self._alarm, self._detector_scores = [], [], [], defaultdict(list)
+
     def write_alarm(self, event: AlarmEvent) -> None:
         self._next_part_if_due()
         now = time.time_ns()
@@ -217,15 +232,21 @@ class McapSink:
         self._next_part_if_due()  # an episode of no step (cut at once) still has its record
         now = time.time_ns()
         self._writer.flush()  # closes the chunk of step messages
-        scores = logformat.encode_episode_scores(record.episode, self._scores, self._shifted, self._alarm,
-                                                 self._detector_scores, record.rewards)
         self._add(self._episode_channel, json.dumps(record.to_json()).encode(), now)
-        self._add(self._scores_channel, json.dumps(scores).encode(), now)
+        if not self._segment_start:  # the whole episode in one message, as before format 6
+            scores = logformat.encode_episode_scores(record.episode, self._scores, self._shifted, self._alarm,
+                                                     self._detector_scores, record.rewards)
+            self._add(self._scores_channel, json.dumps(scores).encode(), now)
+        elif self._scores:  # segments, and steps no segment took (the monitor hands the last one on)
+            scores = logformat.encode_episode_scores(record.episode, self._scores, self._shifted, self._alarm,
+                                                     self._detector_scores, start=self._segment_start)
+            self._add(self._scores_channel, json.dumps(scores).encode(), now)
         # A small chunk of its own, written at once: from here on the episode survives a crash,
         # and replay reads it through the index without decompressing the step messages.
         self._writer.flush()
         self._flushed = time.monotonic()
         self._scores, self._shifted, self._alarm, self._detector_scores = [], [], [], defaultdict(list)
+        self._segment_start = 0
         self._episodes_in_part += 1
         if (self.split_episodes is not None and self._episodes_in_part >= self.split_episodes
                 or self.split_mb is not None and self._file.tell() >= self.split_mb * 1e6):
