@@ -346,7 +346,7 @@ def _recover(path: Path) -> RunLog:
            and (episode := _cut_episode(path, found.starts[k], found.steps.get(k, []), log.detector,
                                         found.scores.get(k, []))) is not None]
     log.interrupted.extend(cut)
-    lost = ("; no step of a running episode had reached the disk (in format 5 they do every few seconds, "
+    lost = ("; no step of a running episode had reached the disk (since format 5 they do every few seconds, "
             "McapSink(flush_seconds=...))" if (_format_version(metadata) or 0) >= 5
             else "; a running episode at the tear is lost")
     running = lost if not cut else "".join(
