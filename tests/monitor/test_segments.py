@@ -115,3 +115,23 @@ def test_segments_that_do_not_follow_one_another_are_a_damaged_log(tmp_path):
         _segments(tmp_path, 3, [segment(0, 7), segment(8, 3)])
     with pytest.raises(InvalidParameterError, match="segment_steps=0 is not allowed"):
         Monitor(None, segment_steps=0)
+
+
+def test_a_split_log_of_segmented_episodes_replays_from_its_folder_as_one_whole_log(tmp_path):
+    # Files of one episode each (McapSink(split_episodes=1)): an episode's segments stay in its file,
+    # and the folder replays as the same episodes and metrics as one unsegmented file.
+    from oodmon.replay import read_logs
+
+    (tmp_path / "split").mkdir()
+    env = parse_variant(SPEC).make(onset_step=20)
+    with Monitor(load("cartpole", "ensemble"), threshold=3.0, segment_steps=7,
+                 sinks=[McapSink(tmp_path / "split" / "k.mcap", split_episodes=1)]) as monitor:
+        for seed in range(3):
+            monitor.run_episode(env, seed=seed, variant=SPEC)
+    _, _, whole = _run(tmp_path, "whole.mcap", 10**9)
+    parts = read_logs([tmp_path / "split"])
+    episodes = [e for log in parts for e in log.episodes]
+    assert len(parts) == 3 and [e.length for e in episodes] == [e.length for e in whole.episodes]
+    assert all(np.array_equal(a.scores, b.scores) and np.array_equal(a.rewards, b.rewards)
+               for a, b in zip(episodes, whole.episodes, strict=True))
+    assert compute_metrics(parts) == compute_metrics([whole])
