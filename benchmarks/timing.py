@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from statistics import median
 
 
 def per_call_us(call: Callable[[], object], repeats: int, rounds: int = 3) -> float:
@@ -63,10 +64,5 @@ def paired_us(call: Callable[[], object], baseline: Callable[[], object], repeat
         ours += [a1, a2]
         theirs += [b1, b2]
         ratios.append((a1 + a2) / (b1 + b2))
-
-    def median(values: list[float]) -> float:
-        values = sorted(values)
-        middle = len(values) // 2
-        return values[middle] if len(values) % 2 else (values[middle - 1] + values[middle]) / 2
 
     return median(ours) / repeats * 1e6, median(theirs) / repeats * 1e6, median(ratios)

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
+from statistics import median
 
 import gymnasium
 import torch
@@ -97,7 +98,7 @@ def task_figures(task: str, net_arch: list[int] | None = None
             fixed[f"{label}, fixed masks"] = timed(lambda: masked.estimate(obs))
             one_pass = estimator_for(modules, arch, n_samples=recipe.n_samples, masks="fixed-decisions", **bounds)
             deciding[f"{label}, fixed masks deciding"] = timed(lambda: one_pass.estimate(obs))
-    return sorted(baselines)[len(baselines) // 2], figures, full_depth, fixed, deciding
+    return median(baselines), figures, full_depth, fixed, deciding
 
 
 def main() -> None:

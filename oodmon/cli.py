@@ -7,11 +7,13 @@ print as one line on stderr with exit code 2, never as a traceback.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shlex
 import sys
 import time
 import warnings
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -800,12 +802,11 @@ def _run(args: argparse.Namespace) -> int:
     env.close()
     files = {"McapSink": _files_written(mcap), "RerunSink": args.rrd}
     written = [str(p) for name, p in files.items() if p and name not in failures]
-    log = None  # what `oodmon replay` reads to list every episode: the file, or a split log's folder
-    if mcap is not None and mcap.paths and "McapSink" not in failures:
-        log = str(mcap.paths[0].parent) if mcap.split_episodes or mcap.split_mb else args.mcap
     console.print(rows.table(f"{args.task}/{agent.method} in {label}, onset {args.onset}"
                              + (f", {threshold.rule_text}" if threshold else ", no threshold")))
-    if rows.left_out:
+    if rows.left_out:  # what `oodmon replay` reads to list every episode: the file, or a split log's folder
+        logged = mcap is not None and mcap.paths and "McapSink" not in failures
+        log = str(mcap.paths[0].parent if mcap.splits else mcap.paths[0]) if logged else None
         console.print(f"{rows.left_out} episode{'s' if rows.left_out != 1 else ''} not shown" + (
             f": `oodmon replay {log} --episodes` lists every one" if log else " (--mcap logs every one)"))
     console.print(f"{rows.alarmed} of {rows.episodes} episodes raised an alarm"
@@ -840,15 +841,11 @@ class _EpisodeRows:
     and prints a table of at most ``shown`` rows; ``oodmon replay LOG --episodes`` lists them all."""
 
     def __init__(self, shown: int = 20) -> None:
-        from collections import deque
-
         self.first: list = []
         self.last = deque(maxlen=shown - shown // 2)
         self.shown, self.episodes, self.alarmed = shown, 0, 0
 
     def add(self, record) -> None:
-        import dataclasses
-
         self.episodes += 1
         self.alarmed += record.alarms > 0
         slim = dataclasses.replace(record, rewards=None)

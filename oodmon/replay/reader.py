@@ -23,7 +23,7 @@ import numpy as np
 
 from oodmon.errors import LogFormatError
 from oodmon.monitor import logformat
-from oodmon.monitor.logformat import decode_array, encode_episode_scores
+from oodmon.monitor.logformat import decode_array
 from oodmon.monitor.records import EpisodeRecord
 
 __all__ = ["EpisodeLog", "NewerFormatWarning", "RecoveryWarning", "RunLog", "SkippedLogWarning", "read_log", "read_logs"]
@@ -117,24 +117,24 @@ _ROW_FIELDS = {"episode": int, "env_id": str, "variant": str, "onset": int, "ret
                "alarms": int}
 
 
-def _episode(path: Path, row: dict, scores: dict, alarm_detector: str = "spread") -> EpisodeLog:
+def _episode(path: Path, row: dict, arrays: dict, alarm_detector: str = "spread") -> EpisodeLog:
+    """An episode from its record and its arrays (:func:`_decoded`'s keys), both checked."""
     for name, kind in _ROW_FIELDS.items():
         if not isinstance(row.get(name), kind) or isinstance(row.get(name), bool):
             raise LogFormatError(f"{path}: episode record {row.get('episode', '?')!r} has {name}={row.get(name)!r}; "
                                  "not a log oodmon wrote (or a damaged one)")
-    decoded = _decoded(path, row["episode"], scores)
-    arrays = (decoded["score"], decoded["shifted"], decoded["alarm"])
-    rewards = decoded["rewards"]
-    detectors = decoded["detectors"] or {alarm_detector: arrays[0]}
-    if any(len(a) != row["length"] for a in (*arrays, *detectors.values(), *([] if rewards is None else [rewards]))):
+    scores, shifted, alarm, rewards = arrays["score"], arrays["shifted"], arrays["alarm"], arrays["rewards"]
+    detectors = arrays["detectors"] or {alarm_detector: scores}
+    if any(len(a) != row["length"] for a in (scores, shifted, alarm, *detectors.values(),
+                                             *([] if rewards is None else [rewards]))):
         raise LogFormatError(f"{path}: episode {row['episode']} has length {row['length']} but "
-                             f"{len(arrays[0])} scores; the log is damaged")
+                             f"{len(scores)} scores; the log is damaged")
     return EpisodeLog(
         episode=row["episode"], env_id=row["env_id"], variant=row["variant"], onset=row["onset"],
         seed=row.get("seed"), total_return=float(row["return"]), length=row["length"], alarms=row["alarms"],
         first_alarm_step=row.get("first_alarm_step"), interrupted=bool(row.get("interrupted", False)),
         terminated=row.get("terminated") if isinstance(row.get("terminated"), bool) else None,
-        scores=arrays[0], shifted=arrays[1], alarm=arrays[2], detector_scores=detectors, rewards=rewards,
+        scores=scores, shifted=shifted, alarm=alarm, detector_scores=detectors, rewards=rewards,
     )
 
 
@@ -168,17 +168,28 @@ class _Collector:
         elif topic == _START:
             self.starts[row["episode"]] = row
 
-    def scores_of(self, episode: int) -> dict | None:
+    def arrays_of(self, episode: int) -> dict | None:
+        """The episode's arrays (:func:`_decoded`'s keys): from its score message or segments, or
+        from its step messages in logs older than format 2; ``None`` where they are not all there."""
         if episode in self.scores:
-            return _joined(self.path, episode, self.scores[episode])
+            messages = self.scores[episode]
+            if len(messages) == 1 and "start" not in messages[0]:
+                return _decoded(self.path, episode, messages[0])
+            return _segments(self.path, episode, messages)
         steps = self.steps.get(episode)
         if not steps or len(steps) != self.rows[episode].get("length"):
             return None
-
         names = steps[0].get("scores", {}) if isinstance(steps[0].get("scores"), dict) else {}
-        return encode_episode_scores(
-            episode, [r["score"] for r in steps], [r["shifted"] for r in steps], [r["alarm"] for r in steps],
-            {name: [r.get("scores", {}).get(name, float("nan")) for r in steps] for name in names})
+        return _arrays([r["score"] for r in steps], [r["shifted"] for r in steps], [r["alarm"] for r in steps],
+                       {name: [r.get("scores", {}).get(name, float("nan")) for r in steps] for name in names})
+
+
+def _arrays(score, shifted, alarm, detectors: dict, rewards=None) -> dict:
+    """An episode's arrays as :func:`_decoded` gives them, from sequences of numbers and flags."""
+    return {"score": np.asarray(score, np.float64), "shifted": np.asarray(shifted, bool),
+            "alarm": np.asarray(alarm, bool),
+            "detectors": {name: np.asarray(values, np.float64) for name, values in detectors.items()},
+            "rewards": None if rewards is None else np.asarray(rewards, np.float64)}
 
 
 def _decoded(path: Path, episode: int, message: dict) -> dict:
@@ -200,7 +211,9 @@ def _segments(path: Path, episode: int, messages: list[dict]) -> dict:
     Raises:
         LogFormatError: segments that do not follow one another, or that hold other detectors.
     """
-    messages = sorted(messages, key=lambda m: m.get("start", 0) if isinstance(m.get("start", 0), int) else -1)
+    if not all(isinstance(m.get("start", 0), int) for m in messages):
+        raise LogFormatError(f"{path}: a score segment of episode {episode} has no whole start step; the log is damaged")
+    messages = sorted(messages, key=lambda m: m.get("start", 0))
     parts = [_decoded(path, episode, m) for m in messages]
     at = 0
     for message, part in zip(messages, parts):
@@ -208,21 +221,18 @@ def _segments(path: Path, episode: int, messages: list[dict]) -> dict:
             raise LogFormatError(f"{path}: the score segments of episode {episode} do not follow one another "
                                  f"(one starts at step {message.get('start', 0)!r}, after {at} steps); the log is damaged")
         at += len(part["score"])
+    return _joined(parts)
+
+
+def _joined(parts: list[dict]) -> dict:
+    """Arrays (:func:`_decoded`'s keys) of consecutive steps, one after the other; rewards only
+    where every part has them."""
     rewards = None if any(p["rewards"] is None for p in parts) else np.concatenate([p["rewards"] for p in parts])
     return {"score": np.concatenate([p["score"] for p in parts]),
             "shifted": np.concatenate([p["shifted"] for p in parts]),
             "alarm": np.concatenate([p["alarm"] for p in parts]),
             "detectors": {name: np.concatenate([p["detectors"][name] for p in parts]) for name in parts[0]["detectors"]},
             "rewards": rewards}
-
-
-def _joined(path: Path, episode: int, messages: list[dict]) -> dict:
-    """An episode's episode-scores message: the one it has, or its segments joined into one."""
-    if len(messages) == 1 and "start" not in messages[0]:
-        return messages[0]
-    joined = _segments(path, episode, messages)
-    return encode_episode_scores(episode, joined["score"], joined["shifted"], joined["alarm"], joined["detectors"],
-                                 joined["rewards"])
 
 
 def _format_version(metadata: dict[str, str] | None) -> int | None:
@@ -243,9 +253,9 @@ def _assemble(path: Path, metadata: dict[str, str] | None, found: _Collector, co
                       NewerFormatWarning, stacklevel=3)
     episodes, interrupted = [], []
     for k in sorted(found.rows):
-        scores = found.scores_of(k)
-        if scores is not None:
-            episode = _episode(path, found.rows[k], scores, metadata.get("detector", "spread"))
+        arrays = found.arrays_of(k)
+        if arrays is not None:
+            episode = _episode(path, found.rows[k], arrays, metadata.get("detector", "spread"))
             (interrupted if episode.interrupted else episodes).append(episode)
     try:
         threshold = float(metadata.get("threshold", "nan"))
@@ -387,22 +397,16 @@ def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str
 
     names = list(done["detectors"]) if done is not None else \
         list(steps[0].get("scores") or {}) if isinstance(steps[0].get("scores"), dict) else []
-    score = numbers([r.get("score") for r in steps])
-    shifted = [bool(r.get("shifted")) for r in steps]
-    alarm = np.array([bool(r.get("alarm")) for r in steps], dtype=bool)
-    detectors = {name: numbers([(r.get("scores") or {}).get(name) for r in steps]) for name in names}
-    if done is not None:  # the segments' steps, then those after them
-        score = np.concatenate([done["score"], score])
-        shifted = np.concatenate([done["shifted"], np.array(shifted, dtype=bool)])
-        alarm = np.concatenate([done["alarm"], alarm])
-        detectors = {name: np.concatenate([done["detectors"][name], detectors[name]]) for name in names}
+    after = _arrays(numbers([r.get("score") for r in steps]), [bool(r.get("shifted")) for r in steps],
+                    [bool(r.get("alarm")) for r in steps],
+                    {name: numbers([(r.get("scores") or {}).get(name) for r in steps]) for name in names})
+    arrays = after if done is None else _joined([done, after])  # the segments' steps first
+    alarm = arrays["alarm"]
     rises = np.flatnonzero(alarm & ~np.concatenate([[False], alarm[:-1]]))
-    length = len(alarm)
-    scores = encode_episode_scores(episode, score, shifted, alarm, detectors)
-    row = {**start, "return": math.nan, "length": length, "alarms": len(rises),
+    row = {**start, "return": math.nan, "length": len(alarm), "alarms": len(rises),
            "first_alarm_step": int(rises[0]) if len(rises) else None, "interrupted": True}
     try:
-        return _episode(path, row, scores, alarm_detector)  # the row's fields checked as every episode's
+        return _episode(path, row, arrays, alarm_detector)  # the row's fields checked as every episode's
     except LogFormatError:
         return None  # a start message oodmon did not write: the running episode stays lost
 

@@ -207,14 +207,19 @@ class McapSink:
         """The running episode's arrays since its last segment, as an episode-scores message from
         step ``start`` (format 6; ``Monitor(segment_steps=)``), then dropped from memory."""
         self._next_part_if_due()
-        now = time.time_ns()
         rewards = segment.rewards if segment.rewards is not None and len(segment.rewards) == len(self._scores) else None
-        scores = logformat.encode_episode_scores(segment.episode, self._scores, self._shifted, self._alarm,
-                                                 self._detector_scores, rewards, start=self._segment_start)
-        self._add(self._scores_channel, json.dumps(scores).encode(), now)
+        start = self._segment_start
+        self._segment_start += len(self._scores)
+        self._write_scores(segment.episode, rewards, start, time.time_ns())
         self._writer.flush()  # a segment on disk is a segment a crash does not take
         self._flushed = time.monotonic()
-        self._segment_start += len(self._scores)
+
+    def _write_scores(self, episode: int, rewards, start: int | None, now: int) -> None:
+        """The episode's arrays kept since its start or its last segment, as an episode-scores
+        message (from step ``start``; ``None``: the whole episode, as before format 6), then dropped."""
+        scores = logformat.encode_episode_scores(episode, self._scores, self._shifted, self._alarm,
+                                                 self._detector_scores, rewards, start=start)
+        self._add(self._scores_channel, json.dumps(scores).encode(), now)
         self._scores, self._shifted, self._alarm, self._detector_scores = [], [], [], defaultdict(list)
 
     def write_alarm(self, event: AlarmEvent) -> None:
@@ -234,18 +239,13 @@ class McapSink:
         self._writer.flush()  # closes the chunk of step messages
         self._add(self._episode_channel, json.dumps(record.to_json()).encode(), now)
         if not self._segment_start:  # the whole episode in one message, as before format 6
-            scores = logformat.encode_episode_scores(record.episode, self._scores, self._shifted, self._alarm,
-                                                     self._detector_scores, record.rewards)
-            self._add(self._scores_channel, json.dumps(scores).encode(), now)
+            self._write_scores(record.episode, record.rewards, None, now)
         elif self._scores:  # segments, and steps no segment took (the monitor hands the last one on)
-            scores = logformat.encode_episode_scores(record.episode, self._scores, self._shifted, self._alarm,
-                                                     self._detector_scores, start=self._segment_start)
-            self._add(self._scores_channel, json.dumps(scores).encode(), now)
+            self._write_scores(record.episode, None, self._segment_start, now)
         # A small chunk of its own, written at once: from here on the episode survives a crash,
         # and replay reads it through the index without decompressing the step messages.
         self._writer.flush()
         self._flushed = time.monotonic()
-        self._scores, self._shifted, self._alarm, self._detector_scores = [], [], [], defaultdict(list)
         self._segment_start = 0
         self._episodes_in_part += 1
         if (self.split_episodes is not None and self._episodes_in_part >= self.split_episodes
