@@ -2,8 +2,10 @@
 
 A finished log has an index: replay reads each episode's ``/oodmon/episode`` message and its
 ``/oodmon/episode_scores`` arrays through it, without decoding step messages. An unfinished log
-(a crashed run) has no index: replay streams it and keeps every episode whose episode message
-and scores arrived before the tear, with a warning saying how much was recovered. Only the JSON
+(a crashed run) has no index, or a torn one: replay streams it and keeps every episode whose
+episode message and scores arrived before the tear, with a warning saying how much was
+recovered; wherever the file ends. Chunks are read with their CRCs checked, so a damaged one
+ends the readable part as a tear does instead of decoding as other scores. Only the JSON
 topics replay needs are decoded; alarms (``foxglove.Log``) and frames (``foxglove.RawImage``) are
 protobuf and are skipped. An episode the run was stopped inside (``interrupted``, Ctrl-C) is kept
 apart in :attr:`RunLog.interrupted`, out of the metrics. Nothing is ever written into the input
@@ -243,7 +245,8 @@ def _format_version(metadata: dict[str, str] | None) -> int | None:
 
 def _assemble(path: Path, metadata: dict[str, str] | None, found: _Collector, complete: bool) -> RunLog:
     if metadata is None:
-        raise LogFormatError(f"{path} is an MCAP file but not an oodmon log (no oodmon.run metadata)")
+        raise LogFormatError(f"{path} is an MCAP file but not an oodmon log (no oodmon.run metadata)" + (
+            "" if complete else ", or one cut off before its run metadata reached the disk"))
     version = _format_version(metadata)
     if version is not None and version > logformat.FORMAT_VERSION:
         writer = metadata.get("version.oodmon")
@@ -293,26 +296,32 @@ def read_log(path: str | Path) -> RunLog:
     metadata = None
     with open(path, "rb") as f:
         try:
-            reader = make_reader(f)
+            reader = make_reader(f, validate_crcs=True)  # a damaged chunk fails its CRC instead of decoding as garbage
             summary = reader.get_summary()
-            if summary is None or not summary.chunk_indexes:
+            empty = summary is not None and summary.statistics is not None and summary.statistics.message_count == 0
+            if summary is None or not (summary.chunk_indexes or empty):  # (a monitor closed before any episode: empty)
                 raise McapError("no summary")
             for item in reader.iter_metadata():
                 if item.name == logformat.RUN_METADATA:
                     metadata = dict(item.metadata)
             topics = {c.topic for c in summary.channels.values()}
             if _EPISODE not in topics:
+                if metadata is not None:  # oodmon registers its channels as it opens the log: a damaged summary
+                    raise McapError(f"the summary lists no {_EPISODE} channel")
                 raise LogFormatError(f"{path} is an MCAP file but not an oodmon log (no {_EPISODE} channel)")
             # Logs since the episode_scores channel: read it alone; older ones: the step messages.
             wanted = [_EPISODE, _SCORES] if _SCORES in topics else [_EPISODE, _STEP]
             for _, channel, message in reader.iter_messages(topics=wanted):
                 found.add(channel.topic, message.data)
-            return _assemble(path, metadata, found, complete=True)
         except LogFormatError:
             raise
-        except (McapError, ValueError, EOFError, KeyError):
-            pass
-    return _recover(path)
+        except Exception:  # noqa: BLE001
+            # No index, or a torn or damaged one: the mcap library then raises McapError, EOFError,
+            # ValueError, OSError (a seek to a footer's bad offset), struct.error (a record cut
+            # short) or zstandard's error (a damaged chunk), depending on where the file ends.
+            # Streaming it keeps what is readable.
+            found = None
+    return _recover(path) if found is None else _assemble(path, metadata, found, complete=True)
 
 
 def _recover(path: Path) -> RunLog:
@@ -331,7 +340,7 @@ def _recover(path: Path) -> RunLog:
     has_scores = False  # the file has an episode scores channel
     with open(path, "rb") as f:
         try:
-            for record in StreamReader(f, skip_magic=False).records:
+            for record in StreamReader(f, skip_magic=False, validate_crcs=True).records:
                 if isinstance(record, Channel):
                     channels[record.id] = record.topic
                     has_scores = has_scores or record.topic == _SCORES
