@@ -64,6 +64,7 @@ def files(tmp_path_factory) -> Path:
         "base-high.json": json.dumps({"metrics": {"k": {"auroc": "high"}}}),
         "base-unknown.json": json.dumps({"metrics": {"k": {"speed": 1.0}}}),
         "base-tolerance.json": json.dumps({"tolerance": "x", "metrics": {}}),
+        "bench-row-without-method.json": json.dumps({"config": {}, "rows": [{"variant": "cartpole:length=2.0", "mean": 0.9}]}),
         "base-list.json": "[1, 2]",
         "not-a-log.mcap": "hello",
     }
@@ -156,6 +157,9 @@ CASES = [
      ["missing.json", "does not exist"]),
     ("bench-baseline-not-a-result", ["bench", "--task", "cartpole", "--out", "{d}/b", "--baseline", "{d}/thr.json"], {},
      ["thr.json", "not an oodmon bench result"]),
+    ("bench-baseline-row-without-method", ["bench", "--task", "cartpole", "--out", "{d}/b", "--baseline",
+                                           "{d}/bench-row-without-method.json"], {},
+     ["bench-row-without-method.json", "an entry of its 'rows' lacks method, variant"]),
     ("bench-tolerance-negative", ["bench", "--task", "cartpole", "--baseline", "{d}/thr.json", "--tolerance", "-1"], {},
      ["--tolerance", "-1"]),
     ("bench-results-parent-is-a-file", ["bench", "--task", "cartpole", "--out", "{d}/b", "--results", "{d}/a-file/r.json"],

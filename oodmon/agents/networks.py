@@ -86,7 +86,16 @@ class Architecture:
         if unknown or missing:
             raise ModelFormatError(f"not an architecture record: {'unknown ' + ', '.join(unknown) if unknown else ''}"
                                    f"{'; ' if unknown and missing else ''}{'missing ' + ', '.join(missing) if missing else ''}")
-        return cls(**value)
+        try:
+            arch = cls(**value)
+        except (TypeError, ValueError) as error:  # a width or shape that is not a whole number
+            raise ModelFormatError(f"not an architecture record ({error})") from None
+        if arch.algorithm not in ("dqn", "ddpg"):
+            raise ModelFormatError(f"not an architecture record: algorithm {arch.algorithm!r}, not dqn or ddpg")
+        if arch.stochastic is not None and arch.stochastic not in STOCHASTIC_LAYERS:
+            raise ModelFormatError(f"not an architecture record: stochastic layer {arch.stochastic!r}, not "
+                                   f"{' or '.join(STOCHASTIC_LAYERS)}")
+        return arch
 
     def to_json(self) -> dict[str, Any]:
         """The record as a model's metadata stores it (lists, not tuples)."""

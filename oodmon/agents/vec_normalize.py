@@ -32,6 +32,7 @@ import hashlib
 import io
 import json
 import pickle  # restricted below: find_class allows numpy's array constructors and OrderedDict only
+import pickletools
 import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -254,10 +255,14 @@ def load_vec_normalize(path: str | Path) -> ObservationNormalizer:
                           "VecNormalize.save() wrote, e.g. vecnormalize.pkl")
     data = path.read_bytes()
     try:
+        # Walked first without building anything: a damaged length (a flipped bit) is then an
+        # error here, where the unpickler would allocate the bytes it names before reading them.
+        for _ in pickletools.genops(data):
+            pass
         unpickler = _StatisticsUnpickler(io.BytesIO(data))
         root = unpickler.load()
     except Exception as error:  # noqa: BLE001  (a damaged or foreign file fails in many ways; none runs code)
-        reason = " ".join(str(error).split())  # pickle's messages run over several lines
+        reason = " ".join(str(error).split()) or type(error).__name__  # pickle's messages run over several lines
         raise ConfigError(f"--vec-normalize {path} is not a VecNormalize statistics file ({reason})") from None
     if not isinstance(root, _Record) or not isinstance(root.state, dict):
         raise ConfigError(f"--vec-normalize {path} is not a VecNormalize statistics file (VecNormalize.save() writes "

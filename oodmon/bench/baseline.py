@@ -39,6 +39,11 @@ def load_bench_result(path: str | Path) -> dict:
     if not isinstance(data, dict) or not isinstance(data.get("rows"), list) or not isinstance(data.get("config"), dict):
         raise ConfigError(f"{path} is not an oodmon bench result: it needs 'config' and 'rows' (`oodmon bench --json` "
                           "writes them; results from before the bench recorded its config need one run again)")
+    for what, needed in (("rows", ("method", "variant")), ("alarms", ("method", "variant"))):
+        entries = data.get(what, [])
+        if not isinstance(entries, list) or not all(isinstance(e, dict) and all(k in e for k in needed) for e in entries):
+            raise ConfigError(f"{path}: an entry of its {what!r} lacks {', '.join(needed)}: not a bench result as "
+                              "`oodmon bench --json` writes it (or a damaged one)")
     return data
 
 
@@ -47,7 +52,7 @@ def bench_metrics(result: dict) -> dict[str, dict[str, float | None]]:
     metrics: dict[str, dict[str, float | None]] = {}
     for row in result["rows"]:
         key = f"{row['method']}/{row['variant']}/{row.get('detector', 'spread')}"
-        metrics[key] = {"auroc": row["mean"], "aupr": row.get("aupr_mean"), "fpr_at_95_tpr": row.get("fpr95_mean")}
+        metrics[key] = {"auroc": row.get("mean"), "aupr": row.get("aupr_mean"), "fpr_at_95_tpr": row.get("fpr95_mean")}
     for alarm in result.get("alarms", []):
         key = f"alarms/{alarm['method']}/{alarm['variant']}"
         metrics[key] = {name: alarm.get(name) for name in ("false_alarm_rate", "before_failure_rate", "delay_median")}

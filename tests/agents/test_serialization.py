@@ -125,6 +125,20 @@ def test_an_architecture_record_with_unknown_or_missing_fields_is_refused(saved)
         load_agent(path)
 
 
+@pytest.mark.parametrize("field, value, words", [
+    ("stochastic", "dropnut", "stochastic layer 'dropnut', not dropout or dropconnect"),  # a flipped bit, found by fuzzing
+    ("algorithm", "dqm", "algorithm 'dqm', not dqn or ddpg"),  # was built as a DDPG head, silently
+    ("net_arch", ["64a"], "invalid literal for int"),
+])
+def test_an_architecture_record_with_a_damaged_value_is_refused(saved, field, value, words):
+    path, _ = saved
+    metadata = json.loads((path / "model.json").read_text())
+    metadata["architecture"][field] = value
+    (path / "model.json").write_text(json.dumps(metadata))
+    with pytest.raises(ModelFormatError, match=rf"model.json: not an architecture record.*{words}"):
+        load_agent(path)
+
+
 def test_missing_directory_and_unknown_shipped_name(tmp_path):
     with pytest.raises(ModelFormatError, match="does not exist: a model directory holds model.json"):
         load_agent(tmp_path / "nothing")

@@ -128,6 +128,41 @@ def test_a_statistics_file_that_would_run_code_is_refused_unrun(payload, normali
     assert not marker.exists()
 
 
+def test_a_damaged_statistics_file_is_refused_in_one_line_wherever_it_is_damaged(normalised_ppo, tmp_path):
+    """Cut at every 7th byte or with one of 300 bits flipped (seeded), the file either still reads
+    (a flipped digit of a number: its sha256 then binds thresholds to the damaged one) or is refused
+    with a ConfigError naming it; nothing else is raised. Before 2026-11-27 a flipped length made the
+    unpickler allocate what it named first: MemoryError, and a message of its empty text "()"."""
+    import random
+
+    raw = (normalised_ppo[0] / "vecnormalize.pkl").read_bytes()
+    damaged = tmp_path / "damaged.pkl"
+    rng = random.Random(0)
+    cases = [raw[:cut] for cut in range(0, len(raw), 7)]
+    for _ in range(300):
+        data = bytearray(raw)
+        data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
+        cases.append(bytes(data))
+    refused = 0
+    for data in cases:
+        damaged.write_bytes(data)
+        try:
+            load_vec_normalize(damaged)
+        except ConfigError as error:
+            assert str(error).startswith(f"--vec-normalize {damaged}") and not str(error).endswith("()"), error
+            refused += 1
+    assert refused >= len(cases) // 2  # every cut but the whole file's, and most flips (measured: 2,328 of 2,912)
+    # An opcode damaged into BYTEARRAY8 reads the next 8 bytes as a length: named, not allocated.
+    import pickletools
+
+    position = next(pos for op, _, pos in pickletools.genops(raw) if op.name == "SHORT_BINBYTES")
+    data = bytearray(raw)
+    data[position] = 0x96  # BYTEARRAY8
+    damaged.write_bytes(bytes(data))
+    with pytest.raises(ConfigError, match=r"expected \d+ bytes in a bytearray8, but only \d+ remain"):
+        load_vec_normalize(damaged)
+
+
 def test_models_in_memory_use_the_vecnormalize_they_were_trained_in(normalised_ppo):
     _, model, venv = normalised_ppo
     obs = np.random.default_rng(1).normal(size=(20, 4)).astype(np.float32)

@@ -331,6 +331,14 @@ def test_a_damaged_or_foreign_detectors_file_is_refused(fitted, tmp_path):
     (tmp_path / "foreign" / "detectors.safetensors").write_bytes(b"")
     with pytest.raises(ConfigError, match="not a detectors file"):
         DetectorSet.load(tmp_path / "foreign")
+    # A setting's name damaged in detectors.json (a flipped bit, found by fuzzing; was a KeyError).
+    folder = fitted.save(tmp_path / "det2")
+    meta = json.loads((folder / "detectors.json").read_text())
+    entry = next(e for e in meta["detectors"] if e["name"] == "combined")
+    entry["config"]["memberz"] = entry["config"].pop("members")
+    (folder / "detectors.json").write_text(json.dumps(meta))
+    with pytest.raises(ConfigError, match=r"the combined detector's settings are not valid \(KeyError: 'members'\)"):
+        DetectorSet.load(folder)
 
 
 # -- clear errors -----------------------------------------------------------------------------------

@@ -211,6 +211,9 @@ class DetectorSet:
             own = {k[len(prefix):]: v for k, v in tensors.items() if k.startswith(prefix)}
             try:
                 detectors.append(DETECTORS[name].from_state(entry.get("config", {}), own))
-            except TypeError as error:
-                raise ConfigError(f"{meta_path}: the {name} detector's settings are not valid ({error})") from None
+            except ConfigError:
+                raise
+            except (TypeError, KeyError, ValueError, AttributeError) as error:  # a setting missing, misnamed or mistyped
+                raise ConfigError(f"{meta_path}: the {name} detector's settings are not valid "
+                                  f"({type(error).__name__}: {error})") from None
         return cls(detectors, fitted_for=meta.get("fitted_for", {}))
