@@ -118,6 +118,10 @@ class ImpulseNoise(Corruption):
         return out
 
 
+#: The longest motion blur, in pixels: the diagonal of Pong's 210x160 frame, rounded up.
+MAX_BLUR_RADIUS = math.ceil(math.hypot(210, 160))
+
+
 @dataclass(frozen=True)
 class MotionBlur(Corruption):
     """Motion blur: a one-sided gaussian kernel along a random direction.
@@ -128,7 +132,7 @@ class MotionBlur(Corruption):
     one OpenCV filter instead of a sum of shifted copies.
 
     Args:
-        radius: kernel radius in pixels, an integer >= 1.
+        radius: kernel radius in pixels, an integer from 1 to :data:`MAX_BLUR_RADIUS` (265).
         sigma: the kernel's gaussian standard deviation in pixels.
         Severities 1..5 are (10, 3), (15, 5), (15, 8), (15, 12), (20, 15).
     """
@@ -142,6 +146,11 @@ class MotionBlur(Corruption):
         if radius != int(radius):
             raise InvalidParameterError(
                 f"{self.name}: radius={self.radius!r} is not allowed; radius must be a whole number of pixels >= 1"
+            )
+        if radius > MAX_BLUR_RADIUS:  # (radius=100000 tried to allocate a kernel of 596 GiB)
+            raise InvalidParameterError(
+                f"{self.name}: radius={self.radius!r} is not allowed; radius must be at most {MAX_BLUR_RADIUS} pixels, "
+                "the diagonal of Pong's 210x160 frame (a longer blur's taps only repeat the border)"
             )
         object.__setattr__(self, "radius", int(radius))
         object.__setattr__(self, "sigma", positive_number(self.name, "sigma", self.sigma))

@@ -181,3 +181,7 @@ def test_bad_corruption_input_is_named():
         make_corruption("gaussian_noise", sigma=-0.1)
     with pytest.raises(InvalidParameterError, match="radius must be a whole number of pixels"):
         make_corruption("motion_blur", radius=2.5, sigma=1)
+    # A blur longer than the frame's diagonal: refused (radius=100000 tried to allocate 596 GiB).
+    with pytest.raises(InvalidParameterError, match="radius must be at most 265 pixels"):
+        make_corruption("motion_blur", radius=100000, sigma=1)
+    assert make_corruption("motion_blur", radius=265, sigma=1).radius == 265
