@@ -808,7 +808,9 @@ def _run(args: argparse.Namespace) -> int:
         logged = mcap is not None and mcap.paths and "McapSink" not in failures
         log = str(mcap.paths[0].parent if mcap.splits else mcap.paths[0]) if logged else None
         console.print(f"{rows.left_out} episode{'s' if rows.left_out != 1 else ''} not shown" + (
-            f": `oodmon replay {log} --episodes` lists every one" if log else " (--mcap logs every one)"))
+            f": `oodmon replay {log} --episodes` lists every one" if log else " (--mcap logs every one)" if mcap is None
+            else f": the MCAP log lacks some (its sink failed), `oodmon replay {mcap.paths[0] if mcap.paths else args.mcap} "
+                 "--episodes` lists those it holds"))
     console.print(f"{rows.alarmed} of {rows.episodes} episodes raised an alarm"
                   + (f"; written to {', '.join(written)}" if written else ""))
     if failures:

@@ -409,3 +409,23 @@ def test_run_of_more_episodes_than_its_table_shows_points_to_replay(tmp_path, ca
     assert f"`oodmon replay {split.parent} --episodes`" in capsys.readouterr().out.replace("\n", "")
     assert main(["replay", str(split.parent), "--episodes", "--json"]) == 0
     assert len(json.loads(capsys.readouterr().out)) == 7
+    # A log whose sink failed (a full disk, here faked from the fourth episode on) is not said to hold
+    # every episode: replay lists those it holds.
+    from oodmon.monitor import McapSink
+
+    end_episode = McapSink.end_episode
+
+    def full_disk(self, record):
+        if record.episode >= 3:
+            raise OSError(28, "No space left on device")
+        return end_episode(self, record)
+
+    monkeypatch.setattr(McapSink, "end_episode", full_disk)
+    partial = tmp_path / "partial.mcap"
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--variant", "cartpole:length=0.05",
+                 "--episodes", "7", "--mcap", str(partial)]) == 0
+    out = capsys.readouterr().out.replace("\n", "")
+    assert f"3 episodes not shown: the MCAP log lacks some (its sink failed), `oodmon replay {partial} --episodes` " \
+           "lists those it holds" in out and "sink failures: {'McapSink': 4}" in out
+    assert main(["replay", str(partial), "--episodes", "--json"]) == 0
+    assert [row["episode"] for row in json.loads(capsys.readouterr().out)] == [0, 1, 2]
