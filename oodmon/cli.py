@@ -22,6 +22,7 @@ from rich.console import Console
 from rich.table import Table
 
 from oodmon.errors import ConfigError, InvalidParameterError, OodmonError
+from oodmon.jsonfile import write_json
 from oodmon.names import MASKS, METHODS, TASKS
 from oodmon.progress import unit_of
 from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -798,7 +799,7 @@ def _run(args: argparse.Namespace) -> int:
             progress.reset(decisions, total=None, description=f"episode {episode}: decisions")
             rows.add(monitor.run_episode(env, seed=args.seed + episode, on_progress=count))
             progress.update(bar, advance=1)
-        failures = dict(monitor.sinks.failures)
+    failures = dict(monitor.sinks.failures)  # after the sinks closed: a file that could not be finished counts
     env.close()
     files = {"McapSink": _files_written(mcap), "RerunSink": args.rrd}
     written = [str(p) for name, p in files.items() if p and name not in failures]
@@ -995,7 +996,7 @@ def _check(args: argparse.Namespace) -> int:
     console = Console(soft_wrap=True)
     if args.update:
         tolerance = 0.02 if args.tolerance is None else args.tolerance
-        Path(args.baseline).write_text(json.dumps(baseline_of(metrics, tolerance), indent=1) + "\n")
+        write_json(args.baseline, baseline_of(metrics, tolerance))
         console.print(f"wrote {args.baseline}: {len(metrics)} rows, tolerance {tolerance}")
         return 0
     falls = find_falls(metrics, baseline, args.tolerance)
@@ -1060,7 +1061,7 @@ def _bench(args: argparse.Namespace) -> int:
         result = run_bench(config, on_progress=report)
     data = result.to_json(config, command=_command_line(args))
     if args.results:
-        Path(args.results).write_text(json.dumps(data, indent=1) + "\n")
+        write_json(args.results, data)
         print(f"wrote {args.results}", file=sys.stderr)
     if args.json:
         print(json.dumps(data, indent=1))

@@ -38,10 +38,20 @@ def read_json(path: str | Path, *, name: str = "", missing: str = "", folder: st
         raise error(f"{label} is not valid JSON ({reason})") from None
 
 
-def write_json(path: str | Path, data: Any) -> None:
-    """``data`` as JSON at ``path``, whole or not at all: written beside it, then moved over it, so a
-    process killed mid-write leaves the old file or none, never half of one."""
+def write_json(path: str | Path, data: Any, *, sort_keys: bool = False) -> None:
+    """``data`` as JSON at ``path`` (indented, a newline at its end), whole or not at all: written
+    beside it, then moved over it, so a process killed mid-write, or a full disk, leaves the old file
+    or none, never half of one.
+
+    Raises:
+        OSError: the file cannot be written; its message names ``path`` (a full disk's ``write()``
+            error names no file), and nothing is left beside it.
+    """
     path = Path(path)
     temporary = path.with_suffix(path.suffix + ".part")
-    temporary.write_text(json.dumps(data, indent=1))
-    os.replace(temporary, path)
+    try:
+        temporary.write_text(json.dumps(data, indent=1, sort_keys=sort_keys) + "\n")
+        os.replace(temporary, path)
+    except OSError as error:
+        temporary.unlink(missing_ok=True)
+        raise OSError(error.errno, error.strerror or str(error), str(path)) from None

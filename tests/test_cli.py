@@ -429,3 +429,22 @@ def test_run_of_more_episodes_than_its_table_shows_points_to_replay(tmp_path, ca
            "lists those it holds" in out and "sink failures: {'McapSink': 4}" in out
     assert main(["replay", str(partial), "--episodes", "--json"]) == 0
     assert [row["episode"] for row in json.loads(capsys.readouterr().out)] == [0, 1, 2]
+
+
+def test_run_does_not_say_it_wrote_a_rerun_file_that_could_not_be_finished(tmp_path, capsys, monkeypatch):
+    # On a full disk Rerun fails as its file is finished (measured on a 100 KB tmpfs: "File-writer
+    # thread shut down prematurely" from RerunSink.close); the closing line named the file as written.
+    from oodmon.monitor import RerunSink
+
+    close = RerunSink.close
+
+    def failing_close(self):
+        close(self)
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(RerunSink, "close", failing_close)
+    rrd, mcap = tmp_path / "run.rrd", tmp_path / "run.mcap"
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "1", "--rrd", str(rrd),
+                 "--mcap", str(mcap)]) == 0
+    out = capsys.readouterr().out.replace("\n", "")
+    assert f"written to {mcap}" in out and str(rrd) not in out.split("written to")[1] and "{'RerunSink': 1}" in out

@@ -26,6 +26,7 @@ from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.recipes import Recipe, recipe_differences, recipe_record
 from oodmon.envs.grid import Variant
 from oodmon.errors import ConfigError
+from oodmon.jsonfile import write_json
 from oodmon.progress import Progress
 
 __all__ = ["Run"]
@@ -259,7 +260,7 @@ class Run:
             steps=int(model.num_timesteps), finished=finished,
             wall_time_s=round(self._wall_before + time.monotonic() - self._started, 1),
         )
-        self.state_path.write_text(json.dumps(self.state, indent=1))
+        write_json(self.state_path, self.state)  # whole: a kill mid-write would leave a state the resume cannot read
 
     def evaluate(self, model: BaseAlgorithm, steps: int) -> float:
         """Log the greedy policy's mean return; keep the weights of the best evaluation so far; return

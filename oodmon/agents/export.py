@@ -21,6 +21,7 @@ from oodmon.agents.recipes import Recipe, recipe_differences, recipe_metadata
 from oodmon.agents.serialization import save_modules
 from oodmon.envs.grid import Variant
 from oodmon.hashing import file_sha256
+from oodmon.jsonfile import write_json
 from oodmon.progress import Progress
 from oodmon.versions import library_versions
 
@@ -89,7 +90,7 @@ def select_snapshot(run: Run, model: BaseAlgorithm, arch: Architecture, seed: in
         candidate["selection_return_mean"] = round(float(np.mean(returns)), 2)
         cache[candidate["sha256"]] = {"steps": candidate["steps"], **setting,
                                       "selection_return_mean": candidate["selection_return_mean"]}
-        cache_path.write_text(json.dumps(cache, indent=1))  # after each candidate: a kill loses one at most
+        write_json(cache_path, cache)  # after each candidate: a kill loses one at most
     chosen = max(candidates, key=lambda c: c["selection_return_mean"])  # first of equals: the better evaluated
     model.policy.load_state_dict(load_file(str(chosen["path"])), strict=False)
     described = [{k: v for k, v in c.items() if k not in ("path", "sha256")} for c in candidates]

@@ -10,7 +10,6 @@ describes gives a :class:`~oodmon.errors.ModelFormatError` saying which and what
 from __future__ import annotations
 
 import hashlib
-import json
 import warnings
 from pathlib import Path
 from typing import Any
@@ -21,8 +20,8 @@ from safetensors.torch import load, save_file
 
 from oodmon.agents.networks import build_modules
 from oodmon.errors import ModelFormatError
-from oodmon.jsonfile import read_json
 from oodmon.hashing import file_sha256
+from oodmon.jsonfile import read_json, write_json
 
 __all__ = ["FORMAT_VERSION", "load_modules", "read_metadata", "save_modules"]
 
@@ -46,7 +45,7 @@ def save_modules(directory: str | Path, modules: torch.nn.Module, metadata: dict
     save_file(tensors, str(directory / "model.safetensors"))
     metadata = {"format_version": FORMAT_VERSION, **metadata, "dtype": "float16" if half else "float32",
                 "safetensors_sha256": file_sha256(directory / "model.safetensors")}
-    (directory / "model.json").write_text(json.dumps(metadata, indent=1, sort_keys=True) + "\n")
+    write_json(directory / "model.json", metadata, sort_keys=True)
     return directory
 
 

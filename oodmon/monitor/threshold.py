@@ -29,7 +29,6 @@ the paper, which scores steps.
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from collections.abc import Sequence
@@ -40,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.jsonfile import read_json
+from oodmon.jsonfile import read_json, write_json
 from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, check_consecutive, check_window, episode_statistic, rule_text
 from oodmon.monitor.sequential import RULES, Reference
 from oodmon.names import MASKS
@@ -212,7 +211,7 @@ class Threshold:
         """Write the threshold file (JSON)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+        write_json(path, self.to_dict())
         return path
 
     @classmethod

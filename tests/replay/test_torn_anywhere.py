@@ -22,7 +22,7 @@ from oodmon.monitor import McapSink, Monitor
 from oodmon.replay import RecoveryWarning, read_log
 
 SPEC = "cartpole:length=2.0"
-STRIDE = 5  # every fifth cut past the header (every cut would take 11 s)
+STRIDE = 7  # every seventh cut past the header (every cut would take 11 s)
 FLIPS = 300
 
 

@@ -8,7 +8,6 @@ the policy's weights) and the sha256 of the tensor file, checked at load. Nothin
 from __future__ import annotations
 
 import hashlib
-import json
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -16,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from oodmon.errors import ConfigError
-from oodmon.jsonfile import read_json
+from oodmon.jsonfile import read_json, write_json
 from oodmon.monitor.detectors.base import Detector, StepContext
 from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector
@@ -170,7 +169,7 @@ class DetectorSet:
         digest = file_sha256(directory / "detectors.safetensors")
         meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "fitted_for": self.fitted_for,
                 "detectors": [{"name": d.name, "config": d.config()} for d in self], "safetensors_sha256": digest}
-        (directory / "detectors.json").write_text(json.dumps(meta, indent=1) + "\n")
+        write_json(directory / "detectors.json", meta)
         return directory
 
     @classmethod
