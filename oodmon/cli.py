@@ -35,7 +35,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI with ``argv`` (default: ``sys.argv[1:]``); return the exit code.
 
     Exit codes: 0 done, 1 a regression check found a fall, 2 input that cannot be used (one line
-    on stderr), 130 interrupted (Ctrl-C; the logs keep every finished episode).
+    on stderr), 130 interrupted (Ctrl-C; the logs keep every finished episode), 143 stopped by
+    SIGTERM (a service manager's stop, ``kill``), which is taken as Ctrl-C is.
     """
     parser = _parser()
     words = list(sys.argv[1:] if argv is None else argv)
@@ -53,14 +54,52 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.showwarning = _show_warning
         try:
             _limit_torch_threads()
-            return args.handler(args) or 0
+            with _sigterm_as_interrupt():
+                return args.handler(args) or 0
         except (OodmonError, OSError) as error:
             print(f"oodmon: error: {error}", file=sys.stderr)
             return 2
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as interrupt:
             kept = getattr(args, "kept_on_interrupt", None)
-            print("oodmon: interrupted" + (f"; {kept}" if kept else ""), file=sys.stderr)
-            return 130
+            stopped = isinstance(interrupt, _Terminated)
+            print(("oodmon: stopped by SIGTERM" if stopped else "oodmon: interrupted") + (f"; {kept}" if kept else ""),
+                  file=sys.stderr)
+            return 143 if stopped else 130
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the command is, so that it ends as Ctrl-C ends it: the monitor logs the
+    cut episode as interrupted and the logs are finished (without this, Python dies at once and a
+    run's MCAP log is torn: its running episode lost, measured)."""
+
+
+@contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """While a command runs, SIGTERM raises :class:`_Terminated` in its process (once: a second one
+    is ignored while the command cleans up). Processes forked from it (the bench's workers) are
+    stopped by SIGTERM as usual. Only in the main thread, where Python runs signal handlers."""
+    import os
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    own = os.getpid()
+
+    def stop(signum, frame) -> None:
+        if os.getpid() != own:  # a forked worker: die as it would have
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+            return
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise _Terminated
+
+    before = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)
 
 
 #: What Ctrl-C leaves behind, said by the commands that write as they go or only at their end.

@@ -172,6 +172,40 @@ def test_ctrl_c_in_oodmon_run_exits_130_and_marks_the_cut_episode(tmp_path, monk
     assert log.interrupted[0].length == 199
 
 
+def test_sigterm_stops_oodmon_run_as_ctrl_c_does_and_exits_143(tmp_path, monkeypatch, capsys):
+    """A service manager stops a process with SIGTERM. Python's default dies at once: the run's log was
+    torn and its running episode lost (measured: `oodmon run --episodes 1000 --mcap`, SIGTERM after
+    12 s, replayed 89 episodes with a recovery warning). oodmon takes it as Ctrl-C: the log is
+    finished, the cut episode marked interrupted; a second SIGTERM during that is ignored, and the
+    handler before the command is back after it."""
+    import os
+    import signal
+
+    from oodmon.cli import main
+    from oodmon.monitor import Monitor
+
+    step = Monitor.step
+    calls = [0]
+
+    def terminated_at_step_700(self, *args, **kwargs):
+        calls[0] += 1
+        if calls[0] == 700:
+            os.kill(os.getpid(), signal.SIGTERM)
+            os.kill(os.getpid(), signal.SIGTERM)  # the second: ignored while the command cleans up
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(Monitor, "step", terminated_at_step_700)
+    before = signal.getsignal(signal.SIGTERM)
+    code = main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "5", "--mcap",
+                 str(tmp_path / "cut.mcap")])
+    assert signal.getsignal(signal.SIGTERM) == before
+    assert code == 143 and capsys.readouterr().err.strip().splitlines() == [
+        "oodmon: stopped by SIGTERM; every finished episode is in the logs, the cut one is marked interrupted"]
+    log = read_log(tmp_path / "cut.mcap")
+    assert log.complete and [e.length for e in log.episodes] == [500] and len(log.interrupted) == 1
+    assert log.interrupted[0].length == 199  # the handler runs as os.kill returns: step 700 is not taken
+
+
 def test_ctrl_c_says_what_each_command_leaves_behind(tmp_path, monkeypatch, capsys):
     """Ctrl-C in `oodmon calibrate` said "every finished episode is in the logs", `oodmon run`'s
     words, though calibrate writes no log and no threshold until it ends; now each command says
