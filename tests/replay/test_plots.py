@@ -164,3 +164,23 @@ def test_the_alarm_timeline_marks_each_episodes_first_alarm_early_alarm_and_fail
     assert "70 episodes alarmed (the first 60 drawn)" in ax.get_title()
     assert len(next(c for c in ax.collections if c.get_label() == "failure").get_offsets()) == 60
     assert plots.plot_alarm_timeline({"cartpole:length=2.0": []}, "t", tmp_path / "c.png") is None
+
+
+def test_infinite_scores_are_marked_at_the_top_of_the_trace_not_left_out(tmp_path, monkeypatch):
+    """A failed sensor's NaN observation scores +inf (the most shifted). The trace's line stopped at
+    the last finite score, and the episode seemed to end there; the steps are now marked at the top."""
+    import numpy as np
+
+    from oodmon.replay import RunLog
+    from oodmon.replay import plots
+
+    scores = np.r_[np.full(30, 3.5), np.linspace(3.5, 18.0, 20), np.full(10, np.inf)]
+    logs = [RunLog(Path("x.mcap"), "cartpole", "ensemble", 3.0, {}, [_episode(np.full(60, 3.5), None),
+                                                                   _episode(scores, 10)], True)]
+    drawn = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
+    plots.plot_trace(logs, "ensemble", "cartpole:length=2.0", tmp_path / "trace.png")
+    id_axis, shifted_axis = drawn[0].axes
+    marked = [c for c in shifted_axis.collections if c.get_label() == "score +inf (at the top)"]
+    assert len(marked) == 1 and marked[0].get_offsets()[:, 0].tolist() == list(range(50, 60))
+    assert not [c for c in id_axis.collections if "inf" in str(c.get_label())]
