@@ -366,3 +366,18 @@ def test_shifted_episodes_splits_a_rows_auroc_at_the_episodes_the_agent_survives
     results.write_text(json.dumps({"config": pendulum, "rows": [row]}))
     with pytest.raises(SystemExit, match="CartPole benches"):
         script.main([str(results), "--out", config.out])
+
+
+def test_fuzz_readers_counts_what_each_reader_answers_and_names_what_is_not_oodmons(monkeypatch, tmp_path, capsys):
+    script = _load(monkeypatch, tmp_path, "fuzz_readers")[0]
+    make, read = script._readers()["threshold"]
+    (tmp_path / "t").mkdir()
+    files = make(tmp_path / "t")
+    assert script.fuzz("threshold", files, read, cuts=40, flips=30) == []
+    out = capsys.readouterr().out
+    size = files["threshold.json"].stat().st_size
+    copies = len(range(0, size, size // 40)) + 30  # about 40 cuts, 30 flips
+    assert out.startswith(f"threshold: {copies} damaged copies of threshold.json: ") and "refused (ConfigError)" in out
+    # A reader that fails with another error is reported with the damage that made it fail.
+    broken = script.fuzz("broken", files, lambda folder: int("x"), cuts=2, flips=1)
+    assert len(broken) == len(range(0, size, size // 2)) + 1 and broken[0].startswith("broken: threshold.json, cut at 0: ValueError: invalid literal")

@@ -1,0 +1,180 @@
+"""Damage each kind of file oodmon reads, and see that its reader answers with oodmon's own errors.
+
+Run (a minute or two; one core):
+    .venv/bin/python scripts/fuzz_readers.py                 # every reader
+    .venv/bin/python scripts/fuzz_readers.py --only log,vecnorm --flips 1000
+
+A killed run's log ends at whatever byte reached the disk, a copied model may be cut short, a disk
+may flip a bit. For each reader this cuts its file(s) at evenly spaced offsets (about ``--cuts``
+of them per file, every byte of a small file) and flips one random bit ``--flips`` times per file
+(seeded), reads each damaged copy, and counts what came back: read, or refused with one of
+oodmon's errors (a one-line message at the command line). Anything else, a traceback at the
+command line, is printed with its file, offset and message, and makes the exit code 1.
+
+On 2026-11-27 the first run found: torn logs crashing replay with the mcap library's ``OSError``
+and ``struct.error`` (62 of a 14 KB log's 14,312 cuts) and damaged chunks with ``ZstdError``; a
+damaged VecNormalize file raising ``MemoryError`` as its unpickler allocated a flipped length; a
+damaged ``model.json`` or ``detectors.json`` raising ``KeyError``; a bench baseline's damaged row
+raising ``KeyError`` only when the bench compared, after its work. All are refused or recovered
+now; this prints no such line.
+
+The readers: ``log`` (replay's ``read_log`` of a small format-6 log, two CartPole episodes in
+segments of 4 steps: a cut or flip is a torn or damaged log, recovered), ``vecnorm`` (SB3
+VecNormalize statistics, read without unpickling), ``model`` (a zoo agent's folder), ``detectors``
+(the zoo CartPole ensemble's fitted detectors), ``threshold`` (a calibrated threshold), ``baseline``
+(``oodmon check --update``'s baseline) and ``bench`` (a committed bench result read as
+``--baseline`` and compared with itself).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import random
+import shutil
+import sys
+import tempfile
+import traceback
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _make_log(folder: Path) -> dict[str, Path]:
+    from oodmon.agents import load
+    from oodmon.envs import parse_variant
+    from oodmon.monitor import McapSink, Monitor
+
+    path = folder / "log.mcap"
+    spec = "cartpole:length=2.0"
+    with Monitor(load("cartpole", "dropout", seed=0), threshold=0.5, sinks=[McapSink(path)], segment_steps=4) as monitor:
+        for seed in range(2):
+            monitor.run_episode(parse_variant(spec).make(onset_step=3), seed=seed, max_steps=10, variant=spec)
+    return {"log.mcap": path}
+
+
+def _make_vecnorm(folder: Path) -> dict[str, Path]:
+    import gymnasium
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    venv = VecNormalize(DummyVecEnv([lambda: gymnasium.make("CartPole-v1")]))
+    venv.reset()
+    for _ in range(20):
+        venv.step([0])
+    venv.save(folder / "vecnormalize.pkl")
+    return {"vecnormalize.pkl": folder / "vecnormalize.pkl"}
+
+
+def _make_threshold(folder: Path) -> dict[str, Path]:
+    from oodmon.agents import load
+    from oodmon.monitor.calibration import calibrate_agent
+
+    calibrate_agent(load("cartpole", "ensemble"), episodes=5, far=0.5, confidence=None).save(folder / "threshold.json")
+    return {"threshold.json": folder / "threshold.json"}
+
+
+def _make_baseline(folder: Path) -> dict[str, Path]:
+    from oodmon.cli import main
+
+    main(["check", str(ROOT / "tests" / "data"), "--baseline", str(folder / "baseline.json"), "--update"])
+    return {"baseline.json": folder / "baseline.json"}
+
+
+def _folder_files(folder: Path) -> dict[str, Path]:
+    return {p.name: p for p in folder.iterdir() if p.is_file()}
+
+
+def _readers() -> dict[str, tuple[Callable[[Path], dict[str, Path]], Callable[[Path], object]]]:
+    """Per reader: what makes (or names) its undamaged files, and what reads a folder of them."""
+    from oodmon.agents.agent import load_agent
+    from oodmon.agents.vec_normalize import load_vec_normalize
+    from oodmon.bench.baseline import bench_falls, load_bench_result
+    from oodmon.monitor.detectors.store import DetectorSet
+    from oodmon.monitor.threshold import Threshold
+    from oodmon.replay import read_log
+    from oodmon.replay.check import load_baseline
+
+    zoo = ROOT / "oodmon" / "zoo"
+    bench = ROOT / "results" / "bench" / "cartpole.json"
+    return {
+        "log": (_make_log, lambda d: read_log(d / "log.mcap")),
+        "vecnorm": (_make_vecnorm, lambda d: load_vec_normalize(d / "vecnormalize.pkl")),
+        "model": (lambda _: _folder_files(zoo / "cartpole-dropout"), load_agent),
+        "detectors": (lambda _: _folder_files(zoo / "cartpole-ensemble" / "detectors"), DetectorSet.load),
+        "threshold": (_make_threshold, lambda d: Threshold.load(d / "threshold.json")),
+        "baseline": (_make_baseline, lambda d: load_baseline(d / "baseline.json")),
+        "bench": (lambda _: {"cartpole.json": bench},
+                  lambda d: bench_falls(load_bench_result(bench), load_bench_result(d / "cartpole.json"))),
+    }
+
+
+def fuzz(name: str, files: dict[str, Path], read: Callable[[Path], object], cuts: int, flips: int,
+         seed: int = 0) -> list[str]:
+    """Read every damaged copy; print the outcome counts; return a line per exception not oodmon's."""
+    from oodmon.errors import OodmonError
+
+    originals = {rel: path.read_bytes() for rel, path in files.items()}
+    rng = random.Random(seed)
+    cases = []
+    for rel, data in originals.items():
+        stride = max(1, len(data) // cuts)
+        cases += [(rel, f"cut at {offset}", data[:offset]) for offset in range(0, len(data), stride)]
+        for _ in range(flips):
+            position, bit = rng.randrange(len(data)), rng.randrange(8)
+            damaged = bytearray(data)
+            damaged[position] ^= 1 << bit
+            cases.append((rel, f"bit {bit} of byte {position} flipped", bytes(damaged)))
+    outcomes: collections.Counter[str] = collections.Counter()
+    others = []
+    with tempfile.TemporaryDirectory() as scratch:
+        work = Path(scratch)
+        for rel, what, data in cases:
+            for other, original in originals.items():
+                (work / other).write_bytes(data if other == rel else original)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    read(work)
+                outcomes["read"] += 1
+            except OodmonError as error:
+                outcomes[f"refused ({type(error).__name__})"] += 1
+            except Exception as error:  # noqa: BLE001  (what this script looks for)
+                outcomes[f"OTHER ({type(error).__name__})"] += 1
+                others.append(f"{name}: {rel}, {what}: {type(error).__name__}: {error}\n"
+                              + "".join(traceback.format_exc(limit=-2).splitlines(keepends=True)[-3:]))
+    counts = ", ".join(f"{n} {outcome}" for outcome, n in outcomes.most_common())
+    print(f"{name}: {len(cases)} damaged copies of {', '.join(originals)}: {counts}", flush=True)
+    return others
+
+
+def main() -> int:
+    readers = _readers()
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", help=f"comma-separated readers (default all: {', '.join(readers)})")
+    parser.add_argument("--cuts", type=int, default=2000, help="about this many cuts per file (default 2000)")
+    parser.add_argument("--flips", type=int, default=400, help="single-bit flips per file (default 400)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the flips (default 0)")
+    args = parser.parse_args()
+    names = args.only.split(",") if args.only else list(readers)
+    unknown = sorted(set(names) - set(readers))
+    if unknown:
+        parser.error(f"unknown readers {unknown}; choose from {', '.join(readers)}")
+    others = []
+    folder = Path(tempfile.mkdtemp())
+    try:
+        for name in names:
+            make, read = readers[name]
+            (folder / name).mkdir()
+            others += fuzz(name, make(folder / name), read, args.cuts, args.flips, args.seed)
+    finally:
+        shutil.rmtree(folder)
+    for line in others[:20]:
+        print(line)
+    print(f"errors that are not oodmon's: {len(others)}")
+    return 1 if others else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
