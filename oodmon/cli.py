@@ -844,18 +844,25 @@ def _run(args: argparse.Namespace) -> int:
     written = [str(p) for name, p in files.items() if p and name not in failures]
     console.print(rows.table(f"{args.task}/{agent.method} in {label}, onset {args.onset}"
                              + (f", {threshold.rule_text}" if threshold else ", no threshold")))
-    if rows.left_out:  # what `oodmon replay` reads to list every episode: the file, or a split log's folder
-        logged = mcap is not None and mcap.paths and "McapSink" not in failures
-        log = str(mcap.paths[0].parent if mcap.splits else mcap.paths[0]) if logged else None
-        console.print(f"{rows.left_out} episode{'s' if rows.left_out != 1 else ''} not shown" + (
-            f": `oodmon replay {log} --episodes` lists every one" if log else " (--mcap logs every one)" if mcap is None
-            else f": the MCAP log lacks some (its sink failed), `oodmon replay {mcap.paths[0] if mcap.paths else args.mcap} "
-                 "--episodes` lists those it holds"))
+    if rows.left_out:
+        console.print(f"{rows.left_out} episode{'s' if rows.left_out != 1 else ''} not shown"
+                      + _listed_by(mcap, args.mcap, failed="McapSink" in failures))
     console.print(f"{rows.alarmed} of {rows.episodes} episodes raised an alarm"
                   + (f"; written to {', '.join(written)}" if written else ""))
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
     return 0
+
+
+def _listed_by(mcap, path: str | None, *, failed: bool) -> str:
+    """What lists the episodes `oodmon run`'s closing table leaves out: `oodmon replay` of its log
+    (the file, or a split log's folder), which lacks some if its sink failed; or, with no log, --mcap."""
+    if mcap is None:
+        return " (--mcap logs every one)"
+    log = (mcap.paths[0].parent if mcap.splits else mcap.paths[0]) if mcap.paths else path
+    if failed:
+        return f": the MCAP log lacks some (its sink failed), `oodmon replay {log} --episodes` lists those it holds"
+    return f": `oodmon replay {log} --episodes` lists every one"
 
 
 def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
