@@ -23,6 +23,7 @@ from rich.table import Table
 
 from oodmon.errors import ConfigError, InvalidParameterError, OodmonError
 from oodmon.jsonfile import write_json
+from oodmon.monitor.stopping import Terminated, stop_on_sigterm
 from oodmon.names import MASKS, METHODS, TASKS
 from oodmon.progress import unit_of
 from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -54,52 +55,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.showwarning = _show_warning
         try:
             _limit_torch_threads()
-            with _sigterm_as_interrupt():
+            with stop_on_sigterm():  # a service manager's stop ends a command as Ctrl-C does
                 return args.handler(args) or 0
         except (OodmonError, OSError) as error:
             print(f"oodmon: error: {error}", file=sys.stderr)
             return 2
         except KeyboardInterrupt as interrupt:
             kept = getattr(args, "kept_on_interrupt", None)
-            stopped = isinstance(interrupt, _Terminated)
+            stopped = isinstance(interrupt, Terminated)
             print(("oodmon: stopped by SIGTERM" if stopped else "oodmon: interrupted") + (f"; {kept}" if kept else ""),
                   file=sys.stderr)
             return 143 if stopped else 130
-
-
-class _Terminated(KeyboardInterrupt):
-    """SIGTERM, raised where the command is, so that it ends as Ctrl-C ends it: the monitor logs the
-    cut episode as interrupted and the logs are finished (without this, Python dies at once and a
-    run's MCAP log is torn: its running episode lost, measured)."""
-
-
-@contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """While a command runs, SIGTERM raises :class:`_Terminated` in its process (once: a second one
-    is ignored while the command cleans up). Processes forked from it (the bench's workers) are
-    stopped by SIGTERM as usual. Only in the main thread, where Python runs signal handlers."""
-    import os
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    own = os.getpid()
-
-    def stop(signum, frame) -> None:
-        if os.getpid() != own:  # a forked worker: die as it would have
-            signal.signal(signal.SIGTERM, signal.SIG_DFL)
-            os.kill(os.getpid(), signal.SIGTERM)
-            return
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        raise _Terminated
-
-    before = signal.signal(signal.SIGTERM, stop)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, before)
 
 
 #: What Ctrl-C leaves behind, said by the commands that write as they go or only at their end.

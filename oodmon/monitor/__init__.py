@@ -17,6 +17,7 @@ from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, AlarmEvent, AlarmTracker,
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.scores import DEFAULT_SCORE, SCORES, score_function
 from oodmon.monitor.sinks import McapSink, MemorySink, RerunSink, Sink, SinkGroup, SinkWarning
+from oodmon.monitor.stopping import Terminated, stop_on_sigterm
 from oodmon.monitor.threshold import Threshold, calibrate
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
     "SinkGroup",
     "SinkWarning",
     "StepRecord",
+    "Terminated",
     "Threshold",
     "Validation",
     "calibrate",
@@ -45,6 +47,7 @@ __all__ = [
     "episode_statistic",
     "id_episode_scores",
     "score_function",
+    "stop_on_sigterm",
     "validate_threshold",
 ]
 

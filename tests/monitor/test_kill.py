@@ -206,6 +206,35 @@ def test_sigterm_stops_oodmon_run_as_ctrl_c_does_and_exits_143(tmp_path, monkeyp
     assert log.interrupted[0].length == 199  # the handler runs as os.kill returns: step 700 is not taken
 
 
+def test_stop_on_sigterm_lets_a_deployed_loop_of_your_own_finish_its_log(tmp_path):
+    """The README's deployed process, stopped by its service manager: inside stop_on_sigterm, SIGTERM
+    raises Terminated in the loop, and closing the env finishes the log with the cut episode marked
+    (without it the process died, its log torn). Outside the block SIGTERM is handled as before."""
+    import os
+    import signal
+
+    import gymnasium
+
+    from oodmon.agents import load
+    from oodmon.monitor import McapSink, Monitor, MonitoredEnv, Terminated, stop_on_sigterm
+
+    before = signal.getsignal(signal.SIGTERM)
+    env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"),
+                       Monitor(load("cartpole", "ensemble"), sinks=[McapSink(tmp_path / "deployed.mcap")]))
+    steps = 0
+    with pytest.raises(Terminated), stop_on_sigterm():
+        env.reset(seed=0)
+        while True:
+            env.step()
+            steps += 1
+            if steps == 50:
+                os.kill(os.getpid(), signal.SIGTERM)
+    env.close()
+    assert signal.getsignal(signal.SIGTERM) == before and issubclass(Terminated, KeyboardInterrupt)
+    log = read_log(tmp_path / "deployed.mcap")
+    assert log.complete and not log.episodes and [e.length for e in log.interrupted] == [50]
+
+
 def test_ctrl_c_says_what_each_command_leaves_behind(tmp_path, monkeypatch, capsys):
     """Ctrl-C in `oodmon calibrate` said "every finished episode is in the logs", `oodmon run`'s
     words, though calibrate writes no log and no threshold until it ends; now each command says
