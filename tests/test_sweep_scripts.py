@@ -381,3 +381,15 @@ def test_fuzz_readers_counts_what_each_reader_answers_and_names_what_is_not_oodm
     # A reader that fails with another error is reported with the damage that made it fail.
     broken = script.fuzz("broken", files, lambda folder: int("x"), cuts=2, flips=1)
     assert len(broken) == len(range(0, size, size // 2)) + 1 and broken[0].startswith("broken: threshold.json, cut at 0: ValueError: invalid literal")
+
+
+def test_fuzz_cli_draws_quick_commands_and_tells_an_answer_from_a_traceback(monkeypatch, tmp_path):
+    script = _load(monkeypatch, tmp_path, "fuzz_cli")[0]
+    lines = script.command_lines(40, 0)
+    assert len(lines) == 40 and not {argv[0] for argv in lines} & set(script.LONG)
+    assert lines == script.command_lines(40, 0)  # seeded
+    assert script.run(["replay", "file-that-is-not-there.mcap"], 5) is None  # one line, exit code 2
+    import oodmon.cli
+
+    monkeypatch.setattr(oodmon.cli, "main", lambda argv: 1 / 0)
+    assert "ZeroDivisionError" in script.run(["envs"], 5)
