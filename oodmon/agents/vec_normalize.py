@@ -33,6 +33,7 @@ import io
 import json
 import pickle  # restricted below: find_class allows numpy's array constructors and OrderedDict only
 import pickletools
+import warnings
 import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -255,10 +256,15 @@ def load_vec_normalize(path: str | Path) -> ObservationNormalizer:
                           "VecNormalize.save() wrote, e.g. vecnormalize.pkl")
     data = path.read_bytes()
     try:
-        # Walked first without building anything: a damaged length (a flipped bit) is then an
-        # error here, where the unpickler would allocate the bytes it names before reading them.
-        for _ in pickletools.genops(data):
-            pass
+        # A pickle (protocol 2 on; VecNormalize.save writes 4 or 5) is walked first without building
+        # anything: a damaged length (a flipped bit) is then an error here, where the unpickler would
+        # allocate the bytes it names before reading them. (Quietly: walking other bytes as opcodes
+        # can warn of string escapes.)
+        if data.startswith(b"\x80"):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                for _ in pickletools.genops(data):
+                    pass
         unpickler = _StatisticsUnpickler(io.BytesIO(data))
         root = unpickler.load()
     except Exception as error:  # noqa: BLE001  (a damaged or foreign file fails in many ways; none runs code)

@@ -47,7 +47,7 @@ from oodmon.monitor.threshold import Threshold
 from oodmon.progress import Progress
 from oodmon.versions import library_versions
 from oodmon.hashing import file_sha256
-from oodmon.validation import is_whole
+from oodmon.validation import is_real, is_whole
 
 __all__ = ["SEGMENT_STEPS", "AlarmCallback", "Monitor", "MonitoredEnv", "check_env_of"]
 
@@ -186,6 +186,9 @@ class Monitor:
             window, detector = threshold.window, threshold.detector
             rule, reference = threshold.rule, threshold.reference_scores()
         else:
+            if threshold is not None and (not is_real(threshold) or math.isnan(threshold)):  # NaN: no alarm, ever
+                raise InvalidParameterError(f"threshold={threshold!r} is not allowed; give a number, a Threshold "
+                                            "(oodmon.monitor.calibrate, Threshold.load), or None for no alarms")
             value = math.nan if threshold is None else float(threshold)
             rule, reference = "consecutive", None
         self.threshold = value
@@ -201,6 +204,9 @@ class Monitor:
         self.tracker = AlarmTracker(value, default_consecutive(self.detector) if consecutive is None
                                     else check_consecutive(consecutive),
                                     1 if window is None else check_window(window), rule=rule, reference=reference)
+        for name, given, one in (("sinks", sinks, hasattr(sinks, "write_step")), ("callbacks", callbacks, callable(callbacks))):
+            if one:  # (list() of one sink said "'MemorySink' object is not iterable")
+                raise ConfigError(f"{name} is a list: {name}=[{type(given).__name__}(...)], not one on its own")
         self.sinks = SinkGroup(list(sinks), strict=strict)
         self.callbacks = list(callbacks)
         self.log_observations = log_observations
@@ -246,6 +252,13 @@ class Monitor:
         """The detectors to run: those given, with ``spread`` (of ``score``) whenever the policy has samples
         (and without a fitted ``combined`` that ranks another spread score, or detectors fitted on another
         kind of MC masks (:meth:`DetectorSet.for_masks`), unless the ``alarm`` reads them: refused)."""
+        if detectors is not None and not isinstance(detectors, DetectorSet):
+            given = None if isinstance(detectors, (str, Detector)) else list(detectors)
+            if given is None or not all(isinstance(d, Detector) for d in given):
+                raise ConfigError(f"detectors={detectors!r} is not allowed; give fitted detectors (a DetectorSet, e.g. "
+                                  "detectors_for(agent) or DetectorSet.load(folder), or a list of Detector objects); "
+                                  "detector='dynamics' names the one the alarm reads")
+            detectors = given
         chosen = detectors if isinstance(detectors, DetectorSet) else DetectorSet(list(detectors or ()))
         if self.estimator is not None and "spread" not in chosen:
             chosen = chosen.with_detector(SpreadDetector(self.score_name))

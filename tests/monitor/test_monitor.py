@@ -65,6 +65,33 @@ def test_monitored_env_wrapper_lets_the_policy_act_or_takes_yours(agent):
     assert np.isnan(sink.steps[0].threshold) and not any(s.alarm for s in sink.steps)
 
 
+@pytest.mark.parametrize("arguments, words", [
+    ({"threshold": float("nan")}, "threshold=nan is not allowed; give a number"),  # a NaN threshold never alarms
+    ({"threshold": "abc"}, "threshold='abc' is not allowed"),
+    ({"sinks": MemorySink()}, r"sinks is a list: sinks=\[MemorySink\(...\)\]"),
+    ({"callbacks": print}, r"callbacks is a list"),
+    ({"detectors": "dynamics"}, r"detectors='dynamics' is not allowed; give fitted detectors .* detector='dynamics'"),
+    ({"detectors": ["dynamics"]}, r"detectors=\['dynamics'\] is not allowed"),
+])
+def test_a_monitor_given_what_it_cannot_use_says_so_in_one_error(agent, arguments, words):
+    """Found by calling the public API with odd arguments (2026-11-27): a NaN threshold was taken and
+    silenced every alarm; a sink on its own, a callback on its own or a detector's name raised
+    Python's TypeError or AttributeError from deep inside."""
+    with pytest.raises(ConfigError, match=words):
+        Monitor(agent, **arguments)
+
+
+def test_api_values_that_were_taken_silently_are_refused():
+    from oodmon.errors import InvalidParameterError
+    from oodmon.monitor import McapSink
+
+    with pytest.raises(InvalidParameterError, match="compression='rar' is not allowed"):  # was written uncompressed
+        McapSink("x.mcap", compression="rar")
+    with pytest.raises(InvalidParameterError, match="n_samples=0 is not allowed"):  # was the recipe's 20
+        load("cartpole", "dropout", n_samples=0)
+    assert load("cartpole", "ensemble", n_samples=0).estimator.n_samples == 5  # ensembles ignore it, as documented
+
+
 def test_step_before_begin_episode_is_an_error(agent):
     with pytest.raises(ConfigError, match="Monitor.step before begin_episode"):
         Monitor(agent).step(np.zeros(4, np.float32))

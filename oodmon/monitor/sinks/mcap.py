@@ -102,6 +102,8 @@ class McapSink:
         if not (is_real(flush_seconds) and flush_seconds >= 0):
             raise InvalidParameterError(f"flush_seconds={flush_seconds!r} is not allowed; seconds >= 0 between "
                                         "the writes of a long episode's steps to the file")
+        if compression not in ("zstd", "none"):  # anything else was written uncompressed, silently
+            raise InvalidParameterError(f"compression={compression!r} is not allowed; 'zstd' (the default) or 'none'")
         self.path = Path(path)
         self.compression = compression
         self.flush_seconds = float(flush_seconds)
