@@ -24,12 +24,13 @@ import gymnasium
 from oodmon.agents.agent import Agent
 from oodmon.envs.grid import ENV_IDS
 from oodmon.envs.registration import task_of_env
-from oodmon.errors import ConfigError
+from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES
 from oodmon.monitor.sinks.base import Sink
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
 from oodmon.progress import Progress
+from oodmon.validation import is_whole
 
 __all__ = ["as_agent", "watch"]
 
@@ -123,6 +124,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
                                                         vec_normalize=vec_normalize, frame_stack=frame_stack)
     else:
         conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
+        if not is_whole(fit_episodes, 3):  # (fit_agent_detectors would say "episodes=", after loading the models)
+            raise InvalidParameterError(f"fit_episodes={fit_episodes!r} is not allowed; fitting the detectors needs a "
+                                        "whole number >= 3 of ID episodes (two thirds fit, one third ranks)")
         if save is not None:  # an unwritable path: said now, not after the calibration
             check_output_file(save, parameter="save")
             check_output_dir(f"{save}.detectors", parameter="save (its detectors folder)")

@@ -180,6 +180,13 @@ def test_watch_takes_a_shipped_agent_with_its_own_env_id_and_refuses_another(age
             as_agent(agent, other)
 
 
+def test_watch_names_its_own_fit_episodes_argument_when_refusing_it(agent):
+    import oodmon
+
+    with pytest.raises(ConfigError, match=r"^fit_episodes=0 is not allowed; fitting the detectors needs"):
+        oodmon.watch(agent, "CartPole-v1", fit_episodes=0)  # was "episodes=0 ...", the name of another argument
+
+
 def test_an_env_of_another_task_is_refused_before_any_fitting(agent, monkeypatch):
     """MonitoredEnv and watch(env=...) refuse an env whose spaces are not the agent's, naming both,
     before watch() fits or calibrates anything (the first step would fail after minutes of work)."""
