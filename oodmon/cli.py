@@ -1004,20 +1004,24 @@ def _check(args: argparse.Namespace) -> int:
         baseline = None
     else:
         baseline = load_baseline(args.baseline)  # before the logs: a bad baseline fails at once
-    metrics = compute_all_metrics(_read_logs(args.logs))
+    logs = _read_logs(args.logs)
+    metrics = compute_all_metrics(logs)
+    torn = sum(not log.complete for log in logs)  # read in part, each with its recovery warning
+    partial = "" if not torn else (f" ({torn} of the {len(logs)} logs {'was' if torn == 1 else 'were'} torn and read "
+                                   f"in part, as the warning above says: {'its' if torn == 1 else 'their'} rows lack the episodes lost)")
     console = Console(soft_wrap=True)
     if args.update:
         tolerance = 0.02 if args.tolerance is None else args.tolerance
         write_json(args.baseline, baseline_of(metrics, tolerance))
-        console.print(f"wrote {args.baseline}: {len(metrics)} rows, tolerance {tolerance}")
+        console.print(f"wrote {args.baseline}: {len(metrics)} rows, tolerance {tolerance}{partial}")
         return 0
     falls = find_falls(metrics, baseline, args.tolerance)
     if falls:
         for line in falls:
             print(f"FELL {line}", file=sys.stderr)
-        print(f"oodmon check: {len(falls)} metric(s) fell below {args.baseline}", file=sys.stderr)
+        print(f"oodmon check: {len(falls)} metric(s) fell below {args.baseline}{partial}", file=sys.stderr)
         return 1
-    console.print(f"ok: {len(metrics)} rows at or above {args.baseline}")
+    console.print(f"ok: {len(metrics)} rows at or above {args.baseline}{partial}")
     return 0
 
 

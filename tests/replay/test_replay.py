@@ -203,6 +203,25 @@ def test_check_exit_codes_and_what_fell(tmp_path):
     assert missing.returncode == 2 and "does not exist" in missing.stderr
 
 
+def test_check_over_a_torn_log_says_its_rows_were_read_in_part(tmp_path):
+    """A regression check over a killed run's log compared its recovered episodes alone and printed
+    FELL lines as if the agent had got worse; the summary now says a log was torn (2026-11-27)."""
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    for log in LOGS:
+        shutil.copyfile(log, folder / log.name)
+    baseline = tmp_path / "baseline.json"
+    assert "tolerance 0.02\n" in _cli("check", str(folder), "--baseline", str(baseline), "--update").stdout
+    torn = folder / "cartpole-ensemble-length2.mcap"
+    torn.write_bytes(torn.read_bytes()[: torn.stat().st_size // 2])
+    fell = _cli("check", str(folder), "--baseline", str(baseline))
+    assert fell.returncode == 1 and "unfinished or damaged" in fell.stderr
+    assert fell.stderr.rstrip().endswith("fell below " + str(baseline) + " (1 of the 2 logs was torn and read in part, "
+                                         "as the warning above says: its rows lack the episodes lost)")
+    again = _cli("check", str(folder), "--baseline", str(tmp_path / "torn.json"), "--update")
+    assert "(1 of the 2 logs was torn" in again.stdout.replace("\n", "")
+
+
 def test_a_log_named_twice_is_read_once_and_a_foreign_file_in_a_folder_is_skipped(tmp_path):
     from oodmon.replay import SkippedLogWarning, read_logs
 
