@@ -306,6 +306,31 @@ def test_a_served_stream_listens_on_loopback_only_unless_told(agent):
         assert bound == {"127.0.0.1"} and sink.served_at and str(port) in sink.served_at
 
 
+def test_serving_on_a_port_another_program_listens_on_is_refused_before_the_run(agent, tmp_path):
+    """Rerun's server failed on its own thread with a log line, and the run went on serving nothing
+    while `oodmon run --serve` said "serving the Rerun stream at ..." (2026-11-27). Now the sink is
+    refused as it is made: the command exits 2 before its first episode."""
+    import socket
+
+    from oodmon.cli import main
+    from oodmon.errors import ConfigError
+
+    with socket.socket() as taken:
+        taken.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(ConfigError, match=rf"cannot serve the Rerun stream on 127.0.0.1:{port} \(Address already in "
+                                              r"use\).*Choose another port"):
+            RerunSink(serve=True, port=port)
+        log = tmp_path / "never.mcap"
+        assert main(["run", "--task", "cartpole", "--method", "ensemble", "--serve", "--port", str(port),
+                     "--mcap", str(log)]) == 2
+        assert not log.exists()  # before the first episode
+    with pytest.raises(ConfigError, match="cannot serve the Rerun stream on 256.0.0.1"):
+        RerunSink(serve=True, bind="256.0.0.1")
+
+
 def test_render_logs_a_picture_of_each_cartpole_state_and_is_off_by_default(agent, tmp_path):
     from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 

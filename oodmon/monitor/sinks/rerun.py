@@ -74,6 +74,13 @@ class RerunSink:
         self.path = Path(path) if path is not None else None
         self.spawn, self.serve, self.connect = spawn, serve, connect
         self.bind, self.port = bind, port
+        if serve and (taken := _cannot_listen(bind, port)) is not None:
+            # Rerun's server fails on its own thread with a log line only, and the run went on serving
+            # nothing (measured: the port of another listener; "serving the Rerun stream at ..." said).
+            from oodmon.errors import ConfigError
+
+            raise ConfigError(f"cannot serve the Rerun stream on {bind}:{port} ({taken}): another oodmon run or a "
+                              "Rerun viewer listening there? Choose another port (--port, RerunSink(port=...))")
         self.recording_id = recording_id or str(uuid.uuid4())
         self.flush_timeout = flush_timeout
         self.connect_timeout = connect_timeout
@@ -258,6 +265,22 @@ class RerunSink:
             for rec in self._streams:
                 rec.disconnect()
             self._streams, self._live = [], None
+
+
+def _cannot_listen(bind: str, port: int) -> str | None:
+    """Why a server could not listen on ``bind``:``port`` now (the port taken, an address not of this
+    machine), or None. Probed with SO_REUSEADDR, as Rerun's server (tokio) binds: a port left in
+    TIME_WAIT by a run before is free to it."""
+    import socket
+
+    try:
+        family = socket.getaddrinfo(bind, port, type=socket.SOCK_STREAM)[0][0]
+        with socket.socket(family, socket.SOCK_STREAM) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            probe.bind((bind, port))
+    except (OSError, OverflowError) as error:
+        return getattr(error, "strerror", None) or str(error)
+    return None
 
 
 def _unreachable(url: str, timeout: float) -> str | None:
