@@ -1006,9 +1006,7 @@ def _check(args: argparse.Namespace) -> int:
         baseline = load_baseline(args.baseline)  # before the logs: a bad baseline fails at once
     logs = _read_logs(args.logs)
     metrics = compute_all_metrics(logs)
-    torn = sum(not log.complete for log in logs)  # read in part, each with its recovery warning
-    partial = "" if not torn else (f" ({torn} of the {len(logs)} logs {'was' if torn == 1 else 'were'} torn and read "
-                                   f"in part, as the warning above says: {'its' if torn == 1 else 'their'} rows lack the episodes lost)")
+    partial = _torn_note(logs)
     console = Console(soft_wrap=True)
     if args.update:
         tolerance = 0.02 if args.tolerance is None else args.tolerance
@@ -1023,6 +1021,17 @@ def _check(args: argparse.Namespace) -> int:
         return 1
     console.print(f"ok: {len(metrics)} rows at or above {args.baseline}{partial}")
     return 0
+
+
+def _torn_note(logs) -> str:
+    """`oodmon check`'s words for logs that were torn and read in part (each with its recovery
+    warning): a fall may come from the episodes they lost. Empty when every log was whole."""
+    torn = sum(not log.complete for log in logs)
+    if not torn:
+        return ""
+    one = torn == 1
+    return (f" ({torn} of the {len(logs)} logs {'was' if one else 'were'} torn and read in part, as the warning above "
+            f"says: {'its' if one else 'their'} rows lack the episodes lost)")
 
 
 def _bench(args: argparse.Namespace) -> int:

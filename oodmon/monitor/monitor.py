@@ -204,9 +204,11 @@ class Monitor:
         self.tracker = AlarmTracker(value, default_consecutive(self.detector) if consecutive is None
                                     else check_consecutive(consecutive),
                                     1 if window is None else check_window(window), rule=rule, reference=reference)
-        for name, given, one in (("sinks", sinks, hasattr(sinks, "write_step")), ("callbacks", callbacks, callable(callbacks))):
-            if one:  # (list() of one sink said "'MemorySink' object is not iterable")
-                raise ConfigError(f"{name} is a list: {name}=[{type(given).__name__}(...)], not one on its own")
+        # One on its own, not in a list (list() of one sink said "'MemorySink' object is not iterable").
+        if hasattr(sinks, "write_step"):
+            raise ConfigError(f"sinks is a list: sinks=[{type(sinks).__name__}(...)], not one on its own")
+        if callable(callbacks):
+            raise ConfigError(f"callbacks is a list: callbacks=[{type(callbacks).__name__}(...)], not one on its own")
         self.sinks = SinkGroup(list(sinks), strict=strict)
         self.callbacks = list(callbacks)
         self.log_observations = log_observations

@@ -277,9 +277,6 @@ def read_log(path: str | Path) -> RunLog:
     Warns:
         RecoveryWarning: the file is unfinished or torn; its complete episodes are returned.
     """
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
-
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -292,6 +289,21 @@ def read_log(path: str | Path) -> RunLog:
         raise LogFormatError(f"{path} cannot be read ({error.strerror or error})") from None
     if head != _MAGIC:
         raise LogFormatError(f"{path} is not an MCAP file (it does not start with the MCAP magic bytes)")
+    indexed = _read_indexed(path)
+    return _recover(path) if indexed is None else _assemble(path, *indexed, complete=True)
+
+
+def _read_indexed(path: Path) -> tuple[dict[str, str] | None, _Collector] | None:
+    """A finished log's run metadata and messages, read through its index; ``None`` where the
+    index cannot be read: no index, or a torn or damaged one (the mcap library then raises
+    McapError, EOFError, ValueError, OSError (a seek to a footer's bad offset), struct.error (a
+    record cut short) or zstandard's error (a damaged chunk), depending on where the file ends).
+
+    Raises:
+        LogFormatError: a finished MCAP file that is not an oodmon log, or whose messages are not oodmon's.
+    """
+    from mcap.reader import make_reader
+
     found = _Collector(path)
     metadata = None
     with open(path, "rb") as f:
@@ -300,14 +312,14 @@ def read_log(path: str | Path) -> RunLog:
             summary = reader.get_summary()
             empty = summary is not None and summary.statistics is not None and summary.statistics.message_count == 0
             if summary is None or not (summary.chunk_indexes or empty):  # (a monitor closed before any episode: empty)
-                raise McapError("no summary")
+                return None
             for item in reader.iter_metadata():
                 if item.name == logformat.RUN_METADATA:
                     metadata = dict(item.metadata)
             topics = {c.topic for c in summary.channels.values()}
             if _EPISODE not in topics:
                 if metadata is not None:  # oodmon registers its channels as it opens the log: a damaged summary
-                    raise McapError(f"the summary lists no {_EPISODE} channel")
+                    return None
                 raise LogFormatError(f"{path} is an MCAP file but not an oodmon log (no {_EPISODE} channel)")
             # Logs since the episode_scores channel: read it alone; older ones: the step messages.
             wanted = [_EPISODE, _SCORES] if _SCORES in topics else [_EPISODE, _STEP]
@@ -315,13 +327,9 @@ def read_log(path: str | Path) -> RunLog:
                 found.add(channel.topic, message.data)
         except LogFormatError:
             raise
-        except Exception:  # noqa: BLE001
-            # No index, or a torn or damaged one: the mcap library then raises McapError, EOFError,
-            # ValueError, OSError (a seek to a footer's bad offset), struct.error (a record cut
-            # short) or zstandard's error (a damaged chunk), depending on where the file ends.
-            # Streaming it keeps what is readable.
-            found = None
-    return _recover(path) if found is None else _assemble(path, metadata, found, complete=True)
+        except Exception:  # noqa: BLE001  (streaming the file keeps what is readable: see the docstring)
+            return None
+    return metadata, found
 
 
 def _recover(path: Path) -> RunLog:
@@ -404,8 +412,10 @@ def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str
     def numbers(values: list) -> list[float]:
         return [math.inf if v is None else float(v) for v in values]
 
-    names = list(done["detectors"]) if done is not None else \
-        list(steps[0].get("scores") or {}) if isinstance(steps[0].get("scores"), dict) else []
+    if done is not None:
+        names = list(done["detectors"])
+    else:
+        names = list(steps[0]["scores"]) if isinstance(steps[0].get("scores"), dict) else []
     after = _arrays(numbers([r.get("score") for r in steps]), [bool(r.get("shifted")) for r in steps],
                     [bool(r.get("alarm")) for r in steps],
                     {name: numbers([(r.get("scores") or {}).get(name) for r in steps]) for name in names})

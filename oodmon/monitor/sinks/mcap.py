@@ -242,7 +242,7 @@ class McapSink:
         self._add(self._episode_channel, json.dumps(record.to_json()).encode(), now)
         if not self._segment_start:  # the whole episode in one message, as before format 6
             self._write_scores(record.episode, record.rewards, None, now)
-        elif self._scores:  # segments, and steps no segment took (the monitor hands the last one on)
+        elif self._scores:  # segments, and steps none took (the monitor hands the last one on: only if that failed)
             self._write_scores(record.episode, None, self._segment_start, now)
         # A small chunk of its own, written at once: from here on the episode survives a crash,
         # and replay reads it through the index without decompressing the step messages.
