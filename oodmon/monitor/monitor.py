@@ -208,7 +208,8 @@ class Monitor:
         if hasattr(sinks, "write_step"):
             raise ConfigError(f"sinks is a list: sinks=[{type(sinks).__name__}(...)], not one on its own")
         if callable(callbacks):
-            raise ConfigError(f"callbacks is a list: callbacks=[{type(callbacks).__name__}(...)], not one on its own")
+            name = getattr(callbacks, "__name__", type(callbacks).__name__)  # a function's own name, not "function"
+            raise ConfigError(f"callbacks is a list: callbacks=[{name}], not one on its own")
         self.sinks = SinkGroup(list(sinks), strict=strict)
         self.callbacks = list(callbacks)
         self.log_observations = log_observations

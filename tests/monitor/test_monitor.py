@@ -69,7 +69,7 @@ def test_monitored_env_wrapper_lets_the_policy_act_or_takes_yours(agent):
     ({"threshold": float("nan")}, "threshold=nan is not allowed; give a number"),  # a NaN threshold never alarms
     ({"threshold": "abc"}, "threshold='abc' is not allowed"),
     ({"sinks": MemorySink()}, r"sinks is a list: sinks=\[MemorySink\(...\)\]"),
-    ({"callbacks": print}, r"callbacks is a list"),
+    ({"callbacks": print}, r"callbacks is a list: callbacks=\[print\], not one on its own"),
     ({"detectors": "dynamics"}, r"detectors='dynamics' is not allowed; give fitted detectors .* detector='dynamics'"),
     ({"detectors": ["dynamics"]}, r"detectors=\['dynamics'\] is not allowed"),
 ])
