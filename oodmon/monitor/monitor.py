@@ -93,7 +93,8 @@ class Monitor:
             :meth:`step`.
         threshold: a :class:`Threshold` (its detector, score and rule are used), a number, or
             ``None`` (scores are logged, no alarms).
-        score: the spread score's name when ``threshold`` is not a :class:`Threshold`.
+        score: the spread score's name when ``threshold`` is not a :class:`Threshold` (default: the
+            score of the ``spread`` detector among ``detectors``, or ``chosen_std``).
         detectors: fitted detectors to run at every step (a :class:`DetectorSet`, e.g. from
             :func:`~oodmon.monitor.detectors.fit_detectors` or ``DetectorSet.load``); ``spread``
             joins them whenever the policy has samples. Every detector's score is logged.
@@ -192,7 +193,7 @@ class Monitor:
             value = math.nan if threshold is None else float(threshold)
             rule, reference = "consecutive", None
         self.threshold = value
-        self.score_name = score or DEFAULT_SCORE
+        self.score_name = score  # None: the given spread detector's, or the default (see _detector_set)
         self.detectors = self._detector_set(detectors, detector, force)
         self.detector = detector or ("spread" if "spread" in self.detectors else self.detectors.names[-1])
         if self.detector not in self.detectors:
@@ -263,6 +264,8 @@ class Monitor:
                                   "detector='dynamics' names the one the alarm reads")
             detectors = given
         chosen = detectors if isinstance(detectors, DetectorSet) else DetectorSet(list(detectors or ()))
+        if self.score_name is None:  # no score asked for: a spread detector given keeps its own
+            self.score_name = chosen["spread"].score_name if "spread" in chosen else DEFAULT_SCORE
         if self.estimator is not None and "spread" not in chosen:
             chosen = chosen.with_detector(SpreadDetector(self.score_name))
         else:

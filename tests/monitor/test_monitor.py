@@ -11,6 +11,8 @@ from oodmon.agents import load
 from oodmon.envs import Variant, parse_variant
 from oodmon.errors import ConfigError
 from oodmon.monitor import MemorySink, Monitor, MonitoredEnv, calibrate_agent, episode_statistic, id_episode_scores
+from oodmon.monitor.detectors import SpreadDetector
+from oodmon.monitor.scores import score_function
 
 
 @pytest.fixture(scope="module")
@@ -38,6 +40,21 @@ def test_records_equal_what_the_estimator_computes(agent):
     assert [s.shifted for s in sink.steps] == [t > 20 for t in range(record.length)]  # obs k comes from step k-1
     assert record.total_return == record.length and sink.episodes == [record]
     assert sink.closed and sink.run.task == "cartpole" and sink.run.policy_hash.startswith("sha256:")
+
+
+def test_a_spread_detector_given_keeps_its_score_unless_the_monitor_is_asked_for_another(agent):
+    # Monitor(detectors=[SpreadDetector("margin_std")]) scored chosen_std, the default, without a word.
+    given = [SpreadDetector("margin_std")]
+    sink = MemorySink()
+    with Monitor(agent, detectors=given, sinks=[sink]) as monitor:
+        monitor.run_episode(parse_variant("cartpole").make(), seed=3, max_steps=30)
+    assert monitor.score_name == "margin_std" and sink.run.score == "margin_std"
+    obs, _ = gymnasium.make("oodmon/CartPole-v1").reset(seed=3)
+    assert sink.steps[0].score == pytest.approx(float(score_function("margin_std")(agent.estimate(obs))[0]), rel=1e-6)
+    assert sink.steps[0].score != pytest.approx(sink.steps[0].std[sink.steps[0].action])  # not chosen_std
+    asked = Monitor(agent, score="chosen_std", detectors=given)  # a score asked for is the one scored
+    assert asked.score_name == "chosen_std" and asked.detectors["spread"].score_name == "chosen_std"
+    assert Monitor(agent).score_name == "chosen_std"  # and with no spread given, the default
 
 
 def test_alarms_reach_callbacks_and_do_not_stop_the_policy_unless_asked(agent):
