@@ -19,6 +19,7 @@ from oodmon.agents.algorithms import new_model as _new_model
 from oodmon.agents.algorithms import training_env as _training_env
 from oodmon.agents.checkpoints import Run as _Run
 from oodmon.agents.training import architecture, train
+from oodmon.envs import pong
 from oodmon.errors import ConfigError, InvalidParameterError, UnknownParameterError
 
 CASES = [("cartpole", "dropout"), ("cartpole", "ensemble"), ("pendulum", "dropconnect"), ("pendulum", "ensemble"),
@@ -26,11 +27,14 @@ CASES = [("cartpole", "dropout"), ("cartpole", "ensemble"), ("pendulum", "dropco
 
 
 @pytest.mark.parametrize("task, method", CASES, ids=lambda x: x)
-def test_training_runs_and_saves_a_loadable_agent(tmp_path, task, method):
+def test_training_runs_and_saves_a_loadable_agent(tmp_path, task, method, monkeypatch):
     steps = {"pong": 64, "pendulum": 120}.get(task, 300)
     recipe = recipe_for(task, method)
     if task == "pong":  # one game per evaluation, per snapshot at export and in ID (5 games of an untrained agent, not 11)
         recipe = dataclasses.replace(recipe, eval_episodes=1, select_episodes=1)
+        # Each game cut at 100 agent steps (ALE's frame limit, as its 30 minutes cut a long game): an
+        # untrained agent's whole game is some 770 steps of 2 ms, and this test is about what is saved.
+        monkeypatch.setattr(pong, "_MAX_FRAMES", 100 * pong.FRAME_SKIP)
     elif (task, method) == ("pendulum", "ensemble"):  # 5 members of [64, 64], not [400, 300] (15 ms a gradient step)
         recipe = dataclasses.replace(recipe, net_arch=[64, 64])
     id_episodes = 1 if task == "pong" else 2
