@@ -97,13 +97,15 @@ def main() -> None:
                         "recipe's)")
     parser.add_argument("--shipped", action="store_true", help="measure the shipped recipe's five trials instead")
     parser.add_argument("--seeds", default="0,1,2,3,4")
+    parser.add_argument("--rows", type=Path, default=OUT, help=f"where the rows go (default {OUT}); another file "
+                        "trains and measures again a recipe whose rows that one holds, e.g. to keep its agents")
     args = parse_or_print_table(parser, table)
     if args is None:
         return
     if args.task is None or args.method is None or (args.p is None) == (not args.shipped):
         parser.error("give --task and --method, and either --p (a candidate) or --shipped")
     check_dqn_options(parser, args, [args.task])
-    done = {(r["task"], r["method"], _label(r), r["seed"]) for r in read_rows(OUT)}
+    done = {(r["task"], r["method"], _label(r), r["seed"]) for r in read_rows(args.rows)}
     shipped = recipe_for(args.task, args.method)
     widths = list(args.net_arch or shipped.net_arch)  # a candidate's hidden widths
     for seed in (int(s) for s in args.seeds.split(",")):
@@ -133,7 +135,7 @@ def main() -> None:
             train(args.task, args.method, out, seed=seed, recipe=recipe, command=f"scripts/sweep_trials.py ({out})")
             agent = load_agent(out, task=args.task, seed=MC_SEED)
         auroc, returns, _ = spread_aurocs(agent, args.task, VARIANTS[(args.task, args.method)])
-        append_row(OUT, {"task": args.task, "method": args.method, **settings, "seed": seed, "mc_seed": MC_SEED,
+        append_row(args.rows, {"task": args.task, "method": args.method, **settings, "seed": seed, "mc_seed": MC_SEED,
                          "id_return_mean": agent.metadata["id_return_mean"], "auroc": auroc,
                          "variant_return_mean": returns})
 

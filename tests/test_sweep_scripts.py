@@ -67,6 +67,24 @@ def test_sweep_trials_final_eps_trains_and_records_the_exploration_rate(scripts,
     assert trials._shown(rows[0]).endswith("(shipped)") and not trials._shown(row).endswith("(shipped)")
 
 
+def test_sweep_trials_rows_elsewhere_trains_again_a_recipe_the_default_file_holds(scripts, monkeypatch):
+    _, trials = scripts
+    argv = ("--task", "cartpole", "--method", "dropconnect", "--p", "0.02", "--steps", "200000", "--select-top", "8",
+            "--seeds", "1")
+    trained, rows = _run(trials, monkeypatch, *argv)
+    held = {trials.OUT: rows}  # the default file holds the recipe's row for seed 1
+    written = []
+    monkeypatch.setattr(trials, "read_rows", lambda path: held.get(path, []))
+    monkeypatch.setattr(trials, "append_row", lambda path, row: written.append(path))
+    monkeypatch.setattr(trials, "train", lambda *a, **k: trained.append(a))
+    monkeypatch.setattr(sys, "argv", ["sweep", *argv])
+    trials.main()
+    assert len(trained) == 1 and written == []  # held: not trained again
+    monkeypatch.setattr(sys, "argv", ["sweep", *argv, "--rows", "elsewhere.jsonl"])
+    trials.main()
+    assert len(trained) == 2 and written == [Path("elsewhere.jsonl")]
+
+
 def test_sweep_trials_net_arch_trains_the_candidate_at_those_widths_and_labels_its_row(scripts, monkeypatch):
     _, trials = scripts
     trained, rows = _run(trials, monkeypatch, "--task", "pendulum", "--method", "dropconnect", "--p", "0.05",
