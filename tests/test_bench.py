@@ -20,9 +20,11 @@ SPECS = ("cartpole:length=2.0", "cartpole:gravity=98.0", "cartpole:gravity=0.98"
 
 
 def test_bench_end_to_end_and_resume(tmp_path):
+    # 3 calibration episodes at a marginal far of 0.5 (the fewest that give a threshold): these tests
+    # of the bench's machinery do not read the threshold's level, and 19 ID episodes cost seconds.
     config = BenchConfig("cartpole", ("dropout",), trials=2, variants=SPECS, episodes=2, id_episodes=3,
-                         eval_episodes=2, calibration_episodes=19, confidence=None, out=str(tmp_path), workers=2,
-                         train_steps=300)
+                         eval_episodes=2, calibration_episodes=3, far=0.5, confidence=None, out=str(tmp_path),
+                         workers=2, train_steps=300)
     stages = []
     result = run_bench(config, on_progress=lambda stage, done, total: stages.append((stage, done, total)))
     logs_root = tmp_path / "logs" / f"cartpole-{config.cache_key()}"
@@ -188,7 +190,7 @@ def test_ray_executor_on_a_loopback_cluster_gives_the_same_logs_numbers_as_local
     from tests.monitor.test_sinks import _listening
 
     common = dict(task="cartpole", methods=("dropout",), trials=1, variants=("cartpole:length=2.0",), episodes=2,
-                  id_episodes=2, eval_episodes=2, calibration_episodes=19, confidence=None, workers=1)
+                  id_episodes=2, eval_episodes=2, calibration_episodes=3, far=0.5, confidence=None, workers=1)
     local = run_bench(BenchConfig(**common, out=str(tmp_path / "local")))
     before = _listening()
     on_ray_config = BenchConfig(**common, out=str(tmp_path / "ray"), executor="ray")
@@ -326,7 +328,7 @@ def test_the_same_bench_calibrates_the_same_threshold_for_an_mc_agent(tmp_path):
     """The trial's agent samples with a fixed seed: two benches, the same threshold file (an MC
     Dropout agent's threshold used to vary from run to run)."""
     common = dict(task="cartpole", methods=("dropout",), trials=1, variants=("cartpole:length=2.0",), episodes=1,
-                  id_episodes=1, eval_episodes=1, calibration_episodes=19, confidence=None, workers=1)
+                  id_episodes=1, eval_episodes=1, calibration_episodes=3, far=0.5, confidence=None, workers=1)
     thresholds = []
     for name in ("a", "b"):
         config = BenchConfig(**common, out=str(tmp_path / name))
@@ -556,14 +558,14 @@ def test_bench_samples_sets_the_mc_agents_samples_per_decision_and_keys_its_cach
     says so), cached apart from the recipe's K; the results record it; bad values are refused."""
     common = ("bench", "--task", "cartpole", "--methods", "dropout,ensemble", "--trials", "1", "--variants",
               "cartpole:length=2.0", "--episodes", "1", "--id-episodes", "2", "--workers", "1",
-              "--calibration-episodes", "22", "--far", "0.1", "--out", str(tmp_path))
+              "--calibration-episodes", "3", "--far", "0.5", "--confidence", "none", "--out", str(tmp_path))
     default = run_cli(*common, "--json")
     assert default.returncode == 0, default.stderr
     more = run_cli(*common, "--samples", "50", "--json")
     assert more.returncode == 0, more.stderr
     assert json.loads(more.stdout)["config"]["samples"] == 50 and json.loads(default.stdout)["config"]["samples"] is None
     folders = sorted(p.name for p in (tmp_path / "logs").iterdir())
-    assert folders == ["cartpole-chosen_std-far0.1-n22-conf0.9", "cartpole-chosen_std-far0.1-n22-conf0.9-k50"]
+    assert folders == ["cartpole-chosen_std-far0.5-n3-marginal", "cartpole-chosen_std-far0.5-n3-marginal-k50"]
     for folder, dropout_k in zip(folders, ("20", "50")):
         logs = {m: read_log(tmp_path / "logs" / folder / m / "trial0" / "cartpole.mcap") for m in ("dropout", "ensemble")}
         assert logs["dropout"].metadata["about.samples"] == dropout_k
@@ -578,7 +580,8 @@ def test_bench_members_trains_ensembles_of_that_size_keeping_members_trained_bef
     K members into folders of its own, its logs say K; member k trains alone with the same seed at
     any size, so the members of a smaller ensemble's training are kept, not trained again."""
     common = dict(methods=("ensemble",), trials=1, variants=("cartpole:length=2.0",), episodes=1, id_episodes=2,
-                  eval_episodes=1, calibration_episodes=22, far=0.1, out=str(tmp_path), workers=1, train_steps=300)
+                  eval_episodes=1, calibration_episodes=3, far=0.5, confidence=None, out=str(tmp_path), workers=1,
+                  train_steps=300)
     two = BenchConfig("cartpole", members=2, **common)
     assert (two.model_name("ensemble"), two.recipe("ensemble").n_members) == ("ensemble-members2", 2)
     run_bench(two)
@@ -607,7 +610,7 @@ def test_bench_net_arch_trains_every_trial_with_those_widths_in_folders_of_its_o
     with those hidden widths into folders of their own; the recipe's widths are the zoo's agent
     again; the results' settings record them (a baseline of other widths is refused by them)."""
     common = dict(methods=("dropconnect",), trials=1, variants=("cartpole:length=2.0",), episodes=1, id_episodes=2,
-                  eval_episodes=1, calibration_episodes=22, far=0.1, workers=1, train_steps=300)
+                  eval_episodes=1, calibration_episodes=3, far=0.5, confidence=None, workers=1, train_steps=300)
     small = BenchConfig("cartpole", net_arch=[16, 16], out=str(tmp_path), **common)  # a list, as JSON gives it
     assert small.net_arch == (16, 16) and small.model_name("dropconnect") == "dropconnect-net16x16"
     assert small.recipe("dropconnect").net_arch == [16, 16] and small.recipe("dropconnect").drop_p == 0.02
