@@ -16,7 +16,7 @@ from oodmon.agents.plan import _Affine, _DropConnect
 from oodmon.agents.serialization import load_modules
 from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
-from oodmon.monitor.detectors import Trajectory, fit_agent_detectors
+from oodmon.monitor.detectors import Trajectory, collect, fit_agent_detectors
 from tests.helpers import load_script
 
 
@@ -309,10 +309,11 @@ def test_sweep_fixed_masks_measures_an_agent_and_tabulates_its_rows(monkeypatch,
     monkeypatch.setattr(script, "ID_EPISODES", 1)
     monkeypatch.setattr(script, "SHIFTED_EPISODES", 1)
     monkeypatch.setattr(script, "fit_agent_detectors", lambda agent, **kw: fit_agent_detectors(agent, episodes=6, max_steps=40, **kw))
+    monkeypatch.setattr(script, "collect", lambda *a, **kw: collect(*a, **kw, max_steps=50))  # episodes of 50 steps
     row = script.measure(zoo_dir() / "pendulum-dropconnect")
     assert row["score"] == "pre_squash_std" and set(row["auroc"]) == set(script.MEASURES)
     assert all(0.0 <= row["auroc"][m]["pendulum:g=50.0"] <= 1.0 for m in script.MEASURES)
-    assert row["length_mean"] == {"pendulum": 200.0, "pendulum:g=50.0": 200.0}
+    assert row["length_mean"] == {"pendulum": 50.0, "pendulum:g=50.0": 50.0}
     other = {**row, "auroc": {m: {"pendulum:g=50.0": 0.5} for m in script.MEASURES}}
     table = script.table([{"label": "zoo", **row}, {"label": "zoo", **other}])
     value = row["auroc"]["fixed spread"]["pendulum:g=50.0"]
