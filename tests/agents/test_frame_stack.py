@@ -60,7 +60,7 @@ def test_a_td3_trained_inside_vecframestack_is_refused_without_it_then_watched_w
     assert main(["calibrate", *common, *out]) == 2  # it failed inside SB3's predict, or acted on another shape
     assert "Or trained inside VecFrameStack(3)? Give --frame-stack 3" in capsys.readouterr().err
     common += ["--frame-stack", "3"]
-    assert main(["calibrate", *common, "--episodes", "10", "--far", "0.2", "--confidence", "none",
+    assert main(["calibrate", *common, "--episodes", "4", "--far", "0.2", "--confidence", "none",
                  "--fit-episodes", "9", *out]) == 0
     assert main(["run", *common, "--threshold", str(tmp_path / "t.json"), "--variant", "pendulum:m=5.0", "--onset", "50",
                  "--episodes", "2", "--mcap", str(tmp_path / "x.mcap")]) == 0
@@ -76,7 +76,7 @@ def test_a_td3_trained_inside_vecframestack_is_refused_without_it_then_watched_w
     # episodes last 200 steps whatever the policy: the heavier pendulum is alarmed on).
     capsys.readouterr()
     assert main(["bench", *common, "--protocol", "monitor", "--variants", "pendulum:m=5.0", "--all-variants",
-                 "--episodes", "2", "--id-episodes", "5", "--calibration-episodes", "10", "--far", "0.2",
+                 "--episodes", "2", "--id-episodes", "5", "--calibration-episodes", "4", "--far", "0.2",
                  "--confidence", "none", "--fit-episodes", "9", "--workers", "1", "--out", str(tmp_path / "b"),
                  "--json"]) == 0
     alarms = {r["variant"]: r for r in json.loads(capsys.readouterr().out)["alarms"] if r["method"] == "sb3"}
@@ -94,7 +94,8 @@ def test_a_td3_trained_inside_vecframestack_is_refused_without_it_then_watched_w
     assert sb3_agent([model], "Pendulum-v1").frame_stack == 3  # in memory: the VecFrameStack it was trained in
     with pytest.raises(ConfigError, match=r"stacked 3 deep: wrap the env you step in .*FrameStack\(env, 3\)"):
         oodmon.watch(agent, env=gymnasium.make("Pendulum-v1"), episodes=22, far=0.1, fit_episodes=5)
-    env = oodmon.watch(agent, env=FrameStack(gymnasium.make("Pendulum-v1"), 3), episodes=22, far=0.1, fit_episodes=5)
+    env = oodmon.watch(agent, env=FrameStack(gymnasium.make("Pendulum-v1"), 3), episodes=3, far=0.5, confidence=None,
+                       fit_episodes=5)
     obs, _ = env.reset(seed=0)
     for _ in range(5):
         acted_on = obs
