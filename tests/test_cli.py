@@ -315,11 +315,11 @@ def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, c
 
 
 def test_progress_lines_carry_the_time_left_and_the_last_evaluation(capsys, monkeypatch):
-    from oodmon import cli
+    from oodmon.cli import parsing
 
     clock = iter([0.0, 120.0, 180.0])
-    monkeypatch.setattr(cli.time, "monotonic", lambda: next(clock))
-    with cli._progress() as report:
+    monkeypatch.setattr(parsing.time, "monotonic", lambda: next(clock))
+    with parsing._progress() as report:
         report("cartpole/dropout main training steps", 0, 1000)
         report("cartpole/dropout main training steps", 400, 1000, "last evaluation return 212.0 at step 400")
         report("cartpole/dropout main training steps", 1000, 1000)
@@ -371,7 +371,7 @@ def test_runs_closing_table_keeps_the_first_and_last_episodes_and_no_rewards():
     # the per-step rewards), the counts cover every episode, and the table says how many it leaves out.
     from rich.console import Console
 
-    from oodmon.cli import _EpisodeRows
+    from oodmon.cli.run import _EpisodeRows
     from oodmon.monitor.records import EpisodeRecord
 
     rows = _EpisodeRows(shown=6)
@@ -391,9 +391,9 @@ def test_runs_closing_table_keeps_the_first_and_last_episodes_and_no_rewards():
 
 
 def test_run_of_more_episodes_than_its_table_shows_points_to_replay(tmp_path, capsys, monkeypatch):
-    from oodmon import cli
+    from oodmon.cli.run import _EpisodeRows
 
-    monkeypatch.setattr(cli._EpisodeRows.__init__, "__defaults__", (4,))
+    monkeypatch.setattr(_EpisodeRows.__init__, "__defaults__", (4,))
     log = tmp_path / "short.mcap"
     assert main(["run", "--task", "cartpole", "--method", "ensemble", "--variant", "cartpole:length=0.05",
                  "--episodes", "7", "--mcap", str(log)]) == 0

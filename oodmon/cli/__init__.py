@@ -1,0 +1,109 @@
+"""The ``oodmon`` command: a thin layer over the library.
+
+Errors a person can fix (:class:`oodmon.errors.OodmonError`, and files that cannot be written)
+print as one line on stderr with exit code 2, never as a traceback.
+
+One module per group of commands, each with its arguments (``_add_<command>``) beside what it
+does: :mod:`~oodmon.cli.envs`, :mod:`~oodmon.cli.training` (train, evaluate),
+:mod:`~oodmon.cli.calibration` (calibrate, validate, fit-detectors), :mod:`~oodmon.cli.run` (run,
+demo), :mod:`~oodmon.cli.replay` (replay, check), :mod:`~oodmon.cli.bench`; the argument types,
+options shared by several commands and the progress display in :mod:`~oodmon.cli.parsing`; the
+agent and detectors a command acts on in :mod:`~oodmon.cli.loading`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from collections.abc import Sequence
+
+from oodmon.cli.bench import _add_bench
+from oodmon.cli.calibration import _add_calibrate, _add_fit_detectors, _add_validate
+from oodmon.cli.envs import _add_envs
+from oodmon.cli.parsing import _command_parser, _Parser, _unknown_arguments
+from oodmon.cli.replay import _add_check, _add_replay
+from oodmon.cli.run import _add_demo, _add_run
+from oodmon.cli.training import _add_evaluate, _add_train
+from oodmon.errors import OodmonError
+from oodmon.monitor.stopping import Terminated, stop_on_sigterm
+
+__all__ = ["main"]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI with ``argv`` (default: ``sys.argv[1:]``); return the exit code.
+
+    Exit codes: 0 done, 1 a regression check found a fall, 2 input that cannot be used (one line
+    on stderr), 130 interrupted (Ctrl-C; the logs keep every finished episode), 143 stopped by
+    SIGTERM (a service manager's stop, ``kill``), which is taken as Ctrl-C is.
+    """
+    parser = _parser()
+    words = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args, unknown = parser.parse_known_args(words)
+        if unknown:  # said by the command's own parser, which knows the flags that were meant
+            _unknown_arguments(_command_parser(parser, words), unknown)
+    except SystemExit as exit:  # --help, --version, or a bad flag (one line, from _Parser.error)
+        return exit.code if isinstance(exit.code, int) else 2
+    if not hasattr(args, "handler"):
+        parser.print_help()
+        return 2
+    args.argv = words  # what a result records as its command
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            _limit_torch_threads()
+            with stop_on_sigterm():  # a service manager's stop ends a command as Ctrl-C does
+                return args.handler(args) or 0
+        except (OodmonError, OSError) as error:
+            print(f"oodmon: error: {error}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt as interrupt:
+            kept = getattr(args, "kept_on_interrupt", None)
+            stopped = isinstance(interrupt, Terminated)
+            print(("oodmon: stopped by SIGTERM" if stopped else "oodmon: interrupted") + (f"; {kept}" if kept else ""),
+                  file=sys.stderr)
+            return 143 if stopped else 130
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings in the terminal as one line each, without the source line Python would show."""
+    print(f"oodmon: warning: {message}", file=sys.stderr)
+
+
+def _limit_torch_threads() -> None:
+    """Honour ``OODMON_TORCH_THREADS`` in every command (the monitor, calibration and bench as much
+    as training), so that a job run beside a training keeps to its share of the cores."""
+    from oodmon.threads import torch_threads
+
+    threads = torch_threads()
+    if threads is None:
+        return
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="oodmon",
+        description="Tells when a deployed RL policy has left the world it was trained in.",
+    )
+    from oodmon import __version__
+
+    parser.add_argument("--version", action="version", version=f"oodmon {__version__}")
+    commands = parser.add_subparsers(title="commands", metavar="COMMAND")
+
+    _add_envs(commands)
+    _add_train(commands)
+    _add_evaluate(commands)
+    _add_calibrate(commands)
+    _add_validate(commands)
+    _add_fit_detectors(commands)
+    _add_run(commands)
+    _add_replay(commands)
+    _add_check(commands)
+    _add_bench(commands)
+    _add_demo(commands)
+    return parser

@@ -1,0 +1,195 @@
+"""``oodmon bench``: the paper's protocol, or the monitor's, over trials, methods and variants."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from oodmon.cli.loading import _load_agent, _no_variants
+from oodmon.cli.parsing import (
+    _FIT_EPISODES,
+    _KEPT,
+    _UNSET,
+    _add_confidence,
+    _add_rule,
+    _command_line,
+    _fraction,
+    _non_negative,
+    _progress,
+    _sb3_arguments,
+    _table_console,
+    _whole,
+    _widths,
+)
+from oodmon.errors import ConfigError
+from oodmon.jsonfile import write_json
+from oodmon.monitor.threshold import DETECTOR_NAMES
+from oodmon.names import MASKS, METHODS, TASKS
+
+
+def _add_bench(commands: argparse._SubParsersAction) -> None:
+    """`oodmon bench`."""
+    bench = commands.add_parser("bench", help="the paper's protocol: trials x methods x failing variants, scored by replay")
+    bench.add_argument("--task", choices=TASKS, help="required unless --sb3")
+    bench.add_argument("--methods", default="dropout,dropconnect,ensemble", help="comma-separated (default all three)")
+    _sb3_arguments(bench)
+    bench.add_argument("--trials", type=_whole(1),
+                       help="trials per method (default 5; trial 0 is the zoo agent; --sb3: 1, nothing is trained)")
+    bench.add_argument("--samples", type=_whole(2), metavar="K",
+                       help="MC samples per decision of the Dropout and DropConnect agents (default: each recipe's, "
+                            "20); the decisions are their mean, so episodes change too, and a decision costs more "
+                            "(CartPole DropConnect: 0.3 ms at K=20, 9 ms at K=400)")
+    bench.add_argument("--masks", choices=MASKS,
+                       help="MC masks of the Dropout and DropConnect agents, and of one --sb3 model with dropout "
+                            "(default: each model's, sampled): fixed draws K masks once, so that sample k is the same "
+                            "sub-network at every decision (the decisions stay the mean of freshly sampled masks); "
+                            "fixed-decisions: the same K fixed sub-networks decide too, by their mean (one pass)")
+    bench.add_argument("--members", type=_whole(2), metavar="K",
+                       help="members of each ensemble trial (default: the recipe's, 5); another size trains every "
+                            "trial, trial 0 too (member k has the same seed at any size: members trained before are "
+                            "kept), and a decision costs K members' forward passes")
+    bench.add_argument("--net-arch", type=_widths, metavar="W,W",
+                       help="hidden widths of every trial's network, e.g. 64,64 (default: each recipe's, CartPole "
+                            "[256, 256], Pendulum [400, 300]); other widths train every trial, trial 0 too")
+    bench.add_argument("--variants", default="paper", help="'paper' (the paper's grid) or comma-separated specs")
+    bench.add_argument("--protocol", choices=["paper", "monitor"], default="paper",
+                       help="paper (default): shifted from step 0, per-step AUROC; monitor: the monitor's own benchmark, "
+                            "each shifted episode shifts at a random onset, alarms before failure and delays, "
+                            "the false-alarm rate over many ID episodes, the task's best detector")
+    bench.add_argument("--episodes", type=_whole(1), help="episodes per failing variant (default 5; monitor: 10)")
+    bench.add_argument("--all-variants", action="store_true",
+                       help="monitor every variant, not only those the agent fails on (Pong's corruptions: an alarm "
+                            "is wanted whether or not the return drops)")
+    bench.add_argument("--id-episodes", type=_whole(1), help="ID episodes per trial (default 10; monitor: 200)")
+    bench.add_argument("--calibration-episodes", type=_whole(1),
+                       help="ID episodes the threshold is calibrated on (default 45; monitor protocol: 90)")
+    bench.add_argument("--far", type=_fraction, default=0.05, help="the alarm's target false-alarm rate (default 0.05)")
+    _add_confidence(bench, default="0.9; monitor protocol: 0.99, so that the rate of 200 ID episodes shows the bound")
+    bench.add_argument("--workers", type=_whole(0), default=0, help="worker processes for the cells (default: all cores)")
+    bench.add_argument("--score", default="chosen_std",
+                       help="chosen_std (the paper's, default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
+    bench.add_argument("--window", type=_whole(1),
+                       help="alarm rule on the mean score of the last N steps (default 1; Pong 200 unless the frames "
+                            "detector); AUROCs do not change")
+    bench.add_argument("--detectors",
+                       help="comma-separated detectors whose per-step AUROC is reported: spread (the paper's protocol's "
+                            "default), dynamics, features, frames, combined, scaled_spread (ensembles, MC agents with --masks "
+                            "fixed); the learned "
+                            "ones are fitted per trial on ID episodes of their own (monitor protocol's default: spread "
+                            "and the task's best)")
+    bench.add_argument("--fit-episodes", type=_whole(3), default=0,
+                       help=f"ID episodes the learned detectors are fitted on, per trial (default {_FIT_EPISODES}; "
+                            "Pong 6 games)")
+    bench.add_argument("--alarm-detector", choices=list(DETECTOR_NAMES),
+                       help="the detector the monitor's alarm reads, one of --detectors (default spread; monitor "
+                            "protocol: the task's best)")
+    _add_rule(bench)
+    bench.add_argument("--consecutive", type=_whole(1),
+                       help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
+    bench.add_argument("--obs-noise", type=_non_negative, default=0.0,
+                       help="sensor noise in every monitored env, a fraction of each dimension's ID spread (default 0)")
+    bench.add_argument("--executor", choices=["local", "ray"], default="local",
+                       help="local worker processes (default) or Ray tasks (needs oodmon[ray])")
+    bench.add_argument("--address", help="the Ray cluster to use (default: start a local one)")
+    bench.add_argument("--bind", default="127.0.0.1",
+                       help="address a local Ray cluster listens on (default 127.0.0.1: this machine only)")
+    bench.add_argument("--out", default="runs/bench", help="models, logs and report (default runs/bench)")
+    bench.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    bench.add_argument("--results", metavar="FILE",
+                       help="also write the result as JSON to FILE (per trial AUROC, AUPR, FPR@95TPR, the alarms, the "
+                            "settings and this command): results as data, what --baseline reads")
+    bench.add_argument("--baseline", metavar="FILE",
+                       help="a result --results wrote earlier: exit 1, naming each figure, where this run falls below it")
+    bench.add_argument("--tolerance", type=_non_negative,
+                       help="--baseline's allowed fall of AUROC, AUPR and rates, and relative rise of delays (default 0.02)")
+    bench.set_defaults(handler=_bench, kept_on_interrupt=_KEPT["bench"])
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from oodmon.bench import BenchConfig, run_bench
+    from oodmon.errors import UnknownParameterError
+    from oodmon.monitor.alarms import default_window
+    from oodmon.monitor.detectors import BEST_DETECTOR
+
+    methods = tuple(m.strip() for m in args.methods.split(","))
+    for method in methods:
+        if method not in METHODS:
+            raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
+    samples = True  # the agents have samples of their own to spread
+    if args.sb3:
+        samples = _sb3_bench_task(args)
+        methods = ("sb3",)
+    elif args.task is None:
+        raise ConfigError("give --task (or --sb3 with --env for your own SB3 models)")
+    variants = "paper" if args.variants == "paper" else tuple(args.variants.split(","))
+    monitor = args.protocol == "monitor"
+    best = BEST_DETECTOR[args.task] if monitor or not samples else "spread"
+    alarm_detector = args.alarm_detector or best
+    detectors = (tuple(d.strip() for d in args.detectors.split(",")) if args.detectors
+                 else tuple(dict.fromkeys(("spread", alarm_detector) if samples else (alarm_detector,))))
+    config = BenchConfig(args.task, methods, args.trials or (1 if args.sb3 else 5), variants,
+                         args.episodes or (10 if monitor else 5), args.id_episodes or (200 if monitor else 10),
+                         out=args.out, workers=args.workers,
+                         executor=args.executor, address=args.address, bind=args.bind, score=args.score,
+                         window=args.window or default_window(args.task, alarm_detector), detectors=detectors,
+                         alarm_detector=alarm_detector, obs_noise=args.obs_noise,
+                         calibration_episodes=args.calibration_episodes or (90 if monitor else 45), far=args.far,
+                         confidence=(0.99 if monitor else 0.9) if args.confidence == _UNSET else args.confidence,
+                         protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
+                         all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean,
+                         vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
+                         samples=args.samples, members=args.members,
+                         net_arch=args.net_arch, fit_episodes=args.fit_episodes,
+                         masks=args.masks)
+    config.variant_list()  # refuse bad specs before any work
+    from oodmon.bench.baseline import (
+        BASELINE_TOLERANCE,
+        bench_falls,
+        check_same_settings,
+        load_bench_result,
+    )
+    from oodmon.outputs import check_output_dir, check_output_file
+
+    check_output_dir(args.out, parameter="--out")
+    if args.tolerance is not None and not args.baseline:
+        raise ConfigError("--tolerance is the allowed fall against --baseline FILE; give the baseline too")
+    baseline = load_bench_result(args.baseline) if args.baseline else None  # a bad baseline fails before hours of work
+    if baseline is not None:
+        check_same_settings(config.what_made_the_numbers(), baseline, args.baseline)
+    if args.results:
+        check_output_file(args.results, parameter="--results", inputs=[("--baseline", args.baseline)])
+    with _progress() as report:
+        result = run_bench(config, on_progress=report)
+    data = result.to_json(config, command=_command_line(args))
+    if args.results:
+        write_json(args.results, data)
+        print(f"wrote {args.results}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(data, indent=1))
+    else:
+        from oodmon.bench.report import print_monitor_report, print_paper_report
+
+        (print_monitor_report if monitor else print_paper_report)(config, result, _table_console())
+    if baseline is None:
+        return 0
+    tolerance = BASELINE_TOLERANCE if args.tolerance is None else args.tolerance
+    falls = bench_falls(data, baseline, tolerance, baseline_name=args.baseline)
+    for line in falls:
+        print(f"FELL {line}", file=sys.stderr)
+    if falls:
+        print(f"oodmon bench: {len(falls)} figure(s) fell below {args.baseline}", file=sys.stderr)
+        return 1
+    print(f"oodmon bench: every figure of {args.baseline} held (tolerance {tolerance})", file=sys.stderr)
+    return 0
+
+
+def _sb3_bench_task(args: argparse.Namespace) -> bool:
+    """For ``bench --sb3``: set ``args.task`` from ``--env`` (the bench plays oodmon's variants of
+    that task); True where the models have samples of their own (the spread detector applies)."""
+    from oodmon.envs.registration import task_of_env
+
+    task = task_of_env(args.env) if args.env else None
+    if args.env and task is None:
+        raise _no_variants("bench", args.env)
+    return _load_agent(args).estimator is not None

@@ -1,0 +1,208 @@
+"""``oodmon calibrate``, ``oodmon validate`` and ``oodmon fit-detectors``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from rich.console import Console
+
+from oodmon.cli.loading import _detectors, _load_agent
+from oodmon.cli.parsing import (
+    _FIT_EPISODES,
+    _KEPT,
+    _SEED,
+    _add_confidence,
+    _add_rule,
+    _agent_arguments,
+    _fraction,
+    _non_negative,
+    _progress,
+    _whole,
+)
+from oodmon.errors import ConfigError
+from oodmon.monitor.threshold import DETECTOR_NAMES
+from oodmon.seeds import CALIBRATION, DETECTOR_FIT, VALIDATION
+
+
+def _add_calibrate(commands: argparse._SubParsersAction) -> None:
+    """`oodmon calibrate`."""
+    calibrate = commands.add_parser(
+        "calibrate", help="calibrate an agent's alarm threshold on held-out in-distribution episodes"
+    )
+    _agent_arguments(calibrate)
+    calibrate.add_argument("--episodes", type=_whole(1), default=50, help="ID calibration episodes (default 50)")
+    calibrate.add_argument("--far", type=_fraction, default=0.05, help="target false-alarm rate (default 0.05)")
+    _add_confidence(calibrate)
+    calibrate.add_argument("--consecutive", type=_whole(1),
+                           help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
+    calibrate.add_argument("--window", type=_whole(1),
+                           help="compare the mean score of the last N steps (default 1: each step's; Pong 200 "
+                                "unless the frames detector)")
+    _add_rule(calibrate)
+    calibrate.add_argument("--reference-episodes", type=_whole(1), default=20,
+                           help="ID episodes a sequential rule's p-values are taken against (default 20; seeds apart)")
+    calibrate.add_argument("--reference-by-age", action="store_true",
+                           help="take a sequential rule's p-values against ID steps as long since reset, not all of them")
+    calibrate.add_argument("--mode", choices=["episode", "step"], default="episode",
+                           help="guarantee per episode (default) or per step")
+    calibrate.add_argument("--score", default="chosen_std",
+                           help="the spread's score: chosen_std (default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
+    calibrate.add_argument("--detector", choices=list(DETECTOR_NAMES),
+                           help="the detector the alarm reads (default: the task's best measured one when the agent has "
+                                "fitted detectors: cartpole combined, pendulum dynamics, pong frames; else spread); "
+                                "a learned one without fitted detectors is fitted first, into <out>.detectors/")
+    calibrate.add_argument("--fit-episodes", type=_whole(3), default=_FIT_EPISODES,
+                           help=f"ID episodes the learned detectors are fitted on when calibrate fits them (default "
+                                f"{_FIT_EPISODES})")
+    calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
+                           help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
+    calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
+    calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from oodmon.monitor import calibrate_agent
+    from oodmon.monitor.detectors import (
+        BEST_DETECTOR,
+        DEFAULT_FIT_EPISODES,
+        detectors_for,
+        fit_agent_detectors,
+    )
+    from oodmon.monitor.threshold import conformal_rank
+    from oodmon.outputs import check_output_dir, check_output_file
+
+    check_output_file(args.out, parameter="--out", inputs=[("--model", args.model and f"{args.model}/model.json")])
+    if args.mode == "episode":
+        conformal_rank(args.episodes, args.far, args.confidence)  # too few episodes: said before any runs
+    agent = _load_agent(args, seed=args.seed)  # the same --seed, the same threshold, for MC agents too
+    detectors = detectors_for(agent, args.detectors)
+    fitted_to = None
+    # A learned detector asked for, or a model from elsewhere (a plain policy has no spread; an SB3
+    # ensemble's spread is weak): fit them first, on episodes of their own. So too for a combined
+    # detector asked for with another spread score than the fitted one ranks.
+    # scaled_spread is fitted only when asked for, alone (with the spread).
+    left_out = detectors.for_score(args.score)[1] if detectors is not None else None
+    scaled = args.detector == "scaled_spread"
+    if (detectors is None and (args.detector not in (None, "spread") or agent.estimator is None or agent.env_id)
+            or (args.detector == "combined" and left_out) or (scaled and "scaled_spread" not in (detectors or ()))):
+        fitted_to = Path(f"{args.out}.detectors")
+        check_output_dir(fitted_to, parameter="--out (its detectors folder)")
+        with _progress() as report:
+            detectors = fit_agent_detectors(agent, detectors=("scaled_spread",) if scaled else None, score=args.score,
+                                            episodes=args.fit_episodes, on_progress=report)
+        detectors.save(fitted_to)
+    with _progress() as report:
+        threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
+                                    window=args.window, score=args.score, seed=args.seed, detectors=detectors,
+                                    detector=args.detector, confidence=args.confidence, rule=args.rule,
+                                    reference_episodes=args.reference_episodes, reference_by_age=args.reference_by_age,
+                                    on_progress=report)
+    threshold.save(args.out)
+    Console(soft_wrap=True).print(
+        f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "
+        f"mode, {threshold.n_episodes} ID episodes, {threshold.n_steps} steps, rank {threshold.rank} of "
+        f"{threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score median "
+        f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote {args.out}"
+        + (f"; fitted the detectors into {fitted_to} (`oodmon run` finds them there)"
+           if fitted_to else "")
+    )
+    best = BEST_DETECTOR.get(args.task)
+    if best is not None and args.detector is None and threshold.detector != best:
+        Console(stderr=True, soft_wrap=True).print(
+            f"note: the {best} detector separates {args.task}'s shifts better than {threshold.detector}; "
+            f"`--detector {best}` fits it first (about {DEFAULT_FIT_EPISODES} more ID episodes)"
+            + (f"; the fitted one is left out: {left_out}" if left_out and best == "combined" else ""))
+    return 0
+
+
+def _add_validate(commands: argparse._SubParsersAction) -> None:
+    """`oodmon validate`."""
+    validate = commands.add_parser(
+        "validate", help="run fresh ID episodes and print a threshold's realised false-alarm rate beside its target"
+    )
+    validate.add_argument("threshold", help="the threshold file (`oodmon calibrate`)")
+    _agent_arguments(validate, defaults_from="the threshold's")
+    validate.add_argument("--episodes", type=_whole(1), default=200, help="fresh ID episodes (default 200)")
+    validate.add_argument("--seed", type=_SEED, default=VALIDATION,
+                          help=f"seed of the first episode and of MC sampling (default {VALIDATION}, apart from "
+                               "calibration's)")
+    validate.add_argument("--obs-noise", type=_non_negative, default=0.0,
+                          help="sensor noise, a fraction of each dimension's ID spread (default 0)")
+    validate.add_argument("--force", action="store_true", help="validate even if the threshold was made for other weights")
+    validate.add_argument("--json", action="store_true", help="print JSON instead of a sentence")
+    validate.set_defaults(handler=_validate)
+
+
+def _validate(args: argparse.Namespace) -> int:
+    from oodmon.monitor import Threshold, validate_threshold
+
+    threshold = Threshold.load(args.threshold)
+    args.task = args.task or threshold.task
+    if args.task is None:
+        raise ConfigError(f"{args.threshold} does not record its task; give --task")
+    if args.model is None and not args.sb3:
+        if threshold.method == "sb3" and args.method is None:  # no shipped agent of that name
+            raise ConfigError(f"{args.threshold} was calibrated on your own SB3 model(s) in {threshold.task}: give them "
+                              f"again, --sb3 ZIP --env {threshold.task} (with --vec-normalize and --frame-stack as "
+                              "when calibrating)")
+        args.method = args.method or threshold.method
+    args.masks = args.masks or threshold.masks
+    agent = _load_agent(args, seed=args.seed)  # the same --seed, the same count, for MC agents too
+    detectors = _detectors(args, agent)
+    with _progress() as report:
+        result = validate_threshold(agent, threshold, args.episodes, seed=args.seed, detectors=detectors,
+                                    obs_noise=args.obs_noise, force=args.force, on_progress=report)
+    unit = "episodes" if threshold.mode == "episode" else "steps"
+    if args.json:
+        print(json.dumps({"threshold": str(args.threshold), "task": agent.task, "method": agent.method,
+                          "detector": threshold.detector, "rule": threshold.rule_text, "unit": unit,
+                          "alarmed": result.alarmed, "total": result.total, "rate": result.rate,
+                          "interval95": [result.low, result.high], "far": result.far,
+                          "confidence": result.confidence, "seed": args.seed, "verdict": result.verdict}, indent=1))
+    else:
+        verdict = {"above": "ABOVE the target: this threshold alarms too often",
+                   "below": "below the target",
+                   "consistent": "consistent with the target (the interval holds it)"}[result.verdict]
+        Console(soft_wrap=True).print(
+            f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule_text}: "
+            f"{result.alarmed} of {result.total} fresh ID {unit} alarmed, {result.rate:.1%} (95% interval "
+            f"{result.low:.1%}-{result.high:.1%}); target {result.far:g}"
+            + (f" with confidence {result.confidence:g}" if result.confidence is not None else " on average")
+            + f": {verdict}")
+    return 1 if result.verdict == "above" else 0
+
+
+def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
+    """`oodmon fit-detectors`."""
+    fit = commands.add_parser(
+        "fit-detectors", help="fit the learned detectors (dynamics, features, combined) on an agent's ID episodes"
+    )
+    _agent_arguments(fit)
+    fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread, "
+                                    "which is fitted only when named)")
+    fit.add_argument("--episodes", type=_whole(3), default=_FIT_EPISODES,
+                     help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES})")
+    fit.add_argument("--max-steps", type=_whole(1), help="cut each episode after this many steps (Pong: try 300)")
+    fit.add_argument("--score", default="chosen_std", help="the spread score combined uses (default chosen_std)")
+    fit.add_argument("--obs-noise", type=_non_negative, default=0.0,
+                     help="sensor noise of the ID env, a fraction of each dimension's ID spread (default 0)")
+    fit.add_argument("--out", required=True, help="folder for detectors.json and detectors.safetensors")
+    fit.set_defaults(handler=_fit_detectors, kept_on_interrupt=_KEPT["fit-detectors"])
+
+
+def _fit_detectors(args: argparse.Namespace) -> int:
+    from oodmon.monitor.detectors import fit_agent_detectors
+    from oodmon.outputs import check_output_dir
+
+    check_output_dir(args.out, parameter="--out")
+    agent = _load_agent(args, seed=DETECTOR_FIT)  # seeded MC sampling: the same command fits the same detectors
+    only = args.only.split(",") if args.only else None
+    with _progress() as report:
+        detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
+                                        obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report)
+    detectors.save(args.out)
+    Console(soft_wrap=True).print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
+                                  f"{args.episodes} ID episodes; wrote {args.out}")
+    return 0

@@ -1,0 +1,93 @@
+"""``oodmon envs``: the paper's OOD variants, listed, pictured and toured."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from rich.console import Console
+from rich.table import Table
+
+from oodmon.cli.parsing import _SEED, _table_console, _whole
+from oodmon.names import TASKS
+
+
+def _add_envs(commands: argparse._SubParsersAction) -> None:
+    """`oodmon envs`, with `envs show` and `envs tour`."""
+    envs = commands.add_parser("envs", help="list the paper's OOD variants; 'envs show SPEC' pictures one")
+    envs.add_argument("--task", choices=TASKS, help="only this task's variants")
+    envs.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    envs.set_defaults(handler=_envs_list)
+    envs_commands = envs.add_subparsers(title="envs commands", metavar="COMMAND")
+    show = envs_commands.add_parser(
+        "show",
+        help="what a variant changes",
+        description="Pong: the clean and the corrupted frame side by side. CartPole, Pendulum: a "
+        "hand-written reference controller's returns in the ID env and the variant, and its pole "
+        "angle over an episode.",
+    )
+    show.add_argument("spec", help="a variant spec, e.g. pong:pixelate@3 or cartpole:length=2.0")
+    show.add_argument("--out", help="write the picture to this file (.png or .jpg; a name without a suffix gets .png)")
+    show.add_argument("--seed", type=_SEED, default=0, help="seed of the episode shown (default 0)")
+    show.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (physics; default 0)")
+    show.set_defaults(handler=_envs_show)
+    tour = envs_commands.add_parser("tour", help="what the envs change, shown with a hand-written controller")
+    tour.add_argument("--out", default="runs/tour", help="folder for the pictures (default runs/tour)")
+    tour.set_defaults(handler=_envs_tour)
+
+
+def _envs_list(args: argparse.Namespace) -> int:
+    from oodmon.envs.grid import grid_rows
+
+    rows = grid_rows([args.task] if args.task else TASKS)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    table = Table(title=f"The paper's OOD variants ({len(rows)})")
+    for column in ("task", "spec", "parameter", "value", "default"):
+        table.add_column(column)
+    for row in rows:
+        table.add_row(*(("" if row[k] is None else str(row[k])) for k in ("task", "spec", "parameter", "value", "default")))
+    _table_console().print(table)
+    return 0
+
+
+def _envs_show(args: argparse.Namespace) -> int:
+    from oodmon.envs import parse_variant
+    from oodmon.envs.preview import (
+        compare_physics,
+        pong_preview,
+        save_physics_plot,
+        save_rgb,
+    )
+
+    variant = parse_variant(args.spec)
+    out = None
+    if args.out:
+        from oodmon.outputs import check_picture_file
+
+        out = check_picture_file(args.out, parameter="--out")  # "shot" is written as shot.png
+    console = Console(soft_wrap=True)
+    if variant.task == "pong":
+        image = pong_preview(variant, seed=args.seed)
+        console.print(f"{variant.spec}: {variant.kwargs()}")
+        if out:
+            console.print(f"wrote {save_rgb(image, out)} (clean left, corrupted right)")
+        return 0
+    comparison = compare_physics(variant, seeds=range(args.seed, args.seed + 5), onset_step=args.onset)
+    console.print(
+        f"{variant.spec} (onset {args.onset}): reference controller's mean return over 5 seeds "
+        f"{comparison.shifted_return:.1f}, against {comparison.id_return:.1f} in the ID env"
+    )
+    if out:
+        console.print(f"wrote {save_physics_plot(comparison, out)}")
+    return 0
+
+
+def _envs_tour(args: argparse.Namespace) -> int:
+    from oodmon.demo import run_env_tour
+    from oodmon.outputs import check_output_dir
+
+    check_output_dir(args.out, parameter="--out")
+    run_env_tour(args.out)
+    return 0

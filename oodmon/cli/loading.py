@@ -1,0 +1,65 @@
+"""The agent and the fitted detectors a command acts on, from its arguments."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from oodmon.errors import ConfigError
+
+
+def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
+    """The agent of --sb3/--env, --model or --task/--method; ``seed`` seeds its MC sampling (None:
+    fresh entropy). Sets ``args.task`` from --env for --sb3 models."""
+    from oodmon.agents import load, load_agent
+
+    if getattr(args, "sb3", None):  # commands without the --sb3 options (evaluate) have none
+        from oodmon.agents.sb3 import load_sb3
+
+        if not args.env:
+            raise ConfigError("--sb3 needs --env: the gymnasium env id the models act in (e.g. CartPole-v1)")
+        _check_frame_stack(args.frame_stack)
+        if getattr(args, "model", None) or getattr(args, "method", None):
+            raise ConfigError("--sb3 is instead of --model and --method: give one of them")
+        agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed, masks=getattr(args, "masks", None),
+                         vec_normalize=args.vec_normalize, frame_stack=args.frame_stack)
+        if args.task and args.task != agent.task:
+            raise ConfigError(f"--task {args.task} contradicts --env {args.env} (task {agent.task})")
+        args.task = agent.task
+        return agent
+    if getattr(args, "env", None) or getattr(args, "mean", False) or getattr(args, "vec_normalize", None) \
+            or getattr(args, "frame_stack", None) is not None:
+        raise ConfigError("--env, --mean, --frame-stack and --vec-normalize go with --sb3 (your own SB3 models)")
+    if not args.task:
+        raise ConfigError("give --task with --method or --model (or --sb3 with --env for your own SB3 models)")
+    masks = getattr(args, "masks", None)
+    if args.model:
+        return load_agent(args.model, task=args.task, seed=seed, masks=masks)
+    if not args.method:
+        raise ConfigError("give --method for a shipped agent, or --model DIR for a trained one")
+    return load(args.task, args.method, seed=seed, masks=masks)
+
+
+def _check_frame_stack(frame_stack: int | None) -> None:
+    """``--frame-stack``, refused before any model is read unless 2 or more (or not given)."""
+    if frame_stack is not None:
+        from oodmon.agents.frame_stack import check_frame_stack
+
+        check_frame_stack(frame_stack, parameter="--frame-stack ")
+
+
+def _detectors(args: argparse.Namespace, agent):
+    """The fitted detectors: ``--detectors``, else those `calibrate` fitted beside the threshold
+    file (``<threshold>.detectors/``), else the agent's own, else ``None``."""
+    from oodmon.monitor.detectors import detectors_for
+
+    beside = Path(f"{args.threshold}.detectors") if getattr(args, "threshold", None) else None
+    if args.detectors is None and beside is not None and (beside / "detectors.json").is_file():
+        return detectors_for(agent, beside)
+    return detectors_for(agent, args.detectors)
+
+
+def _no_variants(command: str, env_id: str) -> ConfigError:
+    """The refusal of a command that plays oodmon's variants, for an --sb3 model of an env that has none."""
+    return ConfigError(f"{command} plays oodmon's shifted variants of CartPole, Pendulum and Pong; --env {env_id} is "
+                       f"none of them: monitor the model in it with `oodmon run --sb3 ... --env {env_id}` instead")

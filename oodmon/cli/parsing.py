@@ -1,0 +1,254 @@
+"""The CLI's argument types, the options several commands share, and its progress display."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+
+from rich.console import Console
+
+from oodmon.names import MASKS, METHODS, TASKS
+from oodmon.progress import unit_of
+
+#: What Ctrl-C leaves behind, said by the commands that write as they go or only at their end.
+_LOGGED = "every finished episode is in the logs, the cut one is marked interrupted"
+
+
+_KEPT = {
+    "run": _LOGGED, "demo": _LOGGED,
+    "train": "the last checkpoint is kept: the same command resumes from it",
+    "bench": "trained models and finished cells are kept: the same command resumes from them",
+    "calibrate": "no threshold file was written (it is written when the calibration ends): run the command again",
+    "fit-detectors": "no detectors were written (they are written when the fitting ends): run the command again",
+}
+
+
+def _command_line(args: argparse.Namespace) -> str:
+    """The command as typed (what a model or a bench result records of what made it)."""
+    return "oodmon " + shlex.join(args.argv)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a bad flag reported in one line (the usage is one ``--help`` away)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _command_parser(parser: argparse.ArgumentParser, words: Sequence[str]) -> argparse.ArgumentParser:
+    """The parser of the (sub)command ``words`` name: ``oodmon run``'s for ``run --task ...``,
+    ``oodmon envs show``'s for ``envs show ...``."""
+    for word in words:
+        commands = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        if commands is not None and word in commands.choices:
+            parser = commands.choices[word]
+        elif commands is None or not word.startswith("-"):
+            break  # a command with no subcommands, or a word that names none: this parser read it
+    return parser
+
+
+def _unknown_arguments(parser: argparse.ArgumentParser, unknown: Sequence[str]) -> None:
+    """Exit through ``parser.error``: the arguments it does not know, and for a mistyped flag the
+    flag it has that is closest (``--rerun``: did you mean ``--rrd``?)."""
+    import difflib
+
+    flags = [flag for action in parser._actions for flag in action.option_strings if flag.startswith("--")]
+    hints = []
+    for word in unknown:
+        name = word.split("=", 1)[0]
+        close = difflib.get_close_matches(name, flags, n=1, cutoff=0.6) if name.startswith("--") else []
+        hints += [(name, close[0])] if close else []
+    message = f"unrecognized arguments: {' '.join(unknown)}"
+    if len(hints) == 1 and sum(word.startswith("--") for word in unknown) == 1:  # no doubt which flag is meant
+        message += f"; did you mean {hints[0][1]}?"
+    elif hints:
+        message += "; " + "; ".join(f"{name}: did you mean {close}?" for name, close in hints)
+    parser.error(message)
+
+
+def _widths(text: str) -> list[int]:
+    """An argparse type: hidden widths, e.g. ``64,64`` (imported here: ``oodmon.agents`` loads torch,
+    which ``oodmon --help`` need not wait for)."""
+    from oodmon.agents.recipes import parse_widths
+
+    return parse_widths(text)
+
+
+def _whole(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+    """An argparse type: a whole number in [minimum, maximum]."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if value < minimum or (maximum is not None and value > maximum):
+            allowed = f">= {minimum}" if maximum is None else f"from {minimum} to {maximum}"
+            raise argparse.ArgumentTypeError(f"{value} is not allowed; give a whole number {allowed}")
+        return value
+
+    return parse
+
+
+def _number(test: Callable[[float], bool], allowed: str) -> Callable[[str], float]:
+    """An argparse type: a number for which ``test`` holds (``allowed`` says which, for the message)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not test(value):
+            raise argparse.ArgumentTypeError(f"{text} is not allowed; give {allowed}")
+        return value
+
+    return parse
+
+
+_fraction = _number(lambda x: 0.0 < x < 1.0, "a number between 0 and 1 (exclusive)")
+
+
+_non_negative = _number(lambda x: 0.0 <= x < float("inf"), "a finite number >= 0")
+
+
+_positive = _number(lambda x: 0.0 < x < float("inf"), "a finite number > 0")
+
+
+_SEED = _whole(0, 2**32 - 1)
+
+
+def _add_rule(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--rule", choices=["consecutive", "cusum", "martingale"], default="consecutive",
+                        help="the alarm rule: consecutive (default: --consecutive steps above the threshold), cusum or "
+                             "martingale (sequential, on p-values against ID reference episodes' scores; see the README)")
+
+
+def _confidence(text: str) -> float | None:
+    """An argparse type: ``--confidence`` in (0, 1), or ``none`` (the rate bounded on average only)."""
+    if text.strip().lower() == "none":
+        return None
+    return _fraction(text)
+
+
+def _add_confidence(parser: argparse.ArgumentParser, default: str | None = None) -> None:
+    from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
+
+    parser.add_argument("--confidence", type=_confidence, default=DEFAULT_CONFIDENCE if default is None else _UNSET,
+                        metavar="1-d",
+                        help=f"with this probability over the calibration episodes, the threshold's false-alarm rate "
+                             f"is <= --far (default {default or DEFAULT_CONFIDENCE}; 45 episodes for --far 0.05 at "
+                             "0.9); 'none': only on average over calibrations (19 episodes for --far 0.05)")
+
+
+#: oodmon.monitor.detectors.DEFAULT_FIT_EPISODES, written out: importing it here would load the
+#: detectors (scipy, gymnasium) before every command; a test keeps the two equal.
+_FIT_EPISODES = 90
+
+
+#: An option left at its default where the default depends on another option (bench's --protocol).
+_UNSET = -1.0
+
+
+def _table_console() -> Console:
+    """A console for tables: the terminal's width, or a wide one when output goes to a file or pipe
+    (rich would otherwise cut columns to 80 characters)."""
+    console = Console()
+    return console if console.is_terminal else Console(width=220)
+
+
+@contextmanager
+def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
+    """An ``on_progress(stage, done, total, note=None)`` for long work (see :mod:`oodmon.progress`;
+    ``note``: a latest figure to show beside the stage): rich bars on a terminal; where stderr is a
+    file (a job under nohup), where a bar would only appear at the end, a dated line per stage at
+    most once a minute, at its start and at its end, with a rate in the stage's unit."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    stderr = Console(stderr=True)
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TimeRemainingColumn())
+    with Progress(*columns, console=stderr, transient=transient) as progress:
+        bars: dict[str, int] = {}
+        last_line: dict[str, tuple[float, int]] = {}  # name -> (time, done) of its last plain line
+
+        notes: dict[str, str] = {}  # name -> its latest note (training: the last evaluation return)
+
+        def report(name: str, done: int, total: int, note: str | None = None) -> None:
+            total = total or None  # 0: not known in advance
+            if name not in bars:
+                bars[name] = progress.add_task(name, total=total)
+            if note is not None:
+                notes[name] = note
+                progress.update(bars[name], description=f"{name} ({note})")
+            progress.update(bars[name], completed=done, total=total)
+            if stderr.is_terminal:
+                return
+            now = time.monotonic()
+            then, before = last_line.get(name, (None, done))
+            finished = total is not None and done >= total and before < total
+            if then is None or now - then >= 60 or finished:
+                rate = (done - before) / (now - then) if then is not None and now > then else 0.0
+                counted = unit_of(name)
+                speed = f"{rate:.1f} {counted}/s" if rate >= 1 or rate == 0 else f"{rate * 60:.1f} {counted}/min"
+                left = (total - done) / rate if rate > 0 and total is not None and total > done else None
+                eta = "" if left is None else f", about {left / 60:.0f} min left" if left >= 90 else f", about {left:.0f} s left"
+                noted = f", {notes[name]}" if name in notes else ""
+                of = "" if total is None else f"/{total}"
+                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}{of} {counted}, {speed}{eta}{noted}",
+                      file=sys.stderr, flush=True)
+                last_line[name] = (now, done)
+
+        yield report
+
+
+def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | None = None) -> None:
+    """--task, --method, --model, --detectors; with ``defaults_from`` (a threshold file), the task and
+    method default to what it was calibrated for, and the detectors to those fitted beside it."""
+    if defaults_from is None:
+        parser.add_argument("--task", choices=TASKS,
+                            help="a shipped agent's task (required unless --sb3)")
+    else:
+        parser.add_argument("--task", choices=TASKS, help=f"default: {defaults_from} task")
+    parser.add_argument("--method", choices=METHODS,
+                        help="a shipped agent (or give --model)" if defaults_from is None
+                        else f"a shipped agent (default: {defaults_from} method, unless --model)")
+    parser.add_argument("--model", help="a trained model directory instead of a shipped agent")
+    parser.add_argument("--masks", choices=MASKS,
+                        help="the masks of an MC agent, or of one --sb3 model with dropout: sampled anew at every "
+                             "decision, or fixed: K masks drawn once, so that the spread is that of K fixed "
+                             "sub-networks (the decision is still the mean of sampled masks); fixed-decisions: the "
+                             "fixed sub-networks decide too, by their mean, in the same pass. Default: the threshold "
+                             "file's, if it records them, else the model's (sampled)")
+    _sb3_arguments(parser)
+    parser.add_argument("--detectors", metavar="DIR",
+                        help="fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside "
+                             "the threshold file, else those shipped with the agent, if any)")
+
+
+def _sb3_arguments(parser: argparse.ArgumentParser) -> None:
+    """--sb3, --env, --mean: your own stable-baselines3 models instead of an oodmon agent."""
+    parser.add_argument("--sb3", nargs="+", metavar="ZIP",
+                        help="your own stable-baselines3 model file(s) (DQN, DDPG, TD3, SAC, PPO, A2C), with --env; the "
+                             "first is the deployed policy, several DQN or DDPG/TD3 models also form an ensemble detector. "
+                             "SB3's loader unpickles: give only files you trust")
+    parser.add_argument("--env", metavar="ID", help="the gymnasium env id the --sb3 models act in, e.g. CartPole-v1")
+    parser.add_argument("--mean", action="store_true",
+                        help="with several --sb3 models: deploy the ensemble's mean decision, not the first model's")
+    parser.add_argument("--vec-normalize", metavar="PKL",
+                        help="--sb3 models trained inside SB3's VecNormalize: the statistics file it saved "
+                             "(vec_normalize.save(), e.g. vecnormalize.pkl; read without running code from it), so that they see "
+                             "observations normalised as in training; 'none' if it did not normalise observations")
+    parser.add_argument("--frame-stack", type=int, metavar="N",
+                        help="--sb3 models trained inside SB3's VecFrameStack(N): their observations (and the detectors' "
+                             "and the logs') are the env's stacked N deep as VecFrameStack stacks them")

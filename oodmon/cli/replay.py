@@ -1,0 +1,201 @@
+"""``oodmon replay`` (metrics from recorded logs) and ``oodmon check`` (regression check)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+
+from rich.console import Console
+
+from oodmon.cli.parsing import _non_negative, _table_console
+from oodmon.errors import ConfigError
+from oodmon.jsonfile import write_json
+
+
+def _add_replay(commands: argparse._SubParsersAction) -> None:
+    """`oodmon replay`."""
+    replay = commands.add_parser("replay", help="metrics from recorded MCAP logs (files only; never modified)")
+    replay.add_argument("logs", nargs="+", help="MCAP files, or folders holding them")
+    formats = replay.add_mutually_exclusive_group()
+    formats.add_argument("--json", action="store_true", help="print JSON (key auroc for the paper's metric)")
+    formats.add_argument("--csv", action="store_true", help="print CSV")
+    formats.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    replay.add_argument("--plots", metavar="DIR", help="also write PNG plots (ROC, traces, AUROC vs shift; with --monitor "
+                                                      "each agent's alarm timeline) to DIR")
+    replay.add_argument("--detector", help="the per-step metrics of this detector only (default: every detector "
+                                           "the logs hold, one row each)")
+    views = replay.add_mutually_exclusive_group()
+    views.add_argument("--monitor", action="store_true",
+                       help="the alarm's figures instead (the monitor's benchmark): false alarms with their interval, "
+                            "alarms before failure, delays")
+    views.add_argument("--episodes", action="store_true",
+                       help="one row per episode instead: its steps, return, alarms, first alarm, delay, failure and "
+                            "how it ended (interrupted ones too, which the metrics leave out)")
+    replay.set_defaults(handler=_replay)
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from oodmon.replay import (
+        compute_all_metrics,
+        compute_metrics,
+        to_csv,
+        to_json,
+        to_markdown,
+        to_table,
+    )
+
+    if args.plots:
+        from oodmon.outputs import check_output_dir
+
+        check_output_dir(args.plots, parameter="--plots")
+    logs = _read_logs(args.logs)
+    if args.monitor:
+        return _replay_monitor(args, logs)
+    if args.episodes:
+        return _replay_episodes(args, logs)
+    metrics = compute_all_metrics(logs) if args.detector is None else compute_metrics(logs, args.detector)
+    if args.plots:
+        from oodmon.replay.plots import write_plots
+
+        written = write_plots(logs, metrics, args.plots)  # AUROC against the shift: a line per detector replayed
+        print(f"wrote {len(written)} plot(s) to {args.plots}", file=sys.stderr)
+    if args.json:
+        print(to_json(metrics))
+    elif args.csv:
+        print(to_csv(metrics), end="")
+    elif args.markdown:
+        print(to_markdown(metrics), end="")
+    else:
+        steps = sum(e.length for log in logs for e in log.episodes)
+        console = _table_console()
+        console.print(to_table(metrics, title=f"replay of {len(logs)} log(s), {steps} steps", width=console.width))
+    return 0
+
+
+def _replay_episodes(args: argparse.Namespace, logs) -> int:
+    """``replay --episodes``: one row per episode."""
+    from oodmon.replay.report import (
+        episode_rows,
+        episodes_csv,
+        episodes_markdown,
+        episodes_table,
+    )
+
+    if args.plots or args.detector:
+        raise ConfigError("--episodes lists the episodes; --plots and --detector go with the metrics")
+    rows = episode_rows(logs)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+    elif args.csv:
+        print(episodes_csv(rows), end="")
+    elif args.markdown:
+        print(episodes_markdown(rows), end="")
+    else:
+        alarmed = sum(row["alarms"] > 0 for row in rows)
+        _table_console().print(episodes_table(rows, title=f"{len(rows)} episode(s) of {len(logs)} log(s), "
+                                                          f"{alarmed} alarmed"))
+    return 0
+
+
+def _replay_monitor(args: argparse.Namespace, logs) -> int:
+    """``replay --monitor``: the alarm's figures per variant (the monitor's benchmark)."""
+    from oodmon.replay import (
+        compute_monitor_metrics,
+        monitor_markdown,
+        monitor_summary,
+        monitor_table,
+    )
+    from oodmon.replay.metrics import FAILURE_DEFINITION
+
+    if args.csv:
+        raise ConfigError("--monitor prints a table, --json or --markdown; not --csv")
+    if logs and not any(log.has_threshold for log in logs):
+        raise ConfigError("--monitor counts the alarms, and these logs ran without a threshold, so raised none: "
+                          "run with `oodmon run --threshold FILE` (from `oodmon calibrate`)")
+    metrics = compute_monitor_metrics(logs)
+    if args.plots:
+        from oodmon.replay.plots import write_monitor_plots
+
+        written = write_monitor_plots(logs, args.plots)
+        print(f"wrote {len(written)} plot(s) to {args.plots}", file=sys.stderr)
+    if args.json:
+        print(json.dumps([m.to_dict() for m in [*metrics, *monitor_summary(metrics)]], indent=1))
+    elif args.markdown:
+        print(monitor_markdown(metrics), end="")
+    else:
+        _table_console().print(monitor_table(metrics, title=f"the alarms of {len(logs)} log(s)"))
+        print(FAILURE_DEFINITION, file=sys.stderr)
+    return 0
+
+
+def _read_logs(paths: Sequence[str]):
+    from oodmon.replay import read_logs
+
+    logs = read_logs(paths)
+    interrupted = sum(len(log.interrupted) for log in logs)
+    if interrupted:
+        print(f"oodmon: note: {interrupted} interrupted episode(s) (runs stopped inside them) are left out of the "
+              "metrics", file=sys.stderr)
+    unthresholded = [str(log.path) for log in logs if not log.has_threshold]
+    if unthresholded:
+        print(f"oodmon: note: {len(unthresholded)} log(s) ran without a threshold (`oodmon run --threshold`), so "
+              f"raised no alarms: {', '.join(unthresholded[:3])}{', ...' if len(unthresholded) > 3 else ''}; "
+              "their variants have no alarm figures", file=sys.stderr)
+    return logs
+
+
+def _add_check(commands: argparse._SubParsersAction) -> None:
+    """`oodmon check`."""
+    check = commands.add_parser("check", help="regression check of recorded logs against a baseline")
+    check.add_argument("logs", nargs="+", help="MCAP files, or folders holding them")
+    check.add_argument("--baseline", required=True, help="the baseline JSON file")
+    check.add_argument("--update", action="store_true", help="write the baseline from these logs instead")
+    check.add_argument("--tolerance", type=_non_negative, help="allowed fall (default: the baseline's, else 0.02)")
+    check.set_defaults(handler=_check)
+
+
+def _check(args: argparse.Namespace) -> int:
+
+    from oodmon.outputs import check_output_file
+    from oodmon.replay import (
+        baseline_of,
+        compute_all_metrics,
+        find_falls,
+        load_baseline,
+    )
+
+    if args.update:
+        check_output_file(args.baseline, parameter="--baseline", inputs=[("a log", log) for log in args.logs])
+        baseline = None
+    else:
+        baseline = load_baseline(args.baseline)  # before the logs: a bad baseline fails at once
+    logs = _read_logs(args.logs)
+    metrics = compute_all_metrics(logs)
+    partial = _torn_note(logs)
+    console = Console(soft_wrap=True)
+    if args.update:
+        tolerance = 0.02 if args.tolerance is None else args.tolerance
+        write_json(args.baseline, baseline_of(metrics, tolerance))
+        console.print(f"wrote {args.baseline}: {len(metrics)} rows, tolerance {tolerance}{partial}")
+        return 0
+    falls = find_falls(metrics, baseline, args.tolerance)
+    if falls:
+        for line in falls:
+            print(f"FELL {line}", file=sys.stderr)
+        print(f"oodmon check: {len(falls)} metric(s) fell below {args.baseline}{partial}", file=sys.stderr)
+        return 1
+    console.print(f"ok: {len(metrics)} rows at or above {args.baseline}{partial}")
+    return 0
+
+
+def _torn_note(logs) -> str:
+    """`oodmon check`'s words for logs that were torn and read in part (each with its recovery
+    warning): a fall may come from the episodes they lost. Empty when every log was whole."""
+    torn = sum(not log.complete for log in logs)
+    if not torn:
+        return ""
+    one = torn == 1
+    return (f" ({torn} of the {len(logs)} logs {'was' if one else 'were'} torn and read in part, as the warning above "
+            f"says: {'its' if one else 'their'} rows lack the episodes lost)")

@@ -1,0 +1,212 @@
+"""``oodmon run`` (a monitored agent in an env, logged) and ``oodmon demo``."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from collections import deque
+
+from rich.console import Console
+from rich.table import Table
+
+from oodmon.cli.loading import _detectors, _load_agent
+from oodmon.cli.parsing import _KEPT, _SEED, _agent_arguments, _positive, _whole
+from oodmon.errors import ConfigError
+from oodmon.names import TASKS
+
+
+def _add_run(commands: argparse._SubParsersAction) -> None:
+    """`oodmon run`."""
+    run = commands.add_parser("run", help="run a monitored agent in an env (ID or shifted), logging to MCAP/Rerun")
+    _agent_arguments(run)
+    run.add_argument("--variant", help="a variant spec (default: the task's ID env)")
+    run.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (default 0)")
+    run.add_argument("--episodes", type=_whole(1), default=5, help="episodes (default 5)")
+    run.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode (default 0)")
+    run.add_argument("--threshold", help="a threshold file from `oodmon calibrate` (default: no alarms)")
+    run.add_argument("--mcap", help="write the run to this MCAP file")
+    run.add_argument("--mcap-split-episodes", type=_whole(1), metavar="N",
+                     help="split the MCAP log into files of N whole episodes: <name>-00000.mcap, <name>-00001.mcap, ... "
+                          "(a long run; `oodmon replay` reads them from their folder)")
+    run.add_argument("--mcap-split-mb", type=_positive, metavar="MB",
+                     help="start the next MCAP file after the episode that takes one to MB megabytes (as above)")
+    run.add_argument("--rrd", help="write the run to this Rerun file")
+    live = run.add_mutually_exclusive_group()
+    live.add_argument("--spawn", action="store_true", help="stream to a Rerun viewer started for it")
+    live.add_argument("--serve", action="store_true", help="serve the stream for a remote Rerun viewer")
+    live.add_argument("--connect", metavar="URL", help="stream to a running Rerun viewer at URL")
+    run.add_argument("--bind", default="127.0.0.1",
+                     help="address --serve listens on (default 127.0.0.1: this machine only; 0.0.0.0 opens it)")
+    run.add_argument("--port", type=_whole(1, 65535), default=9876, help="port --serve listens on (default 9876)")
+    run.add_argument("--force", action="store_true",
+                     help="use a threshold calibrated for another task, method, score or weights (with a warning)")
+    run.add_argument("--strict", action="store_true", help="a failing sink stops the run instead of warning")
+    run.add_argument("--render", action="store_true",
+                     help="log a picture of each CartPole or Pendulum state beside the scores (Rerun, Foxglove)")
+    run.set_defaults(handler=_run, kept_on_interrupt=_KEPT["run"])
+
+
+def _run(args: argparse.Namespace) -> int:
+    from rich.progress import Progress
+
+    from oodmon.monitor import McapSink, Monitor, Threshold
+    from oodmon.monitor.sinks.rerun import RerunSink
+    from oodmon.outputs import check_output_file
+
+    inputs = [("--threshold", args.threshold), ("--model", args.model and f"{args.model}/model.safetensors"),
+              ("--model", args.model and f"{args.model}/model.json"), *[("--sb3", path) for path in args.sb3 or ()]]
+    if (args.mcap_split_episodes or args.mcap_split_mb) and not args.mcap:
+        raise ConfigError("--mcap-split-episodes and --mcap-split-mb split an MCAP log: give --mcap too")
+    mcap = McapSink(args.mcap, split_episodes=args.mcap_split_episodes, split_mb=args.mcap_split_mb) if args.mcap else None
+    if mcap is not None:
+        check_output_file(mcap.part_path(0), parameter="--mcap", inputs=inputs)
+    if args.rrd:
+        check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
+    threshold = Threshold.load(args.threshold) if args.threshold else None
+    args.masks = args.masks or (threshold.masks if threshold is not None else None)
+    agent = _load_agent(args)
+    if args.render and args.task not in ("cartpole", "pendulum"):  # it logged no picture, without a word
+        raise ConfigError(f"--render draws CartPole and Pendulum states; {args.task} has no drawing in oodmon"
+                          + (" (Pong's frames are logged without it)" if args.task == "pong" else "")
+                          + ": leave out --render")
+    env, label = _run_env(args, agent)
+    detectors = _detectors(args, agent)
+    sinks = [] if mcap is None else [mcap]
+    if args.rrd or args.spawn or args.serve or args.connect:
+        sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect,
+                               bind=args.bind, port=args.port))
+    console = Console(soft_wrap=True)
+    alarm_lines = []
+
+    def show(event) -> None:
+        alarm_lines.append(event)
+        progress.console.print(f"[bold red]ALARM[/bold red] episode {event.episode} step {event.step}: "
+                               f"score {event.score:.4g} > {event.threshold:.4g} ({event.rule})")
+
+    rows = _EpisodeRows()
+    with Progress(console=console, transient=True) as progress, \
+            Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show], strict=args.strict,
+                    force=args.force, render=args.render) as monitor:
+        if args.serve:
+            progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")
+        bar = progress.add_task(f"{label} (onset {args.onset})", total=args.episodes)
+        decisions = progress.add_task("decisions in this episode", total=None)  # a Pong game is thousands
+
+        def count(stage: str, steps: int, total: int) -> None:
+            if steps % 50 == 0:
+                progress.update(decisions, completed=steps)
+        for episode in range(args.episodes):
+            progress.reset(decisions, total=None, description=f"episode {episode}: decisions")
+            rows.add(monitor.run_episode(env, seed=args.seed + episode, on_progress=count))
+            progress.update(bar, advance=1)
+    failures = dict(monitor.sinks.failures)  # after the sinks closed: a file that could not be finished counts
+    env.close()
+    files = {"McapSink": _files_written(mcap), "RerunSink": args.rrd}
+    written = [str(p) for name, p in files.items() if p and name not in failures]
+    console.print(rows.table(f"{args.task}/{agent.method} in {label}, onset {args.onset}"
+                             + (f", {threshold.rule_text}" if threshold else ", no threshold")))
+    if rows.left_out:
+        console.print(f"{rows.left_out} episode{'s' if rows.left_out != 1 else ''} not shown"
+                      + _listed_by(mcap, args.mcap, failed="McapSink" in failures))
+    console.print(f"{rows.alarmed} of {rows.episodes} episodes raised an alarm"
+                  + (f"; written to {', '.join(written)}" if written else ""))
+    if failures:
+        console.print(f"[yellow]sink failures: {failures}[/yellow]")
+    return 0
+
+
+def _listed_by(mcap, path: str | None, *, failed: bool) -> str:
+    """What lists the episodes `oodmon run`'s closing table leaves out: `oodmon replay` of its log
+    (the file, or a split log's folder), which lacks some if its sink failed; or, with no log, --mcap."""
+    if mcap is None:
+        return " (--mcap logs every one)"
+    log = (mcap.paths[0].parent if mcap.splits else mcap.paths[0]) if mcap.paths else path
+    if failed:
+        return f": the MCAP log lacks some (its sink failed), `oodmon replay {log} --episodes` lists those it holds"
+    return f": `oodmon replay {log} --episodes` lists every one"
+
+
+def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
+    """``oodmon run``'s env and its label: the ``--variant`` (a variant of the agent's task, shifting
+    at ``--onset``), else your own model's env as you deploy it, else the task's ID env."""
+    from oodmon.envs import Variant, parse_variant
+    from oodmon.envs.registration import TASK_OF_ENV
+
+    if args.variant:
+        variant = parse_variant(args.variant)
+        if variant.task != args.task:
+            raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant" if args.task in TASKS else
+                              f"variant {variant.spec!r} is not a variant of {args.task}: oodmon has variants of "
+                              f"{', '.join(sorted(TASK_OF_ENV))} only; leave out --variant to run {args.task} itself")
+        return agent.wrap(variant.make(onset_step=args.onset)), variant.spec
+    if agent.env_id is not None:  # your own model in its own env, as you deploy it
+        return agent.make_env(), agent.env_id
+    return Variant(args.task).make(onset_step=args.onset), args.task
+
+
+class _EpisodeRows:
+    """``oodmon run``'s closing table, in constant memory: the first and the last ``shown`` // 2
+    episodes (their records without the per-step rewards), and how many ran and alarmed. A run of
+    weeks keeps no per-step data here (the records with their rewards took about 20 bytes a step)
+    and prints a table of at most ``shown`` rows; ``oodmon replay LOG --episodes`` lists them all."""
+
+    def __init__(self, shown: int = 20) -> None:
+        self.first: list = []
+        self.last = deque(maxlen=shown - shown // 2)
+        self.shown, self.episodes, self.alarmed = shown, 0, 0
+
+    def add(self, record) -> None:
+        self.episodes += 1
+        self.alarmed += record.alarms > 0
+        slim = dataclasses.replace(record, rewards=None)
+        (self.first if len(self.first) < self.shown // 2 else self.last).append(slim)
+
+    @property
+    def left_out(self) -> int:
+        """Episodes the table does not show."""
+        return self.episodes - len(self.first) - len(self.last)
+
+    def table(self, title: str) -> Table:
+        """A row per episode kept, with its alarms and their delay, and a row "..." for those left out."""
+        from oodmon.replay.metrics import is_id_variant
+
+        left_out = self.left_out
+        table = Table(title=title)
+        for column in ("episode", "seed", "return", "length", "alarms", "first alarm", "delay"):
+            table.add_column(column, justify="right")
+        for index, record in enumerate([*self.first, *self.last]):
+            if index == len(self.first) and left_out:
+                table.add_row("...", *[""] * 6)
+            if record.first_alarm_step is None or is_id_variant(record.variant):
+                delay = ""
+            else:
+                delay = "before onset" if record.alarmed_early else str(record.delay)
+            table.add_row(str(record.episode), str(record.seed), f"{record.total_return:.1f}", str(record.length),
+                          str(record.alarms), "" if record.first_alarm_step is None else str(record.first_alarm_step),
+                          delay)
+        return table
+
+
+def _files_written(mcap) -> str | None:
+    """The closing line's words for what ``mcap`` (an McapSink, or ``None``) wrote: its file, the first
+    and last of a split run's, or ``None`` where it wrote none (it could not open one)."""
+    if mcap is None or not mcap.paths:
+        return None
+    paths = mcap.paths
+    return str(paths[0]) if len(paths) == 1 else f"{paths[0]} ... {paths[-1].name} ({len(paths)} files)"
+
+
+def _add_demo(commands: argparse._SubParsersAction) -> None:
+    """`oodmon demo`."""
+    demo = commands.add_parser("demo", help="the main job of 'make demo': calibrate, monitor, log, summarise")
+    demo.add_argument("--out", default="runs/demo", help="folder for the demo's files (default runs/demo)")
+    demo.set_defaults(handler=_demo, kept_on_interrupt=_KEPT["demo"])
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from oodmon.demo import run_demo
+    from oodmon.outputs import check_output_dir
+
+    check_output_dir(args.out, parameter="--out")
+    run_demo(args.out)
+    return 0
