@@ -315,11 +315,11 @@ def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, c
 
 
 def test_progress_lines_carry_the_time_left_and_the_last_evaluation(capsys, monkeypatch):
-    from oodmon.cli import parsing
+    from oodmon.cli import display
 
     clock = iter([0.0, 120.0, 180.0])
-    monkeypatch.setattr(parsing.time, "monotonic", lambda: next(clock))
-    with parsing._progress() as report:
+    monkeypatch.setattr(display.time, "monotonic", lambda: next(clock))
+    with display._progress() as report:
         report("cartpole/dropout main training steps", 0, 1000)
         report("cartpole/dropout main training steps", 400, 1000, "last evaluation return 212.0 at step 400")
         report("cartpole/dropout main training steps", 1000, 1000)

@@ -6,9 +6,10 @@ print as one line on stderr with exit code 2, never as a traceback.
 One module per group of commands, each with its arguments (``_add_<command>``) beside what it
 does: :mod:`~oodmon.cli.envs`, :mod:`~oodmon.cli.training` (train, evaluate),
 :mod:`~oodmon.cli.calibration` (calibrate, validate, fit-detectors), :mod:`~oodmon.cli.run` (run,
-demo), :mod:`~oodmon.cli.replay` (replay, check), :mod:`~oodmon.cli.bench`; the argument types,
-options shared by several commands and the progress display in :mod:`~oodmon.cli.parsing`; the
-agent and detectors a command acts on in :mod:`~oodmon.cli.loading`.
+demo), :mod:`~oodmon.cli.replay` (replay, check), :mod:`~oodmon.cli.bench`; beside them the
+argument types and the options several commands share (:mod:`~oodmon.cli.parsing`), the agent and
+detectors a command acts on (:mod:`~oodmon.cli.loading`), and progress lines and tables
+(:mod:`~oodmon.cli.display`).
 """
 
 from __future__ import annotations

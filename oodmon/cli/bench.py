@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 
+from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent, _no_variants
 from oodmon.cli.parsing import (
     _FIT_EPISODES,
@@ -16,9 +17,7 @@ from oodmon.cli.parsing import (
     _command_line,
     _fraction,
     _non_negative,
-    _progress,
     _sb3_arguments,
-    _table_console,
     _whole,
     _widths,
 )

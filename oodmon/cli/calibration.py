@@ -8,6 +8,7 @@ from pathlib import Path
 
 from rich.console import Console
 
+from oodmon.cli.display import _progress
 from oodmon.cli.loading import _detectors, _load_agent
 from oodmon.cli.parsing import (
     _FIT_EPISODES,
@@ -18,7 +19,6 @@ from oodmon.cli.parsing import (
     _agent_arguments,
     _fraction,
     _non_negative,
-    _progress,
     _whole,
 )
 from oodmon.errors import ConfigError

@@ -8,7 +8,8 @@ import json
 from rich.console import Console
 from rich.table import Table
 
-from oodmon.cli.parsing import _SEED, _table_console, _whole
+from oodmon.cli.display import _table_console
+from oodmon.cli.parsing import _SEED, _whole
 from oodmon.names import TASKS
 
 

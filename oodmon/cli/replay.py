@@ -9,7 +9,8 @@ from collections.abc import Sequence
 
 from rich.console import Console
 
-from oodmon.cli.parsing import _non_negative, _table_console
+from oodmon.cli.display import _table_console
+from oodmon.cli.parsing import _non_negative
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import write_json
 

@@ -8,15 +8,14 @@ import json
 from rich.console import Console
 from rich.table import Table
 
+from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent, _no_variants
 from oodmon.cli.parsing import (
     _KEPT,
     _SEED,
     _command_line,
     _fraction,
-    _progress,
     _sb3_arguments,
-    _table_console,
     _whole,
 )
 from oodmon.errors import InvalidParameterError

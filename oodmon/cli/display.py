@@ -1,0 +1,72 @@
+"""What the commands print besides their results: progress lines and bars, and tables as wide as
+their columns."""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+from rich.console import Console
+
+from oodmon.progress import unit_of
+
+
+def _table_console() -> Console:
+    """A console for tables: the terminal's width, or a wide one when output goes to a file or pipe
+    (rich would otherwise cut columns to 80 characters)."""
+    console = Console()
+    return console if console.is_terminal else Console(width=220)
+
+
+@contextmanager
+def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
+    """An ``on_progress(stage, done, total, note=None)`` for long work (see :mod:`oodmon.progress`;
+    ``note``: a latest figure to show beside the stage): rich bars on a terminal; where stderr is a
+    file (a job under nohup), where a bar would only appear at the end, a dated line per stage at
+    most once a minute, at its start and at its end, with a rate in the stage's unit."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    stderr = Console(stderr=True)
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TimeRemainingColumn())
+    with Progress(*columns, console=stderr, transient=transient) as progress:
+        bars: dict[str, int] = {}
+        last_line: dict[str, tuple[float, int]] = {}  # name -> (time, done) of its last plain line
+
+        notes: dict[str, str] = {}  # name -> its latest note (training: the last evaluation return)
+
+        def report(name: str, done: int, total: int, note: str | None = None) -> None:
+            total = total or None  # 0: not known in advance
+            if name not in bars:
+                bars[name] = progress.add_task(name, total=total)
+            if note is not None:
+                notes[name] = note
+                progress.update(bars[name], description=f"{name} ({note})")
+            progress.update(bars[name], completed=done, total=total)
+            if stderr.is_terminal:
+                return
+            now = time.monotonic()
+            then, before = last_line.get(name, (None, done))
+            finished = total is not None and done >= total and before < total
+            if then is None or now - then >= 60 or finished:
+                rate = (done - before) / (now - then) if then is not None and now > then else 0.0
+                counted = unit_of(name)
+                speed = f"{rate:.1f} {counted}/s" if rate >= 1 or rate == 0 else f"{rate * 60:.1f} {counted}/min"
+                left = (total - done) / rate if rate > 0 and total is not None and total > done else None
+                eta = "" if left is None else f", about {left / 60:.0f} min left" if left >= 90 else f", about {left:.0f} s left"
+                noted = f", {notes[name]}" if name in notes else ""
+                of = "" if total is None else f"/{total}"
+                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}{of} {counted}, {speed}{eta}{noted}",
+                      file=sys.stderr, flush=True)
+                last_line[name] = (now, done)
+
+        yield report
