@@ -180,7 +180,8 @@ def agent_from_modules(modules: Any, metadata: dict[str, Any], directory: str | 
     the modules first (an experiment's other drop probability, say: the estimator compiles them).
     """
     estimator = estimator_for(
-        modules, metadata["architecture"], n_samples=metadata.get("n_samples", 20) if n_samples is None else n_samples, seed=seed,
+        modules, metadata["architecture"], seed=seed,
+        n_samples=metadata.get("n_samples", 20) if n_samples is None else n_samples,
         action_low=metadata.get("action_low"), action_high=metadata.get("action_high"),
         masks=masks or metadata.get("masks", "sampled"),
     )

@@ -9,17 +9,8 @@ import sys
 from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent, _no_variants
 from oodmon.cli.parsing import (
-    _FIT_EPISODES,
-    _KEPT,
-    _UNSET,
-    _add_confidence,
-    _add_rule,
-    _command_line,
-    _fraction,
-    _non_negative,
-    _sb3_arguments,
-    _whole,
-    _widths,
+    _FIT_EPISODES, _KEPT, _UNSET, _add_confidence, _add_rule, _command_line, _fraction, _non_negative, _sb3_arguments,
+    _whole, _widths,
 )
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import write_json
@@ -107,9 +98,9 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
 
 def _bench(args: argparse.Namespace) -> int:
     from oodmon.bench import BenchConfig, run_bench
-    from oodmon.errors import UnknownParameterError
     from oodmon.monitor.alarms import default_window
     from oodmon.monitor.detectors import BEST_DETECTOR
+    from oodmon.errors import UnknownParameterError
 
     methods = tuple(m.strip() for m in args.methods.split(","))
     for method in methods:
@@ -142,12 +133,7 @@ def _bench(args: argparse.Namespace) -> int:
                          net_arch=args.net_arch, fit_episodes=args.fit_episodes,
                          masks=args.masks)
     config.variant_list()  # refuse bad specs before any work
-    from oodmon.bench.baseline import (
-        BASELINE_TOLERANCE,
-        bench_falls,
-        check_same_settings,
-        load_bench_result,
-    )
+    from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result
     from oodmon.outputs import check_output_dir, check_output_file
 
     check_output_dir(args.out, parameter="--out")

@@ -11,15 +11,7 @@ from rich.console import Console
 from oodmon.cli.display import _progress
 from oodmon.cli.loading import _detectors, _load_agent
 from oodmon.cli.parsing import (
-    _FIT_EPISODES,
-    _KEPT,
-    _SEED,
-    _add_confidence,
-    _add_rule,
-    _agent_arguments,
-    _fraction,
-    _non_negative,
-    _whole,
+    _FIT_EPISODES, _KEPT, _SEED, _add_confidence, _add_rule, _agent_arguments, _fraction, _non_negative, _whole,
 )
 from oodmon.errors import ConfigError
 from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -64,12 +56,7 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
 
 def _calibrate(args: argparse.Namespace) -> int:
     from oodmon.monitor import calibrate_agent
-    from oodmon.monitor.detectors import (
-        BEST_DETECTOR,
-        DEFAULT_FIT_EPISODES,
-        detectors_for,
-        fit_agent_detectors,
-    )
+    from oodmon.monitor.detectors import BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file
 

@@ -26,14 +26,7 @@ def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
     ``note``: a latest figure to show beside the stage): rich bars on a terminal; where stderr is a
     file (a job under nohup), where a bar would only appear at the end, a dated line per stage at
     most once a minute, at its start and at its end, with a rate in the stage's unit."""
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     stderr = Console(stderr=True)
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),

@@ -55,12 +55,7 @@ def _envs_list(args: argparse.Namespace) -> int:
 
 def _envs_show(args: argparse.Namespace) -> int:
     from oodmon.envs import parse_variant
-    from oodmon.envs.preview import (
-        compare_physics,
-        pong_preview,
-        save_physics_plot,
-        save_rgb,
-    )
+    from oodmon.envs.preview import compare_physics, pong_preview, save_physics_plot, save_rgb
 
     variant = parse_variant(args.spec)
     out = None
@@ -87,6 +82,7 @@ def _envs_show(args: argparse.Namespace) -> int:
 
 def _envs_tour(args: argparse.Namespace) -> int:
     from oodmon.demo import run_env_tour
+
     from oodmon.outputs import check_output_dir
 
     check_output_dir(args.out, parameter="--out")

@@ -38,14 +38,7 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:
 
 
 def _replay(args: argparse.Namespace) -> int:
-    from oodmon.replay import (
-        compute_all_metrics,
-        compute_metrics,
-        to_csv,
-        to_json,
-        to_markdown,
-        to_table,
-    )
+    from oodmon.replay import compute_all_metrics, compute_metrics, to_csv, to_json, to_markdown, to_table
 
     if args.plots:
         from oodmon.outputs import check_output_dir
@@ -77,12 +70,7 @@ def _replay(args: argparse.Namespace) -> int:
 
 def _replay_episodes(args: argparse.Namespace, logs) -> int:
     """``replay --episodes``: one row per episode."""
-    from oodmon.replay.report import (
-        episode_rows,
-        episodes_csv,
-        episodes_markdown,
-        episodes_table,
-    )
+    from oodmon.replay.report import episode_rows, episodes_csv, episodes_markdown, episodes_table
 
     if args.plots or args.detector:
         raise ConfigError("--episodes lists the episodes; --plots and --detector go with the metrics")
@@ -102,12 +90,7 @@ def _replay_episodes(args: argparse.Namespace, logs) -> int:
 
 def _replay_monitor(args: argparse.Namespace, logs) -> int:
     """``replay --monitor``: the alarm's figures per variant (the monitor's benchmark)."""
-    from oodmon.replay import (
-        compute_monitor_metrics,
-        monitor_markdown,
-        monitor_summary,
-        monitor_table,
-    )
+    from oodmon.replay import compute_monitor_metrics, monitor_markdown, monitor_summary, monitor_table
     from oodmon.replay.metrics import FAILURE_DEFINITION
 
     if args.csv:
@@ -160,12 +143,7 @@ def _add_check(commands: argparse._SubParsersAction) -> None:
 def _check(args: argparse.Namespace) -> int:
 
     from oodmon.outputs import check_output_file
-    from oodmon.replay import (
-        baseline_of,
-        compute_all_metrics,
-        find_falls,
-        load_baseline,
-    )
+    from oodmon.replay import baseline_of, compute_all_metrics, find_falls, load_baseline
 
     if args.update:
         check_output_file(args.baseline, parameter="--baseline", inputs=[("a log", log) for log in args.logs])

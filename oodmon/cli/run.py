@@ -205,6 +205,7 @@ def _add_demo(commands: argparse._SubParsersAction) -> None:
 
 def _demo(args: argparse.Namespace) -> int:
     from oodmon.demo import run_demo
+
     from oodmon.outputs import check_output_dir
 
     check_output_dir(args.out, parameter="--out")

@@ -10,14 +10,7 @@ from rich.table import Table
 
 from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent, _no_variants
-from oodmon.cli.parsing import (
-    _KEPT,
-    _SEED,
-    _command_line,
-    _fraction,
-    _sb3_arguments,
-    _whole,
-)
+from oodmon.cli.parsing import _KEPT, _SEED, _command_line, _fraction, _sb3_arguments, _whole
 from oodmon.errors import InvalidParameterError
 from oodmon.names import METHODS, TASKS
 

@@ -60,6 +60,24 @@ SEGMENT_STEPS = 100_000
 AlarmCallback = Callable[[AlarmEvent], "bool | None"]
 
 
+def _given_detectors(detectors: DetectorSet | Sequence[Detector] | None) -> DetectorSet:
+    """``Monitor(detectors=...)`` as a set: a DetectorSet, a list of Detector objects, or None (none).
+
+    Raises:
+        ConfigError: anything else (a name, one detector on its own, a list holding other things).
+    """
+    if detectors is None:
+        return DetectorSet([])
+    if isinstance(detectors, DetectorSet):
+        return detectors
+    given = None if isinstance(detectors, (str, Detector)) else list(detectors)
+    if given is None or not all(isinstance(d, Detector) for d in given):
+        raise ConfigError(f"detectors={detectors!r} is not allowed; give fitted detectors (a DetectorSet, e.g. "
+                          "detectors_for(agent) or DetectorSet.load(folder), or a list of Detector objects); "
+                          "detector='dynamics' names the one the alarm reads")
+    return DetectorSet(given)
+
+
 def policy_hash(agent: Agent | None) -> str:
     """``sha256:<hex>`` of an agent's ``model.safetensors``, or ``"unknown"`` (no file behind it)."""
     if agent is not None and agent.metadata.get("policy_hash"):
@@ -193,8 +211,10 @@ class Monitor:
             value = math.nan if threshold is None else float(threshold)
             rule, reference = "consecutive", None
         self.threshold = value
-        self.score_name = score  # None: the given spread detector's, or the default (see _detector_set)
-        self.detectors = self._detector_set(detectors, detector, force)
+        given = _given_detectors(detectors)
+        # No score asked for: a spread detector among those given keeps its own.
+        self.score_name = score or (given["spread"].score_name if "spread" in given else DEFAULT_SCORE)
+        self.detectors = self._detector_set(given, detector, force)
         self.detector = detector or ("spread" if "spread" in self.detectors else self.detectors.names[-1])
         if self.detector not in self.detectors:
             raise ConfigError(
@@ -251,21 +271,10 @@ class Monitor:
             warnings.warn(f"using {what}, which {fit} this policy: {'; '.join(differences)}", UserWarning,
                           stacklevel=3)
 
-    def _detector_set(self, detectors: DetectorSet | Sequence[Detector] | None, alarm: str | None,
-                      force: bool) -> DetectorSet:
+    def _detector_set(self, chosen: DetectorSet, alarm: str | None, force: bool) -> DetectorSet:
         """The detectors to run: those given, with ``spread`` (of ``score``) whenever the policy has samples
         (and without a fitted ``combined`` that ranks another spread score, or detectors fitted on another
         kind of MC masks (:meth:`DetectorSet.for_masks`), unless the ``alarm`` reads them: refused)."""
-        if detectors is not None and not isinstance(detectors, DetectorSet):
-            given = None if isinstance(detectors, (str, Detector)) else list(detectors)
-            if given is None or not all(isinstance(d, Detector) for d in given):
-                raise ConfigError(f"detectors={detectors!r} is not allowed; give fitted detectors (a DetectorSet, e.g. "
-                                  "detectors_for(agent) or DetectorSet.load(folder), or a list of Detector objects); "
-                                  "detector='dynamics' names the one the alarm reads")
-            detectors = given
-        chosen = detectors if isinstance(detectors, DetectorSet) else DetectorSet(list(detectors or ()))
-        if self.score_name is None:  # no score asked for: a spread detector given keeps its own
-            self.score_name = chosen["spread"].score_name if "spread" in chosen else DEFAULT_SCORE
         if self.estimator is not None and "spread" not in chosen:
             chosen = chosen.with_detector(SpreadDetector(self.score_name))
         else:

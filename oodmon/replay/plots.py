@@ -108,7 +108,8 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
     for ax, (episode, title) in zip(axes, panels):
         steps = np.arange(episode.length)
         ax.plot(steps, episode.scores, color="tab:red", linewidth=1, label="score")
-        for infinite, height, side in ((episode.scores == np.inf, 0.97, "top"), (episode.scores == -np.inf, 0.03, "bottom")):
+        for infinite, height, side in ((episode.scores == np.inf, 0.97, "top"),
+                                       (episode.scores == -np.inf, 0.03, "bottom")):
             if infinite.any():  # (a NaN or infinite input: no line reaches them; replay keeps +inf, the most shifted)
                 ax.scatter(steps[infinite], np.full(int(infinite.sum()), height), transform=ax.get_xaxis_transform(),
                            marker="^" if side == "top" else "v", s=12, color="tab:red", clip_on=False,
