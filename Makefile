@@ -1,6 +1,7 @@
 # Two commands do all the set-up: `make demo` and `make test`. Each creates .venv when it is
-# missing (or when pyproject.toml changed): torch first, pinned to the CPU build on this machine's
-# disk, so that the project's own `torch` requirement pulls nothing more.
+# missing (or when pyproject.toml or constraints.txt changed): torch first, pinned to the CPU build
+# on this machine's disk, so that the project's own `torch` requirement pulls nothing more; then
+# the project, every other package at the version constraints.txt names.
 
 PYTHON ?= python3
 VENV := .venv
@@ -9,11 +10,11 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==2.13.0
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[dev]'
 	touch $(STAMP)
 
 demo: $(STAMP)
