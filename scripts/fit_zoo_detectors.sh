@@ -10,7 +10,11 @@
 # again that day when combined began to rank dynamics' mean since the episode began (every
 # tensor of before the same, one more each on CartPole and Pendulum; Pong's only gained the
 # fitting's version in detectors.json), and again when combined began to rank features by the
-# logarithm of its score (only combined/reference.features changed, in all nine); the
+# logarithm of its score (only combined/reference.features changed, in all nine); all nine on
+# 2026-11-28 (fitting version 5: combined's held-out spread off the samples each action was
+# chosen from), on the package versions of constraints.txt, pinned that day: the earlier ones,
+# not recorded, fitted many tensors a little otherwise (float rounding; which package moved
+# them was not traced; CartPole DropConnect's sampled episodes went their own way from it); the
 # README's tables come from the bench, which fits detectors of its own).
 # About 5 minutes on one core. Pendulum's combined detector uses the spread score that works there
 # (pre_squash_std); Pong has no dynamics detector (image observations), has frames, and fits on

@@ -5,8 +5,9 @@ Run: OODMON_TORCH_THREADS=1 .venv/bin/python scripts/measure_pong_features.py [M
 A Pong bench (`oodmon bench --task pong --detectors spread,features,combined`) plays 10 whole ID
 games and 5 per failing variant: hours on a CPU. This plays the first 1,000 steps of 2 ID games
 (seeds of the bench's ID range) and the first 500 steps of one game per corruption at severity
-3-5 (the bench's shifted seeds), scores every step with the agent's shipped detectors (as the
-monitor does), and writes per-variant AUROC per detector as JSON to
+3-5 (the bench's shifted seeds), scores every step with the agent's shipped detectors, off the
+estimate its action was chosen from (as the monitor does; since 2026-11-28, before which a sampled
+MC agent was asked again), and writes per-variant AUROC per detector as JSON to
 results/detectors/pong-<method>.json.
 """
 
@@ -42,11 +43,12 @@ def measure(method: str) -> dict:
     agent = load("pong", method, seed=0)
     detectors = detectors_for(agent)
     start = time.time()
-    id_runs = collect(agent, Variant("pong").make(), 2, seed=seeds.BENCH_ID, max_steps=1000)
+    id_runs = collect(agent, Variant("pong").make(), 2, seed=seeds.BENCH_ID, max_steps=1000, estimates_from=0)
     id_scores = [trajectory_scores(detectors, t, agent.estimator) for t in id_runs]
     result = {"method": method, "id_steps": sum(len(t) for t in id_runs), "auroc": {}}
     for spec in VARIANTS:
-        run = collect(agent, parse_variant(spec).make(), 1, seed=seeds.BENCH_SHIFTED, max_steps=500)[0]
+        run = collect(agent, parse_variant(spec).make(), 1, seed=seeds.BENCH_SHIFTED, max_steps=500,
+                      estimates_from=0)[0]
         scores = trajectory_scores(detectors, run, agent.estimator)
         for name in detectors.names:
             negatives = np.concatenate([s[name] for s in id_scores])

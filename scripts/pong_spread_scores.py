@@ -6,8 +6,9 @@ Run: OODMON_TORCH_THREADS=1 .venv/bin/python scripts/pong_spread_scores.py [METH
 
 The same steps as measure_pong_features.py (the first 1,000 steps of 2 ID games, the first 500 of one
 game per corruption at severity 3-5, the same seeds), so its ``chosen_std`` column is the ``spread``
-of results/detectors/pong-<method>.json. Each step's estimate is drawn once and every score is read
-from it. Writes per method, score and variant the per-step AUROC to
+of results/detectors/pong-<method>.json. Each step's estimate is drawn once, the one its action was
+chosen from (as the monitor reads it; since 2026-11-28, before which the agent was asked again at
+each step), and every score is read from it. Writes per method, score and variant the per-step AUROC to
 results/detectors/spread-scores-pong.json (a method measured again replaces its entry).
 """
 
@@ -35,11 +36,10 @@ SCORES = ("chosen_std", "mean_std", "max_std", "margin_std")
 METHODS = ("ensemble", "dropout", "dropconnect")
 
 
-def _scores(agent, trajectory) -> dict[str, np.ndarray]:
+def _scores(trajectory) -> dict[str, np.ndarray]:
     functions = {name: score_function(name) for name in SCORES}
     values: dict[str, list[float]] = {name: [] for name in SCORES}
-    for obs in trajectory.observations[:len(trajectory)]:
-        estimate = agent.estimator.estimate(obs)
+    for estimate in trajectory.estimates:
         for name, function in functions.items():
             values[name].append(float(function(estimate)[0]))
     return {name: np.asarray(v) for name, v in values.items()}
@@ -48,10 +48,12 @@ def _scores(agent, trajectory) -> dict[str, np.ndarray]:
 def measure(method: str) -> dict:
     agent = load("pong", method, seed=0)
     start = time.time()
-    ids = [_scores(agent, t) for t in collect(agent, Variant("pong").make(), 2, seed=seeds.BENCH_ID, max_steps=1000)]
+    ids = [_scores(t) for t in collect(agent, Variant("pong").make(), 2, seed=seeds.BENCH_ID, max_steps=1000,
+                                       estimates_from=0)]
     result: dict = {"id_steps": sum(len(s["chosen_std"]) for s in ids), "auroc": {name: {} for name in SCORES}}
     for spec in VARIANTS:
-        shifted = _scores(agent, collect(agent, parse_variant(spec).make(), 1, seed=seeds.BENCH_SHIFTED, max_steps=500)[0])
+        shifted = _scores(collect(agent, parse_variant(spec).make(), 1, seed=seeds.BENCH_SHIFTED, max_steps=500,
+                                  estimates_from=0)[0])
         for name in SCORES:
             negatives = np.concatenate([s[name] for s in ids])
             labels = np.r_[np.zeros(len(negatives)), np.ones(len(shifted[name]))]

@@ -134,6 +134,30 @@ def test_spread_detector_gives_the_scores_of_before(agent, id_trajectories):
                 score_function(name)(estimate)[0])
 
 
+@pytest.mark.parametrize("method", ["dropout", "dropconnect"])
+def test_combined_ranks_the_spread_the_monitor_reads_off_the_samples_each_action_was_chosen_from(method):
+    """fit_detectors plays its ID episodes once: the held-out third's spread, which combined ranks,
+    is that of the samples each action was chosen from, the spread a Monitor logs playing the same
+    episodes from the same point of the sampling. (Before FIT_VERSION 5 an MC policy was asked
+    again at each held-out step: other samples, and its sampling left elsewhere.) DropConnect's
+    layers keep scratch arrays from call to call: each kept estimate must still be its own."""
+    agent = load("cartpole", method, seed=1)
+    start = agent.estimator.sampling_state
+    fitted = fit_detectors(agent, Variant("cartpole").make(), detectors=["features", "combined"], episodes=6,
+                           seed=600_000)
+    after = agent.estimator.sampling_state
+    agent.estimator.sampling_state = start
+    collect(agent, Variant("cartpole").make(), 4, seed=600_000)  # the two thirds fitted on: the same draws
+    sink = MemorySink()
+    with Monitor(agent, detectors=fitted.subset(["spread"]), sinks=[sink]) as monitor:
+        for episode in (4, 5):
+            monitor.run_episode(Variant("cartpole").make(), seed=600_000 + episode)
+    assert agent.estimator.sampling_state == after  # fitting drew once a step, as the monitor draws
+    monitored = np.sort(np.array([step.scores["spread"] for step in sink.steps], np.float32))
+    assert len(monitored) >= 100 and len(np.unique(monitored)) > len(monitored) // 2  # sampled: no two steps alike
+    np.testing.assert_array_equal(fitted["combined"].tensors()["reference.spread"], monitored)
+
+
 def test_combined_is_the_largest_id_rank_of_its_members():
     combined = CombinedDetector(["a", "b"]).fit_reference({"a": np.arange(100.0), "b": np.arange(100.0) * 10})
     context = StepContext(np.zeros(1), 0, scores={"a": 89.5, "b": 500.0})  # p = 11/101 and 50/101

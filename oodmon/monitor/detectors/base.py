@@ -133,6 +133,11 @@ class Trajectory:
             ``Agent.own_observation``), or ``None``.
         pictures: (T + 1, ...) each step's picture where the observations are not pictures: a
             dict observation's first picture, whose vectors are ``observations``; or ``None``.
+        estimates: (T,) the estimator's estimate at each acted-on observation, the one the action
+            was chosen from (:func:`~oodmon.monitor.detectors.collect` with ``estimates_from``),
+            or ``None``: :func:`~oodmon.monitor.detectors.trajectory_scores` then scores those,
+            as the monitor scores the estimate it decided from, instead of asking the estimator
+            again (an MC estimator with sampled masks would draw other samples).
     """
 
     observations: np.ndarray
@@ -141,11 +146,15 @@ class Trajectory:
     member_values: np.ndarray | None = None
     acted_on: np.ndarray | None = None
     pictures: np.ndarray | None = None
+    estimates: tuple[Estimate, ...] | None = None
 
     def __post_init__(self) -> None:
         if len(self.observations) != len(self.actions) + 1:
             raise ConfigError(f"a trajectory holds one observation more than actions; got {len(self.observations)} "
                               f"observations and {len(self.actions)} actions")
+        if self.estimates is not None and len(self.estimates) != len(self.actions):
+            raise ConfigError(f"a trajectory holds one estimate per action; got {len(self.estimates)} estimates and "
+                              f"{len(self.actions)} actions")
 
     def __len__(self) -> int:
         return len(self.actions)

@@ -4,7 +4,8 @@
 (observations, deployed actions, features). :func:`fit_detectors` splits them: the first two
 thirds fit ``dynamics`` and ``features``, the last third gives the ``combined`` detector its
 members' ID scores (scores of steps the members were not fitted on, or the in-sample fit would
-make every fresh ID step look rare). The episodes use seeds of their own
+make every fresh ID step look rare; each step's off the estimate its action was chosen from, as
+the monitor scores it: ``collect(..., estimates_from=...)``). The episodes use seeds of their own
 (:data:`oodmon.seeds.DETECTOR_FIT` on), apart from calibration's: the threshold is calibrated
 afterwards on other episodes, so its guarantee holds for the fitted detectors as they are.
 """
@@ -49,8 +50,10 @@ DEFAULT_FIT_EPISODES = 90
 #: fitting the same episodes gives other detectors, so that nothing fitted or scored by an older
 #: oodmon is reused. 2: ``combined`` ranks dynamics' mean since the episode began; 3: and
 #: ``features`` by the logarithm of its score; 4: 90 episodes by default, not 30 (a set without
-#: the key is of version 1).
-FIT_VERSION = 4
+#: the key is of version 1); 5: ``combined`` ranks the held-out episodes' spread off the samples
+#: each action was chosen from (before, an MC policy with sampled masks was asked again, drawing
+#: other samples and leaving its sampling elsewhere for what came after the fitting).
+FIT_VERSION = 5
 
 # The detector with the highest mean per-step AUROC over the paper's failing variants, per task, on
 # the shipped agents (results/detectors/, `scripts/detector_table.py`; the README's detector table);
@@ -99,10 +102,11 @@ def policy_parts(policy: Any) -> tuple[Any, Callable[[np.ndarray], Any], dict]:
 
 def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETECTOR_FIT,
             on_progress: Progress | None = None, max_steps: int | None = None,
-            with_member_values: bool = False) -> list[Trajectory]:
+            with_member_values: bool = False, estimates_from: int | None = None) -> list[Trajectory]:
     """Play ``episodes`` episodes of ``env`` (seeds ``seed``, ``seed + 1``, ...) with ``policy``
     (each cut after ``max_steps`` steps if given); ``with_member_values``: keep an ensemble's
-    members' values too (what ``scaled_spread`` is fitted on)."""
+    members' values too (what ``scaled_spread`` is fitted on); ``estimates_from``: keep each
+    step's estimate (``Trajectory.estimates``) in the episodes from this index on."""
     estimator, act, _ = policy_parts(policy)
     ensemble = with_member_values and has_members(estimator)
     deploy = getattr(policy, "deploy", None)  # an Agent whose deployed policy is not its estimator's decision
@@ -113,10 +117,13 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     trajectories = []
     for episode in range(episodes):
         obs, _ = env.reset(seed=seed + episode)
-        observations, actions, features, values = [obs], [], [], []
+        observations, actions, features, values, estimates = [obs], [], [], [], []
+        keep = estimator is not None and estimates_from is not None and episode >= estimates_from
         while True:
             if estimator is not None:
                 estimate = estimator.estimate(obs)
+                if keep:
+                    estimates.append(estimate)
                 raw = estimate.action[0]
                 action = deploy(obs) if deploy is not None else int(raw) if estimator.kind == "q_values" else np.asarray(raw)
                 if estimate.features is not None:
@@ -140,14 +147,16 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
         trajectories.append(Trajectory(np.asarray(observations), np.asarray(actions),
                                        np.asarray(features) if len(features) == len(actions) else None,
                                        np.asarray(values) if ensemble and values[0] is not None else None,
-                                       acted_on, pictures))
+                                       acted_on, pictures, tuple(estimates) if keep else None))
         if on_progress is not None:
             on_progress("detector fitting episodes", episode + 1, episodes)
     return trajectories
 
 
 def trajectory_scores(detectors: DetectorSet, trajectory: Trajectory, estimator: Any = None) -> dict[str, np.ndarray]:
-    """Every detector's per-step scores along a recorded trajectory, as the monitor would give them."""
+    """Every detector's per-step scores along a recorded trajectory, as the monitor would give them:
+    off the estimates the trajectory kept (``Trajectory.estimates``, those its actions were chosen
+    from), else off ``estimator``'s estimate at each step, asked for now."""
     detectors.reset()
     out: dict[str, list[float]] = {name: [] for name in detectors.names}
     prev_obs = prev_action = None
@@ -155,7 +164,10 @@ def trajectory_scores(detectors: DetectorSet, trajectory: Trajectory, estimator:
         obs, action = trajectory.observations[step], trajectory.actions[step]
         acted_on = obs if trajectory.acted_on is None else trajectory.acted_on[step]
         picture = None if trajectory.pictures is None else trajectory.pictures[step]
-        estimate = estimator.estimate(acted_on) if estimator is not None else None
+        if trajectory.estimates is not None:
+            estimate = trajectory.estimates[step]
+        else:
+            estimate = estimator.estimate(acted_on) if estimator is not None else None
         scores = detectors.score(StepContext(obs, action, estimate, prev_obs, prev_action, {}, picture))
         for name, value in scores.items():
             out[name].append(value)
@@ -219,9 +231,12 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         raise ConfigError(f"the frames detector needs image observations; this env's are of shape "
                           f"{env.observation_space.shape}")
     n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) else None
-    trajectories = collect(policy, env, episodes, seed=seed, on_progress=on_progress, max_steps=max_steps,
-                           with_member_values="scaled_spread" in detectors)
     n_fit = max(1, (2 * episodes) // 3)
+    # The held-out third keeps its estimates: combined ranks the spread of the samples each action
+    # was chosen from, as the monitor reads it (asked again, a sampled MC policy would draw others).
+    trajectories = collect(policy, env, episodes, seed=seed, on_progress=on_progress, max_steps=max_steps,
+                           with_member_values="scaled_spread" in detectors,
+                           estimates_from=n_fit if "combined" in detectors else None)
     fit, held_out = trajectories[:n_fit], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []
     if "dynamics" in detectors:
