@@ -134,6 +134,19 @@ def test_spread_detector_gives_the_scores_of_before(agent, id_trajectories):
                 score_function(name)(estimate)[0])
 
 
+def test_collect_keeps_the_estimates_from_the_episode_asked_and_trajectory_scores_reads_them():
+    """collect(estimates_from=1): the first episode keeps none, the second one per action, the
+    estimate its action was chosen from; trajectory_scores then scores those, asking no estimator."""
+    dropout = load("cartpole", "dropout", seed=3)
+    first, second = collect(dropout, Variant("cartpole").make(), 2, seed=610_000, max_steps=30, estimates_from=1)
+    assert first.estimates is None and len(second.estimates) == len(second) == 30
+    assert [int(e.action[0]) for e in second.estimates] == [int(a) for a in second.actions]
+    kept = trajectory_scores(DetectorSet([SpreadDetector()]), second)["spread"]  # no estimator given
+    np.testing.assert_array_equal(kept, [score_function("chosen_std")(e)[0] for e in second.estimates])
+    with pytest.raises(ConfigError, match="one estimate per action"):
+        Trajectory(second.observations, second.actions, estimates=second.estimates[:-1])
+
+
 @pytest.mark.parametrize("method", ["dropout", "dropconnect"])
 def test_combined_ranks_the_spread_the_monitor_reads_off_the_samples_each_action_was_chosen_from(method):
     """fit_detectors plays its ID episodes once: the held-out third's spread, which combined ranks,
