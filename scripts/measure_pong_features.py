@@ -44,12 +44,12 @@ def measure(method: str) -> dict:
     detectors = detectors_for(agent)
     start = time.time()
     id_runs = collect(agent, Variant("pong").make(), 2, seed=seeds.BENCH_ID, max_steps=1000, estimates_from=0)
-    id_scores = [trajectory_scores(detectors, t, agent.estimator) for t in id_runs]
+    id_scores = [trajectory_scores(detectors, t) for t in id_runs]  # off the estimates the runs kept
     result = {"method": method, "id_steps": sum(len(t) for t in id_runs), "auroc": {}}
     for spec in VARIANTS:
         run = collect(agent, parse_variant(spec).make(), 1, seed=seeds.BENCH_SHIFTED, max_steps=500,
                       estimates_from=0)[0]
-        scores = trajectory_scores(detectors, run, agent.estimator)
+        scores = trajectory_scores(detectors, run)
         for name in detectors.names:
             negatives = np.concatenate([s[name] for s in id_scores])
             labels = np.r_[np.zeros(len(negatives)), np.ones(len(scores[name]))]
