@@ -314,6 +314,27 @@ def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, c
     assert values[0] == values[1]
 
 
+def test_validate_says_what_to_do_when_the_whole_interval_lies_above_the_target(tmp_path, capsys):
+    """A threshold set below every ID episode's statistic alarms in all of them: exit code 1, and the
+    line says how often calibration gives such a threshold and how to calibrate another."""
+    path = tmp_path / "thr.json"
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--far", "0.2",
+                 "--episodes", "11", "--out", str(path)]) == 0
+    data = json.loads(path.read_text())
+    low = tmp_path / "low.json"
+    low.write_text(json.dumps({**data, "value": -1.0}))  # the spread is never negative
+    capsys.readouterr()
+    assert main(["validate", str(low), "--episodes", "4", "--seed", "700100"]) == 1
+    out = capsys.readouterr().out
+    assert "4 of 4 fresh ID episodes alarmed" in out and "ABOVE the target" in out
+    assert "with probability up to 0.1: calibrate again on other episodes, --seed, or for a surer bound, " \
+           "--confidence 0.99 --episodes 21" in out
+    # On average only (--confidence none): the advice is the bound per threshold.
+    low.write_text(json.dumps({**data, "value": -1.0, "confidence": None}))
+    assert main(["validate", str(low), "--episodes", "4", "--seed", "700100"]) == 1
+    assert "calibrate with --confidence 0.9" in capsys.readouterr().out
+
+
 def test_progress_lines_carry_the_time_left_and_the_last_evaluation(capsys, monkeypatch):
     from oodmon.cli import display
 

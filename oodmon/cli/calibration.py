@@ -14,7 +14,7 @@ from oodmon.cli.parsing import (
     _FIT_EPISODES, _KEPT, _SEED, _add_confidence, _add_rule, _agent_arguments, _fraction, _non_negative, _whole,
 )
 from oodmon.errors import ConfigError
-from oodmon.monitor.threshold import DETECTOR_NAMES
+from oodmon.monitor.threshold import DETECTOR_NAMES, episodes_needed
 from oodmon.seeds import CALIBRATION, DETECTOR_FIT, VALIDATION
 
 
@@ -149,7 +149,7 @@ def _validate(args: argparse.Namespace) -> int:
                           "interval95": [result.low, result.high], "far": result.far,
                           "confidence": result.confidence, "seed": args.seed, "verdict": result.verdict}, indent=1))
     else:
-        verdict = {"above": "ABOVE the target: this threshold alarms too often",
+        verdict = {"above": "ABOVE the target: this threshold alarms too often" + _above_hint(threshold, unit),
                    "below": "below the target",
                    "consistent": "consistent with the target (the interval holds it)"}[result.verdict]
         Console(soft_wrap=True).print(
@@ -159,6 +159,21 @@ def _validate(args: argparse.Namespace) -> int:
             + (f" with confidence {result.confidence:g}" if result.confidence is not None else " on average")
             + f": {verdict}")
     return 1 if result.verdict == "above" else 0
+
+
+def _above_hint(threshold, unit: str) -> str:
+    """What to do about a threshold whose fresh rate lies above its target: how often calibration
+    gives one, and how to get another."""
+    if threshold.mode != "episode":
+        return f" (per step the bound is only approximate: the {unit} of an episode are correlated; calibrate per episode, " \
+               "the default)"
+    if threshold.confidence is None:
+        return " (a threshold calibrated for the average rate often is: calibrate with --confidence 0.9)"
+    hint = (f" (calibration gives one this high with probability up to {1 - threshold.confidence:.2g}: calibrate again "
+            "on other episodes, --seed")
+    if threshold.confidence < 0.99:
+        hint += f", or for a surer bound, --confidence 0.99 --episodes {episodes_needed(threshold.far, 0.99)}"
+    return hint + ")"
 
 
 def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
