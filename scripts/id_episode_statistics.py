@@ -7,7 +7,7 @@ ensemble has (spread, dynamics, features, combined), the statistic under the ala
 consecutive steps, window 1, of each of the episodes, seeds 700,000 + i (the validation range,
 apart from calibration's).
 
-Other agents and seeds: ``--task pong --method dropconnect --only frames --monitor-rule --seed
+``--resume`` goes on from a stopped run's file. Other agents and seeds: ``--task pong --method dropconnect --only frames --monitor-rule --seed
 200000 --out runs/x.json`` (``--monitor-rule``: each detector's rule is the monitor's default,
 ``default_consecutive`` and ``default_window``, the one ``oodmon calibrate`` uses; ``--seed`` is
 the first episode's and the MC sampling's, as ``oodmon validate --seed`` takes it). An episode alarms under a threshold exactly when its statistic
@@ -30,6 +30,7 @@ from oodmon.agents import load
 from oodmon.monitor import DEFAULT_CONSECUTIVE, Monitor, episode_statistic
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import detectors_for
+from oodmon.threads import limit_torch_threads
 
 
 class StatisticSink:
@@ -68,8 +69,14 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=seeds.VALIDATION)
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--every", type=int, default=100, help="progress every this many episodes")
+    parser.add_argument("--resume", action="store_true",
+                        help="go on from the episodes --out holds (made by the same command); the MC sampling "
+                             "starts again from the seed of the first new episode, so the episodes after the "
+                             "stop differ from an unstopped run's but are as fresh")
     args = parser.parse_args()
-    agent = load(args.task, args.method, seed=args.seed)
+    done = json.loads(args.out.read_text()) if args.resume and args.out.is_file() else None
+    start = 0 if done is None else len(done["episode_lengths"])
+    agent = load(args.task, args.method, seed=args.seed + start)
     detectors = detectors_for(agent)
     names = args.only.split(",") if args.only else list(dict.fromkeys(["spread", *(detectors.names if detectors else [])]))
     learned = [name for name in names if name != "spread"]
@@ -83,6 +90,14 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     rule = {name: {"consecutive": m, "window": w} for name, (m, w) in rules.items()}
     sink = StatisticSink(names, rules)
+    resumed_at = []
+    if done is not None:
+        if done["agent"] != f"{args.task}-{args.method}" or done["seeds"][0] != args.seed \
+                or sorted(done["statistics"]) != sorted(names):
+            raise SystemExit(f"{args.out} was made by another command: {done['command']}")
+        sink.lengths = list(done["episode_lengths"])
+        sink.statistics = {name: list(values) for name, values in done["statistics"].items()}
+        resumed_at = [*done.get("resumed_at", []), start]
 
     def write() -> None:
         """The episodes played so far (every --every episodes: a run stopped early keeps them)."""
@@ -93,6 +108,7 @@ def main() -> None:
             "seeds": [args.seed, args.seed + len(sink.lengths)], "episode_lengths": sink.lengths,
             "statistics": {name: [round(v, 6) for v in values] for name, values in sink.statistics.items()},
             "command": command,
+            **({"resumed_at": resumed_at} if resumed_at else {}),
         }) + "\n")
         part.replace(args.out)
 
@@ -100,7 +116,7 @@ def main() -> None:
     started = time.perf_counter()
     with Monitor(agent, detectors=detectors.subset(learned) if learned else None, sinks=[sink],
                  log_observations=False) as monitor:
-        for episode in range(args.episodes):
+        for episode in range(start, args.episodes):
             monitor.run_episode(env, seed=args.seed + episode, variant=args.task)
             if (episode + 1) % args.every == 0 or episode + 1 == args.episodes:
                 write()
@@ -110,4 +126,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

@@ -193,3 +193,28 @@ def test_readme_pong_spread_score_table_is_made_from_the_committed_results():
     results = json.loads((root / "results" / "detectors" / "spread-scores-pong.json").read_text())
     assert sorted(results) == ["dropconnect", "dropout", "ensemble"]
     assert script.table(results) in (root / "README.md").read_text()
+
+
+def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
+    """A script whose command reads ``OODMON_TORCH_THREADS=1 ...`` honours it as the CLI does (torch
+    otherwise takes a thread per core: two such scripts on two cores each kept a second thread busy);
+    ``limit_torch_threads`` sets the value given and leaves torch alone where none is."""
+    import torch
+
+    from oodmon.threads import limit_torch_threads
+
+    scripts = Path(__file__).resolve().parents[1] / "scripts"
+    documented = [p for p in sorted(scripts.glob("*.py")) if "OODMON_TORCH_THREADS" in p.read_text()]
+    assert len(documented) >= 15
+    deaf = [p.name for p in documented
+            if "limit_torch_threads()" not in p.read_text() and "set_num_threads(" not in p.read_text()]
+    assert deaf == []
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        monkeypatch.delenv("OODMON_TORCH_THREADS", raising=False)
+        assert limit_torch_threads() is None and torch.get_num_threads() == 2
+        monkeypatch.setenv("OODMON_TORCH_THREADS", "1")
+        assert limit_torch_threads() == 1 and torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)

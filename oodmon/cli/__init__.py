@@ -76,14 +76,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 def _limit_torch_threads() -> None:
     """Honour ``OODMON_TORCH_THREADS`` in every command (the monitor, calibration and bench as much
     as training), so that a job run beside a training keeps to its share of the cores."""
-    from oodmon.threads import torch_threads
+    from oodmon.threads import limit_torch_threads
 
-    threads = torch_threads()
-    if threads is None:
-        return
-    import torch
-
-    torch.set_num_threads(threads)
+    limit_torch_threads()
 
 
 def _parser() -> argparse.ArgumentParser:
