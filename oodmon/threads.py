@@ -1,9 +1,10 @@
 """``OODMON_TORCH_THREADS``: how many torch threads an oodmon command may use, read in one place.
 
-Every command honours it (training as much as calibration, the monitor and the bench), so that a
-job run beside a training keeps to its share of the cores; a script or a process of your own that
-plays agents calls :func:`limit_torch_threads` first (torch's default is a thread per core; with two such
-processes on two cores, each kept a torch OpenMP thread as busy as its main thread).
+Every command honours it (training as much as calibration, the monitor and the bench), and uses
+one thread where it is not set, so that jobs side by side keep to their share of the cores; a
+script or a process of your own that plays agents calls :func:`limit_torch_threads` first (torch's
+default is a thread per core, and two such processes on two cores ran 22 times slower than two on
+one thread each: see there).
 """
 
 from __future__ import annotations
@@ -44,14 +45,21 @@ def torch_threads(default: int | None = None) -> int | None:
     return int(text)
 
 
-def limit_torch_threads() -> int | None:
-    """Set torch's threads to ``OODMON_TORCH_THREADS`` where it is set (else leave torch's own
-    choice); the number set, or ``None``.
+def limit_torch_threads(default: int | None = 1) -> int | None:
+    """Set torch's threads to ``OODMON_TORCH_THREADS``, or to ``default`` where it is not set
+    (``None``: leave torch's own choice, a thread per core); the number set, or ``None``.
+
+    The default is one: a monitored decision is a batch of one, which a second thread does not
+    speed up, and processes side by side each with a thread per core slow each other down many
+    times over. Measured with ``benchmarks/torch_threads.py`` (shipped Pong DropConnect agent,
+    two cores, 2026-11-28): alone, 0.91 s per 1,000 monitored decisions on one thread against 1.05 on
+    torch's two; two processes side by side, 1.05 against 23.3 (each kept a torch OpenMP thread as
+    busy as its main thread).
 
     Raises:
         ConfigError: the value is not a whole number from 1 to :data:`MAX_THREADS`.
     """
-    threads = torch_threads()
+    threads = torch_threads(default=default)
     if threads is None:
         return None
     import torch

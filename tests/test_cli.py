@@ -197,6 +197,11 @@ def test_every_command_keeps_to_the_torch_threads_it_is_given(monkeypatch, capsy
         monkeypatch.setenv("OODMON_TORCH_THREADS", "1")
         assert main(["envs", "--task", "pong", "--json"]) == 0
         assert torch.get_num_threads() == 1
+        # Not set: one thread too (a decision is a batch of one; benchmarks/torch_threads.py).
+        torch.set_num_threads(2)
+        monkeypatch.delenv("OODMON_TORCH_THREADS")
+        assert main(["envs", "--task", "pong", "--json"]) == 0
+        assert torch.get_num_threads() == 1
         monkeypatch.setenv("OODMON_TORCH_THREADS", "two")
         assert main(["envs", "--json"]) == 2
         assert "OODMON_TORCH_THREADS='two' is not allowed; give a whole number from 1 to 1024" in capsys.readouterr().err

@@ -198,7 +198,7 @@ def test_readme_pong_spread_score_table_is_made_from_the_committed_results():
 def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
     """A script whose command reads ``OODMON_TORCH_THREADS=1 ...`` honours it as the CLI does (torch
     otherwise takes a thread per core: two such scripts on two cores each kept a second thread busy);
-    ``limit_torch_threads`` sets the value given and leaves torch alone where none is."""
+    ``limit_torch_threads`` sets the value given, else one thread (or, asked, leaves torch alone)."""
     import torch
 
     from oodmon.threads import limit_torch_threads
@@ -213,8 +213,9 @@ def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
     try:
         torch.set_num_threads(2)
         monkeypatch.delenv("OODMON_TORCH_THREADS", raising=False)
-        assert limit_torch_threads() is None and torch.get_num_threads() == 2
-        monkeypatch.setenv("OODMON_TORCH_THREADS", "1")
+        assert limit_torch_threads(default=None) is None and torch.get_num_threads() == 2
         assert limit_torch_threads() == 1 and torch.get_num_threads() == 1
+        monkeypatch.setenv("OODMON_TORCH_THREADS", "2")
+        assert limit_torch_threads() == 2 and torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)

@@ -75,7 +75,8 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 def _limit_torch_threads() -> None:
     """Honour ``OODMON_TORCH_THREADS`` in every command (the monitor, calibration and bench as much
-    as training), so that a job run beside a training keeps to its share of the cores."""
+    as training), one thread where it is not set, so that a job run beside another keeps to its
+    share of the cores (``limit_torch_threads``: what more threads cost, measured)."""
     from oodmon.threads import limit_torch_threads
 
     limit_torch_threads()
