@@ -204,14 +204,47 @@ def test_thresholds_you_get_keep_their_rate_with_the_stated_confidence(detector)
                        / "cartpole-ensemble-id.json").read_text())
     statistics = np.asarray(data["statistics"][detector])
     assert len(statistics) == 1200 and data["rule"] == {"consecutive": 3, "window": 1}
-    rng = np.random.default_rng(15)
+    _assert_redrawn_thresholds_keep_the_bound(statistics, consecutive=3, seed=15)
+
+
+def _assert_redrawn_thresholds_keep_the_bound(statistics: np.ndarray, *, consecutive: int, seed: int) -> None:
+    """100 times: calibrate on 50 of ``statistics`` (episodes' statistics under an m-step rule),
+    count the threshold's alarms on the others. With confidence 0.9 at most d = 0.1 of the
+    thresholds may exceed far = 0.05; 100 draws have a binomial sd of 0.03, so the slack is 3 sd.
+    The marginal rank (average-only) exceeds far for about 28% of thresholds: at least 15% here."""
+    rng = np.random.default_rng(seed)
     far, n, draws = 0.05, 50, 100
     exceeded = {0.9: 0, None: 0}
     for _ in range(draws):
         order = rng.permutation(len(statistics))
         calibration, fresh = statistics[order[:n]], statistics[order[n:]]
         for confidence in exceeded:
-            threshold = calibrate([np.full(3, s) for s in calibration], far, consecutive=3, confidence=confidence)
+            threshold = calibrate([np.full(consecutive, s) for s in calibration], far, consecutive=consecutive,
+                                  confidence=confidence)
             exceeded[confidence] += np.mean(fresh > threshold.value) > far
     assert exceeded[0.9] / draws <= 0.1 + 3 * math.sqrt(0.1 * 0.9 / draws)
     assert exceeded[None] / draws >= 0.15  # the average-only promise, for one threshold, often fails
+
+
+def test_pong_thresholds_keep_their_rate_with_the_stated_confidence_and_the_seed_blocks_agree():
+    """The same on Pong: fresh ID games of the shipped Pong DropConnect agent under its default alarm
+    (frames detector, m = 1, window 1), two blocks of seeds: calibration's own (200,000 on; its first
+    50 are what `oodmon calibrate` plays by default) and validation's (700,000 on). The bound needs a
+    fresh game exchangeable with the calibration ones: the blocks' distributions agree (two-sample
+    Kolmogorov-Smirnov p > 0.01). The default calibration's threshold is the largest of
+    the first 50 statistics. Re-drawn calibrations from the pooled games keep the bound as on
+    CartPole (the rates are read on the other games: hundreds, so a rate's own noise adds a little
+    to the count)."""
+    from scipy.stats import ks_2samp
+
+    folder = Path(__file__).resolve().parents[2] / "results" / "calibration"
+    blocks = [json.loads((folder / f"pong-dropconnect-{name}-seeds.json").read_text())
+              for name in ("calibration", "validation")]
+    assert [block["seeds"][0] for block in blocks] == [200_000, 700_000]
+    assert all(block["rule"] == {"consecutive": 1, "window": 1} for block in blocks)
+    first, second = (np.asarray(block["statistics"]["frames"]) for block in blocks)
+    assert min(len(first), len(second)) >= 250
+    assert ks_2samp(first, second).pvalue > 0.01
+    default = calibrate([np.full(1, s) for s in first[:50]], 0.05, consecutive=1)
+    assert default.value == first[:50].max()
+    _assert_redrawn_thresholds_keep_the_bound(np.concatenate([first, second]), consecutive=1, seed=18)
