@@ -7,10 +7,11 @@ ensemble has (spread, dynamics, features, combined), the statistic under the ala
 consecutive steps, window 1, of each of the episodes, seeds 700,000 + i (the validation range,
 apart from calibration's).
 
-``--resume`` goes on from a stopped run's file. Other agents and seeds: ``--task pong --method dropconnect --only frames --monitor-rule --seed
-200000 --out runs/x.json`` (``--monitor-rule``: each detector's rule is the monitor's default,
-``default_consecutive`` and ``default_window``, the one ``oodmon calibrate`` uses; ``--seed`` is
-the first episode's and the MC sampling's, as ``oodmon validate --seed`` takes it). An episode alarms under a threshold exactly when its statistic
+``--resume`` goes on from a stopped run's file. Other agents and seeds: ``--task pong --method
+dropconnect --only frames --monitor-rule --seed 200000 --out runs/x.json`` (``--monitor-rule``:
+each detector's rule is the monitor's default, ``default_consecutive`` and ``default_window``, the
+one ``oodmon calibrate`` uses; ``--seed`` is the first episode's and the MC sampling's, as ``oodmon
+validate --seed`` takes it). An episode alarms under a threshold exactly when its statistic
 exceeds it, so re-drawing calibration sets from these episodes and checking each threshold on the
 rest measures what a threshold's false-alarm rate is, without playing the episodes again
 (tests/monitor/test_rule_and_calibration.py does it 100 times in a fraction of a second).
@@ -78,7 +79,8 @@ def main() -> None:
     start = 0 if done is None else len(done["episode_lengths"])
     agent = load(args.task, args.method, seed=args.seed + start)
     detectors = detectors_for(agent)
-    names = args.only.split(",") if args.only else list(dict.fromkeys(["spread", *(detectors.names if detectors else [])]))
+    fitted = detectors.names if detectors else []
+    names = args.only.split(",") if args.only else list(dict.fromkeys(["spread", *fitted]))
     learned = [name for name in names if name != "spread"]
     rules = {name: (default_consecutive(name), default_window(args.task, name)) if args.monitor_rule
              else (DEFAULT_CONSECUTIVE, 1) for name in names}

@@ -165,8 +165,8 @@ def _above_hint(threshold, unit: str) -> str:
     """What to do about a threshold whose fresh rate lies above its target: how often calibration
     gives one, and how to get another."""
     if threshold.mode != "episode":
-        return f" (per step the bound is only approximate: the {unit} of an episode are correlated; calibrate per episode, " \
-               "the default)"
+        return (f" (per step the bound is only approximate: the {unit} of an episode are correlated; calibrate per "
+                "episode, the default)")
     if threshold.confidence is None:
         return " (a threshold calibrated for the average rate often is: calibrate with --confidence 0.9)"
     hint = (f" (calibration gives one this high with probability up to {1 - threshold.confidence:.2g}: calibrate again "
