@@ -24,8 +24,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from oodmon.errors import ConfigError
-from oodmon.monitor.threshold import calibrate, clopper_pearson
+from oodmon.monitor.threshold import calibrate, clopper_pearson, episodes_needed
 
 
 def main() -> None:
@@ -58,11 +57,12 @@ def main() -> None:
               f"Kolmogorov-Smirnov p = {stats.ks_2samp(a, b).pvalue:.3f}")
     exceeded: dict[float | None, list[float]] = {}
     for confidence in (0.9, 0.99, None):
-        try:
-            calibrate([np.zeros(1)] * args.n, args.far, consecutive=1, confidence=confidence)
+        needed = episodes_needed(args.far, confidence)
+        if args.n >= needed:
             exceeded[confidence] = []
-        except ConfigError as error:  # too few episodes for the bound
-            print(f"confidence {confidence}: {error}")
+        else:  # too few episodes for the bound
+            print(f"confidence {confidence}: far={args.far:g} needs at least {needed} ID calibration episodes to bound "
+                  f"its rate with confidence {confidence}; got {args.n}")
     rng = np.random.default_rng(args.seed)
     for _ in range(args.draws):
         order = rng.permutation(len(pooled))

@@ -28,6 +28,7 @@ from oodmon.cli.run import _add_demo, _add_run
 from oodmon.cli.training import _add_evaluate, _add_train
 from oodmon.errors import OodmonError
 from oodmon.monitor.stopping import Terminated, stop_on_sigterm
+from oodmon.threads import limit_torch_threads
 
 __all__ = ["main"]
 
@@ -54,7 +55,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         try:
-            _limit_torch_threads()
+            # OODMON_TORCH_THREADS in every command, one thread where it is not set (limit_torch_threads)
+            limit_torch_threads()
             with stop_on_sigterm():  # a service manager's stop ends a command as Ctrl-C does
                 return args.handler(args) or 0
         except (OodmonError, OSError) as error:
@@ -71,15 +73,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Warnings in the terminal as one line each, without the source line Python would show."""
     print(f"oodmon: warning: {message}", file=sys.stderr)
-
-
-def _limit_torch_threads() -> None:
-    """Honour ``OODMON_TORCH_THREADS`` in every command (the monitor, calibration and bench as much
-    as training), one thread where it is not set, so that a job run beside another keeps to its
-    share of the cores (``limit_torch_threads``: what more threads cost, measured)."""
-    from oodmon.threads import limit_torch_threads
-
-    limit_torch_threads()
 
 
 def _parser() -> argparse.ArgumentParser:
