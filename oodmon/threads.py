@@ -1,10 +1,14 @@
-"""``OODMON_TORCH_THREADS``: how many torch threads an oodmon command may use, read in one place.
+"""``OODMON_TORCH_THREADS``: how many threads torch and numpy's BLAS may use in an oodmon command,
+read in one place.
 
 Every command honours it (training as much as calibration, the monitor and the bench), and uses
 one thread where it is not set, so that jobs side by side keep to their share of the cores; a
-script or a process of your own that plays agents calls :func:`limit_torch_threads` first (torch's
-default is a thread per core, and two such processes on two cores ran 22 times slower than two on
-one thread each: see there).
+script or a process of your own that plays agents calls :func:`limit_threads` first. Both
+libraries default to a thread per core: two processes on two cores ran 10 times slower with torch's
+(a monitored Pong decision) and 4-5 times slower with numpy's OpenBLAS (a CartPole DropConnect
+decision with fixed masks) than with one thread each (see :func:`limit_threads`). The variable
+keeps its first name (it covered torch alone until 2026-11-28): the committed results' commands
+carry it.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ import os
 
 from oodmon.errors import ConfigError
 
-__all__ = ["MAX_THREADS", "limit_torch_threads", "torch_threads"]
+__all__ = ["MAX_THREADS", "limit_threads", "torch_threads"]
 
 #: The largest value accepted: more threads than any machine oodmon runs on has cores.
 MAX_THREADS = 1024
@@ -45,16 +49,29 @@ def torch_threads(default: int | None = None) -> int | None:
     return int(text)
 
 
-def limit_torch_threads(default: int | None = 1) -> int | None:
-    """Set torch's threads to ``OODMON_TORCH_THREADS``, or to ``default`` where it is not set
-    (``None``: leave torch's own choice, a thread per core); the number set, or ``None``.
+def limit_threads(default: int | None = 1) -> int | None:
+    """Set torch's threads and those of numpy's BLAS to ``OODMON_TORCH_THREADS``, or to ``default``
+    where it is not set (``None``: leave both their own choice, a thread per core); the number set,
+    or ``None``.
 
     The default is one: a monitored decision is a batch of one, which a second thread does not
     speed up, and processes side by side each with a thread per core slow each other down many
-    times over. Measured with ``benchmarks/torch_threads.py`` (shipped Pong DropConnect agent,
-    two cores, 2026-11-28): alone, 0.91 s per 1,000 monitored decisions on one thread against 1.05 on
-    torch's two; two processes side by side, 1.05 against 23.3 (each kept a torch OpenMP thread as
-    busy as its main thread).
+    times over, each keeping a second thread spinning as busily as its main one (``top -H``; gdb
+    finds it in libgomp's barrier for torch, in OpenBLAS's ``blas_thread_server`` for numpy).
+    Measured on two cores with ``benchmarks/threads.py`` (2026-11-28):
+
+    - torch (``--case torch``: the shipped Pong DropConnect agent, frames detector): alone, 0.91 s
+      per 1,000 monitored decisions on one thread against 1.05 on torch's two; two processes side
+      by side, 1.05 against 23.3;
+    - numpy's BLAS (``--case blas``: the shipped CartPole DropConnect agent with fixed masks, whose K
+      sub-networks are one matrix product per layer through OpenBLAS): alone, 0.34 s per 1,000
+      decisions on either; two processes side by side, 0.34 on one thread against 1.31-1.86 on
+      OpenBLAS's two (torch's 10.7 above read 23.3 in an earlier session, numpy's BLAS then on its
+      two as well).
+
+    numpy's BLAS, which the agents' products go through, is loaded here and limited; so is any
+    other BLAS already loaded (opencv and scipy bring OpenBLAS builds of their own), and one loaded
+    later starts with ``OPENBLAS_NUM_THREADS``, which this sets too.
 
     Raises:
         ConfigError: the value is not a whole number from 1 to :data:`MAX_THREADS`.
@@ -62,7 +79,11 @@ def limit_torch_threads(default: int | None = 1) -> int | None:
     threads = torch_threads(default=default)
     if threads is None:
         return None
+    import numpy  # noqa: F401  (loads its BLAS, which threadpoolctl then finds)
     import torch
+    from threadpoolctl import threadpool_limits
 
     torch.set_num_threads(threads)
+    threadpool_limits(threads, user_api="blas")  # a call, not a with-block: the limit stays
+    os.environ["OPENBLAS_NUM_THREADS"] = str(threads)  # read by an OpenBLAS as it loads
     return threads

@@ -33,7 +33,7 @@ from oodmon.monitor.detectors import DetectorSet
 from oodmon.monitor.detectors.base import StepContext
 from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.fitting import collect, trajectory_scores
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 from sweep_full_depth import append_row, parse_or_print_table, read_rows
 
 OUT = Path("results/sweeps/combined_long_mean.jsonl")
@@ -118,5 +118,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

@@ -30,10 +30,9 @@ from pathlib import Path
 
 import gymnasium
 import numpy as np
-import torch
 from gymnasium import spaces
 
-from oodmon.threads import torch_threads
+from oodmon.threads import limit_threads
 
 ENV_ID = "DictCartPole-v0"
 
@@ -106,7 +105,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.camera and args.vec_normalize:
         parser.error("--camera and --vec-normalize: one or the other (VecNormalize would need norm_obs_keys)")
-    torch.set_num_threads(torch_threads(default=1))
+    limit_threads()
     import oodmon
     from oodmon.monitor import MonitoredEnv
     from stable_baselines3 import PPO

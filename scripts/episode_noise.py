@@ -33,7 +33,7 @@ from oodmon import seeds
 from oodmon.bench.cache import _bench_agent
 from oodmon.bench.config import PAPER_METHOD, paper_label
 from oodmon.paper import paper_auc_per_trial
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 from sweep_full_depth import append_row, bench_trial, episode_scores, parse_or_print_table, read_rows, step_auroc
 
 OUT = Path("results/sweeps/episode_noise.jsonl")
@@ -136,5 +136,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

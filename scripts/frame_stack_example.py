@@ -27,12 +27,11 @@ import argparse
 from pathlib import Path
 
 import gymnasium
-import torch
 
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.sb3 import load_sb3
 from oodmon.envs.grid import Variant
-from oodmon.threads import torch_threads
+from oodmon.threads import limit_threads
 
 
 def main() -> None:
@@ -42,7 +41,7 @@ def main() -> None:
     parser.add_argument("--vec-normalize", action="store_true",
                         help="train inside VecFrameStack(VecNormalize(...)), rl-baselines3-zoo's order")
     args = parser.parse_args()
-    torch.set_num_threads(torch_threads(default=1))
+    limit_threads()
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack, VecNormalize
 

@@ -31,7 +31,7 @@ from oodmon.agents import load
 from oodmon.monitor import DEFAULT_CONSECUTIVE, Monitor, episode_statistic
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import detectors_for
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 
 
 class StatisticSink:
@@ -128,5 +128,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

@@ -25,7 +25,7 @@ from oodmon import seeds
 from oodmon.agents import load
 from oodmon.envs import Variant, parse_variant
 from oodmon.monitor.detectors import collect, detectors_for, trajectory_scores
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 
 WINDOWS = (1, 10, 30)  # the features detector's score averaged over its last N steps (computed from N = 1)
 VARIANTS = [f"pong:{c}@{s}" for c in ("gaussian_noise", "impulse_noise", "motion_blur") for s in (3, 4, 5)]
@@ -76,5 +76,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

@@ -23,7 +23,7 @@ import numpy as np
 from oodmon.monitor.detectors import DetectorSet
 from oodmon.monitor.detectors.base import RunningMean
 from oodmon.replay import read_log
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 
 
 def episode_maxima(combined, path: Path, after_onset: bool) -> dict[str, np.ndarray]:
@@ -61,5 +61,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

@@ -25,7 +25,7 @@ import numpy as np
 from oodmon.agents import load_agent
 from oodmon.envs import parse_variant
 from oodmon.monitor.detectors import ScaledSpreadDetector, collect
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 from sweep_full_depth import bench_trial, step_auroc  # scripts/
 
 VARIANTS = {"cartpole": ["cartpole:gravity=98.0", "cartpole:length=2.0"],
@@ -78,5 +78,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

@@ -27,7 +27,7 @@ from oodmon.agents import load_agent
 from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
 from oodmon.monitor.detectors import collect
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 from sweep_full_depth import step_auroc  # scripts/: the sweeps' AUROC
 
 SPREADS = {
@@ -93,5 +93,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

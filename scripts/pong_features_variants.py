@@ -19,7 +19,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 from sklearn.covariance import LedoitWolf
 from sklearn.metrics import roc_auc_score
 
@@ -27,6 +26,7 @@ from oodmon import seeds
 from oodmon.agents import load_agent, zoo_dir
 from oodmon.bench import ONSETS, episode_onset
 from oodmon.envs import parse_variant
+from oodmon.threads import limit_threads
 
 RUNS = (("fit", "pong", 20, seeds.DETECTOR_FIT), ("id", "pong", 30, seeds.BENCH_ID),
         ("mb3", "pong:motion_blur@3", 5, seeds.BENCH_SHIFTED), ("mb4", "pong:motion_blur@4", 5, seeds.BENCH_SHIFTED),
@@ -90,7 +90,7 @@ def window_means(scores: np.ndarray, w: int) -> np.ndarray:
 
 
 def main(method: str = "dropconnect", cache: str | None = None) -> None:
-    torch.set_num_threads(1)
+    limit_threads()
     path = Path(cache or f"/tmp/pong-features-{method}.npz")
     data = dict(np.load(path)) if path.exists() else collect(method, path)
     floats = {name: data[f"{name}_F"].astype(np.float64) for name, *_ in RUNS}

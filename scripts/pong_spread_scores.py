@@ -27,7 +27,7 @@ from oodmon.agents import load
 from oodmon.envs import Variant, parse_variant
 from oodmon.monitor.detectors import collect
 from oodmon.monitor.scores import score_function
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from measure_pong_features import VARIANTS  # noqa: E402  (the script beside this one)
@@ -97,5 +97,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

@@ -20,7 +20,7 @@ import numpy as np
 from oodmon import __version__
 from oodmon.agents import episode_returns, load, zoo_dir
 from oodmon.envs import Variant
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 
 
 def reevaluate(name: str) -> None:
@@ -40,7 +40,7 @@ def reevaluate(name: str) -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     if len(sys.argv) < 2:
         sys.exit(f"usage: {sys.argv[0]} NAME... (zoo names, e.g. cartpole-dropconnect)")
     for zoo_name in sys.argv[1:]:

@@ -22,17 +22,16 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import gymnasium
-import torch
 
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.sb3 import load_sb3
 from oodmon.envs.grid import Variant
-from oodmon.threads import torch_threads
+from oodmon.threads import limit_threads
 
 
 def train(seed: int, out: Path, steps: int) -> Path:
     """One SAC model, trained and saved as ``out/sac<seed>.zip``."""
-    torch.set_num_threads(torch_threads(default=1))
+    limit_threads()
     from stable_baselines3 import SAC
 
     model = SAC("MlpPolicy", gymnasium.make("Pendulum-v1"), seed=seed, learning_rate=1e-3, device="cpu")

@@ -15,14 +15,13 @@ from __future__ import annotations
 
 
 import numpy as np
-import torch
 from gymnasium.wrappers import FrameStackObservation
 from sklearn.metrics import roc_auc_score
 
 from oodmon.envs.grid import Variant
 from oodmon.monitor import MemorySink, Monitor
 from oodmon.monitor.detectors import fit_detectors
-from oodmon.threads import torch_threads
+from oodmon.threads import limit_threads
 
 CONTROLLER = np.array([0.1, 0.5, 3.0, 1.0])  # push right when 0.1 x + 0.5 x' + 3 theta + theta' > 0
 VARIANTS = ({"length": 2.0}, {"masscart": 9.0}, {"gravity": 49.0}, {"force_mag": 2.5})
@@ -47,7 +46,7 @@ def step_scores(detectors, name: str, seeds: range, shifted_only: bool, **physic
 
 
 def main() -> None:
-    torch.set_num_threads(torch_threads(default=1))
+    limit_threads()
     for name in ("frames", "dynamics"):
         detectors = fit_detectors(policy, make(), detectors=[name], episodes=30)
         ids = step_scores(detectors, name, range(100, 110), False)

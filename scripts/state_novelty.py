@@ -27,7 +27,7 @@ from sklearn.neighbors import NearestNeighbors
 from oodmon.agents import load, load_agent
 from oodmon.envs import parse_variant
 from oodmon.monitor import MemorySink, Monitor
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 from sweep_full_depth import MC_SEED, VARIANTS, step_auroc
 
 NEIGHBOURS = 5
@@ -83,5 +83,5 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, float]]:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

@@ -28,7 +28,7 @@ import numpy as np
 from oodmon.agents import load
 from oodmon.agents.estimators import EnsembleEstimator
 from oodmon.agents.serialization import load_modules
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 from sweep_full_depth import append_row, bench_trial, parse_or_print_table, read_rows, spread_aurocs  # scripts/: the MC sweeps' measurement
 
 OUT = Path("results/sweeps/ensemble_size.jsonl")
@@ -106,5 +106,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

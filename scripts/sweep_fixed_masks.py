@@ -29,7 +29,7 @@ import numpy as np
 from oodmon.agents import load_agent
 from oodmon.envs import parse_variant
 from oodmon.monitor.detectors import DetectorSet, SpreadDetector, collect, fit_agent_detectors, trajectory_scores
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 from sweep_full_depth import MC_SEED, VARIANTS, append_row, read_rows, step_auroc  # scripts/
 
 OUT = Path("results/sweeps/fixed_masks.jsonl")
@@ -112,5 +112,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

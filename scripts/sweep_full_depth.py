@@ -41,7 +41,7 @@ from oodmon.agents.training import train
 from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
 from oodmon.monitor import MemorySink, Monitor
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 
 OUT = Path("results/sweeps/full_depth.jsonl")
 # The MC samples' seed (rows since 2026-11-24 record it as ``mc_seed``; the rows before were
@@ -312,5 +312,5 @@ def append_row(path: Path, row: dict) -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

@@ -38,7 +38,7 @@ from oodmon.agents.agent import agent_from_modules
 from oodmon.agents.layers import DropConnectLinear
 from oodmon.agents.serialization import load_modules
 from oodmon.errors import ConfigError
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 from sweep_full_depth import (MC_SEED, VARIANTS, append_row, bench_trial, parse_or_print_table, read_rows, spread_aurocs,
                               variant_cells)
 
@@ -138,5 +138,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.agents import load
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 from sweep_full_depth import MC_SEED, VARIANTS, append_row, parse_or_print_table, read_rows, spread_aurocs
 
 OUT = Path("results/sweeps/samples.jsonl")
@@ -75,5 +75,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

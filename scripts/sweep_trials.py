@@ -31,7 +31,7 @@ from pathlib import Path
 from oodmon.agents import load_agent
 from oodmon.agents.recipes import parse_widths, recipe_for
 from oodmon.agents.training import train
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 from sweep_full_depth import (MC_SEED, VARIANTS, append_row, bench_trial, check_dqn_options, dqn_changes, dqn_tag,
                               parse_or_print_table, read_rows, row_widths, spread_aurocs, variant_cells, widths_setting)
 
@@ -142,5 +142,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    limit_torch_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
+    limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

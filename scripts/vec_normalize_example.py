@@ -17,12 +17,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import torch
-
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.sb3 import load_sb3
 from oodmon.envs.grid import Variant
-from oodmon.threads import torch_threads
+from oodmon.threads import limit_threads
 
 
 def train(out: Path) -> None:
@@ -42,7 +40,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("runs/vecnorm"))
     args = parser.parse_args()
-    torch.set_num_threads(torch_threads(default=1))
+    limit_threads()
     args.out.mkdir(parents=True, exist_ok=True)
     train(args.out)
     model = args.out / "ppo.zip"

@@ -188,25 +188,35 @@ def test_train_writes_plain_progress_lines_and_its_result_when_logged_to_a_file(
     assert "id_return_mean" in result.stdout and (tmp_path / "t" / "model.json").is_file()
 
 
-def test_every_command_keeps_to_the_torch_threads_it_is_given(monkeypatch, capsys):
+def test_every_command_keeps_to_the_threads_it_is_given(monkeypatch, capsys):
+    """torch's threads and numpy's BLAS threads, from OODMON_TORCH_THREADS or one by default."""
+    import numpy  # noqa: F401  (its BLAS loaded)
     import torch
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads() -> set[int]:
+        return {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
 
     before = torch.get_num_threads()
+    original = threadpool_limits(2, user_api="blas")
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "")  # restored after the test, which the commands set
     try:
         torch.set_num_threads(2)
         monkeypatch.setenv("OODMON_TORCH_THREADS", "1")
         assert main(["envs", "--task", "pong", "--json"]) == 0
-        assert torch.get_num_threads() == 1
-        # Not set: one thread too (a decision is a batch of one; benchmarks/torch_threads.py).
+        assert torch.get_num_threads() == 1 and blas_threads() == {1}
+        # Not set: one thread too (a decision is a batch of one; benchmarks/threads.py).
         torch.set_num_threads(2)
+        threadpool_limits(2, user_api="blas")
         monkeypatch.delenv("OODMON_TORCH_THREADS")
         assert main(["envs", "--task", "pong", "--json"]) == 0
-        assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 1 and blas_threads() == {1}
         monkeypatch.setenv("OODMON_TORCH_THREADS", "two")
         assert main(["envs", "--json"]) == 2
         assert "OODMON_TORCH_THREADS='two' is not allowed; give a whole number from 1 to 1024" in capsys.readouterr().err
     finally:
         torch.set_num_threads(before)
+        original.restore_original_limits()
 
 
 def test_run_whose_mcap_file_cannot_be_opened_goes_on_and_says_so(tmp_path, capsys, monkeypatch):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import json
+import os
 import subprocess
 import sys
 import warnings
@@ -195,27 +196,41 @@ def test_readme_pong_spread_score_table_is_made_from_the_committed_results():
     assert script.table(results) in (root / "README.md").read_text()
 
 
+def _blas_threads() -> set[int]:
+    """The threads of every BLAS loaded in this process (numpy's, opencv's, scipy's OpenBLAS)."""
+    from threadpoolctl import threadpool_info
+
+    return {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
+
+
 def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
     """A script whose command reads ``OODMON_TORCH_THREADS=1 ...`` honours it as the CLI does (torch
-    otherwise takes a thread per core: two such scripts on two cores each kept a second thread busy);
-    ``limit_torch_threads`` sets the value given, else one thread (or, asked, leaves torch alone)."""
+    and numpy's BLAS otherwise take a thread per core: two such scripts on two cores each kept a
+    second thread busy); ``limit_threads`` sets the value given to both, else one thread (or,
+    asked, leaves them alone), and sets ``OPENBLAS_NUM_THREADS``, which a BLAS loaded later reads."""
+    import numpy  # noqa: F401  (its BLAS loaded)
     import torch
+    from threadpoolctl import threadpool_limits
 
-    from oodmon.threads import limit_torch_threads
+    from oodmon.threads import limit_threads
 
     scripts = Path(__file__).resolve().parents[1] / "scripts"
     documented = [p for p in sorted(scripts.glob("*.py")) if "OODMON_TORCH_THREADS" in p.read_text()]
-    assert len(documented) >= 15
-    deaf = [p.name for p in documented
-            if "limit_torch_threads()" not in p.read_text() and "set_num_threads(" not in p.read_text()]
+    assert len(documented) >= 20
+    deaf = [p.name for p in documented if "limit_threads()" not in p.read_text()]
     assert deaf == []
     before = torch.get_num_threads()
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "")  # restored after the test, which limit_threads sets
     try:
         torch.set_num_threads(2)
+        original = threadpool_limits(2, user_api="blas")
         monkeypatch.delenv("OODMON_TORCH_THREADS", raising=False)
-        assert limit_torch_threads(default=None) is None and torch.get_num_threads() == 2
-        assert limit_torch_threads() == 1 and torch.get_num_threads() == 1
+        assert limit_threads(default=None) is None and torch.get_num_threads() == 2 and _blas_threads() == {2}
+        assert limit_threads() == 1 and torch.get_num_threads() == 1 and _blas_threads() == {1}
+        assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
         monkeypatch.setenv("OODMON_TORCH_THREADS", "2")
-        assert limit_torch_threads() == 2 and torch.get_num_threads() == 2
+        assert limit_threads() == 2 and torch.get_num_threads() == 2 and _blas_threads() == {2}
+        assert os.environ["OPENBLAS_NUM_THREADS"] == "2"
     finally:
         torch.set_num_threads(before)
+        original.restore_original_limits()

@@ -28,7 +28,7 @@ from oodmon.cli.run import _add_demo, _add_run
 from oodmon.cli.training import _add_evaluate, _add_train
 from oodmon.errors import OodmonError
 from oodmon.monitor.stopping import Terminated, stop_on_sigterm
-from oodmon.threads import limit_torch_threads
+from oodmon.threads import limit_threads
 
 __all__ = ["main"]
 
@@ -55,8 +55,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         try:
-            # OODMON_TORCH_THREADS in every command, one thread where it is not set (limit_torch_threads)
-            limit_torch_threads()
+            # OODMON_TORCH_THREADS in every command, one thread where it is not set (limit_threads)
+            limit_threads()
             with stop_on_sigterm():  # a service manager's stop ends a command as Ctrl-C does
                 return args.handler(args) or 0
         except (OodmonError, OSError) as error:
