@@ -17,7 +17,7 @@ import os
 
 from oodmon.errors import ConfigError
 
-__all__ = ["MAX_THREADS", "limit_threads", "torch_threads"]
+__all__ = ["MAX_THREADS", "limit_threads", "set_threads", "torch_threads"]
 
 #: The largest value accepted: more threads than any machine oodmon runs on has cores.
 MAX_THREADS = 1024
@@ -77,8 +77,15 @@ def limit_threads(default: int | None = 1) -> int | None:
         ConfigError: the value is not a whole number from 1 to :data:`MAX_THREADS`.
     """
     threads = torch_threads(default=default)
-    if threads is None:
-        return None
+    if threads is not None:
+        set_threads(threads)
+    return threads
+
+
+def set_threads(threads: int) -> None:
+    """Set torch's threads and those of every BLAS to ``threads``, whatever ``OODMON_TORCH_THREADS``
+    says (a bench's worker process, one of several side by side, takes one); :func:`limit_threads`
+    reads the variable first."""
     import numpy  # noqa: F401  (loads its BLAS, which threadpoolctl then finds)
     import torch
     from threadpoolctl import threadpool_limits
@@ -86,4 +93,3 @@ def limit_threads(default: int | None = 1) -> int | None:
     torch.set_num_threads(threads)
     threadpool_limits(threads, user_api="blas")  # a call, not a with-block: the limit stays
     os.environ["OPENBLAS_NUM_THREADS"] = str(threads)  # read by an OpenBLAS as it loads
-    return threads

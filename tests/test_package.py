@@ -212,7 +212,7 @@ def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
     import torch
     from threadpoolctl import threadpool_limits
 
-    from oodmon.threads import limit_threads
+    from oodmon.threads import limit_threads, set_threads
 
     scripts = Path(__file__).resolve().parents[1] / "scripts"
     documented = [p for p in sorted(scripts.glob("*.py")) if "OODMON_TORCH_THREADS" in p.read_text()]
@@ -231,6 +231,8 @@ def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
         monkeypatch.setenv("OODMON_TORCH_THREADS", "2")
         assert limit_threads() == 2 and torch.get_num_threads() == 2 and _blas_threads() == {2}
         assert os.environ["OPENBLAS_NUM_THREADS"] == "2"
+        set_threads(1)  # a bench worker's: one, whatever the variable says
+        assert torch.get_num_threads() == 1 and _blas_threads() == {1} and os.environ["OPENBLAS_NUM_THREADS"] == "1"
     finally:
         torch.set_num_threads(before)
         original.restore_original_limits()

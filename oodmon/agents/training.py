@@ -44,8 +44,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-import torch
-
 from oodmon.agents.agent import Agent, load_agent
 from oodmon.agents.algorithms import architecture, training_env
 from oodmon.agents.checkpoints import Run
@@ -56,7 +54,7 @@ from oodmon.envs.grid import Variant
 from oodmon.errors import ConfigError
 from oodmon.progress import Progress
 from oodmon.seeds import ID_RETURN as ID_SEED
-from oodmon.threads import torch_threads
+from oodmon.threads import limit_threads
 
 __all__ = ["ID_EPISODES", "architecture", "train"]
 
@@ -107,7 +105,7 @@ def train(
     root = Path(out)
     root.mkdir(parents=True, exist_ok=True)
     report = on_progress or (lambda *args: None)
-    torch.set_num_threads(torch_threads(default=1))
+    limit_threads()
     independent = method == "ensemble" and not recipe.shared_torso
     runs = (
         [Run(recipe, root, f"member{k}", 1000 * seed + k) for k in range(recipe.n_members)]

@@ -32,12 +32,11 @@ def _run_cell(task: str, model: str | Sb3Models, threshold: str, spec: str, epis
     """One cell, in a worker process: monitored episodes of one variant into one MCAP log.
     ``onsets``: each shifted episode shifts at a random step in this range (the monitor's protocol);
     ``n_samples``, ``masks``: an MC agent's samples per decision and masks (None: its model's)."""
-    import torch
-
     from oodmon.monitor import McapSink, Monitor, Threshold
     from oodmon.monitor.detectors import DetectorSet
+    from oodmon.threads import set_threads
 
-    torch.set_num_threads(1)
+    set_threads(1)  # one of the workers side by side: torch and numpy's BLAS on one thread each
     agent = _bench_agent(model, task, seed, n_samples, masks)  # seeded MC sampling: the same cell, the same log
     variant = parse_variant(spec)
     env = agent.wrap(variant.make(obs_noise=obs_noise) if obs_noise else variant.make())  # as the agent observes it
