@@ -3,7 +3,7 @@
 Run: .venv/bin/python benchmarks/detector_step.py
 
 Both: the shipped CartPole ensemble (K=5) under the Monitor, writing an MCAP log, on the same
-ID episodes, one torch thread. "All": its shipped detectors (spread, dynamics, features,
+ID episodes, one thread for torch and numpy's BLAS. "All": its shipped detectors (spread, dynamics, features,
 combined; `bash scripts/fit_zoo_detectors.sh` makes them). The last line is
 ratio=<all-detector step time / spread-only step time>; goal <= 1.5.
 
@@ -34,12 +34,12 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from oodmon.agents import load
 from oodmon.envs import Variant
 from oodmon.monitor import McapSink, Monitor
 from oodmon.monitor.detectors import detectors_for
+from oodmon.threads import set_threads
 
 EPISODES = 1
 PAIRS = 30
@@ -108,7 +108,7 @@ def alone_ratios(agent, detectors, log: Path, pairs: int = 10) -> dict[str, floa
 
 
 def main() -> None:
-    torch.set_num_threads(1)
+    set_threads(1)  # torch and numpy's BLAS, as every oodmon command
     agent = load("cartpole", "ensemble")
     detectors = detectors_for(agent)
     if detectors is None:

@@ -29,13 +29,13 @@ from pathlib import Path
 
 import gymnasium
 import numpy as np
-import torch
 
 import oodmon  # noqa: F401  (registers the envs)
 from dropconnect_floor import PLAIN, REPEATS, middle_layer  # benchmarks/, beside this script
 from oodmon.agents import load
 from oodmon.agents.recipes import recipe_for
 from oodmon.envs.grid import ENV_IDS
+from oodmon.threads import set_threads
 from timing import per_call_us, print_figures, print_ratios
 
 ROUNDS = 9
@@ -126,7 +126,7 @@ def task_figures(task: str, kernel: ctypes.CDLL) -> tuple[dict[str, float], floa
 
 
 def main() -> None:
-    torch.set_num_threads(1)
+    set_threads(1)  # torch and numpy's BLAS, as every oodmon command
     ratios = {}
     with tempfile.TemporaryDirectory() as folder:
         kernel = compile_kernel(Path(folder))

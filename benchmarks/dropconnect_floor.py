@@ -16,7 +16,7 @@ exactly those numpy calls on that many elements (decoding a position into its we
 output, a few more calls, is left out). The layer's inputs differ from sample to sample (the layer
 before dropped other weights for each), so it also needs the product of its K rows of active inputs
 with every weight kept: "K rows' product". "floor" is the two together; then the agent's whole
-decision, and ``predict()`` of one plain SB3 model of the same size; one torch thread.
+decision, and ``predict()`` of one plain SB3 model of the same size; one thread for torch and numpy's BLAS.
 
 Lines ``floor_ratio_<task>=<floor / predict()>``; the last line, floor_ratio=, is the larger of
 the two. Where a task's floor is near or above 1, ``benchmarks/uncertainty_step.py``'s goal (a
@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import gymnasium
 import numpy as np
-import torch
 from stable_baselines3 import DDPG, DQN
 
 import oodmon  # noqa: F401  (registers the envs)
@@ -43,6 +42,7 @@ from oodmon.agents import load
 from oodmon.agents.plan import _DropConnect, active_inputs, repeat_rows
 from oodmon.agents.recipes import recipe_for
 from oodmon.envs.grid import ENV_IDS
+from oodmon.threads import set_threads
 from timing import per_call_us, print_figures, print_ratios  # benchmarks/timing.py, beside this script
 
 REPEATS = {"cartpole": 1000, "pendulum": 300}
@@ -130,7 +130,7 @@ def task_figures(task: str) -> tuple[dict[str, float], float, float]:
 
 
 def main() -> None:
-    torch.set_num_threads(1)
+    set_threads(1)  # torch and numpy's BLAS, as every oodmon command
     ratios, gaussian = {}, {}
     for task in ("cartpole", "pendulum"):
         figures, ratios[task], gaussian[task] = task_figures(task)

@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 
 import gymnasium
-import torch
 from stable_baselines3 import DQN
 from stable_baselines3.common.evaluation import evaluate_policy
 
@@ -25,6 +24,7 @@ from oodmon.agents import load, zoo_dir
 from oodmon.agents.serialization import load_modules
 from oodmon.envs import Variant
 from oodmon.monitor import McapSink, Monitor, RerunSink
+from oodmon.threads import set_threads
 
 EPISODES = 10
 ROUNDS = 3
@@ -59,7 +59,7 @@ def plain_steps_per_s() -> float:
 
 
 def main() -> None:
-    torch.set_num_threads(1)
+    set_threads(1)  # torch and numpy's BLAS, as every oodmon command
     monitored = plain = 0.0
     for _ in range(ROUNDS):  # interleaved, best of each: the rounds least disturbed by the machine
         with tempfile.TemporaryDirectory() as folder:

@@ -34,12 +34,11 @@ ROUNDS = 3
 
 def child(task: str, method: str, decisions: int) -> dict[str, float]:
     """In this process: load the agent, collect an episode's states, then time the decisions on them."""
-    import torch
-
     from oodmon.agents import load
     from oodmon.envs import Variant
+    from oodmon.threads import set_threads
 
-    torch.set_num_threads(1)
+    set_threads(1)  # torch and numpy's BLAS, as every oodmon command
     agent = load(task, method)
     env = Variant(task).make()
     obs, _ = env.reset(seed=0)

@@ -34,8 +34,6 @@ from __future__ import annotations
 
 import os
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads its BLAS
-
 import numpy as np
 import torch
 
@@ -46,6 +44,7 @@ from oodmon.agents.recipes import recipe_for
 from oodmon.agents.algorithms import architecture, training_env
 from oodmon.monitor import MemorySink, Monitor
 from oodmon.monitor.detectors import detectors_for
+from oodmon.threads import set_threads
 from timing import per_call_us  # benchmarks/timing.py, beside this script
 
 REPEATS, ROUNDS, RUNS = 100, 5, 10
@@ -74,7 +73,7 @@ def _plain_forward(agent: Agent):
 
 
 def main() -> None:
-    torch.set_num_threads(1)
+    set_threads(1)  # torch and numpy's BLAS, as every oodmon command
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (other work skews the ratio)")
     env = training_env(recipe_for("pong", "dropconnect"))
     agents = {method: _agent(method, env) for method in ("dropconnect", "dropout", "ensemble")}

@@ -6,7 +6,7 @@ The estimators are built exactly as the shipped CartPole and Pendulum agents are
 recipe: CartPole's [256, 256] DQN MLP, Pendulum's [400, 300] DDPG actor; Dropout at the output
 layer, DropConnect at every layer, CartPole p = 0.02 and Pendulum p = 0.05): ensemble K=5, MC
 Dropout and MC DropConnect with 20 samples; the baseline is ``model.predict()`` of one plain SB3
-DQN (DDPG) of the same size. Batch of one observation, one torch thread, all in this process.
+DQN (DDPG) of the same size. Batch of one observation, one thread for torch and numpy's BLAS, all in this process.
 
 Each decision is timed in alternation with the plain predict(), 5 pairs of rounds, each order
 once per pair (``timing.paired_us``): its figure is the median of its rounds, its ratio the median
@@ -37,7 +37,6 @@ from dataclasses import replace
 from statistics import median
 
 import gymnasium
-import torch
 from stable_baselines3 import DDPG, DQN
 
 import oodmon  # noqa: F401  (registers the envs)
@@ -45,6 +44,7 @@ from oodmon.agents.algorithms import architecture
 from oodmon.agents.networks import build_modules, estimator_for
 from oodmon.agents.recipes import parse_widths, recipe_for
 from oodmon.envs.grid import ENV_IDS
+from oodmon.threads import set_threads
 from timing import paired_us, per_call_us  # benchmarks/timing.py, beside this script
 
 REPEATS = {"cartpole": 2000, "pendulum": 500}
@@ -106,7 +106,7 @@ def main() -> None:
     parser.add_argument("--net-arch", type=parse_widths,
                         help="hidden widths of every agent instead of its recipe's, e.g. 64,64")
     args = parser.parse_args()
-    torch.set_num_threads(1)
+    set_threads(1)  # torch and numpy's BLAS, as every oodmon command
     ratios, output_layer, fixed_ratios, deciding_ratios = {}, [], [], {}
     for task in ("cartpole", "pendulum"):
         baseline, figures, full_depth, fixed, deciding = task_figures(task, args.net_arch)
