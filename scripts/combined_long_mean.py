@@ -1,6 +1,6 @@
 """Does the combined detector see more when it also ranks a member's mean since the episode began?
 
-Run (a few minutes per agent; one torch thread):
+Run (a few minutes per agent; one thread):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/combined_long_mean.py --task cartpole --method dropconnect
     .venv/bin/python scripts/combined_long_mean.py --table        # the README's table
 

@@ -1,6 +1,6 @@
 """How much of a five-trial row's std is the evaluation episodes' noise, not the trainings'?
 
-Run (one torch thread; minutes per row on Pendulum, the bench's cached trial models):
+Run (one thread; minutes per row on Pendulum, the bench's cached trial models):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/episode_noise.py results/bench/pendulum-pre_squash_std.json \\
         --rows ensemble:pendulum:l=0.1,dropconnect:pendulum:g=50.0 [--id-episodes 40] [--episodes 20]
     .venv/bin/python scripts/episode_noise.py --table

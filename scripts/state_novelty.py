@@ -1,6 +1,6 @@
 """Are a shifted world's states new to the agent? A nearest-neighbour check beside the spread's AUROC.
 
-Run (a minute for CartPole DropConnect; one torch thread):
+Run (a minute for CartPole DropConnect; one thread):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/state_novelty.py --task cartpole --method dropconnect
         [--agent runs/bench5/models/cartpole-dropconnect-trial3]    # another trained folder than the zoo's
 

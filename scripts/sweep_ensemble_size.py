@@ -1,6 +1,6 @@
 """How the ensemble's spread separates the paper's ensemble variants as the ensemble grows.
 
-Run (resumable; one torch thread; needs the bench's five CartPole / Pendulum ensemble trials, which
+Run (resumable; one thread; needs the bench's five CartPole / Pendulum ensemble trials, which
 `oodmon bench --task T --trials 5 --workers 1 --out runs/bench5` trains and caches):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_ensemble_size.py [--tasks cartpole,pendulum]
     .venv/bin/python scripts/sweep_ensemble_size.py --table

@@ -1,7 +1,7 @@
 """Fixed masks on MC agents of any recipe: the spread of sampled masks, of fixed ones, and the
 fixed sub-networks read whitened (``scaled_spread``), per variant the paper reports for the method.
 
-Run (seconds to a minute per agent; one torch thread):
+Run (seconds to a minute per agent; one thread):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_fixed_masks.py --label LABEL MODEL_DIR [MODEL_DIR ...]
     .venv/bin/python scripts/sweep_fixed_masks.py --table
 

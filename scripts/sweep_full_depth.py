@@ -1,7 +1,7 @@
 """Full-depth MC Dropout / DropConnect (a stochastic layer after every hidden layer): which drop
 probability still solves the task, and how well its spread separates the paper's variants.
 
-Run (resumable; one torch thread, so it can sit beside other work):
+Run (resumable; one thread, so it can sit beside other work):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_full_depth.py [--tasks cartpole,pendulum]
         [--methods dropconnect] [--grid 0.01,0.02] [--learning-rate 1e-3] [--steps 100000] [--net-arch 64,64]
 

@@ -1,7 +1,7 @@
 """Another drop probability when deciding than when training, or sampling the output layer only:
 does MC DropConnect's spread then separate the paper's variants better?
 
-Run (resumable; one torch thread; a minute or two per row; needs the bench's five DropConnect
+Run (resumable; one thread; a minute or two per row; needs the bench's five DropConnect
 trials of the task, which `oodmon bench --task <task> --trials 5 --workers 2 --out runs/bench5`
 trains and caches):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_inference_p.py [--task cartpole]

@@ -1,6 +1,6 @@
 """More MC samples per decision: does a shipped MC agent's spread separate the paper's variants better?
 
-Run (minutes; one torch thread):
+Run (minutes; one thread):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_samples.py --task cartpole --method dropconnect [--samples 20,100,400]
     .venv/bin/python scripts/sweep_samples.py --table          # the zoo README's table
 

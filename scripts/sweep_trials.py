@@ -1,7 +1,7 @@
 """A candidate depth and drop probability over five seeds, beside the shipped recipe's five trials: does
 it detect better and more evenly across trainings?
 
-Run (resumable; one torch thread; minutes per seed on Pendulum):
+Run (resumable; one thread; minutes per seed on Pendulum):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_trials.py --task pendulum --method dropconnect \\
         --p 0.05 [--seeds 0,1,2,3,4]           # the candidate: full depth (a stochastic layer after every hidden layer)
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_trials.py --task pendulum --method dropconnect --shipped
