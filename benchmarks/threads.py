@@ -2,7 +2,7 @@
 core), alone and with a second such process beside it: torch's threads (a Pong decision) or
 numpy's BLAS threads (a CartPole DropConnect decision with fixed masks).
 
-Run: .venv/bin/python benchmarks/threads.py [--case torch|blas] [--episodes N]
+Run: .venv/bin/python benchmarks/threads.py [--case torch|blas|blas-pong] [--episodes N]
 
 Each configuration runs one or two processes side by side; each plays ``--episodes`` ID episodes
 under the monitor (seeds 700,000 on, as ``oodmon validate``) and reports its decisions per second.
@@ -10,7 +10,9 @@ under the monitor (seeds 700,000 on, as ``oodmon validate``) and reports its dec
 games by default), torch on one thread or on its default, numpy's BLAS on one thread in both.
 ``--case blas``: the shipped CartPole DropConnect agent loaded with ``masks="fixed"`` (its K fixed
 sub-networks are one matrix product per layer, through numpy's OpenBLAS; 10 episodes by default),
-numpy's BLAS on one thread or on its default, torch on one thread in both. "one thread" is what
+numpy's BLAS on one thread or on its default, torch on one thread in both. ``--case blas-pong``:
+the same threads, on the shipped Pong DropConnect agent with its features detector (a large
+matrix-vector product through OpenBLAS at every step; 2 games by default). "one thread" is what
 ``OODMON_TORCH_THREADS=1`` gives (``oodmon.threads.limit_threads``, every command's default). Two
 processes on a two-core machine, each with a library's default, is what two scripts that ignored
 ``OODMON_TORCH_THREADS`` did: each kept a second thread as busy as its main one (``top -H``; gdb
@@ -34,7 +36,8 @@ import time
 SEED = 700_000
 #: Per case: the agent (task, method, masks), the detectors the monitor reads, episodes by default.
 CASES = {"torch": (("pong", "dropconnect", None), ["frames"], 3),
-         "blas": (("cartpole", "dropconnect", "fixed"), None, 10)}
+         "blas": (("cartpole", "dropconnect", "fixed"), None, 10),
+         "blas-pong": (("pong", "dropconnect", None), ["features"], 2)}
 
 
 def worker(case: str, threads: int, episodes: int) -> None:
@@ -81,7 +84,8 @@ def run(case: str, processes: int, threads: int, episodes: int) -> tuple[float, 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--case", choices=sorted(CASES), default="torch")
-    parser.add_argument("--episodes", type=int, help="per process (default: torch 3 games, blas 10 episodes)")
+    parser.add_argument("--episodes", type=int, help="per process (default: torch 3 games, blas 10 episodes, "
+                        "blas-pong 2 games)")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--threads", type=int, default=0, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -89,7 +93,7 @@ def main() -> None:
     if args.worker:
         worker(args.case, args.threads, episodes)
         return
-    library = {"torch": "torch threads", "blas": "numpy BLAS threads"}[args.case]
+    library = "torch threads" if args.case == "torch" else "numpy BLAS threads"
     print(f"load average {os.getloadavg()[0]:.2f}, {os.cpu_count()} cores; {episodes} episodes per process")
     times = {}
     for processes in (1, 2):
