@@ -219,6 +219,38 @@ def test_every_command_keeps_to_the_threads_it_is_given(monkeypatch, capsys):
         original.restore_original_limits()
 
 
+def test_run_refuses_to_write_onto_an_earlier_runs_log_unless_told_to_overwrite(tmp_path, capsys):
+    """A run started again after a crash (by hand, or by a service manager) replaced the crashed
+    run's log, alarms and all: an existing --mcap (any part of a split log) or --rrd is refused and
+    left as it was; --overwrite replaces it, and leaves no part of the earlier split log behind."""
+    from oodmon.replay import read_log
+
+    one = ["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "2"]
+    log, rrd = tmp_path / "run.mcap", tmp_path / "run.rrd"
+    assert main([*one, "--mcap", str(log), "--rrd", str(rrd)]) == 0
+    before = log.read_bytes(), rrd.read_bytes()
+    capsys.readouterr()
+    assert main([*one, "--mcap", str(log), "--seed", "7"]) == 2
+    assert f"{log} exists: the log of an earlier run; give another path, or --overwrite" in capsys.readouterr().err
+    assert main([*one, "--mcap", str(tmp_path / "other.mcap"), "--rrd", str(rrd)]) == 2
+    assert f"{rrd} exists" in capsys.readouterr().err and not (tmp_path / "other.mcap").exists()
+    assert (log.read_bytes(), rrd.read_bytes()) == before
+    assert main([*one[:-1], "1", "--mcap", str(log), "--overwrite"]) == 0
+    assert len(read_log(log).episodes) == 1
+
+    split = tmp_path / "long" / "log.mcap"
+    assert main([*one[:-1], "3", "--mcap", str(split), "--mcap-split-episodes", "1"]) == 0
+    parts = sorted(p.name for p in split.parent.iterdir())
+    assert parts == ["log-00000.mcap", "log-00001.mcap", "log-00002.mcap"]
+    capsys.readouterr()
+    assert main([*one[:-1], "1", "--mcap", str(split), "--mcap-split-episodes", "1"]) == 2
+    assert "log-00000.mcap exists (and 2 more part(s) of a split log)" in capsys.readouterr().err
+    assert sorted(p.name for p in split.parent.iterdir()) == parts
+    assert main([*one[:-1], "1", "--mcap", str(split), "--mcap-split-episodes", "1", "--overwrite"]) == 0
+    assert sorted(p.name for p in split.parent.iterdir()) == ["log-00000.mcap"]
+    assert len(read_log(split.parent / "log-00000.mcap").episodes) == 1
+
+
 def test_run_whose_mcap_file_cannot_be_opened_goes_on_and_says_so(tmp_path, capsys, monkeypatch):
     """A disk that fills between the path's check and the run: the MCAP sink fails to open, the run
     goes on (the sink's failures counted), and its closing line names no file (it raised an

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import re
 from collections import deque
+from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
@@ -31,6 +33,10 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
     run.add_argument("--mcap-split-mb", type=_positive, metavar="MB",
                      help="start the next MCAP file after the episode that takes one to MB megabytes (as above)")
     run.add_argument("--rrd", help="write the run to this Rerun file")
+    run.add_argument("--overwrite", action="store_true",
+                     help="replace the logs of an earlier run at --mcap (all its parts, if split) and --rrd; "
+                          "without it an existing log is refused, so that a run started again after a crash "
+                          "cannot replace the log of the run that crashed")
     live = run.add_mutually_exclusive_group()
     live.add_argument("--spawn", action="store_true", help="stream to a Rerun viewer started for it")
     live.add_argument("--serve", action="store_true", help="serve the stream for a remote Rerun viewer")
@@ -62,9 +68,17 @@ def _run(args: argparse.Namespace) -> int:
         check_output_file(mcap.part_path(0), parameter="--mcap", inputs=inputs)
     if args.rrd:
         check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
+    earlier = _earlier_logs(mcap, args.rrd)
+    if earlier and not args.overwrite:
+        raise ConfigError(f"{earlier[0]} exists" + (f" (and {len(earlier) - 1} more part(s) of a split log)"
+                                                    if len(earlier) > 1 else "")
+                          + ": the log of an earlier run; give another path, or --overwrite to replace it")
     threshold = Threshold.load(args.threshold) if args.threshold else None
     args.masks = args.masks or (threshold.masks if threshold is not None else None)
     agent = _load_agent(args)
+    for path in earlier:  # --overwrite, once the inputs have loaded: an old part left would join this run's
+        if path.suffix == ".mcap":
+            path.unlink()
     if args.render and args.task not in ("cartpole", "pendulum"):  # it logged no picture, without a word
         raise ConfigError(f"--render draws CartPole and Pendulum states; {args.task} has no drawing in oodmon"
                           + (" (Pong's frames are logged without it)" if args.task == "pong" else "")
@@ -113,6 +127,22 @@ def _run(args: argparse.Namespace) -> int:
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
     return 0
+
+
+def _earlier_logs(mcap, rrd: str | None) -> list[Path]:
+    """The files of an earlier run that ``oodmon run`` would write onto: the MCAP file, or every
+    part of a split log of the same name beside it (``<stem>-00000.mcap``, ...), and the Rerun file."""
+    found = []
+    if mcap is not None:
+        if mcap.splits:
+            pattern = re.compile(rf"{re.escape(mcap.path.stem)}-\d{{5}}{re.escape(mcap.path.suffix)}")
+            folder = mcap.path.parent
+            found += sorted(p for p in folder.iterdir() if pattern.fullmatch(p.name)) if folder.is_dir() else []
+        elif mcap.path.exists():
+            found.append(mcap.path)
+    if rrd and Path(rrd).exists():
+        found.append(Path(rrd))
+    return found
 
 
 def _listed_by(mcap, path: str | None, *, failed: bool) -> str:
