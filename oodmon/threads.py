@@ -60,14 +60,13 @@ def limit_threads(default: int | None = 1) -> int | None:
     finds it in libgomp's barrier for torch, in OpenBLAS's ``blas_thread_server`` for numpy).
     Measured on two cores with ``benchmarks/threads.py`` (2026-11-28):
 
-    - torch (``--case torch``: the shipped Pong DropConnect agent, frames detector): alone, 0.91 s
-      per 1,000 monitored decisions on one thread against 1.05 on torch's two; two processes side
-      by side, 1.05 against 23.3;
+    - torch (``--case torch``: the shipped Pong DropConnect agent, frames detector): alone, 0.99 s
+      per 1,000 monitored decisions on one thread against 0.93 on torch's two; two processes side
+      by side, 1.03 against 10.7 (23.3 in an earlier reading, numpy's BLAS then on its two as well);
     - numpy's BLAS (``--case blas``: the shipped CartPole DropConnect agent with fixed masks, whose K
       sub-networks are one matrix product per layer through OpenBLAS): alone, 0.34 s per 1,000
       decisions on either; two processes side by side, 0.34 on one thread against 1.31-1.86 on
-      OpenBLAS's two (torch's 10.7 above read 23.3 in an earlier session, numpy's BLAS then on its
-      two as well).
+      OpenBLAS's two. Under Pong's features detector (``--case blas-pong``) neither is steadily faster.
 
     numpy's BLAS, which the agents' products go through, is loaded here and limited; so is any
     other BLAS already loaded (opencv and scipy bring OpenBLAS builds of their own), and one loaded

@@ -18,8 +18,9 @@ from oodmon.progress import Progress
 
 def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], workers: int, report: Progress) -> None:
     """Train the trials' models that are not cached yet, ``workers`` at a time in processes of their
-    own (one thread each for torch and numpy's BLAS, unless OODMON_TORCH_THREADS says otherwise): the long part of a
-    five-trial bench, on every core. Each training checkpoints and resumes (``oodmon.agents.train``)."""
+    own (one thread each for torch and numpy's BLAS, unless OODMON_TORCH_THREADS says otherwise): the
+    long part of a five-trial bench, on every core. Each training checkpoints and resumes
+    (``oodmon.agents.train``)."""
     if config.sb3:
         return
     # (a cached model, or a begun training, of another recipe is set aside first)
