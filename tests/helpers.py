@@ -31,6 +31,13 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(["oodmon", *args], code, out.getvalue(), err.getvalue())
 
 
+def blas_threads() -> set[int]:
+    """The threads of every BLAS loaded in this process (numpy's, opencv's, scipy's OpenBLAS)."""
+    from threadpoolctl import threadpool_info
+
+    return {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
+
+
 def load_script(name: str):
     """The repository's root and scripts/<name>.py loaded as a module (the scripts' own imports of
     each other need scripts/ on sys.path: pytest's ``monkeypatch.syspath_prepend``)."""

@@ -12,6 +12,7 @@ import pytest
 from oodmon.cli import main
 
 
+from tests.helpers import blas_threads
 from tests.helpers import run_cli as _run
 
 
@@ -192,10 +193,7 @@ def test_every_command_keeps_to_the_threads_it_is_given(monkeypatch, capsys):
     """torch's threads and numpy's BLAS threads, from OODMON_TORCH_THREADS or one by default."""
     import numpy  # noqa: F401  (its BLAS loaded)
     import torch
-    from threadpoolctl import threadpool_info, threadpool_limits
-
-    def blas_threads() -> set[int]:
-        return {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
+    from threadpoolctl import threadpool_limits
 
     before = torch.get_num_threads()
     original = threadpool_limits(2, user_api="blas")

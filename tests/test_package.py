@@ -15,7 +15,7 @@ import gymnasium
 import pytest
 
 import oodmon
-from tests.helpers import load_script
+from tests.helpers import blas_threads, load_script
 
 PARTS = ["oodmon.envs", "oodmon.agents", "oodmon.monitor", "oodmon.replay"]
 
@@ -196,13 +196,6 @@ def test_readme_pong_spread_score_table_is_made_from_the_committed_results():
     assert script.table(results) in (root / "README.md").read_text()
 
 
-def _blas_threads() -> set[int]:
-    """The threads of every BLAS loaded in this process (numpy's, opencv's, scipy's OpenBLAS)."""
-    from threadpoolctl import threadpool_info
-
-    return {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
-
-
 def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
     """A script whose command reads ``OODMON_TORCH_THREADS=1 ...`` honours it as the CLI does (torch
     and numpy's BLAS otherwise take a thread per core: two such scripts on two cores each kept a
@@ -225,14 +218,14 @@ def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
         torch.set_num_threads(2)
         original = threadpool_limits(2, user_api="blas")
         monkeypatch.delenv("OODMON_TORCH_THREADS", raising=False)
-        assert limit_threads(default=None) is None and torch.get_num_threads() == 2 and _blas_threads() == {2}
-        assert limit_threads() == 1 and torch.get_num_threads() == 1 and _blas_threads() == {1}
+        assert limit_threads(default=None) is None and torch.get_num_threads() == 2 and blas_threads() == {2}
+        assert limit_threads() == 1 and torch.get_num_threads() == 1 and blas_threads() == {1}
         assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
         monkeypatch.setenv("OODMON_TORCH_THREADS", "2")
-        assert limit_threads() == 2 and torch.get_num_threads() == 2 and _blas_threads() == {2}
+        assert limit_threads() == 2 and torch.get_num_threads() == 2 and blas_threads() == {2}
         assert os.environ["OPENBLAS_NUM_THREADS"] == "2"
         set_threads(1)  # a bench worker's: one, whatever the variable says
-        assert torch.get_num_threads() == 1 and _blas_threads() == {1} and os.environ["OPENBLAS_NUM_THREADS"] == "1"
+        assert torch.get_num_threads() == 1 and blas_threads() == {1} and os.environ["OPENBLAS_NUM_THREADS"] == "1"
     finally:
         torch.set_num_threads(before)
         original.restore_original_limits()

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import re
 from collections import deque
 from pathlib import Path
 
@@ -68,7 +67,8 @@ def _run(args: argparse.Namespace) -> int:
         check_output_file(mcap.part_path(0), parameter="--mcap", inputs=inputs)
     if args.rrd:
         check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
-    earlier = _earlier_logs(mcap, args.rrd)
+    earlier_parts = [] if mcap is None else mcap.existing_paths()  # an earlier run's log, whole or split
+    earlier = earlier_parts + ([Path(args.rrd)] if args.rrd and Path(args.rrd).exists() else [])
     if earlier and not args.overwrite:
         raise ConfigError(f"{earlier[0]} exists" + (f" (and {len(earlier) - 1} more part(s) of a split log)"
                                                     if len(earlier) > 1 else "")
@@ -76,9 +76,8 @@ def _run(args: argparse.Namespace) -> int:
     threshold = Threshold.load(args.threshold) if args.threshold else None
     args.masks = args.masks or (threshold.masks if threshold is not None else None)
     agent = _load_agent(args)
-    for path in earlier:  # --overwrite, once the inputs have loaded: an old part left would join this run's
-        if path.suffix == ".mcap":
-            path.unlink()
+    for path in earlier_parts:  # --overwrite, once the inputs have loaded: an old part left would join this run's
+        path.unlink()
     if args.render and args.task not in ("cartpole", "pendulum"):  # it logged no picture, without a word
         raise ConfigError(f"--render draws CartPole and Pendulum states; {args.task} has no drawing in oodmon"
                           + (" (Pong's frames are logged without it)" if args.task == "pong" else "")
@@ -127,22 +126,6 @@ def _run(args: argparse.Namespace) -> int:
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
     return 0
-
-
-def _earlier_logs(mcap, rrd: str | None) -> list[Path]:
-    """The files of an earlier run that ``oodmon run`` would write onto: the MCAP file, or every
-    part of a split log of the same name beside it (``<stem>-00000.mcap``, ...), and the Rerun file."""
-    found = []
-    if mcap is not None:
-        if mcap.splits:
-            pattern = re.compile(rf"{re.escape(mcap.path.stem)}-\d{{5}}{re.escape(mcap.path.suffix)}")
-            folder = mcap.path.parent
-            found += sorted(p for p in folder.iterdir() if pattern.fullmatch(p.name)) if folder.is_dir() else []
-        elif mcap.path.exists():
-            found.append(mcap.path)
-    if rrd and Path(rrd).exists():
-        found.append(Path(rrd))
-    return found
 
 
 def _listed_by(mcap, path: str | None, *, failed: bool) -> str:

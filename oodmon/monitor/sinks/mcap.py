@@ -25,6 +25,7 @@ of whole episodes (``split_episodes``, ``split_mb``; see :class:`McapSink`).
 
 from __future__ import annotations
 
+import glob
 import json
 import math
 import time
@@ -121,6 +122,14 @@ class McapSink:
     def part_path(self, part: int) -> Path:
         """The file of part ``part`` (counted from 0) of a split run; ``path`` itself if it is not split."""
         return self.path.with_name(f"{self.path.stem}-{part:05d}{self.path.suffix}") if self.splits else self.path
+
+    def existing_paths(self) -> list[Path]:
+        """The files already on disk that this sink would write onto: ``path``, or every part of a
+        split log of its name (any part number, in order), left by an earlier run."""
+        if not self.splits:
+            return [self.path] if self.path.exists() else []
+        pattern = f"{glob.escape(self.path.stem)}-{'[0-9]' * 5}{glob.escape(self.path.suffix)}"
+        return sorted(self.path.parent.glob(pattern))
 
     def open(self, run: RunInfo) -> None:
         self._run = run
