@@ -91,7 +91,7 @@ def paired_ratio(agent, detectors, log: Path, pairs: int = PAIRS) -> tuple[np.nd
     for pair in range(pairs):
         runs = [(spread, None), (every, detectors)]
         for times, chosen in runs if pair % 2 == 0 else runs[::-1]:
-            times.append(seconds_per_step(agent, chosen, McapSink(log)))
+            times.append(seconds_per_step(agent, chosen, McapSink(log, overwrite=True)))
     return np.array(spread), np.array(every)
 
 
@@ -115,7 +115,7 @@ def main() -> None:
         raise SystemExit("the zoo's CartPole ensemble has no fitted detectors: run bash scripts/fit_zoo_detectors.sh")
     with tempfile.TemporaryDirectory() as folder:
         log = Path(folder) / "run.mcap"
-        seconds_per_step(agent, detectors, McapSink(log), 1)  # warm-up: imports, first calls
+        seconds_per_step(agent, detectors, McapSink(log, overwrite=True), 1)  # warm-up: imports, first calls
         spread, every = paired_ratio(agent, detectors, log)
         parts = in_loop_us(agent, detectors, Path(folder))
         alone = alone_ratios(agent, detectors, log)

@@ -109,7 +109,8 @@ def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, 
     runs = {}
     for name, variant, onset in (("id", Variant("cartpole"), 0), ("shifted", parse_variant(DEMO_SHIFT), DEMO_ONSET)):
         env = variant.make(onset_step=onset)
-        sinks = [McapSink(out / f"{name}.mcap"), RerunSink(out / f"{name}.rrd")]
+        sinks = [McapSink(out / f"{name}.mcap", overwrite=True),  # the demo's own logs, made again each time
+                 RerunSink(out / f"{name}.rrd", overwrite=True)]
         with Monitor(agent, threshold, detectors=detectors, sinks=sinks) as monitor:
             runs[name] = [monitor.run_episode(env, seed=DEMO + e, variant=variant.spec) for e in range(episodes)]
         env.close()

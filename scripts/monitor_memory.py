@@ -54,9 +54,10 @@ def monitored(episodes: int, sinks: str, out: Path) -> list[tuple[int, int]]:
     from oodmon.agents import load
     from oodmon.monitor import McapSink, Monitor, MonitoredEnv, RerunSink
 
-    chosen = {"none": [], "mcap": [McapSink(out / "memory.mcap")], "rerun": [RerunSink(out / "memory.rrd")],
-              "mcap-split": [McapSink(out / "memory.mcap", split_episodes=100)],
-              "all": [McapSink(out / "memory.mcap"), RerunSink(out / "memory.rrd")]}[sinks]
+    mcap, rerun = out / "memory.mcap", out / "memory.rrd"  # the measurement's own files, made again each time
+    chosen = {"none": [], "mcap": [McapSink(mcap, overwrite=True)], "rerun": [RerunSink(rerun, overwrite=True)],
+              "mcap-split": [McapSink(mcap, split_episodes=100, overwrite=True)],
+              "all": [McapSink(mcap, overwrite=True), RerunSink(rerun, overwrite=True)]}[sinks]
     monitor = Monitor(load("cartpole", "ensemble"), sinks=chosen)
     env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"), monitor)
     points, steps = [], 0
@@ -84,8 +85,9 @@ def endless(steps: int, sinks: str, out: Path) -> list[tuple[int, int]]:
     from oodmon.agents import load
     from oodmon.monitor import McapSink, Monitor
 
-    chosen = {"none": [], "mcap": [McapSink(out / "memory.mcap")],
-              "mcap-split": [McapSink(out / "memory.mcap", split_episodes=100)]}[sinks]
+    mcap = out / "memory.mcap"  # as above
+    chosen = {"none": [], "mcap": [McapSink(mcap, overwrite=True)],
+              "mcap-split": [McapSink(mcap, split_episodes=100, overwrite=True)]}[sinks]
     monitor = Monitor(load("pendulum", "ensemble"), sinks=chosen).open()
     env = gymnasium.make("Pendulum-v1", max_episode_steps=None)
     obs, _ = env.reset(seed=0)

@@ -43,7 +43,7 @@ def _run_cell(task: str, model: str | Sb3Models, threshold: str, spec: str, epis
     temporary = Path(log).with_suffix(".part")
     temporary.parent.mkdir(parents=True, exist_ok=True)
     fitted = DetectorSet.load(detectors) if detectors else None
-    with Monitor(agent, Threshold.load(threshold), detectors=fitted, sinks=[McapSink(temporary)],
+    with Monitor(agent, Threshold.load(threshold), detectors=fitted, sinks=[McapSink(temporary, overwrite=True)],
                  strict=True) as monitor:
         for episode in range(episodes):
             options = None if onsets is None or variant.is_id else {"onset_step": episode_onset(onsets, seed + episode)}

@@ -55,6 +55,7 @@ def _run(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from oodmon.monitor import McapSink, Monitor, Threshold
+    from oodmon.monitor.sinks.base import refuse_earlier_logs
     from oodmon.monitor.sinks.rerun import RerunSink
     from oodmon.outputs import check_output_file
 
@@ -62,22 +63,20 @@ def _run(args: argparse.Namespace) -> int:
               ("--model", args.model and f"{args.model}/model.json"), *[("--sb3", path) for path in args.sb3 or ()]]
     if (args.mcap_split_episodes or args.mcap_split_mb) and not args.mcap:
         raise ConfigError("--mcap-split-episodes and --mcap-split-mb split an MCAP log: give --mcap too")
-    mcap = McapSink(args.mcap, split_episodes=args.mcap_split_episodes, split_mb=args.mcap_split_mb) if args.mcap else None
+    # overwrite=True: the logs an earlier run left are refused below, with the CLI's words, unless
+    # --overwrite; then the sinks replace them when the run starts, once the inputs have loaded
+    mcap = McapSink(args.mcap, split_episodes=args.mcap_split_episodes, split_mb=args.mcap_split_mb,
+                    overwrite=True) if args.mcap else None
     if mcap is not None:
         check_output_file(mcap.part_path(0), parameter="--mcap", inputs=inputs)
     if args.rrd:
         check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
-    earlier_parts = [] if mcap is None else mcap.existing_paths()  # an earlier run's log, whole or split
-    earlier = earlier_parts + ([Path(args.rrd)] if args.rrd and Path(args.rrd).exists() else [])
-    if earlier and not args.overwrite:
-        raise ConfigError(f"{earlier[0]} exists" + (f" (and {len(earlier) - 1} more part(s) of a split log)"
-                                                    if len(earlier) > 1 else "")
-                          + ": the log of an earlier run; give another path, or --overwrite to replace it")
+    if not args.overwrite:  # an earlier run's log, whole or split
+        refuse_earlier_logs(([] if mcap is None else mcap.existing_paths())
+                            + ([Path(args.rrd)] if args.rrd and Path(args.rrd).exists() else []), "--overwrite")
     threshold = Threshold.load(args.threshold) if args.threshold else None
     args.masks = args.masks or (threshold.masks if threshold is not None else None)
     agent = _load_agent(args)
-    for path in earlier_parts:  # --overwrite, once the inputs have loaded: an old part left would join this run's
-        path.unlink()
     if args.render and args.task not in ("cartpole", "pendulum"):  # it logged no picture, without a word
         raise ConfigError(f"--render draws CartPole and Pendulum states; {args.task} has no drawing in oodmon"
                           + (" (Pong's frames are logged without it)" if args.task == "pong" else "")
@@ -87,7 +86,7 @@ def _run(args: argparse.Namespace) -> int:
     sinks = [] if mcap is None else [mcap]
     if args.rrd or args.spawn or args.serve or args.connect:
         sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect,
-                               bind=args.bind, port=args.port))
+                               bind=args.bind, port=args.port, overwrite=True))
     console = Console(soft_wrap=True)
     alarm_lines = []
 

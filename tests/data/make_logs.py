@@ -25,7 +25,7 @@ def main() -> None:
     for name, variant, onset in (("cartpole-ensemble-id", Variant("cartpole"), 0),
                                  ("cartpole-ensemble-length2", parse_variant("cartpole:length=2.0"), 100)):
         env = variant.make(onset_step=onset)
-        with Monitor(agent, THRESHOLD, sinks=[McapSink(HERE / f"{name}.mcap")]) as monitor:
+        with Monitor(agent, THRESHOLD, sinks=[McapSink(HERE / f"{name}.mcap", overwrite=True)]) as monitor:
             for episode in range(3):
                 record = monitor.run_episode(env, seed=700 + episode, variant=variant.spec)
                 print(name, record)

@@ -148,6 +148,42 @@ class BrokenSink(MemorySink):
         raise OSError("No space left on device")
 
 
+def test_a_sink_refuses_the_log_of_an_earlier_run_unless_told_to_overwrite(agent, tmp_path):
+    """A deployment started again after a crash, onto the same paths: the crashed run's log, alarms
+    and all, is refused when the sinks are made (before any step), whole or split; overwrite=True
+    replaces it and removes the earlier split log's parts, which would join the new run's in replay."""
+    from oodmon.errors import ConfigError
+    from oodmon.replay import read_log, read_logs
+
+    crashed = McapSink(tmp_path / "deploy.mcap")
+    _run(agent, [crashed, RerunSink(tmp_path / "deploy.rrd")], episodes=2)
+    before = (tmp_path / "deploy.mcap").read_bytes(), (tmp_path / "deploy.rrd").read_bytes()
+    with pytest.raises(ConfigError, match=r"deploy\.mcap exists: the log of an earlier run; give another path, "
+                                          r"or McapSink\(\.\.\., overwrite=True\) to replace it"):
+        McapSink(tmp_path / "deploy.mcap")
+    with pytest.raises(ConfigError, match=r"deploy\.rrd exists: .* RerunSink\(\.\.\., overwrite=True\)"):
+        RerunSink(tmp_path / "deploy.rrd")
+    assert ((tmp_path / "deploy.mcap").read_bytes(), (tmp_path / "deploy.rrd").read_bytes()) == before
+    # The same sink opened again (a Monitor closed and used again) would replace its own first run.
+    with pytest.raises(ConfigError, match="deploy.mcap exists"):
+        _run(agent, [crashed], episodes=1, strict=True)
+    assert (tmp_path / "deploy.mcap").read_bytes() == before[0]
+
+    _run(agent, [McapSink(tmp_path / "deploy.mcap", overwrite=True), RerunSink(tmp_path / "deploy.rrd",
+                                                                                 overwrite=True)], episodes=1)
+    assert len(read_log(tmp_path / "deploy.mcap").episodes) == 1
+
+    split = tmp_path / "split" / "run.mcap"
+    _run(agent, [McapSink(split, split_episodes=1)], episodes=3)
+    with pytest.raises(ConfigError, match=r"run-00000\.mcap exists \(and 2 more part\(s\) of a split log\)"):
+        McapSink(split, split_episodes=1)
+    again = McapSink(split, split_episodes=1, overwrite=True)
+    assert len(list(split.parent.iterdir())) == 3  # nothing removed before the run starts
+    _run(agent, [again], episodes=1)
+    assert sorted(p.name for p in split.parent.iterdir()) == ["run-00000.mcap"]
+    assert [len(log.episodes) for log in read_logs([split.parent])] == [1]
+
+
 def test_a_failing_sink_warns_counts_and_the_loop_goes_on(agent, tmp_path):
     good = MemorySink()
     broken = BrokenSink()

@@ -4,12 +4,25 @@ stopping the control loop."""
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 from typing import Protocol
 
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
 
-__all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning"]
+__all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning", "refuse_earlier_logs"]
+
+
+def refuse_earlier_logs(earlier: list[Path], remedy: str) -> None:
+    """Raise :class:`~oodmon.errors.ConfigError` if ``earlier`` (files an earlier run left where a log
+    is to be written) is not empty, naming the first and ``remedy`` (how to replace them anyway):
+    a run started again after a crash must not replace the log of the run that crashed."""
+    if earlier:
+        from oodmon.errors import ConfigError
+
+        more = f" (and {len(earlier) - 1} more part(s) of a split log)" if len(earlier) > 1 else ""
+        raise ConfigError(f"{earlier[0]} exists{more}: the log of an earlier run; give another path, or {remedy} "
+                          "to replace it")
 
 
 class Sink(Protocol):

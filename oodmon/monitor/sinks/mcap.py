@@ -43,6 +43,7 @@ FOXGLOVE_LAYOUT = Path(__file__).with_name("foxglove_layout.json")
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.logformat import EPISODE_SCHEMA, EPISODE_SCORES_SCHEMA, EPISODE_START_SCHEMA, STEP_SCHEMA
 from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
+from oodmon.monitor.sinks.base import refuse_earlier_logs
 
 __all__ = ["EPISODE_SCHEMA", "EPISODE_SCORES_SCHEMA", "EPISODE_START_SCHEMA", "STEP_SCHEMA",
            "McapSink"]  # schemas re-exported
@@ -70,7 +71,13 @@ def _step_json(record: StepRecord) -> str:
 
 
 class McapSink:
-    """Writes the run to ``path`` (created with its folder; an existing file is replaced).
+    """Writes the run to ``path`` (created with its folder).
+
+    A file already at ``path`` (or a part of a split log of its name) is the log of an earlier run,
+    and the sink refuses it (:class:`~oodmon.errors.ConfigError`, when it is made): a deployment
+    started again after a crash would otherwise replace the log that holds the crash's alarms.
+    ``overwrite=True`` replaces it, and at :meth:`open` removes every part an earlier split log of
+    that name left (an old part would otherwise join this run's in ``oodmon replay <folder>``).
 
     A run of days or weeks can be split into files of whole episodes: ``split_episodes=N`` starts
     the next file after every N episodes, ``split_mb=M`` after the episode that takes the file to M
@@ -85,12 +92,17 @@ class McapSink:
         >>> sink = McapSink(os.path.join(tempfile.mkdtemp(), "run.mcap"))
         >>> sink.path.name
         'run.mcap'
+        >>> open(sink.path, "wb").close()  # as if an earlier run had written it
+        >>> McapSink(sink.path)
+        Traceback (most recent call last):
+        ...
+        oodmon.errors.ConfigError: /.../run.mcap exists: the log of an earlier run; give another path, or McapSink(..., overwrite=True) to replace it
         >>> McapSink("runs/deploy.mcap", split_episodes=100).part_path(3).as_posix()
         'runs/deploy-00003.mcap'
     """
 
     def __init__(self, path: str | Path, *, compression: str = "zstd", split_episodes: int | None = None,
-                 split_mb: float | None = None, flush_seconds: float = 10.0) -> None:
+                 split_mb: float | None = None, flush_seconds: float = 10.0, overwrite: bool = False) -> None:
         from oodmon.errors import InvalidParameterError
         from oodmon.validation import is_real, is_whole
 
@@ -110,6 +122,9 @@ class McapSink:
         self.flush_seconds = float(flush_seconds)
         self.split_episodes, self.split_mb = split_episodes, split_mb
         self.paths: list[Path] = []  # the files written so far
+        self.overwrite = overwrite
+        if not overwrite:
+            refuse_earlier_logs(self.existing_paths(), "McapSink(..., overwrite=True)")
         self._writer = None
         self._file = None
         self._run: RunInfo | None = None
@@ -132,6 +147,11 @@ class McapSink:
         return sorted(self.path.parent.glob(pattern))
 
     def open(self, run: RunInfo) -> None:
+        earlier = self.existing_paths()  # checked again: a file may have come since (this sink's own, opened again)
+        if not self.overwrite:
+            refuse_earlier_logs(earlier, "McapSink(..., overwrite=True)")
+        for path in earlier:
+            path.unlink()
         self._run = run
         self.paths = []
         self._open_part(0)

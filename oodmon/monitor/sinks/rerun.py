@@ -20,6 +20,7 @@ import numpy as np
 
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
+from oodmon.monitor.sinks.base import refuse_earlier_logs
 
 __all__ = ["FLUSH_EVERY", "RerunSink", "default_blueprint"]
 
@@ -60,6 +61,8 @@ class RerunSink:
         recording_id: Rerun's recording id (default: a fresh one).
         flush_timeout: seconds to wait at an episode end for the data to reach its sinks.
         connect_timeout: seconds to wait for a viewer at ``connect`` to accept a connection.
+        overwrite: replace a file already at ``path``; without it that file (the log of an earlier
+            run) is refused with :class:`~oodmon.errors.ConfigError` when the sink is made.
 
     A live viewer (``connect``, ``spawn``) has a recording stream of its own, apart from the file's:
     a viewer that cannot be reached at open, or stops taking data (a flush that times out, checked
@@ -70,8 +73,12 @@ class RerunSink:
 
     def __init__(self, path: str | Path | None = None, *, spawn: bool = False, serve: bool = False,
                  connect: str | None = None, bind: str = "127.0.0.1", port: int = 9876,
-                 recording_id: str | None = None, flush_timeout: float = 2.0, connect_timeout: float = 0.5) -> None:
+                 recording_id: str | None = None, flush_timeout: float = 2.0, connect_timeout: float = 0.5,
+                 overwrite: bool = False) -> None:
         self.path = Path(path) if path is not None else None
+        self.overwrite = overwrite
+        if not overwrite:
+            refuse_earlier_logs(self._earlier(), "RerunSink(..., overwrite=True)")
         self.spawn, self.serve, self.connect = spawn, serve, connect
         self.bind, self.port = bind, port
         if serve and (taken := _cannot_listen(bind, port)) is not None:
@@ -93,8 +100,14 @@ class RerunSink:
         self._steps: list[int] = []
         self._last = (0, 0)  # (episode, step in it) of the last step written
 
+    def _earlier(self) -> list[Path]:
+        return [self.path] if self.path is not None and self.path.exists() else []
+
     def open(self, run: RunInfo) -> None:
         import rerun as rr
+
+        if not self.overwrite:  # checked again: a file may have come since (this sink's own, opened again)
+            refuse_earlier_logs(self._earlier(), "RerunSink(..., overwrite=True)")
 
         self._rr = rr
         self._task = run.task
