@@ -87,7 +87,7 @@ def test_the_readmes_deployed_process_reads_the_calibration_and_logs_split(readm
     monkeypatch.setattr(calibration, "calibrate_agent", None)  # it must not calibrate: calling it would fail
     exec(compile(_section_blocks()[2], "README deployed block", "exec"), {})
     parts = sorted((folder / "runs/deployed").glob("log-*.mcap"))
-    assert [p.name for p in parts] == ["log-00000.mcap"]
+    assert len(parts) == 1 and re.fullmatch(r"log-\d{8}-\d{6}-00000\.mcap", parts[0].name)  # named by its start
     log = read_log(parts[0])
     (episode,) = log.episodes  # 139 steps when written (these 4,000-step DQNs do not solve the task)
     assert log.complete and episode.env_id == "CartPole-v1" and episode.total_return == episode.length > 20
