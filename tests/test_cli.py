@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -247,6 +248,29 @@ def test_run_refuses_to_write_onto_an_earlier_runs_log_unless_told_to_overwrite(
     assert main([*one[:-1], "1", "--mcap", str(split), "--mcap-split-episodes", "1", "--overwrite"]) == 0
     assert sorted(p.name for p in split.parent.iterdir()) == ["log-00000.mcap"]
     assert len(read_log(split.parent / "log-00000.mcap").episodes) == 1
+
+
+def test_a_run_started_again_by_a_service_manager_writes_a_log_per_start_with_start_in_the_names(
+        tmp_path, capsys, monkeypatch):
+    """One command line started twice (the second after a crash): {start} in --mcap and --rrd is each
+    start's time, so the second run writes logs of its own beside the first's, which replay reads
+    together; the closing line names the files written."""
+    import oodmon.cli.run as run_module
+    from oodmon.replay import read_logs
+
+    assert re.fullmatch(r"\d{8}-\d{6}", run_module._start_time())
+    starts = iter(["20261128-101500", "20261128-101503"])
+    monkeypatch.setattr(run_module, "_start_time", lambda: next(starts))
+    command = ["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "1",
+               "--mcap", str(tmp_path / "deployed" / "log-{start}.mcap"), "--rrd", str(tmp_path / "live-{start}.rrd")]
+    for start in ("20261128-101500", "20261128-101503"):
+        assert main(command) == 0
+        assert f"written to {tmp_path / 'deployed' / f'log-{start}.mcap'}, {tmp_path / f'live-{start}.rrd'}" \
+               in capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "deployed").iterdir()) == ["log-20261128-101500.mcap",
+                                                                         "log-20261128-101503.mcap"]
+    assert sorted(p.name for p in tmp_path.glob("*.rrd")) == ["live-20261128-101500.rrd", "live-20261128-101503.rrd"]
+    assert [len(log.episodes) for log in read_logs([tmp_path / "deployed"])] == [1, 1]
 
 
 def test_run_whose_mcap_file_cannot_be_opened_goes_on_and_says_so(tmp_path, capsys, monkeypatch):

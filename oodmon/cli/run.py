@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import time
 from collections import deque
 from pathlib import Path
 
@@ -25,17 +26,19 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
     run.add_argument("--episodes", type=_whole(1), default=5, help="episodes (default 5)")
     run.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode (default 0)")
     run.add_argument("--threshold", help="a threshold file from `oodmon calibrate` (default: no alarms)")
-    run.add_argument("--mcap", help="write the run to this MCAP file")
+    run.add_argument("--mcap", help="write the run to this MCAP file; {start} in it is the run's start time "
+                                    "(YYYYmmdd-HHMMSS): a log per start, e.g. runs/deployed/log-{start}.mcap")
     run.add_argument("--mcap-split-episodes", type=_whole(1), metavar="N",
                      help="split the MCAP log into files of N whole episodes: <name>-00000.mcap, <name>-00001.mcap, ... "
                           "(a long run; `oodmon replay` reads them from their folder)")
     run.add_argument("--mcap-split-mb", type=_positive, metavar="MB",
                      help="start the next MCAP file after the episode that takes one to MB megabytes (as above)")
-    run.add_argument("--rrd", help="write the run to this Rerun file")
+    run.add_argument("--rrd", help="write the run to this Rerun file ({start}: as in --mcap)")
     run.add_argument("--overwrite", action="store_true",
                      help="replace the logs of an earlier run at --mcap (all its parts, if split) and --rrd; "
                           "without it an existing log is refused, so that a run started again after a crash "
-                          "cannot replace the log of the run that crashed")
+                          "cannot replace the log of the run that crashed (a command that a service manager "
+                          "starts again: put {start} in the names)")
     live = run.add_mutually_exclusive_group()
     live.add_argument("--spawn", action="store_true", help="stream to a Rerun viewer started for it")
     live.add_argument("--serve", action="store_true", help="serve the stream for a remote Rerun viewer")
@@ -61,6 +64,8 @@ def _run(args: argparse.Namespace) -> int:
 
     inputs = [("--threshold", args.threshold), ("--model", args.model and f"{args.model}/model.safetensors"),
               ("--model", args.model and f"{args.model}/model.json"), *[("--sb3", path) for path in args.sb3 or ()]]
+    started = _start_time()  # {start} in the logs' names
+    args.mcap, args.rrd = (name and name.replace("{start}", started) for name in (args.mcap, args.rrd))
     if (args.mcap_split_episodes or args.mcap_split_mb) and not args.mcap:
         raise ConfigError("--mcap-split-episodes and --mcap-split-mb split an MCAP log: give --mcap too")
     # overwrite=True: the logs an earlier run left are refused below, with the CLI's words, unless
@@ -125,6 +130,11 @@ def _run(args: argparse.Namespace) -> int:
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
     return 0
+
+
+def _start_time() -> str:
+    """The run's start, local time, as ``{start}`` in ``--mcap`` and ``--rrd`` puts it: YYYYmmdd-HHMMSS."""
+    return time.strftime("%Y%m%d-%H%M%S")
 
 
 def _listed_by(mcap, path: str | None, *, failed: bool) -> str:
