@@ -101,6 +101,7 @@ class RerunSink:
         self._last = (0, 0)  # (episode, step in it) of the last step written
 
     def _earlier(self) -> list[Path]:
+        """The file an earlier run left at ``path``, if any (the live streams leave none)."""
         return [self.path] if self.path is not None and self.path.exists() else []
 
     def open(self, run: RunInfo) -> None:
