@@ -253,20 +253,21 @@ def test_ctrl_c_says_what_each_command_leaves_behind(tmp_path, monkeypatch, caps
     assert not (tmp_path / "t.json").exists()
 
 
-SPLIT = """
+#: A monitored run writing to {sink} (at sys.argv[1]) that prints "e" as each episode ends, to be killed.
+UNTIL_KILLED = """
 import sys
 import torch
 torch.set_num_threads(1)
 from oodmon.agents import load
 from oodmon.envs import parse_variant
-from oodmon.monitor import McapSink, Monitor
+from oodmon.monitor import McapSink, Monitor, RerunSink
 env = parse_variant("cartpole:length=2.0").make(onset_step=20)
-monitor = Monitor(load("cartpole", "ensemble"), threshold=4.6, consecutive=1,
-                  sinks=[McapSink(sys.argv[1], split_episodes=3)]).open()
+monitor = Monitor(load("cartpole", "ensemble"), threshold=4.6, consecutive=1, sinks=[{sink}]).open()
 for episode in range(10_000):
     monitor.run_episode(env, seed=episode)
     print("e", flush=True)
 """
+SPLIT = UNTIL_KILLED.format(sink="McapSink(sys.argv[1], split_episodes=3)")
 
 
 def test_a_killed_split_run_leaves_its_finished_parts_whole_and_recovers_the_last(tmp_path):
@@ -379,8 +380,7 @@ def test_a_never_ending_episode_killed_replays_its_steps_up_to_the_last_flush(tm
     assert not cut.shifted.any() and len(cut.scores) == cut.length and np.isfinite(cut.scores).all()
 
 
-RRD = SPLIT.replace("McapSink(sys.argv[1], split_episodes=3)", "RerunSink(sys.argv[1])").replace("McapSink",
-                                                                                                  "RerunSink")
+RRD = UNTIL_KILLED.format(sink="RerunSink(sys.argv[1])")
 
 
 def test_a_killed_runs_rrd_opens_and_holds_the_episodes_that_ended_before_the_kill(tmp_path):

@@ -78,7 +78,7 @@ class RerunSink:
         self.path = Path(path) if path is not None else None
         self.overwrite = overwrite
         if not overwrite:
-            refuse_earlier_logs(self._earlier(), "RerunSink(..., overwrite=True)")
+            refuse_earlier_logs(self.existing_paths(), "RerunSink(..., overwrite=True)")
         self.spawn, self.serve, self.connect = spawn, serve, connect
         self.bind, self.port = bind, port
         if serve and (taken := _cannot_listen(bind, port)) is not None:
@@ -100,7 +100,7 @@ class RerunSink:
         self._steps: list[int] = []
         self._last = (0, 0)  # (episode, step in it) of the last step written
 
-    def _earlier(self) -> list[Path]:
+    def existing_paths(self) -> list[Path]:
         """The file an earlier run left at ``path``, if any (the live streams leave none)."""
         return [self.path] if self.path is not None and self.path.exists() else []
 
@@ -108,7 +108,7 @@ class RerunSink:
         import rerun as rr
 
         if not self.overwrite:  # checked again: a file may have come since (this sink's own, opened again)
-            refuse_earlier_logs(self._earlier(), "RerunSink(..., overwrite=True)")
+            refuse_earlier_logs(self.existing_paths(), "RerunSink(..., overwrite=True)")
 
         self._rr = rr
         self._task = run.task
