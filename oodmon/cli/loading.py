@@ -62,4 +62,5 @@ def _detectors(args: argparse.Namespace, agent):
 def _no_variants(command: str, env_id: str) -> ConfigError:
     """The refusal of a command that plays oodmon's variants, for an --sb3 model of an env that has none."""
     return ConfigError(f"{command} plays oodmon's shifted variants of CartPole, Pendulum and Pong; --env {env_id} is "
-                       f"none of them: monitor the model in it with `oodmon run --sb3 ... --env {env_id}` instead")
+                       f"none of them: monitor the model in it with `oodmon run --sb3 ... --env {env_id}` instead (a shift of "
+                       f"your own: --variant {env_id}:NAME=VALUE, other numbers in its env's attributes)")

@@ -21,7 +21,9 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
     """`oodmon run`."""
     run = commands.add_parser("run", help="run a monitored agent in an env (ID or shifted), logging to MCAP/Rerun")
     _agent_arguments(run)
-    run.add_argument("--variant", help="a variant spec (default: the task's ID env)")
+    run.add_argument("--variant", help="a variant spec (default: the task's ID env), e.g. cartpole:length=2.0; "
+                                       "your own --env: ENV_ID:NAME=VALUE[,...], numeric attributes of its env "
+                                       "set to other values from --onset on, e.g. Acrobot-v1:LINK_MASS_2=3.0")
     run.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (default 0)")
     run.add_argument("--episodes", type=_whole(1), default=5, help="episodes (default 5)")
     run.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode (default 0)")
@@ -149,17 +151,26 @@ def _listed_by(mcap, path: str | None, *, failed: bool) -> str:
 
 
 def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
-    """``oodmon run``'s env and its label: the ``--variant`` (a variant of the agent's task, shifting
-    at ``--onset``), else your own model's env as you deploy it, else the task's ID env."""
-    from oodmon.envs import Variant, parse_variant
+    """``oodmon run``'s env and its label: the ``--variant`` (a variant of the agent's task, or a
+    shift of your own model's env, shifting at ``--onset``), else your own model's env as you
+    deploy it, else the task's ID env."""
+    from oodmon.envs import Variant, parse_env_shift, parse_variant
     from oodmon.envs.registration import TASK_OF_ENV
 
+    if args.variant and args.task not in TASKS:  # your own env: other numbers in its attributes
+        if args.variant.partition(":")[0] in TASKS:
+            raise ConfigError(f"variant {args.variant!r} is not a variant of {args.task}: oodmon has variants of "
+                              f"{', '.join(sorted(TASK_OF_ENV))}; shift {args.task} itself with --variant "
+                              f"{args.task}:NAME=VALUE (numeric attributes of its env), or leave out --variant")
+        shift = parse_env_shift(args.variant)
+        if shift.env_id != agent.env_id:
+            raise ConfigError(f"--variant {args.variant!r} shifts {shift.env_id}, not --env {agent.env_id}: give "
+                              f"{agent.env_id}:NAME=VALUE, a numeric attribute of its env and its shifted value")
+        return agent.wrap(shift.make(onset_step=args.onset)), shift.spec
     if args.variant:
         variant = parse_variant(args.variant)
         if variant.task != args.task:
-            raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant" if args.task in TASKS else
-                              f"variant {variant.spec!r} is not a variant of {args.task}: oodmon has variants of "
-                              f"{', '.join(sorted(TASK_OF_ENV))} only; leave out --variant to run {args.task} itself")
+            raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant")
         return agent.wrap(variant.make(onset_step=args.onset)), variant.spec
     if agent.env_id is not None:  # your own model in its own env, as you deploy it
         return agent.make_env(), agent.env_id

@@ -3,6 +3,8 @@
 ``import oodmon`` registers ``oodmon/CartPole-v1``, ``oodmon/Pendulum-v1`` and
 ``oodmon/Pong-v5`` with gymnasium. Physics shifts and frame corruptions take an
 ``onset_step`` so that a shift can begin mid-episode; ``info["shifted"]`` marks it.
+Your own env is shifted by :class:`ShiftAttributes` (other numbers in its attributes, from an
+onset on), named by a spec such as ``Acrobot-v1:LINK_MASS_2=3.0`` (:func:`parse_env_shift`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from oodmon.envs.grid import ENV_IDS, TASKS, Variant, paper_grid, parse_variant
 from oodmon.envs.physics import CARTPOLE_DEFAULTS, PENDULUM_DEFAULTS, ShiftedCartPole, ShiftedPendulum
 from oodmon.envs.pong import CorruptedPong, to_agent_view
 from oodmon.envs.registration import register_envs
+from oodmon.envs.shift import EnvShift, ShiftAttributes, parse_env_shift
 
 __all__ = [
     "CARTPOLE_DEFAULTS",
@@ -30,15 +33,18 @@ __all__ = [
     "TASKS",
     "CorruptedPong",
     "Corruption",
+    "EnvShift",
     "GaussianNoise",
     "ImpulseNoise",
     "MotionBlur",
     "Pixelate",
+    "ShiftAttributes",
     "ShiftedCartPole",
     "ShiftedPendulum",
     "Variant",
     "make_corruption",
     "paper_grid",
+    "parse_env_shift",
     "parse_variant",
     "register_envs",
     "severity_params",

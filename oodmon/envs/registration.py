@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import gymnasium
 
-__all__ = ["TASK_OF_ENV", "env_id_of", "register_envs", "task_of_env", "variant_of_env"]
+__all__ = ["TASK_OF_ENV", "env_id_of", "onset_of_env", "register_envs", "task_of_env", "variant_of_env"]
 
 #: The oodmon task whose variants shift an env: gymnasium's own ids and oodmon's (the same
 #: physics, observations and spaces; oodmon's can shift).
@@ -30,8 +30,10 @@ def env_id_of(env: gymnasium.Env) -> str:
 def variant_of_env(env: gymnasium.Env) -> str:
     """The variant spec a monitor records for ``env``: the shift an oodmon env was made with
     (``cartpole:length=2.0``), the task for an unshifted one or for gymnasium's own id of it
-    (``CartPole-v1`` -> ``cartpole``), else the env's id (an env oodmon has no variants of,
-    whose episodes replay counts as in-distribution).
+    (``CartPole-v1`` -> ``cartpole``), the shift of your own env (a
+    :class:`~oodmon.envs.shift.ShiftAttributes` among its wrappers: ``Acrobot-v1:LINK_MASS_2=3.0``),
+    else the env's id (an env oodmon has no variants of, whose episodes replay counts as
+    in-distribution).
 
     Example:
         >>> variant_of_env(gymnasium.make("oodmon/CartPole-v1", length=2.0))
@@ -41,6 +43,9 @@ def variant_of_env(env: gymnasium.Env) -> str:
     """
     from oodmon.envs.grid import Variant
 
+    shift = _shift_wrapper(env)
+    if shift is not None:
+        return shift.shift.spec
     base, spec_id = env.unwrapped, env_id_of(env)
     task = task_of_env(spec_id)
     if task is None:
@@ -54,6 +59,30 @@ def variant_of_env(env: gymnasium.Env) -> str:
         corruption, severity, params = named
         return Variant(task, tuple(sorted(params.items())), corruption, severity).spec
     return task
+
+
+def _shift_wrapper(env: gymnasium.Env):
+    """The :class:`~oodmon.envs.shift.ShiftAttributes` among ``env``'s wrappers, or ``None``."""
+    from oodmon.envs.shift import ShiftAttributes
+
+    while isinstance(env, gymnasium.Wrapper):
+        if isinstance(env, ShiftAttributes):
+            return env
+        env = env.env
+    return None
+
+
+def onset_of_env(env: gymnasium.Env) -> int:
+    """The onset of ``env``'s current episode: the step its shift begins at (oodmon's envs, or a
+    :class:`~oodmon.envs.shift.ShiftAttributes` among its wrappers), else 0.
+
+    Example:
+        >>> env = gymnasium.make("oodmon/CartPole-v1", length=2.0, onset_step=30)
+        >>> onset_of_env(env), onset_of_env(gymnasium.make("Acrobot-v1"))
+        (30, 0)
+    """
+    shift = _shift_wrapper(env)
+    return int(shift.onset_step if shift is not None else getattr(env.unwrapped, "onset_step", 0))
 
 
 def register_envs() -> None:

@@ -35,7 +35,7 @@ import numpy as np
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import UncertaintyEstimator
 from oodmon.envs.checks import space_mismatch
-from oodmon.envs.registration import env_id_of, variant_of_env
+from oodmon.envs.registration import env_id_of, onset_of_env, variant_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
@@ -506,9 +506,8 @@ class Monitor:
         shifts from step n on). ``on_progress("decisions", steps, max_steps or 0)`` is called after each step
         (progress within long episodes: a Pong game is thousands of decisions).
         """
-        base = env.unwrapped
         obs, info = env.reset(seed=seed, options=options)
-        self.begin_episode(env_id=env_id_of(env), variant=variant or variant_of_env(env), onset=int(getattr(base, "onset_step", 0)),
+        self.begin_episode(env_id=env_id_of(env), variant=variant or variant_of_env(env), onset=onset_of_env(env),
                            seed=seed)
         try:
             while True:
@@ -624,7 +623,7 @@ class MonitoredEnv(gymnasium.Wrapper):
             self.monitor.end_episode()
         obs, info = self.env.reset(seed=seed, options=options)
         self.monitor.begin_episode(env_id=env_id_of(self.env), variant=self.variant or variant_of_env(self.env),
-                                   onset=int(getattr(self.env.unwrapped, "onset_step", 0)), seed=seed)
+                                   onset=onset_of_env(self.env), seed=seed)
         self.monitor._episode_owner = weakref.ref(self)  # weak: a monitor does not keep an old env alive
         self._obs, self._info = obs, info
         return obs, info

@@ -20,12 +20,14 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from oodmon.envs.grid import parse_variant
+from oodmon.envs.shift import parse_env_shift
 from oodmon.errors import OodmonError
+from oodmon.names import TASKS
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
            "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
-           "detectors_in", "failed_episodes", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable",
+           "detectors_in", "failed_episodes", "failure_known", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable",
            "shifted_alarms"]
 
 
@@ -178,14 +180,21 @@ def shifted_alarms(logs: Iterable[RunLog]) -> dict[tuple[str, str, str], list[Ep
 
 def is_id_variant(variant: str) -> bool:
     """Whether a logged variant is in-distribution: an oodmon task's default env, or an env
-    oodmon has no variants of (a user's own env id, whose runs are not shifted).
+    oodmon has no variants of as it is (a user's own env id); not a shift of that env
+    (``Acrobot-v1:LINK_MASS_2=3.0``, :mod:`oodmon.envs.shift`).
 
     Example:
         >>> is_id_variant("cartpole"), is_id_variant("cartpole:length=2.0"), is_id_variant("Acrobot-v1")
         (True, False, True)
+        >>> is_id_variant("Acrobot-v1:LINK_MASS_2=3.0")
+        False
     """
     try:
         return parse_variant(variant).is_id
+    except OodmonError:
+        pass
+    try:
+        return parse_env_shift(variant).is_id
     except OodmonError:
         return True
 
@@ -279,7 +288,19 @@ PENDULUM_FAILURE_REWARD = -1.0
 #: :func:`failure_step` in one line, for the reports.
 FAILURE_DEFINITION = ("failed: CartPole's episode ended by itself after the onset; Pendulum's mean reward over the last "
                       f"{PENDULUM_FAILURE_WINDOW} steps fell below {PENDULUM_FAILURE_REWARD:g} after the onset "
-                      "(oodmon.replay.failure_step); delays in steps from the onset")
+                      "(oodmon.replay.failure_step); an env oodmon has no variants of: not defined (blank); "
+                      "delays in steps from the onset")
+
+
+def failure_known(task: str) -> bool:
+    """Whether oodmon tells a failed episode of ``task``: its own tasks (Pong's never fail here),
+    not an env it has no variants of, whose end may be a success (Acrobot's, MountainCar's).
+
+    Example:
+        >>> failure_known("cartpole"), failure_known("Acrobot-v1")
+        (True, False)
+    """
+    return task in TASKS
 
 
 def failure_step(episode: EpisodeLog, task: str) -> int | None:
@@ -291,7 +312,7 @@ def failure_step(episode: EpisodeLog, task: str) -> int | None:
       :data:`PENDULUM_FAILURE_WINDOW` steps is below :data:`PENDULUM_FAILURE_REWARD`, provided it
       was above at the onset (a pole not yet swung up at the onset does not count as a failure).
     - Pong has no failure here (a lost point is part of an ID game), nor has a log without rewards
-      and ``terminated`` (format < 4).
+      and ``terminated`` (format < 4), nor an env oodmon has no variants of (:func:`failure_known`).
 
     Example:
         >>> from oodmon.replay.reader import EpisodeLog
@@ -310,7 +331,7 @@ def failure_step(episode: EpisodeLog, task: str) -> int | None:
             return None
         below = np.flatnonzero(means[episode.onset:] < PENDULUM_FAILURE_REWARD)
         return int(episode.onset + below[0]) if len(below) else None
-    if task == "pong" or not episode.terminated:
+    if task == "pong" or not failure_known(task) or not episode.terminated:
         return None
     last = episode.length - 1
     return last if last >= episode.onset else None
@@ -335,7 +356,7 @@ def failed_episodes(logs: Iterable[RunLog]) -> dict[str, int]:
     """
     return {variant: sum(failure_step(e, task) is not None for _, e in pairs)
             for (task, _, variant), pairs in _episodes_by_variant(logs).items()
-            if task != "pong" and not is_id_variant(variant)}
+            if task != "pong" and failure_known(task) and not is_id_variant(variant)}
 
 
 @dataclass(frozen=True)
@@ -400,16 +421,19 @@ def compute_monitor_metrics(logs: Iterable[RunLog]) -> list[MonitorMetrics]:
                                           far_low=low, far_high=high))
             continue
         episodes = [EpisodeAlarms.of(e, task) for _, e in pairs]
+        known = failure_known(task)  # else failed and alarmed before failure are None: blank, not "0 failed"
         results.append(monitor_row(task, method, variant, len(episodes), sum(e.early is not None for e in episodes),
-                                   sum(e.failure is not None for e in episodes), sum(e.before_failure for e in episodes),
+                                   sum(e.failure is not None for e in episodes) if known else None,
+                                   sum(e.before_failure for e in episodes) if known else None,
                                    [e.first for e in episodes if e.first is not None]))
     return results
 
 
-def monitor_row(task: str, method: str, variant: str, episodes: int, early: int, failed: int, before_failure: int,
-                delays: Sequence[int]) -> MonitorMetrics:
+def monitor_row(task: str, method: str, variant: str, episodes: int, early: int, failed: int | None,
+                before_failure: int | None, delays: Sequence[int]) -> MonitorMetrics:
     """The :class:`MonitorMetrics` of shifted episodes from their counts and the delays of the
-    alarmed ones (median and 90th percentile computed here, for one variant or several pooled)."""
+    alarmed ones (median and 90th percentile computed here, for one variant or several pooled);
+    ``failed`` and ``before_failure`` are ``None`` where no failure is defined (:func:`failure_known`)."""
     return MonitorMetrics(task, method, variant, episodes, early=early, alarmed=len(delays), failed=failed,
                           before_failure=before_failure,
                           delay_median=float(np.median(delays)) if len(delays) else None,

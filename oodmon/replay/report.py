@@ -131,8 +131,11 @@ def monitor_summary(metrics: Sequence[MonitorMetrics]) -> list[MonitorMetrics]:
     for m in metrics:
         if not m.is_id:
             pooled.setdefault((m.task, m.method), []).append(m)
+    def total(counts: list[int | None]) -> int | None:  # None: no failure defined for the task
+        return None if None in counts else sum(counts)
+
     return [monitor_row(task, method, POOLED, sum(m.episodes for m in group), sum(m.early for m in group),
-                        sum(m.failed for m in group), sum(m.before_failure for m in group),
+                        total([m.failed for m in group]), total([m.before_failure for m in group]),
                         [d for m in group for d in m.delays])
             for (task, method), group in sorted(pooled.items())]
 

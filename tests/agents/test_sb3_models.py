@@ -759,3 +759,43 @@ def test_the_readmes_dropout_policy_example_runs_and_reads_fixed_sub_networks(tm
     assert log.metadata["about.masks"] == "fixed" and len(log.episodes) == 5
     assert {"spread", "scaled_spread"} <= set(log.detectors)
     assert "scaled_spread" in capsys.readouterr().out
+
+
+def test_a_shift_of_your_own_env_runs_from_its_onset_and_replay_counts_it_shifted(tmp_path, capsys):
+    """`oodmon run --env MountainCar-v0 --variant MountainCar-v0:gravity=0.005 --onset 50`: the
+    policy's own env until step 50, then gravity doubled and more (0.0025 -> 0.005); the log says so,
+    and replay ranks its steps from the onset against the ID run's, counts alarms before the onset
+    as early and times the others from it; it tells no failure (MountainCar's episode ends when it
+    succeeds)."""
+    from oodmon.replay import alarm_events, compute_metrics, compute_monitor_metrics, read_logs
+
+    DQN("MlpPolicy", gymnasium.make("MountainCar-v0"), seed=0, policy_kwargs={"net_arch": [8]}).save(tmp_path / "mc.zip")
+    own = ["--sb3", str(tmp_path / "mc.zip"), "--env", "MountainCar-v0"]
+    assert main(["calibrate", *own, "--episodes", "10", "--fit-episodes", "10", "--far", "0.2", "--confidence", "none",
+                 "--out", str(tmp_path / "mc.json")]) == 0
+    run = ["run", *own, "--threshold", str(tmp_path / "mc.json"), "--episodes", "4"]
+    assert main([*run, "--seed", "100", "--mcap", str(tmp_path / "id.mcap")]) == 0
+    assert main([*run, "--seed", "200", "--variant", "MountainCar-v0:gravity=0.005", "--onset", "50",
+                 "--mcap", str(tmp_path / "shift.mcap")]) == 0
+    capsys.readouterr()
+    logs = read_logs([tmp_path / "id.mcap", tmp_path / "shift.mcap"])
+    shifted = logs[1].episodes
+    assert {(e.variant, e.onset) for e in shifted} == {("MountainCar-v0:gravity=0.005", 50)}
+    assert all(e.shifted.tolist() == [False] * 51 + [True] * 149 for e in shifted)  # what step 50 returns on
+    # 600 shifted steps against 800 ID steps, every seed fixed: 0.881 measured on 2026-11-29; an
+    # unshifted run reads ~0.5 (its steps are ID's), so 0.75 leaves room for other BLAS rounding
+    rows = {m.variant: m for m in compute_metrics(logs) if m.detector == "combined"}
+    assert rows["MountainCar-v0"].auroc is None and rows["MountainCar-v0:gravity=0.005"].auroc > 0.75
+    alarms = {m.variant: m for m in compute_monitor_metrics(logs)}
+    assert alarms["MountainCar-v0"].false_alarms is not None  # the ID run: its alarms are false ones
+    heavy = alarms["MountainCar-v0:gravity=0.005"]
+    assert heavy.alarmed >= 2 and heavy.failed is None and heavy.before_failure is None
+    firsts = [min(after) for e in shifted if (after := [s for s in alarm_events(e.alarm) if s >= 50])]
+    assert sorted(heavy.delays) == sorted(step - 50 for step in firsts)  # from the onset (after an early one too)
+    assert heavy.early == sum(e.first_alarm_step is not None and e.first_alarm_step < 50 for e in shifted)
+    # what a person gets wrong is said in one line
+    for variant, words in [("Acrobot-v1:LINK_MASS_2=3.0", "shifts Acrobot-v1, not --env MountainCar-v0"),
+                           ("MountainCar-v0:gravty=0.005", "no numeric attribute 'gravty'.*gravity"),
+                           ("MountainCar-v0:gravity", "expected ENV_ID:NAME=VALUE")]:
+        assert main([*run, "--variant", variant]) == 2
+        assert re.search(words, capsys.readouterr().err)

@@ -1,0 +1,202 @@
+"""Shifts of your own env: other numbers in any gymnasium env, from a step of each episode on.
+
+oodmon's variants cover CartPole, Pendulum and Pong. A policy of your own, in an env oodmon has
+no variants of (``Acrobot-v1``, an env of yours), is shifted by changing numeric attributes of
+its env, the numbers its ``step()`` reads: ``Acrobot-v1:LINK_MASS_2=3.0`` is Acrobot with a
+second link three times as heavy. From the onset step on, :class:`ShiftAttributes` sets them
+on ``env.unwrapped``; each ``reset`` puts the env's own values back first, so the first steps of
+every episode are the env you trained in. ``info["shifted"]`` marks the steps of the shifted
+world, as in oodmon's envs, so that the monitor's logs and ``oodmon replay`` count them as
+shifted (AUROC against your ID episodes, alarms before the onset as false ones, delays).
+
+Spec strings, as ``oodmon run --variant`` takes them and the logs write them::
+
+    Acrobot-v1:LINK_MASS_2=3.0                   one attribute
+    MountainCar-v0:force=0.0005,gravity=0.003    several
+    my_envs:MyEnv-v0:friction=0.2                an env registered in a module of yours
+
+An attribute that ``step()`` does not read (a quantity the env derives once in ``__init__`` from
+another) changes nothing: pick the ones its code uses. CartPole and Pendulum have oodmon's own
+variants (``cartpole:length=2.0``), which also update what those envs derive; their specs are
+refused here with a pointer to them.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium
+
+from oodmon.envs.checks import check_onset_step, episode_onset
+from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
+from oodmon.names import TASKS
+
+__all__ = ["EnvShift", "ShiftAttributes", "parse_env_shift"]
+
+_SPEC_HELP = "expected ENV_ID:NAME=VALUE[,NAME=VALUE...], e.g. 'Acrobot-v1:LINK_MASS_2=3.0'"
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _numeric_attributes(env: gymnasium.Env) -> list[str]:
+    """The public numeric attributes of ``env`` (its class's too): what a shift can change."""
+    names = set(vars(env)) | {n for cls in type(env).__mro__ for n in vars(cls)}
+    return sorted(n for n in names if not n.startswith("_") and _is_number(getattr(env, n, None)))
+
+
+class ShiftAttributes(gymnasium.Wrapper):
+    """Sets numeric attributes of ``env.unwrapped`` to other values from ``onset_step`` on.
+
+    Args:
+        env: any gymnasium env.
+        changes: attribute name -> its value in the shifted world; each must be a number the
+            unwrapped env has (an int attribute takes whole values only).
+        onset_step: index of the first ``step()`` of each episode in the shifted world (0: all);
+            ``reset(options={"onset_step": n})`` sets it for that episode alone.
+        env_id: the id the spec names (default ``env.spec.id``; ``module:Id`` as you made it).
+
+    Raises:
+        UnknownParameterError: the env has no such numeric attribute (the message lists those it has).
+        InvalidParameterError: a value that is not a finite number, a fraction for an int
+            attribute, no change at all, or a negative onset.
+
+    Example:
+        >>> env = ShiftAttributes(gymnasium.make("Acrobot-v1"), {"LINK_MASS_2": 3.0}, onset_step=2)
+        >>> _, info = env.reset(seed=0)
+        >>> info["shifted"], env.unwrapped.LINK_MASS_2
+        (False, 1.0)
+        >>> [env.step(0)[4]["shifted"] for _ in range(3)], env.unwrapped.LINK_MASS_2
+        ([False, False, True], 3.0)
+        >>> env.spec.id, env.shift.spec
+        ('Acrobot-v1', 'Acrobot-v1:LINK_MASS_2=3.0')
+    """
+
+    def __init__(self, env: gymnasium.Env, changes: dict[str, float], onset_step: int = 0, *,
+                 env_id: str | None = None) -> None:
+        super().__init__(env)
+        owner = env_id or (env.spec.id if env.spec is not None else type(env.unwrapped).__name__)
+        if not changes:
+            raise InvalidParameterError(f"a shift of {owner} needs at least one attribute to change; {_SPEC_HELP}")
+        base = env.unwrapped
+        self._own: dict[str, numbers.Real] = {}
+        self._shifted: dict[str, numbers.Real] = {}
+        for name, value in changes.items():
+            own = getattr(base, name, None) if isinstance(name, str) and not name.startswith("_") else None
+            if not _is_number(own):
+                raise UnknownParameterError(
+                    f"{owner} has no numeric attribute {name!r} to shift; its numeric attributes: "
+                    f"{', '.join(_numeric_attributes(base)) or 'none'}")
+            if not _is_number(value) or not math.isfinite(value):
+                raise InvalidParameterError(f"{owner}: {name}={value!r} is not a finite number")
+            if isinstance(own, numbers.Integral) and value != int(value):
+                raise InvalidParameterError(f"{owner}: {name} is a whole number ({own}); {name}={value!r} is not one")
+            self._own[name] = own
+            self._shifted[name] = type(own)(value) if isinstance(own, numbers.Integral) else float(value)
+        if self._shifted == self._own:
+            raise InvalidParameterError(f"{owner}: {changes} are its own values; a shift changes at least one")
+        self.shift = EnvShift(owner, tuple(sorted((n, float(v)) for n, v in self._shifted.items())))
+        self.onset_step = self._configured_onset = check_onset_step(owner, onset_step)
+        self._steps = 0
+        self._active = False
+
+    def _set(self, shifted: bool) -> None:
+        for name, value in (self._shifted if shifted else self._own).items():
+            setattr(self.env.unwrapped, name, value)
+        self._active = shifted
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self.onset_step, options = episode_onset(self.shift.env_id, self._configured_onset, options)
+        self._set(shifted=False)  # the env's own world while it resets: its start states are ID's
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._steps = 0
+        self._set(shifted=self.onset_step == 0)
+        return obs, {**info, "shifted": self._active}
+
+    def step(self, action: Any):
+        if not self._active and self._steps >= self.onset_step:
+            self._set(shifted=True)
+        self._steps += 1
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, terminated, truncated, {**info, "shifted": self._active}
+
+    def close(self) -> None:
+        self._set(shifted=False)  # an env made elsewhere and handed in is left as it came
+        super().close()
+
+
+@dataclass(frozen=True)
+class EnvShift:
+    """A shift of an env oodmon has no variants of: its id and the attributes changed.
+
+    Attributes:
+        env_id: the gymnasium id (``module:Id`` for an env registered in a module of yours).
+        params: the attributes' shifted values, as sorted ``(name, value)`` pairs.
+
+    Example:
+        >>> shift = parse_env_shift("Acrobot-v1:LINK_MASS_2=3")
+        >>> shift.spec, shift.is_id
+        ('Acrobot-v1:LINK_MASS_2=3.0', False)
+        >>> env = shift.make(onset_step=50)  # Acrobot-v1, its second link heavier from step 50
+    """
+
+    env_id: str
+    params: tuple[tuple[str, float], ...]
+
+    @property
+    def spec(self) -> str:
+        """The spec string, as the logs record it; :func:`parse_env_shift` reads it back."""
+        return f"{self.env_id}:{','.join(f'{name}={value!r}' for name, value in self.params)}"
+
+    @property
+    def is_id(self) -> bool:
+        """Never: a shift changes at least one attribute."""
+        return False
+
+    def make(self, *, onset_step: int = 0, **kwargs: Any) -> ShiftAttributes:
+        """``gymnasium.make(env_id, **kwargs)``, shifted from ``onset_step`` on (0: the whole episode)."""
+        return ShiftAttributes(gymnasium.make(self.env_id, **kwargs), dict(self.params), onset_step=onset_step,
+                               env_id=self.env_id)
+
+
+def parse_env_shift(spec: str) -> EnvShift:
+    """Parse ``ENV_ID:NAME=VALUE[,NAME=VALUE...]`` into an :class:`EnvShift` (the env is not made:
+    its attributes are checked by :meth:`EnvShift.make`).
+
+    Raises:
+        SpecError: not of that form, an attribute set twice, or an env oodmon has variants of
+            (their specs are ``cartpole:...`` and ``pendulum:...``).
+
+    Example:
+        >>> parse_env_shift("my_envs:MyEnv-v0:friction=0.2,mass=2").params
+        (('friction', 0.2), ('mass', 2.0))
+    """
+    from oodmon.envs.registration import task_of_env
+
+    env_id, colon, assignments = spec.strip().rpartition(":") if isinstance(spec, str) else ("", "", "")
+    if not colon or not env_id or "=" not in assignments:
+        raise SpecError(f"malformed shift {spec!r}: {_SPEC_HELP}")
+    if env_id in TASKS:
+        raise SpecError(f"{spec!r} is a variant of oodmon's {env_id} (oodmon.envs.parse_variant), not a shift of "
+                        f"your own env: {_SPEC_HELP}")
+    task = task_of_env(env_id)
+    if task is not None:
+        raise SpecError(f"{env_id} has oodmon's own variants, which also update what the env derives from its "
+                        f"physics: give {task}:{assignments} (see `oodmon envs`)")
+    params: dict[str, float] = {}
+    for item in assignments.split(","):
+        name, equals, value = (part.strip() for part in item.partition("="))
+        try:
+            number = float(value)
+        except ValueError:
+            number = None
+        if not equals or not name.isidentifier() or number is None:
+            raise SpecError(f"malformed shift {spec!r} at {item!r}: {_SPEC_HELP}")
+        if name in params:
+            raise SpecError(f"shift {spec!r} sets {name!r} twice")
+        params[name] = number
+    return EnvShift(env_id, tuple(sorted(params.items())))

@@ -1,0 +1,95 @@
+"""Shifts of a user's own env (oodmon.envs.shift): other numbers in its attributes from an onset on."""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+import pytest
+
+from oodmon.envs import EnvShift, ShiftAttributes, parse_env_shift
+from oodmon.envs.registration import onset_of_env, variant_of_env
+from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
+
+
+def _rollout(env: gymnasium.Env, seed: int, steps: int, options: dict | None = None):
+    """Observations and ``info["shifted"]`` of ``steps`` steps of a fixed action sequence."""
+    obs, info = env.reset(seed=seed, options=options)
+    observations, shifted = [obs], [info.get("shifted")]
+    actions = np.random.default_rng(seed).integers(0, 3, steps)
+    for action in actions:
+        obs, _, terminated, truncated, info = env.step(int(action))
+        observations.append(obs)
+        shifted.append(info.get("shifted"))
+        assert not (terminated or truncated)  # an untrained swing of 40 steps never reaches the goal
+    return np.array(observations), shifted
+
+
+def test_a_shift_is_the_env_itself_until_its_onset_and_other_physics_from_it_in_every_episode():
+    plain = gymnasium.make("Acrobot-v1")
+    heavy = parse_env_shift("Acrobot-v1:LINK_MASS_2=3.0").make(onset_step=10)
+    assert heavy.unwrapped.LINK_MASS_2 == 1.0  # the class's own value until an episode reaches the onset
+    for episode in range(2):  # the second episode starts in the env's own world again
+        own, _ = _rollout(plain, seed=episode, steps=40)
+        shifted_obs, flags = _rollout(heavy, seed=episode, steps=40)
+        assert flags == [False] * 11 + [True] * 30  # step 10 (the 11th step() call) is the first shifted one
+        np.testing.assert_array_equal(shifted_obs[:11], own[:11])  # bit for bit the same until the onset
+        assert np.abs(shifted_obs[11:] - own[11:]).max() > 0.1  # a heavier link swings otherwise
+        assert heavy.unwrapped.LINK_MASS_2 == 3.0
+    _, flags = _rollout(heavy, seed=0, steps=5, options={"onset_step": 2})  # this episode's onset alone
+    assert flags == [False] * 3 + [True] * 3 and onset_of_env(heavy) == 2
+    _, flags = _rollout(heavy, seed=0, steps=12)
+    assert flags == [False] * 11 + [True] * 2 and onset_of_env(heavy) == 10  # the configured onset is back
+    heavy.close()
+    assert heavy.unwrapped.LINK_MASS_2 == 1.0  # closed: the env as it came
+    _, flags = _rollout(parse_env_shift("Acrobot-v1:LINK_MASS_2=3.0").make(), seed=0, steps=3)
+    assert flags == [True] * 4  # onset 0: shifted from the first observation
+
+
+def test_a_shift_names_itself_in_the_spec_the_logs_record_and_replay_reads_back():
+    shift = parse_env_shift(" MountainCar-v0:gravity=0.003, force=0.0005 ")
+    assert shift == EnvShift("MountainCar-v0", (("force", 0.0005), ("gravity", 0.003)))
+    assert shift.spec == "MountainCar-v0:force=0.0005,gravity=0.003" and parse_env_shift(shift.spec) == shift
+    env = gymnasium.wrappers.TimeAwareObservation(shift.make(onset_step=7))  # a wrapper of the user's outside it
+    assert variant_of_env(env) == shift.spec and onset_of_env(env) == 7
+    made_by_hand = ShiftAttributes(gymnasium.make("MountainCar-v0"), {"force": 0.0005, "gravity": 0.003})
+    assert made_by_hand.shift == shift and not shift.is_id
+    assert parse_env_shift("my_envs:MyEnv-v0:mass=2").env_id == "my_envs:MyEnv-v0"  # a module's env keeps its prefix
+
+
+@pytest.mark.parametrize("spec, error, words", [
+    ("Acrobot-v1", SpecError, "expected ENV_ID:NAME=VALUE"),
+    ("Acrobot-v1:LINK_MASS_2", SpecError, "expected ENV_ID:NAME=VALUE"),
+    ("Acrobot-v1:LINK_MASS_2=heavy", SpecError, "at 'LINK_MASS_2=heavy'"),
+    ("Acrobot-v1:2x=3", SpecError, "at '2x=3'"),
+    (":LINK_MASS_2=3", SpecError, "expected ENV_ID"),
+    ("Acrobot-v1:a=1,a=2", SpecError, "sets 'a' twice"),
+    ("CartPole-v1:length=2.0", SpecError, "give cartpole:length=2.0"),
+    ("cartpole:length=2.0", SpecError, "is a variant of oodmon's cartpole"),
+], ids=["no-assignment", "no-value", "not-a-number", "not-a-name", "no-env", "twice", "oodmon-env", "oodmon-spec"])
+def test_a_malformed_shift_is_refused_saying_the_form(spec, error, words):
+    with pytest.raises(error, match=words):
+        parse_env_shift(spec)
+
+
+@pytest.mark.parametrize("changes, error, words", [
+    ({"LINK_MAS_2": 3.0}, UnknownParameterError, "no numeric attribute 'LINK_MAS_2'.*LINK_MASS_2"),
+    ({"np_random": 3.0}, UnknownParameterError, "no numeric attribute 'np_random'"),
+    ({"_private": 3.0}, UnknownParameterError, "no numeric attribute '_private'"),
+    ({"LINK_MASS_2": float("nan")}, InvalidParameterError, "not a finite number"),
+    ({"LINK_MASS_2": True}, InvalidParameterError, "not a finite number"),
+    ({"LINK_MASS_2": 1.0}, InvalidParameterError, "are its own values"),
+    ({}, InvalidParameterError, "at least one attribute"),
+], ids=["misspelt", "not-numeric", "private", "nan", "bool", "unchanged", "nothing"])
+def test_a_shift_the_env_cannot_take_is_refused_naming_what_it_can(changes, error, words):
+    with pytest.raises(error, match=words):
+        ShiftAttributes(gymnasium.make("Acrobot-v1"), changes)
+
+
+def test_a_whole_number_attribute_takes_whole_values_and_keeps_its_type():
+    base = gymnasium.make("CartPole-v1").unwrapped  # its x_threshold is a float; a whole-number one from an int attr:
+    base.kick_every = 5  # an int attribute an env of the user's might have
+    with pytest.raises(InvalidParameterError, match="kick_every is a whole number"):
+        ShiftAttributes(base, {"kick_every": 2.5})
+    env = ShiftAttributes(base, {"kick_every": 3.0})
+    env.reset(seed=0)
+    assert base.kick_every == 3 and type(base.kick_every) is int
