@@ -32,7 +32,8 @@ import warnings
 
 ODD = ["0", "-1", "1", "2", "1e9", "nan", "inf", "-inf", "", " ", "0.5", "abc", "adir", "file.txt", "/proc/x",
        "cartpole", "pendulum", "pong", "ensemble", "cartpole:length=2.0", "x" * 300, "1,2", "-0", "3.7",
-       "99999999999999999999", "/dev/null"]
+       "99999999999999999999", "/dev/null", "Acrobot-v1:LINK_MASS_2=3.0", "MountainCar-v0:gravity=nan",
+       "Acrobot-v1:np_random=1"]
 LONG = ("train", "bench", "demo")
 
 

@@ -43,10 +43,18 @@ def _is_number(value: object) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
+def _settable_number(env: gymnasium.Env, name: object) -> bool:
+    """Whether ``name`` is a public numeric attribute of ``env`` that a shift can set: a plain value
+    of the env or its class, not a property (``np_random_seed``) or other computed attribute."""
+    if not isinstance(name, str) or name.startswith("_") or not _is_number(getattr(env, name, None)):
+        return False
+    return name in vars(env) or not any(hasattr(vars(cls).get(name), "__get__") for cls in type(env).__mro__)
+
+
 def _numeric_attributes(env: gymnasium.Env) -> list[str]:
     """The public numeric attributes of ``env`` (its class's too): what a shift can change."""
     names = set(vars(env)) | {n for cls in type(env).__mro__ for n in vars(cls)}
-    return sorted(n for n in names if not n.startswith("_") and _is_number(getattr(env, n, None)))
+    return sorted(n for n in names if _settable_number(env, n))
 
 
 class ShiftAttributes(gymnasium.Wrapper):
@@ -86,8 +94,8 @@ class ShiftAttributes(gymnasium.Wrapper):
         self._own: dict[str, numbers.Real] = {}
         self._shifted: dict[str, numbers.Real] = {}
         for name, value in changes.items():
-            own = getattr(base, name, None) if isinstance(name, str) and not name.startswith("_") else None
-            if not _is_number(own):
+            own = getattr(base, name) if _settable_number(base, name) else None
+            if own is None:
                 raise UnknownParameterError(
                     f"{owner} has no numeric attribute {name!r} to shift; its numeric attributes: "
                     f"{', '.join(_numeric_attributes(base)) or 'none'}")
@@ -178,7 +186,7 @@ def parse_env_shift(spec: str) -> EnvShift:
     from oodmon.envs.registration import task_of_env
 
     env_id, colon, assignments = spec.strip().rpartition(":") if isinstance(spec, str) else ("", "", "")
-    if not colon or not env_id or "=" not in assignments:
+    if not colon or not env_id or env_id.endswith(":") or "=" not in assignments:
         raise SpecError(f"malformed shift {spec!r}: {_SPEC_HELP}")
     if env_id in TASKS:
         raise SpecError(f"{spec!r} is a variant of oodmon's {env_id} (oodmon.envs.parse_variant), not a shift of "

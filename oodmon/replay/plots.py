@@ -18,8 +18,11 @@ import numpy as np
 from sklearn.metrics import roc_curve
 
 from oodmon.envs.grid import parse_variant
+from oodmon.envs.shift import parse_env_shift
+from oodmon.errors import OodmonError
 from oodmon.outputs import safe_filename, save_figure
-from oodmon.replay.metrics import EpisodeAlarms, VariantMetrics, alarm_events, is_id_variant, rankable, shifted_alarms
+from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, failure_known, is_id_variant, rankable,
+                                   shifted_alarms)
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_monitor_plots", "write_plots"]
@@ -38,8 +41,8 @@ def _runs_of(logs: Sequence[RunLog], method: str, variant: str) -> list[RunLog]:
     """The logs of ``method`` on the task of the shifted ``variant``: its ID steps come from that
     task's runs alone, as in :func:`~oodmon.replay.compute_metrics`, not from the method's runs
     of another task replayed beside them."""
-    task = parse_variant(variant).task
-    return [log for log in logs if log.method == method and log.task == task]
+    tasks = {log.task for log in logs if any(episode.variant == variant for episode in log.episodes)}
+    return [log for log in logs if log.method == method and log.task in tasks]
 
 
 def _alarm_detectors(logs: Sequence[RunLog], method: str, variant: str) -> str:
@@ -165,6 +168,16 @@ def episode_name(episode) -> str:
     return f"{episode.variant}\nseed {episode.seed}, onset {episode.onset}, return {episode.total_return:.0f}"
 
 
+def _shift_parameters(spec: str) -> tuple[str | None, int | None, tuple[tuple[str, float], ...]]:
+    """A shifted variant's corruption, severity and parameters: oodmon's variant, or a shift of
+    your own env (:func:`~oodmon.envs.shift.parse_env_shift`: parameters only)."""
+    try:
+        variant = parse_variant(spec)
+    except OodmonError:
+        return None, None, parse_env_shift(spec).params
+    return variant.corruption, variant.severity, variant.params
+
+
 def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str | Path) -> Path | None:
     """AUROC against each parameter's value (log scale) or the severity, one line per method and
     detector (that of the metrics' rows)."""
@@ -172,11 +185,11 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
     for m in metrics:
         if m.task != task or m.auroc is None:
             continue
-        variant = parse_variant(m.variant)
-        if variant.corruption is not None and variant.severity is not None:
-            series[(variant.corruption, f"{m.method}, {m.detector}")].append((variant.severity, m.auroc))
-        elif len(variant.params) == 1:
-            name, value = variant.params[0]
+        corruption, severity, params = _shift_parameters(m.variant)
+        if corruption is not None and severity is not None:
+            series[(corruption, f"{m.method}, {m.detector}")].append((severity, m.auroc))
+        elif len(params) == 1:
+            name, value = params[0]
             series[(name, f"{m.method}, {m.detector}")].append((value, m.auroc))
     if not series:
         return None
@@ -189,7 +202,8 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
                 continue
             points.sort()
             ax.plot(*zip(*points), marker="o", markersize=3, label=label, clip_on=False)  # an AUROC of 1 shows whole
-        if task != "pong":
+        if task != "pong" and all(value > 0 for (parameter, _), points in series.items() if parameter == name
+                                  for value, _ in points):  # a shift of your own env may set 0 or less
             ax.set_xscale("log")
         ax.set(title=name, xlabel="severity" if task == "pong" else "value", ylim=(0, 1))
         ax.axhline(0.5, color="grey", linestyle=":", linewidth=1)
@@ -216,13 +230,16 @@ def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folde
 TIMELINE_EPISODES = 60
 
 
-def plot_alarm_timeline(variants: dict[str, Sequence[EpisodeAlarms]], title: str, path: str | Path) -> Path | None:
+def plot_alarm_timeline(variants: dict[str, Sequence[EpisodeAlarms]], title: str, path: str | Path, *,
+                        failures: bool = True) -> Path | None:
     """The monitor's benchmark as a picture: a panel per shifted variant, a line per episode from
     its onset (x = 0) to its end, its first alarm at or after the onset (a dot: green before the
     failure or in an episode that did not fail, red at or after it), an alarm before the onset (an
     orange triangle, a false alarm) and the failure (a black cross). ``variants``: each variant's
     :class:`~oodmon.replay.metrics.EpisodeAlarms` (:func:`~oodmon.replay.metrics.shifted_alarms`);
-    at most :data:`TIMELINE_EPISODES` of each are drawn. ``None`` when there is no episode."""
+    at most :data:`TIMELINE_EPISODES` of each are drawn. ``failures=False``: no failure is defined
+    for the env (:func:`~oodmon.replay.metrics.failure_known`), so the dots and the titles say nothing
+    of one. ``None`` when there is no episode."""
     variants = {variant: list(episodes) for variant, episodes in variants.items() if episodes}
     if not variants:
         return None
@@ -231,6 +248,7 @@ def plot_alarm_timeline(variants: dict[str, Sequence[EpisodeAlarms]], title: str
     fig, axes = plt.subplots(len(variants), 1, figsize=(9, 0.6 + sum(heights)), dpi=110, squeeze=False,
                              sharex=True, gridspec_kw={"height_ratios": heights})
     styles = {"alarm before the failure": dict(marker="o", color="tab:green", s=14),
+              "first alarm after the onset": dict(marker="o", color="tab:green", s=14),
               "alarm at or after the failure": dict(marker="o", color="tab:red", s=14),
               "alarm before the onset": dict(marker="<", color="tab:orange", s=16),
               "failure": dict(marker="x", color="black", s=16)}
@@ -248,16 +266,19 @@ def plot_alarm_timeline(variants: dict[str, Sequence[EpisodeAlarms]], title: str
                 points["alarm before the onset"].append((e.early, row))
             if e.failure is not None:
                 points["failure"].append((e.failure, row))
+        if not failures:  # the same green dots, named for what they are
+            points["first alarm after the onset"] = points.pop("alarm before the failure")
         for name, style in styles.items():
-            if points[name]:
+            if points.get(name):
                 ax.scatter(*zip(*points[name]), label=name, zorder=3, **style)
         ax.axvline(0, color="black", linewidth=0.8, linestyle="--")
         failed = sum(e.failure is not None for e in episodes)
         alarmed = sum(e.first is not None for e in episodes)
         delays = [e.first for e in episodes if e.first is not None]
         more = f" (the first {len(shown)} drawn)" if len(shown) < len(episodes) else ""
-        ax.set_title(f"{variant}: {alarmed} of {len(episodes)} episodes alarmed{more}; "
-                     f"{sum(e.before_failure for e in episodes)} of {failed} failures alarmed before them"
+        ax.set_title(f"{variant}: {alarmed} of {len(episodes)} episodes alarmed{more}"
+                     + (f"; {sum(e.before_failure for e in episodes)} of {failed} failures alarmed before them"
+                        if failures else "")
                      + (f"; delay median {np.median(delays):g}" if delays else ""), fontsize=8)
         ax.set_yticks([])
         ax.set_ylim(-1, len(shown))
@@ -275,6 +296,7 @@ def write_monitor_plots(logs: Sequence[RunLog], folder: str | Path) -> list[Path
     for (task, method, variant), episodes in shifted_alarms(logs).items():
         by_agent[(task, method)][variant] = episodes
     written = [plot_alarm_timeline(variants, f"{task}/{method}: the first alarm of each shifted episode",
-                                   Path(folder) / f"alarms_{safe_filename(task)}_{safe_filename(method)}.png")
+                                   Path(folder) / f"alarms_{safe_filename(task)}_{safe_filename(method)}.png",
+                                   failures=failure_known(task))
                for (task, method), variants in sorted(by_agent.items())]
     return [p for p in written if p is not None]

@@ -793,6 +793,13 @@ def test_a_shift_of_your_own_env_runs_from_its_onset_and_replay_counts_it_shifte
     firsts = [min(after) for e in shifted if (after := [s for s in alarm_events(e.alarm) if s >= 50])]
     assert sorted(heavy.delays) == sorted(step - 50 for step in firsts)  # from the onset (after an early one too)
     assert heavy.early == sum(e.first_alarm_step is not None and e.first_alarm_step < 50 for e in shifted)
+    logs_named = [str(tmp_path / "id.mcap"), str(tmp_path / "shift.mcap")]
+    assert main(["replay", *logs_named, "--plots", str(tmp_path / "plots")]) == 0  # it parsed the spec as oodmon's
+    assert main(["replay", "--monitor", *logs_named, "--plots", str(tmp_path / "plots")]) == 0
+    assert "an env oodmon has no variants of: not defined (blank)" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == [
+        "alarms_MountainCar-v0_sb3.png", "auroc_vs_shift_MountainCar-v0.png", "roc_MountainCar-v0_gravity_0.005.png",
+        "trace_sb3_MountainCar-v0_gravity_0.005.png"]
     # what a person gets wrong is said in one line
     for variant, words in [("Acrobot-v1:LINK_MASS_2=3.0", "shifts Acrobot-v1, not --env MountainCar-v0"),
                            ("MountainCar-v0:gravty=0.005", "no numeric attribute 'gravty'.*gravity"),

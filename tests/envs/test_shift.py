@@ -63,9 +63,11 @@ def test_a_shift_names_itself_in_the_spec_the_logs_record_and_replay_reads_back(
     ("Acrobot-v1:2x=3", SpecError, "at '2x=3'"),
     (":LINK_MASS_2=3", SpecError, "expected ENV_ID"),
     ("Acrobot-v1:a=1,a=2", SpecError, "sets 'a' twice"),
+    ("Acrobot-v1::a=1", SpecError, "expected ENV_ID"),
     ("CartPole-v1:length=2.0", SpecError, "give cartpole:length=2.0"),
     ("cartpole:length=2.0", SpecError, "is a variant of oodmon's cartpole"),
-], ids=["no-assignment", "no-value", "not-a-number", "not-a-name", "no-env", "twice", "oodmon-env", "oodmon-spec"])
+], ids=["no-assignment", "no-value", "not-a-number", "not-a-name", "no-env", "twice", "double-colon", "oodmon-env",
+        "oodmon-spec"])
 def test_a_malformed_shift_is_refused_saying_the_form(spec, error, words):
     with pytest.raises(error, match=words):
         parse_env_shift(spec)
@@ -74,12 +76,13 @@ def test_a_malformed_shift_is_refused_saying_the_form(spec, error, words):
 @pytest.mark.parametrize("changes, error, words", [
     ({"LINK_MAS_2": 3.0}, UnknownParameterError, "no numeric attribute 'LINK_MAS_2'.*LINK_MASS_2"),
     ({"np_random": 3.0}, UnknownParameterError, "no numeric attribute 'np_random'"),
+    ({"np_random_seed": 3}, UnknownParameterError, "no numeric attribute 'np_random_seed'"),  # a property: no setter
     ({"_private": 3.0}, UnknownParameterError, "no numeric attribute '_private'"),
     ({"LINK_MASS_2": float("nan")}, InvalidParameterError, "not a finite number"),
     ({"LINK_MASS_2": True}, InvalidParameterError, "not a finite number"),
     ({"LINK_MASS_2": 1.0}, InvalidParameterError, "are its own values"),
     ({}, InvalidParameterError, "at least one attribute"),
-], ids=["misspelt", "not-numeric", "private", "nan", "bool", "unchanged", "nothing"])
+], ids=["misspelt", "not-numeric", "property", "private", "nan", "bool", "unchanged", "nothing"])
 def test_a_shift_the_env_cannot_take_is_refused_naming_what_it_can(changes, error, words):
     with pytest.raises(error, match=words):
         ShiftAttributes(gymnasium.make("Acrobot-v1"), changes)

@@ -184,3 +184,20 @@ def test_infinite_scores_are_marked_at_the_top_of_the_trace_not_left_out(tmp_pat
     marked = [c for c in shifted_axis.collections if c.get_label() == "score +inf (at the top)"]
     assert len(marked) == 1 and marked[0].get_offsets()[:, 0].tolist() == list(range(50, 60))
     assert not [c for c in id_axis.collections if "inf" in str(c.get_label())]
+
+
+def test_the_alarm_timeline_of_an_env_without_a_failure_names_no_failure(tmp_path, monkeypatch):
+    # A shift of the user's own env (Acrobot's episode ends when it succeeds): its green dots were
+    # labelled "alarm before the failure" and its title said "0 of 0 failures alarmed before them".
+    from oodmon.replay import plots
+    from oodmon.replay.metrics import EpisodeAlarms
+
+    drawn = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
+    episodes = [EpisodeAlarms(early=-3, first=1, failure=None, end=5), EpisodeAlarms(early=None, first=2, failure=None, end=30)]
+    assert plots.plot_alarm_timeline({"Acrobot-v1:LINK_MASS_2=3.0": episodes}, "t", tmp_path / "a.png",
+                                     failures=False) is not None
+    ax = drawn[0].axes[0]
+    assert {c.get_label(): c.get_offsets().tolist() for c in ax.collections if not c.get_label().startswith("_")} == {
+        "first alarm after the onset": [[1, 0], [2, 1]], "alarm before the onset": [[-3, 0]]}
+    assert ax.get_title() == "Acrobot-v1:LINK_MASS_2=3.0: 2 of 2 episodes alarmed; delay median 1.5"
