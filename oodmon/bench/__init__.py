@@ -11,12 +11,16 @@ For one task, each method and each trial:
 5. the scores, by replaying those logs: per-step AUROC per (method, trial, variant).
 
 With ``protocol="monitor"`` (the monitor's own benchmark) step 4 changes: each shifted episode
-starts in the ID world and shifts at a random onset (uniform in the task's :data:`ONSETS`, drawn
-per episode from its seed), and there are at least as many ID episodes as a false-alarm rate
-needs (200 by default in the CLI). Replay then gives, per variant, the share of episodes alarmed
-before they failed and the delays from the onset (``oodmon.replay.compute_monitor_metrics``), and
-the false-alarm rate with its interval. Thresholds, fitted detectors and failing variants are
-shared with the paper's protocol; the logs live apart (``.../monitor/``).
+starts in the ID world and shifts at a random onset (uniform in the task's :data:`ONSETS`, or in
+``onsets``, drawn per episode from its seed), and there are at least as many ID episodes as a
+false-alarm rate needs (200 by default in the CLI). Replay then gives, per variant, the share of
+episodes alarmed before they failed and the delays from the onset
+(``oodmon.replay.compute_monitor_metrics``), and the false-alarm rate with its interval.
+Thresholds, fitted detectors and failing variants are shared with the paper's protocol; the logs
+live apart (``.../monitor/``, ``.../monitor-onsets<low>-<high>/`` for other onsets). Your own SB3
+models in an env oodmon has no variants of (``sb3``, ``env_id`` and ``task`` its id) are benched
+this way only, on shifts of their env's attributes (:mod:`oodmon.envs.shift`), every one monitored
+(no failure is told for such an env).
 
 The report puts, per variant, our AUROC mean and std over trials beside the paper's, and the
 best AUROC per method beside the paper's best. A cell whose log is complete is not run again,

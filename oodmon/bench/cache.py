@@ -143,13 +143,16 @@ def _set_aside_if_made_by_another_recipe(out: Path, path: Path, config: BenchCon
 
 def _trial_dir(config: BenchConfig, method: str, trial: int) -> Path:
     """A (method, trial)'s folder: its threshold, fitted detectors, failing variants and logs."""
-    return Path(config.out) / "logs" / f"{config.task}-{config.cache_key()}" / config.model_name(method) / f"trial{trial}"
+    task = safe_filename(config.task)  # your own env's id may hold '/' (ALE/Breakout-v5) or ':'
+    return Path(config.out) / "logs" / f"{task}-{config.cache_key()}" / config.model_name(method) / f"trial{trial}"
 
 
 def _cell_log(config: BenchConfig, method: str, trial: int, name: str) -> Path:
     safe = safe_filename(name)
     folder = _trial_dir(config, method, trial)
-    return (folder / "monitor" if config.protocol == "monitor" else folder) / f"{safe}.mcap"
+    if config.protocol == "monitor":  # onsets other than the task's: other cells
+        folder = folder / ("monitor" if config.onsets is None else f"monitor-onsets{config.onsets[0]}-{config.onsets[1]}")
+    return folder / f"{safe}.mcap"
 
 
 def _log_is_complete(path: Path, episodes: int) -> bool:
@@ -225,7 +228,9 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
         _continue_sampling(agent, threshold_state, made_now=False)
     variants = config.variant_list()
     cached = _read_json(failing_path)
-    if cached is not None and cached.get("variants") == [v.spec for v in variants]:
+    if config.own_env:  # no failure is told for your own env: every shift is monitored
+        failing = [v.spec for v in variants]
+    elif cached is not None and cached.get("variants") == [v.spec for v in variants]:
         failing = cached["failing"]
     else:
         stage = f"{method} trial {trial}: evaluation episodes"

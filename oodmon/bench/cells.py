@@ -13,6 +13,8 @@ import numpy as np
 from oodmon.bench.cache import Sb3Models, _bench_agent
 from oodmon.bench.config import BenchConfig
 from oodmon.envs.grid import parse_variant
+from oodmon.envs.shift import own_variant
+from oodmon.names import TASKS
 from oodmon.errors import ConfigError
 
 def episode_onset(onsets: tuple[int, int], seed: int) -> int:
@@ -38,7 +40,7 @@ def _run_cell(task: str, model: str | Sb3Models, threshold: str, spec: str, epis
 
     set_threads(1)  # one of the workers side by side: torch and numpy's BLAS on one thread each
     agent = _bench_agent(model, task, seed, n_samples, masks)  # seeded MC sampling: the same cell, the same log
-    variant = parse_variant(spec)
+    variant = parse_variant(spec) if task in TASKS else own_variant(spec, task)  # oodmon's, or your own env's
     env = agent.wrap(variant.make(obs_noise=obs_noise) if obs_noise else variant.make())  # as the agent observes it
     temporary = Path(log).with_suffix(".part")
     temporary.parent.mkdir(parents=True, exist_ok=True)

@@ -9,7 +9,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from oodmon.envs.grid import Variant, parse_variant, select_variants
+from oodmon.envs.shift import EnvShift, own_variant
 from oodmon.errors import ConfigError
+from oodmon.names import TASKS
 from oodmon.paper import paper_auc_per_trial
 
 if TYPE_CHECKING:
@@ -68,6 +70,7 @@ class BenchConfig:
     members: int | None = None  # members of each ensemble trial (None: the recipe's; others train trial 0 too)
     masks: str | None = None  # MC masks of Dropout and DropConnect agents: sampled or fixed (None: each model's)
     net_arch: tuple[int, ...] | None = None  # hidden widths of every trial (None: the recipe's; others train trial 0 too)
+    onsets: tuple[int, int] | None = None  # [low, high) of the monitor protocol's onsets (None: the task's, ONSETS)
 
     def __post_init__(self) -> None:
         from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -84,6 +87,20 @@ class BenchConfig:
                 raise ConfigError(f"unknown detector {name!r}; choose from {', '.join(DETECTOR_NAMES)}")
         if self.alarm_detector not in self.detectors:
             raise ConfigError(f"the alarm reads the {self.alarm_detector} detector: add it to the detectors")
+        if self.onsets is not None:
+            if self.protocol != "monitor" or len(self.onsets) != 2 or not 0 <= self.onsets[0] < self.onsets[1]:
+                raise ConfigError(f"onsets={self.onsets}: the steps [low, high) the monitor's protocol draws each shifted "
+                                  "episode's onset from, whole numbers 0 <= low < high (protocol monitor only)")
+            object.__setattr__(self, "onsets", tuple(int(step) for step in self.onsets))  # frozen; JSON gives a list
+        if self.own_env:
+            if not self.sb3:
+                raise ConfigError(f"unknown task {self.task!r}; choose one of {', '.join(TASKS)}, or bench your own "
+                                  "SB3 models in their own env (sb3 and env_id)")
+            if self.protocol != "monitor" or self.onsets is None or self.variants == "paper" or self.obs_noise:
+                raise ConfigError(f"{self.task} is an env oodmon has no variants of: bench it with the monitor's "
+                                  f"protocol, the steps its shifts may begin at, and shifts of your own, e.g. "
+                                  f"--protocol monitor --onsets 20,100 --variants {self.task}:NAME=VALUE (numeric "
+                                  "attributes of its env; no sensor noise, which is an option of oodmon's envs)")
         if self.sb3:
             if self.env_id is None:
                 raise ConfigError("sb3 models need env_id: the gymnasium env id they act in (e.g. CartPole-v1)")
@@ -198,7 +215,24 @@ class BenchConfig:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()
                 if k not in ("out", "workers", "executor", "address", "bind")}
 
-    def variant_list(self) -> list[Variant]:
+    @property
+    def own_env(self) -> bool:
+        """Whether the task is your own env (a gymnasium id oodmon has no variants of), whose
+        variants are shifts of its attributes (:mod:`oodmon.envs.shift`)."""
+        return self.task not in TASKS
+
+    def onset_range(self) -> tuple[int, int]:
+        """The [low, high) the monitor's protocol draws each shifted episode's onset from."""
+        return self.onsets or ONSETS[self.task]
+
+    def variant_list(self) -> list[Variant | EnvShift]:
+        if self.own_env:
+            shifts = [own_variant(spec.strip(), self.task) for spec in self.variants]
+            for shift in shifts:
+                if shift.is_id:
+                    raise ConfigError(f"{self.task} in the variants: the bench runs its ID episodes itself; give "
+                                      "the shifts only")
+            return shifts
         return select_variants(self.task, self.variants, shifted_only=True)
 
 

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from oodmon.agents.evaluation import SOLVED_RETURN
-from oodmon.bench.config import ONSETS, PAPER_METHOD, BenchConfig, BenchResult, paper_label
+from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, paper_label
 from oodmon.paper import paper_auc_per_trial
 
 def best_per_method(result: BenchResult, task: str, top: int = 3,
@@ -195,7 +195,7 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
     from oodmon.replay import monitor_summary, monitor_table
     from oodmon.replay.metrics import FAILURE_DEFINITION
 
-    low, high = ONSETS[config.task]
+    low, high = config.onset_range()
     console.print(monitor_table(result.alarms, title=(
         f"{config.task}: the monitor's benchmark ({config.alarm_detector} detector; shifted episodes shift at a random "
         f"step in [{low}, {high}); far {config.far:g}"
@@ -204,8 +204,9 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
         ids = [m for m in result.alarms if m.is_id and m.method == row.method]
         far = (f"false alarms {ids[0].false_alarms}/{ids[0].episodes} ID episodes (95% interval {ids[0].far_low:.1%}-"
                f"{ids[0].far_high:.1%}, target {config.far:g})" if ids else "")
-        before = (f"{row.before_failure}/{row.failed} failing episodes alarmed before the failure"
-                  if row.failed else "no episode failed after its onset")
+        before = (f"no failure told for {config.task} (an env oodmon has no variants of)" if row.failed is None
+                  else f"{row.before_failure}/{row.failed} failing episodes alarmed before the failure" if row.failed
+                  else "no episode failed after its onset")
         delays = ("no alarm after an onset" if row.delay_median is None
                   else f"delay median {row.delay_median:.3g} p90 {row.delay_p90:.3g} steps")
         console.print(f"{row.method}: {far}; {row.alarmed}/{row.episodes} shifted episodes alarmed after the onset "

@@ -11,7 +11,7 @@ from oodmon import seeds
 from oodmon.bench.cache import (Sb3Models, _cell_log, _ensure_model, _ensure_model_dir_current, _id_return,
                                 _log_is_complete, _monitored, _prepare_trial, _refuse_to_train_for_hours)
 from oodmon.bench.cells import _execute
-from oodmon.bench.config import ONSETS, PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
+from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.monitor.alarms import check_window
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
@@ -86,7 +86,7 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
             model, threshold, _, detectors = prepared[(method, trial)]
             jobs.append((config.task, model if isinstance(model, Sb3Models) else str(model), str(threshold), spec, episodes, seed, str(log),
                          None if detectors is None else str(detectors), config.obs_noise,
-                         ONSETS[config.task] if config.protocol == "monitor" else None, config.samples,
+                         config.onset_range() if config.protocol == "monitor" else None, config.samples,
                          config.masks))
     done = len(cells) - len(jobs)
     report("monitored cells", done, len(cells))

@@ -7,7 +7,7 @@ import json
 import sys
 
 from oodmon.cli.display import _progress, _table_console
-from oodmon.cli.loading import _load_agent, _no_variants
+from oodmon.cli.loading import _load_agent
 from oodmon.cli.parsing import (
     _FIT_EPISODES, _KEPT, _UNSET, _add_confidence, _add_rule, _command_line, _fraction, _non_negative, _sb3_arguments,
     _whole, _widths,
@@ -42,7 +42,12 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     bench.add_argument("--net-arch", type=_widths, metavar="W,W",
                        help="hidden widths of every trial's network, e.g. 64,64 (default: each recipe's, CartPole "
                             "[256, 256], Pendulum [400, 300]); other widths train every trial, trial 0 too")
-    bench.add_argument("--variants", default="paper", help="'paper' (the paper's grid) or comma-separated specs")
+    bench.add_argument("--variants", default="paper",
+                       help="'paper' (the paper's grid) or comma-separated specs (cartpole:gravity=20.0,length=2.0 "
+                            "is one); your own --env: its shifts, e.g. Acrobot-v1:LINK_MASS_2=2.0,Acrobot-v1:LINK_MASS_2=3.0")
+    bench.add_argument("--onsets", type=_onsets, metavar="LOW,HIGH",
+                       help="monitor protocol: each shifted episode shifts at a step drawn from [LOW, HIGH) (default: "
+                            "the task's, CartPole 20,200, Pendulum 100,150, Pong 100,1000; your own --env: required)")
     bench.add_argument("--protocol", choices=["paper", "monitor"], default="paper",
                        help="paper (default): shifted from step 0, per-step AUROC; monitor: the monitor's own benchmark, "
                             "each shifted episode shifts at a random onset, alarms before failure and delays, "
@@ -112,9 +117,9 @@ def _bench(args: argparse.Namespace) -> int:
         methods = ("sb3",)
     elif args.task is None:
         raise ConfigError("give --task (or --sb3 with --env for your own SB3 models)")
-    variants = "paper" if args.variants == "paper" else tuple(args.variants.split(","))
+    variants = "paper" if args.variants == "paper" else split_specs(args.variants)
     monitor = args.protocol == "monitor"
-    best = BEST_DETECTOR[args.task] if monitor or not samples else "spread"
+    best = BEST_DETECTOR.get(args.task, "combined") if monitor or not samples else "spread"
     alarm_detector = args.alarm_detector or best
     detectors = (tuple(d.strip() for d in args.detectors.split(",")) if args.detectors
                  else tuple(dict.fromkeys(("spread", alarm_detector) if samples else (alarm_detector,))))
@@ -131,7 +136,7 @@ def _bench(args: argparse.Namespace) -> int:
                          vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
                          samples=args.samples, members=args.members,
                          net_arch=args.net_arch, fit_episodes=args.fit_episodes,
-                         masks=args.masks)
+                         masks=args.masks, onsets=args.onsets)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result
     from oodmon.outputs import check_output_dir, check_output_file
@@ -169,12 +174,43 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def split_specs(text: str) -> tuple[str, ...]:
+    """``--variants``' comma-separated specs, a spec's own further assignments kept with it.
+
+    Example:
+        >>> split_specs("cartpole:gravity=20.0,length=2.0,cartpole:force_mag=1.0")
+        ('cartpole:gravity=20.0,length=2.0', 'cartpole:force_mag=1.0')
+    """
+    specs: list[str] = []
+    for piece in text.split(","):
+        if specs and ":" not in piece and "=" in piece:  # NAME=VALUE of the spec before it
+            specs[-1] += f",{piece}"
+        else:
+            specs.append(piece)
+    return tuple(specs)
+
+
+def _onsets(text: str) -> tuple[int, int]:
+    """An argparse type: ``LOW,HIGH``, whole numbers 0 <= LOW < HIGH."""
+    low, comma, high = text.partition(",")
+    try:
+        pair = (int(low), int(high))
+    except ValueError:
+        pair = None
+    if not comma or pair is None or not 0 <= pair[0] < pair[1]:
+        raise argparse.ArgumentTypeError(f"{text!r} is not LOW,HIGH: two whole numbers 0 <= LOW < HIGH, e.g. 20,100")
+    return pair
+
+
 def _sb3_bench_task(args: argparse.Namespace) -> bool:
     """For ``bench --sb3``: set ``args.task`` from ``--env`` (the bench plays oodmon's variants of
-    that task); True where the models have samples of their own (the spread detector applies)."""
+    that task, or for your own env its shifts, under the monitor's protocol); True where the models
+    have samples of their own (the spread detector applies)."""
     from oodmon.envs.registration import task_of_env
 
     task = task_of_env(args.env) if args.env else None
-    if args.env and task is None:
-        raise _no_variants("bench", args.env)
+    if args.env and task is None and args.protocol != "monitor":
+        raise ConfigError(f"--env {args.env} is an env oodmon has no variants of: bench it with the monitor's "
+                          f"protocol and shifts of your own, e.g. --protocol monitor --onsets 20,100 --variants "
+                          f"{args.env}:NAME=VALUE (numeric attributes of its env)")
     return _load_agent(args).estimator is not None

@@ -154,7 +154,7 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
     """``oodmon run``'s env and its label: the ``--variant`` (a variant of the agent's task, or a
     shift of your own model's env, shifting at ``--onset``), else your own model's env as you
     deploy it, else the task's ID env."""
-    from oodmon.envs import Variant, parse_env_shift, parse_variant
+    from oodmon.envs import Variant, own_variant, parse_variant
     from oodmon.envs.registration import TASK_OF_ENV
 
     if args.variant and args.task not in TASKS:  # your own env: other numbers in its attributes
@@ -162,10 +162,7 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
             raise ConfigError(f"variant {args.variant!r} is not a variant of {args.task}: oodmon has variants of "
                               f"{', '.join(sorted(TASK_OF_ENV))}; shift {args.task} itself with --variant "
                               f"{args.task}:NAME=VALUE (numeric attributes of its env), or leave out --variant")
-        shift = parse_env_shift(args.variant)
-        if shift.env_id != agent.env_id:
-            raise ConfigError(f"--variant {args.variant!r} shifts {shift.env_id}, not --env {agent.env_id}: give "
-                              f"{agent.env_id}:NAME=VALUE, a numeric attribute of its env and its shifted value")
+        shift = own_variant(args.variant, agent.env_id)
         return agent.wrap(shift.make(onset_step=args.onset)), shift.spec
     if args.variant:
         variant = parse_variant(args.variant)

@@ -34,7 +34,7 @@ from oodmon.envs.checks import check_onset_step, episode_onset
 from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
 from oodmon.names import TASKS
 
-__all__ = ["EnvShift", "ShiftAttributes", "parse_env_shift"]
+__all__ = ["EnvShift", "ShiftAttributes", "own_variant", "parse_env_shift"]
 
 _SPEC_HELP = "expected ENV_ID:NAME=VALUE[,NAME=VALUE...], e.g. 'Acrobot-v1:LINK_MASS_2=3.0'"
 
@@ -139,7 +139,8 @@ class ShiftAttributes(gymnasium.Wrapper):
 
 @dataclass(frozen=True)
 class EnvShift:
-    """A shift of an env oodmon has no variants of: its id and the attributes changed.
+    """A shift of an env oodmon has no variants of: its id and the attributes changed (none: the
+    env itself, its ID runs, as :func:`own_variant` gives it).
 
     Attributes:
         env_id: the gymnasium id (``module:Id`` for an env registered in a module of yours).
@@ -157,18 +158,43 @@ class EnvShift:
 
     @property
     def spec(self) -> str:
-        """The spec string, as the logs record it; :func:`parse_env_shift` reads it back."""
+        """The spec string, as the logs record it; :func:`parse_env_shift` (:func:`own_variant`) reads it back."""
+        if not self.params:
+            return self.env_id
         return f"{self.env_id}:{','.join(f'{name}={value!r}' for name, value in self.params)}"
 
     @property
     def is_id(self) -> bool:
-        """Never: a shift changes at least one attribute."""
-        return False
+        """Whether this is the env itself (no attribute changed)."""
+        return not self.params
 
-    def make(self, *, onset_step: int = 0, **kwargs: Any) -> ShiftAttributes:
-        """``gymnasium.make(env_id, **kwargs)``, shifted from ``onset_step`` on (0: the whole episode)."""
-        return ShiftAttributes(gymnasium.make(self.env_id, **kwargs), dict(self.params), onset_step=onset_step,
-                               env_id=self.env_id)
+    def make(self, *, onset_step: int = 0, **kwargs: Any) -> gymnasium.Env:
+        """``gymnasium.make(env_id, **kwargs)``, shifted from ``onset_step`` on (0: the whole episode)
+        by a :class:`ShiftAttributes`; the env itself when no attribute is changed."""
+        env = gymnasium.make(self.env_id, **kwargs)
+        if self.is_id:
+            return env
+        return ShiftAttributes(env, dict(self.params), onset_step=onset_step, env_id=self.env_id)
+
+
+def own_variant(spec: str, env_id: str) -> EnvShift:
+    """A variant of your own env ``env_id``: the env itself (``spec == env_id``) or a shift of it
+    (``ENV_ID:NAME=VALUE[,...]``, :func:`parse_env_shift`).
+
+    Raises:
+        SpecError: a malformed spec, or a shift of another env.
+
+    Example:
+        >>> own_variant("Acrobot-v1", "Acrobot-v1").is_id, own_variant("Acrobot-v1:dt=0.1", "Acrobot-v1").is_id
+        (True, False)
+    """
+    if isinstance(spec, str) and spec.strip() == env_id:
+        return EnvShift(env_id, ())
+    shift = parse_env_shift(spec)
+    if shift.env_id != env_id:
+        raise SpecError(f"{spec!r} shifts {shift.env_id}, not {env_id}: give {env_id}:NAME=VALUE, a numeric "
+                        "attribute of its env and its shifted value")
+    return shift
 
 
 def parse_env_shift(spec: str) -> EnvShift:

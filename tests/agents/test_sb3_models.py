@@ -22,7 +22,7 @@ from oodmon.agents.sb3 import load_sb3, sb3_agent, sb3_algorithm
 from oodmon.cli import main
 from oodmon.errors import ConfigError
 from oodmon.monitor import Monitor
-from oodmon.replay import read_log
+from oodmon.replay import read_log, read_logs
 from tests.helpers import ActedOn, NoisePictures
 
 README = Path(__file__).resolve().parents[2] / "README.md"
@@ -579,10 +579,58 @@ def test_bench_runs_the_monitor_protocol_on_a_plain_sb3_policy(readme_run, capsy
     assert main(argv[:-1] + ["--trials", "2"]) == 2
     assert "one trial" in capsys.readouterr().err
     assert main(["bench", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "Acrobot-v1"]) == 2
-    assert "none of them" in capsys.readouterr().err
+    assert "Acrobot-v1 is an env oodmon has no variants of: bench it with the monitor's protocol" in capsys.readouterr().err
     assert main(["bench", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "CartPole-v1", "--detectors", "spread,combined",
                  "--protocol", "monitor", "--out", str(folder / "bench2")]) == 2
     assert "drop spread" in capsys.readouterr().err
+
+
+def test_bench_runs_the_monitors_protocol_on_shifts_of_your_own_env(tmp_path, capsys):
+    """`oodmon bench --sb3 ... --env MountainCar-v0 --protocol monitor --onsets 50,100 --variants
+    MountainCar-v0:gravity=0.005`: ID episodes for the false alarms, each shifted episode shifted at
+    its own onset in [50, 100), every shift monitored (no failure is told for such an env), cached."""
+    DQN("MlpPolicy", gymnasium.make("MountainCar-v0"), seed=0, policy_kwargs={"net_arch": [8]}).save(tmp_path / "mc.zip")
+    out = tmp_path / "bench"
+    argv = ["bench", "--sb3", str(tmp_path / "mc.zip"), "--env", "MountainCar-v0", "--protocol", "monitor",
+            "--onsets", "50,100", "--variants", "MountainCar-v0:gravity=0.005,force=0.0005,MountainCar-v0:gravity=0.01",
+            "--episodes", "4", "--id-episodes", "8", "--calibration-episodes", "10", "--far", "0.2",
+            "--confidence", "none", "--fit-episodes", "10", "--workers", "1", "--out", str(out),
+            "--results", str(tmp_path / "mc.json")]
+    assert main(argv) == 0
+    printed = capsys.readouterr()
+    assert "no failure told for MountainCar-v0 (an env oodmon has no variants of)" in printed.out.replace("\n", " ")
+    result = json.loads((tmp_path / "mc.json").read_text())
+    assert result["config"]["onsets"] == [50, 100]
+    rows = {r["variant"]: r for r in result["alarms"]}
+    heavy, pair = rows["MountainCar-v0:gravity=0.01"], rows["MountainCar-v0:force=0.0005,gravity=0.005"]
+    assert rows["MountainCar-v0"]["episodes"] == 8 and rows["MountainCar-v0"]["false_alarms"] is not None
+    assert heavy["episodes"] == pair["episodes"] == 4 and heavy["failed"] is None
+    # gravity x4 from a step in 50-99 of 200, an untrained policy: 3 of 4 alarmed when written
+    # (delays 1-2 steps), and its shifted steps ranked at AUROC 0.979 against the ID cell's
+    assert heavy["alarmed"] >= 2
+    aurocs = {r["variant"]: r["mean"] for r in result["rows"]}
+    assert aurocs["MountainCar-v0:gravity=0.01"] > 0.8
+    logs = read_logs(sorted(out.glob("logs/MountainCar-v0-*/sb3/trial0/monitor-onsets50-100/*.mcap")))
+    onsets = [e.onset for log in logs for e in log.episodes if e.variant != "MountainCar-v0"]
+    assert len(onsets) == 8 and all(50 <= onset < 100 for onset in onsets) and len(set(onsets)) > 1
+    stamps = {p: p.stat().st_mtime_ns for p in out.rglob("*.mcap")}
+    assert main([*argv[:-2], "--baseline", str(tmp_path / "mc.json")]) == 0  # from the cache, every figure held
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*.mcap")} == stamps
+    assert "every figure of" in capsys.readouterr().err
+    for change, words in [(["--protocol", "paper"], "bench it with the monitor's protocol"),
+                          (["--onsets", None], "the steps its shifts may begin at"),
+                          (["--variants", "paper"], "shifts of your own"),
+                          (["--variants", "Acrobot-v1:LINK_MASS_2=3.0"], "shifts Acrobot-v1, not MountainCar-v0"),
+                          (["--variants", "MountainCar-v0"], "the bench runs its ID episodes itself"),
+                          (["--onsets", "100,50"], "is not LOW,HIGH")]:
+        changed = list(argv)
+        at = changed.index(change[0])
+        if change[1] is None:
+            del changed[at:at + 2]
+        else:
+            changed[at + 1] = change[1]
+        assert main(changed) == 2, change
+        assert words in capsys.readouterr().err, change
 
 
 def file_sha256_of_models(*paths: Path) -> str:
@@ -801,7 +849,7 @@ def test_a_shift_of_your_own_env_runs_from_its_onset_and_replay_counts_it_shifte
         "alarms_MountainCar-v0_sb3.png", "auroc_vs_shift_MountainCar-v0.png", "roc_MountainCar-v0_gravity_0.005.png",
         "trace_sb3_MountainCar-v0_gravity_0.005.png"]
     # what a person gets wrong is said in one line
-    for variant, words in [("Acrobot-v1:LINK_MASS_2=3.0", "shifts Acrobot-v1, not --env MountainCar-v0"),
+    for variant, words in [("Acrobot-v1:LINK_MASS_2=3.0", "shifts Acrobot-v1, not MountainCar-v0"),
                            ("MountainCar-v0:gravty=0.005", "no numeric attribute 'gravty'.*gravity"),
                            ("MountainCar-v0:gravity", "expected ENV_ID:NAME=VALUE")]:
         assert main([*run, "--variant", variant]) == 2
