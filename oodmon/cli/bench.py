@@ -117,8 +117,11 @@ def _bench(args: argparse.Namespace) -> int:
         methods = ("sb3",)
     elif args.task is None:
         raise ConfigError("give --task (or --sb3 with --env for your own SB3 models)")
-    variants = "paper" if args.variants == "paper" else split_specs(args.variants)
+    variants = "paper" if args.variants == "paper" else _split_specs(args.variants)
     monitor = args.protocol == "monitor"
+    if args.onsets is not None and not monitor:
+        raise ConfigError("--onsets draws each shifted episode's onset under the monitor's protocol (the paper's "
+                          "shifts from step 0): add --protocol monitor")
     best = BEST_DETECTOR.get(args.task, "combined") if monitor or not samples else "spread"
     alarm_detector = args.alarm_detector or best
     detectors = (tuple(d.strip() for d in args.detectors.split(",")) if args.detectors
@@ -174,11 +177,11 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def split_specs(text: str) -> tuple[str, ...]:
+def _split_specs(text: str) -> tuple[str, ...]:
     """``--variants``' comma-separated specs, a spec's own further assignments kept with it.
 
     Example:
-        >>> split_specs("cartpole:gravity=20.0,length=2.0,cartpole:force_mag=1.0")
+        >>> _split_specs("cartpole:gravity=20.0,length=2.0,cartpole:force_mag=1.0")
         ('cartpole:gravity=20.0,length=2.0', 'cartpole:force_mag=1.0')
     """
     specs: list[str] = []
