@@ -14,6 +14,8 @@ Spec strings, as ``oodmon run --variant`` takes them and the logs write them::
     Acrobot-v1:LINK_MASS_2=3.0                   one attribute
     MountainCar-v0:force=0.0005,gravity=0.003    several
     my_envs:MyEnv-v0:friction=0.2                an env registered in a module of yours
+    HalfCheetah-v5:model.body_mass[1]=12.0       an element of an array, through attributes
+    Hopper-v5:model.opt.gravity[2]=-5.0          (MuJoCo's model: its arrays are set in place)
 
 An attribute that ``step()`` does not read (a quantity the env derives once in ``__init__`` from
 another) changes nothing: pick the ones its code uses. CartPole and Pendulum have oodmon's own
@@ -25,10 +27,12 @@ from __future__ import annotations
 
 import math
 import numbers
+import re
 from dataclasses import dataclass
 from typing import Any
 
 import gymnasium
+import numpy as np
 
 from oodmon.envs.checks import check_onset_step, episode_onset
 from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
@@ -43,18 +47,99 @@ def _is_number(value: object) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
-def _settable_number(env: gymnasium.Env, name: object) -> bool:
-    """Whether ``name`` is a public numeric attribute of ``env`` that a shift can set: a plain value
-    of the env or its class, not a property (``np_random_seed``) or other computed attribute."""
-    if not isinstance(name, str) or name.startswith("_") or not _is_number(getattr(env, name, None)):
+#: A name a shift sets: an attribute, through attributes (``model.opt.gravity``), and an element of
+#: an array there (``model.body_mass[1]``, ``model.geom_friction[0][0]``).
+_NAME = re.compile(r"([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)((?:\[\d+\])*)")
+
+
+def _settable(holder: object, name: str) -> bool:
+    """Whether a shift can set ``holder.name``: a plain value of the object or its class, or a
+    property with a setter; not one without (``np_random_seed``), nor a method."""
+    if name.startswith("_"):
         return False
-    return name in vars(env) or not any(hasattr(vars(cls).get(name), "__get__") for cls in type(env).__mro__)
+    if name in getattr(holder, "__dict__", {}):
+        return True
+    for cls in type(holder).__mro__:
+        if name in vars(cls):
+            found = vars(cls)[name]
+            if isinstance(found, property):
+                return found.fset is not None
+            return not hasattr(found, "__get__") or hasattr(found, "__set__")
+    return True
 
 
-def _numeric_attributes(env: gymnasium.Env) -> list[str]:
-    """The public numeric attributes of ``env`` (its class's too): what a shift can change."""
-    names = set(vars(env)) | {n for cls in type(env).__mro__ for n in vars(cls)}
-    return sorted(n for n in names if _settable_number(env, n))
+def _settable_names(holder: object) -> tuple[list[str], list[str]]:
+    """The public attributes of ``holder`` a shift can set: its numbers, and its numeric arrays
+    (whose elements it can set), each sorted. (An error's words: reads every attribute.)"""
+    numbers_, arrays = [], []
+    for name in dir(holder):
+        if name.startswith("_") or not _settable(holder, name):
+            continue
+        try:
+            value = getattr(holder, name)
+        except Exception:  # noqa: BLE001  (an attribute that cannot be read now is not one to list)
+            continue
+        if _is_number(value):
+            numbers_.append(name)
+        elif isinstance(value, np.ndarray) and value.dtype.kind in "fiu" and value.size:
+            arrays.append(f"{name}{list(value.shape)}")
+    return numbers_, arrays
+
+
+@dataclass(frozen=True)
+class _Target:
+    """One number a shift sets: ``holder.name`` or the element ``index`` of the array there."""
+
+    holder: Any
+    name: str
+    index: tuple[int, ...]
+
+    def get(self) -> numbers.Real:
+        value = getattr(self.holder, self.name)
+        return value[self.index].item() if self.index else value
+
+    def set(self, value: numbers.Real) -> None:
+        if self.index:
+            getattr(self.holder, self.name)[self.index] = value  # in place: the env reads that array
+        else:
+            setattr(self.holder, self.name, value)
+
+
+def _target(owner: str, base: object, name: object) -> _Target:
+    """Where ``name`` (an attribute, dotted, with element indices) points in ``base``.
+
+    Raises:
+        UnknownParameterError: no such number there; the message lists what there is.
+    """
+    match = _NAME.fullmatch(name) if isinstance(name, str) else None
+    if match is None:
+        raise UnknownParameterError(f"{owner}: {name!r} is not an attribute name; {_SPEC_HELP}")
+    path, indices = match.group(1).split("."), tuple(int(i) for i in re.findall(r"\d+", match.group(2)))
+    holder, walked = base, []
+    for part in path[:-1]:
+        if part.startswith("_") or not hasattr(holder, part):
+            raise UnknownParameterError(f"{owner} has no attribute {'.'.join([*walked, part])!r} to shift through")
+        holder, walked = getattr(holder, part), [*walked, part]
+    last, where = path[-1], ".".join(walked) or owner
+    value = getattr(holder, last, None) if not last.startswith("_") else None
+    if indices:
+        if not isinstance(value, np.ndarray) or value.dtype.kind not in "fiu":
+            raise UnknownParameterError(f"{owner}: {match.group(1)} is not a numeric array to index")
+        if len(indices) != value.ndim or any(i >= n for i, n in zip(indices, value.shape)):
+            raise UnknownParameterError(f"{owner}: {name} is outside {match.group(1)}, an array of shape "
+                                        f"{list(value.shape)}")
+        return _Target(holder, last, indices)
+    if isinstance(value, np.ndarray) and value.dtype.kind in "fiu" and value.size:
+        raise UnknownParameterError(f"{owner}: {name} is an array of shape {list(value.shape)}: shift an element, "
+                                    f"e.g. {name}{''.join('[0]' for _ in value.shape)}")
+    if not _is_number(value) or not _settable(holder, last):
+        numbers_, arrays = _settable_names(holder)
+        listed = f"{', '.join(numbers_) or 'none'}" + (
+            f"; arrays (shift an element, NAME[i]): {', '.join(arrays[:20])}{', ...' if len(arrays) > 20 else ''}"
+            if arrays else "")
+        raise UnknownParameterError(f"{owner} has no numeric attribute {name!r} to shift; the numeric attributes "
+                                    f"of {where}: {listed}")
+    return _Target(holder, last, ())
 
 
 class ShiftAttributes(gymnasium.Wrapper):
@@ -90,15 +175,12 @@ class ShiftAttributes(gymnasium.Wrapper):
         owner = env_id or (env.spec.id if env.spec is not None else type(env.unwrapped).__name__)
         if not changes:
             raise InvalidParameterError(f"a shift of {owner} needs at least one attribute to change; {_SPEC_HELP}")
-        base = env.unwrapped
+        self._targets: dict[str, _Target] = {}
         self._own: dict[str, numbers.Real] = {}
         self._shifted: dict[str, numbers.Real] = {}
         for name, value in changes.items():
-            own = getattr(base, name) if _settable_number(base, name) else None
-            if own is None:
-                raise UnknownParameterError(
-                    f"{owner} has no numeric attribute {name!r} to shift; its numeric attributes: "
-                    f"{', '.join(_numeric_attributes(base)) or 'none'}")
+            self._targets[name] = target = _target(owner, env.unwrapped, name)
+            own = target.get()
             if not _is_number(value) or not math.isfinite(value):
                 raise InvalidParameterError(f"{owner}: {name}={value!r} is not a finite number")
             if isinstance(own, numbers.Integral) and value != int(value):
@@ -114,7 +196,7 @@ class ShiftAttributes(gymnasium.Wrapper):
 
     def _set(self, shifted: bool) -> None:
         for name, value in (self._shifted if shifted else self._own).items():
-            setattr(self.env.unwrapped, name, value)
+            self._targets[name].set(value)
         self._active = shifted
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -228,7 +310,7 @@ def parse_env_shift(spec: str) -> EnvShift:
             number = float(value)
         except ValueError:
             number = None
-        if not equals or not name.isidentifier() or number is None:
+        if not equals or not _NAME.fullmatch(name) or number is None:
             raise SpecError(f"malformed shift {spec!r} at {item!r}: {_SPEC_HELP}")
         if name in params:
             raise SpecError(f"shift {spec!r} sets {name!r} twice")

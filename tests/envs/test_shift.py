@@ -96,3 +96,72 @@ def test_a_whole_number_attribute_takes_whole_values_and_keeps_its_type():
     env = ShiftAttributes(base, {"kick_every": 3.0})
     env.reset(seed=0)
     assert base.kick_every == 3 and type(base.kick_every) is int
+
+
+class _Option:
+    """As MuJoCo's ``model.opt``: a struct whose numbers and arrays the simulation reads."""
+
+    def __init__(self) -> None:
+        self.gravity = np.array([0.0, 0.0, -9.81])
+        self.timestep = 0.01
+
+
+class _Model:
+    """As MuJoCo's ``model``: arrays of the bodies' parameters, read at every step, set in place."""
+
+    def __init__(self) -> None:
+        self.body_mass = np.array([0.0, 1.0, 2.0])
+        self.opt = _Option()
+
+
+class _FallingBodies(gymnasium.Env):
+    """Two bodies falling, pushed up or down: their velocities, from the model's arrays."""
+
+    observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (2,), np.float32)
+    action_space = gymnasium.spaces.Discrete(2)
+
+    def __init__(self) -> None:
+        self.model = _Model()
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.velocity = self.np_random.normal(size=2)
+        return self.velocity.astype(np.float32), {}
+
+    def step(self, action):
+        push = 1.0 if action else -1.0
+        self.velocity = self.velocity + self.model.opt.timestep * (self.model.opt.gravity[2] + push / self.model.body_mass[1:])
+        return self.velocity.astype(np.float32), 0.0, False, False, {}
+
+
+def test_a_shift_sets_elements_of_arrays_through_attributes_as_mujocos_model_holds_them():
+    changes = {"model.body_mass[1]": 4.0, "model.opt.gravity[2]": -5.0, "model.opt.timestep": 0.02}
+    plain, env = _FallingBodies(), ShiftAttributes(_FallingBodies(), changes, onset_step=3)
+    masses, gravity = env.unwrapped.model.body_mass, env.unwrapped.model.opt.gravity
+    for _ in range(2):
+        own, _ = _rollout(plain, seed=0, steps=6)
+        shifted, flags = _rollout(env, seed=0, steps=6)
+        assert flags == [False] * 4 + [True] * 3
+        np.testing.assert_array_equal(shifted[:4], own[:4])
+        assert np.abs(shifted[4:] - own[4:]).min() > 1e-3
+        assert masses.tolist() == [0.0, 4.0, 2.0] and gravity.tolist() == [0.0, 0.0, -5.0]  # the env's own arrays, in place
+        assert env.unwrapped.model.opt.timestep == 0.02
+    env.reset(seed=0)
+    assert masses.tolist() == [0.0, 1.0, 2.0] and gravity[2] == -9.81 and env.unwrapped.model.opt.timestep == 0.01
+    assert env.shift.spec == "_FallingBodies:model.body_mass[1]=4.0,model.opt.gravity[2]=-5.0,model.opt.timestep=0.02"
+    assert parse_env_shift(env.shift.spec) == env.shift
+
+
+@pytest.mark.parametrize("name, words", [
+    ("model.body_mass", r"model.body_mass is an array of shape \[3\]: shift an element, e.g. model.body_mass\[0\]"),
+    ("model.body_mass[3]", r"model.body_mass\[3\] is outside model.body_mass, an array of shape \[3\]"),
+    ("model.body_mass[1][0]", r"outside model.body_mass, an array of shape \[3\]"),
+    ("model.opt.gravty[2]", "model.opt.gravty is not a numeric array to index"),
+    ("modle.body_mass[1]", "no attribute 'modle' to shift through"),
+    ("model.opt", r"no numeric attribute 'model.opt' to shift; the numeric attributes of model: none; arrays \(shift "
+                  r"an element, NAME\[i\]\): body_mass\[3\]"),
+    ("model.opt.gravity[-1]", "is not an attribute name"),
+], ids=["array-whole", "index-outside", "too-many-indices", "misspelt-array", "misspelt-path", "a-struct", "negative"])
+def test_a_path_that_leads_to_no_number_is_refused_saying_what_is_there(name, words):
+    with pytest.raises(UnknownParameterError, match=words):
+        ShiftAttributes(_FallingBodies(), {name: 1.0})
