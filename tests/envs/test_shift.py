@@ -158,8 +158,8 @@ def test_a_shift_sets_elements_of_arrays_through_attributes_as_mujocos_model_hol
     ("model.body_mass[1][0]", r"outside model.body_mass, an array of shape \[3\]"),
     ("model.opt.gravty[2]", "model.opt.gravty is not a numeric array to index"),
     ("modle.body_mass[1]", "no attribute 'modle' to shift through"),
-    ("model.opt", r"no numeric attribute 'model.opt' to shift; the numeric attributes of model: none; arrays \(shift "
-                  r"an element, NAME\[i\]\): body_mass\[3\]"),
+    ("model.opt", (r"no numeric attribute 'model.opt' to shift; the numeric attributes of model: none; arrays \(shift "
+                   r"an element, NAME\[i\]\): body_mass\[3\]")),
     ("model.opt.gravity[-1]", "is not an attribute name"),
 ], ids=["array-whole", "index-outside", "too-many-indices", "misspelt-array", "misspelt-path", "a-struct", "negative"])
 def test_a_path_that_leads_to_no_number_is_refused_saying_what_is_there(name, words):
