@@ -77,7 +77,7 @@ def _settable_names(holder: object) -> tuple[list[str], list[str]]:
             continue
         try:
             value = getattr(holder, name)
-        except Exception:  # noqa: BLE001  (an attribute that cannot be read now is not one to list)
+        except Exception:  # noqa: BLE001, S112  (an attribute that cannot be read now is not one to list)
             continue
         if _is_number(value):
             numbers_.append(name)
