@@ -16,6 +16,9 @@ Spec strings, as ``oodmon run --variant`` takes them and the logs write them::
     my_envs:MyEnv-v0:friction=0.2                an env registered in a module of yours
     HalfCheetah-v5:model.body_mass[1]=12.0       an element of an array, through attributes
     Hopper-v5:model.opt.gravity[2]=-5.0          (MuJoCo's model: its arrays are set in place)
+    Acrobot-v1:obs.bias[4]=0.5                   a sensor fault (:class:`SensorFaults`): reading 4
+                                                 of the observation off by 0.5 (also obs.scale,
+                                                 obs.noise, obs.stuck)
 
 An attribute that ``step()`` does not read (a quantity the env derives once in ``__init__`` from
 another) changes nothing: pick the ones its code uses. CartPole and Pendulum have oodmon's own
@@ -38,7 +41,7 @@ from oodmon.envs.checks import check_onset_step, episode_onset
 from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
 from oodmon.names import TASKS
 
-__all__ = ["EnvShift", "ShiftAttributes", "own_variant", "parse_env_shift"]
+__all__ = ["EnvShift", "SensorFaults", "ShiftAttributes", "own_variant", "parse_env_shift"]
 
 _SPEC_HELP = "expected ENV_ID:NAME=VALUE[,NAME=VALUE...], e.g. 'Acrobot-v1:LINK_MASS_2=3.0'"
 
@@ -143,12 +146,14 @@ def _target(owner: str, base: object, name: object) -> _Target:
 
 
 class ShiftAttributes(gymnasium.Wrapper):
-    """Sets numeric attributes of ``env.unwrapped`` to other values from ``onset_step`` on.
+    """Sets numeric attributes of ``env.unwrapped`` to other values from ``onset_step`` on, and
+    faults its sensors (names ``obs.KIND[i]``: :class:`SensorFaults`) from then on.
 
     Args:
         env: any gymnasium env.
         changes: attribute name -> its value in the shifted world; each must be a number the
-            unwrapped env has (an int attribute takes whole values only).
+            unwrapped env has (an int attribute takes whole values only), or an element of a
+            numeric array there (``model.body_mass[1]``), or a sensor fault (``obs.bias[4]``).
         onset_step: index of the first ``step()`` of each episode in the shifted world (0: all);
             ``reset(options={"onset_step": n})`` sets it for that episode alone.
         env_id: the id the spec names (default ``env.spec.id``; ``module:Id`` as you made it).
@@ -175,10 +180,14 @@ class ShiftAttributes(gymnasium.Wrapper):
         owner = env_id or (env.spec.id if env.spec is not None else type(env.unwrapped).__name__)
         if not changes:
             raise InvalidParameterError(f"a shift of {owner} needs at least one attribute to change; {_SPEC_HELP}")
+        self._sensors = SensorFaults.of(owner, env.observation_space,
+                                        {n: v for n, v in changes.items() if str(n).startswith("obs.")})
         self._targets: dict[str, _Target] = {}
         self._own: dict[str, numbers.Real] = {}
         self._shifted: dict[str, numbers.Real] = {}
         for name, value in changes.items():
+            if str(name).startswith("obs."):
+                continue
             self._targets[name] = target = _target(owner, env.unwrapped, name)
             own = target.get()
             if not _is_number(value) or not math.isfinite(value):
@@ -187,9 +196,10 @@ class ShiftAttributes(gymnasium.Wrapper):
                 raise InvalidParameterError(f"{owner}: {name} is a whole number ({own}); {name}={value!r} is not one")
             self._own[name] = own
             self._shifted[name] = type(own)(value) if isinstance(own, numbers.Integral) else float(value)
-        if self._shifted == self._own:
+        if self._shifted == self._own and self._sensors is None:
             raise InvalidParameterError(f"{owner}: {changes} are its own values; a shift changes at least one")
-        self.shift = EnvShift(owner, tuple(sorted((n, float(v)) for n, v in self._shifted.items())))
+        faults = {} if self._sensors is None else self._sensors.changes
+        self.shift = EnvShift(owner, tuple(sorted((n, float(v)) for n, v in {**self._shifted, **faults}.items())))
         self.onset_step = self._configured_onset = check_onset_step(owner, onset_step)
         self._steps = 0
         self._active = False
@@ -204,19 +214,120 @@ class ShiftAttributes(gymnasium.Wrapper):
         self._set(shifted=False)  # the env's own world while it resets: its start states are ID's
         obs, info = self.env.reset(seed=seed, options=options)
         self._steps = 0
+        if self._sensors is not None:
+            self._sensors.begin_episode(seed, obs)
         self._set(shifted=self.onset_step == 0)
-        return obs, {**info, "shifted": self._active}
+        return self._sensed(obs), {**info, "shifted": self._active}
 
     def step(self, action: Any):
         if not self._active and self._steps >= self.onset_step:
             self._set(shifted=True)
         self._steps += 1
         obs, reward, terminated, truncated, info = self.env.step(action)
-        return obs, reward, terminated, truncated, {**info, "shifted": self._active}
+        return self._sensed(obs), reward, terminated, truncated, {**info, "shifted": self._active}
+
+    def _sensed(self, obs):
+        """What the sensors report: ``obs``, or from the onset on ``obs`` through the faults."""
+        if self._sensors is None:
+            return obs
+        return self._sensors.read(obs, faulty=self._active)
 
     def close(self) -> None:
         self._set(shifted=False)  # an env made elsewhere and handed in is left as it came
         super().close()
+
+
+class SensorFaults:
+    """Faults of the readings of a ``Box`` observation, by reading (its flattened index ``i``):
+
+    - ``obs.bias[i]=b``: the reading plus ``b``;
+    - ``obs.scale[i]=k``: the reading times ``k`` (a miscalibrated gain; before the bias);
+    - ``obs.noise[i]=s``: plus Gaussian noise of std ``s``, in the reading's own units, drawn from
+      a generator seeded by each ``reset(seed=...)`` (the same episode, the same noise);
+    - ``obs.stuck[i]=1``: the reading held at its last value before the fault (a frozen sensor).
+
+    Made by :class:`ShiftAttributes` from the ``obs.`` names of its changes (``obs.`` is kept for
+    them: an env attribute called ``obs`` cannot be shifted).
+
+    Example:
+        >>> faults = SensorFaults.of("X", gymnasium.spaces.Box(-1, 1, (3,)), {"obs.bias[0]": 0.5, "obs.stuck[2]": 1})
+        >>> faults.begin_episode(0, np.zeros(3, np.float32))
+        >>> faults.read(np.ones(3, np.float32), faulty=True).tolist()
+        [1.5, 1.0, 0.0]
+    """
+
+    KINDS = ("bias", "scale", "noise", "stuck")
+    _UNCHANGED = {"bias": 0.0, "scale": 1.0, "noise": 0.0, "stuck": 0.0}
+
+    def __init__(self, changes: dict[str, float], size: int) -> None:
+        self.changes = changes
+        self.bias, self.scale, self.noise = np.zeros(size), np.ones(size), np.zeros(size)
+        self.stuck = np.zeros(size, bool)
+        for name, value in changes.items():
+            kind, index = name[4:].split("[")[0], int(name.split("[")[1][:-1])
+            if kind == "stuck":
+                self.stuck[index] = True
+            else:
+                getattr(self, kind)[index] = value
+        self._held: np.ndarray | None = None
+        self._last: np.ndarray | None = None
+        self._rng = np.random.default_rng(0)
+
+    @classmethod
+    def of(cls, owner: str, space: gymnasium.Space, changes: dict[str, float]) -> SensorFaults | None:
+        """The faults of ``changes`` (names ``obs.KIND[i]``) for observations of ``space``; ``None``
+        when there are none.
+
+        Raises:
+            UnknownParameterError: another kind, an index the observation does not have, or an
+                observation that is not one ``Box``.
+            InvalidParameterError: a value that is not a finite number, a negative noise, a stuck
+                other than 1, or no fault at all.
+        """
+        if not changes:
+            return None
+        if not isinstance(space, gymnasium.spaces.Box):
+            raise UnknownParameterError(f"{owner}: sensor faults ({', '.join(changes)}) read the readings of a Box "
+                                        f"observation; {owner}'s is {space}")
+        size, kept = int(np.prod(space.shape)), {}
+        for name, value in changes.items():
+            match = re.fullmatch(r"obs\.(\w+)\[(\d+)\]", name)
+            if match is None or match.group(1) not in cls.KINDS:
+                raise UnknownParameterError(f"{owner}: {name!r} is no sensor fault; give obs.KIND[i]=VALUE, KIND one of "
+                                            f"{', '.join(cls.KINDS)}, i a reading of the observation (0-{size - 1})")
+            kind, index = match.group(1), int(match.group(2))
+            if index >= size:
+                raise UnknownParameterError(f"{owner}: {name} is outside the observation, whose {size} readings are "
+                                            f"0-{size - 1} (flattened)")
+            if not _is_number(value) or not math.isfinite(value) or (kind == "noise" and value < 0) \
+                    or (kind == "stuck" and value not in (0, 1)):
+                raise InvalidParameterError(f"{owner}: {name}={value!r} is not allowed; "
+                                            + ("stuck is 1 (held) or 0" if kind == "stuck" else
+                                               "noise is a std, a finite number >= 0" if kind == "noise" else
+                                               "give a finite number"))
+            if value != cls._UNCHANGED[kind]:
+                kept[name] = float(value)
+        if not kept:
+            raise InvalidParameterError(f"{owner}: {changes} change no reading; a shift changes at least one")
+        return cls(kept, size)
+
+    def begin_episode(self, seed: int | None, obs) -> None:
+        """A new episode: its noise seeded by ``seed`` (``None``: the generator goes on), its first reading kept."""
+        if seed is not None:
+            self._rng = np.random.default_rng([seed, 0x5E45])
+        self._last, self._held = np.asarray(obs).reshape(-1).copy(), None
+
+    def read(self, obs, *, faulty: bool):
+        """``obs`` as the sensors report it: itself before the fault, through the faults after."""
+        flat = np.asarray(obs).reshape(-1)
+        if not faulty:
+            self._last = flat.copy()
+            return obs
+        if self._held is None:  # the fault begins: a stuck sensor holds its last reading
+            self._held = self._last if self._last is not None else flat.copy()
+        reading = flat.astype(np.float64) * self.scale + self.bias + self.noise * self._rng.normal(size=flat.shape)
+        reading[self.stuck] = self._held[self.stuck]
+        return reading.astype(np.asarray(obs).dtype).reshape(np.shape(obs))
 
 
 @dataclass(frozen=True)

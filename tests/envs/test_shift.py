@@ -165,3 +165,52 @@ def test_a_shift_sets_elements_of_arrays_through_attributes_as_mujocos_model_hol
 def test_a_path_that_leads_to_no_number_is_refused_saying_what_is_there(name, words):
     with pytest.raises(UnknownParameterError, match=words):
         ShiftAttributes(_FallingBodies(), {name: 1.0})
+
+
+def test_sensor_faults_change_the_readings_from_the_onset_and_a_stuck_one_holds_its_last_value():
+    faults = {"obs.bias[0]": 0.5, "obs.scale[0]": 2.0, "obs.stuck[1]": 1}
+    plain, env = _FallingBodies(), ShiftAttributes(_FallingBodies(), faults, onset_step=3)
+    own, _ = _rollout(plain, seed=4, steps=6)
+    read, flags = _rollout(env, seed=4, steps=6)
+    assert flags == [False] * 4 + [True] * 3 and read.dtype == np.float32
+    np.testing.assert_array_equal(read[:4], own[:4])  # the world itself never changes: only what is read of it
+    np.testing.assert_allclose(read[4:, 0], own[4:, 0] * 2.0 + 0.5, rtol=1e-6)
+    assert (read[4:, 1] == own[3, 1]).all() and len(set(own[3:, 1])) == 4  # held at the last reading before the fault
+    assert env.shift.spec == "_FallingBodies:obs.bias[0]=0.5,obs.scale[0]=2.0,obs.stuck[1]=1.0"
+    assert parse_env_shift(env.shift.spec).params == env.shift.params
+
+
+def test_sensor_noise_is_the_same_for_the_same_seed_and_of_the_std_asked():
+    env = ShiftAttributes(_FallingBodies(), {"obs.noise[1]": 0.3})  # from the first reading
+    first, _ = _rollout(env, seed=7, steps=400)
+    again, _ = _rollout(env, seed=7, steps=400)
+    other, _ = _rollout(env, seed=8, steps=400)
+    own, _ = _rollout(_FallingBodies(), seed=7, steps=400)
+    np.testing.assert_array_equal(first, again)
+    assert not np.array_equal(first[:, 1], other[:, 1])
+    np.testing.assert_array_equal(first[:, 0], own[:, 0])  # reading 0 untouched
+    noise = first[:, 1].astype(np.float64) - own[:, 1]
+    # 401 draws of std 0.3: their std lies within 0.3 +- 12% with probability > 0.99 (chi-square, 400 dof)
+    assert abs(noise.std() - 0.3) < 0.036 and abs(noise.mean()) < 0.3 * 3 / np.sqrt(401)
+
+
+@pytest.mark.parametrize("changes, error, words", [
+    ({"obs.blur[0]": 1.0}, UnknownParameterError, "no sensor fault; give obs.KIND"),
+    ({"obs.bias[2]": 1.0}, UnknownParameterError, r"outside the observation, whose 2 readings are 0-1"),
+    ({"obs.bias": 1.0}, UnknownParameterError, "no sensor fault"),
+    ({"obs.noise[0]": -0.1}, InvalidParameterError, "noise is a std"),
+    ({"obs.stuck[0]": 2}, InvalidParameterError, "stuck is 1"),
+    ({"obs.bias[0]": float("inf")}, InvalidParameterError, "give a finite number"),
+    ({"obs.bias[0]": 0.0, "obs.scale[1]": 1.0}, InvalidParameterError, "change no reading"),
+], ids=["kind", "index", "no-index", "negative-noise", "stuck-2", "inf", "unchanged"])
+def test_a_sensor_fault_that_cannot_be_is_refused_saying_what_can(changes, error, words):
+    with pytest.raises(error, match=words):
+        ShiftAttributes(_FallingBodies(), changes)
+
+
+def test_sensor_faults_need_one_box_observation():
+    class DictBodies(_FallingBodies):
+        observation_space = gymnasium.spaces.Dict({"v": _FallingBodies.observation_space})
+
+    with pytest.raises(UnknownParameterError, match=r"read the readings of a Box observation; .*Dict"):
+        ShiftAttributes(DictBodies(), {"obs.bias[0]": 1.0})
