@@ -31,8 +31,10 @@ from __future__ import annotations
 import math
 import numbers
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from types import MappingProxyType
+from typing import Any, ClassVar
 
 import gymnasium
 import numpy as np
@@ -256,8 +258,8 @@ class SensorFaults:
         [1.5, 1.0, 0.0]
     """
 
-    KINDS = ("bias", "scale", "noise", "stuck")
-    _UNCHANGED = {"bias": 0.0, "scale": 1.0, "noise": 0.0, "stuck": 0.0}
+    KINDS: ClassVar[tuple[str, ...]] = ("bias", "scale", "noise", "stuck")
+    _UNCHANGED: ClassVar[Mapping[str, float]] = MappingProxyType({"bias": 0.0, "scale": 1.0, "noise": 0.0, "stuck": 0.0})
 
     def __init__(self, changes: dict[str, float], size: int) -> None:
         self.changes = changes
