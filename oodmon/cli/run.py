@@ -23,7 +23,9 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
     _agent_arguments(run)
     run.add_argument("--variant", help="a variant spec (default: the task's ID env), e.g. cartpole:length=2.0; "
                                        "your own --env: ENV_ID:NAME=VALUE[,...], numeric attributes of its env "
-                                       "set to other values from --onset on, e.g. Acrobot-v1:LINK_MASS_2=3.0")
+                                       "set to other values from --onset on, e.g. Acrobot-v1:LINK_MASS_2=3.0, "
+                                       "or sensor faults, e.g. 'Acrobot-v1:obs.bias[4]=0.5' (obs.bias, obs.scale, "
+                                       "obs.noise, obs.stuck)")
     run.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (default 0)")
     run.add_argument("--episodes", type=_whole(1), default=5, help="episodes (default 5)")
     run.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode (default 0)")
