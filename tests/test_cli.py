@@ -438,22 +438,24 @@ def test_calibrate_combined_with_another_spread_score_fits_detectors_for_it(tmp_
 
 
 def test_the_cli_fits_detectors_on_the_librarys_default_number_of_episodes():
-    """calibrate --fit-episodes and fit-detectors --episodes default to DEFAULT_FIT_EPISODES (the CLI
-    writes the number out to stay light at start-up)."""
-    from oodmon.cli import _parser
-    from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES
-
-    parser = _parser()
-    assert parser.parse_args(["calibrate", "--task", "cartpole", "--method", "ensemble", "--out", "t.json"]).fit_episodes == \
-        DEFAULT_FIT_EPISODES
-    assert parser.parse_args(["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--out", "d"]).episodes == \
-        DEFAULT_FIT_EPISODES
-    # and oodmon.watch, the same fitting from Python (it fitted on 30, the default before 2026-11-24)
+    """calibrate --fit-episodes, fit-detectors --episodes and oodmon.watch's fit_episodes leave the
+    number to the library (None: DEFAULT_FIT_EPISODES, and for your own env as many more as hold
+    DEFAULT_FIT_STEPS steps); the CLI writes both numbers out in its help, equal to the library's."""
     import inspect
 
     import oodmon
+    from oodmon.cli import _parser
+    from oodmon.cli.parsing import _FIT_EPISODES, _FIT_STEPS
+    from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES, DEFAULT_FIT_STEPS
 
-    assert inspect.signature(oodmon.watch).parameters["fit_episodes"].default == DEFAULT_FIT_EPISODES
+    parser = _parser()
+    assert parser.parse_args(["calibrate", "--task", "cartpole", "--method", "ensemble", "--out", "t.json"]).fit_episodes \
+        is None
+    assert parser.parse_args(["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--out", "d"]).episodes \
+        is None
+    assert (_FIT_EPISODES, _FIT_STEPS) == (DEFAULT_FIT_EPISODES, DEFAULT_FIT_STEPS)
+    # and oodmon.watch, the same fitting from Python (it fitted on 30, the default before 2026-11-24)
+    assert inspect.signature(oodmon.watch).parameters["fit_episodes"].default is None
 
 
 def test_runs_closing_table_keeps_the_first_and_last_episodes_and_no_rewards():

@@ -273,12 +273,13 @@ def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
     threshold, and set aside with it when the weights change)."""
     if not config.learned:
         return None
-    from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES, fit_agent_detectors
+    from oodmon.monitor.detectors import fit_agent_detectors
 
     path = folder / f"detectors-{config.cache_key()}"
     state_file = folder / f"sampling-after-detectors-{config.cache_key()}.json"
     if not (path / "detectors.json").exists():
-        fit = dict(_FIT.get(config.task, {"episodes": DEFAULT_FIT_EPISODES, "max_steps": None}))
+        # episodes None: the library's default (your own env: on until its steps, default_fit_steps)
+        fit = dict(_FIT.get(config.task, {"episodes": None, "max_steps": None}))
         if config.fit_episodes:
             fit["episodes"] = config.fit_episodes
         stage = f"{label}: detector fitting episodes"

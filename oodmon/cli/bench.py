@@ -9,7 +9,7 @@ import sys
 from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent
 from oodmon.cli.parsing import (
-    _FIT_EPISODES, _KEPT, _UNSET, _add_confidence, _add_rule, _command_line, _fraction, _non_negative, _sb3_arguments,
+    _FIT_EPISODES, _FIT_STEPS, _KEPT, _UNSET, _add_confidence, _add_rule, _command_line, _fraction, _non_negative, _sb3_arguments,
     _whole, _widths,
 )
 from oodmon.errors import ConfigError
@@ -75,7 +75,7 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                             "and the task's best)")
     bench.add_argument("--fit-episodes", type=_whole(3), default=0,
                        help=f"ID episodes the learned detectors are fitted on, per trial (default {_FIT_EPISODES}; "
-                            "Pong 6 games)")
+                            f"Pong 6 games; your own --env: more, until they hold {_FIT_STEPS:,} steps)")
     bench.add_argument("--alarm-detector", choices=list(DETECTOR_NAMES),
                        help="the detector the monitor's alarm reads, one of --detectors (default spread; monitor "
                             "protocol: the task's best)")

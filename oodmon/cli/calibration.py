@@ -11,7 +11,7 @@ from rich.console import Console
 from oodmon.cli.display import _progress
 from oodmon.cli.loading import _detectors, _load_agent
 from oodmon.cli.parsing import (
-    _FIT_EPISODES, _KEPT, _SEED, _add_confidence, _add_rule, _agent_arguments, _fraction, _non_negative, _whole,
+    _FIT_EPISODES, _FIT_STEPS, _KEPT, _SEED, _add_confidence, _add_rule, _agent_arguments, _fraction, _non_negative, _whole,
 )
 from oodmon.errors import ConfigError
 from oodmon.monitor.threshold import DETECTOR_NAMES, episodes_needed
@@ -45,9 +45,9 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
                            help="the detector the alarm reads (default: the task's best measured one when the agent has "
                                 "fitted detectors: cartpole combined, pendulum dynamics, pong frames; else spread); "
                                 "a learned one without fitted detectors is fitted first, into <out>.detectors/")
-    calibrate.add_argument("--fit-episodes", type=_whole(3), default=_FIT_EPISODES,
+    calibrate.add_argument("--fit-episodes", type=_whole(3),
                            help=f"ID episodes the learned detectors are fitted on when calibrate fits them (default "
-                                f"{_FIT_EPISODES})")
+                                f"{_FIT_EPISODES}; your own --env: more, until they hold {_FIT_STEPS:,} steps)")
     calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
                            help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
@@ -184,8 +184,9 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
     _agent_arguments(fit)
     fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread, "
                                     "which is fitted only when named)")
-    fit.add_argument("--episodes", type=_whole(3), default=_FIT_EPISODES,
-                     help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES})")
+    fit.add_argument("--episodes", type=_whole(3),
+                     help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES}; "
+                          f"your own --env: more, until they hold {_FIT_STEPS:,} steps)")
     fit.add_argument("--max-steps", type=_whole(1), help="cut each episode after this many steps (Pong: try 300)")
     fit.add_argument("--score", default="chosen_std", help="the spread score combined uses (default chosen_std)")
     fit.add_argument("--obs-noise", type=_non_negative, default=0.0,
@@ -206,5 +207,5 @@ def _fit_detectors(args: argparse.Namespace) -> int:
                                         obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report)
     detectors.save(args.out)
     Console(soft_wrap=True).print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
-                                  f"{args.episodes} ID episodes; wrote {args.out}")
+                                  f"{detectors.fitted_for['episodes']} ID episodes; wrote {args.out}")
     return 0

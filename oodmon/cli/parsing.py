@@ -136,9 +136,10 @@ def _add_confidence(parser: argparse.ArgumentParser, default: str | None = None)
                              "0.9); 'none': only on average over calibrations (19 episodes for --far 0.05)")
 
 
-#: oodmon.monitor.detectors.DEFAULT_FIT_EPISODES, written out: importing it here would load the
-#: detectors (scipy, gymnasium) before every command; a test keeps the two equal.
+#: oodmon.monitor.detectors.DEFAULT_FIT_EPISODES and DEFAULT_FIT_STEPS, written out: importing them
+#: here would load the detectors (scipy, gymnasium) before every command; a test keeps them equal.
 _FIT_EPISODES = 90
+_FIT_STEPS = 45_000
 
 
 #: An option left at its default where the default depends on another option (bench's --protocol).

@@ -26,7 +26,6 @@ from oodmon.envs.grid import ENV_IDS
 from oodmon.envs.registration import task_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent
-from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES
 from oodmon.monitor.sinks.base import Sink
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
 from oodmon.progress import Progress
@@ -81,14 +80,16 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
 
 
 def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None = None, far: float = 0.05,
-          confidence: float | None = DEFAULT_CONFIDENCE, episodes: int = 50, fit_episodes: int = DEFAULT_FIT_EPISODES,
+          confidence: float | None = DEFAULT_CONFIDENCE, episodes: int = 50, fit_episodes: int | None = None,
           detector: str | None = None, mean: bool = False, sinks: Sequence[Sink] = (),
           callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
           on_progress: Progress | None = None, masks: str | None = None, vec_normalize: Any = None,
           frame_stack: int | None = None, threshold: str | Path | None = None, save: str | Path | None = None) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
-    The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy, the
+    The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy (``None``:
+    :data:`~oodmon.monitor.detectors.DEFAULT_FIT_EPISODES`, and in an env oodmon has no variants of
+    as many more as hold :data:`~oodmon.monitor.detectors.DEFAULT_FIT_STEPS` steps), the
     threshold on ``episodes`` others (``far``, ``confidence`` as in
     :func:`~oodmon.monitor.calibrate_agent`; the alarm reads ``detector``, by default the task's
     best; ``scaled_spread``, which reads an ensemble's members or an MC policy's fixed sub-networks
@@ -124,7 +125,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
                                                         vec_normalize=vec_normalize, frame_stack=frame_stack)
     else:
         conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
-        if not is_whole(fit_episodes, 3):  # (fit_agent_detectors would say "episodes=", after loading the models)
+        if fit_episodes is not None and not is_whole(fit_episodes, 3):  # (fit_agent_detectors would say "episodes=", after loading the models)
             raise InvalidParameterError(f"fit_episodes={fit_episodes!r} is not allowed; fitting the detectors needs a "
                                         "whole number >= 3 of ID episodes (two thirds fit, one third ranks)")
         if save is not None:  # an unwritable path: said now, not after the calibration

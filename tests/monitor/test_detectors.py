@@ -652,3 +652,30 @@ def test_stacked_vector_observations_are_watched_by_a_dynamics_model_of_them_fla
     assert len(sink.steps[0].observation) == 16  # logged flattened (it was not logged at all)
     with pytest.raises(ConfigError, match=r"got images of shape \(4, 84, 84\)"):
         DynamicsDetector(6).fit([Trajectory(np.zeros((3, 4, 84, 84), np.uint8), np.zeros(2, int))])
+
+
+def test_your_own_envs_default_fitting_plays_on_until_its_episodes_hold_enough_steps(monkeypatch):
+    # Acrobot's swung-up episodes are ~110 steps: 90 of them held a fifth of CartPole's steps and
+    # left the dynamics model unsure of the swing-up's end, where every ID episode's score peaked.
+    from stable_baselines3 import DQN
+
+    import oodmon.monitor.detectors.fitting as fitting
+    from oodmon.agents.sb3 import sb3_agent
+    from oodmon.monitor.detectors import collect, fit_agent_detectors
+
+    reports = []
+    played = collect(lambda obs: 0, gymnasium.make("MountainCar-v0"), 3, min_steps=1000,
+                     on_progress=lambda *report: reports.append(report))
+    assert [len(t) for t in played] == [200] * 5  # 600 steps after the 3 asked, on to 1,000
+    assert reports == [("detector fitting episodes", k, 3) for k in (1, 2, 3)] + [
+        ("detector fitting steps", 800, 1000), ("detector fitting steps", 1000, 1000)]
+    monkeypatch.setattr(fitting, "DEFAULT_FIT_EPISODES", 3)
+    monkeypatch.setattr(fitting, "DEFAULT_FIT_STEPS", 1000)
+    for env_id, default, asked in (("MountainCar-v0", 5, 3), ("CartPole-v1", 3, 4)):
+        model = DQN("MlpPolicy", gymnasium.make(env_id), seed=0, policy_kwargs={"net_arch": [8]})
+        agent = sb3_agent([model], env_id)
+        assert fit_agent_detectors(agent, detectors=["dynamics"]).fitted_for["episodes"] == default
+        assert fit_agent_detectors(agent, detectors=["dynamics"], episodes=asked).fitted_for["episodes"] == asked
+    mountain_car = DQN("MlpPolicy", gymnasium.make("MountainCar-v0"), seed=1, policy_kwargs={"net_arch": [8]})
+    fitted = fit_agent_detectors(sb3_agent([mountain_car], "MountainCar-v0"))  # combined too: its last third ranks
+    assert fitted.names == ["dynamics", "combined"] and fitted.fitted_for["episodes"] == 5
