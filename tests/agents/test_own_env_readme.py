@@ -30,8 +30,8 @@ def _own_env_block() -> tuple[str, list[list[str]]]:
     """The bullet's first shell block: its Python snippet and its oodmon commands (continuation lines joined)."""
     text = README.read_text()
     bullet = text[text.index("- **Shift your own env**"):text.index("- **The logs say what ran**")]
-    block = textwrap.dedent(re.search(r"  ```sh\n(.*?)  ```", bullet, re.S).group(1))
-    python = re.search(r'\.venv/bin/python -c "\n(.*?)\n"\n', block, re.S).group(1)
+    block = textwrap.dedent(re.search(r"  ```sh\n(.*?)  ```", bullet, re.DOTALL).group(1))
+    python = re.search(r'\.venv/bin/python -c "\n(.*?)\n"\n', block, re.DOTALL).group(1)
     commands = block[block.index('\n"\n') + 3:].replace("\\\n", " ")
     return python, [shlex.split(line)[1:] for line in commands.splitlines() if line.startswith("oodmon ")]
 

@@ -32,9 +32,9 @@ from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.names import fixed_masks
+from oodmon.progress import Progress
 from oodmon.seeds import DETECTOR_FIT
 from oodmon.validation import is_whole
-from oodmon.progress import Progress
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector", "collect", "default_detectors",
            "default_fit_steps", "detectors_for", "fit_agent_detectors",
