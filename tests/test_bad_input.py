@@ -156,6 +156,8 @@ CASES = [
     ("bench-onsets-reversed", ["bench", "--task", "cartpole", "--protocol", "monitor", "--onsets", "60,20"], {},
      ["--onsets", "'60,20' is not LOW,HIGH"]),
     ("bench-onsets-paper", ["bench", "--task", "cartpole", "--onsets", "20,60"], {}, ["--onsets", "--protocol monitor"]),
+    ("bench-failure-oodmon-task", ["bench", "--task", "cartpole", "--protocol", "monitor", "--failure", "terminated"], {},
+     ["failure='terminated'", "oodmon tells cartpole's failures itself"]),
     ("bench-baseline-missing", ["bench", "--task", "cartpole", "--out", "{d}/b", "--baseline", "{d}/missing.json"], {},
      ["missing.json", "does not exist"]),
     ("bench-baseline-not-a-result", ["bench", "--task", "cartpole", "--out", "{d}/b", "--baseline", "{d}/thr.json"], {},

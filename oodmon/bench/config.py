@@ -71,6 +71,7 @@ class BenchConfig:
     masks: str | None = None  # MC masks of Dropout and DropConnect agents: sampled or fixed (None: each model's)
     net_arch: tuple[int, ...] | None = None  # hidden widths of every trial (None: the recipe's; others train trial 0 too)
     onsets: tuple[int, int] | None = None  # [low, high) of the monitor protocol's onsets (None: the task's, ONSETS)
+    failure: str | None = None  # what fails in your own env (oodmon.replay.metrics.FAILURES; None: not told)
 
     def __post_init__(self) -> None:
         from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -92,6 +93,13 @@ class BenchConfig:
                 raise ConfigError(f"onsets={self.onsets}: the steps [low, high) the monitor's protocol draws each shifted "
                                   "episode's onset from, whole numbers 0 <= low < high (protocol monitor only)")
             object.__setattr__(self, "onsets", tuple(int(step) for step in self.onsets))  # frozen; JSON gives a list
+        if self.failure is not None:
+            from oodmon.replay.metrics import check_failure
+
+            check_failure(self.failure)
+            if not self.own_env:
+                raise ConfigError(f"failure={self.failure!r} says what fails in your own env; oodmon tells {self.task}'s "
+                                  "failures itself")
         if self.own_env:
             if not self.sb3:
                 raise ConfigError(f"unknown task {self.task!r}; choose one of {', '.join(TASKS)}, or bench your own "

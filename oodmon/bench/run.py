@@ -125,5 +125,5 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
     if config.protocol == "monitor":
         from oodmon.replay import compute_monitor_metrics
 
-        alarms = compute_monitor_metrics(every_log)
+        alarms = compute_monitor_metrics(every_log, failure=config.failure)
     return BenchResult(result_rows, failing, detection, alarms, id_returns)

@@ -45,6 +45,9 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     bench.add_argument("--variants", default="paper",
                        help="'paper' (the paper's grid) or comma-separated specs (cartpole:gravity=20.0,length=2.0 "
                             "is one); your own --env: its shifts, e.g. Acrobot-v1:LINK_MASS_2=2.0,Acrobot-v1:LINK_MASS_2=3.0")
+    bench.add_argument("--failure", choices=["terminated"],
+                       help="your own --env: what fails in it, for the alarms before the failure (blank without "
+                            "it): terminated, the env ended the episode itself after the onset (a fall, a crash)")
     bench.add_argument("--onsets", type=_onsets, metavar="LOW,HIGH",
                        help="monitor protocol: each shifted episode shifts at a step drawn from [LOW, HIGH) (default: "
                             "the task's, CartPole 20,200, Pendulum 100,150, Pong 100,1000; your own --env: required)")
@@ -139,7 +142,7 @@ def _bench(args: argparse.Namespace) -> int:
                          vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
                          samples=args.samples, members=args.members,
                          net_arch=args.net_arch, fit_episodes=args.fit_episodes,
-                         masks=args.masks, onsets=args.onsets)
+                         masks=args.masks, onsets=args.onsets, failure=args.failure)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result
     from oodmon.outputs import check_output_dir, check_output_file

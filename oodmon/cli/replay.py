@@ -34,6 +34,10 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:
     views.add_argument("--episodes", action="store_true",
                        help="one row per episode instead: its steps, return, alarms, first alarm, delay, failure and "
                             "how it ended (interrupted ones too, which the metrics leave out)")
+    replay.add_argument("--failure", choices=["terminated"],
+                        help="--monitor, --episodes: what fails in an env oodmon has no variants of (its failure "
+                             "columns are blank without it): terminated, the env ended the episode itself after the "
+                             "onset (a fall, a crash: Hopper's; not Acrobot's, whose end is its goal)")
     replay.set_defaults(handler=_replay)
 
 
@@ -45,6 +49,9 @@ def _replay(args: argparse.Namespace) -> int:
 
         check_output_dir(args.plots, parameter="--plots")
     logs = _read_logs(args.logs)
+    if args.failure and not (args.monitor or args.episodes):
+        raise ConfigError("--failure says what fails in your own env for the alarms' figures: give --monitor or "
+                          "--episodes too")
     if args.monitor:
         return _replay_monitor(args, logs)
     if args.episodes:
@@ -74,7 +81,7 @@ def _replay_episodes(args: argparse.Namespace, logs) -> int:
 
     if args.plots or args.detector:
         raise ConfigError("--episodes lists the episodes; --plots and --detector go with the metrics")
-    rows = episode_rows(logs)
+    rows = episode_rows(logs, failure=args.failure)
     if args.json:
         print(json.dumps(rows, indent=1))
     elif args.csv:
@@ -98,11 +105,11 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
     if logs and not any(log.has_threshold for log in logs):
         raise ConfigError("--monitor counts the alarms, and these logs ran without a threshold, so raised none: "
                           "run with `oodmon run --threshold FILE` (from `oodmon calibrate`)")
-    metrics = compute_monitor_metrics(logs)
+    metrics = compute_monitor_metrics(logs, failure=args.failure)
     if args.plots:
         from oodmon.replay.plots import write_monitor_plots
 
-        written = write_monitor_plots(logs, args.plots)
+        written = write_monitor_plots(logs, args.plots, failure=args.failure)
         print(f"wrote {len(written)} plot(s) to {args.plots}", file=sys.stderr)
     if args.json:
         print(json.dumps([m.to_dict() for m in [*metrics, *monitor_summary(metrics)]], indent=1))

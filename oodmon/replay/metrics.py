@@ -21,13 +21,13 @@ import numpy as np
 
 from oodmon.envs.grid import parse_variant
 from oodmon.envs.shift import parse_env_shift
-from oodmon.errors import OodmonError
+from oodmon.errors import ConfigError, OodmonError
 from oodmon.names import TASKS
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
            "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
-           "detectors_in", "failed_episodes", "failure_known", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable",
+           "FAILURES", "check_failure", "detectors_in", "failed_episodes", "failure_known", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable",
            "shifted_alarms"]
 
 
@@ -148,7 +148,7 @@ class EpisodeAlarms:
     end: int
 
     @classmethod
-    def of(cls, episode: EpisodeLog, task: str) -> EpisodeAlarms:
+    def of(cls, episode: EpisodeLog, task: str, failure: str | None = None) -> EpisodeAlarms:
         """Example:
             >>> from oodmon.replay.reader import EpisodeLog
             >>> alarm = np.zeros(9, bool); alarm[[2, 6]] = True
@@ -159,10 +159,10 @@ class EpisodeAlarms:
             EpisodeAlarms(early=-3, first=1, failure=3, end=3)
         """
         early, first = _onset_alarms(episode)
-        failure = failure_step(episode, task)
+        failed = failure_step(episode, task, failure)
         onset = episode.onset
         return cls(None if early is None else early - onset, None if first is None else first - onset,
-                   None if failure is None else failure - onset, episode.length - 1 - onset)
+                   None if failed is None else failed - onset, episode.length - 1 - onset)
 
     @property
     def before_failure(self) -> bool:
@@ -170,10 +170,12 @@ class EpisodeAlarms:
         return self.failure is not None and self.first is not None and self.first < self.failure
 
 
-def shifted_alarms(logs: Iterable[RunLog]) -> dict[tuple[str, str, str], list[EpisodeAlarms]]:
+def shifted_alarms(logs: Iterable[RunLog], failure: str | None = None
+                   ) -> dict[tuple[str, str, str], list[EpisodeAlarms]]:
     """:class:`EpisodeAlarms` of every shifted episode, by (task, method, variant), of the
-    variants whose runs all had a threshold (the others raised no alarms to draw)."""
-    return {key: [EpisodeAlarms.of(e, key[0]) for _, e in pairs]
+    variants whose runs all had a threshold (the others raised no alarms to draw); ``failure``:
+    what fails in an env oodmon has no variants of (:data:`FAILURES`)."""
+    return {key: [EpisodeAlarms.of(e, key[0], failure) for _, e in pairs]
             for key, pairs in sorted(_episodes_by_variant(logs).items())
             if not is_id_variant(key[2]) and _thresholded(pairs)}
 
@@ -288,22 +290,36 @@ PENDULUM_FAILURE_REWARD = -1.0
 #: :func:`failure_step` in one line, for the reports.
 FAILURE_DEFINITION = ("failed: CartPole's episode ended by itself after the onset; Pendulum's mean reward over the last "
                       f"{PENDULUM_FAILURE_WINDOW} steps fell below {PENDULUM_FAILURE_REWARD:g} after the onset "
-                      "(oodmon.replay.failure_step); an env oodmon has no variants of: not defined (blank); "
-                      "delays in steps from the onset")
+                      "(oodmon.replay.failure_step); an env oodmon has no variants of: not defined (blank) unless "
+                      "--failure terminated (the env ended the episode itself); delays in steps from the onset")
+
+#: What may count as a failure of an env oodmon has no variants of (replay's and bench's
+#: ``--failure``): ``terminated``, the env ended the episode itself after the onset (a fall, a
+#: crash: Hopper's, LunarLander's), as CartPole's failure is told.
+FAILURES = ("terminated",)
 
 
-def failure_known(task: str) -> bool:
-    """Whether oodmon tells a failed episode of ``task``: its own tasks (Pong's never fail here),
-    not an env it has no variants of, whose end may be a success (Acrobot's, MountainCar's).
+def check_failure(failure: str | None) -> str | None:
+    """``failure`` if it is ``None`` or one of :data:`FAILURES`, else :class:`ConfigError`."""
+    if failure is not None and failure not in FAILURES:
+        raise ConfigError(f"failure={failure!r}: what counts as a failure of your own env, one of "
+                          f"{', '.join(FAILURES)} (the env ended the episode itself), or none")
+    return failure
+
+
+def failure_known(task: str, failure: str | None = None) -> bool:
+    """Whether a failed episode of ``task`` is told: oodmon's own tasks (Pong's never fail here),
+    and an env it has no variants of only when ``failure`` says what one is (its end may be a
+    success: Acrobot's, MountainCar's).
 
     Example:
-        >>> failure_known("cartpole"), failure_known("Acrobot-v1")
-        (True, False)
+        >>> failure_known("cartpole"), failure_known("Acrobot-v1"), failure_known("Hopper-v5", "terminated")
+        (True, False, True)
     """
-    return task in TASKS
+    return task in TASKS or check_failure(failure) is not None
 
 
-def failure_step(episode: EpisodeLog, task: str) -> int | None:
+def failure_step(episode: EpisodeLog, task: str, failure: str | None = None) -> int | None:
     """The step at which a shifted episode failed, or ``None`` (no failure after the onset, or unknown).
 
     - An episode the env ended itself (``terminated``: CartPole's pole fell or its cart left the
@@ -312,7 +328,8 @@ def failure_step(episode: EpisodeLog, task: str) -> int | None:
       :data:`PENDULUM_FAILURE_WINDOW` steps is below :data:`PENDULUM_FAILURE_REWARD`, provided it
       was above at the onset (a pole not yet swung up at the onset does not count as a failure).
     - Pong has no failure here (a lost point is part of an ID game), nor has a log without rewards
-      and ``terminated`` (format < 4), nor an env oodmon has no variants of (:func:`failure_known`).
+      and ``terminated`` (format < 4), nor an env oodmon has no variants of (:func:`failure_known`)
+      unless ``failure="terminated"``: it then fails as CartPole does.
 
     Example:
         >>> from oodmon.replay.reader import EpisodeLog
@@ -331,7 +348,7 @@ def failure_step(episode: EpisodeLog, task: str) -> int | None:
             return None
         below = np.flatnonzero(means[episode.onset:] < PENDULUM_FAILURE_REWARD)
         return int(episode.onset + below[0]) if len(below) else None
-    if task == "pong" or not failure_known(task) or not episode.terminated:
+    if task == "pong" or not failure_known(task, failure) or not episode.terminated:
         return None
     last = episode.length - 1
     return last if last >= episode.onset else None
@@ -403,11 +420,12 @@ class MonitorMetrics:
                                "before_failure_rate": self.before_failure_rate}
 
 
-def compute_monitor_metrics(logs: Iterable[RunLog]) -> list[MonitorMetrics]:
+def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) -> list[MonitorMetrics]:
     """The monitor's benchmark figures per (task, method, variant) from the logs' alarms
     (the alarm the runs raised, whatever detector it read), in a stable order. A (task, method,
     variant) with a run that had no threshold (:attr:`RunLog.has_threshold`) is left out: it raised
-    no alarms to count."""
+    no alarms to count. ``failure``: what fails in an env oodmon has no variants of
+    (:data:`FAILURES`; none: its failure columns are ``None``)."""
     from oodmon.monitor.threshold import clopper_pearson
 
     results = []
@@ -420,8 +438,8 @@ def compute_monitor_metrics(logs: Iterable[RunLog]) -> list[MonitorMetrics]:
             results.append(MonitorMetrics(task, method, variant, len(pairs), false_alarms=alarmed,
                                           far_low=low, far_high=high))
             continue
-        episodes = [EpisodeAlarms.of(e, task) for _, e in pairs]
-        known = failure_known(task)  # else failed and alarmed before failure are None: blank, not "0 failed"
+        episodes = [EpisodeAlarms.of(e, task, failure) for _, e in pairs]
+        known = failure_known(task, failure)  # else failed and alarmed before failure are None: blank, not "0 failed"
         results.append(monitor_row(task, method, variant, len(episodes), sum(e.early is not None for e in episodes),
                                    sum(e.failure is not None for e in episodes) if known else None,
                                    sum(e.before_failure for e in episodes) if known else None,

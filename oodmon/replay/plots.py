@@ -290,13 +290,14 @@ def plot_alarm_timeline(variants: dict[str, Sequence[EpisodeAlarms]], title: str
     return save_figure(fig, path)
 
 
-def write_monitor_plots(logs: Sequence[RunLog], folder: str | Path) -> list[Path]:
-    """``replay --monitor --plots``: an alarm timeline per agent (task and method), into ``folder``."""
+def write_monitor_plots(logs: Sequence[RunLog], folder: str | Path, failure: str | None = None) -> list[Path]:
+    """``replay --monitor --plots``: an alarm timeline per agent (task and method), into ``folder``
+    (``failure``: what fails in an env oodmon has no variants of)."""
     by_agent: dict[tuple[str, str], dict[str, list[EpisodeAlarms]]] = defaultdict(dict)
-    for (task, method, variant), episodes in shifted_alarms(logs).items():
+    for (task, method, variant), episodes in shifted_alarms(logs, failure).items():
         by_agent[(task, method)][variant] = episodes
     written = [plot_alarm_timeline(variants, f"{task}/{method}: the first alarm of each shifted episode",
                                    Path(folder) / f"alarms_{safe_filename(task)}_{safe_filename(method)}.png",
-                                   failures=failure_known(task))
+                                   failures=failure_known(task, failure))
                for (task, method), variants in sorted(by_agent.items())]
     return [p for p in written if p is not None]

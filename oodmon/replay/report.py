@@ -184,12 +184,13 @@ EPISODE_COLUMNS = [
 ]
 
 
-def episode_rows(logs: Sequence[RunLog]) -> list[dict]:
+def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dict]:
     """One row per logged episode, in each log's order, the interrupted ones (a run stopped or torn
     inside them, left out of the metrics) among them: what each episode did and when it alarmed.
 
     ``onset``, ``delay`` (steps from the onset to the first alarm; negative: before the onset) and
-    ``failure_step`` (:func:`~oodmon.replay.metrics.failure_step`) are ``None`` for ID episodes;
+    ``failure_step`` (:func:`~oodmon.replay.metrics.failure_step`, ``failure`` what fails in an env
+    oodmon has no variants of) are ``None`` for ID episodes;
     ``return`` is ``None`` where the log does not have it (an episode cut at a tear); ``ended``
     is ``terminated`` (the env ended it), ``time limit`` (or an alarm callback), ``interrupted``, or
     ``""`` (logs older than format 4).
@@ -206,7 +207,7 @@ def episode_rows(logs: Sequence[RunLog]) -> list[dict]:
                 "return": None if e.total_return != e.total_return else e.total_return,  # NaN: not logged
                 "alarms": e.alarms, "first_alarm_step": e.first_alarm_step,
                 "delay": e.first_alarm_step - e.onset if shifted and e.first_alarm_step is not None else None,
-                "failure_step": failure_step(e, log.task) if shifted and not e.interrupted else None,
+                "failure_step": failure_step(e, log.task, failure) if shifted and not e.interrupted else None,
                 "ended": ended,
             })
     return rows

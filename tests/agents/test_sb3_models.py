@@ -617,13 +617,18 @@ def test_bench_runs_the_monitors_protocol_on_shifts_of_your_own_env(tmp_path, ca
     assert main([*argv[:-2], "--baseline", str(tmp_path / "mc.json")]) == 0  # from the cache, every figure held
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*.mcap")} == stamps
     assert "every figure of" in capsys.readouterr().err
+    assert main([*argv[:-2], "--failure", "terminated", "--json"]) == 0  # what fails, told: replayed from the cache
+    told = {r["variant"]: r for r in json.loads(capsys.readouterr().out)["alarms"]}
+    assert told["MountainCar-v0:gravity=0.01"]["failed"] == 0  # an untrained DQN never makes it end the episode
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*.mcap")} == stamps
     for change, words in [(["--protocol", "paper"], "bench it with the monitor's protocol"),
                           (["--onsets", None], "the steps its shifts may begin at"),
                           (["--variants", "paper"], "shifts of your own"),
                           (["--variants", "Acrobot-v1:LINK_MASS_2=3.0"], "shifts Acrobot-v1, not MountainCar-v0"),
                           (["--variants", "MountainCar-v0"], "the bench runs its ID episodes itself"),
-                          (["--onsets", "100,50"], "is not LOW,HIGH")]:
-        changed = list(argv)
+                          (["--onsets", "100,50"], "is not LOW,HIGH"),
+                          (["--failure", "fell"], "invalid choice: 'fell'")]:
+        changed = list(argv) if change[0] in argv else [*argv, *change]
         at = changed.index(change[0])
         if change[1] is None:
             del changed[at:at + 2]
@@ -848,6 +853,13 @@ def test_a_shift_of_your_own_env_runs_from_its_onset_and_replay_counts_it_shifte
     assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == [
         "alarms_MountainCar-v0_sb3.png", "auroc_vs_shift_MountainCar-v0.png", "roc_MountainCar-v0_gravity_0.005.png",
         "trace_sb3_MountainCar-v0_gravity_0.005.png"]
+    # told what fails (here, to see the plumbing: the env ending an episode, which this untrained
+    # DQN never makes MountainCar do), the failure columns count it; --failure alone is refused
+    assert main(["replay", "--monitor", "--json", "--failure", "terminated", *logs_named]) == 0
+    told = {r["variant"]: r for r in json.loads(capsys.readouterr().out)}
+    assert told["MountainCar-v0:gravity=0.005"]["failed"] == 0 and heavy.failed is None
+    assert main(["replay", "--failure", "terminated", *logs_named]) == 2
+    assert "give --monitor or --episodes too" in capsys.readouterr().err
     # what a person gets wrong is said in one line
     for variant, words in [("Acrobot-v1:LINK_MASS_2=3.0", "shifts Acrobot-v1, not MountainCar-v0"),
                            ("MountainCar-v0:gravty=0.005", "no numeric attribute 'gravty'.*gravity"),

@@ -191,3 +191,27 @@ def test_the_monitor_table_names_the_task_of_each_pooled_row_when_there_are_seve
 
     assert pooled_cells("cartpole") == ["all shifted"]
     assert pooled_cells("cartpole", "pendulum") == ["all shifted (cartpole)", "all shifted (pendulum)"]
+
+
+def test_your_own_envs_failure_is_told_only_when_you_say_what_it_is():
+    # Hopper falls and the env ends the episode (a failure); Acrobot ends it when it reaches its
+    # goal (a success): oodmon cannot tell them apart, so it tells neither unless told.
+    from oodmon.errors import ConfigError
+    from oodmon.replay import compute_monitor_metrics, failure_step
+    from oodmon.replay.metrics import check_failure
+
+    shift = "Hopper-v5:model.body_mass[1]=8.0"
+    fell_after_alarm = _run(0, shift, 3, [0, 0, 0, 0, 1, 0, 0, 0, 0], terminated=True)  # alarm at 4, fell at 8
+    fell_unalarmed = _run(1, shift, 3, [0] * 9, terminated=True)
+    kept_going = _run(2, shift, 3, [0, 0, 0, 0, 0, 1, 0, 0, 0], terminated=False)
+    ids = [_run(k, "Hopper-v5", 0, [0] * 9, terminated=False) for k in range(3, 6)]
+    assert failure_step(fell_after_alarm, "Hopper-v5") is None
+    assert failure_step(fell_after_alarm, "Hopper-v5", "terminated") == 8
+    assert failure_step(kept_going, "Hopper-v5", "terminated") is None
+    logs = [RunLog(Path("h.mcap"), "Hopper-v5", "sb3", 1.0, {}, [fell_after_alarm, fell_unalarmed, kept_going, *ids], True)]
+    untold, told = (next(m for m in compute_monitor_metrics(logs, failure) if m.variant == shift)
+                    for failure in (None, "terminated"))
+    assert (untold.alarmed, untold.failed, untold.before_failure) == (2, None, None)
+    assert (told.alarmed, told.failed, told.before_failure, told.before_failure_rate) == (2, 2, 1, 0.5)
+    with pytest.raises(ConfigError, match="failure='fell': what counts as a failure of your own env, one of terminated"):
+        check_failure("fell")
