@@ -49,7 +49,7 @@ from oodmon.versions import library_versions
 from oodmon.hashing import file_sha256
 from oodmon.validation import is_real, is_whole
 
-__all__ = ["SEGMENT_STEPS", "AlarmCallback", "Monitor", "MonitoredEnv", "check_env_of"]
+__all__ = ["SEGMENT_STEPS", "AlarmCallback", "Monitor", "MonitoredEnv", "NonFiniteObservationWarning", "check_env_of"]
 
 #: Steps of an episode after which the monitor hands its segment on (see ``Monitor(segment_steps=)``):
 #: about 10 MB of score arrays in ``McapSink`` with four detectors, 17 minutes at 100 decisions a second.
@@ -504,14 +504,33 @@ class Monitor:
 
         ``options`` go to ``env.reset`` (oodmon's envs take ``{"onset_step": n}``: this episode
         shifts from step n on). ``on_progress("decisions", steps, max_steps or 0)`` is called after each step
-        (progress within long episodes: a Pong game is thousands of decisions).
+        (progress within long episodes: a Pong game is thousands of decisions). An observation that
+        is not finite (a failed sensor, a shift that blew the env's physics up) is scored as any
+        (every detector +inf: an alarm); a policy that cannot act on it (SB3's raise) ends the
+        episode there, the step logged with the action before it, with a
+        :class:`NonFiniteObservationWarning`.
         """
         obs, info = env.reset(seed=seed, options=options)
         self.begin_episode(env_id=env_id_of(env), variant=variant or variant_of_env(env), onset=onset_of_env(env),
                            seed=seed)
+        previous = None
         try:
             while True:
-                action = self.step(obs, shifted=bool(info.get("shifted", False)), frame=_frame(obs))
+                try:
+                    action = self.step(obs, shifted=bool(info.get("shifted", False)), frame=_frame(obs))
+                except Exception as error:
+                    if _finite(obs) or previous is None:
+                        raise
+                    # A policy that cannot act on a NaN or infinite reading (SB3's raise): the
+                    # step is scored (+inf: an alarm) and logged with the action before it, and
+                    # the episode ends there. (oodmon's agents act on one, and go on.)
+                    warnings.warn(NonFiniteObservationWarning(
+                        f"episode {self.episode}: the policy could not act on the observation after step "
+                        f"{self._length - 1}, which is not finite ({_shown(obs)}; {type(error).__name__}): it is "
+                        "scored and the episode ends there (a shift that blew the env's physics up?)"), stacklevel=2)
+                    self.step(obs, action=previous, shifted=bool(info.get("shifted", False)), frame=_frame(obs))
+                    break
+                previous = action
                 obs, reward, terminated, truncated, info = env.step(action)
                 self.add_reward(reward)
                 if on_progress is not None:
@@ -577,9 +596,24 @@ def _stacking_of(env: gymnasium.Env) -> Any:
 
 
 def _finite(obs: Any) -> bool:
-    """Whether every number of an observation is finite (an integer observation always is: Pong's frames)."""
+    """Whether every number of an observation (a dict's too) is finite (an integer observation
+    always is: Pong's frames)."""
+    if isinstance(obs, dict):
+        return all(_finite(value) for value in obs.values())
     obs = np.asarray(obs)
     return obs.dtype.kind not in "fc" or bool(np.isfinite(obs).all())
+
+
+class NonFiniteObservationWarning(RuntimeWarning):
+    """:meth:`Monitor.run_episode` ended an episode whose env returned a NaN or infinite reading."""
+
+
+def _shown(obs: Any) -> str:
+    """``obs`` in a line: its values, or its shape when it is large."""
+    values = np.asarray(obs) if not isinstance(obs, dict) else None
+    if values is None or values.size > 8:
+        return "shape " + ("a dict" if values is None else str(values.shape))
+    return np.array2string(values.reshape(-1), precision=3)
 
 
 def _frame(obs: np.ndarray) -> np.ndarray | None:

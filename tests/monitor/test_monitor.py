@@ -3,6 +3,8 @@ the wrapper, and the false-alarm guarantee on fresh ID episodes."""
 
 from __future__ import annotations
 
+import warnings
+
 import gymnasium
 import numpy as np
 import pytest
@@ -301,6 +303,44 @@ def test_a_nan_observation_scores_inf_on_every_detector_and_alarms(agent, tmp_pa
     assert np.isinf(log.episodes[0].scores[50:53]).all()
     row = next(m for m in compute_metrics([log]) if m.variant == "cartpole:length=2.0")
     assert row.auroc is not None and 0.0 <= row.auroc <= 1.0  # sklearn ranked the +inf steps
+
+
+def test_run_episode_ends_an_episode_whose_policy_cannot_act_on_a_nan_and_alarms_on_it(agent):
+    """SB3's PPO raises on a NaN observation (its Categorical's check), and `oodmon run` stopped with
+    that traceback when a shift blew the env's physics up. Now the NaN step is scored (+inf: the
+    alarm) and logged with the action before it, and the episode ends there with a warning; a
+    policy that acts on it goes on as before, and an error on a finite observation is not hidden."""
+    from oodmon.monitor import MemorySink, NonFiniteObservationWarning
+
+    def like_sb3(obs):
+        if not np.isfinite(obs).all():
+            raise ValueError("Expected parameter logits ... but found invalid values")
+        return agent.act(obs)
+
+    for policy, length in ((like_sb3, 51), (None, None)):  # None: the agent's own decision
+        sink = MemorySink()
+        with Monitor(agent, threshold=4.0, consecutive=1, sinks=[sink]) as monitor:  # m = 1: a learned detector's
+            monitor._act = policy  # the deployed policy, as an SB3 model's predict() would be
+            env = _SensorFailure(gymnasium.make("oodmon/CartPole-v1"), 50, 3)  # NaN angle at steps 50-52
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                record = monitor.run_episode(env, seed=0)
+        ends = [w for w in caught if issubclass(w.category, NonFiniteObservationWarning)]
+        if length is not None:  # ended at the NaN, which alarmed, logged with the action before it
+            assert record.length == 51 and len(ends) == 1 and "not finite ([" in str(ends[0].message)
+            assert sink.steps[50].alarm and sink.steps[50].score == np.inf
+            assert sink.steps[50].action == sink.steps[49].action
+        else:  # oodmon's agents act on a NaN: the episode goes on past the three blind steps
+            assert record.length > 53 and not ends and all(s.alarm for s in sink.steps[50:53])
+
+    def broken(obs):
+        raise RuntimeError("a bug of the policy's own")
+
+    with Monitor(agent, threshold=4.0, sinks=[sink := MemorySink()]) as monitor:
+        monitor._act = broken
+        with pytest.raises(RuntimeError, match="a bug of the policy's own"):
+            monitor.run_episode(gymnasium.make("oodmon/CartPole-v1"), seed=0)
+    assert sink.episodes[-1].interrupted
 
 
 def test_a_nan_score_counts_as_above_the_threshold_in_every_rule():
