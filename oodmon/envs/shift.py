@@ -104,10 +104,15 @@ class _Target:
         return value[self.index].item() if self.index else value
 
     def set(self, value: numbers.Real) -> None:
-        if self.index:
-            getattr(self.holder, self.name)[self.index] = value  # in place: the env reads that array
-        else:
+        if not self.index:
             setattr(self.holder, self.name, value)
+            return
+        array = getattr(self.holder, self.name)
+        array[self.index] = value  # in place: the env reads that array
+        if getattr(self.holder, self.name)[self.index] != array.dtype.type(value):  # a copy was handed out
+            raise InvalidParameterError(
+                f"{self.name}{''.join(f'[{i}]' for i in self.index)}={value!r} changed nothing the env reads: its "
+                f"{self.name} hands out a copy of the array, not the one it steps with")
 
 
 def _target(owner: str, base: object, name: object) -> _Target:
@@ -204,7 +209,8 @@ class ShiftAttributes(gymnasium.Wrapper):
         self.shift = EnvShift(owner, tuple(sorted((n, float(v)) for n, v in {**self._shifted, **faults}.items())))
         self.onset_step = self._configured_onset = check_onset_step(owner, onset_step)
         self._steps = 0
-        self._active = False
+        self._set(shifted=True)  # an array handed out as a copy is refused now, not at the first onset
+        self._set(shifted=False)
 
     def _set(self, shifted: bool) -> None:
         for name, value in (self._shifted if shifted else self._own).items():

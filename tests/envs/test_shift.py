@@ -214,3 +214,14 @@ def test_sensor_faults_need_one_box_observation():
 
     with pytest.raises(UnknownParameterError, match=r"read the readings of a Box observation; .*Dict"):
         ShiftAttributes(DictBodies(), {"obs.bias[0]": 1.0})
+
+
+def test_an_array_handed_out_as_a_copy_is_refused_since_setting_it_changes_nothing():
+    class CopiedMasses(_FallingBodies):
+        @property
+        def masses(self):
+            return self.model.body_mass.copy()
+
+    with pytest.raises(InvalidParameterError, match=r"masses\[1\]=4.0 changed nothing the env reads: its masses hands "
+                                                    "out a copy"):
+        ShiftAttributes(CopiedMasses(), {"masses[1]": 4.0}, onset_step=1)  # when made, before any episode
