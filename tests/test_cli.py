@@ -445,8 +445,9 @@ def test_the_cli_fits_detectors_on_the_librarys_default_number_of_episodes():
 
     import oodmon
     from oodmon.cli import _parser
-    from oodmon.cli.parsing import _FIT_EPISODES, _FIT_STEPS
+    from oodmon.cli.parsing import _FAILURES, _FIT_EPISODES, _FIT_STEPS
     from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES, DEFAULT_FIT_STEPS
+    from oodmon.replay.metrics import FAILURES
 
     parser = _parser()
     assert parser.parse_args(["calibrate", "--task", "cartpole", "--method", "ensemble", "--out", "t.json"]).fit_episodes \
@@ -454,6 +455,7 @@ def test_the_cli_fits_detectors_on_the_librarys_default_number_of_episodes():
     assert parser.parse_args(["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--out", "d"]).episodes \
         is None
     assert (_FIT_EPISODES, _FIT_STEPS) == (DEFAULT_FIT_EPISODES, DEFAULT_FIT_STEPS)
+    assert _FAILURES == FAILURES  # what replay's and bench's --failure take
     # and oodmon.watch, the same fitting from Python (it fitted on 30, the default before 2026-11-24)
     assert inspect.signature(oodmon.watch).parameters["fit_episodes"].default is None
 

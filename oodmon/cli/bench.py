@@ -9,7 +9,7 @@ import sys
 from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent
 from oodmon.cli.parsing import (
-    _FIT_EPISODES, _FIT_STEPS, _KEPT, _UNSET, _add_confidence, _add_rule, _command_line, _fraction, _non_negative, _sb3_arguments,
+    _FAILURES, _FIT_EPISODES, _FIT_STEPS, _KEPT, _UNSET, _add_confidence, _add_rule, _command_line, _fraction, _non_negative, _sb3_arguments,
     _whole, _widths,
 )
 from oodmon.errors import ConfigError
@@ -45,7 +45,7 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     bench.add_argument("--variants", default="paper",
                        help="'paper' (the paper's grid) or comma-separated specs (cartpole:gravity=20.0,length=2.0 "
                             "is one); your own --env: its shifts, e.g. Acrobot-v1:LINK_MASS_2=2.0,Acrobot-v1:LINK_MASS_2=3.0")
-    bench.add_argument("--failure", choices=["terminated"],
+    bench.add_argument("--failure", choices=_FAILURES,
                        help="your own --env: what fails in it, for the alarms before the failure (blank without "
                             "it): terminated, the env ended the episode itself after the onset (a fall, a crash)")
     bench.add_argument("--onsets", type=_onsets, metavar="LOW,HIGH",

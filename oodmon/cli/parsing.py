@@ -140,6 +140,8 @@ def _add_confidence(parser: argparse.ArgumentParser, default: str | None = None)
 #: here would load the detectors (scipy, gymnasium) before every command; a test keeps them equal.
 _FIT_EPISODES = 90
 _FIT_STEPS = 45_000
+#: oodmon.replay.metrics.FAILURES, written out for the same reason: what ``--failure`` takes.
+_FAILURES = ("terminated",)
 
 
 #: An option left at its default where the default depends on another option (bench's --protocol).

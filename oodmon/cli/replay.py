@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from rich.console import Console
 
 from oodmon.cli.display import _table_console
-from oodmon.cli.parsing import _non_negative
+from oodmon.cli.parsing import _FAILURES, _non_negative
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import write_json
 
@@ -34,7 +34,7 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:
     views.add_argument("--episodes", action="store_true",
                        help="one row per episode instead: its steps, return, alarms, first alarm, delay, failure and "
                             "how it ended (interrupted ones too, which the metrics leave out)")
-    replay.add_argument("--failure", choices=["terminated"],
+    replay.add_argument("--failure", choices=_FAILURES,
                         help="--monitor, --episodes: what fails in an env oodmon has no variants of (its failure "
                              "columns are blank without it): terminated, the env ended the episode itself after the "
                              "onset (a fall, a crash: Hopper's; not Acrobot's, whose end is its goal)")

@@ -23,7 +23,7 @@ from oodmon.envs.grid import ENV_IDS, TASKS, Variant, paper_grid, parse_variant
 from oodmon.envs.physics import CARTPOLE_DEFAULTS, PENDULUM_DEFAULTS, ShiftedCartPole, ShiftedPendulum
 from oodmon.envs.pong import CorruptedPong, to_agent_view
 from oodmon.envs.registration import register_envs
-from oodmon.envs.shift import EnvShift, ShiftAttributes, own_variant, parse_env_shift
+from oodmon.envs.shift import EnvShift, ShiftAttributes, own_variant, parse_any_variant, parse_env_shift
 
 __all__ = [
     "CARTPOLE_DEFAULTS",
@@ -45,6 +45,7 @@ __all__ = [
     "make_corruption",
     "own_variant",
     "paper_grid",
+    "parse_any_variant",
     "parse_env_shift",
     "parse_variant",
     "register_envs",

@@ -43,7 +43,7 @@ from oodmon.envs.checks import check_onset_step, episode_onset
 from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
 from oodmon.names import TASKS
 
-__all__ = ["EnvShift", "SensorFaults", "ShiftAttributes", "own_variant", "parse_env_shift"]
+__all__ = ["EnvShift", "SensorFaults", "ShiftAttributes", "own_variant", "parse_any_variant", "parse_env_shift"]
 
 _SPEC_HELP = "expected ENV_ID:NAME=VALUE[,NAME=VALUE...], e.g. 'Acrobot-v1:LINK_MASS_2=3.0'"
 
@@ -267,16 +267,18 @@ class SensorFaults:
     KINDS: ClassVar[tuple[str, ...]] = ("bias", "scale", "noise", "stuck")
     _UNCHANGED: ClassVar[Mapping[str, float]] = MappingProxyType({"bias": 0.0, "scale": 1.0, "noise": 0.0, "stuck": 0.0})
 
-    def __init__(self, changes: dict[str, float], size: int) -> None:
+    def __init__(self, changes: dict[str, float], faults: list[tuple[str, int, float]], size: int) -> None:
+        """``changes`` as the spec names them; ``faults`` the same as (kind, reading, value), parsed
+        and checked by :meth:`of`; ``size`` the readings of an observation."""
         self.changes = changes
         self.bias, self.scale, self.noise = np.zeros(size), np.ones(size), np.zeros(size)
         self.stuck = np.zeros(size, bool)
-        for name, value in changes.items():
-            kind, index = name[4:].split("[")[0], int(name.split("[")[1][:-1])
+        for kind, index, value in faults:
             if kind == "stuck":
                 self.stuck[index] = True
             else:
                 getattr(self, kind)[index] = value
+        self._noisy, self._holds = bool(self.noise.any()), bool(self.stuck.any())
         self._held: np.ndarray | None = None
         self._last: np.ndarray | None = None
         self._rng = np.random.default_rng(0)
@@ -297,7 +299,7 @@ class SensorFaults:
         if not isinstance(space, gymnasium.spaces.Box):
             raise UnknownParameterError(f"{owner}: sensor faults ({', '.join(changes)}) read the readings of a Box "
                                         f"observation; {owner}'s is {space}")
-        size, kept = int(np.prod(space.shape)), {}
+        size, kept, faults = int(np.prod(space.shape)), {}, []
         for name, value in changes.items():
             match = re.fullmatch(r"obs\.(\w+)\[(\d+)\]", name)
             if match is None or match.group(1) not in cls.KINDS:
@@ -315,9 +317,10 @@ class SensorFaults:
                                                "give a finite number"))
             if value != cls._UNCHANGED[kind]:
                 kept[name] = float(value)
+                faults.append((kind, index, float(value)))
         if not kept:
             raise InvalidParameterError(f"{owner}: {changes} change no reading; a shift changes at least one")
-        return cls(kept, size)
+        return cls(kept, faults, size)
 
     def begin_episode(self, seed: int | None, obs) -> None:
         """A new episode: its noise seeded by ``seed`` (``None``: the generator goes on), its first reading kept."""
@@ -329,12 +332,16 @@ class SensorFaults:
         """``obs`` as the sensors report it: itself before the fault, through the faults after."""
         flat = np.asarray(obs).reshape(-1)
         if not faulty:
-            self._last = flat.copy()
+            if self._holds:  # the last reading before the fault, which a stuck sensor holds
+                self._last = flat.copy()
             return obs
-        if self._held is None:  # the fault begins: a stuck sensor holds its last reading
-            self._held = self._last if self._last is not None else flat.copy()
-        reading = flat.astype(np.float64) * self.scale + self.bias + self.noise * self._rng.normal(size=flat.shape)
-        reading[self.stuck] = self._held[self.stuck]
+        reading = flat.astype(np.float64) * self.scale + self.bias
+        if self._noisy:
+            reading += self.noise * self._rng.normal(size=flat.shape)
+        if self._holds:
+            if self._held is None:  # the fault begins: a stuck sensor holds its last reading
+                self._held = self._last if self._last is not None else flat.copy()
+            reading[self.stuck] = self._held[self.stuck]
         return reading.astype(np.asarray(obs).dtype).reshape(np.shape(obs))
 
 
@@ -356,6 +363,8 @@ class EnvShift:
 
     env_id: str
     params: tuple[tuple[str, float], ...]
+    corruption = None  # as a Variant has them: a shift of your own env corrupts no frames
+    severity = None
 
     @property
     def spec(self) -> str:
@@ -396,6 +405,26 @@ def own_variant(spec: str, env_id: str) -> EnvShift:
         raise SpecError(f"{spec!r} shifts {shift.env_id}, not {env_id}: give {env_id}:NAME=VALUE, a numeric "
                         "attribute of its env and its shifted value")
     return shift
+
+
+def parse_any_variant(spec: str):
+    """A logged variant's spec read back: oodmon's :class:`~oodmon.envs.grid.Variant`, else a
+    shift of your own env (:func:`parse_env_shift`).
+
+    Raises:
+        OodmonError: neither (an env's id alone is neither: its runs are the env as it is).
+
+    Example:
+        >>> parse_any_variant("cartpole:length=2.0").params, parse_any_variant("Acrobot-v1:dt=0.1").params
+        ((('length', 2.0),), (('dt', 0.1),))
+    """
+    from oodmon.envs.grid import parse_variant
+    from oodmon.errors import OodmonError
+
+    try:
+        return parse_variant(spec)
+    except OodmonError:
+        return parse_env_shift(spec)
 
 
 def parse_env_shift(spec: str) -> EnvShift:

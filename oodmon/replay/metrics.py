@@ -19,8 +19,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from oodmon.envs.grid import parse_variant
-from oodmon.envs.shift import parse_env_shift
+from oodmon.envs.shift import parse_any_variant
 from oodmon.errors import ConfigError, OodmonError
 from oodmon.names import TASKS
 from oodmon.replay.reader import EpisodeLog, RunLog
@@ -192,11 +191,7 @@ def is_id_variant(variant: str) -> bool:
         False
     """
     try:
-        return parse_variant(variant).is_id
-    except OodmonError:
-        pass
-    try:
-        return parse_env_shift(variant).is_id
+        return parse_any_variant(variant).is_id
     except OodmonError:
         return True
 

@@ -17,9 +17,7 @@ from pathlib import Path
 import numpy as np
 from sklearn.metrics import roc_curve
 
-from oodmon.envs.grid import parse_variant
-from oodmon.envs.shift import parse_env_shift
-from oodmon.errors import OodmonError
+from oodmon.envs.shift import parse_any_variant
 from oodmon.outputs import safe_filename, save_figure
 from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, failure_known, is_id_variant, rankable,
                                    shifted_alarms)
@@ -168,16 +166,6 @@ def episode_name(episode) -> str:
     return f"{episode.variant}\nseed {episode.seed}, onset {episode.onset}, return {episode.total_return:.0f}"
 
 
-def _shift_parameters(spec: str) -> tuple[str | None, int | None, tuple[tuple[str, float], ...]]:
-    """A shifted variant's corruption, severity and parameters: oodmon's variant, or a shift of
-    your own env (:func:`~oodmon.envs.shift.parse_env_shift`: parameters only)."""
-    try:
-        variant = parse_variant(spec)
-    except OodmonError:
-        return None, None, parse_env_shift(spec).params
-    return variant.corruption, variant.severity, variant.params
-
-
 def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str | Path) -> Path | None:
     """AUROC against each parameter's value (log scale) or the severity, one line per method and
     detector (that of the metrics' rows)."""
@@ -185,11 +173,11 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
     for m in metrics:
         if m.task != task or m.auroc is None:
             continue
-        corruption, severity, params = _shift_parameters(m.variant)
-        if corruption is not None and severity is not None:
-            series[(corruption, f"{m.method}, {m.detector}")].append((severity, m.auroc))
-        elif len(params) == 1:
-            name, value = params[0]
+        variant = parse_any_variant(m.variant)  # oodmon's, or a shift of your own env
+        if variant.corruption is not None and variant.severity is not None:
+            series[(variant.corruption, f"{m.method}, {m.detector}")].append((variant.severity, m.auroc))
+        elif len(variant.params) == 1:
+            name, value = variant.params[0]
             series[(name, f"{m.method}, {m.detector}")].append((value, m.auroc))
     if not series:
         return None
