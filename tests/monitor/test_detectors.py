@@ -679,3 +679,28 @@ def test_your_own_envs_default_fitting_plays_on_until_its_episodes_hold_enough_s
     mountain_car = DQN("MlpPolicy", gymnasium.make("MountainCar-v0"), seed=1, policy_kwargs={"net_arch": [8]})
     fitted = fit_agent_detectors(sb3_agent([mountain_car], "MountainCar-v0"))  # combined too: its last third ranks
     assert fitted.names == ["dynamics", "combined"] and fitted.fitted_for["episodes"] == 5
+
+
+def test_a_dynamics_model_fitted_on_a_still_policy_scores_a_far_transition_without_an_overflow_warning():
+    """A policy that holds its env nearly still (a balanced MuJoCo InvertedPendulum: observations'
+    std ~1e-3) gives normalised inputs of hundreds at an episode's first steps; the batch path's
+    SiLU, z / (1 + exp(-z)), overflowed there and `oodmon calibrate` printed "overflow encountered
+    in exp" (the score itself was right: SiLU of a large negative z is -0.0)."""
+    rng = np.random.default_rng(0)
+    trajectories = []
+    for _ in range(3):
+        obs = [1e-3 * rng.standard_normal(3)]
+        actions = 1e-3 * rng.standard_normal((50, 1))
+        for a in actions:
+            obs.append(0.99 * obs[-1] + a[0] + 1e-4 * rng.standard_normal(3))
+        trajectories.append(Trajectory(np.array(obs, np.float32), actions.astype(np.float32)))
+    far = np.full((1, 3), 5.0, np.float32)  # thousands of the fitted stds away
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        detector = DynamicsDetector(None, epochs=3, seed=0).fit(trajectories)
+        batch = detector.score_transitions(far, np.array([[1.0]], np.float32), far * 0.5)
+        one = detector._nll_one(far[0], np.array([1.0], np.float32), far[0] * 0.5)
+    own = trajectories[0]
+    id_highest = detector.score_transitions(own.observations[:-1], own.actions, own.observations[1:]).max()
+    assert np.isfinite(batch[0]) and batch[0] > 1e3 * id_highest > 0  # far out, and scored so
+    np.testing.assert_allclose(one, batch[0], rtol=1e-3)

@@ -456,7 +456,8 @@ def _forward_numpy(weights, x: np.ndarray, min_logvar: float = _MIN_LOGVAR):
     h = repeat_rows(x, weights[0][0].shape[0])
     for w, b in weights[:-1]:
         z = np.matmul(h, w) + b
-        h = z / (1.0 + np.exp(-z))  # SiLU
+        with np.errstate(over="ignore"):  # exp(-z) = inf below z = -88 (float32): SiLU is then -0.0, as it should
+            h = z / (1.0 + np.exp(-z))  # SiLU
     mean, raw = _split(np.matmul(h, weights[-1][0]) + weights[-1][1])
     logvar = _MAX_LOGVAR - _softplus(_MAX_LOGVAR - raw)
     return mean, min_logvar + _softplus(logvar - min_logvar)
