@@ -205,7 +205,8 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
         far = (f"false alarms {ids[0].false_alarms}/{ids[0].episodes} ID episodes (95% interval {ids[0].far_low:.1%}-"
                f"{ids[0].far_high:.1%}, target {config.far:g})" if ids else "")
         before = (f"no failure told for {config.task} (an env oodmon has no variants of)" if row.failed is None
-                  else f"{row.before_failure}/{row.failed} failing episodes alarmed before the failure" if row.failed
+                  else f"{row.before_failure}/{row.failed} failing episodes alarmed before the failure"
+                  + ("" if row.lead_median is None else f" (lead median {row.lead_median:.3g} steps)") if row.failed
                   else "no episode failed after its onset")
         delays = ("no alarm after an onset" if row.delay_median is None
                   else f"delay median {row.delay_median:.3g} p90 {row.delay_p90:.3g} steps")

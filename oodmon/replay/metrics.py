@@ -168,6 +168,12 @@ class EpisodeAlarms:
         """Alarmed at or after the onset and before the failure (a failed episode)."""
         return self.failure is not None and self.first is not None and self.first < self.failure
 
+    @property
+    def lead(self) -> int | None:
+        """The warning the alarm gave: steps from the first alarm at or after the onset to the
+        failure, in an episode alarmed before it (else ``None``)."""
+        return self.failure - self.first if self.before_failure else None
+
 
 def shifted_alarms(logs: Iterable[RunLog], failure: str | None = None
                    ) -> dict[tuple[str, str, str], list[EpisodeAlarms]]:
@@ -286,7 +292,8 @@ PENDULUM_FAILURE_REWARD = -1.0
 FAILURE_DEFINITION = ("failed: CartPole's episode ended by itself after the onset; Pendulum's mean reward over the last "
                       f"{PENDULUM_FAILURE_WINDOW} steps fell below {PENDULUM_FAILURE_REWARD:g} after the onset "
                       "(oodmon.replay.failure_step); an env oodmon has no variants of: not defined (blank) unless "
-                      "--failure terminated (the env ended the episode itself); delays in steps from the onset")
+                      "--failure terminated (the env ended the episode itself); delays in steps from the onset; "
+                      "lead: steps from the first alarm to the failure, over the episodes alarmed before it")
 
 #: What may count as a failure of an env oodmon has no variants of (replay's and bench's
 #: ``--failure``): ``terminated``, the env ended the episode itself after the onset (a fall, a
@@ -380,7 +387,8 @@ class MonitorMetrics:
     or after the onset (``early`` ones before it, a false alarm); ``failed`` episodes failed after
     the onset (:func:`failure_step`) and ``before_failure`` of them were alarmed before the failure
     step. Delays are in steps from the onset to the first alarm at or after it, over alarmed
-    episodes (``None`` when none).
+    episodes (``None`` when none); leads (the warning) from that alarm to the failure, over the
+    episodes alarmed before the failure.
     """
 
     task: str
@@ -397,6 +405,8 @@ class MonitorMetrics:
     delay_median: float | None = None
     delay_p90: float | None = None
     delays: tuple[int, ...] = ()
+    lead_median: float | None = None
+    leads: tuple[int, ...] = ()
 
     @property
     def is_id(self) -> bool:
@@ -411,7 +421,8 @@ class MonitorMetrics:
         return self.before_failure / self.failed if self.failed else None
 
     def to_dict(self) -> dict[str, object]:
-        return asdict(self) | {"delays": list(self.delays), "false_alarm_rate": self.false_alarm_rate,
+        return asdict(self) | {"delays": list(self.delays), "leads": list(self.leads),
+                               "false_alarm_rate": self.false_alarm_rate,
                                "before_failure_rate": self.before_failure_rate}
 
 
@@ -438,16 +449,19 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
         results.append(monitor_row(task, method, variant, len(episodes), sum(e.early is not None for e in episodes),
                                    sum(e.failure is not None for e in episodes) if known else None,
                                    sum(e.before_failure for e in episodes) if known else None,
-                                   [e.first for e in episodes if e.first is not None]))
+                                   [e.first for e in episodes if e.first is not None],
+                                   [e.lead for e in episodes if e.lead is not None]))
     return results
 
 
 def monitor_row(task: str, method: str, variant: str, episodes: int, early: int, failed: int | None,
-                before_failure: int | None, delays: Sequence[int]) -> MonitorMetrics:
-    """The :class:`MonitorMetrics` of shifted episodes from their counts and the delays of the
-    alarmed ones (median and 90th percentile computed here, for one variant or several pooled);
-    ``failed`` and ``before_failure`` are ``None`` where no failure is defined (:func:`failure_known`)."""
+                before_failure: int | None, delays: Sequence[int], leads: Sequence[int] = ()) -> MonitorMetrics:
+    """The :class:`MonitorMetrics` of shifted episodes from their counts, the delays of the
+    alarmed ones and the leads of those alarmed before their failure (medians and the delays' 90th
+    percentile computed here, for one variant or several pooled); ``failed`` and
+    ``before_failure`` are ``None`` where no failure is defined (:func:`failure_known`)."""
     return MonitorMetrics(task, method, variant, episodes, early=early, alarmed=len(delays), failed=failed,
                           before_failure=before_failure,
                           delay_median=float(np.median(delays)) if len(delays) else None,
-                          delay_p90=float(np.quantile(delays, 0.9)) if len(delays) else None, delays=tuple(delays))
+                          delay_p90=float(np.quantile(delays, 0.9)) if len(delays) else None, delays=tuple(delays),
+                          lead_median=float(np.median(leads)) if len(leads) else None, leads=tuple(leads))

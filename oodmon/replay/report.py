@@ -112,7 +112,7 @@ def to_markdown(metrics: Sequence[VariantMetrics]) -> str:
 
 #: The heading of each column of the monitor's table.
 MONITOR_COLUMNS = ["method", "variant", "episodes", "false alarms (ID) / early", "alarmed", "failed",
-                   "alarmed before failure", "delay median", "delay p90"]
+                   "alarmed before failure", "lead median", "delay median", "delay p90"]
 
 
 #: The variant of :func:`monitor_summary`'s rows: a (task, method)'s shifted variants pooled.
@@ -136,7 +136,7 @@ def monitor_summary(metrics: Sequence[MonitorMetrics]) -> list[MonitorMetrics]:
 
     return [monitor_row(task, method, POOLED, sum(m.episodes for m in group), sum(m.early for m in group),
                         total([m.failed for m in group]), total([m.before_failure for m in group]),
-                        [d for m in group for d in m.delays])
+                        [d for m in group for d in m.delays], [lead for m in group for lead in m.leads])
             for (task, method), group in sorted(pooled.items())]
 
 
@@ -146,11 +146,11 @@ def monitor_cells(m: MonitorMetrics, *, name_task: bool = False) -> list[str]:
     delay = (lambda v: "" if v is None else f"{v:g}")
     if m.is_id:
         first = f"{_share(m.false_alarms, m.episodes)} [{m.far_low:.1%}, {m.far_high:.1%}]"
-        return [m.method, m.variant, str(m.episodes), first, "", "", "", "", ""]
+        return [m.method, m.variant, str(m.episodes), first, "", "", "", "", "", ""]
     variant = f"{m.variant} ({m.task})" if name_task and m.variant == POOLED else m.variant
     return [m.method, variant, str(m.episodes), _share(m.early, m.episodes), _share(m.alarmed, m.episodes),
-            _share(m.failed, m.episodes), _share(m.before_failure, m.failed), delay(m.delay_median),
-            delay(m.delay_p90)]
+            _share(m.failed, m.episodes), _share(m.before_failure, m.failed), delay(m.lead_median),
+            delay(m.delay_median), delay(m.delay_p90)]
 
 
 def _monitor_rows(metrics: Sequence[MonitorMetrics]) -> list[tuple[bool, list[str]]]:

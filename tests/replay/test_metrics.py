@@ -174,8 +174,10 @@ def test_monitor_metrics_by_hand():
     assert (m.episodes, m.early, m.alarmed, m.failed, m.before_failure) == (4, 1, 3, 3, 1)
     assert m.delays == (3, 14, 7) and m.delay_median == 7 and m.delay_p90 == pytest.approx(12.6)
     assert m.before_failure_rate == pytest.approx(1 / 3)
+    assert m.leads == (11,) and m.lead_median == 11  # the warning: alarm at 8, fall at 19; an alarm at the fall gives none
     (pooled,) = monitor_summary(list(rows.values()))
     assert (pooled.variant, pooled.episodes, pooled.failed, pooled.before_failure) == ("all shifted", 4, 3, 1)
+    assert pooled.leads == (11,) and pooled.to_dict()["leads"] == [11]
 
 
 def test_the_monitor_table_names_the_task_of_each_pooled_row_when_there_are_several():
@@ -213,5 +215,6 @@ def test_your_own_envs_failure_is_told_only_when_you_say_what_it_is():
                     for failure in (None, "terminated"))
     assert (untold.alarmed, untold.failed, untold.before_failure) == (2, None, None)
     assert (told.alarmed, told.failed, told.before_failure, told.before_failure_rate) == (2, 2, 1, 0.5)
+    assert (untold.leads, told.leads, told.lead_median) == ((), (4,), 4.0)
     with pytest.raises(ConfigError, match="failure='fell': what counts as a failure of your own env, one of terminated"):
         check_failure("fell")
