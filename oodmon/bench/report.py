@@ -199,7 +199,8 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
     console.print(monitor_table(result.alarms, title=(
         f"{config.task}: the monitor's benchmark ({config.alarm_detector} detector; shifted episodes shift at a random "
         f"step in [{low}, {high}); far {config.far:g}"
-        + ("" if config.confidence is None else f" with confidence {config.confidence:g}") + ")")))
+        + ("" if config.confidence is None else f" with confidence {config.confidence:g}") + ")"),
+        width=console.width))
     for row in monitor_summary(result.alarms):
         ids = [m for m in result.alarms if m.is_id and m.method == row.method]
         far = (f"false alarms {ids[0].false_alarms}/{ids[0].episodes} ID episodes (95% interval {ids[0].far_low:.1%}-"

@@ -116,7 +116,8 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
     elif args.markdown:
         print(monitor_markdown(metrics), end="")
     else:
-        _table_console().print(monitor_table(metrics, title=f"the alarms of {len(logs)} log(s)"))
+        console = _table_console()
+        console.print(monitor_table(metrics, title=f"the alarms of {len(logs)} log(s)", width=console.width))
         print(FAILURE_DEFINITION, file=sys.stderr)
     return 0
 

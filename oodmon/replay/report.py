@@ -115,6 +115,10 @@ MONITOR_COLUMNS = ["method", "variant", "episodes", "false alarms (ID) / early",
                    "alarmed before failure", "lead median", "delay median", "delay p90"]
 
 
+#: Below this many columns the monitor's table switches to its narrow layout (the wide one's ten
+#: columns leave a variant's name a few characters there).
+MONITOR_NARROW_WIDTH = 170
+
 #: The variant of :func:`monitor_summary`'s rows: a (task, method)'s shifted variants pooled.
 POOLED = "all shifted"
 
@@ -160,8 +164,44 @@ def _monitor_rows(metrics: Sequence[MonitorMetrics]) -> list[tuple[bool, list[st
     return [(m.variant == POOLED, monitor_cells(m, name_task=several)) for m in [*metrics, *monitor_summary(metrics)]]
 
 
-def monitor_table(metrics: Sequence[MonitorMetrics], title: str = "the monitor's benchmark") -> Table:
-    """The monitor's figures per variant, then each method's shifted variants pooled."""
+def _narrow_monitor_table(metrics: Sequence[MonitorMetrics], title: str) -> Table:
+    """The monitor's table for a terminal of about 80 columns: the task (one) and method (one) go
+    into the title and out of the variants' names, the variant wraps instead of being cut, counts
+    without their percentages, the false-alarm rate's interval in the caption."""
+    rows = [*metrics, *monitor_summary(metrics)]
+    tasks, methods = sorted({m.task for m in rows}), sorted({m.method for m in rows})
+    shared = [*tasks[:len(tasks) == 1], *methods[:len(methods) == 1]]
+    intervals = [f"{m.method + ' ' if len(methods) > 1 else ''}{m.far_low:.1%}-{m.far_high:.1%}" for m in rows if m.is_id]
+    table = Table(title=", ".join([title, *shared]), pad_edge=False, caption=(
+        "FA: ID episodes alarmed" + (f" (95% interval {', '.join(intervals)})" if intervals else "")
+        + "; early: alarmed before the onset; before: failing episodes alarmed before the failure (-: none "
+        "failed); lead: median steps from that alarm to the failure; delay: median/p90 steps from the onset"))
+    table.add_column("variant" if len(methods) == 1 else "method variant", overflow="fold", ratio=1)
+    for heading in ("FA/early", "alarmed", "before", "lead", "delay"):
+        table.add_column(heading, justify="right", no_wrap=True)
+
+    def count(part: int | None, whole: int | None) -> str:
+        return "" if part is None or whole is None else "-" if not whole else f"{part}/{whole}"
+
+    for m in rows:
+        name = m.variant.removeprefix(f"{m.task}:") if len(tasks) == 1 else m.variant
+        name = name if len(methods) == 1 else f"{m.method} {name}"
+        if m.is_id:
+            table.add_row(name, count(m.false_alarms, m.episodes), "", "", "", "")
+            continue
+        table.add_row(name, count(m.early, m.episodes), count(m.alarmed, m.episodes), count(m.before_failure, m.failed),
+                      "" if m.lead_median is None else f"{m.lead_median:g}",
+                      "" if m.delay_median is None else f"{m.delay_median:g}/{m.delay_p90:g}",
+                      style="bold" if m.variant == POOLED else None)
+    return table
+
+
+def monitor_table(metrics: Sequence[MonitorMetrics], title: str = "the monitor's benchmark",
+                  width: int | None = None) -> Table:
+    """The monitor's figures per variant, then each method's shifted variants pooled; a terminal
+    ``width`` below :data:`MONITOR_NARROW_WIDTH` gets the narrow layout, readable at 80 columns."""
+    if width is not None and width < MONITOR_NARROW_WIDTH:
+        return _narrow_monitor_table(metrics, title)
     table = Table(title=title)
     for heading in MONITOR_COLUMNS:
         table.add_column(heading, justify="left" if heading in ("method", "variant") else "right")

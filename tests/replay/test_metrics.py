@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -218,3 +219,33 @@ def test_your_own_envs_failure_is_told_only_when_you_say_what_it_is():
     assert (untold.leads, told.leads, told.lead_median) == ((), (4,), 4.0)
     with pytest.raises(ConfigError, match="failure='fell': what counts as a failure of your own env, one of terminated"):
         check_failure("fell")
+
+
+def test_the_monitor_table_is_readable_at_80_columns():
+    """At 80 columns the monitor's ten columns left a variant's name 'cartpol…': the narrow layout
+    keeps every name whole (wrapped if need be), the task and method in the title."""
+    import io
+
+    from rich.console import Console
+
+    from oodmon.replay import compute_monitor_metrics, monitor_table
+
+    long = "cartpole:force_mag=1.6667,gravity=19.6,length=2.0"
+    runs = [_run(k, "cartpole", 0, [0] * 9, terminated=False) for k in range(3)]
+    runs += [_run(3 + k, long, 2, [0, 0, 0, 1, 0, 0, 0, 0, 0], terminated=True) for k in range(2)]  # alarm 3, fall 8
+    runs += [_run(5, "cartpole:gravity=98.0", 2, [0] * 9, terminated=False)]
+    metrics = compute_monitor_metrics([_log(runs, method="dropconnect")])
+    for width in (80, 220):
+        buffer = io.StringIO()
+        Console(width=width, file=buffer).print(monitor_table(metrics, "the alarms", width=width))
+        text = buffer.getvalue()
+        assert max(len(line) for line in text.splitlines()) <= width and "…" not in text
+        if width == 80:
+            assert "the alarms, cartpole, dropconnect" in text
+            first_column = "".join(line.split("│")[1].strip() for line in text.splitlines() if line.startswith("│"))
+            assert "force_mag=1.6667,gravity=19.6,length=2.0" in first_column
+            # the shifted row: 0 early, 2/2 alarmed, 2/2 before the fall, lead 5, delay 1/1 (median/p90)
+            assert re.search(r"0/2 +│ +2/2 +│ +2/2 +│ +5 +│ +1/1", text), text
+            assert "95% interval 0.0%-70.8%" in text.replace("\n", " ") and "3/3" not in text  # the ID row: 0/3
+        else:
+            assert long in text and "lead median" in text
