@@ -90,8 +90,9 @@ def _replay_episodes(args: argparse.Namespace, logs) -> int:
         print(episodes_markdown(rows), end="")
     else:
         alarmed = sum(row["alarms"] > 0 for row in rows)
-        _table_console().print(episodes_table(rows, title=f"{len(rows)} episode(s) of {len(logs)} log(s), "
-                                                          f"{alarmed} alarmed"))
+        console = _table_console()
+        console.print(episodes_table(rows, title=f"{len(rows)} episode(s) of {len(logs)} log(s), {alarmed} alarmed",
+                                     width=console.width))
     return 0
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 import json
 from collections.abc import Iterable, Sequence
 
@@ -263,14 +264,61 @@ def _episode_cell(name: str, value: object) -> str:
     return str(value)
 
 
-def episodes_table(rows: Sequence[dict], title: str) -> Table:
-    """:func:`episode_rows` as a terminal table."""
-    table = Table(title=title)
-    for name, heading in EPISODE_COLUMNS:
+def _env_of(variant: str) -> str:
+    """The env (oodmon's task, or your own env's id) a logged variant is of: ``cartpole`` for
+    ``cartpole:length=2.0``, ``my_envs:MyEnv-v0`` for ``my_envs:MyEnv-v0:friction=0.2``."""
+    return variant if is_id_variant(variant) else variant.rpartition(":")[0]
+
+
+#: Below this many columns the per-episode table switches to its narrow layout.
+EPISODES_NARROW_WIDTH = 150
+_ENDED_SHORT = {"terminated": "env", "time limit": "limit", "interrupted": "cut"}
+
+
+def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -> Table:
+    """:func:`episode_rows` as a terminal table. What every row shares goes into the title, so that
+    each row shows the episode's own figures: the log (one log: its path; several: their folder,
+    each row its path within it) and the env (each variant without it, ``ID`` for the env itself).
+    A terminal ``width`` below :data:`EPISODES_NARROW_WIDTH` gets the narrow layout, readable at 80
+    columns: logs numbered (the numbers in the caption), the first alarm and its delay in one
+    column, short headings and endings."""
+    logs = list(dict.fromkeys(row["log"] for row in rows))
+    folder = os.path.commonpath([os.path.dirname(log) or "." for log in logs]) if len(logs) > 1 else ""
+    envs = {_env_of(row["variant"]) for row in rows}
+    env = envs.pop() if len(envs) == 1 else None
+    shared = [logs[0]] if len(logs) == 1 else [f"in {folder}"] if folder not in ("", ".") else []
+    narrow = width is not None and width < EPISODES_NARROW_WIDTH
+    named = {log: os.path.relpath(log, folder) if folder else log for log in logs}
+    if narrow and len(logs) > 1:
+        named = {log: str(number) for number, log in enumerate(logs, 1)}
+    caption = None
+    if narrow:
+        caption = (("logs: " + "; ".join(f"{number} {os.path.relpath(log, folder) if folder else log}"
+                                         for number, log in enumerate(logs, 1)) + ". ") if len(logs) > 1 else "")
+        caption += "alarm: the first alarm's step (its delay from the onset); ended: env (terminated), limit, cut"
+    table = Table(title=", ".join([title, *shared, *([env] if env else [])]), caption=caption,
+                  pad_edge=not narrow)
+    if narrow:
+        columns = [("log", "log"), ("episode", "ep"), ("variant", "variant"), ("seed", "seed"), ("onset", "onset"),
+                   ("length", "steps"), ("return", "return"), ("alarm", "alarm"), ("failure_step", "failed"),
+                   ("ended", "ended")]
+    else:
+        columns = list(EPISODE_COLUMNS)
+    columns = [(name, heading) for name, heading in columns if name != "log" or len(logs) > 1]
+    for name, heading in columns:
         table.add_column(heading, justify="left" if name in ("log", "variant", "ended") else "right",
-                         overflow="fold" if name == "log" else "ellipsis")
+                         overflow="fold" if name in ("log", "variant") else "ellipsis",
+                         ratio=1 if narrow and name == "variant" else None, no_wrap=narrow and name != "variant")
     for row in rows:
-        table.add_row(*(_episode_cell(name, row[name]) for name, _ in EPISODE_COLUMNS),
+        shown = dict(row, log=named[row["log"]])
+        if env:
+            shown["variant"] = "ID" if row["variant"] == env else row["variant"].removeprefix(f"{env}:")
+        if narrow:
+            delay = row["delay"]
+            shown["alarm"] = (None if row["first_alarm_step"] is None else f"{row['first_alarm_step']}"
+                              + ("" if delay is None else f" ({delay:+d})"))
+            shown["ended"] = _ENDED_SHORT.get(row["ended"], row["ended"])
+        table.add_row(*(_episode_cell(name, shown[name]) for name, _ in columns),
                       style="bold red" if row["alarms"] else None)
     return table
 

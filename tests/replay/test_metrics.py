@@ -249,3 +249,42 @@ def test_the_monitor_table_is_readable_at_80_columns():
             assert "95% interval 0.0%-70.8%" in text.replace("\n", " ") and "3/3" not in text  # the ID row: 0/3
         else:
             assert long in text and "lead median" in text
+
+
+def test_the_per_episode_table_is_readable_at_80_columns():
+    """`replay --episodes` printed each row's whole log path and the env in every variant: a
+    terminal showed neither the path nor the figures. What the rows share is in the title; at 80
+    columns the logs are numbered (the names in the caption) and no figure is cut."""
+    import io
+
+    from rich.console import Console
+
+    from oodmon.replay.report import episode_rows, episodes_table
+
+    folder = "runs/bench/logs/InvertedPendulum-v5-chosen_std-far0.05-n90/sb3/trial0"
+    shift = "InvertedPendulum-v5:model.body_mass[2]=20.0"
+    from dataclasses import replace
+
+    false_alarm = replace(_run(0, "InvertedPendulum-v5", 0, [0, 1] + [0] * 7, terminated=False), first_alarm_step=1)
+    early_then_late = replace(_run(1, shift, 2, [0, 1, 0, 0, 1, 0, 0, 0, 0], terminated=True), first_alarm_step=1)
+    logs = [RunLog(Path(f"{folder}/InvertedPendulum-v5.mcap"), "InvertedPendulum-v5", "sb3", 1.0, {}, [false_alarm], True),
+            RunLog(Path(f"{folder}/heavy.mcap"), "InvertedPendulum-v5", "sb3", 1.0, {}, [early_then_late], True)]
+    rows = episode_rows(logs, failure="terminated")
+    for width in (80, 220):
+        buffer = io.StringIO()
+        Console(width=width, file=buffer).print(episodes_table(rows, "2 episodes", width=width))
+        text = buffer.getvalue()
+        assert max(len(line) for line in text.splitlines()) <= width and "…" not in text
+        words = " ".join(text.split())
+        assert f"2 episodes, in {folder}, InvertedPendulum-v5" in words
+        cells = [[cell.strip() for cell in line.split("│")[1:-1]] for line in text.splitlines() if line.startswith("│")]
+        if width == 80:  # log, ep, variant, seed, onset, steps, return, alarm (delay), failed, ended
+            assert cells[0] == ["1", "0", "ID", "0", "", "9", "0.0", "1", "", "limit"]  # an alarm in ID: no delay
+            assert cells[1][:2] == ["2", "1"] and cells[1][7:] == ["1 (-1)", "8", "env"]  # before its onset at 2
+            wrapped = "".join(row[2] for row in cells[1:])  # the variant's name, folded over the row's lines
+            assert wrapped == "model.body_mass[2]=20.0"
+            assert "logs: 1 InvertedPendulum-v5.mcap; 2 heavy.mcap" in words
+        else:
+            assert cells[0][:3] == ["InvertedPendulum-v5.mcap", "0", "ID"]
+            assert cells[1][:3] == ["heavy.mcap", "1", "model.body_mass[2]=20.0"]
+            assert cells[1][-4:] == ["1", "before onset", "8", "terminated"]
