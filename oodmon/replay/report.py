@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 import json
+import os
 from collections.abc import Iterable, Sequence
 
 from rich.table import Table
@@ -270,6 +270,14 @@ def _env_of(variant: str) -> str:
     return variant if is_id_variant(variant) else variant.rpartition(":")[0]
 
 
+def _common_folder(paths: Sequence[str]) -> str:
+    """The folder ``paths`` share (``""``: none, as for absolute and relative paths together)."""
+    try:
+        return os.path.commonpath([os.path.dirname(path) or "." for path in paths])
+    except ValueError:
+        return ""
+
+
 #: Below this many columns the per-episode table switches to its narrow layout.
 EPISODES_NARROW_WIDTH = 150
 _ENDED_SHORT = {"terminated": "env", "time limit": "limit", "interrupted": "cut"}
@@ -283,18 +291,16 @@ def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -
     columns: logs numbered (the numbers in the caption), the first alarm and its delay in one
     column, short headings and endings."""
     logs = list(dict.fromkeys(row["log"] for row in rows))
-    folder = os.path.commonpath([os.path.dirname(log) or "." for log in logs]) if len(logs) > 1 else ""
+    folder = _common_folder(logs) if len(logs) > 1 else ""
+    relative = {log: os.path.relpath(log, folder) if folder else log for log in logs}
     envs = {_env_of(row["variant"]) for row in rows}
     env = envs.pop() if len(envs) == 1 else None
-    shared = [logs[0]] if len(logs) == 1 else [f"in {folder}"] if folder not in ("", ".") else []
+    shared = logs[:1] if len(logs) == 1 else [f"in {folder}"] if folder not in ("", ".") else []
     narrow = width is not None and width < EPISODES_NARROW_WIDTH
-    named = {log: os.path.relpath(log, folder) if folder else log for log in logs}
-    if narrow and len(logs) > 1:
-        named = {log: str(number) for number, log in enumerate(logs, 1)}
+    named = {log: str(number) for number, log in enumerate(logs, 1)} if narrow and len(logs) > 1 else relative
     caption = None
     if narrow:
-        caption = (("logs: " + "; ".join(f"{number} {os.path.relpath(log, folder) if folder else log}"
-                                         for number, log in enumerate(logs, 1)) + ". ") if len(logs) > 1 else "")
+        caption = ("logs: " + "; ".join(f"{named[log]} {relative[log]}" for log in logs) + ". " if len(logs) > 1 else "")
         caption += "alarm: the first alarm's step (its delay from the onset); ended: env (terminated), limit, cut"
     table = Table(title=", ".join([title, *shared, *([env] if env else [])]), caption=caption,
                   pad_edge=not narrow)
