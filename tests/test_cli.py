@@ -472,7 +472,8 @@ def test_runs_closing_table_keeps_the_first_and_last_episodes_and_no_rewards():
     for episode in range(1000):
         rows.add(EpisodeRecord(episode, "oodmon/CartPole-v1", "cartpole:length=2.0", onset=10, seed=episode,
                                total_return=40.0, length=40, alarms=int(episode % 4 == 0),
-                               first_alarm_step=12 if episode % 4 == 0 else None, rewards=(1.0,) * 40))
+                               first_alarm_step=12 if episode % 4 == 0 else None, rewards=(1.0,) * 40,
+                               terminated=episode % 2 == 0))
     assert rows.episodes == 1000 and rows.alarmed == 250 and rows.left_out == 994
     kept = [*rows.first, *rows.last]
     assert [r.episode for r in kept] == [0, 1, 2, 997, 998, 999] and all(r.rewards is None for r in kept)
@@ -481,7 +482,9 @@ def test_runs_closing_table_keeps_the_first_and_last_episodes_and_no_rewards():
     text = console.export_text()
     lines = [line for line in text.splitlines() if line.startswith("│")]
     assert [line.split("│")[1].strip() for line in lines] == ["0", "1", "2", "...", "997", "998", "999"]
-    assert "before onset" not in text and lines[0].split("│")[-2].strip() == "2"  # episode 0: alarm 2 steps after onset
+    assert "before onset" not in text and lines[0].split("│")[-3].strip() == "2"  # episode 0: alarm 2 steps after onset
+    ended = [line.split("│")[-2].strip() for line in lines]  # how each ended: the env ended it, or its time limit
+    assert ended == ["terminated", "time limit", "terminated", "", "time limit", "terminated", "time limit"]
 
 
 def test_run_of_more_episodes_than_its_table_shows_points_to_replay(tmp_path, capsys, monkeypatch):

@@ -204,18 +204,20 @@ class _EpisodeRows:
 
         left_out = self.left_out
         table = Table(title=title)
-        for column in ("episode", "seed", "return", "length", "alarms", "first alarm", "delay"):
-            table.add_column(column, justify="right")
+        for column in ("episode", "seed", "return", "length", "alarms", "first alarm", "delay", "ended"):
+            table.add_column(column, justify="left" if column == "ended" else "right")
         for index, record in enumerate([*self.first, *self.last]):
             if index == len(self.first) and left_out:
-                table.add_row("...", *[""] * 6)
+                table.add_row("...", *[""] * 7)
             if record.first_alarm_step is None or is_id_variant(record.variant):
                 delay = ""
             else:
                 delay = "before onset" if record.alarmed_early else str(record.delay)
+            ended = ("interrupted" if record.interrupted else "terminated" if record.terminated
+                     else "time limit" if record.terminated is False else "")  # as replay --episodes says
             table.add_row(str(record.episode), str(record.seed), f"{record.total_return:.1f}", str(record.length),
                           str(record.alarms), "" if record.first_alarm_step is None else str(record.first_alarm_step),
-                          delay)
+                          delay, ended)
         return table
 
 
