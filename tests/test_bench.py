@@ -633,3 +633,19 @@ def test_bench_net_arch_trains_every_trial_with_those_widths_in_folders_of_its_o
 def test_bench_members_refuses_what_it_cannot_size(change, message):
     with pytest.raises(ConfigError, match=message):
         BenchConfig("cartpole", **({"methods": ("ensemble",)} | change))
+
+
+def test_a_baseline_checks_the_alarms_lead_relatively_and_skips_it_where_the_baseline_has_none():
+    from oodmon.bench.baseline import bench_falls
+
+    def result(lead):
+        alarm = {"method": "sb3", "variant": "Hopper-v5:obs.stuck[3]=1.0", "false_alarm_rate": None,
+                 "before_failure_rate": 1.0, "delay_median": 4.0}
+        return {"config": {"task": "Hopper-v5"}, "rows": [],
+                "alarms": [alarm | ({} if lead is None else {"lead_median": lead})]}
+
+    assert bench_falls(result(49.5), result(50.0)) == []  # 1% shorter: within the tolerance, 2% of 50 steps
+    assert bench_falls(result(45.0), result(50.0)) == [
+        "alarms/sb3/Hopper-v5:obs.stuck[3]=1.0: lead_median fell from 50 to 45 (tolerance 0.02)"]
+    assert bench_falls(result(80.0), result(50.0)) == []  # an earlier warning is no fall
+    assert bench_falls(result(45.0), result(None)) == []  # results from before the lead was recorded

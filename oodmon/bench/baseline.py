@@ -22,7 +22,7 @@ __all__ = ["BASELINE_TOLERANCE", "bench_falls", "bench_metrics", "check_same_set
 #: The default allowed fall (AUROC, AUPR, rates) and relative rise (delays).
 BASELINE_TOLERANCE = 0.02
 
-_HIGHER = ("auroc", "aupr", "before_failure_rate")
+_HIGHER = ("auroc", "aupr", "before_failure_rate", "lead_median")
 #: Settings that may differ between a baseline and a new run without changing what is compared:
 #: trials (rows are means over whatever trials each has) and where the run's logs live.
 _FREE = ("trials",)
@@ -55,7 +55,8 @@ def bench_metrics(result: dict) -> dict[str, dict[str, float | None]]:
         metrics[key] = {"auroc": row.get("mean"), "aupr": row.get("aupr_mean"), "fpr_at_95_tpr": row.get("fpr95_mean")}
     for alarm in result.get("alarms", []):
         key = f"alarms/{alarm['method']}/{alarm['variant']}"
-        metrics[key] = {name: alarm.get(name) for name in ("false_alarm_rate", "before_failure_rate", "delay_median")}
+        metrics[key] = {name: alarm.get(name)
+                        for name in ("false_alarm_rate", "before_failure_rate", "delay_median", "lead_median")}
     return metrics
 
 
@@ -86,4 +87,4 @@ def bench_falls(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERA
     expected = {key: {name: value for name, value in row.items() if value is not None}
                 for key, row in bench_metrics(baseline).items()}
     return compare_metrics(bench_metrics(result), expected, tolerance, what="this bench",
-                           relative=("delay_median",), higher=_HIGHER)
+                           relative=("delay_median", "lead_median"), higher=_HIGHER)

@@ -82,8 +82,9 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
                     higher: Sequence[str] = HIGHER_IS_BETTER) -> list[str]:
     """One line per metric of ``expected`` (rows of ``{name: value}`` by key) that ``current``
     lacks or that moved the wrong way by more than ``tolerance``: names in ``higher`` may not fall,
-    every other name may not rise, those in ``relative`` (delays, counted in steps) by more than
-    ``tolerance`` times their baseline value. Shared by ``oodmon check`` (logs) and ``bench --baseline``."""
+    every other name may not rise, those in ``relative`` (delays and leads, counted in steps) by
+    more than ``tolerance`` times their baseline value. Shared by ``oodmon check`` (logs) and
+    ``bench --baseline``."""
     falls = []
     for key, row in sorted(expected.items()):
         if key not in current:
@@ -94,7 +95,7 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
             if now is None:
                 falls.append(f"{key}: {name} is missing (baseline {was:.4g})")
             elif name in higher:
-                if now < was - tolerance:
+                if now < (was * (1 - tolerance) if name in relative else was - tolerance):
                     falls.append(f"{key}: {name} fell from {was:.4g} to {now:.4g} (tolerance {tolerance})")
             else:
                 allowed = was * (1 + tolerance) if name in relative else was + tolerance
