@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -136,7 +137,7 @@ def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
                      "--calibration-episodes", "22", "--far", "0.1", "--out", str(tmp_path))
     assert tables.returncode == 0, tables.stderr
     detected = report["monitor"]["ensemble/trial0/cartpole:length=2.0"]["detection_rate"]
-    alarm_row = next(line for line in tables.stdout.splitlines() if "cartpole:length=2.0" in line and "%" in line)
+    alarm_row = next(line for line in tables.stdout.splitlines() if "│ length=2.0 " in line and "%" in line)
     assert f"{detected:.0%}" in alarm_row
     id_row = next(line for line in tables.stdout.splitlines() if "│ cartpole " in line)
     assert f"{report['monitor']['ensemble/trial0/cartpole']['false_alarm_rate']:.0%}" in id_row
@@ -144,8 +145,8 @@ def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
     shifted = next(log for log in read_logs([tmp_path]) if log.episodes[0].variant == "cartpole:length=2.0")
     cell = report["monitor"]["ensemble/trial0/cartpole:length=2.0"]
     assert cell["episodes"] == 2 and cell["failed"] == sum(e.terminated for e in shifted.episodes)
-    assert "episodes failed" in tables.stdout  # and the printed table says it beside the AUROC
-    auroc_row = next(line for line in tables.stdout.splitlines() if "cartpole:length=2.0" in line and "±" in line)
+    assert re.search(r"┃ +failed ┃", tables.stdout)  # and the printed table says it beside the AUROC
+    auroc_row = next(line for line in tables.stdout.splitlines() if "│ length=2.0 " in line and "±" in line)
     assert f"{cell['failed']} of 2" in auroc_row
     assert report["monitor"]["ensemble/trial0/cartpole"]["failed"] is None  # ID episodes: no shift to fail in
 

@@ -4,7 +4,7 @@ alarms per variant."""
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 from rich.console import Console
@@ -131,30 +131,44 @@ def unsolved_trials(id_returns: dict, task: str) -> list[tuple[str, int, float]]
             if value is not None and value < bar]
 
 
+def _short_variant(task: str):
+    """A variant's name in a table whose title names ``task``: without the task (``length=2.0``),
+    the task's own env as itself (``cartpole``)."""
+    return lambda variant: variant.removeprefix(f"{task}:")
+
+
+def _add_columns(table: Table, columns: Sequence[str]) -> None:
+    """The columns of a bench table: names on the left, the variant folded rather than cut in a
+    narrow terminal, every other cell kept whole."""
+    for column in columns:
+        variant = column == "variant"
+        table.add_column(column, justify="left" if column in ("method", "detector", "variant") else "right",
+                         overflow="fold" if variant else "ellipsis", no_wrap=not variant, ratio=1 if variant else None)
+
+
 def print_paper_report(config: BenchConfig, result: BenchResult, console: Console) -> None:
     """The paper's protocol: our AUROC per failing variant beside the paper's, the best per method,
     per detector where there are several, and what the alarm rule did."""
     several = len(config.detectors) > 1
+    short = _short_variant(config.task)
     table = Table(title=f"{config.task}: per-step AUROC per failing variant, ours (mean ± std over trials) beside the paper's")
     counts = {(r.method, r.variant): episodes_failing(result.detection, r.method, r.variant, r.aurocs) for r in result.rows}
     counted = any(count is not None for count in counts.values())
     columns = ("method", *(("detector",) if several else ()), "variant", "trials",
-               *(("episodes failed",) if counted else ()), "ours", "paper", "difference")
-    for column in columns:
-        table.add_column(column, justify="left" if column in ("method", "detector", "variant") else "right")
+               *(("failed",) if counted else ()), "ours", "paper", "difference")
+    _add_columns(table, columns)
     for row in sorted(result.rows, key=lambda r: (r.method, r.variant, config.detectors.index(r.detector))):
         paper = f"{np.mean(row.paper):.3f} ± {np.std(row.paper):.3f}" if row.paper else ""
         difference = f"{row.mean - np.mean(row.paper):+.3f}" if row.paper else ""
         count = counts[(row.method, row.variant)]
-        table.add_row(row.method, *((row.detector,) if several else ()), row.variant, str(len(row.aurocs)),
+        table.add_row(row.method, *((row.detector,) if several else ()), short(row.variant), str(len(row.aurocs)),
                       *(("" if count is None else f"{count[0]} of {count[1]}",) if counted else ()),
                       f"{row.mean:.3f} ± {row.std:.3f}", paper, difference)
     console.print(table)
     best = Table(title=f"{config.task}: best single-trial AUROC per method (the paper's main tables)")
-    for column in ("method", "variant", "ours", "paper", "difference"):
-        best.add_column(column, justify="left" if column in ("method", "variant") else "right")
+    _add_columns(best, ("method", "variant", "ours", "paper", "difference"))
     for method, variant, ours, paper in best_per_method(result, config.task):
-        best.add_row(method, variant, f"{ours:.3f}", "" if paper is None else f"{paper:.3f}",
+        best.add_row(method, short(variant), f"{ours:.3f}", "" if paper is None else f"{paper:.3f}",
                      "" if paper is None else f"{ours - paper:+.3f}")
     console.print(best)
     if several:
@@ -172,10 +186,9 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
     alarms = Table(title=f"{config.task}: the monitor's alarms ({config.alarm_detector} detector, {rule} against the "
                          "calibrated threshold), "
                          "mean over trials")
-    for column in ("method", "variant", "false alarms (ID episodes)", "detected (episodes)", "mean delay (steps)"):
-        alarms.add_column(column, justify="left" if column in ("method", "variant") else "right")
+    _add_columns(alarms, ("method", "variant", "false alarms (ID)", "detected", "delay (steps)"))
     for method, variant, false_alarms, detected, delay in alarms_per_variant(result):
-        alarms.add_row(method, variant, "" if false_alarms is None else f"{false_alarms:.0%}",
+        alarms.add_row(method, short(variant), "" if false_alarms is None else f"{false_alarms:.0%}",
                        "" if detected is None else f"{detected:.0%}", "" if delay is None else f"{delay:.0f}")
     console.print(alarms)
     unsolved = unsolved_trials(result.id_returns, config.task)
