@@ -26,7 +26,7 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
            "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
-           "FAILURES", "check_failure", "detectors_in", "failed_episodes", "failure_known", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable",
+           "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable",
            "shifted_alarms"]
 
 
@@ -183,6 +183,16 @@ def shifted_alarms(logs: Iterable[RunLog], failure: str | None = None
     return {key: [EpisodeAlarms.of(e, key[0], failure) for _, e in pairs]
             for key, pairs in sorted(_episodes_by_variant(logs).items())
             if not is_id_variant(key[2]) and _thresholded(pairs)}
+
+
+def env_of_variant(variant: str) -> str:
+    """The env (oodmon's task, or your own env's id) a logged variant is of.
+
+    Example:
+        >>> env_of_variant("cartpole:length=2.0"), env_of_variant("my_envs:MyEnv-v0:friction=0.2")
+        ('cartpole', 'my_envs:MyEnv-v0')
+    """
+    return variant if is_id_variant(variant) else variant.rpartition(":")[0]
 
 
 def is_id_variant(variant: str) -> bool:

@@ -19,8 +19,8 @@ from sklearn.metrics import roc_curve
 
 from oodmon.envs.shift import parse_any_variant
 from oodmon.outputs import safe_filename, save_figure
-from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, failure_known, is_id_variant, rankable,
-                                   shifted_alarms)
+from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, failure_known,
+                                   is_id_variant, rankable, shifted_alarms)
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_monitor_plots", "write_plots"]
@@ -240,6 +240,8 @@ def plot_alarm_timeline(variants: dict[str, Sequence[EpisodeAlarms]], title: str
               "alarm at or after the failure": dict(marker="o", color="tab:red", s=14),
               "alarm before the onset": dict(marker="<", color="tab:orange", s=16),
               "failure": dict(marker="x", color="black", s=16)}
+    envs = {env_of_variant(variant) for variant in variants}
+    env = envs.pop() if len(envs) == 1 else None  # named once, in the figure's title
     for ax, (variant, episodes) in zip(axes[:, 0], variants.items()):
         shown = episodes[:TIMELINE_EPISODES]
         rows = np.arange(len(shown))
@@ -263,18 +265,20 @@ def plot_alarm_timeline(variants: dict[str, Sequence[EpisodeAlarms]], title: str
         failed = sum(e.failure is not None for e in episodes)
         alarmed = sum(e.first is not None for e in episodes)
         delays = [e.first for e in episodes if e.first is not None]
+        leads = [e.lead for e in episodes if e.lead is not None]
         more = f" (the first {len(shown)} drawn)" if len(shown) < len(episodes) else ""
-        ax.set_title(f"{variant}: {alarmed} of {len(episodes)} episodes alarmed{more}"
-                     + (f"; {sum(e.before_failure for e in episodes)} of {failed} failures alarmed before them"
-                        if failures else "")
-                     + (f"; delay median {np.median(delays):g}" if delays else ""), fontsize=8)
+        told = ("" if not failures else "; none failed" if not failed else
+                f"; {sum(e.before_failure for e in episodes)} of {failed} failures alarmed before them"
+                + (f" (lead median {np.median(leads):g})" if leads else ""))
+        ax.set_title(f"{variant.removeprefix(f'{env}:') if env else variant}: {alarmed} of {len(episodes)} episodes "
+                     f"alarmed{more}{told}" + (f"; delay median {np.median(delays):g}" if delays else ""), fontsize=8)
         ax.set_yticks([])
         ax.set_ylim(-1, len(shown))
         ax.invert_yaxis()
     handles = {label: handle for ax in axes[:, 0] for handle, label in zip(*ax.get_legend_handles_labels())}
     axes[0, 0].legend(handles.values(), handles.keys(), loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
     axes[-1, 0].set_xlabel("steps since the shift's onset")
-    fig.suptitle(title, fontsize=9)
+    fig.suptitle(title if env is None or title.startswith(env) else f"{env}: {title}", fontsize=9)
     return save_figure(fig, path)
 
 

@@ -10,7 +10,8 @@ from collections.abc import Iterable, Sequence
 
 from rich.table import Table
 
-from oodmon.replay.metrics import MonitorMetrics, VariantMetrics, failure_step, is_id_variant, monitor_row
+from oodmon.replay.metrics import (MonitorMetrics, VariantMetrics, env_of_variant, failure_step, is_id_variant,
+                                   monitor_row)
 from oodmon.replay.reader import RunLog
 
 __all__ = ["COLUMNS", "EPISODE_COLUMNS", "episode_rows", "episodes_csv", "episodes_markdown", "episodes_table",
@@ -264,12 +265,6 @@ def _episode_cell(name: str, value: object) -> str:
     return str(value)
 
 
-def _env_of(variant: str) -> str:
-    """The env (oodmon's task, or your own env's id) a logged variant is of: ``cartpole`` for
-    ``cartpole:length=2.0``, ``my_envs:MyEnv-v0`` for ``my_envs:MyEnv-v0:friction=0.2``."""
-    return variant if is_id_variant(variant) else variant.rpartition(":")[0]
-
-
 def _common_folder(paths: Sequence[str]) -> str:
     """The folder ``paths`` share (``""``: none, as for absolute and relative paths together)."""
     try:
@@ -293,7 +288,7 @@ def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -
     logs = list(dict.fromkeys(row["log"] for row in rows))
     folder = _common_folder(logs) if len(logs) > 1 else ""
     relative = {log: os.path.relpath(log, folder) if folder else log for log in logs}
-    envs = {_env_of(row["variant"]) for row in rows}
+    envs = {env_of_variant(row["variant"]) for row in rows}
     env = envs.pop() if len(envs) == 1 else None
     shared = logs[:1] if len(logs) == 1 else [f"in {folder}"] if folder not in ("", ".") else []
     narrow = width is not None and width < EPISODES_NARROW_WIDTH

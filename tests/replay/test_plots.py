@@ -157,7 +157,9 @@ def test_the_alarm_timeline_marks_each_episodes_first_alarm_early_alarm_and_fail
         "alarm before the failure", "alarm at or after the failure", "alarm before the onset", "failure")}
     assert points == {"alarm before the failure": [[1, 0], [2, 3]], "alarm at or after the failure": [[6, 2]],
                       "alarm before the onset": [[-3, 0]], "failure": [[5, 0], [4, 1], [4, 2]]}
-    assert ax.get_title().startswith("cartpole:length=2.0: 3 of 4 episodes alarmed; 1 of 3 failures alarmed before them")
+    assert ax.get_title() == ("length=2.0: 3 of 4 episodes alarmed; 1 of 3 failures alarmed before them (lead median 4)"
+                              "; delay median 2")  # the env (cartpole) is named once, in the figure's title
+    assert drawn[0]._suptitle.get_text() == "cartpole: t"
     many = [EpisodeAlarms(None, 1, 9, 9)] * 70
     plots.plot_alarm_timeline({"cartpole:masscart=9.0": many}, "t", tmp_path / "b.png")
     ax = drawn[1].axes[0]
@@ -200,4 +202,6 @@ def test_the_alarm_timeline_of_an_env_without_a_failure_names_no_failure(tmp_pat
     ax = drawn[0].axes[0]
     assert {c.get_label(): c.get_offsets().tolist() for c in ax.collections if not c.get_label().startswith("_")} == {
         "first alarm after the onset": [[1, 0], [2, 1]], "alarm before the onset": [[-3, 0]]}
-    assert ax.get_title() == "Acrobot-v1:LINK_MASS_2=3.0: 2 of 2 episodes alarmed; delay median 1.5"
+    assert ax.get_title() == "LINK_MASS_2=3.0: 2 of 2 episodes alarmed; delay median 1.5"
+    plots.plot_alarm_timeline({"Acrobot-v1:LINK_MASS_2=3.0": episodes}, "t", tmp_path / "b.png")  # told: none failed
+    assert drawn[1].axes[0].get_title() == "LINK_MASS_2=3.0: 2 of 2 episodes alarmed; none failed; delay median 1.5"
