@@ -131,10 +131,10 @@ def unsolved_trials(id_returns: dict, task: str) -> list[tuple[str, int, float]]
             if value is not None and value < bar]
 
 
-def _short_variant(task: str):
+def _without_task(variant: str, task: str) -> str:
     """A variant's name in a table whose title names ``task``: without the task (``length=2.0``),
     the task's own env as itself (``cartpole``)."""
-    return lambda variant: variant.removeprefix(f"{task}:")
+    return variant.removeprefix(f"{task}:")
 
 
 def _add_columns(table: Table, columns: Sequence[str]) -> None:
@@ -150,7 +150,6 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
     """The paper's protocol: our AUROC per failing variant beside the paper's, the best per method,
     per detector where there are several, and what the alarm rule did."""
     several = len(config.detectors) > 1
-    short = _short_variant(config.task)
     table = Table(title=f"{config.task}: per-step AUROC per failing variant, ours (mean ± std over trials) beside the paper's")
     counts = {(r.method, r.variant): episodes_failing(result.detection, r.method, r.variant, r.aurocs) for r in result.rows}
     counted = any(count is not None for count in counts.values())
@@ -161,14 +160,14 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
         paper = f"{np.mean(row.paper):.3f} ± {np.std(row.paper):.3f}" if row.paper else ""
         difference = f"{row.mean - np.mean(row.paper):+.3f}" if row.paper else ""
         count = counts[(row.method, row.variant)]
-        table.add_row(row.method, *((row.detector,) if several else ()), short(row.variant), str(len(row.aurocs)),
+        table.add_row(row.method, *((row.detector,) if several else ()), _without_task(row.variant, config.task), str(len(row.aurocs)),
                       *(("" if count is None else f"{count[0]} of {count[1]}",) if counted else ()),
                       f"{row.mean:.3f} ± {row.std:.3f}", paper, difference)
     console.print(table)
     best = Table(title=f"{config.task}: best single-trial AUROC per method (the paper's main tables)")
     _add_columns(best, ("method", "variant", "ours", "paper", "difference"))
     for method, variant, ours, paper in best_per_method(result, config.task):
-        best.add_row(method, short(variant), f"{ours:.3f}", "" if paper is None else f"{paper:.3f}",
+        best.add_row(method, _without_task(variant, config.task), f"{ours:.3f}", "" if paper is None else f"{paper:.3f}",
                      "" if paper is None else f"{ours - paper:+.3f}")
     console.print(best)
     if several:
@@ -188,7 +187,7 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
                          "mean over trials")
     _add_columns(alarms, ("method", "variant", "false alarms (ID)", "detected", "delay (steps)"))
     for method, variant, false_alarms, detected, delay in alarms_per_variant(result):
-        alarms.add_row(method, short(variant), "" if false_alarms is None else f"{false_alarms:.0%}",
+        alarms.add_row(method, _without_task(variant, config.task), "" if false_alarms is None else f"{false_alarms:.0%}",
                        "" if detected is None else f"{detected:.0%}", "" if delay is None else f"{delay:.0f}")
     console.print(alarms)
     unsolved = unsolved_trials(result.id_returns, config.task)

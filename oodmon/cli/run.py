@@ -201,6 +201,7 @@ class _EpisodeRows:
     def table(self, title: str) -> Table:
         """A row per episode kept, with its alarms and their delay, and a row "..." for those left out."""
         from oodmon.replay.metrics import is_id_variant
+        from oodmon.replay.report import how_it_ended
 
         left_out = self.left_out
         table = Table(title=title)
@@ -213,11 +214,9 @@ class _EpisodeRows:
                 delay = ""
             else:
                 delay = "before onset" if record.alarmed_early else str(record.delay)
-            ended = ("interrupted" if record.interrupted else "terminated" if record.terminated
-                     else "time limit" if record.terminated is False else "")  # as replay --episodes says
             table.add_row(str(record.episode), str(record.seed), f"{record.total_return:.1f}", str(record.length),
                           str(record.alarms), "" if record.first_alarm_step is None else str(record.first_alarm_step),
-                          delay, ended)
+                          delay, how_it_ended(record.interrupted, record.terminated))
         return table
 
 

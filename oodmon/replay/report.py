@@ -15,8 +15,8 @@ from oodmon.replay.metrics import (MonitorMetrics, VariantMetrics, env_of_varian
 from oodmon.replay.reader import RunLog
 
 __all__ = ["COLUMNS", "EPISODE_COLUMNS", "episode_rows", "episodes_csv", "episodes_markdown", "episodes_table",
-           "MONITOR_COLUMNS", "monitor_cells", "monitor_markdown", "monitor_summary", "monitor_table", "to_csv",
-           "to_json", "to_markdown", "to_table"]
+           "MONITOR_COLUMNS", "how_it_ended", "monitor_cells", "monitor_markdown", "monitor_summary", "monitor_table",
+           "to_csv", "to_json", "to_markdown", "to_table"]
 
 #: (field, heading) in the order the reports show them.
 COLUMNS = [
@@ -226,6 +226,13 @@ EPISODE_COLUMNS = [
 ]
 
 
+def how_it_ended(interrupted: bool, terminated: bool | None) -> str:
+    """An episode's ending in a word: ``interrupted`` (the run stopped inside it), ``terminated``
+    (the env ended it: a fall), ``time limit`` (or an alarm callback), ``""`` (not recorded)."""
+    return ("interrupted" if interrupted else "terminated" if terminated
+            else "time limit" if terminated is False else "")
+
+
 def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dict]:
     """One row per logged episode, in each log's order, the interrupted ones (a run stopped or torn
     inside them, left out of the metrics) among them: what each episode did and when it alarmed.
@@ -241,8 +248,7 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
     for log in logs:
         for e in sorted([*log.episodes, *log.interrupted], key=lambda e: e.episode):
             shifted = not is_id_variant(e.variant)
-            ended = ("interrupted" if e.interrupted else "terminated" if e.terminated
-                     else "time limit" if e.terminated is False else "")
+            ended = how_it_ended(e.interrupted, e.terminated)
             rows.append({
                 "log": str(log.path), "episode": e.episode, "variant": e.variant, "seed": e.seed,
                 "onset": e.onset if shifted else None, "length": e.length,
