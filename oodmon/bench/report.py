@@ -12,6 +12,7 @@ from rich.table import Table
 
 from oodmon.agents.evaluation import SOLVED_RETURN
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, paper_label
+from oodmon.names import TASKS
 from oodmon.paper import paper_auc_per_trial
 
 def best_per_method(result: BenchResult, task: str, top: int = 3,
@@ -217,7 +218,8 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
         ids = [m for m in result.alarms if m.is_id and m.method == row.method]
         far = (f"false alarms {ids[0].false_alarms}/{ids[0].episodes} ID episodes (95% interval {ids[0].far_low:.1%}-"
                f"{ids[0].far_high:.1%}, target {config.far:g})" if ids else "")
-        before = (f"no failure told for {config.task} (an env oodmon has no variants of)" if row.failed is None
+        why = "a lost point is part of an ID game" if config.task in TASKS else "an env oodmon has no variants of"
+        before = (f"no failure told for {config.task} ({why})" if row.failed is None
                   else f"{row.before_failure}/{row.failed} failing episodes alarmed before the failure"
                   + ("" if row.lead_median is None else f" (lead median {row.lead_median:.3g} steps)") if row.failed
                   else "no episode failed after its onset")

@@ -320,15 +320,17 @@ def check_failure(failure: str | None) -> str | None:
 
 
 def failure_known(task: str, failure: str | None = None) -> bool:
-    """Whether a failed episode of ``task`` is told: oodmon's own tasks (Pong's never fail here),
-    and an env it has no variants of only when ``failure`` says what one is (its end may be a
-    success: Acrobot's, MountainCar's).
+    """Whether a failed episode of ``task`` is told: CartPole's and Pendulum's (not Pong's: a lost
+    point is part of an ID game), and an env oodmon has no variants of only when ``failure`` says
+    what one is (its end may be a success: Acrobot's, MountainCar's).
 
     Example:
-        >>> failure_known("cartpole"), failure_known("Acrobot-v1"), failure_known("Hopper-v5", "terminated")
-        (True, False, True)
+        >>> failure_known("cartpole"), failure_known("pong"), failure_known("Acrobot-v1")
+        (True, False, False)
+        >>> failure_known("Hopper-v5", "terminated"), failure_known("pong", "terminated")
+        (True, False)
     """
-    return task in TASKS or check_failure(failure) is not None
+    return task != "pong" and (task in TASKS or check_failure(failure) is not None)
 
 
 def failure_step(episode: EpisodeLog, task: str, failure: str | None = None) -> int | None:
@@ -360,7 +362,7 @@ def failure_step(episode: EpisodeLog, task: str, failure: str | None = None) -> 
             return None
         below = np.flatnonzero(means[episode.onset:] < PENDULUM_FAILURE_REWARD)
         return int(episode.onset + below[0]) if len(below) else None
-    if task == "pong" or not failure_known(task, failure) or not episode.terminated:
+    if not failure_known(task, failure) or not episode.terminated:
         return None
     last = episode.length - 1
     return last if last >= episode.onset else None
@@ -385,7 +387,7 @@ def failed_episodes(logs: Iterable[RunLog]) -> dict[str, int]:
     """
     return {variant: sum(failure_step(e, task) is not None for _, e in pairs)
             for (task, _, variant), pairs in _episodes_by_variant(logs).items()
-            if task != "pong" and failure_known(task) and not is_id_variant(variant)}
+            if failure_known(task) and not is_id_variant(variant)}
 
 
 @dataclass(frozen=True)

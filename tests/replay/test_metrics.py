@@ -288,3 +288,15 @@ def test_the_per_episode_table_is_readable_at_80_columns():
             assert cells[0][:3] == ["InvertedPendulum-v5.mcap", "0", "ID"]
             assert cells[1][:3] == ["heavy.mcap", "1", "model.body_mass[2]=20.0"]
             assert cells[1][-4:] == ["1", "before onset", "8", "terminated"]
+
+
+def test_pong_tells_no_failure_so_its_failed_column_is_blank_not_zero():
+    # A lost point is part of an ID game: Pong's monitor row read "failed 0/2 (0%)", as if its games
+    # had been watched for a failure and none had come; --failure terminated does not make one either.
+    from oodmon.replay import compute_monitor_metrics
+
+    games = [RunLog(Path("p.mcap"), "pong", "dropconnect", 1.0, {},
+                    [_run(k, "pong:motion_blur@5", 3, [0, 0, 0, 0, 1, 0], terminated=True) for k in range(2)], True)]
+    for failure in (None, "terminated"):
+        (row,) = compute_monitor_metrics(games, failure)
+        assert (row.alarmed, row.failed, row.before_failure, row.leads) == (2, None, None, ())
