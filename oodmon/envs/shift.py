@@ -187,13 +187,13 @@ class ShiftAttributes(gymnasium.Wrapper):
         owner = env_id or (env.spec.id if env.spec is not None else type(env.unwrapped).__name__)
         if not changes:
             raise InvalidParameterError(f"a shift of {owner} needs at least one attribute to change; {_SPEC_HELP}")
-        self._sensors = SensorFaults.of(owner, env.observation_space,
-                                        {n: v for n, v in changes.items() if str(n).startswith("obs.")})
+        sensed = {name: value for name, value in changes.items() if str(name).startswith("obs.")}
+        self._sensors = SensorFaults.of(owner, env.observation_space, sensed)
         self._targets: dict[str, _Target] = {}
         self._own: dict[str, numbers.Real] = {}
         self._shifted: dict[str, numbers.Real] = {}
         for name, value in changes.items():
-            if str(name).startswith("obs."):
+            if name in sensed:
                 continue
             self._targets[name] = target = _target(owner, env.unwrapped, name)
             own = target.get()
@@ -326,7 +326,9 @@ class SensorFaults:
         """A new episode: its noise seeded by ``seed`` (``None``: the generator goes on), its first reading kept."""
         if seed is not None:
             self._rng = np.random.default_rng([seed, 0x5E45])
-        self._last, self._held = np.asarray(obs).reshape(-1).copy(), None
+        self._held = None
+        if self._holds:  # the reading a stuck sensor would hold, were it to stick at once
+            self._last = np.asarray(obs).reshape(-1).copy()
 
     def read(self, obs, *, faulty: bool):
         """``obs`` as the sensors report it: itself before the fault, through the faults after."""
