@@ -49,7 +49,8 @@ from oodmon.versions import library_versions
 from oodmon.hashing import file_sha256
 from oodmon.validation import is_real, is_whole
 
-__all__ = ["SEGMENT_STEPS", "AlarmCallback", "Monitor", "MonitoredEnv", "NonFiniteObservationWarning", "check_env_of"]
+__all__ = ["SEGMENT_STEPS", "AlarmCallback", "Monitor", "MonitoredEnv", "NonFiniteObservationWarning", "PolicyCannotAct",
+           "check_env_of"]
 
 #: Steps of an episode after which the monitor hands its segment on (see ``Monitor(segment_steps=)``):
 #: about 10 MB of score arrays in ``McapSink`` with four detectors, 17 minutes at 100 decisions a second.
@@ -349,6 +350,7 @@ class Monitor:
         self.tracker.reset()
         self.detectors.reset()
         self._prev_obs, self._prev_action = None, None
+        self._deployed: Any = None  # the action deployed at the episode's last step
         self._episode_info = dict(env_id=env_id, variant=variant, onset=onset, seed=seed)
         self._episode_task = self.agent.task if self.agent is not None else variant.split(":")[0]  # render's
         self._return, self._length, self._alarms, self._first_alarm = 0.0, 0, 0, None
@@ -393,9 +395,17 @@ class Monitor:
         if self._dicts:
             obs = self.agent.view(obs)
         estimate = self.estimator.estimate(obs) if self.estimator is not None else None
+        cannot_act = None  # the policy's error on a reading that is not finite, when it raised one
         if action is None:
             if self._act is not None:  # a plain policy, or an agent whose samples do not decide
-                action = self._act(obs)
+                try:
+                    action = self._act(obs)
+                except Exception as error:
+                    if _finite(obs) or self._deployed is None:  # a bug of the policy's, or nothing to log the step with
+                        raise
+                    # A policy that cannot act on a NaN or infinite reading (SB3's raise): the step is
+                    # scored (+inf: an alarm) and logged with the action before it; then the caller hears.
+                    action, cannot_act = self._deployed, error
             elif estimate is not None:
                 raw = estimate.action[0]
                 action = int(raw) if self.estimator.kind == "q_values" else np.asarray(raw)
@@ -458,6 +468,12 @@ class Monitor:
                 if callback(event):
                     self.stop_requested = True
                     self.stop_event = event
+        self._deployed = action
+        if cannot_act is not None:
+            raise PolicyCannotAct(
+                f"episode {self.episode}: the policy could not act on the observation after step {step - 1}, which "
+                f"is not finite ({_shown(obs)}; {type(cannot_act).__name__}): it is scored (+inf) and logged with "
+                "the action before it (a failed sensor, a shift that blew the env's physics up?)") from cannot_act
         return action
 
     def _picture(self, obs: np.ndarray) -> np.ndarray | None:
@@ -513,24 +529,14 @@ class Monitor:
         obs, info = env.reset(seed=seed, options=options)
         self.begin_episode(env_id=env_id_of(env), variant=variant or variant_of_env(env), onset=onset_of_env(env),
                            seed=seed)
-        previous = None
         try:
             while True:
                 try:
                     action = self.step(obs, shifted=bool(info.get("shifted", False)), frame=_frame(obs))
-                except Exception as error:
-                    if _finite(obs) or previous is None:
-                        raise
-                    # A policy that cannot act on a NaN or infinite reading (SB3's raise): the
-                    # step is scored (+inf: an alarm) and logged with the action before it, and
-                    # the episode ends there. (oodmon's agents act on one, and go on.)
-                    warnings.warn(NonFiniteObservationWarning(
-                        f"episode {self.episode}: the policy could not act on the observation after step "
-                        f"{self._length - 1}, which is not finite ({_shown(obs)}; {type(error).__name__}): it is "
-                        "scored and the episode ends there (a shift that blew the env's physics up?)"), stacklevel=2)
-                    self.step(obs, action=previous, shifted=bool(info.get("shifted", False)), frame=_frame(obs))
+                except PolicyCannotAct as error:  # the step is logged; the episode ends there
+                    warnings.warn(NonFiniteObservationWarning(f"{error}; the episode ends there"), stacklevel=2)
+                    terminated = False
                     break
-                previous = action
                 obs, reward, terminated, truncated, info = env.step(action)
                 self.add_reward(reward)
                 if on_progress is not None:
@@ -605,7 +611,15 @@ def _finite(obs: Any) -> bool:
 
 
 class NonFiniteObservationWarning(RuntimeWarning):
-    """:meth:`Monitor.run_episode` ended an episode whose env returned a NaN or infinite reading."""
+    """:meth:`Monitor.run_episode` or :meth:`MonitoredEnv.step` ended an episode whose env returned a
+    NaN or infinite reading the policy could not act on."""
+
+
+class PolicyCannotAct(RuntimeError):
+    """:meth:`Monitor.step`: the monitored policy raised on an observation that is not finite (SB3's
+    check of a NaN). The step is scored (+inf) and logged, with the action before it as its action; the
+    policy's own error is the ``__cause__``. ``run_episode`` and ``MonitoredEnv`` end the episode there
+    with a :class:`NonFiniteObservationWarning`; a loop of your own catches it to do likewise."""
 
 
 def _shown(obs: Any) -> str:
@@ -630,7 +644,10 @@ class MonitoredEnv(gymnasium.Wrapper):
     ``info["oodmon"]`` holds every detector's score (``scores``), the alarm's (``score``,
     ``detector``), the ``threshold`` and whether the ``alarm`` rule holds; when an alarm callback
     ended the episode (it returned True: the step is ``truncated``), ``ended_by_alarm`` says which
-    alarm. A reset that no step follows logs no episode.
+    alarm. A reset that no step follows logs no episode. A policy that cannot act on a NaN or
+    infinite observation (SB3's raise) does not step the env: that step is logged and alarmed, the
+    episode ends there (``truncated``, reward 0, ``info["oodmon"]["policy_could_not_act"]`` says
+    why) with a :class:`NonFiniteObservationWarning`, as ``oodmon run`` ends it.
 
     Example:
         >>> from oodmon.agents import load
@@ -669,8 +686,15 @@ class MonitoredEnv(gymnasium.Wrapper):
                               "shared by several envs, as in a vector env of MonitoredEnvs? their steps would mix "
                               "into one episode's log): give each env its own Monitor (monitor.twin()), or reset this env first")
         # Your action, when you give one, is the deployed one: the detectors that model transitions see it.
-        chosen = self.monitor.step(self._obs, action=action, shifted=bool(self._info.get("shifted", False)),
-                                   frame=_frame(self._obs))
+        try:
+            chosen = self.monitor.step(self._obs, action=action, shifted=bool(self._info.get("shifted", False)),
+                                       frame=_frame(self._obs))
+        except PolicyCannotAct as error:  # logged and alarmed; the env is not stepped, the episode ends (truncated)
+            warnings.warn(NonFiniteObservationWarning(f"{error}; the episode ends there"), stacklevel=2)
+            info = {**self._info, "oodmon": {**self._telemetry(), "policy_could_not_act": str(error)}}
+            self.monitor.end_episode(terminated=False)
+            self._info = info
+            return self._obs, 0.0, False, True, info
         obs, reward, terminated, truncated, info = self.env.step(chosen)
         self.monitor.add_reward(reward)
         info = {**info, "oodmon": self._telemetry()}

@@ -343,6 +343,58 @@ def test_run_episode_ends_an_episode_whose_policy_cannot_act_on_a_nan_and_alarms
     assert sink.episodes[-1].interrupted
 
 
+def test_a_monitored_env_ends_the_episode_where_its_policy_cannot_act_on_a_nan(agent, tmp_path):
+    """Through MonitoredEnv (oodmon.watch's path) SB3's raise on a NaN reached the caller and the
+    alarmed step was never logged. Now, as in `oodmon run`, the step is logged and alarmed with the
+    action before it, the env is not stepped, and the episode ends there (truncated) with a warning
+    and the reason in info; the next reset starts a new episode. A NaN at an episode's first step
+    (no action before it) and an error on a finite observation still reach the caller."""
+    from oodmon.monitor import McapSink, MemorySink, NonFiniteObservationWarning, PolicyCannotAct
+    from oodmon.replay import read_log
+
+    def like_sb3(obs):
+        if not np.isfinite(obs).all():
+            raise ValueError("Expected parameter logits ... but found invalid values")
+        return agent.act(obs)
+
+    sink = MemorySink()
+    monitor = Monitor(agent, threshold=4.0, consecutive=1, sinks=[sink, McapSink(tmp_path / "nan.mcap")])
+    monitor._act = like_sb3  # the deployed policy, as an SB3 model's predict() would be
+    env = MonitoredEnv(_SensorFailure(gymnasium.make("oodmon/CartPole-v1"), 50, 3), monitor)
+    obs, _ = env.reset(seed=0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for step in range(60):
+            obs, reward, terminated, truncated, info = env.step()
+            if terminated or truncated:
+                break
+    assert step == 50 and truncated and not terminated and reward == 0.0 and np.isnan(obs[2])
+    assert "not finite" in info["oodmon"]["policy_could_not_act"] and info["oodmon"]["alarm"]
+    assert [w.filename for w in caught if issubclass(w.category, NonFiniteObservationWarning)] == [__file__]
+    assert sink.episodes[-1].length == 51 and not sink.episodes[-1].interrupted
+    assert sink.steps[50].alarm and sink.steps[50].score == np.inf and sink.steps[50].action == sink.steps[49].action
+    env.reset(seed=1)
+    for _ in range(10):
+        env.step()
+    env.close()  # the episode still running is logged as interrupted
+    log = read_log(tmp_path / "nan.mcap")
+    assert log.episodes[0].length == 51 and np.isinf(log.episodes[0].scores[50]) and monitor.episode == 1
+
+    # No action before a NaN first step: nothing to log the step with, the policy's error is the caller's.
+    first = MonitoredEnv(_SensorFailure(gymnasium.make("oodmon/CartPole-v1"), 0, 3), Monitor(agent, threshold=4.0))
+    first.monitor._act = like_sb3
+    first.reset(seed=0)
+    with pytest.raises(ValueError, match="invalid values"):
+        first.step()
+    with pytest.raises(PolicyCannotAct, match="after step 0") as raised:  # a loop of your own hears it
+        monitor = Monitor(agent, threshold=4.0, consecutive=1)
+        monitor._act = like_sb3
+        monitor.begin_episode(env_id="oodmon/CartPole-v1")
+        monitor.step(np.zeros(4, dtype=np.float32))
+        monitor.step(np.full(4, np.nan, dtype=np.float32))
+    assert isinstance(raised.value.__cause__, ValueError) and monitor.last_step.alarm
+
+
 def test_a_nan_score_counts_as_above_the_threshold_in_every_rule():
     """A NaN score (a detector that could not score a finite observation) is never "below": the
     alarm rule and the calibration's episode statistic count it as +inf, and the combined detector
