@@ -159,6 +159,12 @@ def parse_variant(spec: str) -> Variant:
         raise SpecError(f"malformed variant spec {spec!r}: {_SPEC_HELP}")
     task, _, rest = spec.strip().partition(":")
     if task not in ENV_IDS:
+        from oodmon.envs.registration import task_of_env
+
+        env_id, _, assignments = spec.strip().rpartition(":")  # gymnasium's id of a task: CartPole-v1:length=2.0
+        if task_of_env(env_id) is not None:
+            raise UnknownParameterError(f"variant spec {spec!r}: oodmon's variants of {env_id} are named by its task, "
+                                        f"{task_of_env(env_id)}:{assignments} (see `oodmon envs`)")
         raise UnknownParameterError(
             f"variant spec {spec!r}: unknown task {task!r}; choose one of {', '.join(TASKS)}"
         )
