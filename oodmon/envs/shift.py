@@ -19,6 +19,7 @@ Spec strings, as ``oodmon run --variant`` takes them and the logs write them::
     Acrobot-v1:obs.bias[4]=0.5                   a sensor fault (:class:`SensorFaults`): reading 4
                                                  of the observation off by 0.5 (also obs.scale,
                                                  obs.noise, obs.stuck)
+    my_envs:MyBreakout-v0:obs.noise=30           every reading at once (a camera's every pixel)
 
 An attribute that ``step()`` does not read (a quantity the env derives once in ``__init__`` from
 another) changes nothing: pick the ones its code uses. CartPole and Pendulum have oodmon's own
@@ -254,6 +255,11 @@ class SensorFaults:
       a generator seeded by each ``reset(seed=...)`` (the same episode, the same noise);
     - ``obs.stuck[i]=1``: the reading held at its last value before the fault (a frozen sensor).
 
+    Without ``[i]`` (``obs.noise=30``) a fault is every reading's: a camera's every pixel, a whole
+    sensor block's gain; a reading named with ``[i]`` as well takes that value instead. Readings of
+    an integer observation (a picture's bytes) are rounded and clipped to their type's range (a
+    pixel saturates at 255 rather than wrap around to 0).
+
     Made by :class:`ShiftAttributes` from the ``obs.`` names of its changes (``obs.`` is kept for
     them: an env attribute called ``obs`` cannot be shifted).
 
@@ -267,21 +273,26 @@ class SensorFaults:
     KINDS: ClassVar[tuple[str, ...]] = ("bias", "scale", "noise", "stuck")
     _UNCHANGED: ClassVar[Mapping[str, float]] = MappingProxyType({"bias": 0.0, "scale": 1.0, "noise": 0.0, "stuck": 0.0})
 
-    def __init__(self, changes: dict[str, float], faults: list[tuple[str, int, float]], size: int) -> None:
-        """``changes`` as the spec names them; ``faults`` the same as (kind, reading, value), parsed
-        and checked by :meth:`of`; ``size`` the readings of an observation."""
+    def __init__(self, changes: dict[str, float], faults: list[tuple[str, int | None, float]], size: int,
+                 integers: np.iinfo | None = None) -> None:
+        """``changes`` as the spec names them; ``faults`` the same as (kind, reading or ``None`` for
+        every reading, value), parsed and checked by :meth:`of`; ``size`` the readings of an
+        observation; ``integers`` the range of an integer observation's type (its readings are rounded
+        and clipped to it)."""
         self.changes = changes
         self.bias, self.scale, self.noise = np.zeros(size), np.ones(size), np.zeros(size)
         self.stuck = np.zeros(size, bool)
-        for kind, index, value in faults:
+        for kind, index, value in sorted(faults, key=lambda fault: fault[1] is not None):  # every reading's first
+            where = slice(None) if index is None else index
             if kind == "stuck":
-                self.stuck[index] = True
+                self.stuck[where] = bool(value)
             else:
-                getattr(self, kind)[index] = value
+                getattr(self, kind)[where] = value
         self._noisy, self._holds = bool(self.noise.any()), bool(self.stuck.any())
         self._held: np.ndarray | None = None
         self._last: np.ndarray | None = None
         self._rng = np.random.default_rng(0)
+        self._integers = integers
 
     @classmethod
     def of(cls, owner: str, space: gymnasium.Space, changes: dict[str, float]) -> SensorFaults | None:
@@ -301,12 +312,13 @@ class SensorFaults:
                                         f"observation; {owner}'s is {space}")
         size, kept, faults = int(np.prod(space.shape)), {}, []
         for name, value in changes.items():
-            match = re.fullmatch(r"obs\.(\w+)\[(\d+)\]", name)
+            match = re.fullmatch(r"obs\.(\w+)(?:\[(\d+)\])?", name)
             if match is None or match.group(1) not in cls.KINDS:
                 raise UnknownParameterError(f"{owner}: {name!r} is no sensor fault; give obs.KIND[i]=VALUE, KIND one of "
-                                            f"{', '.join(cls.KINDS)}, i a reading of the observation (0-{size - 1})")
-            kind, index = match.group(1), int(match.group(2))
-            if index >= size:
+                                            f"{', '.join(cls.KINDS)}, i a reading of the observation (0-{size - 1}), "
+                                            "or obs.KIND=VALUE for every reading")
+            kind, index = match.group(1), None if match.group(2) is None else int(match.group(2))
+            if index is not None and index >= size:
                 raise UnknownParameterError(f"{owner}: {name} is outside the observation, whose {size} readings are "
                                             f"0-{size - 1} (flattened)")
             if not _is_number(value) or not math.isfinite(value) or (kind == "noise" and value < 0) \
@@ -315,12 +327,12 @@ class SensorFaults:
                                             + ("stuck is 1 (held) or 0" if kind == "stuck" else
                                                "noise is a std, a finite number >= 0" if kind == "noise" else
                                                "give a finite number"))
-            if value != cls._UNCHANGED[kind]:
-                kept[name] = float(value)
+            if value != cls._UNCHANGED[kind] or (index is not None and f"obs.{kind}" in changes):
+                kept[name] = float(value)  # (an unchanged reading kept where every reading's fault would change it)
                 faults.append((kind, index, float(value)))
         if not kept:
             raise InvalidParameterError(f"{owner}: {changes} change no reading; a shift changes at least one")
-        return cls(kept, faults, size)
+        return cls(kept, faults, size, np.iinfo(space.dtype) if np.issubdtype(space.dtype, np.integer) else None)
 
     def begin_episode(self, seed: int | None, obs) -> None:
         """A new episode: its noise seeded by ``seed`` (``None``: the generator goes on), its first reading kept."""
@@ -344,6 +356,8 @@ class SensorFaults:
             if self._held is None:  # the fault begins: a stuck sensor holds its last reading
                 self._held = self._last if self._last is not None else flat.copy()
             reading[self.stuck] = self._held[self.stuck]
+        if self._integers is not None:  # bytes saturate: 250 + 10 reads 255, not 4
+            reading = np.clip(np.rint(reading), self._integers.min, self._integers.max)
         return reading.astype(np.asarray(obs).dtype).reshape(np.shape(obs))
 
 

@@ -197,15 +197,59 @@ def test_sensor_noise_is_the_same_for_the_same_seed_and_of_the_std_asked():
 @pytest.mark.parametrize("changes, error, words", [
     ({"obs.blur[0]": 1.0}, UnknownParameterError, "no sensor fault; give obs.KIND"),
     ({"obs.bias[2]": 1.0}, UnknownParameterError, r"outside the observation, whose 2 readings are 0-1"),
-    ({"obs.bias": 1.0}, UnknownParameterError, "no sensor fault"),
+    ({"obs.bias[x]": 1.0}, UnknownParameterError, "or obs.KIND=VALUE for every reading"),
     ({"obs.noise[0]": -0.1}, InvalidParameterError, "noise is a std"),
     ({"obs.stuck[0]": 2}, InvalidParameterError, "stuck is 1"),
     ({"obs.bias[0]": float("inf")}, InvalidParameterError, "give a finite number"),
     ({"obs.bias[0]": 0.0, "obs.scale[1]": 1.0}, InvalidParameterError, "change no reading"),
-], ids=["kind", "index", "no-index", "negative-noise", "stuck-2", "inf", "unchanged"])
+], ids=["kind", "index", "bad-index", "negative-noise", "stuck-2", "inf", "unchanged"])
 def test_a_sensor_fault_that_cannot_be_is_refused_saying_what_can(changes, error, words):
     with pytest.raises(error, match=words):
         ShiftAttributes(_FallingBodies(), changes)
+
+
+class _Camera(gymnasium.Env):
+    """An 8 x 8 grey picture of bytes: a gradient from 0 to 252 that moves by one grey level a step."""
+
+    observation_space = gymnasium.spaces.Box(0, 255, (8, 8), np.uint8)
+    action_space = gymnasium.spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return self._picture(), {}
+
+    def step(self, action):
+        self.t += 1
+        return self._picture(), 0.0, False, False, {}
+
+    def _picture(self):
+        return (np.arange(64).reshape(8, 8) * 4 + self.t % 4).astype(np.uint8)
+
+
+def test_a_fault_without_an_index_is_every_readings_and_bytes_saturate_instead_of_wrapping():
+    """A camera's fault is its every pixel's: ``obs.noise=30`` (without ``[i]``, refused before:
+    7,056 pixels of an Atari stack could only be named one by one). A pixel pushed past 255 reads
+    255 and below 0 reads 0 (the float reading cast to uint8 wrapped: 250 + 10 read 4)."""
+    own, _ = _rollout(_Camera(), seed=0, steps=3)
+    bright, _ = _rollout(ShiftAttributes(_Camera(), {"obs.bias": 10, "obs.bias[0]": 0}), seed=0, steps=3)
+    assert bright.dtype == np.uint8
+    expected = np.minimum(own.astype(int) + 10, 255)
+    expected[:, 0, 0] = own[:, 0, 0]  # the one pixel named takes its own value instead
+    np.testing.assert_array_equal(bright, expected)
+    assert bright[:, 7, 7].tolist() == [255] * 4 and own[:, 7, 7].tolist() == [252, 253, 254, 255]
+    dark, _ = _rollout(ShiftAttributes(_Camera(), {"obs.bias": -10.4}), seed=0, steps=3)
+    np.testing.assert_array_equal(dark, np.maximum(own.astype(int) - 10, 0))  # rounded, then clipped at 0
+    noisy, _ = _rollout(ShiftAttributes(_Camera(), {"obs.noise": 30.0}), seed=0, steps=3)
+    change = noisy.astype(float) - own
+    inside = (own > 90) & (own < 165)  # three stds from both ends: clipping leaves these draws alone
+    # 4 x 20 or so draws of std 30 (rounded): their std within 30 +- 25% with probability > 0.99
+    assert inside.sum() >= 70 and abs(change[inside].std() - 30) < 7.5 and (change[~inside] != 0).any()
+    frozen, flags = _rollout(ShiftAttributes(_Camera(), {"obs.stuck": 1}, onset_step=1), seed=0, steps=3)
+    assert flags == [False, False, True, True] and (frozen[2:] == own[1]).all()
+    spec = ShiftAttributes(_Camera(), {"obs.noise": 30.0, "obs.noise[3]": 0.0}).shift.spec
+    assert spec == "_Camera:obs.noise=30.0,obs.noise[3]=0.0" and parse_env_shift(spec).params == \
+        (("obs.noise", 30.0), ("obs.noise[3]", 0.0))
 
 
 def test_sensor_faults_need_one_box_observation():
