@@ -509,7 +509,9 @@ def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monke
     assert main(["run", "--sb3", str(tmp_path / "dqn.zip"), "--env", env_id, "--threshold", threshold,
                  "--episodes", "2", "--mcap", log]) == 0
     capsys.readouterr()
-    assert len(read_log(log).episodes) == 2
+    # the run's episodes are named by the id given, as calibration names its own (the env knows its id
+    # without the module: the ID row of replay read DoubledCartPoleForTests-v0 beside the task's id)
+    assert [e.variant for e in read_log(log).episodes] == [env_id] * 2
     doubled, _ = load_sb3([tmp_path / "dqn.zip"], env_id).make_env().reset(seed=0)
     assert np.allclose(doubled, 2 * gymnasium.make("CartPole-v1").reset(seed=0)[0])  # the user's wrapper acts
 
