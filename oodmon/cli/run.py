@@ -116,12 +116,9 @@ def _run(args: argparse.Namespace) -> int:
         def count(stage: str, steps: int, total: int) -> None:
             if steps % 50 == 0:
                 progress.update(decisions, completed=steps)
-        # Your own env's episodes as calibration logs them, by the id you gave (my_envs:MyEnv-v0, where the
-        # env itself knows MyEnv-v0 only); oodmon's tasks' by what the env says (cartpole, not CartPole-v1).
-        variant = label if args.task not in TASKS else None
         for episode in range(args.episodes):
             progress.reset(decisions, total=None, description=f"episode {episode}: decisions")
-            rows.add(monitor.run_episode(env, seed=args.seed + episode, variant=variant, on_progress=count))
+            rows.add(monitor.run_episode(env, seed=args.seed + episode, on_progress=count))
             progress.update(bar, advance=1)
     failures = dict(monitor.sinks.failures)  # after the sinks closed: a file that could not be finished counts
     env.close()

@@ -351,6 +351,9 @@ class Monitor:
         self.detectors.reset()
         self._prev_obs, self._prev_action = None, None
         self._deployed: Any = None  # the action deployed at the episode's last step
+        own = self.agent.env_id if self.agent is not None else None
+        if own and variant and variant == own.rpartition(":")[2]:  # the agent's env, registered in a module of yours:
+            variant = own  # named by the id you gave (my_envs:MyEnv-v0), as calibration names it; the env knows MyEnv-v0
         self._episode_info = dict(env_id=env_id, variant=variant, onset=onset, seed=seed)
         self._episode_task = self.agent.task if self.agent is not None else variant.split(":")[0]  # render's
         self._return, self._length, self._alarms, self._first_alarm = 0.0, 0, 0, None

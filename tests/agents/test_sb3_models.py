@@ -21,7 +21,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from oodmon.agents.sb3 import load_sb3, sb3_agent, sb3_algorithm
 from oodmon.cli import main
 from oodmon.errors import ConfigError
-from oodmon.monitor import Monitor
+from oodmon.monitor import MemorySink, Monitor, MonitoredEnv
+from oodmon.monitor.detectors import DetectorSet
 from oodmon.replay import read_log, read_logs
 from tests.helpers import ActedOn, NoisePictures
 
@@ -512,8 +513,15 @@ def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monke
     # the run's episodes are named by the id given, as calibration names its own (the env knows its id
     # without the module: the ID row of replay read DoubledCartPoleForTests-v0 beside the task's id)
     assert [e.variant for e in read_log(log).episodes] == [env_id] * 2
-    doubled, _ = load_sb3([tmp_path / "dqn.zip"], env_id).make_env().reset(seed=0)
+    agent = load_sb3([tmp_path / "dqn.zip"], env_id)
+    doubled, _ = agent.make_env().reset(seed=0)
     assert np.allclose(doubled, 2 * gymnasium.make("CartPole-v1").reset(seed=0)[0])  # the user's wrapper acts
+    sink = MemorySink()  # oodmon.watch's path names them so too
+    detectors = DetectorSet.load(f"{threshold}.detectors")  # those calibrate fitted
+    with MonitoredEnv(gymnasium.make(env_id), Monitor(agent, detectors=detectors, sinks=[sink])) as env:
+        env.reset(seed=0)
+        env.step()
+    assert sink.episodes[0].variant == env_id
 
 
 def test_an_id_episode_that_never_ends_is_said_naming_the_missing_time_limit(monkeypatch):
