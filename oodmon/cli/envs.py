@@ -25,12 +25,17 @@ def _add_envs(commands: argparse._SubParsersAction) -> None:
         help="what a variant changes",
         description="Pong: the clean and the corrupted frame side by side. CartPole, Pendulum: a "
         "hand-written reference controller's returns in the ID env and the variant, and its pole "
-        "angle over an episode.",
+        "angle over an episode. A shift of your own env (ENV_ID:NAME=VALUE): the env as it is and "
+        "shifted, from the same seed with the same random actions, and the step from which what it "
+        "returned differs, if it does (an attribute the env reads only when made or reset changes nothing).",
     )
-    show.add_argument("spec", help="a variant spec, e.g. pong:pixelate@3 or cartpole:length=2.0")
+    show.add_argument("spec", help="a variant spec, e.g. pong:pixelate@3 or cartpole:length=2.0, or a shift of "
+                      "your own env, e.g. Acrobot-v1:LINK_MASS_2=3.0")
     show.add_argument("--out", help="write the picture to this file (.png or .jpg; a name without a suffix gets .png)")
     show.add_argument("--seed", type=_SEED, default=0, help="seed of the episode shown (default 0)")
     show.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (physics; default 0)")
+    show.add_argument("--steps", type=_whole(1), default=500,
+                      help="your own env's shift: steps played at most (default 500; fewer when the episode ends)")
     show.set_defaults(handler=_envs_show)
     tour = envs_commands.add_parser("tour", help="what the envs change, shown with a hand-written controller")
     tour.add_argument("--out", default="runs/tour", help="folder for the pictures (default runs/tour)")
@@ -54,16 +59,32 @@ def _envs_list(args: argparse.Namespace) -> int:
 
 
 def _envs_show(args: argparse.Namespace) -> int:
-    from oodmon.envs import parse_variant
-    from oodmon.envs.preview import compare_physics, pong_preview, save_physics_plot, save_rgb
+    from oodmon.envs import parse_env_shift, parse_variant
+    from oodmon.envs.grid import Variant
+    from oodmon.envs.preview import (
+        compare_physics,
+        pong_preview,
+        save_physics_plot,
+        save_probe_plot,
+        save_rgb,
+    )
 
-    variant = parse_variant(args.spec)
+    # oodmon's variant (its errors said as they are), else a shift of your own env
+    variant = parse_variant(args.spec) if args.spec.partition(":")[0] in TASKS else parse_env_shift(args.spec)
     out = None
     if args.out:
         from oodmon.outputs import check_picture_file
 
         out = check_picture_file(args.out, parameter="--out")  # "shot" is written as shot.png
     console = Console(soft_wrap=True)
+    if not isinstance(variant, Variant):
+        from oodmon.envs.probe import probe_shift
+
+        probe = probe_shift(variant, seed=args.seed, onset=args.onset, steps=args.steps)
+        console.print(probe.summary(), markup=False)  # obs.KIND[i]: no markup
+        if out:
+            console.print(f"wrote {save_probe_plot(probe, out)}")
+        return 0 if probe.changed else 1
     if variant.task == "pong":
         image = pong_preview(variant, seed=args.seed)
         console.print(f"{variant.spec}: {variant.kwargs()}")
@@ -82,7 +103,6 @@ def _envs_show(args: argparse.Namespace) -> int:
 
 def _envs_tour(args: argparse.Namespace) -> int:
     from oodmon.demo import run_env_tour
-
     from oodmon.outputs import check_output_dir
 
     check_output_dir(args.out, parameter="--out")

@@ -131,6 +131,10 @@ def _run(args: argparse.Namespace) -> int:
                       + _listed_by(mcap, args.mcap, failed="McapSink" in failures))
     console.print(f"{rows.alarmed} of {rows.episodes} episodes raised an alarm"
                   + (f"; written to {', '.join(written)}" if written else ""))
+    if args.variant and args.task not in TASKS and threshold is not None and rows.episodes and not rows.alarmed:
+        console.print(f"does the shift change anything the env returns? `oodmon envs show '{label}' --onset "
+                      f"{args.onset}` plays the env shifted and as it is from the same seed with the same "
+                      "actions (an attribute the env reads only when it is made or reset changes nothing)", markup=False)
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
     return 0

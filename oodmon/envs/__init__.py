@@ -4,7 +4,8 @@
 ``oodmon/Pong-v5`` with gymnasium. Physics shifts and frame corruptions take an
 ``onset_step`` so that a shift can begin mid-episode; ``info["shifted"]`` marks it.
 Your own env is shifted by :class:`ShiftAttributes` (other numbers in its attributes, from an
-onset on), named by a spec such as ``Acrobot-v1:LINK_MASS_2=3.0`` (:func:`parse_env_shift`).
+onset on), named by a spec such as ``Acrobot-v1:LINK_MASS_2=3.0`` (:func:`parse_env_shift`);
+:func:`probe_shift` tells whether such a shift changes anything the env returns.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from oodmon.envs.corruptions import (
 from oodmon.envs.grid import ENV_IDS, TASKS, Variant, paper_grid, parse_variant
 from oodmon.envs.physics import CARTPOLE_DEFAULTS, PENDULUM_DEFAULTS, ShiftedCartPole, ShiftedPendulum
 from oodmon.envs.pong import CorruptedPong, to_agent_view
+from oodmon.envs.probe import ShiftProbe, probe_shift
 from oodmon.envs.registration import register_envs
 from oodmon.envs.shift import EnvShift, ShiftAttributes, own_variant, parse_any_variant, parse_env_shift
 
@@ -39,6 +41,7 @@ __all__ = [
     "MotionBlur",
     "Pixelate",
     "ShiftAttributes",
+    "ShiftProbe",
     "ShiftedCartPole",
     "ShiftedPendulum",
     "Variant",
@@ -48,6 +51,7 @@ __all__ = [
     "parse_any_variant",
     "parse_env_shift",
     "parse_variant",
+    "probe_shift",
     "register_envs",
     "severity_params",
     "to_agent_view",

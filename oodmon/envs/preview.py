@@ -16,7 +16,8 @@ from oodmon.envs.grid import Variant
 from oodmon.envs.reference import REFERENCE_CONTROLLERS, Rollout, rollout
 from oodmon.outputs import save_figure
 
-__all__ = ["PhysicsComparison", "compare_physics", "draw_state", "pong_preview", "save_physics_plot", "save_rgb"]
+__all__ = ["PhysicsComparison", "compare_physics", "draw_state", "pong_preview", "save_physics_plot", "save_probe_plot",
+           "save_rgb"]
 
 _LABEL_HEIGHT = 22
 
@@ -194,4 +195,40 @@ def save_physics_plot(comparison: PhysicsComparison, path: str | Path) -> Path:
     ax.set_ylabel("pole angle from upright (deg)")
     ax.set_title(f"reference controller, first episode: {comparison.variant.spec}")
     ax.legend(loc="best", fontsize=8)
+    return save_figure(fig, path)
+
+
+def save_probe_plot(probe, path: str | Path) -> Path:
+    """Plot a :class:`~oodmon.envs.probe.ShiftProbe` as a PNG: the largest difference between the
+    shifted env's readings and its own at each step, and below it (an observation of at most 8
+    readings) each reading of both episodes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    readings = [] if probe.own is None or probe.own.shape[1] > 8 else range(probe.own.shape[1])
+    fig, axes = plt.subplots(1 + len(readings), 1, figsize=(8, 2.2 + 1.3 * len(readings)), dpi=110, sharex=True,
+                             squeeze=False)
+    axes = axes[:, 0]
+    steps = np.arange(len(probe.per_step))
+    axes[0].plot(steps, probe.per_step, color="tab:red")
+    axes[0].set_yscale("symlog", linthresh=1e-6)
+    axes[0].set_ylim(0, max(1e-5, float(probe.per_step.max(initial=0.0)) * 2))
+    axes[0].set_ylabel("largest |difference|", fontsize=8)
+    what = (f"differs from step {probe.first_difference}" if probe.changed
+            else "nothing differed: the shift changed nothing here")
+    axes[0].set_title(f"{probe.shift.spec}\nagainst the env's own (same seed {probe.seed}, same random actions): {what}",
+                      fontsize=9)
+    for ax, i in zip(axes[1:], readings):
+        ax.plot(probe.own[:, i], color="tab:blue", label="own", linewidth=1.2)
+        ax.plot(probe.shifted[:, i], color="tab:red", label="shifted", linewidth=1.0, linestyle="--")
+        ax.set_ylabel(f"reading {i}", fontsize=8)
+    if readings:
+        axes[1].legend(loc="best", fontsize=7)
+    for ax in axes:
+        if probe.onset:
+            ax.axvline(probe.onset, color="grey", linestyle=":", linewidth=1)
+        ax.tick_params(labelsize=7)
+    axes[-1].set_xlabel("step (0: the observation reset returned; dotted: the onset)")
     return save_figure(fig, path)

@@ -516,6 +516,15 @@ def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monke
     agent = load_sb3([tmp_path / "dqn.zip"], env_id)
     doubled, _ = agent.make_env().reset(seed=0)
     assert np.allclose(doubled, 2 * gymnasium.make("CartPole-v1").reset(seed=0)[0])  # the user's wrapper acts
+    # CartPole reads masscart only through what __init__ derived from it: the shift changes nothing, no
+    # episode alarms, and the run says how to see whether a shift changes anything
+    assert main(["run", "--sb3", str(tmp_path / "dqn.zip"), "--env", env_id, "--threshold", threshold,
+                 "--episodes", "2", "--variant", f"{env_id}:masscart=5.0", "--onset", "3"]) == 0
+    said = capsys.readouterr().out
+    assert "0 of 2 episodes raised an alarm" in said
+    assert f"oodmon envs show '{env_id}:masscart=5.0' --onset 3" in said.replace("\n", "")
+    assert main(["envs", "show", f"{env_id}:masscart=5.0", "--onset", "3"]) == 1
+    assert "changed nothing" in capsys.readouterr().out
     sink = MemorySink()  # oodmon.watch's path names them so too
     detectors = DetectorSet.load(f"{threshold}.detectors")  # those calibrate fitted
     with MonitoredEnv(gymnasium.make(env_id), Monitor(agent, detectors=detectors, sinks=[sink])) as env:

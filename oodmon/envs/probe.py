@@ -1,0 +1,138 @@
+"""Does a shift of your own env change anything? The env's own world and the shifted one, side by side.
+
+A shift sets numbers in the env (``ENV_ID:NAME=VALUE``, :mod:`oodmon.envs.shift`); an attribute
+the env reads only when it is made or reset (LunarLander builds its Box2D world from ``gravity``
+at reset; MuJoCo derives a body's inertia from its geometry when it compiles) changes nothing
+after the onset, and the monitor can only stay silent. :func:`probe_shift` plays the env as it
+is and the shifted env from the same seed with the same actions (drawn at random from the action
+space, seeded) and says from which step what the env returned (observation, reward, the episode's
+end) first differed, if it did. ``oodmon envs show ENV_ID:NAME=VALUE`` prints it (and plots the
+readings with ``--out``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from oodmon.envs.checks import check_onset_step
+from oodmon.envs.shift import EnvShift
+
+__all__ = ["ShiftProbe", "probe_shift"]
+
+#: Readings of an observation kept for the plot (a picture's thousands are only compared).
+_PLOTTED_READINGS = 16
+
+
+@dataclass(frozen=True)
+class ShiftProbe:
+    """The env's own episode and the shifted one, from the same seed with the same actions.
+
+    Attributes:
+        shift: what was shifted.
+        onset: the step the shift began at.
+        seed: the seed of both resets and of the actions.
+        steps: the steps played in both (fewer than asked when either episode ended).
+        first_difference: the first step whose observation, reward or end differed (0: the
+            observation ``reset`` returned), ``None`` if none did.
+        largest: per reading (flattened), the largest absolute difference over the steps played.
+        per_step: per step (``reset``'s observation first), the largest absolute difference of its readings.
+        own, shifted: the observations of each episode (flattened, at most 16 readings kept; an
+            observation of more readings is compared, not kept), ``reset``'s first.
+        own_return, shifted_return: the rewards' sums over the steps played.
+        ended: ``(own, shifted)``: whether each episode ended (terminated or truncated) there.
+    """
+
+    shift: EnvShift
+    onset: int
+    seed: int
+    steps: int
+    first_difference: int | None
+    largest: np.ndarray = field(repr=False)
+    per_step: np.ndarray = field(repr=False)
+    own: np.ndarray | None = field(repr=False)
+    shifted: np.ndarray | None = field(repr=False)
+    own_return: float = 0.0
+    shifted_return: float = 0.0
+    ended: tuple[bool, bool] = (False, False)
+
+    @property
+    def changed(self) -> bool:
+        """Whether anything the env returned differed."""
+        return self.first_difference is not None
+
+    def summary(self) -> str:
+        """What the probe saw, in words."""
+        played = (f"{self.steps} steps of random actions (seed {self.seed}) from the same reset, onset "
+                  f"{self.onset}")
+        if not self.changed:
+            return (f"{self.shift.spec}: nothing the env returned differed from its own over {played} "
+                    "(observations, rewards, the episode's end): the shift changed nothing there. An attribute "
+                    "the env reads only when it is made or reset, or one a switch turns off, changes nothing after "
+                    "the onset (LunarLander builds its world from gravity at reset, and blows wind_power only when "
+                    "made with enable_wind=True); pick one its step() reads, or a sensor fault (obs.KIND[i]=VALUE); "
+                    "or the states where it matters were not reached (try --steps, --seed)")
+        readings = np.flatnonzero(self.largest > 0)
+        shown = ", ".join(f"{i}: {self.largest[i]:.3g}" for i in readings[np.argsort(-self.largest[readings])][:6])
+        more = f" and {len(readings) - 6} more" if len(readings) > 6 else ""
+        return (f"{self.shift.spec}: differs from the env's own from step {self.first_difference} on, over {played}; "
+                f"largest difference by reading: {shown or 'none (the rewards or the end differ)'}{more}; return "
+                f"{self.shifted_return:.1f} against {self.own_return:.1f}"
+                + (f" (episodes ended: own {self.ended[0]}, shifted {self.ended[1]})" if any(self.ended) else ""))
+
+
+def probe_shift(shift: EnvShift, *, seed: int = 0, onset: int = 0, steps: int = 500) -> ShiftProbe:
+    """Play ``shift``'s env as it is and shifted from ``onset`` on, from ``reset(seed=seed)`` with the
+    same random actions (``action_space.seed(seed)``), for ``steps`` steps or until either episode
+    ends, and compare what they returned.
+
+    Raises:
+        ConfigError, UnknownParameterError, InvalidParameterError: as :meth:`EnvShift.make`; a
+            negative onset; ``steps`` not a whole number >= 1.
+
+    Example:
+        >>> from oodmon.envs import parse_env_shift
+        >>> probe_shift(parse_env_shift("Acrobot-v1:LINK_MASS_2=3.0"), onset=10, steps=50).first_difference
+        11
+    """
+    from oodmon.errors import InvalidParameterError
+    from oodmon.validation import is_whole
+
+    if not is_whole(steps, 1):
+        raise InvalidParameterError(f"steps={steps!r} is not allowed; give a whole number >= 1")
+    check_onset_step(shift.env_id, onset)
+    own_env, shifted_env = EnvShift(shift.env_id, ()).make(), shift.make(onset_step=onset)
+    try:
+        own_env.action_space.seed(seed)
+        actions = [own_env.action_space.sample() for _ in range(steps)]
+        kept: tuple[list, list] = ([], [])
+        largest, per_step, first, played, returns, ended = None, [], None, 0, [0.0, 0.0], (False, False)
+        observations = (own_env.reset(seed=seed)[0], shifted_env.reset(seed=seed)[0])
+        for step in range(steps + 1):
+            flat = [np.asarray(o, dtype=np.float64).reshape(-1) for o in observations]
+            difference = np.abs(flat[1] - flat[0]) if flat[0].shape == flat[1].shape else np.full(flat[0].shape, np.inf)
+            difference = np.where(np.isnan(difference), np.where(np.isnan(flat[0]) == np.isnan(flat[1]), 0.0, np.inf),
+                                  difference)  # NaN in both: the same reading
+            largest = difference if largest is None else np.maximum(largest, difference)
+            per_step.append(float(difference.max(initial=0.0)))
+            for keep, values in zip(kept, flat):
+                if values.size <= _PLOTTED_READINGS:
+                    keep.append(values)
+            if first is None and difference.any():
+                first = step
+            if step == steps or any(ended):
+                break
+            own, shifted = own_env.step(actions[step]), shifted_env.step(actions[step])
+            played += 1
+            returns = [returns[0] + float(own[1]), returns[1] + float(shifted[1])]
+            ended = (bool(own[2] or own[3]), bool(shifted[2] or shifted[3]))
+            if first is None and (own[1] != shifted[1] or ended[0] != ended[1]):
+                first = step + 1
+            observations = (own[0], shifted[0])
+    finally:
+        own_env.close()
+        shifted_env.close()
+    return ShiftProbe(shift, onset, seed, played, first, largest, np.array(per_step),
+                      np.array(kept[0]) if kept[0] else None, np.array(kept[1]) if kept[1] else None,
+                      returns[0], returns[1], ended)

@@ -1,0 +1,76 @@
+"""Whether a shift of your own env changes anything: oodmon.envs.probe and `oodmon envs show`."""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+import pytest
+
+from oodmon.cli import main
+from oodmon.envs import parse_env_shift
+from oodmon.envs.probe import probe_shift
+from oodmon.errors import InvalidParameterError
+
+
+class _ResetOnlyGain(gymnasium.Env):
+    """A point pushed left or right; its ``gain`` is read at reset only (as LunarLander reads its
+    gravity when it builds its world), and ``drag`` at every step."""
+
+    observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (2,), np.float64)
+    action_space = gymnasium.spaces.Discrete(2)
+
+    def __init__(self) -> None:
+        self.gain, self.drag = 1.0, 0.1
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.state, self.push = self.np_random.normal(size=2), self.gain
+        return self.state.copy(), {}
+
+    def step(self, action):
+        self.state = self.state * (1 - self.drag) + (self.push if action else -self.push)
+        return self.state.copy(), 1.0, False, False, {}
+
+
+if "ResetOnlyGainForTests-v0" not in gymnasium.registry:
+    gymnasium.register("ResetOnlyGainForTests-v0", entry_point=_ResetOnlyGain, max_episode_steps=100)
+
+
+def test_a_shift_that_acts_differs_from_the_step_after_its_onset_and_names_the_readings():
+    probe = probe_shift(parse_env_shift("Acrobot-v1:LINK_MASS_2=3.0"), onset=10, steps=60, seed=3)
+    assert probe.changed and probe.first_difference == 11 and probe.steps == 60
+    np.testing.assert_array_equal(probe.own[:11], probe.shifted[:11])  # the same seed, the same actions
+    assert (probe.largest > 0).all() and probe.per_step[:11].max() == 0 and probe.per_step[11] > 0
+    assert "from step 11 on" in probe.summary()
+    sensor = probe_shift(parse_env_shift("Acrobot-v1:obs.bias[4]=0.5"), steps=20)
+    assert sensor.first_difference == 0 and np.allclose(sensor.largest, [0, 0, 0, 0, 0.5, 0])
+    assert "4: 0.5" in sensor.summary()
+
+
+def test_an_attribute_read_only_at_reset_changes_nothing_and_is_said_so():
+    """What a user of LunarLander meets with gravity: a shift that sets it after the reset that
+    built the world changes nothing, and the monitor could only stay silent."""
+    probe = probe_shift(parse_env_shift("ResetOnlyGainForTests-v0:gain=5.0"), steps=50)
+    assert not probe.changed and probe.steps == 50 and probe.largest.max() == 0
+    assert "changed nothing" in probe.summary() and "reads only when it is made or reset" in probe.summary()
+    acting = probe_shift(parse_env_shift("ResetOnlyGainForTests-v0:drag=0.5"), onset=5, steps=50)
+    assert acting.first_difference == 6 and acting.own_return == acting.shifted_return == 50.0
+
+
+def test_the_probe_ends_with_the_first_episode_that_ends_and_refuses_no_steps():
+    probe = probe_shift(parse_env_shift("ResetOnlyGainForTests-v0:drag=0.5"), steps=500)
+    assert probe.steps == 100 and probe.ended == (True, True)  # the time limit of both
+    with pytest.raises(InvalidParameterError, match="steps=0 is not allowed"):
+        probe_shift(parse_env_shift("ResetOnlyGainForTests-v0:drag=0.5"), steps=0)
+
+
+def test_envs_show_probes_a_shift_of_your_own_env_and_plots_it(tmp_path, capsys):
+    out = tmp_path / "probe.png"
+    assert main(["envs", "show", "Acrobot-v1:LINK_MASS_2=3.0", "--onset", "5", "--steps", "30", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "differs from the env's own from step 6 on" in said and out.stat().st_size > 10_000
+    # nothing changed: exit code 1, and obs.KIND[i] printed as written (not read as markup)
+    assert main(["envs", "show", "ResetOnlyGainForTests-v0:gain=5.0", "--steps", "20"]) == 1
+    assert "obs.KIND[i]=VALUE" in capsys.readouterr().out
+    assert main(["envs", "show", "Acrobot-v1"]) == 2
+    assert "malformed shift" in capsys.readouterr().err
