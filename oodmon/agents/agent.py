@@ -136,10 +136,10 @@ class Agent:
         loaded for (``gymnasium.make(env_id)``; sensor noise is oodmon's envs' option only), with
         the agent's observations (:meth:`wrap`)."""
         from oodmon.envs.grid import Variant
-        from oodmon.envs.registration import task_of_env
+        from oodmon.envs.registration import make_env, task_of_env
 
         if self.env_id is not None and not obs_noise:
-            return self.wrap(gymnasium.make(self.env_id))  # the user's own env, exactly as they deploy in it
+            return self.wrap(make_env(self.env_id))  # the user's own env, exactly as they deploy in it
         task = self.task if self.env_id is None else task_of_env(self.env_id)  # oodmon's env of that task
         if task is None:
             raise ConfigError(f"obs_noise is an option of oodmon's envs; {self.env_id} has no such option")

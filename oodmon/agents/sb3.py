@@ -380,7 +380,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
             model with dropout or DropConnect layers, or statistics of another shape than the
             observations (or different ones for different models).
     """
-    from oodmon.envs.registration import task_of_env
+    from oodmon.envs.registration import make_env, task_of_env
 
     if not models or not all(hasattr(m, "policy") and hasattr(m, "predict") for m in models):
         raise ConfigError("give one or more stable-baselines3 models (DQN, DDPG, TD3, SAC, PPO, A2C)")
@@ -389,10 +389,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     if files is None:
         files = [{"path": "(in memory)", "sha256": _parameters_sha256(m), "algorithm": type(m).__name__}
                  for m in models]
-    try:
-        env = gymnasium.make(env_id)
-    except gymnasium.error.Error as error:
-        raise ConfigError(f"env {env_id!r}: {error}") from None
+    env = make_env(env_id)
     normalizer = _normalizer_of(vec_normalize, models)
     stacking = None
     if frame_stack is not None:  # the observations the models act on

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium
 
-__all__ = ["TASK_OF_ENV", "env_id_of", "onset_of_env", "register_envs", "task_of_env", "variant_of_env"]
+__all__ = ["TASK_OF_ENV", "env_id_of", "make_env", "onset_of_env", "register_envs", "task_of_env", "variant_of_env"]
 
 #: The oodmon task whose variants shift an env: gymnasium's own ids and oodmon's (the same
 #: physics, observations and spaces; oodmon's can shift).
@@ -20,6 +22,32 @@ def task_of_env(env_id: str) -> str | None:
         ('cartpole', None)
     """
     return TASK_OF_ENV.get(env_id)
+
+
+def make_env(env_id: str, **kwargs: Any) -> gymnasium.Env:
+    """``gymnasium.make(env_id, **kwargs)`` for an id a user gave; one gymnasium cannot make (not
+    registered, a namespace of a package not installed, ``module:Id`` whose module does not import)
+    is said in one line.
+
+    Raises:
+        ConfigError: naming the id and gymnasium's or Python's reason.
+    """
+    from oodmon.errors import ConfigError
+
+    if isinstance(env_id, str) and env_id.startswith("ALE/") and env_id not in gymnasium.registry:
+        try:  # gymnasium knows Atari's ids once ale_py registers them (oodmon's Pong does it too)
+            import ale_py
+
+            gymnasium.register_envs(ale_py)
+        except ImportError:
+            pass  # said by gymnasium below: "Namespace ALE not found"
+    try:
+        return gymnasium.make(env_id, **kwargs)
+    except gymnasium.error.Error as error:
+        raise ConfigError(f"env {env_id!r}: {error}") from None
+    except ModuleNotFoundError as error:  # my_envs:MyEnv-v0, or a module the env's own module imports
+        raise ConfigError(f"env {env_id!r}: {error}" + ("" if ":" not in env_id else
+                          " (put the folder that holds the module on PYTHONPATH)")) from None
 
 
 def env_id_of(env: gymnasium.Env) -> str:

@@ -396,8 +396,13 @@ class EnvShift:
 
     def make(self, *, onset_step: int = 0, **kwargs: Any) -> gymnasium.Env:
         """``gymnasium.make(env_id, **kwargs)``, shifted from ``onset_step`` on (0: the whole episode)
-        by a :class:`ShiftAttributes`; the env itself when no attribute is changed."""
-        env = gymnasium.make(self.env_id, **kwargs)
+        by a :class:`ShiftAttributes`; the env itself when no attribute is changed.
+
+        Raises:
+            ConfigError: an id gymnasium cannot make (:func:`~oodmon.envs.registration.make_env`)."""
+        from oodmon.envs.registration import make_env
+
+        env = make_env(self.env_id, **kwargs)
         if self.is_id:
             return env
         return ShiftAttributes(env, dict(self.params), onset_step=onset_step, env_id=self.env_id)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import gymnasium
 import numpy as np
 import pytest
@@ -74,3 +76,24 @@ def test_envs_show_probes_a_shift_of_your_own_env_and_plots_it(tmp_path, capsys)
     assert "obs.KIND[i]=VALUE" in capsys.readouterr().out
     assert main(["envs", "show", "Acrobot-v1"]) == 2
     assert "malformed shift" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("env_id, words", [
+    ("NoSuchEnvForTests-v0", "env 'NoSuchEnvForTests-v0': Environment `NoSuchEnvForTests` doesn't exist"),
+    ("no_such_module_for_tests:X-v0", "No module named 'no_such_module_for_tests'.*on PYTHONPATH"),
+])
+def test_an_env_gymnasium_cannot_make_is_said_in_one_line(env_id, words, capsys, tmp_path):
+    """A typo in a module's name, or an env not registered: a traceback of gymnasium's before
+    (`oodmon run --sb3 ... --env my_mod:X-v0` too)."""
+    from stable_baselines3 import DQN
+
+    DQN("MlpPolicy", gymnasium.make("CartPole-v1"), policy_kwargs={"net_arch": [8]}).save(tmp_path / "m.zip")
+    assert main(["envs", "show", f"{env_id}:x=1"]) == 2
+    assert main(["run", "--sb3", str(tmp_path / "m.zip"), "--env", env_id]) == 2
+    said = capsys.readouterr().err.splitlines()
+    assert len(said) == 2 and all(line.startswith("oodmon: error: ") and re.search(words, line) for line in said)
+
+
+def test_an_atari_id_is_made_without_importing_ale_py_first():
+    probe = probe_shift(parse_env_shift("ALE/Pong-v5:obs.noise=30"), steps=3)
+    assert probe.first_difference == 0 and probe.own is None  # 100,800 readings: compared, not kept
