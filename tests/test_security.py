@@ -63,9 +63,13 @@ def test_users_sb3_files_are_unpickled_only_when_the_user_names_them():
     assert source.index("_load_one(path) for path") > source.index("def load_sb3")
     callers = [str(path) for path, _, line in _lines()
                if "load_sb3(" in line.split("#")[0] and str(path) != "oodmon/agents/sb3.py"]
-    assert set(callers) == {"oodmon/cli/loading.py", "oodmon/monitor/watch.py", "oodmon/bench/cache.py"}, callers
+    assert set(callers) == {"oodmon/cli/loading.py", "oodmon/cli/envs.py", "oodmon/monitor/watch.py",
+                            "oodmon/bench/cache.py"}, callers
     cli = (PACKAGE / "cli" / "loading.py").read_text()
     assert cli[cli.index("load_sb3(") - 700:cli.index("load_sb3(")].count('getattr(args, "sb3", None)') == 1
+    # envs show: only for the model its --sb3 names
+    envs = (PACKAGE / "cli" / "envs.py").read_text()
+    assert envs.count("load_sb3(") == 1 and "if args.sb3:" in envs[envs.index("load_sb3(") - 150:envs.index("load_sb3(")]
     # bench: only for a config naming the files (BenchConfig.sb3, from `bench --sb3`)
     bench = (PACKAGE / "bench" / "cache.py").read_text()
     assert bench.count("load_sb3(") == 1

@@ -10,6 +10,7 @@ from rich.table import Table
 
 from oodmon.cli.display import _table_console
 from oodmon.cli.parsing import _SEED, _whole
+from oodmon.errors import ConfigError
 from oodmon.names import TASKS
 
 
@@ -36,6 +37,11 @@ def _add_envs(commands: argparse._SubParsersAction) -> None:
     show.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (physics; default 0)")
     show.add_argument("--steps", type=_whole(1), default=500,
                       help="your own env's shift: steps played at most (default 500; fewer when the episode ends)")
+    show.add_argument("--sb3", metavar="ZIP",
+                      help="your own env's shift: this stable-baselines3 model acts (deterministic) instead of random "
+                           "actions, in the states it visits (SB3's loader unpickles: give only files you trust)")
+    show.add_argument("--vec-normalize", metavar="PKL", help="with --sb3: as `oodmon run --vec-normalize`")
+    show.add_argument("--frame-stack", type=int, metavar="N", help="with --sb3: as `oodmon run --frame-stack`")
     show.set_defaults(handler=_envs_show)
     tour = envs_commands.add_parser("tour", help="what the envs change, shown with a hand-written controller")
     tour.add_argument("--out", default="runs/tour", help="folder for the pictures (default runs/tour)")
@@ -77,10 +83,22 @@ def _envs_show(args: argparse.Namespace) -> int:
 
         out = check_picture_file(args.out, parameter="--out")  # "shot" is written as shot.png
     console = Console(soft_wrap=True)
+    loading = args.vec_normalize is not None or args.frame_stack is not None
+    if isinstance(variant, Variant) and (args.sb3 or loading):
+        raise ConfigError(f"--sb3, --vec-normalize and --frame-stack go with a shift of your own env; {variant.spec} "
+                          "is shown with oodmon's hand-written controller")
+    if loading and not args.sb3:
+        raise ConfigError("--vec-normalize and --frame-stack go with --sb3")
     if not isinstance(variant, Variant):
         from oodmon.envs.probe import probe_shift
 
-        probe = probe_shift(variant, seed=args.seed, onset=args.onset, steps=args.steps)
+        policy = wrap = None
+        if args.sb3:
+            from oodmon.agents.sb3 import load_sb3
+
+            agent = load_sb3([args.sb3], variant.env_id, vec_normalize=args.vec_normalize, frame_stack=args.frame_stack)
+            policy, wrap = agent.act, agent.wrap
+        probe = probe_shift(variant, seed=args.seed, onset=args.onset, steps=args.steps, policy=policy, wrap=wrap)
         console.print(probe.summary(), markup=False)  # obs.KIND[i]: no markup
         if out:
             console.print(f"wrote {save_probe_plot(probe, out)}")

@@ -218,8 +218,8 @@ def save_probe_plot(probe, path: str | Path) -> Path:
     axes[0].set_ylabel("largest |difference|", fontsize=8)
     what = (f"differs from step {probe.first_difference}" if probe.changed
             else "nothing differed: the shift changed nothing here")
-    axes[0].set_title(f"{probe.shift.spec}\nagainst the env's own (same seed {probe.seed}, same random actions): {what}",
-                      fontsize=9)
+    acting = "same random actions" if probe.actions == "random" else "the policy acting in each"
+    axes[0].set_title(f"{probe.shift.spec}\nagainst the env's own (same seed {probe.seed}, {acting}): {what}", fontsize=9)
     for ax, i in zip(axes[1:], readings):
         ax.plot(probe.own[:, i], color="tab:blue", label="own", linewidth=1.2)
         ax.plot(probe.shifted[:, i], color="tab:red", label="shifted", linewidth=1.0, linestyle="--")

@@ -12,8 +12,11 @@ readings with ``--out``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
+import gymnasium
 import numpy as np
 
 from oodmon.envs.checks import check_onset_step
@@ -42,6 +45,7 @@ class ShiftProbe:
             observation of more readings is compared, not kept), ``reset``'s first.
         own_return, shifted_return: the rewards' sums over the steps played.
         ended: ``(own, shifted)``: whether each episode ended (terminated or truncated) there.
+        actions: ``random`` (the same in both) or ``policy`` (a policy acted in each).
     """
 
     shift: EnvShift
@@ -56,6 +60,7 @@ class ShiftProbe:
     own_return: float = 0.0
     shifted_return: float = 0.0
     ended: tuple[bool, bool] = (False, False)
+    actions: str = "random"
 
     @property
     def changed(self) -> bool:
@@ -64,8 +69,8 @@ class ShiftProbe:
 
     def summary(self) -> str:
         """What the probe saw, in words."""
-        played = (f"{self.steps} steps of random actions (seed {self.seed}) from the same reset, onset "
-                  f"{self.onset}")
+        played = (f"{self.steps} steps of " + ("random actions" if self.actions == "random" else "the policy's actions")
+                  + f" (seed {self.seed}) from the same reset, onset {self.onset}")
         if not self.changed:
             return (f"{self.shift.spec}: nothing the env returned differed from its own over {played} "
                     "(observations, rewards, the episode's end): the shift changed nothing there. An attribute "
@@ -82,10 +87,17 @@ class ShiftProbe:
                 + (f" (episodes ended: own {self.ended[0]}, shifted {self.ended[1]})" if any(self.ended) else ""))
 
 
-def probe_shift(shift: EnvShift, *, seed: int = 0, onset: int = 0, steps: int = 500) -> ShiftProbe:
+def probe_shift(shift: EnvShift, *, seed: int = 0, onset: int = 0, steps: int = 500,
+                policy: Callable[[Any], Any] | None = None,
+                wrap: Callable[[gymnasium.Env], gymnasium.Env] | None = None) -> ShiftProbe:
     """Play ``shift``'s env as it is and shifted from ``onset`` on, from ``reset(seed=seed)`` with the
     same random actions (``action_space.seed(seed)``), for ``steps`` steps or until either episode
     ends, and compare what they returned.
+
+    ``policy``: ``obs -> action`` acts in each env instead (the states your policy visits, where a
+    shift may matter that random actions never reach; its actions differ once the observations
+    do); ``wrap``: what the policy's env is made of the env (``Agent.wrap``: a frame stack), whose
+    observations are then compared.
 
     Raises:
         ConfigError, UnknownParameterError, InvalidParameterError: as :meth:`EnvShift.make`; a
@@ -102,10 +114,12 @@ def probe_shift(shift: EnvShift, *, seed: int = 0, onset: int = 0, steps: int = 
     if not is_whole(steps, 1):
         raise InvalidParameterError(f"steps={steps!r} is not allowed; give a whole number >= 1")
     check_onset_step(shift.env_id, onset)
-    own_env, shifted_env = EnvShift(shift.env_id, ()).make(), shift.make(onset_step=onset)
+    wrap = wrap or (lambda env: env)
+    own_env, shifted_env = wrap(EnvShift(shift.env_id, ()).make()), wrap(shift.make(onset_step=onset))
     try:
-        own_env.action_space.seed(seed)
-        actions = [own_env.action_space.sample() for _ in range(steps)]
+        if policy is None:
+            own_env.action_space.seed(seed)
+            actions = [own_env.action_space.sample() for _ in range(steps)]
         kept: tuple[list, list] = ([], [])
         largest, per_step, first, played, returns, ended = None, [], None, 0, [0.0, 0.0], (False, False)
         observations = (own_env.reset(seed=seed)[0], shifted_env.reset(seed=seed)[0])
@@ -123,7 +137,10 @@ def probe_shift(shift: EnvShift, *, seed: int = 0, onset: int = 0, steps: int = 
                 first = step
             if step == steps or any(ended):
                 break
-            own, shifted = own_env.step(actions[step]), shifted_env.step(actions[step])
+            if policy is None:
+                own, shifted = own_env.step(actions[step]), shifted_env.step(actions[step])
+            else:
+                own, shifted = own_env.step(policy(observations[0])), shifted_env.step(policy(observations[1]))
             played += 1
             returns = [returns[0] + float(own[1]), returns[1] + float(shifted[1])]
             ended = (bool(own[2] or own[3]), bool(shifted[2] or shifted[3]))
@@ -135,4 +152,4 @@ def probe_shift(shift: EnvShift, *, seed: int = 0, onset: int = 0, steps: int = 
         shifted_env.close()
     return ShiftProbe(shift, onset, seed, played, first, largest, np.array(per_step),
                       np.array(kept[0]) if kept[0] else None, np.array(kept[1]) if kept[1] else None,
-                      returns[0], returns[1], ended)
+                      returns[0], returns[1], ended, "random" if policy is None else "policy")

@@ -97,3 +97,21 @@ def test_an_env_gymnasium_cannot_make_is_said_in_one_line(env_id, words, capsys,
 def test_an_atari_id_is_made_without_importing_ale_py_first():
     probe = probe_shift(parse_env_shift("ALE/Pong-v5:obs.noise=30"), steps=3)
     assert probe.first_difference == 0 and probe.own is None  # 100,800 readings: compared, not kept
+
+
+def test_a_policy_acts_in_each_env_and_sees_a_shift_where_its_states_lead(tmp_path, capsys):
+    """Random actions may never reach the states where a shift matters; the policy's own do. Its
+    actions differ once what it reads differs; before the onset both episodes are the same."""
+    from stable_baselines3 import DQN
+
+    swing = lambda obs: int(obs[4] > 0) * 2  # noqa: E731  (torque along the first joint's swing)
+    probe = probe_shift(parse_env_shift("Acrobot-v1:LINK_MASS_2=3.0"), onset=10, steps=40, policy=swing)
+    assert probe.actions == "policy" and probe.first_difference == 11 and "the policy's actions" in probe.summary()
+    np.testing.assert_array_equal(probe.own[:11], probe.shifted[:11])
+    DQN("MlpPolicy", gymnasium.make("Acrobot-v1"), policy_kwargs={"net_arch": [8]}, seed=0).save(tmp_path / "m.zip")
+    argv = ["envs", "show", "Acrobot-v1:LINK_MASS_2=3.0", "--onset", "5", "--steps", "30", "--sb3", str(tmp_path / "m.zip")]
+    assert main([*argv, "--frame-stack", "2"]) == 2  # a model of one observation, not of two stacked
+    assert "was trained with the observation" in capsys.readouterr().err
+    assert main(argv) == 0 and "from step 6 on, over 30 steps of the policy's actions" in capsys.readouterr().out
+    assert main(["envs", "show", "cartpole:length=2.0", "--sb3", str(tmp_path / "m.zip")]) == 2
+    assert "hand-written controller" in capsys.readouterr().err
