@@ -228,4 +228,26 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
         console.print(f"{row.method}: {far}; {row.alarmed}/{row.episodes} shifted episodes alarmed after the onset "
                       f"({row.early} before it); {before}; {delays}")
     print_unfailed(config, result, console)
+    if config.own_env:
+        print_unfelt(config, result, console)
     print(FAILURE_DEFINITION, file=sys.stderr)
+
+
+def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, steps: int = 500) -> None:
+    """For each shift of your own env that no episode alarmed on: whether the env felt it at all
+    (:func:`~oodmon.envs.probe.probe_shift`, random actions from the first onset drawn), said when
+    nothing it returned differed: an attribute the env reads only when made or reset, not the
+    detectors, is then why no alarm came."""
+    from oodmon.envs import parse_env_shift
+    from oodmon.envs.probe import probe_shift
+
+    low, _ = config.onset_range()
+    for row in result.alarms:
+        if row.is_id or row.alarmed or not row.episodes:
+            continue
+        probe = probe_shift(parse_env_shift(row.variant), onset=low, steps=steps)
+        if not probe.changed:
+            console.print(f"{row.variant}: no episode alarmed, and nothing the env returned differed from its own over "
+                          f"{probe.steps} steps of random actions, shifted from step {low} (`oodmon envs show '{row.variant}' "
+                          f"--onset {low} --sb3 ZIP` plays your model in both): does the env read it after a reset?",
+                          markup=False)

@@ -611,13 +611,18 @@ def test_bench_runs_the_monitors_protocol_on_shifts_of_your_own_env(tmp_path, ca
     DQN("MlpPolicy", gymnasium.make("MountainCar-v0"), seed=0, policy_kwargs={"net_arch": [8]}).save(tmp_path / "mc.zip")
     out = tmp_path / "bench"
     argv = ["bench", "--sb3", str(tmp_path / "mc.zip"), "--env", "MountainCar-v0", "--protocol", "monitor",
-            "--onsets", "50,100", "--variants", "MountainCar-v0:gravity=0.005,force=0.0005,MountainCar-v0:gravity=0.01",
+            "--onsets", "50,100", "--variants", "MountainCar-v0:gravity=0.005,force=0.0005,MountainCar-v0:gravity=0.01,"
+            "MountainCar-v0:low[0]=-2.0",
             "--episodes", "4", "--id-episodes", "8", "--calibration-episodes", "10", "--far", "0.2",
             "--confidence", "none", "--fit-episodes", "10", "--workers", "1", "--out", str(out),
             "--results", str(tmp_path / "mc.json")]
     assert main(argv) == 0
     printed = capsys.readouterr()
     assert "no failure told for MountainCar-v0 (an env oodmon has no variants of)" in printed.out.replace("\n", " ")
+    # its observation space's bound, read only when the env is made: the env does not feel it, and is said so
+    assert ("MountainCar-v0:low[0]=-2.0: no episode alarmed, and nothing the env returned differed from its own over "
+            "200 steps of random actions, shifted from step 50") in " ".join(printed.out.split())
+    assert "gravity=0.01: no episode alarmed" not in printed.out
     result = json.loads((tmp_path / "mc.json").read_text())
     assert result["config"]["onsets"] == [50, 100]
     rows = {r["variant"]: r for r in result["alarms"]}
@@ -631,7 +636,7 @@ def test_bench_runs_the_monitors_protocol_on_shifts_of_your_own_env(tmp_path, ca
     assert aurocs["MountainCar-v0:gravity=0.01"] > 0.8
     logs = read_logs(sorted(out.glob("logs/MountainCar-v0-*/sb3/trial0/monitor-onsets50-100/*.mcap")))
     onsets = [e.onset for log in logs for e in log.episodes if e.variant != "MountainCar-v0"]
-    assert len(onsets) == 8 and all(50 <= onset < 100 for onset in onsets) and len(set(onsets)) > 1
+    assert len(onsets) == 12 and all(50 <= onset < 100 for onset in onsets) and len(set(onsets)) > 1
     stamps = {p: p.stat().st_mtime_ns for p in out.rglob("*.mcap")}
     assert main([*argv[:-2], "--baseline", str(tmp_path / "mc.json")]) == 0  # from the cache, every figure held
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*.mcap")} == stamps
