@@ -124,10 +124,10 @@ def probe_shift(shift: EnvShift, *, seed: int = 0, onset: int = 0, steps: int = 
         largest, per_step, first, played, returns, ended = None, [], None, 0, [0.0, 0.0], (False, False)
         observations = (own_env.reset(seed=seed)[0], shifted_env.reset(seed=seed)[0])
         for step in range(steps + 1):
-            flat = [np.asarray(o, dtype=np.float64).reshape(-1) for o in observations]
-            difference = np.abs(flat[1] - flat[0]) if flat[0].shape == flat[1].shape else np.full(flat[0].shape, np.inf)
-            difference = np.where(np.isnan(difference), np.where(np.isnan(flat[0]) == np.isnan(flat[1]), 0.0, np.inf),
-                                  difference)  # NaN in both: the same reading
+            flat = [_readings(own_env.observation_space, o) for o in observations]
+            difference = np.abs(flat[1] - flat[0])
+            difference[np.isnan(flat[0]) & np.isnan(flat[1])] = 0.0  # NaN in both: the same reading
+            difference[np.isnan(difference)] = np.inf  # NaN in one
             largest = difference if largest is None else np.maximum(largest, difference)
             per_step.append(float(difference.max(initial=0.0)))
             for keep, values in zip(kept, flat):
@@ -153,3 +153,10 @@ def probe_shift(shift: EnvShift, *, seed: int = 0, onset: int = 0, steps: int = 
     return ShiftProbe(shift, onset, seed, played, first, largest, np.array(per_step),
                       np.array(kept[0]) if kept[0] else None, np.array(kept[1]) if kept[1] else None,
                       returns[0], returns[1], ended, "random" if policy is None else "policy")
+
+
+def _readings(space: gymnasium.Space, obs: Any) -> np.ndarray:
+    """An observation's numbers, flattened (a dict's as ``gymnasium.spaces.flatten`` orders them)."""
+    if isinstance(space, (gymnasium.spaces.Dict, gymnasium.spaces.Tuple)):
+        obs = gymnasium.spaces.flatten(space, obs)
+    return np.asarray(obs, dtype=np.float64).reshape(-1)

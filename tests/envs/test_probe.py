@@ -115,3 +115,25 @@ def test_a_policy_acts_in_each_env_and_sees_a_shift_where_its_states_lead(tmp_pa
     assert main(argv) == 0 and "from step 6 on, over 30 steps of the policy's actions" in capsys.readouterr().out
     assert main(["envs", "show", "cartpole:length=2.0", "--sb3", str(tmp_path / "m.zip")]) == 2
     assert "hand-written controller" in capsys.readouterr().err
+
+
+def test_an_env_of_dict_observations_is_compared_reading_by_reading():
+    class DictGain(_ResetOnlyGain):
+        observation_space = gymnasium.spaces.Dict({"x": gymnasium.spaces.Box(-np.inf, np.inf, (2,), np.float64),
+                                                   "t": gymnasium.spaces.Discrete(1000)})
+
+        def reset(self, *, seed=None, options=None):
+            obs, info = super().reset(seed=seed, options=options)
+            self.t = 0
+            return {"x": obs, "t": 0}, info
+
+        def step(self, action):
+            obs, *rest = super().step(action)
+            self.t += 1
+            return {"x": obs, "t": self.t}, *rest
+
+    if "DictGainForTests-v0" not in gymnasium.registry:
+        gymnasium.register("DictGainForTests-v0", entry_point=DictGain, max_episode_steps=30)
+    probe = probe_shift(parse_env_shift("DictGainForTests-v0:drag=0.5"), onset=4, steps=30)
+    assert probe.first_difference == 5 and probe.largest.shape == (1002,)  # t one-hot, then x
+    assert probe.largest[:1000].max() == 0 and probe.largest[1000:].min() > 0
