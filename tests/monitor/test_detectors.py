@@ -704,3 +704,54 @@ def test_a_dynamics_model_fitted_on_a_still_policy_scores_a_far_transition_witho
     id_highest = detector.score_transitions(own.observations[:-1], own.actions, own.observations[1:]).max()
     assert np.isfinite(batch[0]) and batch[0] > 1e3 * id_highest > 0  # far out, and scored so
     np.testing.assert_allclose(one, batch[0], rtol=1e-3)
+
+
+def _landings(rng, episodes: int, touch: float) -> list:
+    """Episodes of a lander falling: height and speed (smooth), and a contact flag that jumps from
+    0 to 1 when it lands, which it does in a ``touch`` share of the episodes (rare: LunarLander's legs)."""
+    trajectories = []
+    for _ in range(episodes):
+        height, speed, lands = rng.uniform(5, 10), 0.0, rng.random() < touch
+        obs, actions = [], []
+        for _ in range(60):
+            flag = float(lands and height <= 0.5)
+            obs.append([height, speed, flag])
+            action = rng.uniform(-1, 1)
+            actions.append([action])
+            speed = speed - 0.05 + 0.02 * action
+            height = max(0.5 if lands else -1e9, height + speed)
+        obs.append([height, speed, float(lands and height <= 0.5)])
+        trajectories.append(Trajectory(np.array(obs, np.float32), np.array(actions, np.float32)))
+    return trajectories
+
+
+def test_a_reading_that_jumps_is_an_input_of_the_dynamics_model_not_a_prediction(tmp_path):
+    """A contact flag's change is -1, 0 or +1: a Gaussian cannot model it, and one ID touch-down
+    never seen in fitting scored 4e8 on a LunarLander PPO (2026-11-29), which set the threshold
+    there and hid every shift. Such a reading (its change takes <= 3 values over the ID
+    transitions, or it never moves) is now an input only: the fit says which readings it predicts,
+    both paths score those, and the file keeps them. Continuous readings only: unchanged (None)."""
+    from oodmon.monitor.detectors.dynamics import JUMP_VALUES
+
+    rng = np.random.default_rng(0)
+    never = _landings(rng, 20, touch=0.0)  # the flag never moves in fitting
+    detector = DynamicsDetector(None, epochs=10, seed=0).fit(never)
+    assert JUMP_VALUES == 3 and detector.predicted.tolist() == [0, 1]
+    landing = _landings(np.random.default_rng(1), 40, touch=1.0)[0]
+    scores = detector.score_transitions(landing.observations[:-1], landing.actions, landing.observations[1:])
+    own = detector.score_transitions(never[0].observations[:-1], never[0].actions, never[0].observations[1:])
+    assert scores.max() < 10 and own.max() < 1  # the touch-down and the ground after it: 3.3 (2.8e14 before)
+    one = [detector._nll_one(landing.observations[k], landing.actions[k], landing.observations[k + 1])
+           for k in range(len(landing.actions))]
+    np.testing.assert_allclose(one, scores, rtol=1e-4, atol=1e-4 * max(1.0, np.abs(scores).max()))
+    with pytest.raises(ConfigError, match="predicts 2 readings of 3"):  # a file whose predicted readings were lost
+        DynamicsDetector.from_state({k: v for k, v in detector.config().items() if k != "predicted"}, detector.tensors())
+    saved = DetectorSet([detector])
+    saved.save(tmp_path / "d")
+    loaded = DetectorSet.load(tmp_path / "d")["dynamics"]
+    assert loaded.predicted.tolist() == [0, 1]
+    np.testing.assert_array_equal(loaded.score_transitions(landing.observations[:-1], landing.actions,
+                                                           landing.observations[1:]), scores)
+    smooth = [Trajectory(t.observations[:, :2], t.actions) for t in never]
+    assert DynamicsDetector(None, epochs=2, seed=0).fit(smooth).predicted is None
+    assert "predicted" not in DynamicsDetector(None, epochs=2, seed=0).fit(smooth).config()

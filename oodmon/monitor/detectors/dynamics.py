@@ -50,7 +50,7 @@ from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Tra
 from oodmon.monitor.detectors.frames import is_picture
 from oodmon.validation import is_whole
 
-__all__ = ["MIN_LOGVAR", "DynamicsDetector", "min_logvar_for"]
+__all__ = ["JUMP_VALUES", "MIN_LOGVAR", "DynamicsDetector", "min_logvar_for"]
 
 _KINDS = ("pedm", "nll")
 _CONSTANT_Z = 16.0  # the fast path's constant pre-activation (see _FastNll)
@@ -59,6 +59,11 @@ _MIN_LOGVAR, _MAX_LOGVAR = -12.0, 2.0  # soft bounds of the predicted log-varian
 #: ``min_logvar`` per task where it is not the default -12 (chosen by measurement, see the README's
 #: detector section); fitting an agent's detectors uses its task's.
 MIN_LOGVAR: dict[str, float] = {"pendulum": -6.0}
+
+
+#: A reading whose change takes at most this many distinct values over the ID transitions jumps
+#: (a flag: -1, 0, +1) or never moves: the dynamics model takes it as an input and predicts the others.
+JUMP_VALUES = 3
 
 
 def min_logvar_for(task: str | None) -> float:
@@ -91,6 +96,12 @@ class DynamicsDetector(Detector):
             floor, so the few ID steps it predicts slightly wrong look very surprising; a higher
             floor caps that surprise (see :data:`MIN_LOGVAR` for the tasks' values).
         seed: seeds fitting and the draws: the same seed gives the same scores.
+        predicted: the readings (flattened indices) whose change is predicted and scored; ``None``:
+            every one. Set by :meth:`fit`: a reading whose change takes at most
+            :data:`JUMP_VALUES` values over the ID transitions (a contact flag's -1, 0, +1; a
+            reading that never moved) is an input only. A Gaussian cannot model such a jump: one
+            LunarLander leg touching down in an ID episode, never seen in fitting, scored 4e8 and
+            set the threshold there (2026-11-29). Every reading is kept when none varies otherwise.
     """
 
     name = "dynamics"
@@ -98,7 +109,8 @@ class DynamicsDetector(Detector):
 
     def __init__(self, n_actions: int | None = None, *, kind: str = "nll", members: int = 5, hidden: int = 64,
                  n_draws: int = 4, epochs: int = 30, batch_size: int = 512, lr: float = 2e-3, window: int = 20,
-                 seed: int = 0, neutral: float = 0.0, min_logvar: float = _MIN_LOGVAR, flatten: bool = False) -> None:
+                 seed: int = 0, neutral: float = 0.0, min_logvar: float = _MIN_LOGVAR, flatten: bool = False,
+                 predicted: Sequence[int] | None = None) -> None:
         if kind not in _KINDS:
             raise InvalidParameterError(f"kind={kind!r} is not allowed; use one of {', '.join(_KINDS)}")
         for label, value in (("members", members), ("hidden", hidden), ("n_draws", n_draws), ("epochs", epochs),
@@ -116,6 +128,9 @@ class DynamicsDetector(Detector):
         self.n_draws, self.epochs, self.seed = n_draws, epochs, seed
         self.batch_size, self.lr, self.window, self.neutral = batch_size, lr, window, float(neutral)
         self.flatten = bool(flatten)  # set by fit: the observations are stacked vectors, modelled flattened
+        # set by fit: the readings whose change the model predicts (None: every one); the others,
+        # which jump between a few values (contact flags, one-hot keys), are its inputs only
+        self.predicted = None if predicted is None else np.asarray(predicted, dtype=np.int64)
         self._recent = RecentMean(window)
         self._weights: list[tuple[np.ndarray, np.ndarray]] | None = None
         self._norm: dict[str, np.ndarray] = {}
@@ -170,7 +185,12 @@ class DynamicsDetector(Detector):
         nxt = np.concatenate([f[1:] for f in flat]).astype(np.float64)
         actions = np.concatenate([np.asarray(t.actions) for t in trajectories])
         delta = nxt - obs
-        norm = {"obs_mean": obs.mean(0), "obs_std": np.maximum(obs.std(0), 1e-6),
+        smooth = np.array([len(np.unique(delta[:, i])) > JUMP_VALUES for i in range(delta.shape[1])])
+        self.predicted = None if smooth.all() or not smooth.any() else np.flatnonzero(smooth)
+        # A reading that never varied in fitting is an input in its own units (scale 1): divided by a
+        # floor of 1e-6, its first change in deployment (a flag) fed the model inputs of a million.
+        obs_std = obs.std(0)
+        norm = {"obs_mean": obs.mean(0), "obs_std": np.where(obs_std < 1e-6, 1.0, obs_std),
                 "delta_mean": delta.mean(0), "delta_std": np.maximum(delta.std(0), 1e-6)}
         if self.n_actions is None:
             flat = np.asarray(actions, dtype=np.float64).reshape(len(actions), -1)
@@ -178,6 +198,8 @@ class DynamicsDetector(Detector):
         self._norm = {k: v.astype(np.float32) for k, v in norm.items()}
         x = self._inputs(obs, actions)
         y = ((delta - norm["delta_mean"]) / norm["delta_std"]).astype(np.float32)
+        if self.predicted is not None:
+            y = y[:, self.predicted]
 
         generator = torch.Generator().manual_seed(self.seed)
         sizes = [x.shape[1], self.hidden, self.hidden, 2 * y.shape[1]]
@@ -254,6 +276,8 @@ class DynamicsDetector(Detector):
                               f"shape {obs.shape[1:]}")
         mean, logvar = _forward_numpy(self._weights, self._inputs(obs, actions), self.min_logvar)  # (E, B, d)
         target = ((np.asarray(next_obs, dtype=np.float32) - obs) - self._norm["delta_mean"]) / self._norm["delta_std"]
+        if self.predicted is not None:
+            target = target[:, self.predicted]
         if self.kind == "nll":
             per_member = -0.5 * (((target - mean) ** 2) * np.exp(-logvar) + logvar + math.log(2 * math.pi)).sum(-1)
             top = per_member.max(axis=0)
@@ -269,7 +293,8 @@ class DynamicsDetector(Detector):
         return {"n_actions": self.n_actions, "kind": self.kind, "members": self.members, "hidden": self.hidden,
                 "n_draws": self.n_draws, "epochs": self.epochs, "batch_size": self.batch_size, "lr": self.lr,
                 "window": self.window, "seed": self.seed, "neutral": self.neutral, "min_logvar": self.min_logvar} \
-            | ({"flatten": True} if self.flatten else {})  # the shipped detectors' JSON unchanged
+            | ({"flatten": True} if self.flatten else {}) \
+            | ({} if self.predicted is None else {"predicted": self.predicted.tolist()})  # the shipped detectors' JSON unchanged
 
     def tensors(self) -> dict[str, np.ndarray]:
         self.check_fitted()
@@ -287,6 +312,12 @@ class DynamicsDetector(Detector):
             raise ConfigError("the dynamics detector's tensors are incomplete")
         detector._weights = [(np.asarray(tensors[f"layer{i}.weight"], np.float32),
                               np.asarray(tensors[f"layer{i}.bias"], np.float32)) for i in layers]
+        d, out = len(detector._norm["obs_mean"]), detector._weights[-1][0].shape[-1] // 2
+        predicted = detector.predicted
+        if (predicted is None and out != d) or (predicted is not None and (
+                len(predicted) != out or len(set(predicted.tolist())) != out or predicted.min() < 0 or predicted.max() >= d)):
+            raise ConfigError(f"the dynamics detector predicts {out} readings of {d}, but its predicted readings are "
+                              f"{'all' if predicted is None else predicted.tolist()}")
         return detector
 
 
@@ -352,9 +383,12 @@ class _FastNll:
             self.bias_per_action = list(first_layer(bias[None, :] + w0[d:], _CONSTANT_Z))  # row a: action a's one-hot
         floor = float(detector.min_logvar)
         root_precision = math.exp(-0.5 * floor)  # folded into the errors: error'^2 = error^2 * exp(-floor)
-        delta_scale = 1.0 / norm["delta_std"].astype(np.float64)
+        delta_scale, delta_mean = 1.0 / norm["delta_std"].astype(np.float64), norm["delta_mean"]
+        self.predicted = detector.predicted  # the readings scored (None: every one)
+        if self.predicted is not None:
+            delta_scale, delta_mean, d = delta_scale[self.predicted], delta_mean[self.predicted], len(self.predicted)
         bl = bl.copy()
-        bl[:, 0, :d] += norm["delta_mean"] * delta_scale  # the means, plus the offset of the normalised change
+        bl[:, 0, :d] += delta_mean * delta_scale  # the means, plus the offset of the normalised change
         bl[:, 0, :d] *= root_precision
         bl[:, 0, d:] -= _MAX_LOGVAR
         wl = np.concatenate([wl[:, :, :d] * root_precision, wl[:, :, d:]], axis=2)
@@ -411,7 +445,10 @@ class _FastNll:
         w = expit(self.raw, out=self.w)
         w *= self.span
         w += one  # exp(logvar - min_logvar), in [1, exp(max - min)]
-        target = np.subtract(obs, prev, out=self.target, dtype=np.float32)
+        if self.predicted is None:
+            target = np.subtract(obs, prev, out=self.target, dtype=np.float32)
+        else:
+            target = np.take(np.subtract(obs, prev, dtype=np.float32), self.predicted, out=self.target)
         target *= self.delta_scale
         error = np.subtract(target, self.mean, out=self.error)  # (E, d)
         error *= error
