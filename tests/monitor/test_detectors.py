@@ -752,6 +752,9 @@ def test_a_reading_that_jumps_is_an_input_of_the_dynamics_model_not_a_prediction
     assert loaded.predicted.tolist() == [0, 1]
     np.testing.assert_array_equal(loaded.score_transitions(landing.observations[:-1], landing.actions,
                                                            landing.observations[1:]), scores)
+    for bad in ([0.0, 1.0], [True, False], "01", {"0": 1}):  # a damaged file: not truncated to whole numbers
+        with pytest.raises(InvalidParameterError, match="predicted=.* is not allowed"):
+            DynamicsDetector(None, predicted=bad)
     smooth = [Trajectory(t.observations[:, :2], t.actions) for t in never]
     assert DynamicsDetector(None, epochs=2, seed=0).fit(smooth).predicted is None
     assert "predicted" not in DynamicsDetector(None, epochs=2, seed=0).fit(smooth).config()

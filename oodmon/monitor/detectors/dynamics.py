@@ -130,6 +130,10 @@ class DynamicsDetector(Detector):
         self.flatten = bool(flatten)  # set by fit: the observations are stacked vectors, modelled flattened
         # set by fit: the readings whose change the model predicts (None: every one); the others,
         # which jump between a few values (contact flags, one-hot keys), are its inputs only
+        if predicted is not None and (isinstance(predicted, (str, bytes, Mapping))
+                                      or not all(is_whole(i, 0) for i in predicted)):
+            raise InvalidParameterError(f"predicted={predicted!r} is not allowed; give the indices (whole numbers "
+                                        ">= 0) of the readings the model predicts, or None for every one")
         self.predicted = None if predicted is None else np.asarray(predicted, dtype=np.int64)
         self._recent = RecentMean(window)
         self._weights: list[tuple[np.ndarray, np.ndarray]] | None = None
