@@ -747,6 +747,12 @@ def test_a_reading_that_jumps_is_an_input_of_the_dynamics_model_not_a_prediction
     with pytest.raises(ConfigError, match="predicts 2 readings of 3"):  # a file whose predicted readings were lost
         DynamicsDetector.from_state({k: v for k, v in detector.config().items() if k != "predicted"}, detector.tensors())
     saved = DetectorSet([detector])
+    from oodmon.cli.calibration import _fitting_notes  # what calibrate and fit-detectors print after a fit
+
+    assert detector.unscored() == [2] and _fitting_notes(saved) == [
+        "dynamics: reading 2 of the observation (flattened) jumps between a few values over the ID transitions (a "
+        "contact flag) or never moved: inputs of the model, not scored by it (a Gaussian cannot model a jump), so a "
+        "fault of theirs alone goes unseen by this detector"]
     saved.save(tmp_path / "d")
     loaded = DetectorSet.load(tmp_path / "d")["dynamics"]
     assert loaded.predicted.tolist() == [0, 1]
@@ -757,4 +763,5 @@ def test_a_reading_that_jumps_is_an_input_of_the_dynamics_model_not_a_prediction
             DynamicsDetector(None, predicted=bad)
     smooth = [Trajectory(t.observations[:, :2], t.actions) for t in never]
     assert DynamicsDetector(None, epochs=2, seed=0).fit(smooth).predicted is None
-    assert "predicted" not in DynamicsDetector(None, epochs=2, seed=0).fit(smooth).config()
+    every = DynamicsDetector(None, epochs=2, seed=0).fit(smooth)
+    assert "predicted" not in every.config() and every.unscored() == [] and _fitting_notes(DetectorSet([every])) == []

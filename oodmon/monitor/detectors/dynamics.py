@@ -241,6 +241,12 @@ class DynamicsDetector(Detector):
         # (a used detector deep-copied scored 274,488 where it scores -1.68). Rebuilt on first use.
         return self.__dict__ | {"_fast": None}
 
+    def unscored(self) -> list[int]:
+        """The readings the model takes as inputs only (they jump: see ``predicted``), flattened indices."""
+        if self.predicted is None or not self.fitted:
+            return []
+        return sorted(set(range(self.obs_dim)) - set(self.predicted.tolist()))
+
     # -- scoring -----------------------------------------------------------------------------------
     def reset(self) -> None:
         self._recent.clear()
