@@ -205,14 +205,18 @@ class BenchConfig:
         if self.rule != "consecutive":
             parts.append(self.rule)
         if self.learned:
+            from oodmon.monitor.detectors.dynamics import JUMP_VALUES
             from oodmon.monitor.detectors.fitting import FIT_VERSION, default_fit_steps
 
             # the fitting's version: what an older oodmon fitted and scored is not reused; your own
-            # env's default fitting plays on until its steps (oodmon's tasks: none, key unchanged)
+            # env's default fitting plays on until its steps (oodmon's tasks: none, key unchanged);
+            # your own env's readings may jump, which the dynamics model takes as inputs since
+            # 2026-11-29 (JUMP_VALUES): an own env's older fits are not reused (every reading of
+            # oodmon's tasks is continuous, their fits the same: key unchanged)
             steps = 0 if self.fit_episodes else default_fit_steps(self.task)
             parts.append("+".join(self.detectors) + f"-alarm-{self.alarm_detector}-fit{FIT_VERSION}"
                          + (f"-on{self.fit_episodes}" if self.fit_episodes else "")
-                         + (f"-steps{steps}" if steps else ""))
+                         + (f"-steps{steps}" if steps else "") + (f"-jump{JUMP_VALUES}" if self.own_env else ""))
         if self.obs_noise:
             parts.append(f"noise{self.obs_noise:g}")
         if self.samples is not None:
