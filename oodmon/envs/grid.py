@@ -161,10 +161,13 @@ def parse_variant(spec: str) -> Variant:
     if task not in ENV_IDS:
         from oodmon.envs.registration import task_of_env
 
-        env_id, _, assignments = spec.strip().rpartition(":")  # gymnasium's id of a task: CartPole-v1:length=2.0
+        env_id, colon, assignments = spec.strip().rpartition(":")  # gymnasium's id of a task: CartPole-v1:length=2.0
+        if not colon:
+            env_id = assignments  # the id alone: its task's ID env
         if task_of_env(env_id) is not None:
+            named = task_of_env(env_id) + (f":{assignments}" if colon else "")
             raise UnknownParameterError(f"variant spec {spec!r}: oodmon's variants of {env_id} are named by its task, "
-                                        f"{task_of_env(env_id)}:{assignments} (see `oodmon envs`)")
+                                        f"{named} (see `oodmon envs`)")
         raise UnknownParameterError(
             f"variant spec {spec!r}: unknown task {task!r}; choose one of {', '.join(TASKS)}"
         )

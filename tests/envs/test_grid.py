@@ -70,6 +70,7 @@ def test_variant_makes_its_env_with_an_onset():
         # gymnasium's id of a task (a user of --sb3 --env Pendulum-v1 writes it): told the task's name
         ("Pendulum-v1:m=2.0", UnknownParameterError, "variants of Pendulum-v1 are named by its task, pendulum:m=2.0"),
         ("oodmon/Pong-v5:pixelate@3", UnknownParameterError, "named by its task, pong:pixelate@3"),
+        ("CartPole-v1", UnknownParameterError, "variants of CartPole-v1 are named by its task, cartpole (see"),
         ("cartpole:lenght=2", UnknownParameterError, "oodmon/CartPole-v1 has no parameter 'lenght'"),
         ("cartpole:masscart=0", InvalidParameterError, "masscart=0.0 is not allowed"),
         ("pendulum:l=-2", InvalidParameterError, "l=-2.0 is not allowed"),
