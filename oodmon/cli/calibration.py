@@ -56,7 +56,9 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
 
 def _calibrate(args: argparse.Namespace) -> int:
     from oodmon.monitor import calibrate_agent
-    from oodmon.monitor.detectors import BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors
+    from oodmon.monitor.detectors import (
+        BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors, fitting_notes,
+    )
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file
 
@@ -96,7 +98,7 @@ def _calibrate(args: argparse.Namespace) -> int:
            if fitted_to else "")
     )
     if fitted_to:
-        for note in _fitting_notes(detectors):
+        for note in fitting_notes(detectors):
             Console(soft_wrap=True).print(note, markup=False)
     best = BEST_DETECTOR.get(args.task)
     if best is not None and args.detector is None and threshold.detector != best:
@@ -198,20 +200,8 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
     fit.set_defaults(handler=_fit_detectors, kept_on_interrupt=_KEPT["fit-detectors"])
 
 
-def _fitting_notes(detectors) -> list[str]:
-    """What a fit leaves unwatched, in words: the readings the dynamics model takes as inputs only."""
-    dynamics = detectors["dynamics"] if detectors is not None and "dynamics" in detectors.names else None
-    unscored = dynamics.unscored() if dynamics is not None else []
-    if not unscored:
-        return []
-    return [f"dynamics: reading{'s' if len(unscored) > 1 else ''} {', '.join(map(str, unscored))} of the observation "
-            f"(flattened) jump{'' if len(unscored) > 1 else 's'} between a few values over the ID transitions (a contact "
-            "flag) or never moved: inputs of the model, not scored by it (a Gaussian cannot model a jump), so a "
-            "fault of theirs alone goes unseen by this detector"]
-
-
 def _fit_detectors(args: argparse.Namespace) -> int:
-    from oodmon.monitor.detectors import fit_agent_detectors
+    from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
     from oodmon.outputs import check_output_dir
 
     check_output_dir(args.out, parameter="--out")
@@ -224,6 +214,6 @@ def _fit_detectors(args: argparse.Namespace) -> int:
     console = Console(soft_wrap=True)
     console.print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
                   f"{detectors.fitted_for['episodes']} ID episodes; wrote {args.out}")
-    for note in _fitting_notes(detectors):
+    for note in fitting_notes(detectors):
         console.print(note, markup=False)
     return 0

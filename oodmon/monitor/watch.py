@@ -15,6 +15,7 @@ it and runs no episode.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -113,7 +114,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
             both given; a ``threshold`` file of another policy, or whose detectors are missing.
     """
     from oodmon.monitor.calibration import calibrate_agent
-    from oodmon.monitor.detectors import fit_agent_detectors
+    from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
     from oodmon.monitor.monitor import Monitor, MonitoredEnv, check_env_of
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file
@@ -138,6 +139,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     if threshold is None:
         only = ("scaled_spread",) if detector == "scaled_spread" else None  # fitted only when named, as the CLI fits it
         detectors = fit_agent_detectors(agent, detectors=only, episodes=fit_episodes, on_progress=on_progress)
+        for note in fitting_notes(detectors):  # what the fit leaves unwatched, as calibrate prints it
+            warnings.warn(note, stacklevel=2)
         alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,
                                           confidence=confidence, on_progress=on_progress)
         if save is not None:

@@ -747,7 +747,7 @@ def test_a_reading_that_jumps_is_an_input_of_the_dynamics_model_not_a_prediction
     with pytest.raises(ConfigError, match="predicts 2 readings of 3"):  # a file whose predicted readings were lost
         DynamicsDetector.from_state({k: v for k, v in detector.config().items() if k != "predicted"}, detector.tensors())
     saved = DetectorSet([detector])
-    from oodmon.cli.calibration import _fitting_notes  # what calibrate and fit-detectors print after a fit
+    from oodmon.monitor.detectors import fitting_notes as _fitting_notes  # calibrate, fit-detectors print them
 
     assert detector.unscored() == [2] and _fitting_notes(saved) == [
         "dynamics: reading 2 of the observation (flattened) jumps between a few values over the ID transitions (a "

@@ -23,7 +23,7 @@ from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
 from oodmon.monitor.detectors.fitting import (
     BEST_DETECTOR, DEFAULT_FIT_EPISODES, DEFAULT_FIT_STEPS, FIT_VERSION, best_detector, collect, default_detectors,
-    default_fit_steps, detectors_for, fit_agent_detectors, fit_detectors, trajectory_scores,
+    default_fit_steps, detectors_for, fit_agent_detectors, fit_detectors, fitting_notes, trajectory_scores,
 )
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
@@ -32,5 +32,5 @@ from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 __all__ = [
     "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "DETECTORS", "FIT_VERSION", "MIN_LOGVAR", "CombinedDetector", "Detector", "DetectorSet", "DynamicsDetector",
     "FeaturesDetector", "FramesDetector", "ScaledSpreadDetector", "SpreadDetector", "StepContext", "Trajectory", "best_detector", "collect", "default_detectors", "default_fit_steps", "detectors_for",
-    "fit_agent_detectors", "fit_detectors", "trajectory_scores",
+    "fit_agent_detectors", "fit_detectors", "fitting_notes", "trajectory_scores",
 ]

@@ -37,7 +37,7 @@ from oodmon.seeds import DETECTOR_FIT
 from oodmon.validation import is_whole
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector", "collect", "default_detectors",
-           "default_fit_steps", "detectors_for", "fit_agent_detectors",
+           "default_fit_steps", "detectors_for", "fit_agent_detectors", "fitting_notes",
            "fit_detectors", "policy_parts", "trajectory_scores"]
 
 #: ID episodes the learned detectors are fitted on by default: two thirds fit, one third ranks.
@@ -335,3 +335,16 @@ def detectors_for(agent: Any, directory: str | Path | None = None) -> DetectorSe
         return DetectorSet.load(directory)
     own = Path(agent.path) / "detectors" if getattr(agent, "path", None) is not None else None
     return DetectorSet.load(own) if own is not None and (own / "detectors.json").is_file() else None
+
+
+def fitting_notes(detectors: DetectorSet | None) -> list[str]:
+    """What a fit leaves unwatched, in words (``oodmon calibrate`` and ``fit-detectors`` print them,
+    :func:`oodmon.watch` warns them): the readings the dynamics model takes as inputs only."""
+    dynamics = detectors["dynamics"] if detectors is not None and "dynamics" in detectors.names else None
+    unscored = dynamics.unscored() if dynamics is not None else []
+    if not unscored:
+        return []
+    return [f"dynamics: reading{'s' if len(unscored) > 1 else ''} {', '.join(map(str, unscored))} of the observation "
+            f"(flattened) jump{'' if len(unscored) > 1 else 's'} between a few values over the ID transitions (a contact "
+            "flag) or never moved: inputs of the model, not scored by it (a Gaussian cannot model a jump), so a "
+            "fault of theirs alone goes unseen by this detector"]
