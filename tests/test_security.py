@@ -69,7 +69,7 @@ def test_users_sb3_files_are_unpickled_only_when_the_user_names_them():
     assert cli[cli.index("load_sb3(") - 700:cli.index("load_sb3(")].count('getattr(args, "sb3", None)') == 1
     # envs show: only for the model its --sb3 names
     envs = (PACKAGE / "cli" / "envs.py").read_text()
-    assert envs.count("load_sb3(") == 1 and "if args.sb3:" in envs[envs.index("load_sb3(") - 150:envs.index("load_sb3(")]
+    assert envs.count("load_sb3(") == 1 and "if args.sb3:" in envs[envs.index("load_sb3(") - 400:envs.index("load_sb3(")]
     # bench: only for a config naming the files (BenchConfig.sb3, from `bench --sb3`)
     bench = (PACKAGE / "bench" / "cache.py").read_text()
     assert bench.count("load_sb3(") == 1

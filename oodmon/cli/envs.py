@@ -95,7 +95,9 @@ def _envs_show(args: argparse.Namespace) -> int:
         policy = wrap = None
         if args.sb3:
             from oodmon.agents.sb3 import load_sb3
+            from oodmon.cli.loading import _check_frame_stack
 
+            _check_frame_stack(args.frame_stack)  # said as the option, before the model is read
             agent = load_sb3([args.sb3], variant.env_id, vec_normalize=args.vec_normalize, frame_stack=args.frame_stack)
             policy, wrap = agent.act, agent.wrap
         probe = probe_shift(variant, seed=args.seed, onset=args.onset, steps=args.steps, policy=policy, wrap=wrap)
