@@ -67,13 +67,7 @@ def _envs_list(args: argparse.Namespace) -> int:
 def _envs_show(args: argparse.Namespace) -> int:
     from oodmon.envs import parse_env_shift, parse_variant
     from oodmon.envs.grid import Variant
-    from oodmon.envs.preview import (
-        compare_physics,
-        pong_preview,
-        save_physics_plot,
-        save_probe_plot,
-        save_rgb,
-    )
+    from oodmon.envs.preview import compare_physics, pong_preview, save_physics_plot, save_rgb
 
     # oodmon's variant (its errors said as they are), else a shift of your own env
     variant = parse_variant(args.spec) if args.spec.partition(":")[0] in TASKS else parse_env_shift(args.spec)
@@ -90,21 +84,7 @@ def _envs_show(args: argparse.Namespace) -> int:
     if loading and not args.sb3:
         raise ConfigError("--vec-normalize and --frame-stack go with --sb3")
     if not isinstance(variant, Variant):
-        from oodmon.envs.probe import probe_shift
-
-        policy = wrap = None
-        if args.sb3:
-            from oodmon.agents.sb3 import load_sb3
-            from oodmon.cli.loading import _check_frame_stack
-
-            _check_frame_stack(args.frame_stack)  # said as the option, before the model is read
-            agent = load_sb3([args.sb3], variant.env_id, vec_normalize=args.vec_normalize, frame_stack=args.frame_stack)
-            policy, wrap = agent.act, agent.wrap
-        probe = probe_shift(variant, seed=args.seed, onset=args.onset, steps=args.steps, policy=policy, wrap=wrap)
-        console.print(probe.summary(), markup=False)  # obs.KIND[i]: no markup
-        if out:
-            console.print(f"wrote {save_probe_plot(probe, out)}")
-        return 0 if probe.changed else 1
+        return _show_own_shift(args, variant, out, console)
     if variant.task == "pong":
         image = pong_preview(variant, seed=args.seed)
         console.print(f"{variant.spec}: {variant.kwargs()}")
@@ -119,6 +99,27 @@ def _envs_show(args: argparse.Namespace) -> int:
     if out:
         console.print(f"wrote {save_physics_plot(comparison, out)}")
     return 0
+
+
+def _show_own_shift(args: argparse.Namespace, shift, out, console: Console) -> int:
+    """`envs show` of a shift of your own env: the env as it is and shifted, side by side
+    (:func:`~oodmon.envs.probe.probe_shift`); exit code 1 when nothing it returned differed."""
+    from oodmon.envs.preview import save_probe_plot
+    from oodmon.envs.probe import probe_shift
+
+    policy = wrap = None
+    if args.sb3:
+        from oodmon.agents.sb3 import load_sb3
+        from oodmon.cli.loading import _check_frame_stack
+
+        _check_frame_stack(args.frame_stack)  # said as the option, before the model is read
+        agent = load_sb3([args.sb3], shift.env_id, vec_normalize=args.vec_normalize, frame_stack=args.frame_stack)
+        policy, wrap = agent.act, agent.wrap
+    probe = probe_shift(shift, seed=args.seed, onset=args.onset, steps=args.steps, policy=policy, wrap=wrap)
+    console.print(probe.summary(), markup=False)  # obs.KIND[i]: no markup
+    if out:
+        console.print(f"wrote {save_probe_plot(probe, out)}")
+    return 0 if probe.changed else 1
 
 
 def _envs_tour(args: argparse.Namespace) -> int:
