@@ -765,3 +765,35 @@ def test_a_reading_that_jumps_is_an_input_of_the_dynamics_model_not_a_prediction
     assert DynamicsDetector(None, epochs=2, seed=0).fit(smooth).predicted is None
     every = DynamicsDetector(None, epochs=2, seed=0).fit(smooth)
     assert "predicted" not in every.config() and every.unscored() == [] and _fitting_notes(DetectorSet([every])) == []
+
+
+class _PointWithLamp(gymnasium.Env):
+    """A point pushed left or right, and a lamp reading that stays 0 (it would light on a fault)."""
+
+    observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (3,), np.float32)
+    action_space = gymnasium.spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.state = self.np_random.normal(size=2)
+        return np.array([*self.state, 0.0], np.float32), {}
+
+    def step(self, action):
+        self.state = np.array([self.state[0] + 0.1 * self.state[1], 0.9 * self.state[1] + (0.1 if action else -0.1)])
+        return np.array([*self.state, 0.0], np.float32), 1.0, False, False, {}
+
+
+def test_fit_detectors_says_which_readings_the_dynamics_model_does_not_score(tmp_path, capsys):
+    from stable_baselines3 import DQN
+
+    from oodmon.cli import main
+
+    if "PointWithLampForTests-v0" not in gymnasium.registry:
+        gymnasium.register("PointWithLampForTests-v0", entry_point=_PointWithLamp, max_episode_steps=40)
+    DQN("MlpPolicy", gymnasium.make("PointWithLampForTests-v0"), policy_kwargs={"net_arch": [8]}, seed=0).save(
+        tmp_path / "m.zip")
+    assert main(["fit-detectors", "--sb3", str(tmp_path / "m.zip"), "--env", "PointWithLampForTests-v0",
+                 "--episodes", "6", "--out", str(tmp_path / "d")]) == 0
+    said = " ".join(capsys.readouterr().out.split())
+    assert "dynamics: reading 2 of the observation (flattened) jumps between a few values" in said
+    assert DetectorSet.load(tmp_path / "d")["dynamics"].unscored() == [2]
