@@ -65,12 +65,11 @@ def _envs_list(args: argparse.Namespace) -> int:
 
 
 def _envs_show(args: argparse.Namespace) -> int:
-    from oodmon.envs import parse_env_shift, parse_variant
+    from oodmon.envs import parse_any_variant
     from oodmon.envs.grid import Variant
     from oodmon.envs.preview import compare_physics, pong_preview, save_physics_plot, save_rgb
 
-    # oodmon's variant (its errors said as they are), else a shift of your own env
-    variant = parse_variant(args.spec) if args.spec.partition(":")[0] in TASKS else parse_env_shift(args.spec)
+    variant = parse_any_variant(args.spec)  # oodmon's variant, else a shift of your own env
     out = None
     if args.out:
         from oodmon.outputs import check_picture_file

@@ -429,8 +429,9 @@ def own_variant(spec: str, env_id: str) -> EnvShift:
 
 
 def parse_any_variant(spec: str):
-    """A logged variant's spec read back: oodmon's :class:`~oodmon.envs.grid.Variant`, else a
-    shift of your own env (:func:`parse_env_shift`).
+    """A spec read back: oodmon's :class:`~oodmon.envs.grid.Variant` (a spec of one of its tasks,
+    whose errors are said as :func:`~oodmon.envs.grid.parse_variant` says them), else a shift of
+    your own env (:func:`parse_env_shift`).
 
     Raises:
         OodmonError: neither (an env's id alone is neither: its runs are the env as it is).
@@ -440,12 +441,9 @@ def parse_any_variant(spec: str):
         ((('length', 2.0),), (('dt', 0.1),))
     """
     from oodmon.envs.grid import parse_variant
-    from oodmon.errors import OodmonError
 
-    try:
-        return parse_variant(spec)
-    except OodmonError:
-        return parse_env_shift(spec)
+    task = spec.strip().partition(":")[0] if isinstance(spec, str) else None
+    return parse_variant(spec) if task in TASKS else parse_env_shift(spec)
 
 
 def parse_env_shift(spec: str) -> EnvShift:

@@ -143,15 +143,17 @@ class OutlyingThresholdWarning(UserWarning):
 OUTLYING = 1000.0
 
 
-def _warn_if_outlying(values: np.ndarray, value: float, rank: int, detector: str) -> None:
-    finite = np.sort(values[np.isfinite(values)])
-    if len(finite) < 4 or not 2 <= rank <= len(finite):
+def _warn_if_outlying(ordered: np.ndarray, rank: int, detector: str) -> None:
+    """Warn when the ``rank``-th of the sorted episode statistics ``ordered`` (the threshold) is an
+    outlier (:data:`OUTLYING`)."""
+    finite = ordered[np.isfinite(ordered)]  # a NaN-scored episode's +inf: out of the median
+    if len(finite) < 4 or rank < 2:
         return
-    median, below = float(np.median(finite)), float(finite[rank - 2])
-    if below > median and (value - median) / (below - median) > OUTLYING:
+    value, median, below = float(ordered[rank - 1]), float(np.median(finite)), float(ordered[rank - 2])
+    if math.isfinite(below) and below > median and (value - median) / (below - median) > OUTLYING:
         warnings.warn(OutlyingThresholdWarning(
             f"the {detector} threshold {value:.4g} lies {(value - median) / (below - median):.3g} times as far above "
-            f"the {len(values)} calibration episodes' median statistic ({median:.4g}) as the statistic below it "
+            f"the {len(ordered)} calibration episodes' median statistic ({median:.4g}) as the statistic below it "
             f"({below:.4g}): one ID episode the detector could not model sets it, and the alarm will miss whatever "
             "scores less. The false-alarm promise holds; to watch, find that episode's steps (`oodmon run` in the ID "
             "env with --mcap, `oodmon replay --plots`), fit the detectors on more episodes (--fit-episodes), or "
@@ -398,7 +400,8 @@ def calibrate(
         values = np.concatenate(episodes) if episodes else np.array([])
         unit = "steps"
     rank = conformal_rank(len(values), far, confidence, unit=unit)
-    value = float(np.sort(values)[rank - 1])
+    ordered = np.sort(values)
+    value = float(ordered[rank - 1])
     if not math.isfinite(value):
         shortest = min((len(s) for s in episodes), default=0)
         raise ConfigError(
@@ -407,7 +410,7 @@ def calibrate(
             f"shortest calibration episode has {shortest}; use a smaller window or longer episodes"
         )
     if mode == "episode":
-        _warn_if_outlying(values, value, rank, detector)
+        _warn_if_outlying(ordered, rank, detector)
     steps = np.concatenate(episodes) if episodes else np.array([0.0])
     quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
     return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
