@@ -218,6 +218,9 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
         ids = [m for m in result.alarms if m.is_id and m.method == row.method]
         far = (f"false alarms {ids[0].false_alarms}/{ids[0].episodes} ID episodes (95% interval {ids[0].far_low:.1%}-"
                f"{ids[0].far_high:.1%}, target {config.far:g})" if ids else "")
+        if ids and ids[0].failed:  # the policy fails in its own world too: a shifted episode's failure is not the shift's alone
+            far += (f"; {ids[0].failed}/{ids[0].episodes} ID episodes failed too (the env ended them): a shifted "
+                    "episode's failure is not the shift's doing alone")
         why = "a lost point is part of an ID game" if config.task in TASKS else "an env oodmon has no variants of"
         before = (f"no failure told for {config.task} ({why})" if row.failed is None
                   else f"{row.before_failure}/{row.failed} failing episodes alarmed before the failure"

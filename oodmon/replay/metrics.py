@@ -26,7 +26,7 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
            "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
-           "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable",
+           "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable",
            "shifted_alarms"]
 
 
@@ -302,7 +302,8 @@ PENDULUM_FAILURE_REWARD = -1.0
 FAILURE_DEFINITION = ("failed: CartPole's episode ended by itself after the onset; Pendulum's mean reward over the last "
                       f"{PENDULUM_FAILURE_WINDOW} steps fell below {PENDULUM_FAILURE_REWARD:g} after the onset "
                       "(oodmon.replay.failure_step); an env oodmon has no variants of: not defined (blank) unless "
-                      "--failure terminated (the env ended the episode itself); delays in steps from the onset; "
+                      "--failure terminated (the env ended the episode itself); the ID row's failed: ID episodes the "
+                      "env ended where that is a failure (not Pendulum's); delays in steps from the onset; "
                       "lead: steps from the first alarm to the failure, over the episodes alarmed before it")
 
 #: What may count as a failure of an env oodmon has no variants of (replay's and bench's
@@ -368,6 +369,30 @@ def failure_step(episode: EpisodeLog, task: str, failure: str | None = None) -> 
     return last if last >= episode.onset else None
 
 
+def id_failures(episodes: Sequence[EpisodeLog], task: str, failure: str | None = None) -> int | None:
+    """How many ID episodes failed as a shifted one fails by the env ending it (CartPole's pole fell,
+    your own env's end with ``failure="terminated"``): a policy that fails in its own world too (a
+    hopper that falls after 300 steps) makes "failed" of a shifted variant the shift's doing only in
+    part. ``None`` where no such failure is told: Pendulum's (its failure is a fall from a pole swung up
+    at the onset, which an ID episode lacks), Pong's, your own env's without ``failure``, a log
+    without ``terminated`` (format < 4).
+
+    Example:
+        >>> from oodmon.replay.reader import EpisodeLog
+        >>> def e(terminated):
+        ...     return EpisodeLog(episode=0, env_id="", variant="Hopper-v5", onset=0, seed=0, total_return=9.0,
+        ...                       length=9, alarms=0, first_alarm_step=None, terminated=terminated,
+        ...                       scores=np.zeros(9), shifted=np.zeros(9, bool), alarm=np.zeros(9, bool))
+        >>> id_failures([e(True), e(False), e(True)], "Hopper-v5", "terminated")
+        2
+        >>> id_failures([e(True)], "Hopper-v5"), id_failures([e(True)], "pendulum")
+        (None, None)
+    """
+    if task == "pendulum" or not failure_known(task, failure) or any(e.terminated is None for e in episodes):
+        return None
+    return sum(bool(e.terminated) for e in episodes)
+
+
 def failed_episodes(logs: Iterable[RunLog]) -> dict[str, int]:
     """Per shifted variant of ``logs`` (CartPole and Pendulum), how many of its episodes failed after
     the onset (:func:`failure_step`). The paper's protocol scores every step of a shifted episode as
@@ -395,7 +420,8 @@ class MonitorMetrics:
     """What the alarm did in one (task, method, variant), episode by episode (the monitor's benchmark).
 
     ID variant: ``false_alarms`` of ``episodes`` raised any alarm; ``far_low``/``far_high`` is the
-    95% Clopper-Pearson interval of that rate. Shifted variants: ``alarmed`` episodes had an alarm at
+    95% Clopper-Pearson interval of that rate; ``failed`` of them the env ended (:func:`id_failures`;
+    ``None`` where that is no failure). Shifted variants: ``alarmed`` episodes had an alarm at
     or after the onset (``early`` ones before it, a false alarm); ``failed`` episodes failed after
     the onset (:func:`failure_step`) and ``before_failure`` of them were alarmed before the failure
     step. Delays are in steps from the onset to the first alarm at or after it, over alarmed
@@ -430,7 +456,7 @@ class MonitorMetrics:
 
     @property
     def before_failure_rate(self) -> float | None:
-        return self.before_failure / self.failed if self.failed else None
+        return None if self.before_failure is None or not self.failed else self.before_failure / self.failed
 
     def to_dict(self) -> dict[str, object]:
         return asdict(self) | {"delays": list(self.delays), "leads": list(self.leads),
@@ -454,7 +480,8 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
             alarmed = sum(len(alarm_events(e.alarm)) > 0 for _, e in pairs)
             low, high = clopper_pearson(alarmed, len(pairs))
             results.append(MonitorMetrics(task, method, variant, len(pairs), false_alarms=alarmed,
-                                          far_low=low, far_high=high))
+                                          far_low=low, far_high=high,
+                                          failed=id_failures([e for _, e in pairs], task, failure)))
             continue
         episodes = [EpisodeAlarms.of(e, task, failure) for _, e in pairs]
         known = failure_known(task, failure)  # else failed and alarmed before failure are None: blank, not "0 failed"

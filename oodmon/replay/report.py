@@ -152,7 +152,7 @@ def monitor_cells(m: MonitorMetrics, *, name_task: bool = False) -> list[str]:
     delay = (lambda v: "" if v is None else f"{v:g}")
     if m.is_id:
         first = f"{_share(m.false_alarms, m.episodes)} [{m.far_low:.1%}, {m.far_high:.1%}]"
-        return [m.method, m.variant, str(m.episodes), first, "", "", "", "", "", ""]
+        return [m.method, m.variant, str(m.episodes), first, "", _share(m.failed, m.episodes), "", "", "", ""]
     variant = f"{m.variant} ({m.task})" if name_task and m.variant == POOLED else m.variant
     return [m.method, variant, str(m.episodes), _share(m.early, m.episodes), _share(m.alarmed, m.episodes),
             _share(m.failed, m.episodes), _share(m.before_failure, m.failed), delay(m.lead_median),

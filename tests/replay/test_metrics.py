@@ -221,6 +221,38 @@ def test_your_own_envs_failure_is_told_only_when_you_say_what_it_is():
         check_failure("fell")
 
 
+def test_the_id_row_counts_id_episodes_that_failed_where_a_failure_is_the_envs_end():
+    # A PPO hopper of ours (300,000 steps) falls after about 280 steps in its own world: the bench
+    # said "70/70 failed" of the shifted episodes and nothing of the ID ones, as if the shifts had
+    # made it fall. The ID row now says how many ID episodes failed as a shifted one fails.
+    import io
+
+    from rich.console import Console
+
+    from oodmon.replay import compute_monitor_metrics, monitor_table
+
+    shift = "Hopper-v5:model.body_mass[1]=8.0"
+    ids = [_run(k, "Hopper-v5", 0, [0] * 9, terminated=k < 3) for k in range(4)]  # 3 of 4 fell
+    shifted = [_run(4, shift, 3, [0, 0, 0, 0, 1, 0, 0, 0, 0], terminated=True)]
+    logs = [RunLog(Path("h.mcap"), "Hopper-v5", "sb3", 1.0, {}, [*ids, *shifted], True)]
+    (told_id,) = [m for m in compute_monitor_metrics(logs, "terminated") if m.is_id]
+    (untold_id,) = [m for m in compute_monitor_metrics(logs) if m.is_id]
+    assert (told_id.false_alarms, told_id.failed, told_id.before_failure_rate) == (0, 3, None)
+    assert untold_id.failed is None  # an env's end is no failure unless told
+    buffer = io.StringIO()
+    Console(width=220, file=buffer).print(monitor_table(compute_monitor_metrics(logs, "terminated"), "t", width=220))
+    (id_line,) = [line for line in buffer.getvalue().splitlines() if "│ Hopper-v5 " in line]
+    assert "3/4 (75%)" in id_line
+    # CartPole: an ID pole that never fell reads 0 of N; Pendulum tells no ID failure (its failure
+    # is a fall from a pole swung up at the onset).
+    cartpole = [RunLog(Path("c.mcap"), "cartpole", "dropout", 1.0, {},
+                       [_run(k, "cartpole", 0, [0] * 9, terminated=False) for k in range(5)], True)]
+    pendulum = [RunLog(Path("p.mcap"), "pendulum", "dropout", 1.0, {},
+                       [_run(k, "pendulum", 0, [0] * 9, terminated=False, rewards=[-9.0] * 9) for k in range(5)], True)]
+    assert [m.failed for m in compute_monitor_metrics(cartpole)] == [0]
+    assert [m.failed for m in compute_monitor_metrics(pendulum)] == [None]
+
+
 def test_the_monitor_table_is_readable_at_80_columns():
     """At 80 columns the monitor's ten columns left a variant's name 'cartpol…': the narrow layout
     keeps every name whole (wrapped if need be), the task and method in the title."""
