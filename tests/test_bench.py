@@ -85,8 +85,11 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
         {"far": 0.1}, {"calibration_episodes": 50}, {"window": 5}, {"score": "max_std"}, {"obs_noise": 0.01},
         {"confidence": None}, {"confidence": 0.8},
         {"detectors": ("spread", "dynamics")}, {"detectors": ("spread", "dynamics"), "alarm_detector": "dynamics"},
-        {"masks": "fixed"}, {"masks": "sampled"})}
-    assert len(keys) == 12  # sampled masks given is another key too: the model's own masks might be fixed
+        {"masks": "fixed"}, {"masks": "sampled"}, {"warmup": 20})}
+    assert len(keys) == 13  # sampled masks given is another key too: the model's own masks might be fixed
+    # no warm-up is no setting, as results from before warm-ups existed say (their baselines still compare)
+    assert "warmup" not in base.what_made_the_numbers()
+    assert BenchConfig("cartpole", ("dropout",), 1, warmup=20).what_made_the_numbers()["warmup"] == 20
     with pytest.raises(ConfigError, match="masks='frozen'"):
         BenchConfig("cartpole", ("dropout",), 1, masks="frozen")
     one = {"sb3": ("runs/dqn0.zip",), "env_id": "CartPole-v1"}  # one user's model (with dropout): fixed masks are its own

@@ -121,6 +121,11 @@ def test_calibrate_then_run_with_logs(tmp_path):
                     "--window", "20", "--out", str(tmp_path / "w.json"))
     assert "alarm when mean score over 20 steps >" in windowed.stdout
     assert json.loads((tmp_path / "w.json").read_text())["window"] == 20
+    warm = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--confidence", "none",
+                "--warmup", "30", "--out", str(tmp_path / "warm.json"))
+    assert warm.returncode == 0, warm.stderr
+    assert "from step 30 of each episode (combined detector" in warm.stdout
+    assert json.loads((tmp_path / "warm.json").read_text())["warmup"] == 30
     # The bound: marginal (rank ceil(20 * 0.95) = 19 of 19), or for this threshold with confidence 0.9.
     assert {k: json.loads(threshold.read_text())[k] for k in ("confidence", "rank")} == {"confidence": None, "rank": 19}
     assert {k: json.loads((tmp_path / "w.json").read_text())[k] for k in ("confidence", "rank")} == {
@@ -170,6 +175,12 @@ def test_evaluate_marks_failing_variants_as_json(capsys):
         (["calibrate", "--task", "cartpole", "--method", "dropout", "--window", "0", "--out", "/tmp/x.json"],
          "--window: 0 is not allowed"),
         (["bench", "--task", "cartpole", "--window", "-1"], "--window: -1 is not allowed"),
+        (["calibrate", "--task", "cartpole", "--method", "dropout", "--warmup", "-1", "--out", "/tmp/x.json"],
+         "--warmup: -1 is not allowed"),
+        (["calibrate", "--task", "cartpole", "--method", "dropout", "--rule", "cusum", "--warmup", "20", "--out",
+          "/tmp/x.json"], "the cusum rule takes no warm-up"),
+        (["bench", "--task", "cartpole", "--protocol", "monitor", "--rule", "martingale", "--warmup", "20", "--out",
+          "/tmp/oodmon-never-made"], "the martingale rule takes no warm-up"),
     ],
 )
 def test_monitor_cli_errors_are_one_line(args, words):

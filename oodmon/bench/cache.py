@@ -221,7 +221,8 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
             agent, config.calibration_episodes, config.far, score=config.score, window=config.window,
             detectors=DetectorSet.load(detectors_path) if detectors_path else None,
             detector=config.alarm_detector, obs_noise=config.obs_noise, confidence=config.confidence,
-            rule=config.rule, consecutive=config.m, on_progress=lambda _, done, total: report(stage, done, total))
+            rule=config.rule, consecutive=config.m, warmup=config.warmup,
+            on_progress=lambda _, done, total: report(stage, done, total))
         _continue_sampling(agent, threshold_state, made_now=True)
         threshold.save(threshold_path)  # after the state: a threshold on disk always has its state beside it
     else:

@@ -72,6 +72,7 @@ class BenchConfig:
     net_arch: tuple[int, ...] | None = None  # hidden widths of every trial (None: the recipe's; others train trial 0 too)
     onsets: tuple[int, int] | None = None  # [low, high) of the monitor protocol's onsets (None: the task's, ONSETS)
     failure: str | None = None  # what fails in your own env (oodmon.replay.metrics.FAILURES; None: not told)
+    warmup: int = 0  # the alarm looks at no finite score of an episode's first N steps (oodmon.monitor.alarms)
 
     def __post_init__(self) -> None:
         from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -204,6 +205,8 @@ class BenchConfig:
             parts.append(f"m{self.m}")
         if self.rule != "consecutive":
             parts.append(self.rule)
+        if self.warmup:
+            parts.append(f"warm{self.warmup}")
         if self.learned:
             from oodmon.monitor.detectors.dynamics import JUMP_VALUES
             from oodmon.monitor.detectors.fitting import FIT_VERSION, default_fit_steps
@@ -228,7 +231,8 @@ class BenchConfig:
     def what_made_the_numbers(self) -> dict:
         """The settings a result depends on (not where it ran: out, workers, executor)."""
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()
-                if k not in ("out", "workers", "executor", "address", "bind")}
+                if k not in ("out", "workers", "executor", "address", "bind")
+                and not (k == "warmup" and not v)}  # none: as results from before it existed say (baselines)
 
     @property
     def own_env(self) -> bool:

@@ -183,6 +183,7 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
                     summary.add_row(method, detector, f"{np.mean(means):.3f}", f"{np.min(means):.3f}", str(len(means)))
         console.print(summary)
     rule = f"the mean score of the last {config.window} steps" if config.window > 1 else "each step's score"
+    rule += f" from step {config.warmup} of each episode" if config.warmup else ""
     alarms = Table(title=f"{config.task}: the monitor's alarms ({config.alarm_detector} detector, {rule} against the "
                          "calibrated threshold), "
                          "mean over trials")
@@ -212,7 +213,8 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
     console.print(monitor_table(result.alarms, title=(
         f"{config.task}: the monitor's benchmark ({config.alarm_detector} detector; shifted episodes shift at a random "
         f"step in [{low}, {high}); far {config.far:g}"
-        + ("" if config.confidence is None else f" with confidence {config.confidence:g}") + ")"),
+        + ("" if config.confidence is None else f" with confidence {config.confidence:g}")
+        + (f"; no alarm in an episode's first {config.warmup} steps" if config.warmup else "") + ")"),
         width=console.width))
     for row in monitor_summary(result.alarms):
         ids = [m for m in result.alarms if m.is_id and m.method == row.method]

@@ -85,6 +85,8 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     _add_rule(bench)
     bench.add_argument("--consecutive", type=_whole(1),
                        help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
+    bench.add_argument("--warmup", type=_whole(0), default=0,
+                       help="the alarm looks at no score of an episode's first N steps (but a NaN reading's; default 0)")
     bench.add_argument("--obs-noise", type=_non_negative, default=0.0,
                        help="sensor noise in every monitored env, a fraction of each dimension's ID spread (default 0)")
     bench.add_argument("--executor", choices=["local", "ray"], default="local",
@@ -142,7 +144,7 @@ def _bench(args: argparse.Namespace) -> int:
                          vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
                          samples=args.samples, members=args.members,
                          net_arch=args.net_arch, fit_episodes=args.fit_episodes,
-                         masks=args.masks, onsets=args.onsets, failure=args.failure)
+                         masks=args.masks, onsets=args.onsets, failure=args.failure, warmup=args.warmup)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result
     from oodmon.outputs import check_output_dir, check_output_file

@@ -32,6 +32,9 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
     calibrate.add_argument("--window", type=_whole(1),
                            help="compare the mean score of the last N steps (default 1: each step's; Pong 200 "
                                 "unless the frames detector)")
+    calibrate.add_argument("--warmup", type=_whole(0), default=0,
+                           help="the alarm looks at no score of an episode's first N steps (but a NaN reading's): where "
+                                "the learned detectors' means cover few transitions since the reset (default 0)")
     _add_rule(calibrate)
     calibrate.add_argument("--reference-episodes", type=_whole(1), default=20,
                            help="ID episodes a sequential rule's p-values are taken against (default 20; seeds apart)")
@@ -87,7 +90,7 @@ def _calibrate(args: argparse.Namespace) -> int:
                                     window=args.window, score=args.score, seed=args.seed, detectors=detectors,
                                     detector=args.detector, confidence=args.confidence, rule=args.rule,
                                     reference_episodes=args.reference_episodes, reference_by_age=args.reference_by_age,
-                                    on_progress=report)
+                                    warmup=args.warmup, on_progress=report)
     threshold.save(args.out)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "

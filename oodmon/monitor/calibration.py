@@ -70,7 +70,8 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                     on_progress: Progress | None = None, window: int | None = None,
                     detectors: DetectorSet | None = None, detector: str | None = None,
                     obs_noise: float = 0.0, confidence: float | None = DEFAULT_CONFIDENCE, rule: str = "consecutive",
-                    reference_episodes: int = DEFAULT_REFERENCE_EPISODES, reference_by_age: bool = False) -> Threshold:
+                    reference_episodes: int = DEFAULT_REFERENCE_EPISODES, reference_by_age: bool = False,
+                    warmup: int = 0) -> Threshold:
     """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``).
 
     ``detector`` names the detector whose score the alarm will read; a learned one comes from
@@ -89,6 +90,9 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     ``martingale``, whose p-values are taken against ``reference_episodes`` further ID episodes
     (seeds :data:`oodmon.seeds.REFERENCE` on, apart from the calibration ones; see ``sequential``),
     pooled or, with ``reference_by_age``, by time since reset.
+
+    ``warmup``: the rule looks at no finite score of an episode's first ``warmup`` steps (see
+    ``alarms``); the threshold is calibrated for that rule.
 
     Raises:
         InvalidParameterError, ConfigError: a bad argument, or too few episodes for ``far``; all
@@ -115,8 +119,8 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         raise InvalidParameterError(f"reference_episodes={reference_episodes!r} is not allowed; the {rule} rule needs a "
                                     "whole number >= 1 of ID reference episodes")
     placeholder = Reference.from_episodes([np.zeros(1)]) if rule in SEQUENTIAL_RULES else None
-    calibrate([np.zeros(max(steps, 1))] * episodes, far, consecutive=consecutive, mode=mode, score=score, window=window,
-              confidence=confidence, rule=rule, reference=placeholder)
+    calibrate([np.zeros(max(steps + (warmup if is_whole(warmup, minimum=0) else 0), 1))] * episodes, far, consecutive=consecutive,
+              mode=mode, score=score, window=window, confidence=confidence, rule=rule, reference=placeholder, warmup=warmup)
     needed = detectors.subset([detector]) if detectors is not None and detector != "spread" else None
     reference = None
     if rule != "consecutive":
@@ -128,7 +132,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     return calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
                      method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
                      confidence=confidence, rule=rule, reference=reference,
-                     masks=getattr(agent.estimator, "masks", None))
+                     masks=getattr(agent.estimator, "masks", None), warmup=warmup)
 
 
 @dataclass(frozen=True)

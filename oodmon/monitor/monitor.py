@@ -204,13 +204,13 @@ class Monitor:
             self._refuse_or_warn("the threshold", differences, force)
             score, consecutive, value = threshold.score, threshold.consecutive, threshold.value
             window, detector = threshold.window, threshold.detector
-            rule, reference = threshold.rule, threshold.reference_scores()
+            rule, reference, warmup = threshold.rule, threshold.reference_scores(), threshold.warmup
         else:
             if threshold is not None and (not is_real(threshold) or math.isnan(threshold)):  # NaN: no alarm, ever
                 raise InvalidParameterError(f"threshold={threshold!r} is not allowed; give a number, a Threshold "
                                             "(oodmon.monitor.calibrate, Threshold.load), or None for no alarms")
             value = math.nan if threshold is None else float(threshold)
-            rule, reference = "consecutive", None
+            rule, reference, warmup = "consecutive", None, 0
         self.threshold = value
         given = _given_detectors(detectors)
         # No score asked for: a spread detector among those given keeps its own.
@@ -225,7 +225,8 @@ class Monitor:
             )
         self.tracker = AlarmTracker(value, default_consecutive(self.detector) if consecutive is None
                                     else check_consecutive(consecutive),
-                                    1 if window is None else check_window(window), rule=rule, reference=reference)
+                                    1 if window is None else check_window(window), rule=rule, reference=reference,
+                                    warmup=warmup)
         # One on its own, not in a list (list() of one sink said "'MemorySink' object is not iterable").
         if hasattr(sinks, "write_step"):
             raise ConfigError(f"sinks is a list: sinks=[{type(sinks).__name__}(...)], not one on its own")

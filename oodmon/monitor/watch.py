@@ -85,7 +85,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
           detector: str | None = None, mean: bool = False, sinks: Sequence[Sink] = (),
           callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
           on_progress: Progress | None = None, masks: str | None = None, vec_normalize: Any = None,
-          frame_stack: int | None = None, threshold: str | Path | None = None, save: str | Path | None = None) -> Any:
+          frame_stack: int | None = None, threshold: str | Path | None = None, save: str | Path | None = None,
+          warmup: int = 0) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
     The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy (``None``:
@@ -99,6 +100,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     :class:`~oodmon.monitor.MonitoredEnv` instead of the bare monitor; its ``info["oodmon"]``
     says what the monitor saw at every step. ``on_progress(stage, done, total)`` reports progress
     (see :mod:`oodmon.progress`). ``masks``, ``vec_normalize``, ``frame_stack``: see :func:`as_agent`.
+    ``warmup``: the alarm looks at no finite score of an episode's first ``warmup`` steps (see
+    :mod:`oodmon.monitor.alarms`; the calibration says when one would lower the threshold much).
 
     A calibration is minutes of ID episodes, which a deployed process cannot run at every start:
     ``save`` writes the threshold to that file and the fitted detectors to ``<save>.detectors/``
@@ -106,13 +109,14 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     ``threshold`` reads such a file and the detectors beside it (else the agent's shipped ones)
     instead of fitting and calibrating: no episode runs. The file must have been calibrated on this
     policy (the hash of its weights; its MC masks, which the policy is loaded with by default);
-    ``far``, ``confidence``, ``episodes`` and ``fit_episodes`` are then the file's.
+    ``far``, ``confidence``, ``episodes``, ``fit_episodes`` and ``warmup`` are then the file's.
 
     Raises:
         ConfigError, InvalidParameterError: as :func:`as_agent` and the calibration, before any
             episode runs where they can be told from the arguments; ``threshold`` and ``save``
             both given; a ``threshold`` file of another policy, or whose detectors are missing.
     """
+    from oodmon.monitor.alarms import check_warmup
     from oodmon.monitor.calibration import calibrate_agent
     from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
     from oodmon.monitor.monitor import Monitor, MonitoredEnv, check_env_of
@@ -121,11 +125,15 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
 
     if threshold is not None and save is not None:
         raise ConfigError("give threshold= (read a calibration made before) or save= (write the one made now), not both")
+    if threshold is not None and warmup:
+        raise ConfigError("a threshold file's warm-up is the one it was calibrated for: leave warmup= out, or "
+                          "calibrate anew with it (save=)")
     if threshold is not None:
         agent, alarm_threshold, detectors = _calibrated(policy, env_id, threshold, mean=mean, seed=seed, masks=masks,
                                                         vec_normalize=vec_normalize, frame_stack=frame_stack)
     else:
         conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
+        check_warmup(warmup)
         if fit_episodes is not None and not is_whole(fit_episodes, 3):  # (fit_agent_detectors would say "episodes=", after loading the models)
             raise InvalidParameterError(f"fit_episodes={fit_episodes!r} is not allowed; fitting the detectors needs a "
                                         "whole number >= 3 of ID episodes (two thirds fit, one third ranks)")
@@ -142,7 +150,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
         for note in fitting_notes(detectors):  # what the fit leaves unwatched, as calibrate prints it
             warnings.warn(note, stacklevel=2)
         alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,
-                                          confidence=confidence, on_progress=on_progress)
+                                          confidence=confidence, on_progress=on_progress, warmup=warmup)
         if save is not None:
             alarm_threshold.save(save)
             detectors.save(f"{save}.detectors")

@@ -391,6 +391,11 @@ def test_watch_saves_its_calibration_and_a_later_start_reads_it_running_no_episo
         oodmon.watch(paths[::-1], "CartPole-v1", threshold=tmp_path / "w.json")  # the other model deploys: other hash
     with pytest.raises(ConfigError, match="not both"):
         oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json", save=tmp_path / "x.json")
+    with pytest.raises(ConfigError, match="a threshold file's warm-up is the one it was calibrated for"):
+        oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json", warmup=20)
+    warm = oodmon.watch(paths, "CartPole-v1", episodes=10, far=0.2, confidence=None, fit_episodes=6, warmup=30,
+                        save=tmp_path / "warm.json")
+    assert warm.tracker.warmup == 30 and Threshold.load(tmp_path / "warm.json").warmup == 30
     (tmp_path / "w.json.detectors").rename(tmp_path / "elsewhere")
     with pytest.raises(ConfigError, match="which is missing: copy that folder"):
         oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json")

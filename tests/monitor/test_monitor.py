@@ -204,6 +204,8 @@ def test_watch_names_its_own_fit_episodes_argument_when_refusing_it(agent):
 
     with pytest.raises(ConfigError, match=r"^fit_episodes=0 is not allowed; fitting the detectors needs"):
         oodmon.watch(agent, "CartPole-v1", fit_episodes=0)  # was "episodes=0 ...", the name of another argument
+    with pytest.raises(ConfigError, match=r"^warmup=-5 is not allowed"):  # before any fitting
+        oodmon.watch(agent, "CartPole-v1", warmup=-5)
 
 
 def test_an_env_of_another_task_is_refused_before_any_fitting(agent, monkeypatch):
@@ -480,3 +482,25 @@ def test_a_twin_monitors_another_env_of_a_vector_env_as_a_monitor_of_its_own_wou
     for _ in range(30):
         obs, *_ = venv.step(np.array([agent.act(o) for o in obs]))
     assert _scores(shared[0].sinks.sinks[0])["dynamics"][:30] != alone[0]["dynamics"][:30]
+
+
+def test_a_threshold_with_a_warmup_alarms_on_no_finite_score_of_the_first_steps_but_on_a_nan(agent):
+    """The threshold file's warm-up reaches the monitor: a threshold every score exceeds alarms first
+    at the warm-up's end; a failed sensor in the warm-up alarms at once."""
+    from oodmon.monitor import Threshold
+
+    def first_alarms(threshold, env):
+        sink = MemorySink()
+        with Monitor(agent, threshold, sinks=[sink]) as monitor:
+            monitor.run_episode(env, seed=0, max_steps=40)
+        return [s.step for s in sink.steps if s.alarm][:4], sink.alarms
+
+    always = Threshold(-1e9, "chosen_std", 1, "episode", 0.05, 20, 100, task="cartpole", method="ensemble", warmup=25)
+    steps, events = first_alarms(always, gymnasium.make("oodmon/CartPole-v1"))
+    assert steps == [25, 26, 27, 28] and [e.step for e in events] == [25]
+    assert events[0].rule == "score > threshold from step 25 of each episode"
+    never = Threshold(1e9, "chosen_std", 1, "episode", 0.05, 20, 100, task="cartpole", method="ensemble", warmup=25)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the NaN steps' warnings: their own test's
+        steps, events = first_alarms(never, _SensorFailure(gymnasium.make("oodmon/CartPole-v1"), 5, 3))
+    assert steps == [5, 6, 7] and [e.step for e in events] == [5]

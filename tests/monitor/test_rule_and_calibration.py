@@ -277,3 +277,80 @@ def test_a_threshold_set_by_one_outlying_episode_is_said_and_one_among_ordinary_
             values = values[np.isfinite(values)]
             median = np.median(values)
             assert (values[-1] - median) / (values[-2] - median) < OUTLYING / 10, (path.name, detector)
+
+
+@pytest.mark.parametrize("window", [1, 5], ids=["each-step", "window-5"])
+@pytest.mark.parametrize("seed", range(4))
+def test_a_warmup_is_decided_by_the_episode_statistic_too(seed, window):
+    """With a warm-up the rule looks at no finite score of the first steps: the tracker alarms
+    exactly where the statistic from the warm-up on says, and a NaN score in the warm-up alarms."""
+    rng = np.random.default_rng(seed)
+    scores = rng.random(60)
+    scores[:10] += 5.0  # an episode's high first steps, as a learned detector's means over few transitions
+    stat = episode_statistic(scores, 2, window, warmup=10)
+    assert stat == episode_statistic(scores[10:], 2, window) < 1.0 < episode_statistic(scores, 2, window)
+    for threshold in (stat - 1e-9, stat + 1e-9):
+        tracker = AlarmTracker(threshold, 2, window, warmup=10)
+        alarms = [tracker.update(0, i, s)[0] for i, s in enumerate(scores)]
+        assert not any(alarms[:10]) and any(alarms) == (stat > threshold)
+    failed = scores.copy()
+    failed[3] = np.nan  # a failed sensor in the warm-up: every detector scores it as the most shifted
+    assert episode_statistic(failed, 2, window, warmup=10) == math.inf
+    tracker = AlarmTracker(100.0, 2, window, warmup=10)
+    results = [tracker.update(0, i, s) for i, s in enumerate(failed)]
+    assert [i for i, (alarm, _) in enumerate(results) if alarm] == [3]
+    assert results[3][1].step == 3 and results[3][1].rule.endswith("from step 10 of each episode")
+
+
+def test_a_warmup_is_calibrated_kept_in_the_file_and_refused_where_it_means_nothing(tmp_path):
+    rng = np.random.default_rng(3)
+    episodes = [np.concatenate([rng.normal(3.0, 1.0, 20), rng.normal(0.0, 1.0, 180)]) for _ in range(50)]
+    with pytest.warns(UserWarning):  # the warm-up's hint, asserted in the next test
+        plain = calibrate(episodes, 0.05, consecutive=1)
+    warm = calibrate(episodes, 0.05, consecutive=1, warmup=20)
+    assert warm.value == max(s[20:].max() for s in episodes) < plain.value  # rank 50 of 50: the largest
+    assert warm.rule_text == f"score > {warm.value:.6g} from step 20 of each episode"
+    path = warm.save(tmp_path / "thr.json")
+    assert Threshold.load(path) == warm and json.loads(path.read_text())["warmup"] == 20
+    old = {k: v for k, v in json.loads(path.read_text()).items() if k != "warmup"}  # before warm-ups existed
+    path.write_text(json.dumps(old))
+    assert Threshold.load(path).warmup == 0
+    for bad in (-1, 1.5, True, "20"):
+        path.write_text(json.dumps(old | {"warmup": bad}))
+        with pytest.raises(ConfigError, match=rf"thr\.json: warmup={bad!r} is not allowed; the alarm rule skips"):
+            Threshold.load(path)
+    with pytest.raises(ConfigError, match="the cusum rule takes no warm-up: it weighs each step against ID steps at "
+                                          "the same time since reset already"):
+        AlarmTracker(1.0, 1, rule="cusum", warmup=5)
+    with pytest.raises(InvalidParameterError, match="a warm-up is calibrated per episode"):
+        calibrate(episodes, 0.05, mode="step", warmup=5)
+    with pytest.raises(ConfigError, match=r"needs 201 steps per episode \(consecutive=1, window=1, warmup=200\) and "
+                                          r"the shortest calibration episode has 200; use a smaller window or warm-up"):
+        calibrate(episodes, 0.05, consecutive=1, warmup=200)
+
+
+def test_calibrate_says_when_a_warmup_would_lower_the_threshold_and_is_silent_otherwise():
+    """A PPO hopper's calibration episodes peaked in their first steps (a learned detector's means
+    over the few transitions since the reset): threshold 4.24, 2.32 from step 20 on, and calibrate
+    did not say so. Its hint names the threshold the warm-up would give, which calibrate gives."""
+    from oodmon.monitor.threshold import WARMUP_HINT, EarlyPeaksWarning
+
+    rng = np.random.default_rng(4)
+    early = [np.concatenate([rng.normal(0.0, 1.0, 200)]) for _ in range(50)]
+    for episode in early[:30]:
+        episode[int(rng.integers(1, WARMUP_HINT))] += 8.0  # 30 of 50 peak early
+    peaked = sum(s[:WARMUP_HINT].max() > s[WARMUP_HINT:].max() for s in early)  # 30, and any that did by chance
+    assert 30 <= peaked <= 35
+    with pytest.warns(EarlyPeaksWarning, match=rf"{peaked} of the 50 calibration episodes reach their highest dynamics "
+                                               r"score only within their first 20 steps") as caught:
+        threshold = calibrate(early, 0.05, consecutive=1, detector="dynamics")
+    would = calibrate(early, 0.05, consecutive=1, detector="dynamics", warmup=WARMUP_HINT)
+    assert f"would set the threshold at {would.value:.4g} instead of {threshold.value:.4g}" in str(caught[0].message)
+    steady = [rng.normal(0.0, 1.0, 200) for _ in range(50)]
+    short = [np.concatenate([[9.0], rng.normal(0.0, 1.0, 30)]) for _ in range(50)]  # a warm-up would take much
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        calibrate(steady, 0.05, consecutive=1)
+        calibrate(short, 0.05, consecutive=1)
+        calibrate(early, 0.05, consecutive=1, warmup=5)  # a warm-up chosen: no hint
+        calibrate(early, 0.05, consecutive=1, window=5, rule="consecutive", warmup=WARMUP_HINT)
