@@ -115,11 +115,13 @@ def test_conformal_rank():
     assert (threshold.value, threshold.rank, threshold.confidence) == (194.0, 195, 0.9)
 
 
-@pytest.mark.parametrize(("consecutive", "window"), [(1, 1), (3, 1), (3, 10)], ids=["m1", "m3", "m3-window10"])
-def test_false_alarm_guarantee_holds_on_fresh_episodes(consecutive, window):
-    # Episodes of correlated scores (AR(1) noise, different lengths), like a real agent's. Over
-    # many independent calibrations, the fraction of fresh episodes that alarm stays <= far;
-    # with exchangeable episodes its expectation is between far - 1/(n+1) and far.
+@pytest.mark.parametrize(("consecutive", "window", "warmup"), [(1, 1, 0), (3, 1, 0), (3, 10, 0), (1, 1, 20)],
+                         ids=["m1", "m3", "m3-window10", "m1-warmup20"])
+def test_false_alarm_guarantee_holds_on_fresh_episodes(consecutive, window, warmup):
+    # Episodes of correlated scores (AR(1) noise, different lengths), like a real agent's, with a
+    # burst in their first 20 steps where a warm-up is tried. Over many independent calibrations,
+    # the fraction of fresh episodes that alarm stays <= far; with exchangeable episodes its
+    # expectation is between far - 1/(n+1) and far.
     rng = np.random.default_rng(0)
 
     def episode() -> np.ndarray:
@@ -129,15 +131,18 @@ def test_false_alarm_guarantee_holds_on_fresh_episodes(consecutive, window):
         out[0] = noise[0]
         for t in range(1, length):
             out[t] = 0.8 * out[t - 1] + noise[t]
+        if warmup:
+            out[:20] += 3.0  # the start-up the warm-up skips
         return out
 
     far, n = 0.1, 49
     rates = []
     for _ in range(40):
         threshold = calibrate([episode() for _ in range(n)], far, consecutive=consecutive, window=window,
-                              confidence=None)
+                              confidence=None, warmup=warmup)
         fresh = [episode() for _ in range(200)]
-        rates.append(np.mean([episode_statistic(s, consecutive, window) > threshold.value for s in fresh]))
+        rates.append(np.mean([episode_statistic(s, consecutive, window, warmup=warmup) > threshold.value
+                              for s in fresh]))
     assert np.mean(rates) <= far + 0.01
     assert np.mean(rates) >= far - 1 / (n + 1) - 0.02
 
