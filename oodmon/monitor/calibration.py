@@ -119,8 +119,9 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         raise InvalidParameterError(f"reference_episodes={reference_episodes!r} is not allowed; the {rule} rule needs a "
                                     "whole number >= 1 of ID reference episodes")
     placeholder = Reference.from_episodes([np.zeros(1)]) if rule in SEQUENTIAL_RULES else None
-    calibrate([np.zeros(max(steps + (warmup if is_whole(warmup, minimum=0) else 0), 1))] * episodes, far, consecutive=consecutive,
-              mode=mode, score=score, window=window, confidence=confidence, rule=rule, reference=placeholder, warmup=warmup)
+    steps += warmup if is_whole(warmup, minimum=0) else 0  # (a bad warm-up is refused by the dry run)
+    calibrate([np.zeros(max(steps, 1))] * episodes, far, consecutive=consecutive, mode=mode, score=score, window=window,
+              confidence=confidence, rule=rule, reference=placeholder, warmup=warmup)
     needed = detectors.subset([detector]) if detectors is not None and detector != "spread" else None
     reference = None
     if rule != "consecutive":
