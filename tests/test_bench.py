@@ -105,10 +105,11 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
     monkeypatch.setattr(fitting, "FIT_VERSION", fitting.FIT_VERSION + 1)
     assert BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key() != today
     assert BenchConfig("cartpole", ("dropout",), 1).cache_key() == base.cache_key()  # spread alone: nothing fitted
-    # your own env's fits since its jumping readings became the dynamics model's inputs (2026-11-29)
+    # your own env's fits since its jumping readings became the dynamics model's inputs and drift
+    # joined its default set (both 2026-11-29)
     own = BenchConfig("Acrobot-v1", ("sb3",), 1, sb3=("runs/a.zip",), env_id="Acrobot-v1", variants=("Acrobot-v1:dt=0.3",),
                       protocol="monitor", onsets=(20, 100), **learned).cache_key()
-    assert own.endswith("-jump3") and not today.endswith("-jump3")
+    assert own.endswith("-jump3-drift") and not today.endswith("-jump3-drift")
     # nor detectors fitted on another number of episodes (the key ignored it before)
     assert BenchConfig("cartpole", ("dropout",), 1, fit_episodes=60, **learned).cache_key() != \
         BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key()

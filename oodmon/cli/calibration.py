@@ -62,6 +62,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     from oodmon.monitor.detectors import (
         BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors, fitting_notes,
     )
+    from oodmon.monitor.detectors.fitting import fitted_when_named
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file
 
@@ -74,15 +75,15 @@ def _calibrate(args: argparse.Namespace) -> int:
     # A learned detector asked for, or a model from elsewhere (a plain policy has no spread; an SB3
     # ensemble's spread is weak): fit them first, on episodes of their own. So too for a combined
     # detector asked for with another spread score than the fitted one ranks.
-    # scaled_spread is fitted only when asked for, alone (with the spread).
+    # scaled_spread is fitted only when asked for, alone (with the spread); drift only when asked for.
     left_out = detectors.for_score(args.score)[1] if detectors is not None else None
-    scaled = args.detector == "scaled_spread"
+    named_only = fitted_when_named(args.detector) is not None
     if (detectors is None and (args.detector not in (None, "spread") or agent.estimator is None or agent.env_id)
-            or (args.detector == "combined" and left_out) or (scaled and "scaled_spread" not in (detectors or ()))):
+            or (args.detector == "combined" and left_out) or (named_only and args.detector not in (detectors or ()))):
         fitted_to = Path(f"{args.out}.detectors")
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
         with _progress() as report:
-            detectors = fit_agent_detectors(agent, detectors=("scaled_spread",) if scaled else None, score=args.score,
+            detectors = fit_agent_detectors(agent, detectors=fitted_when_named(args.detector), score=args.score,
                                             episodes=args.fit_episodes, on_progress=report)
         detectors.save(fitted_to)
     with _progress() as report:
@@ -190,8 +191,8 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
         "fit-detectors", help="fit the learned detectors (dynamics, features, combined) on an agent's ID episodes"
     )
     _agent_arguments(fit)
-    fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread, "
-                                    "which is fitted only when named)")
+    fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread "
+                                    "and drift, which are fitted only when named)")
     fit.add_argument("--episodes", type=_whole(3),
                      help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES}; "
                           f"your own --env: more, until they hold {_FIT_STEPS:,} steps)")

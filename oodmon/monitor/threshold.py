@@ -52,7 +52,7 @@ __all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT
 MODES = ("episode", "step")
 #: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
 #: that reading a threshold file does not import them).
-DETECTOR_NAMES = ("spread", "dynamics", "features", "frames", "combined", "scaled_spread")
+DETECTOR_NAMES = ("spread", "dynamics", "features", "frames", "combined", "scaled_spread", "drift")
 _QUANTILES = (0.5, 0.9, 0.95, 0.99)
 #: The default probability that a threshold's false-alarm rate is at most its target.
 DEFAULT_CONFIDENCE = 0.9
@@ -156,8 +156,9 @@ WARMUP_HINT = 20
 #: :class:`EarlyPeaksWarning` comes when that warm-up leaves the threshold at most this share of its
 #: height above the ID steps' median score. Measured on the first 50 (90) of 200 ID episodes of the
 #: monitor's bench at far 0.05, confidence 0.9 (0.99): the README's PPO hopper (`Hopper-v5`,
-#: `combined`, `results/monitor/hopper-ppo.json`) 0.56 (0.56), thresholds 4.28 and 2.61 (4.29 and
-#: 2.62); another hopper of ours (six runs of 50,000 steps) 0.56 (0.49); the shipped CartPole agents'
+#: `combined` of `dynamics` alone) 0.56 (0.56), thresholds 4.28 and 2.61 (4.29 and 2.62), with
+#: `drift` too 0.72 (its bench's calibration); another hopper of ours (six runs of 50,000 steps,
+#: `dynamics` alone) 0.56 (0.49); the shipped CartPole agents'
 #: `combined` ensemble 1.0 (0.64), Dropout 0.89 (0.89), DropConnect 1.0 (1.0); Pendulum's `dynamics`
 #: DropConnect 0.77 (0.70), Dropout 1.0, ensemble 0.92.
 EARLY_GAIN = 2 / 3

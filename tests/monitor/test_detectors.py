@@ -636,6 +636,9 @@ def test_stacked_vector_observations_are_watched_by_a_dynamics_model_of_them_fla
         return int(weights @ np.asarray(obs).reshape(-1, 4)[-1] > 0)  # the newest state
 
     assert default_detectors(policy, _stacked_cartpole(False)) == ("dynamics", "combined")
+    # drift joins the default set in an env oodmon has no variants of, not in oodmon's tasks
+    assert default_detectors(policy, _stacked_cartpole(False), "cartpole") == ("dynamics", "combined")
+    assert default_detectors(policy, _stacked_cartpole(False), "CartPole-v0") == ("dynamics", "drift", "combined")
     assert not is_picture((4, 4), np.float32) and is_picture((4, 84, 84), np.uint8) and is_picture((40, 40, 3), np.uint8)
     fitted = {flat: fit_detectors(policy, _stacked_cartpole(flat), detectors=["dynamics"], episodes=9) for flat in (False, True)}
     assert fitted[False]["dynamics"].flatten and not fitted[True]["dynamics"].flatten
@@ -678,7 +681,7 @@ def test_your_own_envs_default_fitting_plays_on_until_its_episodes_hold_enough_s
         assert fit_agent_detectors(agent, detectors=["dynamics"], episodes=asked).fitted_for["episodes"] == asked
     mountain_car = DQN("MlpPolicy", gymnasium.make("MountainCar-v0"), seed=1, policy_kwargs={"net_arch": [8]})
     fitted = fit_agent_detectors(sb3_agent([mountain_car], "MountainCar-v0"))  # combined too: its last third ranks
-    assert fitted.names == ["dynamics", "combined"] and fitted.fitted_for["episodes"] == 5
+    assert fitted.names == ["dynamics", "drift", "combined"] and fitted.fitted_for["episodes"] == 5  # your own env: drift
 
 
 def test_a_dynamics_model_fitted_on_a_still_policy_scores_a_far_transition_without_an_overflow_warning():

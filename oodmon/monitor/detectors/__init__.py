@@ -9,6 +9,8 @@
 - ``scaled_spread``: an ensemble's spread with each member's values on its own ID footing (DDPG:
   outputs before the tanh over their ID scale; DQN: centred Q-values as ID z-scores; fitted only
   when named).
+- ``drift``: a bias of the dynamics model's residuals, reading by reading (a change the policy
+  copes with, missed the same way step after step; with ``dynamics``, by default in your own env).
 
 :func:`fit_detectors` fits them for a policy on its own ID episodes; :class:`DetectorSet` runs
 them at each step and saves them (safetensors + JSON).
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
+from oodmon.monitor.detectors.drift import DriftDetector
 from oodmon.monitor.detectors.dynamics import MIN_LOGVAR, DynamicsDetector
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
@@ -30,7 +33,7 @@ from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 
 __all__ = [
-    "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "DETECTORS", "FIT_VERSION", "MIN_LOGVAR", "CombinedDetector", "Detector", "DetectorSet", "DynamicsDetector",
+    "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "DETECTORS", "FIT_VERSION", "MIN_LOGVAR", "CombinedDetector", "Detector", "DetectorSet", "DriftDetector", "DynamicsDetector",
     "FeaturesDetector", "FramesDetector", "ScaledSpreadDetector", "SpreadDetector", "StepContext", "Trajectory", "best_detector", "collect", "default_detectors", "default_fit_steps", "detectors_for",
     "fit_agent_detectors", "fit_detectors", "fitting_notes", "trajectory_scores",
 ]

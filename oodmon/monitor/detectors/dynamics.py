@@ -298,6 +298,22 @@ class DynamicsDetector(Detector):
         errors = ((draws - target) ** 2).mean(axis=-1)  # (D, E, B)
         return errors.reshape(-1, errors.shape[-1]).min(axis=0)
 
+    def standardized_residuals(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray) -> np.ndarray:
+        """Each predicted reading's change minus the ensemble's mean prediction, over the mixture's
+        standard deviation (its members' variances and their spread), (batch, predicted readings):
+        centred on 0 with a spread of 1 at most per reading on ID transitions (less where the
+        variance floor holds); what :class:`~oodmon.monitor.detectors.drift.DriftDetector` sums."""
+        self.check_fitted()
+        obs = np.asarray(obs, dtype=np.float32)
+        if self.flatten:
+            obs, next_obs = obs.reshape(len(obs), -1), np.asarray(next_obs).reshape(len(obs), -1)
+        mean, logvar = _forward_numpy(self._weights, self._inputs(obs, actions), self.min_logvar)  # (E, B, d)
+        target = ((np.asarray(next_obs, dtype=np.float32) - obs) - self._norm["delta_mean"]) / self._norm["delta_std"]
+        if self.predicted is not None:
+            target = target[:, self.predicted]
+        variance = np.exp(logvar).mean(axis=0) + mean.var(axis=0)
+        return (target - mean.mean(axis=0)) / np.sqrt(variance)
+
     # -- state -------------------------------------------------------------------------------------
     def config(self) -> dict[str, Any]:
         return {"n_actions": self.n_actions, "kind": self.kind, "members": self.members, "hidden": self.hidden,

@@ -24,6 +24,7 @@ from oodmon.envs.checks import warn_if_endless
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
+from oodmon.monitor.detectors.drift import DriftDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector, min_logvar_for
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector, is_picture
@@ -207,16 +208,21 @@ def trajectory_scores(detectors: DetectorSet, trajectory: Trajectory, estimator:
     return {name: np.asarray(values) for name, values in out.items()}
 
 
-def default_detectors(policy: Any, env: gymnasium.Env) -> tuple[str, ...]:
+def default_detectors(policy: Any, env: gymnasium.Env, task: str | None = None) -> tuple[str, ...]:
     """The learned detectors ``policy`` in ``env`` can have: ``dynamics`` for vector observations
-    (stacked ones too, flattened), ``features`` for an oodmon agent or estimator, ``frames`` for
+    (stacked ones too, flattened), with ``drift`` where ``task`` is an env oodmon has no variants of
+    (:mod:`~oodmon.monitor.detectors.drift`), ``features`` for an oodmon agent or estimator, ``frames`` for
     image observations (:func:`~oodmon.monitor.detectors.frames.is_picture`), both ``dynamics``
     and ``frames`` for an agent's dicts with pictures beside vectors (``Agent.pictures``), and
     ``combined``."""
+    from oodmon.names import TASKS
+
     estimator, _, _ = policy_parts(policy)
     space = env.observation_space
     picture = is_picture(tuple(space.shape or ()), space.dtype)
     names = [] if picture else ["dynamics"]
+    if names and task is not None and task not in TASKS:
+        names.append("drift")
     if estimator is not None:
         names.append("features")
     if picture or getattr(policy, "pictures", None) is not None:
@@ -237,23 +243,27 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     combines every other detector of the set, and named alone it brings the learned members the
     policy can have (``["combined"]`` fits dynamics and features too). ``features`` needs an oodmon agent or estimator
     (a plain callable has no features); ``dynamics`` needs vector observations; ``scaled_spread``, fitted
-    only when named, an oodmon ensemble (DQN or DDPG).
+    only when named, an oodmon ensemble (DQN or DDPG); ``drift`` reads the dynamics model's residuals
+    (it brings ``dynamics``), fitted by default in an env oodmon has no variants of, else only when
+    named.
 
     Raises:
         InvalidParameterError: an unknown detector name or fewer than 3 episodes.
         ConfigError: a detector this policy or env cannot have.
     """
-    detectors = default_detectors(policy, env) if detectors is None else tuple(detectors)
+    estimator, _, metadata = policy_parts(policy)
+    task = task or metadata.get("task")
+    detectors = default_detectors(policy, env, task) if detectors is None else tuple(detectors)
     unknown = [name for name in detectors if name not in DETECTORS]
     if unknown:
         raise InvalidParameterError(f"unknown detector {unknown[0]!r}; choose from {', '.join(DETECTORS)}")
     if "combined" in detectors and not {"dynamics", "features", "frames"} & set(detectors):
-        detectors = tuple(dict.fromkeys((*default_detectors(policy, env), *detectors)))
+        detectors = tuple(dict.fromkeys((*default_detectors(policy, env, task), *detectors)))
+    if "drift" in detectors and "dynamics" not in detectors:  # it reads the dynamics model's residuals
+        detectors = ("dynamics", *detectors)
     if not is_whole(episodes, 3):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
                                     "ID episodes (two thirds fit, one third ranks)")
-    estimator, _, metadata = policy_parts(policy)
-    task = task or metadata.get("task")
     if "features" in detectors and estimator is None:
         raise ConfigError("the features detector needs the policy's features; a plain policy has none")
     if "scaled_spread" in detectors and not has_members(estimator):
@@ -278,6 +288,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     parts = [SpreadDetector(score)] if estimator is not None else []
     if "dynamics" in detectors:
         parts.append(DynamicsDetector(n_actions, seed=seed, min_logvar=min_logvar_for(task)).fit(fit))
+        if "drift" in detectors:
+            parts.append(DriftDetector.of(parts[-1]))
     if "features" in detectors:
         parts.append(FeaturesDetector(n_actions).fit(fit))
     if "frames" in detectors:
@@ -300,6 +312,18 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         combined = CombinedDetector(members).fit_reference(reference)  # per episode: see its long members
         result = result.with_detector(combined)
     return result
+
+
+def fitted_when_named(detector: str | None) -> tuple[str, ...] | None:
+    """What to fit for an alarm that reads ``detector`` when nothing is fitted yet: ``None`` (the
+    policy's default set) but for the detectors fitted only when named: ``scaled_spread`` alone,
+    ``drift`` with the default set, whose ``combined`` then ranks it too.
+
+    Example:
+        >>> fitted_when_named("drift"), fitted_when_named("scaled_spread"), fitted_when_named("combined")
+        (('drift', 'combined'), ('scaled_spread',), None)
+    """
+    return {"scaled_spread": ("scaled_spread",), "drift": ("drift", "combined")}.get(detector or "")
 
 
 def has_members(estimator: Any) -> bool:

@@ -18,6 +18,7 @@ from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json, write_json
 from oodmon.monitor.detectors.base import Detector, StepContext
 from oodmon.monitor.detectors.combined import CombinedDetector
+from oodmon.monitor.detectors.drift import DriftDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
@@ -30,7 +31,7 @@ __all__ = ["DETECTORS", "DetectorSet"]
 #: Detector classes by name.
 DETECTORS: dict[str, type[Detector]] = {
     "spread": SpreadDetector, "dynamics": DynamicsDetector, "features": FeaturesDetector, "frames": FramesDetector,
-    "combined": CombinedDetector, "scaled_spread": ScaledSpreadDetector,
+    "combined": CombinedDetector, "scaled_spread": ScaledSpreadDetector, "drift": DriftDetector,
 }
 FORMAT = "oodmon.detectors"
 FORMAT_VERSION = 1
