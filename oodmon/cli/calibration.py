@@ -75,7 +75,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     # A learned detector asked for, or a model from elsewhere (a plain policy has no spread; an SB3
     # ensemble's spread is weak): fit them first, on episodes of their own. So too for a combined
     # detector asked for with another spread score than the fitted one ranks.
-    # scaled_spread is fitted only when asked for, alone (with the spread); drift only when asked for.
+    # scaled_spread is fitted only when asked for, alone (with the spread); drift, outside your own
+    # env, only when asked for.
     left_out = detectors.for_score(args.score)[1] if detectors is not None else None
     named_only = fitted_when_named(args.detector) is not None
     if (detectors is None and (args.detector not in (None, "spread") or agent.estimator is None or agent.env_id)
@@ -191,8 +192,8 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
         "fit-detectors", help="fit the learned detectors (dynamics, features, combined) on an agent's ID episodes"
     )
     _agent_arguments(fit)
-    fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread "
-                                    "and drift, which are fitted only when named)")
+    fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread, "
+                                    "fitted only when named, and drift, named or in your own env)")
     fit.add_argument("--episodes", type=_whole(3),
                      help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES}; "
                           f"your own --env: more, until they hold {_FIT_STEPS:,} steps)")

@@ -71,6 +71,8 @@ def test_the_score_is_the_largest_windowed_bias_and_a_reset_or_a_gap_starts_it_a
     assert drift.score(StepContext(obs[5], actions[5])) == 0.0  # no previous observation: nothing summed
     with pytest.raises(ConfigError, match="window=0 is not allowed"):
         DriftDetector(dynamics, window=0)
+    own = DriftDetector().fit(held_out[:3], n_actions=2, seed=0)  # a dynamics model of its own
+    assert own.fitted and own.model.n_actions == 2 and np.isfinite(_scores(own, held_out[:1])[0]).all()
     with pytest.raises(ConfigError, match="the drift detector is not fitted"):
         DriftDetector().score(StepContext(obs[1], 0, prev_obs=obs[0], prev_action=0))
 

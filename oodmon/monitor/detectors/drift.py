@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from oodmon.errors import ConfigError
+from oodmon.errors import InvalidParameterError
 from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
 from oodmon.monitor.detectors.dynamics import DynamicsDetector
 from oodmon.validation import is_whole
@@ -67,8 +67,8 @@ class DriftDetector(Detector):
 
     def __init__(self, model: DynamicsDetector | None = None, *, window: int = DEFAULT_WINDOW) -> None:
         if not is_whole(window):
-            raise ConfigError(f"window={window!r} is not allowed; the drift detector sums an integer >= 1 of last "
-                              "residuals")
+            raise InvalidParameterError(f"window={window!r} is not allowed; the drift detector sums an integer >= 1 of "
+                                        "last residuals")
         self.model, self.window = model, window
         self._recent: deque[np.ndarray] = deque(maxlen=window)
         self._sum: np.ndarray | None = None
