@@ -1,0 +1,67 @@
+"""The drift detector's step beside the dynamics detector's, on the same transitions.
+
+Run: .venv/bin/python benchmarks/drift_step.py
+
+For CartPole (discrete actions) and Pendulum (continuous) a dynamics model is fitted on 6 ID
+episodes of a hand-written controller (seconds), and the drift detector reads its residuals; each
+``score()`` is timed over the transitions of another episode, one thread for torch and numpy's BLAS,
+in alternation (``timing.paired_us``: 5 pairs of rounds, each order once per pair). The drift
+detector joins the default set of your own env's detectors, so its step is paid beside the
+dynamics detector's at every monitored step. ``ratio_<task>=`` is drift's time over dynamics';
+``ratio=`` the larger; goal <= 2.0 (drift costs at most one more dynamics step: it runs the same
+forward pass, with buffers of its own, and sums what it leaves).
+
+Measured on 2026-11-29 (the other core busy with a bench): drift on the batch path
+(``DynamicsDetector.standardized_residuals`` of one row, then its sum) ``ratio=3.49`` (CartPole
+40.2 us against 11.5, Pendulum 2.93); on the dynamics detector's fast forward pass (``_FastNll``,
+a copy of its own), its residual math in float32 buffers, the running sum in place:
+``ratio=1.74`` twice (CartPole 19.7 us against 11.5), and with its largest magnitude read in one
+buffer, ``ratio=1.66`` (CartPole 19.0 us against 11.5, Pendulum 1.58). The rest is that pass
+(11 us) and numpy's per-call cost of the dozen small operations after it.
+"""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+
+from oodmon.monitor.detectors import DriftDetector, DynamicsDetector, StepContext
+from oodmon.monitor.detectors.fitting import collect
+from oodmon.threads import set_threads
+from timing import paired_us  # benchmarks/timing.py, beside this script
+
+CONTROLLERS = {
+    "cartpole": ("CartPole-v1", 2, lambda obs: int(obs[2] + 0.5 * obs[3] > 0)),
+    "pendulum": ("Pendulum-v1", None, lambda obs: np.clip([-2.0 * obs[1] - 0.5 * obs[2]], -2.0, 2.0).astype(np.float32)),
+}
+
+
+def step_calls(detector, trajectory):
+    """A call scoring the trajectory's transitions one after the other, round and round."""
+    contexts = [StepContext(trajectory.observations[t + 1], trajectory.actions[t + 1], prev_obs=trajectory.observations[t],
+                            prev_action=trajectory.actions[t]) for t in range(len(trajectory.actions) - 1)]
+    state = {"t": 0}
+
+    def call():
+        detector.score(contexts[state["t"]])
+        state["t"] = (state["t"] + 1) % len(contexts)
+    return call
+
+
+def main() -> None:
+    set_threads(1)
+    ratios = {}
+    for task, (env_id, n_actions, controller) in CONTROLLERS.items():
+        episodes = collect(controller, gymnasium.make(env_id), 7, seed=0)
+        dynamics = DynamicsDetector(n_actions, seed=0).fit(episodes[:6])
+        drift = DriftDetector.of(dynamics)
+        us, baseline, ratio = paired_us(step_calls(drift, episodes[6]), step_calls(dynamics, episodes[6]), 2000)
+        print(f"{task}: drift {us:.1f} us, dynamics {baseline:.1f} us per step")
+        ratios[task] = ratio
+    for task, ratio in ratios.items():
+        print(f"ratio_{task}={ratio:.2f}")
+    print(f"ratio={max(ratios.values()):.2f}")
+
+
+if __name__ == "__main__":
+    main()
