@@ -164,13 +164,13 @@ WARMUP_HINT = 20
 EARLY_GAIN = 2 / 3
 
 
-def _warn_if_early(episodes: list[np.ndarray], values: np.ndarray, rank: int, detector: str, consecutive: int,
-                   window: int) -> None:
-    """Warn when the episode statistics ``values`` of the consecutive rule, taken from step
-    :data:`WARMUP_HINT` on, would give a threshold much lower (:data:`EARLY_GAIN`)."""
+def _warn_if_early(episodes: list[np.ndarray], values: np.ndarray, value: float, rank: int, detector: str,
+                   consecutive: int, window: int) -> None:
+    """Warn when the episode statistics ``values`` of the consecutive rule (the threshold ``value``
+    their ``rank``-th), taken from step :data:`WARMUP_HINT` on, would give a threshold much lower
+    (:data:`EARLY_GAIN`)."""
     if not episodes or min(len(s) for s in episodes) < 2 * WARMUP_HINT + consecutive + window:
         return  # short episodes: a warm-up would take much of them
-    value = float(np.sort(values)[rank - 1])
     late = np.array([episode_statistic(s, consecutive, window, warmup=WARMUP_HINT) for s in episodes])
     would = float(np.sort(late)[rank - 1])
     median = float(np.median(np.concatenate(episodes)))
@@ -468,7 +468,7 @@ def calibrate(
     if mode == "episode":
         _warn_if_outlying(ordered, rank, detector)
         if rule == "consecutive" and not warmup:
-            _warn_if_early(episodes, values, rank, detector, consecutive, window)
+            _warn_if_early(episodes, values, value, rank, detector, consecutive, window)
     steps = np.concatenate(episodes) if episodes else np.array([0.0])
     quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
     return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
