@@ -9,7 +9,10 @@ in alternation (``timing.paired_us``: 5 pairs of rounds, each order once per pai
 detector joins the default set of your own env's detectors, so its step is paid beside the
 dynamics detector's at every monitored step. ``ratio_<task>=`` is drift's time over dynamics';
 ``ratio=`` the larger; goal <= 2.0 (drift costs at most one more dynamics step: it runs the same
-forward pass, with buffers of its own, and sums what it leaves).
+forward pass, with buffers of its own, and sums what it leaves). ``ratio_in_set=``: a
+``DetectorSet`` of both, as the monitor runs them, over one of the dynamics detector alone (drift
+reads the pass the dynamics detector made of the step); ``ratio_in_set_unshared=`` the same with
+drift on a copy of the model (its own pass), what the set cost before they shared it.
 
 Measured on 2026-11-29 (the other core busy with a bench): drift on the batch path
 (``DynamicsDetector.standardized_residuals`` of one row, then its sum) ``ratio=3.49`` (CartPole
@@ -17,15 +20,19 @@ Measured on 2026-11-29 (the other core busy with a bench): drift on the batch pa
 a copy of its own), its residual math in float32 buffers, the running sum in place:
 ``ratio=1.74`` twice (CartPole 19.7 us against 11.5), and with its largest magnitude read in one
 buffer, ``ratio=1.66`` (CartPole 19.0 us against 11.5, Pendulum 1.58). The rest is that pass
-(11 us) and numpy's per-call cost of the dozen small operations after it.
+(11 us) and numpy's per-call cost of the dozen small operations after it. In a set, as the monitor
+runs them: ``ratio_in_set_unshared=2.50`` with drift's own pass (CartPole 31.9 us against 12.7),
+``ratio_in_set=1.64`` once drift read the dynamics detector's pass of the step (20.8 us).
 """
 
 from __future__ import annotations
 
+import copy
+
 import gymnasium
 import numpy as np
 
-from oodmon.monitor.detectors import DriftDetector, DynamicsDetector, StepContext
+from oodmon.monitor.detectors import DetectorSet, DriftDetector, DynamicsDetector, StepContext
 from oodmon.monitor.detectors.fitting import collect
 from oodmon.threads import set_threads
 from timing import paired_us  # benchmarks/timing.py, beside this script
@@ -48,9 +55,22 @@ def step_calls(detector, trajectory):
     return call
 
 
+def set_calls(detectors, trajectory):
+    """As :func:`step_calls`, for a ``DetectorSet`` (a fresh context per call, as the monitor makes one per step)."""
+    steps = [(trajectory.observations[t + 1], trajectory.actions[t + 1], trajectory.observations[t],
+              trajectory.actions[t]) for t in range(len(trajectory.actions) - 1)]
+    state = {"t": 0}
+
+    def call():
+        obs, action, prev_obs, prev_action = steps[state["t"]]
+        detectors.score(StepContext(obs, action, prev_obs=prev_obs, prev_action=prev_action, scores={}))
+        state["t"] = (state["t"] + 1) % len(steps)
+    return call
+
+
 def main() -> None:
     set_threads(1)
-    ratios = {}
+    ratios, in_set, unshared = {}, {}, {}
     for task, (env_id, n_actions, controller) in CONTROLLERS.items():
         episodes = collect(controller, gymnasium.make(env_id), 7, seed=0)
         dynamics = DynamicsDetector(n_actions, seed=0).fit(episodes[:6])
@@ -58,9 +78,18 @@ def main() -> None:
         us, baseline, ratio = paired_us(step_calls(drift, episodes[6]), step_calls(dynamics, episodes[6]), 2000)
         print(f"{task}: drift {us:.1f} us, dynamics {baseline:.1f} us per step")
         ratios[task] = ratio
-    for task, ratio in ratios.items():
-        print(f"ratio_{task}={ratio:.2f}")
-    print(f"ratio={max(ratios.values()):.2f}")
+        alone = DetectorSet([dynamics])
+        both = DetectorSet([dynamics, drift])
+        us, baseline, in_set[task] = paired_us(set_calls(both, episodes[6]), set_calls(alone, episodes[6]), 2000)
+        print(f"{task}: a set of dynamics and drift {us:.1f} us, of dynamics alone {baseline:.1f} us per step")
+        both_unshared = DetectorSet([dynamics, DriftDetector.of(dynamics)])
+        both_unshared["drift"].model = copy.deepcopy(dynamics)  # after the set linked it: a pass of its own
+        us, _, unshared[task] = paired_us(set_calls(both_unshared, episodes[6]), set_calls(alone, episodes[6]), 2000)
+        print(f"{task}: the same, drift on a copy of the model {us:.1f} us per step")
+    for name, figures in (("ratio", ratios), ("ratio_in_set", in_set), ("ratio_in_set_unshared", unshared)):
+        for task, ratio in figures.items():
+            print(f"{name}_{task}={ratio:.2f}")
+        print(f"{name}={max(figures.values()):.2f}")
 
 
 if __name__ == "__main__":

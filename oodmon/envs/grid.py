@@ -164,8 +164,9 @@ def parse_variant(spec: str) -> Variant:
         env_id, colon, assignments = spec.strip().rpartition(":")  # gymnasium's id of a task: CartPole-v1:length=2.0
         if not colon:
             env_id = assignments  # the id alone: its task's ID env
-        if task_of_env(env_id) is not None:
-            named = task_of_env(env_id) + (f":{assignments}" if colon else "")
+        its_task = task_of_env(env_id)
+        if its_task is not None:
+            named = its_task + (f":{assignments}" if colon else "")
             raise UnknownParameterError(f"variant spec {spec!r}: oodmon's variants of {env_id} are named by its task, "
                                         f"{named} (see `oodmon envs`)")
         raise UnknownParameterError(

@@ -164,16 +164,15 @@ WARMUP_HINT = 20
 EARLY_GAIN = 2 / 3
 
 
-def _warn_if_early(episodes: list[np.ndarray], values: np.ndarray, value: float, rank: int, detector: str,
-                   consecutive: int, window: int) -> None:
+def _warn_if_early(episodes: list[np.ndarray], values: np.ndarray, value: float, rank: int, median: float,
+                   detector: str, consecutive: int, window: int) -> None:
     """Warn when the episode statistics ``values`` of the consecutive rule (the threshold ``value``
     their ``rank``-th), taken from step :data:`WARMUP_HINT` on, would give a threshold much lower
-    (:data:`EARLY_GAIN`)."""
+    (:data:`EARLY_GAIN`) above the steps' ``median`` score."""
     if not episodes or min(len(s) for s in episodes) < 2 * WARMUP_HINT + consecutive + window:
         return  # short episodes: a warm-up would take much of them
     late = np.array([episode_statistic(s, consecutive, window, warmup=WARMUP_HINT) for s in episodes])
     would = float(np.sort(late)[rank - 1])
-    median = float(np.median(np.concatenate(episodes)))
     if not (math.isfinite(value) and math.isfinite(would)) or value <= median:
         return
     if (would - median) <= EARLY_GAIN * (value - median):
@@ -465,12 +464,12 @@ def calibrate(
             + (f", warmup={warmup}" if warmup else "") + f") and the shortest calibration episode has {shortest}; "
             "use a smaller window" + (" or warm-up" if warmup else "") + " or longer episodes"
         )
+    steps = np.concatenate(episodes) if episodes else np.array([0.0])
+    quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
     if mode == "episode":
         _warn_if_outlying(ordered, rank, detector)
         if rule == "consecutive" and not warmup:
-            _warn_if_early(episodes, values, value, rank, detector, consecutive, window)
-    steps = np.concatenate(episodes) if episodes else np.array([0.0])
-    quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
+            _warn_if_early(episodes, values, value, rank, quantiles["q50"], detector, consecutive, window)
     return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
                      quantiles, task, method, window, policy_hash, detector,
                      None if confidence is None else float(confidence), rank, rule,

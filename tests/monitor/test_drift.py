@@ -12,7 +12,7 @@ from sklearn.metrics import roc_auc_score
 from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
 from oodmon.monitor.detectors import DetectorSet, DriftDetector, DynamicsDetector, StepContext, fit_detectors
-from oodmon.monitor.detectors.fitting import collect
+from oodmon.monitor.detectors.fitting import collect, trajectory_scores
 
 
 def _policy(obs):
@@ -87,6 +87,11 @@ def test_drift_is_fitted_only_when_named_brings_dynamics_joins_combined_and_roun
     loaded = DetectorSet.load(tmp_path / "det")
     trajectory = fitted[2][0]
     assert _scores(loaded["drift"], [trajectory])[0].tolist() == _scores(named["drift"], [trajectory])[0].tolist()
+    # the loaded set's drift reads its dynamics detector's model (a copy of the same weights in the files):
+    # one forward pass of a step serves both, and scores as drift's own pass does
+    assert loaded["drift"].model is loaded["dynamics"]
+    through_set = trajectory_scores(loaded, trajectory)["drift"]
+    assert through_set.tolist() == _scores(named["drift"], [trajectory])[0].tolist()
     meta = json.loads((tmp_path / "det" / "detectors.json").read_text())
     for entry in meta["detectors"]:
         if entry["name"] == "drift":

@@ -74,9 +74,21 @@ class DriftDetector(Detector):
         self._recent: deque[np.ndarray] = deque(maxlen=window)
         self._sum: np.ndarray | None = None
         self._fast: _FastNll | None = None  # the model's forward pass, buffers of its own: built on first use
+        self._centre: np.ndarray | None = None  # the residuals' buffers (with _spread, ...): built on first use
 
     def __getstate__(self) -> dict[str, Any]:
-        return self.__dict__ | {"_fast": None}  # its buffers are views of one another (see DynamicsDetector)
+        return self.__dict__ | {"_fast": None, "_centre": None}  # its buffers are views of one another (see DynamicsDetector)
+
+    def read_from(self, dynamics: DynamicsDetector) -> None:
+        """Read ``dynamics``' model, if it is this detector's (the same object, or the same settings and
+        weights: a set loaded from files holds a copy of each): its forward pass of a step then
+        serves both."""
+        if self.model is dynamics or self.model is None or not dynamics.fitted:
+            return
+        mine, theirs = self.model.tensors(), dynamics.tensors()
+        if self.model.config() == dynamics.config() and mine.keys() == theirs.keys() \
+                and all(np.array_equal(mine[key], theirs[key]) for key in mine):
+            self.model = dynamics
 
     @classmethod
     def of(cls, model: DynamicsDetector, *, window: int = DEFAULT_WINDOW) -> DriftDetector:
@@ -107,7 +119,7 @@ class DriftDetector(Detector):
         if context.prev_obs is None:
             self.reset()
             return 0.0
-        residuals = self._residuals(context.prev_obs, context.prev_action, context.obs).copy()
+        residuals = self._residuals(context).copy()
         recent, total = self._recent, self._sum
         if total is None:
             total = self._sum = np.zeros(len(residuals))  # float64: the running sum does not drift
@@ -118,22 +130,30 @@ class DriftDetector(Detector):
         total += residuals
         return float(np.abs(total, out=self._magnitude).max()) / math.sqrt(len(recent))
 
-    def _residuals(self, prev_obs: Any, prev_action: Any, obs: Any) -> np.ndarray:
-        """:meth:`DynamicsDetector.standardized_residuals` of one transition, from the model's fast
-        forward pass (equal up to float32 rounding; ``benchmarks/drift_step.py`` times it). The pass
-        leaves each member's mean, its variance over the floor ``w`` and the change, all in units of
-        ``exp(min_logvar / 2)``: the residual, a ratio, is the same in them. Written into buffers
-        allocated once, as the pass itself is."""
-        fast = self._fast
-        if fast is None:
-            fast = self._fast = _FastNll(self.model)
+    def _residuals(self, context: StepContext) -> np.ndarray:
+        """:meth:`DynamicsDetector.standardized_residuals` of the step's transition, from the model's
+        fast forward pass (equal up to float32 rounding; ``benchmarks/drift_step.py`` times it): the
+        pass the dynamics detector just made of this very step where it did (the set's detector, on
+        the same weights: :meth:`read_from`), else one of its own. The pass leaves each member's
+        mean, its variance over the floor ``w`` and the change, all in units of ``exp(min_logvar /
+        2)``: the residual, a ratio, is the same in them. Written into buffers allocated once, as
+        the pass itself is."""
+        model = self.model
+        if model.scored is context and model._fast is not None:
+            fast = model._fast
+        else:
+            fast = self._fast
+            if fast is None:
+                fast = self._fast = _FastNll(model)
+            prev_obs, obs = context.prev_obs, context.obs
+            if model.flatten:
+                prev_obs, obs = np.ravel(prev_obs), np.ravel(obs)
+            fast(prev_obs, context.prev_action, obs)
+        if self._centre is None:
             d = fast.d
             self._centre, self._spread, self._w_sum, self._residual = (np.empty(d, np.float32) for _ in range(4))
             self._deviation = np.empty_like(fast.mean)
             self._inv_members = np.float32(fast.inv_members)
-        if self.model.flatten:
-            prev_obs, obs = np.ravel(prev_obs), np.ravel(obs)
-        fast(prev_obs, prev_action, obs)
         centre, spread, deviation = self._centre, self._spread, self._deviation
         np.add.reduce(fast.mean, 0, out=centre)
         centre *= self._inv_members  # the mixture's mean

@@ -139,6 +139,7 @@ class DynamicsDetector(Detector):
         self._weights: list[tuple[np.ndarray, np.ndarray]] | None = None
         self._norm: dict[str, np.ndarray] = {}
         self._fast: _FastNll | None = None  # built on first use from the fitted weights
+        self.scored: StepContext | None = None  # the step whose transition the fast path's buffers hold
         self._rng = np.random.default_rng(seed)
 
     @property
@@ -239,7 +240,7 @@ class DynamicsDetector(Detector):
         # A copy or a pickle (a vector env's worker process) leaves the fast path behind: its
         # buffers are views of one another, and copied they are separate arrays that score garbage
         # (a used detector deep-copied scored 274,488 where it scores -1.68). Rebuilt on first use.
-        return self.__dict__ | {"_fast": None}
+        return self.__dict__ | {"_fast": None, "scored": None}
 
     def unscored(self) -> list[int]:
         """The readings the model takes as inputs only (they jump: see ``predicted``), flattened indices."""
@@ -250,6 +251,7 @@ class DynamicsDetector(Detector):
     # -- scoring -----------------------------------------------------------------------------------
     def reset(self) -> None:
         self._recent.clear()
+        self.scored = None
 
     def score(self, context: StepContext) -> float:
         """The mean surprise over the episode's last ``window`` transitions (the first step: ``neutral``)."""
@@ -262,6 +264,7 @@ class DynamicsDetector(Detector):
                 prev_obs, obs = np.ravel(prev_obs), np.ravel(obs)
             if self.kind == "nll":
                 value = self._nll_one(prev_obs, context.prev_action, obs)
+                self.scored = context  # the drift detector reads this step's pass from the buffers
             else:
                 value = float(self.score_transitions(np.asarray(prev_obs)[None], np.asarray([context.prev_action]),
                                                      np.asarray(obs)[None])[0])
@@ -275,8 +278,10 @@ class DynamicsDetector(Detector):
             fast = self._fast = _FastNll(self)
         return fast(prev_obs, prev_action, obs)
 
-    def score_transitions(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray) -> np.ndarray:
-        """Scores of a batch of transitions ``(obs, actions) -> next_obs``, (batch,)."""
+    def _predicted(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each member's predicted mean and log-variance of a batch's normalised changes, (E, B, d),
+        and the observed ones, (B, d): the predicted readings' only."""
         self.check_fitted()
         obs = np.asarray(obs, dtype=np.float32)
         if self.flatten:
@@ -284,10 +289,15 @@ class DynamicsDetector(Detector):
         if obs.ndim != 2 or obs.shape[1] != self.obs_dim:
             raise ConfigError(f"this dynamics detector was fitted on observations of {self.obs_dim} numbers; got "
                               f"shape {obs.shape[1:]}")
-        mean, logvar = _forward_numpy(self._weights, self._inputs(obs, actions), self.min_logvar)  # (E, B, d)
+        mean, logvar = _forward_numpy(self._weights, self._inputs(obs, actions), self.min_logvar)
         target = ((np.asarray(next_obs, dtype=np.float32) - obs) - self._norm["delta_mean"]) / self._norm["delta_std"]
         if self.predicted is not None:
             target = target[:, self.predicted]
+        return mean, logvar, target
+
+    def score_transitions(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray) -> np.ndarray:
+        """Scores of a batch of transitions ``(obs, actions) -> next_obs``, (batch,)."""
+        mean, logvar, target = self._predicted(obs, actions, next_obs)
         if self.kind == "nll":
             per_member = -0.5 * (((target - mean) ** 2) * np.exp(-logvar) + logvar + math.log(2 * math.pi)).sum(-1)
             top = per_member.max(axis=0)
@@ -303,14 +313,7 @@ class DynamicsDetector(Detector):
         standard deviation (its members' variances and their spread), (batch, predicted readings):
         centred on 0 with a spread of 1 at most per reading on ID transitions (less where the
         variance floor holds); what :class:`~oodmon.monitor.detectors.drift.DriftDetector` sums."""
-        self.check_fitted()
-        obs = np.asarray(obs, dtype=np.float32)
-        if self.flatten:
-            obs, next_obs = obs.reshape(len(obs), -1), np.asarray(next_obs).reshape(len(obs), -1)
-        mean, logvar = _forward_numpy(self._weights, self._inputs(obs, actions), self.min_logvar)  # (E, B, d)
-        target = ((np.asarray(next_obs, dtype=np.float32) - obs) - self._norm["delta_mean"]) / self._norm["delta_std"]
-        if self.predicted is not None:
-            target = target[:, self.predicted]
+        mean, logvar, target = self._predicted(obs, actions, next_obs)
         variance = np.exp(logvar).mean(axis=0) + mean.var(axis=0)
         return (target - mean.mean(axis=0)) / np.sqrt(variance)
 

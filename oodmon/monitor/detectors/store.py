@@ -52,6 +52,9 @@ class DetectorSet:
             raise ConfigError(f"one detector of each name: got {names}")
         self._detectors = {d.name: d for d in sorted(detectors, key=lambda d: d.name == "combined")}
         self.fitted_for = dict(fitted_for or {})
+        drift, dynamics = self._detectors.get("drift"), self._detectors.get("dynamics")
+        if drift is not None and dynamics is not None:
+            drift.read_from(dynamics)  # one forward pass of a step serves both
         combined = self._detectors.get("combined")
         if combined is not None:
             missing = [m for m in combined.members if m not in self._detectors]
