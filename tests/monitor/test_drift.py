@@ -69,6 +69,26 @@ def test_the_score_is_the_largest_windowed_bias_and_a_reset_or_a_gap_starts_it_a
         expected = np.abs(window.sum(axis=0)).max() / np.sqrt(len(window))
         assert scores[t] == pytest.approx(expected, rel=1e-4)  # one row or a batch: float32 rounding apart
     assert drift.score(StepContext(obs[5], actions[5])) == 0.0  # no previous observation: nothing summed
+    # far from ID (states 40 times those seen: the members' predicted changes large, the observed ones
+    # other), where float32 sums would lose the mixture's variance: a window of one reads the batch's
+    # largest residual magnitude
+    one = DriftDetector.of(dynamics, window=1)
+    rng = np.random.default_rng(0)
+    far = obs[:6] * 40.0
+    following = far + rng.normal(0.0, 1.0, far.shape).astype(np.float32)
+    batch = np.abs(dynamics.standardized_residuals(far, actions[:6], following)).max(axis=1)
+    for before, after, action, expected in zip(far, following, actions[:6], batch):
+        one.reset()
+        assert one.score(StepContext(after, 0, prev_obs=before, prev_action=action)) == pytest.approx(expected, rel=1e-4)
+    assert batch.max() > 10  # far indeed
+    # the sums behind a residual are taken in float64: members that agree on a large change (2e4
+    # floor units, 1 apart) with their variances at the floor leave a mixture variance of 3 per
+    # reading, which float32 sums of squares (some 1e10, rounding by hundreds) would lose
+    fast = one._fast
+    fast.mean[...] = 2e4 + np.arange(fast.members, dtype=np.float32)[:, None] - 2.0
+    fast.w[...], fast.target[...] = 1.0, 0.0
+    turned = one._residuals(fast, out=np.empty(2 * fast.d))  # each residual with its sign turned, then its negative
+    assert turned[:fast.d] == pytest.approx(np.full(fast.d, 2e4 / np.sqrt(3.0)), rel=1e-9)
     with pytest.raises(ConfigError, match="window=0 is not allowed"):
         DriftDetector(dynamics, window=0)
     own = DriftDetector().fit(held_out[:3], n_actions=2, seed=0)  # a dynamics model of its own

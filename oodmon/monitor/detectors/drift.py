@@ -22,12 +22,23 @@ the README's Acrobot PPO, 65 of 70 against 49 (2 of 110 ID); the shipped CartPol
 slower there). It joins the default set in an env oodmon has no variants of (your own env, where
 ``combined`` then ranks it beside ``dynamics``); for oodmon's tasks, whose shipped detectors and
 results were fitted without it, only when named (``--detectors dynamics,drift,combined``).
+
+Why not in oodmon's tasks' default sets too (measured 2026-11-29, not committed: the monitor's
+benchmark, ``--detectors spread,drift,combined`` against ``results/monitor/cartpole.json``): on
+CartPole it alarms the same episodes, all failing ones before the failure, with fewer false
+alarms (0 / 11 / 1 of 200 against 0 / 16 / 1 for DropConnect / Dropout / ensemble) and shorter
+delays at the 90th percentile (4 / 1.1 / 1 against 9 / 2 / 1); on Pendulum ``combined`` with it
+raises fewer false alarms than ``dynamics`` (0 / 4 / 0 of 400 against 3 / 4 / 3) but alarms a
+step later (delay medians 3 / 2 / 3 against 2 / 2 / 2), so Pendulum's alarm stays on
+``dynamics``. But it makes the monitored CartPole step dearer: ``benchmarks/detector_step.py``
+(the ensemble's zoo set refitted with it) read 1.57-1.58 against 1.45 without it, above that
+benchmark's goal of 1.5, after this detector's own step was brought from 8 to 5 us. The shipped
+sets stay without it until the step can pay for it.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -71,13 +82,15 @@ class DriftDetector(Detector):
             raise InvalidParameterError(f"window={window!r} is not allowed; the drift detector sums an integer >= 1 of "
                                         "last residuals")
         self.model, self.window = model, window
-        self._recent: deque[np.ndarray] = deque(maxlen=window)
-        self._sum: np.ndarray | None = None
+        self._seen = 0  # residuals since the episode began (the window holds the last min(seen, window))
+        self._ring: np.ndarray | None = None  # the window's residuals, and their negatives: built on first use
         self._fast: _FastNll | None = None  # the model's forward pass, buffers of its own: built on first use
-        self._centre: np.ndarray | None = None  # the residuals' buffers (with _spread, ...): built on first use
+        self._product: np.ndarray | None = None  # what sums the pass's outputs (with _sums, ...): built on first use
 
     def __getstate__(self) -> dict[str, Any]:
-        return self.__dict__ | {"_fast": None, "_centre": None}  # its buffers are views of one another (see DynamicsDetector)
+        # the step's buffers are views of one another (see DynamicsDetector): rebuilt on first use;
+        # the window's residuals go with it
+        return self.__dict__ | {"_fast": None, "_product": None}
 
     def read_from(self, dynamics: DynamicsDetector) -> None:
         """Read ``dynamics``' model, if it is this detector's (the same object, or the same settings and
@@ -109,8 +122,9 @@ class DriftDetector(Detector):
         return self
 
     def reset(self) -> None:
-        self._recent.clear()
-        self._sum = None
+        self._seen = 0
+        if self._ring is not None:
+            self._ring.fill(0.0)
 
     def score(self, context: StepContext) -> float:
         """The largest ``|sum of the last residuals| / sqrt(n)`` over readings (an episode's first
@@ -119,53 +133,79 @@ class DriftDetector(Detector):
         if context.prev_obs is None:
             self.reset()
             return 0.0
-        residuals = self._residuals(context).copy()
-        recent, total = self._recent, self._sum
-        if total is None:
-            total = self._sum = np.zeros(len(residuals))  # float64: the running sum does not drift
-            self._magnitude = np.empty_like(total)
-        if len(recent) == self.window:
-            total -= recent[0]  # what append() pushes out
-        recent.append(residuals)
-        total += residuals
-        return float(np.abs(total, out=self._magnitude).max()) / math.sqrt(len(recent))
+        fast = self._pass(context)
+        if self._product is None:
+            self._buffers(fast)
+        self._residuals(fast, out=self._ring[self._seen % self.window])
+        self._seen += 1
+        total = np.matmul(self._ones, self._ring, out=self._total)  # summed afresh: no running sum to drift
+        return float(np.maximum.reduce(total)) / math.sqrt(min(self._seen, self.window))  # each sum, and its negative
 
-    def _residuals(self, context: StepContext) -> np.ndarray:
-        """:meth:`DynamicsDetector.standardized_residuals` of the step's transition, from the model's
-        fast forward pass (equal up to float32 rounding; ``benchmarks/drift_step.py`` times it): the
-        pass the dynamics detector just made of this very step where it did (the set's detector, on
-        the same weights: :meth:`read_from`), else one of its own. The pass leaves each member's
-        mean, its variance over the floor ``w`` and the change, all in units of ``exp(min_logvar /
-        2)``: the residual, a ratio, is the same in them. Written into buffers allocated once, as
-        the pass itself is."""
+    def _pass(self, context: StepContext) -> _FastNll:
+        """The model's fast forward pass of the step's transition (:class:`_FastNll`, equal to the
+        batch path up to float32 rounding; ``benchmarks/drift_step.py`` times it): the pass the
+        dynamics detector just made of this very step where it did (the set's detector, on the same
+        weights: :meth:`read_from`), else one of its own."""
         model = self.model
         if model.scored is context and model._fast is not None:
-            fast = model._fast
-        else:
-            fast = self._fast
-            if fast is None:
-                fast = self._fast = _FastNll(model)
-            prev_obs, obs = context.prev_obs, context.obs
-            if model.flatten:
-                prev_obs, obs = np.ravel(prev_obs), np.ravel(obs)
-            fast(prev_obs, context.prev_action, obs)
-        if self._centre is None:
-            d = fast.d
-            self._centre, self._spread, self._w_sum, self._residual = (np.empty(d, np.float32) for _ in range(4))
-            self._deviation = np.empty_like(fast.mean)
-            self._inv_members = np.float32(fast.inv_members)
-        centre, spread, deviation = self._centre, self._spread, self._deviation
-        np.add.reduce(fast.mean, 0, out=centre)
-        centre *= self._inv_members  # the mixture's mean
-        np.subtract(fast.mean, centre, out=deviation)
-        deviation *= deviation
-        np.add.reduce(deviation, 0, out=spread)
-        spread += np.add.reduce(fast.w, 0, out=self._w_sum)
-        spread *= self._inv_members  # the mixture's variance: the members' own, and their spread
-        np.sqrt(spread, out=spread)
-        residual = np.subtract(fast.target, centre, out=self._residual)
-        residual /= spread
-        return residual
+            return model._fast
+        fast = self._fast
+        if fast is None:
+            fast = self._fast = _FastNll(model)
+        prev_obs, obs = context.prev_obs, context.obs
+        if model.flatten:
+            prev_obs, obs = np.ravel(prev_obs), np.ravel(obs)
+        fast(prev_obs, context.prev_action, obs)
+        return fast
+
+    def _buffers(self, fast: _FastNll) -> None:
+        """The arrays of a step, allocated once (a view made per call costs as much as a small
+        ufunc), and the product that sums the pass's outputs (see :meth:`_residuals`)."""
+        members, d = fast.members, fast.d
+        at = fast.outputs_layout()
+        size = len(fast.outputs)
+        square = size + at["mean"]  # the outputs' squares follow them in the float64 copy
+        product = np.zeros((size + fast.out.size, 6 * d))  # columns: a, -a, then twice each of the others
+        for j in range(d):
+            for sign, column in ((1.0, j), (-1.0, d + j)):
+                product[at["mean"][:, j], column] = sign  # a: the means summed, less M times the change
+                product[at["change"][j], column] = -sign * members
+            for column in (2 * d + j, 3 * d + j):
+                product[square[:, j], column] = members  # M b: the squares and the w summed, times M
+                product[at["w"][:, j], column] = members
+            for column in (4 * d + j, 5 * d + j):
+                product[at["mean"][:, j], column] = 1.0  # the means summed
+        self._product = product
+        self._outputs = np.empty(len(product))  # float64 (see _residuals): the pass's outputs, then their squares
+        self._copied, self._out, self._squares = (self._outputs[:size], self._outputs[:fast.out.size],
+                                                  self._outputs[size:])
+        self._sums = np.empty(6 * d)
+        self._bias, self._twice, self._mean_sum = self._sums[:2 * d], self._sums[2 * d:4 * d], self._sums[4 * d:]
+        self._variance = np.empty(2 * d)
+        if self._ring is None:
+            self._ring = np.zeros((self.window, 2 * d))  # each step's residuals, and their negatives
+        self._ones = np.ones(self.window)
+        self._total = np.empty(2 * d)
+
+    def _residuals(self, fast: _FastNll, out: np.ndarray) -> np.ndarray:
+        """The step's standardised residuals and their negatives (the score reads magnitudes: the
+        larger of a sum and its negative), into ``out``: :meth:`DynamicsDetector.standardized_residuals`
+        (turned) from the pass's buffers, in few numpy calls. The pass leaves each member's mean
+        ``m_k``, its variance over the floor ``w_k`` and the change ``y``, in units of ``exp(min_logvar
+        / 2)`` (the residual, a ratio, is the same in them). Over ``M`` members the mixture's mean
+        ``sum m_k / M`` is off the change by ``a / M``, ``a = sum m_k - M y``, and its variance (the
+        members' and their spread) is ``(M sum (m_k^2 + w_k) - (sum m_k)^2) / M^2``: the residual
+        (turned) is ``a / sqrt(M sum (m_k^2 + w_k) - (sum m_k)^2)``. The sums are one product of the
+        pass's outputs (``_FastNll.outputs``) and their squares, in float64: the difference is at least
+        ``M^2`` (every ``w_k >= 1``), the rounding some 1e-16 of the sums (in float32, squares of
+        large changes on which the members agree would round by more than the variance)."""
+        self._copied[...] = fast.outputs
+        np.multiply(self._out, self._out, out=self._squares)
+        np.matmul(self._outputs, self._product, out=self._sums)
+        variance = np.multiply(self._mean_sum, self._mean_sum, out=self._variance)
+        np.subtract(self._twice, variance, out=variance)
+        np.sqrt(variance, out=variance)
+        return np.divide(self._bias, variance, out=out)
 
     # -- state -------------------------------------------------------------------------------------
     def config(self) -> dict[str, Any]:

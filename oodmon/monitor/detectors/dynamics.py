@@ -447,12 +447,28 @@ class _FastNll:
         self.z = [self.z_first[:members * (hidden + 1)].reshape(shape)] + [np.empty(shape, np.float32) for _ in middle]
         self.tanh = np.empty(shape, np.float32)
         self.h = [np.empty(shape, np.float32) for _ in self.z]
-        self.out = np.empty((members, 1, 2 * d), np.float32)
+        # What a step leaves, in one buffer (the drift detector reads it in one product, see
+        # outputs_layout): each member's output (its means, then its raw log-variances), w, and the
+        # observed change.
+        n_out = members * 2 * d
+        self.outputs = np.empty(n_out + members * d + d, np.float32)
+        self.out = self.outputs[:n_out].reshape(members, 1, 2 * d)
+        self.w = self.outputs[n_out:n_out + members * d].reshape(members, d)
+        self.target = self.outputs[n_out + members * d:]
         # What the loop over the layers reads, in one list: z -> h -> the next z (or the output)
         self.steps = list(zip(self.z, self.h, self.layers, self.z[1:] + [self.out]))
         self.mean, self.raw = self.out[:, 0, :d], self.out[:, 0, d:]
-        self.w, self.log_w, self.error = (np.empty((members, d), np.float32) for _ in range(3))
-        self.target = np.empty(d, np.float32)
+        self.log_w, self.error = (np.empty((members, d), np.float32) for _ in range(2))
+        self.members = members
+
+    def outputs_layout(self) -> dict[str, np.ndarray]:
+        """Where ``outputs`` holds member k's output (``out``, its means first), its mean of reading j
+        and its ``w`` of reading j, shaped (members, 2d) and (members, d), and the change of reading
+        j, (d,): flat indices."""
+        members, d = self.members, self.d
+        n_out = members * 2 * d
+        return {"out": np.arange(n_out).reshape(members, 2 * d), "mean": np.arange(n_out).reshape(members, 2 * d)[:, :d],
+                "w": n_out + np.arange(members * d).reshape(members, d), "change": n_out + members * d + np.arange(d)}
 
     def __call__(self, prev_obs: Any, prev_action: Any, obs: Any) -> float:
         prev = np.asarray(prev_obs, dtype=np.float32)
