@@ -283,9 +283,10 @@ def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
         fit = dict(_FIT.get(config.task, {"episodes": None, "max_steps": None}))
         if config.fit_episodes:
             fit["episodes"] = config.fit_episodes
-        stage = f"{label}: detector fitting episodes"
+        # the fitting's own stage names its unit: episodes, then steps where it plays on for them
         fitted = fit_agent_detectors(agent, detectors=config.learned, score=config.score, obs_noise=config.obs_noise,
-                                     on_progress=lambda _, done, total: report(stage, done, total), **fit)
+                                     on_progress=lambda stage, done, total: report(f"{label}: {stage}", done, total),
+                                     **fit)
         _continue_sampling(agent, state_file, made_now=True)
         fitted.save(path)  # after the state: fitted detectors on disk always have their state beside them
     else:

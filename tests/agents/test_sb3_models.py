@@ -615,6 +615,26 @@ def test_bench_runs_the_monitor_protocol_on_a_plain_sb3_policy(readme_run, capsy
     assert "drop spread" in capsys.readouterr().err
 
 
+def test_the_bench_counts_your_own_envs_fitting_in_the_steps_it_plays_on_for(tmp_path, monkeypatch):
+    """Your own env's detectors are fitted on episodes played until they hold a number of steps: the
+    bench's progress counts those in steps, as the library's does (it read "45000/45000 episodes")."""
+    from oodmon.bench import BenchConfig
+    from oodmon.bench.cache import _fit_trial_detectors
+    from oodmon.monitor.detectors import fitting
+
+    monkeypatch.setattr(fitting, "DEFAULT_FIT_STEPS", 18_300)  # 90 MountainCar episodes of 200 steps, then 2 more
+    DQN("MlpPolicy", gymnasium.make("MountainCar-v0"), seed=0, policy_kwargs={"net_arch": [8]}).save(tmp_path / "mc.zip")
+    agent = load_sb3([tmp_path / "mc.zip"], "MountainCar-v0")
+    config = BenchConfig("MountainCar-v0", ("sb3",), 1, sb3=(str(tmp_path / "mc.zip"),), env_id="MountainCar-v0",
+                         variants=("MountainCar-v0:gravity=0.005",), protocol="monitor", onsets=(50, 100),
+                         detectors=("spread", "dynamics"), alarm_detector="dynamics")
+    reports = []
+    assert _fit_trial_detectors(config, agent, tmp_path, "sb3 trial 0",
+                                lambda stage, done, total: reports.append((stage, done, total))) is not None
+    assert ("sb3 trial 0: detector fitting episodes", 90, 90) in reports
+    assert reports[-1] == ("sb3 trial 0: detector fitting steps", 18_300, 18_300)
+
+
 def test_bench_runs_the_monitors_protocol_on_shifts_of_your_own_env(tmp_path, capsys):
     """`oodmon bench --sb3 ... --env MountainCar-v0 --protocol monitor --onsets 50,100 --variants
     MountainCar-v0:gravity=0.005`: ID episodes for the false alarms, each shifted episode shifted at
