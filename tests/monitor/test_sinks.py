@@ -268,6 +268,37 @@ def test_a_viewer_that_is_gone_costs_the_run_little_time_and_no_memory(agent, tm
     assert sink.dropped >= 20_000 and grown_kib < 8 * 1024  # the unbounded queue grew ~0.9 KiB a step
 
 
+def test_a_viewer_that_cannot_start_is_warned_of_and_the_run_and_its_file_go_on(agent, tmp_path, monkeypatch):
+    """`oodmon run --spawn` with no Rerun viewer to start ended in rerun's traceback ("Failed to
+    find Rerun Viewer executable in PATH": `.venv/bin/oodmon` run without activating the venv, whose
+    `bin/` holds the rerun-sdk package's viewer). The sink starts the viewer beside this Python when
+    there is one, and where none starts it warns once and the run goes on with its file."""
+    import sys
+    from pathlib import Path
+
+    import rerun
+
+    asked = []
+
+    def no_viewer(**kwargs):
+        asked.append(kwargs)
+        raise RuntimeError("Failed to find Rerun Viewer executable in PATH.\n\nYou can install ...")
+
+    monkeypatch.setattr(rerun, "spawn", no_viewer)
+    memory = MemorySink()
+    sink = RerunSink(tmp_path / "kept.rrd", spawn=True)
+    start = time.monotonic()
+    with pytest.warns(SinkWarning, match="no viewer started: Failed to find Rerun Viewer executable in PATH.\\); the run "
+                                         "goes on without it, logging to"):
+        records = _run(agent, [sink, memory], episodes=2)
+    assert time.monotonic() - start < 10.0  # no wait for a viewer that was never started
+    assert sink.dropped == sum(r.length for r in records) == len(memory.steps)
+    assert (tmp_path / "kept.rrd").stat().st_size > 0
+    beside = Path(sys.executable).parent / "rerun"
+    assert len(asked) == 1 and asked[0]["connect"] is False
+    assert asked[0]["executable_path"] == (str(beside) if beside.is_file() else None)
+
+
 def test_a_viewer_that_goes_away_mid_run_is_dropped_with_one_warning_and_the_file_goes_on(agent, tmp_path):
     """A viewer that took the first episodes and then died (its process killed): at the next flush
     the sink warns once, drops it and counts what it would have sent; the run and the file go on."""

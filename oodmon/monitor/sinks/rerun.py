@@ -13,6 +13,8 @@ episode end: a ``log`` call per value costs 25-40 us, a column of thousands abou
 
 from __future__ import annotations
 
+import os
+import sys
 import uuid
 from pathlib import Path
 
@@ -126,15 +128,28 @@ class RerunSink:
             self._streams.append(self._stream(run, local))
         if self.connect or self.spawn:
             url = self.connect or "rerun+http://127.0.0.1:9876/proxy"
-            if self.spawn:
-                rr.RecordingStream("oodmon-spawn", recording_id=self.recording_id).spawn(connect=False)
-            unreachable = _unreachable(url, self.connect_timeout * (10 if self.spawn else 1))
+            unreachable = self._spawn_viewer() if self.spawn else None
+            if unreachable is None:
+                unreachable = _unreachable(url, self.connect_timeout * (10 if self.spawn else 1))
             if unreachable is None:
                 self._live = self._stream(run, [rr.GrpcSink(url)])
                 self._streams.append(self._live)
             else:
                 _warn(f"no Rerun viewer at {url} ({unreachable}); the run goes on without it"
                       + (f", logging to {self.path}" if self.path else ""))
+
+    def _spawn_viewer(self) -> str | None:
+        """Start a Rerun viewer (``spawn``): the one installed beside this Python (the ``rerun-sdk``
+        package's, in a virtual environment that is not activated and so not on ``PATH``), else
+        the one on ``PATH``; ``None``, or why it could not start (the run then goes on without it)."""
+        rr = self._rr
+        beside = Path(sys.executable).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+        try:
+            rr.spawn(connect=False, executable_path=str(beside) if beside.is_file() else None,
+                     recording=rr.RecordingStream("oodmon-spawn", recording_id=self.recording_id))
+        except (RuntimeError, OSError) as error:  # rerun's "Failed to find Rerun Viewer executable in PATH"
+            return f"no viewer started: {str(error).strip().splitlines()[0]}"
+        return None
 
     def _stream(self, run: RunInfo, sinks: list):
         rr = self._rr
