@@ -462,12 +462,11 @@ class _FastNll:
         self.members = members
 
     def outputs_layout(self) -> dict[str, np.ndarray]:
-        """Where ``outputs`` holds member k's output (``out``, its means first), its mean of reading j
-        and its ``w`` of reading j, shaped (members, 2d) and (members, d), and the change of reading
-        j, (d,): flat indices."""
+        """Where ``outputs`` holds member k's mean and ``w`` of reading j, (members, d) each, and the
+        change of reading j, (d,): flat indices (the outputs ``out`` are its first ``out.size``)."""
         members, d = self.members, self.d
         n_out = members * 2 * d
-        return {"out": np.arange(n_out).reshape(members, 2 * d), "mean": np.arange(n_out).reshape(members, 2 * d)[:, :d],
+        return {"mean": np.arange(n_out).reshape(members, 2 * d)[:, :d],
                 "w": n_out + np.arange(members * d).reshape(members, d), "change": n_out + members * d + np.arange(d)}
 
     def __call__(self, prev_obs: Any, prev_action: Any, obs: Any) -> float:
