@@ -119,3 +119,25 @@ def test_drift_is_fitted_only_when_named_brings_dynamics_joins_combined_and_roun
     (tmp_path / "det" / "detectors.json").write_text(json.dumps(meta))
     with pytest.raises(ConfigError, match="the drift detector's settings are not valid"):
         DetectorSet.load(tmp_path / "det")
+
+
+def test_a_drift_detector_copied_or_pickled_mid_episode_scores_on_as_the_original(fitted):
+    """Its step's buffers are views of one another (rebuilt on first use after a copy), while the
+    window's residuals go with it: a copy made mid-episode (a vector env's worker gets the monitor
+    pickled) sums on from the same window, float for float."""
+    import copy
+    import pickle
+
+    dynamics, _, held_out = fitted
+    drift = DriftDetector.of(dynamics, window=5)
+    trajectory = held_out[1]
+    contexts = [StepContext(obs, action, prev_obs=prev, prev_action=prev_action)
+                for prev, prev_action, obs, action in zip(trajectory.observations, trajectory.actions,
+                                                          trajectory.observations[1:], trajectory.actions[1:])][:16]
+    drift.reset()
+    before = [drift.score(c) for c in contexts[:8]]
+    copies = [copy.deepcopy(drift), pickle.loads(pickle.dumps(drift))]
+    after = [drift.score(c) for c in contexts[8:]]
+    for other in copies:
+        assert [other.score(c) for c in contexts[8:]] == after
+    assert all(value > 0 for value in before + after)
