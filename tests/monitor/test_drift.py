@@ -93,6 +93,11 @@ def test_the_score_is_the_largest_windowed_bias_and_a_reset_or_a_gap_starts_it_a
         DriftDetector(dynamics, window=0)
     own = DriftDetector().fit(held_out[:3], n_actions=2, seed=0)  # a dynamics model of its own
     assert own.fitted and own.model.n_actions == 2 and np.isfinite(_scores(own, held_out[:1])[0]).all()
+    # fitted again on another env's readings (Pendulum's 3, not 4) after it scored: its step's buffers
+    # are made anew for them (they were CartPole's: "could not broadcast ... (48,) into shape (64,)")
+    pendulum = collect(lambda _: np.zeros(1, np.float32), gymnasium.make("Pendulum-v1"), 3, seed=0)
+    own.fit(pendulum, seed=0)
+    assert own.model.obs_dim == 3 and np.isfinite(_scores(own, pendulum[:1])[0]).all()
     with pytest.raises(ConfigError, match="the drift detector is not fitted"):
         DriftDetector().score(StepContext(obs[1], 0, prev_obs=obs[0], prev_action=0))
 

@@ -118,7 +118,8 @@ class DriftDetector(Detector):
         """Fit a dynamics model of its own on ``trajectories`` (:meth:`of` reads one fitted already)."""
         extra = {} if min_logvar is None else {"min_logvar": min_logvar}
         self.model = DynamicsDetector(n_actions, seed=seed, **extra).fit(trajectories)
-        self._fast = None
+        self._fast = self._product = self._ring = None  # sized for the model before: built anew on first use
+        self._seen = 0
         return self
 
     def reset(self) -> None:
