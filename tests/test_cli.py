@@ -352,6 +352,15 @@ def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, ca
                  "--detectors", str(tmp_path / "elsewhere"), "--variant", "cartpole:length=2.0",
                  "--episodes", "1"]) == 0
     assert "1 of 1 episodes raised an alarm" in capsys.readouterr().out
+    # Other fitted detectors (the shipped agent's, fitted on other episodes): their scores are on
+    # another scale, so the threshold, which records what it was calibrated with, refuses them.
+    shipped = ["--detectors", str(zoo_dir() / "cartpole-ensemble" / "detectors")]
+    assert json.loads(threshold.read_text())["detectors_hash"].startswith("sha256:")
+    assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold), *shipped]) == 2
+    assert "calibrated with other fitted dynamics detectors" in capsys.readouterr().err
+    assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold), *shipped,
+                 "--episodes", "1", "--force"]) == 0
+    assert "warning: using the threshold, which does not fit" in capsys.readouterr().err
     # Without them, a threshold that reads dynamics is refused in one line.
     assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold)]) == 2
     assert "does not have" in capsys.readouterr().err

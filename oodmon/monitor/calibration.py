@@ -133,7 +133,8 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     return calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
                      method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
                      confidence=confidence, rule=rule, reference=reference,
-                     masks=getattr(agent.estimator, "masks", None), warmup=warmup)
+                     masks=getattr(agent.estimator, "masks", None), warmup=warmup,
+                     detectors_hash=None if needed is None else needed.fingerprint(detector))
 
 
 @dataclass(frozen=True)

@@ -223,6 +223,13 @@ class Monitor:
                 f"{', '.join(self.detectors.names)}); give the fitted detectors (Monitor(detectors=...), "
                 "--detectors) or a threshold calibrated for one of those"
             )
+        if isinstance(threshold, Threshold) and threshold.detectors_hash:
+            these = self.detectors.fingerprint(self.detector)
+            if these != threshold.detectors_hash:
+                why = (f"it was calibrated with other fitted {self.detector} detectors ({threshold.detectors_hash[:19]}..., "
+                       f"these are {str(these)[:19]}...), whose scores are on another scale; give those it was "
+                       "calibrated with (--detectors DIR, Monitor(detectors=...))")
+                self._refuse_or_warn("the threshold", [why], force)
         self.tracker = AlarmTracker(value, default_consecutive(self.detector) if consecutive is None
                                     else check_consecutive(consecutive),
                                     1 if window is None else check_window(window), rule=rule, reference=reference,
@@ -292,8 +299,9 @@ class Monitor:
                 raise ConfigError(f"the {', '.join(needing)} detector(s) need the policy's samples or features; this "
                                   "policy has none (use dynamics)")
         if not len(chosen):
-            raise ConfigError("nothing to score: a policy without samples needs fitted detectors "
-                              "(Monitor(detectors=fit_detectors(...)), a dynamics detector at least)")
+            raise ConfigError("nothing to score: a policy without samples needs fitted detectors, a dynamics "
+                              "detector at least (`oodmon fit-detectors`, then --detectors DIR; in Python "
+                              "Monitor(detectors=fit_detectors(...)))")
         for d in chosen:
             d.check_fitted()
         meta = self.agent.metadata if self.agent is not None else {}

@@ -236,6 +236,10 @@ class Threshold:
             or not recorded.
         warmup: the rule looks at no finite score of an episode's first ``warmup`` steps (see
             ``alarms``); files written before it existed read as 0.
+        detectors_hash: ``sha256:...`` of the fitted detector the alarm reads, and of the learned
+            ones it combines (:meth:`~oodmon.monitor.detectors.DetectorSet.fingerprint`): the
+            monitor refuses other fitted detectors, whose scores are on another scale. ``None``:
+            ``spread``, or not recorded (files written before it existed).
     """
 
     value: float
@@ -257,6 +261,7 @@ class Threshold:
     reference: dict[str, Any] | None = field(default=None, repr=False)
     masks: str | None = None
     warmup: int = 0
+    detectors_hash: str | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -377,7 +382,7 @@ def _check_fields(threshold: Threshold) -> None:
         value = getattr(threshold, name)
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 0:
             raise bad(name, "it must be a whole number >= 0")
-    for name in ("task", "method", "policy_hash"):
+    for name in ("task", "method", "policy_hash", "detectors_hash"):
         if getattr(threshold, name) is not None and not isinstance(getattr(threshold, name), str):
             raise bad(name, "it must be a string or null")
     if not isinstance(threshold.quantiles, dict):
@@ -403,6 +408,7 @@ def calibrate(
     reference: Reference | None = None,
     masks: str | None = None,
     warmup: int = 0,
+    detectors_hash: str | None = None,
 ) -> Threshold:
     """Calibrate a threshold on the per-step scores of held-out ID episodes.
 
@@ -421,6 +427,8 @@ def calibrate(
         masks: the MC masks of the policy the scores are of (see :class:`Threshold`).
         warmup: the rule looks at no finite score of an episode's first ``warmup`` steps
             (episode mode, the consecutive rule).
+        detectors_hash: the fingerprint of the fitted detector whose scores these are (see
+            :class:`Threshold`).
 
     Raises:
         InvalidParameterError: ``far`` or ``confidence`` outside (0, 1), an unknown mode, a bad
@@ -473,4 +481,4 @@ def calibrate(
     return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
                      quantiles, task, method, window, policy_hash, detector,
                      None if confidence is None else float(confidence), rank, rule,
-                     None if reference is None else reference.to_dict(), masks, warmup)
+                     None if reference is None else reference.to_dict(), masks, warmup, detectors_hash)

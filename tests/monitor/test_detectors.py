@@ -412,6 +412,48 @@ def test_a_threshold_naming_a_detector_the_monitor_lacks_is_refused(agent, fitte
         calibrate_agent(agent, 20, detector="features")
 
 
+@pytest.mark.parametrize("name", [n for n in zoo_names()])
+def test_a_fitted_detectors_fingerprint_reads_the_same_from_its_files(name, tmp_path):
+    """Every shipped set (dynamics, features, frames, combined, scaled_spread among them), written
+    and read again: each learned detector's fingerprint unchanged; spread learns nothing (None)."""
+    task, method = name.split("-")
+    shipped = detectors_for(load(task, method))
+    shipped.save(tmp_path / "copy")
+    copy = DetectorSet.load(tmp_path / "copy")
+    learned = [n for n in shipped.names if n != "spread"]
+    assert learned and all(copy.fingerprint(n) == shipped.fingerprint(n) for n in learned)
+    assert len({shipped.fingerprint(n) for n in learned}) == len(learned)  # each its own
+    assert "spread" not in shipped or shipped.fingerprint("spread") is None
+
+
+def test_a_threshold_records_its_fitted_detectors_and_refuses_others(agent, fitted):
+    """The scale of a learned detector's score is its fit's: a threshold calibrated with one fit
+    records its fingerprint, and a monitor given another fit of the same detector (or a combined
+    detector over another fit of a member) refuses it, or with force warns."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # its early-peaks note: a fit on 6 episodes
+        threshold = calibrate_agent(agent, 19, detectors=fitted, detector="dynamics", confidence=None)
+    assert threshold.detectors_hash == fitted.fingerprint("dynamics")
+    Monitor(agent, threshold, detectors=fitted)  # the same fit: fine
+    refit = DynamicsDetector(2, seed=1).fit(collect(agent, Variant("cartpole").make(), 2, seed=600_100))
+    assert refit.fingerprint() != fitted["dynamics"].fingerprint()
+    other = fitted.with_detector(refit)
+    with pytest.raises(ConfigError, match="calibrated with other fitted dynamics detectors"):
+        Monitor(agent, threshold, detectors=other)
+    with pytest.warns(UserWarning, match="calibrated with other fitted dynamics detectors"):
+        Monitor(agent, threshold, detectors=other, force=True)
+    # combined: its own fit and its learned members' (spread learns nothing: the score says it)
+    assert other.fingerprint("combined") != fitted.fingerprint("combined")
+    assert other.fingerprint("features") == fitted.fingerprint("features")
+    combined = Threshold(1.0, "chosen_std", 1, "episode", 0.05, 20, 100, detector="combined",
+                         detectors_hash=fitted.fingerprint("combined"))
+    Monitor(agent, combined, detectors=fitted)
+    with pytest.raises(ConfigError, match="other fitted combined detectors"):
+        Monitor(agent, combined, detectors=other)
+    with pytest.raises(InvalidParameterError, match="detectors_hash=3"):
+        Threshold(1.0, "chosen_std", 3, "episode", 0.05, 20, 100, detectors_hash=3)
+
+
 def test_an_old_threshold_file_reads_as_spread(tmp_path):
     path = tmp_path / "old.json"
     path.write_text(json.dumps({"value": 1.0, "score": "chosen_std", "consecutive": 3, "mode": "episode",

@@ -117,6 +117,8 @@ def test_drift_is_fitted_only_when_named_brings_dynamics_joins_combined_and_roun
     assert loaded["drift"].model is loaded["dynamics"]
     through_set = trajectory_scores(loaded, trajectory)["drift"]
     assert through_set.tolist() == _scores(named["drift"], [trajectory])[0].tolist()
+    for name in named.names:  # what a threshold records of them reads the same from the files
+        assert loaded.fingerprint(name) == named.fingerprint(name)
     meta = json.loads((tmp_path / "det" / "detectors.json").read_text())
     for entry in meta["detectors"]:
         if entry["name"] == "drift":

@@ -10,6 +10,8 @@ on ID episodes first (:meth:`Detector.fit`, usually through
 
 from __future__ import annotations
 
+import hashlib
+import json
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -200,6 +202,18 @@ class Detector:
     @classmethod
     def from_state(cls, config: Mapping[str, Any], tensors: Mapping[str, np.ndarray]) -> Detector:
         return cls(**config)
+
+    def fingerprint(self) -> str:
+        """``sha256:...`` of what the detector learned: its name, settings and arrays, as its files
+        hold them (the same before and after a save and a load). A threshold records the fingerprint
+        of the detector it was calibrated with, and the monitor refuses another: its scores are on
+        another scale."""
+        digest = hashlib.sha256(json.dumps([self.name, self.config()], sort_keys=True).encode())
+        for key, value in sorted(self.tensors().items()):
+            value = np.ascontiguousarray(value)
+            digest.update(f"{key} {value.dtype.str} {value.shape}".encode())
+            digest.update(value.tobytes())
+        return "sha256:" + digest.hexdigest()
 
     def check_fitted(self) -> None:
         if not self.fitted:

@@ -129,6 +129,19 @@ class DetectorSet:
             wanted |= set(self["combined"].members)
         return DetectorSet([self[name] for name in self.names if name in wanted], fitted_for=self.fitted_for)
 
+    def fingerprint(self, name: str) -> str | None:
+        """``sha256:...`` of what detector ``name`` learned and of the learned detectors it reads
+        (``combined``'s members), or ``None`` for ``spread``, which learns nothing (its score is the
+        threshold's ``score``). A threshold records it (:attr:`Threshold.detectors_hash`)."""
+        detector = self[name]
+        if not detector.learned:
+            return None
+        members = sorted(m for m in detector.members if self[m].learned) if name == "combined" else []
+        if not members:
+            return detector.fingerprint()
+        prints = " ".join(self[n].fingerprint() for n in [name, *members])
+        return "sha256:" + hashlib.sha256(prints.encode()).hexdigest()
+
     @property
     def needs_estimate(self) -> bool:
         return any(d.needs_estimate for d in self)
