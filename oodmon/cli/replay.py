@@ -124,13 +124,19 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 
 
 def _read_logs(paths: Sequence[str]):
-    from oodmon.replay import read_logs
+    from oodmon.replay import pooled_weights, read_logs
 
     logs = read_logs(paths)
     interrupted = sum(len(log.interrupted) for log in logs)
     if interrupted:
         print(f"oodmon: note: {interrupted} interrupted episode(s) (runs stopped inside them) are left out of the "
               "metrics", file=sys.stderr)
+    for (task, method), by_weights in pooled_weights(logs).items():
+        runs = "; ".join(f"{weights[:15]}...: {paths[0]}" + (f" and {len(paths) - 1} more" if len(paths) > 1 else "")
+                         for weights, paths in list(by_weights.items())[:3]) + ("; ..." if len(by_weights) > 3 else "")
+        print(f"oodmon: note: the {task}/{method} rows pool the logs of {len(by_weights)} policies' weights ({runs}): "
+              "their AUROC ranks one policy's steps against another's; replay each policy's logs apart for its own",
+              file=sys.stderr)
     unthresholded = [str(log.path) for log in logs if not log.has_threshold]
     if unthresholded:
         print(f"oodmon: note: {len(unthresholded)} log(s) ran without a threshold (`oodmon run --threshold`), so "

@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -26,8 +27,8 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
            "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
-           "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "rankable",
-           "shifted_alarms"]
+           "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "pooled_weights",
+           "rankable", "shifted_alarms"]
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,28 @@ def detectors_in(logs: Iterable[RunLog]) -> list[str]:
         return []
     common = set.intersection(*(set(log.detectors) for log in logs))
     return [name for name in logs[0].detectors if name in common]
+
+
+def pooled_weights(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, list[Path]]]:
+    """The (task, method) groups whose logs hold runs of more than one policy's weights (the
+    ``policy_hash`` each run recorded; runs that recorded none are not counted): their logs by
+    weights. Replay pools a group's logs in one row per variant, so such a row's AUROC ranks one
+    policy's ID steps against another's shifted ones (the bench's trials, or a model retrained
+    into the same folder of logs).
+
+    Example:
+        >>> from oodmon.replay.reader import RunLog
+        >>> def run(name, weights):
+        ...     return RunLog(Path(name), "cartpole", "sb3", 1.0, {"policy_hash": weights}, [], True)
+        >>> pooled_weights([run("a.mcap", "sha256:aa"), run("b.mcap", "sha256:bb"), run("c.mcap", "sha256:aa")])
+        {('cartpole', 'sb3'): {'sha256:aa': [PosixPath('a.mcap'), PosixPath('c.mcap')], 'sha256:bb': [PosixPath('b.mcap')]}}
+    """
+    groups: dict[tuple[str, str], dict[str, list[Path]]] = defaultdict(lambda: defaultdict(list))
+    for log in logs:
+        weights = log.metadata.get("policy_hash")
+        if weights and weights != "unknown":
+            groups[(log.task, log.method)][weights].append(log.path)
+    return {key: dict(by_weights) for key, by_weights in groups.items() if len(by_weights) > 1}
 
 
 def _episodes_by_variant(logs: Iterable[RunLog]) -> dict[tuple[str, str, str], list[tuple[RunLog, EpisodeLog]]]:

@@ -289,6 +289,31 @@ def test_replay_monitor_prints_the_alarm_figures_of_the_monitors_benchmark(tmp_p
     assert refused.returncode != 0 and "--monitor" in refused.stderr
 
 
+def test_replay_says_when_a_row_pools_the_logs_of_several_policies_weights(tmp_path):
+    """Logs of one task and method from two policies' weights (a model retrained into the same folder
+    of logs): replay pools them in one row per variant, and says so, naming each weights' logs; the
+    logs of one policy alone get no such note."""
+    from oodmon.replay import pooled_weights
+
+    first, retrained = load("cartpole", "ensemble"), load("cartpole", "ensemble")
+    retrained.metadata["policy_hash"] = "sha256:" + "b" * 64  # what a retrained model's files hash to
+    for name, agent, spec in (("old.mcap", first, "cartpole"), ("new.mcap", retrained, "cartpole:length=2.0")):
+        with Monitor(agent, threshold=4.6, sinks=[McapSink(tmp_path / name)]) as monitor:
+            monitor.run_episode(parse_variant(spec).make(), seed=0, variant=spec)
+    logs = [read_log(tmp_path / "old.mcap"), read_log(tmp_path / "new.mcap")]
+    pooled = pooled_weights(logs)
+    assert list(pooled) == [("cartpole", "ensemble")]
+    assert sorted(pooled["cartpole", "ensemble"].values()) == [[tmp_path / "new.mcap"], [tmp_path / "old.mcap"]]
+    for view in ([], ["--monitor"]):
+        done = _cli("replay", *view, str(tmp_path))
+        assert done.returncode == 0, done.stderr
+        assert "the cartpole/ensemble rows pool the logs of 2 policies' weights (sha256:bbbbbbbb" in done.stderr
+        assert "new.mcap" in done.stderr and "old.mcap" in done.stderr
+    alone = _cli("replay", str(tmp_path / "old.mcap"))
+    assert alone.returncode == 0 and "pool the logs" not in alone.stderr
+    assert pooled_weights([logs[0], read_log(tmp_path / "old.mcap")]) == {}
+
+
 def test_the_replay_table_is_readable_at_80_columns():
     import io
 
