@@ -124,7 +124,7 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 
 
 def _read_logs(paths: Sequence[str]):
-    from oodmon.replay import pooled_weights, read_logs
+    from oodmon.replay import pooled_fits, pooled_weights, read_logs
 
     logs = read_logs(paths)
     interrupted = sum(len(log.interrupted) for log in logs)
@@ -132,10 +132,12 @@ def _read_logs(paths: Sequence[str]):
         print(f"oodmon: note: {interrupted} interrupted episode(s) (runs stopped inside them) are left out of the "
               "metrics", file=sys.stderr)
     for (task, method), by_weights in pooled_weights(logs).items():
-        runs = "; ".join(f"{weights[:15]}...: {paths[0]}" + (f" and {len(paths) - 1} more" if len(paths) > 1 else "")
-                         for weights, paths in list(by_weights.items())[:3]) + ("; ..." if len(by_weights) > 3 else "")
-        print(f"oodmon: note: the {task}/{method} rows pool the logs of {len(by_weights)} policies' weights ({runs}): "
-              "their AUROC ranks one policy's steps against another's; replay each policy's logs apart for its own",
+        print(f"oodmon: note: the {task}/{method} rows pool the logs of {len(by_weights)} policies' weights "
+              f"({_logs_by(by_weights)}): their AUROC ranks one policy's steps against another's; replay each "
+              "policy's logs apart for its own", file=sys.stderr)
+    for (task, method, name), by_fit in pooled_fits(logs).items():
+        print(f"oodmon: note: the {task}/{method} {name} rows pool the logs of {len(by_fit)} fits of the {name} "
+              f"detector ({_logs_by(by_fit)}): two fits' scores are on two scales; replay each fit's logs apart",
               file=sys.stderr)
     unthresholded = [str(log.path) for log in logs if not log.has_threshold]
     if unthresholded:
@@ -143,6 +145,13 @@ def _read_logs(paths: Sequence[str]):
               f"raised no alarms: {', '.join(unthresholded[:3])}{', ...' if len(unthresholded) > 3 else ''}; "
               "their variants have no alarm figures", file=sys.stderr)
     return logs
+
+
+def _logs_by(groups: dict[str, list]) -> str:
+    """Logs grouped by what they were made with, in a few words: each group's first log and how many more."""
+    shown = [f"{made_with[:15]}...: {paths[0]}" + (f" and {len(paths) - 1} more" if len(paths) > 1 else "")
+             for made_with, paths in list(groups.items())[:3]]
+    return "; ".join(shown) + ("; ..." if len(groups) > 3 else "")
 
 
 def _add_check(commands: argparse._SubParsersAction) -> None:

@@ -322,6 +322,7 @@ class Monitor:
                 threshold=self.threshold, rule=self.tracker.rule, policy_hash=self.policy_hash,
                 versions=library_versions(), detector=self.detector, detectors=tuple(self.detectors.names),
                 about=run_about(meta) | self._samples_about(),
+                fitted={name: fit for name in self.detectors.names if (fit := self.detectors.fingerprint(name))},
             ))
             self._opened = True
             atexit.register(self.close)

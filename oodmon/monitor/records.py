@@ -170,10 +170,14 @@ class RunInfo:
     #: line), and for models from elsewhere ``env_id`` and ``models`` (JSON: each file's path,
     #: sha256 and algorithm).
     about: dict[str, str] = field(default_factory=dict)
+    #: The fingerprint of each learned detector's fit (and of those it combines), by name
+    #: (:meth:`~oodmon.monitor.detectors.DetectorSet.fingerprint`): scores of two fits are on two
+    #: scales, and replay says when it pools them. Logs written before 2026-11-29 have none.
+    fitted: dict[str, str] = field(default_factory=dict)
 
     def to_strings(self) -> dict[str, str]:
         """MCAP metadata holds strings only."""
         return {"task": self.task, "method": self.method, "score": self.score, "threshold": repr(self.threshold),
                 "rule": self.rule, "policy_hash": self.policy_hash, "detector": self.detector,
                 "detectors": ",".join(self.detectors), **{f"version.{k}": v for k, v in self.versions.items()},
-                **{f"about.{k}": v for k, v in self.about.items()}}
+                **{f"about.{k}": v for k, v in self.about.items()}, **{f"fitted.{k}": v for k, v in self.fitted.items()}}

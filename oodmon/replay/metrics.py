@@ -27,7 +27,7 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
            "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
-           "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "pooled_weights",
+           "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "pooled_fits", "pooled_weights",
            "rankable", "shifted_alarms"]
 
 
@@ -126,12 +126,29 @@ def pooled_weights(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, li
         >>> pooled_weights([run("a.mcap", "sha256:aa"), run("b.mcap", "sha256:bb"), run("c.mcap", "sha256:aa")])
         {('cartpole', 'sb3'): {'sha256:aa': [PosixPath('a.mcap'), PosixPath('c.mcap')], 'sha256:bb': [PosixPath('b.mcap')]}}
     """
-    groups: dict[tuple[str, str], dict[str, list[Path]]] = defaultdict(lambda: defaultdict(list))
-    for log in logs:
-        weights = log.metadata.get("policy_hash")
-        if weights and weights != "unknown":
-            groups[(log.task, log.method)][weights].append(log.path)
-    return {key: dict(by_weights) for key, by_weights in groups.items() if len(by_weights) > 1}
+    return _pooled((log, (log.task, log.method), log.metadata.get("policy_hash")) for log in logs)
+
+
+def pooled_fits(logs: Iterable[RunLog]) -> dict[tuple[str, str, str], dict[str, list[Path]]]:
+    """The (task, method, detector) rows whose logs were scored by more than one fit of that
+    learned detector (the fingerprint each run recorded, ``fitted.<detector>``, logs since
+    2026-11-29), within (task, method) groups of one policy's weights (:func:`pooled_weights` says
+    the rest): their logs by fit. Two fits' scores are on two scales, so such a row's AUROC ranks
+    one fit's scores against another's (detectors refitted between runs)."""
+    logs = list(logs)
+    mixed = pooled_weights(logs)
+    return _pooled((log, (log.task, log.method, name), log.metadata.get(f"fitted.{name}"))
+                   for log in logs if (log.task, log.method) not in mixed for name in log.detectors)
+
+
+def _pooled(entries: Iterable[tuple[RunLog, tuple, str | None]]) -> dict[tuple, dict[str, list[Path]]]:
+    """Of (log, group, what it was made with) entries, the groups made with more than one, their
+    logs by what; a log that recorded nothing (``None``, ``unknown``) is not counted."""
+    groups: dict[tuple, dict[str, list[Path]]] = defaultdict(lambda: defaultdict(list))
+    for log, group, made_with in entries:
+        if made_with and made_with != "unknown":
+            groups[group][made_with].append(log.path)
+    return {group: dict(by) for group, by in groups.items() if len(by) > 1}
 
 
 def _episodes_by_variant(logs: Iterable[RunLog]) -> dict[tuple[str, str, str], list[tuple[RunLog, EpisodeLog]]]:

@@ -314,6 +314,29 @@ def test_replay_says_when_a_row_pools_the_logs_of_several_policies_weights(tmp_p
     assert pooled_weights([logs[0], read_log(tmp_path / "old.mcap")]) == {}
 
 
+def test_replay_says_when_a_row_pools_the_scores_of_two_fits_of_a_detector(tmp_path):
+    """One policy's logs scored by two fits of its dynamics detector (refitted between runs): the
+    log records each fit's fingerprint, and replay says that the dynamics rows pool two scales."""
+    from oodmon.monitor.detectors import DynamicsDetector, collect
+    from oodmon.replay import pooled_fits
+
+    agent = load("cartpole", "ensemble")
+    episodes = collect(agent, parse_variant("cartpole").make(), 1, seed=0)
+    fits = [DynamicsDetector(2, epochs=2, seed=seed).fit(episodes) for seed in (0, 1)]
+    for name, fit in (("first.mcap", fits[0]), ("refit.mcap", fits[1])):
+        with Monitor(agent, detectors=[fit], sinks=[McapSink(tmp_path / name)]) as monitor:
+            monitor.run_episode(parse_variant("cartpole").make(), seed=0, variant="cartpole")
+    logs = [read_log(tmp_path / "first.mcap"), read_log(tmp_path / "refit.mcap")]
+    assert [log.metadata["fitted.dynamics"] for log in logs] == [fit.fingerprint() for fit in fits]
+    assert "fitted.spread" not in logs[0].metadata  # spread learns nothing
+    assert sorted(pooled_fits(logs)["cartpole", "ensemble", "dynamics"].values()) == [
+        [tmp_path / "first.mcap"], [tmp_path / "refit.mcap"]]
+    done = _cli("replay", str(tmp_path))
+    assert done.returncode == 0, done.stderr
+    assert "the cartpole/ensemble dynamics rows pool the logs of 2 fits of the dynamics detector" in done.stderr
+    assert pooled_fits([logs[0], read_log(tmp_path / "first.mcap")]) == {}
+
+
 def test_the_replay_table_is_readable_at_80_columns():
     import io
 
