@@ -11,7 +11,9 @@ the detectors' fitting take like a shipped one:
   ``predict()`` deciding either way); several DQN, several DDPG/TD3, or several SAC models (their
   deterministic actions) are also an ensemble whose spread and features are detectors
   (:func:`~oodmon.agents.networks.estimator_from_sb3`). One SAC model, and PPO and A2C, are watched
-  by the learned detectors only;
+  by the learned detectors only, as is one model of sb3-contrib's QR-DQN, TQC, TRPO, ARS or CrossQ
+  (``pip install 'oodmon[contrib]'``; RecurrentPPO and MaskablePPO are refused: their decision
+  needs an LSTM state or the env's action masks beside the observation);
 - its metadata record each model's path and sha256, the algorithm and the env id; its policy hash
   (what thresholds and fitted detectors are checked against) is the hash of those files.
 
@@ -45,7 +47,7 @@ from oodmon.envs.checks import space_mismatch
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
 
-__all__ = ["SB3_ALGORITHMS", "SB3_HYPERPARAMETERS", "load_sb3", "models_sha256", "sb3_agent", "sb3_algorithm"]
+__all__ = ["SB3_ALGORITHMS", "SB3_CONTRIB_ALGORITHMS", "SB3_HYPERPARAMETERS", "load_sb3", "models_sha256", "sb3_agent", "sb3_algorithm"]
 
 #: SB3's policy modules and the algorithm classes that load them (first match that loads wins:
 #: A2C and PPO share a policy class; DDPG's policy is TD3's and loads as TD3 for acting).
@@ -57,10 +59,30 @@ SB3_ALGORITHMS = {
 }
 
 
+#: sb3-contrib's algorithms oodmon loads (``pip install 'oodmon[contrib]'``), by policy module: one
+#: model is a plain policy, acting by its own ``predict(obs, deterministic=True)`` and watched by the
+#: learned detectors (oodmon reads no spread of their networks). TRPO's policy is SB3's own
+#: actor-critic: told by the hyperparameters it saves (:data:`SB3_HYPERPARAMETERS`).
+SB3_CONTRIB_ALGORITHMS = {
+    "sb3_contrib.qrdqn.policies": ("QRDQN",),
+    "sb3_contrib.tqc.policies": ("TQC",),
+    "sb3_contrib.ars.policies": ("ARS",),
+    "sb3_contrib.crossq.policies": ("CrossQ",),
+}
+
+#: sb3-contrib's policies whose decision needs more than the observation: refused with why.
+SB3_CONTRIB_REFUSED = {
+    "sb3_contrib.common.recurrent.policies": "RecurrentPPO decides from its LSTM's state as well as the observation, "
+                                             "and oodmon deploys and samples a policy one observation at a time",
+    "sb3_contrib.common.maskable.policies": "MaskablePPO decides among the actions the env's action masks allow at each "
+                                            "step, which oodmon does not pass it (it would act unmasked)",
+}
+
 #: A policy class of the user's own (a subclass of an SB3 policy, to add dropout, say) lives in the
 #: user's module; the algorithm is then told by the hyperparameters only it saves in ``data``
 #: (checked on SB3 2.9: each key below is saved by these algorithms and by no other of the six).
 SB3_HYPERPARAMETERS = (
+    ("cg_max_steps", ("TRPO",)),  # sb3-contrib's TRPO, whose policy module is SB3's own (before PPO's keys)
     ("exploration_fraction", ("DQN",)),
     ("target_entropy", ("SAC",)),
     ("policy_delay", ("TD3", "DDPG")),
@@ -87,40 +109,69 @@ def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
     except (zipfile.BadZipFile, KeyError, TypeError, ValueError):
         raise ConfigError(f"{path} is not a stable-baselines3 model file (a .zip with a 'data' entry naming its "
                           "policy class)") from None
-    if module in SB3_ALGORITHMS:
-        return SB3_ALGORITHMS[module]
-    if module.split(".")[0] in ("stable_baselines3", "sb3_contrib"):  # their other algorithms (QR-DQN, TQC, ...)
-        raise ConfigError(f"{path} holds a policy of {module}; oodmon loads DQN, DDPG, TD3, SAC, PPO and A2C models")
+    if module in SB3_CONTRIB_REFUSED:
+        raise ConfigError(f"{path} holds a policy of {module}: {SB3_CONTRIB_REFUSED[module]}")
+    if module == "stable_baselines3.common.policies" and "cg_max_steps" in data:
+        return ("TRPO",)
+    if module in SB3_ALGORITHMS or module in SB3_CONTRIB_ALGORITHMS:
+        return (SB3_ALGORITHMS | SB3_CONTRIB_ALGORITHMS)[module]
+    if module.split(".")[0] in ("stable_baselines3", "sb3_contrib"):  # their other algorithms
+        raise ConfigError(f"{path} holds a policy of {module}; oodmon loads {ALGORITHMS_LOADED} models")
     algorithms = next((names for key, names in SB3_HYPERPARAMETERS if key in data), None)
     if algorithms is None:
-        raise ConfigError(f"{path} holds a policy of {module}, and none of the hyperparameters DQN, DDPG, TD3, SAC, PPO "
-                          "or A2C save: oodmon loads models of those algorithms only")
+        raise ConfigError(f"{path} holds a policy of {module}, and none of the hyperparameters DQN, DDPG, TD3, SAC, PPO, "
+                          "A2C or TRPO save: a policy class of your own is loaded for those algorithms only")
     return algorithms
 
 
-def _policy_base(name: str) -> type:
-    """The SB3 policy class every policy of algorithm ``name`` derives from (a user's own class too)."""
+#: What :func:`sb3_algorithm` takes, in words.
+ALGORITHMS_LOADED = ("stable-baselines3's DQN, DDPG, TD3, SAC, PPO and A2C, and sb3-contrib's QR-DQN, TQC, TRPO, ARS "
+                     "and CrossQ")
+
+
+def _algorithm_class(name: str) -> type:
+    """The class that loads algorithm ``name``'s files: stable-baselines3's, else sb3-contrib's.
+
+    Raises:
+        ConfigError: an sb3-contrib algorithm where sb3-contrib is not installed.
+    """
+    import stable_baselines3
+
+    if hasattr(stable_baselines3, name):
+        return getattr(stable_baselines3, name)
+    try:
+        import sb3_contrib
+    except ImportError:
+        raise ConfigError(f"a {name} model is loaded by sb3-contrib, which is not installed: pip install sb3-contrib "
+                          "(or 'oodmon[contrib]')") from None
+    return getattr(sb3_contrib, name)
+
+
+def _policy_base(name: str) -> type | None:
+    """The SB3 policy class every policy of algorithm ``name`` derives from (a user's own class too);
+    ``None`` for sb3-contrib's, told by their own policy module."""
     from stable_baselines3.common.policies import ActorCriticPolicy
     from stable_baselines3.dqn.policies import DQNPolicy
     from stable_baselines3.sac.policies import SACPolicy
     from stable_baselines3.td3.policies import TD3Policy
 
     return {"DQN": DQNPolicy, "TD3": TD3Policy, "DDPG": TD3Policy, "SAC": SACPolicy, "PPO": ActorCriticPolicy,
-            "A2C": ActorCriticPolicy}[name]
+            "A2C": ActorCriticPolicy}.get(name)
 
 
 def _load_one(path: Path) -> tuple[Any, str]:
-    import stable_baselines3
-
     errors = []
     for name in sb3_algorithm(path):
         try:
-            model = getattr(stable_baselines3, name).load(path, device="cpu")
+            model = _algorithm_class(name).load(path, device="cpu")
+        except ConfigError:
+            raise  # sb3-contrib not installed: said as it is
         except Exception as error:  # noqa: BLE001  (the next class of the same policy may load it)
             errors.append(f"{name}: {error}")
             continue
-        if not isinstance(model.policy, _policy_base(name)):  # a policy of another algorithm, told by its hyperparameters
-            errors.append(f"{name}: its policy {type(model.policy).__name__} is no {_policy_base(name).__name__}")
+        base = _policy_base(name)
+        if base is not None and not isinstance(model.policy, base):  # a policy of another algorithm, told by its hyperparameters
+            errors.append(f"{name}: its policy {type(model.policy).__name__} is no {base.__name__}")
             continue
         return model, name
     raise ConfigError(f"stable-baselines3 could not load {path}: {'; '.join(errors)}")
@@ -383,7 +434,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     from oodmon.envs.registration import make_env, task_of_env
 
     if not models or not all(hasattr(m, "policy") and hasattr(m, "predict") for m in models):
-        raise ConfigError("give one or more stable-baselines3 models (DQN, DDPG, TD3, SAC, PPO, A2C)")
+        raise ConfigError(f"give one or more stable-baselines3 models ({ALGORITHMS_LOADED})")
     if frame_stack is None and files is None:  # models in memory: the VecFrameStack they were trained in, if any
         frame_stack = _frame_stack_of(models)
     if files is None:
@@ -423,7 +474,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         raise ConfigError(f"{env_id}'s observations hold pictures ({pictures.picture_key!r}), which the models read "
                           "through a CNN, and oodmon samples no CNN (no ensemble spread, no masks): give the deployed "
                           "model alone (the learned detectors watch it: dynamics the dict's vectors, frames its picture)")
-    # PPO, A2C: networks oodmon does not sample; the learned detectors watch them
+    # PPO, A2C, sb3-contrib's: networks oodmon does not sample; the learned detectors watch them
     estimator = _estimator_of(models, n_samples, seed, masks) if sampled and pictures is None else None
     if mean and estimator is None:
         raise ConfigError("--mean deploys the ensemble's mean: give several DQN, several DDPG/TD3, or several SAC models")

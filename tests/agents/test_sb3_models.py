@@ -803,9 +803,13 @@ def test_a_policy_class_of_the_users_own_is_told_by_its_algorithms_hyperparamete
         patch.setattr(stable_baselines3.DQN, "load", lambda *a, **k: ppo)
         with pytest.raises(ConfigError, match="its policy ActorCriticPolicy is no DQNPolicy"):
             sb3._load_one(tmp_path / "DQN.zip")
-    # sb3-contrib's algorithms (QR-DQN saves DQN's hyperparameters) stay refused by their module.
+    # sb3-contrib's are told by their module (QR-DQN saves DQN's hyperparameters: its module says
+    # QR-DQN); one oodmon does not know is refused, naming those it loads.
     _rewrite_policy_module(tmp_path / "DQN.zip", "sb3_contrib.qrdqn.policies")
-    with pytest.raises(ConfigError, match="holds a policy of sb3_contrib.qrdqn.policies; oodmon loads DQN"):
+    assert sb3_algorithm(tmp_path / "DQN.zip") == ("QRDQN",)
+    _rewrite_policy_module(tmp_path / "DQN.zip", "sb3_contrib.newer.policies")
+    with pytest.raises(ConfigError, match="holds a policy of sb3_contrib.newer.policies; oodmon loads stable-baselines3's "
+                                          "DQN, .* and sb3-contrib's QR-DQN, TQC, TRPO, ARS and CrossQ models"):
         sb3_algorithm(tmp_path / "DQN.zip")
 
 
