@@ -198,8 +198,8 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
     """An estimator over SB3 models a user trained: an ensemble of several, MC over one.
 
     Args:
-        models: DQN models, or DDPG/TD3 models, or SAC models (their deterministic actions), all of
-            one architecture. One model must have dropout or DropConnect in its Q-network or actor
+        models: DQN models, or DDPG/TD3 models, or SAC models (their deterministic actions; or
+            sb3-contrib's TQC models, whose actor is SAC's), all of one architecture. One model must have dropout or DropConnect in its Q-network or actor
             (MC sampling); several form an ensemble with stacked weights.
         n_samples: MC samples per decision (one model only).
         seed: seeds MC sampling.

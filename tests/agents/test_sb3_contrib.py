@@ -1,6 +1,6 @@
 """sb3-contrib's models as your own policy: QR-DQN, TQC, TRPO, ARS and CrossQ load, act as their own
-predict() does and are watched by the learned detectors; RecurrentPPO and MaskablePPO are refused
-with why, before anything is unpickled."""
+predict() does and are watched by the learned detectors (several TQCs are an ensemble, as SACs are);
+RecurrentPPO and MaskablePPO are refused with why, before anything is unpickled."""
 
 from __future__ import annotations
 
@@ -21,7 +21,8 @@ def _model(algorithm: str, env_id: str, **extra):
     policy = "LinearPolicy" if algorithm == "ARS" else "MlpPolicy"
     if algorithm in ("QRDQN", "TQC", "CrossQ"):
         extra.setdefault("buffer_size", 1000)
-    return getattr(sb3_contrib, algorithm)(policy, gymnasium.make(env_id), seed=0, **extra)
+    extra.setdefault("seed", 0)
+    return getattr(sb3_contrib, algorithm)(policy, gymnasium.make(env_id), **extra)
 
 
 @pytest.mark.parametrize("algorithm, env_id", [("QRDQN", "CartPole-v1"), ("TQC", "Pendulum-v1"), ("TRPO", "CartPole-v1"),
@@ -43,6 +44,28 @@ def test_contrib_policies_load_and_act_as_their_own_predict_with_no_samples(algo
         obs, _, terminated, truncated, _ = env.step(action)
         if terminated or truncated:
             obs = env.reset()[0]
+
+
+def test_several_tqc_models_are_an_ensemble_of_their_deterministic_actions_as_sacs_are(tmp_path):
+    """TQC's actor is SAC's (a Gaussian whose mean, squashed by a tanh, is its deterministic action):
+    several TQC files are an ensemble whose samples are each model's predict(deterministic=True),
+    the first acting; one TQC has no samples."""
+    models = [_model("TQC", "Pendulum-v1", learning_starts=100, policy_kwargs={"net_arch": [32, 32], "n_critics": 2},
+                     seed=k) for k in range(3)]
+    models[0].learn(200)  # a trained actor's means reach past the tanh's linear range
+    paths = [tmp_path / f"tqc{k}.zip" for k in range(3)]
+    for model, path in zip(models, paths):
+        model.save(path)
+    agent = load_sb3(paths, "Pendulum-v1")
+    assert agent.estimator is not None and agent.estimator.n_samples == 3
+    env = gymnasium.make("Pendulum-v1")
+    obs, _ = env.reset(seed=0)
+    for _ in range(30):
+        theirs = [m.predict(obs, deterministic=True)[0] for m in models]
+        np.testing.assert_allclose(agent.estimate(obs).samples[:, 0], theirs, rtol=1e-5, atol=1e-5)
+        assert np.array_equal(agent.act(obs), theirs[0])
+        obs, *_ = env.step(agent.act(obs))
+    assert load_sb3(paths[:1], "Pendulum-v1").estimator is None
 
 
 def test_recurrent_and_maskable_ppo_are_refused_with_why_and_several_contrib_models_are_no_ensemble(tmp_path):
