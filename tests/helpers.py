@@ -116,3 +116,24 @@ def tear_inside_episode_one(monitor, env, variant: str, folder, memory, steps: i
     with pytest.warns(RecoveryWarning, match=f"the running episode 1 is kept as interrupted from its {steps} steps on disk"):
         log = read_log(folder / "torn.mcap")
     return log, [s for s in memory.steps if s.episode == 1]
+
+
+def saved_ensemble_acts_as_its_members(models, tmp_path, env_id: str, steps: int):
+    """``models`` saved and loaded as one agent (``load_sb3``): an ensemble whose samples are each
+    model's predict(deterministic=True) and whose first model acts, step by step over ``steps``
+    steps of ``env_id`` from seed 0. Returns the saved files' paths."""
+    from oodmon.agents.sb3 import load_sb3
+
+    paths = [tmp_path / f"member{k}.zip" for k in range(len(models))]
+    for model, path in zip(models, paths):
+        model.save(path)
+    agent = load_sb3(paths, env_id)
+    assert agent.estimator is not None and agent.estimator.n_samples == len(models)
+    env = gymnasium.make(env_id)
+    obs, _ = env.reset(seed=0)
+    for _ in range(steps):
+        theirs = [m.predict(obs, deterministic=True)[0] for m in models]
+        np.testing.assert_allclose(agent.estimate(obs).samples[:, 0], theirs, rtol=1e-5, atol=1e-5)
+        assert np.array_equal(agent.act(obs), theirs[0])  # the first model acts
+        obs, *_ = env.step(agent.act(obs))
+    return paths

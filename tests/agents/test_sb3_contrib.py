@@ -15,6 +15,7 @@ import sb3_contrib
 from oodmon.agents.sb3 import load_sb3, sb3_agent, sb3_algorithm
 from oodmon.cli import main
 from oodmon.errors import ConfigError
+from tests.helpers import saved_ensemble_acts_as_its_members
 
 
 def _model(algorithm: str, env_id: str, **extra):
@@ -53,18 +54,7 @@ def test_several_tqc_models_are_an_ensemble_of_their_deterministic_actions_as_sa
     models = [_model("TQC", "Pendulum-v1", learning_starts=100, policy_kwargs={"net_arch": [32, 32], "n_critics": 2},
                      seed=k) for k in range(3)]
     models[0].learn(200)  # a trained actor's means reach past the tanh's linear range
-    paths = [tmp_path / f"tqc{k}.zip" for k in range(3)]
-    for model, path in zip(models, paths):
-        model.save(path)
-    agent = load_sb3(paths, "Pendulum-v1")
-    assert agent.estimator is not None and agent.estimator.n_samples == 3
-    env = gymnasium.make("Pendulum-v1")
-    obs, _ = env.reset(seed=0)
-    for _ in range(30):
-        theirs = [m.predict(obs, deterministic=True)[0] for m in models]
-        np.testing.assert_allclose(agent.estimate(obs).samples[:, 0], theirs, rtol=1e-5, atol=1e-5)
-        assert np.array_equal(agent.act(obs), theirs[0])
-        obs, *_ = env.step(agent.act(obs))
+    paths = saved_ensemble_acts_as_its_members(models, tmp_path, "Pendulum-v1", steps=30)
     assert load_sb3(paths[:1], "Pendulum-v1").estimator is None
 
 

@@ -24,7 +24,7 @@ from oodmon.errors import ConfigError
 from oodmon.monitor import MemorySink, Monitor, MonitoredEnv
 from oodmon.monitor.detectors import DetectorSet
 from oodmon.replay import read_log, read_logs
-from tests.helpers import ActedOn, NoisePictures
+from tests.helpers import ActedOn, NoisePictures, saved_ensemble_acts_as_its_members
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -729,19 +729,9 @@ def test_several_sac_models_are_an_ensemble_of_their_deterministic_actions(tmp_p
     models = [SAC("MlpPolicy", gymnasium.make("Pendulum-v1"), seed=k, learning_starts=100,
                   policy_kwargs={"net_arch": [32, 32]}) for k in range(3)]
     models[0].learn(300)  # a trained actor's means reach past the tanh's linear range
-    paths = [tmp_path / f"sac{k}.zip" for k in range(3)]
-    for model, path in zip(models, paths):
-        model.save(path)
-    agent = load_sb3(paths, "Pendulum-v1")
-    assert agent.estimator is not None and agent.estimator.n_samples == 3
+    paths = saved_ensemble_acts_as_its_members(models, tmp_path, "Pendulum-v1", steps=50)
     env = gymnasium.make("Pendulum-v1")
-    obs, _ = env.reset(seed=0)
-    for _ in range(50):
-        samples = agent.estimate(obs).samples[:, 0]
-        theirs = [m.predict(obs, deterministic=True)[0] for m in models]
-        np.testing.assert_allclose(samples, theirs, rtol=1e-5, atol=1e-5)
-        assert np.array_equal(agent.act(obs), theirs[0])  # the first model acts
-        obs, *_ = env.step(agent.act(obs))
+    obs, _ = env.reset(seed=1)
     mean = sb3_agent(models, "Pendulum-v1", mean=True)  # in memory: the same models, no files loaded again
     np.testing.assert_allclose(mean.act(obs), np.mean([m.predict(obs, deterministic=True)[0] for m in models], axis=0),
                                rtol=1e-5, atol=1e-5)
