@@ -85,6 +85,19 @@ class Agent:
         action = self.estimator.estimate(obs).action[0]
         return int(action) if self.estimator.kind == "q_values" else action
 
+    def begin_episode(self) -> None:
+        """An episode begins: a policy with a memory of the episode (a RecurrentPPO's LSTM state)
+        forgets the last one. The envs :meth:`wrap` makes call it at each reset, and the monitor at
+        each episode's start; nothing for any other policy."""
+        begin = getattr(self.deploy, "begin_episode", None)
+        if begin is not None:
+            begin()
+
+    @property
+    def remembers(self) -> bool:
+        """Whether the deployed policy carries a memory from step to step (:meth:`begin_episode`)."""
+        return hasattr(self.deploy, "begin_episode")
+
     def view(self, obs: Any) -> Any:
         """The observation as the agent, the detectors and the logs read it: a dict observation
         flattened (``gymnasium.spaces.flatten`` over :attr:`dict_space`, the order the policy's
@@ -122,7 +135,11 @@ class Agent:
         """``env`` (the gymnasium env of the agent's env id, or an oodmon variant of it) giving the
         observations the agent acts on: stacked :attr:`frame_stack` deep as SB3's VecFrameStack
         stacks them (:class:`~oodmon.agents.frame_stack.FrameStack`; a dict key by key), and dict
-        ones flattened (``FlattenObservation``, as :meth:`view`); ``env`` itself for any other agent."""
+        ones flattened (``FlattenObservation``, as :meth:`view`), and for a policy with a memory
+        (:attr:`remembers`) telling it of each reset (:meth:`begin_episode`); ``env`` itself for any
+        other agent."""
+        if self.remembers:
+            env = _BeginsEpisodes(env, self.begin_episode)
         if self.stacking is not None:
             from oodmon.agents.frame_stack import FrameStack
 
@@ -197,6 +214,18 @@ def zoo_names() -> list[str]:
     """The shipped agents as ``task-method`` names, e.g. ``cartpole-ensemble``."""
     root = zoo_dir()
     return sorted(p.name for p in root.iterdir() if (p / "model.json").is_file()) if root.is_dir() else []
+
+
+class _BeginsEpisodes(gymnasium.Wrapper):
+    """Tells a policy with a memory (:meth:`Agent.begin_episode`) of each reset of the env it acts in."""
+
+    def __init__(self, env: gymnasium.Env, begin_episode: Callable[[], None]) -> None:
+        super().__init__(env)
+        self._begin_episode = begin_episode
+
+    def reset(self, **kwargs: Any):
+        self._begin_episode()
+        return self.env.reset(**kwargs)
 
 
 def load(task: str, method: str, *, n_samples: int | None = None, seed: int | None = None,

@@ -13,8 +13,8 @@ the detectors' fitting take like a shipped one:
   (:func:`~oodmon.agents.networks.estimator_from_sb3`). One SAC model, and PPO and A2C, are watched
   by the learned detectors only, as is one model of sb3-contrib's QR-DQN, TQC, TRPO, ARS or CrossQ
   (``pip install 'oodmon[contrib]'``; several TQC models are an ensemble as SAC models are, their
-  actors being SAC's; RecurrentPPO and MaskablePPO are refused: their decision
-  needs an LSTM state or the env's action masks beside the observation);
+  actors being SAC's; a RecurrentPPO decides with its LSTM's state carried through each episode;
+  MaskablePPO is refused: its decision needs the env's action masks beside the observation);
 - its metadata record each model's path and sha256, the algorithm and the env id; its policy hash
   (what thresholds and fitted detectors are checked against) is the hash of those files.
 
@@ -65,6 +65,7 @@ SB3_ALGORITHMS = {
 #: learned detectors (oodmon reads no spread of their networks). TRPO's policy is SB3's own
 #: actor-critic: told by the hyperparameters it saves (:data:`SB3_HYPERPARAMETERS`).
 SB3_CONTRIB_ALGORITHMS = {
+    "sb3_contrib.common.recurrent.policies": ("RecurrentPPO",),  # its LSTM's state carried: _RecurrentDeployed
     "sb3_contrib.qrdqn.policies": ("QRDQN",),
     "sb3_contrib.tqc.policies": ("TQC",),
     "sb3_contrib.ars.policies": ("ARS",),
@@ -73,8 +74,6 @@ SB3_CONTRIB_ALGORITHMS = {
 
 #: sb3-contrib's policies whose decision needs more than the observation: refused with why.
 SB3_CONTRIB_REFUSED = {
-    "sb3_contrib.common.recurrent.policies": "RecurrentPPO decides from its LSTM's state as well as the observation, "
-                                             "and oodmon deploys and samples a policy one observation at a time",
     "sb3_contrib.common.maskable.policies": "MaskablePPO decides among the actions the env's action masks allow at each "
                                             "step, which oodmon does not pass it (it would act unmasked)",
 }
@@ -126,8 +125,8 @@ def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
 
 
 #: What :func:`sb3_algorithm` takes, in words.
-ALGORITHMS_LOADED = ("stable-baselines3's DQN, DDPG, TD3, SAC, PPO and A2C, and sb3-contrib's QR-DQN, TQC, TRPO, ARS "
-                     "and CrossQ")
+ALGORITHMS_LOADED = ("stable-baselines3's DQN, DDPG, TD3, SAC, PPO and A2C, and sb3-contrib's QR-DQN, TQC, TRPO, ARS, "
+                     "CrossQ and RecurrentPPO")
 
 
 def _algorithm_class(name: str) -> type:
@@ -243,6 +242,29 @@ def _deployed(model: Any, discrete: bool, normalizer: ObservationNormalizer | No
         action, _ = model.predict(obs if normalizer is None else normalizer(obs), deterministic=True)
         return int(action) if discrete else np.asarray(action)
     return act
+
+
+class _RecurrentDeployed:
+    """A recurrent policy's decisions (sb3-contrib's RecurrentPPO): its ``predict`` with the LSTM's
+    state carried from step to step, as sb3-contrib's own evaluation carries it, and forgotten when
+    an episode begins (:meth:`begin_episode`, which :meth:`Agent.begin_episode` calls: from the envs
+    :meth:`Agent.wrap` makes, at each reset, and from the monitor at each episode's start)."""
+
+    def __init__(self, model: Any, discrete: bool, normalizer: ObservationNormalizer | None,
+                 dict_space: gymnasium.spaces.Dict | None) -> None:
+        self.model, self.discrete, self.normalizer, self.dict_space = model, discrete, normalizer, dict_space
+        self.begin_episode()
+
+    def begin_episode(self) -> None:
+        self.state, self.starts = None, np.ones(1, dtype=bool)
+
+    def __call__(self, obs: np.ndarray) -> int | np.ndarray:
+        if self.dict_space is not None:
+            obs = gymnasium.spaces.unflatten(self.dict_space, np.asarray(obs))
+        action, self.state = self.model.predict(obs if self.normalizer is None else self.normalizer(obs),
+                                                state=self.state, episode_start=self.starts, deterministic=True)
+        self.starts = np.zeros(1, dtype=bool)
+        return int(action) if self.discrete else np.asarray(action)
 
 
 def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
@@ -495,7 +517,9 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     } | ({} if normalizer is None else {"vec_normalize": normalizer.describe()}) \
         | ({} if frame_stack is None else {"frame_stack": frame_stack})
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
-    return Agent(estimator, metadata, None, None if mean else _deployed(models[0], discrete, normalizer, dict_space),
+    deployed = (_RecurrentDeployed if files[0]["algorithm"] == "RecurrentPPO" else _deployed)(
+        models[0], discrete, normalizer, dict_space)
+    return Agent(estimator, metadata, None, None if mean else deployed,
                  dict_space=dict_space, stacking=stacking, pictures=pictures)
 
 

@@ -359,6 +359,8 @@ class Monitor:
         self.episode += 1
         self.tracker.reset()
         self.detectors.reset()
+        if self.agent is not None:
+            self.agent.begin_episode()  # a policy with a memory (RecurrentPPO's) forgets the last episode
         self._prev_obs, self._prev_action = None, None
         self._deployed: Any = None  # the action deployed at the episode's last step
         own = self.agent.env_id if self.agent is not None else None

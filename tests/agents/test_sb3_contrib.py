@@ -1,6 +1,7 @@
 """sb3-contrib's models as your own policy: QR-DQN, TQC, TRPO, ARS and CrossQ load, act as their own
-predict() does and are watched by the learned detectors (several TQCs are an ensemble, as SACs are);
-RecurrentPPO and MaskablePPO are refused with why, before anything is unpickled."""
+predict() does and are watched by the learned detectors (several TQCs are an ensemble, as SACs are); a
+RecurrentPPO's LSTM state is carried through each episode; MaskablePPO is refused with why, before
+anything is unpickled."""
 
 from __future__ import annotations
 
@@ -58,10 +59,64 @@ def test_several_tqc_models_are_an_ensemble_of_their_deterministic_actions_as_sa
     assert load_sb3(paths[:1], "Pendulum-v1").estimator is None
 
 
-def test_recurrent_and_maskable_ppo_are_refused_with_why_and_several_contrib_models_are_no_ensemble(tmp_path):
-    sb3_contrib.RecurrentPPO("MlpLstmPolicy", gymnasium.make("CartPole-v1"), seed=0).save(tmp_path / "lstm.zip")
-    with pytest.raises(ConfigError, match="RecurrentPPO decides from its LSTM's state as well as the observation"):
-        load_sb3([tmp_path / "lstm.zip"], "CartPole-v1")
+def _recurrent(env_id: str):
+    return sb3_contrib.RecurrentPPO("MlpLstmPolicy", gymnasium.make(env_id), seed=0, n_steps=64, batch_size=64,
+                                    policy_kwargs={"lstm_hidden_size": 16, "net_arch": [16]})
+
+
+def _recurrent_reference(model, episodes: int, *, forget: bool) -> np.ndarray:
+    """The model's actions over ``episodes`` 30-step Pendulum episodes as sb3-contrib deploys it: its
+    LSTM's state carried from step to step and, with ``forget``, started anew with each episode."""
+    env = gymnasium.make("Pendulum-v1", max_episode_steps=30)
+    actions, state, starts = [], None, np.ones(1, dtype=bool)
+    for episode in range(episodes):
+        obs, _ = env.reset(seed=episode)
+        if forget:
+            state, starts = None, np.ones(1, dtype=bool)
+        done = False
+        while not done:
+            action, state = model.predict(obs, state=state, episode_start=starts, deterministic=True)
+            starts = np.zeros(1, dtype=bool)
+            actions.append(action)
+            obs, _, terminated, truncated, _ = env.step(action)
+            done = terminated or truncated
+    return np.array(actions)
+
+
+def test_a_recurrent_ppo_decides_with_its_lstm_state_carried_through_each_episode_and_forgotten_at_the_next(tmp_path):
+    """The agent's decisions are sb3-contrib's own deployment's, float for float: the LSTM's state
+    carried from step to step, started anew at each episode, whether the env is one `Agent.wrap`
+    made (told of each reset) or one the monitor steps unwrapped (told at each episode's start).
+    Carrying the state into the next episode decides otherwise (checked: the test can tell)."""
+    from oodmon.monitor import MemorySink, Monitor
+    from oodmon.monitor.detectors import DynamicsDetector, collect
+
+    model = _recurrent("Pendulum-v1")
+    model.save(tmp_path / "lstm.zip")
+    agent = load_sb3([tmp_path / "lstm.zip"], "Pendulum-v1")
+    assert agent.estimator is None and agent.remembers and agent.metadata["algorithm"] == "recurrentppo"
+    expected = _recurrent_reference(model, 2, forget=True)
+    assert not np.array_equal(expected, _recurrent_reference(model, 2, forget=False))
+    env = agent.wrap(gymnasium.make("Pendulum-v1", max_episode_steps=30))
+    actions = []
+    for episode in range(2):
+        obs, _ = env.reset(seed=episode)
+        done = False
+        while not done:
+            actions.append(agent.act(obs))
+            obs, _, terminated, truncated, _ = env.step(actions[-1])
+            done = terminated or truncated
+    assert np.array_equal(np.array(actions), expected)
+    agent.act(obs)  # a step more: the state the monitor's next episode must forget
+    dynamics = DynamicsDetector(None, epochs=2, seed=0).fit(collect(agent, gymnasium.make("Pendulum-v1"), 1, seed=0))
+    sink = MemorySink()
+    with Monitor(agent, detectors=[dynamics], sinks=[sink]) as monitor:
+        for episode in range(2):
+            monitor.run_episode(gymnasium.make("Pendulum-v1", max_episode_steps=30), seed=episode)
+    assert np.array_equal(np.array([step.action for step in sink.steps]), expected)
+
+
+def test_maskable_ppo_is_refused_with_why_and_several_contrib_models_are_no_ensemble(tmp_path):
     sb3_contrib.MaskablePPO("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0).save(tmp_path / "masked.zip")
     with pytest.raises(ConfigError, match="MaskablePPO decides among the actions the env's action masks allow"):
         load_sb3([tmp_path / "masked.zip"], "CartPole-v1")
@@ -70,13 +125,18 @@ def test_recurrent_and_maskable_ppo_are_refused_with_why_and_several_contrib_mod
         sb3_agent(models, "CartPole-v1")
 
 
-def test_a_tqc_is_calibrated_and_alarms_when_gravity_grows(tmp_path, capsys):
+@pytest.mark.parametrize("algorithm", ["TQC", "RecurrentPPO"])
+def test_a_contrib_policy_is_calibrated_and_alarms_when_gravity_grows(algorithm, tmp_path, capsys):
     """The command-line path of the README: `calibrate --sb3` fits the learned detectors for a TQC
-    (a little trained: it barely swings the pendulum, whose fall under gravity the dynamics model
+    (a little trained) or a RecurrentPPO (untrained; its LSTM's state carried through each episode of
+    the fitting, the calibration and the run): neither barely swings the pendulum, whose fall under gravity the dynamics model
     reads whatever the policy's skill; a heavier pole it would not see, its torques being small), and
     `run` with gravity five times Pendulum's from step 50 alarms in both episodes, after the onset."""
-    model = _model("TQC", "Pendulum-v1", learning_starts=100, policy_kwargs={"net_arch": [32, 32], "n_critics": 2})
-    model.learn(300)
+    if algorithm == "TQC":
+        model = _model("TQC", "Pendulum-v1", learning_starts=100, policy_kwargs={"net_arch": [32, 32], "n_critics": 2})
+        model.learn(300)
+    else:
+        model = _recurrent("Pendulum-v1")
     model.save(tmp_path / "tqc.zip")
     common = ["--sb3", str(tmp_path / "tqc.zip"), "--env", "Pendulum-v1"]
     assert main(["calibrate", *common, "--episodes", "10", "--far", "0.1", "--confidence", "none",
