@@ -154,8 +154,8 @@ def modules_from_sb3(models: Sequence[Any], arch: Architecture | Mapping[str, An
     arch = Architecture.of(arch)
     def parts(model) -> tuple[nn.Module, nn.Sequential]:
         if arch.algorithm == "dqn":
-            q_net = model.policy.q_net
-            return q_net.features_extractor, q_net.q_net
+            q_net = _q_network(model)
+            return q_net.features_extractor, _mean_quantiles(q_net) if hasattr(q_net, "quantile_net") else q_net.q_net
         actor = model.policy.actor
         if _is_sac_actor(actor):  # its deterministic action: tanh of the Gaussian's mean
             return actor.features_extractor, nn.Sequential(*actor.latent_pi, actor.mu, nn.Tanh())
@@ -170,6 +170,26 @@ def modules_from_sb3(models: Sequence[Any], arch: Architecture | Mapping[str, An
     else:
         heads = [parts(model)[1] for model in models]
     return nn.ModuleDict({"torso": torso, "members": nn.ModuleList(heads)})
+
+
+def _q_network(model: Any) -> nn.Module:
+    """A DQN's Q-network, or a QR-DQN's quantile network (sb3-contrib's)."""
+    policy = model.policy
+    return policy.q_net if hasattr(policy, "q_net") else policy.quantile_net
+
+
+def _mean_quantiles(network: nn.Module) -> nn.Sequential:
+    """A QR-DQN's quantile network as the Q-network of its Q-values, the mean of each action's
+    quantiles (what its ``predict`` takes the argmax of): its last layer's outputs, ``n_quantiles``
+    blocks of ``n_actions`` (``view(-1, n_quantiles, n_actions)``), averaged into one block, which
+    is the layer of the blocks' mean weights and biases (a mean of linear maps)."""
+    *hidden, last = network.quantile_net
+    n_quantiles = network.n_quantiles
+    mean = nn.Linear(last.in_features, last.out_features // n_quantiles)
+    with torch.no_grad():
+        mean.weight.copy_(last.weight.view(n_quantiles, -1, last.in_features).mean(dim=0))
+        mean.bias.copy_(last.bias.view(n_quantiles, -1).mean(dim=0))
+    return nn.Sequential(*hidden, mean)
 
 
 def _is_sac_actor(actor: nn.Module) -> bool:
@@ -198,8 +218,9 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
     """An estimator over SB3 models a user trained: an ensemble of several, MC over one.
 
     Args:
-        models: DQN models, or DDPG/TD3 models, or SAC models (their deterministic actions; or
-            sb3-contrib's TQC models, whose actor is SAC's), all of one architecture. One model must have dropout or DropConnect in its Q-network or actor
+        models: DQN models (or sb3-contrib's QR-DQN models: their quantiles' means), or DDPG/TD3
+            models, or SAC models (their deterministic actions; or sb3-contrib's TQC models, whose
+            actor is SAC's), all of one architecture. One model must have dropout or DropConnect in its Q-network or actor
             (MC sampling); several form an ensemble with stacked weights.
         n_samples: MC samples per decision (one model only).
         seed: seeds MC sampling.
@@ -228,7 +249,7 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
         )
     algorithm = "ddpg" if kinds == {"sac"} else kinds.pop()  # an actor of bounded actions either way
     space = models[0].action_space
-    first = models[0].policy.q_net if algorithm == "dqn" else models[0].policy.actor
+    first = _q_network(models[0]) if algorithm == "dqn" else models[0].policy.actor
     arch = Architecture(algorithm, _flat_input_shape(models[0].observation_space, first.features_extractor),
                         int(space.n) if algorithm == "dqn" else int(np.prod(space.shape)),
                         cnn=isinstance(first.features_extractor, NatureCNN), n_members=len(models))
@@ -245,7 +266,7 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
 
 def _kind(model: Any) -> str | None:
     """``dqn``, ``ddpg`` (DDPG and TD3: a deterministic actor), ``sac`` or ``None`` (another policy)."""
-    if hasattr(model.policy, "q_net"):
+    if hasattr(model.policy, "q_net") or hasattr(model.policy, "quantile_net"):  # DQN, or QR-DQN: its quantiles' means
         return "dqn"
     actor = getattr(model.policy, "actor", None)
     if actor is None:

@@ -13,7 +13,7 @@ the detectors' fitting take like a shipped one:
   (:func:`~oodmon.agents.networks.estimator_from_sb3`). One SAC model, and PPO and A2C, are watched
   by the learned detectors only, as is one model of sb3-contrib's QR-DQN, TQC, TRPO, ARS or CrossQ
   (``pip install 'oodmon[contrib]'``; several TQC models are an ensemble as SAC models are, their
-  actors being SAC's; a RecurrentPPO decides with its LSTM's state carried through each episode;
+  actors being SAC's, and several QR-DQN models as DQN models are, of their quantiles' means; a RecurrentPPO decides with its LSTM's state carried through each episode;
   MaskablePPO is refused: its decision needs the env's action masks beside the observation);
 - its metadata record each model's path and sha256, the algorithm and the env id; its policy hash
   (what thresholds and fitted detectors are checked against) is the hash of those files.
@@ -484,10 +484,11 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         normalizer = _normalizer_for_env(normalizer, env, env_id, dict_space, models[0])
     names = {file["algorithm"] for file in files}
     masks = masks or "sampled"
-    sampled = names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"}, {"SAC"}, {"TQC"})  # TQC's actor is SAC's
+    # TQC's actor is SAC's; QR-DQN's Q-values are its quantiles' means
+    sampled = names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"}, {"SAC"}, {"TQC"}, {"QRDQN"})
     if len(models) > 1 and not sampled:  # the others were ignored in silence
         raise ConfigError(f"several models form an ensemble, whose spread oodmon reads from DQN models, DDPG/TD3 "
-                          f"models, SAC models or TQC models, all of one algorithm; got {', '.join(f['algorithm'] for f in files)}: give the "
+                          f"models, SAC models, TQC models or QR-DQN models, all of one algorithm; got {', '.join(f['algorithm'] for f in files)}: give the "
                           "deployed model alone (the learned detectors watch it)")
     if masks != "sampled" and (len(models) > 1 or not sampled):
         raise ConfigError(f"masks={masks!r} is for one DQN, DDPG/TD3 or SAC model with dropout or DropConnect layers (MC "
@@ -500,8 +501,8 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     # PPO, A2C, sb3-contrib's: networks oodmon does not sample; the learned detectors watch them
     estimator = _estimator_of(models, n_samples, seed, masks) if sampled and pictures is None else None
     if mean and estimator is None:
-        raise ConfigError("--mean deploys the ensemble's mean: give several DQN, several DDPG/TD3, several SAC or several "
-                          "TQC models")
+        raise ConfigError("--mean deploys the ensemble's mean: give several DQN, DDPG/TD3, SAC, TQC or QR-DQN models "
+                          "(of one algorithm)")
     if estimator is not None:
         estimator.observation_transform = normalizer
     hashes = [file["sha256"] for file in files] + ([] if normalizer is None else [normalizer.sha256])

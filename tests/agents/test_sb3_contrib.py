@@ -1,5 +1,6 @@
 """sb3-contrib's models as your own policy: QR-DQN, TQC, TRPO, ARS and CrossQ load, act as their own
-predict() does and are watched by the learned detectors (several TQCs are an ensemble, as SACs are); a
+predict() does and are watched by the learned detectors (several TQCs are an ensemble, as SACs are,
+and several QR-DQNs, as DQNs are); a
 RecurrentPPO's LSTM state is carried through each episode; MaskablePPO is refused with why, before
 anything is unpickled."""
 
@@ -57,6 +58,33 @@ def test_several_tqc_models_are_an_ensemble_of_their_deterministic_actions_as_sa
     models[0].learn(200)  # a trained actor's means reach past the tanh's linear range
     paths = saved_ensemble_acts_as_its_members(models, tmp_path, "Pendulum-v1", steps=30)
     assert load_sb3(paths[:1], "Pendulum-v1").estimator is None
+
+
+def test_several_qrdqn_models_are_an_ensemble_of_their_quantiles_means(tmp_path):
+    """A QR-DQN's Q-values are the means of each action's quantiles (what its predict() takes the
+    argmax of): several QR-DQN files are an ensemble whose samples are each model's, its spread and
+    features detectors theirs; the first model acts; one QR-DQN has no samples."""
+    import torch
+
+    models = [_model("QRDQN", "CartPole-v1", learning_starts=50, policy_kwargs={"net_arch": [32, 32], "n_quantiles": 7},
+                     seed=k) for k in range(3)]
+    models[0].learn(300)
+    paths = [tmp_path / f"qrdqn{k}.zip" for k in range(3)]
+    for model, path in zip(models, paths):
+        model.save(path)
+    agent = load_sb3(paths, "CartPole-v1")
+    assert agent.estimator is not None and agent.estimator.n_samples == 3 and agent.estimator.kind == "q_values"
+    env = gymnasium.make("CartPole-v1")
+    obs, _ = env.reset(seed=0)
+    for _ in range(30):
+        with torch.no_grad():
+            theirs = [m.policy.quantile_net(torch.as_tensor(obs[None])).mean(dim=1)[0].numpy() for m in models]
+        np.testing.assert_allclose(agent.estimate(obs).samples[:, 0], theirs, rtol=1e-5, atol=1e-6)
+        assert agent.act(obs) == int(models[0].predict(obs, deterministic=True)[0])
+        obs, _, terminated, truncated, _ = env.step(agent.act(obs))
+        if terminated or truncated:
+            obs, _ = env.reset()
+    assert load_sb3(paths[:1], "CartPole-v1").estimator is None
 
 
 def _recurrent(env_id: str):
@@ -120,8 +148,8 @@ def test_maskable_ppo_is_refused_with_why_and_several_contrib_models_are_no_ense
     sb3_contrib.MaskablePPO("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0).save(tmp_path / "masked.zip")
     with pytest.raises(ConfigError, match="MaskablePPO decides among the actions the env's action masks allow"):
         load_sb3([tmp_path / "masked.zip"], "CartPole-v1")
-    models = [_model("QRDQN", "CartPole-v1"), _model("QRDQN", "CartPole-v1")]
-    with pytest.raises(ConfigError, match="several models form an ensemble.*got QRDQN, QRDQN"):
+    models = [_model("TRPO", "CartPole-v1"), _model("TRPO", "CartPole-v1")]
+    with pytest.raises(ConfigError, match="several models form an ensemble.*got TRPO, TRPO"):
         sb3_agent(models, "CartPole-v1")
 
 
