@@ -220,8 +220,8 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
     Args:
         models: DQN models (or sb3-contrib's QR-DQN models: their quantiles' means), or DDPG/TD3
             models, or SAC models (their deterministic actions; or sb3-contrib's TQC models, whose
-            actor is SAC's), all of one architecture. One model must have dropout or DropConnect in its Q-network or actor
-            (MC sampling); several form an ensemble with stacked weights.
+            actor is SAC's), all of one architecture. One model must have dropout or DropConnect
+            in its Q-network or actor (MC sampling); several form an ensemble with stacked weights.
         n_samples: MC samples per decision (one model only).
         seed: seeds MC sampling.
         masks: one model's MC masks, ``sampled`` or ``fixed`` (see
@@ -265,8 +265,9 @@ def estimator_from_sb3(models: Sequence[Any], *, n_samples: int = 20, seed: int 
 
 
 def _kind(model: Any) -> str | None:
-    """``dqn``, ``ddpg`` (DDPG and TD3: a deterministic actor), ``sac`` or ``None`` (another policy)."""
-    if hasattr(model.policy, "q_net") or hasattr(model.policy, "quantile_net"):  # DQN, or QR-DQN: its quantiles' means
+    """``dqn`` (DQN, and QR-DQN: its quantiles' means), ``ddpg`` (DDPG and TD3: a deterministic
+    actor), ``sac`` (SAC, and TQC: SAC's actor) or ``None`` (another policy)."""
+    if hasattr(model.policy, "q_net") or hasattr(model.policy, "quantile_net"):
         return "dqn"
     actor = getattr(model.policy, "actor", None)
     if actor is None:

@@ -11,10 +11,12 @@ the detectors' fitting take like a shipped one:
   ``predict()`` deciding either way); several DQN, several DDPG/TD3, or several SAC models (their
   deterministic actions) are also an ensemble whose spread and features are detectors
   (:func:`~oodmon.agents.networks.estimator_from_sb3`). One SAC model, and PPO and A2C, are watched
-  by the learned detectors only, as is one model of sb3-contrib's QR-DQN, TQC, TRPO, ARS or CrossQ
-  (``pip install 'oodmon[contrib]'``; several TQC models are an ensemble as SAC models are, their
-  actors being SAC's, and several QR-DQN models as DQN models are, of their quantiles' means; a RecurrentPPO decides with its LSTM's state carried through each episode;
-  MaskablePPO is refused: its decision needs the env's action masks beside the observation);
+  by the learned detectors only. sb3-contrib's QR-DQN, TQC, TRPO, ARS, CrossQ and RecurrentPPO
+  models load too (``pip install 'oodmon[contrib]'``), one model as a plain policy; several TQC
+  models are an ensemble as SAC models are (their actor is SAC's), several QR-DQN models as DQN
+  models are (of their quantiles' means); a RecurrentPPO decides with its LSTM's state carried
+  through each episode (:class:`_RecurrentDeployed`); MaskablePPO is refused (its decision needs
+  the env's action masks beside the observation);
 - its metadata record each model's path and sha256, the algorithm and the env id; its policy hash
   (what thresholds and fitted detectors are checked against) is the hash of those files.
 
@@ -48,7 +50,8 @@ from oodmon.envs.checks import space_mismatch
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
 
-__all__ = ["SB3_ALGORITHMS", "SB3_CONTRIB_ALGORITHMS", "SB3_HYPERPARAMETERS", "load_sb3", "models_sha256", "sb3_agent", "sb3_algorithm"]
+__all__ = ["SB3_ALGORITHMS", "SB3_CONTRIB_ALGORITHMS", "SB3_HYPERPARAMETERS", "load_sb3", "models_sha256", "sb3_agent",
+           "sb3_algorithm"]
 
 #: SB3's policy modules and the algorithm classes that load them (first match that loads wins:
 #: A2C and PPO share a policy class; DDPG's policy is TD3's and loads as TD3 for acting).
@@ -62,8 +65,9 @@ SB3_ALGORITHMS = {
 
 #: sb3-contrib's algorithms oodmon loads (``pip install 'oodmon[contrib]'``), by policy module: one
 #: model is a plain policy, acting by its own ``predict(obs, deterministic=True)`` and watched by the
-#: learned detectors (oodmon reads no spread of their networks). TRPO's policy is SB3's own
-#: actor-critic: told by the hyperparameters it saves (:data:`SB3_HYPERPARAMETERS`).
+#: learned detectors; several TQC or QR-DQN models are an ensemble (see the module's docstring).
+#: TRPO's policy is SB3's own actor-critic: told by the hyperparameters it saves
+#: (:data:`SB3_HYPERPARAMETERS`).
 SB3_CONTRIB_ALGORITHMS = {
     "sb3_contrib.common.recurrent.policies": ("RecurrentPPO",),  # its LSTM's state carried: _RecurrentDeployed
     "sb3_contrib.qrdqn.policies": ("QRDQN",),
@@ -170,7 +174,7 @@ def _load_one(path: Path) -> tuple[Any, str]:
             errors.append(f"{name}: {error}")
             continue
         base = _policy_base(name)
-        if base is not None and not isinstance(model.policy, base):  # a policy of another algorithm, told by its hyperparameters
+        if base is not None and not isinstance(model.policy, base):  # another algorithm's, told by its hyperparameters
             errors.append(f"{name}: its policy {type(model.policy).__name__} is no {base.__name__}")
             continue
         return model, name
@@ -487,9 +491,10 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     # TQC's actor is SAC's; QR-DQN's Q-values are its quantiles' means
     sampled = names in ({"DQN"}, {"TD3"}, {"DDPG"}, {"TD3", "DDPG"}, {"SAC"}, {"TQC"}, {"QRDQN"})
     if len(models) > 1 and not sampled:  # the others were ignored in silence
-        raise ConfigError(f"several models form an ensemble, whose spread oodmon reads from DQN models, DDPG/TD3 "
-                          f"models, SAC models, TQC models or QR-DQN models, all of one algorithm; got {', '.join(f['algorithm'] for f in files)}: give the "
-                          "deployed model alone (the learned detectors watch it)")
+        got = ", ".join(file["algorithm"] for file in files)
+        raise ConfigError(f"several models form an ensemble, whose spread oodmon reads from DQN, DDPG/TD3, SAC, TQC or "
+                          f"QR-DQN models, all of one algorithm; got {got}: give the deployed model alone (the learned "
+                          "detectors watch it)")
     if masks != "sampled" and (len(models) > 1 or not sampled):
         raise ConfigError(f"masks={masks!r} is for one DQN, DDPG/TD3 or SAC model with dropout or DropConnect layers (MC "
                           f"samples); got {len(models)} {'/'.join(sorted(names))} model(s)")
