@@ -98,6 +98,29 @@ class Agent:
         """Whether the deployed policy carries a memory from step to step (:meth:`begin_episode`)."""
         return hasattr(self.deploy, "begin_episode")
 
+    @property
+    def reads_masks(self) -> bool:
+        """Whether the deployed policy decides among the actions the env's action masks allow
+        (sb3-contrib's MaskablePPO): the envs :meth:`wrap` makes tell it each step's (:meth:`tell_masks`)."""
+        return hasattr(self.deploy, "tell_masks")
+
+    def tell_masks(self, env: gymnasium.Env) -> None:
+        """Give a policy that reads action masks (:attr:`reads_masks`) those ``env`` allows now, by its
+        ``action_masks()`` (sb3-contrib's ``ActionMasker`` wrapper, or the env's own method).
+
+        Raises:
+            ConfigError: the env has no ``action_masks()``.
+        """
+        if not self.reads_masks:
+            return
+        try:
+            action_masks = env.get_wrapper_attr("action_masks")
+        except AttributeError:
+            raise ConfigError(f"{self.task}/{self.method} decides among the actions the env's action masks allow, and "
+                              f"this env has no action_masks(): wrap it as in training "
+                              "(sb3_contrib.common.wrappers.ActionMasker(env, mask_fn))") from None
+        self.deploy.tell_masks(np.asarray(action_masks(), dtype=bool))
+
     def view(self, obs: Any) -> Any:
         """The observation as the agent, the detectors and the logs read it: a dict observation
         flattened (``gymnasium.spaces.flatten`` over :attr:`dict_space`, the order the policy's
@@ -136,10 +159,11 @@ class Agent:
         observations the agent acts on: stacked :attr:`frame_stack` deep as SB3's VecFrameStack
         stacks them (:class:`~oodmon.agents.frame_stack.FrameStack`; a dict key by key), and dict
         ones flattened (``FlattenObservation``, as :meth:`view`), and for a policy with a memory
-        (:attr:`remembers`) telling it of each reset (:meth:`begin_episode`); ``env`` itself for any
-        other agent."""
-        if self.remembers:
-            env = _BeginsEpisodes(env, self.begin_episode)
+        (:attr:`remembers`) or one that reads action masks (:attr:`reads_masks`) telling it of each
+        reset (:meth:`begin_episode`) and each step's masks (:meth:`tell_masks`); ``env`` itself for
+        any other agent."""
+        if self.remembers or self.reads_masks:
+            env = _TellsPolicy(env, self)
         if self.stacking is not None:
             from oodmon.agents.frame_stack import FrameStack
 
@@ -216,16 +240,25 @@ def zoo_names() -> list[str]:
     return sorted(p.name for p in root.iterdir() if (p / "model.json").is_file()) if root.is_dir() else []
 
 
-class _BeginsEpisodes(gymnasium.Wrapper):
-    """Tells a policy with a memory (:meth:`Agent.begin_episode`) of each reset of the env it acts in."""
+class _TellsPolicy(gymnasium.Wrapper):
+    """Tells the agent's policy what it needs of the env it acts in beside the observation: each
+    reset (:meth:`Agent.begin_episode`, a memory forgotten) and the action masks after each reset and
+    step (:meth:`Agent.tell_masks`)."""
 
-    def __init__(self, env: gymnasium.Env, begin_episode: Callable[[], None]) -> None:
+    def __init__(self, env: gymnasium.Env, agent: Agent) -> None:
         super().__init__(env)
-        self._begin_episode = begin_episode
+        self._agent = agent
 
     def reset(self, **kwargs: Any):
-        self._begin_episode()
-        return self.env.reset(**kwargs)
+        self._agent.begin_episode()
+        result = self.env.reset(**kwargs)
+        self._agent.tell_masks(self.env)
+        return result
+
+    def step(self, action: Any):
+        result = self.env.step(action)
+        self._agent.tell_masks(self.env)
+        return result
 
 
 def load(task: str, method: str, *, n_samples: int | None = None, seed: int | None = None,

@@ -11,12 +11,12 @@ the detectors' fitting take like a shipped one:
   ``predict()`` deciding either way); several DQN, several DDPG/TD3, or several SAC models (their
   deterministic actions) are also an ensemble whose spread and features are detectors
   (:func:`~oodmon.agents.networks.estimator_from_sb3`). One SAC model, and PPO and A2C, are watched
-  by the learned detectors only. sb3-contrib's QR-DQN, TQC, TRPO, ARS, CrossQ and RecurrentPPO
-  models load too (``pip install 'oodmon[contrib]'``), one model as a plain policy; several TQC
-  models are an ensemble as SAC models are (their actor is SAC's), several QR-DQN models as DQN
-  models are (of their quantiles' means); a RecurrentPPO decides with its LSTM's state carried
-  through each episode (:class:`_RecurrentDeployed`); MaskablePPO is refused (its decision needs
-  the env's action masks beside the observation);
+  by the learned detectors only. sb3-contrib's QR-DQN, TQC, TRPO, ARS, CrossQ, RecurrentPPO and
+  MaskablePPO models load too (``pip install 'oodmon[contrib]'``), one model as a plain policy;
+  several TQC models are an ensemble as SAC models are (their actor is SAC's), several QR-DQN
+  models as DQN models are (of their quantiles' means); a RecurrentPPO decides with its LSTM's state carried
+  through each episode (:class:`_RecurrentDeployed`), a MaskablePPO among the actions each step's
+  action masks allow (:class:`_MaskableDeployed`);
 - its metadata record each model's path and sha256, the algorithm and the env id; its policy hash
   (what thresholds and fitted detectors are checked against) is the hash of those files.
 
@@ -70,17 +70,13 @@ SB3_ALGORITHMS = {
 #: (:data:`SB3_HYPERPARAMETERS`).
 SB3_CONTRIB_ALGORITHMS = {
     "sb3_contrib.common.recurrent.policies": ("RecurrentPPO",),  # its LSTM's state carried: _RecurrentDeployed
+    "sb3_contrib.common.maskable.policies": ("MaskablePPO",),  # the env's action masks given: _MaskableDeployed
     "sb3_contrib.qrdqn.policies": ("QRDQN",),
     "sb3_contrib.tqc.policies": ("TQC",),
     "sb3_contrib.ars.policies": ("ARS",),
     "sb3_contrib.crossq.policies": ("CrossQ",),
 }
 
-#: sb3-contrib's policies whose decision needs more than the observation: refused with why.
-SB3_CONTRIB_REFUSED = {
-    "sb3_contrib.common.maskable.policies": "MaskablePPO decides among the actions the env's action masks allow at each "
-                                            "step, which oodmon does not pass it (it would act unmasked)",
-}
 
 #: A policy class of the user's own (a subclass of an SB3 policy, to add dropout, say) lives in the
 #: user's module; the algorithm is then told by the hyperparameters only it saves in ``data``
@@ -113,8 +109,6 @@ def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
     except (zipfile.BadZipFile, KeyError, TypeError, ValueError):
         raise ConfigError(f"{path} is not a stable-baselines3 model file (a .zip with a 'data' entry naming its "
                           "policy class)") from None
-    if module in SB3_CONTRIB_REFUSED:
-        raise ConfigError(f"{path} holds a policy of {module}: {SB3_CONTRIB_REFUSED[module]}")
     if module == "stable_baselines3.common.policies" and "cg_max_steps" in data:
         return ("TRPO",)
     if module in SB3_ALGORITHMS or module in SB3_CONTRIB_ALGORITHMS:
@@ -123,14 +117,14 @@ def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
         raise ConfigError(f"{path} holds a policy of {module}; oodmon loads {ALGORITHMS_LOADED} models")
     algorithms = next((names for key, names in SB3_HYPERPARAMETERS if key in data), None)
     if algorithms is None:
-        raise ConfigError(f"{path} holds a policy of {module}, and none of the hyperparameters DQN, DDPG, TD3, SAC, PPO, "
-                          "A2C or TRPO save: a policy class of your own is loaded for those algorithms only")
+        raise ConfigError(f"{path} holds a policy of {module}, and none of the hyperparameters DQN, DDPG, TD3, SAC, "
+                          "PPO, A2C or TRPO save: a policy class of your own is loaded for those algorithms only")
     return algorithms
 
 
 #: What :func:`sb3_algorithm` takes, in words.
 ALGORITHMS_LOADED = ("stable-baselines3's DQN, DDPG, TD3, SAC, PPO and A2C, and sb3-contrib's QR-DQN, TQC, TRPO, ARS, "
-                     "CrossQ and RecurrentPPO")
+                     "CrossQ, RecurrentPPO and MaskablePPO")
 
 
 def _algorithm_class(name: str) -> type:
@@ -269,6 +263,37 @@ class _RecurrentDeployed:
                                                 state=self.state, episode_start=self.starts, deterministic=True)
         self.starts = np.zeros(1, dtype=bool)
         return int(action) if self.discrete else np.asarray(action)
+
+
+class _MaskableDeployed:
+    """A policy that decides among the actions the env allows (sb3-contrib's MaskablePPO): its
+    ``predict`` with the action masks of the step it acts at, which the envs :meth:`Agent.wrap`
+    makes give it after each reset and step (:meth:`Agent.tell_masks`). Each step's masks serve one
+    decision: acting again without new ones is an error, never a decision on stale masks."""
+
+    def __init__(self, model: Any, discrete: bool, normalizer: ObservationNormalizer | None,
+                 dict_space: gymnasium.spaces.Dict | None) -> None:
+        self.model, self.discrete, self.normalizer, self.dict_space = model, discrete, normalizer, dict_space
+        self.masks: np.ndarray | None = None
+
+    def tell_masks(self, masks: np.ndarray) -> None:
+        self.masks = masks
+
+    def __call__(self, obs: np.ndarray) -> int | np.ndarray:
+        if self.masks is None:
+            raise ConfigError("MaskablePPO decides among the actions the env's action masks allow, and none were "
+                              f"given for this step: step the env agent.wrap(env) gives, which reads them "
+                              f"({_WRAP_FOR_MASKS})")
+        masks, self.masks = self.masks, None
+        if self.dict_space is not None:
+            obs = gymnasium.spaces.unflatten(self.dict_space, np.asarray(obs))
+        action, _ = self.model.predict(obs if self.normalizer is None else self.normalizer(obs), action_masks=masks,
+                                       deterministic=True)
+        return int(action) if self.discrete else np.asarray(action)
+
+
+#: Where a user stepping an env of their own finds the agent whose ``wrap`` gives it the masks.
+_WRAP_FOR_MASKS = "with oodmon.watch, call it without env= or step MonitoredEnv(monitor.agent.wrap(env), monitor)"
 
 
 def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
@@ -523,8 +548,9 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     } | ({} if normalizer is None else {"vec_normalize": normalizer.describe()}) \
         | ({} if frame_stack is None else {"frame_stack": frame_stack})
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
-    deployed = (_RecurrentDeployed if files[0]["algorithm"] == "RecurrentPPO" else _deployed)(
-        models[0], discrete, normalizer, dict_space)
+    deploying = {"RecurrentPPO": _RecurrentDeployed, "MaskablePPO": _MaskableDeployed}.get(files[0]["algorithm"],
+                                                                                          _deployed)
+    deployed = deploying(models[0], discrete, normalizer, dict_space)
     return Agent(estimator, metadata, None, None if mean else deployed,
                  dict_space=dict_space, stacking=stacking, pictures=pictures)
 

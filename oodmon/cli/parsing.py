@@ -176,9 +176,9 @@ def _sb3_arguments(parser: argparse.ArgumentParser) -> None:
     """--sb3, --env, --mean: your own stable-baselines3 models instead of an oodmon agent."""
     parser.add_argument("--sb3", nargs="+", metavar="ZIP",
                         help="your own stable-baselines3 model file(s) (DQN, DDPG, TD3, SAC, PPO, A2C; sb3-contrib's "
-                             "QR-DQN, TQC, TRPO, ARS, CrossQ, RecurrentPPO), with --env; the first is the deployed "
-                             "policy, several DQN, DDPG/TD3, SAC, TQC or QR-DQN models (of one algorithm) also form an "
-                             "ensemble detector. SB3's loader unpickles: give only files you trust")
+                             "QR-DQN, TQC, TRPO, ARS, CrossQ, RecurrentPPO, MaskablePPO), with --env; the first is the "
+                             "deployed policy, several DQN, DDPG/TD3, SAC, TQC or QR-DQN models (of one algorithm) also "
+                             "form an ensemble detector. SB3's loader unpickles: give only files you trust")
     parser.add_argument("--env", metavar="ID", help="the gymnasium env id the --sb3 models act in, e.g. CartPole-v1")
     parser.add_argument("--mean", action="store_true",
                         help="with several --sb3 models: deploy the ensemble's mean decision, not the first model's")

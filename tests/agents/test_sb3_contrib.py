@@ -1,8 +1,8 @@
 """sb3-contrib's models as your own policy: QR-DQN, TQC, TRPO, ARS and CrossQ load, act as their own
 predict() does and are watched by the learned detectors (several TQCs are an ensemble, as SACs are,
 and several QR-DQNs, as DQNs are); a
-RecurrentPPO's LSTM state is carried through each episode; MaskablePPO is refused with why, before
-anything is unpickled."""
+RecurrentPPO's LSTM state is carried through each episode; a MaskablePPO decides among the actions
+each step's masks allow."""
 
 from __future__ import annotations
 
@@ -144,10 +144,73 @@ def test_a_recurrent_ppo_decides_with_its_lstm_state_carried_through_each_episod
     assert np.array_equal(np.array([step.action for step in sink.steps]), expected)
 
 
-def test_maskable_ppo_is_refused_with_why_and_several_contrib_models_are_no_ensemble(tmp_path):
-    sb3_contrib.MaskablePPO("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0).save(tmp_path / "masked.zip")
-    with pytest.raises(ConfigError, match="MaskablePPO decides among the actions the env's action masks allow"):
-        load_sb3([tmp_path / "masked.zip"], "CartPole-v1")
+class _ThreeActions(gymnasium.Wrapper):
+    """CartPole with a third action (push right, as action 1) and action masks that change with the
+    step: at even steps 0 and 2 are allowed, at odd steps 1 and 2."""
+
+    def __init__(self, env: gymnasium.Env) -> None:
+        super().__init__(env)
+        self.action_space = gymnasium.spaces.Discrete(3)
+        self.t = 0
+
+    def reset(self, *, seed=None, options=None):
+        self.t = 0
+        return self.env.reset(seed=seed, options=options)
+
+    def step(self, action):
+        self.t += 1
+        return self.env.step(1 if action == 2 else int(action))
+
+
+class _MaskedThreeActions(_ThreeActions):
+    def action_masks(self) -> np.ndarray:
+        return np.array([self.t % 2 == 0, self.t % 2 == 1, True])
+
+
+for _id, _cls in (("MaskedCartPoleForTests-v0", _MaskedThreeActions), ("UnmaskedCartPoleForTests-v0", _ThreeActions)):
+    if _id not in gymnasium.registry:
+        gymnasium.register(_id, entry_point=lambda cls=_cls: cls(gymnasium.make("CartPole-v1")))
+
+
+def test_a_maskable_ppo_decides_among_the_actions_each_steps_masks_allow(tmp_path):
+    """Its decisions are its predict() with the masks of the step it acts at, which the envs
+    `Agent.wrap` makes read from the env's action_masks() after each reset and step; unmasked, it
+    would take actions the env forbids (checked: the test can tell). An env stepped without them,
+    or one with no action_masks(), is an error, never a decision on stale or no masks."""
+    from oodmon.monitor import MemorySink, Monitor
+    from oodmon.monitor.detectors import DynamicsDetector, collect
+
+    env_id = "MaskedCartPoleForTests-v0"
+    model = sb3_contrib.MaskablePPO("MlpPolicy", gymnasium.make(env_id), seed=0, n_steps=64, batch_size=64)
+    model.save(tmp_path / "masked.zip")
+    agent = load_sb3([tmp_path / "masked.zip"], env_id)
+    assert agent.reads_masks and agent.metadata["algorithm"] == "maskableppo"
+    env = agent.wrap(gymnasium.make(env_id))
+    obs, _ = env.reset(seed=0)
+    forbidden_unmasked, done = 0, False
+    while not done:
+        masks = env.get_wrapper_attr("action_masks")()
+        action = agent.act(obs)
+        assert masks[action] and action == int(model.predict(obs, action_masks=masks, deterministic=True)[0])
+        forbidden_unmasked += not masks[int(model.predict(obs, deterministic=True)[0])]
+        obs, _, terminated, truncated, _ = env.step(action)
+        done = terminated or truncated
+    assert forbidden_unmasked > 0
+    agent.act(obs)  # the masks the last step gave
+    with pytest.raises(ConfigError, match="none were given for this step"):
+        agent.act(obs)  # they served the decision above
+    with pytest.raises(ConfigError, match="this env has no action_masks"):
+        agent.wrap(gymnasium.make("UnmaskedCartPoleForTests-v0")).reset(seed=0)
+    dynamics = DynamicsDetector(3, epochs=2, seed=0).fit(collect(agent, agent.make_env(), 2, seed=0))
+    sink = MemorySink()
+    with Monitor(agent, detectors=[dynamics], sinks=[sink]) as monitor:
+        monitor.run_episode(agent.wrap(gymnasium.make(env_id)), seed=1)
+        assert all(step.action != (1 if step.step % 2 == 0 else 0) for step in sink.steps)
+        with pytest.raises(ConfigError, match="none were given for this step"):
+            monitor.run_episode(gymnasium.make(env_id), seed=2)  # not told the masks: refused at its first step
+
+
+def test_several_contrib_models_but_tqcs_and_qrdqns_are_no_ensemble(tmp_path):
     models = [_model("TRPO", "CartPole-v1"), _model("TRPO", "CartPole-v1")]
     with pytest.raises(ConfigError, match="several models form an ensemble.*got TRPO, TRPO"):
         sb3_agent(models, "CartPole-v1")
