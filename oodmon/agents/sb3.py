@@ -268,7 +268,8 @@ class _RecurrentDeployed:
 class _MaskableDeployed:
     """A policy that decides among the actions the env allows (sb3-contrib's MaskablePPO): its
     ``predict`` with the action masks of the step it acts at, which the envs :meth:`Agent.wrap`
-    makes give it after each reset and step (:meth:`Agent.tell_masks`). Each step's masks serve one
+    makes, and the monitor of the env it steps, give it after each reset and step
+    (:meth:`Agent.tell_masks`). Each step's masks serve one
     decision: acting again without new ones is an error, never a decision on stale masks."""
 
     def __init__(self, model: Any, discrete: bool, normalizer: ObservationNormalizer | None,
@@ -292,8 +293,8 @@ class _MaskableDeployed:
         return int(action) if self.discrete else np.asarray(action)
 
 
-#: Where a user stepping an env of their own finds the agent whose ``wrap`` gives it the masks.
-_WRAP_FOR_MASKS = "with oodmon.watch, call it without env= or step MonitoredEnv(monitor.agent.wrap(env), monitor)"
+#: Who else gives it the masks: the monitor, of the env it steps.
+_WRAP_FOR_MASKS = "the monitor does too: Monitor.run_episode(env), MonitoredEnv(env, monitor), oodmon.watch(..., env=env)"
 
 
 def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:

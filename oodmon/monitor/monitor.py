@@ -528,6 +528,12 @@ class Monitor:
                                                 tuple(self._rewards) if given else None))
         self._segment_start, self._rewards = self._length, []
 
+    def _tell_masks(self, env: gymnasium.Env) -> None:
+        """After a reset or a step of ``env``: a policy that reads action masks gets those it allows
+        now (:meth:`~oodmon.agents.Agent.tell_masks`); nothing for any other."""
+        if self.agent is not None:
+            self.agent.tell_masks(env)
+
     def run_episode(self, env: gymnasium.Env, *, seed: int | None = None, variant: str | None = None,
                     max_steps: int | None = None, options: dict | None = None,
                     on_progress: Progress | None = None) -> EpisodeRecord:
@@ -544,6 +550,7 @@ class Monitor:
         obs, info = env.reset(seed=seed, options=options)
         self.begin_episode(env_id=env_id_of(env), variant=variant or variant_of_env(env), onset=onset_of_env(env),
                            seed=seed)
+        self._tell_masks(env)
         try:
             while True:
                 try:
@@ -553,6 +560,7 @@ class Monitor:
                     terminated = False
                     break
                 obs, reward, terminated, truncated, info = env.step(action)
+                self._tell_masks(env)
                 self.add_reward(reward)
                 if on_progress is not None:
                     on_progress("decisions", self._length, max_steps or 0)
@@ -691,6 +699,7 @@ class MonitoredEnv(gymnasium.Wrapper):
         self.monitor.begin_episode(env_id=env_id_of(self.env), variant=self.variant or variant_of_env(self.env),
                                    onset=onset_of_env(self.env), seed=seed)
         self.monitor._episode_owner = weakref.ref(self)  # weak: a monitor does not keep an old env alive
+        self.monitor._tell_masks(self.env)
         self._obs, self._info = obs, info
         return obs, info
 
@@ -711,6 +720,7 @@ class MonitoredEnv(gymnasium.Wrapper):
             self._info = info
             return self._obs, 0.0, False, True, info
         obs, reward, terminated, truncated, info = self.env.step(chosen)
+        self.monitor._tell_masks(self.env)
         self.monitor.add_reward(reward)
         info = {**info, "oodmon": self._telemetry()}
         truncated = truncated or self.monitor.stop_requested
