@@ -172,6 +172,12 @@ for _id, _cls in (("MaskedCartPoleForTests-v0", _MaskedThreeActions), ("Unmasked
         gymnasium.register(_id, entry_point=lambda cls=_cls: cls(gymnasium.make("CartPole-v1")))
 
 
+def masks_allow(actions) -> bool:
+    """Whether an episode's actions are those _MaskedThreeActions allows, step by step (0 or 2 at even
+    steps, 1 or 2 at odd ones)."""
+    return all(int(action) != (1 if t % 2 == 0 else 0) for t, action in enumerate(actions))
+
+
 def test_a_maskable_ppo_decides_among_the_actions_each_steps_masks_allow(tmp_path):
     """Its decisions are its predict() with the masks of the step it acts at, which the envs
     `Agent.wrap` makes, and the monitor of any env it steps, read from the env's action_masks() after
@@ -202,7 +208,9 @@ def test_a_maskable_ppo_decides_among_the_actions_each_steps_masks_allow(tmp_pat
         agent.act(obs)  # they served the decision above
     with pytest.raises(ConfigError, match="this env has no action_masks"):
         agent.wrap(gymnasium.make("UnmaskedCartPoleForTests-v0")).reset(seed=0)
-    dynamics = DynamicsDetector(3, epochs=2, seed=0).fit(collect(agent, agent.make_env(), 2, seed=0))
+    played = collect(agent, gymnasium.make(env_id), 2, seed=0)  # an env of yours: told the masks as the monitor tells them
+    assert all(masks_allow(t.actions) for t in played)
+    dynamics = DynamicsDetector(3, epochs=2, seed=0).fit(played)
     sink = MemorySink()  # the monitor gives the masks of the env it steps, wrapped or not
     with Monitor(agent, detectors=[dynamics], sinks=[sink]) as monitor:
         monitor.run_episode(agent.wrap(gymnasium.make(env_id)), seed=1)
@@ -212,7 +220,8 @@ def test_a_maskable_ppo_decides_among_the_actions_each_steps_masks_allow(tmp_pat
         done = False
         while not done:
             done = any(env.step()[2:4])
-    assert len(sink.episodes) == 3 and all(step.action != (1 if step.step % 2 == 0 else 0) for step in sink.steps)
+    assert len(sink.episodes) == 3
+    assert all(masks_allow([step.action for step in sink.steps if step.episode == e]) for e in range(3))
 
 
 def test_several_contrib_models_but_tqcs_and_qrdqns_are_no_ensemble(tmp_path):
