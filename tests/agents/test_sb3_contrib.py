@@ -1,8 +1,7 @@
 """sb3-contrib's models as your own policy: QR-DQN, TQC, TRPO, ARS and CrossQ load, act as their own
 predict() does and are watched by the learned detectors (several TQCs are an ensemble, as SACs are,
-and several QR-DQNs, as DQNs are); a
-RecurrentPPO's LSTM state is carried through each episode; a MaskablePPO decides among the actions
-each step's masks allow."""
+and several QR-DQNs, as DQNs are); a RecurrentPPO's LSTM state is carried through each episode; a
+MaskablePPO decides among the actions each step's masks allow."""
 
 from __future__ import annotations
 
@@ -62,8 +61,8 @@ def test_several_tqc_models_are_an_ensemble_of_their_deterministic_actions_as_sa
 
 def test_several_qrdqn_models_are_an_ensemble_of_their_quantiles_means(tmp_path):
     """A QR-DQN's Q-values are the means of each action's quantiles (what its predict() takes the
-    argmax of): several QR-DQN files are an ensemble whose samples are each model's, its spread and
-    features detectors theirs; the first model acts; one QR-DQN has no samples."""
+    argmax of): several QR-DQN files are an ensemble whose samples are each model's Q-values; the
+    first model acts; one QR-DQN has no samples."""
     import torch
 
     models = [_model("QRDQN", "CartPole-v1", learning_starts=50, policy_kwargs={"net_arch": [32, 32], "n_quantiles": 7},
