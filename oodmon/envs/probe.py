@@ -120,39 +120,53 @@ def probe_shift(shift: EnvShift, *, seed: int = 0, onset: int = 0, steps: int = 
         if policy is None:
             own_env.action_space.seed(seed)
             actions = [own_env.action_space.sample() for _ in range(steps)]
-        kept: tuple[list, list] = ([], [])
-        largest, per_step, first, played, returns, ended = None, [], None, 0, [0.0, 0.0], (False, False)
-        observations = (own_env.reset(seed=seed)[0], shifted_env.reset(seed=seed)[0])
-        for step in range(steps + 1):
-            flat = [_readings(own_env.observation_space, o) for o in observations]
-            difference = np.abs(flat[1] - flat[0])
-            difference[np.isnan(flat[0]) & np.isnan(flat[1])] = 0.0  # NaN in both: the same reading
-            difference[np.isnan(difference)] = np.inf  # NaN in one
-            largest = difference if largest is None else np.maximum(largest, difference)
-            per_step.append(float(difference.max(initial=0.0)))
-            for keep, values in zip(kept, flat):
-                if values.size <= _PLOTTED_READINGS:
-                    keep.append(values)
-            if first is None and difference.any():
-                first = step
-            if step == steps or any(ended):
-                break
-            if policy is None:
-                own, shifted = own_env.step(actions[step]), shifted_env.step(actions[step])
-            else:
-                own, shifted = own_env.step(policy(observations[0])), shifted_env.step(policy(observations[1]))
-            played += 1
-            returns = [returns[0] + float(own[1]), returns[1] + float(shifted[1])]
-            ended = (bool(own[2] or own[3]), bool(shifted[2] or shifted[3]))
-            if first is None and (own[1] != shifted[1] or ended[0] != ended[1]):
-                first = step + 1
-            observations = (own[0], shifted[0])
+            act = lambda step, obs: actions[step]  # noqa: E731
+        else:
+            act = lambda step, obs: policy(obs)  # noqa: E731
+        # One episode after the other, never interleaved: a policy with a memory of its episode, or
+        # one that reads each step's action masks from the env, acts in one env at a time.
+        own, shifted = _play(own_env, seed, steps, act), _play(shifted_env, seed, steps, act)
     finally:
         own_env.close()
         shifted_env.close()
+    played = min(len(own[1]), len(shifted[1]))  # the steps played in both: until either episode ended
+    kept: tuple[list, list] = ([], [])
+    largest, per_step, first = None, [], None
+    for step in range(played + 1):
+        flat = [_readings(own_env.observation_space, episode[0][step]) for episode in (own, shifted)]
+        difference = np.abs(flat[1] - flat[0])
+        difference[np.isnan(flat[0]) & np.isnan(flat[1])] = 0.0  # NaN in both: the same reading
+        difference[np.isnan(difference)] = np.inf  # NaN in one
+        largest = difference if largest is None else np.maximum(largest, difference)
+        per_step.append(float(difference.max(initial=0.0)))
+        for keep, values in zip(kept, flat):
+            if values.size <= _PLOTTED_READINGS:
+                keep.append(values)
+        if first is None and difference.any():
+            first = step
+        if step == played:
+            break
+        if first is None and (own[1][step] != shifted[1][step] or own[2][step] != shifted[2][step]):
+            first = step + 1
+    ended = (own[2][played - 1], shifted[2][played - 1]) if played else (False, False)
     return ShiftProbe(shift, onset, seed, played, first, largest, np.array(per_step),
                       np.array(kept[0]) if kept[0] else None, np.array(kept[1]) if kept[1] else None,
-                      returns[0], returns[1], ended, "random" if policy is None else "policy")
+                      sum(own[1][:played]), sum(shifted[1][:played]), ended, "random" if policy is None else "policy")
+
+
+def _play(env: gymnasium.Env, seed: int, steps: int,
+          act: Callable[[int, Any], Any]) -> tuple[list[Any], list[float], list[bool]]:
+    """One episode of ``env`` from ``reset(seed=seed)``, ``act(step, obs)`` acting, for ``steps``
+    steps or until it ends: its observations (``reset``'s first), rewards and whether each step ended it."""
+    observations, rewards, ends = [env.reset(seed=seed)[0]], [], []
+    for step in range(steps):
+        obs, reward, terminated, truncated, _ = env.step(act(step, observations[-1]))
+        observations.append(obs)
+        rewards.append(float(reward))
+        ends.append(bool(terminated or truncated))
+        if ends[-1]:
+            break
+    return observations, rewards, ends
 
 
 def _readings(space: gymnasium.Space, obs: Any) -> np.ndarray:

@@ -223,6 +223,22 @@ def test_a_maskable_ppo_decides_among_the_actions_each_steps_masks_allow(tmp_pat
     assert all(masks_allow([step.action for step in sink.steps if step.episode == e]) for e in range(3))
 
 
+def test_envs_show_plays_a_policy_that_reads_its_env_in_one_env_at_a_time(tmp_path):
+    """`oodmon envs show ENV:NAME=VALUE --sb3` plays the env's own episode and the shifted one with the
+    policy: one after the other, so a MaskablePPO reads each env's own masks (played interleaved, it
+    decided in one env with the other's masks, and the episodes parted from step 1, long before the
+    onset)."""
+    from oodmon.envs import parse_env_shift
+    from oodmon.envs.probe import probe_shift
+
+    env_id = "MaskedCartPoleForTests-v0"
+    sb3_contrib.MaskablePPO("MlpPolicy", gymnasium.make(env_id), seed=0, n_steps=64, batch_size=64).save(
+        tmp_path / "masked.zip")
+    agent = load_sb3([tmp_path / "masked.zip"], env_id)
+    probe = probe_shift(parse_env_shift(f"{env_id}:length=5.0"), onset=5, steps=40, policy=agent.act, wrap=agent.wrap)
+    assert probe.changed and probe.first_difference == 6  # the first observation after the onset's step
+
+
 def test_several_contrib_models_but_tqcs_and_qrdqns_are_no_ensemble(tmp_path):
     models = [_model("TRPO", "CartPole-v1"), _model("TRPO", "CartPole-v1")]
     with pytest.raises(ConfigError, match="several models form an ensemble.*got TRPO, TRPO"):
