@@ -6,6 +6,8 @@ package; :func:`load_agent` loads one from any directory written by training.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -103,6 +105,14 @@ class Agent:
         """Whether the deployed policy decides among the actions the env's action masks allow
         (sb3-contrib's MaskablePPO): the envs :meth:`wrap` makes tell it each step's (:meth:`tell_masks`)."""
         return hasattr(self.deploy, "tell_masks")
+
+    def twin(self) -> Agent:
+        """This agent for another env stepped beside its own (a vector env's): the same networks and
+        metadata, and for a policy that reads its env beside the observation (:attr:`remembers`,
+        :attr:`reads_masks`) a memory and masks of its own; the agent itself for any other."""
+        if not (self.remembers or self.reads_masks):
+            return self
+        return dataclasses.replace(self, deploy=copy.copy(self.deploy))
 
     def tell_masks(self, env: gymnasium.Env) -> None:
         """Give a policy that reads action masks (:attr:`reads_masks`) those ``env`` allows now, by its

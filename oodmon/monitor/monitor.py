@@ -257,7 +257,9 @@ class Monitor:
         """A monitor of the same policy, threshold and alarm rule, with copies of the fitted detectors
         (whose windows and running means are then its own), its own episodes, ``sinks`` and
         ``callbacks``: one for each env of a vector env, since one Monitor follows one env's episode
-        (:class:`MonitoredEnv` refuses a Monitor that another env's episode is using).
+        (:class:`MonitoredEnv` refuses a Monitor that another env's episode is using). A policy that
+        reads its env beside the observation (a RecurrentPPO's memory of the episode, a MaskablePPO's
+        action masks) gets its own of those too (:meth:`~oodmon.agents.Agent.twin`).
 
         Example::
 
@@ -266,6 +268,8 @@ class Monitor:
                                 for m in (monitor, monitor.twin(), monitor.twin())])
         """
         made = self._made_with | {"detectors": copy.deepcopy(self._made_with["detectors"])}
+        if isinstance(made["policy"], Agent):
+            made["policy"] = made["policy"].twin()
         return Monitor(**made, sinks=sinks, callbacks=callbacks)
 
     def _refuse_or_warn(self, what: str, differences: list[str], force: bool, *, plural: bool = False) -> None:
