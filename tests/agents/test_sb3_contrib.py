@@ -16,7 +16,7 @@ import sb3_contrib
 from oodmon.agents.sb3 import load_sb3, sb3_agent, sb3_algorithm
 from oodmon.cli import main
 from oodmon.errors import ConfigError
-from tests.helpers import saved_ensemble_acts_as_its_members
+from tests.helpers import load_script, saved_ensemble_acts_as_its_members
 
 
 def _model(algorithm: str, env_id: str, **extra):
@@ -143,61 +143,13 @@ def test_a_recurrent_ppo_decides_with_its_lstm_state_carried_through_each_episod
     assert np.array_equal(np.array([step.action for step in sink.steps]), expected)
 
 
-class _ThreeActions(gymnasium.Wrapper):
-    """CartPole with a third action (push right, as action 1) and action masks that change with the
-    step: at even steps 0 and 2 are allowed, at odd steps 1 and 2."""
-
-    def __init__(self, env: gymnasium.Env) -> None:
-        super().__init__(env)
-        self.action_space = gymnasium.spaces.Discrete(3)
-        self.t = 0
-
-    def reset(self, *, seed=None, options=None):
-        self.t = 0
-        return self.env.reset(seed=seed, options=options)
-
-    def step(self, action):
-        self.t += 1
-        return self.env.step(1 if action == 2 else int(action))
-
-
-class _MaskedThreeActions(_ThreeActions):
-    def action_masks(self) -> np.ndarray:
-        return np.array([self.t % 2 == 0, self.t % 2 == 1, True])
-
-
-for _id, _cls in (("MaskedCartPoleForTests-v0", _MaskedThreeActions), ("UnmaskedCartPoleForTests-v0", _ThreeActions)):
-    if _id not in gymnasium.registry:
-        gymnasium.register(_id, entry_point=lambda cls=_cls: cls(gymnasium.make("CartPole-v1")))
-
-
-def test_twin_monitors_of_a_recurrent_ppo_each_carry_their_own_envs_memory(tmp_path):
-    """A vector env's pattern: a monitor and its twin step two envs in turn. Each has the policy's
-    memory of its own env's episode, so each env's decisions are sb3-contrib's own deployment's in
-    that env alone (they shared one LSTM state before, each decision reading the other env's last)."""
-    from oodmon.monitor import MemorySink, Monitor, MonitoredEnv
-    from oodmon.monitor.detectors import DynamicsDetector, collect
-
-    model = _recurrent("Pendulum-v1")
-    model.save(tmp_path / "lstm.zip")
-    agent = load_sb3([tmp_path / "lstm.zip"], "Pendulum-v1")
-    dynamics = DynamicsDetector(None, epochs=2, seed=0).fit(collect(agent, gymnasium.make("Pendulum-v1"), 1, seed=0))
-    sinks = [MemorySink(), MemorySink()]
-    first = Monitor(agent, detectors=[dynamics], sinks=[sinks[0]])
-    envs = [MonitoredEnv(gymnasium.make("Pendulum-v1", max_episode_steps=30), monitor)
-            for monitor in (first, first.twin(sinks=[sinks[1]]))]
-    for seed, env in enumerate(envs):
-        env.reset(seed=seed)
-    for _ in range(30):
-        for env in envs:
-            env.step()
-    expected = _recurrent_reference(model, 2, forget=True)  # seed 0's episode, then seed 1's
-    for sink, own in zip(sinks, (expected[:30], expected[30:])):
-        assert np.array_equal(np.array([step.action for step in sink.steps]), own)
+# scripts/masked_cartpole.py's env (the README's MaskablePPO): three actions, masks alternating
+_, _masked_cartpole = load_script("masked_cartpole")
+MASKED = _masked_cartpole.ENV_ID
 
 
 def masks_allow(actions) -> bool:
-    """Whether an episode's actions are those _MaskedThreeActions allows, step by step (0 or 2 at even
+    """Whether an episode's actions are those the masked CartPole allows, step by step (0 or 2 at even
     steps, 1 or 2 at odd ones)."""
     return all(int(action) != (1 if t % 2 == 0 else 0) for t, action in enumerate(actions))
 
@@ -211,7 +163,7 @@ def test_a_maskable_ppo_decides_among_the_actions_each_steps_masks_allow(tmp_pat
     from oodmon.monitor import MemorySink, Monitor, MonitoredEnv
     from oodmon.monitor.detectors import DynamicsDetector, collect
 
-    env_id = "MaskedCartPoleForTests-v0"
+    env_id = MASKED
     model = sb3_contrib.MaskablePPO("MlpPolicy", gymnasium.make(env_id), seed=0, n_steps=64, batch_size=64)
     model.save(tmp_path / "masked.zip")
     agent = load_sb3([tmp_path / "masked.zip"], env_id)
@@ -231,7 +183,7 @@ def test_a_maskable_ppo_decides_among_the_actions_each_steps_masks_allow(tmp_pat
     with pytest.raises(ConfigError, match="none were given for this step"):
         agent.act(obs)  # they served the decision above
     with pytest.raises(ConfigError, match="this env has no action_masks"):
-        agent.wrap(gymnasium.make("UnmaskedCartPoleForTests-v0")).reset(seed=0)
+        agent.wrap(gymnasium.make("CartPole-v1")).reset(seed=0)
     played = collect(agent, gymnasium.make(env_id), 2, seed=0)  # an env of yours: told the masks as the monitor tells them
     assert all(masks_allow(t.actions) for t in played)
     dynamics = DynamicsDetector(3, epochs=2, seed=0).fit(played)
@@ -256,7 +208,7 @@ def test_envs_show_plays_a_policy_that_reads_its_env_in_one_env_at_a_time(tmp_pa
     from oodmon.envs import parse_env_shift
     from oodmon.envs.probe import probe_shift
 
-    env_id = "MaskedCartPoleForTests-v0"
+    env_id = MASKED
     sb3_contrib.MaskablePPO("MlpPolicy", gymnasium.make(env_id), seed=0, n_steps=64, batch_size=64).save(
         tmp_path / "masked.zip")
     agent = load_sb3([tmp_path / "masked.zip"], env_id)
@@ -301,3 +253,16 @@ def test_without_sb3_contrib_its_models_are_refused_naming_what_to_install(tmp_p
     with pytest.raises(ConfigError, match=r"a TQC model is loaded by sb3-contrib, which is not installed: pip install "
                                           r"sb3-contrib \(or 'oodmon\[contrib\]'\)"):
         load_sb3([tmp_path / "tqc.zip"], "Pendulum-v1")
+
+
+def test_the_readmes_contrib_example_trains_each_model_once_and_refuses_an_unknown_case(tmp_path, monkeypatch, capsys):
+    """scripts/sb3_contrib_example.py: an unknown case is refused naming the cases; a model already in
+    --out is kept (what the README's figures came from is not trained over)."""
+    _, example = load_script("sb3_contrib_example")
+    monkeypatch.setattr(sys, "argv", ["sb3_contrib_example.py", "--only", "qrdqn,sonar", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit) as stopped:
+        example.main()
+    assert stopped.value.code == 2 and "unknown case(s) sonar; choose from qrdqn, qrdqn3, tqc, rppo, maskable" in \
+        capsys.readouterr().err
+    (tmp_path / "tqc.zip").write_bytes(b"kept")
+    assert example.train("tqc", tmp_path) == tmp_path / "tqc.zip" and (tmp_path / "tqc.zip").read_bytes() == b"kept"
