@@ -148,6 +148,31 @@ _, _masked_cartpole = load_script("masked_cartpole")
 MASKED = _masked_cartpole.ENV_ID
 
 
+def test_twin_monitors_of_a_recurrent_ppo_each_carry_their_own_envs_memory(tmp_path):
+    """A vector env's pattern: a monitor and its twin step two envs in turn. Each has the policy's
+    memory of its own env's episode, so each env's decisions are sb3-contrib's own deployment's in
+    that env alone (they shared one LSTM state before, each decision reading the other env's last)."""
+    from oodmon.monitor import MemorySink, Monitor, MonitoredEnv
+    from oodmon.monitor.detectors import DynamicsDetector, collect
+
+    model = _recurrent("Pendulum-v1")
+    model.save(tmp_path / "lstm.zip")
+    agent = load_sb3([tmp_path / "lstm.zip"], "Pendulum-v1")
+    dynamics = DynamicsDetector(None, epochs=2, seed=0).fit(collect(agent, gymnasium.make("Pendulum-v1"), 1, seed=0))
+    sinks = [MemorySink(), MemorySink()]
+    first = Monitor(agent, detectors=[dynamics], sinks=[sinks[0]])
+    envs = [MonitoredEnv(gymnasium.make("Pendulum-v1", max_episode_steps=30), monitor)
+            for monitor in (first, first.twin(sinks=[sinks[1]]))]
+    for seed, env in enumerate(envs):
+        env.reset(seed=seed)
+    for _ in range(30):
+        for env in envs:
+            env.step()
+    expected = _recurrent_reference(model, 2, forget=True)  # seed 0's episode, then seed 1's
+    for sink, own in zip(sinks, (expected[:30], expected[30:])):
+        assert np.array_equal(np.array([step.action for step in sink.steps]), own)
+
+
 def masks_allow(actions) -> bool:
     """Whether an episode's actions are those the masked CartPole allows, step by step (0 or 2 at even
     steps, 1 or 2 at odd ones)."""
