@@ -89,8 +89,8 @@ class Agent:
 
     def begin_episode(self) -> None:
         """An episode begins: a policy with a memory of the episode (a RecurrentPPO's LSTM state)
-        forgets the last one. The envs :meth:`wrap` makes call it at each reset, and the monitor at
-        each episode's start; nothing for any other policy."""
+        forgets the last one. The envs :meth:`wrap` makes call it at each reset, the monitor and the
+        detectors' fitting at each episode's start; nothing for any other policy."""
         begin = getattr(self.deploy, "begin_episode", None)
         if begin is not None:
             begin()
@@ -103,7 +103,8 @@ class Agent:
     @property
     def reads_masks(self) -> bool:
         """Whether the deployed policy decides among the actions the env's action masks allow
-        (sb3-contrib's MaskablePPO): the envs :meth:`wrap` makes tell it each step's (:meth:`tell_masks`)."""
+        (sb3-contrib's MaskablePPO): the envs :meth:`wrap` makes, the monitor and the detectors'
+        fitting tell it each step's (:meth:`tell_masks`)."""
         return hasattr(self.deploy, "tell_masks")
 
     def twin(self) -> Agent:
