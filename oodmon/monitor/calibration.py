@@ -134,7 +134,8 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                      method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
                      confidence=confidence, rule=rule, reference=reference,
                      masks=getattr(agent.estimator, "masks", None), warmup=warmup,
-                     detectors_hash=None if needed is None else needed.fingerprint(detector))
+                     detectors_hash=None if needed is None else needed.fingerprint(detector),
+                     samples=None if agent.estimator is None else agent.estimator.n_samples)
 
 
 @dataclass(frozen=True)

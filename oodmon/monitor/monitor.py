@@ -200,7 +200,8 @@ class Monitor:
             meta = self.agent.metadata if self.agent is not None else {}
             differences = threshold.check_matches(task=meta.get("task"), method=meta.get("method"),
                                                   score=threshold.score, policy_hash=self.policy_hash,
-                                                  masks=getattr(self.estimator, "masks", None))
+                                                  masks=getattr(self.estimator, "masks", None),
+                                                  samples=getattr(self.estimator, "n_samples", None))
             self._refuse_or_warn("the threshold", differences, force)
             score, consecutive, value = threshold.score, threshold.consecutive, threshold.value
             window, detector = threshold.window, threshold.detector

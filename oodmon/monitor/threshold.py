@@ -240,6 +240,11 @@ class Threshold:
             ones it combines (:meth:`~oodmon.monitor.detectors.DetectorSet.fingerprint`): the
             monitor refuses other fitted detectors, whose scores are on another scale. ``None``:
             ``spread``, or not recorded (files written before it existed).
+        samples: the samples per decision of the policy it was calibrated on (an MC agent's K, an
+            ensemble's members): the spread's scale, and an MC policy's mean decision, are K's (a
+            CartPole DropConnect threshold of K=20, 0 of 100 fresh ID episodes alarmed, read 6 of 100
+            with K=5). ``None``: a policy without samples, or not recorded (files written before it
+            existed).
     """
 
     value: float
@@ -262,6 +267,7 @@ class Threshold:
     masks: str | None = None
     warmup: int = 0
     detectors_hash: str | None = None
+    samples: int | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -326,7 +332,7 @@ class Threshold:
             raise type(error)(f"threshold file {path}: {error}") from None
 
     def check_matches(self, *, task: str | None, method: str | None, score: str, policy_hash: str | None,
-                      masks: str | None = None) -> list[str]:
+                      masks: str | None = None, samples: int | None = None) -> list[str]:
         """How this threshold differs from the policy and score it is about to be used with: one
         line per difference (empty: it matches). A field not recorded on either side is not compared.
 
@@ -340,6 +346,9 @@ class Threshold:
                                    ("score", self.score, score), ("masks", self.masks, masks)):
             if mine is not None and theirs is not None and mine != theirs:
                 found.append(f"it was calibrated for {name} {mine!r}, not {theirs!r}")
+        if self.samples is not None and samples is not None and self.samples != samples:
+            found.append(f"it was calibrated with {self.samples} samples per decision, and this policy draws {samples}: "
+                         "the spread's scale, and an MC policy's mean decision, are those of its samples")
         if self.policy_hash and policy_hash and policy_hash != "unknown" and self.policy_hash != policy_hash:
             found.append(f"it was calibrated on other weights ({self.policy_hash[:19]}..., these are {policy_hash[:19]}...; "
                          "an SB3 model's VecNormalize statistics count as its weights)")
@@ -387,6 +396,9 @@ def _check_fields(threshold: Threshold) -> None:
             raise bad(name, "it must be a string or null")
     if not isinstance(threshold.quantiles, dict):
         raise bad("quantiles", "it must be an object of numbers")
+    if threshold.samples is not None and (not isinstance(threshold.samples, (int, np.integer))
+                                          or isinstance(threshold.samples, bool) or threshold.samples < 1):
+        raise bad("samples", "it must be a whole number >= 1, or null")
     if threshold.masks is not None and threshold.masks not in MASKS:
         raise bad("masks", f"use {', '.join(map(repr, MASKS))} or null")
 
@@ -409,6 +421,7 @@ def calibrate(
     masks: str | None = None,
     warmup: int = 0,
     detectors_hash: str | None = None,
+    samples: int | None = None,
 ) -> Threshold:
     """Calibrate a threshold on the per-step scores of held-out ID episodes.
 
@@ -429,6 +442,7 @@ def calibrate(
             (episode mode, the consecutive rule).
         detectors_hash: the fingerprint of the fitted detector whose scores these are (see
             :class:`Threshold`).
+        samples: the samples per decision of the policy the scores are of (see :class:`Threshold`).
 
     Raises:
         InvalidParameterError: ``far`` or ``confidence`` outside (0, 1), an unknown mode, a bad
@@ -481,4 +495,5 @@ def calibrate(
     return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
                      quantiles, task, method, window, policy_hash, detector,
                      None if confidence is None else float(confidence), rank, rule,
-                     None if reference is None else reference.to_dict(), masks, warmup, detectors_hash)
+                     None if reference is None else reference.to_dict(), masks, warmup, detectors_hash,
+                     None if samples is None else int(samples))

@@ -11,8 +11,10 @@ import pytest
 
 from oodmon.agents import load
 from oodmon.envs import Variant, parse_variant
-from oodmon.errors import ConfigError
-from oodmon.monitor import MemorySink, Monitor, MonitoredEnv, calibrate_agent, episode_statistic, id_episode_scores
+from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.monitor import (
+    MemorySink, Monitor, MonitoredEnv, Threshold, calibrate_agent, episode_statistic, id_episode_scores,
+)
 from oodmon.monitor.detectors import SpreadDetector
 from oodmon.monitor.scores import score_function
 
@@ -128,6 +130,17 @@ def test_calibrated_threshold_keeps_its_false_alarm_rate_on_fresh_id_episodes():
     # rate of all but about 1% of (calibration, fresh episodes) draws.
     assert rate <= 0.2 + 2.6 * 0.101
     assert threshold.n_episodes == 19 and threshold.n_steps == 19 * 500
+    # It holds for the K samples per decision it was calibrated with: the spread's scale is K's. The
+    # same policy drawing another K is refused (a CartPole DropConnect spread threshold of K=20,
+    # 0 of 100 fresh ID episodes alarmed, read 6 of 100 with K=5), or with force warned.
+    assert threshold.samples == agent.estimator.n_samples == 20
+    Monitor(load("cartpole", "dropout", n_samples=20, seed=1), threshold)
+    with pytest.raises(ConfigError, match="calibrated with 20 samples per decision, and this policy draws 5"):
+        Monitor(load("cartpole", "dropout", n_samples=5, seed=1), threshold)
+    with pytest.warns(UserWarning, match="draws 5"):
+        Monitor(load("cartpole", "dropout", n_samples=5, seed=1), threshold, force=True)
+    with pytest.raises(InvalidParameterError, match="samples=0"):
+        Threshold(1.0, "chosen_std", 3, "episode", 0.05, 20, 100, samples=0)
 
 
 @pytest.mark.parametrize("log_observations", [True, False], ids=["logged", "scores-only"])
