@@ -189,6 +189,7 @@ class Monitor:
             raise ConfigError(f"the monitor watches an oodmon Agent, an uncertainty estimator, a callable obs -> "
                               f"action, or None (you pass each action to step()); got {type(policy).__name__}")
         self._dicts = self.agent is not None and self.agent.dict_space is not None  # see step()
+        self._masked = self.agent is not None and self.agent.reads_masks  # see _tell_masks()
         self._own = self.agent is not None and self.agent.reads_own  # a stack, or a dict with pictures: see step()
         self.policy_hash = policy_hash(self.agent)
         if isinstance(threshold, Threshold):
@@ -224,8 +225,9 @@ class Monitor:
                 f"{', '.join(self.detectors.names)}); give the fitted detectors (Monitor(detectors=...), "
                 "--detectors) or a threshold calibrated for one of those"
             )
+        self._fitted = self.detectors.fingerprints()  # what each learned detector's fit is: the log records it
         if isinstance(threshold, Threshold) and threshold.detectors_hash:
-            these = self.detectors.fingerprint(self.detector)
+            these = self._fitted.get(self.detector)
             if these != threshold.detectors_hash:
                 why = (f"it was calibrated with other fitted {self.detector} detectors ({threshold.detectors_hash[:19]}..., "
                        f"these are {str(these)[:19]}...), whose scores are on another scale; give those it was "
@@ -327,7 +329,7 @@ class Monitor:
                 threshold=self.threshold, rule=self.tracker.rule, policy_hash=self.policy_hash,
                 versions=library_versions(), detector=self.detector, detectors=tuple(self.detectors.names),
                 about=run_about(meta) | self._samples_about(),
-                fitted={name: fit for name in self.detectors.names if (fit := self.detectors.fingerprint(name))},
+                fitted=self._fitted,
             ))
             self._opened = True
             atexit.register(self.close)
@@ -536,7 +538,7 @@ class Monitor:
     def _tell_masks(self, env: gymnasium.Env) -> None:
         """After a reset or a step of ``env``: a policy that reads action masks gets those it allows
         now (:meth:`~oodmon.agents.Agent.tell_masks`); nothing for any other."""
-        if self.agent is not None:
+        if self._masked:
             self.agent.tell_masks(env)
 
     def run_episode(self, env: gymnasium.Env, *, seed: int | None = None, variant: str | None = None,

@@ -98,9 +98,7 @@ class DriftDetector(Detector):
         serves both."""
         if self.model is dynamics or self.model is None or not dynamics.fitted:
             return
-        mine, theirs = self.model.tensors(), dynamics.tensors()
-        if self.model.config() == dynamics.config() and mine.keys() == theirs.keys() \
-                and all(np.array_equal(mine[key], theirs[key]) for key in mine):
+        if self.model.fingerprint() == dynamics.fingerprint():  # the same settings and arrays
             self.model = dynamics
 
     @classmethod

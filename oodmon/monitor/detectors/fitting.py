@@ -145,13 +145,15 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     pictures_of = getattr(policy, "pictures", None)  # a dict's picture, which the frames detector reads
     # An Agent whose policy needs the env beside the observation (a memory forgotten at each reset,
     # the action masks of each step), told as the monitor tells it, in an env of yours too.
-    tells = (policy.begin_episode, policy.tell_masks) if hasattr(policy, "tell_masks") else None
+    begin = policy.begin_episode if getattr(policy, "remembers", False) else None
+    tell = policy.tell_masks if getattr(policy, "reads_masks", False) else None
     trajectories, steps, episode = [], 0, 0
     while episode < episodes or steps < min_steps:
         obs, _ = env.reset(seed=seed + episode)
-        if tells is not None:
-            tells[0]()
-            tells[1](env)
+        if begin is not None:
+            begin()
+        if tell is not None:
+            tell(env)
         observations, actions, features, values, estimates = [obs], [], [], [], []
         keep = estimator is not None and estimates_from is not None and episode >= estimates_from
         while True:
@@ -168,8 +170,8 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
             else:
                 action = act(obs)
             obs, _, terminated, truncated, _ = env.step(action)
-            if tells is not None:
-                tells[1](env)
+            if tell is not None:
+                tell(env)
             observations.append(obs)
             actions.append(action)
             warn_if_endless(env, len(actions))

@@ -133,14 +133,18 @@ class DetectorSet:
         """``sha256:...`` of what detector ``name`` learned and of the learned detectors it reads
         (``combined``'s members), or ``None`` for ``spread``, which learns nothing (its score is the
         threshold's ``score``). A threshold records it (:attr:`Threshold.detectors_hash`)."""
-        detector = self[name]
-        if not detector.learned:
-            return None
-        members = sorted(m for m in detector.members if self[m].learned) if name == "combined" else []
-        if not members:
-            return detector.fingerprint()
-        prints = " ".join(self[n].fingerprint() for n in [name, *members])
-        return "sha256:" + hashlib.sha256(prints.encode()).hexdigest()
+        return self.fingerprints().get(self[name].name)  # (an unknown name: said by self[name])
+
+    def fingerprints(self) -> dict[str, str]:
+        """:meth:`fingerprint` of every learned detector, by name, each detector's arrays hashed once."""
+        own = {d.name: d.fingerprint() for d in self if d.learned}
+        prints = dict(own)
+        if "combined" in own:
+            members = sorted(m for m in self["combined"].members if m in own)
+            if members:
+                joined = " ".join(own[n] for n in ["combined", *members])
+                prints["combined"] = "sha256:" + hashlib.sha256(joined.encode()).hexdigest()
+        return prints
 
     @property
     def needs_estimate(self) -> bool:
