@@ -230,51 +230,55 @@ def _transposed_image(env_space: Any, model_space: Any) -> bool:
             and model_space.shape == (shape[2], shape[0], shape[1]))
 
 
-def _deployed(model: Any, discrete: bool, normalizer: ObservationNormalizer | None,
-              dict_space: gymnasium.spaces.Dict | None = None):
+class _Deployed:
     """The model's own decision on the observation the monitor reads (a dict one flattened: it
-    gets the dict back, as the env gave it)."""
-    def act(obs: np.ndarray) -> int | np.ndarray:
-        if dict_space is not None:
-            obs = gymnasium.spaces.unflatten(dict_space, np.asarray(obs))
-        action, _ = model.predict(obs if normalizer is None else normalizer(obs), deterministic=True)
-        return int(action) if discrete else np.asarray(action)
-    return act
+    gets the dict back, as the env gave it; normalised as in training where it was)."""
+
+    def __init__(self, model: Any, discrete: bool, normalizer: ObservationNormalizer | None,
+                 dict_space: gymnasium.spaces.Dict | None = None) -> None:
+        self.model, self.discrete, self.normalizer, self.dict_space = model, discrete, normalizer, dict_space
+
+    def _predict(self, obs: np.ndarray, **extra: Any) -> tuple[int | np.ndarray, Any]:
+        """``model.predict`` of ``obs`` as the model reads it (deterministic; ``extra`` to it): the
+        action as the env takes it, and what ``predict`` returned beside it."""
+        if self.dict_space is not None:
+            obs = gymnasium.spaces.unflatten(self.dict_space, np.asarray(obs))
+        action, other = self.model.predict(obs if self.normalizer is None else self.normalizer(obs), deterministic=True,
+                                           **extra)
+        return (int(action) if self.discrete else np.asarray(action)), other
+
+    def __call__(self, obs: np.ndarray) -> int | np.ndarray:
+        return self._predict(obs)[0]
 
 
-class _RecurrentDeployed:
+class _RecurrentDeployed(_Deployed):
     """A recurrent policy's decisions (sb3-contrib's RecurrentPPO): its ``predict`` with the LSTM's
     state carried from step to step, as sb3-contrib's own evaluation carries it, and forgotten when
     an episode begins (:meth:`begin_episode`, which :meth:`Agent.begin_episode` calls: from the envs
     :meth:`Agent.wrap` makes, at each reset, and from the monitor at each episode's start)."""
 
-    def __init__(self, model: Any, discrete: bool, normalizer: ObservationNormalizer | None,
-                 dict_space: gymnasium.spaces.Dict | None) -> None:
-        self.model, self.discrete, self.normalizer, self.dict_space = model, discrete, normalizer, dict_space
+    def __init__(self, *args: Any) -> None:
+        super().__init__(*args)
         self.begin_episode()
 
     def begin_episode(self) -> None:
         self.state, self.starts = None, np.ones(1, dtype=bool)
 
     def __call__(self, obs: np.ndarray) -> int | np.ndarray:
-        if self.dict_space is not None:
-            obs = gymnasium.spaces.unflatten(self.dict_space, np.asarray(obs))
-        action, self.state = self.model.predict(obs if self.normalizer is None else self.normalizer(obs),
-                                                state=self.state, episode_start=self.starts, deterministic=True)
+        action, self.state = self._predict(obs, state=self.state, episode_start=self.starts)
         self.starts = np.zeros(1, dtype=bool)
-        return int(action) if self.discrete else np.asarray(action)
+        return action
 
 
-class _MaskableDeployed:
+class _MaskableDeployed(_Deployed):
     """A policy that decides among the actions the env allows (sb3-contrib's MaskablePPO): its
     ``predict`` with the action masks of the step it acts at, which the envs :meth:`Agent.wrap`
     makes, and the monitor of the env it steps, give it after each reset and step
     (:meth:`Agent.tell_masks`). Each step's masks serve one
     decision: acting again without new ones is an error, never a decision on stale masks."""
 
-    def __init__(self, model: Any, discrete: bool, normalizer: ObservationNormalizer | None,
-                 dict_space: gymnasium.spaces.Dict | None) -> None:
-        self.model, self.discrete, self.normalizer, self.dict_space = model, discrete, normalizer, dict_space
+    def __init__(self, *args: Any) -> None:
+        super().__init__(*args)
         self.masks: np.ndarray | None = None
 
     def tell_masks(self, masks: np.ndarray) -> None:
@@ -286,11 +290,7 @@ class _MaskableDeployed:
                               f"given for this step: step the env agent.wrap(env) gives, which reads them "
                               f"({_WRAP_FOR_MASKS})")
         masks, self.masks = self.masks, None
-        if self.dict_space is not None:
-            obs = gymnasium.spaces.unflatten(self.dict_space, np.asarray(obs))
-        action, _ = self.model.predict(obs if self.normalizer is None else self.normalizer(obs), action_masks=masks,
-                                       deterministic=True)
-        return int(action) if self.discrete else np.asarray(action)
+        return self._predict(obs, action_masks=masks)[0]
 
 
 #: Who else gives it the masks: the monitor, of the env it steps.
@@ -550,7 +550,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         | ({} if frame_stack is None else {"frame_stack": frame_stack})
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
     deploying = {"RecurrentPPO": _RecurrentDeployed, "MaskablePPO": _MaskableDeployed}.get(files[0]["algorithm"],
-                                                                                          _deployed)
+                                                                                          _Deployed)
     deployed = deploying(models[0], discrete, normalizer, dict_space)
     return Agent(estimator, metadata, None, None if mean else deployed,
                  dict_space=dict_space, stacking=stacking, pictures=pictures)
