@@ -52,7 +52,10 @@ def test_the_readmes_own_env_shift_runs_as_written_and_replay_shows_what_it_says
     # the README's figures when written: 0 of 20 ID episodes alarmed, 20 of 20 heavy ones, none
     # early, delay median 2, AUROC 0.999 (one thread: the same weights on any machine whose float
     # kernels round alike); the bounds leave room for other rounding (fitted on 90 episodes, as
-    # before 2026-11-29, it read 17 of 20 at delay median 54)
-    assert ids["episodes"] == 20 and ids["false_alarm_rate"] <= 0.1
+    # before 2026-11-29, it read 17 of 20 at delay median 54). An AVX-512 CPU's kernels train
+    # another PPO (2026-11-29: 4 of these 20 ID episodes alarmed; `oodmon validate` 12 of 200 fresh
+    # ones, 6.0%, 3.1-10.2%), so the ID bound is statistical: the threshold promises <= 5% per
+    # episode (confidence 0.9); at twice that, 10%, 6 or more of 20 has probability 0.011 (at 5%: 0.0003)
+    assert ids["episodes"] == 20 and ids["false_alarm_rate"] <= 5 / 20
     assert heavy["episodes"] == 20 and heavy["detection_rate"] >= 0.9 and heavy["early_alarm_rate"] <= 0.1
     assert heavy["auroc"] > 0.98 and heavy["delay_median"] <= 10
