@@ -39,6 +39,7 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.agents.dict_pictures import dict_pictures, is_picture_space
+from oodmon.agents.sb3_decision import decision
 from oodmon.agents.vec_normalize import (
     NO_NORMALIZATION,
     ObservationNormalizer,
@@ -232,23 +233,33 @@ def _transposed_image(env_space: Any, model_space: Any) -> bool:
 
 class _Deployed:
     """The model's own decision on the observation the monitor reads (a dict one flattened: it
-    gets the dict back, as the env gave it; normalised as in training where it was)."""
+    gets the dict back, as the env gave it; normalised as in training where it was): its
+    ``predict(obs, deterministic=True)``, computed without the work ``predict`` repeats at every
+    call where :func:`~oodmon.agents.sb3_decision.decision` knows the policy (the same action)."""
 
     def __init__(self, model: Any, discrete: bool, normalizer: ObservationNormalizer | None,
                  dict_space: gymnasium.spaces.Dict | None = None) -> None:
         self.model, self.discrete, self.normalizer, self.dict_space = model, discrete, normalizer, dict_space
+        self.decide = decision(model) or (lambda obs: model.predict(obs, deterministic=True)[0])
+
+    def _as_read(self, obs: np.ndarray) -> Any:
+        """``obs`` as the model reads it: a flattened dict unflattened, normalised as in training."""
+        if self.dict_space is not None:
+            obs = gymnasium.spaces.unflatten(self.dict_space, np.asarray(obs))
+        return obs if self.normalizer is None else self.normalizer(obs)
+
+    def _action(self, action: Any) -> int | np.ndarray:
+        """The action as the env takes it."""
+        return int(action) if self.discrete else np.asarray(action)
 
     def _predict(self, obs: np.ndarray, **extra: Any) -> tuple[int | np.ndarray, Any]:
         """``model.predict`` of ``obs`` as the model reads it (deterministic; ``extra`` to it): the
         action as the env takes it, and what ``predict`` returned beside it."""
-        if self.dict_space is not None:
-            obs = gymnasium.spaces.unflatten(self.dict_space, np.asarray(obs))
-        action, other = self.model.predict(obs if self.normalizer is None else self.normalizer(obs), deterministic=True,
-                                           **extra)
-        return (int(action) if self.discrete else np.asarray(action)), other
+        action, other = self.model.predict(self._as_read(obs), deterministic=True, **extra)
+        return self._action(action), other
 
     def __call__(self, obs: np.ndarray) -> int | np.ndarray:
-        return self._predict(obs)[0]
+        return self._action(self.decide(self._as_read(obs)))
 
 
 class _RecurrentDeployed(_Deployed):

@@ -1,0 +1,116 @@
+"""Your own SB3 policy decides as its predict(obs, deterministic=True) does, float for float, without
+the evaluation-mode walk and the distribution predict() builds at every call."""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
+from torch import nn
+
+from oodmon.agents.sb3 import load_sb3
+from oodmon.agents.sb3_decision import decision
+
+
+def _observations(space: gymnasium.Space, n: int) -> list:
+    space.seed(0)
+    return [space.sample() for _ in range(n)]
+
+
+def _same(ours, theirs) -> bool:
+    ours, theirs = np.asarray(ours), np.asarray(theirs)
+    return ours.shape == theirs.shape and ours.dtype == theirs.dtype and np.array_equal(ours, theirs)
+
+
+MODELS = [
+    (PPO, "Acrobot-v1", "MlpPolicy"),       # Categorical: its probs' argmax
+    (PPO, "Pendulum-v1", "MlpPolicy"),      # diagonal Gaussian: its mean, clipped to the space
+    (A2C, "CartPole-v1", "MlpPolicy"),
+    (DQN, "CartPole-v1", "MlpPolicy"),      # its own _predict (Q-values' argmax)
+    (SAC, "Pendulum-v1", "MlpPolicy"),      # tanh of the Gaussian's mean, unscaled to the space
+    (TD3, "MountainCarContinuous-v0", "MlpPolicy"),
+    (DDPG, "Pendulum-v1", "MlpPolicy"),
+]
+try:  # sb3-contrib's (the dev extra installs it): TRPO's policy is PPO's, the others' their own
+    from sb3_contrib import ARS, QRDQN, TQC, TRPO, CrossQ
+    MODELS += [(TRPO, "Acrobot-v1", "MlpPolicy"), (QRDQN, "CartPole-v1", "MlpPolicy"),
+               (TQC, "Pendulum-v1", "MlpPolicy"), (ARS, "Pendulum-v1", "LinearPolicy"),
+               (CrossQ, "Pendulum-v1", "MlpPolicy")]  # CrossQ: batch renormalisation, another output in training mode
+except ImportError:
+    pass
+
+
+@pytest.mark.parametrize(("algorithm", "env_id", "policy"), MODELS, ids=lambda x: getattr(x, "__name__", x))
+def test_the_decision_is_predicts_float_for_float(algorithm, env_id, policy):
+    env = gymnasium.make(env_id)
+    model = algorithm(policy, env, seed=0, device="cpu")
+    decide = decision(model)
+    assert decide is not None
+    for obs in _observations(env.observation_space, 300):  # far outside the ID states too: the space's whole box
+        assert _same(decide(obs), model.predict(obs, deterministic=True)[0]), obs
+    batch = np.stack(_observations(env.observation_space, 8))  # a vectorized observation keeps its batch axis
+    assert _same(decide(batch), model.predict(batch, deterministic=True)[0])
+
+
+def test_a_categorical_policy_of_near_ties_decides_as_its_probabilities_do():
+    """Logits that differ in their last bits: the decision is the argmax of the probabilities torch's
+    Categorical computes from them (as predict() takes it), not of the raw logits."""
+    env = gymnasium.make("CartPole-v1")
+    model = PPO("MlpPolicy", env, seed=0, device="cpu")
+    with torch.no_grad():
+        model.policy.action_net.weight.mul_(1e-6)  # logits within float rounding of each other
+        model.policy.action_net.bias.zero_()
+    decide, observations = decision(model), _observations(env.observation_space, 500)
+    assert all(int(decide(obs)) == int(model.predict(obs, deterministic=True)[0]) for obs in observations)
+    with torch.no_grad():  # the raw logits' argmax, which would decide otherwise somewhere: the ties are real
+        logits = model.policy.action_net(model.policy.mlp_extractor.forward_actor(torch.as_tensor(np.stack(observations))))
+    raw = logits.argmax(dim=1).numpy()
+    assert any(r != int(model.predict(obs, deterministic=True)[0]) for r, obs in zip(raw, observations))
+
+
+def test_a_policy_left_in_training_mode_decides_in_evaluation_mode_as_predict_does():
+    """A model trained further in memory is left in training mode by SB3's learn(): its dropout is
+    then on. predict() puts it in evaluation mode at every call; so does the decision, when needed."""
+    env = gymnasium.make("Acrobot-v1")
+    model = PPO("MlpPolicy", env, seed=0, device="cpu")
+    model.policy.mlp_extractor.policy_net.append(nn.Dropout(0.5))
+    decide = decision(model)
+    obs = _observations(env.observation_space, 50)
+    model.policy.set_training_mode(True)
+    assert model.policy.mlp_extractor.policy_net[-1].training
+    ours = [decide(o) for o in obs]
+    assert not any(m.training for m in model.policy.modules())  # as predict() leaves it
+    model.policy.set_training_mode(True)
+    assert all(_same(a, model.predict(o, deterministic=True)[0]) for a, o in zip(ours, obs))
+    model.policy.mlp_extractor.policy_net[-1].train()  # one module alone back in training mode
+    assert all(_same(decide(o), model.predict(o, deterministic=True)[0]) for o in obs)
+
+
+def test_policies_it_does_not_know_keep_predict():
+    env = gymnasium.make("Pendulum-v1")
+    sde = PPO("MlpPolicy", env, use_sde=True, seed=0, device="cpu")  # gSDE: its own distribution
+    assert _same(decision(sde)(np.zeros(3, np.float32)), sde.predict(np.zeros(3, np.float32), deterministic=True)[0])
+
+    class Shifted(PPO):  # an algorithm whose predict() does more than its policy's
+        def predict(self, observation, state=None, episode_start=None, deterministic=False):
+            action, state = super().predict(observation, state, episode_start, deterministic)
+            return action + 0.5, state
+
+    assert decision(Shifted("MlpPolicy", env, seed=0, device="cpu")) is None
+    multi = gymnasium.make("CartPole-v1")
+    multi.action_space = gymnasium.spaces.MultiDiscrete([2, 3])
+    model = PPO("MlpPolicy", multi, seed=0, device="cpu")  # multi-discrete: read through its own _predict
+    for obs in _observations(multi.observation_space, 50):
+        assert _same(decision(model)(obs), model.predict(obs, deterministic=True)[0])
+
+
+def test_a_loaded_policys_act_is_its_predict(tmp_path):
+    """What the monitor calls: agent.act of a saved model, through load_sb3."""
+    env = gymnasium.make("Acrobot-v1")
+    PPO("MlpPolicy", env, seed=0, device="cpu").save(tmp_path / "ppo.zip")
+    agent, model = load_sb3([tmp_path / "ppo.zip"], "Acrobot-v1"), PPO.load(tmp_path / "ppo.zip", device="cpu")
+    for obs in _observations(env.observation_space, 100):
+        action = agent.act(obs)
+        assert isinstance(action, int) and action == int(model.predict(obs, deterministic=True)[0])
