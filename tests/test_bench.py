@@ -447,6 +447,20 @@ def test_bench_results_are_data_and_a_later_bench_is_checked_against_them(tmp_pa
     assert len(falls) == 2, fell.stderr
     assert any(f"ensemble/{row['variant']}/spread: auroc fell from" in line for line in falls)
     assert any("cartpole:masspole=9.0/spread: missing from this bench" in line for line in falls)
+    assert "other weights" not in fell.stderr and "records no weights" not in fell.stderr  # the zoo agent's, as there
+    from oodmon.agents import zoo_dir
+    from oodmon.hashing import file_sha256
+
+    shipped = file_sha256(zoo_dir() / "cartpole-ensemble" / "model.safetensors")
+    assert data["weights"] == {"ensemble": {"0": shipped}}
+    # a baseline of other weights (a model retrained, or on a CPU that rounds otherwise): the falls say so
+    (tmp_path / "retrained.json").write_text(json.dumps(dict(raised, weights={"ensemble": {"0": "f" * 64}})))
+    retrained = run_cli(*common, "--baseline", str(tmp_path / "retrained.json"))
+    assert retrained.returncode == 1
+    assert f"numbers are of other weights: ensemble trial 0 ({'f' * 12} there, {shipped[:12]} here)" in retrained.stderr
+    (tmp_path / "old.json").write_text(json.dumps({k: v for k, v in raised.items() if k != "weights"}))
+    old = run_cli(*common, "--baseline", str(tmp_path / "old.json"))  # written before results held them
+    assert old.returncode == 1 and "records no weights' sha256" in old.stderr
 
     other = dict(data, config=dict(data["config"], far=0.05))
     (tmp_path / "other.json").write_text(json.dumps(other))

@@ -6,7 +6,8 @@ under the monitor's protocol also, per (method, variant), the false-alarm rate (
 share of failing episodes alarmed before the failure (may not fall) and the median delay (may not
 rise by more than the tolerance times its value). Both results must come from the same settings
 (task, protocol, score, detectors, calibration...): a baseline made otherwise is refused, not
-compared. A row the baseline has and the new result lacks is a fall too.
+compared. A row the baseline has and the new result lacks is a fall too. Where figures fell,
+:func:`weights_notes` says whether the baseline's numbers were made by the same weights.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
 from oodmon.replay.check import compare_metrics
 
-__all__ = ["BASELINE_TOLERANCE", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result"]
+__all__ = ["BASELINE_TOLERANCE", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result",
+           "weights_notes"]
 
 #: The default allowed fall (AUROC, AUPR, rates) and relative rise (delays).
 BASELINE_TOLERANCE = 0.02
@@ -88,3 +90,30 @@ def bench_falls(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERA
                 for key, row in bench_metrics(baseline).items()}
     return compare_metrics(bench_metrics(result), expected, tolerance, what="this bench",
                            relative=("delay_median", "lead_median"), higher=_HIGHER)
+
+
+def weights_notes(result: dict, baseline: dict, baseline_name: str = "the baseline") -> list[str]:
+    """Whether the baseline's numbers were made by the weights that made ``result``'s (each
+    (method, trial)'s sha256, ``BenchResult.weights``): a line naming each (method, trial) whose
+    weights differ, or a line saying the baseline records none; nothing where they are the same.
+
+    The same command trains other weights on a CPU whose float kernels round otherwise (an AVX-512
+    one beside an AVX2 one, 2026-11-29: the README's Acrobot PPO), and a retrained model is another
+    policy: its figures move with its weights, not only with oodmon's code.
+
+    Example:
+        >>> weights_notes({"weights": {"sb3": {0: "ab12"}}}, {"weights": {"sb3": {"0": "cd34"}}})
+        ["the baseline's numbers are of other weights: sb3 trial 0 (cd34 there, ab12 here); ..."]
+    """
+    theirs = baseline.get("weights")
+    if not theirs:
+        return [f"{baseline_name} records no weights' sha256 (bench results written before 2026-11-29): whether "
+                "its numbers are of this run's models cannot be told; retrained ones are other policies"]
+    ours = {method: {str(trial): sha for trial, sha in trials.items()} for method, trials in result.get("weights", {}).items()}
+    differing = [f"{method} trial {trial} ({sha[:12]} there, {ours[method][trial][:12]} here)"
+                 for method, trials in theirs.items() for trial, sha in trials.items()
+                 if trial in ours.get(method, {}) and ours[method][trial] != sha]
+    if not differing:
+        return []
+    return [f"{baseline_name}'s numbers are of other weights: {'; '.join(differing)}; a figure moves with the weights "
+            "(a model retrained, or trained on a CPU whose float kernels round otherwise), not only with oodmon's code"]

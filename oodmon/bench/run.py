@@ -9,7 +9,7 @@ from pathlib import Path
 
 from oodmon import seeds
 from oodmon.bench.cache import (Sb3Models, _cell_log, _ensure_model, _ensure_model_dir_current, _id_return,
-                                _log_is_complete, _monitored, _prepare_trial, _refuse_to_train_for_hours)
+                                _log_is_complete, _monitored, _prepare_trial, _refuse_to_train_for_hours, _weights_sha256)
 from oodmon.bench.cells import _execute
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.monitor.alarms import check_warmup, check_window
@@ -122,9 +122,10 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
                                config.detectors[order], auprs=per_trial["aupr"], fprs=per_trial["fpr95"]))
     failing = {m: {t: prepared[(m, t)][2] for t in range(config.trials)} for m in config.methods}
     id_returns = {m: {t: _id_return(prepared[(m, t)][0]) for t in range(config.trials)} for m in config.methods}
+    weights = {m: {t: _weights_sha256(prepared[(m, t)][0]) for t in range(config.trials)} for m in config.methods}
     alarms = []
     if config.protocol == "monitor":
         from oodmon.replay import compute_monitor_metrics
 
         alarms = compute_monitor_metrics(every_log, failure=config.failure)
-    return BenchResult(result_rows, failing, detection, alarms, id_returns)
+    return BenchResult(result_rows, failing, detection, alarms, id_returns, weights)

@@ -146,7 +146,8 @@ def _bench(args: argparse.Namespace) -> int:
                          net_arch=args.net_arch, fit_episodes=args.fit_episodes,
                          masks=args.masks, onsets=args.onsets, failure=args.failure, warmup=args.warmup)
     config.variant_list()  # refuse bad specs before any work
-    from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result
+    from oodmon.bench.baseline import (BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result,
+                                       weights_notes)
     from oodmon.outputs import check_output_dir, check_output_file
 
     check_output_dir(args.out, parameter="--out")
@@ -176,6 +177,8 @@ def _bench(args: argparse.Namespace) -> int:
     for line in falls:
         print(f"FELL {line}", file=sys.stderr)
     if falls:
+        for note in weights_notes(data, baseline, args.baseline):
+            print(f"note: {note}", file=sys.stderr)
         print(f"oodmon bench: {len(falls)} figure(s) fell below {args.baseline}", file=sys.stderr)
         return 1
     print(f"oodmon bench: every figure of {args.baseline} held (tolerance {tolerance})", file=sys.stderr)
