@@ -289,7 +289,10 @@ def test_bench_reports_every_detector_as_replaying_its_logs_gives(tmp_path):
     # the combined score's largest value is the largest of its members' (and dynamics' mean's)
     from oodmon.monitor.detectors import DetectorSet
 
-    combined = DetectorSet.load(folder / f"detectors-{config.cache_key()}")["combined"]
+    fitted = DetectorSet.load(folder / f"detectors-{config.cache_key()}")
+    assert result.fitted == {"ensemble": {0: fitted.fingerprints()}}  # what --baseline compares (below)
+    assert set(result.fitted["ensemble"][0]) == {"dynamics", "combined"}
+    combined = fitted["combined"]
     for name in ("cartpole", "cartpole_length_2.0"):
         maxima = load_script("member_excursions")[1].episode_maxima(combined, folder / f"{name}.mcap", after_onset=False)
         assert set(maxima) == {"spread", "dynamics", "dynamics mean"}
@@ -458,9 +461,10 @@ def test_bench_results_are_data_and_a_later_bench_is_checked_against_them(tmp_pa
     retrained = run_cli(*common, "--baseline", str(tmp_path / "retrained.json"))
     assert retrained.returncode == 1
     assert f"numbers are of other weights: ensemble trial 0 ({'f' * 12} there, {shipped[:12]} here)" in retrained.stderr
-    (tmp_path / "old.json").write_text(json.dumps({k: v for k, v in raised.items() if k != "weights"}))
+    assert data["fitted"] == {"ensemble": {"0": {}}}  # spread alone: nothing fitted (fits: the test above, and below)
+    (tmp_path / "old.json").write_text(json.dumps({k: v for k, v in raised.items() if k not in ("weights", "fitted")}))
     old = run_cli(*common, "--baseline", str(tmp_path / "old.json"))  # written before results held them
-    assert old.returncode == 1 and "records no weights' sha256" in old.stderr
+    assert old.returncode == 1 and "records neither its weights' sha256 nor its fits'" in old.stderr
 
     other = dict(data, config=dict(data["config"], far=0.05))
     (tmp_path / "other.json").write_text(json.dumps(other))
@@ -672,3 +676,25 @@ def test_a_baseline_checks_the_alarms_lead_relatively_and_skips_it_where_the_bas
         "alarms/sb3/Hopper-v5:obs.stuck[3]=1.0: lead_median fell from 50 to 45 (tolerance 0.02)"]
     assert bench_falls(result(80.0), result(50.0)) == []  # an earlier warning is no fall
     assert bench_falls(result(45.0), result(None)) == []  # results from before the lead was recorded
+
+
+def test_a_baseline_of_other_fits_or_weights_is_said_to_be_so():
+    """The notes beside figures that fell: the (method, trial)s whose weights, or whose fitted
+    detectors (by detector), differ from the baseline's; nothing where both are the same."""
+    from oodmon.bench.baseline import weights_notes
+
+    ours = {"weights": {"dropout": {0: "a" * 64, 1: "b" * 64}},
+            "fitted": {"dropout": {0: {"dynamics": "sha256:1", "combined": "sha256:2"}, 1: {}}}}
+    same = json.loads(json.dumps(ours))  # as read from a file: trials as text
+    assert weights_notes(ours, same) == []
+    refitted = json.loads(json.dumps(ours))
+    refitted["fitted"]["dropout"]["0"]["combined"] = "sha256:3"  # fitted on another CPU kind, say
+    [note] = weights_notes(ours, refitted, "base.json")
+    assert note.startswith("base.json's numbers are of detectors fitted otherwise: dropout trial 0 (combined);")
+    retrained = json.loads(json.dumps(ours))
+    retrained["weights"]["dropout"]["1"] = "c" * 64
+    [note] = weights_notes(ours, retrained)
+    assert f"other weights: dropout trial 1 ({'c' * 12} there, {'b' * 12} here)" in note
+    fewer = {"weights": {"dropout": {"0": "a" * 64}}, "fitted": {"dropout": {"0": ours["fitted"]["dropout"][0]}}}
+    assert weights_notes(ours, fewer) == []  # a trial the baseline lacks is no difference of provenance
+    assert "records neither" in weights_notes(ours, {"rows": []})[0]

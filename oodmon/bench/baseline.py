@@ -93,27 +93,44 @@ def bench_falls(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERA
 
 
 def weights_notes(result: dict, baseline: dict, baseline_name: str = "the baseline") -> list[str]:
-    """Whether the baseline's numbers were made by the weights that made ``result``'s (each
-    (method, trial)'s sha256, ``BenchResult.weights``): a line naming each (method, trial) whose
-    weights differ, or a line saying the baseline records none; nothing where they are the same.
+    """Whether the baseline's numbers were made by the weights and the fitted detectors that made
+    ``result``'s (``BenchResult.weights`` and ``.fitted``): a line naming each (method, trial) whose
+    weights differ, a line naming each whose fits differ, or a line saying the baseline records
+    neither; nothing where they are the same.
 
-    The same command trains other weights on a CPU whose float kernels round otherwise (an AVX-512
-    one beside an AVX2 one, 2026-11-29: the README's Acrobot PPO), and a retrained model is another
-    policy: its figures move with its weights, not only with oodmon's code.
+    The same command trains other weights, and fits other detectors, on a CPU whose float kernels
+    round otherwise (an AVX-512 one beside an AVX2 one, 2026-11-29: the README's Acrobot PPO, and
+    the bench's own fits for the shipped CartPole agents): its figures move with them, not only
+    with oodmon's code.
 
     Example:
         >>> weights_notes({"weights": {"sb3": {0: "ab12"}}}, {"weights": {"sb3": {"0": "cd34"}}})
         ["the baseline's numbers are of other weights: sb3 trial 0 (cd34 there, ab12 here); ..."]
     """
-    theirs = baseline.get("weights")
-    if not theirs:
-        return [f"{baseline_name} records no weights' sha256 (bench results written before 2026-11-29): whether "
-                "its numbers are of this run's models cannot be told; retrained ones are other policies"]
-    ours = {method: {str(trial): sha for trial, sha in trials.items()} for method, trials in result.get("weights", {}).items()}
-    differing = [f"{method} trial {trial} ({sha[:12]} there, {ours[method][trial][:12]} here)"
-                 for method, trials in theirs.items() for trial, sha in trials.items()
-                 if trial in ours.get(method, {}) and ours[method][trial] != sha]
-    if not differing:
-        return []
-    return [f"{baseline_name}'s numbers are of other weights: {'; '.join(differing)}; a figure moves with the weights "
-            "(a model retrained, or trained on a CPU whose float kernels round otherwise), not only with oodmon's code"]
+    if not baseline.get("weights"):
+        return [f"{baseline_name} records neither its weights' sha256 nor its fits' (bench results written before "
+                "2026-11-29): whether its numbers are of this run's models and fitted detectors cannot be told; "
+                "weights trained, or detectors fitted, on a CPU whose float kernels round otherwise differ"]
+    notes = []
+    for what, about in (("weights", "other weights"), ("fitted", "detectors fitted otherwise")):
+        ours, theirs = _by_trial(result.get(what)), _by_trial(baseline.get(what))
+        differing = [f"{method} trial {trial} {_difference(theirs[(method, trial)], ours[(method, trial)])}"
+                     for method, trial in sorted(theirs.keys() & ours.keys())
+                     if theirs[(method, trial)] != ours[(method, trial)]]
+        if differing:
+            notes.append(f"{baseline_name}'s numbers are of {about}: {'; '.join(differing)}; a figure moves with "
+                         "them (a model retrained, or trained or fitted on a CPU whose float kernels round "
+                         "otherwise), not only with oodmon's code")
+    return notes
+
+
+def _by_trial(table: dict | None) -> dict[tuple[str, str], object]:
+    """A result's per (method, trial) table by (method, trial as text): JSON's keys and a result's own alike."""
+    return {(method, str(trial)): value for method, trials in (table or {}).items() for trial, value in trials.items()}
+
+
+def _difference(theirs: object, ours: object) -> str:
+    """How a baseline's weights' sha256, or fits' fingerprints by detector, differ from ours."""
+    if isinstance(theirs, dict) and isinstance(ours, dict):
+        return "(" + ", ".join(sorted(d for d in theirs.keys() | ours.keys() if theirs.get(d) != ours.get(d))) + ")"
+    return f"({str(theirs)[:12]} there, {str(ours)[:12]} here)"

@@ -288,9 +288,12 @@ class BenchResult:
     #: Per method and trial, the model's ID return as its training measured it (``id_return_mean``,
     #: 20 episodes; ``None`` for SB3 files, which carry none): whether each trial solves the task.
     id_returns: dict[str, dict[int, float | None]] = field(default_factory=dict)
-    #: Per method and trial, the sha256 of the weights that played (the model's, or the SB3 files'):
-    #: ``bench --baseline`` says where a baseline's numbers are of other weights.
+    #: Per method and trial, the sha256 of the weights that played (the model's, or the SB3 files'),
+    #: and the fingerprints of the detectors the bench fitted for them, by detector
+    #: (``DetectorSet.fingerprints``): ``bench --baseline`` says where a baseline's numbers are of
+    #: other weights or of other fits.
     weights: dict[str, dict[int, str]] = field(default_factory=dict)
+    fitted: dict[str, dict[int, dict[str, str]]] = field(default_factory=dict)
 
     def to_json(self, config: BenchConfig | None = None, command: str | None = None) -> dict:
         """The result as data (``bench --json``): per row the per-trial AUROC, AUPR and FPR at 95%
@@ -307,6 +310,7 @@ class BenchResult:
             "monitor": self.detection,
             "id_returns": self.id_returns,
             "weights": self.weights,
+            "fitted": self.fitted,
         }
         if self.alarms:
             from oodmon.replay import monitor_summary

@@ -123,9 +123,17 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
     failing = {m: {t: prepared[(m, t)][2] for t in range(config.trials)} for m in config.methods}
     id_returns = {m: {t: _id_return(prepared[(m, t)][0]) for t in range(config.trials)} for m in config.methods}
     weights = {m: {t: _weights_sha256(prepared[(m, t)][0]) for t in range(config.trials)} for m in config.methods}
+    fitted = {m: {t: _fingerprints(prepared[(m, t)][3]) for t in range(config.trials)} for m in config.methods}
     alarms = []
     if config.protocol == "monitor":
         from oodmon.replay import compute_monitor_metrics
 
         alarms = compute_monitor_metrics(every_log, failure=config.failure)
-    return BenchResult(result_rows, failing, detection, alarms, id_returns, weights)
+    return BenchResult(result_rows, failing, detection, alarms, id_returns, weights, fitted)
+
+
+def _fingerprints(detectors: Path | None) -> dict[str, str]:
+    """The fingerprints of a trial's fitted detectors, by detector (none: no learned detector)."""
+    from oodmon.monitor.detectors import DetectorSet
+
+    return {} if detectors is None else DetectorSet.load(detectors).fingerprints()
