@@ -681,20 +681,20 @@ def test_a_baseline_checks_the_alarms_lead_relatively_and_skips_it_where_the_bas
 def test_a_baseline_of_other_fits_or_weights_is_said_to_be_so():
     """The notes beside figures that fell: the (method, trial)s whose weights, or whose fitted
     detectors (by detector), differ from the baseline's; nothing where both are the same."""
-    from oodmon.bench.baseline import weights_notes
+    from oodmon.bench.baseline import provenance_notes
 
     ours = {"weights": {"dropout": {0: "a" * 64, 1: "b" * 64}},
             "fitted": {"dropout": {0: {"dynamics": "sha256:1", "combined": "sha256:2"}, 1: {}}}}
     same = json.loads(json.dumps(ours))  # as read from a file: trials as text
-    assert weights_notes(ours, same) == []
+    assert provenance_notes(ours, same) == []
     refitted = json.loads(json.dumps(ours))
     refitted["fitted"]["dropout"]["0"]["combined"] = "sha256:3"  # fitted on another CPU kind, say
-    [note] = weights_notes(ours, refitted, "base.json")
+    [note] = provenance_notes(ours, refitted, "base.json")
     assert note.startswith("base.json's numbers are of detectors fitted otherwise: dropout trial 0 (combined);")
     retrained = json.loads(json.dumps(ours))
     retrained["weights"]["dropout"]["1"] = "c" * 64
-    [note] = weights_notes(ours, retrained)
+    [note] = provenance_notes(ours, retrained)
     assert f"other weights: dropout trial 1 ({'c' * 12} there, {'b' * 12} here)" in note
     fewer = {"weights": {"dropout": {"0": "a" * 64}}, "fitted": {"dropout": {"0": ours["fitted"]["dropout"][0]}}}
-    assert weights_notes(ours, fewer) == []  # a trial the baseline lacks is no difference of provenance
-    assert "records neither" in weights_notes(ours, {"rows": []})[0]
+    assert provenance_notes(ours, fewer) == []  # a trial the baseline lacks is no difference of provenance
+    assert "records neither" in provenance_notes(ours, {"rows": []})[0]

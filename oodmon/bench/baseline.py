@@ -7,7 +7,8 @@ share of failing episodes alarmed before the failure (may not fall) and the medi
 rise by more than the tolerance times its value). Both results must come from the same settings
 (task, protocol, score, detectors, calibration...): a baseline made otherwise is refused, not
 compared. A row the baseline has and the new result lacks is a fall too. Where figures fell,
-:func:`weights_notes` says whether the baseline's numbers were made by the same weights.
+:func:`provenance_notes` says whether the baseline's numbers were made by the same weights and fitted
+detectors.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from oodmon.jsonfile import read_json
 from oodmon.replay.check import compare_metrics
 
 __all__ = ["BASELINE_TOLERANCE", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result",
-           "weights_notes"]
+           "provenance_notes"]
 
 #: The default allowed fall (AUROC, AUPR, rates) and relative rise (delays).
 BASELINE_TOLERANCE = 0.02
@@ -92,7 +93,7 @@ def bench_falls(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERA
                            relative=("delay_median", "lead_median"), higher=_HIGHER)
 
 
-def weights_notes(result: dict, baseline: dict, baseline_name: str = "the baseline") -> list[str]:
+def provenance_notes(result: dict, baseline: dict, baseline_name: str = "the baseline") -> list[str]:
     """Whether the baseline's numbers were made by the weights and the fitted detectors that made
     ``result``'s (``BenchResult.weights`` and ``.fitted``): a line naming each (method, trial) whose
     weights differ, a line naming each whose fits differ, or a line saying the baseline records
@@ -104,7 +105,7 @@ def weights_notes(result: dict, baseline: dict, baseline_name: str = "the baseli
     with oodmon's code.
 
     Example:
-        >>> weights_notes({"weights": {"sb3": {0: "ab12"}}}, {"weights": {"sb3": {"0": "cd34"}}})
+        >>> provenance_notes({"weights": {"sb3": {0: "ab12"}}}, {"weights": {"sb3": {"0": "cd34"}}})
         ["the baseline's numbers are of other weights: sb3 trial 0 (cd34 there, ab12 here); ..."]
     """
     if not baseline.get("weights"):

@@ -147,7 +147,7 @@ def _bench(args: argparse.Namespace) -> int:
                          masks=args.masks, onsets=args.onsets, failure=args.failure, warmup=args.warmup)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import (BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result,
-                                       weights_notes)
+                                       provenance_notes)
     from oodmon.outputs import check_output_dir, check_output_file
 
     check_output_dir(args.out, parameter="--out")
@@ -177,7 +177,7 @@ def _bench(args: argparse.Namespace) -> int:
     for line in falls:
         print(f"FELL {line}", file=sys.stderr)
     if falls:
-        for note in weights_notes(data, baseline, args.baseline):
+        for note in provenance_notes(data, baseline, args.baseline):
             print(f"note: {note}", file=sys.stderr)
         print(f"oodmon bench: {len(falls)} figure(s) fell below {args.baseline}", file=sys.stderr)
         return 1
