@@ -21,7 +21,7 @@ demo: $(STAMP)
 	$(BIN)/oodmon demo
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q --durations=10 -n auto --dist loadfile
+	$(BIN)/python -m pytest -q --durations=10 -n auto --dist worksteal
 
 clean:
 	rm -rf $(VENV) runs build *.egg-info
