@@ -230,8 +230,9 @@ class Monitor:
             these = self._fitted.get(self.detector)
             if these != threshold.detectors_hash:
                 why = (f"it was calibrated with other fitted {self.detector} detectors ({threshold.detectors_hash[:19]}..., "
-                       f"these are {str(these)[:19]}...), whose scores are on another scale; give those it was "
-                       "calibrated with (--detectors DIR, Monitor(detectors=...))")
+                       f"these are {str(these)[:19]}...), whose scores are on another scale (fitting again, "
+                       "even by the same command, gives other detectors on another CPU kind or package versions); "
+                       "give those it was calibrated with (--detectors DIR, Monitor(detectors=...))")
                 self._refuse_or_warn("the threshold", [why], force)
         self.tracker = AlarmTracker(value, default_consecutive(self.detector) if consecutive is None
                                     else check_consecutive(consecutive),
