@@ -1,7 +1,7 @@
 """SB3's deterministic ``predict()``, action for action, without the work it repeats at every call.
 
 ``model.predict(obs, deterministic=True)`` puts the whole policy in evaluation mode at every call
-(``set_training_mode(False)``, a walk that sets every module's flag: about a third of a small MLP
+(``set_training_mode(False)``, a walk that sets every module's flag: a quarter to a third of a small MLP
 policy's decision) and, for PPO, A2C and SAC, builds a torch distribution (its arguments
 validated) only to read its mode. :func:`decision` gives a function that returns the same action
 float for float: it walks the policy into evaluation mode only when one of its modules is in
