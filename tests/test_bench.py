@@ -456,6 +456,9 @@ def test_bench_results_are_data_and_a_later_bench_is_checked_against_them(tmp_pa
 
     shipped = file_sha256(zoo_dir() / "cartpole-ensemble" / "model.safetensors")
     assert data["weights"] == {"ensemble": {"0": shipped}}
+    from oodmon.versions import machine
+
+    assert data["machine"] == machine()
     # a baseline of other weights (a model retrained, or on a CPU that rounds otherwise): the falls say so
     (tmp_path / "retrained.json").write_text(json.dumps(dict(raised, weights={"ensemble": {"0": "f" * 64}})))
     retrained = run_cli(*common, "--baseline", str(tmp_path / "retrained.json"))
@@ -698,3 +701,7 @@ def test_a_baseline_of_other_fits_or_weights_is_said_to_be_so():
     fewer = {"weights": {"dropout": {"0": "a" * 64}}, "fitted": {"dropout": {"0": ours["fitted"]["dropout"][0]}}}
     assert provenance_notes(ours, fewer) == []  # a trial the baseline lacks is no difference of provenance
     assert "records neither" in provenance_notes(ours, {"rows": []})[0]
+    elsewhere = dict(same, machine="x86_64; AMD EPYC; torch AVX2")
+    assert provenance_notes(dict(ours, machine="x86_64; Intel Xeon; torch AVX512"), elsewhere, "b.json") == [
+        "b.json was made on x86_64; AMD EPYC; torch AVX2; this run on x86_64; Intel Xeon; torch AVX512"]
+    assert provenance_notes(dict(ours, machine="m"), dict(same, machine="m")) == []

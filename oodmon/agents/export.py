@@ -23,7 +23,7 @@ from oodmon.envs.grid import Variant
 from oodmon.hashing import file_sha256
 from oodmon.jsonfile import write_json
 from oodmon.progress import Progress
-from oodmon.versions import library_versions
+from oodmon.versions import library_versions, machine
 
 __all__ = ["SELECTION_SEED", "as_shipped", "recipe_differences", "select_snapshot", "write_agent"]
 
@@ -113,7 +113,8 @@ def write_agent(root: Path, recipe: Recipe, runs: list[Run], models: list[BaseAl
         "selected_checkpoints": [selection["chosen"]] if selection else [run.state.get("best") for run in runs],
         "checkpoint_selection": selection and {k: v for k, v in selection.items() if k != "chosen"},
         "training_complete": all(run.finished for run in runs),
-        "recipe_notes": recipe.notes, "versions": library_versions(), "command": command,
+        "recipe_notes": recipe.notes, "versions": library_versions(), "machine": machine(),
+        "command": command,
         "id_return_mean": round(float(np.mean(id_returns)), 2), "id_episodes": len(id_returns),
         "id_returns": [round(float(r), 2) for r in id_returns],
         **bounds,

@@ -97,7 +97,8 @@ def provenance_notes(result: dict, baseline: dict, baseline_name: str = "the bas
     """Whether the baseline's numbers were made by the weights and the fitted detectors that made
     ``result``'s (``BenchResult.weights`` and ``.fitted``): a line naming each (method, trial) whose
     weights differ, a line naming each whose fits differ, or a line saying the baseline records
-    neither; nothing where they are the same.
+    neither; first, where both say it and it differs, the machine each ran on
+    (:func:`~oodmon.versions.machine`); nothing where they are the same.
 
     The same command trains other weights, and fits other detectors, on a CPU whose float kernels
     round otherwise (an AVX-512 one beside an AVX2 one, 2026-11-29: the README's Acrobot PPO, and
@@ -108,11 +109,13 @@ def provenance_notes(result: dict, baseline: dict, baseline_name: str = "the bas
         >>> provenance_notes({"weights": {"sb3": {0: "ab12"}}}, {"weights": {"sb3": {"0": "cd34"}}})
         ["the baseline's numbers are of other weights: sb3 trial 0 (cd34 there, ab12 here); ..."]
     """
+    notes = []
+    if baseline.get("machine") and result.get("machine") and baseline["machine"] != result["machine"]:
+        notes.append(f"{baseline_name} was made on {baseline['machine']}; this run on {result['machine']}")
     if not baseline.get("weights"):
-        return [f"{baseline_name} records neither its weights' sha256 nor its fits' (bench results written before "
+        return notes + [f"{baseline_name} records neither its weights' sha256 nor its fits' (bench results written before "
                 "2026-11-29): whether its numbers are of this run's models and fitted detectors cannot be told; "
                 "weights trained, or detectors fitted, on a CPU whose float kernels round otherwise differ"]
-    notes = []
     for what, about in (("weights", "other weights"), ("fitted", "detectors fitted otherwise")):
         ours, theirs = _by_trial(result.get(what)), _by_trial(baseline.get(what))
         differing = [f"{method} trial {trial} {_difference(theirs[(method, trial)], ours[(method, trial)])}"

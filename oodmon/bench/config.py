@@ -13,6 +13,7 @@ from oodmon.envs.shift import EnvShift, own_variant
 from oodmon.errors import ConfigError
 from oodmon.names import TASKS
 from oodmon.paper import paper_auc_per_trial
+from oodmon.versions import machine
 
 if TYPE_CHECKING:
     from oodmon.agents.recipes import Recipe
@@ -311,6 +312,7 @@ class BenchResult:
             "id_returns": self.id_returns,
             "weights": self.weights,
             "fitted": self.fitted,
+            "machine": machine(),
         }
         if self.alarms:
             from oodmon.replay import monitor_summary

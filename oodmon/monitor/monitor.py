@@ -45,7 +45,7 @@ from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.monitor.sinks.base import Sink, SinkGroup
 from oodmon.monitor.threshold import Threshold
 from oodmon.progress import Progress
-from oodmon.versions import library_versions
+from oodmon.versions import library_versions, machine
 from oodmon.hashing import file_sha256
 from oodmon.validation import is_real, is_whole
 
@@ -90,10 +90,10 @@ def policy_hash(agent: Agent | None) -> str:
 
 
 def run_about(metadata: dict[str, Any]) -> dict[str, str]:
-    """:attr:`RunInfo.about` of a run of the agent with ``metadata``: the command line, and the
-    env id, model files, VecNormalize statistics and VecFrameStack depth of a model from elsewhere
+    """:attr:`RunInfo.about` of a run of the agent with ``metadata``: the command line, the
+    machine's CPU kind (:func:`~oodmon.versions.machine`), and the env id, model files, VecNormalize statistics and VecFrameStack depth of a model from elsewhere
     (:mod:`oodmon.agents.sb3`)."""
-    about = {"command": shlex.join(sys.argv)}
+    about = {"command": shlex.join(sys.argv), "machine": machine()}
     if metadata.get("env_id"):
         about["env_id"] = str(metadata["env_id"])
     for key in ("models", "vec_normalize", "frame_stack"):

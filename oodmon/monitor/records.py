@@ -167,8 +167,8 @@ class RunInfo:
     detector: str = "spread"
     detectors: tuple[str, ...] = ("spread",)
     #: Where the policy came from and how the run was started: ``command`` (the process's command
-    #: line), and for models from elsewhere ``env_id`` and ``models`` (JSON: each file's path,
-    #: sha256 and algorithm).
+    #: line), ``machine`` (its CPU kind, since 2026-11-29), and for models from elsewhere ``env_id``
+    #: and ``models`` (JSON: each file's path, sha256 and algorithm).
     about: dict[str, str] = field(default_factory=dict)
     #: The fingerprint of each learned detector's fit (and of those it combines), by name
     #: (:meth:`~oodmon.monitor.detectors.DetectorSet.fingerprint`): scores of two fits are on two

@@ -104,6 +104,9 @@ def test_the_log_records_the_models_files_env_and_command(readme_run):
     assert all(len(m["sha256"]) == 64 and m["algorithm"] == "DQN" for m in models)
     assert log.metadata["about.env_id"] == "CartPole-v1"
     assert log.metadata["about.command"] == shlex.join(sys.argv)  # this process's command line (here pytest's)
+    from oodmon.versions import machine
+
+    assert log.metadata["about.machine"] == machine()  # the CPU kind, whose float kernels round the numbers
     assert log.task == "cartpole" and log.method == "sb3"
 
 

@@ -50,6 +50,7 @@ def test_training_runs_and_saves_a_loadable_agent(tmp_path, task, method, monkey
     assert (meta["checkpoint_selection"] and len(meta["checkpoint_selection"]["candidates"])) == (2 if task == "pong" else None)
     assert len(meta["training_steps"]) == (5 if method == "ensemble" and task != "pong" else 1)
     assert meta["versions"]["torch"].startswith(torch.__version__.split("+")[0])
+    assert meta["machine"].endswith(f"torch {torch.backends.cpu.get_cpu_capability()}")  # the CPU kind it trained on
     # The weights a run keeps on disk are fp16 where they ship so (Pong), to keep committed runs small.
     kept = sorted((tmp_path / "runs").glob("*/**/*.safetensors"))
     assert kept and {t.dtype for f in kept for t in load_file(str(f)).values()} == (
