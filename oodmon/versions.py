@@ -37,7 +37,7 @@ def machine() -> str:
     elsewhere what ``platform`` says) and the vector instructions torch's kernels use on it.
 
     The same command trains other weights, and fits other detectors, where the last of these
-    differ (2026-11-29: an AVX-512 Intel CPU against an AVX2 AMD one): a model's, a log's and a
+    differ (2026-11-29: an Intel CPU with AVX-512 against an AMD EPYC one): a model's, a log's and a
     bench result's metadata record it beside the library versions.
 
     Example:

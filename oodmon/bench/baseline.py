@@ -101,9 +101,9 @@ def provenance_notes(result: dict, baseline: dict, baseline_name: str = "the bas
     (:func:`~oodmon.versions.machine`); nothing where they are the same.
 
     The same command trains other weights, and fits other detectors, on a CPU whose float kernels
-    round otherwise (an AVX-512 one beside an AVX2 one, 2026-11-29: the README's Acrobot PPO, and
-    the bench's own fits for the shipped CartPole agents): its figures move with them, not only
-    with oodmon's code.
+    round otherwise (an Intel one with AVX-512 beside the AMD EPYC one the committed results come
+    from, 2026-11-29: the README's Acrobot PPO, and the bench's own fits for the shipped CartPole
+    agents): its figures move with them, not only with oodmon's code.
 
     Example:
         >>> provenance_notes({"weights": {"sb3": {0: "ab12"}}}, {"weights": {"sb3": {"0": "cd34"}}})
