@@ -36,9 +36,10 @@ def machine() -> str:
     """The kind of CPU this process runs on: its architecture, its name (Linux's ``/proc/cpuinfo``;
     elsewhere what ``platform`` says) and the vector instructions torch's kernels use on it.
 
-    The same command trains other weights, and fits other detectors, where the last of these
-    differ (2026-11-29: an Intel CPU with AVX-512 against an AMD EPYC one): a model's, a log's and a
-    bench result's metadata record it beside the library versions.
+    The same command trains other weights, and fits other detectors, on another kind of CPU
+    (2026-11-29: an Intel CPU with AVX-512 against an AMD EPYC one; on the Intel one alone, with
+    torch held to AVX2 and MKL and OpenBLAS to theirs, a third set of weights): a model's, a log's
+    and a bench result's metadata record it beside the library versions.
 
     Example:
         >>> machine().startswith(platform.machine())

@@ -91,8 +91,8 @@ def policy_hash(agent: Agent | None) -> str:
 
 def run_about(metadata: dict[str, Any]) -> dict[str, str]:
     """:attr:`RunInfo.about` of a run of the agent with ``metadata``: the command line, the
-    machine's CPU kind (:func:`~oodmon.versions.machine`), and the env id, model files, VecNormalize statistics and VecFrameStack depth of a model from elsewhere
-    (:mod:`oodmon.agents.sb3`)."""
+    machine's CPU kind (:func:`~oodmon.versions.machine`), and the env id, model files,
+    VecNormalize statistics and VecFrameStack depth of a model from elsewhere (:mod:`oodmon.agents.sb3`)."""
     about = {"command": shlex.join(sys.argv), "machine": machine()}
     if metadata.get("env_id"):
         about["env_id"] = str(metadata["env_id"])
