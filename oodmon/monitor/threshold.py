@@ -44,6 +44,7 @@ from oodmon.monitor.alarms import (DEFAULT_CONSECUTIVE, check_consecutive, check
                                    rule_text)
 from oodmon.monitor.sequential import RULES, Reference
 from oodmon.names import MASKS
+from oodmon.validation import is_whole
 
 __all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "EarlyPeaksWarning",
            "OutlyingThresholdWarning", "Threshold", "calibrate",
@@ -384,20 +385,17 @@ def _check_fields(threshold: Threshold) -> None:
             raise bad("reference", f"the {threshold.rule} rule needs its reference of ID scores")
         threshold.reference_scores()  # a damaged reference fails here, when the file is read
     _check_far_and_confidence(threshold.far, threshold.confidence)
-    if threshold.rank is not None and (not isinstance(threshold.rank, (int, np.integer))
-                                       or isinstance(threshold.rank, bool) or threshold.rank < 1):
+    if threshold.rank is not None and not is_whole(threshold.rank):
         raise bad("rank", "it must be a whole number >= 1, or null")
     for name in ("n_episodes", "n_steps"):
-        value = getattr(threshold, name)
-        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 0:
+        if not is_whole(getattr(threshold, name), minimum=0):
             raise bad(name, "it must be a whole number >= 0")
     for name in ("task", "method", "policy_hash", "detectors_hash"):
         if getattr(threshold, name) is not None and not isinstance(getattr(threshold, name), str):
             raise bad(name, "it must be a string or null")
     if not isinstance(threshold.quantiles, dict):
         raise bad("quantiles", "it must be an object of numbers")
-    if threshold.samples is not None and (not isinstance(threshold.samples, (int, np.integer))
-                                          or isinstance(threshold.samples, bool) or threshold.samples < 1):
+    if threshold.samples is not None and not is_whole(threshold.samples):
         raise bad("samples", "it must be a whole number >= 1, or null")
     if threshold.masks is not None and threshold.masks not in MASKS:
         raise bad("masks", f"use {', '.join(map(repr, MASKS))} or null")

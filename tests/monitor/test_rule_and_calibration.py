@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -187,6 +188,15 @@ def test_threshold_file_errors(tmp_path):
     (tmp_path / "other.json").write_text('{"value": 1}')
     with pytest.raises(ConfigError, match="is not a threshold file: it lacks score, consecutive"):
         Threshold.load(tmp_path / "other.json")
+    good = calibrate([np.zeros(5)] * 45, 0.05, consecutive=1, samples=20).to_dict()
+    for field, value, rule in (("samples", 0, ">= 1, or null"), ("samples", True, ">= 1, or null"),
+                               ("samples", 2.0, ">= 1, or null"), ("rank", 0, ">= 1, or null"),
+                               ("n_steps", -1, ">= 0"), ("detectors_hash", 3, "a string or null")):
+        (tmp_path / "damaged.json").write_text(json.dumps(good | {field: value}))  # each hand-edited field refused
+        with pytest.raises(ConfigError, match=f"{field}={value} is not allowed; it must be .*{re.escape(rule)}"):
+            Threshold.load(tmp_path / "damaged.json")
+    (tmp_path / "good.json").write_text(json.dumps(good))
+    assert Threshold.load(tmp_path / "good.json").samples == 20
 
 
 def test_pre_squash_score_needs_an_actor():
