@@ -195,10 +195,18 @@ def _check(args: argparse.Namespace) -> int:
 
 def _torn_note(logs) -> str:
     """`oodmon check`'s words for logs that were torn and read in part (each with its recovery
-    warning): a fall may come from the episodes they lost. Empty when every log was whole."""
+    warning) and for split logs that lack a part (each with its warning): a fall may come from the
+    episodes they lost. Empty when every log was whole and every split log's parts were read."""
+    from oodmon.replay import missing_parts
+
+    notes = []
     torn = sum(not log.complete for log in logs)
-    if not torn:
-        return ""
-    one = torn == 1
-    return (f" ({torn} of the {len(logs)} logs {'was' if one else 'were'} torn and read in part, as the warning above "
-            f"says: {'its' if one else 'their'} rows lack the episodes lost)")
+    if torn:
+        one = torn == 1
+        notes.append(f"{torn} of the {len(logs)} logs {'was' if one else 'were'} torn and read in part, as the warning "
+                     f"above says: {'its' if one else 'their'} rows lack the episodes lost")
+    gaps = len(missing_parts(logs))
+    if gaps:
+        notes.append(f"{gaps} split log{' lacks' if gaps == 1 else 's lack'} a part, as the warning above says: "
+                     "the rows lack its episodes")
+    return f" ({'; '.join(notes)})" if notes else ""

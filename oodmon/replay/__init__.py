@@ -10,12 +10,15 @@ from oodmon.replay.metrics import (
     MonitorMetrics, VariantMetrics, alarm_events, compute_all_metrics, compute_metrics, compute_monitor_metrics,
     detectors_in, failed_episodes, failure_step, fpr_at_tpr, pooled_fits, pooled_weights,
 )
-from oodmon.replay.reader import (EpisodeLog, NewerFormatWarning, RecoveryWarning, RunLog, SkippedLogWarning, read_log,
-                                  read_logs)
+from oodmon.replay.parts import MissingParts, missing_parts
+from oodmon.replay.reader import (EpisodeLog, MissingPartWarning, NewerFormatWarning, RecoveryWarning, RunLog,
+                                  SkippedLogWarning, read_log, read_logs)
 from oodmon.replay.report import monitor_markdown, monitor_summary, monitor_table, to_csv, to_json, to_markdown, to_table
 
 __all__ = [
     "EpisodeLog",
+    "MissingPartWarning",
+    "MissingParts",
     "MonitorMetrics",
     "NewerFormatWarning",
     "RecoveryWarning",
@@ -34,6 +37,7 @@ __all__ = [
     "find_falls",
     "fpr_at_tpr",
     "load_baseline",
+    "missing_parts",
     "monitor_markdown",
     "monitor_summary",
     "monitor_table",

@@ -27,8 +27,10 @@ from oodmon.errors import LogFormatError
 from oodmon.monitor import logformat
 from oodmon.monitor.logformat import decode_array
 from oodmon.monitor.records import EpisodeRecord
+from oodmon.replay.parts import missing_parts
 
-__all__ = ["EpisodeLog", "NewerFormatWarning", "RecoveryWarning", "RunLog", "SkippedLogWarning", "read_log", "read_logs"]
+__all__ = ["EpisodeLog", "MissingPartWarning", "NewerFormatWarning", "RecoveryWarning", "RunLog", "SkippedLogWarning",
+           "read_log", "read_logs"]
 
 _MAGIC = b"\x89MCAP0\r\n"
 _EPISODE, _SCORES, _STEP = logformat.EPISODE, logformat.EPISODE_SCORES, logformat.STEP
@@ -41,6 +43,10 @@ class RecoveryWarning(UserWarning):
 
 class SkippedLogWarning(UserWarning):
     """A file was not read: named twice, or found in a folder but not an oodmon log."""
+
+
+class MissingPartWarning(UserWarning):
+    """A split log's part below the highest one read is not among the logs (:mod:`oodmon.replay.parts`)."""
 
 
 class NewerFormatWarning(UserWarning):
@@ -435,7 +441,8 @@ def read_logs(paths: Sequence[str | Path]) -> list[RunLog]:
 
     Each file is read once, however often it is named (as itself or inside a folder). A file
     inside a folder that is not an oodmon log (a foreign MCAP, a damaged file) is skipped with a
-    :class:`SkippedLogWarning`; a file named on its own must be an oodmon log.
+    :class:`SkippedLogWarning`; a file named on its own must be an oodmon log. A split log whose
+    parts read skip one (:func:`~oodmon.replay.parts.missing_parts`) gives a :class:`MissingPartWarning`.
 
     Raises:
         LogFormatError: a named file that is not an oodmon log, a folder with no ``.mcap`` file,
@@ -466,4 +473,6 @@ def read_logs(paths: Sequence[str | Path]) -> list[RunLog]:
             warnings.warn(f"skipped {file}: {error}", SkippedLogWarning, stacklevel=2)
     if not logs:
         raise LogFormatError(f"no oodmon log among {', '.join(str(p) for p in paths)}")
+    for gap in missing_parts(logs):
+        warnings.warn(str(gap), MissingPartWarning, stacklevel=2)
     return logs
