@@ -24,9 +24,13 @@ A step message's number that is not finite (the +inf score of a NaN observation,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
 
 A run split into files of whole episodes (``McapSink(split_episodes=...)``, ``split_mb``) gives
-each file the run's metadata and ``part`` (0, 1, ...), and since 2026-11-29 ``split``, an id all
-the run's parts share; replay reads each as a log of its own, the episodes' numbers go on across
-them, and a part missing below the highest one read is warned of (:mod:`oodmon.replay.parts`).
+each file the run's metadata and ``part`` (0, 1, ...); replay reads each as a log of its own, the
+episodes' numbers go on across them, and a part missing below the highest one read is warned of
+(:mod:`oodmon.replay.parts`).
+
+Since 2026-11-29 every run's metadata holds ``run_id``, drawn at random when its log is opened
+and shared by a split run's parts: replay tells the parts of one run from another's by it, and
+reads a copy of a log (the same run and part in two files) once.
 
 Replay reads every version: a log without detector scores has one detector, the one its alarm
 read (``spread`` before version 3), whose scores are the ``score`` arrays; a log older than

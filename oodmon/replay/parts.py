@@ -2,11 +2,11 @@
 
 A run split into files of whole episodes (``oodmon run --mcap-split-episodes N``,
 ``--mcap-split-mb``) writes ``<stem>-00000.mcap``, ``<stem>-00001.mcap``, ... each a complete log
-with its part number (``part``) and, since 2026-11-29, the id its run gave all its parts
-(``split``). Each is read as a log of its own, so a part missing from the folder would only make
-the rows hold fewer episodes, in silence. :func:`missing_parts` names the parts below the highest
-one read that are not among the logs: ``read_logs`` warns of them, and ``oodmon check`` says its rows
-lack their episodes. A lost *last* part cannot be told from a run that ended before it.
+with its part number (``part``) and, since 2026-11-29, its run's id (``run_id``). Each is read as
+a log of its own, so a part missing from the folder would only make the rows hold fewer episodes,
+in silence. :func:`missing_parts` names the parts below the highest one read that are not among
+the logs: ``read_logs`` warns of them, and ``oodmon check`` says its rows lack their episodes. A
+lost *last* part cannot be told from a run that ended before it.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ class MissingParts:
 def missing_parts(logs: Iterable[RunLog]) -> list[MissingParts]:
     """The split runs among ``logs`` that lack a part below their highest one read.
 
-    A run's parts are the logs with its ``split`` id; in logs written before it (2026-11-29), those
+    A run's parts are the logs with its ``run_id``; in logs written before it (2026-11-29), those
     of one folder whose names are ``<stem>-NNNNN`` of one stem and whose metadata but ``part`` are
     the same. A run whose part numbers repeat (two runs it cannot tell apart) is passed over.
 
@@ -64,7 +64,7 @@ def missing_parts(logs: Iterable[RunLog]) -> list[MissingParts]:
         >>> from oodmon.replay.reader import RunLog
         >>> def part(n):
         ...     return RunLog(Path(f"logs/run-{n:05d}.mcap"), "cartpole", "ensemble", 3.0,
-        ...                   {"part": str(n), "split": "ab12"}, [], True)
+        ...                   {"part": str(n), "run_id": "ab12"}, [], True)
         >>> [gap.missing for gap in missing_parts([part(0), part(2), part(3), part(7)])]
         [(range(1, 2), range(4, 7))]
         >>> missing_parts([part(0), part(1)])  # a lost last part cannot be told
@@ -76,8 +76,8 @@ def missing_parts(logs: Iterable[RunLog]) -> list[MissingParts]:
         if not (number.isascii() and number.isdigit()):
             continue
         named = _PART_NAME.fullmatch(log.path.stem)
-        if "split" in log.metadata:
-            key: tuple = ("split", log.metadata["split"])
+        if "run_id" in log.metadata:
+            key: tuple = ("run_id", log.metadata["run_id"])
         else:
             same = tuple(sorted((k, v) for k, v in log.metadata.items() if k != "part"))
             key = ("named", log.path.parent.resolve(), named["stem"] if named else log.path.stem, log.path.suffix, same)

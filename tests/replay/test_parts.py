@@ -11,7 +11,7 @@ import pytest
 from oodmon.agents import load
 from oodmon.envs import parse_variant
 from oodmon.monitor import McapSink, Monitor
-from oodmon.replay import MissingPartWarning, RunLog, compute_metrics, missing_parts, read_logs
+from oodmon.replay import MissingPartWarning, RunLog, SkippedLogWarning, compute_metrics, missing_parts, read_logs
 from tests.helpers import run_cli
 
 
@@ -44,7 +44,7 @@ def _read(*paths) -> tuple[list[RunLog], list[str]]:
 
 def test_every_part_carries_its_runs_id_and_a_whole_run_reads_without_a_warning(split_run):
     logs, warned = _read(split_run)
-    ids = {log.metadata["split"] for log in logs}
+    ids = {log.metadata["run_id"] for log in logs}
     assert len(logs) == 5 and len(ids) == 1 and len(ids.pop()) == 32
     assert warned == [] and missing_parts(logs) == []
 
@@ -115,3 +115,35 @@ def test_replay_warns_and_check_says_its_rows_lack_the_missing_parts_episodes(sp
     replayed = run_cli("replay", "--episodes", "--csv", str(folder))
     assert replayed.returncode == 0 and replayed.stderr.count("part 1 (") == 1
     assert compute_metrics(_read(folder)[0])[0].episodes == 4
+
+
+def test_a_copy_of_a_log_under_the_folder_replayed_is_read_once(split_run, tmp_path):
+    """A backup beside the logs (both under the folder replayed) held every episode twice; now the
+    copy is skipped with a warning, and a copy taken while the log was written (torn, fewer
+    episodes) gives way to the finished log, in whichever order they are found."""
+    logs_dir = _copy(split_run, tmp_path / "deployed", [0, 1, 2, 3, 4])
+    shutil.copytree(logs_dir, tmp_path / "deployed" / "backup")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        logs = read_logs([tmp_path / "deployed"])
+    skipped = sorted(str(w.message) for w in caught if w.category is SkippedLogWarning)
+    assert len(logs) == 5 and {log.path.parent.name for log in logs} == {"backup"}  # sorted: backup/ comes first
+    assert len(skipped) == 5 and skipped[0].startswith(f"skipped {logs_dir}/run-00000.mcap: a copy of "
+                                                       f"{tmp_path}/deployed/backup/run-00000.mcap (the same run, ")
+    assert compute_metrics(logs) == compute_metrics(read_logs([split_run]))
+    whole = tmp_path / "one.mcap"
+    env = parse_variant("cartpole").make(max_episode_steps=20)
+    with Monitor(load("cartpole", "ensemble"), threshold=3.0, sinks=[McapSink(whole)]) as m:
+        for seed in range(3):
+            m.run_episode(env, seed=seed)
+    early = tmp_path / "a-early-copy.mcap"  # found first
+    early.write_bytes(whole.read_bytes()[: whole.stat().st_size * 2 // 3])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        (log,) = read_logs([early, whole])
+    assert log.path == whole and len(log.episodes) == 3
+    assert any(f"skipped {early}: a copy of {whole}" in str(w.message) and "which holds more episodes" in str(w.message)
+               for w in caught)
+    with Monitor(load("cartpole", "ensemble"), threshold=3.0, sinks=[McapSink(tmp_path / "two.mcap")]) as m:
+        m.run_episode(env, seed=0)  # the same command and episode again: another run, read beside it
+    assert len(read_logs([whole, tmp_path / "two.mcap"])) == 2

@@ -84,7 +84,7 @@ class McapSink:
     the next file after every N episodes, ``split_mb=M`` after the episode that takes the file to M
     megabytes (either, or both: whichever comes first). The files are then ``<stem>-00000.mcap``,
     ``<stem>-00001.mcap``, ... beside ``path`` (:attr:`paths`: those written so far), each a
-    complete log with the run's metadata, its part number (``part``) and the run's id (``split``),
+    complete log with the run's metadata (its ``run_id`` among them) and its part number (``part``),
     which ``oodmon replay`` reads together from their folder (and warns of a part missing among
     them: :mod:`oodmon.replay.parts`). A crash then leaves the finished parts whole and indexed, and
     only the last one to recover; the writer's index, which grows with a file, starts anew in each.
@@ -156,8 +156,8 @@ class McapSink:
             path.unlink()
         self._run = run
         self.paths = []
-        # the id every part of this run carries (``split``), so that replay knows them as one run's
-        self._split_id = uuid.uuid4().hex if self.splits else None
+        # the run's id in its log (each part's): replay tells one run's parts, and copies, by it
+        self._run_id = uuid.uuid4().hex
         self._open_part(0)
 
     def _open_part(self, part: int) -> None:
@@ -187,8 +187,8 @@ class McapSink:
         self._frame_channel = writer.register_channel(logformat.FRAME, "protobuf", register_schema(writer, RawImage))
         self._log, self._image = Log, RawImage
         writer.add_metadata(logformat.RUN_METADATA, self._run.to_strings()
-                            | {"format_version": str(logformat.FORMAT_VERSION)}
-                            | ({"part": str(part), "split": self._split_id} if self.splits else {}))
+                            | {"format_version": str(logformat.FORMAT_VERSION), "run_id": self._run_id}
+                            | ({"part": str(part)} if self.splits else {}))
         # The header and the run's metadata reach the disk now: a run killed before its first
         # episode ends leaves an MCAP file that says what ran (and holds no episode), not 0 bytes.
         writer.flush()
