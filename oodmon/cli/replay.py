@@ -124,7 +124,7 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 
 
 def _read_logs(paths: Sequence[str]):
-    from oodmon.replay import pooled_fits, pooled_weights, read_logs
+    from oodmon.replay import pooled_fits, pooled_thresholds, pooled_weights, read_logs
 
     logs = read_logs(paths)
     interrupted = sum(len(log.interrupted) for log in logs)
@@ -139,6 +139,10 @@ def _read_logs(paths: Sequence[str]):
         print(f"oodmon: note: the {task}/{method} {name} rows pool the logs of {len(by_fit)} fits of the {name} "
               f"detector ({_logs_by(by_fit)}): two fits' scores are on two scales; replay each fit's logs apart",
               file=sys.stderr)
+    for (task, method), by_threshold in pooled_thresholds(logs).items():
+        print(f"oodmon: note: the {task}/{method} logs raised their alarms by {len(by_threshold)} thresholds "
+              f"({_logs_by(by_threshold, 60)}): each detector's row counts the alarms of its own runs, but "
+              "`--monitor` counts a variant's alarms together; replay each threshold's logs apart", file=sys.stderr)
     unthresholded = [str(log.path) for log in logs if not log.has_threshold]
     if unthresholded:
         print(f"oodmon: note: {len(unthresholded)} log(s) ran without a threshold (`oodmon run --threshold`), so "
@@ -147,9 +151,11 @@ def _read_logs(paths: Sequence[str]):
     return logs
 
 
-def _logs_by(groups: dict[str, list]) -> str:
-    """Logs grouped by what they were made with, in a few words: each group's first log and how many more."""
-    shown = [f"{made_with[:15]}...: {paths[0]}" + (f" and {len(paths) - 1} more" if len(paths) > 1 else "")
+def _logs_by(groups: dict[str, list], width: int = 15) -> str:
+    """Logs grouped by what they were made with, in a few words: each group's first log and how many
+    more; what they were made with cut to ``width`` characters."""
+    shown = [(made_with if len(made_with) <= width else f"{made_with[:width]}...") + f": {paths[0]}"
+             + (f" and {len(paths) - 1} more" if len(paths) > 1 else "")
              for made_with, paths in list(groups.items())[:3]]
     return "; ".join(shown) + ("; ..." if len(groups) > 3 else "")
 

@@ -27,7 +27,7 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
            "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
-           "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "pooled_fits", "pooled_weights",
+           "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "pooled_fits", "pooled_thresholds", "pooled_weights",
            "rankable", "shifted_alarms"]
 
 
@@ -139,6 +139,30 @@ def pooled_fits(logs: Iterable[RunLog]) -> dict[tuple[str, str, str], dict[str, 
     mixed = pooled_weights(logs)
     return _pooled((log, (log.task, log.method, name), log.metadata.get(f"fitted.{name}"))
                    for log in logs if (log.task, log.method) not in mixed for name in log.detectors)
+
+
+def pooled_thresholds(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, list[Path]]]:
+    """The (task, method) groups whose runs raised their alarms by more than one threshold (the
+    detector the alarm read, its value and its rule; runs without one are not counted): their logs
+    by threshold, e.g. ``combined > 5.74836 (score > threshold)``. ``replay --monitor`` counts a
+    variant's alarms together whatever threshold raised them, so such a row mixes two monitors
+    (:func:`compute_metrics` gives each detector's row the alarms of the runs whose alarm read it).
+
+    Example:
+        >>> from oodmon.replay.reader import RunLog
+        >>> def run(name, detector, threshold):
+        ...     metadata = {"detector": detector, "rule": "score > threshold"}
+        ...     return RunLog(Path(name), "cartpole", "ensemble", threshold, metadata, [], True)
+        >>> runs = [run("a.mcap", "spread", 4.67), run("b.mcap", "combined", 5.75), run("c.mcap", "spread", 4.67)]
+        >>> for threshold, paths in pooled_thresholds(runs)[("cartpole", "ensemble")].items():
+        ...     print(threshold, [p.name for p in paths])
+        spread > 4.67 (score > threshold) ['a.mcap', 'c.mcap']
+        combined > 5.75 (score > threshold) ['b.mcap']
+        >>> pooled_thresholds(runs[:1] + runs[2:])  # one threshold: nothing pooled
+        {}
+    """
+    return _pooled((log, (log.task, log.method), f"{log.detector} > {log.threshold:.6g} ({log.metadata.get('rule', '')})")
+                   for log in logs if log.has_threshold)
 
 
 def _pooled(entries: Iterable[tuple[RunLog, tuple, str | None]]) -> dict[tuple, dict[str, list[Path]]]:
@@ -257,9 +281,10 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
 
     ``detector``: whose scores the per-step metrics (AUROC, AUPR, FPR@95TPR) rank (default: the
     one each run's alarm read). The alarm metrics (false alarms, early alarms, detections, delays)
-    are the run's alarms: they are given on the rows of the detector the alarm read, and ``None``
-    on the rows of the others, which raised no alarm, and on every row of a (task, method, variant)
-    with a run that had no threshold (:attr:`RunLog.has_threshold`): it raised none.
+    are the runs' alarms: each detector's row counts those of the runs whose alarm read it, over
+    their episodes (``None`` where no run's alarm read it), and every row of a (task, method,
+    variant) with a run that had no threshold (:attr:`RunLog.has_threshold`) gives ``None``: it
+    raised none.
 
     Raises:
         LogFormatError: a log without scores of ``detector``.
@@ -269,9 +294,8 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     grouped = _episodes_by_variant(logs)
     groups = {key: [e for _, e in pairs] for key, pairs in grouped.items()}
     scores_of = {id(e): e.scores_of(detector) for pairs in grouped.values() for _, e in pairs}
-    # The last log of a group names the detector, as before: the runs of one group share it.
+    # Without ``detector``, the last log of a group names the one ranked (the runs of one group share it).
     names = {key: detector or pairs[-1][0].detector for key, pairs in grouped.items()}
-    alarmed_by = {key: pairs[-1][0].detector for key, pairs in grouped.items()}
     thresholded = {key: _thresholded(pairs) for key, pairs in grouped.items()}
     id_scores: dict[tuple[str, str], np.ndarray] = {}
     for (task, method, variant), episodes in groups.items():
@@ -280,12 +304,14 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     results = []
     for (task, method, variant), episodes in sorted(groups.items()):
         name = names[(task, method, variant)]
-        # the alarm read this detector's scores, against a threshold (a run without one raised none)
-        alarms = name == alarmed_by[(task, method, variant)] and thresholded[(task, method, variant)]
+        # the episodes of the runs whose alarm read this detector's scores against a threshold
+        # (a run without one raised none: the group's alarms are then not told)
+        alarmed = [e for log, e in grouped[(task, method, variant)] if log.detector == name]
+        alarms = bool(alarmed) and thresholded[(task, method, variant)]
         is_id = is_id_variant(variant)
         steps = sum(e.length for e in episodes)
         if is_id:
-            far = float(np.mean([len(alarm_events(e.alarm)) > 0 for e in episodes])) if alarms else None
+            far = float(np.mean([len(alarm_events(e.alarm)) > 0 for e in alarmed])) if alarms else None
             results.append(VariantMetrics(task, method, variant, len(episodes), steps, steps, 0,
                                           None, None, None, far, None, None, None, None, name))
             continue
@@ -302,9 +328,9 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
             fpr95 = float(fprs[np.searchsorted(tprs, 0.95, side="left")])
         early_rate = detection_rate = delay_mean = delay_median = None
         if alarms:
-            early, firsts = zip(*(_onset_alarms(e) for e in episodes))
-            delays = [first - e.onset for first, e in zip(firsts, episodes) if first is not None]
-            early_rate, detection_rate = float(np.mean([e is not None for e in early])), len(delays) / len(episodes)
+            early, firsts = zip(*(_onset_alarms(e) for e in alarmed))
+            delays = [first - e.onset for first, e in zip(firsts, alarmed) if first is not None]
+            early_rate, detection_rate = float(np.mean([e is not None for e in early])), len(delays) / len(alarmed)
             if delays:
                 delay_mean, delay_median = float(np.mean(delays)), float(np.median(delays))
         results.append(VariantMetrics(

@@ -332,3 +332,29 @@ def test_pong_tells_no_failure_so_its_failed_column_is_blank_not_zero():
     for failure in (None, "terminated"):
         (row,) = compute_monitor_metrics(games, failure)
         assert (row.alarmed, row.failed, row.before_failure, row.leads) == (2, None, None, ())
+
+
+def test_each_detectors_row_counts_the_alarms_of_the_runs_whose_alarm_read_it():
+    """Two runs of one variant, one alarmed by `spread`, one by `combined`: each row's alarm figures
+    are its own run's (before, both runs' alarms went to the row of the last log's detector, and
+    the other row had none); pooled_thresholds names the two thresholds for replay's note."""
+    from oodmon.replay import pooled_thresholds
+
+    def run(name, detector, threshold, first_alarm):
+        alarm = np.zeros(10, bool)
+        alarm[first_alarm] = True
+        scores = {"spread": np.linspace(0, 1, 10), "combined": np.linspace(1, 2, 10)}
+        episode = EpisodeLog(episode=0, env_id="oodmon/CartPole-v1", variant="cartpole:length=2.0", onset=4, seed=0,
+                             total_return=10.0, length=10, alarms=1, first_alarm_step=first_alarm,
+                             scores=scores[detector], shifted=np.arange(10) >= 4, alarm=alarm, detector_scores=scores)
+        metadata = {"detector": detector, "detectors": "spread,combined", "rule": "score > threshold"}
+        return RunLog(Path(name), "cartpole", "ensemble", threshold, metadata, [episode], True)
+
+    logs = [run("c.mcap", "combined", 1.5, first_alarm=5), run("s.mcap", "spread", 0.7, first_alarm=8)]
+    rows = {m.detector: m for name in ("spread", "combined") for m in compute_metrics(logs, name)}
+    assert (rows["spread"].detection_rate, rows["spread"].delay_mean) == (1.0, 4.0)  # s.mcap's alarm alone
+    assert (rows["combined"].detection_rate, rows["combined"].delay_mean) == (1.0, 1.0)  # c.mcap's
+    assert rows["spread"].episodes == rows["combined"].episodes == 2  # the ranking still reads both runs
+    assert {k: [p.name for p in v] for k, v in pooled_thresholds(logs)[("cartpole", "ensemble")].items()} == {
+        "combined > 1.5 (score > threshold)": ["c.mcap"], "spread > 0.7 (score > threshold)": ["s.mcap"]}
+    assert pooled_thresholds(logs[:1]) == {}

@@ -314,6 +314,24 @@ def test_replay_says_when_a_row_pools_the_logs_of_several_policies_weights(tmp_p
     assert pooled_weights([logs[0], read_log(tmp_path / "old.mcap")]) == {}
 
 
+def test_replay_says_when_a_variants_alarms_came_from_runs_of_two_thresholds(tmp_path):
+    """Runs of one agent under two thresholds (recalibrated between them): `--monitor` counts a
+    variant's alarms together, and replay says so, naming each threshold's logs; one threshold's
+    logs alone get no such note."""
+    agent = load("cartpole", "ensemble")
+    for name, threshold in (("strict.mcap", 4.6), ("loose.mcap", 5.2)):
+        with Monitor(agent, threshold=threshold, sinks=[McapSink(tmp_path / name)]) as monitor:
+            monitor.run_episode(parse_variant("cartpole:length=2.0").make(onset_step=10), seed=0,
+                                variant="cartpole:length=2.0")
+    for view in ([], ["--monitor"]):
+        done = _cli("replay", *view, str(tmp_path))
+        assert done.returncode == 0, done.stderr
+        assert ("oodmon: note: the cartpole/ensemble logs raised their alarms by 2 thresholds (spread > 5.2 (score > "
+                "threshold for 3 consecutive steps): ") in done.stderr and "loose.mcap" in done.stderr and "strict.mcap" in done.stderr
+    alone = _cli("replay", "--monitor", str(tmp_path / "loose.mcap"))
+    assert alone.returncode == 0 and "thresholds" not in alone.stderr
+
+
 def test_replay_says_when_a_row_pools_the_scores_of_two_fits_of_a_detector(tmp_path):
     """One policy's logs scored by two fits of its dynamics detector (refitted between runs): the
     log records each fit's fingerprint, and replay says that the dynamics rows pool two scales."""
