@@ -41,8 +41,8 @@ class MissingParts:
         return sum(len(numbers) for numbers in self.missing)
 
     def __str__(self) -> str:
-        """E.g. ``part 1 (logs/run-00001.mcap) of the split log of logs/run-00000.mcap and 1 more part
-        is not among the logs read: the 2 episode(s) it held are not counted``."""
+        """E.g. ``part 1 (logs/run-00001.mcap) of the split log of logs/run-00000.mcap and 1 more
+        part(s) is not among the logs read: the 2 episode(s) it held are not counted``."""
         one = self.count == 1
         numbers = ", ".join(str(r[0]) if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in self.missing)
         more = ", ..." if len(self.files) < self.count else ""
