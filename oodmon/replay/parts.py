@@ -1,4 +1,5 @@
-"""The parts of a split log that replay was not given: a file lost, or left behind in a copy.
+"""A run's files as replay finds them: a split log's parts that it was not given (a file lost, or
+left behind in a copy), and copies of a log that it was given twice.
 
 A run split into files of whole episodes (``oodmon run --mcap-split-episodes N``,
 ``--mcap-split-mb``) writes ``<stem>-00000.mcap``, ``<stem>-00001.mcap``, ... each a complete log
@@ -6,12 +7,15 @@ with its part number (``part``) and, since 2026-11-29, its run's id (``run_id``)
 a log of its own, so a part missing from the folder would only make the rows hold fewer episodes,
 in silence. :func:`missing_parts` names the parts below the highest one read that are not among
 the logs: ``read_logs`` warns of them, and ``oodmon check`` says its rows lack their episodes. A
-lost *last* part cannot be told from a run that ended before it.
+lost *last* part cannot be told from a run that ended before it. And a copy of a log under the
+folder replayed (the same ``run_id`` and part in two files) would count its episodes twice:
+:func:`without_copies` keeps one.
 """
 
 from __future__ import annotations
 
 import re
+import warnings
 from collections import defaultdict
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -21,7 +25,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from oodmon.replay.reader import RunLog
 
-__all__ = ["MissingParts", "missing_parts"]
+__all__ = ["MissingParts", "missing_parts", "without_copies"]
 
 _PART_NAME = re.compile(r"(?P<stem>.+)-(?P<part>\d{5,})")
 
@@ -118,3 +122,31 @@ def _gap(by_number: dict[int, RunLog], gaps: list[range]) -> MissingParts:
 def _episode_numbers(log: RunLog) -> list[int]:
     """The numbers of a log's episodes, ended or interrupted (a run numbers them on across its parts)."""
     return [episode.episode for episode in (*log.episodes, *log.interrupted)]
+
+
+def without_copies(logs: list[RunLog]) -> list[RunLog]:
+    """``logs`` with each run's log (or part) once: two files of one ``run_id`` and part are a copy
+    (a backup folder beside the logs, both under the folder replayed), whose episodes would count
+    twice. The one holding more complete episodes is kept, then a whole one (a finished log over a
+    copy taken while it was written), the others skipped with a
+    :class:`~oodmon.replay.reader.SkippedLogWarning` each."""
+    from oodmon.replay.reader import SkippedLogWarning  # the reader imports this module
+
+    by_run: dict[tuple[str, str], list[RunLog]] = {}
+    for log in logs:
+        if "run_id" in log.metadata:
+            by_run.setdefault((log.metadata["run_id"], log.metadata.get("part", "")), []).append(log)
+    skipped: set[int] = set()
+    for (run_id, part), copies in by_run.items():
+        if len(copies) == 1:
+            continue
+        kept = max(copies, key=lambda log: (len(log.episodes), log.complete))
+        for log in copies:
+            if log is not kept:
+                skipped.add(id(log))
+                why = (", which holds more episodes" if len(kept.episodes) > len(log.episodes)
+                       else ", which is whole" if kept.complete and not log.complete else "")
+                warnings.warn(f"skipped {log.path}: a copy of {kept.path} (the same run, {run_id[:8]}..."
+                              f"{f', part {part}' if part else ''}){why}; its episodes are read once",
+                              SkippedLogWarning, stacklevel=3)
+    return [log for log in logs if id(log) not in skipped]

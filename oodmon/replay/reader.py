@@ -27,7 +27,7 @@ from oodmon.errors import LogFormatError
 from oodmon.monitor import logformat
 from oodmon.monitor.logformat import decode_array
 from oodmon.monitor.records import EpisodeRecord
-from oodmon.replay.parts import missing_parts
+from oodmon.replay.parts import missing_parts, without_copies
 
 __all__ = ["EpisodeLog", "MissingPartWarning", "NewerFormatWarning", "RecoveryWarning", "RunLog", "SkippedLogWarning",
            "read_log", "read_logs"]
@@ -474,32 +474,8 @@ def read_logs(paths: Sequence[str | Path]) -> list[RunLog]:
             warnings.warn(f"skipped {file}: {error}", SkippedLogWarning, stacklevel=2)
     if not logs:
         raise LogFormatError(f"no oodmon log among {', '.join(str(p) for p in paths)}")
-    logs = _without_copies(logs)
+    logs = without_copies(logs)
     for gap in missing_parts(logs):
         warnings.warn(str(gap), MissingPartWarning, stacklevel=2)
     return logs
 
-
-def _without_copies(logs: list[RunLog]) -> list[RunLog]:
-    """``logs`` with each run's log (or part) once: two files of one ``run_id`` and part are a copy
-    (a backup folder beside the logs, both under the folder replayed), whose episodes would count
-    twice. The one holding more complete episodes is kept, then a whole one (a finished log over a
-    copy taken while it was written), the others skipped with a :class:`SkippedLogWarning`."""
-    by_run: dict[tuple[str, str], list[RunLog]] = {}
-    for log in logs:
-        if "run_id" in log.metadata:
-            by_run.setdefault((log.metadata["run_id"], log.metadata.get("part", "")), []).append(log)
-    skipped: set[int] = set()
-    for (run_id, part), copies in by_run.items():
-        if len(copies) == 1:
-            continue
-        kept = max(copies, key=lambda log: (len(log.episodes), log.complete))
-        for log in copies:
-            if log is not kept:
-                skipped.add(id(log))
-                why = (", which holds more episodes" if len(kept.episodes) > len(log.episodes)
-                       else ", which is whole" if kept.complete and not log.complete else "")
-                warnings.warn(f"skipped {log.path}: a copy of {kept.path} (the same run, {run_id[:8]}..."
-                              f"{f', part {part}' if part else ''}){why}; its episodes are read once",
-                              SkippedLogWarning, stacklevel=3)
-    return [log for log in logs if id(log) not in skipped]

@@ -35,11 +35,12 @@ def _copy(split_run: Path, tmp_path: Path, parts: list[int]) -> Path:
     return folder
 
 
-def _read(*paths) -> tuple[list[RunLog], list[str]]:
+def _read(*paths, category: type[Warning] = MissingPartWarning) -> tuple[list[RunLog], list[str]]:
+    """The logs read and the messages of the warnings of ``category`` their reading gave."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         logs = read_logs(list(paths))
-    return logs, [str(w.message) for w in caught if w.category is MissingPartWarning]
+    return logs, [str(w.message) for w in caught if w.category is category]
 
 
 def test_every_part_carries_its_runs_id_and_a_whole_run_reads_without_a_warning(split_run):
@@ -123,10 +124,8 @@ def test_a_copy_of_a_log_under_the_folder_replayed_is_read_once(split_run, tmp_p
     episodes) gives way to the finished log, in whichever order they are found."""
     logs_dir = _copy(split_run, tmp_path / "deployed", [0, 1, 2, 3, 4])
     shutil.copytree(logs_dir, tmp_path / "deployed" / "backup")
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        logs = read_logs([tmp_path / "deployed"])
-    skipped = sorted(str(w.message) for w in caught if w.category is SkippedLogWarning)
+    logs, skipped = _read(tmp_path / "deployed", category=SkippedLogWarning)
+    skipped.sort()
     assert len(logs) == 5 and {log.path.parent.name for log in logs} == {"backup"}  # sorted: backup/ comes first
     assert len(skipped) == 5 and skipped[0].startswith(f"skipped {logs_dir}/run-00000.mcap: a copy of "
                                                        f"{tmp_path}/deployed/backup/run-00000.mcap (the same run, ")
@@ -138,12 +137,10 @@ def test_a_copy_of_a_log_under_the_folder_replayed_is_read_once(split_run, tmp_p
             m.run_episode(env, seed=seed)
     early = tmp_path / "a-early-copy.mcap"  # found first
     early.write_bytes(whole.read_bytes()[: whole.stat().st_size * 2 // 3])
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        (log,) = read_logs([early, whole])
+    (log,), skipped = _read(early, whole, category=SkippedLogWarning)
     assert log.path == whole and len(log.episodes) == 3
-    assert any(f"skipped {early}: a copy of {whole}" in str(w.message) and "which holds more episodes" in str(w.message)
-               for w in caught)
+    assert len(skipped) == 1 and skipped[0].startswith(f"skipped {early}: a copy of {whole}")
+    assert skipped[0].endswith("which holds more episodes; its episodes are read once")
     with Monitor(load("cartpole", "ensemble"), threshold=3.0, sinks=[McapSink(tmp_path / "two.mcap")]) as m:
         m.run_episode(env, seed=0)  # the same command and episode again: another run, read beside it
     assert len(read_logs([whole, tmp_path / "two.mcap"])) == 2
