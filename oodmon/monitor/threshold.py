@@ -188,9 +188,9 @@ def _warn_if_early(episodes: list[np.ndarray], values: np.ndarray, value: float,
             f"transitions since the reset: from step {WARMUP_HINT} on, these episodes would set the threshold at "
             f"{would:.4g} instead of {value:.4g} (the ID steps' median score {median:.4g}). That figure does not keep "
             f"the promise (this warning comes when it is low): for a warm-up, calibrate on other ID episodes "
-            f"(`--warmup {WARMUP_HINT} --seed S`, S past these episodes' seeds; warmup={WARMUP_HINT}, seed=S in "
-            f"Python) and `oodmon validate` it; no alarm then in an episode's first {WARMUP_HINT} steps but for a NaN "
-            "reading"), stacklevel=3)
+            f"(`--warmup {WARMUP_HINT} --seed S`, S past these episodes' seeds; in Python calibrate_agent(..., "
+            f"warmup={WARMUP_HINT}, seed=S)) and `oodmon validate` it; no alarm then in an episode's first "
+            f"{WARMUP_HINT} steps but for a NaN reading"), stacklevel=3)
 
 
 def _warn_if_outlying(ordered: np.ndarray, rank: int, detector: str) -> None:
