@@ -280,7 +280,7 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     """Metrics per (task, method, variant) over all episodes of ``logs``, in a stable order.
 
     ``detector``: whose scores the per-step metrics (AUROC, AUPR, FPR@95TPR) rank (default: the
-    one each run's alarm read). The alarm metrics (false alarms, early alarms, detections, delays)
+    one the alarm of a (task, method, variant)'s last run read, in every run's scores of it). The alarm metrics (false alarms, early alarms, detections, delays)
     are the runs' alarms: each detector's row counts those of the runs whose alarm read it, over
     their episodes (``None`` where no run's alarm read it), and every row of a (task, method,
     variant) with a run that had no threshold (:attr:`RunLog.has_threshold`) gives ``None``: it
@@ -293,9 +293,12 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
 
     grouped = _episodes_by_variant(logs)
     groups = {key: [e for _, e in pairs] for key, pairs in grouped.items()}
-    scores_of = {id(e): e.scores_of(detector) for pairs in grouped.values() for _, e in pairs}
-    # Without ``detector``, the last log of a group names the one ranked (the runs of one group share it).
+    # Without ``detector``, the last log of a group names the one ranked, whose scores every run of
+    # the group gives (a run's alarm scores are those of the detector it read: runs whose alarms
+    # read two detectors would otherwise be ranked on two scales).
     names = {key: detector or pairs[-1][0].detector for key, pairs in grouped.items()}
+    scores_of = {id(e): e.scores_of(None if detector is None and log.detector == names[key] else names[key])
+                 for key, pairs in grouped.items() for log, e in pairs}
     thresholded = {key: _thresholded(pairs) for key, pairs in grouped.items()}
     id_scores: dict[tuple[str, str], np.ndarray] = {}
     for (task, method, variant), episodes in groups.items():

@@ -355,6 +355,10 @@ def test_each_detectors_row_counts_the_alarms_of_the_runs_whose_alarm_read_it():
     assert (rows["spread"].detection_rate, rows["spread"].delay_mean) == (1.0, 4.0)  # s.mcap's alarm alone
     assert (rows["combined"].detection_rate, rows["combined"].delay_mean) == (1.0, 1.0)  # c.mcap's
     assert rows["spread"].episodes == rows["combined"].episodes == 2  # the ranking still reads both runs
+    assert rows["spread"].auroc == 1.0  # each run's spread rises from its onset on
+    # unnamed, the last log's detector is ranked, in every run's scores of it (before, each run's
+    # alarm scores: c.mcap's combined ones, 1 to 2, beside s.mcap's spread, 0 to 1)
+    assert compute_metrics(logs) == [rows["spread"]]
     assert {k: [p.name for p in v] for k, v in pooled_thresholds(logs)[("cartpole", "ensemble")].items()} == {
         "combined > 1.5 (score > threshold)": ["c.mcap"], "spread > 0.7 (score > threshold)": ["s.mcap"]}
     assert pooled_thresholds(logs[:1]) == {}
