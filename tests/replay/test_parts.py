@@ -1,4 +1,5 @@
-"""A split log's part missing among the logs read is warned of, not counted in silence."""
+"""A run's files as replay finds them: a split log's part missing among the logs read is warned of,
+not counted in silence, and a copy of a log is read once."""
 
 from __future__ import annotations
 
@@ -99,8 +100,8 @@ def test_logs_before_the_id_are_parts_of_one_run_by_folder_name_and_metadata():
     assert [g.read for g in missing_parts([_old("a/run-00000.mcap", 0), other])] == [(other.path,)]
     same = [_old("a/run-00000.mcap", 0), _old("a/run-00000.mcap", 0), _old("a/run-00002.mcap", 2)]
     assert missing_parts(same) == []  # part 0 twice: two runs it cannot tell apart, passed over
-    assert missing_parts([_old("a/x.mcap", 0) for _ in range(1)] + [RunLog(Path("a/y.mcap"), "cartpole", "ensemble", 3.0,
-                                                                           {"part": "²"}, [], True)]) == []
+    not_a_number = RunLog(Path("a/y.mcap"), "cartpole", "ensemble", 3.0, {"part": "²"}, [], True)  # isdigit(), not int()
+    assert missing_parts([_old("a/x.mcap", 0), not_a_number]) == []
     huge = missing_parts([_old("a/run-00000.mcap", 0), _old("a/run-99999999999.mcap", 99999999999)])
     assert huge[0].count == 99999999998 and len(huge[0].files) == 5  # a damaged part number: named, not listed
 
