@@ -4,6 +4,15 @@ The baseline is JSON: ``{"tolerance": 0.02, "metrics": {"task/method/variant": {
 A metric *falls* when it moves the wrong way by more than the tolerance: AUROC, AUPR and the
 detection rate going down; the FPR at 95% TPR, the false-alarm rates and the mean delay going
 up (delays by more than the tolerance times their baseline, since they count steps).
+
+The alarm rates count episodes, and a run of an MC agent draws its decisions anew: the same
+command run twice alarmed early in 3 and in 5 of 20 CartPole DropConnect episodes (0.15, 0.25),
+and the check said the second had got worse. So a baseline written since 2026-11-29 keeps each
+row's ``alarm_episodes`` (the rates' denominator), and a rate whose baseline and new value are
+counts of their episodes falls only when it also moved more than chance allows: a one-sided
+Fisher exact test of the two counts, at :data:`CHANCE` divided among the rates so compared
+(Bonferroni), so that a check of unchanged code fails on them with probability at most
+:data:`CHANCE`. Older baselines, and rates edited by hand, keep the tolerance alone.
 """
 
 from __future__ import annotations
@@ -21,13 +30,18 @@ __all__ = ["HIGHER_IS_BETTER", "LOWER_IS_BETTER", "baseline_of", "check_toleranc
 
 HIGHER_IS_BETTER = ("auroc", "aupr", "detection_rate")
 LOWER_IS_BETTER = ("fpr_at_95_tpr", "false_alarm_rate", "early_alarm_rate", "delay_mean")
+#: The rates that count episodes (of ``alarm_episodes``), weighed by chance as well.
+EPISODE_RATES = ("false_alarm_rate", "early_alarm_rate", "detection_rate")
+#: The chance that a check of unchanged code finds an episode rate fallen (see the module docstring).
+CHANCE = 0.01
+COUNT = "alarm_episodes"
 
 
 def baseline_of(metrics: Sequence[VariantMetrics], tolerance: float) -> dict:
     """The baseline that ``metrics`` would write (``oodmon check --update``)."""
     return {
         "tolerance": tolerance,
-        "metrics": {m.key: {name: getattr(m, name) for name in HIGHER_IS_BETTER + LOWER_IS_BETTER
+        "metrics": {m.key: {name: getattr(m, name) for name in HIGHER_IS_BETTER + LOWER_IS_BETTER + (COUNT,)
                             if getattr(m, name) is not None} for m in metrics},
     }
 
@@ -50,6 +64,11 @@ def load_baseline(path: str | Path) -> dict:
         if not isinstance(row, dict):
             raise ConfigError(f"{path}: metrics[{key!r}]={row!r:.40} is not allowed; each row maps metric names to numbers")
         for name, value in row.items():
+            if name == COUNT:
+                if not (_is_number(value) and value == int(value) and value >= 1):
+                    raise ConfigError(f"{path}: metrics[{key!r}][{COUNT!r}]={value!r:.40} is not allowed; give the "
+                                      "whole number >= 1 of episodes the row's alarm rates count")
+                continue
             if name not in known:
                 raise ConfigError(f"{path}: metrics[{key!r}] has unknown metric {name!r}; known: {', '.join(known)}")
             if not _is_number(value):
@@ -71,34 +90,72 @@ def _is_number(value: object) -> bool:
 
 
 def find_falls(metrics: Sequence[VariantMetrics], baseline: dict, tolerance: float | None = None) -> list[str]:
-    """One line per metric that fell below its baseline by more than the tolerance, or went missing."""
+    """One line per metric that fell below its baseline by more than the tolerance (an episode rate
+    of counted episodes: and by more than chance, see the module docstring), or went missing."""
     tolerance = baseline.get("tolerance", 0.02) if tolerance is None else tolerance
-    current = {m.key: {name: getattr(m, name) for name in HIGHER_IS_BETTER + LOWER_IS_BETTER} for m in metrics}
-    return compare_metrics(current, baseline["metrics"], tolerance, what="the logs")
+    current = {m.key: {name: getattr(m, name) for name in HIGHER_IS_BETTER + LOWER_IS_BETTER + (COUNT,)}
+               for m in metrics}
+    return compare_metrics(current, baseline["metrics"], tolerance, what="the logs", chance=CHANCE)
+
+
+def _count(rate: float, episodes: object) -> int | None:
+    """``rate`` as a count of ``episodes``, or ``None`` when it is not one (no count kept, or a rate
+    edited by hand)."""
+    if not isinstance(episodes, int) or episodes < 1:
+        return None
+    count = round(rate * episodes)
+    return count if abs(count - rate * episodes) < 1e-6 else None
+
+
+def _beyond_chance(name: str, was: float, now: float, before: object, after: object) -> tuple[float, str] | None:
+    """The one-sided Fisher exact p-value of an episode rate's move the wrong way and its counts'
+    words, or ``None`` when either value is not a count of its episodes."""
+    from scipy.stats import fisher_exact  # heavy: imported when used
+
+    k0, k1 = _count(was, before), _count(now, after)
+    if k0 is None or k1 is None:
+        return None
+    table = [[k1, after - k1], [k0, before - k0]]  # the new episodes' row first
+    p = float(fisher_exact(table, alternative="less" if name in HIGHER_IS_BETTER else "greater")[1])
+    return p, f"{k0}/{before} to {k1}/{after} episodes"
 
 
 def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[str, dict[str, float]],
                     tolerance: float, *, what: str = "the new results", relative: Sequence[str] = ("delay_mean",),
-                    higher: Sequence[str] = HIGHER_IS_BETTER) -> list[str]:
+                    higher: Sequence[str] = HIGHER_IS_BETTER, chance: float | None = None) -> list[str]:
     """One line per metric of ``expected`` (rows of ``{name: value}`` by key) that ``current``
     lacks or that moved the wrong way by more than ``tolerance``: names in ``higher`` may not fall,
     every other name may not rise, those in ``relative`` (delays and leads, counted in steps) by
-    more than ``tolerance`` times their baseline value. Shared by ``oodmon check`` (logs) and
-    ``bench --baseline``."""
-    falls = []
+    more than ``tolerance`` times their baseline value. ``chance``: an episode rate whose both rows
+    count their episodes (``alarm_episodes``) falls only if its move is also beyond chance at this
+    level, shared among such rates (see the module docstring). Shared by ``oodmon check`` (logs)
+    and ``bench --baseline``."""
+    falls: list[str] = []
+    weighed: list[tuple[int, float, str]] = []  # (where its line goes, p-value, line) of the rates weighed by chance
+    compared = 0  # the rates so compared, moved or not: the Bonferroni divisor
     for key, row in sorted(expected.items()):
         if key not in current:
             falls.append(f"{key}: missing from {what} (the baseline has it)")
             continue
         for name, was in row.items():
+            if name == COUNT:
+                continue
             now = current[key].get(name)
             if now is None:
                 falls.append(f"{key}: {name} is missing (baseline {was:.4g})")
-            elif name in higher:
-                if now < (was * (1 - tolerance) if name in relative else was - tolerance):
-                    falls.append(f"{key}: {name} fell from {was:.4g} to {now:.4g} (tolerance {tolerance})")
-            else:
-                allowed = was * (1 + tolerance) if name in relative else was + tolerance
-                if now > allowed:
-                    falls.append(f"{key}: {name} rose from {was:.4g} to {now:.4g} (tolerance {tolerance})")
+                continue
+            worse = (now < (was * (1 - tolerance) if name in relative else was - tolerance) if name in higher
+                     else now > (was * (1 + tolerance) if name in relative else was + tolerance))
+            moved = f"{key}: {name} {'fell' if name in higher else 'rose'} from {was:.4g} to {now:.4g}"
+            odds = (_beyond_chance(name, was, now, row.get(COUNT), current[key].get(COUNT))
+                    if chance is not None and name in EPISODE_RATES else None)
+            if odds is not None:
+                compared += 1
+                if worse:
+                    weighed.append((len(falls), odds[0], f"{moved} ({odds[1]}, one-sided p = {odds[0]:.2g}; "
+                                                         f"tolerance {tolerance})"))
+            elif worse:
+                falls.append(f"{moved} (tolerance {tolerance})")
+    for offset, (at, p, line) in enumerate(item for item in weighed if item[1] < chance / max(compared, 1)):
+        falls.insert(at + offset, line)
     return falls

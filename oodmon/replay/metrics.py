@@ -51,6 +51,9 @@ class VariantMetrics:
     delay_mean: float | None
     delay_median: float | None
     detector: str = "spread"
+    #: the episodes the alarm rates count (those of the runs whose alarm read ``detector``): their
+    #: denominator, which ``oodmon check`` weighs a rate's change by; ``None`` without alarm rates
+    alarm_episodes: int | None = None
 
     @property
     def key(self) -> str:
@@ -316,7 +319,8 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
         if is_id:
             far = float(np.mean([len(alarm_events(e.alarm)) > 0 for e in alarmed])) if alarms else None
             results.append(VariantMetrics(task, method, variant, len(episodes), steps, steps, 0,
-                                          None, None, None, far, None, None, None, None, name))
+                                          None, None, None, far, None, None, None, None, name,
+                                          len(alarmed) if alarms else None))
             continue
         before = np.concatenate([scores_of[id(e)][~e.shifted] for e in episodes])
         ood = np.concatenate([scores_of[id(e)][e.shifted] for e in episodes])
@@ -338,7 +342,7 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
                 delay_mean, delay_median = float(np.mean(delays)), float(np.median(delays))
         results.append(VariantMetrics(
             task, method, variant, len(episodes), steps, len(negatives), len(ood), auroc, aupr, fpr95, None,
-            early_rate, detection_rate, delay_mean, delay_median, name,
+            early_rate, detection_rate, delay_mean, delay_median, name, len(alarmed) if alarms else None,
         ))
     return results
 

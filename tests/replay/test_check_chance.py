@@ -1,0 +1,70 @@
+"""oodmon check weighs an alarm rate's change by its episodes: unchanged code passes, a regression fails."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from oodmon.errors import ConfigError
+from oodmon.replay.check import CHANCE, compare_metrics, load_baseline
+
+# Rows as a check of logs has them: three variants' alarm rates over 20 episodes each
+RATES = {"cartpole/m/cartpole:length=2.0": {"early_alarm_rate": 0.15, "detection_rate": 0.9},
+         "cartpole/m/cartpole:gravity=78.4": {"early_alarm_rate": 0.05, "detection_rate": 0.6},
+         "cartpole/m/cartpole": {"false_alarm_rate": 0.1}}
+EPISODES = 20
+
+
+def _draw(rng: np.random.Generator) -> dict[str, dict[str, float]]:
+    """One run's rows: each rate a count of EPISODES episodes drawn at its true value."""
+    return {key: {name: rng.binomial(EPISODES, p) / EPISODES for name, p in row.items()} | {"alarm_episodes": EPISODES}
+            for key, row in RATES.items()}
+
+
+def test_a_check_of_unchanged_code_fails_at_most_as_often_as_chance_allows():
+    """2,000 pairs of runs of the same code (each rate re-drawn): with the episodes counted, a check
+    fails in at most CHANCE = 1% of them (the test allows 2%: at a true 1%, 40 or more of 2,000 has
+    probability below 1e-5); on the tolerance alone most fail (the bug: 0.15 -> 0.25 was a fall)."""
+    rng = np.random.default_rng(0)
+    counted = alone = 0
+    for _ in range(2000):
+        baseline, now = _draw(rng), _draw(rng)
+        counted += bool(compare_metrics(now, baseline, 0.02, chance=CHANCE))
+        alone += bool(compare_metrics(now, baseline, 0.02))
+    assert counted <= 40
+    assert alone >= 1000
+
+
+@pytest.mark.parametrize("name, was, now", [("detection_rate", 19, 8), ("early_alarm_rate", 1, 9),
+                                            ("false_alarm_rate", 0, 8)])
+def test_a_real_regression_still_fails_with_its_counts_and_p_value(name, was, now):
+    key = "cartpole/m/cartpole:length=2.0"
+    baseline = {key: {name: was / EPISODES, "alarm_episodes": EPISODES}}
+    falls = compare_metrics({key: {name: now / EPISODES, "alarm_episodes": EPISODES}}, baseline, 0.02, chance=CHANCE)
+    assert len(falls) == 1 and f"({was}/20 to {now}/20 episodes, one-sided p = " in falls[0]
+    # the same move within chance: one episode more or less is not a fall
+    nudged = compare_metrics({key: {name: (was + (1 if name != "detection_rate" else -1)) / EPISODES,
+                                    "alarm_episodes": EPISODES}}, baseline, 0.02, chance=CHANCE)
+    assert nudged == []
+
+
+def test_rates_that_are_not_counts_keep_the_tolerance_alone():
+    """A baseline without counts (written before 2026-11-29), or a rate edited by hand, is judged
+    as before."""
+    key = "cartpole/m/cartpole"
+    now = {key: {"false_alarm_rate": 0.25, "alarm_episodes": EPISODES}}
+    assert compare_metrics(now, {key: {"false_alarm_rate": 0.15}}, 0.02, chance=CHANCE) != []  # no count kept
+    hand = {key: {"false_alarm_rate": 0.123, "alarm_episodes": EPISODES}}  # 2.46 of 20 episodes
+    assert compare_metrics(now, hand, 0.02, chance=CHANCE) != []
+
+
+def test_a_baselines_episode_count_must_be_a_whole_number(tmp_path):
+    path = tmp_path / "baseline.json"
+    for bad in (0, 2.5, "20", None):
+        path.write_text(json.dumps({"metrics": {"a/b/c": {"detection_rate": 1.0, "alarm_episodes": bad}}}))
+        with pytest.raises(ConfigError, match="alarm_episodes.*is not allowed; give the whole number >= 1"):
+            load_baseline(path)
+    path.write_text(json.dumps({"metrics": {"a/b/c": {"detection_rate": 1.0, "alarm_episodes": 20}}}))
+    assert load_baseline(path)["metrics"]["a/b/c"]["alarm_episodes"] == 20
