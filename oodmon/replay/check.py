@@ -12,7 +12,9 @@ row's ``alarm_episodes`` (the rates' denominator), and a rate whose baseline and
 counts of their episodes falls only when it also moved more than chance allows: a one-sided
 Fisher exact test of the two counts, at :data:`CHANCE` divided among the rates so compared
 (Bonferroni), so that a check of unchanged code fails on them with probability at most
-:data:`CHANCE`. Older baselines, and rates edited by hand, keep the tolerance alone.
+:data:`CHANCE`. So too the mean delay, whose baseline row keeps the ``delays`` it is the mean of
+(one run's 1.05 steps and another's 1.15 were a fall): a one-sided Mann-Whitney U test of the two
+runs' delays. Older baselines, and rates or delays edited by hand, keep the tolerance alone.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
+
+import numpy as np
 
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
@@ -34,7 +38,7 @@ LOWER_IS_BETTER = ("fpr_at_95_tpr", "false_alarm_rate", "early_alarm_rate", "del
 EPISODE_RATES = ("false_alarm_rate", "early_alarm_rate", "detection_rate")
 #: The chance that a check of unchanged code finds an episode rate fallen (see the module docstring).
 CHANCE = 0.01
-COUNT = "alarm_episodes"
+COUNT, DELAYS = "alarm_episodes", "delays"
 
 
 def baseline_of(metrics: Sequence[VariantMetrics], tolerance: float) -> dict:
@@ -42,7 +46,8 @@ def baseline_of(metrics: Sequence[VariantMetrics], tolerance: float) -> dict:
     return {
         "tolerance": tolerance,
         "metrics": {m.key: {name: getattr(m, name) for name in HIGHER_IS_BETTER + LOWER_IS_BETTER + (COUNT,)
-                            if getattr(m, name) is not None} for m in metrics},
+                            if getattr(m, name) is not None} | ({DELAYS: list(m.delays)} if m.delays else {})
+                    for m in metrics},
     }
 
 
@@ -69,6 +74,12 @@ def load_baseline(path: str | Path) -> dict:
                     raise ConfigError(f"{path}: metrics[{key!r}][{COUNT!r}]={value!r:.40} is not allowed; give the "
                                       "whole number >= 1 of episodes the row's alarm rates count")
                 continue
+            if name == DELAYS:
+                if not (isinstance(value, list) and value
+                        and all(_is_number(d) and d == int(d) and d >= 0 for d in value)):
+                    raise ConfigError(f"{path}: metrics[{key!r}][{DELAYS!r}]={value!r:.40} is not allowed; give the "
+                                      "list of the detected episodes' delays in steps (whole numbers >= 0)")
+                continue
             if name not in known:
                 raise ConfigError(f"{path}: metrics[{key!r}] has unknown metric {name!r}; known: {', '.join(known)}")
             if not _is_number(value):
@@ -94,7 +105,7 @@ def find_falls(metrics: Sequence[VariantMetrics], baseline: dict, tolerance: flo
     of counted episodes: and by more than chance, see the module docstring), or went missing."""
     tolerance = baseline.get("tolerance", 0.02) if tolerance is None else tolerance
     current = {m.key: {name: getattr(m, name) for name in HIGHER_IS_BETTER + LOWER_IS_BETTER + (COUNT,)}
-               for m in metrics}
+               | {DELAYS: list(m.delays)} for m in metrics}
     return compare_metrics(current, baseline["metrics"], tolerance, what="the logs", chance=CHANCE)
 
 
@@ -120,6 +131,18 @@ def _beyond_chance(name: str, was: float, now: float, before: object, after: obj
     return p, f"{k0}/{before} to {k1}/{after} episodes"
 
 
+def _delays_beyond_chance(was: float, now: float, before: object, after: object) -> tuple[float, str] | None:
+    """The one-sided Mann-Whitney U p-value of the delays ``after`` being longer than ``before``
+    and their words, or ``None`` when either list is not the delays whose mean is given."""
+    from scipy.stats import mannwhitneyu  # heavy: imported when used
+
+    lists = [d for d in (before, after) if isinstance(d, list) and d]
+    if len(lists) < 2 or abs(float(np.mean(before)) - was) > 1e-9 or abs(float(np.mean(after)) - now) > 1e-9:
+        return None
+    p = float(mannwhitneyu(after, before, alternative="greater").pvalue)
+    return (1.0 if math.isnan(p) else p), f"{len(before)} to {len(after)} delays"
+
+
 def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[str, dict[str, float]],
                     tolerance: float, *, what: str = "the new results", relative: Sequence[str] = ("delay_mean",),
                     higher: Sequence[str] = HIGHER_IS_BETTER, chance: float | None = None) -> list[str]:
@@ -138,7 +161,7 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
             falls.append(f"{key}: missing from {what} (the baseline has it)")
             continue
         for name, was in row.items():
-            if name == COUNT:
+            if name in (COUNT, DELAYS):
                 continue
             now = current[key].get(name)
             if now is None:
@@ -147,8 +170,11 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
             worse = (now < (was * (1 - tolerance) if name in relative else was - tolerance) if name in higher
                      else now > (was * (1 + tolerance) if name in relative else was + tolerance))
             moved = f"{key}: {name} {'fell' if name in higher else 'rose'} from {was:.4g} to {now:.4g}"
-            odds = (_beyond_chance(name, was, now, row.get(COUNT), current[key].get(COUNT))
-                    if chance is not None and name in EPISODE_RATES else None)
+            odds = None
+            if chance is not None and name in EPISODE_RATES:
+                odds = _beyond_chance(name, was, now, row.get(COUNT), current[key].get(COUNT))
+            elif chance is not None and name == "delay_mean":
+                odds = _delays_beyond_chance(was, now, row.get(DELAYS), current[key].get(DELAYS))
             if odds is not None:
                 compared += 1
                 if worse:

@@ -54,6 +54,9 @@ class VariantMetrics:
     #: the episodes the alarm rates count (those of the runs whose alarm read ``detector``): their
     #: denominator, which ``oodmon check`` weighs a rate's change by; ``None`` without alarm rates
     alarm_episodes: int | None = None
+    #: the delays of the episodes the alarm detected, in steps (``delay_mean`` is their mean): what
+    #: ``oodmon check`` weighs a change of the mean delay by
+    delays: tuple[int, ...] = ()
 
     @property
     def key(self) -> str:
@@ -334,15 +337,17 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
             aupr = float(average_precision_score(labels, scores))
             fpr95 = float(fprs[np.searchsorted(tprs, 0.95, side="left")])
         early_rate = detection_rate = delay_mean = delay_median = None
+        delays: list[int] = []
         if alarms:
             early, firsts = zip(*(_onset_alarms(e) for e in alarmed))
-            delays = [first - e.onset for first, e in zip(firsts, alarmed) if first is not None]
+            delays = [int(first - e.onset) for first, e in zip(firsts, alarmed) if first is not None]
             early_rate, detection_rate = float(np.mean([e is not None for e in early])), len(delays) / len(alarmed)
             if delays:
                 delay_mean, delay_median = float(np.mean(delays)), float(np.median(delays))
         results.append(VariantMetrics(
             task, method, variant, len(episodes), steps, len(negatives), len(ood), auroc, aupr, fpr95, None,
             early_rate, detection_rate, delay_mean, delay_median, name, len(alarmed) if alarms else None,
+            tuple(delays),
         ))
     return results
 

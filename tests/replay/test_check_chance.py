@@ -68,3 +68,27 @@ def test_a_baselines_episode_count_must_be_a_whole_number(tmp_path):
             load_baseline(path)
     path.write_text(json.dumps({"metrics": {"a/b/c": {"detection_rate": 1.0, "alarm_episodes": 20}}}))
     assert load_baseline(path)["metrics"]["a/b/c"]["alarm_episodes"] == 20
+
+
+def test_a_mean_delay_is_weighed_by_its_delays():
+    """One run's delays [1]*19 + [2] (mean 1.05) and another's with two at 3 (1.15): the check of the
+    same code called it a fall; with the delays kept it is within chance, and delays ten times as
+    long still fail. 2,000 re-drawn pairs of 20 delays (1 to 3 steps, mostly 1): at most 2% fail
+    (the promise: 1%; 16 when written), against 898 on the tolerance alone."""
+    key = "cartpole/m/cartpole:gravity=78.4@combined"
+
+    def row(delays):
+        return {key: {"delay_mean": float(np.mean(delays)), "delays": list(delays)}}
+
+    before = [1] * 19 + [2]
+    assert compare_metrics(row([1] * 17 + [3, 3, 1]), row(before), 0.02, chance=CHANCE) == []
+    assert compare_metrics(row([1] * 17 + [3, 3, 1]), {key: {"delay_mean": 1.05}}, 0.02, chance=CHANCE) != []  # no delays kept
+    (fell,) = compare_metrics(row([10] * 5 + [9] * 15), row(before), 0.02, chance=CHANCE)
+    assert fell.startswith(f"{key}: delay_mean rose from 1.05 to 9.25 (20 to 20 delays, one-sided p = ")
+    rng = np.random.default_rng(1)
+    counted = alone = 0
+    for _ in range(2000):
+        a, b = (rng.choice([1, 2, 3], size=20, p=[0.85, 0.1, 0.05]).tolist() for _ in range(2))
+        counted += bool(compare_metrics(row(b), row(a), 0.02, chance=CHANCE))
+        alone += bool(compare_metrics(row(b), row(a), 0.02))
+    assert counted <= 40 and alone >= 800
