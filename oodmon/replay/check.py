@@ -10,11 +10,15 @@ command run twice alarmed early in 3 and in 5 of 20 CartPole DropConnect episode
 and the check said the second had got worse. So a baseline written since 2026-11-29 keeps each
 row's ``alarm_episodes`` (the rates' denominator), and a rate whose baseline and new value are
 counts of their episodes falls only when it also moved more than chance allows: a one-sided
-Fisher exact test of the two counts, at :data:`CHANCE` divided among the rates so compared
-(Bonferroni), so that a check of unchanged code fails on them with probability at most
-:data:`CHANCE`. So too the mean delay, whose baseline row keeps the ``delays`` it is the mean of
-(one run's 1.05 steps and another's 1.15 were a fall): a one-sided Mann-Whitney U test of the two
-runs' delays. Older baselines, and rates or delays edited by hand, keep the tolerance alone.
+Fisher exact test of the two counts, at :data:`CHANCE` divided among the figures so compared that
+could reach it (Tarone's Bonferroni: 10 of 10 episodes before and after cannot), so that a check
+of unchanged code fails on them with probability at most :data:`CHANCE`. So too the mean delay,
+whose baseline row keeps the ``delays`` it is the mean of (one run's 1.05 steps and another's 1.15
+were a fall): a one-sided Mann-Whitney U test of the two runs' delays. Older baselines, and
+figures edited by hand, keep the tolerance alone. The price: with many figures compared, a fall
+must be large to count (``bench --baseline`` keeps the tolerance alone: its 10 episodes per
+variant and 246 figures of the CartPole monitor bench would not count 10 of 10 alarmed before the
+failure falling to 2 of 10).
 """
 
 from __future__ import annotations
@@ -29,16 +33,19 @@ from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
 from oodmon.replay.metrics import VariantMetrics
 
-__all__ = ["HIGHER_IS_BETTER", "LOWER_IS_BETTER", "baseline_of", "check_tolerance", "compare_metrics", "find_falls",
+__all__ = ["CHANCE", "HIGHER_IS_BETTER", "LOWER_IS_BETTER", "baseline_of", "check_tolerance", "compare_metrics", "find_falls",
            "load_baseline"]
 
 HIGHER_IS_BETTER = ("auroc", "aupr", "detection_rate")
 LOWER_IS_BETTER = ("fpr_at_95_tpr", "false_alarm_rate", "early_alarm_rate", "delay_mean")
 #: The rates that count episodes (of ``alarm_episodes``), weighed by chance as well.
 EPISODE_RATES = ("false_alarm_rate", "early_alarm_rate", "detection_rate")
+#: The statistics weighed by the samples they are taken of: (the samples' name in a row, the statistic).
+SAMPLED = {"delay_mean": ("delays", np.mean)}
 #: The chance that a check of unchanged code finds an episode rate fallen (see the module docstring).
 CHANCE = 0.01
 COUNT, DELAYS = "alarm_episodes", "delays"
+_NOT_FIGURES = (COUNT, DELAYS)  # what a row keeps to weigh its figures by, not figures
 
 
 def baseline_of(metrics: Sequence[VariantMetrics], tolerance: float) -> dict:
@@ -118,29 +125,61 @@ def _count(rate: float, episodes: object) -> int | None:
     return count if abs(count - rate * episodes) < 1e-6 else None
 
 
-def _beyond_chance(name: str, was: float, now: float, before: object, after: object) -> tuple[float, str] | None:
-    """The one-sided Fisher exact p-value of an episode rate's move the wrong way and its counts'
-    words, or ``None`` when either value is not a count of its episodes."""
+def _beyond_chance(higher: bool, was: float, now: float, before: object, after: object) -> tuple[float, str] | None:
+    """The one-sided Fisher exact p-value of an episode rate's move the wrong way (down where
+    ``higher`` is better) and its counts' words, or ``None`` when either value is not a count of
+    its episodes."""
     from scipy.stats import fisher_exact  # heavy: imported when used
 
     k0, k1 = _count(was, before), _count(now, after)
     if k0 is None or k1 is None:
         return None
-    table = [[k1, after - k1], [k0, before - k0]]  # the new episodes' row first
-    p = float(fisher_exact(table, alternative="less" if name in HIGHER_IS_BETTER else "greater")[1])
-    return p, f"{k0}/{before} to {k1}/{after} episodes"
+    alternative = "less" if higher else "greater"
+    p = float(fisher_exact([[k1, after - k1], [k0, before - k0]], alternative=alternative)[1])  # the new row first
+    # the least p-value any table of these margins gives (Tarone): the new row's count at its extreme
+    total = k0 + k1
+    extreme = max(0, total - before) if higher else min(after, total)
+    least = float(fisher_exact([[extreme, after - extreme], [total - extreme, before - total + extreme]],
+                               alternative=alternative)[1])
+    return p, least, f"{k0}/{before} to {k1}/{after} episodes"
 
 
-def _delays_beyond_chance(was: float, now: float, before: object, after: object) -> tuple[float, str] | None:
-    """The one-sided Mann-Whitney U p-value of the delays ``after`` being longer than ``before``
-    and their words, or ``None`` when either list is not the delays whose mean is given."""
+def _samples_beyond_chance(name: str, higher: bool, was: float, now: float, before: object, after: object
+                           ) -> tuple[float, str] | None:
+    """The one-sided Mann-Whitney U p-value of the samples ``after`` (delays, leads) lying on the
+    wrong side of ``before`` (below where ``higher`` is better) and their words, or ``None`` when
+    either list is not the samples whose statistic ``name`` is given."""
     from scipy.stats import mannwhitneyu  # heavy: imported when used
 
+    what, statistic = SAMPLED[name]
     lists = [d for d in (before, after) if isinstance(d, list) and d]
-    if len(lists) < 2 or abs(float(np.mean(before)) - was) > 1e-9 or abs(float(np.mean(after)) - now) > 1e-9:
+    if (len(lists) < 2 or abs(float(statistic(before)) - was) > 1e-9
+            or abs(float(statistic(after)) - now) > 1e-9):
         return None
-    p = float(mannwhitneyu(after, before, alternative="greater").pvalue)
-    return (1.0 if math.isnan(p) else p), f"{len(before)} to {len(after)} delays"
+    alternative = "less" if higher else "greater"
+    p = float(mannwhitneyu(after, before, alternative=alternative).pvalue)
+    # the least p-value any split of the pooled samples gives (Tarone): the new ones the extreme ones
+    pooled = sorted(before + after)
+    extreme = pooled[:len(after)] if higher else pooled[len(before):]
+    rest = pooled[len(after):] if higher else pooled[:len(before)]
+    least = float(mannwhitneyu(extreme, rest, alternative=alternative).pvalue)
+    return (1.0 if math.isnan(p) else p), (1.0 if math.isnan(least) else least), f"{len(before)} to {len(after)} {what}"
+
+
+def _tarone_level(least: Sequence[float], chance: float) -> float:
+    """The level each of the tests whose least attainable p-values are ``least`` is held to, so that
+    together they reject a true null with probability at most ``chance`` (Tarone's Bonferroni: a
+    test that cannot reach the level, e.g. 10 of 10 episodes alarmed before and after, is not
+    counted; Tarone, Biometrics 1990).
+
+    Example:
+        >>> _tarone_level([1.0, 1.0, 1.0, 1e-4], 0.01)  # three tests that cannot reject: one counted
+        0.01
+    """
+    for k in range(1, len(least) + 1):
+        if sum(p <= chance / k for p in least) <= k:
+            return chance / k
+    return chance / max(len(least), 1)
 
 
 def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[str, dict[str, float]],
@@ -155,13 +194,13 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
     and ``bench --baseline``."""
     falls: list[str] = []
     weighed: list[tuple[int, float, str]] = []  # (where its line goes, p-value, line) of the rates weighed by chance
-    compared = 0  # the rates so compared, moved or not: the Bonferroni divisor
+    least: list[float] = []  # the least attainable p-value of each figure so compared, moved or not
     for key, row in sorted(expected.items()):
         if key not in current:
             falls.append(f"{key}: missing from {what} (the baseline has it)")
             continue
         for name, was in row.items():
-            if name in (COUNT, DELAYS):
+            if name in _NOT_FIGURES:
                 continue
             now = current[key].get(name)
             if now is None:
@@ -172,16 +211,18 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
             moved = f"{key}: {name} {'fell' if name in higher else 'rose'} from {was:.4g} to {now:.4g}"
             odds = None
             if chance is not None and name in EPISODE_RATES:
-                odds = _beyond_chance(name, was, now, row.get(COUNT), current[key].get(COUNT))
-            elif chance is not None and name == "delay_mean":
-                odds = _delays_beyond_chance(was, now, row.get(DELAYS), current[key].get(DELAYS))
+                odds = _beyond_chance(name in higher, was, now, row.get(COUNT), current[key].get(COUNT))
+            elif chance is not None and name in SAMPLED:
+                samples = SAMPLED[name][0]
+                odds = _samples_beyond_chance(name, name in higher, was, now, row.get(samples), current[key].get(samples))
             if odds is not None:
-                compared += 1
+                least.append(odds[1])
                 if worse:
-                    weighed.append((len(falls), odds[0], f"{moved} ({odds[1]}, one-sided p = {odds[0]:.2g}; "
+                    weighed.append((len(falls), odds[0], f"{moved} ({odds[2]}, one-sided p = {odds[0]:.2g}; "
                                                          f"tolerance {tolerance})"))
             elif worse:
                 falls.append(f"{moved} (tolerance {tolerance})")
-    for offset, (at, p, line) in enumerate(item for item in weighed if item[1] < chance / max(compared, 1)):
+    level = _tarone_level(least, chance) if weighed else 0.0
+    for offset, (at, p, line) in enumerate(item for item in weighed if item[1] <= level):
         falls.insert(at + offset, line)
     return falls

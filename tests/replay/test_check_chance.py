@@ -92,3 +92,15 @@ def test_a_mean_delay_is_weighed_by_its_delays():
         counted += bool(compare_metrics(row(b), row(a), 0.02, chance=CHANCE))
         alone += bool(compare_metrics(row(b), row(a), 0.02))
     assert counted <= 40 and alone >= 800
+
+
+
+def test_figures_that_could_not_have_moved_do_not_dilute_the_level():
+    """60 variants detected in 10 of 10 episodes before and after (no table of those margins could
+    be a fall) and one falling to 2 of 10 (p = 3.6e-4): counted among 61 the fall would need p below
+    1.6e-4; Tarone's count leaves it alone among them, and it fails."""
+    steady = {f"c/m/v{i}": {"detection_rate": 1.0, "alarm_episodes": 10} for i in range(60)}
+    baseline = steady | {"c/m/fallen": {"detection_rate": 1.0, "alarm_episodes": 10}}
+    now = steady | {"c/m/fallen": {"detection_rate": 0.2, "alarm_episodes": 10}}
+    (fell,) = compare_metrics(now, baseline, 0.02, chance=CHANCE)
+    assert fell.startswith("c/m/fallen: detection_rate fell from 1 to 0.2 (10/10 to 2/10 episodes, one-sided p = 0.00036")
