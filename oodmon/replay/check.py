@@ -125,10 +125,11 @@ def _count(rate: float, episodes: object) -> int | None:
     return count if abs(count - rate * episodes) < 1e-6 else None
 
 
-def _beyond_chance(higher: bool, was: float, now: float, before: object, after: object) -> tuple[float, str] | None:
+def _beyond_chance(higher: bool, was: float, now: float, before: object, after: object
+                   ) -> tuple[float, float, str] | None:
     """The one-sided Fisher exact p-value of an episode rate's move the wrong way (down where
-    ``higher`` is better) and its counts' words, or ``None`` when either value is not a count of
-    its episodes."""
+    ``higher`` is better), the least one its margins allow, and its counts' words; ``None`` when
+    either value is not a count of its episodes."""
     from scipy.stats import fisher_exact  # heavy: imported when used
 
     k0, k1 = _count(was, before), _count(now, after)
@@ -145,10 +146,10 @@ def _beyond_chance(higher: bool, was: float, now: float, before: object, after: 
 
 
 def _samples_beyond_chance(name: str, higher: bool, was: float, now: float, before: object, after: object
-                           ) -> tuple[float, str] | None:
-    """The one-sided Mann-Whitney U p-value of the samples ``after`` (delays, leads) lying on the
-    wrong side of ``before`` (below where ``higher`` is better) and their words, or ``None`` when
-    either list is not the samples whose statistic ``name`` is given."""
+                           ) -> tuple[float, float, str] | None:
+    """The one-sided Mann-Whitney U p-value of the samples ``after`` (delays) lying on the wrong side
+    of ``before`` (below where ``higher`` is better), the least one their pooled values allow, and
+    their words; ``None`` when either list is not the samples whose statistic ``name`` is given."""
     from scipy.stats import mannwhitneyu  # heavy: imported when used
 
     what, statistic = SAMPLED[name]
@@ -189,9 +190,10 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
     lacks or that moved the wrong way by more than ``tolerance``: names in ``higher`` may not fall,
     every other name may not rise, those in ``relative`` (delays and leads, counted in steps) by
     more than ``tolerance`` times their baseline value. ``chance``: an episode rate whose both rows
-    count their episodes (``alarm_episodes``) falls only if its move is also beyond chance at this
-    level, shared among such rates (see the module docstring). Shared by ``oodmon check`` (logs)
-    and ``bench --baseline``."""
+    count their episodes (``alarm_episodes``), and a mean delay whose both rows keep their
+    ``delays``, fall only if their move is also beyond chance at this level, shared among the
+    figures so compared that could reach it (see the module docstring; ``oodmon check``). Shared by
+    ``oodmon check`` (logs) and ``bench --baseline`` (no ``chance``)."""
     falls: list[str] = []
     weighed: list[tuple[int, float, str]] = []  # (where its line goes, p-value, line) of the rates weighed by chance
     least: list[float] = []  # the least attainable p-value of each figure so compared, moved or not
