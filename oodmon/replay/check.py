@@ -40,8 +40,6 @@ HIGHER_IS_BETTER = ("auroc", "aupr", "detection_rate")
 LOWER_IS_BETTER = ("fpr_at_95_tpr", "false_alarm_rate", "early_alarm_rate", "delay_mean")
 #: The rates that count episodes (of ``alarm_episodes``), weighed by chance as well.
 EPISODE_RATES = ("false_alarm_rate", "early_alarm_rate", "detection_rate")
-#: The statistics weighed by the samples they are taken of: (the samples' name in a row, the statistic).
-SAMPLED = {"delay_mean": ("delays", np.mean)}
 #: The chance that a check of unchanged code finds an episode rate fallen (see the module docstring).
 CHANCE = 0.01
 COUNT, DELAYS = "alarm_episodes", "delays"
@@ -145,26 +143,20 @@ def _beyond_chance(higher: bool, was: float, now: float, before: object, after: 
     return p, least, f"{k0}/{before} to {k1}/{after} episodes"
 
 
-def _samples_beyond_chance(name: str, higher: bool, was: float, now: float, before: object, after: object
-                           ) -> tuple[float, float, str] | None:
-    """The one-sided Mann-Whitney U p-value of the samples ``after`` (delays) lying on the wrong side
-    of ``before`` (below where ``higher`` is better), the least one their pooled values allow, and
-    their words; ``None`` when either list is not the samples whose statistic ``name`` is given."""
+def _delays_beyond_chance(was: float, now: float, before: object, after: object) -> tuple[float, float, str] | None:
+    """The one-sided Mann-Whitney U p-value of the delays ``after`` being longer than ``before``,
+    the least one their pooled values allow, and their words; ``None`` when either list is not the
+    delays whose mean is given."""
     from scipy.stats import mannwhitneyu  # heavy: imported when used
 
-    what, statistic = SAMPLED[name]
-    lists = [d for d in (before, after) if isinstance(d, list) and d]
-    if (len(lists) < 2 or abs(float(statistic(before)) - was) > 1e-9
-            or abs(float(statistic(after)) - now) > 1e-9):
+    if not (isinstance(before, list) and before and isinstance(after, list) and after
+            and abs(float(np.mean(before)) - was) <= 1e-9 and abs(float(np.mean(after)) - now) <= 1e-9):
         return None
-    alternative = "less" if higher else "greater"
-    p = float(mannwhitneyu(after, before, alternative=alternative).pvalue)
-    # the least p-value any split of the pooled samples gives (Tarone): the new ones the extreme ones
+    p = float(mannwhitneyu(after, before, alternative="greater").pvalue)
+    # the least p-value any split of the pooled delays gives (Tarone): the new ones the longest
     pooled = sorted(before + after)
-    extreme = pooled[:len(after)] if higher else pooled[len(before):]
-    rest = pooled[len(after):] if higher else pooled[:len(before)]
-    least = float(mannwhitneyu(extreme, rest, alternative=alternative).pvalue)
-    return (1.0 if math.isnan(p) else p), (1.0 if math.isnan(least) else least), f"{len(before)} to {len(after)} {what}"
+    least = float(mannwhitneyu(pooled[len(before):], pooled[:len(before)], alternative="greater").pvalue)
+    return (1.0 if math.isnan(p) else p), (1.0 if math.isnan(least) else least), f"{len(before)} to {len(after)} delays"
 
 
 def _tarone_level(least: Sequence[float], chance: float) -> float:
@@ -214,9 +206,8 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
             odds = None
             if chance is not None and name in EPISODE_RATES:
                 odds = _beyond_chance(name in higher, was, now, row.get(COUNT), current[key].get(COUNT))
-            elif chance is not None and name in SAMPLED:
-                samples = SAMPLED[name][0]
-                odds = _samples_beyond_chance(name, name in higher, was, now, row.get(samples), current[key].get(samples))
+            elif chance is not None and name == "delay_mean":
+                odds = _delays_beyond_chance(was, now, row.get(DELAYS), current[key].get(DELAYS))
             if odds is not None:
                 least.append(odds[1])
                 if worse:

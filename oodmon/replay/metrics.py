@@ -286,8 +286,9 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     """Metrics per (task, method, variant) over all episodes of ``logs``, in a stable order.
 
     ``detector``: whose scores the per-step metrics (AUROC, AUPR, FPR@95TPR) rank (default: the
-    one the alarm of a (task, method, variant)'s last run read, in every run's scores of it). The alarm metrics (false alarms, early alarms, detections, delays)
-    are the runs' alarms: each detector's row counts those of the runs whose alarm read it, over
+    one the alarm of a (task, method, variant)'s last run read, in every run's scores of it). The
+    alarm metrics (false alarms, early alarms, detections, delays) are the runs' alarms: each
+    detector's row counts those of the runs whose alarm read it, over
     their episodes (``None`` where no run's alarm read it), and every row of a (task, method,
     variant) with a run that had no threshold (:attr:`RunLog.has_threshold`) gives ``None``: it
     raised none.
