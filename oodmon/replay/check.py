@@ -32,6 +32,7 @@ import numpy as np
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
 from oodmon.replay.metrics import VariantMetrics
+from oodmon.validation import is_whole
 
 __all__ = ["CHANCE", "HIGHER_IS_BETTER", "LOWER_IS_BETTER", "baseline_of", "check_tolerance", "compare_metrics", "find_falls",
            "load_baseline"]
@@ -75,13 +76,12 @@ def load_baseline(path: str | Path) -> dict:
             raise ConfigError(f"{path}: metrics[{key!r}]={row!r:.40} is not allowed; each row maps metric names to numbers")
         for name, value in row.items():
             if name == COUNT:
-                if not (_is_number(value) and value == int(value) and value >= 1):
+                if not is_whole(value, 1):
                     raise ConfigError(f"{path}: metrics[{key!r}][{COUNT!r}]={value!r:.40} is not allowed; give the "
                                       "whole number >= 1 of episodes the row's alarm rates count")
                 continue
             if name == DELAYS:
-                if not (isinstance(value, list) and value
-                        and all(_is_number(d) and d == int(d) and d >= 0 for d in value)):
+                if not (isinstance(value, list) and value and all(is_whole(d, 0) for d in value)):
                     raise ConfigError(f"{path}: metrics[{key!r}][{DELAYS!r}]={value!r:.40} is not allowed; give the "
                                       "list of the detected episodes' delays in steps (whole numbers >= 0)")
                 continue
@@ -117,7 +117,7 @@ def find_falls(metrics: Sequence[VariantMetrics], baseline: dict, tolerance: flo
 def _count(rate: float, episodes: object) -> int | None:
     """``rate`` as a count of ``episodes``, or ``None`` when it is not one (no count kept, or a rate
     edited by hand)."""
-    if not isinstance(episodes, int) or episodes < 1:
+    if not is_whole(episodes, 1):
         return None
     count = round(rate * episodes)
     return count if abs(count - rate * episodes) < 1e-6 else None

@@ -62,7 +62,7 @@ def test_rates_that_are_not_counts_keep_the_tolerance_alone():
 
 def test_a_baselines_episode_count_must_be_a_whole_number(tmp_path):
     path = tmp_path / "baseline.json"
-    for bad in (0, 2.5, "20", None):
+    for bad in (0, 2.5, 20.0, "20", None):  # 20.0 was read, then ignored as no count
         path.write_text(json.dumps({"metrics": {"a/b/c": {"detection_rate": 1.0, "alarm_episodes": bad}}}))
         with pytest.raises(ConfigError, match="alarm_episodes.*is not allowed; give the whole number >= 1"):
             load_baseline(path)
