@@ -48,8 +48,10 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
     live.add_argument("--serve", action="store_true", help="serve the stream for a remote Rerun viewer")
     live.add_argument("--connect", metavar="URL", help="stream to a running Rerun viewer at URL")
     run.add_argument("--bind", default="127.0.0.1",
-                     help="address --serve listens on (default 127.0.0.1: this machine only; 0.0.0.0 opens it)")
-    run.add_argument("--port", type=_whole(1, 65535), default=9876, help="port --serve listens on (default 9876)")
+                     help="address --serve, or --spawn's viewer, listens on (default 127.0.0.1: this machine only; "
+                          "0.0.0.0 opens it)")
+    run.add_argument("--port", type=_whole(1, 65535), default=9876,
+                     help="port --serve, or --spawn's viewer, listens on (default 9876)")
     run.add_argument("--force", action="store_true",
                      help="use a threshold calibrated for another task, method, score or weights (with a warning)")
     run.add_argument("--strict", action="store_true", help="a failing sink stops the run instead of warning")

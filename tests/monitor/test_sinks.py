@@ -268,35 +268,107 @@ def test_a_viewer_that_is_gone_costs_the_run_little_time_and_no_memory(agent, tm
     assert sink.dropped >= 20_000 and grown_kib < 8 * 1024  # the unbounded queue grew ~0.9 KiB a step
 
 
-def test_a_viewer_that_cannot_start_is_warned_of_and_the_run_and_its_file_go_on(agent, tmp_path, monkeypatch):
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def _viewer_beside(tmp_path, monkeypatch, script: str):
+    """A ``rerun`` executable of ``script`` beside a Python that the sink takes for this one, none on PATH."""
+    import shutil
+
+    folder = tmp_path / "bin"
+    folder.mkdir()
+    (folder / "rerun").write_text(script)
+    (folder / "rerun").chmod(0o755)
+    monkeypatch.setattr(sys, "executable", str(folder / "python"))
+    monkeypatch.setattr(shutil, "which", lambda name, *args, **kwargs: None)
+
+
+def test_a_viewer_that_cannot_start_is_warned_of_with_its_reason_and_the_run_and_its_file_go_on(
+        agent, tmp_path, monkeypatch):
     """`oodmon run --spawn` with no Rerun viewer to start ended in rerun's traceback ("Failed to
     find Rerun Viewer executable in PATH": `.venv/bin/oodmon` run without activating the venv, whose
     `bin/` holds the rerun-sdk package's viewer). The sink starts the viewer beside this Python when
-    there is one, and where none starts it warns once and the run goes on with its file."""
-    import sys
-    from pathlib import Path
+    there is one, and where none starts it warns once, saying why, and the run goes on with its
+    file: no viewer to start at all, or one that stops at once (no display) with its last line."""
+    import shutil
 
-    import rerun
-
-    asked = []
-
-    def no_viewer(**kwargs):
-        asked.append(kwargs)
-        raise RuntimeError("Failed to find Rerun Viewer executable in PATH.\n\nYou can install ...")
-
-    monkeypatch.setattr(rerun, "spawn", no_viewer)
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "python"))  # nothing beside it
+    monkeypatch.setattr(shutil, "which", lambda name, *args, **kwargs: None)
     memory = MemorySink()
     sink = RerunSink(tmp_path / "kept.rrd", spawn=True)
     start = time.monotonic()
-    with pytest.warns(SinkWarning, match="no viewer started: Failed to find Rerun Viewer executable in PATH.\\); the run "
-                                         "goes on without it, logging to"):
+    with pytest.warns(SinkWarning, match="no viewer started: no `rerun` executable beside this Python or on PATH .*; "
+                                         "the run goes on without it, logging to"):
         records = _run(agent, [sink, memory], episodes=2)
     assert time.monotonic() - start < 10.0  # no wait for a viewer that was never started
     assert sink.dropped == sum(r.length for r in records) == len(memory.steps)
     assert (tmp_path / "kept.rrd").stat().st_size > 0
-    beside = Path(sys.executable).parent / "rerun"
-    assert len(asked) == 1 and asked[0]["connect"] is False
-    assert asked[0]["executable_path"] == (str(beside) if beside.is_file() else None)
+    port = _free_port()
+    _viewer_beside(tmp_path, monkeypatch, f"#!/bin/sh\necho \"$@\" > {tmp_path}/args\n"
+                                          "echo 'Error: neither WAYLAND_DISPLAY nor DISPLAY is set.' >&2\nexit 1\n")
+    sink = RerunSink(tmp_path / "second.rrd", spawn=True, port=port)
+    with pytest.warns(SinkWarning, match=f"no Rerun viewer at rerun\\+http://127.0.0.1:{port}/proxy \\(the viewer "
+                                         "started stopped with exit code 1: Error: neither WAYLAND_DISPLAY nor DISPLAY "
+                                         "is set.\\); the run goes on"):
+        records = _run(agent, [sink], episodes=1)
+    assert sink.dropped == records[0].length and (tmp_path / "second.rrd").stat().st_size > 0
+    assert (tmp_path / "args").read_text().split() == [f"--port={port}", "--bind=127.0.0.1", "--memory-limit=75%",
+                                                       "--server-memory-limit=1GiB", "--expect-data-soon"]
+
+
+def test_a_spawned_viewer_listens_on_this_machine_only_unless_told(agent, tmp_path, monkeypatch):
+    """Rerun's viewer listens on every interface unless told otherwise, and `rerun.spawn` does not
+    tell it: `oodmon run --spawn` served the run's stream to the network (rerun-sdk 0.41's viewer:
+    "Listening for gRPC connections on 0.0.0.0:9876"). The sink starts it with `--bind` (127.0.0.1
+    by default) and streams to it there. Checked twice: the installed viewer, started with that
+    command line, says where it listens (before it needs a display, which CI has not); and a
+    stand-in viewer beside this Python (a Rerun gRPC server on the port it is given) takes every
+    step of a run."""
+    from oodmon.monitor.sinks.rerun import viewer_command
+
+    installed = os.path.join(os.path.dirname(sys.executable), "rerun")
+    port = _free_port()
+    viewer = subprocess.Popen(viewer_command(installed, "127.0.0.1", port), stdin=subprocess.DEVNULL,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+                              env={**os.environ, "RERUN_APP_ONLY": "true"})
+    try:
+        said = ""
+        while "Listening for gRPC connections on" not in said:
+            line = viewer.stdout.readline()
+            assert line, f"the viewer stopped before it listened: {said[-2000:]}"
+            said += line
+    finally:
+        viewer.kill()
+        viewer.wait()
+        viewer.stdout.close()
+    listening = said.splitlines()[-1]
+    assert f"Listening for gRPC connections on 127.0.0.1:{port}." in listening and "0.0.0.0" not in listening
+
+    port = _free_port()
+    _viewer_beside(tmp_path, monkeypatch, f"#!{sys.executable}\n"
+                                          "import os, sys, time\n"
+                                          "os.environ.pop('RERUN_APP_ONLY')  # the viewer's; the SDK will not import with it\n"
+                                          "import rerun as rr\n"
+                                          f"open({str(tmp_path / 'args')!r}, 'w').write(' '.join(sys.argv[1:]))\n"
+                                          "port = int(dict(a.split('=', 1) for a in sys.argv[1:] if '=' in a)['--port'])\n"
+                                          "rr.init('viewer'); rr.serve_grpc(grpc_port=port); time.sleep(60)\n")
+    sink, memory = RerunSink(spawn=True, port=port, connect_timeout=2.0), MemorySink()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", SinkWarning)
+            records = _run(agent, [sink, memory], episodes=2)
+        assert sink.viewer is not None and sink.viewer.poll() is None  # started, left running after the run
+        assert sink.dropped == 0 and len(memory.steps) == sum(r.length for r in records)  # the viewer took them
+        assert f"--port={port} --bind=127.0.0.1 " in (tmp_path / "args").read_text()
+    finally:
+        if sink.viewer is not None:
+            sink.viewer.kill()
+            sink.viewer.wait()
 
 
 def test_a_viewer_that_goes_away_mid_run_is_dropped_with_one_warning_and_the_file_goes_on(agent, tmp_path):

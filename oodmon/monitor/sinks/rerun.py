@@ -24,7 +24,7 @@ from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.sinks.base import refuse_earlier_logs
 
-__all__ = ["FLUSH_EVERY", "RerunSink", "default_blueprint"]
+__all__ = ["FLUSH_EVERY", "RerunSink", "default_blueprint", "viewer_command"]
 
 FLUSH_EVERY = 200
 
@@ -54,12 +54,13 @@ class RerunSink:
 
     Args:
         path: write an ``.rrd`` file here.
-        spawn: start a Rerun viewer and stream to it (needs a display and the ``rerun`` binary).
+        spawn: start a Rerun viewer listening on ``bind``:``port`` and stream to it (needs a display and
+            the ``rerun`` binary; a viewer already listening there takes the stream instead).
         serve: serve the stream over gRPC for a viewer to connect to, on ``bind``:``port``.
         connect: stream to a viewer listening at this URL.
-        bind: the address a served stream listens on; ``127.0.0.1`` (the default) keeps it on this
-            machine, ``0.0.0.0`` opens it to the network on purpose.
-        port: the port a served stream listens on (default 9876, Rerun's).
+        bind: the address a served stream, or a spawned viewer, listens on; ``127.0.0.1`` (the
+            default) keeps it on this machine, ``0.0.0.0`` opens it to the network on purpose.
+        port: the port a served stream, or a spawned viewer, listens on (default 9876, Rerun's).
         recording_id: Rerun's recording id (default: a fresh one).
         flush_timeout: seconds to wait at an episode end for the data to reach its sinks.
         connect_timeout: seconds to wait for a viewer at ``connect`` to accept a connection.
@@ -95,6 +96,7 @@ class RerunSink:
         self.connect_timeout = connect_timeout
         self.dropped = 0  # steps not sent to a live viewer that was gone
         self.served_at: str | None = None  # the URL a viewer connects to (``serve``)
+        self.viewer = None  # the viewer process ``spawn`` started (subprocess.Popen), left running after the run
         self._streams: list = []
         self._live = None
         self._global_step = 0
@@ -127,8 +129,8 @@ class RerunSink:
         if local:
             self._streams.append(self._stream(run, local))
         if self.connect or self.spawn:
-            url = self.connect or "rerun+http://127.0.0.1:9876/proxy"
-            unreachable = self._spawn_viewer() if self.spawn else None
+            url = self.connect or f"rerun+http://{_reach(self.bind)}:{self.port}/proxy"
+            unreachable = self._spawn_viewer(url) if self.spawn else None
             if unreachable is None:
                 unreachable = _unreachable(url, self.connect_timeout * (10 if self.spawn else 1))
             if unreachable is None:
@@ -138,17 +140,49 @@ class RerunSink:
                 _warn(f"no Rerun viewer at {url} ({unreachable}); the run goes on without it"
                       + (f", logging to {self.path}" if self.path else ""))
 
-    def _spawn_viewer(self) -> str | None:
-        """Start a Rerun viewer (``spawn``): the one installed beside this Python (the ``rerun-sdk``
-        package's, in a virtual environment that is not activated and so not on ``PATH``), else
-        the one on ``PATH``; ``None``, or why it could not start (the run then goes on without it)."""
-        rr = self._rr
+    def _spawn_viewer(self, url: str) -> str | None:
+        """Start a Rerun viewer (``spawn``) listening on ``bind``:``port`` and wait until it takes
+        connections at ``url``: ``None``, or why it did not (the run then goes on without it).
+
+        The viewer is the one installed beside this Python (the ``rerun-sdk`` package's, in a
+        virtual environment that is not activated and so not on ``PATH``), else the one on ``PATH``,
+        started as ``rerun.spawn`` starts it (:func:`viewer_command`) but with ``--bind``: Rerun's
+        viewer listens on every interface (0.0.0.0) unless told, so ``spawn`` served the run's stream
+        to the network (measured with rerun-sdk 0.41: "Listening for gRPC connections on
+        0.0.0.0:9876"). A viewer already listening at ``url`` takes the stream instead, as with
+        ``rerun.spawn``."""
+        import shutil
+        import subprocess
+        import tempfile
+        import time
+
+        if _unreachable(url, 0.2) is None:
+            return None
         beside = Path(sys.executable).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+        executable = str(beside) if beside.is_file() else shutil.which("rerun")
+        if executable is None:
+            return "no viewer started: no `rerun` executable beside this Python or on PATH (the rerun-sdk package has one)"
+        said = tempfile.TemporaryFile()  # what the viewer prints, read if it stops before it listens
         try:
-            rr.spawn(connect=False, executable_path=str(beside) if beside.is_file() else None,
-                     recording=rr.RecordingStream("oodmon-spawn", recording_id=self.recording_id))
-        except (RuntimeError, OSError) as error:  # rerun's "Failed to find Rerun Viewer executable in PATH"
-            return f"no viewer started: {str(error).strip().splitlines()[0]}"
+            viewer = subprocess.Popen(viewer_command(executable, self.bind, self.port), stdin=subprocess.DEVNULL,
+                                      stdout=said, stderr=subprocess.STDOUT, start_new_session=True,
+                                      env={**os.environ, "RERUN_APP_ONLY": "true"})  # as rerun.spawn sets it
+        except OSError as error:
+            said.close()
+            return f"no viewer started: {error.strerror or error}"
+        self.viewer = viewer
+        deadline = time.monotonic() + self.connect_timeout * 10
+        while _unreachable(url, 0.2) is not None:
+            if viewer.poll() is not None or time.monotonic() > deadline:
+                said.seek(0)
+                lines = [line for line in said.read().decode(errors="replace").splitlines() if line.strip()]
+                said.close()
+                last = _plain(lines[-1]) if lines else "it said nothing"
+                if viewer.poll() is None:
+                    return f"the viewer started did not listen within {self.connect_timeout * 10:g} s (its last line: {last})"
+                return f"the viewer started stopped with exit code {viewer.returncode}: {last}"
+            time.sleep(0.05)
+        said.close()  # the viewer keeps its own handle; it is left running after the run, as rerun.spawn leaves it
         return None
 
     def _stream(self, run: RunInfo, sinks: list):
@@ -310,6 +344,30 @@ def _cannot_listen(bind: str, port: int) -> str | None:
     except (OSError, OverflowError) as error:
         return getattr(error, "strerror", None) or str(error)
     return None
+
+
+def viewer_command(executable: str, bind: str, port: int) -> list[str]:
+    """The command line ``RerunSink(spawn=True)`` starts a Rerun viewer with: ``rerun.spawn``'s
+    (rerun-sdk 0.41: port, memory limits, ``--expect-data-soon``) and ``--bind``."""
+    return [executable, f"--port={port}", f"--bind={bind}", "--memory-limit=75%", "--server-memory-limit=1GiB",
+            "--expect-data-soon"]
+
+
+def _reach(bind: str) -> str:
+    """The host of a URL that reaches a server listening on ``bind`` from this machine."""
+    if bind in ("", "0.0.0.0", "::"):
+        return "127.0.0.1"
+    return f"[{bind}]" if ":" in bind else bind
+
+
+def _plain(line: str, keep: int = 200) -> str:
+    """A line of a Rust program's log without its colour codes, its last ``keep`` characters (where
+    the reason is: "Error: winit EventLoopError: os error at <source path>: neither WAYLAND_DISPLAY
+    nor WAYLAND_SOCKET nor DISPLAY is set.")."""
+    import re
+
+    line = re.sub(r"\x1b\[[0-9;]*m", "", line).strip()
+    return line if len(line) <= keep else "..." + line[-keep:]
 
 
 def _unreachable(url: str, timeout: float) -> str | None:
