@@ -365,6 +365,9 @@ def test_a_spawned_viewer_listens_on_this_machine_only_unless_told(agent, tmp_pa
         assert sink.viewer is not None and sink.viewer.poll() is None  # started, left running after the run
         assert sink.dropped == 0 and len(memory.steps) == sum(r.length for r in records)  # the viewer took them
         assert f"--port={port} --bind=127.0.0.1 " in (tmp_path / "args").read_text()
+        again = RerunSink(spawn=True, port=port)  # a viewer listening there already takes the stream, as with rerun.spawn
+        _run(agent, [again], episodes=1)
+        assert again.viewer is None and again.dropped == 0
     finally:
         if sink.viewer is not None:
             sink.viewer.kill()
