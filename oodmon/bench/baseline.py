@@ -3,24 +3,51 @@
 A bench result (``bench --json``) is compared as data: per (method, variant, detector) the means
 over trials of the per-step AUROC and AUPR (may not fall) and of the FPR at 95% TPR (may not rise);
 under the monitor's protocol also, per (method, variant), the false-alarm rate (may not rise), the
-share of failing episodes alarmed before the failure (may not fall) and the median delay (may not
-rise by more than the tolerance times its value). Both results must come from the same settings
-(task, protocol, score, detectors, calibration...): a baseline made otherwise is refused, not
-compared. A row the baseline has and the new result lacks is a fall too. Where figures fell,
-:func:`provenance_notes` says whether the baseline's numbers were made by the same weights and fitted
-detectors.
+share of failing episodes alarmed before the failure (may not fall), the median delay (may not
+rise by more than the tolerance times its value) and the median lead (may not fall so). Both results
+must come from the same settings (task, protocol, score, detectors, calibration...): a baseline made
+otherwise is refused, not compared. A row the baseline has and the new result lacks is a fall too.
+Where figures fell, :func:`provenance_notes` says whether the baseline's numbers were made by the
+same weights and fitted detectors.
+
+The alarm figures count episodes, ten per shifted variant, and move by chance wherever the
+episodes do: the same command on a CPU whose float kernels round otherwise (its fitted detectors
+differ) moved 7 figures of the CartPole monitor bench beyond the tolerance (2026-11-29,
+``results/monitor/README.md``): one variant's episodes alarmed before the failure from 10 to 9 of
+10, two lead medians (17.5 to 15 and 94 to 90 steps) and four median delays (2-3 to 3-7 steps),
+and the tolerance alone called each a fall; weighed as below, none is one. So a
+figure beyond the tolerance falls only when its move is also beyond chance, where both results
+keep what it counts (``before_failure`` of ``failed``, ``false_alarms`` of ``episodes``,
+``delays``, ``leads``): a rate by a one-sided Fisher exact test of its counts, a median by a
+one-sided Mann-Whitney U test of its values. Held all together to :data:`~oodmon.replay.check.CHANCE`
+(Tarone's Bonferroni over the figures that could reach it, as ``oodmon check``), the CartPole
+bench's 246 figures would miss a collapse: 10 of 10 episodes alarmed before the failure falling to
+2 of 10 (p = 3.6e-4) in one variant, or every lead halved (10 leads against 10: p = 0.027 each). So
+``CHANCE`` is shared alike by the figures of each name (the rates' share then goes to the few that
+could move: most variants alarm 10 of 10 before the failure, which no test can call a fall) and by
+pools: each method's figures of one name pooled over its variants, a rate by the exact conditional
+test of the strata's counts (the Mantel-Haenszel setting: a variant whose counts cannot move adds
+nothing), a median by the strata's Mann-Whitney z-scores summed (Stouffer's rule; a variant whose
+values are all tied adds nothing). Where a pool fell, each of its figures beyond the tolerance
+falls. A check of unchanged code then fails with probability at most ``CHANCE``
+(``tests/test_bench_baseline_chance.py`` simulates it). Results without the counts (written before
+they were kept) and the AUROC rows (means over trials) keep the tolerance alone.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
+
+import numpy as np
 
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
-from oodmon.replay.check import compare_metrics
+from oodmon.replay.check import CHANCE, Odds, compare_metrics
+from oodmon.validation import is_whole
 
-__all__ = ["BASELINE_TOLERANCE", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result",
-           "provenance_notes"]
+__all__ = ["BASELINE_TOLERANCE", "alarm_odds", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result",
+           "provenance_notes", "stratified_exact", "stratified_ranks"]
 
 #: The default allowed fall (AUROC, AUPR, rates) and relative rise (delays).
 BASELINE_TOLERANCE = 0.02
@@ -47,7 +74,33 @@ def load_bench_result(path: str | Path) -> dict:
         if not isinstance(entries, list) or not all(isinstance(e, dict) and all(k in e for k in needed) for e in entries):
             raise ConfigError(f"{path}: an entry of its {what!r} lacks {', '.join(needed)}: not a bench result as "
                               "`oodmon bench --json` writes it (or a damaged one)")
+    for what, figures in (("rows", _ROW_FIGURES), ("alarms", _ALARM_FIGURES)):
+        for entry in data.get(what, []):
+            for name, kind in figures.items():
+                value = entry.get(name)
+                if value is not None and not _is_kind(value, kind):
+                    raise ConfigError(f"{path}: {what} entry {entry['method']}/{entry['variant']} has {name}={value!r:.40}: "
+                                      f"it must be {_KINDS[kind]} or null (a damaged or hand-edited result?)")
     return data
+
+
+#: The entries of a result's rows and alarm rows that bench_falls reads, and what each must be.
+_ROW_FIGURES = {"mean": "number", "aupr_mean": "number", "fpr95_mean": "number"}
+_ALARM_FIGURES = {"false_alarm_rate": "number", "before_failure_rate": "number", "delay_median": "number",
+                  "lead_median": "number", "episodes": "count", "failed": "count", "before_failure": "count",
+                  "false_alarms": "count", "delays": "numbers", "leads": "numbers"}
+_KINDS = {"number": "a finite number", "count": "a whole number >= 0", "numbers": "a list of finite numbers"}
+
+
+def _is_kind(value: object, kind: str) -> bool:
+    def number(v: object) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    if kind == "count":
+        return is_whole(value, 0)
+    if kind == "numbers":
+        return isinstance(value, list) and all(number(v) for v in value)
+    return number(value)
 
 
 def bench_metrics(result: dict) -> dict[str, dict[str, float | None]]:
@@ -89,8 +142,9 @@ def bench_falls(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERA
     check_same_settings(result.get("config", {}), baseline, baseline_name)
     expected = {key: {name: value for name, value in row.items() if value is not None}
                 for key, row in bench_metrics(baseline).items()}
+    odds, pools = alarm_odds(result, baseline)
     return compare_metrics(bench_metrics(result), expected, tolerance, what="this bench",
-                           relative=("delay_median", "lead_median"), higher=_HIGHER)
+                           relative=("delay_median", "lead_median"), higher=_HIGHER, chance=CHANCE, odds=odds, pools=pools)
 
 
 def provenance_notes(result: dict, baseline: dict, baseline_name: str = "the baseline") -> list[str]:
@@ -138,3 +192,164 @@ def _difference(theirs: object, ours: object) -> str:
     if isinstance(theirs, dict) and isinstance(ours, dict):
         return "(" + ", ".join(sorted(d for d in theirs.keys() | ours.keys() if theirs.get(d) != ours.get(d))) + ")"
     return f"({str(theirs)[:12]} there, {str(ours)[:12]} here)"
+
+
+#: The alarm rates weighed by chance, and the entries of an alarm row that count them (hits, of episodes).
+_RATES = {"false_alarm_rate": ("false_alarms", "episodes"), "before_failure_rate": ("before_failure", "failed")}
+#: The alarm medians weighed by chance, and the entry of an alarm row that holds their values.
+_MEDIANS = {"delay_median": "delays", "lead_median": "leads"}
+
+
+def alarm_odds(result: dict, baseline: dict) -> tuple[dict[tuple[str, str], Odds], dict[tuple[str, str], tuple[str, Odds]]]:
+    """Each alarm figure's test of chance, by (row key, figure name), where both results keep what it
+    counts; and each rate's pool, the method's variants together (see the module docstring)."""
+    ours = {f"alarms/{a['method']}/{a['variant']}": a for a in result.get("alarms", [])}
+    odds: dict[tuple[str, str], Odds] = {}
+    strata: dict[tuple[str, str], list[tuple[str, tuple[int, int, int, int]]]] = {}
+    for theirs in baseline.get("alarms", []):
+        key = f"alarms/{theirs['method']}/{theirs['variant']}"
+        now = ours.get(key)
+        if now is None:
+            continue
+        for name, (hits, total) in _RATES.items():
+            before, after = _counted(theirs, name, hits, total), _counted(now, name, hits, total)
+            if before is not None and after is not None:
+                table = (*before, *after)
+                odds[(key, name)] = (*stratified_exact([table], name in _HIGHER),
+                                     f"{before[0]}/{before[1]} to {after[0]}/{after[1]} episodes")
+                strata.setdefault((theirs["method"], name), []).append((key, table))
+        for name, field in _MEDIANS.items():
+            values = _median_values(theirs, name, field), _median_values(now, name, field)
+            if values[0] is not None and values[1] is not None:
+                odds[(key, name)] = (*_ranks_beyond_chance(name in _HIGHER, *values), f"{len(values[0])} to "
+                                     f"{len(values[1])} {field}")
+                strata.setdefault((theirs["method"], name), []).append((key, values))
+    pools: dict[tuple[str, str], tuple[str, Odds]] = {}
+    for (method, name), members in strata.items():
+        if len(members) < 2:  # a pool of one is its figure's own test
+            continue
+        higher = name in _HIGHER
+        if name in _RATES:
+            tables = [table for _, table in members]
+            counts = [sum(table[i] for table in tables) for i in range(4)]
+            pooled = (*stratified_exact(tables, higher), f"{method}'s {len(members)} variants pooled, "
+                      f"{counts[0]}/{counts[1]} to {counts[2]}/{counts[3]} episodes")
+        else:
+            pooled = (*stratified_ranks([values for _, values in members], higher),
+                      f"{method}'s {len(members)} variants' {_MEDIANS[name]} pooled")
+        for key, _ in members:
+            pools[(key, name)] = (f"{method}/{name}", pooled)
+    return odds, pools
+
+
+def _median_values(row: dict, name: str, field: str) -> list[float] | None:
+    """The values whose median is the row's ``name``, or ``None`` (not kept, or not those values)."""
+    median, values = row.get(name), row.get(field)
+    if not (isinstance(values, list) and values and isinstance(median, (int, float))
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+            and abs(float(np.median(values)) - median) <= 1e-9):
+        return None
+    return [float(v) for v in values]
+
+
+def _counted(row: dict, name: str, hits: str, total: str) -> tuple[int, int] | None:
+    """``(hits, episodes)`` that the row's rate ``name`` is, or ``None`` (not kept, or not that rate)."""
+    rate, k, n = row.get(name), row.get(hits), row.get(total)
+    if rate is None or not is_whole(n, 1) or not is_whole(k, 0) or k > n or abs(k / n - rate) > 1e-9:
+        return None
+    return int(k), int(n)
+
+
+def stratified_exact(tables: list[tuple[int, int, int, int]], higher: bool) -> tuple[float, float]:
+    """The one-sided exact p-value that the new rows' hits are as few (``higher``: a rate that may
+    not fall) or as many as observed, given each stratum's margins, over strata ``(hits before,
+    episodes before, hits after, episodes after)``; and the least p-value those margins allow.
+    Conditional on its margins a stratum's new hits are hypergeometric, independent of the other
+    strata's: their sum's distribution is the convolution. One stratum: Fisher's exact test.
+
+    Example:
+        >>> p, least = stratified_exact([(10, 10, 2, 10)], higher=True)  # 10 of 10, then 2 of 10
+        >>> round(p, 6), round(least, 6)
+        (0.000357, 0.000357)
+    """
+    distribution, offset, observed = np.ones(1), 0, 0
+    for k0, n0, k1, n1 in tables:
+        hits = k0 + k1
+        low, high = max(0, hits - n0), min(n1, hits)
+        ways = math.comb(n0 + n1, n1)
+        pmf = [math.comb(hits, a) * math.comb(n0 + n1 - hits, n1 - a) / ways for a in range(low, high + 1)]
+        distribution = np.convolve(distribution, pmf)
+        offset, observed = offset + low, observed + k1
+    at = observed - offset
+    if higher:
+        return min(1.0, float(distribution[:at + 1].sum())), float(distribution[0])
+    return min(1.0, float(distribution[at:].sum())), float(distribution[-1])
+
+
+def _u_statistic(before: list[float], after: list[float], higher: bool) -> tuple[float, float, float] | None:
+    """The new values' Mann-Whitney U, centred (its mean under no change subtracted) and signed so
+    that a move the wrong way is positive (lower values where ``higher``); the same at the wrong end
+    of the pooled values (the most it can be); and its tie-corrected standard deviation. ``None``
+    where every value is tied (nothing to tell)."""
+    n0, n1 = len(before), len(after)
+    total = n0 + n1
+    values = np.asarray(before + after, float)
+    order = np.argsort(values, kind="stable")
+    ranks = np.empty(total)
+    ranks[order] = np.arange(1, total + 1)
+    ties = np.unique(values, return_counts=True)[1]
+    if len(ties) < total:  # mid-ranks for tied values
+        sorted_values = values[order]
+        starts = np.r_[0, np.flatnonzero(np.diff(sorted_values)) + 1]
+        for first, count in zip(starts, ties):
+            ranks[order[first:first + count]] = first + (count + 1) / 2
+    variance = n0 * n1 / 12.0 * ((total + 1) - float((ties ** 3 - ties).sum()) / (total * (total - 1)))
+    if variance <= 0:
+        return None
+    mean = n1 * (total + 1) / 2.0  # of the new values' rank sum
+    sorted_ranks = np.sort(ranks)
+    worst = sorted_ranks[:n1].sum() if higher else sorted_ranks[-n1:].sum()
+    sign = -1.0 if higher else 1.0
+    return sign * (float(ranks[n0:].sum()) - mean), sign * (float(worst) - mean), math.sqrt(variance)
+
+
+def _normal_tail(z: float) -> float:
+    """P(Z >= z) for a standard normal Z."""
+    return 0.5 * math.erfc(z / math.sqrt(2.0))
+
+
+def _ranks_beyond_chance(higher: bool, before: list[float], after: list[float]) -> tuple[float, float]:
+    """The one-sided Mann-Whitney U p-value that the new values are lower (``higher``: a median that
+    may not fall) or higher than the baseline's, and the least one their pooled values allow: the
+    normal approximation with the tie correction and the continuity correction, as
+    ``scipy.stats.mannwhitneyu(method="asymptotic")`` computes it, in a hundredth of its time."""
+    u = _u_statistic(before, after, higher)
+    if u is None:
+        return 1.0, 1.0
+    moved, most, std = u
+    return _normal_tail((moved - 0.5) / std), _normal_tail((most - 0.5) / std)
+
+
+def stratified_ranks(strata: list[tuple[list[float], list[float]]], higher: bool) -> tuple[float, float]:
+    """The one-sided p-value that the new values (each stratum's ``(before, after)``) are lower
+    (``higher``) or higher than the baseline's over all strata together, and the least one their
+    values allow: each stratum's Mann-Whitney U as a z-score (its mean and tie-corrected variance
+    under no change), summed over the strata and divided by the root of their number (Stouffer's
+    rule, the strata weighed alike); a stratum whose values are all tied tells nothing and is left out.
+    Normal, so approximate: ``tests/test_bench_baseline_chance.py`` checks its level on ten values a stratum.
+
+    Example:
+        >>> p, least = stratified_ranks([([40.0, 50, 60], [20.0, 25, 30])] * 4, higher=True)  # every lead halved
+        >>> p < 1e-4, least == p
+        (True, True)
+    """
+    z = extreme = 0.0
+    count = 0
+    for before, after in strata:
+        u = _u_statistic(before, after, higher)
+        if u is None:
+            continue
+        z, extreme, count = z + u[0] / u[2], extreme + u[1] / u[2], count + 1
+    if count == 0:
+        return 1.0, 1.0
+    return _normal_tail(z / math.sqrt(count)), _normal_tail(extreme / math.sqrt(count))

@@ -16,9 +16,8 @@ of unchanged code fails on them with probability at most :data:`CHANCE`. So too 
 whose baseline row keeps the ``delays`` it is the mean of (one run's 1.05 steps and another's 1.15
 were a fall): a one-sided Mann-Whitney U test of the two runs' delays. Older baselines, and
 figures edited by hand, keep the tolerance alone. The price: with many figures compared, a fall
-must be large to count (``bench --baseline`` keeps the tolerance alone: its 10 episodes per
-variant and 246 figures of the CartPole monitor bench would not count 10 of 10 alarmed before the
-failure falling to 2 of 10).
+must be large to count (``bench --baseline``, with 246 figures of 10 episodes each in the CartPole
+monitor bench, shares the level otherwise and pools the variants: :mod:`oodmon.bench.baseline`).
 """
 
 from __future__ import annotations
@@ -34,8 +33,8 @@ from oodmon.jsonfile import read_json
 from oodmon.replay.metrics import VariantMetrics
 from oodmon.validation import is_whole
 
-__all__ = ["CHANCE", "HIGHER_IS_BETTER", "LOWER_IS_BETTER", "baseline_of", "check_tolerance", "compare_metrics", "find_falls",
-           "load_baseline"]
+__all__ = ["CHANCE", "HIGHER_IS_BETTER", "LOWER_IS_BETTER", "Odds", "baseline_of", "check_tolerance", "compare_metrics",
+           "find_falls", "load_baseline"]
 
 HIGHER_IS_BETTER = ("auroc", "aupr", "detection_rate")
 LOWER_IS_BETTER = ("fpr_at_95_tpr", "false_alarm_rate", "early_alarm_rate", "delay_mean")
@@ -175,20 +174,33 @@ def _tarone_level(least: Sequence[float], chance: float) -> float:
     return chance / max(len(least), 1)
 
 
+Odds = tuple[float, float, str]  # a figure's one-sided p-value, the least its margins allow, and its counts' words
+
+
 def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[str, dict[str, float]],
                     tolerance: float, *, what: str = "the new results", relative: Sequence[str] = ("delay_mean",),
-                    higher: Sequence[str] = HIGHER_IS_BETTER, chance: float | None = None) -> list[str]:
+                    higher: Sequence[str] = HIGHER_IS_BETTER, chance: float | None = None,
+                    odds: dict[tuple[str, str], Odds] | None = None,
+                    pools: dict[tuple[str, str], tuple[str, Odds]] | None = None) -> list[str]:
     """One line per metric of ``expected`` (rows of ``{name: value}`` by key) that ``current``
     lacks or that moved the wrong way by more than ``tolerance``: names in ``higher`` may not fall,
     every other name may not rise, those in ``relative`` (delays and leads, counted in steps) by
     more than ``tolerance`` times their baseline value. ``chance``: an episode rate whose both rows
     count their episodes (``alarm_episodes``), and a mean delay whose both rows keep their
     ``delays``, fall only if their move is also beyond chance at this level, shared among the
-    figures so compared that could reach it (see the module docstring; ``oodmon check``). Shared by
-    ``oodmon check`` (logs) and ``bench --baseline`` (no ``chance``)."""
+    figures so compared that could reach it (see the module docstring; ``oodmon check``).
+    ``odds``: those p-values by (key, name), computed by the caller instead (``bench --baseline``);
+    ``pools``: a (key, name)'s pool of figures (a name of the pool, and the pooled test's odds):
+    ``chance`` is then shared alike by the pools and by the figures of each name, each family held
+    to its share by Tarone's rule, and a figure beyond the tolerance falls when its own test or its
+    pool's is beyond chance (:mod:`oodmon.bench.baseline`). Shared by ``oodmon check`` (logs) and
+    ``bench --baseline``."""
     falls: list[str] = []
-    weighed: list[tuple[int, float, str]] = []  # (where its line goes, p-value, line) of the rates weighed by chance
-    least: list[float] = []  # the least attainable p-value of each figure so compared, moved or not
+    weighed: list[tuple[int, float, str, str | None, tuple[str, Odds] | None]] = []  # (where its line goes, p,
+    # line, family, pool)
+    # the least attainable p-value of each figure so compared, moved or not, by family: one family
+    # (oodmon check), or with pools one per figure name and one of the pools (bench --baseline)
+    least: dict[str | None, list[float]] = {}
     for key, row in sorted(expected.items()):
         if key not in current:
             falls.append(f"{key}: missing from {what} (the baseline has it)")
@@ -203,19 +215,32 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
             worse = (now < (was * (1 - tolerance) if name in relative else was - tolerance) if name in higher
                      else now > (was * (1 + tolerance) if name in relative else was + tolerance))
             moved = f"{key}: {name} {'fell' if name in higher else 'rose'} from {was:.4g} to {now:.4g}"
-            odds = None
-            if chance is not None and name in EPISODE_RATES:
-                odds = _beyond_chance(name in higher, was, now, row.get(COUNT), current[key].get(COUNT))
+            figure = None
+            if chance is not None and odds is not None:
+                figure = odds.get((key, name))
+            elif chance is not None and name in EPISODE_RATES:
+                figure = _beyond_chance(name in higher, was, now, row.get(COUNT), current[key].get(COUNT))
             elif chance is not None and name == "delay_mean":
-                odds = _delays_beyond_chance(was, now, row.get(DELAYS), current[key].get(DELAYS))
-            if odds is not None:
-                least.append(odds[1])
+                figure = _delays_beyond_chance(was, now, row.get(DELAYS), current[key].get(DELAYS))
+            if figure is not None:
+                least.setdefault(name if pools else None, []).append(figure[1])
                 if worse:
-                    weighed.append((len(falls), odds[0], f"{moved} ({odds[2]}, one-sided p = {odds[0]:.2g}; "
-                                                         f"tolerance {tolerance})"))
+                    weighed.append((len(falls), figure[0], f"{moved} ({figure[2]}, one-sided p = {figure[0]:.2g}",
+                                    name if pools else None, (pools or {}).get((key, name))))
             elif worse:
                 falls.append(f"{moved} (tolerance {tolerance})")
-    level = _tarone_level(least, chance) if weighed else 0.0
-    for offset, (at, p, line) in enumerate(item for item in weighed if item[1] <= level):
+    if not weighed:
+        return falls
+    share = chance / (len(least) + (1 if pools else 0))
+    level = {family: _tarone_level(values, share) for family, values in least.items()}
+    pool_level = _tarone_level([odds[1] for odds in dict(pools.values()).values()], share) if pools else 0.0
+    kept = []
+    for at, p, line, family, pool in weighed:
+        if p <= level[family]:
+            kept.append((at, f"{line}; tolerance {tolerance})"))
+        elif pool is not None and pool[1][0] <= pool_level:
+            kept.append((at, f"{line}, within chance alone; {pool[1][2]}, one-sided p = {pool[1][0]:.2g}; "
+                             f"tolerance {tolerance})"))
+    for offset, (at, line) in enumerate(kept):
         falls.insert(at + offset, line)
     return falls
