@@ -175,3 +175,16 @@ def test_a_result_whose_figures_are_not_numbers_is_refused_naming_the_entry(tmp_
         path.write_text(json.dumps(damaged))
         with pytest.raises(ConfigError, match=f"alarms entry dropout/cartpole:v0 has {name}=.* it must be {words} or null"):
             load_bench_result(path)
+
+
+def test_moves_within_chance_are_listed_with_their_p_values_and_do_not_fall():
+    from oodmon.bench.baseline import within_chance
+
+    rng = np.random.default_rng(0)
+    baseline, now = _bench(rng), _bench(rng)
+    assert bench_falls(now, baseline) == []  # this pair: no fall
+    alone = bench_falls(_without_counts(now), _without_counts(baseline))
+    listed = within_chance(now, baseline)
+    assert len(listed) == len(alone) > 0  # each move the tolerance alone called a fall, with its p-values
+    assert all(" one-sided p = " in line and " pooled, " in line for line in listed)
+    assert [line.split(" (", 1)[0] for line in listed] == [line.split(" (", 1)[0] for line in alone]
