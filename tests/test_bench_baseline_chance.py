@@ -188,3 +188,21 @@ def test_moves_within_chance_are_listed_with_their_p_values_and_do_not_fall():
     assert len(listed) == len(alone) > 0  # each move the tolerance alone called a fall, with its p-values
     assert all(" one-sided p = " in line and " pooled, " in line for line in listed)
     assert [line.split(" (", 1)[0] for line in listed] == [line.split(" (", 1)[0] for line in alone]
+
+
+def test_a_rate_of_more_episodes_than_can_be_weighed_keeps_the_tolerance_alone():
+    """A count of 10**30 episodes (hand-edited) would keep the exact test working for ever: past
+    100,000 episodes a rate is not weighed, and falls on the tolerance alone."""
+    from oodmon.bench.baseline import _counted
+
+    row = {"false_alarm_rate": 0.5, "false_alarms": 5 * 10**29, "episodes": 10**30}
+    assert _counted(row, "false_alarm_rate", "false_alarms", "episodes") is None
+    assert _counted(dict(row, false_alarms=50_000, episodes=100_000), "false_alarm_rate", "false_alarms",
+                    "episodes") == (50_000, 100_000)
+    result = _bench(np.random.default_rng(0))
+    huge = dict(result, alarms=[dict(a, episodes=10**30, false_alarms=0, false_alarm_rate=0.0)
+                                if a["variant"] == "cartpole" else a for a in result["alarms"]])
+    risen = dict(huge, alarms=[dict(a, false_alarms=5 * 10**29, false_alarm_rate=0.5) if a["variant"] == "cartpole"
+                               else a for a in huge["alarms"]])
+    assert bench_falls(risen, huge) == [f"alarms/{m}/cartpole: false_alarm_rate rose from 0 to 0.5 (tolerance 0.02)"
+                                        for m in METHODS]

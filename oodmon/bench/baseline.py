@@ -216,13 +216,17 @@ def within_chance(result: dict, baseline: dict, tolerance: float = BASELINE_TOLE
 
 #: The alarm rates weighed by chance, and the entries of an alarm row that count them (hits, of episodes).
 _RATES = {"false_alarm_rate": ("false_alarms", "episodes"), "before_failure_rate": ("before_failure", "failed")}
+#: The most episodes a rate may count to be weighed by chance (the exact test's work grows with them;
+#: a hand-edited count of 10**30 would not end): more keep the tolerance alone.
+_MOST_EPISODES = 100_000
 #: The alarm medians weighed by chance, and the entry of an alarm row that holds their values.
 _MEDIANS = {"delay_median": "delays", "lead_median": "leads"}
 
 
 def alarm_odds(result: dict, baseline: dict) -> tuple[dict[tuple[str, str], Odds], dict[tuple[str, str], tuple[str, Odds]]]:
     """Each alarm figure's test of chance, by (row key, figure name), where both results keep what it
-    counts; and each rate's pool, the method's variants together (see the module docstring)."""
+    counts; and each figure's pool, the method's variants of that figure together, by the same keys
+    (see the module docstring)."""
     ours = {f"alarms/{a['method']}/{a['variant']}": a for a in result.get("alarms", [])}
     odds: dict[tuple[str, str], Odds] = {}
     strata: dict[tuple[str, str], list[tuple[str, tuple[int, int, int, int]]]] = {}
@@ -275,7 +279,8 @@ def _median_values(row: dict, name: str, field: str) -> list[float] | None:
 def _counted(row: dict, name: str, hits: str, total: str) -> tuple[int, int] | None:
     """``(hits, episodes)`` that the row's rate ``name`` is, or ``None`` (not kept, or not that rate)."""
     rate, k, n = row.get(name), row.get(hits), row.get(total)
-    if rate is None or not is_whole(n, 1) or not is_whole(k, 0) or k > n or abs(k / n - rate) > 1e-9:
+    if (rate is None or not is_whole(n, 1) or not is_whole(k, 0) or k > n or n > _MOST_EPISODES
+            or abs(k / n - rate) > 1e-9):
         return None
     return int(k), int(n)
 
