@@ -47,7 +47,7 @@ from oodmon.replay.check import CHANCE, Odds, compare_metrics
 from oodmon.validation import is_whole
 
 __all__ = ["BASELINE_TOLERANCE", "alarm_odds", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result",
-           "provenance_notes", "stratified_exact", "stratified_ranks", "within_chance"]
+           "provenance_notes", "stratified_exact", "stratified_ranks"]
 
 #: The default allowed fall (AUROC, AUPR, rates) and relative rise (delays).
 BASELINE_TOLERANCE = 0.02
@@ -132,10 +132,12 @@ def check_same_settings(ours: dict, baseline: dict, baseline_name: str = "the ba
 
 
 def bench_falls(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERANCE, *,
-                baseline_name: str = "the baseline", weighed: bool = True) -> list[str]:
+                baseline_name: str = "the baseline", weighed: bool = True, within: list[str] | None = None) -> list[str]:
     """One line per figure of ``baseline`` that ``result`` lacks or that moved the wrong way by
     more than ``tolerance`` (an alarm figure: and beyond chance, see the module docstring;
-    ``weighed=False``: the tolerance alone, to tell the user which moves were within chance).
+    ``weighed=False``: the tolerance alone). ``within``: a list that gets a line for each alarm
+    figure beyond the tolerance but within chance, with its p-values (what the tolerance alone would
+    have called a fall).
 
     Raises:
         ConfigError: the two were made with different settings.
@@ -146,7 +148,7 @@ def bench_falls(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERA
     odds, pools = alarm_odds(result, baseline) if weighed else (None, None)
     return compare_metrics(bench_metrics(result), expected, tolerance, what="this bench",
                            relative=("delay_median", "lead_median"), higher=_HIGHER, chance=CHANCE if weighed else None,
-                           odds=odds, pools=pools)
+                           odds=odds, pools=pools, within=within)
 
 
 def provenance_notes(result: dict, baseline: dict, baseline_name: str = "the baseline") -> list[str]:
@@ -194,24 +196,6 @@ def _difference(theirs: object, ours: object) -> str:
     if isinstance(theirs, dict) and isinstance(ours, dict):
         return "(" + ", ".join(sorted(d for d in theirs.keys() | ours.keys() if theirs.get(d) != ours.get(d))) + ")"
     return f"({str(theirs)[:12]} there, {str(ours)[:12]} here)"
-
-
-def within_chance(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERANCE, *,
-                  baseline_name: str = "the baseline") -> list[str]:
-    """One line per alarm figure that moved the wrong way by more than ``tolerance`` but not beyond
-    chance (no fall), with its p-value and its pool's: what the tolerance alone would have called a fall."""
-    falls = {line.split(" (", 1)[0] for line in bench_falls(result, baseline, tolerance, baseline_name=baseline_name)}
-    odds, pools = alarm_odds(result, baseline)
-    lines = []
-    for line in bench_falls(result, baseline, tolerance, baseline_name=baseline_name, weighed=False):
-        moved = line.split(" (", 1)[0]
-        key, name = moved.split(": ", 1)[0], moved.split(": ", 1)[1].split(" ", 1)[0]
-        if moved in falls or (key, name) not in odds:
-            continue
-        pool = pools.get((key, name))
-        lines.append(f"{moved} ({odds[(key, name)][2]}, one-sided p = {odds[(key, name)][0]:.2g}"
-                     + (f"; {pool[1][2]}, p = {pool[1][0]:.2g}" if pool else "") + ")")
-    return lines
 
 
 #: The alarm rates weighed by chance, and the entries of an alarm row that count them (hits, of episodes).

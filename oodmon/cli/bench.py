@@ -147,7 +147,7 @@ def _bench(args: argparse.Namespace) -> int:
                          masks=args.masks, onsets=args.onsets, failure=args.failure, warmup=args.warmup)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import (BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result,
-                                       provenance_notes, within_chance)
+                                       provenance_notes)
     from oodmon.outputs import check_output_dir, check_output_file
 
     check_output_dir(args.out, parameter="--out")
@@ -173,8 +173,9 @@ def _bench(args: argparse.Namespace) -> int:
     if baseline is None:
         return 0
     tolerance = BASELINE_TOLERANCE if args.tolerance is None else args.tolerance
-    falls = bench_falls(data, baseline, tolerance, baseline_name=args.baseline)
-    for line in within_chance(data, baseline, tolerance, baseline_name=args.baseline):
+    within: list[str] = []
+    falls = bench_falls(data, baseline, tolerance, baseline_name=args.baseline, within=within)
+    for line in within:
         print(f"within chance: {line}", file=sys.stderr)
     for line in falls:
         print(f"FELL {line}", file=sys.stderr)

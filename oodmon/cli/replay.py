@@ -189,7 +189,10 @@ def _check(args: argparse.Namespace) -> int:
         write_json(args.baseline, baseline_of(metrics, tolerance))
         console.print(f"wrote {args.baseline}: {len(metrics)} rows, tolerance {tolerance}{partial}")
         return 0
-    falls = find_falls(metrics, baseline, args.tolerance)
+    within: list[str] = []
+    falls = find_falls(metrics, baseline, args.tolerance, within=within)
+    for line in within:
+        print(f"within chance: {line}", file=sys.stderr)
     if falls:
         for line in falls:
             print(f"FELL {line}", file=sys.stderr)

@@ -104,13 +104,15 @@ def _is_number(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def find_falls(metrics: Sequence[VariantMetrics], baseline: dict, tolerance: float | None = None) -> list[str]:
+def find_falls(metrics: Sequence[VariantMetrics], baseline: dict, tolerance: float | None = None, *,
+               within: list[str] | None = None) -> list[str]:
     """One line per metric that fell below its baseline by more than the tolerance (an episode rate
-    of counted episodes: and by more than chance, see the module docstring), or went missing."""
+    of counted episodes: and by more than chance, see the module docstring), or went missing;
+    ``within``: a list that gets the moves beyond the tolerance within chance (see :func:`compare_metrics`)."""
     tolerance = baseline.get("tolerance", 0.02) if tolerance is None else tolerance
     current = {m.key: {name: getattr(m, name) for name in HIGHER_IS_BETTER + LOWER_IS_BETTER + (COUNT,)}
                | {DELAYS: list(m.delays)} for m in metrics}
-    return compare_metrics(current, baseline["metrics"], tolerance, what="the logs", chance=CHANCE)
+    return compare_metrics(current, baseline["metrics"], tolerance, what="the logs", chance=CHANCE, within=within)
 
 
 def _count(rate: float, episodes: object) -> int | None:
@@ -181,7 +183,8 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
                     tolerance: float, *, what: str = "the new results", relative: Sequence[str] = ("delay_mean",),
                     higher: Sequence[str] = HIGHER_IS_BETTER, chance: float | None = None,
                     odds: dict[tuple[str, str], Odds] | None = None,
-                    pools: dict[tuple[str, str], tuple[str, Odds]] | None = None) -> list[str]:
+                    pools: dict[tuple[str, str], tuple[str, Odds]] | None = None,
+                    within: list[str] | None = None) -> list[str]:
     """One line per metric of ``expected`` (rows of ``{name: value}`` by key) that ``current``
     lacks or that moved the wrong way by more than ``tolerance``: names in ``higher`` may not fall,
     every other name may not rise, those in ``relative`` (delays and leads, counted in steps) by
@@ -193,8 +196,9 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
     ``pools``: a (key, name)'s pool of figures (a name of the pool, and the pooled test's odds):
     ``chance`` is then shared alike by the pools and by the figures of each name, each family held
     to its share by Tarone's rule, and a figure beyond the tolerance falls when its own test or its
-    pool's is beyond chance (:mod:`oodmon.bench.baseline`). Shared by ``oodmon check`` (logs) and
-    ``bench --baseline``."""
+    pool's is beyond chance (:mod:`oodmon.bench.baseline`). ``within``: a list that gets a line
+    for each figure beyond the tolerance but within chance (no fall; the tolerance alone would have
+    called it one), with its p-values. Shared by ``oodmon check`` (logs) and ``bench --baseline``."""
     falls: list[str] = []
     weighed: list[tuple[int, float, str, str | None, tuple[str, Odds] | None]] = []  # (where its line goes, p,
     # line, family, pool)
@@ -236,11 +240,13 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
     pool_level = _tarone_level([odds[1] for odds in dict(pools.values()).values()], share) if pools else 0.0
     kept = []
     for at, p, line, family, pool in weighed:
+        pooled = "" if pool is None else f"; {pool[1][2]}, one-sided p = {pool[1][0]:.2g}"
         if p <= level[family]:
             kept.append((at, f"{line}; tolerance {tolerance})"))
         elif pool is not None and pool[1][0] <= pool_level:
-            kept.append((at, f"{line}, within chance alone; {pool[1][2]}, one-sided p = {pool[1][0]:.2g}; "
-                             f"tolerance {tolerance})"))
+            kept.append((at, f"{line}, within chance alone{pooled}; tolerance {tolerance})"))
+        elif within is not None:
+            within.append(f"{line}{pooled}; tolerance {tolerance})")
     for offset, (at, line) in enumerate(kept):
         falls.insert(at + offset, line)
     return falls

@@ -45,9 +45,13 @@ def test_a_real_regression_still_fails_with_its_counts_and_p_value(name, was, no
     falls = compare_metrics({key: {name: now / EPISODES, "alarm_episodes": EPISODES}}, baseline, 0.02, chance=CHANCE)
     assert len(falls) == 1 and f"({was}/20 to {now}/20 episodes, one-sided p = " in falls[0]
     # the same move within chance: one episode more or less is not a fall
-    nudged = compare_metrics({key: {name: (was + (1 if name != "detection_rate" else -1)) / EPISODES,
-                                    "alarm_episodes": EPISODES}}, baseline, 0.02, chance=CHANCE)
+    within: list[str] = []
+    moved = was + (1 if name != "detection_rate" else -1)
+    nudged = compare_metrics({key: {name: moved / EPISODES, "alarm_episodes": EPISODES}}, baseline, 0.02,
+                             chance=CHANCE, within=within)
     assert nudged == []
+    # ... and is said to be within chance, as `oodmon check` prints it ("within chance: ...")
+    assert len(within) == 1 and f"({was}/20 to {moved}/20 episodes, one-sided p = " in within[0]
 
 
 def test_rates_that_are_not_counts_keep_the_tolerance_alone():
