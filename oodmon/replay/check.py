@@ -200,8 +200,8 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
     for each figure beyond the tolerance but within chance (no fall; the tolerance alone would have
     called it one), with its p-values. Shared by ``oodmon check`` (logs) and ``bench --baseline``."""
     falls: list[str] = []
-    weighed: list[tuple[int, float, str, str | None, tuple[str, Odds] | None]] = []  # (where its line goes, p,
-    # line, family, pool)
+    # each figure weighed by chance that moved beyond the tolerance: (where its line goes, p, line, family, pool)
+    weighed: list[tuple[int, float, str, str | None, tuple[str, Odds] | None]] = []
     # the least attainable p-value of each figure so compared, moved or not, by family: one family
     # (oodmon check), or with pools one per figure name and one of the pools (bench --baseline)
     least: dict[str | None, list[float]] = {}
