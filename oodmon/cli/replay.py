@@ -198,7 +198,8 @@ def _check(args: argparse.Namespace) -> int:
             print(f"FELL {line}", file=sys.stderr)
         print(f"oodmon check: {len(falls)} metric(s) fell below {args.baseline}{partial}", file=sys.stderr)
         return 1
-    console.print(f"ok: {len(metrics)} rows at or above {args.baseline}{partial}")
+    chance = f"; {len(within)} move(s) beyond the tolerance were within chance" if within else ""
+    console.print(f"ok: {len(metrics)} rows at or above {args.baseline}{chance}{partial}")
     return 0
 
 

@@ -191,6 +191,13 @@ def test_check_exit_codes_and_what_fell(tmp_path):
     ok = _cli("check", str(DATA), "--baseline", str(baseline))
     assert ok.returncode == 0 and "ok: 2 rows" in ok.stdout
     data = json.loads(baseline.read_text())
+    # one false alarm fewer of the same 3 episodes: beyond the tolerance, within chance (said, no fall)
+    baseline.write_text(json.dumps(dict(data, metrics=dict(data["metrics"], **{"cartpole/ensemble/cartpole": {
+        "false_alarm_rate": 2 / 3, "alarm_episodes": 3}}))))
+    chance = _cli("check", str(DATA), "--baseline", str(baseline))
+    assert chance.returncode == 0 and "1 move(s) beyond the tolerance were within chance" in chance.stdout
+    assert ("within chance: cartpole/ensemble/cartpole: false_alarm_rate rose from 0.6667 to 1 (2/3 to 3/3 episodes, "
+            "one-sided p = 0.5; tolerance 0.02)") in chance.stderr
     data["metrics"]["cartpole/ensemble/cartpole:length=2.0"]["auroc"] = 0.99
     data["metrics"]["cartpole/ensemble/cartpole"]["false_alarm_rate"] = 0.5
     baseline.write_text(json.dumps(data))
