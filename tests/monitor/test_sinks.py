@@ -321,7 +321,7 @@ def test_a_viewer_that_cannot_start_is_warned_of_with_its_reason_and_the_run_and
                                                        "--server-memory-limit=1GiB", "--expect-data-soon"]
 
 
-def test_a_spawned_viewer_listens_on_this_machine_only_unless_told(agent, tmp_path, monkeypatch):
+def test_a_spawned_viewer_listens_on_this_machine_only_unless_told(agent, tmp_path, monkeypatch, capsys):
     """Rerun's viewer listens on every interface unless told otherwise, and `rerun.spawn` does not
     tell it: `oodmon run --spawn` served the run's stream to the network (rerun-sdk 0.41's viewer:
     "Listening for gRPC connections on 0.0.0.0:9876"). The sink starts it with `--bind` (127.0.0.1
@@ -329,6 +329,7 @@ def test_a_spawned_viewer_listens_on_this_machine_only_unless_told(agent, tmp_pa
     command line, says where it listens (before it needs a display, which CI has not); and a
     stand-in viewer beside this Python (a Rerun gRPC server on the port it is given) takes every
     step of a run."""
+    from oodmon.cli import main
     from oodmon.monitor.sinks.rerun import viewer_command
 
     installed = os.path.join(os.path.dirname(sys.executable), "rerun")
@@ -365,9 +366,15 @@ def test_a_spawned_viewer_listens_on_this_machine_only_unless_told(agent, tmp_pa
         assert sink.viewer is not None and sink.viewer.poll() is None  # started, left running after the run
         assert sink.dropped == 0 and len(memory.steps) == sum(r.length for r in records)  # the viewer took them
         assert f"--port={port} --bind=127.0.0.1 " in (tmp_path / "args").read_text()
+        assert sink.live_at == f"rerun+http://127.0.0.1:{port}/proxy"
         again = RerunSink(spawn=True, port=port)  # a viewer listening there already takes the stream, as with rerun.spawn
         _run(agent, [again], episodes=1)
-        assert again.viewer is None and again.dropped == 0
+        assert again.viewer is None and again.dropped == 0 and again.live_at == sink.live_at
+        capsys.readouterr()
+        assert main(["run", "--task", "cartpole", "--method", "dropout", "--episodes", "1", "--spawn", "--port",
+                     str(port)]) == 0  # the command says where it streams
+        assert (f"streaming to the Rerun viewer at rerun+http://127.0.0.1:{port}/proxy (one already running "
+                "there)") in capsys.readouterr().out
     finally:
         if sink.viewer is not None:
             sink.viewer.kill()

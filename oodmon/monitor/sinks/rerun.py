@@ -97,6 +97,7 @@ class RerunSink:
         self.dropped = 0  # steps not sent to a live viewer that was gone
         self.served_at: str | None = None  # the URL a viewer connects to (``serve``)
         self.viewer = None  # the viewer process ``spawn`` started (subprocess.Popen), left running after the run
+        self.live_at: str | None = None  # the URL of the viewer streamed to (``spawn``, ``connect``), once reached
         self._streams: list = []
         self._live = None
         self._global_step = 0
@@ -135,6 +136,7 @@ class RerunSink:
                 unreachable = _unreachable(url, self.connect_timeout * (10 if self.spawn else 1))
             if unreachable is None:
                 self._live = self._stream(run, [rr.GrpcSink(url)])
+                self.live_at = url
                 self._streams.append(self._live)
             else:
                 _warn(f"no Rerun viewer at {url} ({unreachable}); the run goes on without it"
