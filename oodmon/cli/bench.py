@@ -184,7 +184,8 @@ def _bench(args: argparse.Namespace) -> int:
             print(f"note: {note}", file=sys.stderr)
         print(f"oodmon bench: {len(falls)} figure(s) fell below {args.baseline}", file=sys.stderr)
         return 1
-    print(f"oodmon bench: every figure of {args.baseline} held (tolerance {tolerance})", file=sys.stderr)
+    chance = f"; {len(within)} move(s) beyond it were within chance" if within else ""
+    print(f"oodmon bench: every figure of {args.baseline} held (tolerance {tolerance}{chance})", file=sys.stderr)
     return 0
 
 
