@@ -43,7 +43,7 @@ import numpy as np
 
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
-from oodmon.replay.check import CHANCE, Odds, compare_metrics
+from oodmon.replay.check import CHANCE, MOST_EPISODES, Odds, compare_metrics
 from oodmon.validation import is_whole
 
 __all__ = ["BASELINE_TOLERANCE", "alarm_odds", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result",
@@ -200,9 +200,6 @@ def _difference(theirs: object, ours: object) -> str:
 
 #: The alarm rates weighed by chance, and the entries of an alarm row that count them (hits, of episodes).
 _RATES = {"false_alarm_rate": ("false_alarms", "episodes"), "before_failure_rate": ("before_failure", "failed")}
-#: The most episodes a rate may count to be weighed by chance (the exact test's work grows with them;
-#: a hand-edited count of 10**30 would not end): more keep the tolerance alone.
-_MOST_EPISODES = 100_000
 #: The alarm medians weighed by chance, and the entry of an alarm row that holds their values.
 _MEDIANS = {"delay_median": "delays", "lead_median": "leads"}
 
@@ -263,7 +260,7 @@ def _median_values(row: dict, name: str, field: str) -> list[float] | None:
 def _counted(row: dict, name: str, hits: str, total: str) -> tuple[int, int] | None:
     """``(hits, episodes)`` that the row's rate ``name`` is, or ``None`` (not kept, or not that rate)."""
     rate, k, n = row.get(name), row.get(hits), row.get(total)
-    if (rate is None or not is_whole(n, 1) or not is_whole(k, 0) or k > n or n > _MOST_EPISODES
+    if (rate is None or not is_whole(n, 1) or not is_whole(k, 0) or k > n or n > MOST_EPISODES
             or abs(k / n - rate) > 1e-9):
         return None
     return int(k), int(n)

@@ -34,7 +34,7 @@ from oodmon.replay.metrics import VariantMetrics
 from oodmon.validation import is_whole
 
 __all__ = ["CHANCE", "HIGHER_IS_BETTER", "LOWER_IS_BETTER", "Odds", "baseline_of", "check_tolerance", "compare_metrics",
-           "find_falls", "load_baseline"]
+           "MOST_EPISODES", "find_falls", "load_baseline"]
 
 HIGHER_IS_BETTER = ("auroc", "aupr", "detection_rate")
 LOWER_IS_BETTER = ("fpr_at_95_tpr", "false_alarm_rate", "early_alarm_rate", "delay_mean")
@@ -115,10 +115,15 @@ def find_falls(metrics: Sequence[VariantMetrics], baseline: dict, tolerance: flo
     return compare_metrics(current, baseline["metrics"], tolerance, what="the logs", chance=CHANCE, within=within)
 
 
+#: The most episodes a rate may count to be weighed by chance (the exact test's work grows with them;
+#: a hand-edited count of 10**30 would not end): more keep the tolerance alone.
+MOST_EPISODES = 100_000
+
+
 def _count(rate: float, episodes: object) -> int | None:
-    """``rate`` as a count of ``episodes``, or ``None`` when it is not one (no count kept, or a rate
-    edited by hand)."""
-    if not is_whole(episodes, 1):
+    """``rate`` as a count of ``episodes``, or ``None`` when it is not one (no count kept, a rate
+    edited by hand, or more than :data:`MOST_EPISODES`)."""
+    if not is_whole(episodes, 1) or episodes > MOST_EPISODES:
         return None
     count = round(rate * episodes)
     return count if abs(count - rate * episodes) < 1e-6 else None

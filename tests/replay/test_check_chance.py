@@ -108,3 +108,12 @@ def test_figures_that_could_not_have_moved_do_not_dilute_the_level():
     now = steady | {"c/m/fallen": {"detection_rate": 0.2, "alarm_episodes": 10}}
     (fell,) = compare_metrics(now, baseline, 0.02, chance=CHANCE)
     assert fell.startswith("c/m/fallen: detection_rate fell from 1 to 0.2 (10/10 to 2/10 episodes, one-sided p = 0.00036")
+
+
+def test_a_count_of_more_episodes_than_can_be_weighed_keeps_the_tolerance_alone():
+    """A baseline's alarm_episodes of 10**30 (hand-edited) ended check in an OverflowError traceback
+    from the exact test; past MOST_EPISODES a rate is not weighed and falls on the tolerance alone."""
+    key = "cartpole/m/cartpole"
+    falls = compare_metrics({key: {"false_alarm_rate": 0.5, "alarm_episodes": 10**30}},
+                            {key: {"false_alarm_rate": 0.0, "alarm_episodes": 10**30}}, 0.02, chance=CHANCE)
+    assert falls == [f"{key}: false_alarm_rate rose from 0 to 0.5 (tolerance 0.02)"]
