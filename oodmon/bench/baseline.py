@@ -43,11 +43,11 @@ import numpy as np
 
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
-from oodmon.replay.check import CHANCE, MOST_EPISODES, Odds, compare_metrics
+from oodmon.replay.check import CHANCE, MOST_EPISODES, Odds, _is_number, compare_metrics, stratified_exact
 from oodmon.validation import is_whole
 
 __all__ = ["BASELINE_TOLERANCE", "alarm_odds", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result",
-           "provenance_notes", "stratified_exact", "stratified_ranks"]
+           "provenance_notes", "stratified_ranks"]
 
 #: The default allowed fall (AUROC, AUPR, rates) and relative rise (delays).
 BASELINE_TOLERANCE = 0.02
@@ -93,14 +93,11 @@ _KINDS = {"number": "a finite number", "count": "a whole number >= 0", "numbers"
 
 
 def _is_kind(value: object, kind: str) -> bool:
-    def number(v: object) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
     if kind == "count":
         return is_whole(value, 0)
     if kind == "numbers":
-        return isinstance(value, list) and all(number(v) for v in value)
-    return number(value)
+        return isinstance(value, list) and all(_is_number(v) for v in value)
+    return _is_number(value)
 
 
 def bench_metrics(result: dict) -> dict[str, dict[str, float | None]]:
@@ -266,32 +263,6 @@ def _counted(row: dict, name: str, hits: str, total: str) -> tuple[int, int] | N
     return int(k), int(n)
 
 
-def stratified_exact(tables: list[tuple[int, int, int, int]], higher: bool) -> tuple[float, float]:
-    """The one-sided exact p-value that the new rows' hits are as few (``higher``: a rate that may
-    not fall) or as many as observed, given each stratum's margins, over strata ``(hits before,
-    episodes before, hits after, episodes after)``; and the least p-value those margins allow.
-    Conditional on its margins a stratum's new hits are hypergeometric, independent of the other
-    strata's: their sum's distribution is the convolution. One stratum: Fisher's exact test.
-
-    Example:
-        >>> p, least = stratified_exact([(10, 10, 2, 10)], higher=True)  # 10 of 10, then 2 of 10
-        >>> round(p, 6), round(least, 6)
-        (0.000357, 0.000357)
-    """
-    distribution, offset, observed = np.ones(1), 0, 0
-    for k0, n0, k1, n1 in tables:
-        hits = k0 + k1
-        low, high = max(0, hits - n0), min(n1, hits)
-        ways = math.comb(n0 + n1, n1)
-        pmf = [math.comb(hits, a) * math.comb(n0 + n1 - hits, n1 - a) / ways for a in range(low, high + 1)]
-        distribution = np.convolve(distribution, pmf)
-        offset, observed = offset + low, observed + k1
-    at = observed - offset
-    if higher:
-        return min(1.0, float(distribution[:at + 1].sum())), float(distribution[0])
-    return min(1.0, float(distribution[at:].sum())), float(distribution[-1])
-
-
 def _u_statistic(before: list[float], after: list[float], higher: bool) -> tuple[float, float, float] | None:
     """The new values' Mann-Whitney U, centred (its mean under no change subtracted) and signed so
     that a move the wrong way is positive (lower values where ``higher``); the same at the wrong end
@@ -301,14 +272,10 @@ def _u_statistic(before: list[float], after: list[float], higher: bool) -> tuple
     total = n0 + n1
     values = np.asarray(before + after, float)
     order = np.argsort(values, kind="stable")
+    starts = np.r_[0, np.flatnonzero(np.diff(values[order])) + 1]  # where each run of equal values begins
+    ties = np.diff(np.r_[starts, total])  # and how many it holds
     ranks = np.empty(total)
-    ranks[order] = np.arange(1, total + 1)
-    ties = np.unique(values, return_counts=True)[1]
-    if len(ties) < total:  # mid-ranks for tied values
-        sorted_values = values[order]
-        starts = np.r_[0, np.flatnonzero(np.diff(sorted_values)) + 1]
-        for first, count in zip(starts, ties):
-            ranks[order[first:first + count]] = first + (count + 1) / 2
+    ranks[order] = np.repeat(starts + (ties + 1) / 2, ties)  # mid-ranks
     variance = n0 * n1 / 12.0 * ((total + 1) - float((ties ** 3 - ties).sum()) / (total * (total - 1)))
     if variance <= 0:
         return None

@@ -34,7 +34,7 @@ from oodmon.replay.metrics import VariantMetrics
 from oodmon.validation import is_whole
 
 __all__ = ["CHANCE", "HIGHER_IS_BETTER", "LOWER_IS_BETTER", "Odds", "baseline_of", "check_tolerance", "compare_metrics",
-           "MOST_EPISODES", "find_falls", "load_baseline"]
+           "MOST_EPISODES", "find_falls", "load_baseline", "stratified_exact"]
 
 HIGHER_IS_BETTER = ("auroc", "aupr", "detection_rate")
 LOWER_IS_BETTER = ("fpr_at_95_tpr", "false_alarm_rate", "early_alarm_rate", "delay_mean")
@@ -134,19 +134,36 @@ def _beyond_chance(higher: bool, was: float, now: float, before: object, after: 
     """The one-sided Fisher exact p-value of an episode rate's move the wrong way (down where
     ``higher`` is better), the least one its margins allow, and its counts' words; ``None`` when
     either value is not a count of its episodes."""
-    from scipy.stats import fisher_exact  # heavy: imported when used
-
     k0, k1 = _count(was, before), _count(now, after)
     if k0 is None or k1 is None:
         return None
-    alternative = "less" if higher else "greater"
-    p = float(fisher_exact([[k1, after - k1], [k0, before - k0]], alternative=alternative)[1])  # the new row first
-    # the least p-value any table of these margins gives (Tarone): the new row's count at its extreme
-    total = k0 + k1
-    extreme = max(0, total - before) if higher else min(after, total)
-    least = float(fisher_exact([[extreme, after - extreme], [total - extreme, before - total + extreme]],
-                               alternative=alternative)[1])
-    return p, least, f"{k0}/{before} to {k1}/{after} episodes"
+    return *stratified_exact([(k0, before, k1, after)], higher), f"{k0}/{before} to {k1}/{after} episodes"
+
+
+def stratified_exact(tables: list[tuple[int, int, int, int]], higher: bool) -> tuple[float, float]:
+    """The one-sided exact p-value that the new rows' hits are as few (``higher``: a rate that may
+    not fall) or as many as observed, given each stratum's margins, over strata ``(hits before,
+    episodes before, hits after, episodes after)``; and the least p-value those margins allow.
+    Conditional on its margins a stratum's new hits are hypergeometric, independent of the other
+    strata's: their sum's distribution is the convolution. One stratum: Fisher's exact test.
+
+    Example:
+        >>> p, least = stratified_exact([(10, 10, 2, 10)], higher=True)  # 10 of 10, then 2 of 10
+        >>> round(p, 6), round(least, 6)
+        (0.000357, 0.000357)
+    """
+    distribution, offset, observed = np.ones(1), 0, 0
+    for k0, n0, k1, n1 in tables:
+        hits = k0 + k1
+        low, high = max(0, hits - n0), min(n1, hits)
+        ways = math.comb(n0 + n1, n1)
+        pmf = [math.comb(hits, a) * math.comb(n0 + n1 - hits, n1 - a) / ways for a in range(low, high + 1)]
+        distribution = np.convolve(distribution, pmf)
+        offset, observed = offset + low, observed + k1
+    at = observed - offset
+    if higher:
+        return min(1.0, float(distribution[:at + 1].sum())), float(distribution[0])
+    return min(1.0, float(distribution[at:].sum())), float(distribution[-1])
 
 
 def _delays_beyond_chance(was: float, now: float, before: object, after: object) -> tuple[float, float, str] | None:

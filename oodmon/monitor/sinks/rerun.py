@@ -131,9 +131,8 @@ class RerunSink:
             self._streams.append(self._stream(run, local))
         if self.connect or self.spawn:
             url = self.connect or f"rerun+http://{_reach(self.bind)}:{self.port}/proxy"
-            unreachable = self._spawn_viewer(url) if self.spawn else None
-            if unreachable is None:
-                unreachable = _unreachable(url, self.connect_timeout * (10 if self.spawn else 1))
+            # a spawned viewer is waited for until it takes connections; a URL given is tried once
+            unreachable = self._spawn_viewer(url) if self.spawn else _unreachable(url, self.connect_timeout)
             if unreachable is None:
                 self._live = self._stream(run, [rr.GrpcSink(url)])
                 self.live_at = url
