@@ -72,6 +72,7 @@ def files(tmp_path_factory) -> Path:
         (root / name).write_text(text)
     (root / "base-binary.json").write_bytes(bytes(range(256)))
     (root / "a-file").write_text("")
+    (root / "model.zip").write_bytes(b"PK\x03\x04 a user's model")  # read by nothing: refused before any load
     (root / "a-folder").mkdir()
     _log_with_a_broken_episode_record(root / "broken-episode.mcap")
     return root
@@ -100,6 +101,9 @@ CASES = [
     ("run-mcap-same-as-rrd", [*RUN, "--mcap", "{d}/same", "--rrd", "{d}/same"], {}, ["--rrd", "same", "--mcap"]),
     ("run-mcap-is-the-threshold", [*RUN, "--threshold", "{d}/thr.json", "--mcap", "{d}/thr.json"], {},
      ["--mcap", "thr.json", "--threshold"]),
+    ("run-mcap-is-the-vec-normalize", ["run", "--sb3", "{d}/model.zip", "--env", "CartPole-v1", "--vec-normalize",
+                                       "{d}/a-file", "--mcap", "{d}/a-file", "--overwrite"], {},
+     ["--mcap", "a-file", "--vec-normalize"]),
     ("run-threshold-missing", [*RUN, "--threshold", "{d}/nothing.json"], {}, ["nothing.json", "does not exist"]),
     ("run-threshold-a-number", [*RUN, "--threshold", "{d}/thr-number.json"], {}, ["thr-number.json", "5"]),
     ("run-threshold-a-string", [*RUN, "--threshold", "{d}/thr-string.json"], {}, ["thr-string.json", "abc"]),
@@ -123,6 +127,13 @@ CASES = [
     ("calibrate-episodes-negative", [*CALIBRATE, "--episodes", "-1", "--out", "{d}/t.json"], {}, ["--episodes", "-1"]),
     ("calibrate-out-in-proc", [*CALIBRATE, "--out", "/proc/t.json"], {}, ["--out", "/proc/t.json"]),
     ("calibrate-out-is-a-folder", [*CALIBRATE, "--out", "{d}/a-folder"], {}, ["--out", "a-folder"]),
+    # A name typed wrong: the model it reads, or a file that holds no threshold, is not replaced.
+    ("calibrate-out-is-the-sb3-model", ["calibrate", "--sb3", "{d}/model.zip", "--env", "CartPole-v1", "--out",
+                                        "{d}/model.zip"], {}, ["--out", "model.zip", "is also --sb3"]),
+    ("calibrate-out-is-a-log", [*CALIBRATE, "--out", "{d}/broken-episode.mcap"], {},
+     ["--out", "broken-episode.mcap", "holds no threshold", "not valid JSON"]),
+    ("calibrate-out-is-a-baseline", [*CALIBRATE, "--out", "{d}/base-metrics-5.json"], {},
+     ["--out", "base-metrics-5.json", "holds no threshold", "lacks value"]),
     ("calibrate-far-1.5", [*CALIBRATE, "--far", "1.5", "--out", "{d}/t.json"], {}, ["--far", "1.5"]),
     ("calibrate-far-too-small-for-n", [*CALIBRATE, "--far", "0.01", "--out", "{d}/t.json"], {}, ["far=0.01", "230", "45"]),
     ("calibrate-confidence-1", [*CALIBRATE, "--confidence", "1", "--out", "{d}/t.json"], {}, ["--confidence", "1"]),

@@ -121,9 +121,13 @@ def test_calibrate_then_run_with_logs(tmp_path):
                     "--window", "20", "--out", str(tmp_path / "w.json"))
     assert "alarm when mean score over 20 steps >" in windowed.stdout
     assert json.loads((tmp_path / "w.json").read_text())["window"] == 20
+    (tmp_path / "warm.json").write_text(threshold.read_text())  # a threshold there already: replaced, and said so
     warm = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--confidence", "none",
                 "--warmup", "30", "--out", str(tmp_path / "warm.json"))
     assert warm.returncode == 0, warm.stderr
+    first = json.loads(threshold.read_text())
+    assert (f"wrote {tmp_path / 'warm.json'} (replacing the threshold it held: alarm when score > {first['value']:g}, "
+            "combined detector, 19 ID episodes)") in warm.stdout
     assert "from step 30 of each episode (combined detector" in warm.stdout
     assert json.loads((tmp_path / "warm.json").read_text())["warmup"] == 30
     # The bound: marginal (rank ceil(20 * 0.95) = 19 of 19), or for this threshold with confidence 0.9.

@@ -40,6 +40,21 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
     return load(args.task, args.method, seed=seed, masks=masks)
 
 
+def _input_files(args: argparse.Namespace) -> list[tuple[str, str]]:
+    """``(option, path)`` of every file a command's agent arguments read (--threshold, --model's
+    files, --sb3, --vec-normalize, --detectors' files): an output given one of these paths would
+    destroy it (``oodmon.outputs.check_output_file``'s ``inputs``)."""
+    files = [("--threshold", getattr(args, "threshold", None))]
+    for option, folder, names in (("--model", getattr(args, "model", None), ("model.json", "model.safetensors")),
+                                  ("--detectors", getattr(args, "detectors", None),
+                                   ("detectors.json", "detectors.safetensors"))):
+        files += [(option, str(Path(folder) / name)) for name in names] if folder else []
+    files += [("--sb3", path) for path in getattr(args, "sb3", None) or ()]
+    normalizer = getattr(args, "vec_normalize", None)
+    files.append(("--vec-normalize", normalizer if normalizer != "none" else None))
+    return [(option, path) for option, path in files if path]
+
+
 def _check_frame_stack(frame_stack: int | None) -> None:
     """``--frame-stack``, refused before any model is read unless 2 or more (or not given)."""
     if frame_stack is not None:

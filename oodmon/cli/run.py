@@ -11,7 +11,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from oodmon.cli.loading import _detectors, _load_agent
+from oodmon.cli.loading import _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import _KEPT, _SEED, _agent_arguments, _positive, _whole
 from oodmon.errors import ConfigError
 from oodmon.names import TASKS
@@ -68,8 +68,7 @@ def _run(args: argparse.Namespace) -> int:
     from oodmon.monitor.sinks.rerun import RerunSink
     from oodmon.outputs import check_output_file
 
-    inputs = [("--threshold", args.threshold), ("--model", args.model and f"{args.model}/model.safetensors"),
-              ("--model", args.model and f"{args.model}/model.json"), *[("--sb3", path) for path in args.sb3 or ()]]
+    inputs = _input_files(args)
     started = _start_time()  # {start} in the logs' names
     args.mcap, args.rrd = (name and name.replace("{start}", started) for name in (args.mcap, args.rrd))
     if (args.mcap_split_episodes or args.mcap_split_mb) and not args.mcap:
