@@ -12,13 +12,14 @@ from __future__ import annotations
 import errno
 import os
 import re
-from collections.abc import Iterable
+import warnings
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from oodmon.errors import ConfigError
 
-__all__ = ["PICTURE_SUFFIXES", "check_output_dir", "check_output_file", "check_picture_file", "safe_filename",
-           "save_figure"]
+__all__ = ["PICTURE_SUFFIXES", "check_output_dir", "check_output_file", "check_picture_file", "replaced_file",
+           "safe_filename", "save_figure"]
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -93,6 +94,35 @@ def _check_file(path: Path, parameter: str, inputs: Iterable[tuple[str, str | Pa
     if not existed:
         path.unlink(missing_ok=True)
     return path
+
+
+def replaced_file(path: str | Path, *, parameter: str, holds: str, read: Callable[[Path], object]) -> object | None:
+    """What an output file a command will replace holds, as ``read`` reads it (``None``: no file
+    there). A file there that ``read`` refuses (:class:`ConfigError`) is refused, with its reason:
+    a command that writes ``holds`` (a threshold, a baseline) replaces only such a file, not a
+    model or a log at a name typed wrong. Call it before the work.
+
+    Example:
+        >>> import tempfile
+        >>> log = Path(tempfile.mkdtemp()) / "run.mcap"
+        >>> _ = log.write_bytes(b"an MCAP log")
+        >>> def read_threshold(path):
+        ...     raise ConfigError(f"{path.name} is not valid JSON")
+        >>> replaced_file(log, parameter="--out", holds="threshold", read=read_threshold)
+        Traceback (most recent call last):
+        ...
+        oodmon.errors.ConfigError: --out ... exists and holds no threshold (run.mcap is not valid JSON): ...
+    """
+    path = Path(path)
+    if not path.is_file():
+        return None
+    try:
+        with warnings.catch_warnings():  # fields a newer oodmon wrote: such a file all the same
+            warnings.simplefilter("ignore")
+            return read(path)
+    except ConfigError as error:
+        raise ConfigError(f"{parameter} {path} exists and holds no {holds} ({error}): it would be replaced; give "
+                          "another path (or remove that file first)") from None
 
 
 def check_output_dir(path: str | Path, *, parameter: str) -> Path:

@@ -148,7 +148,7 @@ def _bench(args: argparse.Namespace) -> int:
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import (BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result,
                                        provenance_notes)
-    from oodmon.outputs import check_output_dir, check_output_file
+    from oodmon.outputs import check_output_dir, check_output_file, replaced_file
 
     check_output_dir(args.out, parameter="--out")
     if args.tolerance is not None and not args.baseline:
@@ -158,6 +158,7 @@ def _bench(args: argparse.Namespace) -> int:
         check_same_settings(config.what_made_the_numbers(), baseline, args.baseline)
     if args.results:
         check_output_file(args.results, parameter="--results", inputs=[("--baseline", args.baseline)])
+        replaced_file(args.results, parameter="--results", holds="bench result", read=load_bench_result)
     with _progress() as report:
         result = run_bench(config, on_progress=report)
     data = result.to_json(config, command=_command_line(args))

@@ -58,16 +58,16 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from oodmon.monitor import calibrate_agent
+    from oodmon.monitor import Threshold, calibrate_agent
     from oodmon.monitor.detectors import (
         BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors, fitting_notes,
     )
     from oodmon.monitor.detectors.fitting import fitted_when_named
     from oodmon.monitor.threshold import conformal_rank
-    from oodmon.outputs import check_output_dir, check_output_file
+    from oodmon.outputs import check_output_dir, check_output_file, replaced_file
 
     check_output_file(args.out, parameter="--out", inputs=_input_files(args))
-    replaced = _replaced_threshold(args.out)  # before any episode: a file that is not a threshold is refused
+    replaced = replaced_file(args.out, parameter="--out", holds="threshold", read=Threshold.load)  # before any episode
     if args.mode == "episode":
         conformal_rank(args.episodes, args.far, args.confidence)  # too few episodes: said before any runs
     agent = _load_agent(args, seed=args.seed)  # the same --seed, the same threshold, for MC agents too
@@ -100,7 +100,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         f"mode, {threshold.n_episodes} ID episodes, {threshold.n_steps} steps, rank {threshold.rank} of "
         f"{threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score median "
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote {args.out}"
-        + (f" (replacing the threshold it held: {replaced})" if replaced else "")
+        + (f" (replacing the threshold it held: alarm when {replaced.rule_text}, {replaced.detector} detector, "
+           f"{replaced.n_episodes} ID episodes)" if replaced else "")
         + (f"; fitted the detectors into {fitted_to} (`oodmon run` finds them there)"
            if fitted_to else "")
     )
@@ -114,26 +115,6 @@ def _calibrate(args: argparse.Namespace) -> int:
             f"`--detector {best}` fits it first (about {DEFAULT_FIT_EPISODES} more ID episodes)"
             + (f"; the fitted one is left out: {left_out}" if left_out and best == "combined" else ""))
     return 0
-
-
-def _replaced_threshold(path: str) -> str | None:
-    """The threshold file at calibrate's ``--out`` that the new one will replace, in words (its
-    rule, detector and episodes), or None if there is none; a file there that is no threshold (a
-    model, a log: the wrong name typed) is refused, before any episode runs."""
-    import warnings
-
-    from oodmon.monitor import Threshold
-
-    if not Path(path).is_file():
-        return None
-    try:
-        with warnings.catch_warnings():  # fields of a newer oodmon: a threshold all the same
-            warnings.simplefilter("ignore")
-            old = Threshold.load(path)
-    except ConfigError as error:
-        raise ConfigError(f"--out {path} exists and holds no threshold ({error}): calibrate would replace it; "
-                          "give another path (or remove that file first)") from None
-    return f"alarm when {old.rule_text}, {old.detector} detector, {old.n_episodes} ID episodes"
 
 
 def _add_validate(commands: argparse._SubParsersAction) -> None:

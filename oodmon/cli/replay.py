@@ -172,11 +172,12 @@ def _add_check(commands: argparse._SubParsersAction) -> None:
 
 def _check(args: argparse.Namespace) -> int:
 
-    from oodmon.outputs import check_output_file
+    from oodmon.outputs import check_output_file, replaced_file
     from oodmon.replay import baseline_of, compute_all_metrics, find_falls, load_baseline
 
     if args.update:
         check_output_file(args.baseline, parameter="--baseline", inputs=[("a log", log) for log in args.logs])
+        replaced = replaced_file(args.baseline, parameter="--baseline", holds="baseline", read=load_baseline)
         baseline = None
     else:
         baseline = load_baseline(args.baseline)  # before the logs: a bad baseline fails at once
@@ -187,7 +188,8 @@ def _check(args: argparse.Namespace) -> int:
     if args.update:
         tolerance = 0.02 if args.tolerance is None else args.tolerance
         write_json(args.baseline, baseline_of(metrics, tolerance))
-        console.print(f"wrote {args.baseline}: {len(metrics)} rows, tolerance {tolerance}{partial}")
+        console.print(f"wrote {args.baseline}: {len(metrics)} rows, tolerance {tolerance}{partial}"
+                      + (f" (replacing the baseline it held: {len(replaced['metrics'])} rows)" if replaced else ""))
         return 0
     within: list[str] = []
     falls = find_falls(metrics, baseline, args.tolerance, within=within)

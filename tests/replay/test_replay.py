@@ -191,6 +191,9 @@ def test_check_exit_codes_and_what_fell(tmp_path):
     ok = _cli("check", str(DATA), "--baseline", str(baseline))
     assert ok.returncode == 0 and "ok: 2 rows" in ok.stdout
     data = json.loads(baseline.read_text())
+    again = _cli("check", str(DATA), "--baseline", str(baseline), "--update")  # a baseline replaced: said so
+    assert again.returncode == 0 and "(replacing the baseline it held: 2 rows)" in again.stdout
+    assert json.loads(baseline.read_text()) == data
     # one false alarm fewer of the same 3 episodes: beyond the tolerance, within chance (said, no fall)
     baseline.write_text(json.dumps(dict(data, metrics=dict(data["metrics"], **{"cartpole/ensemble/cartpole": {
         "false_alarm_rate": 2 / 3, "alarm_episodes": 3}}))))
