@@ -28,7 +28,7 @@ from oodmon.envs.registration import task_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.sinks.base import Sink
-from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
+from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, Threshold
 from oodmon.progress import Progress
 from oodmon.validation import is_whole
 
@@ -114,7 +114,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     Raises:
         ConfigError, InvalidParameterError: as :func:`as_agent` and the calibration, before any
             episode runs where they can be told from the arguments; ``threshold`` and ``save``
-            both given; a ``threshold`` file of another policy, or whose detectors are missing.
+            both given; a ``threshold`` file of another policy, or whose detectors are missing; a
+            ``save`` path that is one of the files it reads, or holds a file that is no threshold
+            (a threshold there is replaced).
     """
     from oodmon.monitor.alarms import check_warmup
     from oodmon.monitor.calibration import calibrate_agent
@@ -122,7 +124,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     from oodmon.monitor.detectors.fitting import fitted_when_named
     from oodmon.monitor.monitor import Monitor, MonitoredEnv, check_env_of
     from oodmon.monitor.threshold import conformal_rank
-    from oodmon.outputs import check_output_dir, check_output_file
+    from oodmon.outputs import check_output_dir, check_output_file, replaced_file
 
     if threshold is not None and save is not None:
         raise ConfigError("give threshold= (read a calibration made before) or save= (write the one made now), not both")
@@ -138,8 +140,11 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
         if fit_episodes is not None and not is_whole(fit_episodes, 3):  # (fit_agent_detectors would say "episodes=", after loading the models)
             raise InvalidParameterError(f"fit_episodes={fit_episodes!r} is not allowed; fitting the detectors needs a "
                                         "whole number >= 3 of ID episodes (two thirds fit, one third ranks)")
-        if save is not None:  # an unwritable path: said now, not after the calibration
-            check_output_file(save, parameter="save")
+        if save is not None:  # an unwritable path, or one that holds a model or a log: said now, not after the calibration
+            files = [*(policy if isinstance(policy, (list, tuple)) else [policy]), vec_normalize]
+            check_output_file(save, parameter="save", inputs=[("a file it reads", path) for path in files
+                                                              if isinstance(path, (str, Path))])
+            replaced_file(save, parameter="save", holds="threshold", read=Threshold.load)
             check_output_dir(f"{save}.detectors", parameter="save (its detectors folder)")
         agent = as_agent(policy, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize,
                          frame_stack=frame_stack)
