@@ -369,10 +369,33 @@ def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, ca
     assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold)]) == 2
     assert "does not have" in capsys.readouterr().err
     # Without --detector and without fitted detectors, the alarm reads spread and says what is better.
+    # Calibrated into the same file: the detectors fitted beside the threshold it replaces go with it
+    # (`run` would read them first).
+    (tmp_path / "elsewhere").rename(tmp_path / "thr.json.detectors")
     assert main(["calibrate", "--task", "cartpole", "--model", str(model), "--episodes", "19", "--confidence", "none",
-                 "--out", str(tmp_path / "spread.json")]) == 0
-    assert json.loads((tmp_path / "spread.json").read_text())["detector"] == "spread"
-    assert "the combined detector separates cartpole's shifts better" in capsys.readouterr().err
+                 "--out", str(threshold)]) == 0
+    assert json.loads(threshold.read_text())["detector"] == "spread"
+    out, err = capsys.readouterr()
+    assert "the combined detector separates cartpole's shifts better" in err
+    assert f"removed the detectors an earlier calibration fitted into {tmp_path / 'thr.json.detectors'}" in out
+    assert not (tmp_path / "thr.json.detectors").exists()
+    assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold), "--episodes", "1"]) == 0
+
+
+def test_calibrate_clears_only_the_detectors_it_wrote_beside_the_threshold_and_not_those_it_read(tmp_path):
+    from oodmon.cli.calibration import _clear_earlier_detectors
+
+    folder = tmp_path / "t.json.detectors"
+    folder.mkdir()
+    for name in ("detectors.json", "detectors.safetensors", "notes.txt"):
+        (folder / name).write_text(name)
+    assert _clear_earlier_detectors(str(tmp_path / "t.json"), given=str(folder)) is None  # --detectors named it
+    assert _clear_earlier_detectors(str(tmp_path / "t.json"), given=str(tmp_path / "other")) == folder
+    assert sorted(p.name for p in folder.iterdir()) == ["notes.txt"]  # a file of the user's: kept, and its folder
+    assert _clear_earlier_detectors(str(tmp_path / "t.json"), given=None) is None  # no detectors there now
+    (folder / "notes.txt").unlink()
+    (folder / "detectors.json").write_text("{}")
+    assert _clear_earlier_detectors(str(tmp_path / "t.json"), given=None) == folder and not folder.exists()
 
 
 def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, capsys):

@@ -95,6 +95,7 @@ def _calibrate(args: argparse.Namespace) -> int:
                                     reference_episodes=args.reference_episodes, reference_by_age=args.reference_by_age,
                                     warmup=args.warmup, on_progress=report)
     threshold.save(args.out)
+    cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "
         f"mode, {threshold.n_episodes} ID episodes, {threshold.n_steps} steps, rank {threshold.rank} of "
@@ -104,6 +105,8 @@ def _calibrate(args: argparse.Namespace) -> int:
            f"{replaced.n_episodes} ID episodes)" if replaced else "")
         + (f"; fitted the detectors into {fitted_to} (`oodmon run` finds them there)"
            if fitted_to else "")
+        + (f"; removed the detectors an earlier calibration fitted into {cleared} (`oodmon run` would read them "
+           "before those this threshold was calibrated with)" if cleared else "")
     )
     if fitted_to:
         for note in fitting_notes(detectors):
@@ -115,6 +118,24 @@ def _calibrate(args: argparse.Namespace) -> int:
             f"`--detector {best}` fits it first (about {DEFAULT_FIT_EPISODES} more ID episodes)"
             + (f"; the fitted one is left out: {left_out}" if left_out and best == "combined" else ""))
     return 0
+
+
+def _clear_earlier_detectors(out: str, given: str | None) -> Path | None:
+    """Remove the detectors an earlier calibration fitted beside ``out`` (``<out>.detectors/``,
+    the two files ``DetectorSet.save`` writes; the folder too once empty) when this one fitted none
+    there, and return that folder (``None``: nothing removed). `oodmon run --threshold` and
+    `validate` read that folder before the agent's own detectors: left there, they would be read
+    with a threshold calibrated on others (and refused). Kept when ``--detectors`` named it."""
+    import contextlib
+
+    folder = Path(f"{out}.detectors")
+    if not (folder / "detectors.json").is_file() or (given is not None and Path(given).resolve() == folder.resolve()):
+        return None
+    for name in ("detectors.json", "detectors.safetensors"):
+        (folder / name).unlink(missing_ok=True)
+    with contextlib.suppress(OSError):  # it holds other files: kept
+        folder.rmdir()
+    return folder
 
 
 def _add_validate(commands: argparse._SubParsersAction) -> None:
