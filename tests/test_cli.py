@@ -330,7 +330,7 @@ def test_fit_detectors_writes_a_set_that_calibrate_and_run_read(tmp_path, capsys
     assert rows["dynamics"]["auroc"] > 0.75 and rows["dynamics"]["detection_rate"] == 1.0
 
 
-def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, capsys):
+def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, capsys, monkeypatch):
     """A model without fitted detectors: `calibrate --detector dynamics` fits them on episodes of their
     own beside the threshold, and `run --detectors` alarms on the shifted world with them."""
     import shutil
@@ -351,6 +351,19 @@ def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, ca
     assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold),
                  "--variant", "cartpole:length=2.0", "--episodes", "2"]) == 0
     assert "2 of 2 episodes raised an alarm" in capsys.readouterr().out
+    # Calibrated again into it and interrupted after the fit: the threshold and the detectors it was
+    # calibrated with are left as they were (the new detectors were written at once before).
+    kept = {p.name: p.read_bytes() for p in [threshold, *(tmp_path / "thr.json.detectors").iterdir()]}
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr("oodmon.monitor.calibrate_agent", interrupted)
+        assert main(["calibrate", "--task", "cartpole", "--model", str(model), "--detector", "dynamics", "--episodes",
+                     "19", "--confidence", "none", "--fit-episodes", "6", "--out", str(threshold)]) == 130
+    assert "no threshold file or detectors were written" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in [threshold, *(tmp_path / "thr.json.detectors").iterdir()]} == kept
     (tmp_path / "thr.json.detectors").rename(tmp_path / "elsewhere")
     assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold),
                  "--detectors", str(tmp_path / "elsewhere"), "--variant", "cartpole:length=2.0",

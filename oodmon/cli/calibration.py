@@ -87,13 +87,16 @@ def _calibrate(args: argparse.Namespace) -> int:
         with _progress() as report:
             detectors = fit_agent_detectors(agent, detectors=fitted_when_named(args.detector), score=args.score,
                                             episodes=args.fit_episodes, on_progress=report)
-        detectors.save(fitted_to)
     with _progress() as report:
         threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
                                     window=args.window, score=args.score, seed=args.seed, detectors=detectors,
                                     detector=args.detector, confidence=args.confidence, rule=args.rule,
                                     reference_episodes=args.reference_episodes, reference_by_age=args.reference_by_age,
                                     warmup=args.warmup, on_progress=report)
+    # Written together once the calibration ends: an interrupted one leaves the earlier threshold
+    # with the detectors it was calibrated with (the new ones written first broke that pair).
+    if fitted_to:
+        detectors.save(fitted_to)
     threshold.save(args.out)
     cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
     Console(soft_wrap=True).print(

@@ -14,7 +14,8 @@ _KEPT = {
     "run": _LOGGED, "demo": _LOGGED,
     "train": "the last checkpoint is kept: the same command resumes from it",
     "bench": "trained models and finished cells are kept: the same command resumes from them",
-    "calibrate": "no threshold file was written (it is written when the calibration ends): run the command again",
+    "calibrate": "no threshold file or detectors were written (they are written when the calibration ends; those at "
+                 "--out are as they were): run the command again",
     "fit-detectors": "no detectors were written (they are written when the fitting ends): run the command again",
 }
 
