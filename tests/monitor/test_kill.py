@@ -248,8 +248,8 @@ def test_ctrl_c_says_what_each_command_leaves_behind(tmp_path, monkeypatch, caps
     monkeypatch.setattr(Monitor, "step", interrupted)
     code = main(["calibrate", "--task", "cartpole", "--method", "dropout", "--out", str(tmp_path / "t.json")])
     assert code == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
-        "oodmon: interrupted; no threshold file was written (it is written when the calibration ends): "
-        "run the command again")
+        "oodmon: interrupted; no threshold file or detectors were written (they are written when the calibration "
+        "ends; those at --out are as they were): run the command again")
     assert not (tmp_path / "t.json").exists()
 
 
