@@ -104,6 +104,8 @@ CASES = [
     ("run-mcap-is-the-vec-normalize", ["run", "--sb3", "{d}/model.zip", "--env", "CartPole-v1", "--vec-normalize",
                                        "{d}/a-file", "--mcap", "{d}/a-file", "--overwrite"], {},
      ["--mcap", "a-file", "--vec-normalize"]),
+    ("run-overwrite-a-model", [*RUN, "--mcap", "{d}/model.zip", "--overwrite"], {},
+     ["model.zip", "is not an MCAP log", "give another path"]),
     ("run-threshold-missing", [*RUN, "--threshold", "{d}/nothing.json"], {}, ["nothing.json", "does not exist"]),
     ("run-threshold-a-number", [*RUN, "--threshold", "{d}/thr-number.json"], {}, ["thr-number.json", "5"]),
     ("run-threshold-a-string", [*RUN, "--threshold", "{d}/thr-string.json"], {}, ["thr-string.json", "abc"]),

@@ -65,6 +65,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from oodmon.monitor import McapSink, Monitor, Threshold
     from oodmon.monitor.sinks.base import refuse_earlier_logs
+    from oodmon.monitor.sinks.mcap import part_path
     from oodmon.monitor.sinks.rerun import RerunSink
     from oodmon.outputs import check_output_file
 
@@ -73,12 +74,13 @@ def _run(args: argparse.Namespace) -> int:
     args.mcap, args.rrd = (name and name.replace("{start}", started) for name in (args.mcap, args.rrd))
     if (args.mcap_split_episodes or args.mcap_split_mb) and not args.mcap:
         raise ConfigError("--mcap-split-episodes and --mcap-split-mb split an MCAP log: give --mcap too")
+    if args.mcap:  # said in the CLI's words before the sink is made (which refuses a file that is no log)
+        check_output_file(part_path(args.mcap, 0, splits=bool(args.mcap_split_episodes or args.mcap_split_mb)),
+                          parameter="--mcap", inputs=inputs)
     # overwrite=True: the logs an earlier run left are refused below, with the CLI's words, unless
     # --overwrite; then the sinks replace them when the run starts, once the inputs have loaded
     mcap = McapSink(args.mcap, split_episodes=args.mcap_split_episodes, split_mb=args.mcap_split_mb,
                     overwrite=True) if args.mcap else None
-    if mcap is not None:
-        check_output_file(mcap.part_path(0), parameter="--mcap", inputs=inputs)
     if args.rrd:
         check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
     if not args.overwrite:  # an earlier run's log, whole or split

@@ -48,7 +48,7 @@ import numpy as np
 
 __all__ = [
     "ALARM", "EPISODE", "EPISODE_SCHEMA", "EPISODE_SCORES", "EPISODE_SCORES_SCHEMA", "EPISODE_START",
-    "EPISODE_START_SCHEMA", "FORMAT_VERSION", "FRAME",
+    "EPISODE_START_SCHEMA", "FORMAT_VERSION", "FRAME", "MCAP_MAGIC",
     "RUN_METADATA", "STEP", "STEP_SCHEMA", "decode_array", "encode_episode_scores",
 ]
 
@@ -59,6 +59,8 @@ ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
 #: JSON topics replay decodes; the others (protobuf alarms and frames) it skips.
 JSON_TOPICS = (EPISODE, EPISODE_SCORES, STEP, EPISODE_START)
 RUN_METADATA = "oodmon.run"
+#: The bytes an MCAP file begins (and a finished one ends) with.
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def _object(title: str, properties: dict[str, Any], required: list[str]) -> dict[str, Any]:

@@ -32,7 +32,7 @@ from oodmon.replay.parts import missing_parts, without_copies
 __all__ = ["EpisodeLog", "MissingPartWarning", "NewerFormatWarning", "RecoveryWarning", "RunLog", "SkippedLogWarning",
            "read_log", "read_logs"]
 
-_MAGIC = b"\x89MCAP0\r\n"
+_MAGIC = logformat.MCAP_MAGIC
 _EPISODE, _SCORES, _STEP = logformat.EPISODE, logformat.EPISODE_SCORES, logformat.STEP
 _START = logformat.EPISODE_START
 

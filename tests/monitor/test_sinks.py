@@ -184,6 +184,36 @@ def test_a_sink_refuses_the_log_of_an_earlier_run_unless_told_to_overwrite(agent
     assert [len(log.episodes) for log in read_logs([split.parent])] == [1]
 
 
+def test_overwrite_replaces_only_logs_not_a_model_or_a_threshold_at_the_path(agent, tmp_path):
+    """overwrite=True is for the log of an earlier run: a file there that is no log of the sink's kind
+    (a name typed wrong: a model, a threshold, an MCAP path given to the Rerun sink) is refused either
+    way, when the sink is made and again at open; an empty file (a log torn at its start) is replaced."""
+    from oodmon.errors import ConfigError
+    from oodmon.replay import read_log
+
+    model, threshold = tmp_path / "policy.zip", tmp_path / "threshold.json"
+    model.write_bytes(b"PK\x03\x04" + bytes(100))
+    threshold.write_text('{"value": 1.0}')
+    for make, path, kind in [(McapSink, model, "an MCAP log"), (McapSink, threshold, "an MCAP log"),
+                             (RerunSink, model, r"a Rerun recording \(\.rrd\)")]:
+        for overwrite in (False, True):
+            with pytest.raises(ConfigError, match=f"{path.name} exists and is not {kind} .*give another path"):
+                make(path, overwrite=overwrite)
+    mcap = McapSink(tmp_path / "run.mcap")  # made before the file came, as a run that starts later
+    (tmp_path / "run.mcap").write_bytes(model.read_bytes())
+    with pytest.raises(ConfigError, match="run.mcap exists and is not an MCAP log"):
+        _run(agent, [mcap], episodes=1, strict=True)
+    _run(agent, [McapSink(tmp_path / "deploy.mcap"), RerunSink(tmp_path / "deploy.rrd")], episodes=1)
+    with pytest.raises(ConfigError, match="deploy.mcap exists and is not a Rerun recording"):
+        RerunSink(tmp_path / "deploy.mcap", overwrite=True)  # an MCAP log is not the Rerun sink's to replace
+    assert model.read_bytes() == b"PK\x03\x04" + bytes(100) and threshold.read_text() == '{"value": 1.0}'
+    (tmp_path / "torn.mcap").write_bytes(b"")
+    (tmp_path / "torn.rrd").write_bytes(b"RR")
+    _run(agent, [McapSink(tmp_path / "torn.mcap", overwrite=True), RerunSink(tmp_path / "torn.rrd", overwrite=True)],
+         episodes=1)
+    assert len(read_log(tmp_path / "torn.mcap").episodes) == 1 and (tmp_path / "torn.rrd").read_bytes()[:4] == b"RRF2"
+
+
 def test_a_failing_sink_warns_counts_and_the_loop_goes_on(agent, tmp_path):
     good = MemorySink()
     broken = BrokenSink()

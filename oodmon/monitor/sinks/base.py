@@ -10,7 +10,7 @@ from typing import Protocol
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
 
-__all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning", "refuse_earlier_logs"]
+__all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning", "refuse_earlier_logs", "refuse_other_files"]
 
 
 def refuse_earlier_logs(earlier: list[Path], remedy: str) -> None:
@@ -23,6 +23,24 @@ def refuse_earlier_logs(earlier: list[Path], remedy: str) -> None:
         more = f" (and {len(earlier) - 1} more part(s) of a split log)" if len(earlier) > 1 else ""
         raise ConfigError(f"{earlier[0]} exists{more}: the log of an earlier run; give another path, or {remedy} "
                           "to replace it")
+
+
+def refuse_other_files(paths: list[Path], magic: bytes, kind: str) -> None:
+    """Raise :class:`~oodmon.errors.ConfigError` if a file of ``paths`` (files a sink would write
+    onto) is not a log of its ``kind``: it does not begin with ``magic`` (an empty file, or one that
+    stops within it, is a log torn at its start). Even ``overwrite=True`` replaces only logs: a
+    model or a threshold at the path is a name typed wrong, and would be lost."""
+    for path in paths:
+        try:
+            with open(path, "rb") as file:
+                head = file.read(len(magic))
+        except OSError:  # a folder, a file it may not read: the write says why
+            continue
+        if not magic.startswith(head):
+            from oodmon.errors import ConfigError
+
+            raise ConfigError(f"{path} exists and is not {kind} (it begins {head!r}): a log written there would "
+                              "replace it; give another path")
 
 
 class Sink(Protocol):

@@ -42,12 +42,22 @@ from oodmon.monitor import logformat
 #: the frames, the alarms. Layouts -> Import from file.
 FOXGLOVE_LAYOUT = Path(__file__).with_name("foxglove_layout.json")
 from oodmon.monitor.alarms import AlarmEvent
-from oodmon.monitor.logformat import EPISODE_SCHEMA, EPISODE_SCORES_SCHEMA, EPISODE_START_SCHEMA, STEP_SCHEMA
+from oodmon.monitor.logformat import (
+    EPISODE_SCHEMA, EPISODE_SCORES_SCHEMA, EPISODE_START_SCHEMA, MCAP_MAGIC, STEP_SCHEMA,
+)
 from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
-from oodmon.monitor.sinks.base import refuse_earlier_logs
+from oodmon.monitor.sinks.base import refuse_earlier_logs, refuse_other_files
 
 __all__ = ["EPISODE_SCHEMA", "EPISODE_SCORES_SCHEMA", "EPISODE_START_SCHEMA", "STEP_SCHEMA",
-           "McapSink"]  # schemas re-exported
+           "McapSink", "part_path"]  # schemas re-exported
+
+
+def part_path(path: str | Path, part: int, *, splits: bool) -> Path:
+    """The file of part ``part`` (counted from 0) of a log split into parts (``splits``) named after
+    ``path`` (``run.mcap``: ``run-00000.mcap``, ...); ``path`` itself if it is not split."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}-{part:05d}{path.suffix}") if splits else path
+
 
 def _json_number(value: float) -> float | None:
     """``value``, or ``None`` where it is not finite: NaN (no threshold) and infinity (the score of a
@@ -78,7 +88,8 @@ class McapSink:
     and the sink refuses it (:class:`~oodmon.errors.ConfigError`, when it is made): a deployment
     started again after a crash would otherwise replace the log that holds the crash's alarms.
     ``overwrite=True`` replaces it, and at :meth:`open` removes every part an earlier split log of
-    that name left (an old part would otherwise join this run's in ``oodmon replay <folder>``).
+    that name left (an old part would otherwise join this run's in ``oodmon replay <folder>``). A
+    file there that is no MCAP log (a model, a threshold: a name typed wrong) is refused either way.
 
     A run of days or weeks can be split into files of whole episodes: ``split_episodes=N`` starts
     the next file after every N episodes, ``split_mb=M`` after the episode that takes the file to M
@@ -125,6 +136,7 @@ class McapSink:
         self.split_episodes, self.split_mb = split_episodes, split_mb
         self.paths: list[Path] = []  # the files written so far
         self.overwrite = overwrite
+        refuse_other_files(self.existing_paths(), MCAP_MAGIC, "an MCAP log")
         if not overwrite:
             refuse_earlier_logs(self.existing_paths(), "McapSink(..., overwrite=True)")
         self._writer = None
@@ -138,7 +150,7 @@ class McapSink:
 
     def part_path(self, part: int) -> Path:
         """The file of part ``part`` (counted from 0) of a split run; ``path`` itself if it is not split."""
-        return self.path.with_name(f"{self.path.stem}-{part:05d}{self.path.suffix}") if self.splits else self.path
+        return part_path(self.path, part, splits=self.splits)
 
     def existing_paths(self) -> list[Path]:
         """The files already on disk that this sink would write onto: ``path``, or every part of a
@@ -150,6 +162,7 @@ class McapSink:
 
     def open(self, run: RunInfo) -> None:
         earlier = self.existing_paths()  # checked again: a file may have come since (this sink's own, opened again)
+        refuse_other_files(earlier, MCAP_MAGIC, "an MCAP log")
         if not self.overwrite:
             refuse_earlier_logs(earlier, "McapSink(..., overwrite=True)")
         for path in earlier:

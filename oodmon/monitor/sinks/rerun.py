@@ -22,11 +22,14 @@ import numpy as np
 
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
-from oodmon.monitor.sinks.base import refuse_earlier_logs
+from oodmon.monitor.sinks.base import refuse_earlier_logs, refuse_other_files
 
 __all__ = ["FLUSH_EVERY", "RerunSink", "default_blueprint", "viewer_command"]
 
 FLUSH_EVERY = 200
+
+#: The bytes a Rerun recording (.rrd) begins with (then the version of its encoding: RRF2 in rerun-sdk 0.41).
+RRD_MAGIC = b"RRF"
 
 
 def default_blueprint(task: str, n_outputs: int):
@@ -65,7 +68,8 @@ class RerunSink:
         flush_timeout: seconds to wait at an episode end for the data to reach its sinks.
         connect_timeout: seconds to wait for a viewer at ``connect`` to accept a connection.
         overwrite: replace a file already at ``path``; without it that file (the log of an earlier
-            run) is refused with :class:`~oodmon.errors.ConfigError` when the sink is made.
+            run) is refused with :class:`~oodmon.errors.ConfigError` when the sink is made. A file
+            there that is no Rerun recording is refused either way.
 
     A live viewer (``connect``, ``spawn``) has a recording stream of its own, apart from the file's:
     a viewer that cannot be reached at open, or stops taking data (a flush that times out, checked
@@ -80,6 +84,7 @@ class RerunSink:
                  overwrite: bool = False) -> None:
         self.path = Path(path) if path is not None else None
         self.overwrite = overwrite
+        refuse_other_files(self.existing_paths(), RRD_MAGIC, "a Rerun recording (.rrd)")
         if not overwrite:
             refuse_earlier_logs(self.existing_paths(), "RerunSink(..., overwrite=True)")
         self.spawn, self.serve, self.connect = spawn, serve, connect
@@ -112,6 +117,7 @@ class RerunSink:
     def open(self, run: RunInfo) -> None:
         import rerun as rr
 
+        refuse_other_files(self.existing_paths(), RRD_MAGIC, "a Rerun recording (.rrd)")
         if not self.overwrite:  # checked again: a file may have come since (this sink's own, opened again)
             refuse_earlier_logs(self.existing_paths(), "RerunSink(..., overwrite=True)")
 
