@@ -142,7 +142,8 @@ class Run:
     """One SB3 model being trained: its folder, checkpoints and log.
 
     Raises:
-        ConfigError: the folder holds a run begun by another recipe (its ``state.json`` says so).
+        ConfigError: the folder holds a run begun by another recipe or with another seed (its
+            ``state.json`` says so).
     """
 
     def __init__(self, recipe: Recipe, root: Path, name: str, seed: int) -> None:
@@ -157,6 +158,10 @@ class Run:
         if differences:
             raise ConfigError(f"{self.folder} holds a training by another recipe ({'; '.join(differences)}): resuming it "
                               "would mix the two. Train into another folder, or remove that one to start again")
+        if self.state.get("seed", seed) != seed:  # its model would be exported under this seed
+            raise ConfigError(f"{self.folder} holds a training with seed {self.state['seed']}, not {seed}: resuming it "
+                              "would give that seed's model under this one. Train into another folder, or remove that "
+                              "one to start again")
         self._started = time.monotonic()
         self._wall_before = self.state["wall_time_s"]
 

@@ -41,6 +41,7 @@ with a warning (the run resumes from ``policy.safetensors`` with a fresh buffer)
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -60,6 +61,23 @@ __all__ = ["ID_EPISODES", "architecture", "train"]
 
 #: Episodes of the default env behind a saved model's ``id_return_mean``.
 ID_EPISODES = {"cartpole": 20, "pendulum": 20, "pong": 10}
+
+
+def _refuse_another_agent(root: Path, task: str, method: str, names: list[str]) -> None:
+    """Raise :class:`ConfigError` if ``root`` holds a trained agent (``model.json``) that no run of
+    this training (``runs/<name>/state.json``) made: a shipped or copied agent, or another method's
+    training, whose files the export would replace (measured: ``oodmon train --out`` a copy of the
+    zoo's CartPole ensemble replaced its weights with those of a 200-step training)."""
+    meta_path = root / "model.json"
+    if not meta_path.is_file() or any((root / "runs" / name / "state.json").is_file() for name in names):
+        return
+    try:
+        meta = json.loads(meta_path.read_text())
+        what = f"{meta['task']}/{meta['method']}, ID return {meta['id_return_mean']}"
+    except (OSError, ValueError, TypeError, KeyError):
+        what = "its model.json"
+    raise ConfigError(f"{root} holds a trained agent ({what}) that no {task}/{method} training in it made: training "
+                      "there would replace it. Train into another folder (or remove its model.json to train there)")
 
 
 def train(
@@ -107,10 +125,9 @@ def train(
     report = on_progress or (lambda *args: None)
     limit_threads()
     independent = method == "ensemble" and not recipe.shared_torso
-    runs = (
-        [Run(recipe, root, f"member{k}", 1000 * seed + k) for k in range(recipe.n_members)]
-        if independent else [Run(recipe, root, "main", seed)]
-    )
+    names = [f"member{k}" for k in range(recipe.n_members)] if independent else ["main"]
+    _refuse_another_agent(root, task, method, names)
+    runs = [Run(recipe, root, name, 1000 * seed + k if independent else seed) for k, name in enumerate(names)]
     for run in runs:
         run.on_evaluation = on_evaluation
     models = [run.train(report, export_only=export_only, load_pickles=load_pickles) for run in runs]

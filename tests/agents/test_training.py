@@ -418,3 +418,28 @@ def test_a_sampled_target_reads_the_target_network_as_the_online_one_is_trained(
             _new_model(bad, _training_env(bad), seed=0)
     with pytest.raises(InvalidParameterError, match="target_samples=0 is not allowed"):
         SampledTargetDQN("MlpPolicy", _training_env(recipe), target_samples=0)
+
+
+def test_training_refuses_an_agent_it_did_not_make_and_a_run_of_another_seed(tmp_path):
+    """A folder holding a shipped (or copied) agent, or a training of another method or seed, is
+    refused before any step: the export would replace the agent, or label one seed's model with
+    another seed (both measured with `oodmon train --out` before)."""
+    from oodmon.agents import zoo_dir
+
+    shipped = tmp_path / "shipped"
+    shutil.copytree(zoo_dir() / "cartpole-ensemble", shipped)
+    before = {p: p.read_bytes() for p in shipped.rglob("*") if p.is_file()}
+    with pytest.raises(ConfigError, match=r"holds a trained agent \(cartpole/ensemble, ID return 500.0\) that no "
+                                          r"cartpole/ensemble training in it made"):
+        train("cartpole", "ensemble", shipped, total_steps=100)
+    assert {p: p.read_bytes() for p in shipped.rglob("*") if p.is_file()} == before
+
+    train("cartpole", "dropout", tmp_path / "t", total_steps=100, id_episodes=1)
+    meta = (tmp_path / "t" / "model.json").read_bytes()
+    with pytest.raises(ConfigError, match="holds a training with seed 0, not 3"):
+        train("cartpole", "dropout", tmp_path / "t", seed=3, total_steps=100, id_episodes=1)
+    with pytest.raises(ConfigError, match="cartpole/dropout, .* that no cartpole/ensemble training in it made"):
+        train("cartpole", "ensemble", tmp_path / "t", total_steps=100)
+    assert (tmp_path / "t" / "model.json").read_bytes() == meta
+    # The same training again: its own export, redone (the same command resumes a folder).
+    assert train("cartpole", "dropout", tmp_path / "t", total_steps=100, id_episodes=1).metadata["seed"] == 0
