@@ -199,6 +199,11 @@ def test_overwrite_replaces_only_logs_not_a_model_or_a_threshold_at_the_path(age
         for overwrite in (False, True):
             with pytest.raises(ConfigError, match=f"{path.name} exists and is not {kind} .*give another path"):
                 make(path, overwrite=overwrite)
+    (tmp_path / "a-folder").mkdir()
+    for make in (McapSink, RerunSink):  # said so (it was "the log of an earlier run"; overwrite=True took it)
+        for overwrite in (False, True):
+            with pytest.raises(ConfigError, match="a-folder is a folder; give the log a file name"):
+                make(tmp_path / "a-folder", overwrite=overwrite)
     mcap = McapSink(tmp_path / "run.mcap")  # made before the file came, as a run that starts later
     (tmp_path / "run.mcap").write_bytes(model.read_bytes())
     with pytest.raises(ConfigError, match="run.mcap exists and is not an MCAP log"):

@@ -29,16 +29,19 @@ def refuse_other_files(paths: list[Path], magic: bytes, kind: str) -> None:
     """Raise :class:`~oodmon.errors.ConfigError` if a file of ``paths`` (files a sink would write
     onto) is not a log of its ``kind``: it does not begin with ``magic`` (an empty file, or one that
     stops within it, is a log torn at its start). Even ``overwrite=True`` replaces only logs: a
-    model or a threshold at the path is a name typed wrong, and would be lost."""
+    model or a threshold at the path is a name typed wrong, and would be lost. A folder there is
+    refused too: no file can take its place."""
+    from oodmon.errors import ConfigError
+
     for path in paths:
+        if path.is_dir():
+            raise ConfigError(f"{path} is a folder; give the log a file name (in it, say)")
         try:
             with open(path, "rb") as file:
                 head = file.read(len(magic))
-        except OSError:  # a folder, a file it may not read: the write says why
+        except OSError:  # a file it may not read: the write says why
             continue
         if not magic.startswith(head):
-            from oodmon.errors import ConfigError
-
             raise ConfigError(f"{path} exists and is not {kind} (it begins {head!r}): a log written there would "
                               "replace it; give another path")
 
