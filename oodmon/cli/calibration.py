@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 from pathlib import Path
 
@@ -129,8 +130,6 @@ def _clear_earlier_detectors(out: str, given: str | None) -> Path | None:
     there, and return that folder (``None``: nothing removed). `oodmon run --threshold` and
     `validate` read that folder before the agent's own detectors: left there, they would be read
     with a threshold calibrated on others (and refused). Kept when ``--detectors`` named it."""
-    import contextlib
-
     folder = Path(f"{out}.detectors")
     if not (folder / "detectors.json").is_file() or (given is not None and Path(given).resolve() == folder.resolve()):
         return None

@@ -394,12 +394,13 @@ def test_watch_saves_its_calibration_and_a_later_start_reads_it_running_no_episo
         oodmon.watch(paths[::-1], "CartPole-v1", threshold=tmp_path / "w.json")  # the other model deploys: other hash
     with pytest.raises(ConfigError, match="not both"):
         oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json", save=tmp_path / "x.json")
-    model = paths[1].read_bytes()  # save= at a model it reads, or at a log: refused before any episode, nothing written
+    # save= at a model it reads, or at a log: refused before any episode, neither file changed
+    kept = [path.read_bytes() for path in (paths[1], folder / "runs/dqn.mcap")]
     with pytest.raises(ConfigError, match="is also a file it reads"):
         oodmon.watch(paths, "CartPole-v1", save=paths[1])
     with pytest.raises(ConfigError, match="holds no threshold"):
         oodmon.watch(paths, "CartPole-v1", save=folder / "runs/dqn.mcap")
-    assert paths[1].read_bytes() == model and not (tmp_path / "x.json").exists()
+    assert [path.read_bytes() for path in (paths[1], folder / "runs/dqn.mcap")] == kept
     with pytest.raises(ConfigError, match="a threshold file's warm-up is the one it was calibrated for"):
         oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json", warmup=20)
     warm = oodmon.watch(paths, "CartPole-v1", episodes=10, far=0.2, confidence=None, fit_episodes=6, warmup=30,
