@@ -65,7 +65,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from oodmon.monitor import McapSink, Monitor, Threshold
     from oodmon.monitor.sinks.base import refuse_earlier_logs
-    from oodmon.monitor.sinks.mcap import part_path
+    from oodmon.monitor.sinks.mcap import existing_parts, part_path
     from oodmon.monitor.sinks.rerun import RerunSink
     from oodmon.outputs import check_output_file
 
@@ -74,18 +74,18 @@ def _run(args: argparse.Namespace) -> int:
     args.mcap, args.rrd = (name and name.replace("{start}", started) for name in (args.mcap, args.rrd))
     if (args.mcap_split_episodes or args.mcap_split_mb) and not args.mcap:
         raise ConfigError("--mcap-split-episodes and --mcap-split-mb split an MCAP log: give --mcap too")
-    if args.mcap:  # said in the CLI's words before the sink is made (which refuses a file that is no log)
-        check_output_file(part_path(args.mcap, 0, splits=bool(args.mcap_split_episodes or args.mcap_split_mb)),
-                          parameter="--mcap", inputs=inputs)
-    # overwrite=True: the logs an earlier run left are refused below, with the CLI's words, unless
-    # --overwrite; then the sinks replace them when the run starts, once the inputs have loaded
-    mcap = McapSink(args.mcap, split_episodes=args.mcap_split_episodes, split_mb=args.mcap_split_mb,
-                    overwrite=True) if args.mcap else None
+    splits = bool(args.mcap_split_episodes or args.mcap_split_mb)
+    if args.mcap:  # said in the CLI's words before the sinks are made
+        check_output_file(part_path(args.mcap, 0, splits=splits), parameter="--mcap", inputs=inputs)
     if args.rrd:
         check_output_file(args.rrd, parameter="--rrd", inputs=[*inputs, ("--mcap", args.mcap)])
     if not args.overwrite:  # an earlier run's log, whole or split
-        refuse_earlier_logs(([] if mcap is None else mcap.existing_paths())
+        refuse_earlier_logs((existing_parts(args.mcap, splits=splits) if args.mcap else [])
                             + ([Path(args.rrd)] if args.rrd and Path(args.rrd).exists() else []), "--overwrite")
+    # Without --overwrite the sinks check again when the run starts, once the inputs have loaded, and
+    # claim their files then: a run started beside this one with the same names cannot share them.
+    mcap = McapSink(args.mcap, split_episodes=args.mcap_split_episodes, split_mb=args.mcap_split_mb,
+                    overwrite=args.overwrite) if args.mcap else None
     threshold = Threshold.load(args.threshold) if args.threshold else None
     args.masks = args.masks or (threshold.masks if threshold is not None else None)
     agent = _load_agent(args)
@@ -98,7 +98,7 @@ def _run(args: argparse.Namespace) -> int:
     sinks = [] if mcap is None else [mcap]
     if args.rrd or args.spawn or args.serve or args.connect:
         sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect,
-                               bind=args.bind, port=args.port, overwrite=True))
+                               bind=args.bind, port=args.port, overwrite=args.overwrite))
     console = Console(soft_wrap=True)
     alarm_lines = []
 

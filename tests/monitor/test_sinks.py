@@ -219,6 +219,22 @@ def test_overwrite_replaces_only_logs_not_a_model_or_a_threshold_at_the_path(age
     assert len(read_log(tmp_path / "torn.mcap").episodes) == 1 and (tmp_path / "torn.rrd").read_bytes()[:4] == b"RRF2"
 
 
+def test_a_log_that_appears_after_the_check_is_not_written_over(agent, tmp_path, monkeypatch):
+    """Two runs started together with one log name both passed the checks before either wrote, and
+    wrote one file between them that neither could replay (measured with `oodmon run`): each sink
+    now creates its file only if none is there, so the later one fails instead, saying why."""
+    from oodmon.errors import ConfigError
+
+    for make, name in ((McapSink, "other.mcap"), (RerunSink, "other.rrd")):
+        sink = make(tmp_path / name)
+        monkeypatch.setattr(sink, "existing_paths", lambda: [])  # checked before the other run's file came
+        (tmp_path / name).write_bytes(b"\x89MCAP0\r\n the other run's log" if name.endswith("mcap") else b"RRF2 other")
+        before = (tmp_path / name).read_bytes()
+        with pytest.raises(ConfigError, match=f"{name} appeared after this run checked it .another run writing there"):
+            _run(agent, [sink], episodes=1, strict=True)
+        assert (tmp_path / name).read_bytes() == before
+
+
 def test_a_failing_sink_warns_counts_and_the_loop_goes_on(agent, tmp_path):
     good = MemorySink()
     broken = BrokenSink()
@@ -234,9 +250,15 @@ def test_an_unwritable_path_warns_and_the_loop_goes_on(agent, tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")
     good = MemorySink()
-    with pytest.warns(SinkWarning, match="McapSink.open failed"):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         _run(agent, [McapSink(blocker / "run.mcap"), good], episodes=1)
     assert len(good.episodes) == 1
+    # One warning: a sink that could not open is left out of the run (each of its calls failed
+    # again before, warned as "'McapSink' object has no attribute '_part'").
+    messages = [str(w.message) for w in caught if issubclass(w.category, SinkWarning)]
+    assert len(messages) == 1 and messages[0].startswith("McapSink.open failed (")
+    assert messages[0].endswith("1 failure(s) so far, it is left out of this run, the monitor goes on")
 
 
 def test_strict_mode_raises(agent):

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import Protocol
+from typing import BinaryIO, Protocol
 
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
 
-__all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning", "refuse_earlier_logs", "refuse_other_files"]
+__all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning", "claim_file", "refuse_earlier_logs", "refuse_other_files"]
 
 
 def refuse_earlier_logs(earlier: list[Path], remedy: str) -> None:
@@ -44,6 +44,25 @@ def refuse_other_files(paths: list[Path], magic: bytes, kind: str) -> None:
         if not magic.startswith(head):
             raise ConfigError(f"{path} exists and is not {kind} (it begins {head!r}): a log written there would "
                               "replace it; give another path")
+
+
+def claim_file(path: Path) -> BinaryIO:
+    """``path`` opened for writing if no file is there, in one step (``O_EXCL``): a run whose check
+    found none cannot then write into another's. Two ``oodmon run`` with one log name, started
+    together, both passed the checks before either wrote, and wrote one file between them that
+    replay could not read (measured: "an MCAP file but not an oodmon log"); now the later one's
+    sink fails, saying so.
+
+    Raises:
+        ConfigError: a file came to ``path`` since this run checked it.
+    """
+    try:
+        return open(path, "xb")
+    except FileExistsError:
+        from oodmon.errors import ConfigError
+
+        raise ConfigError(f"{path} appeared after this run checked it (another run writing there?): not written "
+                          "over; give each run a log of its own ({start} in oodmon run's names)") from None
 
 
 class Sink(Protocol):
@@ -102,17 +121,22 @@ class SinkWarning(RuntimeWarning):
 class SinkGroup:
     """Calls every sink; a sink that raises is warned about and counted, and the others go on.
 
-    With ``strict=True`` the first failure is raised instead (tests, CI). A sink that failed
-    keeps being called: a full disk may have room again at the next episode.
+    With ``strict=True`` the first failure is raised instead (tests, CI). A sink that failed to
+    write keeps being called: a full disk may have room again at the next episode. A sink whose
+    ``open`` failed is left out of the run but for its ``close`` (it has nowhere to write: each of
+    its calls failed again, warned as "'McapSink' object has no attribute '_part'").
     """
 
     def __init__(self, sinks: list[Sink], *, strict: bool = False) -> None:
         self.sinks = list(sinks)
         self.strict = strict
         self.failures: dict[str, int] = {}
+        self._unopened: list[Sink] = []  # the sinks whose open failed in this run
 
     def _call(self, method: str, *args: object, sinks: list[Sink] | None = None) -> None:
         for sink in self.sinks if sinks is None else sinks:
+            if method != "close" and any(sink is unopened for unopened in self._unopened):
+                continue
             try:
                 getattr(sink, method)(*args)
             except Exception as error:  # noqa: BLE001  (any failure of a sink is contained)
@@ -120,11 +144,16 @@ class SinkGroup:
                     raise
                 name = type(sink).__name__
                 self.failures[name] = self.failures.get(name, 0) + 1
-                if self.failures[name] == 1 or self.failures[name] % 1000 == 0:
+                left_out = method == "open"
+                if left_out:
+                    self._unopened.append(sink)
+                if self.failures[name] == 1 or self.failures[name] % 1000 == 0 or left_out:
                     warnings.warn(f"{name}.{method} failed ({error}); {self.failures[name]} failure(s) so far, "
-                                  "the monitor goes on", SinkWarning, stacklevel=3)
+                                  + ("it is left out of this run, " if left_out else "") + "the monitor goes on",
+                                  SinkWarning, stacklevel=3)
 
     def open(self, run: RunInfo) -> None:
+        self._unopened = []  # a Monitor opened again: each sink is tried again
         self._call("open", run)
 
     def begin_episode(self, start: EpisodeStart) -> None:

@@ -46,10 +46,10 @@ from oodmon.monitor.logformat import (
     EPISODE_SCHEMA, EPISODE_SCORES_SCHEMA, EPISODE_START_SCHEMA, MCAP_MAGIC, STEP_SCHEMA,
 )
 from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
-from oodmon.monitor.sinks.base import refuse_earlier_logs, refuse_other_files
+from oodmon.monitor.sinks.base import claim_file, refuse_earlier_logs, refuse_other_files
 
 __all__ = ["EPISODE_SCHEMA", "EPISODE_SCORES_SCHEMA", "EPISODE_START_SCHEMA", "STEP_SCHEMA",
-           "McapSink", "part_path"]  # schemas re-exported
+           "McapSink", "existing_parts", "part_path"]  # schemas re-exported
 
 
 def part_path(path: str | Path, part: int, *, splits: bool) -> Path:
@@ -57,6 +57,16 @@ def part_path(path: str | Path, part: int, *, splits: bool) -> Path:
     ``path`` (``run.mcap``: ``run-00000.mcap``, ...); ``path`` itself if it is not split."""
     path = Path(path)
     return path.with_name(f"{path.stem}-{part:05d}{path.suffix}") if splits else path
+
+
+def existing_parts(path: str | Path, *, splits: bool) -> list[Path]:
+    """The files on disk a log at ``path`` would be written onto: ``path``, or every part of a split
+    log of its name (any part number, in order)."""
+    path = Path(path)
+    if not splits:
+        return [path] if path.exists() else []
+    pattern = f"{glob.escape(path.stem)}-{'[0-9]' * 5}{glob.escape(path.suffix)}"
+    return sorted(path.parent.glob(pattern))
 
 
 def _json_number(value: float) -> float | None:
@@ -155,10 +165,7 @@ class McapSink:
     def existing_paths(self) -> list[Path]:
         """The files already on disk that this sink would write onto: ``path``, or every part of a
         split log of its name (any part number, in order), left by an earlier run."""
-        if not self.splits:
-            return [self.path] if self.path.exists() else []
-        pattern = f"{glob.escape(self.path.stem)}-{'[0-9]' * 5}{glob.escape(self.path.suffix)}"
-        return sorted(self.path.parent.glob(pattern))
+        return existing_parts(self.path, splits=self.splits)
 
     def open(self, run: RunInfo) -> None:
         earlier = self.existing_paths()  # checked again: a file may have come since (this sink's own, opened again)
@@ -181,7 +188,7 @@ class McapSink:
 
         path = self.part_path(part)
         path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = open(path, "wb")
+        self._file = claim_file(path)  # an earlier log was refused or removed at open: none may be there now
         self.paths.append(path)
         self._part, self._episodes_in_part = part, 0
         compression = CompressionType.ZSTD if self.compression == "zstd" else CompressionType.NONE

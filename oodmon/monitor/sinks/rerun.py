@@ -22,7 +22,7 @@ import numpy as np
 
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
-from oodmon.monitor.sinks.base import refuse_earlier_logs, refuse_other_files
+from oodmon.monitor.sinks.base import claim_file, refuse_earlier_logs, refuse_other_files
 
 __all__ = ["FLUSH_EVERY", "RerunSink", "default_blueprint", "viewer_command"]
 
@@ -128,6 +128,9 @@ class RerunSink:
         local = []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            if self.overwrite:
+                self.path.unlink(missing_ok=True)
+            claim_file(self.path).close()  # the name is this run's (Rerun's file sink writes it from the start)
             local.append(rr.FileSink(str(self.path)))
         if self.serve:
             server = rr.GrpcServerSink(bind_ip=self.bind, port=self.port, server_memory_limit="512MiB")
