@@ -41,7 +41,6 @@ with a warning (the run resumes from ``policy.safetensors`` with a fresh buffer)
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -51,8 +50,9 @@ from oodmon.agents.checkpoints import Run
 from oodmon.agents.evaluation import episode_returns
 from oodmon.agents.export import as_shipped, select_snapshot, write_agent
 from oodmon.agents.recipes import Recipe, recipe_for
+from oodmon.agents.serialization import read_metadata
 from oodmon.envs.grid import Variant
-from oodmon.errors import ConfigError
+from oodmon.errors import ConfigError, ModelFormatError
 from oodmon.progress import Progress
 from oodmon.seeds import ID_RETURN as ID_SEED
 from oodmon.threads import limit_threads
@@ -72,9 +72,9 @@ def _refuse_another_agent(root: Path, task: str, method: str, names: list[str]) 
     if not meta_path.is_file() or any((root / "runs" / name / "state.json").is_file() for name in names):
         return
     try:
-        meta = json.loads(meta_path.read_text())
-        what = f"{meta['task']}/{meta['method']}, ID return {meta['id_return_mean']}"
-    except (OSError, ValueError, TypeError, KeyError):
+        meta = read_metadata(root)
+        what = f"{meta['task']}/{meta['method']}, ID return {meta.get('id_return_mean')}"
+    except ModelFormatError:  # damaged, or another version's: an agent's file all the same
         what = "its model.json"
     raise ConfigError(f"{root} holds a trained agent ({what}) that no {task}/{method} training in it made: training "
                       "there would replace it. Train into another folder (or remove its model.json to train there)")

@@ -114,9 +114,9 @@ def _run(args: argparse.Namespace) -> int:
         if args.serve:
             progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")
         elif args.spawn and sinks[-1].live_at:
-            started = f"started for this run, listening on {args.bind}:{args.port}"  # a viewer found there: its own
+            ours = f"started for this run, listening on {args.bind}:{args.port}"  # a viewer found there: its own
             progress.console.print(f"streaming to the Rerun viewer at {sinks[-1].live_at} ("
-                                   + (started if sinks[-1].viewer is not None else "one already running there") + ")")
+                                   + (ours if sinks[-1].viewer is not None else "one already running there") + ")")
         bar = progress.add_task(f"{label} (onset {args.onset})", total=args.episodes)
         decisions = progress.add_task("decisions in this episode", total=None)  # a Pong game is thousands
 

@@ -10,7 +10,8 @@ from typing import BinaryIO, Protocol
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
 
-__all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning", "claim_file", "refuse_earlier_logs", "refuse_other_files"]
+__all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning", "check_existing", "claim_file", "refuse_earlier_logs",
+           "refuse_other_files"]
 
 
 def refuse_earlier_logs(earlier: list[Path], remedy: str) -> None:
@@ -44,6 +45,15 @@ def refuse_other_files(paths: list[Path], magic: bytes, kind: str) -> None:
         if not magic.startswith(head):
             raise ConfigError(f"{path} exists and is not {kind} (it begins {head!r}): a log written there would "
                               "replace it; give another path")
+
+
+def check_existing(paths: list[Path], *, magic: bytes, kind: str, overwrite: bool, remedy: str) -> None:
+    """A sink's check of the files already where it writes (``paths``), when it is made and at
+    open: any that is no log of its ``kind`` is refused (:func:`refuse_other_files`), and without
+    ``overwrite`` any at all (:func:`refuse_earlier_logs`, naming ``remedy``)."""
+    refuse_other_files(paths, magic, kind)
+    if not overwrite:
+        refuse_earlier_logs(paths, remedy)
 
 
 def claim_file(path: Path) -> BinaryIO:
@@ -131,11 +141,11 @@ class SinkGroup:
         self.sinks = list(sinks)
         self.strict = strict
         self.failures: dict[str, int] = {}
-        self._unopened: list[Sink] = []  # the sinks whose open failed in this run
+        self._unopened: set[int] = set()  # the ids of the sinks whose open failed in this run
 
     def _call(self, method: str, *args: object, sinks: list[Sink] | None = None) -> None:
         for sink in self.sinks if sinks is None else sinks:
-            if method != "close" and any(sink is unopened for unopened in self._unopened):
+            if self._unopened and method != "close" and id(sink) in self._unopened:
                 continue
             try:
                 getattr(sink, method)(*args)
@@ -146,14 +156,14 @@ class SinkGroup:
                 self.failures[name] = self.failures.get(name, 0) + 1
                 left_out = method == "open"
                 if left_out:
-                    self._unopened.append(sink)
+                    self._unopened.add(id(sink))
                 if self.failures[name] == 1 or self.failures[name] % 1000 == 0 or left_out:
                     warnings.warn(f"{name}.{method} failed ({error}); {self.failures[name]} failure(s) so far, "
                                   + ("it is left out of this run, " if left_out else "") + "the monitor goes on",
                                   SinkWarning, stacklevel=3)
 
     def open(self, run: RunInfo) -> None:
-        self._unopened = []  # a Monitor opened again: each sink is tried again
+        self._unopened = set()  # a Monitor opened again: each sink is tried again
         self._call("open", run)
 
     def begin_episode(self, start: EpisodeStart) -> None:

@@ -46,7 +46,7 @@ from oodmon.monitor.logformat import (
     EPISODE_SCHEMA, EPISODE_SCORES_SCHEMA, EPISODE_START_SCHEMA, MCAP_MAGIC, STEP_SCHEMA,
 )
 from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
-from oodmon.monitor.sinks.base import claim_file, refuse_earlier_logs, refuse_other_files
+from oodmon.monitor.sinks.base import check_existing, claim_file
 
 __all__ = ["EPISODE_SCHEMA", "EPISODE_SCORES_SCHEMA", "EPISODE_START_SCHEMA", "STEP_SCHEMA",
            "McapSink", "existing_parts", "part_path"]  # schemas re-exported
@@ -146,9 +146,7 @@ class McapSink:
         self.split_episodes, self.split_mb = split_episodes, split_mb
         self.paths: list[Path] = []  # the files written so far
         self.overwrite = overwrite
-        refuse_other_files(self.existing_paths(), MCAP_MAGIC, "an MCAP log")
-        if not overwrite:
-            refuse_earlier_logs(self.existing_paths(), "McapSink(..., overwrite=True)")
+        self._check_existing(self.existing_paths())
         self._writer = None
         self._file = None
         self._run: RunInfo | None = None
@@ -167,11 +165,13 @@ class McapSink:
         split log of its name (any part number, in order), left by an earlier run."""
         return existing_parts(self.path, splits=self.splits)
 
+    def _check_existing(self, paths: list[Path]) -> None:
+        check_existing(paths, magic=MCAP_MAGIC, kind="an MCAP log", overwrite=self.overwrite,
+                       remedy="McapSink(..., overwrite=True)")
+
     def open(self, run: RunInfo) -> None:
         earlier = self.existing_paths()  # checked again: a file may have come since (this sink's own, opened again)
-        refuse_other_files(earlier, MCAP_MAGIC, "an MCAP log")
-        if not self.overwrite:
-            refuse_earlier_logs(earlier, "McapSink(..., overwrite=True)")
+        self._check_existing(earlier)
         for path in earlier:
             path.unlink()
         self._run = run

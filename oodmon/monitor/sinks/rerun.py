@@ -22,7 +22,7 @@ import numpy as np
 
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
-from oodmon.monitor.sinks.base import claim_file, refuse_earlier_logs, refuse_other_files
+from oodmon.monitor.sinks.base import check_existing, claim_file
 
 __all__ = ["FLUSH_EVERY", "RerunSink", "default_blueprint", "viewer_command"]
 
@@ -84,9 +84,7 @@ class RerunSink:
                  overwrite: bool = False) -> None:
         self.path = Path(path) if path is not None else None
         self.overwrite = overwrite
-        refuse_other_files(self.existing_paths(), RRD_MAGIC, "a Rerun recording (.rrd)")
-        if not overwrite:
-            refuse_earlier_logs(self.existing_paths(), "RerunSink(..., overwrite=True)")
+        self._check_existing()
         self.spawn, self.serve, self.connect = spawn, serve, connect
         self.bind, self.port = bind, port
         if serve and (taken := _cannot_listen(bind, port)) is not None:
@@ -114,12 +112,14 @@ class RerunSink:
         """The file an earlier run left at ``path``, if any (the live streams leave none)."""
         return [self.path] if self.path is not None and self.path.exists() else []
 
+    def _check_existing(self) -> None:
+        check_existing(self.existing_paths(), magic=RRD_MAGIC, kind="a Rerun recording (.rrd)",
+                       overwrite=self.overwrite, remedy="RerunSink(..., overwrite=True)")
+
     def open(self, run: RunInfo) -> None:
         import rerun as rr
 
-        refuse_other_files(self.existing_paths(), RRD_MAGIC, "a Rerun recording (.rrd)")
-        if not self.overwrite:  # checked again: a file may have come since (this sink's own, opened again)
-            refuse_earlier_logs(self.existing_paths(), "RerunSink(..., overwrite=True)")
+        self._check_existing()  # checked again: a file may have come since (this sink's own, opened again)
 
         self._rr = rr
         self._task = run.task
