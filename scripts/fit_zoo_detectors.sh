@@ -14,8 +14,12 @@
 # 2026-11-28 (fitting version 5: combined's held-out spread off the samples each action was
 # chosen from), on the package versions of constraints.txt, pinned that day: the earlier ones,
 # not recorded, fitted many tensors a little otherwise (float rounding; which package moved
-# them was not traced; CartPole DropConnect's sampled episodes went their own way from it); the
-# README's tables come from the bench, which fits detectors of its own).
+# them was not traced; CartPole DropConnect's sampled episodes went their own way from it); all
+# nine again on 2026-11-29 (fitting version 6: dynamics standardises its means over fewer than 20
+# transitions after a reset), on an Intel CPU with AVX-512 (the earlier ones on an AMD EPYC):
+# CartPole's and Pendulum's dynamics and combined tensors moved with the CPU's float kernels as well,
+# Pong's sets only in the last digits of combined's scales; the README's tables come from the
+# bench, which fits detectors of its own).
 # About 5 minutes on one core. Pendulum's combined detector uses the spread score that works there
 # (pre_squash_std); Pong has no dynamics detector (image observations), has frames, and fits on
 # the first 1,000 steps of 6 ID games.

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -25,7 +26,7 @@ from oodmon.validation import is_whole
 if TYPE_CHECKING:  # importing it would load torch
     from oodmon.agents.estimators import Estimate
 
-__all__ = ["Detector", "RecentMean", "RunningMean", "StepContext", "Trajectory"]
+__all__ = ["Detector", "RecentMean", "RunningMean", "StepContext", "Trajectory", "standardise_early"]
 
 
 class RecentMean:
@@ -47,9 +48,34 @@ class RecentMean:
     def clear(self) -> None:
         self._values.clear()
 
+    def __len__(self) -> int:
+        """How many values the mean covers: ``window`` at most."""
+        return len(self._values)
+
     def add(self, value: float) -> float:
         self._values.append(value)
         return sum(self._values) / len(self._values)
+
+
+def standardise_early(mean: float, count: int, window: int, centre: float) -> float:
+    """A window's ``mean`` over ``count`` < ``window`` values moved toward ``centre`` by
+    ``sqrt(count / window)``: for independent values about ``centre``, a spread like a full
+    window's mean has. Unmoved at ``count >= window``.
+
+    Just after a reset a detector's mean covers few steps, and a mean of few is noisier: on the
+    shipped CartPole ensemble's dynamics detector 50 of 50 calibration episodes peaked in their
+    first 20 steps, and those peaks set the threshold for whole episodes (see
+    :class:`~oodmon.monitor.detectors.dynamics.DynamicsDetector`'s ``early``).
+
+    Example:
+        >>> standardise_early(3.0, 5, 20, 1.0)  # 1 + (3 - 1) * sqrt(5 / 20)
+        2.0
+        >>> standardise_early(3.0, 20, 20, 1.0)
+        3.0
+    """
+    if count >= window:
+        return mean
+    return centre + (mean - centre) * math.sqrt(count / window)
 
 
 class RunningMean(RecentMean):
