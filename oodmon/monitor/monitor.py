@@ -61,6 +61,14 @@ SEGMENT_STEPS = 100_000
 AlarmCallback = Callable[[AlarmEvent], "bool | None"]
 
 
+def _calibrated_with(threshold: Any) -> str:
+    """The words naming the fitted detectors a threshold was calibrated with (its file records their
+    hash), to end a message about missing detectors with; ``""`` where it records none."""
+    if isinstance(threshold, Threshold) and threshold.detectors_hash:
+        return f"; the threshold was calibrated with fitted {threshold.detector} detectors {threshold.detectors_hash[:19]}..."
+    return ""
+
+
 def _given_detectors(detectors: DetectorSet | Sequence[Detector] | None) -> DetectorSet:
     """``Monitor(detectors=...)`` as a set: a DetectorSet, a list of Detector objects, or None (none).
 
@@ -217,13 +225,14 @@ class Monitor:
         given = _given_detectors(detectors)
         # No score asked for: a spread detector among those given keeps its own.
         self.score_name = score or (given["spread"].score_name if "spread" in given else DEFAULT_SCORE)
-        self.detectors = self._detector_set(given, detector, force)
+        calibrated_with = _calibrated_with(threshold)
+        self.detectors = self._detector_set(given, detector, force, calibrated_with)
         self.detector = detector or ("spread" if "spread" in self.detectors else self.detectors.names[-1])
         if self.detector not in self.detectors:
             raise ConfigError(
                 f"the alarm reads the {self.detector!r} detector, which this monitor does not have (it has "
                 f"{', '.join(self.detectors.names)}); give the fitted detectors (Monitor(detectors=...), "
-                "--detectors) or a threshold calibrated for one of those"
+                f"--detectors) or a threshold calibrated for one of those{calibrated_with}"
             )
         self._fitted = self.detectors.fingerprints()  # what each learned detector's fit is: the log records it
         if isinstance(threshold, Threshold) and threshold.detectors_hash:
@@ -288,10 +297,11 @@ class Monitor:
             warnings.warn(f"using {what}, which {fit} this policy: {'; '.join(differences)}", UserWarning,
                           stacklevel=3)
 
-    def _detector_set(self, chosen: DetectorSet, alarm: str | None, force: bool) -> DetectorSet:
+    def _detector_set(self, chosen: DetectorSet, alarm: str | None, force: bool, calibrated_with: str = "") -> DetectorSet:
         """The detectors to run: those given, with ``spread`` (of ``score``) whenever the policy has samples
         (and without a fitted ``combined`` that ranks another spread score, or detectors fitted on another
-        kind of MC masks (:meth:`DetectorSet.for_masks`), unless the ``alarm`` reads them: refused)."""
+        kind of MC masks (:meth:`DetectorSet.for_masks`), unless the ``alarm`` reads them: refused);
+        ``calibrated_with``: the words naming the fitted detectors the threshold records, said when none are given."""
         if self.estimator is not None and "spread" not in chosen:
             chosen = chosen.with_detector(SpreadDetector(self.score_name))
         else:
@@ -309,7 +319,7 @@ class Monitor:
         if not len(chosen):
             raise ConfigError("nothing to score: a policy without samples needs fitted detectors, a dynamics "
                               "detector at least (`oodmon fit-detectors`, then --detectors DIR; in Python "
-                              "Monitor(detectors=fit_detectors(...)))")
+                              f"Monitor(detectors=fit_detectors(...))){calibrated_with}")
         for d in chosen:
             d.check_fitted()
         meta = self.agent.metadata if self.agent is not None else {}

@@ -406,6 +406,17 @@ def test_a_threshold_naming_a_detector_the_monitor_lacks_is_refused(agent, fitte
     with pytest.raises(ConfigError, match="reads the 'dynamics' detector, which this monitor does not have"):
         Monitor(agent, threshold)
     Monitor(agent, threshold, detectors=fitted)  # with it: fine
+    # a threshold that records its detectors' fit names it: which folder to give
+    recorded = Threshold(1.0, "chosen_std", 1, "episode", 0.05, 20, 100, task="cartpole", detector="dynamics",
+                         detectors_hash=fitted.fingerprint("dynamics"))
+    with pytest.raises(ConfigError, match=r"does not have .*; the threshold was calibrated with fitted dynamics "
+                                          rf"detectors {fitted.fingerprint('dynamics')[:19]}\.\.\.$"):
+        Monitor(agent, recorded)
+    with pytest.raises(ConfigError, match=r"nothing to score: .*; the threshold was calibrated with fitted dynamics "
+                                          rf"detectors {fitted.fingerprint('dynamics')[:19]}\.\.\.$"):
+        Monitor(lambda obs: 0, recorded)
+    with pytest.raises(ConfigError, match=r"nothing to score: .*Monitor\(detectors=fit_detectors\(\.\.\.\)\)\)$"):
+        Monitor(lambda obs: 0, threshold)  # it records none: nothing more to say
     with pytest.raises(InvalidParameterError, match="detector='sonar'"):
         Threshold(1.0, "chosen_std", 3, "episode", 0.05, 20, 100, detector="sonar")
     with pytest.raises(ConfigError, match="needs it fitted"):

@@ -64,8 +64,8 @@ def standardise_early(mean: float, count: int, window: int, centre: float) -> fl
 
     Just after a reset a detector's mean covers few steps, and a mean of few is noisier: on the
     shipped CartPole ensemble's dynamics detector 50 of 50 calibration episodes peaked in their
-    first 20 steps, and those peaks set the threshold for whole episodes (see
-    :class:`~oodmon.monitor.detectors.dynamics.DynamicsDetector`'s ``early``).
+    first 20 steps (whose transitions are rarer too), and those peaks set the threshold for whole
+    episodes (see :class:`~oodmon.monitor.detectors.dynamics.DynamicsDetector`'s ``early``).
 
     Example:
         >>> standardise_early(3.0, 5, 20, 1.0)  # 1 + (3 - 1) * sqrt(5 / 20)
