@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory, standardise_early
+from oodmon.errors import ConfigError
+from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory, check_early, standardise_early
 
 __all__ = ["FeaturesDetector"]
 
@@ -54,10 +54,8 @@ class FeaturesDetector(Detector):
 
     def __init__(self, n_actions: int | None = None, *, window: int = 20, early: str = "standardised",
                  centre: float = 0.0) -> None:
-        if early not in ("standardised", "mean"):
-            raise InvalidParameterError(f"early={early!r} is not allowed; use one of standardised, mean")
         self._recent = RecentMean(window)
-        self.n_actions, self.window, self.early, self.centre = n_actions, window, early, float(centre)
+        self.n_actions, self.window, self.early, self.centre = n_actions, window, check_early(early), float(centre)
         self._means: np.ndarray | None = None  # (classes + 1, F): per class, then pooled
         self._factor: np.ndarray | None = None  # (F, F) with factor @ factor.T = precision
 
