@@ -26,7 +26,7 @@ whose false alarms on 200 fresh ID episodes (``oodmon validate --seed 990000``) 
 0 of the same 200. Those were the zoo's detectors before fitting version 6; refitted with
 ``dynamics``' early means standardised (2026-11-29, Intel CPU): Pendulum's ensemble 0.0% of the
 sets warn, 7.8% of the thresholds exceed 0.05 with or without the warm-up; CartPole's ensemble
-0.0% warn, 8.1% exceed 0.05 (5.0% before), within the promise's 10%; the same at version 7.
+0.0% warn, 8.1% exceed 0.05 (5.0% before), within the promise's 10%.
 """
 
 from __future__ import annotations

@@ -16,8 +16,7 @@
 # not recorded, fitted many tensors a little otherwise (float rounding; which package moved
 # them was not traced; CartPole DropConnect's sampled episodes went their own way from it); all
 # nine again on 2026-11-29 (fitting version 6: dynamics standardises its means over fewer than 20
-# transitions after a reset; the same day version 7, features too), on an Intel CPU with AVX-512
-# (the earlier ones on an AMD EPYC):
+# transitions after a reset), on an Intel CPU with AVX-512 (the earlier ones on an AMD EPYC):
 # CartPole's and Pendulum's dynamics and combined tensors moved with the CPU's float kernels as well,
 # Pong's sets only in the last digits of combined's scales; the README's tables come from the
 # bench, which fits detectors of its own).

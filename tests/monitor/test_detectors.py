@@ -567,37 +567,17 @@ def test_dynamics_scores_the_mean_of_its_last_window_transitions(fitted, id_traj
         DynamicsDetector(2, early="median")
 
 
-def test_detectors_fitted_before_early_means_were_standardised_score_as_they_did(fitted, tmp_path):
-    """A set saved without the ``early`` keys (dynamics' before FIT_VERSION 6, features' before 7)
-    keeps the plain means, so that a threshold calibrated on its scores keeps its meaning; a new
-    fit saves the keys (features its centre too: the median squared distance at the fit's steps)."""
-    assert fitted["features"].centre > 0
+def test_a_dynamics_detector_fitted_before_early_means_were_standardised_scores_as_it_did(fitted, tmp_path):
+    """A set saved without the ``early`` key (every set fitted before FIT_VERSION 6) keeps the plain
+    mean, so that a threshold calibrated on its scores keeps its meaning; a new fit saves the key."""
     fitted.save(tmp_path / "new")
     saved = json.loads((tmp_path / "new/detectors.json").read_text())
-    configs = {d["name"]: d["config"] for d in saved["detectors"]}
-    assert configs["dynamics"]["early"] == configs["features"]["early"] == "standardised"
-    assert configs["features"]["centre"] == fitted["features"].centre
-    del configs["dynamics"]["early"], configs["features"]["early"], configs["features"]["centre"]
+    (config,) = [d["config"] for d in saved["detectors"] if d["name"] == "dynamics"]
+    assert config["early"] == "standardised"
+    del config["early"]
     (tmp_path / "new/detectors.json").write_text(json.dumps(saved))
-    # the JSON's own hash does not cover the keys: the set loads, as an older file would
-    old = DetectorSet.load(tmp_path / "new")
-    assert old["dynamics"].early == old["features"].early == "mean"
-
-
-def test_features_scores_the_mean_of_its_last_window_distances_standardised_early(fitted, agent, id_trajectories):
-    """The features score: the mean squared distance of the last 20 steps, a mean of n < 20 moved
-    toward the fit's median distance by sqrt(n / 20); ``early="mean"``: not moved."""
-    features = fitted["features"]
-    trajectory = id_trajectories[6]
-    plain = FeaturesDetector.from_state(features.config() | {"early": "mean"}, features.tensors())
-    means = trajectory_scores(DetectorSet([plain]), trajectory, agent.estimator)["features"]
-    count = np.minimum(np.arange(1, len(means) + 1), 20)
-    expected = features.centre + (means - features.centre) * np.sqrt(count / 20)
-    got = trajectory_scores(DetectorSet([features]), trajectory, agent.estimator)["features"]
-    np.testing.assert_allclose(got, expected, rtol=1e-6)
-    assert np.array_equal(got[19:], means[19:]) and np.abs(got[:19] - means[:19]).max() > 1.0
-    with pytest.raises(InvalidParameterError, match="early='median' is not allowed"):
-        FeaturesDetector(2, early="median")
+    # the JSON's own hash does not cover the key: the set loads, as an older file would
+    assert DetectorSet.load(tmp_path / "new")["dynamics"].early == "mean"
 
 
 def test_standardised_early_means_lower_the_threshold_the_id_episodes_first_steps_set(agent):

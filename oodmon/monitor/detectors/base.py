@@ -59,8 +59,8 @@ class RecentMean:
 
 
 #: How a learned detector scores the steps just after a reset, where its mean covers fewer than its
-#: window (the ``early`` of :class:`~oodmon.monitor.detectors.dynamics.DynamicsDetector` and
-#: :class:`~oodmon.monitor.detectors.features.FeaturesDetector`): the default first.
+#: window (the ``early`` of :class:`~oodmon.monitor.detectors.dynamics.DynamicsDetector`): the
+#: default first.
 EARLY_MODES = ("standardised", "mean")
 
 

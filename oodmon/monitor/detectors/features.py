@@ -12,13 +12,6 @@ the dynamics detector): a corruption persists, single frames vary. Measured on t
 ensemble (2 ID games' first 1,000 steps against 500 steps of gaussian noise, impulse noise and
 motion blur at severity 3-5; ``scripts/measure_pong_features.py``): per-step AUROC 0.888-0.990
 for each step's own distance, 0.977-1.000 over 10 steps, 0.992-1.000 over 30.
-
-Just after a reset the mean covers fewer steps, and the first states lie far from the ID means
-(the shipped CartPole ensemble: 29 of 30 ID episodes had their highest score within their first
-20 steps, the median episode's peak 344 against 177 after step 20): fits since
-:data:`~oodmon.monitor.detectors.fitting.FIT_VERSION` 7 move a mean of n < ``window`` steps toward
-the fit's median squared distance by ``sqrt(n / window)``, as the dynamics detector does (22 of
-30, 187); the README's "Early steps" measures the alarm with both.
 """
 
 from __future__ import annotations
@@ -29,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from oodmon.errors import ConfigError
-from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory, check_early, standardise_early
+from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory
 
 __all__ = ["FeaturesDetector"]
 
@@ -41,21 +34,15 @@ class FeaturesDetector(Detector):
         n_actions: discrete actions (one class each), or ``None`` (one class).
         window: the step's score is the mean distance over the episode's last ``window`` steps
             (1: each step's own; default 20).
-        early: ``"standardised"`` (the default): a mean over n < ``window`` steps, just after a
-            reset, is moved toward ``centre`` (the median distance at the fit's ID steps) by
-            ``sqrt(n / window)``, as the dynamics detector's is; ``"mean"``: the plain mean (what a
-            file without the key was fitted with).
-        centre: set by :meth:`fit`.
     """
 
     name = "features"
     needs_estimate = True
     learned = True
 
-    def __init__(self, n_actions: int | None = None, *, window: int = 20, early: str = "standardised",
-                 centre: float = 0.0) -> None:
+    def __init__(self, n_actions: int | None = None, *, window: int = 20) -> None:
         self._recent = RecentMean(window)
-        self.n_actions, self.window, self.early, self.centre = n_actions, window, check_early(early), float(centre)
+        self.n_actions, self.window = n_actions, window
         self._means: np.ndarray | None = None  # (classes + 1, F): per class, then pooled
         self._factor: np.ndarray | None = None  # (F, F) with factor @ factor.T = precision
 
@@ -84,8 +71,6 @@ class FeaturesDetector(Detector):
         covariance = LedoitWolf(assume_centered=True).fit(centred).covariance_
         precision = np.linalg.inv(covariance)
         self._set(means.astype(np.float32), np.linalg.cholesky((precision + precision.T) / 2).astype(np.float32))
-        projected = (features - means[classes]).astype(np.float32) @ self._factor
-        self.centre = float(np.median(np.einsum("ij,ij->i", projected, projected)))
         return self
 
     def _set(self, means: np.ndarray, factor: np.ndarray) -> None:
@@ -118,15 +103,10 @@ class FeaturesDetector(Detector):
         rows = self._rows
         mean = rows[klass] if 0 <= klass < len(rows) - 1 else rows[-1]
         projected = np.subtract(features, mean, dtype=np.float32) @ self._factor  # float32, as the fit's
-        recent = self._recent
-        value = recent.add(float(np.dot(projected, projected)))  # np.dot: the same sum as @, 0.2 us sooner
-        if self.early == "mean":
-            return value
-        return standardise_early(value, len(recent), self.window, self.centre)
+        return self._recent.add(float(np.dot(projected, projected)))  # np.dot: the same sum as @, 0.2 us sooner
 
     def config(self) -> dict[str, Any]:
-        return {"n_actions": self.n_actions, "window": self.window} | (
-            {} if self.early == "mean" else {"early": self.early, "centre": self.centre})  # keys left out read as before
+        return {"n_actions": self.n_actions, "window": self.window}
 
     def tensors(self) -> dict[str, np.ndarray]:
         # The factor is lower-triangular: saving its lower triangle halves the file (Pong's 512
@@ -136,7 +116,7 @@ class FeaturesDetector(Detector):
 
     @classmethod
     def from_state(cls, config: Mapping[str, Any], tensors: Mapping[str, np.ndarray]) -> FeaturesDetector:
-        detector = cls(**({"early": "mean"} | dict(config)))  # fitted before the key: the plain mean
+        detector = cls(**config)
         if "means" in tensors and "factor" in tensors:  # written by oodmon before the packed factor
             detector._set(np.asarray(tensors["means"], np.float32), np.tril(np.asarray(tensors["factor"], np.float32)))
             return detector

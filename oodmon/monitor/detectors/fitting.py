@@ -80,9 +80,8 @@ def default_fit_steps(task: str | None) -> int:
 #: the key is of version 1); 5: ``combined`` ranks the held-out episodes' spread off the samples
 #: each action was chosen from (before, an MC policy with sampled masks was asked again, drawing
 #: other samples and leaving its sampling elsewhere for what came after the fitting); 6: ``dynamics``
-#: standardises its means over fewer than 20 transitions after a reset (``early="standardised"``);
-#: 7: ``features`` too.
-FIT_VERSION = 7
+#: standardises its means over fewer than 20 transitions after a reset (``early="standardised"``).
+FIT_VERSION = 6
 
 # The detector with the highest mean per-step AUROC over the paper's failing variants, per task, on
 # the shipped agents (results/detectors/, `scripts/detector_table.py`; the README's detector table);
