@@ -26,8 +26,7 @@ from oodmon.validation import is_whole
 if TYPE_CHECKING:  # importing it would load torch
     from oodmon.agents.estimators import Estimate
 
-__all__ = ["EARLY_MODES", "Detector", "RecentMean", "RunningMean", "StepContext", "Trajectory", "check_early",
-           "standardise_early"]
+__all__ = ["Detector", "RecentMean", "RunningMean", "StepContext", "Trajectory", "standardise_early"]
 
 
 class RecentMean:
@@ -56,23 +55,6 @@ class RecentMean:
     def add(self, value: float) -> float:
         self._values.append(value)
         return sum(self._values) / len(self._values)
-
-
-#: How a learned detector scores the steps just after a reset, where its mean covers fewer than its
-#: window (the ``early`` of :class:`~oodmon.monitor.detectors.dynamics.DynamicsDetector`): the
-#: default first.
-EARLY_MODES = ("standardised", "mean")
-
-
-def check_early(early: str) -> str:
-    """``early`` if it is one of :data:`EARLY_MODES`.
-
-    Raises:
-        InvalidParameterError: it is not.
-    """
-    if early not in EARLY_MODES:
-        raise InvalidParameterError(f"early={early!r} is not allowed; use one of {', '.join(EARLY_MODES)}")
-    return early
 
 
 def standardise_early(mean: float, count: int, window: int, centre: float) -> float:

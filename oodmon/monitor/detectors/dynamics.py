@@ -59,15 +59,14 @@ from scipy.special import expit
 
 from oodmon.agents.plan import repeat_rows
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.detectors.base import (
-    Detector, RecentMean, StepContext, Trajectory, check_early, standardise_early,
-)
+from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory, standardise_early
 from oodmon.monitor.detectors.frames import is_picture
 from oodmon.validation import is_whole
 
 __all__ = ["JUMP_VALUES", "MIN_LOGVAR", "DynamicsDetector", "min_logvar_for"]
 
 _KINDS = ("pedm", "nll")
+_EARLY = ("standardised", "mean")  # the score over fewer than window transitions (see DynamicsDetector)
 _CONSTANT_Z = 16.0  # the fast path's constant pre-activation (see _FastNll)
 _MIN_LOGVAR, _MAX_LOGVAR = -12.0, 2.0  # soft bounds of the predicted log-variance (the lower one: min_logvar)
 
@@ -131,7 +130,9 @@ class DynamicsDetector(Detector):
                  predicted: Sequence[int] | None = None, early: str = "standardised") -> None:
         if kind not in _KINDS:
             raise InvalidParameterError(f"kind={kind!r} is not allowed; use one of {', '.join(_KINDS)}")
-        self.early = check_early(early)
+        if early not in _EARLY:
+            raise InvalidParameterError(f"early={early!r} is not allowed; use one of {', '.join(_EARLY)}")
+        self.early = early
         for label, value in (("members", members), ("hidden", hidden), ("n_draws", n_draws), ("epochs", epochs),
                              ("batch_size", batch_size), ("window", window)):
             if not is_whole(value):
