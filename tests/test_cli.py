@@ -184,14 +184,15 @@ def test_evaluate_marks_failing_variants_as_json(capsys):
         (["calibrate", "--task", "cartpole", "--method", "dropout", "--rule", "cusum", "--warmup", "20", "--out",
           "/tmp/x.json"], "the cusum rule takes no warm-up"),
         (["bench", "--task", "cartpole", "--protocol", "monitor", "--rule", "martingale", "--warmup", "20", "--out",
-          "/tmp/oodmon-never-made"], "the martingale rule takes no warm-up"),
+          "{tmp}/never-made"], "the martingale rule takes no warm-up"),
     ],
 )
-def test_monitor_cli_errors_are_one_line(args, words):
-    result = _run(*args)
+def test_monitor_cli_errors_are_one_line(args, words, tmp_path):
+    result = _run(*(arg.replace("{tmp}", str(tmp_path)) for arg in args))
     assert result.returncode == 2
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and words in lines[0], result.stderr
+    assert list(tmp_path.iterdir()) == []  # a refused command makes no --out folder
 
 
 def test_train_writes_plain_progress_lines_and_its_result_when_logged_to_a_file(tmp_path):

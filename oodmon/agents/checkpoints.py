@@ -19,6 +19,7 @@ import torch
 from safetensors.torch import load_file, save_file
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Logger
 
 from oodmon import seeds
 from oodmon.agents.algorithms import EpisodeSoFar, algorithm_class, new_model, training_env
@@ -234,6 +235,9 @@ class Run:
         if not self.finished and not export_only:
             remaining = self.recipe.total_steps - model.num_timesteps
             if remaining > 0:
+                # SB3's own logger (verbose=0, no tensorboard) makes an empty tempdir/SB3-<time> folder per
+                # learn(): thousands over the test suite and the trainings. Ours records and writes nothing.
+                model.set_logger(Logger(folder=None, output_formats=[]))
                 model.learn(remaining, callback=_RunCallback(self, report), reset_num_timesteps=False)
             self.checkpoint(model, finished=True)
             report(f"{self.name} training steps", model.num_timesteps, self.recipe.total_steps)

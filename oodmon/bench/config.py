@@ -85,6 +85,10 @@ class BenchConfig:
         if self.rule not in RULES:
             raise ConfigError(f"rule={self.rule!r} is not allowed; choose one of {', '.join(RULES)}")
 
+        from oodmon.monitor.alarms import check_warmup, check_window
+
+        check_window(self.window)  # here, not in run_bench: before the CLI makes --out
+        check_warmup(self.warmup, self.rule)
         for name in (*self.detectors, self.alarm_detector):
             if name not in DETECTOR_NAMES:
                 raise ConfigError(f"unknown detector {name!r}; choose from {', '.join(DETECTOR_NAMES)}")

@@ -12,7 +12,6 @@ from oodmon.bench.cache import (Sb3Models, _cell_log, _ensure_model, _ensure_mod
                                 _log_is_complete, _monitored, _prepare_trial, _refuse_to_train_for_hours, _weights_sha256)
 from oodmon.bench.cells import _execute
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
-from oodmon.monitor.alarms import check_warmup, check_window
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
 
@@ -64,8 +63,6 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
 
     report = on_progress or (lambda stage, done, total: None)
     trials = [(m, t) for m in config.methods for t in range(config.trials)]
-    check_window(config.window)
-    check_warmup(config.warmup, config.rule)
     for method, trial in trials:  # before minutes of work on the others
         _refuse_to_train_for_hours(config, method, trial)
     workers = config.workers or os.cpu_count() or 1

@@ -443,3 +443,17 @@ def test_training_refuses_an_agent_it_did_not_make_and_a_run_of_another_seed(tmp
     assert (tmp_path / "t" / "model.json").read_bytes() == meta
     # The same training again: its own export, redone (the same command resumes a folder).
     assert train("cartpole", "dropout", tmp_path / "t", total_steps=100, id_episodes=1).metadata["seed"] == 0
+
+
+def test_training_leaves_nothing_in_the_temp_folder(tmp_path, monkeypatch):
+    """SB3's default logger made an empty tempdir/SB3-<time> folder at every ``learn()``: 5,239 of them
+    over some days of suites and trainings here, beside the runs that filled the disk."""
+    import tempfile
+
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    monkeypatch.delenv("SB3_LOGDIR", raising=False)
+    train("cartpole", "dropout", tmp_path / "t", total_steps=100, id_episodes=1)
+    train("cartpole", "ensemble", tmp_path / "e", total_steps=100, id_episodes=1)
+    assert [p.name for p in temp.iterdir() if p.name.startswith("SB3-")] == []
