@@ -29,9 +29,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 OODMON=${OODMON:-.venv/bin/oodmon}
 for method in dropout dropconnect ensemble; do
-  $OODMON fit-detectors --task cartpole --method "$method" --out "oodmon/zoo/cartpole-$method/detectors"
-  $OODMON fit-detectors --task pendulum --method "$method" --score pre_squash_std \
+  $OODMON fit-detectors --task cartpole --method "$method" --overwrite --out "oodmon/zoo/cartpole-$method/detectors"
+  $OODMON fit-detectors --task pendulum --method "$method" --score pre_squash_std --overwrite \
     --out "oodmon/zoo/pendulum-$method/detectors"
-  $OODMON fit-detectors --task pong --method "$method" --episodes 6 --max-steps 1000 \
+  $OODMON fit-detectors --task pong --method "$method" --episodes 6 --max-steps 1000 --overwrite \
     --out "oodmon/zoo/pong-$method/detectors"
 done

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 import subprocess
 import sys
 
@@ -317,6 +318,18 @@ def test_fit_detectors_writes_a_set_that_calibrate_and_run_read(tmp_path, capsys
     assert sorted(p.name for p in (tmp_path / "det").iterdir()) == ["detectors.json", "detectors.safetensors"]
     assert main([*fit, "--out", str(tmp_path / "again")]) == 0  # seeded: the same detectors, byte for byte
     assert (tmp_path / "again/detectors.safetensors").read_bytes() == (tmp_path / "det/detectors.safetensors").read_bytes()
+    fitted = (tmp_path / "det/detectors.json").read_bytes()
+    capsys.readouterr()
+    assert main([*fit, "--only", "features", "--out", str(tmp_path / "det")]) == 2  # before any episode
+    assert re.fullmatch(r"oodmon: error: --out \S+det holds fitted detectors already: a threshold calibrated with "
+                        r"them would be refused .* or --overwrite to replace them\n", capsys.readouterr().err)
+    assert (tmp_path / "det/detectors.json").read_bytes() == fitted
+    assert main([*fit, "--only", "features", "--overwrite", "--out", str(tmp_path / "again")]) == 0
+    assert json.loads((tmp_path / "again/detectors.json").read_text())["detectors"][-1]["name"] == "features"
+    (tmp_path / "cal.json").write_text("{}")  # `calibrate --out cal.json` fits its detectors into cal.json.detectors
+    shutil.copytree(tmp_path / "det", tmp_path / "cal.json.detectors")
+    assert main([*fit, "--out", str(tmp_path / "cal.json.detectors")]) == 2
+    assert f"already, those `oodmon calibrate` fitted for {tmp_path / 'cal.json'}: " in capsys.readouterr().err
     threshold = tmp_path / "thr.json"
     assert main(["calibrate", *common, "--detectors", str(tmp_path / "det"), "--detector", "dynamics", "--episodes", "10",
                  "--far", "0.2", "--confidence", "none", "--out", str(threshold)]) == 0
@@ -334,8 +347,6 @@ def test_fit_detectors_writes_a_set_that_calibrate_and_run_read(tmp_path, capsys
 def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, capsys, monkeypatch):
     """A model without fitted detectors: `calibrate --detector dynamics` fits them on episodes of their
     own beside the threshold, and `run --detectors` alarms on the shifted world with them."""
-    import shutil
-
     from oodmon.agents import zoo_dir
 
     model = tmp_path / "model"

@@ -228,14 +228,29 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
     fit.add_argument("--obs-noise", type=_non_negative, default=0.0,
                      help="sensor noise of the ID env, a fraction of each dimension's ID spread (default 0)")
     fit.add_argument("--out", required=True, help="folder for detectors.json and detectors.safetensors")
+    fit.add_argument("--overwrite", action="store_true",
+                     help="replace the fitted detectors --out holds already; without it they are refused, since a "
+                          "threshold calibrated with them is refused by `oodmon run` once they are replaced")
     fit.set_defaults(handler=_fit_detectors, kept_on_interrupt=_KEPT["fit-detectors"])
+
+
+def _calibrated_beside(folder: Path) -> str:
+    """Words naming the threshold ``calibrate`` fitted ``folder`` for (``T.detectors`` beside ``T``), or ``""``."""
+    threshold = folder.with_name(folder.name.removesuffix(".detectors"))
+    if folder.name.endswith(".detectors") and threshold.is_file():
+        return f", those `oodmon calibrate` fitted for {threshold}"
+    return ""
 
 
 def _fit_detectors(args: argparse.Namespace) -> int:
     from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
     from oodmon.outputs import check_output_dir
 
-    check_output_dir(args.out, parameter="--out")
+    out = check_output_dir(args.out, parameter="--out")
+    if not args.overwrite and (out / "detectors.json").exists():  # before minutes of fitting
+        raise ConfigError(f"--out {out} holds fitted detectors already{_calibrated_beside(out)}: a threshold "
+                          "calibrated with them would be refused by `oodmon run` once they are replaced; give another "
+                          "folder, or --overwrite to replace them")
     agent = _load_agent(args, seed=DETECTOR_FIT)  # seeded MC sampling: the same command fits the same detectors
     only = args.only.split(",") if args.only else None
     with _progress() as report:
