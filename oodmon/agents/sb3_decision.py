@@ -3,10 +3,12 @@
 ``model.predict(obs, deterministic=True)`` puts the whole policy in evaluation mode at every call
 (``set_training_mode(False)``, a walk that sets every module's flag: a quarter to a third of a small MLP
 policy's decision) and, for PPO, A2C and SAC, builds a torch distribution (its arguments
-validated) only to read its mode. :func:`decision` gives a function that returns the same action
+validated) only to read its mode; every call's observation goes through ``obs_to_tensor``'s
+dispatch over every kind of space. :func:`decision` gives a function that returns the same action
 float for float: it walks the policy into evaluation mode only when one of its modules is in
-training mode (a model trained further in memory, say), and reads the mode from the network's
-output with the distribution's own arithmetic. Every other step is ``BasePolicy.predict``'s, in its
+training mode (a model trained further in memory, say), makes a flat ``Box`` observation a tensor
+by that dispatch's own steps for it, and reads the mode from the network's output with the
+distribution's own arithmetic. Every other step is ``BasePolicy.predict``'s, in its
 order. A policy it does not know keeps ``predict`` (``decision`` returns ``None``): a class that
 overrides any method on that path, gSDE, multi-discrete and binary actions read through their own
 ``_predict``, and sb3-contrib's recurrent and maskable policies, whose ``predict`` takes more
@@ -78,6 +80,30 @@ def _mode(policy: Any) -> Callable[[torch.Tensor], torch.Tensor]:
     return lambda obs: policy._predict(obs, deterministic=True)
 
 
+def _obs_to_tensor(policy: Any) -> Callable[[Any], tuple[Any, bool]]:
+    """``policy.obs_to_tensor``, and for a flat ``Box`` observation space (not an image) its own
+    steps without the dispatch around them (``np.array``, the shape's check, ``torch.as_tensor``):
+    about half of a small policy's decision (``benchmarks/sb3_decision.py``). Any other space, and
+    an observation of neither the space's shape nor a batch of it, go through SB3's (its error)."""
+    from stable_baselines3.common.policies import BaseModel
+    from stable_baselines3.common.preprocessing import is_image_space
+
+    space = policy.observation_space
+    if not _keeps(policy, BaseModel, "obs_to_tensor") or type(space) is not gymnasium.spaces.Box or is_image_space(space):
+        return policy.obs_to_tensor
+    shape, device = space.shape, policy.device
+
+    def box(observation: Any) -> tuple[torch.Tensor, bool]:
+        obs = np.array(observation)
+        if obs.shape == shape:
+            return torch.as_tensor(obs.reshape((1, *shape)), device=device), False
+        if obs.shape[1:] == shape:
+            return torch.as_tensor(obs, device=device), True
+        return policy.obs_to_tensor(observation)  # SB3's own error for the shape
+
+    return box
+
+
 def decision(model: Any) -> Callable[[Any], np.ndarray] | None:
     """``model.predict(obs, deterministic=True)[0]`` as a function of ``obs``, computed as above,
     or ``None`` for a model whose ``predict`` it does not replace.
@@ -96,11 +122,12 @@ def decision(model: Any) -> Callable[[Any], np.ndarray] | None:
         return None
     mode, modules = _mode(policy), list(policy.modules())
     space = policy.action_space
+    as_tensor = _obs_to_tensor(policy)
 
     def decide(obs: Any) -> np.ndarray:  # BasePolicy.predict, step by step
         if any(module.training for module in modules):
             policy.set_training_mode(False)
-        obs_tensor, vectorized = policy.obs_to_tensor(obs)
+        obs_tensor, vectorized = as_tensor(obs)
         with torch.no_grad():
             actions = mode(obs_tensor)
         actions = actions.cpu().numpy().reshape((-1, *space.shape))

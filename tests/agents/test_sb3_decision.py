@@ -114,3 +114,17 @@ def test_a_loaded_policys_act_is_its_predict(tmp_path):
     for obs in _observations(env.observation_space, 100):
         action = agent.act(obs)
         assert isinstance(action, int) and action == int(model.predict(obs, deterministic=True)[0])
+
+
+def test_an_observation_reaches_the_policy_as_sb3_makes_it_a_tensor():
+    """The flat Box space's own path (np.array, the shape's check, torch.as_tensor) takes what
+    predict() takes: a list, float64, a batch; an observation of another shape gets SB3's error."""
+    env = gymnasium.make("Pendulum-v1")
+    model = PPO("MlpPolicy", env, seed=0, device="cpu")
+    decide = decision(model)
+    for obs in ([0.5, -0.5, 1.0], np.array([0.5, -0.5, 1.0]), np.array([[0.5, -0.5, 1.0], [1.0, 0.0, -3.0]])):
+        assert _same(decide(obs), model.predict(obs, deterministic=True)[0])
+    with pytest.raises(ValueError, match=r"Unexpected observation shape \(4,\) for Box environment"):
+        decide(np.zeros(4))
+    with pytest.raises(ValueError, match=r"Unexpected observation shape \(4,\) for Box environment"):
+        model.predict(np.zeros(4), deterministic=True)
