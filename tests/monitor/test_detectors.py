@@ -381,6 +381,26 @@ def test_a_damaged_or_foreign_detectors_file_is_refused(fitted, tmp_path):
         DetectorSet.load(folder)
 
 
+def test_a_save_stopped_while_writing_leaves_the_set_that_was_there(fitted, tmp_path, monkeypatch):
+    """A disk that fills or a Ctrl-C while the tensors are written (an --overwrite refit of the set a
+    threshold was calibrated with): the earlier set still loads, and no part file is left."""
+    import safetensors.numpy
+
+    folder = fitted.subset(["spread", "dynamics"]).save(tmp_path / "det")
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+
+    def stopped(tensors, filename):  # half the file on disk, then the failure
+        Path(filename).write_bytes(b"\0" * 100)
+        raise failure
+
+    monkeypatch.setattr(safetensors.numpy, "save_file", stopped)
+    for failure in (OSError(28, "No space left on device"), KeyboardInterrupt()):
+        with pytest.raises(type(failure)):
+            fitted.save(folder)
+        assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+        assert DetectorSet.load(folder).names == ["spread", "dynamics"]
+
+
 # -- clear errors -----------------------------------------------------------------------------------
 def test_an_unfitted_detector_is_an_error(agent):
     with pytest.raises(ConfigError, match="dynamics detector is not fitted"):

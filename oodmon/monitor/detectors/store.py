@@ -8,6 +8,7 @@ the policy's weights) and the sha256 of the tensor file, checked at load. Nothin
 from __future__ import annotations
 
 import hashlib
+import os
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -180,17 +181,30 @@ class DetectorSet:
 
     # -- files ---------------------------------------------------------------------------------------
     def save(self, directory: str | Path) -> Path:
-        """Write ``detectors.safetensors`` and ``detectors.json`` into ``directory``."""
+        """Write ``detectors.safetensors`` and ``detectors.json`` into ``directory``.
+
+        Both are written beside their names (``.part``) and then moved over them one right after the
+        other: a process killed or a disk filled while writing leaves the set that was there whole
+        (an ``--overwrite`` refit of a threshold's detectors, say); only a kill between the two
+        moves leaves a set whose hash disagrees, which :meth:`load` refuses."""
         from safetensors.numpy import save_file
 
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         tensors = {f"{d.name}/{key}": np.ascontiguousarray(value) for d in self for key, value in d.tensors().items()}
-        save_file(tensors, str(directory / "detectors.safetensors"))
-        digest = file_sha256(directory / "detectors.safetensors")
-        meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "fitted_for": self.fitted_for,
-                "detectors": [{"name": d.name, "config": d.config()} for d in self], "safetensors_sha256": digest}
-        write_json(directory / "detectors.json", meta)
+        tensor_part, meta_part = directory / "detectors.safetensors.part", directory / "detectors.json.part"
+        try:
+            save_file(tensors, str(tensor_part))
+            meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "fitted_for": self.fitted_for,
+                    "detectors": [{"name": d.name, "config": d.config()} for d in self],
+                    "safetensors_sha256": file_sha256(tensor_part)}
+            write_json(meta_part, meta)
+            os.replace(tensor_part, directory / "detectors.safetensors")
+            os.replace(meta_part, directory / "detectors.json")
+        except BaseException:
+            tensor_part.unlink(missing_ok=True)
+            meta_part.unlink(missing_ok=True)
+            raise
         return directory
 
     @classmethod
