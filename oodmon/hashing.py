@@ -1,11 +1,17 @@
-"""The sha256 of a file, as every record of oodmon spells it (weights, detectors, users' models)."""
+"""The sha256 of a file, as every record of oodmon spells it (weights, detectors, users' models),
+and a tensor file written whole beside the JSON that records its sha256."""
 
 from __future__ import annotations
 
 import hashlib
+import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-__all__ = ["file_sha256"]
+from oodmon.jsonfile import write_json
+
+__all__ = ["file_sha256", "write_hashed_tensors"]
 
 
 def file_sha256(path: str | Path) -> str:
@@ -18,3 +24,24 @@ def file_sha256(path: str | Path) -> str:
         'e3b0c44298fc1c14'
     """
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def write_hashed_tensors(tensor_path: Path, json_path: Path, write_tensors: Callable[[str], None],
+                         metadata: dict[str, Any], *, sort_keys: bool = False) -> None:
+    """The tensors ``write_tensors(path)`` writes, at ``tensor_path``, and ``metadata`` with their
+    ``safetensors_sha256`` as JSON at ``json_path`` (a saved agent, a detector set).
+
+    Both are written beside their names (``.part``), then moved over them back to back: a process
+    killed or a disk filled while writing leaves the pair that was there whole, and no part file;
+    only a kill between the two moves leaves a pair whose hash disagrees, which the readers refuse.
+    """
+    tensor_part, json_part = tensor_path.with_name(tensor_path.name + ".part"), json_path.with_name(json_path.name + ".part")
+    try:
+        write_tensors(str(tensor_part))
+        write_json(json_part, {**metadata, "safetensors_sha256": file_sha256(tensor_part)}, sort_keys=sort_keys)
+        os.replace(tensor_part, tensor_path)
+        os.replace(json_part, json_path)
+    except BaseException:
+        tensor_part.unlink(missing_ok=True)
+        json_part.unlink(missing_ok=True)
+        raise

@@ -50,6 +50,13 @@ def _load_pickled_checkpoint(recipe: Recipe, folder: Path, env: gymnasium.Env, *
     return model
 
 
+def _save_whole(tensors: dict[str, torch.Tensor], path: Path) -> None:
+    """``tensors`` at ``path``, written as ``tmp-<name>`` and moved over it: a kill mid-write (a
+    session's end stops its trainings) leaves the file before, never half of one."""
+    part = path.with_name(f"tmp-{path.name}")
+    save_file(tensors, str(part))
+    os.replace(part, path)
+
 class _RunCallback(BaseCallback):
     """Checkpoints, evaluations and progress reports during one SB3 ``learn`` call.
 
@@ -263,8 +270,7 @@ class Run:
             os.replace(self.folder / "tmp-replay_buffer.npz", self.folder / "replay_buffer.npz")
         for legacy in ("checkpoint.zip", "replay_buffer.pkl"):  # superseded: never to be unpickled by accident
             (self.folder / legacy).unlink(missing_ok=True)
-        save_file(self._kept_weights(model), str(self.folder / "tmp-policy.safetensors"))
-        os.replace(self.folder / "tmp-policy.safetensors", self.folder / "policy.safetensors")
+        _save_whole(self._kept_weights(model), self.folder / "policy.safetensors")
         self.state.update(
             steps=int(model.num_timesteps), finished=finished,
             wall_time_s=round(self._wall_before + time.monotonic() - self._started, 1),
@@ -285,11 +291,11 @@ class Run:
             log.write(json.dumps(line) + "\n")
         best = self.state.get("best")
         if best is None or mean >= best["eval_return_mean"]:
-            save_file(self._kept_weights(model), str(self.folder / "best_policy.safetensors"))
+            _save_whole(self._kept_weights(model), self.folder / "best_policy.safetensors")
             self.state["best"] = {"steps": steps, "eval_return_mean": mean}
         if self.recipe.select_top:
             (self.folder / "snapshots").mkdir(exist_ok=True)
-            save_file(self._kept_weights(model), str(self.folder / "snapshots" / f"{steps}.safetensors"))
+            _save_whole(self._kept_weights(model), self.folder / "snapshots" / f"{steps}.safetensors")
         return mean
 
     def _kept_weights(self, model: BaseAlgorithm) -> dict[str, torch.Tensor]:

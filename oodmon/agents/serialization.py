@@ -20,8 +20,8 @@ from safetensors.torch import load, save_file
 
 from oodmon.agents.networks import build_modules
 from oodmon.errors import ModelFormatError
-from oodmon.hashing import file_sha256
-from oodmon.jsonfile import read_json, write_json
+from oodmon.hashing import write_hashed_tensors
+from oodmon.jsonfile import read_json
 
 __all__ = ["FORMAT_VERSION", "load_modules", "read_metadata", "save_modules"]
 
@@ -42,10 +42,9 @@ def save_modules(directory: str | Path, modules: torch.nn.Module, metadata: dict
         name: (t.detach().half() if half and t.is_floating_point() else t.detach()).contiguous().cpu()
         for name, t in modules.state_dict().items()
     }
-    save_file(tensors, str(directory / "model.safetensors"))
-    metadata = {"format_version": FORMAT_VERSION, **metadata, "dtype": "float16" if half else "float32",
-                "safetensors_sha256": file_sha256(directory / "model.safetensors")}
-    write_json(directory / "model.json", metadata, sort_keys=True)
+    meta = {"format_version": FORMAT_VERSION, **metadata, "dtype": "float16" if half else "float32"}
+    write_hashed_tensors(directory / "model.safetensors", directory / "model.json",
+                         lambda path: save_file(tensors, path), meta, sort_keys=True)  # whole, or the agent before
     return directory
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -37,6 +38,24 @@ def test_round_trip_gives_the_same_tensors_and_metadata(saved):
     raw = (path / "model.safetensors").read_bytes()
     header = json.loads(raw[8 : 8 + int.from_bytes(raw[:8], "little")])
     assert "network.1.weight" in header
+
+
+def test_a_save_stopped_while_writing_leaves_the_agent_that_was_there(saved, monkeypatch):
+    """A full disk or a kill while the tensors are written (an export over an agent, a session's end):
+    the agent before still loads, and no part file is left."""
+    path, _ = saved
+    before = {p.name: p.read_bytes() for p in path.iterdir()}
+
+    def stopped(tensors, filename):  # part of the file on disk, then the failure
+        Path(filename).write_bytes(b"\0" * 100)
+        raise failure
+
+    monkeypatch.setattr("oodmon.agents.serialization.save_file", stopped)
+    for failure in (OSError(28, "No space left on device"), KeyboardInterrupt()):
+        with pytest.raises(type(failure)):
+            save_modules(path, build_modules(ARCH), META | {"seed": 4})
+        assert {p.name: p.read_bytes() for p in path.iterdir()} == before
+        assert load_modules(path)[1]["seed"] == 3
 
 
 def test_half_precision_loads_back_as_float32(tmp_path):

@@ -8,7 +8,6 @@ the policy's weights) and the sha256 of the tensor file, checked at load. Nothin
 from __future__ import annotations
 
 import hashlib
-import os
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -16,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from oodmon.errors import ConfigError
-from oodmon.jsonfile import read_json, write_json
+from oodmon.jsonfile import read_json
 from oodmon.monitor.detectors.base import Detector, StepContext
 from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.drift import DriftDetector
@@ -25,7 +24,7 @@ from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
-from oodmon.hashing import file_sha256
+from oodmon.hashing import write_hashed_tensors
 
 __all__ = ["DETECTORS", "DetectorSet"]
 
@@ -192,19 +191,10 @@ class DetectorSet:
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         tensors = {f"{d.name}/{key}": np.ascontiguousarray(value) for d in self for key, value in d.tensors().items()}
-        tensor_part, meta_part = directory / "detectors.safetensors.part", directory / "detectors.json.part"
-        try:
-            save_file(tensors, str(tensor_part))
-            meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "fitted_for": self.fitted_for,
-                    "detectors": [{"name": d.name, "config": d.config()} for d in self],
-                    "safetensors_sha256": file_sha256(tensor_part)}
-            write_json(meta_part, meta)
-            os.replace(tensor_part, directory / "detectors.safetensors")
-            os.replace(meta_part, directory / "detectors.json")
-        except BaseException:
-            tensor_part.unlink(missing_ok=True)
-            meta_part.unlink(missing_ok=True)
-            raise
+        meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "fitted_for": self.fitted_for,
+                "detectors": [{"name": d.name, "config": d.config()} for d in self]}
+        write_hashed_tensors(directory / "detectors.safetensors", directory / "detectors.json",
+                             lambda path: save_file(tensors, path), meta)
         return directory
 
     @classmethod
