@@ -83,7 +83,7 @@ def _mode(policy: Any) -> Callable[[torch.Tensor], torch.Tensor]:
 def _obs_to_tensor(policy: Any) -> Callable[[Any], tuple[Any, bool]]:
     """``policy.obs_to_tensor``, and for a flat ``Box`` observation space (not an image) its own
     steps without the dispatch around them (``np.array``, the shape's check, ``torch.as_tensor``):
-    about half of a small policy's decision (``benchmarks/sb3_decision.py``). Any other space, and
+    10-15 us of a small policy's 60-100 us decision (``benchmarks/sb3_decision.py``). Any other space, and
     an observation of neither the space's shape nor a batch of it, go through SB3's (its error)."""
     from stable_baselines3.common.policies import BaseModel
     from stable_baselines3.common.preprocessing import is_image_space
