@@ -50,6 +50,29 @@ def _load_pickled_checkpoint(recipe: Recipe, folder: Path, env: gymnasium.Env, *
     return model
 
 
+def _append_line(path: Path, record: dict[str, Any]) -> None:
+    """``record`` as one JSON line at the end of ``path``, on a line of its own even where the file
+    ends in a line cut short (a kill or a full disk while it was written), which would swallow it."""
+    with open(path, "a+b") as log:  # opened at the end; writes go there whatever is read before
+        torn = False
+        if log.tell() > 0:
+            log.seek(-1, os.SEEK_END)
+            torn = log.read(1) != b"\n"
+        log.write((("\n" if torn else "") + json.dumps(record) + "\n").encode())
+
+
+def _read_lines(path: Path) -> list[dict[str, Any]]:
+    """The records of a JSON-lines file (none where it is missing), less any line cut short, with a warning."""
+    records = []
+    for text in path.read_text().splitlines() if path.exists() else []:
+        try:
+            records.append(json.loads(text))
+        except json.JSONDecodeError:
+            warnings.warn(f"{path}: skipped a line cut short (a kill or a full disk while it was written): "
+                          f"{text[:60]!r}", UserWarning, stacklevel=3)
+    return records
+
+
 def _save_whole(tensors: dict[str, torch.Tensor], path: Path) -> None:
     """``tensors`` at ``path``, written as ``tmp-<name>`` and moved over it: a kill mid-write (a
     session's end stops its trainings) leaves the file before, never half of one."""
@@ -287,8 +310,7 @@ class Run:
         mean = float(np.mean(returns))
         line = {"run": self.name, "steps": steps, "eval_return_mean": mean,
                 "wall_time_s": round(self._wall_before + time.monotonic() - self._started, 1)}
-        with open(self.root / "train_log.jsonl", "a") as log:
-            log.write(json.dumps(line) + "\n")
+        _append_line(self.root / "train_log.jsonl", line)
         best = self.state.get("best")
         if best is None or mean >= best["eval_return_mean"]:
             _save_whole(self._kept_weights(model), self.folder / "best_policy.safetensors")
@@ -312,8 +334,7 @@ class Run:
     def candidates(self) -> list[dict[str, Any]]:
         """The ``select_top`` best evaluations whose weights are on disk, best first: their steps,
         evaluation return and weights file."""
-        log = self.root / "train_log.jsonl"
-        lines = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
+        lines = _read_lines(self.root / "train_log.jsonl")
         best = self.state.get("best") or {}
         found = []
         for line in sorted((x for x in lines if x["run"] == self.name), key=lambda x: -x["eval_return_mean"]):

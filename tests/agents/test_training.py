@@ -255,9 +255,12 @@ def test_export_does_not_play_a_snapshot_again_that_an_earlier_export_scored(tmp
         if entry["steps"] == loser["steps"]:
             entry["selection_return_mean"] = 1e6
     cache_path.write_text(json.dumps(cache))
+    with open(tmp_path / "train_log.jsonl", "a") as log:  # an evaluation's line cut short by a kill or a full disk
+        log.write('{"run": "main", "steps": 15')
     reports: list[tuple] = []
-    again = train("cartpole", "dropconnect", tmp_path, total_steps=1000, id_episodes=1, export_only=True,
-                  on_progress=lambda *args: reports.append(args)).metadata
+    with pytest.warns(UserWarning, match=r"train_log.jsonl: skipped a line cut short .*'\{\"run\": \"main\", \"steps\": 15'"):
+        again = train("cartpole", "dropconnect", tmp_path, total_steps=1000, id_episodes=1, export_only=True,
+                      on_progress=lambda *args: reports.append(args)).metadata
     assert again["selected_checkpoints"][0]["steps"] == loser["steps"]
     assert [r[1:] for r in reports if r[0].endswith(": episodes")] == [(0, 0)]
 
@@ -265,7 +268,9 @@ def test_export_does_not_play_a_snapshot_again_that_an_earlier_export_scored(tmp
     monkeypatch.setattr(training, "recipe_for", lambda task, method: replace(
         recipe_for(task, method).shortened(1000), select_top=2, eval_every=500, select_episodes=3))
     reports.clear()
-    train("cartpole", "dropconnect", tmp_path, id_episodes=1, export_only=True, on_progress=lambda *args: reports.append(args))
+    with pytest.warns(UserWarning, match="skipped a line cut short"):  # still there: read, never rewritten
+        train("cartpole", "dropconnect", tmp_path, id_episodes=1, export_only=True,
+              on_progress=lambda *args: reports.append(args))
     assert [r[1:] for r in reports if r[0].endswith(": episodes")][-1] == (6, 6)
 
 
@@ -456,3 +461,17 @@ def test_training_leaves_nothing_in_the_temp_folder(tmp_path, monkeypatch):
     monkeypatch.delenv("SB3_LOGDIR", raising=False)
     train("cartpole", "dropout", tmp_path / "t", total_steps=100, id_episodes=1)  # ensembles' members: the same Run.train
     assert [p.name for p in temp.iterdir() if p.name.startswith("SB3-")] == []
+
+
+def test_an_evaluations_line_after_one_cut_short_starts_a_line_of_its_own(tmp_path):
+    from oodmon.agents.checkpoints import _append_line, _read_lines
+
+    log = tmp_path / "train_log.jsonl"
+    _append_line(log, {"steps": 500})
+    with open(log, "a") as f:
+        f.write('{"steps": 10')  # a kill mid-line
+    _append_line(log, {"steps": 1000})
+    assert log.read_text() == '{"steps": 500}\n{"steps": 10\n{"steps": 1000}\n'
+    with pytest.warns(UserWarning, match="skipped a line cut short"):
+        assert _read_lines(log) == [{"steps": 500}, {"steps": 1000}]
+    assert _read_lines(tmp_path / "none.jsonl") == []
