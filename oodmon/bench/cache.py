@@ -189,7 +189,9 @@ def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path | S
         aside.parent.mkdir(parents=True, exist_ok=True)
         os.replace(folder, aside)
     folder.mkdir(parents=True, exist_ok=True)
-    stamp.write_text(weights + "\n")
+    part = stamp.with_name(stamp.name + ".part")  # whole or not at all: a torn stamp would set the trial aside
+    part.write_text(weights + "\n")
+    os.replace(part, stamp)
 
 
 def _prepare_trial(config: BenchConfig, method: str, trial: int,
