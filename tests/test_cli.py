@@ -330,6 +330,9 @@ def test_fit_detectors_writes_a_set_that_calibrate_and_run_read(tmp_path, capsys
     shutil.copytree(tmp_path / "det", tmp_path / "cal.json.detectors")
     assert main([*fit, "--out", str(tmp_path / "cal.json.detectors")]) == 2
     assert f"already, those `oodmon calibrate` fitted for {tmp_path / 'cal.json'}: " in capsys.readouterr().err
+    assert main([*fit, "--overwrite", "--out", str(tmp_path / "cal.json.detectors")]) == 0
+    assert (f"(replacing the set it held, those `oodmon calibrate` fitted for {tmp_path / 'cal.json'}: calibrate that "
+            "threshold again)") in capsys.readouterr().out
     threshold = tmp_path / "thr.json"
     assert main(["calibrate", *common, "--detectors", str(tmp_path / "det"), "--detector", "dynamics", "--episodes", "10",
                  "--far", "0.2", "--confidence", "none", "--out", str(threshold)]) == 0

@@ -251,6 +251,7 @@ def _fit_detectors(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {out} holds fitted detectors already{_calibrated_beside(out)}: a threshold "
                           "calibrated with them would be refused by `oodmon run` once they are replaced; give another "
                           "folder, or --overwrite to replace them")
+    replacing = (out / "detectors.json").exists()
     agent = _load_agent(args, seed=DETECTOR_FIT)  # seeded MC sampling: the same command fits the same detectors
     only = args.only.split(",") if args.only else None
     with _progress() as report:
@@ -258,8 +259,11 @@ def _fit_detectors(args: argparse.Namespace) -> int:
                                         obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report)
     detectors.save(args.out)
     console = Console(soft_wrap=True)
+    beside = _calibrated_beside(out)
+    replaced = "" if not replacing else f" (replacing the set it held{beside}: calibrate that threshold again)" if beside \
+        else " (replacing the set it held)"
     console.print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
-                  f"{detectors.fitted_for['episodes']} ID episodes; wrote {args.out}")
+                  f"{detectors.fitted_for['episodes']} ID episodes; wrote {args.out}{replaced}")
     for note in fitting_notes(detectors):
         console.print(note, markup=False)
     return 0
