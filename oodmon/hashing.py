@@ -35,13 +35,19 @@ def write_hashed_tensors(tensor_path: Path, json_path: Path, write_tensors: Call
     killed or a disk filled while writing leaves the pair that was there whole, and no part file;
     only a kill between the two moves leaves a pair whose hash disagrees, which the readers refuse.
     """
+    from oodmon.outputs import write_failure
+
     tensor_part, json_part = tensor_path.with_name(tensor_path.name + ".part"), json_path.with_name(json_path.name + ".part")
+    written = tensor_path
     try:
         write_tensors(str(tensor_part))
+        written = json_path
         write_json(json_part, {**metadata, "safetensors_sha256": file_sha256(tensor_part)}, sort_keys=sort_keys)
         os.replace(tensor_part, tensor_path)
         os.replace(json_part, json_path)
-    except BaseException:
+    except BaseException as error:
         tensor_part.unlink(missing_ok=True)
         json_part.unlink(missing_ok=True)
+        if isinstance(error, (OSError, RuntimeError)) or type(error).__name__ == "SafetensorError":
+            raise write_failure(written, error) from None  # a full disk: one line naming the file
         raise

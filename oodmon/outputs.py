@@ -12,6 +12,7 @@ from __future__ import annotations
 import errno
 import os
 import re
+import shutil
 import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -19,7 +20,7 @@ from pathlib import Path
 from oodmon.errors import ConfigError
 
 __all__ = ["PICTURE_SUFFIXES", "check_output_dir", "check_output_file", "check_picture_file", "replaced_file",
-           "safe_filename", "save_figure"]
+           "safe_filename", "save_figure", "write_whole"]
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -164,6 +165,44 @@ def _reason(error: OSError) -> str:
     if error.errno == errno.ENAMETOOLONG:
         return "the file name is too long"
     return error.strerror or str(error)
+
+
+def write_whole(path: Path, write: Callable[[Path], object], *, part: Path | None = None) -> None:
+    """What ``write(part)`` writes, at ``path``: written at ``part`` (default ``<path>.part``) and
+    moved over ``path``, so that a kill or a full disk mid-write leaves the file before, never half
+    of one, and no part file. A failed write is an :class:`OSError` naming ``path`` and the space
+    left on its disk: torch's and safetensors' writers raise errors of their own for a full disk
+    (measured: ``RuntimeError: [enforce fail at inline_container.cc:672] . unexpected pos ...`` and
+    ``SafetensorError: ... No space left on device``), which reached the user as tracebacks.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "x.txt"
+        >>> write_whole(path, lambda part: part.write_text("whole"))
+        >>> path.read_text(), sorted(p.name for p in path.parent.iterdir())
+        ('whole', ['x.txt'])
+    """
+    from safetensors import SafetensorError
+
+    part = path.with_name(path.name + ".part") if part is None else part
+    try:
+        write(part)
+        os.replace(part, path)
+    except BaseException as error:
+        part.unlink(missing_ok=True)
+        if isinstance(error, (OSError, RuntimeError, SafetensorError)):
+            raise write_failure(path, error) from None
+        raise
+
+
+def write_failure(path: Path, error: BaseException) -> OSError:
+    """An :class:`OSError` saying that ``path`` could not be written, why, and how much room its disk has."""
+    reason = _reason(error) if isinstance(error, OSError) else " ".join(str(error).split())[:160]
+    folder = next((p for p in Path(path).absolute().parents if p.exists()), Path("/"))
+    free = shutil.disk_usage(folder).free / 1e6
+    failure = OSError(f"{path} could not be written ({reason}; {free:.1f} MB free on its disk)")
+    failure.errno = getattr(error, "errno", None) or errno.EIO  # the message is the one line oodmon prints
+    return failure
 
 
 def safe_filename(text: str) -> str:

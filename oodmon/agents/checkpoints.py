@@ -28,6 +28,7 @@ from oodmon.agents.recipes import Recipe, recipe_differences, recipe_record
 from oodmon.envs.grid import Variant
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import write_json
+from oodmon.outputs import write_failure, write_whole
 from oodmon.progress import Progress
 
 __all__ = ["Run"]
@@ -53,12 +54,15 @@ def _load_pickled_checkpoint(recipe: Recipe, folder: Path, env: gymnasium.Env, *
 def _append_line(path: Path, record: dict[str, Any]) -> None:
     """``record`` as one JSON line at the end of ``path``, on a line of its own even where the file
     ends in a line cut short (a kill or a full disk while it was written), which would swallow it."""
-    with open(path, "a+b") as log:  # opened at the end; writes go there whatever is read before
-        torn = False
-        if log.tell() > 0:
-            log.seek(-1, os.SEEK_END)
-            torn = log.read(1) != b"\n"
-        log.write((("\n" if torn else "") + json.dumps(record) + "\n").encode())
+    try:
+        with open(path, "a+b") as log:  # opened at the end; writes go there whatever is read before
+            torn = False
+            if log.tell() > 0:
+                log.seek(-1, os.SEEK_END)
+                torn = log.read(1) != b"\n"
+            log.write((("\n" if torn else "") + json.dumps(record) + "\n").encode())
+    except OSError as error:  # a full disk's error names no file
+        raise write_failure(path, error) from None
 
 
 def _read_lines(path: Path) -> list[dict[str, Any]]:
@@ -73,12 +77,15 @@ def _read_lines(path: Path) -> list[dict[str, Any]]:
     return records
 
 
+def _write_whole(path: Path, write: Callable[[Path], object]) -> None:
+    """``write_whole`` with the run's ``tmp-<name>`` part: a kill mid-write (a session's end stops its
+    trainings) leaves the file before; a full disk is one line naming the file, with no part left."""
+    write_whole(path, write, part=path.with_name(f"tmp-{path.name}"))
+
+
 def _save_whole(tensors: dict[str, torch.Tensor], path: Path) -> None:
-    """``tensors`` at ``path``, written as ``tmp-<name>`` and moved over it: a kill mid-write (a
-    session's end stops its trainings) leaves the file before, never half of one."""
-    part = path.with_name(f"tmp-{path.name}")
-    save_file(tensors, str(part))
-    os.replace(part, path)
+    """``tensors`` at ``path``, written whole (``_write_whole``)."""
+    _write_whole(path, lambda part: save_file(tensors, str(part)))
 
 class _RunCallback(BaseCallback):
     """Checkpoints, evaluations and progress reports during one SB3 ``learn`` call.
@@ -278,9 +285,8 @@ class Run:
         # Write to temporary names and rename, so that a kill mid-write leaves the last good files.
         counters = {name: int(getattr(model, name)) for name in _COUNTERS if hasattr(model, name)}
         stands = None if finished else _where_it_stands(model)  # a finished run is never resumed
-        torch.save({"parameters": model.get_parameters(), "counters": counters, "stands": stands},
-                   self.folder / "tmp-checkpoint.pt")
-        os.replace(self.folder / "tmp-checkpoint.pt", self.folder / "checkpoint.pt")
+        saved = {"parameters": model.get_parameters(), "counters": counters, "stands": stands}
+        _write_whole(self.folder / "checkpoint.pt", lambda part: torch.save(saved, part))
         if finished:
             (self.folder / "replay_buffer.npz").unlink(missing_ok=True)  # not needed once the run is done
         else:
@@ -288,9 +294,12 @@ class Run:
             size = buffer.buffer_size if buffer.full else buffer.pos
             arrays = {name: getattr(buffer, name)[:size] for name in _BUFFER_ARRAYS
                       if isinstance(getattr(buffer, name, None), np.ndarray)}
-            with open(self.folder / "tmp-replay_buffer.npz", "wb") as f:
-                np.savez(f, size=size, pos=buffer.pos, full=buffer.full, num_timesteps=model.num_timesteps, **arrays)
-            os.replace(self.folder / "tmp-replay_buffer.npz", self.folder / "replay_buffer.npz")
+
+            def write_buffer(part: Path) -> None:
+                with open(part, "wb") as f:
+                    np.savez(f, size=size, pos=buffer.pos, full=buffer.full, num_timesteps=model.num_timesteps, **arrays)
+
+            _write_whole(self.folder / "replay_buffer.npz", write_buffer)
         for legacy in ("checkpoint.zip", "replay_buffer.pkl"):  # superseded: never to be unpickled by accident
             (self.folder / legacy).unlink(missing_ok=True)
         _save_whole(self._kept_weights(model), self.folder / "policy.safetensors")

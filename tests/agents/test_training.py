@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -87,6 +88,32 @@ def test_interrupted_training_resumes_from_its_checkpoint(tmp_path):
     again: list[int] = []
     train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=lambda run, done, total: again.append(done), id_episodes=2)
     assert min(again) == state["steps"]
+
+
+def test_a_checkpoint_on_a_full_disk_is_one_error_naming_it_and_the_last_one_is_kept(tmp_path, monkeypatch):
+    """torch.save on a full disk raises its own RuntimeError (measured on a 600 KB tmpfs: "[enforce fail
+    at inline_container.cc:672] . unexpected pos ..."), which reached `oodmon train` as a traceback
+    and left its part file filling the disk."""
+    real_save, calls = torch.save, []
+
+    def full_disk(obj, f):  # the first checkpoint (at 512 steps) written, the next one not
+        calls.append(f)
+        if len(calls) == 1:
+            return real_save(obj, f)
+        Path(f).write_bytes(b"\0" * 1000)
+        raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 281408 vs 281296")
+
+    monkeypatch.setattr(torch, "save", full_disk)
+    with pytest.raises(OSError, match=r"runs/main/checkpoint\.pt could not be written \(\[enforce fail .* MB free on "
+                                      r"its disk\)$"):
+        train("cartpole", "dropout", tmp_path, total_steps=1000, id_episodes=2)
+    run = tmp_path / "runs" / "main"
+    assert json.loads((run / "state.json").read_text())["steps"] == 512 and not list(run.glob("tmp-*"))
+    monkeypatch.setattr(torch, "save", real_save)
+    resumed: list[int] = []
+    train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=lambda run, done, total: resumed.append(done),
+          id_episodes=2)
+    assert resumed[0] == 512  # from the checkpoint the failure left whole
 
 
 def test_a_run_begun_by_another_recipe_is_not_resumed(tmp_path):
