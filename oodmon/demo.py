@@ -106,23 +106,29 @@ def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, 
     threshold.save(out / "threshold.json")
     console.print(f"1. Calibrated on {threshold.n_episodes} held-out ID episodes: alarm when the {detector} "
                   f"{threshold.rule_text} ({threshold.promise}). -> {out / 'threshold.json'}")
-    runs = {}
+    runs, logs = {}, {}
     for name, variant, onset in (("id", Variant("cartpole"), 0), ("shifted", parse_variant(DEMO_SHIFT), DEMO_ONSET)):
         env = variant.make(onset_step=onset)
-        sinks = [McapSink(out / f"{name}.mcap", overwrite=True),  # the demo's own logs, made again each time
-                 RerunSink(out / f"{name}.rrd", overwrite=True)]
+        files = {"McapSink": out / f"{name}.mcap", "RerunSink": out / f"{name}.rrd"}
+        sinks = [McapSink(files["McapSink"], overwrite=True),  # the demo's own logs, made again each time
+                 RerunSink(files["RerunSink"], overwrite=True)]
         with Monitor(agent, threshold, detectors=detectors, sinks=sinks) as monitor:
             runs[name] = [monitor.run_episode(env, seed=DEMO + e, variant=variant.spec) for e in range(episodes)]
         env.close()
+        failed = monitor.sinks.failures  # after the sinks closed, as `oodmon run` reads them (a full disk)
+        written = [str(path) for sink, path in files.items() if sink not in failed]
+        logs[name] = " ".join(([f"-> {', '.join(written)}"] if written else []) + (
+            [f"(not written whole: {', '.join(str(files[sink]) for sink in failed)}; see the warnings)"] if failed else []))
     false_alarms = sum(r.alarms > 0 for r in runs["id"])
     detected = [r for r in runs["shifted"] if r.delay is not None]
     early = sum(r.alarmed_early for r in runs["shifted"])
     delays = [r.delay for r in detected]
     falls = ", ".join(str(r.length - r.onset) if r.terminated else "never" for r in runs["shifted"])  # kept up to 500
     console.print(f"2. ID: {false_alarms} of {episodes} episodes raised a (false) alarm; returns "
-                  f"{[round(r.total_return) for r in runs['id']]}. -> {out / 'id.mcap'}, {out / 'id.rrd'}")
+                  f"{[round(r.total_return) for r in runs['id']]}. {logs['id']}")
     console.print(f"3. {DEMO_SHIFT} from step {DEMO_ONSET}: {len(detected)} of {episodes} shifts detected, delays "
                   f"{delays} steps (the pole falls [{falls}] steps after the onset); {early} alarm(s) before the onset. "
-                  f"-> {out / 'shifted.mcap'}, {out / 'shifted.rrd'}")
-    console.print("Open the logs with `rerun runs/demo/shifted.rrd` or Foxglove; `oodmon run --help` for your own runs.")
+                  f"{logs['shifted']}")
+    if "not written" not in logs["shifted"]:
+        console.print(f"Open the logs with `rerun {out / 'shifted.rrd'}` or Foxglove; `oodmon run --help` for your own runs.")
     return {"false_alarms": false_alarms, "detected": len(detected), "delays": delays, "early": early}

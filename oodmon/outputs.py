@@ -217,12 +217,15 @@ def safe_filename(text: str) -> str:
 
 
 def save_figure(fig, path: str | Path) -> Path:
-    """Save a matplotlib figure to ``path`` (its folder made), laid out tightly, and close it."""
+    """Save a matplotlib figure to ``path`` (its folder made), laid out tightly, and close it; whole
+    or not at all (:func:`write_whole`: a full disk left an empty PNG and an error naming no file)."""
     import matplotlib.pyplot as plt
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    try:
+        fig.tight_layout()
+        write_whole(path, lambda part: fig.savefig(part, format=path.suffix[1:] or None))  # the part's suffix is .part
+    finally:
+        plt.close(fig)
     return path

@@ -110,6 +110,27 @@ def test_demo_calibrates_monitors_and_logs(tmp_path, capsys):
                                                           "threshold.json"]
 
 
+def test_demo_says_which_logs_it_could_not_write(tmp_path, monkeypatch):
+    """A disk that fills: the demo said "-> id.mcap, id.rrd" of logs its sinks had failed to write."""
+    from rich.console import Console
+
+    from oodmon.demo import run_demo
+    from oodmon.monitor.sinks.base import SinkWarning
+    from oodmon.monitor.sinks.mcap import McapSink
+
+    def full_disk(self, part):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(McapSink, "_open_part", full_disk)
+    console = Console(record=True, width=400)
+    with pytest.warns(SinkWarning, match=r"McapSink.open failed \(\[Errno 28\] No space left on device\)"):
+        run_demo(tmp_path, console, episodes=1)
+    out = console.export_text()
+    assert f"-> {tmp_path / 'id.rrd'} (not written whole: {tmp_path / 'id.mcap'}; see the warnings)" in out
+    assert f"-> {tmp_path / 'shifted.rrd'} (not written whole: {tmp_path / 'shifted.mcap'}; see the warnings)" in out
+    assert f"-> {tmp_path / 'id.mcap'}" not in out and "Open the logs" not in out
+
+
 def test_calibrate_then_run_with_logs(tmp_path):
     threshold = tmp_path / "thr.json"
     result = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--confidence", "none",

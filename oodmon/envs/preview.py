@@ -14,7 +14,7 @@ import numpy as np
 
 from oodmon.envs.grid import Variant
 from oodmon.envs.reference import REFERENCE_CONTROLLERS, Rollout, rollout
-from oodmon.outputs import save_figure
+from oodmon.outputs import save_figure, write_whole
 
 __all__ = ["PhysicsComparison", "compare_physics", "draw_state", "pong_preview", "save_physics_plot", "save_probe_plot",
            "save_rgb"]
@@ -118,11 +118,14 @@ def _labelled(image: np.ndarray, text: str) -> np.ndarray:
 
 
 def save_rgb(image: np.ndarray, path: str | Path) -> Path:
-    """Write an RGB uint8 image as PNG, creating the folder; return the path."""
+    """Write an RGB uint8 image in the format of ``path``'s suffix (PNG without one), creating the
+    folder, whole or not at all (:func:`~oodmon.outputs.write_whole`); return the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+    encoded, data = cv2.imencode(path.suffix or ".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    if not encoded:
         raise OSError(f"could not write an image to {path}")
+    write_whole(path, lambda part: part.write_bytes(data.tobytes()))
     return path
 
 

@@ -1,0 +1,61 @@
+"""oodmon's other files (pictures, detector sets, exported agents, a training's checkpoints) are
+written whole or not at all, and a failed write is one OSError naming its file, whatever library
+wrote it: torch's and safetensors' writers raise errors of their own on a full disk (measured on a
+600 KB tmpfs: RuntimeError "[enforce fail at inline_container.cc:672] . unexpected pos ...",
+SafetensorError "... No space left on device"), which reached the user as tracebacks."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+
+# Real failing writes without a full disk, as tests/test_jsonfile.py makes them: the process's file
+# size limit (RLIMIT_FSIZE) makes write() fail past it (EFBIG), as ENOSPC does on a full disk.
+_WRITERS = textwrap.dedent("""
+    import json, resource, signal, sys
+    from pathlib import Path
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    import torch
+    from safetensors.numpy import save_file
+
+    from oodmon.envs.preview import save_rgb
+    from oodmon.outputs import save_figure, write_whole
+
+    folder = Path(sys.argv[1])
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+    big = np.random.default_rng(0).random(4000).astype(np.float32)
+    fig, ax = plt.subplots()
+    ax.imshow(np.random.default_rng(0).random((200, 200)))
+    writers = {
+        "figure.png": lambda path: save_figure(fig, path),
+        "picture.png": lambda path: save_rgb((np.random.default_rng(0).random((200, 200, 3)) * 255).astype(np.uint8), path),
+        "checkpoint.pt": lambda path: write_whole(path, lambda part: torch.save({"w": torch.from_numpy(big)}, part)),
+        "weights.safetensors": lambda path: write_whole(path, lambda part: save_file({"w": big}, str(part))),
+    }
+    messages = {}
+    for name, write in writers.items():
+        try:
+            write(folder / name)
+            messages[name] = "written"
+        except OSError as error:
+            messages[name] = str(error)
+    print(json.dumps(messages))
+""")
+
+
+def test_a_failed_write_is_one_error_naming_the_file_and_leaves_nothing(tmp_path):
+    result = subprocess.run([sys.executable, "-c", _WRITERS, str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    messages = json.loads(result.stdout.strip().splitlines()[-1])
+    assert set(messages) == {"figure.png", "picture.png", "checkpoint.pt", "weights.safetensors"}
+    for name, message in messages.items():
+        assert message.startswith(f"{tmp_path / name} could not be written (") and message.endswith(
+            " MB free on its disk)"), message
+    assert list(tmp_path.iterdir()) == []  # no part file, no half of a file
