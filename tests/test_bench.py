@@ -705,3 +705,22 @@ def test_a_baseline_of_other_fits_or_weights_is_said_to_be_so():
     assert provenance_notes(dict(ours, machine="x86_64; Intel Xeon; torch AVX512"), elsewhere, "b.json") == [
         "b.json was made on x86_64; AMD EPYC; torch AVX2; this run on x86_64; Intel Xeon; torch AVX512"]
     assert provenance_notes(dict(ours, machine="m"), dict(same, machine="m")) == []
+
+
+def test_a_cell_whose_log_cannot_be_written_names_the_log_and_leaves_no_part(tmp_path, monkeypatch):
+    """A full disk under a bench's cells was 'oodmon: error: [Errno 28] No space left on device',
+    naming no file, with the cells' .part logs left (measured on a 600 KB tmpfs)."""
+    from oodmon.agents import zoo_dir
+    from oodmon.bench.cells import _run_cell
+    from oodmon.monitor import Threshold
+    from oodmon.monitor.sinks.mcap import McapSink
+
+    def full_disk(self, part):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(McapSink, "_open_part", full_disk)
+    Threshold(6.0, "chosen_std", 1, "episode", 0.05, 20, 100, task="cartpole", method="ensemble").save(tmp_path / "t.json")
+    log = tmp_path / "logs" / "cartpole.mcap"
+    with pytest.raises(OSError, match=rf"^{re.escape(str(log))} could not be written \(No space left on device; "):
+        _run_cell("cartpole", str(zoo_dir() / "cartpole-ensemble"), str(tmp_path / "t.json"), "cartpole", 1, 0, str(log))
+    assert list((tmp_path / "logs").iterdir()) == []

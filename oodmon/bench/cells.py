@@ -14,6 +14,7 @@ from oodmon.bench.cache import Sb3Models, _bench_agent
 from oodmon.bench.config import BenchConfig
 from oodmon.envs.grid import parse_variant
 from oodmon.envs.shift import own_variant
+from oodmon.outputs import write_failure
 from oodmon.names import TASKS
 from oodmon.errors import ConfigError
 
@@ -45,11 +46,15 @@ def _run_cell(task: str, model: str | Sb3Models, threshold: str, spec: str, epis
     temporary = Path(log).with_suffix(".part")
     temporary.parent.mkdir(parents=True, exist_ok=True)
     fitted = DetectorSet.load(detectors) if detectors else None
-    with Monitor(agent, Threshold.load(threshold), detectors=fitted, sinks=[McapSink(temporary, overwrite=True)],
-                 strict=True) as monitor:
-        for episode in range(episodes):
-            options = None if onsets is None or variant.is_id else {"onset_step": episode_onset(onsets, seed + episode)}
-            monitor.run_episode(env, seed=seed + episode, variant=variant.spec, options=options)
+    try:
+        with Monitor(agent, Threshold.load(threshold), detectors=fitted, sinks=[McapSink(temporary, overwrite=True)],
+                     strict=True) as monitor:
+            for episode in range(episodes):
+                options = None if onsets is None or variant.is_id else {"onset_step": episode_onset(onsets, seed + episode)}
+                monitor.run_episode(env, seed=seed + episode, variant=variant.spec, options=options)
+    except OSError as error:  # strict: the log's sink failing ends the cell (a full disk): said naming its log
+        temporary.unlink(missing_ok=True)
+        raise write_failure(Path(log), error) from None
     env.close()
     os.replace(temporary, log)  # a complete log appears whole, or not at all
     return log
