@@ -60,6 +60,7 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
 
 def _calibrate(args: argparse.Namespace) -> int:
     from oodmon.monitor import Threshold, calibrate_agent
+    from oodmon.monitor.calibration import save_calibration
     from oodmon.monitor.detectors import (
         BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors, fitting_notes,
     )
@@ -94,11 +95,9 @@ def _calibrate(args: argparse.Namespace) -> int:
                                     detector=args.detector, confidence=args.confidence, rule=args.rule,
                                     reference_episodes=args.reference_episodes, reference_by_age=args.reference_by_age,
                                     warmup=args.warmup, on_progress=report)
-    # Written together once the calibration ends: an interrupted one leaves the earlier threshold
-    # with the detectors it was calibrated with (the new ones written first broke that pair).
-    if fitted_to:
-        detectors.save(fitted_to)
-    threshold.save(args.out)
+    # Written together once the calibration ends, each file beside its place first: an interrupted
+    # calibration or a full disk leaves the earlier threshold with the detectors it was calibrated with.
+    save_calibration(threshold, args.out, detectors if fitted_to else None)
     cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "

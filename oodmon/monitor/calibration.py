@@ -6,8 +6,11 @@ training's evaluations (10,000 + steps) and of the ID return (100,000 + i), so t
 
 from __future__ import annotations
 
+import os
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -27,7 +30,7 @@ from oodmon.progress import Progress
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson
 from oodmon.validation import is_whole
 
-__all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "clopper_pearson", "id_episode_scores",
+__all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "clopper_pearson", "id_episode_scores", "save_calibration",
            "validate_threshold"]
 
 CALIBRATION_SEED = seeds.CALIBRATION
@@ -136,6 +139,35 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                      masks=getattr(agent.estimator, "masks", None), warmup=warmup,
                      detectors_hash=None if needed is None else needed.fingerprint(detector),
                      samples=None if agent.estimator is None else agent.estimator.n_samples)
+
+
+def save_calibration(threshold: Threshold, path: str | Path, detectors: DetectorSet | None = None) -> None:
+    """The threshold at ``path`` and, if given, the detectors it was calibrated with at
+    ``<path>.detectors/`` (where ``oodmon run --threshold`` and ``watch(threshold=...)`` find them).
+
+    Every file is written beside its place first and only then moved in, so that a full disk or a
+    failure while writing leaves the earlier pair whole (written one after the other, a failure of
+    the second left a threshold and detectors of two calibrations, which ``run`` refuses). Only a
+    kill between the moves, which need no room, can still part them.
+    """
+    path = Path(path)
+    folder, staged = Path(f"{path}.detectors"), Path(f"{path}.detectors.part")
+    threshold_part = path.with_name(path.name + ".part")
+    try:
+        if detectors is not None:
+            shutil.rmtree(staged, ignore_errors=True)  # a part left by a kill
+            detectors.save(staged)
+        threshold.save(threshold_part)
+    except BaseException:
+        shutil.rmtree(staged, ignore_errors=True)
+        threshold_part.unlink(missing_ok=True)
+        raise
+    if detectors is not None:
+        folder.mkdir(parents=True, exist_ok=True)
+        for name in ("detectors.safetensors", "detectors.json"):  # the folder's other files, if any, stay
+            os.replace(staged / name, folder / name)
+        staged.rmdir()
+    os.replace(threshold_part, path)
 
 
 @dataclass(frozen=True)

@@ -119,7 +119,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
             (a threshold there is replaced).
     """
     from oodmon.monitor.alarms import check_warmup
-    from oodmon.monitor.calibration import calibrate_agent
+    from oodmon.monitor.calibration import calibrate_agent, save_calibration
     from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
     from oodmon.monitor.detectors.fitting import fitted_when_named
     from oodmon.monitor.monitor import Monitor, MonitoredEnv, check_env_of
@@ -157,9 +157,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
             warnings.warn(note, stacklevel=2)
         alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,
                                           confidence=confidence, on_progress=on_progress, warmup=warmup)
-        if save is not None:
-            alarm_threshold.save(save)
-            detectors.save(f"{save}.detectors")
+        if save is not None:  # the pair whole, or the earlier one (a full disk)
+            save_calibration(alarm_threshold, save, detectors)
     monitor = Monitor(agent, alarm_threshold, detectors=detectors, detector=detector, sinks=sinks, callbacks=callbacks)
     return monitor if env is None else MonitoredEnv(env, monitor)
 

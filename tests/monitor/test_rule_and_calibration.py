@@ -372,3 +372,33 @@ def test_calibrate_says_when_a_warmup_would_lower_the_threshold_and_is_silent_ot
         calibrate(short, 0.05, consecutive=1)
         calibrate(early, 0.05, consecutive=1, warmup=5)  # a warm-up chosen: no hint
         calibrate(early, 0.05, consecutive=1, window=5, rule="consecutive", warmup=WARMUP_HINT)
+
+
+def test_a_calibration_saved_on_a_full_disk_leaves_the_earlier_pair_whole(tmp_path, monkeypatch):
+    """The threshold and its detectors were two writes: a disk that filled at the second left a
+    threshold and detectors of two calibrations. Now both are written first, then moved in."""
+    from oodmon.agents import zoo_dir
+    from oodmon.monitor.calibration import save_calibration
+    from oodmon.monitor.detectors import DetectorSet
+
+    zoo = DetectorSet.load(zoo_dir() / "cartpole-ensemble" / "detectors")
+    first, second = zoo.subset(["spread", "dynamics"]), zoo.subset(["spread", "features"])
+    path = tmp_path / "thr.json"
+    save_calibration(Threshold(1.5, "chosen_std", 1, "episode", 0.05, 45, 100, detector="dynamics"), path, first)
+    (tmp_path / "thr.json.detectors" / "notes.txt").write_text("mine")  # a file of the user's: kept
+    before = {p.relative_to(tmp_path): p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+
+    def full_disk(self, where):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Threshold, "save", full_disk)
+    with pytest.raises(OSError, match="No space left on device"):
+        save_calibration(Threshold(2.5, "chosen_std", 1, "episode", 0.05, 45, 100, detector="features"), path, second)
+    assert {p.relative_to(tmp_path): p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["thr.json", "thr.json.detectors"]  # no part left
+    monkeypatch.undo()
+    save_calibration(Threshold(2.5, "chosen_std", 1, "episode", 0.05, 45, 100, detector="features"), path, second)
+    assert Threshold.load(path).value == 2.5 and DetectorSet.load(tmp_path / "thr.json.detectors").names == [
+        "spread", "features"]
+    assert (tmp_path / "thr.json.detectors" / "notes.txt").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["thr.json", "thr.json.detectors"]
