@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from oodmon.jsonfile import write_json
+from oodmon.outputs import is_write_error, write_failure
 
 __all__ = ["file_sha256", "write_hashed_tensors"]
 
@@ -35,8 +36,6 @@ def write_hashed_tensors(tensor_path: Path, json_path: Path, write_tensors: Call
     killed or a disk filled while writing leaves the pair that was there whole, and no part file;
     only a kill between the two moves leaves a pair whose hash disagrees, which the readers refuse.
     """
-    from oodmon.outputs import write_failure
-
     tensor_part, json_part = tensor_path.with_name(tensor_path.name + ".part"), json_path.with_name(json_path.name + ".part")
     written = tensor_path
     try:
@@ -48,6 +47,6 @@ def write_hashed_tensors(tensor_path: Path, json_path: Path, write_tensors: Call
     except BaseException as error:
         tensor_part.unlink(missing_ok=True)
         json_part.unlink(missing_ok=True)
-        if isinstance(error, (OSError, RuntimeError)) or type(error).__name__ == "SafetensorError":
+        if is_write_error(error):
             raise write_failure(written, error) from None  # a full disk: one line naming the file
         raise

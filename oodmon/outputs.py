@@ -20,7 +20,7 @@ from pathlib import Path
 from oodmon.errors import ConfigError
 
 __all__ = ["PICTURE_SUFFIXES", "check_output_dir", "check_output_file", "check_picture_file", "replaced_file",
-           "safe_filename", "save_figure", "write_whole"]
+           "is_write_error", "safe_filename", "save_figure", "write_failure", "write_whole"]
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -182,17 +182,23 @@ def write_whole(path: Path, write: Callable[[Path], object], *, part: Path | Non
         >>> path.read_text(), sorted(p.name for p in path.parent.iterdir())
         ('whole', ['x.txt'])
     """
-    from safetensors import SafetensorError
-
     part = path.with_name(path.name + ".part") if part is None else part
     try:
         write(part)
         os.replace(part, path)
     except BaseException as error:
         part.unlink(missing_ok=True)
-        if isinstance(error, (OSError, RuntimeError, SafetensorError)):
+        if is_write_error(error):
             raise write_failure(path, error) from None
         raise
+
+
+def is_write_error(error: BaseException) -> bool:
+    """Whether ``error`` is a writer's failure to write (a full disk): an :class:`OSError`, or the
+    errors torch's and safetensors' writers raise instead of one."""
+    from safetensors import SafetensorError
+
+    return isinstance(error, (OSError, RuntimeError, SafetensorError))
 
 
 def write_failure(path: Path, error: BaseException) -> OSError:

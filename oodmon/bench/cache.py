@@ -19,6 +19,7 @@ from oodmon.bench.config import BenchConfig
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
 from oodmon.jsonfile import read_json, write_json
+from oodmon.outputs import write_whole
 from oodmon.outputs import safe_filename
 
 @dataclass(frozen=True)
@@ -189,9 +190,7 @@ def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path | S
         aside.parent.mkdir(parents=True, exist_ok=True)
         os.replace(folder, aside)
     folder.mkdir(parents=True, exist_ok=True)
-    part = stamp.with_name(stamp.name + ".part")  # whole or not at all: a torn stamp would set the trial aside
-    part.write_text(weights + "\n")
-    os.replace(part, stamp)
+    write_whole(stamp, lambda part: part.write_text(weights + "\n"))  # a torn stamp would set the trial aside
 
 
 def _prepare_trial(config: BenchConfig, method: str, trial: int,
