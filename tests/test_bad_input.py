@@ -43,7 +43,10 @@ def _log_with_a_broken_episode_record(path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("inputs")
+    """The inputs folder, in a folder of this module's own: each case hashes that one (a copy of a log
+    sits beside the inputs), not the session's temporary folder, which holds every earlier test's files."""
+    root = tmp_path_factory.mktemp("bad-input") / "inputs"
+    root.mkdir()
     (root / "thr.json").write_text(json.dumps(_threshold()))
     bad = {
         "thr-number.json": "5", "thr-string.json": '"abc"', "thr-null.json": "null", "thr-broken.json": "{value: 1",
