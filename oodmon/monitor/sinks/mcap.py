@@ -75,8 +75,66 @@ def _json_number(value: float) -> float | None:
     return value if math.isfinite(value) else None
 
 
+_FLOAT = float.__repr__  # what json.dumps writes for a float (np.float64 too, whose own repr is np.float64(...))
+_KEYS: dict[str, str] = {}  # a detector's name as a JSON string, made once
+
+
+def _floats(values) -> str:
+    """The floats of ``values`` as json.dumps writes them, joined by its ", "; a value that is not a
+    float (an int, np.float32) raises TypeError."""
+    return ", ".join(map(_FLOAT, values))
+
+
 def _step_json(record: StepRecord) -> str:
-    """A step's message, every non-finite number written as ``null`` (the score arrays keep them)."""
+    """A step's message, every non-finite number written as ``null`` (the score arrays keep them):
+    the bytes of ``json.dumps(record.to_json())`` with those nulls (:func:`_step_json_dumps`).
+
+    Written out for the usual step (whole numbers that are ints, the rest floats, all finite),
+    without json.dumps's walk over a dict: at every step this is the MCAP sink's largest cost, in
+    the monitor's loop of the shipped CartPole ensemble 12.5 us a step against json.dumps's 16.5
+    (2026-11-30; alone 6.3 us against 8.6: most of either is the floats' shortest repr). Any other
+    step, a NaN or infinite number among its floats (a finite repr has no "n"), goes through
+    json.dumps."""
+    try:
+        episode, step, action, alarm, shifted = record.episode, record.step, record.action, record.alarm, record.shifted
+        if type(episode) is not int or type(step) is not int or type(alarm) is not bool or type(shifted) is not bool:
+            return _step_json_dumps(record)
+        if type(action) is int:
+            action_text = int.__repr__(action)
+        elif type(action) is list:
+            action_text = f"[{_floats(action)}]"
+        else:
+            return _step_json_dumps(record)
+        threshold = record.threshold
+        numbers = [action_text, _floats(record.mean), _floats(record.std), _FLOAT(record.score)]
+        text = (f'{{"episode": {int.__repr__(episode)}, "step": {int.__repr__(step)}, "action": {action_text}, '
+                f'"mean": [{numbers[1]}], "std": [{numbers[2]}], "score": {numbers[3]}, '
+                f'"threshold": {_FLOAT(threshold) if math.isfinite(threshold) else "null"}, '
+                f'"alarm": {"true" if alarm else "false"}, "shifted": {"true" if shifted else "false"}')
+        if record.observation is not None:
+            numbers.append(_floats(record.observation))
+            text += f', "observation": [{numbers[-1]}]'
+        if record.scores:
+            keys = _KEYS
+            parts = []
+            for name, value in record.scores.items():
+                key = keys.get(name)
+                if key is None:
+                    if type(name) is not str:  # json.dumps writes a number's key in quotes
+                        return _step_json_dumps(record)
+                    key = keys[name] = json.dumps(name)
+                numbers.append(_FLOAT(value))
+                parts.append(f"{key}: {numbers[-1]}")
+            text += f', "scores": {{{", ".join(parts)}}}'
+    except TypeError:  # a number that is not a float where one is expected: json.dumps says what it makes of it
+        return _step_json_dumps(record)
+    if "n" in "".join(numbers):  # nan, inf: nulls
+        return _step_json_dumps(record)
+    return text + "}"
+
+
+def _step_json_dumps(record: StepRecord) -> str:
+    """:func:`_step_json` by json.dumps, for any step."""
     data = record.to_json()
     data["threshold"] = _json_number(data["threshold"])  # NaN in every run without a threshold
     text = json.dumps(data)
