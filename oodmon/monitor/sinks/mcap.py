@@ -89,15 +89,17 @@ def _step_json(record: StepRecord) -> str:
     """A step's message, every non-finite number written as ``null`` (the score arrays keep them):
     the bytes of ``json.dumps(record.to_json())`` with those nulls (:func:`_step_json_dumps`).
 
-    Written out for the usual step (whole numbers that are ints, the rest floats, all finite),
-    without json.dumps's walk over a dict: at every step this is the MCAP sink's largest cost, in
-    the monitor's loop of the shipped CartPole ensemble 12.5 us a step against json.dumps's 16.5
-    (2026-11-30; alone 6.3 us against 8.6: most of either is the floats' shortest repr). Any other
-    step, a NaN or infinite number among its floats (a finite repr has no "n"), goes through
-    json.dumps."""
+    Written out for the usual step (whole numbers that are ints, the rest floats in lists or alone,
+    all finite), without json.dumps's walk over a dict: at every step this is the MCAP sink's
+    largest cost, in the monitor's loop of the shipped CartPole ensemble 12.5 us a step against
+    json.dumps's 16.5 (2026-11-30; alone 6.3 us against 8.6: most of either is the floats'
+    shortest repr). Any other step, a NaN or infinite number among its floats (a finite repr has
+    no "n"), goes through json.dumps."""
     try:
         episode, step, action, alarm, shifted = record.episode, record.step, record.action, record.alarm, record.shifted
-        if type(episode) is not int or type(step) is not int or type(alarm) is not bool or type(shifted) is not bool:
+        mean, std, observation = record.mean, record.std, record.observation
+        if type(episode) is not int or type(step) is not int or type(alarm) is not bool or type(shifted) is not bool \
+                or type(mean) is not list or type(std) is not list or (observation is not None and type(observation) is not list):
             return _step_json_dumps(record)
         if type(action) is int:
             action_text = int.__repr__(action)
@@ -106,13 +108,13 @@ def _step_json(record: StepRecord) -> str:
         else:
             return _step_json_dumps(record)
         threshold = record.threshold
-        numbers = [action_text, _floats(record.mean), _floats(record.std), _FLOAT(record.score)]
+        numbers = [action_text, _floats(mean), _floats(std), _FLOAT(record.score)]
         text = (f'{{"episode": {int.__repr__(episode)}, "step": {int.__repr__(step)}, "action": {action_text}, '
                 f'"mean": [{numbers[1]}], "std": [{numbers[2]}], "score": {numbers[3]}, '
                 f'"threshold": {_FLOAT(threshold) if math.isfinite(threshold) else "null"}, '
                 f'"alarm": {"true" if alarm else "false"}, "shifted": {"true" if shifted else "false"}')
-        if record.observation is not None:
-            numbers.append(_floats(record.observation))
+        if observation is not None:
+            numbers.append(_floats(observation))
             text += f', "observation": [{numbers[-1]}]'
         if record.scores:
             keys = _KEYS
