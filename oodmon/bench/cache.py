@@ -19,8 +19,7 @@ from oodmon.bench.config import BenchConfig
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
 from oodmon.jsonfile import read_json, write_json
-from oodmon.outputs import write_whole
-from oodmon.outputs import safe_filename
+from oodmon.outputs import safe_filename, write_whole
 
 @dataclass(frozen=True)
 class Sb3Models:

@@ -246,11 +246,11 @@ def _fit_detectors(args: argparse.Namespace) -> int:
     from oodmon.outputs import check_output_dir
 
     out = check_output_dir(args.out, parameter="--out")
-    if not args.overwrite and (out / "detectors.json").exists():  # before minutes of fitting
+    replacing = (out / "detectors.json").exists()
+    if replacing and not args.overwrite:  # before minutes of fitting
         raise ConfigError(f"--out {out} holds fitted detectors already{_calibrated_beside(out)}: a threshold "
                           "calibrated with them would be refused by `oodmon run` once they are replaced; give another "
                           "folder, or --overwrite to replace them")
-    replacing = (out / "detectors.json").exists()
     agent = _load_agent(args, seed=DETECTOR_FIT)  # seeded MC sampling: the same command fits the same detectors
     only = args.only.split(",") if args.only else None
     with _progress() as report:
@@ -258,7 +258,7 @@ def _fit_detectors(args: argparse.Namespace) -> int:
                                         obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report)
     detectors.save(args.out)
     console = Console(soft_wrap=True)
-    beside = _calibrated_beside(out)
+    beside = _calibrated_beside(out)  # after the fitting: the threshold beside as it is now
     replaced = "" if not replacing else f" (replacing the set it held{beside}: calibrate that threshold again)" if beside \
         else " (replacing the set it held)"
     console.print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "

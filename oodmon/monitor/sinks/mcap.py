@@ -107,26 +107,28 @@ def _step_json(record: StepRecord) -> str:
             action_text = f"[{_floats(action)}]"
         else:
             return _step_json_dumps(record)
+        mean_text, std_text, score_text = _floats(mean), _floats(std), _FLOAT(record.score)
         threshold = record.threshold
-        numbers = [action_text, _floats(mean), _floats(std), _FLOAT(record.score)]
         text = (f'{{"episode": {int.__repr__(episode)}, "step": {int.__repr__(step)}, "action": {action_text}, '
-                f'"mean": [{numbers[1]}], "std": [{numbers[2]}], "score": {numbers[3]}, '
+                f'"mean": [{mean_text}], "std": [{std_text}], "score": {score_text}, '
                 f'"threshold": {_FLOAT(threshold) if math.isfinite(threshold) else "null"}, '
                 f'"alarm": {"true" if alarm else "false"}, "shifted": {"true" if shifted else "false"}')
+        numbers = [action_text, mean_text, std_text, score_text]  # the texts a NaN or an infinity would be in
         if observation is not None:
-            numbers.append(_floats(observation))
-            text += f', "observation": [{numbers[-1]}]'
+            observation_text = _floats(observation)
+            numbers.append(observation_text)
+            text += f', "observation": [{observation_text}]'
         if record.scores:
-            keys = _KEYS
             parts = []
             for name, value in record.scores.items():
-                key = keys.get(name)
+                key = _KEYS.get(name)
                 if key is None:
                     if type(name) is not str:  # json.dumps writes a number's key in quotes
                         return _step_json_dumps(record)
-                    key = keys[name] = json.dumps(name)
-                numbers.append(_FLOAT(value))
-                parts.append(f"{key}: {numbers[-1]}")
+                    key = _KEYS[name] = json.dumps(name)
+                value_text = _FLOAT(value)
+                numbers.append(value_text)
+                parts.append(f"{key}: {value_text}")
             text += f', "scores": {{{", ".join(parts)}}}'
     except TypeError:  # a number that is not a float where one is expected: json.dumps says what it makes of it
         return _step_json_dumps(record)
