@@ -128,3 +128,80 @@ def test_an_observation_reaches_the_policy_as_sb3_makes_it_a_tensor():
         decide(np.zeros(4))
     with pytest.raises(ValueError, match=r"Unexpected observation shape \(4,\) for Box environment"):
         model.predict(np.zeros(4), deterministic=True)
+
+
+SB3_OWN = [(PPO, "Acrobot-v1"), (PPO, "Pendulum-v1"), (A2C, "CartPole-v1"), (DQN, "CartPole-v1"),
+           (SAC, "Pendulum-v1"), (TD3, "Pendulum-v1"), (DDPG, "Pendulum-v1")]
+
+
+@pytest.mark.parametrize(("algorithm", "env_id"), SB3_OWN, ids=lambda x: getattr(x, "__name__", x))
+def test_sb3s_own_policies_decide_without_a_module_call_and_predict_makes_them(algorithm, env_id, monkeypatch):
+    """The networks of SB3's own policies run layer by layer (each layer's forward, what __call__ runs
+    when no hook is set): no Module.__call__ in a decision, where predict() makes several."""
+    env = gymnasium.make(env_id)
+    model = algorithm("MlpPolicy", env, seed=0, device="cpu")
+    decide, observations = decision(model), _observations(env.observation_space, 20)
+    calls = []
+    original = nn.Module._call_impl
+
+    def counted(self, *args, **kwargs):
+        calls.append(type(self).__name__)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(nn.Module, "_call_impl", counted)
+    ours = [decide(obs) for obs in observations]
+    assert calls == []
+    theirs = [model.predict(obs, deterministic=True)[0] for obs in observations]
+    assert len(calls) >= 3 * len(observations) and "Linear" in calls
+    assert all(_same(a, b) for a, b in zip(ours, theirs))
+
+
+@pytest.mark.parametrize(("algorithm", "env_id", "layer"), [
+    (PPO, "Acrobot-v1", lambda model: model.policy.action_net),
+    (DQN, "CartPole-v1", lambda model: model.policy.q_net.q_net[-1]),
+    (SAC, "Pendulum-v1", lambda model: model.policy.actor.mu),
+    (TD3, "Pendulum-v1", lambda model: model.policy.actor.mu[0]),
+], ids=["PPO", "DQN", "SAC", "TD3"])
+def test_a_hook_set_after_the_decision_was_made_runs_as_predict_runs_it(algorithm, env_id, layer):
+    """A forward hook that changes a layer's output, a pre-hook, a global hook: the decision then calls
+    the modules as predict() does, and acts on what the hook made of them."""
+    env = gymnasium.make(env_id)
+    model = algorithm("MlpPolicy", env, seed=0, device="cpu")
+    decide, observations = decision(model), _observations(env.observation_space, 100)
+    plain = [decide(obs) for obs in observations]
+    handle = layer(model).register_forward_hook(lambda module, args, out: out * -3.0 + 0.7)
+    hooked = [decide(obs) for obs in observations]
+    assert all(_same(a, model.predict(obs, deterministic=True)[0]) for a, obs in zip(hooked, observations))
+    assert any(not _same(a, b) for a, b in zip(hooked, plain))  # the hook did change decisions
+    handle.remove()
+    assert all(_same(decide(obs), b) for obs, b in zip(observations, plain))
+    seen = []
+    handle = layer(model).register_forward_pre_hook(lambda module, args: seen.append(module) or None)
+    decide(observations[0])
+    assert seen == [layer(model)]
+    handle.remove()
+    handle = torch.nn.modules.module.register_module_forward_hook(lambda module, args, out: seen.append(module))
+    try:
+        decide(observations[0])
+    finally:
+        handle.remove()
+    assert layer(model) in seen[1:]
+
+
+def test_a_users_own_extractor_method_is_called_as_predict_calls_it():
+    """An MlpExtractor whose forward_actor is the user's own: called as a whole, not replaced by its
+    policy_net's layers."""
+    from stable_baselines3.common.torch_layers import MlpExtractor
+
+    class Mirrored(MlpExtractor):
+        def forward_actor(self, features):
+            return -self.policy_net(features)
+
+    env = gymnasium.make("Acrobot-v1")
+    model = PPO("MlpPolicy", env, seed=0, device="cpu")
+    model.policy.mlp_extractor.__class__ = Mirrored
+    decide, observations = decision(model), _observations(env.observation_space, 300)
+    ours = [decide(obs) for obs in observations]
+    assert all(_same(a, model.predict(obs, deterministic=True)[0]) for a, obs in zip(ours, observations))
+    model.policy.mlp_extractor.__class__ = MlpExtractor  # the layers alone would have decided otherwise
+    assert any(not _same(a, model.predict(obs, deterministic=True)[0]) for a, obs in zip(ours, observations))
