@@ -192,7 +192,9 @@ def _obs_to_tensor(policy: Any) -> Callable[[Any], tuple[Any, bool]]:
 
 def decision(model: Any) -> Callable[[Any], np.ndarray] | None:
     """``model.predict(obs, deterministic=True)[0]`` as a function of ``obs``, computed as above,
-    or ``None`` for a model whose ``predict`` it does not replace.
+    or ``None`` for a model whose ``predict`` it does not replace. It runs the policy's modules as
+    they are when it is made: weights changed in place (further training, ``load_state_dict``) are
+    read at each call; a module later replaced by another object is not (make the decision again).
 
     Example:
         >>> from stable_baselines3 import PPO
