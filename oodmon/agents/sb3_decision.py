@@ -32,7 +32,8 @@ import torch.nn.functional as F
 from torch import nn
 from torch.nn.modules import module as _torch_module
 
-Layers = Callable[[Any], torch.Tensor]
+Layers = Callable[[Any], torch.Tensor]  # what a layer (or layers) does to its input
+Mode = Callable[[torch.Tensor], torch.Tensor]  # a policy's deterministic action of an observation tensor
 
 # The hooks Module.__call__ runs for every module (torch.nn.modules.module.register_module_forward_hook
 # and its kin fill these dictionaries in place). A torch without one of them: no direct path.
@@ -101,9 +102,6 @@ def _called_plainly(modules: list[nn.Module]) -> bool:
     return not any(module._forward_hooks or module._forward_pre_hooks or module._backward_hooks
                    or module._backward_pre_hooks or getattr(module, "_compiled_call_impl", None) is not None
                    for module in modules)
-
-
-Mode = Callable[[torch.Tensor], torch.Tensor]
 
 
 def _mode(policy: Any) -> tuple[Mode, Mode | None, list[nn.Module]]:

@@ -145,28 +145,24 @@ def save_calibration(threshold: Threshold, path: str | Path, detectors: Detector
     """The threshold at ``path`` and, if given, the detectors it was calibrated with at
     ``<path>.detectors/`` (where ``oodmon run --threshold`` and ``watch(threshold=...)`` find them).
 
-    Every file is written beside its place first and only then moved in, so that a full disk or a
-    failure while writing leaves the earlier pair whole (written one after the other, a failure of
-    the second left a threshold and detectors of two calibrations, which ``run`` refuses). Only a
-    kill between the moves, which need no room, can still part them.
+    The threshold is written beside its place first, then the detectors (:meth:`DetectorSet.save`
+    moves its files in whole, or keeps the set that was there), and only then is the threshold
+    moved in, so that a full disk or a failure while writing leaves the earlier pair whole (written
+    one after the other, a failure of the second left a threshold and detectors of two calibrations,
+    which ``run`` refuses). Only a kill between the moves, which need no room, can still part them.
     """
     path = Path(path)
-    folder, staged = Path(f"{path}.detectors"), Path(f"{path}.detectors.part")
-    threshold_part = path.with_name(path.name + ".part")
+    folder, threshold_part = Path(f"{path}.detectors"), path.with_name(path.name + ".part")
+    made = detectors is not None and not folder.exists()
     try:
-        if detectors is not None:
-            shutil.rmtree(staged, ignore_errors=True)  # a part left by a kill
-            detectors.save(staged)
         threshold.save(threshold_part)
+        if detectors is not None:  # moved in whole by DetectorSet.save, or the set that was there kept
+            detectors.save(folder)
     except BaseException:
-        shutil.rmtree(staged, ignore_errors=True)
         threshold_part.unlink(missing_ok=True)
+        if made:
+            shutil.rmtree(folder, ignore_errors=True)
         raise
-    if detectors is not None:
-        folder.mkdir(parents=True, exist_ok=True)
-        for name in ("detectors.safetensors", "detectors.json"):  # the folder's other files, if any, stay
-            os.replace(staged / name, folder / name)
-        staged.rmdir()
     os.replace(threshold_part, path)
 
 
