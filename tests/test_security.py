@@ -1,6 +1,6 @@
 """Nothing oodmon reads by default runs code from a file: no pickle, no unrestricted torch.load,
 no np.load with pickles, anywhere in the package; SB3's own (pickling) loaders only behind the
-explicit flag."""
+explicit flags; a user's SB3 model files read through a restricted unpickler."""
 
 from __future__ import annotations
 
@@ -16,16 +16,16 @@ def _lines():
             yield path.relative_to(PACKAGE.parent), number, line
 
 
-#: The one module that imports pickle: its unpickler reads SB3's VecNormalize statistics and calls
-#: nothing but numpy's array constructors (test below).
-RESTRICTED_UNPICKLER = "oodmon/agents/vec_normalize.py"
+#: The modules that import pickle, each for a restricted unpickler (tests below): SB3's VecNormalize
+#: statistics (numpy's array constructors only) and the data of a user's SB3 model files.
+RESTRICTED_UNPICKLERS = {"oodmon/agents/vec_normalize.py", "oodmon/agents/sb3_pickles.py"}
 
 
 def test_no_pickle_and_no_unrestricted_loader_in_the_package():
     found = []
     for path, number, line in _lines():
         code = line.split("#")[0]
-        if str(path) == RESTRICTED_UNPICKLER and code.strip() == "import pickle":
+        if str(path) in RESTRICTED_UNPICKLERS and code.strip() == "import pickle":
             continue
         if re.search(r"\b(import pickle|from pickle|cPickle|dill|joblib\.load|pd\.read_pickle)\b", code):
             found.append(f"{path}:{number}: {line.strip()}")
@@ -38,9 +38,11 @@ def test_no_pickle_and_no_unrestricted_loader_in_the_package():
 
 def test_sb3_pickle_loaders_sit_only_behind_the_explicit_flag():
     # SB3's .load() and load_replay_buffer() unpickle: one function holds them, and it is called
-    # only where the user passed load_pickles=True (oodmon train --unsafe-load-pickles).
-    calls = [(str(path), line.strip()) for path, _, line in _lines()
-             if re.search(r"\)\.load\(|load_replay_buffer\(|\bDQN\.load\(|\bDDPG\.load\(", line.split("#")[0])]
+    # only where the user passed load_pickles=True (oodmon train --unsafe-load-pickles); and a
+    # user's model file (sb3._load_one, the next test).
+    calls = [(str(path), line.strip()) for path, _, line in _lines() if str(path) not in RESTRICTED_UNPICKLERS
+             and re.search(r"\)\.load\(|\balgorithm\.load\(|load_replay_buffer\(|\bDQN\.load\(|\bDDPG\.load\(",
+                          line.split("#")[0])]
     assert calls and {path for path, _ in calls} == {"oodmon/agents/checkpoints.py", "oodmon/agents/sb3.py"}, calls
     calls = [(path, line) for path, line in calls if path == "oodmon/agents/checkpoints.py"]
     source = (PACKAGE / "agents" / "checkpoints.py").read_text()
@@ -52,15 +54,18 @@ def test_sb3_pickle_loaders_sit_only_behind_the_explicit_flag():
     assert "if load_pickles:" in call
 
 
-def test_users_sb3_files_are_unpickled_only_when_the_user_names_them():
-    # A user's own SB3 .zip goes through SB3's loader (it unpickles, as SB3 does): only in
-    # sb3._load_one, reached only from load_sb3, which only an explicit --sb3 (or a call naming the
-    # files) reaches; the file's kind is read from its JSON first.
+def test_users_sb3_files_are_read_only_when_the_user_names_them_and_unpickled_only_on_the_flag():
+    # A user's own SB3 .zip goes through SB3's loader only in sb3._load_one, reached only from
+    # load_sb3, which only an explicit --sb3 (or a call naming the files) reaches; the file's kind is
+    # read from its JSON first; SB3 gets every entry it would unpickle, read by the restricted
+    # unpickler (custom_objects), unless the user passed unsafe_load_pickles (--unsafe-load-pickles).
     source = (PACKAGE / "agents" / "sb3.py").read_text()
     loader = source[source.index("def _load_one"):source.index("def _check_spaces")]
-    assert ".load(path, device=\"cpu\")" in loader and "sb3_algorithm(path)" in loader
-    assert [m.start() for m in re.finditer(r"_load_one\(", source)][1:] == [source.index("_load_one(path) for path")]
-    assert source.index("_load_one(path) for path") > source.index("def load_sb3")
+    assert 'algorithm.load(path, device="cpu", custom_objects=objects)' in loader and "sb3_algorithm(path)" in loader
+    assert "objects = None if unsafe_load_pickles else data_objects(_data(path), algorithm, path)" in loader
+    calls = [m.start() for m in re.finditer(r"_load_one\(", source)][1:]
+    assert calls == [source.index("_load_one(path, unsafe_load_pickles) for path")]
+    assert calls[0] > source.index("def load_sb3")
     callers = [str(path) for path, _, line in _lines()
                if "load_sb3(" in line.split("#")[0] and str(path) != "oodmon/agents/sb3.py"]
     assert set(callers) == {"oodmon/cli/loading.py", "oodmon/cli/envs.py", "oodmon/monitor/watch.py",
@@ -99,3 +104,34 @@ def test_the_vecnormalize_unpickler_reaches_numpys_array_constructors_only():
     for module, name in [("stable_baselines3.common.vec_env.vec_normalize", "VecNormalize"),
                          ("gymnasium.spaces.box", "Box"), ("numpy.random._pickle", "__generator_ctor")]:
         assert unpickler.find_class(module, name) is vec_normalize._Record  # built inert, never the real thing
+
+
+def test_the_sb3_data_unpickler_reaches_a_models_kinds_of_class_only():
+    import pickle
+
+    import pytest
+    import torch
+    from stable_baselines3.common.type_aliases import TrainFreq
+    from stable_baselines3.common.utils import FloatSchedule
+
+    from oodmon.agents import sb3_pickles
+
+    source = (PACKAGE / "agents" / "sb3_pickles.py").read_text()
+    assert source.count("pickle.Unpickler") == 1 and source.count(".load()") == 1
+    assert "_DataUnpickler(io.BytesIO(raw)).load()" in source
+    assert not re.search(r"pickle\.(loads?\(|Unpickler\(|load\()", source.replace("pickle.Unpickler):", ""))
+    unpickler = sb3_pickles._DataUnpickler(__import__("io").BytesIO(b""))
+    for module, name in [("os", "system"), ("posix", "system"), ("builtins", "eval"), ("builtins", "getattr"),
+                         ("numpy", "load"), ("subprocess", "Popen"), ("torch", "load"), ("torch.storage", "_load_from_bytes"),
+                         ("cloudpickle.cloudpickle", "_make_function"), ("types", "CodeType"), ("functools", "partial"),
+                         ("collections", "namedtuple"), ("stable_baselines3.common.logger", "HumanOutputFormat"),
+                         ("stable_baselines3.common.utils", "configure_logger"), ("shutil", "rmtree"),
+                         ("a_module_nobody_imported", "Policy")]:
+        with pytest.raises(pickle.UnpicklingError):
+            unpickler.find_class(module, name)
+    assert "a_module_nobody_imported" not in __import__("sys").modules  # refused without importing it
+    for module, name, found in [("torch.nn.modules.activation", "ReLU", torch.nn.ReLU), ("torch", "float32", torch.float32),
+                                ("stable_baselines3.common.type_aliases", "TrainFreq", TrainFreq),
+                                ("stable_baselines3.common.utils", "FloatSchedule", FloatSchedule),
+                                ("collections", "deque", __import__("collections").deque)]:
+        assert unpickler.find_class(module, name) is found

@@ -20,9 +20,11 @@ the detectors' fitting take like a shipped one:
 - its metadata record each model's path and sha256, the algorithm and the env id; its policy hash
   (what thresholds and fitted detectors are checked against) is the hash of those files.
 
-Loading goes through SB3's own ``load``, which **unpickles** parts of the ``.zip``: it runs code
-from the file. Load only models you trust, as with SB3 itself. (oodmon's own models are tensors
-plus JSON and never unpickle.) The algorithm is read from the zip's ``data`` JSON before that.
+Loading goes through SB3's own ``load``, which would unpickle parts of the ``.zip`` (running any
+code a crafted file holds): oodmon reads those parts first through a restricted unpickler and
+hands them to it, so it unpickles nothing (:mod:`oodmon.agents.sb3_pickles`; ``imports`` names
+the user's modules whose classes a file may name; ``unsafe_load_pickles=True`` is SB3's own
+``load``). The algorithm is read from the zip's ``data`` JSON before that.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ import numpy as np
 from oodmon.agents.agent import Agent
 from oodmon.agents.dict_pictures import dict_pictures, is_picture_space
 from oodmon.agents.sb3_decision import decision
+from oodmon.agents.sb3_pickles import data_objects, import_modules
 from oodmon.agents.vec_normalize import (
     NO_NORMALIZATION,
     ObservationNormalizer,
@@ -101,15 +104,8 @@ def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
         ConfigError: a missing file, or one that is not an SB3 model of a supported algorithm.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path} does not exist (an SB3 model is the .zip that model.save() wrote)")
-    try:
-        with zipfile.ZipFile(path) as archive:
-            data = json.loads(archive.read("data"))
-        module = data["policy_class"]["__module__"]
-    except (zipfile.BadZipFile, KeyError, TypeError, ValueError):
-        raise ConfigError(f"{path} is not a stable-baselines3 model file (a .zip with a 'data' entry naming its "
-                          "policy class)") from None
+    data = _data(path)
+    module = data["policy_class"]["__module__"]
     if module == "stable_baselines3.common.policies" and "cg_max_steps" in data:
         return ("TRPO",)
     if module in SB3_ALGORITHMS or module in SB3_CONTRIB_ALGORITHMS:
@@ -121,6 +117,25 @@ def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
         raise ConfigError(f"{path} holds a policy of {module}, and none of the hyperparameters DQN, DDPG, TD3, SAC, "
                           "PPO, A2C or TRPO save: a policy class of your own is loaded for those algorithms only")
     return algorithms
+
+
+def _data(path: Path) -> dict[str, Any]:
+    """The model file's ``data`` JSON, parsed (nothing unpickled).
+
+    Raises:
+        ConfigError: a missing file, or one that is not an SB3 model (no ``data`` naming a policy class).
+    """
+    if not path.is_file():
+        raise ConfigError(f"{path} does not exist (an SB3 model is the .zip that model.save() wrote)")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+        if not isinstance(data["policy_class"]["__module__"], str):
+            raise TypeError("the policy class's module is no name")
+    except (zipfile.BadZipFile, KeyError, TypeError, ValueError):
+        raise ConfigError(f"{path} is not a stable-baselines3 model file (a .zip with a 'data' entry naming its "
+                          "policy class)") from None
+    return data
 
 
 #: What :func:`sb3_algorithm` takes, in words.
@@ -158,13 +173,17 @@ def _policy_base(name: str) -> type | None:
             "A2C": ActorCriticPolicy}.get(name)
 
 
-def _load_one(path: Path) -> tuple[Any, str]:
+def _load_one(path: Path, unsafe_load_pickles: bool = False) -> tuple[Any, str]:
     errors = []
     for name in sb3_algorithm(path):
+        algorithm = _algorithm_class(name)
         try:
-            model = _algorithm_class(name).load(path, device="cpu")
+            # custom_objects: every entry SB3 would unpickle, read by oodmon without running code
+            # (None: SB3 unpickles them itself, as its own load() does)
+            objects = None if unsafe_load_pickles else data_objects(_data(path), algorithm, path)
+            model = algorithm.load(path, device="cpu", custom_objects=objects)
         except ConfigError:
-            raise  # sb3-contrib not installed: said as it is
+            raise  # sb3-contrib not installed, or an entry refused: said as it is
         except Exception as error:  # noqa: BLE001  (the next class of the same policy may load it)
             errors.append(f"{name}: {error}")
             continue
@@ -351,7 +370,7 @@ def _flat_as_sb3(space: Any, is_image_space: Any) -> bool:
 
 def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_samples: int = 20,
              seed: int | None = None, masks: str | None = None, vec_normalize: Any = None,
-             frame_stack: int | None = None) -> Agent:
+             frame_stack: int | None = None, imports: Sequence[str] = (), unsafe_load_pickles: bool = False) -> Agent:
     """An :class:`~oodmon.agents.Agent` of the SB3 model files in ``paths``, acting in ``env_id``.
 
     Args:
@@ -375,9 +394,17 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
             ``VecFrameStack(VecNormalize(venv))`` (rl-baselines3-zoo's order): each observation of
             the stack is normalised, and the statistics' mean stands before an episode's first,
             where VecFrameStack put normalised zeros (vector observations).
+        imports: modules to import first (yours, e.g. ``["my_policy"]``): the classes of your own
+            a file names (a policy class, a features extractor) are then found; oodmon imports no
+            module a file names.
+        unsafe_load_pickles: load the files as SB3's own ``load`` does, unpickling their data,
+            which runs any code a file holds: only for files you trust. By default oodmon reads
+            that data without running code (:mod:`oodmon.agents.sb3_pickles`) and refuses a file
+            whose policy class, its keyword arguments or spaces name anything else.
 
     Raises:
-        ConfigError: no paths, a file that is not an SB3 model, spaces that do not match the env,
+        ConfigError: no paths, a file that is not an SB3 model, one whose data names what oodmon
+            does not load (see ``unsafe_load_pickles``), spaces that do not match the env,
             ``mean`` without an ensemble, fixed masks without one model to sample, a PPO or A2C
             model trained inside VecNormalize without ``vec_normalize``, or statistics of another
             observation shape.
@@ -395,7 +422,8 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
                               "wrote (--vec-normalize vecnormalize.pkl; read without running code from it), or --vec-normalize "
                               "none if that VecNormalize did not normalise observations (norm_obs=False)")
     normalizer = None if vec_normalize is None else _normalizer_of(vec_normalize, [])  # said before any unpickling
-    loaded = [_load_one(path) for path in paths]
+    import_modules(imports)
+    loaded = [_load_one(path, unsafe_load_pickles) for path in paths]
     files = [{"path": str(path.resolve()), "sha256": file_sha256(path), "algorithm": name}
              for path, (_, name) in zip(paths, loaded)]
     return sb3_agent([model for model, _ in loaded], env_id, mean=mean, n_samples=n_samples, seed=seed, files=files,

@@ -30,6 +30,8 @@ class Sb3Models:
     mean: bool = False
     vec_normalize: str | None = None  # their VecNormalize statistics file, or "none"
     frame_stack: int | None = None  # the n_stack of the VecFrameStack they were trained inside
+    imports: tuple[str, ...] = ()  # the user's modules imported first (see load_sb3)
+    unsafe_load_pickles: bool = False  # loaded as SB3 does, running code the files hold (see load_sb3)
 
     def __str__(self) -> str:
         return ", ".join(self.paths)
@@ -42,7 +44,8 @@ def _bench_agent(source: str | Sb3Models, task: str, seed: int, n_samples: int |
         from oodmon.agents.sb3 import load_sb3
 
         return load_sb3(source.paths, source.env_id, mean=source.mean, seed=seed, masks=masks,
-                        vec_normalize=source.vec_normalize, frame_stack=source.frame_stack)
+                        vec_normalize=source.vec_normalize, frame_stack=source.frame_stack,
+                        imports=source.imports, unsafe_load_pickles=source.unsafe_load_pickles)
     return load_agent(source, task=task, seed=seed, n_samples=n_samples, masks=masks)
 
 
@@ -91,7 +94,7 @@ def _ensure_model(config: BenchConfig, method: str, trial: int,
         if statistics not in (None, NO_NORMALIZATION):
             statistics = str(Path(statistics).resolve())
         return Sb3Models(tuple(str(Path(p).resolve()) for p in config.sb3), config.env_id, config.mean, statistics,
-                         config.frame_stack)
+                         config.frame_stack, config.imports, config.unsafe_load_pickles)
     path = _ensure_model_dir_current(config, method, trial)
     if not (path / "model.json").exists():
         _refuse_to_train_for_hours(config, method, trial)

@@ -67,6 +67,8 @@ class BenchConfig:
     mean: bool = False  # deploy the sb3 ensemble's mean decision, not the first model's
     vec_normalize: str | None = None  # the sb3 models' VecNormalize statistics file, or "none" (see load_sb3)
     frame_stack: int | None = None  # the n_stack of the VecFrameStack the sb3 models were trained inside
+    imports: tuple[str, ...] = ()  # the user's modules imported before the sb3 files are read (see load_sb3)
+    unsafe_load_pickles: bool = False  # load the sb3 files as SB3 does, running code they hold (see load_sb3)
     samples: int | None = None  # MC samples per decision of Dropout and DropConnect agents (None: each one's recipe)
     members: int | None = None  # members of each ensemble trial (None: the recipe's; others train trial 0 too)
     masks: str | None = None  # MC masks of Dropout and DropConnect agents: sampled or fixed (None: each model's)
@@ -120,9 +122,9 @@ class BenchConfig:
                 raise ConfigError("sb3 models need env_id: the gymnasium env id they act in (e.g. CartPole-v1)")
             if self.methods != ("sb3",) or self.trials != 1:
                 raise ConfigError("sb3 models are benched as one method ('sb3') and one trial: nothing is trained")
-        elif self.vec_normalize is not None or self.frame_stack is not None:
-            raise ConfigError("vec_normalize and frame_stack are how sb3 models trained inside VecNormalize or "
-                              "VecFrameStack see the env: give them with sb3 models only")
+        elif self.vec_normalize is not None or self.frame_stack is not None or self.unsafe_load_pickles or self.imports:
+            raise ConfigError("vec_normalize, frame_stack, imports and unsafe_load_pickles are how sb3 models are read "
+                              "and see the env: give them with sb3 models only")
         elif "spread" not in self.detectors:
             raise ConfigError("the bench's agents all have samples: keep spread among the detectors")
         from oodmon.monitor.threshold import conformal_rank
@@ -237,7 +239,7 @@ class BenchConfig:
     def what_made_the_numbers(self) -> dict:
         """The settings a result depends on (not where it ran: out, workers, executor)."""
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()
-                if k not in ("out", "workers", "executor", "address", "bind")
+                if k not in ("out", "workers", "executor", "address", "bind", "imports", "unsafe_load_pickles")
                 and not (k == "warmup" and not v)}  # none: as results from before it existed say (baselines)
 
     @property

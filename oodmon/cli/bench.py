@@ -142,6 +142,7 @@ def _bench(args: argparse.Namespace) -> int:
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
                          all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean,
                          vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
+                         imports=tuple(args.imports), unsafe_load_pickles=args.unsafe_load_pickles,
                          samples=args.samples, members=args.members,
                          net_arch=args.net_arch, fit_episodes=args.fit_episodes,
                          masks=args.masks, onsets=args.onsets, failure=args.failure, warmup=args.warmup)

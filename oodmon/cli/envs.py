@@ -39,7 +39,12 @@ def _add_envs(commands: argparse._SubParsersAction) -> None:
                       help="your own env's shift: steps played at most (default 500; fewer when the episode ends)")
     show.add_argument("--sb3", metavar="ZIP",
                       help="your own env's shift: this stable-baselines3 model acts (deterministic) instead of random "
-                           "actions, in the states it visits (SB3's loader unpickles: give only files you trust)")
+                           "actions, in the states it visits (read without running code from it, as `oodmon run "
+                           "--sb3`)")
+    show.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
+                      help="with --sb3: as `oodmon run --import`")
+    show.add_argument("--unsafe-load-pickles", action="store_true",
+                      help="with --sb3: as `oodmon run --unsafe-load-pickles` (runs code the file holds)")
     show.add_argument("--vec-normalize", metavar="PKL", help="with --sb3: as `oodmon run --vec-normalize`")
     show.add_argument("--frame-stack", type=int, metavar="N", help="with --sb3: as `oodmon run --frame-stack`")
     show.set_defaults(handler=_envs_show)
@@ -76,12 +81,13 @@ def _envs_show(args: argparse.Namespace) -> int:
 
         out = check_picture_file(args.out, parameter="--out")  # "shot" is written as shot.png
     console = Console(soft_wrap=True)
-    loading = args.vec_normalize is not None or args.frame_stack is not None
+    loading = args.vec_normalize is not None or args.frame_stack is not None or args.unsafe_load_pickles \
+        or bool(args.imports)
     if isinstance(variant, Variant) and (args.sb3 or loading):
-        raise ConfigError(f"--sb3, --vec-normalize and --frame-stack go with a shift of your own env; {variant.spec} "
-                          "is shown with oodmon's hand-written controller")
+        raise ConfigError(f"--sb3 and its options (--import, --unsafe-load-pickles, --frame-stack, --vec-normalize) go "
+                          f"with a shift of your own env; {variant.spec} is shown with oodmon's hand-written controller")
     if loading and not args.sb3:
-        raise ConfigError("--vec-normalize and --frame-stack go with --sb3")
+        raise ConfigError("--import, --unsafe-load-pickles, --frame-stack and --vec-normalize go with --sb3")
     if not isinstance(variant, Variant):
         return _show_own_shift(args, variant, out, console)
     if variant.task == "pong":
@@ -112,7 +118,8 @@ def _show_own_shift(args: argparse.Namespace, shift, out, console: Console) -> i
         from oodmon.cli.loading import _check_frame_stack
 
         _check_frame_stack(args.frame_stack)  # said as the option, before the model is read
-        agent = load_sb3([args.sb3], shift.env_id, vec_normalize=args.vec_normalize, frame_stack=args.frame_stack)
+        agent = load_sb3([args.sb3], shift.env_id, vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
+                         imports=args.imports, unsafe_load_pickles=args.unsafe_load_pickles)
         policy, wrap = agent.act, agent.wrap
     probe = probe_shift(shift, seed=args.seed, onset=args.onset, steps=args.steps, policy=policy, wrap=wrap)
     console.print(probe.summary(), markup=False)  # obs.KIND[i]: no markup

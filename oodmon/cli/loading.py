@@ -22,14 +22,17 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
         if getattr(args, "model", None) or getattr(args, "method", None):
             raise ConfigError("--sb3 is instead of --model and --method: give one of them")
         agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed, masks=getattr(args, "masks", None),
-                         vec_normalize=args.vec_normalize, frame_stack=args.frame_stack)
+                         vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
+                         imports=args.imports, unsafe_load_pickles=args.unsafe_load_pickles)
         if args.task and args.task != agent.task:
             raise ConfigError(f"--task {args.task} contradicts --env {args.env} (task {agent.task})")
         args.task = agent.task
         return agent
     if getattr(args, "env", None) or getattr(args, "mean", False) or getattr(args, "vec_normalize", None) \
-            or getattr(args, "frame_stack", None) is not None:
-        raise ConfigError("--env, --mean, --frame-stack and --vec-normalize go with --sb3 (your own SB3 models)")
+            or getattr(args, "frame_stack", None) is not None or getattr(args, "unsafe_load_pickles", False) \
+            or getattr(args, "imports", None):
+        raise ConfigError("--env, --mean, --import, --unsafe-load-pickles, --frame-stack and --vec-normalize go with "
+                          "--sb3 (your own SB3 models)")
     if not args.task:
         raise ConfigError("give --task with --method or --model (or --sb3 with --env for your own SB3 models)")
     masks = getattr(args, "masks", None)

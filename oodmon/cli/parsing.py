@@ -179,7 +179,14 @@ def _sb3_arguments(parser: argparse.ArgumentParser) -> None:
                         help="your own stable-baselines3 model file(s) (DQN, DDPG, TD3, SAC, PPO, A2C; sb3-contrib's "
                              "QR-DQN, TQC, TRPO, ARS, CrossQ, RecurrentPPO, MaskablePPO), with --env; the first is the "
                              "deployed policy, several DQN, DDPG/TD3, SAC, TQC or QR-DQN models (of one algorithm) also "
-                             "form an ensemble detector. SB3's loader unpickles: give only files you trust")
+                             "form an ensemble detector. Read without running code from them: a file whose policy class, "
+                             "its arguments or spaces name anything else is refused (see --unsafe-load-pickles)")
+    parser.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
+                        help="import this module of yours first (repeatable), whose classes the --sb3 files name (a "
+                             "policy class of your own, say; oodmon imports no module a file names)")
+    parser.add_argument("--unsafe-load-pickles", action="store_true",
+                        help="load the --sb3 files as stable-baselines3 does, unpickling their data: it runs any code "
+                             "a file holds, so only for files you trust")
     parser.add_argument("--env", metavar="ID", help="the gymnasium env id the --sb3 models act in, e.g. CartPole-v1")
     parser.add_argument("--mean", action="store_true",
                         help="with several --sb3 models: deploy the ensemble's mean decision, not the first model's")

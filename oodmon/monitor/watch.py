@@ -36,7 +36,8 @@ __all__ = ["as_agent", "watch"]
 
 
 def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed: int | None = None,
-             masks: str | None = None, vec_normalize: Any = None, frame_stack: int | None = None) -> Agent:
+             masks: str | None = None, vec_normalize: Any = None, frame_stack: int | None = None,
+             imports: Sequence[str] = (), unsafe_load_pickles: bool = False) -> Agent:
     """An :class:`~oodmon.agents.Agent` of ``policy``: an Agent as it is; SB3 model files (a path
     or a list of them) or SB3 models in memory (one or a list), acting in ``env_id``. ``masks``:
     the MC masks of one SB3 model with dropout (``sampled``, ``fixed`` or ``fixed-decisions``, see
@@ -45,16 +46,17 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
     VecNormalize itself, for models in memory, which otherwise use the one they were trained in;
     see :func:`~oodmon.agents.sb3.sb3_agent`), or ``"none"``. ``frame_stack``: SB3 models trained
     inside ``VecFrameStack``: its ``n_stack`` (the env given to :func:`watch` must then give stacked
-    observations: wrap it in :class:`~oodmon.agents.frame_stack.FrameStack`).
+    observations: wrap it in :class:`~oodmon.agents.frame_stack.FrameStack`). ``imports``,
+    ``unsafe_load_pickles``: how SB3 model files are read (see :func:`~oodmon.agents.sb3.load_sb3`).
 
     Raises:
         ConfigError: SB3 models without ``env_id``, something that is none of these, an Agent
             loaded with other masks than ``masks``, or ``vec_normalize`` with an Agent.
     """
     if isinstance(policy, Agent):
-        if vec_normalize is not None or frame_stack is not None:
-            raise ConfigError("vec_normalize and frame_stack are for SB3 models; an oodmon Agent sees the observations "
-                              "it was made with")
+        if vec_normalize is not None or frame_stack is not None or unsafe_load_pickles or imports:
+            raise ConfigError("vec_normalize, frame_stack, imports and unsafe_load_pickles are for SB3 models; an "
+                              "oodmon Agent sees the observations it was made with")
         if env_id is not None and policy.env_id not in (None, env_id):
             raise ConfigError(f"the agent acts in {policy.env_id}, not {env_id}")
         if env_id is not None and policy.env_id is None and task_of_env(env_id) != policy.task:
@@ -73,7 +75,7 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
         from oodmon.agents.sb3 import load_sb3
 
         return load_sb3(items, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize,
-                        frame_stack=frame_stack)
+                        frame_stack=frame_stack, imports=imports, unsafe_load_pickles=unsafe_load_pickles)
     from oodmon.agents.sb3 import sb3_agent
 
     return sb3_agent(items, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize,
@@ -86,7 +88,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
           callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
           on_progress: Progress | None = None, masks: str | None = None, vec_normalize: Any = None,
           frame_stack: int | None = None, threshold: str | Path | None = None, save: str | Path | None = None,
-          warmup: int = 0) -> Any:
+          warmup: int = 0, imports: Sequence[str] = (), unsafe_load_pickles: bool = False) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
     The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy (``None``:
@@ -99,7 +101,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     it). ``env``: wrap this env (the one you step) and return the
     :class:`~oodmon.monitor.MonitoredEnv` instead of the bare monitor; its ``info["oodmon"]``
     says what the monitor saw at every step. ``on_progress(stage, done, total)`` reports progress
-    (see :mod:`oodmon.progress`). ``masks``, ``vec_normalize``, ``frame_stack``: see :func:`as_agent`.
+    (see :mod:`oodmon.progress`). ``masks``, ``vec_normalize``, ``frame_stack``, ``imports``,
+    ``unsafe_load_pickles``: see :func:`as_agent`.
     ``warmup``: the alarm looks at no finite score of an episode's first ``warmup`` steps (see
     :mod:`oodmon.monitor.alarms`; the calibration says when one would lower the threshold much).
 
@@ -133,7 +136,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
                           "calibrate anew with it (save=)")
     if threshold is not None:
         agent, alarm_threshold, detectors = _calibrated(policy, env_id, threshold, mean=mean, seed=seed, masks=masks,
-                                                        vec_normalize=vec_normalize, frame_stack=frame_stack)
+                                                        vec_normalize=vec_normalize, frame_stack=frame_stack,
+                                                        imports=imports, unsafe_load_pickles=unsafe_load_pickles)
     else:
         conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
         check_warmup(warmup)
@@ -147,7 +151,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
             replaced_file(save, parameter="save", holds="threshold", read=Threshold.load)
             check_output_dir(f"{save}.detectors", parameter="save (its detectors folder)")
         agent = as_agent(policy, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize,
-                         frame_stack=frame_stack)
+                         frame_stack=frame_stack, imports=imports, unsafe_load_pickles=unsafe_load_pickles)
     if env is not None:
         check_env_of(agent, env)  # an env of another task: said now, not at its first step after the calibration
     if threshold is None:

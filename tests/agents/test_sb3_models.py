@@ -870,6 +870,7 @@ def test_the_readmes_dropout_policy_example_runs_and_reads_fixed_sub_networks(tm
     monkeypatch.syspath_prepend(str(tmp_path / "runs"))  # the snippet's PYTHONPATH=runs
     monkeypatch.delitem(sys.modules, "my_policy", raising=False)
     exec(compile(python.replace("model.learn(8000)", "model.learn(600)"), "README dropout snippet", "exec"), {})
+    monkeypatch.delitem(sys.modules, "my_policy")  # the commands run in processes of their own: --import names it
     for argv in argvs:
         assert main(argv) == 0, argv
     threshold = Threshold.load("runs/dropout.json")

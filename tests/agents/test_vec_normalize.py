@@ -207,7 +207,7 @@ def test_bench_keys_its_cache_by_the_statistics_too(normalised_ppo, tmp_path):
     assert with_stats != _weights_sha256(Sb3Models(paths, "CartPole-v1", vec_normalize="none"))
     agent = load_sb3(list(paths), "CartPole-v1", vec_normalize=stats)
     assert agent.metadata["policy_hash"] == "sha256:" + with_stats
-    with pytest.raises(ConfigError, match="vec_normalize and frame_stack are how sb3 models trained inside"):
+    with pytest.raises(ConfigError, match="vec_normalize, frame_stack, imports and unsafe_load_pickles are how sb3"):
         BenchConfig("cartpole", ("ensemble",), 1, "paper", vec_normalize=stats)
 
 
