@@ -117,15 +117,18 @@ def test_the_sb3_data_unpickler_reaches_a_models_kinds_of_class_only():
     from oodmon.agents import sb3_pickles
 
     source = (PACKAGE / "agents" / "sb3_pickles.py").read_text()
-    assert source.count("pickle.Unpickler") == 1 and source.count(".load()") == 1
+    assert "class _DataUnpickler(pickle._Unpickler):" in source and source.count(".load()") == 1
     assert "_DataUnpickler(io.BytesIO(raw)).load()" in source
-    assert not re.search(r"pickle\.(loads?\(|Unpickler\(|load\()", source.replace("pickle.Unpickler):", ""))
+    assert not re.search(r"pickle\.(loads?\(|_?Unpickler\(|load\()", source.replace("pickle._Unpickler):", ""))
+    # the calls an entry makes go through the checked REDUCE (and INST/OBJ) of that unpickler
+    assert sb3_pickles._DataUnpickler.dispatch[pickle.REDUCE[0]] is sb3_pickles._DataUnpickler.load_reduce
     unpickler = sb3_pickles._DataUnpickler(__import__("io").BytesIO(b""))
     for module, name in [("os", "system"), ("posix", "system"), ("builtins", "eval"), ("builtins", "getattr"),
                          ("numpy", "load"), ("subprocess", "Popen"), ("torch", "load"), ("torch.storage", "_load_from_bytes"),
                          ("cloudpickle.cloudpickle", "_make_function"), ("types", "CodeType"), ("functools", "partial"),
                          ("collections", "namedtuple"), ("stable_baselines3.common.logger", "HumanOutputFormat"),
                          ("stable_baselines3.common.utils", "configure_logger"), ("shutil", "rmtree"),
+                         ("torch.fx.graph_module", "GraphModule"), ("torch.jit._script", "RecursiveScriptModule"),
                          ("a_module_nobody_imported", "Policy")]:
         with pytest.raises(pickle.UnpicklingError):
             unpickler.find_class(module, name)

@@ -11,18 +11,25 @@ What an entry may name (Python's "Restricting Globals", docs.python.org/3/librar
 
 - numpy's array, dtype, scalar and random-generator constructors, ``collections.deque`` and
   ``OrderedDict`` (:data:`_CALLS`);
-- classes of stable-baselines3, sb3-contrib, torch, numpy and gymnasium's spaces of the kinds a
-  model's data holds (:func:`_kinds`): torch modules (policy classes, feature extractors,
-  activation functions), optimizers, spaces, SB3's buffers, schedules and action noises, named
-  tuples (``TrainFreq``) and enums; and torch's dtypes;
+- classes of stable-baselines3, sb3-contrib, ``torch.nn.modules``, ``torch.optim``, numpy and
+  gymnasium's spaces of the kinds a model's data holds (:func:`_kinds`): torch modules (policy
+  classes, feature extractors, activation functions), optimizers, spaces, SB3's buffers,
+  schedules and action noises, SB3's named tuples (``TrainFreq``) and enums; and torch's dtypes;
 - a torch module class of a module the program has already imported (a policy class of your own,
   imported before the model is loaded, or named by ``imports=`` / ``--import``: its code has run
   already, on your word). A module not yet imported is not imported for a file.
 
-Anything else is refused. A refused entry that builds the policy (:data:`NEEDED`: the policy
-class, its keyword arguments, the spaces) refuses the model, with a line saying what it names and
-how to load it anyway: ``unsafe_load_pickles=True`` (``--unsafe-load-pickles``), SB3's own
-``load``, which runs what the file holds. Any other refused entry is training state a deployed
+Anything else is refused. And what an entry may call is narrower still (Python's own unpickler,
+whose ``REDUCE``, ``INST`` and ``OBJ`` are checked): the functions of :data:`_CALLS` (numpy's
+random-generator constructors given only a bit generator's name, class or instance), SB3's named
+tuples and enums, numpy's dtypes. Every other class it finds is a value (a policy class, an
+activation function), or is built empty (``NEWOBJ``: its ``__new__``) and given the state the
+file holds, which is how spaces and schedules come back: no ``__init__`` of a file's choosing runs.
+
+A refused entry that builds the policy (:data:`NEEDED`: the policy class, its keyword arguments,
+the spaces) refuses the model, with a line saying what it names and how to load it anyway
+(``--import`` its module, or ``unsafe_load_pickles=True``, ``--unsafe-load-pickles``: SB3's own
+``load``, which runs what the file holds). Any other refused entry is training state a deployed
 policy never reads (a schedule written as a function, say): it stands at the algorithm's default
 for it (its ``__init__``'s), or ``None``.
 
@@ -36,6 +43,7 @@ from __future__ import annotations
 import base64
 import binascii
 import enum
+import importlib
 import inspect
 import io
 import pickle  # restricted below: find_class reaches only what a model's data holds
@@ -72,8 +80,25 @@ _CALLS = {(module, name) for module in ("numpy._core.multiarray", "numpy.core.mu
     | {("numpy.random.bit_generator", "__pyx_unpickle_SeedSequence"), ("collections", "deque"),
        ("collections", "OrderedDict")}
 
-#: Packages whose classes of :func:`_kinds` an entry may name (each is installed beside oodmon).
-_PACKAGES = ("stable_baselines3", "sb3_contrib", "torch", "numpy", "gymnasium.spaces")
+#: numpy's random-generator constructors call what they are given: only what
+#: :func:`_random_ctor_argument` admits may be.
+_RANDOM_CTORS = {("numpy.random._pickle", name) for name in ("__generator_ctor", "__bit_generator_ctor",
+                                                               "__randomstate_ctor")}
+
+
+def _random_ctor_argument(value: Any) -> bool:
+    """What numpy's pickles give its random-generator constructors: a bit generator's name, class
+    (numpy 2) or instance, or the bit generators' own constructor (older pickles)."""
+    return isinstance(value, (str, np.random.BitGenerator)) or (
+        isinstance(value, type) and issubclass(value, np.random.BitGenerator)) or (
+        _calls().get(id(value)) == ("numpy.random._pickle", "__bit_generator_ctor"))
+
+#: Where an entry may find classes (of :func:`_kinds`), by module prefix; each is installed beside oodmon.
+_PACKAGES = ("stable_baselines3.", "sb3_contrib.", "torch.nn.modules.", "torch.optim.", "numpy.", "gymnasium.spaces.")
+
+
+#: Packages no class of the program's own lives in: their classes are found by :data:`_PACKAGES` only.
+_NOT_OWN = {"torch", "numpy", "gymnasium", "stable_baselines3", "sb3_contrib", "oodmon"}
 
 
 @cache
@@ -90,8 +115,25 @@ def _kinds() -> tuple[type, ...]:
             np.random.RandomState, np.random.SeedSequence)
 
 
-def _in_packages(module: str) -> bool:
-    return any(module == package or module.startswith(package + ".") for package in _PACKAGES)
+@cache
+def _calls() -> dict[int, tuple[str, str]]:
+    """The objects of :data:`_CALLS` (those this numpy has), by identity."""
+    found = {}
+    for module, name in _CALLS:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # numpy 2 warns of numpy.core's names
+            try:
+                found[id(getattr(importlib.import_module(module), name))] = (module, name)
+            except (ImportError, AttributeError):
+                continue  # the other numpy's name
+    return found
+
+
+def _named_tuple_or_enum(found: Any) -> bool:
+    """SB3's (or sb3-contrib's) named tuples and enums (``TrainFreq``, ``TrainFrequencyUnit``): the
+    classes an entry may call, besides :data:`_CALLS` and numpy's dtypes."""
+    return isinstance(found, type) and (issubclass(found, enum.Enum) or (issubclass(found, tuple) and hasattr(
+        found, "_fields"))) and found.__module__.split(".")[0] in ("stable_baselines3", "sb3_contrib")
 
 
 class _Refused(pickle.UnpicklingError):
@@ -103,28 +145,57 @@ class _Refused(pickle.UnpicklingError):
         self.module = module
 
 
-class _DataUnpickler(pickle.Unpickler):
+class _DataUnpickler(pickle._Unpickler):  # noqa: SLF001  (Python's own unpickler, whose calls can be checked)
+    """Finds only the classes of :func:`_kinds` (:meth:`find_class`) and calls only :data:`_CALLS`,
+    SB3's named tuples and enums, and numpy's dtypes (:meth:`load_reduce`, :meth:`_instantiate`):
+    every other class is only a value, or built empty (``NEWOBJ``) and given its state."""
+
+    dispatch = dict(pickle._Unpickler.dispatch)  # noqa: SLF001
+
     def find_class(self, module: str, name: str) -> Any:
+        import torch
+
         if (module, name) in _CALLS:
             return super().find_class(module, name)
-        if _in_packages(module):
+        if module == "torch" and isinstance(getattr(torch, name, None), torch.dtype):
+            return getattr(torch, name)
+        if module.startswith(_PACKAGES):
             found = super().find_class(module, name)  # a module of an installed package: importing it runs no file's code
+            if isinstance(found, type) and (issubclass(found, _kinds()) or _named_tuple_or_enum(found)):
+                return found
+        elif module.split(".")[0] in _NOT_OWN:
+            pass  # torch's, numpy's, ... other classes and functions: refused below
         elif module in sys.modules:
             found = super().find_class(module, name)  # imported already: finding the name runs nothing
-            if isinstance(found, type) and issubclass(found, _kinds()[0]):
+            if isinstance(found, type) and issubclass(found, torch.nn.Module):
                 return found  # a torch module class of the program's own (a policy class of its own, say)
-            raise _Refused(f"{module}.{name}, which a model's data does not hold")
         else:
             raise _Refused(f"{module}.{name}, of a module the program has not imported (oodmon imports none a file "
                            "names)", module)
-        import torch
-
-        if isinstance(found, torch.dtype):
-            return found
-        if isinstance(found, type) and (issubclass(found, _kinds()) or (issubclass(found, tuple)
-                                                                         and hasattr(found, "_fields"))):
-            return found
         raise _Refused(f"{module}.{name}, which a model's data does not hold")
+
+    def _check_call(self, called: Any, args: Any) -> None:
+        name = _calls().get(id(called))
+        if name is not None:
+            if name in _RANDOM_CTORS and not all(_random_ctor_argument(a) for a in args):
+                raise _Refused(f"{'.'.join(name)} given {', '.join(type(a).__name__ for a in args)}, which a model's "
+                               "data does not hold")
+            return
+        if _named_tuple_or_enum(called) or (isinstance(called, type) and issubclass(called, np.dtype)):
+            return
+        raise _Refused(f"a call of {getattr(called, '__qualname__', type(called).__name__)}, which a model's data "
+                       "does not hold")
+
+    def load_reduce(self) -> None:
+        self._check_call(self.stack[-2], self.stack[-1])
+        super().load_reduce()
+
+    dispatch[pickle.REDUCE[0]] = load_reduce
+
+    def _instantiate(self, klass: Any, args: Any) -> None:  # INST and OBJ (protocols 0 and 1)
+        if args or not isinstance(klass, type) or hasattr(klass, "__getinitargs__"):
+            self._check_call(klass, args)  # a call, as load_reduce's; else only klass.__new__
+        super()._instantiate(klass, args)
 
 
 def _decoded(encoded: Any) -> Any:
@@ -162,8 +233,6 @@ def import_modules(names: Sequence[str]) -> None:
     Raises:
         ConfigError: a name that is not a module Python finds.
     """
-    import importlib
-
     for name in names:
         if not isinstance(name, str) or not name.strip():
             raise ConfigError(f"--import {name!r}: give a module name, e.g. --import my_policy")

@@ -101,3 +101,20 @@ def test_a_policy_class_of_ones_own_loads_once_its_module_is_named(tmp_path, mon
     assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--import", "own_policy_module",
                  "--out", str(tmp_path / "u.json")]) == 2
     assert "--import, --unsafe-load-pickles" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("entry, refused", [
+    (b"ctorch.nn.modules.linear\nLinear\n(I10\nI10\ntR.", "a call of Linear"),  # a class it finds, but called
+    (b"cnumpy.random._pickle\n__bit_generator_ctor\n(ctorch.nn.modules.linear\nLinear\ntR.",  # called through numpy
+     "__bit_generator_ctor given type"),
+    (b"(ctorch.nn.modules.linear\nLinear\nI10\nI10\no.", "a call of Linear"),  # the same by OBJ (protocol 1)
+    (b"cbuiltins\ngetattr\n(cos\nsystem\nS'x'\ntR.", "builtins.getattr, which a model's data does not hold"),
+])
+def test_the_unpickler_calls_nothing_but_what_a_models_data_calls(entry, refused):
+    from oodmon.agents.sb3_pickles import data_objects
+
+    serialized = {":serialized:": base64.b64encode(entry).decode()}
+    with pytest.raises(ConfigError, match=refused):
+        data_objects({"policy_kwargs": serialized}, DQN)
+    assert data_objects({"_last_obs": serialized}, DQN) == {"_last_obs": None}  # training state: its default
+    assert data_objects({"learning_rate": serialized}, DQN) == {"learning_rate": 1e-4}  # DQN's default
