@@ -16,11 +16,14 @@ and ``struct.error`` (62 of a 14 KB log's 14,312 cuts) and damaged chunks with `
 damaged VecNormalize file raising ``MemoryError`` as its unpickler allocated a flipped length; a
 damaged ``model.json`` or ``detectors.json`` raising ``KeyError``; a bench baseline's damaged row
 raising ``KeyError`` only when the bench compared, after its work. All are refused or recovered
-now; this prints no such line.
+now; this prints no such line. The ``sb3`` reader, added on 2026-11-30 (``--only sb3 --seed 4
+--flips 1000``, 85 s): 13,367 damaged copies, 8,562 refused, 4,805 read, nothing else.
 
 The readers: ``log`` (replay's ``read_log`` of a small format-6 log, two CartPole episodes in
 segments of 4 steps: a cut or flip is a torn or damaged log, recovered), ``vecnorm`` (SB3
-VecNormalize statistics, read without unpickling), ``model`` (a zoo agent's folder), ``detectors``
+VecNormalize statistics, read without unpickling), ``sb3`` (a user's SB3 model file, its parts
+damaged one at a time and zipped again: its ``data`` read by oodmon's restricted unpickler),
+``model`` (a zoo agent's folder), ``detectors``
 (the zoo CartPole ensemble's fitted detectors), ``threshold`` (a calibrated threshold), ``baseline``
 (``oodmon check --update``'s baseline) and ``bench`` (a committed bench result read as
 ``--baseline`` and compared with itself).
@@ -67,6 +70,33 @@ def _make_vecnorm(folder: Path) -> dict[str, Path]:
     return {"vecnormalize.pkl": folder / "vecnormalize.pkl"}
 
 
+def _make_sb3(folder: Path) -> dict[str, Path]:
+    """A user's SB3 DQN file taken apart (its ``data`` JSON, whose entries SB3 would unpickle, its
+    ``policy.pth`` and the rest): :func:`_read_sb3` zips them again, fresh CRCs and all, so that the
+    damage reaches the readers of the parts and not only the zip's checksum."""
+    import zipfile
+
+    import gymnasium
+    from stable_baselines3 import DQN
+
+    DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0, policy_kwargs={"net_arch": [16]}).save(folder / "dqn.zip")
+    with zipfile.ZipFile(folder / "dqn.zip") as archive:
+        archive.extractall(folder / "parts")
+    return _folder_files(folder / "parts")
+
+
+def _read_sb3(folder: Path) -> object:
+    import zipfile
+
+    from oodmon.agents.sb3 import load_sb3
+
+    parts = sorted(p for p in folder.iterdir() if p.name != "model.zip")
+    with zipfile.ZipFile(folder / "model.zip", "w") as archive:
+        for part in parts:
+            archive.write(part, part.name)
+    return load_sb3([folder / "model.zip"], "CartPole-v1")
+
+
 def _make_threshold(folder: Path) -> dict[str, Path]:
     from oodmon.agents import load
     from oodmon.monitor.calibration import calibrate_agent
@@ -101,6 +131,7 @@ def _readers() -> dict[str, tuple[Callable[[Path], dict[str, Path]], Callable[[P
     return {
         "log": (_make_log, lambda d: read_log(d / "log.mcap")),
         "vecnorm": (_make_vecnorm, lambda d: load_vec_normalize(d / "vecnormalize.pkl")),
+        "sb3": (_make_sb3, _read_sb3),
         "model": (lambda _: _folder_files(zoo / "cartpole-dropout"), load_agent),
         "detectors": (lambda _: _folder_files(zoo / "cartpole-ensemble" / "detectors"), DetectorSet.load),
         "threshold": (_make_threshold, lambda d: Threshold.load(d / "threshold.json")),
