@@ -11,8 +11,8 @@ What an entry may name (Python's "Restricting Globals", docs.python.org/3/librar
 
 - numpy's array, dtype, scalar and random-generator constructors, ``collections.deque`` and
   ``OrderedDict`` (:data:`_CALLS`);
-- classes of stable-baselines3, sb3-contrib, ``torch.nn.modules``, ``torch.optim``, numpy and
-  gymnasium's spaces of the kinds a model's data holds (:func:`_kinds`): torch modules (policy
+- classes of stable-baselines3, sb3-contrib, ``torch.nn.modules``, ``torch.optim``, numpy,
+  gymnasium's spaces and ``oodmon.agents`` of the kinds a model's data holds (:func:`_kinds`): torch modules (policy
   classes, feature extractors, activation functions), optimizers, spaces, SB3's buffers,
   schedules and action noises, SB3's named tuples (``TrainFreq``) and enums; and torch's dtypes;
 - a torch module class of a module the program has already imported (a policy class of your own,
@@ -94,7 +94,8 @@ def _random_ctor_argument(value: Any) -> bool:
         _calls().get(id(value)) == ("numpy.random._pickle", "__bit_generator_ctor"))
 
 #: Where an entry may find classes (of :func:`_kinds`), by module prefix; each is installed beside oodmon.
-_PACKAGES = ("stable_baselines3.", "sb3_contrib.", "torch.nn.modules.", "torch.optim.", "numpy.", "gymnasium.spaces.")
+_PACKAGES = ("stable_baselines3.", "sb3_contrib.", "torch.nn.modules.", "torch.optim.", "numpy.", "gymnasium.spaces.",
+             "oodmon.agents.")  # oodmon's own policy classes, should a user's model be built of them
 
 
 #: Packages no class of the program's own lives in: their classes are found by :data:`_PACKAGES` only.

@@ -118,3 +118,14 @@ def test_the_unpickler_calls_nothing_but_what_a_models_data_calls(entry, refused
         data_objects({"policy_kwargs": serialized}, DQN)
     assert data_objects({"_last_obs": serialized}, DQN) == {"_last_obs": None}  # training state: its default
     assert data_objects({"learning_rate": serialized}, DQN) == {"learning_rate": 1e-4}  # DQN's default
+
+
+def test_a_model_of_oodmons_own_policy_class_loads_without_an_import(tmp_path):
+    # oodmon's installed classes are found as SB3's are (not as the program's own: oodmon's
+    # namespace is not searched that way): a DQN built of its MC Dropout policy
+    from oodmon.agents.policies import UncertainDQNPolicy
+
+    DQN(UncertainDQNPolicy, gymnasium.make("CartPole-v1"), seed=0,
+        policy_kwargs={"stochastic": "dropout", "drop_p": 0.1, "net_arch": [16]}).save(tmp_path / "mc.zip")
+    agent = load_sb3([tmp_path / "mc.zip"], "CartPole-v1")
+    assert type(agent.estimator).__name__ == "MCEstimator" and agent.estimator.n_samples == 20
