@@ -133,6 +133,16 @@ def test_the_sb3_data_unpickler_reaches_a_models_kinds_of_class_only():
         with pytest.raises(pickle.UnpicklingError):
             unpickler.find_class(module, name)
     assert "a_module_nobody_imported" not in __import__("sys").modules  # refused without importing it
+    unpickler.proto = 5  # protocol 4 on: a dotted name walks attributes, which must not lead out of the namespaces
+    own = __import__("types").ModuleType("own_module_that_imports_torch")
+    own.torch = torch
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(__import__("sys").modules, own.__name__, own)
+        for module, name in [("stable_baselines3.common.policies", "th.fx.GraphModule"),
+                             ("stable_baselines3.common.policies", "th.jit.ScriptModule"),
+                             (own.__name__, "torch.fx.GraphModule")]:
+            with pytest.raises(pickle.UnpicklingError):
+                unpickler.find_class(module, name)
     for module, name, found in [("torch.nn.modules.activation", "ReLU", torch.nn.ReLU), ("torch", "float32", torch.float32),
                                 ("stable_baselines3.common.type_aliases", "TrainFreq", TrainFreq),
                                 ("stable_baselines3.common.utils", "FloatSchedule", FloatSchedule),

@@ -162,13 +162,17 @@ class _DataUnpickler(pickle._Unpickler):  # noqa: SLF001  (Python's own unpickle
             return getattr(torch, name)
         if module.startswith(_PACKAGES):
             found = super().find_class(module, name)  # a module of an installed package: importing it runs no file's code
-            if isinstance(found, type) and (issubclass(found, _kinds()) or _named_tuple_or_enum(found)):
+            # where it lives, not only where it was found: a dotted name (protocol 4) walks attributes,
+            # out of the module ("th.fx.GraphModule" from a module that imports torch as th)
+            if isinstance(found, type) and found.__module__.startswith(_PACKAGES) \
+                    and (issubclass(found, _kinds()) or _named_tuple_or_enum(found)):
                 return found
         elif module.split(".")[0] in _NOT_OWN:
             pass  # torch's, numpy's, ... other classes and functions: refused below
         elif module in sys.modules:
             found = super().find_class(module, name)  # imported already: finding the name runs nothing
-            if isinstance(found, type) and issubclass(found, torch.nn.Module):
+            if isinstance(found, type) and issubclass(found, torch.nn.Module) \
+                    and found.__module__.split(".")[0] not in _NOT_OWN:
                 return found  # a torch module class of the program's own (a policy class of its own, say)
         else:
             raise _Refused(f"{module}.{name}, of a module the program has not imported (oodmon imports none a file "
