@@ -239,11 +239,11 @@ def import_modules(names: Sequence[str]) -> None:
         ConfigError: a name that is not a module Python finds.
     """
     for name in names:
-        if not isinstance(name, str) or not name.strip():
-            raise ConfigError(f"--import {name!r}: give a module name, e.g. --import my_policy")
+        if not isinstance(name, str) or not name.strip() or name.startswith("."):
+            raise ConfigError(f"--import {name!r}: give a module's full name, e.g. --import my_policy")
         try:
             importlib.import_module(name)
-        except ImportError as error:
+        except (ImportError, TypeError, ValueError) as error:
             raise ConfigError(f"--import {name}: {error} (is its folder on PYTHONPATH?)") from None
 
 

@@ -98,6 +98,9 @@ def test_a_policy_class_of_ones_own_loads_once_its_module_is_named(tmp_path, mon
                  "--confidence", "none", "--out", str(tmp_path / "t.json")]) == 0
     assert main([*common, "--import", "no_such_module_here", "--episodes", "2"]) == 2
     assert "--import no_such_module_here: No module named 'no_such_module_here'" in capsys.readouterr().err
+    for name in ("..", ".own_policy_module", " "):
+        assert main([*common, "--import", name, "--episodes", "2"]) == 2
+        assert "give a module's full name, e.g. --import my_policy" in capsys.readouterr().err
     assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--import", "own_policy_module",
                  "--out", str(tmp_path / "u.json")]) == 2
     assert "--import, --unsafe-load-pickles" in capsys.readouterr().err
