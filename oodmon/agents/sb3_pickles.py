@@ -49,6 +49,7 @@ import io
 import pickle  # restricted below: find_class reaches only what a model's data holds
 import pickletools
 import sys
+import types
 import warnings
 from collections.abc import Mapping, Sequence
 from functools import cache
@@ -92,6 +93,7 @@ def _random_ctor_argument(value: Any) -> bool:
     return isinstance(value, (str, np.random.BitGenerator)) or (
         isinstance(value, type) and issubclass(value, np.random.BitGenerator)) or (
         _calls().get(id(value)) == ("numpy.random._pickle", "__bit_generator_ctor"))
+
 
 #: Where an entry may find classes (of :func:`_kinds`), by module prefix; each is installed beside oodmon.
 _PACKAGES = ("stable_baselines3.", "sb3_contrib.", "torch.nn.modules.", "torch.optim.", "numpy.", "gymnasium.spaces.",
@@ -149,7 +151,8 @@ class _Refused(pickle.UnpicklingError):
 class _DataUnpickler(pickle._Unpickler):  # noqa: SLF001  (Python's own unpickler, whose calls can be checked)
     """Finds only the classes of :func:`_kinds` (:meth:`find_class`) and calls only :data:`_CALLS`,
     SB3's named tuples and enums, and numpy's dtypes (:meth:`load_reduce`, :meth:`_instantiate`):
-    every other class is only a value, or built empty (``NEWOBJ``) and given its state."""
+    every other class is only a value, or built empty (``NEWOBJ``) and given its state, which goes
+    to objects only (:meth:`load_build`)."""
 
     dispatch = dict(pickle._Unpickler.dispatch)  # noqa: SLF001
 
@@ -196,6 +199,17 @@ class _DataUnpickler(pickle._Unpickler):  # noqa: SLF001  (Python's own unpickle
         super().load_reduce()
 
     dispatch[pickle.REDUCE[0]] = load_reduce
+
+    def load_build(self) -> None:
+        # state for an object the file built, never for a class or function it found: setting
+        # attributes of a library's class would change it for the whole process
+        target = self.stack[-2]
+        if isinstance(target, (type, types.FunctionType, types.BuiltinFunctionType)):
+            raise _Refused(f"state for {getattr(target, '__qualname__', target)} itself, which a model's data does not "
+                           "hold")
+        super().load_build()
+
+    dispatch[pickle.BUILD[0]] = load_build
 
     def _instantiate(self, klass: Any, args: Any) -> None:  # INST and OBJ (protocols 0 and 1)
         if args or not isinstance(klass, type) or hasattr(klass, "__getinitargs__"):

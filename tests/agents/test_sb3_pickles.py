@@ -112,6 +112,8 @@ def test_a_policy_class_of_ones_own_loads_once_its_module_is_named(tmp_path, mon
      "__bit_generator_ctor given type"),
     (b"(ctorch.nn.modules.linear\nLinear\nI10\nI10\no.", "a call of Linear"),  # the same by OBJ (protocol 1)
     (b"cbuiltins\ngetattr\n(cos\nsystem\nS'x'\ntR.", "builtins.getattr, which a model's data does not hold"),
+    # state given to a class it finds: setattr(FloatSchedule, "oodmon_test", 1) for the whole process
+    (b"cstable_baselines3.common.utils\nFloatSchedule\n(}(S'oodmon_test'\nI1\ndtb.", "state for FloatSchedule itself"),
 ])
 def test_the_unpickler_calls_nothing_but_what_a_models_data_calls(entry, refused):
     from oodmon.agents.sb3_pickles import data_objects
@@ -121,6 +123,9 @@ def test_the_unpickler_calls_nothing_but_what_a_models_data_calls(entry, refused
         data_objects({"policy_kwargs": serialized}, DQN)
     assert data_objects({"_last_obs": serialized}, DQN) == {"_last_obs": None}  # training state: its default
     assert data_objects({"learning_rate": serialized}, DQN) == {"learning_rate": 1e-4}  # DQN's default
+    from stable_baselines3.common.utils import FloatSchedule
+
+    assert not hasattr(FloatSchedule, "oodmon_test")
 
 
 def test_a_model_of_oodmons_own_policy_class_loads_without_an_import(tmp_path):
