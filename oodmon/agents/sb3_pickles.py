@@ -72,14 +72,14 @@ UNSAFE_HINT = ("A file you trust (you made it): --unsafe-load-pickles (unsafe_lo
 #: The functions (and containers) an entry may call, by module and name: numpy's array, dtype and
 #: scalar constructors (numpy 2 names them ``numpy._core``, numpy 1 ``numpy.core``), its random
 #: generators' (a space's ``np_random``), and ``collections``' deque (the episode buffers) and
-#: OrderedDict (a dict space's spaces).
+#: OrderedDict (a dict space's spaces), and ``_codecs.encode``, which a protocol-2 pickle writes bytes with.
 _CALLS = {(module, name) for module in ("numpy._core.multiarray", "numpy.core.multiarray")
           for name in ("_reconstruct", "scalar")} \
     | {(module, "_frombuffer") for module in ("numpy._core.numeric", "numpy.core.numeric")} \
     | {("numpy", "dtype"), ("numpy", "ndarray")} \
     | {("numpy.random._pickle", name) for name in ("__generator_ctor", "__bit_generator_ctor", "__randomstate_ctor")} \
     | {("numpy.random.bit_generator", "__pyx_unpickle_SeedSequence"), ("collections", "deque"),
-       ("collections", "OrderedDict")}
+       ("collections", "OrderedDict"), ("_codecs", "encode")}  # the last: bytes in a protocol-2 pickle
 
 #: numpy's random-generator constructors call what they are given: only what
 #: :func:`_random_ctor_argument` admits may be.
@@ -160,7 +160,9 @@ class _DataUnpickler(pickle._Unpickler):  # noqa: SLF001  (Python's own unpickle
         import torch
 
         if (module, name) in _CALLS:
-            return super().find_class(module, name)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DeprecationWarning)  # numpy 2 of numpy 1's names (older files)
+                return super().find_class(module, name)
         if module == "torch" and isinstance(getattr(torch, name, None), torch.dtype):
             return getattr(torch, name)
         if module.startswith(_PACKAGES):

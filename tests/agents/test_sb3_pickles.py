@@ -137,3 +137,17 @@ def test_a_model_of_oodmons_own_policy_class_loads_without_an_import(tmp_path):
         policy_kwargs={"stochastic": "dropout", "drop_p": 0.1, "net_arch": [16]}).save(tmp_path / "mc.zip")
     agent = load_sb3([tmp_path / "mc.zip"], "CartPole-v1")
     assert type(agent.estimator).__name__ == "MCEstimator" and agent.estimator.n_samples == 20
+
+
+@pytest.mark.parametrize("protocol", [2, 4, 5])
+def test_arrays_of_older_files_decode_too(protocol):
+    # numpy 1 named its constructors numpy.core (numpy 2 warns of the name); a protocol-2 pickle
+    # writes them as text lines (renamed here as numpy 1 wrote them) and bytes through _codecs.encode
+    from oodmon.agents.sb3_pickles import data_objects
+
+    raw = pickle.dumps(np.arange(3.0), protocol=protocol)
+    if protocol == 2:
+        raw = raw.replace(b"cnumpy._core.multiarray\n", b"cnumpy.core.multiarray\n")
+        assert b"cnumpy.core.multiarray\n" in raw and b"_codecs" in raw
+    decoded = data_objects({"_last_obs": {":serialized:": base64.b64encode(raw).decode()}}, DQN)["_last_obs"]
+    np.testing.assert_array_equal(decoded, [0.0, 1.0, 2.0])
