@@ -71,6 +71,11 @@ def test_schedules_written_as_functions_stand_at_the_algorithms_defaults_and_the
                 learning_rate=lambda remaining: 3e-4 * remaining, clip_range=lambda remaining: 0.1 * remaining)
     model.learn(64)
     model.save(tmp_path / "ppo.zip")
+    from oodmon.agents.sb3 import _data
+    from oodmon.agents.sb3_pickles import data_objects
+
+    objects = data_objects(_data(tmp_path / "ppo.zip"), PPO)
+    assert (objects["learning_rate"], objects["clip_range"], objects["lr_schedule"]) == (3e-4, 0.2, None)  # not the lambdas
     agent = load_sb3([tmp_path / "ppo.zip"], "Pendulum-v1")
     plain = PPO.load(tmp_path / "ppo.zip", device="cpu")
     observations = np.random.default_rng(1).uniform(-1, 1, size=(50, 3)).astype(np.float32)
@@ -88,18 +93,19 @@ def test_a_policy_class_of_ones_own_loads_once_its_module_is_named(tmp_path, mon
 
     DQN(OwnDQNPolicy, gymnasium.make("CartPole-v1"), seed=0, policy_kwargs={"net_arch": [16]}).save(tmp_path / "own.zip")
     monkeypatch.delitem(sys.modules, "own_policy_module")  # as in another process: not imported
-    common = ["validate", str(tmp_path / "t.json"), "--sb3", str(tmp_path / "own.zip"), "--env", "CartPole-v1"]
-    assert main(["calibrate", *common[2:], "--episodes", "4", "--far", "0.3", "--confidence", "none",
-                 "--out", str(tmp_path / "t.json")]) == 2
+    model = ["--sb3", str(tmp_path / "own.zip"), "--env", "CartPole-v1"]
+    calibrate = ["calibrate", *model, "--episodes", "4", "--far", "0.3", "--confidence", "none", "--out",
+                 str(tmp_path / "t.json")]
+    validate = ["validate", str(tmp_path / "t.json"), *model, "--episodes", "2"]
+    assert main(calibrate) == 2
     error = capsys.readouterr().err
     assert "its policy_class names own_policy_module.OwnDQNPolicy, of a module the program has not imported" in error
     assert "--import own_policy_module" in error and "own_policy_module" not in sys.modules  # not imported for the file
-    assert main(["calibrate", *common[2:], "--import", "own_policy_module", "--episodes", "4", "--far", "0.3",
-                 "--confidence", "none", "--out", str(tmp_path / "t.json")]) == 0
-    assert main([*common, "--import", "no_such_module_here", "--episodes", "2"]) == 2
+    assert main([*calibrate, "--import", "own_policy_module"]) == 0
+    assert main([*validate, "--import", "no_such_module_here"]) == 2
     assert "--import no_such_module_here: No module named 'no_such_module_here'" in capsys.readouterr().err
     for name in ("..", ".own_policy_module", " "):
-        assert main([*common, "--import", name, "--episodes", "2"]) == 2
+        assert main([*validate, "--import", name]) == 2
         assert "give a module's full name, e.g. --import my_policy" in capsys.readouterr().err
     assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--import", "own_policy_module",
                  "--out", str(tmp_path / "u.json")]) == 2
