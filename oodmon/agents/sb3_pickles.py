@@ -10,7 +10,7 @@ gives them to SB3's ``load`` as its ``custom_objects``: SB3 then unpickles nothi
 What an entry may name (Python's "Restricting Globals", docs.python.org/3/library/pickle.html):
 
 - numpy's array, dtype, scalar and random-generator constructors, ``collections.deque`` and
-  ``OrderedDict`` (:data:`_CALLS`);
+  ``OrderedDict``, ``_codecs.encode`` (:data:`_CALLS`);
 - classes of stable-baselines3, sb3-contrib, ``torch.nn.modules``, ``torch.optim``, numpy,
   gymnasium's spaces and ``oodmon.agents`` of the kinds a model's data holds (:func:`_kinds`): torch modules (policy
   classes, feature extractors, activation functions), optimizers, spaces, SB3's buffers,
