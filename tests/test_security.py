@@ -61,8 +61,8 @@ def test_users_sb3_files_are_read_only_when_the_user_names_them_and_unpickled_on
     # unpickler (custom_objects), unless the user passed unsafe_load_pickles (--unsafe-load-pickles).
     source = (PACKAGE / "agents" / "sb3.py").read_text()
     loader = source[source.index("def _load_one"):source.index("def _check_spaces")]
-    assert 'algorithm.load(path, device="cpu", custom_objects=objects)' in loader and "sb3_algorithm(path)" in loader
-    assert "objects = None if unsafe_load_pickles else data_objects(_data(path), algorithm, path)" in loader
+    assert 'algorithm.load(path, device="cpu", custom_objects=objects)' in loader and "_algorithms(data, path)" in loader
+    assert "objects = None if unsafe_load_pickles else data_objects(data, algorithm, path)" in loader
     calls = [m.start() for m in re.finditer(r"_load_one\(", source)][1:]
     assert calls == [source.index("_load_one(path, unsafe_load_pickles) for path")]
     assert calls[0] > source.index("def load_sb3")

@@ -104,7 +104,11 @@ def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
         ConfigError: a missing file, or one that is not an SB3 model of a supported algorithm.
     """
     path = Path(path)
-    data = _data(path)
+    return _algorithms(_data(path), path)
+
+
+def _algorithms(data: dict[str, Any], path: Path) -> tuple[str, ...]:
+    """:func:`sb3_algorithm` of the model file's ``data``, read already."""
     module = data["policy_class"]["__module__"]
     if module == "stable_baselines3.common.policies" and "cg_max_steps" in data:
         return ("TRPO",)
@@ -174,13 +178,13 @@ def _policy_base(name: str) -> type | None:
 
 
 def _load_one(path: Path, unsafe_load_pickles: bool = False) -> tuple[Any, str]:
-    errors = []
-    for name in sb3_algorithm(path):
+    errors, data = [], _data(path)
+    for name in _algorithms(data, path):
         algorithm = _algorithm_class(name)
         try:
             # custom_objects: every entry SB3 would unpickle, read by oodmon without running code
             # (None: SB3 unpickles them itself, as its own load() does)
-            objects = None if unsafe_load_pickles else data_objects(_data(path), algorithm, path)
+            objects = None if unsafe_load_pickles else data_objects(data, algorithm, path)
             model = algorithm.load(path, device="cpu", custom_objects=objects)
         except ConfigError:
             raise  # sb3-contrib not installed, or an entry refused: said as it is

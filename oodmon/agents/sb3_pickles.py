@@ -47,7 +47,6 @@ import importlib
 import inspect
 import io
 import pickle  # restricted below: find_class reaches only what a model's data holds
-import pickletools
 import sys
 import types
 import warnings
@@ -57,6 +56,7 @@ from typing import Any
 
 import numpy as np
 
+from oodmon.agents.pickle_walk import one_line, walk_opcodes
 from oodmon.errors import ConfigError
 
 __all__ = ["NEEDED", "UNSAFE_HINT", "data_objects", "import_modules"]
@@ -230,22 +230,13 @@ def _decoded(encoded: Any) -> Any:
         raw = base64.b64decode(encoded, validate=True)
     except (binascii.Error, TypeError, ValueError):
         raise pickle.UnpicklingError("not base64") from None
-    # Walked first without building anything: a damaged length is an error here, where the
-    # unpickler would allocate the bytes it names before reading them (quietly: other bytes read
-    # as opcodes can warn of string escapes).
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            for _ in pickletools.genops(raw):
-                pass
-        except Exception as error:  # noqa: BLE001  (pickletools fails in many ways on damaged bytes)
-            raise pickle.UnpicklingError(str(error) or type(error).__name__) from None
     try:
+        walk_opcodes(raw)  # a damaged length fails here, before the unpickler allocates it
         return _DataUnpickler(io.BytesIO(raw)).load()
     except _Refused:
         raise
     except Exception as error:  # noqa: BLE001  (a damaged entry fails in many ways; none runs code)
-        raise pickle.UnpicklingError(" ".join(str(error).split()) or type(error).__name__) from None
+        raise pickle.UnpicklingError(one_line(error)) from None
 
 
 def import_modules(names: Sequence[str]) -> None:
@@ -272,6 +263,17 @@ def _default(algorithm: type, key: str) -> Any:
     return None if parameter is None or parameter.default is inspect.Parameter.empty else parameter.default
 
 
+def _unread(path: Any, key: str, error: pickle.UnpicklingError) -> str:
+    """The line that refuses a model whose entry ``key`` (one of :data:`NEEDED`) could not be read."""
+    if not isinstance(error, _Refused):
+        return f"{path}: its {key} is damaged ({error})"
+    own = "" if error.module is None else (
+        f"A class of your own module: --import {error.module} (imports=[{error.module!r}], or import it before "
+        "loading). ")
+    return f"{path}: its {key} names {error}; oodmon does not unpickle it (that could run code from the file). " \
+           f"{own}{UNSAFE_HINT}"
+
+
 def data_objects(data: Mapping[str, Any], algorithm: type, path: Any = "the model file") -> dict[str, Any]:
     """Each entry of a model's ``data`` (its JSON, parsed) that SB3 would unpickle, as the objects
     SB3's ``load`` takes for them (``custom_objects``); ``algorithm``: the class loading it, whose
@@ -286,16 +288,8 @@ def data_objects(data: Mapping[str, Any], algorithm: type, path: Any = "the mode
             continue  # plain JSON: SB3 reads it as it is
         try:
             objects[key] = _decoded(item[":serialized:"])
-        except _Refused as refused:
+        except pickle.UnpicklingError as error:  # refused (_Refused), or damaged
             if key in NEEDED:
-                own = "" if refused.module is None else (
-                    f"A class of your own module: --import {refused.module} (imports=[{refused.module!r}], or import "
-                    "it before loading). ")
-                raise ConfigError(f"{path}: its {key} names {refused}; oodmon does not unpickle it (that could run "
-                                  f"code from the file). {own}{UNSAFE_HINT}") from None
-            objects[key] = _default(algorithm, key)
-        except pickle.UnpicklingError as damaged:
-            if key in NEEDED:
-                raise ConfigError(f"{path}: its {key} is damaged ({damaged})") from None
+                raise ConfigError(_unread(path, key, error)) from None
             objects[key] = _default(algorithm, key)
     return objects

@@ -32,8 +32,6 @@ import hashlib
 import io
 import json
 import pickle  # restricted below: find_class allows numpy's array constructors and OrderedDict only
-import pickletools
-import warnings
 import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -41,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from oodmon.agents.pickle_walk import one_line, walk_opcodes
 from oodmon.errors import ConfigError
 
 __all__ = ["NO_NORMALIZATION", "ObservationNormalizer", "load_vec_normalize", "normalizer_of", "trained_in_vec_normalize"]
@@ -257,19 +256,13 @@ def load_vec_normalize(path: str | Path) -> ObservationNormalizer:
     data = path.read_bytes()
     try:
         # A pickle (protocol 2 on; VecNormalize.save writes 4 or 5) is walked first without building
-        # anything: a damaged length (a flipped bit) is then an error here, where the unpickler would
-        # allocate the bytes it names before reading them. (Quietly: walking other bytes as opcodes
-        # can warn of string escapes.)
+        # anything: a damaged length (a flipped bit) is then an error here (oodmon.agents.pickle_walk)
         if data.startswith(b"\x80"):
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                for _ in pickletools.genops(data):
-                    pass
+            walk_opcodes(data)
         unpickler = _StatisticsUnpickler(io.BytesIO(data))
         root = unpickler.load()
     except Exception as error:  # noqa: BLE001  (a damaged or foreign file fails in many ways; none runs code)
-        reason = " ".join(str(error).split()) or type(error).__name__  # pickle's messages run over several lines
-        raise ConfigError(f"--vec-normalize {path} is not a VecNormalize statistics file ({reason})") from None
+        raise ConfigError(f"--vec-normalize {path} is not a VecNormalize statistics file ({one_line(error)})") from None
     if not isinstance(root, _Record) or not isinstance(root.state, dict):
         raise ConfigError(f"--vec-normalize {path} is not a VecNormalize statistics file (VecNormalize.save() writes "
                           "one VecNormalize object)")
