@@ -25,7 +25,8 @@ def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
     """An ``on_progress(stage, done, total, note=None)`` for long work (see :mod:`oodmon.progress`;
     ``note``: a latest figure to show beside the stage): rich bars on a terminal; where stderr is a
     file (a job under nohup), where a bar would only appear at the end, a dated line per stage at
-    most once a minute, at its start and at its end, with a rate in the stage's unit."""
+    most once a minute, at its start and at its end, with a rate in the stage's unit (from its
+    second line on: the first has none to give)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     stderr = Console(stderr=True)
@@ -51,14 +52,15 @@ def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
             then, before = last_line.get(name, (None, done))
             finished = total is not None and done >= total and before < total
             if then is None or now - then >= 60 or finished:
-                rate = (done - before) / (now - then) if then is not None and now > then else 0.0
+                rate = (done - before) / (now - then) if then is not None and now > then else None
                 counted = unit_of(name)
-                speed = f"{rate:.1f} {counted}/s" if rate >= 1 or rate == 0 else f"{rate * 60:.1f} {counted}/min"
-                left = (total - done) / rate if rate > 0 and total is not None and total > done else None
+                speed = ("" if rate is None else f", {rate:.1f} {counted}/s" if rate >= 1 or rate == 0
+                         else f", {rate * 60:.1f} {counted}/min")  # none yet on a stage's first line
+                left = (total - done) / rate if rate and total is not None and total > done else None
                 eta = "" if left is None else f", about {left / 60:.0f} min left" if left >= 90 else f", about {left:.0f} s left"
                 noted = f", {notes[name]}" if name in notes else ""
                 of = "" if total is None else f"/{total}"
-                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}{of} {counted}, {speed}{eta}{noted}",
+                print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {name}: {done}{of} {counted}{speed}{eta}{noted}",
                       file=sys.stderr, flush=True)
                 last_line[name] = (now, done)
 
