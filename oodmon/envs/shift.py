@@ -4,10 +4,12 @@ oodmon's variants cover CartPole, Pendulum and Pong. A policy of your own, in an
 no variants of (``Acrobot-v1``, an env of yours), is shifted by changing numeric attributes of
 its env, the numbers its ``step()`` reads: ``Acrobot-v1:LINK_MASS_2=3.0`` is Acrobot with a
 second link three times as heavy. From the onset step on, :class:`ShiftAttributes` sets them
-on ``env.unwrapped``; each ``reset`` puts the env's own values back first, so the first steps of
-every episode are the env you trained in. ``info["shifted"]`` marks the steps of the shifted
-world, as in oodmon's envs, so that the monitor's logs and ``oodmon replay`` count them as
-shifted (AUROC against your ID episodes, alarms before the onset as false ones, delays).
+on ``env.unwrapped`` (a name it lacks, on the first wrapper around it that has it: a wrapper of
+yours that adds a wind, a delay or a noise, and the number it reads); each ``reset`` puts the
+env's own values back first, so the first steps of every episode are the env you trained in.
+``info["shifted"]`` marks the steps of the shifted world, as in oodmon's envs, so that the
+monitor's logs and ``oodmon replay`` count them as shifted (AUROC against your ID episodes,
+alarms before the onset as false ones, delays).
 
 Spec strings, as ``oodmon run --variant`` takes them and the logs write them::
 
@@ -153,14 +155,45 @@ def _target(owner: str, base: object, name: object) -> _Target:
     return _Target(holder, last, ())
 
 
+def _target_in(owner: str, env: gymnasium.Env, name: object) -> _Target:
+    """Where ``name`` points: in ``env.unwrapped``, or else in the first wrapper of it, from the
+    outermost in, that has the attribute (a wrapper of yours that adds a wind or a delay, say).
+
+    Raises:
+        UnknownParameterError: neither has it; the message lists the numbers of both.
+    """
+    wrappers = []
+    while isinstance(env, gymnasium.Wrapper):
+        wrappers.append(env)
+        env = env.env
+    try:
+        return _target(owner, env, name)
+    except UnknownParameterError as error:
+        first = name.split(".")[0].split("[")[0] if isinstance(name, str) else ""
+        for wrapper in wrappers:
+            if first and not first.startswith("_") and _wrappers_own(wrapper, first):
+                return _target(f"{owner} (its wrapper {type(wrapper).__name__})", wrapper, name)
+        listed = [f"of its wrapper {type(w).__name__}: {', '.join(found)}" for w in wrappers
+                  if (found := [n for n in _settable_names(w)[0] if _wrappers_own(w, n)])]
+        raise UnknownParameterError("; ".join([str(error), *listed])) from None
+
+
+def _wrappers_own(wrapper: gymnasium.Wrapper, name: str) -> bool:
+    """Whether ``name`` is the wrapper's own attribute (its instance's, or its class's below
+    ``gymnasium.Wrapper``), not one every wrapper has (``spec``, ``render_mode``...)."""
+    return name in vars(wrapper) and name != "env" or any(
+        name in vars(cls) for cls in type(wrapper).__mro__ if cls not in gymnasium.Wrapper.__mro__)
+
+
 class ShiftAttributes(gymnasium.Wrapper):
-    """Sets numeric attributes of ``env.unwrapped`` to other values from ``onset_step`` on, and
-    faults its sensors (names ``obs.KIND[i]``: :class:`SensorFaults`) from then on.
+    """Sets numeric attributes of ``env.unwrapped`` (or, for a name it lacks, of a wrapper of it
+    that has it) to other values from ``onset_step`` on, and faults its sensors (names
+    ``obs.KIND[i]``: :class:`SensorFaults`) from then on.
 
     Args:
         env: any gymnasium env.
         changes: attribute name -> its value in the shifted world; each must be a number the
-            unwrapped env has (an int attribute takes whole values only), or an element of a
+            unwrapped env (or a wrapper of it) has (an int attribute takes whole values only), or an element of a
             numeric array there (``model.body_mass[1]``), or a sensor fault (``obs.bias[4]``).
         onset_step: index of the first ``step()`` of each episode in the shifted world (0: all);
             ``reset(options={"onset_step": n})`` sets it for that episode alone.
@@ -196,7 +229,7 @@ class ShiftAttributes(gymnasium.Wrapper):
         for name, value in changes.items():
             if name in sensed:
                 continue
-            self._targets[name] = target = _target(owner, env.unwrapped, name)
+            self._targets[name] = target = _target_in(owner, env, name)
             own = target.get()
             if not _is_number(value) or not math.isfinite(value):
                 raise InvalidParameterError(f"{owner}: {name}={value!r} is not a finite number")

@@ -269,3 +269,39 @@ def test_an_array_handed_out_as_a_copy_is_refused_since_setting_it_changes_nothi
     with pytest.raises(InvalidParameterError, match=r"masses\[1\]=4.0 changed nothing the env reads: its masses hands "
                                                     "out a copy"):
         ShiftAttributes(CopiedMasses(), {"masses[1]": 4.0}, onset_step=1)  # when made, before any episode
+
+
+class _Wind(gymnasium.Wrapper):
+    """A wrapper of the user's that pushes the pendulum: ``wind`` added to each torque; its ``g``
+    is a number too, but the env's own ``g`` is the one a shift named ``g`` sets."""
+
+    def __init__(self, env: gymnasium.Env) -> None:
+        super().__init__(env)
+        self.wind = 0.0
+        self.g = 0.0
+
+    def step(self, action):
+        return self.env.step(np.asarray(action) + self.wind)
+
+
+def test_a_number_of_a_wrapper_of_the_users_is_shifted_when_the_env_itself_has_none_of_that_name():
+    windy = _Wind(gymnasium.make("Pendulum-v1"))
+    env = ShiftAttributes(windy, {"wind": 1.5}, onset_step=5)
+    calm = gymnasium.make("Pendulum-v1")
+    for episode in range(2):  # the wind drops at each reset, and rises again at the onset
+        obs, info = env.reset(seed=episode)
+        own, _ = calm.reset(seed=episode)
+        assert windy.wind == 0.0 and not info["shifted"]
+        for step in range(10):
+            obs, _, _, _, info = env.step(np.zeros(1, np.float32))
+            own, *_ = calm.step(np.zeros(1, np.float32))
+            assert info["shifted"] == (step >= 5) and windy.wind == (1.5 if step >= 5 else 0.0)
+            assert np.array_equal(obs, own) == (step < 5)  # the same until the wind blows
+    assert env.shift.spec == "Pendulum-v1:wind=1.5"
+    env.close()
+    assert windy.wind == 0.0
+    both = ShiftAttributes(_Wind(gymnasium.make("Pendulum-v1")), {"g": 20.0})
+    both.reset(seed=0)
+    assert both.unwrapped.g == 20.0 and both.env.g == 0.0  # the env's own number first
+    with pytest.raises(UnknownParameterError, match=r"no numeric attribute 'wnd'.*max_speed.*; of its wrapper _Wind: g, wind$"):
+        ShiftAttributes(_Wind(gymnasium.make("Pendulum-v1")), {"wnd": 1.0})
