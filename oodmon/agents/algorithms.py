@@ -67,6 +67,8 @@ class EpisodeSoFar(gymnasium.Wrapper):
 
 
 def training_env(recipe: Recipe) -> gymnasium.Env:
+    """The env a recipe trains in: its task's ID env, keeping the episode so far (:class:`EpisodeSoFar`:
+    a resumed training plays it again), its rewards reduced to their signs where the recipe clips them."""
     env = EpisodeSoFar(gymnasium.make(ENV_IDS[recipe.task]))
     if recipe.reward_clip:
         env = gymnasium.wrappers.TransformReward(env, lambda r: float(np.sign(r)))
@@ -74,6 +76,7 @@ def training_env(recipe: Recipe) -> gymnasium.Env:
 
 
 def new_model(recipe: Recipe, env: gymnasium.Env, seed: int) -> BaseAlgorithm:
+    """An untrained SB3 model of the recipe (its algorithm, network and hyperparameters) in ``env``."""
     arch = architecture(recipe, env)
     policy_kwargs: dict[str, Any] = {
         "net_arch": list(recipe.net_arch),
@@ -100,6 +103,8 @@ def new_model(recipe: Recipe, env: gymnasium.Env, seed: int) -> BaseAlgorithm:
 
 
 def algorithm_class(recipe: Recipe) -> type[BaseAlgorithm]:
+    """The SB3 algorithm a recipe trains with: DDPG, DQN, or oodmon's DQNs of a shared torso
+    (:class:`BootstrappedDQN`) or of a sampled target (:class:`SampledTargetDQN`)."""
     if recipe.algorithm == "ddpg":
         return DDPG
     if recipe.method == "ensemble" and recipe.shared_torso:

@@ -82,6 +82,7 @@ def to_table(metrics: Sequence[VariantMetrics], title: str = "replay", width: in
 
 
 def to_json(metrics: Sequence[VariantMetrics]) -> str:
+    """Replay's rows (one per task, method, detector and variant) as a JSON list of objects."""
     return json.dumps([m.to_dict() for m in metrics], indent=1)
 
 
@@ -103,10 +104,12 @@ def _markdown(headings: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
 
 
 def to_csv(metrics: Sequence[VariantMetrics]) -> str:
+    """Replay's rows as CSV, a header of the column names first."""
     return _csv([name for name, _ in COLUMNS], ([getattr(m, name) for name, _ in COLUMNS] for m in metrics))
 
 
 def to_markdown(metrics: Sequence[VariantMetrics]) -> str:
+    """Replay's rows as a markdown table, headed as the terminal's."""
     return _markdown([h for _, h in COLUMNS], ([_cell(getattr(m, name)) for name, _ in COLUMNS] for m in metrics))
 
 
@@ -213,6 +216,7 @@ def monitor_table(metrics: Sequence[MonitorMetrics], title: str = "the monitor's
 
 
 def monitor_markdown(metrics: Sequence[MonitorMetrics]) -> str:
+    """The monitor's benchmark rows (``replay --monitor``) as a markdown table."""
     return _markdown(MONITOR_COLUMNS, (cells for _, cells in _monitor_rows(metrics)))
 
 
@@ -331,9 +335,11 @@ def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -
 
 
 def episodes_csv(rows: Sequence[dict]) -> str:
+    """One row per episode (``replay --episodes``) as CSV."""
     return _csv([name for name, _ in EPISODE_COLUMNS], ([row[name] for name, _ in EPISODE_COLUMNS] for row in rows))
 
 
 def episodes_markdown(rows: Sequence[dict]) -> str:
+    """One row per episode (``replay --episodes``) as a markdown table."""
     return _markdown([h for _, h in EPISODE_COLUMNS],
                      ([_episode_cell(name, row[name]) for name, _ in EPISODE_COLUMNS] for row in rows))
