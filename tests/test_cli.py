@@ -642,3 +642,32 @@ def test_run_does_not_say_it_wrote_a_rerun_file_that_could_not_be_finished(tmp_p
                  "--mcap", str(mcap)]) == 0
     out = capsys.readouterr().out.replace("\n", "")
     assert f"written to {mcap}" in out and str(rrd) not in out.split("written to")[1] and "{'RerunSink': 1}" in out
+
+
+def test_an_error_oodmon_cannot_explain_keeps_its_traceback_says_what_the_log_holds_and_exits_3(tmp_path, capsys,
+                                                                                                  monkeypatch):
+    """An env of the user's that raises mid-run (a sensor bus down): Python's traceback and exit code
+    1, which reads as a regression check's fall, and no word of the log. Now the traceback, a line
+    saying what the log kept, exit code 3; the log replays the finished episodes and the cut one."""
+    from oodmon.envs.physics import ShiftedCartPole
+
+    step, calls = ShiftedCartPole.step, []
+
+    def failing_step(self, action):
+        calls.append(action)
+        if len(calls) == 1200:  # in the third episode: the shipped ensemble keeps the pole up for 500 steps
+            raise RuntimeError("sensor bus down")
+        return step(self, action)
+
+    monkeypatch.setattr(ShiftedCartPole, "step", failing_step)
+    log = tmp_path / "run.mcap"
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "5", "--mcap", str(log)]) == 3
+    err = capsys.readouterr().err
+    assert "Traceback (most recent call last)" in err and "in failing_step" in err
+    assert err.rstrip().endswith("oodmon: stopped by RuntimeError: sensor bus down (the traceback above); every "
+                                 "finished episode is in the logs, the cut one is marked interrupted")
+    assert main(["replay", str(log), "--episodes", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    # the cut episode: 199 steps done and the 200th decision scored (its step raised), on disk as logged
+    assert [(row["episode"], row["length"], row["return"], row["ended"]) for row in rows] == [
+        (0, 500, 500.0, "time limit"), (1, 500, 500.0, "time limit"), (2, 200, 199.0, "interrupted")]

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import traceback
 import warnings
 from collections.abc import Sequence
 
@@ -36,9 +37,12 @@ __all__ = ["main"]
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI with ``argv`` (default: ``sys.argv[1:]``); return the exit code.
 
-    Exit codes: 0 done, 1 a regression check found a fall, 2 input that cannot be used (one line
-    on stderr), 130 interrupted (Ctrl-C; the logs keep every finished episode), 143 stopped by
-    SIGTERM (a service manager's stop, ``kill``), which is taken as Ctrl-C is.
+    Exit codes: 0 done, 1 a regression check found a fall (or validate's interval above its target,
+    or ``envs show`` of a shift that changed nothing), 2 input that cannot be used (one line
+    on stderr), 3 an error oodmon cannot explain (its traceback, then what the command kept, as
+    for Ctrl-C: an env's, a policy's or a callback's own error, or a bug), 130 interrupted
+    (Ctrl-C; the logs keep every finished episode), 143 stopped by SIGTERM (a service manager's
+    stop, ``kill``), which is taken as Ctrl-C is.
     """
     parser = _parser()
     words = list(sys.argv[1:] if argv is None else argv)
@@ -68,6 +72,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(("oodmon: stopped by SIGTERM" if stopped else "oodmon: interrupted") + (f"; {kept}" if kept else ""),
                   file=sys.stderr)
             return 143 if stopped else 130
+        except Exception as error:  # noqa: BLE001  (not one oodmon can explain: an env's or a policy's own, or a bug)
+            # Its traceback is what finds the cause; then, as for Ctrl-C, what the command kept, and
+            # an exit code of its own (Python's 1 would read as a regression check's fall).
+            traceback.print_exc()
+            kept = getattr(args, "kept_on_interrupt", None)
+            print(f"oodmon: stopped by {type(error).__name__}: {error} (the traceback above)"
+                  + (f"; {kept}" if kept else ""), file=sys.stderr)
+            return 3
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
