@@ -67,19 +67,22 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"oodmon: error: {error}", file=sys.stderr)
             return 2
         except KeyboardInterrupt as interrupt:
-            kept = getattr(args, "kept_on_interrupt", None)
             stopped = isinstance(interrupt, Terminated)
-            print(("oodmon: stopped by SIGTERM" if stopped else "oodmon: interrupted") + (f"; {kept}" if kept else ""),
-                  file=sys.stderr)
+            print(("oodmon: stopped by SIGTERM" if stopped else "oodmon: interrupted") + _kept(args), file=sys.stderr)
             return 143 if stopped else 130
         except Exception as error:  # noqa: BLE001  (not one oodmon can explain: an env's or a policy's own, or a bug)
             # Its traceback is what finds the cause; then, as for Ctrl-C, what the command kept, and
             # an exit code of its own (Python's 1 would read as a regression check's fall).
             traceback.print_exc()
-            kept = getattr(args, "kept_on_interrupt", None)
-            print(f"oodmon: stopped by {type(error).__name__}: {error} (the traceback above)"
-                  + (f"; {kept}" if kept else ""), file=sys.stderr)
+            print(f"oodmon: stopped by {type(error).__name__}: {error} (the traceback above)" + _kept(args),
+                  file=sys.stderr)
             return 3
+
+
+def _kept(args: argparse.Namespace) -> str:
+    """``"; "`` and what a stopped command leaves behind (its ``kept_on_interrupt``), or nothing."""
+    kept = getattr(args, "kept_on_interrupt", None)
+    return f"; {kept}" if kept else ""
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:

@@ -89,15 +89,26 @@ def variant_of_env(env: gymnasium.Env) -> str:
     return task
 
 
+def wrappers_of(env: gymnasium.Env) -> list[gymnasium.Wrapper]:
+    """``env``'s wrappers, from the outermost (``env`` itself, if it is one) in; ``env.unwrapped`` is
+    what they wrap.
+
+    Example:
+        >>> [type(w).__name__ for w in wrappers_of(gymnasium.make("Acrobot-v1"))]
+        ['TimeLimit', 'OrderEnforcing', 'PassiveEnvChecker']
+    """
+    found = []
+    while isinstance(env, gymnasium.Wrapper):
+        found.append(env)
+        env = env.env
+    return found
+
+
 def _shift_wrapper(env: gymnasium.Env):
     """The :class:`~oodmon.envs.shift.ShiftAttributes` among ``env``'s wrappers, or ``None``."""
     from oodmon.envs.shift import ShiftAttributes
 
-    while isinstance(env, gymnasium.Wrapper):
-        if isinstance(env, ShiftAttributes):
-            return env
-        env = env.env
-    return None
+    return next((wrapper for wrapper in wrappers_of(env) if isinstance(wrapper, ShiftAttributes)), None)
 
 
 def onset_of_env(env: gymnasium.Env) -> int:

@@ -43,6 +43,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.envs.checks import check_onset_step, episode_onset
+from oodmon.envs.registration import wrappers_of
 from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
 from oodmon.names import TASKS
 
@@ -162,12 +163,9 @@ def _target_in(owner: str, env: gymnasium.Env, name: object) -> _Target:
     Raises:
         UnknownParameterError: neither has it; the message lists the numbers of both.
     """
-    wrappers = []
-    while isinstance(env, gymnasium.Wrapper):
-        wrappers.append(env)
-        env = env.env
+    wrappers = wrappers_of(env)
     try:
-        return _target(owner, env, name)
+        return _target(owner, env.unwrapped, name)
     except UnknownParameterError as error:
         first = name.split(".")[0].split("[")[0] if isinstance(name, str) else ""
         for wrapper in wrappers:

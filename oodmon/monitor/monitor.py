@@ -35,7 +35,7 @@ import numpy as np
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import UncertaintyEstimator
 from oodmon.envs.checks import space_mismatch
-from oodmon.envs.registration import env_id_of, onset_of_env, variant_of_env
+from oodmon.envs.registration import env_id_of, onset_of_env, variant_of_env, wrappers_of
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
@@ -635,11 +635,7 @@ def _stacking_of(env: gymnasium.Env) -> Any:
     """The :class:`~oodmon.agents.frame_stack.Stacking` of the first ``FrameStack`` wrapping ``env``, or ``None``."""
     from oodmon.agents.frame_stack import FrameStack
 
-    while isinstance(env, gymnasium.Wrapper):
-        if isinstance(env, FrameStack):
-            return env.stacking
-        env = env.env
-    return None
+    return next((wrapper.stacking for wrapper in wrappers_of(env) if isinstance(wrapper, FrameStack)), None)
 
 
 def _finite(obs: Any) -> bool:
