@@ -5,6 +5,8 @@
 - :func:`train` an agent from its recipe (:mod:`oodmon.agents.recipes`), resumably.
 - :class:`MCEstimator` and :class:`EnsembleEstimator` sample networks of your own, including
   users' SB3 models and torch networks with dropout layers.
+- :func:`plain_agent` runs a policy of any kind, a function ``obs -> action``, which the learned
+  detectors watch.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from oodmon.agents.estimators import EnsembleEstimator, Estimate, MCEstimator, U
 from oodmon.agents.evaluation import RANDOM_RETURN, SOLVED_RETURN, VariantResult, episode_returns, evaluate_variants
 from oodmon.agents.networks import estimator_from_sb3
 from oodmon.agents.layers import DropConnectLinear, add_dropout, is_stochastic, mc_sampling, to_dropconnect
+from oodmon.agents.plain import plain_agent
 from oodmon.agents.recipes import METHODS, RECIPES, Recipe, recipe_for
 
 
@@ -46,6 +49,7 @@ __all__ = [
     "load",
     "load_agent",
     "mc_sampling",
+    "plain_agent",
     "recipe_for",
     "to_dropconnect",
     "train",

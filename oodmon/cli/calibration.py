@@ -158,17 +158,24 @@ def _add_validate(commands: argparse._SubParsersAction) -> None:
 
 
 def _validate(args: argparse.Namespace) -> int:
+    from oodmon.agents.plain import PLAIN_METHOD
+    from oodmon.envs.registration import TASK_OF_ENV
     from oodmon.monitor import Threshold, validate_threshold
 
     threshold = Threshold.load(args.threshold)
     args.task = args.task or threshold.task
     if args.task is None:
         raise ConfigError(f"{args.threshold} does not record its task; give --task")
-    if args.model is None and not args.sb3:
+    if args.model is None and not args.sb3 and not args.policy:
+        # a threshold records the task, which names the env oodmon has variants of (cartpole: CartPole-v1)
+        env_id = next((env for env, task in TASK_OF_ENV.items() if task == threshold.task), threshold.task)
         if threshold.method == "sb3" and args.method is None:  # no shipped agent of that name
-            raise ConfigError(f"{args.threshold} was calibrated on your own SB3 model(s) in {threshold.task}: give them "
-                              f"again, --sb3 ZIP --env {threshold.task} (with --vec-normalize and --frame-stack as "
+            raise ConfigError(f"{args.threshold} was calibrated on your own SB3 model(s) in {env_id}: give them "
+                              f"again, --sb3 ZIP --env {env_id} (with --vec-normalize and --frame-stack as "
                               "when calibrating)")
+        if threshold.method == PLAIN_METHOD and args.method is None:
+            raise ConfigError(f"{args.threshold} was calibrated on your own policy in {env_id}: give it again, "
+                              f"--policy MODULE:NAME --env {env_id}")
         args.method = args.method or threshold.method
     args.masks = args.masks or threshold.masks
     agent = _load_agent(args, seed=args.seed)  # the same --seed, the same count, for MC agents too

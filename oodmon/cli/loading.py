@@ -9,10 +9,12 @@ from oodmon.errors import ConfigError
 
 
 def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
-    """The agent of --sb3/--env, --model or --task/--method; ``seed`` seeds its MC sampling (None:
-    fresh entropy). Sets ``args.task`` from --env for --sb3 models."""
+    """The agent of --sb3/--env, --policy/--env, --model or --task/--method; ``seed`` seeds its MC
+    sampling (None: fresh entropy). Sets ``args.task`` from --env for --sb3 models and a --policy."""
     from oodmon.agents import load, load_agent
 
+    if getattr(args, "policy", None):  # commands without the agent options (bench, evaluate) have none
+        return _plain_agent(args)
     if getattr(args, "sb3", None):  # commands without the --sb3 options (evaluate) have none
         from oodmon.agents.sb3 import load_sb3
 
@@ -24,23 +26,48 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
         agent = load_sb3(args.sb3, args.env, mean=args.mean, seed=seed, masks=getattr(args, "masks", None),
                          vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
                          imports=args.imports, unsafe_load_pickles=args.unsafe_load_pickles)
-        if args.task and args.task != agent.task:
-            raise ConfigError(f"--task {args.task} contradicts --env {args.env} (task {agent.task})")
-        args.task = agent.task
-        return agent
+        return _task_of(args, agent)
     if getattr(args, "env", None) or getattr(args, "mean", False) or getattr(args, "vec_normalize", None) \
             or getattr(args, "frame_stack", None) is not None or getattr(args, "unsafe_load_pickles", False) \
             or getattr(args, "imports", None):
         raise ConfigError("--env, --mean, --import, --unsafe-load-pickles, --frame-stack and --vec-normalize go with "
-                          "--sb3 (your own SB3 models)")
+                          "--sb3 (your own SB3 models); --env with --policy too")
     if not args.task:
-        raise ConfigError("give --task with --method or --model (or --sb3 with --env for your own SB3 models)")
+        raise ConfigError("give --task with --method or --model (or --sb3 with --env for your own SB3 models, "
+                          "--policy with --env for a policy of your own of any kind)")
     masks = getattr(args, "masks", None)
     if args.model:
         return load_agent(args.model, task=args.task, seed=seed, masks=masks)
     if not args.method:
         raise ConfigError("give --method for a shipped agent, or --model DIR for a trained one")
     return load(args.task, args.method, seed=seed, masks=masks)
+
+
+def _plain_agent(args: argparse.Namespace):
+    """The agent of --policy MODULE:NAME in --env (:func:`oodmon.agents.plain.plain_agent`)."""
+    from oodmon.agents.plain import plain_agent, policy_by_name
+
+    if args.sb3 or args.model or args.method:
+        raise ConfigError("--policy is instead of --sb3, --model and --method: give one of them")
+    if not args.env:
+        raise ConfigError("--policy needs --env: the gymnasium env id the policy acts in (e.g. CartPole-v1)")
+    others = [option for option, given in (("--mean", args.mean), ("--masks", getattr(args, "masks", None)),
+                                           ("--vec-normalize", args.vec_normalize),
+                                           ("--frame-stack", args.frame_stack is not None), ("--import", args.imports),
+                                           ("--unsafe-load-pickles", args.unsafe_load_pickles)) if given]
+    if others:
+        verb = "go" if len(others) > 1 else "goes"
+        raise ConfigError(f"{', '.join(others)} {verb} with --sb3; a --policy acts on the env's observations as they "
+                          "are (import what it needs in its own module)")
+    return _task_of(args, plain_agent(policy_by_name(args.policy), args.env))
+
+
+def _task_of(args: argparse.Namespace, agent):
+    """``agent``, with ``args.task`` set to its task (a --task that contradicts --env refused)."""
+    if args.task and args.task != agent.task:
+        raise ConfigError(f"--task {args.task} contradicts --env {args.env} (task {agent.task})")
+    args.task = agent.task
+    return agent
 
 
 def _input_files(args: argparse.Namespace) -> list[tuple[str, str]]:

@@ -168,6 +168,10 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
                              "fixed sub-networks decide too, by their mean, in the same pass. Default: the threshold "
                              "file's, if it records them, else the model's (sampled)")
     _sb3_arguments(parser)
+    parser.add_argument("--policy", metavar="MODULE:NAME",
+                        help="your own policy of any kind, with --env: a function obs -> action (or a callable object) "
+                             "NAME of your module MODULE, which is imported (its code runs); the learned detectors watch "
+                             "it (e.g. --policy my_controller:act, with its folder on PYTHONPATH)")
     parser.add_argument("--detectors", metavar="DIR",
                         help="fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside "
                              "the threshold file, else those shipped with the agent, if any)")
@@ -187,7 +191,8 @@ def _sb3_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--unsafe-load-pickles", action="store_true",
                         help="load the --sb3 files as stable-baselines3 does, unpickling their data: it runs any code "
                              "a file holds, so only for files you trust")
-    parser.add_argument("--env", metavar="ID", help="the gymnasium env id the --sb3 models act in, e.g. CartPole-v1")
+    parser.add_argument("--env", metavar="ID",
+                        help="the gymnasium env id the --sb3 models (or the --policy) act in, e.g. CartPole-v1")
     parser.add_argument("--mean", action="store_true",
                         help="with several --sb3 models: deploy the ensemble's mean decision, not the first model's")
     parser.add_argument("--vec-normalize", metavar="PKL",

@@ -100,10 +100,12 @@ def policy_hash(agent: Agent | None) -> str:
 def run_about(metadata: dict[str, Any]) -> dict[str, str]:
     """:attr:`RunInfo.about` of a run of the agent with ``metadata``: the command line, the
     machine's CPU kind (:func:`~oodmon.versions.machine`), and the env id, model files,
-    VecNormalize statistics and VecFrameStack depth of a model from elsewhere (:mod:`oodmon.agents.sb3`)."""
+    VecNormalize statistics and VecFrameStack depth of a model from elsewhere (:mod:`oodmon.agents.sb3`),
+    or the name of a plain policy (:mod:`oodmon.agents.plain`)."""
     about = {"command": shlex.join(sys.argv), "machine": machine()}
-    if metadata.get("env_id"):
-        about["env_id"] = str(metadata["env_id"])
+    for key in ("env_id", "policy"):
+        if metadata.get(key):
+            about[key] = str(metadata[key])
     for key in ("models", "vec_normalize", "frame_stack"):
         if metadata.get(key):
             about[key] = json.dumps(metadata[key])

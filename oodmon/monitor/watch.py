@@ -5,7 +5,7 @@ others, and returns a :class:`~oodmon.monitor.Monitor` (or, given ``env``, that 
 :class:`~oodmon.monitor.MonitoredEnv`)::
 
     import oodmon
-    monitor = oodmon.watch(["dqn0.zip", "dqn1.zip"], "CartPole-v1")   # or SB3 models, or an oodmon Agent
+    monitor = oodmon.watch(["dqn0.zip", "dqn1.zip"], "CartPole-v1")   # or SB3 models, an Agent, a function
     record = monitor.run_episode(gymnasium.make("CartPole-v1"), seed=0)
 
 ``save="dqn.json"`` keeps the calibration (the threshold, and the detectors in ``dqn.json.detectors/``,
@@ -39,7 +39,9 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
              masks: str | None = None, vec_normalize: Any = None, frame_stack: int | None = None,
              imports: Sequence[str] = (), unsafe_load_pickles: bool = False) -> Agent:
     """An :class:`~oodmon.agents.Agent` of ``policy``: an Agent as it is; SB3 model files (a path
-    or a list of them) or SB3 models in memory (one or a list), acting in ``env_id``. ``masks``:
+    or a list of them) or SB3 models in memory (one or a list), acting in ``env_id``; any other
+    function ``obs -> action``, a plain policy (:func:`~oodmon.agents.plain.plain_agent`, which
+    the learned detectors watch; ``weights=`` there binds its thresholds to its weights). ``masks``:
     the MC masks of one SB3 model with dropout (``sampled``, ``fixed`` or ``fixed-decisions``, see
     :func:`~oodmon.agents.sb3.load_sb3`); an Agent keeps the masks it was loaded with.
     ``vec_normalize``: SB3 models trained inside ``VecNormalize``: its statistics file (or the
@@ -50,8 +52,9 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
     ``unsafe_load_pickles``: how SB3 model files are read (see :func:`~oodmon.agents.sb3.load_sb3`).
 
     Raises:
-        ConfigError: SB3 models without ``env_id``, something that is none of these, an Agent
-            loaded with other masks than ``masks``, or ``vec_normalize`` with an Agent.
+        ConfigError: SB3 models or a plain policy without ``env_id``, something that is none of
+            these, an Agent loaded with other masks than ``masks``, or ``vec_normalize`` with an
+            Agent or a plain policy (see :func:`~oodmon.agents.plain.plain_agent` for what it refuses).
     """
     if isinstance(policy, Agent):
         if vec_normalize is not None or frame_stack is not None or unsafe_load_pickles or imports:
@@ -68,6 +71,16 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
             raise ConfigError(f"the agent was loaded with {own or 'no MC'} masks, not {masks!r}: load it with "
                               f"masks={masks!r} (oodmon.agents.load, load_agent or load_sb3)")
         return policy
+    if callable(policy):  # a function obs -> action (an SB3 model is not callable; its policy network is: said there)
+        from oodmon.agents.plain import plain_agent
+
+        if env_id is None:
+            raise ConfigError("give the gymnasium env id your policy acts in, e.g. watch(policy, 'CartPole-v1')")
+        if mean or masks is not None or vec_normalize is not None or frame_stack is not None or imports \
+                or unsafe_load_pickles:
+            raise ConfigError("mean, masks, vec_normalize, frame_stack, imports and unsafe_load_pickles are for SB3 "
+                              "models; a plain policy acts on the env's observations as they are")
+        return plain_agent(policy, env_id)
     items = list(policy) if isinstance(policy, (list, tuple)) else [policy]
     if env_id is None:
         raise ConfigError("give the gymnasium env id your models act in, e.g. watch(models, 'CartPole-v1')")

@@ -1,0 +1,173 @@
+"""A policy oodmon cannot sample and did not train: any function ``obs -> action``.
+
+A hand-written controller, a policy of another library (CleanRL, RLlib, your own torch code), a
+rule set: oodmon runs it as it is and watches it with the learned detectors (``dynamics``, ``drift``
+and their ``combined`` score), which need the observations and the actions it takes, nothing of its
+insides::
+
+    import oodmon
+    monitor = oodmon.watch(my_policy, "CartPole-v1")          # fits, calibrates, returns the monitor
+    agent = plain_agent(my_policy, "CartPole-v1", weights=net)  # a threshold bound to net's weights
+
+A threshold records the policy's weights (``policy_hash``), so that one calibrated for another policy
+is refused. Of a function oodmon knows no weights unless told: ``weights=`` (a torch module or a
+dict of tensors or arrays) names them; a torch module, or a method of one, is hashed by its own
+``state_dict()``; any other policy's hash is ``"unknown"``, which no threshold is compared with.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import inspect
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from oodmon.agents.agent import Agent
+from oodmon.errors import ConfigError
+
+__all__ = ["PLAIN_METHOD", "plain_agent", "policy_by_name", "weights_sha256"]
+
+#: The ``method`` of a plain policy's agent, its thresholds and its logs.
+PLAIN_METHOD = "plain"
+
+
+def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = None) -> Agent:
+    """An :class:`~oodmon.agents.Agent` that acts by ``policy(obs)`` in the gymnasium env ``env_id``
+    (its observations as the env gives them, its action as the env takes it).
+
+    The policy acts once on the env's first observation (seed 0), and the env takes that action,
+    before any episode of a calibration runs: an action the env refuses is said now.
+
+    Args:
+        policy: the deployed policy, a function of one observation.
+        env_id: the env it acts in (any registered id, ``module:Id`` too).
+        weights: what the policy's decisions are made of, for the thresholds' ``policy_hash``: a
+            torch module, or a mapping of names to tensors or arrays (default: the policy's own
+            ``state_dict()`` when it is a torch module or a method of one, else none: ``"unknown"``).
+
+    Raises:
+        ConfigError: ``policy`` not callable, or an SB3 model or policy (give the model:
+            :func:`~oodmon.agents.sb3.sb3_agent`); an env whose observations are not arrays; an
+            action the env refuses, or of another shape than its Box actions.
+
+    Example:
+        >>> agent = plain_agent(lambda obs: int(obs[2] + 0.5 * obs[3] > 0), "CartPole-v1")
+        >>> agent.method, agent.task, agent.estimator, agent.act(np.zeros(4, np.float32))
+        ('plain', 'cartpole', None, 0)
+    """
+    from oodmon.envs.registration import make_env, task_of_env
+
+    _check_callable(policy)
+    name = _name_of(policy)
+    env = make_env(env_id)
+    try:
+        space = env.observation_space
+        if not isinstance(space, gymnasium.spaces.Box):
+            raise ConfigError(f"{env_id}'s observations are {space}; a plain policy is watched on array observations "
+                              "(a gymnasium Box): wrap the env in gymnasium.wrappers.FlattenObservation, as the policy sees it")
+        obs, _ = env.reset(seed=0)
+        _check_first_action(policy(obs), name, env, env_id)
+    finally:
+        env.close()
+    digest = weights_sha256(weights if weights is not None else _own_weights(policy))
+    metadata = {"task": task_of_env(env_id) or env_id, "method": PLAIN_METHOD, "env_id": env_id, "policy": name,
+                "policy_hash": "unknown" if digest is None else "sha256:" + digest}
+    return Agent(None, metadata, None, policy)
+
+
+def policy_by_name(spec: str) -> Callable[[Any], Any]:
+    """The policy ``MODULE:NAME`` names (``NAME`` may be dotted, ``my_policy:controller.act``):
+    the command line's ``--policy``. The module is imported, so this runs its code: the user's own.
+
+    Raises:
+        ConfigError: no ``:``, a module Python does not find (a file of that name in the current
+            folder, which the ``oodmon`` command does not search, is named), no such attribute,
+            or a class (name an instance, or a function).
+    """
+    module_name, _, attribute = spec.partition(":") if isinstance(spec, str) else ("", "", "")
+    if not module_name.strip() or not attribute.strip() or module_name.startswith("."):
+        raise ConfigError(f"--policy {spec!r}: give MODULE:NAME, a function (or a callable object) NAME of your module "
+                          "MODULE, e.g. --policy my_policy:act")
+    try:
+        found: Any = importlib.import_module(module_name)
+    except (ImportError, TypeError, ValueError) as error:
+        here = Path(module_name.replace(".", "/") + ".py")
+        hint = (f"; {here} is in the current folder, which the oodmon command does not search: PYTHONPATH=. oodmon ..."
+                if here.is_file() else " (is its folder on PYTHONPATH?)")
+        raise ConfigError(f"--policy {spec}: {error}{hint}") from None
+    for part in attribute.split("."):
+        if not hasattr(found, part):
+            raise ConfigError(f"--policy {spec}: {found.__name__ if hasattr(found, '__name__') else module_name} has no "
+                              f"{part!r}")
+        found = getattr(found, part)
+    if inspect.isclass(found):
+        raise ConfigError(f"--policy {spec}: {attribute} is a class, which would make a new object of each observation; "
+                          "name an instance of it, or a function obs -> action")
+    _check_callable(found, f"--policy {spec}")
+    return found
+
+
+def weights_sha256(weights: Any) -> str | None:
+    """The sha256 of a torch module's ``state_dict()`` or of a mapping of names to tensors or
+    arrays (its names, dtypes, shapes and numbers, in the names' order); ``None`` for ``None``.
+
+    Example:
+        >>> a = weights_sha256({"w": np.ones(3)})
+        >>> a == weights_sha256({"w": np.ones(3)}), a == weights_sha256({"w": np.ones(3, np.float32)})
+        (True, False)
+    """
+    if weights is None:
+        return None
+    state = weights.state_dict() if callable(getattr(weights, "state_dict", None)) else weights
+    if not isinstance(state, Mapping):
+        raise ConfigError(f"weights={type(weights).__name__}: give a torch module or a dict of tensors or arrays")
+    digest = hashlib.sha256()
+    for key in sorted(state, key=str):
+        value = state[key]
+        array = np.asarray(value.detach().cpu().numpy() if hasattr(value, "detach") else value)
+        digest.update(f"{key}\0{array.dtype.str}\0{array.shape}\0".encode())
+        digest.update(np.ascontiguousarray(array).tobytes())
+    return digest.hexdigest()
+
+
+def _own_weights(policy: Any) -> Any:
+    """The torch module a policy is, or whose method it is; else ``None``."""
+    import torch
+
+    owner = getattr(policy, "__self__", policy)
+    return owner if isinstance(owner, torch.nn.Module) else None
+
+
+def _check_callable(policy: Any, what: str = "policy") -> None:
+    """A plain policy is a function of one observation, not an SB3 model or an SB3 policy network."""
+    kind = type(policy).__module__.split(".")[0]
+    if kind in ("stable_baselines3", "sb3_contrib"):
+        raise ConfigError(f"{what} is an SB3 {type(policy).__name__}: oodmon reads an SB3 model's networks, given the "
+                          "model itself (oodmon.watch(model, env_id), not its policy) or its files (--sb3)")
+    if not callable(policy):
+        raise ConfigError(f"{what} is a {type(policy).__name__}, not a function obs -> action")
+
+
+def _name_of(policy: Any) -> str:
+    """How a policy is named in its errors and its logs' ``about.policy``: ``module.qualname`` of a
+    function, or of its class."""
+    named = policy if hasattr(policy, "__qualname__") else type(policy)
+    return f"{getattr(named, '__module__', '?')}.{named.__qualname__}"
+
+
+def _check_first_action(action: Any, name: str, env: gymnasium.Env, env_id: str) -> None:
+    """The env takes ``action``, the policy's of its first observation, else :class:`ConfigError`."""
+    space = env.action_space
+    if isinstance(space, gymnasium.spaces.Box) and np.shape(action) != space.shape:  # Pendulum would take a[0]
+        raise ConfigError(f"{name} returned {action!r} (shape {np.shape(action)}) for {env_id}'s first observation, "
+                          f"whose actions are {space} (shape {space.shape})")
+    try:
+        env.step(action)
+    except Exception as error:  # noqa: BLE001 (the env's own words, whatever it raises)
+        raise ConfigError(f"{name} returned {action!r} for {env_id}'s first observation, which the env refused "
+                          f"({type(error).__name__}: {error}); its actions are {space}") from error

@@ -1,0 +1,149 @@
+"""A policy of any kind, a function obs -> action: watched in Python (oodmon.watch) and from the
+command line (--policy MODULE:NAME), its threshold bound to its weights where it has some."""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+import shlex
+import sys
+import textwrap
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import PPO
+
+import oodmon
+from oodmon.agents.plain import plain_agent, policy_by_name, weights_sha256
+from oodmon.cli import main
+from oodmon.errors import ConfigError
+from oodmon.monitor import Threshold
+from oodmon.replay import read_log
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+CONTROLLER = '''
+def act(obs):
+    """A hand-written CartPole controller: push toward where the pole falls."""
+    return int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)
+'''
+
+
+def _readme_block() -> tuple[str, list[list[str]]]:
+    """The README section's controller module and its oodmon commands (continuation lines joined)."""
+    text = README.read_text()
+    section = text[text.index("### Monitor a policy of any kind"):text.index("### Detectors: what sees the shift")]
+    block = re.search(r"```sh\n(.*?)```", section, re.S).group(1)
+    module = re.search(r"<<'PY'\n(.*?\n)PY\n", block, re.S).group(1)
+    commands = block[block.index("\nPY\n") + 4:].replace("\\\n", " ")
+    return module, [shlex.split(line)[1:] for line in commands.splitlines() if line.startswith("oodmon ")]
+
+
+def test_the_readmes_controller_is_calibrated_run_and_replayed_as_written_then_watched_in_python(
+        tmp_path, monkeypatch, capsys):
+    module, commands = _readme_block()
+    assert [argv[0] for argv in commands] == ["calibrate", "run", "replay"]
+    assert "export PYTHONPATH=runs" in README.read_text()
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "runs/my_controller.py").write_text(module)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path / "runs"))  # export PYTHONPATH=runs
+    monkeypatch.delitem(sys.modules, "my_controller", raising=False)
+    for argv in commands:
+        assert main(argv) == 0, argv
+    capsys.readouterr()
+    assert main(["replay", "--json", "runs/controller.mcap"]) == 0
+    row = next(r for r in json.loads(capsys.readouterr().out) if r["detector"] == "combined")
+    # the README's figures when written: 20 of 20 alarmed at step 31, delay 1 (the controller keeps
+    # the long pole up)
+    assert (row["method"], row["variant"], row["episodes"]) == ("plain", "cartpole:length=2.0", 5)
+    assert row["detection_rate"] == 1.0 and row["early_alarm_rate"] == 0.0 and row["delay_median"] <= 5
+    log = read_log("runs/controller.mcap")
+    assert (log.metadata["about.policy"], log.metadata["about.env_id"]) == ("my_controller.act", "CartPole-v1")
+    assert main(["validate", "runs/controller.json", "--episodes", "5"]) == 2  # which policy: said, not guessed
+    assert "--policy MODULE:NAME --env CartPole-v1" in capsys.readouterr().err
+
+    # the deployed process in Python: the calibration read from the file, no episode of its own
+    import my_controller
+
+    monitor = oodmon.watch(my_controller.act, "CartPole-v1", threshold="runs/controller.json")
+    assert (monitor.agent.method, monitor.agent.task, monitor.detector) == ("plain", "cartpole", "combined")
+    assert monitor.agent.metadata["policy_hash"] == "unknown"  # a function: no weights to bind the threshold to
+    records = [monitor.run_episode(gymnasium.make("CartPole-v1"), seed=900_000 + i) for i in range(20)]
+    assert all(r.length == 500 for r in records)  # it balances the pole
+    # The threshold promises <= 5% false alarms per episode (confidence 0.9); 5 or more of 20 has
+    # probability 0.016 at 5% and 0.043 at twice the target.
+    assert sum(r.first_alarm_step is not None for r in records) <= 4
+
+
+class TorchPolicy(torch.nn.Module):
+    """A torch policy whose method acts on numpy observations."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.q = torch.nn.Linear(4, 2)
+
+    def act(self, obs: np.ndarray) -> int:
+        with torch.no_grad():
+            return int(self.q(torch.as_tensor(obs)).argmax())
+
+
+def test_a_torch_policys_threshold_is_bound_to_its_weights():
+    torch.manual_seed(0)
+    net = TorchPolicy()
+    own = plain_agent(net.act, "CartPole-v1").metadata["policy_hash"]  # a method of a module: the module's weights
+    assert own == "sha256:" + weights_sha256(net) == "sha256:" + weights_sha256(net.state_dict())
+    same = copy.deepcopy(net)
+    assert plain_agent(same.act, "CartPole-v1").metadata["policy_hash"] == own
+    with torch.no_grad():
+        same.q.bias[0] += 1e-3
+    other = plain_agent(same.act, "CartPole-v1").metadata["policy_hash"]
+    assert other != own
+    # a function that closes over the module says which weights it decides by
+    told = plain_agent(lambda obs: net.act(obs), "CartPole-v1", weights=net).metadata["policy_hash"]
+    assert told == own
+    threshold = Threshold(1.0, "chosen_std", 1, "episode", 0.05, 50, 500, task="cartpole", method="plain",
+                          policy_hash=own, detector="dynamics")
+    assert threshold.check_matches(task="cartpole", method="plain", score="chosen_std", policy_hash=own) == []
+    assert "calibrated on other weights" in threshold.check_matches(task="cartpole", method="plain",
+                                                                   score="chosen_std", policy_hash=other)[0]
+
+
+@pytest.mark.parametrize(("policy", "env_id", "kwargs", "said"), [
+    (lambda obs: 3, "CartPole-v1", {}, "returned 3 for CartPole-v1's first observation, which the env refused"),
+    (lambda obs: np.zeros(2), "Pendulum-v1", {}, "shape (2,)) for Pendulum-v1's first observation"),
+    (lambda obs: 0, "CartPole-v1", {"mean": True}, "are for SB3 models; a plain policy acts on the env's observations"),
+    (lambda obs: 0, None, {}, "give the gymnasium env id your policy acts in"),
+    (lambda obs: 0, "Blackjack-v1", {}, "Blackjack-v1's observations are Tuple"),
+], ids=["action-refused", "box-shape", "sb3-option", "no-env", "tuple-observations"])
+def test_a_policy_oodmon_cannot_run_is_said_before_any_episode(policy, env_id, kwargs, said):
+    from oodmon.monitor.watch import as_agent
+
+    with pytest.raises(ConfigError) as error:
+        as_agent(policy, env_id, **kwargs)
+    assert said in str(error.value)
+
+
+def test_what_is_no_function_of_an_observation_is_said():
+    with pytest.raises(ConfigError, match="policy is an SB3 ActorCriticPolicy: oodmon reads an SB3 model.s networks, "
+                                          "given the model itself"):
+        plain_agent(PPO("MlpPolicy", "CartPole-v1", seed=0, device="cpu").policy, "CartPole-v1")
+    with pytest.raises(ConfigError, match="policy is a str, not a function obs -> action"):
+        plain_agent("act", "CartPole-v1")
+
+
+def test_policy_by_name_finds_the_function_and_says_what_is_wrong_with_a_name(tmp_path, monkeypatch):
+    (tmp_path / "named_controller.py").write_text(textwrap.dedent(CONTROLLER) + "class Controller:\n    pass\n")
+    monkeypatch.chdir(tmp_path)  # the module in the current folder, not on sys.path: as the oodmon command runs
+    with pytest.raises(ConfigError, match="named_controller.py is in the current folder, .*PYTHONPATH=. oodmon"):
+        policy_by_name("named_controller:act")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert policy_by_name("named_controller:act")(np.array([0.0, 0.0, 0.1, 0.0])) == 1
+    for spec, said in [("named_controller", "give MODULE:NAME"), ("named_controller:nope", "named_controller has no 'nope'"),
+                       ("named_controller:Controller", "is a class"), ("no_such_module_here:act", "on PYTHONPATH")]:
+        with pytest.raises(ConfigError, match=said):
+            policy_by_name(spec)
