@@ -169,5 +169,6 @@ def _check_first_action(action: Any, name: str, env: gymnasium.Env, env_id: str)
     try:
         env.step(action)
     except Exception as error:  # noqa: BLE001 (the env's own words, whatever it raises)
+        tensor = " (a torch tensor: return a number, .item(), or an array, .numpy())" if hasattr(action, "detach") else ""
         raise ConfigError(f"{name} returned {action!r} for {env_id}'s first observation, which the env refused "
-                          f"({type(error).__name__}: {error}); its actions are {space}") from error
+                          f"({type(error).__name__}: {error}); its actions are {space}{tensor}") from error

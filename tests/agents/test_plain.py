@@ -116,10 +116,11 @@ def test_a_torch_policys_threshold_is_bound_to_its_weights():
 @pytest.mark.parametrize(("policy", "env_id", "kwargs", "said"), [
     (lambda obs: 3, "CartPole-v1", {}, "returned 3 for CartPole-v1's first observation, which the env refused"),
     (lambda obs: np.zeros(2), "Pendulum-v1", {}, "shape (2,)) for Pendulum-v1's first observation"),
+    (lambda obs: torch.tensor(1), "CartPole-v1", {}, "Discrete(2) (a torch tensor: return a number, .item(), or an array"),
     (lambda obs: 0, "CartPole-v1", {"mean": True}, "are for SB3 models; a plain policy acts on the env's observations"),
     (lambda obs: 0, None, {}, "give the gymnasium env id your policy acts in"),
     (lambda obs: 0, "Blackjack-v1", {}, "Blackjack-v1's observations are Tuple"),
-], ids=["action-refused", "box-shape", "sb3-option", "no-env", "tuple-observations"])
+], ids=["action-refused", "box-shape", "torch-tensor", "sb3-option", "no-env", "tuple-observations"])
 def test_a_policy_oodmon_cannot_run_is_said_before_any_episode(policy, env_id, kwargs, said):
     from oodmon.monitor.watch import as_agent
 
