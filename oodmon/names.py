@@ -6,13 +6,17 @@ without loading torch or gymnasium. ``oodmon.envs.TASKS`` and ``oodmon.agents.ME
 
 from __future__ import annotations
 
-__all__ = ["FIXED_MASKS", "MASKS", "METHODS", "TASKS", "fixed_masks"]
+__all__ = ["FIXED_MASKS", "MASKS", "METHODS", "PLAIN_METHOD", "TASKS", "fixed_masks"]
 
 #: The tasks, each one env of the paper (CartPole, Pendulum: physics shifts; Pong: corrupted frames).
 TASKS: tuple[str, ...] = ("cartpole", "pendulum", "pong")
 
 #: The uncertainty methods, for every task.
 METHODS: tuple[str, ...] = ("dropout", "dropconnect", "ensemble")
+
+#: The method of a policy of any kind, a function obs -> action (``oodmon.agents.plain``): its
+#: agent's, its thresholds' and its logs'.
+PLAIN_METHOD = "plain"
 
 #: How an MC estimator draws its masks: ``sampled`` anew at every decision (MC Dropout and
 #: DropConnect as the paper samples them), or ``fixed``: K masks drawn once, so that sample k is the

@@ -29,11 +29,9 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.errors import ConfigError
+from oodmon.names import PLAIN_METHOD
 
-__all__ = ["PLAIN_METHOD", "plain_agent", "policy_by_name", "weights_sha256"]
-
-#: The ``method`` of a plain policy's agent, its thresholds and its logs.
-PLAIN_METHOD = "plain"
+__all__ = ["plain_agent", "policy_by_name", "weights_sha256"]
 
 
 def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = None) -> Agent:

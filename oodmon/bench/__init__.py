@@ -32,19 +32,21 @@ settings): ``oodmon bench --results FILE`` writes it, and ``--baseline FILE`` ch
 against it (:mod:`oodmon.bench.baseline`). Trial models train in ``workers`` processes at once.
 
 Your own stable-baselines3 models (``sb3=(paths...)``, ``env_id``) are benched as the one method
-``sb3`` with one trial: nothing is trained, and the paper has no figures for them.
+``sb3`` with one trial: nothing is trained, and the paper has no figures for them; so is a policy
+of any kind (``policy="MODULE:NAME"``, ``env_id``; :mod:`oodmon.agents.plain`), as the method
+``plain``, its cache kept while its name, its module's file and its weights (if it has some) are unchanged.
 """
 
 from __future__ import annotations
 
 from oodmon.bench.baseline import BASELINE_TOLERANCE, bench_falls, bench_metrics, check_same_settings, load_bench_result
-from oodmon.bench.cache import Sb3Models
+from oodmon.bench.cache import PlainPolicy, Sb3Models
 from oodmon.bench.cells import episode_onset
 from oodmon.bench.config import ONSETS, PAPER_METHOD, PROTOCOLS, BenchConfig, BenchResult, Row, paper_label
 from oodmon.bench.report import (alarms_per_variant, best_per_method, paper_only_variants, print_monitor_report,
                                  print_paper_report, unfailed_variants)
 from oodmon.bench.run import run_bench
 
-__all__ = ["BASELINE_TOLERANCE", "ONSETS", "PAPER_METHOD", "PROTOCOLS", "BenchConfig", "BenchResult", "Row", "Sb3Models", "alarms_per_variant",
+__all__ = ["BASELINE_TOLERANCE", "ONSETS", "PAPER_METHOD", "PROTOCOLS", "BenchConfig", "BenchResult", "PlainPolicy", "Row", "Sb3Models", "alarms_per_variant",
            "bench_falls", "bench_metrics", "best_per_method", "check_same_settings", "episode_onset", "load_bench_result", "paper_label", "paper_only_variants", "print_monitor_report",
            "print_paper_report", "run_bench", "unfailed_variants"]

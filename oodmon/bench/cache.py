@@ -37,9 +37,28 @@ class Sb3Models:
         return ", ".join(self.paths)
 
 
-def _bench_agent(source: str | Sb3Models, task: str, seed: int, n_samples: int | None = None, masks: str | None = None):
-    """The agent of a model directory or of SB3 model files, its MC sampling seeded (``n_samples``
-    per decision and ``masks``: None, the model's)."""
+@dataclass(frozen=True)
+class PlainPolicy:
+    """A user's policy of any kind as the bench hands it to its workers, which import it there."""
+
+    spec: str  # MODULE:NAME (oodmon.agents.plain.policy_by_name)
+    env_id: str
+
+    def __str__(self) -> str:
+        return self.spec
+
+
+Source = Path | Sb3Models | PlainPolicy  # what a (method, trial) is benched with
+
+
+def _bench_agent(source: str | Sb3Models | PlainPolicy, task: str, seed: int, n_samples: int | None = None,
+                 masks: str | None = None):
+    """The agent of a model directory, of SB3 model files or of a plain policy, its MC sampling
+    seeded (``n_samples`` per decision and ``masks``: None, the model's)."""
+    if isinstance(source, PlainPolicy):
+        from oodmon.agents.plain import plain_agent, policy_by_name
+
+        return plain_agent(policy_by_name(source.spec), source.env_id)
     if isinstance(source, Sb3Models):
         from oodmon.agents.sb3 import load_sb3
 
@@ -49,8 +68,18 @@ def _bench_agent(source: str | Sb3Models, task: str, seed: int, n_samples: int |
     return load_agent(source, task=task, seed=seed, n_samples=n_samples, masks=masks)
 
 
-def _weights_sha256(source: Path | Sb3Models) -> str:
-    """What a (method, trial)'s cached results were made with: the weights' sha256, or the SB3 files'."""
+def _weights_sha256(source: Source) -> str:
+    """What a (method, trial)'s cached results were made with: the weights' sha256, the SB3 files',
+    or a plain policy's: its name, its module's file and its weights' hash (if it has one)."""
+    if isinstance(source, PlainPolicy):
+        import hashlib
+        import importlib.util
+
+        agent = _bench_agent(source, "", 0)  # (imports the module)
+        origin = importlib.util.find_spec(source.spec.partition(":")[0]).origin
+        code = file_sha256(origin) if origin and Path(origin).is_file() else "no file"
+        made_of = f"{source.spec}\n{code}\n{agent.metadata['policy_hash']}"
+        return hashlib.sha256(made_of.encode()).hexdigest()
     if isinstance(source, Sb3Models):
         from oodmon.agents.sb3 import models_sha256
 
@@ -72,7 +101,7 @@ def _model_dir(config: BenchConfig, method: str, trial: int) -> Path:
 def _refuse_to_train_for_hours(config: BenchConfig, method: str, trial: int) -> None:
     """A missing Pong model takes hours to train on a CPU: never start that as a side effect of a
     bench; say how to train it instead."""
-    if config.sb3:
+    if config.users_own:
         return
     path = _model_dir(config, method, trial)
     if (path / "model.json").exists() or not recipe_for(config.task, method).cnn or config.train_steps is not None:
@@ -86,9 +115,12 @@ def _refuse_to_train_for_hours(config: BenchConfig, method: str, trial: int) -> 
 
 
 def _ensure_model(config: BenchConfig, method: str, trial: int,
-                  on_progress: Callable[[str, int, int], None] | None = None) -> Path | Sb3Models:
-    """The (method, trial)'s model: the SB3 files, the shipped agent, or the cached (or now trained)
-    trial model. ``on_progress(stage, done, total)`` follows a training, its stages named by the trial."""
+                  on_progress: Callable[[str, int, int], None] | None = None) -> Source:
+    """The (method, trial)'s model: the SB3 files, the plain policy, the shipped agent, or the cached
+    (or now trained) trial model. ``on_progress(stage, done, total)`` follows a training, its stages
+    named by the trial."""
+    if config.policy:
+        return PlainPolicy(config.policy, config.env_id)
     if config.sb3:
         statistics = config.vec_normalize
         if statistics not in (None, NO_NORMALIZATION):
@@ -104,9 +136,9 @@ def _ensure_model(config: BenchConfig, method: str, trial: int,
     return path
 
 
-def _id_return(model: Path | Sb3Models) -> float | None:
-    """The model's ID return as its training measured it; ``None`` for SB3 files."""
-    if isinstance(model, Sb3Models):
+def _id_return(model: Source) -> float | None:
+    """The model's ID return as its training measured it; ``None`` for SB3 files and a plain policy."""
+    if isinstance(model, (Sb3Models, PlainPolicy)):
         return None
     return read_metadata(model).get("id_return_mean")
 
@@ -174,7 +206,7 @@ def _log_is_complete(path: Path, episodes: int) -> bool:
     return log.complete and len(log.episodes) == episodes
 
 
-def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path | Sb3Models) -> None:
+def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Source) -> None:
     """Keep a (method, trial) folder's cached threshold, failing variants and logs only while they
     belong to the weights in ``model``: a new zoo agent or a retrained model moves the old results
     to ``<out>/set-aside/weights-<old hash>/`` (kept, not deleted, and out of the logs a replay of
@@ -196,7 +228,7 @@ def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Path | S
 
 
 def _prepare_trial(config: BenchConfig, method: str, trial: int,
-                   report: Callable[[str, int, int], None]) -> tuple[Path | Sb3Models, Path, list[str], Path | None]:
+                   report: Callable[[str, int, int], None]) -> tuple[Source, Path, list[str], Path | None]:
     """Model, threshold and failing variants of one (method, trial); cached in its folder.
     ``report(stage, done, total)`` counts the episodes of calibration and evaluation."""
     from oodmon.monitor import calibrate_agent

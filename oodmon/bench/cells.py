@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from oodmon.bench.cache import Sb3Models, _bench_agent
+from oodmon.bench.cache import PlainPolicy, Sb3Models, _bench_agent
 from oodmon.bench.config import BenchConfig
 from oodmon.envs.grid import parse_variant
 from oodmon.envs.shift import own_variant
@@ -29,7 +29,7 @@ def episode_onset(onsets: tuple[int, int], seed: int) -> int:
     return int(np.random.default_rng([seed, 0x0175E7]).integers(*onsets))
 
 
-def _run_cell(task: str, model: str | Sb3Models, threshold: str, spec: str, episodes: int, seed: int, log: str,
+def _run_cell(task: str, model: str | Sb3Models | PlainPolicy, threshold: str, spec: str, episodes: int, seed: int, log: str,
               detectors: str | None = None, obs_noise: float = 0.0, onsets: tuple[int, int] | None = None,
               n_samples: int | None = None, masks: str | None = None) -> str:
     """One cell, in a worker process: monitored episodes of one variant into one MCAP log.

@@ -11,7 +11,7 @@ import numpy as np
 from oodmon.envs.grid import Variant, parse_variant, select_variants
 from oodmon.envs.shift import EnvShift, own_variant
 from oodmon.errors import ConfigError
-from oodmon.names import TASKS
+from oodmon.names import PLAIN_METHOD, TASKS
 from oodmon.paper import paper_auc_per_trial
 from oodmon.versions import machine
 
@@ -69,6 +69,7 @@ class BenchConfig:
     frame_stack: int | None = None  # the n_stack of the VecFrameStack the sb3 models were trained inside
     imports: tuple[str, ...] = ()  # the user's modules imported before the sb3 files are read (see load_sb3)
     unsafe_load_pickles: bool = False  # load the sb3 files as SB3 does, running code they hold (see load_sb3)
+    policy: str | None = None  # your own policy of any kind, MODULE:NAME, instead (the method "plain", one trial)
     samples: int | None = None  # MC samples per decision of Dropout and DropConnect agents (None: each one's recipe)
     members: int | None = None  # members of each ensemble trial (None: the recipe's; others train trial 0 too)
     masks: str | None = None  # MC masks of Dropout and DropConnect agents: sampled or fixed (None: each model's)
@@ -109,42 +110,47 @@ class BenchConfig:
                 raise ConfigError(f"failure={self.failure!r} says what fails in your own env; oodmon tells {self.task}'s "
                                   "failures itself")
         if self.own_env:
-            if not self.sb3:
+            if not self.users_own:
                 raise ConfigError(f"unknown task {self.task!r}; choose one of {', '.join(TASKS)}, or bench your own "
-                                  "SB3 models in their own env (sb3 and env_id)")
+                                  "SB3 models (sb3) or policy (policy) in their own env (env_id)")
             if self.protocol != "monitor" or self.onsets is None or self.variants == "paper" or self.obs_noise:
                 raise ConfigError(f"{self.task} is an env oodmon has no variants of: bench it with the monitor's "
                                   f"protocol, the steps its shifts may begin at, and shifts of your own, e.g. "
                                   f"--protocol monitor --onsets 20,100 --variants {self.task}:NAME=VALUE (numeric "
                                   "attributes of its env; no sensor noise, which is an option of oodmon's envs)")
-        if self.sb3:
+        if self.sb3 and self.policy:
+            raise ConfigError("sb3 models or a policy: give one of them")
+        if self.users_own:
+            kind, method = ("sb3 models", "sb3") if self.sb3 else ("a policy", PLAIN_METHOD)
             if self.env_id is None:
-                raise ConfigError("sb3 models need env_id: the gymnasium env id they act in (e.g. CartPole-v1)")
-            if self.methods != ("sb3",) or self.trials != 1:
-                raise ConfigError("sb3 models are benched as one method ('sb3') and one trial: nothing is trained")
-        elif self.vec_normalize is not None or self.frame_stack is not None or self.unsafe_load_pickles or self.imports:
+                raise ConfigError(f"{kind}: give env_id, the gymnasium env id it acts in (e.g. CartPole-v1)")
+            if self.methods != (method,) or self.trials != 1:
+                raise ConfigError(f"{kind}: benched as one method ({method!r}) and one trial, nothing is trained")
+        if not self.sb3 and (self.vec_normalize is not None or self.frame_stack is not None or self.unsafe_load_pickles
+                             or self.imports):
             raise ConfigError("vec_normalize, frame_stack, imports and unsafe_load_pickles are how sb3 models are read "
                               "and see the env: give them with sb3 models only")
-        elif "spread" not in self.detectors:
+        if not self.users_own and "spread" not in self.detectors:
             raise ConfigError("the bench's agents all have samples: keep spread among the detectors")
         from oodmon.monitor.threshold import conformal_rank
 
         conformal_rank(self.calibration_episodes, self.far, self.confidence)  # enough episodes, before any work
-        if self.samples is not None and (self.samples < 2 or self.sb3):
+        if self.samples is not None and (self.samples < 2 or self.users_own):
             raise ConfigError(f"samples={self.samples}: MC samples per decision of oodmon's Dropout and DropConnect "
                               "agents, 2 or more (not for --sb3 models)")
         from oodmon.names import MASKS
 
-        if self.masks is not None and (self.masks not in MASKS or (self.masks != "sampled" and len(self.sb3) > 1)):
+        if self.masks is not None and (self.masks not in MASKS or (self.masks != "sampled" and len(self.sb3) > 1)
+                                       or self.policy):
             raise ConfigError(f"masks={self.masks!r}: the MC masks of Dropout and DropConnect agents (oodmon's, or one "
                               f"--sb3 model with dropout), {' or '.join(MASKS)}")
-        if self.members is not None and (self.members < 2 or self.sb3 or "ensemble" not in self.methods):
+        if self.members is not None and (self.members < 2 or self.users_own or "ensemble" not in self.methods):
             raise ConfigError(f"members={self.members}: the size of oodmon's ensembles, 2 or more, for a bench of the "
                               "ensemble method (not for --sb3 models)")
         if self.net_arch is not None:
             from oodmon.agents.recipes import recipe_for
 
-            if self.sb3 or not self.net_arch or min(self.net_arch) < 1 or any(
+            if self.users_own or not self.net_arch or min(self.net_arch) < 1 or any(
                     recipe_for(self.task, method).cnn for method in self.methods):
                 raise ConfigError(f"net_arch={self.net_arch}: the hidden widths of oodmon's CartPole and Pendulum "
                                   "agents' networks, whole numbers >= 1 (not for --sb3 models, nor Pong's CNN agents)")
@@ -240,7 +246,12 @@ class BenchConfig:
         """The settings a result depends on (not where it ran: out, workers, executor)."""
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()
                 if k not in ("out", "workers", "executor", "address", "bind", "imports", "unsafe_load_pickles")
-                and not (k == "warmup" and not v)}  # none: as results from before it existed say (baselines)
+                and not (k in ("warmup", "policy") and not v)}  # none: as results from before it existed say (baselines)
+
+    @property
+    def users_own(self) -> bool:
+        """Whether the bench plays your own SB3 models or policy (one trial, nothing trained) instead of oodmon's agents."""
+        return bool(self.sb3 or self.policy)
 
     @property
     def own_env(self) -> bool:

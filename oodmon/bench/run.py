@@ -8,8 +8,9 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 from oodmon import seeds
-from oodmon.bench.cache import (Sb3Models, _cell_log, _ensure_model, _ensure_model_dir_current, _id_return,
-                                _log_is_complete, _monitored, _prepare_trial, _refuse_to_train_for_hours, _weights_sha256)
+from oodmon.bench.cache import (Source, _cell_log, _ensure_model, _ensure_model_dir_current,
+                                _id_return, _log_is_complete, _monitored, _prepare_trial, _refuse_to_train_for_hours,
+                                _weights_sha256)
 from oodmon.bench.cells import _execute
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.paper import paper_auc_per_trial
@@ -20,7 +21,7 @@ def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], wo
     own (one thread each for torch and numpy's BLAS, unless OODMON_TORCH_THREADS says otherwise): the
     long part of a five-trial bench, on every core. Each training checkpoints and resumes
     (``oodmon.agents.train``)."""
-    if config.sb3:
+    if config.users_own:
         return
     # (a cached model, or a begun training, of another recipe is set aside first)
     missing = [(m, t) for m, t in trials if not (_ensure_model_dir_current(config, m, t) / "model.json").exists()]
@@ -67,7 +68,7 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
         _refuse_to_train_for_hours(config, method, trial)
     workers = config.workers or os.cpu_count() or 1
     _train_missing_models(config, trials, workers, report)
-    prepared: dict[tuple[str, int], tuple[Path | Sb3Models, Path, list[str], Path | None]] = {}
+    prepared: dict[tuple[str, int], tuple[Source, Path, list[str], Path | None]] = {}
     for index, (method, trial) in enumerate(trials):
         report("models, detectors, thresholds and failing variants of trials", index, len(trials))
         prepared[(method, trial)] = _prepare_trial(config, method, trial, report)
@@ -82,8 +83,8 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
         log = _cell_log(config, method, trial, spec)
         if not _log_is_complete(log, episodes):
             model, threshold, _, detectors = prepared[(method, trial)]
-            jobs.append((config.task, model if isinstance(model, Sb3Models) else str(model), str(threshold), spec, episodes, seed, str(log),
-                         None if detectors is None else str(detectors), config.obs_noise,
+            jobs.append((config.task, str(model) if isinstance(model, Path) else model, str(threshold), spec, episodes,
+                         seed, str(log), None if detectors is None else str(detectors), config.obs_noise,
                          config.onset_range() if config.protocol == "monitor" else None, config.samples,
                          config.masks))
     done = len(cells) - len(jobs)

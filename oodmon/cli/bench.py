@@ -10,12 +10,12 @@ from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent
 from oodmon.cli.parsing import (
     _FAILURES, _FIT_EPISODES, _FIT_STEPS, _KEPT, _UNSET, _add_confidence, _add_rule, _command_line, _fraction, _non_negative, _sb3_arguments,
-    _whole, _widths,
+    _policy_argument, _whole, _widths,
 )
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import write_json
 from oodmon.monitor.threshold import DETECTOR_NAMES
-from oodmon.names import MASKS, METHODS, TASKS
+from oodmon.names import MASKS, METHODS, PLAIN_METHOD, TASKS
 
 
 def _add_bench(commands: argparse._SubParsersAction) -> None:
@@ -24,6 +24,7 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     bench.add_argument("--task", choices=TASKS, help="required unless --sb3")
     bench.add_argument("--methods", default="dropout,dropconnect,ensemble", help="comma-separated (default all three)")
     _sb3_arguments(bench)
+    _policy_argument(bench)
     bench.add_argument("--trials", type=_whole(1),
                        help="trials per method (default 5; trial 0 is the zoo agent; --sb3: 1, nothing is trained)")
     bench.add_argument("--samples", type=_whole(2), metavar="K",
@@ -117,11 +118,12 @@ def _bench(args: argparse.Namespace) -> int:
         if method not in METHODS:
             raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
     samples = True  # the agents have samples of their own to spread
-    if args.sb3:
+    if args.sb3 or args.policy:
         samples = _sb3_bench_task(args)
-        methods = ("sb3",)
+        methods = ("sb3",) if args.sb3 else (PLAIN_METHOD,)
     elif args.task is None:
-        raise ConfigError("give --task (or --sb3 with --env for your own SB3 models)")
+        raise ConfigError("give --task (or --sb3 with --env for your own SB3 models, --policy with --env for a policy "
+                          "of your own of any kind)")
     variants = "paper" if args.variants == "paper" else _split_specs(args.variants)
     monitor = args.protocol == "monitor"
     if args.onsets is not None and not monitor:
@@ -131,7 +133,7 @@ def _bench(args: argparse.Namespace) -> int:
     alarm_detector = args.alarm_detector or best
     detectors = (tuple(d.strip() for d in args.detectors.split(",")) if args.detectors
                  else tuple(dict.fromkeys(("spread", alarm_detector) if samples else (alarm_detector,))))
-    config = BenchConfig(args.task, methods, args.trials or (1 if args.sb3 else 5), variants,
+    config = BenchConfig(args.task, methods, args.trials or (1 if args.sb3 or args.policy else 5), variants,
                          args.episodes or (10 if monitor else 5), args.id_episodes or (200 if monitor else 10),
                          out=args.out, workers=args.workers,
                          executor=args.executor, address=args.address, bind=args.bind, score=args.score,
@@ -142,7 +144,7 @@ def _bench(args: argparse.Namespace) -> int:
                          protocol=args.protocol, rule=args.rule, consecutive=args.consecutive,
                          all_variants=args.all_variants, sb3=tuple(args.sb3 or ()), env_id=args.env, mean=args.mean,
                          vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
-                         imports=tuple(args.imports), unsafe_load_pickles=args.unsafe_load_pickles,
+                         imports=tuple(args.imports), unsafe_load_pickles=args.unsafe_load_pickles, policy=args.policy,
                          samples=args.samples, members=args.members,
                          net_arch=args.net_arch, fit_episodes=args.fit_episodes,
                          masks=args.masks, onsets=args.onsets, failure=args.failure, warmup=args.warmup)
@@ -220,7 +222,7 @@ def _onsets(text: str) -> tuple[int, int]:
 
 
 def _sb3_bench_task(args: argparse.Namespace) -> bool:
-    """For ``bench --sb3``: set ``args.task`` from ``--env`` (the bench plays oodmon's variants of
+    """For ``bench --sb3`` (or ``--policy``): set ``args.task`` from ``--env`` (the bench plays oodmon's variants of
     that task, or for your own env its shifts, under the monitor's protocol); True where the models
     have samples of their own (the spread detector applies)."""
     from oodmon.envs.registration import task_of_env

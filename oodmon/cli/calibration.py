@@ -158,8 +158,8 @@ def _add_validate(commands: argparse._SubParsersAction) -> None:
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from oodmon.agents.plain import PLAIN_METHOD
     from oodmon.envs.registration import TASK_OF_ENV
+    from oodmon.names import PLAIN_METHOD
     from oodmon.monitor import Threshold, validate_threshold
 
     threshold = Threshold.load(args.threshold)

@@ -13,7 +13,7 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
     sampling (None: fresh entropy). Sets ``args.task`` from --env for --sb3 models and a --policy."""
     from oodmon.agents import load, load_agent
 
-    if getattr(args, "policy", None):  # commands without the agent options (bench, evaluate) have none
+    if getattr(args, "policy", None):  # commands without it (evaluate) have none
         return _plain_agent(args)
     if getattr(args, "sb3", None):  # commands without the --sb3 options (evaluate) have none
         from oodmon.agents.sb3 import load_sb3
@@ -47,7 +47,7 @@ def _plain_agent(args: argparse.Namespace):
     """The agent of --policy MODULE:NAME in --env (:func:`oodmon.agents.plain.plain_agent`)."""
     from oodmon.agents.plain import plain_agent, policy_by_name
 
-    if args.sb3 or args.model or args.method:
+    if args.sb3 or getattr(args, "model", None) or getattr(args, "method", None):  # (bench has --methods)
         raise ConfigError("--policy is instead of --sb3, --model and --method: give one of them")
     if not args.env:
         raise ConfigError("--policy needs --env: the gymnasium env id the policy acts in (e.g. CartPole-v1)")

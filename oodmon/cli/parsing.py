@@ -168,13 +168,18 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
                              "fixed sub-networks decide too, by their mean, in the same pass. Default: the threshold "
                              "file's, if it records them, else the model's (sampled)")
     _sb3_arguments(parser)
+    _policy_argument(parser)
+    parser.add_argument("--detectors", metavar="DIR",
+                        help="fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside "
+                             "the threshold file, else those shipped with the agent, if any)")
+
+
+def _policy_argument(parser: argparse.ArgumentParser) -> None:
+    """--policy MODULE:NAME: your own policy of any kind instead of an oodmon agent or SB3 models."""
     parser.add_argument("--policy", metavar="MODULE:NAME",
                         help="your own policy of any kind, with --env: a function obs -> action (or a callable object) "
                              "NAME of your module MODULE, which is imported (its code runs); the learned detectors watch "
                              "it (e.g. --policy my_controller:act, with its folder on PYTHONPATH)")
-    parser.add_argument("--detectors", metavar="DIR",
-                        help="fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside "
-                             "the threshold file, else those shipped with the agent, if any)")
 
 
 def _sb3_arguments(parser: argparse.ArgumentParser) -> None:

@@ -148,3 +148,34 @@ def test_policy_by_name_finds_the_function_and_says_what_is_wrong_with_a_name(tm
                        ("named_controller:Controller", "is a class"), ("no_such_module_here:act", "on PYTHONPATH")]:
         with pytest.raises(ConfigError, match=said):
             policy_by_name(spec)
+
+
+def test_bench_runs_the_monitors_protocol_on_a_plain_policy_cached_while_its_module_is_unchanged(
+        tmp_path, monkeypatch, capsys):
+    (tmp_path / "benched_controller.py").write_text(textwrap.dedent(CONTROLLER))
+    monkeypatch.syspath_prepend(str(tmp_path))  # the cells' worker processes are forked with it
+    out = tmp_path / "bench"
+    argv = ["bench", "--policy", "benched_controller:act", "--env", "CartPole-v1", "--protocol", "monitor",
+            "--variants", "cartpole:gravity=78.4", "--episodes", "5", "--id-episodes", "10",
+            "--calibration-episodes", "19", "--confidence", "none", "--fit-episodes", "12", "--workers", "1",
+            "--out", str(out), "--json"]
+    assert main(argv) == 0
+    result = json.loads(capsys.readouterr().out)
+    rows = {r["variant"]: r for r in result["alarms"] if r["method"] == "plain"}
+    # when written: 5 of 5 shifted episodes alarmed, each before the pole fell (gravity 78.4 drops it)
+    shifted = rows["cartpole:gravity=78.4"]
+    assert rows["cartpole"]["episodes"] == 10 and shifted["episodes"] == 5
+    assert shifted["alarmed"] >= 4 and shifted["failed"] == 5 and shifted["before_failure"] >= 4
+    assert result["config"]["policy"] == "benched_controller:act"
+    stamp = next(out.glob("logs/cartpole-*/plain/trial0/weights.sha256"))
+    made_with = stamp.read_text()
+    capsys.readouterr()
+    assert main(argv) == 0 and stamp.read_text() == made_with  # from its cache: nothing set aside
+    assert json.loads(capsys.readouterr().out)["alarms"] == result["alarms"]
+    with (tmp_path / "benched_controller.py").open("a") as module:
+        module.write("# changed\n")  # the policy's code: its results are set aside, the bench runs again
+    assert main(argv) == 0
+    assert "was made with other weights than benched_controller:act" in capsys.readouterr().err
+    assert list((out / "set-aside").iterdir())
+    assert main(argv[:-1] + ["--trials", "2"]) == 2
+    assert "a policy: benched as one method ('plain') and one trial" in capsys.readouterr().err
