@@ -8,7 +8,6 @@ import json
 import re
 import shlex
 import sys
-import textwrap
 from pathlib import Path
 
 import gymnasium
@@ -25,13 +24,6 @@ from oodmon.monitor import Threshold
 from oodmon.replay import read_log
 
 README = Path(__file__).resolve().parents[2] / "README.md"
-
-CONTROLLER = '''
-def act(obs):
-    """A hand-written CartPole controller: push toward where the pole falls."""
-    return int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)
-'''
-
 
 def _readme_block() -> tuple[str, list[list[str]]]:
     """The README section's controller module and its oodmon commands (continuation lines joined)."""
@@ -138,7 +130,7 @@ def test_what_is_no_function_of_an_observation_is_said():
 
 
 def test_policy_by_name_finds_the_function_and_says_what_is_wrong_with_a_name(tmp_path, monkeypatch):
-    (tmp_path / "named_controller.py").write_text(textwrap.dedent(CONTROLLER) + "class Controller:\n    pass\n")
+    (tmp_path / "named_controller.py").write_text(_readme_block()[0] + "class Controller:\n    pass\n")
     monkeypatch.chdir(tmp_path)  # the module in the current folder, not on sys.path: as the oodmon command runs
     with pytest.raises(ConfigError, match="named_controller.py is in the current folder, .*PYTHONPATH=. oodmon"):
         policy_by_name("named_controller:act")
@@ -152,7 +144,7 @@ def test_policy_by_name_finds_the_function_and_says_what_is_wrong_with_a_name(tm
 
 def test_bench_runs_the_monitors_protocol_on_a_plain_policy_cached_while_its_module_is_unchanged(
         tmp_path, monkeypatch, capsys):
-    (tmp_path / "benched_controller.py").write_text(textwrap.dedent(CONTROLLER))
+    (tmp_path / "benched_controller.py").write_text(_readme_block()[0])
     monkeypatch.syspath_prepend(str(tmp_path))  # the cells' worker processes are forked with it
     out = tmp_path / "bench"
     argv = ["bench", "--policy", "benched_controller:act", "--env", "CartPole-v1", "--protocol", "monitor",
