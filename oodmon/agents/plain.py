@@ -36,7 +36,9 @@ __all__ = ["plain_agent", "policy_by_name", "weights_sha256"]
 
 def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = None) -> Agent:
     """An :class:`~oodmon.agents.Agent` that acts by ``policy(obs)`` in the gymnasium env ``env_id``
-    (its observations as the env gives them, its action as the env takes it).
+    (its observations as the env gives them, its action as the env takes it). Dict observations
+    reach the policy as dicts; the detectors and the logs read them flattened, as of an SB3
+    ``MultiInputPolicy`` (:meth:`Agent.view`), a picture among them by the frames detector.
 
     The policy acts once on the env's first observation (seed 0), and the env takes that action,
     before any episode of a calibration runs: an action the env refuses is said now.
@@ -50,8 +52,10 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
 
     Raises:
         ConfigError: ``policy`` not callable, or an SB3 model or policy (give the model:
-            :func:`~oodmon.agents.sb3.sb3_agent`); an env whose observations are not arrays; an
-            action the env refuses, or of another shape than its Box actions.
+            :func:`~oodmon.agents.sb3.sb3_agent`); an env whose observations are neither arrays
+            nor a dict of vectors and discrete values (pictures beside them too), as SB3 models'
+            (:func:`~oodmon.agents.sb3.dict_space_of`); an action the env refuses, or of another
+            shape than its Box actions.
 
     Example:
         >>> agent = plain_agent(lambda obs: int(obs[2] + 0.5 * obs[3] > 0), "CartPole-v1")
@@ -60,14 +64,14 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
     """
     from oodmon.envs.registration import make_env, task_of_env
 
+    from oodmon.agents.dict_pictures import dict_pictures
+    from oodmon.agents.sb3 import dict_space_of
+
     _check_callable(policy)
     name = _name_of(policy)
     env = make_env(env_id)
     try:
-        space = env.observation_space
-        if not isinstance(space, gymnasium.spaces.Box):
-            raise ConfigError(f"{env_id}'s observations are {space}; a plain policy is watched on array observations "
-                              "(a gymnasium Box): wrap the env in gymnasium.wrappers.FlattenObservation, as the policy sees it")
+        dict_space = dict_space_of(env.observation_space, env_id, retrain="as your policy then sees them")  # None: a Box
         obs, _ = env.reset(seed=0)
         _check_first_action(policy(obs), name, env, env_id)
     finally:
@@ -75,7 +79,22 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
     digest = weights_sha256(weights if weights is not None else _own_weights(policy))
     metadata = {"task": task_of_env(env_id) or env_id, "method": PLAIN_METHOD, "env_id": env_id, "policy": name,
                 "policy_hash": "unknown" if digest is None else "sha256:" + digest}
-    return Agent(None, metadata, None, policy)
+    if dict_space is None:
+        return Agent(None, metadata, None, policy)
+    return Agent(None, metadata, None, _ReadsDicts(policy, dict_space), dict_space=dict_space,
+                 pictures=dict_pictures(dict_space))
+
+
+class _ReadsDicts:
+    """A plain policy of dict observations: the monitor, the detectors' fitting and the envs
+    :meth:`Agent.wrap` makes hand on each dict flattened (:meth:`Agent.view`); the policy gets the
+    dict back, as the env gave it."""
+
+    def __init__(self, policy: Callable[[Any], Any], space: gymnasium.spaces.Dict) -> None:
+        self.policy, self.space = policy, space
+
+    def __call__(self, obs: Any) -> Any:
+        return self.policy(obs if isinstance(obs, Mapping) else gymnasium.spaces.unflatten(self.space, np.asarray(obs)))
 
 
 def policy_by_name(spec: str) -> Callable[[Any], Any]:

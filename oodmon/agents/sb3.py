@@ -54,8 +54,8 @@ from oodmon.envs.checks import space_mismatch
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256
 
-__all__ = ["SB3_ALGORITHMS", "SB3_CONTRIB_ALGORITHMS", "SB3_HYPERPARAMETERS", "load_sb3", "models_sha256", "sb3_agent",
-           "sb3_algorithm"]
+__all__ = ["SB3_ALGORITHMS", "SB3_CONTRIB_ALGORITHMS", "SB3_HYPERPARAMETERS", "dict_space_of", "load_sb3", "models_sha256",
+           "sb3_agent", "sb3_algorithm"]
 
 #: SB3's policy modules and the algorithm classes that load them (first match that loads wins:
 #: A2C and PPO share a policy class; DDPG's policy is TD3's and loads as TD3 for acting).
@@ -331,7 +331,7 @@ class _MaskableDeployed(_Deployed):
 _WRAP_FOR_MASKS = "the monitor does too: Monitor.run_episode(env), MonitoredEnv(env, monitor), oodmon.watch(..., env=env)"
 
 
-def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
+def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the model on that") -> gymnasium.spaces.Dict | None:
     """``space`` when it is a dict of vectors and discrete values (an SB3 ``MultiInputPolicy``'s,
     which concatenates them flattened, discrete ones one-hot, as ``gymnasium.spaces.flatten``
     does), with pictures beside them or not (:mod:`oodmon.agents.dict_pictures`); ``None`` for an
@@ -339,7 +339,7 @@ def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
 
     Raises:
         ConfigError: any other space (nested spaces inside a dict, a dict of pictures alone, a
-            tuple, text).
+            tuple, text), saying to flatten the env's observations, ``retrain``.
     """
     from stable_baselines3.common.preprocessing import is_image_space
 
@@ -355,8 +355,7 @@ def _dict_space(space: Any, env_id: str) -> gymnasium.spaces.Dict | None:
                               "alone, give the env's picture as its observation (a Box), which the frames detector reads")
     raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
                       "Box: a vector, or stacked image frames) or a dict of vectors and discrete values (pictures "
-                      "beside them too): wrap the env in gymnasium.wrappers.FlattenObservation, and train the model on "
-                      "that, to watch it")
+                      f"beside them too): wrap the env in gymnasium.wrappers.FlattenObservation, {retrain}, to watch it")
 
 
 def _flat_as_sb3(space: Any, is_image_space: Any) -> bool:
@@ -552,7 +551,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     for model, file in zip(models, files):
         _check_spaces(model, Path(file["path"]), env, env_id, frame_stack)
     env.close()
-    dict_space = _dict_space(env.observation_space, env_id)
+    dict_space = dict_space_of(env.observation_space, env_id)
     if normalizer is not None:
         normalizer = _normalizer_for_env(normalizer, env, env_id, dict_space, models[0])
     names = {file["algorithm"] for file in files}

@@ -171,3 +171,39 @@ def test_bench_runs_the_monitors_protocol_on_a_plain_policy_cached_while_its_mod
     assert list((out / "set-aside").iterdir())
     assert main(argv[:-1] + ["--trials", "2"]) == 2
     assert "a policy: benched as one method ('plain') and one trial" in capsys.readouterr().err
+
+
+class DictCartPole(gymnasium.ObservationWrapper):
+    """oodmon's CartPole (a shift can begin mid-episode) with dict observations."""
+
+    def __init__(self, **physics) -> None:
+        super().__init__(gymnasium.make("oodmon/CartPole-v1", **physics))
+        low, high = self.env.observation_space.low, self.env.observation_space.high
+        self.observation_space = gymnasium.spaces.Dict({"cart": gymnasium.spaces.Box(low[:2], high[:2]),
+                                                        "pole": gymnasium.spaces.Box(low[2:], high[2:])})
+
+    def observation(self, obs: np.ndarray) -> dict[str, np.ndarray]:
+        return {"cart": obs[:2], "pole": obs[2:]}
+
+
+def test_a_plain_policy_of_dict_observations_gets_dicts_and_its_detectors_read_them_flattened():
+    if "plain_tests/DictCartPole-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/DictCartPole-v0", entry_point=DictCartPole, max_episode_steps=500)
+    seen = set()
+
+    def act(obs):
+        seen.add(type(obs))
+        return int(obs["pole"][0] + 0.5 * obs["pole"][1] + 0.01 * obs["cart"][0] + 0.1 * obs["cart"][1] > 0)
+
+    monitor = oodmon.watch(act, "plain_tests/DictCartPole-v0", fit_episodes=12, episodes=20, confidence=None)
+    assert seen == {dict}  # in fitting and calibration too, the policy got the env's dicts
+    assert monitor.agent.dict_space is not None and monitor.detector == "combined"
+    ids = [monitor.run_episode(gymnasium.make("plain_tests/DictCartPole-v0"), seed=910_000 + i) for i in range(10)]
+    # on average over calibrations <= 1/21 false alarms per episode (rank 20 of 20): 4 or more of 10
+    # has probability 0.001 at 5% (0.013 at twice that)
+    assert all(r.length == 500 for r in ids) and sum(r.first_alarm_step is not None for r in ids) <= 3
+    longer = gymnasium.make("plain_tests/DictCartPole-v0", length=2.0, onset_step=30)
+    shifted = [monitor.run_episode(longer, seed=920_000 + i) for i in range(5)]
+    # when written: 5 of 5 alarmed at step 31 (as the array CartPole's controller above)
+    assert all(r.first_alarm_step is not None and 30 < r.first_alarm_step <= 35 for r in shifted)
+    assert seen == {dict}
