@@ -41,6 +41,9 @@ def _add_envs(commands: argparse._SubParsersAction) -> None:
                       help="your own env's shift: this stable-baselines3 model acts (deterministic) instead of random "
                            "actions, in the states it visits (read without running code from it, as `oodmon run "
                            "--sb3`)")
+    show.add_argument("--policy", metavar="MODULE:NAME",
+                      help="your own env's shift: this policy of yours, a function obs -> action, acts instead (as "
+                           "`oodmon run --policy`: the module is imported)")
     show.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
                       help="with --sb3: as `oodmon run --import`")
     show.add_argument("--unsafe-load-pickles", action="store_true",
@@ -83,11 +86,14 @@ def _envs_show(args: argparse.Namespace) -> int:
     console = Console(soft_wrap=True)
     loading = args.vec_normalize is not None or args.frame_stack is not None or args.unsafe_load_pickles \
         or bool(args.imports)
-    if isinstance(variant, Variant) and (args.sb3 or loading):
-        raise ConfigError(f"--sb3 and its options (--import, --unsafe-load-pickles, --frame-stack, --vec-normalize) go "
-                          f"with a shift of your own env; {variant.spec} is shown with oodmon's hand-written controller")
+    if isinstance(variant, Variant) and (args.sb3 or args.policy or loading):
+        raise ConfigError(f"--sb3 and its options (--import, --unsafe-load-pickles, --frame-stack, --vec-normalize), and "
+                          f"--policy, go with a shift of your own env; {variant.spec} is shown with oodmon's "
+                          "hand-written controller")
     if loading and not args.sb3:
         raise ConfigError("--import, --unsafe-load-pickles, --frame-stack and --vec-normalize go with --sb3")
+    if args.sb3 and args.policy:
+        raise ConfigError("--sb3 or --policy: the one policy that acts, give one of them")
     if not isinstance(variant, Variant):
         return _show_own_shift(args, variant, out, console)
     if variant.task == "pong":
@@ -120,6 +126,11 @@ def _show_own_shift(args: argparse.Namespace, shift, out, console: Console) -> i
         _check_frame_stack(args.frame_stack)  # said as the option, before the model is read
         agent = load_sb3([args.sb3], shift.env_id, vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
                          imports=args.imports, unsafe_load_pickles=args.unsafe_load_pickles)
+        policy, wrap = agent.act, agent.wrap
+    elif args.policy:
+        from oodmon.agents.plain import plain_agent, policy_by_name
+
+        agent = plain_agent(policy_by_name(args.policy), shift.env_id)
         policy, wrap = agent.act, agent.wrap
     probe = probe_shift(shift, seed=args.seed, onset=args.onset, steps=args.steps, policy=policy, wrap=wrap)
     console.print(probe.summary(), markup=False)  # obs.KIND[i]: no markup

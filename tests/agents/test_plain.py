@@ -207,3 +207,13 @@ def test_a_plain_policy_of_dict_observations_gets_dicts_and_its_detectors_read_t
     # when written: 5 of 5 alarmed at step 31 (as the array CartPole's controller above)
     assert all(r.first_alarm_step is not None and 30 < r.first_alarm_step <= 35 for r in shifted)
     assert seen == {dict}
+
+
+def test_envs_show_plays_a_shift_of_your_own_env_with_your_policy(tmp_path, monkeypatch, capsys):
+    (tmp_path / "pump.py").write_text("def act(obs):\n    return 2 if obs[4] > 0 else 0\n")  # Acrobot: torque with the velocity
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert main(["envs", "show", "Acrobot-v1:LINK_MASS_2=3.0", "--onset", "20", "--policy", "pump:act"]) == 0
+    # the policy's actions, not random ones: the heavier link moves otherwise from the first step after the onset
+    assert "differs from the env's own from step 21 on, over 500 steps of the policy's actions" in capsys.readouterr().out
+    assert main(["envs", "show", "cartpole:length=2.0", "--policy", "pump:act"]) == 2
+    assert "is shown with oodmon's hand-written controller" in capsys.readouterr().err
