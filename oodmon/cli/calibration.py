@@ -64,7 +64,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     from oodmon.monitor.detectors import (
         BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors, fitting_notes,
     )
-    from oodmon.monitor.detectors.fitting import fitted_when_named
+    from oodmon.monitor.detectors.fitting import check_can_have, fitted_when_named
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file, replaced_file
 
@@ -73,6 +73,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     if args.mode == "episode":
         conformal_rank(args.episodes, args.far, args.confidence)  # too few episodes: said before any runs
     agent = _load_agent(args, seed=args.seed)  # the same --seed, the same threshold, for MC agents too
+    check_can_have(args.detector, agent)  # (a plain policy's spread: said before the fit, not after it)
     detectors = detectors_for(agent, args.detectors)
     fitted_to = None
     # A learned detector asked for, or a model from elsewhere (a plain policy has no spread; an SB3

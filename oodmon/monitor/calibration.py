@@ -110,6 +110,10 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         detector = best_detector(agent.task, detectors, score)
     if detector not in DETECTOR_NAMES:
         raise InvalidParameterError(f"detector={detector!r} is not allowed; choose one of {', '.join(DETECTOR_NAMES)}")
+    if detector == "spread" or (detectors is not None and detector not in detectors):  # one this policy cannot have?
+        from oodmon.monitor.detectors.fitting import check_can_have
+
+        check_can_have(detector, agent, detectors)
     if detector != "spread" and (detectors is None or detector not in detectors):
         raise ConfigError(f"calibrating the {detector} detector needs it fitted: pass detectors=fit_detectors(...) "
                           "(`oodmon fit-detectors`)")

@@ -137,7 +137,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     from oodmon.monitor.alarms import check_warmup
     from oodmon.monitor.calibration import calibrate_agent, save_calibration
     from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
-    from oodmon.monitor.detectors.fitting import fitted_when_named
+    from oodmon.monitor.detectors.fitting import check_can_have, fitted_when_named
     from oodmon.monitor.monitor import Monitor, MonitoredEnv, check_env_of
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file, replaced_file
@@ -168,6 +168,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     if env is not None:
         check_env_of(agent, env)  # an env of another task: said now, not at its first step after the calibration
     if threshold is None:
+        check_can_have(detector, agent)  # (a plain policy's spread: said before the fit, not after it)
         detectors = fit_agent_detectors(agent, detectors=fitted_when_named(detector),  # as the CLI fits them
                                         episodes=fit_episodes, on_progress=on_progress)
         for note in fitting_notes(detectors):  # what the fit leaves unwatched, as calibrate prints it

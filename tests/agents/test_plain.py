@@ -217,3 +217,21 @@ def test_envs_show_plays_a_shift_of_your_own_env_with_your_policy(tmp_path, monk
     assert "differs from the env's own from step 21 on, over 500 steps of the policy's actions" in capsys.readouterr().out
     assert main(["envs", "show", "cartpole:length=2.0", "--policy", "pump:act"]) == 2
     assert "is shown with oodmon's hand-written controller" in capsys.readouterr().err
+
+
+def test_a_detector_a_plain_policy_cannot_have_is_refused_before_any_episode(tmp_path, monkeypatch, capsys):
+    (tmp_path / "refused_controller.py").write_text(_readme_block()[0])
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import refused_controller
+
+    calls = []
+    monkeypatch.setattr("oodmon.monitor.detectors.fitting.collect", lambda *a, **k: calls.append(1))  # no fit begins
+    for detector, said in [("spread", "the spread detector reads the policy's samples, and this one has none"),
+                           ("features", "the features detector reads the policy's features, and this one has none"),
+                           ("frames", "the frames detector needs image observations; this env's are of shape (4,)")]:
+        assert main(["calibrate", "--policy", "refused_controller:act", "--env", "CartPole-v1", "--detector", detector,
+                     "--out", str(tmp_path / "t.json")]) == 2
+        assert said in capsys.readouterr().err
+        with pytest.raises(ConfigError, match=said.replace("(", r"\(").replace(")", r"\)")):
+            oodmon.watch(refused_controller.act, "CartPole-v1", detector=detector)
+    assert calls == [] and not (tmp_path / "t.json").exists()

@@ -275,16 +275,10 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     if not is_whole(episodes, 3):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
                                     "ID episodes (two thirds fit, one third ranks)")
-    if "features" in detectors and estimator is None:
-        raise ConfigError("the features detector needs the policy's features; a plain policy has none")
-    if "scaled_spread" in detectors and not has_members(estimator):
-        raise ConfigError("the scaled_spread detector puts each ensemble member's values on its own ID footing: "
-                          "it needs an oodmon ensemble, or an MC agent with fixed masks (load it with masks='fixed', "
-                          "--masks fixed): sampled MC samples are not members")
-    pictures = getattr(policy, "pictures", None)  # an Agent's dicts with pictures: the frames detector reads those
-    if "frames" in detectors and len(env.observation_space.shape or ()) < 2 and pictures is None:
-        raise ConfigError(f"the frames detector needs image observations; this env's are of shape "
-                          f"{env.observation_space.shape}")
+    for name in (name for name in detectors if name != "spread"):  # (spread joins where the policy has samples)
+        reason = cannot_have(name, policy, env)
+        if reason is not None:
+            raise ConfigError(reason)
     n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) else None
     # The held-out third keeps its estimates: combined ranks the spread of the samples each action
     # was chosen from, as the monitor reads it (asked again, a sampled MC policy would draw others).
@@ -323,6 +317,42 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         combined = CombinedDetector(members).fit_reference(reference)  # per episode: see its long members
         result = result.with_detector(combined)
     return result
+
+
+def cannot_have(detector: str, policy: Any, env: gymnasium.Env) -> str | None:
+    """Why ``policy`` acting in ``env`` cannot have ``detector`` (a sentence), or ``None``."""
+    estimator = policy_parts(policy)[0]
+    if detector in ("spread", "features") and estimator is None:
+        return (f"the {detector} detector reads the policy's {'samples' if detector == 'spread' else 'features'}, and "
+                "this one has none (a plain policy, or one SB3 model of a kind oodmon does not sample): the learned "
+                "detectors watch it (dynamics, combined)")
+    if detector == "scaled_spread" and not has_members(estimator):
+        return ("the scaled_spread detector puts each ensemble member's values on its own ID footing: it needs an "
+                "oodmon ensemble, or an MC agent with fixed masks (load it with masks='fixed', --masks fixed): sampled "
+                "MC samples are not members")
+    pictures = getattr(policy, "pictures", None)  # an Agent's dicts with pictures: the frames detector reads those
+    if detector == "frames" and len(env.observation_space.shape or ()) < 2 and pictures is None:
+        return f"the frames detector needs image observations; this env's are of shape {env.observation_space.shape}"
+    return None
+
+
+def check_can_have(detector: str | None, agent: Any, fitted: Any = None) -> None:
+    """Refuse, saying why, an alarm on ``detector`` that ``agent`` cannot have (:func:`cannot_have`):
+    said before minutes of fitting or calibration. ``fitted``: the detectors fitted so far, named.
+
+    Raises:
+        ConfigError: the sentence of :func:`cannot_have`.
+    """
+    if detector is None:
+        return
+    env = agent.make_env()
+    try:
+        reason = cannot_have(detector, agent, env)
+    finally:
+        env.close()
+    if reason is not None:
+        raise ConfigError(f"{reason}; calibrate another detector" + (f" (fitted: {', '.join(fitted.names)})" if fitted
+                                                                     else ""))
 
 
 def fitted_when_named(detector: str | None) -> tuple[str, ...] | None:
