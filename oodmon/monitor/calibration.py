@@ -110,7 +110,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         detector = best_detector(agent.task, detectors, score)
     if detector not in DETECTOR_NAMES:
         raise InvalidParameterError(f"detector={detector!r} is not allowed; choose one of {', '.join(DETECTOR_NAMES)}")
-    if detector == "spread" or (detectors is not None and detector not in detectors):  # one this policy cannot have?
+    if (detector == "spread" and agent.estimator is None) or (detectors is not None and detector not in detectors):
         from oodmon.monitor.detectors.fitting import check_can_have
 
         check_can_have(detector, agent, detectors)
