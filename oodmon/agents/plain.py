@@ -12,7 +12,9 @@ insides::
 A threshold records the policy's weights (``policy_hash``), so that one calibrated for another policy
 is refused. Of a function oodmon knows no weights unless told: ``weights=`` (a torch module or a
 dict of tensors or arrays) names them; a torch module, or a method of one, is hashed by its own
-``state_dict()``; any other policy's hash is ``"unknown"``, which no threshold is compared with.
+``state_dict()``; any other policy is bound by its name alone (``name:act``, its ``__qualname__``:
+the same whether it was imported as ``my_controller`` or run as ``__main__``), which tells one
+function from another but not an edit of one.
 """
 
 from __future__ import annotations
@@ -48,7 +50,8 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
         env_id: the env it acts in (any registered id, ``module:Id`` too).
         weights: what the policy's decisions are made of, for the thresholds' ``policy_hash``: a
             torch module, or a mapping of names to tensors or arrays (default: the policy's own
-            ``state_dict()`` when it is a torch module or a method of one, else none: ``"unknown"``).
+            ``state_dict()`` when it is a torch module or a method of one, else none: the policy is
+            then bound by its name, ``name:<qualname>``).
 
     Raises:
         ConfigError: ``policy`` not callable, or an SB3 model or policy (give the model:
@@ -78,7 +81,7 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
         env.close()
     digest = weights_sha256(weights if weights is not None else _own_weights(policy))
     metadata = {"task": task_of_env(env_id) or env_id, "method": PLAIN_METHOD, "env_id": env_id, "policy": name,
-                "policy_hash": "unknown" if digest is None else "sha256:" + digest}
+                "policy_hash": f"name:{_qualname(policy)}" if digest is None else "sha256:" + digest}
     if dict_space is None:
         return Agent(None, metadata, None, policy)
     return Agent(None, metadata, None, _ReadsDicts(policy, dict_space), dict_space=dict_space,
@@ -168,6 +171,11 @@ def _check_callable(policy: Any, what: str = "policy") -> None:
                           "model itself (oodmon.watch(model, env_id), not its policy) or its files (--sb3)")
     if not callable(policy):
         raise ConfigError(f"{what} is a {type(policy).__name__}, not a function obs -> action")
+
+
+def _qualname(policy: Any) -> str:
+    """A function's ``__qualname__``, or its class's (a callable object)."""
+    return getattr(policy, "__qualname__", None) or type(policy).__qualname__
 
 
 def _name_of(policy: Any) -> str:

@@ -360,8 +360,11 @@ class Threshold:
             found.append(f"it was calibrated with {self.samples} samples per decision, and this policy draws {samples}: "
                          "the spread's scale, and an MC policy's mean decision, are those of its samples")
         if self.policy_hash and policy_hash and policy_hash != "unknown" and self.policy_hash != policy_hash:
-            found.append(f"it was calibrated on other weights ({self.policy_hash[:19]}..., these are {policy_hash[:19]}...; "
-                         "an SB3 model's VecNormalize statistics count as its weights)")
+            if "name:" in (self.policy_hash[:5], policy_hash[:5]):  # a plain policy without weights (oodmon.agents.plain)
+                found.append(f"it was calibrated for another policy ({self.policy_hash}, this is {policy_hash})")
+            else:
+                found.append(f"it was calibrated on other weights ({self.policy_hash[:19]}..., these are "
+                             f"{policy_hash[:19]}...; an SB3 model's VecNormalize statistics count as its weights)")
         return found
 
 

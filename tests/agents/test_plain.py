@@ -64,7 +64,13 @@ def test_the_readmes_controller_is_calibrated_run_and_replayed_as_written_then_w
 
     monitor = oodmon.watch(my_controller.act, "CartPole-v1", threshold="runs/controller.json")
     assert (monitor.agent.method, monitor.agent.task, monitor.detector) == ("plain", "cartpole", "combined")
-    assert monitor.agent.metadata["policy_hash"] == "unknown"  # a function: no weights to bind the threshold to
+    assert monitor.agent.metadata["policy_hash"] == "name:act"  # a function without weights: bound by its name
+
+    def act_v2(obs):
+        return my_controller.act(obs)
+
+    with pytest.raises(ConfigError, match=r"calibrated for another policy \(name:act, this is name:.*act_v2\)"):
+        oodmon.watch(act_v2, "CartPole-v1", threshold="runs/controller.json")
     records = [monitor.run_episode(gymnasium.make("CartPole-v1"), seed=900_000 + i) for i in range(20)]
     assert all(r.length == 500 for r in records)  # it balances the pole
     # The threshold promises <= 5% false alarms per episode (confidence 0.9); 5 or more of 20 has

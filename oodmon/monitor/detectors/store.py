@@ -175,7 +175,8 @@ class DetectorSet:
                          f"not {tuple(obs_shape)}")
         theirs = mine.get("policy_hash")
         if theirs and theirs != "unknown" and policy_hash and policy_hash != "unknown" and theirs != policy_hash:
-            found.append("the detectors were fitted on another policy's episodes (its weights differ)")
+            found.append("the detectors were fitted on another policy's episodes (its weights, or a plain policy's "
+                         "name, differ)")
         return found
 
     # -- files ---------------------------------------------------------------------------------------
