@@ -43,7 +43,10 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
     ``MultiInputPolicy`` (:meth:`Agent.view`), a picture among them by the frames detector.
 
     The policy acts once on the env's first observation (seed 0), and the env takes that action,
-    before any episode of a calibration runs: an action the env refuses is said now.
+    before any episode of a calibration runs: an action the env refuses is said now. A policy with
+    a memory of the episode (a recurrent network's state) that has a ``begin_episode()`` method is
+    told of each episode's start, in fitting, calibration and monitoring alike
+    (:meth:`Agent.begin_episode`).
 
     Args:
         policy: the deployed policy, a function of one observation.
@@ -95,6 +98,8 @@ class _ReadsDicts:
 
     def __init__(self, policy: Callable[[Any], Any], space: gymnasium.spaces.Dict) -> None:
         self.policy, self.space = policy, space
+        if hasattr(policy, "begin_episode"):  # a memory of the episode, told of each one's start (Agent.remembers)
+            self.begin_episode = policy.begin_episode
 
     def __call__(self, obs: Any) -> Any:
         return self.policy(obs if isinstance(obs, Mapping) else gymnasium.spaces.unflatten(self.space, np.asarray(obs)))

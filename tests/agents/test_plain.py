@@ -192,9 +192,13 @@ class DictCartPole(gymnasium.ObservationWrapper):
         return {"cart": obs[:2], "pole": obs[2:]}
 
 
-def test_a_plain_policy_of_dict_observations_gets_dicts_and_its_detectors_read_them_flattened():
+def _register_dict_cartpole() -> None:
     if "plain_tests/DictCartPole-v0" not in gymnasium.registry:
         gymnasium.register("plain_tests/DictCartPole-v0", entry_point=DictCartPole, max_episode_steps=500)
+
+
+def test_a_plain_policy_of_dict_observations_gets_dicts_and_its_detectors_read_them_flattened():
+    _register_dict_cartpole()
     seen = set()
 
     def act(obs):
@@ -241,3 +245,34 @@ def test_a_detector_a_plain_policy_cannot_have_is_refused_before_any_episode(tmp
         with pytest.raises(ConfigError, match=said.replace("(", r"\(").replace(")", r"\)")):
             oodmon.watch(refused_controller.act, "CartPole-v1", detector=detector)
     assert calls == [] and not (tmp_path / "t.json").exists()
+
+
+class Remembering:
+    """A policy with a memory of the episode: the steps it has acted in it, forgotten at its start."""
+
+    def __init__(self) -> None:
+        self.steps, self.begun = 0, 0
+
+    def begin_episode(self) -> None:
+        self.steps, self.begun = 0, self.begun + 1
+
+    def __call__(self, obs):
+        self.steps += 1
+        pole = obs["pole"] if isinstance(obs, dict) else obs[2:]
+        return int(pole[0] + 0.5 * pole[1] > 0)
+
+
+@pytest.mark.parametrize("env_id", ["CartPole-v1", "plain_tests/DictCartPole-v0"])
+def test_a_plain_policy_with_a_memory_is_told_of_each_episodes_start(env_id):
+    from oodmon.monitor import Monitor
+    from oodmon.monitor.detectors import fit_agent_detectors
+
+    _register_dict_cartpole()
+    policy = Remembering()
+    agent = plain_agent(policy, env_id)
+    assert agent.remembers
+    detectors = fit_agent_detectors(agent, episodes=3)
+    assert policy.begun >= 3  # the fit's episodes each began anew
+    with Monitor(agent, None, detectors=detectors) as monitor:
+        lengths = [monitor.run_episode(gymnasium.make(env_id), seed=seed).length for seed in (1, 2)]
+        assert policy.steps == lengths[1]  # its memory is of the last episode alone
