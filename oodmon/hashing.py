@@ -1,18 +1,21 @@
 """The sha256 of a file, as every record of oodmon spells it (weights, detectors, users' models),
-and a tensor file written whole beside the JSON that records its sha256."""
+of weights in memory (a ``state_dict()``), and a tensor file written whole beside the JSON that
+records its sha256."""
 
 from __future__ import annotations
 
 import hashlib
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from oodmon.jsonfile import write_json
 from oodmon.outputs import is_write_error, write_failure
 
-__all__ = ["file_sha256", "write_hashed_tensors"]
+__all__ = ["file_sha256", "state_sha256", "write_hashed_tensors"]
 
 
 def file_sha256(path: str | Path) -> str:
@@ -25,6 +28,24 @@ def file_sha256(path: str | Path) -> str:
         'e3b0c44298fc1c14'
     """
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def state_sha256(state: Mapping[str, Any]) -> str:
+    """The hex sha256 of weights in memory, names to tensors or arrays (a ``state_dict()``): each
+    name and its numbers' bytes, in the names' order. It stands for an SB3 model in memory, which
+    has no file, and for a plain policy's weights.
+
+    Example:
+        >>> import numpy as np
+        >>> a = state_sha256({"w": np.ones(3)})
+        >>> a == state_sha256({"w": np.ones(3)}), a == state_sha256({"w": np.ones(3, np.float32)})
+        (True, False)
+    """
+    digest = hashlib.sha256()
+    for name, value in sorted(state.items()):
+        digest.update(name.encode())
+        digest.update((value.detach().cpu().numpy() if hasattr(value, "detach") else np.asarray(value)).tobytes())
+    return digest.hexdigest()
 
 
 def write_hashed_tensors(tensor_path: Path, json_path: Path, write_tensors: Callable[[str], None],

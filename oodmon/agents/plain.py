@@ -19,7 +19,6 @@ function from another but not an edit of one.
 
 from __future__ import annotations
 
-import hashlib
 import importlib
 import inspect
 from collections.abc import Callable, Mapping
@@ -31,6 +30,7 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.errors import ConfigError
+from oodmon.hashing import state_sha256
 from oodmon.names import PLAIN_METHOD
 
 __all__ = ["plain_agent", "policy_by_name", "weights_sha256"]
@@ -68,10 +68,9 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
         >>> agent.method, agent.task, agent.estimator, agent.act(np.zeros(4, np.float32))
         ('plain', 'cartpole', None, 0)
     """
-    from oodmon.envs.registration import make_env, task_of_env
-
     from oodmon.agents.dict_pictures import dict_pictures
     from oodmon.agents.sb3 import dict_space_of
+    from oodmon.envs.registration import make_env, task_of_env
 
     _check_callable(policy)
     name = _name_of(policy)
@@ -139,25 +138,18 @@ def policy_by_name(spec: str) -> Callable[[Any], Any]:
 
 def weights_sha256(weights: Any) -> str | None:
     """The sha256 of a torch module's ``state_dict()`` or of a mapping of names to tensors or
-    arrays (its names, dtypes, shapes and numbers, in the names' order); ``None`` for ``None``.
+    arrays (:func:`oodmon.hashing.state_sha256`, as of an SB3 model in memory); ``None`` for ``None``.
 
     Example:
-        >>> a = weights_sha256({"w": np.ones(3)})
-        >>> a == weights_sha256({"w": np.ones(3)}), a == weights_sha256({"w": np.ones(3, np.float32)})
-        (True, False)
+        >>> weights_sha256({"w": np.ones(3)}) == weights_sha256({"w": np.ones(3)}), weights_sha256(None)
+        (True, None)
     """
     if weights is None:
         return None
     state = weights.state_dict() if callable(getattr(weights, "state_dict", None)) else weights
     if not isinstance(state, Mapping):
         raise ConfigError(f"weights={type(weights).__name__}: give a torch module or a dict of tensors or arrays")
-    digest = hashlib.sha256()
-    for key in sorted(state, key=str):
-        value = state[key]
-        array = np.asarray(value.detach().cpu().numpy() if hasattr(value, "detach") else value)
-        digest.update(f"{key}\0{array.dtype.str}\0{array.shape}\0".encode())
-        digest.update(np.ascontiguousarray(array).tobytes())
-    return digest.hexdigest()
+    return state_sha256(state)
 
 
 def _own_weights(policy: Any) -> Any:
@@ -178,16 +170,19 @@ def _check_callable(policy: Any, what: str = "policy") -> None:
         raise ConfigError(f"{what} is a {type(policy).__name__}, not a function obs -> action")
 
 
+def _named(policy: Any) -> Any:
+    """What names a policy: the function itself, or a callable object's class."""
+    return policy if hasattr(policy, "__qualname__") else type(policy)
+
+
 def _qualname(policy: Any) -> str:
     """A function's ``__qualname__``, or its class's (a callable object)."""
-    return getattr(policy, "__qualname__", None) or type(policy).__qualname__
+    return _named(policy).__qualname__
 
 
 def _name_of(policy: Any) -> str:
-    """How a policy is named in its errors and its logs' ``about.policy``: ``module.qualname`` of a
-    function, or of its class."""
-    named = policy if hasattr(policy, "__qualname__") else type(policy)
-    return f"{getattr(named, '__module__', '?')}.{named.__qualname__}"
+    """How a policy is named in its errors and its logs' ``about.policy``: ``module.qualname``."""
+    return f"{getattr(_named(policy), '__module__', '?')}.{_qualname(policy)}"
 
 
 def _check_first_action(action: Any, name: str, env: gymnasium.Env, env_id: str) -> None:

@@ -52,7 +52,7 @@ from oodmon.agents.vec_normalize import (
 )
 from oodmon.envs.checks import space_mismatch
 from oodmon.errors import ConfigError
-from oodmon.hashing import file_sha256
+from oodmon.hashing import file_sha256, state_sha256
 
 __all__ = ["SB3_ALGORITHMS", "SB3_CONTRIB_ALGORITHMS", "SB3_HYPERPARAMETERS", "dict_space_of", "load_sb3", "models_sha256",
            "sb3_agent", "sb3_algorithm"]
@@ -493,11 +493,7 @@ def _frame_stack_of(models: Sequence[Any]) -> int | None:
 
 def _parameters_sha256(model: Any) -> str:
     """A model in memory has no file: the hash of its policy's parameters stands for it."""
-    digest = hashlib.sha256()
-    for name, tensor in sorted(model.policy.state_dict().items()):
-        digest.update(name.encode())
-        digest.update(tensor.detach().cpu().numpy().tobytes())
-    return digest.hexdigest()
+    return state_sha256(model.policy.state_dict())
 
 
 def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_samples: int = 20,
