@@ -112,6 +112,7 @@ class CorruptedPong(gymnasium.Env):
             repeat_action_probability=repeat_action_probability,
             max_num_frames_per_episode=_MAX_FRAMES,
         )
+        self._sticky = repeat_action_probability > 0
         self.action_space = self._atari.action_space
         self.observation_space = spaces.Box(
             0, 255, (FRAME_STACK, SCREEN_SIZE, SCREEN_SIZE), dtype=np.uint8
@@ -154,9 +155,12 @@ class CorruptedPong(gymnasium.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self.onset_step, _ = episode_onset(self.ENV_ID, self._configured_onset, options)
         super().reset(seed=seed)
-        # The emulator is seeded from our generator, so one seed fixes the whole episode.
+        # The emulator is seeded from our generator, so one seed fixes the whole episode. Its own
+        # generator draws only sticky actions: without them a seed changes nothing in the game, and
+        # applying one reloads the ROM (90 ms a reset), so it is drawn (the no-ops' draws stay the
+        # same) and applied only for sticky actions.
         atari_seed = None if seed is None else int(self.np_random.integers(2**31))
-        frame, info = self._atari.reset(seed=atari_seed)
+        frame, info = self._atari.reset(seed=atari_seed if self._sticky else None)
         frames = [frame]
         for _ in range(int(self.np_random.integers(1, NOOP_MAX + 1))):
             frame, _, terminated, truncated, info = self._atari.step(0)

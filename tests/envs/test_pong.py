@@ -85,6 +85,25 @@ def test_same_seed_same_frames_other_seed_other_noise():
     assert all(not np.array_equal(a, c) for a, c in zip(first, other))
 
 
+def test_an_env_that_played_other_episodes_plays_a_seed_as_a_new_one_without_loading_the_rom_again(monkeypatch):
+    """A seeded reset of the paper's Pong (no sticky actions) reloaded the ROM to seed the emulator's
+    generator, 90 ms a reset, though that generator only draws sticky actions; with them it still does."""
+    fresh, _ = _play(parse_variant("pong:gaussian_noise@2").make(), seed=11, steps=40)
+    used = parse_variant("pong:gaussian_noise@2").make()
+    loads = []
+    monkeypatch.setattr(used.unwrapped._atari, "load_game", lambda: loads.append(1))
+    for seed in (3, 4):  # other episodes first, cut mid-game
+        _play(used, seed=seed, steps=60)
+    again, _ = _play(used, seed=11, steps=40)
+    assert loads == []
+    for a, b in zip(fresh, again, strict=True):
+        np.testing.assert_array_equal(a, b)
+    sticky = CorruptedPong(repeat_action_probability=0.25).unwrapped
+    monkeypatch.setattr(sticky._atari, "load_game", lambda: loads.append(1))
+    sticky.reset(seed=11)
+    assert loads == [1]
+
+
 def test_onset_mid_episode_corrupts_from_that_step_on():
     onset = 8
     clean, _ = _play(parse_variant("pong").make(), seed=2, steps=15)
