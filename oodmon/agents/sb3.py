@@ -32,7 +32,8 @@ from __future__ import annotations
 import hashlib
 import json
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -185,7 +186,8 @@ def _load_one(path: Path, unsafe_load_pickles: bool = False) -> tuple[Any, str]:
             # custom_objects: every entry SB3 would unpickle, read by oodmon without running code
             # (None: SB3 unpickles them itself, as its own load() does)
             objects = None if unsafe_load_pickles else data_objects(data, algorithm, path)
-            model = algorithm.load(path, device="cpu", custom_objects=objects)
+            with _optimizers_built_without_dynamo():
+                model = algorithm.load(path, device="cpu", custom_objects=objects)
         except ConfigError:
             raise  # sb3-contrib not installed, or an entry refused: said as it is
         except Exception as error:  # noqa: BLE001  (the next class of the same policy may load it)
@@ -197,6 +199,38 @@ def _load_one(path: Path, unsafe_load_pickles: bool = False) -> tuple[Any, str]:
             continue
         return model, name
     raise ConfigError(f"stable-baselines3 could not load {path}: {'; '.join(errors)}")
+
+
+@contextmanager
+def _optimizers_built_without_dynamo() -> Iterator[None]:
+    """For the time of an SB3 ``load``: torch's optimizers built and loaded without importing
+    ``torch._dynamo``, which took 1.1 s of each ``--sb3`` command's start (2026-11-30; nearly the
+    whole of loading a small model).
+
+    Four methods of ``torch.optim.Optimizer`` (``add_param_group``, ``load_state_dict``,
+    ``state_dict``, ``zero_grad``) are wrapped by ``torch._disable_dynamo``, whose first call
+    imports ``torch._dynamo`` to build the method's dynamo-disabled function and keeps it on the
+    method's own function as ``__dynamo_disable``. SB3's load builds every optimizer of the model
+    and loads its state, optimizers oodmon never steps and nothing compiles; meanwhile each
+    method's own function stands in as its disabled one. The stand-ins are taken away after, so a
+    later call disables dynamo as torch does (a user's training in the same process). A torch
+    whose optimizers are wrapped otherwise is left as it is (and imports dynamo as before)."""
+    import torch
+    from torch.optim import Optimizer
+
+    wrapper = torch._disable_dynamo(lambda: None).__code__  # the code of every method it wraps
+    stood_in = []
+    for member in vars(Optimizer).values():
+        function = getattr(member, "__wrapped__", None)
+        if getattr(member, "__code__", None) is wrapper and function is not None \
+                and not hasattr(function, "__dynamo_disable"):
+            setattr(function, "__dynamo_disable", function)
+            stood_in.append(function)
+    try:
+        yield
+    finally:
+        for function in stood_in:
+            delattr(function, "__dynamo_disable")
 
 
 def _check_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str, frame_stack: int | None = None) -> None:

@@ -952,3 +952,34 @@ def test_calibrate_fits_the_drift_detector_when_the_alarm_reads_it_and_run_reads
     capsys.readouterr()
     assert main(["replay", str(tmp_path / "d.mcap"), "--json"]) == 0
     assert {r["detector"] for r in json.loads(capsys.readouterr().out)} >= {"dynamics", "drift", "combined"}
+
+
+
+LOAD_IN_A_NEW_PROCESS = """
+import sys
+import numpy as np
+from stable_baselines3 import SAC
+from oodmon.agents.sb3 import load_sb3
+agent = load_sb3([sys.argv[1]], "Pendulum-v1")
+after_ours = "torch._dynamo" in sys.modules
+theirs = SAC.load(sys.argv[1], device="cpu")  # SB3's own load
+observations = np.random.default_rng(0).uniform(-1, 1, (5, 3)).astype(np.float32)
+same = all(np.array_equal(agent.act(o), theirs.predict(o, deterministic=True)[0]) for o in observations)
+print(after_ours, same, "torch._dynamo" in sys.modules)
+"""
+
+
+def test_loading_a_model_builds_its_optimizers_without_importing_dynamo_and_leaves_torch_as_it_was(tmp_path):
+    """SB3's load builds each optimizer of the model (a SAC's three), whose first call of a method
+    torch wraps to disable dynamo imported torch._dynamo: 1.1 s of every --sb3 command's start.
+    In a new process: oodmon's load imports nothing of dynamo and acts as SB3's loaded model does; SB3's own
+    load after it imports dynamo as before (torch's wrappers are as they were)."""
+    import subprocess
+
+    from stable_baselines3 import SAC
+
+    SAC("MlpPolicy", gymnasium.make("Pendulum-v1"), seed=0, policy_kwargs={"net_arch": [8]}).save(tmp_path / "sac.zip")
+    out = subprocess.run([sys.executable, "-c", LOAD_IN_A_NEW_PROCESS, str(tmp_path / "sac.zip")],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["False", "True", "True"]
