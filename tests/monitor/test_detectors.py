@@ -341,6 +341,16 @@ def test_fit_and_score_are_deterministic_under_a_seed(id_trajectories):
     np.testing.assert_array_equal(a, b)
 
 
+def test_the_dynamics_fit_reports_each_epoch_and_fits_the_same_model(id_trajectories):
+    """A fit of long observations took minutes after the last episode's progress line, said nothing."""
+    reports = []
+    reported = DynamicsDetector(2, epochs=3, seed=7).fit(id_trajectories[:2], on_progress=lambda *r: reports.append(r))
+    assert reports == [("dynamics model fitting epochs", k, 3) for k in (1, 2, 3)]
+    silent = DynamicsDetector(2, epochs=3, seed=7).fit(id_trajectories[:2])
+    for key, value in reported.tensors().items():
+        np.testing.assert_array_equal(value, silent.tensors()[key])
+
+
 def test_save_and_load_give_identical_scores(fitted, agent, id_trajectories, tmp_path):
     fitted.save(tmp_path / "det")
     loaded = DetectorSet.load(tmp_path / "det")

@@ -61,6 +61,7 @@ from oodmon.agents.plan import repeat_rows
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import Detector, RecentMean, StepContext, Trajectory, standardise_early
 from oodmon.monitor.detectors.frames import is_picture
+from oodmon.progress import Progress
 from oodmon.validation import is_whole
 
 __all__ = ["JUMP_VALUES", "MIN_LOGVAR", "DynamicsDetector", "min_logvar_for"]
@@ -186,9 +187,12 @@ class DynamicsDetector(Detector):
         return np.concatenate([obs, self._action_features(actions)], axis=1).astype(np.float32)
 
     # -- fitting -----------------------------------------------------------------------------------
-    def fit(self, trajectories: Sequence[Trajectory], *, seed: int | None = None) -> DynamicsDetector:
+    def fit(self, trajectories: Sequence[Trajectory], *, seed: int | None = None,
+            on_progress: Progress | None = None) -> DynamicsDetector:
         """Fit the ensemble on the transitions of ID ``trajectories`` (each member on a bootstrap
-        resample of them). A few seconds for 20 CartPole episodes on one core.
+        resample of them). A few seconds for 20 CartPole episodes on one core, longer for long
+        observations (each epoch predicts every reading that changes smoothly).
+        ``on_progress("dynamics model fitting epochs", done, epochs)`` after each epoch.
 
         Raises:
             ConfigError: no transitions, or observations that are not vectors.
@@ -238,7 +242,7 @@ class DynamicsDetector(Detector):
         xs, ys = torch.from_numpy(x), torch.from_numpy(y)
         boot = torch.randint(0, n, (self.members, n), generator=generator)  # each member's resample
         batch = min(self.batch_size, n)
-        for _ in range(self.epochs):
+        for epoch in range(self.epochs):
             order = boot[:, torch.randperm(n, generator=generator)]
             for start in range(0, n, batch):
                 index = order[:, start:start + batch]
@@ -247,6 +251,8 @@ class DynamicsDetector(Detector):
                 optimiser.zero_grad()
                 loss.backward()
                 optimiser.step()
+            if on_progress is not None:
+                on_progress("dynamics model fitting epochs", epoch + 1, self.epochs)
         self._weights = [(params[i].detach().numpy().copy(), params[i + 1].detach().numpy().copy())
                          for i in range(0, len(params), 2)]
         self._fast = None

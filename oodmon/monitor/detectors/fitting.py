@@ -292,7 +292,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     fit, held_out = [replace(t, estimates=None) for t in trajectories[:n_fit]], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []
     if "dynamics" in detectors:
-        parts.append(DynamicsDetector(n_actions, seed=seed, min_logvar=min_logvar_for(task)).fit(fit))
+        parts.append(DynamicsDetector(n_actions, seed=seed, min_logvar=min_logvar_for(task)).fit(fit, on_progress=on_progress))
         if "drift" in detectors:
             parts.append(DriftDetector.of(parts[-1]))
     if "features" in detectors:
