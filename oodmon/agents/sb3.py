@@ -218,11 +218,12 @@ def _optimizers_built_without_dynamo() -> Iterator[None]:
     import torch
     from torch.optim import Optimizer
 
-    wrapper = torch._disable_dynamo(lambda: None).__code__  # the code of every method it wraps
+    disable = getattr(torch, "_disable_dynamo", None)
+    wrapper = None if disable is None else disable(lambda: None).__code__  # the code of every method it wraps
     stood_in = []
     for member in vars(Optimizer).values():
         function = getattr(member, "__wrapped__", None)
-        if getattr(member, "__code__", None) is wrapper and function is not None \
+        if wrapper is not None and getattr(member, "__code__", None) is wrapper and function is not None \
                 and not hasattr(function, "__dynamo_disable"):
             setattr(function, "__dynamo_disable", function)
             stood_in.append(function)
