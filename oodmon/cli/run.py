@@ -28,7 +28,8 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
                                        "obs.noise, obs.stuck)")
     run.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (default 0)")
     run.add_argument("--episodes", type=_whole(1), default=5, help="episodes (default 5)")
-    run.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode (default 0)")
+    run.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode and of an MC agent's samples "
+                                                           "(default 0): the same command plays the same episodes")
     run.add_argument("--threshold", help="a threshold file from `oodmon calibrate` (default: no alarms)")
     run.add_argument("--mcap", help="write the run to this MCAP file; {start} in it is the run's start time "
                                     "(YYYYmmdd-HHMMSS): a log per start, e.g. runs/deployed/log-{start}.mcap")
@@ -88,7 +89,7 @@ def _run(args: argparse.Namespace) -> int:
                     overwrite=args.overwrite) if args.mcap else None
     threshold = Threshold.load(args.threshold) if args.threshold else None
     args.masks = args.masks or (threshold.masks if threshold is not None else None)
-    agent = _load_agent(args)
+    agent = _load_agent(args, seed=args.seed)  # seeded MC sampling: the same command, the same episodes
     if args.render and args.task not in ("cartpole", "pendulum"):  # it logged no picture, without a word
         raise ConfigError(f"--render draws CartPole and Pendulum states; {args.task} has no drawing in oodmon"
                           + (" (Pong's frames are logged without it)" if args.task == "pong" else "")
