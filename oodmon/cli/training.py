@@ -84,7 +84,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise InvalidParameterError(f"--episodes {args.episodes} is not allowed; give at least 1")
-    agent = _load_agent(args)
+    agent = _load_agent(args, seed=0)  # seeded MC sampling: the same command, the same table
     from oodmon.envs.grid import select_variants
 
     if args.task not in TASKS:  # --sb3 in an env oodmon has no variants of
