@@ -41,11 +41,13 @@ def check_output_file(path: str | Path, *, parameter: str,
             be none of them. ``None`` paths are ignored.
 
     Example:
-        >>> import tempfile
-        >>> check_output_file(tempfile.mkdtemp(), parameter="--out")
+        >>> import shutil, tempfile
+        >>> folder = tempfile.mkdtemp()
+        >>> check_output_file(folder, parameter="--out")
         Traceback (most recent call last):
         ...
         oodmon.errors.ConfigError: --out ... is a folder; give a file name
+        >>> shutil.rmtree(folder)
     """
     path = Path(path)
     if not str(path).strip():
@@ -65,9 +67,11 @@ def check_picture_file(path: str | Path, *, parameter: str) -> Path:
     returned is the file that will be written), a suffix of another format is a :class:`ConfigError`.
 
     Example:
-        >>> import tempfile
-        >>> check_picture_file(Path(tempfile.mkdtemp()) / "shot", parameter="--out").name
+        >>> import shutil, tempfile
+        >>> folder = tempfile.mkdtemp()
+        >>> check_picture_file(Path(folder) / "shot", parameter="--out").name
         'shot.png'
+        >>> shutil.rmtree(folder)
     """
     path = Path(path)
     if not path.suffix and str(path).strip():
@@ -104,7 +108,7 @@ def replaced_file(path: str | Path, *, parameter: str, holds: str, read: Callabl
     model or a log at a name typed wrong. Call it before the work.
 
     Example:
-        >>> import tempfile
+        >>> import shutil, tempfile
         >>> log = Path(tempfile.mkdtemp()) / "run.mcap"
         >>> _ = log.write_bytes(b"an MCAP log")
         >>> def read_threshold(path):
@@ -113,6 +117,7 @@ def replaced_file(path: str | Path, *, parameter: str, holds: str, read: Callabl
         Traceback (most recent call last):
         ...
         oodmon.errors.ConfigError: --out ... exists and holds no threshold (run.mcap is not valid JSON): ...
+        >>> shutil.rmtree(log.parent)
     """
     path = Path(path)
     if not path.is_file():
@@ -131,9 +136,11 @@ def check_output_dir(path: str | Path, *, parameter: str) -> Path:
     :class:`ConfigError`. Creates it.
 
     Example:
-        >>> import os, tempfile
-        >>> check_output_dir(os.path.join(tempfile.mkdtemp(), "plots"), parameter="--plots").is_dir()
+        >>> import os, shutil, tempfile
+        >>> folder = tempfile.mkdtemp()
+        >>> check_output_dir(os.path.join(folder, "plots"), parameter="--plots").is_dir()
         True
+        >>> shutil.rmtree(folder)
     """
     path = Path(path)
     if not str(path).strip():
@@ -176,11 +183,12 @@ def write_whole(path: Path, write: Callable[[Path], object], *, part: Path | Non
     ``SafetensorError: ... No space left on device``), which reached the user as tracebacks.
 
     Example:
-        >>> import tempfile
+        >>> import shutil, tempfile
         >>> path = Path(tempfile.mkdtemp()) / "x.txt"
         >>> write_whole(path, lambda part: part.write_text("whole"))
         >>> path.read_text(), sorted(p.name for p in path.parent.iterdir())
         ('whole', ['x.txt'])
+        >>> shutil.rmtree(path.parent)
     """
     part = path.with_name(path.name + ".part") if part is None else part
     try:

@@ -173,7 +173,7 @@ class McapSink:
     only the last one to recover; the writer's index, which grows with a file, starts anew in each.
 
     Example:
-        >>> import tempfile, os
+        >>> import os, shutil, tempfile
         >>> sink = McapSink(os.path.join(tempfile.mkdtemp(), "run.mcap"))
         >>> sink.path.name
         'run.mcap'
@@ -182,6 +182,7 @@ class McapSink:
         Traceback (most recent call last):
         ...
         oodmon.errors.ConfigError: /.../run.mcap exists: the log of an earlier run; give another path, or McapSink(..., overwrite=True) to replace it
+        >>> shutil.rmtree(sink.path.parent)
         >>> McapSink("runs/deploy.mcap", split_episodes=100).part_path(3).as_posix()
         'runs/deploy-00003.mcap'
     """
