@@ -3,7 +3,8 @@
 Run: .venv/bin/python benchmarks/drift_step.py
 
 For CartPole (discrete actions) and Pendulum (continuous) a dynamics model is fitted on 6 ID
-episodes of a hand-written controller (seconds), and the drift detector reads its residuals; each
+episodes of a hand-written controller (seconds), and for ``wide`` on 6 episodes of a smooth random
+system of 348 readings and 17 actions (a humanoid's lengths); the drift detector reads its residuals; each
 ``score()`` is timed over the transitions of another episode, one thread for torch and numpy's BLAS,
 in alternation (``timing.paired_us``: 5 pairs of rounds, each order once per pair). The drift
 detector joins the default set of your own env's detectors, so its step is paid beside the
@@ -29,6 +30,10 @@ each residual beside its negative so that one maximum reads the largest magnitud
 ``ratio=1.38-1.40`` (CartPole 15.6 us against 11.3, Pendulum 1.33), ``ratio_in_set=1.39-1.40``
 (17.2 us against 12.3), ``ratio_in_set_unshared=2.28``. Drift's step after the pass went from about
 8 us to about 5 (in the monitor's loop, ``benchmarks/detector_step.py``'s timers: 9.2 to 6.0).
+The wide case, added 2026-11-30: ``ratio_wide=101.26`` (drift 10,586 us against 104; its dense
+product of 348 readings' outputs, 151 MB, summed some 10 nonzeros a column), then, that product
+sparse past ``drift.DENSE_PRODUCT`` entries, ``ratio_wide=`` 1.95 and 2.03 in two runs (163 us
+against 81; ``ratio_in_set_wide=`` 1.94 and 1.96), CartPole and Pendulum unchanged (1.40, 1.36).
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.monitor.detectors import DetectorSet, DriftDetector, DynamicsDetector, StepContext
+from oodmon.monitor.detectors.base import Trajectory
 from oodmon.monitor.detectors.fitting import collect
 from oodmon.threads import set_threads
 from timing import paired_us  # benchmarks/timing.py, beside this script
@@ -47,6 +53,23 @@ CONTROLLERS = {
     "cartpole": ("CartPole-v1", 2, lambda obs: int(obs[2] + 0.5 * obs[3] > 0)),
     "pendulum": ("Pendulum-v1", None, lambda obs: np.clip([-2.0 * obs[1] - 0.5 * obs[2]], -2.0, 2.0).astype(np.float32)),
 }
+
+
+WIDE = 348  # readings of the synthetic long observation (gymnasium's Humanoid-v5 has 348)
+
+
+def wide_episodes(n: int = 7, steps: int = 200) -> list[Trajectory]:
+    """Episodes of a smooth random system of ``WIDE`` readings driven by 17 actions (a stand-in for
+    a humanoid's observation: what matters here is its length, not its physics)."""
+    rng = np.random.default_rng(0)
+    episodes = []
+    for _ in range(n):
+        observations, actions = [rng.normal(size=WIDE)], rng.uniform(-1, 1, (steps, 17)).astype(np.float32)
+        for action in actions:
+            last = observations[-1]
+            observations.append(0.95 * last + 0.1 * np.tanh(last[::-1]) + 0.05 * action.sum() + rng.normal(0, 0.05, WIDE))
+        episodes.append(Trajectory(np.asarray(observations, np.float32), actions))
+    return episodes
 
 
 def step_calls(detector, trajectory):
@@ -77,20 +100,24 @@ def set_calls(detectors, trajectory):
 def main() -> None:
     set_threads(1)
     ratios, in_set, unshared = {}, {}, {}
-    for task, (env_id, n_actions, controller) in CONTROLLERS.items():
-        episodes = collect(controller, gymnasium.make(env_id), 7, seed=0)
+    for task in (*CONTROLLERS, "wide"):  # wide: WIDE readings, synthetic
+        if task in CONTROLLERS:
+            env_id, n_actions, controller = CONTROLLERS[task]
+            episodes, repeats = collect(controller, gymnasium.make(env_id), 7, seed=0), 2000
+        else:
+            episodes, n_actions, repeats = wide_episodes(), None, 200
         dynamics = DynamicsDetector(n_actions, seed=0).fit(episodes[:6])
         drift = DriftDetector.of(dynamics)
-        us, baseline, ratio = paired_us(step_calls(drift, episodes[6]), step_calls(dynamics, episodes[6]), 2000)
+        us, baseline, ratio = paired_us(step_calls(drift, episodes[6]), step_calls(dynamics, episodes[6]), repeats)
         print(f"{task}: drift {us:.1f} us, dynamics {baseline:.1f} us per step")
         ratios[task] = ratio
         alone = DetectorSet([dynamics])
         both = DetectorSet([dynamics, drift])
-        us, baseline, in_set[task] = paired_us(set_calls(both, episodes[6]), set_calls(alone, episodes[6]), 2000)
+        us, baseline, in_set[task] = paired_us(set_calls(both, episodes[6]), set_calls(alone, episodes[6]), repeats)
         print(f"{task}: a set of dynamics and drift {us:.1f} us, of dynamics alone {baseline:.1f} us per step")
         both_unshared = DetectorSet([dynamics, DriftDetector.of(dynamics)])
         both_unshared["drift"].model = copy.deepcopy(dynamics)  # after the set linked it: a pass of its own
-        us, _, unshared[task] = paired_us(set_calls(both_unshared, episodes[6]), set_calls(alone, episodes[6]), 2000)
+        us, _, unshared[task] = paired_us(set_calls(both_unshared, episodes[6]), set_calls(alone, episodes[6]), repeats)
         print(f"{task}: the same, drift on a copy of the model {us:.1f} us per step")
     for name, figures in (("ratio", ratios), ("ratio_in_set", in_set), ("ratio_in_set_unshared", unshared)):
         for task, ratio in figures.items():

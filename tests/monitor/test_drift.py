@@ -148,3 +148,28 @@ def test_a_drift_detector_copied_or_pickled_mid_episode_scores_on_as_the_origina
     for other in copies:
         assert [other.score(c) for c in contexts[8:]] == after
     assert all(value > 0 for value in before + after)
+
+
+def test_a_long_observations_drift_sums_its_residuals_sparse_to_the_same_scores(monkeypatch):
+    """The product that sums a step's outputs grows with the square of the readings: 348 readings'
+    was a dense 151 MB array and 10.6 ms a step (benchmarks/drift_step.py's wide case: 101 times the
+    dynamics step, 2.0 since). Past DENSE_PRODUCT entries it is sparse; the scores are the dense ones."""
+    import oodmon.monitor.detectors.drift as drift
+
+    from oodmon.monitor.detectors.base import Trajectory
+
+    rng = np.random.default_rng(0)
+    episodes = []
+    for _ in range(4):
+        observations, actions = [rng.normal(size=60)], rng.uniform(-1, 1, (100, 3)).astype(np.float32)
+        for action in actions:
+            observations.append(0.95 * observations[-1] + 0.05 * action.sum() + rng.normal(0, 0.05, 60))
+        episodes.append(Trajectory(np.asarray(observations, np.float32), actions))
+    model = DynamicsDetector(None, epochs=2, seed=0).fit(episodes[:3])
+    sparse = DriftDetector.of(model)
+    scores = _scores(sparse, episodes[3:])[0]
+    assert not isinstance(sparse._product, np.ndarray) and sparse._product.shape[0] * sparse._product.shape[1] > 300_000
+    monkeypatch.setattr(drift, "DENSE_PRODUCT", 10**9)
+    dense = DriftDetector.of(model)
+    np.testing.assert_allclose(scores, _scores(dense, episodes[3:])[0], rtol=1e-12)
+    assert isinstance(dense._product, np.ndarray) and scores.max() > 0

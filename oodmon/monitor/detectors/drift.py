@@ -53,6 +53,12 @@ __all__ = ["DEFAULT_WINDOW", "DriftDetector"]
 
 #: The residuals summed: the dynamics detector's own window.
 DEFAULT_WINDOW = 20
+#: Entries of the product that sums a step's outputs (:meth:`DriftDetector._buffers`) up to which
+#: it is a dense array. It grows with the square of the readings predicted and holds a few
+#: nonzeros a column: past some 17 readings (45,000 entries) a sparse one sums faster (measured
+#: 2026-11-30, 30 readings: 39 us a step against 78), and 348 readings' dense one was 151 MB and
+#: 10.6 ms a step (``benchmarks/drift_step.py``'s wide case).
+DENSE_PRODUCT = 50_000
 
 
 class DriftDetector(Detector):
@@ -164,18 +170,32 @@ class DriftDetector(Detector):
         at = fast.outputs_layout()
         size = len(fast.outputs)
         square = size + at["mean"]  # the outputs' squares follow them in the float64 copy
-        product = np.zeros((size + fast.out.size, 6 * d))  # columns: a, -a, then twice each of the others
+        rows, columns, values = [], [], []  # of the product; its columns: a, -a, then twice each of the others
+
+        def put(row: np.ndarray | int, column: int, value: float) -> None:
+            row = np.atleast_1d(row)
+            rows.append(row), columns.append(np.full(len(row), column)), values.append(np.full(len(row), value))
+
         for j in range(d):
             for sign, column in ((1.0, j), (-1.0, d + j)):
-                product[at["mean"][:, j], column] = sign  # a: the means summed, less M times the change
-                product[at["change"][j], column] = -sign * members
+                put(at["mean"][:, j], column, sign)  # a: the means summed, less M times the change
+                put(at["change"][j], column, -sign * members)
             for column in (2 * d + j, 3 * d + j):
-                product[square[:, j], column] = members  # M b: the squares and the w summed, times M
-                product[at["w"][:, j], column] = members
+                put(square[:, j], column, members)  # M b: the squares and the w summed, times M
+                put(at["w"][:, j], column, members)
             for column in (4 * d + j, 5 * d + j):
-                product[at["mean"][:, j], column] = 1.0  # the means summed
+                put(at["mean"][:, j], column, 1.0)  # the means summed
+        shape = (size + fast.out.size, 6 * d)
+        rows, columns, values = np.concatenate(rows), np.concatenate(columns), np.concatenate(values)
+        if shape[0] * shape[1] <= DENSE_PRODUCT:
+            product = np.zeros(shape)
+            product[rows, columns] = values
+        else:  # a long observation's: a few nonzeros a column (of d^2 entries), summed sparse, transposed
+            from scipy.sparse import csr_array
+
+            product = csr_array((values, (columns, rows)), shape=shape[::-1])
         self._product = product
-        self._outputs = np.empty(len(product))  # float64 (see _residuals): the pass's outputs, then their squares
+        self._outputs = np.empty(shape[0])  # float64 (see _residuals): the pass's outputs, then their squares
         self._copied, self._out, self._squares = (self._outputs[:size], self._outputs[:fast.out.size],
                                                   self._outputs[size:])
         self._sums = np.empty(6 * d)
@@ -200,7 +220,10 @@ class DriftDetector(Detector):
         large changes on which the members agree would round by more than the variance)."""
         self._copied[...] = fast.outputs
         np.multiply(self._out, self._out, out=self._squares)
-        np.matmul(self._outputs, self._product, out=self._sums)
+        if isinstance(self._product, np.ndarray):
+            np.matmul(self._outputs, self._product, out=self._sums)
+        else:
+            self._sums[...] = self._product @ self._outputs
         variance = np.multiply(self._mean_sum, self._mean_sum, out=self._variance)
         np.subtract(self._twice, variance, out=variance)
         np.sqrt(variance, out=variance)
