@@ -174,7 +174,9 @@ class DriftDetector(Detector):
 
         def put(row: np.ndarray | int, column: int, value: float) -> None:
             row = np.atleast_1d(row)
-            rows.append(row), columns.append(np.full(len(row), column)), values.append(np.full(len(row), value))
+            rows.append(row)
+            columns.append(np.full(len(row), column))
+            values.append(np.full(len(row), value))
 
         for j in range(d):
             for sign, column in ((1.0, j), (-1.0, d + j)):
