@@ -24,7 +24,7 @@ from oodmon.agents.networks import estimator_for
 from oodmon.agents.serialization import load_modules
 from oodmon.errors import ConfigError, ModelFormatError, UnknownParameterError
 
-__all__ = ["Agent", "agent_from_modules", "load", "load_agent", "zoo_dir", "zoo_names"]
+__all__ = ["Agent", "agent_from_modules", "flattened", "load", "load_agent", "zoo_dir", "zoo_names"]
 
 
 @dataclass
@@ -40,8 +40,9 @@ class Agent:
         deploy: the deployed policy ``obs -> action`` when it is not the estimator's decision
             (the first of several SB3 models, as deployed, while the ensemble only scores).
         dict_space: the env's observation space when its observations are dicts (an SB3
-            ``MultiInputPolicy``): the agent, the detectors and the logs see each one flattened,
-            as :meth:`view` makes it (the policy gets the dict back, see :mod:`oodmon.agents.sb3`).
+            ``MultiInputPolicy``) or discrete values (``Discrete``, ``MultiDiscrete``,
+            ``MultiBinary``): the agent, the detectors and the logs see each one flattened (one-hot),
+            as :meth:`view` makes it (the policy gets the env's back, see :mod:`oodmon.agents.sb3`).
         stacking: the model was trained inside SB3's ``VecFrameStack``: it acts on observations
             stacked as that stacks them (:class:`~oodmon.agents.frame_stack.Stacking`), in the envs
             :meth:`wrap` makes so; the detectors and the logs read the env's own, the newest of
@@ -56,7 +57,7 @@ class Agent:
     metadata: dict[str, Any]
     path: Path | None = None
     deploy: Callable[[np.ndarray], Any] | None = None
-    dict_space: gymnasium.spaces.Dict | None = None
+    dict_space: gymnasium.spaces.Space | None = None
     stacking: Stacking | None = None
     pictures: DictPictures | None = None
 
@@ -135,8 +136,8 @@ class Agent:
     def view(self, obs: Any) -> Any:
         """The observation as the agent, the detectors and the logs read it: a dict observation
         flattened (``gymnasium.spaces.flatten`` over :attr:`dict_space`, the order the policy's
-        ``CombinedExtractor`` concatenates its keys in); any other as it is."""
-        if self.dict_space is not None and isinstance(obs, Mapping):
+        ``CombinedExtractor`` concatenates its keys in), a discrete one one-hot; any other as it is."""
+        if self.dict_space is not None and not flattened(self.dict_space, obs):
             return gymnasium.spaces.flatten(self.dict_space, obs)
         return obs
 
@@ -169,7 +170,7 @@ class Agent:
         """``env`` (the gymnasium env of the agent's env id, or an oodmon variant of it) giving the
         observations the agent acts on: stacked :attr:`frame_stack` deep as SB3's VecFrameStack
         stacks them (:class:`~oodmon.agents.frame_stack.FrameStack`; a dict key by key), and dict
-        ones flattened (``FlattenObservation``, as :meth:`view`), and for a policy with a memory
+        and discrete ones flattened (``FlattenObservation``, as :meth:`view`), and for a policy with a memory
         (:attr:`remembers`) or one that reads action masks (:attr:`reads_masks`) telling it of each
         reset (:meth:`begin_episode`) and each step's masks (:meth:`tell_masks`); ``env`` itself for
         any other agent."""
@@ -203,6 +204,20 @@ class Agent:
         masks = getattr(self.estimator, "masks", None)
         masks = {"fixed": ", fixed masks", "fixed-decisions": ", fixed masks deciding"}.get(masks, "")
         return f"Agent({self.task}, {self.method}, K={k}{masks}, id_return_mean={ret}, path={self.path})"
+
+
+def flattened(space: gymnasium.spaces.Space, obs: Any) -> bool:
+    """Whether ``obs``, an observation of ``space`` (an Agent's :attr:`~Agent.dict_space`), is
+    flattened already (:meth:`Agent.view`): not a dict, or not of the space's own shape.
+
+    Example:
+        >>> lake = gymnasium.spaces.Discrete(16)
+        >>> flattened(lake, 3), flattened(lake, gymnasium.spaces.flatten(lake, 3))
+        (False, True)
+    """
+    if isinstance(space, gymnasium.spaces.Dict):
+        return not isinstance(obs, Mapping)
+    return np.shape(obs) != space.shape
 
 
 def load_agent(directory: str | Path, *, task: str | None = None, n_samples: int | None = None,

@@ -64,9 +64,11 @@ class DictPictures:
         return np.asarray(flat)[self.picture_slice].astype(np.uint8).reshape(self.picture_shape)
 
 
-def dict_pictures(space: gymnasium.spaces.Dict) -> DictPictures | None:
-    """The parts of ``space``'s flattened observations, if it holds a picture and a vector at least;
-    ``None`` for a dict without pictures."""
+def dict_pictures(space: gymnasium.spaces.Space) -> DictPictures | None:
+    """The parts of ``space``'s flattened observations, if it is a dict that holds a picture and a
+    vector at least; ``None`` for a dict without pictures, or a space of discrete values."""
+    if not isinstance(space, gymnasium.spaces.Dict):
+        return None
     positions, pictures, start = [], [], 0
     for key, sub in space.spaces.items():
         size = gymnasium.spaces.flatdim(sub)

@@ -278,14 +278,18 @@ def _kind(model: Any) -> str | None:
 
 
 def _flat_input_shape(space: Any, extractor: nn.Module) -> tuple[int, ...]:
-    """The shape of the observations the estimator reads: the space's own, or for a dict of
-    vectors (a ``MultiInputPolicy``) the flattened dict, ``gymnasium.spaces.flatten``'s order: the
-    order SB3's ``CombinedExtractor`` concatenates its keys' flattened vectors in, so its network
-    reads the flattened dict as the dict itself.
+    """The shape of the observations the estimator reads: the space's own, for discrete values
+    (``Discrete``, ``MultiDiscrete``) their one-hot flattening (what SB3's preprocessing gives its
+    network, and ``Agent.view`` the estimator), or for a dict of vectors (a ``MultiInputPolicy``)
+    the flattened dict, ``gymnasium.spaces.flatten``'s order: the order SB3's ``CombinedExtractor``
+    concatenates its keys' flattened vectors in, so its network reads the flattened dict as the
+    dict itself.
 
     Raises:
         ConfigError: a dict read by another feature extractor (images among its keys, a user's own).
     """
+    if isinstance(space, (spaces.Discrete, spaces.MultiDiscrete)):
+        return (spaces.flatdim(space),)
     if not isinstance(space, spaces.Dict):
         return space.shape
     if not isinstance(extractor, CombinedExtractor) or not all(

@@ -28,7 +28,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from oodmon.agents.agent import Agent
+from oodmon.agents.agent import Agent, flattened
 from oodmon.errors import ConfigError
 from oodmon.hashing import state_sha256
 from oodmon.names import PLAIN_METHOD
@@ -91,17 +91,17 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
 
 
 class _ReadsDicts:
-    """A plain policy of dict observations: the monitor, the detectors' fitting and the envs
-    :meth:`Agent.wrap` makes hand on each dict flattened (:meth:`Agent.view`); the policy gets the
-    dict back, as the env gave it."""
+    """A plain policy of dict (or discrete) observations: the monitor, the detectors' fitting and
+    the envs :meth:`Agent.wrap` makes hand on each one flattened (:meth:`Agent.view`); the policy
+    gets it back as the env gave it."""
 
-    def __init__(self, policy: Callable[[Any], Any], space: gymnasium.spaces.Dict) -> None:
+    def __init__(self, policy: Callable[[Any], Any], space: gymnasium.spaces.Space) -> None:
         self.policy, self.space = policy, space
         if hasattr(policy, "begin_episode"):  # a memory of the episode, told of each one's start (Agent.remembers)
             self.begin_episode = policy.begin_episode
 
     def __call__(self, obs: Any) -> Any:
-        return self.policy(obs if isinstance(obs, Mapping) else gymnasium.spaces.unflatten(self.space, np.asarray(obs)))
+        return self.policy(gymnasium.spaces.unflatten(self.space, np.asarray(obs)) if flattened(self.space, obs) else obs)
 
 
 def policy_by_name(spec: str) -> Callable[[Any], Any]:

@@ -366,11 +366,12 @@ class _MaskableDeployed(_Deployed):
 _WRAP_FOR_MASKS = "the monitor does too: Monitor.run_episode(env), MonitoredEnv(env, monitor), oodmon.watch(..., env=env)"
 
 
-def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the model on that") -> gymnasium.spaces.Dict | None:
+def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the model on that") -> gymnasium.spaces.Space | None:
     """``space`` when it is a dict of vectors and discrete values (an SB3 ``MultiInputPolicy``'s,
     which concatenates them flattened, discrete ones one-hot, as ``gymnasium.spaces.flatten``
-    does), with pictures beside them or not (:mod:`oodmon.agents.dict_pictures`); ``None`` for an
-    array space.
+    does), with pictures beside them or not (:mod:`oodmon.agents.dict_pictures`), or discrete
+    values alone (``Discrete`` counted from 0, ``MultiDiscrete``, ``MultiBinary``: FrozenLake's
+    cell, which SB3 reads one-hot too); ``None`` for an array space.
 
     Raises:
         ConfigError: any other space (nested spaces inside a dict, a dict of pictures alone, a
@@ -380,6 +381,8 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
 
     if isinstance(space, gymnasium.spaces.Box):
         return None
+    if _flat_as_sb3(space, is_image_space):  # discrete values: read flattened, one-hot
+        return space
     if isinstance(space, gymnasium.spaces.Dict):
         vectors = [sub for sub in space.spaces.values() if not is_picture_space(sub)]  # and discrete values
         if vectors and all(_flat_as_sb3(sub, is_image_space) for sub in vectors):
@@ -389,8 +392,9 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
                               "a dict's vectors (dynamics) and its first picture beside them (frames); for pictures "
                               "alone, give the env's picture as its observation (a Box), which the frames detector reads")
     raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
-                      "Box: a vector, or stacked image frames) or a dict of vectors and discrete values (pictures "
-                      f"beside them too): wrap the env in gymnasium.wrappers.FlattenObservation, {retrain}, to watch it")
+                      "Box: a vector, or stacked image frames), discrete values, or a dict of vectors and discrete "
+                      "values (pictures beside them too): wrap the env in gymnasium.wrappers.FlattenObservation, "
+                      f"{retrain}, to watch it")
 
 
 def _flat_as_sb3(space: Any, is_image_space: Any) -> bool:

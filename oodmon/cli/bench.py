@@ -74,7 +74,7 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     bench.add_argument("--detectors",
                        help="comma-separated detectors whose per-step AUROC is reported: spread (the paper's protocol's "
                             "default), dynamics, features, frames, combined, scaled_spread (ensembles, MC agents with --masks "
-                            "fixed), drift (the dynamics model's residuals' bias); the learned "
+                            "fixed), drift (the dynamics model's residuals' bias), transitions (discrete states); the learned "
                             "ones are fitted per trial on ID episodes of their own (monitor protocol's default: spread "
                             "and the task's best)")
     bench.add_argument("--fit-episodes", type=_whole(3), default=0,

@@ -222,11 +222,13 @@ def _above_hint(threshold, unit: str) -> str:
 def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
     """`oodmon fit-detectors`."""
     fit = commands.add_parser(
-        "fit-detectors", help="fit the learned detectors (dynamics, features, combined) on an agent's ID episodes"
+        "fit-detectors", help="fit the learned detectors (dynamics or transitions, features, combined) on an agent's "
+                              "ID episodes"
     )
     _agent_arguments(fit)
     fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread, "
-                                    "fitted only when named, and drift, named or in your own env)")
+                                    "fitted only when named, and drift, named or in your own env; transitions instead "
+                                    "of dynamics and drift for discrete observations)")
     fit.add_argument("--episodes", type=_whole(3),
                      help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES}; "
                           f"your own --env: more, until they hold {_FIT_STEPS:,} steps)")

@@ -610,7 +610,7 @@ def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
     """
     _check_one_env(env)
     own = agent.make_env()
-    if agent.dict_space is not None and isinstance(env.observation_space, gymnasium.spaces.Dict):
+    if agent.dict_space is not None and not isinstance(env.observation_space, gymnasium.spaces.Box):
         env = gymnasium.wrappers.FlattenObservation(env)  # its spaces as the agent reads them (nothing stepped)
     try:
         what = space_mismatch(own, env)

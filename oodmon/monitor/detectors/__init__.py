@@ -11,6 +11,8 @@
   when named).
 - ``drift``: a bias of the dynamics model's residuals, reading by reading (a change the policy
   copes with, missed the same way step after step; with ``dynamics``, by default in your own env).
+- ``transitions``: the surprise of each (state, action, next state) to the ID ones counted, for
+  observations whose values repeat (discrete states; in place of ``dynamics`` for those).
 
 :func:`fit_detectors` fits them for a policy on its own ID episodes; :class:`DetectorSet` runs
 them at each step and saves them (safetensors + JSON).
@@ -31,9 +33,12 @@ from oodmon.monitor.detectors.fitting import (
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
+from oodmon.monitor.detectors.transitions import TransitionsDetector
 
 __all__ = [
-    "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "DETECTORS", "FIT_VERSION", "MIN_LOGVAR", "CombinedDetector", "Detector", "DetectorSet", "DriftDetector", "DynamicsDetector",
-    "FeaturesDetector", "FramesDetector", "ScaledSpreadDetector", "SpreadDetector", "StepContext", "Trajectory", "best_detector", "collect", "default_detectors", "default_fit_steps", "detectors_for",
-    "fit_agent_detectors", "fit_detectors", "fitting_notes", "trajectory_scores",
+    "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "DETECTORS", "FIT_VERSION", "MIN_LOGVAR",
+    "CombinedDetector", "Detector", "DetectorSet", "DriftDetector", "DynamicsDetector", "FeaturesDetector",
+    "FramesDetector", "ScaledSpreadDetector", "SpreadDetector", "StepContext", "Trajectory",
+    "TransitionsDetector", "best_detector", "collect", "default_detectors", "default_fit_steps",
+    "detectors_for", "fit_agent_detectors", "fit_detectors", "fitting_notes", "trajectory_scores",
 ]

@@ -48,6 +48,13 @@ class RecentMean:
     def clear(self) -> None:
         self._values.clear()
 
+    def fill(self, value: float) -> None:
+        """Start again from a full window of ``value`` (a typical ID value: a first odd step is then
+        not a window's mean on its own)."""
+        self.clear()
+        for _ in range(self.window):
+            self.add(value)
+
     def __len__(self) -> int:
         """How many values the mean covers: ``window`` at most."""
         return len(self._values)

@@ -31,6 +31,7 @@ from oodmon.monitor.detectors.frames import FramesDetector, is_picture
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector, member_values
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
+from oodmon.monitor.detectors.transitions import TransitionsDetector
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.names import fixed_masks
 from oodmon.progress import Progress
@@ -38,8 +39,8 @@ from oodmon.seeds import DETECTOR_FIT
 from oodmon.validation import is_whole
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector", "collect", "default_detectors",
-           "default_fit_steps", "detectors_for", "fit_agent_detectors", "fitting_notes",
-           "fit_detectors", "policy_parts", "trajectory_scores"]
+           "default_fit_steps", "detectors_for", "discrete_states", "fit_agent_detectors",
+           "fitting_notes", "fit_detectors", "policy_parts", "trajectory_scores"]
 
 #: ID episodes the learned detectors are fitted on by default: two thirds fit, one third ranks.
 #: 90 since 2026-11-24 (30 before): on the monitor's own benchmark (same agents and episodes) the
@@ -222,7 +223,8 @@ def trajectory_scores(detectors: DetectorSet, trajectory: Trajectory, estimator:
 def default_detectors(policy: Any, env: gymnasium.Env, task: str | None = None) -> tuple[str, ...]:
     """The learned detectors ``policy`` in ``env`` can have: ``dynamics`` for vector observations
     (stacked ones too, flattened), with ``drift`` where ``task`` is an env oodmon has no variants of
-    (:mod:`~oodmon.monitor.detectors.drift`), ``features`` for an oodmon agent or estimator, ``frames`` for
+    (:mod:`~oodmon.monitor.detectors.drift`), ``transitions`` instead of both for discrete states
+    (:func:`discrete_states`), ``features`` for an oodmon agent or estimator, ``frames`` for
     image observations (:func:`~oodmon.monitor.detectors.frames.is_picture`), both ``dynamics``
     and ``frames`` for an agent's dicts with pictures beside vectors (``Agent.pictures``), and
     ``combined``."""
@@ -231,14 +233,29 @@ def default_detectors(policy: Any, env: gymnasium.Env, task: str | None = None) 
     estimator, _, _ = policy_parts(policy)
     space = env.observation_space
     picture = is_picture(tuple(space.shape or ()), space.dtype)
-    names = [] if picture else ["dynamics"]
-    if names and task is not None and task not in TASKS:
+    names = [] if picture else ["transitions"] if discrete_states(policy, env) else ["dynamics"]
+    if names == ["dynamics"] and task is not None and task not in TASKS:
         names.append("drift")
     if estimator is not None:
         names.append("features")
     if picture or getattr(policy, "pictures", None) is not None:
         names.append("frames")
     return (*names, "combined")
+
+
+def discrete_states(policy: Any, env: gymnasium.Env) -> bool:
+    """Whether the observations of ``policy`` (an Agent's ``dict_space``, which its detectors read
+    one-hot) or else of ``env`` are discrete values: ``Discrete``, ``MultiDiscrete``, ``MultiBinary``,
+    or a dict of nothing else; the ``transitions`` detector's, not the ``dynamics`` model's.
+
+    Example:
+        >>> discrete_states(None, gymnasium.make("FrozenLake-v1")), discrete_states(None, gymnasium.make("CartPole-v1"))
+        (True, False)
+    """
+    spaces = gymnasium.spaces
+    space = getattr(policy, "dict_space", None) or env.observation_space
+    parts = space.spaces.values() if isinstance(space, spaces.Dict) else [space]
+    return all(isinstance(part, (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)) for part in parts)
 
 
 def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] | None = None,
@@ -256,7 +273,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     (a plain callable has no features); ``dynamics`` needs vector observations; ``scaled_spread``, fitted
     only when named, an oodmon ensemble (DQN or DDPG); ``drift`` reads the dynamics model's residuals
     (it brings ``dynamics``), fitted by default in an env oodmon has no variants of, else only when
-    named.
+    named; ``transitions`` needs observations whose values repeat (discrete states, where it is
+    fitted by default instead of ``dynamics`` and ``drift``).
 
     Raises:
         InvalidParameterError: an unknown detector name or fewer than 3 episodes.
@@ -268,7 +286,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     unknown = [name for name in detectors if name not in DETECTORS]
     if unknown:
         raise InvalidParameterError(f"unknown detector {unknown[0]!r}; choose from {', '.join(DETECTORS)}")
-    if "combined" in detectors and not {"dynamics", "features", "frames"} & set(detectors):
+    if "combined" in detectors and not {"dynamics", "features", "frames", "transitions"} & set(detectors):
         detectors = tuple(dict.fromkeys((*default_detectors(policy, env, task), *detectors)))
     if "drift" in detectors and "dynamics" not in detectors:  # it reads the dynamics model's residuals
         detectors = ("dynamics", *detectors)
@@ -295,6 +313,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         parts.append(DynamicsDetector(n_actions, seed=seed, min_logvar=min_logvar_for(task)).fit(fit, on_progress=on_progress))
         if "drift" in detectors:
             parts.append(DriftDetector.of(parts[-1]))
+    if "transitions" in detectors:
+        parts.append(TransitionsDetector().fit(fit))
     if "features" in detectors:
         parts.append(FeaturesDetector(n_actions).fit(fit))
     if "frames" in detectors:
@@ -330,6 +350,9 @@ def cannot_have(detector: str, policy: Any, env: gymnasium.Env) -> str | None:
         return ("the scaled_spread detector puts each ensemble member's values on its own ID footing: it needs an "
                 "oodmon ensemble, or an MC agent with fixed masks (load it with masks='fixed', --masks fixed): sampled "
                 "MC samples are not members")
+    if detector == "transitions" and is_picture(tuple(env.observation_space.shape or ()), env.observation_space.dtype):
+        return ("the transitions detector counts states that repeat (discrete observations); this env's are pictures "
+                "(the frames detector reads those)")
     pictures = getattr(policy, "pictures", None)  # an Agent's dicts with pictures: the frames detector reads those
     if detector == "frames" and len(env.observation_space.shape or ()) < 2 and pictures is None:
         return f"the frames detector needs image observations; this env's are of shape {env.observation_space.shape}"

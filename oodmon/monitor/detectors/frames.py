@@ -156,9 +156,7 @@ class FramesDetector(Detector):
         return np.log1p(((centred @ self._precision) * centred).sum(axis=1))
 
     def reset(self) -> None:
-        self._recent.clear()
-        for _ in range(self.window):
-            self._recent.add(self._typical)
+        self._recent.fill(self._typical)
 
     def score(self, context: StepContext) -> float:
         self.check_fitted()
