@@ -131,6 +131,26 @@ def test_an_sb3_model_of_discrete_observations_is_calibrated_and_run(tmp_path, c
     assert row["episodes"] == 5 and row["steps"] >= 5
 
 
+def test_calibrating_the_transitions_detector_fits_it_and_says_why_where_states_do_not_repeat(
+        tmp_path, monkeypatch, capsys):
+    monkeypatch.syspath_prepend(str(ROOT / "scripts"))
+    monkeypatch.delitem(sys.modules, "slippery_taxi", raising=False)
+    taxi = ["--policy", "slippery_taxi:drive", "--env", "slippery_taxi:SlipperyTaxi-v0"]
+    out = tmp_path / "taxi.json"
+    assert main(["calibrate", *taxi, "--detector", "transitions", "--fit-episodes", "60", "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["detector"] == "transitions"
+    fitted = json.loads((tmp_path / "taxi.json.detectors/detectors.json").read_text())
+    assert [d["name"] for d in fitted["detectors"]] == ["transitions", "combined"]
+    capsys.readouterr()
+    (tmp_path / "lean.py").write_text("def act(obs):\n    return int(obs[2] > 0)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    cartpole = ["--policy", "lean:act", "--env", "CartPole-v1"]
+    # before: "calibrating the transitions detector needs it fitted", after fitting the dynamics model
+    assert main(["calibrate", *cartpole, "--detector", "transitions", "--fit-episodes", "3",
+                 "--out", str(tmp_path / "cartpole.json")]) == 2
+    assert "counts states that repeat" in capsys.readouterr().err
+
+
 def test_an_ensemble_of_dqns_on_discrete_cells_samples_each_models_q_values_of_the_one_hot_cell(tmp_path):
     """SB3 reads a Discrete cell one-hot; the estimator reads the one-hot view (before: a batch of 16 cells)."""
     from oodmon.agents.sb3 import load_sb3

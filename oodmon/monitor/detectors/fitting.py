@@ -381,13 +381,16 @@ def check_can_have(detector: str | None, agent: Any, fitted: Any = None) -> None
 def fitted_when_named(detector: str | None) -> tuple[str, ...] | None:
     """What to fit for an alarm that reads ``detector`` when nothing is fitted yet: ``None`` (the
     policy's default set) but for the detectors fitted only when named: ``scaled_spread`` alone,
-    ``drift`` with the default set, whose ``combined`` then ranks it too.
+    ``drift`` with the default set, whose ``combined`` then ranks it too, and ``transitions`` (the
+    default for discrete observations; named for others, whose fit says whether they repeat) with a
+    ``combined`` of it.
 
     Example:
         >>> fitted_when_named("drift"), fitted_when_named("scaled_spread"), fitted_when_named("combined")
         (('drift', 'combined'), ('scaled_spread',), None)
     """
-    return {"scaled_spread": ("scaled_spread",), "drift": ("drift", "combined")}.get(detector or "")
+    return {"scaled_spread": ("scaled_spread",), "drift": ("drift", "combined"),
+            "transitions": ("transitions", "combined")}.get(detector or "")
 
 
 def has_members(estimator: Any) -> bool:
