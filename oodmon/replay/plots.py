@@ -210,7 +210,7 @@ def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folde
         for method in sorted({log.method for log in logs}):
             written.append(plot_trace(logs, method, variant, folder / f"trace_{safe_filename(method)}_{safe_filename(variant)}.png"))
     for task in sorted({m.task for m in metrics}):
-        written.append(plot_auroc_vs_shift(metrics, task, folder / f"auroc_vs_shift_{task}.png"))
+        written.append(plot_auroc_vs_shift(metrics, task, folder / f"auroc_vs_shift_{safe_filename(task)}.png"))
     return [p for p in written if p is not None]
 
 

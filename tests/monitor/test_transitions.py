@@ -202,3 +202,9 @@ def test_the_readmes_taxi_runs_as_written_and_every_taxi_that_slipped_alarmed(tm
     assert np.median(found["delays"]) <= 2
     detectors = json.loads(Path("runs/taxi.json.detectors/detectors.json").read_text())
     assert [d["name"] for d in detectors["detectors"]] == ["transitions", "combined"]
+    assert main(["replay", "runs/taxi-id.mcap", "runs/taxi-slip.mcap", "--plots", "runs/plots"]) == 0
+    # every picture in the folder, named without the env's module's colon (a file name on no Windows
+    # disk): the AUROC-against-shift one was runs/plots/auroc_vs_shift_slippery_taxi:SlipperyTaxi-v0.png
+    assert sorted(p.name for p in Path("runs/plots").iterdir()) == [
+        "auroc_vs_shift_slippery_taxi_SlipperyTaxi-v0.png", "roc_slippery_taxi_SlipperyTaxi-v0_slip_0.2.png",
+        "trace_plain_slippery_taxi_SlipperyTaxi-v0_slip_0.2.png"]
