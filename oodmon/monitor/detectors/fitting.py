@@ -253,7 +253,8 @@ def discrete_states(policy: Any, env: gymnasium.Env) -> bool:
         (True, False)
     """
     spaces = gymnasium.spaces
-    space = getattr(policy, "dict_space", None) or env.observation_space
+    space = getattr(policy, "dict_space", None)
+    space = env.observation_space if space is None else space
     parts = space.spaces.values() if isinstance(space, spaces.Dict) else [space]
     return all(isinstance(part, (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)) for part in parts)
 
