@@ -208,7 +208,7 @@ class Agent:
 
 def flattened(space: gymnasium.spaces.Space, obs: Any) -> bool:
     """Whether ``obs``, an observation of ``space`` (an Agent's :attr:`~Agent.dict_space`), is
-    flattened already (:meth:`Agent.view`): not a dict, or not of the space's own shape.
+    flattened already (:meth:`Agent.view`): not a dict (a tuple), or not of the space's own shape.
 
     Example:
         >>> lake = gymnasium.spaces.Discrete(16)
@@ -217,6 +217,8 @@ def flattened(space: gymnasium.spaces.Space, obs: Any) -> bool:
     """
     if isinstance(space, gymnasium.spaces.Dict):
         return not isinstance(obs, Mapping)
+    if isinstance(space, gymnasium.spaces.Tuple):
+        return not isinstance(obs, tuple)
     return np.shape(obs) != space.shape
 
 

@@ -113,6 +113,24 @@ def test_a_plain_policy_of_discrete_cells_gets_ints_and_its_detectors_read_them_
     assert len(sink.steps[0].observation) == 16 and sum(sink.steps[0].observation) == 1  # logged one-hot
 
 
+def test_a_plain_policy_of_a_tuple_of_discrete_values_gets_its_tuples():
+    """Blackjack's hand (Tuple(Discrete(32), Discrete(11), Discrete(2))): before, refused as FrozenLake's cell was."""
+    hands = []
+
+    def stick_at_17(hand):
+        hands.append(hand)
+        total, _dealer, _usable_ace = hand
+        return int(total < 17)
+
+    agent = plain_agent(stick_at_17, "Blackjack-v1")
+    env = agent.make_env()
+    detectors = fit_detectors(agent, env, episodes=60)
+    assert detectors.names == ["transitions", "combined"]
+    assert all(isinstance(hand, tuple) and len(hand) == 3 for hand in hands)
+    trajectory = collect(agent, env, 1)[0]
+    assert trajectory.observations.shape[1:] == (32 + 11 + 2,) and set(trajectory.observations.sum(axis=1)) == {3}
+
+
 def test_an_sb3_model_of_discrete_observations_is_calibrated_and_run(tmp_path, capsys):
     """An untrained DQN on FrozenLake (SB3 reads its cell one-hot): before, oodmon refused the env."""
     model = tmp_path / "lake.zip"

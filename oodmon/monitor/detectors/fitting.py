@@ -246,7 +246,7 @@ def default_detectors(policy: Any, env: gymnasium.Env, task: str | None = None) 
 def discrete_states(policy: Any, env: gymnasium.Env) -> bool:
     """Whether the observations of ``policy`` (an Agent's ``dict_space``, which its detectors read
     one-hot) or else of ``env`` are discrete values: ``Discrete``, ``MultiDiscrete``, ``MultiBinary``,
-    or a dict of nothing else; the ``transitions`` detector's, not the ``dynamics`` model's.
+    or a dict or tuple of nothing else; the ``transitions`` detector's, not the ``dynamics`` model's.
 
     Example:
         >>> discrete_states(None, gymnasium.make("FrozenLake-v1")), discrete_states(None, gymnasium.make("CartPole-v1"))
@@ -255,7 +255,8 @@ def discrete_states(policy: Any, env: gymnasium.Env) -> bool:
     spaces = gymnasium.spaces
     space = getattr(policy, "dict_space", None)
     space = env.observation_space if space is None else space
-    parts = space.spaces.values() if isinstance(space, spaces.Dict) else [space]
+    parts = space.spaces.values() if isinstance(space, spaces.Dict) else space.spaces if isinstance(
+        space, spaces.Tuple) else [space]
     return all(isinstance(part, (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)) for part in parts)
 
 
