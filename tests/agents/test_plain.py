@@ -111,16 +111,34 @@ def test_a_torch_policys_threshold_is_bound_to_its_weights():
                                                                    score="chosen_std", policy_hash=other)[0]
 
 
+class _TupleWithVector(gymnasium.Env):
+    """Observations of a cell and a vector in a tuple: nothing oodmon's detectors read."""
+
+    observation_space = gymnasium.spaces.Tuple((gymnasium.spaces.Discrete(3), gymnasium.spaces.Box(-1, 1, (2,))))
+    action_space = gymnasium.spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return (0, np.zeros(2, np.float32)), {}
+
+    def step(self, action):
+        return (0, np.zeros(2, np.float32)), 0.0, True, False, {}
+
+
 @pytest.mark.parametrize(("policy", "env_id", "kwargs", "said"), [
     (lambda obs: 3, "CartPole-v1", {}, "returned 3 for CartPole-v1's first observation, which the env refused"),
     (lambda obs: np.zeros(2), "Pendulum-v1", {}, "shape (2,)) for Pendulum-v1's first observation"),
     (lambda obs: torch.tensor(1), "CartPole-v1", {}, "Discrete(2) (a torch tensor: return a number, .item(), or an array"),
     (lambda obs: 0, "CartPole-v1", {"mean": True}, "are for SB3 models; a plain policy acts on the env's observations"),
     (lambda obs: 0, None, {}, "give the gymnasium env id your policy acts in"),
-    (lambda obs: 0, "Blackjack-v1", {}, "Blackjack-v1's observations are Tuple"),
+    # a tuple of discrete values (Blackjack's hand) is watched (tests/monitor/test_transitions.py); one with a vector is not
+    (lambda obs: 0, "plain_tests/TupleWithVector-v0", {}, "plain_tests/TupleWithVector-v0's observations are Tuple"),
 ], ids=["action-refused", "box-shape", "torch-tensor", "sb3-option", "no-env", "tuple-observations"])
 def test_a_policy_oodmon_cannot_run_is_said_before_any_episode(policy, env_id, kwargs, said):
     from oodmon.monitor.watch import as_agent
+
+    if "plain_tests/TupleWithVector-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/TupleWithVector-v0", entry_point=_TupleWithVector)
 
     with pytest.raises(ConfigError) as error:
         as_agent(policy, env_id, **kwargs)
