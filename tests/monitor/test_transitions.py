@@ -19,9 +19,9 @@ from oodmon.agents.plain import plain_agent
 from oodmon.cli import main
 from oodmon.errors import ConfigError
 from oodmon.monitor import Monitor
-from oodmon.monitor.sinks.base import MemorySink
 from oodmon.monitor.detectors import DetectorSet, StepContext, Trajectory, TransitionsDetector, fit_detectors
 from oodmon.monitor.detectors.fitting import collect
+from oodmon.monitor.sinks.base import MemorySink
 
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
@@ -44,7 +44,7 @@ def test_a_seen_transition_scores_low_a_slip_high_and_a_state_never_seen_by_how_
     detector = TransitionsDetector(window=1).fit(_corridor_walks())
     right, slipped, stayed = (detector.step_surprise(np.eye(6)[2], 1, np.eye(6)[k]) for k in (3, 1, 2))
     assert right < 0.05  # 30 walks moved right from cell 2, every time
-    assert slipped > 4.0 and stayed > 4.0  # never seen from (2, right): -log of a prior share over 30 + ...
+    assert slipped > 4.0 and stayed > 4.0  # (2, right) seen 30 times, never to 1 or 2: -log(q(s') / 31)
     never = detector.step_surprise(np.eye(6)[2], 1, np.full(6, 0.5))  # a state never seen at all
     # q(never) = 1 / (n + S + 1): the rarest next state there is
     assert never == pytest.approx(-np.log((1 / (360 + 6 + 1)) / (30 + 1)), rel=1e-9) and never > slipped
