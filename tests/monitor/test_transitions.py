@@ -87,6 +87,8 @@ def test_what_a_table_cannot_count_is_refused_saying_why():
     tensors = TransitionsDetector().fit(_corridor_walks()).tensors()
     with pytest.raises(ConfigError, match="name states or actions it does not hold"):
         TransitionsDetector.from_state({"window": 20}, tensors | {"transitions": tensors["transitions"] + 100})
+    with pytest.raises(ConfigError, match="counts are not all positive"):  # else a log of a negative P (a new step of a counted pair)
+        TransitionsDetector.from_state({"window": 20}, tensors | {"counts": -tensors["counts"]})
     with pytest.raises(ConfigError, match="incomplete"):
         TransitionsDetector.from_state({"window": 20}, {k: v for k, v in tensors.items() if k != "counts"})
 

@@ -204,6 +204,9 @@ class TransitionsDetector(Detector):
         bounds = np.array([len(states), len(actions), len(states)])
         if len(transitions) and (transitions.min() < 0 or np.any(transitions.max(axis=0) >= bounds)):
             raise ConfigError("the transitions detector's transitions name states or actions it does not hold")
+        if np.any(counts < 1) or not np.isfinite(np.asarray(tensors["typical"], np.float64)).all():
+            raise ConfigError("the transitions detector's counts are not all positive, or its typical value is not a "
+                              "number")
         detector._states, detector._actions = states, actions
         detector._transitions, detector._counts = transitions, counts
         detector._typical = float(np.asarray(tensors["typical"]).reshape(-1)[0])
