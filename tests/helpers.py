@@ -31,6 +31,19 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(["oodmon", *args], code, out.getvalue(), err.getvalue())
 
 
+def run_as_written(commands: list[list[str]], folder, monkeypatch, *, python_path, module: str) -> None:
+    """A README shell block's oodmon commands run as a user runs them: from ``folder``, with
+    ``python_path`` on the import path (the block's ``export PYTHONPATH=``) and ``module`` (the one
+    its ``--policy`` names) imported afresh; each must exit 0."""
+    from oodmon.cli import main
+
+    monkeypatch.chdir(folder)
+    monkeypatch.syspath_prepend(str(python_path))
+    monkeypatch.delitem(sys.modules, module, raising=False)
+    for argv in commands:
+        assert main(argv) == 0, argv
+
+
 def blas_threads() -> set[int]:
     """The threads of every BLAS loaded in this process (numpy's, opencv's, scipy's OpenBLAS)."""
     from threadpoolctl import threadpool_info

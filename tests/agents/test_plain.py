@@ -7,7 +7,6 @@ import copy
 import json
 import re
 import shlex
-import sys
 from pathlib import Path
 
 import gymnasium
@@ -22,6 +21,7 @@ from oodmon.cli import main
 from oodmon.errors import ConfigError
 from oodmon.monitor import Threshold
 from oodmon.replay import read_log
+from tests.helpers import run_as_written
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -42,11 +42,7 @@ def test_the_readmes_controller_is_calibrated_run_and_replayed_as_written_then_w
     assert "export PYTHONPATH=runs" in README.read_text()
     (tmp_path / "runs").mkdir()
     (tmp_path / "runs/my_controller.py").write_text(module)
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.syspath_prepend(str(tmp_path / "runs"))  # export PYTHONPATH=runs
-    monkeypatch.delitem(sys.modules, "my_controller", raising=False)
-    for argv in commands:
-        assert main(argv) == 0, argv
+    run_as_written(commands, tmp_path, monkeypatch, python_path=tmp_path / "runs", module="my_controller")
     capsys.readouterr()
     assert main(["replay", "--json", "runs/controller.mcap"]) == 0
     row = next(r for r in json.loads(capsys.readouterr().out) if r["detector"] == "combined")

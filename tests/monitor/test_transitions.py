@@ -22,6 +22,7 @@ from oodmon.monitor import Monitor
 from oodmon.monitor.detectors import DetectorSet, StepContext, Trajectory, TransitionsDetector, fit_detectors
 from oodmon.monitor.detectors.fitting import collect
 from oodmon.monitor.sinks.base import MemorySink
+from tests.helpers import run_as_written
 
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
@@ -62,6 +63,21 @@ def test_an_episodes_window_starts_full_of_the_id_median_and_takes_each_step_in(
     assert second == pytest.approx((3 * detector._typical + slip) / 4)
 
 
+def test_a_step_reads_the_previous_state_it_looked_up_and_scores_as_one_that_looks_it_up_again():
+    detector = TransitionsDetector().fit(_corridor_walks())
+    walk = _corridor_walks(1, slip_every=3)[0]
+    runs = []
+    for copied in (False, True):  # the monitor hands the last observation on; a copy is looked up again
+        detector.reset()
+        scores, prev = [], None
+        for obs, action in zip(walk.observations, [None, *walk.actions]):
+            handed = None if prev is None else prev.copy() if copied else prev
+            scores.append(detector.score(StepContext(obs, 1, prev_obs=handed, prev_action=action)))
+            prev = obs
+        runs.append(scores)
+    assert runs[0] == runs[1] and max(runs[0]) > detector._typical  # the slips seen either way
+
+
 def test_a_fitted_table_saves_and_loads_as_arrays_and_scores_the_same(tmp_path):
     walks = _corridor_walks()
     fitted = DetectorSet([TransitionsDetector().fit(walks)])
@@ -87,7 +103,8 @@ def test_what_a_table_cannot_count_is_refused_saying_why():
     tensors = TransitionsDetector().fit(_corridor_walks()).tensors()
     with pytest.raises(ConfigError, match="name states or actions it does not hold"):
         TransitionsDetector.from_state({"window": 20}, tensors | {"transitions": tensors["transitions"] + 100})
-    with pytest.raises(ConfigError, match="counts are not all positive"):  # else a log of a negative P (a new step of a counted pair)
+    # counts not positive: else a log of a negative P at a new step of a counted pair
+    with pytest.raises(ConfigError, match="counts are not all positive"):
         TransitionsDetector.from_state({"window": 20}, tensors | {"counts": -tensors["counts"]})
     with pytest.raises(ConfigError, match="incomplete"):
         TransitionsDetector.from_state({"window": 20}, {k: v for k, v in tensors.items() if k != "counts"})
@@ -198,11 +215,7 @@ def test_the_readmes_taxi_runs_as_written_and_every_taxi_that_slipped_alarmed(tm
     commands = _taxi_block()
     assert [argv[0] for argv in commands] == ["calibrate", "run", "run", "replay"]
     (tmp_path / "runs").mkdir()
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.syspath_prepend(str(ROOT / "scripts"))  # export PYTHONPATH=scripts
-    monkeypatch.delitem(sys.modules, "slippery_taxi", raising=False)
-    for argv in commands:
-        assert main(argv) == 0, argv
+    run_as_written(commands, tmp_path, monkeypatch, python_path=ROOT / "scripts", module="slippery_taxi")
     capsys.readouterr()
     assert main(["replay", "--json", "runs/taxi-id.mcap", "runs/taxi-slip.mcap"]) == 0
     rows = {(r["variant"], r["detector"]): r for r in json.loads(capsys.readouterr().out)}

@@ -105,6 +105,7 @@ class TransitionsDetector(Detector):
         self._transitions = np.zeros((0, 3), np.int64)  # (N, 3): state, action, next state ids
         self._counts = np.zeros(0, np.int64)  # (N,): each transition's count
         self._typical = 0.0  # the ID steps' median value: what a new episode's window starts with
+        self._last: tuple[Any, int] | None = None  # the last step's observation and its state id
 
     @property
     def fitted(self) -> bool:
@@ -163,22 +164,31 @@ class TransitionsDetector(Detector):
         seen = self._triples.get((state, action, following), 0)
         return -math.log((seen + ALPHA * q) / (pair + ALPHA))
 
+    def _state_id(self, obs: Any) -> int:
+        """The id of the state ``obs`` is (-1: never seen)."""
+        return self._state_ids.get(_key(obs), -1)
+
     def step_surprise(self, obs: Any, action: Any, next_obs: Any) -> float:
         """One transition's surprise, ``-log P(next_obs | obs, action)``."""
         self.check_fitted()
-        return self._surprise(self._state_ids.get(_key(obs), -1), self._action_ids.get(_key(action), -1),
-                              self._state_ids.get(_key(next_obs), -1))
+        return self._surprise(self._state_id(obs), self._action_ids.get(_key(action), -1), self._state_id(next_obs))
 
     # -- scoring -----------------------------------------------------------------------------------
     def reset(self) -> None:
         self._recent.fill(self._typical)
+        self._last = None
 
     def score(self, context: StepContext) -> float:
         """The mean surprise over the episode's last ``window`` steps (the first step: the ID median)."""
         self.check_fitted()
+        following = self._state_id(context.obs)
+        last, self._last = self._last, (context.obs, following)
         if context.prev_obs is None:
             return self._recent.add(self._typical)
-        return self._recent.add(self.step_surprise(context.prev_obs, context.prev_action, context.obs))
+        # the previous step's observation was looked up then (the monitor hands the same array on)
+        state = last[1] if last is not None and last[0] is context.prev_obs else self._state_id(context.prev_obs)
+        action = self._action_ids.get(_key(context.prev_action), -1)
+        return self._recent.add(self._surprise(state, action, following))
 
     # -- state -------------------------------------------------------------------------------------
     def config(self) -> dict[str, Any]:
