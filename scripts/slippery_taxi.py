@@ -10,8 +10,10 @@ iteration over the env's own transition table (computed once, at import; a plain
 
 Used as ``PYTHONPATH=scripts oodmon calibrate --policy slippery_taxi:drive --env
 slippery_taxi:SlipperyTaxi-v0 ...`` (the README's "Discrete observations"). Run as a script on a
-log of a slip's run, it plays each episode again from its seed and tells which episodes' taxi
-slipped (an action replaced by another, from the onset on), and the alarms of those and of the others:
+log of a slip's run or of a sensor fault's (``SlipperyTaxi-v0:obs.noise=0.1``), it plays each
+episode again from its seed and tells in which episodes something went wrong from the onset on
+(an action replaced by another, a state read as another than the taxi's), and the alarms of those
+and of the others:
     .venv/bin/python scripts/slippery_taxi.py runs/taxi-slip.mcap
 """
 
@@ -68,24 +70,22 @@ def drive(obs: int) -> int:
     return int(_ROUTE[int(obs)])
 
 
-def slips_and_alarms(log_path: str) -> dict[str, object]:
-    """Each episode of a slip's run (an ``oodmon run`` log) played again from its seed: how many
-    slipped, how many of those and of the others alarmed, and the steps from the first slip to the
-    first alarm."""
+def faults_and_alarms(log_path: str) -> dict[str, object]:
+    """Each episode of a slip's or a sensor fault's run (an ``oodmon run`` log) played again from
+    its seed: in how many something went wrong (a slip: an action replaced by another; a misread:
+    the policy read another state than the taxi's), how many of those and of the others alarmed,
+    and the steps from the first slip or misread to the first alarm."""
     from oodmon.envs import parse_env_shift
     from oodmon.replay import read_log
 
-    counts = {"episodes": 0, "slipped": 0, "slipped_alarmed": 0, "others_alarmed": 0, "delays": []}
+    counts = {"episodes": 0, "faulted": 0, "faulted_alarmed": 0, "others_alarmed": 0, "delays": []}
     for episode in read_log(log_path).episodes:
-        slip = dict(parse_env_shift(episode.variant).params)["slip"]
-        env = gymnasium.make(ENV_ID)
+        env = parse_env_shift(episode.variant).make(onset_step=int(episode.onset))
         obs, _ = env.reset(seed=int(episode.seed))
         first = None
         for step in range(episode.length):
-            if step == episode.onset:
-                env.set_wrapper_attr("slip", slip)
             obs, _, terminated, truncated, info = env.step(drive(obs))
-            if info["slipped"] and first is None:
+            if (info["slipped"] or obs != env.unwrapped.s) and first is None:
                 first = step
             if terminated or truncated:
                 break
@@ -94,8 +94,8 @@ def slips_and_alarms(log_path: str) -> dict[str, object]:
         if first is None:
             counts["others_alarmed"] += alarm is not None
             continue
-        counts["slipped"] += 1
-        counts["slipped_alarmed"] += alarm is not None
+        counts["faulted"] += 1
+        counts["faulted_alarmed"] += alarm is not None
         if alarm is not None:
             counts["delays"].append(int(alarm - first))
     return counts
@@ -104,7 +104,7 @@ def slips_and_alarms(log_path: str) -> dict[str, object]:
 if __name__ == "__main__":
     import sys
 
-    found = slips_and_alarms(sys.argv[1])
+    found = faults_and_alarms(sys.argv[1])
     delays = found.pop("delays")
-    print(found, "steps from the first slip to the first alarm: median", float(np.median(delays)) if delays else None,
+    print(found, "steps from the first slip or misread to the first alarm: median", float(np.median(delays)) if delays else None,
           "p90", float(np.percentile(delays, 90)) if delays else None)

@@ -22,6 +22,7 @@ Spec strings, as ``oodmon run --variant`` takes them and the logs write them::
                                                  of the observation off by 0.5 (also obs.scale,
                                                  obs.noise, obs.stuck)
     my_envs:MyBreakout-v0:obs.noise=30           every reading at once (a camera's every pixel)
+    Taxi-v4:obs.noise=0.1                        a discrete reading misread one step in ten
 
 An attribute that ``step()`` does not read (a quantity the env derives once in ``__init__`` from
 another) changes nothing: pick the ones its code uses. CartPole and Pendulum have oodmon's own
@@ -291,6 +292,12 @@ class SensorFaults:
     an integer observation (a picture's bytes) are rounded and clipped to their type's range (a
     pixel saturates at 255 rather than wrap around to 0).
 
+    An observation of discrete values (``Discrete``: one reading; ``MultiDiscrete``,
+    ``MultiBinary``: one per value, flattened) has no gain and no Gaussian noise; its faults are
+    ``obs.bias[i]=b``, a whole ``b`` added (a miscount, clipped to the reading's values),
+    ``obs.noise[i]=p``, the probability that a step's reading is misread as a value drawn
+    uniformly from the reading's values (the same seeding), and ``obs.stuck[i]=1``.
+
     Made by :class:`ShiftAttributes` from the ``obs.`` names of its changes (``obs.`` is kept for
     them: an env attribute called ``obs`` cannot be shifted).
 
@@ -299,17 +306,22 @@ class SensorFaults:
         >>> faults.begin_episode(0, np.zeros(3, np.float32))
         >>> faults.read(np.ones(3, np.float32), faulty=True).tolist()
         [1.5, 1.0, 0.0]
+        >>> taxi = SensorFaults.of("Taxi-v4", gymnasium.spaces.Discrete(500), {"obs.bias": 3})
+        >>> taxi.begin_episode(0, 17)
+        >>> taxi.read(17, faulty=True), taxi.read(498, faulty=True)  # the same type as the env's, clipped to its values
+        (20, 499)
     """
 
     KINDS: ClassVar[tuple[str, ...]] = ("bias", "scale", "noise", "stuck")
     _UNCHANGED: ClassVar[Mapping[str, float]] = MappingProxyType({"bias": 0.0, "scale": 1.0, "noise": 0.0, "stuck": 0.0})
 
     def __init__(self, changes: dict[str, float], faults: list[tuple[str, int | None, float]], size: int,
-                 integers: np.iinfo | None = None) -> None:
+                 integers: np.iinfo | None = None, values: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """``changes`` as the spec names them; ``faults`` the same as (kind, reading or ``None`` for
         every reading, value), parsed and checked by :meth:`of`; ``size`` the readings of an
         observation; ``integers`` the range of an integer observation's type (its readings are rounded
-        and clipped to it)."""
+        and clipped to it); ``values`` the lowest and highest value of each reading of a discrete
+        observation (its noise is a misread's probability: :meth:`_discrete`)."""
         self.changes = changes
         self.bias, self.scale, self.noise = np.zeros(size), np.ones(size), np.zeros(size)
         self.stuck = np.zeros(size, bool)
@@ -324,6 +336,7 @@ class SensorFaults:
         self._last: np.ndarray | None = None
         self._rng = np.random.default_rng(0)
         self._integers = integers
+        self._values = values
 
     @classmethod
     def of(cls, owner: str, space: gymnasium.Space, changes: dict[str, float]) -> SensorFaults | None:
@@ -331,39 +344,43 @@ class SensorFaults:
         when there are none.
 
         Raises:
-            UnknownParameterError: another kind, an index the observation does not have, or an
-                observation that is not one ``Box``.
-            InvalidParameterError: a value that is not a finite number, a negative noise, a stuck
-                other than 1, or no fault at all.
+            UnknownParameterError: another kind (``scale`` of discrete values), an index the
+                observation does not have, or an observation that is neither one ``Box`` nor
+                discrete values.
+            InvalidParameterError: a value that is not a finite number, a negative noise (above 1
+                for discrete values), a fractional bias of discrete values, a stuck other than 1,
+                or no fault at all.
         """
         if not changes:
             return None
-        if not isinstance(space, gymnasium.spaces.Box):
+        values = _discrete_values(space)
+        if not isinstance(space, gymnasium.spaces.Box) and values is None:
             raise UnknownParameterError(f"{owner}: sensor faults ({', '.join(changes)}) read the readings of a Box "
-                                        f"observation; {owner}'s is {space}")
+                                        f"observation or of discrete values (Discrete, MultiDiscrete, MultiBinary); "
+                                        f"{owner}'s is {space}")
+        kinds = cls.KINDS if values is None else tuple(kind for kind in cls.KINDS if kind != "scale")
         size, kept, faults = int(np.prod(space.shape)), {}, []
         for name, value in changes.items():
             match = re.fullmatch(r"obs\.(\w+)(?:\[(\d+)\])?", name)
-            if match is None or match.group(1) not in cls.KINDS:
-                raise UnknownParameterError(f"{owner}: {name!r} is no sensor fault; give obs.KIND[i]=VALUE, KIND one of "
-                                            f"{', '.join(cls.KINDS)}, i a reading of the observation (0-{size - 1}), "
-                                            "or obs.KIND=VALUE for every reading")
+            if match is None or match.group(1) not in kinds:
+                of_what = "" if values is None else " of discrete values"
+                raise UnknownParameterError(f"{owner}: {name!r} is no sensor fault{of_what}; give obs.KIND[i]=VALUE, "
+                                            f"KIND one of {', '.join(kinds)}, i a reading of the observation "
+                                            f"(0-{size - 1}), or obs.KIND=VALUE for every reading")
             kind, index = match.group(1), None if match.group(2) is None else int(match.group(2))
             if index is not None and index >= size:
                 raise UnknownParameterError(f"{owner}: {name} is outside the observation, whose {size} readings are "
                                             f"0-{size - 1} (flattened)")
-            if not _is_number(value) or not math.isfinite(value) or (kind == "noise" and value < 0) \
-                    or (kind == "stuck" and value not in (0, 1)):
-                raise InvalidParameterError(f"{owner}: {name}={value!r} is not allowed; "
-                                            + ("stuck is 1 (held) or 0" if kind == "stuck" else
-                                               "noise is a std, a finite number >= 0" if kind == "noise" else
-                                               "give a finite number"))
+            problem = _fault_value_problem(kind, value, discrete=values is not None)
+            if problem is not None:
+                raise InvalidParameterError(f"{owner}: {name}={value!r} is not allowed; {problem}")
             if value != cls._UNCHANGED[kind] or (index is not None and f"obs.{kind}" in changes):
                 kept[name] = float(value)  # (an unchanged reading kept where every reading's fault would change it)
                 faults.append((kind, index, float(value)))
         if not kept:
             raise InvalidParameterError(f"{owner}: {changes} change no reading; a shift changes at least one")
-        return cls(kept, faults, size, np.iinfo(space.dtype) if np.issubdtype(space.dtype, np.integer) else None)
+        integers = np.iinfo(space.dtype) if values is None and np.issubdtype(space.dtype, np.integer) else None
+        return cls(kept, faults, size, integers, values)
 
     def begin_episode(self, seed: int | None, obs) -> None:
         """A new episode: its noise seeded by ``seed`` (``None``: the generator goes on), its first reading kept."""
@@ -380,16 +397,64 @@ class SensorFaults:
             if self._holds:  # the last reading before the fault, which a stuck sensor holds
                 self._last = flat.copy()
             return obs
-        reading = flat.astype(np.float64) * self.scale + self.bias
-        if self._noisy:
-            reading += self.noise * self._rng.normal(size=flat.shape)
+        if self._values is not None:
+            reading = self._discrete(flat)
+        else:
+            reading = flat.astype(np.float64) * self.scale + self.bias
+            if self._noisy:
+                reading += self.noise * self._rng.normal(size=flat.shape)
         if self._holds:
             if self._held is None:  # the fault begins: a stuck sensor holds its last reading
                 self._held = self._last if self._last is not None else flat.copy()
             reading[self.stuck] = self._held[self.stuck]
         if self._integers is not None:  # bytes saturate: 250 + 10 reads 255, not 4
             reading = np.clip(np.rint(reading), self._integers.min, self._integers.max)
+        if np.ndim(obs) == 0 and not isinstance(obs, np.ndarray):  # a Discrete space's value: its type (Taxi's int)
+            return type(obs)(reading[0])
         return reading.astype(np.asarray(obs).dtype).reshape(np.shape(obs))
+
+    def _discrete(self, flat: np.ndarray) -> np.ndarray:
+        """Discrete readings through the bias (clipped to each reading's values) and the misreads:
+        each reading drawn anew, uniformly from its values, with probability its noise (as many draws
+        at every step, whichever readings are misread)."""
+        low, high = self._values
+        reading = np.clip(flat.astype(np.int64) + self.bias.astype(np.int64), low, high)
+        if self._noisy:
+            misread = self._rng.random(flat.shape) < self.noise
+            drawn = self._rng.integers(low, high + 1)
+            reading[misread] = drawn[misread]
+        return reading
+
+
+def _fault_value_problem(kind: str, value: Any, *, discrete: bool) -> str | None:
+    """What is wrong with ``value`` for a sensor fault of ``kind`` (of discrete readings if
+    ``discrete``), or ``None``."""
+    if not _is_number(value) or not math.isfinite(value):
+        return "give a finite number"
+    if kind == "stuck" and value not in (0, 1):
+        return "stuck is 1 (held) or 0"
+    if kind == "noise" and not discrete and value < 0:
+        return "noise is a std, a finite number >= 0"
+    if kind == "noise" and discrete and not 0 <= value <= 1:
+        return "noise of discrete values is the probability of a misread, 0-1"
+    if kind == "bias" and discrete and value != int(value):
+        return "the bias of discrete values is a whole number"
+    return None
+
+
+def _discrete_values(space: gymnasium.Space) -> tuple[np.ndarray, np.ndarray] | None:
+    """The lowest and highest value of each reading (flattened) of a ``Discrete``, ``MultiDiscrete``
+    or ``MultiBinary`` space; ``None`` for any other."""
+    if isinstance(space, gymnasium.spaces.Discrete):
+        return np.array([space.start], np.int64), np.array([space.start + space.n - 1], np.int64)
+    if isinstance(space, gymnasium.spaces.MultiDiscrete):
+        start = np.asarray(getattr(space, "start", 0), np.int64)
+        low = np.broadcast_to(start, space.nvec.shape).reshape(-1)
+        return low.copy(), low + space.nvec.reshape(-1).astype(np.int64) - 1
+    if isinstance(space, gymnasium.spaces.MultiBinary):
+        size = int(np.prod(space.shape))
+        return np.zeros(size, np.int64), np.ones(size, np.int64)
+    return None
 
 
 @dataclass(frozen=True)

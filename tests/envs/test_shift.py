@@ -252,12 +252,98 @@ def test_a_fault_without_an_index_is_every_readings_and_bytes_saturate_instead_o
         (("obs.noise", 30.0), ("obs.noise[3]", 0.0))
 
 
-def test_sensor_faults_need_one_box_observation():
+def test_sensor_faults_need_one_box_or_discrete_values():
     class DictBodies(_FallingBodies):
         observation_space = gymnasium.spaces.Dict({"v": _FallingBodies.observation_space})
 
-    with pytest.raises(UnknownParameterError, match=r"read the readings of a Box observation; .*Dict"):
+    with pytest.raises(UnknownParameterError, match=r"read the readings of a Box observation or of discrete values "
+                                                    r"\(Discrete, MultiDiscrete, MultiBinary\); .*Dict"):
         ShiftAttributes(DictBodies(), {"obs.bias[0]": 1.0})
+
+
+def _taxi_readings(faults: dict[str, float], seed: int, steps: int, onset: int) -> tuple[list, list, list]:
+    """Taxi-v4's own states and the faulted env's readings and shifted flags, the same actions."""
+    own_env, faulted = gymnasium.make("Taxi-v4"), ShiftAttributes(gymnasium.make("Taxi-v4"), faults, onset_step=onset)
+    own, _ = own_env.reset(seed=seed)
+    read, info = faulted.reset(seed=seed)
+    owns, reads, flags = [own], [read], [info["shifted"]]
+    for action in np.random.default_rng(seed).integers(0, 4, steps):  # moves only: no drop-off ends it
+        owns.append(own_env.step(int(action))[0])
+        read, _, _, _, info = faulted.step(int(action))
+        reads.append(read)
+        flags.append(info["shifted"])
+    return owns, reads, flags
+
+
+def test_a_discrete_sensor_miscounts_misreads_and_sticks_from_the_onset_as_the_env_types_its_values():
+    owns, biased, flags = _taxi_readings({"obs.bias": 3}, seed=1, steps=30, onset=5)
+    assert flags == [False] * 6 + [True] * 25 and biased[:6] == owns[:6]
+    assert biased[6:] == [min(own + 3, 499) for own in owns[6:]] and {type(r) for r in biased} == {int}
+    owns, stuck, _ = _taxi_readings({"obs.stuck": 1}, seed=1, steps=30, onset=5)
+    assert stuck[:6] == owns[:6] and stuck[6:] == [owns[5]] * 25 and len(set(owns[6:])) > 1
+    # a misread with probability 0.3, drawn from Taxi's 500 states (499 of them another): over 600
+    # faulted steps the share read otherwise lies within 0.3 +- 0.06 with probability > 0.99
+    readings = [_taxi_readings({"obs.noise": 0.3}, seed=seed, steps=60, onset=0) for seed in range(10)]
+    misread = [r != o for owns, reads, _ in readings for o, r in zip(owns[1:], reads[1:])]
+    assert abs(np.mean(misread) - 0.3) < 0.06
+    assert all(0 <= r < 500 for _, reads, _ in readings for r in reads)
+    assert _taxi_readings({"obs.noise": 0.3}, seed=3, steps=60, onset=0)[1] == readings[3][1]  # seeded by the episode
+
+
+class _Lights(gymnasium.Env):
+    """Two dials of values 1-3 and 0-4 and two lamps, counting up with each step."""
+
+    observation_space = gymnasium.spaces.Dict()  # set per instance below
+    action_space = gymnasium.spaces.Discrete(2)
+
+    def __init__(self, space: gymnasium.Space) -> None:
+        self.observation_space, self._t = space, 0
+
+    def _obs(self):
+        values = np.array([1 + self._t % 3, self._t % 5, self._t % 2, (self._t + 1) % 2])
+        return values[:2] if isinstance(self.observation_space, gymnasium.spaces.MultiDiscrete) else values[2:].astype(np.int8)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self._t = 0
+        return self._obs(), {}
+
+    def step(self, action):
+        self._t += 1
+        return self._obs(), 0.0, False, False, {}
+
+
+def test_faults_of_several_discrete_values_keep_each_reading_among_its_own_values():
+    dials = gymnasium.spaces.MultiDiscrete([3, 5], start=[1, 0])
+    env = ShiftAttributes(_Lights(dials), {"obs.bias[0]": 5, "obs.bias[1]": -1})
+    obs, _ = env.reset(seed=0)
+    readings = [obs] + [env.step(0)[0] for _ in range(6)]
+    assert [r.tolist() for r in readings] == [[3, 0], [3, 0], [3, 1], [3, 2], [3, 3], [3, 0], [3, 0]]
+    assert all(r.dtype == np.int64 and dials.contains(r) for r in readings)
+    misread = ShiftAttributes(_Lights(dials), {"obs.noise[1]": 1.0})  # the second dial misread at every step
+    obs, _ = misread.reset(seed=0)
+    readings = np.array([obs] + [misread.step(0)[0] for _ in range(200)])
+    assert readings[:, 0].tolist() == [1 + t % 3 for t in range(201)]  # the first dial as it is
+    assert sorted(set(readings[:, 1].tolist())) == [0, 1, 2, 3, 4]  # 201 uniform draws of 5 values
+    lamps = gymnasium.spaces.MultiBinary(2)
+    env = ShiftAttributes(_Lights(lamps), {"obs.stuck[0]": 1, "obs.bias[1]": 1}, onset_step=1)
+    obs, _ = env.reset(seed=0)
+    readings = [obs] + [env.step(0)[0] for _ in range(4)]
+    assert [r.tolist() for r in readings] == [[0, 1], [1, 0], [1, 1], [1, 1], [1, 1]]
+    assert all(r.dtype == np.int8 for r in readings)
+
+
+@pytest.mark.parametrize(("faults", "error", "message"), [
+    ({"obs.scale": 2.0}, UnknownParameterError, r"'obs.scale' is no sensor fault of discrete values; .*KIND one of "
+                                                r"bias, noise, stuck"),
+    ({"obs.bias": 0.5}, InvalidParameterError, r"obs.bias=0.5 is not allowed; the bias of discrete values is a whole"),
+    ({"obs.noise": 1.5}, InvalidParameterError, r"obs.noise=1.5 is not allowed; noise of discrete values is the "
+                                                r"probability of a misread, 0-1"),
+    ({"obs.stuck[1]": 1}, UnknownParameterError, r"obs.stuck\[1\] is outside the observation, whose 1 readings"),
+])
+def test_what_a_discrete_sensor_cannot_do_is_refused_saying_why(faults, error, message):
+    with pytest.raises(error, match=message):
+        ShiftAttributes(gymnasium.make("Taxi-v4"), faults)
 
 
 def test_an_array_handed_out_as_a_copy_is_refused_since_setting_it_changes_nothing():
