@@ -25,7 +25,15 @@ from oodmon.envs.physics import CARTPOLE_DEFAULTS, PENDULUM_DEFAULTS, ShiftedCar
 from oodmon.envs.pong import CorruptedPong, to_agent_view
 from oodmon.envs.probe import ShiftProbe, probe_shift
 from oodmon.envs.registration import register_envs
-from oodmon.envs.shift import EnvShift, ShiftAttributes, own_variant, parse_any_variant, parse_env_shift
+from oodmon.envs.shift import (
+    DictSensorFaults,
+    EnvShift,
+    SensorFaults,
+    ShiftAttributes,
+    own_variant,
+    parse_any_variant,
+    parse_env_shift,
+)
 
 __all__ = [
     "CARTPOLE_DEFAULTS",
@@ -35,11 +43,13 @@ __all__ = [
     "TASKS",
     "CorruptedPong",
     "Corruption",
+    "DictSensorFaults",
     "EnvShift",
     "GaussianNoise",
     "ImpulseNoise",
     "MotionBlur",
     "Pixelate",
+    "SensorFaults",
     "ShiftAttributes",
     "ShiftProbe",
     "ShiftedCartPole",

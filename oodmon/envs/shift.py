@@ -23,6 +23,7 @@ Spec strings, as ``oodmon run --variant`` takes them and the logs write them::
                                                  obs.noise, obs.stuck)
     my_envs:MyBreakout-v0:obs.noise=30           every reading at once (a camera's every pixel)
     Taxi-v4:obs.noise=0.1                        a discrete reading misread one step in ten
+    my_envs:MyRobot-v0:obs.joints.stuck[2]=1     reading 2 under a dict observation's key "joints"
 
 An attribute that ``step()`` does not read (a quantity the env derives once in ``__init__`` from
 another) changes nothing: pick the ones its code uses. CartPole and Pendulum have oodmon's own
@@ -48,7 +49,8 @@ from oodmon.envs.registration import wrappers_of
 from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
 from oodmon.names import TASKS
 
-__all__ = ["EnvShift", "SensorFaults", "ShiftAttributes", "own_variant", "parse_any_variant", "parse_env_shift"]
+__all__ = ["DictSensorFaults", "EnvShift", "SensorFaults", "ShiftAttributes", "own_variant", "parse_any_variant",
+           "parse_env_shift"]
 
 _SPEC_HELP = "expected ENV_ID:NAME=VALUE[,NAME=VALUE...], e.g. 'Acrobot-v1:LINK_MASS_2=3.0'"
 
@@ -299,7 +301,8 @@ class SensorFaults:
     uniformly from the reading's values (the same seeding), and ``obs.stuck[i]=1``.
 
     Made by :class:`ShiftAttributes` from the ``obs.`` names of its changes (``obs.`` is kept for
-    them: an env attribute called ``obs`` cannot be shifted).
+    them: an env attribute called ``obs`` cannot be shifted); a ``Dict`` observation's, one of these
+    per key, by :class:`DictSensorFaults`.
 
     Example:
         >>> faults = SensorFaults.of("X", gymnasium.spaces.Box(-1, 1, (3,)), {"obs.bias[0]": 0.5, "obs.stuck[2]": 1})
@@ -353,11 +356,13 @@ class SensorFaults:
         """
         if not changes:
             return None
+        if isinstance(space, gymnasium.spaces.Dict):
+            return DictSensorFaults.of(owner, space, changes)
         values = _discrete_values(space)
         if not isinstance(space, gymnasium.spaces.Box) and values is None:
             raise UnknownParameterError(f"{owner}: sensor faults ({', '.join(changes)}) read the readings of a Box "
-                                        f"observation or of discrete values (Discrete, MultiDiscrete, MultiBinary); "
-                                        f"{owner}'s is {space}")
+                                        f"observation or of discrete values (Discrete, MultiDiscrete, MultiBinary), or "
+                                        f"of a dict of them; {owner}'s is {space}")
         kinds = cls.KINDS if values is None else tuple(kind for kind in cls.KINDS if kind != "scale")
         size, kept, faults = int(np.prod(space.shape)), {}, []
         for name, value in changes.items():
@@ -382,10 +387,11 @@ class SensorFaults:
         integers = np.iinfo(space.dtype) if values is None and np.issubdtype(space.dtype, np.integer) else None
         return cls(kept, faults, size, integers, values)
 
-    def begin_episode(self, seed: int | None, obs) -> None:
-        """A new episode: its noise seeded by ``seed`` (``None``: the generator goes on), its first reading kept."""
+    def begin_episode(self, seed: int | None, obs, stream: int | None = None) -> None:
+        """A new episode: its noise seeded by ``seed`` (``None``: the generator goes on), its first
+        reading kept; ``stream``: another generator of the same seed (a dict's key's own)."""
         if seed is not None:
-            self._rng = np.random.default_rng([seed, 0x5E45])
+            self._rng = np.random.default_rng([seed, 0x5E45] if stream is None else [seed, 0x5E45, stream])
         self._held = None
         if self._holds:  # the reading a stuck sensor would hold, were it to stick at once
             self._last = np.asarray(obs).reshape(-1).copy()
@@ -424,6 +430,63 @@ class SensorFaults:
             drawn = self._rng.integers(low, high + 1)
             reading[misread] = drawn[misread]
         return reading
+
+
+class DictSensorFaults:
+    """Faults of the readings of a ``Dict`` observation, each key's its own: ``obs.KEY.KIND[i]=VALUE``
+    is :class:`SensorFaults`' ``obs.KIND[i]=VALUE`` of the observation under ``KEY`` (a ``Box`` or
+    discrete values), e.g. ``obs.joints.stuck[2]=1`` or ``obs.camera.noise=30``; the other keys are
+    read as the env gives them. Each key's noise draws from a generator of its own, seeded by the
+    episode's seed and the key's place in the dict.
+
+    Example:
+        >>> space = gymnasium.spaces.Dict({"pole": gymnasium.spaces.Box(-1, 1, (2,)), "cell": gymnasium.spaces.Discrete(4)})
+        >>> faults = SensorFaults.of("X", space, {"obs.pole.bias[1]": 0.5, "obs.cell.stuck": 1})
+        >>> faults.begin_episode(0, {"pole": np.zeros(2, np.float32), "cell": 2})
+        >>> read = faults.read({"pole": np.ones(2, np.float32), "cell": 3}, faulty=True)
+        >>> read["pole"].tolist(), read["cell"]
+        ([1.0, 1.5], 2)
+    """
+
+    def __init__(self, changes: dict[str, float], faults: dict[str, SensorFaults], keys: list[str]) -> None:
+        """``changes`` as the spec names them; ``faults`` each faulty key's; ``keys`` the dict's, in its order."""
+        self.changes, self._faults = changes, faults
+        self._streams = {key: keys.index(key) for key in faults}
+
+    @classmethod
+    def of(cls, owner: str, space: gymnasium.spaces.Dict, changes: dict[str, float]) -> DictSensorFaults:
+        """The faults of ``changes`` (names ``obs.KEY.KIND[i]``) for observations of ``space``.
+
+        Raises:
+            UnknownParameterError: a name without a key of the dict, or what :meth:`SensorFaults.of`
+                refuses for that key's observation.
+            InvalidParameterError: what :meth:`SensorFaults.of` refuses for that key's observation.
+        """
+        keys, named = list(space.spaces), {}
+        for name, value in changes.items():
+            match = re.fullmatch(r"obs\.(\w+)\.(\w+(?:\[\d+\])?)", name)
+            if match is None or match.group(1) not in space.spaces:
+                raise UnknownParameterError(f"{owner}: {name!r} names no key of its dict observation; give "
+                                            f"obs.KEY.KIND[i]=VALUE, KEY one of {', '.join(keys)}")
+            if isinstance(space[match.group(1)], gymnasium.spaces.Dict):
+                raise UnknownParameterError(f"{owner}: {name!r} names a dict in its dict observation; sensor faults "
+                                            "read the readings of a Box or of discrete values under one of its keys")
+            named.setdefault(match.group(1), {})[f"obs.{match.group(2)}"] = value
+        faults = {key: SensorFaults.of(f"{owner} (key {key!r})", space[key], key_changes)
+                  for key, key_changes in named.items()}
+        kept = {f"obs.{key}.{name[len('obs.'):]}": value for key, key_faults in faults.items()
+                for name, value in key_faults.changes.items()}
+        return cls(kept, faults, keys)
+
+    def begin_episode(self, seed: int | None, obs) -> None:
+        """A new episode: each faulty key's (:meth:`SensorFaults.begin_episode`)."""
+        for key, faults in self._faults.items():
+            faults.begin_episode(seed, obs[key], stream=self._streams[key])
+
+    def read(self, obs, *, faulty: bool):
+        """``obs`` as the sensors report it: each faulty key's readings through its faults."""
+        return {key: self._faults[key].read(value, faulty=faulty) if key in self._faults else value
+                for key, value in obs.items()}
 
 
 def _fault_value_problem(kind: str, value: Any, *, discrete: bool) -> str | None:

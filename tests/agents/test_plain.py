@@ -18,6 +18,7 @@ from stable_baselines3 import PPO
 import oodmon
 from oodmon.agents.plain import plain_agent, policy_by_name, weights_sha256
 from oodmon.cli import main
+from oodmon.envs import parse_env_shift
 from oodmon.errors import ConfigError
 from oodmon.monitor import Threshold
 from oodmon.replay import read_log
@@ -234,6 +235,12 @@ def test_a_plain_policy_of_dict_observations_gets_dicts_and_its_detectors_read_t
     shifted = [monitor.run_episode(longer, seed=920_000 + i) for i in range(5)]
     # when written: 5 of 5 alarmed at step 31 (as the array CartPole's controller above)
     assert all(r.first_alarm_step is not None and 30 < r.first_alarm_step <= 35 for r in shifted)
+    # a sensor of one key frozen from step 30 (the world ID): the controller pushes on blind and the
+    # pole falls some 10 steps later; when written, 10 of 10 alarmed at step 31-34, each before the fall
+    frozen_pole = parse_env_shift("plain_tests/DictCartPole-v0:obs.pole.stuck=1").make(onset_step=30)
+    frozen = [monitor.run_episode(frozen_pole, seed=930_000 + i) for i in range(5)]
+    assert all(r.length < 60 for r in frozen)
+    assert all(r.first_alarm_step is not None and 30 < r.first_alarm_step <= 35 < r.length for r in frozen)
     assert seen == {dict}
 
 

@@ -252,13 +252,82 @@ def test_a_fault_without_an_index_is_every_readings_and_bytes_saturate_instead_o
         (("obs.noise", 30.0), ("obs.noise[3]", 0.0))
 
 
-def test_sensor_faults_need_one_box_or_discrete_values():
-    class DictBodies(_FallingBodies):
-        observation_space = gymnasium.spaces.Dict({"v": _FallingBodies.observation_space})
+def test_sensor_faults_need_a_box_discrete_values_or_a_dict_of_them_and_a_dicts_key():
+    class TupleBodies(_FallingBodies):
+        observation_space = gymnasium.spaces.Tuple((_FallingBodies.observation_space,))
 
     with pytest.raises(UnknownParameterError, match=r"read the readings of a Box observation or of discrete values "
-                                                    r"\(Discrete, MultiDiscrete, MultiBinary\); .*Dict"):
+                                                    r"\(Discrete, MultiDiscrete, MultiBinary\), or of a dict of them; .*Tuple"):
+        ShiftAttributes(TupleBodies(), {"obs.bias[0]": 1.0})
+
+    class DictBodies(_FallingBodies):
+        observation_space = gymnasium.spaces.Dict({"v": _FallingBodies.observation_space,
+                                                   "deep": gymnasium.spaces.Dict({"w": _FallingBodies.observation_space})})
+
+    with pytest.raises(UnknownParameterError, match=r"'obs.bias\[0\]' names no key of its dict observation; give "
+                                                    r"obs.KEY.KIND\[i\]=VALUE, KEY one of deep, v"):
         ShiftAttributes(DictBodies(), {"obs.bias[0]": 1.0})
+    with pytest.raises(UnknownParameterError, match=r"'obs.w.bias' names no key"):
+        ShiftAttributes(DictBodies(), {"obs.w.bias": 1.0})
+    with pytest.raises(UnknownParameterError, match=r"DictBodies: 'obs.deep.bias' names a dict in its dict observation"):
+        ShiftAttributes(DictBodies(), {"obs.deep.bias": 1.0})
+    with pytest.raises(UnknownParameterError, match=r"DictBodies \(key 'v'\): obs.bias\[9\] is outside the observation"):
+        ShiftAttributes(DictBodies(), {"obs.v.bias[9]": 1.0})
+
+
+class _BodiesAndCount(_FallingBodies):
+    """The falling bodies' velocities twice ("v", "w") and the steps counted modulo 7 ("n"), as a dict."""
+
+    observation_space = gymnasium.spaces.Dict({"v": _FallingBodies.observation_space, "w": _FallingBodies.observation_space,
+                                               "n": gymnasium.spaces.Discrete(7)})
+
+    def _dict(self, velocity):
+        return {"v": velocity, "w": velocity.copy(), "n": self.count}
+
+    def reset(self, *, seed=None, options=None):
+        velocity, info = super().reset(seed=seed, options=options)
+        self.count = 0
+        return self._dict(velocity), info
+
+    def step(self, action):
+        velocity, *rest = super().step(action)
+        self.count = (self.count + 1) % 7
+        return self._dict(velocity), *rest
+
+
+def _dict_rollout(env: gymnasium.Env, seed: int, steps: int) -> tuple[list[dict], list]:
+    obs, info = env.reset(seed=seed)
+    observations, shifted = [obs], [info.get("shifted")]
+    for action in np.random.default_rng(seed).integers(0, 2, steps):
+        obs, _, _, _, info = env.step(int(action))
+        observations.append(obs)
+        shifted.append(info.get("shifted"))
+    return observations, shifted
+
+
+def test_a_dicts_sensors_fail_each_by_its_key_and_the_other_keys_read_as_the_env_gives_them():
+    own, _ = _dict_rollout(_BodiesAndCount(), seed=3, steps=200)
+    faults = {"obs.v.noise[1]": 0.5, "obs.w.noise[1]": 0.5, "obs.n.stuck": 1}
+    env = ShiftAttributes(_BodiesAndCount(), faults, onset_step=2)
+    read, flags = _dict_rollout(env, seed=3, steps=200)
+    assert flags == [False] * 3 + [True] * 198 and all(type(r) is dict and r.keys() == own[0].keys() for r in read)
+    for before, mine in zip(own[:3], read[:3]):
+        assert before["n"] == mine["n"] and (before["v"] == mine["v"]).all() and (before["w"] == mine["w"]).all()
+    assert [r["n"] for r in read[3:]] == [2] * 198 and len({o["n"] for o in own[3:]}) == 7  # held at its last reading
+    v_noise = np.array([r["v"] - o["v"] for r, o in zip(read[3:], own[3:])])
+    w_noise = np.array([r["w"] - o["w"] for r, o in zip(read[3:], own[3:])])
+    assert (v_noise[:, 0] == 0).all() and (w_noise[:, 0] == 0).all()  # reading 0 of each as it is
+    # 198 draws of std 0.5: their std within 0.5 +- 15% with probability > 0.99; each key its own draws
+    assert abs(v_noise[:, 1].std() - 0.5) < 0.075 and abs(w_noise[:, 1].std() - 0.5) < 0.075
+    assert abs(np.corrcoef(v_noise[:, 1], w_noise[:, 1])[0, 1]) < 0.2
+    again, _ = _dict_rollout(ShiftAttributes(_BodiesAndCount(), faults, onset_step=2), seed=3, steps=200)
+    assert all((a["v"] == r["v"]).all() for a, r in zip(again, read))  # the same seed, the same noise
+    spec = env.shift.spec
+    assert spec == "_BodiesAndCount:obs.n.stuck=1.0,obs.v.noise[1]=0.5,obs.w.noise[1]=0.5"
+    assert parse_env_shift(spec).params == (("obs.n.stuck", 1.0), ("obs.v.noise[1]", 0.5), ("obs.w.noise[1]", 0.5))
+    with pytest.raises(UnknownParameterError, match=r"_BodiesAndCount \(key 'n'\): 'obs.scale' is no sensor fault of "
+                                                    r"discrete values"):
+        ShiftAttributes(_BodiesAndCount(), {"obs.n.scale": 2.0})
 
 
 def _taxi_readings(faults: dict[str, float], seed: int, steps: int, onset: int) -> tuple[list, list, list]:
