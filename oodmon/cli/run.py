@@ -25,7 +25,8 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
                                        "your own --env: ENV_ID:NAME=VALUE[,...], numeric attributes of its env "
                                        "set to other values from --onset on, e.g. Acrobot-v1:LINK_MASS_2=3.0, "
                                        "or sensor faults, e.g. 'Acrobot-v1:obs.bias[4]=0.5' (obs.bias, obs.scale, "
-                                       "obs.noise, obs.stuck)")
+                                       "obs.noise, obs.stuck; of discrete values: a misread's probability "
+                                       "'Taxi-v4:obs.noise=0.1'; of a dict, by key: 'ENV_ID:obs.KEY.stuck=1')")
     run.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (default 0)")
     run.add_argument("--episodes", type=_whole(1), default=5, help="episodes (default 5)")
     run.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode and of an MC agent's samples "
