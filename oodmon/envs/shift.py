@@ -295,7 +295,8 @@ class SensorFaults:
     pixel saturates at 255 rather than wrap around to 0).
 
     An observation of discrete values (``Discrete``: one reading; ``MultiDiscrete``,
-    ``MultiBinary``: one per value, flattened) has no gain and no Gaussian noise; its faults are
+    ``MultiBinary``: one per value, flattened; a ``Tuple`` of ``Discrete``: one per element, read
+    back as a tuple) has no gain and no Gaussian noise; its faults are
     ``obs.bias[i]=b``, a whole ``b`` added (a miscount, clipped to the reading's values),
     ``obs.noise[i]=p``, the probability that a step's reading is misread as a value drawn
     uniformly from the reading's values (the same seeding), and ``obs.stuck[i]=1``.
@@ -361,10 +362,10 @@ class SensorFaults:
         values = _discrete_values(space)
         if not isinstance(space, gymnasium.spaces.Box) and values is None:
             raise UnknownParameterError(f"{owner}: sensor faults ({', '.join(changes)}) read the readings of a Box "
-                                        f"observation or of discrete values (Discrete, MultiDiscrete, MultiBinary), or "
-                                        f"of a dict of them; {owner}'s is {space}")
+                                        f"observation or of discrete values (Discrete, MultiDiscrete, MultiBinary, a "
+                                        f"Tuple of Discrete), or of a dict of them; {owner}'s is {space}")
         kinds = cls.KINDS if values is None else tuple(kind for kind in cls.KINDS if kind != "scale")
-        size, kept, faults = int(np.prod(space.shape)), {}, []
+        size, kept, faults = int(np.prod(space.shape)) if values is None else len(values[0]), {}, []
         for name, value in changes.items():
             match = re.fullmatch(r"obs\.(\w+)(?:\[(\d+)\])?", name)
             if match is None or match.group(1) not in kinds:
@@ -417,6 +418,8 @@ class SensorFaults:
             reading = np.clip(np.rint(reading), self._integers.min, self._integers.max)
         if np.ndim(obs) == 0 and not isinstance(obs, np.ndarray):  # a Discrete space's value: its type (Taxi's int)
             return type(obs)(reading[0])
+        if isinstance(obs, tuple):  # a Tuple of Discrete values (Blackjack's hand): a tuple of their types
+            return tuple(type(value)(read) for value, read in zip(obs, reading))
         return reading.astype(np.asarray(obs).dtype).reshape(np.shape(obs))
 
     def _discrete(self, flat: np.ndarray) -> np.ndarray:
@@ -507,9 +510,14 @@ def _fault_value_problem(kind: str, value: Any, *, discrete: bool) -> str | None
 
 def _discrete_values(space: gymnasium.Space) -> tuple[np.ndarray, np.ndarray] | None:
     """The lowest and highest value of each reading (flattened) of a ``Discrete``, ``MultiDiscrete``
-    or ``MultiBinary`` space; ``None`` for any other."""
+    or ``MultiBinary`` space, or of a ``Tuple`` of ``Discrete`` spaces (one reading each); ``None``
+    for any other."""
     if isinstance(space, gymnasium.spaces.Discrete):
         return np.array([space.start], np.int64), np.array([space.start + space.n - 1], np.int64)
+    if isinstance(space, gymnasium.spaces.Tuple) and space.spaces and all(
+            isinstance(part, gymnasium.spaces.Discrete) for part in space.spaces):
+        low = np.array([part.start for part in space.spaces], np.int64)
+        return low, low + np.array([part.n for part in space.spaces], np.int64) - 1
     if isinstance(space, gymnasium.spaces.MultiDiscrete):
         start = np.asarray(getattr(space, "start", 0), np.int64)
         low = np.broadcast_to(start, space.nvec.shape).reshape(-1)

@@ -257,7 +257,8 @@ def test_sensor_faults_need_a_box_discrete_values_or_a_dict_of_them_and_a_dicts_
         observation_space = gymnasium.spaces.Tuple((_FallingBodies.observation_space,))
 
     with pytest.raises(UnknownParameterError, match=r"read the readings of a Box observation or of discrete values "
-                                                    r"\(Discrete, MultiDiscrete, MultiBinary\), or of a dict of them; .*Tuple"):
+                                                    r"\(Discrete, MultiDiscrete, MultiBinary, a Tuple of Discrete\), "
+                                                    r"or of a dict of them; .*Tuple\(Box"):
         ShiftAttributes(TupleBodies(), {"obs.bias[0]": 1.0})
 
     class DictBodies(_FallingBodies):
@@ -400,6 +401,18 @@ def test_faults_of_several_discrete_values_keep_each_reading_among_its_own_value
     readings = [obs] + [env.step(0)[0] for _ in range(4)]
     assert [r.tolist() for r in readings] == [[0, 1], [1, 0], [1, 1], [1, 1], [1, 1]]
     assert all(r.dtype == np.int8 for r in readings)
+
+
+def test_a_tuple_of_discrete_values_is_faulted_by_element_and_read_back_as_a_tuple_of_ints():
+    own, faulted = gymnasium.make("Blackjack-v1"), ShiftAttributes(gymnasium.make("Blackjack-v1"),
+                                                                   {"obs.bias[1]": 1, "obs.noise[0]": 1.0})
+    hands = [(own.reset(seed=seed)[0], faulted.reset(seed=seed)[0]) for seed in range(300)]
+    assert all(type(read) is tuple and [type(v) for v in read] == [int] * 3 for _, read in hands)
+    assert all(read[1] == min(hand[1] + 1, 10) and read[2] == hand[2] for hand, read in hands)  # the dealer's card, one up
+    # the player's sum misread at every step, drawn uniformly from Discrete(32): each value is missed
+    # by 300 draws with probability (31/32)**300 = 7e-5, so all are seen with probability > 0.997
+    assert {read[0] for _, read in hands} == set(range(32))
+    assert faulted.shift.spec == "Blackjack-v1:obs.bias[1]=1.0,obs.noise[0]=1.0"
 
 
 @pytest.mark.parametrize(("faults", "error", "message"), [
