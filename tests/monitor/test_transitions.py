@@ -232,10 +232,12 @@ def test_the_readmes_taxi_runs_as_written_and_every_taxi_that_slipped_or_misread
     import slippery_taxi
 
     # when written: 74 slipped, every one alarmed 1 step after its first slip, none of the 26 others;
-    # 52 misread a state, 50 alarmed 1 step after the first misread, 1 of the 48 others (before the onset)
-    for log, least in (("runs/taxi-slip.mcap", 60), ("runs/taxi-misread.mcap", 35)):
+    # 52 misread a state, 50 alarmed 1 step after the first misread, 1 of the 48 others (before the
+    # onset). Over 5,260 episodes: every one of 1,445 slipped taxis alarmed, 2,661 of 2,898 misreading
+    # ones (92%): fewer than 80% of some 50 has probability 0.002 at 92% (binomial)
+    for log, least, rate in (("runs/taxi-slip.mcap", 60, 0.95), ("runs/taxi-misread.mcap", 35, 0.8)):
         found = slippery_taxi.faults_and_alarms(log)
-        assert found["faulted"] >= least and found["faulted_alarmed"] >= 0.95 * found["faulted"]
+        assert found["faulted"] >= least and found["faulted_alarmed"] >= rate * found["faulted"]
         assert found["others_alarmed"] <= 0.1 * (found["episodes"] - found["faulted"]) + 1
         assert np.median(found["delays"]) <= 2
     detectors = json.loads(Path("runs/taxi.json.detectors/detectors.json").read_text())
