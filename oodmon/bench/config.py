@@ -358,6 +358,8 @@ def paper_label(task: str, method: str, spec: str) -> str | None:
         return None
     table = paper_auc_per_trial().get(task, {}).get(PAPER_METHOD[method], {})
     variant = parse_variant(spec)
+    if variant.faults:  # the paper faulted no sensor
+        return None
     if variant.task == "pong":
         key = f"{variant.corruption}@{variant.severity}"
     else:

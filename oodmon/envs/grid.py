@@ -7,6 +7,10 @@ Spec strings, as the CLI and the logs write them, parse back to equal variants::
     pendulum:g=50.0
     pong:motion_blur@3              a corruption at one of the paper's severities 1..5
     pong:gaussian_noise:sigma=0.2   a corruption with its own parameters
+    cartpole:obs.stuck[3]=1         a sensor fault (:class:`~oodmon.envs.shift.SensorFaults`): the
+                                    pole's angular velocity frozen (also after physics:
+                                    cartpole:length=2.0,obs.noise[0]=0.1; pong:obs.stuck=1, a frozen
+                                    camera)
 
 :func:`paper_grid` returns the variants of the paper's Table 1: 90 for CartPole, 40 for
 Pendulum, 20 for Pong.
@@ -41,7 +45,8 @@ assert tuple(ENV_IDS) == TASKS  # one env per task, in the same order
 _PHYSICS_DEFAULTS = {"cartpole": CARTPOLE_DEFAULTS, "pendulum": PENDULUM_DEFAULTS}
 _SPEC_HELP = (
     "expected TASK, TASK:NAME=VALUE[,NAME=VALUE...], pong:CORRUPTION@SEVERITY or "
-    "pong:CORRUPTION:NAME=VALUE[,...], e.g. 'cartpole:length=2.0' or 'pong:pixelate@3'"
+    "pong:CORRUPTION:NAME=VALUE[,...], e.g. 'cartpole:length=2.0' or 'pong:pixelate@3'; sensor faults as "
+    "NAME=VALUE too, e.g. 'cartpole:obs.stuck[3]=1'"
 )
 
 
@@ -58,23 +63,30 @@ class Variant:
             (Pong), as sorted ``(name, value)`` pairs.
         corruption: Pong's corruption name, or ``None``.
         severity: Pong's severity 1..5, or ``None`` when ``params`` give the corruption.
+        faults: sensor faults (``obs.KIND[i]``, :class:`~oodmon.envs.shift.SensorFaults`) from the
+            onset on, beside physics or alone (not beside a corruption), as sorted ``(name, value)`` pairs.
 
     Example:
         >>> v = parse_variant("cartpole:length=2.0")
         >>> v.spec, v.env_id, v.kwargs()
         ('cartpole:length=2.0', 'oodmon/CartPole-v1', {'length': 2.0})
         >>> env = v.make(onset_step=100)
+        >>> parse_variant("cartpole:length=2.0,obs.stuck[3]=1").faults
+        (('obs.stuck[3]', 1.0),)
     """
 
     task: str
     params: tuple[tuple[str, float], ...] = ()
     corruption: str | None = None
     severity: int | None = None
+    faults: tuple[tuple[str, float], ...] = ()
     _kwargs: dict[str, Any] = field(init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
         if self.task not in ENV_IDS:
             raise UnknownParameterError(f"unknown task {self.task!r}; choose one of {', '.join(TASKS)}")
+        if self.faults and self.corruption is not None:
+            raise SpecError(f"{self.task}: a corruption and sensor faults at once; give one of them")
         params = dict(self.params)
         if self.task == "pong":
             if self.corruption is None and (params or self.severity is not None):
@@ -91,6 +103,11 @@ class Variant:
             checked = check_physics(ENV_IDS[self.task], _PHYSICS_DEFAULTS[self.task], params)
             params = {name: checked[name] for name in params}
         object.__setattr__(self, "params", tuple(sorted(params.items())))
+        if self.faults:
+            from oodmon.envs.shift import SensorFaults
+
+            checked = SensorFaults.of(self.task, _observation_space(self.task), dict(self.faults))
+            object.__setattr__(self, "faults", tuple(sorted(checked.changes.items())))
         kwargs: dict[str, Any] = dict(self.params)
         if self.corruption is not None:
             kwargs["corruption"] = self.corruption
@@ -106,7 +123,7 @@ class Variant:
     @property
     def is_id(self) -> bool:
         """Whether this is the task's default, in-distribution env."""
-        return not self.params and self.corruption is None
+        return not self.params and self.corruption is None and not self.faults
 
     @property
     def spec(self) -> str:
@@ -116,8 +133,8 @@ class Variant:
             text += f":{self.corruption}"
             if self.severity is not None:
                 return f"{text}@{self.severity}"
-        if self.params:
-            text += ":" + ",".join(f"{name}={_format_number(value)}" for name, value in self.params)
+        if self.params or self.faults:
+            text += ":" + ",".join(f"{name}={_format_number(value)}" for name, value in (*self.params, *self.faults))
         return text
 
     def kwargs(self) -> dict[str, Any]:
@@ -125,11 +142,29 @@ class Variant:
         return dict(self._kwargs)
 
     def make(self, *, onset_step: int = 0, **kwargs: Any) -> gymnasium.Env:
-        """Make this variant's env, shifted from ``onset_step`` on (0: the whole episode)."""
-        return gymnasium.make(self.env_id, **self._kwargs, onset_step=onset_step, **kwargs)
+        """Make this variant's env, shifted from ``onset_step`` on (0: the whole episode); its sensor
+        faults (if any) from then on too, by a :class:`~oodmon.envs.shift.ShiftAttributes` around it."""
+        env = gymnasium.make(self.env_id, **self._kwargs, onset_step=onset_step, **kwargs)
+        if not self.faults:
+            return env
+        from oodmon.envs.shift import ShiftAttributes
+
+        return ShiftAttributes(env, dict(self.faults), onset_step=onset_step, env_id=self.env_id)
 
     def __str__(self) -> str:
         return self.spec
+
+
+_SPACES: dict[str, gymnasium.Space] = {}
+
+
+def _observation_space(task: str) -> gymnasium.Space:
+    """The observation space of ``task``'s env (made once)."""
+    if task not in _SPACES:
+        env = gymnasium.make(ENV_IDS[task])
+        _SPACES[task] = env.observation_space
+        env.close()
+    return _SPACES[task]
 
 
 def _format_number(value: float | int) -> str:
@@ -137,7 +172,7 @@ def _format_number(value: float | int) -> str:
 
 
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|[-+]?inf|nan"
-_ASSIGNMENT = re.compile(rf"^([A-Za-z_]\w*)=({_NUMBER})$")
+_ASSIGNMENT = re.compile(rf"^([A-Za-z_]\w*|obs\.\w+(?:\[\d+\])?)=({_NUMBER})$")
 _SEVERITY = re.compile(r"^([A-Za-z_]\w*)@(\S+)$")
 
 
@@ -174,6 +209,8 @@ def parse_variant(spec: str) -> Variant:
         )
     if not rest:
         return Variant(task)
+    if rest.startswith("obs."):  # sensor faults alone (pong's too: no corruption before them)
+        return Variant(task, faults=_parse_assignments(spec, rest))
     if task == "pong":
         corruption, _, assignments = rest.partition(":")
         severity_match = _SEVERITY.match(corruption)
@@ -186,8 +223,15 @@ def parse_variant(spec: str) -> Variant:
             return Variant(task, corruption=name, severity=int(severity))
         if not assignments or not re.fullmatch(r"[A-Za-z_]\w*", corruption):
             raise SpecError(f"malformed variant spec {spec!r}: {_SPEC_HELP}")
-        return Variant(task, _parse_assignments(spec, assignments), corruption=corruption)
-    return Variant(task, _parse_assignments(spec, rest))
+        params, faults = _split_faults(_parse_assignments(spec, assignments))
+        return Variant(task, params, corruption=corruption, faults=faults)
+    params, faults = _split_faults(_parse_assignments(spec, rest))
+    return Variant(task, params, faults=faults)
+
+
+def _split_faults(pairs: tuple[tuple[str, float], ...]) -> tuple[tuple[tuple[str, float], ...], tuple[tuple[str, float], ...]]:
+    """``pairs`` as the env's own parameters and the sensor faults (``obs.`` names)."""
+    return tuple(p for p in pairs if not p[0].startswith("obs.")), tuple(p for p in pairs if p[0].startswith("obs."))
 
 
 def _parse_assignments(spec: str, text: str) -> tuple[tuple[str, float], ...]:

@@ -69,11 +69,13 @@ def variant_of_env(env: gymnasium.Env) -> str:
         >>> variant_of_env(gymnasium.make("CartPole-v1")), variant_of_env(gymnasium.make("Acrobot-v1"))
         ('cartpole', 'Acrobot-v1')
     """
-    from oodmon.envs.grid import Variant
+    from oodmon.envs.grid import ENV_IDS, Variant
 
-    shift = _shift_wrapper(env)
+    shift, faults = _shift_wrapper(env), ()
     if shift is not None:
-        return shift.shift.spec
+        if shift.shift.env_id not in ENV_IDS.values() or any(not name.startswith("obs.") for name, _ in shift.shift.params):
+            return shift.shift.spec
+        faults = shift.shift.params  # sensor faults of oodmon's own env (a variant's: cartpole:obs.stuck[3]=1)
     base, spec_id = env.unwrapped, env_id_of(env)
     task = task_of_env(spec_id)
     if task is None:
@@ -81,12 +83,12 @@ def variant_of_env(env: gymnasium.Env) -> str:
     physics = getattr(base, "shifted_physics", None)
     if physics is not None and hasattr(base, "DEFAULTS"):
         changed = {name: value for name, value in physics.items() if base.DEFAULTS.get(name) != value}
-        return Variant(task, tuple(sorted(changed.items()))).spec
+        return Variant(task, tuple(sorted(changed.items())), faults=faults).spec
     named = getattr(base, "corruption_named", None)  # Pong: (corruption, severity, params) as made
-    if named is not None:
+    if named is not None and named[0] is not None:
         corruption, severity, params = named
         return Variant(task, tuple(sorted(params.items())), corruption, severity).spec
-    return task
+    return Variant(task, faults=faults).spec
 
 
 def wrappers_of(env: gymnasium.Env) -> list[gymnasium.Wrapper]:

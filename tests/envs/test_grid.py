@@ -90,3 +90,42 @@ def test_variant_refuses_corruptions_on_physics_tasks():
         Variant("cartpole", corruption="pixelate", severity=2)
     with pytest.raises(UnknownParameterError, match="unknown task 'walker'"):
         paper_grid("walker")
+
+
+def test_a_sensor_fault_of_a_task_parses_back_and_faults_its_own_env_from_the_onset():
+    import numpy as np
+
+    from oodmon.envs.registration import variant_of_env
+
+    both = parse_variant("cartpole:length=2.0,obs.stuck[3]=1")
+    assert (both.params, both.faults, both.spec) == ((("length", 2.0),), (("obs.stuck[3]", 1.0),),
+                                                     "cartpole:length=2.0,obs.stuck[3]=1.0")
+    for spec in ("cartpole:obs.stuck[3]=1.0", "pendulum:obs.bias[2]=0.5", "pong:obs.stuck=1.0", both.spec):
+        assert parse_variant(spec).spec == spec and not parse_variant(spec).is_id
+        assert variant_of_env(parse_variant(spec).make(onset_step=3)) == spec  # what the logs record
+    plain, stuck = parse_variant("cartpole:length=2.0").make(onset_step=2), both.make(onset_step=2)
+    own, _ = plain.reset(seed=4)
+    read, info = stuck.reset(seed=4)
+    owns, reads, flags = [own], [read], [info["shifted"]]
+    for _ in range(6):
+        owns.append(plain.step(1)[0])
+        read, _, _, _, info = stuck.step(1)
+        reads.append(read)
+        flags.append(info["shifted"])
+    owns, reads = np.array(owns), np.array(reads)
+    assert flags == [False] * 3 + [True] * 4
+    np.testing.assert_array_equal(reads[:, :3], owns[:, :3])  # the world and the other readings: the long pole's
+    assert (reads[:3, 3] == owns[:3, 3]).all() and (reads[3:, 3] == owns[2, 3]).all() and len(set(owns[3:, 3])) == 4
+
+
+@pytest.mark.parametrize(("text", "error", "words"), [
+    ("cartpole:obs.bias[4]=1", UnknownParameterError, "cartpole: obs.bias[4] is outside the observation, whose 4 readings"),
+    ("cartpole:obs.tilt=1", UnknownParameterError, "'obs.tilt' is no sensor fault"),
+    ("cartpole:obs.noise=-1", InvalidParameterError, "noise is a std"),
+    ("pong:motion_blur:radius=5,obs.stuck=1", SpecError, "pong: a corruption and sensor faults at once"),
+    ("cartpole:obs.bias[0]=0", InvalidParameterError, "change no reading"),
+])
+def test_a_task_variants_bad_sensor_faults_are_refused_saying_why(text, error, words):
+    with pytest.raises(error) as raised:
+        parse_variant(text)
+    assert words in str(raised.value)
