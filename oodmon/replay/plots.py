@@ -176,8 +176,8 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
         variant = parse_any_variant(m.variant)  # oodmon's, or a shift of your own env
         if variant.corruption is not None and variant.severity is not None:
             series[(variant.corruption, f"{m.method}, {m.detector}")].append((variant.severity, m.auroc))
-        elif len(variant.params) == 1:
-            name, value = variant.params[0]
+        elif len(changes := (*variant.params, *getattr(variant, "faults", ()))) == 1:  # a task's sensor fault too
+            name, value = changes[0]
             series[(name, f"{m.method}, {m.detector}")].append((value, m.auroc))
     if not series:
         return None

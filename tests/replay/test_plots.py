@@ -70,9 +70,10 @@ def test_a_run_shifted_mid_episode_alone_gets_its_trace_and_each_detector_its_au
 
     rng = np.random.default_rng(0)
     episodes = []
-    for k, value in enumerate((2.0, 3.0)):
+    # the third: the long pole and a stuck sensor, two changes, on no one parameter's line
+    for k, variant in enumerate(("length=2.0", "length=3.0", "length=2.0,obs.stuck[3]=1.0")):
         combined, dynamics = np.r_[rng.normal(0, 1, 20), rng.normal(3, 1, 40)], rng.normal(0, 1, 60)
-        episodes.append(EpisodeLog(episode=k, env_id="", variant=f"cartpole:length={value}", onset=20, seed=k,
+        episodes.append(EpisodeLog(episode=k, env_id="", variant=f"cartpole:{variant}", onset=20, seed=k,
                                    total_return=60.0, length=60, alarms=1, first_alarm_step=21, scores=combined,
                                    shifted=np.arange(60) >= 20, alarm=np.arange(60) == 21,
                                    detector_scores={"combined": combined, "dynamics": dynamics}))
