@@ -98,7 +98,7 @@ def _envs_show(args: argparse.Namespace) -> int:
         return _show_own_shift(args, variant, out, console)
     if variant.task == "pong":
         image = pong_preview(variant, seed=args.seed)
-        console.print(f"{variant.spec}: {variant.kwargs()}")
+        console.print(f"{variant.spec}: {variant.kwargs() or dict(variant.faults)}", markup=False)  # obs.KIND[i]
         if out:
             console.print(f"wrote {save_rgb(image, out)} (clean left, corrupted right)")
         return 0
