@@ -209,9 +209,7 @@ def parse_variant(spec: str) -> Variant:
         )
     if not rest:
         return Variant(task)
-    if rest.startswith("obs."):  # sensor faults alone (pong's too: no corruption before them)
-        return Variant(task, faults=_parse_assignments(spec, rest))
-    if task == "pong":
+    if task == "pong" and not rest.startswith("obs."):  # (Pong's sensor faults come alone: no corruption before them)
         corruption, _, assignments = rest.partition(":")
         severity_match = _SEVERITY.match(corruption)
         if severity_match and not assignments:

@@ -100,6 +100,7 @@ def test_a_sensor_fault_of_a_task_parses_back_and_faults_its_own_env_from_the_on
     both = parse_variant("cartpole:length=2.0,obs.stuck[3]=1")
     assert (both.params, both.faults, both.spec) == ((("length", 2.0),), (("obs.stuck[3]", 1.0),),
                                                      "cartpole:length=2.0,obs.stuck[3]=1.0")
+    assert parse_variant("cartpole:obs.stuck[3]=1,length=2.0") == both  # in either order
     for spec in ("cartpole:obs.stuck[3]=1.0", "pendulum:obs.bias[2]=0.5", "pong:obs.stuck=1.0", both.spec):
         assert parse_variant(spec).spec == spec and not parse_variant(spec).is_id
         assert variant_of_env(parse_variant(spec).make(onset_step=3)) == spec  # what the logs record
