@@ -149,7 +149,7 @@ class Variant:
             return env
         from oodmon.envs.shift import ShiftAttributes
 
-        return ShiftAttributes(env, dict(self.faults), onset_step=onset_step, env_id=self.env_id)
+        return ShiftAttributes(env, dict(self.faults), onset_step=onset_step, env_id=self.env_id, forward_onset=True)
 
     def __str__(self) -> str:
         return self.spec

@@ -199,6 +199,8 @@ class ShiftAttributes(gymnasium.Wrapper):
         onset_step: index of the first ``step()`` of each episode in the shifted world (0: all);
             ``reset(options={"onset_step": n})`` sets it for that episode alone.
         env_id: the id the spec names (default ``env.spec.id``; ``module:Id`` as you made it).
+        forward_onset: ``env`` shifts at onsets of its own (oodmon's task envs, made with the same
+            ``onset_step``): an episode's ``onset_step`` option is handed on to it as well.
 
     Raises:
         UnknownParameterError: the env has no such numeric attribute (the message lists those it has).
@@ -217,8 +219,9 @@ class ShiftAttributes(gymnasium.Wrapper):
     """
 
     def __init__(self, env: gymnasium.Env, changes: dict[str, float], onset_step: int = 0, *,
-                 env_id: str | None = None) -> None:
+                 env_id: str | None = None, forward_onset: bool = False) -> None:
         super().__init__(env)
+        self._forward_onset = forward_onset
         owner = env_id or (env.spec.id if env.spec is not None else type(env.unwrapped).__name__)
         if not changes:
             raise InvalidParameterError(f"a shift of {owner} needs at least one attribute to change; {_SPEC_HELP}")
@@ -253,7 +256,8 @@ class ShiftAttributes(gymnasium.Wrapper):
         self._active = shifted
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        self.onset_step, options = episode_onset(self.shift.env_id, self._configured_onset, options)
+        self.onset_step, rest = episode_onset(self.shift.env_id, self._configured_onset, options)
+        options = options if self._forward_onset else rest  # (the task env beneath reads it too)
         self._set(shifted=False)  # the env's own world while it resets: its start states are ID's
         obs, info = self.env.reset(seed=seed, options=options)
         self._steps = 0

@@ -117,6 +117,10 @@ def test_a_sensor_fault_of_a_task_parses_back_and_faults_its_own_env_from_the_on
     assert flags == [False] * 3 + [True] * 4
     np.testing.assert_array_equal(reads[:, :3], owns[:, :3])  # the world and the other readings: the long pole's
     assert (reads[:3, 3] == owns[:3, 3]).all() and (reads[3:, 3] == owns[2, 3]).all() and len(set(owns[3:, 3])) == 4
+    # the monitor's benchmark gives each episode its onset: the physics and the faults shift there alike
+    env = both.make(onset_step=100)
+    env.reset(seed=4, options={"onset_step": 2})
+    assert [env.step(1)[4]["shifted"] for _ in range(4)] == [False, False, True, True] and env.unwrapped.length == 2.0
 
 
 @pytest.mark.parametrize(("text", "error", "words"), [
