@@ -21,6 +21,7 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cache
 from typing import Any
 
 import gymnasium
@@ -155,16 +156,12 @@ class Variant:
         return self.spec
 
 
-_SPACES: dict[str, gymnasium.Space] = {}
-
-
+@cache
 def _observation_space(task: str) -> gymnasium.Space:
     """The observation space of ``task``'s env (made once)."""
-    if task not in _SPACES:
-        env = gymnasium.make(ENV_IDS[task])
-        _SPACES[task] = env.observation_space
-        env.close()
-    return _SPACES[task]
+    env = gymnasium.make(ENV_IDS[task])
+    env.close()
+    return env.observation_space
 
 
 def _format_number(value: float | int) -> str:

@@ -491,8 +491,13 @@ class DictSensorFaults:
             faults.begin_episode(seed, obs[key], stream=self._streams[key])
 
     def read(self, obs, *, faulty: bool):
-        """``obs`` as the sensors report it: each faulty key's readings through its faults."""
-        return {key: self._faults[key].read(value, faulty=faulty) if key in self._faults else value
+        """``obs`` as the sensors report it: itself before the fault (each faulty key's reading kept
+        for a stuck sensor), each faulty key's readings through its faults after."""
+        if not faulty:
+            for key, faults in self._faults.items():
+                faults.read(obs[key], faulty=False)
+            return obs
+        return {key: self._faults[key].read(value, faulty=True) if key in self._faults else value
                 for key, value in obs.items()}
 
 
