@@ -21,9 +21,12 @@
 # kernels as well). Pong's three, which have no dynamics detector, were kept, only their
 # "version" raised to 6: refitted here they came out the same to float rounding (every tensor
 # within 1e-6 of its largest value), but other bytes, and thresholds calibrated with them would have been
-# refused. The README's tables come from the bench, which fits detectors of its own).
+# refused. The README's tables come from the bench, which fits detectors of its own). Pong's three
+# again on 2026-11-30, when stillness joined a picture's default set and Pong's combined became
+# frames and stillness alone (COMBINED_LEAVES_OUT): every spread, features and frames tensor the
+# same bytes as before (frames thresholds stay valid), combined's references and stillness new.
 # About 5 minutes on one core. Pendulum's combined detector uses the spread score that works there
-# (pre_squash_std); Pong has no dynamics detector (image observations), has frames, and fits on
+# (pre_squash_std); Pong has no dynamics detector (image observations), has frames and stillness, and fits on
 # the first 1,000 steps of 6 ID games.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -113,6 +113,13 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
     own = BenchConfig("Acrobot-v1", ("sb3",), 1, sb3=("runs/a.zip",), env_id="Acrobot-v1", variants=("Acrobot-v1:dt=0.3",),
                       protocol="monitor", onsets=(20, 100), **learned).cache_key()
     assert own.endswith("-jump3-drift") and not today.endswith("-jump3-drift")
+    # nor a combined of Pong's default set fitted before stillness joined it (2026-11-30); named
+    # members, and CartPole's vectors, are what they were
+    pong = {"detectors": ("spread", "combined"), "alarm_detector": "combined"}
+    assert BenchConfig("pong", ("dropconnect",), 1, **pong).cache_key().endswith("-still")
+    named = {"detectors": ("spread", "frames", "combined"), "alarm_detector": "combined"}
+    assert not BenchConfig("pong", ("dropconnect",), 1, **named).cache_key().endswith("-still")
+    assert not BenchConfig("cartpole", ("dropout",), 1, **pong).cache_key().endswith("-still")
     # nor detectors fitted on another number of episodes (the key ignored it before)
     assert BenchConfig("cartpole", ("dropout",), 1, fit_episodes=60, **learned).cache_key() != \
         BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key()
@@ -395,9 +402,10 @@ def test_a_bench_stopped_between_its_stages_resumes_drawing_what_an_uninterrupte
     assert prepare()[0] != uninterrupted[0] and states[3] != states[0]
 
 
-def test_pong_alarms_on_200_decision_means_of_features_and_on_each_step_of_frames(monkeypatch, tmp_path):
+def test_pong_alarms_on_200_decision_means_of_features_and_on_each_step_of_combined(monkeypatch, tmp_path):
     """The CLI's window default per task and detector (oodmon.monitor.alarms.default_window), as
-    bench passes it; Pong's default detector is frames. And --fit-episodes, as bench passes it."""
+    bench passes it; Pong's default detector is combined (of frames and stillness), and frames
+    alone is read at each step too. And --fit-episodes, as bench passes it."""
     import oodmon.bench
     from oodmon.cli import main
 
@@ -409,11 +417,13 @@ def test_pong_alarms_on_200_decision_means_of_features_and_on_each_step_of_frame
 
     monkeypatch.setattr(oodmon.bench, "run_bench", record)
     common = ["--methods", "ensemble", "--trials", "1", "--protocol", "monitor", "--out", str(tmp_path / "b")]
-    for argv, window in ((["--task", "pong"], 1), (["--task", "pong", "--alarm-detector", "features"], 200),
-                         (["--task", "pong", "--window", "7"], 7), (["--task", "cartpole"], 1)):
+    for argv, window, alarm in ((["--task", "pong"], 1, "combined"),
+                                (["--task", "pong", "--alarm-detector", "features"], 200, "features"),
+                                (["--task", "pong", "--alarm-detector", "frames"], 1, "frames"),
+                                (["--task", "pong", "--window", "7"], 7, "combined"), (["--task", "cartpole"], 1, "combined")):
         with pytest.raises(SystemExit):
             main(["bench", *argv, *common])
-        assert configs[-1].window == window
+        assert (configs[-1].window, configs[-1].alarm_detector) == (window, alarm)
     # --fit-episodes reaches the config (and its cache key); without it, the task's default (0 here)
     assert configs[-1].fit_episodes == 0
     with pytest.raises(SystemExit):

@@ -229,11 +229,16 @@ class BenchConfig:
             # your own env's readings may jump, which the dynamics model takes as inputs since
             # 2026-11-29 (JUMP_VALUES): an own env's older fits are not reused (every reading of
             # oodmon's tasks is continuous, their fits the same: key unchanged); nor are those from
-            # before drift joined your own env's default set (the same day)
+            # before drift joined your own env's default set (the same day); nor, where combined
+            # brings the default set and that may hold pictures (Pong, your own env), those from
+            # before stillness joined it (2026-11-30)
             steps = 0 if self.fit_episodes else default_fit_steps(self.task)
+            defaults = "combined" in self.detectors and not {"dynamics", "features", "frames", "transitions"} & set(
+                self.detectors)
             parts.append("+".join(self.detectors) + f"-alarm-{self.alarm_detector}-fit{FIT_VERSION}"
                          + (f"-on{self.fit_episodes}" if self.fit_episodes else "")
-                         + (f"-steps{steps}" if steps else "") + (f"-jump{JUMP_VALUES}-drift" if self.own_env else ""))
+                         + (f"-steps{steps}" if steps else "") + (f"-jump{JUMP_VALUES}-drift" if self.own_env else "")
+                         + ("-still" if defaults and (self.own_env or self.task == "pong") else ""))
         if self.obs_noise:
             parts.append(f"noise{self.obs_noise:g}")
         if self.samples is not None:

@@ -69,12 +69,13 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     bench.add_argument("--score", default="chosen_std",
                        help="chosen_std (the paper's, default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
     bench.add_argument("--window", type=_whole(1),
-                       help="alarm rule on the mean score of the last N steps (default 1; Pong 200 unless the frames "
-                            "detector); AUROCs do not change")
+                       help="alarm rule on the mean score of the last N steps (default 1; Pong 200 for the spread and "
+                            "features detectors); AUROCs do not change")
     bench.add_argument("--detectors",
                        help="comma-separated detectors whose per-step AUROC is reported: spread (the paper's protocol's "
                             "default), dynamics, features, frames, combined, scaled_spread (ensembles, MC agents with --masks "
-                            "fixed), drift (the dynamics model's residuals' bias), transitions (discrete states); the learned "
+                            "fixed), drift (the dynamics model's residuals' bias), transitions (discrete states), stillness "
+                            "(a sensor or camera unchanged longer than in ID episodes); the learned "
                             "ones are fitted per trial on ID episodes of their own (monitor protocol's default: spread "
                             "and the task's best)")
     bench.add_argument("--fit-episodes", type=_whole(3), default=0,

@@ -47,7 +47,8 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
                            help="the spread's score: chosen_std (default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
     calibrate.add_argument("--detector", choices=list(DETECTOR_NAMES),
                            help="the detector the alarm reads (default: the task's best measured one when the agent has "
-                                "fitted detectors: cartpole combined, pendulum dynamics, pong frames; else spread); "
+                                "fitted detectors: cartpole combined, pendulum dynamics, pong combined (of frames and "
+                                "stillness); else spread); "
                                 "a learned one without fitted detectors is fitted first, into <out>.detectors/")
     calibrate.add_argument("--fit-episodes", type=_whole(3),
                            help=f"ID episodes the learned detectors are fitted on when calibrate fits them (default "
@@ -228,7 +229,8 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
     _agent_arguments(fit)
     fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread, "
                                     "fitted only when named, and drift, named or in your own env; transitions instead "
-                                    "of dynamics and drift for discrete observations)")
+                                    "of dynamics and drift for discrete observations; stillness for pictures, for "
+                                    "vectors when named)")
     fit.add_argument("--episodes", type=_whole(3),
                      help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES}; "
                           f"your own --env: more, until they hold {_FIT_STEPS:,} steps)")

@@ -73,17 +73,18 @@ DEFAULT_WINDOW = {"pong": 200}
 def default_window(task: str | None, detector: str | None = None) -> int:
     """The alarm rule's window when none is given: 1 (each step's score) for CartPole and Pendulum,
     whose learned detectors already average their last 20 transitions, and for the ``frames``
-    detector, whose 20-step means already separate every corrupted Pong frame from every ID one;
-    200 for Pong's other detectors, whose features distances vary frame to frame while a
+    detector, whose 20-step means already separate every corrupted Pong frame from every ID one,
+    the ``stillness`` detector, whose runs are their own memory, and ``combined`` (Pong's: of those
+    two); 200 for Pong's spread and features, whose distances vary frame to frame while a
     corruption persists. Measured with the monitor's benchmark on the shipped Pong agents
     (results/monitor/README.md): features with window 1 alarmed 52/90 (Dropout) and 80/90
     (ensemble) shifted games; with 200, 90/90 and 90/90, median delays 66 and 81 decisions.
 
     Example:
-        >>> default_window("pong"), default_window("pong", "frames"), default_window("cartpole"), default_window(None)
+        >>> default_window("pong"), default_window("pong", "combined"), default_window("cartpole"), default_window(None)
         (200, 1, 1, 1)
     """
-    if detector == "frames":
+    if detector in ("frames", "stillness", "combined"):
         return 1
     return DEFAULT_WINDOW.get(task or "", 1)
 

@@ -92,7 +92,7 @@ def test_the_policy_gets_the_dict_the_detectors_its_vector_and_the_log_its_pictu
     agent = load_sb3([model_path], ENV_ID)
     assert agent.estimator is None and agent.own_shape == (4,)  # a plain policy; the detectors read the 4 numbers
     detectors = fit_agent_detectors(agent, episodes=40)
-    assert detectors.names == ["dynamics", "drift", "frames", "combined"]  # the vector's physics, the picture's statistics
+    assert detectors.names == ["dynamics", "drift", "frames", "stillness", "combined"]  # the vector, the picture
     threshold = calibrate_agent(agent, episodes=40, far=0.2, detectors=detectors, confidence=None)
     memory = MemorySink()
     with Monitor(agent, threshold=threshold, detectors=detectors, sinks=[memory, McapSink(tmp_path / "x.mcap")]) as monitor:
@@ -138,7 +138,7 @@ def test_the_cli_calibrates_and_runs_it(model_path, tmp_path, capsys):
     assert main(["run", *common, "--threshold", str(tmp_path / "t.json"), "--episodes", "2",
                  "--mcap", str(tmp_path / "x.mcap")]) == 0
     log = read_log(tmp_path / "x.mcap")
-    assert len(log.episodes) == 2 and set(log.detectors) == {"dynamics", "drift", "frames", "combined"}
+    assert len(log.episodes) == 2 and set(log.detectors) == {"dynamics", "drift", "frames", "stillness", "combined"}
 
 
 def test_pictures_alone_or_an_ensemble_of_cnns_are_refused_with_what_to_do(model_path):

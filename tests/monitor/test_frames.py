@@ -110,4 +110,4 @@ def test_vector_observations_are_a_clear_error():
 
 def test_pong_fits_frames_by_default_for_any_policy():
     fitted = fit_detectors(_random_policy(), Variant("pong").make(), episodes=3, max_steps=40)
-    assert fitted.names == ["frames", "combined"]  # a plain policy: no spread, no features
+    assert fitted.names == ["frames", "stillness", "combined"]  # a plain policy: no spread, no features

@@ -13,6 +13,8 @@
   copes with, missed the same way step after step; with ``dynamics``, by default in your own env).
 - ``transitions``: the surprise of each (state, action, next state) to the ID ones counted, for
   observations whose values repeat (discrete states; in place of ``dynamics`` for those).
+- ``stillness``: how long a sensor (a picture, or each reading) has gone unchanged against its
+  longest ID run: a frozen camera (by default for pictures, beside ``frames``).
 
 :func:`fit_detectors` fits them for a policy on its own ID episodes; :class:`DetectorSet` runs
 them at each step and saves them (safetensors + JSON).
@@ -32,13 +34,14 @@ from oodmon.monitor.detectors.fitting import (
 )
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
+from oodmon.monitor.detectors.stillness import StillnessDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.detectors.transitions import TransitionsDetector
 
 __all__ = [
     "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "DETECTORS", "FIT_VERSION", "MIN_LOGVAR",
     "CombinedDetector", "Detector", "DetectorSet", "DriftDetector", "DynamicsDetector", "FeaturesDetector",
-    "FramesDetector", "ScaledSpreadDetector", "SpreadDetector", "StepContext", "Trajectory",
+    "FramesDetector", "ScaledSpreadDetector", "SpreadDetector", "StepContext", "StillnessDetector", "Trajectory",
     "TransitionsDetector", "best_detector", "collect", "default_detectors", "default_fit_steps",
     "detectors_for", "fit_agent_detectors", "fit_detectors", "fitting_notes", "trajectory_scores",
 ]

@@ -37,6 +37,16 @@ x7-x10 from mid-episode: 23 of 40 instead of 3), 1 of 200 ID episodes (0 before)
 p90 1 / 1 (1 / 3); Dropout's gravity delays fell from 4.5-18.5 to 1.5-3.5 steps at the median;
 DropConnect's figures stayed the same; per-step AUROC moved by 0.0001 at most on CartPole.
 
+``stillness`` (:data:`UNIT_MEMBERS`) counts its excess in steps (each step a sensor stands still
+past the longest held-out run: one rank, a tenfold rarer p-value), not in ID standard deviations:
+its ID scores are nearly all the same (Pong's newest frame stands still at under 1% of the steps),
+their standard deviation tiny, so that a calibration episode whose camera stood still two steps
+longer than any held-out one ranked some 20 higher and set the threshold for every member (a
+random policy on 150-step Pong games, 2026-11-30: 45.1 where the other members' ID scores ranked
+below 3). Measured on the monitor's benchmark of the shipped Pong DropConnect agent (its logged
+scores ranked again): a unit of 10 steps alarmed a frozen camera 53 steps after it froze, 1 step
+13; the corruptions' delays and the ID episodes' alarms stayed the same.
+
 The alarm's threshold is calibrated on the combined score of its own ID episodes like any other
 score, so its per-episode false-alarm guarantee is exact whatever the members' dependence.
 """
@@ -54,7 +64,7 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import Detector, RunningMean, StepContext
 from oodmon.validation import is_whole
 
-__all__ = ["DEFAULT_HORIZON", "LOG_MEMBERS", "LONG_MEMBERS", "CombinedDetector"]
+__all__ = ["DEFAULT_HORIZON", "LOG_MEMBERS", "LONG_MEMBERS", "UNIT_MEMBERS", "CombinedDetector"]
 
 #: Members whose mean since the episode began the combined detector ranks too, by default.
 LONG_MEMBERS = ("dynamics",)
@@ -62,6 +72,9 @@ LONG_MEMBERS = ("dynamics",)
 DEFAULT_HORIZON = 500
 #: Members ranked by the logarithm of their score, by default (their scores are positive).
 LOG_MEMBERS = ("features",)
+#: Members whose excess beyond their largest ID score counts in this unit, not in ID standard
+#: deviations: ``stillness``, whose value counts steps (see the module's text).
+UNIT_MEMBERS = {"stillness": 1.0}
 _LOG_FLOOR = 1e-300  # a score of 0 (never seen: a squared distance) is ranked as this
 
 
@@ -155,7 +168,8 @@ class CombinedDetector(Detector):
                                       "detector ranks its mean since the episode began")
                 means = np.concatenate([self._means[name].along(values) for values in per_episode])
                 long_reference[name] = sorted_reference(f"{name!r}'s episode mean", ranked_as(name, means))
-        self._set_reference(reference, _scales(reference), long_reference, _scales(long_reference))
+        scale = _scales(reference) | {name: unit for name, unit in UNIT_MEMBERS.items() if name in reference}
+        self._set_reference(reference, scale, long_reference, _scales(long_reference))
         return self
 
     def _set_reference(self, reference: dict[str, np.ndarray], scale: dict[str, float],

@@ -30,6 +30,7 @@ from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector, is_picture
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector, member_values
 from oodmon.monitor.detectors.spread import SpreadDetector
+from oodmon.monitor.detectors.stillness import StillnessDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.detectors.transitions import TransitionsDetector
 from oodmon.monitor.scores import DEFAULT_SCORE
@@ -88,12 +89,29 @@ FIT_VERSION = 6
 # the shipped agents (results/detectors/, `scripts/detector_table.py`; the README's detector table);
 # Pong: frames, which alarmed every shifted game of the monitor's benchmark within a few decisions
 # where features needed 200-decision means and still missed DropConnect's mild blur
-# (results/monitor/pong-frames-*.json). Pendulum: dynamics was the best when chosen; since the
+# (results/monitor/pong-frames-*.json), and since 2026-11-30 combined, of frames and stillness
+# (COMBINED_LEAVES_OUT): the same benchmark and a frozen camera (`pong:obs.stuck=1`), which frames
+# never sees, alarmed 10 of 10 games of each agent 11-14 decisions after it froze; the nine
+# corruptions 90 of 90 as before, 25 of 27 delay medians the same and 2 longer by 0.5; 0, 2 and 0
+# of 200 ID games alarmed against 3, 1 and 0 (results/monitor/pong-combined-*.json). Pendulum: dynamics was the best when chosen; since the
 # detectors are fitted on 90 episodes `combined` reads 0.001-0.003 higher per step on all three
 # Pendulum agents, but as the alarm (the monitor's benchmark with `--detectors spread,combined
 # --alarm-detector combined`, 2026-11-24) it alarmed the same episodes, 0-1 step later on 5
 # variants, with 9 false alarms of 400 for Dropout against dynamics' 4: dynamics stays.
-BEST_DETECTOR = {"cartpole": "combined", "pendulum": "dynamics", "pong": "frames"}
+BEST_DETECTOR = {"cartpole": "combined", "pendulum": "dynamics", "pong": "combined"}
+
+#: What a task's ``combined`` leaves out of the detectors it has, measured as adding nothing there
+#: but false alarms. Pong's spread and features: frames separates every corruption (per-step AUROC
+#: 0.999-1.000 on the shipped agents; the spread 0.35-0.66, the features' step scores noisy enough
+#: to need 200-decision means), and with them in the combined of frames and stillness its
+#: threshold rose. The monitor's benchmark of the shipped DropConnect and Dropout agents
+#: (2026-11-30; ``--detectors spread,features,frames,stillness,combined --alarm-detector
+#: combined --window 1``): 6 of 200 ID games alarmed for each, and Dropout alarmed 8 of 100 shifted
+#: games before the onset; their logged scores ranked again by a combined of frames and stillness
+#: alone (its threshold the largest of the first 90 ID games, against the other 110): thresholds
+#: 6.30 and 3.79 against 7.73 and 5.94, 0 and 3 of those 110 alarmed against 2 and 0, every delay
+#: shorter or the same (1-2 steps shorter for Dropout).
+COMBINED_LEAVES_OUT = {"pong": ("spread", "features")}
 
 
 def best_detector(task: str | None, detectors: DetectorSet | None, score: str | None = None) -> str:
@@ -224,10 +242,10 @@ def default_detectors(policy: Any, env: gymnasium.Env, task: str | None = None) 
     """The learned detectors ``policy`` in ``env`` can have: ``dynamics`` for vector observations
     (stacked ones too, flattened), with ``drift`` where ``task`` is an env oodmon has no variants of
     (:mod:`~oodmon.monitor.detectors.drift`), ``transitions`` instead of both for discrete states
-    (:func:`discrete_states`), ``features`` for an oodmon agent or estimator, ``frames`` for
-    image observations (:func:`~oodmon.monitor.detectors.frames.is_picture`), both ``dynamics``
-    and ``frames`` for an agent's dicts with pictures beside vectors (``Agent.pictures``), and
-    ``combined``."""
+    (:func:`discrete_states`), ``features`` for an oodmon agent or estimator, ``frames`` and
+    ``stillness`` (a frozen camera) for image observations
+    (:func:`~oodmon.monitor.detectors.frames.is_picture`) and beside ``dynamics`` for an agent's
+    dicts with pictures beside vectors (``Agent.pictures``), and ``combined``."""
     from oodmon.names import TASKS
 
     estimator, _, _ = policy_parts(policy)
@@ -239,7 +257,7 @@ def default_detectors(policy: Any, env: gymnasium.Env, task: str | None = None) 
     if estimator is not None:
         names.append("features")
     if picture or getattr(policy, "pictures", None) is not None:
-        names.append("frames")
+        names += ["frames", "stillness"]
     return (*names, "combined")
 
 
@@ -270,7 +288,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     until they hold ``min_steps`` steps (two thirds of them fit, one third ranks).
 
     ``spread`` (with ``score``) joins the set whenever the policy has samples; ``combined``
-    combines every other detector of the set, and named alone it brings the learned members the
+    combines every other detector of the set (but what :data:`COMBINED_LEAVES_OUT` leaves out for
+    ``task``, where others remain), and named alone it brings the learned members the
     policy can have (``["combined"]`` fits dynamics and features too). ``features`` needs an oodmon agent or estimator
     (a plain callable has no features); ``dynamics`` needs vector observations; ``scaled_spread``, fitted
     only when named, an oodmon ensemble (DQN or DDPG); ``drift`` reads the dynamics model's residuals
@@ -321,6 +340,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         parts.append(FeaturesDetector(n_actions).fit(fit))
     if "frames" in detectors:
         parts.append(FramesDetector().fit(fit))
+    if "stillness" in detectors:
+        parts.append(StillnessDetector().fit(fit))
     if "scaled_spread" in detectors:
         # An MC agent's fixed sub-networks share most of their weights and move together: whitened.
         whiten = fixed_masks(getattr(estimator, "masks", None))
@@ -331,11 +352,13 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
                   "masks": getattr(estimator, "masks", None)}
     result = DetectorSet(parts, fitted_for=fitted_for)
     if "combined" in detectors:
-        members = [d.name for d in parts]
+        left_out = COMBINED_LEAVES_OUT.get(task or "", ())
+        members = [d.name for d in parts if d.name not in left_out] or [d.name for d in parts]
         reference: dict[str, list[np.ndarray]] = {name: [] for name in members}
         for trajectory in held_out:
             for name, values in trajectory_scores(result, trajectory, estimator).items():
-                reference[name].append(values)
+                if name in reference:
+                    reference[name].append(values)
         combined = CombinedDetector(members).fit_reference(reference)  # per episode: see its long members
         result = result.with_detector(combined)
     return result
@@ -384,15 +407,16 @@ def fitted_when_named(detector: str | None) -> tuple[str, ...] | None:
     """What to fit for an alarm that reads ``detector`` when nothing is fitted yet: ``None`` (the
     policy's default set) but for the detectors fitted only when named: ``scaled_spread`` alone,
     ``drift`` with the default set, whose ``combined`` then ranks it too, and ``transitions`` (the
-    default for discrete observations; named for others, whose fit says whether they repeat) with a
-    ``combined`` of it.
+    default for discrete observations; named for others, whose fit says whether they repeat) and
+    ``stillness`` (the default for pictures; for vectors named) with the default set and a
+    ``combined`` that ranks them.
 
     Example:
         >>> fitted_when_named("drift"), fitted_when_named("scaled_spread"), fitted_when_named("combined")
         (('drift', 'combined'), ('scaled_spread',), None)
     """
     return {"scaled_spread": ("scaled_spread",), "drift": ("drift", "combined"),
-            "transitions": ("transitions", "combined")}.get(detector or "")
+            "transitions": ("transitions", "combined"), "stillness": ("stillness", "combined")}.get(detector or "")
 
 
 def has_members(estimator: Any) -> bool:

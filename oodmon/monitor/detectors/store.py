@@ -24,6 +24,7 @@ from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
+from oodmon.monitor.detectors.stillness import StillnessDetector
 from oodmon.monitor.detectors.transitions import TransitionsDetector
 from oodmon.hashing import write_hashed_tensors
 
@@ -33,7 +34,7 @@ __all__ = ["DETECTORS", "DetectorSet"]
 DETECTORS: dict[str, type[Detector]] = {
     "spread": SpreadDetector, "dynamics": DynamicsDetector, "features": FeaturesDetector, "frames": FramesDetector,
     "combined": CombinedDetector, "scaled_spread": ScaledSpreadDetector, "drift": DriftDetector,
-    "transitions": TransitionsDetector,
+    "transitions": TransitionsDetector, "stillness": StillnessDetector,
 }
 FORMAT = "oodmon.detectors"
 FORMAT_VERSION = 1
