@@ -43,9 +43,10 @@ its ID scores are nearly all the same (Pong's newest frame stands still at under
 their standard deviation tiny, so that a calibration episode whose camera stood still two steps
 longer than any held-out one ranked some 20 higher and set the threshold for every member (a
 random policy on 150-step Pong games, 2026-11-30: 45.1 where the other members' ID scores ranked
-below 3). Measured on the monitor's benchmark of the shipped Pong DropConnect agent (its logged
-scores ranked again): a unit of 10 steps alarmed a frozen camera 53 steps after it froze, 1 step
-13; the corruptions' delays and the ID episodes' alarms stayed the same.
+below 3). Measured on the monitor's benchmark of the shipped Pong DropConnect agent, its logged
+scores ranked again (a combined of spread, features, frames and stillness, its threshold the
+largest of 90 of the 200 ID games): a unit of 10 steps alarmed a frozen camera 53 steps after it
+froze (median), 1 step 13; the corruptions' delays and the other ID games' alarms the same.
 
 The alarm's threshold is calibrated on the combined score of its own ID episodes like any other
 score, so its per-episode false-alarm guarantee is exact whatever the members' dependence.

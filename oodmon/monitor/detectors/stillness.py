@@ -1,8 +1,8 @@
 """``stillness``: how long a sensor has gone unchanged, against the longest it ever did in ID episodes.
 
 A frozen camera shows an ordinary picture, again and again: ``frames`` scores each picture by
-itself and sees nothing wrong (Pong DropConnect, ``pong:obs.stuck=1`` from step 200: 0 of 5 games
-alarmed, 2026-11-30), and neither do the policy's samples or features. What is out of the ordinary
+itself and sees nothing wrong (Pong DropConnect, ``pong:obs.stuck=1`` from step 200: its frames
+alarm rang in 0 of 5 games, 2026-11-30), and neither do the policy's samples or features. What is out of the ordinary
 is time: a live camera's picture changes from one step to the next, and when it does not, not for
 long. Fitting finds, for each sensor, the longest run of steps its reading stayed exactly the same
 in the ID fitting episodes (``longest``); a step's value is the largest, over the sensors, of the
