@@ -23,7 +23,9 @@ answered, 4 stopped while working, no traceback (a planted ``ValueError`` in rep
 was reported with its traceback, as before). Later that day, with sensor faults of discrete
 observations among the odd values (Taxi's, FrozenLake's), seeds 66 and 67: 497 and 498 answered,
 the rest stopped while working, no traceback; with the tasks' sensor faults too, seeds 68 and 69:
-500 and 497 answered, the rest stopped while working, no traceback.
+500 and 497 answered, the rest stopped while working, no traceback. With the stillness detector
+among ``--detector``'s choices, seeds 70 and 71: 499 and 498 answered, the rest stopped while
+working, no traceback.
 """
 
 from __future__ import annotations
