@@ -341,7 +341,7 @@ class Monitor:
                 task=meta.get("task", "unknown"), method=meta.get("method", "unknown"), score=self.score_name,
                 threshold=self.threshold, rule=self.tracker.rule, policy_hash=self.policy_hash,
                 versions=library_versions(), detector=self.detector, detectors=tuple(self.detectors.names),
-                about=run_about(meta) | self._samples_about(),
+                about=run_about(meta) | self._samples_about() | self._states_about(),
                 fitted=self._fitted,
             ))
             self._opened = True
@@ -355,6 +355,17 @@ class Monitor:
             return {}
         masks = getattr(self.estimator, "masks", None)
         return {"samples": str(self.estimator.n_samples)} | ({"masks": masks} if masks else {})
+
+    def _states_about(self) -> dict[str, str]:
+        """The values of each reading of a discrete observation (``about.states`` in the log: ``16``
+        for FrozenLake's cell, ``3,5`` for a ``MultiDiscrete([3, 5])``): the steps hold it one-hot
+        (:meth:`~oodmon.agents.agent.Agent.view`), which the Rerun sink draws as each reading's value."""
+        space = getattr(self.agent, "dict_space", None)
+        if isinstance(space, gymnasium.spaces.Discrete):
+            return {"states": str(int(space.n))}
+        if isinstance(space, gymnasium.spaces.MultiDiscrete) and space.nvec.ndim == 1:
+            return {"states": ",".join(str(int(n)) for n in space.nvec)}
+        return {}
 
     def close(self) -> None:
         """End a running episode (as interrupted) and finish the sinks' files. Idempotent."""

@@ -132,6 +132,36 @@ def test_a_plain_policy_of_discrete_cells_gets_ints_and_its_detectors_read_them_
     assert len(sink.steps[0].observation) == 16 and sum(sink.steps[0].observation) == 1  # logged one-hot
 
 
+def test_rerun_draws_a_discrete_observation_as_its_value_not_its_one_hot_vector(tmp_path):
+    """A Taxi's 500 states were 500 series of 0 and 1 in Rerun; now one series of the state as the
+    env gives it (the log's about.states tells the sink the one-hot blocks); the steps keep it one-hot."""
+    import rerun.chunk as rc
+
+    from oodmon.monitor.sinks.mcap import McapSink
+    from oodmon.monitor.sinks.rerun import RerunSink
+    from oodmon.replay import read_log
+
+    cells = []
+
+    def act(obs):
+        cells.append(int(obs))
+        return {0: 1, 4: 1, 8: 2, 9: 2, 10: 1, 14: 2}.get(int(obs), 0)
+
+    agent = plain_agent(act, "FrozenLake-v1")
+    env = agent.make_env()
+    detectors = fit_detectors(agent, env, episodes=6)
+    cells.clear()
+    memory = MemorySink()
+    sinks = [memory, RerunSink(tmp_path / "lake.rrd"), McapSink(tmp_path / "lake.mcap")]
+    with Monitor(agent, detectors=detectors, sinks=sinks) as monitor:
+        monitor.run_episode(env, seed=5)
+    frame = rc.RrdReader(tmp_path / "lake.rrd").stream().collect().reader("step").to_pandas()
+    drawn = frame["/observation:Scalars:scalars"].dropna()
+    assert len(cells) >= 2 and [list(v) for v in drawn] == [[float(c)] for c in cells]
+    assert [int(np.argmax(s.observation)) for s in memory.steps] == cells and len(memory.steps[0].observation) == 16
+    assert read_log(tmp_path / "lake.mcap").metadata["about.states"] == "16"
+
+
 def test_a_plain_policy_of_a_tuple_of_discrete_values_gets_its_tuples():
     """Blackjack's hand (Tuple(Discrete(32), Discrete(11), Discrete(2))): before, refused as FrozenLake's cell was."""
     hands = []

@@ -3,7 +3,9 @@
 Timeline ``step`` counts the run's steps. Entities: ``/score`` (the alarm's) and ``/threshold``;
 ``/detectors/<name>`` (every detector's score);
 ``/uncertainty/<action>`` with the samples' mean and the band mean - std .. mean + std;
-``/observation`` (vector tasks) or ``/frame`` (Pong: the 84x84 frame the agent saw);
+``/observation`` (vector tasks; a discrete observation as each reading's value, not the one-hot
+vector the steps hold: Taxi's one series of its 500 states instead of 500) or ``/frame`` (Pong:
+the 84x84 frame the agent saw);
 ``/shifted`` (1 while the shift is active); ``/alarms`` (warnings); ``/episode/return``.
 A default blueprint lays these out, so opening the file shows a useful layout.
 
@@ -107,6 +109,7 @@ class RerunSink:
         self._buffer: list[StepRecord] = []
         self._steps: list[int] = []
         self._last = (0, 0)  # (episode, step in it) of the last step written
+        self._states: list[int] = []  # a discrete observation's values per reading (see open())
 
     def existing_paths(self) -> list[Path]:
         """The file an earlier run left at ``path``, if any (the live streams leave none)."""
@@ -123,6 +126,9 @@ class RerunSink:
 
         self._rr = rr
         self._task = run.task
+        # A discrete observation's values per reading (the monitor's about.states), whose one-hot
+        # blocks /observation draws as each reading's value
+        self._states = [int(n) for n in run.about.get("states", "").split(",") if n.strip().isdigit()]
         self._names_sent = False
         self._blueprint_outputs = None
         local = []
@@ -301,7 +307,7 @@ class RerunSink:
             self._each("send_columns", "/threshold", indexes=index, columns=rr.Scalars.columns(scalars=thresholds))
         if self._buffer[0].observation is not None:
             self._each("send_columns", "/observation", indexes=index,
-                       columns=rr.Scalars.columns(scalars=np.array([r.observation for r in self._buffer])))
+                       columns=rr.Scalars.columns(scalars=_decoded([r.observation for r in self._buffer], self._states)))
         self._buffer.clear()
         self._steps.clear()
 
@@ -405,3 +411,18 @@ def _warn(message: str) -> None:
     from oodmon.monitor.sinks.base import SinkWarning
 
     warnings.warn(message, SinkWarning, stacklevel=4)
+
+
+def _decoded(observations: list, states: list[int]) -> np.ndarray:
+    """Steps' observations, (steps, readings): each one-hot block of ``states`` values as the index
+    of its 1 (a discrete observation, as the env gave it), or as they are when they are not such.
+
+    Example:
+        >>> _decoded([[0, 0, 1, 0, 1, 0, 0, 0], [1, 0, 0, 0, 0, 0, 0, 1]], [3, 5]).tolist()
+        [[2.0, 1.0], [0.0, 4.0]]
+    """
+    values = np.asarray(observations, dtype=np.float64)
+    if not states or values.ndim != 2 or values.shape[1] != sum(states):
+        return values
+    bounds = np.cumsum([0, *states])
+    return np.stack([values[:, a:b].argmax(axis=1) for a, b in zip(bounds[:-1], bounds[1:])], axis=1).astype(np.float64)
