@@ -90,7 +90,7 @@ def test_episodes_too_short_to_stand_still_are_refused():
         StillnessDetector().fit([Trajectory(np.zeros((1, 4)), np.zeros(0))])
 
 
-def test_pictures_fit_it_by_default_and_combined_counts_its_excess_in_records():
+def test_pictures_fit_it_by_default_and_combined_counts_its_excess_in_steps():
     """A picture's default set has stillness beside frames; combined ranks it, its excess in steps
     (UNIT_MEMBERS), not in its ID scores' standard deviation (nearly all of them are the same)."""
     fitted = fit_detectors(_Random(), Variant("pong").make(), episodes=3, max_steps=60)
