@@ -222,7 +222,7 @@ class BenchConfig:
             parts.append(f"warm{self.warmup}")
         if self.learned:
             from oodmon.monitor.detectors.dynamics import JUMP_VALUES
-            from oodmon.monitor.detectors.fitting import FIT_VERSION, default_fit_steps
+            from oodmon.monitor.detectors.fitting import FIT_VERSION, brings_default_set, default_fit_steps
 
             # the fitting's version: what an older oodmon fitted and scored is not reused; your own
             # env's default fitting plays on until its steps (oodmon's tasks: none, key unchanged);
@@ -233,8 +233,7 @@ class BenchConfig:
             # brings the default set and that may hold pictures (Pong, your own env), those from
             # before stillness joined it (2026-11-30)
             steps = 0 if self.fit_episodes else default_fit_steps(self.task)
-            defaults = "combined" in self.detectors and not {"dynamics", "features", "frames", "transitions"} & set(
-                self.detectors)
+            defaults = brings_default_set(self.detectors)
             parts.append("+".join(self.detectors) + f"-alarm-{self.alarm_detector}-fit{FIT_VERSION}"
                          + (f"-on{self.fit_episodes}" if self.fit_episodes else "")
                          + (f"-steps{steps}" if steps else "") + (f"-jump{JUMP_VALUES}-drift" if self.own_env else "")

@@ -93,11 +93,12 @@ FIT_VERSION = 6
 # (COMBINED_LEAVES_OUT): the same benchmark and a frozen camera (`pong:obs.stuck=1`), which frames
 # never sees, alarmed 10 of 10 games of each agent 11-14 decisions after it froze; the nine
 # corruptions 90 of 90 as before, 25 of 27 delay medians the same and 2 longer by 0.5; 0, 2 and 0
-# of 200 ID games alarmed against 3, 1 and 0 (results/monitor/pong-combined-*.json). Pendulum: dynamics was the best when chosen; since the
-# detectors are fitted on 90 episodes `combined` reads 0.001-0.003 higher per step on all three
-# Pendulum agents, but as the alarm (the monitor's benchmark with `--detectors spread,combined
-# --alarm-detector combined`, 2026-11-24) it alarmed the same episodes, 0-1 step later on 5
-# variants, with 9 false alarms of 400 for Dropout against dynamics' 4: dynamics stays.
+# of 200 ID games alarmed against 3, 1 and 0 (results/monitor/pong-combined-*.json).
+# Pendulum: dynamics was the best when chosen; since the detectors are fitted on 90 episodes
+# `combined` reads 0.001-0.003 higher per step on all three Pendulum agents, but as the alarm
+# (the monitor's benchmark with `--detectors spread,combined --alarm-detector combined`,
+# 2026-11-24) it alarmed the same episodes, 0-1 step later on 5 variants, with 9 false alarms of
+# 400 for Dropout against dynamics' 4: dynamics stays.
 BEST_DETECTOR = {"cartpole": "combined", "pendulum": "dynamics", "pong": "combined"}
 
 #: What a task's ``combined`` leaves out of the detectors it has, measured as adding nothing there
@@ -261,6 +262,17 @@ def default_detectors(policy: Any, env: gymnasium.Env, task: str | None = None) 
     return (*names, "combined")
 
 
+def brings_default_set(detectors: Sequence[str]) -> bool:
+    """Whether fitting ``detectors`` fits the policy's default set too: ``combined`` named without
+    a learned member to combine (:func:`fit_detectors`).
+
+    Example:
+        >>> brings_default_set(["spread", "combined"]), brings_default_set(["frames", "combined"])
+        (True, False)
+    """
+    return "combined" in detectors and not {"dynamics", "features", "frames", "transitions"} & set(detectors)
+
+
 def discrete_states(policy: Any, env: gymnasium.Env) -> bool:
     """Whether the observations of ``policy`` (an Agent's ``dict_space``, which its detectors read
     one-hot) or else of ``env`` are discrete values: ``Discrete``, ``MultiDiscrete``, ``MultiBinary``,
@@ -307,7 +319,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     unknown = [name for name in detectors if name not in DETECTORS]
     if unknown:
         raise InvalidParameterError(f"unknown detector {unknown[0]!r}; choose from {', '.join(DETECTORS)}")
-    if "combined" in detectors and not {"dynamics", "features", "frames", "transitions"} & set(detectors):
+    if brings_default_set(detectors):
         detectors = tuple(dict.fromkeys((*default_detectors(policy, env, task), *detectors)))
     if "drift" in detectors and "dynamics" not in detectors:  # it reads the dynamics model's residuals
         detectors = ("dynamics", *detectors)

@@ -86,7 +86,7 @@ class StillnessDetector(Detector):
         self.pictures = pictures  # the sensor is the newest frame of a picture, else each reading
         self.longest: np.ndarray | None = None  # (sensors,) the longest ID run of each
         self._last: np.ndarray | None = None  # the last step's readings (a copy)
-        self._run: np.ndarray | None = None  # each sensor's current run of unchanged steps
+        self._run: np.ndarray | int | None = None  # each sensor's current run of unchanged steps (a picture's: an int)
 
     @property
     def fitted(self) -> bool:
@@ -100,18 +100,18 @@ class StillnessDetector(Detector):
         Raises:
             ConfigError: no episode of two steps or more.
         """
-        episodes = [t.observations if t.pictures is None else t.pictures for t in trajectories]
-        episodes = [np.asarray(e) for e in episodes if len(e) >= 2]
-        if not episodes:
+        kept = [t for t in trajectories if len(t.observations) >= 2]
+        if not kept:
             raise ConfigError("the stillness detector needs ID episodes of two steps or more to learn how long its "
                               "sensors stand still; got none")
-        first = episodes[0]
-        self.pictures = trajectories[0].pictures is not None or is_picture(first.shape[1:], first.dtype)
+        episodes = [np.asarray(t.observations if t.pictures is None else t.pictures) for t in kept]
+        self.pictures = kept[0].pictures is not None or is_picture(episodes[0].shape[1:], episodes[0].dtype)
         self._set(np.max([longest_runs(still_steps(e, pictures=self.pictures)) for e in episodes], axis=0))
         return self
 
     def _set(self, longest: np.ndarray) -> None:
         self.longest = np.asarray(longest, np.int64)
+        self._record = int(self.longest[0])  # a picture's one record, read at every step
         self._last = self._run = None
 
     # -- scoring -----------------------------------------------------------------------------------
@@ -122,15 +122,16 @@ class StillnessDetector(Detector):
         """The most steps a sensor has stood still past its longest ID run (0 or less: none has)."""
         self.check_fitted()
         seen = context.obs if context.picture is None else context.picture
-        if self.pictures:  # one sensor: the newest frame, whole
-            readings = newest_frame(np.asarray(seen))
-            still = np.array([self._last is not None and np.array_equal(readings, self._last)])
-        else:
-            readings = np.asarray(seen, np.float64).reshape(-1)
-            if len(readings) != len(self.longest):
-                raise ConfigError(f"the stillness detector was fitted on {len(self.longest)} readings; this "
-                                  f"observation holds {len(readings)}")
-            still = readings == self._last if self._last is not None else np.zeros(len(readings), bool)
+        if self.pictures:  # one sensor, the newest frame, whole: its run an int (each Pong decision's path)
+            frame = newest_frame(np.asarray(seen))
+            self._run = self._run + 1 if self._last is not None and np.array_equal(frame, self._last) else 0
+            self._last = frame.copy()
+            return float(self._run - self._record)
+        readings = np.asarray(seen, np.float64).reshape(-1)
+        if len(readings) != len(self.longest):
+            raise ConfigError(f"the stillness detector was fitted on {len(self.longest)} readings; this "
+                              f"observation holds {len(readings)}")
+        still = readings == self._last if self._last is not None else np.zeros(len(readings), bool)
         self._run = np.where(still, self._run + 1, 0) if self._run is not None else np.zeros(len(still), np.int64)
         self._last = readings.copy()
         return float((self._run - self.longest).max())
