@@ -1,0 +1,180 @@
+"""A partly frozen camera in Pong: part of the picture held from the onset, the rest live. Does the
+shipped agent's alarm see it, how soon, and how many points go first?
+
+Run (a few seconds per game on one thread; a threshold from ``oodmon calibrate --task pong --method
+M [--detector motion] --out F``, read with the detectors fitted beside it as ``oodmon run`` reads them):
+    OODMON_TORCH_THREADS=1 .venv/bin/python scripts/frozen_region.py --method dropconnect \\
+        --threshold runs/pong-dc.json [--regions agent_side,opponent_side] [--games 5]
+    OODMON_TORCH_THREADS=1 .venv/bin/python scripts/frozen_region.py --tiles 7
+
+A region of each raw 210x160 RGB frame the camera delivers (before the agent's preprocessing, as
+``pong:`` corruptions are applied) holds what it showed at the onset: dead sensor rows, a frozen
+part of the image. ``pong:obs.stuck=1`` is the whole picture frozen (``stillness`` sees it some
+ten decisions on: the README's "Detectors"); here the rest of the picture goes on moving, so the
+whole picture never stands still. Regions (rows, columns of the raw frame): ``agent_side`` the
+right third (the agent's paddle), ``opponent_side`` the left third, ``centre`` rows 80-149 x
+columns 50-109, ``top_half``, ``bottom_half``, ``whole``, or ``R0:R1,C0:C1`` of your own.
+
+For each region, ``--games`` games (seeds 800,000 on) monitored with the threshold from step
+``--onset``, at most ``--max-steps`` decisions: the games alarmed, the delays (first alarm - onset),
+alarms before the onset, and the points the agent lost from the onset to its alarm (to the game's
+cut-off when none).
+
+``--tiles N``: why ``stillness`` of tiles would not do (``motion`` weighs each tile's still runs by
+how often it moves after the action taken instead). The agent plays ``--id-games`` ID games (seeds
+700,000 on); each N x N-pixel tile of the newest 84x84 frame is a sensor whose longest unchanged
+run is found over the first half, printed as a grid, and the most a game of the second half stood
+still past it, per tile: the tiles that move most (the paddles' columns) stand still in ID games
+for some 55-160 decisions, the others for hundreds, and fresh games pass those records.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from oodmon.agents import load
+from oodmon.envs.corruptions import Corruption
+from oodmon.envs.pong import SCREEN_SIZE, CorruptedPong
+from oodmon.monitor import Monitor, Threshold
+from oodmon.monitor.detectors import detectors_for
+from oodmon.monitor.detectors.stillness import longest_runs
+from oodmon.threads import limit_threads
+
+#: Named regions of the raw 210x160 frame: (rows, columns).
+REGIONS = {
+    "agent_side": (slice(0, 210), slice(107, 160)),
+    "opponent_side": (slice(0, 210), slice(0, 53)),
+    "centre": (slice(80, 150), slice(50, 110)),
+    "top_half": (slice(0, 105), slice(0, 160)),
+    "bottom_half": (slice(105, 210), slice(0, 160)),
+    "whole": (slice(0, 210), slice(0, 160)),
+}
+
+
+def region(text: str) -> tuple[slice, slice]:
+    """A named region, or ``R0:R1,C0:C1`` of the raw frame."""
+    if text in REGIONS:
+        return REGIONS[text]
+    try:
+        rows, cols = (tuple(int(n) for n in part.split(":")) for part in text.split(","))
+        (r0, r1), (c0, c1) = rows, cols
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is no region: give one of {', '.join(REGIONS)} or R0:R1,C0:C1") from None
+    if not (0 <= r0 < r1 <= 210 and 0 <= c0 < c1 <= 160):
+        raise argparse.ArgumentTypeError(f"{text!r} is outside the 210x160 frame or empty")
+    return slice(r0, r1), slice(c0, c1)
+
+
+class FrozenRegion(Corruption):
+    """A region of every frame held at what the first corrupted frame showed there (one per episode:
+    make a new one, or :meth:`thaw`, for the next)."""
+
+    name = "frozen_region"
+
+    def __init__(self, rows: slice, cols: slice) -> None:
+        self.rows, self.cols, self.held = rows, cols, None
+
+    def thaw(self) -> None:
+        self.held = None
+
+    def __call__(self, frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        out = frame.copy()
+        if self.held is None:
+            self.held = frame[self.rows, self.cols].copy()
+        out[self.rows, self.cols] = self.held
+        return out
+
+
+def frozen_games(agent, threshold: Threshold, name: str, args: argparse.Namespace) -> dict[str, object]:
+    """The region's games under the monitor (the detectors ``calibrate`` fitted beside the threshold
+    file, as ``oodmon run`` reads them, else the agent's shipped ones): alarms, delays and the points
+    lost before the alarm."""
+    beside = Path(f"{args.threshold}.detectors")
+    rows, cols = region(name)
+    frozen = FrozenRegion(rows, cols)
+    env = CorruptedPong(frozen, onset_step=args.onset)
+    delays, early, lost, missed_lost = [], 0, [], []
+    with Monitor(agent, threshold, detectors=detectors_for(agent, beside if beside.is_dir() else None)) as monitor:
+        for game in range(args.games):
+            frozen.thaw()
+            record = monitor.run_episode(env, seed=800_000 + game, max_steps=args.max_steps, variant=f"pong:frozen[{name}]")
+            alarm = record.first_alarm_step
+            after = np.asarray(record.rewards[args.onset:alarm if alarm is not None and alarm >= args.onset else None])
+            if alarm is not None and alarm < args.onset:
+                early += 1
+            elif alarm is not None:
+                delays.append(alarm - args.onset)
+                lost.append(int((after < 0).sum()))
+            else:
+                missed_lost.append(int((after < 0).sum()))
+    env.close()
+    return {"region": name, "alarmed": f"{len(delays)}/{args.games}", "early": early, "delays": delays,
+            "points lost before the alarm": lost, "points lost in the games not alarmed": missed_lost}
+
+
+def newest_frames(agent, seed: int) -> np.ndarray:
+    """The newest 84x84 frame of every step of one ID game the agent plays."""
+    env = CorruptedPong()
+    obs, _ = env.reset(seed=seed)
+    frames, done = [obs[-1].copy()], False
+    while not done:
+        obs, _, terminated, truncated, _ = env.step(agent.act(obs))
+        frames.append(obs[-1].copy())
+        done = terminated or truncated
+    env.close()
+    return np.array(frames)
+
+
+def tile_records(agent, tile: int, games: int) -> None:
+    """Print each tile's longest unchanged run over the first half of ``games`` ID games, and the
+    most a game of the second half went past it."""
+    n = SCREEN_SIZE // tile
+    runs = []
+    for game in range(games):
+        frames = newest_frames(agent, 700_000 + game)[:, :n * tile, :n * tile].reshape(-1, n, tile, n, tile)
+        changed = (frames[1:] != frames[:-1]).any(axis=(2, 4)).reshape(len(frames) - 1, -1)
+        runs.append(longest_runs(~changed))
+        print(f"ID game {game + 1}/{games}: {len(frames)} steps", flush=True)
+    runs = np.array(runs)
+    half = games // 2
+    record, past = runs[:half].max(axis=0), (runs[half:] - runs[:half].max(axis=0)).max(axis=0)
+    print(f"longest unchanged run of each {tile}x{tile} tile over ID games 1-{half} (the agent's paddle on the right):")
+    print(np.array2string(record.reshape(n, n), max_line_width=200))
+    print(f"the most games {half + 1}-{games} stood still past it (<= 0: none did):")
+    print(np.array2string(past.reshape(n, n), max_line_width=200))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--method", choices=("dropout", "dropconnect", "ensemble"), default="dropconnect")
+    parser.add_argument("--threshold", help="a threshold file of the shipped Pong agent (oodmon calibrate --out)")
+    parser.add_argument("--regions", default="agent_side,opponent_side,centre,top_half",
+                        help=f"comma-separated: {', '.join(REGIONS)}, or R0:R1,C0:C1 (give one of your own alone)")
+    parser.add_argument("--games", type=int, default=5)
+    parser.add_argument("--onset", type=int, default=200)
+    parser.add_argument("--max-steps", type=int, default=1200, help="decisions per game at most")
+    parser.add_argument("--tiles", type=int, help="instead: the ID records of N x N-pixel tiles (see above)")
+    parser.add_argument("--id-games", type=int, default=16)
+    args = parser.parse_args()
+    limit_threads()
+    agent = load("pong", args.method)
+    if args.tiles is not None:
+        tile_records(agent, args.tiles, args.id_games)
+        return
+    if args.threshold is None:
+        parser.error("give --threshold (a file of oodmon calibrate --task pong --method M --out F), or --tiles N")
+    threshold = Threshold.load(args.threshold)
+    names = [args.regions] if args.regions.count(",") == 1 and ":" in args.regions else args.regions.split(",")
+    for name in names:
+        region(name)  # refused before any game is played
+    print(f"threshold: {threshold.detector} > {threshold.value:g}; onset {args.onset}, {args.games} games of at most "
+          f"{args.max_steps} decisions", flush=True)
+    for name in names:
+        print(frozen_games(agent, threshold, name, args), flush=True)
+
+
+if __name__ == "__main__":
+    main()
