@@ -66,6 +66,28 @@ def load_script(name: str):
     return root, script
 
 
+class RandomButtons:
+    """A plain policy pressing Pong's six buttons at random (any policy: the picture detectors read
+    the picture, not the policy)."""
+
+    def __init__(self, seed: int = 0) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def __call__(self, obs) -> int:
+        return int(self.rng.integers(6))
+
+
+def scores_along(detector, trajectory) -> list[float]:
+    """A detector's score at each acted-on step of ``trajectory`` (a ``Trajectory``), from a reset,
+    each step with its action and the one before, as the monitor gives them."""
+    from oodmon.monitor.detectors import StepContext
+
+    detector.reset()
+    before = [None, *trajectory.actions[:-1]]
+    return [detector.score(StepContext(obs, action, prev_action=prev))
+            for obs, action, prev in zip(trajectory.observations[:-1], trajectory.actions, before)]
+
+
 class NoisePictures(gymnasium.Env):
     """RGB pictures of noise (channels last, ``shape``), ``steps`` steps an episode, two actions:
     an env of image observations for the tests of users' own models."""

@@ -84,7 +84,7 @@ def default_window(task: str | None, detector: str | None = None) -> int:
         >>> default_window("pong"), default_window("pong", "combined"), default_window("cartpole"), default_window(None)
         (200, 1, 1, 1)
     """
-    if detector in ("frames", "stillness", "combined"):
+    if detector in ("frames", "stillness", "motion", "combined"):
         return 1
     return DEFAULT_WINDOW.get(task or "", 1)
 

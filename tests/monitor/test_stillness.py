@@ -11,29 +11,15 @@ from oodmon.envs.shift import ShiftAttributes
 from oodmon.errors import ConfigError
 from oodmon.monitor.detectors import DetectorSet, StepContext, StillnessDetector, Trajectory, collect, fit_detectors
 from oodmon.monitor.detectors.combined import UNIT_MEMBERS
+from tests.helpers import RandomButtons, scores_along
 
 SHORT_PONG = "PongShortForStillness-v0"  # Pong's games cut at 150 decisions: a calibration in seconds
-
-
-class _Random:
-    """A plain policy pressing Pong's buttons at random (any policy: the detector reads the picture)."""
-
-    def __init__(self, seed: int = 0) -> None:
-        self.rng = np.random.default_rng(seed)
-
-    def __call__(self, obs) -> int:
-        return int(self.rng.integers(6))
-
-
-def _scores(detector, trajectory: Trajectory) -> list[float]:
-    detector.reset()
-    return [detector.score(StepContext(o, a)) for o, a in zip(trajectory.observations[:-1], trajectory.actions)]
 
 
 @pytest.fixture(scope="module")
 def pong():
     """Fitted on 5 ID games of Pong's first 300 decisions."""
-    return StillnessDetector().fit(collect(_Random(), Variant("pong").make(), 5, seed=600_000, max_steps=300))
+    return StillnessDetector().fit(collect(RandomButtons(), Variant("pong").make(), 5, seed=600_000, max_steps=300))
 
 
 def test_a_frozen_camera_passes_the_id_record_and_counts_each_step_past_it(pong):
@@ -42,14 +28,15 @@ def test_a_frozen_camera_passes_the_id_record_and_counts_each_step_past_it(pong)
     assert pong.pictures and pong.longest.shape == (1,)
     record = int(pong.longest[0])
     assert 1 <= record <= 10
-    frozen = collect(_Random(1), parse_variant("pong:obs.stuck=1").make(onset_step=50), 1, seed=600_100,
+    frozen = collect(RandomButtons(1), parse_variant("pong:obs.stuck=1").make(onset_step=50), 1, seed=600_100,
                      max_steps=120)[0]
-    scores = _scores(pong, frozen)
+    scores = scores_along(pong, frozen)
     assert scores[51:] == [k - record for k in range(1, len(scores) - 50)]  # step 50 the first frozen
     assert scores[50 + record + 1] == 1.0  # one step past the record: longer than in any fitting episode
     # Fresh games stand still longer than the 5 fitted ones did (6 steps past the record at most
     # when written), not for ever: a camera frozen three times the record and more lies above them.
-    fresh = [max(_scores(pong, t)) for t in collect(_Random(2), Variant("pong").make(), 5, seed=600_200, max_steps=300)]
+    games = collect(RandomButtons(2), Variant("pong").make(), 5, seed=600_200, max_steps=300)
+    fresh = [max(scores_along(pong, t)) for t in games]
     assert max(fresh) < scores[50 + 3 * (record + 1)] == 2 * record + 3
 
 
@@ -60,18 +47,18 @@ def test_a_stuck_reading_of_a_vector_counts_steps_since_each_reading_always_move
     detector = StillnessDetector().fit(collect(controller, Variant("cartpole").make(), 3, seed=0))
     assert not detector.pictures and detector.longest.tolist() == [0, 0, 0, 0]
     stuck = collect(controller, parse_variant("cartpole:obs.stuck[3]=1").make(onset_step=30), 1, seed=10)[0]
-    scores = _scores(detector, stuck)
+    scores = scores_along(detector, stuck)
     assert scores[:31] == [0.0] * 31 and scores[31:36] == [1.0, 2.0, 3.0, 4.0, 5.0]  # step 30 the first stuck
     with pytest.raises(ConfigError, match="fitted on 4 readings; this observation holds 3"):
         detector.score(StepContext(np.zeros(3), 0))
 
 
-def test_it_saves_and_loads_as_tensors_and_json_with_the_same_scores(pong, tmp_path):
+def test_it_saves_and_loads_as_tensors_and_json_with_the_samescores_along(pong, tmp_path):
     DetectorSet([pong]).save(tmp_path)
     loaded = DetectorSet.load(tmp_path)["stillness"]
     assert loaded.fingerprint() == pong.fingerprint() and loaded.pictures
-    frozen = collect(_Random(3), parse_variant("pong:obs.stuck=1").make(onset_step=10), 1, seed=0, max_steps=40)[0]
-    assert _scores(loaded, frozen) == _scores(pong, frozen)
+    frozen = collect(RandomButtons(3), parse_variant("pong:obs.stuck=1").make(onset_step=10), 1, seed=0, max_steps=40)[0]
+    assert scores_along(loaded, frozen) == scores_along(pong, frozen)
 
 
 @pytest.mark.parametrize("tensors, config, match", [
@@ -93,7 +80,7 @@ def test_episodes_too_short_to_stand_still_are_refused():
 def test_pictures_fit_it_by_default_and_combined_counts_its_excess_in_steps():
     """A picture's default set has stillness beside frames; combined ranks it, its excess in steps
     (UNIT_MEMBERS), not in its ID scores' standard deviation (nearly all of them are the same)."""
-    fitted = fit_detectors(_Random(), Variant("pong").make(), episodes=3, max_steps=60)
+    fitted = fit_detectors(RandomButtons(), Variant("pong").make(), episodes=3, max_steps=60)
     assert fitted.names == ["frames", "stillness", "combined"]
     combined = fitted["combined"]
     assert combined.members == ["frames", "stillness"] and combined.config()["scale"]["stillness"] == UNIT_MEMBERS[
@@ -119,7 +106,7 @@ def test_the_monitor_of_a_camera_policy_alarms_a_frozen_camera_soon_after_it_fre
     step 50 or on, 5 or more alarmed there would have probability 0.04 at 10%."""
     from oodmon import watch
 
-    monitor = watch(_Random(), short_pong, fit_episodes=9, episodes=40, far=0.1, confidence=None)
+    monitor = watch(RandomButtons(), short_pong, fit_episodes=9, episodes=40, far=0.1, confidence=None)
     assert monitor.detectors.names == ["frames", "stillness", "combined"] and monitor.detector == "combined"
     fresh = [monitor.run_episode(gymnasium.make(short_pong), seed=10_000 + k) for k in range(10)]
     frozen = [monitor.run_episode(ShiftAttributes(gymnasium.make(short_pong), {"obs.stuck": 1}, onset_step=50),

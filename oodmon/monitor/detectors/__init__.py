@@ -15,6 +15,8 @@
   observations whose values repeat (discrete states; in place of ``dynamics`` for those).
 - ``stillness``: how long a sensor (a picture, or each reading) has gone unchanged against its
   longest ID run: a frozen camera (by default for pictures, beside ``frames``).
+- ``motion``: how much less the picture's parts moved than they did after the same actions in ID
+  episodes: a partly frozen camera (for pictures, fitted only when named).
 
 :func:`fit_detectors` fits them for a policy on its own ID episodes; :class:`DetectorSet` runs
 them at each step and saves them (safetensors + JSON).
@@ -32,6 +34,7 @@ from oodmon.monitor.detectors.fitting import (
     BEST_DETECTOR, DEFAULT_FIT_EPISODES, DEFAULT_FIT_STEPS, FIT_VERSION, best_detector, collect, default_detectors,
     default_fit_steps, detectors_for, fit_agent_detectors, fit_detectors, fitting_notes, trajectory_scores,
 )
+from oodmon.monitor.detectors.motion import MotionDetector
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.stillness import StillnessDetector
@@ -41,7 +44,7 @@ from oodmon.monitor.detectors.transitions import TransitionsDetector
 __all__ = [
     "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "DETECTORS", "FIT_VERSION", "MIN_LOGVAR",
     "CombinedDetector", "Detector", "DetectorSet", "DriftDetector", "DynamicsDetector", "FeaturesDetector",
-    "FramesDetector", "ScaledSpreadDetector", "SpreadDetector", "StepContext", "StillnessDetector", "Trajectory",
-    "TransitionsDetector", "best_detector", "collect", "default_detectors", "default_fit_steps",
+    "FramesDetector", "MotionDetector", "ScaledSpreadDetector", "SpreadDetector", "StepContext", "StillnessDetector",
+    "Trajectory", "TransitionsDetector", "best_detector", "collect", "default_detectors", "default_fit_steps",
     "detectors_for", "fit_agent_detectors", "fit_detectors", "fitting_notes", "trajectory_scores",
 ]

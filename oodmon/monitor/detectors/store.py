@@ -22,6 +22,7 @@ from oodmon.monitor.detectors.drift import DriftDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector
+from oodmon.monitor.detectors.motion import MotionDetector
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.stillness import StillnessDetector
@@ -34,7 +35,7 @@ __all__ = ["DETECTORS", "DetectorSet"]
 DETECTORS: dict[str, type[Detector]] = {
     "spread": SpreadDetector, "dynamics": DynamicsDetector, "features": FeaturesDetector, "frames": FramesDetector,
     "combined": CombinedDetector, "scaled_spread": ScaledSpreadDetector, "drift": DriftDetector,
-    "transitions": TransitionsDetector, "stillness": StillnessDetector,
+    "transitions": TransitionsDetector, "stillness": StillnessDetector, "motion": MotionDetector,
 }
 FORMAT = "oodmon.detectors"
 FORMAT_VERSION = 1
