@@ -28,9 +28,9 @@ from oodmon.monitor.detectors.drift import DriftDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector, min_logvar_for
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import FramesDetector, is_picture
+from oodmon.monitor.detectors.motion import MotionDetector
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector, member_values
 from oodmon.monitor.detectors.spread import SpreadDetector
-from oodmon.monitor.detectors.motion import MotionDetector
 from oodmon.monitor.detectors.stillness import StillnessDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.detectors.transitions import TransitionsDetector

@@ -21,17 +21,18 @@ much, and a part frozen adds all its tiles'. No window: the runs are their own m
 action taken). Between points the whole picture stands still and every tile's surprise rises for
 those steps, as it did in the ID episodes the threshold is calibrated on.
 
-Measured before it was written (Pong, 20 ID games of the shipped ensemble cut at 1,500
-decisions, the first 10 fitting; frozen from step 200, 5 games each; a threshold at the highest
-value of the 10 fitting games): with 4 x 4 tiles the agent's third alarmed 29-53 decisions after it
-froze, the opponent's 15-24, the centre never; 0 of the other 10 ID games passed the threshold.
-With 7 x 7 tiles, 50-72 and 21-52 decisions and 3 of 10 ID games; 12 x 12, 70-98, 44-77, 3 of 10.
-A window's deficit of changes, as a z-score of the count expected from the actions taken (the
+Measured by hand before it was written (the script not kept: Pong, 20 ID games of the shipped
+ensemble cut at 1,500 decisions, the first 10 fitting; frozen from step 200, 5 games each; a
+threshold at the highest value of the 10 fitting games): with 4 x 4 tiles the agent's third alarmed
+29-53 decisions after it froze, the opponent's 15-24, the centre never; 0 of the other 10 ID games
+passed the threshold (the DropConnect agent's games, the same way: 39-75 and 13-57 decisions, 4 of
+10). With 7 x 7 tiles, 50-72 and 21-52 decisions and 3 of 10 ID games; 12 x 12, 70-98, 44-77, 3 of
+10. A window's deficit of changes, as a z-score of the count expected from the actions taken (the
 first form tried), alarmed the agent's third in 48-91 decisions with 12 x 12 tiles and 40 steps, and
 5 of 10 ID games passed. As shipped (``oodmon calibrate --task pong --method M --detector motion``,
 then ``scripts/frozen_region.py``): the agent's third 5 of 5 games at 47-75 decisions (DropConnect)
-and 61-84 (ensemble), 1-2 points lost first; fresh ID games (``oodmon validate``, 100 each): 6 and
-0 alarmed. It is fitted when named (``fitted_when_named``), not by default.
+and 61-84 (ensemble), 1-2 points lost first; fresh ID games (``oodmon validate``, 100 each): 6 and 0
+alarmed. It is fitted when named (``fitted_when_named``), not by default.
 """
 
 from __future__ import annotations
