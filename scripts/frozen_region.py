@@ -9,11 +9,12 @@ M [--detector motion] --out F``, read with the detectors fitted beside it as ``o
 
 A region of each raw 210x160 RGB frame the camera delivers (before the agent's preprocessing, as
 ``pong:`` corruptions are applied) holds what it showed at the onset: dead sensor rows, a frozen
-part of the image. ``pong:obs.stuck=1`` is the whole picture frozen (``stillness`` sees it some
-ten decisions on: the README's "Detectors"); here the rest of the picture goes on moving, so the
-whole picture never stands still. Regions (rows, columns of the raw frame): ``agent_side`` the
-right third (the agent's paddle), ``opponent_side`` the left third, ``centre`` rows 80-149 x
-columns 50-109, ``top_half``, ``bottom_half``, ``whole``, or ``R0:R1,C0:C1`` of your own.
+part of the image, the variant ``pong:frozen_region:top=T,left=L,height=H,width=W`` (which ``oodmon
+run --variant`` takes as well). ``pong:obs.stuck=1`` is the whole picture frozen (``stillness`` sees
+it some ten decisions on: the README's "Detectors"); here the rest of the picture goes on moving, so
+the whole picture never stands still. Regions (rows, columns of the raw frame): ``agent_side`` the
+right third (the agent's paddle), ``opponent_side`` the left third, ``centre`` rows 80-149 x columns
+50-109, ``top_half``, ``bottom_half``, ``whole``, or ``R0:R1,C0:C1`` of your own.
 
 For each region, ``--games`` games (seeds 800,000 on) monitored with the threshold from step
 ``--onset``, at most ``--max-steps`` decisions: the games alarmed, the delays (first alarm - onset),
@@ -36,56 +37,46 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.agents import load
-from oodmon.envs.corruptions import Corruption
+from oodmon.envs import parse_variant
+from oodmon.errors import OodmonError
 from oodmon.envs.pong import SCREEN_SIZE, CorruptedPong
 from oodmon.monitor import Monitor, Threshold
 from oodmon.monitor.detectors import detectors_for
 from oodmon.monitor.detectors.stillness import longest_runs
 from oodmon.threads import limit_threads
 
-#: Named regions of the raw 210x160 frame: (rows, columns).
+#: Named regions of the raw 210x160 frame: (top, left, height, width).
 REGIONS = {
-    "agent_side": (slice(0, 210), slice(107, 160)),
-    "opponent_side": (slice(0, 210), slice(0, 53)),
-    "centre": (slice(80, 150), slice(50, 110)),
-    "top_half": (slice(0, 105), slice(0, 160)),
-    "bottom_half": (slice(105, 210), slice(0, 160)),
-    "whole": (slice(0, 210), slice(0, 160)),
+    "agent_side": (0, 107, 210, 53),
+    "opponent_side": (0, 0, 210, 53),
+    "centre": (80, 50, 70, 60),
+    "top_half": (0, 0, 105, 160),
+    "bottom_half": (105, 0, 105, 160),
+    "whole": (0, 0, 210, 160),
 }
 
 
-def region(text: str) -> tuple[slice, slice]:
-    """A named region, or ``R0:R1,C0:C1`` of the raw frame."""
+def region_variant(text: str) -> str:
+    """The variant of a named region, or of ``R0:R1,C0:C1`` of the raw frame:
+    ``pong:frozen_region:top=...,left=...,height=...,width=...``.
+
+    Raises:
+        argparse.ArgumentTypeError: neither, or a region outside the frame (said by the corruption).
+    """
     if text in REGIONS:
-        return REGIONS[text]
+        top, left, height, width = REGIONS[text]
+    else:
+        try:
+            (r0, r1), (c0, c1) = (tuple(int(n) for n in part.split(":")) for part in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is no region: give one of {', '.join(REGIONS)} or "
+                                             "R0:R1,C0:C1") from None
+        top, left, height, width = r0, c0, r1 - r0, c1 - c0
+    spec = f"pong:frozen_region:top={top},left={left},height={height},width={width}"
     try:
-        rows, cols = (tuple(int(n) for n in part.split(":")) for part in text.split(","))
-        (r0, r1), (c0, c1) = rows, cols
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is no region: give one of {', '.join(REGIONS)} or R0:R1,C0:C1") from None
-    if not (0 <= r0 < r1 <= 210 and 0 <= c0 < c1 <= 160):
-        raise argparse.ArgumentTypeError(f"{text!r} is outside the 210x160 frame or empty")
-    return slice(r0, r1), slice(c0, c1)
-
-
-class FrozenRegion(Corruption):
-    """A region of every frame held at what the first corrupted frame showed there (one per episode:
-    make a new one, or :meth:`thaw`, for the next)."""
-
-    name = "frozen_region"
-
-    def __init__(self, rows: slice, cols: slice) -> None:
-        self.rows, self.cols, self.held = rows, cols, None
-
-    def thaw(self) -> None:
-        self.held = None
-
-    def __call__(self, frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        out = frame.copy()
-        if self.held is None:
-            self.held = frame[self.rows, self.cols].copy()
-        out[self.rows, self.cols] = self.held
-        return out
+        return parse_variant(spec).spec
+    except OodmonError as error:
+        raise argparse.ArgumentTypeError(f"{text!r}: {error}") from None
 
 
 def frozen_games(agent, threshold: Threshold, name: str, args: argparse.Namespace) -> dict[str, object]:
@@ -93,14 +84,12 @@ def frozen_games(agent, threshold: Threshold, name: str, args: argparse.Namespac
     file, as ``oodmon run`` reads them, else the agent's shipped ones): alarms, delays and the points
     lost before the alarm."""
     beside = Path(f"{args.threshold}.detectors")
-    rows, cols = region(name)
-    frozen = FrozenRegion(rows, cols)
-    env = CorruptedPong(frozen, onset_step=args.onset)
+    spec = region_variant(name)
+    env = parse_variant(spec).make(onset_step=args.onset)
     delays, early, lost, missed_lost = [], 0, [], []
     with Monitor(agent, threshold, detectors=detectors_for(agent, beside if beside.is_dir() else None)) as monitor:
         for game in range(args.games):
-            frozen.thaw()
-            record = monitor.run_episode(env, seed=800_000 + game, max_steps=args.max_steps, variant=f"pong:frozen[{name}]")
+            record = monitor.run_episode(env, seed=800_000 + game, max_steps=args.max_steps)
             alarm = record.first_alarm_step
             after = np.asarray(record.rewards[args.onset:alarm if alarm is not None and alarm >= args.onset else None])
             if alarm is not None and alarm < args.onset:
@@ -111,7 +100,7 @@ def frozen_games(agent, threshold: Threshold, name: str, args: argparse.Namespac
             else:
                 missed_lost.append(int((after < 0).sum()))
     env.close()
-    return {"region": name, "alarmed": f"{len(delays)}/{args.games}", "early": early, "delays": delays,
+    return {"region": name, "variant": spec, "alarmed": f"{len(delays)}/{args.games}", "early": early, "delays": delays,
             "points lost before the alarm": lost, "points lost in the games not alarmed": missed_lost}
 
 
@@ -169,7 +158,7 @@ def main() -> None:
     threshold = Threshold.load(args.threshold)
     names = [args.regions] if args.regions.count(",") == 1 and ":" in args.regions else args.regions.split(",")
     for name in names:
-        region(name)  # refused before any game is played
+        region_variant(name)  # refused before any game is played
     print(f"threshold: {threshold.detector} > {threshold.value:g}; onset {args.onset}, {args.games} games of at most "
           f"{args.max_steps} decisions", flush=True)
     for name in names:

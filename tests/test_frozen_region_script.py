@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
 import pytest
 
 from tests.helpers import load_script
@@ -15,32 +14,10 @@ def script():
     return load_script("frozen_region")[1]
 
 
-def test_regions_by_name_or_rows_and_columns(script):
-    assert script.region("agent_side") == (slice(0, 210), slice(107, 160))
-    assert script.region("10:20,30:40") == (slice(10, 20), slice(30, 40))
-    for bad in ("left", "10:20", "20:10,0:5", "0:211,0:5", "a:b,c:d"):
-        with pytest.raises(argparse.ArgumentTypeError):
-            script.region(bad)
-
-
-def test_the_region_holds_what_it_showed_at_the_onset_and_the_rest_moves(script):
-    from oodmon.envs.pong import CorruptedPong
-
-    frozen = script.FrozenRegion(*script.region("opponent_side"))
-    env = CorruptedPong(frozen, onset_step=30)
-    env.reset(seed=0)
-    raw, seen = [], []
-    for _ in range(80):  # the ball is served and crosses the field in this many decisions
-        env.step(2)
-        raw.append(env.last_clean_frame.copy())
-        seen.append(env.last_observed_frame.copy())
-    env.close()
-    raw, seen = np.array(raw), np.array(seen)
-    before, after = slice(0, 30), slice(31, None)  # (step 30's first frame of its skip is the held one)
-    assert np.array_equal(seen[before], raw[before])  # untouched before the onset
-    assert (seen[after, :, :53] == seen[31, :, :53]).all()  # the left third held from then on
-    assert not (raw[after, :, :53] == raw[31, :, :53]).all()  # while the camera's own left third moved
-    assert np.array_equal(seen[after, :, 53:], raw[after, :, 53:])  # and the rest is live
-    assert not (seen[after, :, 53:] == seen[31, :, 53:]).all()
-    frozen.thaw()
-    assert frozen.held is None
+def test_regions_by_name_or_rows_and_columns_are_frozen_region_variants(script):
+    assert script.region_variant("agent_side") == "pong:frozen_region:height=210,left=107,top=0,width=53"
+    assert script.region_variant("10:20,30:40") == "pong:frozen_region:height=10,left=30,top=10,width=10"
+    for bad, why in (("left", "is no region"), ("10:20", "is no region"), ("a:b,c:d", "is no region"),
+                     ("20:10,0:5", "height=-10.0 is not allowed"), ("0:211,0:5", "height=211.0 is not allowed")):
+        with pytest.raises(argparse.ArgumentTypeError, match=why):
+            script.region_variant(bad)

@@ -1,4 +1,4 @@
-"""The four image corruptions of OOD-Pong, written from their formulas.
+"""The four image corruptions of OOD-Pong, written from their formulas, and a frozen region.
 
 The paper used the ``imagecorruptions`` package (Michaelis et al., 2019), which no longer imports
 on a current environment and draws from numpy's global random state. These are the same formulas
@@ -7,13 +7,14 @@ frames every time. Each works on an HxWxC (or HxW) uint8 frame and returns a new
 the same shape.
 
 Severities 1..5 take the paper's values (its Table 1 and Appendix A), which this project keeps
-in ``oodmon/paper_tables.json``.
+in ``oodmon/paper_tables.json``. :class:`FrozenRegion` (a part of the camera frozen, the rest live)
+is not the paper's: it takes its parameters, no severity.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import ClassVar
 
 import cv2
@@ -27,6 +28,7 @@ from oodmon.validation import is_whole
 __all__ = [
     "CORRUPTIONS",
     "Corruption",
+    "FrozenRegion",
     "GaussianNoise",
     "ImpulseNoise",
     "MotionBlur",
@@ -48,9 +50,17 @@ class Corruption:
     def __call__(self, frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         raise NotImplementedError
 
+    def begin_episode(self) -> None:
+        """An episode begins (the env's reset): a corruption that remembers frames forgets them."""
+
     def params(self) -> dict[str, float]:
         """The corruption's parameters by name, e.g. ``{"sigma": 0.18}``."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return {f.name: getattr(self, f.name) for f in _parameters(type(self))}
+
+
+def _parameters(cls: type[Corruption]) -> list:
+    """A corruption's parameters: its dataclass fields but its state (``init=False``)."""
+    return [f for f in fields(cls) if f.init]
 
 
 def _in_unit_interval(owner: str, name: str, value: object, *, closed: bool) -> float:
@@ -204,9 +214,71 @@ class Pixelate(Corruption):
         return cv2.resize(down, (width, height), interpolation=cv2.INTER_NEAREST).reshape(frame.shape)
 
 
+#: The raw frame the camera delivers: Pong's 210 rows x 160 columns.
+FRAME_ROWS, FRAME_COLUMNS = 210, 160
+
+
+@dataclass(frozen=True)
+class FrozenRegion(Corruption):
+    """A part of the camera frozen: a rectangle of the raw frame held at what the first corrupted
+    frame of the episode showed there, the rest live (dead sensor rows, a stuck part of the image).
+    Not one of the paper's corruptions: no severities. The whole frame frozen is the sensor fault
+    ``pong:obs.stuck=1``; a part, ``pong:frozen_region:top=0,left=107,height=210,width=53`` (the
+    agent's own third: its paddle, and the ball on its side).
+
+    Args:
+        top, left: the rectangle's first row and column in the 210x160 raw frame, whole numbers >= 0.
+        height, width: its size in pixels, whole numbers >= 1, inside the frame.
+
+    Example:
+        >>> frozen = FrozenRegion(top=0, left=0, height=1, width=2)
+        >>> rng = np.random.default_rng(0)
+        >>> frozen(np.full((2, 3), 7, np.uint8), rng).tolist()    # the first frame: held as it is
+        [[7, 7, 7], [7, 7, 7]]
+        >>> frozen(np.full((2, 3), 9, np.uint8), rng).tolist()    # later frames: the region still shows 7
+        [[7, 7, 9], [9, 9, 9]]
+        >>> frozen.begin_episode()                                # the next episode holds its own first frame
+        >>> frozen(np.full((2, 3), 9, np.uint8), rng)[0].tolist()
+        [9, 9, 9]
+    """
+
+    top: int
+    left: int
+    height: int
+    width: int
+    name: ClassVar[str] = "frozen_region"
+    _held: list = field(default_factory=list, init=False, repr=False, compare=False)  # [region] once held
+
+    def __post_init__(self) -> None:
+        for name, least, most in (("top", 0, FRAME_ROWS - 1), ("left", 0, FRAME_COLUMNS - 1),
+                                  ("height", 1, FRAME_ROWS), ("width", 1, FRAME_COLUMNS)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or (
+                    not math.isfinite(value) or value != int(value) or not least <= value <= most):
+                raise InvalidParameterError(f"{self.name}: {name}={value!r} is not allowed; it must be a whole number of "
+                                            f"pixels from {least} to {most}")
+            object.__setattr__(self, name, int(value))
+        if self.top + self.height > FRAME_ROWS or self.left + self.width > FRAME_COLUMNS:
+            raise InvalidParameterError(
+                f"{self.name}: rows {self.top}-{self.top + self.height - 1} and columns {self.left}-"
+                f"{self.left + self.width - 1} leave the {FRAME_ROWS}x{FRAME_COLUMNS} frame"
+            )
+
+    def begin_episode(self) -> None:
+        self._held.clear()
+
+    def __call__(self, frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        region = (slice(self.top, self.top + self.height), slice(self.left, self.left + self.width))
+        if not self._held:
+            self._held.append(frame[region].copy())
+        out = frame.copy()
+        out[region] = self._held[0]
+        return out
+
+
 #: The corruptions by name.
 CORRUPTIONS: dict[str, type[Corruption]] = {
-    cls.name: cls for cls in (GaussianNoise, ImpulseNoise, MotionBlur, Pixelate)
+    cls.name: cls for cls in (GaussianNoise, ImpulseNoise, MotionBlur, Pixelate, FrozenRegion)
 }
 
 
@@ -218,20 +290,28 @@ def severity_params(name: str, severity: object) -> dict[str, float]:
         {'radius': 15, 'sigma': 8}
     """
     cls = _corruption_class(name)
+    severities = paper_grid_data()["pong"]["severities"]
+    if name not in severities:
+        raise InvalidParameterError(
+            f"{name} is not one of the paper's corruptions and has no severities; give its parameters "
+            f"({', '.join(f.name for f in _parameters(cls))}), e.g. pong:{name}:"
+            + ",".join(f"{f.name}=N" for f in _parameters(cls))
+        )
     if not is_whole(severity) or severity > 5:
         raise InvalidParameterError(
             f"{name}: severity={severity!r} is not allowed; severity must be an integer from 1 to 5"
         )
-    value = paper_grid_data()["pong"]["severities"][name]["values"][int(severity) - 1]
+    value = severities[name]["values"][int(severity) - 1]
     values = value if isinstance(value, list) else [value]
-    return {f.name: v for f, v in zip(fields(cls), values, strict=True)}
+    return {f.name: v for f, v in zip(_parameters(cls), values, strict=True)}
 
 
 def make_corruption(name: str, severity: int | None = None, **params: float) -> Corruption:
     """Build a corruption from its name and either a severity or its parameters.
 
     Args:
-        name: ``gaussian_noise``, ``impulse_noise``, ``motion_blur`` or ``pixelate``.
+        name: ``gaussian_noise``, ``impulse_noise``, ``motion_blur``, ``pixelate`` (the paper's) or
+            ``frozen_region`` (its parameters only).
         severity: 1..5, the paper's values.
         **params: the corruption's own parameters instead of a severity (``sigma=0.2``).
 
@@ -247,7 +327,7 @@ def make_corruption(name: str, severity: int | None = None, **params: float) -> 
         GaussianNoise(sigma=0.2)
     """
     cls = _corruption_class(name)
-    names = [f.name for f in fields(cls)]
+    names = [f.name for f in _parameters(cls)]
     if severity is not None and params:
         raise InvalidParameterError(
             f"{name}: give either severity=1..5 or its parameters ({', '.join(names)}), not both"
@@ -257,7 +337,8 @@ def make_corruption(name: str, severity: int | None = None, **params: float) -> 
         missing = [n for n in names if n not in params]
         if missing:
             raise InvalidParameterError(
-                f"{name}: give severity=1..5 or all of its parameters ({', '.join(names)}); "
+                f"{name}: give {'severity=1..5 or ' if cls is not FrozenRegion else ''}all of its parameters "
+                f"({', '.join(names)}); "
                 f"missing {', '.join(missing)}"
             )
         return cls(**params)

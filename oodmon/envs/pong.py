@@ -52,7 +52,8 @@ class CorruptedPong(gymnasium.Env):
 
     Args:
         corruption: ``None`` (the ID env), a corruption name (``gaussian_noise``,
-            ``impulse_noise``, ``motion_blur``, ``pixelate``) or a :class:`Corruption`.
+            ``impulse_noise``, ``motion_blur``, ``pixelate``; ``frozen_region``, not the paper's,
+            with its parameters) or a :class:`Corruption`.
         severity: 1..5, the paper's parameters for the named corruption.
         onset_step: index of the first ``step()`` of each episode whose frames are corrupted
             (0: every frame, including the one ``reset`` returns).
@@ -155,6 +156,8 @@ class CorruptedPong(gymnasium.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self.onset_step, _ = episode_onset(self.ENV_ID, self._configured_onset, options)
         super().reset(seed=seed)
+        if self.corruption is not None:
+            self.corruption.begin_episode()  # (a frozen region holds the new episode's own frame)
         # The emulator is seeded from our generator, so one seed fixes the whole episode. Its own
         # generator draws only sticky actions: without them a seed changes nothing in the game, and
         # applying one reloads the ROM (90 ms a reset), so it is drawn (the no-ops' draws stay the

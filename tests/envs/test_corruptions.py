@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from oodmon.envs import CORRUPTIONS, GaussianNoise, ImpulseNoise, MotionBlur, Pixelate, make_corruption
-from oodmon.envs.corruptions import severity_params
+from oodmon.envs.corruptions import FrozenRegion, severity_params
 from oodmon.errors import InvalidParameterError, UnknownParameterError
 
 SEVERITIES = [1, 2, 3, 4, 5]
@@ -137,7 +137,7 @@ def test_pixelate_keeps_less_resolution_at_each_severity():
     assert kept == [126 * 96, 105 * 80, 84 * 64, 63 * 48, 52 * 40]
 
 
-@pytest.mark.parametrize("name", list(CORRUPTIONS))
+@pytest.mark.parametrize("name", [name for name in CORRUPTIONS if name != "frozen_region"])  # the paper's
 def test_same_seed_same_frame_other_seed_other_frame(name):
     corruption = make_corruption(name, 3)
     frame = _random_frame()
@@ -185,3 +185,37 @@ def test_bad_corruption_input_is_named():
     with pytest.raises(InvalidParameterError, match="radius must be at most 265 pixels"):
         make_corruption("motion_blur", radius=100000, sigma=1)
     assert make_corruption("motion_blur", radius=265, sigma=1).radius == 265
+
+
+def test_a_frozen_region_holds_the_first_frame_there_until_the_next_episode():
+    frozen = make_corruption("frozen_region", top=10, left=100, height=50, width=60)
+    assert frozen == FrozenRegion(10, 100, 50, 60) and frozen.params() == {"top": 10, "left": 100, "height": 50, "width": 60}
+    first, later, rng = _random_frame(0), _random_frame(1), np.random.default_rng(0)
+    np.testing.assert_array_equal(frozen(first, rng), first)
+    out = frozen(later, rng)
+    inside = (slice(10, 60), slice(100, 160))
+    np.testing.assert_array_equal(out[inside], first[inside])  # the region shows the first frame
+    outside = out.copy()
+    outside[inside] = later[inside]
+    np.testing.assert_array_equal(outside, later)  # the rest is live
+    frozen.begin_episode()
+    np.testing.assert_array_equal(frozen(later, rng), later)  # a new episode holds its own first frame
+    np.testing.assert_array_equal(frozen(first, rng)[inside], later[inside])
+
+
+@pytest.mark.parametrize("params, match", [
+    ({"top": 0, "left": 107, "height": 211, "width": 53},
+     "height=211 is not allowed; it must be a whole number of pixels from 1 to 210"),
+    ({"top": 0.5, "left": 0, "height": 1, "width": 1}, "top=0.5 is not allowed"),
+    ({"top": 200, "left": 0, "height": 20, "width": 1}, "rows 200-219 and columns 0-0 leave the 210x160 frame"),
+    ({"top": 0, "left": 107, "height": 210}, "give all of its parameters \\(top, left, height, width\\); missing width"),
+])
+def test_a_frozen_region_outside_the_frame_or_half_given_is_refused(params, match):
+    with pytest.raises(InvalidParameterError, match=match):
+        make_corruption("frozen_region", **params)
+
+
+def test_a_frozen_region_has_no_severities_being_none_of_the_papers():
+    with pytest.raises(InvalidParameterError, match="frozen_region is not one of the paper's corruptions and has no "
+                                                    "severities; give its parameters \\(top, left, height, width\\)"):
+        make_corruption("frozen_region", 3)

@@ -164,3 +164,27 @@ def test_reset_option_sets_the_onset_of_that_episode_only():
             shifted.append(info["shifted"])
         flags.append(shifted)
     assert flags == [[False, False, True, True], [False] * 4]
+
+
+def test_a_frozen_region_variant_holds_that_part_of_the_camera_from_the_onset_and_the_rest_moves():
+    """``pong:frozen_region:...`` (not the paper's): the left third of the raw frames held from
+    step 30 (the opponent's paddle there keeps moving on the camera), each new episode its own."""
+    from oodmon.envs import parse_variant
+
+    env = parse_variant("pong:frozen_region:top=0,left=0,height=210,width=53").make(onset_step=30)
+    held_by_episode = []
+    for seed in (0, 1):
+        env.reset(seed=seed)
+        raw, seen = [], []
+        for _ in range(80):
+            env.step(2)
+            raw.append(env.unwrapped.last_clean_frame.copy())
+            seen.append(env.unwrapped.last_observed_frame.copy())
+        raw, seen = np.array(raw), np.array(seen)
+        assert np.array_equal(seen[:30], raw[:30])  # untouched before the onset
+        held = seen[30, :, :53]
+        assert (seen[30:, :, :53] == held).all() and not (raw[30:, :, :53] == raw[30, :, :53]).all()
+        assert np.array_equal(seen[30:, :, 53:], raw[30:, :, 53:])  # the rest is live
+        held_by_episode.append(held)
+    env.close()
+    assert not np.array_equal(*held_by_episode)  # another episode, another frame held

@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from oodmon.envs import Variant
-from oodmon.envs.pong import CorruptedPong
+from oodmon.envs import Variant, parse_variant
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors import DetectorSet, MotionDetector, StepContext, Trajectory, collect, fit_detectors
-from tests.helpers import RandomButtons, load_script, scores_along
+from tests.helpers import RandomButtons, scores_along
 
 
 def _lights(actions: np.ndarray, rng: np.random.Generator, *, stuck_from: int | None = None) -> Trajectory:
@@ -57,15 +56,14 @@ def pong():
 
 def test_part_of_pong_frozen_is_short_of_changes_beyond_every_fresh_id_game(pong):
     """The right third of the raw frames (the player's paddle, which a random policy moves at most
-    steps) held from step 100 (``scripts/frozen_region.py``'s camera). When written: 6 fresh ID
+    steps) held from step 100 (``pong:frozen_region``, ``scripts/frozen_region.py``'s agent side). When written: 6 fresh ID
     games peaked at 107-198, the frozen games at 82-89 before the freeze, passed the fresh games'
     highest 56-82 steps after it and went on to 472-507."""
-    frozen_region = load_script("frozen_region")[1]
     games = collect(RandomButtons(1), Variant("pong").make(), 6, seed=610_100, max_steps=300)
     fresh = [max(scores_along(pong, t)) for t in games]
     frozen = []
     for seed in (610_200, 610_201, 610_202):
-        env = CorruptedPong(frozen_region.FrozenRegion(*frozen_region.region("agent_side")), onset_step=100)
+        env = parse_variant("pong:frozen_region:top=0,left=107,height=210,width=53").make(onset_step=100)
         frozen.append(scores_along(pong, collect(RandomButtons(seed), env, 1, seed=seed, max_steps=300)[0]))
     ceiling = max(fresh)
     for scores in frozen:
