@@ -10,11 +10,12 @@ M [--detector motion] --out F``, read with the detectors fitted beside it as ``o
 A region of each raw 210x160 RGB frame the camera delivers (before the agent's preprocessing, as
 ``pong:`` corruptions are applied) holds what it showed at the onset: dead sensor rows, a frozen
 part of the image, the variant ``pong:frozen_region:top=T,left=L,height=H,width=W`` (which ``oodmon
-run --variant`` takes as well). ``pong:obs.stuck=1`` is the whole picture frozen (``stillness`` sees
-it some ten decisions on: the README's "Detectors"); here the rest of the picture goes on moving, so
-the whole picture never stands still. Regions (rows, columns of the raw frame): ``agent_side`` the
-right third (the agent's paddle), ``opponent_side`` the left third, ``centre`` rows 80-149 x columns
-50-109, ``top_half``, ``bottom_half``, ``whole``, or ``R0:R1,C0:C1`` of your own.
+run --variant`` and ``oodmon bench --variants`` take as well). ``pong:obs.stuck=1`` is the whole
+picture frozen (``stillness`` sees it some ten decisions on: the README's "Detectors"); here the
+rest of the picture goes on moving, so the whole picture never stands still. Regions (rows, columns
+of the raw frame): ``agent_side`` the right third (the agent's paddle), ``opponent_side`` the left
+third, ``centre`` rows 80-149 x columns 50-109, ``top_half``, ``bottom_half``, ``whole``, or
+``R0:R1,C0:C1`` of your own.
 
 For each region, ``--games`` games (seeds 800,000 on) monitored with the threshold from step
 ``--onset``, at most ``--max-steps`` decisions: the games alarmed, the delays (first alarm - onset),
