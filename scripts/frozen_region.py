@@ -38,11 +38,13 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.agents import load
-from oodmon.envs import parse_variant
+from oodmon.envs import Variant, parse_variant
+from oodmon.envs.pong import SCREEN_SIZE
 from oodmon.errors import OodmonError
-from oodmon.envs.pong import SCREEN_SIZE, CorruptedPong
 from oodmon.monitor import Monitor, Threshold
-from oodmon.monitor.detectors import detectors_for
+from oodmon.monitor.detectors import collect, detectors_for
+from oodmon.monitor.detectors.frames import newest_frame
+from oodmon.monitor.detectors.motion import tile_changes
 from oodmon.monitor.detectors.stillness import longest_runs
 from oodmon.threads import limit_threads
 
@@ -105,27 +107,16 @@ def frozen_games(agent, threshold: Threshold, name: str, args: argparse.Namespac
             "points lost before the alarm": lost, "points lost in the games not alarmed": missed_lost}
 
 
-def newest_frames(agent, seed: int) -> np.ndarray:
-    """The newest 84x84 frame of every step of one ID game the agent plays."""
-    env = CorruptedPong()
-    obs, _ = env.reset(seed=seed)
-    frames, done = [obs[-1].copy()], False
-    while not done:
-        obs, _, terminated, truncated, _ = env.step(agent.act(obs))
-        frames.append(obs[-1].copy())
-        done = terminated or truncated
-    env.close()
-    return np.array(frames)
-
-
 def tile_records(agent, tile: int, games: int) -> None:
-    """Print each tile's longest unchanged run over the first half of ``games`` ID games, and the
-    most a game of the second half went past it."""
+    """Print each tile's longest unchanged run over the first half of ``games`` ID games (seeds
+    700,000 on), and the most a game of the second half went past it."""
     n = SCREEN_SIZE // tile
+    side = n * tile  # (tiles that would not fill the frame's last rows and columns are left out)
     runs = []
     for game in range(games):
-        frames = newest_frames(agent, 700_000 + game)[:, :n * tile, :n * tile].reshape(-1, n, tile, n, tile)
-        changed = (frames[1:] != frames[:-1]).any(axis=(2, 4)).reshape(len(frames) - 1, -1)
+        trajectory = collect(agent, Variant("pong").make(), 1, seed=700_000 + game)[0]
+        frames = [newest_frame(obs)[:side, :side] for obs in trajectory.seen]
+        changed = np.array([tile_changes(b, a, n) for a, b in zip(frames[:-1], frames[1:])])
         runs.append(longest_runs(~changed))
         print(f"ID game {game + 1}/{games}: {len(frames)} steps", flush=True)
     runs = np.array(runs)

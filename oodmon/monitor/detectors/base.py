@@ -146,6 +146,12 @@ class StepContext:
     picture: np.ndarray | None = None
 
     @property
+    def seen(self) -> np.ndarray:
+        """What the step's camera shows: ``picture`` where the step has one beside ``obs``, else
+        ``obs`` (what ``frames``, ``stillness`` and ``motion`` read)."""
+        return self.obs if self.picture is None else self.picture
+
+    @property
     def features(self) -> np.ndarray | None:
         """The policy's deterministic features at ``obs``, (F,), or ``None``."""
         if self.estimate is None or self.estimate.features is None:
@@ -193,6 +199,12 @@ class Trajectory:
 
     def __len__(self) -> int:
         return len(self.actions)
+
+    @property
+    def seen(self) -> np.ndarray:
+        """What the camera showed at each step, (T + 1, ...): ``pictures`` where the episode has them
+        beside its observations, else ``observations`` (:attr:`StepContext.seen`, step by step)."""
+        return self.observations if self.pictures is None else self.pictures
 
 
 class Detector:

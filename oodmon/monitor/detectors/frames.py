@@ -143,8 +143,7 @@ class FramesDetector(Detector):
         """Fit the statistics' mean and covariance on every acted-on frame of ID ``trajectories``."""
         from sklearn.covariance import LedoitWolf
 
-        stats = np.stack([frame_statistics(obs) for t in trajectories
-                          for obs in (t.observations if t.pictures is None else t.pictures)[:-1]])
+        stats = np.stack([frame_statistics(obs) for t in trajectories for obs in t.seen[:-1]])
         self._mean = stats.mean(axis=0)
         self._precision = np.linalg.inv(LedoitWolf().fit(stats).covariance_)
         self._typical = float(np.median(self._values(stats)))
@@ -160,8 +159,7 @@ class FramesDetector(Detector):
 
     def score(self, context: StepContext) -> float:
         self.check_fitted()
-        picture = context.obs if context.picture is None else context.picture
-        return self._recent.add(float(self._values(frame_statistics(picture))[0]))
+        return self._recent.add(float(self._values(frame_statistics(context.seen))[0]))
 
     def config(self) -> dict[str, Any]:
         return {"window": self.window}

@@ -113,7 +113,7 @@ class MotionDetector(Detector):
         """
         changes, actions = [], []
         for trajectory in trajectories:
-            seen = np.asarray(trajectory.observations if trajectory.pictures is None else trajectory.pictures)
+            seen = np.asarray(trajectory.seen)
             if len(seen) < 2:
                 continue
             frames = [newest_frame(obs) for obs in seen]
@@ -142,7 +142,7 @@ class MotionDetector(Detector):
         """The sum over the tiles of the surprise of their current runs of unchanged steps (0 at an
         episode's first step)."""
         self.check_fitted()
-        frame = newest_frame(np.asarray(context.obs if context.picture is None else context.picture))
+        frame = newest_frame(np.asarray(context.seen))
         last, self._last = self._last, frame.copy()
         if last is None:
             self._runs = np.zeros(self.rates.shape[1])

@@ -104,7 +104,7 @@ class StillnessDetector(Detector):
         if not kept:
             raise ConfigError("the stillness detector needs ID episodes of two steps or more to learn how long its "
                               "sensors stand still; got none")
-        episodes = [np.asarray(t.observations if t.pictures is None else t.pictures) for t in kept]
+        episodes = [np.asarray(t.seen) for t in kept]
         self.pictures = kept[0].pictures is not None or is_picture(episodes[0].shape[1:], episodes[0].dtype)
         self._set(np.max([longest_runs(still_steps(e, pictures=self.pictures)) for e in episodes], axis=0))
         return self
@@ -121,7 +121,7 @@ class StillnessDetector(Detector):
     def score(self, context: StepContext) -> float:
         """The most steps a sensor has stood still past its longest ID run (0 or less: none has)."""
         self.check_fitted()
-        seen = context.obs if context.picture is None else context.picture
+        seen = context.seen
         if self.pictures:  # one sensor, the newest frame, whole: its run an int (each Pong decision's path)
             frame = newest_frame(np.asarray(seen))
             self._run = self._run + 1 if self._last is not None and np.array_equal(frame, self._last) else 0
