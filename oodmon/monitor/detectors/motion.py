@@ -32,7 +32,8 @@ first form tried), alarmed the agent's third in 48-91 decisions with 12 x 12 til
 5 of 10 ID games passed. As shipped (``oodmon calibrate --task pong --method M --detector motion``,
 then ``scripts/frozen_region.py``): the agent's third 5 of 5 games at 47-75 decisions (DropConnect)
 and 61-84 (ensemble), 1-2 points lost first; fresh ID games (``oodmon validate``, 100 each): 6 and 0
-alarmed. It is fitted when named (``fitted_when_named``), not by default.
+alarmed (DropConnect's figures from one run of the script before it seeded the agent's MC draws;
+another run plays other games). It is fitted when named (``fitted_when_named``), not by default.
 """
 
 from __future__ import annotations
