@@ -2,12 +2,11 @@
 
 A partly frozen camera (dead sensor rows, a stuck part of the image) shows live pictures whose
 frozen part is an ordinary one: the whole picture never stands still, so ``stillness`` does not see
-it, and ``frames`` (image statistics) only when the frozen part hides something it would have
-shown. Measured on Pong, a region of the raw frames held from step 200
-(``scripts/frozen_region.py``, 2026-11-30, 5 games each, default thresholds): the agent's own
-third, its paddle and the ball on its side, alarmed 4 of 5 games after 100-202 decisions (2-3
-points lost first; DropConnect, Dropout) and 0 of 5 for the ensemble, which lost 20 points in each
-game unalarmed.
+it, and ``frames`` (image statistics) only when the frozen part hides something it would have shown.
+Measured on Pong, a region of the raw frames held from step 200 (``scripts/frozen_region.py``,
+2026-11-30, 5 games each, default thresholds): the agent's own third, its paddle and the ball on its
+side, alarmed 4 of 5 games after 91-104 (DropConnect) and 100-202 decisions (Dropout), 2-3 points
+lost first, and 0 of 5 for the ensemble, which lost 20 points in each game unalarmed.
 
 What a frozen part breaks is that it stops moving where it used to. Fitting splits the newest
 frame into ``grid`` x ``grid`` tiles and finds, for each action (the action before the step) and
@@ -30,10 +29,9 @@ passed the threshold (the DropConnect agent's games, the same way: 39-75 and 13-
 10. A window's deficit of changes, as a z-score of the count expected from the actions taken (the
 first form tried), alarmed the agent's third in 48-91 decisions with 12 x 12 tiles and 40 steps, and
 5 of 10 ID games passed. As shipped (``oodmon calibrate --task pong --method M --detector motion``,
-then ``scripts/frozen_region.py``): the agent's third 5 of 5 games at 47-75 decisions (DropConnect)
+then ``scripts/frozen_region.py``): the agent's third 5 of 5 games at 51-73 decisions (DropConnect)
 and 61-84 (ensemble), 1-2 points lost first; fresh ID games (``oodmon validate``, 100 each): 6 and 0
-alarmed (DropConnect's figures from one run of the script before it seeded the agent's MC draws;
-another run plays other games). It is fitted when named (``fitted_when_named``), not by default.
+alarmed. It is fitted when named (``fitted_when_named``), not by default.
 """
 
 from __future__ import annotations
