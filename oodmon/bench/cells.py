@@ -4,7 +4,7 @@ as Ray tasks."""
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
@@ -16,7 +16,7 @@ from oodmon.envs.grid import parse_variant
 from oodmon.envs.shift import own_variant
 from oodmon.outputs import write_failure
 from oodmon.names import TASKS
-from oodmon.errors import ConfigError
+from oodmon.errors import ConfigError, OodmonError
 
 def episode_onset(onsets: tuple[int, int], seed: int) -> int:
     """The onset of the shifted episode played with ``seed`` under the monitor's protocol: uniform
@@ -71,7 +71,8 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
         return
     if config.executor != "ray":
         raise ConfigError(f"executor={config.executor!r} is not allowed; use 'local' or 'ray'")
-    started = _start_ray(config, workers)
+    shipped = own_module_paths(config)
+    started = _start_ray(config, workers, shipped)
     import ray
 
     try:
@@ -79,18 +80,91 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
         pending = [remote.remote(*job) for job in jobs]
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)
-            yield ray.get(ready[0])
+            try:
+                yield ray.get(ready[0])
+            except ray.exceptions.RayTaskError as error:
+                raise _said_by_a_worker(error, config, shipped) from None
     finally:
         if started:
             ray.shutdown()
 
 
-def _start_ray(config: BenchConfig, workers: int) -> bool:
-    """Connect to ``config.address``, or start a local Ray cluster whose servers listen on
-    ``config.bind`` only (loopback by default; Ray would otherwise listen on every interface).
-    True where this call started Ray (and so must shut it down)."""
-    import os
+def own_module_paths(config: BenchConfig) -> list[str]:
+    """The files or package folders of the user's own modules that the cells import by name (the
+    policy's ``MODULE:NAME``, an env id's ``module:``, ``imports``), where they are not installed
+    packages (site-packages, the standard library): what Ray sends its workers (``py_modules`` of
+    the job, where the bench starts or joins the cluster), so that a cluster at an address, whose
+    workers do not have this command's ``PYTHONPATH``, imports them as local processes do."""
+    import importlib.util
+    import sysconfig
 
+    names = [*config.imports]
+    if config.policy:
+        names.append(config.policy.split(":")[0])
+    if config.env_id and ":" in config.env_id:
+        names.append(config.env_id.split(":")[0])
+    installed = [Path(sysconfig.get_paths()[key]).resolve() for key in ("purelib", "platlib", "stdlib", "platstdlib")]
+    paths: list[str] = []
+    for name in dict.fromkeys(name.split(".")[0] for name in names if name):
+        try:
+            spec = importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            continue  # said where it is imported, as without Ray
+        if spec is None or spec.origin in (None, "built-in", "frozen"):
+            continue
+        where = Path(spec.submodule_search_locations[0] if spec.submodule_search_locations else spec.origin).resolve()
+        if not any(where.is_relative_to(folder) for folder in installed) and str(where) not in paths:
+            paths.append(str(where))
+    return paths
+
+
+def _said_by_a_worker(error: Exception, config: BenchConfig, shipped: list[str]) -> BaseException:
+    """A cell's error raised in a Ray worker, as the command says it for local processes: an
+    error a person can fix by its own message (Ray's wraps it in the worker's traceback), naming
+    the cluster where the modules sent to it were not enough."""
+    cause = getattr(error, "cause", None)
+    if not isinstance(cause, (OodmonError, OSError)):
+        return error
+    if isinstance(cause, ConfigError) and "No module named" in str(cause):
+        where = f"the Ray cluster at {config.address}" if config.address else "a Ray worker"
+        sent = (f"oodmon sent it {', '.join(Path(path).name for path in shipped)}; a module of yours that those import"
+                if shipped else "a module of yours")
+        said = str(cause).replace(" (is its folder on PYTHONPATH?)", "")  # it is, here: not there
+        return ConfigError(f"on {where}: {said} ({sent} must be installed on the cluster's machines or found on the "
+                           "PYTHONPATH their `ray start` had)")
+    return cause
+
+
+def check_ray_address(config: BenchConfig, timeout: float = 3.0) -> None:
+    """Before any work: that a cluster's ``HOST:PORT`` (or ``ray://HOST:PORT``) at ``config.address``
+    answers at all. Ray's own connection retries for as long as the command runs where nothing
+    listens there (measured with Ray 2.60: still retrying after 5 minutes, saying only that the
+    GCS was not found); other addresses (``auto``) are left to Ray.
+
+    Raises:
+        ConfigError: nothing accepts a connection at that address within ``timeout`` seconds.
+    """
+    import socket
+
+    if config.executor != "ray" or not config.address:
+        return
+    host, colon, port = config.address.removeprefix("ray://").rpartition(":")
+    if not colon or not port.isdigit() or not host:
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except OSError as error:
+        raise ConfigError(f"--address {config.address}: nothing answers there ({error.strerror or error}); give the "
+                          "address `ray start --head` printed on the cluster's head (HOST:PORT), or leave --address out "
+                          "to start a local cluster") from None
+
+
+def _start_ray(config: BenchConfig, workers: int, modules: Sequence[str] = ()) -> bool:
+    """Connect to ``config.address``, or start a local Ray cluster whose servers listen on
+    ``config.bind`` only (loopback by default; Ray would otherwise listen on every interface);
+    ``modules``: files or package folders the job sends its workers (:func:`own_module_paths`).
+    True where this call started Ray (and so must shut it down); where Ray runs already (started
+    in your own Python), the bench uses it as it is."""
     loopback = config.address is None and config.bind in ("127.0.0.1", "localhost")
     if loopback:
         # Ray turns a loopback node address into the machine's external one unless it runs as a
@@ -107,6 +181,20 @@ def _start_ray(config: BenchConfig, workers: int) -> bool:
     if loopback:
         ray_constants.ENABLE_RAY_CLUSTER = False  # where ray was imported before the setting
     options = {} if config.address or loopback else {"_node_ip_address": config.bind}
-    ray.init(address=config.address, num_cpus=None if config.address else workers, include_dashboard=False,
-             logging_level="ERROR", log_to_driver=False, **options)
+    if modules:
+        options["runtime_env"] = {"py_modules": list(modules)}
+    try:
+        # "local": a cluster of its own even where one runs already on this machine (`ray start`),
+        # which Ray would join otherwise, refusing num_cpus (measured with Ray 2.60).
+        ray.init(address=config.address or "local", num_cpus=None if config.address else workers,
+                 include_dashboard=False, logging_level="ERROR", log_to_driver=False, **options)
+    except ConnectionError as error:
+        if not config.address:
+            raise
+        # Measured with Ray 2.60: `ray start --head` turns token authentication on, and a driver
+        # without RAY_AUTH_MODE=token sends no token: Ray retries for some 20 s and says only this.
+        hint = "" if os.environ.get("RAY_AUTH_MODE") else (
+            "; a cluster started by `ray start` (Ray 2.59 on) asks for its token: set RAY_AUTH_MODE=token in this "
+            "shell (Ray then reads the token from ~/.ray/auth_token, or from RAY_AUTH_TOKEN)")
+        raise ConfigError(f"--address {config.address}: {error}{hint}") from None
     return True

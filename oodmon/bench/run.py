@@ -11,7 +11,7 @@ from oodmon import seeds
 from oodmon.bench.cache import (Source, _cell_log, _ensure_model, _ensure_model_dir_current,
                                 _id_return, _log_is_complete, _monitored, _prepare_trial, _refuse_to_train_for_hours,
                                 _weights_sha256)
-from oodmon.bench.cells import _execute
+from oodmon.bench.cells import _execute, check_ray_address
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
@@ -66,6 +66,7 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
     trials = [(m, t) for m in config.methods for t in range(config.trials)]
     for method, trial in trials:  # before minutes of work on the others
         _refuse_to_train_for_hours(config, method, trial)
+    check_ray_address(config)  # before hours of training, too
     workers = config.workers or os.cpu_count() or 1
     _train_missing_models(config, trials, workers, report)
     prepared: dict[tuple[str, int], tuple[Source, Path, list[str], Path | None]] = {}

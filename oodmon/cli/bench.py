@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 
 from oodmon.cli.display import _progress, _table_console
@@ -93,7 +94,8 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                        help="sensor noise in every monitored env, a fraction of each dimension's ID spread (default 0)")
     bench.add_argument("--executor", choices=["local", "ray"], default="local",
                        help="local worker processes (default) or Ray tasks (needs oodmon[ray])")
-    bench.add_argument("--address", help="the Ray cluster to use (default: start a local one)")
+    bench.add_argument("--address", help="the Ray cluster to use, HOST:PORT as `ray start --head` prints it (default: "
+                                          "RAY_ADDRESS if set, else a local cluster of the bench's own)")
     bench.add_argument("--bind", default="127.0.0.1",
                        help="address a local Ray cluster listens on (default 127.0.0.1: this machine only)")
     bench.add_argument("--out", default="runs/bench", help="models, logs and report (default runs/bench)")
@@ -134,10 +136,12 @@ def _bench(args: argparse.Namespace) -> int:
     alarm_detector = args.alarm_detector or best
     detectors = (tuple(d.strip() for d in args.detectors.split(",")) if args.detectors
                  else tuple(dict.fromkeys(("spread", alarm_detector) if samples else (alarm_detector,))))
+    # Ray's own variable, as ray.init() reads it; never a cluster Ray would find by its files (`ray start`'s)
+    address = args.address or (os.environ.get("RAY_ADDRESS") or None if args.executor == "ray" else None)
     config = BenchConfig(args.task, methods, args.trials or (1 if args.sb3 or args.policy else 5), variants,
                          args.episodes or (10 if monitor else 5), args.id_episodes or (200 if monitor else 10),
                          out=args.out, workers=args.workers,
-                         executor=args.executor, address=args.address, bind=args.bind, score=args.score,
+                         executor=args.executor, address=address, bind=args.bind, score=args.score,
                          window=args.window or default_window(args.task, alarm_detector), detectors=detectors,
                          alarm_detector=alarm_detector, obs_noise=args.obs_noise,
                          calibration_episodes=args.calibration_episodes or (90 if monitor else 45), far=args.far,
