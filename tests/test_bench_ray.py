@@ -13,7 +13,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from oodmon.bench import BenchConfig
+from oodmon.bench import BenchConfig, run_bench
 from oodmon.bench.cells import _said_by_a_worker, _start_ray, check_ray_address, own_module_paths
 from oodmon.errors import ConfigError
 
@@ -42,6 +42,17 @@ def test_an_address_where_nothing_answers_is_said_before_any_work():
         check_ray_address(config)  # something listens: left to Ray
     check_ray_address(BenchConfig(task="cartpole", executor="ray", address="auto"))  # Ray finds it
     check_ray_address(BenchConfig(task="cartpole", address=f"127.0.0.1:{port}"))  # not on Ray
+
+
+def test_no_ray_is_said_before_any_work(tmp_path, monkeypatch):
+    import importlib.util
+
+    find = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ray" else find(name, *a))
+    config = BenchConfig(task="cartpole", methods=("dropout",), trials=1, executor="ray", out=str(tmp_path))
+    with pytest.raises(ConfigError, match=r"--executor ray needs Ray: pip install 'oodmon\[ray\]'"):
+        run_bench(config)
+    assert not any(tmp_path.iterdir())  # nothing trained, fitted or calibrated first
 
 
 def test_a_refused_connection_says_how_to_give_the_clusters_token(monkeypatch):

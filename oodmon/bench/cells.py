@@ -18,6 +18,9 @@ from oodmon.outputs import write_failure
 from oodmon.names import TASKS
 from oodmon.errors import ConfigError, OodmonError
 
+_NO_RAY = "--executor ray needs Ray: pip install 'oodmon[ray]'"
+
+
 def episode_onset(onsets: tuple[int, int], seed: int) -> int:
     """The onset of the shifted episode played with ``seed`` under the monitor's protocol: uniform
     in ``[low, high)``, drawn from the seed alone (the same episode, the same onset).
@@ -136,17 +139,23 @@ def _said_by_a_worker(error: Exception, config: BenchConfig, shipped: list[str])
 
 
 def check_ray_address(config: BenchConfig, timeout: float = 3.0) -> None:
-    """Before any work: that a cluster's ``HOST:PORT`` (or ``ray://HOST:PORT``) at ``config.address``
-    answers at all. Ray's own connection retries for as long as the command runs where nothing
-    listens there (measured with Ray 2.60: still retrying after 5 minutes, saying only that the
-    GCS was not found); other addresses (``auto``) are left to Ray.
+    """Before any work, for ``executor="ray"``: that Ray is installed, and that a cluster's
+    ``HOST:PORT`` (or ``ray://HOST:PORT``) at ``config.address`` answers at all. Ray's own
+    connection retries for as long as the command runs where nothing listens there (measured with
+    Ray 2.60: still retrying after 5 minutes, saying only that the GCS was not found); other
+    addresses (``auto``) are left to Ray.
 
     Raises:
-        ConfigError: nothing accepts a connection at that address within ``timeout`` seconds.
+        ConfigError: no Ray, or nothing accepts a connection at that address within ``timeout`` seconds.
     """
+    import importlib.util
     import socket
 
-    if config.executor != "ray" or not config.address:
+    if config.executor != "ray":
+        return
+    if importlib.util.find_spec("ray") is None:
+        raise ConfigError(_NO_RAY)
+    if not config.address:
         return
     host, colon, port = config.address.removeprefix("ray://").rpartition(":")
     if not colon or not port.isdigit() or not host:
@@ -175,7 +184,7 @@ def _start_ray(config: BenchConfig, workers: int, modules: Sequence[str] = ()) -
         import ray
         import ray._private.ray_constants as ray_constants
     except ImportError:
-        raise ConfigError("--executor ray needs Ray: pip install 'oodmon[ray]'") from None
+        raise ConfigError(_NO_RAY) from None
     if ray.is_initialized():
         return False
     if loopback:
