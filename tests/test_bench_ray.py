@@ -179,11 +179,12 @@ def test_the_command_reads_ray_address_where_no_address_is_given(tmp_path, monke
 
     monkeypatch.setattr(oodmon.bench, "run_bench", stop)  # (the command imports it when it runs)
     monkeypatch.setenv("RAY_ADDRESS", "10.0.0.5:6379")
-    (tmp_path / "my_policy.py").write_text(CONTROLLER)
+    (tmp_path / "ray_address_policy.py").write_text(CONTROLLER)
     monkeypatch.syspath_prepend(str(tmp_path))
-    argv = ["bench", "--policy", "my_policy:act", "--env", "CartPole-v1", "--protocol", "monitor"]
+    argv = ["bench", "--policy", "ray_address_policy:act", "--env", "CartPole-v1", "--protocol", "monitor"]
     from oodmon.cli import main
 
     for flags in (["--executor", "ray"], ["--executor", "ray", "--address", "10.0.0.6:6379"], []):
         assert main(argv + flags) == 2
     assert seen == ["10.0.0.5:6379", "10.0.0.6:6379", None]
+

@@ -4,9 +4,10 @@ as Ray tasks."""
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -16,6 +17,7 @@ from oodmon.envs.grid import parse_variant
 from oodmon.envs.shift import own_variant
 from oodmon.outputs import write_failure
 from oodmon.names import TASKS
+from oodmon.progress import Progress
 from oodmon.errors import ConfigError, OodmonError
 
 _NO_RAY = "--executor ray needs Ray: pip install 'oodmon[ray]'"
@@ -74,22 +76,51 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
         return
     if config.executor != "ray":
         raise ConfigError(f"executor={config.executor!r} is not allowed; use 'local' or 'ray'")
+    yield from on_ray(_run_cell, jobs, config, workers)
+
+
+def on_ray(function: Callable[..., Any], jobs: list[tuple], config: BenchConfig, workers: int,
+           report: Progress | None = None) -> Iterator[Any]:
+    """``function(*job)`` for each job as a Ray task of one CPU, on the cluster ``config`` names
+    (or a local one of ``workers`` CPUs, started here and shut down after); yield each result as it
+    comes. ``report``: each task gets one more argument, an ``on_progress`` whose reports reach
+    ``report`` here (through a Ray queue), as a training's in a worker process of the bench's own."""
     shipped = own_module_paths(config)
     started = _start_ray(config, workers, shipped)
     import ray
 
+    queue = None
+    if report is not None:
+        from ray.util.queue import Queue
+
+        queue = Queue()
+        jobs = [(*job, Relay(queue)) for job in jobs]
     try:
-        remote = ray.remote(num_cpus=1)(_run_cell)
+        remote = ray.remote(num_cpus=1)(function)
         pending = [remote.remote(*job) for job in jobs]
         while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
-            try:
-                yield ray.get(ready[0])
-            except ray.exceptions.RayTaskError as error:
-                raise _said_by_a_worker(error, config, shipped) from None
+            ready, pending = ray.wait(pending, num_returns=1, timeout=None if queue is None else 1.0)
+            while queue is not None and not queue.empty():
+                report(*queue.get())
+            for finished in ready:
+                try:
+                    yield ray.get(finished)
+                except ray.exceptions.RayTaskError as error:
+                    raise _said_by_a_worker(error, config, shipped) from None
     finally:
         if started:
             ray.shutdown()
+
+
+class Relay:
+    """A task's ``on_progress`` in a worker (a process, a Ray task): puts each report on the
+    bench's queue (a ``multiprocessing`` manager's, a Ray one), for the bench to report."""
+
+    def __init__(self, queue) -> None:
+        self.queue = queue
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        self.queue.put((stage, done, total))
 
 
 def own_module_paths(config: BenchConfig) -> list[str]:

@@ -11,7 +11,7 @@ from oodmon import seeds
 from oodmon.bench.cache import (Source, _cell_log, _ensure_model, _ensure_model_dir_current,
                                 _id_return, _log_is_complete, _monitored, _prepare_trial, _refuse_to_train_for_hours,
                                 _weights_sha256)
-from oodmon.bench.cells import _execute, check_ray_address
+from oodmon.bench.cells import Relay, _execute, check_ray_address, on_ray
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
@@ -19,8 +19,8 @@ from oodmon.progress import Progress
 def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], workers: int, report: Progress) -> None:
     """Train the trials' models that are not cached yet, ``workers`` at a time in processes of their
     own (one thread each for torch and numpy's BLAS, unless OODMON_TORCH_THREADS says otherwise): the
-    long part of a five-trial bench, on every core. Each training checkpoints and resumes
-    (``oodmon.agents.train``)."""
+    long part of a five-trial bench, on every core; with ``executor="ray"``, as tasks on the Ray
+    cluster (the cells' cluster). Each training checkpoints and resumes (``oodmon.agents.train``)."""
     if config.users_own:
         return
     # (a cached model, or a begun training, of another recipe is set aside first)
@@ -29,6 +29,11 @@ def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], wo
         return
     stage = "trained trial models"
     report(stage, 0, len(missing))
+    if config.executor == "ray" and len(missing) > 1:  # on the cluster, each training a task of one CPU
+        jobs = [(config, method, trial) for method, trial in missing]
+        for done, _ in enumerate(on_ray(_train_in_worker, jobs, config, workers, report), 1):
+            report(stage, done, len(missing))
+        return
     if workers <= 1 or len(missing) == 1 or config.executor != "local":
         for done, (method, trial) in enumerate(missing, 1):
             _ensure_model(config, method, trial, report)
@@ -36,7 +41,7 @@ def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], wo
         return
     with multiprocessing.Manager() as manager, ProcessPoolExecutor(max_workers=min(workers, len(missing))) as pool:
         queue = manager.Queue()  # each training's own progress, relayed here as it comes
-        futures = [pool.submit(_ensure_model, config, method, trial, _Relay(queue)) for method, trial in missing]
+        futures = [pool.submit(_ensure_model, config, method, trial, Relay(queue)) for method, trial in missing]
         pending, done = set(futures), 0
         while pending:
             finished, pending = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
@@ -48,14 +53,14 @@ def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], wo
                 report(stage, done, len(missing))
 
 
-class _Relay:
-    """A training's ``on_progress`` in a worker process: puts each report on the bench's queue."""
+def _train_in_worker(config: BenchConfig, method: str, trial: int, on_progress: Progress) -> str:
+    """One trial's training as a Ray task: torch and numpy's BLAS on ``OODMON_TORCH_THREADS``
+    threads (one where it is not set; a worker of another machine does not have this command's
+    setting), then :func:`_ensure_model`; the model's folder."""
+    from oodmon.threads import limit_threads
 
-    def __init__(self, queue) -> None:
-        self.queue = queue
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        self.queue.put((stage, done, total))
+    limit_threads()
+    return str(_ensure_model(config, method, trial, on_progress))
 
 
 def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> BenchResult:
