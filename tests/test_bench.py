@@ -13,6 +13,7 @@ from safetensors.torch import load_file
 
 from oodmon.bench import BenchConfig, best_per_method, paper_label, run_bench
 from oodmon.bench.report import unsolved_trials
+from oodmon.bench.run import _in_worker as _bench_in_worker
 from oodmon.errors import ConfigError
 from oodmon.replay import compute_metrics, read_log, read_logs
 from tests.helpers import load_script, run_cli
@@ -583,6 +584,45 @@ def test_trial_models_train_on_every_worker_and_come_out_as_one_at_a_time(tmp_pa
         _train_missing_models(config, trials, workers, lambda *a: stages.append(a))
         assert stages == []  # cached: nothing to train
     assert weights[2] == weights[1] and weights[2][0] != weights[2][1]
+
+
+def _in_worker_noting_its_process(*args):
+    """The bench's ``_in_worker``, noting first the id of the process it runs in (in the file
+    ``OODMON_TEST_PIDS`` names)."""
+    import os
+
+    with open(os.environ["OODMON_TEST_PIDS"], "a") as pids:
+        pids.write(f"{os.getpid()}\n")
+    return _bench_in_worker(*args)
+
+
+def test_trials_are_prepared_side_by_side_in_workers_to_what_one_after_the_other_gives(tmp_path, monkeypatch):
+    """Each trial's detectors, threshold and failing variants are made in a worker process of its
+    own (they were made one after the other in the bench's process): the same files and figures
+    as one after the other, each worker's progress reaching the bench's report."""
+    import os
+
+    import oodmon.bench.run as bench_run
+
+    where = tmp_path / "pids"
+    monkeypatch.setenv("OODMON_TEST_PIDS", str(where))
+    monkeypatch.setattr(bench_run, "_in_worker", _in_worker_noting_its_process)  # (found by its name there)
+    common = dict(task="cartpole", methods=("dropout", "ensemble"), trials=1, variants=("cartpole:length=2.0",),
+                  episodes=2, id_episodes=2, eval_episodes=2, calibration_episodes=3, far=0.5, confidence=None)
+    results, stages = {}, []
+    for workers in (2, 1):
+        config = BenchConfig(**common, workers=workers, out=str(tmp_path / f"w{workers}"))
+        results[workers] = run_bench(config, on_progress=lambda *report: stages.append((workers, *report)))
+    pids = where.read_text().split()
+    assert len(pids) == 2 and str(os.getpid()) not in pids  # two trials in workers; one worker: here, no worker
+    stage = "models, detectors, thresholds and failing variants of trials"
+    assert [s[2:] for s in stages if s[0] == 2 and s[1] == stage] == [(0, 2), (1, 2), (2, 2)]
+    assert any(s[0] == 2 and s[1] == "ensemble trial 0: calibration episodes" for s in stages)
+    assert results[2].detection == results[1].detection and results[2].rows == results[1].rows
+    for method in ("dropout", "ensemble"):
+        made = [sorted((tmp_path / f"w{w}/logs").glob(f"*/{method}/trial0/threshold-*.json")) for w in (2, 1)]
+        assert made[0] and [json.loads(f.read_text())["value"] for f in made[0]] == [
+            json.loads(f.read_text())["value"] for f in made[1]]
 
 
 def test_episode_noise_plays_a_benchs_trials_again_with_more_episodes(tmp_path, monkeypatch):

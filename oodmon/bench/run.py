@@ -5,7 +5,9 @@ from __future__ import annotations
 import multiprocessing
 import os
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 from oodmon import seeds
 from oodmon.bench.cache import (Source, _cell_log, _ensure_model, _ensure_model_dir_current,
@@ -15,6 +17,7 @@ from oodmon.bench.cells import Relay, _execute, check_ray_address, on_ray
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
+from oodmon.threads import limit_threads
 
 def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], workers: int, report: Progress) -> None:
     """Train the trials' models that are not cached yet, ``workers`` at a time in processes of their
@@ -29,38 +32,60 @@ def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], wo
         return
     stage = "trained trial models"
     report(stage, 0, len(missing))
-    if config.executor == "ray" and len(missing) > 1:  # on the cluster, each training a task of one CPU
-        jobs = [(config, method, trial) for method, trial in missing]
-        for done, _ in enumerate(on_ray(_train_in_worker, jobs, config, workers, report), 1):
-            report(stage, done, len(missing))
+    for done, _ in enumerate(_per_trial(_ensure_model, missing, config, workers, report), 1):
+        report(stage, done, len(missing))
+
+
+def _prepare_trials(config: BenchConfig, trials: list[tuple[str, int]], workers: int,
+                    report: Progress) -> dict[tuple[str, int], tuple[Source, Path, list[str], Path | None]]:
+    """Each trial's model, fitted detectors, threshold and failing variants (:func:`_prepare_trial`,
+    cached), the trials side by side as their trainings are (each seeded by itself: the same as
+    one after the other, which they were before 2026-11-30)."""
+    stage = "models, detectors, thresholds and failing variants of trials"
+    report(stage, 0, len(trials))
+    prepared = {}
+    for key, trial_parts in _per_trial(_prepare_keyed, trials, config, workers, report):
+        prepared[key] = trial_parts
+        report(stage, len(prepared), len(trials))
+    return {key: prepared[key] for key in trials}  # in the trials' order
+
+
+def _per_trial(function: Callable[..., Any], trials: list[tuple[str, int]], config: BenchConfig, workers: int,
+               report: Progress) -> Iterator[Any]:
+    """``function(config, method, trial, on_progress)`` for each trial, its results as they come:
+    as Ray tasks of one CPU (``executor="ray"``), in ``workers`` processes of the bench's own, or
+    here one after the other (one worker, or one trial); the workers' progress reaches ``report``."""
+    jobs = [(function, config, method, trial) for method, trial in trials]
+    if config.executor == "ray" and len(jobs) > 1:
+        yield from on_ray(_in_worker, jobs, config, workers, report)
         return
-    if workers <= 1 or len(missing) == 1 or config.executor != "local":
-        for done, (method, trial) in enumerate(missing, 1):
-            _ensure_model(config, method, trial, report)
-            report(stage, done, len(missing))
+    if workers <= 1 or len(jobs) == 1 or config.executor != "local":
+        for method, trial in trials:
+            yield function(config, method, trial, report)
         return
-    with multiprocessing.Manager() as manager, ProcessPoolExecutor(max_workers=min(workers, len(missing))) as pool:
-        queue = manager.Queue()  # each training's own progress, relayed here as it comes
-        futures = [pool.submit(_ensure_model, config, method, trial, Relay(queue)) for method, trial in missing]
-        pending, done = set(futures), 0
+    with multiprocessing.Manager() as manager, ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+        queue = manager.Queue()  # each worker's own progress, relayed here as it comes
+        pending = {pool.submit(_in_worker, *job, Relay(queue)) for job in jobs}
         while pending:
             finished, pending = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
             while not queue.empty():
                 report(*queue.get())
             for future in finished:
-                future.result()
-                done += 1
-                report(stage, done, len(missing))
+                yield future.result()
 
 
-def _train_in_worker(config: BenchConfig, method: str, trial: int, on_progress: Progress) -> str:
-    """One trial's training as a Ray task: torch and numpy's BLAS on ``OODMON_TORCH_THREADS``
-    threads (one where it is not set; a worker of another machine does not have this command's
-    setting), then :func:`_ensure_model`; the model's folder."""
-    from oodmon.threads import limit_threads
-
+def _in_worker(function: Callable[..., Any], config: BenchConfig, method: str, trial: int, on_progress: Progress) -> Any:
+    """``function(config, method, trial, on_progress)`` in a worker process or a Ray task: torch and
+    numpy's BLAS on ``OODMON_TORCH_THREADS`` threads first, one where it is not set (a Ray worker of
+    another machine does not have this command's setting)."""
     limit_threads()
-    return str(_ensure_model(config, method, trial, on_progress))
+    return function(config, method, trial, on_progress)
+
+
+def _prepare_keyed(config: BenchConfig, method: str, trial: int, on_progress: Progress
+                   ) -> tuple[tuple[str, int], tuple[Source, Path, list[str], Path | None]]:
+    """:func:`_prepare_trial`'s parts of one trial, with its key (the workers' results come in any order)."""
+    return (method, trial), _prepare_trial(config, method, trial, on_progress)
 
 
 def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> BenchResult:
@@ -74,11 +99,7 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
     check_ray_address(config)  # before hours of training, too
     workers = config.workers or os.cpu_count() or 1
     _train_missing_models(config, trials, workers, report)
-    prepared: dict[tuple[str, int], tuple[Source, Path, list[str], Path | None]] = {}
-    for index, (method, trial) in enumerate(trials):
-        report("models, detectors, thresholds and failing variants of trials", index, len(trials))
-        prepared[(method, trial)] = _prepare_trial(config, method, trial, report)
-    report("models, detectors, thresholds and failing variants of trials", len(trials), len(trials))
+    prepared = _prepare_trials(config, trials, workers, report)
 
     cells = []
     for (method, trial), (_, _, failing, _) in prepared.items():
