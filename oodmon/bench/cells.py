@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +78,24 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
     if config.executor != "ray":
         raise ConfigError(f"executor={config.executor!r} is not allowed; use 'local' or 'ray'")
     yield from on_ray(_run_cell, jobs, config, workers)
+
+
+@contextmanager
+def ray_for(config: BenchConfig, workers: int) -> Iterator[None]:
+    """Where the bench runs on Ray (``executor="ray"``): its cluster for every stage inside, joined
+    or started once (:func:`_start_ray`; a local one of ``workers`` CPUs) and shut down after if
+    started here, the user's own modules sent to it (:func:`own_module_paths`). Else nothing."""
+    if config.executor != "ray":
+        yield
+        return
+    started = _start_ray(config, workers, own_module_paths(config))
+    try:
+        yield
+    finally:
+        if started:
+            import ray
+
+            ray.shutdown()
 
 
 def on_ray(function: Callable[..., Any], jobs: list[tuple], config: BenchConfig, workers: int,

@@ -13,7 +13,7 @@ from oodmon import seeds
 from oodmon.bench.cache import (Source, _cell_log, _ensure_model, _ensure_model_dir_current,
                                 _id_return, _log_is_complete, _monitored, _prepare_trial, _refuse_to_train_for_hours,
                                 _weights_sha256)
-from oodmon.bench.cells import Relay, _execute, check_ray_address, on_ray
+from oodmon.bench.cells import Relay, _execute, check_ray_address, on_ray, ray_for
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
@@ -56,7 +56,7 @@ def _per_trial(function: Callable[..., Any], trials: list[tuple[str, int]], conf
     as Ray tasks of one CPU (``executor="ray"``), in ``workers`` processes of the bench's own, or
     here one after the other (one worker, or one trial); the workers' progress reaches ``report``."""
     jobs = [(function, config, method, trial) for method, trial in trials]
-    if config.executor == "ray" and len(jobs) > 1:
+    if config.executor == "ray":  # the cluster's, even one: the machine of this command may be the least of them
         yield from on_ray(_in_worker, jobs, config, workers, report)
         return
     if workers <= 1 or len(jobs) == 1 or config.executor != "local":
@@ -98,27 +98,28 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
         _refuse_to_train_for_hours(config, method, trial)
     check_ray_address(config)  # before hours of training, too
     workers = config.workers or os.cpu_count() or 1
-    _train_missing_models(config, trials, workers, report)
-    prepared = _prepare_trials(config, trials, workers, report)
+    with ray_for(config, workers):  # a Ray cluster started (or joined) once for every stage
+        _train_missing_models(config, trials, workers, report)
+        prepared = _prepare_trials(config, trials, workers, report)
 
-    cells = []
-    for (method, trial), (_, _, failing, _) in prepared.items():
-        cells.append((method, trial, config.task, config.id_episodes, seeds.BENCH_ID))
-        cells += [(method, trial, spec, config.episodes, seeds.BENCH_SHIFTED) for spec in _monitored(config, failing)]
-    jobs = []
-    for method, trial, spec, episodes, seed in cells:
-        log = _cell_log(config, method, trial, spec)
-        if not _log_is_complete(log, episodes):
-            model, threshold, _, detectors = prepared[(method, trial)]
-            jobs.append((config.task, str(model) if isinstance(model, Path) else model, str(threshold), spec, episodes,
-                         seed, str(log), None if detectors is None else str(detectors), config.obs_noise,
-                         config.onset_range() if config.protocol == "monitor" else None, config.samples,
-                         config.masks))
-    done = len(cells) - len(jobs)
-    report("monitored cells", done, len(cells))
-    for _ in _execute(jobs, config, workers):
-        done += 1
+        cells = []
+        for (method, trial), (_, _, failing, _) in prepared.items():
+            cells.append((method, trial, config.task, config.id_episodes, seeds.BENCH_ID))
+            cells += [(method, trial, spec, config.episodes, seeds.BENCH_SHIFTED) for spec in _monitored(config, failing)]
+        jobs = []
+        for method, trial, spec, episodes, seed in cells:
+            log = _cell_log(config, method, trial, spec)
+            if not _log_is_complete(log, episodes):
+                model, threshold, _, detectors = prepared[(method, trial)]
+                jobs.append((config.task, str(model) if isinstance(model, Path) else model, str(threshold), spec, episodes,
+                             seed, str(log), None if detectors is None else str(detectors), config.obs_noise,
+                             config.onset_range() if config.protocol == "monitor" else None, config.samples,
+                             config.masks))
+        done = len(cells) - len(jobs)
         report("monitored cells", done, len(cells))
+        for _ in _execute(jobs, config, workers):
+            done += 1
+            report("monitored cells", done, len(cells))
 
     rows: dict[tuple[str, str, int], dict[str, dict[int, float]]] = {}
     detection: dict[str, dict[str, float | None]] = {}
