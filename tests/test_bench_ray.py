@@ -123,8 +123,9 @@ BENCH = """
 import sys
 from oodmon.cli import main
 argv = ["bench", "--policy", "far_controller:act", "--env", "CartPole-v1", "--protocol", "monitor",
-        "--variants", "cartpole:gravity=78.4", "--episodes", "3", "--id-episodes", "4", "--calibration-episodes", "19",
-        "--confidence", "none", "--fit-episodes", "12", "--workers", "1"]
+        "--variants", "cartpole:obs.stuck[3]=1", "--all-variants", "--detectors", "stillness",
+        "--alarm-detector", "stillness", "--episodes", "3", "--id-episodes", "4", "--calibration-episodes", "19",
+        "--confidence", "none", "--fit-episodes", "12", "--workers", "1"]  # (stillness: no network to fit)
 address, out = sys.argv[1:]
 for name, flags in (("ray", ["--executor", "ray", "--address", address]), ("processes", [])):
     if main(argv + flags + ["--out", f"{out}/{name}", "--results", f"{out}/{name}.json"]) != 0:
@@ -162,8 +163,8 @@ def test_a_cluster_at_an_address_gets_the_policys_module_and_gives_the_local_pro
     assert joined == "1"  # the Ray bench ran there, not on a cluster of its own
     on_ray, local = (json.loads((tmp_path / f"{name}.json").read_text())["alarms"] for name in ("ray", "processes"))
     assert on_ray == local
-    shifted = next(row for row in on_ray if row["variant"] == "cartpole:gravity=78.4")
-    assert shifted["episodes"] == 3 and shifted["alarmed"] >= 2
+    shifted = next(row for row in on_ray if row["variant"] == "cartpole:obs.stuck[3]=1.0")
+    assert shifted["episodes"] == 3 and shifted["alarmed"] == 3  # the stuck reading stands still past its record
 
 
 def test_the_command_reads_ray_address_where_no_address_is_given(tmp_path, monkeypatch):
