@@ -1,5 +1,6 @@
 """The cells: monitored episodes of one variant into one MCAP log, run in worker processes or
-as Ray tasks."""
+as Ray tasks; and the Ray cluster every stage of a bench on Ray runs on (its trainings, its trials'
+preparations, its cells: :func:`ray_for`, :func:`on_ray`)."""
 
 from __future__ import annotations
 
@@ -100,10 +101,11 @@ def ray_for(config: BenchConfig, workers: int) -> Iterator[None]:
 
 def on_ray(function: Callable[..., Any], jobs: list[tuple], config: BenchConfig, workers: int,
            report: Progress | None = None) -> Iterator[Any]:
-    """``function(*job)`` for each job as a Ray task of one CPU, on the cluster ``config`` names
-    (or a local one of ``workers`` CPUs, started here and shut down after); yield each result as it
-    comes. ``report``: each task gets one more argument, an ``on_progress`` whose reports reach
-    ``report`` here (through a Ray queue), as a training's in a worker process of the bench's own."""
+    """``function(*job)`` for each job as a Ray task of one CPU, on the cluster Ray runs
+    (:func:`ray_for`; where it runs none yet, the one ``config`` names or a local one of ``workers``
+    CPUs, started here and shut down after); yield each result as it comes. ``report``: each task
+    gets one more argument, an ``on_progress`` whose reports reach ``report`` here (through a Ray
+    queue), as a training's in a worker process of the bench's own."""
     shipped = own_module_paths(config)
     started = _start_ray(config, workers, shipped)
     import ray
@@ -143,7 +145,7 @@ class Relay:
 
 
 def own_module_paths(config: BenchConfig) -> list[str]:
-    """The files or package folders of the user's own modules that the cells import by name (the
+    """The files or package folders of the user's own modules that the bench's workers import by name (the
     policy's ``MODULE:NAME``, an env id's ``module:``, ``imports``), where they are not installed
     packages (site-packages, the standard library): what Ray sends its workers (``py_modules`` of
     the job, where the bench starts or joins the cluster), so that a cluster at an address, whose
@@ -172,7 +174,7 @@ def own_module_paths(config: BenchConfig) -> list[str]:
 
 
 def _said_by_a_worker(error: Exception, config: BenchConfig, shipped: list[str]) -> BaseException:
-    """A cell's error raised in a Ray worker, as the command says it for local processes: an
+    """A task's error raised in a Ray worker, as the command says it for local processes: an
     error a person can fix by its own message (Ray's wraps it in the worker's traceback), naming
     the cluster where the modules sent to it were not enough."""
     cause = getattr(error, "cause", None)
