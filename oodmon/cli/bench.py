@@ -66,7 +66,9 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                        help="ID episodes the threshold is calibrated on (default 45; monitor protocol: 90)")
     bench.add_argument("--far", type=_fraction, default=0.05, help="the alarm's target false-alarm rate (default 0.05)")
     _add_confidence(bench, default="0.9; monitor protocol: 0.99, so that the rate of 200 ID episodes shows the bound")
-    bench.add_argument("--workers", type=_whole(0), default=0, help="worker processes for the cells (default 0: one per core)")
+    bench.add_argument("--workers", type=_whole(0), default=0,
+                       help="worker processes for the trainings, the trials' preparations and the cells (default 0: one "
+                            "per core)")
     bench.add_argument("--score", default="chosen_std",
                        help="chosen_std (the paper's, default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
     bench.add_argument("--window", type=_whole(1),
@@ -93,7 +95,7 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     bench.add_argument("--obs-noise", type=_non_negative, default=0.0,
                        help="sensor noise in every monitored env, a fraction of each dimension's ID spread (default 0)")
     bench.add_argument("--executor", choices=["local", "ray"], default="local",
-                       help="local worker processes (default) or Ray tasks (needs oodmon[ray])")
+                       help="local worker processes (default) or Ray tasks on one cluster (needs oodmon[ray])")
     bench.add_argument("--address", help="the Ray cluster to use, HOST:PORT as `ray start --head` prints it (default: "
                                           "RAY_ADDRESS if set, else a local cluster of the bench's own)")
     bench.add_argument("--bind", default="127.0.0.1",
