@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import pytest
 
 from oodmon.bench import BenchConfig, run_bench
-from oodmon.bench.cells import _said_by_a_worker, _start_ray, check_ray_address, own_module_paths
+from oodmon.bench.cells import _said_by_a_worker, _start_ray, check_ray_address, own_module_paths, sent_modules
 from oodmon.errors import ConfigError
 
 CONTROLLER = "def act(obs):\n    return int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)\n"
@@ -29,6 +29,9 @@ def test_the_modules_sent_to_a_cluster_are_the_users_own_not_installed_packages(
     assert own_module_paths(config) == [str((tmp_path / "my_policy.py").resolve()), str((tmp_path / "my_envs").resolve())]
     none = SimpleNamespace(policy=None, env_id="CartPole-v1", imports=("no_such_module_here",))
     assert own_module_paths(none) == []  # an unknown module is said where it is imported, as without Ray
+    # sent to a cluster at an address only: a local one's workers have this process's path
+    assert sent_modules(SimpleNamespace(**vars(config), address="10.0.0.5:6379")) == own_module_paths(config)
+    assert sent_modules(SimpleNamespace(**vars(config), address=None)) == []
 
 
 def test_an_address_where_nothing_answers_is_said_before_any_work():

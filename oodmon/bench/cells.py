@@ -85,11 +85,11 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
 def ray_for(config: BenchConfig, workers: int) -> Iterator[None]:
     """Where the bench runs on Ray (``executor="ray"``): its cluster for every stage inside, joined
     or started once (:func:`_start_ray`; a local one of ``workers`` CPUs) and shut down after if
-    started here, the user's own modules sent to it (:func:`own_module_paths`). Else nothing."""
+    started here, the user's own modules sent to it (:func:`sent_modules`). Else nothing."""
     if config.executor != "ray":
         yield
         return
-    started = _start_ray(config, workers, own_module_paths(config))
+    started = _start_ray(config, workers, sent_modules(config))
     try:
         yield
     finally:
@@ -106,7 +106,7 @@ def on_ray(function: Callable[..., Any], jobs: list[tuple], config: BenchConfig,
     CPUs, started here and shut down after); yield each result as it comes. ``report``: each task
     gets one more argument, an ``on_progress`` whose reports reach ``report`` here (through a Ray
     queue), as a training's in a worker process of the bench's own."""
-    shipped = own_module_paths(config)
+    shipped = sent_modules(config)
     started = _start_ray(config, workers, shipped)
     import ray
 
@@ -171,6 +171,13 @@ def own_module_paths(config: BenchConfig) -> list[str]:
         if not any(where.is_relative_to(folder) for folder in installed) and str(where) not in paths:
             paths.append(str(where))
     return paths
+
+
+def sent_modules(config: BenchConfig) -> list[str]:
+    """What the bench sends a cluster at an address (:func:`own_module_paths`); nothing to a local
+    cluster, whose workers have this command's path already (measured: a module on the driver's
+    ``sys.path`` alone imports there) and which would only pack and upload the files again."""
+    return own_module_paths(config) if config.address else []
 
 
 def _said_by_a_worker(error: Exception, config: BenchConfig, shipped: list[str]) -> BaseException:
