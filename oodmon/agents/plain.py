@@ -104,6 +104,10 @@ class _ReadsDicts:
         return self.policy(gymnasium.spaces.unflatten(self.space, np.asarray(obs)) if flattened(self.space, obs) else obs)
 
 
+#: What a module :func:`policy_by_name` does not find may want (the bench on a Ray cluster says otherwise).
+ON_PYTHONPATH = " (is its folder on PYTHONPATH?)"
+
+
 def policy_by_name(spec: str) -> Callable[[Any], Any]:
     """The policy ``MODULE:NAME`` names (``NAME`` may be dotted, ``my_policy:controller.act``):
     the command line's ``--policy``. The module is imported, so this runs its code: the user's own.
@@ -122,7 +126,7 @@ def policy_by_name(spec: str) -> Callable[[Any], Any]:
     except (ImportError, TypeError, ValueError) as error:
         here = Path(module_name.replace(".", "/") + ".py")
         hint = (f"; {here} is in the current folder, which the oodmon command does not search: PYTHONPATH=. oodmon ..."
-                if here.is_file() else " (is its folder on PYTHONPATH?)")
+                if here.is_file() else ON_PYTHONPATH)
         raise ConfigError(f"--policy {spec}: {error}{hint}") from None
     for part in attribute.split("."):
         if not hasattr(found, part):

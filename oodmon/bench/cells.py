@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from oodmon.agents.plain import ON_PYTHONPATH
 from oodmon.bench.cache import PlainPolicy, Sb3Models, _bench_agent
 from oodmon.bench.config import BenchConfig
 from oodmon.envs.grid import parse_variant
@@ -102,21 +103,18 @@ def ray_for(config: BenchConfig, workers: int) -> Iterator[None]:
 def on_ray(function: Callable[..., Any], jobs: list[tuple], config: BenchConfig, workers: int,
            report: Progress | None = None) -> Iterator[Any]:
     """``function(*job)`` for each job as a Ray task of one CPU, on the cluster Ray runs
-    (:func:`ray_for`; where it runs none yet, the one ``config`` names or a local one of ``workers``
-    CPUs, started here and shut down after); yield each result as it comes. ``report``: each task
-    gets one more argument, an ``on_progress`` whose reports reach ``report`` here (through a Ray
-    queue), as a training's in a worker process of the bench's own."""
-    shipped = sent_modules(config)
-    started = _start_ray(config, workers, shipped)
-    import ray
+    (:func:`ray_for`, which starts or joins one here where Ray runs none yet); yield each result as
+    it comes. ``report``: each task gets one more argument, an ``on_progress`` whose reports reach
+    ``report`` here (through a Ray queue), as a training's in a worker process of the bench's own."""
+    with ray_for(config, workers):
+        import ray
 
-    queue = None
-    if report is not None:
-        from ray.util.queue import Queue
+        queue = None
+        if report is not None:
+            from ray.util.queue import Queue
 
-        queue = Queue()
-        jobs = [(*job, Relay(queue)) for job in jobs]
-    try:
+            queue = Queue()
+            jobs = [(*job, Relay(queue)) for job in jobs]
         remote = ray.remote(num_cpus=1)(function)
         pending = [remote.remote(*job) for job in jobs]
         while pending:
@@ -127,10 +125,7 @@ def on_ray(function: Callable[..., Any], jobs: list[tuple], config: BenchConfig,
                 try:
                     yield ray.get(finished)
                 except ray.exceptions.RayTaskError as error:
-                    raise _said_by_a_worker(error, config, shipped) from None
-    finally:
-        if started:
-            ray.shutdown()
+                    raise _said_by_a_worker(error, config, sent_modules(config)) from None
 
 
 class Relay:
@@ -191,7 +186,7 @@ def _said_by_a_worker(error: Exception, config: BenchConfig, shipped: list[str])
         where = f"the Ray cluster at {config.address}" if config.address else "a Ray worker"
         sent = (f"oodmon sent it {', '.join(Path(path).name for path in shipped)}; a module of yours that those import"
                 if shipped else "a module of yours")
-        said = str(cause).replace(" (is its folder on PYTHONPATH?)", "")  # it is, here: not there
+        said = str(cause).replace(ON_PYTHONPATH, "")  # it is, here: not there
         return ConfigError(f"on {where}: {said} ({sent} must be installed on the cluster's machines or found on the "
                            "PYTHONPATH their `ray start` had)")
     return cause
