@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -378,34 +379,47 @@ def test_a_viewer_that_cannot_start_is_warned_of_with_its_reason_and_the_run_and
                                                        "--server-memory-limit=1GiB", "--expect-data-soon"]
 
 
+def _where_it_listens(command: list[str]) -> str | None:
+    """The line in which a Rerun executable started with ``command`` says where it listens for gRPC
+    connections, or None where it stopped before it said so."""
+    process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                               text=True, start_new_session=True, env={**os.environ, "RERUN_APP_ONLY": "true"})
+    try:
+        for line in process.stdout:
+            if "Listening for gRPC connections on" in line:
+                return line
+        return None
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)  # the wrapper script and the executable it starts
+        process.wait()
+        process.stdout.close()
+
+
 def test_a_spawned_viewer_listens_on_this_machine_only_unless_told(agent, tmp_path, monkeypatch, capsys):
     """Rerun's viewer listens on every interface unless told otherwise, and `rerun.spawn` does not
     tell it: `oodmon run --spawn` served the run's stream to the network (rerun-sdk 0.41's viewer:
     "Listening for gRPC connections on 0.0.0.0:9876"). The sink starts it with `--bind` (127.0.0.1
-    by default) and streams to it there. Checked twice: the installed viewer, started with that
-    command line, says where it listens (before it needs a display, which CI has not); and a
-    stand-in viewer beside this Python (a Rerun gRPC server on the port it is given) takes every
-    step of a run."""
+    by default) and streams to it there. Checked twice: the installed executable, started with that
+    command line, says where it listens; and a stand-in viewer beside this Python (a Rerun gRPC
+    server on the port it is given) takes every step of a run.
+
+    The installed viewer needs a display, which CI has not: its gRPC server and its window start in
+    two threads, and which of "Listening ..." and the display error comes first is a race (here the
+    first, always; on CI once the second, and the viewer had stopped before it said where it
+    listens). So the command line is checked with `--serve-grpc` added: the same server without the
+    window. Without `--bind` that server says 0.0.0.0 (the check can fail)."""
     from oodmon.cli import main
     from oodmon.monitor.sinks.rerun import viewer_command
 
     installed = os.path.join(os.path.dirname(sys.executable), "rerun")
     port = _free_port()
-    viewer = subprocess.Popen(viewer_command(installed, "127.0.0.1", port), stdin=subprocess.DEVNULL,
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
-                              env={**os.environ, "RERUN_APP_ONLY": "true"})
-    try:
-        said = ""
-        while "Listening for gRPC connections on" not in said:
-            line = viewer.stdout.readline()
-            assert line, f"the viewer stopped before it listened: {said[-2000:]}"
-            said += line
-    finally:
-        viewer.kill()
-        viewer.wait()
-        viewer.stdout.close()
-    listening = said.splitlines()[-1]
-    assert f"Listening for gRPC connections on 127.0.0.1:{port}." in listening and "0.0.0.0" not in listening
+    listening = _where_it_listens(viewer_command(installed, "127.0.0.1", port) + ["--serve-grpc"])
+    assert listening is not None and f"Listening for gRPC connections on 127.0.0.1:{port}." in listening
+    assert "0.0.0.0" not in listening
+    unbound = [part for part in viewer_command(installed, "127.0.0.1", port) if not part.startswith("--bind")]
+    assert f"on 0.0.0.0:{port}." in _where_it_listens(unbound + ["--serve-grpc"])
+    viewer_said = _where_it_listens(viewer_command(installed, "127.0.0.1", port))  # the window's race
+    assert viewer_said is None or f"on 127.0.0.1:{port}." in viewer_said
 
     port = _free_port()
     _viewer_beside(tmp_path, monkeypatch, f"#!{sys.executable}\n"
