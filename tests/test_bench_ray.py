@@ -58,6 +58,15 @@ def test_no_ray_is_said_before_any_work(tmp_path, monkeypatch):
     assert not any(tmp_path.iterdir())  # nothing trained, fitted or calibrated first
 
 
+def test_an_unknown_executor_is_said_before_any_work(tmp_path):
+    """`BenchConfig` of the Python API takes any string as its executor: "dask" was refused only at
+    the cells, after the trial's training, fitting and calibration."""
+    config = BenchConfig(task="cartpole", methods=("dropout",), trials=1, executor="dask", out=str(tmp_path))
+    with pytest.raises(ConfigError, match=r"executor='dask' is not allowed; use 'local' or 'ray'"):
+        run_bench(config)
+    assert not any(tmp_path.iterdir())
+
+
 def test_a_refused_connection_says_how_to_give_the_clusters_token(monkeypatch):
     ray = pytest.importorskip("ray")
 

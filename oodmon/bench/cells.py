@@ -24,6 +24,7 @@ from oodmon.progress import Progress
 from oodmon.errors import ConfigError, OodmonError
 
 _NO_RAY = "--executor ray needs Ray: pip install 'oodmon[ray]'"
+EXECUTORS = ("local", "ray")
 
 
 def episode_onset(onsets: tuple[int, int], seed: int) -> int:
@@ -77,8 +78,7 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
             for future in as_completed([pool.submit(_run_cell, *job) for job in jobs]):
                 yield future.result()
         return
-    if config.executor != "ray":
-        raise ConfigError(f"executor={config.executor!r} is not allowed; use 'local' or 'ray'")
+    _check_executor(config)
     yield from on_ray(_run_cell, jobs, config, workers)
 
 
@@ -192,19 +192,27 @@ def _said_by_a_worker(error: Exception, config: BenchConfig, shipped: list[str])
     return cause
 
 
+def _check_executor(config: BenchConfig) -> None:
+    if config.executor not in EXECUTORS:
+        raise ConfigError(f"executor={config.executor!r} is not allowed; use " + " or ".join(map(repr, EXECUTORS)))
+
+
 def check_ray_address(config: BenchConfig, timeout: float = 3.0) -> None:
-    """Before any work, for ``executor="ray"``: that Ray is installed, and that a cluster's
+    """Before any work: that the executor is one there is (a `BenchConfig` of the Python API takes
+    any string; it was refused only at the cells, after the trainings and preparations), and for
+    ``executor="ray"``: that Ray is installed, and that a cluster's
     ``HOST:PORT`` (or ``ray://HOST:PORT``) at ``config.address`` answers at all. Ray's own
     connection retries for as long as the command runs where nothing listens there (measured with
     Ray 2.60: still retrying after 5 minutes, saying only that the GCS was not found); other
     addresses (``auto``) are left to Ray.
 
     Raises:
-        ConfigError: no Ray, or nothing accepts a connection at that address within ``timeout`` seconds.
+        ConfigError: an unknown executor, no Ray, or nothing accepts a connection at that address within ``timeout`` seconds.
     """
     import importlib.util
     import socket
 
+    _check_executor(config)
     if config.executor != "ray":
         return
     if importlib.util.find_spec("ray") is None:
