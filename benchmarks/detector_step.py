@@ -121,7 +121,8 @@ def main() -> None:
         alone = alone_ratios(agent, detectors, log)
     print("in the loop, median us: " + ", ".join(f"{name} {value:.1f}" for name, value in parts.items()))
     print("alone " + ", ".join(f"{name}: {value:.2f}" for name, value in alone.items()))
-    print(f"spread only                             {np.median(spread) * 1e6:8.1f} us/step (median; best {spread.min() * 1e6:.1f})")
+    print(f"spread only                             {np.median(spread) * 1e6:8.1f} us/step "
+          f"(median; best {spread.min() * 1e6:.1f})")
     print(f"{', '.join(detectors.names):40s}{np.median(every) * 1e6:8.1f} us/step (median; best {every.min() * 1e6:.1f})")
     print(f"best of each: {every.min() / spread.min():.2f}")
     print(f"ratio={np.median(every / spread):.2f}")

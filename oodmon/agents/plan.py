@@ -42,7 +42,8 @@ class _Flatten(Op):
 class _Affine(Op):
     def __init__(self, linear: nn.Linear) -> None:
         self.weight_t = linear.weight.detach().numpy().T.astype(np.float32).copy()
-        self.bias = (linear.bias.detach().numpy() if linear.bias is not None else np.zeros(linear.out_features)).astype(np.float32)
+        bias = linear.bias.detach().numpy() if linear.bias is not None else np.zeros(linear.out_features)
+        self.bias = bias.astype(np.float32)
 
     def __call__(self, x, rng):
         if x.ndim == 3:  # (K, batch, in): one product for all rows, not numpy's loop of K small ones

@@ -158,7 +158,8 @@ class BootstrappedDQN(DQN):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
             discounts = data.discounts if data.discounts is not None else self.gamma
             with torch.no_grad():
-                next_q = target_net.q_net.all_heads(target_net.extract_features(data.next_observations, target_net.features_extractor))
+                features = target_net.extract_features(data.next_observations, target_net.features_extractor)
+                next_q = target_net.q_net.all_heads(features)
                 targets = data.rewards.T + (1 - data.dones.T) * discounts * next_q.max(dim=2).values  # (K, B)
             current = q_net.q_net.all_heads(q_net.extract_features(data.observations, q_net.features_extractor))
             index = data.actions.long().T.unsqueeze(-1).expand(current.shape[0], -1, 1)

@@ -14,8 +14,8 @@ from typing import Any
 from oodmon.errors import UnknownParameterError
 from oodmon.names import METHODS
 
-__all__ = ["METHODS", "RECIPES", "Recipe", "parse_widths", "recipe_architecture", "recipe_differences", "recipe_for", "recipe_metadata",
-           "recipe_record"]
+__all__ = ["METHODS", "RECIPES", "Recipe", "parse_widths", "recipe_architecture", "recipe_differences", "recipe_for",
+           "recipe_metadata", "recipe_record"]
 
 
 

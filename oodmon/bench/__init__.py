@@ -47,6 +47,7 @@ from oodmon.bench.report import (alarms_per_variant, best_per_method, paper_only
                                  print_paper_report, unfailed_variants)
 from oodmon.bench.run import run_bench
 
-__all__ = ["BASELINE_TOLERANCE", "ONSETS", "PAPER_METHOD", "PROTOCOLS", "BenchConfig", "BenchResult", "PlainPolicy", "Row", "Sb3Models", "alarms_per_variant",
-           "bench_falls", "bench_metrics", "best_per_method", "check_same_settings", "episode_onset", "load_bench_result", "paper_label", "paper_only_variants", "print_monitor_report",
+__all__ = ["BASELINE_TOLERANCE", "ONSETS", "PAPER_METHOD", "PROTOCOLS", "BenchConfig", "BenchResult", "PlainPolicy", "Row",
+           "Sb3Models", "alarms_per_variant", "bench_falls", "bench_metrics", "best_per_method", "check_same_settings",
+           "episode_onset", "load_bench_result", "paper_label", "paper_only_variants", "print_monitor_report",
            "print_paper_report", "run_bench", "unfailed_variants"]

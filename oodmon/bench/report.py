@@ -161,7 +161,8 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
         paper = f"{np.mean(row.paper):.3f} ± {np.std(row.paper):.3f}" if row.paper else ""
         difference = f"{row.mean - np.mean(row.paper):+.3f}" if row.paper else ""
         count = counts[(row.method, row.variant)]
-        table.add_row(row.method, *((row.detector,) if several else ()), _without_task(row.variant, config.task), str(len(row.aurocs)),
+        table.add_row(row.method, *((row.detector,) if several else ()), _without_task(row.variant, config.task),
+                      str(len(row.aurocs)),
                       *(("" if count is None else f"{count[0]} of {count[1]}",) if counted else ()),
                       f"{row.mean:.3f} ± {row.std:.3f}", paper, difference)
     console.print(table)

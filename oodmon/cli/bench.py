@@ -10,8 +10,8 @@ import sys
 from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent
 from oodmon.cli.parsing import (
-    _FAILURES, _FIT_EPISODES, _FIT_STEPS, _KEPT, _UNSET, _add_confidence, _add_rule, _command_line, _fraction, _non_negative, _sb3_arguments,
-    _policy_argument, _whole, _widths,
+    _FAILURES, _FIT_EPISODES, _FIT_STEPS, _KEPT, _UNSET, _add_confidence, _add_rule, _command_line, _fraction, _non_negative,
+    _sb3_arguments, _policy_argument, _whole, _widths,
 )
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import write_json

@@ -44,7 +44,8 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
     calibrate.add_argument("--mode", choices=["episode", "step"], default="episode",
                            help="guarantee per episode (default) or per step")
     calibrate.add_argument("--score", default="chosen_std",
-                           help="the spread's score: chosen_std (default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
+                           help="the spread's score: chosen_std (default), mean_std, max_std, margin_std (DQN) or "
+                                "pre_squash_std (DDPG)")
     calibrate.add_argument("--detector", choices=list(DETECTOR_NAMES),
                            help="the detector the alarm reads (default: the task's best measured one when the agent has "
                                 "fitted detectors: cartpole combined, pendulum dynamics, pong combined (of frames and "

@@ -154,7 +154,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     else:
         conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
         check_warmup(warmup)
-        if fit_episodes is not None and not is_whole(fit_episodes, 3):  # (fit_agent_detectors would say "episodes=", after loading the models)
+        # (fit_agent_detectors would say "episodes=", after loading the models)
+        if fit_episodes is not None and not is_whole(fit_episodes, 3):
             raise InvalidParameterError(f"fit_episodes={fit_episodes!r} is not allowed; fitting the detectors needs a "
                                         "whole number >= 3 of ID episodes (two thirds fit, one third ranks)")
         if save is not None:  # an unwritable path, or one that holds a model or a log: said now, not after the calibration

@@ -27,7 +27,8 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
            "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
-           "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures", "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "pooled_fits", "pooled_thresholds", "pooled_weights",
+           "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures",
+           "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "pooled_fits", "pooled_thresholds", "pooled_weights",
            "rankable", "shifted_alarms"]
 
 

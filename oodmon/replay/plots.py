@@ -208,7 +208,8 @@ def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folde
     for variant in shifted:
         written.append(plot_roc(logs, variant, folder / f"roc_{safe_filename(variant)}.png"))
         for method in sorted({log.method for log in logs}):
-            written.append(plot_trace(logs, method, variant, folder / f"trace_{safe_filename(method)}_{safe_filename(variant)}.png"))
+            name = f"trace_{safe_filename(method)}_{safe_filename(variant)}.png"
+            written.append(plot_trace(logs, method, variant, folder / name))
     for task in sorted({m.task for m in metrics}):
         written.append(plot_auroc_vs_shift(metrics, task, folder / f"auroc_vs_shift_{safe_filename(task)}.png"))
     return [p for p in written if p is not None]

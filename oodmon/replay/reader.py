@@ -164,7 +164,8 @@ class _Collector:
         try:
             row = json.loads(data)
         except (json.JSONDecodeError, UnicodeDecodeError):
-            raise LogFormatError(f"{self.path}: a {topic} message is not JSON; not a log oodmon wrote (or a damaged one)") from None
+            raise LogFormatError(f"{self.path}: a {topic} message is not JSON; not a log oodmon wrote (or a damaged "
+                                 "one)") from None
         if not isinstance(row, dict) or not isinstance(row.get("episode"), int):
             raise LogFormatError(f"{self.path}: a {topic} message has no episode number; not a log oodmon wrote")
         if topic == _EPISODE:

@@ -40,8 +40,8 @@ from oodmon.progress import Progress
 from oodmon.seeds import DETECTOR_FIT
 from oodmon.validation import is_whole
 
-__all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector", "collect", "default_detectors",
-           "default_fit_steps", "detectors_for", "discrete_states", "fit_agent_detectors",
+__all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector", "collect",
+           "default_detectors", "default_fit_steps", "detectors_for", "discrete_states", "fit_agent_detectors",
            "fitting_notes", "fit_detectors", "policy_parts", "trajectory_scores"]
 
 #: ID episodes the learned detectors are fitted on by default: two thirds fit, one third ranks.

@@ -103,7 +103,8 @@ class DetectorSet:
         if "combined" not in self or "spread" not in self["combined"].members:
             return changed, None
         why = (f"the fitted combined detector ranks the spread by {fitted!r}, not by {score!r}; refit the detectors with "
-               f"that score (`oodmon fit-detectors --score {score}`, fit_detectors(..., score={score!r})) or use score {fitted!r}")
+               f"that score (`oodmon fit-detectors --score {score}`, fit_detectors(..., score={score!r})) or use score "
+               f"{fitted!r}")
         return changed.subset([name for name in changed.names if name != "combined"]), why
 
     def for_masks(self, masks: str | None) -> tuple[DetectorSet, str | None]:
