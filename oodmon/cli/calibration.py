@@ -56,6 +56,7 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
                                 f"{_FIT_EPISODES}; your own --env: more, until they hold {_FIT_STEPS:,} steps)")
     calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
                            help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
+    _add_workers(calibrate, "calibration")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
 
@@ -97,7 +98,7 @@ def _calibrate(args: argparse.Namespace) -> int:
                                     window=args.window, score=args.score, seed=args.seed, detectors=detectors,
                                     detector=args.detector, confidence=args.confidence, rule=args.rule,
                                     reference_episodes=args.reference_episodes, reference_by_age=args.reference_by_age,
-                                    warmup=args.warmup, on_progress=report)
+                                    warmup=args.warmup, on_progress=report, workers=args.workers)
     # Written together once the calibration ends, each file beside its place first: an interrupted
     # calibration or a full disk leaves the earlier threshold with the detectors it was calibrated with.
     save_calibration(threshold, args.out, detectors if fitted_to else None)
@@ -142,6 +143,13 @@ def _clear_earlier_detectors(out: str, given: str | None) -> Path | None:
     return folder
 
 
+def _add_workers(parser: argparse.ArgumentParser, stage: str) -> None:
+    parser.add_argument("--workers", type=_whole(0), default=1,
+                        help=f"processes that play the {stage} episodes side by side (default 1; 0: one per core). "
+                             "An MC agent's episodes then draw from streams of their own: the same result for any "
+                             "number from 2, not one process's")
+
+
 def _add_validate(commands: argparse._SubParsersAction) -> None:
     """`oodmon validate`."""
     validate = commands.add_parser(
@@ -156,6 +164,7 @@ def _add_validate(commands: argparse._SubParsersAction) -> None:
     validate.add_argument("--obs-noise", type=_non_negative, default=0.0,
                           help="sensor noise, a fraction of each dimension's ID spread (default 0)")
     validate.add_argument("--force", action="store_true", help="validate even if the threshold was made for other weights")
+    _add_workers(validate, "validation")
     validate.add_argument("--json", action="store_true", help="print JSON instead of a sentence")
     validate.set_defaults(handler=_validate)
 
@@ -185,14 +194,16 @@ def _validate(args: argparse.Namespace) -> int:
     detectors = _detectors(args, agent)
     with _progress() as report:
         result = validate_threshold(agent, threshold, args.episodes, seed=args.seed, detectors=detectors,
-                                    obs_noise=args.obs_noise, force=args.force, on_progress=report)
+                                    obs_noise=args.obs_noise, force=args.force, on_progress=report,
+                                    workers=args.workers)
     unit = "episodes" if threshold.mode == "episode" else "steps"
     if args.json:
         print(json.dumps({"threshold": str(args.threshold), "task": agent.task, "method": agent.method,
                           "detector": threshold.detector, "rule": threshold.rule_text, "unit": unit,
                           "alarmed": result.alarmed, "total": result.total, "rate": result.rate,
                           "interval95": [result.low, result.high], "far": result.far,
-                          "confidence": result.confidence, "seed": args.seed, "verdict": result.verdict}, indent=1))
+                          "confidence": result.confidence, "seed": args.seed, "workers": args.workers,
+                          "verdict": result.verdict}, indent=1))
     else:
         verdict = {"above": "ABOVE the target: this threshold alarms too often" + _above_hint(threshold, unit),
                    "below": "below the target",

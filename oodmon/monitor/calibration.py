@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import shutil
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,8 +22,8 @@ from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
-from oodmon.monitor.records import EpisodeRecord
-from oodmon.monitor.sinks.base import MemorySink, Sink
+from oodmon.monitor.side_by_side import episode_streams, play_side_by_side, resolve_workers
+from oodmon.monitor.sinks.base import MemorySink
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.progress import Progress
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson
@@ -39,33 +38,49 @@ DEFAULT_REFERENCE_EPISODES = 20
 
 
 def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
-                      on_progress: Progress | None, sinks: Sequence[Sink] = (), stage: str = "ID episodes",
-                      **settings: Any) -> list[np.ndarray]:
+                      on_progress: Progress | None, stage: str = "ID episodes", workers: int = 1,
+                      **settings: Any) -> tuple[list[np.ndarray], list[bool]]:
     """Run ``episodes`` ID episodes of ``agent`` under a :class:`Monitor` made with ``settings``
-    and ``sinks`` (seeds ``seed`` on, sensor noise ``obs_noise``); the alarm detector's per-step
-    scores of each. ``on_progress(stage, done, episodes)`` after each."""
-    sink = MemorySink()
-    env = agent.make_env(obs_noise)
-    with Monitor(agent, sinks=[sink, *sinks], log_observations=False, **settings) as monitor:
-        for episode in range(episodes):
-            monitor.run_episode(env, seed=seed + episode, variant=agent.task,
-                                on_progress=lambda _, steps, __: warn_if_endless(env, steps))
-            if on_progress is not None:
-                on_progress(stage, episode + 1, episodes)
-    env.close()
-    scores: list[list[float]] = [[] for _ in range(episodes)]
-    for record in sink.steps:
-        scores[record.episode].append(record.score)
-    return [np.asarray(s) for s in scores]
+    (seeds ``seed`` on, sensor noise ``obs_noise``); the alarm detector's per-step scores of each,
+    and whether each raised an alarm. ``on_progress(stage, done, episodes)`` after each.
+
+    ``workers``: processes that play them side by side (0: one per core; see ``side_by_side`` for
+    what an MC agent draws there)."""
+    workers = resolve_workers(workers, episodes)
+    streams = None
+    state = getattr(agent.estimator, "sampling_state", None) if workers > 1 else None
+    if state is not None:  # an estimator that draws: its stream moves on by the one draw that seeds the episodes'
+        agent.estimator.sampling_state, streams = episode_streams(state)
+
+    def play(first: int, count: int, done) -> list[tuple[np.ndarray, bool]]:
+        sink = MemorySink()
+        env = agent.make_env(obs_noise)
+        with Monitor(agent, sinks=[sink], log_observations=False, **settings) as monitor:
+            for episode in range(first, first + count):
+                if streams is not None:
+                    agent.estimator.sampling_state = streams(seed + episode)
+                monitor.run_episode(env, seed=seed + episode, variant=agent.task,
+                                    on_progress=lambda _, steps, __: warn_if_endless(env, steps))
+                done()
+        env.close()
+        scores: list[list[float]] = [[] for _ in range(count)]
+        for record in sink.steps:
+            scores[record.episode].append(record.score)
+        return [(np.asarray(s), ended.alarms > 0) for s, ended in zip(scores, sink.episodes)]
+
+    played = play_side_by_side(play, episodes, workers, stage, on_progress)
+    return [scores for scores, _ in played], [alarmed for _, alarmed in played]
 
 
 def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SEED, score: str = DEFAULT_SCORE,
                       on_progress: Progress | None = None, detectors: DetectorSet | None = None,
-                      detector: str = "spread", obs_noise: float = 0.0, stage: str = "ID episodes") -> list[np.ndarray]:
+                      detector: str = "spread", obs_noise: float = 0.0, stage: str = "ID episodes",
+                      workers: int = 1) -> list[np.ndarray]:
     """Per-step scores of ``detector`` in ``episodes`` ID episodes of ``agent``, seeded ``seed``,
-    ``seed + 1``, ... (with sensor noise ``obs_noise``, see the envs)."""
+    ``seed + 1``, ... (with sensor noise ``obs_noise``, see the envs), played in ``workers``
+    processes (see ``side_by_side``)."""
     return _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, score=score, detectors=detectors,
-                             detector=detector, stage=stage)
+                             detector=detector, stage=stage, workers=workers)[0]
 
 
 def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int | None = None,
@@ -74,7 +89,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                     detectors: DetectorSet | None = None, detector: str | None = None,
                     obs_noise: float = 0.0, confidence: float | None = DEFAULT_CONFIDENCE, rule: str = "consecutive",
                     reference_episodes: int = DEFAULT_REFERENCE_EPISODES, reference_by_age: bool = False,
-                    warmup: int = 0) -> Threshold:
+                    warmup: int = 0, workers: int = 1) -> Threshold:
     """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``).
 
     ``detector`` names the detector whose score the alarm will read; a learned one comes from
@@ -97,6 +112,11 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     ``warmup``: the rule looks at no finite score of an episode's first ``warmup`` steps (see
     ``alarms``); the threshold is calibrated for that rule.
 
+    ``workers``: processes that play the episodes side by side (0: one per core). An agent that
+    draws nothing when it decides gets the same threshold from any number; an MC agent's episodes
+    draw from streams of their own there, the same for any ``workers`` >= 2 and not those of one
+    process (:mod:`oodmon.monitor.side_by_side`).
+
     Raises:
         InvalidParameterError, ConfigError: a bad argument, or too few episodes for ``far``; all
             checked before the first episode runs.
@@ -105,6 +125,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     # placeholder scores raises what the real one would.
     if not is_whole(episodes):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
+    resolve_workers(workers, episodes)
     score_function(score)
     if detector is None:
         detector = best_detector(agent.task, detectors, score)
@@ -134,9 +155,9 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     if rule != "consecutive":
         reference = Reference.from_episodes(id_episode_scores(
             agent, reference_episodes, seed=seeds.REFERENCE, score=score, detectors=needed, detector=detector,
-            obs_noise=obs_noise), by_age=reference_by_age)
+            obs_noise=obs_noise, workers=workers), by_age=reference_by_age)
     scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_progress=on_progress, detectors=needed,
-                               detector=detector, obs_noise=obs_noise, stage="calibration episodes")
+                               detector=detector, obs_noise=obs_noise, stage="calibration episodes", workers=workers)
     return calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
                      method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
                      confidence=confidence, rule=rule, reference=reference,
@@ -201,10 +222,11 @@ class Validation:
 
 def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, *, seed: int = seeds.VALIDATION,
                        detectors: DetectorSet | None = None, obs_noise: float = 0.0, force: bool = False,
-                       on_progress: Progress | None = None) -> Validation:
+                       on_progress: Progress | None = None, workers: int = 1) -> Validation:
     """Play ``episodes`` fresh ID episodes (seeds ``seed`` on, apart from calibration's) under a
     :class:`Monitor` with ``threshold`` and count those that raised an alarm (in step mode: the
-    steps above it): the realised false-alarm rate beside the target.
+    steps above it): the realised false-alarm rate beside the target. ``workers``: processes that
+    play them side by side (0: one per core; see :func:`calibrate_agent`).
 
     Raises:
         InvalidParameterError: ``episodes`` is not a whole number >= 1.
@@ -213,12 +235,11 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
     """
     if not is_whole(episodes):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
+    resolve_workers(workers, episodes)
     wanted = threshold.detector
     needed = detectors.subset([wanted]) if detectors is not None and wanted != "spread" and wanted in detectors else None
-    episode_alarms: list[bool] = []
-    scores = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, sinks=[_EpisodeAlarms(episode_alarms)],
-                               stage="validation episodes",
-                               threshold=threshold, detectors=needed, force=force)
+    scores, episode_alarms = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, stage="validation episodes",
+                                               workers=workers, threshold=threshold, detectors=needed, force=force)
     if threshold.mode == "episode":
         alarmed, total = sum(episode_alarms), len(episode_alarms)
     else:
@@ -226,18 +247,3 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
         alarmed, total = int(np.sum(steps > threshold.value)), len(steps)
     low, high = clopper_pearson(int(alarmed), total)
     return Validation(int(alarmed), total, threshold.far, threshold.confidence, low, high)
-
-
-class _EpisodeAlarms:
-    """A sink that keeps, per finished episode, whether the monitor raised an alarm in it."""
-
-    def __init__(self, out: list[bool]) -> None:
-        self.out = out
-
-    def open(self, run: object) -> None: ...
-    def write_step(self, record: object) -> None: ...
-    def write_alarm(self, event: object) -> None: ...
-    def close(self) -> None: ...
-
-    def end_episode(self, record: EpisodeRecord) -> None:
-        self.out.append(record.alarms > 0)

@@ -1,0 +1,188 @@
+"""ID episodes played side by side: runs of consecutive episodes in worker processes.
+
+Calibration and validation play tens to hundreds of ID episodes one after the other, each a chain
+of batch-of-one decisions on one core (a Pong game: about a second; ``oodmon validate --episodes
+300`` of Pong: 9.5 minutes). Their episodes do not depend on one another, so ``workers`` processes
+play a run of them each, forked from this one: they have the agent, its detectors and the user's
+own policy as they are here, with nothing pickled or loaded again.
+
+What an episode draws:
+
+- An agent that draws nothing when it decides (an ensemble, an SB3 model's or a plain policy's
+  decision, fixed masks that decide) plays each episode as in one process: the same scores, the
+  same threshold, whatever ``workers``.
+- An MC agent (Dropout, DropConnect) draws its samples from one stream, which one process runs on
+  from episode to episode: episode 7's draws depend on how many steps episodes 0-6 took, which a
+  process playing episode 7 first cannot know. Side by side, each episode draws from a stream of
+  its own instead, seeded by one number drawn from the agent's stream and the episode's seed
+  (:func:`episode_streams`): the scores are the same for any ``workers`` >= 2, and another (as
+  valid) sample of ID episodes than one process plays.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+import sys
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from typing import Any
+
+import numpy as np
+
+from oodmon.errors import InvalidParameterError
+from oodmon.progress import Progress
+from oodmon.validation import is_whole
+
+__all__ = ["episode_streams", "play_side_by_side", "resolve_workers", "runs_of"]
+
+#: ``play(first, count, done)``: play episodes ``first .. first + count - 1`` (indices from 0),
+#: calling ``done()`` after each; return their results in a list, one per episode.
+Play = Callable[[int, int, Callable[[], None]], list]
+
+
+def resolve_workers(workers: int, episodes: int) -> int:
+    """How many processes play ``episodes`` episodes: ``workers`` (0: one per core), at most one per
+    episode; 1 where this platform cannot fork (the workers need this process's memory).
+
+    Example:
+        >>> resolve_workers(4, 3), resolve_workers(1, 50)
+        (3, 1)
+
+    Raises:
+        InvalidParameterError: ``workers`` is not a whole number >= 0.
+    """
+    if not is_whole(workers, 0):
+        raise InvalidParameterError(f"workers={workers!r} is not allowed; give a whole number >= 1 of processes "
+                                    "(0: one per core)")
+    if "fork" not in multiprocessing.get_all_start_methods():
+        return 1
+    return max(1, min(workers or os.cpu_count() or 1, episodes))
+
+
+def runs_of(episodes: int, workers: int) -> list[tuple[int, int]]:
+    """``episodes`` split into ``workers`` runs of consecutive episodes, as ``(first, count)``, the
+    longer runs first.
+
+    Example:
+        >>> runs_of(7, 3)
+        [(0, 3), (3, 2), (5, 2)]
+    """
+    size, extra = divmod(episodes, workers)
+    runs, first = [], 0
+    for worker in range(workers):
+        count = size + (worker < extra)
+        runs.append((first, count))
+        first += count
+    return [run for run in runs if run[1]]
+
+
+def episode_streams(sampling_state: dict | None) -> tuple[dict | None, Callable[[int], dict] | None]:
+    """An estimator's sampling state one draw on (``None`` where it has none), and the state of the
+    stream an episode with seed ``s`` draws from side by side: seeded by that draw and ``s``, so
+    that it does not depend on which process plays the episode, nor on the episodes before it.
+
+    Example:
+        >>> after, stream = episode_streams(np.random.default_rng(0).bit_generator.state)
+        >>> stream(5) == stream(5), stream(5) == stream(6)
+        (True, False)
+    """
+    if sampling_state is None:
+        return None, None
+    rng = np.random.default_rng()
+    rng.bit_generator.state = sampling_state
+    base = int(rng.integers(2**63))
+    return rng.bit_generator.state, lambda seed: np.random.default_rng([base, seed]).bit_generator.state
+
+
+_installed: tuple[Play, Any, Any] | None = None  # a worker's play, message queue and stop (forked, not pickled)
+
+
+def _install(play: Play, queue: Any, stop: Any, parent: int) -> None:
+    from oodmon.threads import limit_threads
+
+    global _installed
+    _die_with(parent)
+    limit_threads()  # one thread each (OODMON_TORCH_THREADS): the processes share the cores
+    _installed = (play, queue, stop)
+    queue.put(("started", os.getpid()))
+
+
+def _die_with(parent: int) -> None:
+    """Linux: this worker is killed when the process that forked it dies, even by SIGKILL, which
+    leaves it no time to stop its workers (they would play on for minutes, orphaned)."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    if os.getppid() != parent:  # it died before that took hold
+        os._exit(1)
+
+
+def _play_run(first: int, count: int) -> list:
+    play, queue, stop = _installed
+    if stop.is_set():  # a worker that started after the others were stopped
+        return []
+    return play(first, count, lambda: queue.put(("episode", os.getpid())))
+
+
+def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
+                      on_progress: Progress | None = None) -> list:
+    """``play`` over ``episodes`` episodes in ``workers`` processes forked from this one (a run of
+    consecutive episodes each, :func:`runs_of`); every episode's result in the episodes' order.
+    ``on_progress(stage, done, episodes)`` here as each episode ends in any process. With one
+    worker, ``play(0, episodes, ...)`` runs here.
+
+    A worker's exception is raised here and the other workers are stopped at once; so is an
+    interrupt here (Ctrl-C reaches every process of the command's group), and a worker's death
+    (``BrokenProcessPool``: killed, out of memory, a crash in an env's C code)."""
+    workers = resolve_workers(workers, episodes)
+    done = 0
+
+    def one_more() -> None:
+        nonlocal done
+        done += 1
+        if on_progress is not None:
+            on_progress(stage, done, episodes)
+
+    if workers == 1:
+        return play(0, episodes, one_more)
+    context = multiprocessing.get_context("fork")
+    queue, stop = context.SimpleQueue(), context.Event()
+    started: set[int] = set()
+
+    def read_queue() -> None:
+        while not queue.empty():
+            what, pid = queue.get()
+            if what == "started":
+                started.add(pid)
+            else:
+                one_more()
+
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_install,
+                             initargs=(play, queue, stop, os.getpid())) as pool:
+        try:
+            runs = [pool.submit(_play_run, *run) for run in runs_of(episodes, workers)]
+            pending = set(runs)
+            while pending:
+                ended, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                read_queue()
+                for run in ended:
+                    run.result()  # raises the worker's exception
+            return [result for run in runs for result in run.result()]
+        except BaseException:
+            stop.set()
+            read_queue()
+            _stop(started)  # not left to play their runs out before the pool's shutdown returns
+            raise
+
+
+def _stop(workers: set[int]) -> None:
+    import signal
+
+    for pid in workers:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)

@@ -1,0 +1,180 @@
+"""ID episodes played side by side (``workers``): calibration and validation in forked processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import numpy as np
+import pytest
+
+from oodmon.agents import load
+from oodmon.cli import main
+from oodmon.errors import InvalidParameterError
+from oodmon.monitor import Threshold, calibrate_agent, id_episode_scores, validate_threshold
+from oodmon.monitor.side_by_side import play_side_by_side, resolve_workers, runs_of
+
+
+def test_runs_cover_every_episode_once_in_order():
+    for episodes in range(1, 12):
+        for workers in range(1, 6):
+            runs = runs_of(episodes, resolve_workers(workers, episodes))
+            assert [e for first, count in runs for e in range(first, first + count)] == list(range(episodes))
+            assert max(c for _, c in runs) - min(c for _, c in runs) <= 1
+    assert resolve_workers(0, 50) == min(os.cpu_count(), 50) and resolve_workers(8, 3) == 3
+    for bad in (-1, 1.5, "2", True):
+        with pytest.raises(InvalidParameterError, match=r"workers=.* is not allowed; give a whole number >= 1"):
+            resolve_workers(bad, 10)
+
+
+def test_the_workers_are_other_processes_forked_with_what_is_here_and_report_every_episode(tmp_path):
+    """A closure over a lambda (which pickle refuses) reaches the workers: they are forked, so the
+    user's own policy and fitted detectors need not be picklable or loaded again. Each run waits
+    for the other to begin (else one quick worker may take both)."""
+    policy = lambda episode: episode * 10  # noqa: E731
+    reports = []
+
+    def play(first, count, done):
+        (tmp_path / str(first)).touch()
+        while len(list(tmp_path.iterdir())) < 2:
+            time.sleep(0.01)
+        played = []
+        for episode in range(first, first + count):
+            played.append((policy(episode), os.getpid()))
+            done()
+        return played
+
+    played = play_side_by_side(play, 7, 2, "ID episodes", lambda *report: reports.append(report))
+    assert [value for value, _ in played] == [0, 10, 20, 30, 40, 50, 60]  # in the episodes' order
+    pids = [pid for _, pid in played]
+    assert len(set(pids[:4])) == 1 and len(set(pids[4:])) == 1 and len(set(pids)) == 2 and os.getpid() not in pids
+    assert sorted(done for _, done, _ in reports) == list(range(1, 8))
+    assert {(stage, total) for stage, _, total in reports} == {("ID episodes", 7)}
+    assert play_side_by_side(play, 3, 1, "x")[0][1] == os.getpid()  # one worker: here (the two files are there)
+
+
+def _one_slow_one_failing(folder, fail):
+    """A play whose first run sleeps two minutes (its pid in ``folder/slow``) while the second, once
+    the first has begun, calls ``fail(first)``."""
+    def play(first, count, done):
+        if first == 0:
+            (folder / "slow").write_text(str(os.getpid()))
+            time.sleep(120)
+        while not (folder / "slow").exists():
+            time.sleep(0.01)
+        fail(first)
+
+    return play
+
+
+def _wait_until_dead(pid: int) -> bool:
+    for _ in range(200):  # a signal is at once; this waits for it, not for a duration
+        if not _alive(pid):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_a_workers_error_is_raised_here_and_the_other_worker_is_stopped(tmp_path):
+    def fail(first):
+        raise InvalidParameterError(f"episode {first}: no such thing")
+
+    with pytest.raises(InvalidParameterError, match="episode 2: no such thing"):
+        play_side_by_side(_one_slow_one_failing(tmp_path, fail), 4, 2, "ID episodes")
+    assert not _alive(int((tmp_path / "slow").read_text()))  # stopped, not left to sleep out its two minutes
+
+
+def test_a_worker_that_dies_is_said_here_and_the_other_worker_is_stopped(tmp_path):
+    """A worker killed (out of memory, a crash in an env's C code) ends the call with
+    BrokenProcessPool, as an exception does; nothing waits for it for ever."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    with pytest.raises(BrokenProcessPool):
+        play_side_by_side(_one_slow_one_failing(tmp_path, lambda _: os.kill(os.getpid(), 9)), 4, 2, "ID episodes")
+    assert _wait_until_dead(int((tmp_path / "slow").read_text()))  # the pool stops the others as it breaks
+
+
+def test_an_ensembles_threshold_is_the_same_from_any_number_of_workers():
+    """An agent that draws nothing when it decides plays each episode alike wherever it runs: the
+    same per-step scores, the same threshold, the same validation."""
+    agent = load("cartpole", "ensemble")
+    one = calibrate_agent(agent, 21, 0.2, detector="spread")
+    two = calibrate_agent(agent, 21, 0.2, detector="spread", workers=2)
+    three = calibrate_agent(agent, 21, 0.2, detector="spread", workers=3)
+    assert one.value == two.value == three.value and one.n_steps == two.n_steps == three.n_steps
+    alone = validate_threshold(agent, one, 30, seed=700_300)
+    side_by_side = validate_threshold(agent, one, 30, seed=700_300, workers=2)
+    assert (alone.alarmed, alone.total) == (side_by_side.alarmed, side_by_side.total)
+
+
+def test_an_mc_agents_episodes_draw_from_their_own_streams_the_same_for_any_workers_from_two():
+    """Side by side, each episode of an MC agent draws from a stream seeded by the agent's stream
+    and the episode's seed: 2 and 3 workers give the same scores, which are not one process's (its
+    draws run on from episode to episode), and the agent's stream has moved on (a later call draws
+    afresh, as after one process's)."""
+    def scores(workers, agent=None):
+        agent = agent or load("cartpole", "dropout", seed=5)
+        return id_episode_scores(agent, 7, seed=700_400, workers=workers), agent
+
+    (two, agent), (three, _), (one, _) = scores(2), scores(3), scores(1)
+    assert all(np.array_equal(a, b) for a, b in zip(two, three))
+    assert not all(np.array_equal(a, b) for a, b in zip(one, two))
+    again, _ = scores(2, agent)
+    assert not all(np.array_equal(a, b) for a, b in zip(two, again))
+
+
+def test_calibrate_and_validate_take_workers(tmp_path, capsys):
+    path = tmp_path / "t.json"
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--far", "0.2",
+                 "--episodes", "11", "--workers", "2", "--out", str(path)]) == 0
+    alone = calibrate_agent(load("cartpole", "ensemble"), 11, 0.2, detector="spread")
+    assert Threshold.load(path).value == alone.value
+    capsys.readouterr()
+    assert main(["validate", str(path), "--episodes", "12", "--seed", "700100", "--workers", "2", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["workers"] == 2 and report["total"] == 12
+    assert report["alarmed"] == validate_threshold(load("cartpole", "ensemble"), alone, 12, seed=700_100).alarmed
+
+
+KILLED = """
+import os, sys, time
+from oodmon.monitor.side_by_side import play_side_by_side
+
+def play(first, count, done):
+    open(os.path.join(sys.argv[1], str(os.getpid())), "w").close()
+    time.sleep(120)
+
+play_side_by_side(play, 4, 2, "ID episodes")
+"""
+
+
+def _alive(pid: int) -> bool:
+    """A process that runs (a zombie, killed and not yet reaped, does not)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/stat"), reason="reads /proc (Linux)")
+def test_the_workers_die_with_a_killed_command(tmp_path):
+    """SIGKILL leaves the command no time to stop its workers; they die with it (Linux's
+    PR_SET_PDEATHSIG) instead of playing their episodes on, orphaned (seen before: both still
+    running after the kill)."""
+    import signal
+    import subprocess
+    import sys
+
+    command = subprocess.Popen([sys.executable, "-c", KILLED, str(tmp_path)])
+    try:
+        while len(list(tmp_path.iterdir())) < 2:
+            assert command.poll() is None, "the command ended before its workers began"
+            time.sleep(0.05)
+        workers = [int(path.name) for path in tmp_path.iterdir()]
+        assert all(_alive(pid) for pid in workers)
+    finally:
+        command.send_signal(signal.SIGKILL)
+        command.wait()
+    assert all(_wait_until_dead(pid) for pid in workers)
