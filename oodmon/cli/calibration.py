@@ -145,7 +145,8 @@ def _clear_earlier_detectors(out: str, given: str | None) -> Path | None:
 
 def _add_workers(parser: argparse.ArgumentParser, stage: str) -> None:
     parser.add_argument("--workers", type=_whole(0), default=1,
-                        help=f"processes that play the {stage} episodes side by side (default 1; 0: one per core). "
+                        help=f"processes that play the {stage} episodes side by side (default 1; 0 or more than "
+                             "the cores: one per core). "
                              "An MC agent's episodes then draw from streams of their own: the same result for any "
                              "number from 2, not one process's")
 

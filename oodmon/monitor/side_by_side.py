@@ -44,11 +44,12 @@ Play = Callable[[int, int, Callable[[], None]], list]
 
 def resolve_workers(workers: int, episodes: int) -> int:
     """How many processes play ``episodes`` episodes: ``workers`` (0: one per core), at most one per
-    episode; 1 where this platform cannot fork (the workers need this process's memory).
+    core (more would only take turns on them, each with its copy of the agent) and one per episode;
+    1 where this platform cannot fork (the workers need this process's memory).
 
     Example:
-        >>> resolve_workers(4, 3), resolve_workers(1, 50)
-        (3, 1)
+        >>> resolve_workers(1, 50), resolve_workers(10**9, 1)
+        (1, 1)
 
     Raises:
         InvalidParameterError: ``workers`` is not a whole number >= 0.
@@ -58,7 +59,8 @@ def resolve_workers(workers: int, episodes: int) -> int:
                                     "(0: one per core)")
     if "fork" not in multiprocessing.get_all_start_methods():
         return 1
-    return max(1, min(workers or os.cpu_count() or 1, episodes))
+    cores = os.cpu_count() or 1
+    return max(1, min(workers or cores, cores, episodes))
 
 
 def runs_of(episodes: int, workers: int) -> list[tuple[int, int]]:

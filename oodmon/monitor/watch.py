@@ -101,7 +101,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
           callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
           on_progress: Progress | None = None, masks: str | None = None, vec_normalize: Any = None,
           frame_stack: int | None = None, threshold: str | Path | None = None, save: str | Path | None = None,
-          warmup: int = 0, imports: Sequence[str] = (), unsafe_load_pickles: bool = False) -> Any:
+          warmup: int = 0, imports: Sequence[str] = (), unsafe_load_pickles: bool = False, workers: int = 1) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
     The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy (``None``:
@@ -118,6 +118,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     ``unsafe_load_pickles``: see :func:`as_agent`.
     ``warmup``: the alarm looks at no finite score of an episode's first ``warmup`` steps (see
     :mod:`oodmon.monitor.alarms`; the calibration says when one would lower the threshold much).
+    ``workers``: processes that play the calibration episodes side by side (0: one per core; see
+    :func:`~oodmon.monitor.calibrate_agent`: a policy that draws nothing gets the same threshold).
 
     A calibration is minutes of ID episodes, which a deployed process cannot run at every start:
     ``save`` writes the threshold to that file and the fitted detectors to ``<save>.detectors/``
@@ -139,6 +141,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
     from oodmon.monitor.detectors.fitting import check_can_have, fitted_when_named
     from oodmon.monitor.monitor import Monitor, MonitoredEnv, check_env_of
+    from oodmon.monitor.side_by_side import resolve_workers
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file, replaced_file
 
@@ -154,6 +157,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     else:
         conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
         check_warmup(warmup)
+        resolve_workers(workers, episodes)
         # (fit_agent_detectors would say "episodes=", after loading the models)
         if fit_episodes is not None and not is_whole(fit_episodes, 3):
             raise InvalidParameterError(f"fit_episodes={fit_episodes!r} is not allowed; fitting the detectors needs a "
@@ -175,7 +179,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
         for note in fitting_notes(detectors):  # what the fit leaves unwatched, as calibrate prints it
             warnings.warn(note, stacklevel=2)
         alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,
-                                          confidence=confidence, on_progress=on_progress, warmup=warmup)
+                                          confidence=confidence, on_progress=on_progress, warmup=warmup,
+                                          workers=workers)
         if save is not None:  # the pair whole, or the earlier one (a full disk)
             save_calibration(alarm_threshold, save, detectors)
     monitor = Monitor(agent, alarm_threshold, detectors=detectors, detector=detector, sinks=sinks, callbacks=callbacks)

@@ -20,7 +20,7 @@ from oodmon.agents.plain import plain_agent, policy_by_name, weights_sha256
 from oodmon.cli import main
 from oodmon.envs import parse_env_shift
 from oodmon.errors import ConfigError
-from oodmon.monitor import Threshold
+from oodmon.monitor import Threshold, calibrate_agent
 from oodmon.replay import read_log
 from tests.helpers import run_as_written
 
@@ -224,8 +224,13 @@ def test_a_plain_policy_of_dict_observations_gets_dicts_and_its_detectors_read_t
         seen.add(type(obs))
         return int(obs["pole"][0] + 0.5 * obs["pole"][1] + 0.01 * obs["cart"][0] + 0.1 * obs["cart"][1] > 0)
 
-    monitor = oodmon.watch(act, "plain_tests/DictCartPole-v0", fit_episodes=12, episodes=20, confidence=None)
+    monitor = oodmon.watch(act, "plain_tests/DictCartPole-v0", fit_episodes=12, episodes=20, confidence=None,
+                           workers=2)
     assert seen == {dict}  # in fitting and calibration too, the policy got the env's dicts
+    # the calibration episodes in two processes forked from this one (the env registered here, the
+    # policy a closure): the threshold one process calibrates on the same detectors
+    alone = calibrate_agent(monitor.agent, 20, detectors=monitor.detectors, detector="combined", confidence=None)
+    assert monitor.threshold == alone.value
     assert monitor.agent.dict_space is not None and monitor.detector == "combined"
     ids = [monitor.run_episode(gymnasium.make("plain_tests/DictCartPole-v0"), seed=910_000 + i) for i in range(10)]
     # on average over calibrations <= 1/21 false alarms per episode (rank 20 of 20): 4 or more of 10

@@ -219,6 +219,8 @@ def test_watch_names_its_own_fit_episodes_argument_when_refusing_it(agent):
         oodmon.watch(agent, "CartPole-v1", fit_episodes=0)  # was "episodes=0 ...", the name of another argument
     with pytest.raises(ConfigError, match=r"^warmup=-5 is not allowed"):  # before any fitting
         oodmon.watch(agent, "CartPole-v1", warmup=-5)
+    with pytest.raises(ConfigError, match=r"^workers=-1 is not allowed"):
+        oodmon.watch(agent, "CartPole-v1", workers=-1)
 
 
 def test_an_env_of_another_task_is_refused_before_any_fitting(agent, monkeypatch):

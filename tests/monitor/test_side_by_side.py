@@ -16,19 +16,26 @@ from oodmon.monitor import Threshold, calibrate_agent, id_episode_scores, valida
 from oodmon.monitor.side_by_side import play_side_by_side, resolve_workers, runs_of
 
 
-def test_runs_cover_every_episode_once_in_order():
+@pytest.fixture
+def four_cores(monkeypatch):
+    """As many workers as these tests ask for, on a machine of two cores too (they are capped at
+    the cores)."""
+    monkeypatch.setattr(os, "cpu_count", lambda: 4)
+
+
+def test_runs_cover_every_episode_once_in_order(four_cores):
     for episodes in range(1, 12):
         for workers in range(1, 6):
             runs = runs_of(episodes, resolve_workers(workers, episodes))
             assert [e for first, count in runs for e in range(first, first + count)] == list(range(episodes))
             assert max(c for _, c in runs) - min(c for _, c in runs) <= 1
-    assert resolve_workers(0, 50) == min(os.cpu_count(), 50) and resolve_workers(8, 3) == 3
+    assert resolve_workers(0, 50) == 4 and resolve_workers(8, 3) == 3 and resolve_workers(10**9, 50) == 4
     for bad in (-1, 1.5, "2", True):
         with pytest.raises(InvalidParameterError, match=r"workers=.* is not allowed; give a whole number >= 1"):
             resolve_workers(bad, 10)
 
 
-def test_the_workers_are_other_processes_forked_with_what_is_here_and_report_every_episode(tmp_path):
+def test_the_workers_are_other_processes_forked_with_what_is_here_and_report_every_episode(four_cores, tmp_path):
     """A closure over a lambda (which pickle refuses) reaches the workers: they are forked, so the
     user's own policy and fitted detectors need not be picklable or loaded again. Each run waits
     for the other to begin (else one quick worker may take both)."""
@@ -76,7 +83,7 @@ def _wait_until_dead(pid: int) -> bool:
     return False
 
 
-def test_a_workers_error_is_raised_here_and_the_other_worker_is_stopped(tmp_path):
+def test_a_workers_error_is_raised_here_and_the_other_worker_is_stopped(four_cores, tmp_path):
     def fail(first):
         raise InvalidParameterError(f"episode {first}: no such thing")
 
@@ -85,7 +92,7 @@ def test_a_workers_error_is_raised_here_and_the_other_worker_is_stopped(tmp_path
     assert not _alive(int((tmp_path / "slow").read_text()))  # stopped, not left to sleep out its two minutes
 
 
-def test_a_worker_that_dies_is_said_here_and_the_other_worker_is_stopped(tmp_path):
+def test_a_worker_that_dies_is_said_here_and_the_other_worker_is_stopped(four_cores, tmp_path):
     """A worker killed (out of memory, a crash in an env's C code) ends the call with
     BrokenProcessPool, as an exception does; nothing waits for it for ever."""
     from concurrent.futures.process import BrokenProcessPool
@@ -95,7 +102,7 @@ def test_a_worker_that_dies_is_said_here_and_the_other_worker_is_stopped(tmp_pat
     assert _wait_until_dead(int((tmp_path / "slow").read_text()))  # the pool stops the others as it breaks
 
 
-def test_an_ensembles_threshold_is_the_same_from_any_number_of_workers():
+def test_an_ensembles_threshold_is_the_same_from_any_number_of_workers(four_cores):
     """An agent that draws nothing when it decides plays each episode alike wherever it runs: the
     same per-step scores, the same threshold, the same validation."""
     agent = load("cartpole", "ensemble")
@@ -108,7 +115,7 @@ def test_an_ensembles_threshold_is_the_same_from_any_number_of_workers():
     assert (alone.alarmed, alone.total) == (side_by_side.alarmed, side_by_side.total)
 
 
-def test_an_mc_agents_episodes_draw_from_their_own_streams_the_same_for_any_workers_from_two():
+def test_an_mc_agents_episodes_draw_from_their_own_streams_the_same_for_any_workers_from_two(four_cores):
     """Side by side, each episode of an MC agent draws from a stream seeded by the agent's stream
     and the episode's seed: 2 and 3 workers give the same scores, which are not one process's (its
     draws run on from episode to episode), and the agent's stream has moved on (a later call draws
@@ -124,7 +131,7 @@ def test_an_mc_agents_episodes_draw_from_their_own_streams_the_same_for_any_work
     assert not all(np.array_equal(a, b) for a, b in zip(two, again))
 
 
-def test_calibrate_and_validate_take_workers(tmp_path, capsys):
+def test_calibrate_and_validate_take_workers(four_cores, tmp_path, capsys):
     path = tmp_path / "t.json"
     assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--far", "0.2",
                  "--episodes", "11", "--workers", "2", "--out", str(path)]) == 0
@@ -140,6 +147,8 @@ def test_calibrate_and_validate_take_workers(tmp_path, capsys):
 KILLED = """
 import os, sys, time
 from oodmon.monitor.side_by_side import play_side_by_side
+
+os.cpu_count = lambda: 4  # two workers on a machine of one core too
 
 def play(first, count, done):
     open(os.path.join(sys.argv[1], str(os.getpid())), "w").close()
@@ -159,7 +168,7 @@ def _alive(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not os.path.exists("/proc/self/stat"), reason="reads /proc (Linux)")
-def test_the_workers_die_with_a_killed_command(tmp_path):
+def test_the_workers_die_with_a_killed_command(four_cores, tmp_path):
     """SIGKILL leaves the command no time to stop its workers; they die with it (Linux's
     PR_SET_PDEATHSIG) instead of playing their episodes on, orphaned (seen before: both still
     running after the kill)."""
