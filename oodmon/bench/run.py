@@ -17,7 +17,7 @@ from oodmon.bench.cells import Relay, _execute, check_ray_address, on_ray, ray_f
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
-from oodmon.threads import limit_threads
+from oodmon.threads import limit_threads, set_threads
 
 def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], workers: int, report: Progress) -> None:
     """Train the trials' models that are not cached yet, ``workers`` at a time in processes of their
@@ -76,9 +76,14 @@ def _per_trial(function: Callable[..., Any], trials: list[tuple[str, int]], conf
 
 def _in_worker(function: Callable[..., Any], config: BenchConfig, method: str, trial: int, on_progress: Progress) -> Any:
     """``function(config, method, trial, on_progress)`` in a worker process or a Ray task: torch and
-    numpy's BLAS on ``OODMON_TORCH_THREADS`` threads first, one where it is not set (a Ray worker of
-    another machine does not have this command's setting)."""
-    limit_threads()
+    numpy's BLAS on one thread in a worker process, one of several side by side (as the cells; a
+    process forked from one whose torch had run on two threads can hang in its first parallel
+    region: ``oodmon.monitor.side_by_side``), and on ``OODMON_TORCH_THREADS`` threads in a Ray task,
+    one where it is not set (a Ray worker of another machine does not have this command's setting)."""
+    if config.executor == "ray":
+        limit_threads()
+    else:
+        set_threads(1)
     return function(config, method, trial, on_progress)
 
 

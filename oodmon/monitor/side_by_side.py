@@ -102,11 +102,15 @@ _installed: tuple[Play, Any, Any] | None = None  # a worker's play, message queu
 
 
 def _install(play: Play, queue: Any, stop: Any, parent: int) -> None:
-    from oodmon.threads import limit_threads
+    from oodmon.threads import set_threads
 
     global _installed
     _die_with(parent)
-    limit_threads()  # one thread each (OODMON_TORCH_THREADS): the processes share the cores
+    # One thread each, whatever OODMON_TORCH_THREADS says: the processes share the cores, and a
+    # worker forked from a command whose torch ran on more (OODMON_TORCH_THREADS=2) hung in its
+    # first parallel region (libgomp's threads are not forked; measured: Pong's DropConnect agent,
+    # `validate --workers 2`, stopped after 300 s of 6 games), which one thread never enters.
+    set_threads(1)
     _installed = (play, queue, stop)
     queue.put(("started", os.getpid()))
 

@@ -187,3 +187,35 @@ def test_the_workers_die_with_a_killed_command(four_cores, tmp_path):
         command.send_signal(signal.SIGKILL)
         command.wait()
     assert all(_wait_until_dead(pid) for pid in workers)
+
+
+TORCH_ON_TWO = """
+import os
+os.cpu_count = lambda: 4
+import torch
+from oodmon.monitor.side_by_side import play_side_by_side
+
+torch.set_num_threads(2)  # as OODMON_TORCH_THREADS=2 sets it
+x, w = torch.randn(8, 16, 84, 84), torch.randn(32, 16, 8, 8)
+torch.nn.functional.conv2d(x, w, stride=4)  # the command's torch in a parallel region before the fork
+
+def play(first, count, done):
+    for _ in range(count):
+        torch.nn.functional.conv2d(x, w, stride=4)
+        done()
+    return [torch.get_num_threads()] * count
+
+print(play_side_by_side(play, 4, 2, "ID episodes"))
+"""
+
+
+def test_workers_of_a_command_whose_torch_ran_on_two_threads_do_not_hang():
+    """libgomp's threads are not forked: a worker entering a parallel region of torch after the
+    command had used two threads waited for ever (seen: `OODMON_TORCH_THREADS=2 oodmon validate
+    --workers 2` of Pong stopped by its timeout after 300 s; this script, 30 s). The workers run
+    on one thread each, which never enters one."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", TORCH_ON_TWO], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.split("\n")[0] == "[1, 1, 1, 1]", done.stderr[-2000:]
