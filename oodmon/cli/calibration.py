@@ -174,6 +174,7 @@ def _validate(args: argparse.Namespace) -> int:
     from oodmon.envs.registration import TASK_OF_ENV
     from oodmon.names import PLAIN_METHOD
     from oodmon.monitor import Threshold, validate_threshold
+    from oodmon.monitor.side_by_side import resolve_workers
 
     threshold = Threshold.load(args.threshold)
     args.task = args.task or threshold.task
@@ -203,7 +204,8 @@ def _validate(args: argparse.Namespace) -> int:
                           "detector": threshold.detector, "rule": threshold.rule_text, "unit": unit,
                           "alarmed": result.alarmed, "total": result.total, "rate": result.rate,
                           "interval95": [result.low, result.high], "far": result.far,
-                          "confidence": result.confidence, "seed": args.seed, "workers": args.workers,
+                          "confidence": result.confidence, "seed": args.seed,
+                          "workers": resolve_workers(args.workers, args.episodes),  # those that played them
                           "verdict": result.verdict}, indent=1))
     else:
         verdict = {"above": "ABOVE the target: this threshold alarms too often" + _above_hint(threshold, unit),
