@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -17,6 +18,7 @@ import numpy as np
 from oodmon import seeds
 from oodmon.envs.grid import Variant
 from oodmon.progress import Progress
+from oodmon.side_by_side import episode_streams, play_side_by_side, resolve_workers
 
 __all__ = ["RANDOM_RETURN", "SOLVED_RETURN", "VariantResult", "episode_returns", "evaluate_variants"]
 
@@ -97,30 +99,40 @@ def evaluate_variants(
     fail_fraction: float = 0.5,
     on_progress: Progress | None = None,
     wrap: Callable[[gymnasium.Env], gymnasium.Env] | None = None,
+    workers: int = 1,
+    sampler: Any = None,
 ) -> tuple[VariantResult, list[VariantResult]]:
     """Evaluate ``policy`` in the ID env and in each variant; mark the variants where it fails.
     ``on_progress("evaluation episodes", done, total)`` after each episode of all of them;
     ``wrap``: as :func:`episode_returns`'s.
 
+    ``workers``: processes that play the variants side by side (0: one per core; see
+    :mod:`oodmon.side_by_side`), a run of variants each. ``sampler``: the estimator whose draws
+    ``policy`` decides by (``Agent.estimator``), if any: side by side, each variant draws from a
+    stream of its own, so that the returns are the same for any ``workers`` >= 2 (one process's
+    draws run on from variant to variant).
+
     Returns:
         The ID result and one result per variant, in order.
     """
-    variants = list(variants)
-    total, done = (len(variants) + 1) * episodes, [0]
+    variants = [Variant(task), *variants]
+    workers = resolve_workers(workers, len(variants))
+    streams = None
+    state = getattr(sampler, "sampling_state", None) if workers > 1 else None
+    if state is not None:
+        sampler.sampling_state, streams = episode_streams(state)
 
-    def count(stage: str, episode: int, of: int) -> None:
-        done[0] += 1
-        on_progress("evaluation episodes", done[0], total)
+    def play(first: int, count: int, done: Callable[[], None]) -> list[np.ndarray]:
+        played = []
+        for index in range(first, first + count):
+            if streams is not None:
+                sampler.sampling_state = streams(index)
+            played.append(episode_returns(policy, variants[index], episodes, seed=seed,
+                                          on_progress=lambda *_: done(), wrap=wrap))
+        return played
 
-    def run(variant: Variant) -> np.ndarray:
-        return episode_returns(policy, variant, episodes, seed=seed, on_progress=count if on_progress else None,
-                               wrap=wrap)
-
-    id_returns = run(Variant(task))
-    line = RANDOM_RETURN[task] + fail_fraction * (float(np.mean(id_returns)) - RANDOM_RETURN[task])
-    id_result = VariantResult(task, id_returns, False)
-    results = []
-    for variant in variants:
-        returns = run(variant)
-        results.append(VariantResult(variant.spec, returns, float(np.mean(returns)) < line))
-    return id_result, results
+    returns = play_side_by_side(play, len(variants), workers, "evaluation episodes", on_progress,
+                                total=len(variants) * episodes)
+    line = RANDOM_RETURN[task] + fail_fraction * (float(np.mean(returns[0])) - RANDOM_RETURN[task])
+    id_result = VariantResult(task, returns[0], False)
+    return id_result, [VariantResult(v.spec, r, float(np.mean(r)) < line) for v, r in zip(variants[1:], returns[1:])]

@@ -78,7 +78,7 @@ def _in_worker(function: Callable[..., Any], config: BenchConfig, method: str, t
     """``function(config, method, trial, on_progress)`` in a worker process or a Ray task: torch and
     numpy's BLAS on one thread in a worker process, one of several side by side (as the cells; a
     process forked from one whose torch had run on two threads can hang in its first parallel
-    region: ``oodmon.monitor.side_by_side``), and on ``OODMON_TORCH_THREADS`` threads in a Ray task,
+    region: ``oodmon.side_by_side``), and on ``OODMON_TORCH_THREADS`` threads in a Ray task,
     one where it is not set (a Ray worker of another machine does not have this command's setting)."""
     if config.executor == "ray":
         limit_threads()

@@ -12,7 +12,8 @@ from rich.console import Console
 from oodmon.cli.display import _progress
 from oodmon.cli.loading import _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import (
-    _FIT_EPISODES, _FIT_STEPS, _KEPT, _SEED, _add_confidence, _add_rule, _agent_arguments, _fraction, _non_negative, _whole,
+    _FIT_EPISODES, _FIT_STEPS, _KEPT, _SEED, _add_confidence, _add_rule, _add_workers, _agent_arguments, _fraction,
+    _non_negative, _whole,
 )
 from oodmon.errors import ConfigError
 from oodmon.monitor.threshold import DETECTOR_NAMES, episodes_needed
@@ -56,7 +57,7 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
                                 f"{_FIT_EPISODES}; your own --env: more, until they hold {_FIT_STEPS:,} steps)")
     calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
                            help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
-    _add_workers(calibrate, "calibration")
+    _add_workers(calibrate, "the calibration episodes")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
 
@@ -143,14 +144,6 @@ def _clear_earlier_detectors(out: str, given: str | None) -> Path | None:
     return folder
 
 
-def _add_workers(parser: argparse.ArgumentParser, stage: str) -> None:
-    parser.add_argument("--workers", type=_whole(0), default=1,
-                        help=f"processes that play the {stage} episodes side by side (default 1; 0 or more than "
-                             "the cores: one per core). "
-                             "An MC agent's episodes then draw from streams of their own: the same result for any "
-                             "number from 2, not one process's")
-
-
 def _add_validate(commands: argparse._SubParsersAction) -> None:
     """`oodmon validate`."""
     validate = commands.add_parser(
@@ -165,7 +158,7 @@ def _add_validate(commands: argparse._SubParsersAction) -> None:
     validate.add_argument("--obs-noise", type=_non_negative, default=0.0,
                           help="sensor noise, a fraction of each dimension's ID spread (default 0)")
     validate.add_argument("--force", action="store_true", help="validate even if the threshold was made for other weights")
-    _add_workers(validate, "validation")
+    _add_workers(validate, "the validation episodes")
     validate.add_argument("--json", action="store_true", help="print JSON instead of a sentence")
     validate.set_defaults(handler=_validate)
 
@@ -174,7 +167,7 @@ def _validate(args: argparse.Namespace) -> int:
     from oodmon.envs.registration import TASK_OF_ENV
     from oodmon.names import PLAIN_METHOD
     from oodmon.monitor import Threshold, validate_threshold
-    from oodmon.monitor.side_by_side import resolve_workers
+    from oodmon.side_by_side import resolve_workers
 
     threshold = Threshold.load(args.threshold)
     args.task = args.task or threshold.task

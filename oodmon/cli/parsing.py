@@ -127,6 +127,13 @@ def _confidence(text: str) -> float | None:
     return _fraction(text)
 
 
+def _add_workers(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--workers", type=_whole(0), default=1,
+                        help=f"processes that play {what} side by side (default 1; 0 or more than the cores: one "
+                             "per core). An MC agent's episodes then draw from streams of their own: the same result "
+                             "for any number from 2, not one process's")
+
+
 def _add_confidence(parser: argparse.ArgumentParser, default: str | None = None) -> None:
     from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
 

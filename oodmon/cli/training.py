@@ -10,7 +10,7 @@ from rich.table import Table
 
 from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent, _no_variants
-from oodmon.cli.parsing import _KEPT, _SEED, _command_line, _fraction, _sb3_arguments, _whole
+from oodmon.cli.parsing import _KEPT, _SEED, _add_workers, _command_line, _fraction, _sb3_arguments, _whole
 from oodmon.errors import InvalidParameterError
 from oodmon.names import METHODS, TASKS
 
@@ -75,12 +75,14 @@ def _add_evaluate(commands: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--episodes", type=_whole(1), default=5, help="episodes per variant (default 5)")
     evaluate.add_argument("--fail-fraction", type=_fraction, default=0.5,
                           help="fails below this fraction of the ID gain over a random policy (default 0.5)")
+    _add_workers(evaluate, "the variants (a run of them each)")
     evaluate.add_argument("--json", action="store_true", help="print JSON instead of a table")
     evaluate.set_defaults(handler=_evaluate)
 
 
 def _evaluate(args: argparse.Namespace) -> int:
     from oodmon.agents import evaluate_variants
+    from oodmon.side_by_side import resolve_workers
 
     if args.episodes < 1:
         raise InvalidParameterError(f"--episodes {args.episodes} is not allowed; give at least 1")
@@ -92,11 +94,13 @@ def _evaluate(args: argparse.Namespace) -> int:
     variants = select_variants(args.task, args.variants)
     with _progress() as report:
         id_result, results = evaluate_variants(agent.act, args.task, variants, args.episodes,
-                                               fail_fraction=args.fail_fraction, on_progress=report, wrap=agent.wrap)
+                                               fail_fraction=args.fail_fraction, on_progress=report, wrap=agent.wrap,
+                                               workers=args.workers, sampler=agent.estimator)
     rows = [{"variant": r.spec, "return_mean": round(r.mean, 2), "return_std": round(float(r.returns.std()), 2),
              "fails": r.fails} for r in [id_result, *results]]
     if args.json:
         print(json.dumps({"task": args.task, "method": agent.method, "episodes": args.episodes,
+                          "workers": resolve_workers(args.workers, len(rows)),  # those that played them
                           "id_return_mean": rows[0]["return_mean"], "variants": rows[1:]}, indent=1))
         return 0
     table = Table(title=f"{args.task}/{agent.method}: mean return over {args.episodes} episodes "

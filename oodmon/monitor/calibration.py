@@ -22,7 +22,7 @@ from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
-from oodmon.monitor.side_by_side import episode_streams, play_side_by_side, resolve_workers
+from oodmon.side_by_side import episode_streams, play_side_by_side, resolve_workers
 from oodmon.monitor.sinks.base import MemorySink
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.progress import Progress
@@ -115,7 +115,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     ``workers``: processes that play the episodes side by side (0: one per core). An agent that
     draws nothing when it decides gets the same threshold from any number; an MC agent's episodes
     draw from streams of their own there, the same for any ``workers`` >= 2 and not those of one
-    process (:mod:`oodmon.monitor.side_by_side`).
+    process (:mod:`oodmon.side_by_side`).
 
     Raises:
         InvalidParameterError, ConfigError: a bad argument, or too few episodes for ``far``; all

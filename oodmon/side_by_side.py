@@ -136,11 +136,12 @@ def _play_run(first: int, count: int) -> list:
 
 
 def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
-                      on_progress: Progress | None = None) -> list:
+                      on_progress: Progress | None = None, *, total: int | None = None) -> list:
     """``play`` over ``episodes`` episodes in ``workers`` processes forked from this one (a run of
     consecutive episodes each, :func:`runs_of`); every episode's result in the episodes' order.
-    ``on_progress(stage, done, episodes)`` here as each episode ends in any process. With one
-    worker, ``play(0, episodes, ...)`` runs here.
+    ``on_progress(stage, done, total)`` here at each ``done()`` in any process (``total``: the
+    episodes; a play whose items are variants of several episodes each says ``done()`` after each
+    of those and gives their number). With one worker, ``play(0, episodes, ...)`` runs here.
 
     A worker's exception is raised here and the other workers are stopped at once; so is an
     interrupt here (Ctrl-C reaches every process of the command's group), and a worker's death
@@ -152,7 +153,7 @@ def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
         nonlocal done
         done += 1
         if on_progress is not None:
-            on_progress(stage, done, episodes)
+            on_progress(stage, done, episodes if total is None else total)
 
     if workers == 1:
         return play(0, episodes, one_more)

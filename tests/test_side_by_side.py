@@ -13,7 +13,7 @@ from oodmon.agents import load
 from oodmon.cli import main
 from oodmon.errors import InvalidParameterError
 from oodmon.monitor import Threshold, calibrate_agent, id_episode_scores, validate_threshold
-from oodmon.monitor.side_by_side import play_side_by_side, resolve_workers, runs_of
+from oodmon.side_by_side import play_side_by_side, resolve_workers, runs_of
 
 
 @pytest.fixture
@@ -146,7 +146,7 @@ def test_calibrate_and_validate_take_workers(four_cores, tmp_path, capsys):
 
 KILLED = """
 import os, sys, time
-from oodmon.monitor.side_by_side import play_side_by_side
+from oodmon.side_by_side import play_side_by_side
 
 os.cpu_count = lambda: 4  # two workers on a machine of one core too
 
@@ -193,7 +193,7 @@ TORCH_ON_TWO = """
 import os
 os.cpu_count = lambda: 4
 import torch
-from oodmon.monitor.side_by_side import play_side_by_side
+from oodmon.side_by_side import play_side_by_side
 
 torch.set_num_threads(2)  # as OODMON_TORCH_THREADS=2 sets it
 x, w = torch.randn(8, 16, 84, 84), torch.randn(32, 16, 8, 8)
@@ -219,3 +219,30 @@ def test_workers_of_a_command_whose_torch_ran_on_two_threads_do_not_hang():
 
     done = subprocess.run([sys.executable, "-c", TORCH_ON_TWO], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.split("\n")[0] == "[1, 1, 1, 1]", done.stderr[-2000:]
+
+
+def test_evaluate_plays_its_variants_side_by_side(four_cores, capsys):
+    """`evaluate --workers`: a run of variants in each process. An ensemble's returns are one
+    process's; an MC agent's variants draw from streams of their own, the same for 2 and 3 workers.
+    Progress counts every episode of every variant."""
+    from oodmon.agents import evaluate_variants
+    from oodmon.envs.grid import select_variants
+
+    variants = select_variants("cartpole", "cartpole:gravity=78.4,cartpole:length=2.0,cartpole:force_mag=2.5")
+
+    def returns(method, workers, reports=None):
+        agent = load("cartpole", method, seed=0)
+        id_result, results = evaluate_variants(agent.act, "cartpole", variants, 2, workers=workers,
+                                               sampler=agent.estimator, on_progress=reports)
+        return [id_result.returns.tolist(), *(r.returns.tolist() for r in results)], [r.fails for r in results]
+
+    reports = []
+    assert returns("ensemble", 1) == returns("ensemble", 2, lambda *r: reports.append(r))
+    assert sorted(done for _, done, _ in reports) == list(range(1, 9))
+    assert {(stage, total) for stage, _, total in reports} == {("evaluation episodes", 8)}
+    assert returns("dropout", 2) == returns("dropout", 3) != returns("dropout", 1)
+    assert main(["evaluate", "--task", "cartpole", "--method", "ensemble", "--variants", "cartpole:length=2.0",
+                 "--episodes", "2", "--workers", "2", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    length = returns("ensemble", 1)[0][2]  # the ID env's, gravity's, length's, force's
+    assert report["workers"] == 2 and report["variants"][0]["return_mean"] == round(float(np.mean(length)), 2)
