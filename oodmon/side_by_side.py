@@ -1,10 +1,11 @@
-"""ID episodes played side by side: runs of consecutive episodes in worker processes.
+"""Episodes played side by side: runs of consecutive episodes in worker processes.
 
 Calibration and validation play tens to hundreds of ID episodes one after the other, each a chain
 of batch-of-one decisions on one core (a Pong game: about a second; ``oodmon validate --episodes
-300`` of Pong: 9.5 minutes). Their episodes do not depend on one another, so ``workers`` processes
-play a run of them each, forked from this one: they have the agent, its detectors and the user's
-own policy as they are here, with nothing pickled or loaded again.
+300`` of Pong: 9.5 minutes); evaluation plays some episodes of each of tens of variants. They do
+not depend on one another, so ``workers`` processes play a run of them each, forked from this one:
+they have the agent, its detectors and the user's own policy as they are here, with nothing
+pickled or loaded again. Used by ``oodmon.monitor.calibration`` and ``oodmon.agents.evaluation``.
 
 What an episode draws:
 
