@@ -10,6 +10,7 @@ import subprocess
 import sys
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -379,11 +380,13 @@ def test_a_viewer_that_cannot_start_is_warned_of_with_its_reason_and_the_run_and
                                                        "--server-memory-limit=1GiB", "--expect-data-soon"]
 
 
-def _where_it_listens(command: list[str]) -> str | None:
+def _where_it_listens(command: list[str], tmp: Path) -> str | None:
     """The line in which a Rerun executable started with ``command`` says where it listens for gRPC
-    connections, or None where it stopped before it said so."""
+    connections, or None where it stopped before it said so. Its temporary files go to ``tmp`` (a
+    viewer killed leaves its rerun-data-<pid> folder behind)."""
     process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                               text=True, start_new_session=True, env={**os.environ, "RERUN_APP_ONLY": "true"})
+                               text=True, start_new_session=True,
+                               env={**os.environ, "RERUN_APP_ONLY": "true", "TMPDIR": str(tmp)})
     try:
         for line in process.stdout:
             if "Listening for gRPC connections on" in line:
@@ -413,12 +416,12 @@ def test_a_spawned_viewer_listens_on_this_machine_only_unless_told(agent, tmp_pa
 
     installed = os.path.join(os.path.dirname(sys.executable), "rerun")
     port = _free_port()
-    listening = _where_it_listens(viewer_command(installed, "127.0.0.1", port) + ["--serve-grpc"])
+    listening = _where_it_listens(viewer_command(installed, "127.0.0.1", port) + ["--serve-grpc"], tmp_path)
     assert listening is not None and f"Listening for gRPC connections on 127.0.0.1:{port}." in listening
     assert "0.0.0.0" not in listening
     unbound = [part for part in viewer_command(installed, "127.0.0.1", port) if not part.startswith("--bind")]
-    assert f"on 0.0.0.0:{port}." in _where_it_listens(unbound + ["--serve-grpc"])
-    viewer_said = _where_it_listens(viewer_command(installed, "127.0.0.1", port))  # the window's race
+    assert f"on 0.0.0.0:{port}." in _where_it_listens(unbound + ["--serve-grpc"], tmp_path)
+    viewer_said = _where_it_listens(viewer_command(installed, "127.0.0.1", port), tmp_path)  # the window's race
     assert viewer_said is None or f"on 127.0.0.1:{port}." in viewer_said
 
     port = _free_port()
