@@ -106,12 +106,12 @@ def test_an_ensembles_threshold_is_the_same_from_any_number_of_workers(four_core
     """An agent that draws nothing when it decides plays each episode alike wherever it runs: the
     same per-step scores, the same threshold, the same validation."""
     agent = load("cartpole", "ensemble")
-    one = calibrate_agent(agent, 21, 0.2, detector="spread")
-    two = calibrate_agent(agent, 21, 0.2, detector="spread", workers=2)
-    three = calibrate_agent(agent, 21, 0.2, detector="spread", workers=3)
+    one = calibrate_agent(agent, 11, 0.2, detector="spread")
+    two = calibrate_agent(agent, 11, 0.2, detector="spread", workers=2)
+    three = calibrate_agent(agent, 11, 0.2, detector="spread", workers=3)
     assert one.value == two.value == three.value and one.n_steps == two.n_steps == three.n_steps
-    alone = validate_threshold(agent, one, 30, seed=700_300)
-    side_by_side = validate_threshold(agent, one, 30, seed=700_300, workers=2)
+    alone = validate_threshold(agent, one, 12, seed=700_300)
+    side_by_side = validate_threshold(agent, one, 12, seed=700_300, workers=2)
     assert (alone.alarmed, alone.total) == (side_by_side.alarmed, side_by_side.total)
 
 
