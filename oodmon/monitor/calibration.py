@@ -22,11 +22,11 @@ from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
-from oodmon.side_by_side import episode_streams, play_side_by_side, resolve_workers
-from oodmon.monitor.sinks.base import MemorySink
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
-from oodmon.progress import Progress
+from oodmon.monitor.sinks.base import MemorySink
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson
+from oodmon.progress import Progress
+from oodmon.side_by_side import episode_streams, play_side_by_side, resolve_workers
 from oodmon.validation import is_whole
 
 __all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "clopper_pearson", "id_episode_scores", "save_calibration",
@@ -44,8 +44,8 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
     (seeds ``seed`` on, sensor noise ``obs_noise``); the alarm detector's per-step scores of each,
     and whether each raised an alarm. ``on_progress(stage, done, episodes)`` after each.
 
-    ``workers``: processes that play them side by side (0: one per core; see ``side_by_side`` for
-    what an MC agent draws there)."""
+    ``workers``: processes that play them side by side (0: one per core; see
+    :mod:`oodmon.side_by_side` for what an MC agent draws there)."""
     workers = resolve_workers(workers, episodes)
     streams = None
     state = getattr(agent.estimator, "sampling_state", None) if workers > 1 else None
@@ -78,7 +78,7 @@ def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SE
                       workers: int = 1) -> list[np.ndarray]:
     """Per-step scores of ``detector`` in ``episodes`` ID episodes of ``agent``, seeded ``seed``,
     ``seed + 1``, ... (with sensor noise ``obs_noise``, see the envs), played in ``workers``
-    processes (see ``side_by_side``)."""
+    processes (see :mod:`oodmon.side_by_side`)."""
     return _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, score=score, detectors=detectors,
                              detector=detector, stage=stage, workers=workers)[0]
 
