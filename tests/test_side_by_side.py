@@ -135,6 +135,7 @@ def test_calibrate_and_validate_take_workers(four_cores, tmp_path, capsys):
     path = tmp_path / "t.json"
     assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--far", "0.2",
                  "--episodes", "11", "--workers", "2", "--out", str(path)]) == 0
+    assert "11 ID episodes played by 2 processes side by side, " in capsys.readouterr().out
     alone = calibrate_agent(load("cartpole", "ensemble"), 11, 0.2, detector="spread")
     assert Threshold.load(path).value == alone.value
     capsys.readouterr()

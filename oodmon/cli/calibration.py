@@ -106,7 +106,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "
-        f"mode, {threshold.n_episodes} ID episodes, {threshold.n_steps} steps, rank {threshold.rank} of "
+        f"mode, {threshold.n_episodes} ID episodes{_side_by_side(args.workers, threshold.n_episodes)}, "
+        f"{threshold.n_steps} steps, rank {threshold.rank} of "
         f"{threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score median "
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote {args.out}"
         + (f" (replacing the threshold it held: alarm when {replaced.rule_text}, {replaced.detector} detector, "
@@ -126,6 +127,15 @@ def _calibrate(args: argparse.Namespace) -> int:
             f"`--detector {best}` fits it first (about {DEFAULT_FIT_EPISODES} more ID episodes)"
             + (f"; the fitted one is left out: {left_out}" if left_out and best == "combined" else ""))
     return 0
+
+
+def _side_by_side(workers: int, episodes: int) -> str:
+    """The words ' played by N processes side by side' where more than one played the episodes (an
+    MC agent's draws are then not one process's), else nothing."""
+    from oodmon.side_by_side import resolve_workers
+
+    played_by = resolve_workers(workers, episodes)
+    return f" played by {played_by} processes side by side" if played_by > 1 else ""
 
 
 def _clear_earlier_detectors(out: str, given: str | None) -> Path | None:
