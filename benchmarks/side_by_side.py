@@ -21,6 +21,7 @@ import numpy as np
 
 from oodmon.agents import load
 from oodmon.monitor import id_episode_scores
+from oodmon.side_by_side import usable_cores
 from oodmon.threads import set_threads
 
 
@@ -40,7 +41,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=10)
     args = parser.parse_args()
     set_threads(1)
-    workers = min(os.cpu_count() or 1, 2)
+    workers = min(usable_cores(), 2)
     agent = load(args.task, args.method)
     alone, one = timed(agent, args.episodes, 1)
     together, many = timed(agent, args.episodes, workers)

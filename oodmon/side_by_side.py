@@ -36,7 +36,7 @@ from oodmon.errors import InvalidParameterError
 from oodmon.progress import Progress
 from oodmon.validation import is_whole
 
-__all__ = ["episode_streams", "play_side_by_side", "resolve_workers", "runs_of"]
+__all__ = ["episode_streams", "play_side_by_side", "resolve_workers", "runs_of", "usable_cores"]
 
 #: ``play(first, count, done)``: play episodes ``first .. first + count - 1`` (indices from 0),
 #: calling ``done()`` after each; return their results in a list, one per episode.
@@ -60,8 +60,16 @@ def resolve_workers(workers: int, episodes: int) -> int:
                                     "(0: one per core)")
     if "fork" not in multiprocessing.get_all_start_methods():
         return 1
-    cores = os.cpu_count() or 1
+    cores = usable_cores()
     return max(1, min(workers or cores, cores, episodes))
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity, which ``taskset`` and container CPU
+    sets narrow), where the platform says; else all of the machine's."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0)) or 1
+    return os.cpu_count() or 1
 
 
 def runs_of(episodes: int, workers: int) -> list[tuple[int, int]]:

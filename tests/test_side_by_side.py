@@ -20,7 +20,7 @@ from oodmon.side_by_side import play_side_by_side, resolve_workers, runs_of
 def four_cores(monkeypatch):
     """As many workers as these tests ask for, on a machine of two cores too (they are capped at
     the cores)."""
-    monkeypatch.setattr(os, "cpu_count", lambda: 4)
+    monkeypatch.setattr("oodmon.side_by_side.usable_cores", lambda: 4)
 
 
 def test_runs_cover_every_episode_once_in_order(four_cores):
@@ -33,6 +33,20 @@ def test_runs_cover_every_episode_once_in_order(four_cores):
     for bad in (-1, 1.5, "2", True):
         with pytest.raises(InvalidParameterError, match=r"workers=.* is not allowed; give a whole number >= 1"):
             resolve_workers(bad, 10)
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="CPU affinity (Linux)")
+def test_workers_are_capped_at_the_cores_this_process_may_run_on():
+    """A process narrowed to one CPU (`taskset -c 0`, a container's CPU set) plays in one process
+    whatever `--workers` says, though the machine has more cores."""
+    import subprocess
+    import sys
+
+    code = ("import os; os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]}); "
+            "from oodmon.side_by_side import resolve_workers, usable_cores; "
+            "print(usable_cores(), resolve_workers(0, 50), resolve_workers(8, 50))")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split() == \
+        ["1", "1", "1"]
 
 
 def test_the_workers_are_other_processes_forked_with_what_is_here_and_report_every_episode(four_cores, tmp_path):
@@ -147,9 +161,10 @@ def test_calibrate_and_validate_take_workers(four_cores, tmp_path, capsys):
 
 KILLED = """
 import os, sys, time
+import oodmon.side_by_side
 from oodmon.side_by_side import play_side_by_side
 
-os.cpu_count = lambda: 4  # two workers on a machine of one core too
+oodmon.side_by_side.usable_cores = lambda: 4  # two workers on a machine of one core too
 
 def play(first, count, done):
     open(os.path.join(sys.argv[1], str(os.getpid())), "w").close()
@@ -191,10 +206,11 @@ def test_the_workers_die_with_a_killed_command(four_cores, tmp_path):
 
 
 TORCH_ON_TWO = """
-import os
-os.cpu_count = lambda: 4
 import torch
+import oodmon.side_by_side
 from oodmon.side_by_side import play_side_by_side
+
+oodmon.side_by_side.usable_cores = lambda: 4  # two workers on a machine of one core too
 
 torch.set_num_threads(2)  # as OODMON_TORCH_THREADS=2 sets it
 x, w = torch.randn(8, 16, 84, 84), torch.randn(32, 16, 8, 8)
