@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import multiprocessing
-import os
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -17,6 +16,7 @@ from oodmon.bench.cells import Relay, _execute, check_ray_address, on_ray, ray_f
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
+from oodmon.side_by_side import usable_cores
 from oodmon.threads import limit_threads, set_threads
 
 def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], workers: int, report: Progress) -> None:
@@ -102,7 +102,7 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
     for method, trial in trials:  # before minutes of work on the others
         _refuse_to_train_for_hours(config, method, trial)
     check_ray_address(config)  # before hours of training, too
-    workers = config.workers or os.cpu_count() or 1
+    workers = config.workers or usable_cores()  # (the cores it may run on: a container's, not its host's)
     with ray_for(config, workers):  # a Ray cluster started (or joined) once for every stage
         _train_missing_models(config, trials, workers, report)
         prepared = _prepare_trials(config, trials, workers, report)
