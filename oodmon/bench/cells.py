@@ -78,8 +78,7 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
             for future in as_completed([pool.submit(_run_cell, *job) for job in jobs]):
                 yield future.result()
         return
-    _check_executor(config)
-    yield from on_ray(_run_cell, jobs, config, workers)
+    yield from on_ray(_run_cell, jobs, config, workers)  # (an unknown executor: refused by run_bench, before any work)
 
 
 @contextmanager
@@ -192,11 +191,6 @@ def _said_by_a_worker(error: Exception, config: BenchConfig, shipped: list[str])
     return cause
 
 
-def _check_executor(config: BenchConfig) -> None:
-    if config.executor not in EXECUTORS:
-        raise ConfigError(f"executor={config.executor!r} is not allowed; use " + " or ".join(map(repr, EXECUTORS)))
-
-
 def check_ray_address(config: BenchConfig, timeout: float = 3.0) -> None:
     """Before any work: that the executor is one there is (a `BenchConfig` of the Python API takes
     any string; it was refused only at the cells, after the trainings and preparations), and for
@@ -212,7 +206,8 @@ def check_ray_address(config: BenchConfig, timeout: float = 3.0) -> None:
     import importlib.util
     import socket
 
-    _check_executor(config)
+    if config.executor not in EXECUTORS:
+        raise ConfigError(f"executor={config.executor!r} is not allowed; use " + " or ".join(map(repr, EXECUTORS)))
     if config.executor != "ray":
         return
     if importlib.util.find_spec("ray") is None:

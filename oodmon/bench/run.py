@@ -21,7 +21,7 @@ from oodmon.threads import limit_threads, set_threads
 
 def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], workers: int, report: Progress) -> None:
     """Train the trials' models that are not cached yet, ``workers`` at a time in processes of their
-    own (one thread each for torch and numpy's BLAS, unless OODMON_TORCH_THREADS says otherwise): the
+    own (each training on OODMON_TORCH_THREADS threads, one where it is not set: ``train`` reads it): the
     long part of a five-trial bench, on every core; with ``executor="ray"``, as tasks on the Ray
     cluster (the cells' cluster). Each training checkpoints and resumes (``oodmon.agents.train``)."""
     if config.users_own:
@@ -59,7 +59,7 @@ def _per_trial(function: Callable[..., Any], trials: list[tuple[str, int]], conf
     if config.executor == "ray":  # the cluster's, even one: the machine of this command may be the least of them
         yield from on_ray(_in_worker, jobs, config, workers, report)
         return
-    if workers <= 1 or len(jobs) == 1 or config.executor != "local":
+    if workers <= 1 or len(jobs) == 1:
         for method, trial in trials:
             yield function(config, method, trial, report)
         return
@@ -79,7 +79,8 @@ def _in_worker(function: Callable[..., Any], config: BenchConfig, method: str, t
     numpy's BLAS on one thread in a worker process, one of several side by side (as the cells; a
     process forked from one whose torch had run on two threads can hang in its first parallel
     region: ``oodmon.side_by_side``), and on ``OODMON_TORCH_THREADS`` threads in a Ray task,
-    one where it is not set (a Ray worker of another machine does not have this command's setting)."""
+    one where it is not set (a Ray worker of another machine does not have this command's setting).
+    A training (``oodmon.agents.train``) sets its threads from ``OODMON_TORCH_THREADS`` again itself."""
     if config.executor == "ray":
         limit_threads()
     else:

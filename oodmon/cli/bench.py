@@ -139,7 +139,9 @@ def _bench(args: argparse.Namespace) -> int:
     detectors = (tuple(d.strip() for d in args.detectors.split(",")) if args.detectors
                  else tuple(dict.fromkeys(("spread", alarm_detector) if samples else (alarm_detector,))))
     # Ray's own variable, as ray.init() reads it; never a cluster Ray would find by its files (`ray start`'s)
-    address = args.address or (os.environ.get("RAY_ADDRESS") or None if args.executor == "ray" else None)
+    address = args.address or None
+    if address is None and args.executor == "ray":
+        address = os.environ.get("RAY_ADDRESS") or None
     config = BenchConfig(args.task, methods, args.trials or (1 if args.sb3 or args.policy else 5), variants,
                          args.episodes or (10 if monitor else 5), args.id_episodes or (200 if monitor else 10),
                          out=args.out, workers=args.workers,
