@@ -459,6 +459,11 @@ def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, c
                  "--episodes", "11", "--out", str(path)]) == 0
     capsys.readouterr()
     threshold = Threshold.load(path)
+    assert threshold.episode_seeds == {"calibration": [200_000, 200_011]} and threshold.workers == 1
+    # its own calibration episodes are not fresh: refused before any episode, with a seed that is
+    assert main(["validate", str(path), "--episodes", "12", "--seed", "199999"]) == 2
+    assert re.search(r"seeds 199,999-200,010\) are not fresh: they include the threshold's calibration episodes "
+                     r"\(seeds 200,000-200,010\).*e\.g\. 700000", capsys.readouterr().err.replace("\n", " "))
     assert main(["validate", str(path), "--episodes", "12", "--seed", "700100", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     fresh = id_episode_scores(load("cartpole", "ensemble"), 12, seed=700_100, score=threshold.score)

@@ -256,6 +256,14 @@ class Threshold:
             CartPole DropConnect threshold of K=20, 0 of 100 fresh ID episodes alarmed, read 6 of 100
             with K=5). ``None``: a policy without samples, or not recorded (files written before it
             existed).
+        episode_seeds: the reset seeds of the ID episodes it was calibrated on, by use, each as
+            ``[first, end)``: ``calibration``, and ``reference`` for a sequential rule; ``oodmon
+            validate`` refuses to count false alarms on them (they are not fresh: the threshold is
+            the largest statistic of its calibration episodes, or near it). ``None``: not recorded
+            (files written before 2026-12-01, or a threshold calibrated on scores alone).
+        workers: the processes its episodes were played in (:mod:`oodmon.side_by_side`): an MC
+            agent's samples drew from one stream in one process, and from a stream per episode
+            in two or more. ``None``: not recorded.
     """
 
     value: float
@@ -279,6 +287,8 @@ class Threshold:
     warmup: int = 0
     detectors_hash: str | None = None
     samples: int | None = None
+    episode_seeds: dict[str, list[int]] | None = None
+    workers: int | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -412,6 +422,13 @@ def _check_fields(threshold: Threshold) -> None:
         raise bad("samples", "it must be a whole number >= 1, or null")
     if threshold.masks is not None and threshold.masks not in MASKS:
         raise bad("masks", f"use {', '.join(map(repr, MASKS))} or null")
+    if threshold.workers is not None and not is_whole(threshold.workers):
+        raise bad("workers", "it must be a whole number >= 1, or null")
+    seeds = threshold.episode_seeds
+    if seeds is not None and not (isinstance(seeds, dict) and all(
+            isinstance(name, str) and isinstance(pair, (list, tuple)) and len(pair) == 2
+            and all(is_whole(seed, minimum=0) for seed in pair) and pair[0] <= pair[1] for name, pair in seeds.items())):
+        raise bad("episode_seeds", "it must be an object of [first, end) seed pairs by use, or null")
 
 
 def calibrate(

@@ -402,3 +402,65 @@ def test_a_calibration_saved_on_a_full_disk_leaves_the_earlier_pair_whole(tmp_pa
         "spread", "features"]
     assert (tmp_path / "thr.json.detectors" / "notes.txt").read_text() == "mine"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["thr.json", "thr.json.detectors"]
+
+
+def _fitted_on(seed: int, episodes: int):
+    from oodmon.monitor.detectors import DetectorSet
+
+    return DetectorSet([], fitted_for={"seed": seed, "episodes": episodes})
+
+
+def test_validation_refuses_the_episodes_a_threshold_or_its_detectors_were_made_from():
+    """A threshold is the largest statistic of its calibration episodes, or near it, and learned
+    detectors learned their fitting episodes: counted again as fresh, they read below the true
+    false-alarm rate. Every recorded range is refused, to its first and last seed, and nothing
+    beside it."""
+    from oodmon.monitor.calibration import check_fresh, seeds_used
+
+    made = calibrate([np.zeros(5)] * 45, 0.05, consecutive=1)
+    made = Threshold(**{**made.__dict__, "episode_seeds": {"calibration": [200_000, 200_050],
+                                                           "reference": [800_000, 800_020]}})
+    fitted = _fitted_on(600_000, 90)
+    assert seeds_used(made, fitted) == {"calibration": [200_000, 200_050], "reference": [800_000, 800_020],
+                                        "detector fitting": [600_000, 600_090]}
+    for seed, episodes in [(199_990, 10), (200_050, 5), (799_990, 10), (800_020, 3), (599_000, 1000),
+                           (600_090, 10), (700_000, 200)]:
+        check_fresh(made, fitted, seed, episodes)  # beside every range: fresh
+    for seed, episodes, which in [(199_991, 10, "threshold's calibration"), (200_049, 1, "threshold's calibration"),
+                                  (100_000, 500_000, "threshold's calibration"), (800_019, 5, "sequential rule's reference"),
+                                  (599_001, 1000, "detectors' fitting"), (600_089, 1, "detectors' fitting")]:
+        with pytest.raises(ConfigError, match=f"not fresh: they include the {which}"):
+            check_fresh(made, fitted, seed, episodes)
+    check_fresh(made, None, 600_000, 10)  # an alarm on the spread reads no fitted detector
+    # An older file records none: nothing to refuse.
+    check_fresh(calibrate([np.zeros(5)] * 45, 0.05, consecutive=1), None, 200_000, 50)
+
+
+def test_the_seed_a_refusal_suggests_is_fresh():
+    """The refusal names a first seed whose episodes miss every recorded range: the validation
+    range's first where it is free, else past the ranges in its way."""
+    from oodmon.monitor.calibration import check_fresh
+
+    made = calibrate([np.zeros(5)] * 45, 0.05, consecutive=1)
+    for used, fitted, episodes, suggested in [
+            ({"calibration": [200_000, 200_050]}, None, 200, 700_000),
+            ({"calibration": [700_000, 700_050]}, None, 200, 700_050),  # calibrated on validation's seeds
+            ({"calibration": [700_100, 700_150]}, _fitted_on(700_000, 90), 200, 700_150),
+            ({"calibration": [700_000, 700_050]}, _fitted_on(700_060, 90), 5, 700_050)]:  # a gap of 10
+        threshold = Threshold(**{**made.__dict__, "episode_seeds": used})
+        with pytest.raises(ConfigError, match=f"e\\.g\\. {suggested}$") as refused:
+            check_fresh(threshold, fitted, min(first for first, _ in used.values()), episodes)
+        assert "not fresh" in str(refused.value)
+        check_fresh(threshold, fitted, suggested, episodes)
+
+
+@pytest.mark.parametrize("field, value", [("episode_seeds", {"calibration": [5]}),
+                                          ("episode_seeds", {"calibration": [9, 3]}),
+                                          ("episode_seeds", {"calibration": [-1, 3]}),
+                                          ("episode_seeds", [200_000, 200_050]), ("workers", 0), ("workers", 1.5)])
+def test_a_threshold_file_with_bad_seeds_or_workers_is_refused(tmp_path, field, value):
+    path = calibrate([np.zeros(5)] * 45, 0.05, consecutive=1).save(tmp_path / "t.json")
+    data = json.loads(path.read_text())
+    path.write_text(json.dumps({**data, field: value}))
+    with pytest.raises(ConfigError, match=f"{field}=.* is not allowed"):
+        Threshold.load(path)

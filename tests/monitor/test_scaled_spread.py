@@ -13,7 +13,9 @@ from oodmon.agents import load
 from oodmon.agents.estimators import Estimate
 from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
-from oodmon.monitor.detectors import DetectorSet, ScaledSpreadDetector, StepContext, Trajectory, collect, fit_agent_detectors, trajectory_scores
+from oodmon.monitor.detectors import (
+    DetectorSet, ScaledSpreadDetector, StepContext, Trajectory, collect, fit_agent_detectors, trajectory_scores,
+)
 from tests.helpers import run_cli
 
 
@@ -134,6 +136,9 @@ def test_calibrate_fits_it_when_asked_and_run_alarms_on_it(tmp_path):
     assert "scaled_spread detector" in result.stdout
     assert DetectorSet.load(f"{out}.detectors").names == ["spread", "scaled_spread"]
     assert json.loads(out.read_text())["detector"] == "scaled_spread"
+    # the episodes it was made from, recorded (validate refuses them): 45 calibration, 20 reference
+    assert json.loads(out.read_text())["episode_seeds"] == {"calibration": [200_000, 200_045],
+                                                           "reference": [800_000, 800_020]}
     run = run_cli("run", "--task", "pendulum", "--method", "ensemble", "--threshold", str(out), "--variant",
                   "pendulum:m=0.05", "--onset", "50", "--episodes", "3", "--mcap", str(tmp_path / "m.mcap"))
     assert run.returncode == 0, run.stderr
