@@ -145,12 +145,19 @@ def _play_run(first: int, count: int) -> list:
 
 
 def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
-                      on_progress: Progress | None = None, *, total: int | None = None) -> list:
+                      on_progress: Progress | None = None, *, total: int | None = None,
+                      run_size: int | None = None) -> list:
     """``play`` over ``episodes`` episodes in ``workers`` processes forked from this one (a run of
     consecutive episodes each, :func:`runs_of`); every episode's result in the episodes' order.
     ``on_progress(stage, done, total)`` here at each ``done()`` in any process (``total``: the
     episodes; a play whose items are variants of several episodes each says ``done()`` after each
     of those and gives their number). With one worker, ``play(0, episodes, ...)`` runs here.
+
+    ``run_size``: runs of at most this many episodes instead, each worker taking the next when its
+    last ends. A run's results come back here (pickled) when it ends, so a play whose results are
+    large sends them a few at a time: the detectors' fitting keeps every frame of every game
+    (Pong: about 70 MB a game), which in runs of 45 games would be held here, in the worker and in
+    the pipe between at once.
 
     A worker's exception is raised here and the other workers are stopped at once; so is an
     interrupt here (Ctrl-C reaches every process of the command's group), and a worker's death
@@ -181,7 +188,9 @@ def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
     with ProcessPoolExecutor(workers, mp_context=context, initializer=_install,
                              initargs=(play, queue, stop, os.getpid())) as pool:
         try:
-            runs = [pool.submit(_play_run, *run) for run in runs_of(episodes, workers)]
+            runs = [pool.submit(_play_run, *run) for run in (
+                runs_of(episodes, workers) if run_size is None else
+                [(first, min(run_size, episodes - first)) for first in range(0, episodes, run_size)])]
             pending = set(runs)
             while pending:
                 ended, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)

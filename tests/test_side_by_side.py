@@ -159,6 +159,68 @@ def test_calibrate_and_validate_take_workers(four_cores, tmp_path, capsys):
     assert report["alarmed"] == validate_threshold(load("cartpole", "ensemble"), alone, 12, seed=700_100).alarmed
 
 
+def test_runs_of_a_given_size_come_back_in_order_one_by_one(four_cores):
+    """``run_size``: the workers take runs of at most that many episodes, the next when one ends,
+    so that large results (the detectors' fitting: every frame of a game) come back a few at a time."""
+    def play(first, count, done):
+        for _ in range(count):
+            done()
+        return [(first, count, os.getpid())] * count
+
+    played = play_side_by_side(play, 7, 2, "x", run_size=3)
+    assert [(first, count) for first, count, _ in played] == [(0, 3)] * 3 + [(3, 3)] * 3 + [(6, 1)]
+    assert os.getpid() not in {pid for _, _, pid in played}
+    assert [(first, count) for first, count, _ in play_side_by_side(play, 4, 2, "x", run_size=1)] == \
+        [(0, 1), (1, 1), (2, 1), (3, 1)]
+
+
+def test_fit_detectors_takes_workers_and_fits_what_one_process_fits(four_cores, tmp_path, capsys):
+    """An ensemble's fitting episodes played by two processes: the same detectors (fingerprints of
+    their arrays) as in one, and the set says how many played them."""
+    from oodmon.monitor.detectors import DetectorSet, fit_agent_detectors
+
+    assert main(["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--episodes", "6", "--workers", "2",
+                 "--out", str(tmp_path / "d")]) == 0
+    assert "on 6 ID episodes played by 2 processes side by side; wrote" in capsys.readouterr().out
+    side_by_side = DetectorSet.load(tmp_path / "d")
+    alone = fit_agent_detectors(load("cartpole", "ensemble"), episodes=6)
+    assert side_by_side.fingerprints() == alone.fingerprints() and len(alone.fingerprints()) == 3
+    assert side_by_side.fitted_for["workers"] == 2 and "workers" not in alone.fitted_for
+
+
+def test_an_mc_agents_fitting_episodes_are_the_same_for_any_workers_from_two(four_cores):
+    from oodmon.monitor.detectors import collect
+
+    def features(workers):
+        agent = load("cartpole", "dropout", seed=5)
+        return [t.features for t in collect(agent, agent.make_env(), 5, workers=workers, max_steps=60)]
+
+    two, three, one = features(2), features(3), features(1)
+    assert all(np.array_equal(a, b) for a, b in zip(two, three))
+    assert not all(np.array_equal(a, b) for a, b in zip(one, two))
+
+
+def test_played_on_for_steps_side_by_side_the_episodes_are_one_processs(four_cores):
+    """For ``min_steps`` (your own env's default fitting) one process plays on until its episodes
+    hold them; side by side, batches of as many as the missing steps need, cut back to the first
+    episodes that hold them: the same episodes, whatever the number of workers."""
+    import gymnasium
+
+    from oodmon.monitor.detectors import collect
+
+    env = gymnasium.make("CartPole-v1")
+    policy = lambda obs: int(obs[2] > 0)  # noqa: E731  (falls after 25-60 steps, as many as the seeds vary)
+    lengths = {}
+    for workers in (1, 2, 3):
+        reports = []
+        played = collect(policy, env, 3, seed=0, min_steps=1_000, workers=workers,
+                         on_progress=lambda *report: reports.append(report))
+        lengths[workers] = [len(t) for t in played]
+        assert reports[-1] == ("detector fitting steps", 1_000, 1_000)
+    assert lengths[1] == lengths[2] == lengths[3] and len(set(lengths[1])) > 3
+    assert sum(lengths[1][:-1]) < 1_000 <= sum(lengths[1])
+
+
 KILLED = """
 import os, sys, time
 import oodmon.side_by_side

@@ -57,7 +57,7 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
                                 f"{_FIT_EPISODES}; your own --env: more, until they hold {_FIT_STEPS:,} steps)")
     calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
                            help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
-    _add_workers(calibrate, "the calibration episodes")
+    _add_workers(calibrate, "the calibration episodes (and those of a fit of detectors before it)")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
 
@@ -93,7 +93,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
         with _progress() as report:
             detectors = fit_agent_detectors(agent, detectors=fitted_when_named(args.detector), score=args.score,
-                                            episodes=args.fit_episodes, on_progress=report)
+                                            episodes=args.fit_episodes, on_progress=report, workers=args.workers)
     with _progress() as report:
         threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
                                     window=args.window, score=args.score, seed=args.seed, detectors=detectors,
@@ -256,6 +256,7 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
     fit.add_argument("--score", default="chosen_std", help="the spread score combined uses (default chosen_std)")
     fit.add_argument("--obs-noise", type=_non_negative, default=0.0,
                      help="sensor noise of the ID env, a fraction of each dimension's ID spread (default 0)")
+    _add_workers(fit, "the fitting episodes")
     fit.add_argument("--out", required=True, help="folder for detectors.json and detectors.safetensors")
     fit.add_argument("--overwrite", action="store_true",
                      help="replace the fitted detectors --out holds already; without it they are refused, since a "
@@ -285,14 +286,16 @@ def _fit_detectors(args: argparse.Namespace) -> int:
     only = args.only.split(",") if args.only else None
     with _progress() as report:
         detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
-                                        obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report)
+                                        obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report,
+                                        workers=args.workers)
     detectors.save(args.out)
     console = Console(soft_wrap=True)
     beside = _calibrated_beside(out)  # after the fitting: the threshold beside as it is now
     replaced = "" if not replacing else f" (replacing the set it held{beside}: calibrate that threshold again)" if beside \
         else " (replacing the set it held)"
-    console.print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
-                  f"{detectors.fitted_for['episodes']} ID episodes; wrote {args.out}{replaced}")
+    played = detectors.fitted_for["episodes"]
+    console.print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on {played} ID episodes"
+                  f"{_side_by_side(detectors.fitted_for.get('workers', 1), played)}; wrote {args.out}{replaced}")
     for note in fitting_notes(detectors):
         console.print(note, markup=False)
     return 0

@@ -118,8 +118,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     ``unsafe_load_pickles``: see :func:`as_agent`.
     ``warmup``: the alarm looks at no finite score of an episode's first ``warmup`` steps (see
     :mod:`oodmon.monitor.alarms`; the calibration says when one would lower the threshold much).
-    ``workers``: processes that play the calibration episodes side by side (0: one per core; see
-    :func:`~oodmon.monitor.calibrate_agent`: a policy that draws nothing gets the same threshold).
+    ``workers``: processes that play the fitting and calibration episodes side by side (0: one per
+    core; see :func:`~oodmon.monitor.calibrate_agent`: a policy that draws nothing gets the same
+    detectors and threshold).
 
     A calibration is minutes of ID episodes, which a deployed process cannot run at every start:
     ``save`` writes the threshold to that file and the fitted detectors to ``<save>.detectors/``
@@ -175,7 +176,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     if threshold is None:
         check_can_have(detector, agent)  # (a plain policy's spread: said before the fit, not after it)
         detectors = fit_agent_detectors(agent, detectors=fitted_when_named(detector),  # as the CLI fits them
-                                        episodes=fit_episodes, on_progress=on_progress)
+                                        episodes=fit_episodes, on_progress=on_progress, workers=workers)
         for note in fitting_notes(detectors):  # what the fit leaves unwatched, as calibrate prints it
             warnings.warn(note, stacklevel=2)
         alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,

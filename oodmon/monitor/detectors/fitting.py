@@ -12,6 +12,7 @@ afterwards on other episodes, so its guarantee holds for the fitted detectors as
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -38,6 +39,7 @@ from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.names import fixed_masks
 from oodmon.progress import Progress
 from oodmon.seeds import DETECTOR_FIT
+from oodmon.side_by_side import episode_streams, play_side_by_side, resolve_workers
 from oodmon.validation import is_whole
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector", "collect",
@@ -152,12 +154,20 @@ def policy_parts(policy: Any) -> tuple[Any, Callable[[np.ndarray], Any], dict]:
 def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETECTOR_FIT,
             on_progress: Progress | None = None, max_steps: int | None = None,
             with_member_values: bool = False, estimates_from: int | None = None,
-            min_steps: int = 0) -> list[Trajectory]:
+            min_steps: int = 0, workers: int = 1) -> list[Trajectory]:
     """Play ``episodes`` episodes of ``env`` (seeds ``seed``, ``seed + 1``, ...) with ``policy``
     (each cut after ``max_steps`` steps if given), and more until they hold ``min_steps`` steps;
     ``with_member_values``: keep an ensemble's members' values too (what ``scaled_spread`` is
     fitted on); ``estimates_from``: keep each step's estimate (``Trajectory.estimates``) in the
-    episodes from this index on."""
+    episodes from this index on.
+
+    ``workers``: processes that play them side by side (0: one per core), each with its copy of
+    ``policy`` and ``env`` (:mod:`oodmon.side_by_side`, which says what an MC policy draws there),
+    sending each episode back as it ends. The episodes are those one process plays: those asked
+    for, then, for ``min_steps``, batches of as many more as the steps still missing need at the
+    mean length so far, cut back to the first that hold them.
+    """
+    workers = resolve_workers(workers, episodes)
     estimator, act, _ = policy_parts(policy)
     ensemble = with_member_values and has_members(estimator)
     deploy = getattr(policy, "deploy", None)  # an Agent whose deployed policy is not its estimator's decision
@@ -169,8 +179,8 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     # the action masks of each step), told as the monitor tells it, in an env of yours too.
     begin = policy.begin_episode if getattr(policy, "remembers", False) else None
     tell = policy.tell_masks if getattr(policy, "reads_masks", False) else None
-    trajectories, steps, episode = [], 0, 0
-    while episode < episodes or steps < min_steps:
+
+    def play_episode(episode: int) -> Trajectory:
         obs, _ = env.reset(seed=seed + episode)
         if begin is not None:
             begin()
@@ -205,16 +215,56 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
         if own is not None:  # what the policy acted on is kept where an estimator reads it again
             acted_on = np.asarray(observations) if estimator is not None else None
             observations = [own(o) for o in observations]
-        trajectories.append(Trajectory(np.asarray(observations), np.asarray(actions),
-                                       np.asarray(features) if len(features) == len(actions) else None,
-                                       np.asarray(values) if ensemble and values[0] is not None else None,
-                                       acted_on, pictures, tuple(estimates) if keep else None))
-        steps += len(actions)
+        return Trajectory(np.asarray(observations), np.asarray(actions),
+                          np.asarray(features) if len(features) == len(actions) else None,
+                          np.asarray(values) if ensemble and values[0] is not None else None,
+                          acted_on, pictures, tuple(estimates) if keep else None)
+
+    if workers > 1:
+        return _collect_side_by_side(play_episode, estimator, episodes, seed, workers, min_steps, on_progress)
+    trajectories, steps, episode = [], 0, 0
+    while episode < episodes or steps < min_steps:
+        trajectories.append(play_episode(episode))
+        steps += len(trajectories[-1])
         episode += 1
         if on_progress is not None and episode <= episodes:
             on_progress("detector fitting episodes", episode, episodes)
         elif on_progress is not None:  # on past the episodes asked, for the steps asked
             on_progress("detector fitting steps", min(steps, min_steps), min_steps)
+    return trajectories
+
+
+def _collect_side_by_side(play_episode: Callable[[int], Trajectory], estimator: Any, episodes: int, seed: int,
+                          workers: int, min_steps: int, on_progress: Progress | None) -> list[Trajectory]:
+    """:func:`collect`'s episodes played by ``workers`` processes (``play_episode(i)``: episode ``i``)."""
+    streams = None
+    state = getattr(estimator, "sampling_state", None)
+    if state is not None:  # an estimator that draws: its stream moves on by the one draw that seeds the episodes'
+        estimator.sampling_state, streams = episode_streams(state)
+
+    def play(first: int, count: int, done: Callable[[], None]) -> list[Trajectory]:
+        played = []
+        for episode in range(first, first + count):
+            if streams is not None:
+                estimator.sampling_state = streams(seed + episode)
+            played.append(play_episode(episode))
+            done()
+        return played
+
+    # One episode a run: each comes back as it ends (a Pong game's frames: about 70 MB).
+    trajectories = play_side_by_side(play, episodes, workers, "detector fitting episodes", on_progress, run_size=1)
+    steps = sum(len(t) for t in trajectories)
+    while steps < min_steps:
+        more = max(workers, math.ceil((min_steps - steps) * len(trajectories) / max(steps, 1)))
+        offset = len(trajectories)
+        trajectories += play_side_by_side(lambda first, count, done: play(offset + first, count, done), more, workers,
+                                          "detector fitting episodes, more for the steps", on_progress, run_size=1)
+        steps = sum(len(t) for t in trajectories)
+        if on_progress is not None:
+            on_progress("detector fitting steps", min(steps, min_steps), min_steps)
+    if min_steps:  # as one process: on past the episodes asked only until they hold the steps
+        held = np.cumsum([len(t) for t in trajectories])
+        trajectories = trajectories[:max(episodes, int(np.searchsorted(held, min_steps)) + 1)]
     return trajectories
 
 
@@ -295,7 +345,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
                   episodes: int = DEFAULT_FIT_EPISODES, seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE,
                   task: str | None = None, policy_hash: str | None = None, obs_noise: float = 0.0,
                   on_progress: Progress | None = None, max_steps: int | None = None,
-                  min_steps: int = 0) -> DetectorSet:
+                  min_steps: int = 0, workers: int = 1) -> DetectorSet:
     """Fit the named detectors (default: :func:`default_detectors`) for ``policy`` on
     ``episodes`` ID episodes of ``env`` (each cut after ``max_steps`` steps if given), and more
     until they hold ``min_steps`` steps (two thirds of them fit, one third ranks).
@@ -309,6 +359,11 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     (it brings ``dynamics``), fitted by default in an env oodmon has no variants of, else only when
     named; ``transitions`` needs observations whose values repeat (discrete states, where it is
     fitted by default instead of ``dynamics`` and ``drift``).
+
+    ``workers``: processes that play the episodes side by side (0: one per core; :func:`collect`);
+    the fitting itself runs here. A policy that draws nothing when it decides gets the same
+    detectors from any number; an MC policy's episodes draw from streams of their own there
+    (:mod:`oodmon.side_by_side`), and ``fitted_for["workers"]`` records how many played them.
 
     Raises:
         InvalidParameterError: an unknown detector name or fewer than 3 episodes.
@@ -327,6 +382,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     if not is_whole(episodes, 3):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
                                     "ID episodes (two thirds fit, one third ranks)")
+    workers = resolve_workers(workers, episodes)
     for name in (name for name in detectors if name != "spread"):  # (spread joins where the policy has samples)
         reason = cannot_have(name, policy, env)
         if reason is not None:
@@ -339,7 +395,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     keep_from = max(1, (2 * episodes) // 3) if not min_steps else 0
     trajectories = collect(policy, env, episodes, seed=seed, on_progress=on_progress, max_steps=max_steps,
                            with_member_values="scaled_spread" in detectors,
-                           estimates_from=keep_from if "combined" in detectors else None, min_steps=min_steps)
+                           estimates_from=keep_from if "combined" in detectors else None, min_steps=min_steps,
+                           workers=workers)
     n_fit = max(1, (2 * len(trajectories)) // 3)
     fit, held_out = [replace(t, estimates=None) for t in trajectories[:n_fit]], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []
@@ -365,6 +422,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     fitted_for = {"task": task, "obs_shape": obs_shape, "policy_hash": policy_hash, "version": FIT_VERSION,
                   "episodes": len(trajectories), "seed": seed, "obs_noise": obs_noise,
                   "masks": getattr(estimator, "masks", None)}
+    if workers > 1:  # (recorded only then: the sets fitted in one process before 2026-12-01 read the same)
+        fitted_for["workers"] = workers
     result = DetectorSet(parts, fitted_for=fitted_for)
     if "combined" in detectors:
         left_out = COMBINED_LEAVES_OUT.get(task or "", ())
@@ -445,10 +504,12 @@ def has_members(estimator: Any) -> bool:
 
 def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, episodes: int | None = None,
                         seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE, obs_noise: float = 0.0,
-                        max_steps: int | None = None, on_progress: Progress | None = None) -> DetectorSet:
+                        max_steps: int | None = None, on_progress: Progress | None = None,
+                        workers: int = 1) -> DetectorSet:
     """:func:`fit_detectors` for an oodmon agent in its task's ID env (with ``obs_noise``), on
     ``episodes`` episodes; ``None``: :data:`DEFAULT_FIT_EPISODES`, and for an env oodmon has no
-    variants of as many more as hold :data:`DEFAULT_FIT_STEPS` steps (:func:`default_fit_steps`)."""
+    variants of as many more as hold :data:`DEFAULT_FIT_STEPS` steps (:func:`default_fit_steps`);
+    ``workers`` processes play them side by side."""
     from oodmon.monitor.monitor import policy_hash
 
     env = agent.make_env(obs_noise)
@@ -456,7 +517,7 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
         return fit_detectors(agent, env, detectors=detectors, episodes=episodes or DEFAULT_FIT_EPISODES, seed=seed,
                              score=score, task=agent.task, policy_hash=policy_hash(agent), obs_noise=obs_noise,
                              on_progress=on_progress, max_steps=max_steps,
-                             min_steps=default_fit_steps(agent.task) if episodes is None else 0)
+                             min_steps=default_fit_steps(agent.task) if episodes is None else 0, workers=workers)
     finally:
         env.close()
 
