@@ -1,7 +1,8 @@
 """Which members of a DDPG ensemble set its ``pre_squash_std``, on ID steps and shifted ones.
 
 Run (seconds; any Pendulum ensemble's model folder: the zoo's, a bench trial's):
-    OODMON_TORCH_THREADS=1 .venv/bin/python scripts/member_spread.py runs/bench5/models/pendulum-ensemble-members20-trial3 [--variant pendulum:l=0.1]
+    OODMON_TORCH_THREADS=1 .venv/bin/python scripts/member_spread.py \
+        runs/bench5/models/pendulum-ensemble-members20-trial3 [--variant pendulum:l=0.1]
 
 The ensemble acts (its members' mean decides) for 10 ID episodes (seeds 200000+) and 5 of the
 variant (seeds 400000+), the sweeps' episodes, and at every step each member's actor output before

@@ -9,7 +9,8 @@ over 10 ID episodes as oodmon deploys it. Then watch them with the README's comm
 model acts, the three models' deterministic actions are the ensemble's samples::
 
     oodmon calibrate --sb3 runs/sac/sac0.zip runs/sac/sac1.zip runs/sac/sac2.zip --env Pendulum-v1 --out runs/sac/t.json
-    oodmon validate runs/sac/t.json --sb3 runs/sac/sac0.zip runs/sac/sac1.zip runs/sac/sac2.zip --env Pendulum-v1 --episodes 100 --seed 4242
+    oodmon validate runs/sac/t.json --sb3 runs/sac/sac0.zip runs/sac/sac1.zip runs/sac/sac2.zip --env Pendulum-v1 \
+        --episodes 100 --seed 4242
     oodmon run --sb3 runs/sac/sac0.zip runs/sac/sac1.zip runs/sac/sac2.zip --env Pendulum-v1 --threshold runs/sac/t.json \\
         --variant pendulum:m=5.0 --onset 50 --episodes 10 --mcap runs/sac/m5.mcap
     oodmon replay runs/sac/m5.mcap

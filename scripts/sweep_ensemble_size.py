@@ -29,7 +29,8 @@ from oodmon.agents import load
 from oodmon.agents.estimators import EnsembleEstimator
 from oodmon.agents.serialization import load_modules
 from oodmon.threads import limit_threads
-from sweep_full_depth import append_row, bench_trial, parse_or_print_table, read_rows, spread_aurocs  # scripts/: the MC sweeps' measurement
+# scripts/: the MC sweeps' measurement
+from sweep_full_depth import append_row, bench_trial, parse_or_print_table, read_rows, spread_aurocs
 
 OUT = Path("results/sweeps/ensemble_size.jsonl")
 VARIANTS = {"cartpole": ["cartpole:gravity=98.0", "cartpole:length=2.0"],

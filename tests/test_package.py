@@ -147,7 +147,8 @@ def test_the_goals_take_per_variant_the_row_meeting_both_then_the_mean_then_the_
     length = next(line for line in lines if "length=2.0" in line)
     assert "0.900 ± 0.020 (5) | `b`, `scaled_spread` | yes | yes |" in gravity
     assert "0.800 ± 0.010 (5) | `a`, `spread` | no | no |" in length
-    assert lines[-1] == "Best mean AUROC, cartpole: ours 0.900 (ensemble gravity=98.0, `b`, `scaled_spread`), the paper's 0.883 (ensemble length=2.0)."
+    assert lines[-1] == ("Best mean AUROC, cartpole: ours 0.900 (ensemble gravity=98.0, `b`, `scaled_spread`), the paper's "
+                         "0.883 (ensemble length=2.0).")
     only_dropout = script.goals([result("d", [], methods=["dropout"])]).splitlines()
     assert all("does not fail (in any file)" in line for line in only_dropout[2:5])
     assert only_dropout[-1] == ("Best mean AUROC, cartpole: ours none (no variant failed), the paper's 0.712 "

@@ -308,7 +308,8 @@ def test_sweep_fixed_masks_measures_an_agent_and_tabulates_its_rows(monkeypatch,
     monkeypatch.setitem(script.VARIANTS, ("pendulum", "dropconnect"), ["pendulum:g=50.0"])
     monkeypatch.setattr(script, "ID_EPISODES", 1)
     monkeypatch.setattr(script, "SHIFTED_EPISODES", 1)
-    monkeypatch.setattr(script, "fit_agent_detectors", lambda agent, **kw: fit_agent_detectors(agent, episodes=6, max_steps=40, **kw))
+    monkeypatch.setattr(script, "fit_agent_detectors",
+                        lambda agent, **kw: fit_agent_detectors(agent, episodes=6, max_steps=40, **kw))
     monkeypatch.setattr(script, "collect", lambda *a, **kw: collect(*a, **kw, max_steps=50))  # episodes of 50 steps
     row = script.measure(zoo_dir() / "pendulum-dropconnect")
     assert row["score"] == "pre_squash_std" and set(row["auroc"]) == set(script.MEASURES)
@@ -399,7 +400,8 @@ def test_fuzz_readers_counts_what_each_reader_answers_and_names_what_is_not_oodm
     assert out.startswith(f"threshold: {copies} damaged copies of threshold.json: ") and "refused (ConfigError)" in out
     # A reader that fails with another error is reported with the damage that made it fail.
     broken = script.fuzz("broken", files, lambda folder: int("x"), cuts=2, flips=1)
-    assert len(broken) == len(range(0, size, size // 2)) + 1 and broken[0].startswith("broken: threshold.json, cut at 0: ValueError: invalid literal")
+    assert len(broken) == len(range(0, size, size // 2)) + 1
+    assert broken[0].startswith("broken: threshold.json, cut at 0: ValueError: invalid literal")
 
 
 def test_fuzz_cli_draws_quick_commands_and_tells_an_answer_from_a_traceback(monkeypatch, tmp_path):

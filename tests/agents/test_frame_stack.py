@@ -24,7 +24,8 @@ from tests.helpers import NoisePictures
 
 
 @pytest.mark.parametrize("make, shape", [(lambda: gymnasium.make("CartPole-v1"), (16,)),
-                                         (lambda: NoisePictures((20, 24, 3), steps=15), (20, 24, 12))], ids=["vector", "channels-last pictures"])
+                                         (lambda: NoisePictures((20, 24, 3), steps=15), (20, 24, 12))],
+                         ids=["vector", "channels-last pictures"])
 def test_frame_stack_gives_the_observations_vecframestack_gives(make, shape):
     theirs = VecFrameStack(DummyVecEnv([make]), 4)
     theirs.seed(5)
@@ -229,7 +230,8 @@ def test_a_model_trained_normalised_then_stacked_sees_what_vecframestack_of_vecn
     assert agent.metadata["vec_normalize"]["normalised_then_stacked"] == 3
     in_memory = sb3_agent([ppo], "CartPole-v1")  # the VecFrameStack and VecNormalize it learned in
     assert in_memory.frame_stack == 3 and in_memory.metadata["vec_normalize"]["normalised_then_stacked"] == 3
-    theirs = VecFrameStack(VecNormalize.load(tmp_path / "vecnormalize.pkl", DummyVecEnv([lambda: gymnasium.make("CartPole-v1")])), 3)
+    venv = DummyVecEnv([lambda: gymnasium.make("CartPole-v1")])
+    theirs = VecFrameStack(VecNormalize.load(tmp_path / "vecnormalize.pkl", venv), 3)
     theirs.venv.training = False
     theirs.seed(5)
     a, ours = theirs.reset()[0], agent.make_env()

@@ -816,7 +816,8 @@ def test_a_policy_class_of_the_users_own_is_told_by_its_algorithms_hyperparamete
     assert sb3_algorithm(tmp_path / "DQN.zip") == ("QRDQN",)
     _rewrite_policy_module(tmp_path / "DQN.zip", "sb3_contrib.newer.policies")
     with pytest.raises(ConfigError, match="holds a policy of sb3_contrib.newer.policies; oodmon loads stable-baselines3's "
-                                          "DQN, .* and sb3-contrib's QR-DQN, TQC, TRPO, ARS, CrossQ, RecurrentPPO and MaskablePPO models"):
+                                          "DQN, .* and sb3-contrib's QR-DQN, TQC, TRPO, ARS, CrossQ, RecurrentPPO and "
+                                          "MaskablePPO models"):
         sb3_algorithm(tmp_path / "DQN.zip")
 
 

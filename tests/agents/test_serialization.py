@@ -131,7 +131,8 @@ def test_architecture_mismatch(saved):
     metadata = json.loads((path / "model.json").read_text())
     metadata["architecture"]["net_arch"] = [32, 16]
     (path / "model.json").write_text(json.dumps(metadata))
-    with pytest.raises(ModelFormatError, match=r"does not match the architecture in model.json \(wrong shape: network.1.bias, network.1.weight"):
+    with pytest.raises(ModelFormatError,
+                       match=r"does not match the architecture in model.json \(wrong shape: network.1.bias, network.1.weight"):
         load_agent(path)
 
 

@@ -79,14 +79,16 @@ def test_interrupted_training_resumes_from_its_checkpoint(tmp_path):
     assert not (tmp_path / "model.json").exists()
 
     resumed: list[int] = []
-    train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=lambda run, done, total: resumed.append(done), id_episodes=2)
+    train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=lambda run, done, total: resumed.append(done),
+          id_episodes=2)
     assert resumed[0] == 512  # it started from the checkpoint, not from zero
     state = json.loads((tmp_path / "runs" / "main" / "state.json").read_text())
     assert state["finished"] is True and state["steps"] >= 1000
     assert not (tmp_path / "runs" / "main" / "replay_buffer.npz").exists()  # dropped once finished
     # Running the finished command again trains nothing more.
     again: list[int] = []
-    train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=lambda run, done, total: again.append(done), id_episodes=2)
+    train("cartpole", "dropout", tmp_path, total_steps=1000, on_progress=lambda run, done, total: again.append(done),
+          id_episodes=2)
     assert min(again) == state["steps"]
 
 
@@ -128,7 +130,8 @@ def test_a_run_begun_by_another_recipe_is_not_resumed(tmp_path):
     state = {"steps": 500, "wall_time_s": 1.0, "finished": False, "seed": 0, "recipe": recipe_record(recipe)}
     (folder / "state.json").write_text(json.dumps(state))
     assert _Run(recipe, tmp_path, "main", 0).state["steps"] == 500
-    with pytest.raises(ConfigError, match=r"holds a training by another recipe \(drop_p: 0.1 -> 0.3\): resuming it would mix the two. Train into"):
+    with pytest.raises(ConfigError, match=r"holds a training by another recipe \(drop_p: 0.1 -> 0.3\): resuming it would "
+                                          r"mix the two. Train into"):
         _Run(dataclasses.replace(recipe, drop_p=0.3), tmp_path, "main", 0)
     del state["recipe"]
     (folder / "state.json").write_text(json.dumps(state))
@@ -244,7 +247,8 @@ def test_export_ships_the_snapshot_that_plays_best_as_shipped(tmp_path, monkeypa
     from oodmon.agents.evaluation import episode_returns
     from oodmon.envs.grid import Variant
 
-    monkeypatch.setattr(training, "recipe_for", lambda task, method: replace(recipe_for(task, method), select_top=2, eval_every=500))
+    monkeypatch.setattr(training, "recipe_for",
+                        lambda task, method: replace(recipe_for(task, method), select_top=2, eval_every=500))
     reports: list[tuple] = []
     agent = train("cartpole", "dropconnect", tmp_path, total_steps=1500, id_episodes=2,
                   on_progress=lambda *args: reports.append(args))
@@ -270,7 +274,8 @@ def test_export_does_not_play_a_snapshot_again_that_an_earlier_export_scored(tmp
     import oodmon.agents.training as training
     from dataclasses import replace
 
-    monkeypatch.setattr(training, "recipe_for", lambda task, method: replace(recipe_for(task, method), select_top=2, eval_every=500))
+    monkeypatch.setattr(training, "recipe_for",
+                        lambda task, method: replace(recipe_for(task, method), select_top=2, eval_every=500))
     first = train("cartpole", "dropconnect", tmp_path, total_steps=1000, id_episodes=1).metadata["checkpoint_selection"]
     cache_path = tmp_path / "runs" / "main" / "selection.json"
     cache = json.loads(cache_path.read_text())

@@ -165,7 +165,8 @@ def test_severity_outside_one_to_five_is_refused(severity):
 
 
 def test_bad_corruption_input_is_named():
-    with pytest.raises(UnknownParameterError, match="unknown corruption 'fog'; choose one of gaussian_noise, impulse_noise, motion_blur, pixelate"):
+    with pytest.raises(UnknownParameterError,
+                       match="unknown corruption 'fog'; choose one of gaussian_noise, impulse_noise, motion_blur, pixelate"):
         make_corruption("fog", 1)
     with pytest.raises(UnknownParameterError, match="pixelate has no parameter 'sigma'; it takes factor"):
         make_corruption("pixelate", sigma=0.1)

@@ -116,7 +116,8 @@ def test_a_trace_whose_shifted_scores_dwarf_the_id_ones_draws_them_on_a_symlog_a
     calm = -2.0 + 0.2 * rng.standard_normal(400)
     wide = [_episode(calm[:200], None), _episode(np.r_[calm[200:300], np.geomspace(100, 27_000, 150)], 100)]
     assert score_scale(wide, -1.47) == 10.0  # the ID scale, about 2.5, rounded up to a decade
-    spread = [_episode(0.05 + 0.01 * rng.random(200), None), _episode(np.r_[0.05 + 0.01 * rng.random(100), np.full(50, 0.5)], 100)]
+    spread = [_episode(0.05 + 0.01 * rng.random(200), None),
+              _episode(np.r_[0.05 + 0.01 * rng.random(100), np.full(50, 0.5)], 100)]
     assert score_scale(spread, 0.08) is None  # shifted scores 6 times the ID ones: a linear axis reads well
     assert score_scale(spread, float("nan")) is None
     inf = [_episode(np.r_[calm[:100], np.inf, 1.0], 100)]  # a failed sensor's +inf is not a size
