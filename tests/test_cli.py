@@ -464,6 +464,14 @@ def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, c
     assert main(["validate", str(path), "--episodes", "12", "--seed", "199999"]) == 2
     assert re.search(r"seeds 199,999-200,010\) are not fresh: they include the threshold's calibration episodes "
                      r"\(seeds 200,000-200,010\).*e\.g\. 700000", capsys.readouterr().err.replace("\n", " "))
+    # a monitored run of them is warned (its logs' false alarms read low), not refused; a shifted one is not
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(path), "--seed", "200010",
+                 "--episodes", "1"]) == 0
+    assert "the run's episodes (seeds 200,010-200,010) include the threshold's calibration episodes (seeds " \
+           "200,000-200,010)" in capsys.readouterr().err.replace("\n", " ")
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(path), "--seed", "200010",
+                 "--episodes", "1", "--variant", "cartpole:length=2.0"]) == 0
+    assert "the run's episodes" not in capsys.readouterr().err
     assert main(["validate", str(path), "--episodes", "12", "--seed", "700100", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     fresh = id_episode_scores(load("cartpole", "ensemble"), 12, seed=700_100, score=threshold.score)

@@ -97,6 +97,8 @@ def _run(args: argparse.Namespace) -> int:
                           + ": leave out --render")
     env, label = _run_env(args, agent)
     detectors = _detectors(args, agent)
+    if threshold is not None and (not args.variant or args.onset or label == args.task):  # ID steps: false alarms
+        _warn_if_reused(threshold, detectors, args.seed, args.episodes)
     sinks = [] if mcap is None else [mcap]
     if args.rrd or args.spawn or args.serve or args.connect:
         sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect,
@@ -163,6 +165,23 @@ def _listed_by(mcap, path: str | None, *, failed: bool) -> str:
     if failed:
         return f": the MCAP log lacks some (its sink failed), `oodmon replay {log} --episodes` lists those it holds"
     return f": `oodmon replay {log} --episodes` lists every one"
+
+
+def _warn_if_reused(threshold, detectors, seed: int, episodes: int) -> None:
+    """Warn where the run's episodes are ones ``threshold`` or the detectors its alarm reads were
+    made from: their ID steps alarm less often than a fresh episode's would, so a count of false
+    alarms in their logs reads low (``oodmon validate`` refuses such episodes)."""
+    import warnings
+
+    from oodmon.monitor.calibration import reused_episodes
+
+    learned = threshold.detector != "spread" and detectors is not None and threshold.detector in detectors
+    reused, free = reused_episodes(threshold, detectors.subset([threshold.detector]) if learned else None, seed,
+                                   episodes)
+    if reused:
+        warnings.warn(f"the run's episodes (seeds {seed:,}-{seed + episodes - 1:,}) include {reused}, which the "
+                      "threshold was made from: they alarm less often in the ID env than fresh episodes would, so "
+                      f"their false alarms read low (another --seed: e.g. {free})", UserWarning, stacklevel=2)
 
 
 def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:

@@ -30,7 +30,7 @@ from oodmon.side_by_side import episode_streams, play_side_by_side, resolve_work
 from oodmon.validation import is_whole
 
 __all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "check_fresh", "clopper_pearson", "id_episode_scores",
-           "save_calibration", "seeds_used", "validate_threshold"]
+           "reused_episodes", "save_calibration", "seeds_used", "validate_threshold"]
 
 CALIBRATION_SEED = seeds.CALIBRATION
 #: ID episodes a sequential rule's p-values are taken against.
@@ -241,6 +241,27 @@ def seeds_used(threshold: Threshold, detectors: DetectorSet | None = None) -> di
     return used
 
 
+def reused_episodes(threshold: Threshold, detectors: DetectorSet | None, seed: int, episodes: int) -> tuple[str, int]:
+    """Which of the episodes ``seed`` .. ``seed + episodes - 1`` ``threshold`` or its ``detectors``
+    were made from (:func:`seeds_used`), in words (``""``: none), and a first seed whose
+    ``episodes`` episodes miss every recorded range (the validation range's first where it can).
+
+    Example:
+        >>> found = calibrate([np.zeros(5)] * 45, 0.05, consecutive=1)
+        >>> reused_episodes(replace(found, episode_seeds={"calibration": [0, 45]}), None, 40, 10)
+        ("the threshold's calibration episodes (seeds 0-44)", 700000)
+    """
+    used = seeds_used(threshold, detectors)
+    whose = {"calibration": "the threshold's calibration", "reference": "the sequential rule's reference",
+             "detector fitting": "the detectors' fitting"}
+    clashes = [f"{whose.get(name, name)} episodes (seeds {first:,}-{end - 1:,})" for name, (first, end) in used.items()
+               if first < seed + episodes and seed < end]
+    free = seeds.VALIDATION
+    while any(first < free + episodes and free < end for first, end in used.values()):
+        free = max(end for first, end in used.values() if first < free + episodes and free < end)
+    return " and ".join(clashes), free
+
+
 def check_fresh(threshold: Threshold, detectors: DetectorSet | None, seed: int, episodes: int) -> None:
     """Refuse to validate ``threshold`` on episodes ``seed`` .. ``seed + episodes - 1`` where any
     of them is one the threshold or its ``detectors`` were made from (:func:`seeds_used`): a
@@ -253,19 +274,11 @@ def check_fresh(threshold: Threshold, detectors: DetectorSet | None, seed: int, 
     Raises:
         ConfigError: the overlap, and a seed whose episodes miss every recorded range.
     """
-    used = seeds_used(threshold, detectors)
-    whose = {"calibration": "the threshold's calibration", "reference": "the sequential rule's reference",
-             "detector fitting": "the detectors' fitting"}
-    clashes = [f"{whose.get(name, name)} episodes (seeds {first:,}-{end - 1:,})" for name, (first, end) in used.items()
-               if first < seed + episodes and seed < end]
-    if not clashes:
-        return
-    free = seeds.VALIDATION
-    while any(first < free + episodes and free < end for first, end in used.values()):
-        free = max(end for first, end in used.values() if first < free + episodes and free < end)
-    raise ConfigError(f"the validation episodes (seeds {seed:,}-{seed + episodes - 1:,}) are not fresh: they include "
-                      f"{' and '.join(clashes)}, which the threshold was made from and which alarm less often than "
-                      f"fresh ones; give a first seed (--seed) apart from them, e.g. {free}")
+    reused, free = reused_episodes(threshold, detectors, seed, episodes)
+    if reused:
+        raise ConfigError(f"the validation episodes (seeds {seed:,}-{seed + episodes - 1:,}) are not fresh: they "
+                          f"include {reused}, which the threshold was made from and which alarm less often than "
+                          f"fresh ones; give a first seed (--seed) apart from them, e.g. {free}")
 
 
 def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, *, seed: int = seeds.VALIDATION,
