@@ -13,7 +13,9 @@ Measured 2026-12-01 (AMD EPYC, two cores; Pong ensemble, 10 games): ratio=0.56 (
 ``--fitting``: the detectors' fitting episodes instead (``collect``, what ``oodmon fit-detectors``
 plays), each game sent back whole with its frames, the estimates of the last third kept as the
 fitting keeps them; the same frames and actions checked. Measured 2026-12-01 (the same machine;
-Pong ensemble, 10 games): ratio=0.58 (10.20 s, 17.68 s).
+Pong ensemble, 10 games): ratio=0.58 (10.20 s, 17.68 s). Once each worker had a pipe of its own
+instead of a process pool's (``oodmon.side_by_side``): 0.52 (9.14 s, 17.45 s) and, ``--fitting``,
+0.55 (10.27 s, 18.56 s).
 """
 
 from __future__ import annotations

@@ -5,7 +5,9 @@ of batch-of-one decisions on one core (a Pong game: about a second; ``oodmon val
 300`` of Pong: 9.5 minutes); evaluation plays some episodes of each of tens of variants. They do
 not depend on one another, so ``workers`` processes play a run of them each, forked from this one:
 they have the agent, its detectors and the user's own policy as they are here, with nothing
-pickled or loaded again. Used by ``oodmon.monitor.calibration`` and ``oodmon.agents.evaluation``.
+pickled or loaded again (only the episodes' results come back, on a pipe of each worker's own).
+Used by ``oodmon.monitor.calibration``, ``oodmon.monitor.detectors.fitting`` (the fitting's
+episodes) and ``oodmon.agents.evaluation``.
 
 What an episode draws:
 
@@ -22,12 +24,11 @@ What an episode draws:
 
 from __future__ import annotations
 
-import contextlib
 import multiprocessing
 import os
 import sys
 from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from multiprocessing.connection import Connection, wait
 from typing import Any
 
 import numpy as np
@@ -36,7 +37,7 @@ from oodmon.errors import InvalidParameterError
 from oodmon.progress import Progress
 from oodmon.validation import is_whole
 
-__all__ = ["episode_streams", "play_side_by_side", "resolve_workers", "runs_of", "usable_cores"]
+__all__ = ["WorkerTraceback", "episode_streams", "play_side_by_side", "resolve_workers", "runs_of", "usable_cores"]
 
 #: ``play(first, count, done)``: play episodes ``first .. first + count - 1`` (indices from 0),
 #: calling ``done()`` after each; return their results in a list, one per episode.
@@ -107,21 +108,41 @@ def episode_streams(sampling_state: dict | None) -> tuple[dict | None, Callable[
     return rng.bit_generator.state, lambda seed: np.random.default_rng([base, seed]).bit_generator.state
 
 
-_installed: tuple[Play, Any, Any] | None = None  # a worker's play, message queue and stop (forked, not pickled)
+class WorkerTraceback(Exception):
+    """The traceback of an exception raised in a worker, as its text: the ``__cause__`` of that
+    exception where it is raised again in the command."""
 
 
-def _install(play: Play, queue: Any, stop: Any, parent: int) -> None:
+def _worker(play: Play, connection: Connection, parent: int, inherited: list[Connection]) -> None:
+    """A worker's life: runs of episodes as the command sends them, ``None`` to end. Each
+    ``done()`` sends ``("episode",)``, each run's end ``("run", first, results)``, an exception
+    ``("error", exception, traceback)``, all on this worker's own pipe."""
+    import signal
+    import traceback
+
     from oodmon.threads import set_threads
 
-    global _installed
     _die_with(parent)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the group: the command stops its workers
+    for other in inherited:  # the command's ends of the pipes of the workers forked before this one
+        other.close()
     # One thread each, whatever OODMON_TORCH_THREADS says: the processes share the cores, and a
     # worker forked from a command whose torch ran on more (OODMON_TORCH_THREADS=2) hung in its
     # first parallel region (libgomp's threads are not forked; measured: Pong's DropConnect agent,
     # `validate --workers 2`, stopped after 300 s of 6 games), which one thread never enters.
     set_threads(1)
-    _installed = (play, queue, stop)
-    queue.put(("started", os.getpid()))
+    while (run := connection.recv()) is not None:
+        first, count = run
+        try:
+            results = play(first, count, lambda: connection.send(("episode",)))
+        except BaseException as error:  # noqa: BLE001  (every error is the command's to raise)
+            text = traceback.format_exc()
+            try:
+                connection.send(("error", error, text))
+            except Exception:  # an exception pickle cannot carry: its words
+                connection.send(("error", RuntimeError(f"{type(error).__name__}: {error}"), text))
+            return
+        connection.send(("run", first, results))
 
 
 def _die_with(parent: int) -> None:
@@ -135,13 +156,6 @@ def _die_with(parent: int) -> None:
     ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     if os.getppid() != parent:  # it died before that took hold
         os._exit(1)
-
-
-def _play_run(first: int, count: int) -> list:
-    play, queue, stop = _installed
-    if stop.is_set():  # a worker that started after the others were stopped
-        return []
-    return play(first, count, lambda: queue.put(("episode", os.getpid())))
 
 
 def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
@@ -159,9 +173,16 @@ def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
     (Pong: about 70 MB a game), which in runs of 45 games would be held here, in the worker and in
     the pipe between at once.
 
-    A worker's exception is raised here and the other workers are stopped at once; so is an
-    interrupt here (Ctrl-C reaches every process of the command's group), and a worker's death
-    (``BrokenProcessPool``: killed, out of memory, a crash in an env's C code)."""
+    A worker's exception is raised here (its traceback the ``__cause__``) and the other workers
+    are killed at once; so is an interrupt here (Ctrl-C, which the workers ignore), and a worker's
+    death (``BrokenProcessPool``: killed, out of memory, a crash in an env's C code).
+
+    Each worker has a pipe of its own, read here between messages, never by a thread of its own:
+    a worker killed while sending a large result (a Pong game's frames) ends its pipe, and the
+    half message is read as its death. Through a process pool's one shared pipe, its reading
+    thread waited for the rest for ever, and the command with it (seen: ``fit-detectors --workers
+    2`` of Pong, SIGINT after 25 s; a play of 100 MB episodes interrupted at the second: 4 of 4
+    tries hung)."""
     workers = resolve_workers(workers, episodes)
     done = 0
 
@@ -173,41 +194,64 @@ def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
 
     if workers == 1:
         return play(0, episodes, one_more)
+    runs = runs_of(episodes, workers) if run_size is None else [
+        (first, min(run_size, episodes - first)) for first in range(0, episodes, run_size)]
     context = multiprocessing.get_context("fork")
-    queue, stop = context.SimpleQueue(), context.Event()
-    started: set[int] = set()
+    waiting, results = list(reversed(runs)), {}
+    processes: dict[Connection, Any] = {}
+    try:
+        for _ in range(min(workers, len(runs))):
+            ours, theirs = context.Pipe()
+            # (not daemonic: a daemon may not start processes of its own, which a user's env may)
+            process = context.Process(target=_worker, args=(play, theirs, os.getpid(), list(processes)))
+            process.start()
+            theirs.close()  # the worker's end, here no more: when the worker dies, reading ours ends
+            processes[ours] = process
+            ours.send(waiting.pop())
+        playing = set(processes)
+        while playing:
+            for connection in wait(list(playing)):
+                message = _receive(connection, processes[connection])
+                if message[0] == "episode":
+                    one_more()
+                elif message[0] == "run":  # its next run, or its end
+                    results[message[1]] = message[2]
+                    if waiting:
+                        connection.send(waiting.pop())
+                    else:
+                        connection.send(None)
+                        playing.discard(connection)
+                else:
+                    _, error, text = message
+                    raise error from WorkerTraceback(text)
+        return [result for first, _ in runs for result in results[first]]
+    except BaseException:
+        _stop(processes.values())
+        raise
+    finally:
+        for connection, process in processes.items():
+            process.join(timeout=5)
+            connection.close()
 
-    def read_queue() -> None:
-        while not queue.empty():
-            what, pid = queue.get()
-            if what == "started":
-                started.add(pid)
-            else:
-                one_more()
 
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_install,
-                             initargs=(play, queue, stop, os.getpid())) as pool:
-        try:
-            runs = [pool.submit(_play_run, *run) for run in (
-                runs_of(episodes, workers) if run_size is None else
-                [(first, min(run_size, episodes - first)) for first in range(0, episodes, run_size)])]
-            pending = set(runs)
-            while pending:
-                ended, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-                read_queue()
-                for run in ended:
-                    run.result()  # raises the worker's exception
-            return [result for run in runs for result in run.result()]
-        except BaseException:
-            stop.set()
-            read_queue()
-            _stop(started)  # not left to play their runs out before the pool's shutdown returns
-            raise
+def _receive(connection: Connection, process: Any) -> tuple:
+    """The next message of a worker, or ``BrokenProcessPool`` where it died (its pipe ended, a
+    message cut short by its death too)."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        return connection.recv()
+    except (EOFError, OSError):
+        import signal
+
+        process.join(timeout=5)
+        code = process.exitcode
+        how = f"exit code {code}" if code is None or code >= 0 else f"killed by {signal.Signals(-code).name}"
+        raise BrokenProcessPool(f"a worker process (pid {process.pid}) died while playing episodes ({how}): out of "
+                                "memory (SIGKILL), killed, or a crash in an env's C code (SIGSEGV)") from None
 
 
-def _stop(workers: set[int]) -> None:
-    import signal
-
-    for pid in workers:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, signal.SIGKILL)
+def _stop(workers) -> None:
+    for process in workers:
+        if process.is_alive():
+            process.kill()

@@ -101,8 +101,12 @@ def test_a_workers_error_is_raised_here_and_the_other_worker_is_stopped(four_cor
     def fail(first):
         raise InvalidParameterError(f"episode {first}: no such thing")
 
-    with pytest.raises(InvalidParameterError, match="episode 2: no such thing"):
+    from oodmon.side_by_side import WorkerTraceback
+
+    with pytest.raises(InvalidParameterError, match="episode 2: no such thing") as raised:
         play_side_by_side(_one_slow_one_failing(tmp_path, fail), 4, 2, "ID episodes")
+    cause = raised.value.__cause__  # where it was raised, in the worker
+    assert isinstance(cause, WorkerTraceback) and "in fail" in str(cause) and "Traceback" in str(cause)
     assert not _alive(int((tmp_path / "slow").read_text()))  # stopped, not left to sleep out its two minutes
 
 
@@ -111,7 +115,7 @@ def test_a_worker_that_dies_is_said_here_and_the_other_worker_is_stopped(four_co
     BrokenProcessPool, as an exception does; nothing waits for it for ever."""
     from concurrent.futures.process import BrokenProcessPool
 
-    with pytest.raises(BrokenProcessPool):
+    with pytest.raises(BrokenProcessPool, match=r"died while playing episodes \(killed by SIGKILL\)"):
         play_side_by_side(_one_slow_one_failing(tmp_path, lambda _: os.kill(os.getpid(), 9)), 4, 2, "ID episodes")
     assert _wait_until_dead(int((tmp_path / "slow").read_text()))  # the pool stops the others as it breaks
 
@@ -265,6 +269,46 @@ def test_the_workers_die_with_a_killed_command(four_cores, tmp_path):
         command.send_signal(signal.SIGKILL)
         command.wait()
     assert all(_wait_until_dead(pid) for pid in workers)
+
+
+LARGE_RESULTS = """
+import sys
+import numpy as np
+import oodmon.side_by_side
+from oodmon.side_by_side import play_side_by_side
+
+oodmon.side_by_side.usable_cores = lambda: 4  # two workers on a machine of one core too
+
+def play(first, count, done):
+    played = []
+    for _ in range(count):
+        played.append(np.ones(100 * 2**20 // 8))  # 100 MB an episode (a Pong game's frames: 70)
+        done()
+    return played
+
+def report(stage, done, total):
+    if done == 2:
+        raise KeyboardInterrupt  # Ctrl-C here while the workers' results are on their way
+
+try:
+    play_side_by_side(play, 40, 2, "x", report, run_size=1)
+except KeyboardInterrupt:
+    print("interrupted")
+"""
+
+
+def test_an_interrupt_while_large_results_come_back_does_not_hang(tmp_path):
+    """A worker killed while sending a large result through a process pool's shared pipe left the
+    pool's reading thread waiting for the rest of it, and the command with it (4 of 4 tries of this
+    script hung; Pong's `fit-detectors --workers 2`, SIGINT, hung too). Each worker now has a pipe
+    of its own, read by the command between messages; nothing is left in the temporary folder."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", LARGE_RESULTS], capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "TMPDIR": str(tmp_path)})
+    assert done.returncode == 0 and done.stdout.strip() == "interrupted", done.stderr[-2000:]
+    assert list(tmp_path.iterdir()) == []
 
 
 TORCH_ON_TWO = """
