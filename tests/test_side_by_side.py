@@ -117,7 +117,7 @@ def test_a_worker_that_dies_is_said_here_and_the_other_worker_is_stopped(four_co
 
     with pytest.raises(BrokenProcessPool, match=r"died while playing episodes \(killed by SIGKILL\)"):
         play_side_by_side(_one_slow_one_failing(tmp_path, lambda _: os.kill(os.getpid(), 9)), 4, 2, "ID episodes")
-    assert _wait_until_dead(int((tmp_path / "slow").read_text()))  # the pool stops the others as it breaks
+    assert _wait_until_dead(int((tmp_path / "slow").read_text()))  # the command kills the others
 
 
 def test_an_ensembles_threshold_is_the_same_from_any_number_of_workers(four_cores):
@@ -272,7 +272,7 @@ def test_the_workers_die_with_a_killed_command(four_cores, tmp_path):
 
 
 LARGE_RESULTS = """
-import sys
+import multiprocessing
 import numpy as np
 import oodmon.side_by_side
 from oodmon.side_by_side import play_side_by_side
@@ -293,22 +293,20 @@ def report(stage, done, total):
 try:
     play_side_by_side(play, 40, 2, "x", report, run_size=1)
 except KeyboardInterrupt:
-    print("interrupted")
+    print("interrupted, workers left:", len(multiprocessing.active_children()))
 """
 
 
-def test_an_interrupt_while_large_results_come_back_does_not_hang(tmp_path):
+def test_an_interrupt_while_large_results_come_back_does_not_hang():
     """A worker killed while sending a large result through a process pool's shared pipe left the
     pool's reading thread waiting for the rest of it, and the command with it (4 of 4 tries of this
     script hung; Pong's `fit-detectors --workers 2`, SIGINT, hung too). Each worker now has a pipe
-    of its own, read by the command between messages; nothing is left in the temporary folder."""
+    of its own, read by the command between messages; the interrupt kills them and reaps them."""
     import subprocess
     import sys
 
-    done = subprocess.run([sys.executable, "-c", LARGE_RESULTS], capture_output=True, text=True, timeout=60,
-                          env={**os.environ, "TMPDIR": str(tmp_path)})
-    assert done.returncode == 0 and done.stdout.strip() == "interrupted", done.stderr[-2000:]
-    assert list(tmp_path.iterdir()) == []
+    done = subprocess.run([sys.executable, "-c", LARGE_RESULTS], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.strip() == "interrupted, workers left: 0", done.stderr[-2000:]
 
 
 TORCH_ON_TWO = """
