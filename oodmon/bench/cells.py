@@ -4,10 +4,11 @@ preparations, its cells: :func:`ray_for`, :func:`on_ray`)."""
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
@@ -74,11 +75,40 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
     if not jobs:
         return
     if config.executor == "local":
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        with stopping_pool(workers) as pool:
             for future in as_completed([pool.submit(_run_cell, *job) for job in jobs]):
                 yield future.result()
         return
     yield from on_ray(_run_cell, jobs, config, workers)  # (an unknown executor: refused by run_bench, before any work)
+
+
+@contextmanager
+def stopping_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
+    """A pool of ``workers`` processes whose jobs stop with the bench: on an exception or an
+    interrupt here (or the loop over its results left early), the jobs not begun are cancelled and
+    the workers killed. A cell's log is moved in whole or not at all, a training's checkpoint is
+    written whole: the same command resumes from them. Left to ``with ProcessPoolExecutor``, its
+    shutdown waited for every queued job to run: Ctrl-C at the first of a CartPole bench's 102
+    cells ran 100 of them (11.1 s), and a five-trial bench's trainings would have trained on for
+    hours."""
+    import signal
+
+    pids = multiprocessing.get_context().SimpleQueue()  # each worker's, said as it starts
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_say_pid, initargs=(pids,))
+    try:
+        yield pool
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        while not pids.empty():
+            with suppress(ProcessLookupError):
+                os.kill(pids.get(), signal.SIGKILL)
+        pool.shutdown(wait=True)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _say_pid(pids: Any) -> None:
+    pids.put(os.getpid())
 
 
 @contextmanager

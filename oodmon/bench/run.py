@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import multiprocessing
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -12,7 +12,7 @@ from oodmon import seeds
 from oodmon.bench.cache import (Source, _cell_log, _ensure_model, _ensure_model_dir_current,
                                 _id_return, _log_is_complete, _monitored, _prepare_trial, _refuse_to_train_for_hours,
                                 _weights_sha256)
-from oodmon.bench.cells import Relay, _execute, check_ray_address, on_ray, ray_for
+from oodmon.bench.cells import Relay, _execute, check_ray_address, on_ray, ray_for, stopping_pool
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
@@ -63,7 +63,7 @@ def _per_trial(function: Callable[..., Any], trials: list[tuple[str, int]], conf
         for method, trial in trials:
             yield function(config, method, trial, report)
         return
-    with multiprocessing.Manager() as manager, ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+    with multiprocessing.Manager() as manager, stopping_pool(min(workers, len(jobs))) as pool:
         queue = manager.Queue()  # each worker's own progress, relayed here as it comes
         pending = {pool.submit(_in_worker, *job, Relay(queue)) for job in jobs}
         while pending:
