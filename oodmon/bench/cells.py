@@ -1,6 +1,7 @@
 """The cells: monitored episodes of one variant into one MCAP log, run in worker processes or
-as Ray tasks; and the Ray cluster every stage of a bench on Ray runs on (its trainings, its trials'
-preparations, its cells: :func:`ray_for`, :func:`on_ray`)."""
+as Ray tasks; the pool of worker processes every stage of a local bench runs in, which stops with
+it (:func:`stopping_pool`); and the Ray cluster every stage of a bench on Ray runs on (its
+trainings, its trials' preparations, its cells: :func:`ray_for`, :func:`on_ray`)."""
 
 from __future__ import annotations
 
