@@ -37,7 +37,8 @@ from oodmon.errors import InvalidParameterError
 from oodmon.progress import Progress
 from oodmon.validation import is_whole
 
-__all__ = ["WorkerTraceback", "episode_streams", "play_side_by_side", "resolve_workers", "runs_of", "usable_cores"]
+__all__ = ["WorkerTraceback", "episode_streams", "play_side_by_side", "resolve_workers", "runs_of",
+           "stream_per_episode", "usable_cores"]
 
 #: ``play(first, count, done)``: play episodes ``first .. first + count - 1`` (indices from 0),
 #: calling ``done()`` after each; return their results in a list, one per episode.
@@ -106,6 +107,28 @@ def episode_streams(sampling_state: dict | None) -> tuple[dict | None, Callable[
     rng.bit_generator.state = sampling_state
     base = int(rng.integers(2**63))
     return rng.bit_generator.state, lambda seed: np.random.default_rng([base, seed]).bit_generator.state
+
+
+def stream_per_episode(sampler: Any, workers: int) -> Callable[[int], None]:
+    """``start(key)``, to call in a worker before each episode: sets ``sampler``'s stream (an
+    estimator's ``sampling_state``) to the stream of the episode with that key (its seed; a
+    variant's index), :func:`episode_streams`, once ``sampler``'s own stream has moved on by the
+    one draw that seeds them. Where one process plays (``workers`` 1), or ``sampler`` draws nothing
+    (``None``, an ensemble), a ``start`` that does nothing: the draws run on as in one process.
+
+    Example:
+        >>> stream_per_episode(None, 2)(7) is None
+        True
+    """
+    state = getattr(sampler, "sampling_state", None) if workers > 1 else None
+    if state is None:
+        return lambda key: None
+    sampler.sampling_state, stream = episode_streams(state)
+
+    def start(key: int) -> None:
+        sampler.sampling_state = stream(key)
+
+    return start
 
 
 class WorkerTraceback(Exception):

@@ -18,7 +18,7 @@ import numpy as np
 from oodmon import seeds
 from oodmon.envs.grid import Variant
 from oodmon.progress import Progress
-from oodmon.side_by_side import episode_streams, play_side_by_side, resolve_workers
+from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
 
 __all__ = ["RANDOM_RETURN", "SOLVED_RETURN", "VariantResult", "episode_returns", "evaluate_variants"]
 
@@ -117,16 +117,12 @@ def evaluate_variants(
     """
     variants = [Variant(task), *variants]
     workers = resolve_workers(workers, len(variants))
-    streams = None
-    state = getattr(sampler, "sampling_state", None) if workers > 1 else None
-    if state is not None:
-        sampler.sampling_state, streams = episode_streams(state)
+    start = stream_per_episode(sampler, workers)
 
     def play(first: int, count: int, done: Callable[[], None]) -> list[np.ndarray]:
         played = []
         for index in range(first, first + count):
-            if streams is not None:
-                sampler.sampling_state = streams(index)
+            start(index)
             played.append(episode_returns(policy, variants[index], episodes, seed=seed,
                                           on_progress=lambda *_: done(), wrap=wrap))
         return played

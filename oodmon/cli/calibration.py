@@ -106,7 +106,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "
-        f"mode, {threshold.n_episodes} ID episodes{_side_by_side(args.workers, threshold.n_episodes)}, "
+        f"mode, {threshold.n_episodes} ID episodes{_side_by_side(threshold.workers)}, "
         f"{threshold.n_steps} steps, rank {threshold.rank} of "
         f"{threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score median "
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote {args.out}"
@@ -129,13 +129,10 @@ def _calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _side_by_side(workers: int, episodes: int) -> str:
+def _side_by_side(played_by: int | None) -> str:
     """The words ' played by N processes side by side' where more than one played the episodes (an
     MC agent's draws are then not one process's), else nothing."""
-    from oodmon.side_by_side import resolve_workers
-
-    played_by = resolve_workers(workers, episodes)
-    return f" played by {played_by} processes side by side" if played_by > 1 else ""
+    return f" played by {played_by} processes side by side" if played_by and played_by > 1 else ""
 
 
 def _clear_earlier_detectors(out: str, given: str | None) -> Path | None:
@@ -293,9 +290,9 @@ def _fit_detectors(args: argparse.Namespace) -> int:
     beside = _calibrated_beside(out)  # after the fitting: the threshold beside as it is now
     replaced = "" if not replacing else f" (replacing the set it held{beside}: calibrate that threshold again)" if beside \
         else " (replacing the set it held)"
-    played = detectors.fitted_for["episodes"]
-    console.print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on {played} ID episodes"
-                  f"{_side_by_side(detectors.fitted_for.get('workers', 1), played)}; wrote {args.out}{replaced}")
+    console.print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
+                  f"{detectors.fitted_for['episodes']} ID episodes{_side_by_side(detectors.fitted_for.get('workers'))}; "
+                  f"wrote {args.out}{replaced}")
     for note in fitting_notes(detectors):
         console.print(note, markup=False)
     return 0

@@ -173,11 +173,9 @@ def _warn_if_reused(threshold, detectors, seed: int, episodes: int) -> None:
     alarms in their logs reads low (``oodmon validate`` refuses such episodes)."""
     import warnings
 
-    from oodmon.monitor.calibration import reused_episodes
+    from oodmon.monitor.calibration import detectors_read, reused_episodes
 
-    learned = threshold.detector != "spread" and detectors is not None and threshold.detector in detectors
-    reused, free = reused_episodes(threshold, detectors.subset([threshold.detector]) if learned else None, seed,
-                                   episodes)
+    reused, free = reused_episodes(threshold, detectors_read(threshold, detectors), seed, episodes)
     if reused:
         warnings.warn(f"the run's episodes (seeds {seed:,}-{seed + episodes - 1:,}) include {reused}, which the "
                       "threshold was made from: they alarm less often in the ID env than fresh episodes would, so "

@@ -26,10 +26,11 @@ from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.sinks.base import MemorySink
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson
 from oodmon.progress import Progress
-from oodmon.side_by_side import episode_streams, play_side_by_side, resolve_workers
+from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import is_whole
 
-__all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "check_fresh", "clopper_pearson", "id_episode_scores",
+__all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "check_fresh", "clopper_pearson", "detectors_read",
+           "id_episode_scores",
            "reused_episodes", "save_calibration", "seeds_used", "validate_threshold"]
 
 CALIBRATION_SEED = seeds.CALIBRATION
@@ -47,18 +48,14 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
     ``workers``: processes that play them side by side (0: one per core; see
     :mod:`oodmon.side_by_side` for what an MC agent draws there)."""
     workers = resolve_workers(workers, episodes)
-    streams = None
-    state = getattr(agent.estimator, "sampling_state", None) if workers > 1 else None
-    if state is not None:  # an estimator that draws: its stream moves on by the one draw that seeds the episodes'
-        agent.estimator.sampling_state, streams = episode_streams(state)
+    start = stream_per_episode(agent.estimator, workers)
 
     def play(first: int, count: int, done) -> list[tuple[np.ndarray, bool]]:
         sink = MemorySink()
         env = agent.make_env(obs_noise)
         with Monitor(agent, sinks=[sink], log_observations=False, **settings) as monitor:
             for episode in range(first, first + count):
-                if streams is not None:
-                    agent.estimator.sampling_state = streams(seed + episode)
+                start(seed + episode)
                 monitor.run_episode(env, seed=seed + episode, variant=agent.task,
                                     on_progress=lambda _, steps, __: warn_if_endless(env, steps))
                 done()
@@ -224,6 +221,13 @@ class Validation:
         return "above" if self.low > self.far else "below" if self.high < self.far else "consistent"
 
 
+def detectors_read(threshold: Threshold, detectors: DetectorSet | None) -> DetectorSet | None:
+    """The fitted detector ``threshold``'s alarm reads, of ``detectors``, as a set of its own
+    (``None``: the spread, which is not fitted, or a detector ``detectors`` does not have)."""
+    wanted = threshold.detector
+    return detectors.subset([wanted]) if detectors is not None and wanted != "spread" and wanted in detectors else None
+
+
 def seeds_used(threshold: Threshold, detectors: DetectorSet | None = None) -> dict[str, list[int]]:
     """The reset seeds of the ID episodes ``threshold`` was made from, by use, each ``[first, end)``:
     those it records (:attr:`Threshold.episode_seeds`) and, with ``detectors`` (those its alarm
@@ -299,8 +303,7 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
     if not is_whole(episodes):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
     resolve_workers(workers, episodes)
-    wanted = threshold.detector
-    needed = detectors.subset([wanted]) if detectors is not None and wanted != "spread" and wanted in detectors else None
+    needed = detectors_read(threshold, detectors)
     check_fresh(threshold, needed, seed, episodes)
     scores, episode_alarms = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, stage="validation episodes",
                                                workers=workers, threshold=threshold, detectors=needed, force=force)

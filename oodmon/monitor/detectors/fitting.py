@@ -39,7 +39,7 @@ from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.names import fixed_masks
 from oodmon.progress import Progress
 from oodmon.seeds import DETECTOR_FIT
-from oodmon.side_by_side import episode_streams, play_side_by_side, resolve_workers
+from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import is_whole
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector", "collect",
@@ -237,16 +237,12 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
 def _collect_side_by_side(play_episode: Callable[[int], Trajectory], estimator: Any, episodes: int, seed: int,
                           workers: int, min_steps: int, on_progress: Progress | None) -> list[Trajectory]:
     """:func:`collect`'s episodes played by ``workers`` processes (``play_episode(i)``: episode ``i``)."""
-    streams = None
-    state = getattr(estimator, "sampling_state", None)
-    if state is not None:  # an estimator that draws: its stream moves on by the one draw that seeds the episodes'
-        estimator.sampling_state, streams = episode_streams(state)
+    start = stream_per_episode(estimator, workers)
 
     def play(first: int, count: int, done: Callable[[], None]) -> list[Trajectory]:
         played = []
         for episode in range(first, first + count):
-            if streams is not None:
-                estimator.sampling_state = streams(seed + episode)
+            start(seed + episode)
             played.append(play_episode(episode))
             done()
         return played
