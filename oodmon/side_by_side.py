@@ -145,7 +145,7 @@ def _worker(play: Play, connection: Connection, parent: int, inherited: list[Con
 
     from oodmon.threads import set_threads
 
-    _die_with(parent)
+    die_with(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the group: the command stops its workers
     for other in inherited:  # the command's ends of the pipes of the workers forked before this one
         other.close()
@@ -168,9 +168,10 @@ def _worker(play: Play, connection: Connection, parent: int, inherited: list[Con
         connection.send(("run", first, results))
 
 
-def _die_with(parent: int) -> None:
+def die_with(parent: int) -> None:
     """Linux: this worker is killed when the process that forked it dies, even by SIGKILL, which
-    leaves it no time to stop its workers (they would play on for minutes, orphaned)."""
+    leaves it no time to stop its workers (they would play on for minutes, orphaned; the bench's
+    would train on for hours)."""
     if not sys.platform.startswith("linux"):
         return
     import ctypes

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 
 import numpy as np
@@ -118,6 +119,35 @@ def test_a_worker_that_dies_is_said_here_and_the_other_worker_is_stopped(four_co
     with pytest.raises(BrokenProcessPool, match=r"died while playing episodes \(killed by SIGKILL\)"):
         play_side_by_side(_one_slow_one_failing(tmp_path, lambda _: os.kill(os.getpid(), 9)), 4, 2, "ID episodes")
     assert _wait_until_dead(int((tmp_path / "slow").read_text()))  # the command kills the others
+
+
+def test_a_workers_death_ends_a_command_in_one_line_with_what_it_kept(four_cores, tmp_path, capsys, monkeypatch):
+    """A worker killed (here by itself at its third step, as the kernel kills one when memory runs
+    out; a crash in an env's C code dies alike) ended ``calibrate --workers 2`` with the command's
+    own traceback, which shows where the command
+    waited, not where or why the worker died. Now one line: which worker, its signal, what to try,
+    and what the command kept; exit code 3."""
+    import signal
+
+    from oodmon.envs.physics import ShiftedCartPole
+
+    command, step, steps = os.getpid(), ShiftedCartPole.step, []
+
+    def crashing_step(self, action):
+        steps.append(action)
+        if os.getpid() != command and len(steps) == 3:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return step(self, action)
+
+    monkeypatch.setattr(ShiftedCartPole, "step", crashing_step)
+    path = tmp_path / "t.json"
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread",
+                 "--far", "0.2", "--episodes", "11", "--workers", "2", "--out", str(path)]) == 3
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.strip().count("\n") == 0 and not path.exists()  # (after the progress line)
+    assert re.fullmatch(r"\noodmon: stopped: a worker process \(pid \d+\) died while playing episodes \(killed by "
+                        r"SIGKILL\): .*; fewer --workers need less memory; no threshold file or detectors were "
+                        r"written .*run the command again\n", err), err
 
 
 def test_an_ensembles_threshold_is_the_same_from_any_number_of_workers(four_cores):
@@ -254,21 +284,48 @@ def test_the_workers_die_with_a_killed_command(four_cores, tmp_path):
     """SIGKILL leaves the command no time to stop its workers; they die with it (Linux's
     PR_SET_PDEATHSIG) instead of playing their episodes on, orphaned (seen before: both still
     running after the kill)."""
+    assert _workers_die_with_a_killed(KILLED, tmp_path)
+
+
+def _workers_die_with_a_killed(script: str, folder) -> bool:
+    """Whether the two workers of ``script`` (each writes its pid into ``folder`` and sleeps), all
+    alive when it is SIGKILLed, die after it."""
     import signal
     import subprocess
     import sys
 
-    command = subprocess.Popen([sys.executable, "-c", KILLED, str(tmp_path)])
+    command = subprocess.Popen([sys.executable, "-c", script, str(folder)])
     try:
-        while len(list(tmp_path.iterdir())) < 2:
+        while len(list(folder.iterdir())) < 2:
             assert command.poll() is None, "the command ended before its workers began"
             time.sleep(0.05)
-        workers = [int(path.name) for path in tmp_path.iterdir()]
+        workers = [int(path.name) for path in folder.iterdir()]
         assert all(_alive(pid) for pid in workers)
     finally:
         command.send_signal(signal.SIGKILL)
         command.wait()
-    assert all(_wait_until_dead(pid) for pid in workers)
+    return all(_wait_until_dead(pid) for pid in workers)
+
+
+BENCH_KILLED = """
+import os, sys, time
+from oodmon.bench.cells import stopping_pool
+
+def job(folder):
+    open(os.path.join(folder, str(os.getpid())), "w").close()
+    time.sleep(120)
+
+with stopping_pool(2) as pool:
+    for future in [pool.submit(job, sys.argv[1]) for _ in range(4)]:
+        future.result()
+"""
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/stat"), reason="reads /proc (Linux)")
+def test_the_bench_pools_workers_die_with_a_killed_bench(tmp_path):
+    """The bench's worker pool (trainings, preparations, cells) likewise: a SIGKILLed bench left
+    its workers to run their jobs out, orphaned (a five-trial bench's trainings: hours)."""
+    assert _workers_die_with_a_killed(BENCH_KILLED, tmp_path)
 
 
 LARGE_RESULTS = """

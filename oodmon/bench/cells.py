@@ -87,7 +87,7 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
 def stopping_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     """A pool of ``workers`` processes whose jobs stop with the bench: on an exception or an
     interrupt here (or the loop over its results left early), the jobs not begun are cancelled and
-    the workers killed. A cell's log is moved in whole or not at all, a training's checkpoint is
+    the workers killed (and where the bench is SIGKILLed, they die with it). A cell's log is moved in whole or not at all, a training's checkpoint is
     written whole: the same command resumes from them. Left to ``with ProcessPoolExecutor``, its
     shutdown waited for every queued job to run: Ctrl-C at the first of a CartPole bench's 102
     cells ran 100 of them (11.1 s), and a five-trial bench's trainings would have trained on for
@@ -95,7 +95,8 @@ def stopping_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     import signal
 
     pids = multiprocessing.get_context().SimpleQueue()  # each worker's, said as it starts
-    pool = ProcessPoolExecutor(max_workers=workers, initializer=_say_pid, initargs=(pids,))
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_say_pid,
+                               initargs=(pids, os.getpid()))
     try:
         yield pool
     except BaseException:
@@ -108,7 +109,12 @@ def stopping_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     pool.shutdown(wait=True)
 
 
-def _say_pid(pids: Any) -> None:
+def _say_pid(pids: Any, bench: int) -> None:
+    """A worker's start: its pid said to the bench, and its death bound to the bench's (a SIGKILLed
+    bench, which has no time to kill its workers, left them to run their jobs out, orphaned)."""
+    from oodmon.side_by_side import die_with
+
+    die_with(bench)
     pids.put(os.getpid())
 
 

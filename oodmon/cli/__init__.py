@@ -19,6 +19,7 @@ import sys
 import traceback
 import warnings
 from collections.abc import Sequence
+from concurrent.futures.process import BrokenProcessPool
 
 from oodmon.cli.bench import _add_bench
 from oodmon.cli.calibration import _add_calibrate, _add_fit_detectors, _add_validate
@@ -40,7 +41,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     Exit codes: 0 done, 1 a regression check found a fall (or validate's interval above its target,
     or ``envs show`` of a shift that changed nothing), 2 input that cannot be used (one line
     on stderr), 3 an error oodmon cannot explain (its traceback, then what the command kept, as
-    for Ctrl-C: an env's, a policy's or a callback's own error, or a bug), 130 interrupted
+    for Ctrl-C: an env's, a policy's or a callback's own error, or a bug; a worker process that
+    died, out of memory or in an env's C code, is said in one line, the command's traceback would
+    not find it), 130 interrupted
     (Ctrl-C; the logs keep every finished episode), 143 stopped by SIGTERM (a service manager's
     stop, ``kill``), which is taken as Ctrl-C is.
     """
@@ -70,6 +73,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             stopped = isinstance(interrupt, Terminated)
             print(("oodmon: stopped by SIGTERM" if stopped else "oodmon: interrupted") + _kept(args), file=sys.stderr)
             return 143 if stopped else 130
+        except BrokenProcessPool as error:  # a worker died: the traceback here is not where, nor why
+            print(f"oodmon: stopped: {_worker_death(error)}" + _kept(args), file=sys.stderr)
+            return 3
         except Exception as error:  # noqa: BLE001  (not one oodmon can explain: an env's or a policy's own, or a bug)
             # Its traceback is what finds the cause; then, as for Ctrl-C, what the command kept, and
             # an exit code of its own (Python's 1 would read as a regression check's fall).
@@ -77,6 +83,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"oodmon: stopped by {type(error).__name__}: {error} (the traceback above)" + _kept(args),
                   file=sys.stderr)
             return 3
+
+
+def _worker_death(error: BrokenProcessPool) -> str:
+    """What a worker's death says (side by side's names its pid and signal; a process pool's, the
+    bench's, only that one was "terminated abruptly"), and what to try."""
+    return f"{str(error).rstrip('.') or 'a worker process died'}; fewer --workers need less memory"
 
 
 def _kept(args: argparse.Namespace) -> str:
