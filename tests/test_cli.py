@@ -493,6 +493,39 @@ def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, c
     assert values[0] == values[1]
 
 
+def test_replay_notes_logged_episodes_the_threshold_or_its_detector_was_made_from(tmp_path, capsys):
+    """`run` warns when its ID episodes are ones the threshold was made from, but its log did not
+    say so: `replay --monitor` of it, read later or elsewhere, counted their false alarms as fresh
+    ones'. The log now records those seeds (the threshold's and its fitted detector's), and replay
+    notes the episodes among them, whether in the ID env or before a shift's onset."""
+    from oodmon.monitor import Threshold
+    from oodmon.replay import read_log
+
+    path = tmp_path / "t.json"  # alarms on the shipped detectors' combined score (fitted on seeds 600,000-600,089)
+    Threshold(1e9, "chosen_std", 1, "episode", 0.05, 45, 9_000, task="cartpole", method="ensemble", detector="combined",
+              episode_seeds={"calibration": [200_000, 200_045]}).save(path)
+
+    def replayed(name: str, *flags: str) -> str:
+        assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(path), "--episodes", "2",
+                     "--mcap", str(tmp_path / name), *flags]) == 0
+        capsys.readouterr()
+        assert main(["replay", str(tmp_path / name), "--monitor", "--json"]) == 0
+        return capsys.readouterr().err.replace("\n", " ")
+
+    note = "the cartpole/ensemble logs played {} in the ID env (the same reset seeds): they alarm less often"
+    # seeds 200,044 (the calibration's last) and 200,045 (the first after it)
+    assert note.format("1 of the threshold's calibration episodes") in replayed("calibration.mcap", "--seed", "200044")
+    assert json.loads(read_log(tmp_path / "calibration.mcap").metadata["about.threshold_seeds"]) == {
+        "calibration": [200_000, 200_045], "detector fitting": [600_000, 600_090]}
+    assert note.format("1 of the detectors' fitting episodes") in replayed(
+        "fitting.mcap", "--seed", "600089", "--variant", "cartpole:length=2.0", "--onset", "50")  # before the onset
+    assert "ID env" not in replayed("shifted.mcap", "--seed", "200000", "--variant", "cartpole:length=2.0")
+    assert "ID env" not in replayed("fresh.mcap", "--seed", "700000")
+    assert main(["replay", str(tmp_path), "--monitor"]) == 0  # each log's own seeds: a note of both uses
+    assert note.format("1 of the threshold's calibration episodes and 1 of the detectors' fitting episodes") in \
+        capsys.readouterr().err.replace("\n", " ")
+
+
 def test_validate_says_what_to_do_when_the_whole_interval_lies_above_the_target(tmp_path, capsys):
     """A threshold set below every ID episode's statistic alarms in all of them: exit code 1, and the
     line says how often calibration gives such a threshold and how to calibrate another."""

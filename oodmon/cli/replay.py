@@ -124,7 +124,8 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 
 
 def _read_logs(paths: Sequence[str]):
-    from oodmon.replay import pooled_fits, pooled_thresholds, pooled_weights, read_logs
+    from oodmon.monitor.calibration import EPISODE_USES
+    from oodmon.replay import made_from_episodes, pooled_fits, pooled_thresholds, pooled_weights, read_logs
 
     logs = read_logs(paths)
     interrupted = sum(len(log.interrupted) for log in logs)
@@ -143,6 +144,11 @@ def _read_logs(paths: Sequence[str]):
         print(f"oodmon: note: the {task}/{method} logs raised their alarms by {len(by_threshold)} thresholds "
               f"({_logs_by(by_threshold, 60)}): each detector's row counts the alarms of its own runs, but "
               "`--monitor` counts a variant's alarms together; replay each threshold's logs apart", file=sys.stderr)
+    for (task, method), by_use in made_from_episodes(logs).items():
+        uses = " and ".join(f"{count} of {EPISODE_USES.get(use, use)} episodes" for use, count in by_use.items())
+        print(f"oodmon: note: the {task}/{method} logs played {uses} in the ID env (the same reset seeds): they "
+              "alarm less often than fresh episodes, so their false alarms read low; run fresh ones (`oodmon run "
+              "--seed` apart from them)", file=sys.stderr)
     unthresholded = [str(log.path) for log in logs if not log.has_threshold]
     if unthresholded:
         print(f"oodmon: note: {len(unthresholded)} log(s) ran without a threshold (`oodmon run --threshold`), so "

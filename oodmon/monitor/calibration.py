@@ -221,6 +221,11 @@ class Validation:
         return "above" if self.low > self.far else "below" if self.high < self.far else "consistent"
 
 
+#: The uses of the ID episodes a threshold was made from (:func:`seeds_used`), in words.
+EPISODE_USES = {"calibration": "the threshold's calibration", "reference": "the sequential rule's reference",
+                "detector fitting": "the detectors' fitting"}
+
+
 def detectors_read(threshold: Threshold, detectors: DetectorSet | None) -> DetectorSet | None:
     """The fitted detector ``threshold``'s alarm reads, of ``detectors``, as a set of its own
     (``None``: the spread, which is not fitted, or a detector ``detectors`` does not have)."""
@@ -256,9 +261,7 @@ def reused_episodes(threshold: Threshold, detectors: DetectorSet | None, seed: i
         ("the threshold's calibration episodes (seeds 0-44)", 700000)
     """
     used = seeds_used(threshold, detectors)
-    whose = {"calibration": "the threshold's calibration", "reference": "the sequential rule's reference",
-             "detector fitting": "the detectors' fitting"}
-    clashes = [f"{whose.get(name, name)} episodes (seeds {first:,}-{end - 1:,})" for name, (first, end) in used.items()
+    clashes = [f"{EPISODE_USES.get(name, name)} episodes (seeds {first:,}-{end - 1:,})" for name, (first, end) in used.items()
                if first < seed + episodes and seed < end]
     free = seeds.VALIDATION
     while any(first < free + episodes and free < end for first, end in used.values()):

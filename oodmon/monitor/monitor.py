@@ -341,7 +341,7 @@ class Monitor:
                 task=meta.get("task", "unknown"), method=meta.get("method", "unknown"), score=self.score_name,
                 threshold=self.threshold, rule=self.tracker.rule, policy_hash=self.policy_hash,
                 versions=library_versions(), detector=self.detector, detectors=tuple(self.detectors.names),
-                about=run_about(meta) | self._samples_about() | self._states_about(),
+                about=run_about(meta) | self._samples_about() | self._states_about() | self._seeds_about(),
                 fitted=self._fitted,
             ))
             self._opened = True
@@ -355,6 +355,19 @@ class Monitor:
             return {}
         masks = getattr(self.estimator, "masks", None)
         return {"samples": str(self.estimator.n_samples)} | ({"masks": masks} if masks else {})
+
+    def _seeds_about(self) -> dict[str, str]:
+        """The reset seeds of the ID episodes the threshold (and the fitted detector its alarm
+        reads) were made from, by use, as JSON (``about.threshold_seeds``: ``{"calibration": [first,
+        end), ...}``): replay says where the log's own ID episodes are among them, whose false
+        alarms read low (:func:`~oodmon.replay.metrics.reused_episodes`)."""
+        from oodmon.monitor.calibration import detectors_read, seeds_used
+
+        threshold = self._made_with["threshold"]
+        if not isinstance(threshold, Threshold):
+            return {}
+        used = seeds_used(threshold, detectors_read(threshold, self.detectors))
+        return {"threshold_seeds": json.dumps(used, separators=(",", ":"))} if used else {}
 
     def _states_about(self) -> dict[str, str]:
         """The values of each reading of a discrete observation (``about.states`` in the log: ``16``

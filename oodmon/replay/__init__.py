@@ -8,7 +8,8 @@ from __future__ import annotations
 from oodmon.replay.check import baseline_of, check_tolerance, find_falls, load_baseline
 from oodmon.replay.metrics import (
     MonitorMetrics, VariantMetrics, alarm_events, compute_all_metrics, compute_metrics, compute_monitor_metrics,
-    detectors_in, failed_episodes, failure_step, fpr_at_tpr, pooled_fits, pooled_thresholds, pooled_weights,
+    detectors_in, failed_episodes, failure_step, fpr_at_tpr, made_from_episodes, pooled_fits, pooled_thresholds,
+    pooled_weights,
 )
 from oodmon.replay.parts import MissingParts, missing_parts
 from oodmon.replay.reader import (EpisodeLog, MissingPartWarning, NewerFormatWarning, RecoveryWarning, RunLog,
@@ -37,6 +38,7 @@ __all__ = [
     "find_falls",
     "fpr_at_tpr",
     "load_baseline",
+    "made_from_episodes",
     "missing_parts",
     "monitor_markdown",
     "monitor_summary",

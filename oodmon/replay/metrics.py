@@ -28,8 +28,8 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
            "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
            "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures",
-           "failure_step", "fpr_at_tpr", "is_id_variant", "monitor_row", "pooled_fits", "pooled_thresholds", "pooled_weights",
-           "rankable", "shifted_alarms"]
+           "failure_step", "fpr_at_tpr", "is_id_variant", "made_from_episodes", "monitor_row", "pooled_fits",
+           "pooled_thresholds", "pooled_weights", "rankable", "shifted_alarms"]
 
 
 @dataclass(frozen=True)
@@ -170,6 +170,54 @@ def pooled_thresholds(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str,
     """
     return _pooled((log, (log.task, log.method), f"{log.detector} > {log.threshold:.6g} ({log.metadata.get('rule', '')})")
                    for log in logs if log.has_threshold)
+
+
+def made_from_episodes(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, int]]:
+    """The (task, method) groups with episodes played in the ID env (an ID variant, or a shift's
+    steps before its onset) from a reset seed the run's threshold or the fitted detector its alarm
+    reads was made from (``about.threshold_seeds``, logs since 2026-12-01): how many, by use
+    (``calibration``, ``reference``, ``detector fitting``). A threshold is the largest statistic of
+    its calibration episodes (or near it) and a detector learned its fitting episodes: they alarm
+    less often than fresh ones, so such episodes' false alarms read low (``oodmon run`` warns of
+    them; ``oodmon validate`` refuses them).
+
+    Example:
+        >>> from oodmon.replay.reader import RunLog
+        >>> from oodmon.monitor.records import EpisodeRecord
+        >>> def episode(seed, variant="cartpole", onset=0):
+        ...     return EpisodeRecord(seed, "oodmon/CartPole-v1", variant, onset, seed, 1.0, 1, 0, None)
+        >>> log = RunLog(Path("a.mcap"), "cartpole", "ensemble", 4.6,
+        ...              {"about.threshold_seeds": '{"calibration":[0,45]}'},
+        ...              [episode(43), episode(44), episode(45), episode(1, "cartpole:length=2.0"),
+        ...               episode(2, "cartpole:length=2.0", onset=100)], True)
+        >>> made_from_episodes([log])
+        {('cartpole', 'ensemble'): {'calibration': 3}}
+    """
+    counts: dict[tuple[str, str], dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    for log in logs:
+        used = _threshold_seeds(log)
+        for episode in log.episodes if used else ():
+            if episode.seed is None or not (episode.onset > 0 or is_id_variant(episode.variant)):
+                continue
+            for use, (first, end) in used.items():
+                if first <= episode.seed < end:
+                    counts[(log.task, log.method)][use] += 1
+    return {group: dict(by_use) for group, by_use in counts.items()}
+
+
+def _threshold_seeds(log: RunLog) -> dict[str, tuple[int, int]]:
+    """The seed ranges a log's threshold was made from, by use (none where the log records none,
+    or a damaged record: what cannot be read says nothing)."""
+    import json
+
+    try:
+        used = json.loads(log.metadata.get("about.threshold_seeds", "{}"))
+    except ValueError:
+        return {}
+    if not isinstance(used, dict):
+        return {}
+    return {use: (seeds[0], seeds[1]) for use, seeds in used.items()
+            if isinstance(seeds, list) and len(seeds) == 2 and all(type(seed) is int for seed in seeds)}
 
 
 def _pooled(entries: Iterable[tuple[RunLog, tuple, str | None]]) -> dict[tuple, dict[str, list[Path]]]:
