@@ -87,11 +87,11 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
 def stopping_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     """A pool of ``workers`` processes whose jobs stop with the bench: on an exception or an
     interrupt here (or the loop over its results left early), the jobs not begun are cancelled and
-    the workers killed (and where the bench is SIGKILLed, they die with it). A cell's log is moved in whole or not at all, a training's checkpoint is
-    written whole: the same command resumes from them. Left to ``with ProcessPoolExecutor``, its
-    shutdown waited for every queued job to run: Ctrl-C at the first of a CartPole bench's 102
-    cells ran 100 of them (11.1 s), and a five-trial bench's trainings would have trained on for
-    hours."""
+    the workers killed (and where the bench is SIGKILLed, they die with it). A cell's log is moved
+    in whole or not at all, a training's checkpoint is written whole: the same command resumes
+    from them. Left to ``with ProcessPoolExecutor``, its shutdown waited for every queued job to
+    run: Ctrl-C at the first of a CartPole bench's 102 cells ran 100 of them (11.1 s), and a
+    five-trial bench's trainings would have trained on for hours."""
     import signal
 
     pids = multiprocessing.get_context().SimpleQueue()  # each worker's, said as it starts

@@ -181,7 +181,8 @@ class McapSink:
         >>> McapSink(sink.path)
         Traceback (most recent call last):
         ...
-        oodmon.errors.ConfigError: /.../run.mcap exists: the log of an earlier run; give another path, or McapSink(..., overwrite=True) to replace it
+        oodmon.errors.ConfigError: /.../run.mcap exists: the log of an earlier run; give another path, or ...
+        to replace it
         >>> shutil.rmtree(sink.path.parent)
         >>> McapSink("runs/deploy.mcap", split_episodes=100).part_path(3).as_posix()
         'runs/deploy-00003.mcap'
