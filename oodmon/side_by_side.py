@@ -270,9 +270,12 @@ def _receive(connection: Connection, process: Any) -> tuple:
 
         process.join(timeout=5)
         code = process.exitcode
-        how = f"exit code {code}" if code is None or code >= 0 else f"killed by {signal.Signals(-code).name}"
-        raise BrokenProcessPool(f"a worker process (pid {process.pid}) died while playing episodes ({how}): out of "
-                                "memory (SIGKILL), killed, or a crash in an env's C code (SIGSEGV)") from None
+        if code is not None and code < 0:
+            how = (f"killed by {signal.Signals(-code).name}): out of memory (SIGKILL), killed, or a crash in an env's "
+                   "C code (SIGSEGV)")
+        else:  # a Python exception is sent here, not died of: something ended the process itself
+            how = f"exit code {code}): an env or policy that ended its process (os._exit, a library's exit)"
+        raise BrokenProcessPool(f"a worker process (pid {process.pid}) died while playing episodes ({how}") from None
 
 
 def _stop(workers) -> None:

@@ -121,6 +121,17 @@ def test_a_worker_that_dies_is_said_here_and_the_other_worker_is_stopped(four_co
     assert _wait_until_dead(int((tmp_path / "slow").read_text()))  # the command kills the others
 
 
+def test_a_worker_that_ends_its_own_process_is_not_said_to_be_killed(four_cores, tmp_path):
+    """An env or policy that ends the process itself (``os._exit``): its exit code, not the words
+    of a killed worker (out of memory, a crash), which it was said with before."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    with pytest.raises(BrokenProcessPool, match=r"died while playing episodes \(exit code 7\): an env or policy that "
+                                                r"ended its process \(os\._exit"):
+        play_side_by_side(_one_slow_one_failing(tmp_path, lambda _: os._exit(7)), 4, 2, "ID episodes")
+    assert _wait_until_dead(int((tmp_path / "slow").read_text()))
+
+
 def test_a_workers_death_ends_a_command_in_one_line_with_what_it_kept(four_cores, tmp_path, capsys, monkeypatch):
     """A worker killed (here by itself at its third step, as the kernel kills one when memory runs
     out; a crash in an env's C code dies alike) ended ``calibrate --workers 2`` with the command's

@@ -86,9 +86,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _worker_death(error: BrokenProcessPool) -> str:
-    """What a worker's death says (side by side's names its pid and signal; a process pool's, the
-    bench's, only that one was "terminated abruptly"), and what to try."""
-    return f"{str(error).rstrip('.') or 'a worker process died'}; fewer --workers need less memory"
+    """What a worker's death says (side by side's names its pid and its signal or exit code; a
+    process pool's, the bench's, only that one was "terminated abruptly"), and where it may have
+    been killed for memory, what to try."""
+    said = str(error).rstrip(".") or "a worker process died"
+    return said + ("" if "exit code" in said else "; fewer --workers need less memory")
 
 
 def _kept(args: argparse.Namespace) -> str:
