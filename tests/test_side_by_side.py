@@ -6,6 +6,7 @@ import json
 import os
 import re
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -299,8 +300,8 @@ def test_the_workers_die_with_a_killed_command(four_cores, tmp_path):
 
 
 def _workers_die_with_a_killed(script: str, folder) -> bool:
-    """Whether the two workers of ``script`` (each writes its pid into ``folder`` and sleeps), all
-    alive when it is SIGKILLed, die after it."""
+    """Whether the two workers of ``script`` (each writes its pid into ``folder`` and sleeps), and
+    every other process it started, all alive when it is SIGKILLed, die after it."""
     import signal
     import subprocess
     import sys
@@ -310,12 +311,24 @@ def _workers_die_with_a_killed(script: str, folder) -> bool:
         while len(list(folder.iterdir())) < 2:
             assert command.poll() is None, "the command ended before its workers began"
             time.sleep(0.05)
-        workers = [int(path.name) for path in folder.iterdir()]
+        workers = {int(path.name) for path in folder.iterdir()} | _children(command.pid)
         assert all(_alive(pid) for pid in workers)
     finally:
         command.send_signal(signal.SIGKILL)
         command.wait()
     return all(_wait_until_dead(pid) for pid in workers)
+
+
+def _children(pid: int) -> set[int]:
+    """The processes whose parent is ``pid`` (Linux's /proc)."""
+    children = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            if int(stat.read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                children.add(int(stat.parent.name))
+        except (OSError, IndexError, ValueError):  # a process that ended meanwhile
+            continue
+    return children
 
 
 BENCH_KILLED = """
@@ -332,11 +345,27 @@ with stopping_pool(2) as pool:
 """
 
 
+TRIALS_KILLED = """
+import os, sys, time
+from types import SimpleNamespace
+from oodmon.bench.run import _per_trial
+
+def job(config, method, trial, on_progress):
+    open(os.path.join(sys.argv[1], str(os.getpid())), "w").close()
+    time.sleep(120)
+
+trials = [("ensemble", trial) for trial in range(4)]
+list(_per_trial(job, trials, SimpleNamespace(executor="local"), 2, lambda *progress: None))
+"""
+
+
 @pytest.mark.skipif(not os.path.exists("/proc/self/stat"), reason="reads /proc (Linux)")
-def test_the_bench_pools_workers_die_with_a_killed_bench(tmp_path):
+@pytest.mark.parametrize("script", [BENCH_KILLED, TRIALS_KILLED], ids=["cells", "trials"])
+def test_the_bench_pools_workers_die_with_a_killed_bench(tmp_path, script):
     """The bench's worker pool (trainings, preparations, cells) likewise: a SIGKILLed bench left
-    its workers to run their jobs out, orphaned (a five-trial bench's trainings: hours)."""
-    assert _workers_die_with_a_killed(BENCH_KILLED, tmp_path)
+    its workers to run their jobs out, orphaned (a five-trial bench's trainings: hours); and the
+    trials' progress queue's server (a multiprocessing Manager), which served on for ever."""
+    assert _workers_die_with_a_killed(script, tmp_path)
 
 
 LARGE_RESULTS = """
