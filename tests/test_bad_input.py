@@ -189,6 +189,13 @@ CASES = [
      {}, ["--results", "thr.json", "holds no bench result"]),
     ("bench-results-parent-is-a-file", ["bench", "--task", "cartpole", "--out", "{d}/b", "--results", "{d}/a-file/r.json"],
      {}, ["--results", "a-file"]),
+    # refused before the trainings (a score was first read when the calibration's first step was scored)
+    ("bench-score-unknown", ["bench", "--task", "cartpole", "--out", "{d}/b", "--score", "bogus"], {},
+     ["unknown score 'bogus'"]),
+    ("bench-score-of-other-actions", ["bench", "--task", "pendulum", "--out", "{d}/b", "--score", "margin_std"], {},
+     ["score 'margin_std' needs discrete actions (DQN)"]),
+    ("bench-masks-of-ensembles", ["bench", "--task", "cartpole", "--out", "{d}/b", "--methods", "ensemble", "--masks",
+                                  "fixed"], {}, ["masks='fixed'", "Dropout and DropConnect"]),
     ("evaluate-episodes-0", ["evaluate", "--task", "cartpole", "--method", "ensemble", "--episodes", "0"], {},
      ["--episodes", "0"]),
     ("evaluate-fail-fraction", ["evaluate", "--task", "cartpole", "--method", "ensemble", "--fail-fraction", "2"], {},

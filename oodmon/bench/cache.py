@@ -114,6 +114,31 @@ def _refuse_to_train_for_hours(config: BenchConfig, method: str, trial: int) -> 
     )
 
 
+def _refuse_detectors_it_cannot_have(config: BenchConfig) -> None:
+    """A detector a method's agents cannot have (``scaled_spread`` of sampled MC masks, ``frames``
+    of vector observations) was refused when the first trial's detectors were fitted, after the
+    other trials' models had trained (CartPole's twelve trial models of a five-trial bench: 17
+    minutes on two cores, results/bench/README.md; Pong's: hours each). Said first, of each method's
+    shipped agent as the bench loads it (its MC samples and masks; a resized trial is the same kind
+    of agent)."""
+    from oodmon.monitor.detectors.fitting import cannot_have
+
+    if config.users_own:  # nothing is trained: its preparation says so at once
+        return
+    for method in config.methods:
+        shipped = zoo_dir() / f"{config.task}-{method}"
+        if not (shipped / "model.json").exists():
+            continue
+        agent = _bench_agent(shipped, config.task, seeds.CALIBRATION, config.samples, config.masks)
+        env = agent.make_env()
+        try:
+            reasons = [reason for name in config.detectors if (reason := cannot_have(name, agent, env))]
+        finally:
+            env.close()
+        if reasons:
+            raise ConfigError(f"the {method} agents cannot have every detector asked for: {reasons[0]}")
+
+
 def _ensure_model(config: BenchConfig, method: str, trial: int,
                   on_progress: Callable[[str, int, int], None] | None = None) -> Source:
     """The (method, trial)'s model: the SB3 files, the plain policy, the shipped agent, or the cached

@@ -130,6 +130,12 @@ class BenchConfig:
                              or self.imports):
             raise ConfigError("vec_normalize, frame_stack, imports and unsafe_load_pickles are how sb3 models are read "
                               "and see the env: give them with sb3 models only")
+        if not self.users_own:  # (your own policy's actions are known when its env is made)
+            from oodmon.agents.recipes import recipe_for
+            from oodmon.monitor.scores import check_score
+
+            for method in self.methods:  # an unknown score or one not of the task's actions, before hours of training
+                check_score(self.score, recipe_for(self.task, method).algorithm)
         if not self.users_own and "spread" not in self.detectors:
             raise ConfigError("the bench's agents all have samples: keep spread among the detectors")
         from oodmon.monitor.threshold import conformal_rank
@@ -141,7 +147,7 @@ class BenchConfig:
         from oodmon.names import MASKS
 
         if self.masks is not None and (self.masks not in MASKS or (self.masks != "sampled" and len(self.sb3) > 1)
-                                       or self.policy):
+                                       or self.policy or self.methods == ("ensemble",)):  # (an ensemble has none)
             raise ConfigError(f"masks={self.masks!r}: the MC masks of Dropout and DropConnect agents (oodmon's, or one "
                               f"--sb3 model with dropout), {' or '.join(MASKS)}")
         if self.members is not None and (self.members < 2 or self.users_own or "ensemble" not in self.methods):

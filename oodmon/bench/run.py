@@ -11,9 +11,9 @@ from pathlib import Path
 from typing import Any
 
 from oodmon import seeds
-from oodmon.bench.cache import (Source, _cell_log, _ensure_model, _ensure_model_dir_current,
-                                _id_return, _log_is_complete, _monitored, _prepare_trial, _refuse_to_train_for_hours,
-                                _weights_sha256)
+from oodmon.bench.cache import (Source, _cell_log, _ensure_model, _ensure_model_dir_current, _id_return,
+                                _log_is_complete, _monitored, _prepare_trial, _refuse_detectors_it_cannot_have,
+                                _refuse_to_train_for_hours, _weights_sha256)
 from oodmon.bench.cells import Relay, _execute, check_ray_address, on_ray, ray_for, stopping_pool
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.paper import paper_auc_per_trial
@@ -106,6 +106,7 @@ def run_bench(config: BenchConfig, *, on_progress: Progress | None = None) -> Be
     trials = [(m, t) for m in config.methods for t in range(config.trials)]
     for method, trial in trials:  # before minutes of work on the others
         _refuse_to_train_for_hours(config, method, trial)
+    _refuse_detectors_it_cannot_have(config)  # before the trainings, too
     check_ray_address(config)  # before hours of training, too
     workers = config.workers or usable_cores()  # (the cores it may run on: a container's, not its host's)
     with ray_for(config, workers):  # a Ray cluster started (or joined) once for every stage

@@ -25,7 +25,7 @@ from oodmon.errors import ConfigError, UnknownParameterError
 if TYPE_CHECKING:  # importing it would load torch, which replay does not need
     from oodmon.agents.estimators import Estimate
 
-__all__ = ["DEFAULT_SCORE", "SCORES", "score_function"]
+__all__ = ["DEFAULT_SCORE", "SCORES", "check_score", "score_function"]
 
 
 def _chosen_std(estimate: Estimate) -> np.ndarray:
@@ -34,16 +34,21 @@ def _chosen_std(estimate: Estimate) -> np.ndarray:
     return estimate.std.mean(axis=1)
 
 
+#: What a score that does not apply to a policy's actions needs, by name.
+_NEEDS = {"pre_squash_std": "score 'pre_squash_std' needs an actor that ends in tanh (DDPG); use chosen_std",
+          "margin_std": "score 'margin_std' needs discrete actions (DQN); use chosen_std or pre_squash_std"}
+
+
 def _pre_squash_std(estimate: Estimate) -> np.ndarray:
     if estimate.pre_squash_std is None:
-        raise ConfigError("score 'pre_squash_std' needs an actor that ends in tanh (DDPG); use chosen_std")
+        raise ConfigError(_NEEDS["pre_squash_std"])
     return estimate.pre_squash_std.mean(axis=1)
 
 
 def _margin_std(estimate: Estimate) -> np.ndarray:
     action = estimate.action
     if not (action.ndim == 1 and action.dtype.kind in "iu"):
-        raise ConfigError("score 'margin_std' needs discrete actions (DQN); use chosen_std or pre_squash_std")
+        raise ConfigError(_NEEDS["margin_std"])
     samples = estimate.samples  # (K, batch, n)
     if samples.shape[2] < 2:
         raise ConfigError("score 'margin_std' needs at least two actions")
@@ -62,6 +67,22 @@ SCORES: dict[str, Callable[["Estimate"], np.ndarray]] = {
     "margin_std": _margin_std,
 }
 DEFAULT_SCORE = "chosen_std"
+
+
+def check_score(name: str, algorithm: str) -> None:
+    """Refuse, before any work, a score unknown or not of the actions of an ``algorithm``'s
+    policy (``dqn``: discrete, ``ddpg``: a tanh actor): what its first step would refuse.
+
+    Example:
+        >>> check_score("margin_std", "dqn")
+        >>> check_score("margin_std", "ddpg")
+        Traceback (most recent call last):
+        ...
+        oodmon.errors.ConfigError: score 'margin_std' needs discrete actions (DQN); use chosen_std or pre_squash_std
+    """
+    score_function(name)
+    if (name, algorithm) in (("margin_std", "ddpg"), ("pre_squash_std", "dqn")):
+        raise ConfigError(_NEEDS[name])
 
 
 def score_function(name: str) -> Callable[["Estimate"], np.ndarray]:
