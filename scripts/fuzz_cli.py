@@ -27,7 +27,9 @@ the rest stopped while working, no traceback; with the tasks' sensor faults too,
 among ``--detector``'s choices, seeds 70 and 71: 499 and 498 answered, the rest stopped while
 working, no traceback. On 2026-12-01, with ``--workers`` of calibrate, validate, evaluate and
 fit-detectors and validate's refusal of episodes a threshold was made from, seed 79 (300 runs):
-300 answered, no traceback.
+300 answered, no traceback; seed 81 (after the workers' pipes of their own) and seed 82 (after a
+worker's death said in one line), 300 runs each: 299 answered each, 1 stopped while working, no
+traceback.
 """
 
 from __future__ import annotations

@@ -360,7 +360,7 @@ class Monitor:
         """The reset seeds of the ID episodes the threshold (and the fitted detector its alarm
         reads) were made from, by use, as JSON (``about.threshold_seeds``: ``{"calibration": [first,
         end), ...}``): replay says where the log's own ID episodes are among them, whose false
-        alarms read low (:func:`~oodmon.replay.metrics.reused_episodes`)."""
+        alarms read low (:func:`~oodmon.replay.metrics.made_from_episodes`)."""
         from oodmon.monitor.calibration import detectors_read, seeds_used
 
         threshold = self._made_with["threshold"]

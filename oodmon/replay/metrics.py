@@ -212,7 +212,7 @@ def _threshold_seeds(log: RunLog) -> dict[str, tuple[int, int]]:
 
     try:
         used = json.loads(log.metadata.get("about.threshold_seeds", "{}"))
-    except ValueError:
+    except (ValueError, RecursionError):  # (a damaged record may nest deeper than the parser goes)
         return {}
     if not isinstance(used, dict):
         return {}
