@@ -141,7 +141,6 @@ def _worker(play: Play, connection: Connection, parent: int, inherited: list[Con
     ``done()`` sends ``("episode",)``, each run's end ``("run", first, results)``, an exception
     ``("error", exception, traceback)``, all on this worker's own pipe."""
     import signal
-    import traceback
 
     from oodmon.threads import set_threads
 
@@ -149,23 +148,30 @@ def _worker(play: Play, connection: Connection, parent: int, inherited: list[Con
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the group: the command stops its workers
     for other in inherited:  # the command's ends of the pipes of the workers forked before this one
         other.close()
-    # One thread each, whatever OODMON_TORCH_THREADS says: the processes share the cores, and a
-    # worker forked from a command whose torch ran on more (OODMON_TORCH_THREADS=2) hung in its
-    # first parallel region (libgomp's threads are not forked; measured: Pong's DropConnect agent,
-    # `validate --workers 2`, stopped after 300 s of 6 games), which one thread never enters.
-    set_threads(1)
-    while (run := connection.recv()) is not None:
-        first, count = run
-        try:
+    try:  # every error is the command's to raise (one here died with its traceback, read as a death)
+        # One thread each, whatever OODMON_TORCH_THREADS says: the processes share the cores, and a
+        # worker forked from a command whose torch ran on more (OODMON_TORCH_THREADS=2) hung in its
+        # first parallel region (libgomp's threads are not forked; measured: Pong's DropConnect agent,
+        # `validate --workers 2`, stopped after 300 s of 6 games), which one thread never enters.
+        set_threads(1)
+        while (run := connection.recv()) is not None:
+            first, count = run
             results = play(first, count, lambda: connection.send(("episode",)))
-        except BaseException as error:  # noqa: BLE001  (every error is the command's to raise)
-            text = traceback.format_exc()
-            try:
-                connection.send(("error", error, text))
-            except Exception:  # an exception pickle cannot carry: its words
-                connection.send(("error", RuntimeError(f"{type(error).__name__}: {error}"), text))
-            return
-        connection.send(("run", first, results))
+            # (pickled before a byte is written: results pickle cannot carry are sent as an error)
+            connection.send(("run", first, results))
+    except BaseException as error:  # noqa: BLE001
+        _send_error(connection, error)
+
+
+def _send_error(connection: Connection, error: BaseException) -> None:
+    """``("error", exception, traceback)`` to the command; an exception pickle cannot carry, as its words."""
+    import traceback
+
+    text = traceback.format_exc()
+    try:
+        connection.send(("error", error, text))
+    except Exception:  # noqa: BLE001
+        connection.send(("error", RuntimeError(f"{type(error).__name__}: {error}"), text))
 
 
 def die_with(parent: int) -> None:

@@ -122,6 +122,25 @@ def test_a_worker_that_dies_is_said_here_and_the_other_worker_is_stopped(four_co
     assert _wait_until_dead(int((tmp_path / "slow").read_text()))  # the command kills the others
 
 
+def test_a_workers_error_outside_its_episodes_is_raised_here_not_read_as_its_death(four_cores, monkeypatch):
+    """An error in a worker's setup, or results that pickle cannot carry back, escaped the worker:
+    it died with its traceback on stderr, and the command said "died (exit code 1)". Now raised
+    here, as an episode's error is (seen on Python 3.12 without torch: set_threads' import)."""
+    from oodmon.side_by_side import WorkerTraceback
+
+    def no_threads(threads):
+        raise ModuleNotFoundError("No module named 'torch'")
+
+    with monkeypatch.context() as patched:
+        patched.setattr("oodmon.threads.set_threads", no_threads)
+        with pytest.raises(ModuleNotFoundError, match="torch") as raised:
+            play_side_by_side(lambda first, count, done: [first] * count, 4, 2, "ID episodes")
+    assert isinstance(raised.value.__cause__, WorkerTraceback) and "in no_threads" in str(raised.value.__cause__)
+    with pytest.raises(Exception, match="pickle|lambda") as raised:  # a result pickle cannot carry
+        play_side_by_side(lambda first, count, done: [lambda: first] * count, 4, 2, "ID episodes")
+    assert isinstance(raised.value.__cause__, WorkerTraceback)
+
+
 def test_a_worker_that_ends_its_own_process_is_not_said_to_be_killed(four_cores, tmp_path):
     """An env or policy that ends the process itself (``os._exit``): its exit code, not the words
     of a killed worker (out of memory, a crash), which it was said with before."""
