@@ -29,6 +29,12 @@ run is found over the first half, printed as a grid, and the most a game of the 
 still past it, per tile: the tiles that move most (the paddles' columns) stand still in ID games
 for some 56-158 decisions, the others for hundreds, and fresh games pass those records (2026-11-30,
 16 games: by up to 13 and 860). The agent's MC draws are seeded: a run plays the same games again.
+They are seeded once, at the agent's load, and run on from region to region: an MC agent's games of
+a region depend on the regions before it in ``--regions`` (the README's figures: the default list).
+Seen on 2026-12-01 (DropConnect, combined > 4.30125): ``--regions centre`` alone alarmed 1 of 5
+games (delay 603, 4 points lost first; the others lost 0, 4, 0, 0), after ``agent_side`` 3 of 5
+(delays 890, 125, 116; 12, 0 and 0 points lost first; 2 and 0 unalarmed). The same 5 seeds' ID
+games lose 0-1 points from decision 200 to 1,200.
 """
 
 from __future__ import annotations
