@@ -33,6 +33,15 @@ then ``scripts/frozen_region.py``): the agent's third 5 of 5 games at 51-73 deci
 50-94 (Dropout) and 61-84 (ensemble), 0-2 points lost first; fresh ID games (``oodmon validate``):
 DropConnect 28 of 500 (5.6%), Dropout and the ensemble 0 of 100. It is fitted when named
 (``fitted_when_named``), not by default.
+
+Tried for the centre, which ``motion`` sees late (the ball alone crosses it; 2026-12-01, the
+DropConnect agent, the script not kept): each tile's changes over the last W steps against its ID
+rate of change (any action), a Poisson log-likelihood ratio of the deficit summed over the tiles,
+fitted on 30 ID games, its threshold the highest of 50 more (rank 50 of 50), 100 fresh ID games and
+10 frozen games a region (onset 200). Best for the centre, 8 x 8 tiles and W = 300: 8 of 10 games
+at 147-757 decisions (median 291.5), 4 of 100 fresh ID games over the threshold; but the agent's
+third at a median 113 and the opponent's at 116, where ``motion`` takes 51-73 and 39-60. 12 x 12
+and 16 x 16 tiles, W = 200 or 300: the centre 3-5 of 10. Not kept.
 """
 
 from __future__ import annotations
