@@ -261,9 +261,8 @@ def test_bench_never_starts_hours_of_pong_training_and_says_how_instead(tmp_path
     (("spread", "frames"), "fixed", "the dropout agents cannot have every detector asked for: the frames detector needs "
                                     "image observations; this env's are of shape (4,)")], ids=["scaled_spread", "frames"])
 def test_a_detector_the_agents_cannot_have_is_refused_before_the_trainings(tmp_path, detectors, masks, why):
-    """Refused when trial 0's detectors were fitted, after trials 1-4 had trained (five CartPole
-    Dropout trials with scaled_spread: 17 minutes for nothing); now before anything is trained. With
-    fixed masks, the Dropout agents have scaled_spread."""
+    """Refused when trial 0's detectors were fitted, after the other trials' models had trained;
+    now before anything is trained. With fixed masks, the Dropout agents have scaled_spread."""
     config = BenchConfig(task="cartpole", methods=("dropout",), trials=2, detectors=detectors, masks=masks,
                          out=str(tmp_path))
     with pytest.raises(ConfigError, match=re.escape(why)):

@@ -496,7 +496,7 @@ def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, c
 def test_replay_notes_logged_episodes_the_threshold_or_its_detector_was_made_from(tmp_path, capsys):
     """`run` warns when its ID episodes are ones the threshold was made from, but its log did not
     say so: `replay --monitor` of it, read later or elsewhere, counted their false alarms as fresh
-    ones'. The log now records those seeds (the threshold's and its fitted detector's), and replay
+    ones' are. The log now records those seeds (the threshold's and its fitted detector's), and replay
     notes the episodes among them, whether in the ID env or before a shift's onset."""
     from oodmon.monitor import Threshold
     from oodmon.replay import read_log

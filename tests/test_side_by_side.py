@@ -155,9 +155,8 @@ def test_a_worker_that_ends_its_own_process_is_not_said_to_be_killed(four_cores,
 def test_a_workers_death_ends_a_command_in_one_line_with_what_it_kept(four_cores, tmp_path, capsys, monkeypatch):
     """A worker killed (here by itself at its third step, as the kernel kills one when memory runs
     out; a crash in an env's C code dies alike) ended ``calibrate --workers 2`` with the command's
-    own traceback, which shows where the command
-    waited, not where or why the worker died. Now one line: which worker, its signal, what to try,
-    and what the command kept; exit code 3."""
+    own traceback, which shows where the command waited, not where or why the worker died. Now one
+    line: which worker, its signal, what to try, and what the command kept; exit code 3."""
     import signal
 
     from oodmon.envs.physics import ShiftedCartPole
