@@ -84,19 +84,22 @@ def _execute(jobs: list[tuple], config: BenchConfig, workers: int) -> Iterator[s
 
 
 @contextmanager
-def stopping_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
+def stopping_pool(workers: int, progress: Any = None) -> Iterator[ProcessPoolExecutor]:
     """A pool of ``workers`` processes whose jobs stop with the bench: on an exception or an
     interrupt here (or the loop over its results left early), the jobs not begun are cancelled and
     the workers killed (and where the bench is SIGKILLed, they die with it). A cell's log is moved
     in whole or not at all, a training's checkpoint is written whole: the same command resumes
     from them. Left to ``with ProcessPoolExecutor``, its shutdown waited for every queued job to
     run: Ctrl-C at the first of a CartPole bench's 102 cells ran 100 of them (11.1 s), and a
-    five-trial bench's trainings would have trained on for hours."""
+    five-trial bench's trainings would have trained on for hours.
+
+    ``progress``: a ``multiprocessing`` queue the workers inherit, on which a job's
+    :class:`Relay` ``()`` puts its reports (a queue cannot be sent with a job; a ``Manager``'s
+    could, but its server is a process more, which outlived a SIGKILLed bench)."""
     import signal
 
     pids = multiprocessing.get_context().SimpleQueue()  # each worker's, said as it starts
-    pool = ProcessPoolExecutor(max_workers=workers, initializer=_say_pid,
-                               initargs=(pids, os.getpid()))
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_say_pid, initargs=(pids, os.getpid(), progress))
     try:
         yield pool
     except BaseException:
@@ -109,13 +112,19 @@ def stopping_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     pool.shutdown(wait=True)
 
 
-def _say_pid(pids: Any, bench: int) -> None:
+def _say_pid(pids: Any, bench: int, progress: Any = None) -> None:
     """A worker's start: its pid said to the bench, and its death bound to the bench's (a SIGKILLed
-    bench, which has no time to kill its workers, left them to run their jobs out, orphaned)."""
+    bench, which has no time to kill its workers, left them to run their jobs out, orphaned); the
+    bench's progress queue kept for its jobs' :class:`Relay` ``()``."""
     from oodmon.side_by_side import die_with
 
+    global _PROGRESS
     die_with(bench)
+    _PROGRESS = progress
     pids.put(os.getpid())
+
+
+_PROGRESS: Any = None  # in a worker of a stopping_pool: the queue its progress goes to
 
 
 @contextmanager
@@ -166,13 +175,14 @@ def on_ray(function: Callable[..., Any], jobs: list[tuple], config: BenchConfig,
 
 class Relay:
     """A task's ``on_progress`` in a worker (a process, a Ray task): puts each report on the
-    bench's queue (a ``multiprocessing`` manager's, a Ray one), for the bench to report."""
+    bench's queue (a Ray one; without one, the queue a :func:`stopping_pool`'s workers inherit),
+    for the bench to report."""
 
-    def __init__(self, queue) -> None:
+    def __init__(self, queue: Any = None) -> None:
         self.queue = queue
 
     def __call__(self, stage: str, done: int, total: int) -> None:
-        self.queue.put((stage, done, total))
+        (_PROGRESS if self.queue is None else self.queue).put((stage, done, total))
 
 
 def own_module_paths(config: BenchConfig) -> list[str]:

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import multiprocessing
-import os
 from concurrent.futures import FIRST_COMPLETED, wait
 from collections.abc import Callable, Iterator
-from multiprocessing.managers import SyncManager
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +16,7 @@ from oodmon.bench.cells import Relay, _execute, check_ray_address, on_ray, ray_f
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
-from oodmon.side_by_side import die_with, usable_cores
+from oodmon.side_by_side import usable_cores
 from oodmon.threads import limit_threads, set_threads
 
 def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], workers: int, report: Progress) -> None:
@@ -65,15 +63,13 @@ def _per_trial(function: Callable[..., Any], trials: list[tuple[str, int]], conf
         for method, trial in trials:
             yield function(config, method, trial, report)
         return
-    manager = SyncManager(ctx=multiprocessing.get_context())
-    manager.start(die_with, (os.getpid(),))  # dies with a SIGKILLed bench (it served on, orphaned, for ever)
-    with manager, stopping_pool(min(workers, len(jobs))) as pool:
-        queue = manager.Queue()  # each worker's own progress, relayed here as it comes
-        pending = {pool.submit(_in_worker, *job, Relay(queue)) for job in jobs}
+    progress = multiprocessing.get_context().SimpleQueue()  # each worker's own, relayed here as it comes
+    with stopping_pool(min(workers, len(jobs)), progress) as pool:
+        pending = {pool.submit(_in_worker, *job, Relay()) for job in jobs}
         while pending:
             finished, pending = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
-            while not queue.empty():
-                report(*queue.get())
+            while not progress.empty():
+                report(*progress.get())
             for future in finished:
                 yield future.result()
 
