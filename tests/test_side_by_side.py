@@ -382,7 +382,8 @@ list(_per_trial(job, trials, SimpleNamespace(executor="local"), 2, lambda *progr
 def test_the_bench_pools_workers_die_with_a_killed_bench(tmp_path, script):
     """The bench's worker pool (trainings, preparations, cells) likewise: a SIGKILLed bench left
     its workers to run their jobs out, orphaned (a five-trial bench's trainings: hours); and the
-    trials' progress queue's server (a multiprocessing Manager), which served on for ever."""
+    trials' progress queue's server (a multiprocessing Manager, since replaced by a queue the
+    workers inherit), which served on for ever: every process the bench started dies with it."""
     assert _workers_die_with_a_killed(script, tmp_path)
 
 
