@@ -259,7 +259,9 @@ def test_bench_never_starts_hours_of_pong_training_and_says_how_instead(tmp_path
     (("spread", "scaled_spread"), None, "the dropout agents cannot have every detector asked for: the scaled_spread "
                                         "detector puts each ensemble member's values on its own ID footing"),
     (("spread", "frames"), "fixed", "the dropout agents cannot have every detector asked for: the frames detector needs "
-                                    "image observations; this env's are of shape (4,)")], ids=["scaled_spread", "frames"])
+                                    "image observations; this env's are of shape (4,)"),
+    (("spread", "transitions"), None, "the transitions detector counts states that repeat (discrete observations); "
+                                      "cartpole's are continuous readings")], ids=["scaled_spread", "frames", "transitions"])
 def test_a_detector_the_agents_cannot_have_is_refused_before_the_trainings(tmp_path, detectors, masks, why):
     """Refused when trial 0's detectors were fitted, after the other trials' models had trained;
     now before anything is trained. With fixed masks, the Dropout agents have scaled_spread."""

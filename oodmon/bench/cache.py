@@ -125,6 +125,10 @@ def _refuse_detectors_it_cannot_have(config: BenchConfig) -> None:
 
     if config.users_own:  # nothing is trained: its preparation says so at once
         return
+    if "transitions" in config.detectors and not recipe_for(config.task, config.methods[0]).cnn:
+        # (refused by its fit, which finds the readings distinct; pictures: by cannot_have below)
+        raise ConfigError(f"the transitions detector counts states that repeat (discrete observations); {config.task}'s "
+                          "are continuous readings, which it refuses at its fit: use the dynamics detector")
     for method in config.methods:
         shipped = zoo_dir() / f"{config.task}-{method}"
         if not (shipped / "model.json").exists():
