@@ -28,6 +28,7 @@ import multiprocessing
 import os
 import sys
 from collections.abc import Callable
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
@@ -37,7 +38,7 @@ from oodmon.errors import InvalidParameterError
 from oodmon.progress import Progress
 from oodmon.validation import is_whole
 
-__all__ = ["WorkerTraceback", "episode_streams", "play_side_by_side", "resolve_workers", "runs_of",
+__all__ = ["WorkerDied", "WorkerTraceback", "episode_streams", "play_side_by_side", "resolve_workers", "runs_of",
            "stream_per_episode", "usable_cores"]
 
 #: ``play(first, count, done)``: play episodes ``first .. first + count - 1`` (indices from 0),
@@ -131,6 +132,15 @@ def stream_per_episode(sampler: Any, workers: int) -> Callable[[int], None]:
     return start
 
 
+class WorkerDied(BrokenProcessPool):
+    """A worker process that died while playing episodes; ``signal``: the name of the signal that
+    killed it (``SIGKILL``: out of memory, or killed), ``None`` where it ended itself."""
+
+    def __init__(self, message: str, signal: str | None) -> None:
+        super().__init__(message)
+        self.signal = signal
+
+
 class WorkerTraceback(Exception):
     """The traceback of an exception raised in a worker, as its text: the ``__cause__`` of that
     exception where it is raised again in the command."""
@@ -205,7 +215,8 @@ def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
 
     A worker's exception is raised here (its traceback the ``__cause__``) and the other workers
     are killed at once; so is an interrupt here (Ctrl-C, which the workers ignore), and a worker's
-    death (``BrokenProcessPool``: killed, out of memory, a crash in an env's C code).
+    death (:class:`WorkerDied`, a ``BrokenProcessPool``: killed, out of memory, a crash in an
+    env's C code).
 
     Each worker has a pipe of its own, read here between messages, never by a thread of its own:
     a worker killed while sending a large result (a Pong game's frames) ends its pipe, and the
@@ -265,10 +276,8 @@ def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
 
 
 def _receive(connection: Connection, process: Any) -> tuple:
-    """The next message of a worker, or ``BrokenProcessPool`` where it died (its pipe ended, a
+    """The next message of a worker, or :class:`WorkerDied` where it died (its pipe ended, a
     message cut short by its death too)."""
-    from concurrent.futures.process import BrokenProcessPool
-
     try:
         return connection.recv()
     except (EOFError, OSError):
@@ -276,12 +285,13 @@ def _receive(connection: Connection, process: Any) -> tuple:
 
         process.join(timeout=5)
         code = process.exitcode
-        if code is not None and code < 0:
-            how = (f"killed by {signal.Signals(-code).name}): out of memory (SIGKILL), killed, or a crash in an env's "
-                   "C code (SIGSEGV)")
+        killed_by = signal.Signals(-code).name if code is not None and code < 0 else None
+        if killed_by is not None:
+            how = f"killed by {killed_by}): out of memory (SIGKILL), killed, or a crash in an env's C code (SIGSEGV)"
         else:  # a Python exception is sent here, not died of: something ended the process itself
             how = f"exit code {code}): an env or policy that ended its process (os._exit, a library's exit)"
-        raise BrokenProcessPool(f"a worker process (pid {process.pid}) died while playing episodes ({how}") from None
+        raise WorkerDied(f"a worker process (pid {process.pid}) died while playing episodes ({how}",
+                         killed_by) from None
 
 
 def _stop(workers) -> None:

@@ -121,14 +121,10 @@ def _refuse_detectors_it_cannot_have(config: BenchConfig) -> None:
     minutes on two cores, results/bench/README.md; Pong's: hours each). Said first, of each method's
     shipped agent as the bench loads it (its MC samples and masks; a resized trial is the same kind
     of agent)."""
-    from oodmon.monitor.detectors.fitting import cannot_have
+    from oodmon.monitor.detectors.fitting import cannot_have_any
 
     if config.users_own:  # nothing is trained: its preparation says so at once
         return
-    if "transitions" in config.detectors and not recipe_for(config.task, config.methods[0]).cnn:
-        # (refused by its fit, which finds the readings distinct; pictures: by cannot_have below)
-        raise ConfigError(f"the transitions detector counts states that repeat (discrete observations); {config.task}'s "
-                          "are continuous readings, which it refuses at its fit: use the dynamics detector")
     for method in config.methods:
         shipped = zoo_dir() / f"{config.task}-{method}"
         if not (shipped / "model.json").exists():
@@ -136,11 +132,16 @@ def _refuse_detectors_it_cannot_have(config: BenchConfig) -> None:
         agent = _bench_agent(shipped, config.task, seeds.CALIBRATION, config.samples, config.masks)
         env = agent.make_env()
         try:
-            reasons = [reason for name in config.detectors if (reason := cannot_have(name, agent, env))]
+            reason = cannot_have_any(config.detectors, agent, env)
+            readings = env.observation_space.dtype.kind == "f"  # oodmon's vector tasks: continuous readings
         finally:
             env.close()
-        if reasons:
-            raise ConfigError(f"the {method} agents cannot have every detector asked for: {reasons[0]}")
+        if reason is not None:
+            raise ConfigError(f"the {method} agents cannot have every detector asked for: {reason}")
+        if "transitions" in config.detectors and readings:  # (refused by its fit, which finds them distinct)
+            raise ConfigError(f"the transitions detector counts states that repeat (discrete observations); "
+                              f"{config.task}'s are continuous readings, which it refuses at its fit: use the dynamics "
+                              "detector")
 
 
 def _ensure_model(config: BenchConfig, method: str, trial: int,

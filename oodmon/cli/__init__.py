@@ -89,8 +89,11 @@ def _worker_death(error: BrokenProcessPool) -> str:
     """What a worker's death says (side by side's names its pid and its signal or exit code; a
     process pool's, the bench's, only that one was "terminated abruptly"), and where it may have
     been killed for memory, what to try."""
-    said = str(error).rstrip(".") or "a worker process died"
-    return said + ("" if "exit code" in said else "; fewer --workers need less memory")
+    from oodmon.side_by_side import WorkerDied
+
+    ended_itself = isinstance(error, WorkerDied) and error.signal is None
+    return (str(error).rstrip(".") or "a worker process died") + ("" if ended_itself else
+                                                                  "; fewer --workers need less memory")
 
 
 def _kept(args: argparse.Namespace) -> str:

@@ -29,9 +29,9 @@ from oodmon.progress import Progress
 from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import is_whole
 
-__all__ = ["CALIBRATION_SEED", "Validation", "calibrate_agent", "check_fresh", "clopper_pearson", "detectors_read",
-           "id_episode_scores",
-           "reused_episodes", "save_calibration", "seeds_used", "validate_threshold"]
+__all__ = ["CALIBRATION_SEED", "EPISODE_USES", "Validation", "calibrate_agent", "check_fresh", "clopper_pearson",
+           "detectors_read", "id_episode_scores", "reused_episodes", "save_calibration", "seeds_used",
+           "validate_threshold"]
 
 CALIBRATION_SEED = seeds.CALIBRATION
 #: ID episodes a sequential rule's p-values are taken against.

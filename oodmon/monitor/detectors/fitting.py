@@ -379,10 +379,10 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
                                     "ID episodes (two thirds fit, one third ranks)")
     workers = resolve_workers(workers, episodes)
-    for name in (name for name in detectors if name != "spread"):  # (spread joins where the policy has samples)
-        reason = cannot_have(name, policy, env)
-        if reason is not None:
-            raise ConfigError(reason)
+    # (spread is not asked: it joins where the policy has samples)
+    reason = cannot_have_any([name for name in detectors if name != "spread"], policy, env)
+    if reason is not None:
+        raise ConfigError(reason)
     n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) else None
     # The held-out third keeps its estimates: combined ranks the spread of the samples each action
     # was chosen from, as the monitor reads it (asked again, a sampled MC policy would draw others).
@@ -452,6 +452,12 @@ def cannot_have(detector: str, policy: Any, env: gymnasium.Env) -> str | None:
     if detector in ("frames", "motion") and len(env.observation_space.shape or ()) < 2 and pictures is None:
         return f"the {detector} detector needs image observations; this env's are of shape {env.observation_space.shape}"
     return None
+
+
+def cannot_have_any(detectors: Sequence[str], policy: Any, env: gymnasium.Env) -> str | None:
+    """Why ``policy`` acting in ``env`` cannot have the first of ``detectors`` it cannot have
+    (:func:`cannot_have`), or ``None``."""
+    return next((reason for name in detectors if (reason := cannot_have(name, policy, env)) is not None), None)
 
 
 def check_can_have(detector: str | None, agent: Any, fitted: Any = None) -> None:
