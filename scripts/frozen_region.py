@@ -34,7 +34,9 @@ a region depend on the regions before it in ``--regions`` (the README's figures:
 Seen on 2026-12-01 (DropConnect, combined > 4.30125): ``--regions centre`` alone alarmed 1 of 5
 games (delay 603, 4 points lost first; the others lost 0, 4, 0, 0), after ``agent_side`` 3 of 5
 (delays 890, 125, 116; 12, 0 and 0 points lost first; 2 and 0 unalarmed). The same 5 seeds' ID
-games lose 0-1 points from decision 200 to 1,200.
+games lose 0-1 points from decision 200 to 1,200. The ``vanishing`` detector (``oodmon calibrate
+--task pong --method dropconnect --detector vanishing``: vanishing > 0), ``--games 10`` and every
+region but ``whole``: 10 of 10 games each, the centre at 4-33 decisions (the README's "Detectors").
 """
 
 from __future__ import annotations

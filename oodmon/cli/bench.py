@@ -78,7 +78,8 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                        help="comma-separated detectors whose per-step AUROC is reported: spread (the paper's protocol's "
                             "default), dynamics, features, frames, combined, scaled_spread (ensembles, MC agents with --masks "
                             "fixed), drift (the dynamics model's residuals' bias), transitions (discrete states), stillness "
-                            "(a sensor or camera unchanged longer than in ID episodes); the learned "
+                            "(a sensor or camera unchanged longer than in ID episodes), motion and vanishing (parts of "
+                            "a picture frozen); the learned "
                             "ones are fitted per trial on ID episodes of their own (monitor protocol's default: spread "
                             "and the task's best)")
     bench.add_argument("--fit-episodes", type=_whole(3), default=0,

@@ -245,7 +245,7 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
     fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread, "
                                     "fitted only when named, and drift, named or in your own env; transitions instead "
                                     "of dynamics and drift for discrete observations; stillness for pictures, for "
-                                    "vectors when named)")
+                                    "vectors when named; motion and vanishing, for pictures, when named)")
     fit.add_argument("--episodes", type=_whole(3),
                      help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES}; "
                           f"your own --env: more, until they hold {_FIT_STEPS:,} steps)")

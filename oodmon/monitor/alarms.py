@@ -74,8 +74,9 @@ def default_window(task: str | None, detector: str | None = None) -> int:
     """The alarm rule's window when none is given: 1 (each step's score) for CartPole and Pendulum,
     whose learned detectors already average their last 20 transitions, and for the ``frames``
     detector, whose 20-step means already separate every corrupted Pong frame from every ID one,
-    the ``stillness`` detector, whose runs are their own memory, and ``combined`` (Pong's: of those
-    two); 200 for Pong's spread and features, whose distances vary frame to frame while a
+    the ``stillness`` and ``motion`` detectors, whose runs are their own memory, ``vanishing``, whose
+    count of the episode's events is, and ``combined`` (Pong's default: of frames and
+    stillness); 200 for Pong's spread and features, whose distances vary frame to frame while a
     corruption persists. Measured with the monitor's benchmark on the shipped Pong agents
     (results/monitor/README.md): features with window 1 alarmed 52/90 (Dropout) and 80/90
     (ensemble) shifted games; with 200, 90/90 and 90/90, median delays 66 and 81 decisions.
@@ -84,7 +85,7 @@ def default_window(task: str | None, detector: str | None = None) -> int:
         >>> default_window("pong"), default_window("pong", "combined"), default_window("cartpole"), default_window(None)
         (200, 1, 1, 1)
     """
-    if detector in ("frames", "stillness", "motion", "combined"):
+    if detector in ("frames", "stillness", "motion", "vanishing", "combined"):
         return 1
     return DEFAULT_WINDOW.get(task or "", 1)
 

@@ -54,7 +54,7 @@ MODES = ("episode", "step")
 #: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
 #: that reading a threshold file does not import them).
 DETECTOR_NAMES = ("spread", "dynamics", "features", "frames", "combined", "scaled_spread", "drift", "transitions",
-                  "stillness", "motion")
+                  "stillness", "motion", "vanishing")
 _QUANTILES = (0.5, 0.9, 0.95, 0.99)
 #: The default probability that a threshold's false-alarm rate is at most its target.
 DEFAULT_CONFIDENCE = 0.9

@@ -17,6 +17,8 @@
   longest ID run: a frozen camera (by default for pictures, beside ``frames``).
 - ``motion``: how much less the picture's parts moved than they did after the same actions in ID
   episodes: a partly frozen camera (for pictures, fitted only when named).
+- ``vanishing``: things that vanish from or appear in parts of the picture where nothing did in ID
+  episodes: a frozen part that things cross (for pictures, fitted only when named).
 
 :func:`fit_detectors` fits them for a policy on its own ID episodes; :class:`DetectorSet` runs
 them at each step and saves them (safetensors + JSON).
@@ -40,11 +42,13 @@ from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.stillness import StillnessDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.detectors.transitions import TransitionsDetector
+from oodmon.monitor.detectors.vanishing import VanishingDetector
 
 __all__ = [
     "BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "DETECTORS", "FIT_VERSION", "MIN_LOGVAR",
     "CombinedDetector", "Detector", "DetectorSet", "DriftDetector", "DynamicsDetector", "FeaturesDetector",
     "FramesDetector", "MotionDetector", "ScaledSpreadDetector", "SpreadDetector", "StepContext", "StillnessDetector",
-    "Trajectory", "TransitionsDetector", "best_detector", "collect", "default_detectors", "default_fit_steps",
+    "Trajectory", "TransitionsDetector", "VanishingDetector", "best_detector", "collect", "default_detectors",
+    "default_fit_steps",
     "detectors_for", "fit_agent_detectors", "fit_detectors", "fitting_notes", "trajectory_scores",
 ]

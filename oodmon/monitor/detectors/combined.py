@@ -74,8 +74,9 @@ DEFAULT_HORIZON = 500
 #: Members ranked by the logarithm of their score, by default (their scores are positive).
 LOG_MEMBERS = ("features",)
 #: Members whose excess beyond their largest ID score counts in this unit, not in ID standard
-#: deviations: ``stillness``, whose value counts steps (see the module's text).
-UNIT_MEMBERS = {"stillness": 1.0}
+#: deviations: ``stillness``, whose value counts steps (see the module's text), and ``vanishing``,
+#: which counts events (0 at nearly every ID step: each event past the held-out record, one rank).
+UNIT_MEMBERS = {"stillness": 1.0, "vanishing": 1.0}
 _LOG_FLOOR = 1e-300  # a score of 0 (never seen: a squared distance) is ranked as this
 
 

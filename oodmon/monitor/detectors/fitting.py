@@ -35,6 +35,7 @@ from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.stillness import StillnessDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.detectors.transitions import TransitionsDetector
+from oodmon.monitor.detectors.vanishing import VanishingDetector
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.names import fixed_masks
 from oodmon.progress import Progress
@@ -410,6 +411,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         parts.append(StillnessDetector().fit(fit))
     if "motion" in detectors:
         parts.append(MotionDetector().fit(fit))
+    if "vanishing" in detectors:
+        parts.append(VanishingDetector().fit(fit))
     if "scaled_spread" in detectors:
         # An MC agent's fixed sub-networks share most of their weights and move together: whitened.
         whiten = fixed_masks(getattr(estimator, "masks", None))
@@ -449,7 +452,7 @@ def cannot_have(detector: str, policy: Any, env: gymnasium.Env) -> str | None:
         return ("the transitions detector counts states that repeat (discrete observations); this env's are pictures "
                 "(the frames detector reads those)")
     pictures = getattr(policy, "pictures", None)  # an Agent's dicts with pictures: the frames detector reads those
-    if detector in ("frames", "motion") and len(env.observation_space.shape or ()) < 2 and pictures is None:
+    if detector in ("frames", "motion", "vanishing") and len(env.observation_space.shape or ()) < 2 and pictures is None:
         return f"the {detector} detector needs image observations; this env's are of shape {env.observation_space.shape}"
     return None
 
@@ -484,8 +487,8 @@ def fitted_when_named(detector: str | None) -> tuple[str, ...] | None:
     policy's default set) but for the detectors fitted only when named: ``scaled_spread`` alone,
     ``drift`` with the default set, whose ``combined`` then ranks it too, and ``transitions`` (the
     default for discrete observations; named for others, whose fit says whether they repeat) and
-    ``stillness`` (the default for pictures; for vectors named) and ``motion`` (pictures, named) with
-    the default set and a ``combined`` that ranks them.
+    ``stillness`` (the default for pictures; for vectors named), ``motion`` and ``vanishing``
+    (pictures, named) with the default set and a ``combined`` that ranks them.
 
     Example:
         >>> fitted_when_named("drift"), fitted_when_named("scaled_spread"), fitted_when_named("combined")
@@ -493,7 +496,7 @@ def fitted_when_named(detector: str | None) -> tuple[str, ...] | None:
     """
     return {"scaled_spread": ("scaled_spread",), "drift": ("drift", "combined"),
             "transitions": ("transitions", "combined"), "stillness": ("stillness", "combined"),
-            "motion": ("motion", "combined")}.get(detector or "")
+            "motion": ("motion", "combined"), "vanishing": ("vanishing", "combined")}.get(detector or "")
 
 
 def has_members(estimator: Any) -> bool:

@@ -41,7 +41,9 @@ fitted on 30 ID games, its threshold the highest of 50 more (rank 50 of 50), 100
 10 frozen games a region (onset 200). Best for the centre, 8 x 8 tiles and W = 300: 8 of 10 games
 at 147-757 decisions (median 291.5), 4 of 100 fresh ID games over the threshold; but the agent's
 third at a median 113 and the opponent's at 116, where ``motion`` takes 51-73 and 39-60. 12 x 12
-and 16 x 16 tiles, W = 200 or 300: the centre 3-5 of 10. Not kept.
+and 16 x 16 tiles, W = 200 or 300: the centre 3-5 of 10. Not kept. What the centre's freeze
+breaks is where the ball vanishes, not how often the tiles change: the ``vanishing`` detector sees
+it in 4-33 decisions.
 """
 
 from __future__ import annotations
@@ -56,7 +58,7 @@ from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
 from oodmon.monitor.detectors.frames import newest_frame
 from oodmon.validation import is_whole
 
-__all__ = ["MotionDetector", "tile_changes"]
+__all__ = ["MotionDetector", "tile_changes", "tiles_any"]
 
 #: Tiles per side of the picture: 21-pixel tiles of Pong's 84x84 frames.
 GRID = 4
@@ -74,11 +76,20 @@ def tile_changes(frame: np.ndarray, last: np.ndarray, grid: int) -> np.ndarray:
         [False, False, True, False]
     """
     moved = frame != last
-    if moved.ndim == 3:
-        moved = moved.any(axis=2)
-    rows = np.linspace(0, moved.shape[0], grid + 1).astype(int)[:-1]
-    cols = np.linspace(0, moved.shape[1], grid + 1).astype(int)[:-1]
-    return np.logical_or.reduceat(np.logical_or.reduceat(moved, rows, axis=0), cols, axis=1).reshape(-1)
+    return tiles_any(moved.any(axis=2) if moved.ndim == 3 else moved, grid)
+
+
+def tiles_any(mask: np.ndarray, grid: int) -> np.ndarray:
+    """(grid * grid,) whether each tile of the (H, W) boolean ``mask`` holds a true pixel, the tiles
+    row by row, their borders ``linspace`` over each side.
+
+    Example:
+        >>> tiles_any(np.eye(4, dtype=bool), 2).tolist()
+        [True, False, False, True]
+    """
+    rows = np.linspace(0, mask.shape[0], grid + 1).astype(int)[:-1]
+    cols = np.linspace(0, mask.shape[1], grid + 1).astype(int)[:-1]
+    return np.logical_or.reduceat(np.logical_or.reduceat(mask, rows, axis=0), cols, axis=1).reshape(-1)
 
 
 class MotionDetector(Detector):

@@ -27,6 +27,7 @@ from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.stillness import StillnessDetector
 from oodmon.monitor.detectors.transitions import TransitionsDetector
+from oodmon.monitor.detectors.vanishing import VanishingDetector
 from oodmon.hashing import write_hashed_tensors
 
 __all__ = ["DETECTORS", "DetectorSet"]
@@ -36,6 +37,7 @@ DETECTORS: dict[str, type[Detector]] = {
     "spread": SpreadDetector, "dynamics": DynamicsDetector, "features": FeaturesDetector, "frames": FramesDetector,
     "combined": CombinedDetector, "scaled_spread": ScaledSpreadDetector, "drift": DriftDetector,
     "transitions": TransitionsDetector, "stillness": StillnessDetector, "motion": MotionDetector,
+    "vanishing": VanishingDetector,
 }
 FORMAT = "oodmon.detectors"
 FORMAT_VERSION = 1

@@ -1,0 +1,136 @@
+"""The vanishing detector: things that vanish or appear where nothing did in ID episodes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from oodmon.envs import Variant, parse_variant
+from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.monitor.detectors import DetectorSet, StepContext, Trajectory, VanishingDetector, collect, fit_detectors
+from tests.helpers import RandomButtons, scores_along
+
+
+def _ball(xs, *, hidden=range(0), size=(20, 40)) -> Trajectory:
+    """A 2x2 ball on a grey picture with a bright wall along its top row, at columns ``xs`` of rows
+    6-7 (tile row 1 of 4), not drawn at the columns in ``hidden``."""
+    frames = []
+    for x in xs:
+        frame = np.full(size, 50, np.uint8)
+        frame[0] = 200
+        if x not in hidden:
+            frame[6:8, x:x + 2] = 255
+        frames.append(frame)
+    return Trajectory(np.array(frames), np.zeros(len(frames) - 1, np.int64))
+
+
+RALLY = [*range(0, 38, 3), *range(37, -1, -3)] * 3  # across and back, 3 columns a step
+
+
+def test_a_ball_hidden_mid_field_vanishes_and_appears_where_it_never_did():
+    detector = VanishingDetector(grid=4, reach=4).fit([_ball(RALLY)])
+    # The background is the grey and the wall (the ball is at any pixel a few steps of 78).
+    assert (detector.background[0] == 200).all() and (detector.background[1:] == 50).all()
+    assert detector.events.sum() == 0  # an ID ball that moves 3 columns a step never vanishes
+    assert scores_along(detector, _ball(RALLY)) == [0.0] * (len(RALLY) - 1)
+    # Hidden at columns 15-24 (tile columns 1 and 2 of 4, 10 pixels each): it vanishes from tile
+    # column 1 on the way out and appears in tile column 2; back, the other way round: 2 a pass.
+    scores = scores_along(detector, _ball(RALLY, hidden=range(15, 25)))
+    rises = [step for step in range(1, len(scores)) if scores[step] > scores[step - 1]]
+    assert scores[-1] == 4 * 3 and len(rises) == 12
+    assert rises[:2] == [5, 9]  # x = 15 is hidden at step 5; x = 27 (step 9) is the first seen again
+
+
+def test_events_seen_in_id_episodes_and_other_scenes_are_not_counted():
+    # Fitted on a ball that vanishes at the right edge and comes back at the left (a goal).
+    goal = [*range(0, 38, 3)] * 4
+    detector = VanishingDetector(grid=4, reach=4).fit([_ball(goal)])
+    assert detector.events[0].reshape(4, 4)[1, 3] == 3 and detector.events[1].reshape(4, 4)[1, 0] == 3
+    assert detector.events.sum() == 6
+    assert scores_along(detector, _ball(goal)) == [0.0] * (len(goal) - 1)
+    # A picture unlike the background at over half its pixels (a reset screen) is another scene:
+    # the ball that seems to vanish into it and appear out of it is not counted.
+    frames = _ball([4, 7, 10, 13]).observations.copy()
+    frames[2] = 0
+    assert scores_along(detector, Trajectory(frames, np.zeros(3, np.int64))) == [0.0] * 3
+    # Half its pixels unlike the background: read (the ball vanished, things appeared); one more: not.
+    for unlike, read in ((400, True), (401, False)):
+        frames[2] = detector.background
+        frames[2].reshape(-1)[:unlike] = 0  # of 800 pixels
+        assert (scores_along(detector, Trajectory(frames, np.zeros(3, np.int64)))[2] > 0) == read
+
+
+@pytest.fixture(scope="module")
+def pong():
+    """Fitted on 6 ID games of Pong's first 300 decisions of a random policy."""
+    return VanishingDetector().fit(collect(RandomButtons(), Variant("pong").make(), 6, seed=610_000, max_steps=300))
+
+
+def test_pong_frozen_centre_passes_every_fresh_id_game_soon_after_it_freezes(pong):
+    """The centre block of ``scripts/frozen_region.py`` (raw rows 80-149, columns 50-109), which
+    only the ball crosses, held from step 100. When written: 10 fresh ID games ended at 0-1 events;
+    the frozen games at 0 before the freeze, their first event 16-21 steps after it, one about every
+    35 steps after (the ball's crossings), past the fresh games' 1 at 51-56 steps and at 6-7 by step 300."""
+    fresh = [max(scores_along(pong, t)) for t in collect(RandomButtons(1), Variant("pong").make(), 10, seed=610_100,
+                                                         max_steps=300)]
+    assert max(fresh) <= 2
+    for seed in (610_200, 610_201, 610_202):
+        env = parse_variant("pong:frozen_region:top=80,left=50,height=70,width=60").make(onset_step=100)
+        scores = np.array(scores_along(pong, collect(RandomButtons(seed), env, 1, seed=seed, max_steps=300)[0]))
+        assert scores[100] == 0  # before the freeze: nothing unseen
+        past = np.nonzero(scores > max(fresh))[0]
+        assert len(past) and past[0] - 100 <= 100 and scores[-1] >= 4
+
+
+def test_it_saves_and_loads_as_tensors_and_json_with_the_same_scores(pong, tmp_path):
+    DetectorSet([pong]).save(tmp_path)
+    loaded = DetectorSet.load(tmp_path)["vanishing"]
+    assert loaded.fingerprint() == pong.fingerprint() and loaded.config() == pong.config()
+    assert loaded.background.dtype == np.uint8 and loaded.background.shape == (84, 84)
+    env = parse_variant("pong:frozen_region:top=80,left=50,height=70,width=60").make(onset_step=20)
+    game = collect(RandomButtons(3), env, 1, seed=0, max_steps=200)[0]
+    assert scores_along(loaded, game) == scores_along(pong, game)
+
+
+@pytest.mark.parametrize("tensors, match", [
+    ({"events": np.zeros((2, 144))}, "no 'background'"),
+    ({"background": np.zeros((84, 84), np.uint8)}, "no 'events'"),
+    ({"background": np.zeros(84, np.uint8), "events": np.zeros((2, 144))}, "must be a picture"),
+    ({"background": np.zeros((84, 84), np.uint8), "events": np.zeros((2, 16))}, "shape \\(2, 144\\)"),
+    ({"background": np.zeros((84, 84), np.uint8), "events": np.full((2, 144), -1.0)}, "counts >= 0"),
+])
+def test_damaged_tensors_are_refused(tensors, match):
+    with pytest.raises(ConfigError, match=match):
+        VanishingDetector.from_state({}, tensors)
+
+
+def test_bad_settings_pictures_and_short_episodes_are_refused():
+    with pytest.raises(InvalidParameterError, match="grid=0"):
+        VanishingDetector(grid=0)
+    with pytest.raises(InvalidParameterError, match="reach=-1"):
+        VanishingDetector(reach=-1)
+    with pytest.raises(ConfigError, match="episodes of two steps or more"):
+        VanishingDetector().fit([Trajectory(np.zeros((1, 84, 84), np.uint8), np.zeros(0, np.int64))])
+    with pytest.raises(ConfigError, match="pictures of one shape"):
+        VanishingDetector().fit([_ball(RALLY), _ball(RALLY, size=(20, 44))])
+    detector = VanishingDetector(grid=4, reach=4).fit([_ball(RALLY)])
+    with pytest.raises(ConfigError, match="fitted on pictures of shape \\(20, 40\\)"):
+        detector.score(StepContext(np.zeros((20, 44), np.uint8), 0))
+    controller = lambda obs: int(obs[2] + obs[3] > 0)  # noqa: E731 (CartPole: a vector, no picture)
+    with pytest.raises(ConfigError, match="the vanishing detector needs image observations"):
+        fit_detectors(controller, Variant("cartpole").make(), detectors=["vanishing"], episodes=3)
+
+
+def test_named_it_joins_the_default_set_and_combined_ranks_it_an_event_a_rank():
+    """``--detector vanishing`` (fitted_when_named) fits a picture's default set, vanishing and a
+    combined that ranks it beside frames and stillness, each event past the held-out record one
+    rank (``UNIT_MEMBERS``); unnamed it is not fitted."""
+    from oodmon.monitor.detectors.fitting import fitted_when_named
+
+    fitted = fit_detectors(RandomButtons(), Variant("pong").make(), detectors=fitted_when_named("vanishing"),
+                           episodes=3, max_steps=60)
+    assert fitted.names == ["frames", "stillness", "vanishing", "combined"]
+    combined = fitted["combined"]
+    assert combined.members == ["frames", "stillness", "vanishing"] and combined.config()["scale"]["vanishing"] == 1.0
+    assert combined.rank("vanishing", 1e6 + 3) - combined.rank("vanishing", 1e6) == pytest.approx(3, rel=1e-9)
+    assert "vanishing" not in fit_detectors(RandomButtons(), Variant("pong").make(), episodes=3, max_steps=20).names
