@@ -18,8 +18,9 @@ counts how often each did over the ID fitting transitions (``events``). A step's
 number of events so far in the episode at sensors that never had one in the fitting episodes (0 at
 its first steps; no window: an event never seen in ID play is rare enough to keep). A transition
 to or from a picture that differs from the background at more than half its pixels is not read:
-a different scene, not things moving in it (Pong's reset picture: all 7,056 pixels in 3 of 40
-games of the shipped ensemble; noise over the whole picture, which ``frames`` sees at once).
+a different scene, not things moving in it (Pong's reset picture: 6,277 or all 7,056 pixels in 7
+of 40 games of the shipped DropConnect agent; noise over the whole picture, which ``frames`` sees
+at once).
 
 Measured before it was written (2026-12-01, the script in /tmp, not kept): the shipped Pong
 DropConnect agent, 40 ID games (seeds 700,000 on, whole games of 1,990-3,001 decisions) fitting,
@@ -27,11 +28,14 @@ DropConnect agent, 40 ID games (seeds 700,000 on, whole games of 1,990-3,001 dec
 12 tiles and ``reach`` 10, 15 of the 288 sensors had events in the fitting games (the paddles'
 columns, the goals, the score) and none of the 40 held-out games had an event elsewhere; the
 centre's first event came 3-32 decisions after it froze in 10 of 10 games, the agent's third 1-42,
-the opponent's 2-40. With ``reach`` 6 or 8 a fast ball (9 pixels a decision) outran it: 9 of 40
-held-out games had events at unseen sensors, and the centre's were found in 1 of 10 games. The
-shipped ensemble's games (40 fitting, 40 held out, cut at 1,200 decisions): the same, 0 of 40 and
-the centre 10 of 10 at 5-33. Its blind spots: a frozen part that nothing crosses, and a change
-that moves things without making them vanish (noise, blur: ``frames`` sees those).
+the opponent's 2-40. With ``reach`` 6 a fast ball (9 pixels a decision) outran it: 9 of 40
+held-out games had events at unseen sensors, and the centre's were found in 1 of 10 games; with 8,
+2 of 40, the centre 10 of 10 at 24-58. (The prototype left out each episode's first transition
+instead of other scenes.) The shipped ensemble's games (40 fitting, 40 held out, cut at 1,200 decisions): the same, 0 of 40 and
+the centre 10 of 10 at 5-33. A step's score took 120 us (the fitted detector on 2,553 steps of
+a DropConnect game, both cores busy with other work; ``frames`` 30, ``stillness`` 6). Its blind
+spots: a frozen part that nothing crosses, and a change that moves things without making them
+vanish (noise, blur: ``frames`` sees those).
 """
 
 from __future__ import annotations
@@ -123,7 +127,8 @@ class VanishingDetector(Detector):
         something vanished from and appeared in each tile over their transitions.
 
         Raises:
-            ConfigError: no episode of two steps or more, or pictures of more than one shape.
+            ConfigError: no episode of two steps or more, pictures of more than one shape, or
+                smaller than the tiles.
         """
         episodes = [t.seen for t in trajectories if len(t.seen) >= 2]
         if not episodes:
@@ -133,6 +138,9 @@ class VanishingDetector(Detector):
         if len(shapes) > 1 or len(next(iter(shapes))) not in (2, 3):
             raise ConfigError(f"the vanishing detector needs pictures of one shape, (H, W) or (H, W, C); got "
                               f"{sorted(shapes)}")
+        if min(next(iter(shapes))[:2]) < self.grid:
+            raise ConfigError(f"the vanishing detector's {self.grid} x {self.grid} tiles need pictures of at least "
+                              f"{self.grid} pixels a side; these are of shape {next(iter(shapes))}")
         # (the pictures are taken episode by episode: Pong's 60 fitting games hold some 140,000)
         every = max(1, sum(map(len, episodes)) // _BACKGROUND_FRAMES)
         sample = np.array([newest_frame(np.asarray(obs)) for seen in episodes for obs in seen[::every]])
