@@ -36,7 +36,8 @@ games (delay 603, 4 points lost first; the others lost 0, 4, 0, 0), after ``agen
 (delays 890, 125, 116; 12, 0 and 0 points lost first; 2 and 0 unalarmed). The same 5 seeds' ID
 games lose 0-1 points from decision 200 to 1,200. The ``vanishing`` detector (``oodmon calibrate
 --task pong --method dropconnect --detector vanishing``: vanishing > 0), ``--games 10`` and every
-region but ``whole``: 10 of 10 games each, the centre at 4-33 decisions (the README's "Detectors").
+region but ``whole``: 10 of 10 games each, the centre at 4-33 decisions (Dropout's: 9 or 10 of 10,
+the centre at 10-31; the ensemble's: 10 of 10, the centre at 6-34; the README's "Detectors").
 """
 
 from __future__ import annotations
