@@ -28,14 +28,11 @@ from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.drift import DriftDetector
 from oodmon.monitor.detectors.dynamics import DynamicsDetector, min_logvar_for
 from oodmon.monitor.detectors.features import FeaturesDetector
-from oodmon.monitor.detectors.frames import FramesDetector, is_picture
-from oodmon.monitor.detectors.motion import MotionDetector
+from oodmon.monitor.detectors.frames import is_picture
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector, member_values
 from oodmon.monitor.detectors.spread import SpreadDetector
-from oodmon.monitor.detectors.stillness import StillnessDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.detectors.transitions import TransitionsDetector
-from oodmon.monitor.detectors.vanishing import VanishingDetector
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.names import fixed_masks
 from oodmon.progress import Progress
@@ -405,14 +402,9 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         parts.append(TransitionsDetector().fit(fit))
     if "features" in detectors:
         parts.append(FeaturesDetector(n_actions).fit(fit))
-    if "frames" in detectors:
-        parts.append(FramesDetector().fit(fit))
-    if "stillness" in detectors:
-        parts.append(StillnessDetector().fit(fit))
-    if "motion" in detectors:
-        parts.append(MotionDetector().fit(fit))
-    if "vanishing" in detectors:
-        parts.append(VanishingDetector().fit(fit))
+    for name in ("frames", "stillness", "motion", "vanishing"):  # the camera's, fitted on the episodes alone
+        if name in detectors:
+            parts.append(DETECTORS[name]().fit(fit))
     if "scaled_spread" in detectors:
         # An MC agent's fixed sub-networks share most of their weights and move together: whitened.
         whiten = fixed_masks(getattr(estimator, "masks", None))

@@ -117,10 +117,16 @@ class VanishingDetector(Detector):
 
         return maximum_filter(foreground, size=2 * self.reach + 1, mode="constant", cval=False)
 
-    def _events(self, before: tuple[np.ndarray, np.ndarray], after: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        """(2, tiles): whether something vanished from each tile, and appeared in it, from one
-        picture's (foreground, near) to the next's."""
-        (was, was_near), (now, now_near) = before, after
+    def _advance(self, obs: np.ndarray) -> np.ndarray | None:
+        """(2, tiles): whether something vanished from each tile, and appeared in it, from the last
+        picture to the one of ``obs`` (its newest frame), which becomes the last; ``None`` at an
+        episode's first picture or where either is another scene."""
+        foreground = self._foreground(newest_frame(np.asarray(obs)))
+        now = (foreground, self._near(foreground)) if foreground is not None else None
+        last, self._last = self._last, now
+        if last is None or now is None:
+            return None
+        (was, was_near), (now, now_near) = last, now
         return np.array([tiles_any(was & ~now_near, self.grid), tiles_any(now & ~was_near, self.grid)])
 
     # -- fitting -----------------------------------------------------------------------------------
@@ -149,11 +155,11 @@ class VanishingDetector(Detector):
         self.background = np.median(sample, axis=0).astype(sample.dtype)
         events = np.zeros((2, self.grid ** 2))
         for seen in episodes:
-            pictures = (self._foreground(newest_frame(np.asarray(obs))) for obs in seen)
-            steps = [(f, self._near(f)) if f is not None else None for f in pictures]
-            for before, after in zip(steps[:-1], steps[1:]):
-                if before is not None and after is not None:
-                    events += self._events(before, after)
+            self.reset()
+            for obs in seen:
+                step = self._advance(obs)
+                if step is not None:
+                    events += step
         self._set(self.background, events)
         return self
 
@@ -169,11 +175,9 @@ class VanishingDetector(Detector):
     def score(self, context: StepContext) -> float:
         """The episode's events so far at sensors without an ID event (0 at its first step)."""
         self.check_fitted()
-        foreground = self._foreground(newest_frame(np.asarray(context.seen)))
-        now = (foreground, self._near(foreground)) if foreground is not None else None
-        if self._last is not None and now is not None:
-            self._count += int((self._events(self._last, now) & self._never).sum())
-        self._last = now
+        step = self._advance(context.seen)
+        if step is not None:
+            self._count += int((step & self._never).sum())
         return float(self._count)
 
     # -- state -------------------------------------------------------------------------------------
