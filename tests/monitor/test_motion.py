@@ -96,6 +96,14 @@ def test_bad_settings_vectors_and_short_episodes_are_refused():
         MotionDetector(grid=0)
     with pytest.raises(ConfigError, match="episodes of two steps or more"):
         MotionDetector().fit([Trajectory(np.zeros((1, 84, 84), np.uint8), np.zeros(0, np.int64))])
+    rng = np.random.default_rng(0)
+    small = _lights(rng.integers(0, 2, 20), rng)  # 8 x 8 pictures: 4 x 4 tiles fit, 9 x 9 would read rows twice
+    assert MotionDetector(grid=8).fit([small]).rates.shape == (3, 64)
+    with pytest.raises(ConfigError, match="9 x 9 tiles need pictures.* of at least 9 pixels a side; .* shape \\(8, 8\\)"):
+        MotionDetector(grid=9).fit([small])
+    detector = MotionDetector(grid=4).fit([small])
+    with pytest.raises(ConfigError, match="4 x 4 tiles need pictures.* shape \\(3, 8\\)"):
+        detector.score(StepContext(np.zeros((3, 8), np.uint8), 0))   # refused at an episode's first picture
     controller = lambda obs: int(obs[2] + obs[3] > 0)  # noqa: E731 (CartPole: a vector, no picture)
     with pytest.raises(ConfigError, match="the motion detector needs image observations"):
         fit_detectors(controller, Variant("cartpole").make(), detectors=["motion"], episodes=3)

@@ -58,7 +58,7 @@ from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
 from oodmon.monitor.detectors.frames import newest_frame
 from oodmon.validation import is_whole
 
-__all__ = ["MotionDetector", "tile_changes", "tiles_any"]
+__all__ = ["MotionDetector", "check_tiles", "tile_changes", "tiles_any"]
 
 #: Tiles per side of the picture: 21-pixel tiles of Pong's 84x84 frames.
 GRID = 4
@@ -90,6 +90,27 @@ def tiles_any(mask: np.ndarray, grid: int) -> np.ndarray:
     rows = np.linspace(0, mask.shape[0], grid + 1).astype(int)[:-1]
     cols = np.linspace(0, mask.shape[1], grid + 1).astype(int)[:-1]
     return np.logical_or.reduceat(np.logical_or.reduceat(mask, rows, axis=0), cols, axis=1).reshape(-1)
+
+
+def check_tiles(shape: tuple[int, ...], grid: int, detector: str) -> None:
+    """Refuse pictures of ``shape`` that ``grid`` x ``grid`` tiles cannot split: not (H, W) or
+    (H, W, C), or less than ``grid`` pixels a side (``tiles_any`` would read a border row again as
+    the next tile's).
+
+    Raises:
+        ConfigError: naming ``detector`` and the shape.
+
+    Example:
+        >>> check_tiles((84, 84, 3), 4, "motion")   # passes
+        >>> try:
+        ...     check_tiles((3, 84), 4, "motion")
+        ... except ConfigError as error:
+        ...     str(error).split("; ")[1]
+        'these are of shape (3, 84)'
+    """
+    if len(shape) not in (2, 3) or min(shape[:2]) < grid:
+        raise ConfigError(f"the {detector} detector's {grid} x {grid} tiles need pictures, (H, W) or (H, W, C), of at "
+                          f"least {grid} pixels a side; these are of shape {tuple(shape)}")
 
 
 class MotionDetector(Detector):
@@ -129,7 +150,7 @@ class MotionDetector(Detector):
         where they hold them, else their observations).
 
         Raises:
-            ConfigError: no episode of two steps or more.
+            ConfigError: no episode of two steps or more, or pictures smaller than the tiles.
         """
         changes, actions = [], []
         for trajectory in trajectories:
@@ -137,6 +158,7 @@ class MotionDetector(Detector):
             if len(seen) < 2:
                 continue
             frames = [newest_frame(obs) for obs in seen]
+            check_tiles(frames[0].shape, self.grid, self.name)
             changes.append(np.array([tile_changes(b, a, self.grid) for a, b in zip(frames[:-1], frames[1:])]))
             actions.append(_action_rows(np.asarray(trajectory.actions)[:len(frames) - 1]))
         if not changes:
@@ -165,6 +187,7 @@ class MotionDetector(Detector):
         frame = newest_frame(np.asarray(context.seen))
         last, self._last = self._last, frame.copy()
         if last is None:
+            check_tiles(frame.shape, self.grid, self.name)
             self._runs = np.zeros(self.rates.shape[1])
             return 0.0
         if last.shape != frame.shape:

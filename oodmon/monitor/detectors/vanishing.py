@@ -50,7 +50,7 @@ import numpy as np
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
 from oodmon.monitor.detectors.frames import newest_frame
-from oodmon.monitor.detectors.motion import tiles_any
+from oodmon.monitor.detectors.motion import check_tiles, tiles_any
 from oodmon.validation import is_whole
 
 __all__ = ["VanishingDetector"]
@@ -146,9 +146,7 @@ class VanishingDetector(Detector):
         if len(shapes) > 1 or len(next(iter(shapes))) not in (2, 3):
             raise ConfigError(f"the vanishing detector needs pictures of one shape, (H, W) or (H, W, C); got "
                               f"{sorted(shapes)}")
-        if min(next(iter(shapes))[:2]) < self.grid:
-            raise ConfigError(f"the vanishing detector's {self.grid} x {self.grid} tiles need pictures of at least "
-                              f"{self.grid} pixels a side; these are of shape {next(iter(shapes))}")
+        check_tiles(next(iter(shapes)), self.grid, self.name)
         # (the pictures are taken episode by episode: Pong's 60 fitting games hold some 140,000)
         every = max(1, sum(map(len, episodes)) // _BACKGROUND_FRAMES)
         sample = np.array([newest_frame(np.asarray(obs)) for seen in episodes for obs in seen[::every]])
