@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Fit the learned detectors (dynamics, features, frames, combined) shipped beside every zoo agent,
+# Fit the learned detectors (dynamics, features, frames, stillness, vanishing, combined) shipped beside every zoo agent,
 # in oodmon/zoo/<task>-<method>/detectors/. Deterministic: fit-detectors seeds an MC agent's
 # sampling (since commit "frames detector"), and the nine shipped sets are this script's output
 # (CartPole Dropout's, fitted unseeded before, and CartPole DropConnect's, for its full-depth agent,
@@ -25,9 +25,12 @@
 # again on 2026-11-30, when stillness joined a picture's default set and Pong's combined became
 # frames and stillness alone (COMBINED_LEAVES_OUT): every spread, features and frames tensor the
 # same bytes as before (frames thresholds stay valid), combined's references and stillness new.
-# About 5 minutes on one core. Pendulum's combined detector uses the spread score that works there
-# (pre_squash_std); Pong has no dynamics detector (image observations), has frames and stillness, and fits on
-# the first 1,000 steps of 6 ID games.
+# Pong's three again on 2026-12-01, when vanishing joined Pong's default set (DEFAULT_ADDS) and its
+# detectors began to fit on 90 whole games, as calibrate's do, instead of the first 1,000 steps of 6:
+# every tensor new (frames thresholds calibrated before are refused, as they should be).
+# About 15 minutes on one core. Pendulum's combined detector uses the spread score that works there
+# (pre_squash_std); Pong has no dynamics detector (image observations), has frames, stillness and
+# vanishing, and fits on 90 whole ID games (the default).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OODMON=${OODMON:-.venv/bin/oodmon}
@@ -35,6 +38,5 @@ for method in dropout dropconnect ensemble; do
   $OODMON fit-detectors --task cartpole --method "$method" --overwrite --out "oodmon/zoo/cartpole-$method/detectors"
   $OODMON fit-detectors --task pendulum --method "$method" --score pre_squash_std --overwrite \
     --out "oodmon/zoo/pendulum-$method/detectors"
-  $OODMON fit-detectors --task pong --method "$method" --episodes 6 --max-steps 1000 --overwrite \
-    --out "oodmon/zoo/pong-$method/detectors"
+  $OODMON fit-detectors --task pong --method "$method" --overwrite --out "oodmon/zoo/pong-$method/detectors"
 done

@@ -38,6 +38,9 @@ games lose 0-1 points from decision 200 to 1,200. The ``vanishing`` detector (``
 --task pong --method dropconnect --detector vanishing``: vanishing > 0), ``--games 10`` and every
 region but ``whole``: 10 of 10 games each, the centre at 4-33 decisions (Dropout's: 9 or 10 of 10,
 the centre at 10-31; the ensemble's: 10 of 10, the centre at 6-34; the README's "Detectors").
+Since 2026-12-01 ``vanishing`` is in Pong's default set (``DEFAULT_ADDS``), so a threshold of
+``oodmon calibrate --task pong --method M`` reads it through ``combined``; the figures above by
+the default alarm are of the set before.
 """
 
 from __future__ import annotations

@@ -115,12 +115,14 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
                       protocol="monitor", onsets=(20, 100), **learned).cache_key()
     assert own.endswith("-jump3-drift") and not today.endswith("-jump3-drift")
     # nor a combined of Pong's default set fitted before stillness joined it (2026-11-30); named
-    # members, and CartPole's vectors, are what they were
+    # members, and CartPole's vectors, are what they were; nor any of Pong's fitted before its fits
+    # took 90 whole games and vanishing joined its default set (2026-12-01)
     pong = {"detectors": ("spread", "combined"), "alarm_detector": "combined"}
-    assert BenchConfig("pong", ("dropconnect",), 1, **pong).cache_key().endswith("-still")
+    assert BenchConfig("pong", ("dropconnect",), 1, **pong).cache_key().endswith("-still-vanish")
     named = {"detectors": ("spread", "frames", "combined"), "alarm_detector": "combined"}
-    assert not BenchConfig("pong", ("dropconnect",), 1, **named).cache_key().endswith("-still")
-    assert not BenchConfig("cartpole", ("dropout",), 1, **pong).cache_key().endswith("-still")
+    named_key = BenchConfig("pong", ("dropconnect",), 1, **named).cache_key()
+    assert named_key.endswith("-vanish") and "-still" not in named_key
+    assert not BenchConfig("cartpole", ("dropout",), 1, **pong).cache_key().endswith(("-still", "-vanish"))
     # nor detectors fitted on another number of episodes (the key ignored it before)
     assert BenchConfig("cartpole", ("dropout",), 1, fit_episodes=60, **learned).cache_key() != \
         BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key()
@@ -436,7 +438,7 @@ def test_a_bench_stopped_between_its_stages_resumes_drawing_what_an_uninterrupte
 
 def test_pong_alarms_on_200_decision_means_of_features_and_on_each_step_of_combined(monkeypatch, tmp_path):
     """The CLI's window default per task and detector (oodmon.monitor.alarms.default_window), as
-    bench passes it; Pong's default detector is combined (of frames and stillness), and frames
+    bench passes it; Pong's default detector is combined (of frames, stillness and vanishing), and frames
     alone is read at each step too. And --fit-episodes, as bench passes it."""
     import oodmon.bench
     from oodmon.cli import main

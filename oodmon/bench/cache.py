@@ -329,10 +329,6 @@ def _read_json(path: Path):
         return None
 
 
-#: Fitting episodes per task: Pong's games are long, its detectors fit on their first 1,000 steps.
-_FIT = {"pong": {"episodes": 6, "max_steps": 1000}}
-
-
 def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
                          report: Callable[[str, int, int], None]) -> Path | None:
     """The (method, trial)'s fitted detectors, fitted once into its folder (cached beside the
@@ -344,14 +340,13 @@ def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
     path = folder / f"detectors-{config.cache_key()}"
     state_file = folder / f"sampling-after-detectors-{config.cache_key()}.json"
     if not (path / "detectors.json").exists():
-        # episodes None: the library's default (your own env: on until its steps, default_fit_steps)
-        fit = dict(_FIT.get(config.task, {"episodes": None, "max_steps": None}))
-        if config.fit_episodes:
-            fit["episodes"] = config.fit_episodes
-        # the fitting's own stage names its unit: episodes, then steps where it plays on for them
+        # episodes None: the library's default, 90 whole episodes (your own env: on until its steps,
+        # default_fit_steps); Pong's were the first 1,000 steps of 6 games until 2026-12-01 (the cache
+        # key's "-vanish"). The fitting's own stage names its unit: episodes, then steps where it
+        # plays on for them.
         fitted = fit_agent_detectors(agent, detectors=config.learned, score=config.score, obs_noise=config.obs_noise,
                                      on_progress=lambda stage, done, total: report(f"{label}: {stage}", done, total),
-                                     **fit)
+                                     episodes=config.fit_episodes or None)
         _continue_sampling(agent, state_file, made_now=True)
         fitted.save(path)  # after the state: fitted detectors on disk always have their state beside them
     else:

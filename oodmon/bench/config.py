@@ -237,13 +237,16 @@ class BenchConfig:
             # oodmon's tasks is continuous, their fits the same: key unchanged); nor are those from
             # before drift joined your own env's default set (the same day); nor, where combined
             # brings the default set and that may hold pictures (Pong, your own env), those from
-            # before stillness joined it (2026-11-30)
+            # before stillness joined it (2026-11-30); nor Pong's from before its fits took 90 whole
+            # games instead of the first 1,000 steps of 6 and its default set gained vanishing
+            # (2026-12-01)
             steps = 0 if self.fit_episodes else default_fit_steps(self.task)
             defaults = brings_default_set(self.detectors)
             parts.append("+".join(self.detectors) + f"-alarm-{self.alarm_detector}-fit{FIT_VERSION}"
                          + (f"-on{self.fit_episodes}" if self.fit_episodes else "")
                          + (f"-steps{steps}" if steps else "") + (f"-jump{JUMP_VALUES}-drift" if self.own_env else "")
-                         + ("-still" if defaults and (self.own_env or self.task == "pong") else ""))
+                         + ("-still" if defaults and (self.own_env or self.task == "pong") else "")
+                         + ("-vanish" if self.task == "pong" else ""))
         if self.obs_noise:
             parts.append(f"noise{self.obs_noise:g}")
         if self.samples is not None:

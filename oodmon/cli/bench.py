@@ -83,8 +83,8 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                             "ones are fitted per trial on ID episodes of their own (monitor protocol's default: spread "
                             "and the task's best)")
     bench.add_argument("--fit-episodes", type=_whole(3), default=0,
-                       help=f"ID episodes the learned detectors are fitted on, per trial (default {_FIT_EPISODES}; "
-                            f"Pong 6 games; your own --env: more, until they hold {_FIT_STEPS:,} steps)")
+                       help=f"ID episodes the learned detectors are fitted on, per trial (default {_FIT_EPISODES}, whole; "
+                            f"your own --env: more, until they hold {_FIT_STEPS:,} steps)")
     bench.add_argument("--alarm-detector", choices=list(DETECTOR_NAMES),
                        help="the detector the monitor's alarm reads, one of --detectors (default spread; monitor "
                             "protocol: the task's best)")

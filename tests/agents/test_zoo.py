@@ -19,10 +19,12 @@ def test_the_zoo_ships_every_classic_agent():
 
 
 def test_the_zoo_is_small():
-    # The promise is "well under 50 MB"; the plan is 5 MiB of classic agents and three fp16 Pong
-    # agents of 3.3 MiB each, so 20 MiB leaves room and still catches an fp32 or unpruned export.
+    # The promise is "well under 50 MB"; the plan is 5 MiB of classic agents, three fp16 Pong
+    # agents of 3.3 MiB each and their fitted detectors (1.2-1.4 MiB each since they fit on 90 whole
+    # games, 2026-12-01: combined's held-out ID scores, 70,000 steps a member): 20.8 MiB in all, and
+    # 23 MiB still catches one agent exported in fp32 (3.3 MiB more) or unpruned.
     size = sum(p.stat().st_size for p in zoo_dir().rglob("*") if p.is_file())
-    assert size < 20 * 2**20 < SIZE_BUDGET, f"zoo is {size / 2**20:.1f} MiB"
+    assert size < 23 * 2**20 < SIZE_BUDGET, f"zoo is {size / 2**20:.1f} MiB"
 
 
 @pytest.mark.parametrize("name", CLASSIC)

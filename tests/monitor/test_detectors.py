@@ -338,7 +338,8 @@ def test_every_shipped_detector_set_loads_fitted_for_its_agent_by_todays_fitting
     """scripts/fit_zoo_detectors.sh's output: each set loads (its tensors match their sha256), was
     fitted on the shipped agent's weights by today's fitting (FIT_VERSION), and its combined
     detector ranks dynamics' mean wherever it has dynamics (vector observations) and features by
-    the logarithm of its score; Pong's combines frames and stillness alone (COMBINED_LEAVES_OUT)."""
+    the logarithm of its score; Pong's combines frames, stillness and vanishing alone (COMBINED_LEAVES_OUT,
+    DEFAULT_ADDS), fitted on 90 whole games."""
     from oodmon.agents import zoo_dir
     from oodmon.hashing import file_sha256
 
@@ -350,7 +351,9 @@ def test_every_shipped_detector_set_loads_fitted_for_its_agent_by_todays_fitting
     assert combined.long_members == (["dynamics"] if "dynamics" in detectors else [])
     assert combined.log_members == (["features"] if "features" in combined.members else [])
     others = [d for d in detectors.names if d != "combined"]
-    assert combined.members == (["frames", "stillness"] if name.startswith("pong") else others)
+    assert combined.members == (["frames", "stillness", "vanishing"] if name.startswith("pong") else others)
+    if name.startswith("pong"):
+        assert detectors.fitted_for["episodes"] == 90 and detectors["vanishing"].events.shape == (2, 144)
 
 
 # -- determinism and files ----------------------------------------------------------------------------

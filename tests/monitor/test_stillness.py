@@ -120,12 +120,13 @@ def test_the_monitor_of_a_camera_policy_alarms_a_frozen_camera_soon_after_it_fre
 
 def test_pongs_combined_leaves_the_spread_and_features_out():
     """Pong's shipped agents: their spread and features, weak at every step there, only raised the
-    combined threshold (COMBINED_LEAVES_OUT); both are still fitted and scored, outside combined."""
+    combined threshold (COMBINED_LEAVES_OUT); both are still fitted and scored, outside combined.
+    Pong's set holds vanishing too (DEFAULT_ADDS), an env oodmon has no variants of does not."""
     from oodmon.agents import load
 
     agent = load("pong", "dropconnect")
     fitted = fit_detectors(agent, agent.make_env(), episodes=3, max_steps=20)
-    assert fitted.names == ["spread", "features", "frames", "stillness", "combined"]
-    assert fitted["combined"].members == ["frames", "stillness"]
+    assert fitted.names == ["spread", "features", "frames", "stillness", "vanishing", "combined"]
+    assert fitted["combined"].members == ["frames", "stillness", "vanishing"]
     elsewhere = fit_detectors(agent, agent.make_env(), episodes=3, max_steps=20, task="Pong-like")  # not measured
     assert elsewhere["combined"].members == ["spread", "features", "frames", "stillness"]

@@ -136,3 +136,19 @@ def test_named_it_joins_the_default_set_and_combined_ranks_it_an_event_a_rank():
     assert combined.members == ["frames", "stillness", "vanishing"] and combined.config()["scale"]["vanishing"] == 1.0
     assert combined.rank("vanishing", 1e6 + 3) - combined.rank("vanishing", 1e6) == pytest.approx(3, rel=1e-9)
     assert "vanishing" not in fit_detectors(RandomButtons(), Variant("pong").make(), episodes=3, max_steps=20).names
+
+
+def test_pongs_default_set_holds_it_other_picture_envs_name_it():
+    """DEFAULT_ADDS: Pong's default set (the task named) holds vanishing and its combined ranks it; the
+    same pictures in an env oodmon has no variants of get frames and stillness alone, and vectors never."""
+    from oodmon.monitor.detectors import default_detectors
+
+    env = Variant("pong").make()
+    assert default_detectors(RandomButtons(), env, "pong") == ("frames", "stillness", "vanishing", "combined")
+    assert default_detectors(RandomButtons(), env, "MyPong-v0") == ("frames", "stillness", "combined")
+    assert default_detectors(RandomButtons(), env) == ("frames", "stillness", "combined")
+    controller = lambda obs: int(obs[2] + obs[3] > 0)  # noqa: E731
+    assert "vanishing" not in default_detectors(controller, Variant("cartpole").make(), "cartpole")
+    fitted = fit_detectors(RandomButtons(), env, episodes=3, max_steps=40, task="pong")
+    assert fitted.names == ["frames", "stillness", "vanishing", "combined"]
+    assert fitted["combined"].members == ["frames", "stillness", "vanishing"]

@@ -40,8 +40,8 @@ from oodmon.seeds import DETECTOR_FIT
 from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import is_whole
 
-__all__ = ["BEST_DETECTOR", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector", "collect",
-           "default_detectors", "default_fit_steps", "detectors_for", "discrete_states", "fit_agent_detectors",
+__all__ = ["BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector",
+           "collect", "default_detectors", "default_fit_steps", "detectors_for", "discrete_states", "fit_agent_detectors",
            "fitting_notes", "fit_detectors", "policy_parts", "trajectory_scores"]
 
 #: ID episodes the learned detectors are fitted on by default: two thirds fit, one third ranks.
@@ -94,7 +94,8 @@ FIT_VERSION = 6
 # (COMBINED_LEAVES_OUT): the same benchmark and a frozen camera (`pong:obs.stuck=1`), which frames
 # never sees, alarmed 10 of 10 games of each agent 11-14 decisions after it froze; the nine
 # corruptions 90 of 90 as before, 25 of 27 delay medians the same and 2 longer by 0.5; 0, 2 and 0
-# of 200 ID games alarmed against 3, 1 and 0 (results/monitor/pong-combined-*.json).
+# of 200 ID games alarmed against 3, 1 and 0 (results/monitor/pong-combined-*.json); since
+# 2026-12-01 with vanishing among its members (DEFAULT_ADDS).
 # Pendulum: dynamics was the best when chosen; since the detectors are fitted on 90 episodes
 # `combined` reads 0.001-0.003 higher per step on all three Pendulum agents, but as the alarm
 # (the monitor's benchmark with `--detectors spread,combined --alarm-detector combined`,
@@ -114,6 +115,16 @@ BEST_DETECTOR = {"cartpole": "combined", "pendulum": "dynamics", "pong": "combin
 #: 6.30 and 3.79 against 7.73 and 5.94, 0 and 3 of those 110 alarmed against 2 and 0, every delay
 #: shorter or the same (1-2 steps shorter for Dropout).
 COMBINED_LEAVES_OUT = {"pong": ("spread", "features")}
+
+#: What a task's default set holds beside the detectors its observations give, measured as worth it
+#: there. Pong's ``vanishing`` (2026-12-01): in its ``combined`` beside ``frames`` and ``stillness``,
+#: the set fitted on 90 whole games (6 games of 1,000 decisions before), the monitor's benchmark
+#: (results/monitor/pong-combined-<method>.json) alarmed a frozen part of the picture in 10 of 10
+#: games of each of the three agents, the centre 13.5-18.5 decisions after it froze (DropConnect 0 of
+#: 10 and the ensemble 4 of 10 at 2,489.5 without), motion blur at 1 (4-6), the nine corruptions and
+#: a frozen camera as before or up to 2.5 decisions later (DropConnect's noises 5-7 against 4-4.5),
+#: and 0 of 200 ID games for DropConnect and the ensemble, as before.
+DEFAULT_ADDS = {"pong": ("vanishing",)}
 
 
 def best_detector(task: str | None, detectors: DetectorSet | None, score: str | None = None) -> str:
@@ -291,7 +302,8 @@ def default_detectors(policy: Any, env: gymnasium.Env, task: str | None = None) 
     (:func:`discrete_states`), ``features`` for an oodmon agent or estimator, ``frames`` and
     ``stillness`` (a frozen camera) for image observations
     (:func:`~oodmon.monitor.detectors.frames.is_picture`) and beside ``dynamics`` for an agent's
-    dicts with pictures beside vectors (``Agent.pictures``), and ``combined``."""
+    dicts with pictures beside vectors (``Agent.pictures``), what :data:`DEFAULT_ADDS` adds for
+    ``task`` (Pong: ``vanishing``), and ``combined``."""
     from oodmon.names import TASKS
 
     estimator, _, _ = policy_parts(policy)
@@ -304,6 +316,7 @@ def default_detectors(policy: Any, env: gymnasium.Env, task: str | None = None) 
         names.append("features")
     if picture or getattr(policy, "pictures", None) is not None:
         names += ["frames", "stillness"]
+    names += [name for name in DEFAULT_ADDS.get(task or "", ()) if cannot_have(name, policy, env) is None]
     return (*names, "combined")
 
 
