@@ -49,8 +49,8 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
                                 "pre_squash_std (DDPG)")
     calibrate.add_argument("--detector", choices=list(DETECTOR_NAMES),
                            help="the detector the alarm reads (default: the task's best measured one when the agent has "
-                                "fitted detectors: cartpole combined, pendulum dynamics, pong combined (of frames and "
-                                "stillness); else spread); "
+                                "fitted detectors: cartpole combined, pendulum dynamics, pong combined (of frames, "
+                                "stillness and vanishing); else spread); "
                                 "a learned one without fitted detectors is fitted first, into <out>.detectors/")
     calibrate.add_argument("--fit-episodes", type=_whole(3),
                            help=f"ID episodes the learned detectors are fitted on when calibrate fits them (default "

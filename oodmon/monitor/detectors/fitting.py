@@ -119,11 +119,11 @@ COMBINED_LEAVES_OUT = {"pong": ("spread", "features")}
 #: What a task's default set holds beside the detectors its observations give, measured as worth it
 #: there. Pong's ``vanishing`` (2026-12-01): in its ``combined`` beside ``frames`` and ``stillness``,
 #: the set fitted on 90 whole games (6 games of 1,000 decisions before), the monitor's benchmark
-#: (results/monitor/pong-combined-<method>.json) alarmed a frozen part of the picture in 10 of 10
-#: games of each of the three agents, the centre 13.5-18.5 decisions after it froze (DropConnect 0 of
-#: 10 and the ensemble 4 of 10 at 2,489.5 without), motion blur at 1 (4-6), the nine corruptions and
-#: a frozen camera as before or up to 2.5 decisions later (DropConnect's noises 5-7 against 4-4.5),
-#: and 0 of 200 ID games for DropConnect and the ensemble, as before.
+#: (results/monitor/pong-combined-90games-<method>.json) alarmed a frozen part of the picture in 10
+#: of 10 games of each of the three agents, the centre 13.5-36.5 decisions after it froze (DropConnect
+#: 0 of 10 and the ensemble 4 of 10 at 2,489.5 without), motion blur at 1 (4-6), the nine corruptions
+#: and a frozen camera as before or up to 2.5 decisions later (DropConnect's noises 5-7 against
+#: 4-4.5), and 0 of 200 ID games for each (Dropout 2 before).
 DEFAULT_ADDS = {"pong": ("vanishing",)}
 
 

@@ -143,10 +143,10 @@ class VanishingDetector(Detector):
             raise ConfigError("the vanishing detector needs ID episodes of two steps or more to learn where things "
                               "vanish in their pictures; got none")
         shapes = {newest_frame(np.asarray(e[0])).shape for e in episodes}
-        if len(shapes) > 1 or len(next(iter(shapes))) not in (2, 3):
+        if len(shapes) > 1:
             raise ConfigError(f"the vanishing detector needs pictures of one shape, (H, W) or (H, W, C); got "
                               f"{sorted(shapes)}")
-        check_tiles(next(iter(shapes)), self.grid, self.name)
+        check_tiles(next(iter(shapes)), self.grid, self.name)  # (H, W) or (H, W, C), at least a tile a pixel
         # (the pictures are taken episode by episode: Pong's 60 fitting games hold some 140,000)
         every = max(1, sum(map(len, episodes)) // _BACKGROUND_FRAMES)
         sample = np.array([newest_frame(np.asarray(obs)) for seen in episodes for obs in seen[::every]])
