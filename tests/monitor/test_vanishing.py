@@ -96,6 +96,7 @@ def test_it_saves_and_loads_as_tensors_and_json_with_the_same_scores(pong, tmp_p
     ({"events": np.zeros((2, 144))}, "no 'background'"),
     ({"background": np.zeros((84, 84), np.uint8)}, "no 'events'"),
     ({"background": np.zeros(84, np.uint8), "events": np.zeros((2, 144))}, "must be a picture"),
+    ({"background": np.zeros((8, 84), np.uint8), "events": np.zeros((2, 144))}, "at least 12 pixels a side"),
     ({"background": np.zeros((84, 84), np.uint8), "events": np.zeros((2, 16))}, "shape \\(2, 144\\)"),
     ({"background": np.zeros((84, 84), np.uint8), "events": np.full((2, 144), -1.0)}, "counts >= 0"),
 ])

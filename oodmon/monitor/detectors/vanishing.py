@@ -193,9 +193,9 @@ class VanishingDetector(Detector):
         if missing:
             raise ConfigError(f"the vanishing detector's tensors are incomplete: no {missing[0]!r}")
         background, events = np.asarray(tensors["background"]), np.asarray(tensors["events"])
-        if background.ndim not in (2, 3) or 0 in background.shape:
+        if background.ndim not in (2, 3) or min(background.shape[:2]) < detector.grid or 0 in background.shape:
             raise ConfigError(f"the vanishing detector's background has shape {background.shape}; it must be a "
-                              "picture, (H, W) or (H, W, C)")
+                              f"picture, (H, W) or (H, W, C), of at least {detector.grid} pixels a side (its tiles)")
         if events.shape != (2, detector.grid ** 2) or not np.isfinite(events).all() or (events < 0).any():
             raise ConfigError(f"the vanishing detector's events have shape {events.shape} and must be counts >= 0 "
                               f"of shape (2, {detector.grid ** 2}): vanished and appeared, per tile")
