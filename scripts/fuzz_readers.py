@@ -18,15 +18,19 @@ damaged ``model.json`` or ``detectors.json`` raising ``KeyError``; a bench basel
 raising ``KeyError`` only when the bench compared, after its work. All are refused or recovered
 now; this prints no such line. The ``sb3`` reader, added on 2026-11-30 (``--only sb3 --seed 4
 --flips 1000``, 85 s): 13,367 damaged copies, 8,562 refused, 4,805 read, nothing else.
+``pong_detectors``, added on 2026-12-01 (``--only pong_detectors --seed 7``, about a minute): 3,850
+damaged copies, 3,779 refused, 71 read and scored, nothing else.
 
 The readers: ``log`` (replay's ``read_log`` of a small format-6 log, two CartPole episodes in
 segments of 4 steps: a cut or flip is a torn or damaged log, recovered), ``vecnorm`` (SB3
 VecNormalize statistics, read without unpickling), ``sb3`` (a user's SB3 model file, its parts
 damaged one at a time and zipped again: its ``data`` read by oodmon's restricted unpickler),
 ``model`` (a zoo agent's folder), ``detectors``
-(the zoo CartPole ensemble's fitted detectors), ``threshold`` (a calibrated threshold), ``baseline``
-(``oodmon check --update``'s baseline) and ``bench`` (a committed bench result read as
-``--baseline`` and compared with itself).
+(the zoo CartPole ensemble's fitted detectors), ``pong_detectors`` (the zoo Pong DropConnect's set,
+read and then its picture detectors, ``frames``, ``stillness``, ``vanishing`` and ``combined``,
+scoring three steps of random frames: a damaged setting that loads would show there),
+``threshold`` (a calibrated threshold), ``baseline`` (``oodmon check --update``'s baseline) and
+``bench`` (a committed bench result read as ``--baseline`` and compared with itself).
 """
 
 from __future__ import annotations
@@ -112,6 +116,25 @@ def _make_baseline(folder: Path) -> dict[str, Path]:
     return {"baseline.json": folder / "baseline.json"}
 
 
+def _score_pong_pictures(folder: Path) -> object:
+    """A Pong detector set read and then used: its picture detectors (the ones that need no policy's
+    samples) score three steps of random frames, so that a damaged state that loads but does not fit
+    its detector's settings shows where it would show in a run."""
+    import numpy as np
+
+    from oodmon.monitor.detectors.base import StepContext
+    from oodmon.monitor.detectors.store import DetectorSet
+
+    pictures = DetectorSet.load(folder).subset(["frames", "stillness", "vanishing", "combined"])
+    pictures.reset()
+    rng, before = np.random.default_rng(0), None
+    for _ in range(3):
+        obs = rng.integers(0, 256, (4, 84, 84), dtype=np.uint8)
+        pictures.score(StepContext(obs=obs, action=0, prev_obs=before, prev_action=None if before is None else 0))
+        before = obs
+    return pictures
+
+
 def _folder_files(folder: Path) -> dict[str, Path]:
     return {p.name: p for p in folder.iterdir() if p.is_file()}
 
@@ -134,6 +157,7 @@ def _readers() -> dict[str, tuple[Callable[[Path], dict[str, Path]], Callable[[P
         "sb3": (_make_sb3, _read_sb3),
         "model": (lambda _: _folder_files(zoo / "cartpole-dropout"), load_agent),
         "detectors": (lambda _: _folder_files(zoo / "cartpole-ensemble" / "detectors"), DetectorSet.load),
+        "pong_detectors": (lambda _: _folder_files(zoo / "pong-dropconnect" / "detectors"), _score_pong_pictures),
         "threshold": (_make_threshold, lambda d: Threshold.load(d / "threshold.json")),
         "baseline": (_make_baseline, lambda d: load_baseline(d / "baseline.json")),
         "bench": (lambda _: {"cartpole.json": bench},

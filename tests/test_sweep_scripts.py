@@ -404,6 +404,30 @@ def test_fuzz_readers_counts_what_each_reader_answers_and_names_what_is_not_oodm
     assert broken[0].startswith("broken: threshold.json, cut at 0: ValueError: invalid literal")
 
 
+def test_fuzz_readers_uses_pong_detectors_after_reading_them(monkeypatch, tmp_path):
+    """The Pong reader reads the zoo's set and scores three steps of frames with its picture
+    detectors (where a damage that loads would show); a damaged setting is refused with oodmon's error."""
+    import shutil
+
+    from oodmon.errors import ConfigError
+    from oodmon.monitor.detectors.store import DetectorSet
+
+    script = _load(monkeypatch, tmp_path, "fuzz_readers")[0]
+    make, read = script._readers()["pong_detectors"]
+    for name, path in make(tmp_path).items():
+        shutil.copy(path, tmp_path / name)
+    scored = []
+    score = DetectorSet.score
+    monkeypatch.setattr(DetectorSet, "score", lambda self, context: scored.append(score(self, context)) or scored[-1])
+    pictures = read(tmp_path)
+    assert pictures.names == ["frames", "stillness", "vanishing", "combined"]
+    assert len(scored) == 3 and all(set(step) == set(pictures.names) for step in scored)
+    settings = tmp_path / "detectors.json"
+    settings.write_text(settings.read_text().replace('"grid": 12', '"grid": 13'))  # tiles its counts do not have
+    with pytest.raises(ConfigError, match="vanishing detector's events"):
+        read(tmp_path)
+
+
 def test_fuzz_cli_draws_quick_commands_and_tells_an_answer_from_a_traceback(monkeypatch, tmp_path):
     script = _load(monkeypatch, tmp_path, "fuzz_cli")[0]
     lines = script.command_lines(40, 0)
