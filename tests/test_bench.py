@@ -436,6 +436,39 @@ def test_a_bench_stopped_between_its_stages_resumes_drawing_what_an_uninterrupte
     assert prepare()[0] != uninterrupted[0] and states[3] != states[0]
 
 
+@EARLY_PEAKS
+def test_one_trial_of_an_agent_that_draws_nothing_is_prepared_side_by_side_with_the_same_result(tmp_path, monkeypatch):
+    """``--trials 1`` of one method: its fitting's, calibration's and evaluation's episodes are
+    played by ``workers`` processes where the agent draws nothing (an ensemble), giving the detectors,
+    threshold and failing variants of one process; an MC agent's stay in one process, so that its
+    trial is what it is when prepared beside others (its episodes side by side would draw otherwise)."""
+    import oodmon.monitor
+    from oodmon.bench.run import _prepare_trials
+
+    played_by = []
+    real_calibrate = oodmon.monitor.calibrate_agent
+    monkeypatch.setattr(oodmon.monitor, "calibrate_agent",
+                        lambda *args, **kwargs: played_by.append(kwargs["workers"]) or real_calibrate(*args, **kwargs))
+    prepared = {}
+    runs = [("ensemble", None, 1), ("ensemble", None, 2), ("dropout", None, 2), ("dropout", "fixed-decisions", 1),
+            ("dropout", "fixed-decisions", 2)]
+    for method, masks, workers in runs:
+        config = BenchConfig("cartpole", (method,), 1, SPECS[:2], episodes=1, id_episodes=1, eval_episodes=1,
+                             calibration_episodes=3, far=0.5, confidence=None, workers=workers,
+                             out=str(tmp_path / f"{method}{masks}{workers}"), detectors=("spread", "features"),
+                             alarm_detector="features", fit_episodes=3, masks=masks)
+        _, threshold, failing, detectors = _prepare_trials(config, [(method, 0)], workers, lambda *_: None)[(method, 0)]
+        saved = json.loads(threshold.read_text())
+        prepared[(method, masks, workers)] = (saved["value"], saved["detectors_hash"], failing,
+                                              (detectors / "detectors.safetensors").read_bytes())
+        assert saved["workers"] == played_by[-1]
+    # The sampled dropout agent draws its samples: one process; its fixed sub-networks that decide draw nothing.
+    assert played_by == [1, 2, 1, 1, 2]
+    assert prepared[("ensemble", None, 2)] == prepared[("ensemble", None, 1)]
+    assert prepared[("ensemble", None, 1)][2] == ["cartpole:length=2.0", "cartpole:gravity=98.0"]
+    assert prepared[("dropout", "fixed-decisions", 2)] == prepared[("dropout", "fixed-decisions", 1)]
+
+
 def test_pong_alarms_on_200_decision_means_of_features_and_on_each_step_of_combined(monkeypatch, tmp_path):
     """The CLI's window default per task and detector (oodmon.monitor.alarms.default_window), as
     bench passes it; Pong's default detector is combined (of frames, stillness and vanishing), and frames

@@ -156,6 +156,14 @@ class UncertaintyEstimator:
         raise NotImplementedError
 
     @property
+    def draws(self) -> bool:
+        """Whether a decision draws from the estimator's generator (its :attr:`sampling_state`
+        moves on): an MC estimator's sampled masks do; an ensemble's members do not, nor fixed
+        sub-networks that decide. One that draws nothing plays an episode the same wherever it is
+        played (``oodmon.side_by_side``)."""
+        return self.sampling_state is not None
+
+    @property
     def sampling_state(self) -> dict | None:
         """Where the estimator's sample generator stands, as plain JSON-able data (``None``: it has
         none). Setting a state saved earlier continues the draws exactly from there: a run that
@@ -376,6 +384,10 @@ class MCEstimator(UncertaintyEstimator):
         self._decision = sampled
         return run(self._fixed, repeated, self._rng).astype(np.float32, copy=False)
 
+    @property
+    def draws(self) -> bool:
+        return self.masks != "fixed-decisions"  # fixed sub-networks that decide draw nothing
+
     def _sample_torch(self, batch: np.ndarray) -> np.ndarray:
         repeated = np.broadcast_to(batch, (self.n_samples, *batch.shape)).reshape(-1, *batch.shape[1:])
         with torch.no_grad(), torch.random.fork_rng(devices=[]), mc_sampling(self.network):
@@ -441,6 +453,10 @@ class EnsembleEstimator(UncertaintyEstimator):
         if kind == "actions" and ends_with_tanh(self._ops):
             self._ops, self._squash = self._ops[:-1], True  # tanh applied in estimate()
         self._head = max(i for i, op in enumerate(self._ops) if isinstance(op, StackedAffine))  # the output layer
+
+    @property
+    def draws(self) -> bool:
+        return False  # its members decide: nothing drawn
 
     def _sample(self, batch: np.ndarray) -> np.ndarray:
         if self._torso_ops is not None:

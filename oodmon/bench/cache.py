@@ -257,10 +257,16 @@ def _set_aside_if_made_by_other_weights(out: Path, folder: Path, model: Source) 
     write_whole(stamp, lambda part: part.write_text(weights + "\n"))  # a torn stamp would set the trial aside
 
 
-def _prepare_trial(config: BenchConfig, method: str, trial: int,
-                   report: Callable[[str, int, int], None]) -> tuple[Source, Path, list[str], Path | None]:
+def _prepare_trial(config: BenchConfig, method: str, trial: int, report: Callable[[str, int, int], None],
+                   workers: int = 1) -> tuple[Source, Path, list[str], Path | None]:
     """Model, threshold and failing variants of one (method, trial); cached in its folder.
-    ``report(stage, done, total)`` counts the episodes of calibration and evaluation."""
+    ``report(stage, done, total)`` counts the episodes of calibration and evaluation.
+
+    ``workers``: processes that play the fitting's, calibration's and evaluation's episodes side by
+    side (``oodmon.side_by_side``), for an agent that draws nothing when it decides (an ensemble, a
+    plain policy), which plays each episode as in one process: the same detectors, threshold and
+    failing variants. An MC agent's episodes side by side draw from streams of their own, so it plays
+    in one process whatever ``workers``: its trial comes out as when it is prepared beside others."""
     from oodmon.monitor import calibrate_agent
 
     model = _ensure_model(config, method, trial)
@@ -273,10 +279,12 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
     if "spread" in config.detectors and agent.estimator is None:
         raise ConfigError(f"{method} has no samples of its own (one model, or a kind oodmon does not sample): "
                           f"drop spread from the detectors")
+    if agent.estimator is not None and agent.estimator.draws:
+        workers = 1  # an MC agent: its draws run on from episode to episode, as in a trial prepared beside others
     # The three stages draw from that one generator in turn. A stage cached by an earlier run that
     # stopped (killed, or a machine restarted) sets the agent's sampling back to where it stood
     # after that stage, so a resumed bench draws what an uninterrupted one draws.
-    detectors_path = _fit_trial_detectors(config, agent, folder, f"{method} trial {trial}", report)
+    detectors_path = _fit_trial_detectors(config, agent, folder, f"{method} trial {trial}", report, workers)
     threshold_state = folder / f"sampling-after-threshold-{config.cache_key()}.json"
     if not threshold_path.exists():
         from oodmon.monitor.detectors import DetectorSet
@@ -287,7 +295,7 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
             detectors=DetectorSet.load(detectors_path) if detectors_path else None,
             detector=config.alarm_detector, obs_noise=config.obs_noise, confidence=config.confidence,
             rule=config.rule, consecutive=config.m, warmup=config.warmup,
-            on_progress=lambda _, done, total: report(stage, done, total))
+            on_progress=lambda _, done, total: report(stage, done, total), workers=workers)
         _continue_sampling(agent, threshold_state, made_now=True)
         threshold.save(threshold_path)  # after the state: a threshold on disk always has its state beside it
     else:
@@ -301,7 +309,8 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int,
     else:
         stage = f"{method} trial {trial}: evaluation episodes"
         _, results = evaluate_variants(agent.act, config.task, variants, config.eval_episodes,
-                                       on_progress=lambda _, done, total: report(stage, done, total), wrap=agent.wrap)
+                                       on_progress=lambda _, done, total: report(stage, done, total), wrap=agent.wrap,
+                                       workers=workers)
         failing = [r.spec for r in results if r.fails]
         write_json(failing_path, {"variants": [v.spec for v in variants], "failing": failing,
                                    "returns": {r.spec: r.mean for r in results}})
@@ -330,9 +339,10 @@ def _read_json(path: Path):
 
 
 def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
-                         report: Callable[[str, int, int], None]) -> Path | None:
+                         report: Callable[[str, int, int], None], workers: int = 1) -> Path | None:
     """The (method, trial)'s fitted detectors, fitted once into its folder (cached beside the
-    threshold, and set aside with it when the weights change)."""
+    threshold, and set aside with it when the weights change); ``workers`` processes play the
+    fitting's episodes (:func:`_prepare_trial`)."""
     if not config.learned:
         return None
     from oodmon.monitor.detectors import fit_agent_detectors
@@ -346,7 +356,7 @@ def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
         # plays on for them.
         fitted = fit_agent_detectors(agent, detectors=config.learned, score=config.score, obs_noise=config.obs_noise,
                                      on_progress=lambda stage, done, total: report(f"{label}: {stage}", done, total),
-                                     episodes=config.fit_episodes or None)
+                                     episodes=config.fit_episodes or None, workers=workers)
         _continue_sampling(agent, state_file, made_now=True)
         fitted.save(path)  # after the state: fitted detectors on disk always have their state beside them
     else:

@@ -40,9 +40,15 @@ def _prepare_trials(config: BenchConfig, trials: list[tuple[str, int]], workers:
                     report: Progress) -> dict[tuple[str, int], tuple[Source, Path, list[str], Path | None]]:
     """Each trial's model, fitted detectors, threshold and failing variants (:func:`_prepare_trial`,
     cached), the trials side by side as their trainings are (each seeded by itself: the same as
-    one after the other, which they were before 2026-11-30)."""
+    one after the other, which they were before 2026-11-30). One trial (``--trials 1``, one method)
+    is prepared here, its episodes side by side where its agent draws nothing (:func:`_prepare_trial`)."""
     stage = "models, detectors, thresholds and failing variants of trials"
     report(stage, 0, len(trials))
+    if len(trials) == 1 and config.executor != "ray":
+        (method, trial), = trials
+        prepared_one = _prepare_trial(config, method, trial, report, workers)
+        report(stage, 1, 1)
+        return {(method, trial): prepared_one}
     prepared = {}
     for key, trial_parts in _per_trial(_prepare_keyed, trials, config, workers, report):
         prepared[key] = trial_parts

@@ -67,8 +67,10 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     bench.add_argument("--far", type=_fraction, default=0.05, help="the alarm's target false-alarm rate (default 0.05)")
     _add_confidence(bench, default="0.9; monitor protocol: 0.99, so that the rate of 200 ID episodes shows the bound")
     bench.add_argument("--workers", type=_whole(0), default=0,
-                       help="worker processes for the trainings, the trials' preparations and the cells (default 0: one "
-                            "per core)")
+                       help="worker processes for the trainings, the trials' preparations and the cells; one trial "
+                            "(--trials 1, one method) of an agent that draws nothing (an ensemble; SB3 models without "
+                            "dropout) plays its fitting, calibration and evaluation episodes in them (default 0: one per "
+                            "core)")
     bench.add_argument("--score", default="chosen_std",
                        help="chosen_std (the paper's, default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
     bench.add_argument("--window", type=_whole(1),

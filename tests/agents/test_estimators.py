@@ -413,6 +413,20 @@ def test_fixed_masks_that_decide_decide_by_the_fixed_sub_networks_mean(method, t
         assert not np.allclose(fixed.action, got.action)
 
 
+@pytest.mark.parametrize("masks, draws", [("sampled", True), ("fixed", True), ("fixed-decisions", False)])
+def test_an_estimator_says_whether_its_decisions_draw(masks, draws):
+    # ``draws``: whether estimating moves the sampling generator on (episodes side by side then draw
+    # from streams of their own, oodmon.side_by_side); an ensemble's members draw nothing.
+    estimator = MCEstimator(_deep("dropconnect", 0.05), n_samples=10, seed=4, masks=masks)
+    state = estimator.sampling_state
+    estimator.estimate(OBS)
+    assert estimator.draws is draws and (estimator.sampling_state != state) is draws
+    ensemble = EnsembleEstimator([_mlp(s) for s in range(3)])
+    state = ensemble.sampling_state
+    ensemble.estimate(OBS)
+    assert not ensemble.draws and ensemble.sampling_state == state
+
+
 def test_fixed_masks_refuse_what_they_cannot_do():
     with pytest.raises(InvalidParameterError, match="masks='frozen' is not allowed"):
         MCEstimator(_deep("dropout", 0.1), masks="frozen")
