@@ -9,6 +9,7 @@ from collections import deque
 from pathlib import Path
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from oodmon.cli.loading import _detectors, _input_files, _load_agent
@@ -108,8 +109,7 @@ def _run(args: argparse.Namespace) -> int:
 
     def show(event) -> None:
         alarm_lines.append(event)
-        progress.console.print(f"[bold red]ALARM[/bold red] episode {event.episode} step {event.step}: "
-                               f"score {event.score:.4g} > {event.threshold:.4g} ({event.rule})")
+        progress.console.print(f"[bold red]ALARM[/bold red] {escape(event.text())}")
 
     rows = _EpisodeRows()
     with Progress(console=console, transient=True) as progress, \

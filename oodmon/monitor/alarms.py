@@ -204,6 +204,12 @@ class AlarmEvent:
             of the last ``window`` scores, with a sequential rule its statistic.
         threshold: the threshold in force.
         rule: the rule, e.g. ``"score > threshold for 3 consecutive steps"``.
+        cause: what raised the score at that step, for whoever answers the alarm (the
+            :class:`~oodmon.monitor.Monitor` sets it): the alarm's detector (``dynamics``), or for
+            ``combined`` the member ranked highest among its ID scores there (``stillness``: the
+            camera stands still; ``dynamics (mean since the episode began)``: a shift too slight for
+            single steps); ``a reading that is not finite`` for a NaN or infinite observation.
+            Empty where nothing says (an :class:`AlarmTracker` on its own).
     """
 
     episode: int
@@ -211,6 +217,17 @@ class AlarmEvent:
     score: float
     threshold: float
     rule: str
+    cause: str = ""
+
+    def text(self) -> str:
+        """One line for a person: where, the value against the threshold, the rule and the cause.
+
+        Example:
+            >>> AlarmEvent(0, 41, 7.25, 4.5, "score > threshold", "dynamics").text()
+            'episode 0 step 41: score 7.25 > 4.5 (score > threshold); cause: dynamics'
+        """
+        cause = f"; cause: {self.cause}" if self.cause else ""
+        return f"episode {self.episode} step {self.step}: score {self.score:.4g} > {self.threshold:.4g} ({self.rule}){cause}"
 
 
 class AlarmTracker:

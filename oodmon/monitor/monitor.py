@@ -27,6 +27,7 @@ import sys
 import warnings
 import weakref
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import gymnasium
@@ -494,6 +495,8 @@ class Monitor:
         score = scores[self.detector]
         step = self._length
         alarm, event = self.tracker.update(self.episode, step, score)
+        if event is not None:
+            event = replace(event, cause=self._cause(_finite(obs)))
         observation = None
         if self.log_observations and np.ndim(obs) == 1:
             observation = [float(x) for x in obs]
@@ -534,6 +537,13 @@ class Monitor:
                 f"is not finite ({_shown(obs)}; {type(cannot_act).__name__}): it is scored (+inf) and logged with "
                 "the action before it (a failed sensor, a shift that blew the env's physics up?)") from cannot_act
         return action
+
+    def _cause(self, finite: bool) -> str:
+        """What raised the alarm's score at this step (:attr:`AlarmEvent.cause`): the alarm's
+        detector, or the member that ``combined`` ranked highest."""
+        if not finite:
+            return "a reading that is not finite"
+        return getattr(self.detectors[self.detector], "leader", None) or self.detector
 
     def _picture(self, obs: np.ndarray) -> np.ndarray | None:
         """A picture of a CartPole or Pendulum state (``render``); ``None`` for another env."""

@@ -208,6 +208,30 @@ def test_combined_is_the_largest_id_rank_of_its_members():
         combined.score(StepContext(np.zeros(1), 0, scores={"a": 1.0}))
 
 
+def test_combined_names_the_member_that_gave_its_score():
+    """``leader``: the statistic ranked highest at the last step (what an alarm's ``cause`` says);
+    a long member's mean by its own name; the first member that could not score (NaN)."""
+    rng = np.random.default_rng(2)
+    reference = {"dynamics": _long_member_scores(rng, 20, 0.0), "b": _long_member_scores(rng, 20, 0.0)}
+    steps_only = CombinedDetector(["dynamics", "b"], long_members=[]).fit_reference(reference)
+    assert steps_only.leader is None
+
+    def leader(combined: CombinedDetector, dynamics: float, b: float) -> str:
+        combined.score(StepContext(np.zeros(1), 0, scores={"dynamics": dynamics, "b": b}))
+        return combined.leader
+
+    assert leader(steps_only, 0.0, 9.0) == "b" and leader(steps_only, 9.0, 0.0) == "dynamics"
+    assert leader(steps_only, 0.0, float("nan")) == "b"
+    assert leader(steps_only, float("nan"), float("nan")) == "dynamics"  # the first that could not score
+    with_mean = CombinedDetector(["dynamics", "b"]).fit_reference(reference)
+    for _ in range(300):  # each step a little high, none far from its ID peers: the mean stands out
+        step = leader(with_mean, 1.0, 0.0)
+    assert step == "dynamics (mean since the episode began)"
+    assert with_mean.rank("dynamics", 1.0) < with_mean.rank("dynamics", 1.0, long=True)
+    with_mean.reset()
+    assert leader(with_mean, 0.0, 9.0) == "b"
+
+
 def test_running_mean_is_the_mean_of_the_last_window_values_since_the_clear():
     rng = np.random.default_rng(0)
     values = rng.normal(size=700)

@@ -15,7 +15,7 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor import (
     MemorySink, Monitor, MonitoredEnv, Threshold, calibrate_agent, episode_statistic, id_episode_scores,
 )
-from oodmon.monitor.detectors import SpreadDetector
+from oodmon.monitor.detectors import CombinedDetector, SpreadDetector
 from oodmon.monitor.scores import score_function
 
 
@@ -72,6 +72,45 @@ def test_alarms_reach_callbacks_and_do_not_stop_the_policy_unless_asked(agent):
     with Monitor(agent, threshold=0.0, consecutive=2, callbacks=[lambda event: True]) as monitor:
         stopped = monitor.run_episode(env, seed=0)
     assert stopped.length == 2  # the callback asked to stop at the alarm
+
+
+def test_an_alarm_says_what_raised_its_score(agent):
+    """``AlarmEvent.cause``: the alarm's detector; for ``combined`` the member ranked highest at the
+    step the rule fired; a reading that is not finite. The log's and the command line's alarm text
+    carry it (``AlarmEvent.text``)."""
+    from oodmon.monitor.alarms import AlarmTracker
+    from oodmon.monitor.detectors import DetectorSet
+    from oodmon.monitor.detectors.base import Detector
+
+    class Stuck(Detector):  # a member whose score jumps at step 3
+        name, learned = "stuck", False
+
+        def __init__(self) -> None:
+            self.steps = 0
+
+        def reset(self) -> None:
+            self.steps = 0
+
+        def score(self, context) -> float:
+            self.steps += 1
+            return 50.0 if self.steps > 3 else 0.0
+
+    combined = CombinedDetector(["spread", "stuck"]).fit_reference({"spread": np.linspace(0, 1e3, 50),
+                                                                     "stuck": np.zeros(50)})
+    detectors = DetectorSet([SpreadDetector(), Stuck(), combined])
+    sink = MemorySink()
+    with Monitor(agent, threshold=5.0, detectors=detectors, detector="combined", sinks=[sink]) as monitor:
+        monitor.run_episode(Variant("cartpole").make(), seed=0, max_steps=10)
+    assert [(a.step, a.cause) for a in sink.alarms] == [(3, "stuck")]
+    assert sink.alarms[0].text().endswith("; cause: stuck")
+    with Monitor(agent, threshold=0.0, consecutive=2, sinks=[sink]) as monitor:  # the spread alone
+        monitor.run_episode(Variant("cartpole").make(), seed=0, max_steps=5)
+    assert sink.alarms[-1].cause == "spread"
+    with Monitor(agent, threshold=5.0, detectors=detectors, detector="combined", sinks=[sink]) as monitor:
+        monitor.begin_episode(seed=0)
+        monitor.step(np.full(4, np.nan, np.float32), action=0)
+    assert sink.alarms[-1].cause == "a reading that is not finite"
+    assert AlarmTracker(1.0, consecutive=1).update(0, 0, 2.0)[1].cause == ""  # a tracker on its own does not know
 
 
 def test_monitored_env_wrapper_lets_the_policy_act_or_takes_yours(agent):

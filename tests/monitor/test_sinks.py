@@ -110,7 +110,8 @@ def test_alarms_are_foxglove_logs(agent, tmp_path):
     with open(tmp_path / "a.mcap", "rb") as f:
         logs = [m for _, c, m in make_reader(f).iter_messages(topics=["/oodmon/alarm"])]
     message = Log.FromString(logs[0].data)
-    assert message.level == Log.WARNING and "OOD alarm: episode 0 step 0" in message.message
+    assert message.level == Log.WARNING and message.message.startswith("OOD alarm: episode 0 step 0: score ")
+    assert message.message.endswith("; cause: spread")  # the monitor's alarm read the spread alone
 
 
 def test_rrd_holds_the_scalars(agent, tmp_path):

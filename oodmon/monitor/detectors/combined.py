@@ -125,6 +125,9 @@ class CombinedDetector(Detector):
         self._long_reference: dict[str, np.ndarray] = {}
         self._long_scale: dict[str, float] = {}
         self._means = {name: RunningMean(horizon) for name in self.long_members}
+        #: What gave the last score: the member ranked highest (a long member's mean as
+        #: ``"<name> (mean since the episode began)"``), or the first that could not score (NaN).
+        self.leader: str | None = None
 
     @property
     def fitted(self) -> bool:
@@ -185,9 +188,11 @@ class CombinedDetector(Detector):
         self._by_name = {name: _ranked(reference[name], scale[name]) for name in self.members}
         self._long_by_name = {name: _ranked(long_reference[name], long_scale[name]) for name in self.long_members}
         # One entry per statistic ranked, the members' own scores first: (member, None, or for a
-        # long member's mean its RunningMean, whether it is ranked by its logarithm, then as above)
-        self._ranked = [(name, None, name in self.log_members, *self._by_name[name]) for name in self.members] + \
-            [(name, self._means[name], name in self.log_members, *self._long_by_name[name]) for name in self.long_members]
+        # long member's mean its RunningMean, whether it is ranked by its logarithm, then as above,
+        # then what the statistic is called as the leader)
+        self._ranked = [(name, None, name in self.log_members, *self._by_name[name], name) for name in self.members] + \
+            [(name, self._means[name], name in self.log_members, *self._long_by_name[name],
+              f"{name} (mean since the episode began)") for name in self.long_members]
 
     def reset(self) -> None:
         for mean in self._means.values():
@@ -206,14 +211,15 @@ class CombinedDetector(Detector):
     def score(self, context: StepContext) -> float:
         self.check_fitted()
         scores = context.scores
-        best = -math.inf
+        best, leader = -math.inf, None
         try:
             # rank() of each statistic, written out in a plain loop: in the monitor's step this takes
             # 6.3-6.5 us against 7.0-7.5 for max() over a list comprehension (benchmarks/detector_step.py)
-            for name, mean, is_log, values, ranks, top, scale in self._ranked:
+            for name, mean, is_log, values, ranks, top, scale, label in self._ranked:
                 value = scores[name] if mean is None else mean.add(scores[name])
                 if value != value:  # NaN: a member that could not score (as a rank it would read 0, "most ID")
-                    best = math.inf  # counts as the most shifted; the loop goes on to feed the other means
+                    if best != math.inf:
+                        best, leader = math.inf, label  # the most shifted; the loop goes on to feed the other means
                     continue
                 if is_log:
                     value = _log(value)
@@ -221,7 +227,8 @@ class CombinedDetector(Detector):
                 if value > top:
                     rank += (value - top) / scale
                 if rank > best:
-                    best = rank
+                    best, leader = rank, label
+            self.leader = leader
             return best
         except KeyError:
             missing = [m for m in self.members if m not in scores]

@@ -346,8 +346,7 @@ class McapSink:
         now = time.time_ns()
         message = self._log(
             level=self._log.WARNING, name="oodmon",
-            message=f"OOD alarm: episode {event.episode} step {event.step}: score {event.score:.4g} ({event.rule}, "
-                    f"threshold {event.threshold:.4g})",
+            message=f"OOD alarm: {event.text()}",
         )
         message.timestamp.FromNanoseconds(now)
         self._add(self._alarm_channel, message.SerializeToString(), now)

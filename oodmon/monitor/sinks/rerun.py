@@ -317,7 +317,7 @@ class RerunSink:
         self._flush()
         self._set_time(self._global_step - 1, event.episode, event.step)
         self._each("log", "/alarms", self._rr.TextLog(
-            f"episode {event.episode} step {event.step}: score {event.score:.4g} > {event.threshold:.4g} ({event.rule})",
+            event.text(),
             level=self._rr.TextLogLevel.WARN))
 
     def end_episode(self, record: EpisodeRecord) -> None:
