@@ -18,7 +18,9 @@ metadata, absent before 3):
    first step they hold) and dropped from memory; replay joins an episode's segments in order.
    An episode that never ends then keeps bounded memory in the writer, and a torn log loses at
    most its last segment's steps that had not reached the disk. An episode shorter than a
-   segment is written as in format 5 (one message, no ``start``).
+   segment is written as in format 5 (one message, no ``start``);
+7. ``first_alarm_cause`` in episode messages: what raised the first alarm's score (the alarm's
+   detector, or the member ``combined`` ranked highest; ``AlarmEvent.cause``).
 
 A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
@@ -52,7 +54,7 @@ __all__ = [
     "RUN_METADATA", "STEP", "STEP_SCHEMA", "decode_array", "encode_episode_scores",
 ]
 
-FORMAT_VERSION = 6
+FORMAT_VERSION = 7
 STEP, EPISODE, EPISODE_SCORES = "/oodmon/step", "/oodmon/episode", "/oodmon/episode_scores"
 EPISODE_START = "/oodmon/episode_start"
 ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
@@ -100,6 +102,8 @@ EPISODE_SCHEMA: dict[str, Any] = _object("oodmon.Episode", {
     "interrupted": {"type": "boolean", "description": "the run was stopped inside this episode (since format 2)"},
     "terminated": {"type": ["boolean", "null"],
                    "description": "the env ended the episode (not a time limit, not an alarm; since format 4)"},
+    "first_alarm_cause": {"type": ["string", "null"],
+                          "description": "what raised the first alarm's score (since format 7)"},
 }, required=["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"])
 
 

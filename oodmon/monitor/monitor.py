@@ -413,7 +413,7 @@ class Monitor:
             variant = own  # named by the id you gave (my_envs:MyEnv-v0), as calibration names it; the env knows MyEnv-v0
         self._episode_info = dict(env_id=env_id, variant=variant, onset=onset, seed=seed)
         self._episode_task = self.agent.task if self.agent is not None else variant.split(":")[0]  # render's
-        self._return, self._length, self._alarms, self._first_alarm = 0.0, 0, 0, None
+        self._return, self._length, self._alarms, self._first_alarm, self._first_cause = 0.0, 0, 0, None, None
         self._rewards: list[float] = []  # the current segment's
         self._segment_start = 0  # the step the current segment starts at
         self._in_episode = True
@@ -524,7 +524,7 @@ class Monitor:
             self._alarms += 1
             self.alarms_raised += 1
             if self._first_alarm is None:
-                self._first_alarm = step
+                self._first_alarm, self._first_cause = step, event.cause
             self.sinks.write_alarm(event)
             for callback in self.callbacks:
                 if callback(event):
@@ -569,6 +569,7 @@ class Monitor:
             rewards = tuple(self._rewards) if len(self._rewards) == self._length else None
         record = EpisodeRecord(self.episode, total_return=self._return, length=self._length, alarms=self._alarms,
                                first_alarm_step=self._first_alarm, interrupted=interrupted, terminated=terminated,
+                               first_alarm_cause=self._first_cause,
                                rewards=rewards, **self._episode_info)
         self.sinks.end_episode(record)
         self._in_episode = False

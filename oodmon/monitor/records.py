@@ -106,6 +106,9 @@ class EpisodeRecord:
         terminated: the env ended the episode itself (``terminated``: the pole fell, the game was
             lost or won), not a time limit or an alarm; ``None`` where the loop did not say
             (logs older than format 4, a loop of your own).
+        first_alarm_cause: what raised the first alarm's score (:attr:`AlarmEvent.cause
+            <oodmon.monitor.alarms.AlarmEvent.cause>`), or ``None`` (no alarm; logs older than
+            format 7; an episode cut at a tear).
         rewards: the reward of each step (what ``add_reward`` received), logged in the episode's
             score arrays; ``None`` where they were not given step by step, or the episode was
             longer than a segment (``Monitor(segment_steps=)``: the log holds them by segment).
@@ -122,6 +125,7 @@ class EpisodeRecord:
     first_alarm_step: int | None
     interrupted: bool = False
     terminated: bool | None = None
+    first_alarm_cause: str | None = None
     rewards: tuple[float, ...] | None = field(default=None, repr=False, compare=False)
 
     @property
@@ -150,7 +154,7 @@ class EpisodeRecord:
         return {"episode": self.episode, "env_id": self.env_id, "variant": self.variant, "onset": self.onset,
                 "seed": self.seed, "return": self.total_return, "length": self.length, "alarms": self.alarms,
                 "first_alarm_step": self.first_alarm_step, "interrupted": self.interrupted,
-                "terminated": self.terminated}
+                "terminated": self.terminated, "first_alarm_cause": self.first_alarm_cause}
 
 
 @dataclass(frozen=True)

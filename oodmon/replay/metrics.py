@@ -13,9 +13,9 @@ the first such alarm; alarms before the onset are counted as early (false) alarm
 
 from __future__ import annotations
 
-from collections import defaultdict
-from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass
+from collections import Counter, defaultdict
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -554,7 +554,9 @@ class MonitorMetrics:
     the onset (:func:`failure_step`) and ``before_failure`` of them were alarmed before the failure
     step. Delays are in steps from the onset to the first alarm at or after it, over alarmed
     episodes (``None`` when none); leads (the warning) from that alarm to the failure, over the
-    episodes alarmed before the failure.
+    episodes alarmed before the failure. ``causes``: what raised the first alarm
+    (:attr:`~oodmon.monitor.alarms.AlarmEvent.cause`), counted over the alarmed episodes with no
+    alarm before the onset, whose logs say it (format 7 on), the most frequent first.
     """
 
     task: str
@@ -573,6 +575,7 @@ class MonitorMetrics:
     delays: tuple[int, ...] = ()
     lead_median: float | None = None
     leads: tuple[int, ...] = ()
+    causes: dict[str, int] = field(default_factory=dict)
 
     @property
     def is_id(self) -> bool:
@@ -613,22 +616,27 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
             continue
         episodes = [EpisodeAlarms.of(e, task, failure) for _, e in pairs]
         known = failure_known(task, failure)  # else failed and alarmed before failure are None: blank, not "0 failed"
+        causes = Counter(logged.first_alarm_cause for (_, logged), e in zip(pairs, episodes)
+                         if e.early is None and e.first is not None and logged.first_alarm_cause)
         results.append(monitor_row(task, method, variant, len(episodes), sum(e.early is not None for e in episodes),
                                    sum(e.failure is not None for e in episodes) if known else None,
                                    sum(e.before_failure for e in episodes) if known else None,
                                    [e.first for e in episodes if e.first is not None],
-                                   [e.lead for e in episodes if e.lead is not None]))
+                                   [e.lead for e in episodes if e.lead is not None], causes))
     return results
 
 
 def monitor_row(task: str, method: str, variant: str, episodes: int, early: int, failed: int | None,
-                before_failure: int | None, delays: Sequence[int], leads: Sequence[int] = ()) -> MonitorMetrics:
+                before_failure: int | None, delays: Sequence[int], leads: Sequence[int] = (),
+                causes: Mapping[str, int] | None = None) -> MonitorMetrics:
     """The :class:`MonitorMetrics` of shifted episodes from their counts, the delays of the
     alarmed ones and the leads of those alarmed before their failure (medians and the delays' 90th
     percentile computed here, for one variant or several pooled); ``failed`` and
-    ``before_failure`` are ``None`` where no failure is defined (:func:`failure_known`)."""
+    ``before_failure`` are ``None`` where no failure is defined (:func:`failure_known`);
+    ``causes``: how many first alarms each cause raised."""
     return MonitorMetrics(task, method, variant, episodes, early=early, alarmed=len(delays), failed=failed,
                           before_failure=before_failure,
                           delay_median=float(np.median(delays)) if len(delays) else None,
                           delay_p90=float(np.quantile(delays, 0.9)) if len(delays) else None, delays=tuple(delays),
-                          lead_median=float(np.median(leads)) if len(leads) else None, leads=tuple(leads))
+                          lead_median=float(np.median(leads)) if len(leads) else None, leads=tuple(leads),
+                          causes=dict(Counter(causes or {}).most_common()))

@@ -142,6 +142,7 @@ def _episode(path: Path, row: dict, arrays: dict, alarm_detector: str = "spread"
         seed=row.get("seed"), total_return=float(row["return"]), length=row["length"], alarms=row["alarms"],
         first_alarm_step=row.get("first_alarm_step"), interrupted=bool(row.get("interrupted", False)),
         terminated=row.get("terminated") if isinstance(row.get("terminated"), bool) else None,
+        first_alarm_cause=row.get("first_alarm_cause") if isinstance(row.get("first_alarm_cause"), str) else None,
         scores=scores, shifted=shifted, alarm=alarm, detector_scores=detectors, rewards=rewards,
     )
 

@@ -6,7 +6,8 @@ import csv
 import io
 import json
 import os
-from collections.abc import Iterable, Sequence
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
 
 from rich.table import Table
 
@@ -117,7 +118,7 @@ def to_markdown(metrics: Sequence[VariantMetrics]) -> str:
 
 #: The heading of each column of the monitor's table.
 MONITOR_COLUMNS = ["method", "variant", "episodes", "false alarms (ID) / early", "alarmed", "failed",
-                   "alarmed before failure", "lead median", "delay median", "delay p90"]
+                   "alarmed before failure", "lead median", "delay median", "delay p90", "first alarms by"]
 
 
 #: Below this many columns the monitor's table switches to its narrow layout (the wide one's ten
@@ -145,7 +146,8 @@ def monitor_summary(metrics: Sequence[MonitorMetrics]) -> list[MonitorMetrics]:
 
     return [monitor_row(task, method, POOLED, sum(m.episodes for m in group), sum(m.early for m in group),
                         total([m.failed for m in group]), total([m.before_failure for m in group]),
-                        [d for m in group for d in m.delays], [lead for m in group for lead in m.leads])
+                        [d for m in group for d in m.delays], [lead for m in group for lead in m.leads],
+                        sum((Counter(m.causes) for m in group), Counter()))
             for (task, method), group in sorted(pooled.items())]
 
 
@@ -155,11 +157,21 @@ def monitor_cells(m: MonitorMetrics, *, name_task: bool = False) -> list[str]:
     delay = (lambda v: "" if v is None else f"{v:g}")
     if m.is_id:
         first = f"{_share(m.false_alarms, m.episodes)} [{m.far_low:.1%}, {m.far_high:.1%}]"
-        return [m.method, m.variant, str(m.episodes), first, "", _share(m.failed, m.episodes), "", "", "", ""]
+        return [m.method, m.variant, str(m.episodes), first, "", _share(m.failed, m.episodes), "", "", "", "", ""]
     variant = f"{m.variant} ({m.task})" if name_task and m.variant == POOLED else m.variant
     return [m.method, variant, str(m.episodes), _share(m.early, m.episodes), _share(m.alarmed, m.episodes),
             _share(m.failed, m.episodes), _share(m.before_failure, m.failed), delay(m.lead_median),
-            delay(m.delay_median), delay(m.delay_p90)]
+            delay(m.delay_median), delay(m.delay_p90), causes_cell(m.causes)]
+
+
+def causes_cell(causes: Mapping[str, int]) -> str:
+    """``stillness 9, frames 1``: how many first alarms each cause raised, the most frequent first.
+
+    Example:
+        >>> causes_cell({"dynamics": 8, "features": 2}), causes_cell({})
+        ('dynamics 8, features 2', '')
+    """
+    return ", ".join(f"{cause} {count}" for cause, count in causes.items())
 
 
 def _monitor_rows(metrics: Sequence[MonitorMetrics]) -> list[tuple[bool, list[str]]]:
@@ -208,8 +220,9 @@ def monitor_table(metrics: Sequence[MonitorMetrics], title: str = "the monitor's
     if width is not None and width < MONITOR_NARROW_WIDTH:
         return _narrow_monitor_table(metrics, title)
     table = Table(title=title)
-    for heading in MONITOR_COLUMNS:
-        table.add_column(heading, justify="left" if heading in ("method", "variant") else "right")
+    for heading in MONITOR_COLUMNS:  # a long variant or list of causes wraps rather than being cut
+        table.add_column(heading, justify="left" if heading in ("method", "variant") else "right",
+                         overflow="fold" if heading in ("variant", "first alarms by") else "ellipsis")
     for pooled, cells in _monitor_rows(metrics):
         table.add_row(*cells, style="bold" if pooled else None)
     return table
@@ -226,7 +239,7 @@ def monitor_markdown(metrics: Sequence[MonitorMetrics]) -> str:
 EPISODE_COLUMNS = [
     ("log", "log"), ("episode", "episode"), ("variant", "variant"), ("seed", "seed"), ("onset", "onset"),
     ("length", "steps"), ("return", "return"), ("alarms", "alarms"), ("first_alarm_step", "first alarm"),
-    ("delay", "delay"), ("failure_step", "failed at"), ("ended", "ended"),
+    ("delay", "delay"), ("first_alarm_cause", "cause"), ("failure_step", "failed at"), ("ended", "ended"),
 ]
 
 
@@ -244,7 +257,8 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
     ``onset``, ``delay`` (steps from the onset to the first alarm; negative: before the onset) and
     ``failure_step`` (:func:`~oodmon.replay.metrics.failure_step`, ``failure`` what fails in an env
     oodmon has no variants of) are ``None`` for ID episodes;
-    ``return`` is ``None`` where the log does not have it (an episode cut at a tear); ``ended``
+    ``first_alarm_cause`` is what raised the first alarm's score (``None``: no alarm, or a log
+    older than format 7); ``return`` is ``None`` where the log does not have it (an episode cut at a tear); ``ended``
     is ``terminated`` (the env ended it), ``time limit`` (or an alarm callback), ``interrupted``, or
     ``""`` (logs older than format 4).
     """
@@ -259,6 +273,7 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
                 "return": None if e.total_return != e.total_return else e.total_return,  # NaN: not logged
                 "alarms": e.alarms, "first_alarm_step": e.first_alarm_step,
                 "delay": e.first_alarm_step - e.onset if shifted and e.first_alarm_step is not None else None,
+                "first_alarm_cause": e.first_alarm_cause,
                 "failure_step": failure_step(e, log.task, failure) if shifted and not e.interrupted else None,
                 "ended": ended,
             })

@@ -112,6 +112,12 @@ def test_alarms_are_foxglove_logs(agent, tmp_path):
     message = Log.FromString(logs[0].data)
     assert message.level == Log.WARNING and message.message.startswith("OOD alarm: episode 0 step 0: score ")
     assert message.message.endswith("; cause: spread")  # the monitor's alarm read the spread alone
+    from oodmon.replay import read_log
+
+    episode = read_log(tmp_path / "a.mcap").episodes[0]  # and the episode's record keeps the first one's (format 7)
+    assert episode.first_alarm_step == 0 and episode.first_alarm_cause == "spread"
+    older = read_log(Path(__file__).parents[1] / "data" / "cartpole-ensemble-length2.mcap").episodes[0]
+    assert older.first_alarm_step == 104 and older.first_alarm_cause is None  # a log before format 7: not known
 
 
 def test_rrd_holds_the_scalars(agent, tmp_path):

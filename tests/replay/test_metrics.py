@@ -181,6 +181,33 @@ def test_monitor_metrics_by_hand():
     assert pooled.leads == (11,) and pooled.to_dict()["leads"] == [11]
 
 
+def test_the_monitor_counts_what_raised_each_first_alarm_after_the_onset():
+    """``causes``: the logged ``first_alarm_cause`` of each episode first alarmed at or after its
+    onset; an episode whose first alarm came before the onset (its cause is the false alarm's), one
+    never alarmed, and a log before format 7 (no cause) are not counted."""
+    from dataclasses import replace
+
+    from oodmon.replay import compute_monitor_metrics, monitor_summary
+    from oodmon.replay.report import monitor_cells
+
+    def caused(episode, cause):
+        first = int(np.flatnonzero(episode.alarm)[0]) if episode.alarm.any() else None
+        return replace(episode, first_alarm_step=first, first_alarm_cause=cause)
+
+    frozen = _log([caused(_run(k, "pong:obs.stuck=1", 2, [0] * 4 + [1] * 4), cause)
+                   for k, cause in enumerate(["stillness", "stillness", "frames", None])])
+    noisy = _log([caused(_run(0, "pong:gaussian_noise@3", 2, [0] * 3 + [1] * 5), "frames"),
+                  caused(_run(1, "pong:gaussian_noise@3", 2, [1] + [0] * 7), "spread"),  # early: a false alarm's
+                  caused(_run(2, "pong:gaussian_noise@3", 2, [0] * 8), None)])  # never alarmed
+    rows = {m.variant: m for m in compute_monitor_metrics([frozen, noisy])}
+    assert rows["pong:obs.stuck=1"].causes == {"stillness": 2, "frames": 1}
+    assert list(rows["pong:obs.stuck=1"].causes) == ["stillness", "frames"]  # the most frequent first
+    assert rows["pong:gaussian_noise@3"].causes == {"frames": 1}
+    (pooled,) = monitor_summary(list(rows.values()))
+    assert pooled.causes == {"frames": 2, "stillness": 2} and pooled.to_dict()["causes"] == {"frames": 2, "stillness": 2}
+    assert monitor_cells(rows["pong:obs.stuck=1"])[-1] == "stillness 2, frames 1"
+
+
 def test_the_monitor_table_names_the_task_of_each_pooled_row_when_there_are_several():
     from oodmon.replay import compute_monitor_metrics, monitor_markdown
 
@@ -298,7 +325,8 @@ def test_the_per_episode_table_is_readable_at_80_columns():
     from dataclasses import replace
 
     false_alarm = replace(_run(0, "InvertedPendulum-v5", 0, [0, 1] + [0] * 7, terminated=False), first_alarm_step=1)
-    early_then_late = replace(_run(1, shift, 2, [0, 1, 0, 0, 1, 0, 0, 0, 0], terminated=True), first_alarm_step=1)
+    early_then_late = replace(_run(1, shift, 2, [0, 1, 0, 0, 1, 0, 0, 0, 0], terminated=True), first_alarm_step=1,
+                              first_alarm_cause="dynamics")
     logs = [RunLog(Path(f"{folder}/InvertedPendulum-v5.mcap"), "InvertedPendulum-v5", "sb3", 1.0, {}, [false_alarm], True),
             RunLog(Path(f"{folder}/heavy.mcap"), "InvertedPendulum-v5", "sb3", 1.0, {}, [early_then_late], True)]
     rows = episode_rows(logs, failure="terminated")
@@ -319,7 +347,7 @@ def test_the_per_episode_table_is_readable_at_80_columns():
         else:
             assert cells[0][:3] == ["InvertedPendulum-v5.mcap", "0", "ID"]
             assert cells[1][:3] == ["heavy.mcap", "1", "model.body_mass[2]=20.0"]
-            assert cells[1][-4:] == ["1", "before onset", "8", "terminated"]
+            assert cells[1][-5:] == ["1", "before onset", "dynamics", "8", "terminated"]  # what raised its first alarm
 
 
 def test_pong_tells_no_failure_so_its_failed_column_is_blank_not_zero():
