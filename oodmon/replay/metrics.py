@@ -432,7 +432,8 @@ FAILURE_DEFINITION = ("failed: CartPole's episode ended by itself after the onse
                       "(oodmon.replay.failure_step); an env oodmon has no variants of: not defined (blank) unless "
                       "--failure terminated (the env ended the episode itself); the ID row's failed: ID episodes the "
                       "env ended where that is a failure (not Pendulum's); delays in steps from the onset; "
-                      "lead: steps from the first alarm to the failure, over the episodes alarmed before it")
+                      "lead: steps from the first alarm to the failure, over the episodes alarmed before it; "
+                      "first alarms by: what raised each episode's first alarm after the onset (logs since format 7)")
 
 #: What may count as a failure of an env oodmon has no variants of (replay's and bench's
 #: ``--failure``): ``terminated``, the env ended the episode itself after the onset (a fall, a
