@@ -266,6 +266,7 @@ class Monitor:
         self._episode_owner: weakref.ref | None = None  # see MonitoredEnv
         self.stop_requested = False
         self.last_step: StepRecord | None = None  # the record of the last step scored
+        self.last_cause: str | None = None  # what raised the last step's score, while the alarm rule held there
         self.stop_event: AlarmEvent | None = None  # the alarm a callback ended the episode with
         self.alarms_raised = 0  # alarms of the whole run
 
@@ -418,7 +419,7 @@ class Monitor:
         self._segment_start = 0  # the step the current segment starts at
         self._in_episode = True
         self.stop_requested = False
-        self.last_step = None
+        self.last_step, self.last_cause = None, None
         self.stop_event = None
         self._episode_owner = None  # the MonitoredEnv whose reset began it sets itself here (weakly)
 
@@ -495,8 +496,9 @@ class Monitor:
         score = scores[self.detector]
         step = self._length
         alarm, event = self.tracker.update(self.episode, step, score)
+        self.last_cause = self._cause(_finite(obs)) if alarm else None
         if event is not None:
-            event = replace(event, cause=self._cause(_finite(obs)))
+            event = replace(event, cause=self.last_cause)
         observation = None
         if self.log_observations and np.ndim(obs) == 1:
             observation = [float(x) for x in obs]
@@ -786,6 +788,8 @@ class MonitoredEnv(gymnasium.Wrapper):
         record, monitor = self.monitor.last_step, self.monitor
         telemetry = {"step": record.step, "scores": dict(record.scores), "score": record.score,
                      "detector": monitor.detector, "threshold": record.threshold, "alarm": record.alarm}
+        if record.alarm:  # what raised the score at this step (AlarmEvent.cause), while the alarm holds
+            telemetry["cause"] = monitor.last_cause
         if monitor.stop_event is not None:
             event = monitor.stop_event
             telemetry["ended_by_alarm"] = (f"an alarm callback ended the episode: step {event.step}, {event.rule} "

@@ -111,6 +111,14 @@ def test_an_alarm_says_what_raised_its_score(agent):
         monitor.step(np.full(4, np.nan, np.float32), action=0)
     assert sink.alarms[-1].cause == "a reading that is not finite"
     assert AlarmTracker(1.0, consecutive=1).update(0, 0, 2.0)[1].cause == ""  # a tracker on its own does not know
+    # A deployed env's info["oodmon"] says it at every step the alarm holds, and nothing before.
+    env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"),
+                       Monitor(agent, threshold=5.0, detectors=detectors, detector="combined"))
+    env.reset(seed=0)
+    telemetry = [env.step()[-1]["oodmon"] for _ in range(6)]
+    env.close()
+    assert [t["alarm"] for t in telemetry] == [False] * 3 + [True] * 3
+    assert [t.get("cause") for t in telemetry] == [None] * 3 + ["stuck"] * 3
 
 
 def test_monitored_env_wrapper_lets_the_policy_act_or_takes_yours(agent):
