@@ -115,13 +115,14 @@ def stream_per_episode(sampler: Any, workers: int) -> Callable[[int], None]:
     estimator's ``sampling_state``) to the stream of the episode with that key (its seed; a
     variant's index), :func:`episode_streams`, once ``sampler``'s own stream has moved on by the
     one draw that seeds them. Where one process plays (``workers`` 1), or ``sampler`` draws nothing
-    (``None``, an ensemble), a ``start`` that does nothing: the draws run on as in one process.
+    (``None``; an ensemble, fixed masks that decide: its ``draws``), a ``start`` that does nothing:
+    the draws run on as in one process, and a generator never drawn from is left where it stands.
 
     Example:
         >>> stream_per_episode(None, 2)(7) is None
         True
     """
-    state = getattr(sampler, "sampling_state", None) if workers > 1 else None
+    state = getattr(sampler, "sampling_state", None) if workers > 1 and getattr(sampler, "draws", True) else None
     if state is None:
         return lambda key: None
     sampler.sampling_state, stream = episode_streams(state)

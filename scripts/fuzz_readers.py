@@ -122,16 +122,12 @@ def _score_pong_pictures(folder: Path) -> object:
     its detector's settings shows where it would show in a run."""
     import numpy as np
 
-    from oodmon.monitor.detectors.base import StepContext
+    from oodmon.monitor.detectors import Trajectory, trajectory_scores
     from oodmon.monitor.detectors.store import DetectorSet
 
     pictures = DetectorSet.load(folder).subset(["frames", "stillness", "vanishing", "combined"])
-    pictures.reset()
-    rng, before = np.random.default_rng(0), None
-    for _ in range(3):
-        obs = rng.integers(0, 256, (4, 84, 84), dtype=np.uint8)
-        pictures.score(StepContext(obs=obs, action=0, prev_obs=before, prev_action=None if before is None else 0))
-        before = obs
+    frames = np.random.default_rng(0).integers(0, 256, (4, 4, 84, 84), dtype=np.uint8)  # three steps and the last frame
+    trajectory_scores(pictures, Trajectory(frames, np.zeros(3, np.int64)))
     return pictures
 
 
