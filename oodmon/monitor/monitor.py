@@ -792,8 +792,7 @@ class MonitoredEnv(gymnasium.Wrapper):
             telemetry["cause"] = monitor.last_cause
         if monitor.stop_event is not None:
             event = monitor.stop_event
-            telemetry["ended_by_alarm"] = (f"an alarm callback ended the episode: step {event.step}, {event.rule} "
-                                           f"(value {event.score:.4g}, threshold {event.threshold:.4g})")
+            telemetry["ended_by_alarm"] = f"an alarm callback ended the episode: {event.text()}"  # the alarm log's line
         return telemetry
 
     def close(self) -> None:

@@ -223,6 +223,8 @@ def test_monitored_env_reports_every_step_in_info_and_why_an_alarm_ended_the_epi
         assert telemetry["scores"] == record.scores and telemetry["score"] == record.score
         assert telemetry["alarm"] == record.alarm and telemetry["threshold"] == 0.0 and telemetry["detector"] == "spread"
     assert "ended_by_alarm" in infos[-1] and f"step {infos[-1]['step']}" in infos[-1]["ended_by_alarm"]
+    # the alarm log's line for the alarm, its cause at the end
+    assert infos[-1]["ended_by_alarm"].endswith("(score > threshold for 3 consecutive steps); cause: spread")
     assert all("ended_by_alarm" not in i for i in infos[:-1])
     env.close()
 
