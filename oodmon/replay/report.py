@@ -10,6 +10,7 @@ from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 
 from rich.table import Table
+from rich.text import Text
 
 from oodmon.replay.metrics import (MonitorMetrics, VariantMetrics, env_of_variant, failure_step, is_id_variant,
                                    monitor_row)
@@ -184,7 +185,8 @@ def _monitor_rows(metrics: Sequence[MonitorMetrics]) -> list[tuple[bool, list[st
 def _narrow_monitor_table(metrics: Sequence[MonitorMetrics], title: str) -> Table:
     """The monitor's table for a terminal of about 80 columns: the task (one) and method (one) go
     into the title and out of the variants' names, the variant wraps instead of being cut, counts
-    without their percentages, the false-alarm rate's interval in the caption."""
+    without their percentages, the false-alarm rate's interval in the caption, and what raised the
+    first alarms (the wide table's last column) on a line under the variant."""
     rows = [*metrics, *monitor_summary(metrics)]
     tasks, methods = sorted({m.task for m in rows}), sorted({m.method for m in rows})
     shared = [*tasks[:len(tasks) == 1], *methods[:len(methods) == 1]]
@@ -192,7 +194,8 @@ def _narrow_monitor_table(metrics: Sequence[MonitorMetrics], title: str) -> Tabl
     table = Table(title=", ".join([title, *shared]), pad_edge=False, caption=(
         "FA: ID episodes alarmed" + (f" (95% interval {', '.join(intervals)})" if intervals else "")
         + "; early: alarmed before the onset; before: failing episodes alarmed before the failure (-: none "
-        "failed); lead: median steps from that alarm to the failure; delay: median/p90 steps from the onset"))
+        "failed); lead: median steps from that alarm to the failure; delay: median/p90 steps from the onset; "
+        "by: what raised the first alarms after the onset"))
     table.add_column("variant" if len(methods) == 1 else "method variant", overflow="fold", ratio=1)
     for heading in ("FA/early", "alarmed", "before", "lead", "delay"):
         table.add_column(heading, justify="right", no_wrap=True)
@@ -206,6 +209,8 @@ def _narrow_monitor_table(metrics: Sequence[MonitorMetrics], title: str) -> Tabl
         if m.is_id:
             table.add_row(name, count(m.false_alarms, m.episodes), "", "", "", "")
             continue
+        if m.causes:  # what raised the first alarms, on a line of its own under the variant
+            name = Text(name).append(f"\nby {causes_cell(m.causes)}", style="dim")
         table.add_row(name, count(m.early, m.episodes), count(m.alarmed, m.episodes), count(m.before_failure, m.failed),
                       "" if m.lead_median is None else f"{m.lead_median:g}",
                       "" if m.delay_median is None else f"{m.delay_median:g}/{m.delay_p90:g}",

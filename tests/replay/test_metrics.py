@@ -206,6 +206,20 @@ def test_the_monitor_counts_what_raised_each_first_alarm_after_the_onset():
     (pooled,) = monitor_summary(list(rows.values()))
     assert pooled.causes == {"frames": 2, "stillness": 2} and pooled.to_dict()["causes"] == {"frames": 2, "stillness": 2}
     assert monitor_cells(rows["pong:obs.stuck=1"])[-1] == "stillness 2, frames 1"
+    # At 80 columns (no column for them) the causes go on a line under the variant's name (the
+    # log's task is cartpole, so pong's variants keep their env).
+    import io
+
+    from rich.console import Console
+
+    from oodmon.replay import monitor_table
+
+    buffer = io.StringIO()
+    Console(width=80, file=buffer).print(monitor_table(list(rows.values()), "t", width=80))
+    first_column = [line.split("│")[1].strip() for line in buffer.getvalue().splitlines() if line.startswith("│")]
+    assert first_column[first_column.index("pong:obs.stuck=1") + 1] == "by stillness 2, frames 1"
+    assert first_column[first_column.index("all shifted") + 1] == "by frames 2, stillness 2"
+    assert "by: what raised the first alarms" in " ".join(buffer.getvalue().split())
 
 
 def test_the_monitor_table_names_the_task_of_each_pooled_row_when_there_are_several():
