@@ -21,3 +21,24 @@ def test_regions_by_name_or_rows_and_columns_are_frozen_region_variants(script):
                      ("20:10,0:5", "height=-10.0 is not allowed"), ("0:211,0:5", "height=211.0 is not allowed")):
         with pytest.raises(argparse.ArgumentTypeError, match=why):
             script.region_variant(bad)
+
+
+def test_each_region_plays_its_games_with_the_agent_as_loaded(script, monkeypatch, capsys):
+    """An MC agent's draws ran on from region to region, so a region's games depended on the
+    regions listed before it; each region now gets the agent as loaded (seeded), the first one
+    loaded included, and a region listed twice plays the same games twice."""
+    loaded, played = [], []
+
+    def load_agent(method):
+        loaded.append(object())
+        return loaded[-1]
+
+    monkeypatch.setattr(script, "load_agent", load_agent)
+    monkeypatch.setattr(script, "limit_threads", lambda: None)
+    monkeypatch.setattr(script.Threshold, "load", lambda path: argparse.Namespace(detector="combined", value=4.5))
+    monkeypatch.setattr(script, "frozen_games", lambda agent, threshold, name, args: played.append((name, agent)) or name)
+    monkeypatch.setattr("sys.argv", ["frozen_region.py", "--threshold", "t.json", "--regions", "centre,agent_side,centre"])
+    script.main()
+    assert [name for name, _ in played] == ["centre", "agent_side", "centre"]
+    assert [agent for _, agent in played] == loaded and len(set(map(id, loaded))) == 3
+    assert "threshold: combined > 4.5" in capsys.readouterr().out
