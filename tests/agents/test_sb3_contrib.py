@@ -16,6 +16,7 @@ import sb3_contrib
 from oodmon.agents.sb3 import load_sb3, sb3_agent, sb3_algorithm
 from oodmon.cli import main
 from oodmon.errors import ConfigError
+from oodmon.replay import read_log
 from tests.helpers import load_script, saved_ensemble_acts_as_its_members
 
 
@@ -253,7 +254,10 @@ def test_a_contrib_policy_is_calibrated_and_alarms_when_gravity_grows(algorithm,
     (a little trained) or a RecurrentPPO (untrained; its LSTM's state carried through each episode of
     the fitting, the calibration and the run): neither barely swings the pendulum, whose fall under gravity the dynamics model
     reads whatever the policy's skill; a heavier pole it would not see, its torques being small), and
-    `run` with gravity five times Pendulum's from step 50 alarms in both episodes, after the onset."""
+    `run` with gravity five times Pendulum's from step 50 holds the alarm in both episodes within a
+    few steps of the onset. (Whether an episode also alarmed before it is chance: a threshold of 10
+    episodes at far 0.1 lets about one fresh episode in ten alarm, and the TQC's second did at step
+    20 with the dynamics model of fitting version 8; the false-alarm rate is tested elsewhere.)"""
     if algorithm == "TQC":
         model = _model("TQC", "Pendulum-v1", learning_starts=100, policy_kwargs={"net_arch": [32, 32], "n_critics": 2})
         model.learn(300)
@@ -266,10 +270,8 @@ def test_a_contrib_policy_is_calibrated_and_alarms_when_gravity_grows(algorithm,
     assert json.loads((tmp_path / "t.json").read_text())["detector"] == "dynamics"
     assert main(["run", *common, "--threshold", str(tmp_path / "t.json"), "--variant", "pendulum:g=50.0",
                  "--onset", "50", "--episodes", "2", "--mcap", str(tmp_path / "x.mcap")]) == 0
-    capsys.readouterr()
-    assert main(["replay", str(tmp_path / "x.mcap"), "--episodes", "--json"]) == 0
-    rows = json.loads(capsys.readouterr().out)
-    assert len(rows) == 2 and all(row["first_alarm_step"] is not None and row["first_alarm_step"] >= 50 for row in rows)
+    episodes = read_log(tmp_path / "x.mcap").episodes
+    assert len(episodes) == 2 and all(episode.alarm[50:55].any() for episode in episodes)
 
 
 def test_without_sb3_contrib_its_models_are_refused_naming_what_to_install(tmp_path, monkeypatch):

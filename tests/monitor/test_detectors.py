@@ -87,12 +87,13 @@ def test_the_shipped_detectors_see_a_stuck_sensor_of_the_shipped_cartpole_ensemb
 
 def test_the_shipped_combined_detector_sees_doubled_gravity_that_the_agent_survives():
     """CartPole DropConnect mostly keeps the pole up under gravity=19.6, and each transition is only a
-    little surprising: ranked alone, the members separate its steps from ID ones weakly; with the
-    dynamics detector's mean since the episode began the shipped combined detector does. On the
-    bench's episodes (10 ID, 5 shifted, four kept up for 500 steps here; seeded, so deterministic;
-    each step scored off the samples its decision was made from, as the monitor scores it):
-    measured 0.999 against 0.917 for the members alone, below the detector table's goal of 0.95
-    (0.810 with the detectors fitted on 30 episodes)."""
+    little surprising. On the bench's episodes (10 ID, 5 shifted, four kept up for 500 steps here;
+    seeded, so deterministic; each step scored off the samples its decision was made from, as the
+    monitor scores it) the shipped combined detector separates its steps from ID ones: with a
+    dynamics model fitted 30 epochs at a constant learning rate (fitting versions up to 6) the
+    members ranked alone reached 0.917 (0.810 fitted on 30 episodes), and the dynamics detector's
+    mean since the episode began lifted the combined detector to 0.999; fitted longer, the rate
+    falling to 0 (version 8), the members alone reach 0.9993, the combined detector 0.9994."""
     from oodmon import seeds
 
     agent = load("cartpole", "dropconnect", seed=seeds.CALIBRATION)
@@ -112,8 +113,8 @@ def test_the_shipped_combined_detector_sees_doubled_gravity_that_the_agent_survi
     id_combined, id_members, _ = scored("cartpole", 10, seeds.BENCH_ID)
     shifted_combined, shifted_members, lengths = scored("cartpole:gravity=19.6", 5, seeds.BENCH_SHIFTED)
     assert sum(length == 500 for length in lengths) >= 3  # the agent survives most of them
-    assert _auroc(id_members, shifted_members) < 0.95
-    assert _auroc(id_combined, shifted_combined) > 0.99
+    members, both = _auroc(id_members, shifted_members), _auroc(id_combined, shifted_combined)
+    assert both > 0.99 and both >= members - 0.002, (members, both)
 
 
 def test_dynamics_copes_with_sensor_noise(agent):
@@ -669,17 +670,24 @@ def test_a_dynamics_detector_fitted_before_early_means_were_standardised_scores_
 
 def test_standardised_early_means_lower_the_threshold_the_id_episodes_first_steps_set(agent):
     """The shipped CartPole ensemble's dynamics detector on 40 fresh ID episodes (500 steps each),
-    its means standardised (the zoo's, fitting version 6) and plain (as before): with plain means
-    50 of 50 calibration episodes peaked within their first 20 steps, which set the threshold for
-    whole episodes. Part of that is the start-up itself, not chance (the first transition's mean
-    surprise -2.3, the 20th's -3.7, after step 100 -4.02 with an sd of 0.09), so standardised
-    episodes still peak early more often than the 4% of their steps there (measured 17 of 40,
-    plain 40 of 40), but lower: the median episode's peak above the ID steps' median 0.69 against
-    1.10, the threshold -2.80 against -2.34 (the median -3.90). Deterministic (the ensemble)."""
-    from oodmon.monitor.threshold import calibrate
+    its means standardised (the zoo's, since fitting version 6) and plain (as before): with plain
+    means 50 of 50 calibration episodes peaked within their first 20 steps, which set the threshold
+    for whole episodes. With a constant learning rate (version 6) part of that was the start-up
+    itself (the first transition's mean surprise -2.3, the 20th's -3.7, after step 100 -4.02 with an
+    sd of 0.09), and standardised episodes still peaked early 17 of 40 times (plain 40), the median
+    episode's peak above the ID steps' median 0.69 against 1.10, the threshold -2.80 against -2.34.
+    Trained longer, its learning rate falling to 0 (version 8: 50 epochs here), the model is
+    sharper after the start-up than during it (the plain mean -3.97 after the first transition,
+    -4.04 after the 20th, -5.00 after step 100 with an sd of 0.035), so standardised episodes
+    still peak early more often (30 of 40, plain 40) but lower: the median peak 1.00 above the
+    median against 1.60, the threshold -3.32 against -2.26 (the median -5.00). Deterministic (the
+    ensemble)."""
+    import warnings
+
+    from oodmon.monitor.threshold import EarlyPeaksWarning, calibrate
 
     standardised = detectors_for(agent)["dynamics"]
-    assert standardised.early == "standardised"  # the zoo's sets are fitted by FIT_VERSION 6
+    assert standardised.early == "standardised"  # the zoo's sets are fitted since FIT_VERSION 6
     plain = DynamicsDetector.from_state(standardised.config() | {"early": "mean"}, standardised.tensors())
     episodes = collect(agent, Variant("cartpole").make(), 40, seed=650_000)
     assert min(len(t) for t in episodes) == 500
@@ -688,12 +696,16 @@ def test_standardised_early_means_lower_the_threshold_the_id_episodes_first_step
     # after step 20 the scores are the same: only the first steps moved, toward the ID median
     assert all(np.array_equal(a[20:], b[20:]) for a, b in zip(scores["plain"], scores["moved"]))
     early = {name: sum(int(np.argmax(s)) < 20 for s in values) for name, values in scores.items()}
-    assert early["plain"] >= 36 and early["moved"] <= 26, early
+    assert early["plain"] >= 36 and early["moved"] <= early["plain"], early
     median = float(np.median(np.concatenate(scores["plain"])))
     peak = {name: float(np.median([s.max() for s in values])) - median for name, values in scores.items()}
     assert peak["moved"] < 0.8 * peak["plain"], peak
     # far 0.1: 40 episodes are too few for 0.05 at confidence 0.9
-    high = {name: calibrate(values, 0.1, consecutive=1, detector="dynamics").value for name, values in scores.items()}
+    with pytest.warns(EarlyPeaksWarning, match="40 of the 40 calibration episodes"):  # says so for the plain means
+        high = {"plain": calibrate(scores["plain"], 0.1, consecutive=1, detector="dynamics").value}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EarlyPeaksWarning)  # the standardised: none (30 of 40 peak early, lower)
+        high["moved"] = calibrate(scores["moved"], 0.1, consecutive=1, detector="dynamics").value
     assert high["moved"] < high["plain"] - 0.2, high
 
 
@@ -936,7 +948,9 @@ def test_a_reading_that_jumps_is_an_input_of_the_dynamics_model_not_a_prediction
     landing = _landings(np.random.default_rng(1), 40, touch=1.0)[0]
     scores = detector.score_transitions(landing.observations[:-1], landing.actions, landing.observations[1:])
     own = detector.score_transitions(never[0].observations[:-1], never[0].actions, never[0].observations[1:])
-    assert scores.max() < 10 and own.max() < 1  # the touch-down and the ground after it: 3.3 (2.8e14 before)
+    # the touch-down and the ground after it: 3.3 (2.8e14 before the flag was an input); 2.5, the
+    # fitting episodes 1.1 at most, since the fit's learning rate falls to 0 (fitting version 8)
+    assert scores.max() < 10 and own.max() < 2
     one = [detector._nll_one(landing.observations[k], landing.actions[k], landing.observations[k + 1])
            for k in range(len(landing.actions))]
     np.testing.assert_allclose(one, scores, rtol=1e-4, atol=1e-4 * max(1.0, np.abs(scores).max()))

@@ -40,10 +40,11 @@ def _scores(detector, trajectories) -> list[np.ndarray]:
 
 
 def test_residuals_centre_on_zero_in_id_and_the_drift_sees_changed_physics_the_policy_copes_with(fitted):
-    """On 6 held-out ID episodes the standardised residuals centre on 0 (their spread is the
-    variance floor's, 0.12-0.20 when written); a cart three times as heavy, a push half as strong
-    and a shorter pole, which the policy balances through, score above every ID step at most steps
-    (AUROC 0.99, 0.98, 0.99 when written, 6 episodes each)."""
+    """On 6 held-out ID episodes the standardised residuals centre on 0 (means within 0.12 and
+    spreads 0.12-0.20 when written; within 0.03 and 0.21-0.37 since the model trains 100 epochs
+    here, its learning rate falling to 0, fitting version 8); a cart three times as heavy, a push half as
+    strong and a shorter pole, which the policy balances through, score above every ID step at most
+    steps (AUROC 0.99, 0.98, 0.99 when written; 0.998, 0.998, 0.996 since; 6 episodes each)."""
     dynamics, drift, held_out = fitted
     residuals = np.concatenate([dynamics.standardized_residuals(t.observations[:len(t.actions) - 1], t.actions[:-1],
                                                                 t.observations[1:len(t.actions)]) for t in held_out])
@@ -67,7 +68,7 @@ def test_the_score_is_the_largest_windowed_bias_and_a_reset_or_a_gap_starts_it_a
     for t in range(1, 8):  # step t's residual is of the transition t-1 -> t
         window = residuals[max(0, t - 3):t]
         expected = np.abs(window.sum(axis=0)).max() / np.sqrt(len(window))
-        assert scores[t] == pytest.approx(expected, rel=1e-4)  # one row or a batch: float32 rounding apart
+        assert scores[t] == pytest.approx(expected, rel=2e-4)  # one row or a batch: float32 rounding apart
     assert drift.score(StepContext(obs[5], actions[5])) == 0.0  # no previous observation: nothing summed
     # far from ID (states 40 times those seen: the members' predicted changes large, the observed ones
     # other), where float32 sums would lose the mixture's variance: a window of one reads the batch's
