@@ -668,6 +668,35 @@ def test_a_dynamics_detector_fitted_before_early_means_were_standardised_scores_
     assert DetectorSet.load(tmp_path / "new")["dynamics"].early == "mean"
 
 
+def test_the_fit_stops_at_its_updates_its_rate_falling_and_older_files_read_as_fitted(tmp_path):
+    """Fitting version 8: at most ``max_updates`` Adam updates in whole epochs (at least one), the
+    learning rate falling linearly to 0 (``schedule="linear"``); a file without the keys was fitted
+    every epoch at a constant rate and says so when loaded; bad values are refused."""
+    rng = np.random.default_rng(0)
+    episodes = [Trajectory(rng.standard_normal((101, 4)).astype(np.float32), rng.integers(0, 2, 100))
+                for _ in range(6)]  # 600 transitions: 3 updates an epoch at a batch of 256
+    reports = []
+    capped = DynamicsDetector(2, epochs=8, batch_size=256, max_updates=10, seed=0).fit(
+        episodes, on_progress=lambda stage, done, total: reports.append((done, total)))
+    assert reports == [(k, 3) for k in (1, 2, 3)]  # 10 updates hold 3 whole epochs of 3
+    one = DynamicsDetector(2, epochs=8, batch_size=256, max_updates=1, seed=0)
+    one.fit(episodes, on_progress=lambda stage, done, total: reports.append(("one", done, total)))
+    assert reports[-1] == ("one", 1, 1)  # never fewer than one epoch
+    # the decay changes the fit; the same seed and schedule give the same one
+    again = DynamicsDetector(2, epochs=8, batch_size=256, max_updates=10, seed=0).fit(episodes)
+    flat = DynamicsDetector(2, epochs=8, batch_size=256, max_updates=10, seed=0, schedule="constant").fit(episodes)
+    assert all(np.array_equal(a, b) for a, b in zip(capped.tensors().values(), again.tensors().values()))
+    assert not np.array_equal(capped.tensors()["layer0.weight"], flat.tensors()["layer0.weight"])
+    config = capped.config()
+    assert config["schedule"] == "linear" and config["max_updates"] == 10
+    older = {k: v for k, v in config.items() if k not in ("schedule", "max_updates")}
+    loaded = DynamicsDetector.from_state(older, capped.tensors())
+    assert (loaded.schedule, loaded.max_updates) == ("constant", None)
+    for bad in ({"schedule": "cosine"}, {"max_updates": 0}, {"max_updates": 2.5}, {"max_updates": True}):
+        with pytest.raises(InvalidParameterError, match=f"{next(iter(bad))}=.* is not allowed"):
+            DynamicsDetector(2, **bad)
+
+
 def test_standardised_early_means_lower_the_threshold_the_id_episodes_first_steps_set(agent):
     """The shipped CartPole ensemble's dynamics detector on 40 fresh ID episodes (500 steps each),
     its means standardised (the zoo's, since fitting version 6) and plain (as before): with plain
