@@ -91,7 +91,7 @@ def parse_fits(text: str) -> list[tuple[int, str, int | None]]:
     schedule and the most updates (``None``: every epoch)."""
     fits = []
     for item in text.split(","):
-        epochs, schedule, *cap = item.split(":")
+        epochs, schedule, *cap = item.split(":") if ":" in item else (item, "")
         if not epochs.isdigit() or schedule not in ("linear", "constant") or len(cap) > 1 or (cap and not cap[0].isdigit()):
             raise argparse.ArgumentTypeError(f"{item!r}: give EPOCHS:linear or EPOCHS:constant, then :MAX_UPDATES if any")
         fits.append((int(epochs), schedule, int(cap[0]) if cap else None))

@@ -438,3 +438,15 @@ def test_fuzz_cli_draws_quick_commands_and_tells_an_answer_from_a_traceback(monk
 
     monkeypatch.setattr(oodmon.cli, "main", lambda argv: 1 / 0)
     assert "ZeroDivisionError" in script.run(["envs"], 5)
+
+
+def test_dynamics_training_reads_each_fit_as_epochs_schedule_and_cap_and_refuses_others():
+    """scripts/dynamics_training.py --fits: EPOCHS:SCHEDULE (every epoch) or with :MAX_UPDATES, as
+    the dynamics detector takes them; anything else is refused naming the form."""
+    import argparse
+
+    (script,) = [load_script("dynamics_training")[1]]
+    assert script.parse_fits("30:constant,100:linear:3000") == [(30, "constant", None), (100, "linear", 3000)]
+    for bad in ("30", "30:cosine", "x:linear", "100:linear:many", "100:linear:3000:1"):
+        with pytest.raises(argparse.ArgumentTypeError, match="give EPOCHS:linear or EPOCHS:constant"):
+            script.parse_fits(bad)
