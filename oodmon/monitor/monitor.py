@@ -481,7 +481,8 @@ class Monitor:
                 frame = _frame(picture)
             elif frame is not None:
                 frame = _frame(obs)  # an RGB stack's newest picture, not its last channel
-        if _finite(obs):
+        finite = _finite(obs)
+        if finite:
             context = StepContext(obs, action, estimate, self._prev_obs, self._prev_action, {}, picture)
             scores = self.detectors.score(context)
             self._prev_obs, self._prev_action = obs, action
@@ -496,7 +497,7 @@ class Monitor:
         score = scores[self.detector]
         step = self._length
         alarm, event = self.tracker.update(self.episode, step, score)
-        self.last_cause = self._cause(_finite(obs)) if alarm else None
+        self.last_cause = self._cause(finite) if alarm else None
         if event is not None:
             event = replace(event, cause=self.last_cause)
         observation = None
