@@ -4,13 +4,22 @@ torch and one for numpy's BLAS, and so do the commands the tests start, instead 
 claiming every core (and keeping a second thread spinning: ``benchmarks/threads.py``).
 
 The tests that call SB3's ``model.learn()`` themselves, as a user does, share one logger folder,
-removed at the end: SB3 makes an empty tempdir/SB3-<time> folder per ``learn()`` otherwise."""
+removed at the end: SB3 makes an empty tempdir/SB3-<time> folder per ``learn()`` otherwise.
+
+A module an earlier test imported from a temporary folder of its own (a user's policy or env module
+written there: ``my_policy``, ``my_envs``) is forgotten before each test, so that a test of that
+name imports its own instead of finding the last one's in ``sys.modules`` (on the same worker, in
+an order that worksteal decides). Before the test, not after: the undo of a test's monkeypatch,
+which runs after every fixture of this file, puts back what the test removed."""
 
 from __future__ import annotations
 
 import os
 import shutil
+import sys
 import tempfile
+
+import pytest
 
 _SB3_LOGDIR = None
 
@@ -24,6 +33,15 @@ def pytest_configure(config) -> None:
 
         os.environ.setdefault("OODMON_TORCH_THREADS", "1")
         set_threads(1)
+
+
+@pytest.fixture(autouse=True)
+def forget_modules_imported_from_temporary_folders(tmp_path_factory):
+    base = str(tmp_path_factory.getbasetemp())
+    for name, module in list(sys.modules.items()):
+        where = getattr(module, "__file__", None) or next(iter(getattr(module, "__path__", None) or []), "")
+        if isinstance(where, str) and where.startswith(base):
+            del sys.modules[name]
 
 
 def pytest_unconfigure(config) -> None:
