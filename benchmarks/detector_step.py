@@ -28,6 +28,7 @@ of them answering constants (``alone none``: what scoring and logging three more
 
 from __future__ import annotations
 
+import argparse
 import tempfile
 import time
 from contextlib import contextmanager
@@ -129,4 +130,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     main()

@@ -38,6 +38,7 @@ against 81; ``ratio_in_set_wide=`` 1.94 and 1.96), CartPole and Pendulum unchang
 
 from __future__ import annotations
 
+import argparse
 import copy
 
 import gymnasium
@@ -126,4 +127,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     main()

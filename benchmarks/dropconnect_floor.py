@@ -33,6 +33,7 @@ draw for each of the K rows' outputs of every layer (about 45 us for one hidden 
 
 from __future__ import annotations
 
+import argparse
 import gymnasium
 import numpy as np
 from stable_baselines3 import DDPG, DQN
@@ -141,4 +142,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     main()

@@ -32,6 +32,7 @@ The last line is ratio=<worst monitored (spread only) / plain>; the goal is <= 1
 
 from __future__ import annotations
 
+import argparse
 import os
 
 import numpy as np
@@ -111,4 +112,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     main()

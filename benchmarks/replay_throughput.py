@@ -11,6 +11,7 @@ The last line is ratio=<replay steps/s / plain steps/s>; goals: ratio >= 1 and >
 
 from __future__ import annotations
 
+import argparse
 import tempfile
 import time
 from pathlib import Path
@@ -76,4 +77,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     main()

@@ -16,6 +16,7 @@ call and whose result it already has).
 
 from __future__ import annotations
 
+import argparse
 import tempfile
 from itertools import cycle
 from pathlib import Path
@@ -62,4 +63,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     main()

@@ -228,7 +228,8 @@ def plot(path: Path) -> Path:
 
 if __name__ == "__main__":
     if {"-h", "--help"} & set(sys.argv[1:]):
-        sys.exit(__doc__)
+        print(__doc__)
+        sys.exit(0)
     if "--goals" in sys.argv[1:]:
         print(goals(sorted(RESULTS.glob("*.json"))))
         sys.exit(0)

@@ -13,7 +13,7 @@ before the failure, shifted episodes alarmed, and the median and 90th-percentile
 
 from __future__ import annotations
 
-import sys
+import argparse
 import warnings
 from pathlib import Path
 
@@ -64,6 +64,9 @@ def main(folder: str, task: str, detector: str) -> None:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 4:
-        sys.exit(__doc__)
-    main(*sys.argv[1:])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("folder", help="a bench's logs/<task>-<key> folder (oodmon bench --protocol monitor)")
+    parser.add_argument("task", help="the task whose ID episodes the logs hold (cartpole, pendulum, ...)")
+    parser.add_argument("detector", help="the detector whose scores the rules read (dynamics, combined, ...)")
+    args = parser.parse_args()
+    main(args.folder, args.task, args.detector)

@@ -15,6 +15,7 @@ the blur at severity 3-5), and the variant where it is smallest.
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -72,9 +73,9 @@ def table() -> str:
 
 
 def main() -> None:
-    import sys
-
-    if "--long" in sys.argv[1:]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--long", action="store_true", help="one row per agent and detector (mean, lowest, where)")
+    if parser.parse_args().long:
         print("| agent | detector | variants | mean AUROC | lowest | at |")
         print("|---|---|---|---|---|---|")
         for task, method, detector, n, mean, low, where in rows():

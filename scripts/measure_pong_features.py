@@ -13,8 +13,8 @@ results/detectors/pong-<method>.json.
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -68,13 +68,17 @@ def measure(method: str) -> dict:
     return result
 
 
-def main() -> None:
-    for method in sys.argv[1:] or ["ensemble", "dropout", "dropconnect"]:
+def main(methods: list[str]) -> None:
+    for method in methods:
         out = Path("results/detectors") / f"pong-{method}.json"
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(measure(method), indent=1) + "\n")
 
 
 if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("methods", nargs="*", choices=("ensemble", "dropout", "dropconnect"), metavar="METHOD",
+                        help="the shipped Pong agents to measure: ensemble, dropout, dropconnect (default: all three)")
+    args = parser.parse_args()
     limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
-    main()
+    main(args.methods or ["ensemble", "dropout", "dropconnect"])

@@ -18,6 +18,7 @@ then mean ± std (ddof 0, as the bench's tables) over the five.
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -78,5 +79,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

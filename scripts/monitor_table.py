@@ -14,6 +14,7 @@ over all alarmed shifted episodes.
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -39,6 +40,7 @@ def table(task: str) -> str:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     for task in ("cartpole", "pendulum", "pong"):
         if (RESULTS / f"{task}.json").exists():
             print(f"{task}:\n\n{table(task)}\n")

@@ -15,6 +15,7 @@ threshold set at the largest statistic of the first 15 ID games (false alarms in
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -118,4 +119,9 @@ def main(method: str = "dropconnect", cache: str | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("method", nargs="?", default="dropconnect", choices=("ensemble", "dropout", "dropconnect"),
+                        help="the shipped Pong agent (default dropconnect)")
+    parser.add_argument("cache", nargs="?", help="the features' cache (default /tmp/pong-features-METHOD.npz)")
+    args = parser.parse_args()
+    main(args.method, args.cache)

@@ -14,6 +14,7 @@ results/detectors/spread-scores-pong.json (a method measured again replaces its 
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
@@ -83,13 +84,15 @@ def _read() -> dict:
 
 
 def main() -> None:
-    if "--table" in sys.argv[1:]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("methods", nargs="*", choices=METHODS, metavar="METHOD",
+                        help=f"the shipped Pong agents to measure: {', '.join(METHODS)} (default: all three)")
+    parser.add_argument("--table", action="store_true", help="print the README's table from the committed results")
+    args = parser.parse_args()
+    if args.table:
         print(table(_read()))
         return
-    unknown = [m for m in sys.argv[1:] if m not in METHODS]
-    if unknown:
-        sys.exit(f"pong_spread_scores: unknown method {', '.join(unknown)}; choose from {', '.join(METHODS)} or --table")
-    for method in sys.argv[1:] or METHODS:
+    for method in args.methods or METHODS:
         measured = measure(method)
         results = _read()  # read after measuring: another run may have written meanwhile
         results[method] = measured

@@ -13,8 +13,8 @@ step from its onset where the w-step mean passes the threshold.
 
 from __future__ import annotations
 
+import argparse
 import glob
-import sys
 
 import numpy as np
 
@@ -55,4 +55,8 @@ def main(method: str, root: str = "runs/bench-monitor/logs") -> None:
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("method", choices=("ensemble", "dropout", "dropconnect"), help="the Pong agent benched")
+    parser.add_argument("root", nargs="?", default="runs/bench-monitor/logs", help="the bench's logs (default %(default)s)")
+    args = parser.parse_args()
+    main(args.method, args.root)

@@ -11,9 +11,9 @@ weights are not touched; ``id_reevaluated`` records when and with which oodmon v
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import json
-import sys
 
 import numpy as np
 
@@ -40,8 +40,10 @@ def reevaluate(name: str) -> None:
 
 
 if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("names", nargs="+", metavar="NAME", choices=sorted(p.parent.name for p in zoo_dir().glob("*/model.json")),
+                        help="shipped agents, e.g. cartpole-dropconnect")
+    args = parser.parse_args()  # every name checked before any file is written
     limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
-    if len(sys.argv) < 2:
-        sys.exit(f"usage: {sys.argv[0]} NAME... (zoo names, e.g. cartpole-dropconnect)")
-    for zoo_name in sys.argv[1:]:
+    for zoo_name in args.names:
         reevaluate(zoo_name)

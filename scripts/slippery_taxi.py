@@ -102,9 +102,11 @@ def faults_and_alarms(log_path: str) -> dict[str, object]:
 
 
 if __name__ == "__main__":
-    import sys
+    import argparse
 
-    found = faults_and_alarms(sys.argv[1])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("log", help="an oodmon run's MCAP log of the taxi (oodmon run --policy slippery_taxi:drive ...)")
+    found = faults_and_alarms(parser.parse_args().log)
     delays = found.pop("delays")
     print(found, "steps from the first slip or misread to the first alarm: median", float(np.median(delays)) if delays else None,
           "p90", float(np.percentile(delays, 90)) if delays else None)

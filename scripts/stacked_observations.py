@@ -13,6 +13,7 @@ a 4 x 4 picture (``frames``); ``default_detectors`` now gives them ``dynamics``,
 
 from __future__ import annotations
 
+import argparse
 
 import numpy as np
 from gymnasium.wrappers import FrameStackObservation
@@ -59,4 +60,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     main()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import importlib
 import inspect
 import json
@@ -230,3 +231,24 @@ def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
     finally:
         torch.set_num_threads(before)
         original.restore_original_limits()
+
+
+ROOT = Path(oodmon.__file__).parent.parent
+TOOLS = sorted(p for p in [*(ROOT / "scripts").glob("*.py"), *(ROOT / "benchmarks").glob("*.py")]
+               if 'if __name__ == "__main__":' in p.read_text())  # (not the modules they import: timing.py, masked_cartpole.py)
+
+
+@pytest.mark.parametrize("path", TOOLS, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_every_script_and_benchmark_answers_help_with_its_docstring_and_does_no_work(path, monkeypatch, capsys):
+    """`scripts/X.py --help` as a newcomer types it: before, nine scripts and two benchmarks took
+    "--help" for an argument (a method, a zoo name, a log) and failed with a traceback, or started
+    minutes of work."""
+    import runpy
+
+    monkeypatch.syspath_prepend(str(path.parent))  # the tools' imports of their neighbours
+    monkeypatch.setattr(sys, "argv", [str(path), "--help"])
+    with pytest.raises(SystemExit) as ended:
+        runpy.run_path(str(path), run_name="__main__")
+    assert ended.value.code in (0, None)
+    opening = " ".join(ast.get_docstring(ast.parse(path.read_text())).split()[:6])  # argparse rewraps it
+    assert opening in " ".join(capsys.readouterr().out.split())
