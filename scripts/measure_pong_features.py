@@ -28,6 +28,7 @@ from oodmon.monitor.detectors import collect, detectors_for, trajectory_scores
 from oodmon.threads import limit_threads
 
 WINDOWS = (1, 10, 30)  # the features detector's score averaged over its last N steps (computed from N = 1)
+METHODS = ("ensemble", "dropout", "dropconnect")
 VARIANTS = [f"pong:{c}@{s}" for c in ("gaussian_noise", "impulse_noise", "motion_blur") for s in (3, 4, 5)]
 
 
@@ -68,6 +69,23 @@ def measure(method: str) -> dict:
     return result
 
 
+def method_arguments(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> argparse.Namespace:
+    """``parser`` with the shipped Pong agents to measure as its positional arguments, parsed:
+    ``methods`` every one when none is named. (Not argparse's ``choices``: with ``nargs="*"``,
+    Python 3.11's argparse refuses an empty list against them.)"""
+
+    def method(name: str) -> str:
+        if name not in METHODS:
+            raise argparse.ArgumentTypeError(f"no shipped Pong agent {name!r}; choose from {', '.join(METHODS)}")
+        return name
+
+    parser.add_argument("methods", nargs="*", type=method, metavar="METHOD",
+                        help=f"the shipped Pong agents to measure: {', '.join(METHODS)} (default: all three)")
+    args = parser.parse_args(argv)
+    args.methods = args.methods or list(METHODS)
+    return args
+
+
 def main(methods: list[str]) -> None:
     for method in methods:
         out = Path("results/detectors") / f"pong-{method}.json"
@@ -76,9 +94,6 @@ def main(methods: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("methods", nargs="*", choices=("ensemble", "dropout", "dropconnect"), metavar="METHOD",
-                        help="the shipped Pong agents to measure: ensemble, dropout, dropconnect (default: all three)")
-    args = parser.parse_args()
+    args = method_arguments(argparse.ArgumentParser(description=__doc__.split("\n\n")[0]))
     limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
-    main(args.methods or ["ensemble", "dropout", "dropconnect"])
+    main(args.methods)

@@ -31,11 +31,10 @@ from oodmon.monitor.scores import score_function
 from oodmon.threads import limit_threads
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from measure_pong_features import VARIANTS  # noqa: E402  (the script beside this one)
+from measure_pong_features import METHODS, VARIANTS, method_arguments  # noqa: E402  (the script beside this one)
 
 OUT = Path("results/detectors/spread-scores-pong.json")
 SCORES = ("chosen_std", "mean_std", "max_std", "margin_std")
-METHODS = ("ensemble", "dropout", "dropconnect")
 
 
 def _scores(trajectory) -> dict[str, np.ndarray]:
@@ -83,16 +82,14 @@ def _read() -> dict:
     return json.loads(OUT.read_text()) if OUT.exists() else {}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("methods", nargs="*", choices=METHODS, metavar="METHOD",
-                        help=f"the shipped Pong agents to measure: {', '.join(METHODS)} (default: all three)")
     parser.add_argument("--table", action="store_true", help="print the README's table from the committed results")
-    args = parser.parse_args()
+    args = method_arguments(parser, argv)
     if args.table:
         print(table(_read()))
         return
-    for method in args.methods or METHODS:
+    for method in args.methods:
         measured = measure(method)
         results = _read()  # read after measuring: another run may have written meanwhile
         results[method] = measured

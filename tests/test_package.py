@@ -19,6 +19,9 @@ import oodmon
 from tests.helpers import blas_threads, load_script
 
 PARTS = ["oodmon.envs", "oodmon.agents", "oodmon.monitor", "oodmon.replay"]
+ROOT = Path(oodmon.__file__).parent.parent
+TOOLS = sorted(p for p in [*(ROOT / "scripts").glob("*.py"), *(ROOT / "benchmarks").glob("*.py")]
+               if 'if __name__ == "__main__":' in p.read_text())  # (not the modules they import: timing.py, masked_cartpole.py)
 
 
 @pytest.mark.parametrize("name", PARTS + ["oodmon", "oodmon.errors"])
@@ -190,12 +193,31 @@ def test_readme_detector_table_is_made_from_the_committed_results():
     assert readme[readme.index(begin) + len(begin):readme.index(end)] == script.table()
 
 
-def test_readme_pong_spread_score_table_is_made_from_the_committed_results():
-    """The README's Pong table of spread scores is scripts/pong_spread_scores.py's on its results file."""
+def test_readme_pong_spread_score_table_is_made_from_the_committed_results(monkeypatch, capsys):
+    """The README's Pong table of spread scores is scripts/pong_spread_scores.py's on its results file,
+    as its ``--table`` prints it (from the repository's root, as its Run: line has it)."""
+    monkeypatch.syspath_prepend(str(ROOT / "scripts"))
     root, script = load_script("pong_spread_scores")
     results = json.loads((root / "results" / "detectors" / "spread-scores-pong.json").read_text())
     assert sorted(results) == ["dropconnect", "dropout", "ensemble"]
     assert script.table(results) in (root / "README.md").read_text()
+    monkeypatch.chdir(root)
+    script.main(["--table"])
+    assert capsys.readouterr().out == script.table(results) + "\n"
+
+
+def test_the_pong_scripts_measure_every_agent_unless_some_are_named(monkeypatch, capsys):
+    """argparse's ``choices`` refused no method at all (Python 3.11: ``invalid choice: []``), the
+    default of measure_pong_features.py and of pong_spread_scores.py, which now check each name."""
+    import argparse
+
+    monkeypatch.syspath_prepend(str(ROOT / "scripts"))
+    script = load_script("measure_pong_features")[1]
+    assert script.method_arguments(argparse.ArgumentParser(), []).methods == ["ensemble", "dropout", "dropconnect"]
+    assert script.method_arguments(argparse.ArgumentParser(), ["dropout"]).methods == ["dropout"]
+    with pytest.raises(SystemExit):
+        script.method_arguments(argparse.ArgumentParser(), ["dropout", "ensembles"])
+    assert "no shipped Pong agent 'ensembles'; choose from ensemble, dropout, dropconnect" in capsys.readouterr().err
 
 
 def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
@@ -233,16 +255,11 @@ def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
         original.restore_original_limits()
 
 
-ROOT = Path(oodmon.__file__).parent.parent
-TOOLS = sorted(p for p in [*(ROOT / "scripts").glob("*.py"), *(ROOT / "benchmarks").glob("*.py")]
-               if 'if __name__ == "__main__":' in p.read_text())  # (not the modules they import: timing.py, masked_cartpole.py)
-
-
 @pytest.mark.parametrize("path", TOOLS, ids=lambda p: f"{p.parent.name}/{p.name}")
 def test_every_script_and_benchmark_answers_help_with_its_docstring_and_does_no_work(path, monkeypatch, capsys):
-    """`scripts/X.py --help` as a newcomer types it: before, nine scripts and two benchmarks took
-    "--help" for an argument (a method, a zoo name, a log) and failed with a traceback, or started
-    minutes of work."""
+    """`scripts/X.py --help` as a newcomer types it. Before 2026-12-01, nine scripts failed on it
+    (they took "--help" for a method, a zoo name or a log: a traceback, or a usage line and exit
+    code 1), and three scripts and eleven benchmarks ignored it and did their work (minutes of it)."""
     import runpy
 
     monkeypatch.syspath_prepend(str(path.parent))  # the tools' imports of their neighbours
