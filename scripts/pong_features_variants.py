@@ -27,6 +27,7 @@ from oodmon import seeds
 from oodmon.agents import load_agent, zoo_dir
 from oodmon.bench import ONSETS, episode_onset
 from oodmon.envs import parse_variant
+from oodmon.names import METHODS
 from oodmon.threads import limit_threads
 
 RUNS = (("fit", "pong", 20, seeds.DETECTOR_FIT), ("id", "pong", 30, seeds.BENCH_ID),
@@ -120,7 +121,7 @@ def main(method: str = "dropconnect", cache: str | None = None) -> None:
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("method", nargs="?", default="dropconnect", choices=("ensemble", "dropout", "dropconnect"),
+    parser.add_argument("method", nargs="?", default="dropconnect", choices=METHODS,
                         help="the shipped Pong agent (default dropconnect)")
     parser.add_argument("cache", nargs="?", help="the features' cache (default /tmp/pong-features-METHOD.npz)")
     args = parser.parse_args()

@@ -18,6 +18,7 @@ import glob
 
 import numpy as np
 
+from oodmon.names import METHODS
 from oodmon.replay import read_log
 
 
@@ -56,7 +57,7 @@ def main(method: str, root: str = "runs/bench-monitor/logs") -> None:
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("method", choices=("ensemble", "dropout", "dropconnect"), help="the Pong agent benched")
+    parser.add_argument("method", choices=METHODS, help="the Pong agent benched")
     parser.add_argument("root", nargs="?", default="runs/bench-monitor/logs", help="the bench's logs (default %(default)s)")
     args = parser.parse_args()
     main(args.method, args.root)
