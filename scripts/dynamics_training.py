@@ -58,6 +58,7 @@ from oodmon.monitor.detectors.dynamics import DynamicsDetector, min_logvar_for
 from oodmon.monitor.detectors.fitting import trajectory_scores
 from oodmon.monitor.detectors.store import DetectorSet
 from oodmon.monitor.threshold import EarlyPeaksWarning, calibrate
+from oodmon.names import METHODS
 from oodmon.threads import limit_threads
 
 GRAVITIES = ("29.4", "49.0", "68.6")
@@ -97,23 +98,38 @@ def alarm_figures(detector: DynamicsDetector, held_out: list, shifted: dict[str,
 
 def parse_fits(text: str) -> list[tuple[int, str, int | None]]:
     """``30:linear,100:linear:3000`` -> [(30, "linear", None), (100, "linear", 3000)]: epochs,
-    schedule and the most updates (``None``: every epoch)."""
+    schedule and the most updates (``None``: every epoch), each checked as the detector checks them
+    (before any episode is played)."""
     fits = []
     for item in text.split(","):
-        epochs, schedule, *cap = item.split(":") if ":" in item else (item, "")
-        if not epochs.isdigit() or schedule not in ("linear", "constant") or len(cap) > 1 or (cap and not cap[0].isdigit()):
-            raise argparse.ArgumentTypeError(f"{item!r}: give EPOCHS:linear or EPOCHS:constant, then :MAX_UPDATES if any")
-        fits.append((int(epochs), schedule, int(cap[0]) if cap else None))
+        try:
+            epochs, schedule, *cap = item.split(":")  # fewer than two parts: ValueError
+            if len(cap) > 1:
+                raise ValueError(item)
+            fit = (int(epochs), schedule, int(cap[0]) if cap else None)
+            DynamicsDetector(epochs=fit[0], schedule=schedule, max_updates=fit[2])  # its own checks
+        except ValueError:  # (an InvalidParameterError is one)
+            raise argparse.ArgumentTypeError(f"{item!r}: give EPOCHS:linear or EPOCHS:constant, then :MAX_UPDATES "
+                                             "if any") from None
+        fits.append(fit)
     return fits
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``0,1,2,3`` -> [0, 1, 2, 3]: the seeds of the model's fit."""
+    try:
+        return [int(seed) for seed in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give comma-separated integers") from None
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--method", choices=("dropout", "dropconnect", "ensemble"), default="dropconnect")
+    parser.add_argument("--method", choices=METHODS, default="dropconnect")
     parser.add_argument("--fits", type=parse_fits, default=parse_fits("30:constant,100:linear:3000"),
                         help="comma-separated EPOCHS:SCHEDULE[:MAX_UPDATES] (linear or constant; every epoch "
                              "without MAX_UPDATES)")
-    parser.add_argument("--seeds", default="0,1,2,3", help="comma-separated seeds of the model's fit")
+    parser.add_argument("--seeds", type=parse_seeds, default=[0, 1, 2, 3], help="comma-separated seeds of the model's fit")
     parser.add_argument("--shifted", type=int, default=20, help="episodes per gravity variant")
     args = parser.parse_args()
     limit_threads()
@@ -122,7 +138,7 @@ def main() -> None:
     held_out = collect(agent, Variant("cartpole").make(), 200, seed=HELD_OUT)
     shifted = {gravity: shifted_episodes(agent, gravity, args.shifted) for gravity in GRAVITIES}
     for epochs, schedule, cap in args.fits:
-        for seed in (int(s) for s in args.seeds.split(",")):
+        for seed in args.seeds:
             detector = DynamicsDetector(2, epochs=epochs, schedule=schedule, max_updates=cap, seed=seed,
                                         min_logvar=min_logvar_for("cartpole")).fit(fit)
             threshold, false_alarms, delays = alarm_figures(detector, held_out, shifted)

@@ -445,8 +445,8 @@ def test_dynamics_training_reads_each_fit_as_epochs_schedule_and_cap_and_refuses
     the dynamics detector takes them; anything else is refused naming the form."""
     import argparse
 
-    (script,) = [load_script("dynamics_training")[1]]
+    script = load_script("dynamics_training")[1]
     assert script.parse_fits("30:constant,100:linear:3000") == [(30, "constant", None), (100, "linear", 3000)]
-    for bad in ("30", "30:cosine", "x:linear", "100:linear:many", "100:linear:3000:1"):
+    for bad in ("30", "30:cosine", "x:linear", "100:linear:many", "100:linear:3000:1", "0:linear", "100:linear:0"):
         with pytest.raises(argparse.ArgumentTypeError, match="give EPOCHS:linear or EPOCHS:constant"):
             script.parse_fits(bad)
