@@ -1,7 +1,8 @@
-"""Suite-wide settings. ``make test`` runs the test files in parallel (pytest-xdist, one file per
-worker at a time, so a module's fixtures are built once): each worker then gets one thread for
-torch and one for numpy's BLAS, and so do the commands the tests start, instead of every process
-claiming every core (and keeping a second thread spinning: ``benchmarks/threads.py``).
+"""Suite-wide settings. ``make test`` runs the tests in parallel (pytest-xdist, ``--dist worksteal``:
+each worker starts on its share and an idle one takes tests from the other's, so a module whose
+tests end up on both builds its module-scoped fixtures on each): each worker then gets one thread
+for torch and one for numpy's BLAS, and so do the commands the tests start, instead of every
+process claiming every core (and keeping a second thread spinning: ``benchmarks/threads.py``).
 
 The tests that call SB3's ``model.learn()`` themselves, as a user does, share one logger folder,
 removed at the end: SB3 makes an empty tempdir/SB3-<time> folder per ``learn()`` otherwise.
