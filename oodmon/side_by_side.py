@@ -27,8 +27,10 @@ from __future__ import annotations
 import multiprocessing
 import os
 import sys
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Iterator
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
@@ -38,8 +40,8 @@ from oodmon.errors import InvalidParameterError
 from oodmon.progress import Progress
 from oodmon.validation import is_whole
 
-__all__ = ["WorkerDied", "WorkerTraceback", "episode_streams", "play_side_by_side", "resolve_workers", "runs_of",
-           "stream_per_episode", "usable_cores"]
+__all__ = ["WorkerDied", "WorkerTraceback", "episode_streams", "forking", "play_side_by_side", "resolve_workers",
+           "runs_of", "stream_per_episode", "usable_cores"]
 
 #: ``play(first, count, done)``: play episodes ``first .. first + count - 1`` (indices from 0),
 #: calling ``done()`` after each; return their results in a list, one per episode.
@@ -185,6 +187,27 @@ def _send_error(connection: Connection, error: BaseException) -> None:
         connection.send(("error", RuntimeError(f"{type(error).__name__}: {error}"), text))
 
 
+#: What Python 3.12 and newer warn at a fork of a process with threads besides the forking one
+#: (``DeprecationWarning``: "This process (pid=N) is multi-threaded, use of fork() may lead to
+#: deadlocks in the child."), the start of its message.
+FORK_WARNING = r"This process \(pid=\d+\) is multi-threaded, use of fork\(\)"
+
+
+@contextmanager
+def forking() -> Iterator[None]:
+    """Around this process's forks of its workers: Python 3.12's warning of a fork beside threads
+    left out. The default filters hide it, but pytest and ``python -W default`` show it, and the
+    commands print a warning as a line of their own: on 3.12 every ``--workers`` command said it
+    (2026-12-01: the suite's one failure there, a worker's death said in more than one line). The
+    threads it counts are, here, the native pools of numpy's BLAS and torch, which a worker never
+    enters (it runs on one thread: :func:`_worker`), and the refresh thread of a command's progress
+    display, which cannot be writing at a fork (``oodmon.cli.display`` holds its lock across forks).
+    Other warnings are as they were."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=FORK_WARNING, category=DeprecationWarning)
+        yield
+
+
 def die_with(parent: int) -> None:
     """Linux: this worker is killed when the process that forked it dies, even by SIGKILL, which
     leaves it no time to stop its workers (they would play on for minutes, orphaned; the bench's
@@ -246,7 +269,8 @@ def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
             ours, theirs = context.Pipe()
             # (not daemonic: a daemon may not start processes of its own, which a user's env may)
             process = context.Process(target=_worker, args=(play, theirs, os.getpid(), list(processes)))
-            process.start()
+            with forking():
+                process.start()
             theirs.close()  # the worker's end, here no more: when the worker dies, reading ours ends
             processes[ours] = process
             ours.send(waiting.pop())

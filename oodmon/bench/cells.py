@@ -98,10 +98,13 @@ def stopping_pool(workers: int, progress: Any = None) -> Iterator[ProcessPoolExe
     could, but its server is a process more, which outlived a SIGKILLed bench)."""
     import signal
 
+    from oodmon.side_by_side import forking
+
     pids = multiprocessing.get_context().SimpleQueue()  # each worker's, said as it starts
     pool = ProcessPoolExecutor(max_workers=workers, initializer=_say_pid, initargs=(pids, os.getpid(), progress))
     try:
-        yield pool
+        with forking():  # (the pool forks its workers at its first job, in the caller's loop)
+            yield pool
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
         while not pids.empty():

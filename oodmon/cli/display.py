@@ -3,6 +3,7 @@ their columns."""
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -11,6 +12,24 @@ from contextlib import contextmanager
 from rich.console import Console
 
 from oodmon.progress import unit_of
+
+#: The lock of each progress display running now, held across this process's forks (see
+#: :func:`_progress`).
+_DISPLAY_LOCKS: list = []
+
+
+def _hold_displays() -> None:
+    for lock in _DISPLAY_LOCKS:
+        lock.acquire()
+
+
+def _release_displays() -> None:
+    for lock in reversed(_DISPLAY_LOCKS):
+        lock.release()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(before=_hold_displays, after_in_parent=_release_displays, after_in_child=_release_displays)
 
 
 def _table_console() -> Console:
@@ -26,13 +45,20 @@ def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
     ``note``: a latest figure to show beside the stage): rich bars on a terminal; where stderr is a
     file (a job under nohup), where a bar would only appear at the end, a dated line per stage at
     most once a minute, at its start and at its end, with a rate in the stage's unit (from its
-    second line on: the first has none to give)."""
+    second line on: the first has none to give).
+
+    The bars are redrawn by a thread of rich's, ten times a second, holding the display's lock
+    while it writes to stderr. A command forks its workers (``oodmon.side_by_side``) while that
+    thread runs: forked in the middle of a redraw, a worker would inherit rich's locks and
+    stderr's held by a thread it does not have, and wait for ever at its first line to stderr (a
+    warning of its env). So every fork waits for the redraw to end: the display's lock is held
+    across it (``os.register_at_fork``, as Python's ``logging`` holds its own)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     stderr = Console(stderr=True)
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TimeRemainingColumn())
-    with Progress(*columns, console=stderr, transient=transient) as progress:
+    with Progress(*columns, console=stderr, transient=transient) as progress, _held_at_forks(progress.live):
         bars: dict[str, int] = {}
         last_line: dict[str, tuple[float, int]] = {}  # name -> (time, done) of its last plain line
 
@@ -65,3 +91,16 @@ def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
                 last_line[name] = (now, done)
 
         yield report
+
+
+@contextmanager
+def _held_at_forks(live) -> Iterator[None]:
+    """``live``'s lock (the one its refresh thread redraws under) held across every fork while in the block."""
+    lock = getattr(live, "_lock", None)  # (rich's own; without it, forks go on as before)
+    if lock is not None:
+        _DISPLAY_LOCKS.append(lock)
+    try:
+        yield
+    finally:
+        if lock is not None:
+            _DISPLAY_LOCKS.remove(lock)
