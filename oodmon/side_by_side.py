@@ -41,7 +41,7 @@ from oodmon.progress import Progress
 from oodmon.validation import is_whole
 
 __all__ = ["WorkerDied", "WorkerTraceback", "episode_streams", "forking", "play_side_by_side", "resolve_workers",
-           "runs_of", "stream_per_episode", "usable_cores"]
+           "runs_of", "stream_per_episode", "usable_cores", "worker_context"]
 
 #: ``play(first, count, done)``: play episodes ``first .. first + count - 1`` (indices from 0),
 #: calling ``done()`` after each; return their results in a list, one per episode.
@@ -185,6 +185,18 @@ def _send_error(connection: Connection, error: BaseException) -> None:
         connection.send(("error", error, text))
     except Exception:  # noqa: BLE001
         connection.send(("error", RuntimeError(f"{type(error).__name__}: {error}"), text))
+
+
+def worker_context() -> Any:
+    """The ``multiprocessing`` context of oodmon's workers: on Linux, processes forked from this one
+    (they have the agent, the user's policy and the progress queues as they are here, and die with
+    this process: :func:`die_with`); elsewhere the platform's default. Python 3.14 made Linux's
+    default "forkserver", whose workers are the children of a server process: each of the bench's
+    died at once, its parent not the bench (``oodmon bench --workers 2`` on 3.11 with that default
+    set: "A process in the process pool was terminated abruptly", 2026-12-01)."""
+    if sys.platform.startswith("linux"):
+        return multiprocessing.get_context("fork")
+    return multiprocessing.get_context()
 
 
 #: What Python 3.12 and newer warn at a fork of a process with threads besides the forking one

@@ -855,6 +855,26 @@ def _half_second_job(folder: Path, job: int) -> int:
     return job
 
 
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="forked workers: Linux's")
+def test_the_bench_pools_workers_are_forked_from_the_bench_where_the_default_is_python_3_14s_forkserver(monkeypatch):
+    """Python 3.14 made Linux's default start method "forkserver". The bench's pool took the
+    default: each of its workers, a child of the server rather than of the bench, ended itself as
+    it started (it dies with the bench, and checks that its parent is the bench), and
+    ``oodmon bench --workers 2`` stopped at once: "A process in the process pool was terminated
+    abruptly" (on 3.11 with that default set, 2026-12-01). On Linux its workers are forked
+    from the bench, whatever the default."""
+    import multiprocessing.context
+    import os
+
+    from oodmon.bench.cells import stopping_pool
+
+    monkeypatch.setattr(multiprocessing.context._default_context, "_actual_context",
+                        multiprocessing.get_context("forkserver"))
+    assert multiprocessing.get_start_method() == "forkserver"
+    with stopping_pool(2) as pool:
+        assert pool.submit(os.getppid).result() == os.getpid()
+
+
 def test_the_bench_pool_stops_its_queued_jobs_on_an_interrupt(tmp_path):
     """An interrupt while the bench's workers play (its trainings, preparations, cells) cancels the
     jobs not begun and kills the workers at once; `with ProcessPoolExecutor` waited for every

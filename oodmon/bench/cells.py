@@ -5,7 +5,6 @@ trainings, its trials' preparations, its cells: :func:`ray_for`, :func:`on_ray`)
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -98,10 +97,12 @@ def stopping_pool(workers: int, progress: Any = None) -> Iterator[ProcessPoolExe
     could, but its server is a process more, which outlived a SIGKILLed bench)."""
     import signal
 
-    from oodmon.side_by_side import forking
+    from oodmon.side_by_side import forking, worker_context
 
-    pids = multiprocessing.get_context().SimpleQueue()  # each worker's, said as it starts
-    pool = ProcessPoolExecutor(max_workers=workers, initializer=_say_pid, initargs=(pids, os.getpid(), progress))
+    context = worker_context()
+    pids = context.SimpleQueue()  # each worker's, said as it starts
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_say_pid,
+                               initargs=(pids, os.getpid(), progress))
     try:
         with forking():  # (the pool forks its workers at its first job, in the caller's loop)
             yield pool

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import multiprocessing
 from concurrent.futures import FIRST_COMPLETED, wait
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -16,7 +15,7 @@ from oodmon.bench.cells import Relay, _execute, check_ray_address, on_ray, ray_f
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, Row, paper_label
 from oodmon.paper import paper_auc_per_trial
 from oodmon.progress import Progress
-from oodmon.side_by_side import usable_cores
+from oodmon.side_by_side import usable_cores, worker_context
 from oodmon.threads import limit_threads, set_threads
 
 def _train_missing_models(config: BenchConfig, trials: list[tuple[str, int]], workers: int, report: Progress) -> None:
@@ -69,7 +68,7 @@ def _per_trial(function: Callable[..., Any], trials: list[tuple[str, int]], conf
         for method, trial in trials:
             yield function(config, method, trial, report)
         return
-    progress = multiprocessing.get_context().SimpleQueue()  # each worker's own, relayed here as it comes
+    progress = worker_context().SimpleQueue()  # each worker's own, relayed here as it comes
     with stopping_pool(min(workers, len(jobs)), progress) as pool:
         pending = {pool.submit(_in_worker, *job, Relay()) for job in jobs}
         while pending:
