@@ -2,7 +2,7 @@
 # missing (or when pyproject.toml or constraints.txt changed): torch first, pinned to the CPU build
 # on this machine's disk, so that the project's own `torch` requirement pulls nothing more; then
 # the project, every other package at the version constraints.txt names. Python 3.11 or newer
-# (PYTHON=...; checked on 3.11 and 3.12, 2026-12-01).
+# (PYTHON=...; checked on 3.11, 3.12 and 3.13, 2026-12-01).
 
 PYTHON ?= python3
 VENV := .venv

@@ -211,10 +211,10 @@ def forking() -> Iterator[None]:
     left out. The default filters hide it, but pytest and ``python -W default`` show it, and the
     commands print a warning as a line of their own: on 3.12 every ``--workers`` command said it
     (2026-12-01: the suite's one failure there, a worker's death said in more than one line). The
-    threads it counts are, here, the native pools of numpy's BLAS and torch, which a worker never
-    enters (it runs on one thread: :func:`_worker`), and the refresh thread of a command's progress
-    display, which cannot be writing at a fork (``oodmon.cli.display`` holds its lock across forks).
-    Other warnings are as they were."""
+    threads it counts are the libraries' native ones (numpy's BLAS pool starts one at its import on
+    two cores; a worker's torch and BLAS run on one thread, never entering a pool: :func:`_worker`)
+    and the refresh thread of a command's progress display, which cannot be writing at a fork
+    (``oodmon.cli.display`` holds its lock across forks). Other warnings are as they were."""
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=FORK_WARNING, category=DeprecationWarning)
         yield

@@ -233,7 +233,7 @@ def test_a_fork_waits_for_the_progress_display_to_end_its_redraw(four_cores, mon
     stderr's while it writes; a worker forked in the middle of a redraw would inherit those locks held
     by a thread it does not have, and wait for ever at its first line to stderr. Each fork now waits
     for the redraw to end. Here a redraw takes 20 ms of every 120: of 40 forks, about 7 would
-    come in the middle of one (all 40 outside one by chance: 0.83^40, 6 in 10,000)."""
+    come in the middle of one (all 40 outside one by chance: about (5/6)^40, 7 in 10,000)."""
     from rich.live import Live
 
     from oodmon.cli.display import _progress
