@@ -79,6 +79,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
     main()

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -855,7 +857,7 @@ def _half_second_job(folder: Path, job: int) -> int:
     return job
 
 
-@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="forked workers: Linux's")
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forked workers: Linux's")
 def test_the_bench_pools_workers_are_forked_from_the_bench_where_the_default_is_python_3_14s_forkserver(monkeypatch):
     """Python 3.14 made Linux's default start method "forkserver". The bench's pool took the
     default: each of its workers, a child of the server rather than of the bench, ended itself as
@@ -864,7 +866,6 @@ def test_the_bench_pools_workers_are_forked_from_the_bench_where_the_default_is_
     abruptly" (on 3.11 with that default set, 2026-12-01). On Linux its workers are forked
     from the bench, whatever the default."""
     import multiprocessing.context
-    import os
 
     from oodmon.bench.cells import stopping_pool
 

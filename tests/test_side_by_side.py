@@ -6,6 +6,7 @@ import json
 import os
 import re
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -183,8 +184,6 @@ def test_a_workers_death_ends_a_command_in_one_line_with_what_it_kept(four_cores
 def _forks_warning_as_python_3_12_does(monkeypatch) -> None:
     """``os.fork`` warning in the parent as Python 3.12 and newer do where the process has other
     threads (a progress display's, numpy's BLAS pool): this suite runs on 3.11, which does not."""
-    import warnings
-
     fork = os.fork
 
     def warning_fork():
@@ -203,8 +202,6 @@ def test_python_3_12s_warning_at_each_fork_beside_threads_is_not_a_line_of_the_c
     shown (pytest, ``python -W default``) said "oodmon: warning: This process (pid=N) is
     multi-threaded, ..." once per worker: the forks are safe by design (``oodmon.side_by_side.forking``),
     so that warning alone is left out; the bench's pool forks alike. Any other warning is shown."""
-    import warnings
-
     from oodmon.bench.cells import stopping_pool
 
     _forks_warning_as_python_3_12_does(monkeypatch)
