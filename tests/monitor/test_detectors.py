@@ -891,6 +891,58 @@ def test_stacked_vector_observations_are_watched_by_a_dynamics_model_of_them_fla
         DynamicsDetector(6).fit([Trajectory(np.zeros((3, 4, 84, 84), np.uint8), np.zeros(2, int))])
 
 
+class _Walk(gymnasium.Env):
+    """A walk on a line that ends past +-5, observed as one number: a Box of shape () (``vector``:
+    the same number as a Box of shape (1,)); ``drift`` pushes it each step."""
+
+    action_space = gymnasium.spaces.Discrete(2)
+
+    def __init__(self, vector: bool = False, drift: float = 0.0) -> None:
+        self.observation_space = gymnasium.spaces.Box(-10, 10, shape=(1,) if vector else (), dtype=np.float32)
+        self.vector, self.drift = vector, drift
+
+    def _obs(self) -> np.ndarray:
+        return np.array([self.x] if self.vector else self.x, np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x, self.t = 0.0, 0
+        return self._obs(), {}
+
+    def step(self, action):
+        self.t += 1
+        self.x += (0.1 if action else -0.1) + self.drift + self.np_random.normal(0, 0.05)
+        return self._obs(), 1.0, abs(self.x) > 5, self.t >= 200, {}
+
+
+def test_one_number_observations_are_watched_as_a_vector_of_one(tmp_path):
+    # A Box of shape () fitted, then its first scored step stopped the calibration with numpy's
+    # "matmul: Input operand 0 does not have enough dimensions" (2026-12-01)
+    from oodmon.monitor import MemorySink, Monitor
+    from oodmon.monitor.detectors import DetectorSet, default_detectors, fit_detectors
+
+    def policy(obs):
+        return int(np.asarray(obs).reshape(-1)[0] < 0)  # back toward 0
+
+    assert default_detectors(policy, _Walk(), "Walk-v0") == ("dynamics", "drift", "combined")
+    fitted = {vector: fit_detectors(policy, _Walk(vector), detectors=["dynamics", "drift", "combined"], episodes=9)
+              for vector in (False, True)}
+    assert fitted[False]["dynamics"].flatten and not fitted[True]["dynamics"].flatten
+    fitted[False].save(tmp_path / "walk")
+    scores = {}
+    for name, detectors in (("number", fitted[False]), ("vector", fitted[True]), ("loaded", DetectorSet.load(tmp_path / "walk"))):
+        sink = MemorySink()
+        with Monitor(policy, None, detectors=detectors, detector="combined", sinks=[sink]) as monitor:
+            for seed, drift in ((0, 0.0), (1, 0.0), (2, 0.2)):
+                monitor.run_episode(_Walk(name == "vector", drift), seed=seed, max_steps=200)
+        scores[name] = [(step.episode, step.scores["dynamics"], step.scores["drift"], step.scores["combined"])
+                        for step in sink.steps]
+    assert scores["number"] == scores["vector"] == scores["loaded"]  # the same model of the same number
+    walks = scores["number"]
+    pushed = [dynamics for episode, dynamics, *_ in walks if episode == 2]
+    assert len(pushed) < 100  # the push ends the walk (the policy's own walks last 200 steps)
+    assert min(pushed[5:]) > max(dynamics for episode, dynamics, *_ in walks if episode < 2)
+
 def test_your_own_envs_default_fitting_plays_on_until_its_episodes_hold_enough_steps(monkeypatch):
     # Acrobot's swung-up episodes are ~110 steps: 90 of them held a fifth of CartPole's steps and
     # left the dynamics model unsure of the swing-up's end, where every ID episode's score peaked.

@@ -236,7 +236,7 @@ class DynamicsDetector(Detector):
         if is_picture(first.shape[1:], first.dtype):
             raise ConfigError(f"the dynamics detector models vector observations (stacked ones too); got images of shape "
                               f"{first.shape[1:]} (for images use the frames or the features detector)")
-        self.flatten = first.ndim > 2
+        self.flatten = first.ndim != 2  # stacked vectors, or one number a step (a Box of shape ())
         flat = [np.asarray(t.observations).reshape(len(t.observations), -1) for t in trajectories]
         obs = np.concatenate([f[:-1] for f in flat]).astype(np.float64)
         nxt = np.concatenate([f[1:] for f in flat]).astype(np.float64)
