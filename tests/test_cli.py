@@ -64,6 +64,42 @@ def test_envs_show_physics_reports_returns_and_plots(tmp_path, capsys):
     assert cv2.imread(str(out)) is not None
 
 
+LIST_ENV = '''
+import gymnasium
+import numpy as np
+
+
+class ListWalk(gymnasium.Env):
+    """Returns its observation as a list, which gymnasium's env checker warns of (in colour)."""
+
+    observation_space = gymnasium.spaces.Box(-10, 10, shape=(1,), dtype=np.float32)
+    action_space = gymnasium.spaces.Discrete(2)
+    drift = 0.0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x = 0.0
+        return [self.x], {}
+
+    def step(self, action):
+        self.x += (0.1 if action else -0.1) + self.drift
+        return [self.x], 1.0, abs(self.x) > 5, False, {}
+
+
+gymnasium.register("ListWalk-v0", entry_point=ListWalk)
+'''
+
+
+def test_a_warning_of_gymnasiums_is_one_plain_line(tmp_path, monkeypatch, capsys):
+    # gymnasium.logger.warn colours its text: "oodmon: warning: \x1b[33mWARN: The obs returned ..."
+    (tmp_path / "list_walk_env.py").write_text(LIST_ENV)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert main(["envs", "show", "list_walk_env:ListWalk-v0:drift=0.3", "--onset", "5"]) == 0
+    lines = capsys.readouterr().err.splitlines()
+    assert "oodmon: warning: The obs returned by the `step()` method was expecting a numpy array, actual type: " \
+           "<class 'list'>" in lines
+    assert all(line.startswith("oodmon: warning: ") and "\x1b" not in line and "WARN:" not in line for line in lines)
+
 @pytest.mark.parametrize(
     "args, words",
     [
