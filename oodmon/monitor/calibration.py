@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -155,6 +156,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
             obs_noise=obs_noise, workers=workers), by_age=reference_by_age)
     scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_progress=on_progress, detectors=needed,
                                detector=detector, obs_noise=obs_noise, stage="calibration episodes", workers=workers)
+    _check_steps_to_score(scores, detector, needed)
     threshold = calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
                           method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
                           confidence=confidence, rule=rule, reference=reference,
@@ -165,6 +167,26 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     if reference is not None:
         used["reference"] = [seeds.REFERENCE, seeds.REFERENCE + reference_episodes]
     return replace(threshold, episode_seeds=used, workers=resolve_workers(workers, episodes))
+
+
+#: Detectors that score the change into an observation from the one before it (an episode's first
+#: observation gets a neutral score: there is nothing before it).
+READ_CHANGES = frozenset({"dynamics", "drift", "transitions"})
+
+
+def _check_steps_to_score(scores: Sequence[np.ndarray], detector: str, detectors: DetectorSet | None) -> None:
+    """Refuse to calibrate an alarm that cannot fire: one that reads only changes between
+    observations (:data:`READ_CHANGES`, or ``combined`` of them alone), in ID episodes that all last
+    one step. The monitor scores the observations the policy acts on, and in an episode of one step
+    that is its first, which no change led to: a contextual bandit (one decision an episode) got
+    "alarm when score > -0" from every ID score alike and alarmed at nothing (2026-12-01)."""
+    reads = set(detectors["combined"].members) if detector == "combined" and detectors is not None else {detector}
+    if not scores or any(len(episode) > 1 for episode in scores) or not reads <= READ_CHANGES:
+        return
+    raise ConfigError(f"every ID episode lasted one step: the {detector} detector scores the change into each "
+                      "observation the policy acts on from the one before it, and an episode's first has none, so its "
+                      "alarm could not see a shift in episodes this short. The spread and features detectors read the "
+                      "observation itself: they watch an ensemble (several SB3 models, --sb3 A.zip B.zip) or an MC agent")
 
 
 def save_calibration(threshold: Threshold, path: str | Path, detectors: DetectorSet | None = None) -> None:

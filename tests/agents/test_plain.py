@@ -306,3 +306,46 @@ def test_a_plain_policy_with_a_memory_is_told_of_each_episodes_start(env_id):
     with Monitor(agent, None, detectors=detectors) as monitor:
         lengths = [monitor.run_episode(gymnasium.make(env_id), seed=seed).length for seed in (1, 2)]
         assert policy.steps == lengths[1]  # its memory is of the last episode alone
+
+
+class _OneDecision(gymnasium.Env):
+    """A contextual bandit: a context, one decision, the episode ends (its last observation the
+    context's echo)."""
+
+    observation_space = gymnasium.spaces.Box(-1, 1, shape=(2,), dtype=np.float32)
+    action_space = gymnasium.spaces.Discrete(2)
+
+    def __init__(self, decisions: int = 1) -> None:
+        self.decisions = decisions  # (2: two contexts an episode)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.context, self.made = self.np_random.uniform(-1, 1, 2).astype(np.float32), 0
+        return self.context, {}
+
+    def step(self, action):
+        self.made += 1
+        reward = float(action == (self.context[0] > 0))
+        self.context = (0.5 * self.context + self.np_random.normal(0, 0.01, 2)).astype(np.float32)
+        return self.context, reward, self.made == self.decisions, False, {}
+
+
+def test_an_alarm_that_reads_changes_is_refused_where_every_episode_lasts_one_step():
+    # The monitor scores the observations the policy acts on; an episode of one step has only its
+    # first, which no change led to: calibrated, the combined alarm read "score > -0" from 50 equal
+    # ID scores and alarmed at nothing (2026-12-01)
+    from oodmon.monitor.detectors import fit_detectors
+
+    for decisions in (1, 2):
+        if f"plain_tests/Decisions{decisions}-v0" not in gymnasium.registry:
+            gymnasium.register(f"plain_tests/Decisions{decisions}-v0", entry_point=_OneDecision,
+                               kwargs={"decisions": decisions})
+    agents = {n: plain_agent(lambda obs: int(obs[0] > 0), f"plain_tests/Decisions{n}-v0") for n in (1, 2)}
+    fitted = {n: fit_detectors(agents[n], gymnasium.make(f"plain_tests/Decisions{n}-v0"), episodes=30) for n in (1, 2)}
+    assert fitted[1].names == fitted[2].names == ["dynamics", "drift", "combined"]
+    for detector in ("combined", "dynamics", "drift"):
+        with pytest.raises(ConfigError, match=f"every ID episode lasted one step: the {detector} detector scores the "
+                                              "change into each observation .* an ensemble"):
+            calibrate_agent(agents[1], 50, detectors=fitted[1], detector=detector)
+        # two steps: the second's change is scored
+        assert calibrate_agent(agents[2], 50, detectors=fitted[2], detector=detector).n_steps == 100
