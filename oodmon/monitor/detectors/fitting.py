@@ -544,6 +544,23 @@ def detectors_for(agent: Any, directory: str | Path | None = None) -> DetectorSe
     return DetectorSet.load(own) if own is not None and (own / "detectors.json").is_file() else None
 
 
+def _runs(indices: Sequence[int]) -> str:
+    """Sorted indices in words, three or more in a row as a range (the note for a policy on Pong's
+    RAM listed 118 of its 128 bytes one by one).
+
+    Example:
+        >>> _runs([0, 1, 2, 3, 7, 8, 10, 11, 12])
+        '0-3, 7, 8, 10-12'
+    """
+    runs: list[list[int]] = []
+    for index in indices:
+        if runs and index == runs[-1][-1] + 1:
+            runs[-1].append(index)
+        else:
+            runs.append([index])
+    return ", ".join(f"{run[0]}-{run[-1]}" if len(run) > 2 else ", ".join(map(str, run)) for run in runs)
+
+
 def fitting_notes(detectors: DetectorSet | None) -> list[str]:
     """What a fit leaves unwatched, in words (``oodmon calibrate`` and ``fit-detectors`` print them,
     :func:`oodmon.watch` warns them): the readings the dynamics model takes as inputs only."""
@@ -551,7 +568,7 @@ def fitting_notes(detectors: DetectorSet | None) -> list[str]:
     unscored = dynamics.unscored() if dynamics is not None else []
     if not unscored:
         return []
-    return [f"dynamics: reading{'s' if len(unscored) > 1 else ''} {', '.join(map(str, unscored))} of the observation "
+    return [f"dynamics: reading{'s' if len(unscored) > 1 else ''} {_runs(unscored)} of the observation "
             f"(flattened) jump{'' if len(unscored) > 1 else 's'} between a few values over the ID transitions (a contact "
             "flag) or never moved: inputs of the model, not scored by it (a Gaussian cannot model a jump), so a "
             "fault of theirs alone goes unseen by this detector"]
