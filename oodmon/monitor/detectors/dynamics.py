@@ -241,11 +241,11 @@ class DynamicsDetector(Detector):
         obs = np.concatenate([f[:-1] for f in flat]).astype(np.float64)
         nxt = np.concatenate([f[1:] for f in flat]).astype(np.float64)
         actions = np.concatenate([np.asarray(t.actions) for t in trajectories])
-        _check_finite(np.concatenate(flat).astype(np.float64), "observations", "reading",
+        _check_finite(flat, "observations", "reading",
                       "the monitor scores a step that holds one as the most shifted (a failed sensor: an alarm), "
                       "so give it finite ones in ID (a wrapper of the env that holds the last finite reading, say)")
         if self.n_actions is None:
-            _check_finite(np.asarray(actions, dtype=np.float64).reshape(len(actions), -1), "actions",
+            _check_finite([np.asarray(actions, dtype=np.float64).reshape(len(actions), -1)], "actions",
                           "dimension", "the policy acted so")
         delta = nxt - obs
         smooth = np.array([len(np.unique(delta[:, i])) > JUMP_VALUES for i in range(delta.shape[1])])
@@ -581,22 +581,22 @@ class _FastNll:
         return (0.5 * low + self.const - math.log(mixture * self.inv_members)) / d
 
 
-def _check_finite(values: np.ndarray, what: str, part: str, hint: str) -> None:
-    """Refuse the ID ``what`` (rows, parts) where they hold a NaN or an infinity, naming the parts and
-    how often, then ``hint``.
+def _check_finite(arrays: Sequence[np.ndarray], what: str, part: str, hint: str) -> None:
+    """Refuse the ID ``what`` (arrays of rows, parts; each episode's, read in place) where they hold
+    a NaN or an infinity, naming the parts and how often, then ``hint``.
 
     Fitted on them, every weight of the model turned NaN, and the set's fitting stopped later at
     "the combined detector needs finite ID scores of 'dynamics'" (2026-12-01: CartPole whose cart
     position read NaN at 1% of its steps), which did not say why."""
-    bad = ~np.isfinite(values)
-    if not bad.any():
+    counts = sum((~np.isfinite(values)).sum(0) for values in arrays)
+    if not np.any(counts):
         return
-    counts = bad.sum(0)
     parts = np.flatnonzero(counts)
     named = ", ".join(f"{part} {i} at {counts[i]:,}" for i in parts[:4]) + (
         f" and {len(parts) - 4} more" if len(parts) > 4 else "")
-    raise ConfigError(f"the ID {what} hold values that are not finite (NaN or infinite): {named} of {len(values):,} "
-                      f"{what}; the dynamics detector cannot fit on them: {hint}")
+    raise ConfigError(f"the ID {what} hold values that are not finite (NaN or infinite): {named} of "
+                      f"{sum(len(values) for values in arrays):,} {what}; the dynamics detector cannot fit on them: "
+                      f"{hint}")
 
 
 def _f32(value: float) -> np.ndarray:
