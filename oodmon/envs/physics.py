@@ -32,23 +32,27 @@ __all__ = ["CARTPOLE_DEFAULTS", "CARTPOLE_OBS_SPREAD", "PENDULUM_DEFAULTS", "PEN
            "ShiftedPendulum"]
 
 #: CartPole's physics parameters and their defaults (gymnasium's CartPole-v1). ``length`` is
-#: half the pole's length, in metres; masses in kg; gravity in m/s^2; force_mag in newtons.
+#: half the pole's length, in metres; masses in kg; gravity in m/s^2; force_mag in newtons;
+#: ``tau`` the time between two decisions, in seconds (a controller that runs slower or faster).
 CARTPOLE_DEFAULTS: dict[str, float] = {
     "gravity": 9.8,
     "masscart": 1.0,
     "masspole": 0.1,
     "length": 0.5,
     "force_mag": 10.0,
+    "tau": 0.02,
 }
 
 #: Pendulum's physics parameters and their defaults (gymnasium's Pendulum-v1): gravity g in
-#: m/s^2, mass m in kg, length l in m, max_speed in rad/s, max_torque in N m.
+#: m/s^2, mass m in kg, length l in m, max_speed in rad/s, max_torque in N m, ``dt`` the time
+#: between two decisions in seconds.
 PENDULUM_DEFAULTS: dict[str, float] = {
     "g": 10.0,
     "m": 1.0,
     "l": 1.0,
     "max_speed": 8.0,
     "max_torque": 2.0,
+    "dt": 0.05,
 }
 
 
@@ -142,7 +146,7 @@ class _ShiftPhysics:
 
 
 class ShiftedCartPole(_ShiftPhysics, CartPoleEnv):
-    """CartPole-v1 with other gravity, masses, pole length or push force.
+    """CartPole-v1 with other gravity, masses, pole length, push force or time step.
 
     Registered as ``oodmon/CartPole-v1`` (500 steps per episode). ``total_mass`` and
     ``polemass_length`` follow the parameters, so every change really changes the dynamics.
@@ -153,6 +157,7 @@ class ShiftedCartPole(_ShiftPhysics, CartPoleEnv):
         masspole: kg, default 0.1.
         length: half the pole's length in m, default 0.5.
         force_mag: the push of each action in N, default 10.0.
+        tau: seconds between two decisions (the Euler step), default 0.02.
         onset_step: index of the first ``step()`` of each episode that runs the shifted physics.
         obs_noise: sensor noise: Gaussian, its std this fraction of each observation dimension's
             ID spread (:data:`CARTPOLE_OBS_SPREAD`), in the ID and the shifted world alike. The
@@ -186,7 +191,7 @@ class ShiftedCartPole(_ShiftPhysics, CartPoleEnv):
 
 
 class ShiftedPendulum(_ShiftPhysics, PendulumEnv):
-    """Pendulum-v1 with other gravity, mass, length, speed limit or torque limit.
+    """Pendulum-v1 with other gravity, mass, length, speed limit, torque limit or time step.
 
     Registered as ``oodmon/Pendulum-v1`` (200 steps per episode). The spaces stay those of the
     default env; see the module docstring for what that means for ``max_speed`` and
@@ -198,6 +203,7 @@ class ShiftedPendulum(_ShiftPhysics, PendulumEnv):
         l: the pole's length in m, default 1.0.
         max_speed: the angular velocity's clip in rad/s, default 8.0.
         max_torque: the applied torque's clip in N m, default 2.0.
+        dt: seconds between two decisions (the integration step), default 0.05.
         onset_step: index of the first ``step()`` of each episode that runs the shifted physics.
         obs_noise: sensor noise as a fraction of each dimension's ID spread
             (:data:`PENDULUM_OBS_SPREAD`); see :class:`ShiftedCartPole`.

@@ -76,8 +76,8 @@ def test_cartpole_named_examples():
 
 
 @pytest.mark.parametrize(
-    "physics", [{}, {"masspole": 1.0}, {"masscart": 3.0, "length": 2.0}, {"gravity": 49.0, "force_mag": 2.5}], ids=str
-)
+    "physics", [{}, {"masspole": 1.0}, {"masscart": 3.0, "length": 2.0}, {"gravity": 49.0, "force_mag": 2.5}, {"tau": 0.04}],
+    ids=str)
 def test_cartpole_step_follows_the_equations_with_derived_quantities_recomputed(physics):
     p = CARTPOLE_DEFAULTS | physics
     env = gymnasium.make("oodmon/CartPole-v1", **physics)
@@ -93,14 +93,15 @@ def test_cartpole_step_follows_the_equations_with_derived_quantities_recomputed(
         p["length"] * (4 / 3 - p["masspole"] * math.cos(theta) ** 2 / total_mass)
     )
     x_acc = temp - polemass_length * theta_acc * math.cos(theta) / total_mass
-    tau = 0.02
+    tau = p["tau"]
     expected = [x + tau * x_dot, x_dot + tau * x_acc, theta + tau * theta_dot, theta_dot + tau * theta_acc]
     np.testing.assert_allclose(obs, expected, rtol=1e-6)
 
 
 @pytest.mark.parametrize(
     "physics, torque",
-    [({}, 1.5), ({"g": 50.0}, 1.5), ({"m": 5.0}, -1.0), ({"l": 0.1}, 1.0), ({"max_torque": 0.1}, 2.0), ({"max_speed": 0.4}, 2.0)],
+    [({}, 1.5), ({"g": 50.0}, 1.5), ({"m": 5.0}, -1.0), ({"l": 0.1}, 1.0), ({"max_torque": 0.1}, 2.0), ({"max_speed": 0.4}, 2.0),
+     ({"dt": 0.1}, 1.5)],
     ids=str,
 )
 def test_pendulum_step_follows_the_equations_with_the_new_limits(physics, torque):
@@ -112,9 +113,9 @@ def test_pendulum_step_follows_the_equations_with_the_new_limits(physics, torque
     obs, *_ = env.step(np.array([torque], np.float32))
 
     u = min(max(torque, -p["max_torque"]), p["max_torque"])
-    new_dot = theta_dot + (3 * p["g"] / (2 * p["l"]) * math.sin(theta) + 3 / (p["m"] * p["l"] ** 2) * u) * 0.05
+    new_dot = theta_dot + (3 * p["g"] / (2 * p["l"]) * math.sin(theta) + 3 / (p["m"] * p["l"] ** 2) * u) * p["dt"]
     new_dot = min(max(new_dot, -p["max_speed"]), p["max_speed"])
-    new_theta = theta + new_dot * 0.05
+    new_theta = theta + new_dot * p["dt"]
     np.testing.assert_allclose(obs, [math.cos(new_theta), math.sin(new_theta), new_dot], rtol=1e-5)
 
 
@@ -164,7 +165,7 @@ def test_reference_controllers_solve_the_default_envs():
     "env_id, kwargs, words",
     [
         ("oodmon/CartPole-v1", {"lenght": 2.0}, ["has no parameter 'lenght'", "length"]),
-        ("oodmon/Pendulum-v1", {"mass": 2.0}, ["has no parameter 'mass'", "g, m, l, max_speed, max_torque"]),
+        ("oodmon/Pendulum-v1", {"mass": 2.0}, ["has no parameter 'mass'", "g, m, l, max_speed, max_torque, dt"]),
     ],
 )
 def test_unknown_parameter_names_it_and_what_is_allowed(env_id, kwargs, words):
