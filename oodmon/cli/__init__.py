@@ -103,15 +103,15 @@ def _kept(args: argparse.Namespace) -> str:
     return f"; {kept}" if kept else ""
 
 
+_COLOUR = re.compile(r"\x1b\[[0-9;]*m")  # a terminal's colour codes (SGR), as gymnasium.utils.colorize writes them
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Warnings in the terminal as one line each, without the source line Python would show, nor
     the colour codes and ``WARN:`` of gymnasium's own (``gymnasium.logger.warn``: a user's env
-    whose ``step()`` returns a list said "oodmon: warning: \x1b[33mWARN: The obs returned ...")."""
+    whose ``step()`` returns a list said "oodmon: warning: \\x1b[33mWARN: The obs returned ...")."""
     text = _COLOUR.sub("", str(message))
     print(f"oodmon: warning: {text.removeprefix('WARN: ')}", file=sys.stderr)
-
-
-_COLOUR = re.compile(r"\x1b\[[0-9;]*m")  # a terminal's colour codes (SGR), as gymnasium.utils.colorize writes them
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -246,7 +246,7 @@ class DynamicsDetector(Detector):
                       "so give it finite ones in ID (a wrapper of the env that holds the last finite reading, say)")
         if self.n_actions is None:
             _check_finite([np.asarray(actions, dtype=np.float64).reshape(len(actions), -1)], "actions",
-                          "dimension", "the policy acted so")
+                          "dimension", "the policy's actions are inputs of the model")
         delta = nxt - obs
         smooth = np.array([len(np.unique(delta[:, i])) > JUMP_VALUES for i in range(delta.shape[1])])
         self.predicted = None if smooth.all() or not smooth.any() else np.flatnonzero(smooth)
