@@ -1103,6 +1103,7 @@ def test_the_dynamics_fit_refuses_id_observations_or_actions_that_are_not_finite
         DynamicsDetector(2).fit([Trajectory(obs, rng.integers(0, 2, 10))])
     actions = rng.normal(size=(10, 2))
     actions[3, 0] = np.nan
-    with pytest.raises(ConfigError, match=r"ID actions .*: dimension 0 at 1 of 10 actions; .*the policy's actions are inputs of the model"):
+    with pytest.raises(ConfigError, match=r"ID actions .*: dimension 0 at 1 of 10 actions; .*the policy's actions are "
+                                          r"inputs of the model"):
         DynamicsDetector().fit([Trajectory(rng.normal(size=(11, 3)), actions)])
     assert DynamicsDetector(epochs=1).fit([Trajectory(np.where(np.isfinite(obs), obs, 0.0), rng.integers(0, 2, 10))]).fitted
