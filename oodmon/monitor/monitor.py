@@ -759,7 +759,10 @@ class MonitoredEnv(gymnasium.Wrapper):
 
     def step(self, action: Any = None):
         owner = self.monitor._episode_owner
-        if self.monitor.in_episode and (owner is None or owner() is not self):
+        if not self.monitor.in_episode:  # (the monitor's own words name its begin_episode, which an env's user never calls)
+            raise ConfigError("step() with no episode running: reset() the env first, before its first step and "
+                              "after an episode ended (terminated or truncated) or the env was closed")
+        if owner is None or owner() is not self:
             raise ConfigError("this env's Monitor follows an episode that another MonitoredEnv began (one Monitor "
                               "shared by several envs, as in a vector env of MonitoredEnvs? their steps would mix "
                               "into one episode's log): give each env its own Monitor (monitor.twin()), or reset this env first")

@@ -133,6 +133,27 @@ def test_monitored_env_wrapper_lets_the_policy_act_or_takes_yours(agent):
     assert np.isnan(sink.steps[0].threshold) and not any(s.alarm for s in sink.steps)
 
 
+def test_a_monitored_env_stepped_with_no_episode_running_says_to_reset_it(agent):
+    # before its first reset, after its episode ended, after close: it said "Monitor.step before
+    # begin_episode", a method an env's user never calls (2026-12-01)
+    env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1", length=0.05), Monitor(agent))  # falls at once
+    said = r"step\(\) with no episode running: reset\(\) the env first"
+    with pytest.raises(ConfigError, match=said):
+        env.step()
+    env.reset(seed=0)
+    ended = False
+    while not ended:
+        _, _, terminated, truncated, _ = env.step()
+        ended = terminated or truncated
+    with pytest.raises(ConfigError, match=said):
+        env.step()
+    env.reset(seed=1)
+    env.step(0)
+    env.close()
+    with pytest.raises(ConfigError, match=said):
+        env.step()
+
+
 @pytest.mark.parametrize("arguments, words", [
     ({"threshold": float("nan")}, "threshold=nan is not allowed; give a number"),  # a NaN threshold never alarms
     ({"threshold": "abc"}, "threshold='abc' is not allowed"),
