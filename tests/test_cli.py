@@ -263,6 +263,9 @@ def test_train_writes_plain_progress_lines_and_its_result_when_logged_to_a_file(
     done, rate = lines[-1].split(": ")[1].split(" steps, ")
     assert int(done.split("/")[0]) >= 600 and float(rate.split()[0]) > 0
     assert "id_return_mean" in result.stdout and (tmp_path / "t" / "model.json").is_file()
+    # and no bar: the one kept at the end was drawn into the file, cut at 80 characters (2026-12-01)
+    assert all(line.startswith("20") for line in result.stderr.splitlines() if "training steps" in line)
+    assert "\u2501" not in result.stderr and "\u2026" not in result.stderr  # (rich's bar, its cut)
 
 
 def test_every_command_keeps_to_the_threads_it_is_given(monkeypatch, capsys):

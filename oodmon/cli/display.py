@@ -58,7 +58,10 @@ def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
     stderr = Console(stderr=True)
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TimeRemainingColumn())
-    with Progress(*columns, console=stderr, transient=transient) as progress, _held_at_forks(progress.live):
+    # Where stderr is a file, the dated lines below are the progress: a bar kept at the end
+    # (``transient=False``, train's) was drawn there once, cut to 80 characters.
+    with Progress(*columns, console=stderr, transient=transient or not stderr.is_terminal) as progress, \
+            _held_at_forks(progress.live):
         bars: dict[str, int] = {}
         last_line: dict[str, tuple[float, int]] = {}  # name -> (time, done) of its last plain line
 
