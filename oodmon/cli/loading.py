@@ -32,12 +32,14 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
             or getattr(args, "imports", None):
         raise ConfigError("--env, --mean, --import, --unsafe-load-pickles, --frame-stack and --vec-normalize go with "
                           "--sb3 (your own SB3 models); --env with --policy too")
-    if not args.task:
-        raise ConfigError("give --task with --method or --model (or --sb3 with --env for your own SB3 models, "
-                          "--policy with --env for a policy of your own of any kind)")
     masks = getattr(args, "masks", None)
-    if args.model:
-        return load_agent(args.model, task=args.task, seed=seed, masks=masks)
+    if args.model:  # its model.json names its task (--task, where given, must be it)
+        agent = load_agent(args.model, task=args.task, seed=seed, masks=masks)
+        args.task = agent.task
+        return agent
+    if not args.task:
+        raise ConfigError("give --task with --method, or --model (or --sb3 with --env for your own SB3 models, "
+                          "--policy with --env for a policy of your own of any kind)")
     if not args.method:
         raise ConfigError("give --method for a shipped agent, or --model DIR for a trained one")
     return load(args.task, args.method, seed=seed, masks=masks)
