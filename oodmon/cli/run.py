@@ -142,6 +142,11 @@ def _run(args: argparse.Namespace) -> int:
                       + _listed_by(mcap, args.mcap, failed="McapSink" in failures))
     console.print(f"{rows.alarmed} of {rows.episodes} episodes raised an alarm"
                   + (f"; written to {', '.join(written)}" if written else ""))
+    if rows.before_onset:
+        # (replay's shifted rows count them too, as episodes that did not alarm after the onset)
+        console.print(f"note: {rows.before_onset} of {rows.episodes} episodes ended before step {args.onset}, the "
+                      "onset: the shift never began in them (an --onset later than this env's episodes last?)",
+                      markup=False)
     if args.variant and args.task not in TASKS and threshold is not None and rows.episodes and not rows.alarmed:
         console.print(f"does the shift change anything the env returns? `oodmon envs show '{label}' --onset "
                       f"{args.onset}` plays the env shifted and as it is from the same seed with the same "
@@ -216,10 +221,14 @@ class _EpisodeRows:
         self.first: list = []
         self.last = deque(maxlen=shown - shown // 2)
         self.shown, self.episodes, self.alarmed = shown, 0, 0
+        self.before_onset = 0  # episodes of a shifted variant that ended before their onset: never shifted
 
     def add(self, record) -> None:
+        from oodmon.replay.metrics import is_id_variant
+
         self.episodes += 1
         self.alarmed += record.alarms > 0
+        self.before_onset += not is_id_variant(record.variant) and record.length <= record.onset
         slim = dataclasses.replace(record, rewards=None)
         (self.first if len(self.first) < self.shown // 2 else self.last).append(slim)
 
