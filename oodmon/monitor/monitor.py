@@ -401,7 +401,12 @@ class Monitor:
 
     # -- an episode ----------------------------------------------------------------------------
     def begin_episode(self, *, env_id: str = "", variant: str = "", onset: int = 0, seed: int | None = None) -> None:
+        """Begin an episode. One still running ends here, as an env's reset ends it (with no step
+        scored it is forgotten): before 2026-12-01 its record was dropped, so a loop of your own
+        that never called :meth:`end_episode` logged steps under no episode, and replay found none."""
         self.open()
+        if self._in_episode and not self.abandon_empty_episode():
+            self.end_episode()
         self.episode += 1
         self.tracker.reset()
         self.detectors.reset()
@@ -747,9 +752,7 @@ class MonitoredEnv(gymnasium.Wrapper):
         self._info: dict = {}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        if self.monitor._in_episode and not self.monitor.abandon_empty_episode():
-            self.monitor.end_episode()
-        obs, info = self.env.reset(seed=seed, options=options)
+        obs, info = self.env.reset(seed=seed, options=options)  # (an episode still running ends at begin_episode)
         self.monitor.begin_episode(env_id=env_id_of(self.env), variant=self.variant or variant_of_env(self.env),
                                    onset=onset_of_env(self.env), seed=seed)
         self.monitor._episode_owner = weakref.ref(self)  # weak: a monitor does not keep an old env alive

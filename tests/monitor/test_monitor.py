@@ -133,6 +133,25 @@ def test_monitored_env_wrapper_lets_the_policy_act_or_takes_yours(agent):
     assert np.isnan(sink.steps[0].threshold) and not any(s.alarm for s in sink.steps)
 
 
+def test_an_episode_begun_before_the_last_one_ended_ends_it_and_is_logged(agent, tmp_path):
+    # A loop of your own that never called end_episode: each begin_episode dropped the running
+    # episode's record, and the log held 10 steps under no episode (replay: none) (2026-12-01)
+    from oodmon.monitor import McapSink
+    from oodmon.replay import read_log
+
+    sink, log = MemorySink(), tmp_path / "loop.mcap"
+    env = Variant("cartpole").make()
+    with Monitor(agent, sinks=[sink, McapSink(log)]) as monitor:
+        for seed in range(2):
+            obs, _ = env.reset(seed=seed)
+            monitor.begin_episode(env_id="oodmon/CartPole-v1", variant="cartpole", seed=seed)
+            for _ in range(5):
+                obs, *_ = env.step(monitor.step(obs))
+        monitor.begin_episode(env_id="oodmon/CartPole-v1", variant="cartpole", seed=9)  # no step: forgotten
+    assert [(e.episode, e.seed, e.length, e.interrupted) for e in sink.episodes] == [(0, 0, 5, False), (1, 1, 5, False)]
+    assert [(e.seed, e.length) for e in read_log(log).episodes] == [(0, 5), (1, 5)]
+
+
 def test_a_monitored_env_stepped_with_no_episode_running_says_to_reset_it(agent):
     # before its first reset, after its episode ended, after close: it said "Monitor.step before
     # begin_episode", a method an env's user never calls (2026-12-01)
