@@ -789,12 +789,17 @@ def test_evaluate_seeds_an_mc_agents_samples_so_the_same_command_gives_the_same_
     assert tables[0] == tables[1] and tables[0]["variants"][0]["fails"]
 
 
-def test_run_says_when_its_episodes_ended_before_the_onset(capsys):
+def test_run_and_replay_say_when_episodes_ended_before_the_onset(tmp_path, capsys):
     # A shift from step 600 of CartPole's 500-step episodes: the table read "0 of 2 episodes raised an
     # alarm", as if the monitor had missed a shift that never began (2026-12-01)
     argv = ["run", "--task", "cartpole", "--method", "ensemble", "--variant", "cartpole:length=2.0", "--episodes", "2"]
-    assert main(argv + ["--onset", "600"]) == 0
+    assert main(argv + ["--onset", "600", "--mcap", str(tmp_path / "late.mcap")]) == 0
     out = capsys.readouterr().out.replace("\n", "")
     assert "note: 2 of 2 episodes ended before step 600, the onset: the shift never began in them" in out
-    assert main(argv + ["--onset", "400"]) == 0
+    assert main(["replay", str(tmp_path / "late.mcap")]) == 0
+    assert "note: 2 episode(s) of shifted variants ended before their onset (the first of cartpole:length=2.0, " \
+           "500 steps against an onset of 600): the shift never began in them" in capsys.readouterr().err
+    assert main(argv + ["--onset", "400", "--mcap", str(tmp_path / "in-time.mcap")]) == 0
     assert "note:" not in capsys.readouterr().out
+    assert main(["replay", str(tmp_path / "in-time.mcap")]) == 0
+    assert "before their onset" not in capsys.readouterr().err

@@ -149,6 +149,14 @@ def _read_logs(paths: Sequence[str]):
         print(f"oodmon: note: the {task}/{method} logs played {uses} in the ID env (the same reset seeds): they "
               "alarm less often than fresh episodes, so their false alarms read low; run fresh ones (`oodmon run "
               "--seed` apart from them)", file=sys.stderr)
+    from oodmon.replay.metrics import is_id_variant
+
+    never = [episode for log in logs for episode in log.episodes
+             if not is_id_variant(episode.variant) and episode.length <= episode.onset]
+    if never:
+        print(f"oodmon: note: {len(never)} episode(s) of shifted variants ended before their onset (the first of "
+              f"{never[0].variant}, {never[0].length} steps against an onset of {never[0].onset}): the shift never "
+              "began in them, and the shifted rows count them as episodes without an alarm", file=sys.stderr)
     unthresholded = [str(log.path) for log in logs if not log.has_threshold]
     if unthresholded:
         print(f"oodmon: note: {len(unthresholded)} log(s) ran without a threshold (`oodmon run --threshold`), so "
