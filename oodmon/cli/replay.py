@@ -126,6 +126,7 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 def _read_logs(paths: Sequence[str]):
     from oodmon.monitor.calibration import EPISODE_USES
     from oodmon.replay import made_from_episodes, pooled_fits, pooled_thresholds, pooled_weights, read_logs
+    from oodmon.replay.metrics import ended_before_onset
 
     logs = read_logs(paths)
     interrupted = sum(len(log.interrupted) for log in logs)
@@ -149,10 +150,7 @@ def _read_logs(paths: Sequence[str]):
         print(f"oodmon: note: the {task}/{method} logs played {uses} in the ID env (the same reset seeds): they "
               "alarm less often than fresh episodes, so their false alarms read low; run fresh ones (`oodmon run "
               "--seed` apart from them)", file=sys.stderr)
-    from oodmon.replay.metrics import is_id_variant
-
-    never = [episode for log in logs for episode in log.episodes
-             if not is_id_variant(episode.variant) and episode.length <= episode.onset]
+    never = [episode for log in logs for episode in log.episodes if ended_before_onset(episode)]
     if never:
         print(f"oodmon: note: {len(never)} episode(s) of shifted variants ended before their onset (the first of "
               f"{never[0].variant}, {never[0].length} steps against an onset of {never[0].onset}): the shift never "

@@ -224,11 +224,11 @@ class _EpisodeRows:
         self.before_onset = 0  # episodes of a shifted variant that ended before their onset: never shifted
 
     def add(self, record) -> None:
-        from oodmon.replay.metrics import is_id_variant
+        from oodmon.replay.metrics import ended_before_onset
 
         self.episodes += 1
         self.alarmed += record.alarms > 0
-        self.before_onset += not is_id_variant(record.variant) and record.length <= record.onset
+        self.before_onset += ended_before_onset(record)
         slim = dataclasses.replace(record, rewards=None)
         (self.first if len(self.first) < self.shown // 2 else self.last).append(slim)
 

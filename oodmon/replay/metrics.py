@@ -17,6 +17,7 @@ from collections import Counter, defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -27,6 +28,7 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
            "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
+           "ended_before_onset",
            "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures",
            "failure_step", "fpr_at_tpr", "is_id_variant", "made_from_episodes", "monitor_row", "pooled_fits",
            "pooled_thresholds", "pooled_weights", "rankable", "shifted_alarms"]
@@ -243,6 +245,19 @@ def _thresholded(pairs: Sequence[tuple[RunLog, EpisodeLog]]) -> bool:
     """Whether every run of a (task, method, variant)'s episodes had a threshold: only then are its
     alarms the monitor's (a run without one raised none)."""
     return all(log.has_threshold for log, _ in pairs)
+
+
+def ended_before_onset(episode: Any) -> bool:
+    """Whether a shifted variant's episode (an :class:`EpisodeLog`, or the monitor's
+    :class:`~oodmon.monitor.records.EpisodeRecord`) ended before its onset: the shift never began in
+    it (the metrics still count it among the variant's episodes, as not alarmed after the onset).
+
+    Example:
+        >>> from oodmon.monitor.records import EpisodeRecord
+        >>> ended_before_onset(EpisodeRecord(0, "oodmon/CartPole-v1", "cartpole:length=2.0", 600, 0, 500.0, 500, 0, None))
+        True
+    """
+    return not is_id_variant(episode.variant) and episode.length <= episode.onset
 
 
 def _onset_alarms(episode: EpisodeLog) -> tuple[int | None, int | None]:

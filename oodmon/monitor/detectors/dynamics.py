@@ -238,15 +238,15 @@ class DynamicsDetector(Detector):
                               f"{first.shape[1:]} (for images use the frames or the features detector)")
         self.flatten = first.ndim != 2  # stacked vectors, or one number a step (a Box of shape ())
         flat = [np.asarray(t.observations).reshape(len(t.observations), -1) for t in trajectories]
-        obs = np.concatenate([f[:-1] for f in flat]).astype(np.float64)
-        nxt = np.concatenate([f[1:] for f in flat]).astype(np.float64)
-        actions = np.concatenate([np.asarray(t.actions) for t in trajectories])
         _check_finite(flat, "observations", "reading",
                       "the monitor scores a step that holds one as the most shifted (a failed sensor: an alarm), "
                       "so give it finite ones in ID (a wrapper of the env that holds the last finite reading, say)")
-        if self.n_actions is None:
-            _check_finite([np.asarray(actions, dtype=np.float64).reshape(len(actions), -1)], "actions",
-                          "dimension", "the policy's actions are inputs of the model")
+        actions = np.concatenate([np.asarray(t.actions) for t in trajectories])
+        if self.n_actions is None:  # continuous: the model's inputs as numbers, (steps, action dimensions)
+            continuous = np.asarray(actions, dtype=np.float64).reshape(len(actions), -1)
+            _check_finite([continuous], "actions", "dimension", "the policy's actions are inputs of the model")
+        obs = np.concatenate([f[:-1] for f in flat]).astype(np.float64)
+        nxt = np.concatenate([f[1:] for f in flat]).astype(np.float64)
         delta = nxt - obs
         smooth = np.array([len(np.unique(delta[:, i])) > JUMP_VALUES for i in range(delta.shape[1])])
         self.predicted = None if smooth.all() or not smooth.any() else np.flatnonzero(smooth)
@@ -256,8 +256,7 @@ class DynamicsDetector(Detector):
         norm = {"obs_mean": obs.mean(0), "obs_std": np.where(obs_std < 1e-6, 1.0, obs_std),
                 "delta_mean": delta.mean(0), "delta_std": np.maximum(delta.std(0), 1e-6)}
         if self.n_actions is None:
-            flat = np.asarray(actions, dtype=np.float64).reshape(len(actions), -1)
-            norm |= {"act_mean": flat.mean(0), "act_std": np.maximum(flat.std(0), 1e-6)}
+            norm |= {"act_mean": continuous.mean(0), "act_std": np.maximum(continuous.std(0), 1e-6)}
         self._norm = {k: v.astype(np.float32) for k, v in norm.items()}
         x = self._inputs(obs, actions)
         y = ((delta - norm["delta_mean"]) / norm["delta_std"]).astype(np.float32)
