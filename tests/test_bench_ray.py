@@ -192,6 +192,7 @@ def test_the_command_reads_ray_address_where_no_address_is_given(tmp_path, monke
 
     monkeypatch.setattr(oodmon.bench, "run_bench", stop)  # (the command imports it when it runs)
     monkeypatch.setenv("RAY_ADDRESS", "10.0.0.5:6379")
+    monkeypatch.chdir(tmp_path)  # the command makes its default --out, runs/bench, before the bench: not in the repository
     (tmp_path / "ray_address_policy.py").write_text(CONTROLLER)
     monkeypatch.syspath_prepend(str(tmp_path))
     argv = ["bench", "--policy", "ray_address_policy:act", "--env", "CartPole-v1", "--protocol", "monitor"]
