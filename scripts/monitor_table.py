@@ -35,7 +35,8 @@ def table(task: str) -> str:
         lines.append(
             f"| {task}-{method} | {ident['false_alarms']}/{ident['episodes']} ({ident['false_alarm_rate']:.1%}) "
             f"[{ident['far_low']:.1%}, {ident['far_high']:.1%}] | {before} | {lead} | "
-            f"{pooled['alarmed']}/{pooled['episodes']} | {pooled['delay_median']:g} / {pooled['delay_p90']:g} |")
+            f"{pooled['alarmed']}/{pooled['episodes'] - pooled.get('never_shifted', 0)} | "  # (files before 2026-12-01 lack it)
+            f"{pooled['delay_median']:g} / {pooled['delay_p90']:g} |")
     return "\n".join(lines)
 
 

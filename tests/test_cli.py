@@ -798,7 +798,8 @@ def test_run_and_replay_say_when_episodes_ended_before_the_onset(tmp_path, capsy
     assert "note: 2 of 2 episodes ended before step 600, the onset: the shift never began in them" in out
     assert main(["replay", str(tmp_path / "late.mcap")]) == 0
     assert "note: 2 episode(s) of shifted variants ended before their onset (the first of cartpole:length=2.0, " \
-           "500 steps against an onset of 600): the shift never began in them" in capsys.readouterr().err
+           "500 steps against an onset of 600): the shift never began in them: the detection rates and \"alarmed\" " \
+           "leave them out" in capsys.readouterr().err
     assert main(argv + ["--onset", "400", "--mcap", str(tmp_path / "in-time.mcap")]) == 0
     assert "note:" not in capsys.readouterr().out
     assert main(["replay", str(tmp_path / "in-time.mcap")]) == 0

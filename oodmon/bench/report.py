@@ -231,8 +231,9 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
                   else "no episode failed after its onset")
         delays = ("no alarm after an onset" if row.delay_median is None
                   else f"delay median {row.delay_median:.3g} p90 {row.delay_p90:.3g} steps")
-        console.print(f"{row.method}: {far}; {row.alarmed}/{row.episodes} shifted episodes alarmed after the onset "
-                      f"({row.early} before it); {before}; {delays}")
+        never = f"; {row.never_shifted} more ended before their onset (never shifted)" if row.never_shifted else ""
+        console.print(f"{row.method}: {far}; {row.alarmed}/{row.shifted_episodes} shifted episodes alarmed after the onset "
+                      f"({row.early} before it){never}; {before}; {delays}")
     print_unfailed(config, result, console)
     if config.own_env:
         print_unfelt(config, result, console)
@@ -249,7 +250,7 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
 
     low, _ = config.onset_range()
     for row in result.alarms:
-        if row.is_id or row.alarmed or not row.episodes:
+        if row.is_id or row.alarmed or not row.shifted_episodes:
             continue
         probe = probe_shift(parse_env_shift(row.variant), onset=low, steps=steps)
         if not probe.changed:

@@ -154,7 +154,8 @@ def _read_logs(paths: Sequence[str]):
     if never:
         print(f"oodmon: note: {len(never)} episode(s) of shifted variants ended before their onset (the first of "
               f"{never[0].variant}, {never[0].length} steps against an onset of {never[0].onset}): the shift never "
-              "began in them, and the shifted rows count them as episodes without an alarm", file=sys.stderr)
+              "began in them: the detection rates and \"alarmed\" leave them out (an alarm in them counts as early)",
+              file=sys.stderr)
     unthresholded = [str(log.path) for log in logs if not log.has_threshold]
     if unthresholded:
         print(f"oodmon: note: {len(unthresholded)} log(s) ran without a threshold (`oodmon run --threshold`), so "

@@ -143,7 +143,7 @@ def _run(args: argparse.Namespace) -> int:
     console.print(f"{rows.alarmed} of {rows.episodes} episodes raised an alarm"
                   + (f"; written to {', '.join(written)}" if written else ""))
     if rows.before_onset:
-        # (replay's shifted rows count them too, as episodes that did not alarm after the onset)
+        # (replay's detection rates leave them out; their alarms count as early ones)
         console.print(f"note: {rows.before_onset} of {rows.episodes} episodes ended before step {args.onset}, the "
                       "onset: the shift never began in them (an --onset later than this env's episodes last?)",
                       markup=False)

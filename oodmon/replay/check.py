@@ -43,17 +43,33 @@ EPISODE_RATES = ("false_alarm_rate", "early_alarm_rate", "detection_rate")
 #: The chance that a check of unchanged code finds an episode rate fallen (see the module docstring).
 CHANCE = 0.01
 COUNT, DELAYS = "alarm_episodes", "delays"
-_NOT_FIGURES = (COUNT, DELAYS)  # what a row keeps to weigh its figures by, not figures
+#: The episodes the detection rate counts where fewer than ``alarm_episodes``: those in which the
+#: shift began (the others ended before their onset); a row without it counts ``alarm_episodes``.
+SHIFTED = "shifted_episodes"
+_NOT_FIGURES = (COUNT, DELAYS, SHIFTED)  # what a row keeps to weigh its figures by, not figures
 
 
 def baseline_of(metrics: Sequence[VariantMetrics], tolerance: float) -> dict:
     """The baseline that ``metrics`` would write (``oodmon check --update``)."""
     return {
         "tolerance": tolerance,
-        "metrics": {m.key: {name: getattr(m, name) for name in HIGHER_IS_BETTER + LOWER_IS_BETTER + (COUNT,)
-                            if getattr(m, name) is not None} | ({DELAYS: list(m.delays)} if m.delays else {})
-                    for m in metrics},
+        "metrics": {m.key: _row(m, keep_none=False) for m in metrics},
     }
+
+
+def _row(m: VariantMetrics, *, keep_none: bool) -> dict:
+    """A row's compared figures and what weighs them (``keep_none``: its figures that are ``None`` too):
+    ``shifted_episodes`` only where fewer than ``alarm_episodes``, the delays where there are any."""
+    row = {name: getattr(m, name) for name in HIGHER_IS_BETTER + LOWER_IS_BETTER + (COUNT,)
+           if keep_none or getattr(m, name) is not None}
+    if m.shifted_episodes is not None and m.shifted_episodes != m.alarm_episodes:
+        row[SHIFTED] = m.shifted_episodes
+    return row | ({DELAYS: list(m.delays)} if m.delays or keep_none else {})
+
+
+def _episodes_of(row: dict, name: str) -> object:
+    """The episodes a row's rate ``name`` counts (see :data:`SHIFTED`)."""
+    return row[SHIFTED] if name == "detection_rate" and SHIFTED in row else row.get(COUNT)
 
 
 def load_baseline(path: str | Path) -> dict:
@@ -74,10 +90,11 @@ def load_baseline(path: str | Path) -> dict:
         if not isinstance(row, dict):
             raise ConfigError(f"{path}: metrics[{key!r}]={row!r:.40} is not allowed; each row maps metric names to numbers")
         for name, value in row.items():
-            if name == COUNT:
+            if name in (COUNT, SHIFTED):
                 if not is_whole(value, 1):
-                    raise ConfigError(f"{path}: metrics[{key!r}][{COUNT!r}]={value!r:.40} is not allowed; give the "
-                                      "whole number >= 1 of episodes the row's alarm rates count")
+                    counts = "alarm rates count" if name == COUNT else "detection rate counts"
+                    raise ConfigError(f"{path}: metrics[{key!r}][{name!r}]={value!r:.40} is not allowed; give the "
+                                      f"whole number >= 1 of episodes the row's {counts}")
                 continue
             if name == DELAYS:
                 if not (isinstance(value, list) and value and all(is_whole(d, 0) for d in value)):
@@ -110,8 +127,7 @@ def find_falls(metrics: Sequence[VariantMetrics], baseline: dict, tolerance: flo
     of counted episodes: and by more than chance, see the module docstring), or went missing;
     ``within``: a list that gets the moves beyond the tolerance within chance (see :func:`compare_metrics`)."""
     tolerance = baseline.get("tolerance", 0.02) if tolerance is None else tolerance
-    current = {m.key: {name: getattr(m, name) for name in HIGHER_IS_BETTER + LOWER_IS_BETTER + (COUNT,)}
-               | {DELAYS: list(m.delays)} for m in metrics}
+    current = {m.key: _row(m, keep_none=True) for m in metrics}
     return compare_metrics(current, baseline["metrics"], tolerance, what="the logs", chance=CHANCE, within=within)
 
 
@@ -245,7 +261,7 @@ def compare_metrics(current: dict[str, dict[str, float | None]], expected: dict[
             if chance is not None and odds is not None:
                 figure = odds.get((key, name))
             elif chance is not None and name in EPISODE_RATES:
-                figure = _beyond_chance(name in higher, was, now, row.get(COUNT), current[key].get(COUNT))
+                figure = _beyond_chance(name in higher, was, now, _episodes_of(row, name), _episodes_of(current[key], name))
             elif chance is not None and name == "delay_mean":
                 figure = _delays_beyond_chance(was, now, row.get(DELAYS), current[key].get(DELAYS))
             if figure is not None:

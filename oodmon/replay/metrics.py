@@ -7,7 +7,8 @@ positive class, and the false-positive rate at 95% true-positive rate.
 
 Per episode (the monitor's view): an alarm is a rising edge of the logged alarm flag. ID runs
 give the episode-level false-alarm rate (episodes with any alarm). Shifted runs give the
-detection rate (episodes with an alarm at or after the onset) and the delay from the onset to
+detection rate (episodes with an alarm at or after the onset, of those in which the shift began:
+an episode that ended before its onset had nothing to detect) and the delay from the onset to
 the first such alarm; alarms before the onset are counted as early (false) alarms.
 """
 
@@ -60,6 +61,9 @@ class VariantMetrics:
     #: the delays of the episodes the alarm detected, in steps (``delay_mean`` is their mean): what
     #: ``oodmon check`` weighs a change of the mean delay by
     delays: tuple[int, ...] = ()
+    #: of ``alarm_episodes``, those in which the shift began (the others ended before their onset:
+    #: nothing to detect): the detection rate's denominator; ``None`` without alarm rates
+    shifted_episodes: int | None = None
 
     @property
     def key(self) -> str:
@@ -250,7 +254,8 @@ def _thresholded(pairs: Sequence[tuple[RunLog, EpisodeLog]]) -> bool:
 def ended_before_onset(episode: Any) -> bool:
     """Whether a shifted variant's episode (an :class:`EpisodeLog`, or the monitor's
     :class:`~oodmon.monitor.records.EpisodeRecord`) ended before its onset: the shift never began in
-    it (the metrics still count it among the variant's episodes, as not alarmed after the onset).
+    it (the metrics count it among the variant's episodes and its early alarms, not among those
+    the detection rate and "shifted episodes alarmed" count).
 
     Example:
         >>> from oodmon.monitor.records import EpisodeRecord
@@ -403,16 +408,18 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
             fpr95 = float(fprs[np.searchsorted(tprs, 0.95, side="left")])
         early_rate = detection_rate = delay_mean = delay_median = None
         delays: list[int] = []
+        began = [e for e in alarmed if not ended_before_onset(e)]  # (one that ended before it has no alarm after it)
         if alarms:
             early, firsts = zip(*(_onset_alarms(e) for e in alarmed))
             delays = [int(first - e.onset) for first, e in zip(firsts, alarmed) if first is not None]
-            early_rate, detection_rate = float(np.mean([e is not None for e in early])), len(delays) / len(alarmed)
+            early_rate = float(np.mean([e is not None for e in early]))
+            detection_rate = len(delays) / len(began) if began else None
             if delays:
                 delay_mean, delay_median = float(np.mean(delays)), float(np.median(delays))
         results.append(VariantMetrics(
             task, method, variant, len(episodes), steps, len(negatives), len(ood), auroc, aupr, fpr95, None,
             early_rate, detection_rate, delay_mean, delay_median, name, len(alarmed) if alarms else None,
-            tuple(delays),
+            tuple(delays), len(began) if alarms else None,
         ))
     return results
 
@@ -566,7 +573,9 @@ class MonitorMetrics:
     ID variant: ``false_alarms`` of ``episodes`` raised any alarm; ``far_low``/``far_high`` is the
     95% Clopper-Pearson interval of that rate; ``failed`` of them the env ended (:func:`id_failures`;
     ``None`` where that is no failure). Shifted variants: ``alarmed`` episodes had an alarm at
-    or after the onset (``early`` ones before it, a false alarm); ``failed`` episodes failed after
+    or after the onset, of the :attr:`shifted_episodes` in which the shift began (``never_shifted``
+    ended before their onset; :func:`ended_before_onset`), ``early`` ones of all ``episodes`` an
+    alarm before it, a false alarm; ``failed`` episodes failed after
     the onset (:func:`failure_step`) and ``before_failure`` of them were alarmed before the failure
     step. Delays are in steps from the onset to the first alarm at or after it, over alarmed
     episodes (``None`` when none); leads (the warning) from that alarm to the failure, over the
@@ -592,10 +601,16 @@ class MonitorMetrics:
     lead_median: float | None = None
     leads: tuple[int, ...] = ()
     causes: dict[str, int] = field(default_factory=dict)
+    never_shifted: int = 0
 
     @property
     def is_id(self) -> bool:
         return self.false_alarms is not None
+
+    @property
+    def shifted_episodes(self) -> int:
+        """The episodes in which the shift began: those ``alarmed`` counts."""
+        return self.episodes - self.never_shifted
 
     @property
     def false_alarm_rate(self) -> float | None:
@@ -638,21 +653,23 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
                                    sum(e.failure is not None for e in episodes) if known else None,
                                    sum(e.before_failure for e in episodes) if known else None,
                                    [e.first for e in episodes if e.first is not None],
-                                   [e.lead for e in episodes if e.lead is not None], causes))
+                                   [e.lead for e in episodes if e.lead is not None], causes,
+                                   sum(ended_before_onset(e) for _, e in pairs)))
     return results
 
 
 def monitor_row(task: str, method: str, variant: str, episodes: int, early: int, failed: int | None,
                 before_failure: int | None, delays: Sequence[int], leads: Sequence[int] = (),
-                causes: Mapping[str, int] | None = None) -> MonitorMetrics:
+                causes: Mapping[str, int] | None = None, never_shifted: int = 0) -> MonitorMetrics:
     """The :class:`MonitorMetrics` of shifted episodes from their counts, the delays of the
     alarmed ones and the leads of those alarmed before their failure (medians and the delays' 90th
     percentile computed here, for one variant or several pooled); ``failed`` and
     ``before_failure`` are ``None`` where no failure is defined (:func:`failure_known`);
-    ``causes``: how many first alarms each cause raised."""
+    ``causes``: how many first alarms each cause raised; ``never_shifted``: how many of the
+    ``episodes`` ended before their onset."""
     return MonitorMetrics(task, method, variant, episodes, early=early, alarmed=len(delays), failed=failed,
                           before_failure=before_failure,
                           delay_median=float(np.median(delays)) if len(delays) else None,
                           delay_p90=float(np.quantile(delays, 0.9)) if len(delays) else None, delays=tuple(delays),
                           lead_median=float(np.median(leads)) if len(leads) else None, leads=tuple(leads),
-                          causes=dict(Counter(causes or {}).most_common()))
+                          causes=dict(Counter(causes or {}).most_common()), never_shifted=never_shifted)

@@ -148,7 +148,7 @@ def monitor_summary(metrics: Sequence[MonitorMetrics]) -> list[MonitorMetrics]:
     return [monitor_row(task, method, POOLED, sum(m.episodes for m in group), sum(m.early for m in group),
                         total([m.failed for m in group]), total([m.before_failure for m in group]),
                         [d for m in group for d in m.delays], [lead for m in group for lead in m.leads],
-                        sum((Counter(m.causes) for m in group), Counter()))
+                        sum((Counter(m.causes) for m in group), Counter()), sum(m.never_shifted for m in group))
             for (task, method), group in sorted(pooled.items())]
 
 
@@ -160,7 +160,7 @@ def monitor_cells(m: MonitorMetrics, *, name_task: bool = False) -> list[str]:
         first = f"{_share(m.false_alarms, m.episodes)} [{m.far_low:.1%}, {m.far_high:.1%}]"
         return [m.method, m.variant, str(m.episodes), first, "", _share(m.failed, m.episodes), "", "", "", "", ""]
     variant = f"{m.variant} ({m.task})" if name_task and m.variant == POOLED else m.variant
-    return [m.method, variant, str(m.episodes), _share(m.early, m.episodes), _share(m.alarmed, m.episodes),
+    return [m.method, variant, str(m.episodes), _share(m.early, m.episodes), _share(m.alarmed, m.shifted_episodes),
             _share(m.failed, m.episodes), _share(m.before_failure, m.failed), delay(m.lead_median),
             delay(m.delay_median), delay(m.delay_p90), causes_cell(m.causes)]
 
@@ -211,7 +211,7 @@ def _narrow_monitor_table(metrics: Sequence[MonitorMetrics], title: str) -> Tabl
             continue
         if m.causes:  # what raised the first alarms, on a line of its own under the variant
             name = Text(name).append(f"\nby {causes_cell(m.causes)}", style="dim")
-        table.add_row(name, count(m.early, m.episodes), count(m.alarmed, m.episodes), count(m.before_failure, m.failed),
+        table.add_row(name, count(m.early, m.episodes), count(m.alarmed, m.shifted_episodes), count(m.before_failure, m.failed),
                       "" if m.lead_median is None else f"{m.lead_median:g}",
                       "" if m.delay_median is None else f"{m.delay_median:g}/{m.delay_p90:g}",
                       style="bold" if m.variant == POOLED else None)

@@ -607,7 +607,10 @@ def test_bench_runs_the_monitor_protocol_on_a_plain_sb3_policy(readme_run, capsy
     result = json.loads(capsys.readouterr().out)
     rows = {r["variant"]: r for r in result["alarms"] if r["method"] == "sb3"}
     assert rows["cartpole"]["episodes"] == 20 and rows["cartpole:length=2.0"]["episodes"] == 5
-    assert rows["cartpole:length=2.0"]["alarmed"] >= 4  # 5 of 5 when written (the README's run: 5 of 5)
+    # 5 of 5 when written (the README's run: 5 of 5); this DQN drops the pole in ID episodes too, so an
+    # episode may end before its onset (drawn in [20, 200)): 4 of the 4 that shifted on 2026-12-01
+    began = 5 - rows["cartpole:length=2.0"]["never_shifted"]
+    assert began >= 3 and rows["cartpole:length=2.0"]["alarmed"] >= began - 1
     folder_of_trial = next(out.glob("logs/cartpole-*-alarm-combined-fit*/sb3/trial0"))
     assert (folder_of_trial / "weights.sha256").read_text().strip() == file_sha256_of_models(folder / "runs/dqn0.zip")
     capsys.readouterr()
@@ -619,7 +622,9 @@ def test_bench_runs_the_monitor_protocol_on_a_plain_sb3_policy(readme_run, capsy
     fell = (f"; {ids['failed']}/20 ID episodes failed too (the env ended them): a shifted episode's failure is not the "
             "shift's doing alone") if ids["failed"] else ""
     assert (f"sb3: false alarms {ids['false_alarms']}/20 ID episodes (95% interval {ids['far_low']:.1%}-"
-            f"{ids['far_high']:.1%}, target 0.05){fell}; {shifted['alarmed']}/5 shifted episodes alarmed after the onset") \
+            f"{ids['far_high']:.1%}, target 0.05){fell}; {shifted['alarmed']}/{began} shifted episodes alarmed after the "
+            f"onset ({shifted['early']} before it)"
+            + (f"; {5 - began} more ended before their onset (never shifted)" if began < 5 else "")) \
         in " ".join(printed.out.split())
     assert "the monitor's benchmark (combined detector" in printed.out and "failed:" in printed.err
     assert main(argv[:-1] + ["--trials", "2"]) == 2

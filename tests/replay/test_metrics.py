@@ -404,3 +404,46 @@ def test_each_detectors_row_counts_the_alarms_of_the_runs_whose_alarm_read_it():
     assert {k: [p.name for p in v] for k, v in pooled_thresholds(logs)[("cartpole", "ensemble")].items()} == {
         "combined > 1.5 (score > threshold)": ["c.mcap"], "spread > 0.7 (score > threshold)": ["s.mcap"]}
     assert pooled_thresholds(logs[:1]) == {}
+
+
+def test_episodes_that_ended_before_their_onset_are_not_counted_as_missed_detections(tmp_path):
+    """A shifted episode that ended before its onset never shifted: it was counted as one the alarm
+    missed (a run of `--onset 600` on CartPole replayed as detected 0%, 2026-12-01). Its early
+    alarm is still a false alarm."""
+    from oodmon.replay import compute_monitor_metrics, monitor_summary
+    from oodmon.replay.check import baseline_of, find_falls
+    from oodmon.replay.report import monitor_cells
+
+    id_log = _log([_run(k, "cartpole", 0, [0] * 20) for k in range(2)])
+    shifted = _log([
+        _run(0, "cartpole:length=2.0", 5, [0] * 8 + [1] * 12, terminated=True),  # alarmed at 8: delay 3
+        _run(1, "cartpole:length=2.0", 5, [0] * 20, terminated=True),  # shifted, never alarmed
+        _run(2, "cartpole:length=2.0", 30, [0, 1, 0, 0] + [0] * 16, terminated=True),  # 20 steps, onset 30: early alarm
+        _run(3, "cartpole:length=2.0", 30, [0] * 20, terminated=True),  # 20 steps, onset 30
+    ])
+    m = {m.variant: m for m in compute_metrics([id_log, shifted])}["cartpole:length=2.0"]
+    assert (m.episodes, m.alarm_episodes, m.shifted_episodes) == (4, 4, 2)
+    assert m.detection_rate == 0.5 and m.delays == (3,)  # of the two that shifted (was 1 of 4)
+    assert m.early_alarm_rate == 0.25  # of all four
+    row = {r.variant: r for r in compute_monitor_metrics([id_log, shifted])}["cartpole:length=2.0"]
+    assert (row.episodes, row.never_shifted, row.shifted_episodes, row.alarmed, row.early) == (4, 2, 2, 1, 1)
+    assert monitor_cells(row)[3:5] == ["1/4 (25%)", "1/2 (50%)"]  # early of all episodes, alarmed of those that shifted
+    (pooled,) = monitor_summary([row])
+    assert (pooled.never_shifted, pooled.shifted_episodes, pooled.alarmed) == (2, 2, 1)
+    # none shifted: nothing to detect, no rate (not 0%)
+    late = _log([_run(k, "cartpole:length=2.0", 30, [0] * 20, terminated=True) for k in range(3)])
+    none = {m.variant: m for m in compute_metrics([id_log, late])}["cartpole:length=2.0"]
+    assert none.detection_rate is None and none.shifted_episodes == 0 and none.early_alarm_rate == 0.0
+    # a baseline keeps the detection rate's own count, and the check weighs a fall by it: 1 of 2
+    # to 0 of 2 is within chance (p = 0.5), as 1 of 4 to 0 of 4 would be too
+    baseline = baseline_of([m], 0.02)
+    assert baseline["metrics"][m.key]["shifted_episodes"] == 2
+    every_one_shifted = baseline_of(compute_metrics([ID, SHIFTED]), 0.02)["metrics"]["cartpole/m/cartpole:length=2.0"]
+    assert "shifted_episodes" not in every_one_shifted and every_one_shifted["alarm_episodes"] == 2
+    missed = _log([shifted.episodes[1], shifted.episodes[1], *shifted.episodes[2:]])
+    (now,) = [r for r in compute_metrics([id_log, missed]) if r.variant == "cartpole:length=2.0"]
+    baseline["metrics"][m.key] = {name: baseline["metrics"][m.key][name]  # (the delay goes missing with the alarm)
+                                  for name in ("detection_rate", "alarm_episodes", "shifted_episodes")}
+    within: list[str] = []
+    assert now.detection_rate == 0.0 and find_falls([now], baseline, within=within) == []
+    assert any("detection_rate fell from 0.5 to 0 (1/2 to 0/2 episodes" in line for line in within), within
