@@ -201,6 +201,11 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
                               f"{args.task}:NAME=VALUE (numeric attributes of its env), or leave out --variant")
         shift = own_variant(args.variant, agent.env_id)
         return agent.wrap(shift.make(onset_step=args.onset)), shift.spec
+    if args.variant and agent.env_id is not None and args.variant.partition(":")[0] not in TASKS:
+        # your own policy on gymnasium's id of a task: attributes of its env other than the task's
+        # physics (CartPole-v1:theta_threshold_radians=0.1; parse_env_shift refuses the physics)
+        shift = own_variant(args.variant, agent.env_id)
+        return agent.wrap(shift.make(onset_step=args.onset)), shift.spec
     if args.variant:
         variant = parse_variant(args.variant)
         if variant.task != args.task:

@@ -173,7 +173,18 @@ def check_physics(owner: str, defaults: Mapping[str, float], overrides: Mapping[
         >>> check_physics("oodmon/Pendulum-v1", {"g": 10.0, "l": 1.0}, {"g": 50})
         {'g': 50.0, 'l': 1.0}
     """
-    reject_unknown(owner, overrides, defaults)
+    try:
+        reject_unknown(owner, overrides, defaults)
+    except UnknownParameterError as error:
+        from difflib import get_close_matches
+
+        unknown = next(name for name in overrides if name not in defaults)
+        close = get_close_matches(unknown, list(defaults), n=1)
+        gym_id = owner.removeprefix("oodmon/")
+        hint = (f"did you mean {close[0]!r}?" if close else  # (else an attribute of gymnasium's env, not its physics)
+                f"another attribute of the env is shifted on gymnasium's id of it, {gym_id}:NAME=VALUE, for a policy "
+                f"of your own there (--sb3 or --policy, --env {gym_id})")
+        raise UnknownParameterError(f"{error}; {hint}") from None
     physics = dict(defaults)
     for name, value in overrides.items():
         physics[name] = positive_number(owner, name, value, defaults[name])

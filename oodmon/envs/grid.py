@@ -199,6 +199,19 @@ def parse_variant(spec: str) -> Variant:
         its_task = task_of_env(env_id)
         if its_task is not None:
             named = its_task + (f":{assignments}" if colon else "")
+            if colon:
+                from oodmon.envs.shift import parse_env_shift
+
+                try:
+                    parse_env_shift(spec)
+                except SpecError:  # (its task's physics or sensor faults: a variant of the task)
+                    pass
+                else:  # other attributes of gymnasium's env: not oodmon's variants
+                    raise UnknownParameterError(
+                        f"variant spec {spec!r} shifts attributes of gymnasium's {env_id} that are not oodmon's "
+                        f"variants of {its_task} (its physics and sensor faults, `oodmon envs`): it runs with a policy "
+                        f"of your own on {env_id} (`oodmon run` with --sb3 or --policy and --env {env_id}), not oodmon's "
+                        f"{its_task} agents (nor the bench)")
             raise UnknownParameterError(f"variant spec {spec!r}: oodmon's variants of {env_id} are named by its task, "
                                         f"{named} (see `oodmon envs`)")
         raise UnknownParameterError(

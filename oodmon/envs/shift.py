@@ -45,6 +45,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.envs.checks import check_onset_step, episode_onset
+from oodmon.envs.physics import CARTPOLE_DEFAULTS, PENDULUM_DEFAULTS
 from oodmon.envs.registration import wrappers_of
 from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
 from oodmon.names import TASKS
@@ -642,10 +643,6 @@ def parse_env_shift(spec: str) -> EnvShift:
     if env_id in TASKS:
         raise SpecError(f"{spec!r} is a variant of oodmon's {env_id} (oodmon.envs.parse_variant), not a shift of "
                         f"your own env: {_SPEC_HELP}")
-    task = task_of_env(env_id)
-    if task is not None:
-        raise SpecError(f"{env_id} has oodmon's own variants, which also update what the env derives from its "
-                        f"physics: give {task}:{assignments} (see `oodmon envs`)")
     params: dict[str, float] = {}
     for item in assignments.split(","):
         name, equals, value = (part.strip() for part in item.partition("="))
@@ -658,4 +655,24 @@ def parse_env_shift(spec: str) -> EnvShift:
         if name in params:
             raise SpecError(f"shift {spec!r} sets {name!r} twice")
         params[name] = number
+    task = task_of_env(env_id)
+    if task is not None:
+        # oodmon's variants of the task set its physics (updating what the env derives from them) and
+        # sensor faults; a shift of the env's id sets its other attributes (and faults beside them)
+        own = _PHYSICS.get(task)  # (None: Pong, whose variants are all there is)
+        physics = [name for name in params if own is None or name in own]
+        others = [name for name in params if name not in physics and not name.startswith("obs.")]
+        if physics and others:
+            raise SpecError(f"{spec!r} mixes {task}'s physics ({', '.join(physics)}), which oodmon's variants of {env_id} "
+                            f"set ({task}:NAME=VALUE, updating what the env derives from them), with other attributes "
+                            f"({', '.join(others)}), which a shift of {env_id} sets: one spec cannot hold both")
+        if not others:
+            raise SpecError(f"{env_id} has oodmon's own variants, which also update what the env derives from its "
+                            f"physics: give {task}:{assignments} (see `oodmon envs`)")
     return EnvShift(env_id, tuple(sorted(params.items())))
+
+
+#: The physics of oodmon's tasks by task, which their variants set (updating what the env derives
+#: from them): a shift of gymnasium's id of a task sets its other attributes
+#: (``CartPole-v1:theta_threshold_radians=0.1``, with a policy of your own on ``CartPole-v1``).
+_PHYSICS = {"cartpole": tuple(CARTPOLE_DEFAULTS), "pendulum": tuple(PENDULUM_DEFAULTS)}

@@ -59,6 +59,14 @@ def test_the_readmes_controller_is_calibrated_run_and_replayed_as_written_then_w
     assert (log.metadata["about.policy"], log.metadata["about.env_id"]) == ("my_controller.act", "CartPole-v1")
     assert main(["validate", "runs/controller.json", "--episodes", "5"]) == 2  # which policy: said, not guessed
     assert "--policy MODULE:NAME --env CartPole-v1" in capsys.readouterr().err
+    # an attribute of CartPole-v1 that is not oodmon's physics, shifted for your own policy (refused
+    # both as cartpole:... and as CartPole-v1:... before 2026-12-01): a pole that may lean 0.001 rad
+    assert main(["run", "--policy", "my_controller:act", "--env", "CartPole-v1", "--threshold", "runs/controller.json",
+                 "--variant", "CartPole-v1:theta_threshold_radians=0.001", "--onset", "30", "--episodes", "2",
+                 "--mcap", "runs/strict.mcap"]) == 0
+    strict = read_log("runs/strict.mcap").episodes
+    assert [(e.variant, e.onset) for e in strict] == [("CartPole-v1:theta_threshold_radians=0.001", 30)] * 2
+    assert all(e.terminated and 30 <= e.length < 40 for e in strict), [e.length for e in strict]  # ended at the onset
 
     # the deployed process in Python: the calibration read from the file, no episode of its own
     import my_controller

@@ -65,9 +65,12 @@ def test_a_shift_names_itself_in_the_spec_the_logs_record_and_replay_reads_back(
     ("Acrobot-v1:a=1,a=2", SpecError, "sets 'a' twice"),
     ("Acrobot-v1::a=1", SpecError, "expected ENV_ID"),
     ("CartPole-v1:length=2.0", SpecError, "give cartpole:length=2.0"),
+    ("CartPole-v1:obs.bias[0]=0.5", SpecError, r"give cartpole:obs.bias\[0\]=0.5"),
+    ("CartPole-v1:x_threshold=1.0,length=2.0", SpecError, r"mixes cartpole's physics \(length\).*\(x_threshold\), which "
+     "a shift of CartPole-v1 sets: one spec cannot hold both"),
     ("cartpole:length=2.0", SpecError, "is a variant of oodmon's cartpole"),
 ], ids=["no-assignment", "no-value", "not-a-number", "not-a-name", "no-env", "twice", "double-colon", "oodmon-env",
-        "oodmon-spec"])
+        "oodmon-env-fault", "oodmon-env-mixed", "oodmon-spec"])
 def test_a_malformed_shift_is_refused_saying_the_form(spec, error, words):
     with pytest.raises(error, match=words):
         parse_env_shift(spec)
@@ -473,3 +476,31 @@ def test_a_number_of_a_wrapper_of_the_users_is_shifted_when_the_env_itself_has_n
     assert both.unwrapped.g == 20.0 and both.env.g == 0.0  # the env's own number first
     with pytest.raises(UnknownParameterError, match=r"no numeric attribute 'wnd'.*max_speed.*; of its wrapper _Wind: g, wind$"):
         ShiftAttributes(_Wind(gymnasium.make("Pendulum-v1")), {"wnd": 1.0})
+
+
+def test_attributes_of_a_tasks_env_other_than_its_physics_are_a_shift_of_gymnasiums_id_of_it():
+    """`cartpole:theta_threshold_radians=0.1` said "no parameter" and `CartPole-v1:theta_threshold_radians=0.1`
+    "give cartpole:theta_threshold_radians=0.1": refused both ways (2026-12-01). A shift of gymnasium's
+    id sets it (for a policy of your own there); a misspelt physics name is asked about."""
+    from oodmon.envs import Variant, parse_variant
+
+    shift = parse_env_shift("CartPole-v1:theta_threshold_radians=0.1")
+    assert shift == EnvShift("CartPole-v1", (("theta_threshold_radians", 0.1),))
+    env = shift.make(onset_step=3)
+    env.reset(seed=0)
+    assert env.unwrapped.theta_threshold_radians == pytest.approx(12 * 2 * np.pi / 360)
+    for _ in range(3):
+        env.step(0)
+    assert env.unwrapped.theta_threshold_radians == pytest.approx(12 * 2 * np.pi / 360)
+    env.step(0)  # step 3, the fourth: the first shifted one
+    assert env.unwrapped.theta_threshold_radians == 0.1 and variant_of_env(env) == shift.spec
+    with pytest.raises(UnknownParameterError, match=r"no parameter 'theta_threshold_radians'.*another attribute of the "
+                       r"env is shifted on gymnasium's id of it, CartPole-v1:NAME=VALUE"):
+        Variant("cartpole", (("theta_threshold_radians", 0.1),)).make()
+    with pytest.raises(UnknownParameterError, match="no parameter 'lenght'.*did you mean 'length'"):
+        Variant("cartpole", (("lenght", 2.0),)).make()
+    with pytest.raises(UnknownParameterError, match="not oodmon's variants of cartpole.*`oodmon run` with --sb3 or "
+                       "--policy and --env CartPole-v1"):
+        parse_variant("CartPole-v1:theta_threshold_radians=0.1")
+    with pytest.raises(UnknownParameterError, match="named by its task, cartpole:length=2.0"):
+        parse_variant("CartPole-v1:length=2.0")
