@@ -55,6 +55,11 @@ __all__ = ["DictSensorFaults", "EnvShift", "SensorFaults", "ShiftAttributes", "o
 
 _SPEC_HELP = "expected ENV_ID:NAME=VALUE[,NAME=VALUE...], e.g. 'Acrobot-v1:LINK_MASS_2=3.0'"
 
+#: The physics of oodmon's tasks by task, which their variants set (updating what the env derives
+#: from them): a shift of gymnasium's id of a task sets its other attributes
+#: (``CartPole-v1:theta_threshold_radians=0.1``, with a policy of your own on ``CartPole-v1``).
+_PHYSICS = {"cartpole": tuple(CARTPOLE_DEFAULTS), "pendulum": tuple(PENDULUM_DEFAULTS)}
+
 
 def _is_number(value: object) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
@@ -628,8 +633,9 @@ def parse_env_shift(spec: str) -> EnvShift:
     its attributes are checked by :meth:`EnvShift.make`).
 
     Raises:
-        SpecError: not of that form, an attribute set twice, or an env oodmon has variants of
-            (their specs are ``cartpole:...`` and ``pendulum:...``).
+        SpecError: not of that form, an attribute set twice, or the physics or sensor faults alone
+            of an env oodmon has variants of (their specs are ``cartpole:...`` and ``pendulum:...``;
+            its other attributes are a shift of its id: ``CartPole-v1:theta_threshold_radians=0.1``).
 
     Example:
         >>> parse_env_shift("my_envs:MyEnv-v0:friction=0.2,mass=2").params
@@ -670,9 +676,3 @@ def parse_env_shift(spec: str) -> EnvShift:
             raise SpecError(f"{env_id} has oodmon's own variants, which also update what the env derives from its "
                             f"physics: give {task}:{assignments} (see `oodmon envs`)")
     return EnvShift(env_id, tuple(sorted(params.items())))
-
-
-#: The physics of oodmon's tasks by task, which their variants set (updating what the env derives
-#: from them): a shift of gymnasium's id of a task sets its other attributes
-#: (``CartPole-v1:theta_threshold_radians=0.1``, with a policy of your own on ``CartPole-v1``).
-_PHYSICS = {"cartpole": tuple(CARTPOLE_DEFAULTS), "pendulum": tuple(PENDULUM_DEFAULTS)}
