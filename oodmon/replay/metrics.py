@@ -623,7 +623,8 @@ class MonitorMetrics:
     def to_dict(self) -> dict[str, object]:
         return asdict(self) | {"delays": list(self.delays), "leads": list(self.leads),
                                "false_alarm_rate": self.false_alarm_rate,
-                               "before_failure_rate": self.before_failure_rate}
+                               "before_failure_rate": self.before_failure_rate,
+                               "shifted_episodes": None if self.is_id else self.shifted_episodes}
 
 
 def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) -> list[MonitorMetrics]:

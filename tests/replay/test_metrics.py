@@ -428,6 +428,7 @@ def test_episodes_that_ended_before_their_onset_are_not_counted_as_missed_detect
     row = {r.variant: r for r in compute_monitor_metrics([id_log, shifted])}["cartpole:length=2.0"]
     assert (row.episodes, row.never_shifted, row.shifted_episodes, row.alarmed, row.early) == (4, 2, 2, 1, 1)
     assert monitor_cells(row)[3:5] == ["1/4 (25%)", "1/2 (50%)"]  # early of all episodes, alarmed of those that shifted
+    assert (row.to_dict()["shifted_episodes"], row.to_dict()["never_shifted"]) == (2, 2)  # (replay --monitor --json)
     (pooled,) = monitor_summary([row])
     assert (pooled.never_shifted, pooled.shifted_episodes, pooled.alarmed) == (2, 2, 1)
     # none shifted: nothing to detect, no rate (not 0%)
