@@ -253,7 +253,12 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
         if row.is_id or row.alarmed or not row.shifted_episodes:
             continue
         probe = probe_shift(parse_env_shift(row.variant), onset=low, steps=steps)
-        if not probe.changed:
+        if not probe.changed and not probe.reached_onset:
+            console.print(f"{row.variant}: no episode alarmed; random actions end the env's episode after {probe.steps} "
+                          f"steps, before step {low}, the first onset, so whether the env feels the shift was not seen "
+                          f"(`oodmon envs show '{row.variant}' --onset {low} --sb3 ZIP` plays your model in both)",
+                          markup=False)
+        elif not probe.changed:
             console.print(f"{row.variant}: no episode alarmed, and nothing the env returned differed from its own over "
                           f"{probe.steps} steps of random actions, shifted from step {low} (`oodmon envs show '{row.variant}' "
                           f"--onset {low} --sb3 ZIP` plays your model in both): does the env read it after a reset?",

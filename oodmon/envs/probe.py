@@ -67,10 +67,18 @@ class ShiftProbe:
         """Whether anything the env returned differed."""
         return self.first_difference is not None
 
+    @property
+    def reached_onset(self) -> bool:
+        """Whether the shifted episode played a step from the onset on (the ``onset``-th step from 0)."""
+        return self.steps > self.onset
+
     def summary(self) -> str:
         """What the probe saw, in words."""
         played = (f"{self.steps} steps of " + ("random actions" if self.actions == "random" else "the policy's actions")
                   + f" (seed {self.seed}) from the same reset, onset {self.onset}")
+        if not self.changed and not self.reached_onset:  # (nothing was shifted: nothing to say of the shift)
+            return (f"{self.shift.spec}: not seen: the episode ended after {played}, before the shift began; "
+                    "try an earlier --onset, --sb3 or --policy (a policy that keeps the episode going), or --seed")
         if not self.changed:
             return (f"{self.shift.spec}: nothing the env returned differed from its own over {played} "
                     "(observations, rewards, the episode's end): the shift changed nothing there. An attribute "

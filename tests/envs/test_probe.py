@@ -59,6 +59,20 @@ def test_an_attribute_read_only_at_reset_changes_nothing_and_is_said_so():
     assert acting.first_difference == 6 and acting.own_return == acting.shifted_return == 50.0
 
 
+def test_a_probe_whose_episode_ends_before_the_onset_says_it_saw_nothing_of_the_shift(capsys):
+    """The hopper's and InvertedPendulum's random actions end an episode within a few steps: the
+    bench said "nothing the env returned differed ... over 5 steps, shifted from step 50 ... does the
+    env read it after a reset?" of shifts that were never applied (2026-12-01)."""
+    late = probe_shift(parse_env_shift("ResetOnlyGainForTests-v0:drag=0.5"), onset=150, steps=500)
+    assert late.steps == 100 and not late.reached_onset and not late.changed
+    assert "not seen: the episode ended after 100 steps" in late.summary() and "before the shift began" in late.summary()
+    assert "changed nothing" not in late.summary()
+    at_the_last = probe_shift(parse_env_shift("ResetOnlyGainForTests-v0:drag=0.5"), onset=99, steps=500)
+    assert at_the_last.reached_onset and at_the_last.first_difference == 100  # its last step was shifted
+    assert main(["envs", "show", "ResetOnlyGainForTests-v0:drag=0.5", "--onset", "150"]) == 1
+    assert "not seen: the episode ended after 100 steps" in capsys.readouterr().out.replace("\n", "")
+
+
 def test_the_probe_ends_with_the_first_episode_that_ends_and_refuses_no_steps():
     probe = probe_shift(parse_env_shift("ResetOnlyGainForTests-v0:drag=0.5"), steps=500)
     assert probe.steps == 100 and probe.ended == (True, True)  # the time limit of both
@@ -137,3 +151,21 @@ def test_an_env_of_dict_observations_is_compared_reading_by_reading():
     probe = probe_shift(parse_env_shift("DictGainForTests-v0:drag=0.5"), onset=4, steps=30)
     assert probe.first_difference == 5 and probe.largest.shape == (1002,)  # t one-hot, then x
     assert probe.largest[:1000].max() == 0 and probe.largest[1000:].min() > 0
+
+
+def test_the_bench_says_a_shift_no_episode_alarmed_on_was_not_seen_where_random_actions_end_before_the_onset():
+    import io
+    import types
+
+    from rich.console import Console
+
+    from oodmon.bench.report import print_unfelt
+    from oodmon.replay.metrics import monitor_row
+
+    config = types.SimpleNamespace(onset_range=lambda: (150, 160))  # (the bench's onsets are all print_unfelt reads)
+    unalarmed = monitor_row("ResetOnlyGainForTests-v0", "plain", "ResetOnlyGainForTests-v0:drag=0.5", 10, 0, None, None, [])
+    out = io.StringIO()
+    print_unfelt(config, types.SimpleNamespace(alarms=[unalarmed]), Console(file=out, width=400))
+    said = out.getvalue()
+    assert "random actions end the env's episode after 100 steps, before step 150, the first onset" in said
+    assert "does the env read it after a reset" not in said
