@@ -100,6 +100,18 @@ def test_a_warning_of_gymnasiums_is_one_plain_line(tmp_path, monkeypatch, capsys
            "<class 'list'>" in lines
     assert all(line.startswith("oodmon: warning: ") and "\x1b" not in line and "WARN:" not in line for line in lines)
 
+
+def test_a_warning_said_again_and_again_is_shown_once_per_command(tmp_path, monkeypatch, capsys):
+    """gymnasium warns at every make() of an old id: a bench of a policy on CartPole-v0 said "The
+    environment CartPole-v0 is out of date" 11 times (2026-12-01); calibrate made it twice."""
+    (tmp_path / "lean.py").write_text("def act(obs):\n    return int(obs[2] + 0.5 * obs[3] > 0)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    argv = ["calibrate", "--policy", "lean:act", "--env", "CartPole-v0", "--episodes", "19", "--confidence", "none",
+            "--fit-episodes", "6", "--out"]
+    for out in ("a.json", "b.json"):  # and again in the next command
+        assert main(argv + [str(tmp_path / out)]) == 0
+        assert capsys.readouterr().err.count("oodmon: warning: The environment CartPole-v0 is out of date") == 1
+
 @pytest.mark.parametrize(
     "args, words",
     [

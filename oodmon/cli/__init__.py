@@ -61,7 +61,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     args.argv = words  # what a result records as its command
     with warnings.catch_warnings():
-        warnings.showwarning = _show_warning
+        warnings.showwarning = _warning_shower()
         try:
             # OODMON_TORCH_THREADS in every command, one thread where it is not set (limit_threads)
             limit_threads()
@@ -106,12 +106,22 @@ def _kept(args: argparse.Namespace) -> str:
 _COLOUR = re.compile(r"\x1b\[[0-9;]*m")  # a terminal's colour codes (SGR), as gymnasium.utils.colorize writes them
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """Warnings in the terminal as one line each, without the source line Python would show, nor
-    the colour codes and ``WARN:`` of gymnasium's own (``gymnasium.logger.warn``: a user's env
-    whose ``step()`` returns a list said "oodmon: warning: \\x1b[33mWARN: The obs returned ...")."""
-    text = _COLOUR.sub("", str(message))
-    print(f"oodmon: warning: {text.removeprefix('WARN: ')}", file=sys.stderr)
+def _warning_shower():
+    """A ``warnings.showwarning`` for one command: warnings in the terminal as one line each,
+    without the source line Python would show, nor the colour codes and ``WARN:`` of gymnasium's
+    own (``gymnasium.logger.warn``: a user's env whose ``step()`` returns a list said "oodmon:
+    warning: \\x1b[33mWARN: The obs returned ..."), and each text once (a bench of your own
+    policy on ``CartPole-v0`` said "The environment CartPole-v0 is out of date" 11 times, once per
+    env made; each worker process says it once too)."""
+    shown: set[str] = set()
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        text = _COLOUR.sub("", str(message)).removeprefix("WARN: ")
+        if text not in shown:
+            shown.add(text)
+            print(f"oodmon: warning: {text}", file=sys.stderr)
+
+    return show
 
 
 def _parser() -> argparse.ArgumentParser:
