@@ -69,7 +69,7 @@ class ShiftProbe:
 
     @property
     def reached_onset(self) -> bool:
-        """Whether the shifted episode played a step from the onset on (the ``onset``-th step from 0)."""
+        """Whether the shifted episode played its step ``onset`` (counted from 0), the first one shifted."""
         return self.steps > self.onset
 
     def summary(self) -> str:
