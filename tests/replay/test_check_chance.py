@@ -72,6 +72,15 @@ def test_a_baselines_episode_count_must_be_a_whole_number(tmp_path):
             load_baseline(path)
     path.write_text(json.dumps({"metrics": {"a/b/c": {"detection_rate": 1.0, "alarm_episodes": 20}}}))
     assert load_baseline(path)["metrics"]["a/b/c"]["alarm_episodes"] == 20
+    # so too the detection rate's own count, kept where some episodes ended before their onset
+    for bad in (0, 2.5, "18"):
+        path.write_text(json.dumps({"metrics": {"a/b/c": {"detection_rate": 1.0, "alarm_episodes": 20,
+                                                          "shifted_episodes": bad}}}))
+        with pytest.raises(ConfigError, match="shifted_episodes.*is not allowed; give the whole number >= 1 of episodes "
+                                              "the row's detection rate counts"):
+            load_baseline(path)
+    path.write_text(json.dumps({"metrics": {"a/b/c": {"detection_rate": 1.0, "alarm_episodes": 20, "shifted_episodes": 18}}}))
+    assert load_baseline(path)["metrics"]["a/b/c"]["shifted_episodes"] == 18
 
 
 def test_a_mean_delay_is_weighed_by_its_delays():
