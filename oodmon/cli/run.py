@@ -194,16 +194,14 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
     from oodmon.envs import Variant, own_variant, parse_variant
     from oodmon.envs.registration import TASK_OF_ENV
 
-    if args.variant and args.task not in TASKS:  # your own env: other numbers in its attributes
-        if args.variant.partition(":")[0] in TASKS:
-            raise ConfigError(f"variant {args.variant!r} is not a variant of {args.task}: oodmon has variants of "
-                              f"{', '.join(sorted(TASK_OF_ENV))}; shift {args.task} itself with --variant "
-                              f"{args.task}:NAME=VALUE (numeric attributes of its env), or leave out --variant")
-        shift = own_variant(args.variant, agent.env_id)
-        return agent.wrap(shift.make(onset_step=args.onset)), shift.spec
-    if args.variant and agent.env_id is not None and args.variant.partition(":")[0] not in TASKS:
-        # your own policy on gymnasium's id of a task: attributes of its env other than the task's
-        # physics (CartPole-v1:theta_threshold_radians=0.1; parse_env_shift refuses the physics)
+    named_task = bool(args.variant) and args.variant.partition(":")[0] in TASKS
+    if args.variant and args.task not in TASKS and named_task:
+        raise ConfigError(f"variant {args.variant!r} is not a variant of {args.task}: oodmon has variants of "
+                          f"{', '.join(sorted(TASK_OF_ENV))}; shift {args.task} itself with --variant "
+                          f"{args.task}:NAME=VALUE (numeric attributes of its env), or leave out --variant")
+    # A shift of your own env's attributes; also of gymnasium's id of a task, where your own policy
+    # acts (CartPole-v1:theta_threshold_radians=0.1: parse_env_shift refuses the task's physics there)
+    if args.variant and not named_task and (args.task not in TASKS or agent.env_id is not None):
         shift = own_variant(args.variant, agent.env_id)
         return agent.wrap(shift.make(onset_step=args.onset)), shift.spec
     if args.variant:

@@ -28,7 +28,7 @@ import gymnasium
 
 from oodmon.envs.checks import check_physics
 from oodmon.envs.corruptions import make_corruption
-from oodmon.envs.physics import CARTPOLE_DEFAULTS, PENDULUM_DEFAULTS
+from oodmon.envs.physics import PHYSICS_DEFAULTS
 from oodmon.errors import ConfigError, SpecError, UnknownParameterError
 from oodmon.names import TASKS
 from oodmon.paper import paper_grid_data
@@ -43,7 +43,6 @@ ENV_IDS: dict[str, str] = {
 }
 assert tuple(ENV_IDS) == TASKS  # one env per task, in the same order
 
-_PHYSICS_DEFAULTS = {"cartpole": CARTPOLE_DEFAULTS, "pendulum": PENDULUM_DEFAULTS}
 _SPEC_HELP = (
     "expected TASK, TASK:NAME=VALUE[,NAME=VALUE...], pong:CORRUPTION@SEVERITY or "
     "pong:CORRUPTION:NAME=VALUE[,...], e.g. 'cartpole:length=2.0' or 'pong:pixelate@3'; sensor faults as "
@@ -101,7 +100,7 @@ class Variant:
                 raise SpecError(
                     f"{self.task} variants change physics, not frames; corruptions are for pong"
                 )
-            checked = check_physics(ENV_IDS[self.task], _PHYSICS_DEFAULTS[self.task], params)
+            checked = check_physics(ENV_IDS[self.task], PHYSICS_DEFAULTS[self.task], params)
             params = {name: checked[name] for name in params}
         object.__setattr__(self, "params", tuple(sorted(params.items())))
         if self.faults:

@@ -28,7 +28,8 @@ from gymnasium.envs.classic_control.pendulum import PendulumEnv
 from oodmon.envs.checks import check_onset_step, check_physics, episode_onset
 from oodmon.errors import InvalidParameterError
 
-__all__ = ["CARTPOLE_DEFAULTS", "CARTPOLE_OBS_SPREAD", "PENDULUM_DEFAULTS", "PENDULUM_OBS_SPREAD", "ShiftedCartPole",
+__all__ = ["CARTPOLE_DEFAULTS", "CARTPOLE_OBS_SPREAD", "PENDULUM_DEFAULTS", "PENDULUM_OBS_SPREAD", "PHYSICS_DEFAULTS",
+           "ShiftedCartPole",
            "ShiftedPendulum"]
 
 #: CartPole's physics parameters and their defaults (gymnasium's CartPole-v1). ``length`` is
@@ -54,6 +55,10 @@ PENDULUM_DEFAULTS: dict[str, float] = {
     "max_torque": 2.0,
     "dt": 0.05,
 }
+
+#: Each task's physics parameters and their defaults: what its variants set (``cartpole:length=2.0``),
+#: updating what the env derives from them. Pong has none (its variants corrupt the picture).
+PHYSICS_DEFAULTS: dict[str, dict[str, float]] = {"cartpole": CARTPOLE_DEFAULTS, "pendulum": PENDULUM_DEFAULTS}
 
 
 #: The std of each observation dimension over ID episodes of the shipped ensembles (20 episodes,

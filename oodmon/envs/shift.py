@@ -45,7 +45,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.envs.checks import check_onset_step, episode_onset
-from oodmon.envs.physics import CARTPOLE_DEFAULTS, PENDULUM_DEFAULTS
+from oodmon.envs.physics import PHYSICS_DEFAULTS
 from oodmon.envs.registration import wrappers_of
 from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
 from oodmon.names import TASKS
@@ -54,11 +54,6 @@ __all__ = ["DictSensorFaults", "EnvShift", "SensorFaults", "ShiftAttributes", "o
            "parse_env_shift"]
 
 _SPEC_HELP = "expected ENV_ID:NAME=VALUE[,NAME=VALUE...], e.g. 'Acrobot-v1:LINK_MASS_2=3.0'"
-
-#: The physics of oodmon's tasks by task, which their variants set (updating what the env derives
-#: from them): a shift of gymnasium's id of a task sets its other attributes
-#: (``CartPole-v1:theta_threshold_radians=0.1``, with a policy of your own on ``CartPole-v1``).
-_PHYSICS = {"cartpole": tuple(CARTPOLE_DEFAULTS), "pendulum": tuple(PENDULUM_DEFAULTS)}
 
 
 def _is_number(value: object) -> bool:
@@ -665,7 +660,7 @@ def parse_env_shift(spec: str) -> EnvShift:
     if task is not None:
         # oodmon's variants of the task set its physics (updating what the env derives from them) and
         # sensor faults; a shift of the env's id sets its other attributes (and faults beside them)
-        own = _PHYSICS.get(task)  # (None: Pong, whose variants are all there is)
+        own = PHYSICS_DEFAULTS.get(task)  # (None: Pong, whose variants are all there is)
         physics = [name for name in params if own is None or name in own]
         others = [name for name in params if name not in physics and not name.startswith("obs.")]
         if physics and others:
