@@ -128,6 +128,24 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
     # nor detectors fitted on another number of episodes (the key ignored it before)
     assert BenchConfig("cartpole", ("dropout",), 1, fit_episodes=60, **learned).cache_key() != \
         BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key()
+    # nor a dynamics model fitted with another cap of its updates (2026-12-02: --dynamics-updates);
+    # the default is no setting, as results from before the option say; without a learned detector
+    # it would shape nothing, and is refused
+    from oodmon.monitor.detectors.dynamics import MAX_UPDATES
+
+    assert BenchConfig("cartpole").dynamics_updates == MAX_UPDATES
+    capped = {BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=updates, **learned).cache_key()
+              for updates in (MAX_UPDATES, 5000, None)}
+    assert len(capped) == 3 and BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key() in capped
+    assert any(key.endswith("-updatesall") for key in capped)
+    assert "dynamics_updates" not in BenchConfig("cartpole", ("dropout",), 1, **learned).what_made_the_numbers()
+    assert BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=None, **learned
+                       ).what_made_the_numbers()["dynamics_updates"] is None
+    with pytest.raises(ConfigError, match="dynamics_updates shapes the fit of the learned detectors, and this bench "
+                                          "fits none"):
+        BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=None)
+    with pytest.raises(ConfigError, match="dynamics_updates=0 is not allowed"):
+        BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=0, **learned)
     with pytest.raises(ConfigError, match="unknown detector 'sonar'"):
         BenchConfig("cartpole", detectors=("spread", "sonar"))
     # Too few calibration episodes for the bound is said before any work.

@@ -420,6 +420,52 @@ def test_fit_detectors_writes_a_set_that_calibrate_and_run_read(tmp_path, capsys
     assert rows["dynamics"]["auroc"] > 0.75 and rows["dynamics"]["detection_rate"] == 1.0
 
 
+def test_dynamics_updates_caps_the_dynamics_fit_of_every_command_that_fits(tmp_path, capsys, monkeypatch):
+    """--dynamics-updates N|all (2026-12-02): the dynamics model's fit stops after the whole epochs
+    that hold N Adam updates (default 3,000, which blunted a large fit: README, "In MuJoCo"), or
+    trains every epoch. Pendulum's 3 episodes: 2 fit, 400 transitions, one update an epoch."""
+    from oodmon.agents import zoo_dir
+    from oodmon.monitor.detectors import DetectorSet
+
+    fit = ["fit-detectors", "--task", "pendulum", "--method", "dropout", "--only", "dynamics", "--episodes", "3"]
+    sets = {}
+    for updates in ("7", "all", None):
+        out = tmp_path / f"det-{updates}"
+        assert main([*fit, *(["--dynamics-updates", updates] if updates else []), "--out", str(out)]) == 0
+        sets[updates] = DetectorSet.load(out)["dynamics"]
+    assert (sets["7"].max_updates, sets["all"].max_updates, sets[None].max_updates) == (7, None, 3000)
+    # all 100 epochs, 100 updates, fits the same transitions as the default (under its cap), not as 7 do
+    weights = {updates: detector.tensors()["layer0.weight"] for updates, detector in sets.items()}
+    assert np.array_equal(weights["all"], weights[None]) and not np.allclose(weights["7"], weights[None])
+    capsys.readouterr()
+    assert main([*fit, "--dynamics-updates", "0", "--out", str(tmp_path / "zero")]) == 2
+    assert "argument --dynamics-updates: 0 is not allowed; give a whole number >= 1" in capsys.readouterr().err
+    # calibrate takes it where it fits the detectors (a model without fitted ones)...
+    model = tmp_path / "model"
+    model.mkdir()
+    for name in ("model.json", "model.safetensors"):
+        shutil.copy(zoo_dir() / "pendulum-dropout" / name, model / name)
+    threshold = tmp_path / "thr.json"
+    assert main(["calibrate", "--task", "pendulum", "--model", str(model), "--detector", "dynamics", "--episodes", "10",
+                 "--far", "0.2", "--confidence", "none", "--fit-episodes", "3", "--dynamics-updates", "7",
+                 "--out", str(threshold)]) == 0
+    assert DetectorSet.load(tmp_path / "thr.json.detectors")["dynamics"].max_updates == 7
+    # ...and refuses it, before any episode, where it reads fitted ones (it was not there to ignore;
+    # --fit-episodes was ignored so before)
+    capsys.readouterr()
+    monkeypatch.setattr("oodmon.monitor.calibrate_agent", lambda *a, **k: pytest.fail("calibrated"))
+    shipped = ["calibrate", "--task", "pendulum", "--method", "dropout", "--out", str(tmp_path / "t.json")]
+    assert main([*shipped, "--dynamics-updates", "all"]) == 2
+    assert capsys.readouterr().err == (
+        "oodmon: error: --dynamics-updates shapes a fit of the detectors, and calibrate fits none here: it reads the "
+        "agent's shipped ones; fit them with `oodmon fit-detectors ... --dynamics-updates all --out DIR`, then "
+        "calibrate with --detectors DIR\n")
+    assert main([*shipped, "--fit-episodes", "9", "--detectors", str(tmp_path / "det-7")]) == 2
+    assert f"--fit-episodes shapes a fit of the detectors, and calibrate fits none here: it reads those in " \
+           f"{tmp_path / 'det-7'}; fit them with `oodmon fit-detectors ... --episodes 9 --out DIR`" in capsys.readouterr().err
+    assert not (tmp_path / "t.json").exists()
+
+
 def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, capsys, monkeypatch):
     """A model without fitted detectors: `calibrate --detector dynamics` fits them on episodes of their
     own beside the threshold, and `run --detectors` alarms on the shifted world with them."""
@@ -651,6 +697,12 @@ def test_the_cli_fits_detectors_on_the_librarys_default_number_of_episodes():
     assert parser.parse_args(["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--out", "d"]).episodes \
         is None
     assert (_FIT_EPISODES, _FIT_STEPS) == (DEFAULT_FIT_EPISODES, DEFAULT_FIT_STEPS)
+    from oodmon.cli.parsing import _MAX_UPDATES
+    from oodmon.monitor.detectors.dynamics import MAX_UPDATES
+
+    assert _MAX_UPDATES == MAX_UPDATES  # --dynamics-updates' default, in its help
+    assert parser.parse_args(["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--out", "d"]
+                             ).dynamics_updates == MAX_UPDATES
     assert _FAILURES == FAILURES  # what replay's and bench's --failure take
     # and oodmon.watch, the same fitting from Python (it fitted on 30, the default before 2026-11-24)
     assert inspect.signature(oodmon.watch).parameters["fit_episodes"].default is None

@@ -58,6 +58,7 @@ class BenchConfig:
     alarm_detector: str = "spread"  # the detector the monitor's alarm reads
     obs_noise: float = 0.0  # sensor noise in every monitored env (fit, calibration, cells), see envs
     fit_episodes: int = 0  # ID episodes the learned detectors are fitted on (0: the task's default)
+    dynamics_updates: int | None = 3000  # the dynamics fit's cap of Adam updates (dynamics.MAX_UPDATES; None: all)
     protocol: str = "paper"  # or "monitor": random onsets, alarms before failure (see the module docstring)
     rule: str = "consecutive"  # the alarm rule: consecutive, cusum or martingale (oodmon.monitor.sequential)
     consecutive: int | None = None  # m of the consecutive rule (None: 3 for spread, 1 for a learned detector)
@@ -97,6 +98,12 @@ class BenchConfig:
                 raise ConfigError(f"unknown detector {name!r}; choose from {', '.join(DETECTOR_NAMES)}")
         if self.alarm_detector not in self.detectors:
             raise ConfigError(f"the alarm reads the {self.alarm_detector} detector: add it to the detectors")
+        from oodmon.monitor.detectors.dynamics import MAX_UPDATES, check_max_updates
+
+        check_max_updates(self.dynamics_updates, "dynamics_updates")
+        if self.dynamics_updates != MAX_UPDATES and not self.learned:
+            raise ConfigError("dynamics_updates shapes the fit of the learned detectors, and this bench fits none "
+                              f"(detectors: {', '.join(self.detectors)}): add dynamics or combined to the detectors")
         if self.onsets is not None:
             if self.protocol != "monitor" or len(self.onsets) != 2 or not 0 <= self.onsets[0] < self.onsets[1]:
                 raise ConfigError(f"onsets={self.onsets}: the steps [low, high) the monitor's protocol draws each shifted "
@@ -227,7 +234,7 @@ class BenchConfig:
         if self.warmup:
             parts.append(f"warm{self.warmup}")
         if self.learned:
-            from oodmon.monitor.detectors.dynamics import JUMP_VALUES
+            from oodmon.monitor.detectors.dynamics import JUMP_VALUES, MAX_UPDATES
             from oodmon.monitor.detectors.fitting import FIT_VERSION, brings_default_set, default_fit_steps
 
             # the fitting's version: what an older oodmon fitted and scored is not reused; your own
@@ -246,7 +253,8 @@ class BenchConfig:
                          + (f"-on{self.fit_episodes}" if self.fit_episodes else "")
                          + (f"-steps{steps}" if steps else "") + (f"-jump{JUMP_VALUES}-drift" if self.own_env else "")
                          + ("-still" if defaults and (self.own_env or self.task == "pong") else "")
-                         + ("-vanish" if self.task == "pong" else ""))
+                         + ("-vanish" if self.task == "pong" else "")
+                         + ("" if self.dynamics_updates == MAX_UPDATES else f"-updates{self.dynamics_updates or 'all'}"))
         if self.obs_noise:
             parts.append(f"noise{self.obs_noise:g}")
         if self.samples is not None:
@@ -257,9 +265,12 @@ class BenchConfig:
 
     def what_made_the_numbers(self) -> dict:
         """The settings a result depends on (not where it ran: out, workers, executor)."""
+        from oodmon.monitor.detectors.dynamics import MAX_UPDATES
+
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()
                 if k not in ("out", "workers", "executor", "address", "bind", "imports", "unsafe_load_pickles")
-                and not (k in ("warmup", "policy") and not v)}  # none: as results from before it existed say (baselines)
+                and not (k in ("warmup", "policy") and not v)  # none: as results from before it existed say (baselines)
+                and not (k == "dynamics_updates" and v == MAX_UPDATES)}  # the default: as results from before it say
 
     @property
     def users_own(self) -> bool:

@@ -12,8 +12,8 @@ from rich.console import Console
 from oodmon.cli.display import _progress
 from oodmon.cli.loading import _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import (
-    _FIT_EPISODES, _FIT_STEPS, _KEPT, _SEED, _add_confidence, _add_rule, _add_workers, _agent_arguments, _fraction,
-    _non_negative, _whole,
+    _FIT_EPISODES, _FIT_STEPS, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
+    _agent_arguments, _fraction, _non_negative, _whole,
 )
 from oodmon.errors import ConfigError
 from oodmon.monitor.threshold import DETECTOR_NAMES, episodes_needed
@@ -55,11 +55,33 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
     calibrate.add_argument("--fit-episodes", type=_whole(3),
                            help=f"ID episodes the learned detectors are fitted on when calibrate fits them (default "
                                 f"{_FIT_EPISODES}; your own --env: more, until they hold {_FIT_STEPS:,} steps)")
+    _add_dynamics_updates(calibrate, "when calibrate fits the detectors")
     calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
                            help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
     _add_workers(calibrate, "the calibration episodes (and those of a fit of detectors before it)")
     calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
+
+
+def _refuse_fit_options(args: argparse.Namespace) -> None:
+    """Refuse calibrate's options of a fit where it fits no detectors (it reads fitted ones): said
+    before the calibration's minutes, not ignored.
+
+    Raises:
+        ConfigError: naming the options given and how to fit with them.
+    """
+    given = [(flag, value) for flag, value, default in (
+        ("--fit-episodes", args.fit_episodes, None), ("--dynamics-updates", args.dynamics_updates, _MAX_UPDATES))
+        if value != default]
+    if not given:
+        return
+    flags = " and ".join(flag for flag, _ in given)
+    settings = " ".join(f"{'--episodes' if flag == '--fit-episodes' else flag} {'all' if value is None else value}"
+                        for flag, value in given)
+    raise ConfigError(f"{flags} shape{'' if len(given) > 1 else 's'} a fit of the detectors, and calibrate fits none "
+                      "here: it reads " + (f"those in {args.detectors}" if args.detectors else "the agent's shipped ones")
+                      + f"; fit them with `oodmon fit-detectors ... {settings} --out DIR`, then calibrate with "
+                      "--detectors DIR")
 
 
 def _calibrate(args: argparse.Namespace) -> int:
@@ -93,7 +115,10 @@ def _calibrate(args: argparse.Namespace) -> int:
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
         with _progress() as report:
             detectors = fit_agent_detectors(agent, detectors=fitted_when_named(args.detector), score=args.score,
-                                            episodes=args.fit_episodes, on_progress=report, workers=args.workers)
+                                            episodes=args.fit_episodes, on_progress=report, workers=args.workers,
+                                            dynamics_updates=args.dynamics_updates)
+    else:
+        _refuse_fit_options(args)
     with _progress() as report:
         threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
                                     window=args.window, score=args.score, seed=args.seed, detectors=detectors,
@@ -253,6 +278,7 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
     fit.add_argument("--score", default="chosen_std", help="the spread score combined uses (default chosen_std)")
     fit.add_argument("--obs-noise", type=_non_negative, default=0.0,
                      help="sensor noise of the ID env, a fraction of each dimension's ID spread (default 0)")
+    _add_dynamics_updates(fit, "fitted on the episodes' two thirds")
     _add_workers(fit, "the fitting episodes")
     fit.add_argument("--out", required=True, help="folder for detectors.json and detectors.safetensors")
     fit.add_argument("--overwrite", action="store_true",
@@ -284,7 +310,7 @@ def _fit_detectors(args: argparse.Namespace) -> int:
     with _progress() as report:
         detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
                                         obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report,
-                                        workers=args.workers)
+                                        workers=args.workers, dynamics_updates=args.dynamics_updates)
     detectors.save(args.out)
     console = Console(soft_wrap=True)
     beside = _calibrated_beside(out)  # after the fitting: the threshold beside as it is now

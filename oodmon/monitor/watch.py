@@ -27,6 +27,7 @@ from oodmon.envs.grid import ENV_IDS
 from oodmon.envs.registration import task_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent
+from oodmon.monitor.detectors.dynamics import MAX_UPDATES, check_max_updates
 from oodmon.monitor.sinks.base import Sink
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, Threshold
 from oodmon.progress import Progress
@@ -101,7 +102,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
           callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
           on_progress: Progress | None = None, masks: str | None = None, vec_normalize: Any = None,
           frame_stack: int | None = None, threshold: str | Path | None = None, save: str | Path | None = None,
-          warmup: int = 0, imports: Sequence[str] = (), unsafe_load_pickles: bool = False, workers: int = 1) -> Any:
+          warmup: int = 0, imports: Sequence[str] = (), unsafe_load_pickles: bool = False, workers: int = 1,
+          dynamics_updates: int | None = MAX_UPDATES) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
     The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy (``None``:
@@ -118,6 +120,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     ``unsafe_load_pickles``: see :func:`as_agent`.
     ``warmup``: the alarm looks at no finite score of an episode's first ``warmup`` steps (see
     :mod:`oodmon.monitor.alarms`; the calibration says when one would lower the threshold much).
+    ``dynamics_updates``: the dynamics model's fit stops after the whole epochs that hold at most
+    this many Adam updates (``None``: every epoch; see :func:`~oodmon.monitor.detectors.fit_detectors`).
     ``workers``: processes that play the fitting and calibration episodes side by side (0: one per
     core; see :func:`~oodmon.monitor.calibrate_agent`: a policy that draws nothing gets the same
     detectors and threshold).
@@ -163,6 +167,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
         if fit_episodes is not None and not is_whole(fit_episodes, 3):
             raise InvalidParameterError(f"fit_episodes={fit_episodes!r} is not allowed; fitting the detectors needs a "
                                         "whole number >= 3 of ID episodes (two thirds fit, one third ranks)")
+        check_max_updates(dynamics_updates, "dynamics_updates")
         if save is not None:  # an unwritable path, or one that holds a model or a log: said now, not after the calibration
             files = [*(policy if isinstance(policy, (list, tuple)) else [policy]), vec_normalize]
             check_output_file(save, parameter="save", inputs=[("a file it reads", path) for path in files
@@ -176,7 +181,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     if threshold is None:
         check_can_have(detector, agent)  # (a plain policy's spread: said before the fit, not after it)
         detectors = fit_agent_detectors(agent, detectors=fitted_when_named(detector),  # as the CLI fits them
-                                        episodes=fit_episodes, on_progress=on_progress, workers=workers)
+                                        episodes=fit_episodes, on_progress=on_progress, workers=workers,
+                                        dynamics_updates=dynamics_updates)
         for note in fitting_notes(detectors):  # what the fit leaves unwatched, as calibrate prints it
             warnings.warn(note, stacklevel=2)
         alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,

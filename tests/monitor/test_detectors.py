@@ -697,6 +697,20 @@ def test_the_fit_stops_at_its_updates_its_rate_falling_and_older_files_read_as_f
             DynamicsDetector(2, **bad)
 
 
+def test_fit_detectors_passes_its_cap_of_updates_to_the_dynamics_model_and_refuses_a_bad_one_before_playing(
+        agent, monkeypatch):
+    """``fit_detectors(dynamics_updates=)``: the cap the dynamics model is fitted with (None: every
+    epoch), named as the caller gave it and refused before the fitting's episodes are played."""
+    from oodmon.monitor.detectors import fitting
+
+    env = Variant("cartpole").make()
+    fitted = fit_detectors(agent, env, detectors=["dynamics"], episodes=3, dynamics_updates=None)
+    assert fitted["dynamics"].max_updates is None and fit_detectors.__kwdefaults__["dynamics_updates"] == 3000
+    monkeypatch.setattr(fitting, "collect", lambda *a, **k: pytest.fail("played the fitting's episodes"))
+    with pytest.raises(InvalidParameterError, match=r"^dynamics_updates=0 is not allowed"):
+        fit_detectors(agent, env, detectors=["dynamics"], episodes=3, dynamics_updates=0)
+
+
 def test_standardised_early_means_lower_the_threshold_the_id_episodes_first_steps_set(agent):
     """The shipped CartPole ensemble's dynamics detector on 40 fresh ID episodes (500 steps each),
     its means standardised (the zoo's, since fitting version 6) and plain (as before): with plain

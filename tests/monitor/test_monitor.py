@@ -310,6 +310,10 @@ def test_watch_names_its_own_fit_episodes_argument_when_refusing_it(agent):
         oodmon.watch(agent, "CartPole-v1", warmup=-5)
     with pytest.raises(ConfigError, match=r"^workers=-1 is not allowed"):
         oodmon.watch(agent, "CartPole-v1", workers=-1)
+    for bad in (0, 2.5, "all"):  # None trains every epoch; "all" is the command line's word for it
+        with pytest.raises(ConfigError, match=rf"^dynamics_updates={bad!r} is not allowed; give an integer >= 1, or "
+                                              r"None \(every epoch\)"):
+            oodmon.watch(agent, "CartPole-v1", dynamics_updates=bad)
 
 
 def test_an_env_of_another_task_is_refused_before_any_fitting(agent, monkeypatch):

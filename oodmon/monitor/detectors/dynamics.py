@@ -49,7 +49,10 @@ fit alarmed any of 110 further held-out ID episodes. The monitor's benchmark mea
 through the combined alarm (``results/monitor/README.md``): 30 epochs with the decay slowed
 Pendulum's alarms, 100 kept or shortened every one on both tasks; the cap keeps Pendulum's 100 and
 bounds a large fit's time (30,000 transitions on one core: 50 epochs some 6 s, 100 some 12, the
-zoo's refits).
+zoo's refits). It blunts some large fits: a PPO's InvertedPendulum, 25-50 epochs, read a pole four
+times as heavy as ID where every epoch spiked at its onset (``scripts/dynamics_cap.py``); the
+commands that fit take ``--dynamics-updates all`` (``dynamics_updates=None``) for every epoch
+(the README's "In MuJoCo" weighs what it gains and costs there).
 
 Two hidden layers of 64 units: 128 and 200 measured no better (Pendulum above: per-step AUROC
 0.954-1.000 at 64 and at 128, window 1) and cost the monitor more per step.
@@ -79,11 +82,14 @@ from oodmon.monitor.detectors.frames import is_picture
 from oodmon.progress import Progress
 from oodmon.validation import is_whole
 
-__all__ = ["JUMP_VALUES", "MIN_LOGVAR", "DynamicsDetector", "min_logvar_for"]
+__all__ = ["JUMP_VALUES", "MAX_UPDATES", "MIN_LOGVAR", "DynamicsDetector", "check_max_updates", "min_logvar_for"]
 
 _KINDS = ("pedm", "nll")
 _EARLY = ("standardised", "mean")  # the score over fewer than window transitions (see DynamicsDetector)
 _SCHEDULES = ("linear", "constant")  # Adam's learning rate over the fit (see DynamicsDetector)
+#: The fit's default cap of Adam updates (``DynamicsDetector(max_updates=)``, fitting version 8;
+#: ``--dynamics-updates`` and ``dynamics_updates=`` of the commands and functions that fit).
+MAX_UPDATES = 3000
 _CONSTANT_Z = 16.0  # the fast path's constant pre-activation (see _FastNll)
 _MIN_LOGVAR, _MAX_LOGVAR = -12.0, 2.0  # soft bounds of the predicted log-variance (the lower one: min_logvar)
 
@@ -95,6 +101,17 @@ MIN_LOGVAR: dict[str, float] = {"pendulum": -6.0}
 #: A reading whose change takes at most this many distinct values over the ID transitions jumps
 #: (a flag: -1, 0, +1) or never moves: the dynamics model takes it as an input and predicts the others.
 JUMP_VALUES = 3
+
+
+def check_max_updates(max_updates: Any, name: str = "max_updates") -> None:
+    """Refuse a cap of the dynamics fit's updates that is neither a whole number >= 1 nor ``None``.
+
+    Raises:
+        InvalidParameterError: naming ``name`` (the parameter the caller took it as).
+    """
+    if max_updates is not None and not is_whole(max_updates):
+        raise InvalidParameterError(f"{name}={max_updates!r} is not allowed; give an integer >= 1, or None "
+                                    "(every epoch)")
 
 
 def min_logvar_for(task: str | None) -> float:
@@ -151,15 +168,14 @@ class DynamicsDetector(Detector):
                  n_draws: int = 4, epochs: int = 100, batch_size: int = 512, lr: float = 2e-3, window: int = 20,
                  seed: int = 0, neutral: float = 0.0, min_logvar: float = _MIN_LOGVAR, flatten: bool = False,
                  predicted: Sequence[int] | None = None, early: str = "standardised", schedule: str = "linear",
-                 max_updates: int | None = 3000) -> None:
+                 max_updates: int | None = MAX_UPDATES) -> None:
         if kind not in _KINDS:
             raise InvalidParameterError(f"kind={kind!r} is not allowed; use one of {', '.join(_KINDS)}")
         if early not in _EARLY:
             raise InvalidParameterError(f"early={early!r} is not allowed; use one of {', '.join(_EARLY)}")
         if schedule not in _SCHEDULES:
             raise InvalidParameterError(f"schedule={schedule!r} is not allowed; use one of {', '.join(_SCHEDULES)}")
-        if max_updates is not None and not is_whole(max_updates):
-            raise InvalidParameterError(f"max_updates={max_updates!r} is not allowed; give an integer >= 1, or None")
+        check_max_updates(max_updates)
         self.early, self.schedule, self.max_updates = early, schedule, max_updates
         for label, value in (("members", members), ("hidden", hidden), ("n_draws", n_draws), ("epochs", epochs),
                              ("batch_size", batch_size), ("window", window)):

@@ -26,7 +26,7 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors.base import StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.drift import DriftDetector
-from oodmon.monitor.detectors.dynamics import DynamicsDetector, min_logvar_for
+from oodmon.monitor.detectors.dynamics import MAX_UPDATES, DynamicsDetector, check_max_updates, min_logvar_for
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.monitor.detectors.frames import is_picture
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector, member_values
@@ -355,7 +355,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
                   episodes: int = DEFAULT_FIT_EPISODES, seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE,
                   task: str | None = None, policy_hash: str | None = None, obs_noise: float = 0.0,
                   on_progress: Progress | None = None, max_steps: int | None = None,
-                  min_steps: int = 0, workers: int = 1) -> DetectorSet:
+                  min_steps: int = 0, workers: int = 1, dynamics_updates: int | None = MAX_UPDATES) -> DetectorSet:
     """Fit the named detectors (default: :func:`default_detectors`) for ``policy`` on
     ``episodes`` ID episodes of ``env`` (each cut after ``max_steps`` steps if given), and more
     until they hold ``min_steps`` steps (two thirds of them fit, one third ranks).
@@ -369,6 +369,12 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     (it brings ``dynamics``), fitted by default in an env oodmon has no variants of, else only when
     named; ``transitions`` needs observations whose values repeat (discrete states, where it is
     fitted by default instead of ``dynamics`` and ``drift``).
+
+    ``dynamics_updates``: the dynamics model's fit stops after the whole epochs that hold at most
+    this many Adam updates (``None``: all of its 100 epochs; :class:`DynamicsDetector`'s
+    ``max_updates``). The default bounds a large fit's time and blunts it: 30,000 transitions of
+    a PPO's InvertedPendulum got 50 epochs, and the model read a pole four times as heavy as ID
+    where all 100 spiked at its onset (``scripts/dynamics_cap.py``; the README weighs both).
 
     ``workers``: processes that play the episodes side by side (0: one per core; :func:`collect`);
     the fitting itself runs here. A policy that draws nothing when it decides gets the same
@@ -392,6 +398,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     if not is_whole(episodes, 3):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
                                     "ID episodes (two thirds fit, one third ranks)")
+    check_max_updates(dynamics_updates, "dynamics_updates")  # before the episodes are played
     workers = resolve_workers(workers, episodes)
     # (spread is not asked: it joins where the policy has samples)
     reason = cannot_have_any([name for name in detectors if name != "spread"], policy, env)
@@ -411,7 +418,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     fit, held_out = [replace(t, estimates=None) for t in trajectories[:n_fit]], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []
     if "dynamics" in detectors:
-        parts.append(DynamicsDetector(n_actions, seed=seed, min_logvar=min_logvar_for(task)).fit(fit, on_progress=on_progress))
+        parts.append(DynamicsDetector(n_actions, seed=seed, min_logvar=min_logvar_for(task), max_updates=dynamics_updates
+                                      ).fit(fit, on_progress=on_progress))
         if "drift" in detectors:
             parts.append(DriftDetector.of(parts[-1]))
     if "transitions" in detectors:
@@ -518,11 +526,11 @@ def has_members(estimator: Any) -> bool:
 def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, episodes: int | None = None,
                         seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE, obs_noise: float = 0.0,
                         max_steps: int | None = None, on_progress: Progress | None = None,
-                        workers: int = 1) -> DetectorSet:
+                        workers: int = 1, dynamics_updates: int | None = MAX_UPDATES) -> DetectorSet:
     """:func:`fit_detectors` for an oodmon agent in its task's ID env (with ``obs_noise``), on
     ``episodes`` episodes; ``None``: :data:`DEFAULT_FIT_EPISODES`, and for an env oodmon has no
     variants of as many more as hold :data:`DEFAULT_FIT_STEPS` steps (:func:`default_fit_steps`);
-    ``workers`` processes play them side by side."""
+    ``workers`` processes play them side by side; ``dynamics_updates`` as :func:`fit_detectors` takes it."""
     from oodmon.monitor.monitor import policy_hash
 
     env = agent.make_env(obs_noise)
@@ -530,7 +538,8 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
         return fit_detectors(agent, env, detectors=detectors, episodes=episodes or DEFAULT_FIT_EPISODES, seed=seed,
                              score=score, task=agent.task, policy_hash=policy_hash(agent), obs_noise=obs_noise,
                              on_progress=on_progress, max_steps=max_steps,
-                             min_steps=default_fit_steps(agent.task) if episodes is None else 0, workers=workers)
+                             min_steps=default_fit_steps(agent.task) if episodes is None else 0, workers=workers,
+                             dynamics_updates=dynamics_updates)
     finally:
         env.close()
 
