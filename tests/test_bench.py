@@ -144,6 +144,9 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
     with pytest.raises(ConfigError, match="dynamics_updates shapes the fit of the learned detectors, and this bench "
                                           "fits none"):
         BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=None)
+    with pytest.raises(ConfigError, match=r"^fit_episodes and dynamics_updates shape the fit of the learned detectors, "
+                                          r"and this bench fits none \(detectors: spread\)"):
+        BenchConfig("cartpole", ("dropout",), 1, fit_episodes=30, dynamics_updates=5000)
     with pytest.raises(ConfigError, match="dynamics_updates=0 is not allowed"):
         BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=0, **learned)
     with pytest.raises(ConfigError, match="unknown detector 'sonar'"):

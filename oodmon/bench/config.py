@@ -101,9 +101,12 @@ class BenchConfig:
         from oodmon.monitor.detectors.dynamics import MAX_UPDATES, check_max_updates
 
         check_max_updates(self.dynamics_updates, "dynamics_updates")
-        if self.dynamics_updates != MAX_UPDATES and not self.learned:
-            raise ConfigError("dynamics_updates shapes the fit of the learned detectors, and this bench fits none "
-                              f"(detectors: {', '.join(self.detectors)}): add dynamics or combined to the detectors")
+        fitting = [name for name, given in (("fit_episodes", self.fit_episodes),
+                                            ("dynamics_updates", self.dynamics_updates != MAX_UPDATES)) if given]
+        if fitting and not self.learned:  # (the fit_episodes were ignored so before 2026-12-02)
+            raise ConfigError(f"{' and '.join(fitting)} shape{'' if len(fitting) > 1 else 's'} the fit of the learned "
+                              f"detectors, and this bench fits none (detectors: {', '.join(self.detectors)}): add "
+                              "dynamics or combined to the detectors")
         if self.onsets is not None:
             if self.protocol != "monitor" or len(self.onsets) != 2 or not 0 <= self.onsets[0] < self.onsets[1]:
                 raise ConfigError(f"onsets={self.onsets}: the steps [low, high) the monitor's protocol draws each shifted "
