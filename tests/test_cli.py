@@ -434,6 +434,9 @@ def test_dynamics_updates_caps_the_dynamics_fit_of_every_command_that_fits(tmp_p
         assert main([*fit, *(["--dynamics-updates", updates] if updates else []), "--out", str(out)]) == 0
         sets[updates] = DetectorSet.load(out)["dynamics"]
     assert (sets["7"].max_updates, sets["all"].max_updates, sets[None].max_updates) == (7, None, 3000)
+    out = capsys.readouterr().out  # the fit the cap ended early says so; the other two trained every epoch
+    assert out.count("dynamics: the model trained") == 1 and "trained 7 of its 100 epochs, as many as hold the 7 " \
+        "Adam updates its fit is capped at; --dynamics-updates all" in out.replace("\n", " ")
     # all 100 epochs, 100 updates, fits the same transitions as the default (under its cap), not as 7 do
     weights = {updates: detector.tensors()["layer0.weight"] for updates, detector in sets.items()}
     assert np.array_equal(weights["all"], weights[None]) and not np.allclose(weights["7"], weights[None])

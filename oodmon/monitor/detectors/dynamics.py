@@ -205,6 +205,7 @@ class DynamicsDetector(Detector):
         self._fast: _FastNll | None = None  # built on first use from the fitted weights
         self.scored: StepContext | None = None  # the step whose transition the fast path's buffers hold
         self._rng = np.random.default_rng(seed)
+        self.epochs_trained: int | None = None  # set by fit() (a loaded model does not know it)
 
     @property
     def fitted(self) -> bool:
@@ -308,6 +309,7 @@ class DynamicsDetector(Detector):
                 updates += 1
             if on_progress is not None:
                 on_progress("dynamics model fitting epochs", epoch + 1, epochs)
+        self.epochs_trained = epochs  # (fitting_notes says so where max_updates ended the fit early)
         self._weights = [(params[i].detach().numpy().copy(), params[i + 1].detach().numpy().copy())
                          for i in range(0, len(params), 2)]
         self._fast = None

@@ -571,13 +571,24 @@ def _runs(indices: Sequence[int]) -> str:
 
 
 def fitting_notes(detectors: DetectorSet | None) -> list[str]:
-    """What a fit leaves unwatched, in words (``oodmon calibrate`` and ``fit-detectors`` print them,
-    :func:`oodmon.watch` warns them): the readings the dynamics model takes as inputs only."""
+    """What a fit leaves unwatched or blunt, in words (``oodmon calibrate`` and ``fit-detectors``
+    print them, :func:`oodmon.watch` warns them): the readings the dynamics model takes as inputs
+    only, and a dynamics fit its cap of updates ended before its last epoch (a model just fitted:
+    a loaded one does not know how far it trained)."""
     dynamics = detectors["dynamics"] if detectors is not None and "dynamics" in detectors.names else None
-    unscored = dynamics.unscored() if dynamics is not None else []
-    if not unscored:
+    if dynamics is None:
         return []
-    return [f"dynamics: reading{'s' if len(unscored) > 1 else ''} {_runs(unscored)} of the observation "
-            f"(flattened) jump{'' if len(unscored) > 1 else 's'} between a few values over the ID transitions (a contact "
-            "flag) or never moved: inputs of the model, not scored by it (a Gaussian cannot model a jump), so a "
-            "fault of theirs alone goes unseen by this detector"]
+    notes = []
+    unscored = dynamics.unscored()
+    if unscored:
+        notes.append(f"dynamics: reading{'s' if len(unscored) > 1 else ''} {_runs(unscored)} of the observation "
+                     f"(flattened) jump{'' if len(unscored) > 1 else 's'} between a few values over the ID transitions (a "
+                     "contact flag) or never moved: inputs of the model, not scored by it (a Gaussian cannot model a "
+                     "jump), so a fault of theirs alone goes unseen by this detector")
+    trained = dynamics.epochs_trained
+    if trained is not None and trained < dynamics.epochs:
+        notes.append(f"dynamics: the model trained {trained} of its {dynamics.epochs} epochs, as many as hold the "
+                     f"{dynamics.max_updates:,} Adam updates its fit is capped at; --dynamics-updates all "
+                     "(dynamics_updates=None) trains every one: slower, and on the benches measured it alarmed more "
+                     "often or sooner, with a few more false alarms on some (README, --dynamics-updates)")
+    return notes
