@@ -135,15 +135,16 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
 
     assert BenchConfig("cartpole").dynamics_updates == MAX_UPDATES
     capped = {BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=updates, **learned).cache_key()
-              for updates in (MAX_UPDATES, 5000, None)}
-    assert len(capped) == 3 and BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key() in capped
-    assert any(key.endswith("-updatesall") for key in capped)
+              for updates in (MAX_UPDATES, 5000, 3000)}
+    assert MAX_UPDATES is None and len(capped) == 3  # every epoch, since fitting version 9
+    assert BenchConfig("cartpole", ("dropout",), 1, **learned).cache_key() in capped
+    assert any(key.endswith("-updates3000") for key in capped)
     assert "dynamics_updates" not in BenchConfig("cartpole", ("dropout",), 1, **learned).what_made_the_numbers()
-    assert BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=None, **learned
-                       ).what_made_the_numbers()["dynamics_updates"] is None
+    assert BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=3000, **learned
+                       ).what_made_the_numbers()["dynamics_updates"] == 3000
     with pytest.raises(ConfigError, match="dynamics_updates shapes the fit of the learned detectors, and this bench "
                                           "fits none"):
-        BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=None)
+        BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=3000)
     with pytest.raises(ConfigError, match=r"^fit_episodes and dynamics_updates shape the fit of the learned detectors, "
                                           r"and this bench fits none \(detectors: spread\)"):
         BenchConfig("cartpole", ("dropout",), 1, fit_episodes=30, dynamics_updates=5000)

@@ -422,8 +422,9 @@ def test_fit_detectors_writes_a_set_that_calibrate_and_run_read(tmp_path, capsys
 
 def test_dynamics_updates_caps_the_dynamics_fit_of_every_command_that_fits(tmp_path, capsys, monkeypatch):
     """--dynamics-updates N|all (2026-12-02): the dynamics model's fit stops after the whole epochs
-    that hold N Adam updates (default 3,000, which blunted a large fit: README, "In MuJoCo"), or
-    trains every epoch. Pendulum's 3 episodes: 2 fit, 400 transitions, one update an epoch."""
+    that hold N Adam updates, or trains every epoch (the default since fitting version 9; version
+    8's cap of 3,000 blunted a large fit: README, "In MuJoCo"). Pendulum's 3 episodes: 2 fit, 400
+    transitions, one update an epoch."""
     from oodmon.agents import zoo_dir
     from oodmon.monitor.detectors import DetectorSet
 
@@ -433,7 +434,7 @@ def test_dynamics_updates_caps_the_dynamics_fit_of_every_command_that_fits(tmp_p
         out = tmp_path / f"det-{updates}"
         assert main([*fit, *(["--dynamics-updates", updates] if updates else []), "--out", str(out)]) == 0
         sets[updates] = DetectorSet.load(out)["dynamics"]
-    assert (sets["7"].max_updates, sets["all"].max_updates, sets[None].max_updates) == (7, None, 3000)
+    assert (sets["7"].max_updates, sets["all"].max_updates, sets[None].max_updates) == (7, None, None)
     out = capsys.readouterr().out  # the fit the cap ended early says so; the other two trained every epoch
     assert out.count("dynamics: the model trained") == 1 and "trained 7 of its 100 epochs, as many as hold the 7 " \
         "Adam updates its fit is capped at; --dynamics-updates all" in out.replace("\n", " ")
@@ -458,10 +459,10 @@ def test_dynamics_updates_caps_the_dynamics_fit_of_every_command_that_fits(tmp_p
     capsys.readouterr()
     monkeypatch.setattr("oodmon.monitor.calibrate_agent", lambda *a, **k: pytest.fail("calibrated"))
     shipped = ["calibrate", "--task", "pendulum", "--method", "dropout", "--out", str(tmp_path / "t.json")]
-    assert main([*shipped, "--dynamics-updates", "all"]) == 2
+    assert main([*shipped, "--dynamics-updates", "3000"]) == 2
     assert capsys.readouterr().err == (
         "oodmon: error: --dynamics-updates shapes a fit of the detectors, and calibrate fits none here: it reads the "
-        "agent's shipped ones; fit them with `oodmon fit-detectors ... --dynamics-updates all --out DIR`, then "
+        "agent's shipped ones; fit them with `oodmon fit-detectors ... --dynamics-updates 3000 --out DIR`, then "
         "calibrate with --detectors DIR\n")
     assert main([*shipped, "--fit-episodes", "9", "--detectors", str(tmp_path / "det-7")]) == 2
     assert f"--fit-episodes shapes a fit of the detectors, and calibrate fits none here: it reads those in " \

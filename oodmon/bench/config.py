@@ -58,7 +58,7 @@ class BenchConfig:
     alarm_detector: str = "spread"  # the detector the monitor's alarm reads
     obs_noise: float = 0.0  # sensor noise in every monitored env (fit, calibration, cells), see envs
     fit_episodes: int = 0  # ID episodes the learned detectors are fitted on (0: the task's default)
-    dynamics_updates: int | None = 3000  # the dynamics fit's cap of Adam updates (dynamics.MAX_UPDATES; None: all)
+    dynamics_updates: int | None = None  # the dynamics fit's cap of Adam updates (dynamics.MAX_UPDATES; None: none)
     protocol: str = "paper"  # or "monitor": random onsets, alarms before failure (see the module docstring)
     rule: str = "consecutive"  # the alarm rule: consecutive, cusum or martingale (oodmon.monitor.sequential)
     consecutive: int | None = None  # m of the consecutive rule (None: 3 for spread, 1 for a learned detector)

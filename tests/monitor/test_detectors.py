@@ -708,14 +708,14 @@ def test_fit_detectors_passes_its_cap_of_updates_to_the_dynamics_model_and_refus
 
     env = Variant("cartpole").make()
     fitted = fit_detectors(agent, env, detectors=["dynamics"], episodes=3, dynamics_updates=None)
-    assert fitted["dynamics"].max_updates is None and fit_detectors.__kwdefaults__["dynamics_updates"] == 3000
+    assert fitted["dynamics"].max_updates is None and fit_detectors.__kwdefaults__["dynamics_updates"] is None
     assert fitted["dynamics"].epochs_trained == 100 and fitting_notes(fitted) == []
     # two episodes of 500 steps fit: 2 updates an epoch, so a cap of 3 ends the fit after one; said
     capped = fit_detectors(agent, env, detectors=["dynamics"], episodes=3, dynamics_updates=3)
     assert capped["dynamics"].epochs_trained == 1 and fitting_notes(capped) == [
         "dynamics: the model trained 1 of its 100 epochs, as many as hold the 3 Adam updates its fit is capped at; "
-        "--dynamics-updates all (dynamics_updates=None) trains every one: slower, and on the benches measured it "
-        "alarmed more often or sooner, with a few more false alarms on some (README, --dynamics-updates)"]
+        "--dynamics-updates all (dynamics_updates=None, the default) trains every one: slower, and on the benches "
+        "measured it alarmed more often or sooner, with a few more false alarms on some (README, --dynamics-updates)"]
     assert not np.array_equal(capped["dynamics"].tensors()["layer0.weight"], fitted["dynamics"].tensors()["layer0.weight"])
     capped.save(tmp_path / "capped")  # a loaded model does not know how far it trained: no note
     assert fitting_notes(DetectorSet.load(tmp_path / "capped")) == []
