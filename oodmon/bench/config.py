@@ -257,7 +257,7 @@ class BenchConfig:
                          + (f"-steps{steps}" if steps else "") + (f"-jump{JUMP_VALUES}-drift" if self.own_env else "")
                          + ("-still" if defaults and (self.own_env or self.task == "pong") else "")
                          + ("-vanish" if self.task == "pong" else "")
-                         + ("" if self.dynamics_updates == MAX_UPDATES else f"-updates{self.dynamics_updates or 'all'}"))
+                         + ("" if self.dynamics_updates == MAX_UPDATES else f"-updates{self.dynamics_updates}"))
         if self.obs_noise:
             parts.append(f"noise{self.obs_noise:g}")
         if self.samples is not None:

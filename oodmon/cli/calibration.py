@@ -76,8 +76,7 @@ def _refuse_fit_options(args: argparse.Namespace) -> None:
     if not given:
         return
     flags = " and ".join(flag for flag, _ in given)
-    settings = " ".join(f"{'--episodes' if flag == '--fit-episodes' else flag} {'all' if value is None else value}"
-                        for flag, value in given)
+    settings = " ".join(f"{'--episodes' if flag == '--fit-episodes' else flag} {value}" for flag, value in given)
     raise ConfigError(f"{flags} shape{'' if len(given) > 1 else 's'} a fit of the detectors, and calibrate fits none "
                       "here: it reads " + (f"those in {args.detectors}" if args.detectors else "the agent's shipped ones")
                       + f"; fit them with `oodmon fit-detectors ... {settings} --out DIR`, then calibrate with "
