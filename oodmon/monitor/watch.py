@@ -132,14 +132,17 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     ``threshold`` reads such a file and the detectors beside it (else the agent's shipped ones)
     instead of fitting and calibrating: no episode runs. The file must have been calibrated on this
     policy (the hash of its weights; its MC masks, which the policy is loaded with by default);
-    ``far``, ``confidence``, ``episodes``, ``fit_episodes`` and ``warmup`` are then the file's.
+    ``far``, ``confidence`` and ``episodes`` are then the file's, and ``warmup``, ``fit_episodes``
+    and ``dynamics_updates`` are refused (the file's warm-up and fitted detectors are what it was
+    calibrated with).
 
     Raises:
         ConfigError, InvalidParameterError: as :func:`as_agent` and the calibration, before any
             episode runs where they can be told from the arguments; ``threshold`` and ``save``
-            both given; a ``threshold`` file of another policy, or whose detectors are missing; a
-            ``save`` path that is one of the files it reads, or holds a file that is no threshold
-            (a threshold there is replaced).
+            both given; ``threshold`` with ``warmup``, ``fit_episodes`` or ``dynamics_updates``; a
+            ``threshold`` file of another policy, or whose detectors are missing; a ``save`` path
+            that is one of the files it reads, or holds a file that is no threshold (a threshold
+            there is replaced).
     """
     from oodmon.monitor.alarms import check_warmup
     from oodmon.monitor.calibration import calibrate_agent, save_calibration
@@ -155,6 +158,14 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     if threshold is not None and warmup:
         raise ConfigError("a threshold file's warm-up is the one it was calibrated for: leave warmup= out, or "
                           "calibrate anew with it (save=)")
+    fitting = [name for name, value, default in (("fit_episodes", fit_episodes, None),
+                                                 ("dynamics_updates", dynamics_updates, MAX_UPDATES))
+               if value != default]
+    if threshold is not None and fitting:  # (oodmon calibrate refuses its options of a fit where it fits none)
+        raise ConfigError(f"{' and '.join(f'{name}=' for name in fitting)} shape{'' if len(fitting) > 1 else 's'} a "
+                          "fit of the detectors, and a threshold file's detectors are those fitted beside it: leave "
+                          f"{'them' if len(fitting) > 1 else 'it'} out, or fit and calibrate anew with "
+                          f"{'them' if len(fitting) > 1 else 'it'} (save=)")
     if threshold is not None:
         agent, alarm_threshold, detectors = _calibrated(policy, env_id, threshold, mean=mean, seed=seed, masks=masks,
                                                         vec_normalize=vec_normalize, frame_stack=frame_stack,
