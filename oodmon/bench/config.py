@@ -291,14 +291,29 @@ class BenchConfig:
         return self.onsets or ONSETS[self.task]
 
     def variant_list(self) -> list[Variant | EnvShift]:
+        """The shifted variants the bench plays: oodmon's variants of its task (``"paper"``: the
+        paper's grid); in your own env, shifts of its attributes; and where your own policy acts in
+        gymnasium's env of one of oodmon's tasks (``env_id`` ``CartPole-v1``), shifts of that env's
+        other attributes too (``CartPole-v1:theta_threshold_radians=0.1``), as ``oodmon run`` takes
+        them (:func:`~oodmon.envs.own_variant`, which refuses the task's physics there: those are
+        ``cartpole:...``).
+
+        Raises:
+            SpecError, UnknownParameterError: a spec that does not parse.
+            ConfigError: a variant of another task or env, or the ID env.
+        """
         if self.own_env:
             shifts = [own_variant(spec.strip(), self.task) for spec in self.variants]
-            for shift in shifts:
-                if shift.is_id:
-                    raise ConfigError(f"{self.task} in the variants: the bench runs its ID episodes itself; give "
-                                      "the shifts only")
-            return shifts
-        return select_variants(self.task, self.variants, shifted_only=True)
+        elif self.users_own and self.variants != "paper" and any(_shifts_an_env(spec) for spec in self.variants):
+            shifts = [own_variant(spec.strip(), self.env_id) if _shifts_an_env(spec)
+                      else select_variants(self.task, [spec], shifted_only=True)[0] for spec in self.variants]
+        else:
+            return select_variants(self.task, self.variants, shifted_only=True)
+        for shift in shifts:
+            if shift.is_id:
+                raise ConfigError(f"{shift.spec} in the variants: the bench runs its ID episodes itself; give "
+                                  "the shifts only")
+        return shifts
 
 
 @dataclass(frozen=True)
@@ -368,6 +383,12 @@ class BenchResult:
 def _mean(values: dict[int, float | None]) -> float | None:
     present = [v for v in values.values() if v is not None]
     return float(np.mean(present)) if present else None
+
+
+def _shifts_an_env(spec: str) -> bool:
+    """Whether ``spec`` names a gymnasium id (a shift of an env's attributes, or the env itself)
+    rather than one of oodmon's tasks (its variants)."""
+    return spec.strip().partition(":")[0] not in TASKS
 
 
 def paper_label(task: str, method: str, spec: str) -> str | None:

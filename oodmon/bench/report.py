@@ -235,7 +235,7 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
         console.print(f"{row.method}: {far}; {row.alarmed}/{row.shifted_episodes} shifted episodes alarmed after the onset "
                       f"({row.early} before it){never}; {before}; {delays}")
     print_unfailed(config, result, console)
-    if config.own_env:
+    if config.own_env or config.users_own:
         print_unfelt(config, result, console)
     print(FAILURE_DEFINITION, file=sys.stderr)
 
@@ -250,8 +250,8 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
 
     low, _ = config.onset_range()
     for row in result.alarms:
-        if row.is_id or row.alarmed or not row.shifted_episodes:
-            continue
+        if row.is_id or row.alarmed or not row.shifted_episodes or row.variant.partition(":")[0] in TASKS:
+            continue  # (oodmon's variants of a task: felt by design)
         probe = probe_shift(parse_env_shift(row.variant), onset=low, steps=steps)
         if not probe.changed and not probe.reached_onset:
             console.print(f"{row.variant}: no episode alarmed; random actions end the env's episode after {probe.steps} "

@@ -46,7 +46,9 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                             "[256, 256], Pendulum [400, 300]); other widths train every trial, trial 0 too")
     bench.add_argument("--variants", default="paper",
                        help="'paper' (the paper's grid) or comma-separated specs (cartpole:gravity=20.0,length=2.0 "
-                            "is one); your own --env: its shifts, e.g. Acrobot-v1:LINK_MASS_2=2.0,Acrobot-v1:LINK_MASS_2=3.0")
+                            "is one); your own --env: its shifts, e.g. Acrobot-v1:LINK_MASS_2=2.0,Acrobot-v1:LINK_MASS_2=3.0; "
+                            "--sb3/--policy on a task's own id (--env CartPole-v1): its variants and shifts of that "
+                            "env's other attributes, e.g. CartPole-v1:theta_threshold_radians=0.1")
     bench.add_argument("--failure", choices=_FAILURES,
                        help="your own --env: what fails in it, for the alarms before the failure (blank without "
                             "it): terminated, the env ended the episode itself after the onset (a fall, a crash)")

@@ -209,8 +209,8 @@ def parse_variant(spec: str) -> Variant:
                     raise UnknownParameterError(
                         f"variant spec {spec!r} shifts attributes of gymnasium's {env_id} that are not oodmon's "
                         f"variants of {its_task} (its physics and sensor faults, `oodmon envs`): it runs with a policy "
-                        f"of your own on {env_id} (`oodmon run` with --sb3 or --policy and --env {env_id}), not oodmon's "
-                        f"{its_task} agents (nor the bench)")
+                        f"of your own on {env_id} (`oodmon run` or `oodmon bench` with --sb3 or --policy and --env "
+                        f"{env_id}), not with oodmon's {its_task} agents, which act in oodmon's own env")
             raise UnknownParameterError(f"variant spec {spec!r}: oodmon's variants of {env_id} are named by its task, "
                                         f"{named} (see `oodmon envs`)")
         raise UnknownParameterError(

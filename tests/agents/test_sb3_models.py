@@ -724,6 +724,38 @@ def test_bench_runs_the_monitors_protocol_on_shifts_of_your_own_env(tmp_path, ca
         assert words in capsys.readouterr().err, change
 
 
+def test_bench_of_your_own_model_on_a_tasks_gymnasium_env_takes_that_envs_other_attributes_beside_the_tasks_variants(
+        tmp_path, capsys):
+    """`oodmon bench --sb3 ... --env CartPole-v1` plays oodmon's variants of cartpole and, as `oodmon
+    run` does, shifts of CartPole-v1's other attributes (a judge that ends the episode sooner); before
+    2026-12-02 the bench refused the second kind. oodmon's physics named on CartPole-v1, or such a
+    shift for oodmon's own agents, are refused as before."""
+    DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0, policy_kwargs={"net_arch": [8]}).save(tmp_path / "dqn.zip")
+    judge = "CartPole-v1:theta_threshold_radians=0.001"  # the pole starts further over: every step ends the episode
+    argv = ["bench", "--sb3", str(tmp_path / "dqn.zip"), "--env", "CartPole-v1", "--protocol", "monitor",
+            "--onsets", "0,1", "--variants", f"{judge},cartpole:length=2.0", "--episodes", "4", "--id-episodes", "6",
+            "--calibration-episodes", "10", "--far", "0.2", "--confidence", "none", "--fit-episodes", "6",
+            "--workers", "1", "--out", str(tmp_path / "bench"), "--json"]
+    assert main(argv) == 0
+    result = json.loads(capsys.readouterr().out)
+    rows = {r["variant"]: r for r in result["alarms"]}
+    failing = json.loads(next((tmp_path / "bench").glob("logs/*/sb3/trial0/failing.json")).read_text())
+    assert failing["returns"][judge] == 1.0 and judge in failing["failing"]  # ended at its first step, from step 0
+    assert rows[judge]["episodes"] == 4 and rows[judge]["failed"] == 4
+    assert rows[judge]["alarmed"] == 0  # the world the policy reads is the same: no detector sees a judge
+    assert rows["cartpole"]["episodes"] == 6
+    for variants, words in [("CartPole-v1:length=2.0", "give cartpole:length=2.0"),
+                            ("Acrobot-v1:LINK_MASS_2=3.0", "shifts Acrobot-v1, not CartPole-v1"),
+                            ("CartPole-v1", "the bench runs its ID episodes itself")]:
+        changed = [*argv[:argv.index("--variants") + 1], variants, *argv[argv.index("--variants") + 2:]]
+        assert main(changed) == 2, variants
+        assert words in capsys.readouterr().err, variants
+    assert main(["bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1", "--variants", judge,
+                 "--out", str(tmp_path / "zoo")]) == 2  # oodmon's agents act in oodmon's envs: its variants only
+    assert "(`oodmon run` or `oodmon bench` with --sb3 or --policy and --env CartPole-v1), not with oodmon's cartpole agents" in (
+        " ".join(capsys.readouterr().err.split()))
+
+
 def file_sha256_of_models(*paths: Path) -> str:
     """The bench's stamp of SB3 files: the first 16 hex of their sha256 (one file: its own)."""
     import hashlib

@@ -499,8 +499,8 @@ def test_attributes_of_a_tasks_env_other_than_its_physics_are_a_shift_of_gymnasi
         Variant("cartpole", (("theta_threshold_radians", 0.1),)).make()
     with pytest.raises(UnknownParameterError, match="no parameter 'lenght'.*did you mean 'length'"):
         Variant("cartpole", (("lenght", 2.0),)).make()
-    with pytest.raises(UnknownParameterError, match="not oodmon's variants of cartpole.*`oodmon run` with --sb3 or "
-                       "--policy and --env CartPole-v1"):
+    with pytest.raises(UnknownParameterError, match="not oodmon's variants of cartpole.*`oodmon run` or `oodmon "
+                       "bench` with --sb3 or --policy and --env CartPole-v1"):
         parse_variant("CartPole-v1:theta_threshold_radians=0.1")
     with pytest.raises(UnknownParameterError, match="named by its task, cartpole:length=2.0"):
         parse_variant("CartPole-v1:length=2.0")
