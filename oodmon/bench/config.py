@@ -304,8 +304,8 @@ class BenchConfig:
         """
         if self.own_env:
             shifts = [own_variant(spec.strip(), self.task) for spec in self.variants]
-        elif self.users_own and self.variants != "paper" and any(_shifts_an_env(spec) for spec in self.variants):
-            shifts = [own_variant(spec.strip(), self.env_id) if _shifts_an_env(spec)
+        elif self.users_own and self.variants != "paper" and any(shifts_an_env(spec) for spec in self.variants):
+            shifts = [own_variant(spec.strip(), self.env_id) if shifts_an_env(spec)
                       else select_variants(self.task, [spec], shifted_only=True)[0] for spec in self.variants]
         else:
             return select_variants(self.task, self.variants, shifted_only=True)
@@ -385,9 +385,14 @@ def _mean(values: dict[int, float | None]) -> float | None:
     return float(np.mean(present)) if present else None
 
 
-def _shifts_an_env(spec: str) -> bool:
+def shifts_an_env(spec: str) -> bool:
     """Whether ``spec`` names a gymnasium id (a shift of an env's attributes, or the env itself)
-    rather than one of oodmon's tasks (its variants)."""
+    rather than one of oodmon's tasks (its variants).
+
+    Example:
+        >>> shifts_an_env("CartPole-v1:theta_threshold_radians=0.1"), shifts_an_env("cartpole:length=2.0")
+        (True, False)
+    """
     return spec.strip().partition(":")[0] not in TASKS
 
 

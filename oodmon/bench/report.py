@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from oodmon.agents.evaluation import SOLVED_RETURN
-from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, paper_label
+from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, paper_label, shifts_an_env
 from oodmon.names import TASKS
 from oodmon.paper import paper_auc_per_trial
 
@@ -250,7 +250,7 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
 
     low, _ = config.onset_range()
     for row in result.alarms:
-        if row.is_id or row.alarmed or not row.shifted_episodes or row.variant.partition(":")[0] in TASKS:
+        if row.is_id or row.alarmed or not row.shifted_episodes or not shifts_an_env(row.variant):
             continue  # (oodmon's variants of a task: felt by design)
         probe = probe_shift(parse_env_shift(row.variant), onset=low, steps=steps)
         if not probe.changed and not probe.reached_onset:

@@ -162,10 +162,10 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
                                                  ("dynamics_updates", dynamics_updates, MAX_UPDATES))
                if value != default]
     if threshold is not None and fitting:  # (oodmon calibrate refuses its options of a fit where it fits none)
-        raise ConfigError(f"{' and '.join(f'{name}=' for name in fitting)} shape{'' if len(fitting) > 1 else 's'} a "
-                          "fit of the detectors, and a threshold file's detectors are those fitted beside it: leave "
-                          f"{'them' if len(fitting) > 1 else 'it'} out, or fit and calibrate anew with "
-                          f"{'them' if len(fitting) > 1 else 'it'} (save=)")
+        names, many = " and ".join(f"{name}=" for name in fitting), len(fitting) > 1
+        them = "them" if many else "it"
+        raise ConfigError(f"{names} shape{'' if many else 's'} a fit of the detectors, and a threshold file's detectors "
+                          f"are those fitted beside it: leave {them} out, or fit and calibrate anew with {them} (save=)")
     if threshold is not None:
         agent, alarm_threshold, detectors = _calibrated(policy, env_id, threshold, mean=mean, seed=seed, masks=masks,
                                                         vec_normalize=vec_normalize, frame_stack=frame_stack,
