@@ -281,6 +281,7 @@ def _prepare_trial(config: BenchConfig, method: str, trial: int, report: Callabl
                           f"drop spread from the detectors")
     if agent.estimator is not None and agent.estimator.draws:
         workers = 1  # an MC agent: its draws run on from episode to episode, as in a trial prepared beside others
+    config.check_env_shifts()  # (here, the policy loaded: your own env may be registered by a module it imports)
     # The three stages draw from that one generator in turn. A stage cached by an earlier run that
     # stopped (killed, or a machine restarted) sets the agent's sampling back to where it stood
     # after that stage, so a resumed bench draws what an uninterrupted one draws.

@@ -315,6 +315,17 @@ class BenchConfig:
                                   "the shifts only")
         return shifts
 
+    def check_env_shifts(self) -> None:
+        """Make the env of each shift of an env's attributes once: an attribute it lacks (a misspelt
+        name), said before the fitting and calibration, not when its cell comes (minutes later).
+
+        Raises:
+            UnknownParameterError, InvalidParameterError, ConfigError: as :meth:`EnvShift.make`.
+        """
+        for variant in self.variant_list():
+            if isinstance(variant, EnvShift):
+                variant.make().close()
+
 
 @dataclass(frozen=True)
 class Row:

@@ -750,6 +750,13 @@ def test_bench_of_your_own_model_on_a_tasks_gymnasium_env_takes_that_envs_other_
         changed = [*argv[:argv.index("--variants") + 1], variants, *argv[argv.index("--variants") + 2:]]
         assert main(changed) == 2, variants
         assert words in capsys.readouterr().err, variants
+    # a misspelt attribute: said before the detectors' fit and the calibration (before 2026-12-02,
+    # when its cell came, after them), here and in an env oodmon has no variants of
+    fresh = [*argv[:argv.index("--out") + 1], str(tmp_path / "fresh"), "--json"]
+    fresh[fresh.index("--variants") + 1] = "CartPole-v1:theta_treshold_radians=0.1"
+    assert main(fresh) == 2
+    assert "CartPole-v1 has no numeric attribute 'theta_treshold_radians' to shift" in capsys.readouterr().err
+    assert not list((tmp_path / "fresh").rglob("detectors-*")) and not list((tmp_path / "fresh").rglob("threshold-*"))
     assert main(["bench", "--task", "cartpole", "--methods", "ensemble", "--trials", "1", "--variants", judge,
                  "--out", str(tmp_path / "zoo")]) == 2  # oodmon's agents act in oodmon's envs: its variants only
     assert "(`oodmon run` or `oodmon bench` with --sb3 or --policy and --env CartPole-v1), not with oodmon's cartpole agents" in (
