@@ -16,9 +16,8 @@ import numpy as np
 
 from oodmon.agents.plain import ON_PYTHONPATH
 from oodmon.bench.cache import PlainPolicy, Sb3Models, _bench_agent
-from oodmon.bench.config import BenchConfig, shifts_an_env
-from oodmon.envs.grid import parse_variant
-from oodmon.envs.shift import own_variant, parse_env_shift
+from oodmon.bench.config import BenchConfig
+from oodmon.envs.shift import own_variant, parse_any_variant
 from oodmon.outputs import write_failure
 from oodmon.names import TASKS
 from oodmon.progress import Progress
@@ -52,8 +51,7 @@ def _run_cell(task: str, model: str | Sb3Models | PlainPolicy, threshold: str, s
     set_threads(1)  # one of the workers side by side: torch and numpy's BLAS on one thread each
     agent = _bench_agent(model, task, seed, n_samples, masks)  # seeded MC sampling: the same cell, the same log
     # oodmon's variant, or a shift of your own env (of gymnasium's env of a task, where your own policy acts)
-    variant = (own_variant(spec, task) if task not in TASKS
-               else parse_env_shift(spec) if shifts_an_env(spec) else parse_variant(spec))
+    variant = own_variant(spec, task) if task not in TASKS else parse_any_variant(spec)
     env = agent.wrap(variant.make(obs_noise=obs_noise) if obs_noise else variant.make())  # as the agent observes it
     temporary = Path(log).with_suffix(".part")
     temporary.parent.mkdir(parents=True, exist_ok=True)

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from oodmon.envs.grid import Variant, parse_variant, select_variants
-from oodmon.envs.shift import EnvShift, own_variant
+from oodmon.envs.shift import EnvShift, own_variant, shifts_an_env
 from oodmon.errors import ConfigError
 from oodmon.names import PLAIN_METHOD, TASKS
 from oodmon.paper import paper_auc_per_trial
@@ -304,7 +304,7 @@ class BenchConfig:
         """
         if self.own_env:
             shifts = [own_variant(spec.strip(), self.task) for spec in self.variants]
-        elif self.users_own and self.variants != "paper" and any(shifts_an_env(spec) for spec in self.variants):
+        elif self.users_own and self.variants != "paper":
             shifts = [own_variant(spec.strip(), self.env_id) if shifts_an_env(spec)
                       else select_variants(self.task, [spec], shifted_only=True)[0] for spec in self.variants]
         else:
@@ -394,17 +394,6 @@ class BenchResult:
 def _mean(values: dict[int, float | None]) -> float | None:
     present = [v for v in values.values() if v is not None]
     return float(np.mean(present)) if present else None
-
-
-def shifts_an_env(spec: str) -> bool:
-    """Whether ``spec`` names a gymnasium id (a shift of an env's attributes, or the env itself)
-    rather than one of oodmon's tasks (its variants).
-
-    Example:
-        >>> shifts_an_env("CartPole-v1:theta_threshold_radians=0.1"), shifts_an_env("cartpole:length=2.0")
-        (True, False)
-    """
-    return spec.strip().partition(":")[0] not in TASKS
 
 
 def paper_label(task: str, method: str, spec: str) -> str | None:

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from oodmon.agents.evaluation import SOLVED_RETURN
-from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, paper_label, shifts_an_env
+from oodmon.bench.config import PAPER_METHOD, BenchConfig, BenchResult, paper_label
 from oodmon.names import TASKS
 from oodmon.paper import paper_auc_per_trial
 
@@ -235,7 +235,7 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
         console.print(f"{row.method}: {far}; {row.alarmed}/{row.shifted_episodes} shifted episodes alarmed after the onset "
                       f"({row.early} before it){never}; {before}; {delays}")
     print_unfailed(config, result, console)
-    if config.own_env or config.users_own:
+    if config.users_own:  # (your own env is benched with your own policy only)
         print_unfelt(config, result, console)
     print(FAILURE_DEFINITION, file=sys.stderr)
 
@@ -245,8 +245,8 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
     (:func:`~oodmon.envs.probe.probe_shift`, random actions from the first onset drawn), said when
     nothing it returned differed: an attribute the env reads only when made or reset, not the
     detectors, is then why no alarm came."""
-    from oodmon.envs import parse_env_shift
     from oodmon.envs.probe import probe_shift
+    from oodmon.envs.shift import parse_env_shift, shifts_an_env
 
     low, _ = config.onset_range()
     for row in result.alarms:

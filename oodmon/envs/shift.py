@@ -51,7 +51,7 @@ from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterErro
 from oodmon.names import TASKS
 
 __all__ = ["DictSensorFaults", "EnvShift", "SensorFaults", "ShiftAttributes", "own_variant", "parse_any_variant",
-           "parse_env_shift"]
+           "parse_env_shift", "shifts_an_env"]
 
 _SPEC_HELP = "expected ENV_ID:NAME=VALUE[,NAME=VALUE...], e.g. 'Acrobot-v1:LINK_MASS_2=3.0'"
 
@@ -619,8 +619,18 @@ def parse_any_variant(spec: str):
     """
     from oodmon.envs.grid import parse_variant
 
-    task = spec.strip().partition(":")[0] if isinstance(spec, str) else None
-    return parse_variant(spec) if task in TASKS else parse_env_shift(spec)
+    return parse_variant(spec) if isinstance(spec, str) and not shifts_an_env(spec) else parse_env_shift(spec)
+
+
+def shifts_an_env(spec: str) -> bool:
+    """Whether ``spec`` names a gymnasium id (a shift of an env's attributes, or the env itself)
+    rather than one of oodmon's tasks (its variants).
+
+    Example:
+        >>> shifts_an_env("CartPole-v1:theta_threshold_radians=0.1"), shifts_an_env("cartpole:length=2.0")
+        (True, False)
+    """
+    return spec.strip().partition(":")[0] not in TASKS
 
 
 def parse_env_shift(spec: str) -> EnvShift:
