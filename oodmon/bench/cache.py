@@ -68,6 +68,14 @@ def _bench_agent(source: str | Sb3Models | PlainPolicy, task: str, seed: int, n_
     return load_agent(source, task=task, seed=seed, n_samples=n_samples, masks=masks)
 
 
+def own_policy_agent(config: BenchConfig):
+    """The agent of your own SB3 models or policy that a bench of them plays (``config.users_own``),
+    its sampling seeded as the calibration's."""
+    if not config.users_own:
+        raise ValueError("own_policy_agent: the bench plays oodmon's agents, not a policy of yours")
+    return _bench_agent(_ensure_model(config, config.methods[0], 0), config.task, seeds.CALIBRATION)
+
+
 def _weights_sha256(source: Source) -> str:
     """What a (method, trial)'s cached results were made with: the weights' sha256, the SB3 files',
     or a plain policy's: its name, its module's file and its weights' hash (if it has one)."""

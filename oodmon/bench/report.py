@@ -240,26 +240,30 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
     print(FAILURE_DEFINITION, file=sys.stderr)
 
 
-def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, steps: int = 500) -> None:
+def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, agent=None, steps: int = 500) -> None:
     """For each shift of your own env that no episode alarmed on: whether the env felt it at all
-    (:func:`~oodmon.envs.probe.probe_shift`, random actions from the first onset drawn), said when
-    nothing it returned differed: an attribute the env reads only when made or reset, not the
+    where your policy acts (:func:`~oodmon.envs.probe.probe_shift` with ``agent``'s actions, by default
+    the bench's own policy, from the first onset drawn), said when nothing it returned differed: an
+    attribute the env reads only when made or reset, or in states your policy never reaches, not the
     detectors, is then why no alarm came."""
+    from oodmon.bench.cache import own_policy_agent
     from oodmon.envs.probe import probe_shift
     from oodmon.envs.shift import parse_env_shift, shifts_an_env
 
     low, _ = config.onset_range()
-    for row in result.alarms:
-        if row.is_id or row.alarmed or not row.shifted_episodes or not shifts_an_env(row.variant):
-            continue  # (oodmon's variants of a task: felt by design)
-        probe = probe_shift(parse_env_shift(row.variant), onset=low, steps=steps)
+    unalarmed = [row for row in result.alarms if not (row.is_id or row.alarmed) and row.shifted_episodes
+                 and shifts_an_env(row.variant)]  # (oodmon's variants of a task: felt by design)
+    if unalarmed and agent is None:
+        agent = own_policy_agent(config)
+    for row in unalarmed:
+        probe = probe_shift(parse_env_shift(row.variant), onset=low, steps=steps, policy=agent.act, wrap=agent.wrap)
         if not probe.changed and not probe.reached_onset:
-            console.print(f"{row.variant}: no episode alarmed; random actions end the env's episode after {probe.steps} "
+            console.print(f"{row.variant}: no episode alarmed; your policy's episode in the env ends after {probe.steps} "
                           f"steps, before step {low}, the first onset, so whether the env feels the shift was not seen "
-                          f"(`oodmon envs show '{row.variant}' --onset {low} --sb3 ZIP` plays your model in both)",
+                          f"(`oodmon envs show '{row.variant}' --onset {low}` plays random actions in both)",
                           markup=False)
         elif not probe.changed:
             console.print(f"{row.variant}: no episode alarmed, and nothing the env returned differed from its own over "
-                          f"{probe.steps} steps of random actions, shifted from step {low} (`oodmon envs show '{row.variant}' "
-                          f"--onset {low} --sb3 ZIP` plays your model in both): does the env read it after a reset?",
+                          f"{probe.steps} steps of your policy's actions, shifted from step {low}: does the env read it "
+                          "only after a reset, or where your policy never goes (a bound it keeps well within)?",
                           markup=False)

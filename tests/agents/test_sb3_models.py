@@ -682,7 +682,7 @@ def test_bench_runs_the_monitors_protocol_on_shifts_of_your_own_env(tmp_path, ca
     assert "no failure told for MountainCar-v0 (an env oodmon has no variants of)" in printed.out.replace("\n", " ")
     # its observation space's bound, read only when the env is made: the env does not feel it, and is said so
     assert ("MountainCar-v0:low[0]=-2.0: no episode alarmed, and nothing the env returned differed from its own over "
-            "200 steps of random actions, shifted from step 50") in " ".join(printed.out.split())
+            "200 steps of your policy's actions, shifted from step 50") in " ".join(printed.out.split())
     assert "gravity=0.01: no episode alarmed" not in printed.out
     result = json.loads((tmp_path / "mc.json").read_text())
     assert result["config"]["onsets"] == [50, 100]

@@ -153,19 +153,43 @@ def test_an_env_of_dict_observations_is_compared_reading_by_reading():
     assert probe.largest[:1000].max() == 0 and probe.largest[1000:].min() > 0
 
 
-def test_the_bench_says_a_shift_no_episode_alarmed_on_was_not_seen_where_random_actions_end_before_the_onset():
+def _unfelt_said(variant: str, env_id: str, policy, onsets: tuple[int, int]) -> str:
+    """What the bench's report says of ``variant`` when none of its 10 episodes alarmed, ``policy``
+    (obs -> action) the user's own that the bench played."""
     import io
     import types
 
     from rich.console import Console
 
+    from oodmon.agents.plain import plain_agent
     from oodmon.bench.report import print_unfelt
     from oodmon.replay.metrics import monitor_row
 
-    config = types.SimpleNamespace(onset_range=lambda: (150, 160))  # (the bench's onsets are all print_unfelt reads)
-    unalarmed = monitor_row("ResetOnlyGainForTests-v0", "plain", "ResetOnlyGainForTests-v0:drag=0.5", 10, 0, None, None, [])
+    config = types.SimpleNamespace(onset_range=lambda: onsets)  # (the bench's onsets are all print_unfelt reads of it)
+    unalarmed = monitor_row(env_id, "plain", variant, 10, 0, None, None, [])
     out = io.StringIO()
-    print_unfelt(config, types.SimpleNamespace(alarms=[unalarmed]), Console(file=out, width=400))
-    said = out.getvalue()
-    assert "random actions end the env's episode after 100 steps, before step 150, the first onset" in said
-    assert "does the env read it after a reset" not in said
+    print_unfelt(config, types.SimpleNamespace(alarms=[unalarmed]), Console(file=out, width=400),
+                 agent=plain_agent(policy, env_id))
+    return out.getvalue()
+
+
+def test_the_bench_says_a_shift_no_episode_alarmed_on_was_not_seen_where_the_policys_episode_ends_before_the_onset():
+    said = _unfelt_said("ResetOnlyGainForTests-v0:drag=0.5", "ResetOnlyGainForTests-v0", lambda obs: 1, (150, 160))
+    assert "your policy's episode in the env ends after 100 steps, before step 150, the first onset" in said
+    assert "not seen" in said and "only after a reset" not in said
+
+
+def test_the_bench_probes_an_unalarmed_shift_where_the_users_policy_goes_not_where_random_actions_go():
+    """A judge's bound set tighter, `CartPole-v1:theta_threshold_radians=0.1` from step 150: random
+    actions drop the pole within about 20 steps, so a probe of them saw nothing of it (what the bench
+    said before 2026-12-02); a controller that keeps the pole upright plays 500 steps in both, and
+    nothing differs, since it never leans as far as the new bound."""
+    def upright(obs):
+        return int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)
+
+    said = " ".join(_unfelt_said("CartPole-v1:theta_threshold_radians=0.1", "CartPole-v1", upright, (150, 160)).split())
+    assert ("nothing the env returned differed from its own over 500 steps of your policy's actions, shifted from "
+            "step 150") in said and "where your policy never goes" in said
+    assert probe_shift(parse_env_shift("CartPole-v1:theta_threshold_radians=0.1"), onset=150).steps < 150  # random
+    felt = _unfelt_said("CartPole-v1:theta_threshold_radians=0.001", "CartPole-v1", upright, (150, 160))
+    assert felt == ""  # it ends the episode at the onset: felt, so nothing to say of the env
