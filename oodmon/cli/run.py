@@ -66,6 +66,7 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
 def _run(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
+    from oodmon.envs.shift import shifts_an_env
     from oodmon.monitor import McapSink, Monitor, Threshold
     from oodmon.monitor.sinks.base import refuse_earlier_logs
     from oodmon.monitor.sinks.mcap import existing_parts, part_path
@@ -147,13 +148,30 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"note: {rows.before_onset} of {rows.episodes} episodes ended before step {args.onset}, the "
                       "onset: the shift never began in them (an --onset later than this env's episodes last?)",
                       markup=False)
-    if args.variant and args.task not in TASKS and threshold is not None and rows.episodes and not rows.alarmed:
-        console.print(f"does the shift change anything the env returns? `oodmon envs show '{label}' --onset "
-                      f"{args.onset}` plays the env shifted and as it is from the same seed with the same "
-                      "actions (an attribute the env reads only when it is made or reset changes nothing)", markup=False)
+    if args.variant and shifts_an_env(label) and threshold is not None and rows.episodes and not rows.alarmed:
+        console.print(f"does the shift change anything the env returns? `{_show_command(args, label)}` plays the env "
+                      "shifted and as it is from the same seed, your policy acting in both (an attribute the env reads "
+                      "only when it is made or reset changes nothing, nor does one where your policy never goes)",
+                      markup=False)
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
     return 0
+
+
+def _show_command(args: argparse.Namespace, label: str) -> str:
+    """The `oodmon envs show` of the run's shift of your own env in which the run's own policy acts
+    (its first SB3 model, read as the run read it, or its plain policy)."""
+    import shlex
+
+    words = ["oodmon", "envs", "show", label, "--onset", str(args.onset)]
+    if args.policy:
+        words += ["--policy", args.policy]
+    elif args.sb3:
+        words += ["--sb3", args.sb3[0]] + [word for module in args.imports for word in ("--import", module)]
+        words += ["--unsafe-load-pickles"] * bool(args.unsafe_load_pickles)
+        words += ["--vec-normalize", args.vec_normalize] if args.vec_normalize else []
+        words += ["--frame-stack", str(args.frame_stack)] if args.frame_stack is not None else []
+    return shlex.join(words)
 
 
 def _start_time() -> str:

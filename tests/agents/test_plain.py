@@ -267,6 +267,31 @@ def test_envs_show_plays_a_shift_of_your_own_env_with_your_policy(tmp_path, monk
     assert "is shown with oodmon's hand-written controller" in capsys.readouterr().err
 
 
+def test_a_run_whose_shift_of_the_env_alarmed_nowhere_prints_the_envs_show_of_its_own_policy(tmp_path, monkeypatch,
+                                                                                              capsys):
+    """A judge set tighter, `CartPole-v1:theta_threshold_radians=0.1` from step 150: the controller
+    keeps well within it, no episode alarms, and the run prints the probe to try with the controller
+    acting (before 2026-12-02 it gave random actions, which drop the pole long before step 150, and
+    said nothing of gymnasium's id of one of oodmon's tasks)."""
+    (tmp_path / "upright.py").write_text(_readme_block()[0])
+    monkeypatch.syspath_prepend(str(tmp_path))
+    threshold = str(tmp_path / "t.json")
+    # the alarm on stillness (a CartPole never repeats a state: it alarms nowhere), the set fitted small
+    assert main(["calibrate", "--policy", "upright:act", "--env", "CartPole-v1", "--detector", "stillness",
+                 "--episodes", "20", "--far", "0.2", "--confidence", "none", "--fit-episodes", "4",
+                 "--dynamics-updates", "100", "--out", threshold]) == 0
+    capsys.readouterr()
+    assert main(["run", "--policy", "upright:act", "--env", "CartPole-v1", "--threshold", threshold, "--episodes", "2",
+                 "--variant", "CartPole-v1:theta_threshold_radians=0.1", "--onset", "150"]) == 0
+    said = " ".join(capsys.readouterr().out.split())
+    assert "0 of 2 episodes raised an alarm" in said
+    command = re.search(r"`(oodmon envs show [^`]*)`", said).group(1)
+    assert shlex.split(command) == ["oodmon", "envs", "show", "CartPole-v1:theta_threshold_radians=0.1", "--onset",
+                                    "150", "--policy", "upright:act"]
+    assert main(shlex.split(command)[1:]) == 1  # as printed: nothing differs where the controller goes
+    assert "over 500 steps of the policy's actions" in " ".join(capsys.readouterr().out.split())
+
+
 def test_a_detector_a_plain_policy_cannot_have_is_refused_before_any_episode(tmp_path, monkeypatch, capsys):
     (tmp_path / "refused_controller.py").write_text(_readme_block()[0])
     monkeypatch.syspath_prepend(str(tmp_path))

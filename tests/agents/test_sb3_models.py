@@ -550,9 +550,12 @@ def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monke
                  "--episodes", "2", "--variant", f"{env_id}:masscart=5.0", "--onset", "3"]) == 0
     said = capsys.readouterr().out
     assert "0 of 2 episodes raised an alarm" in said
-    assert f"oodmon envs show '{env_id}:masscart=5.0' --onset 3" in said.replace("\n", "")
-    assert main(["envs", "show", f"{env_id}:masscart=5.0", "--onset", "3"]) == 1
-    assert "changed nothing" in capsys.readouterr().out
+    command = re.search(r"`(oodmon envs show [^`]*)`", said.replace("\n", "")).group(1)
+    assert shlex.split(command) == ["oodmon", "envs", "show", f"{env_id}:masscart=5.0", "--onset", "3",
+                                    "--sb3", str(tmp_path / "dqn.zip")]
+    assert main(shlex.split(command)[1:]) == 1  # the command as printed: the DQN acts in both
+    shown = " ".join(capsys.readouterr().out.split())
+    assert "changed nothing" in shown and "steps of the policy's actions" in shown
     sink = MemorySink()  # oodmon.watch's path names them so too
     detectors = DetectorSet.load(f"{threshold}.detectors")  # those calibrate fitted
     with MonitoredEnv(gymnasium.make(env_id), Monitor(agent, detectors=detectors, sinks=[sink])) as env:
