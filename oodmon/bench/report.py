@@ -260,7 +260,7 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
         if not probe.changed and not probe.reached_onset:
             console.print(f"{row.variant}: no episode alarmed; your policy's episode in the env ends after {probe.steps} "
                           f"steps, before step {low}, the first onset, so whether the env feels the shift was not seen "
-                          f"(`oodmon envs show '{row.variant}' --onset {low}` plays random actions in both)",
+                          "(earlier --onsets shift the episodes while your policy still runs them)",
                           markup=False)
         elif not probe.changed:
             console.print(f"{row.variant}: no episode alarmed, and nothing the env returned differed from its own over "

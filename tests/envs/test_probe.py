@@ -176,7 +176,8 @@ def _unfelt_said(variant: str, env_id: str, policy, onsets: tuple[int, int]) -> 
 def test_the_bench_says_a_shift_no_episode_alarmed_on_was_not_seen_where_the_policys_episode_ends_before_the_onset():
     said = _unfelt_said("ResetOnlyGainForTests-v0:drag=0.5", "ResetOnlyGainForTests-v0", lambda obs: 1, (150, 160))
     assert "your policy's episode in the env ends after 100 steps, before step 150, the first onset" in said
-    assert "not seen" in said and "only after a reset" not in said
+    assert "not seen (earlier --onsets shift the episodes while your policy still runs them)" in " ".join(said.split())
+    assert "only after a reset" not in said
 
 
 def test_the_bench_probes_an_unalarmed_shift_where_the_users_policy_goes_not_where_random_actions_go():
