@@ -300,7 +300,8 @@ class DynamicsDetector(Detector):
             order = boot[:, torch.randperm(n, generator=generator)]
             for start in range(0, n, batch):
                 index = order[:, start:start + batch]
-                # xs[index] as whole rows picked along dim 0: the same numbers in a third of the time
+                # xs[index] as whole rows picked along dim 0: the same numbers in a third to a half of the
+                # time (benchmarks/dynamics_fit.py)
                 rows = index.reshape(-1)
                 inputs = xs.index_select(0, rows).view(*index.shape, -1)
                 targets = ys.index_select(0, rows).view(*index.shape, -1)
