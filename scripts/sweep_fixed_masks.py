@@ -4,6 +4,7 @@ fixed sub-networks read whitened (``scaled_spread``), per variant the paper repo
 Run (seconds to a minute per agent; one thread):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_fixed_masks.py --label LABEL MODEL_DIR [MODEL_DIR ...]
     .venv/bin/python scripts/sweep_fixed_masks.py --table
+    .venv/bin/python scripts/sweep_fixed_masks.py --survival cartpole:masscart=9.0
 
 Each agent is measured as the sweeps measure (``scripts/sweep_full_depth.py``): 10 ID episodes
 (seeds 200000+) against 5 of each variant (seeds 400000+), every step, whether or not the agent
@@ -17,6 +18,11 @@ std over each label's agents per variant.
 ``--masks fixed-decisions``: the fixed sub-networks decide too (``load(..., masks="fixed-decisions")``:
 another policy, so other episodes); the row holds the two measures of :data:`DECIDING` instead,
 and ``"masks": "fixed-decisions"``.
+
+``--survival VARIANT``: every agent of the rows with fixed masks that was measured on VARIANT, its
+mean episode length there beside its whitened AUROC (``fixed scaled_spread``), shortest first, and
+the rank correlation of the two over the agents: does an agent read lower where it holds out longer
+under the shift? Runs nothing.
 """
 
 from __future__ import annotations
@@ -91,6 +97,23 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def survival(rows: list[dict], spec: str, measure: str = "fixed scaled_spread") -> str:
+    """The agents of the fixed-mask ``rows`` measured on ``spec``: each one's mean episode length
+    there beside its ``measure`` AUROC, shortest first, and Spearman's rank correlation of the two."""
+    from scipy.stats import spearmanr
+
+    points = sorted((r["length_mean"][spec], r["auroc"][measure][spec], r["label"], r["folder"]) for r in rows
+                    if "masks" not in r and spec in r["auroc"].get(measure, {}) and spec in r["length_mean"])
+    if len(points) < 3:
+        raise SystemExit(f"{len(points)} agents with fixed masks measured on {spec} in {OUT}; a correlation needs 3 or more")
+    lines = [f"| mean length on {spec} | {measure} AUROC | agents | model folder |", "|---:|---:|---|---|"]
+    lines += [f"| {length:.1f} | {auroc:.3f} | {label} | `{folder}` |" for length, auroc, label, folder in points]
+    rho, p_value = spearmanr([p[0] for p in points], [p[1] for p in points])
+    lines.append(f"\nSpearman's rank correlation of length and AUROC over {len(points)} agents: {rho:.3f} "
+                 f"(p = {p_value:.2g})")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folders", nargs="*", type=Path, help="model folders (model.json + model.safetensors)")
@@ -98,10 +121,15 @@ def main() -> None:
     parser.add_argument("--table", action="store_true", help="print the rows as a markdown table")
     parser.add_argument("--masks", choices=("fixed", "fixed-decisions"), default="fixed",
                         help="fixed-decisions: the fixed sub-networks decide too (their two measures only)")
+    parser.add_argument("--survival", metavar="VARIANT",
+                        help="print each agent's mean episode length on VARIANT beside its whitened AUROC there, run nothing")
     args = parser.parse_args()
     rows = read_rows(OUT)
     if args.table:
         print(table(rows))
+        return
+    if args.survival:
+        print(survival(rows, args.survival))
         return
     if not args.folders or not args.label:
         parser.error("give --label and model folders (or --table)")

@@ -327,6 +327,30 @@ def test_sweep_fixed_masks_measures_an_agent_and_tabulates_its_rows(monkeypatch,
     assert "| zoo deciding (1) | fixed-decisions scaled_spread | g=50.0" in table and "| zoo (1) | sampled spread" in table
 
 
+def test_sweep_fixed_masks_survival_ranks_agents_by_how_long_they_hold_out(monkeypatch, tmp_path):
+    # Four fixed-mask rows measured on masscart=9.0, whose AUROC falls as the agent holds out
+    # longer, one that was not measured there, and a fixed-decisions row (another policy): the four,
+    # shortest first, and a rank correlation of exactly -1.
+    script = _load(monkeypatch, tmp_path, "sweep_fixed_masks")[0]
+    spec, measure = "cartpole:masscart=9.0", "fixed scaled_spread"
+
+    def row(label: str, length: float, auroc: float, **more) -> dict:
+        return {"label": label, "folder": f"runs/{label}", "auroc": {measure: {spec: auroc}},
+                "length_mean": {"cartpole": 500.0, spec: length}, **more}
+
+    rows = [row("b", 120.0, 0.71), row("a", 30.0, 0.95), row("d", 500.0, 0.29), row("c", 61.2, 0.80),
+            row("decides", 10.0, 0.10, masks="fixed-decisions"),
+            {"label": "pendulum", "folder": "runs/p", "auroc": {measure: {"pendulum:g=50.0": 0.9}},
+             "length_mean": {"pendulum:g=50.0": 200.0}}]
+    out = script.survival(rows, spec)
+    body = [line for line in out.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    assert body == ["| 30.0 | 0.950 | a | `runs/a` |", "| 61.2 | 0.800 | c | `runs/c` |",
+                    "| 120.0 | 0.710 | b | `runs/b` |", "| 500.0 | 0.290 | d | `runs/d` |"]
+    assert "rank correlation of length and AUROC over 4 agents: -1.000" in out
+    with pytest.raises(SystemExit, match="2 agents with fixed masks measured on cartpole:masscart=9.0"):
+        script.survival(rows[:2], spec)
+
+
 def test_shifted_episodes_splits_a_rows_auroc_at_the_episodes_the_agent_survives(monkeypatch, tmp_path, capsys):
     # A CartPole "bench" of one trial written by hand where the bench would: 3 ID episodes, and a
     # shifted log of length=2.0 in which the agent also plays one ID episode (it keeps the pole up
