@@ -103,7 +103,7 @@ def survival(rows: list[dict], spec: str, measure: str = "fixed scaled_spread") 
     from scipy.stats import spearmanr
 
     points = sorted((r["length_mean"][spec], r["auroc"][measure][spec], r["label"], r["folder"]) for r in rows
-                    if "masks" not in r and spec in r["auroc"].get(measure, {}) and spec in r["length_mean"])
+                    if "masks" not in r and spec in r["auroc"].get(measure, {}) and spec in r.get("length_mean", {}))
     if len(points) < 3:
         raise SystemExit(f"{len(points)} agents with fixed masks measured on {spec} in {OUT}; a correlation needs 3 or more")
     lines = [f"| mean length on {spec} | {measure} AUROC | agents | model folder |", "|---:|---:|---|---|"]
