@@ -4,7 +4,8 @@ fixed sub-networks read whitened (``scaled_spread``), per variant the paper repo
 Run (seconds to a minute per agent; one thread):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sweep_fixed_masks.py --label LABEL MODEL_DIR [MODEL_DIR ...]
     .venv/bin/python scripts/sweep_fixed_masks.py --table
-    .venv/bin/python scripts/sweep_fixed_masks.py --survival cartpole:masscart=9.0
+    .venv/bin/python scripts/sweep_fixed_masks.py --survival cartpole:masscart=9.0 [--plot PATH.png]
+    .venv/bin/python scripts/sweep_fixed_masks.py --draws cartpole:masscart=9.0,cartpole:length=2.0 [--pool LABEL LABEL ...]
 
 Each agent is measured as the sweeps measure (``scripts/sweep_full_depth.py``): 10 ID episodes
 (seeds 200000+) against 5 of each variant (seeds 400000+), every step, whether or not the agent
@@ -22,12 +23,25 @@ and ``"masks": "fixed-decisions"``.
 ``--survival VARIANT``: every agent of the rows with fixed masks that was measured on VARIANT, its
 mean episode length there beside its whitened AUROC (``fixed scaled_spread``), shortest first, and
 the rank correlation of the two over the agents: does an agent read lower where it holds out longer
-under the shift? Runs nothing.
+under the shift? Runs nothing. With ``--plot PATH`` it also draws them (one colour per label, the
+paper's mean ± std as a band, half the ID length, where the bench stops counting an agent as
+failing, as a line).
+
+``--draws VARIANT[,VARIANT...]``: how often five trainings of one recipe would meet the paper's goals
+on each VARIANT (mean AUROC >= the paper's, std <= the paper's) and on all of them at once, judged
+from every recipe (label) with six or more agents measured there: over every set of five of its
+agents, the share whose agents that fail (mean episode length below half the ID one, the bench's
+rule) read a mean and a std (numpy's, as the bench's tables) that meet each goal. A set in which no
+agent fails meets neither. ``--pool`` counts the rows of the labels it names as one recipe (the zoo
+agent's and bench trials' rows beside more seeds of the same recipe measured later). The share is
+an estimate from that many seeds and these episodes (10 ID against 5 shifted, not the bench's), not
+a probability known to be right. Runs nothing.
 """
 
 from __future__ import annotations
 
 import argparse
+from itertools import combinations
 from pathlib import Path
 
 import numpy as np
@@ -97,13 +111,30 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _measured(r: dict, specs: list[str], measure: str) -> bool:
+    """Whether row ``r`` is an agent with fixed masks (not deciding by them) measured on every one of ``specs``."""
+    return "masks" not in r and all(s in r["auroc"].get(measure, {}) and s in r.get("length_mean", {}) for s in specs)
+
+
+def _paper_goal(task: str, method: str, spec: str) -> tuple[float, float] | None:
+    """The paper's mean and std (numpy's, as the bench's tables) over its trials on ``spec``, if it reports it."""
+    from oodmon.bench.config import PAPER_METHOD, paper_label
+    from oodmon.paper import paper_auc_per_trial
+
+    label = paper_label(task, method, spec)
+    if label is None:
+        return None
+    trials = paper_auc_per_trial()[task][PAPER_METHOD[method]][label]
+    return float(np.mean(trials)), float(np.std(trials))
+
+
 def survival(rows: list[dict], spec: str, measure: str = "fixed scaled_spread") -> str:
     """The agents of the fixed-mask ``rows`` measured on ``spec``: each one's mean episode length
     there beside its ``measure`` AUROC, shortest first, and Spearman's rank correlation of the two."""
     from scipy.stats import spearmanr
 
     points = sorted((r["length_mean"][spec], r["auroc"][measure][spec], r["label"], r["folder"]) for r in rows
-                    if "masks" not in r and spec in r["auroc"].get(measure, {}) and spec in r.get("length_mean", {}))
+                    if _measured(r, [spec], measure))
     if len(points) < 3:
         raise SystemExit(f"{len(points)} agents with fixed masks measured on {spec} in {OUT}; a correlation needs 3 or more")
     lines = [f"| mean length on {spec} | {measure} AUROC | agents | model folder |", "|---:|---:|---|---|"]
@@ -111,6 +142,88 @@ def survival(rows: list[dict], spec: str, measure: str = "fixed scaled_spread") 
     rho, p_value = spearmanr([p[0] for p in points], [p[1] for p in points])
     lines.append(f"\nSpearman's rank correlation of length and AUROC over {len(points)} agents: {rho:.3f} "
                  f"(p = {p_value:.2g})")
+    return "\n".join(lines)
+
+
+def survival_plot(rows: list[dict], spec: str, path: Path, measure: str = "fixed scaled_spread") -> Path:
+    """The agents of :func:`survival` on ``spec``: mean episode length against ``measure`` AUROC,
+    one colour per label; the paper's mean ± std there as a band where it reports the variant."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from oodmon.outputs import save_figure
+
+    mine = [r for r in rows if _measured(r, [spec], measure)]
+    if not mine:
+        raise SystemExit(f"no agent with fixed masks measured on {spec} in {OUT}")
+    fig, ax = plt.subplots(figsize=(10.5, 4.6))
+    task, method = mine[0]["task"], mine[0]["method"]
+    goal = _paper_goal(task, method, spec)
+    if goal is not None:
+        mean, std = goal
+        ax.axhspan(mean - std, mean + std, color="grey", alpha=0.2, label=f"paper: {mean:.3f} ± {std:.3f}")
+    ax.axvline(0.5 * np.median([r["length_mean"][task] for r in mine]), color="grey", linestyle=":",
+               label="half the ID length (failing left of it)")
+    for name in dict.fromkeys(r["label"] for r in mine):
+        points = [(r["length_mean"][spec], r["auroc"][measure][spec]) for r in mine if r["label"] == name]
+        ax.scatter(*zip(*points), s=28, label=f"{name} ({len(points)})")
+    ax.set_xscale("log")
+    ax.set_xticks([10, 20, 50, 100, 200, 500], ["10", "20", "50", "100", "200", "500"])
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax.set_xlabel(f"mean episode length on {spec} (log)")
+    ax.set_ylabel(f"{measure} AUROC")
+    ax.set_ylim(0, 1.02)
+    ax.set_title(f"{task} {method}: the agents that hold out read low")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return save_figure(fig, path)
+
+
+def draws(rows: list[dict], specs: list[str], pool: list[str] | None = None, measure: str = "fixed scaled_spread",
+          size: int = 5) -> str:
+    """Per recipe with more than ``size`` agents measured on every one of ``specs`` (the labels of
+    ``pool`` as one), per variant the share of its sets of ``size`` agents whose failing agents meet
+    the paper's mean and std there; with several variants, the share of sets that meet both on all."""
+    recipes: dict[str, list[dict]] = {}
+    for r in rows:
+        if _measured(r, specs, measure):
+            recipes.setdefault(" + ".join(pool) if pool and r["label"] in pool else r["label"], []).append(r)
+    recipes = {name: mine for name, mine in recipes.items() if len(mine) > size}
+    if not recipes:
+        raise SystemExit(f"no recipe has more than {size} agents measured on {', '.join(specs)} in {OUT}; "
+                         f"--pool joins labels")
+    methods = {r["method"] for mine in recipes.values() for r in mine}
+    if len(methods) > 1:
+        raise SystemExit(f"the recipes measured there are of several methods ({', '.join(sorted(methods))}); "
+                         f"--pool or the variants should name one")
+    task, method = next(iter(recipes.values()))[0]["task"], methods.pop()
+    goals = {spec: _paper_goal(task, method, spec) for spec in specs}
+    for spec, goal in goals.items():
+        if goal is None:
+            raise SystemExit(f"the paper reports no {method} figure for {spec}")
+    lines = [f"Paper ({method}): " + "; ".join(f"{s.split(':')[1]} {m:.3f} ± {d:.3f}" for s, (m, d) in goals.items())
+             + f". Sets of {size} agents of each recipe:", "",
+             "| recipe | variant | agents (failing) | sets | mean >= paper | std <= paper | both | AUROC of each failing agent |",
+             "|---|---|---:|---:|---:|---:|---:|---|"]
+    for name, mine in recipes.items():
+        sets = list(combinations(range(len(mine)), size))
+        every = np.ones(len(sets), bool)
+        for spec, (goal_mean, goal_std) in goals.items():
+            fails = [r["length_mean"][spec] < 0.5 * r["length_mean"][task] for r in mine]
+            aurocs = [r["auroc"][measure][spec] for r in mine]
+            met = np.zeros((len(sets), 2), bool)
+            for k, chosen in enumerate(sets):
+                failing = [aurocs[i] for i in chosen if fails[i]]
+                if failing:  # a set in which no agent fails has no figure: it meets neither
+                    met[k] = np.mean(failing) >= goal_mean, np.std(failing) <= goal_std
+            both = met.all(1)
+            every &= both
+            each = " ".join(f"{a:.2f}" for a, f in zip(aurocs, fails) if f)
+            lines.append(f"| {name} | {spec.split(':')[1]} | {len(mine)} ({sum(fails)}) | {len(sets)} | "
+                         f"{met[:, 0].mean():.0%} | {met[:, 1].mean():.0%} | {both.mean():.0%} | {each} |")
+        if len(specs) > 1:
+            lines.append(f"| {name} | all {len(specs)} | {len(mine)} | {len(sets)} | | | {every.mean():.0%} | |")
     return "\n".join(lines)
 
 
@@ -123,6 +236,11 @@ def main() -> None:
                         help="fixed-decisions: the fixed sub-networks decide too (their two measures only)")
     parser.add_argument("--survival", metavar="VARIANT",
                         help="print each agent's mean episode length on VARIANT beside its whitened AUROC there, run nothing")
+    parser.add_argument("--plot", type=Path, metavar="PATH", help="with --survival: draw the agents to this PNG")
+    parser.add_argument("--draws", metavar="VARIANTS",
+                        help="print how often five agents of each recipe meet the paper's mean and std on these "
+                             "comma-separated variants, run nothing")
+    parser.add_argument("--pool", nargs="+", metavar="LABEL", help="with --draws: these labels' rows are one recipe")
     args = parser.parse_args()
     rows = read_rows(OUT)
     if args.table:
@@ -130,6 +248,11 @@ def main() -> None:
         return
     if args.survival:
         print(survival(rows, args.survival))
+        if args.plot:
+            print(f"plot: {survival_plot(rows, args.survival, args.plot)}")
+        return
+    if args.draws:
+        print(draws(rows, args.draws.split(","), args.pool))
         return
     if not args.folders or not args.label:
         parser.error("give --label and model folders (or --table)")
