@@ -97,10 +97,11 @@ def measure(folder: Path, masks: str = "fixed") -> dict:
 
 
 def table(rows: list[dict]) -> str:
-    """Per label and measure, mean ± std over the label's agents per variant."""
+    """Per label (and task, should one label name agents of two) and measure, mean ± std over the
+    label's agents per variant."""
     lines = ["| agents | measure | per variant: AUROC mean ± std (each agent) |", "|---|---|---|"]
-    for label in dict.fromkeys(r["label"] for r in rows):
-        mine = [r for r in rows if r["label"] == label]
+    for label, task in dict.fromkeys((r["label"], r["task"]) for r in rows):
+        mine = [r for r in rows if r["label"] == label and r["task"] == task]
         for name in mine[0]["auroc"]:
             cells = []
             for spec in mine[0]["auroc"][name]:

@@ -325,6 +325,10 @@ def test_sweep_fixed_masks_measures_an_agent_and_tabulates_its_rows(monkeypatch,
     assert all(0.0 <= deciding["auroc"][m]["pendulum:g=50.0"] <= 1.0 for m in script.DECIDING)
     table = script.table([{"label": "zoo", **row}, {"label": "zoo deciding", **deciding}])
     assert "| zoo deciding (1) | fixed-decisions scaled_spread | g=50.0" in table and "| zoo (1) | sampled spread" in table
+    # One label given to agents of two tasks: each task's agents tabled on their own variants.
+    cartpole = {**row, "task": "cartpole", "auroc": {m: {"cartpole:length=2.0": 0.25} for m in script.MEASURES}}
+    table = script.table([{"label": "both", **row}, {"label": "both", **cartpole}])
+    assert "| both (1) | fixed spread | g=50.0" in table and "| both (1) | fixed spread | length=2.0 0.250 ± 0.000" in table
 
 
 def test_sweep_fixed_masks_survival_ranks_agents_by_how_long_they_hold_out(monkeypatch, tmp_path):
