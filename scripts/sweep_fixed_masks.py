@@ -186,6 +186,9 @@ def draws(rows: list[dict], specs: list[str], pool: list[str] | None = None, mea
     """Per recipe with more than ``size`` agents measured on every one of ``specs`` (the labels of
     ``pool`` as one), per variant the share of its sets of ``size`` agents whose failing agents meet
     the paper's mean and std there; with several variants, the share of sets that meet both on all."""
+    unknown = sorted(set(pool or ()) - {r["label"] for r in rows})
+    if unknown:
+        raise SystemExit(f"--pool names labels no row of {OUT} has: {', '.join(unknown)}")
     recipes: dict[str, list[dict]] = {}
     for r in rows:
         if _measured(r, specs, measure):

@@ -394,6 +394,8 @@ def test_sweep_fixed_masks_draws_counts_the_sets_of_five_agents_that_meet_the_pa
     assert both.splitlines()[-1] == "| x + y | all 2 | 6 | 6 | | | 17% | |"
     with pytest.raises(SystemExit, match="no recipe has more than 5 agents measured on cartpole:masscart=9.0"):
         script.draws(rows[:6] + rows[-5:], [heavy])  # unpooled, x and y hold three agents each
+    with pytest.raises(SystemExit, match="--pool names labels no row of .* has: z"):
+        script.draws(rows, [heavy], pool=["x", "z"])  # a misspelt label is said, not left out
     dropout = [row | {"label": "d", "method": "dropout"} for row in rows[:6]]
     with pytest.raises(SystemExit, match=r"several methods \(dropconnect, dropout\)"):
         script.draws(rows[:6] + dropout, [heavy], pool=["x", "y"])
