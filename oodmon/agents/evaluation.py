@@ -20,11 +20,23 @@ from oodmon.envs.grid import Variant
 from oodmon.progress import Progress
 from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
 
-__all__ = ["RANDOM_RETURN", "SOLVED_RETURN", "VariantResult", "episode_returns", "evaluate_variants"]
+__all__ = ["RANDOM_RETURN", "SOLVED_RETURN", "VariantResult", "episode_returns", "evaluate_variants", "failure_line"]
 
 #: Mean return of a uniformly random policy in each task's ID env, measured with
 #: ``episode_returns(lambda obs: space.sample(), Variant(task), 100)`` with ``space.seed(0)`` (Pong: 10 episodes).
 RANDOM_RETURN: dict[str, float] = {"cartpole": 23.7, "pendulum": -1207.6, "pong": -20.6}
+
+
+def failure_line(task: str, id_return: float, fail_fraction: float = 0.5) -> float:
+    """The mean return below which a variant fails an agent whose ID return is ``id_return`` (see the
+    module docstring): ``fail_fraction`` of its gain over a random policy.
+
+    Example:
+        >>> round(failure_line("cartpole", 500.0), 2)
+        261.85
+    """
+    return RANDOM_RETURN[task] + fail_fraction * (id_return - RANDOM_RETURN[task])
+
 
 #: The ID return (mean over a trained model's ``id_return_mean`` episodes) at which an agent counts as
 #: solving its task: CartPole-v1's own ``reward_threshold``, and for Pendulum -200, the bar the zoo's
@@ -129,6 +141,6 @@ def evaluate_variants(
 
     returns = play_side_by_side(play, len(variants), workers, "evaluation episodes", on_progress,
                                 total=len(variants) * episodes)
-    line = RANDOM_RETURN[task] + fail_fraction * (float(np.mean(returns[0])) - RANDOM_RETURN[task])
+    line = failure_line(task, float(np.mean(returns[0])), fail_fraction)
     id_result = VariantResult(task, returns[0], False)
     return id_result, [VariantResult(v.spec, r, float(np.mean(r)) < line) for v, r in zip(variants[1:], returns[1:])]
