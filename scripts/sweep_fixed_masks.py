@@ -24,18 +24,18 @@ and ``"masks": "fixed-decisions"``.
 mean episode length there beside its whitened AUROC (``fixed scaled_spread``), shortest first, and
 the rank correlation of the two over the agents: does an agent read lower where it holds out longer
 under the shift? Runs nothing. With ``--plot PATH`` it also draws them (one colour per label, the
-paper's mean ± std as a band, half the ID length, where the bench stops counting an agent as
-failing, as a line).
+paper's mean ± std as a band, the bench's failure line as a line).
 
 ``--draws VARIANT[,VARIANT...]``: how often five trainings of one recipe would meet the paper's goals
 on each VARIANT (mean AUROC >= the paper's, std <= the paper's) and on all of them at once, judged
 from every recipe (label) with six or more agents measured there: over every set of five of its
-agents, the share whose agents that fail (mean episode length below half the ID one, the bench's
-rule) read a mean and a std (numpy's, as the bench's tables) that meet each goal. A set in which no
-agent fails meets neither. ``--pool`` counts the rows of the labels it names as one recipe (the zoo
-agent's and bench trials' rows beside more seeds of the same recipe measured later). The share is
-an estimate from that many seeds and these episodes (10 ID against 5 shifted, not the bench's), not
-a probability known to be right. Runs nothing.
+agents, the share whose agents that fail (the bench's rule, ``evaluation.failure_line``, on the mean
+episode length, which is CartPole's return: its only task here) read a mean and a std (numpy's, as
+the bench's tables) that meet each goal. A set in which no agent fails meets neither. ``--pool``
+counts the rows of the labels it names as one recipe (the zoo agent's and bench trials' rows beside
+more seeds of the same recipe measured later). The share is an estimate from that many seeds and
+these episodes (10 ID against 5 shifted, not the bench's), not a probability known to be right.
+Runs nothing.
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.agents import load_agent
+from oodmon.agents.evaluation import failure_line
 from oodmon.envs import parse_variant
 from oodmon.monitor.detectors import DetectorSet, SpreadDetector, collect, fit_agent_detectors, trajectory_scores
 from oodmon.threads import limit_threads
@@ -117,6 +118,11 @@ def _measured(r: dict, specs: list[str], measure: str) -> bool:
     return "masks" not in r and all(s in r["auroc"].get(measure, {}) and s in r.get("length_mean", {}) for s in specs)
 
 
+def _fails(r: dict, spec: str) -> bool:
+    """Whether the agent of CartPole row ``r`` fails on ``spec`` by the bench's rule (its return is its length)."""
+    return r["length_mean"][spec] < failure_line(r["task"], r["length_mean"][r["task"]])
+
+
 def _paper_goal(task: str, method: str, spec: str) -> tuple[float, float] | None:
     """The paper's mean and std (numpy's, as the bench's tables) over its trials on ``spec``, if it reports it."""
     from oodmon.bench.config import PAPER_METHOD, paper_label
@@ -165,8 +171,9 @@ def survival_plot(rows: list[dict], spec: str, path: Path, measure: str = "fixed
     if goal is not None:
         mean, std = goal
         ax.axhspan(mean - std, mean + std, color="grey", alpha=0.2, label=f"paper: {mean:.3f} ± {std:.3f}")
-    ax.axvline(0.5 * np.median([r["length_mean"][task] for r in mine]), color="grey", linestyle=":",
-               label="half the ID length (failing left of it)")
+    if task == "cartpole":  # its return is its length
+        ax.axvline(failure_line(task, float(np.median([r["length_mean"][task] for r in mine]))), color="grey",
+                   linestyle=":", label="the bench's failure line (failing left of it)")
     for name in dict.fromkeys(r["label"] for r in mine):
         points = [(r["length_mean"][spec], r["auroc"][measure][spec]) for r in mine if r["label"] == name]
         ax.scatter(*zip(*points), s=28, label=f"{name} ({len(points)})")
@@ -202,6 +209,8 @@ def draws(rows: list[dict], specs: list[str], pool: list[str] | None = None, mea
         raise SystemExit(f"the recipes measured there are of several methods ({', '.join(sorted(methods))}); "
                          f"--pool or the variants should name one")
     task, method = next(iter(recipes.values()))[0]["task"], methods.pop()
+    if task != "cartpole":
+        raise SystemExit(f"--draws judges failing by episode length, which is the return on CartPole only, not {task}")
     goals = {spec: _paper_goal(task, method, spec) for spec in specs}
     for spec, goal in goals.items():
         if goal is None:
@@ -214,7 +223,7 @@ def draws(rows: list[dict], specs: list[str], pool: list[str] | None = None, mea
         sets = list(combinations(range(len(mine)), size))
         every = np.ones(len(sets), bool)
         for spec, (goal_mean, goal_std) in goals.items():
-            fails = [r["length_mean"][spec] < 0.5 * r["length_mean"][task] for r in mine]
+            fails = [_fails(r, spec) for r in mine]
             aurocs = [r["auroc"][measure][spec] for r in mine]
             met = np.zeros((len(sets), 2), bool)
             for k, chosen in enumerate(sets):

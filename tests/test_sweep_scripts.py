@@ -401,6 +401,13 @@ def test_sweep_fixed_masks_draws_counts_the_sets_of_five_agents_that_meet_the_pa
         script.draws(rows[:6] + dropout, [heavy], pool=["x", "y"])
     with pytest.raises(SystemExit, match="the paper reports no dropout figure for cartpole:masscart=9.0"):
         script.draws(dropout, [heavy])
+    # Failing is the bench's rule (evaluation.failure_line: half the gain over a random policy's 23.7,
+    # 261.85 for an ID length of 500), not half the ID length: 255 steps fail, 262 do not.
+    assert script._fails(row("x", 255.0, 0.8), heavy) and not script._fails(row("x", 262.0, 0.8), heavy)
+    pendulum = [r | {"task": "pendulum", "auroc": {measure: {"pendulum:m=5.0": 0.9}},
+                     "length_mean": {"pendulum": 200.0, "pendulum:m=5.0": 200.0}} for r in rows[:6]]
+    with pytest.raises(SystemExit, match="episode length, which is the return on CartPole only, not pendulum"):
+        script.draws(pendulum, ["pendulum:m=5.0"], pool=["x", "y"])
 
 
 def test_shifted_episodes_splits_a_rows_auroc_at_the_episodes_the_agent_survives(monkeypatch, tmp_path, capsys):
