@@ -1,0 +1,161 @@
+"""The test suite's time as `make test` runs it, beside the 180 s goal, and where that time goes.
+
+Run: .venv/bin/python benchmarks/suite_time.py [--fits] [--out runs/suite-time.txt]
+     .venv/bin/python benchmarks/suite_time.py --read runs/suite-time.txt   (a saved run: seconds)
+
+Runs the suite as ``make test`` does (pytest-xdist on every core, ``--dist worksteal``) with every
+test's duration (``--durations=0``), keeps pytest's output in ``--out``, and prints: the wall time
+and the number of tests; their setup, call and teardown seconds summed over the workers (the
+wall time is about that sum over the cores, plus each worker's collection); how many tests take
+how long; the files and the tests that take the most; and a last line ``ratio=<wall time / 180
+s>`` (lower is better; goal <= 1.0, the code-health issue's). About five minutes on two cores; the
+machine's speed moves the figure by a quarter or more from one hour to the next
+(``benchmarks/dynamics_fit.py``'s time per update is a gauge of it).
+
+``--fits`` loads ``suite_fits.py`` (beside this script), a pytest plugin that times every fit of
+the dynamics model in the suite (about a fifth of its time on 2026-12-02), and prints their number,
+CPU seconds, and the seconds of the fits whose model and transitions an earlier fit of the run had
+already fitted (what a cache of fits would save), with the tests that repeat them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+GOAL_SECONDS = 180.0
+DURATION = re.compile(r"^([\d.]+)s (setup|call|teardown)\s+(\S+)")
+CLOSING = re.compile(r"^=*\s*(.*?) in ([\d.]+)s")
+BUCKETS = ((0.0, 0.3), (0.3, 1.0), (1.0, 3.0), (3.0, 10.0), (10.0, float("inf")))
+
+
+@dataclass
+class SuiteTime:
+    """What one run's output says: the wall time, the closing counts ('1640 passed'), and each
+    test's seconds (setup + call + teardown) and each phase's sum."""
+
+    wall: float
+    counts: str
+    tests: dict[str, float] = field(default_factory=dict)
+    phases: Counter = field(default_factory=Counter)
+
+    @property
+    def summed(self) -> float:
+        return sum(self.phases.values())
+
+    def files(self) -> dict[str, float]:
+        per_file: dict[str, float] = defaultdict(float)
+        for test, seconds in self.tests.items():
+            per_file[test.split("::")[0]] += seconds
+        return dict(per_file)
+
+
+def read_output(text: str) -> SuiteTime:
+    """Parse pytest's output of a run with ``--durations=0`` (tests/test_suite_time.py shows one).
+
+    Raises:
+        ValueError: no closing line (the run did not end, or this is not pytest's output).
+    """
+    tests: dict[str, float] = defaultdict(float)
+    phases: Counter = Counter()
+    closing = None
+    for line in text.splitlines():
+        if (match := DURATION.match(line)) is not None:
+            seconds, phase, test = float(match.group(1)), match.group(2), match.group(3)
+            tests[test] += seconds
+            phases[phase] += seconds
+        elif (match := CLOSING.match(line)) is not None and re.search(r"\d+ (passed|failed|error)", match.group(1)):
+            closing = match
+    if closing is None:
+        raise ValueError("no closing line such as '1640 passed in 258.79s': the run did not end, or this is not "
+                         "pytest's output")
+    return SuiteTime(float(closing.group(2)), closing.group(1).strip(" ="), dict(tests), phases)
+
+
+def read_fits(lines: list[str]) -> dict:
+    """The fits ``suite_fits.py`` wrote: their number, CPU seconds, the number of distinct ones and
+    the CPU seconds of those that fitted again what an earlier fit had, with the tests of each key
+    that ran more than once (by the seconds they repeat)."""
+    rows = [json.loads(line) for line in lines if line.strip()]
+    by_key: dict[str, list[dict]] = defaultdict(list)
+    for row in rows:
+        by_key[row["key"]].append(row)
+    repeated = sorted(((sum(r["cpu"] for r in same[1:]), sorted({r["test"] for r in same}))
+                       for same in by_key.values() if len(same) > 1), key=lambda item: -item[0])
+    return {"fits": len(rows), "cpu": sum(r["cpu"] for r in rows), "distinct": len(by_key),
+            "repeated_cpu": sum(seconds for seconds, _ in repeated), "repeated": repeated}
+
+
+def run_suite(out: Path, fits: Path | None) -> str:
+    """The suite as `make test` runs it, with every duration; its output, also written to ``out``."""
+    command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "auto", "--dist", "worksteal",
+               "--durations=0", "--durations-min=0"]
+    env = dict(os.environ)
+    if fits is not None:
+        command += ["-p", "suite_fits"]
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(Path(__file__).parent), env.get("PYTHONPATH")]))
+        env["OODMON_SUITE_FITS"] = str(fits)
+    done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(done.stdout + done.stderr)
+    return done.stdout
+
+
+def report(run: SuiteTime, fits: dict | None, top: int = 10) -> None:
+    print(f"{'wall time':48s} {run.wall:8.1f} s  ({run.counts})")
+    print(f"{'tests summed over the workers':48s} {run.summed:8.1f} s  "
+          + ", ".join(f"{phase} {run.phases[phase]:.1f}" for phase in ("setup", "call", "teardown")))
+    for low, high in BUCKETS:
+        inside = [s for s in run.tests.values() if low <= s < high]
+        label = f"tests of {low:g}-{high:g} s" if high != float("inf") else f"tests of {low:g} s or more"
+        print(f"{label:48s} {sum(inside):8.1f} s  ({len(inside)} tests)")
+    print("files that take the most:")
+    for name, seconds in sorted(run.files().items(), key=lambda item: -item[1])[:top]:
+        print(f"  {seconds:7.1f} s  {name}")
+    print("tests that take the most:")
+    for name, seconds in sorted(run.tests.items(), key=lambda item: -item[1])[:top]:
+        print(f"  {seconds:7.1f} s  {name}")
+    if fits is not None:
+        print(f"dynamics model fits: {fits['fits']} ({fits['distinct']} distinct), {fits['cpu']:.1f} s CPU, "
+              f"{fits['repeated_cpu']:.1f} s of them fitting again what an earlier fit had")
+        for seconds, tests in fits["repeated"][:top]:
+            print(f"  {seconds:7.1f} s again  {', '.join(test.split('::')[-1] for test in tests)}")
+    print(f"ratio={run.wall / GOAL_SECONDS:.2f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "suite-time.txt",
+                        help="where pytest's output is kept (default runs/suite-time.txt)")
+    parser.add_argument("--fits", action="store_true", help="time every fit of the dynamics model too")
+    parser.add_argument("--read", type=Path, metavar="FILE", help="report a saved run's output instead of running")
+    args = parser.parse_args()
+    try:
+        if args.read is not None:
+            print(f"(read from {args.read})")
+            report(read_output(args.read.read_text()), None)
+            return
+        with tempfile.TemporaryDirectory(prefix="oodmon-suite-fits-") as folder:
+            fits_file = Path(folder) / "fits.jsonl" if args.fits else None
+            run = read_output(run_suite(args.out, fits_file))
+            fits = None
+            if fits_file is not None:  # (no file: the suite fitted no dynamics model)
+                fits = read_fits(fits_file.read_text().splitlines() if fits_file.exists() else [])
+    except (OSError, ValueError) as error:
+        where = args.read if args.read is not None else args.out
+        sys.exit(f"suite_time.py: {error} ({where})")
+    print(f"(pytest's output in {args.out})")
+    report(run, fits)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,116 @@
+"""benchmarks/suite_time.py, which times the suite as `make test` runs it: its reading of pytest's
+output and of the fits its plugin (benchmarks/suite_fits.py) records."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from oodmon.monitor.detectors.base import Trajectory
+from oodmon.monitor.detectors.dynamics import DynamicsDetector
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+OUTPUT = """\
+........................................................................ [ 98%]
+..                                                                       [100%]
+============================= slowest durations ==============================
+41.30s call     tests/agents/test_own_env_readme.py::test_readme
+3.50s setup    tests/monitor/test_kill.py::test_killed
+2.00s call     tests/monitor/test_kill.py::test_killed
+0.40s call     tests/monitor/test_kill.py::test_other
+0.10s teardown tests/monitor/test_kill.py::test_other
+0.00s call     oodmon/envs/checks.py::oodmon.envs.checks.positive_number
+1640 passed in 258.79s (0:04:18)
+"""
+
+
+def _load(name: str):
+    """benchmarks/<name>.py as a module (in sys.modules, as its dataclasses need, under a name of its own)."""
+    spec = importlib.util.spec_from_file_location(f"benchmarks_{name}", BENCHMARKS / f"{name}.py")
+    module = sys.modules[spec.name] = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_runs_output_gives_its_wall_time_and_each_tests_and_files_seconds(capsys):
+    suite_time = _load("suite_time")
+    run = suite_time.read_output(OUTPUT)
+    assert (run.wall, run.counts) == (258.79, "1640 passed")
+    assert run.tests["tests/monitor/test_kill.py::test_killed"] == pytest.approx(5.5)  # setup and call
+    assert run.tests["tests/monitor/test_kill.py::test_other"] == pytest.approx(0.5)
+    assert dict(run.phases) == pytest.approx({"call": 43.7, "setup": 3.5, "teardown": 0.1})
+    assert run.files() == pytest.approx({"tests/agents/test_own_env_readme.py": 41.3, "tests/monitor/test_kill.py": 6.0,
+                                         "oodmon/envs/checks.py": 0.0})
+    suite_time.report(run, None, top=2)
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[-1] == "ratio=1.44"  # 258.79 s / 180 s
+    assert any(line.startswith("tests of 3-10 s") and line.endswith("(1 tests)") for line in printed)
+    assert any(line.startswith("tests of 10 s or more") and "41.3 s" in line for line in printed)
+    files = printed.index("files that take the most:")
+    assert printed[files + 1:files + 3] == ["     41.3 s  tests/agents/test_own_env_readme.py",
+                                            "      6.0 s  tests/monitor/test_kill.py"]
+
+
+def test_a_run_that_failed_is_read_and_one_that_never_ended_is_said():
+    suite_time = _load("suite_time")
+    failed = suite_time.read_output("1.00s call     tests/a.py::test_x\n"
+                                    "=========== 1 failed, 1639 passed, 2 warnings in 300.50s (0:05:00) ===========\n")
+    assert (failed.wall, failed.counts) == (300.5, "1 failed, 1639 passed, 2 warnings")
+    with pytest.raises(ValueError, match="no closing line"):
+        suite_time.read_output(OUTPUT.rsplit("\n", 2)[0])  # cut before pytest's last line
+
+
+def test_the_saved_output_of_a_run_is_reported_and_a_missing_one_is_said(tmp_path, monkeypatch, capsys):
+    suite_time = _load("suite_time")
+    (tmp_path / "run.txt").write_text(OUTPUT)
+    monkeypatch.setattr(sys, "argv", ["suite_time.py", "--read", str(tmp_path / "run.txt")])
+    suite_time.main()
+    assert capsys.readouterr().out.splitlines()[-1] == "ratio=1.44"
+    monkeypatch.setattr(sys, "argv", ["suite_time.py", "--read", str(tmp_path / "none.txt")])
+    with pytest.raises(SystemExit, match=r"suite_time.py: .*No such file.*none.txt"):
+        suite_time.main()
+
+
+def test_fits_of_the_same_model_on_the_same_transitions_count_as_repeated():
+    suite_time = _load("suite_time")
+    rows = [json.dumps({"key": key, "cpu": cpu, "wall": cpu, "test": test})
+            for key, cpu, test in (("a", 2.0, "t1"), ("a", 1.5, "t2"), ("b", 1.0, "t3"), ("a", 0.5, "t2"))]
+    fits = suite_time.read_fits(rows + [""])
+    assert (fits["fits"], fits["cpu"], fits["distinct"], fits["repeated_cpu"]) == (4, 5.0, 2, 2.0)
+    assert fits["repeated"] == [(2.0, ["t1", "t2"])]  # the first fit of a key is not a repeat
+    assert suite_time.read_fits([]) == {"fits": 0, "cpu": 0, "distinct": 0, "repeated_cpu": 0, "repeated": []}
+
+
+def _episodes(seed: int) -> list[Trajectory]:
+    rng = np.random.default_rng(seed)
+    return [Trajectory(observations=rng.standard_normal((31, 4)).astype(np.float32), actions=rng.integers(0, 2, 30))
+            for _ in range(3)]
+
+
+def test_the_plugin_writes_a_line_per_fit_keyed_by_what_decides_the_model(tmp_path, monkeypatch):
+    suite_fits = _load("suite_fits")
+    monkeypatch.setattr(DynamicsDetector, "fit", DynamicsDetector.fit)  # the plugin's wrapper is undone after
+    monkeypatch.delenv("OODMON_SUITE_FITS", raising=False)
+    original = DynamicsDetector.fit
+    suite_fits.pytest_configure(None)
+    assert DynamicsDetector.fit is original  # nothing asked: nothing wrapped
+    monkeypatch.setenv("OODMON_SUITE_FITS", str(tmp_path / "fits.jsonl"))
+    suite_fits.pytest_configure(None)
+    plain = original(DynamicsDetector(2, epochs=2), _episodes(0))
+    timed = DynamicsDetector(2, epochs=2).fit(_episodes(0))
+    assert all(np.array_equal(a, b) for pair in zip(plain._weights, timed._weights) for a, b in zip(*pair))  # as ever
+    DynamicsDetector(2, epochs=2).fit(_episodes(0), seed=1)  # another seed
+    DynamicsDetector(2, epochs=2).fit(_episodes(1))  # other transitions
+    DynamicsDetector(2, epochs=3).fit(_episodes(0))  # other settings
+    DynamicsDetector(2, epochs=2).fit(_episodes(0))  # the first one's again
+    rows = [json.loads(line) for line in (tmp_path / "fits.jsonl").read_text().splitlines()]
+    keys = [row["key"] for row in rows]
+    assert len(rows) == 5 and len(set(keys)) == 4 and keys[0] == keys[-1]
+    assert all(row["cpu"] > 0 and row["wall"] > 0 for row in rows)
+    assert rows[0]["test"].endswith("test_the_plugin_writes_a_line_per_fit_keyed_by_what_decides_the_model")
