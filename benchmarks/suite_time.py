@@ -8,9 +8,11 @@ test's duration (``--durations=0``), keeps pytest's output in ``--out``, and pri
 and the number of tests; their setup, call and teardown seconds summed over the workers (the
 wall time is about that sum over the cores, plus each worker's collection); how many tests take
 how long; the files and the tests that take the most; and a last line ``ratio=<wall time / 180
-s>`` (lower is better; goal <= 1.0, the code-health issue's). About five minutes on two cores; the
-machine's speed moves the figure by a quarter or more from one hour to the next
-(``benchmarks/dynamics_fit.py``'s time per update is a gauge of it).
+s>`` (lower is better; goal <= 1.0, the code-health issue's). About five minutes on two cores. The
+machine's speed moves the figure by half or more from one hour to the next, so it first prints a
+gauge of that speed: the dynamics model's fit time per update (``benchmarks/dynamics_fit.py``'s
+first figure, one thread, before the suite starts; on 2026-12-02 it read about 2,100 us in the
+morning and 3,767 us in the afternoon, just after a run of the suite that took 335 s).
 
 ``--fits`` loads ``suite_fits.py`` (beside this script), a pytest plugin that times every fit of
 the dynamics model in the suite (about a fifth of its time on 2026-12-02), and prints their number,
@@ -35,18 +37,21 @@ ROOT = Path(__file__).resolve().parent.parent
 GOAL_SECONDS = 180.0
 DURATION = re.compile(r"^([\d.]+)s (setup|call|teardown)\s+(\S+)")
 CLOSING = re.compile(r"^=*\s*(.*?) in ([\d.]+)s")
+SLOWEST = re.compile(r"^=+ slowest (\d+ )?durations =+$")
 BUCKETS = ((0.0, 0.3), (0.3, 1.0), (1.0, 3.0), (3.0, 10.0), (10.0, float("inf")))
 
 
 @dataclass
 class SuiteTime:
-    """What one run's output says: the wall time, the closing counts ('1640 passed'), and each
-    test's seconds (setup + call + teardown) and each phase's sum."""
+    """What one run's output says: the wall time, the closing counts ('1640 passed'), each
+    test's seconds (setup + call + teardown) and each phase's sum, and how many durations pytest
+    listed where it listed only the slowest (``make test``'s ``--durations=10``; None: every one)."""
 
     wall: float
     counts: str
     tests: dict[str, float] = field(default_factory=dict)
     phases: Counter = field(default_factory=Counter)
+    only_slowest: int | None = None
 
     @property
     def summed(self) -> float:
@@ -67,9 +72,11 @@ def read_output(text: str) -> SuiteTime:
     """
     tests: dict[str, float] = defaultdict(float)
     phases: Counter = Counter()
-    closing = None
+    closing, only_slowest = None, None
     for line in text.splitlines():
-        if (match := DURATION.match(line)) is not None:
+        if (match := SLOWEST.match(line)) is not None and match.group(1):
+            only_slowest = int(match.group(1))
+        elif (match := DURATION.match(line)) is not None:
             seconds, phase, test = float(match.group(1)), match.group(2), match.group(3)
             tests[test] += seconds
             phases[phase] += seconds
@@ -78,7 +85,7 @@ def read_output(text: str) -> SuiteTime:
     if closing is None:
         raise ValueError("no closing line such as '1640 passed in 258.79s': the run did not end, or this is not "
                          "pytest's output")
-    return SuiteTime(float(closing.group(2)), closing.group(1).strip(" ="), dict(tests), phases)
+    return SuiteTime(float(closing.group(2)), closing.group(1).strip(" ="), dict(tests), phases, only_slowest)
 
 
 def read_fits(lines: list[str]) -> dict:
@@ -93,6 +100,16 @@ def read_fits(lines: list[str]) -> dict:
                        for same in by_key.values() if len(same) > 1), key=lambda item: -item[0])
     return {"fits": len(rows), "cpu": sum(r["cpu"] for r in rows), "distinct": len(by_key),
             "repeated_cpu": sum(seconds for seconds, _ in repeated), "repeated": repeated}
+
+
+def gauge_us() -> float:
+    """The machine's speed now: ``dynamics_fit.py``'s fit time per update (one thread, 600 updates, best of 3)."""
+    from dynamics_fit import fit_us_per_update, synthetic_episodes  # benchmarks/, beside this script
+
+    from oodmon.threads import set_threads
+
+    set_threads(1)
+    return fit_us_per_update(synthetic_episodes())
 
 
 def run_suite(out: Path, fits: Path | None) -> str:
@@ -112,6 +129,9 @@ def run_suite(out: Path, fits: Path | None) -> str:
 
 def report(run: SuiteTime, fits: dict | None, top: int = 10) -> None:
     print(f"{'wall time':48s} {run.wall:8.1f} s  ({run.counts})")
+    if run.only_slowest is not None:
+        print(f"(pytest listed only the {run.only_slowest} slowest durations: the sums below are theirs; run with "
+              "--durations=0, as this script does, for all)")
     print(f"{'tests summed over the workers':48s} {run.summed:8.1f} s  "
           + ", ".join(f"{phase} {run.phases[phase]:.1f}" for phase in ("setup", "call", "teardown")))
     for low, high in BUCKETS:
@@ -144,15 +164,17 @@ def main() -> None:
             print(f"(read from {args.read})")
             report(read_output(args.read.read_text()), None)
             return
+        print(f"{'gauge: dynamics fit per update, before the suite':48s} {gauge_us():8.1f} us")
         with tempfile.TemporaryDirectory(prefix="oodmon-suite-fits-") as folder:
             fits_file = Path(folder) / "fits.jsonl" if args.fits else None
             run = read_output(run_suite(args.out, fits_file))
             fits = None
             if fits_file is not None:  # (no file: the suite fitted no dynamics model)
                 fits = read_fits(fits_file.read_text().splitlines() if fits_file.exists() else [])
-    except (OSError, ValueError) as error:
-        where = args.read if args.read is not None else args.out
-        sys.exit(f"suite_time.py: {error} ({where})")
+    except OSError as error:
+        sys.exit(f"suite_time.py: {error}")
+    except ValueError as error:
+        sys.exit(f"suite_time.py: {error} ({args.read if args.read is not None else args.out})")
     print(f"(pytest's output in {args.out})")
     report(run, fits)
 

@@ -64,6 +64,16 @@ def test_a_run_that_failed_is_read_and_one_that_never_ended_is_said():
     assert (failed.wall, failed.counts) == (300.5, "1 failed, 1639 passed, 2 warnings")
     with pytest.raises(ValueError, match="no closing line"):
         suite_time.read_output(OUTPUT.rsplit("\n", 2)[0])  # cut before pytest's last line
+    assert suite_time.read_output(OUTPUT).only_slowest is None  # --durations=0: every test's
+
+
+def test_the_output_of_make_test_is_read_as_the_slowest_tests_only(capsys):
+    """`make test` lists the 10 slowest durations: their sums are not the suite's, and the report says so."""
+    suite_time = _load("suite_time")
+    run = suite_time.read_output(OUTPUT.replace("slowest durations", "slowest 10 durations"))
+    assert run.only_slowest == 10 and run.summed == pytest.approx(47.3)
+    suite_time.report(run, None)
+    assert "pytest listed only the 10 slowest durations" in capsys.readouterr().out
 
 
 def test_the_saved_output_of_a_run_is_reported_and_a_missing_one_is_said(tmp_path, monkeypatch, capsys):
@@ -73,7 +83,11 @@ def test_the_saved_output_of_a_run_is_reported_and_a_missing_one_is_said(tmp_pat
     suite_time.main()
     assert capsys.readouterr().out.splitlines()[-1] == "ratio=1.44"
     monkeypatch.setattr(sys, "argv", ["suite_time.py", "--read", str(tmp_path / "none.txt")])
-    with pytest.raises(SystemExit, match=r"suite_time.py: .*No such file.*none.txt"):
+    with pytest.raises(SystemExit, match=r"suite_time.py: .*No such file.*none.txt'$"):
+        suite_time.main()
+    (tmp_path / "cut.txt").write_text(OUTPUT[:200])
+    monkeypatch.setattr(sys, "argv", ["suite_time.py", "--read", str(tmp_path / "cut.txt")])
+    with pytest.raises(SystemExit, match=r"suite_time.py: no closing line .*\(.*cut.txt\)$"):
         suite_time.main()
 
 
