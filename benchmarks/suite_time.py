@@ -112,11 +112,12 @@ def gauge_us() -> float:
     return fit_us_per_update(synthetic_episodes())
 
 
-def run_suite(out: Path, fits: Path | None) -> str:
-    """The suite as `make test` runs it, with every duration; its output, also written to ``out``."""
+def run_suite(out: Path, fits: Path | None, environment: dict[str, str]) -> str:
+    """The suite as `make test` runs it, with every duration, in ``environment`` (this process's as
+    it started: the gauge sets OPENBLAS_NUM_THREADS here); its output, also written to ``out``."""
     command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "auto", "--dist", "worksteal",
                "--durations=0", "--durations-min=0"]
-    env = dict(os.environ)
+    env = dict(environment)
     if fits is not None:
         command += ["-p", "suite_fits"]
         env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(Path(__file__).parent), env.get("PYTHONPATH")]))
@@ -164,10 +165,11 @@ def main() -> None:
             print(f"(read from {args.read})")
             report(read_output(args.read.read_text()), None)
             return
+        environment = dict(os.environ)
         print(f"{'gauge: dynamics fit per update, before the suite':48s} {gauge_us():8.1f} us")
         with tempfile.TemporaryDirectory(prefix="oodmon-suite-fits-") as folder:
             fits_file = Path(folder) / "fits.jsonl" if args.fits else None
-            run = read_output(run_suite(args.out, fits_file))
+            run = read_output(run_suite(args.out, fits_file, environment))
             fits = None
             if fits_file is not None:  # (no file: the suite fitted no dynamics model)
                 fits = read_fits(fits_file.read_text().splitlines() if fits_file.exists() else [])

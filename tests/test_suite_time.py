@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -128,3 +129,30 @@ def test_the_plugin_writes_a_line_per_fit_keyed_by_what_decides_the_model(tmp_pa
     assert len(rows) == 5 and len(set(keys)) == 4 and keys[0] == keys[-1]
     assert all(row["cpu"] > 0 and row["wall"] > 0 for row in rows)
     assert rows[0]["test"].endswith("test_the_plugin_writes_a_line_per_fit_keyed_by_what_decides_the_model")
+
+
+def test_the_suite_runs_as_make_test_runs_it_in_the_environment_the_script_started_with(tmp_path, monkeypatch):
+    """(The suite itself is not run here: the command, its environment and the kept output.)"""
+    import subprocess
+
+    suite_time = _load("suite_time")
+    ran = []
+
+    def run(command, **options):
+        ran.append((command, options))
+        return subprocess.CompletedProcess(command, 0, OUTPUT, "a warning\n")
+
+    monkeypatch.setattr(subprocess, "run", run)
+    out = tmp_path / "runs" / "suite.txt"
+    started = {"PATH": "/usr/bin", "PYTHONPATH": "/mine"}
+    assert suite_time.read_output(suite_time.run_suite(out, None, started)).wall == 258.79
+    command, options = ran[0]
+    assert command[1:] == ["-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "auto", "--dist", "worksteal",
+                           "--durations=0", "--durations-min=0"]  # make test's, every duration listed
+    assert options["env"] == started and options["cwd"] == suite_time.ROOT
+    assert out.read_text() == OUTPUT + "a warning\n"
+    suite_time.run_suite(out, tmp_path / "fits.jsonl", started)
+    command, options = ran[1]
+    assert command[-2:] == ["-p", "suite_fits"] and options["env"]["OODMON_SUITE_FITS"] == str(tmp_path / "fits.jsonl")
+    assert options["env"]["PYTHONPATH"] == os.pathsep.join([str(BENCHMARKS), "/mine"])  # the plugin found, the user's path kept
+    assert started == {"PATH": "/usr/bin", "PYTHONPATH": "/mine"}  # not changed in place
