@@ -160,6 +160,8 @@ def main() -> None:
     parser.add_argument("--fits", action="store_true", help="time every fit of the dynamics model too")
     parser.add_argument("--read", type=Path, metavar="FILE", help="report a saved run's output instead of running")
     args = parser.parse_args()
+    if args.fits and args.read is not None:  # a saved output holds no fits
+        parser.error("--fits times the fits of a run of the suite; --read reports a saved one: give one of them")
     try:
         if args.read is not None:
             print(f"(read from {args.read})")

@@ -255,6 +255,10 @@ def main() -> None:
                              "comma-separated variants, run nothing")
     parser.add_argument("--pool", nargs="+", metavar="LABEL", help="with --draws: these labels' rows are one recipe")
     args = parser.parse_args()
+    if args.plot and not args.survival:  # (a plot asked for and silently not drawn before)
+        parser.error("--plot draws the agents of --survival VARIANT: give that too")
+    if args.pool and not args.draws:
+        parser.error("--pool joins recipes for --draws VARIANTS: give that too")
     rows = read_rows(OUT)
     if args.table:
         print(table(rows))

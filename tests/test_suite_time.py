@@ -86,6 +86,10 @@ def test_the_saved_output_of_a_run_is_reported_and_a_missing_one_is_said(tmp_pat
     monkeypatch.setattr(sys, "argv", ["suite_time.py", "--read", str(tmp_path / "none.txt")])
     with pytest.raises(SystemExit, match=r"suite_time.py: .*No such file.*none.txt'$"):
         suite_time.main()
+    monkeypatch.setattr(sys, "argv", ["suite_time.py", "--read", str(tmp_path / "run.txt"), "--fits"])
+    with pytest.raises(SystemExit) as refused:  # a saved output holds no fits: said, not ignored
+        suite_time.main()
+    assert refused.value.code == 2 and "--fits times the fits of a run of the suite" in capsys.readouterr().err
     (tmp_path / "cut.txt").write_text(OUTPUT[:200])
     monkeypatch.setattr(sys, "argv", ["suite_time.py", "--read", str(tmp_path / "cut.txt")])
     with pytest.raises(SystemExit, match=r"suite_time.py: no closing line .*\(.*cut.txt\)$"):

@@ -362,7 +362,7 @@ def test_sweep_fixed_masks_survival_ranks_agents_by_how_long_they_hold_out(monke
     assert not (tmp_path / "none.png").exists()
 
 
-def test_sweep_fixed_masks_draws_counts_the_sets_of_five_agents_that_meet_the_papers_goals(monkeypatch, tmp_path):
+def test_sweep_fixed_masks_draws_counts_the_sets_of_five_agents_that_meet_the_papers_goals(monkeypatch, tmp_path, capsys):
     # Six agents of one recipe written under two labels (pooled), five failing on masscart=9.0 and
     # one holding out (500 steps, left out of its sets' figures as the bench leaves it out), against
     # the paper's 0.781 ± 0.066. Of the six sets of five (each leaves one agent out), computed by
@@ -408,6 +408,17 @@ def test_sweep_fixed_masks_draws_counts_the_sets_of_five_agents_that_meet_the_pa
                      "length_mean": {"pendulum": 200.0, "pendulum:m=5.0": 200.0}} for r in rows[:6]]
     with pytest.raises(SystemExit, match="episode length, which is the return on CartPole only, not pendulum"):
         script.draws(pendulum, ["pendulum:m=5.0"], pool=["x", "y"])
+    # A flag that serves another one, given without it, is refused before anything is read (a plot
+    # asked for beside --draws was silently not drawn).
+    import sys
+
+    for argv, said in ((["--draws", heavy, "--plot", "p.png"], "--plot draws the agents of --survival"),
+                       (["--table", "--pool", "x"], "--pool joins recipes for --draws")):
+        monkeypatch.setattr(sys, "argv", ["sweep_fixed_masks.py", *argv])
+        with pytest.raises(SystemExit) as refused:
+            script.main()
+        assert refused.value.code == 2 and said in capsys.readouterr().err
+    assert not (tmp_path / "p.png").exists()
 
 
 def test_shifted_episodes_splits_a_rows_auroc_at_the_episodes_the_agent_survives(monkeypatch, tmp_path, capsys):
