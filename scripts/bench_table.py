@@ -1,7 +1,8 @@
 """The README's five-trial tables beside the paper's, from the committed bench results in results/bench/.
 
 Run: .venv/bin/python scripts/bench_table.py [results/bench/<file>.json ...] [--plots]   (default: every file there)
-     .venv/bin/python scripts/bench_table.py --goals   (the README's table of the goals at a glance)
+     .venv/bin/python scripts/bench_table.py --goals [<file>.json ...]   (the README's table of the goals
+                                              at a glance; with files, over those files instead)
 
 ``--plots`` also draws each file as results/bench/<file>.png: per method and variant of the paper,
 our mean ± std over trials beside the paper's.
@@ -17,7 +18,9 @@ method how many of the paper's variants we meet (mean >= the paper's, and std <=
 
 ``--goals``: one row per variant the paper reports, with the best of every committed file and
 detector for it (both goals met first, then the mean alone, then the highest mean), and where it
-comes from; the README keeps it between ``<!-- bench_goals -->`` markers.
+comes from; the README keeps it between ``<!-- bench_goals -->`` markers. Given files, the same
+table over those files alone: e.g. ``results/sweeps/*-avx512-bench.json``, another draw of trials
+1-4 (trained on another CPU kind), beside the committed one.
 """
 
 from __future__ import annotations
@@ -230,14 +233,16 @@ if __name__ == "__main__":
     if {"-h", "--help"} & set(sys.argv[1:]):
         print(__doc__)
         sys.exit(0)
-    if "--goals" in sys.argv[1:]:
-        print(goals(sorted(RESULTS.glob("*.json"))))
-        sys.exit(0)
-    arguments = [a for a in sys.argv[1:] if a != "--plots"]
+    arguments = [a for a in sys.argv[1:] if a not in ("--plots", "--goals")]
     paths = [Path(p) for p in arguments] or sorted(RESULTS.glob("*.json"))
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         sys.exit(f"bench_table: no such results file: {', '.join(missing)} (see --help)")
+    if "--goals" in sys.argv[1:]:
+        if "--plots" in sys.argv[1:]:
+            sys.exit("bench_table: --plots draws each file's table; --goals draws nothing (give one or the other)")
+        print(goals(paths))
+        sys.exit(0)
     for path in paths:
         print(f"{path.stem}:\n\n{table(path)}\n")
         if "--plots" in sys.argv[1:]:
