@@ -229,21 +229,26 @@ def plot(path: Path) -> Path:
     return save_figure(fig, path.with_suffix(".png"))
 
 
-if __name__ == "__main__":
-    if {"-h", "--help"} & set(sys.argv[1:]):
+def main(argv: list[str]) -> None:
+    """The command line (the module's docstring); a file not there, or --plots beside --goals, exits with its message."""
+    if {"-h", "--help"} & set(argv):
         print(__doc__)
-        sys.exit(0)
-    arguments = [a for a in sys.argv[1:] if a not in ("--plots", "--goals")]
+        sys.exit(0)  # as argparse ends a --help
+    arguments = [a for a in argv if a not in ("--plots", "--goals")]
     paths = [Path(p) for p in arguments] or sorted(RESULTS.glob("*.json"))
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         sys.exit(f"bench_table: no such results file: {', '.join(missing)} (see --help)")
-    if "--goals" in sys.argv[1:]:
-        if "--plots" in sys.argv[1:]:
+    if "--goals" in argv:
+        if "--plots" in argv:
             sys.exit("bench_table: --plots draws each file's table; --goals draws nothing (give one or the other)")
         print(goals(paths))
-        sys.exit(0)
+        return
     for path in paths:
         print(f"{path.stem}:\n\n{table(path)}\n")
-        if "--plots" in sys.argv[1:]:
+        if "--plots" in argv:
             print(f"wrote {plot(path)}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -159,20 +159,23 @@ def test_the_goals_take_per_variant_the_row_meeting_both_then_the_mean_then_the_
                                 "(dropout force_mag=2.5).")
 
 
-def test_goals_of_given_files_are_over_those_files_alone():
+def test_goals_of_given_files_are_over_those_files_alone(capsys):
     """``bench_table.py --goals FILE...``: the goals at a glance over those files (another draw of
-    trials, say), not the committed ones; a file that is not there, or --plots beside it, refused."""
+    trials, say), not the committed ones; a file that is not there, or --plots beside it, refused
+    (``sys.exit`` with the message: exit code 1, the message on stderr). Run in this process: a
+    subprocess of the script costs seconds of imports."""
     root, script = load_script("bench_table")
     draw = root / "results" / "sweeps" / "pendulum-dropout-fixed-masks-avx512-bench.json"
-    run = [sys.executable, str(root / "scripts" / "bench_table.py"), "--goals"]
-    shown = subprocess.run([*run, str(draw)], capture_output=True, text=True, check=True).stdout
+    script.main(["--goals", str(draw)])
+    shown = capsys.readouterr().out
     assert shown == script.goals([draw]) + "\n"
     rows = [line for line in shown.splitlines() if line.startswith("| pendulum | dropout |")]
     assert len(rows) == 3 and all("pendulum-dropout-fixed-masks-avx512-bench" in r or "does not fail" in r for r in rows)
     assert not any(line.startswith("| cartpole") for line in shown.splitlines())  # no committed file read
     for extra, said in (([str(root / "nope.json")], "no such results file"), ([str(draw), "--plots"], "--goals draws nothing")):
-        refused = subprocess.run([*run, *extra], capture_output=True, text=True)
-        assert refused.returncode == 1 and said in refused.stderr and not refused.stdout
+        with pytest.raises(SystemExit) as refused:
+            script.main(["--goals", *extra])
+        assert isinstance(refused.value.code, str) and said in refused.value.code and not capsys.readouterr().out
 
 
 def test_the_five_trial_tables_name_the_trials_that_do_not_solve_the_task():

@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -137,8 +138,6 @@ def test_the_plugin_writes_a_line_per_fit_keyed_by_what_decides_the_model(tmp_pa
 
 def test_the_suite_runs_as_make_test_runs_it_in_the_environment_the_script_started_with(tmp_path, monkeypatch):
     """(The suite itself is not run here: the command, its environment and the kept output.)"""
-    import subprocess
-
     suite_time = _load("suite_time")
     ran = []
 

@@ -410,8 +410,6 @@ def test_sweep_fixed_masks_draws_counts_the_sets_of_five_agents_that_meet_the_pa
         script.draws(pendulum, ["pendulum:m=5.0"], pool=["x", "y"])
     # A flag that serves another one, given without it, is refused before anything is read (a plot
     # asked for beside --draws was silently not drawn).
-    import sys
-
     for argv, said in ((["--draws", heavy, "--plot", "p.png"], "--plot draws the agents of --survival"),
                        (["--table", "--pool", "x"], "--pool joins recipes for --draws")):
         monkeypatch.setattr(sys, "argv", ["sweep_fixed_masks.py", *argv])
