@@ -544,6 +544,17 @@ def test_bench_results_are_data_and_a_later_bench_is_checked_against_them(tmp_pa
     again = run_cli(*common, "--baseline", str(saved))  # the same cached cells: every figure holds
     assert again.returncode == 0, again.stderr
     assert "every figure of" in again.stderr
+    # a baseline of more methods than this run: their rows are not compared, a row of its own method is
+    more = dict(data, config=dict(data["config"], methods=["dropout", "ensemble"]),
+                rows=data["rows"] + [dict(data["rows"][0], method="dropout", mean=1.0)])
+    (tmp_path / "more.json").write_text(json.dumps(more))
+    some = run_cli(*common, "--baseline", str(tmp_path / "more.json"))
+    assert some.returncode == 0 and "rows of dropout not compared (not run: --methods ensemble)" in some.stderr
+    more["rows"][0] = dict(more["rows"][0], mean=more["rows"][0]["mean"] + 0.05)  # the ensemble's row: compared
+    (tmp_path / "more.json").write_text(json.dumps(more))
+    some = run_cli(*common, "--baseline", str(tmp_path / "more.json"))
+    assert some.returncode == 1 and sum(line.startswith("FELL ensemble/") for line in some.stderr.splitlines()) == 1
+    assert "FELL dropout" not in some.stderr
 
     raised = json.loads(saved.read_text())
     row = raised["rows"][0]
@@ -579,6 +590,9 @@ def test_bench_results_are_data_and_a_later_bench_is_checked_against_them(tmp_pa
     (tmp_path / "other.json").write_text(json.dumps(other))
     refused = run_cli(*common, "--baseline", str(tmp_path / "other.json"))
     assert refused.returncode == 2 and "far 0.05 there, 0.1 here" in refused.stderr
+    (tmp_path / "other.json").write_text(json.dumps(dict(data, config=dict(data["config"], methods=["dropout"]))))
+    refused = run_cli(*common, "--baseline", str(tmp_path / "other.json"))  # a method the baseline lacks
+    assert refused.returncode == 2 and "methods ['dropout'] there, ['ensemble'] here" in refused.stderr
     elsewhere = [a if a != str(tmp_path / "bench") else str(tmp_path / "fresh") for a in common]
     refused = run_cli(*elsewhere, "--baseline", str(tmp_path / "other.json"))
     assert refused.returncode == 2 and not (tmp_path / "fresh" / "logs").exists()  # refused before any work

@@ -6,7 +6,10 @@ under the monitor's protocol also, per (method, variant), the false-alarm rate (
 share of failing episodes alarmed before the failure (may not fall), the median delay (may not
 rise by more than the tolerance times its value) and the median lead (may not fall so). Both results
 must come from the same settings (task, protocol, score, detectors, calibration...): a baseline made
-otherwise is refused, not compared. A row the baseline has and the new result lacks is a fall too.
+otherwise is refused, not compared. A row the baseline has and the new result lacks is a fall too,
+except the rows of methods the new run left out: a run of some of the baseline's methods
+(``--methods dropout`` against a result of all three) is compared on their rows alone, as a bench's
+cells of one method do not depend on which others it runs (:func:`methods_left_out`).
 Where figures fell, :func:`provenance_notes` says whether the baseline's numbers were made by the
 same weights and fitted detectors.
 
@@ -47,7 +50,7 @@ from oodmon.replay.check import CHANCE, MOST_EPISODES, Odds, _is_number, compare
 from oodmon.validation import is_whole
 
 __all__ = ["BASELINE_TOLERANCE", "alarm_odds", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result",
-           "provenance_notes", "stratified_ranks"]
+           "methods_left_out", "provenance_notes", "stratified_ranks"]
 
 #: The default allowed fall (AUROC, AUPR, rates) and relative rise (delays).
 BASELINE_TOLERANCE = 0.02
@@ -121,17 +124,48 @@ def check_same_settings(ours: dict, baseline: dict, baseline_name: str = "the ba
         ConfigError: naming each setting that differs, with both values.
     """
     theirs = baseline["config"]
-    differing = sorted(k for k in set(ours) | set(theirs) if k not in _FREE and ours.get(k) != theirs.get(k))
+    differing = sorted(k for k in set(ours) | set(theirs) if k not in _FREE and ours.get(k) != theirs.get(k)
+                       and not (k == "methods" and _some_of(ours.get(k), theirs.get(k))))
     if differing:
         raise ConfigError(f"{baseline_name} was made with other settings: "
                           + "; ".join(f"{k} {theirs.get(k)!r} there, {ours.get(k)!r} here" for k in differing)
                           + ". Run the bench as the baseline's command says, or compare with another baseline")
 
 
+def _some_of(ours: object, theirs: object) -> bool:
+    """Whether a run's methods are some of a baseline's (both lists of names, ours not empty)."""
+    return (isinstance(ours, list) and isinstance(theirs, list) and bool(ours)
+            and all(isinstance(m, str) for m in ours + theirs) and set(ours) <= set(theirs))
+
+
+def methods_left_out(result: dict, baseline: dict) -> list[str]:
+    """The baseline's methods (in its order) that ``result``'s run did not play: their rows are not
+    compared (its settings otherwise the baseline's: :func:`check_same_settings`).
+
+    Example:
+        >>> methods_left_out({"config": {"methods": ["dropout"]}},
+        ...                  {"config": {"methods": ["dropout", "dropconnect", "ensemble"]}})
+        ['dropconnect', 'ensemble']
+    """
+    ours, theirs = result.get("config", {}).get("methods"), baseline["config"].get("methods")
+    if not _some_of(ours, theirs):
+        return []
+    return [method for method in theirs if method not in ours]
+
+
+def _without_methods(result: dict, methods: list[str]) -> dict:
+    """``result`` without the rows and alarm rows of ``methods``."""
+    if not methods:
+        return result
+    return dict(result, **{what: [entry for entry in result[what] if entry["method"] not in methods]
+                           for what in ("rows", "alarms") if what in result})
+
+
 def bench_falls(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERANCE, *,
                 baseline_name: str = "the baseline", weighed: bool = True, within: list[str] | None = None) -> list[str]:
     """One line per figure of ``baseline`` that ``result`` lacks or that moved the wrong way by
-    more than ``tolerance`` (an alarm figure: and beyond chance, see the module docstring;
+    more than ``tolerance`` (an alarm figure: and beyond chance, see the module docstring; the
+    rows of the baseline's methods that ``result`` did not run are not compared, :func:`methods_left_out`;
     ``weighed=False``: the tolerance alone). ``within``: a list that gets a line for each alarm
     figure beyond the tolerance but within chance, with its p-values (what the tolerance alone would
     have called a fall).
@@ -140,6 +174,7 @@ def bench_falls(result: dict, baseline: dict, tolerance: float = BASELINE_TOLERA
         ConfigError: the two were made with different settings.
     """
     check_same_settings(result.get("config", {}), baseline, baseline_name)
+    baseline = _without_methods(baseline, methods_left_out(result, baseline))
     expected = {key: {name: value for name, value in row.items() if value is not None}
                 for key, row in bench_metrics(baseline).items()}
     odds, pools = alarm_odds(result, baseline) if weighed else (None, None)

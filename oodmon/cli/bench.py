@@ -112,7 +112,8 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                        help="also write the result as JSON to FILE (per trial AUROC, AUPR, FPR@95TPR, the alarms, the "
                             "settings and this command): results as data, what --baseline reads")
     bench.add_argument("--baseline", metavar="FILE",
-                       help="a result --results wrote earlier: exit 1, naming each figure, where this run falls below it")
+                       help="a result --results wrote earlier: exit 1, naming each figure, where this run falls below it "
+                            "(a run of some of its methods is compared on their rows)")
     bench.add_argument("--tolerance", type=_non_negative,
                        help="--baseline's allowed fall of AUROC, AUPR and rates, and relative rise of delays (default 0.02)")
     bench.set_defaults(handler=_bench, kept_on_interrupt=_KEPT["bench"])
@@ -166,7 +167,7 @@ def _bench(args: argparse.Namespace) -> int:
                          masks=args.masks, onsets=args.onsets, failure=args.failure, warmup=args.warmup)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import (BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result,
-                                       provenance_notes)
+                                       methods_left_out, provenance_notes)
     from oodmon.outputs import check_output_dir, check_output_file, replaced_file
 
     check_output_dir(args.out, parameter="--out")
@@ -195,6 +196,10 @@ def _bench(args: argparse.Namespace) -> int:
     tolerance = BASELINE_TOLERANCE if args.tolerance is None else args.tolerance
     within: list[str] = []
     falls = bench_falls(data, baseline, tolerance, baseline_name=args.baseline, within=within)
+    left_out = methods_left_out(data, baseline)
+    if left_out:
+        print(f"oodmon bench: {args.baseline}'s rows of {', '.join(left_out)} not compared (not run: --methods "
+              f"{','.join(config.methods)})", file=sys.stderr)
     for line in within:
         print(f"within chance: {line}", file=sys.stderr)
     for line in falls:
