@@ -364,6 +364,9 @@ def test_calibrate_says_when_a_warmup_would_lower_the_threshold_and_is_silent_ot
     assert f"these episodes would set the threshold at {would.value:.4g} instead of {threshold.value:.4g}" in message
     # that figure was chosen by the warning itself: the advice is a warm-up calibrated on other episodes
     assert "That figure does not keep the promise" in message and "`--warmup 20 --seed S`, S past these" in message
+    assert "a learned detector's mean covers few transitions" in message
+    with pytest.warns(EarlyPeaksWarning, match=r"highest spread score only within their first 20 steps: from step 20"):
+        calibrate(early, 0.05, consecutive=1, detector="spread")  # the policy's spread has no mean to blame
     steady = [rng.normal(0.0, 1.0, 200) for _ in range(50)]
     short = [np.concatenate([[9.0], rng.normal(0.0, 1.0, 30)]) for _ in range(50)]  # a warm-up would take much
     with warnings.catch_warnings():
