@@ -644,7 +644,10 @@ def test_dynamics_scores_the_mean_of_its_last_window_transitions(fitted, id_traj
     means = np.array([raw[max(0, t - 19):t + 1].mean() for t in range(len(raw))])
     count = np.minimum(np.arange(1, len(raw) + 1), 20)
     expected = dynamics.neutral + (means - dynamics.neutral) * np.sqrt(count / 20)
-    assert np.all(expected[20:] == means[20:]) and np.abs(expected[1:19] - means[1:19]).max() > 0.1
+    # from 20 transitions on not moved (sqrt(20 / 20) = 1: the same but for rounding, as fits on another
+    # CPU kind showed, 2026-12-03), before them moved by far more than rounding
+    np.testing.assert_allclose(expected[20:], means[20:], rtol=1e-6)
+    assert np.abs(expected[1:19] - means[1:19]).max() > 0.1
     for _ in range(2):  # a second episode starts afresh
         got = trajectory_scores(DetectorSet([dynamics]), trajectory)["dynamics"]
         np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-4)
