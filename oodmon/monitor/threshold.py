@@ -173,14 +173,6 @@ WARMUP_HINT = 20
 EARLY_GAIN = 2 / 3
 
 
-def _early_why(detector: str) -> str:
-    """Why ``detector``'s scores may peak in an episode's first steps, for the warning: a learned
-    detector's means there cover few transitions; the policy's spread has no mean and no fit, and
-    may peak there all the same (the Pendulum Dropout bench's trials: 44 and 45 of 45 calibration
-    episodes, 2026-12-03), so the warning gives no reason for it."""
-    return "" if detector == "spread" else ", where a learned detector's mean covers few transitions since the reset"
-
-
 def _warn_if_early(episodes: list[np.ndarray], values: np.ndarray, value: float, rank: int, median: float,
                    detector: str, consecutive: int, window: int) -> None:
     """Warn when the episode statistics ``values`` of the consecutive rule (the threshold ``value``
@@ -193,9 +185,12 @@ def _warn_if_early(episodes: list[np.ndarray], values: np.ndarray, value: float,
     if not (math.isfinite(value) and math.isfinite(would)) or value <= median:
         return
     if (would - median) <= EARLY_GAIN * (value - median):
+        # a learned detector's means cover few transitions there; the policy's spread has no mean and
+        # may peak there all the same (the Pendulum Dropout bench's trials: 44 and 45 of 45 episodes)
+        why = "" if detector == "spread" else ", where a learned detector's mean covers few transitions since the reset"
         warnings.warn(EarlyPeaksWarning(
             f"{int(np.sum(late < values))} of the {len(episodes)} calibration episodes reach their highest {detector} "
-            f"score only within their first {WARMUP_HINT} steps{_early_why(detector)}: from step {WARMUP_HINT} "
+            f"score only within their first {WARMUP_HINT} steps{why}: from step {WARMUP_HINT} "
             f"on, these episodes would set the threshold at "
             f"{would:.4g} instead of {value:.4g} (the ID steps' median score {median:.4g}). That figure does not keep "
             f"the promise (this warning comes when it is low): for a warm-up, calibrate on other ID episodes "
