@@ -43,7 +43,7 @@ def default_blueprint(task: str, n_outputs: int):
         origin="/observation", name="observation")
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.TimeSeriesView(origin="/", contents=["/score", "/threshold", "/shifted"], name="uncertainty score"),
+            rrb.TimeSeriesView(origin="/", contents=["/score", "/threshold", "/shifted"], name="alarm's score and threshold"),
             rrb.TimeSeriesView(origin="/uncertainty", name="samples: mean and mean ± std per action"),
             rrb.TimeSeriesView(origin="/detectors", name="every detector's score"),
             rrb.Horizontal(seen, rrb.TextLogView(origin="/alarms", name="alarms")),
