@@ -1,6 +1,6 @@
 """Pictures from recorded logs (PNG): ROC curves, uncertainty traces, AUROC against the shift.
 
-- :func:`plot_roc`: per method, the ROC curve of one variant's per-step scores.
+- :func:`plot_roc`: per method and detector, the ROC curve of one variant's per-step scores.
 - :func:`plot_trace`: the paper's Figures 4 and 5: one ID episode beside one shifted episode,
   the score over the steps with the threshold, the shifted steps shaded, alarms marked.
 - :func:`plot_auroc_vs_shift`: per method, AUROC against the parameter's value (or severity).
@@ -11,7 +11,7 @@
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -48,15 +48,19 @@ def _alarm_detectors(logs: Sequence[RunLog], method: str, variant: str) -> str:
     return "/".join(sorted({log.detector for log in _runs_of(logs, method, variant)}))
 
 
-def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str) -> tuple[np.ndarray, np.ndarray] | None:
+def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str, detector: str | None = None
+                       ) -> tuple[np.ndarray, np.ndarray] | None:
+    """``method``'s steps of ``variant``'s task as labels (1: shifted) and the scores of ``detector``
+    (``None``: the alarm's), as replay's AUROC ranks them; ``None`` without both kinds of step."""
     negatives, positives = [], []
     for log in _runs_of(logs, method, variant):
         for episode in log.episodes:
+            scores = episode.scores_of(detector)
             if is_id_variant(episode.variant):
-                negatives.append(episode.scores)
+                negatives.append(scores)
             elif episode.variant == variant:
-                negatives.append(episode.scores[~episode.shifted])
-                positives.append(episode.scores[episode.shifted])
+                negatives.append(scores[~episode.shifted])
+                positives.append(scores[episode.shifted])
     if not positives or not negatives:
         return None
     neg, pos = np.concatenate(negatives), np.concatenate(positives)
@@ -65,19 +69,23 @@ def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str) -> tup
     return np.concatenate([np.zeros(len(neg)), np.ones(len(pos))]), np.concatenate([neg, pos])
 
 
-def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path) -> Path | None:
-    """ROC curves of ``variant`` per method; ``None`` when no method has both ID and OOD steps."""
+def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path,
+             detectors: Mapping[str, Sequence[str]] | None = None) -> Path | None:
+    """ROC curves of ``variant``, one per method and detector: ``detectors`` names each method's
+    (``None``: the one its alarm read); ``None`` when no method has both ID and OOD steps."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(4.5, 4.5), dpi=110)
     drawn = False
     for method in sorted({log.method for log in logs}):
-        data = _labels_and_scores(logs, method, variant)
-        if data is None:
-            continue
-        labels, scores = data
-        fpr, tpr, _ = roc_curve(labels, rankable(scores))
-        ax.plot(fpr, tpr, label=f"{method}, {_alarm_detectors(logs, method, variant)} (AUROC {np.trapezoid(tpr, fpr):.3f})")
-        drawn = True
+        for detector in [None] if detectors is None else detectors.get(method, []):
+            data = _labels_and_scores(logs, method, variant, detector)
+            if data is None:
+                continue
+            labels, scores = data
+            fpr, tpr, _ = roc_curve(labels, rankable(scores))
+            name = detector or _alarm_detectors(logs, method, variant)
+            ax.plot(fpr, tpr, label=f"{method}, {name} (AUROC {np.trapezoid(tpr, fpr):.3f})")
+            drawn = True
     if not drawn:
         plt.close(fig)
         return None
@@ -207,7 +215,12 @@ def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folde
     written: list[Path | None] = []
     shifted = sorted({m.variant for m in metrics if m.auroc is not None})
     for variant in shifted:
-        written.append(plot_roc(logs, variant, folder / f"roc_{safe_filename(variant)}.png"))
+        # a curve per detector of the table's rows (every one the logs hold, or replay's --detector)
+        detectors: dict[str, list[str]] = defaultdict(list)
+        for m in sorted(metrics, key=lambda m: m.detector):
+            if m.variant == variant and m.auroc is not None and m.detector not in detectors[m.method]:
+                detectors[m.method].append(m.detector)
+        written.append(plot_roc(logs, variant, folder / f"roc_{safe_filename(variant)}.png", detectors))
         for method in sorted({log.method for log in logs}):
             name = f"trace_{safe_filename(method)}_{safe_filename(variant)}.png"
             written.append(plot_trace(logs, method, variant, folder / name))

@@ -588,21 +588,26 @@ def test_the_monitor_logs_every_detector_and_alarms_on_the_named_one(agent, fitt
 
 
 def test_replay_plots_draw_the_auroc_of_every_detector_the_log_holds(agent, fitted, tmp_path, monkeypatch):
-    """`replay --plots`: AUROC against the shift gets a line per detector logged (it drew the alarm's
-    detector alone); `--detector` draws that one."""
+    """`replay --plots`: AUROC against the shift and the ROC get a line per detector logged (they drew
+    the alarm's detector alone), each ROC's AUROC the table's; `--detector` draws that one."""
     from oodmon.cli import main
-    from oodmon.replay import plots
+    from oodmon.replay import compute_all_metrics, plots, read_log
 
     with Monitor(agent, threshold=1.0, detector="combined", detectors=fitted,
                  sinks=[McapSink(tmp_path / "run.mcap")]) as monitor:
         monitor.run_episode(parse_variant("cartpole:length=2.0").make(onset_step=30), seed=3, variant="cartpole:length=2.0")
+    table = {m.detector: m.auroc for m in compute_all_metrics([read_log(tmp_path / "run.mcap")]) if m.auroc is not None}
+    assert sorted(table) == ["combined", "dynamics", "features", "spread"] and len(set(table.values())) > 1
     drawn = {}
     monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.update({Path(path).name: fig}) or Path(path))
-    for argv, labels in (([], ["ensemble, combined", "ensemble, dynamics", "ensemble, features", "ensemble, spread"]),
-                         (["--detector", "dynamics"], ["ensemble, dynamics"])):
+    for argv, names in (([], ["combined", "dynamics", "features", "spread"]), (["--detector", "dynamics"], ["dynamics"])):
         assert main(["replay", str(tmp_path / "run.mcap"), "--plots", str(tmp_path / "plots"), *argv]) == 0
         lines = drawn["auroc_vs_shift_cartpole.png"].axes[0].get_lines()
-        assert sorted(line.get_label() for line in lines if line.get_label().startswith("ensemble")) == labels
+        assert sorted(line.get_label() for line in lines if line.get_label().startswith("ensemble")) == [
+            f"ensemble, {name}" for name in names]
+        curves = [line.get_label() for line in drawn["roc_cartpole_length_2.0.png"].axes[0].get_lines()
+                  if line.get_label().startswith("ensemble")]
+        assert curves == [f"ensemble, {name} (AUROC {table[name]:.3f})" for name in names]
 
 
 def test_a_plain_policy_is_watched_with_the_actions_it_takes(agent, fitted):
