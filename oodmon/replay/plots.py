@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from sklearn.metrics import roc_curve
 
+from oodmon.envs.physics import PHYSICS_DEFAULTS
 from oodmon.envs.shift import parse_any_variant
 from oodmon.outputs import safe_filename, save_figure
 from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, failure_known,
@@ -177,8 +178,13 @@ def episode_name(episode) -> str:
 
 def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str | Path) -> Path | None:
     """AUROC against each parameter's value (log scale) or the severity, one line per method and
-    detector (that of the metrics' rows)."""
+    detector (that of the metrics' rows). A physics parameter of oodmon's tasks gets its ID value
+    as a dashed line in its title, and each line stops on either side of it: the values below it
+    and those above are two shifts, not one curve through the ID world."""
+    from matplotlib.ticker import FuncFormatter
+
     series: dict[tuple[str, str], list[tuple[float, float]]] = defaultdict(list)
+    id_values: dict[str, float] = {}
     for m in metrics:
         if m.task != task or m.auroc is None:
             continue
@@ -188,21 +194,38 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
         elif len(changes := (*variant.params, *getattr(variant, "faults", ()))) == 1:  # a task's sensor fault too
             name, value = changes[0]
             series[(name, f"{m.method}, {m.detector}")].append((value, m.auroc))
+            if name in PHYSICS_DEFAULTS.get(getattr(variant, "task", None), {}):
+                id_values[name] = PHYSICS_DEFAULTS[variant.task][name]
     if not series:
         return None
     names = sorted({name for name, _ in series})
     plt = _pyplot()
     fig, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 3.4), dpi=110, sharey=True, squeeze=False)
     for ax, name in zip(axes[0], names):
+        id_value = id_values.get(name)
         for (parameter, label), points in sorted(series.items()):
             if parameter != name:
                 continue
             points.sort()
-            ax.plot(*zip(*points), marker="o", markersize=3, label=label, clip_on=False)  # an AUROC of 1 shows whole
-        if task != "pong" and all(value > 0 for (parameter, _), points in series.items() if parameter == name
-                                  for value, _ in points):  # a shift of your own env may set 0 or less
+            sides = [points] if id_value is None else [[p for p in points if p[0] < id_value],
+                                                       [p for p in points if p[0] > id_value]]
+            color = None
+            for side in (side for side in sides if side):  # an AUROC of 1 shows whole (clip_on)
+                line, = ax.plot(*zip(*side), marker="o", markersize=3, clip_on=False, color=color,
+                                label=label if color is None else "_" + label)
+                color = line.get_color()
+        values = [value for (parameter, _), points in series.items() if parameter == name for value, _ in points]
+        if id_value is not None:
+            ax.axvline(id_value, color="grey", linestyle="--", linewidth=1)
+            values.append(id_value)
+        if task != "pong" and all(value > 0 for value in values):  # a shift of your own env may set 0 or less
             ax.set_xscale("log")
-        ax.set(title=name, xlabel="severity" if task == "pong" else "value", ylim=(0, 1))
+            numbers = FuncFormatter(lambda value, _: f"{value:g}")  # 70, not 7 x 10^1
+            ax.xaxis.set_major_formatter(numbers)
+            if max(values) < 10 * min(values):  # within a decade: the minor ticks are the only ones labelled
+                ax.xaxis.set_minor_formatter(numbers)
+        title = name if id_value is None else f"{name} (ID {id_value:g}, dashed)"
+        ax.set(title=title, xlabel="severity" if task == "pong" else "value", ylim=(0, 1))
         ax.axhline(0.5, color="grey", linestyle=":", linewidth=1)
     axes[0][0].set_ylabel("AUROC")
     axes[0][-1].legend(fontsize=8)

@@ -60,18 +60,19 @@ def test_roc_and_trace_read_the_variants_own_task(tmp_path):
 
 def test_a_run_shifted_mid_episode_alone_gets_its_trace_and_each_detector_its_auroc_line(tmp_path, monkeypatch):
     """A run with no ID log (its shift begins at step 20: the steps before are its ID ones) gets a
-    trace of a shifted episode; the AUROC-vs-shift plot has one line per method and detector."""
+    trace of a shifted episode; the AUROC-vs-shift plot has one line per method and detector, which
+    stops on either side of the parameter's ID value (a dashed line, in the title): the pole shorter
+    than in ID and the pole longer are two shifts, not one curve through the ID world."""
     import numpy as np
 
     from oodmon.replay import EpisodeLog, RunLog
-    from oodmon.replay.plots import plot_auroc_vs_shift
-
     from oodmon.replay import plots
+    from oodmon.replay.plots import plot_auroc_vs_shift
 
     rng = np.random.default_rng(0)
     episodes = []
-    # the third: the long pole and a stuck sensor, two changes, on no one parameter's line
-    for k, variant in enumerate(("length=2.0", "length=3.0", "length=2.0,obs.stuck[3]=1.0")):
+    # the last: the long pole and a stuck sensor, two changes, on no one parameter's line
+    for k, variant in enumerate(("length=2.0", "length=3.0", "length=0.25", "length=2.0,obs.stuck[3]=1.0")):
         combined, dynamics = np.r_[rng.normal(0, 1, 20), rng.normal(3, 1, 40)], rng.normal(0, 1, 60)
         episodes.append(EpisodeLog(episode=k, env_id="", variant=f"cartpole:{variant}", onset=20, seed=k,
                                    total_return=60.0, length=60, alarms=1, first_alarm_step=21, scores=combined,
@@ -84,10 +85,20 @@ def test_a_run_shifted_mid_episode_alone_gets_its_trace_and_each_detector_its_au
     drawn = []
     monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
     assert plot_auroc_vs_shift(metrics, "cartpole", tmp_path / "shift.png") is not None
-    lines = {line.get_label(): line for line in drawn[0].axes[0].get_lines() if line.get_label().startswith("sb3")}
-    assert sorted(lines) == ["sb3, combined", "sb3, dynamics"]  # one line each, not one zigzag through both
-    assert all(line.get_xdata().tolist() == [2.0, 3.0] for line in lines.values())
-    assert min(lines["sb3, combined"].get_ydata()) > 0.9 > max(lines["sb3, dynamics"].get_ydata())
+    ax = drawn[0].axes[0]
+    segments: dict[str, list] = {}
+    for line in ax.get_lines():
+        if line.get_label().lstrip("_").startswith("sb3"):
+            segments.setdefault(line.get_label().lstrip("_"), []).append(line)
+    assert sorted(segments) == ["sb3, combined", "sb3, dynamics"]  # one line each, not one zigzag through both
+    for lines in segments.values():
+        assert [line.get_xdata().tolist() for line in lines] == [[0.25], [2.0, 3.0]]  # below the ID 0.5, above it
+        assert len({line.get_color() for line in lines}) == 1
+    assert [text.get_text() for text in ax.get_legend().get_texts()] == ["sb3, combined", "sb3, dynamics"]
+    assert any(line.get_xdata()[0] == 0.5 and line.get_linestyle() == "--" for line in ax.get_lines())
+    assert ax.get_title() == "length (ID 0.5, dashed)"
+    auroc = {label: np.concatenate([line.get_ydata() for line in lines]) for label, lines in segments.items()}
+    assert min(auroc["sb3, combined"]) > 0.9 > max(auroc["sb3, dynamics"])
 
 
 def _episode(scores, onset):
