@@ -5,7 +5,8 @@ Run: .venv/bin/python scripts/bench_table.py [results/bench/<file>.json ...] [--
                                               at a glance; with files, over those files instead)
 
 ``--plots`` also draws each file as results/bench/<file>.png: per method and variant of the paper,
-our mean ± std over trials beside the paper's.
+our mean ± std over the trials that failed on the variant beside the paper's, with their number
+beside a point where fewer than all did.
 
 Each file is what `oodmon bench ... --results FILE` wrote (its command is inside, and in
 results/bench/README.md). One row per variant the paper's appendix reports for a method: our
@@ -214,7 +215,11 @@ def plot(path: Path) -> Path:
             shown = [i for i, r in enumerate(ours) if r is not None]
             name = "ours" if len(detectors) == 1 else f"ours, {detector}"
             ax.errorbar(x[shown] + 0.12 * (1 + index), [ours[i]["mean"] for i in shown], [ours[i]["std"] for i in shown],
-                        fmt="o", color=color, capsize=3, label=f"{name} ({config['trials']} trials)")
+                        fmt="o", color=color, capsize=3, label=f"{name} (the failing of {config['trials']} trials)")
+            for i in shown:  # a point over fewer trials than the bench ran: how many failed on it
+                if len(ours[i]["aurocs"]) < config["trials"]:
+                    ax.annotate(f"n={len(ours[i]['aurocs'])}", (x[i] + 0.12 * (1 + index), ours[i]["mean"]),
+                                textcoords="offset points", xytext=(5, -2), fontsize=7, color=color, va="top")
             if index == 0:
                 for i, r in enumerate(ours):
                     if r is None:

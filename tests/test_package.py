@@ -159,6 +159,21 @@ def test_the_goals_take_per_variant_the_row_meeting_both_then_the_mean_then_the_
                                 "(dropout force_mag=2.5).")
 
 
+def test_the_plot_of_a_result_says_how_many_trials_a_point_of_fewer_than_all_averages(monkeypatch):
+    """A point over the trials that failed on the variant, where fewer than all did, says their number
+    (the committed Pendulum file: Dropout m=5.0 over 3 trials, the ensemble's m=0.05 over 1, whose
+    std of 0 is one trial's); a point over all five says nothing."""
+    root, script = load_script("bench_table")
+    import oodmon.outputs
+
+    drawn = []
+    monkeypatch.setattr(oodmon.outputs, "save_figure", lambda fig, path: drawn.append(fig) or path)
+    script.plot(root / "results" / "bench" / "pendulum-pre_squash_std.json")
+    said = {ax.get_title(): sorted(text.get_text() for text in ax.texts if text.get_text().startswith("n="))
+            for ax in drawn[0].axes}
+    assert said == {"pendulum dropout": ["n=3"], "pendulum dropconnect": ["n=4"], "pendulum ensemble": ["n=1"]}
+
+
 def test_goals_of_given_files_are_over_those_files_alone(capsys):
     """``bench_table.py --goals FILE...``: the goals at a glance over those files (another draw of
     trials, say), not the committed ones; a file that is not there, or --plots beside it, refused
