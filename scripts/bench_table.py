@@ -15,7 +15,8 @@ protocol scores only failing variants), beside the paper's five trials; "does no
 of our trials failed on it. CartPole files that count them also give how many of those trials'
 shifted episodes failed ("23 of 25 episodes fail"): the protocol scores every step of the others as
 shifted too, though the agent coped. Then the best mean per task against the paper's best mean, and per
-method how many of the paper's variants we meet (mean >= the paper's, and std <= the paper's).
+method how many of the paper's variants we meet (mean >= the paper's, and std <= the paper's; a
+row over one failing trial has no std to compare: "one trial: no std", neither met nor missed).
 
 ``--goals``: one row per variant the paper reports, with the best of every committed file and
 detector for it (both goals met first, then the mean alone, then the highest mean), and where it
@@ -77,6 +78,21 @@ def table(path: Path) -> str:
     return "\n".join(lines)
 
 
+#: The std column of a row whose variant one trial alone failed on: its "std" of 0 is no spread over
+#: trials, so the paper's std goal is neither met nor missed there.
+ONE_TRIAL = "one trial: no std"
+
+
+def _std_goal(row: dict, trials: list[float]) -> bool | None:
+    """Whether ``row``'s std over the trials that failed is at most the paper's; ``None`` where one
+    trial alone failed (:data:`ONE_TRIAL`)."""
+    return None if len(row["aurocs"]) < 2 else bool(row["std"] <= np.std(trials))
+
+
+def _said(goal: bool | None) -> str:
+    return ONE_TRIAL if goal is None else "yes" if goal else "no"
+
+
 def _detector_table(data: dict, detector: str) -> list[str]:
     """One detector's rows beside the paper's, and the best means and the variants met under it."""
     rows = _rows(data, detector)
@@ -98,14 +114,14 @@ def _detector_table(data: dict, detector: str) -> list[str]:
             if row is None:
                 lines.append(f"| {method} | {label} | does not fail (0/{config['trials']}) | {theirs} | | no | |")
                 continue
-            mean_ok, std_ok = row["mean"] >= np.mean(trials), row["std"] <= np.std(trials)
+            mean_ok, std_ok = row["mean"] >= np.mean(trials), _std_goal(row, trials)
             counts[0] += mean_ok
-            counts[1] += mean_ok and std_ok
+            counts[1] += bool(mean_ok and std_ok)
             best_ours = max(best_ours, (row["mean"], f"{method} {label}"))
             lines.append(f"| {method} | {label} | {row['mean']:.3f} ± {row['std']:.3f} ({len(row['aurocs'])}"
                          f"{_episodes_failing(data, row)}) | "
                          f"{theirs} | {row['aupr_mean']:.3f} / {row['fpr95_mean']:.3f} | "
-                         f"{'yes' if mean_ok else 'no'} | {'yes' if std_ok else 'no'} |")
+                         f"{'yes' if mean_ok else 'no'} | {_said(std_ok)} |")
     lines += ["", f"Best mean AUROC: ours {best_ours[0]:.3f} ({best_ours[1]}), the paper's {best_paper[0]:.3f} "
                   f"({best_paper[1]}). Variants of the paper where our mean reaches the paper's (and our std is at most "
                   "the paper's): " + ", ".join(f"{m} {c[0]}/{c[2]} ({c[1]}/{c[2]})" for m, c in met.items()) + "."]
@@ -136,8 +152,9 @@ def goals(paths: list[Path]) -> str:
                     if row is None:
                         best.setdefault(key, None)
                         continue
-                    mean_ok, std_ok = row["mean"] >= np.mean(trials), row["std"] <= np.std(trials)
-                    candidate = (mean_ok and std_ok, mean_ok, row["mean"], row, f"`{path.stem}`, `{detector}`")
+                    mean_ok, std_ok = row["mean"] >= np.mean(trials), _std_goal(row, trials)
+                    candidate = (bool(mean_ok and std_ok), mean_ok, row["mean"], row, f"`{path.stem}`, `{detector}`",
+                                 std_ok)
                     if best.get(key) is None or candidate[:3] > best[key][:3]:
                         best[key] = candidate
     lines = ["| task | method | variant | paper: mean ± std | ours, the best: mean ± std (trials failing) | from "
@@ -154,10 +171,10 @@ def goals(paths: list[Path]) -> str:
         if found is None:
             lines.append(f"| {task} | {method} | {label} | {theirs} | does not fail (in any file) | | no | |")
             continue
-        both, mean_ok, mean, row, source = found
+        both, mean_ok, mean, row, source, std_ok = found
         tops[task][0] = max(tops[task][0], (mean, f"{method} {label}, {source}"))
         lines.append(f"| {task} | {method} | {label} | {theirs} | {mean:.3f} ± {row['std']:.3f} ({len(row['aurocs'])}) "
-                     f"| {source} | {'yes' if mean_ok else 'no'} | {'yes' if both else 'no'} |")
+                     f"| {source} | {'yes' if mean_ok else 'no'} | {_said(std_ok) if mean_ok else 'no'} |")
     lines.append("")
     lines += [f"Best mean AUROC, {task}: "
               + (f"ours {ours[0]:.3f} ({ours[1]})" if ours[1] else "ours none (no variant failed)")

@@ -153,6 +153,19 @@ def test_the_goals_take_per_variant_the_row_meeting_both_then_the_mean_then_the_
     assert "0.800 ± 0.010 (5) | `a`, `spread` | no | no |" in length
     assert lines[-1] == ("Best mean AUROC, cartpole: ours 0.900 (ensemble gravity=98.0, `b`, `scaled_spread`), the paper's "
                          "0.883 (ensemble length=2.0).")
+    # One failing trial's row has no std to hold against the paper's: neither met nor missed, and a
+    # row over five trials meeting both is taken before its higher mean
+    one = tmp_path / "e.json"
+    data = json.loads(result("e", [("cartpole:gravity=98.0", "spread", 0.97, 0.0)]).read_text())
+    data["rows"][0] |= {"aurocs": {"3": 0.97}, "aupr_mean": 0.9, "fpr95_mean": 0.1}
+    data |= {"command": "oodmon bench", "monitor": {}}
+    data["config"]["score"] = "margin_std"
+    one.write_text(json.dumps(data))
+    alone = next(line for line in script.goals([one]).splitlines() if "gravity=98.0" in line)
+    assert alone.endswith("0.970 ± 0.000 (1) | `e`, `spread` | yes | one trial: no std |")
+    assert "`b`, `scaled_spread` | yes | yes |" in next(line for line in script.goals([one, files[1]]).splitlines()
+                                                        if "gravity=98.0" in line)
+    assert "| yes | one trial: no std |" in script.table(one) and "ensemble 1/2 (0/2)" in script.table(one)
     only_dropout = script.goals([result("d", [], methods=["dropout"])]).splitlines()
     assert all("does not fail (in any file)" in line for line in only_dropout[2:5])
     assert only_dropout[-1] == ("Best mean AUROC, cartpole: ours none (no variant failed), the paper's 0.712 "
