@@ -77,7 +77,8 @@ def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path,
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(4.5, 4.5), dpi=110)
     drawn = False
-    for method in sorted({log.method for log in logs}):
+    colours: dict[str, str] = {}  # a detector's colour, the same for every method; a method's line style
+    for method, style in zip(sorted({log.method for log in logs}), ["-", "--", ":", "-."] * len(logs)):
         for detector in [None] if detectors is None else detectors.get(method, []):
             data = _labels_and_scores(logs, method, variant, detector)
             if data is None:
@@ -85,7 +86,8 @@ def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path,
             labels, scores = data
             fpr, tpr, _ = roc_curve(labels, rankable(scores))
             name = detector or _alarm_detectors(logs, method, variant)
-            ax.plot(fpr, tpr, label=f"{method}, {name} (AUROC {np.trapezoid(tpr, fpr):.3f})")
+            colour = colours.setdefault(name, f"C{len(colours) % 10}")
+            ax.plot(fpr, tpr, color=colour, linestyle=style, label=f"{method}, {name} (AUROC {np.trapezoid(tpr, fpr):.3f})")
             drawn = True
     if not drawn:
         plt.close(fig)
@@ -207,7 +209,7 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
             if parameter != name:
                 continue
             points.sort()
-            sides = [points] if id_value is None else [[p for p in points if p[0] < id_value],
+            sides = [points] if id_value is None else [[p for p in points if p[0] <= id_value],
                                                        [p for p in points if p[0] > id_value]]
             color = None
             for side in (side for side in sides if side):  # an AUROC of 1 shows whole (clip_on)
