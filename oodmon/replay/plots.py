@@ -183,7 +183,7 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
     detector (that of the metrics' rows). A physics parameter of oodmon's tasks gets its ID value
     as a dashed line in its title, and each line stops on either side of it: the values below it
     and those above are two shifts, not one curve through the ID world."""
-    from matplotlib.ticker import FuncFormatter
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     series: dict[tuple[str, str], list[tuple[float, float]]] = defaultdict(list)
     id_values: dict[str, float] = {}
@@ -221,11 +221,10 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
             ax.axvline(id_value, color="grey", linestyle="--", linewidth=1)
             values.append(id_value)
         if task != "pong" and all(value > 0 for value in values):  # a shift of your own env may set 0 or less
-            ax.set_xscale("log")
-            numbers = FuncFormatter(lambda value, _: f"{value:g}")  # 70, not 7 x 10^1
-            ax.xaxis.set_major_formatter(numbers)
-            if max(values) < 10 * min(values):  # within a decade: the minor ticks are the only ones labelled
-                ax.xaxis.set_minor_formatter(numbers)
+            ax.set_xscale("log")  # labelled at 1, 2 and 5 times a power of ten, as 50, not 5 x 10^1
+            ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+            ax.xaxis.set_minor_formatter(NullFormatter())
         title = name if id_value is None else f"{name} (ID {id_value:g}, dashed)"
         ax.set(title=title, xlabel="severity" if task == "pong" else "value", ylim=(0, 1))
         ax.axhline(0.5, color="grey", linestyle=":", linewidth=1)
