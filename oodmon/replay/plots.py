@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 from collections import defaultdict
+from itertools import cycle
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -78,7 +79,7 @@ def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path,
     fig, ax = plt.subplots(figsize=(4.5, 4.5), dpi=110)
     drawn = False
     colours: dict[str, str] = {}  # a detector's colour, the same for every method; a method's line style
-    for method, style in zip(sorted({log.method for log in logs}), ["-", "--", ":", "-."] * len(logs)):
+    for method, style in zip(sorted({log.method for log in logs}), cycle(["-", "--", ":", "-."])):
         for detector in [None] if detectors is None else detectors.get(method, []):
             data = _labels_and_scores(logs, method, variant, detector)
             if data is None:
@@ -205,10 +206,12 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
     fig, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 3.4), dpi=110, sharey=True, squeeze=False)
     for ax, name in zip(axes[0], names):
         id_value = id_values.get(name)
+        values = [] if id_value is None else [id_value]  # what the axis spans
         for (parameter, label), points in sorted(series.items()):
             if parameter != name:
                 continue
             points.sort()
+            values += [value for value, _ in points]
             sides = [points] if id_value is None else [[p for p in points if p[0] <= id_value],
                                                        [p for p in points if p[0] > id_value]]
             color = None
@@ -216,10 +219,8 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
                 line, = ax.plot(*zip(*side), marker="o", markersize=3, clip_on=False, color=color,
                                 label=label if color is None else "_" + label)
                 color = line.get_color()
-        values = [value for (parameter, _), points in series.items() if parameter == name for value, _ in points]
         if id_value is not None:
             ax.axvline(id_value, color="grey", linestyle="--", linewidth=1)
-            values.append(id_value)
         if task != "pong" and all(value > 0 for value in values):  # a shift of your own env may set 0 or less
             ax.set_xscale("log")  # labelled at 1, 2 and 5 times a power of ten, as 50, not 5 x 10^1
             ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
@@ -237,14 +238,14 @@ def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folde
     """Every plot the logs allow, into ``folder``; returns the files written."""
     folder = Path(folder)
     written: list[Path | None] = []
-    shifted = sorted({m.variant for m in metrics if m.auroc is not None})
-    for variant in shifted:
-        # a curve per detector of the table's rows (every one the logs hold, or replay's --detector)
-        detectors: dict[str, list[str]] = defaultdict(list)
-        for m in sorted(metrics, key=lambda m: m.detector):
-            if m.variant == variant and m.auroc is not None and m.detector not in detectors[m.method]:
-                detectors[m.method].append(m.detector)
-        written.append(plot_roc(logs, variant, folder / f"roc_{safe_filename(variant)}.png", detectors))
+    # each shifted variant's ROC: a curve per detector of the table's rows (every one the logs hold, or
+    # replay's --detector), by method
+    detectors: dict[str, dict[str, list[str]]] = defaultdict(lambda: defaultdict(list))
+    for m in sorted(metrics, key=lambda m: m.detector):
+        if m.auroc is not None and m.detector not in detectors[m.variant][m.method]:
+            detectors[m.variant][m.method].append(m.detector)
+    for variant in sorted(detectors):
+        written.append(plot_roc(logs, variant, folder / f"roc_{safe_filename(variant)}.png", detectors[variant]))
         for method in sorted({log.method for log in logs}):
             name = f"trace_{safe_filename(method)}_{safe_filename(variant)}.png"
             written.append(plot_trace(logs, method, variant, folder / name))
