@@ -474,6 +474,7 @@ def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, ca
     """A model without fitted detectors: `calibrate --detector dynamics` fits them on episodes of their
     own beside the threshold, and `run --detectors` alarms on the shifted world with them."""
     from oodmon.agents import zoo_dir
+    from oodmon.monitor import Threshold
 
     model = tmp_path / "model"
     model.mkdir()
@@ -482,9 +483,21 @@ def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, ca
     threshold = tmp_path / "thr.json"
     assert main(["calibrate", "--task", "cartpole", "--model", str(model), "--detector", "dynamics",
                  "--episodes", "19", "--confidence", "none", "--fit-episodes", "12", "--out", str(threshold)]) == 0
-    assert "fitted the detectors into" in capsys.readouterr().out
+    fitted = tmp_path / "thr.json.detectors"
+    assert f"fitted the detectors into {fitted} (`oodmon run` finds them there; to calibrate again without fitting " \
+           f"them, give --detectors {fitted})" in capsys.readouterr().out.replace("\n", " ")
     assert json.loads(threshold.read_text())["detector"] == "dynamics"
-    assert (tmp_path / "thr.json.detectors" / "detectors.json").exists()
+    assert (fitted / "detectors.json").exists()
+    # As the line says: another target, calibrated with them, fits none and keeps them
+    kept = {p.name: p.read_bytes() for p in fitted.iterdir()}
+    with monkeypatch.context() as patch:
+        patch.setattr("oodmon.monitor.detectors.fit_agent_detectors", lambda *a, **k: pytest.fail("fitted again"))
+        assert main(["calibrate", "--task", "cartpole", "--model", str(model), "--detector", "dynamics", "--episodes",
+                     "19", "--far", "0.1", "--confidence", "none", "--detectors", str(fitted), "--out",
+                     str(tmp_path / "far10.json")]) == 0
+    assert "fitted the detectors" not in capsys.readouterr().out
+    assert {p.name: p.read_bytes() for p in fitted.iterdir()} == kept
+    assert Threshold.load(tmp_path / "far10.json").detectors_hash == Threshold.load(threshold).detectors_hash
     # `run` finds them beside the threshold file, or where --detectors says.
     assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold),
                  "--variant", "cartpole:length=2.0", "--episodes", "2"]) == 0
@@ -626,6 +639,38 @@ def test_replay_notes_logged_episodes_the_threshold_or_its_detector_was_made_fro
     assert main(["replay", str(tmp_path), "--monitor"]) == 0  # each log's own seeds: a note of both uses
     assert note.format("1 of the threshold's calibration episodes and 1 of the detectors' fitting episodes") in \
         capsys.readouterr().err.replace("\n", " ")
+
+
+def test_run_and_validate_play_the_shipped_agent_their_threshold_was_calibrated_for(tmp_path, capsys):
+    """`run --threshold T` without --task and --method plays the agent T records, as `validate` does
+    (before 2026-12-03 run said "give --task with --method"); a threshold of your own SB3 models or
+    policy names what to give again; an agent given is the one played, the threshold checked against it."""
+    from oodmon.monitor import Threshold
+
+    path = tmp_path / "t.json"
+    Threshold(1e9, "chosen_std", 1, "episode", 0.05, 45, 9_000, task="cartpole", method="ensemble",
+              detector="spread").save(path)
+    assert main(["run", "--threshold", str(path), "--variant", "cartpole:length=2.0", "--episodes", "1"]) == 0
+    assert "cartpole/ensemble in cartpole:length=2.0, onset 0, score > 1e+09" in capsys.readouterr().out
+    assert main(["run", "--threshold", str(path), "--method", "dropout", "--episodes", "1"]) == 2  # the task still T's
+    assert "it was calibrated for method 'ensemble', not 'dropout'" in capsys.readouterr().err
+    assert main(["run", "--threshold", str(path), "--task", "pendulum", "--episodes", "1"]) == 2
+    assert "it was calibrated for task 'cartpole', not 'pendulum'" in capsys.readouterr().err
+    for method, words in (("sb3", "your own SB3 model(s) in CartPole-v1: give them again, --sb3 ZIP --env CartPole-v1"),
+                          ("plain", "your own policy in CartPole-v1: give it again, --policy MODULE:NAME --env "
+                                    "CartPole-v1")):
+        own = tmp_path / f"{method}.json"
+        Threshold(1.0, "chosen_std", 1, "episode", 0.05, 45, 9_000, task="cartpole", method=method,
+                  detector="dynamics").save(own)
+        for argv in (["run", "--threshold", str(own)], ["validate", str(own)]):
+            assert main(argv) == 2, argv
+            assert f"{own} was calibrated on {words}" in capsys.readouterr().err.replace("\n", " ")
+    untold = tmp_path / "untold.json"
+    untold.write_text(json.dumps({k: v for k, v in json.loads(path.read_text()).items() if k != "task"}))
+    assert main(["run", "--threshold", str(untold), "--method", "ensemble"]) == 2
+    assert f"{untold} does not record its task; give --task" in capsys.readouterr().err.replace("\n", " ")
+    assert main(["run", "--threshold", str(untold), "--task", "cartpole", "--episodes", "1"]) == 0  # the method its
+    assert "cartpole/ensemble in cartpole" in capsys.readouterr().out
 
 
 def test_validate_says_what_to_do_when_the_whole_interval_lies_above_the_target(tmp_path, capsys):
@@ -872,3 +917,29 @@ def test_run_and_replay_say_when_episodes_ended_before_the_onset(tmp_path, capsy
     assert "note:" not in capsys.readouterr().out
     assert main(["replay", str(tmp_path / "in-time.mcap")]) == 0
     assert "before their onset" not in capsys.readouterr().err
+
+
+def test_every_oodmon_command_in_the_readmes_shell_blocks_parses():
+    """The README's shell blocks (the command-line list, each section's commands) as a reader copies
+    them: each `oodmon ...` line, its continuation lines joined and its comment cut, is taken by the
+    parser, so that a renamed or removed option cannot leave a command there that no longer runs
+    (the blocks that the suite runs as written are run by their own tests)."""
+    import shlex
+    import textwrap
+    from pathlib import Path
+
+    from oodmon.cli import _parser
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    commands = [shlex.split(line, comments=True)[1:]
+                for indent, block in re.findall(r"^( *)```sh\n(.*?)^\1```", text, re.DOTALL | re.MULTILINE)
+                for line in textwrap.dedent(block).replace("\\\n", " ").splitlines() if line.startswith("oodmon ")]
+    assert len(commands) >= 60  # 70 on 2026-12-03
+    parser = _parser()
+    refused = []
+    for argv in commands:
+        try:
+            parser.parse_args(argv)
+        except SystemExit:
+            refused.append(" ".join(argv))
+    assert not refused, refused

@@ -10,7 +10,7 @@ from pathlib import Path
 from rich.console import Console
 
 from oodmon.cli.display import _progress
-from oodmon.cli.loading import _detectors, _input_files, _load_agent
+from oodmon.cli.loading import _agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import (
     _FIT_EPISODES, _FIT_STEPS, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
     _agent_arguments, _fraction, _non_negative, _whole,
@@ -25,7 +25,10 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
     calibrate = commands.add_parser(
         "calibrate", help="calibrate an agent's alarm threshold on held-out in-distribution episodes"
     )
-    _agent_arguments(calibrate)
+    _agent_arguments(calibrate, detectors="fitted detectors to calibrate with, from `oodmon fit-detectors` or an "
+                     "earlier calibrate (its <--out>.detectors): none is fitted again (default: those shipped with the "
+                     "agent, if any; a learned detector asked for that they lack is fitted first, into "
+                     "<--out>.detectors)")
     calibrate.add_argument("--episodes", type=_whole(1), default=50, help="ID calibration episodes (default 50)")
     calibrate.add_argument("--far", type=_fraction, default=0.05, help="target false-alarm rate (default 0.05)")
     _add_confidence(calibrate)
@@ -136,8 +139,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote {args.out}"
         + (f" (replacing the threshold it held: alarm when {replaced.rule_text}, {replaced.detector} detector, "
            f"{replaced.n_episodes} ID episodes)" if replaced else "")
-        + (f"; fitted the detectors into {fitted_to} (`oodmon run` finds them there)"
-           if fitted_to else "")
+        + (f"; fitted the detectors into {fitted_to} (`oodmon run` finds them there; to calibrate again without "
+           f"fitting them, give --detectors {fitted_to})" if fitted_to else "")
         + (f"; removed the detectors an earlier calibration fitted into {cleared} (`oodmon run` would read them "
            "before those this threshold was calibrated with)" if cleared else "")
     )
@@ -195,26 +198,11 @@ def _add_validate(commands: argparse._SubParsersAction) -> None:
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from oodmon.envs.registration import TASK_OF_ENV
-    from oodmon.names import PLAIN_METHOD
     from oodmon.monitor import Threshold, validate_threshold
     from oodmon.side_by_side import resolve_workers
 
     threshold = Threshold.load(args.threshold)
-    args.task = args.task or threshold.task
-    if args.task is None:
-        raise ConfigError(f"{args.threshold} does not record its task; give --task")
-    if args.model is None and not args.sb3 and not args.policy:
-        # a threshold records the task, which names the env oodmon has variants of (cartpole: CartPole-v1)
-        env_id = next((env for env, task in TASK_OF_ENV.items() if task == threshold.task), threshold.task)
-        if threshold.method == "sb3" and args.method is None:  # no shipped agent of that name
-            raise ConfigError(f"{args.threshold} was calibrated on your own SB3 model(s) in {env_id}: give them "
-                              f"again, --sb3 ZIP --env {env_id} (with --vec-normalize and --frame-stack as "
-                              "when calibrating)")
-        if threshold.method == PLAIN_METHOD and args.method is None:
-            raise ConfigError(f"{args.threshold} was calibrated on your own policy in {env_id}: give it again, "
-                              f"--policy MODULE:NAME --env {env_id}")
-        args.method = args.method or threshold.method
+    _agent_from_threshold(args, threshold, args.threshold)
     args.masks = args.masks or threshold.masks
     agent = _load_agent(args, seed=args.seed)  # the same --seed, the same count, for MC agents too
     detectors = _detectors(args, agent)
@@ -265,7 +253,7 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
         "fit-detectors", help="fit the learned detectors (dynamics or transitions, features, combined) on an agent's "
                               "ID episodes"
     )
-    _agent_arguments(fit)
+    _agent_arguments(fit, detectors=None)
     fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread, "
                                     "fitted only when named, and drift, named or in your own env; transitions instead "
                                     "of dynamics and drift for discrete observations; stillness for pictures, for "

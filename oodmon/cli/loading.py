@@ -45,6 +45,34 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
     return load(args.task, args.method, seed=seed, masks=masks)
 
 
+def _agent_from_threshold(args: argparse.Namespace, threshold, name: str) -> None:
+    """Where no agent is given (--model, --sb3, --policy; --task and --method each default alone),
+    the shipped agent ``threshold`` was calibrated for: ``args.task`` and ``args.method`` from it
+    (`oodmon validate`, and `oodmon run --threshold`). ``name``: the threshold file, in the errors.
+
+    Raises:
+        ConfigError: the threshold records no task, or was calibrated on your own SB3 models or
+            policy (no shipped agent has that name: they are given again, with their env).
+    """
+    from oodmon.envs.registration import TASK_OF_ENV
+    from oodmon.names import PLAIN_METHOD
+
+    if args.model or getattr(args, "sb3", None) or getattr(args, "policy", None):
+        return  # the agent given says its task (a threshold of another is refused by the monitor, or --force)
+    args.task = args.task or threshold.task
+    if args.task is None:
+        raise ConfigError(f"{name} does not record its task; give --task")
+    # a threshold records the task, which names the env oodmon has variants of (cartpole: CartPole-v1)
+    env_id = next((env for env, task in TASK_OF_ENV.items() if task == threshold.task), threshold.task)
+    if threshold.method == "sb3" and args.method is None:  # no shipped agent of that name
+        raise ConfigError(f"{name} was calibrated on your own SB3 model(s) in {env_id}: give them again, --sb3 ZIP "
+                          f"--env {env_id} (with --vec-normalize and --frame-stack as when calibrating)")
+    if threshold.method == PLAIN_METHOD and args.method is None:
+        raise ConfigError(f"{name} was calibrated on your own policy in {env_id}: give it again, --policy "
+                          f"MODULE:NAME --env {env_id}")
+    args.method = args.method or threshold.method
+
+
 def _plain_agent(args: argparse.Namespace):
     """The agent of --policy MODULE:NAME in --env (:func:`oodmon.agents.plain.plain_agent`)."""
     from oodmon.agents.plain import plain_agent, policy_by_name

@@ -173,14 +173,19 @@ _FAILURES = ("terminated",)
 _UNSET = -1.0
 
 
-def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | None = None) -> None:
-    """--task, --method, --model, --detectors; with ``defaults_from`` (a threshold file), the task and
-    method default to what it was calibrated for, and the detectors to those fitted beside it."""
-    if defaults_from is None:
-        parser.add_argument("--task", choices=TASKS,
-                            help="a shipped agent's task (required unless --sb3)")
-    else:
-        parser.add_argument("--task", choices=TASKS, help=f"default: {defaults_from} task")
+#: --detectors' help where the detectors default to those `calibrate` fitted beside the threshold (run, validate).
+DETECTORS_BESIDE = ("fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside the threshold "
+                    "file, else those shipped with the agent, if any)")
+
+
+def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | None = None,
+                     detectors: str | None = DETECTORS_BESIDE) -> None:
+    """--task, --method, --model, --masks, the --sb3 options, --policy and --detectors (``detectors``:
+    its help; None: no --detectors, for a command that reads no fitted detectors); with
+    ``defaults_from`` (a threshold file, in words), the task and method default to what it was
+    calibrated for."""
+    parser.add_argument("--task", choices=TASKS, help="a shipped agent's task (" + (
+        "required unless --sb3 or --policy)" if defaults_from is None else f"default: {defaults_from})"))
     parser.add_argument("--method", choices=METHODS,
                         help="a shipped agent (or give --model)" if defaults_from is None
                         else f"a shipped agent (default: {defaults_from} method, unless --model)")
@@ -193,9 +198,8 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
                              "file's, if it records them, else the model's (sampled)")
     _sb3_arguments(parser)
     _policy_argument(parser)
-    parser.add_argument("--detectors", metavar="DIR",
-                        help="fitted detectors from `oodmon fit-detectors` (default: those `calibrate` fitted beside "
-                             "the threshold file, else those shipped with the agent, if any)")
+    if detectors is not None:
+        parser.add_argument("--detectors", metavar="DIR", help=detectors)
 
 
 def _policy_argument(parser: argparse.ArgumentParser) -> None:

@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from oodmon.cli.loading import _detectors, _input_files, _load_agent
+from oodmon.cli.loading import _agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import _KEPT, _SEED, _agent_arguments, _positive, _whole
 from oodmon.errors import ConfigError
 from oodmon.names import TASKS
@@ -21,7 +21,7 @@ from oodmon.names import TASKS
 def _add_run(commands: argparse._SubParsersAction) -> None:
     """`oodmon run`."""
     run = commands.add_parser("run", help="run a monitored agent in an env (ID or shifted), logging to MCAP/Rerun")
-    _agent_arguments(run)
+    _agent_arguments(run, defaults_from="--threshold's")
     run.add_argument("--variant", help="a variant spec (default: the task's ID env), e.g. cartpole:length=2.0; "
                                        "your own --env: ENV_ID:NAME=VALUE[,...], numeric attributes of its env "
                                        "set to other values from --onset on, e.g. Acrobot-v1:LINK_MASS_2=3.0, "
@@ -91,7 +91,9 @@ def _run(args: argparse.Namespace) -> int:
     mcap = McapSink(args.mcap, split_episodes=args.mcap_split_episodes, split_mb=args.mcap_split_mb,
                     overwrite=args.overwrite) if args.mcap else None
     threshold = Threshold.load(args.threshold) if args.threshold else None
-    args.masks = args.masks or (threshold.masks if threshold is not None else None)
+    if threshold is not None:
+        _agent_from_threshold(args, threshold, args.threshold)
+        args.masks = args.masks or threshold.masks
     agent = _load_agent(args, seed=args.seed)  # seeded MC sampling: the same command, the same episodes
     if args.render and args.task not in ("cartpole", "pendulum"):  # it logged no picture, without a word
         raise ConfigError(f"--render draws CartPole and Pendulum states; {args.task} has no drawing in oodmon"
