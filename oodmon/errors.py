@@ -20,6 +20,8 @@ conventions (``except ValueError``) still catches it. None of them derive from `
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 __all__ = [
     "ConfigError",
     "InvalidParameterError",
@@ -28,6 +30,7 @@ __all__ = [
     "OodmonError",
     "SpecError",
     "UnknownParameterError",
+    "unknown",
 ]
 
 
@@ -49,6 +52,25 @@ class UnknownParameterError(ConfigError):
         ...
         oodmon.errors.UnknownParameterError: oodmon/CartPole-v1 has no parameter 'lenght'; ...
     """
+
+
+def unknown(kind: str, name: object, known: Iterable[str], where: str = "") -> str:
+    """Words refusing ``name``, not a ``kind`` oodmon knows: the one meant, where it looks misspelt,
+    and those there are, as a flag or a variant's parameter is refused (for an
+    :class:`UnknownParameterError`, or a CLI option's error). ``where``: words after the name.
+
+    Example:
+        >>> unknown("score", "chosen_sd", ("chosen_std", "mean_std"))
+        "unknown score 'chosen_sd' (did you mean 'chosen_std'?); choose one of chosen_std, mean_std"
+        >>> unknown("method", "bayes", ("dropout", "ensemble"), " in --methods")
+        "unknown method 'bayes' in --methods; choose one of dropout, ensemble"
+    """
+    from difflib import get_close_matches
+
+    known = list(known)
+    close = get_close_matches(name, known, n=1) if isinstance(name, str) else []
+    return (f"unknown {kind} {name!r}{where}" + (f" (did you mean {close[0]!r}?)" if close else "")
+            + f"; choose one of {', '.join(known)}")
 
 
 class InvalidParameterError(ConfigError):

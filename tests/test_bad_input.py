@@ -222,6 +222,16 @@ CASES = [
                        "{d}/t.json"], {}, ["--frame-stack 1", "VecFrameStack"]),
     ("validate-sb3-threshold-without-sb3", ["validate", "{d}/thr-sb3.json"], {},
      ["thr-sb3.json", "--sb3 ZIP --env my_envs:MyEnv-v0"]),
+    ("run-sb3-threshold-without-sb3", ["run", "--threshold", "{d}/thr-sb3.json"], {},
+     ["thr-sb3.json", "--sb3 ZIP --env my_envs:MyEnv-v0"]),
+    ("fit-only-misspelt", ["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--only", "spread,dynamcs",
+                           "--out", "{d}/det"], {}, ["--only", "'dynamcs' (did you mean 'dynamics'?)"]),
+    ("run-variant-task-misspelt", [*RUN, "--variant", "cartpol:length=2"], {},
+     ["'cartpol' (did you mean 'cartpole'?); choose one of cartpole, pendulum, pong"]),
+    ("calibrate-score-misspelt", [*CALIBRATE, "--score", "chosen_sd", "--out", "{d}/t.json"], {},
+     ["'chosen_sd' (did you mean 'chosen_std'?)"]),
+    ("fit-detectors-given-detectors", ["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--detectors",
+                                       "{d}", "--out", "{d}/det"], {}, ["unrecognized arguments: --detectors"]),
 ]
 
 
@@ -229,8 +239,10 @@ def _hashes(folder: Path) -> dict[str, str]:
     return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def test_there_are_at_least_forty_cases():
+def test_there_are_at_least_forty_cases_as_many_as_the_readme_says():
     assert len(CASES) >= 40 and len({case[0] for case in CASES}) == len(CASES)
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert f"(`tests/test_bad_input.py` runs {len(CASES)} such cases;" in readme  # (it said 95 of 98 until 2026-12-03)
 
 
 @pytest.mark.parametrize("argv, environment, named", [case[1:] for case in CASES], ids=[case[0] for case in CASES])
@@ -243,7 +255,7 @@ def test_bad_input_is_one_clear_line_with_exit_code_2(files, argv, environment, 
     before = _hashes(files.parent) | _hashes(DATA)
     code = main([arg.replace("{d}", str(files)) for arg in argv])
     err = capsys.readouterr().err
-    lines = err.strip().splitlines()
+    lines = err.rstrip("\n").splitlines()  # (no blank line before it either)
     assert code == 2, err
     assert len(lines) == 1, err
     assert "Traceback" not in err and "error" in lines[0]

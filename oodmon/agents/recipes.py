@@ -11,7 +11,7 @@ import argparse
 from dataclasses import dataclass, replace
 from typing import Any
 
-from oodmon.errors import UnknownParameterError
+from oodmon.errors import UnknownParameterError, unknown
 from oodmon.names import METHODS
 
 __all__ = ["METHODS", "RECIPES", "Recipe", "parse_widths", "recipe_architecture", "recipe_differences", "recipe_for",
@@ -152,9 +152,9 @@ def recipe_for(task: str, method: str) -> Recipe:
         5
     """
     if task not in RECIPES:
-        raise UnknownParameterError(f"unknown task {task!r}; choose one of {', '.join(RECIPES)}")
+        raise UnknownParameterError(unknown("task", task, RECIPES))
     if method not in METHODS:
-        raise UnknownParameterError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+        raise UnknownParameterError(unknown("method", method, METHODS))
     base = replace(RECIPES[task], method=method)
     changes = dict(_OVERRIDES.get((task, method), {}))
     if "hyperparams" in changes:

@@ -10,7 +10,7 @@ import numpy as np
 
 from oodmon.envs.grid import Variant, parse_variant, select_variants
 from oodmon.envs.shift import EnvShift, own_variant, shifts_an_env
-from oodmon.errors import ConfigError
+from oodmon.errors import ConfigError, unknown
 from oodmon.names import PLAIN_METHOD, TASKS
 from oodmon.paper import paper_auc_per_trial
 from oodmon.versions import machine
@@ -95,7 +95,7 @@ class BenchConfig:
         check_warmup(self.warmup, self.rule)
         for name in (*self.detectors, self.alarm_detector):
             if name not in DETECTOR_NAMES:
-                raise ConfigError(f"unknown detector {name!r}; choose from {', '.join(DETECTOR_NAMES)}")
+                raise ConfigError(unknown("detector", name, DETECTOR_NAMES))
         if self.alarm_detector not in self.detectors:
             raise ConfigError(f"the alarm reads the {self.alarm_detector} detector: add it to the detectors")
         from oodmon.monitor.detectors.dynamics import MAX_UPDATES, check_max_updates

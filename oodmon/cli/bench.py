@@ -123,12 +123,12 @@ def _bench(args: argparse.Namespace) -> int:
     from oodmon.bench import BenchConfig, run_bench
     from oodmon.monitor.alarms import default_window
     from oodmon.monitor.detectors import BEST_DETECTOR
-    from oodmon.errors import UnknownParameterError
+    from oodmon.errors import UnknownParameterError, unknown
 
     methods = tuple(m.strip() for m in args.methods.split(","))
     for method in methods:
         if method not in METHODS:
-            raise UnknownParameterError(f"unknown method {method!r} in --methods; choose from {', '.join(METHODS)}")
+            raise UnknownParameterError(unknown("method", method, METHODS, " in --methods"))
     samples = True  # the agents have samples of their own to spread
     if args.sb3 or args.policy:
         samples = _sb3_bench_task(args)

@@ -15,7 +15,7 @@ from oodmon.cli.parsing import (
     _FIT_EPISODES, _FIT_STEPS, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
     _agent_arguments, _fraction, _non_negative, _whole,
 )
-from oodmon.errors import ConfigError
+from oodmon.errors import ConfigError, unknown
 from oodmon.monitor.threshold import DETECTOR_NAMES, episodes_needed
 from oodmon.seeds import CALIBRATION, DETECTOR_FIT, VALIDATION
 
@@ -254,10 +254,11 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
                               "ID episodes"
     )
     _agent_arguments(fit, detectors=None)
-    fit.add_argument("--only", help="comma-separated detectors (default: all the agent can have but scaled_spread, "
-                                    "fitted only when named, and drift, named or in your own env; transitions instead "
-                                    "of dynamics and drift for discrete observations; stillness for pictures, for "
-                                    "vectors when named; motion and vanishing, for pictures, when named)")
+    fit.add_argument("--only", type=_detector_names,
+                     help="comma-separated detectors (default: all the agent can have but scaled_spread, fitted only "
+                          "when named, and drift, named or in your own env; transitions instead of dynamics and drift "
+                          "for discrete observations; stillness for pictures, for vectors when named; motion and "
+                          "vanishing, for pictures, when named)")
     fit.add_argument("--episodes", type=_whole(3),
                      help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES}; "
                           f"your own --env: more, until they hold {_FIT_STEPS:,} steps)")
@@ -272,6 +273,21 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
                      help="replace the fitted detectors --out holds already; without it they are refused, since a "
                           "threshold calibrated with them is refused by `oodmon run` once they are replaced")
     fit.set_defaults(handler=_fit_detectors, kept_on_interrupt=_KEPT["fit-detectors"])
+
+
+def _detector_names(text: str) -> tuple[str, ...]:
+    """An argparse type: comma-separated detector names, each one oodmon has (said before the agent
+    loads, and with the name meant where one is misspelt).
+
+    Example:
+        >>> _detector_names("dynamics, drift")
+        ('dynamics', 'drift')
+    """
+    names = tuple(name.strip() for name in text.split(","))
+    for name in names:
+        if name not in DETECTOR_NAMES:
+            raise argparse.ArgumentTypeError(unknown("detector", name, DETECTOR_NAMES))
+    return names
 
 
 def _calibrated_beside(folder: Path) -> str:
@@ -293,7 +309,7 @@ def _fit_detectors(args: argparse.Namespace) -> int:
                           "calibrated with them would be refused by `oodmon run` once they are replaced; give another "
                           "folder, or --overwrite to replace them")
     agent = _load_agent(args, seed=DETECTOR_FIT)  # seeded MC sampling: the same command fits the same detectors
-    only = args.only.split(",") if args.only else None
+    only = list(args.only) if args.only else None
     with _progress() as report:
         detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
                                         obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report,

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from oodmon.envs.checks import positive_number, reject_unknown
-from oodmon.errors import InvalidParameterError, UnknownParameterError
+from oodmon.errors import InvalidParameterError, UnknownParameterError, unknown
 from oodmon.paper import paper_grid_data
 from oodmon.validation import is_whole
 
@@ -348,6 +348,6 @@ def make_corruption(name: str, severity: int | None = None, **params: float) -> 
 def _corruption_class(name: object) -> type[Corruption]:
     if name not in CORRUPTIONS:
         raise UnknownParameterError(
-            f"unknown corruption {name!r}; choose one of {', '.join(CORRUPTIONS)}"
+            unknown("corruption", name, CORRUPTIONS)
         )
     return CORRUPTIONS[name]  # type: ignore[index]

@@ -29,7 +29,7 @@ import gymnasium
 from oodmon.envs.checks import check_physics
 from oodmon.envs.corruptions import make_corruption
 from oodmon.envs.physics import PHYSICS_DEFAULTS
-from oodmon.errors import ConfigError, SpecError, UnknownParameterError
+from oodmon.errors import ConfigError, SpecError, UnknownParameterError, unknown
 from oodmon.names import TASKS
 from oodmon.paper import paper_grid_data
 
@@ -84,7 +84,7 @@ class Variant:
 
     def __post_init__(self) -> None:
         if self.task not in ENV_IDS:
-            raise UnknownParameterError(f"unknown task {self.task!r}; choose one of {', '.join(TASKS)}")
+            raise UnknownParameterError(unknown("task", self.task, TASKS))
         if self.faults and self.corruption is not None:
             raise SpecError(f"{self.task}: a corruption and sensor faults at once; give one of them")
         params = dict(self.params)
@@ -214,7 +214,7 @@ def parse_variant(spec: str) -> Variant:
             raise UnknownParameterError(f"variant spec {spec!r}: oodmon's variants of {env_id} are named by its task, "
                                         f"{named} (see `oodmon envs`)")
         raise UnknownParameterError(
-            f"variant spec {spec!r}: unknown task {task!r}; choose one of {', '.join(TASKS)}"
+            f"variant spec {spec!r}: {unknown('task', task, TASKS)}"
         )
     if not rest:
         return Variant(task)
@@ -267,7 +267,7 @@ def paper_grid(task: str) -> list[Variant]:
         'pong:gaussian_noise@1'
     """
     if task not in ENV_IDS:
-        raise UnknownParameterError(f"unknown task {task!r}; choose one of {', '.join(TASKS)}")
+        raise UnknownParameterError(unknown("task", task, TASKS))
     grid = paper_grid_data()[task]
     if task == "pong":
         return [

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from oodmon.errors import ConfigError, UnknownParameterError
+from oodmon.errors import ConfigError, UnknownParameterError, unknown
 
 if TYPE_CHECKING:  # importing it would load torch, which replay does not need
     from oodmon.agents.estimators import Estimate
@@ -98,5 +98,5 @@ def score_function(name: str) -> Callable[["Estimate"], np.ndarray]:
         ([2.0], [1.25])
     """
     if name not in SCORES:
-        raise UnknownParameterError(f"unknown score {name!r}; choose one of {', '.join(SCORES)}")
+        raise UnknownParameterError(unknown("score", name, SCORES))
     return SCORES[name]

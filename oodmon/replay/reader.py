@@ -81,8 +81,12 @@ class EpisodeLog(EpisodeRecord):
         if detector is None:
             return self.scores
         if detector not in self.detector_scores:
-            raise LogFormatError(f"episode {self.episode} has no scores of detector {detector!r}; it has "
-                                 f"{', '.join(self.detector_scores) or 'none'}")
+            from difflib import get_close_matches
+
+            close = get_close_matches(detector, list(self.detector_scores), n=1)
+            raise LogFormatError(f"episode {self.episode} has no scores of detector {detector!r}"
+                                 + (f" (did you mean {close[0]!r}?)" if close else "")
+                                 + f"; it has {', '.join(self.detector_scores) or 'none'}")
         return self.detector_scores[detector]
 
 

@@ -163,6 +163,14 @@ def test_replay_formats():
     assert markdown[0].startswith("| task | method | detector | variant") and markdown[1].startswith("|---|")
 
 
+def test_a_detector_the_logs_do_not_hold_is_one_line_naming_those_they_do():
+    misspelt = _cli("replay", str(DATA), "--detector", "sprad")
+    assert misspelt.returncode == 2 and misspelt.stderr.strip() == (
+        "oodmon: error: episode 0 has no scores of detector 'sprad' (did you mean 'spread'?); it has spread")
+    other = _cli("replay", str(DATA), "--detector", "dynamics")
+    assert other.returncode == 2 and other.stderr.strip().endswith("detector 'dynamics'; it has spread")
+
+
 def test_replay_episodes_lists_every_episode_with_its_alarm_and_failure():
     rows = json.loads(_cli("replay", str(DATA), "--episodes", "--json").stdout)
     logs = [read_log(p) for p in LOGS]

@@ -22,7 +22,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.envs.checks import warn_if_endless
-from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.errors import ConfigError, InvalidParameterError, unknown
 from oodmon.monitor.detectors.base import StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.drift import DriftDetector
@@ -392,9 +392,9 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     estimator, _, metadata = policy_parts(policy)
     task = task or metadata.get("task")
     detectors = default_detectors(policy, env, task) if detectors is None else tuple(detectors)
-    unknown = [name for name in detectors if name not in DETECTORS]
-    if unknown:
-        raise InvalidParameterError(f"unknown detector {unknown[0]!r}; choose from {', '.join(DETECTORS)}")
+    strangers = [name for name in detectors if name not in DETECTORS]
+    if strangers:
+        raise InvalidParameterError(unknown("detector", strangers[0], DETECTORS))
     if brings_default_set(detectors):
         detectors = tuple(dict.fromkeys((*default_detectors(policy, env, task), *detectors)))
     if "drift" in detectors and "dynamics" not in detectors:  # it reads the dynamics model's residuals
