@@ -665,6 +665,17 @@ def test_run_and_validate_play_the_shipped_agent_their_threshold_was_calibrated_
         for argv in (["run", "--threshold", str(own)], ["validate", str(own)]):
             assert main(argv) == 2, argv
             assert f"{own} was calibrated on {words}" in capsys.readouterr().err.replace("\n", " ")
+    # Calibrated on a model of that task and method trained elsewhere (the file does not say where):
+    # the shipped agent is refused in words that name what to give, or used with --force
+    trained = tmp_path / "trained.json"
+    Threshold(1e9, "chosen_std", 1, "episode", 0.05, 45, 9_000, task="cartpole", method="ensemble", detector="spread",
+              policy_hash="sha256:" + "0" * 64).save(trained)
+    for argv in (["run", "--threshold", str(trained)], ["validate", str(trained)]):
+        assert main(argv) == 2, argv
+        assert f"{trained} was calibrated on weights sha256:000000000000..., not the shipped cartpole/ensemble agent's " \
+               "(sha256:" in capsys.readouterr().err.replace("\n", " ")
+    assert main(["run", "--threshold", str(trained), "--episodes", "1", "--force"]) == 0
+    assert "calibrated on other weights" in capsys.readouterr().err.replace("\n", " ")  # the monitor's warning
     untold = tmp_path / "untold.json"
     untold.write_text(json.dumps({k: v for k, v in json.loads(path.read_text()).items() if k != "task"}))
     assert main(["run", "--threshold", str(untold), "--method", "ensemble"]) == 2

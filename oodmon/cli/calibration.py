@@ -10,7 +10,7 @@ from pathlib import Path
 from rich.console import Console
 
 from oodmon.cli.display import _progress
-from oodmon.cli.loading import _agent_from_threshold, _detectors, _input_files, _load_agent
+from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import (
     _FIT_EPISODES, _FIT_STEPS, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
     _agent_arguments, _fraction, _non_negative, _whole,
@@ -202,9 +202,11 @@ def _validate(args: argparse.Namespace) -> int:
     from oodmon.side_by_side import resolve_workers
 
     threshold = Threshold.load(args.threshold)
-    _agent_from_threshold(args, threshold, args.threshold)
+    from_threshold = _agent_from_threshold(args, threshold, args.threshold)
     args.masks = args.masks or threshold.masks
     agent = _load_agent(args, seed=args.seed)  # the same --seed, the same count, for MC agents too
+    if from_threshold:
+        _check_agent_from_threshold(args, threshold, args.threshold, agent)
     detectors = _detectors(args, agent)
     with _progress() as report:
         result = validate_threshold(agent, threshold, args.episodes, seed=args.seed, detectors=detectors,

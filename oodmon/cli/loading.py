@@ -45,10 +45,12 @@ def _load_agent(args: argparse.Namespace, *, seed: int | None = None):
     return load(args.task, args.method, seed=seed, masks=masks)
 
 
-def _agent_from_threshold(args: argparse.Namespace, threshold, name: str) -> None:
+def _agent_from_threshold(args: argparse.Namespace, threshold, name: str) -> bool:
     """Where no agent is given (--model, --sb3, --policy; --task and --method each default alone),
     the shipped agent ``threshold`` was calibrated for: ``args.task`` and ``args.method`` from it
     (`oodmon validate`, and `oodmon run --threshold`). ``name``: the threshold file, in the errors.
+    True where it named the whole agent, neither --task nor --method given (see
+    :func:`_check_agent_from_threshold`).
 
     Raises:
         ConfigError: the threshold records no task, or was calibrated on your own SB3 models or
@@ -58,7 +60,8 @@ def _agent_from_threshold(args: argparse.Namespace, threshold, name: str) -> Non
     from oodmon.names import PLAIN_METHOD
 
     if args.model or getattr(args, "sb3", None) or getattr(args, "policy", None):
-        return  # the agent given says its task (a threshold of another is refused by the monitor, or --force)
+        return False  # the agent given says its task (a threshold of another is refused by the monitor, or --force)
+    whole = args.task is None and args.method is None
     args.task = args.task or threshold.task
     if args.task is None:
         raise ConfigError(f"{name} does not record its task; give --task")
@@ -71,6 +74,25 @@ def _agent_from_threshold(args: argparse.Namespace, threshold, name: str) -> Non
         raise ConfigError(f"{name} was calibrated on your own policy in {env_id}: give it again, --policy "
                           f"MODULE:NAME --env {env_id}")
     args.method = args.method or threshold.method
+    return whole
+
+
+def _check_agent_from_threshold(args: argparse.Namespace, threshold, name: str, agent) -> None:
+    """The shipped agent :func:`_agent_from_threshold` chose, refused where ``threshold`` was
+    calibrated on other weights of its task and method (a model trained with ``oodmon train``: the
+    threshold does not record where it lies), naming what to give; ``--force`` uses it.
+
+    Raises:
+        ConfigError: the weights differ and ``--force`` was not given.
+    """
+    from oodmon.monitor.monitor import policy_hash
+
+    if getattr(args, "force", False) or not threshold.policy_hash or policy_hash(agent) == threshold.policy_hash:
+        return
+    raise ConfigError(f"{name} was calibrated on weights {threshold.policy_hash[:19]}..., not the shipped "
+                      f"{args.task}/{args.method} agent's ({policy_hash(agent)[:19]}..., the agent of its task and "
+                      "method): give the model it was calibrated with, --model DIR (or --force to use it with the "
+                      "shipped agent)")
 
 
 def _plain_agent(args: argparse.Namespace):

@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from oodmon.cli.loading import _agent_from_threshold, _detectors, _input_files, _load_agent
+from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import _KEPT, _SEED, _agent_arguments, _positive, _whole
 from oodmon.errors import ConfigError
 from oodmon.names import TASKS
@@ -91,10 +91,12 @@ def _run(args: argparse.Namespace) -> int:
     mcap = McapSink(args.mcap, split_episodes=args.mcap_split_episodes, split_mb=args.mcap_split_mb,
                     overwrite=args.overwrite) if args.mcap else None
     threshold = Threshold.load(args.threshold) if args.threshold else None
+    from_threshold = threshold is not None and _agent_from_threshold(args, threshold, args.threshold)
     if threshold is not None:
-        _agent_from_threshold(args, threshold, args.threshold)
         args.masks = args.masks or threshold.masks
     agent = _load_agent(args, seed=args.seed)  # seeded MC sampling: the same command, the same episodes
+    if from_threshold:
+        _check_agent_from_threshold(args, threshold, args.threshold, agent)
     if args.render and args.task not in ("cartpole", "pendulum"):  # it logged no picture, without a word
         raise ConfigError(f"--render draws CartPole and Pendulum states; {args.task} has no drawing in oodmon"
                           + (" (Pong's frames are logged without it)" if args.task == "pong" else "")
