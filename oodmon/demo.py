@@ -130,5 +130,6 @@ def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, 
                   f"{delays} steps (the pole falls [{falls}] steps after the onset); {early} alarm(s) before the onset. "
                   f"{logs['shifted']}")
     if not failures["shifted"]:  # its logs written whole
-        console.print(f"Open the logs with `rerun {out / 'shifted.rrd'}` or Foxglove; `oodmon run --help` for your own runs.")
+        console.print(f"Open the logs with `rerun {out / 'shifted.rrd'}` or Foxglove; every detector's AUROC and "
+                      f"plots: `oodmon replay {out} --plots {out / 'plots'}`; `oodmon run --help` for your own runs.")
     return {"false_alarms": false_alarms, "detected": len(detected), "delays": delays, "early": early}

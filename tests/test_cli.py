@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from oodmon.cli import main
+from oodmon.cli import _parser, main
 
 
 from tests.helpers import blas_threads
@@ -157,6 +157,10 @@ def test_demo_calibrates_monitors_and_logs(tmp_path, capsys):
     assert f"the pole falls [{falls}] steps after the onset" in out and all(e.length < 500 for e in shifted if e.terminated)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["id.mcap", "id.rrd", "shifted.mcap", "shifted.rrd",
                                                           "threshold.json"]
+    # Its last line names the next step, a replay of these logs (which tests/monitor/test_detectors.py runs).
+    replay = re.search(r"`oodmon (replay [^`]+)`", out).group(1).split()
+    args = _parser().parse_args(replay)
+    assert args.logs == [str(tmp_path)] and args.plots == str(tmp_path / "plots")
 
 
 def test_demo_says_which_logs_it_could_not_write(tmp_path, monkeypatch):

@@ -23,8 +23,9 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:
     formats.add_argument("--json", action="store_true", help="print JSON (key auroc for the paper's metric)")
     formats.add_argument("--csv", action="store_true", help="print CSV")
     formats.add_argument("--markdown", action="store_true", help="print a Markdown table")
-    replay.add_argument("--plots", metavar="DIR", help="also write PNG plots (ROC, traces, AUROC vs shift; with --monitor "
-                                                      "each agent's alarm timeline) to DIR")
+    replay.add_argument("--plots", metavar="DIR", type=_plots_folder,
+                        help="also write PNG plots (ROC, traces, AUROC vs shift; with --monitor each agent's alarm "
+                             "timeline) to DIR")
     replay.add_argument("--detector", help="the per-step metrics of this detector only (default: every detector "
                                            "the logs hold, one row each)")
     views = replay.add_mutually_exclusive_group()
@@ -39,6 +40,15 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:
                              "columns are blank without it): terminated, the env ended the episode itself after the "
                              "onset (a fall, a crash: Hopper's; not Acrobot's, whose end is its goal)")
     replay.set_defaults(handler=_replay)
+
+
+def _plots_folder(text: str) -> str:
+    """--plots DIR, refused where it names a log: ``oodmon replay --plots a.mcap`` took the log for the
+    folder and said only that no log was given."""
+    if text.endswith(".mcap"):
+        raise argparse.ArgumentTypeError(f"{text} is a log, not the folder the plots go to: give the folder after "
+                                         "--plots, the logs before it (oodmon replay LOGS --plots DIR)")
+    return text
 
 
 def _replay(args: argparse.Namespace) -> int:
