@@ -25,4 +25,9 @@ def test_the_readmes_first_python_blocks_run_as_written(tmp_path, monkeypatch, c
     record = namespace["record"]
     printed = capsys.readouterr().out
     assert "AlarmEvent(episode=0" in printed and record.length > 100
+    # ...read off the shipped detectors' best (CartPole: combined), which sees the longer pole at once
+    assert namespace["threshold"].detector == "combined" and printed.startswith("combined ")
+    alarm = next(line for line in printed.splitlines() if line.startswith("AlarmEvent("))
+    step = int(re.search(r"step=(\d+),", alarm).group(1))
+    assert 100 < step <= 105, alarm  # the first alarm within 5 steps of the onset (measured: step 101)
     assert (tmp_path / "runs/x.mcap").stat().st_size > 0 and (tmp_path / "runs/x.rrd").stat().st_size > 0
