@@ -234,8 +234,9 @@ class Monitor:
         if self.detector not in self.detectors:
             raise ConfigError(
                 f"the alarm reads the {self.detector!r} detector, which this monitor does not have (it has "
-                f"{', '.join(self.detectors.names)}); give the fitted detectors (Monitor(detectors=...), "
-                f"--detectors) or a threshold calibrated for one of those{calibrated_with}"
+                f"{', '.join(self.detectors.names)}); give the fitted detectors (Monitor(detectors=...): an oodmon "
+                f"agent's shipped ones are detectors_for(agent); --detectors DIR) or a threshold calibrated for one "
+                f"of those{calibrated_with}"
             )
         self._fitted = self.detectors.fingerprints()  # what each learned detector's fit is: the log records it
         if isinstance(threshold, Threshold) and threshold.detectors_hash:
