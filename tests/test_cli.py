@@ -381,7 +381,7 @@ def test_run_whose_mcap_file_cannot_be_opened_goes_on_and_says_so(tmp_path, caps
                  "--mcap", str(tmp_path / "x.mcap")]) == 0
     printed = capsys.readouterr()
     assert "McapSink.open failed ([Errno 28] No space left on device)" in printed.err
-    assert "of 1 episodes raised an alarm" in printed.out and "written to" not in printed.out
+    assert "no threshold, so no alarm (for alarms give --threshold" in printed.out and "written to" not in printed.out
     assert "sink failures: {'McapSink': 1}" in printed.out and "it is left out of this run" in printed.err
 
 
@@ -808,7 +808,8 @@ def test_run_of_more_episodes_than_its_table_shows_points_to_replay(tmp_path, ca
                  "--episodes", "7", "--mcap", str(log)]) == 0
     out = capsys.readouterr().out
     assert f"3 episodes not shown: `oodmon replay {log} --episodes` lists every one" in out.replace("\n", "")
-    assert "of 7 episodes raised an alarm" in out
+    assert f"no threshold, so no alarm (for alarms give --threshold, a file `oodmon calibrate` writes for this agent); " \
+           f"every step's scores written to {log}" in out.replace("\n", "")
     assert main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "5"]) == 0
     assert "1 episode not shown (--mcap logs every one)" in capsys.readouterr().out
     split = tmp_path / "split" / "k.mcap"

@@ -145,8 +145,13 @@ def _run(args: argparse.Namespace) -> int:
     if rows.left_out:
         console.print(f"{rows.left_out} episode{'s' if rows.left_out != 1 else ''} not shown"
                       + _listed_by(mcap, args.mcap, failed="McapSink" in failures))
-    console.print(f"{rows.alarmed} of {rows.episodes} episodes raised an alarm"
-                  + (f"; written to {', '.join(written)}" if written else ""))
+    if threshold is not None:
+        said = f"{rows.alarmed} of {rows.episodes} episodes raised an alarm" + (
+            f"; written to {', '.join(written)}" if written else "")
+    else:  # "0 of 3 episodes raised an alarm" read as if the shift had gone unseen
+        said = ("no threshold, so no alarm (for alarms give --threshold, a file `oodmon calibrate` writes for this "
+                "agent)" + (f"; every step's scores written to {', '.join(written)}" if written else ""))
+    console.print(said, markup=False)
     if rows.before_onset:
         # (replay's detection rates leave them out; their alarms count as early ones)
         console.print(f"note: {rows.before_onset} of {rows.episodes} episodes ended before step {args.onset}, the "
