@@ -130,7 +130,6 @@ class RerunSink:
         # blocks /observation draws as each reading's value
         self._states = [int(n) for n in run.about.get("states", "").split(",") if n.strip().isdigit()]
         self._names_sent = False
-        self._blueprint_outputs = None
         local = []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
