@@ -12,6 +12,7 @@ Pong's corrupted frames.
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 
 from rich.console import Console
@@ -130,6 +131,7 @@ def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, 
                   f"{delays} steps (the pole falls [{falls}] steps after the onset); {early} alarm(s) before the onset. "
                   f"{logs['shifted']}")
     if not failures["shifted"]:  # its logs written whole
-        console.print(f"Open the logs with `rerun {out / 'shifted.rrd'}` or Foxglove; every detector's AUROC and "
-                      f"plots: `oodmon replay {out} --plots {out / 'plots'}`; `oodmon run --help` for your own runs.")
+        rrd, logs, plots = (shlex.quote(str(path)) for path in (out / "shifted.rrd", out, out / "plots"))
+        console.print(f"Open the logs with `rerun {rrd}` or Foxglove; every detector's AUROC and plots: "
+                      f"`oodmon replay {logs} --plots {plots}`; `oodmon run --help` for your own runs.")
     return {"false_alarms": false_alarms, "detected": len(detected), "delays": delays, "early": early}

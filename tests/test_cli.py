@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import shlex
 import shutil
 import subprocess
 import sys
@@ -157,8 +158,8 @@ def test_demo_calibrates_monitors_and_logs(tmp_path, capsys):
     assert f"the pole falls [{falls}] steps after the onset" in out and all(e.length < 500 for e in shifted if e.terminated)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["id.mcap", "id.rrd", "shifted.mcap", "shifted.rrd",
                                                           "threshold.json"]
-    # Its last line names the next step, a replay of these logs (which tests/monitor/test_detectors.py runs).
-    replay = re.search(r"`oodmon (replay [^`]+)`", out).group(1).split()
+    # Its last line names the next step, a replay of these logs with plots (replay --plots: tests/replay).
+    replay = shlex.split(re.search(r"`oodmon (replay [^`]+)`", out).group(1))
     args = _parser().parse_args(replay)
     assert args.logs == [str(tmp_path)] and args.plots == str(tmp_path / "plots")
 
