@@ -33,13 +33,17 @@ def library_versions(names: tuple[str, ...] = LIBRARIES) -> dict[str, str]:
 
 @cache
 def machine() -> str:
-    """The kind of CPU this process runs on: its architecture, its name (Linux's ``/proc/cpuinfo``;
-    elsewhere what ``platform`` says) and the vector instructions torch's kernels use on it.
+    """The kind of CPU this process runs on: its architecture, its name with its family and model
+    (Linux's ``/proc/cpuinfo``; elsewhere what ``platform`` says), the kernels numpy's OpenBLAS
+    chose for it and the vector instructions torch's kernels use on it.
 
     The same command trains other weights, and fits other detectors, on another kind of CPU
     (2026-11-29: an Intel CPU with AVX-512 against an AMD EPYC one; on the Intel one alone, with
     torch held to AVX2 and MKL and OpenBLAS to theirs, a third set of weights): a model's, a log's
-    and a bench result's metadata record it beside the library versions.
+    and a bench result's metadata record it beside the library versions. A VM's name says little:
+    two 2-core VMs that both read "x86_64; AMD EPYC; torch AVX512" fitted the shipped Pendulum
+    ensemble's detectors otherwise (2026-12-03: each the same bytes run after run, the two apart),
+    hence the family and model, and OpenBLAS's kernels, which numpy's products round by.
 
     Example:
         >>> machine().startswith(platform.machine())
@@ -48,11 +52,30 @@ def machine() -> str:
     import torch
 
     name = platform.processor() or "unknown processor"
+    first: dict[str, str] = {}
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                name = line.split(":", 1)[1].strip()
-                break
+            if not line.strip():
+                break  # the first processor's block says it for all
+            key, _, value = line.partition(":")
+            first.setdefault(key.strip(), value.strip())
     except OSError:
         pass
-    return f"{platform.machine()}; {name}; torch {torch.backends.cpu.get_cpu_capability()}"
+    name = first.get("model name", name)
+    if "cpu family" in first and "model" in first:
+        name += f" (family {first['cpu family']}, model {first['model']})"
+    blas = _openblas_kernels()
+    return (f"{platform.machine()}; {name}; " + (f"OpenBLAS {blas}; " if blas else "")
+            + f"torch {torch.backends.cpu.get_cpu_capability()}")
+
+
+def _openblas_kernels() -> str | None:
+    """The CPU kernels numpy's OpenBLAS chose (``SkylakeX``, ``Zen``, ``Haswell``...), or ``None``
+    where numpy uses another BLAS or threadpoolctl cannot tell."""
+    import numpy  # noqa: F401  (its BLAS loaded, for threadpoolctl to find)
+    from threadpoolctl import threadpool_info
+
+    found = [info for info in threadpool_info() if info.get("internal_api") == "openblas" and info.get("architecture")]
+    # numpy's own, not another package's copy (OpenCV brings one, which may choose other kernels)
+    ours = [info for info in found if "numpy" in str(info.get("filepath", ""))] or found
+    return str(ours[0]["architecture"]) if ours else None
