@@ -24,6 +24,7 @@ from oodmon.monitor.detectors import (
 )
 from oodmon.monitor.scores import score_function
 from oodmon.replay import compute_all_metrics, read_log
+from oodmon.versions import machine
 
 
 def _auroc(id_scores, ood_scores) -> float:
@@ -418,6 +419,8 @@ def test_save_and_load_give_identical_scores(fitted, agent, id_trajectories, tmp
             np.testing.assert_array_equal(before[name], after[name])
     meta = json.loads((tmp_path / "det" / "detectors.json").read_text())
     assert meta["format"] == "oodmon.detectors" and "safetensors_sha256" in meta
+    # the CPU kind that fitted them (another kind's kernels fit other numbers), kept through save and load
+    assert meta["fitted_for"]["machine"] == loaded.fitted_for["machine"] == machine()
 
 
 def test_a_damaged_or_foreign_detectors_file_is_refused(fitted, tmp_path):

@@ -39,6 +39,7 @@ from oodmon.progress import Progress
 from oodmon.seeds import DETECTOR_FIT
 from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import is_whole
+from oodmon.versions import machine
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector",
            "collect", "default_detectors", "default_fit_steps", "detectors_for", "discrete_states", "fit_agent_detectors",
@@ -438,9 +439,10 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         whiten = fixed_masks(getattr(estimator, "masks", None))
         parts.append(ScaledSpreadDetector("whiten" if whiten else None).fit(fit))
     obs_shape = list(np.shape(trajectories[0].observations)[1:])
+    # machine: the CPU kind that fitted them, whose float kernels another kind's do not round alike
     fitted_for = {"task": task, "obs_shape": obs_shape, "policy_hash": policy_hash, "version": FIT_VERSION,
                   "episodes": len(trajectories), "seed": seed, "obs_noise": obs_noise,
-                  "masks": getattr(estimator, "masks", None)}
+                  "masks": getattr(estimator, "masks", None), "machine": machine()}
     if workers > 1:  # (recorded only then: the sets fitted in one process before 2026-12-01 read the same)
         fitted_for["workers"] = workers
     result = DetectorSet(parts, fitted_for=fitted_for)
