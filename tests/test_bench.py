@@ -864,6 +864,11 @@ def test_a_baseline_of_other_fits_or_weights_is_said_to_be_so():
     assert provenance_notes(dict(ours, machine="x86_64; Intel Xeon; torch AVX512"), elsewhere, "b.json") == [
         "b.json was made on x86_64; AMD EPYC; torch AVX2; this run on x86_64; Intel Xeon; torch AVX512"]
     assert provenance_notes(dict(ours, machine="m"), dict(same, machine="m")) == []
+    # a record of before the CPU's family and model were written cannot tell a CPU from another of its name
+    here = "x86_64; AMD EPYC (family 25, model 17); OpenBLAS SkylakeX; torch AVX512"
+    [note] = provenance_notes(dict(ours, machine=here), dict(same, machine="x86_64; AMD EPYC; torch AVX512"), "b.json")
+    assert note.endswith(f"this run on {here} (the baseline's record names no CPU family and model, as before "
+                         "2026-12-03: the same CPU or another)")
 
 
 def test_a_cell_whose_log_cannot_be_written_names_the_log_and_leaves_no_part(tmp_path, monkeypatch):

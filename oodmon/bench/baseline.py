@@ -201,7 +201,10 @@ def provenance_notes(result: dict, baseline: dict, baseline_name: str = "the bas
     """
     notes = []
     if baseline.get("machine") and result.get("machine") and baseline["machine"] != result["machine"]:
-        notes.append(f"{baseline_name} was made on {baseline['machine']}; this run on {result['machine']}")
+        older = "(family " in result["machine"] and "(family " not in baseline["machine"]
+        notes.append(f"{baseline_name} was made on {baseline['machine']}; this run on {result['machine']}" + (
+            " (the baseline's record names no CPU family and model, as before 2026-12-03: the same CPU or "
+            "another)" if older else ""))
     if not baseline.get("weights"):
         return notes + [f"{baseline_name} records neither its weights' sha256 nor its fits' (bench results written before "
                 "2026-11-29): whether its numbers are of this run's models and fitted detectors cannot be told; "
