@@ -71,11 +71,13 @@ def machine() -> str:
 
 def _openblas_kernels() -> str | None:
     """The CPU kernels numpy's OpenBLAS chose (``SkylakeX``, ``Zen``, ``Haswell``...), or ``None``
-    where numpy uses another BLAS or threadpoolctl cannot tell."""
+    where numpy uses another BLAS, or one outside its own folder (a system OpenBLAS), or
+    threadpoolctl cannot tell."""
     import numpy  # noqa: F401  (its BLAS loaded, for threadpoolctl to find)
     from threadpoolctl import threadpool_info
 
     found = [info for info in threadpool_info() if info.get("internal_api") == "openblas" and info.get("architecture")]
-    # numpy's own, not another package's copy (OpenCV brings one, which may choose other kernels)
-    ours = [info for info in found if "numpy" in str(info.get("filepath", ""))] or found
+    # numpy's own (its wheel's numpy.libs), not another package's copy: OpenCV brings one, which chose
+    # other kernels (Zen) on the machine where numpy's chose SkylakeX
+    ours = [info for info in found if "numpy" in str(info.get("filepath", ""))]
     return str(ours[0]["architecture"]) if ours else None

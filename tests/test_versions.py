@@ -44,9 +44,10 @@ def test_machine_names_the_cpus_family_and_model_and_the_kernels_of_numpys_own_o
     monkeypatch.setattr("threadpoolctl.threadpool_info", lambda: blas)
     torch_kernels = torch.backends.cpu.get_cpu_capability()
     assert fresh_machine() == f"{platform.machine()}; AMD EPYC (family 25, model 17); OpenBLAS SkylakeX; torch {torch_kernels}"
-    # no OpenBLAS (numpy built on another BLAS), no family (an ARM CPU's cpuinfo): what is known
+    # no OpenBLAS of numpy's own (numpy on another BLAS; OpenCV's is not numpy's), no family (an ARM
+    # CPU's cpuinfo): what is known
     cpuinfo.write_text("processor\t: 0\nmodel name\t: Neoverse\n")
-    monkeypatch.setattr("threadpoolctl.threadpool_info", lambda: blas[1:2])
+    monkeypatch.setattr("threadpoolctl.threadpool_info", lambda: blas[:2])
     fresh_machine.cache_clear()
     assert fresh_machine() == f"{platform.machine()}; Neoverse; torch {torch_kernels}"
 
