@@ -205,6 +205,26 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
     print_unfailed(config, result, console)
 
 
+def _early_words(row) -> str:
+    """How many of a pooled row's episodes alarmed before their onset, and from how many ID starts
+    where fewer: the variants play the same seeds, so one start's false alarm is in every variant.
+
+    Example:
+        >>> from oodmon.replay.metrics import monitor_row
+        >>> _early_words(monitor_row("pendulum", "dropout", "all shifted", 160, 16, 110, 110, [1] * 120,
+        ...                          early_starts=["500004@51"] * 16))
+        '16 before it, from 1 ID start the variants share: the same seeds before the onset'
+        >>> _early_words(monitor_row("cartpole", "ensemble", "all shifted", 20, 2, 0, 0, [1] * 18,
+        ...                          early_starts=["7@3", "9@12"]))
+        '2 before it'
+    """
+    starts = len(row.early_starts)
+    if not 0 < starts < row.early:
+        return f"{row.early} before it"
+    return (f"{row.early} before it, from {starts} ID start{'s' if starts != 1 else ''} the variants share: the same "
+            "seeds before the onset")
+
+
 def print_monitor_report(config: BenchConfig, result: BenchResult, console: Console) -> None:
     """The monitor's benchmark: the alarm's figures per variant, and each method's summary against the goals."""
     from oodmon.replay import monitor_summary, monitor_table
@@ -233,7 +253,7 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
                   else f"delay median {row.delay_median:.3g} p90 {row.delay_p90:.3g} steps")
         never = f"; {row.never_shifted} more ended before their onset (never shifted)" if row.never_shifted else ""
         console.print(f"{row.method}: {far}; {row.alarmed}/{row.shifted_episodes} shifted episodes alarmed after the onset "
-                      f"({row.early} before it){never}; {before}; {delays}")
+                      f"({_early_words(row)}){never}; {before}; {delays}")
     print_unfailed(config, result, console)
     if config.users_own:  # (your own env is benched with your own policy only)
         print_unfelt(config, result, console)

@@ -582,6 +582,9 @@ class MonitorMetrics:
     episodes alarmed before the failure. ``causes``: what raised the first alarm
     (:attr:`~oodmon.monitor.alarms.AlarmEvent.cause`), counted over the alarmed episodes with no
     alarm before the onset, whose logs say it (format 7 on), the most frequent first.
+    ``early_starts``: the ID starts of the ``early`` episodes, ``seed@step`` of each one's first
+    alarm, sorted and each once: the bench's variants play the same seeds, so their steps before
+    the onset are the same ID steps, and a pooled row's ``early`` counts one start once per variant.
     """
 
     task: str
@@ -602,6 +605,7 @@ class MonitorMetrics:
     leads: tuple[int, ...] = ()
     causes: dict[str, int] = field(default_factory=dict)
     never_shifted: int = 0
+    early_starts: tuple[str, ...] = ()
 
     @property
     def is_id(self) -> bool:
@@ -621,7 +625,7 @@ class MonitorMetrics:
         return None if self.before_failure is None or not self.failed else self.before_failure / self.failed
 
     def to_dict(self) -> dict[str, object]:
-        return asdict(self) | {"delays": list(self.delays), "leads": list(self.leads),
+        return asdict(self) | {"delays": list(self.delays), "leads": list(self.leads), "early_starts": list(self.early_starts),
                                "false_alarm_rate": self.false_alarm_rate,
                                "before_failure_rate": self.before_failure_rate,
                                "shifted_episodes": None if self.is_id else self.shifted_episodes}
@@ -655,22 +659,27 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
                                    sum(e.before_failure for e in episodes) if known else None,
                                    [e.first for e in episodes if e.first is not None],
                                    [e.lead for e in episodes if e.lead is not None], causes,
-                                   sum(ended_before_onset(e) for _, e in pairs)))
+                                   sum(ended_before_onset(e) for _, e in pairs),
+                                   [f"{logged.seed}@{logged.onset + e.early}" for (_, logged), e in zip(pairs, episodes)
+                                    if e.early is not None]))
     return results
 
 
 def monitor_row(task: str, method: str, variant: str, episodes: int, early: int, failed: int | None,
                 before_failure: int | None, delays: Sequence[int], leads: Sequence[int] = (),
-                causes: Mapping[str, int] | None = None, never_shifted: int = 0) -> MonitorMetrics:
+                causes: Mapping[str, int] | None = None, never_shifted: int = 0,
+                early_starts: Iterable[str] = ()) -> MonitorMetrics:
     """The :class:`MonitorMetrics` of shifted episodes from their counts, the delays of the
     alarmed ones and the leads of those alarmed before their failure (medians and the delays' 90th
     percentile computed here, for one variant or several pooled); ``failed`` and
     ``before_failure`` are ``None`` where no failure is defined (:func:`failure_known`);
     ``causes``: how many first alarms each cause raised; ``never_shifted``: how many of the
-    ``episodes`` ended before their onset."""
+    ``episodes`` ended before their onset; ``early_starts``: the ID starts of the early alarms
+    (kept each once)."""
     return MonitorMetrics(task, method, variant, episodes, early=early, alarmed=len(delays), failed=failed,
                           before_failure=before_failure,
                           delay_median=float(np.median(delays)) if len(delays) else None,
                           delay_p90=float(np.quantile(delays, 0.9)) if len(delays) else None, delays=tuple(delays),
                           lead_median=float(np.median(leads)) if len(leads) else None, leads=tuple(leads),
-                          causes=dict(Counter(causes or {}).most_common()), never_shifted=never_shifted)
+                          causes=dict(Counter(causes or {}).most_common()), never_shifted=never_shifted,
+                          early_starts=tuple(sorted(set(early_starts))))

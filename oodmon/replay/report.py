@@ -148,7 +148,8 @@ def monitor_summary(metrics: Sequence[MonitorMetrics]) -> list[MonitorMetrics]:
     return [monitor_row(task, method, POOLED, sum(m.episodes for m in group), sum(m.early for m in group),
                         total([m.failed for m in group]), total([m.before_failure for m in group]),
                         [d for m in group for d in m.delays], [lead for m in group for lead in m.leads],
-                        sum((Counter(m.causes) for m in group), Counter()), sum(m.never_shifted for m in group))
+                        sum((Counter(m.causes) for m in group), Counter()), sum(m.never_shifted for m in group),
+                        [start for m in group for start in m.early_starts])
             for (task, method), group in sorted(pooled.items())]
 
 

@@ -179,6 +179,25 @@ def test_monitor_metrics_by_hand():
     (pooled,) = monitor_summary(list(rows.values()))
     assert (pooled.variant, pooled.episodes, pooled.failed, pooled.before_failure) == ("all shifted", 4, 3, 1)
     assert pooled.leads == (11,) and pooled.to_dict()["leads"] == [11]
+    assert m.early_starts == ("2@2",)  # episode 2 (seed 2) alarmed at step 2, before its onset 5
+
+
+def test_an_early_alarm_of_an_id_start_the_variants_share_is_one_start_in_the_pooled_row():
+    """The bench's variants play the same seeds, so their steps before the onset are the same ID
+    steps: Pendulum Dropout's 16 alarms before the onset in a rerun of 2026-12-03 were one
+    episode's (seed 500,004, step 51), once per variant. The pooled row keeps the count and says
+    how many starts it is."""
+    from oodmon.replay import compute_monitor_metrics, monitor_summary
+
+    def variant(spec, after):  # seed 0 alarms at step 2 in every variant; seed 1 only where the shift is seen
+        return _log([_run(0, spec, 5, [0, 0, 1] + [0] * 7), _run(1, spec, 5, [0] * 6 + [after] * 4)])
+
+    rows = compute_monitor_metrics([variant("cartpole:length=2.0", 1), variant("cartpole:gravity=20.0", 0),
+                                    _log([_run(0, "cartpole:masscart=5.0", 5, [0, 1] + [0] * 8)])])
+    assert [(m.variant, m.early, m.early_starts) for m in rows] == [
+        ("cartpole:gravity=20.0", 1, ("0@2",)), ("cartpole:length=2.0", 1, ("0@2",)), ("cartpole:masscart=5.0", 1, ("0@1",))]
+    (pooled,) = monitor_summary(rows)
+    assert pooled.early == 3 and pooled.early_starts == ("0@1", "0@2") and pooled.to_dict()["early_starts"] == ["0@1", "0@2"]
 
 
 def test_the_monitor_counts_what_raised_each_first_alarm_after_the_onset():
