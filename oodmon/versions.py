@@ -76,8 +76,8 @@ def _openblas_kernels() -> str | None:
     import numpy  # noqa: F401  (its BLAS loaded, for threadpoolctl to find)
     from threadpoolctl import threadpool_info
 
-    found = [info for info in threadpool_info() if info.get("internal_api") == "openblas" and info.get("architecture")]
     # numpy's own (its wheel's numpy.libs), not another package's copy: OpenCV brings one, which chose
     # other kernels (Zen) on the machine where numpy's chose SkylakeX
-    ours = [info for info in found if "numpy" in str(info.get("filepath", ""))]
-    return str(ours[0]["architecture"]) if ours else None
+    kernels = [info["architecture"] for info in threadpool_info() if info.get("internal_api") == "openblas"
+               and info.get("architecture") and "numpy" in str(info.get("filepath", ""))]
+    return str(kernels[0]) if kernels else None

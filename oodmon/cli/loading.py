@@ -87,10 +87,13 @@ def _check_agent_from_threshold(args: argparse.Namespace, threshold, name: str, 
     """
     from oodmon.monitor.monitor import policy_hash
 
-    if getattr(args, "force", False) or not threshold.policy_hash or policy_hash(agent) == threshold.policy_hash:
+    if getattr(args, "force", False) or not threshold.policy_hash:
+        return
+    shipped = policy_hash(agent)  # (the sha256 of its weights' file: read once)
+    if shipped == threshold.policy_hash:
         return
     raise ConfigError(f"{name} was calibrated on weights {threshold.policy_hash[:19]}..., not the shipped "
-                      f"{args.task}/{args.method} agent's ({policy_hash(agent)[:19]}..., the agent of its task and "
+                      f"{args.task}/{args.method} agent's ({shipped[:19]}..., the agent of its task and "
                       "method): give the model it was calibrated with, --model DIR (or --force to use it with the "
                       "shipped agent)")
 
