@@ -218,8 +218,9 @@ def _early_words(row) -> str:
         ...                          early_starts=["7@3", "9@12"]))
         '2 before it'
     """
-    starts = len(row.early_starts)
-    if not 0 < starts < row.early:
+    from oodmon.replay.report import shared_starts
+
+    if (starts := shared_starts(row)) is None:
         return f"{row.early} before it"
     return (f"{row.early} before it, from {starts} ID start{'s' if starts != 1 else ''} the variants share: the same "
             "seeds before the onset")

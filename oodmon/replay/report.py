@@ -136,6 +136,28 @@ def _share(part: int | None, whole: int | None) -> str:
     return f"{part}/{whole} ({part / whole:.0%})"
 
 
+def shared_starts(m: MonitorMetrics) -> int | None:
+    """How many ID starts a pooled row's early alarms came from, where fewer than the alarms (None
+    otherwise): the variants play the same seeds, so one start's false alarm before the onset is in
+    every variant, and "16/160 early" may be one episode's alarm sixteen times.
+
+    Example:
+        >>> from oodmon.replay.metrics import monitor_row
+        >>> row = lambda starts: monitor_row("pendulum", "dropout", POOLED, 160, 16, 0, 0, [1], early_starts=starts)
+        >>> shared_starts(row(["500004@51"] * 16)), shared_starts(row([f"{k}@3" for k in range(16)]))
+        (1, None)
+    """
+    starts = len(m.early_starts)
+    return starts if 0 < starts < (m.early or 0) else None
+
+
+def _early_cell(m: MonitorMetrics, share: str) -> str:
+    """The early alarms' cell (``share``: its count), a pooled row's ID starts after it where the
+    variants repeat them: ``16/160 (10%), 1 ID start``."""
+    starts = shared_starts(m)
+    return share if starts is None else f"{share}, {starts} ID start{'s' if starts != 1 else ''}"
+
+
 def monitor_summary(metrics: Sequence[MonitorMetrics]) -> list[MonitorMetrics]:
     """Per (task, method), the shifted variants pooled into one row (variant ``all shifted``)."""
     pooled: dict[tuple[str, str], list[MonitorMetrics]] = {}
@@ -161,9 +183,9 @@ def monitor_cells(m: MonitorMetrics, *, name_task: bool = False) -> list[str]:
         first = f"{_share(m.false_alarms, m.episodes)} [{m.far_low:.1%}, {m.far_high:.1%}]"
         return [m.method, m.variant, str(m.episodes), first, "", _share(m.failed, m.episodes), "", "", "", "", ""]
     variant = f"{m.variant} ({m.task})" if name_task and m.variant == POOLED else m.variant
-    return [m.method, variant, str(m.episodes), _share(m.early, m.episodes), _share(m.alarmed, m.shifted_episodes),
-            _share(m.failed, m.episodes), _share(m.before_failure, m.failed), delay(m.lead_median),
-            delay(m.delay_median), delay(m.delay_p90), causes_cell(m.causes)]
+    return [m.method, variant, str(m.episodes), _early_cell(m, _share(m.early, m.episodes)),
+            _share(m.alarmed, m.shifted_episodes), _share(m.failed, m.episodes), _share(m.before_failure, m.failed),
+            delay(m.lead_median), delay(m.delay_median), delay(m.delay_p90), causes_cell(m.causes)]
 
 
 def causes_cell(causes: Mapping[str, int]) -> str:
@@ -194,7 +216,9 @@ def _narrow_monitor_table(metrics: Sequence[MonitorMetrics], title: str) -> Tabl
     intervals = [f"{m.method + ' ' if len(methods) > 1 else ''}{m.far_low:.1%}-{m.far_high:.1%}" for m in rows if m.is_id]
     table = Table(title=", ".join([title, *shared]), pad_edge=False, caption=(
         "FA: ID episodes alarmed" + (f" (95% interval {', '.join(intervals)})" if intervals else "")
-        + "; early: alarmed before the onset; before: failing episodes alarmed before the failure (-: none "
+        + "; early: alarmed before the onset"
+        + (", (n): from n ID starts the variants share" if any(map(shared_starts, rows)) else "")
+        + "; before: failing episodes alarmed before the failure (-: none "
         "failed); lead: median steps from that alarm to the failure; delay: median/p90 steps from the onset; "
         "by: what raised the first alarms after the onset"))
     table.add_column("variant" if len(methods) == 1 else "method variant", overflow="fold", ratio=1)
@@ -212,7 +236,9 @@ def _narrow_monitor_table(metrics: Sequence[MonitorMetrics], title: str) -> Tabl
             continue
         if m.causes:  # what raised the first alarms, on a line of its own under the variant
             name = Text(name).append(f"\nby {causes_cell(m.causes)}", style="dim")
-        table.add_row(name, count(m.early, m.episodes), count(m.alarmed, m.shifted_episodes), count(m.before_failure, m.failed),
+        starts = shared_starts(m)
+        early = count(m.early, m.episodes) + ("" if starts is None else f" ({starts})")
+        table.add_row(name, early, count(m.alarmed, m.shifted_episodes), count(m.before_failure, m.failed),
                       "" if m.lead_median is None else f"{m.lead_median:g}",
                       "" if m.delay_median is None else f"{m.delay_median:g}/{m.delay_p90:g}",
                       style="bold" if m.variant == POOLED else None)

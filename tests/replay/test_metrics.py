@@ -198,6 +198,24 @@ def test_an_early_alarm_of_an_id_start_the_variants_share_is_one_start_in_the_po
         ("cartpole:gravity=20.0", 1, ("0@2",)), ("cartpole:length=2.0", 1, ("0@2",)), ("cartpole:masscart=5.0", 1, ("0@1",))]
     (pooled,) = monitor_summary(rows)
     assert pooled.early == 3 and pooled.early_starts == ("0@1", "0@2") and pooled.to_dict()["early_starts"] == ["0@1", "0@2"]
+    # The tables say it too: the pooled row's early cell names its starts, a variant's row does not
+    # (its early alarms are its own episodes'), nor a pooled row whose every early alarm is a start of its own.
+    import io
+
+    from rich.console import Console
+
+    from oodmon.replay import monitor_markdown, monitor_table
+    from oodmon.replay.report import monitor_cells
+
+    assert monitor_cells(pooled)[3] == "3/5 (60%), 2 ID starts"  # 2 + 2 + 1 episodes
+    assert [monitor_cells(m)[3] for m in rows] == ["1/2 (50%)", "1/2 (50%)", "1/1 (100%)"]
+    assert monitor_cells(monitor_summary(rows[:1])[0])[3] == "1/2 (50%)"
+    assert "| 3/5 (60%), 2 ID starts |" in monitor_markdown(rows)
+    buffer = io.StringIO()
+    Console(width=80, file=buffer).print(monitor_table(rows, "t", width=80))
+    text = buffer.getvalue()
+    assert [line.split("│")[2].strip() for line in text.splitlines() if "all shifted" in line] == ["3/5 (2)"]
+    assert "early: alarmed before the onset, (n): from n ID starts the variants share;" in " ".join(text.split())
 
 
 def test_the_monitor_counts_what_raised_each_first_alarm_after_the_onset():
