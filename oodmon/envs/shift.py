@@ -389,7 +389,11 @@ class SensorFaults:
                 kept[name] = float(value)  # (an unchanged reading kept where every reading's fault would change it)
                 faults.append((kind, index, float(value)))
         if not kept:
-            raise InvalidParameterError(f"{owner}: {changes} change no reading; a shift changes at least one")
+            given = ", ".join(f"{name}={value:g}" for name, value in changes.items())
+            unchanged = ", ".join(f"{kind} {value:g}" for kind, value in cls._UNCHANGED.items() if kind in kinds)
+            raise InvalidParameterError(f"{owner}: {given} change{'s' if len(changes) == 1 else ''} no reading (each "
+                                        f"kind's value that leaves a reading as it is: {unchanged}; obs.stuck[i]=1 "
+                                        f"holds reading i from the onset); a shift changes at least one")
         integers = np.iinfo(space.dtype) if values is None and np.issubdtype(space.dtype, np.integer) else None
         return cls(kept, faults, size, integers, values)
 

@@ -204,7 +204,9 @@ def test_sensor_noise_is_the_same_for_the_same_seed_and_of_the_std_asked():
     ({"obs.noise[0]": -0.1}, InvalidParameterError, "noise is a std"),
     ({"obs.stuck[0]": 2}, InvalidParameterError, "stuck is 1"),
     ({"obs.bias[0]": float("inf")}, InvalidParameterError, "give a finite number"),
-    ({"obs.bias[0]": 0.0, "obs.scale[1]": 1.0}, InvalidParameterError, "change no reading"),
+    ({"obs.bias[0]": 0.0, "obs.scale[1]": 1.0}, InvalidParameterError,
+     r"obs.bias\[0\]=0, obs.scale\[1\]=1 change no reading \(each kind's value that leaves a reading as it is: bias 0, "
+     r"scale 1, noise 0, stuck 0; obs.stuck\[i\]=1 holds reading i from the onset\)"),
 ], ids=["kind", "index", "bad-index", "negative-noise", "stuck-2", "inf", "unchanged"])
 def test_a_sensor_fault_that_cannot_be_is_refused_saying_what_can(changes, error, words):
     with pytest.raises(error, match=words):
