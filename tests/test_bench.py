@@ -937,3 +937,17 @@ def test_the_bench_pool_stops_its_queued_jobs_on_an_interrupt(tmp_path):
     assert 1 <= ran <= 4 and len(list(tmp_path.iterdir())) == ran  # none ran on after it
     with stopping_pool(2) as pool:  # and without one, every job's result
         assert sorted(pool.map(_half_second_job, [tmp_path] * 4, range(20, 24))) == [20, 21, 22, 23]
+
+
+@pytest.mark.parametrize("given, said", [
+    ({}, ["the monitor's protocol", "the steps its shifts", "shifts of your own"]),
+    ({"protocol": "monitor", "onsets": (20, 100)}, ["shifts of your own (--variants MountainCar-v0:NAME=VALUE"]),
+    ({"protocol": "monitor", "onsets": (20, 100), "variants": ("MountainCar-v0:gravity=0.005",), "obs_noise": 0.01},
+     ["no --obs-noise"]),
+])
+def test_a_bench_of_your_own_env_names_each_thing_it_lacks_and_only_those(given, said):
+    config = {"task": "MountainCar-v0", "sb3": ("model.zip",), "env_id": "MountainCar-v0", "methods": ("sb3",)} | given
+    with pytest.raises(ConfigError, match="MountainCar-v0 is an env oodmon has no variants of: bench it with ") as raised:
+        BenchConfig(**config)
+    parts = str(raised.value).split("bench it with ", 1)[1].split("; ")
+    assert [part for part in parts if not part.startswith(tuple(said))] == [] and len(parts) == len(said)

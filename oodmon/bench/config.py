@@ -32,6 +32,24 @@ ONSETS = {"cartpole": (20, 200), "pendulum": (100, 150), "pong": (100, 1000)}
 PAPER_METHOD = {"dropout": "mc_dropout", "dropconnect": "mc_dropconnect", "ensemble": "ensemble"}
 
 
+def check_own_env_bench(env: str, protocol: str, onsets, variants, obs_noise: float, said: str = "") -> None:
+    """The bench of an env oodmon has no variants of (your own ``env``) needs the monitor's
+    protocol, the steps its shifts may begin at and shifts of your own, and no ``obs_noise``.
+
+    Raises:
+        ConfigError: naming each of them that is missing (``said``: how the env was given, ``--env ``).
+    """
+    missing = [say for wrong, say in (
+        (protocol != "monitor", "the monitor's protocol (--protocol monitor)"),
+        (onsets is None, "the steps its shifts may begin at (e.g. --onsets 20,100)"),
+        (variants == "paper", f"shifts of your own (--variants {env}:NAME=VALUE, numeric attributes of its env, or "
+                              f"sensor faults such as {env}:obs.noise=0.01)"),
+        (bool(obs_noise), "no --obs-noise (noise in every episode is an option of oodmon's envs: a shift's noise "
+                          "is the sensor fault obs.noise=STD)")) if wrong]
+    if missing:
+        raise ConfigError(f"{said}{env} is an env oodmon has no variants of: bench it with " + "; ".join(missing))
+
+
 @dataclass(frozen=True)
 class BenchConfig:
     """What to run. ``variants`` is ``"paper"`` or a list of spec strings."""
@@ -123,11 +141,7 @@ class BenchConfig:
             if not self.users_own:
                 raise ConfigError(f"unknown task {self.task!r}; choose one of {', '.join(TASKS)}, or bench your own "
                                   "SB3 models (sb3) or policy (policy) in their own env (env_id)")
-            if self.protocol != "monitor" or self.onsets is None or self.variants == "paper" or self.obs_noise:
-                raise ConfigError(f"{self.task} is an env oodmon has no variants of: bench it with the monitor's "
-                                  f"protocol, the steps its shifts may begin at, and shifts of your own, e.g. "
-                                  f"--protocol monitor --onsets 20,100 --variants {self.task}:NAME=VALUE (numeric "
-                                  "attributes of its env; no sensor noise, which is an option of oodmon's envs)")
+            check_own_env_bench(self.task, self.protocol, self.onsets, self.variants, self.obs_noise)
         if self.sb3 and self.policy:
             raise ConfigError("sb3 models or a policy: give one of them")
         if self.users_own:

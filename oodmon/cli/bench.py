@@ -246,11 +246,10 @@ def _sb3_bench_task(args: argparse.Namespace) -> bool:
     """For ``bench --sb3`` (or ``--policy``): set ``args.task`` from ``--env`` (the bench plays oodmon's variants of
     that task, or for your own env its shifts, under the monitor's protocol); True where the models
     have samples of their own (the spread detector applies)."""
+    from oodmon.bench.config import check_own_env_bench
     from oodmon.envs.registration import task_of_env
 
     task = task_of_env(args.env) if args.env else None
-    if args.env and task is None and args.protocol != "monitor":
-        raise ConfigError(f"--env {args.env} is an env oodmon has no variants of: bench it with the monitor's "
-                          f"protocol and shifts of your own, e.g. --protocol monitor --onsets 20,100 --variants "
-                          f"{args.env}:NAME=VALUE (numeric attributes of its env)")
+    if args.env and task is None:  # said before the models load
+        check_own_env_bench(args.env, args.protocol, args.onsets, args.variants, args.obs_noise, said="--env ")
     return _load_agent(args).estimator is not None

@@ -638,7 +638,15 @@ def test_bench_runs_the_monitor_protocol_on_a_plain_sb3_policy(readme_run, capsy
     assert main(argv[:-1] + ["--trials", "2"]) == 2
     assert "one trial" in capsys.readouterr().err
     assert main(["bench", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "Acrobot-v1"]) == 2
-    assert "Acrobot-v1 is an env oodmon has no variants of: bench it with the monitor's protocol" in capsys.readouterr().err
+    assert ("--env Acrobot-v1 is an env oodmon has no variants of: bench it with the monitor's protocol (--protocol monitor); "
+            "the steps its shifts may begin at (e.g. --onsets 20,100); shifts of your own (--variants Acrobot-v1:NAME=VALUE"
+            in " ".join(capsys.readouterr().err.split()))
+    # only what is missing is said
+    assert main(["bench", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "Acrobot-v1", "--protocol", "monitor",
+                 "--variants", "Acrobot-v1:LINK_MASS_2=3.0"]) == 2
+    assert (" ".join(capsys.readouterr().err.split()).endswith(
+        "--env Acrobot-v1 is an env oodmon has no variants of: bench it with the steps its shifts may begin at "
+        "(e.g. --onsets 20,100)"))
     assert main(["bench", "--sb3", str(folder / "runs/dqn0.zip"), "--env", "CartPole-v1", "--detectors", "spread,combined",
                  "--protocol", "monitor", "--out", str(folder / "bench2")]) == 2
     assert "drop spread" in capsys.readouterr().err
