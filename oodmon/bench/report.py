@@ -229,7 +229,7 @@ def _early_words(row) -> str:
 def print_monitor_report(config: BenchConfig, result: BenchResult, console: Console) -> None:
     """The monitor's benchmark: the alarm's figures per variant, and each method's summary against the goals."""
     from oodmon.replay import monitor_summary, monitor_table
-    from oodmon.replay.metrics import FAILURE_DEFINITION
+    from oodmon.replay.metrics import failure_definition
 
     low, high = config.onset_range()
     console.print(monitor_table(result.alarms, title=(
@@ -258,7 +258,7 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
     print_unfailed(config, result, console)
     if config.users_own:  # (your own env is benched with your own policy only)
         print_unfelt(config, result, console)
-    print(FAILURE_DEFINITION, file=sys.stderr)
+    print(failure_definition([config.task], config.failure), file=sys.stderr)
 
 
 def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, agent=None, steps: int = 500) -> None:

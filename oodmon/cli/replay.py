@@ -109,7 +109,7 @@ def _replay_episodes(args: argparse.Namespace, logs) -> int:
 def _replay_monitor(args: argparse.Namespace, logs) -> int:
     """``replay --monitor``: the alarm's figures per variant (the monitor's benchmark)."""
     from oodmon.replay import compute_monitor_metrics, monitor_markdown, monitor_summary, monitor_table
-    from oodmon.replay.metrics import FAILURE_DEFINITION
+    from oodmon.replay.metrics import failure_definition
 
     if args.csv:
         raise ConfigError("--monitor prints a table, --json or --markdown; not --csv")
@@ -129,7 +129,7 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
     else:
         console = _table_console()
         console.print(monitor_table(metrics, title=f"the alarms of {len(logs)} log(s)", width=console.width))
-        print(FAILURE_DEFINITION, file=sys.stderr)
+        print(failure_definition({m.task for m in metrics}, args.failure), file=sys.stderr)
     return 0
 
 

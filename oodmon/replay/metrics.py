@@ -28,7 +28,7 @@ from oodmon.names import TASKS
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
-           "alarm_events", "FAILURE_DEFINITION", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
+           "alarm_events", "failure_definition", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
            "ended_before_onset",
            "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures",
            "failure_step", "fpr_at_tpr", "is_id_variant", "made_from_episodes", "monitor_row", "pooled_fits",
@@ -449,13 +449,36 @@ def compute_all_metrics(logs: Iterable[RunLog]) -> list[VariantMetrics]:
 PENDULUM_FAILURE_WINDOW = 10
 PENDULUM_FAILURE_REWARD = -1.0
 #: :func:`failure_step` in one line, for the reports.
-FAILURE_DEFINITION = ("failed: CartPole's episode ended by itself after the onset; Pendulum's mean reward over the last "
-                      f"{PENDULUM_FAILURE_WINDOW} steps fell below {PENDULUM_FAILURE_REWARD:g} after the onset "
-                      "(oodmon.replay.failure_step); an env oodmon has no variants of: not defined (blank) unless "
-                      "--failure terminated (the env ended the episode itself); the ID row's failed: ID episodes the "
-                      "env ended where that is a failure (not Pendulum's); delays in steps from the onset; "
-                      "lead: steps from the first alarm to the failure, over the episodes alarmed before it; "
-                      "first alarms by: what raised each episode's first alarm after the onset (logs since format 7)")
+def failure_definition(tasks: Iterable[str], failure: str | None = None) -> str:
+    """The monitor's table's footnote: what "failed" is for each of ``tasks`` (only theirs; your own
+    env's by ``failure``), and what the other columns count.
+
+    Example:
+        >>> failure_definition(["MountainCar-v0"]).split("; ")[0]
+        "failed: MountainCar-v0's not told (blank) unless --failure terminated (the env ended the episode itself)"
+        >>> failure_definition(["Hopper-v5"], "terminated").split("; ")[0]
+        "failed: Hopper-v5's episode ended by itself after the onset (--failure terminated)"
+    """
+    said, tasks = [], set(tasks)
+    for task in sorted(tasks, key=lambda t: (t not in TASKS, t)):
+        if task == "cartpole":
+            said.append("CartPole's episode ended by itself after the onset")
+        elif task == "pendulum":
+            said.append(f"Pendulum's mean reward over the last {PENDULUM_FAILURE_WINDOW} steps fell below "
+                        f"{PENDULUM_FAILURE_REWARD:g} after the onset (oodmon.replay.failure_step)")
+        elif task == "pong":
+            said.append("Pong's not told (blank: a lost point is part of an ID game)")
+        elif failure_known(task, failure):
+            said.append(f"{task}'s episode ended by itself after the onset (--failure {failure})")
+        else:
+            said.append(f"{task}'s not told (blank) unless --failure terminated (the env ended the episode itself)")
+    id_row = ("the ID row's failed: ID episodes the env ended where that is a failure"
+              + (" (not Pendulum's)" if "pendulum" in tasks else ""))
+    return "; ".join([f"failed: {'; '.join(said)}" if said else "failed: not told", id_row,
+                      "delays in steps from the onset", "lead: steps from the first alarm to the failure, over the "
+                      "episodes alarmed before it", "first alarms by: what raised each episode's first alarm after "
+                      "the onset (logs since format 7)"])
+
 
 #: What may count as a failure of an env oodmon has no variants of (replay's and bench's
 #: ``--failure``): ``terminated``, the env ended the episode itself after the onset (a fall, a

@@ -485,3 +485,22 @@ def test_episodes_that_ended_before_their_onset_are_not_counted_as_missed_detect
     within: list[str] = []
     assert now.detection_rate == 0.0 and find_falls([now], baseline, within=within) == []
     assert any("detection_rate fell from 0.5 to 0 (1/2 to 0/2 episodes" in line for line in within), within
+
+
+def test_the_monitor_tables_footnote_says_what_failed_is_for_the_tasks_it_shows_only():
+    from oodmon.replay.metrics import failure_definition
+
+    cartpole = failure_definition(["cartpole"])
+    assert cartpole.startswith("failed: CartPole's episode ended by itself after the onset; the ID row's failed: ID episodes")
+    assert "Pendulum" not in cartpole and "--failure" not in cartpole
+    both = failure_definition(iter(["pendulum", "cartpole", "pendulum"]))  # any iterable, each task once, oodmon's first
+    assert both.startswith("failed: CartPole's episode ended by itself after the onset; Pendulum's mean reward over the "
+                           "last 10 steps fell below -1 after the onset")
+    assert "where that is a failure (not Pendulum's)" in both
+    assert "Pong's not told (blank: a lost point is part of an ID game)" in failure_definition(["pong"])
+    own = failure_definition(["MountainCar-v0", "cartpole"])
+    assert own.startswith("failed: CartPole's episode ended by itself after the onset; MountainCar-v0's not told (blank) "
+                          "unless --failure terminated")
+    assert failure_definition(["Hopper-v5"], "terminated").startswith(
+        "failed: Hopper-v5's episode ended by itself after the onset (--failure terminated); the ID row's")
+    assert failure_definition([]).startswith("failed: not told; ")
