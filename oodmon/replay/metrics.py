@@ -448,10 +448,11 @@ def compute_all_metrics(logs: Iterable[RunLog]) -> list[VariantMetrics]:
 #: radian, ~57 degrees, from upright; a balanced pole scores near 0).
 PENDULUM_FAILURE_WINDOW = 10
 PENDULUM_FAILURE_REWARD = -1.0
-#: :func:`failure_step` in one line, for the reports.
+
+
 def failure_definition(tasks: Iterable[str], failure: str | None = None) -> str:
-    """The monitor's table's footnote: what "failed" is for each of ``tasks`` (only theirs; your own
-    env's by ``failure``), and what the other columns count.
+    """The monitor's table's footnote: what "failed" is for each of ``tasks`` (:func:`failure_step`
+    in a line each, only theirs; your own env's by ``failure``), and what the other columns count.
 
     Example:
         >>> failure_definition(["MountainCar-v0"]).split("; ")[0]
