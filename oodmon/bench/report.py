@@ -218,12 +218,11 @@ def _early_words(row) -> str:
         ...                          early_starts=["7@3", "9@12"]))
         '2 before it'
     """
-    from oodmon.replay.report import shared_starts
+    from oodmon.replay.report import shared_starts_words
 
-    if (starts := shared_starts(row)) is None:
+    if (words := shared_starts_words(row)) is None:
         return f"{row.early} before it"
-    return (f"{row.early} before it, from {starts} ID start{'s' if starts != 1 else ''} the variants share: the same "
-            "seeds before the onset")
+    return f"{row.early} before it, from {words} the variants share: the same seeds before the onset"
 
 
 def print_monitor_report(config: BenchConfig, result: BenchResult, console: Console) -> None:

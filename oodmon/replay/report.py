@@ -151,11 +151,17 @@ def shared_starts(m: MonitorMetrics) -> int | None:
     return starts if 0 < starts < (m.early or 0) else None
 
 
+def shared_starts_words(m: MonitorMetrics) -> str | None:
+    """:func:`shared_starts` in words (``1 ID start``, ``2 ID starts``), or None."""
+    starts = shared_starts(m)
+    return None if starts is None else f"{starts} ID start{'s' if starts != 1 else ''}"
+
+
 def _early_cell(m: MonitorMetrics, share: str) -> str:
     """The early alarms' cell (``share``: its count), a pooled row's ID starts after it where the
     variants repeat them: ``16/160 (10%), 1 ID start``."""
-    starts = shared_starts(m)
-    return share if starts is None else f"{share}, {starts} ID start{'s' if starts != 1 else ''}"
+    words = shared_starts_words(m)
+    return share if words is None else f"{share}, {words}"
 
 
 def monitor_summary(metrics: Sequence[MonitorMetrics]) -> list[MonitorMetrics]:
