@@ -80,7 +80,7 @@ DEMO_METHOD = "ensemble"
 DEMO_SHIFT, DEMO_ONSET = "cartpole:length=2.0", 100
 #: The detector the demo's alarm reads. On the demo's shift (a 2 m pole from step 100) measured:
 #: ``dynamics`` alarms 1 step after the onset in all 5 episodes, ``combined`` (the best mean
-#: per-step AUROC over CartPole's failing variants, the README's detector table, and `calibrate`'s
+#: per-step AUROC over CartPole's failing variants, docs/detectors.md's detector table, and `calibrate`'s
 #: default) after 2-3 (both with m = 1; with m = 3: 3 and 3-5); neither raised a false alarm in the
 #: 5 ID episodes. Every detector is logged.
 DEMO_DETECTOR = "dynamics"

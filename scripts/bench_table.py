@@ -1,7 +1,7 @@
-"""The README's five-trial tables beside the paper's, from the committed bench results in results/bench/.
+"""docs/bench.md's five-trial tables beside the paper's, from the committed bench results in results/bench/.
 
 Run: .venv/bin/python scripts/bench_table.py [results/bench/<file>.json ...] [--plots]   (default: every file there)
-     .venv/bin/python scripts/bench_table.py --goals [<file>.json ...]   (the README's table of the goals
+     .venv/bin/python scripts/bench_table.py --goals [<file>.json ...]   (docs/bench.md's table of the goals
                                               at a glance; with files, over those files instead)
 
 ``--plots`` also draws each file as results/bench/<file>.png: per method and variant of the paper,
@@ -20,7 +20,7 @@ row over one failing trial has no std to compare: "one trial: no std", neither m
 
 ``--goals``: one row per variant the paper reports, with the best of every committed file and
 detector for it (both goals met first, then the mean alone, then the highest mean), and where it
-comes from; the README keeps it between ``<!-- bench_goals -->`` markers. Given files, the same
+comes from; docs/bench.md keeps it between ``<!-- bench_goals -->`` markers. Given files, the same
 table over those files alone: e.g. ``results/sweeps/*-avx512-bench.json``, another draw of trials
 1-4 (trained on another CPU kind), beside the committed one.
 """

@@ -2,7 +2,7 @@
 
 Run (a few minutes per agent; one thread):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/combined_long_mean.py --task cartpole --method dropconnect
-    .venv/bin/python scripts/combined_long_mean.py --table        # the README's table
+    .venv/bin/python scripts/combined_long_mean.py --table        # docs/detectors.md's table
 
 For a shipped agent and its shipped spread, dynamics and features detectors, the combined
 detector is rebuilt in several forms (``CombinedDetector(long_members=..., horizon=...)``), each

@@ -1,8 +1,8 @@
-"""The README's detector table, from the committed results in results/detectors/.
+"""docs/detectors.md's detector table, from the committed results in results/detectors/.
 
 Run: .venv/bin/python scripts/detector_table.py [--long]
 
-The default is the README's table: one row per agent, "mean / lowest" per detector, the best mean
+The default is docs/detectors.md's table: one row per agent, "mean / lowest" per detector, the best mean
 in bold. ``--long`` gives one row per agent and detector, with the variant where it is lowest.
 
 cartpole.json and pendulum.json (and their -noise0.01 twins, with --obs-noise 0.01) are `oodmon bench
@@ -52,7 +52,7 @@ DETECTORS = ("spread", "dynamics", "features", "frames", "combined")
 
 
 def table() -> str:
-    """The README's table (between its ``<!-- detector_table -->`` markers; a test keeps them equal)."""
+    """docs/detectors.md's table (between its ``<!-- detector_table -->`` markers; a test keeps them equal)."""
     agents: dict[str, dict[str, tuple[int, float, float]]] = {}
     for task, method, detector, n, mean, low, _ in rows():
         agents.setdefault(f"{task}-{method}", {})[detector] = (n, mean, low)

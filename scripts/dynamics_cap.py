@@ -1,6 +1,6 @@
 """Does the dynamics model's cap of 3,000 updates blunt it on a large fit? A PPO's InvertedPendulum.
 
-Run (about two minutes on one thread; the policy: the README's "In MuJoCo" block trains it):
+Run (about two minutes on one thread; the policy: docs/your-policy.md's "In MuJoCo" block trains it):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/dynamics_cap.py runs/pendulum-mujoco.zip
 
 The policy plays 30 ID episodes of 1,000 steps (seeds 1,000 on: 30,000 transitions, what the
@@ -24,7 +24,7 @@ Capped, the model is still loose (its ID scores higher) and the heavy pole reads
 capped, it spikes at the onset. The bench's alarm saw the same: with fitting version 8 (capped)
 the heavy pole alarmed 0 of 10 episodes, with the code before (30 epochs at a constant rate) 10
 of 10 (results/monitor/README.md). Fitting version 9 (2026-12-02) lifted the cap for every fit
-(``--dynamics-updates`` still takes one): the README's "In MuJoCo" bench then alarmed the heavy
+(``--dynamics-updates`` still takes one): docs/your-policy.md's "In MuJoCo" bench then alarmed the heavy
 pole 10 of 10, and 5 of 200 ID episodes against 0. The script's "capped" fits pass
 ``max_updates=3000`` (version 8's default), its "not capped" ones ``None``.
 """

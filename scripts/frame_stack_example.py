@@ -6,7 +6,7 @@ Run (under a minute on one thread):
 Trains PPO (SB3's defaults, seed 0) for 60,000 steps on CartPole-v1 inside
 ``VecFrameStack(DummyVecEnv([...]), 4)``, saves ``ppo.zip`` into ``--out`` and prints its mean return
 over 10 ID episodes as oodmon deploys it (``load_sb3(..., frame_stack=4)``). Then watch it with the
-README's commands and ``--frame-stack 4``::
+docs/your-policy.md's commands and ``--frame-stack 4``::
 
     oodmon calibrate --sb3 runs/framestack/ppo.zip --env CartPole-v1 --frame-stack 4 --out runs/framestack/t.json
     oodmon validate runs/framestack/t.json --sb3 runs/framestack/ppo.zip --env CartPole-v1 --frame-stack 4 --episodes 100

@@ -11,7 +11,7 @@ A region of each raw 210x160 RGB frame the camera delivers (before the agent's p
 ``pong:`` corruptions are applied) holds what it showed at the onset: dead sensor rows, a frozen
 part of the image, the variant ``pong:frozen_region:top=T,left=L,height=H,width=W`` (which ``oodmon
 run --variant`` and ``oodmon bench --variants`` take as well). ``pong:obs.stuck=1`` is the whole
-picture frozen (``stillness`` sees it some ten decisions on: the README's "Detectors"); here the
+picture frozen (``stillness`` sees it some ten decisions on: docs/detectors.md); here the
 rest of the picture goes on moving, so the whole picture never stands still. Regions (rows, columns
 of the raw frame): ``agent_side`` the right third (the agent's paddle), ``opponent_side`` the left
 third, ``centre`` rows 80-149 x columns 50-109, ``top_half``, ``bottom_half``, ``whole``, or
@@ -38,7 +38,7 @@ alone alarmed 1 of 5 games (delay 603, 4 points lost first; the others lost 0, 4
 games lose 0-1 points from decision 200 to 1,200. The ``vanishing`` detector (``oodmon calibrate
 --task pong --method dropconnect --detector vanishing``: vanishing > 0), ``--games 10`` and every
 region but ``whole``: 10 of 10 games each, the centre at 4-33 decisions (Dropout's: 9 or 10 of 10,
-the centre at 10-31; the ensemble's: 10 of 10, the centre at 6-34; the README's "Detectors").
+the centre at 10-31; the ensemble's: 10 of 10, the centre at 6-34; docs/detectors.md).
 Since 2026-12-01 ``vanishing`` is in Pong's default set (``DEFAULT_ADDS``), so a threshold of
 ``oodmon calibrate --task pong --method M`` reads it through ``combined``; the figures above by
 the default alarm are of the set before. With it (DropConnect, combined > 4.54612, ``--regions

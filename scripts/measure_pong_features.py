@@ -28,7 +28,7 @@ from oodmon.monitor.detectors import collect, detectors_for, trajectory_scores
 from oodmon.threads import limit_threads
 
 WINDOWS = (1, 10, 30)  # the features detector's score averaged over its last N steps (computed from N = 1)
-METHODS = ("ensemble", "dropout", "dropconnect")  # the order of the README's Pong tables (oodmon.names.METHODS: another)
+METHODS = ("ensemble", "dropout", "dropconnect")  # the order of docs/pong.md's tables (oodmon.names.METHODS: another)
 VARIANTS = [f"pong:{c}@{s}" for c in ("gaussian_noise", "impulse_noise", "motion_blur") for s in (3, 4, 5)]
 
 

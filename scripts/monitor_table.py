@@ -1,4 +1,4 @@
-"""The README's tables of the monitor's own benchmark, from the committed results in results/monitor/.
+"""docs/bench.md's tables of the monitor's own benchmark, from the committed results in results/monitor/.
 
 Run: .venv/bin/python scripts/monitor_table.py
 

@@ -2,7 +2,7 @@
 the steps of scripts/measure_pong_features.py.
 
 Run: OODMON_TORCH_THREADS=1 .venv/bin/python scripts/pong_spread_scores.py [METHOD ...]   (a few minutes each)
-     .venv/bin/python scripts/pong_spread_scores.py --table                            (the README's table)
+     .venv/bin/python scripts/pong_spread_scores.py --table                            (docs/pong.md's table)
 
 The same steps as measure_pong_features.py (the first 1,000 steps of 2 ID games, the first 500 of one
 game per corruption at severity 3-5, the same seeds), so its ``chosen_std`` column is the ``spread``
@@ -84,7 +84,7 @@ def _read() -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--table", action="store_true", help="print the README's table from the committed results")
+    parser.add_argument("--table", action="store_true", help="print docs/pong.md's table from the committed results")
     args = method_arguments(parser, argv)
     if args.table:
         print(table(_read()))

@@ -1,4 +1,4 @@
-"""Replay the Pong monitor benchmark's logs under longer alarm windows (the README's Pong paragraph).
+"""Replay the Pong monitor benchmark's logs under longer alarm windows (docs/pong.md).
 
 Run: .venv/bin/python scripts/pong_windows.py METHOD [LOG_ROOT]
 

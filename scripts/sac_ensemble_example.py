@@ -5,7 +5,7 @@ Run (about 10 minutes on two cores; each model trains on one thread):
 
 Trains SAC (SB3's defaults but ``learning_rate=1e-3``, seeds 0, 1, 2) for 20,000 steps each on
 Pendulum-v1, in parallel, saves ``sac<k>.zip`` into ``--out`` and prints each one's mean return
-over 10 ID episodes as oodmon deploys it. Then watch them with the README's commands; the first
+over 10 ID episodes as oodmon deploys it. Then watch them with docs/your-policy.md's commands; the first
 model acts, the three models' deterministic actions are the ensemble's samples::
 
     oodmon calibrate --sb3 runs/sac/sac0.zip runs/sac/sac1.zip runs/sac/sac2.zip --env Pendulum-v1 --out runs/sac/t.json

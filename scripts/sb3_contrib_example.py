@@ -1,4 +1,4 @@
-"""sb3-contrib's policies watched by oodmon: the README's figures for them, trained and measured.
+"""sb3-contrib's policies watched by oodmon: docs/your-policy.md's figures for them, trained and measured.
 
 Run (about 5 minutes on two cores on 2026-11-29; each model trains on one thread):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/sb3_contrib_example.py --out runs/contrib
@@ -7,7 +7,7 @@ Trains, in parallel, five models on one thread each (a model already in ``--out`
 three QR-DQNs on CartPole-v1 (seeds 0, 1, 2; 30,000 steps), a TQC on Pendulum-v1 (8,000 steps),
 a RecurrentPPO on CartPole-v1 (8 envs, 60,000 steps) and a MaskablePPO on the masked CartPole of
 ``scripts/masked_cartpole.py`` (30,000 steps). Then, for the first QR-DQN alone, the three as an
-ensemble, the TQC, the RecurrentPPO and the MaskablePPO, the README's commands as a user runs them
+ensemble, the TQC, the RecurrentPPO and the MaskablePPO, docs/your-policy.md's commands as a user runs them
 (``oodmon calibrate`` with the defaults, ``validate`` on 200 fresh ID episodes (100 for the masked
 env), ``run`` with a shift from step 50 for 20 episodes, ``replay --monitor``), each model's mean
 return over 20 ID episodes first. ``--only NAME,...`` runs some of them (qrdqn, qrdqn3, tqc,
@@ -75,7 +75,7 @@ CASES = {
 
 
 def measure(name: str, out: Path) -> None:
-    """The README's commands for one case, printed as a user sees them."""
+    """docs/your-policy.md's commands for one case, printed as a user sees them."""
     from oodmon.agents.sb3 import load_sb3
     from oodmon.cli import main as oodmon
 

@@ -1,4 +1,4 @@
-"""A taxi whose wheels may slip, and a policy that drives it: the README's example of a policy of
+"""A taxi whose wheels may slip, and a policy that drives it: docs/your-policy.md's example of a policy of
 discrete observations (gymnasium's ``Taxi-v4``: 500 states, one integer each) watched by oodmon.
 
 ``SlipperyTaxi-v0`` is ``Taxi-v4`` (its 200-step limit) inside :class:`Slip`, whose attribute
@@ -9,7 +9,7 @@ iteration over the env's own transition table (computed once, at import; a plain
 ``obs -> action``, as ``oodmon ... --policy slippery_taxi:drive`` takes it).
 
 Used as ``PYTHONPATH=scripts oodmon calibrate --policy slippery_taxi:drive --env
-slippery_taxi:SlipperyTaxi-v0 ...`` (the README's "Discrete observations"). Run as a script on a
+slippery_taxi:SlipperyTaxi-v0 ...`` (docs/your-policy.md, "Discrete observations"). Run as a script on a
 log of a slip's run or of a sensor fault's (``SlipperyTaxi-v0:obs.noise=0.1``), it plays each
 episode again from its seed and tells in which episodes something went wrong from the onset on
 (an action replaced by another, a state read as another than the taxi's), and the alarms of those

@@ -8,7 +8,7 @@ Trains PPO on CartPole-v1 for 60,000 steps in ``VecNormalize(norm_obs=True, norm
 return over 10 ID episodes (seeds 100-109) of the policy as oodmon deploys it: with the statistics
 (``load_sb3(..., vec_normalize=...)``) and without them (``vec_normalize="none"``, the env's own
 observations, as oodmon deployed every model before it read the statistics). Then try the files
-with the README's commands (``oodmon calibrate --sb3 runs/vecnorm/ppo.zip --env CartPole-v1
+with docs/your-policy.md's commands (``oodmon calibrate --sb3 runs/vecnorm/ppo.zip --env CartPole-v1
 --vec-normalize runs/vecnorm/vecnormalize.pkl ...``).
 """
 

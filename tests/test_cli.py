@@ -387,7 +387,7 @@ def test_run_whose_mcap_file_cannot_be_opened_goes_on_and_says_so(tmp_path, caps
 
 
 def test_fit_detectors_writes_a_set_that_calibrate_and_run_read(tmp_path, capsys):
-    """The README's `fit-detectors` block, smaller: the set is written as JSON and tensors (no
+    """docs/detectors.md's `fit-detectors` block, smaller: the set is written as JSON and tensors (no
     pickle), the same command fits the same tensors, and calibrate and run read it by --detectors."""
     common = ["--task", "pendulum", "--method", "dropout"]
     fit = ["fit-detectors", *common, "--only", "dynamics", "--episodes", "9"]
@@ -428,7 +428,7 @@ def test_fit_detectors_writes_a_set_that_calibrate_and_run_read(tmp_path, capsys
 def test_dynamics_updates_caps_the_dynamics_fit_of_every_command_that_fits(tmp_path, capsys, monkeypatch):
     """--dynamics-updates N|all (2026-12-02): the dynamics model's fit stops after the whole epochs
     that hold N Adam updates, or trains every epoch (the default since fitting version 9; version
-    8's cap of 3,000 blunted a large fit: README, "In MuJoCo"). Pendulum's 3 episodes: 2 fit, 400
+    8's cap of 3,000 blunted a large fit: docs/your-policy.md, "In MuJoCo"). Pendulum's 3 episodes: 2 fit, 400
     transitions, one update an epoch."""
     from oodmon.agents import zoo_dir
     from oodmon.monitor.detectors import DetectorSet
@@ -937,8 +937,8 @@ def test_run_and_replay_say_when_episodes_ended_before_the_onset(tmp_path, capsy
 
 
 def test_every_oodmon_command_in_the_readmes_shell_blocks_parses():
-    """The README's shell blocks (the command-line list, each section's commands) as a reader copies
-    them: each `oodmon ...` line, its continuation lines joined and its comment cut, is taken by the
+    """The shell blocks of the README and of docs/ (the command-line list, each page's commands) as a
+    reader copies them: each `oodmon ...` line, its continuation lines joined and its comment cut, is taken by the
     parser, so that a renamed or removed option cannot leave a command there that no longer runs
     (the blocks that the suite runs as written are run by their own tests)."""
     import shlex
@@ -947,11 +947,12 @@ def test_every_oodmon_command_in_the_readmes_shell_blocks_parses():
 
     from oodmon.cli import _parser
 
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    root = Path(__file__).resolve().parents[1]
+    text = "\n".join(path.read_text() for path in [root / "README.md", *sorted((root / "docs").glob("*.md"))])
     commands = [shlex.split(line, comments=True)[1:]
                 for indent, block in re.findall(r"^( *)```sh\n(.*?)^\1```", text, re.DOTALL | re.MULTILINE)
                 for line in textwrap.dedent(block).replace("\\\n", " ").splitlines() if line.startswith("oodmon ")]
-    assert len(commands) >= 60  # 70 on 2026-12-03
+    assert len(commands) >= 70  # 79 on 2026-12-03 (70 before the README's quick start)
     parser = _parser()
     refused = []
     for argv in commands:

@@ -103,10 +103,10 @@ def test_every_progress_callback_of_the_library_has_the_one_shape():
 
 
 def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
-    """README tables made from results/bench/*.json by scripts/bench_table.py, never typed by hand:
-    each file's table once, in the README (the shipped agents' main files) or in results/bench/README.md."""
+    """Tables made from results/bench/*.json by scripts/bench_table.py, never typed by hand: each
+    file's table once, in docs/bench.md (the shipped agents' main files) or in results/bench/README.md."""
     root, script = load_script("bench_table")
-    readmes = [(root / name).read_text() for name in ("README.md", "results/bench/README.md")]
+    readmes = [(root / name).read_text() for name in ("docs/bench.md", "results/bench/README.md")]
     results = sorted((root / "results" / "bench").glob("*.json"))
     assert results, "results/bench/ holds the committed five-trial results"
     for path in results:
@@ -114,7 +114,7 @@ def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
         assert sum(text.count(begin) for text in readmes) == 1, f"not one table of {path.name} in the READMEs"
         readme = next(text for text in readmes if begin in text)
         shown = readme[readme.index(begin) + len(begin):readme.index("\n<!-- end bench_table -->", readme.index(begin))]
-        assert shown == script.table(path), f"README's table of {path.name} is not the script's"
+        assert shown == script.table(path), f"the table of {path.name} is not the script's"
         data = json.loads(path.read_text())
         assert {m: len(t) for m, t in data["id_returns"].items()} == {
             m: data["config"]["trials"] for m in data["config"]["methods"]}, f"{path.name} lacks trials' ID returns"
@@ -122,7 +122,7 @@ def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
 
 def test_the_readmes_goals_at_a_glance_are_what_the_committed_results_give():
     root, script = load_script("bench_table")
-    readme = (root / "README.md").read_text()
+    readme = (root / "docs" / "bench.md").read_text()
     begin, end = "<!-- bench_goals -->\n", "\n<!-- end bench_goals -->"
     shown = readme[readme.index(begin) + len(begin):readme.index(end)]
     assert shown == script.goals(sorted((root / "results" / "bench").glob("*.json")))
@@ -220,7 +220,7 @@ def test_the_five_trial_tables_name_the_trials_that_do_not_solve_the_task():
                                           ("sweep_samples", "oodmon/zoo/README.md"),
                                           ("sweep_inference_p", "oodmon/zoo/README.md"),
                                           ("episode_noise", "results/bench/README.md"),
-                                          ("combined_long_mean", "README.md")])
+                                          ("combined_long_mean", "docs/detectors.md")])
 def test_readme_sweep_tables_are_made_from_the_committed_rows(name, readme, monkeypatch):
     """The READMEs' sweep tables are the scripts' --table output on results/sweeps/, verbatim."""
     root = Path(oodmon.__file__).parent.parent
@@ -232,22 +232,22 @@ def test_readme_sweep_tables_are_made_from_the_committed_rows(name, readme, monk
 
 
 def test_readme_detector_table_is_made_from_the_committed_results():
-    """The README's detector table is scripts/detector_table.py's output on results/detectors/."""
+    """docs/detectors.md's detector table is scripts/detector_table.py's output on results/detectors/."""
     root, script = load_script("detector_table")
-    readme = (root / "README.md").read_text()
+    readme = (root / "docs" / "detectors.md").read_text()
     begin, end = "<!-- detector_table -->\n", "\n<!-- end detector_table -->"
-    assert begin in readme and end in readme, "README lacks the detector table's markers"
+    assert begin in readme and end in readme, "docs/detectors.md lacks the detector table's markers"
     assert readme[readme.index(begin) + len(begin):readme.index(end)] == script.table()
 
 
 def test_readme_pong_spread_score_table_is_made_from_the_committed_results(monkeypatch, capsys):
-    """The README's Pong table of spread scores is scripts/pong_spread_scores.py's on its results file,
+    """docs/pong.md's table of spread scores is scripts/pong_spread_scores.py's on its results file,
     as its ``--table`` prints it (from the repository's root, as its Run: line has it)."""
     monkeypatch.syspath_prepend(str(ROOT / "scripts"))
     root, script = load_script("pong_spread_scores")
     results = json.loads((root / "results" / "detectors" / "spread-scores-pong.json").read_text())
     assert sorted(results) == ["dropconnect", "dropout", "ensemble"]
-    assert script.table(results) in (root / "README.md").read_text()
+    assert script.table(results) in (root / "docs" / "pong.md").read_text()
     monkeypatch.chdir(root)
     script.main(["--table"])
     assert capsys.readouterr().out == script.table(results) + "\n"

@@ -1,7 +1,7 @@
 """How each shipped agent is trained: one table, one entry per task, overrides per method.
 
 The starting points are RL Zoo's hyperparameters (CartPole DQN, Pendulum DDPG) and, for Pong, the
-usual Nature-DQN settings shrunk to what two CPU cores can train (see the README). A recipe is
+usual Nature-DQN settings shrunk to what two CPU cores can train (see docs/agents.md and docs/pong.md). A recipe is
 plain data: :func:`oodmon.agents.training.train` reads it, nothing else does.
 """
 

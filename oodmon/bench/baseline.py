@@ -192,7 +192,7 @@ def provenance_notes(result: dict, baseline: dict, baseline_name: str = "the bas
 
     The same command trains other weights, and fits other detectors, on a CPU whose float kernels
     round otherwise (an Intel one with AVX-512 beside the AMD EPYC one the committed results come
-    from, 2026-11-29: the README's Acrobot PPO, and the bench's own fits for the shipped CartPole
+    from, 2026-11-29: docs/your-policy.md's Acrobot PPO, and the bench's own fits for the shipped CartPole
     agents): its figures move with them, not only with oodmon's code.
 
     Example:

@@ -117,7 +117,7 @@ _SEED = _whole(0, 2**32 - 1)
 def _add_rule(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rule", choices=["consecutive", "cusum", "martingale"], default="consecutive",
                         help="the alarm rule: consecutive (default: --consecutive steps above the threshold), cusum or "
-                             "martingale (sequential, on p-values against ID reference episodes' scores; see the README)")
+                             "martingale (sequential, on p-values against ID reference episodes' scores; see docs/monitor.md)")
 
 
 def _confidence(text: str) -> float | None:
@@ -146,7 +146,7 @@ def _add_dynamics_updates(parser: argparse.ArgumentParser, when: str) -> None:
                         help=f"{when}, the dynamics model trains every one of its 100 epochs ('all', the default) "
                              "or the whole epochs that hold at most N Adam updates: a large fit's time bounded, and "
                              "the model blunter (3,000, fitting version 8's default: 50 epochs of 30,000 "
-                             "transitions; a PPO's InvertedPendulum read a heavy pole as ID; see the README)")
+                             "transitions; a PPO's InvertedPendulum read a heavy pole as ID; see docs/detectors.md)")
 
 
 def _add_confidence(parser: argparse.ArgumentParser, default: str | None = None) -> None:

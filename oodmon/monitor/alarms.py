@@ -9,13 +9,13 @@ With ``window`` w > 1 the rule looks at the mean of the last w scores instead of
 itself (and only once w steps of the episode are scored). That is for scores that separate ID
 from OOD steps well on average but spike now and then in long ID episodes: on Pong a 3000-step
 ID game always has a few high steps, so an m = 3 rule calibrated on them sits above most steps
-of a corrupted game; the mean over 100 steps does not (see the README's Pong section). The
+of a corrupted game; the mean over 100 steps does not (see docs/pong.md). The
 price is a delay of at least w steps.
 
 With ``warmup`` N > 0 the rule looks at no finite score of an episode's first N steps: the
 learned detectors' scores there are means over the few transitions since the reset, which may be
 rare ones (a hopper dropping onto the ground from its start pose), and an episode's highest ID
-score often comes there, so it sets the threshold for the whole episode. Measured on the README's
+score often comes there, so it sets the threshold for the whole episode. Measured on docs/pong.md's
 PPO hopper (``Hopper-v5``, 200 ID episodes of its bench, ``combined`` of ``dynamics`` alone):
 122 of 200 peaked within their first 20 steps (65 at step 2); each episode's highest score from
 step 20 on had a 99th percentile of 2.62 against 4.27 over the whole episode (with ``drift`` in
@@ -54,7 +54,7 @@ def default_consecutive(detector: str) -> int:
     """m of the alarm rule when none is given: 3 for the ``spread`` detector, whose MC and ensemble
     scores are noisy step to step; 1 for the learned detectors, whose scores are already means over
     the last 20 transitions, so that m = 3 only adds two steps of delay. Measured with the monitor's
-    benchmark (random onsets, the shipped agents, README): m = 1 alarms before the failure in
+    benchmark (random onsets, the shipped agents, docs/bench.md): m = 1 alarms before the failure in
     100% of failing Pendulum episodes against 75-84% with m = 3 (Pendulum with l = 0.05 falls two
     steps after the onset), at the same false-alarm bound.
 

@@ -162,7 +162,7 @@ WARMUP_HINT = 20
 #: (`scripts/early_peaks_selection.py`, 2026-11-29): of 4,000 calibrations of 50 drawn from 600 ID
 #: episodes, 2.8% warn, and 80% of those would give a warm-up threshold above 5% false alarms on
 #: the other 550 (7.8% of all draws, within the promise's 10%). Measured on the first 50 (90) of 200 ID episodes of the
-#: monitor's bench at far 0.05, confidence 0.9 (0.99): the README's PPO hopper (`Hopper-v5`,
+#: monitor's bench at far 0.05, confidence 0.9 (0.99): docs/your-policy.md's PPO hopper (`Hopper-v5`,
 #: `combined` of `dynamics` alone) 0.56 (0.56), thresholds 4.28 and 2.61 (4.29 and 2.62), with
 #: `drift` too 0.72 (its bench's calibration); another hopper of ours (six runs of 50,000 steps,
 #: `dynamics` alone) 0.56 (0.49); the shipped CartPole agents'

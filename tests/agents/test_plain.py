@@ -24,12 +24,12 @@ from oodmon.monitor import Threshold, calibrate_agent
 from oodmon.replay import read_log
 from tests.helpers import run_as_written
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+PAGE = Path(__file__).resolve().parents[2] / "docs" / "your-policy.md"
 
 def _readme_block() -> tuple[str, list[list[str]]]:
-    """The README section's controller module and its oodmon commands (continuation lines joined)."""
-    text = README.read_text()
-    section = text[text.index("### Monitor a policy of any kind"):text.index("### Detectors: what sees the shift")]
+    """The page's controller module and its oodmon commands (continuation lines joined)."""
+    text = PAGE.read_text()
+    section = text[text.index("## Monitor a policy of any kind"):]
     block = re.search(r"```sh\n(.*?)```", section, re.S).group(1)
     module = re.search(r"<<'PY'\n(.*?\n)PY\n", block, re.S).group(1)
     commands = block[block.index("\nPY\n") + 4:].replace("\\\n", " ")
@@ -40,16 +40,16 @@ def test_the_readmes_controller_is_calibrated_run_and_replayed_as_written_then_w
         tmp_path, monkeypatch, capsys):
     module, commands = _readme_block()
     assert [argv[0] for argv in commands] == ["calibrate", "run", "replay"]
-    assert "export PYTHONPATH=runs" in README.read_text()
+    assert "export PYTHONPATH=runs" in PAGE.read_text()
     (tmp_path / "runs").mkdir()
     (tmp_path / "runs/my_controller.py").write_text(module)
     run_as_written(commands, tmp_path, monkeypatch, python_path=tmp_path / "runs", module="my_controller")
     capsys.readouterr()
     assert main(["replay", "--json", "runs/controller.mcap"]) == 0
     row = next(r for r in json.loads(capsys.readouterr().out) if r["detector"] == "combined")
-    # the README's figures when written: 20 of 20 alarmed at step 31, delay 1 (the controller keeps
+    # the page's figures when written: 20 of 20 alarmed at step 31, delay 1 (the controller keeps
     # the long pole up). The dynamics model's fit follows the CPU's MKL kernels, so the threshold is
-    # another on another machine (5.27629 where the README was measured, 3.87509 on an AVX-512 EPYC,
+    # another on another machine (5.27629 where the page was measured, 3.87509 on an AVX-512 EPYC,
     # where seed 0's ID steps 17-30 cross it). An alarm in an episode's 30 ID steps is a false alarm,
     # at most 5% per whole episode: 2 or more of 5 has probability 0.023 at that rate.
     assert (row["method"], row["variant"], row["episodes"]) == ("plain", "cartpole:length=2.0", 5)

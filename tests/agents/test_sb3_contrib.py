@@ -144,7 +144,7 @@ def test_a_recurrent_ppo_decides_with_its_lstm_state_carried_through_each_episod
     assert np.array_equal(np.array([step.action for step in sink.steps]), expected)
 
 
-# scripts/masked_cartpole.py's env (the README's MaskablePPO): three actions, masks alternating
+# scripts/masked_cartpole.py's env (docs/your-policy.md's MaskablePPO): three actions, masks alternating
 _, _masked_cartpole = load_script("masked_cartpole")
 MASKED = _masked_cartpole.ENV_ID
 
@@ -250,7 +250,7 @@ def test_several_contrib_models_but_tqcs_and_qrdqns_are_no_ensemble(tmp_path):
 
 @pytest.mark.parametrize("algorithm", ["TQC", "RecurrentPPO"])
 def test_a_contrib_policy_is_calibrated_and_alarms_when_gravity_grows(algorithm, tmp_path, capsys):
-    """The command-line path of the README: `calibrate --sb3` fits the learned detectors for a TQC
+    """The command-line path of docs/your-policy.md: `calibrate --sb3` fits the learned detectors for a TQC
     (a little trained) or a RecurrentPPO (untrained; its LSTM's state carried through each episode of
     the fitting, the calibration and the run): neither barely swings the pendulum, whose fall under gravity the dynamics model
     reads whatever the policy's skill; a heavier pole it would not see, its torques being small), and
@@ -284,7 +284,7 @@ def test_without_sb3_contrib_its_models_are_refused_naming_what_to_install(tmp_p
 
 def test_the_readmes_contrib_example_trains_each_model_once_and_refuses_an_unknown_case(tmp_path, monkeypatch, capsys):
     """scripts/sb3_contrib_example.py: an unknown case is refused naming the cases; a model already in
-    --out is kept (what the README's figures came from is not trained over)."""
+    --out is kept (what the page's figures came from is not trained over)."""
     _, example = load_script("sb3_contrib_example")
     monkeypatch.setattr(sys, "argv", ["sb3_contrib_example.py", "--only", "qrdqn,sonar", "--out", str(tmp_path)])
     with pytest.raises(SystemExit) as stopped:

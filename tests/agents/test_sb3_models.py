@@ -1,4 +1,4 @@
-"""Your own SB3 policy: the README's "Monitor your own SB3 policy" section run as written, the
+"""Your own SB3 policy: docs/your-policy.md's "Monitor your own SB3 policy" section run as written, the
 deployed returns equal SB3's own, and a TD3 on Pendulum-v1 watched by the dynamics detector."""
 
 from __future__ import annotations
@@ -26,14 +26,14 @@ from oodmon.monitor.detectors import DetectorSet
 from oodmon.replay import read_log, read_logs
 from tests.helpers import ActedOn, NoisePictures, saved_ensemble_acts_as_its_members
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+PAGE = Path(__file__).resolve().parents[2] / "docs" / "your-policy.md"
 
 
 def _section_blocks() -> tuple[str, list[list[str]], str]:
     """The section's Python snippet, its oodmon commands (continuation lines joined) and the
     deployed process's Python block after them."""
-    text = README.read_text()
-    section = text[text.index("### Monitor your own SB3 policy"):]
+    text = PAGE.read_text()
+    section = text[text.index("## Monitor your own SB3 policy"):]
     block = re.search(r"```sh\n(.*?)```", section, re.S).group(1)
     python = re.search(r'\.venv/bin/python -c "\n(.*?)\n"\n', block, re.S).group(1)
     commands = block[block.index('\n"\n') + 3:].replace("\\\n", " ")
@@ -59,7 +59,7 @@ def readme_run(one_torch_thread, tmp_path_factory):
     outputs = []
     with pytest.MonkeyPatch.context() as patch:
         patch.chdir(folder)
-        exec(compile(python, "README snippet", "exec"), {})
+        exec(compile(python, "docs snippet", "exec"), {})
         for argv in commands:
             outputs.append((argv, main(argv)))
     return folder, commands, outputs
@@ -79,14 +79,14 @@ def test_the_readme_section_runs_as_written_and_replay_shows_the_detection(readm
 
 
 def test_the_readmes_deployed_process_reads_the_calibration_and_logs_split(readme_run, monkeypatch, capsys):
-    """The README's deployed-process block, run as written after the section's commands: no
+    """The page's deployed-process block, run as written after the section's commands: no
     episode of calibration, one monitored episode, a split log that replays."""
     import oodmon.monitor.calibration as calibration
 
     folder, _, _ = readme_run
     monkeypatch.chdir(folder)
     monkeypatch.setattr(calibration, "calibrate_agent", None)  # it must not calibrate: calling it would fail
-    exec(compile(_section_blocks()[2], "README deployed block", "exec"), {})
+    exec(compile(_section_blocks()[2], "docs deployed block", "exec"), {})
     parts = sorted((folder / "runs/deployed").glob("log-*.mcap"))
     assert len(parts) == 1 and re.fullmatch(r"log-\d{8}-\d{6}-00000\.mcap", parts[0].name)  # named by its start
     log = read_log(parts[0])
@@ -519,7 +519,7 @@ def _learn_monitored(model, env_id: str, steps: int) -> list:
 
 
 def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monkeypatch, capsys):
-    # The README's "module:EnvId": gymnasium imports the module (registering the env) before making it.
+    # The page's "module:EnvId": gymnasium imports the module (registering the env) before making it.
     (tmp_path / "users_envs_for_tests.py").write_text(
         "import gymnasium\n"
         "from gymnasium.wrappers import TransformObservation\n"
@@ -603,7 +603,7 @@ def test_evaluate_takes_sb3_models_too(readme_run, capsys):
 
 
 def test_bench_runs_the_monitor_protocol_on_a_plain_sb3_policy(readme_run, capsys):
-    """One DQN of the README (no samples of its own): the monitor's benchmark with the learned
+    """One DQN of docs/your-policy.md (no samples of its own): the monitor's benchmark with the learned
     detectors, cached per weights like the zoo's agents."""
     folder, _, _ = readme_run
     out = folder / "bench"
@@ -615,7 +615,7 @@ def test_bench_runs_the_monitor_protocol_on_a_plain_sb3_policy(readme_run, capsy
     result = json.loads(capsys.readouterr().out)
     rows = {r["variant"]: r for r in result["alarms"] if r["method"] == "sb3"}
     assert rows["cartpole"]["episodes"] == 20 and rows["cartpole:length=2.0"]["episodes"] == 5
-    # 5 of 5 when written (the README's run: 5 of 5); this DQN drops the pole in ID episodes too, so an
+    # 5 of 5 when written (the page's run: 5 of 5); this DQN drops the pole in ID episodes too, so an
     # episode may end before its onset (drawn in [20, 200)): 4 of the 4 that shifted on 2026-12-01
     began = 5 - rows["cartpole:length=2.0"]["never_shifted"]
     assert began >= 3 and rows["cartpole:length=2.0"]["alarmed"] >= began - 1
@@ -916,13 +916,13 @@ def test_a_users_dqn_policy_with_dropout_loads_from_its_file_with_fixed_masks(tm
 
 
 def test_the_readmes_dropout_policy_example_runs_and_reads_fixed_sub_networks(tmp_path, monkeypatch, capsys):
-    # The README's policy class of one's own, its snippet and commands as written, but for a shorter
+    # The page's policy class of one's own, its snippet and commands as written, but for a shorter
     # training (600 steps instead of 8,000: what is tested is that the file loads and is read as fixed
     # sub-networks, not the example's numbers).
     from oodmon.monitor import Threshold
 
-    text = README.read_text()
-    block = re.search(r"```sh\n(.*?)```", text[text.index("**A policy of your own class, with dropout.**"):], re.S).group(1)
+    text = PAGE.read_text()
+    block = re.search(r"```sh\n(.*?)```", text[text.index("### A policy of your own class, with dropout"):], re.S).group(1)
     policy = re.search(r"<<'PY'\n(.*?)PY\n", block, re.S).group(1)
     python = re.search(r'\.venv/bin/python -c "\n(.*?)\n"\n', block, re.S).group(1)
     assert "model.learn(8000)" in python
@@ -934,7 +934,7 @@ def test_the_readmes_dropout_policy_example_runs_and_reads_fixed_sub_networks(tm
     (tmp_path / "runs" / "my_policy.py").write_text(policy)
     monkeypatch.syspath_prepend(str(tmp_path / "runs"))  # the snippet's PYTHONPATH=runs
     monkeypatch.delitem(sys.modules, "my_policy", raising=False)
-    exec(compile(python.replace("model.learn(8000)", "model.learn(600)"), "README dropout snippet", "exec"), {})
+    exec(compile(python.replace("model.learn(8000)", "model.learn(600)"), "docs dropout snippet", "exec"), {})
     monkeypatch.delitem(sys.modules, "my_policy")  # the commands run in processes of their own: --import names it
     for argv in argvs:
         assert main(argv) == 0, argv

@@ -727,7 +727,7 @@ def test_fit_detectors_passes_its_cap_of_updates_to_the_dynamics_model_and_refus
     assert capped["dynamics"].epochs_trained == 1 and fitting_notes(capped) == [
         "dynamics: the model trained 1 of its 100 epochs, as many as hold the 3 Adam updates its fit is capped at; "
         "--dynamics-updates all (dynamics_updates=None, the default) trains every one: slower, and on the benches "
-        "measured it alarmed more often or sooner, with a few more false alarms on some (README, --dynamics-updates)"]
+        "measured it alarmed more often or sooner, with a few more false alarms on some (docs/detectors.md, --dynamics-updates)"]
     assert not np.array_equal(capped["dynamics"].tensors()["layer0.weight"], fitted["dynamics"].tensors()["layer0.weight"])
     capped.save(tmp_path / "capped")  # a loaded model does not know how far it trained: no note
     assert fitting_notes(DetectorSet.load(tmp_path / "capped")) == []

@@ -207,7 +207,7 @@ def test_sigterm_stops_oodmon_run_as_ctrl_c_does_and_exits_143(tmp_path, monkeyp
 
 
 def test_stop_on_sigterm_lets_a_deployed_loop_of_your_own_finish_its_log(tmp_path):
-    """The README's deployed process, stopped by its service manager: inside stop_on_sigterm, SIGTERM
+    """docs/your-policy.md's deployed process, stopped by its service manager: inside stop_on_sigterm, SIGTERM
     raises Terminated in the loop, and closing the env finishes the log with the cut episode marked
     (without it the process died, its log torn). Outside the block SIGTERM is handled as before."""
     import os

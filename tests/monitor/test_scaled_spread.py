@@ -127,7 +127,7 @@ def test_it_refuses_what_it_cannot_score():
 
 def test_calibrate_fits_it_when_asked_and_run_alarms_on_it(tmp_path):
     # Its ID scores are high for a while after each reset (the swing-up, when every member pushes
-    # hard), so the alarm takes p-values against ID steps of the same age: CUSUM by age (README).
+    # hard), so the alarm takes p-values against ID steps of the same age: CUSUM by age (docs/monitor.md).
     out = tmp_path / "thr.json"
     result = run_cli("calibrate", "--task", "pendulum", "--method", "ensemble", "--detector", "scaled_spread",
                      "--score", "pre_squash_std", "--rule", "cusum", "--reference-by-age", "--episodes", "45",

@@ -1,6 +1,6 @@
 """The transitions detector and discrete observations: a policy of FrozenLake's or Taxi's cells
 gets its ints, the detectors read them one-hot, and a table of the ID transitions sees a world
-that slips (the README's block, run as written)."""
+that slips (docs/your-policy.md's block, run as written)."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from oodmon.monitor.sinks.base import MemorySink
 from tests.helpers import run_as_written
 
 ROOT = Path(__file__).resolve().parents[2]
-README = ROOT / "README.md"
+PAGE = ROOT / "docs" / "your-policy.md"
 
 
 def _corridor_walks(n: int = 30, slip_every: int = 0) -> list[Trajectory]:
@@ -234,8 +234,8 @@ def test_an_ensemble_of_dqns_on_discrete_cells_samples_each_models_q_values_of_t
 
 
 def _taxi_block() -> list[list[str]]:
-    text = README.read_text()
-    section = text[text.index("**Discrete observations**"):]
+    text = PAGE.read_text()
+    section = text[text.index("### Discrete observations"):]
     block = re.search(r"```sh\n(.*?)```", section, re.S).group(1).replace("\\\n", " ")
     assert "export PYTHONPATH=scripts" in block
     return [shlex.split(line)[1:] for line in block.splitlines() if line.startswith("oodmon ")]
@@ -253,7 +253,7 @@ def test_the_readmes_taxi_runs_as_written_and_every_taxi_that_slipped_or_misread
     ids = rows[("slippery_taxi:SlipperyTaxi-v0", "combined")]
     slipped = rows[("slippery_taxi:SlipperyTaxi-v0:slip=0.2", "combined")]
     misread = rows[("slippery_taxi:SlipperyTaxi-v0:obs.noise=0.1", "combined")]
-    # the README's figures when written: 1 of 100 ID episodes alarmed; 74 of 100 slipping ones, AUROC
+    # the page's figures when written: 1 of 100 ID episodes alarmed; 74 of 100 slipping ones, AUROC
     # 0.849; 51 of 100 misreading ones. The threshold promises <= 5% per episode (confidence 0.9): at
     # 5%, 11 or more of 100 has probability 0.011
     assert ids["episodes"] == 100 and ids["false_alarm_rate"] <= 10 / 100

@@ -33,7 +33,7 @@ episodes. With ``early="standardised"`` (fits since
 moved toward the ID median by ``sqrt(n / window)``
 (:func:`~oodmon.monitor.detectors.base.standardise_early`), as much as a mean of independent
 values needs to vary as a full window's does; the start-up's own excess is shrunk with it, not
-removed (the README's "Early steps" measures both); ``early="mean"`` (every set fitted before)
+removed (docs/detectors.md's "Early steps" measures both); ``early="mean"`` (every set fitted before)
 keeps the plain mean.
 
 It trains 100 epochs (since fitting version 9; version 8 stopped at 3,000 Adam updates, which left
@@ -51,8 +51,8 @@ shortened every one on both tasks. Version 8's cap of 3,000 updates bounded a la
 (30,000 transitions on one core: 50 epochs some 6 s, 100 some 12, the zoo's refits) and blunted it:
 a PPO's InvertedPendulum, 25-50 epochs, read a pole four times as heavy as ID where every epoch
 spiked at its onset (``scripts/dynamics_cap.py``); the monitor's benchmark of the zoo's CartPole
-agents and the README's four benches of a user's own env alarmed as often or more, and as soon or
-sooner, with every epoch (README, ``--dynamics-updates``, which still takes a cap).
+agents and docs/your-policy.md's four benches of a user's own env alarmed as often or more, and as soon or
+sooner, with every epoch (docs/detectors.md, ``--dynamics-updates``, which still takes a cap).
 
 Two hidden layers of 64 units: 128 and 200 measured no better (Pendulum above: per-step AUROC
 0.954-1.000 at 64 and at 128, window 1) and cost the monitor more per step.
@@ -60,7 +60,7 @@ Two hidden layers of 64 units: 128 and 200 measured no better (Pendulum above: p
 Neither assumes a deterministic simulator: each member predicts a variance, so sensor noise in
 the ID world (``obs_noise``) is part of what it learns. Vector observations only, stacked ones
 (CartPole's state 4 deep, (4, 4)) modelled flattened; images go to the frames detector (see the
-README for Pong). The first step of an episode has no transition yet: it scores the median ID score.
+docs/pong.md). The first step of an episode has no transition yet: it scores the median ID score.
 
 Training is torch (the members' weights stacked, one batched product per layer); scoring is
 numpy, a few microseconds per step.
@@ -94,7 +94,7 @@ MAX_UPDATES: int | None = None
 _CONSTANT_Z = 16.0  # the fast path's constant pre-activation (see _FastNll)
 _MIN_LOGVAR, _MAX_LOGVAR = -12.0, 2.0  # soft bounds of the predicted log-variance (the lower one: min_logvar)
 
-#: ``min_logvar`` per task where it is not the default -12 (chosen by measurement, see the README's
+#: ``min_logvar`` per task where it is not the default -12 (chosen by measurement, see docs/detectors.md's
 #: detector section); fitting an agent's detectors uses its task's.
 MIN_LOGVAR: dict[str, float] = {"pendulum": -6.0}
 

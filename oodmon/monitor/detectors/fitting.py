@@ -50,14 +50,14 @@ __all__ = ["BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT
 #: CartPole ensemble then alarmed 270 of 270 shifted episodes (253 with 30) and Pendulum's
 #: DropConnect and ensemble 110 and 120 of 150 and 160 (100 and 110), with delays as short or
 #: shorter except CartPole DropConnect's at gravity x8-x10 and length (1-3 steps later); the
-#: README's monitor section has the figures.
+#: docs/bench.md's monitor benchmark has the figures.
 DEFAULT_FIT_EPISODES = 90
 
 #: For an env oodmon has no variants of, whose episodes may be short, the default fitting plays on
 #: past :data:`DEFAULT_FIT_EPISODES` until its episodes hold this many steps: as many as 90
 #: CartPole episodes of 500 (oodmon's own tasks keep their 90 episodes, on which every figure of
 #: the READMEs was measured). Measured on 2026-11-29 on a PPO that swings Acrobot-v1 up in about
-#: 110 steps (README, "Shift your own env"): fitted on 90 episodes (about 10,000 steps) its ID
+#: 110 steps (docs/your-policy.md, "Shift your own env"): fitted on 90 episodes (about 10,000 steps) its ID
 #: scores peaked at each swing-up's end, the threshold rose to 7.39, and the monitor's benchmark
 #: alarmed 17 of 70 shifted episodes (three physics shifts, four sensor faults); fitted until
 #: 45,000 steps (409 episodes), 49 of 70, delay medians 1-7.5, with 0 of 200 ID episodes alarmed.
@@ -89,12 +89,12 @@ def default_fit_steps(task: str | None) -> int:
 #: falling linearly to 0 over the fit (``schedule``, ``max_updates``; 7 was a version taken back
 #: the day it came: a cache of it is not of this fitting); 9: ``dynamics`` trains every one of its
 #: 100 epochs, no longer stopping at 3,000 updates (``max_updates=None``; a set of version 8 keeps
-#: its cap in its file): on every bench measured it alarmed more often or sooner (README,
+#: its cap in its file): on every bench measured it alarmed more often or sooner (docs/detectors.md,
 #: ``--dynamics-updates``).
 FIT_VERSION = 9
 
 # The detector with the highest mean per-step AUROC over the paper's failing variants, per task, on
-# the shipped agents (results/detectors/, `scripts/detector_table.py`; the README's detector table);
+# the shipped agents (results/detectors/, `scripts/detector_table.py`; docs/detectors.md's detector table);
 # Pong: frames, which alarmed every shifted game of the monitor's benchmark within a few decisions
 # where features needed 200-decision means and still missed DropConnect's mild blur
 # (results/monitor/pong-frames-*.json), and since 2026-11-30 combined, of frames and stillness
@@ -379,7 +379,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     ``max_updates``; the default since fitting version 9). A cap bounds a large fit's time and
     blunts it: 30,000 transitions of a PPO's InvertedPendulum got 50 epochs at version 8's 3,000,
     and the model read a pole four times as heavy as ID where all 100 spiked at its onset
-    (``scripts/dynamics_cap.py``; the README weighs both).
+    (``scripts/dynamics_cap.py``; docs/detectors.md weighs both).
 
     ``workers``: processes that play the episodes side by side (0: one per core; :func:`collect`);
     the fitting itself runs here. A policy that draws nothing when it decides gets the same
@@ -596,5 +596,5 @@ def fitting_notes(detectors: DetectorSet | None) -> list[str]:
         notes.append(f"dynamics: the model trained {trained} of its {dynamics.epochs} epochs, as many as hold the "
                      f"{dynamics.max_updates:,} Adam updates its fit is capped at; --dynamics-updates all "
                      "(dynamics_updates=None, the default) trains every one: slower, and on the benches measured it "
-                     "alarmed more often or sooner, with a few more false alarms on some (README, --dynamics-updates)")
+                     "alarmed more often or sooner, with a few more false alarms on some (docs/detectors.md, --dynamics-updates)")
     return notes

@@ -1,0 +1,45 @@
+"""The README and the pages of docs/ link to each other by relative links; each must reach a file
+that exists and, with an anchor, a heading of that file (anchors as GitHub makes them)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+
+def anchors(path: Path) -> set[str]:
+    """GitHub's anchor of each heading: lower case, punctuation but '-' and '_' dropped, spaces to '-'."""
+    text = re.sub(r"^```.*?^```", "", path.read_text(), flags=re.DOTALL | re.MULTILINE)
+    return {re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+            for heading in re.findall(r"^#{1,6} (.+)$", text, flags=re.MULTILINE)}
+
+
+def test_anchors_are_githubs():
+    assert {"the-papers-benchmark", "trained-inside-vecnormalize", "five-trials-beside-the-papers"} <= (
+        anchors(ROOT / "docs" / "bench.md") | anchors(ROOT / "docs" / "your-policy.md"))
+
+
+def test_every_relative_link_reaches_a_file_and_its_heading():
+    broken = []
+    for page in PAGES:
+        for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
+            if re.match(r"[a-z]+://", target):
+                continue
+            path, _, anchor = target.partition("#")
+            file = (page.parent / path).resolve() if path else page
+            if not file.exists():
+                broken.append(f"{page.relative_to(ROOT)}: {target} (no such file)")
+            elif anchor and anchor not in anchors(file):
+                broken.append(f"{page.relative_to(ROOT)}: {target} (no such heading)")
+    assert not broken, broken
+
+
+def test_every_page_is_listed_in_the_readme_and_in_the_docs_index():
+    readme, index = (ROOT / "README.md").read_text(), (ROOT / "docs" / "README.md").read_text()
+    for page in PAGES[1:]:
+        if page.name != "README.md":
+            assert f"](docs/{page.name})" in readme, page.name
+            assert f"]({page.name})" in index, page.name
