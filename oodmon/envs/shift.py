@@ -683,5 +683,6 @@ def parse_env_shift(spec: str) -> EnvShift:
                             f"({', '.join(others)}), which a shift of {env_id} sets: one spec cannot hold both")
         if not others:
             raise SpecError(f"{env_id} has oodmon's own variants, which also update what the env derives from its "
-                            f"physics: give {task}:{assignments} (see `oodmon envs`)")
+                            f"physics: give {task}:{assignments} (in Python to oodmon.envs.parse_variant, whose "
+                            f".make(onset_step=N) makes the env; `oodmon envs` lists them)")
     return EnvShift(env_id, tuple(sorted(params.items())))

@@ -64,7 +64,8 @@ def test_a_shift_names_itself_in_the_spec_the_logs_record_and_replay_reads_back(
     (":LINK_MASS_2=3", SpecError, "expected ENV_ID"),
     ("Acrobot-v1:a=1,a=2", SpecError, "sets 'a' twice"),
     ("Acrobot-v1::a=1", SpecError, "expected ENV_ID"),
-    ("CartPole-v1:length=2.0", SpecError, "give cartpole:length=2.0"),
+    ("CartPole-v1:length=2.0", SpecError, r"give cartpole:length=2.0 \(in Python to oodmon.envs.parse_variant, whose "
+     r"\.make\(onset_step=N\) makes the env"),
     ("CartPole-v1:obs.bias[0]=0.5", SpecError, r"give cartpole:obs.bias\[0\]=0.5"),
     ("CartPole-v1:x_threshold=1.0,length=2.0", SpecError, r"mixes cartpole's physics \(length\).*\(x_threshold\), which "
      "a shift of CartPole-v1 sets: one spec cannot hold both"),
