@@ -6,6 +6,7 @@
   false-alarm bound; :func:`calibrate_agent` runs those episodes; :func:`validate_threshold`
   checks a threshold on fresh ones.
 - Sinks: :class:`MemorySink`, :class:`McapSink`; a failing sink warns and the loop goes on.
+- :class:`MonitorCallback` scores an SB3 model's training steps and logs them through SB3's logger.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ __all__ = [
     "McapSink",
     "MemorySink",
     "Monitor",
+    "MonitorCallback",
     "RerunSink",
     "MonitoredEnv",
     "NonFiniteObservationWarning",
@@ -66,6 +68,7 @@ _LAZY = {
     "id_episode_scores": "oodmon.monitor.calibration",
     "Validation": "oodmon.monitor.calibration",
     "validate_threshold": "oodmon.monitor.calibration",
+    "MonitorCallback": "oodmon.monitor.sb3_callback",
 }
 
 

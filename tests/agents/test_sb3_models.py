@@ -445,10 +445,11 @@ def test_watch_reads_one_dropout_models_fixed_sub_networks_when_asked(tmp_path):
 def test_the_callback_scores_training_rollouts_and_writes_tensorboard(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    from oodmon.monitor import MemorySink
+    from oodmon.monitor import MemorySink, MonitorCallback
+    from oodmon.monitor import sb3_callback
     from oodmon.monitor.detectors import fit_detectors
-    from oodmon.monitor.sb3_callback import MonitorCallback
 
+    assert MonitorCallback is sb3_callback.MonitorCallback  # where a user looks first, beside Monitor
     env = gymnasium.make("CartPole-v1")
     space = env.action_space
     space.seed(0)
