@@ -210,6 +210,35 @@ def test_best_per_method_ranks_each_methods_variants_by_their_best_trial():
     ]
 
 
+def test_a_paper_report_without_the_spread_ranks_its_own_detector_and_shows_no_empty_paper_columns():
+    # Your own policy gives no samples: its paper-protocol bench reads the dynamics detector, and the
+    # paper has no figures for it. Before 2026-12-03 its best-AUROC table was empty (it ranked the
+    # spread only) and both tables carried empty "paper" and "difference" columns.
+    import io
+
+    from rich.console import Console
+
+    from oodmon.bench import BenchResult, Row, print_paper_report
+
+    def printed(config, rows):
+        buffer = io.StringIO()
+        print_paper_report(config, BenchResult(rows, {}, {}), Console(file=buffer, width=200))
+        return " ".join(buffer.getvalue().split())
+
+    learned = BenchConfig(task="cartpole", methods=("plain",), trials=1, policy="my_controller:act", env_id="CartPole-v1",
+                          detectors=("dynamics",), alarm_detector="dynamics", variants=("cartpole:length=2.0",))
+    out = printed(learned, [Row("plain", "cartpole:length=2.0", {0: 0.996}, None, "dynamics")])
+    assert "best single-trial AUROC per method, dynamics detector (the paper's main tables rank the spread)" in out
+    assert "┃ method ┃ variant ┃ trials ┃ ours ┃" in out and "┃ method ┃ variant ┃ ours ┃" in out  # no paper columns
+    assert "│ plain │ length=2.0 │ 1 │ 0.996 ± 0.000 │" in out and "│ plain │ length=2.0 │ 0.996 │" in out
+    assert "beside the paper's" not in out and "difference" not in out
+    spread = BenchConfig(task="cartpole", methods=("ensemble",), variants=("cartpole:length=2.0",))
+    out = printed(spread, [Row("ensemble", "cartpole:length=2.0", {0: 0.95}, [0.862, 0.993])])
+    assert "ours (mean ± std over trials) beside the paper's" in out
+    assert "│ ensemble │ length=2.0 │ 0.950 │ 0.993 │ -0.043 │" in out
+    assert "best single-trial AUROC per method (the paper's main tables)" in out
+
+
 def test_alarms_are_averaged_over_the_trials_that_have_them():
     from oodmon.bench import BenchResult, alarms_per_variant
 
