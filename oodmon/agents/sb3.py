@@ -56,7 +56,7 @@ from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256, state_sha256
 
 __all__ = ["SB3_ALGORITHMS", "SB3_CONTRIB_ALGORITHMS", "SB3_HYPERPARAMETERS", "dict_space_of", "load_sb3", "models_sha256",
-           "sb3_agent", "sb3_algorithm"]
+           "sb3_agent", "sb3_algorithm", "sb3_file"]
 
 #: SB3's policy modules and the algorithm classes that load them (first match that loads wins:
 #: A2C and PPO share a policy class; DDPG's policy is TD3's and loads as TD3 for acting).
@@ -96,6 +96,20 @@ SB3_HYPERPARAMETERS = (
 )
 
 
+def sb3_file(path: str | Path) -> Path:
+    """The model file ``path`` names, as SB3's own ``load`` finds it: ``model.save("runs/dqn")``
+    writes ``runs/dqn.zip``, and ``DQN.load("runs/dqn")`` reads it; so does oodmon, where
+    ``runs/dqn`` itself is no file. Anything else is left as given (a missing file is said where it is read).
+
+    Example:
+        >>> sb3_file("runs/no-such-model")
+        PosixPath('runs/no-such-model')
+    """
+    path = Path(path)
+    zipped = path.with_name(path.name + ".zip")
+    return zipped if not path.exists() and path.suffix != ".zip" and zipped.is_file() else path
+
+
 def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
     """The SB3 algorithm classes that can load the model file ``path``, read from its ``data``
     JSON without loading (unpickling) anything: from the policy class's module, or, for a policy
@@ -104,7 +118,7 @@ def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
     Raises:
         ConfigError: a missing file, or one that is not an SB3 model of a supported algorithm.
     """
-    path = Path(path)
+    path = sb3_file(path)
     return _algorithms(_data(path), path)
 
 
@@ -131,7 +145,9 @@ def _data(path: Path) -> dict[str, Any]:
         ConfigError: a missing file, or one that is not an SB3 model (no ``data`` naming a policy class).
     """
     if not path.is_file():
-        raise ConfigError(f"{path} does not exist (an SB3 model is the .zip that model.save() wrote)")
+        raise ConfigError(f"{path} does not exist (an SB3 model is the .zip that model.save() wrote; "
+                          f"{path.name}.zip is not there either)" if path.suffix != ".zip" else
+                          f"{path} does not exist (an SB3 model is the .zip that model.save() wrote)")
     try:
         with zipfile.ZipFile(path) as archive:
             data = json.loads(archive.read("data"))
@@ -457,7 +473,7 @@ def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_
     """
     if isinstance(paths, (str, Path)) or not paths:
         raise ConfigError("give one or more SB3 model files (a list of paths)")
-    paths = [Path(p) for p in paths]
+    paths = [sb3_file(p) for p in paths]
     for path in paths:
         sb3_algorithm(path)  # every file checked before any is unpickled
     if vec_normalize is None:

@@ -163,7 +163,9 @@ def _ensure_model(config: BenchConfig, method: str, trial: int,
         statistics = config.vec_normalize
         if statistics not in (None, NO_NORMALIZATION):
             statistics = str(Path(statistics).resolve())
-        return Sb3Models(tuple(str(Path(p).resolve()) for p in config.sb3), config.env_id, config.mean, statistics,
+        from oodmon.agents.sb3 import sb3_file
+
+        return Sb3Models(tuple(str(sb3_file(p).resolve()) for p in config.sb3), config.env_id, config.mean, statistics,
                          config.frame_stack, config.imports, config.unsafe_load_pickles)
     path = _ensure_model_dir_current(config, method, trial)
     if not (path / "model.json").exists():

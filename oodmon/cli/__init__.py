@@ -36,6 +36,17 @@ from oodmon.threads import limit_threads
 __all__ = ["main"]
 
 
+def _sb3_files(args: argparse.Namespace) -> None:
+    """``--sb3 runs/dqn`` names ``runs/dqn.zip`` where only that is there, as SB3's own ``load``
+    reads it (:func:`oodmon.agents.sb3.sb3_file`): so the checks of inputs against outputs, and
+    what a run records, see the file."""
+    given = getattr(args, "sb3", None)
+    if given:
+        from oodmon.agents.sb3 import sb3_file
+
+        args.sb3 = str(sb3_file(given)) if isinstance(given, str) else [str(sb3_file(path)) for path in given]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI with ``argv`` (default: ``sys.argv[1:]``); return the exit code.
 
@@ -60,6 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     args.argv = words  # what a result records as its command
+    _sb3_files(args)
     with warnings.catch_warnings():
         warnings.showwarning = _warning_shower()
         try:

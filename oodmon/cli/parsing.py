@@ -216,7 +216,8 @@ def _sb3_arguments(parser: argparse.ArgumentParser) -> None:
                         help="your own stable-baselines3 model file(s) (DQN, DDPG, TD3, SAC, PPO, A2C; sb3-contrib's "
                              "QR-DQN, TQC, TRPO, ARS, CrossQ, RecurrentPPO, MaskablePPO), with --env; the first is the "
                              "deployed policy, several DQN, DDPG/TD3, SAC, TQC or QR-DQN models (of one algorithm) also "
-                             "form an ensemble detector. Read without running code from them: a file whose policy class, "
+                             "form an ensemble detector (runs/dqn reads runs/dqn.zip, as SB3's load does). Read without "
+                             "running code from them: a file whose policy class, "
                              "its arguments or spaces name anything else is refused (see --unsafe-load-pickles)")
     parser.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
                         help="import this module of yours first (repeatable), whose classes the --sb3 files name (a "

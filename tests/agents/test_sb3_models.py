@@ -338,6 +338,25 @@ def test_bad_sb3_input_is_a_clear_error(tmp_path, capsys):
     assert "give --task" in capsys.readouterr().err
 
 
+def test_a_model_named_without_its_zip_is_read_as_sb3s_load_reads_it(tmp_path, capsys):
+    # model.save("runs/dqn") writes runs/dqn.zip and DQN.load("runs/dqn") reads it; oodmon said
+    # "runs/dqn does not exist" until 2026-12-03.
+    from oodmon.agents.sb3 import sb3_file
+
+    DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0).save(tmp_path / "dqn")
+    assert sb3_file(tmp_path / "dqn") == tmp_path / "dqn.zip" and sb3_file(tmp_path / "dqn.zip") == tmp_path / "dqn.zip"
+    agent = load_sb3([tmp_path / "dqn"], "CartPole-v1")
+    assert [Path(m["path"]).name for m in agent.metadata["models"]] == ["dqn.zip"]  # what a log records
+    (tmp_path / "both").write_text("not a model")  # a file of that very name is the one named, as for SB3
+    assert sb3_file(tmp_path / "both") == tmp_path / "both"
+    # the command line sees the file too: an output over it is refused before any work
+    assert main(["calibrate", "--sb3", str(tmp_path / "dqn"), "--env", "CartPole-v1", "--out", str(tmp_path / "dqn.zip")]) == 2
+    assert "is also --sb3; writing it would overwrite that file" in capsys.readouterr().err
+    assert main(["calibrate", "--sb3", str(tmp_path / "nothing"), "--env", "CartPole-v1", "--out", str(tmp_path / "t.json")]) == 2
+    assert "nothing does not exist (an SB3 model is the .zip that model.save() wrote; nothing.zip is not there either)" in (
+        capsys.readouterr().err)
+
+
 def test_watch_fits_calibrates_and_wraps_an_env_in_one_call():
     import oodmon
     from oodmon.monitor import MemorySink
