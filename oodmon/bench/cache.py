@@ -152,6 +152,13 @@ def _refuse_detectors_it_cannot_have(config: BenchConfig) -> None:
                               "detector")
 
 
+def _sb3_files(config: BenchConfig) -> tuple[str, ...]:
+    """The bench's SB3 model files, absolute, as SB3's ``load`` finds them (``runs/dqn``: ``runs/dqn.zip``)."""
+    from oodmon.agents.sb3 import sb3_file
+
+    return tuple(str(sb3_file(path).resolve()) for path in config.sb3)
+
+
 def _ensure_model(config: BenchConfig, method: str, trial: int,
                   on_progress: Callable[[str, int, int], None] | None = None) -> Source:
     """The (method, trial)'s model: the SB3 files, the plain policy, the shipped agent, or the cached
@@ -163,9 +170,7 @@ def _ensure_model(config: BenchConfig, method: str, trial: int,
         statistics = config.vec_normalize
         if statistics not in (None, NO_NORMALIZATION):
             statistics = str(Path(statistics).resolve())
-        from oodmon.agents.sb3 import sb3_file
-
-        return Sb3Models(tuple(str(sb3_file(p).resolve()) for p in config.sb3), config.env_id, config.mean, statistics,
+        return Sb3Models(_sb3_files(config), config.env_id, config.mean, statistics,
                          config.frame_stack, config.imports, config.unsafe_load_pickles)
     path = _ensure_model_dir_current(config, method, trial)
     if not (path / "model.json").exists():

@@ -151,11 +151,11 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
     """The paper's protocol: our AUROC per failing variant beside the paper's, the best per method,
     per detector where there are several, and what the alarm rule did."""
     several = len(config.detectors) > 1
+    with_paper = any(row.paper for row in result.rows)  # (not for your own policy's method: the paper has none)
     table = Table(title=f"{config.task}: per-step AUROC per failing variant, ours (mean ± std over trials)"
-                        + (" beside the paper's" if any(row.paper for row in result.rows) else ""))
+                        + (" beside the paper's" if with_paper else ""))
     counts = {(r.method, r.variant): episodes_failing(result.detection, r.method, r.variant, r.aurocs) for r in result.rows}
     counted = any(count is not None for count in counts.values())
-    with_paper = any(row.paper for row in result.rows)  # (not for your own policy's method: the paper has none)
     columns = ("method", *(("detector",) if several else ()), "variant", "trials",
                *(("failed",) if counted else ()), "ours", *(("paper", "difference") if with_paper else ()))
     _add_columns(table, columns)

@@ -17,8 +17,8 @@ cached logs and detectors, its threshold the largest of 90 ID episodes' scores f
 against the run's own ``combined`` alarm at its calibrated threshold): docs/your-policy.md's PPO hopper,
 nine shifts, 89 of 90 shifted episodes alarmed against 62 (a torso of mass 6.5 or 8.0: 10 of 10
 each, delay medians about 40 and 26 steps, against 0 and 3 of 10; 0 of 110 further ID episodes);
-its Acrobot PPO, 65 of 70 against 49 (2 of 110 ID); the shipped CartPole Dropout agent,
-290 of 290 against 277; its InvertedPendulum PPO, 60 of 70 as ``combined`` (a few steps
+that page's Acrobot PPO, 65 of 70 against 49 (2 of 110 ID); the shipped CartPole Dropout agent,
+290 of 290 against 277; that page's InvertedPendulum PPO, 60 of 70 as ``combined`` (a few steps
 slower there). It joins the default set in an env oodmon has no variants of (your own env, where
 ``combined`` then ranks it beside ``dynamics``); for oodmon's tasks, whose shipped detectors and
 results were fitted without it, only when named (``--detectors dynamics,drift,combined``).
