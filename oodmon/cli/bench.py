@@ -22,63 +22,68 @@ from oodmon.names import MASKS, METHODS, PLAIN_METHOD, TASKS
 def _add_bench(commands: argparse._SubParsersAction) -> None:
     """`oodmon bench`."""
     bench = commands.add_parser("bench", help="the paper's protocol: trials x methods x failing variants, scored by replay")
-    bench.add_argument("--task", choices=TASKS, help="required unless --sb3")
-    bench.add_argument("--methods", default="dropout,dropconnect,ensemble", help="comma-separated (default all three)")
-    _sb3_arguments(bench)
-    _policy_argument(bench)
-    bench.add_argument("--trials", type=_whole(1),
+    what = bench.add_argument_group("what is benched")
+    world = bench.add_argument_group("the shifts and episodes")
+    alarm = bench.add_argument_group("the detectors and the alarm")
+    where = bench.add_argument_group("where it runs")
+    out = bench.add_argument_group("results")
+    what.add_argument("--task", choices=TASKS, help="required unless --sb3")
+    what.add_argument("--methods", default="dropout,dropconnect,ensemble", help="comma-separated (default all three)")
+    _sb3_arguments(what)
+    _policy_argument(what)
+    what.add_argument("--trials", type=_whole(1),
                        help="trials per method (default 5; trial 0 is the zoo agent; --sb3: 1, nothing is trained)")
-    bench.add_argument("--samples", type=_whole(2), metavar="K",
+    what.add_argument("--samples", type=_whole(2), metavar="K",
                        help="MC samples per decision of the Dropout and DropConnect agents (default: each recipe's, "
                             "20); the decisions are their mean, so episodes change too, and a decision costs more "
                             "(CartPole DropConnect: 0.3 ms at K=20, 9 ms at K=400)")
-    bench.add_argument("--masks", choices=MASKS,
+    what.add_argument("--masks", choices=MASKS,
                        help="MC masks of the Dropout and DropConnect agents, and of one --sb3 model with dropout "
                             "(default: each model's, sampled): fixed draws K masks once, so that sample k is the same "
                             "sub-network at every decision (the decisions stay the mean of freshly sampled masks); "
                             "fixed-decisions: the same K fixed sub-networks decide too, by their mean (one pass)")
-    bench.add_argument("--members", type=_whole(2), metavar="K",
+    what.add_argument("--members", type=_whole(2), metavar="K",
                        help="members of each ensemble trial (default: the recipe's, 5); another size trains every "
                             "trial, trial 0 too (member k has the same seed at any size: members trained before are "
                             "kept), and a decision costs K members' forward passes")
-    bench.add_argument("--net-arch", type=_widths, metavar="W,W",
+    what.add_argument("--net-arch", type=_widths, metavar="W,W",
                        help="hidden widths of every trial's network, e.g. 64,64 (default: each recipe's, CartPole "
                             "[256, 256], Pendulum [400, 300]); other widths train every trial, trial 0 too")
-    bench.add_argument("--variants", default="paper",
+    world.add_argument("--variants", default="paper",
                        help="'paper' (the paper's grid) or comma-separated specs (cartpole:gravity=20.0,length=2.0 "
                             "is one); your own --env: its shifts, e.g. Acrobot-v1:LINK_MASS_2=2.0,Acrobot-v1:LINK_MASS_2=3.0; "
                             "--sb3/--policy on a task's own id (--env CartPole-v1): its variants and shifts of that "
                             "env's other attributes, e.g. CartPole-v1:theta_threshold_radians=0.1")
-    bench.add_argument("--failure", choices=_FAILURES,
+    world.add_argument("--failure", choices=_FAILURES,
                        help="your own --env: what fails in it, for the alarms before the failure (blank without "
                             "it): terminated, the env ended the episode itself after the onset (a fall, a crash)")
-    bench.add_argument("--onsets", type=_onsets, metavar="LOW,HIGH",
+    world.add_argument("--onsets", type=_onsets, metavar="LOW,HIGH",
                        help="monitor protocol: each shifted episode shifts at a step drawn from [LOW, HIGH) (default: "
                             "the task's, CartPole 20,200, Pendulum 100,150, Pong 100,1000; your own --env: required)")
-    bench.add_argument("--protocol", choices=["paper", "monitor"], default="paper",
+    world.add_argument("--protocol", choices=["paper", "monitor"], default="paper",
                        help="paper (default): shifted from step 0, per-step AUROC; monitor: the monitor's own benchmark, "
                             "each shifted episode shifts at a random onset, alarms before failure and delays, "
                             "the false-alarm rate over many ID episodes, the task's best detector")
-    bench.add_argument("--episodes", type=_whole(1), help="episodes per failing variant (default 5; monitor: 10)")
-    bench.add_argument("--all-variants", action="store_true",
+    world.add_argument("--episodes", type=_whole(1), help="episodes per failing variant (default 5; monitor: 10)")
+    world.add_argument("--all-variants", action="store_true",
                        help="monitor every variant, not only those the agent fails on (Pong's corruptions: an alarm "
                             "is wanted whether or not the return drops)")
-    bench.add_argument("--id-episodes", type=_whole(1), help="ID episodes per trial (default 10; monitor: 200)")
-    bench.add_argument("--calibration-episodes", type=_whole(1),
+    world.add_argument("--id-episodes", type=_whole(1), help="ID episodes per trial (default 10; monitor: 200)")
+    alarm.add_argument("--calibration-episodes", type=_whole(1),
                        help="ID episodes the threshold is calibrated on (default 45; monitor protocol: 90)")
-    bench.add_argument("--far", type=_fraction, default=0.05, help="the alarm's target false-alarm rate (default 0.05)")
-    _add_confidence(bench, default="0.9; monitor protocol: 0.99, so that the rate of 200 ID episodes shows the bound")
-    bench.add_argument("--workers", type=_whole(0), default=0,
+    alarm.add_argument("--far", type=_fraction, default=0.05, help="the alarm's target false-alarm rate (default 0.05)")
+    _add_confidence(alarm, default="0.9; monitor protocol: 0.99, so that the rate of 200 ID episodes shows the bound")
+    where.add_argument("--workers", type=_whole(0), default=0,
                        help="worker processes for the trainings, the trials' preparations and the cells; one trial "
                             "(--trials 1, one method) of an agent that draws nothing (an ensemble; SB3 models without "
                             "dropout) plays its fitting, calibration and evaluation episodes in them (default 0: one per "
                             "core)")
-    bench.add_argument("--score", default="chosen_std",
+    alarm.add_argument("--score", default="chosen_std",
                        help="chosen_std (the paper's, default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
-    bench.add_argument("--window", type=_whole(1),
+    alarm.add_argument("--window", type=_whole(1),
                        help="alarm rule on the mean score of the last N steps (default 1; Pong 200 for the spread and "
                             "features detectors); AUROCs do not change")
-    bench.add_argument("--detectors",
+    alarm.add_argument("--detectors",
                        help="comma-separated detectors whose per-step AUROC is reported: spread (the paper's protocol's "
                             "default), dynamics, features, frames, combined, scaled_spread (ensembles, MC agents with --masks "
                             "fixed), drift (the dynamics model's residuals' bias), transitions (discrete states), stillness "
@@ -86,35 +91,35 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                             "a picture frozen); the learned "
                             "ones are fitted per trial on ID episodes of their own (monitor protocol's default: spread "
                             "and the task's best)")
-    bench.add_argument("--fit-episodes", type=_whole(3), default=0,
+    alarm.add_argument("--fit-episodes", type=_whole(3), default=0,
                        help=f"ID episodes the learned detectors are fitted on, per trial (default {_FIT_EPISODES}, whole; "
                             f"your own --env: more, until they hold {_FIT_STEPS:,} steps)")
-    _add_dynamics_updates(bench, "fitted per trial")
-    bench.add_argument("--alarm-detector", choices=list(DETECTOR_NAMES),
+    _add_dynamics_updates(alarm, "fitted per trial")
+    alarm.add_argument("--alarm-detector", choices=list(DETECTOR_NAMES),
                        help="the detector the monitor's alarm reads, one of --detectors (default spread; monitor "
                             "protocol: the task's best)")
-    _add_rule(bench)
-    bench.add_argument("--consecutive", type=_whole(1),
+    _add_rule(alarm)
+    alarm.add_argument("--consecutive", type=_whole(1),
                        help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
-    bench.add_argument("--warmup", type=_whole(0), default=0,
+    alarm.add_argument("--warmup", type=_whole(0), default=0,
                        help="the alarm looks at no score of an episode's first N steps (but a NaN reading's; default 0)")
-    bench.add_argument("--obs-noise", type=_non_negative, default=0.0,
+    world.add_argument("--obs-noise", type=_non_negative, default=0.0,
                        help="sensor noise in every monitored env, a fraction of each dimension's ID spread (default 0)")
-    bench.add_argument("--executor", choices=["local", "ray"], default="local",
+    where.add_argument("--executor", choices=["local", "ray"], default="local",
                        help="local worker processes (default) or Ray tasks on one cluster (needs oodmon[ray])")
-    bench.add_argument("--address", help="the Ray cluster to use, HOST:PORT as `ray start --head` prints it (default: "
+    where.add_argument("--address", help="the Ray cluster to use, HOST:PORT as `ray start --head` prints it (default: "
                                           "RAY_ADDRESS if set, else a local cluster of the bench's own)")
-    bench.add_argument("--bind", default="127.0.0.1",
+    where.add_argument("--bind", default="127.0.0.1",
                        help="address a local Ray cluster listens on (default 127.0.0.1: this machine only)")
-    bench.add_argument("--out", default="runs/bench", help="models, logs and report (default runs/bench)")
-    bench.add_argument("--json", action="store_true", help="print JSON instead of tables")
-    bench.add_argument("--results", metavar="FILE",
+    out.add_argument("--out", default="runs/bench", help="models, logs and report (default runs/bench)")
+    out.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    out.add_argument("--results", metavar="FILE",
                        help="also write the result as JSON to FILE (per trial AUROC, AUPR, FPR@95TPR, the alarms, the "
                             "settings and this command): results as data, what --baseline reads")
-    bench.add_argument("--baseline", metavar="FILE",
+    out.add_argument("--baseline", metavar="FILE",
                        help="a result --results wrote earlier: exit 1, naming each figure, where this run falls below it "
                             "(a run of some of its methods is compared on their rows)")
-    bench.add_argument("--tolerance", type=_non_negative,
+    out.add_argument("--tolerance", type=_non_negative,
                        help="--baseline's allowed fall of AUROC, AUPR and rates, and relative rise of delays (default 0.02)")
     bench.set_defaults(handler=_bench, kept_on_interrupt=_KEPT["bench"])
 

@@ -25,44 +25,48 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
     calibrate = commands.add_parser(
         "calibrate", help="calibrate an agent's alarm threshold on held-out in-distribution episodes"
     )
-    _agent_arguments(calibrate, detectors="fitted detectors to calibrate with, from `oodmon fit-detectors` or an "
+    policy = calibrate.add_argument_group("the policy it watches")
+    detector = calibrate.add_argument_group("the detector the alarm reads")
+    promise = calibrate.add_argument_group("the threshold and its promise")
+    rule = calibrate.add_argument_group("the alarm rule")
+    _agent_arguments(policy, detectors="fitted detectors to calibrate with, from `oodmon fit-detectors` or an "
                      "earlier calibrate (its <--out>.detectors): none is fitted again (default: those shipped with the "
                      "agent, if any; a learned detector asked for that they lack is fitted first, into "
                      "<--out>.detectors)")
-    calibrate.add_argument("--episodes", type=_whole(1), default=50, help="ID calibration episodes (default 50)")
-    calibrate.add_argument("--far", type=_fraction, default=0.05, help="target false-alarm rate (default 0.05)")
-    _add_confidence(calibrate)
-    calibrate.add_argument("--consecutive", type=_whole(1),
+    promise.add_argument("--episodes", type=_whole(1), default=50, help="ID calibration episodes (default 50)")
+    promise.add_argument("--far", type=_fraction, default=0.05, help="target false-alarm rate (default 0.05)")
+    _add_confidence(promise)
+    rule.add_argument("--consecutive", type=_whole(1),
                            help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
-    calibrate.add_argument("--window", type=_whole(1),
+    rule.add_argument("--window", type=_whole(1),
                            help="compare the mean score of the last N steps (default 1: each step's; Pong 200 "
                                 "unless the frames detector)")
-    calibrate.add_argument("--warmup", type=_whole(0), default=0,
+    rule.add_argument("--warmup", type=_whole(0), default=0,
                            help="the alarm looks at no score of an episode's first N steps (but a NaN reading's): where "
                                 "the learned detectors' means cover few transitions since the reset (default 0)")
-    _add_rule(calibrate)
-    calibrate.add_argument("--reference-episodes", type=_whole(1), default=20,
+    _add_rule(rule)
+    rule.add_argument("--reference-episodes", type=_whole(1), default=20,
                            help="ID episodes a sequential rule's p-values are taken against (default 20; seeds apart)")
-    calibrate.add_argument("--reference-by-age", action="store_true",
+    rule.add_argument("--reference-by-age", action="store_true",
                            help="take a sequential rule's p-values against ID steps as long since reset, not all of them")
-    calibrate.add_argument("--mode", choices=["episode", "step"], default="episode",
+    promise.add_argument("--mode", choices=["episode", "step"], default="episode",
                            help="guarantee per episode (default) or per step")
-    calibrate.add_argument("--score", default="chosen_std",
+    detector.add_argument("--score", default="chosen_std",
                            help="the spread's score: chosen_std (default), mean_std, max_std, margin_std (DQN) or "
                                 "pre_squash_std (DDPG)")
-    calibrate.add_argument("--detector", choices=list(DETECTOR_NAMES),
+    detector.add_argument("--detector", choices=list(DETECTOR_NAMES),
                            help="the detector the alarm reads (default: the task's best measured one when the agent has "
                                 "fitted detectors: cartpole combined, pendulum dynamics, pong combined (of frames, "
                                 "stillness and vanishing); else spread); "
                                 "a learned one without fitted detectors is fitted first, into <out>.detectors/")
-    calibrate.add_argument("--fit-episodes", type=_whole(3),
+    detector.add_argument("--fit-episodes", type=_whole(3),
                            help=f"ID episodes the learned detectors are fitted on when calibrate fits them (default "
                                 f"{_FIT_EPISODES}; your own --env: more, until they hold {_FIT_STEPS:,} steps)")
-    _add_dynamics_updates(calibrate, "when calibrate fits the detectors")
-    calibrate.add_argument("--seed", type=_SEED, default=CALIBRATION,
+    _add_dynamics_updates(detector, "when calibrate fits the detectors")
+    promise.add_argument("--seed", type=_SEED, default=CALIBRATION,
                            help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
-    _add_workers(calibrate, "the calibration episodes (and those of a fit of detectors before it)")
-    calibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
+    _add_workers(promise, "the calibration episodes (and those of a fit of detectors before it)")
+    promise.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
 
 
