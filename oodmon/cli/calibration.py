@@ -188,7 +188,7 @@ def _add_validate(commands: argparse._SubParsersAction) -> None:
         "validate", help="run fresh ID episodes and print a threshold's realised false-alarm rate beside its target"
     )
     validate.add_argument("threshold", help="the threshold file (`oodmon calibrate`)")
-    _agent_arguments(validate, defaults_from="the threshold's")
+    _agent_arguments(validate.add_argument_group("the policy it watches"), defaults_from="the threshold's")
     validate.add_argument("--episodes", type=_whole(1), default=200, help="fresh ID episodes (default 200)")
     validate.add_argument("--seed", type=_SEED, default=VALIDATION,
                           help=f"seed of the first episode and of MC sampling (default {VALIDATION}, apart from "
@@ -259,7 +259,7 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
         "fit-detectors", help="fit the learned detectors (dynamics or transitions, features, combined) on an agent's "
                               "ID episodes"
     )
-    _agent_arguments(fit, detectors=None)
+    _agent_arguments(fit.add_argument_group("the policy it watches"), detectors=None)
     fit.add_argument("--only", type=_detector_names,
                      help="comma-separated detectors (default: all the agent can have but scaled_spread, fitted only "
                           "when named, and drift, named or in your own env; transitions instead of dynamics and drift "
