@@ -32,23 +32,23 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     _sb3_arguments(what)
     _policy_argument(what)
     what.add_argument("--trials", type=_whole(1),
-                       help="trials per method (default 5; trial 0 is the zoo agent; --sb3: 1, nothing is trained)")
+                      help="trials per method (default 5; trial 0 is the zoo agent; --sb3: 1, nothing is trained)")
     what.add_argument("--samples", type=_whole(2), metavar="K",
-                       help="MC samples per decision of the Dropout and DropConnect agents (default: each recipe's, "
-                            "20); the decisions are their mean, so episodes change too, and a decision costs more "
-                            "(CartPole DropConnect: 0.3 ms at K=20, 9 ms at K=400)")
+                      help="MC samples per decision of the Dropout and DropConnect agents (default: each recipe's, "
+                           "20); the decisions are their mean, so episodes change too, and a decision costs more "
+                           "(CartPole DropConnect: 0.3 ms at K=20, 9 ms at K=400)")
     what.add_argument("--masks", choices=MASKS,
-                       help="MC masks of the Dropout and DropConnect agents, and of one --sb3 model with dropout "
-                            "(default: each model's, sampled): fixed draws K masks once, so that sample k is the same "
-                            "sub-network at every decision (the decisions stay the mean of freshly sampled masks); "
-                            "fixed-decisions: the same K fixed sub-networks decide too, by their mean (one pass)")
+                      help="MC masks of the Dropout and DropConnect agents, and of one --sb3 model with dropout "
+                           "(default: each model's, sampled): fixed draws K masks once, so that sample k is the same "
+                           "sub-network at every decision (the decisions stay the mean of freshly sampled masks); "
+                           "fixed-decisions: the same K fixed sub-networks decide too, by their mean (one pass)")
     what.add_argument("--members", type=_whole(2), metavar="K",
-                       help="members of each ensemble trial (default: the recipe's, 5); another size trains every "
-                            "trial, trial 0 too (member k has the same seed at any size: members trained before are "
-                            "kept), and a decision costs K members' forward passes")
+                      help="members of each ensemble trial (default: the recipe's, 5); another size trains every "
+                           "trial, trial 0 too (member k has the same seed at any size: members trained before are "
+                           "kept), and a decision costs K members' forward passes")
     what.add_argument("--net-arch", type=_widths, metavar="W,W",
-                       help="hidden widths of every trial's network, e.g. 64,64 (default: each recipe's, CartPole "
-                            "[256, 256], Pendulum [400, 300]); other widths train every trial, trial 0 too")
+                      help="hidden widths of every trial's network, e.g. 64,64 (default: each recipe's, CartPole "
+                           "[256, 256], Pendulum [400, 300]); other widths train every trial, trial 0 too")
     world.add_argument("--variants", default="paper",
                        help="'paper' (the paper's grid) or comma-separated specs (cartpole:gravity=20.0,length=2.0 "
                             "is one); your own --env: its shifts, e.g. Acrobot-v1:LINK_MASS_2=2.0,Acrobot-v1:LINK_MASS_2=3.0; "
@@ -114,13 +114,13 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     out.add_argument("--out", default="runs/bench", help="models, logs and report (default runs/bench)")
     out.add_argument("--json", action="store_true", help="print JSON instead of tables")
     out.add_argument("--results", metavar="FILE",
-                       help="also write the result as JSON to FILE (per trial AUROC, AUPR, FPR@95TPR, the alarms, the "
-                            "settings and this command): results as data, what --baseline reads")
+                     help="also write the result as JSON to FILE (per trial AUROC, AUPR, FPR@95TPR, the alarms, the "
+                          "settings and this command): results as data, what --baseline reads")
     out.add_argument("--baseline", metavar="FILE",
-                       help="a result --results wrote earlier: exit 1, naming each figure, where this run falls below it "
-                            "(a run of some of its methods is compared on their rows)")
+                     help="a result --results wrote earlier: exit 1, naming each figure, where this run falls below it "
+                          "(a run of some of its methods is compared on their rows)")
     out.add_argument("--tolerance", type=_non_negative,
-                       help="--baseline's allowed fall of AUROC, AUPR and rates, and relative rise of delays (default 0.02)")
+                     help="--baseline's allowed fall of AUROC, AUPR and rates, and relative rise of delays (default 0.02)")
     bench.set_defaults(handler=_bench, kept_on_interrupt=_KEPT["bench"])
 
 

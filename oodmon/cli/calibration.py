@@ -37,34 +37,34 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
     promise.add_argument("--far", type=_fraction, default=0.05, help="target false-alarm rate (default 0.05)")
     _add_confidence(promise)
     rule.add_argument("--consecutive", type=_whole(1),
-                           help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
+                      help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
     rule.add_argument("--window", type=_whole(1),
-                           help="compare the mean score of the last N steps (default 1: each step's; Pong 200 "
-                                "unless the frames detector)")
+                      help="compare the mean score of the last N steps (default 1: each step's; Pong 200 "
+                           "unless the frames detector)")
     rule.add_argument("--warmup", type=_whole(0), default=0,
-                           help="the alarm looks at no score of an episode's first N steps (but a NaN reading's): where "
-                                "the learned detectors' means cover few transitions since the reset (default 0)")
+                      help="the alarm looks at no score of an episode's first N steps (but a NaN reading's): where "
+                           "the learned detectors' means cover few transitions since the reset (default 0)")
     _add_rule(rule)
     rule.add_argument("--reference-episodes", type=_whole(1), default=20,
-                           help="ID episodes a sequential rule's p-values are taken against (default 20; seeds apart)")
+                      help="ID episodes a sequential rule's p-values are taken against (default 20; seeds apart)")
     rule.add_argument("--reference-by-age", action="store_true",
-                           help="take a sequential rule's p-values against ID steps as long since reset, not all of them")
+                      help="take a sequential rule's p-values against ID steps as long since reset, not all of them")
     promise.add_argument("--mode", choices=["episode", "step"], default="episode",
-                           help="guarantee per episode (default) or per step")
+                         help="guarantee per episode (default) or per step")
     detector.add_argument("--score", default="chosen_std",
-                           help="the spread's score: chosen_std (default), mean_std, max_std, margin_std (DQN) or "
-                                "pre_squash_std (DDPG)")
+                          help="the spread's score: chosen_std (default), mean_std, max_std, margin_std (DQN) or "
+                               "pre_squash_std (DDPG)")
     detector.add_argument("--detector", choices=list(DETECTOR_NAMES),
-                           help="the detector the alarm reads (default: the task's best measured one when the agent has "
-                                "fitted detectors: cartpole combined, pendulum dynamics, pong combined (of frames, "
-                                "stillness and vanishing); else spread); "
-                                "a learned one without fitted detectors is fitted first, into <out>.detectors/")
+                          help="the detector the alarm reads (default: the task's best measured one when the agent has "
+                               "fitted detectors: cartpole combined, pendulum dynamics, pong combined (of frames, "
+                               "stillness and vanishing); else spread); "
+                               "a learned one without fitted detectors is fitted first, into <out>.detectors/")
     detector.add_argument("--fit-episodes", type=_whole(3),
-                           help=f"ID episodes the learned detectors are fitted on when calibrate fits them (default "
-                                f"{_FIT_EPISODES}; your own --env: more, until they hold {_FIT_STEPS:,} steps)")
+                          help=f"ID episodes the learned detectors are fitted on when calibrate fits them (default "
+                               f"{_FIT_EPISODES}; your own --env: more, until they hold {_FIT_STEPS:,} steps)")
     _add_dynamics_updates(detector, "when calibrate fits the detectors")
     promise.add_argument("--seed", type=_SEED, default=CALIBRATION,
-                           help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
+                         help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
     _add_workers(promise, "the calibration episodes (and those of a fit of detectors before it)")
     promise.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])

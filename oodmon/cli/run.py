@@ -27,43 +27,43 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
     logs = run.add_argument_group("the logs")
     viewer = run.add_argument_group("live, in a Rerun viewer")
     world.add_argument("--variant", help="a variant spec (default: the task's ID env), e.g. cartpole:length=2.0; "
-                                       "your own --env: ENV_ID:NAME=VALUE[,...], numeric attributes of its env "
-                                       "set to other values from --onset on, e.g. Acrobot-v1:LINK_MASS_2=3.0, "
-                                       "or sensor faults, e.g. 'Acrobot-v1:obs.bias[4]=0.5' (obs.bias, obs.scale, "
-                                       "obs.noise, obs.stuck; of discrete values: a misread's probability "
-                                       "'Taxi-v4:obs.noise=0.1'; of a dict, by key: 'ENV_ID:obs.KEY.stuck=1')")
+                                         "your own --env: ENV_ID:NAME=VALUE[,...], numeric attributes of its env "
+                                         "set to other values from --onset on, e.g. Acrobot-v1:LINK_MASS_2=3.0, "
+                                         "or sensor faults, e.g. 'Acrobot-v1:obs.bias[4]=0.5' (obs.bias, obs.scale, "
+                                         "obs.noise, obs.stuck; of discrete values: a misread's probability "
+                                         "'Taxi-v4:obs.noise=0.1'; of a dict, by key: 'ENV_ID:obs.KEY.stuck=1')")
     world.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (default 0)")
     world.add_argument("--episodes", type=_whole(1), default=5, help="episodes (default 5)")
     world.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode and of an MC agent's samples "
-                                                           "(default 0): the same command plays the same episodes")
+                                                             "(default 0): the same command plays the same episodes")
     alarm.add_argument("--threshold", help="a threshold file from `oodmon calibrate` (default: no alarms)")
     logs.add_argument("--mcap", help="write the run to this MCAP file; {start} in it is the run's start time "
-                                    "(YYYYmmdd-HHMMSS): a log per start, e.g. runs/deployed/log-{start}.mcap")
+                                     "(YYYYmmdd-HHMMSS): a log per start, e.g. runs/deployed/log-{start}.mcap")
     logs.add_argument("--mcap-split-episodes", type=_whole(1), metavar="N",
-                     help="split the MCAP log into files of N whole episodes: <name>-00000.mcap, <name>-00001.mcap, ... "
-                          "(a long run; `oodmon replay` reads them from their folder)")
+                      help="split the MCAP log into files of N whole episodes: <name>-00000.mcap, <name>-00001.mcap, ... "
+                           "(a long run; `oodmon replay` reads them from their folder)")
     logs.add_argument("--mcap-split-mb", type=_positive, metavar="MB",
-                     help="start the next MCAP file after the episode that takes one to MB megabytes (as above)")
+                      help="start the next MCAP file after the episode that takes one to MB megabytes (as above)")
     logs.add_argument("--rrd", help="write the run to this Rerun file ({start}: as in --mcap)")
     logs.add_argument("--overwrite", action="store_true",
-                     help="replace the logs of an earlier run at --mcap (all its parts, if split) and --rrd; "
-                          "without it an existing log is refused, so that a run started again after a crash "
-                          "cannot replace the log of the run that crashed (a command that a service manager "
-                          "starts again: put {start} in the names)")
+                      help="replace the logs of an earlier run at --mcap (all its parts, if split) and --rrd; "
+                           "without it an existing log is refused, so that a run started again after a crash "
+                           "cannot replace the log of the run that crashed (a command that a service manager "
+                           "starts again: put {start} in the names)")
     live = viewer.add_mutually_exclusive_group()
     live.add_argument("--spawn", action="store_true", help="stream to a Rerun viewer started for it")
     live.add_argument("--serve", action="store_true", help="serve the stream for a remote Rerun viewer")
     live.add_argument("--connect", metavar="URL", help="stream to a running Rerun viewer at URL")
     viewer.add_argument("--bind", default="127.0.0.1",
-                     help="address --serve, or --spawn's viewer, listens on (default 127.0.0.1: this machine only; "
-                          "0.0.0.0 opens it)")
+                        help="address --serve, or --spawn's viewer, listens on (default 127.0.0.1: this machine only; "
+                             "0.0.0.0 opens it)")
     viewer.add_argument("--port", type=_whole(1, 65535), default=9876,
-                     help="port --serve, or --spawn's viewer, listens on (default 9876)")
+                        help="port --serve, or --spawn's viewer, listens on (default 9876)")
     alarm.add_argument("--force", action="store_true",
-                     help="use a threshold calibrated for another task, method, score or weights (with a warning)")
+                       help="use a threshold calibrated for another task, method, score or weights (with a warning)")
     logs.add_argument("--strict", action="store_true", help="a failing sink stops the run instead of warning")
     logs.add_argument("--render", action="store_true",
-                     help="log a picture of each CartPole or Pendulum state beside the scores (Rerun, Foxglove)")
+                      help="log a picture of each CartPole or Pendulum state beside the scores (Rerun, Foxglove)")
     run.set_defaults(handler=_run, kept_on_interrupt=_KEPT["run"])
 
 
