@@ -21,7 +21,9 @@ from oodmon.names import MASKS, METHODS, PLAIN_METHOD, TASKS
 
 def _add_bench(commands: argparse._SubParsersAction) -> None:
     """`oodmon bench`."""
-    bench = commands.add_parser("bench", help="the paper's protocol: trials x methods x failing variants, scored by replay")
+    bench = commands.add_parser("bench", help="the paper's protocol (trials x methods x failing variants, scored by "
+                                              "replay) or the monitor's own (--protocol monitor: false alarms, alarms "
+                                              "before failure, delays)")
     what = bench.add_argument_group("what is benched")
     world = bench.add_argument_group("the shifts and episodes")
     alarm = bench.add_argument_group("the detectors and the alarm")
