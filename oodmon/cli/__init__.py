@@ -140,6 +140,9 @@ def _parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="oodmon",
         description="Tells when a deployed RL policy has left the world it was trained in.",
+        epilog="Start with `oodmon demo`; `oodmon COMMAND --help` says what each command takes. The repository's "
+               "README has a quick start, and its docs/ folder a page per part (the monitor, your own policy, the "
+               "detectors, replay, the benchmarks).",
     )
     from oodmon import __version__
 
