@@ -102,7 +102,7 @@ def test_every_progress_callback_of_the_library_has_the_one_shape():
         assert not found, f"{path.relative_to(root)} still has {found}"
 
 
-def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
+def test_the_docs_five_trial_tables_are_what_the_committed_results_give():
     """Tables made from results/bench/*.json by scripts/bench_table.py, never typed by hand: each
     file's table once, in docs/bench.md (the shipped agents' main files) or in results/bench/README.md."""
     root, script = load_script("bench_table")
@@ -120,7 +120,7 @@ def test_the_readmes_five_trial_tables_are_what_the_committed_results_give():
             m: data["config"]["trials"] for m in data["config"]["methods"]}, f"{path.name} lacks trials' ID returns"
 
 
-def test_the_readmes_goals_at_a_glance_are_what_the_committed_results_give():
+def test_the_docs_goals_at_a_glance_are_what_the_committed_results_give():
     root, script = load_script("bench_table")
     readme = (root / "docs" / "bench.md").read_text()
     begin, end = "<!-- bench_goals -->\n", "\n<!-- end bench_goals -->"

@@ -36,7 +36,7 @@ def _own_env_block() -> tuple[str, list[list[str]]]:
     return python, [shlex.split(line)[1:] for line in commands.splitlines() if line.startswith("oodmon ")]
 
 
-def test_the_readmes_own_env_shift_runs_as_written_and_replay_shows_what_it_says(tmp_path, capsys):
+def test_the_docs_own_env_shift_runs_as_written_and_replay_shows_what_it_says(tmp_path, capsys):
     python, commands = _own_env_block()
     assert [argv[0] for argv in commands] == ["calibrate", "run", "run", "replay"]
     (tmp_path / "runs").mkdir()

@@ -36,7 +36,7 @@ def _readme_block() -> tuple[str, list[list[str]]]:
     return module, [shlex.split(line)[1:] for line in commands.splitlines() if line.startswith("oodmon ")]
 
 
-def test_the_readmes_controller_is_calibrated_run_and_replayed_as_written_then_watched_in_python(
+def test_the_docs_controller_is_calibrated_run_and_replayed_as_written_then_watched_in_python(
         tmp_path, monkeypatch, capsys):
     module, commands = _readme_block()
     assert [argv[0] for argv in commands] == ["calibrate", "run", "replay"]

@@ -282,7 +282,7 @@ def test_without_sb3_contrib_its_models_are_refused_naming_what_to_install(tmp_p
         load_sb3([tmp_path / "tqc.zip"], "Pendulum-v1")
 
 
-def test_the_readmes_contrib_example_trains_each_model_once_and_refuses_an_unknown_case(tmp_path, monkeypatch, capsys):
+def test_the_docs_contrib_example_trains_each_model_once_and_refuses_an_unknown_case(tmp_path, monkeypatch, capsys):
     """scripts/sb3_contrib_example.py: an unknown case is refused naming the cases; a model already in
     --out is kept (what the page's figures came from is not trained over)."""
     _, example = load_script("sb3_contrib_example")

@@ -65,7 +65,7 @@ def readme_run(one_torch_thread, tmp_path_factory):
     return folder, commands, outputs
 
 
-def test_the_readme_section_runs_as_written_and_replay_shows_the_detection(readme_run, capsys):
+def test_the_docs_section_runs_as_written_and_replay_shows_the_detection(readme_run, capsys):
     folder, commands, outputs = readme_run
     assert [argv[0] for argv in commands] == ["calibrate", "validate", "run", "replay"]
     assert all(code == 0 for _, code in outputs), outputs
@@ -78,7 +78,7 @@ def test_the_readme_section_runs_as_written_and_replay_shows_the_detection(readm
     assert rows[("cartpole:length=2.0", "combined")]["detection_rate"] >= 0.8  # 5 of 5 when written
 
 
-def test_the_readmes_deployed_process_reads_the_calibration_and_logs_split(readme_run, monkeypatch, capsys):
+def test_the_docs_deployed_process_reads_the_calibration_and_logs_split(readme_run, monkeypatch, capsys):
     """The page's deployed-process block, run as written after the section's commands: no
     episode of calibration, one monitored episode, a split log that replays."""
     import oodmon.monitor.calibration as calibration
@@ -935,7 +935,7 @@ def test_a_users_dqn_policy_with_dropout_loads_from_its_file_with_fixed_masks(tm
         assert deciding.act(o) == int(model.predict(o, deterministic=True)[0])
 
 
-def test_the_readmes_dropout_policy_example_runs_and_reads_fixed_sub_networks(tmp_path, monkeypatch, capsys):
+def test_the_docs_dropout_policy_example_runs_and_reads_fixed_sub_networks(tmp_path, monkeypatch, capsys):
     # The page's policy class of one's own, its snippet and commands as written, but for a shorter
     # training (600 steps instead of 8,000: what is tested is that the file loads and is read as fixed
     # sub-networks, not the example's numbers).

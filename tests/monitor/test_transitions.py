@@ -241,7 +241,7 @@ def _taxi_block() -> list[list[str]]:
     return [shlex.split(line)[1:] for line in block.splitlines() if line.startswith("oodmon ")]
 
 
-def test_the_readmes_taxi_runs_as_written_and_every_taxi_that_slipped_or_misread_alarmed(
+def test_the_docs_taxi_runs_as_written_and_every_taxi_that_slipped_or_misread_alarmed(
         tmp_path, monkeypatch, capsys):
     commands = _taxi_block()
     assert [argv[0] for argv in commands] == ["calibrate", "run", "run", "run", "replay"]
