@@ -7,9 +7,15 @@ import io
 import subprocess
 import sys
 import warnings
+from pathlib import Path
 
 import gymnasium
 import numpy as np
+
+#: The README and the pages of docs/: what a reader reads, what tests/test_docs.py and the
+#: shell-block test of tests/test_cli.py read.
+DOC_PAGES = [Path(__file__).resolve().parents[1] / "README.md",
+             *sorted((Path(__file__).resolve().parents[1] / "docs").glob("*.md"))]
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:

@@ -943,12 +943,11 @@ def test_every_oodmon_command_in_the_readmes_shell_blocks_parses():
     (the blocks that the suite runs as written are run by their own tests)."""
     import shlex
     import textwrap
-    from pathlib import Path
 
     from oodmon.cli import _parser
+    from tests.helpers import DOC_PAGES
 
-    root = Path(__file__).resolve().parents[1]
-    text = "\n".join(path.read_text() for path in [root / "README.md", *sorted((root / "docs").glob("*.md"))])
+    text = "\n".join(path.read_text() for path in DOC_PAGES)
     commands = [shlex.split(line, comments=True)[1:]
                 for indent, block in re.findall(r"^( *)```sh\n(.*?)^\1```", text, re.DOTALL | re.MULTILINE)
                 for line in textwrap.dedent(block).replace("\\\n", " ").splitlines() if line.startswith("oodmon ")]

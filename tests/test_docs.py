@@ -10,8 +10,10 @@ import importlib
 import re
 from pathlib import Path
 
+from tests.helpers import DOC_PAGES
+
 ROOT = Path(__file__).resolve().parents[1]
-PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+PAGES = DOC_PAGES
 
 
 def anchors(path: Path) -> set[str]:

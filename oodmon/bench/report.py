@@ -173,14 +173,13 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
     ranked = "spread" if "spread" in config.detectors else config.detectors[0]
     bests = best_per_method(result, config.task, detector=ranked)
     if bests:
-        best = Table(title=f"{config.task}: best single-trial AUROC per method (the paper's main tables)"
-                     if ranked == "spread" else f"{config.task}: best single-trial AUROC per method, {ranked} detector "
-                     "(the paper's main tables rank the spread)")
+        which = " (the paper's main tables)" if ranked == "spread" else \
+            f", {ranked} detector (the paper's main tables rank the spread)"
+        best = Table(title=f"{config.task}: best single-trial AUROC per method{which}")
         _add_columns(best, ("method", "variant", "ours", *(("paper", "difference") if with_paper else ())))
         for method, variant, ours, paper in bests:
-            best.add_row(method, _without_task(variant, config.task), f"{ours:.3f}",
-                         *(("" if paper is None else f"{paper:.3f}", "" if paper is None else f"{ours - paper:+.3f}")
-                           if with_paper else ()))
+            beside = ("", "") if paper is None else (f"{paper:.3f}", f"{ours - paper:+.3f}")
+            best.add_row(method, _without_task(variant, config.task), f"{ours:.3f}", *(beside if with_paper else ()))
         console.print(best)
     if several:
         summary = Table(title=f"{config.task}: per-step AUROC per detector over the failing variants (mean over "
