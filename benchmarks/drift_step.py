@@ -120,7 +120,8 @@ def main() -> None:
         both_unshared["drift"].model = copy.deepcopy(dynamics)  # after the set linked it: a pass of its own
         us, _, unshared[task] = paired_us(set_calls(both_unshared, episodes[6]), set_calls(alone, episodes[6]), repeats)
         print(f"{task}: the same, drift on a copy of the model {us:.1f} us per step")
-    for name, figures in (("ratio", ratios), ("ratio_in_set", in_set), ("ratio_in_set_unshared", unshared)):
+    # ratio= last, as every script's last line
+    for name, figures in (("ratio_in_set", in_set), ("ratio_in_set_unshared", unshared), ("ratio", ratios)):
         for task, ratio in figures.items():
             print(f"{name}_{task}={ratio:.2f}")
         print(f"{name}={max(figures.values()):.2f}")
