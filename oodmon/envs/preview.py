@@ -96,6 +96,9 @@ def pong_preview(variant: Variant, *, seed: int = 0, steps: int = 60) -> np.ndar
         clean_env.close()
         shifted_env.close()
     name = variant.spec
+    if variant.corruption == "frozen_region":  # one frame cannot show a freeze: show where it is
+        raw[1] = outline_region(raw[1], **dict(variant.params))
+        name = "pong:frozen_region, outlined"  # its parameters would not fit the label
     top = [_labelled(_scale(f, 2), title) for f, title in zip(raw, ["clean camera", name])]
     width = top[0].shape[1]
     bottom = [
@@ -103,6 +106,20 @@ def pong_preview(variant: Variant, *, seed: int = 0, steps: int = 60) -> np.ndar
         for obs, title in zip([clean_obs, shifted_obs], ["agent's view, clean", "agent's view, corrupted"])
     ]
     return np.vstack([np.hstack(top), np.hstack(bottom)])
+
+
+#: The colour :func:`outline_region` draws (RGB): a yellow that Pong's frames do not hold.
+OUTLINE = (255, 230, 0)
+
+
+def outline_region(frame: np.ndarray, *, top: float, left: float, height: float, width: float) -> np.ndarray:
+    """A copy of an RGB frame with the rectangle of rows ``top`` .. ``top + height - 1`` and columns
+    ``left`` .. ``left + width - 1`` outlined one pixel wide in :data:`OUTLINE`, on its border rows and
+    columns: where ``pong:frozen_region`` holds the picture, which a single frame cannot show."""
+    out = frame.copy()
+    top, left, bottom, right = int(top), int(left), int(top + height) - 1, int(left + width) - 1
+    cv2.rectangle(out, (left, top), (right, bottom), OUTLINE, 1)
+    return out
 
 
 def _scale(image: np.ndarray, factor: float) -> np.ndarray:
@@ -174,6 +191,16 @@ def _angle(task: str, observations: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(observations[:, 1], observations[:, 0]))
 
 
+def angle_trace(task: str, observations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Steps and the pole's angle in degrees from upright, to plot: where a swinging pendulum's angle
+    wraps from +180 to -180 a NaN sits between the two steps, so that the line breaks there instead
+    of drawing a vertical stroke across the plot (every step's angle is kept)."""
+    degrees = _angle(task, observations)
+    steps = np.arange(len(degrees), dtype=float)
+    wraps = np.flatnonzero(np.abs(np.diff(degrees)) > 180.0) + 1
+    return np.insert(steps, wraps, np.nan), np.insert(degrees, wraps, np.nan)
+
+
 def save_physics_plot(comparison: PhysicsComparison, path: str | Path) -> Path:
     """Plot the pole's angle over the first episode, ID beside the variant, as a PNG."""
     import matplotlib
@@ -187,7 +214,8 @@ def save_physics_plot(comparison: PhysicsComparison, path: str | Path) -> Path:
         (comparison.id_rollouts, f"{task} (ID)", "tab:blue"),
         (comparison.shifted_rollouts, comparison.variant.spec, "tab:red"),
     ):
-        ax.plot(_angle(task, runs[0].observations), color=colour, label=f"{label}: return {runs[0].total_return:.0f}")
+        ax.plot(*angle_trace(task, runs[0].observations), color=colour,
+                label=f"{label}: return {runs[0].total_return:.0f}")
     if comparison.onset_step:
         ax.axvline(comparison.onset_step, color="grey", linestyle="--", label="onset")
     if task == "cartpole":

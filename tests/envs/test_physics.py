@@ -235,3 +235,25 @@ def test_reset_option_sets_the_onset_of_that_episode_only():
     assert np.abs(obs).max() <= 0.01
     with pytest.raises(InvalidParameterError, match="onset_step=-1"):
         env.reset(options={"onset_step": -1})
+
+
+def test_the_preview_breaks_a_spinning_pendulums_angle_where_it_wraps_and_keeps_every_step():
+    """`oodmon envs show pendulum:m=3.0` drew a vertical stroke across its plot at every turn of the
+    heavy pendulum (+170 to -170 degrees in one step); the trace now breaks there."""
+    from oodmon.envs.preview import angle_trace
+
+    env = gymnasium.make("oodmon/Pendulum-v1", m=3.0, onset_step=10)
+    run = rollout(env, pendulum_controller, seed=0)
+    angles = np.degrees(np.arctan2(run.observations[:, 1], run.observations[:, 0]))
+    wraps = int(np.sum(np.abs(np.diff(angles)) > 180.0))
+    assert wraps >= 2  # the heavy pendulum turns over and over (5 times in this episode)
+    steps, degrees = angle_trace("pendulum", run.observations)
+    assert np.isnan(degrees).sum() == np.isnan(steps).sum() == wraps
+    np.testing.assert_array_equal(degrees[~np.isnan(degrees)], angles)  # every step's angle, in order
+    np.testing.assert_array_equal(steps[~np.isnan(steps)], np.arange(len(angles)))
+    pieces = np.split(degrees, np.flatnonzero(np.isnan(degrees)))  # each piece a line without a stroke
+    assert all(np.all(np.abs(np.diff(piece[~np.isnan(piece)])) <= 180.0) for piece in pieces)
+    cartpole = rollout(gymnasium.make("oodmon/CartPole-v1"), cartpole_controller, seed=0).observations
+    steps, degrees = angle_trace("cartpole", cartpole)  # a balanced pole never wraps
+    assert not np.isnan(degrees).any()
+    np.testing.assert_allclose(degrees, np.degrees(cartpole[:, 2]))

@@ -188,3 +188,24 @@ def test_a_frozen_region_variant_holds_that_part_of_the_camera_from_the_onset_an
         held_by_episode.append(held)
     env.close()
     assert not np.array_equal(*held_by_episode)  # another episode, another frame held
+
+
+def test_the_preview_of_a_frozen_region_outlines_where_it_is_and_leaves_the_frames_as_they_are():
+    """One frame cannot show a freeze: `oodmon envs show 'pong:frozen_region:...'` showed two
+    identical pictures. The corrupted camera's picture now outlines the region, one pixel wide."""
+    from oodmon.envs.preview import OUTLINE, outline_region, pong_preview
+
+    frame = np.zeros((210, 160, 3), np.uint8)
+    outlined = outline_region(frame, top=80, left=50, height=70, width=60)
+    drawn = np.all(outlined == OUTLINE, axis=-1)
+    rows, columns = np.nonzero(drawn)
+    assert (rows.min(), rows.max(), columns.min(), columns.max()) == (80, 149, 50, 109)  # its border rows and columns
+    assert not drawn[81:149, 51:109].any() and drawn.sum() == 2 * 70 + 2 * 60 - 4  # the border only
+    assert not frame.any()  # a copy
+    picture = pong_preview(parse_variant("pong:frozen_region:top=80,left=50,height=70,width=60"), steps=5)
+    raw_rows = slice(22, 22 + 420)  # the top row's frames, 2x, under their labels
+    clean, corrupted = picture[raw_rows, :320], picture[raw_rows, 320:]
+    assert not np.all(clean == OUTLINE, axis=-1).any()
+    np.testing.assert_array_equal(np.nonzero(np.all(corrupted == OUTLINE, axis=-1))[0].min(), 160)  # row 80, 2x
+    other = pong_preview(parse_variant("pong:pixelate@3"), steps=5)[raw_rows, 320:]
+    assert not np.all(other == OUTLINE, axis=-1).any()  # only a frozen region is outlined
