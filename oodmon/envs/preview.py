@@ -16,8 +16,8 @@ from oodmon.envs.grid import Variant
 from oodmon.envs.reference import REFERENCE_CONTROLLERS, Rollout, rollout
 from oodmon.outputs import save_figure, write_whole
 
-__all__ = ["PhysicsComparison", "compare_physics", "draw_state", "pong_preview", "save_physics_plot", "save_probe_plot",
-           "save_rgb"]
+__all__ = ["PhysicsComparison", "angle_trace", "compare_physics", "draw_state", "outline_region", "pong_preview",
+           "save_physics_plot", "save_probe_plot", "save_rgb"]
 
 _LABEL_HEIGHT = 22
 
