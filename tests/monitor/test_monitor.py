@@ -592,6 +592,38 @@ def test_a_twin_monitors_another_env_of_a_vector_env_as_a_monitor_of_its_own_wou
     assert _scores(shared[0].sinks.sinks[0])["dynamics"][:30] != alone[0]["dynamics"][:30]
 
 
+def test_gymnasiums_own_vector_env_of_twins_scores_each_env_as_a_monitor_of_its_own_would(agent):
+    """The twins of docs/your-policy.md's "Inside SB3" in gymnasium's SyncVectorEnv (its autoreset
+    resets an ended env at the next step): each env's first episode scored as if monitored alone,
+    and each log holds whole episodes of its own env, the next begun after the autoreset."""
+    from oodmon.monitor.detectors import detectors_for
+
+    detectors = detectors_for(agent, None)
+    alone = []
+    for seed in (0, 1):
+        sink = MemorySink()
+        with Monitor(agent, 4.0, detectors=detectors, detector="combined", sinks=[sink]) as monitor:
+            monitor.run_episode(Variant("cartpole", {"length": 2.0}).make(onset_step=20), seed=seed)
+        alone.append((_scores(sink), sink.episodes[0].length))
+    sinks = [MemorySink(), MemorySink()]
+    first = Monitor(agent, 4.0, detectors=detectors, detector="combined", sinks=[sinks[0]])
+    monitors = [first, first.twin(sinks=[sinks[1]])]
+    envs = gymnasium.vector.SyncVectorEnv(
+        [lambda m=m: MonitoredEnv(Variant("cartpole", {"length": 2.0}).make(onset_step=20), m) for m in monitors])
+    obs, _ = envs.reset(seed=0)  # env i: seed i
+    ended = np.zeros(2, int)
+    while (ended < 2).any():  # until each env has ended two episodes
+        obs, _, terminated, truncated, _ = envs.step(np.array([agent.act(o) for o in obs]))
+        ended += terminated | truncated
+    envs.close()
+    for monitor in monitors:
+        monitor.close()
+    for sink, (expected, length) in zip(sinks, alone):
+        assert {name: values[:len(expected[name])] for name, values in _scores(sink).items()} == expected
+        assert sink.episodes[0].length == length and len(sink.episodes) >= 2  # the second after the autoreset
+        assert all(episode.length > 1 for episode in sink.episodes[:2])
+
+
 def test_a_threshold_with_a_warmup_alarms_on_no_finite_score_of_the_first_steps_but_on_a_nan(agent):
     """The threshold file's warm-up reaches the monitor: a threshold every score exceeds alarms first
     at the warm-up's end; a failed sensor in the warm-up alarms at once."""
