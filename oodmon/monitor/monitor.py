@@ -446,6 +446,38 @@ class Monitor:
         self._in_episode = False
         return True
 
+    def _decide(self, obs: Any, estimate) -> tuple[Any, Exception | None]:
+        """The monitored policy's action at ``obs``, and the error it raised where it could not act on
+        a reading that is not finite (the action before it then stands, so that the step is logged)."""
+        if self._act is not None:  # a plain policy, or an agent whose samples do not decide
+            try:
+                return self._act(obs), None
+            except Exception as error:
+                if _finite(obs) or self._deployed is None:  # a bug of the policy's, or nothing to log the step with
+                    raise
+                # A policy that cannot act on a NaN or infinite reading (SB3's raise): the step is
+                # scored (+inf: an alarm) and logged with the action before it; then the caller hears.
+                return self._deployed, error
+        if estimate is not None:
+            raw = estimate.action[0]
+            return (int(raw) if self.estimator.kind == "q_values" else np.asarray(raw)), None
+        raise ConfigError("this monitor has no policy to act: pass the deployed action, step(obs, action=a)")
+
+    def _logged(self, obs: Any, frame: np.ndarray | None) -> tuple[list[float] | None, np.ndarray | None]:
+        """What the step message keeps of the observation: its readings (a vector, or stacked vectors
+        flattened; not a picture) and its frame (a camera's, or with ``render`` a drawing of a
+        CartPole or Pendulum state); neither without ``log_observations``."""
+        if not self.log_observations:
+            return None, None
+        observation = None
+        if np.ndim(obs) == 1:
+            observation = [float(x) for x in obs]
+        elif frame is None and np.ndim(obs) > 1 and not is_picture(np.shape(obs), np.asarray(obs).dtype):
+            observation = [float(x) for x in np.ravel(obs)]  # stacked vectors (a list of lists, too), flattened
+        if self.render and frame is None and np.ndim(obs) == 1:
+            frame = self._picture(obs)
+        return observation, frame
+
     def step(self, obs: np.ndarray, *, action: Any = None, shifted: bool = False,
              frame: np.ndarray | None = None) -> int | np.ndarray:
         """Score the observation the policy acts on; log it; return the deployed action.
@@ -464,20 +496,7 @@ class Monitor:
         estimate = self.estimator.estimate(obs) if self.estimator is not None else None
         cannot_act = None  # the policy's error on a reading that is not finite, when it raised one
         if action is None:
-            if self._act is not None:  # a plain policy, or an agent whose samples do not decide
-                try:
-                    action = self._act(obs)
-                except Exception as error:
-                    if _finite(obs) or self._deployed is None:  # a bug of the policy's, or nothing to log the step with
-                        raise
-                    # A policy that cannot act on a NaN or infinite reading (SB3's raise): the step is
-                    # scored (+inf: an alarm) and logged with the action before it; then the caller hears.
-                    action, cannot_act = self._deployed, error
-            elif estimate is not None:
-                raw = estimate.action[0]
-                action = int(raw) if self.estimator.kind == "q_values" else np.asarray(raw)
-            else:
-                raise ConfigError("this monitor has no policy to act: pass the deployed action, step(obs, action=a)")
+            action, cannot_act = self._decide(obs, estimate)
         picture = None  # a dict's picture beside the vectors the detectors read: the frames detector's
         if self._own:  # the policy acted on a stack, or a dict with pictures; the detectors and the log read less
             if self.agent.pictures is not None:
@@ -506,16 +525,7 @@ class Monitor:
         self.last_cause = self._cause(finite) if alarm else None
         if event is not None:
             event = replace(event, cause=self.last_cause)
-        observation = None
-        if self.log_observations and np.ndim(obs) == 1:
-            observation = [float(x) for x in obs]
-        elif self.log_observations and frame is None and np.ndim(obs) > 1 \
-                and not is_picture(np.shape(obs), np.asarray(obs).dtype):  # a list of lists, too
-            observation = [float(x) for x in np.ravel(obs)]  # stacked vectors, flattened
-        if not self.log_observations:
-            frame = None
-        elif self.render and frame is None and np.ndim(obs) == 1:
-            frame = self._picture(obs)
+        observation, frame = self._logged(obs, frame)
         logged_action = int(action) if isinstance(action, (int, np.integer)) else np.asarray(action).tolist()
         self.last_step = StepRecord(
             episode=self.episode, step=step, action=logged_action,
