@@ -145,9 +145,8 @@ def _data(path: Path) -> dict[str, Any]:
         ConfigError: a missing file, or one that is not an SB3 model (no ``data`` naming a policy class).
     """
     if not path.is_file():
-        raise ConfigError(f"{path} does not exist (an SB3 model is the .zip that model.save() wrote; "
-                          f"{path.name}.zip is not there either)" if path.suffix != ".zip" else
-                          f"{path} does not exist (an SB3 model is the .zip that model.save() wrote)")
+        either = "" if path.suffix == ".zip" else f"; {path.name}.zip is not there either"
+        raise ConfigError(f"{path} does not exist (an SB3 model is the .zip that model.save() wrote{either})")
     try:
         with zipfile.ZipFile(path) as archive:
             data = json.loads(archive.read("data"))

@@ -10,7 +10,7 @@ import sys
 from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent
 from oodmon.cli.parsing import (
-    _FAILURES, _FIT_EPISODES, _FIT_STEPS, _KEPT, _UNSET, _add_confidence, _add_dynamics_updates, _add_rule,
+    _FAILURES, _FIT_DEFAULT, _KEPT, _UNSET, _add_confidence, _add_dynamics_updates, _add_rule,
     _command_line, _fraction, _non_negative, _sb3_arguments, _policy_argument, _whole, _widths,
 )
 from oodmon.errors import ConfigError
@@ -94,8 +94,7 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                             "ones are fitted per trial on ID episodes of their own (monitor protocol's default: spread "
                             "and the task's best)")
     alarm.add_argument("--fit-episodes", type=_whole(3), default=0,
-                       help=f"ID episodes the learned detectors are fitted on, per trial (default {_FIT_EPISODES}, whole; "
-                            f"your own --env: more, until they hold {_FIT_STEPS:,} steps)")
+                       help=f"ID episodes the learned detectors are fitted on, per trial ({_FIT_DEFAULT})")
     _add_dynamics_updates(alarm, "fitted per trial")
     alarm.add_argument("--alarm-detector", choices=list(DETECTOR_NAMES),
                        help="the detector the monitor's alarm reads, one of --detectors (default spread; monitor "

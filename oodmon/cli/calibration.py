@@ -12,7 +12,7 @@ from rich.console import Console
 from oodmon.cli.display import _progress
 from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import (
-    _FIT_EPISODES, _FIT_STEPS, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
+    _FIT_DEFAULT, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
     _agent_arguments, _fraction, _non_negative, _whole,
 )
 from oodmon.errors import ConfigError, unknown
@@ -60,8 +60,7 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
                                "stillness and vanishing); else spread); "
                                "a learned one without fitted detectors is fitted first, into <out>.detectors/")
     detector.add_argument("--fit-episodes", type=_whole(3),
-                          help=f"ID episodes the learned detectors are fitted on when calibrate fits them (default "
-                               f"{_FIT_EPISODES}; your own --env: more, until they hold {_FIT_STEPS:,} steps)")
+                          help=f"ID episodes the learned detectors are fitted on when calibrate fits them ({_FIT_DEFAULT})")
     _add_dynamics_updates(detector, "when calibrate fits the detectors")
     promise.add_argument("--seed", type=_SEED, default=CALIBRATION,
                          help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
@@ -266,8 +265,7 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
                           "for discrete observations; stillness for pictures, for vectors when named; motion and "
                           "vanishing, for pictures, when named)")
     fit.add_argument("--episodes", type=_whole(3),
-                     help=f"ID episodes: two thirds fit, one third ranks for combined (default {_FIT_EPISODES}; "
-                          f"your own --env: more, until they hold {_FIT_STEPS:,} steps)")
+                     help=f"ID episodes: two thirds fit, one third ranks for combined ({_FIT_DEFAULT})")
     fit.add_argument("--max-steps", type=_whole(1), help="cut each episode after this many steps (Pong: try 300)")
     fit.add_argument("--score", default="chosen_std", help="the spread score combined uses (default chosen_std)")
     fit.add_argument("--obs-noise", type=_non_negative, default=0.0,

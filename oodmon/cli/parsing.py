@@ -163,6 +163,8 @@ def _add_confidence(parser: argparse.ArgumentParser, default: str | None = None)
 #: here would load the detectors (scipy, gymnasium) before every command; a test keeps them equal.
 _FIT_EPISODES = 90
 _FIT_STEPS = 45_000
+#: How many ID episodes a fit of the learned detectors plays by default, as the options' help says it.
+_FIT_DEFAULT = f"default {_FIT_EPISODES}; your own --env: more, until they hold {_FIT_STEPS:,} steps"
 #: oodmon.monitor.detectors.dynamics.MAX_UPDATES, written out for the same reason.
 _MAX_UPDATES: int | None = None
 #: oodmon.replay.metrics.FAILURES, written out for the same reason: what ``--failure`` takes.

@@ -34,7 +34,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.agents.agent import Agent
-from oodmon.agents.estimators import UncertaintyEstimator
+from oodmon.agents.estimators import Estimate, UncertaintyEstimator
 from oodmon.envs.checks import space_mismatch
 from oodmon.envs.registration import env_id_of, onset_of_env, variant_of_env, wrappers_of
 from oodmon.errors import ConfigError, InvalidParameterError
@@ -446,7 +446,7 @@ class Monitor:
         self._in_episode = False
         return True
 
-    def _decide(self, obs: Any, estimate) -> tuple[Any, Exception | None]:
+    def _decide(self, obs: Any, estimate: Estimate | None) -> tuple[Any, Exception | None]:
         """The monitored policy's action at ``obs``, and the error it raised where it could not act on
         a reading that is not finite (the action before it then stands, so that the step is logged)."""
         if self._act is not None:  # a plain policy, or an agent whose samples do not decide
