@@ -18,7 +18,10 @@ the detectors' fitting take like a shipped one:
   through each episode (:class:`_RecurrentDeployed`), a MaskablePPO among the actions each step's
   action masks allow (:class:`_MaskableDeployed`);
 - its metadata record each model's path and sha256, the algorithm and the env id; its policy hash
-  (what thresholds and fitted detectors are checked against) is the hash of those files.
+  (what thresholds and fitted detectors are checked against) is the hash of the policies'
+  parameters (and of the VecNormalize statistics' numbers), the same for a model loaded from its
+  file, saved again, or trained in this process; ``files_hash``, the hash of the files, is what
+  thresholds and detectors made before 2026-12-04 recorded, and still fits.
 
 Loading goes through SB3's own ``load``, which would unpickle parts of the ``.zip`` (running any
 code a crafted file holds): oodmon reads those parts first through a restricted unpickler and
@@ -550,7 +553,8 @@ def _frame_stack_of(models: Sequence[Any]) -> int | None:
 
 
 def _parameters_sha256(model: Any) -> str:
-    """A model in memory has no file: the hash of its policy's parameters stands for it."""
+    """The hash of a model's policy's parameters: what it decides by, whether it was loaded from a
+    file (whose bytes change each time SB3 saves the same model) or trained in this process."""
     return state_sha256(model.policy.state_dict())
 
 
@@ -586,9 +590,9 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         raise ConfigError(f"give one or more stable-baselines3 models ({ALGORITHMS_LOADED})")
     if frame_stack is None and files is None:  # models in memory: the VecFrameStack they were trained in, if any
         frame_stack = _frame_stack_of(models)
+    weights = [_parameters_sha256(m) for m in models]
     if files is None:
-        files = [{"path": "(in memory)", "sha256": _parameters_sha256(m), "algorithm": type(m).__name__}
-                 for m in models]
+        files = [{"path": "(in memory)", "sha256": w, "algorithm": type(m).__name__} for m, w in zip(models, weights)]
     env = make_env(env_id)
     normalizer = _normalizer_of(vec_normalize, models)
     stacking = None
@@ -632,8 +636,12 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
                           "(of one algorithm)")
     if estimator is not None:
         estimator.observation_transform = normalizer
-    hashes = [file["sha256"] for file in files] + ([] if normalizer is None else [normalizer.sha256])
-    combined = models_sha256(hashes, mean=mean)  # a threshold of the raw-observation policy refuses this one
+    # the weights' hash, whether they came from files or from memory; a threshold of the raw-observation
+    # policy refuses this one (the statistics count as weights)
+    statistics = [] if normalizer is None else [normalizer.numbers_sha256 or normalizer.sha256]
+    combined = models_sha256(weights + statistics, mean=mean)
+    of_files = models_sha256([file["sha256"] for file in files] + ([] if normalizer is None else [normalizer.sha256]),
+                             mean=mean)  # what thresholds and detectors recorded before 2026-12-04
     metadata = {
         "task": task_of_env(env_id) or env_id,
         "method": "sb3",
@@ -642,7 +650,8 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         "deployed": "ensemble mean" if mean else f"{files[0]['path']} (the first model)",
         "models": list(files),
         "policy_hash": "sha256:" + combined,
-    } | ({} if normalizer is None else {"vec_normalize": normalizer.describe()}) \
+    } | ({} if of_files == combined else {"files_hash": "sha256:" + of_files}) \
+        | ({} if normalizer is None else {"vec_normalize": normalizer.describe()}) \
         | ({} if frame_stack is None else {"frame_stack": frame_stack})
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
     deploying = {"RecurrentPPO": _RecurrentDeployed, "MaskablePPO": _MaskableDeployed}.get(files[0]["algorithm"],

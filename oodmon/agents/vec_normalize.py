@@ -93,8 +93,8 @@ class ObservationNormalizer:
             the flattened vector's order.
         epsilon: added to ``var`` before its square root (SB3's default 1e-8).
         clip_obs: normalised observations are clipped to [-clip_obs, clip_obs].
-        sha256: the hash that binds thresholds and detectors to these statistics (the file's,
-            or of the numbers for statistics in memory).
+        sha256: the hash of where the statistics came from: the file's, or of the numbers for
+            statistics in memory.
         path: the file the statistics were read from (``None``: in memory).
         keys: dict observations: the normalised keys' ``(mean, var)`` (the other keys pass as they
             are); ``None`` for array observations.
@@ -102,6 +102,9 @@ class ObservationNormalizer:
             vector (``mean`` and ``var`` are theirs).
         frames: once :meth:`stacked`, how many observations side by side the statistics of one
             normalise (``mean`` and ``var`` repeated as many times); ``None``: not stacked.
+        numbers_sha256: the hash of the numbers as read (before :meth:`flattened` or
+            :meth:`stacked`), the same whether they came from a file or from memory: it binds
+            thresholds and detectors to these statistics ("": ``sha256`` does).
     """
 
     mean: np.ndarray | None
@@ -113,6 +116,7 @@ class ObservationNormalizer:
     keys: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
     positions: np.ndarray | None = None
     frames: int | None = None
+    numbers_sha256: str = ""
 
     def __call__(self, obs: np.ndarray | dict[str, np.ndarray]) -> np.ndarray | dict[str, np.ndarray]:
         """``obs`` (one observation or a batch; a dict one, or a dict flattened once :meth:`flattened`)
@@ -233,12 +237,12 @@ def _normalizer(state: dict[str, Any], *, sha256: str | None = None, path: str |
             raise ConfigError("its dict observations' statistics do not match its norm_obs_keys")
         keys = {name: _statistics(state["obs_rms"][name], f" of key {name!r}") for name in names}
         arrays = [array for pair in keys.values() for array in pair]
-        return ObservationNormalizer(None, None, epsilon, clip_obs,
-                                     sha256 or _numbers_sha256(arrays, epsilon, clip_obs, list(keys)), path, keys)
+        numbers = _numbers_sha256(arrays, epsilon, clip_obs, list(keys))
+        return ObservationNormalizer(None, None, epsilon, clip_obs, sha256 or numbers, path, keys, numbers_sha256=numbers)
     if state.get("norm_obs", True):
         mean, var = _statistics(state.get("obs_rms"), "")
-    return ObservationNormalizer(mean, var, epsilon, clip_obs, sha256 or _numbers_sha256([mean, var], epsilon, clip_obs),
-                                 path)
+    numbers = _numbers_sha256([mean, var], epsilon, clip_obs)
+    return ObservationNormalizer(mean, var, epsilon, clip_obs, sha256 or numbers, path, numbers_sha256=numbers)
 
 
 def load_vec_normalize(path: str | Path) -> ObservationNormalizer:

@@ -98,13 +98,21 @@ def policy_hash(agent: Agent | None) -> str:
     return "sha256:" + file_sha256(path) if path.exists() else "unknown"
 
 
+def policy_hash_aliases(agent: Agent | None) -> tuple[str, ...]:
+    """Other hashes a threshold or a detector set may have recorded for the same weights: of SB3
+    models loaded from files, the hash of the files, which oodmon recorded until 2026-12-04."""
+    files_hash = None if agent is None else agent.metadata.get("files_hash")
+    return (files_hash,) if files_hash else ()
+
+
 def run_about(metadata: dict[str, Any]) -> dict[str, str]:
     """:attr:`RunInfo.about` of a run of the agent with ``metadata``: the command line, the
     machine's CPU kind (:func:`~oodmon.versions.machine`), and the env id, model files,
-    VecNormalize statistics and VecFrameStack depth of a model from elsewhere (:mod:`oodmon.agents.sb3`),
-    or the name of a plain policy (:mod:`oodmon.agents.plain`)."""
+    VecNormalize statistics and VecFrameStack depth of a model from elsewhere (:mod:`oodmon.agents.sb3`)
+    and the hash of its files (what its logs recorded as ``policy_hash`` before 2026-12-04), or the
+    name of a plain policy (:mod:`oodmon.agents.plain`)."""
     about = {"command": shlex.join(sys.argv), "machine": machine()}
-    for key in ("env_id", "policy"):
+    for key in ("env_id", "policy", "files_hash"):
         if metadata.get(key):
             about[key] = str(metadata[key])
     for key in ("models", "vec_normalize", "frame_stack"):
@@ -203,6 +211,7 @@ class Monitor:
         self._masked = self.agent is not None and self.agent.reads_masks  # see _tell_masks()
         self._own = self.agent is not None and self.agent.reads_own  # a stack, or a dict with pictures: see step()
         self.policy_hash = policy_hash(self.agent)
+        self._aliases = policy_hash_aliases(self.agent)
         if isinstance(threshold, Threshold):
             if score is not None and score != threshold.score:
                 raise ConfigError(f"score={score!r} contradicts the threshold file's score {threshold.score!r}")
@@ -212,6 +221,7 @@ class Monitor:
             meta = self.agent.metadata if self.agent is not None else {}
             differences = threshold.check_matches(task=meta.get("task"), method=meta.get("method"),
                                                   score=threshold.score, policy_hash=self.policy_hash,
+                                                  aliases=self._aliases,
                                                   masks=getattr(self.estimator, "masks", None),
                                                   samples=getattr(self.estimator, "n_samples", None))
             self._refuse_or_warn("the threshold", differences, force)
@@ -332,7 +342,8 @@ class Monitor:
         if self._own:  # the detectors read the env's own observations (of a dict with pictures, its vectors)
             obs_shape = self.agent.own_shape
         self._refuse_or_warn("the fitted detectors", chosen.check_fits(task=meta.get("task"), obs_shape=obs_shape,
-                                                                       policy_hash=self.policy_hash), force,
+                                                                       policy_hash=self.policy_hash,
+                                                                       aliases=self._aliases), force,
                              plural=True)
         return chosen
 

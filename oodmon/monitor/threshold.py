@@ -356,9 +356,11 @@ class Threshold:
             raise type(error)(f"threshold file {path}: {error}") from None
 
     def check_matches(self, *, task: str | None, method: str | None, score: str, policy_hash: str | None,
-                      masks: str | None = None, samples: int | None = None) -> list[str]:
+                      masks: str | None = None, samples: int | None = None,
+                      aliases: Sequence[str] = ()) -> list[str]:
         """How this threshold differs from the policy and score it is about to be used with: one
-        line per difference (empty: it matches). A field not recorded on either side is not compared.
+        line per difference (empty: it matches). A field not recorded on either side is not compared;
+        ``aliases``: other hashes of the same weights that fit as well (``policy_hash_aliases``).
 
         Example:
             >>> Threshold(1.0, "chosen_std", 3, "episode", 0.05, 20, 100, task="cartpole").check_matches(
@@ -373,7 +375,8 @@ class Threshold:
         if self.samples is not None and samples is not None and self.samples != samples:
             found.append(f"it was calibrated with {self.samples} samples per decision, and this policy draws {samples}: "
                          "the spread's scale, and an MC policy's mean decision, are those of its samples")
-        if self.policy_hash and policy_hash and policy_hash != "unknown" and self.policy_hash != policy_hash:
+        if self.policy_hash and policy_hash and policy_hash != "unknown" and self.policy_hash not in (policy_hash,
+                                                                                                     *aliases):
             if "name:" in (self.policy_hash[:5], policy_hash[:5]):  # a plain policy without weights (oodmon.agents.plain)
                 found.append(f"it was calibrated for another policy ({self.policy_hash}, this is {policy_hash})")
             else:

@@ -130,7 +130,9 @@ def pooled_weights(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, li
     ``policy_hash`` each run recorded; runs that recorded none are not counted): their logs by
     weights. Replay pools a group's logs in one row per variant, so such a row's AUROC ranks one
     policy's ID steps against another's shifted ones (the bench's trials, or a model retrained
-    into the same folder of logs).
+    into the same folder of logs). An SB3 model's logs before 2026-12-04 recorded the hash of its
+    files, which later logs of the same files record beside their weights' (``about.files_hash``):
+    both count as one policy's.
 
     Example:
         >>> from oodmon.replay.reader import RunLog
@@ -138,8 +140,16 @@ def pooled_weights(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, li
         ...     return RunLog(Path(name), "cartpole", "sb3", 1.0, {"policy_hash": weights}, [], True)
         >>> pooled_weights([run("a.mcap", "sha256:aa"), run("b.mcap", "sha256:bb"), run("c.mcap", "sha256:aa")])
         {('cartpole', 'sb3'): {'sha256:aa': [PosixPath('a.mcap'), PosixPath('c.mcap')], 'sha256:bb': [PosixPath('b.mcap')]}}
+        >>> later = RunLog(Path("d.mcap"), "cartpole", "sb3", 1.0, {"policy_hash": "sha256:dd",
+        ...                                                          "about.files_hash": "sha256:bb"}, [], True)
+        >>> pooled_weights([run("b.mcap", "sha256:bb"), later])  # b.mcap's files, logged before 2026-12-04
+        {}
     """
-    return _pooled((log, (log.task, log.method), log.metadata.get("policy_hash")) for log in logs)
+    logs = list(logs)
+    weights_of = {log.metadata["about.files_hash"]: log.metadata.get("policy_hash") for log in logs
+                  if log.metadata.get("about.files_hash")}
+    return _pooled((log, (log.task, log.method), weights_of.get(log.metadata.get("policy_hash"),
+                                                                log.metadata.get("policy_hash"))) for log in logs)
 
 
 def pooled_fits(logs: Iterable[RunLog]) -> dict[tuple[str, str, str], dict[str, list[Path]]]:

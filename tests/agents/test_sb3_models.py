@@ -441,6 +441,47 @@ def test_watch_saves_its_calibration_and_a_later_start_reads_it_running_no_episo
         oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json")
 
 
+def test_a_calibration_binds_the_models_weights_not_their_files_bytes(readme_run, tmp_path, capsys):
+    """SB3 writes other bytes each time it saves the same model (the zip's times): a threshold
+    calibrated on the files fits the same models in memory and saved again (before 2026-12-04 both
+    were refused as "other weights"), and one of another model does not. A threshold that recorded
+    the files' hash, as they did before, still fits the models loaded from those files."""
+    import oodmon
+    from oodmon.hashing import file_sha256
+    from oodmon.monitor import Threshold
+
+    folder, _, _ = readme_run
+    paths = [folder / "runs/dqn0.zip", folder / "runs/dqn1.zip"]
+    threshold = folder / "runs/dqn.json"  # `oodmon calibrate --sb3 runs/dqn0.zip runs/dqn1.zip`'s
+    models = [DQN.load(p) for p in paths]
+    models[0].save(tmp_path / "dqn0.zip")
+    assert file_sha256(tmp_path / "dqn0.zip") != file_sha256(paths[0])
+    in_memory = oodmon.watch(models, "CartPole-v1", threshold=threshold)
+    from_files = load_sb3(paths, "CartPole-v1")
+    assert in_memory.policy_hash == from_files.metadata["policy_hash"] == Threshold.load(threshold).policy_hash
+    logged = read_log(folder / "runs/dqn.mcap").metadata  # `oodmon run --sb3`'s: both hashes (replay pools by them)
+    assert (logged["policy_hash"], logged["about.files_hash"]) == (from_files.metadata["policy_hash"],
+                                                                   from_files.metadata["files_hash"])
+    assert main(["run", "--sb3", str(tmp_path / "dqn0.zip"), str(paths[1]), "--env", "CartPole-v1",
+                 "--threshold", str(threshold), "--episodes", "1"]) == 0
+    capsys.readouterr()
+    with pytest.raises(ConfigError, match="calibrated on other weights"):
+        oodmon.watch(models[::-1], "CartPole-v1", threshold=threshold)  # the other model deploys
+    # a threshold of the files' hash (what calibrate recorded before 2026-12-04)
+    old = json.loads(threshold.read_text()) | {"policy_hash": from_files.metadata["files_hash"]}
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    (tmp_path / "old.json.detectors").symlink_to(folder / "runs/dqn.json.detectors")
+    assert main(["run", "--sb3", *map(str, paths), "--env", "CartPole-v1", "--threshold", str(tmp_path / "old.json"),
+                 "--episodes", "1"]) == 0
+    with pytest.raises(ConfigError, match="calibrated on other weights"):  # in memory the files are not known
+        oodmon.watch(models, "CartPole-v1", threshold=tmp_path / "old.json")
+    detectors = DetectorSet.load(folder / "runs/dqn.json.detectors")
+    detectors.fitted_for["policy_hash"] = from_files.metadata["files_hash"]
+    fits = dict(task="cartpole", obs_shape=(4,), policy_hash=from_files.metadata["policy_hash"])
+    assert detectors.check_fits(**fits, aliases=(from_files.metadata["files_hash"],)) == []
+    assert "another policy's episodes" in detectors.check_fits(**fits)[0]
+
+
 def test_watch_reads_one_dropout_models_fixed_sub_networks_when_asked(tmp_path):
     # watch(..., masks="fixed", detector="scaled_spread") fits that detector itself (as `oodmon
     # calibrate --detector scaled_spread` does) on the fixed sub-networks, and calibrates on it.

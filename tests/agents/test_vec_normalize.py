@@ -69,6 +69,11 @@ def test_the_statistics_are_read_as_sb3_reads_them_and_the_policy_acts_as_deploy
     assert max(_returns(raw)) < 100
     assert agent.metadata["vec_normalize"]["sha256"] == normalizer.sha256
     assert agent.metadata["policy_hash"] != raw.metadata["policy_hash"]  # a threshold of one refuses the other
+    # the same weights and statistics in memory (the VecNormalize it was trained in): the same policy
+    assert sb3_agent([model], "CartPole-v1").metadata["policy_hash"] == agent.metadata["policy_hash"]
+    moved = VecNormalize.load(str(folder / "vecnormalize.pkl"), make_vec_env("CartPole-v1", n_envs=1))
+    moved.obs_rms.mean = MEAN + 0.01  # other statistics: another policy
+    assert sb3_agent([model], "CartPole-v1", vec_normalize=moved).metadata["policy_hash"] != agent.metadata["policy_hash"]
 
 
 def test_a_ppo_trained_inside_vecnormalize_is_refused_without_its_statistics(normalised_ppo, tmp_path, capsys):
@@ -206,7 +211,7 @@ def test_bench_keys_its_cache_by_the_statistics_too(normalised_ppo, tmp_path):
     with_stats = _weights_sha256(Sb3Models(paths, "CartPole-v1", vec_normalize=stats))
     assert with_stats != _weights_sha256(Sb3Models(paths, "CartPole-v1", vec_normalize="none"))
     agent = load_sb3(list(paths), "CartPole-v1", vec_normalize=stats)
-    assert agent.metadata["policy_hash"] == "sha256:" + with_stats
+    assert agent.metadata["files_hash"] == "sha256:" + with_stats  # the cache's key is of the files
     with pytest.raises(ConfigError, match="vec_normalize, frame_stack, imports and unsafe_load_pickles are how sb3"):
         BenchConfig("cartpole", ("ensemble",), 1, "paper", vec_normalize=stats)
 

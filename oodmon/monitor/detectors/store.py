@@ -171,8 +171,10 @@ class DetectorSet:
             scores[name] = detector.score(context)
         return scores
 
-    def check_fits(self, *, task: str | None, obs_shape: Sequence[int] | None, policy_hash: str | None) -> list[str]:
-        """How the policy about to be watched differs from the one the detectors were fitted for."""
+    def check_fits(self, *, task: str | None, obs_shape: Sequence[int] | None, policy_hash: str | None,
+                   aliases: Sequence[str] = ()) -> list[str]:
+        """How the policy about to be watched differs from the one the detectors were fitted for
+        (``aliases``: other hashes of the same weights that fit as well)."""
         found = []
         mine = self.fitted_for
         if mine.get("task") and task and mine["task"] != task:
@@ -181,7 +183,8 @@ class DetectorSet:
             found.append(f"the detectors were fitted on observations of shape {tuple(mine['obs_shape'])}, "
                          f"not {tuple(obs_shape)}")
         theirs = mine.get("policy_hash")
-        if theirs and theirs != "unknown" and policy_hash and policy_hash != "unknown" and theirs != policy_hash:
+        if theirs and theirs != "unknown" and policy_hash and policy_hash != "unknown" and theirs not in (policy_hash,
+                                                                                                         *aliases):
             found.append("the detectors were fitted on another policy's episodes (its weights, or a plain policy's "
                          "name, differ)")
         return found
