@@ -636,12 +636,6 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
                           "(of one algorithm)")
     if estimator is not None:
         estimator.observation_transform = normalizer
-    # the weights' hash, whether they came from files or from memory; a threshold of the raw-observation
-    # policy refuses this one (the statistics count as weights)
-    statistics = [] if normalizer is None else [normalizer.numbers_sha256 or normalizer.sha256]
-    combined = models_sha256(weights + statistics, mean=mean)
-    of_files = models_sha256([file["sha256"] for file in files] + ([] if normalizer is None else [normalizer.sha256]),
-                             mean=mean)  # what thresholds and detectors recorded before 2026-12-04
     metadata = {
         "task": task_of_env(env_id) or env_id,
         "method": "sb3",
@@ -649,8 +643,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         "env_id": env_id,
         "deployed": "ensemble mean" if mean else f"{files[0]['path']} (the first model)",
         "models": list(files),
-        "policy_hash": "sha256:" + combined,
-    } | ({} if of_files == combined else {"files_hash": "sha256:" + of_files}) \
+    } | _hashes(weights, files, normalizer, mean) \
         | ({} if normalizer is None else {"vec_normalize": normalizer.describe()}) \
         | ({} if frame_stack is None else {"frame_stack": frame_stack})
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
@@ -659,6 +652,18 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
     deployed = deploying(models[0], discrete, normalizer, dict_space)
     return Agent(estimator, metadata, None, None if mean else deployed,
                  dict_space=dict_space, stacking=stacking, pictures=pictures)
+
+
+def _hashes(weights: Sequence[str], files: Sequence[dict[str, str]], normalizer: Any, mean: bool) -> dict[str, str]:
+    """The agent's ``policy_hash``: of its models' parameters (``weights``) and its statistics'
+    numbers, whether they came from files or from memory (a threshold of the raw-observation policy
+    refuses one with statistics: they count as weights); and, of models from files, ``files_hash``,
+    of the files, which thresholds, detectors and logs recorded as ``policy_hash`` before 2026-12-04."""
+    statistics = [] if normalizer is None else [normalizer.numbers_sha256 or normalizer.sha256]
+    combined = models_sha256([*weights, *statistics], mean=mean)
+    of_files = models_sha256([file["sha256"] for file in files] + ([] if normalizer is None else [normalizer.sha256]),
+                             mean=mean)
+    return {"policy_hash": "sha256:" + combined} | ({} if of_files == combined else {"files_hash": "sha256:" + of_files})
 
 
 def _normalizer_for_env(normalizer: Any, env: gymnasium.Env, env_id: str, dict_space: Any, model: Any) -> Any:
