@@ -176,7 +176,9 @@ def score_scale(episodes: Sequence[EpisodeLog], threshold: float) -> float | Non
 
 
 def episode_name(episode) -> str:
-    return f"{episode.variant}\nseed {episode.seed}, onset {episode.onset}, return {episode.total_return:.0f}"
+    """A panel's title: the episode's variant, seed, onset (an ID episode has none) and return."""
+    onset = "" if is_id_variant(episode.variant) else f", onset {episode.onset}"
+    return f"{episode.variant}\nseed {episode.seed}{onset}, return {episode.total_return:.0f}"
 
 
 def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str | Path) -> Path | None:
@@ -184,7 +186,7 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
     detector (that of the metrics' rows). A physics parameter of oodmon's tasks gets its ID value
     as a dashed line in its title, and each line stops on either side of it: the values below it
     and those above are two shifts, not one curve through the ID world."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullFormatter
 
     series: dict[tuple[str, str], list[tuple[float, float]]] = defaultdict(list)
     id_values: dict[str, float] = {}
@@ -223,7 +225,8 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
             ax.axvline(id_value, color="grey", linestyle="--", linewidth=1)
         if task != "pong" and all(value > 0 for value in values):  # a shift of your own env may set 0 or less
             ax.set_xscale("log")  # labelled at 1, 2 and 5 times a power of ten, as 50, not 5 x 10^1
-            ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+            ticks = value_ticks(values)  # or at the values themselves, where they are few
+            ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)) if ticks is None else FixedLocator(ticks))
             ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
             ax.xaxis.set_minor_formatter(NullFormatter())
         title = name if id_value is None else f"{name} (ID {id_value:g}, dashed)"
@@ -232,6 +235,22 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
     axes[0][0].set_ylabel("AUROC")
     axes[0][-1].legend(fontsize=8)
     return save_figure(fig, path)
+
+
+def value_ticks(values: Sequence[float]) -> list[float] | None:
+    """The values of a log axis to label, where they are few (2 to 6) and far enough apart on it
+    to be read (an eighth of the axis' span at least): a shift to 3.0 from the ID 1.0 is labelled
+    3, not left between the ticks at 2 and 5; ``None``: the axis' own ticks.
+
+    Example:
+        >>> value_ticks([1.0, 3.0]), value_ticks([0.05, 0.0556, 0.0625, 2.0]), value_ticks([4.0])
+        ([1.0, 3.0], None, None)
+    """
+    distinct = sorted(set(values))
+    if not 2 <= len(distinct) <= 6:
+        return None
+    logs = np.log10(distinct)
+    return distinct if np.diff(logs).min() >= (logs[-1] - logs[0]) / 8 else None
 
 
 def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folder: str | Path) -> list[Path]:

@@ -24,6 +24,15 @@ def test_replay_plots_writes_roc_trace_and_auroc_vs_shift(tmp_path):
         assert image is not None and image.shape[0] > 300 and image.shape[1] > 350
 
 
+def test_a_trace_panel_names_the_onset_of_a_shifted_episode_only():
+    from oodmon.replay.plots import episode_name
+
+    ids = read_log(DATA / "cartpole-ensemble-id.mcap").episodes
+    assert episode_name(ids[0]) == f"cartpole\nseed {ids[0].seed}, return {ids[0].total_return:.0f}"  # no onset 0
+    shifted = next(e for p in sorted(DATA.glob("*.mcap")) for e in read_log(p).episodes if e.variant != "cartpole")
+    assert f"seed {shifted.seed}, onset {shifted.onset}, return" in episode_name(shifted)
+
+
 def test_plots_that_the_logs_cannot_support_are_skipped(tmp_path):
     logs = [read_log(DATA / "cartpole-ensemble-id.mcap")]  # ID only: no shifted steps
     assert plot_roc(logs, "cartpole:length=2.0", tmp_path / "roc.png") is None
@@ -97,6 +106,8 @@ def test_a_run_shifted_mid_episode_alone_gets_its_trace_and_each_detector_its_au
     assert [text.get_text() for text in ax.get_legend().get_texts()] == ["sb3, combined", "sb3, dynamics"]
     assert any(line.get_xdata()[0] == 0.5 and line.get_linestyle() == "--" for line in ax.get_lines())
     assert ax.get_title() == "length (ID 0.5, dashed)"
+    drawn[0].canvas.draw()  # few values: each labelled (3 was left between the ticks at 2 and 5)
+    assert [t.get_text() for t in ax.get_xticklabels() if t.get_text()] == ["0.25", "0.5", "2", "3"]
     auroc = {label: np.concatenate([line.get_ydata() for line in lines]) for label, lines in segments.items()}
     assert min(auroc["sb3, combined"]) > 0.9 > max(auroc["sb3, dynamics"])
 
