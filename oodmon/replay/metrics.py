@@ -147,9 +147,13 @@ def pooled_weights(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, li
     """
     logs = list(logs)
     weights_of = {log.metadata["about.files_hash"]: log.metadata.get("policy_hash") for log in logs
-                  if log.metadata.get("about.files_hash")}
-    return _pooled((log, (log.task, log.method), weights_of.get(log.metadata.get("policy_hash"),
-                                                                log.metadata.get("policy_hash"))) for log in logs)
+                  if log.metadata.get("about.files_hash")}  # an earlier log's hash -> the same files' weights
+
+    def weights(log: RunLog) -> str | None:
+        recorded = log.metadata.get("policy_hash")
+        return weights_of.get(recorded, recorded)
+
+    return _pooled((log, (log.task, log.method), weights(log)) for log in logs)
 
 
 def pooled_fits(logs: Iterable[RunLog]) -> dict[tuple[str, str, str], dict[str, list[Path]]]:

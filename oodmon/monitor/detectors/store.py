@@ -183,8 +183,7 @@ class DetectorSet:
             found.append(f"the detectors were fitted on observations of shape {tuple(mine['obs_shape'])}, "
                          f"not {tuple(obs_shape)}")
         theirs = mine.get("policy_hash")
-        if theirs and theirs != "unknown" and policy_hash and policy_hash != "unknown" and theirs not in (policy_hash,
-                                                                                                         *aliases):
+        if theirs and theirs != "unknown" and policy_hash and policy_hash != "unknown" and theirs not in {policy_hash, *aliases}:
             found.append("the detectors were fitted on another policy's episodes (its weights, or a plain policy's "
                          "name, differ)")
         return found
