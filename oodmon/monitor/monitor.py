@@ -224,7 +224,7 @@ class Monitor:
                                                   aliases=self._aliases,
                                                   masks=getattr(self.estimator, "masks", None),
                                                   samples=getattr(self.estimator, "n_samples", None))
-            self._refuse_or_warn("the threshold", differences, force)
+            self._refuse_or_warn("the threshold", differences + self._in_memory_note(threshold.policy_hash), force)
             score, consecutive, value = threshold.score, threshold.consecutive, threshold.value
             window, detector = threshold.window, threshold.detector
             rule, reference, warmup = threshold.rule, threshold.reference_scores(), threshold.warmup
@@ -300,6 +300,17 @@ class Monitor:
             made["policy"] = made["policy"].twin()
         return Monitor(**made, sinks=sinks, callbacks=callbacks)
 
+    def _in_memory_note(self, recorded: str | None) -> list[str]:
+        """What to add where SB3 models in memory are refused a threshold or detectors of other
+        weights (``recorded``): those made from the models' files before 2026-12-04 recorded the
+        files' bytes (``files_hash``), which models in memory do not have."""
+        models = [] if self.agent is None else self.agent.metadata.get("models", [])
+        in_memory = bool(models) and all(model.get("path") == "(in memory)" for model in models)
+        if not in_memory or not recorded or recorded in {self.policy_hash, *self._aliases}:
+            return []
+        return ["if it was made from these models' files before 2026-12-04, it recorded the files' bytes, which "
+                "models in memory do not have: give the files (oodmon.watch(['model.zip', ...]), load_sb3)"]
+
     def _refuse_or_warn(self, what: str, differences: list[str], force: bool, *, plural: bool = False) -> None:
         """Refuse ``what`` (the threshold; the fitted detectors, ``plural``) made for another policy, or
         with ``force`` warn and use it."""
@@ -341,10 +352,10 @@ class Monitor:
         obs_shape = self.estimator.obs_shape if self.estimator is not None else None
         if self._own:  # the detectors read the env's own observations (of a dict with pictures, its vectors)
             obs_shape = self.agent.own_shape
-        self._refuse_or_warn("the fitted detectors", chosen.check_fits(task=meta.get("task"), obs_shape=obs_shape,
-                                                                       policy_hash=self.policy_hash,
-                                                                       aliases=self._aliases), force,
-                             plural=True)
+        differences = chosen.check_fits(task=meta.get("task"), obs_shape=obs_shape, policy_hash=self.policy_hash,
+                                        aliases=self._aliases)
+        self._refuse_or_warn("the fitted detectors", differences + self._in_memory_note(chosen.fitted_for.get("policy_hash")),
+                             force, plural=True)
         return chosen
 
     # -- the run -----------------------------------------------------------------------------

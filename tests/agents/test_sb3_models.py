@@ -465,16 +465,20 @@ def test_a_calibration_binds_the_models_weights_not_their_files_bytes(readme_run
     assert main(["run", "--sb3", str(tmp_path / "dqn0.zip"), str(paths[1]), "--env", "CartPole-v1",
                  "--threshold", str(threshold), "--episodes", "1"]) == 0
     capsys.readouterr()
-    with pytest.raises(ConfigError, match="calibrated on other weights"):
+    with pytest.raises(ConfigError, match="calibrated on other weights") as refused:
         oodmon.watch(models[::-1], "CartPole-v1", threshold=threshold)  # the other model deploys
+    with pytest.raises(ConfigError) as refused_files:
+        oodmon.watch(paths[::-1], "CartPole-v1", threshold=threshold)
+    assert "give the files" in str(refused.value) and "give the files" not in str(refused_files.value)
     # a threshold of the files' hash (what calibrate recorded before 2026-12-04)
     old = json.loads(threshold.read_text()) | {"policy_hash": from_files.metadata["files_hash"]}
     (tmp_path / "old.json").write_text(json.dumps(old))
     (tmp_path / "old.json.detectors").symlink_to(folder / "runs/dqn.json.detectors")
     assert main(["run", "--sb3", *map(str, paths), "--env", "CartPole-v1", "--threshold", str(tmp_path / "old.json"),
                  "--episodes", "1"]) == 0
-    with pytest.raises(ConfigError, match="calibrated on other weights"):  # in memory the files are not known
-        oodmon.watch(models, "CartPole-v1", threshold=tmp_path / "old.json")
+    with pytest.raises(ConfigError, match=r"calibrated on other weights .*before 2026-12-04, it recorded the files' "
+                                          r"bytes, which models in memory do not have: give the files"):
+        oodmon.watch(models, "CartPole-v1", threshold=tmp_path / "old.json")  # in memory the files are not known
     detectors = DetectorSet.load(folder / "runs/dqn.json.detectors")
     detectors.fitted_for["policy_hash"] = from_files.metadata["files_hash"]
     fits = dict(task="cartpole", obs_shape=(4,), policy_hash=from_files.metadata["policy_hash"])
