@@ -306,7 +306,7 @@ class Monitor:
         files' bytes (``files_hash``), which models in memory do not have."""
         models = [] if self.agent is None else self.agent.metadata.get("models", [])
         in_memory = bool(models) and all(model.get("path") == "(in memory)" for model in models)
-        if not in_memory or not recorded or recorded in {self.policy_hash, *self._aliases}:
+        if not in_memory or recorded in {None, "", "unknown", self.policy_hash, *self._aliases}:  # (as the checks)
             return []
         return ["if it was made from these models' files before 2026-12-04, it recorded the files' bytes, which "
                 "models in memory do not have: give the files (oodmon.watch(['model.zip', ...]), load_sb3)"]

@@ -375,7 +375,8 @@ class Threshold:
         if self.samples is not None and samples is not None and self.samples != samples:
             found.append(f"it was calibrated with {self.samples} samples per decision, and this policy draws {samples}: "
                          "the spread's scale, and an MC policy's mean decision, are those of its samples")
-        if self.policy_hash and policy_hash and policy_hash != "unknown" and self.policy_hash not in {policy_hash, *aliases}:
+        recorded = all(h not in (None, "", "unknown") for h in (self.policy_hash, policy_hash))  # on both sides
+        if recorded and self.policy_hash not in {policy_hash, *aliases}:
             if "name:" in (self.policy_hash[:5], policy_hash[:5]):  # a plain policy without weights (oodmon.agents.plain)
                 found.append(f"it was calibrated for another policy ({self.policy_hash}, this is {policy_hash})")
             else:

@@ -479,6 +479,9 @@ def test_a_calibration_binds_the_models_weights_not_their_files_bytes(readme_run
     with pytest.raises(ConfigError, match=r"calibrated on other weights .*before 2026-12-04, it recorded the files' "
                                           r"bytes, which models in memory do not have: give the files"):
         oodmon.watch(models, "CartPole-v1", threshold=tmp_path / "old.json")  # in memory the files are not known
+    (tmp_path / "unknown.json").write_text(json.dumps(old | {"policy_hash": "unknown"}))  # no weights recorded
+    (tmp_path / "unknown.json.detectors").symlink_to(folder / "runs/dqn.json.detectors")
+    assert oodmon.watch(models, "CartPole-v1", threshold=tmp_path / "unknown.json").threshold == old["value"]
     detectors = DetectorSet.load(folder / "runs/dqn.json.detectors")
     detectors.fitted_for["policy_hash"] = from_files.metadata["files_hash"]
     fits = dict(task="cartpole", obs_shape=(4,), policy_hash=from_files.metadata["policy_hash"])
