@@ -1,12 +1,12 @@
 """The sha256 of a file, as every record of oodmon spells it (weights, detectors, users' models),
-of weights in memory (a ``state_dict()``), and a tensor file written whole beside the JSON that
-records its sha256."""
+of weights in memory (a ``state_dict()``), whether a recorded policy hash names other weights, and
+a tensor file written whole beside the JSON that records its sha256."""
 
 from __future__ import annotations
 
 import hashlib
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +15,7 @@ import numpy as np
 from oodmon.jsonfile import write_json
 from oodmon.outputs import is_write_error, write_failure
 
-__all__ = ["file_sha256", "state_sha256", "write_hashed_tensors"]
+__all__ = ["file_sha256", "other_weights", "state_sha256", "write_hashed_tensors"]
 
 
 def file_sha256(path: str | Path) -> str:
@@ -46,6 +46,22 @@ def state_sha256(state: Mapping[str, Any]) -> str:
         digest.update(name.encode())
         digest.update((value.detach().cpu().numpy() if hasattr(value, "detach") else np.asarray(value)).tobytes())
     return digest.hexdigest()
+
+
+def other_weights(recorded: str | None, current: str | None, aliases: Sequence[str] = ()) -> bool:
+    """Whether a threshold or fitted detectors that recorded the policy hash ``recorded`` were made
+    for other weights than the policy of hash ``current`` (or of its ``aliases``, other hashes of
+    the same weights); a hash not recorded on either side (``None``, ``""``, ``"unknown"``) is not
+    compared.
+
+    Example:
+        >>> other_weights("sha256:aa", "sha256:bb"), other_weights("sha256:aa", "sha256:bb", ["sha256:aa"])
+        (True, False)
+        >>> other_weights("unknown", "sha256:bb"), other_weights("sha256:aa", None)
+        (False, False)
+    """
+    unrecorded = (None, "", "unknown")
+    return recorded not in unrecorded and current not in unrecorded and recorded not in {current, *aliases}
 
 
 def write_hashed_tensors(tensor_path: Path, json_path: Path, write_tensors: Callable[[str], None],

@@ -47,7 +47,7 @@ from oodmon.monitor.sinks.base import Sink, SinkGroup
 from oodmon.monitor.threshold import Threshold
 from oodmon.progress import Progress
 from oodmon.versions import library_versions, machine
-from oodmon.hashing import file_sha256
+from oodmon.hashing import file_sha256, other_weights
 from oodmon.validation import is_real, is_whole
 
 __all__ = ["SEGMENT_STEPS", "AlarmCallback", "Monitor", "MonitoredEnv", "NonFiniteObservationWarning", "PolicyCannotAct",
@@ -306,7 +306,7 @@ class Monitor:
         files' bytes (``files_hash``), which models in memory do not have."""
         models = [] if self.agent is None else self.agent.metadata.get("models", [])
         in_memory = bool(models) and all(model.get("path") == "(in memory)" for model in models)
-        if not in_memory or recorded in {None, "", "unknown", self.policy_hash, *self._aliases}:  # (as the checks)
+        if not in_memory or not other_weights(recorded, self.policy_hash, self._aliases):
             return []
         return ["if it was made from these models' files before 2026-12-04, it recorded the files' bytes, which "
                 "models in memory do not have: give the files (oodmon.watch(['model.zip', ...]), load_sb3)"]

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.hashing import other_weights
 from oodmon.jsonfile import read_json, write_json
 from oodmon.monitor.alarms import (DEFAULT_CONSECUTIVE, check_consecutive, check_warmup, check_window, episode_statistic,
                                    rule_text)
@@ -375,8 +376,7 @@ class Threshold:
         if self.samples is not None and samples is not None and self.samples != samples:
             found.append(f"it was calibrated with {self.samples} samples per decision, and this policy draws {samples}: "
                          "the spread's scale, and an MC policy's mean decision, are those of its samples")
-        recorded = all(h not in (None, "", "unknown") for h in (self.policy_hash, policy_hash))  # on both sides
-        if recorded and self.policy_hash not in {policy_hash, *aliases}:
+        if other_weights(self.policy_hash, policy_hash, aliases):
             if "name:" in (self.policy_hash[:5], policy_hash[:5]):  # a plain policy without weights (oodmon.agents.plain)
                 found.append(f"it was calibrated for another policy ({self.policy_hash}, this is {policy_hash})")
             else:

@@ -28,7 +28,7 @@ from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.stillness import StillnessDetector
 from oodmon.monitor.detectors.transitions import TransitionsDetector
 from oodmon.monitor.detectors.vanishing import VanishingDetector
-from oodmon.hashing import write_hashed_tensors
+from oodmon.hashing import other_weights, write_hashed_tensors
 
 __all__ = ["DETECTORS", "DetectorSet"]
 
@@ -182,8 +182,7 @@ class DetectorSet:
         if mine.get("obs_shape") is not None and obs_shape is not None and tuple(mine["obs_shape"]) != tuple(obs_shape):
             found.append(f"the detectors were fitted on observations of shape {tuple(mine['obs_shape'])}, "
                          f"not {tuple(obs_shape)}")
-        theirs = mine.get("policy_hash")
-        if theirs and theirs != "unknown" and policy_hash and policy_hash != "unknown" and theirs not in {policy_hash, *aliases}:
+        if other_weights(mine.get("policy_hash"), policy_hash, aliases):
             found.append("the detectors were fitted on another policy's episodes (its weights, or a plain policy's "
                          "name, differ)")
         return found
