@@ -6,7 +6,8 @@ Run: .venv/bin/python scripts/bench_table.py [results/bench/<file>.json ...] [--
 
 ``--plots`` also draws each file as results/bench/<file>.png: per method and variant of the paper,
 our mean ± std over the trials that failed on the variant beside the paper's, with their number
-beside a point where fewer than all did.
+beside a point where fewer than all did (a file of ``--all-variants``: over every trial, with the
+number failing beside a point where fewer than all did).
 
 Each file is what `oodmon bench ... --results FILE` wrote (its command is inside, and in
 results/bench/README.md). One row per variant the paper's appendix reports for a method: our
@@ -17,6 +18,10 @@ shifted episodes failed ("23 of 25 episodes fail"): the protocol scores every st
 shifted too, though the agent coped. Then the best mean per task against the paper's best mean, and per
 method how many of the paper's variants we meet (mean >= the paper's, and std <= the paper's; a
 row over one failing trial has no std to compare: "one trial: no std", neither met nor missed).
+A file of ``oodmon bench --all-variants`` scores every trial on every variant it names, whether or not
+the trial fails there, as the paper scored its five trials on the variants where its trained model
+failed: its rows say how many trials they average and how many of them fail ("5 scored, 1 fails";
+"none fail": the agent copes there).
 
 ``--goals``: one row per variant the paper reports, with the best of every committed file and
 detector for it (both goals met first, then the mean alone, then the highest mean), and where it
@@ -38,7 +43,8 @@ sys.path.insert(0, str(ROOT))
 
 from oodmon.agents.evaluation import SOLVED_RETURN  # noqa: E402
 from oodmon.bench.config import PAPER_METHOD, BenchConfig, paper_label  # noqa: E402
-from oodmon.bench.report import episodes_failing, unsolved_trials  # noqa: E402
+from oodmon.bench.report import (episodes_failing, fail_words, trials_failing, trials_said,  # noqa: E402
+                                  unsolved_trials)
 from oodmon.paper import paper_auc_per_trial  # noqa: E402
 
 RESULTS = ROOT / "results" / "bench"
@@ -118,7 +124,7 @@ def _detector_table(data: dict, detector: str) -> list[str]:
             counts[0] += mean_ok
             counts[1] += bool(mean_ok and std_ok)
             best_ours = max(best_ours, (row["mean"], f"{method} {label}"))
-            lines.append(f"| {method} | {label} | {row['mean']:.3f} ± {row['std']:.3f} ({len(row['aurocs'])}"
+            lines.append(f"| {method} | {label} | {row['mean']:.3f} ± {row['std']:.3f} ({_trials(data, row)}"
                          f"{_episodes_failing(data, row)}) | "
                          f"{theirs} | {row['aupr_mean']:.3f} / {row['fpr95_mean']:.3f} | "
                          f"{'yes' if mean_ok else 'no'} | {_said(std_ok)} |")
@@ -153,8 +159,8 @@ def goals(paths: list[Path]) -> str:
                         best.setdefault(key, None)
                         continue
                     mean_ok, std_ok = row["mean"] >= np.mean(trials), _std_goal(row, trials)
-                    candidate = (bool(mean_ok and std_ok), mean_ok, row["mean"], row, f"`{path.stem}`, `{detector}`",
-                                 std_ok)
+                    candidate = (bool(mean_ok and std_ok), mean_ok, row["mean"], _trials(data, row),
+                                 f"`{path.stem}`, `{detector}`", row["std"], std_ok)
                     if best.get(key) is None or candidate[:3] > best[key][:3]:
                         best[key] = candidate
     lines = ["| task | method | variant | paper: mean ± std | ours, the best: mean ± std (trials failing) | from "
@@ -171,15 +177,22 @@ def goals(paths: list[Path]) -> str:
         if found is None:
             lines.append(f"| {task} | {method} | {label} | {theirs} | does not fail (in any file) | | no | |")
             continue
-        both, mean_ok, mean, row, source, std_ok = found
+        both, mean_ok, mean, trials_of, source, std, std_ok = found
         tops[task][0] = max(tops[task][0], (mean, f"{method} {label}, {source}"))
-        lines.append(f"| {task} | {method} | {label} | {theirs} | {mean:.3f} ± {row['std']:.3f} ({len(row['aurocs'])}) "
+        lines.append(f"| {task} | {method} | {label} | {theirs} | {mean:.3f} ± {std:.3f} ({trials_of}) "
                      f"| {source} | {'yes' if mean_ok else 'no'} | {_said(std_ok) if mean_ok else 'no'} |")
     lines.append("")
     lines += [f"Best mean AUROC, {task}: "
               + (f"ours {ours[0]:.3f} ({ours[1]})" if ours[1] else "ours none (no variant failed)")
               + f", the paper's {theirs[0]:.3f} ({theirs[1]})." for task, (ours, theirs) in tops.items()]
     return "\n".join(lines)
+
+
+def _trials(data: dict, row: dict) -> str:
+    """A row's trials: the failing ones it averages ("4"), or in a file of ``--all-variants``, which scores
+    every trial, how many it scored and how many of them fail ("5 scored, 1 fails")."""
+    return trials_said(data.get("failing", {}), row["method"], row["variant"], row["aurocs"],
+                       bool(data["config"].get("all_variants")))
 
 
 def _episodes_failing(data: dict, row: dict) -> str:
@@ -220,6 +233,7 @@ def plot(path: Path) -> Path:
     rows_of = {detector: _rows(data, detector) for detector in detectors}
     paper = paper_auc_per_trial()[task]
     methods = [m for m in config["methods"] if paper.get(PAPER_METHOD[m])]
+    every = bool(config.get("all_variants"))  # --all-variants: every trial scored, failing or not
     fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 3.6), sharey=True, squeeze=False)
     for ax, method in zip(axes[0], methods):
         labels = list(paper[PAPER_METHOD[method]])
@@ -231,11 +245,15 @@ def plot(path: Path) -> Path:
             ours = [rows_of[detector].get((method, label)) for label in labels]
             shown = [i for i, r in enumerate(ours) if r is not None]
             name = "ours" if len(detectors) == 1 else f"ours, {detector}"
+            which = f"all {config['trials']} trials" if every else f"the failing of {config['trials']} trials"
             ax.errorbar(x[shown] + 0.12 * (1 + index), [ours[i]["mean"] for i in shown], [ours[i]["std"] for i in shown],
-                        fmt="o", color=color, capsize=3, label=f"{name} (the failing of {config['trials']} trials)")
-            for i in shown:  # a point over fewer trials than the bench ran: how many failed on it
-                if len(ours[i]["aurocs"]) < config["trials"]:
-                    ax.annotate(f"n={len(ours[i]['aurocs'])}", (x[i] + 0.12 * (1 + index), ours[i]["mean"]),
+                        fmt="o", color=color, capsize=3, label=f"{name} ({which})")
+            for i in shown:  # a point over fewer trials than the bench ran, or of fewer failing: how many
+                failed = trials_failing(data["failing"], method, ours[i]["variant"], ours[i]["aurocs"])
+                said = (fail_words(failed) if failed < len(ours[i]["aurocs"]) else "") if every else \
+                    (f"n={len(ours[i]['aurocs'])}" if len(ours[i]["aurocs"]) < config["trials"] else "")
+                if said:
+                    ax.annotate(said, (x[i] + 0.12 * (1 + index), ours[i]["mean"]),
                                 textcoords="offset points", xytext=(5, -2), fontsize=7, color=color, va="top")
             if index == 0:
                 for i, r in enumerate(ours):

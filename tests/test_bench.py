@@ -239,6 +239,35 @@ def test_a_paper_report_without_the_spread_ranks_its_own_detector_and_shows_no_e
     assert "best single-trial AUROC per method (the paper's main tables)" in out
 
 
+def test_a_paper_report_of_every_trial_says_how_many_of_a_rows_trials_fail():
+    """``--all-variants`` under the paper's protocol scores every trial on every variant, whether or
+    not it fails there (the paper scored its five trials on the variants its trained model failed
+    on): the table says so, and per row how many of the trials it averages fail."""
+    import io
+
+    from rich.console import Console
+
+    from oodmon.bench import BenchResult, Row, print_paper_report
+
+    named = ("cartpole:length=2.0", "cartpole:gravity=98.0")
+    rows = [Row("ensemble", named[0], {0: 0.99, 1: 0.93}, [0.862, 0.993]),
+            Row("ensemble", named[1], {0: 0.95, 1: 0.97}, [0.756, 0.833])]
+    failing = {"ensemble": {0: [named[0]], 1: []}}
+
+    def printed(all_variants):
+        buffer = io.StringIO()
+        config = BenchConfig(task="cartpole", methods=("ensemble",), trials=2, variants=named, all_variants=all_variants)
+        print_paper_report(config, BenchResult(rows, failing, {}), Console(file=buffer, width=200))
+        return " ".join(buffer.getvalue().split())
+
+    out = printed(True)
+    assert "per-step AUROC per variant, every trial scored (--all-variants)" in out
+    assert "│ ensemble │ length=2.0 │ 2 scored, 1 fails │ 0.960 ± 0.030 │" in out
+    assert "│ ensemble │ gravity=98.0 │ 2 scored, none fail │ 0.960 ± 0.010 │" in out
+    out = printed(False)  # (rows of trials that failed, as the bench scores them without the flag)
+    assert "per-step AUROC per failing variant" in out and "│ ensemble │ length=2.0 │ 2 │ 0.960 ± 0.030 │" in out
+
+
 def test_alarms_are_averaged_over_the_trials_that_have_them():
     from oodmon.bench import BenchResult, alarms_per_variant
 

@@ -172,6 +172,38 @@ def test_the_goals_take_per_variant_the_row_meeting_both_then_the_mean_then_the_
                                 "(dropout force_mag=2.5).")
 
 
+def test_a_file_scoring_every_trial_says_how_many_of_them_fail_and_its_std_is_judged(tmp_path, monkeypatch):
+    """``oodmon bench --all-variants`` scores every trial on every variant it names, failing or not (the
+    paper scored its five trials on the variants its trained model failed on): the tables and the
+    goals say per row how many trials it averages and how many of them fail, and judge its std over
+    them; the plot says how many fail beside a point where not all do."""
+    root, script = load_script("bench_table")
+    import oodmon.outputs
+
+    aurocs = {"0": 0.99, "1": 0.93, "2": 0.95, "3": 0.96, "4": 0.97}
+    rows = [{"method": "ensemble", "variant": variant, "detector": "spread", "aurocs": aurocs, "mean": 0.96,
+             "std": 0.02, "aupr_mean": 0.9, "fpr95_mean": 0.1}  # (the std of those five)
+            for variant in ("cartpole:gravity=98.0", "cartpole:length=2.0")]
+    data = {"command": "oodmon bench --all-variants", "monitor": {}, "rows": rows,
+            "config": {"task": "cartpole", "methods": ["ensemble"], "trials": 5, "score": "margin_std",
+                       "all_variants": True},
+            "failing": {"ensemble": {"0": ["cartpole:length=2.0"], **{t: [] for t in "1234"}}},
+            "id_returns": {"ensemble": dict.fromkeys("01234", 500.0)}}
+    path = tmp_path / "every.json"
+    path.write_text(json.dumps(data))
+    lines = script.goals([path]).splitlines()
+    assert next(line for line in lines if "length=2.0" in line).endswith(
+        "| 0.960 ± 0.020 (5 scored, 1 fails) | `every`, `spread` | yes | yes |")  # the paper's 0.883 ± 0.057
+    assert "| 0.960 ± 0.020 (5 scored, none fail) |" in next(line for line in lines if "gravity=98.0" in line)
+    assert "| ensemble | length=2.0 | 0.960 ± 0.020 (5 scored, 1 fails) |" in script.table(path)
+    drawn = []
+    monkeypatch.setattr(oodmon.outputs, "save_figure", lambda fig, path: drawn.append(fig) or path)
+    script.plot(path)
+    axes = drawn[0].axes[0]
+    assert sorted(text.get_text() for text in axes.texts) == ["1 fails", "none fail"]
+    assert "ours (all 5 trials)" in [text.get_text() for text in axes.get_legend().get_texts()]
+
+
 def test_the_plot_of_a_result_says_how_many_trials_a_point_of_fewer_than_all_averages(monkeypatch):
     """A point over the trials that failed on the variant, where fewer than all did, says their number
     (the committed Pendulum file: Dropout m=5.0 over 3 trials, the ensemble's m=0.05 over 1, whose

@@ -116,6 +116,41 @@ def episodes_failing(detection: dict, method: str, variant: str, trials: Iterabl
     return sum(cell["failed"] for cell in cells), sum(cell["episodes"] for cell in cells)
 
 
+def trials_failing(failing: dict, method: str, variant: str, trials: Iterable) -> int:
+    """How many of ``trials`` of ``method`` fail on ``variant``, from :attr:`BenchResult.failing` or its
+    JSON (string keys): under ``--all-variants`` a row scores every trial, failing or not.
+
+    Example:
+        >>> trials_failing({"ensemble": {"0": ["cartpole:length=2.0"], "1": []}}, "ensemble", "cartpole:length=2.0",
+        ...                ["0", "1"])
+        1
+    """
+    by_trial = {str(trial): specs for trial, specs in failing.get(method, {}).items()}
+    return sum(variant in by_trial.get(str(trial), ()) for trial in trials)
+
+
+def trials_said(failing: dict, method: str, variant: str, trials: Iterable, all_variants: bool) -> str:
+    """A row's trials as the tables say them: the failing trials it averages ("4"); where every trial
+    was scored (``--all-variants``), their number and how many of them fail.
+
+    Example:
+        >>> failing = {"ensemble": {"0": ["cartpole:length=2.0"], "1": []}}
+        >>> trials_said(failing, "ensemble", "cartpole:length=2.0", ["0", "1"], all_variants=True)
+        '2 scored, 1 fails'
+        >>> trials_said(failing, "ensemble", "cartpole:length=2.0", ["0"], all_variants=False)
+        '1'
+    """
+    trials = list(trials)
+    if not all_variants:
+        return str(len(trials))
+    return f"{len(trials)} scored, {fail_words(trials_failing(failing, method, variant, trials))}"
+
+
+def fail_words(failed: int) -> str:
+    """``"none fail"``, ``"1 fails"``, ``"3 fail"``."""
+    return f"{failed or 'none'} fail{'s' if failed == 1 else ''}"
+
+
 def unsolved_trials(id_returns: dict, task: str) -> list[tuple[str, int, float]]:
     """The trials whose model does not solve ``task`` (ID return below :data:`SOLVED_RETURN`), as
     ``(method, trial, ID return)``: their failing variants and AUROCs come from an agent that fails
@@ -152,7 +187,8 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
     per detector where there are several, and what the alarm rule did."""
     several = len(config.detectors) > 1
     with_paper = any(row.paper for row in result.rows)  # (not for your own policy's method: the paper has none)
-    table = Table(title=f"{config.task}: per-step AUROC per failing variant, ours (mean ± std over trials)"
+    which = "variant, every trial scored (--all-variants)" if config.all_variants else "failing variant"
+    table = Table(title=f"{config.task}: per-step AUROC per {which}, ours (mean ± std over trials)"
                         + (" beside the paper's" if with_paper else ""))
     counts = {(r.method, r.variant): episodes_failing(result.detection, r.method, r.variant, r.aurocs) for r in result.rows}
     counted = any(count is not None for count in counts.values())
@@ -164,7 +200,7 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
         difference = f"{row.mean - np.mean(row.paper):+.3f}" if row.paper else ""
         count = counts[(row.method, row.variant)]
         table.add_row(row.method, *((row.detector,) if several else ()), _without_task(row.variant, config.task),
-                      str(len(row.aurocs)),
+                      trials_said(result.failing, row.method, row.variant, row.aurocs, config.all_variants),
                       *(("" if count is None else f"{count[0]} of {count[1]}",) if counted else ()),
                       f"{row.mean:.3f} ± {row.std:.3f}", *((paper, difference) if with_paper else ()))
     console.print(table)
@@ -182,7 +218,8 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
             best.add_row(method, _without_task(variant, config.task), f"{ours:.3f}", *(beside if with_paper else ()))
         console.print(best)
     if several:
-        summary = Table(title=f"{config.task}: per-step AUROC per detector over the failing variants (mean over "
+        summary = Table(title=f"{config.task}: per-step AUROC per detector over the "
+                              f"{'' if config.all_variants else 'failing '}variants (mean over "
                               "variants and trials)")
         for column in ("method", "detector", "mean", "min", "variants"):
             summary.add_column(column, justify="left" if column in ("method", "detector") else "right")

@@ -68,8 +68,10 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                             "the false-alarm rate over many ID episodes, the task's best detector")
     world.add_argument("--episodes", type=_whole(1), help="episodes per failing variant (default 5; monitor: 10)")
     world.add_argument("--all-variants", action="store_true",
-                       help="monitor every variant, not only those the agent fails on (Pong's corruptions: an alarm "
-                            "is wanted whether or not the return drops)")
+                       help="monitor (the paper's protocol: score) every variant in every trial, not only those the "
+                            "trial's agent fails on; the tables say how many trials fail (the paper scored its five "
+                            "trials on the variants its trained model failed on; Pong's corruptions: an alarm is "
+                            "wanted whether or not the return drops)")
     world.add_argument("--id-episodes", type=_whole(1), help="ID episodes per trial (default 10; monitor: 200)")
     alarm.add_argument("--calibration-episodes", type=_whole(1),
                        help="ID episodes the threshold is calibrated on (default 45; monitor protocol: 90)")
