@@ -6,8 +6,8 @@ Run: .venv/bin/python scripts/bench_table.py [results/bench/<file>.json ...] [--
 
 ``--plots`` also draws each file as results/bench/<file>.png: per method and variant of the paper,
 our mean ± std over the trials that failed on the variant beside the paper's, with their number
-beside a point where fewer than all did (a file of ``--all-variants``: over every trial, with the
-number failing beside a point where fewer than all did).
+beside a point where fewer than all did (a file of ``--all-variants``: over every trial, with how
+many of them fail under each variant).
 
 Each file is what `oodmon bench ... --results FILE` wrote (its command is inside, and in
 results/bench/README.md). One row per variant the paper's appendix reports for a method: our
@@ -248,12 +248,13 @@ def plot(path: Path) -> Path:
             which = f"all {config['trials']} trials" if every else f"the failing of {config['trials']} trials"
             ax.errorbar(x[shown] + 0.12 * (1 + index), [ours[i]["mean"] for i in shown], [ours[i]["std"] for i in shown],
                         fmt="o", color=color, capsize=3, label=f"{name} ({which})")
-            for i in shown:  # a point over fewer trials than the bench ran, or of fewer failing: how many
-                failed = trials_failing(data["failing"], method, ours[i]["variant"], ours[i]["aurocs"])
-                said = (fail_words(failed) if failed < len(ours[i]["aurocs"]) else "") if every else \
-                    (f"n={len(ours[i]['aurocs'])}" if len(ours[i]["aurocs"]) < config["trials"] else "")
-                if said:
-                    ax.annotate(said, (x[i] + 0.12 * (1 + index), ours[i]["mean"]),
+            for i in shown:
+                if every and index == 0:  # every trial scored: under the variant, how many of them fail
+                    failed = trials_failing(data["failing"], method, ours[i]["variant"], ours[i]["aurocs"])
+                    ax.annotate(f"of {len(ours[i]['aurocs'])}: {fail_words(failed)}", (x[i], 0.04), ha="center",
+                                fontsize=7)
+                elif not every and len(ours[i]["aurocs"]) < config["trials"]:  # over fewer trials: how many failed
+                    ax.annotate(f"n={len(ours[i]['aurocs'])}", (x[i] + 0.12 * (1 + index), ours[i]["mean"]),
                                 textcoords="offset points", xytext=(5, -2), fontsize=7, color=color, va="top")
             if index == 0:
                 for i, r in enumerate(ours):
@@ -265,7 +266,7 @@ def plot(path: Path) -> Path:
         ax.set_ylim(0, 1.02)
         ax.set_xlim(-0.6, len(labels) - 0.4)
     axes[0][0].set_ylabel(f"per-step AUROC ({'spread: ' if len(detectors) > 1 else ''}{config['score']})")
-    axes[0][-1].legend(fontsize=7, loc="lower right")
+    axes[0][-1].legend(fontsize=7, loc="center right" if every else "lower right")  # (every: counts at the foot)
     return save_figure(fig, path.with_suffix(".png"))
 
 

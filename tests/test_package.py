@@ -176,7 +176,7 @@ def test_a_file_scoring_every_trial_says_how_many_of_them_fail_and_its_std_is_ju
     """``oodmon bench --all-variants`` scores every trial on every variant it names, failing or not (the
     paper scored its five trials on the variants its trained model failed on): the tables and the
     goals say per row how many trials it averages and how many of them fail, and judge its std over
-    them; the plot says how many fail beside a point where not all do."""
+    them; the plot says it under each variant."""
     root, script = load_script("bench_table")
     import oodmon.outputs
 
@@ -200,7 +200,7 @@ def test_a_file_scoring_every_trial_says_how_many_of_them_fail_and_its_std_is_ju
     monkeypatch.setattr(oodmon.outputs, "save_figure", lambda fig, path: drawn.append(fig) or path)
     script.plot(path)
     axes = drawn[0].axes[0]
-    assert sorted(text.get_text() for text in axes.texts) == ["1 fails", "none fail"]
+    assert sorted(text.get_text() for text in axes.texts) == ["of 5: 1 fails", "of 5: none fail"]
     assert "ours (all 5 trials)" in [text.get_text() for text in axes.get_legend().get_texts()]
 
 
