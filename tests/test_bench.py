@@ -190,7 +190,7 @@ def test_bench_cli_prints_our_numbers_beside_the_papers(tmp_path):
     shifted = next(log for log in read_logs([tmp_path]) if log.episodes[0].variant == "cartpole:length=2.0")
     cell = report["monitor"]["ensemble/trial0/cartpole:length=2.0"]
     assert cell["episodes"] == 2 and cell["failed"] == sum(e.terminated for e in shifted.episodes)
-    assert re.search(r"┃ +failed ┃", tables.stdout)  # and the printed table says it beside the AUROC
+    assert re.search(r"┃ +episodes failed ┃", tables.stdout)  # and the printed table says it beside the AUROC
     auroc_row = next(line for line in tables.stdout.splitlines() if "│ length=2.0 " in line and "±" in line)
     assert f"{cell['failed']} of 2" in auroc_row
     assert report["monitor"]["ensemble/trial0/cartpole"]["failed"] is None  # ID episodes: no shift to fail in

@@ -193,7 +193,7 @@ def print_paper_report(config: BenchConfig, result: BenchResult, console: Consol
     counts = {(r.method, r.variant): episodes_failing(result.detection, r.method, r.variant, r.aurocs) for r in result.rows}
     counted = any(count is not None for count in counts.values())
     columns = ("method", *(("detector",) if several else ()), "variant", "trials",
-               *(("failed",) if counted else ()), "ours", *(("paper", "difference") if with_paper else ()))
+               *(("episodes failed",) if counted else ()), "ours", *(("paper", "difference") if with_paper else ()))
     _add_columns(table, columns)
     for row in sorted(result.rows, key=lambda r: (r.method, r.variant, config.detectors.index(r.detector))):
         paper = f"{np.mean(row.paper):.3f} ± {np.std(row.paper):.3f}" if row.paper else ""
