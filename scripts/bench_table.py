@@ -11,9 +11,9 @@ many of them fail under each variant).
 
 Each file is what `oodmon bench ... --results FILE` wrote (its command is inside, and in
 results/bench/README.md). One row per variant the paper's appendix reports for a method: our
-per-step AUROC, mean ± std over the trials where the agent failed on that variant (the paper's
-protocol scores only failing variants), beside the paper's five trials; "does not fail" where none
-of our trials failed on it. CartPole files that count them also give how many of those trials'
+per-step AUROC, mean ± std over the trials where the agent failed on that variant (the bench
+scores a trial on a variant only where it fails, unless ``--all-variants``: below), beside the
+paper's five trials; "does not fail" where none of our trials failed on it. CartPole files that count them also give how many of those trials'
 shifted episodes failed ("23 of 25 episodes fail"): the protocol scores every step of the others as
 shifted too, though the agent coped. Then the best mean per task against the paper's best mean, and per
 method how many of the paper's variants we meet (mean >= the paper's, and std <= the paper's; a
