@@ -11,13 +11,14 @@ many of them fail under each variant).
 
 Each file is what `oodmon bench ... --results FILE` wrote (its command is inside, and in
 results/bench/README.md). One row per variant the paper's appendix reports for a method: our
-per-step AUROC, mean ± std over the trials where the agent failed on that variant (the bench
-scores a trial on a variant only where it fails, unless ``--all-variants``: below), beside the
-paper's five trials; "does not fail" where none of our trials failed on it. CartPole files that count them also give how many of those trials'
-shifted episodes failed ("23 of 25 episodes fail"): the protocol scores every step of the others as
-shifted too, though the agent coped. Then the best mean per task against the paper's best mean, and per
-method how many of the paper's variants we meet (mean >= the paper's, and std <= the paper's; a
-row over one failing trial has no std to compare: "one trial: no std", neither met nor missed).
+per-step AUROC, mean ± std over the trials where the agent failed on that variant (the bench scores
+a trial on a variant only where it fails, unless ``--all-variants``: below), beside the paper's five
+trials; "does not fail" where none of our trials failed on it. CartPole files that count them also
+give how many of those trials' shifted episodes failed ("23 of 25 episodes fail"): the protocol
+scores every step of the others as shifted too, though the agent coped. Then the best mean per task
+against the paper's best mean, and per method how many of the paper's variants we meet (mean >= the
+paper's, and std <= the paper's; a row over one failing trial has no std to compare: "one trial: no
+std", neither met nor missed).
 A file of ``oodmon bench --all-variants`` scores every trial on every variant it names, whether or not
 the trial fails there, as the paper scored its five trials on the variants where its trained model
 failed: its rows say how many trials they average and how many of them fail ("5 scored, 1 fails";
@@ -35,6 +36,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -134,6 +136,23 @@ def _detector_table(data: dict, detector: str) -> list[str]:
     return lines
 
 
+class Candidate(NamedTuple):
+    """One file's row (of one detector) for a variant the paper reports, as :func:`goals` weighs it:
+    by ``rank`` (both goals met, then the mean's, then the mean)."""
+
+    both: bool  # mean >= the paper's and std <= the paper's
+    mean_ok: bool
+    mean: float
+    trials: str  # as the tables say them: "4", "5 scored, 1 fails"
+    source: str  # "`file`, `detector`"
+    std: float
+    std_ok: bool | None  # None: one trial, no std
+
+    @property
+    def rank(self) -> tuple[bool, bool, float]:
+        return self.both, self.mean_ok, self.mean
+
+
 def goals(paths: list[Path]) -> str:
     """Per variant the paper reports, the best of ``paths``' rows (any file, any detector) beside the
     paper's: the one meeting both goals (mean >= the paper's, std <= the paper's) with the highest
@@ -141,7 +160,7 @@ def goals(paths: list[Path]) -> str:
     fail" where no file has a row for it. Then the best mean per task against the paper's best.
     Files of agents the zoo does not ship (other hidden widths, ensembles of other sizes) are left out."""
     papers = paper_auc_per_trial()
-    best: dict[tuple[str, str, str], tuple] = {}
+    best: dict[tuple[str, str, str], Candidate | None] = {}
     for path in paths:
         data = json.loads(path.read_text())
         config = data["config"]
@@ -159,9 +178,9 @@ def goals(paths: list[Path]) -> str:
                         best.setdefault(key, None)
                         continue
                     mean_ok, std_ok = row["mean"] >= np.mean(trials), _std_goal(row, trials)
-                    candidate = (bool(mean_ok and std_ok), mean_ok, row["mean"], _trials(data, row),
-                                 f"`{path.stem}`, `{detector}`", row["std"], std_ok)
-                    if best.get(key) is None or candidate[:3] > best[key][:3]:
+                    candidate = Candidate(bool(mean_ok and std_ok), bool(mean_ok), row["mean"], _trials(data, row),
+                                          f"`{path.stem}`, `{detector}`", row["std"], std_ok)
+                    if best.get(key) is None or candidate.rank > best[key].rank:
                         best[key] = candidate
     lines = ["| task | method | variant | paper: mean ± std | ours, the best: mean ± std (trials failing) | from "
              "(file, detector) | mean >= paper | std <= paper |", "|---|---|---|---|---|---|---|---|"]
@@ -177,10 +196,10 @@ def goals(paths: list[Path]) -> str:
         if found is None:
             lines.append(f"| {task} | {method} | {label} | {theirs} | does not fail (in any file) | | no | |")
             continue
-        both, mean_ok, mean, trials_of, source, std, std_ok = found
-        tops[task][0] = max(tops[task][0], (mean, f"{method} {label}, {source}"))
-        lines.append(f"| {task} | {method} | {label} | {theirs} | {mean:.3f} ± {std:.3f} ({trials_of}) "
-                     f"| {source} | {'yes' if mean_ok else 'no'} | {_said(std_ok) if mean_ok else 'no'} |")
+        tops[task][0] = max(tops[task][0], (found.mean, f"{method} {label}, {found.source}"))
+        lines.append(f"| {task} | {method} | {label} | {theirs} | {found.mean:.3f} ± {found.std:.3f} ({found.trials}) "
+                     f"| {found.source} | {'yes' if found.mean_ok else 'no'} | "
+                     f"{_said(found.std_ok) if found.mean_ok else 'no'} |")
     lines.append("")
     lines += [f"Best mean AUROC, {task}: "
               + (f"ours {ours[0]:.3f} ({ours[1]})" if ours[1] else "ours none (no variant failed)")
