@@ -28,7 +28,9 @@ def _add_envs(commands: argparse._SubParsersAction) -> None:
         "hand-written reference controller's returns in the ID env and the variant, and its pole "
         "angle over an episode. A shift of your own env (ENV_ID:NAME=VALUE): the env as it is and "
         "shifted, from the same seed with the same random actions, and the step from which what it "
-        "returned differs, if it does (an attribute the env reads only when made or reset changes nothing).",
+        "returned differs, if it does (an attribute the env reads only when made or reset changes nothing). "
+        "With --sb3 or --policy your policy acts instead, in a CartPole or Pendulum variant too (beside the "
+        "task's ID env): whether the shift changes anything in the states your policy visits.",
     )
     show.add_argument("spec", help="a variant spec, e.g. pong:pixelate@3 or cartpole:length=2.0, or a shift of "
                       "your own env, e.g. Acrobot-v1:LINK_MASS_2=3.0")
@@ -36,13 +38,14 @@ def _add_envs(commands: argparse._SubParsersAction) -> None:
     show.add_argument("--seed", type=_SEED, default=0, help="seed of the episode shown (default 0)")
     show.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (physics; default 0)")
     show.add_argument("--steps", type=_whole(1), default=500,
-                      help="your own env's shift: steps played at most (default 500; fewer when the episode ends)")
+                      help="your own env's shift, or your policy acting: steps played at most (default 500; fewer "
+                           "when the episode ends)")
     show.add_argument("--sb3", metavar="ZIP",
-                      help="your own env's shift: this stable-baselines3 model acts (deterministic) instead of random "
-                           "actions, in the states it visits (read without running code from it, as `oodmon run "
-                           "--sb3`)")
+                      help="this stable-baselines3 model acts (deterministic) in the env as it is and shifted (your "
+                           "own env's, a CartPole or Pendulum variant), in the states it visits (read without running "
+                           "code from it, as `oodmon run --sb3`)")
     show.add_argument("--policy", metavar="MODULE:NAME",
-                      help="your own env's shift: this policy of yours, a function obs -> action, acts instead (as "
+                      help="this policy of yours, a function obs -> action, acts as --sb3 does (as "
                            "`oodmon run --policy`: the module is imported)")
     show.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
                       help="with --sb3: as `oodmon run --import`")
@@ -86,15 +89,15 @@ def _envs_show(args: argparse.Namespace) -> int:
     console = Console(soft_wrap=True)
     loading = args.vec_normalize is not None or args.frame_stack is not None or args.unsafe_load_pickles \
         or bool(args.imports)
-    if isinstance(variant, Variant) and (args.sb3 or args.policy or loading):
+    if isinstance(variant, Variant) and variant.task == "pong" and (args.sb3 or args.policy or loading):
         raise ConfigError(f"--sb3 and its options (--import, --unsafe-load-pickles, --frame-stack, --vec-normalize), and "
-                          f"--policy, go with a shift of your own env; {variant.spec} is shown with oodmon's "
-                          "hand-written controller")
+                          f"--policy, go with a shift of your own env or a CartPole or Pendulum variant; {variant.spec} "
+                          "is shown as its clean and corrupted frames")
     if loading and not args.sb3:
         raise ConfigError("--import, --unsafe-load-pickles, --frame-stack and --vec-normalize go with --sb3")
     if args.sb3 and args.policy:
         raise ConfigError("--sb3 or --policy: the one policy that acts, give one of them")
-    if not isinstance(variant, Variant):
+    if not isinstance(variant, Variant) or args.sb3 or args.policy:  # your policy acting: the env's own and shifted
         return _show_own_shift(args, variant, out, console)
     if variant.task == "pong":
         image = pong_preview(variant, seed=args.seed)
@@ -113,8 +116,9 @@ def _envs_show(args: argparse.Namespace) -> int:
 
 
 def _show_own_shift(args: argparse.Namespace, shift, out, console: Console) -> int:
-    """`envs show` of a shift of your own env: the env as it is and shifted, side by side
-    (:func:`~oodmon.envs.probe.probe_shift`); exit code 1 when nothing it returned differed."""
+    """`envs show` of a shift of your own env, or of a variant of oodmon's task where your policy acts:
+    the env as it is and shifted, side by side (:func:`~oodmon.envs.probe.probe_shift`); exit code 1
+    when nothing it returned differed."""
     from oodmon.envs.preview import save_probe_plot
     from oodmon.envs.probe import probe_shift
 

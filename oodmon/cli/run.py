@@ -161,11 +161,14 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"note: {rows.before_onset} of {rows.episodes} episodes ended before step {args.onset}, the "
                       "onset: the shift never began in them (an --onset later than this env's episodes last?)",
                       markup=False)
-    if args.variant and shifts_an_env(label) and threshold is not None and rows.episodes and not rows.alarmed:
+    own_policy = bool(args.sb3 or args.policy) and args.task in ("cartpole", "pendulum")  # in oodmon's variant
+    if (args.variant and (shifts_an_env(label) or own_policy) and threshold is not None and rows.episodes
+            and not rows.alarmed):
+        why = ("an attribute the env reads only when it is made or reset changes nothing, nor does one where your "
+               "policy never goes" if shifts_an_env(label) else
+               "a change of physics acts only in some states: gravity hardly acts on a pendulum your policy holds upright")
         console.print(f"does the shift change anything the env returns? `{_show_command(args, label)}` plays the env "
-                      "shifted and as it is from the same seed, your policy acting in both (an attribute the env reads "
-                      "only when it is made or reset changes nothing, nor does one where your policy never goes)",
-                      markup=False)
+                      f"shifted and as it is from the same seed, your policy acting in both ({why})", markup=False)
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
     return 0

@@ -8,6 +8,11 @@ is and the shifted env from the same seed with the same actions (drawn at random
 space, seeded) and says from which step what the env returned (observation, reward, the episode's
 end) first differed, if it did. ``oodmon envs show ENV_ID:NAME=VALUE`` prints it (and plots the
 readings with ``--out``).
+
+It takes a variant of oodmon's CartPole and Pendulum as well (``pendulum:g=14.0``), beside the task's
+ID env, for your own policy on gymnasium's id of the task: a change of physics is felt only in the
+states where it acts (gravity hardly acts on a pendulum held upright), which your policy's
+episodes may never leave (``oodmon envs show pendulum:g=14.0 --onset 50 --sb3 ZIP``).
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.envs.checks import check_onset_step
+from oodmon.envs.grid import Variant
 from oodmon.envs.shift import EnvShift
 
 __all__ = ["ShiftProbe", "probe_shift"]
@@ -33,7 +39,7 @@ class ShiftProbe:
     """The env's own episode and the shifted one, from the same seed with the same actions.
 
     Attributes:
-        shift: what was shifted.
+        shift: what was shifted: a shift of your own env, or a variant of one of oodmon's tasks.
         onset: the step the shift began at.
         seed: the seed of both resets and of the actions.
         steps: the steps played in both (fewer than asked when either episode ended).
@@ -48,7 +54,7 @@ class ShiftProbe:
         actions: ``random`` (the same in both) or ``policy`` (a policy acted in each).
     """
 
-    shift: EnvShift
+    shift: EnvShift | Variant
     onset: int
     seed: int
     steps: int
@@ -95,12 +101,12 @@ class ShiftProbe:
                 + (f" (episodes ended: own {self.ended[0]}, shifted {self.ended[1]})" if any(self.ended) else ""))
 
 
-def probe_shift(shift: EnvShift, *, seed: int = 0, onset: int = 0, steps: int = 500,
+def probe_shift(shift: EnvShift | Variant, *, seed: int = 0, onset: int = 0, steps: int = 500,
                 policy: Callable[[Any], Any] | None = None,
                 wrap: Callable[[gymnasium.Env], gymnasium.Env] | None = None) -> ShiftProbe:
-    """Play ``shift``'s env as it is and shifted from ``onset`` on, from ``reset(seed=seed)`` with the
-    same random actions (``action_space.seed(seed)``), for ``steps`` steps or until either episode
-    ends, and compare what they returned.
+    """Play ``shift``'s env as it is (a variant's: its task's ID env) and shifted from ``onset`` on,
+    from ``reset(seed=seed)`` with the same random actions (``action_space.seed(seed)``), for
+    ``steps`` steps or until either episode ends, and compare what they returned.
 
     ``policy``: ``obs -> action`` acts in each env instead (the states your policy visits, where a
     shift may matter that random actions never reach; its actions differ once the observations
@@ -123,7 +129,8 @@ def probe_shift(shift: EnvShift, *, seed: int = 0, onset: int = 0, steps: int = 
         raise InvalidParameterError(f"steps={steps!r} is not allowed; give a whole number >= 1")
     check_onset_step(shift.env_id, onset)
     wrap = wrap or (lambda env: env)
-    own_env, shifted_env = wrap(EnvShift(shift.env_id, ()).make()), wrap(shift.make(onset_step=onset))
+    as_it_is = Variant(shift.task) if isinstance(shift, Variant) else EnvShift(shift.env_id, ())
+    own_env, shifted_env = wrap(as_it_is.make()), wrap(shift.make(onset_step=onset))
     try:
         if policy is None:
             own_env.action_space.seed(seed)

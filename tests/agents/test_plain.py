@@ -263,8 +263,8 @@ def test_envs_show_plays_a_shift_of_your_own_env_with_your_policy(tmp_path, monk
     assert main(["envs", "show", "Acrobot-v1:LINK_MASS_2=3.0", "--onset", "20", "--policy", "pump:act"]) == 0
     # the policy's actions, not random ones: the heavier link moves otherwise from the first step after the onset
     assert "differs from the env's own from step 21 on, over 500 steps of the policy's actions" in capsys.readouterr().out
-    assert main(["envs", "show", "cartpole:length=2.0", "--policy", "pump:act"]) == 2
-    assert "is shown with oodmon's hand-written controller" in capsys.readouterr().err
+    assert main(["envs", "show", "pong:pixelate@3", "--policy", "pump:act"]) == 2
+    assert "pong:pixelate@3 is shown as its clean and corrupted frames" in capsys.readouterr().err
 
 
 def test_a_run_whose_shift_of_the_env_alarmed_nowhere_prints_the_envs_show_of_its_own_policy(tmp_path, monkeypatch,
@@ -272,7 +272,9 @@ def test_a_run_whose_shift_of_the_env_alarmed_nowhere_prints_the_envs_show_of_it
     """A judge set tighter, `CartPole-v1:theta_threshold_radians=0.1` from step 150: the controller
     keeps well within it, no episode alarms, and the run prints the probe to try with the controller
     acting (before 2026-12-02 it gave random actions, which drop the pole long before step 150, and
-    said nothing of gymnasium's id of one of oodmon's tasks)."""
+    said nothing of gymnasium's id of one of oodmon's tasks). Likewise for oodmon's own variant of
+    the task, gravity 12% stronger from step 30, which the controller copes with (said since
+    2026-12-04): `envs show` plays it beside the task's ID env, the controller acting."""
     (tmp_path / "upright.py").write_text(_readme_block()[0])
     monkeypatch.syspath_prepend(str(tmp_path))
     threshold = str(tmp_path / "t.json")
@@ -290,6 +292,15 @@ def test_a_run_whose_shift_of_the_env_alarmed_nowhere_prints_the_envs_show_of_it
                                     "150", "--policy", "upright:act"]
     assert main(shlex.split(command)[1:]) == 1  # as printed: nothing differs where the controller goes
     assert "over 500 steps of the policy's actions" in " ".join(capsys.readouterr().out.split())
+    assert main(["run", "--policy", "upright:act", "--env", "CartPole-v1", "--threshold", threshold, "--episodes", "2",
+                 "--variant", "cartpole:gravity=11.0", "--onset", "30"]) == 0
+    said = " ".join(capsys.readouterr().out.split())
+    assert "0 of 2 episodes raised an alarm" in said and "a change of physics acts only in some states" in said
+    command = re.search(r"`(oodmon envs show [^`]*)`", said).group(1)
+    assert shlex.split(command) == ["oodmon", "envs", "show", "cartpole:gravity=11.0", "--onset", "30", "--policy",
+                                    "upright:act"]
+    assert main(shlex.split(command)[1:]) == 0  # the pole's readings move apart from step 31, both held 500 steps
+    assert "from step 31 on, over 500 steps of the policy's actions" in " ".join(capsys.readouterr().out.split())
 
 
 def test_a_detector_a_plain_policy_cannot_have_is_refused_before_any_episode(tmp_path, monkeypatch, capsys):
@@ -382,3 +393,4 @@ def test_an_alarm_that_reads_changes_is_refused_where_every_episode_lasts_one_st
             calibrate_agent(agents[1], 50, detectors=fitted[1], detector=detector)
         # two steps: the second's change is scored
         assert calibrate_agent(agents[2], 50, detectors=fitted[2], detector=detector).n_steps == 100
+

@@ -127,8 +127,31 @@ def test_a_policy_acts_in_each_env_and_sees_a_shift_where_its_states_lead(tmp_pa
     assert main([*argv, "--frame-stack", "2"]) == 2  # a model of one observation, not of two stacked
     assert "was trained with the observation" in capsys.readouterr().err
     assert main(argv) == 0 and "from step 6 on, over 30 steps of the policy's actions" in capsys.readouterr().out
-    assert main(["envs", "show", "cartpole:length=2.0", "--sb3", str(tmp_path / "m.zip")]) == 2
-    assert "hand-written controller" in capsys.readouterr().err
+    assert main(["envs", "show", "pong:pixelate@3", "--sb3", str(tmp_path / "m.zip")]) == 2
+    assert "pong:pixelate@3 is shown as its clean and corrupted frames" in capsys.readouterr().err
+    assert main(["envs", "show", "cartpole:length=2.0", "--sb3", str(tmp_path / "m.zip")]) == 2  # an Acrobot model
+    assert "oodmon/CartPole-v1 has Box(" in capsys.readouterr().err
+
+
+def test_your_policy_in_a_variant_of_a_task_is_played_beside_the_tasks_id_env(tmp_path, monkeypatch, capsys):
+    """Gravity hardly acts on a pendulum held upright: 40% more of it from step 50, when the
+    reference controller holds the pendulum there, moves no reading by 0.01 (0.0022 when written)
+    and leaves the return as it was; from the start, while the controller swings it up, it changes
+    the episode (readings 8.3 apart). What a user's policy meets when `oodmon run` of such a shift
+    alarms nowhere (before 2026-12-04, `envs show` refused --sb3 and --policy for a task's variant)."""
+    from oodmon.envs import parse_variant
+    from oodmon.envs.reference import pendulum_controller
+
+    upright = probe_shift(parse_variant("pendulum:g=14.0"), onset=50, steps=200, policy=pendulum_controller)
+    assert upright.first_difference == 51 and 0 < upright.largest.max() < 0.01
+    assert upright.steps == 200 and abs(upright.shifted_return - upright.own_return) < 0.1
+    swinging = probe_shift(parse_variant("pendulum:g=14.0"), onset=0, steps=200, policy=pendulum_controller)
+    assert swinging.first_difference == 1 and swinging.largest.max() > 1.0
+    (tmp_path / "probe_controller.py").write_text("from oodmon.envs.reference import pendulum_controller as act\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    argv = ["envs", "show", "pendulum:g=14.0", "--onset", "50", "--steps", "200", "--policy", "probe_controller:act"]
+    assert main(argv) == 0
+    assert "differs from the env's own from step 51 on, over 200 steps of the policy's actions" in capsys.readouterr().out
 
 
 def test_an_env_of_dict_observations_is_compared_reading_by_reading():
