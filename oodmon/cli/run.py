@@ -161,7 +161,7 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"note: {rows.before_onset} of {rows.episodes} episodes ended before step {args.onset}, the "
                       "onset: the shift never began in them (an --onset later than this env's episodes last?)",
                       markup=False)
-    own_policy = bool(args.sb3 or args.policy) and args.task in ("cartpole", "pendulum")  # in oodmon's variant
+    own_policy = bool(args.sb3 or args.policy) and args.task in ("cartpole", "pendulum")  # your policy, not an oodmon agent
     if (args.variant and (shifts_an_env(label) or own_policy) and threshold is not None and rows.episodes
             and not rows.alarmed):
         why = ("an attribute the env reads only when it is made or reset changes nothing, nor does one where your "
