@@ -166,7 +166,8 @@ def _run(args: argparse.Namespace) -> int:
             and not rows.alarmed):
         why = ("an attribute the env reads only when it is made or reset changes nothing, nor does one where your "
                "policy never goes" if shifts_an_env(label) else
-               "a change of physics acts only in some states: gravity hardly acts on a pendulum your policy holds upright")
+               "a change of physics or of a sensor acts only in some states: gravity hardly acts on a pendulum your "
+               "policy holds upright, and a stuck reading of a still one reads as before")
         console.print(f"does the shift change anything the env returns? `{_show_command(args, label)}` plays the env "
                       f"shifted and as it is from the same seed, your policy acting in both ({why})", markup=False)
     if failures:

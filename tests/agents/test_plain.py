@@ -295,7 +295,7 @@ def test_a_run_whose_shift_of_the_env_alarmed_nowhere_prints_the_envs_show_of_it
     assert main(["run", "--policy", "upright:act", "--env", "CartPole-v1", "--threshold", threshold, "--episodes", "2",
                  "--variant", "cartpole:gravity=11.0", "--onset", "30"]) == 0
     said = " ".join(capsys.readouterr().out.split())
-    assert "0 of 2 episodes raised an alarm" in said and "a change of physics acts only in some states" in said
+    assert "0 of 2 episodes raised an alarm" in said and "a change of physics or of a sensor acts only in some states" in said
     command = re.search(r"`(oodmon envs show [^`]*)`", said).group(1)
     assert shlex.split(command) == ["oodmon", "envs", "show", "cartpole:gravity=11.0", "--onset", "30", "--policy",
                                     "upright:act"]
