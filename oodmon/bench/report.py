@@ -307,22 +307,27 @@ def print_monitor_report(config: BenchConfig, result: BenchResult, console: Cons
 
 
 def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, agent=None, steps: int = 500) -> None:
-    """For each shift of your own env that no episode alarmed on: whether the env felt it at all
-    where your policy acts (:func:`~oodmon.envs.probe.probe_shift` with ``agent``'s actions, by default
-    the bench's own policy, from the first onset drawn), said when nothing it returned differed: an
-    attribute the env reads only when made or reset, or in states your policy never reaches, not the
-    detectors, is then why no alarm came."""
+    """For each shift of your own env, and each CartPole or Pendulum variant, that no episode alarmed
+    on: whether the env felt it at all where your policy acts (:func:`~oodmon.envs.probe.probe_shift`
+    with ``agent``'s actions, by default the bench's own policy, from the first onset drawn), said when
+    nothing it returned differed: an attribute the env reads only when made or reset, or in states your
+    policy never reaches, not the detectors, is then why no alarm came. A variant's physics moves some
+    reading a little wherever it acts: how much, for the reading's range in the ID episode, is said
+    (gravity hardly acts on a pendulum held upright)."""
     from oodmon.bench.cache import own_policy_agent
+    from oodmon.envs import parse_variant
     from oodmon.envs.probe import probe_shift
     from oodmon.envs.shift import parse_env_shift, shifts_an_env
 
     low, _ = config.onset_range()
     unalarmed = [row for row in result.alarms if not (row.is_id or row.alarmed) and row.shifted_episodes
-                 and shifts_an_env(row.variant)]  # (oodmon's variants of a task: felt by design)
+                 and (shifts_an_env(row.variant) or parse_variant(row.variant).task != "pong")]
     if unalarmed and agent is None:
         agent = own_policy_agent(config)
     for row in unalarmed:
-        probe = probe_shift(parse_env_shift(row.variant), onset=low, steps=steps, policy=agent.act, wrap=agent.wrap)
+        shift = parse_env_shift(row.variant) if shifts_an_env(row.variant) else parse_variant(row.variant)
+        probe = probe_shift(shift, onset=low, steps=steps, policy=agent.act, wrap=agent.wrap)
+        moved = probe.largest_share() if probe.changed and not shifts_an_env(row.variant) else None
         if not probe.changed and not probe.reached_onset:
             console.print(f"{row.variant}: no episode alarmed; your policy's episode in the env ends after {probe.steps} "
                           f"steps, before step {low}, the first onset, so whether the env feels the shift was not seen "
@@ -333,3 +338,8 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
                           f"{probe.steps} steps of your policy's actions, shifted from step {low}: does the env read it "
                           "only after a reset, or where your policy never goes (a bound it keeps well within)?",
                           markup=False)
+        elif moved is not None:
+            console.print(f"{row.variant}: no episode alarmed; where your policy goes, over {probe.steps} steps shifted "
+                          f"from step {low}, it moved reading {moved[0]} by at most {moved[1]:.2%} of that reading's "
+                          f"range in the ID episode, the most of any reading (`oodmon envs show {row.variant} --onset "
+                          f"{low}` with your policy's --sb3 or --policy pictures it)", markup=False)

@@ -73,6 +73,28 @@ class ShiftProbe:
         """Whether anything the env returned differed."""
         return self.first_difference is not None
 
+    def largest_share(self) -> tuple[int, float] | None:
+        """The reading that moved most for its range, and by what share of that range: its largest
+        difference over the range of its values in the env's own episode (``None`` where the readings
+        were not kept, or none varied there).
+
+        Example:
+            >>> from oodmon.envs import parse_variant
+            >>> from oodmon.envs.reference import pendulum_controller
+            >>> probe = probe_shift(parse_variant("pendulum:g=14.0"), onset=50, steps=200, policy=pendulum_controller)
+            >>> reading, share = probe.largest_share()  # sin(angle), 0.0007 of its range of about 2
+            >>> reading, round(share, 5)
+            (1, 0.00035)
+        """
+        if self.own is None:
+            return None
+        ranges = np.ptp(self.own, axis=0)
+        varied = np.flatnonzero(ranges > 0)
+        if not len(varied):
+            return None
+        shares = self.largest[varied] / ranges[varied]
+        return int(varied[np.argmax(shares)]), float(shares.max())
+
     @property
     def reached_onset(self) -> bool:
         """Whether the shifted episode played its step ``onset`` (counted from 0), the first one shifted."""

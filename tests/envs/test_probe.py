@@ -217,3 +217,19 @@ def test_the_bench_probes_an_unalarmed_shift_where_the_users_policy_goes_not_whe
     assert probe_shift(parse_env_shift("CartPole-v1:theta_threshold_radians=0.1"), onset=150).steps < 150  # random
     felt = _unfelt_said("CartPole-v1:theta_threshold_radians=0.001", "CartPole-v1", upright, (150, 160))
     assert felt == ""  # it ends the episode at the onset: felt, so nothing to say of the env
+
+
+def test_the_bench_says_how_little_a_variant_of_a_task_moved_the_readings_where_your_policy_goes():
+    """oodmon's own variants were taken as felt (before 2026-12-04 the bench said nothing of them):
+    40% more gravity from step 50, when the controller holds the pendulum upright, moves sin(angle)
+    by 0.0007, 0.04% of its range in the ID episode, which no detector need see; from step 0 it
+    changes the swing (a reading moved by its whole range)."""
+    from oodmon.envs.reference import pendulum_controller
+
+    said = " ".join(_unfelt_said("pendulum:g=14.0", "Pendulum-v1", pendulum_controller, (50, 60)).split())
+    assert ("pendulum:g=14.0: no episode alarmed; where your policy goes, over 200 steps shifted from step 50, it "
+            "moved reading 1 by at most 0.04% of that reading's range in the ID episode") in said
+    assert "`oodmon envs show pendulum:g=14.0 --onset 50` with your policy's --sb3 or --policy" in said
+    swinging = " ".join(_unfelt_said("pendulum:g=14.0", "Pendulum-v1", pendulum_controller, (0, 10)).split())
+    assert "moved reading 0 by at most 100.52% of that reading's range" in swinging
+    assert _unfelt_said("pong:pixelate@3", "oodmon/Pong-v5", lambda obs: 0, (0, 10)) == ""  # frames: no probe
