@@ -314,6 +314,8 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
     policy never reaches, not the detectors, is then why no alarm came. A variant's physics moves some
     reading a little wherever it acts: how much, for the reading's range in the ID episode, is said
     (gravity hardly acts on a pendulum held upright)."""
+    import shlex
+
     from oodmon.bench.cache import own_policy_agent
     from oodmon.envs import parse_variant
     from oodmon.envs.probe import probe_shift
@@ -341,5 +343,5 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
         elif moved is not None:
             console.print(f"{row.variant}: no episode alarmed; where your policy goes, over {probe.steps} steps shifted "
                           f"from step {low}, it moved reading {moved[0]} by at most {moved[1]:.2%} of that reading's "
-                          f"range in the ID episode, the most of any reading (`oodmon envs show {row.variant} --onset "
-                          f"{low}` with your policy's --sb3 or --policy pictures it)", markup=False)
+                          f"range in the ID episode, the most of any reading (`oodmon envs show {shlex.quote(row.variant)} "
+                          f"--onset {low}` with your policy's --sb3 or --policy pictures it)", markup=False)

@@ -233,3 +233,5 @@ def test_the_bench_says_how_little_a_variant_of_a_task_moved_the_readings_where_
     swinging = " ".join(_unfelt_said("pendulum:g=14.0", "Pendulum-v1", pendulum_controller, (0, 10)).split())
     assert "moved reading 0 by at most 100.52% of that reading's range" in swinging
     assert _unfelt_said("pong:pixelate@3", "oodmon/Pong-v5", lambda obs: 0, (0, 10)) == ""  # frames: no probe
+    stuck = " ".join(_unfelt_said("pendulum:obs.stuck[2]=1.0", "Pendulum-v1", pendulum_controller, (50, 60)).split())
+    assert "`oodmon envs show 'pendulum:obs.stuck[2]=1.0' --onset 50`" in stuck  # quoted for the shell, as run's
