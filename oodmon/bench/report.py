@@ -317,19 +317,20 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
     import shlex
 
     from oodmon.bench.cache import own_policy_agent
-    from oodmon.envs import parse_variant
+    from oodmon.envs.grid import Variant
     from oodmon.envs.probe import probe_shift
-    from oodmon.envs.shift import parse_env_shift, shifts_an_env
+    from oodmon.envs.shift import parse_any_variant
 
     low, _ = config.onset_range()
-    unalarmed = [row for row in result.alarms if not (row.is_id or row.alarmed) and row.shifted_episodes
-                 and (shifts_an_env(row.variant) or parse_variant(row.variant).task != "pong")]
+    unalarmed = [(row, parse_any_variant(row.variant)) for row in result.alarms
+                 if not (row.is_id or row.alarmed) and row.shifted_episodes]
+    unalarmed = [(row, shift) for row, shift in unalarmed
+                 if not (isinstance(shift, Variant) and shift.task == "pong")]  # (Pong's frames: nothing to probe)
     if unalarmed and agent is None:
         agent = own_policy_agent(config)
-    for row in unalarmed:
-        shift = parse_env_shift(row.variant) if shifts_an_env(row.variant) else parse_variant(row.variant)
+    for row, shift in unalarmed:
         probe = probe_shift(shift, onset=low, steps=steps, policy=agent.act, wrap=agent.wrap)
-        moved = probe.largest_share() if probe.changed and not shifts_an_env(row.variant) else None
+        moved = probe.largest_share() if probe.changed and isinstance(shift, Variant) else None
         if not probe.changed and not probe.reached_onset:
             console.print(f"{row.variant}: no episode alarmed; your policy's episode in the env ends after {probe.steps} "
                           f"steps, before step {low}, the first onset, so whether the env feels the shift was not seen "

@@ -98,7 +98,7 @@ def _envs_show(args: argparse.Namespace) -> int:
     if args.sb3 and args.policy:
         raise ConfigError("--sb3 or --policy: the one policy that acts, give one of them")
     if not isinstance(variant, Variant) or args.sb3 or args.policy:  # your policy acting: the env's own and shifted
-        return _show_own_shift(args, variant, out, console)
+        return _show_probe(args, variant, out, console)
     if variant.task == "pong":
         image = pong_preview(variant, seed=args.seed)
         console.print(f"{variant.spec}: {variant.kwargs() or dict(variant.faults)}", markup=False)  # obs.KIND[i]
@@ -115,7 +115,7 @@ def _envs_show(args: argparse.Namespace) -> int:
     return 0
 
 
-def _show_own_shift(args: argparse.Namespace, shift, out, console: Console) -> int:
+def _show_probe(args: argparse.Namespace, shift, out, console: Console) -> int:
     """`envs show` of a shift of your own env, or of a variant of oodmon's task where your policy acts:
     the env as it is and shifted, side by side (:func:`~oodmon.envs.probe.probe_shift`); exit code 1
     when nothing it returned differed."""

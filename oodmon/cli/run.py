@@ -161,11 +161,11 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"note: {rows.before_onset} of {rows.episodes} episodes ended before step {args.onset}, the "
                       "onset: the shift never began in them (an --onset later than this env's episodes last?)",
                       markup=False)
+    own_env = shifts_an_env(label)
     own_policy = bool(args.sb3 or args.policy) and args.task in ("cartpole", "pendulum")  # your policy, not an oodmon agent
-    if (args.variant and (shifts_an_env(label) or own_policy) and threshold is not None and rows.episodes
-            and not rows.alarmed):
+    if args.variant and (own_env or own_policy) and threshold is not None and rows.episodes and not rows.alarmed:
         why = ("an attribute the env reads only when it is made or reset changes nothing, nor does one where your "
-               "policy never goes" if shifts_an_env(label) else
+               "policy never goes" if own_env else
                "a change of physics or of a sensor acts only in some states: gravity hardly acts on a pendulum your "
                "policy holds upright, and a stuck reading of a still one reads as before")
         console.print(f"does the shift change anything the env returns? `{_show_command(args, label)}` plays the env "
