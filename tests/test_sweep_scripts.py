@@ -542,3 +542,16 @@ def test_dynamics_training_reads_each_fit_as_epochs_schedule_and_cap_and_refuses
     for bad in ("30", "30:cosine", "x:linear", "100:linear:many", "100:linear:3000:1", "0:linear", "100:linear:0"):
         with pytest.raises(argparse.ArgumentTypeError, match="give EPOCHS:linear or EPOCHS:constant"):
             script.parse_fits(bad)
+
+
+def test_full_depth_features_reads_the_same_layer_twice_where_sampling_starts_at_the_last_one():
+    """An output-layer agent's features are its last hidden layer, so the two columns agree to the
+    last digit; a full-depth agent's (CartPole DropConnect: the observation) are another layer."""
+    _, script = load_script("full_depth_features")
+    small = dict(fit_episodes=3, id_episodes=2, episodes=2)
+    output_layer = script.compare(str(zoo_dir() / "cartpole-dropout"), ["cartpole:length=2.0"], **small)
+    today, last_hidden = output_layer["cartpole:length=2.0"]
+    assert today == last_hidden and 0.5 < today <= 1.0
+    full_depth = script.compare(str(zoo_dir() / "cartpole-dropconnect"), ["cartpole:length=2.0"], **small)
+    today, last_hidden = full_depth["cartpole:length=2.0"]
+    assert today != last_hidden and min(today, last_hidden) > 0.5
