@@ -555,3 +555,33 @@ def test_full_depth_features_reads_the_same_layer_twice_where_sampling_starts_at
     full_depth = script.compare(str(zoo_dir() / "cartpole-dropconnect"), ["cartpole:length=2.0"], **small)
     today, last_hidden = full_depth["cartpole:length=2.0"]
     assert today != last_hidden and min(today, last_hidden) > 0.5
+
+
+def test_first_steps_leaves_each_episodes_first_steps_out_of_both_sides():
+    """A detector blind at step 0 (every episode's first score the same) and perfect after it: over
+    all steps the shifted step 0s tie with the ID ones, from step 1 on it separates them all."""
+    from oodmon.replay import EpisodeLog, RunLog
+
+    _, script = load_script("first_steps")
+
+    def episode(k, variant, scores):
+        scores = np.asarray(scores, float)
+        shifted = np.full(len(scores), variant != "cartpole")
+        return EpisodeLog(episode=k, env_id="oodmon/CartPole-v1", variant=variant, onset=0, seed=k, total_return=0.0,
+                          length=len(scores), alarms=0, first_alarm_step=None, scores=scores, shifted=shifted,
+                          alarm=np.zeros(len(scores), bool), detector_scores={"dynamics": scores})
+
+    def log(episodes):
+        return RunLog(Path("x.mcap"), "cartpole", "dropout", float("nan"), {"detectors": "dynamics"}, episodes, True)
+
+    id_log = log([episode(0, "cartpole", [0.0, 1.0, 2.0, 3.0]), episode(1, "cartpole", [0.0, 2.0, 3.0, 1.0])])
+    shifted = log([episode(0, "cartpole:length=0.05", [0.0, 9.0]), episode(1, "cartpole:length=0.05", [0.0, 8.0])])
+    detectors, rows = script.aurocs_of([id_log, shifted], skips=(1,))
+    row = rows["cartpole:length=0.05"]
+    assert detectors == ["dynamics"] and (row["steps"], row["starts"]) == (4, 2)
+    # all steps: 8 ID scores, 2 of them 0.0; the shifted 9 and 8 beat all 8, each shifted 0.0 beats
+    # none and ties with two (half a pair each): (8 + 8 + 1 + 1) / (4 * 8)
+    assert row["dynamics"][0] == pytest.approx(18 / 32)
+    assert row["dynamics"][1] == 1.0
+    with pytest.raises(Exception, match="hold no ID episodes"):
+        script.aurocs_of([shifted])
