@@ -22,27 +22,27 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from sklearn.metrics import roc_auc_score
 
 from oodmon.errors import OodmonError
-from oodmon.replay.metrics import is_id_variant, rankable
+from oodmon.replay import compute_metrics
+from oodmon.replay.metrics import is_id_variant
 from oodmon.replay.reader import EpisodeLog, RunLog, read_logs
 
 
-def _steps(episodes: Sequence[EpisodeLog], detector: str, skip: int, shifted: bool | None) -> np.ndarray:
-    """``detector``'s scores at the steps of ``episodes`` from step ``skip`` on: every step
-    (``shifted`` None), or only those the shift had (True) or had not (False) reached."""
-    parts = []
-    for episode in episodes:
-        scores = np.asarray(episode.scores_of(detector), np.float64)
-        keep = np.arange(len(scores)) >= skip
-        if shifted is not None:
-            keep &= np.asarray(episode.shifted, bool) == shifted
-        parts.append(scores[keep])
-    return np.concatenate(parts) if parts else np.array([])
+def from_step(log: RunLog, skip: int) -> RunLog:
+    """``log`` with each episode's first ``skip`` steps cut off (an episode no longer than that
+    dropped), its onset moved with them."""
+    def cut(episode: EpisodeLog) -> EpisodeLog:
+        rest = slice(skip, None)
+        return replace(episode, length=episode.length - skip, onset=max(episode.onset - skip, 0),
+                       scores=episode.scores[rest], shifted=episode.shifted[rest], alarm=episode.alarm[rest],
+                       detector_scores={name: values[rest] for name, values in episode.detector_scores.items()},
+                       rewards=None if episode.rewards is None else episode.rewards[rest])
+    return replace(log, episodes=[cut(e) for e in log.episodes if e.length > skip])
 
 
 def aurocs(folder: str | Path, skips: Sequence[int] = (1,)) -> tuple[list[str], dict[str, dict]]:
@@ -61,38 +61,30 @@ def aurocs(folder: str | Path, skips: Sequence[int] = (1,)) -> tuple[list[str], 
 def aurocs_of(logs: Sequence[RunLog], skips: Sequence[int] = (1,), where: str = "the logs"
               ) -> tuple[list[str], dict[str, dict]]:
     """The detectors of one agent's ``logs`` and per variant: ``steps`` (shifted ones), ``starts``
-    (shifted steps that are an episode's first) and per detector the per-step AUROC for each
-    number of first steps left out (0 and ``skips``).
+    (shifted steps that are an episode's first) and per detector the per-step AUROC, as
+    :func:`~oodmon.replay.compute_metrics` gives it, for each number of first steps left out (0 and
+    ``skips``).
 
     Raises:
         OodmonError: no ID episodes among them.
     """
-    by_variant: dict[str, list[EpisodeLog]] = {}
-    for log in logs:
-        for episode in log.episodes:
-            by_variant.setdefault(episode.variant, []).append(episode)
-    ids = [variant for variant in by_variant if is_id_variant(variant)]
-    if not ids:
+    episodes = [e for log in logs for e in log.episodes]
+    if not any(is_id_variant(e.variant) for e in episodes):
         raise OodmonError(f"{where} hold no ID episodes (the bench writes <task>.mcap beside the variants')")
     detectors = logs[0].detectors
-    id_episodes = [e for variant in ids for e in by_variant[variant]]
-    result = {}
-    for variant, episodes in sorted(by_variant.items()):
-        if variant in ids:
-            continue
-        row = {"steps": int(sum(np.sum(e.shifted) for e in episodes)),
-               "starts": int(sum(bool(e.shifted[0]) for e in episodes if e.length))}
+    result: dict[str, dict] = {}
+    for e in episodes:
+        if not is_id_variant(e.variant):
+            row = result.setdefault(e.variant, {"steps": 0, "starts": 0, **{d: {} for d in detectors}})
+            row["steps"] += int(np.sum(e.shifted))
+            row["starts"] += int(e.length > 0 and bool(e.shifted[0]))
+    for skip in (0, *skips):
+        cut = logs if skip == 0 else [from_step(log, skip) for log in logs]
         for detector in detectors:
-            row[detector] = {}
-            for skip in (0, *skips):
-                negatives = np.concatenate([_steps(id_episodes, detector, skip, None),
-                                            _steps(episodes, detector, skip, False)])
-                positives = _steps(episodes, detector, skip, True)
-                if len(negatives) and len(positives):
-                    labels = np.r_[np.zeros(len(negatives)), np.ones(len(positives))]
-                    row[detector][skip] = float(roc_auc_score(labels, rankable(np.r_[negatives, positives])))
-        result[variant] = row
-    return detectors, result
+            for metrics in compute_metrics(cut, detector=detector):
+                if metrics.variant in result and metrics.auroc is not None:
+                    result[metrics.variant][detector][skip] = metrics.auroc
+    return detectors, dict(sorted(result.items()))
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -28,7 +28,8 @@ hidden layer 0.901 / 0.456: lower. Both kept reading what they read.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -38,6 +39,7 @@ from oodmon.agents.agent import Agent, agent_from_modules
 from oodmon.agents.serialization import load_modules
 from oodmon.envs.grid import parse_variant
 from oodmon.errors import OodmonError
+from oodmon.monitor.detectors import collect
 from oodmon.monitor.detectors.base import StepContext, Trajectory
 from oodmon.monitor.detectors.features import FeaturesDetector
 from oodmon.threads import limit_threads
@@ -55,33 +57,24 @@ class _Features:
         self.features = features[None]
 
 
-def play(agent: Agent, last_hidden: torch.nn.Module, spec: str, seeds: Iterable[int]) -> list[tuple]:
-    """Episodes of ``spec`` (one per seed): each (actions, features per layer of :data:`LAYERS`)."""
-    episodes = []
-    for seed in seeds:
-        env = parse_variant(spec).make()
-        obs, _ = env.reset(seed=seed)
-        actions, layers, done = [], ([], []), False
-        while not done:
-            estimate = agent.estimate(obs)
-            action = int(np.asarray(estimate.action).reshape(-1)[0])
-            layers[0].append(estimate.features.reshape(-1))
-            with torch.no_grad():
-                layers[1].append(last_hidden(torch.as_tensor(np.asarray(obs, np.float32)[None])).numpy().reshape(-1))
-            actions.append(action)
-            obs, _, terminated, truncated, _ = env.step(action)
-            done = terminated or truncated
-        episodes.append((np.asarray(actions), tuple(np.asarray(layer, np.float32) for layer in layers)))
-    return episodes
+def play(agent: Agent, last_hidden: torch.nn.Module, spec: str, first_seed: int,
+         episodes: int) -> list[list[Trajectory]]:
+    """``episodes`` episodes of ``spec`` (seeds from ``first_seed``) as the detectors' fitting plays
+    them, per layer of :data:`LAYERS`: the trajectories with the features the agent gave, and the
+    same with its last hidden layer's (one pass over each episode's observations)."""
+    played = collect(agent, parse_variant(spec).make(), episodes, seed=first_seed)
+    with torch.no_grad():
+        last = [last_hidden(torch.as_tensor(np.asarray(t.observations[:-1], np.float32))).numpy() for t in played]
+    return [played, [replace(t, features=features) for t, features in zip(played, last)]]
 
 
-def scores(detector: FeaturesDetector, episodes: Sequence[tuple], layer: int) -> np.ndarray:
-    """Every step's score of ``detector`` on ``episodes``' features of ``layer``, episode by episode."""
+def scores(detector: FeaturesDetector, trajectories: Sequence[Trajectory]) -> np.ndarray:
+    """Every step's score of ``detector`` on ``trajectories``' features, episode by episode."""
     out = []
-    for actions, layers in episodes:
+    for trajectory in trajectories:
         detector.reset()
         out += [detector.score(StepContext(np.zeros(1), int(action), estimate=_Features(features)))
-                for action, features in zip(actions, layers[layer])]
+                for action, features in zip(trajectory.actions, trajectory.features)]
     return np.asarray(out)
 
 
@@ -93,22 +86,18 @@ def compare(model_dir: str, variants: Sequence[str], *, fit_episodes: int = 60, 
     modules, metadata = load_modules(model_dir, task="cartpole")
     agent = agent_from_modules(modules, metadata, model_dir, seed=0)
     last_hidden = modules["network"].eval()[:-1]
-    fitting = play(agent, last_hidden, "cartpole", range(1000, 1000 + fit_episodes))
-    held_out = play(agent, last_hidden, "cartpole", range(2000, 2000 + id_episodes))
-    detectors = []
-    for layer in range(len(LAYERS)):
-        trajectories = [Trajectory(observations=np.zeros((len(a) + 1, 1)), actions=a, features=f[layer])
-                        for a, f in fitting]
-        detectors.append(FeaturesDetector(n_actions=2).fit(trajectories))
-    id_scores = [scores(d, held_out, layer) for layer, d in enumerate(detectors)]
+    fitting = play(agent, last_hidden, "cartpole", 1000, fit_episodes)
+    held_out = play(agent, last_hidden, "cartpole", 2000, id_episodes)
+    detectors = [FeaturesDetector(n_actions=2).fit(layer) for layer in fitting]
+    id_scores = [scores(d, layer) for d, layer in zip(detectors, held_out)]
     result = {}
     for spec in variants:
-        shifted = play(agent, last_hidden, spec, range(500_000, 500_000 + episodes))
+        shifted = play(agent, last_hidden, spec, 500_000, episodes)
         aurocs = []
-        for layer, detector in enumerate(detectors):
-            s = scores(detector, shifted, layer)
-            labels = np.r_[np.zeros(len(id_scores[layer])), np.ones(len(s))]
-            aurocs.append(float(roc_auc_score(labels, np.r_[id_scores[layer], s])))
+        for detector, ids, layer in zip(detectors, id_scores, shifted):
+            s = scores(detector, layer)
+            labels = np.r_[np.zeros(len(ids)), np.ones(len(s))]
+            aurocs.append(float(roc_auc_score(labels, np.r_[ids, s])))
         result[spec] = tuple(aurocs)
     return result
 
