@@ -16,14 +16,14 @@ the model's optimizers without importing torch._dynamo: PPO 2.41 s against 2.34 
 from __future__ import annotations
 
 import argparse
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 from statistics import median
 
 import gymnasium
 from stable_baselines3 import PPO, SAC
+
+from timing import process_seconds  # benchmarks/timing.py, beside this script
 
 RUNS = 5
 OURS = """
@@ -42,11 +42,6 @@ print(time.perf_counter() - start)
 """
 
 
-def seconds(script: str, *args: str) -> float:
-    out = subprocess.run([sys.executable, "-c", script, *args], capture_output=True, text=True, check=True)
-    return float(out.stdout.split()[-1])
-
-
 def main() -> None:
     ratios = {}
     with tempfile.TemporaryDirectory() as folder:
@@ -55,8 +50,8 @@ def main() -> None:
             algorithm("MlpPolicy", gymnasium.make(env_id), seed=0).save(path)
             ours, theirs = [], []
             for _ in range(RUNS):
-                ours.append(seconds(OURS, path, env_id))
-                theirs.append(seconds(THEIRS, path, env_id, algorithm.__name__))
+                ours.append(process_seconds(OURS, path, env_id))
+                theirs.append(process_seconds(THEIRS, path, env_id, algorithm.__name__))
             name = algorithm.__name__
             print(f"{name:4s} oodmon load_sb3 {median(ours):6.2f} s   SB3 {name}.load {median(theirs):6.2f} s")
             ratios[name] = median(ours) / median(theirs)

@@ -66,3 +66,13 @@ def paired_us(call: Callable[[], object], baseline: Callable[[], object], repeat
         ratios.append((a1 + a2) / (b1 + b2))
 
     return median(ours) / repeats * 1e6, median(theirs) / repeats * 1e6, median(ratios)
+
+
+def process_seconds(script: str, *args: str) -> float:
+    """Seconds a new Python process running ``script`` (with ``args``) reports: the last number it
+    prints, its own timing from its start (its imports included) to its end."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", script, *args], capture_output=True, text=True, check=True)
+    return float(out.stdout.split()[-1])

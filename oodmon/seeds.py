@@ -13,8 +13,8 @@ ships, so it waits for the next retraining of the zoo.
 
 from __future__ import annotations
 
-__all__ = ["BENCH_ID", "BENCH_SHIFTED", "CALIBRATION", "DEMO", "DETECTOR_FIT", "ID_RETURN", "RANGES", "REFERENCE",
-           "SNAPSHOT_SELECTION", "TRAINING_EVALUATION", "VALIDATION", "VARIANT_EVALUATION", "range_of"]
+__all__ = ["BENCH_ID", "BENCH_SHIFTED", "CALIBRATION", "DEMO", "DETECTOR_FIT", "EPISODE_USES", "ID_RETURN", "RANGES",
+           "REFERENCE", "SNAPSHOT_SELECTION", "TRAINING_EVALUATION", "VALIDATION", "VARIANT_EVALUATION", "range_of"]
 
 #: Training's periodic evaluations: 10,000 + steps (see above: not a range).
 TRAINING_EVALUATION = 10_000
@@ -52,6 +52,12 @@ RANGES: dict[str, tuple[int, int]] = {
     "validation": (VALIDATION, VALIDATION + 100_000),
     "reference": (REFERENCE, REFERENCE + 100_000),
 }
+
+
+#: The uses of the ID episodes a threshold was made from (``oodmon.monitor.calibration.seeds_used``),
+#: in words (here, importing nothing, for ``oodmon replay``, which plays no policy).
+EPISODE_USES = {"calibration": "the threshold's calibration", "reference": "the sequential rule's reference",
+                "detector fitting": "the detectors' fitting"}
 
 
 def range_of(seed: int) -> str | None:

@@ -49,10 +49,11 @@ def torch_threads(default: int | None = None) -> int | None:
     return int(text)
 
 
-def limit_threads(default: int | None = 1) -> int | None:
+def limit_threads(default: int | None = 1, *, torch: bool = True) -> int | None:
     """Set torch's threads and those of numpy's BLAS to ``OODMON_TORCH_THREADS``, or to ``default``
     where it is not set (``None``: leave both their own choice, a thread per core); the number set,
-    or ``None``.
+    or ``None``. ``torch=False``: numpy's BLAS only, torch left unimported (a command that plays no
+    policy, ``replay`` and ``check``: importing torch was a second of their start, 2026-12-04).
 
     The default is one: a monitored decision is a batch of one, which a second thread does not
     speed up, and processes side by side each with a thread per core slow each other down many
@@ -77,18 +78,20 @@ def limit_threads(default: int | None = 1) -> int | None:
     """
     threads = torch_threads(default=default)
     if threads is not None:
-        set_threads(threads)
+        set_threads(threads, torch=torch)
     return threads
 
 
-def set_threads(threads: int) -> None:
-    """Set torch's threads and those of every BLAS to ``threads``, whatever ``OODMON_TORCH_THREADS``
-    says (a bench's worker process, one of several side by side, takes one); :func:`limit_threads`
-    reads the variable first."""
+def set_threads(threads: int, *, torch: bool = True) -> None:
+    """Set torch's threads (``torch=False``: not) and those of every BLAS to ``threads``, whatever
+    ``OODMON_TORCH_THREADS`` says (a bench's worker process, one of several side by side, takes one);
+    :func:`limit_threads` reads the variable first."""
     import numpy  # noqa: F401  (loads its BLAS, which threadpoolctl then finds)
-    import torch
     from threadpoolctl import threadpool_limits
 
-    torch.set_num_threads(threads)
+    if torch:
+        import torch as torch_module
+
+        torch_module.set_num_threads(threads)
     threadpool_limits(threads, user_api="blas")  # a call, not a with-block: the limit stays
     os.environ["OPENBLAS_NUM_THREADS"] = str(threads)  # read by an OpenBLAS as it loads

@@ -329,6 +329,8 @@ def test_scripts_run_with_oodmon_torch_threads_keep_to_it(monkeypatch):
         assert os.environ["OPENBLAS_NUM_THREADS"] == "2"
         set_threads(1)  # a bench worker's: one, whatever the variable says
         assert torch.get_num_threads() == 1 and blas_threads() == {1} and os.environ["OPENBLAS_NUM_THREADS"] == "1"
+        # a command that plays no policy (replay, check): the BLAS only, torch's threads as they were
+        assert limit_threads(torch=False) == 2 and torch.get_num_threads() == 1 and blas_threads() == {2}
     finally:
         torch.set_num_threads(before)
         original.restore_original_limits()

@@ -75,8 +75,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     with warnings.catch_warnings():
         warnings.showwarning = _warning_shower()
         try:
-            # OODMON_TORCH_THREADS in every command, one thread where it is not set (limit_threads)
-            limit_threads()
+            # OODMON_TORCH_THREADS in every command, one thread where it is not set (limit_threads);
+            # a command that plays no policy (replay, check) leaves torch unimported
+            limit_threads(torch=getattr(args, "plays", True))
             with stop_on_sigterm():  # a service manager's stop ends a command as Ctrl-C does
                 return args.handler(args) or 0
         except (OodmonError, OSError) as error:

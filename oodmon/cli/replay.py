@@ -39,7 +39,7 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:
                         help="--monitor, --episodes: what fails in an env oodmon has no variants of (its failure "
                              "columns are blank without it): terminated, the env ended the episode itself after the "
                              "onset (a fall, a crash: Hopper's; not Acrobot's, whose end is its goal)")
-    replay.set_defaults(handler=_replay)
+    replay.set_defaults(handler=_replay, plays=False)  # logs only: no policy, torch not imported
 
 
 def _plots_folder(text: str) -> str:
@@ -134,9 +134,9 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 
 
 def _read_logs(paths: Sequence[str]):
-    from oodmon.monitor.calibration import EPISODE_USES
     from oodmon.replay import made_from_episodes, pooled_fits, pooled_thresholds, pooled_weights, read_logs
     from oodmon.replay.metrics import ended_before_onset
+    from oodmon.seeds import EPISODE_USES
 
     logs = read_logs(paths)
     interrupted = sum(len(log.interrupted) for log in logs)
@@ -190,7 +190,7 @@ def _add_check(commands: argparse._SubParsersAction) -> None:
     check.add_argument("--baseline", required=True, help="the baseline JSON file")
     check.add_argument("--update", action="store_true", help="write the baseline from these logs instead")
     check.add_argument("--tolerance", type=_non_negative, help="allowed fall (default: the baseline's, else 0.02)")
-    check.set_defaults(handler=_check)
+    check.set_defaults(handler=_check, plays=False)
 
 
 def _check(args: argparse.Namespace) -> int:

@@ -27,6 +27,7 @@ from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.sinks.base import MemorySink
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson
 from oodmon.progress import Progress
+from oodmon.seeds import EPISODE_USES
 from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import is_whole
 
@@ -241,11 +242,6 @@ class Validation:
         """``above`` (the whole interval exceeds the target), ``below`` (it is under), or
         ``consistent`` (the target is inside it: more episodes would tell)."""
         return "above" if self.low > self.far else "below" if self.high < self.far else "consistent"
-
-
-#: The uses of the ID episodes a threshold was made from (:func:`seeds_used`), in words.
-EPISODE_USES = {"calibration": "the threshold's calibration", "reference": "the sequential rule's reference",
-                "detector fitting": "the detectors' fitting"}
 
 
 def detectors_read(threshold: Threshold, detectors: DetectorSet | None) -> DetectorSet | None:
