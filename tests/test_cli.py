@@ -285,12 +285,17 @@ def test_train_writes_plain_progress_lines_and_its_result_when_logged_to_a_file(
     assert "\u2501" not in result.stderr and "\u2026" not in result.stderr  # (rich's bar, its cut)
 
 
-def test_every_command_keeps_to_the_threads_it_is_given(monkeypatch, capsys):
-    """torch's threads and numpy's BLAS threads, from OODMON_TORCH_THREADS or one by default."""
+def test_every_command_keeps_to_the_threads_it_is_given(tmp_path, monkeypatch, capsys):
+    """torch's threads and numpy's BLAS threads, from OODMON_TORCH_THREADS or one by default; a
+    command that plays no policy (`envs` without one, `replay`, `check`) sets the BLAS's only."""
     import numpy  # noqa: F401  (its BLAS loaded)
     import torch
     from threadpoolctl import threadpool_limits
 
+    (tmp_path / "threads_policy.py").write_text("def act(obs):\n    return int(obs[2] + 0.5 * obs[3] > 0)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    plays = ["envs", "show", "cartpole:length=2.0", "--policy", "threads_policy:act", "--steps", "5",
+             "--out", str(tmp_path / "shift.png")]
     before = torch.get_num_threads()
     original = threadpool_limits(2, user_api="blas")
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "")  # restored after the test, which the commands set
@@ -298,12 +303,14 @@ def test_every_command_keeps_to_the_threads_it_is_given(monkeypatch, capsys):
         torch.set_num_threads(2)
         monkeypatch.setenv("OODMON_TORCH_THREADS", "1")
         assert main(["envs", "--task", "pong", "--json"]) == 0
+        assert torch.get_num_threads() == 2 and blas_threads() == {1}  # no policy: torch's left as they were
+        assert main(plays) == 0
         assert torch.get_num_threads() == 1 and blas_threads() == {1}
         # Not set: one thread too (a decision is a batch of one; benchmarks/threads.py).
         torch.set_num_threads(2)
         threadpool_limits(2, user_api="blas")
         monkeypatch.delenv("OODMON_TORCH_THREADS")
-        assert main(["envs", "--task", "pong", "--json"]) == 0
+        assert main(plays) == 0
         assert torch.get_num_threads() == 1 and blas_threads() == {1}
         monkeypatch.setenv("OODMON_TORCH_THREADS", "two")
         assert main(["envs", "--json"]) == 2
@@ -960,3 +967,16 @@ def test_every_oodmon_command_in_the_readmes_shell_blocks_parses():
         except SystemExit:
             refused.append(" ".join(argv))
     assert not refused, refused
+
+
+def test_envs_without_a_policy_leaves_torch_unimported(tmp_path):
+    """`oodmon envs` and `envs show` without a policy play no network: torch (a second of their
+    start before 2026-12-04) is not imported. With `--policy` or `--sb3` torch's threads are set as
+    in every command that plays a policy (test_every_command_keeps_to_the_threads_it_is_given)."""
+    code = ("import sys, json; from oodmon.cli import main; codes = [main(argv) for argv in json.loads(sys.argv[1])]; "
+            "print(json.dumps([codes, 'torch' in sys.modules]), file=sys.stderr)")
+    commands = [["envs", "--json"], ["envs", "show", "cartpole:length=2.0", "--onset", "10", "--out", str(tmp_path / "pole.png")]]
+    done = subprocess.run([sys.executable, "-c", code, json.dumps(commands)], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=120)
+    assert json.loads(done.stderr.strip().splitlines()[-1]) == [[0, 0], False], done.stderr[-2000:]
+    assert (tmp_path / "pole.png").exists()

@@ -47,6 +47,14 @@ def _sb3_files(args: argparse.Namespace) -> None:
         args.sb3 = str(sb3_file(given)) if isinstance(given, str) else [str(sb3_file(path)) for path in given]
 
 
+def _plays_a_policy(args: argparse.Namespace) -> bool:
+    """Whether the command may run a policy, and so torch: every command but those whose parser
+    says ``plays=False`` (they read logs or show envs), or a function of the arguments (``envs show``
+    plays one with ``--sb3`` or ``--policy``)."""
+    plays = getattr(args, "plays", True)
+    return bool(plays(args) if callable(plays) else plays)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI with ``argv`` (default: ``sys.argv[1:]``); return the exit code.
 
@@ -76,8 +84,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.showwarning = _warning_shower()
         try:
             # OODMON_TORCH_THREADS in every command, one thread where it is not set (limit_threads);
-            # a command that plays no policy (replay, check) leaves torch unimported
-            limit_threads(torch=getattr(args, "plays", True))
+            # a command that plays no policy (replay, check, envs) leaves torch unimported
+            limit_threads(torch=_plays_a_policy(args))
             with stop_on_sigterm():  # a service manager's stop ends a command as Ctrl-C does
                 return args.handler(args) or 0
         except (OodmonError, OSError) as error:

@@ -19,7 +19,7 @@ def _add_envs(commands: argparse._SubParsersAction) -> None:
     envs = commands.add_parser("envs", help="list the paper's OOD variants; 'envs show SPEC' pictures one")
     envs.add_argument("--task", choices=TASKS, help="only this task's variants")
     envs.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    envs.set_defaults(handler=_envs_list)
+    envs.set_defaults(handler=_envs_list, plays=False)  # no policy: torch not imported
     envs_commands = envs.add_subparsers(title="envs commands", metavar="COMMAND")
     show = envs_commands.add_parser(
         "show",
@@ -53,10 +53,10 @@ def _add_envs(commands: argparse._SubParsersAction) -> None:
                       help="with --sb3: as `oodmon run --unsafe-load-pickles` (runs code the file holds)")
     show.add_argument("--vec-normalize", metavar="PKL", help="with --sb3: as `oodmon run --vec-normalize`")
     show.add_argument("--frame-stack", type=int, metavar="N", help="with --sb3: as `oodmon run --frame-stack`")
-    show.set_defaults(handler=_envs_show)
+    show.set_defaults(handler=_envs_show, plays=lambda args: bool(args.sb3 or args.policy))
     tour = envs_commands.add_parser("tour", help="what the envs change, shown with a hand-written controller")
     tour.add_argument("--out", default="runs/tour", help="folder for the pictures (default runs/tour)")
-    tour.set_defaults(handler=_envs_tour)
+    tour.set_defaults(handler=_envs_tour, plays=False)
 
 
 def _envs_list(args: argparse.Namespace) -> int:
