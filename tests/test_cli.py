@@ -975,7 +975,8 @@ def test_envs_without_a_policy_leaves_torch_unimported(tmp_path):
     in every command that plays a policy (test_every_command_keeps_to_the_threads_it_is_given)."""
     code = ("import sys, json; from oodmon.cli import main; codes = [main(argv) for argv in json.loads(sys.argv[1])]; "
             "print(json.dumps([codes, 'torch' in sys.modules]), file=sys.stderr)")
-    commands = [["envs", "--json"], ["envs", "show", "cartpole:length=2.0", "--onset", "10", "--out", str(tmp_path / "pole.png")]]
+    commands = [["envs", "--json"],
+                ["envs", "show", "cartpole:length=2.0", "--onset", "10", "--out", str(tmp_path / "pole.png")]]
     done = subprocess.run([sys.executable, "-c", code, json.dumps(commands)], capture_output=True, text=True,
                           cwd=tmp_path, timeout=120)
     assert json.loads(done.stderr.strip().splitlines()[-1]) == [[0, 0], False], done.stderr[-2000:]
