@@ -1,19 +1,21 @@
-"""Seconds of a command that plays no policy, from a new process's start: ``oodmon replay`` and
-``oodmon check`` of two small logs, ``oodmon envs``, and the threshold's statistics, beside the
-same work with what they imported before 2026-12-04.
+"""Seconds of a command that plays no policy, from a new process's start: ``oodmon replay`` (its
+table and ``--monitor``) and ``oodmon check`` of two small logs, ``oodmon envs``, and the
+threshold's statistics, beside the same work with what they imported before 2026-12-04.
 
 Run: .venv/bin/python benchmarks/command_start.py
 
 Before 2026-12-04 every command imported torch (to set its threads; about a second; now those
-that play no policy do not) and replay imported the agents for the words of its episode uses;
-every command that calibrated, validated or benched imported ``scipy.stats`` for the binomial and
-Beta functions of ``conformal_rank`` and ``clopper_pearson`` (0.6-0.7 s). Each case runs in a new
+that play no policy do not), replay imported the agents for the words of its episode uses, replay
+and check ranked steps with ``sklearn.metrics`` (another second; now ``roc_points`` and
+``average_precision`` in ``oodmon.replay.metrics``, the same numbers to the bit), and every
+command that calibrated, validated or benched imported ``scipy.stats`` for the binomial and Beta
+functions of ``conformal_rank`` and ``clopper_pearson`` (0.6-0.7 s). Each case runs in a new
 process, timed from its start (imports included) to its end, alternately with its "before": the
-same code after ``import torch`` (replay, check, envs) or ``import scipy.stats`` (the statistics),
-which is what those imports cost it. Five of each, the medians. Lines ``ratio_<case>=<now /
-before>``, and last ``ratio=`` the largest (lower is better; goal <= 0.8: the imports saved stay
-saved). The logs are ``tests/data``'s (a CartPole ensemble's five ID episodes and five of
-``length=2.0``).
+same code after importing what it imported then (torch and ``sklearn.metrics`` for replay and
+check, torch for envs, ``scipy.stats`` for the statistics), which is what those imports cost it.
+Five of each, the medians. Lines ``ratio_<case>=<now / before>``, and last ``ratio=`` the largest
+(lower is better; goal <= 0.8: the imports saved stay saved). The logs are ``tests/data``'s (a
+CartPole ensemble's five ID episodes and five of ``length=2.0``).
 """
 
 from __future__ import annotations
@@ -38,9 +40,10 @@ start = time.perf_counter()
 print(time.perf_counter() - start)
 """
 CASES = {
-    "replay": ("import torch", "from oodmon.cli import main\nassert main(['replay', '--monitor', *sys.argv[1:3]]) == 0"),
-    "check": ("import torch", "from oodmon.cli import main\nassert main(['check', *sys.argv[1:3], '--baseline', "
-                              "sys.argv[3]]) == 0"),
+    "replay": ("import torch, sklearn.metrics", "from oodmon.cli import main\n"
+               "assert main(['replay', *sys.argv[1:3]]) == main(['replay', '--monitor', *sys.argv[1:3]]) == 0"),
+    "check": ("import torch, sklearn.metrics", "from oodmon.cli import main\nassert main(['check', *sys.argv[1:3], "
+              "'--baseline', sys.argv[3]]) == 0"),
     "envs": ("import torch", "from oodmon.cli import main\nassert main(['envs', '--json']) == 0"),
     "threshold": ("import scipy.stats", "from oodmon.monitor.threshold import clopper_pearson, conformal_rank\n"
                                         "conformal_rank(50, 0.05, 0.9), clopper_pearson(3, 200)"),

@@ -28,11 +28,11 @@ from oodmon.names import TASKS
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
-           "alarm_events", "failure_definition", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
+           "alarm_events", "average_precision", "failure_definition", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
            "ended_before_onset",
            "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures",
            "failure_step", "fpr_at_tpr", "is_id_variant", "made_from_episodes", "monitor_row", "pooled_fits",
-           "pooled_thresholds", "pooled_weights", "rankable", "shifted_alarms"]
+           "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
 
 
 @dataclass(frozen=True)
@@ -88,7 +88,7 @@ def alarm_events(alarm: np.ndarray) -> np.ndarray:
 
 
 def rankable(scores: np.ndarray) -> np.ndarray:
-    """Scores sklearn can rank: an infinite one (the monitor scores a NaN or infinite observation
+    """Scores that can be ranked: an infinite one (the monitor scores a NaN or infinite observation
     +inf) or a NaN one (a score that could not be computed) as the largest float, the most shifted;
     -inf as the smallest.
 
@@ -110,10 +110,57 @@ def fpr_at_tpr(labels: np.ndarray, scores: np.ndarray, tpr: float = 0.95) -> flo
         >>> fpr_at_tpr(np.array([0, 0, 1, 1]), np.array([0.1, 0.6, 0.5, 0.9]))
         0.5
     """
-    from sklearn.metrics import roc_curve
-
-    fprs, tprs, _ = roc_curve(labels, rankable(scores))
+    fprs, tprs = roc_points(labels, rankable(scores))
     return float(fprs[np.searchsorted(tprs, tpr, side="left")])
+
+
+def _positives_by_threshold(labels: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """False and true positives (float64 counts) at each distinct score taken as the threshold, from
+    the largest down: ``sklearn.metrics``' own counts (their order inside a tie does not change a
+    count at the tie's end)."""
+    order = np.argsort(scores, kind="stable")[::-1]
+    scores, labels = scores[order], np.asarray(labels)[order]
+    ends = np.concatenate([np.flatnonzero(np.diff(scores)), [len(scores) - 1]])
+    tps = np.cumsum(labels, dtype=np.float64)[ends]
+    return 1 + ends.astype(np.float64) - tps, tps
+
+
+def _rates(counts: np.ndarray) -> np.ndarray:
+    return counts / counts[-1] if counts[-1] > 0 else np.full(counts.shape, np.nan)  # (one class only: undefined)
+
+
+def roc_points(labels: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ROC curve of ``scores`` (finite: see :func:`rankable`) for 0/1 ``labels`` (1: shifted), as
+    (false-positive rates, true-positive rates) from (0, 0): ``sklearn.metrics.roc_curve``'s points
+    (collinear ones dropped) to the bit, without importing sklearn, which took a second of each
+    ``oodmon replay``'s start (2026-12-04). Its area, the AUROC: ``np.trapezoid(tpr, fpr)``, equal
+    to ``sklearn.metrics.auc`` (``tests/replay/test_metrics.py`` compares the three with sklearn's).
+
+    Example:
+        >>> fpr, tpr = roc_points(np.array([0, 0, 1, 1]), np.array([0.1, 0.6, 0.5, 0.9]))
+        >>> fpr.tolist(), tpr.tolist(), float(np.trapezoid(tpr, fpr))
+        ([0.0, 0.0, 0.5, 0.5, 1.0], [0.0, 0.5, 0.5, 1.0, 1.0], 0.75)
+    """
+    fps, tps = _positives_by_threshold(labels, scores)
+    if len(fps) > 2:  # a point between two on one line adds nothing: kept are the curve's corners
+        corners = np.concatenate([[True], np.logical_or(np.diff(fps, 2), np.diff(tps, 2)), [True]])
+        fps, tps = fps[corners], tps[corners]
+    return _rates(np.concatenate([[0.0], fps])), _rates(np.concatenate([[0.0], tps]))
+
+
+def average_precision(labels: np.ndarray, scores: np.ndarray) -> float:
+    """The area under the precision-recall curve as ``sklearn.metrics.average_precision_score``
+    takes it (no interpolation), to the bit, for 0/1 ``labels`` of both kinds.
+
+    Example:
+        >>> average_precision(np.array([0, 0, 1, 1]), np.array([0.1, 0.4, 0.35, 0.8]))
+        0.8333333333333333
+    """
+    fps, tps = _positives_by_threshold(labels, scores)
+    flagged = tps + fps
+    precision = np.concatenate([np.where(flagged != 0, np.divide(tps, flagged), 0.0)[::-1], [1.0]])
+    recall = np.concatenate([(tps / tps[-1])[::-1], [0.0]])
+    return float(max(0.0, -np.sum(np.diff(recall) * precision[:-1])))
 
 
 def detectors_in(logs: Iterable[RunLog]) -> list[str]:
@@ -379,8 +426,6 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     Raises:
         LogFormatError: a log without scores of ``detector``.
     """
-    from sklearn.metrics import auc, average_precision_score, roc_curve  # heavy: imported when used
-
     grouped = _episodes_by_variant(logs)
     groups = {key: [e for _, e in pairs] for key, pairs in grouped.items()}
     # Without ``detector``, the last log of a group names the one ranked, whose scores every run of
@@ -416,9 +461,9 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
         if len(negatives) and len(ood):
             labels = np.concatenate([np.zeros(len(negatives)), np.ones(len(ood))])
             scores = rankable(np.concatenate([negatives, ood]))
-            fprs, tprs, _ = roc_curve(labels, scores)  # one sort for AUROC and FPR@95TPR
-            auroc = float(auc(fprs, tprs))
-            aupr = float(average_precision_score(labels, scores))
+            fprs, tprs = roc_points(labels, scores)  # one sort for AUROC and FPR@95TPR
+            auroc = float(np.trapezoid(tprs, fprs))
+            aupr = average_precision(labels, scores)
             fpr95 = float(fprs[np.searchsorted(tprs, 0.95, side="left")])
         early_rate = detection_rate = delay_mean = delay_median = None
         delays: list[int] = []

@@ -16,13 +16,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
-from sklearn.metrics import roc_curve
 
 from oodmon.envs.physics import PHYSICS_DEFAULTS
 from oodmon.envs.shift import parse_any_variant
 from oodmon.outputs import safe_filename, save_figure
 from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, failure_known,
-                                   is_id_variant, rankable, shifted_alarms)
+                                   is_id_variant, rankable, roc_points, shifted_alarms)
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_monitor_plots", "write_plots"]
@@ -85,7 +84,7 @@ def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path,
             if data is None:
                 continue
             labels, scores = data
-            fpr, tpr, _ = roc_curve(labels, rankable(scores))
+            fpr, tpr = roc_points(labels, rankable(scores))
             name = detector or _alarm_detectors(logs, method, variant)
             colour = colours.setdefault(name, f"C{len(colours) % 10}")
             ax.plot(fpr, tpr, color=colour, linestyle=style, label=f"{method}, {name} (AUROC {np.trapezoid(tpr, fpr):.3f})")

@@ -504,3 +504,33 @@ def test_the_monitor_tables_footnote_says_what_failed_is_for_the_tasks_it_shows_
     assert failure_definition(["Hopper-v5"], "terminated").startswith(
         "failed: Hopper-v5's episode ended by itself after the onset (--failure terminated); the ID row's")
     assert failure_definition([]).startswith("failed: not told; ")
+
+
+def test_roc_points_auroc_and_average_precision_are_sklearns_to_the_bit():
+    """replay's ranking metrics, computed without importing sklearn (a second of `oodmon replay`'s
+    start before 2026-12-04), equal sklearn.metrics' roc_curve, auc and average_precision_score to
+    the bit: seeded random cases of 1 to 3,000 steps each side, continuous scores, scores with
+    many ties (five values, two decimals), float32 scores as detectors give them, and all tied."""
+    from sklearn.metrics import auc, average_precision_score, roc_curve
+
+    from oodmon.replay.metrics import average_precision, rankable, roc_points
+
+    rng = np.random.default_rng(20261204)
+    for case in range(400):
+        negatives, positives = (int(n) for n in rng.integers(1, 3000, 2))
+        n = negatives + positives
+        scores = [rng.normal(size=n), rng.integers(0, 5, n).astype(float), np.round(rng.normal(size=n), 2),
+                  np.r_[rng.normal(size=negatives), rng.normal(1, 1, positives)].astype(np.float32).astype(float),
+                  np.ones(n)][case % 5]
+        labels = np.r_[np.zeros(negatives), np.ones(positives)]
+        theirs_fpr, theirs_tpr, _ = roc_curve(labels, scores)
+        fpr, tpr = roc_points(labels, scores)
+        assert np.array_equal(fpr, theirs_fpr) and np.array_equal(tpr, theirs_tpr), case
+        assert float(np.trapezoid(tpr, fpr)) == auc(theirs_fpr, theirs_tpr), case
+        assert average_precision(labels, scores) == float(average_precision_score(labels, scores)), case
+    # scores the monitor gives a failed sensor (inf) or could not compute (NaN), made rankable first
+    scores = rankable(np.array([0.1, np.inf, np.nan, -np.inf, 0.3]))
+    labels = np.array([0.0, 1, 1, 0, 0])
+    assert np.array_equal(roc_points(labels, scores)[1], roc_curve(labels, scores)[1])
+    fpr, tpr = roc_points(np.ones(3), np.arange(3.0))  # no negatives: no false-positive rate, as sklearn's NaNs
+    assert np.isnan(fpr).all() and tpr[-1] == 1.0

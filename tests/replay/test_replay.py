@@ -548,23 +548,25 @@ def test_folders_and_unreadable_paths_are_said_plainly(tmp_path):
         read_logs([foreign])
 
 
-def test_replay_and_check_of_logs_leave_torch_unimported_and_still_keep_blas_to_one_thread(tmp_path):
+def test_replay_and_check_of_logs_leave_torch_and_sklearn_unimported_and_keep_blas_to_one_thread(tmp_path):
     """A command that plays no policy reads logs only: torch, a second of its start, is not imported
     (before 2026-12-04 every command imported it to set its threads, and replay's episode-use words
-    came from a module that imports the agents); numpy's BLAS is still held to OODMON_TORCH_THREADS."""
+    came from a module that imports the agents), nor is sklearn (another second: replay ranks steps
+    itself, as sklearn does); numpy's BLAS is still held to OODMON_TORCH_THREADS."""
     import os
     import subprocess
     import sys
 
     code = ("import sys, json; from oodmon.cli import main; from threadpoolctl import threadpool_info; "
-            "codes = [main(['replay', '--monitor', sys.argv[1], sys.argv[2]]), "
-            "main(['check', sys.argv[1], '--baseline', sys.argv[3], '--update']), "
+            "logs = sys.argv[1:3]; codes = [main(['replay', *logs]), main(['replay', '--monitor', *logs])]; "
+            "ranked = 'sklearn' in sys.modules; "
+            "codes += [main(['check', sys.argv[1], '--baseline', sys.argv[3], '--update']), "
             "main(['check', sys.argv[1], '--baseline', sys.argv[3]])]; "
-            "print(json.dumps([codes, 'torch' in sys.modules, "
+            "print(json.dumps([codes, 'torch' in sys.modules, ranked, "
             "sorted({p['num_threads'] for p in threadpool_info() if p['user_api'] == 'blas'})]), file=sys.stderr)")
     env = {**os.environ, "OODMON_TORCH_THREADS": "1"}
     done = subprocess.run([sys.executable, "-c", code, str(DATA / "cartpole-ensemble-id.mcap"),
                            str(DATA / "cartpole-ensemble-length2.mcap"), str(tmp_path / "baseline.json")],
                           capture_output=True, text=True, env=env, timeout=120)
-    codes, imported, blas = json.loads(done.stderr.strip().splitlines()[-1])
-    assert (codes, imported, blas) == ([0, 0, 0], False, [1]), done.stderr[-2000:]
+    codes, torch_imported, sklearn_imported, blas = json.loads(done.stderr.strip().splitlines()[-1])
+    assert (codes, torch_imported, sklearn_imported, blas) == ([0, 0, 0, 0], False, False, [1]), done.stderr[-2000:]
