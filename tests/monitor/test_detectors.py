@@ -1148,3 +1148,39 @@ def test_the_dynamics_fit_refuses_id_observations_or_actions_that_are_not_finite
                                           r"inputs of the model"):
         DynamicsDetector().fit([Trajectory(rng.normal(size=(11, 3)), actions)])
     assert DynamicsDetector(epochs=1).fit([Trajectory(np.where(np.isfinite(obs), obs, 0.0), rng.integers(0, 2, 10))]).fitted
+
+
+def test_the_dynamics_fits_adam_is_torchs_to_the_bit_and_a_fit_leaves_dynamo_unimported():
+    """The fit's Adam update, written out (torch.optim.Adam.step imported torch._dynamo at its first
+    call: 0.94 s of every process that fits), gives the bytes torch's Adam gives: the same random
+    gradients over 60 steps of three stacked tensors, the learning rate falling as the fit's
+    linear schedule lowers it; and a fit in a new process imports no torch._dynamo."""
+    import subprocess
+    import sys
+
+    import torch
+
+    from oodmon.monitor.detectors.dynamics import _adam_step
+
+    generator = torch.Generator().manual_seed(0)
+    shapes = [(5, 6, 64), (5, 1, 64), (5, 64, 8)]
+    ours = [torch.randn(shape, generator=generator) for shape in shapes]
+    theirs = [p.clone().requires_grad_() for p in ours]
+    moments = [(torch.zeros_like(p), torch.zeros_like(p)) for p in ours]
+    optimiser = torch.optim.Adam(theirs, lr=2e-3, weight_decay=1e-5)
+    for step in range(60):
+        grads = [torch.randn(shape, generator=generator) * 10 ** float(step % 3 - 1) for shape in shapes]
+        lr = 2e-3 * (1.0 - step / 60)
+        for p, g in zip(theirs, grads):
+            p.grad = g.clone()
+        optimiser.param_groups[0]["lr"] = lr
+        optimiser.step()
+        with torch.no_grad():
+            _adam_step(ours, grads, moments, step + 1, lr)
+        assert all(torch.equal(a, b.detach()) for a, b in zip(ours, theirs)), step
+    code = ("import sys; import numpy as np; from oodmon.monitor.detectors.base import Trajectory; "
+            "from oodmon.monitor.detectors.dynamics import DynamicsDetector; "
+            "walk = np.cumsum(np.random.default_rng(0).standard_normal((201, 4)), 0).astype(np.float32); "
+            "DynamicsDetector(2, seed=0, epochs=2).fit([Trajectory(walk, np.arange(200) % 2)]); "
+            "print('torch._dynamo' in sys.modules)")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout == "False\n"

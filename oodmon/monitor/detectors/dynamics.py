@@ -92,6 +92,7 @@ _SCHEDULES = ("linear", "constant")  # Adam's learning rate over the fit (see Dy
 #: every one of the fit's epochs (3,000 in version 8).
 MAX_UPDATES: int | None = None
 _CONSTANT_Z = 16.0  # the fast path's constant pre-activation (see _FastNll)
+_ADAM_BETAS, _ADAM_EPS, _WEIGHT_DECAY = (0.9, 0.999), 1e-8, 1e-5  # the fit's Adam: torch's defaults, L2 decay
 _MIN_LOGVAR, _MAX_LOGVAR = -12.0, 2.0  # soft bounds of the predicted log-variance (the lower one: min_logvar)
 
 #: ``min_logvar`` per task where it is not the default -12 (chosen by measurement, see docs/detectors.md's
@@ -288,7 +289,7 @@ class DynamicsDetector(Detector):
             bound = 1.0 / math.sqrt(fan_in)
             w = (torch.rand(self.members, fan_in, fan_out, generator=generator) * 2 - 1) * bound
             params += [w.requires_grad_(), torch.zeros(self.members, 1, fan_out, requires_grad=True)]
-        optimiser = torch.optim.Adam(params, lr=self.lr, weight_decay=1e-5)
+        moments = [(torch.zeros_like(param), torch.zeros_like(param)) for param in params]  # Adam's, per tensor
         n = len(x)
         xs, ys = torch.from_numpy(x), torch.from_numpy(y)
         boot = torch.randint(0, n, (self.members, n), generator=generator)  # each member's resample
@@ -307,12 +308,12 @@ class DynamicsDetector(Detector):
                 targets = ys.index_select(0, rows).view(*index.shape, -1)
                 mean, logvar = _forward_torch(params, inputs, self.min_logvar)
                 loss = (((mean - targets) ** 2) * torch.exp(-logvar) + logvar).mean()
-                optimiser.zero_grad()
-                loss.backward()
-                if self.schedule == "linear":  # update k of the fit's total at lr * (1 - k / total)
-                    optimiser.param_groups[0]["lr"] = self.lr * (1.0 - updates / total)
-                optimiser.step()
+                grads = torch.autograd.grad(loss, params)
+                # update k of the fit's total at lr * (1 - k / total) ("linear"), else at lr
+                lr = self.lr * (1.0 - updates / total) if self.schedule == "linear" else self.lr
                 updates += 1
+                with torch.no_grad():
+                    _adam_step(params, grads, moments, updates, lr)
             if on_progress is not None:
                 on_progress("dynamics model fitting epochs", epoch + 1, epochs)
         self.epochs_trained = epochs  # (fitting_notes says so where max_updates ended the fit early)
@@ -630,6 +631,26 @@ def _split(out):
     d = out.shape[-1] // 2
     mean, raw = out[..., :d], out[..., d:]
     return mean, raw
+
+
+def _adam_step(params, grads, moments, step: int, lr: float) -> None:
+    """Adam's ``step``-th update (from 1) of ``params`` at learning rate ``lr``, given their
+    ``grads`` and each one's moments (first, second), updated in place: ``torch.optim.Adam(params,
+    lr, weight_decay=_WEIGHT_DECAY)``'s update, the same float operations in the same order as its
+    one-tensor-at-a-time path (torch 2.13's ``_single_tensor_adam``: weight decay added to the
+    gradient, no amsgrad), so the fit's weights are the bytes torch's Adam gives
+    (``tests/monitor/test_detectors.py`` compares them). Written out because ``Adam.step`` imports
+    ``torch._dynamo`` at its first call: 0.94 s of every process that fits (2026-12-04), beside
+    the optimizer's own bookkeeping at every update (``benchmarks/dynamics_fit.py``)."""
+    beta1, beta2 = _ADAM_BETAS
+    step = float(step)  # (torch keeps the step count in a float32 tensor and reads it back as a float)
+    bias_correction2_sqrt = (1 - beta2 ** step) ** 0.5
+    step_size = lr / (1 - beta1 ** step)
+    for param, grad, (exp_avg, exp_avg_sq) in zip(params, grads, moments):
+        grad = grad.add(param, alpha=_WEIGHT_DECAY)
+        exp_avg.lerp_(grad, 1 - beta1)
+        exp_avg_sq.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+        param.addcdiv_(exp_avg, (exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(_ADAM_EPS), value=-step_size)
 
 
 def _forward_torch(params, x, min_logvar: float = _MIN_LOGVAR):
