@@ -27,7 +27,7 @@ import tempfile
 from pathlib import Path
 from statistics import median
 
-from timing import process_seconds  # benchmarks/timing.py, beside this script
+from timing import print_ratios, process_seconds  # benchmarks/timing.py, beside this script
 
 RUNS = 5
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data"
@@ -63,9 +63,7 @@ def main() -> None:
                 then.append(process_seconds(TIMED.format(before=before, work=work), *LOGS, baseline))
             print(f"{case:10s} {median(now):6.2f} s   with {before!r} first {median(then):6.2f} s")
             ratios[case] = median(now) / median(then)
-    for case, ratio in ratios.items():
-        print(f"ratio_{case}={ratio:.2f}")
-    print(f"ratio={max(ratios.values()):.2f}")
+    print_ratios("ratio", ratios)
 
 
 if __name__ == "__main__":

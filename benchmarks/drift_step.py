@@ -48,7 +48,7 @@ from oodmon.monitor.detectors import DetectorSet, DriftDetector, DynamicsDetecto
 from oodmon.monitor.detectors.base import Trajectory
 from oodmon.monitor.detectors.fitting import collect
 from oodmon.threads import set_threads
-from timing import paired_us  # benchmarks/timing.py, beside this script
+from timing import paired_us, print_ratios  # benchmarks/timing.py, beside this script
 
 CONTROLLERS = {
     "cartpole": ("CartPole-v1", 2, lambda obs: int(obs[2] + 0.5 * obs[3] > 0)),
@@ -122,9 +122,7 @@ def main() -> None:
         print(f"{task}: the same, drift on a copy of the model {us:.1f} us per step")
     # ratio= last, as every script's last line
     for name, figures in (("ratio_in_set", in_set), ("ratio_in_set_unshared", unshared), ("ratio", ratios)):
-        for task, ratio in figures.items():
-            print(f"{name}_{task}={ratio:.2f}")
-        print(f"{name}={max(figures.values()):.2f}")
+        print_ratios(name, figures)
 
 
 if __name__ == "__main__":

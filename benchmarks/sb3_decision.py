@@ -23,7 +23,7 @@ from pathlib import Path
 
 import gymnasium
 from stable_baselines3 import A2C, DQN, PPO, SAC, TD3
-from timing import paired_us  # benchmarks/timing.py, beside this script
+from timing import paired_us, print_ratios  # benchmarks/timing.py, beside this script
 
 from oodmon.agents.sb3 import load_sb3
 from oodmon.threads import set_threads
@@ -57,9 +57,7 @@ def main() -> None:
             us, baseline, ratio = paired_us(ours, theirs, REPEATS)
             print(f"{name + ' (' + env_id + ')':28s} oodmon {us:8.1f} us   predict() {baseline:8.1f} us   ({ratio:.2f})")
             ratios[name] = ratio
-    for name, ratio in ratios.items():
-        print(f"ratio_{name}={ratio:.2f}")
-    print(f"ratio={max(ratios.values()):.2f}")
+    print_ratios("ratio", ratios)
 
 
 if __name__ == "__main__":

@@ -141,7 +141,11 @@ def roc_points(labels: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.n
         >>> fpr.tolist(), tpr.tolist(), float(np.trapezoid(tpr, fpr))
         ([0.0, 0.0, 0.5, 0.5, 1.0], [0.0, 0.5, 0.5, 1.0, 1.0], 0.75)
     """
-    fps, tps = _positives_by_threshold(labels, scores)
+    return _roc_of(*_positives_by_threshold(labels, scores))
+
+
+def _roc_of(fps: np.ndarray, tps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`roc_points` of the counts :func:`_positives_by_threshold` gives."""
     if len(fps) > 2:  # a point between two on one line adds nothing: kept are the curve's corners
         corners = np.concatenate([[True], np.logical_or(np.diff(fps, 2), np.diff(tps, 2)), [True]])
         fps, tps = fps[corners], tps[corners]
@@ -156,7 +160,11 @@ def average_precision(labels: np.ndarray, scores: np.ndarray) -> float:
         >>> average_precision(np.array([0, 0, 1, 1]), np.array([0.1, 0.4, 0.35, 0.8]))
         0.8333333333333333
     """
-    fps, tps = _positives_by_threshold(labels, scores)
+    return _average_precision_of(*_positives_by_threshold(labels, scores))
+
+
+def _average_precision_of(fps: np.ndarray, tps: np.ndarray) -> float:
+    """:func:`average_precision` of the counts :func:`_positives_by_threshold` gives."""
     flagged = tps + fps
     precision = np.concatenate([np.where(flagged != 0, np.divide(tps, flagged), 0.0)[::-1], [1.0]])
     recall = np.concatenate([(tps / tps[-1])[::-1], [0.0]])
@@ -461,9 +469,10 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
         if len(negatives) and len(ood):
             labels = np.concatenate([np.zeros(len(negatives)), np.ones(len(ood))])
             scores = rankable(np.concatenate([negatives, ood]))
-            fprs, tprs = roc_points(labels, scores)  # one sort for AUROC and FPR@95TPR
+            counts = _positives_by_threshold(labels, scores)  # one sort for AUROC, AUPR and FPR@95TPR
+            fprs, tprs = _roc_of(*counts)
             auroc = float(np.trapezoid(tprs, fprs))
-            aupr = average_precision(labels, scores)
+            aupr = _average_precision_of(*counts)
             fpr95 = float(fprs[np.searchsorted(tprs, 0.95, side="left")])
         early_rate = detection_rate = delay_mean = delay_median = None
         delays: list[int] = []
