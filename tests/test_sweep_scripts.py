@@ -560,6 +560,7 @@ def test_full_depth_features_reads_the_same_layer_twice_where_sampling_starts_at
 def test_first_steps_leaves_each_episodes_first_steps_out_of_both_sides():
     """A detector blind at step 0 (every episode's first score the same) and perfect after it: over
     all steps the shifted step 0s tie with the ID ones, from step 1 on it separates them all."""
+    from oodmon.errors import OodmonError
     from oodmon.replay import EpisodeLog, RunLog
 
     _, script = load_script("first_steps")
@@ -583,5 +584,5 @@ def test_first_steps_leaves_each_episodes_first_steps_out_of_both_sides():
     # none and ties with two (half a pair each): (8 + 8 + 1 + 1) / (4 * 8)
     assert row["dynamics"][0] == pytest.approx(18 / 32)
     assert row["dynamics"][1] == 1.0
-    with pytest.raises(Exception, match="hold no ID episodes"):
+    with pytest.raises(OodmonError, match="hold no ID episodes"):
         script.aurocs_of([shifted])
