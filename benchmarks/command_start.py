@@ -7,13 +7,14 @@ Run: .venv/bin/python benchmarks/command_start.py
 Before 2026-12-04 every command imported torch (to set its threads; about a second; now those
 that play no policy do not), replay imported the agents for the words of its episode uses, replay
 and check ranked steps with ``sklearn.metrics`` (another second; now ``roc_points`` and
-``average_precision`` in ``oodmon.replay.metrics``, the same numbers to the bit), and every
+``average_precision`` in ``oodmon.replay.metrics``, the same numbers to the bit), check weighed
+its delays with ``scipy.stats.mannwhitneyu`` (0.4 s; now ``mann_whitney_greater``), and every
 command that calibrated, validated or benched imported ``scipy.stats`` for the binomial and Beta
 functions of ``conformal_rank`` and ``clopper_pearson`` (0.6-0.7 s). Each case runs in a new
 process, timed from its start (imports included) to its end, alternately with its "before": the
 same code after importing what it imported then (torch and ``sklearn.metrics`` for replay and
-check, torch for envs, ``scipy.stats`` for the statistics), which is what those imports cost it.
-Five of each, the medians. Lines ``ratio_<case>=<now / before>``, and last ``ratio=`` the largest
+check, ``scipy.stats`` too for check, torch for envs, ``scipy.stats`` for the statistics), which
+is what those imports cost it. Five of each, the medians. Lines ``ratio_<case>=<now / before>``, and last ``ratio=`` the largest
 (lower is better; goal <= 0.8: the imports saved stay saved). The logs are ``tests/data``'s (a
 CartPole ensemble's five ID episodes and five of ``length=2.0``).
 """
@@ -42,7 +43,7 @@ print(time.perf_counter() - start)
 CASES = {
     "replay": ("import torch, sklearn.metrics", "from oodmon.cli import main\n"
                "assert main(['replay', *sys.argv[1:3]]) == main(['replay', '--monitor', *sys.argv[1:3]]) == 0"),
-    "check": ("import torch, sklearn.metrics", "from oodmon.cli import main\nassert main(['check', *sys.argv[1:3], "
+    "check": ("import torch, sklearn.metrics, scipy.stats", "from oodmon.cli import main\nassert main(['check', *sys.argv[1:3], "
               "'--baseline', sys.argv[3]]) == 0"),
     "envs": ("import torch", "from oodmon.cli import main\nassert main(['envs', '--json']) == 0"),
     "threshold": ("import scipy.stats", "from oodmon.monitor.threshold import clopper_pearson, conformal_rank\n"
