@@ -62,7 +62,7 @@ def test_registered_ids():
 
 
 def test_import_oodmon_does_not_load_the_heavy_parts():
-    code = "import sys, oodmon; print(sorted(m for m in ('torch', 'rerun', 'ale_py', 'stable_baselines3') if m in sys.modules))"
+    code = "import sys, oodmon; print(sorted(m for m in ('torch', 'rerun', 'ale_py', 'stable_baselines3', 'cv2') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 
@@ -70,7 +70,7 @@ def test_import_oodmon_does_not_load_the_heavy_parts():
 def test_replay_does_not_load_torch():
     # Replay reads logs on machines that never ran a policy: it should not pay for torch or SB3.
     code = ("import sys, oodmon.replay, oodmon.cli; "
-            "print(sorted(m for m in ('torch', 'stable_baselines3', 'rerun') if m in sys.modules))")
+            "print(sorted(m for m in ('torch', 'stable_baselines3', 'rerun', 'cv2') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 

@@ -17,7 +17,6 @@ import math
 from dataclasses import dataclass, field, fields
 from typing import ClassVar
 
-import cv2
 import numpy as np
 
 from oodmon.envs.checks import positive_number, reject_unknown
@@ -183,6 +182,8 @@ class MotionBlur(Corruption):
         return kernel
 
     def __call__(self, frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        import cv2  # (imported where used: see oodmon.envs.pong.to_agent_view)
+
         angle = rng.uniform(-45.0, 45.0)
         blurred = cv2.filter2D(
             frame.astype(np.float32), -1, self.kernel(angle), borderType=cv2.BORDER_REPLICATE
@@ -208,6 +209,8 @@ class Pixelate(Corruption):
         )
 
     def __call__(self, frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        import cv2
+
         height, width = frame.shape[:2]
         small = (max(1, int(width * self.factor)), max(1, int(height * self.factor)))
         down = cv2.resize(frame, small, interpolation=cv2.INTER_AREA)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import cv2
 import gymnasium
 import numpy as np
 from gymnasium import spaces
@@ -42,6 +41,8 @@ def to_agent_view(frames: list[np.ndarray]) -> np.ndarray:
         >>> to_agent_view([np.zeros((210, 160, 3), np.uint8)]).shape
         (84, 84)
     """
+    import cv2  # imported where used: 15-20 ms of every command's start (replay, check) at the top
+
     grey = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
     pooled = np.maximum(grey[0], grey[1]) if len(grey) == 2 else grey[0]
     return cv2.resize(pooled, (SCREEN_SIZE, SCREEN_SIZE), interpolation=cv2.INTER_AREA)
