@@ -111,9 +111,9 @@ def test_a_mean_delay_is_weighed_by_its_delays():
 def test_the_delays_test_is_scipy_stats_mannwhitneyu_to_the_bit_without_importing_it():
     """mann_whitney_greater gives scipy.stats.mannwhitneyu(x, y, alternative="greater")'s p-value
     bit for bit on 2,000 seeded pairs: continuous and tied values, samples of 1-13 and some of
-    20-200 (exact when one sample has <= 8 values and none tie, its counts past 64 bits at 8 and
-    2,000; asymptotic otherwise); and a check weighing delays leaves scipy.stats unimported (half
-    a second of `oodmon check`'s start before 2026-12-04)."""
+    20-200 (exact when one sample has <= 8 values and none tie, asymptotic otherwise), and an exact
+    one whose counts of U pass 64 bits (SciPy then counts in floats); and a check weighing delays
+    leaves scipy.stats unimported (0.4 s of `oodmon check`'s start before 2026-12-04)."""
     import subprocess
     import sys
 
@@ -126,7 +126,8 @@ def test_the_delays_test_is_scipy_stats_mannwhitneyu_to_the_bit_without_importin
              lambda n: rng.exponential(size=n), lambda n: rng.integers(1, 400, n).astype(float)]
     pairs = [(draws[i % 4](int(rng.integers(1, 14))), draws[i % 4](int(rng.integers(20, 201) if i % 7 == 0 else
                                                                     rng.integers(1, 14)))) for i in range(2000)]
-    pairs += [(rng.normal(1.0, size=8), rng.normal(size=2000)), (rng.normal(size=1), rng.normal(size=1))]
+    y = rng.normal(size=20000)  # and U = 9,603 at 8 values against 20,000: its counts past 64 bits (from U = 8,675)
+    pairs += [(np.quantile(y, 0.06) + rng.normal(scale=1e-3, size=8), y), (rng.normal(size=1), rng.normal(size=1))]
     exact = sum(min(x.size, y.size) <= 8 and np.unique(np.r_[x, y]).size == x.size + y.size for x, y in pairs)
     assert 600 <= exact <= 1500  # both methods are exercised
     for x, y in pairs:
