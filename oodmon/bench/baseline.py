@@ -46,7 +46,8 @@ import numpy as np
 
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
-from oodmon.replay.check import CHANCE, MOST_EPISODES, Odds, _is_number, compare_metrics, stratified_exact
+from oodmon.replay.check import (CHANCE, MOST_EPISODES, Odds, _is_number, compare_metrics, mid_ranks,
+                                 stratified_exact, u_variance)
 from oodmon.validation import is_whole
 
 __all__ = ["BASELINE_TOLERANCE", "alarm_odds", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result",
@@ -308,13 +309,8 @@ def _u_statistic(before: list[float], after: list[float], higher: bool) -> tuple
     where every value is tied (nothing to tell)."""
     n0, n1 = len(before), len(after)
     total = n0 + n1
-    values = np.asarray(before + after, float)
-    order = np.argsort(values, kind="stable")
-    starts = np.r_[0, np.flatnonzero(np.diff(values[order])) + 1]  # where each run of equal values begins
-    ties = np.diff(np.r_[starts, total])  # and how many it holds
-    ranks = np.empty(total)
-    ranks[order] = np.repeat(starts + (ties + 1) / 2, ties)  # mid-ranks
-    variance = n0 * n1 / 12.0 * ((total + 1) - float((ties ** 3 - ties).sum()) / (total * (total - 1)))
+    ranks, ties = mid_ranks(before + after)
+    variance = u_variance(n0, n1, ties)
     if variance <= 0:
         return None
     mean = n1 * (total + 1) / 2.0  # of the new values' rank sum

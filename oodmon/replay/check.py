@@ -34,7 +34,8 @@ from oodmon.replay.metrics import VariantMetrics
 from oodmon.validation import is_whole
 
 __all__ = ["CHANCE", "HIGHER_IS_BETTER", "LOWER_IS_BETTER", "Odds", "baseline_of", "check_tolerance", "compare_metrics",
-           "MOST_EPISODES", "find_falls", "load_baseline", "mann_whitney_greater", "stratified_exact"]
+           "MOST_EPISODES", "find_falls", "load_baseline", "mann_whitney_greater", "mid_ranks", "stratified_exact",
+           "u_variance"]
 
 HIGHER_IS_BETTER = ("auroc", "aupr", "detection_rate")
 LOWER_IS_BETTER = ("fpr_at_95_tpr", "false_alarm_rate", "early_alarm_rate", "delay_mean")
@@ -196,12 +197,34 @@ def _delays_beyond_chance(was: float, now: float, before: object, after: object)
     return (1.0 if math.isnan(p) else p), (1.0 if math.isnan(least) else least), f"{len(before)} to {len(after)} delays"
 
 
+def mid_ranks(values: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """The ranks of ``values`` from 1, tied ones sharing their mean rank, and the sizes of the runs
+    of equal values (the Mann-Whitney U's tie correction, :func:`u_variance`).
+
+    Example:
+        >>> ranks, ties = mid_ranks([3.0, 1.0, 3.0, 2.0])
+        >>> ranks.tolist(), ties.tolist()
+        ([3.5, 1.0, 3.5, 2.0], [1, 1, 2])
+    """
+    _, inverse, ties = np.unique(np.asarray(values, dtype=float), return_inverse=True, return_counts=True)
+    below = np.cumsum(ties) - ties  # how many values lie below each distinct one
+    return (below + (ties + 1) / 2.0)[inverse], ties
+
+
+def u_variance(n0: int, n1: int, ties: np.ndarray) -> float:
+    """The variance of the Mann-Whitney U of samples of ``n0`` and ``n1`` values under no
+    difference, corrected for the runs of tied values of sizes ``ties`` (:func:`mid_ranks`)."""
+    total = n0 + n1
+    return n0 * n1 / 12.0 * ((total + 1) - float((ties ** 3 - ties).sum()) / (total * (total - 1)))
+
+
 def mann_whitney_greater(x: Sequence[float], y: Sequence[float]) -> float:
     """The one-sided Mann-Whitney U p-value that ``x`` tends to be greater than ``y``: what
     ``scipy.stats.mannwhitneyu(x, y, alternative="greater").pvalue`` gives (SciPy 1.17's method
     "auto", to the bit), without importing ``scipy.stats`` (0.4 s of the start of every ``oodmon
-    check`` of logs whose alarms have delays, before 2026-12-04). Exact (:func:`_u_survival`) when a sample has at most 8 values and
-    none are tied; otherwise the normal approximation with the tie and continuity corrections.
+    check`` of logs whose alarms have delays, before 2026-12-04). Exact (:func:`_u_survival`) when
+    a sample has at most 8 values and none are tied; otherwise the normal approximation with the
+    tie and continuity corrections.
 
     Example:
         >>> mann_whitney_greater([4.0, 5.0, 6.0], [1.0, 2.0, 3.0])  # 1 of the 20 splits is as extreme
@@ -209,19 +232,13 @@ def mann_whitney_greater(x: Sequence[float], y: Sequence[float]) -> float:
     """
     from scipy.special import ndtr
 
-    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
-    n1, n2 = x.size, y.size
-    _, inverse, ties = np.unique(np.concatenate([x, y]), return_inverse=True, return_counts=True)
-    below = np.cumsum(ties) - ties  # how many values lie below each distinct one
-    ranks = (below + (ties + 1) / 2.0)[inverse]  # average ranks, from 1
+    n1, n2 = len(x), len(y)
+    ranks, ties = mid_ranks([*x, *y])
     u = float(ranks[:n1].sum()) - n1 * (n1 + 1) / 2
     if (n1 <= 8 or n2 <= 8) and not np.any(ties > 1):
         return float(np.clip(_u_survival(n1, n2, int(u)), 0.0, 1.0))
-    n = n1 + n2
-    tie_term = float(np.sum(ties.astype(float) ** 3 - ties))
-    spread = math.sqrt(n1 * n2 / 12 * ((n + 1) - tie_term / (n * (n - 1))))
     with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.float64(u - n1 * n2 / 2 - 0.5) / spread
+        z = np.float64(u - n1 * n2 / 2 - 0.5) / math.sqrt(u_variance(n1, n2, ties))
     return float(np.clip(ndtr(-z), 0.0, 1.0))
 
 
@@ -243,10 +260,10 @@ def _u_survival(n1: int, n2: int, u: int) -> float:
     sigma = sigma[1:]
     counts = np.zeros(nearer + 1, dtype=np.uint64)
     counts[0] = 1
-    whole = True
+    whole, most = True, np.iinfo(np.uint64).max
     for k in np.arange(1, nearer + 1):
         value = np.dot(counts[:k], sigma[k - 1::-1]) / k
-        if whole and value > np.iinfo(np.uint64).max:
+        if whole and value > most:
             counts, whole = counts.astype(float), False
         counts[k] = value
     pmf = counts / binom(n1 + n2, n1)

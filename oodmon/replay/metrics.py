@@ -28,8 +28,8 @@ from oodmon.names import TASKS
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["PENDULUM_FAILURE_REWARD", "PENDULUM_FAILURE_WINDOW", "EpisodeAlarms", "MonitorMetrics", "VariantMetrics",
-           "alarm_events", "average_precision", "failure_definition", "compute_all_metrics", "compute_metrics", "compute_monitor_metrics",
-           "ended_before_onset",
+           "alarm_events", "average_precision", "failure_definition", "compute_all_metrics", "compute_metrics",
+           "compute_monitor_metrics", "ended_before_onset",
            "FAILURES", "check_failure", "detectors_in", "env_of_variant", "failed_episodes", "failure_known", "id_failures",
            "failure_step", "fpr_at_tpr", "is_id_variant", "made_from_episodes", "monitor_row", "pooled_fits",
            "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
