@@ -87,8 +87,32 @@ def test_the_readmes_layout_names_every_part_of_the_package():
         if line.startswith("  ") and not line.startswith("   "):
             listed.update(name.strip(",") for name in line.split()[:2] if name.endswith(("/", ".py", ".py,", ".json")))
     present = {p.name + ("/" if p.is_dir() else "") for p in root.iterdir()
-               if not p.name.startswith("__") and p.suffix in ("", ".py", ".json") and p.name != "py.typed"}
+               if not p.name.startswith("__") and p.suffix in ("", ".py", ".json")}
     assert listed == present
+
+
+def test_an_installed_package_holds_every_file_oodmon_reads_beside_its_code():
+    """``pip install`` of a wheel copies only the modules and the files pyproject.toml's
+    package-data names; the editable install of ``make`` reads them all from the clone, so a data
+    file left out of those patterns (a new kind of detector file, say) breaks only the installed
+    package: its zoo agents, the paper's tables or the Foxglove layout missing. (Checked by hand
+    on 2026-12-04: a wheel of the package, installed in a fresh virtual environment outside the
+    clone, ran `oodmon demo` and replayed its logs.)"""
+    import tomllib
+
+    package = Path(oodmon.__file__).parent
+    patterns = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["oodmon"]
+    # the patterns as setuptools reads them: globs under the package's folder
+    shipped = {pattern: {p for p in package.glob(pattern) if p.is_file()} for pattern in patterns}
+    assert all(shipped.values()), [pattern for pattern, files in shipped.items() if not files]  # none stale
+    try:
+        listed = subprocess.run(["git", "ls-files", "-z", "oodmon"], cwd=ROOT, capture_output=True, check=True).stdout
+        files = {ROOT / name for name in listed.decode().split("\0") if name}
+    except (OSError, subprocess.CalledProcessError):  # not a clone: the files in the folder
+        files = {p for p in package.rglob("*") if p.is_file() and "__pycache__" not in p.parts}
+    data = {p for p in files if p.suffix not in (".py", ".pyc")}
+    assert len(data) >= 39  # the zoo's 12 agents (a model and a detector set each, two files apiece), its README, two more
+    assert data <= set().union(*shipped.values()), sorted(str(p.relative_to(package)) for p in data - set().union(*shipped.values()))
 
 
 def test_every_progress_callback_of_the_library_has_the_one_shape():
