@@ -21,6 +21,7 @@ from oodmon.cli import main
 from oodmon.envs import parse_env_shift
 from oodmon.errors import ConfigError
 from oodmon.monitor import Threshold, calibrate_agent
+from oodmon.monitor.detectors import collect
 from oodmon.replay import read_log
 from tests.helpers import run_as_written
 
@@ -255,6 +256,53 @@ def test_a_plain_policy_of_dict_observations_gets_dicts_and_its_detectors_read_t
     assert all(r.length < 60 for r in frozen)
     assert all(r.first_alarm_step is not None and 30 < r.first_alarm_step <= 35 < r.length for r in frozen)
     assert seen == {dict}
+
+
+class MultiCart(gymnasium.Wrapper):
+    """oodmon's CartPole with a MultiDiscrete([2, 3]) action: the side to push to, and how hard
+    (half, the whole or one and a half times its force)."""
+
+    def __init__(self, **physics) -> None:
+        super().__init__(gymnasium.make("oodmon/CartPole-v1", **physics))
+        self.action_space = gymnasium.spaces.MultiDiscrete([2, 3])
+        self.force = self.env.unwrapped.force_mag
+
+    def step(self, action):
+        self.env.unwrapped.force_mag = self.force * (1 + int(action[1])) / 2
+        return self.env.step(int(action[0]))
+
+
+def test_a_plain_policy_of_multi_discrete_actions_is_watched_with_every_part_of_its_action_read():
+    """A MultiDiscrete action reaches the dynamics model as its numbers (one-hot is for Discrete
+    alone): a policy that pushes harder the harder it leans on the cart is fitted, calibrated and
+    watched, and its model reads how hard it pushed."""
+    if "plain_tests/MultiCart-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/MultiCart-v0", entry_point=MultiCart, max_episode_steps=500)
+
+    def act(obs):  # the controller of the tests above, pushing harder the farther it would push
+        push = obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1]
+        return np.array([int(push > 0), 2 if abs(push) > 0.07 else int(abs(push) > 0.05)])
+
+    monitor = oodmon.watch(act, "plain_tests/MultiCart-v0", fit_episodes=12, episodes=20, confidence=None)
+    dynamics = monitor.detectors["dynamics"]
+    assert dynamics.n_actions is None and dynamics._weights[0][0].shape[1] == 4 + 2  # the readings, then the action
+    ids = [monitor.run_episode(gymnasium.make("plain_tests/MultiCart-v0"), seed=940_000 + i) for i in range(10)]
+    # as the dict CartPole's test above: 4 or more of 10 has probability 0.001 at 5% per episode
+    assert all(r.length == 500 for r in ids) and sum(r.first_alarm_step is not None for r in ids) <= 3
+    # the strength is read: the same ID transitions scored with the whole and one and a half times
+    # the force swapped (about half the steps each, when written) read worse
+    trajectory = collect(monitor.agent, gymnasium.make("plain_tests/MultiCart-v0"), 1, seed=950_000)[0]
+    obs, actions = np.asarray(trajectory.observations), np.asarray(trajectory.actions)
+    assert min(np.mean(actions[:, 1] == 1), np.mean(actions[:, 1] == 2)) > 0.2
+    other = actions.copy()
+    other[actions[:, 1] > 0, 1] = 3 - actions[actions[:, 1] > 0, 1]
+    as_pushed = dynamics.score_transitions(obs[:-1], actions, obs[1:])
+    otherwise = dynamics.score_transitions(obs[:-1], other, obs[1:])
+    assert np.median(otherwise) > np.median(as_pushed) + 1.0  # when written: 487.7 against -0.8
+    longer = gymnasium.make("plain_tests/MultiCart-v0", length=2.0, onset_step=30)
+    shifted = [monitor.run_episode(longer, seed=960_000 + i) for i in range(5)]
+    # when written: alarmed at steps 38, 31, 38, 36 and 31 (each episode 500 steps: the pole held)
+    assert all(r.first_alarm_step is not None and 30 < r.first_alarm_step <= 45 for r in shifted)
 
 
 def test_envs_show_plays_a_shift_of_your_own_env_with_your_policy(tmp_path, monkeypatch, capsys):
