@@ -21,7 +21,7 @@ from oodmon.cli import main
 from oodmon.envs import parse_env_shift
 from oodmon.errors import ConfigError
 from oodmon.monitor import Threshold, calibrate_agent
-from oodmon.monitor.detectors import collect
+from oodmon.monitor.detectors.fitting import cannot_have, collect
 from oodmon.replay import read_log
 from tests.helpers import run_as_written
 
@@ -303,6 +303,43 @@ def test_a_plain_policy_of_multi_discrete_actions_is_watched_with_every_part_of_
     shifted = [monitor.run_episode(longer, seed=960_000 + i) for i in range(5)]
     # when written: alarmed at steps 38, 31, 38, 36 and 31 (each episode 500 steps: the pole held)
     assert all(r.first_alarm_step is not None and 30 < r.first_alarm_step <= 45 for r in shifted)
+
+
+class CountedFromOne(gymnasium.Wrapper):
+    """oodmon's CartPole whose two actions are 1 and 2 (``Discrete(2, start=1)``)."""
+
+    steps = 0  # taken in any instance
+
+    def __init__(self, **physics) -> None:
+        super().__init__(gymnasium.make("oodmon/CartPole-v1", **physics))
+        self.action_space = gymnasium.spaces.Discrete(2, start=1)
+
+    def step(self, action):
+        CountedFromOne.steps += 1
+        return self.env.step(int(action) - 1)
+
+
+def test_discrete_actions_not_counted_from_zero_are_refused_before_any_episode_is_played():
+    """The dynamics and features detectors index a discrete action's one-hot row (or class) by the
+    action: those of ``Discrete(2, start=1)`` were refused only after the fitting episodes, as
+    "actions outside 0..1". Now the sentence names the space and the wrapper, before any play."""
+    if "plain_tests/CountedFromOne-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/CountedFromOne-v0", entry_point=CountedFromOne, max_episode_steps=500)
+    def act(obs):
+        return 1 + int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)
+
+    for detector in ("dynamics", "drift"):  # (and features, which a plain policy cannot have anyway)
+        assert "start=1" in cannot_have(detector, plain_agent(act, "plain_tests/CountedFromOne-v0"),
+                                        gymnasium.make("plain_tests/CountedFromOne-v0"))
+    before = CountedFromOne.steps
+    with pytest.raises(ConfigError, match=r"the dynamics detector reads a discrete action as one of its n actions "
+                                          r"counted from 0, and this env's are Discrete\(2, start=1\): .*returns a \+ 1"):
+        oodmon.watch(act, "plain_tests/CountedFromOne-v0", fit_episodes=12, episodes=20, confidence=None)
+    # no episode played: one step, the check that the env takes the policy's first action
+    assert CountedFromOne.steps - before == 1
+    # the transitions detector keys actions by their values: start is nothing to it
+    assert cannot_have("transitions", plain_agent(act, "plain_tests/CountedFromOne-v0"),
+                       gymnasium.make("plain_tests/CountedFromOne-v0")) is None
 
 
 def test_envs_show_plays_a_shift_of_your_own_env_with_your_policy(tmp_path, monkeypatch, capsys):

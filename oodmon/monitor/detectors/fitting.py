@@ -473,6 +473,14 @@ def cannot_have(detector: str, policy: Any, env: gymnasium.Env) -> str | None:
     if detector == "transitions" and is_picture(tuple(env.observation_space.shape or ()), env.observation_space.dtype):
         return ("the transitions detector counts states that repeat (discrete observations); this env's are pictures "
                 "(the frames detector reads those)")
+    actions = env.action_space
+    if detector in ("dynamics", "drift", "features") and isinstance(actions, gymnasium.spaces.Discrete) and actions.start:
+        # (one-hot rows, or one class each, indexed by the action itself: 1 of Discrete(2, start=1)
+        # read as the second, 2 past the end, an error after the fitting episodes were played)
+        return (f"the {detector} detector reads a discrete action as one of its n actions counted from 0, and this "
+                f"env's are {actions}: give oodmon an env whose actions count from 0 (a gymnasium.ActionWrapper "
+                f"whose action(a) returns a + {int(actions.start)}) and a policy that acts in it, as SB3's models "
+                "need too (they ignore start)")
     pictures = getattr(policy, "pictures", None)  # an Agent's dicts with pictures: the frames detector reads those
     if detector in ("frames", "motion", "vanishing") and len(env.observation_space.shape or ()) < 2 and pictures is None:
         return f"the {detector} detector needs image observations; this env's are of shape {env.observation_space.shape}"
