@@ -319,12 +319,26 @@ class CountedFromOne(gymnasium.Wrapper):
         return self.env.step(int(action) - 1)
 
 
-def test_discrete_actions_not_counted_from_zero_are_refused_before_any_episode_is_played():
+class LakeFromOne(gymnasium.ObservationWrapper):
+    """FrozenLake whose cells are numbered from 1 (``Discrete(16, start=1)``)."""
+
+    def __init__(self) -> None:
+        super().__init__(gymnasium.make("FrozenLake-v1"))
+        self.observation_space = gymnasium.spaces.Discrete(16, start=1)
+
+    def observation(self, obs):
+        return int(obs) + 1
+
+
+def test_discrete_spaces_not_counted_from_zero_are_refused_before_any_episode_is_played():
     """The dynamics and features detectors index a discrete action's one-hot row (or class) by the
     action: those of ``Discrete(2, start=1)`` were refused only after the fitting episodes, as
-    "actions outside 0..1". Now the sentence names the space and the wrapper, before any play."""
+    "actions outside 0..1". Now the sentence names the space and the wrapper, before any play.
+    Discrete observations not counted from 0 were refused already; the sentence now says why."""
     if "plain_tests/CountedFromOne-v0" not in gymnasium.registry:
         gymnasium.register("plain_tests/CountedFromOne-v0", entry_point=CountedFromOne, max_episode_steps=500)
+        gymnasium.register("plain_tests/LakeFromOne-v0", entry_point=LakeFromOne, max_episode_steps=100)
+
     def act(obs):
         return 1 + int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)
 
@@ -337,9 +351,10 @@ def test_discrete_actions_not_counted_from_zero_are_refused_before_any_episode_i
         oodmon.watch(act, "plain_tests/CountedFromOne-v0", fit_episodes=12, episodes=20, confidence=None)
     # no episode played: one step, the check that the env takes the policy's first action
     assert CountedFromOne.steps - before == 1
-    # the transitions detector keys actions by their values: start is nothing to it
-    assert cannot_have("transitions", plain_agent(act, "plain_tests/CountedFromOne-v0"),
-                       gymnasium.make("plain_tests/CountedFromOne-v0")) is None
+    # discrete observations not counted from 0 were refused before, as what oodmon reads: "discrete values"
+    with pytest.raises(ConfigError, match=r"observations are Discrete\(16, start=1\); .*discrete values \(counted from "
+                                          r"0\).*FlattenObservation"):
+        plain_agent(lambda obs: 0, "plain_tests/LakeFromOne-v0")
 
 
 def test_envs_show_plays_a_shift_of_your_own_env_with_your_policy(tmp_path, monkeypatch, capsys):
