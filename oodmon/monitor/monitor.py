@@ -655,7 +655,14 @@ class Monitor:
                     warnings.warn(NonFiniteObservationWarning(f"{error}; the episode ends there"), stacklevel=2)
                     terminated = False
                     break
-                obs, reward, terminated, truncated, info = env.step(action)
+                try:
+                    obs, reward, terminated, truncated, info = env.step(action)
+                except Exception as error:
+                    from oodmon.agents.plain import raise_if_refused  # (only when the env refused)
+
+                    seeded = "" if seed is None else f" (seed {seed})"
+                    raise_if_refused(env.action_space, action, error, f"at step {self._length} of an episode{seeded}")
+                    raise
                 self._tell_masks(env)
                 self.add_reward(reward)
                 if on_progress is not None:

@@ -20,7 +20,8 @@ from oodmon.agents.plain import plain_agent, policy_by_name, weights_sha256
 from oodmon.cli import main
 from oodmon.envs import parse_env_shift
 from oodmon.errors import ConfigError
-from oodmon.monitor import Threshold, calibrate_agent
+from oodmon.monitor import MemorySink, Monitor, Threshold, calibrate_agent
+from oodmon.monitor.detectors import DynamicsDetector
 from oodmon.monitor.detectors.fitting import cannot_have, collect
 from oodmon.replay import read_log
 from tests.helpers import run_as_written
@@ -355,6 +356,57 @@ def test_discrete_spaces_not_counted_from_zero_are_refused_before_any_episode_is
     with pytest.raises(ConfigError, match=r"observations are Discrete\(16, start=1\); .*discrete values \(counted from "
                                           r"0\).*FlattenObservation"):
         plain_agent(lambda obs: 0, "plain_tests/LakeFromOne-v0")
+
+
+class BreaksAtStep(gymnasium.Wrapper):
+    """CartPole whose own step raises at its third step, whatever the action."""
+
+    def __init__(self) -> None:
+        super().__init__(gymnasium.make("CartPole-v1"))
+        self.steps = 0
+
+    def reset(self, **kwargs):
+        self.steps = 0
+        return self.env.reset(**kwargs)
+
+    def step(self, action):
+        self.steps += 1
+        if self.steps == 3:
+            raise RuntimeError("the simulator crashed")
+        return self.env.step(action)
+
+
+def test_an_action_the_env_refuses_mid_episode_is_named_with_its_step_and_the_envs_own_errors_are_not():
+    """A policy that returns an action outside the env's space in some state (here None, once the
+    cart has moved) failed with the env's traceback alone ("AssertionError: None (<class
+    'NoneType'>) invalid", `oodmon calibrate` adding "run the command again"); now the sentence
+    says what the policy returned, at which step of which episode. An error of the env's own, on
+    a good action, is raised as it is."""
+    broken = [False]
+
+    def act(obs):
+        if broken[0] and abs(obs[0]) > 0.02:
+            return None
+        return int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)
+
+    agent = plain_agent(act, "CartPole-v1")
+    episodes = collect(agent, gymnasium.make("CartPole-v1"), 3, seed=970_000)  # (the fit below, small)
+    broken[0] = True
+    with pytest.raises(ConfigError, match=r"^the policy returned None at step \d+ of fitting episode 0 \(seed 970000\), "
+                                          r"which the env refused \(AssertionError: .*\); its actions are Discrete\(2\)$"):
+        collect(agent, gymnasium.make("CartPole-v1"), 3, seed=970_000)
+    sink = MemorySink()
+    monitor = Monitor(agent, threshold=1e9, detectors=[DynamicsDetector(2, epochs=2, seed=0).fit(episodes)], sinks=[sink])
+    with pytest.raises(ConfigError, match=r"^the policy returned None at step \d+ of an episode \(seed 5\), which"):
+        monitor.run_episode(gymnasium.make("CartPole-v1"), seed=5)
+    assert sink.episodes[-1].interrupted  # the episode is logged up to the step the env refused
+    broken[0] = False
+    if "plain_tests/BreaksAtStep-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/BreaksAtStep-v0", entry_point=BreaksAtStep)
+    with pytest.raises(RuntimeError, match="^the simulator crashed$"):
+        collect(plain_agent(act, "CartPole-v1"), gymnasium.make("plain_tests/BreaksAtStep-v0"), 3)
+    with pytest.raises(RuntimeError, match="^the simulator crashed$"):
+        monitor.run_episode(gymnasium.make("plain_tests/BreaksAtStep-v0"), seed=5)
 
 
 def test_envs_show_plays_a_shift_of_your_own_env_with_your_policy(tmp_path, monkeypatch, capsys):

@@ -217,7 +217,14 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
                     values.append(member_values(estimate))
             else:
                 action = act(obs)
-            obs, _, terminated, truncated, _ = env.step(action)
+            try:
+                obs, _, terminated, truncated, _ = env.step(action)
+            except Exception as error:
+                from oodmon.agents.plain import raise_if_refused  # (only when the env refused)
+
+                raise_if_refused(env.action_space, action, error,
+                                 f"at step {len(actions) + 1} of fitting episode {episode} (seed {seed + episode})")
+                raise
             if tell is not None:
                 tell(env)
             observations.append(obs)
