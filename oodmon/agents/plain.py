@@ -29,11 +29,12 @@ import gymnasium
 import numpy as np
 
 from oodmon.agents.agent import Agent, flattened
+from oodmon.envs.checks import tensor_hint
 from oodmon.errors import ConfigError
 from oodmon.hashing import state_sha256
 from oodmon.names import PLAIN_METHOD
 
-__all__ = ["plain_agent", "policy_by_name", "raise_if_refused", "weights_sha256"]
+__all__ = ["plain_agent", "policy_by_name", "weights_sha256"]
 
 
 def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = None) -> Agent:
@@ -199,27 +200,4 @@ def _check_first_action(action: Any, name: str, env: gymnasium.Env, env_id: str)
         env.step(action)
     except Exception as error:  # noqa: BLE001 (the env's own words, whatever it raises)
         raise ConfigError(f"{name} returned {action!r} for {env_id}'s first observation, which the env refused "
-                          f"({type(error).__name__}: {error}); its actions are {space}{_tensor_hint(action)}") from error
-
-
-def _tensor_hint(action: Any) -> str:
-    return " (a torch tensor: return a number, .item(), or an array, .numpy())" if hasattr(action, "detach") else ""
-
-
-def raise_if_refused(space: gymnasium.spaces.Space, action: Any, error: Exception, where: str) -> None:
-    """Raise a :class:`ConfigError` naming ``action``, ``where`` the policy returned it ("at step 7
-    of an episode of seed 3") and the env's words, when ``env.step(action)`` raised ``error`` on an
-    action outside the env's action ``space`` (gymnasium's ``contains``); return when the action is
-    in the space (the env's own error, for the caller to raise as it is).
-
-    The first action of a plain policy is checked where the policy is loaded; this says which
-    later one the env refused (a policy that returns ``None`` or a tensor in some states), where a
-    traceback of the env's ``step`` said only what it asserted.
-    """
-    try:
-        inside = bool(space.contains(action))
-    except Exception:  # noqa: BLE001 (an action contains() cannot even read)
-        inside = False
-    if not inside:
-        raise ConfigError(f"the policy returned {action!r} {where}, which the env refused ({type(error).__name__}: "
-                          f"{error}); its actions are {space}{_tensor_hint(action)}") from error
+                          f"({type(error).__name__}: {error}); its actions are {space}{tensor_hint(action)}") from error

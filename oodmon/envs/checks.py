@@ -11,11 +11,12 @@ import numbers
 import warnings
 from collections.abc import Iterable, Mapping
 
-from oodmon.errors import InvalidParameterError, UnknownParameterError
+from oodmon.errors import ConfigError, InvalidParameterError, UnknownParameterError
 from oodmon.validation import is_whole
 
 __all__ = ["LONG_EPISODE", "PHYSICS_RANGE", "check_onset_step", "episode_onset", "check_physics", "has_time_limit",
-           "positive_number", "reject_unknown", "space_mismatch", "warn_if_endless"]
+           "positive_number", "raise_if_refused", "reject_unknown", "space_mismatch", "tensor_hint",
+           "warn_if_endless"]
 
 #: A physics parameter may be at most this many times its default, or this many times smaller (the
 #: paper's grid spans 0.05 to 20 times); further out the simulation overflows (``length=1e308``).
@@ -50,6 +51,30 @@ def _same_kind(ours: object, theirs: object) -> bool:
         theirs_inner = theirs.spaces
         return inner.keys() == theirs_inner.keys() and all(_same_kind(inner[k], theirs_inner[k]) for k in inner)
     return True
+
+
+def tensor_hint(action: object) -> str:
+    """What to say of an action that is a torch tensor (an env takes numbers or arrays), else nothing."""
+    return " (a torch tensor: return a number, .item(), or an array, .numpy())" if hasattr(action, "detach") else ""
+
+
+def raise_if_refused(space: object, action: object, error: Exception, where: str) -> None:
+    """Raise a :class:`~oodmon.errors.ConfigError` naming ``action``, ``where`` the policy returned
+    it ("at step 7 of an episode (seed 3)") and the env's words, when ``env.step(action)`` raised
+    ``error`` on an action outside the env's action ``space`` (a gymnasium space: its ``contains``);
+    return when the action is in the space (the env's own error, for the caller to raise as it is).
+
+    The first action of a plain policy is checked where the policy is loaded; this says which
+    later one the env refused (a policy that returns ``None`` or a tensor in some states), where a
+    traceback of the env's ``step`` said only what it asserted.
+    """
+    try:
+        inside = bool(space.contains(action))
+    except Exception:  # noqa: BLE001 (an action contains() cannot even read)
+        inside = False
+    if not inside:
+        raise ConfigError(f"the policy returned {action!r} {where}, which the env refused ({type(error).__name__}: "
+                          f"{error}); its actions are {space}{tensor_hint(action)}") from error
 
 
 def has_time_limit(env: object) -> bool:

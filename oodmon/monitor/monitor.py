@@ -35,7 +35,7 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import Estimate, UncertaintyEstimator
-from oodmon.envs.checks import space_mismatch
+from oodmon.envs.checks import raise_if_refused, space_mismatch
 from oodmon.envs.registration import env_id_of, onset_of_env, variant_of_env, wrappers_of
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
@@ -658,8 +658,6 @@ class Monitor:
                 try:
                     obs, reward, terminated, truncated, info = env.step(action)
                 except Exception as error:
-                    from oodmon.agents.plain import raise_if_refused  # (only when the env refused)
-
                     seeded = "" if seed is None else f" (seed {seed})"
                     raise_if_refused(env.action_space, action, error, f"at step {self._length} of an episode{seeded}")
                     raise

@@ -19,6 +19,7 @@ import oodmon
 from oodmon.agents.plain import plain_agent, policy_by_name, weights_sha256
 from oodmon.cli import main
 from oodmon.envs import parse_env_shift
+from oodmon.envs.probe import probe_shift
 from oodmon.errors import ConfigError
 from oodmon.monitor import MemorySink, Monitor, Threshold, calibrate_agent
 from oodmon.monitor.detectors import DynamicsDetector
@@ -380,8 +381,9 @@ def test_an_action_the_env_refuses_mid_episode_is_named_with_its_step_and_the_en
     """A policy that returns an action outside the env's space in some state (here None, once the
     cart has moved) failed with the env's traceback alone ("AssertionError: None (<class
     'NoneType'>) invalid", `oodmon calibrate` adding "run the command again"); now the sentence
-    says what the policy returned, at which step of which episode. An error of the env's own, on
-    a good action, is raised as it is."""
+    says what the policy returned, at which step of which episode: in the fitting episodes, the
+    monitored ones and `envs show --policy`. An error of the env's own, on a good action, is
+    raised as it is."""
     broken = [False]
 
     def act(obs):
@@ -400,6 +402,8 @@ def test_an_action_the_env_refuses_mid_episode_is_named_with_its_step_and_the_en
     with pytest.raises(ConfigError, match=r"^the policy returned None at step \d+ of an episode \(seed 5\), which"):
         monitor.run_episode(gymnasium.make("CartPole-v1"), seed=5)
     assert sink.episodes[-1].interrupted  # the episode is logged up to the step the env refused
+    with pytest.raises(ConfigError, match=r"^the policy returned None at step \d+ of an episode \(seed 0\), which"):
+        probe_shift(parse_env_shift("CartPole-v1:theta_threshold_radians=0.3"), policy=act)  # `envs show --policy`
     broken[0] = False
     if "plain_tests/BreaksAtStep-v0" not in gymnasium.registry:
         gymnasium.register("plain_tests/BreaksAtStep-v0", entry_point=BreaksAtStep)

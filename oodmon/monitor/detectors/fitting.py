@@ -21,7 +21,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from oodmon.envs.checks import warn_if_endless
+from oodmon.envs.checks import raise_if_refused, warn_if_endless
 from oodmon.errors import ConfigError, InvalidParameterError, unknown
 from oodmon.monitor.detectors.base import StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
@@ -220,8 +220,6 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
             try:
                 obs, _, terminated, truncated, _ = env.step(action)
             except Exception as error:
-                from oodmon.agents.plain import raise_if_refused  # (only when the env refused)
-
                 raise_if_refused(env.action_space, action, error,
                                  f"at step {len(actions) + 1} of fitting episode {episode} (seed {seed + episode})")
                 raise
