@@ -414,9 +414,9 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
                               "a dict's vectors (dynamics) and its first picture beside them (frames); for pictures "
                               "alone, give the env's picture as its observation (a Box), which the frames detector reads")
     raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
-                      "Box: a vector, or stacked image frames), discrete values (counted from 0), or a dict of vectors and discrete "
-                      "values (pictures beside them too): wrap the env in gymnasium.wrappers.FlattenObservation, "
-                      f"{retrain}, to watch it")
+                      "Box: a vector, or stacked image frames), discrete values (counted from 0), or a dict of vectors "
+                      "and discrete values (pictures beside them too): wrap the env in "
+                      f"gymnasium.wrappers.FlattenObservation, {retrain}, to watch it")
 
 
 def _flat_as_sb3(space: Any, is_image_space: Any) -> bool:

@@ -398,7 +398,8 @@ def test_an_action_the_env_refuses_mid_episode_is_named_with_its_step_and_the_en
                                           r"which the env refused \(AssertionError: .*\); its actions are Discrete\(2\)$"):
         collect(agent, gymnasium.make("CartPole-v1"), 3, seed=970_000)
     sink = MemorySink()
-    monitor = Monitor(agent, threshold=1e9, detectors=[DynamicsDetector(2, epochs=2, seed=0).fit(episodes)], sinks=[sink])
+    dynamics = DynamicsDetector(2, epochs=2, seed=0).fit(episodes)
+    monitor = Monitor(agent, threshold=1e9, detectors=[dynamics], sinks=[sink])
     with pytest.raises(ConfigError, match=r"^the policy returned None at step \d+ of an episode \(seed 5\), which"):
         monitor.run_episode(gymnasium.make("CartPole-v1"), seed=5)
     assert sink.episodes[-1].interrupted  # the episode is logged up to the step the env refused
