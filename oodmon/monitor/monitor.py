@@ -817,7 +817,12 @@ class MonitoredEnv(gymnasium.Wrapper):
             self.monitor.end_episode(terminated=False)
             self._info = info
             return self._obs, 0.0, False, True, info
-        obs, reward, terminated, truncated, info = self.env.step(chosen)
+        try:
+            obs, reward, terminated, truncated, info = self.env.step(chosen)
+        except Exception as error:
+            if action is None:  # the policy's action, not one you gave
+                raise_if_refused(self.env.action_space, chosen, error, f"at step {self.monitor._length} of this episode")
+            raise
         self.monitor._tell_masks(self.env)
         self.monitor.add_reward(reward)
         info = {**info, "oodmon": self._telemetry()}

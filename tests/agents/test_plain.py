@@ -21,7 +21,7 @@ from oodmon.cli import main
 from oodmon.envs import parse_env_shift
 from oodmon.envs.probe import probe_shift
 from oodmon.errors import ConfigError
-from oodmon.monitor import MemorySink, Monitor, Threshold, calibrate_agent
+from oodmon.monitor import MemorySink, Monitor, MonitoredEnv, Threshold, calibrate_agent
 from oodmon.monitor.detectors import DynamicsDetector
 from oodmon.monitor.detectors.fitting import cannot_have, collect
 from oodmon.replay import read_log
@@ -382,7 +382,7 @@ def test_an_action_the_env_refuses_mid_episode_is_named_with_its_step_and_the_en
     cart has moved) failed with the env's traceback alone ("AssertionError: None (<class
     'NoneType'>) invalid", `oodmon calibrate` adding "run the command again"); now the sentence
     says what the policy returned, at which step of which episode: in the fitting episodes, the
-    monitored ones and `envs show --policy`. An error of the env's own, on a good action, is
+    monitored ones (`MonitoredEnv` too, where the policy acts) and `envs show --policy`. An error of the env's own, on a good action, is
     raised as it is."""
     broken = [False]
 
@@ -403,6 +403,14 @@ def test_an_action_the_env_refuses_mid_episode_is_named_with_its_step_and_the_en
     with pytest.raises(ConfigError, match=r"^the policy returned None at step \d+ of an episode \(seed 5\), which"):
         monitor.run_episode(gymnasium.make("CartPole-v1"), seed=5)
     assert sink.episodes[-1].interrupted  # the episode is logged up to the step the env refused
+    watched = MonitoredEnv(gymnasium.make("CartPole-v1"), monitor)  # the policy acts at env.step()
+    watched.reset(seed=5)
+    with pytest.raises(ConfigError, match=r"^the policy returned None at step \d+ of this episode, which the env"):
+        while True:
+            watched.step()
+    watched.reset(seed=5)
+    with pytest.raises(AssertionError, match=r"^5 \(<class 'int'>\) invalid"):
+        watched.step(5)  # an action you give yourself: the env's own error
     with pytest.raises(ConfigError, match=r"^the policy returned None at step \d+ of an episode \(seed 0\), which"):
         probe_shift(parse_env_shift("CartPole-v1:theta_threshold_radians=0.3"), policy=act)  # `envs show --policy`
     broken[0] = False
