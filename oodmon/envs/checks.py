@@ -68,13 +68,28 @@ def raise_if_refused(space: object, action: object, error: Exception, where: str
     later one the env refused (a policy that returns ``None`` or a tensor in some states), where a
     traceback of the env's ``step`` said only what it asserted.
     """
-    try:
-        inside = bool(space.contains(action))
-    except Exception:  # noqa: BLE001 (an action contains() cannot even read)
-        inside = False
-    if not inside:
+    if not _in_space(space, action):
         raise ConfigError(f"the policy returned {action!r} {where}, which the env refused ({type(error).__name__}: "
                           f"{error}); its actions are {space}{tensor_hint(action)}") from error
+
+
+def _in_space(space: object, action: object) -> bool:
+    """Whether ``action`` is one of ``space``'s: for a ``Box``, numbers of its shape (any float
+    width and any value: gymnasium's ``contains`` refuses a float64 array of a float32 space, which
+    envs take, and values past the bounds, which most clip), else the space's ``contains``."""
+    import gymnasium
+    import numpy as np
+
+    if isinstance(space, gymnasium.spaces.Box):
+        try:
+            array = np.asarray(action)
+        except Exception:  # noqa: BLE001 (not even an array)
+            return False
+        return array.shape == space.shape and array.dtype.kind in "biuf"
+    try:
+        return bool(space.contains(action))
+    except Exception:  # noqa: BLE001 (an action contains() cannot even read)
+        return False
 
 
 def has_time_limit(env: object) -> bool:

@@ -360,10 +360,10 @@ def test_discrete_spaces_not_counted_from_zero_are_refused_before_any_episode_is
 
 
 class BreaksAtStep(gymnasium.Wrapper):
-    """CartPole whose own step raises at its third step, whatever the action."""
+    """An env (CartPole) whose own step raises at its third step, whatever the action."""
 
-    def __init__(self) -> None:
-        super().__init__(gymnasium.make("CartPole-v1"))
+    def __init__(self, env_id: str = "CartPole-v1") -> None:
+        super().__init__(gymnasium.make(env_id))
         self.steps = 0
 
     def reset(self, **kwargs):
@@ -420,6 +420,14 @@ def test_an_action_the_env_refuses_mid_episode_is_named_with_its_step_and_the_en
         collect(plain_agent(act, "CartPole-v1"), gymnasium.make("plain_tests/BreaksAtStep-v0"), 3)
     with pytest.raises(RuntimeError, match="^the simulator crashed$"):
         monitor.run_episode(gymnasium.make("plain_tests/BreaksAtStep-v0"), seed=5)
+    # a float64 action of a float32 Box, which gymnasium's contains() refuses and the env takes, is
+    # a good action: the env's own error is raised as it is
+    if "plain_tests/PendulumBreaksAtStep-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/PendulumBreaksAtStep-v0", entry_point=BreaksAtStep,
+                           kwargs={"env_id": "Pendulum-v1"})
+    torque = plain_agent(lambda obs: np.array([-2.0 * obs[1] - 0.5 * obs[2]]), "Pendulum-v1")
+    with pytest.raises(RuntimeError, match="^the simulator crashed$"):
+        collect(torque, gymnasium.make("plain_tests/PendulumBreaksAtStep-v0"), 3)
 
 
 def test_envs_show_plays_a_shift_of_your_own_env_with_your_policy(tmp_path, monkeypatch, capsys):
