@@ -11,6 +11,9 @@ import numbers
 import warnings
 from collections.abc import Iterable, Mapping
 
+import gymnasium
+import numpy as np
+
 from oodmon.errors import ConfigError, InvalidParameterError, UnknownParameterError
 from oodmon.validation import is_whole
 
@@ -61,8 +64,9 @@ def tensor_hint(action: object) -> str:
 def raise_if_refused(space: object, action: object, error: Exception, where: str) -> None:
     """Raise a :class:`~oodmon.errors.ConfigError` naming ``action``, ``where`` the policy returned
     it ("at step 7 of an episode (seed 3)") and the env's words, when ``env.step(action)`` raised
-    ``error`` on an action outside the env's action ``space`` (a gymnasium space: its ``contains``);
-    return when the action is in the space (the env's own error, for the caller to raise as it is).
+    ``error`` on an action that is not of the env's action ``space`` (a ``Box``: numbers of another
+    shape; any other space: what its ``contains`` refuses); return when it is of the space (the
+    env's own error, for the caller to raise as it is).
 
     The first action of a plain policy is checked where the policy is loaded; this says which
     later one the env refused (a policy that returns ``None`` or a tensor in some states), where a
@@ -77,9 +81,6 @@ def _in_space(space: object, action: object) -> bool:
     """Whether ``action`` is one of ``space``'s: for a ``Box``, numbers of its shape (any float
     width and any value: gymnasium's ``contains`` refuses a float64 array of a float32 space, which
     envs take, and values past the bounds, which most clip), else the space's ``contains``."""
-    import gymnasium
-    import numpy as np
-
     if isinstance(space, gymnasium.spaces.Box):
         try:
             array = np.asarray(action)
