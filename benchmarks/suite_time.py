@@ -14,6 +14,11 @@ gauge of that speed: the dynamics model's fit time per update (``benchmarks/dyna
 first figure, one thread, before the suite starts; on 2026-12-02 it read about 2,100 us in the
 morning and 3,767 us in the afternoon, just after a run of the suite that took 335 s).
 
+It also loads ``suite_workers.py`` (beside this script), a pytest plugin that records when each
+test starts and ends on which worker, and prints each worker's busy seconds, how far apart the
+workers' last tests end (a tail that ordering the tests could win back: 1.2 s on 2026-12-04, so
+none) and the seconds before the first test starts (start-up and collection).
+
 ``--fits`` loads ``suite_fits.py`` (beside this script), a pytest plugin that times every fit of
 the dynamics model in the suite (about a fifth of its time on 2026-12-02), and prints their number,
 CPU seconds, and the seconds of the fits whose model and transitions an earlier fit of the run had
@@ -102,6 +107,28 @@ def read_fits(lines: list[str]) -> dict:
             "repeated_cpu": sum(seconds for seconds, _ in repeated), "repeated": repeated}
 
 
+@dataclass
+class Worker:
+    """One xdist worker's share of a run: its tests, when its first started and its last ended
+    (seconds since the epoch), and the seconds its tests took."""
+
+    tests: int
+    first: float
+    last: float
+    busy: float
+
+
+def read_workers(lines: list[str]) -> dict[str, Worker]:
+    """What ``suite_workers.py`` wrote, by worker (``gw0``, ...; ``main`` in a run without workers)."""
+    rows: dict[str, list[dict]] = defaultdict(list)
+    for line in lines:
+        if line.strip():
+            row = json.loads(line)
+            rows[row["worker"]].append(row)
+    return {name: Worker(len(own), min(r["start"] for r in own), max(r["end"] for r in own),
+                         sum(r["end"] - r["start"] for r in own)) for name, own in sorted(rows.items())}
+
+
 def gauge_us() -> float:
     """The machine's speed now: ``dynamics_fit.py``'s fit time per update (one thread, 600 updates, best of 3)."""
     from dynamics_fit import fit_us_per_update, synthetic_episodes  # benchmarks/, beside this script
@@ -112,24 +139,39 @@ def gauge_us() -> float:
     return fit_us_per_update(synthetic_episodes())
 
 
-def run_suite(out: Path, fits: Path | None, environment: dict[str, str]) -> str:
+def run_suite(out: Path, fits: Path | None, environment: dict[str, str], workers: Path | None = None) -> str:
     """The suite as `make test` runs it, with every duration, in ``environment`` (this process's as
-    it started: the gauge sets OPENBLAS_NUM_THREADS here); its output, also written to ``out``."""
+    it started: the gauge sets OPENBLAS_NUM_THREADS here); its output, also written to ``out``.
+    ``fits``, ``workers``: the files the plugins ``suite_fits`` and ``suite_workers`` write (None:
+    that plugin is not loaded)."""
     command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "auto", "--dist", "worksteal",
                "--durations=0", "--durations-min=0"]
     env = dict(environment)
-    if fits is not None:
-        command += ["-p", "suite_fits"]
+    for plugin, variable, path in (("suite_workers", "OODMON_SUITE_WORKERS", workers),
+                                   ("suite_fits", "OODMON_SUITE_FITS", fits)):
+        if path is not None:
+            command += ["-p", plugin]
+            env[variable] = str(path)
+    if workers is not None or fits is not None:
         env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(Path(__file__).parent), env.get("PYTHONPATH")]))
-        env["OODMON_SUITE_FITS"] = str(fits)
     done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(done.stdout + done.stderr)
     return done.stdout
 
 
-def report(run: SuiteTime, fits: dict | None, top: int = 10) -> None:
+def report(run: SuiteTime, fits: dict | None, top: int = 10, workers: dict[str, Worker] | None = None) -> None:
     print(f"{'wall time':48s} {run.wall:8.1f} s  ({run.counts})")
+    if workers:
+        for name, worker in workers.items():
+            print(f"{'worker ' + name + ' busy':48s} {worker.busy:8.1f} s  ({worker.tests} tests, "
+                  f"{worker.last - worker.first:.1f} s from its first test's start to its last's end)")
+        first, last = min(w.first for w in workers.values()), max(w.last for w in workers.values())
+        ends = [w.last for w in workers.values()]
+        label = "the workers' last tests end apart by"
+        print(f"{label:48s} {max(ends) - min(ends):8.1f} s  (a tail ordering could win)")
+        print(f"{'before the first test and after the last':48s} {run.wall - (last - first):8.1f} s  "
+              "(start-up, collection, the summary)")
     if run.only_slowest is not None:
         print(f"(pytest listed only the {run.only_slowest} slowest durations: the sums below are theirs; run with "
               "--durations=0, as this script does, for all)")
@@ -169,18 +211,20 @@ def main() -> None:
             return
         environment = dict(os.environ)
         print(f"{'gauge: dynamics fit per update, before the suite':48s} {gauge_us():8.1f} us")
-        with tempfile.TemporaryDirectory(prefix="oodmon-suite-fits-") as folder:
+        with tempfile.TemporaryDirectory(prefix="oodmon-suite-time-") as folder:
             fits_file = Path(folder) / "fits.jsonl" if args.fits else None
-            run = read_output(run_suite(args.out, fits_file, environment))
+            workers_file = Path(folder) / "workers.jsonl"
+            run = read_output(run_suite(args.out, fits_file, environment, workers_file))
             fits = None
             if fits_file is not None:  # (no file: the suite fitted no dynamics model)
                 fits = read_fits(fits_file.read_text().splitlines() if fits_file.exists() else [])
+            workers = read_workers(workers_file.read_text().splitlines() if workers_file.exists() else [])
     except OSError as error:
         sys.exit(f"suite_time.py: {error}")
     except ValueError as error:
         sys.exit(f"suite_time.py: {error} ({args.read if args.read is not None else args.out})")
     print(f"(pytest's output in {args.out})")
-    report(run, fits)
+    report(run, fits, workers=workers)
 
 
 if __name__ == "__main__":

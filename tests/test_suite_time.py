@@ -1,5 +1,6 @@
 """benchmarks/suite_time.py, which times the suite as `make test` runs it: its reading of pytest's
-output and of the fits its plugin (benchmarks/suite_fits.py) records."""
+output and of what its plugins record (benchmarks/suite_fits.py: the fits; benchmarks/suite_workers.py:
+when each test ran on which worker)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -158,4 +160,50 @@ def test_the_suite_runs_as_make_test_runs_it_in_the_environment_the_script_start
     command, options = ran[1]
     assert command[-2:] == ["-p", "suite_fits"] and options["env"]["OODMON_SUITE_FITS"] == str(tmp_path / "fits.jsonl")
     assert options["env"]["PYTHONPATH"] == os.pathsep.join([str(BENCHMARKS), "/mine"])  # the plugin found, the user's path kept
+    suite_time.run_suite(out, None, started, tmp_path / "workers.jsonl")
+    command, options = ran[2]
+    assert command[-2:] == ["-p", "suite_workers"] and "OODMON_SUITE_FITS" not in options["env"]
+    assert options["env"]["OODMON_SUITE_WORKERS"] == str(tmp_path / "workers.jsonl")
+    assert options["env"]["PYTHONPATH"] == os.pathsep.join([str(BENCHMARKS), "/mine"])
     assert started == {"PATH": "/usr/bin", "PYTHONPATH": "/mine"}  # not changed in place
+
+
+def test_the_workers_spans_say_how_far_apart_their_last_tests_end_and_what_came_before_the_first(capsys):
+    suite_time = _load("suite_time")
+    rows = [json.dumps({"worker": worker, "test": f"t{i}", "start": start, "end": end})
+            for i, (worker, start, end) in enumerate((("gw0", 1000.0, 1010.0), ("gw1", 1000.5, 1100.0),
+                                                      ("gw0", 1010.0, 1090.0), ("gw1", 1100.0, 1101.0)))]
+    workers = suite_time.read_workers(rows + [""])
+    assert list(workers) == ["gw0", "gw1"]
+    assert workers["gw0"] == suite_time.Worker(tests=2, first=1000.0, last=1090.0, busy=90.0)
+    assert workers["gw1"] == suite_time.Worker(tests=2, first=1000.5, last=1101.0, busy=100.5)
+    suite_time.report(suite_time.read_output(OUTPUT), None, workers=workers)
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[1].startswith("worker gw0 busy") and "90.0 s  (2 tests, 90.0 s from" in printed[1]
+    assert printed[3].startswith("the workers' last tests end apart by") and "11.0 s" in printed[3]
+    assert printed[4].startswith("before the first test and after the last") and "157.8 s" in printed[4]  # 258.79 - 101
+    assert suite_time.read_workers([]) == {}
+
+
+def test_the_workers_plugin_records_in_each_worker_and_not_in_the_controller(tmp_path, monkeypatch):
+    suite_workers = _load("suite_workers")
+    path = tmp_path / "workers.jsonl"
+    monkeypatch.setenv("OODMON_SUITE_WORKERS", str(path))
+
+    def configure(dist: str, worker: bool):
+        config = SimpleNamespace(option=SimpleNamespace(dist=dist), **({"workerinput": {}} if worker else {}))
+        suite_workers.pytest_configure(config)
+
+    for dist, worker, test in (("worksteal", False, "controller"), ("worksteal", True, "worker"), ("no", False, "plain")):
+        configure(dist, worker)
+        monkeypatch.setenv("PYTEST_XDIST_WORKER", "gw3") if worker else monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
+        suite_workers.pytest_runtest_logstart(test, None)
+        suite_workers.pytest_runtest_logfinish(test, None)
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    assert [(row["worker"], row["test"]) for row in rows] == [("gw3", "worker"), ("main", "plain")]
+    assert all(row["end"] >= row["start"] > 0 for row in rows)
+    monkeypatch.delenv("OODMON_SUITE_WORKERS")
+    configure("no", False)
+    suite_workers.pytest_runtest_logstart("unasked", None)
+    suite_workers.pytest_runtest_logfinish("unasked", None)
+    assert len(path.read_text().splitlines()) == 2  # nothing asked: nothing written
