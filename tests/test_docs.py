@@ -1,15 +1,18 @@
 """The README and the pages of docs/ link to each other by relative links; each must reach a file
 that exists and, with an anchor, a heading of that file (anchors as GitHub makes them). The names
-of oodmon they cite (`oodmon.envs.parse_variant`, a code block's imports) must exist: a rename
-that leaves a page behind fails here."""
+of oodmon they cite (`oodmon.envs.parse_variant`, a code block's imports) must exist, and so must
+each option they give an `oodmon` command (`oodmon run --mcap`) and each value they give an option
+of set choices: a rename that leaves a page behind fails here."""
 
 from __future__ import annotations
 
+import argparse
 import ast
 import importlib
 import re
 from pathlib import Path
 
+from oodmon.cli import _parser
 from tests.helpers import DOC_PAGES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -67,9 +70,12 @@ def _cited(name: str) -> bool:
     return False
 
 
+READMES = [*PAGES, ROOT / "oodmon/zoo/README.md", ROOT / "benchmarks/README.md", *sorted(ROOT.glob("results/*/README.md"))]
+
+
 def test_every_name_of_oodmon_the_pages_cite_exists():
     assert _cited("oodmon.envs.parse_variant") and not _cited("oodmon.envs.parse_varient")
-    readmes = [*PAGES, ROOT / "oodmon/zoo/README.md", ROOT / "benchmarks/README.md", *sorted(ROOT.glob("results/*/README.md"))]
+    readmes = READMES
     missing, imports = [], 0
     for page in readmes:
         text = page.read_text()
@@ -82,3 +88,56 @@ def test_every_name_of_oodmon_the_pages_cite_exists():
                 missing += [f"{page.relative_to(ROOT)}: from {node.module} import {alias.name}" for alias in node.names
                             if not _cited(f"{node.module}.{alias.name}")]
     assert imports >= 10 and not missing, missing  # 15 imports on 2026-12-04
+
+
+def _commands_options() -> dict[str, dict[str, argparse.Action]]:
+    """Each command of the CLI (``run``; ``envs show``) and its options, by option string."""
+    def subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+        return next((a.choices for a in parser._actions if isinstance(a, argparse._SubParsersAction)), {})
+
+    commands = {}
+    for name, parser in subcommands(_parser()).items():
+        commands[name] = {option: action for action in parser._actions for option in action.option_strings}
+        for inner, inner_parser in subcommands(parser).items():
+            commands[f"{name} {inner}"] = {option: action for action in inner_parser._actions
+                                           for option in action.option_strings}
+    return commands
+
+
+#: ``oodmon COMMAND`` and what follows it on its line (continuations joined), up to a code span's
+#: end, a pipe, a ';' or a comment.
+COMMAND_LINE = re.compile(r"\boodmon ((?:envs (?:show|tour))|[a-z][\w-]*)\b([^\n`|;#]*)")
+
+
+def wrong_options(text: str, commands: dict[str, dict[str, argparse.Action]]) -> tuple[int, list[str]]:
+    """The options given to oodmon commands in ``text`` that the command has not, and the values
+    given to an option of set choices that are none of them; with the number of options read."""
+    wrong, read = [], 0
+    for command, rest in COMMAND_LINE.findall(text.replace("\\\n", " ")):
+        if command not in commands:  # prose: "oodmon reads ..."
+            continue
+        words = [word.strip("[]()'\",") for word in rest.split()]
+        for word, following in zip(words, [*words[1:], ""]):
+            if not word.startswith("--"):
+                continue
+            read += 1
+            option = word.split("=")[0]
+            action = commands[command].get(option)
+            if action is None:
+                wrong.append(f"oodmon {command} {option}")
+            elif action.choices and re.fullmatch(r"[a-z][\w-]*", following) and following not in action.choices:
+                wrong.append(f"oodmon {command} {option} {following}")
+    return read, wrong
+
+
+def test_every_option_the_pages_give_an_oodmon_command_exists():
+    commands = _commands_options()
+    assert wrong_options("`oodmon run --threshold t.json --mcpa x.mcap --method ensembel`, oodmon reads it\n"
+                         "oodmon envs show cartpole:length=2.0 \\\n    --onset 30 --mcap x", commands) == (
+        5, ["oodmon run --mcpa", "oodmon run --method ensembel", "oodmon envs show --mcap"])
+    read, wrong = 0, []
+    for page in READMES:
+        page_read, page_wrong = wrong_options(page.read_text(), commands)
+        read += page_read
+        wrong += [f"{page.relative_to(ROOT)}: {what}" for what in page_wrong]
+    assert read >= 900 and not wrong, wrong  # 1,007 options on 2026-12-05
