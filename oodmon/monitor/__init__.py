@@ -60,7 +60,7 @@ __all__ = [
 _LAZY = {
     "AlarmCallback": "oodmon.monitor.monitor",
     "Monitor": "oodmon.monitor.monitor",
-    "MonitoredEnv": "oodmon.monitor.monitor",
+    "MonitoredEnv": "oodmon.monitor.monitored_env",
     "NonFiniteObservationWarning": "oodmon.monitor.monitor",
     "PolicyCannotAct": "oodmon.monitor.monitor",
     "CALIBRATION_SEED": "oodmon.monitor.calibration",

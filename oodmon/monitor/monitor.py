@@ -6,7 +6,7 @@ Three ways to use it:
   shifted=...)`` (or ``monitor.step(obs, action=a)`` when your own policy acts) and
   ``monitor.add_reward(r)`` per step, then ``monitor.end_episode()``;
 - ``monitor.run_episode(env, seed=...)`` runs the whole loop in an env;
-- :class:`MonitoredEnv` wraps an env: ``env.step()`` without an action lets the monitored policy
+- :class:`~oodmon.monitor.monitored_env.MonitoredEnv` wraps an env: ``env.step()`` without an action lets the monitored policy
   act; with an action (yours, say a safe fallback after an alarm) the monitor still scores and
   logs the policy's view of the step.
 
@@ -35,8 +35,8 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import Estimate, UncertaintyEstimator
-from oodmon.envs.checks import raise_if_refused, space_mismatch
-from oodmon.envs.registration import env_id_of, onset_of_env, variant_of_env, wrappers_of
+from oodmon.envs.checks import raise_if_refused
+from oodmon.envs.registration import env_id_of, onset_of_env, variant_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
@@ -50,8 +50,7 @@ from oodmon.versions import library_versions, machine
 from oodmon.hashing import file_sha256, other_weights
 from oodmon.validation import is_real, is_whole
 
-__all__ = ["SEGMENT_STEPS", "AlarmCallback", "Monitor", "MonitoredEnv", "NonFiniteObservationWarning", "PolicyCannotAct",
-           "check_env_of"]
+__all__ = ["SEGMENT_STEPS", "AlarmCallback", "Monitor", "NonFiniteObservationWarning", "PolicyCannotAct"]
 
 #: Steps of an episode after which the monitor hands its segment on (see ``Monitor(segment_steps=)``):
 #: about 10 MB of score arrays in ``McapSink`` with four detectors, 17 minutes at 100 decisions a second.
@@ -285,7 +284,7 @@ class Monitor:
         """A monitor of the same policy, threshold and alarm rule, with copies of the fitted detectors
         (whose windows and running means are then its own), its own episodes, ``sinks`` and
         ``callbacks``: one for each env of a vector env, since one Monitor follows one env's episode
-        (:class:`MonitoredEnv` refuses a Monitor that another env's episode is using). A policy that
+        (:class:`~oodmon.monitor.monitored_env.MonitoredEnv` refuses a Monitor that another env's episode is using). A policy that
         reads its env beside the observation (a RecurrentPPO's memory of the episode, a MaskablePPO's
         action masks) gets its own of those too (:meth:`~oodmon.agents.Agent.twin`).
 
@@ -673,54 +672,6 @@ class Monitor:
         return self.end_episode(terminated=bool(terminated))
 
 
-def _check_one_env(env: Any) -> None:
-    if not isinstance(env, gymnasium.Env):
-        vector = hasattr(env, "num_envs")
-        raise ConfigError(f"the env to monitor is one gymnasium env, the one you step; got a {type(env).__name__}"
-                          + (" (a vector env): wrap each of its envs in a MonitoredEnv with a Monitor of its own "
-                             "(monitor.twin() makes one like a monitor you have)" if vector else ""))
-
-
-def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
-    """Refuse an env whose observation or action space is not of the type and shape of the agent's
-    own env's (``agent.make_env()``): an env of another task, which the policy cannot act in.
-
-    Raises:
-        ConfigError: something that is not one gymnasium env (a vector env), or naming the space,
-            the env's and the agent's.
-    """
-    _check_one_env(env)
-    own = agent.make_env()
-    if agent.dict_space is not None and not isinstance(env.observation_space, gymnasium.spaces.Box):
-        env = gymnasium.wrappers.FlattenObservation(env)  # its spaces as the agent reads them (nothing stepped)
-    try:
-        what = space_mismatch(own, env)
-    finally:
-        own.close()
-    if what is not None:
-        stacked = "" if agent.frame_stack is None else (
-            f" (the agent acts on observations stacked {agent.frame_stack} deep: wrap the env you step in "
-            + (f"oodmon.agents.frame_stack.FrameStack(env, {agent.frame_stack}))" if agent.stacking.pad is None
-               else f"agent.wrap(env), {_WRAP_FOR_WATCH})"))
-        raise ConfigError(f"this env's {what} is {getattr(env, what)}, but {agent.task}/{agent.method} acts in "
-                          f"{env_id_of(own)}, whose {what} is {getattr(own, what)}: an env of another task?{stacked}")
-    if agent.stacking is not None and agent.stacking.pad is not None and _stacking_of(env) != agent.stacking:
-        raise ConfigError(f"{agent.task}/{agent.method} was trained inside VecFrameStack(VecNormalize(env), "
-                          f"{agent.frame_stack}): before an episode's first observation its stack holds the "
-                          f"statistics' mean, not zeros; step the env agent.wrap(env) gives ({_WRAP_FOR_WATCH})")
-
-
-#: Where a user of :func:`oodmon.watch` finds the agent whose ``wrap`` stacks their env.
-_WRAP_FOR_WATCH = "with oodmon.watch, call it without env= and step MonitoredEnv(monitor.agent.wrap(env), monitor)"
-
-
-def _stacking_of(env: gymnasium.Env) -> Any:
-    """The :class:`~oodmon.agents.frame_stack.Stacking` of the first ``FrameStack`` wrapping ``env``, or ``None``."""
-    from oodmon.agents.frame_stack import FrameStack
-
-    return next((wrapper.stacking for wrapper in wrappers_of(env) if isinstance(wrapper, FrameStack)), None)
-
-
 def _finite(obs: Any) -> bool:
     """Whether every number of an observation (a dict's too) is finite (an integer observation
     always is: Pong's frames)."""
@@ -731,7 +682,7 @@ def _finite(obs: Any) -> bool:
 
 
 class NonFiniteObservationWarning(RuntimeWarning):
-    """:meth:`Monitor.run_episode` or :meth:`MonitoredEnv.step` ended an episode whose env returned a
+    """:meth:`Monitor.run_episode` or :meth:`~oodmon.monitor.monitored_env.MonitoredEnv.step` ended an episode whose env returned a
     NaN or infinite reading the policy could not act on."""
 
 
@@ -754,97 +705,3 @@ def _frame(obs: np.ndarray) -> np.ndarray | None:
     """The picture to log of an image observation (uint8, three dimensions): its newest frame (see
     :func:`~oodmon.monitor.detectors.frames.newest_frame`), else None."""
     return newest_frame(obs) if np.ndim(obs) == 3 and obs.dtype == np.uint8 else None
-
-
-class MonitoredEnv(gymnasium.Wrapper):
-    """An env whose steps are scored and logged by a :class:`Monitor`.
-
-    ``step()`` with no action lets the monitored policy act; ``step(action)`` takes your action
-    (the monitor still scores and logs the policy's estimate at that observation). Every step's
-    ``info["oodmon"]`` holds every detector's score (``scores``), the alarm's (``score``,
-    ``detector``), the ``threshold`` and whether the ``alarm`` rule holds; when an alarm callback
-    ended the episode (it returned True: the step is ``truncated``), ``ended_by_alarm`` says which
-    alarm. A reset that no step follows logs no episode. A policy that cannot act on a NaN or
-    infinite observation (SB3's raise) does not step the env: that step is logged and alarmed, the
-    episode ends there (``truncated``, reward 0, ``info["oodmon"]["policy_could_not_act"]`` says
-    why) with a :class:`NonFiniteObservationWarning`, as ``oodmon run`` ends it.
-
-    Example:
-        >>> from oodmon.agents import load
-        >>> env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"), Monitor(load("cartpole", "dropout")))
-        >>> obs, info = env.reset(seed=0)
-        >>> obs, reward, terminated, truncated, info = env.step()
-        >>> env.monitor.episode, reward
-        (0, 1.0)
-    """
-
-    def __init__(self, env: gymnasium.Env, monitor: Monitor, *, variant: str | None = None) -> None:
-        if monitor.agent is not None:
-            check_env_of(monitor.agent, env)  # its kind, then its spaces
-        else:
-            _check_one_env(env)
-        super().__init__(env)
-        self.monitor = monitor
-        self.variant = variant
-        self._obs: Any = None
-        self._info: dict = {}
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = self.env.reset(seed=seed, options=options)  # (an episode still running ends at begin_episode)
-        self.monitor.begin_episode(env_id=env_id_of(self.env), variant=self.variant or variant_of_env(self.env),
-                                   onset=onset_of_env(self.env), seed=seed)
-        self.monitor._episode_owner = weakref.ref(self)  # weak: a monitor does not keep an old env alive
-        self.monitor._tell_masks(self.env)
-        self._obs, self._info = obs, info
-        return obs, info
-
-    def step(self, action: Any = None):
-        owner = self.monitor._episode_owner
-        if not self.monitor.in_episode:  # (the monitor's own words name its begin_episode, which an env's user never calls)
-            raise ConfigError("step() with no episode running: reset() the env first, before its first step and "
-                              "after an episode ended (terminated or truncated) or the env was closed")
-        if owner is None or owner() is not self:
-            raise ConfigError("this env's Monitor follows an episode that another MonitoredEnv began (one Monitor "
-                              "shared by several envs, as in a vector env of MonitoredEnvs? their steps would mix "
-                              "into one episode's log): give each env its own Monitor (monitor.twin()), or reset this env first")
-        # Your action, when you give one, is the deployed one: the detectors that model transitions see it.
-        try:
-            chosen = self.monitor.step(self._obs, action=action, shifted=bool(self._info.get("shifted", False)),
-                                       frame=_frame(self._obs))
-        except PolicyCannotAct as error:  # logged and alarmed; the env is not stepped, the episode ends (truncated)
-            warnings.warn(NonFiniteObservationWarning(f"{error}; the episode ends there"), stacklevel=2)
-            info = {**self._info, "oodmon": {**self._telemetry(), "policy_could_not_act": str(error)}}
-            self.monitor.end_episode(terminated=False)
-            self._info = info
-            return self._obs, 0.0, False, True, info
-        try:
-            obs, reward, terminated, truncated, info = self.env.step(chosen)
-        except Exception as error:
-            if action is None:  # the policy's action, not one you gave
-                raise_if_refused(self.env.action_space, chosen, error, f"at step {self.monitor._length} of this episode")
-            raise
-        self.monitor._tell_masks(self.env)
-        self.monitor.add_reward(reward)
-        info = {**info, "oodmon": self._telemetry()}
-        truncated = truncated or self.monitor.stop_requested
-        if terminated or truncated:
-            self.monitor.end_episode(terminated=bool(terminated))
-        self._obs, self._info = obs, info
-        return obs, reward, terminated, truncated, info
-
-    def _telemetry(self) -> dict[str, Any]:
-        """``info["oodmon"]``: what the monitor made of the step just taken (its observation is the
-        one the action was chosen at)."""
-        record, monitor = self.monitor.last_step, self.monitor
-        telemetry = {"step": record.step, "scores": dict(record.scores), "score": record.score,
-                     "detector": monitor.detector, "threshold": record.threshold, "alarm": record.alarm}
-        if record.alarm:  # what raised the score at this step (AlarmEvent.cause), while the alarm holds
-            telemetry["cause"] = monitor.last_cause
-        if monitor.stop_event is not None:
-            event = monitor.stop_event
-            telemetry["ended_by_alarm"] = f"an alarm callback ended the episode: {event.text()}"  # the alarm log's line
-        return telemetry
-
-    def close(self) -> None:
-        self.monitor.close()  # an episode still running is logged as interrupted
-        super().close()

@@ -148,7 +148,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     from oodmon.monitor.calibration import calibrate_agent, save_calibration
     from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
     from oodmon.monitor.detectors.fitting import check_can_have, fitted_when_named
-    from oodmon.monitor.monitor import Monitor, MonitoredEnv, check_env_of
+    from oodmon.monitor.monitor import Monitor
+    from oodmon.monitor.monitored_env import MonitoredEnv, check_env_of
     from oodmon.side_by_side import resolve_workers
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file, replaced_file
