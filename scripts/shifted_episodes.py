@@ -34,7 +34,7 @@ from oodmon.bench.cache import _cell_log
 from oodmon.bench.baseline import load_bench_result
 from oodmon.bench.config import BenchConfig
 from oodmon.replay import read_log
-from oodmon.replay.metrics import failure_step
+from oodmon.replay.failures import failure_step
 from sweep_full_depth import step_auroc  # scripts/
 
 TOLERANCE = 1e-9  # a recomputed AUROC must be the file's, to the float

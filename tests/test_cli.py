@@ -761,7 +761,7 @@ def test_the_cli_fits_detectors_on_the_librarys_default_number_of_episodes():
     from oodmon.cli import _parser
     from oodmon.cli.parsing import _FAILURES, _FIT_EPISODES, _FIT_STEPS
     from oodmon.monitor.detectors import DEFAULT_FIT_EPISODES, DEFAULT_FIT_STEPS
-    from oodmon.replay.metrics import FAILURES
+    from oodmon.replay.failures import FAILURES
 
     parser = _parser()
     assert parser.parse_args(["calibrate", "--task", "cartpole", "--method", "ensemble", "--out", "t.json"]).fit_episodes \

@@ -94,7 +94,7 @@ class BenchConfig:
     masks: str | None = None  # MC masks of Dropout and DropConnect agents: sampled or fixed (None: each model's)
     net_arch: tuple[int, ...] | None = None  # hidden widths of every trial (None: the recipe's; others train trial 0 too)
     onsets: tuple[int, int] | None = None  # [low, high) of the monitor protocol's onsets (None: the task's, ONSETS)
-    failure: str | None = None  # what fails in your own env (oodmon.replay.metrics.FAILURES; None: not told)
+    failure: str | None = None  # what fails in your own env (oodmon.replay.failures.FAILURES; None: not told)
     warmup: int = 0  # the alarm looks at no finite score of an episode's first N steps (oodmon.monitor.alarms)
 
     def __post_init__(self) -> None:
@@ -131,7 +131,7 @@ class BenchConfig:
                                   "episode's onset from, whole numbers 0 <= low < high (protocol monitor only)")
             object.__setattr__(self, "onsets", tuple(int(step) for step in self.onsets))  # frozen; JSON gives a list
         if self.failure is not None:
-            from oodmon.replay.metrics import check_failure
+            from oodmon.replay.failures import check_failure
 
             check_failure(self.failure)
             if not self.own_env:

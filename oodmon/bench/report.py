@@ -274,7 +274,7 @@ def _early_words(row) -> str:
 def print_monitor_report(config: BenchConfig, result: BenchResult, console: Console) -> None:
     """The monitor's benchmark: the alarm's figures per variant, and each method's summary against the goals."""
     from oodmon.replay import monitor_summary, monitor_table
-    from oodmon.replay.metrics import failure_definition
+    from oodmon.replay.failures import failure_definition
 
     low, high = config.onset_range()
     console.print(monitor_table(result.alarms, title=(

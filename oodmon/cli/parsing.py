@@ -167,7 +167,7 @@ _FIT_STEPS = 45_000
 _FIT_DEFAULT = f"default {_FIT_EPISODES}; your own --env: more, until they hold {_FIT_STEPS:,} steps"
 #: oodmon.monitor.detectors.dynamics.MAX_UPDATES, written out for the same reason.
 _MAX_UPDATES: int | None = None
-#: oodmon.replay.metrics.FAILURES, written out for the same reason: what ``--failure`` takes.
+#: oodmon.replay.failures.FAILURES, written out for the same reason: what ``--failure`` takes.
 _FAILURES = ("terminated",)
 
 

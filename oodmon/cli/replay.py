@@ -109,7 +109,7 @@ def _replay_episodes(args: argparse.Namespace, logs) -> int:
 def _replay_monitor(args: argparse.Namespace, logs) -> int:
     """``replay --monitor``: the alarm's figures per variant (the monitor's benchmark)."""
     from oodmon.replay import compute_monitor_metrics, monitor_markdown, monitor_summary, monitor_table
-    from oodmon.replay.metrics import failure_definition
+    from oodmon.replay.failures import failure_definition
 
     if args.csv:
         raise ConfigError("--monitor prints a table, --json or --markdown; not --csv")

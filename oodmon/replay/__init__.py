@@ -8,9 +8,9 @@ from __future__ import annotations
 from oodmon.replay.check import baseline_of, check_tolerance, find_falls, load_baseline
 from oodmon.replay.metrics import (
     MonitorMetrics, VariantMetrics, alarm_events, compute_all_metrics, compute_metrics, compute_monitor_metrics,
-    detectors_in, failed_episodes, failure_step, fpr_at_tpr, made_from_episodes, pooled_fits, pooled_thresholds,
-    pooled_weights,
+    detectors_in, failed_episodes, fpr_at_tpr, made_from_episodes, pooled_fits, pooled_thresholds, pooled_weights,
 )
+from oodmon.replay.failures import failure_step
 from oodmon.replay.parts import MissingParts, missing_parts
 from oodmon.replay.reader import (EpisodeLog, MissingPartWarning, NewerFormatWarning, RecoveryWarning, RunLog,
                                   SkippedLogWarning, read_log, read_logs)

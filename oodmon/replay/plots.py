@@ -20,8 +20,9 @@ import numpy as np
 from oodmon.envs.physics import PHYSICS_DEFAULTS
 from oodmon.envs.shift import parse_any_variant
 from oodmon.outputs import safe_filename, save_figure
-from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, failure_known,
-                                   is_id_variant, rankable, roc_points, shifted_alarms)
+from oodmon.replay.failures import failure_known
+from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, is_id_variant, rankable,
+                                   roc_points, shifted_alarms)
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_monitor_plots", "write_plots"]
@@ -284,7 +285,7 @@ def plot_alarm_timeline(variants: dict[str, Sequence[EpisodeAlarms]], title: str
     orange triangle, a false alarm) and the failure (a black cross). ``variants``: each variant's
     :class:`~oodmon.replay.metrics.EpisodeAlarms` (:func:`~oodmon.replay.metrics.shifted_alarms`);
     at most :data:`TIMELINE_EPISODES` of each are drawn. ``failures=False``: no failure is defined
-    for the env (:func:`~oodmon.replay.metrics.failure_known`), so the dots and the titles say nothing
+    for the env (:func:`~oodmon.replay.failures.failure_known`), so the dots and the titles say nothing
     of one. ``None`` when there is no episode."""
     variants = {variant: list(episodes) for variant, episodes in variants.items() if episodes}
     if not variants:

@@ -12,8 +12,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from rich.table import Table
 from rich.text import Text
 
-from oodmon.replay.metrics import (MonitorMetrics, VariantMetrics, env_of_variant, failure_step, is_id_variant,
-                                   monitor_row)
+from oodmon.replay.failures import failure_step
+from oodmon.replay.metrics import MonitorMetrics, VariantMetrics, env_of_variant, is_id_variant, monitor_row
 from oodmon.replay.reader import RunLog
 
 __all__ = ["COLUMNS", "EPISODE_COLUMNS", "episode_rows", "episodes_csv", "episodes_markdown", "episodes_table",
@@ -293,7 +293,7 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
     inside them, left out of the metrics) among them: what each episode did and when it alarmed.
 
     ``onset``, ``delay`` (steps from the onset to the first alarm; negative: before the onset) and
-    ``failure_step`` (:func:`~oodmon.replay.metrics.failure_step`, ``failure`` what fails in an env
+    ``failure_step`` (:func:`~oodmon.replay.failures.failure_step`, ``failure`` what fails in an env
     oodmon has no variants of) are ``None`` for ID episodes;
     ``first_alarm_cause`` is what raised the first alarm's score (``None``: no alarm, or a log
     older than format 7); ``return`` is ``None`` where the log does not have it (an episode cut at a tear); ``ended``

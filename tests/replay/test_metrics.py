@@ -94,7 +94,7 @@ def _run(k, variant, onset, alarm, *, terminated=None, rewards=None):
 
 def test_failure_is_the_env_ending_the_episode_or_pendulums_reward_collapsing():
     from oodmon.replay import failure_step
-    from oodmon.replay.metrics import PENDULUM_FAILURE_REWARD, PENDULUM_FAILURE_WINDOW
+    from oodmon.replay.failures import PENDULUM_FAILURE_REWARD, PENDULUM_FAILURE_WINDOW
 
     assert failure_step(_run(0, "cartpole:length=2.0", 3, [0] * 9, terminated=True), "cartpole") == 8
     assert failure_step(_run(0, "cartpole:length=2.0", 3, [0] * 9, terminated=False), "cartpole") is None
@@ -279,7 +279,7 @@ def test_your_own_envs_failure_is_told_only_when_you_say_what_it_is():
     # goal (a success): oodmon cannot tell them apart, so it tells neither unless told.
     from oodmon.errors import ConfigError
     from oodmon.replay import compute_monitor_metrics, failure_step
-    from oodmon.replay.metrics import check_failure
+    from oodmon.replay.failures import check_failure
 
     shift = "Hopper-v5:model.body_mass[1]=8.0"
     fell_after_alarm = _run(0, shift, 3, [0, 0, 0, 0, 1, 0, 0, 0, 0], terminated=True)  # alarm at 4, fell at 8
@@ -488,7 +488,7 @@ def test_episodes_that_ended_before_their_onset_are_not_counted_as_missed_detect
 
 
 def test_the_monitor_tables_footnote_says_what_failed_is_for_the_tasks_it_shows_only():
-    from oodmon.replay.metrics import failure_definition
+    from oodmon.replay.failures import failure_definition
 
     cartpole = failure_definition(["cartpole"])
     assert cartpole.startswith("failed: CartPole's episode ended by itself after the onset; the ID row's failed: ID episodes")
