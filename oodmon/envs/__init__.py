@@ -25,15 +25,8 @@ from oodmon.envs.physics import CARTPOLE_DEFAULTS, PENDULUM_DEFAULTS, ShiftedCar
 from oodmon.envs.pong import CorruptedPong, to_agent_view
 from oodmon.envs.probe import ShiftProbe, probe_shift
 from oodmon.envs.registration import register_envs
-from oodmon.envs.shift import (
-    DictSensorFaults,
-    EnvShift,
-    SensorFaults,
-    ShiftAttributes,
-    own_variant,
-    parse_any_variant,
-    parse_env_shift,
-)
+from oodmon.envs.sensor_faults import DictSensorFaults, SensorFaults
+from oodmon.envs.shift import EnvShift, ShiftAttributes, own_variant, parse_any_variant, parse_env_shift
 
 __all__ = [
     "CARTPOLE_DEFAULTS",

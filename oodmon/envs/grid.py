@@ -7,7 +7,7 @@ Spec strings, as the CLI and the logs write them, parse back to equal variants::
     pendulum:g=50.0
     pong:motion_blur@3              a corruption at one of the paper's severities 1..5
     pong:gaussian_noise:sigma=0.2   a corruption with its own parameters
-    cartpole:obs.stuck[3]=1         a sensor fault (:class:`~oodmon.envs.shift.SensorFaults`): the
+    cartpole:obs.stuck[3]=1         a sensor fault (:class:`~oodmon.envs.sensor_faults.SensorFaults`): the
                                     pole's angular velocity frozen (also after physics:
                                     cartpole:length=2.0,obs.noise[0]=0.1; pong:obs.stuck=1, a frozen
                                     camera)
@@ -63,7 +63,7 @@ class Variant:
             (Pong), as sorted ``(name, value)`` pairs.
         corruption: Pong's corruption name, or ``None``.
         severity: Pong's severity 1..5, or ``None`` when ``params`` give the corruption.
-        faults: sensor faults (``obs.KIND[i]``, :class:`~oodmon.envs.shift.SensorFaults`) from the
+        faults: sensor faults (``obs.KIND[i]``, :class:`~oodmon.envs.sensor_faults.SensorFaults`) from the
             onset on, beside physics or alone (not beside a corruption), as sorted ``(name, value)`` pairs.
 
     Example:
@@ -104,7 +104,7 @@ class Variant:
             params = {name: checked[name] for name in params}
         object.__setattr__(self, "params", tuple(sorted(params.items())))
         if self.faults:
-            from oodmon.envs.shift import SensorFaults
+            from oodmon.envs.sensor_faults import SensorFaults
 
             checked = SensorFaults.of(self.task, _observation_space(self.task), dict(self.faults))
             object.__setattr__(self, "faults", tuple(sorted(checked.changes.items())))
