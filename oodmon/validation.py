@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import math
 import numbers
 
-__all__ = ["is_real", "is_whole"]
+__all__ = ["is_finite_real", "is_real", "is_whole"]
 
 
 def is_whole(value: object, minimum: int = 1) -> bool:
@@ -25,3 +26,14 @@ def is_real(value: object) -> bool:
         (True, True, True, False, False)
     """
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def is_finite_real(value: object) -> bool:
+    """``value`` is a real number that is finite (not a bool, NaN or an infinity): a figure a
+    person's file or a spec may give.
+
+    Example:
+        >>> is_finite_real(0.5), is_finite_real(float("inf")), is_finite_real(float("nan")), is_finite_real(False)
+        (True, False, False, False)
+    """
+    return is_real(value) and math.isfinite(value)

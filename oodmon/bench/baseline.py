@@ -46,9 +46,9 @@ import numpy as np
 
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
-from oodmon.replay.check import (CHANCE, MOST_EPISODES, Odds, _is_number, compare_metrics, mid_ranks,
+from oodmon.replay.check import (CHANCE, MOST_EPISODES, Odds, compare_metrics, mid_ranks,
                                  stratified_exact, u_variance)
-from oodmon.validation import is_whole
+from oodmon.validation import is_finite_real, is_whole
 
 __all__ = ["BASELINE_TOLERANCE", "alarm_odds", "bench_falls", "bench_metrics", "check_same_settings", "load_bench_result",
            "methods_left_out", "provenance_notes", "stratified_ranks"]
@@ -100,8 +100,8 @@ def _is_kind(value: object, kind: str) -> bool:
     if kind == "count":
         return is_whole(value, 0)
     if kind == "numbers":
-        return isinstance(value, list) and all(_is_number(v) for v in value)
-    return _is_number(value)
+        return isinstance(value, list) and all(is_finite_real(v) for v in value)
+    return is_finite_real(value)
 
 
 def bench_metrics(result: dict) -> dict[str, dict[str, float | None]]:

@@ -7,7 +7,6 @@ spec (``Acrobot-v1:obs.bias[4]=0.5``), and oodmon's own variants for theirs
 
 from __future__ import annotations
 
-import math
 import re
 from collections.abc import Mapping
 from types import MappingProxyType
@@ -17,7 +16,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.errors import InvalidParameterError, UnknownParameterError
-from oodmon.validation import is_real
+from oodmon.validation import is_finite_real
 
 __all__ = ["DictSensorFaults", "SensorFaults"]
 
@@ -246,7 +245,7 @@ class DictSensorFaults:
 def _fault_value_problem(kind: str, value: Any, *, discrete: bool) -> str | None:
     """What is wrong with ``value`` for a sensor fault of ``kind`` (of discrete readings if
     ``discrete``), or ``None``."""
-    if not is_real(value) or not math.isfinite(value):
+    if not is_finite_real(value):
         return "give a finite number"
     if kind == "stuck" and value not in (0, 1):
         return "stuck is 1 (held) or 0"

@@ -33,7 +33,6 @@ refused here with a pointer to them.
 
 from __future__ import annotations
 
-import math
 import numbers
 import re
 from dataclasses import dataclass
@@ -48,7 +47,7 @@ from oodmon.envs.registration import wrappers_of
 from oodmon.envs.sensor_faults import SensorFaults
 from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
 from oodmon.names import TASKS
-from oodmon.validation import is_real
+from oodmon.validation import is_finite_real, is_real
 
 __all__ = ["EnvShift", "ShiftAttributes", "own_variant", "parse_any_variant", "parse_env_shift", "shifts_an_env"]
 
@@ -231,7 +230,7 @@ class ShiftAttributes(gymnasium.Wrapper):
                 continue
             self._targets[name] = target = _target_in(owner, env, name)
             own = target.get()
-            if not is_real(value) or not math.isfinite(value):
+            if not is_finite_real(value):
                 raise InvalidParameterError(f"{owner}: {name}={value!r} is not a finite number")
             if isinstance(own, numbers.Integral) and value != int(value):
                 raise InvalidParameterError(f"{owner}: {name} is a whole number ({own}); {name}={value!r} is not one")

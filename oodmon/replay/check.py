@@ -31,7 +31,7 @@ import numpy as np
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
 from oodmon.replay.metrics import VariantMetrics
-from oodmon.validation import is_whole
+from oodmon.validation import is_finite_real, is_whole
 
 __all__ = ["CHANCE", "HIGHER_IS_BETTER", "LOWER_IS_BETTER", "Odds", "baseline_of", "check_tolerance", "compare_metrics",
            "MOST_EPISODES", "find_falls", "load_baseline", "mann_whitney_greater", "mid_ranks", "stratified_exact",
@@ -104,7 +104,7 @@ def load_baseline(path: str | Path) -> dict:
                 continue
             if name not in known:
                 raise ConfigError(f"{path}: metrics[{key!r}] has unknown metric {name!r}; known: {', '.join(known)}")
-            if not _is_number(value):
+            if not is_finite_real(value):
                 raise ConfigError(f"{path}: metrics[{key!r}][{name!r}]={value!r:.40} is not allowed; give a finite number")
     if "tolerance" in data:
         check_tolerance(data["tolerance"], f"{path}: tolerance")
@@ -113,13 +113,9 @@ def load_baseline(path: str | Path) -> dict:
 
 def check_tolerance(value: object, name: str = "tolerance") -> float:
     """``value`` as a float if it is a finite number >= 0, else :class:`ConfigError`."""
-    if not _is_number(value) or value < 0:
+    if not is_finite_real(value) or value < 0:
         raise ConfigError(f"{name}={value!r} is not allowed; give a finite number >= 0 (the allowed fall)")
     return float(value)
-
-
-def _is_number(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def find_falls(metrics: Sequence[VariantMetrics], baseline: dict, tolerance: float | None = None, *,
