@@ -16,8 +16,9 @@ morning and 3,767 us in the afternoon, just after a run of the suite that took 3
 
 It also loads ``suite_workers.py`` (beside this script), a pytest plugin that records when each
 test starts and ends on which worker, and prints each worker's busy seconds, how far apart the
-workers' last tests end (a tail that ordering the tests could win back: 1.2 s on 2026-12-04, so
-none) and the seconds before the first test starts (start-up and collection).
+workers' last tests end (a tail that ordering the tests could win back: 1.2 and 1.4 s in two runs
+on 2026-12-04 and 05, so none) and the seconds before the first test and after the last (start-up,
+collection, the summary).
 
 ``--fits`` loads ``suite_fits.py`` (beside this script), a pytest plugin that times every fit of
 the dynamics model in the suite (about a fifth of its time on 2026-12-02), and prints their number,
@@ -107,7 +108,7 @@ def read_fits(lines: list[str]) -> dict:
             "repeated_cpu": sum(seconds for seconds, _ in repeated), "repeated": repeated}
 
 
-@dataclass
+@dataclass(frozen=True)
 class Worker:
     """One xdist worker's share of a run: its tests, when its first started and its last ended
     (seconds since the epoch), and the seconds its tests took."""
