@@ -1,8 +1,9 @@
 """The README and the pages of docs/ link to each other by relative links; each must reach a file
 that exists and, with an anchor, a heading of that file (anchors as GitHub makes them). The names
 of oodmon they cite (`oodmon.envs.parse_variant`, a code block's imports) must exist, and so must
-each option they give an `oodmon` command (`oodmon run --mcap`) and each value they give an option
-of set choices: a rename that leaves a page behind fails here."""
+each option they give an `oodmon` command (`oodmon run --mcap`) or a script of scripts/ and
+benchmarks/ (`scripts/bench_table.py --goals`), and each value they give an option of set choices:
+a rename that leaves a page behind fails here."""
 
 from __future__ import annotations
 
@@ -141,3 +142,44 @@ def test_every_option_the_pages_give_an_oodmon_command_exists():
         read += page_read
         wrong += [f"{page.relative_to(ROOT)}: {what}" for what in page_wrong]
     assert read >= 900 and not wrong, wrong  # 1,007 options on 2026-12-05
+
+
+def _script_options(path: Path, seen: frozenset[Path] = frozenset()) -> set[str]:
+    """The option strings (``"--table"``) a script of scripts/ or benchmarks/ names, in its own code
+    or in the modules beside it that it imports (a shared argument like the sweeps' ``--table``);
+    of a shell script, every ``--word`` in it."""
+    text = path.read_text()
+    if path.suffix == ".sh":
+        return set(re.findall(r"--[a-z][\w-]*", text))
+    tree = ast.parse(text)
+    options = {node.value for node in ast.walk(tree) if isinstance(node, ast.Constant) and isinstance(node.value, str)
+               and re.fullmatch(r"--[a-z][\w-]*", node.value)}
+    imported = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+    imported |= {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module}
+    for name in imported:
+        beside = path.parent / f"{name}.py"
+        if beside.exists() and beside not in seen:
+            options |= _script_options(beside, seen | {path})
+    return options
+
+
+#: A script of scripts/ or benchmarks/ and what follows it on its line, as COMMAND_LINE.
+SCRIPT_LINE = re.compile(r"\b((?:scripts|benchmarks)/[\w/]+\.(?:py|sh))\b([^\n`|;#]*)")
+
+
+def test_every_option_the_pages_give_a_script_exists():
+    wrong, read = [], 0
+    for page in READMES:
+        for script, rest in SCRIPT_LINE.findall(page.read_text().replace("\\\n", " ")):
+            path = ROOT / script
+            if not path.exists():
+                wrong.append(f"{page.relative_to(ROOT)}: {script} (no such file)")
+                continue
+            options = _script_options(path)
+            for word in (word.strip("[]()'\",") for word in rest.split()):
+                if word.startswith("--"):
+                    read += 1
+                    if word.split("=")[0] not in options:
+                        wrong.append(f"{page.relative_to(ROOT)}: {script} {word.split('=')[0]}")
+    assert "--table" in _script_options(ROOT / "scripts" / "sweep_trials.py")  # given by a module it imports
+    assert read >= 90 and not wrong, wrong  # 106 options on 2026-12-05
