@@ -71,7 +71,8 @@ def _cited(name: str) -> bool:
     return False
 
 
-READMES = [*PAGES, ROOT / "oodmon/zoo/README.md", ROOT / "benchmarks/README.md", *sorted(ROOT.glob("results/*/README.md"))]
+READMES = [*PAGES, ROOT / "oodmon/zoo/README.md", ROOT / "benchmarks/README.md",
+           *sorted(ROOT.glob("results/*/README.md"))]
 
 
 def test_every_name_of_oodmon_the_pages_cite_exists():
@@ -110,6 +111,14 @@ def _commands_options() -> dict[str, dict[str, argparse.Action]]:
 COMMAND_LINE = re.compile(r"\boodmon ((?:envs (?:show|tour))|[a-z][\w-]*)\b([^\n`|;#]*)")
 
 
+def _options_given(rest: str) -> list[tuple[str, str]]:
+    """The options on the rest of a command's line (``--mcap`` of ``--mcap=x`` too), each with the
+    word after it (its value, if it takes one)."""
+    words = [word.strip("[]()'\",") for word in rest.split()]
+    return [(word.split("=")[0], following) for word, following in zip(words, [*words[1:], ""])
+            if word.startswith("--")]
+
+
 def wrong_options(text: str, commands: dict[str, dict[str, argparse.Action]]) -> tuple[int, list[str]]:
     """The options given to oodmon commands in ``text`` that the command has not, and the values
     given to an option of set choices that are none of them; with the number of options read."""
@@ -117,12 +126,8 @@ def wrong_options(text: str, commands: dict[str, dict[str, argparse.Action]]) ->
     for command, rest in COMMAND_LINE.findall(text.replace("\\\n", " ")):
         if command not in commands:  # prose: "oodmon reads ..."
             continue
-        words = [word.strip("[]()'\",") for word in rest.split()]
-        for word, following in zip(words, [*words[1:], ""]):
-            if not word.startswith("--"):
-                continue
+        for option, following in _options_given(rest):
             read += 1
-            option = word.split("=")[0]
             action = commands[command].get(option)
             if action is None:
                 wrong.append(f"oodmon {command} {option}")
@@ -141,7 +146,7 @@ def test_every_option_the_pages_give_an_oodmon_command_exists():
         page_read, page_wrong = wrong_options(page.read_text(), commands)
         read += page_read
         wrong += [f"{page.relative_to(ROOT)}: {what}" for what in page_wrong]
-    assert read >= 900 and not wrong, wrong  # 1,007 options on 2026-12-05
+    assert read >= 900 and not wrong, wrong  # 1,010 options on 2026-12-05
 
 
 def _script_options(path: Path, seen: frozenset[Path] = frozenset()) -> set[str]:
@@ -176,10 +181,9 @@ def test_every_option_the_pages_give_a_script_exists():
                 wrong.append(f"{page.relative_to(ROOT)}: {script} (no such file)")
                 continue
             options = _script_options(path)
-            for word in (word.strip("[]()'\",") for word in rest.split()):
-                if word.startswith("--"):
-                    read += 1
-                    if word.split("=")[0] not in options:
-                        wrong.append(f"{page.relative_to(ROOT)}: {script} {word.split('=')[0]}")
+            for option, _ in _options_given(rest):
+                read += 1
+                if option not in options:
+                    wrong.append(f"{page.relative_to(ROOT)}: {script} {option}")
     assert "--table" in _script_options(ROOT / "scripts" / "sweep_trials.py")  # given by a module it imports
     assert read >= 90 and not wrong, wrong  # 106 options on 2026-12-05

@@ -194,9 +194,13 @@ def test_the_workers_plugin_records_in_each_worker_and_not_in_the_controller(tmp
         config = SimpleNamespace(option=SimpleNamespace(dist=dist), **({"workerinput": {}} if worker else {}))
         suite_workers.pytest_configure(config)
 
-    for dist, worker, test in (("worksteal", False, "controller"), ("worksteal", True, "worker"), ("no", False, "plain")):
+    cases = (("worksteal", False, "controller"), ("worksteal", True, "worker"), ("no", False, "plain"))
+    for dist, worker, test in cases:
         configure(dist, worker)
-        monkeypatch.setenv("PYTEST_XDIST_WORKER", "gw3") if worker else monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
+        if worker:
+            monkeypatch.setenv("PYTEST_XDIST_WORKER", "gw3")
+        else:
+            monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
         suite_workers.pytest_runtest_logstart(test, None)
         suite_workers.pytest_runtest_logfinish(test, None)
     rows = [json.loads(line) for line in path.read_text().splitlines()]

@@ -18,8 +18,8 @@ from oodmon.errors import ConfigError, InvalidParameterError, UnknownParameterEr
 from oodmon.validation import is_whole
 
 __all__ = ["LONG_EPISODE", "PHYSICS_RANGE", "check_onset_step", "episode_onset", "check_physics", "has_time_limit",
-           "positive_number", "raise_if_refused", "reject_unknown", "space_mismatch", "tensor_hint",
-           "warn_if_endless"]
+           "positive_number", "reject_unknown", "space_mismatch", "step_naming_refusal",
+           "tensor_hint", "warn_if_endless"]
 
 #: A physics parameter may be at most this many times its default, or this many times smaller (the
 #: paper's grid spans 0.05 to 20 times); further out the simulation overflows (``length=1e308``).
@@ -61,20 +61,29 @@ def tensor_hint(action: object) -> str:
     return " (a torch tensor: return a number, .item(), or an array, .numpy())" if hasattr(action, "detach") else ""
 
 
-def raise_if_refused(space: object, action: object, error: Exception, where: str) -> None:
-    """Raise a :class:`~oodmon.errors.ConfigError` naming ``action``, ``where`` the policy returned
-    it ("at step 7 of an episode (seed 3)") and the env's words, when ``env.step(action)`` raised
-    ``error`` on an action that is not of the env's action ``space`` (a ``Box``: numbers of another
-    shape; any other space: what its ``contains`` refuses); return when it is of the space (the
-    env's own error, for the caller to raise as it is).
+def step_naming_refusal(env: gymnasium.Env, action: object, *, step: int, episode: str = "an episode",
+                        seed: int | None = None) -> tuple:
+    """``env.step(action)`` of a policy's ``action``. Where the env raises on an action that is not
+    of its action space (a ``Box``: numbers of another shape; any other space: what its ``contains``
+    refuses), a :class:`~oodmon.errors.ConfigError` names the action, the ``step`` of the
+    ``episode`` ("at step 7 of an episode (seed 3)") and the env's words; an error of the env's
+    own, on a good action, is raised as it is.
 
     The first action of a plain policy is checked where the policy is loaded; this says which
     later one the env refused (a policy that returns ``None`` or a tensor in some states), where a
-    traceback of the env's ``step`` said only what it asserted.
+    traceback of the env's ``step`` said only what it asserted. Nothing is formatted unless the
+    env raises: the monitor's loop calls it at every step.
     """
-    if not _in_space(space, action):
-        raise ConfigError(f"the policy returned {action!r} {where}, which the env refused ({type(error).__name__}: "
-                          f"{error}); its actions are {space}{tensor_hint(action)}") from error
+    try:
+        return env.step(action)
+    except Exception as error:
+        space = env.action_space
+        if not _in_space(space, action):
+            seeded = "" if seed is None else f" (seed {seed})"
+            raise ConfigError(f"the policy returned {action!r} at step {step} of {episode}{seeded}, which the env "
+                              f"refused ({type(error).__name__}: {error}); its actions are {space}"
+                              f"{tensor_hint(action)}") from error
+        raise
 
 
 def _in_space(space: object, action: object) -> bool:

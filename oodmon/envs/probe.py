@@ -24,7 +24,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from oodmon.envs.checks import check_onset_step, raise_if_refused
+from oodmon.envs.checks import check_onset_step, step_naming_refusal
 from oodmon.envs.grid import Variant
 from oodmon.envs.shift import EnvShift
 
@@ -198,11 +198,7 @@ def _play(env: gymnasium.Env, seed: int, steps: int,
     observations, rewards, ends = [env.reset(seed=seed)[0]], [], []
     for step in range(steps):
         action = act(step, observations[-1])
-        try:
-            obs, reward, terminated, truncated, _ = env.step(action)
-        except Exception as error:
-            raise_if_refused(env.action_space, action, error, f"at step {step + 1} of an episode (seed {seed})")
-            raise
+        obs, reward, terminated, truncated, _ = step_naming_refusal(env, action, step=step + 1, seed=seed)
         observations.append(obs)
         rewards.append(float(reward))
         ends.append(bool(terminated or truncated))

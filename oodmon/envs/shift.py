@@ -18,8 +18,8 @@ Spec strings, as ``oodmon run --variant`` takes them and the logs write them::
     my_envs:MyEnv-v0:friction=0.2                an env registered in a module of yours
     HalfCheetah-v5:model.body_mass[1]=12.0       an element of an array, through attributes
     Hopper-v5:model.opt.gravity[2]=-5.0          (MuJoCo's model: its arrays are set in place)
-    Acrobot-v1:obs.bias[4]=0.5                   a sensor fault (:class:`~oodmon.envs.sensor_faults.SensorFaults`): reading 4
-                                                 of the observation off by 0.5 (also obs.scale,
+    Acrobot-v1:obs.bias[4]=0.5                   a sensor fault (oodmon.envs.SensorFaults): reading
+                                                 4 of the observation off by 0.5 (also obs.scale,
                                                  obs.noise, obs.stuck)
     my_envs:MyBreakout-v0:obs.noise=30           every reading at once (a camera's every pixel)
     Taxi-v4:obs.noise=0.1                        a discrete reading misread one step in ten

@@ -6,9 +6,9 @@ Three ways to use it:
   shifted=...)`` (or ``monitor.step(obs, action=a)`` when your own policy acts) and
   ``monitor.add_reward(r)`` per step, then ``monitor.end_episode()``;
 - ``monitor.run_episode(env, seed=...)`` runs the whole loop in an env;
-- :class:`~oodmon.monitor.monitored_env.MonitoredEnv` wraps an env: ``env.step()`` without an action lets the monitored policy
-  act; with an action (yours, say a safe fallback after an alarm) the monitor still scores and
-  logs the policy's view of the step.
+- :class:`~oodmon.monitor.monitored_env.MonitoredEnv` wraps an env: ``env.step()`` without an
+  action lets the monitored policy act; with an action (yours, say a safe fallback after an
+  alarm) the monitor still scores and logs the policy's view of the step.
 
 A :class:`Monitor` is a context manager over a run: it opens its sinks on entry and closes them
 (finishing the files) on exit, also after an exception. A monitor that is opened and never
@@ -35,7 +35,7 @@ import numpy as np
 
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import Estimate, UncertaintyEstimator
-from oodmon.envs.checks import raise_if_refused
+from oodmon.envs.checks import step_naming_refusal
 from oodmon.envs.registration import env_id_of, onset_of_env, variant_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
@@ -284,9 +284,10 @@ class Monitor:
         """A monitor of the same policy, threshold and alarm rule, with copies of the fitted detectors
         (whose windows and running means are then its own), its own episodes, ``sinks`` and
         ``callbacks``: one for each env of a vector env, since one Monitor follows one env's episode
-        (:class:`~oodmon.monitor.monitored_env.MonitoredEnv` refuses a Monitor that another env's episode is using). A policy that
-        reads its env beside the observation (a RecurrentPPO's memory of the episode, a MaskablePPO's
-        action masks) gets its own of those too (:meth:`~oodmon.agents.Agent.twin`).
+        (:class:`~oodmon.monitor.monitored_env.MonitoredEnv` refuses a Monitor that another env's
+        episode is using). A policy that reads its env beside the observation (a RecurrentPPO's
+        memory of the episode, a MaskablePPO's action masks) gets its own of those too
+        (:meth:`~oodmon.agents.Agent.twin`).
 
         Example::
 
@@ -654,12 +655,8 @@ class Monitor:
                     warnings.warn(NonFiniteObservationWarning(f"{error}; the episode ends there"), stacklevel=2)
                     terminated = False
                     break
-                try:
-                    obs, reward, terminated, truncated, info = env.step(action)
-                except Exception as error:
-                    seeded = "" if seed is None else f" (seed {seed})"
-                    raise_if_refused(env.action_space, action, error, f"at step {self._length} of an episode{seeded}")
-                    raise
+                obs, reward, terminated, truncated, info = step_naming_refusal(env, action, step=self._length,
+                                                                               seed=seed)
                 self._tell_masks(env)
                 self.add_reward(reward)
                 if on_progress is not None:
@@ -682,8 +679,8 @@ def _finite(obs: Any) -> bool:
 
 
 class NonFiniteObservationWarning(RuntimeWarning):
-    """:meth:`Monitor.run_episode` or :meth:`~oodmon.monitor.monitored_env.MonitoredEnv.step` ended an episode whose env returned a
-    NaN or infinite reading the policy could not act on."""
+    """:meth:`Monitor.run_episode` or :meth:`~oodmon.monitor.monitored_env.MonitoredEnv.step` ended
+    an episode whose env returned a NaN or infinite reading the policy could not act on."""
 
 
 class PolicyCannotAct(RuntimeError):

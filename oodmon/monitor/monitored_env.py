@@ -16,7 +16,7 @@ from typing import Any
 import gymnasium
 
 from oodmon.agents.agent import Agent
-from oodmon.envs.checks import raise_if_refused, space_mismatch
+from oodmon.envs.checks import space_mismatch, step_naming_refusal
 from oodmon.envs.registration import env_id_of, onset_of_env, variant_of_env, wrappers_of
 from oodmon.errors import ConfigError
 from oodmon.monitor.monitor import Monitor, NonFiniteObservationWarning, PolicyCannotAct, _frame
@@ -133,12 +133,11 @@ class MonitoredEnv(gymnasium.Wrapper):
             self.monitor.end_episode(terminated=False)
             self._info = info
             return self._obs, 0.0, False, True, info
-        try:
+        if action is None:  # the policy's action: one the env refuses is named (yours keeps the env's own error)
+            obs, reward, terminated, truncated, info = step_naming_refusal(self.env, chosen, step=self.monitor._length,
+                                                                           episode="this episode")
+        else:
             obs, reward, terminated, truncated, info = self.env.step(chosen)
-        except Exception as error:
-            if action is None:  # the policy's action, not one you gave
-                raise_if_refused(self.env.action_space, chosen, error, f"at step {self.monitor._length} of this episode")
-            raise
         self.monitor._tell_masks(self.env)
         self.monitor.add_reward(reward)
         info = {**info, "oodmon": self._telemetry()}

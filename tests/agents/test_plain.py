@@ -382,8 +382,8 @@ def test_an_action_the_env_refuses_mid_episode_is_named_with_its_step_and_the_en
     cart has moved) failed with the env's traceback alone ("AssertionError: None (<class
     'NoneType'>) invalid", `oodmon calibrate` adding "run the command again"); now the sentence
     says what the policy returned, at which step of which episode: in the fitting episodes, the
-    monitored ones (`MonitoredEnv` too, where the policy acts) and `envs show --policy`. An error of the env's own, on a good action, is
-    raised as it is."""
+    monitored ones (`MonitoredEnv` too, where the policy acts) and `envs show --policy`. An error
+    of the env's own, on a good action, is raised as it is."""
     broken = [False]
 
     def act(obs):

@@ -21,7 +21,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from oodmon.envs.checks import raise_if_refused, warn_if_endless
+from oodmon.envs.checks import step_naming_refusal, warn_if_endless
 from oodmon.errors import ConfigError, InvalidParameterError, unknown
 from oodmon.monitor.detectors.base import StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
@@ -204,6 +204,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
             tell(env)
         observations, actions, features, values, estimates = [obs], [], [], [], []
         keep = estimator is not None and estimates_from is not None and episode >= estimates_from
+        label = f"fitting episode {episode}"  # (what a refused action's error names)
         while True:
             if estimator is not None:
                 estimate = estimator.estimate(obs)
@@ -217,12 +218,8 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
                     values.append(member_values(estimate))
             else:
                 action = act(obs)
-            try:
-                obs, _, terminated, truncated, _ = env.step(action)
-            except Exception as error:
-                raise_if_refused(env.action_space, action, error,
-                                 f"at step {len(actions) + 1} of fitting episode {episode} (seed {seed + episode})")
-                raise
+            obs, _, terminated, truncated, _ = step_naming_refusal(env, action, step=len(actions) + 1, episode=label,
+                                                                   seed=seed + episode)
             if tell is not None:
                 tell(env)
             observations.append(obs)
