@@ -60,7 +60,7 @@ def test_users_sb3_files_are_read_only_when_the_user_names_them_and_unpickled_on
     # read from its JSON first; SB3 gets every entry it would unpickle, read by the restricted
     # unpickler (custom_objects), unless the user passed unsafe_load_pickles (--unsafe-load-pickles).
     source = (PACKAGE / "agents" / "sb3.py").read_text()
-    loader = source[source.index("def _load_one"):source.index("def _check_spaces")]
+    loader = source[source.index("def _load_one"):source.index("def _optimizers_built_without_dynamo")]
     assert 'algorithm.load(path, device="cpu", custom_objects=objects)' in loader and "_algorithms(data, path)" in loader
     assert "objects = None if unsafe_load_pickles else data_objects(data, algorithm, path)" in loader
     calls = [m.start() for m in re.finditer(r"_load_one\(", source)][1:]

@@ -61,7 +61,7 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
         ConfigError: ``policy`` not callable, or an SB3 model or policy (give the model:
             :func:`~oodmon.agents.sb3.sb3_agent`); an env whose observations are neither arrays
             nor a dict of vectors and discrete values (pictures beside them too), as SB3 models'
-            (:func:`~oodmon.agents.sb3.dict_space_of`); an action the env refuses, or of another
+            (:func:`~oodmon.agents.sb3_spaces.dict_space_of`); an action the env refuses, or of another
             shape than its Box actions.
 
     Example:
@@ -70,7 +70,7 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
         ('plain', 'cartpole', None, 0)
     """
     from oodmon.agents.dict_pictures import dict_pictures
-    from oodmon.agents.sb3 import dict_space_of
+    from oodmon.agents.sb3_spaces import dict_space_of
     from oodmon.envs.registration import make_env, task_of_env
 
     _check_callable(policy)

@@ -15,8 +15,8 @@ the detectors' fitting take like a shipped one:
   MaskablePPO models load too (``pip install 'oodmon[contrib]'``), one model as a plain policy;
   several TQC models are an ensemble as SAC models are (their actor is SAC's), several QR-DQN
   models as DQN models are (of their quantiles' means); a RecurrentPPO decides with its LSTM's state carried
-  through each episode (:class:`_RecurrentDeployed`), a MaskablePPO among the actions each step's
-  action masks allow (:class:`_MaskableDeployed`);
+  through each episode, a MaskablePPO among the actions each step's action masks allow
+  (:mod:`oodmon.agents.sb3_deployed`);
 - its metadata record each model's path and sha256, the algorithm and the env id; its policy hash
   (what thresholds and fitted detectors are checked against) is the hash of the policies'
   parameters (and of the VecNormalize statistics' numbers), the same for a model loaded from its
@@ -41,12 +41,12 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium
-import numpy as np
 
 from oodmon.agents.agent import Agent
-from oodmon.agents.dict_pictures import dict_pictures, is_picture_space
-from oodmon.agents.sb3_decision import decision
+from oodmon.agents.dict_pictures import dict_pictures
+from oodmon.agents.sb3_deployed import deployed_model
 from oodmon.agents.sb3_pickles import data_objects, import_modules
+from oodmon.agents.sb3_spaces import check_model_spaces, dict_space_of
 from oodmon.agents.vec_normalize import (
     NO_NORMALIZATION,
     ObservationNormalizer,
@@ -54,7 +54,6 @@ from oodmon.agents.vec_normalize import (
     normalizer_of,
     trained_in_vec_normalize,
 )
-from oodmon.envs.checks import space_mismatch
 from oodmon.errors import ConfigError
 from oodmon.hashing import file_sha256, state_sha256
 
@@ -77,8 +76,8 @@ SB3_ALGORITHMS = {
 #: TRPO's policy is SB3's own actor-critic: told by the hyperparameters it saves
 #: (:data:`SB3_HYPERPARAMETERS`).
 SB3_CONTRIB_ALGORITHMS = {
-    "sb3_contrib.common.recurrent.policies": ("RecurrentPPO",),  # its LSTM's state carried: _RecurrentDeployed
-    "sb3_contrib.common.maskable.policies": ("MaskablePPO",),  # the env's action masks given: _MaskableDeployed
+    "sb3_contrib.common.recurrent.policies": ("RecurrentPPO",),  # its LSTM's state carried: RecurrentDeployedModel
+    "sb3_contrib.common.maskable.policies": ("MaskablePPO",),  # the env's action masks given: MaskableDeployedModel
     "sb3_contrib.qrdqn.policies": ("QRDQN",),
     "sb3_contrib.tqc.policies": ("TQC",),
     "sb3_contrib.ars.policies": ("ARS",),
@@ -250,186 +249,6 @@ def _optimizers_built_without_dynamo() -> Iterator[None]:
     finally:
         for function in stood_in:
             delattr(function, "__dynamo_disable")
-
-
-def _check_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str, frame_stack: int | None = None) -> None:
-    what = space_mismatch(env, model)
-    if what == "observation_space" and _transposed_image(env.observation_space, model.observation_space):
-        what = space_mismatch(env, model, spaces=("action_space",))  # SB3's own (H, W, C) -> (C, H, W)
-    if what is not None:
-        ours = f"{env_id}'s, stacked {frame_stack} deep," if frame_stack else f"{env_id} has"
-        hint = ""
-        if what == "observation_space" and frame_stack is None:
-            depth = _stack_depth(env.observation_space, model.observation_space)
-            hint = (f" Or trained inside VecFrameStack({depth})? Give --frame-stack {depth} (frame_stack={depth})"
-                    if depth else "")
-        raise ConfigError(f"{path} was trained with the {what} {getattr(model, what)}; {ours} "
-                          f"{getattr(env, what)}: a model of another env?{hint}")
-
-
-def _stack_depth(env_space: Any, model_space: Any) -> int | None:
-    """The n_stack of a VecFrameStack that makes ``env_space`` into ``model_space`` (along the last
-    axis, or the first: channels-first images, and SB3's own transposition of channels-last ones),
-    or ``None``."""
-    if isinstance(env_space, gymnasium.spaces.Dict) and isinstance(model_space, gymnasium.spaces.Dict):
-        if env_space.spaces.keys() != model_space.spaces.keys():
-            return None  # a dict of vectors is stacked key by key: one depth for every key
-        depths = {_stack_depth(env_space[key], model_space[key]) for key in env_space.spaces}
-        return depths.pop() if len(depths) == 1 else None
-    if not isinstance(env_space, gymnasium.spaces.Box) or not isinstance(model_space, gymnasium.spaces.Box):
-        return None
-    env_shape, shape = env_space.shape, model_space.shape
-    if len(env_shape) != len(shape) or not env_shape:
-        return None
-    candidates = [(shape[-1], env_shape[-1], shape[:-1] == env_shape[:-1]),
-                  (shape[0], env_shape[0], shape[1:] == env_shape[1:])]
-    if len(env_shape) == 3:  # channels last, stacked on them, then moved first by SB3
-        candidates.append((shape[0], env_shape[2], shape[1:] == env_shape[:2]))
-    for stacked, own, rest in candidates:
-        if rest and own and stacked % own == 0 and stacked // own >= 2:
-            return stacked // own
-    return None
-
-
-def _transposed_image(env_space: Any, model_space: Any) -> bool:
-    """Whether ``model_space`` is ``env_space``, an image with channels last, with its channels moved
-    first, as SB3 stores a model trained on such an env (``VecTransposeImage``; its ``predict`` takes
-    the env's images as they come); of a dict, each such image key so and the other keys the same."""
-    from stable_baselines3.common.preprocessing import is_image_space
-
-    if isinstance(env_space, gymnasium.spaces.Dict) and isinstance(model_space, gymnasium.spaces.Dict):
-        return env_space.spaces.keys() == model_space.spaces.keys() and all(
-            model_space[key] == sub or _transposed_image(sub, model_space[key]) for key, sub in env_space.spaces.items())
-    if not isinstance(env_space, gymnasium.spaces.Box) or not isinstance(model_space, gymnasium.spaces.Box):
-        return False
-    shape = env_space.shape
-    return (is_image_space(env_space) and len(shape) == 3
-            and model_space.shape == (shape[2], shape[0], shape[1]))
-
-
-class _Deployed:
-    """The model's own decision on the observation the monitor reads (a dict one flattened: it
-    gets the dict back, as the env gave it; normalised as in training where it was): its
-    ``predict(obs, deterministic=True)``, computed without the work ``predict`` repeats at every
-    call where :func:`~oodmon.agents.sb3_decision.decision` knows the policy (the same action)."""
-
-    def __init__(self, model: Any, discrete: bool, normalizer: ObservationNormalizer | None,
-                 dict_space: gymnasium.spaces.Dict | None = None) -> None:
-        self.model, self.discrete, self.normalizer, self.dict_space = model, discrete, normalizer, dict_space
-        self.decide = decision(model) or (lambda obs: model.predict(obs, deterministic=True)[0])
-
-    def _as_read(self, obs: np.ndarray) -> Any:
-        """``obs`` as the model reads it: a flattened dict unflattened, normalised as in training."""
-        if self.dict_space is not None:
-            obs = gymnasium.spaces.unflatten(self.dict_space, np.asarray(obs))
-        return obs if self.normalizer is None else self.normalizer(obs)
-
-    def _action(self, action: Any) -> int | np.ndarray:
-        """The action as the env takes it."""
-        return int(action) if self.discrete else np.asarray(action)
-
-    def _predict(self, obs: np.ndarray, **extra: Any) -> tuple[int | np.ndarray, Any]:
-        """``model.predict`` of ``obs`` as the model reads it (deterministic; ``extra`` to it): the
-        action as the env takes it, and what ``predict`` returned beside it."""
-        action, other = self.model.predict(self._as_read(obs), deterministic=True, **extra)
-        return self._action(action), other
-
-    def __call__(self, obs: np.ndarray) -> int | np.ndarray:
-        return self._action(self.decide(self._as_read(obs)))
-
-
-class _RecurrentDeployed(_Deployed):
-    """A recurrent policy's decisions (sb3-contrib's RecurrentPPO): its ``predict`` with the LSTM's
-    state carried from step to step, as sb3-contrib's own evaluation carries it, and forgotten when
-    an episode begins (:meth:`begin_episode`, which :meth:`Agent.begin_episode` calls: from the envs
-    :meth:`Agent.wrap` makes, at each reset, and from the monitor at each episode's start)."""
-
-    def __init__(self, *args: Any) -> None:
-        super().__init__(*args)
-        self.begin_episode()
-
-    def begin_episode(self) -> None:
-        self.state, self.starts = None, np.ones(1, dtype=bool)
-
-    def __call__(self, obs: np.ndarray) -> int | np.ndarray:
-        action, self.state = self._predict(obs, state=self.state, episode_start=self.starts)
-        self.starts = np.zeros(1, dtype=bool)
-        return action
-
-
-class _MaskableDeployed(_Deployed):
-    """A policy that decides among the actions the env allows (sb3-contrib's MaskablePPO): its
-    ``predict`` with the action masks of the step it acts at, which the envs :meth:`Agent.wrap`
-    makes, and the monitor of the env it steps, give it after each reset and step
-    (:meth:`Agent.tell_masks`). Each step's masks serve one
-    decision: acting again without new ones is an error, never a decision on stale masks."""
-
-    def __init__(self, *args: Any) -> None:
-        super().__init__(*args)
-        self.masks: np.ndarray | None = None
-
-    def tell_masks(self, masks: np.ndarray) -> None:
-        self.masks = masks
-
-    def __call__(self, obs: np.ndarray) -> int | np.ndarray:
-        if self.masks is None:
-            raise ConfigError("MaskablePPO decides among the actions the env's action masks allow, and none were "
-                              f"given for this step: step the env agent.wrap(env) gives, which reads them "
-                              f"({_WRAP_FOR_MASKS})")
-        masks, self.masks = self.masks, None
-        return self._predict(obs, action_masks=masks)[0]
-
-
-#: Who else gives it the masks: the monitor, of the env it steps.
-_WRAP_FOR_MASKS = "the monitor does too: Monitor.run_episode(env), MonitoredEnv(env, monitor), oodmon.watch(..., env=env)"
-
-
-def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the model on that") -> gymnasium.spaces.Space | None:
-    """``space`` when it is a dict of vectors and discrete values (an SB3 ``MultiInputPolicy``'s,
-    which concatenates them flattened, discrete ones one-hot, as ``gymnasium.spaces.flatten``
-    does), with pictures beside them or not (:mod:`oodmon.agents.dict_pictures`), or discrete
-    values alone (``Discrete`` counted from 0, ``MultiDiscrete``, ``MultiBinary``: FrozenLake's
-    cell, which SB3 reads one-hot too; a ``Tuple`` of them, Blackjack's hand, for a plain policy);
-    ``None`` for an array space.
-
-    Raises:
-        ConfigError: any other space (nested spaces inside a dict, a dict of pictures alone, a
-            tuple, text), saying to flatten the env's observations, ``retrain``.
-    """
-    from stable_baselines3.common.preprocessing import is_image_space
-
-    if isinstance(space, gymnasium.spaces.Box):
-        return None
-    if _flat_as_sb3(space, is_image_space):  # discrete values: read flattened, one-hot
-        return space
-    if isinstance(space, gymnasium.spaces.Tuple) and space.spaces and all(
-            not isinstance(sub, gymnasium.spaces.Box) and _flat_as_sb3(sub, is_image_space) for sub in space.spaces):
-        return space  # a tuple of them (Blackjack's hand): SB3 trains on none, a plain policy gets it back
-    if isinstance(space, gymnasium.spaces.Dict):
-        vectors = [sub for sub in space.spaces.values() if not is_picture_space(sub)]  # and discrete values
-        if vectors and all(_flat_as_sb3(sub, is_image_space) for sub in vectors):
-            return space
-        if not vectors:
-            raise ConfigError(f"{env_id}'s observations are {space}: pictures alone, in a dict. oodmon's detectors read "
-                              "a dict's vectors (dynamics) and its first picture beside them (frames); for pictures "
-                              "alone, give the env's picture as its observation (a Box), which the frames detector reads")
-    raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
-                      "Box: a vector, or stacked image frames), discrete values (counted from 0), or a dict of vectors "
-                      "and discrete values (pictures beside them too): wrap the env in "
-                      f"gymnasium.wrappers.FlattenObservation, {retrain}, to watch it")
-
-
-def _flat_as_sb3(space: Any, is_image_space: Any) -> bool:
-    """Whether gymnasium flattens a dict's ``space`` into the numbers SB3's ``CombinedExtractor``
-    reads of it: a vector (not an image), a binary vector, or discrete values counted from 0 (one-hot)."""
-    spaces = gymnasium.spaces
-    if isinstance(space, spaces.Box):
-        return not is_image_space(space, check_channels=False)
-    if isinstance(space, spaces.Discrete):
-        return int(space.start) == 0
-    if isinstance(space, spaces.MultiDiscrete):
-        return np.ndim(space.nvec) == 1 and not np.any(space.start)
-    return isinstance(space, spaces.MultiBinary) and np.ndim(space.n) == 0
 
 
 def load_sb3(paths: Sequence[str | Path], env_id: str, *, mean: bool = False, n_samples: int = 20,
@@ -607,7 +426,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         env = FrameStack(env, frame_stack, pad=pad)
         stacking = env.stacking
     for model, file in zip(models, files):
-        _check_spaces(model, Path(file["path"]), env, env_id, frame_stack)
+        check_model_spaces(model, Path(file["path"]), env, env_id, frame_stack)
     env.close()
     dict_space = dict_space_of(env.observation_space, env_id)
     if normalizer is not None:
@@ -647,9 +466,7 @@ def sb3_agent(models: Sequence[Any], env_id: str, *, mean: bool = False, n_sampl
         | ({} if normalizer is None else {"vec_normalize": normalizer.describe()}) \
         | ({} if frame_stack is None else {"frame_stack": frame_stack})
     discrete = isinstance(models[0].action_space, gymnasium.spaces.Discrete)
-    deploying = {"RecurrentPPO": _RecurrentDeployed, "MaskablePPO": _MaskableDeployed}.get(files[0]["algorithm"],
-                                                                                          _Deployed)
-    deployed = deploying(models[0], discrete, normalizer, dict_space)
+    deployed = deployed_model(models[0], files[0]["algorithm"], discrete, normalizer, dict_space)
     return Agent(estimator, metadata, None, None if mean else deployed,
                  dict_space=dict_space, stacking=stacking, pictures=pictures)
 

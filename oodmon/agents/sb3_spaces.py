@@ -1,0 +1,138 @@
+"""Whether a stable-baselines3 model fits the env it is deployed in, and how oodmon reads the env's
+observation space.
+
+- :func:`check_model_spaces`: the model's observation and action spaces against the env's (a
+  model of another env is refused), allowing SB3's own moving of an image's channels first and
+  naming the ``VecFrameStack`` depth a model trained inside one needs.
+- :func:`dict_space_of`: the space oodmon unflattens observations into for the policy, for a dict
+  of vectors and discrete values or discrete values alone (``None`` for an array), refusing the
+  spaces oodmon's detectors cannot read.
+
+Split from :mod:`oodmon.agents.sb3`, which uses both for the models it loads;
+:mod:`oodmon.agents.plain` uses :func:`dict_space_of` for a policy of any kind.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from oodmon.agents.dict_pictures import is_picture_space
+from oodmon.envs.checks import space_mismatch
+from oodmon.errors import ConfigError
+
+__all__ = ["check_model_spaces", "dict_space_of"]
+
+
+def check_model_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str, frame_stack: int | None = None) -> None:
+    """Refuse ``model`` (loaded from ``path``) whose observation or action space is not the one of
+    ``env`` (``env_id``'s, stacked ``frame_stack`` deep where the model was trained inside
+    ``VecFrameStack``).
+
+    Raises:
+        ConfigError: naming the space, the model's and the env's, and the ``--frame-stack`` a
+            stacked model needs.
+    """
+    what = space_mismatch(env, model)
+    if what == "observation_space" and _transposed_image(env.observation_space, model.observation_space):
+        what = space_mismatch(env, model, spaces=("action_space",))  # SB3's own (H, W, C) -> (C, H, W)
+    if what is not None:
+        ours = f"{env_id}'s, stacked {frame_stack} deep," if frame_stack else f"{env_id} has"
+        hint = ""
+        if what == "observation_space" and frame_stack is None:
+            depth = _stack_depth(env.observation_space, model.observation_space)
+            hint = (f" Or trained inside VecFrameStack({depth})? Give --frame-stack {depth} (frame_stack={depth})"
+                    if depth else "")
+        raise ConfigError(f"{path} was trained with the {what} {getattr(model, what)}; {ours} "
+                          f"{getattr(env, what)}: a model of another env?{hint}")
+
+
+def _stack_depth(env_space: Any, model_space: Any) -> int | None:
+    """The n_stack of a VecFrameStack that makes ``env_space`` into ``model_space`` (along the last
+    axis, or the first: channels-first images, and SB3's own transposition of channels-last ones),
+    or ``None``."""
+    if isinstance(env_space, gymnasium.spaces.Dict) and isinstance(model_space, gymnasium.spaces.Dict):
+        if env_space.spaces.keys() != model_space.spaces.keys():
+            return None  # a dict of vectors is stacked key by key: one depth for every key
+        depths = {_stack_depth(env_space[key], model_space[key]) for key in env_space.spaces}
+        return depths.pop() if len(depths) == 1 else None
+    if not isinstance(env_space, gymnasium.spaces.Box) or not isinstance(model_space, gymnasium.spaces.Box):
+        return None
+    env_shape, shape = env_space.shape, model_space.shape
+    if len(env_shape) != len(shape) or not env_shape:
+        return None
+    candidates = [(shape[-1], env_shape[-1], shape[:-1] == env_shape[:-1]),
+                  (shape[0], env_shape[0], shape[1:] == env_shape[1:])]
+    if len(env_shape) == 3:  # channels last, stacked on them, then moved first by SB3
+        candidates.append((shape[0], env_shape[2], shape[1:] == env_shape[:2]))
+    for stacked, own, rest in candidates:
+        if rest and own and stacked % own == 0 and stacked // own >= 2:
+            return stacked // own
+    return None
+
+
+def _transposed_image(env_space: Any, model_space: Any) -> bool:
+    """Whether ``model_space`` is ``env_space``, an image with channels last, with its channels moved
+    first, as SB3 stores a model trained on such an env (``VecTransposeImage``; its ``predict`` takes
+    the env's images as they come); of a dict, each such image key so and the other keys the same."""
+    from stable_baselines3.common.preprocessing import is_image_space
+
+    if isinstance(env_space, gymnasium.spaces.Dict) and isinstance(model_space, gymnasium.spaces.Dict):
+        return env_space.spaces.keys() == model_space.spaces.keys() and all(
+            model_space[key] == sub or _transposed_image(sub, model_space[key]) for key, sub in env_space.spaces.items())
+    if not isinstance(env_space, gymnasium.spaces.Box) or not isinstance(model_space, gymnasium.spaces.Box):
+        return False
+    shape = env_space.shape
+    return (is_image_space(env_space) and len(shape) == 3
+            and model_space.shape == (shape[2], shape[0], shape[1]))
+
+
+def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the model on that") -> gymnasium.spaces.Space | None:
+    """``space`` when it is a dict of vectors and discrete values (an SB3 ``MultiInputPolicy``'s,
+    which concatenates them flattened, discrete ones one-hot, as ``gymnasium.spaces.flatten``
+    does), with pictures beside them or not (:mod:`oodmon.agents.dict_pictures`), or discrete
+    values alone (``Discrete`` counted from 0, ``MultiDiscrete``, ``MultiBinary``: FrozenLake's
+    cell, which SB3 reads one-hot too; a ``Tuple`` of them, Blackjack's hand, for a plain policy);
+    ``None`` for an array space.
+
+    Raises:
+        ConfigError: any other space (nested spaces inside a dict, a dict of pictures alone, a
+            tuple, text), saying to flatten the env's observations, ``retrain``.
+    """
+    from stable_baselines3.common.preprocessing import is_image_space
+
+    if isinstance(space, gymnasium.spaces.Box):
+        return None
+    if _flat_as_sb3(space, is_image_space):  # discrete values: read flattened, one-hot
+        return space
+    if isinstance(space, gymnasium.spaces.Tuple) and space.spaces and all(
+            not isinstance(sub, gymnasium.spaces.Box) and _flat_as_sb3(sub, is_image_space) for sub in space.spaces):
+        return space  # a tuple of them (Blackjack's hand): SB3 trains on none, a plain policy gets it back
+    if isinstance(space, gymnasium.spaces.Dict):
+        vectors = [sub for sub in space.spaces.values() if not is_picture_space(sub)]  # and discrete values
+        if vectors and all(_flat_as_sb3(sub, is_image_space) for sub in vectors):
+            return space
+        if not vectors:
+            raise ConfigError(f"{env_id}'s observations are {space}: pictures alone, in a dict. oodmon's detectors read "
+                              "a dict's vectors (dynamics) and its first picture beside them (frames); for pictures "
+                              "alone, give the env's picture as its observation (a Box), which the frames detector reads")
+    raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
+                      "Box: a vector, or stacked image frames), discrete values (counted from 0), or a dict of vectors "
+                      "and discrete values (pictures beside them too): wrap the env in "
+                      f"gymnasium.wrappers.FlattenObservation, {retrain}, to watch it")
+
+
+def _flat_as_sb3(space: Any, is_image_space: Any) -> bool:
+    """Whether gymnasium flattens a dict's ``space`` into the numbers SB3's ``CombinedExtractor``
+    reads of it: a vector (not an image), a binary vector, or discrete values counted from 0 (one-hot)."""
+    spaces = gymnasium.spaces
+    if isinstance(space, spaces.Box):
+        return not is_image_space(space, check_channels=False)
+    if isinstance(space, spaces.Discrete):
+        return int(space.start) == 0
+    if isinstance(space, spaces.MultiDiscrete):
+        return np.ndim(space.nvec) == 1 and not np.any(space.start)
+    return isinstance(space, spaces.MultiBinary) and np.ndim(space.n) == 0
