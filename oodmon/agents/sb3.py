@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import zipfile
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -109,7 +110,8 @@ def sb3_file(path: str | Path) -> Path:
     """
     path = Path(path)
     zipped = path.with_name(path.name + ".zip")
-    return zipped if not path.exists() and path.suffix != ".zip" and zipped.is_file() else path
+    # os.path's tests: a name the system refuses (too long, say) is no file, not an OSError
+    return zipped if not os.path.exists(path) and path.suffix != ".zip" and os.path.isfile(zipped) else path
 
 
 def sb3_algorithm(path: str | Path) -> tuple[str, ...]:
@@ -146,7 +148,7 @@ def _data(path: Path) -> dict[str, Any]:
     Raises:
         ConfigError: a missing file, or one that is not an SB3 model (no ``data`` naming a policy class).
     """
-    if not path.is_file():
+    if not os.path.isfile(path):
         either = "" if path.suffix == ".zip" else f"; {path.name}.zip is not there either"
         raise ConfigError(f"{path} does not exist (an SB3 model is the .zip that model.save() wrote{either})")
     try:

@@ -79,10 +79,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     args.argv = words  # what a result records as its command
-    _sb3_files(args)
     with warnings.catch_warnings():
         warnings.showwarning = _warning_shower()
         try:
+            _sb3_files(args)
             # OODMON_TORCH_THREADS in every command, one thread where it is not set (limit_threads);
             # a command that plays no policy (replay, check, envs) leaves torch unimported
             limit_threads(torch=_plays_a_policy(args))

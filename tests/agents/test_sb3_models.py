@@ -355,6 +355,13 @@ def test_a_model_named_without_its_zip_is_read_as_sb3s_load_reads_it(tmp_path, c
     assert main(["calibrate", "--sb3", str(tmp_path / "nothing"), "--env", "CartPole-v1", "--out", str(tmp_path / "t.json")]) == 2
     assert "nothing does not exist (an SB3 model is the .zip that model.save() wrote; nothing.zip is not there either)" in (
         capsys.readouterr().err)
+    # a name the system refuses (longer than a file name may be) is said as missing, in one line
+    # (scripts/fuzz_cli.py --seed 171 found it a traceback on 2026-12-05)
+    long = str(tmp_path / ("x" * 300))
+    assert main(["calibrate", "--sb3", long, "--env", "CartPole-v1", "--out", str(tmp_path / "t.json")]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"oodmon: error: {long} does not exist (an SB3 model is the .zip that model.save() wrote; {'x' * 300}.zip is not "
+        "there either)"]
 
 
 def test_watch_fits_calibrates_and_wraps_an_env_in_one_call():
