@@ -9,7 +9,12 @@ from typing import Any
 
 from oodmon.errors import ConfigError, OodmonError
 
-__all__ = ["read_json", "write_json"]
+__all__ = ["MOST_JSON_BYTES", "read_json", "write_json"]
+
+#: The most bytes :func:`read_json` reads. The largest JSON oodmon writes is a bench's results
+#: (165 KB in results/); a path that never ends (``/dev/zero``, given as a threshold) was read
+#: whole into memory until the system killed the command, 24 GB later (2026-12-05).
+MOST_JSON_BYTES = 256 * 2**20
 
 
 def read_json(path: str | Path, *, name: str = "", missing: str = "", folder: str = "",
@@ -19,7 +24,8 @@ def read_json(path: str | Path, *, name: str = "", missing: str = "", folder: st
     Args:
         name: what the file is, the start of each message ("threshold file"); empty: the path alone.
         missing, folder: what to do when the path does not exist, or is a folder.
-        error: the error raised (a missing file, a folder, or text that is not JSON).
+        error: the error raised (a missing file, a folder, text that is not JSON, or more than
+            :data:`MOST_JSON_BYTES`).
 
     Example:
         >>> read_json("no-such.json", name="threshold file", missing="make one with `oodmon calibrate`")
@@ -29,7 +35,12 @@ def read_json(path: str | Path, *, name: str = "", missing: str = "", folder: st
     """
     label = f"{name} {path}" if name else str(path)
     try:
-        return json.loads(Path(path).read_text())
+        with open(path, "rb") as file:
+            raw = file.read(MOST_JSON_BYTES + 1)
+        if len(raw) > MOST_JSON_BYTES:
+            raise error(f"{label} holds more than {MOST_JSON_BYTES // 2**20} MB, far more than any JSON file oodmon "
+                        "writes: not the file meant?")
+        return json.loads(raw.decode("utf-8"))
     except FileNotFoundError:
         raise error(f"{label} does not exist" + (f"; {missing}" if missing else "")) from None
     except IsADirectoryError:

@@ -8,7 +8,10 @@ import subprocess
 import sys
 import textwrap
 
-from oodmon.jsonfile import write_json
+import pytest
+
+from oodmon.errors import ConfigError
+from oodmon.jsonfile import read_json, write_json
 
 # A real failing write without a full disk: the process's file size limit (RLIMIT_FSIZE) makes
 # write() fail with EFBIG past it, as ENOSPC does on a full disk (SIGXFSZ ignored, as Python's
@@ -47,3 +50,17 @@ def test_a_write_that_fails_with_no_old_file_leaves_none(tmp_path):
 def test_sorted_keys_for_models_metadata(tmp_path):
     write_json(tmp_path / "model.json", {"b": 1, "a": {"d": 2, "c": 3}}, sort_keys=True)
     assert (tmp_path / "model.json").read_text() == '{\n "a": {\n  "c": 3,\n  "d": 2\n },\n "b": 1\n}\n'
+
+
+def test_a_read_stops_past_its_bound_where_a_file_never_ends(tmp_path, monkeypatch):
+    # /dev/zero given as a threshold was read whole, 24 GB, until the system killed the command
+    monkeypatch.setattr("oodmon.jsonfile.MOST_JSON_BYTES", 1000)
+    with pytest.raises(ConfigError, match=r"^threshold file /dev/zero holds more than 0 MB, far more than any JSON file"):
+        read_json("/dev/zero", name="threshold file")
+    big = tmp_path / "big.json"
+    big.write_text(json.dumps(list(range(400))))  # 1,890 bytes
+    with pytest.raises(ConfigError, match="holds more than"):
+        read_json(big)
+    small = tmp_path / "small.json"
+    small.write_text(json.dumps(list(range(100))) + "\n")  # 391 bytes
+    assert read_json(small) == list(range(100))
