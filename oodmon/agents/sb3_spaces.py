@@ -101,6 +101,11 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
     Raises:
         ConfigError: any other space (nested spaces inside a dict, a dict of pictures alone, a
             tuple, text), saying to flatten the env's observations, ``retrain``.
+
+    Example:
+        >>> from gymnasium.spaces import Box, Discrete
+        >>> dict_space_of(Box(-1.0, 1.0, (4,)), "CartPole-v1") is None, dict_space_of(Discrete(500), "Taxi-v3")
+        (True, Discrete(500))
     """
     from stable_baselines3.common.preprocessing import is_image_space
 
