@@ -231,6 +231,12 @@ CASES = [
      ["'cartpol' (did you mean 'cartpole'?); choose one of cartpole, pendulum, pong"]),
     ("calibrate-score-misspelt", [*CALIBRATE, "--score", "chosen_sd", "--out", "{d}/t.json"], {},
      ["'chosen_sd' (did you mean 'chosen_std'?)"]),
+    # a name the system refuses (scripts/fuzz_cli.py, 2026-12-05: a traceback until then)
+    ("sb3-name-too-long", ["calibrate", "--sb3", "x" * 300, "--env", "CartPole-v1", "--out", "{d}/t.json"], {},
+     ["x" * 300, "does not exist"]),
+    # a file that never ends: read to its bound, not until the system kills the command (24 GB before)
+    ("validate-a-threshold-that-never-ends", ["validate", "/dev/zero"], {},
+     ["threshold file /dev/zero", "holds more than 256 MB"]),
     ("fit-detectors-given-detectors", ["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--detectors",
                                        "{d}", "--out", "{d}/det"], {}, ["unrecognized arguments: --detectors"]),
 ]
