@@ -213,6 +213,30 @@ def _warn_if_early(episodes: list[np.ndarray], values: np.ndarray, value: float,
             f"{WARMUP_HINT} steps but for a NaN reading"), stacklevel=3)
 
 
+def _episode_arrays(episode_scores: Any) -> list[np.ndarray]:
+    """``episode_scores`` as float64 arrays, one per episode.
+
+    Raises:
+        InvalidParameterError: text, or an episode's scores that are not a 1-D array of numbers.
+    """
+    def refuse(what: str) -> InvalidParameterError:
+        return InvalidParameterError(f"episode_scores is not allowed: {what}; give one 1-D array of per-step scores "
+                                     "per ID episode")
+
+    if isinstance(episode_scores, (str, bytes)):
+        raise refuse("text")
+    episodes = []
+    for i, scores in enumerate(episode_scores):
+        try:
+            episode = np.asarray(scores, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise refuse(f"episode {i}'s scores are no numbers ({scores!r:.40})") from None
+        if episode.ndim != 1:
+            raise refuse(f"episode {i}'s scores have shape {episode.shape}")
+        episodes.append(episode)
+    return episodes
+
+
 def _warn_if_outlying(ordered: np.ndarray, rank: int, detector: str) -> None:
     """Warn when the ``rank``-th of the sorted episode statistics ``ordered`` (the threshold) is an
     outlier (:data:`OUTLYING`)."""
@@ -493,7 +517,7 @@ def calibrate(
 
     Raises:
         InvalidParameterError: ``far`` or ``confidence`` outside (0, 1), an unknown mode, a bad
-            ``consecutive`` or ``window``.
+            ``consecutive`` or ``window``, ``episode_scores`` that are not 1-D arrays of numbers.
         ConfigError: too few episodes for ``far`` at ``confidence`` (the message says how many).
 
     Example:
@@ -514,7 +538,7 @@ def calibrate(
     warmup = check_warmup(warmup, rule)
     if warmup and mode != "episode":
         raise InvalidParameterError("a warm-up is calibrated per episode; use mode='episode'")
-    episodes = [np.asarray(s, dtype=np.float64) for s in episode_scores]
+    episodes = _episode_arrays(episode_scores)
     if mode == "episode":
         values = np.array([episode_statistic(s, consecutive, window, rule=rule, reference=reference, warmup=warmup)
                            for s in episodes])

@@ -207,6 +207,12 @@ def test_calibration_errors():
         calibrate([np.ones(5)] * 10, 0.5, mode="window")
     with pytest.raises(InvalidParameterError, match="consecutive=0 is not allowed"):
         calibrate([np.ones(5)] * 10, 0.5, consecutive=0)
+    # (2026-12-05: numpy's "could not convert string to float", or "len() of unsized object")
+    for scores, what in [("abc", "text"), ([np.ones(5), "abc"], "episode 1's scores are no numbers ('abc')"),
+                         ([np.ones((5, 2))] * 10, "episode 0's scores have shape (5, 2)"),
+                         ([1.0, 2.0], "episode 0's scores have shape ()")]:
+        with pytest.raises(InvalidParameterError, match=re.escape(f"episode_scores is not allowed: {what}; give one 1-D")):
+            calibrate(scores, 0.5)
 
 
 def test_threshold_file_errors(tmp_path):
