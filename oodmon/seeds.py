@@ -13,8 +13,12 @@ ships, so it waits for the next retraining of the zoo.
 
 from __future__ import annotations
 
+from oodmon.errors import InvalidParameterError
+from oodmon.validation import is_whole
+
 __all__ = ["BENCH_ID", "BENCH_SHIFTED", "CALIBRATION", "DEMO", "DETECTOR_FIT", "EPISODE_USES", "ID_RETURN", "RANGES",
-           "REFERENCE", "SNAPSHOT_SELECTION", "TRAINING_EVALUATION", "VALIDATION", "VARIANT_EVALUATION", "range_of"]
+           "REFERENCE", "SNAPSHOT_SELECTION", "TRAINING_EVALUATION", "VALIDATION", "VARIANT_EVALUATION", "check_seed",
+           "range_of"]
 
 #: Training's periodic evaluations: 10,000 + steps (see above: not a range).
 TRAINING_EVALUATION = 10_000
@@ -68,3 +72,23 @@ def range_of(seed: int) -> str | None:
         ('calibration', None)
     """
     return next((name for name, (low, high) in RANGES.items() if low <= seed < high), None)
+
+
+def check_seed(seed: object, name: str = "seed") -> int:
+    """``seed``, the first of a run of episodes' ``reset`` seeds, as a Python int: a whole number
+    >= 0, numpy's integers too (gymnasium takes Python ints only, and a threshold records its
+    seeds as JSON).
+
+    Raises:
+        InvalidParameterError: anything else (a float, a negative number), naming ``name``.
+
+    Example:
+        >>> import numpy as np
+        >>> check_seed(np.int64(3)), check_seed(0)
+        (3, 0)
+    """
+    if not is_whole(seed, minimum=0):
+        raise InvalidParameterError(f"{name}={seed!r} is not allowed; give a whole number >= 0 (the first episode's "
+                                    "reset seed)")
+    return int(seed)
+

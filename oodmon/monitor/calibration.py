@@ -49,6 +49,7 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
 
     ``workers``: processes that play them side by side (0: one per core; see
     :mod:`oodmon.side_by_side` for what an MC agent draws there)."""
+    seed = seeds.check_seed(seed)
     workers = resolve_workers(workers, episodes)
     start = stream_per_episode(agent.estimator, workers)
 
@@ -124,6 +125,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     # placeholder scores raises what the real one would.
     if not is_whole(episodes):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
+    seed = seeds.check_seed(seed)
     resolve_workers(workers, episodes)
     score_function(score)
     if detector is None:
@@ -321,8 +323,12 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
             fresh: one of them is one the threshold or its detectors were made from
             (:func:`check_fresh`).
     """
+    if not isinstance(threshold, Threshold):
+        raise InvalidParameterError(f"threshold={threshold!r:.60} is not allowed; give a Threshold (Threshold.load(path) "
+                                    "of a file `oodmon calibrate` or calibrate_agent wrote)")
     if not is_whole(episodes):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
+    seed = seeds.check_seed(seed)
     resolve_workers(workers, episodes)
     needed = detectors_read(threshold, detectors)
     check_fresh(threshold, needed, seed, episodes)

@@ -172,6 +172,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
                                                         vec_normalize=vec_normalize, frame_stack=frame_stack,
                                                         imports=imports, unsafe_load_pickles=unsafe_load_pickles)
     else:
+        if not is_whole(episodes):
+            raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID "
+                                        "calibration episodes")
         conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
         check_warmup(warmup)
         resolve_workers(workers, episodes)

@@ -395,6 +395,22 @@ def test_fit_and_score_are_deterministic_under_a_seed(id_trajectories):
     np.testing.assert_array_equal(a, b)
 
 
+def test_the_dynamics_fit_trains_the_same_model_inside_the_callers_no_grad_or_inference_mode(id_trajectories):
+    """oodmon.watch or calibrate_agent called inside the user's own torch.no_grad() stopped in the fit
+    with autograd's "element 0 of tensors does not require grad" (found 2026-12-05); the caller's
+    mode is left as it was."""
+    import torch
+
+    free = DynamicsDetector(2, epochs=3, seed=7).fit(id_trajectories[:2]).tensors()
+    for mode in (torch.no_grad, torch.inference_mode):
+        with mode():
+            inside = DynamicsDetector(2, epochs=3, seed=7).fit(id_trajectories[:2]).tensors()
+            assert not torch.is_grad_enabled()
+        for key, value in free.items():
+            np.testing.assert_array_equal(value, inside[key])
+    assert torch.is_grad_enabled() and not torch.is_inference_mode_enabled()
+
+
 def test_the_dynamics_fit_reports_each_epoch_and_fits_the_same_model(id_trajectories):
     """A fit of long observations took minutes after the last episode's progress line, said nothing."""
     reports = []

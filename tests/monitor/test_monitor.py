@@ -178,6 +178,10 @@ def test_a_monitored_env_stepped_with_no_episode_running_says_to_reset_it(agent)
     ({"threshold": "abc"}, "threshold='abc' is not allowed"),
     ({"sinks": MemorySink()}, r"sinks is a list: sinks=\[MemorySink\(...\)\]"),
     ({"callbacks": print}, r"callbacks is a list: callbacks=\[print\], not one on its own"),
+    # (2026-12-05: these failed at the first alarm, or as a warning at every step, mid-run)
+    ({"callbacks": "print"}, r"callbacks='print': give a list of functions"),
+    ({"callbacks": [print, 1]}, r"callbacks=\[<built-in function print>, 1\]: give a list of functions"),
+    ({"sinks": ["runs/x.mcap"]}, r"sinks holds 'runs/x.mcap', which is no sink \(it lacks open, write_step"),
     ({"detectors": "dynamics"}, r"detectors='dynamics' is not allowed; give fitted detectors .* detector='dynamics'"),
     ({"detectors": ["dynamics"]}, r"detectors=\['dynamics'\] is not allowed"),
 ])
@@ -198,6 +202,36 @@ def test_api_values_that_were_taken_silently_are_refused():
     with pytest.raises(InvalidParameterError, match="n_samples=0 is not allowed"):  # was the recipe's 20
         load("cartpole", "dropout", n_samples=0)
     assert load("cartpole", "ensemble", n_samples=0).estimator.n_samples == 5  # ensembles ignore it, as documented
+
+
+def test_seeds_and_counts_of_odd_kinds_are_refused_or_taken_as_python_ints(agent):
+    """Found by calling the public API with odd arguments (2026-12-05): a negative or float seed of
+    the ID episodes reached gymnasium's reset (its own error, after the reference episodes of a
+    sequential rule had run), and numpy's integers, which every other count takes, were refused
+    there; a count of numpy's was saved into a detector's JSON config, which then failed to write."""
+    import json
+
+    import oodmon
+    from oodmon.monitor import calibrate, validate_threshold
+    from oodmon.monitor.detectors.dynamics import DynamicsDetector
+
+    for seed in (-1, 2.5, float("nan"), "7"):
+        with pytest.raises(InvalidParameterError, match=f"seed={seed!r} is not allowed; give a whole number >= 0"):
+            calibrate_agent(agent, 50, seed=seed)
+        with pytest.raises(InvalidParameterError, match="seed="):
+            id_episode_scores(agent, 1, seed=seed)
+    threshold = calibrate([np.zeros(5)] * 45, 0.05, consecutive=3, task="cartpole", method="ensemble")
+    with pytest.raises(InvalidParameterError, match="seed=-1 is not allowed"):
+        validate_threshold(agent, threshold, 1, seed=-1)
+    with pytest.raises(InvalidParameterError, match="threshold=4.0 is not allowed; give a Threshold"):
+        validate_threshold(agent, 4.0, 1)
+    # numpy's integers play the episodes Python's do
+    assert [s.tolist() for s in id_episode_scores(agent, 2, seed=np.int64(700_000))] == [
+        s.tolist() for s in id_episode_scores(agent, 2, seed=700_000)]
+    with pytest.raises(InvalidParameterError, match="episodes=nan is not allowed"):
+        oodmon.watch(agent, episodes=float("nan"))
+    config = DynamicsDetector(2, max_updates=np.int64(300)).config()
+    assert config["max_updates"] == 300 and type(config["max_updates"]) is int and json.dumps(config)
 
 
 def test_step_before_begin_episode_is_an_error(agent):

@@ -178,7 +178,9 @@ class DynamicsDetector(Detector):
         if schedule not in _SCHEDULES:
             raise InvalidParameterError(f"schedule={schedule!r} is not allowed; use one of {', '.join(_SCHEDULES)}")
         check_max_updates(max_updates)
-        self.early, self.schedule, self.max_updates = early, schedule, max_updates
+        # (numpy's integers as Python's: the config is saved as JSON)
+        self.early, self.schedule = early, schedule
+        self.max_updates = None if max_updates is None else int(max_updates)
         for label, value in (("members", members), ("hidden", hidden), ("n_draws", n_draws), ("epochs", epochs),
                              ("batch_size", batch_size), ("window", window)):
             if not is_whole(value):
@@ -282,6 +284,23 @@ class DynamicsDetector(Detector):
         if self.predicted is not None:
             y = y[:, self.predicted]
 
+        # The caller's grad mode is not the fit's: oodmon.watch or calibrate_agent called inside the
+        # user's own torch.no_grad() (or inference_mode()) stopped here with autograd's "element 0 of
+        # tensors does not require grad" (2026-12-05).
+        with torch.inference_mode(False), torch.enable_grad():
+            self._weights = self._train(x, y, on_progress)
+        self._fast = None
+        # An episode's first step has no transition to score: it gets the median ID score, a
+        # value that says "nothing seen yet" on this detector's own scale.
+        self.neutral = 0.0
+        self.neutral = float(np.median(self.score_transitions(obs, actions, nxt)))
+        return self
+
+    def _train(self, x: np.ndarray, y: np.ndarray, on_progress: Progress | None) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The members' weights and biases, layer by layer, trained on the normalised inputs ``x``
+        and changes ``y`` (each member on its bootstrap resample; Adam, see :meth:`fit`)."""
+        import torch
+
         generator = torch.Generator().manual_seed(self.seed)
         sizes = [x.shape[1], self.hidden, self.hidden, 2 * y.shape[1]]
         params = []
@@ -317,14 +336,8 @@ class DynamicsDetector(Detector):
             if on_progress is not None:
                 on_progress("dynamics model fitting epochs", epoch + 1, epochs)
         self.epochs_trained = epochs  # (fitting_notes says so where max_updates ended the fit early)
-        self._weights = [(params[i].detach().numpy().copy(), params[i + 1].detach().numpy().copy())
-                         for i in range(0, len(params), 2)]
-        self._fast = None
-        # An episode's first step has no transition to score: it gets the median ID score, a
-        # value that says "nothing seen yet" on this detector's own scale.
-        self.neutral = 0.0
-        self.neutral = float(np.median(self.score_transitions(obs, actions, nxt)))
-        return self
+        return [(params[i].detach().numpy().copy(), params[i + 1].detach().numpy().copy())
+                for i in range(0, len(params), 2)]
 
     def __getstate__(self) -> dict[str, Any]:
         # A copy or a pickle (a vector env's worker process) leaves the fast path behind: its
