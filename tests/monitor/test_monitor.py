@@ -208,7 +208,8 @@ def test_seeds_and_counts_of_odd_kinds_are_refused_or_taken_as_python_ints(agent
     """Found by calling the public API with odd arguments (2026-12-05): a negative or float seed of
     the ID episodes reached gymnasium's reset (its own error, after the reference episodes of a
     sequential rule had run), and numpy's integers, which every other count takes, were refused
-    there; a count of numpy's was saved into a detector's JSON config, which then failed to write."""
+    there (the detectors' fitting too); a count of numpy's was saved into a detector's JSON config,
+    which then failed to write."""
     import json
 
     import oodmon
@@ -230,6 +231,12 @@ def test_seeds_and_counts_of_odd_kinds_are_refused_or_taken_as_python_ints(agent
         s.tolist() for s in id_episode_scores(agent, 2, seed=700_000)]
     with pytest.raises(InvalidParameterError, match="episodes=nan is not allowed"):
         oodmon.watch(agent, episodes=float("nan"))
+    from oodmon.monitor.detectors.fitting import fit_agent_detectors
+
+    with pytest.raises(InvalidParameterError, match="seed=-1 is not allowed"):
+        fit_agent_detectors(agent, detectors=["dynamics"], episodes=3, seed=-1)
+    fitted = fit_agent_detectors(agent, detectors=["dynamics"], episodes=3, seed=np.int64(600_000), max_steps=20)
+    assert type(fitted.fitted_for["seed"]) is int and json.dumps(fitted.fitted_for)
     config = DynamicsDetector(2, max_updates=np.int64(300)).config()
     assert config["max_updates"] == 300 and type(config["max_updates"]) is int and json.dumps(config)
 

@@ -36,7 +36,7 @@ from oodmon.monitor.detectors.transitions import TransitionsDetector
 from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.names import fixed_masks
 from oodmon.progress import Progress
-from oodmon.seeds import DETECTOR_FIT
+from oodmon.seeds import DETECTOR_FIT, check_seed
 from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import is_whole
 from oodmon.versions import machine
@@ -183,6 +183,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     for, then, for ``min_steps``, batches of as many more as the steps still missing need at the
     mean length so far, cut back to the first that hold them.
     """
+    seed = check_seed(seed)
     workers = resolve_workers(workers, episodes)
     estimator, act, _ = policy_parts(policy)
     ensemble = with_member_values and has_members(estimator)
@@ -406,6 +407,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
                                     "ID episodes (two thirds fit, one third ranks)")
     check_max_updates(dynamics_updates, "dynamics_updates")  # before the episodes are played
+    seed = check_seed(seed)
     workers = resolve_workers(workers, episodes)
     # (spread is not asked: it joins where the policy has samples)
     reason = cannot_have_any([name for name in detectors if name != "spread"], policy, env)
