@@ -91,4 +91,3 @@ def check_seed(seed: object, name: str = "seed") -> int:
         raise InvalidParameterError(f"{name}={seed!r} is not allowed; give a whole number >= 0 (the first episode's "
                                     "reset seed)")
     return int(seed)
-
