@@ -234,6 +234,8 @@ CASES = [
     # a name the system refuses (scripts/fuzz_cli.py, 2026-12-05: a traceback until then)
     ("sb3-name-too-long", ["calibrate", "--sb3", "x" * 300, "--env", "CartPole-v1", "--out", "{d}/t.json"], {},
      ["x" * 300, "does not exist"]),
+    ("sb3-empty", ["calibrate", "--sb3", "", "--env", "CartPole-v1", "--out", "{d}/t.json"], {},
+     [". is a folder; an SB3 model is the .zip file"]),
     # a file that never ends: read to its bound, not until the system kills the command (24 GB before)
     ("validate-a-threshold-that-never-ends", ["validate", "/dev/zero"], {},
      ["threshold file /dev/zero", "holds more than 256 MB"]),

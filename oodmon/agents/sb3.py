@@ -109,6 +109,8 @@ def sb3_file(path: str | Path) -> Path:
         PosixPath('runs/no-such-model')
     """
     path = Path(path)
+    if not path.name:  # "", ".", "/": no file's name, and no name to add .zip to
+        return path
     zipped = path.with_name(path.name + ".zip")
     # os.path's tests: a name the system refuses (too long, say) is no file, not an OSError
     return zipped if not os.path.exists(path) and path.suffix != ".zip" and os.path.isfile(zipped) else path
@@ -148,6 +150,8 @@ def _data(path: Path) -> dict[str, Any]:
     Raises:
         ConfigError: a missing file, or one that is not an SB3 model (no ``data`` naming a policy class).
     """
+    if os.path.isdir(path):
+        raise ConfigError(f"{path} is a folder; an SB3 model is the .zip file that model.save() wrote")
     if not os.path.isfile(path):
         either = "" if path.suffix == ".zip" else f"; {path.name}.zip is not there either"
         raise ConfigError(f"{path} does not exist (an SB3 model is the .zip that model.save() wrote{either})")
