@@ -59,7 +59,8 @@ RANGES: dict[str, tuple[int, int]] = {
 
 
 #: The uses of the ID episodes a threshold was made from (``oodmon.monitor.calibration.seeds_used``),
-#: in words (here, importing nothing, for ``oodmon replay``, which plays no policy).
+#: in words (here, importing only oodmon's errors and number tests, for ``oodmon replay``, which
+#: plays no policy).
 EPISODE_USES = {"calibration": "the threshold's calibration", "reference": "the sequential rule's reference",
                 "detector fitting": "the detectors' fitting"}
 

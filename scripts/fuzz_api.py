@@ -38,14 +38,15 @@ from __future__ import annotations
 import argparse
 import collections
 import os
-import signal
 import tempfile
 import warnings
+from pathlib import Path
 
+from fuzz_cli import StillWorking, limit_memory, time_limit  # (beside it in scripts/)
 
+#: A log of oodmon's, the good path of ``read_log`` (found before main() moves to its own folder).
+LOG = Path(__file__).resolve().parents[1] / "tests" / "data" / "cartpole-ensemble-id.mcap"
 
-class _StillWorking(BaseException):
-    """Raised by the alarm in a call that outlived ``--seconds``."""
 
 
 def odd_values() -> list:
@@ -67,7 +68,7 @@ def cases() -> list[tuple[str, object, dict, list[str]]]:
     agent = agents.load("cartpole", "ensemble")
     threshold = monitor.Threshold(value=1.0, score="chosen_std", consecutive=3, mode="episode", far=0.05, n_episodes=50,
                                   n_steps=100)
-    log = os.path.join(os.path.dirname(__file__), os.pardir, "tests", "data", "cartpole-ensemble-id.mcap")
+    log = str(LOG)
 
     def monitored_episode(**arguments):
         with monitor.Monitor(agent, **arguments) as watching:
@@ -121,17 +122,12 @@ def answer(call, arguments: dict, seconds: int) -> tuple[str, str]:
 
     from oodmon.errors import OodmonError
 
-    def stop(signum, frame):
-        raise _StillWorking
-
-    previous = signal.signal(signal.SIGALRM, stop)
-    signal.alarm(seconds)
     try:
-        with warnings.catch_warnings():
+        with time_limit(seconds), warnings.catch_warnings():
             warnings.simplefilter("ignore")
             call(**arguments)
         kind, said = "ok", ""
-    except _StillWorking:
+    except StillWorking:
         kind, said = "slow", ""
     except OodmonError:
         kind, said = "oodmon", ""
@@ -139,9 +135,6 @@ def answer(call, arguments: dict, seconds: int) -> tuple[str, str]:
         kind, said = "python", f"{type(error).__name__}: {error}"
     except Exception as error:  # noqa: BLE001  (what this script looks for)
         kind, said = "finding", f"{type(error).__name__}: {error}"
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
     if not torch.is_grad_enabled():  # (a stop by the alarm inside a with-statement's entry can leave it so)
         torch.set_grad_enabled(True)
         return "leak", "torch's grad mode left off"
@@ -156,16 +149,18 @@ def main() -> int:
     from oodmon.threads import limit_threads
 
     limit_threads()  # OODMON_TORCH_THREADS, as every oodmon command honours it
-    os.chdir(tempfile.mkdtemp(prefix="oodmon-fuzz-api-"))
-    os.mkdir("adir")
+    limit_memory()  # /dev/zero read whole: a MemoryError, a finding, not the machine's memory
     counts: collections.Counter[str] = collections.Counter()
-    for name, call, good, varied in cases():
-        for parameter in varied:
-            for value in odd_values():
-                kind, said = answer(call, {**good, parameter: value}, args.seconds)
-                counts[kind] += 1
-                if kind in ("finding", "leak") or (kind == "python" and args.all):
-                    print(f"{name}({parameter}={value!r:.40}): {said[:200]}")
+    with tempfile.TemporaryDirectory(prefix="oodmon-fuzz-api-") as folder:
+        os.chdir(folder)
+        os.mkdir("adir")
+        for name, call, good, varied in cases():
+            for parameter in varied:
+                for value in odd_values():
+                    kind, said = answer(call, {**good, parameter: value}, args.seconds)
+                    counts[kind] += 1
+                    if kind in ("finding", "leak") or (kind == "python" and args.all):
+                        print(f"{name}({parameter}={value!r:.40}): {said[:200]}")
     print(", ".join(f"{n} {kind}" for kind, n in counts.most_common()) + f" of {sum(counts.values())} calls")
     return 1 if counts["finding"] or counts["leak"] else 0
 

@@ -55,6 +55,7 @@ import sys
 import tempfile
 import traceback
 import warnings
+from collections.abc import Iterator
 
 ODD = ["0", "-1", "1", "2", "1e9", "nan", "inf", "-inf", "", " ", "0.5", "abc", "adir", "file.txt", "/proc/x",
        "cartpole", "pendulum", "pong", "ensemble", "cartpole:length=2.0", "x" * 300, "1,2", "-0", "3.7",
@@ -65,8 +66,31 @@ LONG = ("train", "bench", "demo")
 MEMORY_LIMIT = 8 * 2**30  # bytes of address space (a command here takes under 2 GB)
 
 
-class _StillWorking(BaseException):
-    """Raised by the alarm in a run that outlived ``--seconds``."""
+class StillWorking(BaseException):
+    """Raised by :func:`time_limit` in a block that outlived its seconds."""
+
+
+@contextlib.contextmanager
+def time_limit(seconds: int) -> Iterator[None]:
+    """Raise :class:`StillWorking` in the block once ``seconds`` have passed (SIGALRM: the main
+    thread only); the alarm and its handler are put back as the block ends, however it ends."""
+    def stop(signum, frame):
+        raise StillWorking
+
+    previous = signal.signal(signal.SIGALRM, stop)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def limit_memory() -> None:
+    """At most :data:`MEMORY_LIMIT` of address space for this process: a command that reads a file
+    that never ends (/dev/zero) whole fails here with a MemoryError, a traceback, before it takes
+    the machine's memory (it took 24 GB until 2026-12-05)."""
+    resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
 
 
 def command_lines(runs: int, seed: int) -> list[list[str]]:
@@ -101,25 +125,18 @@ def run(argv: list[str], seconds: int) -> str | None:
     that ``main`` printed, exit code 3), or None."""
     from oodmon.cli import main
 
-    def stop(signum, frame):
-        raise _StillWorking
-
-    previous = signal.signal(signal.SIGALRM, stop)
-    signal.alarm(seconds)
     err = io.StringIO()
     try:
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err), warnings.catch_warnings():
+        with time_limit(seconds), contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err), \
+                warnings.catch_warnings():
             warnings.simplefilter("ignore")
             code = main(argv)
         # 3: main caught an exception it cannot explain and printed its traceback (since 2026-11-30)
         return "\n".join(err.getvalue().splitlines()[-8:]) if code == 3 else None
-    except _StillWorking:
+    except StillWorking:
         return "stopped"
     except BaseException:  # noqa: BLE001  (what this script looks for)
         return traceback.format_exc(limit=-3)
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 def main() -> int:
@@ -128,9 +145,7 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--seconds", type=int, default=8, help="stop a run still working after this long (default 8)")
     args = parser.parse_args()
-    # A command that reads a file that never ends (/dev/zero) whole fails here with a MemoryError,
-    # a traceback, before it takes the machine's memory (it took 24 GB until 2026-12-05).
-    resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
+    limit_memory()
     counts: collections.Counter[str] = collections.Counter()
     tracebacks = []
     with tempfile.TemporaryDirectory() as folder:

@@ -120,10 +120,6 @@ def run_about(metadata: dict[str, Any]) -> dict[str, str]:
     return about
 
 
-#: What a sink is called with (:class:`~oodmon.monitor.sinks.base.Sink`).
-_SINK_METHODS = ("open", "write_step", "write_alarm", "end_episode", "close")
-
-
 class Monitor:
     """Wraps a deployed policy; scores every step against a calibrated threshold.
 
@@ -270,16 +266,9 @@ class Monitor:
         if callable(callbacks):
             name = getattr(callbacks, "__name__", type(callbacks).__name__)  # a function's own name, not "function"
             raise ConfigError(f"callbacks is a list: callbacks=[{name}], not one on its own")
-        sinks = list(sinks)
-        for sink in sinks:  # else each of its calls failed as a warning, and the run logged nothing there
-            lacking = [method for method in _SINK_METHODS if not callable(getattr(sink, method, None))]
-            if lacking:
-                raise ConfigError(f"sinks holds {sink!r:.60}, which is no sink (it lacks {', '.join(lacking)}): give "
-                                  "McapSink, RerunSink or MemorySink objects, or your own with the Sink methods")
-        self.sinks = SinkGroup(sinks, strict=strict)
+        self.sinks = SinkGroup(list(sinks), strict=strict)  # (which refuses what is no sink)
         self.callbacks = list(callbacks)
-        strangers = [c for c in self.callbacks if not callable(c)]
-        if isinstance(callbacks, str) or strangers:  # else said at the first alarm, mid-run
+        if isinstance(callbacks, str) or not all(map(callable, self.callbacks)):  # else said at the first alarm
             raise ConfigError(f"callbacks={callbacks!r:.60}: give a list of functions, each called with the AlarmEvent "
                               "of every alarm")
         self.log_observations = log_observations

@@ -7,11 +7,12 @@ import warnings
 from pathlib import Path
 from typing import BinaryIO, Protocol
 
+from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
 
-__all__ = ["MemorySink", "Sink", "SinkGroup", "SinkWarning", "check_existing", "claim_file", "refuse_earlier_logs",
-           "refuse_other_files"]
+__all__ = ["SINK_METHODS", "MemorySink", "Sink", "SinkGroup", "SinkWarning", "check_existing", "claim_file",
+           "refuse_earlier_logs", "refuse_other_files"]
 
 
 def refuse_earlier_logs(earlier: list[Path], remedy: str) -> None:
@@ -92,6 +93,10 @@ class Sink(Protocol):
     def close(self) -> None: ...
 
 
+#: The methods every :class:`Sink` has, which :class:`SinkGroup` checks its sinks for.
+SINK_METHODS = ("open", "write_step", "write_alarm", "end_episode", "close")
+
+
 class MemorySink:
     """Keeps every record in lists; for tests and notebooks.
 
@@ -139,6 +144,11 @@ class SinkGroup:
 
     def __init__(self, sinks: list[Sink], *, strict: bool = False) -> None:
         self.sinks = list(sinks)
+        for sink in self.sinks:  # else each of its calls failed as a warning, and the run logged nothing there
+            lacking = [method for method in SINK_METHODS if not callable(getattr(sink, method, None))]
+            if lacking:
+                raise ConfigError(f"sinks holds {sink!r:.60}, which is no sink (it lacks {', '.join(lacking)}): give "
+                                  "McapSink, RerunSink or MemorySink objects, or your own with the Sink methods")
         self.strict = strict
         self.failures: dict[str, int] = {}
         self._unopened: set[int] = set()  # the ids of the sinks whose open failed in this run
