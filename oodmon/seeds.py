@@ -16,9 +16,9 @@ from __future__ import annotations
 from oodmon.errors import InvalidParameterError
 from oodmon.validation import is_whole
 
-__all__ = ["BENCH_ID", "BENCH_SHIFTED", "CALIBRATION", "DEMO", "DETECTOR_FIT", "EPISODE_USES", "ID_RETURN", "RANGES",
-           "REFERENCE", "SNAPSHOT_SELECTION", "TRAINING_EVALUATION", "VALIDATION", "VARIANT_EVALUATION", "check_seed",
-           "range_of"]
+__all__ = ["BENCH_ID", "BENCH_SHIFTED", "CALIBRATION", "DEMO", "DETECTOR_FIT", "EPISODE_USES", "ID_RETURN", "MOST_SEED",
+           "RANGES", "REFERENCE", "SNAPSHOT_SELECTION", "TRAINING_EVALUATION", "VALIDATION", "VARIANT_EVALUATION",
+           "check_seed", "range_of"]
 
 #: Training's periodic evaluations: 10,000 + steps (see above: not a range).
 TRAINING_EVALUATION = 10_000
@@ -44,6 +44,11 @@ VALIDATION = 700_000
 #: cusum``): 800,000 + i; apart from the calibration episodes, which must stay exchangeable with
 #: a fresh one.
 REFERENCE = 800_000
+
+#: The largest first seed a run of episodes takes (``--seed`` of every command, ``check_seed``):
+#: numpy's legacy seeding, which SB3's ``set_random_seed`` calls, takes none larger, and torch's
+#: generators none past 2**64 (``fit_agent_detectors(seed=10**30)`` failed in them, 2026-12-05).
+MOST_SEED = 2**32 - 1
 
 #: name -> (first seed, end) of each range.
 RANGES: dict[str, tuple[int, int]] = {
@@ -77,18 +82,18 @@ def range_of(seed: int) -> str | None:
 
 def check_seed(seed: object, name: str = "seed") -> int:
     """``seed``, the first of a run of episodes' ``reset`` seeds, as a Python int: a whole number
-    >= 0, numpy's integers too (gymnasium takes Python ints only, and a threshold records its
-    seeds as JSON).
+    from 0 to :data:`MOST_SEED`, numpy's integers too (gymnasium takes Python ints only, and a
+    threshold records its seeds as JSON).
 
     Raises:
-        InvalidParameterError: anything else (a float, a negative number), naming ``name``.
+        InvalidParameterError: anything else (a float, a negative number, 2**32), naming ``name``.
 
     Example:
         >>> import numpy as np
         >>> check_seed(np.int64(3)), check_seed(0)
         (3, 0)
     """
-    if not is_whole(seed, minimum=0):
-        raise InvalidParameterError(f"{name}={seed!r} is not allowed; give a whole number >= 0 (the first episode's "
-                                    "reset seed)")
+    if not is_whole(seed, minimum=0) or seed > MOST_SEED:
+        raise InvalidParameterError(f"{name}={seed!r} is not allowed; give a whole number from 0 to {MOST_SEED} (the "
+                                    "first episode's reset seed)")
     return int(seed)

@@ -5,7 +5,13 @@ from __future__ import annotations
 import math
 import numbers
 
-__all__ = ["is_finite_real", "is_real", "is_whole"]
+__all__ = ["MOST_STEPS", "is_finite_real", "is_real", "is_step_count", "is_whole"]
+
+#: The most steps a count may name where oodmon keeps that many scores, or plays that many in a
+#: dry run: an alarm rule's ``consecutive``, ``window`` and ``warmup``, a detector's ``window``.
+#: Ten million, 55 hours of decisions at 50 a second. A larger count (10**30) asked numpy or a
+#: deque for more than memory holds, and their errors came as tracebacks (2026-12-05).
+MOST_STEPS = 10_000_000
 
 
 def is_whole(value: object, minimum: int = 1) -> bool:
@@ -16,6 +22,16 @@ def is_whole(value: object, minimum: int = 1) -> bool:
         (True, False, True, False, False)
     """
     return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= minimum
+
+
+def is_step_count(value: object, minimum: int = 1) -> bool:
+    """``value`` is a whole number (as :func:`is_whole`) from ``minimum`` to :data:`MOST_STEPS`.
+
+    Example:
+        >>> is_step_count(20), is_step_count(0), is_step_count(0, minimum=0), is_step_count(10**30)
+        (True, False, True, False)
+    """
+    return is_whole(value, minimum) and value <= MOST_STEPS
 
 
 def is_real(value: object) -> bool:
@@ -37,3 +53,4 @@ def is_finite_real(value: object) -> bool:
         (True, False, False, False)
     """
     return is_real(value) and math.isfinite(value)
+

@@ -239,6 +239,10 @@ CASES = [
     # a file that never ends: read to its bound, not until the system kills the command (24 GB before)
     ("validate-a-threshold-that-never-ends", ["validate", "/dev/zero"], {},
      ["threshold file /dev/zero", "holds more than 256 MB"]),
+    # counts beyond memory (scripts/fuzz_api.py, 2026-12-05: numpy's "Maximum allowed dimension exceeded" in a
+    # traceback, exit 3)
+    ("calibrate-window-beyond-memory", ["calibrate", "--task", "cartpole", "--method", "ensemble", "--window",
+                                        str(10**30), "--out", "{d}/t.json"], {}, ["--window", "from 1 to 10000000"]),
     ("fit-detectors-given-detectors", ["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--detectors",
                                        "{d}", "--out", "{d}/det"], {}, ["unrecognized arguments: --detectors"]),
 ]

@@ -10,7 +10,7 @@ import sys
 from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent
 from oodmon.cli.parsing import (
-    _FAILURES, _FIT_DEFAULT, _KEPT, _UNSET, _add_confidence, _add_dynamics_updates, _add_rule,
+    _FAILURES, _FIT_DEFAULT, _KEPT, _STEP_COUNT, _UNSET, _WARMUP, _add_confidence, _add_dynamics_updates, _add_rule,
     _command_line, _fraction, _non_negative, _sb3_arguments, _policy_argument, _whole, _widths,
 )
 from oodmon.errors import ConfigError
@@ -84,7 +84,7 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                             "core)")
     alarm.add_argument("--score", default="chosen_std",
                        help="chosen_std (the paper's, default), mean_std, max_std, margin_std (DQN) or pre_squash_std (DDPG)")
-    alarm.add_argument("--window", type=_whole(1),
+    alarm.add_argument("--window", type=_STEP_COUNT,
                        help="alarm rule on the mean score of the last N steps (default 1; Pong 200 for the spread and "
                             "features detectors); AUROCs do not change")
     alarm.add_argument("--detectors",
@@ -102,9 +102,9 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
                        help="the detector the monitor's alarm reads, one of --detectors (default spread; monitor "
                             "protocol: the task's best)")
     _add_rule(alarm)
-    alarm.add_argument("--consecutive", type=_whole(1),
+    alarm.add_argument("--consecutive", type=_STEP_COUNT,
                        help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
-    alarm.add_argument("--warmup", type=_whole(0), default=0,
+    alarm.add_argument("--warmup", type=_WARMUP, default=0,
                        help="the alarm looks at no score of an episode's first N steps (but a NaN reading's; default 0)")
     world.add_argument("--obs-noise", type=_non_negative, default=0.0,
                        help="sensor noise in every monitored env, a fraction of each dimension's ID spread (default 0)")

@@ -13,7 +13,7 @@ from oodmon.cli.display import _progress
 from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import (
     _FIT_DEFAULT, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
-    _agent_arguments, _fraction, _non_negative, _whole,
+    _STEP_COUNT, _WARMUP, _agent_arguments, _fraction, _non_negative, _whole,
 )
 from oodmon.errors import ConfigError, unknown
 from oodmon.monitor.threshold import DETECTOR_NAMES, episodes_needed
@@ -36,12 +36,12 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
     promise.add_argument("--episodes", type=_whole(1), default=50, help="ID calibration episodes (default 50)")
     promise.add_argument("--far", type=_fraction, default=0.05, help="target false-alarm rate (default 0.05)")
     _add_confidence(promise)
-    rule.add_argument("--consecutive", type=_whole(1),
+    rule.add_argument("--consecutive", type=_STEP_COUNT,
                       help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
-    rule.add_argument("--window", type=_whole(1),
+    rule.add_argument("--window", type=_STEP_COUNT,
                       help="compare the mean score of the last N steps (default 1: each step's; Pong 200 "
                            "unless the frames detector)")
-    rule.add_argument("--warmup", type=_whole(0), default=0,
+    rule.add_argument("--warmup", type=_WARMUP, default=0,
                       help="the alarm looks at no score of an episode's first N steps (but a NaN reading's): where "
                            "the learned detectors' means cover few transitions since the reset (default 0)")
     _add_rule(rule)

@@ -7,6 +7,8 @@ import shlex
 from collections.abc import Callable, Sequence
 
 from oodmon.names import MASKS, METHODS, TASKS
+from oodmon.seeds import MOST_SEED
+from oodmon.validation import MOST_STEPS
 
 #: What Ctrl-C leaves behind, said by the commands that write as they go or only at their end.
 _LOGGED = "every finished episode is in the logs, the cut one is marked interrupted"
@@ -111,7 +113,11 @@ _non_negative = _number(lambda x: 0.0 <= x < float("inf"), "a finite number >= 0
 _positive = _number(lambda x: 0.0 < x < float("inf"), "a finite number > 0")
 
 
-_SEED = _whole(0, 2**32 - 1)
+_SEED = _whole(0, MOST_SEED)
+
+#: The alarm rule's --consecutive and --window, and its --warmup (oodmon.validation.MOST_STEPS).
+_STEP_COUNT = _whole(1, MOST_STEPS)
+_WARMUP = _whole(0, MOST_STEPS)
 
 
 def _add_rule(parser: argparse.ArgumentParser) -> None:

@@ -38,7 +38,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.sequential import Reference, SequentialStatistic, sequential_path
-from oodmon.validation import is_whole
+from oodmon.validation import MOST_STEPS, is_step_count
 
 __all__ = [
     "DEFAULT_CONSECUTIVE", "AlarmEvent", "AlarmTracker", "check_consecutive", "check_warmup", "check_window",
@@ -97,29 +97,33 @@ def _needs(reference: Reference | None, rule: str) -> Reference:
 
 
 def check_consecutive(consecutive: object) -> int:
-    """``consecutive`` as an int >= 1, or :class:`InvalidParameterError`."""
-    if not is_whole(consecutive):
+    """``consecutive`` as an int from 1 to :data:`~oodmon.validation.MOST_STEPS`, or :class:`InvalidParameterError`."""
+    if not is_step_count(consecutive):
         raise InvalidParameterError(
-            f"consecutive={consecutive!r} is not allowed; the alarm rule needs an integer >= 1 of steps in a row"
+            f"consecutive={consecutive!r} is not allowed; the alarm rule needs an integer from 1 to {MOST_STEPS:,} of "
+            "steps in a row"
         )
     return int(consecutive)
 
 
 def check_window(window: object) -> int:
-    """``window`` as an int >= 1, or :class:`InvalidParameterError`."""
-    if not is_whole(window):
+    """``window`` as an int from 1 to :data:`~oodmon.validation.MOST_STEPS`, or :class:`InvalidParameterError`."""
+    if not is_step_count(window):
         raise InvalidParameterError(
-            f"window={window!r} is not allowed; the alarm rule averages the scores of an integer >= 1 of last steps"
+            f"window={window!r} is not allowed; the alarm rule averages the scores of an integer from 1 to "
+            f"{MOST_STEPS:,} of last steps"
         )
     return int(window)
 
 
 def check_warmup(warmup: object, rule: str = "consecutive") -> int:
-    """``warmup`` as an int >= 0, or :class:`InvalidParameterError`; a sequential rule takes none
-    (:class:`ConfigError`: it weighs each step against ID steps at the same time since reset already)."""
-    if not is_whole(warmup, minimum=0):
+    """``warmup`` as an int from 0 to :data:`~oodmon.validation.MOST_STEPS`, or :class:`InvalidParameterError`;
+    a sequential rule takes none (:class:`ConfigError`: it weighs each step against ID steps at the
+    same time since reset already)."""
+    if not is_step_count(warmup, minimum=0):
         raise InvalidParameterError(
-            f"warmup={warmup!r} is not allowed; the alarm rule skips an integer >= 0 of first steps of each episode"
+            f"warmup={warmup!r} is not allowed; the alarm rule skips an integer from 0 to {MOST_STEPS:,} of first steps "
+            "of each episode"
         )
     if warmup and rule != "consecutive":
         raise ConfigError(f"the {rule} rule takes no warm-up: it weighs each step against ID steps at the same time "

@@ -25,11 +25,12 @@ from oodmon.monitor.monitor import Monitor, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.sinks.base import MemorySink
-from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson
+from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson,
+                                     conformal_rank, episodes_needed)
 from oodmon.progress import Progress
 from oodmon.seeds import EPISODE_USES
 from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
-from oodmon.validation import is_whole
+from oodmon.validation import is_step_count, is_whole
 
 __all__ = ["CALIBRATION_SEED", "EPISODE_USES", "Validation", "calibrate_agent", "check_fresh", "clopper_pearson",
            "detectors_read", "id_episode_scores", "reused_episodes", "save_calibration", "seeds_used",
@@ -143,14 +144,21 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         consecutive = default_consecutive(detector)
     if window is None:
         window = default_window(agent.task, detector)
-    steps = (consecutive if isinstance(consecutive, int) else 1) + (window if isinstance(window, int) else 1) - 1
+    # The steps the rule reads of an episode (a count it refuses is refused by the dry run below;
+    # until then it counts as the least allowed)
+    steps = sum(n if is_step_count(n, least) else least for n, least in ((consecutive, 1), (window, 1), (warmup, 0))) - 1
     if rule != "consecutive" and not is_whole(reference_episodes):
         raise InvalidParameterError(f"reference_episodes={reference_episodes!r} is not allowed; the {rule} rule needs a "
                                     "whole number >= 1 of ID reference episodes")
     placeholder = Reference.from_episodes([np.zeros(1)]) if rule in SEQUENTIAL_RULES else None
-    steps += warmup if is_whole(warmup, minimum=0) else 0  # (a bad warm-up is refused by the dry run)
-    calibrate([np.zeros(max(steps, 1))] * episodes, far, consecutive=consecutive, mode=mode, score=score, window=window,
-              confidence=confidence, rule=rule, reference=placeholder, warmup=warmup)
+    if mode == "episode":
+        conformal_rank(episodes, far, confidence)  # too few episodes for far: said before the first is played
+    # As many placeholder episodes as the promise needs at the least, not ``episodes`` of them: 10**30
+    # asked numpy for too much, and in step mode their few steps stood for the real episodes' many
+    # (10 CartPole episodes, 5,000 steps, were refused as "30 steps", 2026-12-05). The steps are
+    # counted when the real calibration has them.
+    calibrate([np.zeros(max(steps, 1))] * episodes_needed(far, confidence), far, consecutive=consecutive, mode=mode,
+              score=score, window=window, confidence=confidence, rule=rule, reference=placeholder, warmup=warmup)
     needed = detectors.subset([detector]) if detectors is not None and detector != "spread" else None
     reference = None
     if rule != "consecutive":

@@ -108,8 +108,7 @@ def conformal_rank(n: int, far: float, confidence: float | None = DEFAULT_CONFID
         rank = math.ceil((n + 1) * (1 - far))
     else:
         # P(the k-th smallest of n uniforms >= 1 - far) = P(Binomial(n, 1 - far) <= k - 1).
-        ok = np.nonzero(_binomial_cdf(np.arange(n), n, 1 - far) >= confidence)[0]
-        rank = int(ok[0]) + 1 if len(ok) else n + 1
+        rank = _smallest_k(n, 1 - far, confidence) + 1
     if rank > n:
         needed = episodes_needed(far, confidence)
         bound = ("for its guarantee" if confidence is None
@@ -133,6 +132,32 @@ def clopper_pearson(successes: int, trials: int, level: float = 0.95) -> tuple[f
     return low, high
 
 
+#: Up to this many statistics :func:`conformal_rank` reads the CDF at every k; beyond, it bisects,
+#: which needs no array of n numbers (``calibrate --episodes 10**30`` asked numpy for one, and its
+#: "Maximum allowed size exceeded" came as a traceback).
+_EVERY_K = 1_000_000
+
+
+def _smallest_k(n: int, p: float, confidence: float) -> int:
+    """The smallest k in [0, n) with P(Binomial(n, p) <= k) >= ``confidence``; n where there is none.
+
+    Example:
+        >>> _smallest_k(200, 0.95, 0.9), _smallest_k(44, 0.95, 0.9), _smallest_k(10**30, 0.95, 0.9) > 0.95 * 10**30
+        (194, 44, True)
+    """
+    if n <= _EVERY_K:
+        ok = np.nonzero(_binomial_cdf(np.arange(n), n, p) >= confidence)[0]
+        return int(ok[0]) if len(ok) else n
+    low, high = 0, n  # the CDF rises with k; at k = n it is 1, which any confidence < 1 reaches
+    while low < high:
+        middle = (low + high) // 2
+        if _binomial_cdf(middle, n, p) >= confidence:
+            high = middle
+        else:
+            low = middle + 1
+    return low
+
+
 def _binomial_cdf(k: np.ndarray, n: int, p: float) -> np.ndarray:
     """P(Binomial(n, p) <= k) for whole k in [0, n]: the kernel ``scipy.stats.binom.cdf`` calls
     (Boost's), to the bit, without importing ``scipy.stats``, which took 0.6-0.7 s of the start of
@@ -145,7 +170,7 @@ def _binomial_cdf(k: np.ndarray, n: int, p: float) -> np.ndarray:
         from scipy.stats import binom
 
         return binom.cdf(k, n, p)
-    return _binom_cdf(np.asarray(k, dtype=np.float64), n, p)
+    return _binom_cdf(np.asarray(k, dtype=np.float64), np.float64(n), p)  # (n as the kernel takes it: 10**30 too)
 
 
 class OutlyingThresholdWarning(UserWarning):

@@ -216,8 +216,9 @@ def test_seeds_and_counts_of_odd_kinds_are_refused_or_taken_as_python_ints(agent
     from oodmon.monitor import calibrate, validate_threshold
     from oodmon.monitor.detectors.dynamics import DynamicsDetector
 
-    for seed in (-1, 2.5, float("nan"), "7"):
-        with pytest.raises(InvalidParameterError, match=f"seed={seed!r} is not allowed; give a whole number >= 0"):
+    for seed in (-1, 2.5, float("nan"), "7", 2**32, 10**30):  # (the largest: the CLI's --seed, numpy's legacy seeding)
+        with pytest.raises(InvalidParameterError, match=f"seed={seed!r} is not allowed; give a whole number from 0 to "
+                                                        "4294967295"):
             calibrate_agent(agent, 50, seed=seed)
         with pytest.raises(InvalidParameterError, match="seed="):
             id_episode_scores(agent, 1, seed=seed)
@@ -233,8 +234,9 @@ def test_seeds_and_counts_of_odd_kinds_are_refused_or_taken_as_python_ints(agent
         oodmon.watch(agent, episodes=float("nan"))
     from oodmon.monitor.detectors.fitting import fit_agent_detectors
 
-    with pytest.raises(InvalidParameterError, match="seed=-1 is not allowed"):
-        fit_agent_detectors(agent, detectors=["dynamics"], episodes=3, seed=-1)
+    for seed in (-1, 10**30):  # (10**30 failed in torch's generator, after the episodes were played)
+        with pytest.raises(InvalidParameterError, match=f"seed={seed} is not allowed"):
+            fit_agent_detectors(agent, detectors=["dynamics"], episodes=3, seed=seed)
     fitted = fit_agent_detectors(agent, detectors=["dynamics"], episodes=3, seed=np.int64(600_000), max_steps=20)
     assert type(fitted.fitted_for["seed"]) is int and json.dumps(fitted.fitted_for)
     config = DynamicsDetector(2, max_updates=np.int64(300)).config()

@@ -215,6 +215,56 @@ def test_calibration_errors():
             calibrate(scores, 0.5)
 
 
+def test_counts_beyond_memory_are_refused_by_name_and_a_step_mode_calibration_counts_its_real_steps(monkeypatch):
+    """Found by calling the public API with 10**30 (2026-12-05): a rule's count of steps asked numpy
+    or a deque for more than memory holds ("Maximum allowed dimension exceeded", OverflowError), and
+    calibrate_agent's dry run built a list of ``episodes`` placeholders. And that dry run refused a
+    step-mode calibration of 10 episodes as "30 steps", its placeholders' count, where 10 CartPole
+    episodes have 5,000."""
+    from oodmon.agents import load
+    from oodmon.monitor import Monitor, calibrate_agent
+    from oodmon.monitor.detectors.base import RecentMean
+    from oodmon.monitor.detectors.drift import DriftDetector
+
+    huge, agent = 10**30, load("cartpole", "ensemble")
+    for call, name in [(lambda: Monitor(agent, threshold=1.0, window=huge), "window"),
+                       (lambda: AlarmTracker(1.0, consecutive=huge), "consecutive"),
+                       (lambda: calibrate([np.ones(5)] * 50, 0.05, warmup=huge), "warmup"),
+                       (lambda: RecentMean(huge), "window"), (lambda: DriftDetector(window=huge), "window")]:
+        with pytest.raises(InvalidParameterError, match=f"{name}={huge} is not allowed; .*integer from [01] to 10,000,000"):
+            call()
+    assert AlarmTracker(1.0, consecutive=10_000_000).consecutive == 10_000_000  # the bound itself is taken
+    for name in ("window", "consecutive", "warmup"):
+        with pytest.raises(InvalidParameterError, match=f"{name}={huge} is not allowed"):
+            calibrate_agent(agent, 50, detector="spread", **{name: huge})
+    # the rank of 10**30 episodes, by bisection (the CDF at every rank asked numpy for 10**30 numbers);
+    # up to a million ranks it is read at every one, as scipy.stats gives it (tested above)
+    assert 0.95 * huge < conformal_rank(huge, 0.05, 0.9) < huge
+    from oodmon.monitor import threshold as threshold_module
+
+    for n in (45, 200, 4001):
+        every = conformal_rank(n, 0.05, 0.9)
+        monkeypatch.setattr(threshold_module, "_EVERY_K", 0)
+        assert conformal_rank(n, 0.05, 0.9) == every
+        monkeypatch.undo()
+
+    played = []
+
+    def stop(*_, **kwargs):  # the episodes themselves: the dry run is over
+        played.append(kwargs.get("stage"))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("oodmon.monitor.calibration.id_episode_scores", stop)
+    with pytest.raises(KeyboardInterrupt):
+        calibrate_agent(agent, huge, detector="spread")
+    assert played == ["calibration episodes"]
+    monkeypatch.undo()
+    threshold = calibrate_agent(agent, 10, mode="step", detector="spread")  # refused before as "30 steps"
+    assert (threshold.mode, threshold.n_episodes, threshold.n_steps) == ("step", 10, 5000)
+    with pytest.raises(ConfigError, match="needs at least 45 ID calibration episodes .*; got 44"):
+        calibrate_agent(agent, 44, detector="spread")  # episode mode: said before any episode, as before
+
+
 def test_threshold_file_errors(tmp_path):
     with pytest.raises(ConfigError, match="does not exist; make one with `oodmon calibrate`"):
         Threshold.load(tmp_path / "none.json")

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.validation import is_whole
+from oodmon.validation import MOST_STEPS, is_step_count
 
 if TYPE_CHECKING:  # importing it would load torch
     from oodmon.agents.estimators import Estimate
@@ -40,8 +40,8 @@ class RecentMean:
     """
 
     def __init__(self, window: int) -> None:
-        if not is_whole(window):
-            raise InvalidParameterError(f"window={window!r} is not allowed; it must be an integer >= 1")
+        if not is_step_count(window):
+            raise InvalidParameterError(f"window={window!r} is not allowed; it must be an integer from 1 to {MOST_STEPS:,}")
         self.window = window
         self._values: deque[float] = deque(maxlen=window)
 

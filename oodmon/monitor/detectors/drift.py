@@ -47,7 +47,7 @@ import numpy as np
 from oodmon.errors import InvalidParameterError
 from oodmon.monitor.detectors.base import Detector, StepContext, Trajectory
 from oodmon.monitor.detectors.dynamics import DynamicsDetector, _FastNll
-from oodmon.validation import is_whole
+from oodmon.validation import MOST_STEPS, is_step_count
 
 __all__ = ["DEFAULT_WINDOW", "DriftDetector"]
 
@@ -84,9 +84,9 @@ class DriftDetector(Detector):
     learned = True
 
     def __init__(self, model: DynamicsDetector | None = None, *, window: int = DEFAULT_WINDOW) -> None:
-        if not is_whole(window):
-            raise InvalidParameterError(f"window={window!r} is not allowed; the drift detector sums an integer >= 1 of "
-                                        "last residuals")
+        if not is_step_count(window):
+            raise InvalidParameterError(f"window={window!r} is not allowed; the drift detector sums an integer from 1 to "
+                                        f"{MOST_STEPS:,} of last residuals")
         self.model, self.window = model, window
         self._seen = 0  # residuals since the episode began (the window holds the last min(seen, window))
         self._ring: np.ndarray | None = None  # the window's residuals, and their negatives: built on first use
