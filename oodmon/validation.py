@@ -1,11 +1,13 @@
-"""The tests of "a whole number" and "a number" that oodmon's argument checks use."""
+"""The tests of "a whole number" and "a number" that oodmon's argument checks use, and the words
+for a path that is not a file."""
 
 from __future__ import annotations
 
 import math
 import numbers
+from pathlib import Path
 
-__all__ = ["MOST_STEPS", "is_finite_real", "is_real", "is_step_count", "is_whole"]
+__all__ = ["MOST_STEPS", "is_finite_real", "is_real", "is_step_count", "is_whole", "not_a_file"]
 
 #: The most steps a count may name where oodmon keeps that many scores, or plays that many in a
 #: dry run: an alarm rule's ``consecutive``, ``window`` and ``warmup``, a detector's ``window``.
@@ -54,3 +56,16 @@ def is_finite_real(value: object) -> bool:
     """
     return is_real(value) and math.isfinite(value)
 
+
+def not_a_file(path: Path) -> str:
+    """What ``path``, which is not a regular file, is instead, in words that follow its name.
+
+    A device or a pipe was said not to exist (``--vec-normalize /dev/zero``, 2026-12-05).
+
+    Example:
+        >>> not_a_file(Path("/")), not_a_file(Path("/dev/null")), not_a_file(Path("/no/such/file"))
+        ('is a folder', 'is not a regular file (a device or a pipe)', 'does not exist')
+    """
+    if path.is_dir():
+        return "is a folder"
+    return "is not a regular file (a device or a pipe)" if path.exists() else "does not exist"

@@ -22,6 +22,7 @@ from oodmon.agents.networks import build_modules
 from oodmon.errors import ModelFormatError
 from oodmon.hashing import write_hashed_tensors
 from oodmon.jsonfile import read_json
+from oodmon.validation import not_a_file
 
 __all__ = ["FORMAT_VERSION", "load_modules", "read_metadata", "save_modules"]
 
@@ -52,7 +53,7 @@ def read_metadata(directory: str | Path, *, task: str | None = None) -> dict[str
     """The metadata of a saved model, checked; ``task`` also checks that it is that task's model."""
     path = Path(directory) / "model.json"
     if not path.is_file():
-        raise ModelFormatError(f"{path} does not exist: a model directory holds model.json and model.safetensors")
+        raise ModelFormatError(f"{path} {not_a_file(path)}: a model directory holds model.json and model.safetensors")
     metadata = read_json(path, error=ModelFormatError)  # not JSON: the model's metadata is damaged
     missing = [key for key in _REQUIRED if key not in metadata]
     if not isinstance(metadata, dict) or missing:

@@ -41,6 +41,7 @@ import numpy as np
 
 from oodmon.agents.pickle_walk import one_line, walk_opcodes
 from oodmon.errors import ConfigError
+from oodmon.validation import not_a_file
 
 __all__ = ["NO_NORMALIZATION", "ObservationNormalizer", "load_vec_normalize", "normalizer_of", "trained_in_vec_normalize"]
 
@@ -255,7 +256,7 @@ def load_vec_normalize(path: str | Path) -> ObservationNormalizer:
     """
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"--vec-normalize {path} {'is a folder' if path.is_dir() else 'does not exist'}: give the file "
+        raise ConfigError(f"--vec-normalize {path} {not_a_file(path)}: give the file "
                           "VecNormalize.save() wrote, e.g. vecnormalize.pkl")
     data = path.read_bytes()
     try:

@@ -448,6 +448,10 @@ def test_a_damaged_or_foreign_detectors_file_is_refused(fitted, tmp_path):
         DetectorSet.load(folder)
     with pytest.raises(ConfigError, match="does not exist"):
         DetectorSet.load(tmp_path / "nowhere")
+    (tmp_path / "device").mkdir()  # (a device was said not to exist until 2026-12-05)
+    (tmp_path / "device" / "detectors.json").symlink_to("/dev/zero")
+    with pytest.raises(ConfigError, match=r"detectors.json is not a regular file \(a device or a pipe\): fitted"):
+        DetectorSet.load(tmp_path / "device")
     (tmp_path / "foreign").mkdir()
     (tmp_path / "foreign" / "detectors.json").write_text('{"format": "something else"}')
     (tmp_path / "foreign" / "detectors.safetensors").write_bytes(b"")

@@ -29,6 +29,7 @@ from oodmon.monitor.detectors.stillness import StillnessDetector
 from oodmon.monitor.detectors.transitions import TransitionsDetector
 from oodmon.monitor.detectors.vanishing import VanishingDetector
 from oodmon.hashing import other_weights, write_hashed_tensors
+from oodmon.validation import not_a_file
 
 __all__ = ["DETECTORS", "DetectorSet"]
 
@@ -220,7 +221,7 @@ class DetectorSet:
         meta_path, tensor_path = directory / "detectors.json", directory / "detectors.safetensors"
         for path in (meta_path, tensor_path):
             if not path.is_file():
-                raise ConfigError(f"{path} does not exist: fitted detectors are a folder with detectors.json and "
+                raise ConfigError(f"{path} {not_a_file(path)}: fitted detectors are a folder with detectors.json and "
                                   "detectors.safetensors (`oodmon fit-detectors` writes them)")
         meta = read_json(meta_path)
         if not isinstance(meta, dict) or meta.get("format") != FORMAT:
