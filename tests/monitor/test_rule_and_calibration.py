@@ -218,9 +218,9 @@ def test_calibration_errors():
 def test_counts_beyond_memory_are_refused_by_name_and_a_step_mode_calibration_counts_its_real_steps(monkeypatch):
     """Found by calling the public API with 10**30 (2026-12-05): a rule's count of steps asked numpy
     or a deque for more than memory holds ("Maximum allowed dimension exceeded", OverflowError), and
-    calibrate_agent's dry run built a list of ``episodes`` placeholders. And that dry run refused a
-    step-mode calibration of 10 episodes as "30 steps", its placeholders' count, where 10 CartPole
-    episodes have 5,000."""
+    calibrate_agent's dry run built a list of ``episodes`` placeholders. Found reading that dry run:
+    it refused a step-mode calibration of 10 episodes as "30 steps", its placeholders' count, where
+    10 CartPole episodes have 5,000."""
     from oodmon.agents import load
     from oodmon.monitor import Monitor, calibrate_agent
     from oodmon.monitor.detectors.base import RecentMean
@@ -242,11 +242,13 @@ def test_counts_beyond_memory_are_refused_by_name_and_a_step_mode_calibration_co
     assert 0.95 * huge < conformal_rank(huge, 0.05, 0.9) < huge
     from oodmon.monitor import threshold as threshold_module
 
-    for n in (45, 200, 4001):
-        every = conformal_rank(n, 0.05, 0.9)
-        monkeypatch.setattr(threshold_module, "_EVERY_K", 0)
-        assert conformal_rank(n, 0.05, 0.9) == every
-        monkeypatch.undo()
+    for n in (45, 200, 4001):  # the bisection's ranks are those read at every rank (at p = 0.5: on ties too)
+        for far, confidence in ((0.05, 0.9), (0.5, 0.5), (0.1, 0.99), (0.01, 0.9)):
+            if n >= episodes_needed(far, confidence):
+                every = conformal_rank(n, far, confidence)
+                monkeypatch.setattr(threshold_module, "_EVERY_K", 0)
+                assert conformal_rank(n, far, confidence) == every, (n, far, confidence)
+                monkeypatch.undo()
 
     played = []
 
