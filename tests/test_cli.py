@@ -732,6 +732,25 @@ def test_progress_lines_carry_the_time_left_and_the_last_evaluation(capsys, monk
     assert lines[2].endswith("1000/1000 steps, 10.0 steps/s, last evaluation return 212.0 at step 400")
 
 
+def test_no_progress_display_begins_before_a_stage_reports(capsys):
+    """An error said before any stage began is the command's one line: rich's display, stopped,
+    left a blank line before it where stderr is a file (until 2026-12-05), and none is drawn now
+    until a stage reports; once one has, the display ends as before."""
+    from oodmon.cli import display
+
+    with pytest.raises(ValueError), display._progress():
+        raise ValueError("refused before any episode")
+    assert capsys.readouterr().err == ""
+    with display._progress():
+        pass
+    assert capsys.readouterr().err == ""
+    with display._progress() as report:
+        report("calibration episodes", 1, 2)
+        assert display._DISPLAY_LOCKS  # the display's lock, held across forks while it runs
+    err = capsys.readouterr().err
+    assert "calibration episodes: 1/2 episodes" in err and err.endswith("\n\n") and not display._DISPLAY_LOCKS
+
+
 def test_calibrate_combined_with_another_spread_score_fits_detectors_for_it(tmp_path, capsys):
     """The shipped CartPole detectors rank the spread by chosen_std: `calibrate --score margin_std
     --detector combined` fits a set for margin_std beside the threshold instead of ranking margin

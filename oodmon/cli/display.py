@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 
 from rich.console import Console
 
@@ -52,7 +53,11 @@ def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
     thread runs: forked in the middle of a redraw, a worker would inherit rich's locks and
     stderr's held by a thread it does not have, and wait for ever at its first line to stderr (a
     warning of its env). So every fork waits for the redraw to end: the display's lock is held
-    across it (``os.register_at_fork``, as Python's ``logging`` holds its own)."""
+    across it (``os.register_at_fork``, as Python's ``logging`` holds its own).
+
+    The display starts at the first report: an error said before any stage began is one line
+    (rich's display, stopped, leaves a blank line where stderr is a file: before 2026-12-05 it
+    came before such an error too)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     stderr = Console(stderr=True)
@@ -60,14 +65,26 @@ def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
                TimeRemainingColumn())
     # Where stderr is a file, the dated lines below are the progress: a bar kept at the end
     # (``transient=False``, train's) was drawn there once, cut to 80 characters.
-    with Progress(*columns, console=stderr, transient=transient or not stderr.is_terminal) as progress, \
-            _held_at_forks(progress.live):
+    with ExitStack() as started:
+        shown: list[Progress] = []  # the display, once a stage has reported
+        starting = threading.Lock()
+
+        def display() -> Progress:
+            with starting:
+                if not shown:
+                    progress = started.enter_context(
+                        Progress(*columns, console=stderr, transient=transient or not stderr.is_terminal))
+                    started.enter_context(_held_at_forks(progress.live))
+                    shown.append(progress)
+            return shown[0]
+
         bars: dict[str, int] = {}
         last_line: dict[str, tuple[float, int]] = {}  # name -> (time, done) of its last plain line
 
         notes: dict[str, str] = {}  # name -> its latest note (training: the last evaluation return)
 
         def report(name: str, done: int, total: int, note: str | None = None) -> None:
+            progress = display()
             total = total or None  # 0: not known in advance
             if name not in bars:
                 bars[name] = progress.add_task(name, total=total)
