@@ -243,6 +243,10 @@ CASES = [
     # traceback, exit 3)
     ("calibrate-window-beyond-memory", ["calibrate", "--task", "cartpole", "--method", "ensemble", "--window",
                                         str(10**30), "--out", "{d}/t.json"], {}, ["--window", "from 1 to 10000000"]),
+    # calibration episodes that are not held out (2026-12-05: calibrated on them, the promise did not hold)
+    ("calibrate-on-the-detectors-fitting-episodes", ["calibrate", "--task", "cartpole", "--method", "ensemble", "--seed",
+                                                     "600000", "--out", "{d}/t.json"], {},
+     ["seeds 600,000-600,049", "the detectors' fitting episodes (seeds 600,000-600,089)", "e.g. 200000"]),
     ("fit-detectors-given-detectors", ["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--detectors",
                                        "{d}", "--out", "{d}/det"], {}, ["unrecognized arguments: --detectors"]),
 ]

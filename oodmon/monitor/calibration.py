@@ -119,8 +119,10 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     process (:mod:`oodmon.side_by_side`).
 
     Raises:
-        InvalidParameterError, ConfigError: a bad argument, or too few episodes for ``far``; all
-            checked before the first episode runs.
+        InvalidParameterError, ConfigError: a bad argument, too few episodes for ``far``, or
+            calibration episodes that are not held out: ``detectors``' fitting episodes (the
+            detectors learned them) or the sequential rule's reference episodes; all checked before
+            the first episode runs.
     """
     # Every argument is checked before minutes of episodes: a dry run of the calibration on
     # placeholder scores raises what the real one would.
@@ -160,6 +162,14 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     calibrate([np.zeros(max(steps, 1))] * episodes_needed(far, confidence), far, consecutive=consecutive, mode=mode,
               score=score, window=window, confidence=confidence, rule=rule, reference=placeholder, warmup=warmup)
     needed = detectors.subset([detector]) if detectors is not None and detector != "spread" else None
+    held = _fitted_on(needed) | ({"reference": [seeds.REFERENCE, seeds.REFERENCE + reference_episodes]}
+                                 if rule != "consecutive" else {})
+    clashes, free = _overlaps(held, seed, episodes, seeds.CALIBRATION)
+    if clashes:  # (2026-12-05: calibrated on its detectors' 90 fitting episodes, the CartPole ensemble's
+        # threshold was 4.18 against 5.93, and alarmed 7 of 300 fresh ID episodes against 2)
+        raise ConfigError(f"the calibration episodes (seeds {seed:,}-{seed + episodes - 1:,}) are not held out: they "
+                          f"include {clashes}, whose scores are not those of a fresh episode, so the threshold's "
+                          f"promise would not hold; give a first seed (--seed) apart from them, e.g. {free}")
     reference = None
     if rule != "consecutive":
         reference = Reference.from_episodes(id_episode_scores(
@@ -271,11 +281,16 @@ def seeds_used(threshold: Threshold, detectors: DetectorSet | None = None) -> di
         >>> seeds_used(replace(found, episode_seeds={"calibration": [200_000, 200_045]}))
         {'calibration': [200000, 200045]}
     """
-    used = dict(threshold.episode_seeds or {})
+    return dict(threshold.episode_seeds or {}) | _fitted_on(detectors)
+
+
+def _fitted_on(detectors: DetectorSet | None) -> dict[str, list[int]]:
+    """The reset seeds of the ID episodes ``detectors`` were fitted on (``fitted_for``: ``seed``,
+    ``episodes``), ``{"detector fitting": [first, end)}``, or ``{}`` where they do not say."""
     fitted = detectors.fitted_for if detectors is not None else {}
     if is_whole(fitted.get("seed"), 0) and is_whole(fitted.get("episodes"), 1):
-        used["detector fitting"] = [fitted["seed"], fitted["seed"] + fitted["episodes"]]
-    return used
+        return {"detector fitting": [fitted["seed"], fitted["seed"] + fitted["episodes"]]}
+    return {}
 
 
 def reused_episodes(threshold: Threshold, detectors: DetectorSet | None, seed: int, episodes: int) -> tuple[str, int]:
@@ -288,10 +303,16 @@ def reused_episodes(threshold: Threshold, detectors: DetectorSet | None, seed: i
         >>> reused_episodes(replace(found, episode_seeds={"calibration": [0, 45]}), None, 40, 10)
         ("the threshold's calibration episodes (seeds 0-44)", 700000)
     """
-    used = seeds_used(threshold, detectors)
+    return _overlaps(seeds_used(threshold, detectors), seed, episodes, seeds.VALIDATION)
+
+
+def _overlaps(used: dict[str, list[int]], seed: int, episodes: int, start: int) -> tuple[str, int]:
+    """Which of the ranges ``used`` (by use, each ``[first, end)``) the episodes ``seed`` .. ``seed +
+    episodes - 1`` fall in, in words (``""``: none), and a first seed from ``start`` on whose
+    ``episodes`` episodes miss them all."""
     clashes = [f"{EPISODE_USES.get(name, name)} episodes (seeds {first:,}-{end - 1:,})" for name, (first, end) in used.items()
                if first < seed + episodes and seed < end]
-    free = seeds.VALIDATION
+    free = start
     while any(first < free + episodes and free < end for first, end in used.values()):
         free = max(end for first, end in used.values() if first < free + episodes and free < end)
     return " and ".join(clashes), free

@@ -545,6 +545,41 @@ def test_the_seed_a_refusal_suggests_is_fresh():
         check_fresh(threshold, fitted, suggested, episodes)
 
 
+def test_a_calibration_refuses_its_detectors_fitting_episodes_and_its_reference_episodes(monkeypatch):
+    """Found 2026-12-05: `oodmon calibrate --seed 600000` calibrated the CartPole ensemble's combined
+    detector on the 90 episodes its detectors were fitted on (threshold 4.18 against 5.93 on held-out
+    ones; then 7 of 300 fresh ID episodes alarmed against 2), and `--rule cusum --seed 800000` on
+    its own reference episodes: neither is a fresh episode, on which the threshold's promise rests.
+    Both are refused before any episode, with a first seed apart from them."""
+    from oodmon.agents import load
+    from oodmon.monitor import calibrate_agent
+    from oodmon.monitor.detectors import detectors_for
+
+    agent = load("cartpole", "ensemble")
+    shipped = detectors_for(agent)
+    assert (shipped.fitted_for["seed"], shipped.fitted_for["episodes"]) == (600_000, 90)
+    for seed in (600_000, 599_951, 600_089):
+        with pytest.raises(ConfigError, match=r"calibration episodes \(seeds .*\) are not held out: they include the "
+                                              r"detectors' fitting episodes \(seeds 600,000-600,089\).* e\.g\. 200000$"):
+            calibrate_agent(agent, 50, seed=seed, detectors=shipped, detector="combined")
+    with pytest.raises(ConfigError, match=r"not held out: they include the sequential rule's reference episodes "
+                                          r"\(seeds 800,000-800,019\)"):
+        calibrate_agent(agent, 50, seed=799_990, detectors=shipped, detector="combined", rule="cusum")
+    played = []
+
+    def stop(_agent, _episodes, *, seed, **__):  # the episodes themselves: the checks are over
+        played.append(seed)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("oodmon.monitor.calibration.id_episode_scores", stop)
+    for seed, detector, rule in [(599_950, "combined", "consecutive"), (600_090, "combined", "consecutive"),
+                                 (600_000, "spread", "consecutive"),  # the spread learned no episodes
+                                 (800_020, "combined", "cusum")]:  # its reference played first, then these
+        with pytest.raises(KeyboardInterrupt):
+            calibrate_agent(agent, 50, seed=seed, detectors=shipped, detector=detector, rule=rule)
+    assert played == [599_950, 600_090, 600_000, 800_000]
+
+
 @pytest.mark.parametrize("field, value", [("episode_seeds", {"calibration": [5]}),
                                           ("episode_seeds", {"calibration": [9, 3]}),
                                           ("episode_seeds", {"calibration": [-1, 3]}),
