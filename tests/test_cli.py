@@ -575,6 +575,24 @@ def test_calibrate_clears_only_the_detectors_it_wrote_beside_the_threshold_and_n
     assert _clear_earlier_detectors(str(tmp_path / "t.json"), given=None) == folder and not folder.exists()
 
 
+def test_a_run_on_a_threshold_calibrated_per_step_says_most_id_episodes_will_alarm(tmp_path, capsys):
+    """A step-mode threshold bounds the share of ID steps above it: nearly every 500-step CartPole
+    episode alarms somewhere (2026-12-05: 20 of 20 ID episodes, without a word of why). `run` says so;
+    an episode-mode one is run without it."""
+    step, episode = tmp_path / "step.json", tmp_path / "episode.json"
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--mode", "step",
+                 "--episodes", "2", "--out", str(step)]) == 0  # (2 episodes: 1,000 steps, enough for 45)
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--far", "0.2",
+                 "--episodes", "11", "--out", str(episode)]) == 0
+    capsys.readouterr()
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(step), "--episodes", "1"]) == 0
+    err = capsys.readouterr().err.replace("\n", " ")
+    assert "this threshold was calibrated per step (mode 'step'): it bounds the share of ID steps above it (0.05), " \
+           "not of episodes, so most ID episodes will alarm" in err
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(episode), "--episodes", "1"]) == 0
+    assert "calibrated per step" not in capsys.readouterr().err
+
+
 def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, capsys):
     """`validate` plays fresh ID episodes (seeds apart from calibration's) and counts those whose
     statistic under the threshold's rule exceeds it, with a Clopper-Pearson interval."""

@@ -109,6 +109,8 @@ def _run(args: argparse.Namespace) -> int:
     detectors = _detectors(args, agent)
     if threshold is not None and (not args.variant or args.onset or label == args.task):  # ID steps: false alarms
         _warn_if_reused(threshold, detectors, args.seed, args.episodes)
+    if threshold is not None and threshold.mode == "step":
+        _warn_of_step_mode(threshold)
     sinks = [] if mcap is None else [mcap]
     if args.rrd or args.spawn or args.serve or args.connect:
         sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect,
@@ -220,6 +222,18 @@ def _warn_if_reused(threshold, detectors, seed: int, episodes: int) -> None:
         warnings.warn(f"the run's episodes (seeds {seed:,}-{seed + episodes - 1:,}) include {reused}, which the "
                       "threshold was made from: they alarm less often in the ID env than fresh episodes would, so "
                       f"their false alarms read low (another --seed: e.g. {free})", UserWarning, stacklevel=2)
+
+
+def _warn_of_step_mode(threshold) -> None:
+    """Warn that a threshold calibrated per step (``calibrate --mode step``, the paper's way of
+    scoring) bounds the share of ID steps above it, not of episodes: at 5% of a CartPole episode's
+    500 steps, nearly every ID episode alarms (2026-12-05: 20 of 20, a dozen alarms each and more,
+    with no word of why)."""
+    import warnings
+
+    warnings.warn(f"this threshold was calibrated per step (mode 'step'): it bounds the share of ID steps above it "
+                  f"({threshold.far:g}), not of episodes, so most ID episodes will alarm at some step; for alarms, "
+                  "calibrate per episode (the default, without --mode step)", UserWarning, stacklevel=2)
 
 
 def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
