@@ -227,7 +227,7 @@ def _warn_if_reused(threshold, detectors, seed: int, episodes: int) -> None:
 def _warn_of_step_mode(threshold) -> None:
     """Warn that a threshold calibrated per step (``calibrate --mode step``, the paper's way of
     scoring) bounds the share of ID steps above it, not of episodes: at 5% of a CartPole episode's
-    500 steps, nearly every ID episode alarms (2026-12-05: 20 of 20, a dozen alarms each and more,
+    500 steps, nearly every ID episode alarms (2026-12-05: 20 of 20, 6 to 39 alarms each,
     with no word of why)."""
     import warnings
 
