@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
@@ -66,25 +65,18 @@ def _progress(*, transient: bool = True) -> Iterator[Callable[..., None]]:
     # Where stderr is a file, the dated lines below are the progress: a bar kept at the end
     # (``transient=False``, train's) was drawn there once, cut to 80 characters.
     with ExitStack() as started:
-        shown: list[Progress] = []  # the display, once a stage has reported
-        starting = threading.Lock()
-
-        def display() -> Progress:
-            with starting:
-                if not shown:
-                    progress = started.enter_context(
-                        Progress(*columns, console=stderr, transient=transient or not stderr.is_terminal))
-                    started.enter_context(_held_at_forks(progress.live))
-                    shown.append(progress)
-            return shown[0]
-
+        progress: Progress | None = None  # the display, from the first report on (reports come from one thread)
         bars: dict[str, int] = {}
         last_line: dict[str, tuple[float, int]] = {}  # name -> (time, done) of its last plain line
 
         notes: dict[str, str] = {}  # name -> its latest note (training: the last evaluation return)
 
         def report(name: str, done: int, total: int, note: str | None = None) -> None:
-            progress = display()
+            nonlocal progress
+            if progress is None:
+                progress = started.enter_context(
+                    Progress(*columns, console=stderr, transient=transient or not stderr.is_terminal))
+                started.enter_context(_held_at_forks(progress.live))
             total = total or None  # 0: not known in advance
             if name not in bars:
                 bars[name] = progress.add_task(name, total=total)
