@@ -591,6 +591,52 @@ def test_a_run_on_a_threshold_calibrated_per_step_says_most_id_episodes_will_ala
            "not of episodes, so most ID episodes will alarm" in err
     assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(episode), "--episodes", "1"]) == 0
     assert "calibrated per step" not in capsys.readouterr().err
+    from oodmon import watch
+    from oodmon.agents import load
+
+    with pytest.warns(UserWarning, match=r"calibrated per step \(mode 'step'\)"):  # the library's door too
+        watch(load("cartpole", "ensemble"), threshold=step)
+
+
+def test_sensor_noise_given_to_calibrate_is_the_world_validate_and_run_play_unless_told_otherwise(tmp_path, capsys):
+    """`calibrate --obs-noise` records the ID world's sensor noise in the threshold; `validate` and
+    `run` play that world by default (before 2026-12-05 calibrate had no --obs-noise, and validate
+    and run played a noiseless world whatever the threshold was made in). Pong has no sensor noise:
+    said in its words, not as a corruption's parameter."""
+    from oodmon.monitor import Threshold
+    from oodmon.replay.reader import read_log
+
+    path = tmp_path / "noisy.json"
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--far", "0.2",
+                 "--episodes", "11", "--obs-noise", "0.02", "--out", str(path)]) == 0
+    assert "11 ID episodes with sensor noise 0.02," in capsys.readouterr().out
+    assert Threshold.load(path).obs_noise == 0.02
+    assert not (tmp_path / "noisy.json.detectors").exists()  # the spread learned no world: nothing fitted again
+    counts = {}
+    for noise in (None, "0.02", "0"):
+        assert main(["validate", str(path), "--episodes", "3", "--json"] + (["--obs-noise", noise] if noise else [])) \
+            in (0, 1)
+        counts[noise] = json.loads(capsys.readouterr().out)
+    assert counts[None] == counts["0.02"] and counts[None]["obs_noise"] == 0.02 and counts["0"]["obs_noise"] == 0.0
+    assert main(["validate", str(path), "--episodes", "3", "--obs-noise", "0"]) in (0, 1)
+    assert "fresh ID episodes (calibrated with sensor noise 0.02) alarmed" in capsys.readouterr().out
+    scores = {}
+    for noise in (None, "0.02", "0"):
+        log = tmp_path / f"run-{noise}.mcap"
+        assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(path), "--episodes", "1",
+                     "--mcap", str(log)] + (["--obs-noise", noise] if noise else [])) == 0
+        scores[noise] = read_log(log).episodes[0].scores
+        said = re.sub(r"\s+", " ", capsys.readouterr().out)
+        assert ("in cartpole, onset 0, sensor noise 0.02, score >" in said) == (noise != "0"), said
+    np.testing.assert_array_equal(scores[None], scores["0.02"])  # the threshold's world, by default
+    assert len(scores[None]) != len(scores["0"]) or not np.array_equal(scores[None], scores["0"])
+    for command in (["calibrate", "--task", "pong", "--method", "ensemble", "--episodes", "11", "--far", "0.2",
+                     "--obs-noise", "0.1", "--detector", "spread", "--out", str(tmp_path / "pong.json")],
+                    ["run", "--task", "pong", "--method", "ensemble", "--obs-noise", "0.1", "--episodes", "1"]):
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert "obs_noise (--obs-noise) is sensor noise of oodmon's cartpole and pendulum envs; pong has none" in err
+        assert "corruption" not in err
 
 
 def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, capsys):

@@ -189,6 +189,7 @@ class Agent:
         loaded for (``gymnasium.make(env_id)``; sensor noise is oodmon's envs' option only), with
         the agent's observations (:meth:`wrap`)."""
         from oodmon.envs.grid import Variant
+        from oodmon.envs.physics import PHYSICS_DEFAULTS
         from oodmon.envs.registration import make_env, task_of_env
 
         if self.env_id is not None and not obs_noise:
@@ -196,6 +197,10 @@ class Agent:
         task = self.task if self.env_id is None else task_of_env(self.env_id)  # oodmon's env of that task
         if task is None:
             raise ConfigError(f"obs_noise is an option of oodmon's envs; {self.env_id} has no such option")
+        if obs_noise and task not in PHYSICS_DEFAULTS:  # (Pong's env read it as a corruption's parameter)
+            raise ConfigError(f"obs_noise (--obs-noise) is sensor noise of oodmon's {' and '.join(PHYSICS_DEFAULTS)} "
+                              f"envs; {task} has none: its variants corrupt the frames instead "
+                              f"(`oodmon envs --task {task}`), and its ID world is noiseless")
         return Variant(task).make(obs_noise=obs_noise) if obs_noise else Variant(task).make()
 
     def __repr__(self) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import time
+import warnings
 from collections import deque
 from pathlib import Path
 
@@ -13,7 +14,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
-from oodmon.cli.parsing import _KEPT, _SEED, _agent_arguments, _positive, _whole
+from oodmon.cli.parsing import _KEPT, _SEED, _agent_arguments, _non_negative, _positive, _whole
 from oodmon.errors import ConfigError
 from oodmon.names import TASKS
 
@@ -33,6 +34,9 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
                                          "obs.noise, obs.stuck; of discrete values: a misread's probability "
                                          "'Taxi-v4:obs.noise=0.1'; of a dict, by key: 'ENV_ID:obs.KEY.stuck=1')")
     world.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (default 0)")
+    world.add_argument("--obs-noise", type=_non_negative,
+                       help="sensor noise in every episode, ID or shifted, a fraction of each reading's ID spread "
+                            "(CartPole, Pendulum; default: --threshold's, `calibrate --obs-noise`, else 0)")
     world.add_argument("--episodes", type=_whole(1), default=5, help="episodes (default 5)")
     world.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode and of an MC agent's samples "
                                                              "(default 0): the same command plays the same episodes")
@@ -105,12 +109,14 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--render draws CartPole and Pendulum states; {args.task} has no drawing in oodmon"
                           + (" (Pong's frames are logged without it)" if args.task == "pong" else "")
                           + ": leave out --render")
+    if args.obs_noise is None:  # the world the threshold was calibrated in
+        args.obs_noise = (threshold.obs_noise or 0.0) if threshold is not None else 0.0
     env, label = _run_env(args, agent)
     detectors = _detectors(args, agent)
     if threshold is not None and (not args.variant or args.onset or label == args.task):  # ID steps: false alarms
         _warn_if_reused(threshold, detectors, args.seed, args.episodes)
-    if threshold is not None and threshold.mode == "step":
-        _warn_of_step_mode(threshold)
+    if threshold is not None and threshold.step_mode_warning:
+        warnings.warn(threshold.step_mode_warning, UserWarning, stacklevel=2)
     sinks = [] if mcap is None else [mcap]
     if args.rrd or args.spawn or args.serve or args.connect:
         sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect,
@@ -147,6 +153,7 @@ def _run(args: argparse.Namespace) -> int:
     files = {"McapSink": _files_written(mcap), "RerunSink": args.rrd}
     written = [str(p) for name, p in files.items() if p and name not in failures]
     console.print(rows.table(f"{args.task}/{agent.method} in {label}, onset {args.onset}"
+                             + (f", sensor noise {args.obs_noise:g}" if args.obs_noise else "")
                              + (f", {threshold.rule_text}" if threshold else ", no threshold")))
     if rows.left_out:
         console.print(f"{rows.left_out} episode{'s' if rows.left_out != 1 else ''} not shown"
@@ -224,22 +231,11 @@ def _warn_if_reused(threshold, detectors, seed: int, episodes: int) -> None:
                       f"their false alarms read low (another --seed: e.g. {free})", UserWarning, stacklevel=2)
 
 
-def _warn_of_step_mode(threshold) -> None:
-    """Warn that a threshold calibrated per step (``calibrate --mode step``, the paper's way of
-    scoring) bounds the share of ID steps above it, not of episodes: at 5% of a CartPole episode's
-    500 steps, nearly every ID episode alarms (2026-12-05: 20 of 20, 6 to 39 alarms each,
-    with no word of why)."""
-    import warnings
-
-    warnings.warn(f"this threshold was calibrated per step (mode 'step'): it bounds the share of ID steps above it "
-                  f"({threshold.far:g}), not of episodes, so most ID episodes will alarm at some step; for alarms, "
-                  "calibrate per episode (the default, without --mode step)", UserWarning, stacklevel=2)
-
-
 def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
     """``oodmon run``'s env and its label: the ``--variant`` (a variant of the agent's task, or a
     shift of your own model's env, shifting at ``--onset``), else your own model's env as you
-    deploy it, else the task's ID env."""
+    deploy it, else the task's ID env; with ``--obs-noise``'s sensor noise (oodmon's CartPole
+    and Pendulum envs only)."""
     from oodmon.envs import Variant, own_variant, parse_variant
     from oodmon.envs.registration import TASK_OF_ENV
 
@@ -250,17 +246,26 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
                           f"{args.task}:NAME=VALUE (numeric attributes of its env), or leave out --variant")
     # A shift of your own env's attributes; also of gymnasium's id of a task, where your own policy
     # acts (CartPole-v1:theta_threshold_radians=0.1: parse_env_shift refuses the task's physics there)
+    noise = args.obs_noise
+    if noise:  # a noise the env refuses, or an env without it: said before the run, as calibrate says it
+        agent.make_env(noise).close()
     if args.variant and not named_task and (args.task not in TASKS or agent.env_id is not None):
+        if noise:
+            raise ConfigError(f"--obs-noise is sensor noise of oodmon's envs, and {args.variant!r} shifts your own "
+                              "env: give its sensor faults in --variant (e.g. ENV_ID:obs.noise=0.1), or leave out "
+                              "--obs-noise" + (" (the threshold's is taken by default: give --obs-noise 0)"
+                                               if args.threshold else ""))
         shift = own_variant(args.variant, agent.env_id)
         return agent.wrap(shift.make(onset_step=args.onset)), shift.spec
+    noisy = {"obs_noise": noise} if noise else {}
     if args.variant:
         variant = parse_variant(args.variant)
         if variant.task != args.task:
             raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant")
-        return agent.wrap(variant.make(onset_step=args.onset)), variant.spec
+        return agent.wrap(variant.make(onset_step=args.onset, **noisy)), variant.spec
     if agent.env_id is not None:  # your own model in its own env, as you deploy it
-        return agent.make_env(), agent.env_id
-    return Variant(args.task).make(onset_step=args.onset), args.task
+        return agent.make_env(noise), agent.env_id
+    return Variant(args.task).make(onset_step=args.onset, **noisy), args.task
 
 
 class _EpisodeRows:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -161,7 +162,10 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     # counted when the real calibration has them.
     calibrate([np.zeros(max(steps, 1))] * episodes_needed(far, confidence), far, consecutive=consecutive, mode=mode,
               score=score, window=window, confidence=confidence, rule=rule, reference=placeholder, warmup=warmup)
+    if obs_noise:  # a noise the env refuses, or an env without it: said before the first episode
+        agent.make_env(obs_noise).close()
     needed = detectors.subset([detector]) if detectors is not None and detector != "spread" else None
+    _warn_of_other_noise(needed, obs_noise)
     held = _fitted_on(needed) | ({"reference": [seeds.REFERENCE, seeds.REFERENCE + reference_episodes]}
                                  if rule != "consecutive" else {})
     clashes, free = _overlaps(held, seed, episodes, seeds.CALIBRATION)
@@ -187,7 +191,20 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     used = {"calibration": [seed, seed + episodes]}
     if reference is not None:
         used["reference"] = [seeds.REFERENCE, seeds.REFERENCE + reference_episodes]
-    return replace(threshold, episode_seeds=used, workers=resolve_workers(workers, episodes))
+    return replace(threshold, episode_seeds=used, workers=resolve_workers(workers, episodes),
+                   obs_noise=float(obs_noise))
+
+
+def _warn_of_other_noise(detectors: DetectorSet | None, obs_noise: float) -> None:
+    """Warn where the learned detectors were fitted in a world of other sensor noise than the
+    calibration's: their ID scores there are not those they learned, so the threshold sits where the
+    noise puts it (the dynamics model learns the noise as variance, docs/detectors.md)."""
+    fitted = None if detectors is None else detectors.fitted_for.get("obs_noise")
+    if fitted is not None and float(fitted) != float(obs_noise):
+        warnings.warn(f"the detectors were fitted with sensor noise obs_noise={float(fitted):g} and the calibration "
+                      f"episodes have {float(obs_noise):g}: fit them in the world they will watch (`oodmon "
+                      f"fit-detectors --obs-noise {float(obs_noise):g}`, or calibrate without --detectors)",
+                      UserWarning, stacklevel=3)
 
 
 #: Detectors that score the change into an observation from the one before it (an episode's first
@@ -338,12 +355,13 @@ def check_fresh(threshold: Threshold, detectors: DetectorSet | None, seed: int, 
 
 
 def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, *, seed: int = seeds.VALIDATION,
-                       detectors: DetectorSet | None = None, obs_noise: float = 0.0, force: bool = False,
+                       detectors: DetectorSet | None = None, obs_noise: float | None = None, force: bool = False,
                        on_progress: Progress | None = None, workers: int = 1) -> Validation:
     """Play ``episodes`` fresh ID episodes (seeds ``seed`` on, apart from calibration's) under a
     :class:`Monitor` with ``threshold`` and count those that raised an alarm (in step mode: the
     steps above it): the realised false-alarm rate beside the target. ``workers``: processes that
-    play them side by side (0: one per core; see :func:`calibrate_agent`).
+    play them side by side (0: one per core; see :func:`calibrate_agent`). ``obs_noise``: the
+    episodes' sensor noise (``None``: the threshold's, ``Threshold.obs_noise``, 0 where it records none).
 
     Raises:
         InvalidParameterError: ``episodes`` is not a whole number >= 1.
@@ -359,6 +377,10 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
     seed = seeds.check_seed(seed)
     resolve_workers(workers, episodes)
+    if obs_noise is None:
+        obs_noise = threshold.obs_noise or 0.0
+    if obs_noise:  # as calibrate_agent: said before the first episode
+        agent.make_env(obs_noise).close()
     needed = detectors_read(threshold, detectors)
     check_fresh(threshold, needed, seed, episodes)
     scores, episode_alarms = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, stage="validation episodes",

@@ -330,6 +330,10 @@ class Threshold:
         workers: the processes its episodes were played in (:mod:`oodmon.side_by_side`): an MC
             agent's samples drew from one stream in one process, and from a stream per episode
             in two or more. ``None``: not recorded.
+        obs_noise: the sensor noise of the ID world it was calibrated in (oodmon's CartPole and
+            Pendulum envs' ``obs_noise``, a fraction of each reading's ID spread): ``oodmon
+            validate`` and ``oodmon run`` play that world unless told otherwise. ``None``: not
+            recorded (files written before 2026-12-05, or calibrated on scores alone); read as 0.
     """
 
     value: float
@@ -355,6 +359,7 @@ class Threshold:
     samples: int | None = None
     episode_seeds: dict[str, list[int]] | None = None
     workers: int | None = None
+    obs_noise: float | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -376,6 +381,18 @@ class Threshold:
             return f"a fresh ID {unit} alarms with probability at most {self.far:g}, on average over calibrations"
         return (f"with probability >= {self.confidence:g} over its {self.n_episodes} calibration episodes, this "
                 f"threshold's false-alarm rate per {unit} is <= {self.far:g}")
+
+    @property
+    def step_mode_warning(self) -> str | None:
+        """What to warn of before alarms are raised with this threshold (``oodmon run``,
+        ``watch(threshold=...)``): calibrated per step, it bounds the share of ID steps above it, not
+        of episodes, so nearly every ID episode alarms at some step (2026-12-05: 20 of 20 CartPole ID
+        episodes, 6 to 39 alarms each, with no word of why). ``None``: calibrated per episode."""
+        if self.mode != "step":
+            return None
+        return (f"this threshold was calibrated per step (mode 'step'): it bounds the share of ID steps above it "
+                f"({self.far:g}), not of episodes, so most ID episodes will alarm at some step; for alarms, "
+                "calibrate per episode (the default, without --mode step)")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self) | {"rule_text": self.rule_text}
@@ -492,6 +509,8 @@ def _check_fields(threshold: Threshold) -> None:
         raise bad("masks", f"use {', '.join(map(repr, MASKS))} or null")
     if threshold.workers is not None and not is_whole(threshold.workers):
         raise bad("workers", "it must be a whole number >= 1, or null")
+    if threshold.obs_noise is not None and not (is_number(threshold.obs_noise) and 0 <= threshold.obs_noise <= 10):
+        raise bad("obs_noise", "it must be a number in [0, 10] (a fraction of each reading's ID spread), or null")
     seeds = threshold.episode_seeds
     if seeds is not None and not (isinstance(seeds, dict) and all(
             isinstance(name, str) and isinstance(pair, (list, tuple)) and len(pair) == 2

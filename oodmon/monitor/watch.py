@@ -171,6 +171,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
         agent, alarm_threshold, detectors = _calibrated(policy, env_id, threshold, mean=mean, seed=seed, masks=masks,
                                                         vec_normalize=vec_normalize, frame_stack=frame_stack,
                                                         imports=imports, unsafe_load_pickles=unsafe_load_pickles)
+        if alarm_threshold.step_mode_warning:  # (as `oodmon run` warns of it)
+            warnings.warn(alarm_threshold.step_mode_warning, UserWarning, stacklevel=2)
     else:
         if not is_whole(episodes):
             raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID "

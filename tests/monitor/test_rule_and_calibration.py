@@ -583,10 +583,56 @@ def test_a_calibration_refuses_its_detectors_fitting_episodes_and_its_reference_
 @pytest.mark.parametrize("field, value", [("episode_seeds", {"calibration": [5]}),
                                           ("episode_seeds", {"calibration": [9, 3]}),
                                           ("episode_seeds", {"calibration": [-1, 3]}),
-                                          ("episode_seeds", [200_000, 200_050]), ("workers", 0), ("workers", 1.5)])
-def test_a_threshold_file_with_bad_seeds_or_workers_is_refused(tmp_path, field, value):
+                                          ("episode_seeds", [200_000, 200_050]), ("workers", 0), ("workers", 1.5),
+                                          ("obs_noise", -0.1), ("obs_noise", 11), ("obs_noise", "0.1"),
+                                          ("obs_noise", True)])
+def test_a_threshold_file_with_bad_seeds_workers_or_noise_is_refused(tmp_path, field, value):
     path = calibrate([np.zeros(5)] * 45, 0.05, consecutive=1).save(tmp_path / "t.json")
     data = json.loads(path.read_text())
     path.write_text(json.dumps({**data, field: value}))
     with pytest.raises(ConfigError, match=f"{field}=.* is not allowed"):
         Threshold.load(path)
+
+
+def test_a_calibration_in_a_noisy_world_records_its_noise_and_warns_of_detectors_fitted_without_it(monkeypatch):
+    """At 1% sensor noise the CartPole ensemble's shipped detectors (fitted without noise) put the
+    combined threshold at 159,271 against 5.12 refitted, and a doubled gravity from step 100 then
+    alarmed 0 of 20 episodes against 2 (2026-12-05): calibrating a learned detector in another world
+    than it was fitted in is warned of; the spread, which learned no world, is not. The noise is
+    recorded, and validation plays it unless told otherwise."""
+    from oodmon.agents import load
+    from oodmon.monitor import calibrate_agent, validate_threshold
+    from oodmon.monitor.detectors import detectors_for
+
+    agent = load("cartpole", "ensemble")
+    shipped = detectors_for(agent)
+    assert shipped.fitted_for["obs_noise"] == 0.0
+    played = []
+
+    def stop(_agent, _episodes, *, obs_noise, **__):
+        played.append(obs_noise)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("oodmon.monitor.calibration.id_episode_scores", stop)
+    with pytest.warns(UserWarning, match=r"fitted with sensor noise obs_noise=0 and the calibration episodes have "
+                                         r"0\.01: fit them in the world they will watch \(`oodmon fit-detectors "
+                                         r"--obs-noise 0\.01`"), pytest.raises(KeyboardInterrupt):
+        calibrate_agent(agent, 50, detectors=shipped, detector="combined", obs_noise=0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for detector, noise in (("spread", 0.01), ("combined", 0.0)):
+            with pytest.raises(KeyboardInterrupt):
+                calibrate_agent(agent, 50, detectors=shipped, detector=detector, obs_noise=noise)
+    assert played == [0.01, 0.01, 0.0]
+    with pytest.raises(InvalidParameterError, match="obs_noise=11.0 is not allowed"):  # before any episode
+        calibrate_agent(agent, 50, detector="spread", obs_noise=11.0)
+    assert played == [0.01, 0.01, 0.0]
+    monkeypatch.undo()
+    threshold = calibrate_agent(agent, 11, 0.2, detector="spread", obs_noise=0.01, confidence=None)
+    assert threshold.obs_noise == 0.01
+    noisy, plain = [], []
+    for found, noise in ((noisy, None), (plain, 0.0)):
+        monkeypatch.setattr("oodmon.monitor.calibration._play_id_episodes",
+                            lambda _a, _e, _s, obs_noise, *_, found=found, **__: found.append(obs_noise) or ([], []))
+        validate_threshold(agent, threshold, 1, obs_noise=noise)
+    assert (noisy, plain) == ([0.01], [0.0])
