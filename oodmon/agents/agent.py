@@ -184,24 +184,45 @@ class Agent:
             env = gymnasium.wrappers.FlattenObservation(env)
         return env
 
-    def make_env(self, obs_noise: float = 0.0) -> gymnasium.Env:
-        """The ID env this agent acts in: its task's oodmon env, or the gymnasium env id it was
-        loaded for (``gymnasium.make(env_id)``; sensor noise is oodmon's envs' option only), with
-        the agent's observations (:meth:`wrap`)."""
-        from oodmon.envs.grid import Variant
-        from oodmon.envs.physics import PHYSICS_DEFAULTS
-        from oodmon.envs.registration import make_env, task_of_env
+    def check_noise(self, obs_noise: float) -> str | None:
+        """The oodmon task whose env plays sensor noise ``obs_noise`` for this agent (``None``: no
+        noise), checked without making an env: what :meth:`make_env` would refuse, said before the
+        first episode of a calibration, a validation or a run.
 
-        if self.env_id is not None and not obs_noise:
-            return self.wrap(make_env(self.env_id))  # the user's own env, exactly as they deploy in it
+        Raises:
+            ConfigError: noise for an env oodmon has no variants of, or for Pong (whose env read
+                it as a corruption's parameter before 2026-12-05).
+            InvalidParameterError: noise outside [0, 10].
+        """
+        from oodmon.envs.grid import ENV_IDS
+        from oodmon.envs.physics import PHYSICS_DEFAULTS, check_obs_noise
+        from oodmon.envs.registration import task_of_env
+
+        if not obs_noise:
+            return None
         task = self.task if self.env_id is None else task_of_env(self.env_id)  # oodmon's env of that task
         if task is None:
             raise ConfigError(f"obs_noise is an option of oodmon's envs; {self.env_id} has no such option")
-        if obs_noise and task not in PHYSICS_DEFAULTS:  # (Pong's env read it as a corruption's parameter)
+        if task not in PHYSICS_DEFAULTS:
             raise ConfigError(f"obs_noise (--obs-noise) is sensor noise of oodmon's {' and '.join(PHYSICS_DEFAULTS)} "
                               f"envs; {task} has none: its variants corrupt the frames instead "
                               f"(`oodmon envs --task {task}`), and its ID world is noiseless")
-        return Variant(task).make(obs_noise=obs_noise) if obs_noise else Variant(task).make()
+        check_obs_noise(ENV_IDS[task], obs_noise)
+        return task
+
+    def make_env(self, obs_noise: float = 0.0) -> gymnasium.Env:
+        """The ID env this agent acts in: its task's oodmon env, or the gymnasium env id it was
+        loaded for (``gymnasium.make(env_id)``; sensor noise is oodmon's envs' option only, see
+        :meth:`check_noise`), with the agent's observations (:meth:`wrap`)."""
+        from oodmon.envs.grid import Variant
+        from oodmon.envs.registration import make_env
+
+        noisy = self.check_noise(obs_noise)
+        if noisy is not None:
+            return Variant(noisy).make(obs_noise=obs_noise)
+        if self.env_id is not None:
+            return self.wrap(make_env(self.env_id))  # the user's own env, exactly as they deploy in it
+        return Variant(self.task).make()
 
     def __repr__(self) -> str:
         ret = self.metadata.get("id_return_mean")

@@ -235,7 +235,7 @@ def _validate(args: argparse.Namespace) -> int:
                                     obs_noise=args.obs_noise, force=args.force, on_progress=report,
                                     workers=args.workers)
     unit = "episodes" if threshold.mode == "episode" else "steps"
-    noise = (threshold.obs_noise or 0.0) if args.obs_noise is None else args.obs_noise
+    noise = result.obs_noise  # (the threshold's, unless --obs-noise)
     if args.json:
         print(json.dumps({"threshold": str(args.threshold), "task": agent.task, "method": agent.method,
                           "detector": threshold.detector, "rule": threshold.rule_text, "unit": unit,

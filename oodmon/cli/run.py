@@ -245,8 +245,7 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
                           f"{', '.join(sorted(TASK_OF_ENV))}; shift {args.task} itself with --variant "
                           f"{args.task}:NAME=VALUE (numeric attributes of its env), or leave out --variant")
     noise = args.obs_noise
-    if noise:  # a noise the env refuses, or an env without it: said before the run, as calibrate says it
-        agent.make_env(noise).close()
+    agent.check_noise(noise)  # a noise the env refuses, or an env without it: said before the run, as calibrate says it
     # A shift of your own env's attributes; also of gymnasium's id of a task, where your own policy
     # acts (CartPole-v1:theta_threshold_radians=0.1: parse_env_shift refuses the task's physics there)
     if args.variant and not named_task and (args.task not in TASKS or agent.env_id is not None):

@@ -162,8 +162,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     # counted when the real calibration has them.
     calibrate([np.zeros(max(steps, 1))] * episodes_needed(far, confidence), far, consecutive=consecutive, mode=mode,
               score=score, window=window, confidence=confidence, rule=rule, reference=placeholder, warmup=warmup)
-    if obs_noise:  # a noise the env refuses, or an env without it: said before the first episode
-        agent.make_env(obs_noise).close()
+    agent.check_noise(obs_noise)  # a noise the env refuses, or an env without it: said before the first episode
     needed = detectors.subset([detector]) if detectors is not None and detector != "spread" else None
     _warn_of_other_noise(needed, obs_noise)
     held = _fitted_on(needed) | ({"reference": [seeds.REFERENCE, seeds.REFERENCE + reference_episodes]}
@@ -200,10 +199,10 @@ def _warn_of_other_noise(detectors: DetectorSet | None, obs_noise: float) -> Non
     calibration's: their ID scores there are not those they learned, so the threshold sits where the
     noise puts it (the dynamics model learns the noise as variance, docs/detectors.md)."""
     fitted = None if detectors is None else detectors.fitted_for.get("obs_noise")
-    if fitted is not None and float(fitted) != float(obs_noise):
-        warnings.warn(f"the detectors were fitted with sensor noise obs_noise={float(fitted):g} and the calibration "
-                      f"episodes have {float(obs_noise):g}: fit them in the world they will watch (`oodmon "
-                      f"fit-detectors --obs-noise {float(obs_noise):g}`, or calibrate without --detectors)",
+    if fitted is not None and fitted != obs_noise:
+        warnings.warn(f"the detectors were fitted with sensor noise obs_noise={fitted:g} and the calibration "
+                      f"episodes have {obs_noise:g}: fit them in the world they will watch (`oodmon "
+                      f"fit-detectors --obs-noise {obs_noise:g}`, or calibrate without --detectors)",
                       UserWarning, stacklevel=3)
 
 
@@ -261,6 +260,7 @@ class Validation:
         total: episodes (steps) played.
         far, confidence: the threshold's target and the confidence of its bound.
         low, high: the 95% Clopper-Pearson interval of the realised false-alarm rate.
+        obs_noise: the sensor noise of the episodes played.
     """
 
     alarmed: int
@@ -269,6 +269,7 @@ class Validation:
     confidence: float | None
     low: float
     high: float
+    obs_noise: float = 0.0
 
     @property
     def rate(self) -> float:
@@ -379,8 +380,7 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
     resolve_workers(workers, episodes)
     if obs_noise is None:
         obs_noise = threshold.obs_noise or 0.0
-    if obs_noise:  # as calibrate_agent: said before the first episode
-        agent.make_env(obs_noise).close()
+    agent.check_noise(obs_noise)  # as calibrate_agent: said before the first episode
     needed = detectors_read(threshold, detectors)
     check_fresh(threshold, needed, seed, episodes)
     scores, episode_alarms = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, stage="validation episodes",
@@ -391,4 +391,4 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
         steps = np.concatenate(scores)
         alarmed, total = int(np.sum(steps > threshold.value)), len(steps)
     low, high = clopper_pearson(int(alarmed), total)
-    return Validation(int(alarmed), total, threshold.far, threshold.confidence, low, high)
+    return Validation(int(alarmed), total, threshold.far, threshold.confidence, low, high, float(obs_noise))

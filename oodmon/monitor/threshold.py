@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from oodmon.envs.physics import check_obs_noise
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.hashing import other_weights
 from oodmon.jsonfile import read_json, write_json
@@ -509,8 +510,8 @@ def _check_fields(threshold: Threshold) -> None:
         raise bad("masks", f"use {', '.join(map(repr, MASKS))} or null")
     if threshold.workers is not None and not is_whole(threshold.workers):
         raise bad("workers", "it must be a whole number >= 1, or null")
-    if threshold.obs_noise is not None and not (is_number(threshold.obs_noise) and 0 <= threshold.obs_noise <= 10):
-        raise bad("obs_noise", "it must be a number in [0, 10] (a fraction of each reading's ID spread), or null")
+    if threshold.obs_noise is not None:
+        check_obs_noise("a threshold file", threshold.obs_noise)  # the envs' own bounds
     seeds = threshold.episode_seeds
     if seeds is not None and not (isinstance(seeds, dict) and all(
             isinstance(name, str) and isinstance(pair, (list, tuple)) and len(pair) == 2
