@@ -134,7 +134,8 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 
 
 def _read_logs(paths: Sequence[str]):
-    from oodmon.replay import made_from_episodes, pooled_fits, pooled_thresholds, pooled_weights, read_logs
+    from oodmon.replay import (made_from_episodes, pooled_fits, pooled_noise, pooled_thresholds, pooled_weights,
+                               read_logs)
     from oodmon.replay.metrics import ended_before_onset
     from oodmon.seeds import EPISODE_USES
 
@@ -155,6 +156,10 @@ def _read_logs(paths: Sequence[str]):
         print(f"oodmon: note: the {task}/{method} logs raised their alarms by {len(by_threshold)} thresholds "
               f"({_logs_by(by_threshold, 60)}): each detector's row counts the alarms of its own runs, but "
               "`--monitor` counts a variant's alarms together; replay each threshold's logs apart", file=sys.stderr)
+    for (task, method), by_noise in pooled_noise(logs).items():
+        print(f"oodmon: note: the {task}/{method} rows pool episodes played at {len(by_noise)} sensor noises "
+              f"({_logs_by(by_noise)}): a noisy sensor moves every detector's ID scores, so their AUROC ranks one "
+              "world's steps against another's; replay each noise's logs apart", file=sys.stderr)
     for (task, method), by_use in made_from_episodes(logs).items():
         uses = " and ".join(f"{count} of {EPISODE_USES.get(use, use)} episodes" for use, count in by_use.items())
         print(f"oodmon: note: the {task}/{method} logs played {uses} in the ID env (the same reset seeds): they "
@@ -197,6 +202,7 @@ def _check(args: argparse.Namespace) -> int:
 
     from oodmon.outputs import check_output_file, replaced_file
     from oodmon.replay import baseline_of, compute_all_metrics, find_falls, load_baseline
+    from oodmon.replay.check import noise_differences, noise_of_logs
 
     if args.update:
         check_output_file(args.baseline, parameter="--baseline", inputs=[("a log", log) for log in args.logs])
@@ -210,10 +216,13 @@ def _check(args: argparse.Namespace) -> int:
     console = Console(soft_wrap=True)
     if args.update:
         tolerance = 0.02 if args.tolerance is None else args.tolerance
-        write_json(args.baseline, baseline_of(metrics, tolerance))
+        write_json(args.baseline, baseline_of(metrics, tolerance, noise_of_logs(logs)))
         console.print(f"wrote {args.baseline}: {len(metrics)} rows, tolerance {tolerance}{partial}"
                       + (f" (replacing the baseline it held: {len(replaced['metrics'])} rows)" if replaced else ""))
         return 0
+    for line in noise_differences(noise_of_logs(logs), baseline):
+        print(f"oodmon: note: {line}: a noisy sensor moves every detector's scores, so a fall there may be the "
+              "world's, not the policy's or the code's", file=sys.stderr)
     within: list[str] = []
     falls = find_falls(metrics, baseline, args.tolerance, within=within)
     for line in within:

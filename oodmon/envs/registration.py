@@ -6,7 +6,7 @@ from typing import Any
 
 import gymnasium
 
-__all__ = ["TASK_OF_ENV", "env_id_of", "make_env", "onset_of_env", "register_envs", "task_of_env", "variant_of_env"]
+__all__ = ["TASK_OF_ENV", "env_id_of", "make_env", "obs_noise_of_env", "onset_of_env", "register_envs", "task_of_env", "variant_of_env"]
 
 #: The oodmon task whose variants shift an env: gymnasium's own ids and oodmon's (the same
 #: physics, observations and spaces; oodmon's can shift).
@@ -124,6 +124,19 @@ def onset_of_env(env: gymnasium.Env) -> int:
     """
     shift = _shift_wrapper(env)
     return int(shift.onset_step if shift is not None else getattr(env.unwrapped, "onset_step", 0))
+
+
+def obs_noise_of_env(env: gymnasium.Env) -> float:
+    """The sensor noise of ``env``: oodmon's CartPole's and Pendulum's ``obs_noise`` (the noise's std
+    as a fraction of each observation dimension's ID spread), else 0.
+
+    Example:
+        >>> obs_noise_of_env(gymnasium.make("oodmon/CartPole-v1", obs_noise=0.01)), obs_noise_of_env(gymnasium.make("Acrobot-v1"))
+        (0.01, 0.0)
+    """
+    from oodmon.envs.physics import _ShiftPhysics
+
+    return float(env.unwrapped.obs_noise) if isinstance(env.unwrapped, _ShiftPhysics) else 0.0
 
 
 def register_envs() -> None:

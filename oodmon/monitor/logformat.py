@@ -20,7 +20,10 @@ metadata, absent before 3):
    most its last segment's steps that had not reached the disk. An episode shorter than a
    segment is written as in format 5 (one message, no ``start``);
 7. ``first_alarm_cause`` in episode messages: what raised the first alarm's score (the alarm's
-   detector, or the member ``combined`` ranked highest; ``AlarmEvent.cause``).
+   detector, or the member ``combined`` ranked highest; ``AlarmEvent.cause``);
+8. ``obs_noise`` in episode and episode start messages: the env's sensor noise (oodmon's CartPole
+   and Pendulum ``obs_noise``; 0 for any other env). Replay reads an older log's episodes as
+   noiseless, which they were unless played in a noisy env with ``oodmon bench`` or your own code.
 
 A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
@@ -54,7 +57,7 @@ __all__ = [
     "RUN_METADATA", "STEP", "STEP_SCHEMA", "decode_array", "encode_episode_scores",
 ]
 
-FORMAT_VERSION = 7
+FORMAT_VERSION = 8
 STEP, EPISODE, EPISODE_SCORES = "/oodmon/step", "/oodmon/episode", "/oodmon/episode_scores"
 EPISODE_START = "/oodmon/episode_start"
 ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
@@ -104,6 +107,8 @@ EPISODE_SCHEMA: dict[str, Any] = _object("oodmon.Episode", {
                    "description": "the env ended the episode (not a time limit, not an alarm; since format 4)"},
     "first_alarm_cause": {"type": ["string", "null"],
                           "description": "what raised the first alarm's score (since format 7)"},
+    "obs_noise": {"type": "number", "description": "the env's sensor noise: its std as a fraction of each observation "
+                                                   "dimension's ID spread (since format 8; absent: 0)"},
 }, required=["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"])
 
 
@@ -112,10 +117,12 @@ def _per_step(values: str) -> dict[str, str]:
     return {"type": "string", "contentEncoding": "base64", "description": f"{values} per step"}
 
 
-#: An episode's start (format 5): the fields of its episode message known at its first step.
+#: An episode's start (format 5): the fields of its episode message known at its first step
+#: (``obs_noise`` since format 8).
 _START_FIELDS = ["episode", "env_id", "variant", "onset", "seed"]
 EPISODE_START_SCHEMA: dict[str, Any] = _object(
-    "oodmon.EpisodeStart", {name: EPISODE_SCHEMA["properties"][name] for name in _START_FIELDS}, required=_START_FIELDS)
+    "oodmon.EpisodeStart", {name: EPISODE_SCHEMA["properties"][name] for name in [*_START_FIELDS, "obs_noise"]},
+    required=_START_FIELDS)
 
 EPISODE_SCORES_SCHEMA: dict[str, Any] = _object("oodmon.EpisodeScores", {
     "episode": {"type": "integer"},

@@ -36,7 +36,7 @@ import numpy as np
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import Estimate, UncertaintyEstimator
 from oodmon.envs.checks import step_naming_refusal
-from oodmon.envs.registration import env_id_of, onset_of_env, variant_of_env
+from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
@@ -48,7 +48,7 @@ from oodmon.monitor.threshold import Threshold
 from oodmon.progress import Progress
 from oodmon.versions import library_versions, machine
 from oodmon.hashing import file_sha256, other_weights
-from oodmon.validation import is_real, is_whole
+from oodmon.validation import is_finite_real, is_real, is_whole
 
 __all__ = ["SEGMENT_STEPS", "AlarmCallback", "Monitor", "NonFiniteObservationWarning", "PolicyCannotAct"]
 
@@ -426,10 +426,16 @@ class Monitor:
         self.close()
 
     # -- an episode ----------------------------------------------------------------------------
-    def begin_episode(self, *, env_id: str = "", variant: str = "", onset: int = 0, seed: int | None = None) -> None:
+    def begin_episode(self, *, env_id: str = "", variant: str = "", onset: int = 0, seed: int | None = None,
+                      obs_noise: float = 0.0) -> None:
         """Begin an episode. One still running ends here, as an env's reset ends it (with no step
         scored it is forgotten): before 2026-12-01 its record was dropped, so a loop of your own
-        that never called :meth:`end_episode` logged steps under no episode, and replay found none."""
+        that never called :meth:`end_episode` logged steps under no episode, and replay found none.
+        ``obs_noise``: the env's sensor noise, recorded with the episode (replay says when it pools
+        episodes played at several)."""
+        if not is_finite_real(obs_noise) or obs_noise < 0:
+            raise InvalidParameterError(f"obs_noise={obs_noise!r} is not allowed; it is the env's sensor noise, a "
+                                        "number >= 0 (0: none)")
         self.open()
         if self._in_episode and not self.abandon_empty_episode():
             self.end_episode()
@@ -443,7 +449,7 @@ class Monitor:
         own = self.agent.env_id if self.agent is not None else None
         if own and variant and variant == own.rpartition(":")[2]:  # the agent's env, registered in a module of yours:
             variant = own  # named by the id you gave (my_envs:MyEnv-v0), as calibration names it; the env knows MyEnv-v0
-        self._episode_info = dict(env_id=env_id, variant=variant, onset=onset, seed=seed)
+        self._episode_info = dict(env_id=env_id, variant=variant, onset=onset, seed=seed, obs_noise=float(obs_noise))
         self._episode_task = self.agent.task if self.agent is not None else variant.split(":")[0]  # render's
         self._return, self._length, self._alarms, self._first_alarm, self._first_cause = 0.0, 0, 0, None, None
         self._rewards: list[float] = []  # the current segment's
@@ -648,7 +654,7 @@ class Monitor:
         """
         obs, info = env.reset(seed=seed, options=options)
         self.begin_episode(env_id=env_id_of(env), variant=variant or variant_of_env(env), onset=onset_of_env(env),
-                           seed=seed)
+                           seed=seed, obs_noise=obs_noise_of_env(env))
         self._tell_masks(env)
         try:
             while True:

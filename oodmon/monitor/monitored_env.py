@@ -17,7 +17,7 @@ import gymnasium
 
 from oodmon.agents.agent import Agent
 from oodmon.envs.checks import space_mismatch, step_naming_refusal
-from oodmon.envs.registration import env_id_of, onset_of_env, variant_of_env, wrappers_of
+from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env, wrappers_of
 from oodmon.errors import ConfigError
 from oodmon.monitor.monitor import Monitor, NonFiniteObservationWarning, PolicyCannotAct, _frame
 
@@ -108,7 +108,7 @@ class MonitoredEnv(gymnasium.Wrapper):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)  # (an episode still running ends at begin_episode)
         self.monitor.begin_episode(env_id=env_id_of(self.env), variant=self.variant or variant_of_env(self.env),
-                                   onset=onset_of_env(self.env), seed=seed)
+                                   onset=onset_of_env(self.env), seed=seed, obs_noise=obs_noise_of_env(self.env))
         self.monitor._episode_owner = weakref.ref(self)  # weak: a monitor does not keep an old env alive
         self.monitor._tell_masks(self.env)
         self._obs, self._info = obs, info

@@ -65,10 +65,11 @@ class EpisodeStart:
     variant: str = ""
     onset: int = 0
     seed: int | None = None
+    obs_noise: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         return {"episode": self.episode, "env_id": self.env_id, "variant": self.variant, "onset": self.onset,
-                "seed": self.seed}
+                "seed": self.seed, "obs_noise": self.obs_noise}
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,9 @@ class EpisodeRecord:
         first_alarm_cause: what raised the first alarm's score (:attr:`AlarmEvent.cause
             <oodmon.monitor.alarms.AlarmEvent.cause>`), or ``None`` (no alarm; logs older than
             format 7; an episode cut at a tear).
+        obs_noise: the env's sensor noise (``obs_noise`` of oodmon's CartPole and Pendulum: its std
+            as a fraction of each observation dimension's ID spread); 0 for any other env, and in
+            logs older than format 8.
         rewards: the reward of each step (what ``add_reward`` received), logged in the episode's
             score arrays; ``None`` where they were not given step by step, or the episode was
             longer than a segment (``Monitor(segment_steps=)``: the log holds them by segment).
@@ -126,6 +130,7 @@ class EpisodeRecord:
     interrupted: bool = False
     terminated: bool | None = None
     first_alarm_cause: str | None = None
+    obs_noise: float = 0.0
     rewards: tuple[float, ...] | None = field(default=None, repr=False, compare=False)
 
     @property
@@ -154,7 +159,7 @@ class EpisodeRecord:
         return {"episode": self.episode, "env_id": self.env_id, "variant": self.variant, "onset": self.onset,
                 "seed": self.seed, "return": self.total_return, "length": self.length, "alarms": self.alarms,
                 "first_alarm_step": self.first_alarm_step, "interrupted": self.interrupted,
-                "terminated": self.terminated, "first_alarm_cause": self.first_alarm_cause}
+                "terminated": self.terminated, "first_alarm_cause": self.first_alarm_cause, "obs_noise": self.obs_noise}
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ import gymnasium
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from oodmon.envs.registration import env_id_of, task_of_env, variant_of_env
+from oodmon.envs.registration import env_id_of, obs_noise_of_env, task_of_env, variant_of_env
 from oodmon.monitor.monitor import Monitor, _frame
 
 __all__ = ["MonitorCallback"]
@@ -52,14 +52,15 @@ class MonitorCallback(BaseCallback):
         """Alarms the monitor raised so far."""
         return self.monitor.alarms_raised
 
-    def _variant(self) -> tuple[str, str]:
-        """``(env_id, variant)`` of the first env, read from it where the vector env holds it here."""
+    def _variant(self) -> tuple[str, str, float]:
+        """``(env_id, variant, obs_noise)`` of the first env, read from it where the vector env holds
+        it here (else its id, and no sensor noise)."""
         envs = getattr(self.training_env, "envs", None)
         if envs:
-            return env_id_of(envs[0]), variant_of_env(envs[0])
+            return env_id_of(envs[0]), variant_of_env(envs[0]), obs_noise_of_env(envs[0])
         spec = self.training_env.get_attr("spec", [0])[0]
         spec_id = spec.id if spec is not None else "unknown"
-        return spec_id, task_of_env(spec_id) or spec_id
+        return spec_id, task_of_env(spec_id) or spec_id, 0.0
 
     def _raw(self, observations: np.ndarray) -> np.ndarray:
         """The first env's observation as the env gave it: before the model's VecNormalize, if any
@@ -86,8 +87,8 @@ class MonitorCallback(BaseCallback):
     def _on_step(self) -> bool:
         monitor = self.monitor
         if not monitor.in_episode:
-            env_id, variant = self._variant()
-            monitor.begin_episode(env_id=env_id, variant=variant)
+            env_id, variant, obs_noise = self._variant()
+            monitor.begin_episode(env_id=env_id, variant=variant, obs_noise=obs_noise)
         obs = self._obs
         self._obs = self._raw(self.locals["new_obs"])  # after an episode's end, the next one's first
         actions = self.locals.get("clipped_actions", self.locals["actions"])  # what the env got (PPO clips)

@@ -8,7 +8,8 @@ from __future__ import annotations
 from oodmon.replay.check import baseline_of, check_tolerance, find_falls, load_baseline
 from oodmon.replay.metrics import (
     MonitorMetrics, VariantMetrics, alarm_events, compute_all_metrics, compute_metrics, compute_monitor_metrics,
-    detectors_in, failed_episodes, fpr_at_tpr, made_from_episodes, pooled_fits, pooled_thresholds, pooled_weights,
+    detectors_in, failed_episodes, fpr_at_tpr, made_from_episodes, pooled_fits, pooled_noise, pooled_thresholds,
+    pooled_weights,
 )
 from oodmon.replay.failures import failure_step
 from oodmon.replay.parts import MissingParts, missing_parts
@@ -44,6 +45,7 @@ __all__ = [
     "monitor_summary",
     "monitor_table",
     "pooled_fits",
+    "pooled_noise",
     "pooled_thresholds",
     "pooled_weights",
     "read_log",

@@ -23,7 +23,7 @@ monitor bench, shares the level otherwise and pools the variants: :mod:`oodmon.b
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -31,11 +31,12 @@ import numpy as np
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import read_json
 from oodmon.replay.metrics import VariantMetrics
+from oodmon.replay.reader import RunLog
 from oodmon.validation import is_finite_real, is_whole
 
 __all__ = ["CHANCE", "HIGHER_IS_BETTER", "LOWER_IS_BETTER", "Odds", "baseline_of", "check_tolerance", "compare_metrics",
-           "MOST_EPISODES", "find_falls", "load_baseline", "mann_whitney_greater", "mid_ranks", "stratified_exact",
-           "u_variance"]
+           "MOST_EPISODES", "find_falls", "load_baseline", "mann_whitney_greater", "mid_ranks", "noise_differences",
+           "noise_of_logs", "stratified_exact", "u_variance"]
 
 HIGHER_IS_BETTER = ("auroc", "aupr", "detection_rate")
 LOWER_IS_BETTER = ("fpr_at_95_tpr", "false_alarm_rate", "early_alarm_rate", "delay_mean")
@@ -44,18 +45,45 @@ EPISODE_RATES = ("false_alarm_rate", "early_alarm_rate", "detection_rate")
 #: The chance that a check of unchanged code finds an episode rate fallen (see the module docstring).
 CHANCE = 0.01
 COUNT, DELAYS = "alarm_episodes", "delays"
+#: A baseline's sensor noises by task/method (:func:`noise_of_logs`), since 2026-12-05.
+NOISE = "obs_noise"
 #: The episodes the detection rate counts where fewer than ``alarm_episodes``: those in which the
 #: shift began (the others ended before their onset); a row without it counts ``alarm_episodes``.
 SHIFTED = "shifted_episodes"
 _NOT_FIGURES = (COUNT, DELAYS, SHIFTED)  # what a row keeps to weigh its figures by, not figures
 
 
-def baseline_of(metrics: Sequence[VariantMetrics], tolerance: float) -> dict:
-    """The baseline that ``metrics`` would write (``oodmon check --update``)."""
+def baseline_of(metrics: Sequence[VariantMetrics], tolerance: float,
+                noise: dict[str, list[float]] | None = None) -> dict:
+    """The baseline that ``metrics`` would write (``oodmon check --update``); ``noise``: the sensor
+    noises their episodes were played at, by ``task/method`` (:func:`noise_of_logs`), kept as
+    ``obs_noise`` (since 2026-12-05) so that a check of logs played at others says so."""
     return {
         "tolerance": tolerance,
         "metrics": {m.key: _row(m, keep_none=False) for m in metrics},
-    }
+    } | ({NOISE: noise} if noise else {})
+
+
+def noise_of_logs(logs: Iterable[RunLog]) -> dict[str, list[float]]:
+    """The sensor noises the logs' complete episodes were played at (each episode's ``obs_noise``;
+    0 in logs older than format 8), by ``task/method``, each list sorted."""
+    found: dict[str, set[float]] = {}
+    for log in logs:
+        found.setdefault(f"{log.task}/{log.method}", set()).update(e.obs_noise for e in log.episodes)
+    return {group: sorted(noises) for group, noises in found.items() if noises}
+
+
+def noise_differences(noise: dict[str, list[float]], baseline: dict) -> list[str]:
+    """One line per ``task/method`` whose episodes were played at other sensor noises than the
+    baseline's (a baseline written before 2026-12-05 records none: nothing to compare): a noisy
+    sensor moves every detector's scores, so a fall there may be the world's, not the code's."""
+    before = baseline.get(NOISE, {})
+
+    def said(noises: list[float]) -> str:
+        return ", ".join(f"{n:g}" for n in noises)
+
+    return [f"the {group} logs were played at sensor noise {said(noises)}, the baseline's at {said(before[group])}"
+            for group, noises in noise.items() if group in before and sorted(before[group]) != noises]
 
 
 def _row(m: VariantMetrics, *, keep_none: bool) -> dict:
@@ -108,6 +136,11 @@ def load_baseline(path: str | Path) -> dict:
                 raise ConfigError(f"{path}: metrics[{key!r}][{name!r}]={value!r:.40} is not allowed; give a finite number")
     if "tolerance" in data:
         check_tolerance(data["tolerance"], f"{path}: tolerance")
+    noise = data.get(NOISE, {})
+    if not isinstance(noise, dict) or not all(
+            isinstance(v, list) and all(is_finite_real(n) and n >= 0 for n in v) for v in noise.values()):
+        raise ConfigError(f"{path}: {NOISE}={noise!r:.60} is not allowed; give the sensor noises each task/method's "
+                          "episodes were played at, as lists of numbers >= 0 by task/method")
     return data
 
 

@@ -30,7 +30,7 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 __all__ = ["EpisodeAlarms", "MonitorMetrics", "VariantMetrics", "alarm_events", "average_precision",
            "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "ended_before_onset", "detectors_in",
            "env_of_variant", "failed_episodes", "fpr_at_tpr", "is_id_variant", "made_from_episodes", "monitor_row",
-           "pooled_fits", "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
+           "pooled_fits", "pooled_noise", "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
 
 
 @dataclass(frozen=True)
@@ -243,6 +243,29 @@ def pooled_thresholds(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str,
     """
     return _pooled((log, (log.task, log.method), f"{log.detector} > {log.threshold:.6g} ({log.metadata.get('rule', '')})")
                    for log in logs if log.has_threshold)
+
+
+def pooled_noise(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, list[Path]]]:
+    """The (task, method) groups whose episodes were played at more than one sensor noise (each
+    episode's ``obs_noise``, logs since format 8; older logs' read as 0): their logs by noise, a log
+    under each noise it played. A noisy sensor moves every detector's ID scores (and the learned
+    ones', fitted without noise, far), so a row that pools them ranks one world's steps against
+    another's.
+
+    Example:
+        >>> from oodmon.replay.reader import RunLog
+        >>> from oodmon.monitor.records import EpisodeRecord
+        >>> def run(name, *noises):
+        ...     played = [EpisodeRecord(0, "oodmon/CartPole-v1", "cartpole", 0, 0, 9.0, 9, 0, None, obs_noise=n) for n in noises]
+        ...     return RunLog(Path(name), "cartpole", "ensemble", 1.0, {}, played, True)
+        >>> pooled_noise([run("a.mcap", 0.0), run("b.mcap", 0.01, 0.01)])
+        {('cartpole', 'ensemble'): {'0': [PosixPath('a.mcap')], '0.01': [PosixPath('b.mcap')]}}
+        >>> pooled_noise([run("a.mcap", 0.05), run("b.mcap", 0.05)])  # one noise: nothing pooled
+        {}
+    """
+    played = sorted(((noise, log) for log in logs for noise in {e.obs_noise for e in log.episodes}),
+                    key=lambda pair: pair[0])  # the quietest first
+    return _pooled((log, (log.task, log.method), f"{noise:g}") for noise, log in played)
 
 
 def made_from_episodes(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, int]]:

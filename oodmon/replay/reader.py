@@ -28,6 +28,7 @@ from oodmon.monitor import logformat
 from oodmon.monitor.logformat import decode_array
 from oodmon.monitor.records import EpisodeRecord
 from oodmon.replay.parts import missing_parts, without_copies
+from oodmon.validation import is_finite_real
 
 __all__ = ["EpisodeLog", "MissingPartWarning", "NewerFormatWarning", "RecoveryWarning", "RunLog", "SkippedLogWarning",
            "read_log", "read_logs"]
@@ -135,6 +136,10 @@ def _episode(path: Path, row: dict, arrays: dict, alarm_detector: str = "spread"
         if not isinstance(row.get(name), kind) or isinstance(row.get(name), bool):
             raise LogFormatError(f"{path}: episode record {row.get('episode', '?')!r} has {name}={row.get(name)!r}; "
                                  "not a log oodmon wrote (or a damaged one)")
+    noise = row.get("obs_noise", 0.0)  # format 8; before it, none recorded
+    if not is_finite_real(noise) or noise < 0:
+        raise LogFormatError(f"{path}: episode record {row['episode']!r} has obs_noise={noise!r}; not a log oodmon "
+                             "wrote (or a damaged one)")
     scores, shifted, alarm, rewards = arrays["score"], arrays["shifted"], arrays["alarm"], arrays["rewards"]
     detectors = arrays["detectors"] or {alarm_detector: scores}
     if any(len(a) != row["length"] for a in (scores, shifted, alarm, *detectors.values(),
@@ -147,7 +152,7 @@ def _episode(path: Path, row: dict, arrays: dict, alarm_detector: str = "spread"
         first_alarm_step=row.get("first_alarm_step"), interrupted=bool(row.get("interrupted", False)),
         terminated=row.get("terminated") if isinstance(row.get("terminated"), bool) else None,
         first_alarm_cause=row.get("first_alarm_cause") if isinstance(row.get("first_alarm_cause"), str) else None,
-        scores=scores, shifted=shifted, alarm=alarm, detector_scores=detectors, rewards=rewards,
+        obs_noise=float(noise), scores=scores, shifted=shifted, alarm=alarm, detector_scores=detectors, rewards=rewards,
     )
 
 

@@ -278,6 +278,7 @@ EPISODE_COLUMNS = [
     ("log", "log"), ("episode", "episode"), ("variant", "variant"), ("seed", "seed"), ("onset", "onset"),
     ("length", "steps"), ("return", "return"), ("alarms", "alarms"), ("first_alarm_step", "first alarm"),
     ("delay", "delay"), ("first_alarm_cause", "cause"), ("failure_step", "failed at"), ("ended", "ended"),
+    ("obs_noise", "noise"),  # last: the CSV's columns before format 8 keep their places
 ]
 
 
@@ -295,6 +296,7 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
     ``onset``, ``delay`` (steps from the onset to the first alarm; negative: before the onset) and
     ``failure_step`` (:func:`~oodmon.replay.failures.failure_step`, ``failure`` what fails in an env
     oodmon has no variants of) are ``None`` for ID episodes;
+    ``obs_noise`` is the env's sensor noise (0: none, or a log older than format 8);
     ``first_alarm_cause`` is what raised the first alarm's score (``None``: no alarm, or a log
     older than format 7); ``return`` is ``None`` where the log does not have it (an episode cut at a tear); ``ended``
     is ``terminated`` (the env ended it), ``time limit`` (or an alarm callback), ``interrupted``, or
@@ -306,7 +308,8 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
             shifted = not is_id_variant(e.variant)
             ended = how_it_ended(e.interrupted, e.terminated)
             rows.append({
-                "log": str(log.path), "episode": e.episode, "variant": e.variant, "seed": e.seed,
+                "log": str(log.path), "episode": e.episode, "variant": e.variant, "obs_noise": e.obs_noise,
+                "seed": e.seed,
                 "onset": e.onset if shifted else None, "length": e.length,
                 "return": None if e.total_return != e.total_return else e.total_return,  # NaN: not logged
                 "alarms": e.alarms, "first_alarm_step": e.first_alarm_step,
@@ -323,6 +326,8 @@ def _episode_cell(name: str, value: object) -> str:
         return ""
     if name == "return":
         return f"{value:.1f}"
+    if name == "obs_noise":
+        return f"{value:g}"
     if name == "delay" and value < 0:
         return "before onset"  # as `oodmon run` says it; the JSON and CSV keep the number
     return str(value)
@@ -344,7 +349,8 @@ _ENDED_SHORT = {"terminated": "env", "time limit": "limit", "interrupted": "cut"
 def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -> Table:
     """:func:`episode_rows` as a terminal table. What every row shares goes into the title, so that
     each row shows the episode's own figures: the log (one log: its path; several: their folder,
-    each row its path within it) and the env (each variant without it, ``ID`` for the env itself).
+    each row its path within it), the env (each variant without it, ``ID`` for the env itself) and
+    the sensor noise (a column only where the episodes were played at several).
     A terminal ``width`` below :data:`EPISODES_NARROW_WIDTH` gets the narrow layout, readable at 80
     columns: logs numbered (the numbers in the caption), the first alarm and its delay in one
     column, short headings and endings."""
@@ -354,21 +360,24 @@ def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -
     envs = {env_of_variant(row["variant"]) for row in rows}
     env = envs.pop() if len(envs) == 1 else None
     shared = logs[:1] if len(logs) == 1 else [f"in {folder}"] if folder not in ("", ".") else []
+    noises = {row["obs_noise"] for row in rows}
+    noise = [f"sensor noise {min(noises):g}"] if len(noises) == 1 and noises != {0.0} else []
     narrow = width is not None and width < EPISODES_NARROW_WIDTH
     named = {log: str(number) for number, log in enumerate(logs, 1)} if narrow and len(logs) > 1 else relative
     caption = None
     if narrow:
         caption = ("logs: " + "; ".join(f"{named[log]} {relative[log]}" for log in logs) + ". " if len(logs) > 1 else "")
         caption += "alarm: the first alarm's step (its delay from the onset); ended: env (terminated), limit, cut"
-    table = Table(title=", ".join([title, *shared, *([env] if env else [])]), caption=caption,
+    table = Table(title=", ".join([title, *shared, *([env] if env else []), *noise]), caption=caption,
                   pad_edge=not narrow)
     if narrow:
         columns = [("log", "log"), ("episode", "ep"), ("variant", "variant"), ("seed", "seed"), ("onset", "onset"),
                    ("length", "steps"), ("return", "return"), ("alarm", "alarm"), ("failure_step", "failed"),
-                   ("ended", "ended")]
+                   ("ended", "ended"), ("obs_noise", "noise")]
     else:
         columns = list(EPISODE_COLUMNS)
-    columns = [(name, heading) for name, heading in columns if name != "log" or len(logs) > 1]
+    columns = [(name, heading) for name, heading in columns
+               if (name != "log" or len(logs) > 1) and (name != "obs_noise" or len(noises) > 1)]
     for name, heading in columns:
         table.add_column(heading, justify="left" if name in ("log", "variant", "ended") else "right",
                          overflow="fold" if name in ("log", "variant") else "ellipsis",

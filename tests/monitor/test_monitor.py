@@ -152,6 +152,17 @@ def test_an_episode_begun_before_the_last_one_ended_ends_it_and_is_logged(agent,
     assert [(e.seed, e.length) for e in read_log(log).episodes] == [(0, 5), (1, 5)]
 
 
+@pytest.mark.parametrize("noise", [-0.1, float("nan"), "0.01", True])
+def test_a_loop_of_your_own_gives_its_sensor_noise_as_a_number_at_least_zero(agent, noise):
+    monitor = Monitor(agent)
+    with pytest.raises(InvalidParameterError, match=r"obs_noise=.* is not allowed; it is the env's sensor noise"):
+        monitor.begin_episode(variant="cartpole", obs_noise=noise)
+    monitor.begin_episode(variant="cartpole", obs_noise=0.02)
+    monitor.step(np.zeros(4, np.float32))
+    assert monitor.end_episode().obs_noise == 0.02
+    monitor.close()
+
+
 def test_a_monitored_env_stepped_with_no_episode_running_says_to_reset_it(agent):
     # before its first reset, after its episode ended, after close: it said "Monitor.step before
     # begin_episode", a method an env's user never calls (2026-12-01)

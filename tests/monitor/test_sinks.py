@@ -52,7 +52,8 @@ def test_mcap_holds_every_step_of_every_episode_and_the_run_metadata(agent, tmp_
     episodes = [json.loads(m.data) for _, m in by_topic["/oodmon/episode"]]
     assert episodes == [r.to_json() for r in records]
     starts = [json.loads(m.data) for _, m in by_topic["/oodmon/episode_start"]]
-    assert starts == [{k: r.to_json()[k] for k in ("episode", "env_id", "variant", "onset", "seed")} for r in records]
+    assert starts == [{k: r.to_json()[k] for k in ("episode", "env_id", "variant", "onset", "seed", "obs_noise")}
+                      for r in records]
     first_steps = {}
     for _, message in by_topic["/oodmon/step"]:
         first_steps.setdefault(json.loads(message.data)["episode"], message.sequence)

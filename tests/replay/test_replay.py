@@ -6,6 +6,7 @@ import hashlib
 import json
 import re
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -374,6 +375,65 @@ def test_replay_says_when_a_row_pools_the_scores_of_two_fits_of_a_detector(tmp_p
     assert pooled_fits([logs[0], read_log(tmp_path / "first.mcap")]) == {}
 
 
+def test_each_episode_logs_its_sensor_noise_and_replay_says_when_a_row_pools_two(tmp_path):
+    """Every episode records the sensor noise of the env it was played in (format 8): by
+    run_episode and by MonitoredEnv, in its start message too, so a torn log's running episode
+    keeps it. Replay lists it, names a shared noise in the table's title, and says when a row pools
+    episodes of two noises; logs older than format 8 read as noiseless."""
+    from oodmon.monitor import MonitoredEnv
+
+    agent = load("cartpole", "ensemble")
+    with Monitor(agent, threshold=4.6, sinks=[McapSink(tmp_path / "quiet.mcap")]) as monitor:
+        quiet = monitor.run_episode(parse_variant("cartpole").make(), seed=0)
+    with Monitor(agent, threshold=4.6, sinks=[McapSink(tmp_path / "noisy.mcap")], segment_steps=4) as monitor:
+        noisy = [monitor.run_episode(parse_variant("cartpole").make(obs_noise=0.05), seed=1, max_steps=10)]
+        env = MonitoredEnv(parse_variant("cartpole:length=2.0").make(onset_step=3, obs_noise=0.05), monitor)
+        env.reset(seed=2)
+        for _ in range(10):
+            env.step()
+    assert quiet.obs_noise == 0.0 and noisy[0].obs_noise == 0.05
+    logs = {name: read_log(tmp_path / f"{name}.mcap") for name in ("quiet", "noisy")}
+    assert [e.obs_noise for e in logs["quiet"].episodes] == [0.0]
+    assert [(e.variant, e.obs_noise) for e in logs["noisy"].episodes] == [("cartpole", 0.05)]
+    assert [(e.variant, e.obs_noise) for e in logs["noisy"].interrupted] == [("cartpole:length=2.0", 0.05)]  # closed inside it
+    assert all(e.obs_noise == 0.0 for path in LOGS for e in read_log(path).episodes)  # format 7 and older
+
+    alone = _cli("replay", "--episodes", str(tmp_path / "noisy.mcap"))
+    assert alone.returncode == 0, alone.stderr
+    assert "sensor noise 0.05" in alone.stdout and "sensor noises" not in alone.stderr
+    both = _cli("replay", str(tmp_path))
+    assert both.returncode == 0, both.stderr
+    assert ("oodmon: note: the cartpole/ensemble rows pool episodes played at 2 sensor noises (0: "
+            in both.stderr) and "0.05: " in both.stderr and "noisy.mcap" in both.stderr
+    rows = json.loads(_cli("replay", "--episodes", "--json", str(tmp_path)).stdout)
+    assert sorted(row["obs_noise"] for row in rows) == [0.0, 0.05, 0.05]
+    csv = _cli("replay", "--episodes", "--csv", str(tmp_path)).stdout.splitlines()
+    assert csv[0].endswith(",ended,obs_noise") and sorted(line.rsplit(",", 1)[1] for line in csv[1:]) == [
+        "0.0", "0.05", "0.05"]
+    assert "noise" in _cli("replay", "--episodes", str(tmp_path)).stdout  # a column where they differ
+
+    baseline = tmp_path / "quiet.json"  # a regression check of noisy logs against a noiseless baseline says so
+    assert _cli("check", str(tmp_path / "quiet.mcap"), "--baseline", str(baseline), "--update").returncode == 0
+    assert json.loads(baseline.read_text())["obs_noise"] == {"cartpole/ensemble": [0.0]}
+    said = "oodmon: note: the cartpole/ensemble logs were played at sensor noise 0.05, the baseline's at 0: "
+    assert said in _cli("check", str(tmp_path / "noisy.mcap"), "--baseline", str(baseline)).stderr
+    assert said[:30] not in _cli("check", str(tmp_path / "quiet.mcap"), "--baseline", str(baseline)).stderr
+    baseline.write_text(json.dumps(json.loads(baseline.read_text()) | {"obs_noise": {"cartpole/ensemble": [-1]}}))
+    refused = _cli("check", str(tmp_path / "quiet.mcap"), "--baseline", str(baseline))
+    assert refused.returncode == 2 and "obs_noise={'cartpole/ensemble': [-1]} is not allowed" in refused.stderr
+
+    raw, recovered = (tmp_path / "noisy.mcap").read_bytes(), []
+    for cut in range(len(raw) // 3, len(raw), 40):  # a killed run: its running episode from its start message
+        (tmp_path / "torn.mcap").write_bytes(raw[:cut])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                recovered += read_log(tmp_path / "torn.mcap").interrupted
+            except LogFormatError:
+                pass
+    assert recovered and all(e.obs_noise == 0.05 for e in recovered)
+
+
 def test_the_replay_table_is_readable_at_80_columns():
     import io
 
@@ -497,6 +557,12 @@ def _not_json(topic, row):
     return b"\xff not json" if topic == "/oodmon/episode" else json.dumps(row).encode()
 
 
+def _negative_noise(topic, row):
+    if topic == "/oodmon/episode":
+        row["obs_noise"] = -0.5
+    return json.dumps(row).encode()
+
+
 def _no_episode(topic, row):
     if topic == "/oodmon/episode":
         del row["episode"]
@@ -508,9 +574,10 @@ def _no_episode(topic, row):
     ({"message": _shorten_scores}, "episode 1 has length 501 but 500 scores; the log is damaged"),
     ({"message": _not_json}, "a /oodmon/episode message is not JSON"),
     ({"message": _no_episode}, "a /oodmon/episode message has no episode number"),
+    ({"message": _negative_noise}, "episode record 0 has obs_noise=-0.5; not a log oodmon wrote"),
     ({"metadata": lambda run: run | {"threshold": "high"}}, "its run metadata has threshold='high', not a number"),
     ({"metadata": lambda run: {k: v for k, v in run.items() if k not in ("task", "method")}}, None),
-], ids=["scores", "length", "json", "episode", "threshold", "metadata-only"])
+], ids=["scores", "length", "json", "episode", "noise", "threshold", "metadata-only"])
 def test_a_damaged_oodmon_log_is_one_clear_error_naming_the_file(tmp_path, edit, words):
     """A log whose records oodmon's own reader cannot trust: read_log names the file and what is
     wrong, and ``oodmon replay`` prints that one line with exit code 2 (no traceback)."""

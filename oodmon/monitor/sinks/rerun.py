@@ -326,7 +326,8 @@ class RerunSink:
         self._set_time(max(self._global_step - 1, 0), record.episode, max(record.length - 1, 0))
         self._each("log", "/episode/return", self._rr.Scalars(record.total_return))
         self._each("log", "/episodes", self._rr.TextLog(
-            f"episode {record.episode} ({record.variant}, onset {record.onset}, seed {record.seed}): return "
+            f"episode {record.episode} ({record.variant}, onset {record.onset}, seed {record.seed}"
+            + (f", sensor noise {record.obs_noise:g}" if record.obs_noise else "") + "): return "
             f"{record.total_return:.1f}, {record.length} steps, {record.alarms} alarms", level=self._rr.TextLogLevel.INFO))
         self._check_live()
 
