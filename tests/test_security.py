@@ -148,3 +148,15 @@ def test_the_sb3_data_unpickler_reaches_a_models_kinds_of_class_only():
                                 ("stable_baselines3.common.utils", "FloatSchedule", FloatSchedule),
                                 ("collections", "deque", __import__("collections").deque)]:
         assert unpickler.find_class(module, name) is found
+
+
+def test_a_shell_command_runs_only_where_a_caller_names_it_never_from_a_file():
+    # `run --on-alarm CMD` (AlarmCommand) is the package's one shell: no threshold, baseline or log
+    # oodmon reads can carry a command into it (2026-12-05)
+    shells = [f"{path}:{number}" for path, number, line in _lines()
+              if re.search(r"shell\s*=\s*True|os\.system\(|os\.popen\(", line.split("#")[0])]
+    assert len(shells) == 1 and shells[0].startswith("oodmon/monitor/alarm_command.py:"), shells
+    made = [(str(path), line.strip()) for path, _, line in _lines()
+            if re.search(r"\bAlarmCommand\(", line.split("#")[0]) and not line.strip().startswith((">>>", "class "))]
+    assert [path for path, _ in made] == ["oodmon/cli/run.py"], made
+    assert "args.on_alarm" in (PACKAGE / "cli" / "run.py").read_text().split("AlarmCommand(\n", 1)[1][:60]

@@ -7,7 +7,10 @@ import dataclasses
 import time
 import warnings
 from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.markup import escape
@@ -17,6 +20,9 @@ from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshol
 from oodmon.cli.parsing import _KEPT, _SEED, _agent_arguments, _non_negative, _positive, _whole
 from oodmon.errors import ConfigError
 from oodmon.names import TASKS
+
+if TYPE_CHECKING:
+    from oodmon.monitor.alarm_command import AlarmCommand
 
 
 def _add_run(commands: argparse._SubParsersAction) -> None:
@@ -41,6 +47,13 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
     world.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode and of an MC agent's samples "
                                                              "(default 0): the same command plays the same episodes")
     alarm.add_argument("--threshold", help="a threshold file from `oodmon calibrate` (default: no alarms)")
+    alarm.add_argument("--on-alarm", metavar="CMD",
+                       help="a shell command run at each episode's first alarm, not waited for (the policy acts on; "
+                            "at the end the run waits 10 s at most for those still running and says how they "
+                            "ended): a page, a message, a hand-over. Its environment holds OODMON_EPISODE, "
+                            "OODMON_STEP, OODMON_SCORE, OODMON_THRESHOLD, OODMON_RULE, OODMON_CAUSE, OODMON_ALARM "
+                            "(the alarm's line), OODMON_VARIANT and OODMON_LOG (--mcap as given), e.g. "
+                            "--on-alarm 'notify-send \"$OODMON_ALARM\"'")
     logs.add_argument("--mcap", help="write the run to this MCAP file; {start} in it is the run's start time "
                                      "(YYYYmmdd-HHMMSS): a log per start, e.g. runs/deployed/log-{start}.mcap")
     logs.add_argument("--mcap-split-episodes", type=_whole(1), metavar="N",
@@ -75,7 +88,7 @@ def _run(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from oodmon.envs.shift import shifts_an_env
-    from oodmon.monitor import McapSink, Monitor, Threshold
+    from oodmon.monitor import AlarmCommand, McapSink, Monitor, Threshold
     from oodmon.monitor.sinks.base import refuse_earlier_logs
     from oodmon.monitor.sinks.mcap import existing_parts, part_path
     from oodmon.monitor.sinks.rerun import RerunSink
@@ -117,6 +130,14 @@ def _run(args: argparse.Namespace) -> int:
         _warn_if_reused(threshold, detectors, args.seed, args.episodes)
     if threshold is not None and threshold.step_mode_warning:
         warnings.warn(threshold.step_mode_warning, UserWarning, stacklevel=2)
+    if args.on_alarm is not None and not args.on_alarm.strip():
+        raise ConfigError(f"--on-alarm {args.on_alarm!r} is not allowed; give a shell command to run at each "
+                          "episode's first alarm, e.g. --on-alarm 'notify-send \"$OODMON_ALARM\"'")
+    if args.on_alarm is not None and threshold is None:
+        raise ConfigError("--on-alarm runs its command at an alarm, and a run without --threshold raises none: give "
+                          "--threshold (a file `oodmon calibrate` writes)")
+    command = None if args.on_alarm is None else AlarmCommand(
+        args.on_alarm, env={"OODMON_VARIANT": label} | ({"OODMON_LOG": args.mcap} if args.mcap else {}))
     sinks = [] if mcap is None else [mcap]
     if args.rrd or args.spawn or args.serve or args.connect:
         sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect,
@@ -129,9 +150,9 @@ def _run(args: argparse.Namespace) -> int:
         progress.console.print(f"[bold red]ALARM[/bold red] {escape(event.text())}")
 
     rows = _EpisodeRows()
-    with Progress(console=console, transient=True) as progress, \
-            Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show], strict=args.strict,
-                    force=args.force, render=args.render) as monitor:
+    with _closed(command) as ran, Progress(console=console, transient=True) as progress, \
+            Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show, *filter(None, [command])],
+                    strict=args.strict, force=args.force, render=args.render) as monitor:
         if args.serve:
             progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")
         elif args.spawn and sinks[-1].live_at:
@@ -179,9 +200,23 @@ def _run(args: argparse.Namespace) -> int:
                "policy holds upright, and a stuck reading of a still one reads as before")
         console.print(f"does the shift change anything the env returns? `{_show_command(args, label)}` plays the env "
                       f"shifted and as it is from the same seed, your policy acting in both ({why})", markup=False)
+    if command is not None:
+        console.print(f"--on-alarm: {ran[0]}", markup=False)
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
     return 0
+
+
+@contextmanager
+def _closed(command: AlarmCommand | None) -> Iterator[list[str]]:
+    """Within the block, ``command`` runs at alarms; after it (an interrupted run too) its running
+    commands are waited for, and what :meth:`AlarmCommand.close` says goes into the list yielded."""
+    said: list[str] = []
+    try:
+        yield said
+    finally:
+        if command is not None:
+            said.append(command.close())
 
 
 def _show_command(args: argparse.Namespace, label: str) -> str:

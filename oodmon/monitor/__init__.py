@@ -6,6 +6,7 @@
   false-alarm bound; :func:`calibrate_agent` runs those episodes; :func:`validate_threshold`
   checks a threshold on fresh ones.
 - Sinks: :class:`MemorySink`, :class:`McapSink`; a failing sink warns and the loop goes on.
+- :class:`AlarmCommand` runs a shell command of yours at each episode's first alarm.
 - :class:`MonitorCallback` scores an SB3 model's training steps and logs them through SB3's logger.
 """
 
@@ -14,6 +15,7 @@ from __future__ import annotations
 from importlib import import_module
 from typing import Any
 
+from oodmon.monitor.alarm_command import AlarmCommand, AlarmCommandWarning
 from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, AlarmEvent, AlarmTracker, episode_statistic
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.scores import DEFAULT_SCORE, SCORES, score_function
@@ -27,6 +29,8 @@ __all__ = [
     "DEFAULT_SCORE",
     "SCORES",
     "AlarmCallback",
+    "AlarmCommand",
+    "AlarmCommandWarning",
     "AlarmEvent",
     "AlarmTracker",
     "EpisodeRecord",
