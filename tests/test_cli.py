@@ -626,8 +626,11 @@ def test_sensor_noise_given_to_calibrate_is_the_world_validate_and_run_play_unle
         assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(path), "--episodes", "1",
                      "--mcap", str(log)] + (["--obs-noise", noise] if noise else [])) == 0
         scores[noise] = read_log(log).episodes[0].scores
+        assert read_log(log).episodes[0].obs_noise == (0.0 if noise == "0" else 0.02)  # the log says the world too
         said = re.sub(r"\s+", " ", capsys.readouterr().out)
         assert ("in cartpole, onset 0, sensor noise 0.02, score >" in said) == (noise != "0"), said
+        assert (f"note: this run played sensor noise 0, and {path} was calibrated with 0.02: its false-alarm bound is "
+                "for that world" in said) == (noise == "0"), said
     np.testing.assert_array_equal(scores[None], scores["0.02"])  # the threshold's world, by default
     assert len(scores[None]) != len(scores["0"]) or not np.array_equal(scores[None], scores["0"])
     for command in (["calibrate", "--task", "pong", "--method", "ensemble", "--episodes", "11", "--far", "0.2",

@@ -186,6 +186,11 @@ def _run(args: argparse.Namespace) -> int:
         said = ("no threshold, so no alarm (for alarms give --threshold, a file `oodmon calibrate` writes for this "
                 "agent)" + (f"; every step's scores written to {', '.join(written)}" if written else ""))
     console.print(said, markup=False)
+    calibrated = None if threshold is None else threshold.obs_noise or 0.0
+    if calibrated is not None and calibrated != args.obs_noise:  # the bound was made in another world
+        console.print(f"note: this run played sensor noise {args.obs_noise:g}, and {args.threshold} was calibrated "
+                      f"with {calibrated:g}: its false-alarm bound is for that world (`oodmon validate "
+                      f"{args.threshold} --obs-noise {args.obs_noise:g}` counts this one's)", markup=False)
     if rows.before_onset:
         # (replay's detection rates leave them out; their alarms count as early ones)
         console.print(f"note: {rows.before_onset} of {rows.episodes} episodes ended before step {args.onset}, the "
