@@ -5,14 +5,13 @@ a tensor file written whole beside the JSON that records its sha256."""
 from __future__ import annotations
 
 import hashlib
-import os
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from oodmon.jsonfile import write_json
+from oodmon.jsonfile import replace_with, write_json
 from oodmon.outputs import is_write_error, write_failure
 
 __all__ = ["file_sha256", "other_weights", "state_sha256", "write_hashed_tensors"]
@@ -79,8 +78,8 @@ def write_hashed_tensors(tensor_path: Path, json_path: Path, write_tensors: Call
         write_tensors(str(tensor_part))
         written = json_path
         write_json(json_part, {**metadata, "safetensors_sha256": file_sha256(tensor_part)}, sort_keys=sort_keys)
-        os.replace(tensor_part, tensor_path)
-        os.replace(json_part, json_path)
+        replace_with(tensor_part, tensor_path)
+        replace_with(json_part, json_path)
     except BaseException as error:
         tensor_part.unlink(missing_ok=True)
         json_part.unlink(missing_ok=True)

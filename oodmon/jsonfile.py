@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 from pathlib import Path
 from typing import Any
 
 from oodmon.errors import ConfigError, OodmonError
 
-__all__ = ["MOST_JSON_BYTES", "read_json", "write_json"]
+__all__ = ["MOST_JSON_BYTES", "read_json", "replace_with", "special_file", "write_json"]
 
 #: The most bytes :func:`read_json` reads. The largest JSON oodmon writes is a bench's results
 #: (165 KB in results/); a path that never ends (``/dev/zero``, given as a threshold) was read
@@ -49,6 +50,44 @@ def read_json(path: str | Path, *, name: str = "", missing: str = "", folder: st
         raise error(f"{label} is not valid JSON ({reason})") from None
 
 
+#: What a name that is not a regular file stands for, by its kind in ``stat``.
+_SPECIAL = ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+            (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket"))
+
+
+def special_file(path: str | Path) -> str | None:
+    """What ``path`` is where it names something other than a regular file that a move would put a
+    file in place of (``"a character device"``: ``/dev/null``; a folder, a named pipe, a socket),
+    else ``None`` (a regular file, a symbolic link, which a move replaces and not its target, or
+    nothing).
+
+    Example:
+        >>> special_file("/dev/null"), special_file("no-such.json")
+        ('a character device', None)
+    """
+    try:
+        mode = os.lstat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    return next((kind for test, kind in _SPECIAL if test(mode)), None)
+
+
+def replace_with(part: str | Path, path: str | Path) -> None:
+    """Move the file ``part`` over ``path`` (``os.replace``: whole, or not at all), unless ``path`` is
+    not a regular file: a move would put a regular file in place of a device (as root, ``calibrate
+    --out /dev/zero`` turned /dev/zero into a threshold file, 2026-12-05), a pipe or a socket.
+
+    Raises:
+        ConfigError: ``path`` is a device, a folder, a pipe or a socket (``part`` is left for the
+            caller to remove).
+    """
+    kind = special_file(path)
+    if kind is not None:
+        raise ConfigError(f"{path} is {kind}, not a file: oodmon writes a file whole by moving a new one over its "
+                          "name, which would put a file in its place; give a file name")
+    os.replace(part, path)
+
+
 def write_json(path: str | Path, data: Any, *, sort_keys: bool = False) -> None:
     """``data`` as JSON at ``path`` (indented, a newline at its end), whole or not at all: written
     beside it, then moved over it, so a process killed mid-write, or a full disk, leaves the old file
@@ -62,7 +101,10 @@ def write_json(path: str | Path, data: Any, *, sort_keys: bool = False) -> None:
     temporary = path.with_suffix(path.suffix + ".part")
     try:
         temporary.write_text(json.dumps(data, indent=1, sort_keys=sort_keys) + "\n")
-        os.replace(temporary, path)
+        replace_with(temporary, path)
+    except ConfigError:
+        temporary.unlink(missing_ok=True)
+        raise
     except OSError as error:
         temporary.unlink(missing_ok=True)
         raise OSError(error.errno, error.strerror or str(error), str(path)) from None

@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from oodmon.errors import ConfigError
+from oodmon.jsonfile import replace_with, special_file
 
 __all__ = ["PICTURE_SUFFIXES", "check_output_dir", "check_output_file", "check_picture_file", "replaced_file",
            "is_write_error", "safe_filename", "save_figure", "write_failure", "write_whole"]
@@ -89,6 +90,10 @@ def _check_file(path: Path, parameter: str, inputs: Iterable[tuple[str, str | Pa
                               "give another path")
     if path.is_dir():
         raise ConfigError(f"{parameter} {path} is a folder; give a file name")
+    kind = special_file(path)
+    if kind is not None:  # a write moves a new file over the name: /dev/zero would become a file
+        raise ConfigError(f"{parameter} {path} is {kind}, not a file: oodmon writes a file whole by moving a new one "
+                          "over its name, which would put a file in its place; give a file name")
     _make_parent(path, parameter)
     existed = path.exists()
     try:
@@ -193,7 +198,7 @@ def write_whole(path: Path, write: Callable[[Path], object], *, part: Path | Non
     part = path.with_name(path.name + ".part") if part is None else part
     try:
         write(part)
-        os.replace(part, path)
+        replace_with(part, path)
     except BaseException as error:
         part.unlink(missing_ok=True)
         if is_write_error(error):

@@ -59,3 +59,50 @@ def test_a_failed_write_is_one_error_naming_the_file_and_leaves_nothing(tmp_path
         assert message.startswith(f"{tmp_path / name} could not be written (") and message.endswith(
             " MB free on its disk)"), message
     assert list(tmp_path.iterdir()) == []  # no part file, no half of a file
+
+
+def _socket_file(path):
+    """A Unix socket bound at ``path`` (its file stays until removed): a name that is not a regular
+    file, which any user may make (a device takes root), and which open() cannot read."""
+    import socket
+
+    server = socket.socket(socket.AF_UNIX)
+    server.bind(str(path))
+    server.close()
+    return path
+
+
+def test_a_name_that_is_not_a_regular_file_is_refused_never_replaced_or_removed(tmp_path):
+    # As root, `calibrate --out /dev/zero` moved its threshold over /dev/zero (a regular file of 840
+    # bytes in its place, found by scripts/fuzz_cli.py on 2026-12-05), and McapSink("/dev/null",
+    # overwrite=True) read it as an empty log, torn at its start, and removed it
+    import os
+
+    import pytest
+
+    from oodmon.errors import ConfigError
+    from oodmon.jsonfile import special_file, write_json
+    from oodmon.monitor import McapSink, RerunSink, Threshold
+    from oodmon.monitor.records import RunInfo
+    from oodmon.outputs import check_output_file, write_whole
+
+    assert special_file("/dev/null") == "a character device" and special_file(tmp_path / "none.json") is None
+    with pytest.raises(ConfigError, match=r"^--out /dev/null is a character device, not a file: .* give a file name"):
+        check_output_file("/dev/null", parameter="--out")  # (the check opens it to append: harmless if it regressed)
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    sock = _socket_file(tmp_path / "sock")
+    threshold = Threshold(1.0, "chosen_std", 1, "episode", 0.05, 45, 9_000)
+    run = RunInfo("cartpole", "ensemble", "chosen_std", 1.0, "r", "h", {})
+    for path, kind in ((fifo, "a named pipe"), (sock, "a socket")):
+        assert special_file(path) == kind
+        writes = [lambda: write_json(path, {"a": 1}), lambda: threshold.save(path),
+                  lambda: write_whole(path, lambda part: part.write_text("x"))]
+        if path == sock:  # (a sink reads a pipe's first bytes before it would refuse it: it would wait there)
+            writes += [lambda: McapSink(path, overwrite=True).open(run),
+                       lambda: RerunSink(path=path, overwrite=True).open(run)]
+        for write in writes:
+            with pytest.raises(ConfigError, match=f"is {kind}, not a file"):
+                write()
+            assert special_file(path) == kind  # still there, as it was
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fifo", "sock"]  # no part file left beside them

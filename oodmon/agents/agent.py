@@ -22,7 +22,8 @@ from oodmon.agents.estimators import Estimate, UncertaintyEstimator
 from oodmon.agents.frame_stack import Stacking
 from oodmon.agents.networks import estimator_for
 from oodmon.agents.serialization import load_modules
-from oodmon.errors import ConfigError, ModelFormatError, UnknownParameterError
+from oodmon.errors import ConfigError, InvalidParameterError, ModelFormatError, UnknownParameterError
+from oodmon.validation import is_real
 
 __all__ = ["Agent", "agent_from_modules", "flattened", "load", "load_agent", "zoo_dir", "zoo_names"]
 
@@ -198,7 +199,11 @@ class Agent:
         from oodmon.envs.physics import PHYSICS_DEFAULTS, check_obs_noise
         from oodmon.envs.registration import task_of_env
 
-        if not obs_noise:
+        if not is_real(obs_noise):  # ('' is no noise to an `if not`, and failed later as a float)
+            raise InvalidParameterError(f"obs_noise={obs_noise!r} is not allowed; it is the sensor noise's std as a "
+                                        "fraction of each observation dimension's ID spread, a number in [0, 10] "
+                                        "(0: none)")
+        if obs_noise == 0:
             return None
         task = self.task if self.env_id is None else task_of_env(self.env_id)  # oodmon's env of that task
         if task is None:

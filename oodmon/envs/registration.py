@@ -6,7 +6,8 @@ from typing import Any
 
 import gymnasium
 
-__all__ = ["TASK_OF_ENV", "env_id_of", "make_env", "obs_noise_of_env", "onset_of_env", "register_envs", "task_of_env", "variant_of_env"]
+__all__ = ["TASK_OF_ENV", "env_id_of", "make_env", "obs_noise_of_env", "onset_of_env", "register_envs", "task_of_env",
+           "variant_of_env"]
 
 #: The oodmon task whose variants shift an env: gymnasium's own ids and oodmon's (the same
 #: physics, observations and spaces; oodmon's can shift).
@@ -131,7 +132,8 @@ def obs_noise_of_env(env: gymnasium.Env) -> float:
     as a fraction of each observation dimension's ID spread), else 0.
 
     Example:
-        >>> obs_noise_of_env(gymnasium.make("oodmon/CartPole-v1", obs_noise=0.01)), obs_noise_of_env(gymnasium.make("Acrobot-v1"))
+        >>> noisy = gymnasium.make("oodmon/CartPole-v1", obs_noise=0.01)
+        >>> obs_noise_of_env(noisy), obs_noise_of_env(gymnasium.make("Acrobot-v1"))
         (0.01, 0.0)
     """
     from oodmon.envs.physics import _ShiftPhysics

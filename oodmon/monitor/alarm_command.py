@@ -43,7 +43,8 @@ class AlarmCommand:
         wait: the seconds :meth:`close` waits for the commands still running, all together.
 
     Raises:
-        InvalidParameterError: an empty command, or ``wait`` not a number >= 0.
+        InvalidParameterError: an empty command, ``env`` not a dict of names, or ``wait`` not a
+            number >= 0.
 
     Example:
         >>> import pathlib, tempfile
@@ -62,8 +63,12 @@ class AlarmCommand:
         if isinstance(wait, bool) or not isinstance(wait, (int, float)) or not wait >= 0:
             raise InvalidParameterError(f"wait={wait!r} is not allowed; give the seconds to wait for running "
                                         "commands at close, a number >= 0")
+        if env is not None and not (isinstance(env, Mapping) and all(isinstance(k, str) and k and "=" not in k
+                                                                     for k in env)):
+            raise InvalidParameterError(f"env={env!r:.60} is not allowed; give the command's extra environment "
+                                        "variables as a dict of names (no '=') to values")
         self.command, self.wait = command, float(wait)
-        self.env = {str(k): str(v) for k, v in (env or {}).items()}
+        self.env = {k: str(v) for k, v in (env or {}).items()}
         self._running: list[tuple[int, subprocess.Popen]] = []  # (episode, process)
         self._done: list[tuple[int, int]] = []  # (episode, exit code)
         self._episodes: set[int] = set()  # the episodes whose first alarm ran it (or tried to)
@@ -100,7 +105,7 @@ class AlarmCommand:
     def close(self) -> str:
         """Wait for the commands still running, for at most ``wait`` seconds in all, and say how
         they ended (one line); a command that exited other than 0, or still runs, is warned of
-        (a running one is left running). Idempotent: a second call says the same of the rest."""
+        (a running one is left running). A second call says it again, of every command run so far."""
         deadline = time.monotonic() + self.wait
         for _, process in self._running:
             try:
@@ -110,7 +115,7 @@ class AlarmCommand:
         self._reap()
         ran = len(self._done) + len(self._running)
         if not ran:
-            return "never ran (no alarm)" if not self._episodes else "never started"
+            return "never ran (no alarm)" if not self._episodes else "never started (see the warnings above)"
         episodes = sorted(e for e, _ in self._done) + sorted(e for e, _ in self._running)
         shown = ", ".join(str(e) for e in episodes[:5]) + (", ..." if len(episodes) > 5 else "")
         failed = [(e, code) for e, code in sorted(self._done) if code != 0]

@@ -6,7 +6,6 @@ training's evaluations (10,000 + steps) and of the ID return (100,000 + i), so t
 
 from __future__ import annotations
 
-import os
 import shutil
 import warnings
 from collections.abc import Sequence
@@ -20,6 +19,7 @@ from oodmon import seeds
 from oodmon.agents.agent import Agent
 from oodmon.envs.checks import warn_if_endless
 from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.jsonfile import replace_with
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, policy_hash
@@ -248,7 +248,11 @@ def save_calibration(threshold: Threshold, path: str | Path, detectors: Detector
         if made:
             shutil.rmtree(folder, ignore_errors=True)
         raise
-    os.replace(threshold_part, path)
+    try:
+        replace_with(threshold_part, path)
+    except ConfigError:  # not a file (/dev/zero): nothing left beside it
+        threshold_part.unlink(missing_ok=True)
+        raise
 
 
 @dataclass(frozen=True)

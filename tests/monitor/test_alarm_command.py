@@ -54,10 +54,14 @@ def test_a_failing_or_slow_command_is_a_warning_and_left_running_after_the_wait(
     assert AlarmCommand("true").close() == "never ran (no alarm)"
 
 
-@pytest.mark.parametrize("command, wait", [("", 10.0), ("  ", 10.0), (None, 10.0), ("true", -1), ("true", True)])
-def test_an_empty_command_or_a_bad_wait_is_refused(command, wait):
+@pytest.mark.parametrize("command, env, wait", [
+    ("", None, 10.0), ("  ", None, 10.0), (None, None, 10.0), ("true", None, -1), ("true", None, True),
+    ("true", ["TAG"], 10.0), ("true", {"A=B": "1"}, 10.0), ("true", {"": "1"}, 10.0), ("true", {1: "1"}, 10.0),
+], ids=["empty", "blank", "none", "negative-wait", "bool-wait", "env-list", "env-name-with-equals", "env-empty-name",
+        "env-number-name"])
+def test_an_empty_command_bad_variables_or_a_bad_wait_are_refused(command, env, wait):
     with pytest.raises(InvalidParameterError, match="is not allowed"):
-        AlarmCommand(command, wait=wait)
+        AlarmCommand(command, env=env, wait=wait)
 
 
 def test_run_on_alarm_runs_the_command_at_each_episodes_first_alarm_and_says_how_they_ended(tmp_path, capsys):

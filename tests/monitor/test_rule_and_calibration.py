@@ -626,6 +626,11 @@ def test_a_calibration_in_a_noisy_world_records_its_noise_and_warns_of_detectors
     assert played == [0.01, 0.01, 0.0]
     with pytest.raises(InvalidParameterError, match="obs_noise=11.0 is not allowed"):  # before any episode
         calibrate_agent(agent, 50, detector="spread", obs_noise=11.0)
+    for odd in ("", None, [], False):  # no noise to an `if not`: '' failed later as a float (scripts/fuzz_api.py)
+        with pytest.raises(InvalidParameterError, match=re.escape(f"obs_noise={odd!r} is not allowed")):
+            calibrate_agent(agent, 50, detector="spread", obs_noise=odd)
+        with pytest.raises(InvalidParameterError, match=re.escape(f"obs_noise={odd!r} is not allowed")):
+            agent.make_env(odd)
     assert played == [0.01, 0.01, 0.0]
     monkeypatch.undo()
     threshold = calibrate_agent(agent, 11, 0.2, detector="spread", obs_noise=0.01, confidence=None)

@@ -34,10 +34,14 @@ def refuse_other_files(paths: list[Path], magic: bytes, kind: str) -> None:
     model or a threshold at the path is a name typed wrong, and would be lost. A folder there is
     refused too: no file can take its place."""
     from oodmon.errors import ConfigError
+    from oodmon.jsonfile import special_file
 
     for path in paths:
         if path.is_dir():
             raise ConfigError(f"{path} is a folder; give the log a file name (in it, say)")
+        special = special_file(path)
+        if special is not None:  # /dev/null reads as an empty file, a log torn at its start, which overwrite removed
+            raise ConfigError(f"{path} is {special}, not a file: a log written there would remove it; give a file name")
         try:
             with open(path, "rb") as file:
                 head = file.read(len(magic))
