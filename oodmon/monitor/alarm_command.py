@@ -82,7 +82,8 @@ class AlarmCommand:
                      "OODMON_SCORE": repr(float(event.score)), "OODMON_THRESHOLD": repr(float(event.threshold)),
                      "OODMON_RULE": event.rule, "OODMON_CAUSE": event.cause, "OODMON_ALARM": event.text()}
         try:
-            process = subprocess.Popen(self.command, shell=True, stdin=subprocess.DEVNULL,
+            # a session of its own: a Ctrl-C meant for the monitor does not cut a page half sent
+            process = subprocess.Popen(self.command, shell=True, stdin=subprocess.DEVNULL, start_new_session=True,
                                        env={**os.environ, **self.env, **variables})
         except OSError as error:  # no shell to run it (the command's own errors are its exit code)
             warnings.warn(AlarmCommandWarning(f"the alarm command of episode {event.episode} could not start: "

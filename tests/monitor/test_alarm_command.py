@@ -3,6 +3,8 @@ episode with what the alarm says, not waited for, its failures warned of and nev
 
 from __future__ import annotations
 
+import os
+import sys
 import time
 
 import pytest
@@ -37,6 +39,14 @@ def test_the_policy_acts_on_while_the_command_runs_and_close_waits_for_it(tmp_pa
     command(AlarmEvent(0, 41, 7.25, 4.5, "score > threshold", "dynamics"))
     assert not out.exists()  # back at once: the command sleeps a second before it writes
     assert command.close() == "ran 1 time (episode 0), each exited 0" and out.read_text() == "late\n"
+
+
+def test_the_command_runs_in_a_session_of_its_own_so_a_ctrl_c_of_the_monitor_does_not_cut_it(tmp_path):
+    out = tmp_path / "session.txt"
+    command = AlarmCommand(f'"{sys.executable}" -c "import os; print(os.getsid(0))" > {out}')
+    command(AlarmEvent(0, 41, 7.25, 4.5, "score > threshold", "dynamics"))
+    command.close()
+    assert int(out.read_text()) != os.getsid(0)  # the terminal's SIGINT goes to the monitor's group, not to it
 
 
 def test_a_failing_or_slow_command_is_a_warning_and_left_running_after_the_wait():
