@@ -10,7 +10,7 @@ from typing import Any
 
 from oodmon.errors import ConfigError, OodmonError
 
-__all__ = ["MOST_JSON_BYTES", "read_json", "replace_with", "special_file", "write_json"]
+__all__ = ["MOST_JSON_BYTES", "check_replaceable", "read_json", "replace_with", "special_file", "write_json"]
 
 #: The most bytes :func:`read_json` reads. The largest JSON oodmon writes is a bench's results
 #: (165 KB in results/); a path that never ends (``/dev/zero``, given as a threshold) was read
@@ -72,6 +72,16 @@ def special_file(path: str | Path) -> str | None:
     return next((kind for test, kind in _SPECIAL if test(mode)), None)
 
 
+def check_replaceable(path: str | Path, label: str = "") -> None:
+    """Raise :class:`ConfigError` where ``path`` is not a regular file (:func:`special_file`), which
+    a file oodmon writes would be moved over; ``label`` names it in the message (default: the path,
+    e.g. ``--out /dev/null``)."""
+    kind = special_file(path)
+    if kind is not None:
+        raise ConfigError(f"{label or path} is {kind}, not a file: oodmon writes a file whole by moving a new one "
+                          "over its name, which would put a file in its place; give a file name")
+
+
 def replace_with(part: str | Path, path: str | Path) -> None:
     """Move the file ``part`` over ``path`` (``os.replace``: whole, or not at all), unless ``path`` is
     not a regular file: a move would put a regular file in place of a device (as root, ``calibrate
@@ -81,10 +91,7 @@ def replace_with(part: str | Path, path: str | Path) -> None:
         ConfigError: ``path`` is a device, a folder, a pipe or a socket (``part`` is left for the
             caller to remove).
     """
-    kind = special_file(path)
-    if kind is not None:
-        raise ConfigError(f"{path} is {kind}, not a file: oodmon writes a file whole by moving a new one over its "
-                          "name, which would put a file in its place; give a file name")
+    check_replaceable(path)
     os.replace(part, path)
 
 

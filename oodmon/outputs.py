@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from oodmon.errors import ConfigError
-from oodmon.jsonfile import replace_with, special_file
+from oodmon.jsonfile import check_replaceable, replace_with
 
 __all__ = ["PICTURE_SUFFIXES", "check_output_dir", "check_output_file", "check_picture_file", "replaced_file",
            "is_write_error", "safe_filename", "save_figure", "write_failure", "write_whole"]
@@ -90,10 +90,7 @@ def _check_file(path: Path, parameter: str, inputs: Iterable[tuple[str, str | Pa
                               "give another path")
     if path.is_dir():
         raise ConfigError(f"{parameter} {path} is a folder; give a file name")
-    kind = special_file(path)
-    if kind is not None:  # a write moves a new file over the name: /dev/zero would become a file
-        raise ConfigError(f"{parameter} {path} is {kind}, not a file: oodmon writes a file whole by moving a new one "
-                          "over its name, which would put a file in its place; give a file name")
+    check_replaceable(path, f"{parameter} {path}")  # a write moves a file over the name: /dev/zero would become one
     _make_parent(path, parameter)
     existed = path.exists()
     try:

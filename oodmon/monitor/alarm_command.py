@@ -122,7 +122,8 @@ class AlarmCommand:
         failed = [(e, code) for e, code in sorted(self._done) if code != 0]
         said = f"ran {ran} time{'s' if ran != 1 else ''} (episode{'s' if ran != 1 else ''} {shown})"
         if failed:
-            codes = "; ".join(f"episode {e}: exit {code}" for e, code in failed[:3]) + ("; ..." if len(failed) > 3 else "")
+            codes = "; ".join(f"episode {e}: exit {code}" for e, code in failed[:3])
+            codes += "; ..." if len(failed) > 3 else ""
             warnings.warn(AlarmCommandWarning(f"the alarm command exited other than 0 {len(failed)} time(s) ({codes})"),
                           stacklevel=2)
             said += f", {len(failed)} exited other than 0"
