@@ -632,6 +632,12 @@ def test_sensor_noise_given_to_calibrate_is_the_world_validate_and_run_play_unle
         assert (f"note: this run played sensor noise 0, and {path} was calibrated with 0.02: its false-alarm bound is "
                 "for that world" in said) == (noise == "0"), said
     np.testing.assert_array_equal(scores[None], scores["0.02"])  # the threshold's world, by default
+    for noise in (None, "0"):  # the log records the calibration's world beside the one played
+        assert read_log(tmp_path / f"run-{noise}.mcap").metadata["about.threshold_obs_noise"] == "0.02"
+        assert main(["replay", str(tmp_path / f"run-{noise}.mcap")]) == 0
+        said = re.sub(r"\s+", " ", capsys.readouterr().err)
+        assert ("oodmon: note: the cartpole/ensemble logs played episodes at another sensor noise than their "
+                "threshold was calibrated in (played 0, calibrated in 0.02: " in said) == (noise == "0"), said
     assert len(scores[None]) != len(scores["0"]) or not np.array_equal(scores[None], scores["0"])
     for command in (["calibrate", "--task", "pong", "--method", "ensemble", "--episodes", "11", "--far", "0.2",
                      "--obs-noise", "0.1", "--detector", "spread", "--out", str(tmp_path / "pong.json")],

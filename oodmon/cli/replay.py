@@ -136,7 +136,7 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 def _read_logs(paths: Sequence[str]):
     from oodmon.replay import (made_from_episodes, pooled_fits, pooled_noise, pooled_thresholds, pooled_weights,
                                read_logs)
-    from oodmon.replay.metrics import ended_before_onset
+    from oodmon.replay.metrics import ended_before_onset, off_calibration_noise
     from oodmon.seeds import EPISODE_USES
 
     logs = read_logs(paths)
@@ -160,6 +160,11 @@ def _read_logs(paths: Sequence[str]):
         print(f"oodmon: note: the {task}/{method} rows pool episodes played at {len(by_noise)} sensor noises "
               f"({_logs_by(by_noise)}): a noisy sensor moves every detector's ID scores, so their AUROC ranks one "
               "world's steps against another's; replay each noise's logs apart", file=sys.stderr)
+    for (task, method), by_world in off_calibration_noise(logs).items():
+        print(f"oodmon: note: the {task}/{method} logs played episodes at another sensor noise than their threshold "
+              f"was calibrated in ({_logs_by(by_world, 40)}): its false-alarm bound is for that world, and their false "
+              "alarms say nothing of it (calibrate in the world played: `oodmon calibrate --obs-noise X`)",
+              file=sys.stderr)
     for (task, method), by_use in made_from_episodes(logs).items():
         uses = " and ".join(f"{count} of {EPISODE_USES.get(use, use)} episodes" for use, count in by_use.items())
         print(f"oodmon: note: the {task}/{method} logs played {uses} in the ID env (the same reset seeds): they "

@@ -388,14 +388,18 @@ class Monitor:
         """The reset seeds of the ID episodes the threshold (and the fitted detector its alarm
         reads) were made from, by use, as JSON (``about.threshold_seeds``: ``{"calibration": [first,
         end), ...}``): replay says where the log's own ID episodes are among them, whose false
-        alarms read low (:func:`~oodmon.replay.metrics.made_from_episodes`)."""
+        alarms read low (:func:`~oodmon.replay.metrics.made_from_episodes`); and the sensor noise of
+        the world it was calibrated in (``about.threshold_obs_noise``, where the file records it):
+        replay says where the log's episodes played another
+        (:func:`~oodmon.replay.metrics.off_calibration_noise`)."""
         from oodmon.monitor.calibration import detectors_read, seeds_used
 
         threshold = self._made_with["threshold"]
         if not isinstance(threshold, Threshold):
             return {}
         used = seeds_used(threshold, detectors_read(threshold, self.detectors))
-        return {"threshold_seeds": json.dumps(used, separators=(",", ":"))} if used else {}
+        noise = {} if threshold.obs_noise is None else {"threshold_obs_noise": f"{threshold.obs_noise:g}"}
+        return noise | ({"threshold_seeds": json.dumps(used, separators=(",", ":"))} if used else {})
 
     def _states_about(self) -> dict[str, str]:
         """The values of each reading of a discrete observation (``about.states`` in the log: ``16``

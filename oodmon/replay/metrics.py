@@ -30,7 +30,7 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 __all__ = ["EpisodeAlarms", "MonitorMetrics", "VariantMetrics", "alarm_events", "average_precision",
            "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "ended_before_onset", "detectors_in",
            "env_of_variant", "failed_episodes", "fpr_at_tpr", "is_id_variant", "made_from_episodes", "monitor_row",
-           "pooled_fits", "pooled_noise", "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
+           "off_calibration_noise", "pooled_fits", "pooled_noise", "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
 
 
 @dataclass(frozen=True)
@@ -299,6 +299,34 @@ def made_from_episodes(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str
                 if first <= episode.seed < end:
                     counts[(log.task, log.method)][use] += 1
     return {group: dict(by_use) for group, by_use in counts.items()}
+
+
+def off_calibration_noise(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, list[Path]]]:
+    """The (task, method) groups with episodes played at another sensor noise than the run's
+    threshold was calibrated in (``about.threshold_obs_noise``, logs since 2026-12-05 of thresholds
+    that record it): their logs by ``played X, calibrated in Y``. A threshold's false-alarm bound
+    is for its calibration's world, and even 0.1% noise put a noiseless CartPole threshold above
+    every fresh ID episode (2026-12-05), so those logs' false alarms say nothing of the bound.
+
+    Example:
+        >>> from oodmon.replay.reader import RunLog
+        >>> from oodmon.monitor.records import EpisodeRecord
+        >>> played = [EpisodeRecord(0, "oodmon/CartPole-v1", "cartpole", 0, 0, 9.0, 9, 0, None, obs_noise=0.01)]
+        >>> log = RunLog(Path("a.mcap"), "cartpole", "ensemble", 1.0, {"about.threshold_obs_noise": "0"}, played, True)
+        >>> off_calibration_noise([log])
+        {('cartpole', 'ensemble'): {'played 0.01, calibrated in 0': [PosixPath('a.mcap')]}}
+    """
+    found: dict[tuple[str, str], dict[str, list[Path]]] = defaultdict(lambda: defaultdict(list))
+    for log in logs:
+        try:
+            calibrated = float(log.metadata.get("about.threshold_obs_noise", "nan"))
+        except ValueError:  # a damaged record says nothing
+            continue
+        if calibrated != calibrated:  # NaN: the log records no calibration noise
+            continue
+        for noise in sorted({e.obs_noise for e in log.episodes} - {calibrated}):
+            found[(log.task, log.method)][f"played {noise:g}, calibrated in {calibrated:g}"].append(log.path)
+    return {group: dict(by) for group, by in found.items()}
 
 
 def _threshold_seeds(log: RunLog) -> dict[str, tuple[int, int]]:
