@@ -373,7 +373,7 @@ def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -
     if narrow:
         columns = [("log", "log"), ("episode", "ep"), ("variant", "variant"), ("seed", "seed"), ("onset", "onset"),
                    ("length", "steps"), ("return", "return"), ("alarm", "alarm"), ("failure_step", "failed"),
-                   ("ended", "ended"), ("obs_noise", "noise")]
+                   ("ended", "ended")]  # (several noises: each in its variant's cell, as no column fits)
     else:
         columns = list(EPISODE_COLUMNS)
     columns = [(name, heading) for name, heading in columns
@@ -387,6 +387,8 @@ def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -
         if env:
             shown["variant"] = "ID" if row["variant"] == env else row["variant"].removeprefix(f"{env}:")
         if narrow:
+            if len(noises) > 1:
+                shown["variant"] = f"{shown['variant']}, noise {row['obs_noise']:g}"
             delay = row["delay"]
             shown["alarm"] = (None if row["first_alarm_step"] is None else f"{row['first_alarm_step']}"
                               + ("" if delay is None else f" ({delay:+d})"))

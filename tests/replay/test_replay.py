@@ -411,6 +411,23 @@ def test_each_episode_logs_its_sensor_noise_and_replay_says_when_a_row_pools_two
     assert csv[0].endswith(",ended,obs_noise") and sorted(line.rsplit(",", 1)[1] for line in csv[1:]) == [
         "0.0", "0.05", "0.05"]
     assert "noise" in _cli("replay", "--episodes", str(tmp_path)).stdout  # a column where they differ
+    import io
+
+    from rich.console import Console
+
+    from oodmon.replay.report import episode_rows, episodes_table
+
+    for width in (80, 120, 200):  # narrow (< 150): each variant's cell says its noise; a column squeezed the
+        shown = io.StringIO()     # variants out of sight at 80 (2026-12-05)
+        Console(width=width, file=shown).print(episodes_table(episode_rows(list(logs.values())), "x", width=width))
+        text = shown.getvalue()
+        assert max(len(line) for line in text.splitlines()) <= width
+        if width == 80:
+            assert text.count("ID,") == 2 and text.count("length=2.0") == 1 and text.count("noise") == 3, text
+        elif width == 120:
+            assert "ID, noise 0 " in text and "ID, noise 0.05 " in text and "length=2.0, noise 0.05" in text, text
+        else:
+            assert "┃ noise ┃" in text, text
 
     baseline = tmp_path / "quiet.json"  # a regression check of noisy logs against a noiseless baseline says so
     assert _cli("check", str(tmp_path / "quiet.mcap"), "--baseline", str(baseline), "--update").returncode == 0
