@@ -350,7 +350,8 @@ def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -
     """:func:`episode_rows` as a terminal table. What every row shares goes into the title, so that
     each row shows the episode's own figures: the log (one log: its path; several: their folder,
     each row its path within it), the env (each variant without it, ``ID`` for the env itself) and
-    the sensor noise (a column only where the episodes were played at several).
+    the sensor noise (where the episodes were played at several: a column, or in the narrow layout
+    each variant's cell).
     A terminal ``width`` below :data:`EPISODES_NARROW_WIDTH` gets the narrow layout, readable at 80
     columns: logs numbered (the numbers in the caption), the first alarm and its delay in one
     column, short headings and endings."""
