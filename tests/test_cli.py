@@ -618,6 +618,7 @@ def test_sensor_noise_given_to_calibrate_is_the_world_validate_and_run_play_unle
             in (0, 1)
         counts[noise] = json.loads(capsys.readouterr().out)
     assert counts[None] == counts["0.02"] and counts[None]["obs_noise"] == 0.02 and counts["0"]["obs_noise"] == 0.0
+    assert counts["0"]["calibrated_obs_noise"] == counts[None]["calibrated_obs_noise"] == 0.02
     assert main(["validate", str(path), "--episodes", "3", "--obs-noise", "0"]) in (0, 1)
     assert "fresh ID episodes (calibrated with sensor noise 0.02) alarmed" in capsys.readouterr().out
     scores = {}

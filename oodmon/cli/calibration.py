@@ -242,6 +242,7 @@ def _validate(args: argparse.Namespace) -> int:
                           "alarmed": result.alarmed, "total": result.total, "rate": result.rate,
                           "interval95": [result.low, result.high], "far": result.far,
                           "confidence": result.confidence, "seed": args.seed, "obs_noise": noise,
+                          "calibrated_obs_noise": threshold.obs_noise or 0.0,  # the world the bound is for
                           "workers": resolve_workers(args.workers, args.episodes),  # those that played them
                           "verdict": result.verdict}, indent=1))
     else:
