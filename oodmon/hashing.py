@@ -5,13 +5,14 @@ a tensor file written whole beside the JSON that records its sha256."""
 from __future__ import annotations
 
 import hashlib
+import os
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from oodmon.jsonfile import replace_with, write_json
+from oodmon.jsonfile import check_replaceable, write_json
 from oodmon.outputs import is_write_error, write_failure
 
 __all__ = ["file_sha256", "other_weights", "state_sha256", "write_hashed_tensors"]
@@ -72,14 +73,16 @@ def write_hashed_tensors(tensor_path: Path, json_path: Path, write_tensors: Call
     killed or a disk filled while writing leaves the pair that was there whole, and no part file;
     only a kill between the two moves leaves a pair whose hash disagrees, which the readers refuse.
     """
+    check_replaceable(tensor_path)
+    check_replaceable(json_path)
     tensor_part, json_part = tensor_path.with_name(tensor_path.name + ".part"), json_path.with_name(json_path.name + ".part")
     written = tensor_path
     try:
         write_tensors(str(tensor_part))
         written = json_path
         write_json(json_part, {**metadata, "safetensors_sha256": file_sha256(tensor_part)}, sort_keys=sort_keys)
-        replace_with(tensor_part, tensor_path)
-        replace_with(json_part, json_path)
+        os.replace(tensor_part, tensor_path)
+        os.replace(json_part, json_path)
     except BaseException as error:
         tensor_part.unlink(missing_ok=True)
         json_part.unlink(missing_ok=True)

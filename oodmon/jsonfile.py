@@ -10,7 +10,7 @@ from typing import Any
 
 from oodmon.errors import ConfigError, OodmonError
 
-__all__ = ["MOST_JSON_BYTES", "check_replaceable", "read_json", "replace_with", "special_file", "write_json"]
+__all__ = ["MOST_JSON_BYTES", "check_replaceable", "read_json", "special_file", "write_json"]
 
 #: The most bytes :func:`read_json` reads. The largest JSON oodmon writes is a bench's results
 #: (165 KB in results/); a path that never ends (``/dev/zero``, given as a threshold) was read
@@ -74,25 +74,14 @@ def special_file(path: str | Path) -> str | None:
 
 def check_replaceable(path: str | Path, label: str = "") -> None:
     """Raise :class:`ConfigError` where ``path`` is not a regular file (:func:`special_file`), which
-    a file oodmon writes would be moved over; ``label`` names it in the message (default: the path,
-    e.g. ``--out /dev/null``)."""
+    a file oodmon writes would be moved over (``os.replace``: as root, ``calibrate --out /dev/zero``
+    turned /dev/zero into a threshold file, 2026-12-05): every writer that moves a file into place
+    checks its name first, before it writes anything. ``label`` names it in the message (default:
+    the path, e.g. ``--out /dev/null``)."""
     kind = special_file(path)
     if kind is not None:
         raise ConfigError(f"{label or path} is {kind}, not a file: oodmon writes a file whole by moving a new one "
                           "over its name, which would put a file in its place; give a file name")
-
-
-def replace_with(part: str | Path, path: str | Path) -> None:
-    """Move the file ``part`` over ``path`` (``os.replace``: whole, or not at all), unless ``path`` is
-    not a regular file: a move would put a regular file in place of a device (as root, ``calibrate
-    --out /dev/zero`` turned /dev/zero into a threshold file, 2026-12-05), a pipe or a socket.
-
-    Raises:
-        ConfigError: ``path`` is a device, a folder, a pipe or a socket (``part`` is left for the
-            caller to remove).
-    """
-    check_replaceable(path)
-    os.replace(part, path)
 
 
 def write_json(path: str | Path, data: Any, *, sort_keys: bool = False) -> None:
@@ -105,13 +94,11 @@ def write_json(path: str | Path, data: Any, *, sort_keys: bool = False) -> None:
             error names no file), and nothing is left beside it.
     """
     path = Path(path)
+    check_replaceable(path)
     temporary = path.with_suffix(path.suffix + ".part")
     try:
         temporary.write_text(json.dumps(data, indent=1, sort_keys=sort_keys) + "\n")
-        replace_with(temporary, path)
-    except ConfigError:
-        temporary.unlink(missing_ok=True)
-        raise
+        os.replace(temporary, path)
     except OSError as error:
         temporary.unlink(missing_ok=True)
         raise OSError(error.errno, error.strerror or str(error), str(path)) from None

@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from oodmon.errors import ConfigError
-from oodmon.jsonfile import check_replaceable, replace_with
+from oodmon.jsonfile import check_replaceable
 
 __all__ = ["PICTURE_SUFFIXES", "check_output_dir", "check_output_file", "check_picture_file", "replaced_file",
            "is_write_error", "safe_filename", "save_figure", "write_failure", "write_whole"]
@@ -192,10 +192,11 @@ def write_whole(path: Path, write: Callable[[Path], object], *, part: Path | Non
         ('whole', ['x.txt'])
         >>> shutil.rmtree(path.parent)
     """
+    check_replaceable(path)
     part = path.with_name(path.name + ".part") if part is None else part
     try:
         write(part)
-        replace_with(part, path)
+        os.replace(part, path)
     except BaseException as error:
         part.unlink(missing_ok=True)
         if is_write_error(error):

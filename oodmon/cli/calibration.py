@@ -242,7 +242,7 @@ def _validate(args: argparse.Namespace) -> int:
                           "alarmed": result.alarmed, "total": result.total, "rate": result.rate,
                           "interval95": [result.low, result.high], "far": result.far,
                           "confidence": result.confidence, "seed": args.seed, "obs_noise": noise,
-                          "calibrated_obs_noise": threshold.obs_noise or 0.0,  # the world the bound is for
+                          "calibrated_obs_noise": threshold.calibration_noise,  # the world the bound is for
                           "workers": resolve_workers(args.workers, args.episodes),  # those that played them
                           "verdict": result.verdict}, indent=1))
     else:
@@ -260,7 +260,7 @@ def _validate(args: argparse.Namespace) -> int:
 
 def _other_noise(threshold, obs_noise: float) -> str:
     """The words ' (calibrated with sensor noise Y)' where validation's noise is not the threshold's."""
-    calibrated = threshold.obs_noise or 0.0
+    calibrated = threshold.calibration_noise
     return "" if calibrated == obs_noise else f" (calibrated with sensor noise {calibrated:g})"
 
 
@@ -269,7 +269,7 @@ def _above_hint(threshold, unit: str, obs_noise: float) -> str:
     watches, where validation played another sensor noise (0.1% noise put the demo's noiseless
     threshold above 100 of 100 fresh episodes, 2026-12-05: a draw of calibration episodes is not the
     reason then); else how often calibration gives one, and how to get another."""
-    calibrated = threshold.obs_noise or 0.0
+    calibrated = threshold.calibration_noise
     if calibrated != obs_noise:
         return (f" in a world of sensor noise {obs_noise:g}; its bound is for the world it was calibrated in, noise "
                 f"{calibrated:g}: calibrate in this one (`oodmon calibrate --obs-noise {obs_noise:g}`)")

@@ -7,10 +7,8 @@ import dataclasses
 import time
 import warnings
 from collections import deque
-from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import nullcontext
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.markup import escape
@@ -20,9 +18,6 @@ from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshol
 from oodmon.cli.parsing import _KEPT, _SEED, _agent_arguments, _non_negative, _positive, _whole
 from oodmon.errors import ConfigError
 from oodmon.names import TASKS
-
-if TYPE_CHECKING:
-    from oodmon.monitor.alarm_command import AlarmCommand
 
 
 def _add_run(commands: argparse._SubParsersAction) -> None:
@@ -123,7 +118,7 @@ def _run(args: argparse.Namespace) -> int:
                           + (" (Pong's frames are logged without it)" if args.task == "pong" else "")
                           + ": leave out --render")
     if args.obs_noise is None:  # the world the threshold was calibrated in
-        args.obs_noise = (threshold.obs_noise or 0.0) if threshold is not None else 0.0
+        args.obs_noise = threshold.calibration_noise if threshold is not None else 0.0
     env, label = _run_env(args, agent)
     detectors = _detectors(args, agent)
     if threshold is not None and (not args.variant or args.onset or label == args.task):  # ID steps: false alarms
@@ -150,7 +145,7 @@ def _run(args: argparse.Namespace) -> int:
         progress.console.print(f"[bold red]ALARM[/bold red] {escape(event.text())}")
 
     rows = _EpisodeRows()
-    with _closed(command) as ran, Progress(console=console, transient=True) as progress, \
+    with command or nullcontext(), Progress(console=console, transient=True) as progress, \
             Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show, *filter(None, [command])],
                     strict=args.strict, force=args.force, render=args.render) as monitor:
         if args.serve:
@@ -186,10 +181,9 @@ def _run(args: argparse.Namespace) -> int:
         said = ("no threshold, so no alarm (for alarms give --threshold, a file `oodmon calibrate` writes for this "
                 "agent)" + (f"; every step's scores written to {', '.join(written)}" if written else ""))
     console.print(said, markup=False)
-    calibrated = None if threshold is None else threshold.obs_noise or 0.0
-    if calibrated is not None and calibrated != args.obs_noise:  # the bound was made in another world
+    if threshold is not None and threshold.calibration_noise != args.obs_noise:  # the bound is for another world
         console.print(f"note: this run played sensor noise {args.obs_noise:g}, and {args.threshold} was calibrated "
-                      f"with {calibrated:g}: its false-alarm bound is for that world (`oodmon validate "
+                      f"with {threshold.calibration_noise:g}: its false-alarm bound is for that world (`oodmon validate "
                       f"{args.threshold} --obs-noise {args.obs_noise:g}` counts this one's)", markup=False)
     if rows.before_onset:
         # (replay's detection rates leave them out; their alarms count as early ones)
@@ -206,22 +200,10 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"does the shift change anything the env returns? `{_show_command(args, label)}` plays the env "
                       f"shifted and as it is from the same seed, your policy acting in both ({why})", markup=False)
     if command is not None:
-        console.print(f"--on-alarm: {ran[0]}", markup=False)
+        console.print(f"--on-alarm: {command.summary}", markup=False)
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
     return 0
-
-
-@contextmanager
-def _closed(command: AlarmCommand | None) -> Iterator[list[str]]:
-    """Within the block, ``command`` runs at alarms; after it (an interrupted run too) its running
-    commands are waited for, and what :meth:`AlarmCommand.close` says goes into the list yielded."""
-    said: list[str] = []
-    try:
-        yield said
-    finally:
-        if command is not None:
-            said.append(command.close())
 
 
 def _show_command(args: argparse.Namespace, label: str) -> str:

@@ -25,6 +25,7 @@ from collections.abc import Mapping
 
 from oodmon.errors import InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent
+from oodmon.validation import is_real
 
 __all__ = ["AlarmCommand", "AlarmCommandWarning"]
 
@@ -41,6 +42,9 @@ class AlarmCommand:
         env: more variables for its environment (``oodmon run`` gives ``OODMON_VARIANT`` and
             ``OODMON_LOG``), beside the process's own and the alarm's.
         wait: the seconds :meth:`close` waits for the commands still running, all together.
+
+    As a context manager it closes at the end of the block, however the block ends, and keeps what
+    :meth:`close` said in :attr:`summary`.
 
     Raises:
         InvalidParameterError: an empty command, ``env`` not a dict of names, or ``wait`` not a
@@ -60,7 +64,7 @@ class AlarmCommand:
         if not isinstance(command, str) or not command.strip():
             raise InvalidParameterError(f"command={command!r} is not allowed; give a shell command to run at an "
                                         "episode's first alarm, e.g. 'notify-send \"$OODMON_ALARM\"'")
-        if isinstance(wait, bool) or not isinstance(wait, (int, float)) or not wait >= 0:
+        if not is_real(wait) or not wait >= 0:
             raise InvalidParameterError(f"wait={wait!r} is not allowed; give the seconds to wait for running "
                                         "commands at close, a number >= 0")
         if env is not None and not (isinstance(env, Mapping) and all(isinstance(k, str) and k and "=" not in k
@@ -72,6 +76,13 @@ class AlarmCommand:
         self._running: list[tuple[int, subprocess.Popen]] = []  # (episode, process)
         self._done: list[tuple[int, int]] = []  # (episode, exit code)
         self._episodes: set[int] = set()  # the episodes whose first alarm ran it (or tried to)
+        self.summary: str | None = None  # what close() said last
+
+    def __enter__(self) -> AlarmCommand:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def __call__(self, event: AlarmEvent) -> None:
         self._reap()
@@ -114,6 +125,11 @@ class AlarmCommand:
             except subprocess.TimeoutExpired:
                 pass
         self._reap()
+        self.summary = self._said()
+        return self.summary
+
+    def _said(self) -> str:
+        """How the commands ended, in one line; the warnings of those that failed or still run."""
         ran = len(self._done) + len(self._running)
         if not ran:
             return "never ran (no alarm)" if not self._episodes else "never started (see the warnings above)"
@@ -125,11 +141,11 @@ class AlarmCommand:
             codes = "; ".join(f"episode {e}: exit {code}" for e, code in failed[:3])
             codes += "; ..." if len(failed) > 3 else ""
             warnings.warn(AlarmCommandWarning(f"the alarm command exited other than 0 {len(failed)} time(s) ({codes})"),
-                          stacklevel=2)
+                          stacklevel=3)
             said += f", {len(failed)} exited other than 0"
         if self._running:
             warnings.warn(AlarmCommandWarning(
                 f"{len(self._running)} alarm command(s) still running after {self.wait:g} s (episodes "
-                f"{', '.join(str(e) for e, _ in self._running[:5])}); left running"), stacklevel=2)
+                f"{', '.join(str(e) for e, _ in self._running[:5])}); left running"), stacklevel=3)
             said += f", {len(self._running)} still running"
         return said if failed or self._running else said + ", each exited 0"

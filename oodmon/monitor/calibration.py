@@ -6,6 +6,7 @@ training's evaluations (10,000 + steps) and of the ID return (100,000 + i), so t
 
 from __future__ import annotations
 
+import os
 import shutil
 import warnings
 from collections.abc import Sequence
@@ -19,7 +20,7 @@ from oodmon import seeds
 from oodmon.agents.agent import Agent
 from oodmon.envs.checks import warn_if_endless
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.jsonfile import replace_with
+from oodmon.jsonfile import check_replaceable
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, policy_hash
@@ -237,6 +238,7 @@ def save_calibration(threshold: Threshold, path: str | Path, detectors: Detector
     which ``run`` refuses). Only a kill between the moves, which need no room, can still part them.
     """
     path = Path(path)
+    check_replaceable(path)  # (/dev/zero: refused before the detectors are written beside it)
     folder, threshold_part = Path(f"{path}.detectors"), path.with_name(path.name + ".part")
     made = detectors is not None and not folder.exists()
     try:
@@ -248,11 +250,7 @@ def save_calibration(threshold: Threshold, path: str | Path, detectors: Detector
         if made:
             shutil.rmtree(folder, ignore_errors=True)
         raise
-    try:
-        replace_with(threshold_part, path)
-    except ConfigError:  # not a file (/dev/zero): nothing left beside it
-        threshold_part.unlink(missing_ok=True)
-        raise
+    os.replace(threshold_part, path)
 
 
 @dataclass(frozen=True)
@@ -383,7 +381,7 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
     seed = seeds.check_seed(seed)
     resolve_workers(workers, episodes)
     if obs_noise is None:
-        obs_noise = threshold.obs_noise or 0.0
+        obs_noise = threshold.calibration_noise
     agent.check_noise(obs_noise)  # as calibrate_agent: said before the first episode
     needed = detectors_read(threshold, detectors)
     check_fresh(threshold, needed, seed, episodes)

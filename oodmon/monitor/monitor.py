@@ -369,7 +369,7 @@ class Monitor:
                 task=meta.get("task", "unknown"), method=meta.get("method", "unknown"), score=self.score_name,
                 threshold=self.threshold, rule=self.tracker.rule, policy_hash=self.policy_hash,
                 versions=library_versions(), detector=self.detector, detectors=tuple(self.detectors.names),
-                about=run_about(meta) | self._samples_about() | self._states_about() | self._seeds_about(),
+                about=run_about(meta) | self._samples_about() | self._states_about() | self._threshold_about(),
                 fitted=self._fitted,
             ))
             self._opened = True
@@ -384,7 +384,7 @@ class Monitor:
         masks = getattr(self.estimator, "masks", None)
         return {"samples": str(self.estimator.n_samples)} | ({"masks": masks} if masks else {})
 
-    def _seeds_about(self) -> dict[str, str]:
+    def _threshold_about(self) -> dict[str, str]:
         """The reset seeds of the ID episodes the threshold (and the fitted detector its alarm
         reads) were made from, by use, as JSON (``about.threshold_seeds``: ``{"calibration": [first,
         end), ...}``): replay says where the log's own ID episodes are among them, whose false

@@ -384,6 +384,11 @@ class Threshold:
                 f"threshold's false-alarm rate per {unit} is <= {self.far:g}")
 
     @property
+    def calibration_noise(self) -> float:
+        """The sensor noise of the world the bound is for: :attr:`obs_noise`, 0 where not recorded."""
+        return self.obs_noise or 0.0
+
+    @property
     def step_mode_warning(self) -> str | None:
         """What to warn of before alarms are raised with this threshold (``oodmon run``,
         ``watch(threshold=...)``): calibrated per step, it bounds the share of ID steps above it, not

@@ -69,7 +69,7 @@ def noise_of_logs(logs: Iterable[RunLog]) -> dict[str, list[float]]:
     0 in logs older than format 8), by ``task/method``, each list sorted."""
     found: dict[str, set[float]] = {}
     for log in logs:
-        found.setdefault(f"{log.task}/{log.method}", set()).update(e.obs_noise for e in log.episodes)
+        found.setdefault(f"{log.task}/{log.method}", set()).update(log.noises)
     return {group: sorted(noises) for group, noises in found.items() if noises}
 
 

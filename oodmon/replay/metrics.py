@@ -263,7 +263,7 @@ def pooled_noise(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, list
         >>> pooled_noise([run("a.mcap", 0.05), run("b.mcap", 0.05)])  # one noise: nothing pooled
         {}
     """
-    played = sorted(((noise, log) for log in logs for noise in {e.obs_noise for e in log.episodes}),
+    played = sorted(((noise, log) for log in logs for noise in log.noises),
                     key=lambda pair: pair[0])  # the quietest first
     return _pooled((log, (log.task, log.method), f"{noise:g}") for noise, log in played)
 
@@ -324,7 +324,7 @@ def off_calibration_noise(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[
             continue
         if calibrated != calibrated:  # NaN: the log records no calibration noise
             continue
-        for noise in sorted({e.obs_noise for e in log.episodes} - {calibrated}):
+        for noise in sorted(log.noises - {calibrated}):
             found[(log.task, log.method)][f"played {noise:g}, calibrated in {calibrated:g}"].append(log.path)
     return {group: dict(by) for group, by in found.items()}
 

@@ -120,6 +120,11 @@ class RunLog:
         return self.metadata.get("detector", "spread")
 
     @property
+    def noises(self) -> set[float]:
+        """The sensor noises its complete episodes were played at (``obs_noise``; 0 before format 8)."""
+        return {e.obs_noise for e in self.episodes}
+
+    @property
     def detectors(self) -> list[str]:
         """Every detector whose scores the log holds."""
         named = self.metadata.get("detectors")
