@@ -620,7 +620,9 @@ def test_sensor_noise_given_to_calibrate_is_the_world_validate_and_run_play_unle
     assert counts[None] == counts["0.02"] and counts[None]["obs_noise"] == 0.02 and counts["0"]["obs_noise"] == 0.0
     assert counts["0"]["calibrated_obs_noise"] == counts[None]["calibrated_obs_noise"] == 0.02
     assert main(["validate", str(path), "--episodes", "3", "--obs-noise", "0"]) in (0, 1)
-    assert "fresh ID episodes (calibrated with sensor noise 0.02) alarmed" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "fresh ID episodes (calibrated with sensor noise 0.02) alarmed" in captured.out
+    assert "this episode plays sensor noise" not in captured.err  # another world on purpose: no warning
     scores = {}
     for noise in (None, "0.02", "0"):
         log = tmp_path / f"run-{noise}.mcap"
@@ -628,7 +630,9 @@ def test_sensor_noise_given_to_calibrate_is_the_world_validate_and_run_play_unle
                      "--mcap", str(log)] + (["--obs-noise", noise] if noise else [])) == 0
         scores[noise] = read_log(log).episodes[0].scores
         assert read_log(log).episodes[0].obs_noise == (0.0 if noise == "0" else 0.02)  # the log says the world too
-        said = re.sub(r"\s+", " ", capsys.readouterr().out)
+        captured = capsys.readouterr()
+        said = re.sub(r"\s+", " ", captured.out)
+        assert "this episode plays sensor noise" not in captured.err  # the monitor's warning: the note says it once
         assert ("in cartpole, onset 0, sensor noise 0.02, score >" in said) == (noise != "0"), said
         assert (f"note: this run played sensor noise 0, and {path} was calibrated with 0.02: its false-alarm bound is "
                 "for that world" in said) == (noise == "0"), said

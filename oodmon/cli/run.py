@@ -83,7 +83,7 @@ def _run(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from oodmon.envs.shift import shifts_an_env
-    from oodmon.monitor import AlarmCommand, McapSink, Monitor, Threshold
+    from oodmon.monitor import AlarmCommand, McapSink, Monitor, OffCalibrationNoiseWarning, Threshold
     from oodmon.monitor.sinks.base import refuse_earlier_logs
     from oodmon.monitor.sinks.mcap import existing_parts, part_path
     from oodmon.monitor.sinks.rerun import RerunSink
@@ -145,9 +145,10 @@ def _run(args: argparse.Namespace) -> int:
         progress.console.print(f"[bold red]ALARM[/bold red] {escape(event.text())}")
 
     rows = _EpisodeRows()
-    with command or nullcontext(), Progress(console=console, transient=True) as progress, \
+    with warnings.catch_warnings(), command or nullcontext(), Progress(console=console, transient=True) as progress, \
             Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show, *filter(None, [command])],
                     strict=args.strict, force=args.force, render=args.render) as monitor:
+        warnings.simplefilter("ignore", OffCalibrationNoiseWarning)  # said in a note at the end instead
         if args.serve:
             progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")
         elif args.spawn and sinks[-1].live_at:

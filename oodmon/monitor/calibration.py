@@ -23,7 +23,7 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.jsonfile import check_replaceable
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
-from oodmon.monitor.monitor import Monitor, policy_hash
+from oodmon.monitor.monitor import Monitor, OffCalibrationNoiseWarning, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.sinks.base import MemorySink
@@ -59,7 +59,9 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
     def play(first: int, count: int, done) -> list[tuple[np.ndarray, bool]]:
         sink = MemorySink()
         env = agent.make_env(obs_noise)
-        with Monitor(agent, sinks=[sink], log_observations=False, **settings) as monitor:
+        with warnings.catch_warnings(), Monitor(agent, sinks=[sink], log_observations=False, **settings) as monitor:
+            # validate counts false alarms at another noise on purpose, and says which world it played
+            warnings.simplefilter("ignore", OffCalibrationNoiseWarning)
             for episode in range(first, first + count):
                 start(seed + episode)
                 monitor.run_episode(env, seed=seed + episode, variant=agent.task,

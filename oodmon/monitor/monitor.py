@@ -234,6 +234,9 @@ class Monitor:
             value = math.nan if threshold is None else float(threshold)
             rule, reference, warmup = "consecutive", None, 0
         self.threshold = value
+        # The world the threshold's bound is for: an episode played in another is warned of, once a noise.
+        self._calibration_noise = threshold.calibration_noise if isinstance(threshold, Threshold) else None
+        self._noises_warned: set[float] = set()
         given = _given_detectors(detectors)
         # No score asked for: a spread detector among those given keeps its own.
         self.score_name = score or (given["spread"].score_name if "spread" in given else DEFAULT_SCORE)
@@ -440,6 +443,7 @@ class Monitor:
         if not is_finite_real(obs_noise) or obs_noise < 0:
             raise InvalidParameterError(f"obs_noise={obs_noise!r} is not allowed; it is the env's sensor noise, a "
                                         "number >= 0 (0: none)")
+        self._warn_of_other_noise(float(obs_noise))
         self.open()
         if self._in_episode and not self.abandon_empty_episode():
             self.end_episode()
@@ -463,6 +467,21 @@ class Monitor:
         self.last_step, self.last_cause = None, None
         self.stop_event = None
         self._episode_owner = None  # the MonitoredEnv whose reset began it sets itself here (weakly)
+
+    def _warn_of_other_noise(self, obs_noise: float) -> None:
+        """Warn (:class:`OffCalibrationNoiseWarning`, once a noise) when an episode plays another
+        sensor noise than the threshold was calibrated with: its false-alarm bound is for that world
+        (a noiseless threshold alarmed in 100 of 100 ID CartPole episodes at noise 0.01). ``oodmon
+        run`` says it in a note at its end instead."""
+        calibrated = self._calibration_noise
+        if calibrated is None or obs_noise == calibrated or obs_noise in self._noises_warned:
+            return
+        self._noises_warned.add(obs_noise)
+        warnings.warn(f"this episode plays sensor noise obs_noise={obs_noise:g}, and the threshold was calibrated "
+                      f"with {calibrated:g}: its false-alarm bound is for that world (calibrate in this one: "
+                      f"`oodmon calibrate --obs-noise {obs_noise:g}`, or calibrate_agent(..., obs_noise={obs_noise:g}); "
+                      f"`oodmon validate THRESHOLD --obs-noise {obs_noise:g}` counts its false alarms here)",
+                      OffCalibrationNoiseWarning, stacklevel=3)
 
     @property
     def in_episode(self) -> bool:
@@ -694,6 +713,12 @@ def _finite(obs: Any) -> bool:
 class NonFiniteObservationWarning(RuntimeWarning):
     """:meth:`Monitor.run_episode` or :meth:`~oodmon.monitor.monitored_env.MonitoredEnv.step` ended
     an episode whose env returned a NaN or infinite reading the policy could not act on."""
+
+
+class OffCalibrationNoiseWarning(UserWarning):
+    """:meth:`Monitor.begin_episode`: the episode plays another sensor noise than the monitor's
+    threshold was calibrated with (``Threshold.obs_noise``), so the threshold's false-alarm bound
+    does not hold for it. Warned once for each such noise a monitor sees."""
 
 
 class PolicyCannotAct(RuntimeError):

@@ -163,6 +163,36 @@ def test_a_loop_of_your_own_gives_its_sensor_noise_as_a_number_at_least_zero(age
     monitor.close()
 
 
+def test_an_episode_in_another_sensor_noise_than_the_thresholds_is_warned_of_once_a_noise(agent):
+    # A noiseless threshold alarmed in 100 of 100 fresh ID episodes at noise 0.01 (2026-12-05), and
+    # in Python nothing said so: only the CLI's run and replay did.
+    from oodmon.monitor import OffCalibrationNoiseWarning
+
+    noisy = Threshold(6.0, "chosen_std", 1, "episode", 0.05, 20, 100, task="cartpole", method="ensemble",
+                      obs_noise=0.01)
+    old = Threshold(6.0, "chosen_std", 1, "episode", 0.05, 20, 100, task="cartpole", method="ensemble")
+    played = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with Monitor(agent, noisy) as monitor:
+            for noise in (0.01, 0.0, 0.0, 0.02, 0.01, 0.02):
+                monitor.run_episode(gymnasium.make("oodmon/CartPole-v1", obs_noise=noise), seed=1, max_steps=3)
+                played.append(monitor.last_step is not None)
+        with Monitor(agent, old) as monitor:  # no noise recorded: calibrated without (0), as `oodmon run` reads it
+            monitor.run_episode(gymnasium.make("oodmon/CartPole-v1"), seed=1, max_steps=3)
+            monitor.run_episode(gymnasium.make("oodmon/CartPole-v1", obs_noise=0.05), seed=1, max_steps=3)
+        with Monitor(agent, 6.0) as monitor:  # a bare number is no calibration: nothing to compare
+            monitor.run_episode(gymnasium.make("oodmon/CartPole-v1", obs_noise=0.05), seed=1, max_steps=3)
+    said = [str(w.message) for w in caught if issubclass(w.category, OffCalibrationNoiseWarning)]
+    assert all(played) and len(said) == 3, said  # 0 and 0.02 under the noisy threshold, 0.05 under the old one
+    assert said[0].startswith("this episode plays sensor noise obs_noise=0, and the threshold was calibrated with 0.01")
+    assert "obs_noise=0.02," in said[1] and "`oodmon calibrate --obs-noise 0.02`" in said[1]
+    assert "obs_noise=0.05, and the threshold was calibrated with 0:" in said[2]
+    with pytest.warns(OffCalibrationNoiseWarning) as direct, Monitor(agent, noisy) as monitor:  # a loop of your own
+        monitor.begin_episode(variant="cartpole", obs_noise=0.03)
+    assert direct[0].filename == __file__  # the line that began the episode
+
+
 def test_a_monitored_env_stepped_with_no_episode_running_says_to_reset_it(agent):
     # before its first reset, after its episode ended, after close: it said "Monitor.step before
     # begin_episode", a method an env's user never calls (2026-12-01)
