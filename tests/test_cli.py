@@ -698,6 +698,66 @@ def test_validate_counts_alarmed_fresh_id_episodes_beside_the_target(tmp_path, c
     assert values[0] == values[1]
 
 
+def test_validate_max_steps_plays_runs_longer_than_the_calibrations_and_counts_them_by_its_episodes_length(
+        tmp_path, capsys):
+    """A deployment runs longer than the env's episodes; the bound is for episodes like the
+    calibration's (2026-12-05: the docs' own controller, calibrated on 500-step CartPole episodes,
+    alarmed in 29 of 314 stretches of 500 steps of episodes of up to 5,000, where its cart wanders
+    further; `calibrate --max-steps 5000` made a threshold that held there)."""
+    from oodmon.agents import load
+    from oodmon.errors import InvalidParameterError
+    from oodmon.monitor import Threshold, validate_threshold
+    from oodmon.replay import read_log
+
+    # A threshold below every score alarms at each episode's first step and holds: one alarm raised per
+    # episode, in its first stretch of 500 steps (the calibration episodes' length) of four.
+    always = tmp_path / "always.json"
+    Threshold(-1e9, "chosen_std", 1, "episode", 0.05, 45, 22_500, task="cartpole", method="ensemble",
+              confidence=0.9).save(always)
+    assert main(["validate", str(always), "--episodes", "3", "--max-steps", "2000", "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert (report["alarmed"], report["total"], report["steps"], report["alarms"], report["max_steps"]) == (3, 3, 6000, 3,
+                                                                                                            2000)
+    assert report["stretches"]["length"] == 500 and report["stretches"]["total"] == 12
+    assert report["stretches"]["alarmed"] == 3 and report["verdict"] == "above"  # 25% (7.5%-53%) against 5%
+    assert main(["validate", str(always), "--episodes", "3", "--max-steps", "2000"]) == 1
+    said = re.sub(r"\s+", " ", capsys.readouterr().out)
+    assert "3 of 3 fresh ID episodes of up to 2,000 steps alarmed" in said
+    assert "of the 12 stretches of 500 steps, 3 alarmed, 25.0%" in said and "3 alarms in 6,000 steps" in said
+    assert "calibrate on episodes as long as these (`oodmon calibrate --max-steps 2000`)" in said
+    assert main(["validate", str(always), "--episodes", "3", "--json"]) == 1  # the env's own limit: no stretches
+    report = json.loads(capsys.readouterr().out)
+    assert report["steps"] == 1500 and report["max_steps"] is None and report["stretches"] is None
+    # calibrated on longer episodes, the threshold records their limit, and validate plays it by default
+    path = tmp_path / "long.json"
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--far", "0.3",
+                 "--confidence", "none", "--episodes", "4", "--max-steps", "800", "--out", str(path)]) == 0
+    assert "4 ID episodes of up to 800 steps" in re.sub(r"\s+", " ", capsys.readouterr().out)
+    threshold = Threshold.load(path)
+    assert threshold.max_steps == 800 and threshold.n_steps == 3200  # the ensemble keeps the pole up: whole episodes
+    assert main(["validate", str(path), "--episodes", "2", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["steps"] == 1600 and report["max_steps"] == 800 and report["stretches"] is None
+    # and run too, unless told otherwise; a shift after the env's own 500 steps is then seen
+    log = tmp_path / "long.mcap"
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(path), "--episodes", "1",
+                 "--mcap", str(log)]) == 0
+    assert "episodes of up to 800 steps" in re.sub(r"\s+", " ", capsys.readouterr().out)
+    assert read_log(log).episodes[0].length == 800
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(always), "--episodes", "1",
+                 "--max-steps", "700", "--variant", "cartpole:length=2.0", "--onset", "600", "--mcap", str(log),
+                 "--overwrite"]) == 0
+    [episode] = read_log(log).episodes
+    assert episode.length > 600 and episode.first_alarm_step == 0  # the episode went on past 500 steps
+    for bad in ("0", "-5", "1.5", "many"):
+        assert main(["validate", str(path), "--max-steps", bad]) == 2
+        assert "--max-steps" in capsys.readouterr().err
+    with pytest.raises(InvalidParameterError, match=r"max_steps=0 is not allowed; it must be a whole number >= 1"):
+        Threshold(1.0, "chosen_std", 1, "episode", 0.05, 20, 100, max_steps=0)
+    with pytest.raises(InvalidParameterError, match=r"max_steps=2.5 is not allowed; give each episode's time limit"):
+        validate_threshold(load("cartpole", "ensemble"), threshold, 1, max_steps=2.5)
+
+
 def test_replay_notes_logged_episodes_the_threshold_or_its_detector_was_made_from(tmp_path, capsys):
     """`run` warns when its ID episodes are ones the threshold was made from, but its log did not
     say so: `replay --monitor` of it, read later or elsewhere, counted their false alarms as fresh

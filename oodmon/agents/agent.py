@@ -215,19 +215,21 @@ class Agent:
         check_obs_noise(ENV_IDS[task], obs_noise)
         return task
 
-    def make_env(self, obs_noise: float = 0.0) -> gymnasium.Env:
+    def make_env(self, obs_noise: float = 0.0, *, max_steps: int | None = None) -> gymnasium.Env:
         """The ID env this agent acts in: its task's oodmon env, or the gymnasium env id it was
         loaded for (``gymnasium.make(env_id)``; sensor noise is oodmon's envs' option only, see
-        :meth:`check_noise`), with the agent's observations (:meth:`wrap`)."""
+        :meth:`check_noise`), with the agent's observations (:meth:`wrap`). ``max_steps``: its
+        episodes' time limit instead of the env's own (gymnasium's ``max_episode_steps``)."""
         from oodmon.envs.grid import Variant
         from oodmon.envs.registration import make_env
 
+        limit = {} if max_steps is None else {"max_episode_steps": max_steps}
         noisy = self.check_noise(obs_noise)
         if noisy is not None:
-            return Variant(noisy).make(obs_noise=obs_noise)
+            return Variant(noisy).make(obs_noise=obs_noise, **limit)
         if self.env_id is not None:
-            return self.wrap(make_env(self.env_id))  # the user's own env, exactly as they deploy in it
-        return Variant(self.task).make()
+            return self.wrap(make_env(self.env_id, **limit))  # the user's own env, exactly as they deploy in it
+        return Variant(self.task).make(**limit)
 
     def __repr__(self) -> str:
         ret = self.metadata.get("id_return_mean")

@@ -70,6 +70,10 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
                               "Pendulum; default 0), recorded in the threshold for validate and run; where the alarm "
                               "reads a learned detector, the agent's shipped ones, fitted without noise, are fitted "
                               "again in that world first")
+    promise.add_argument("--max-steps", type=_whole(1),
+                         help="the calibration episodes' time limit instead of the env's own, for a deployment whose "
+                              "runs are longer (the bound is for episodes like the calibration's); recorded in the "
+                              "threshold for validate")
     promise.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
 
@@ -142,14 +146,15 @@ def _calibrate(args: argparse.Namespace) -> int:
                                     detector=args.detector, confidence=args.confidence, rule=args.rule,
                                     reference_episodes=args.reference_episodes, reference_by_age=args.reference_by_age,
                                     warmup=args.warmup, on_progress=report, workers=args.workers,
-                                    obs_noise=args.obs_noise)
+                                    obs_noise=args.obs_noise, max_steps=args.max_steps)
     # Written together once the calibration ends, each file beside its place first: an interrupted
     # calibration or a full disk leaves the earlier threshold with the detectors it was calibrated with.
     save_calibration(threshold, args.out, detectors if fitted_to else None)
     cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "
-        f"mode, {threshold.n_episodes} ID episodes{_side_by_side(threshold.workers)}{_noise(threshold.obs_noise)}, "
+        f"mode, {threshold.n_episodes} ID episodes{f' of up to {threshold.max_steps:,} steps' if threshold.max_steps else ''}"
+        f"{_side_by_side(threshold.workers)}{_noise(threshold.obs_noise)}, "
         f"{threshold.n_steps} steps, rank {threshold.rank} of "
         f"{threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score median "
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote {args.out}"
@@ -213,6 +218,11 @@ def _add_validate(commands: argparse._SubParsersAction) -> None:
     validate.add_argument("--obs-noise", type=_non_negative,
                           help="sensor noise, a fraction of each dimension's ID spread (default: the threshold's, "
                                "`calibrate --obs-noise`; 0 where it records none)")
+    validate.add_argument("--max-steps", type=_whole(1),
+                          help="each episode's time limit instead of the env's own: check the threshold on runs as "
+                               "long as your deployment's (default: the threshold's, `calibrate --max-steps`, else the "
+                               "env's own; episode mode: also counted by stretches as long as the calibration "
+                               "episodes, which the bound is for)")
     validate.add_argument("--force", action="store_true", help="validate even if the threshold was made for other weights")
     _add_workers(validate, "the validation episodes")
     validate.add_argument("--json", action="store_true", help="print JSON instead of a sentence")
@@ -233,9 +243,10 @@ def _validate(args: argparse.Namespace) -> int:
     with _progress() as report:
         result = validate_threshold(agent, threshold, args.episodes, seed=args.seed, detectors=detectors,
                                     obs_noise=args.obs_noise, force=args.force, on_progress=report,
-                                    workers=args.workers)
+                                    workers=args.workers, max_steps=args.max_steps)
     unit = "episodes" if threshold.mode == "episode" else "steps"
     noise = result.obs_noise  # (the threshold's, unless --obs-noise)
+    stretches = result.stretches
     if args.json:
         print(json.dumps({"threshold": str(args.threshold), "task": agent.task, "method": agent.method,
                           "detector": threshold.detector, "rule": threshold.rule_text, "unit": unit,
@@ -244,15 +255,28 @@ def _validate(args: argparse.Namespace) -> int:
                           "confidence": result.confidence, "seed": args.seed, "obs_noise": noise,
                           "calibrated_obs_noise": threshold.calibration_noise,  # the world the bound is for
                           "workers": resolve_workers(args.workers, args.episodes),  # those that played them
+                          "steps": result.steps, "alarms": result.alarms, "max_steps": result.max_steps,
+                          "stretches": None if stretches is None else {
+                              "length": stretches.length, "alarmed": stretches.alarmed, "total": stretches.total,
+                              "rate": stretches.rate, "interval95": [stretches.low, stretches.high]},
                           "verdict": result.verdict}, indent=1))
     else:
-        verdict = {"above": "ABOVE the target: this threshold alarms too often" + _above_hint(threshold, unit, noise),
+        verdict = {"above": "ABOVE the target: this threshold alarms too often"
+                            + _above_hint(threshold, unit, noise, result.max_steps),
                    "below": "below the target",
                    "consistent": "consistent with the target (the interval holds it)"}[result.verdict]
+        played = f"fresh ID {unit}" if result.max_steps is None else f"fresh ID {unit} of up to {result.max_steps:,} steps"
+        said = (f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule_text}: "
+                f"{result.alarmed} of {result.total} {played}{_noise(noise)}{_other_noise(threshold, noise)} "
+                f"alarmed, {result.rate:.1%} (95% interval {result.low:.1%}-{result.high:.1%})")
+        if stretches is not None:
+            said += (f"; the bound is for episodes like the calibration's ({stretches.length:,} steps on average): of "
+                     f"the {stretches.total:,} stretches of {stretches.length:,} steps, {stretches.alarmed:,} alarmed, "
+                     f"{stretches.rate:.1%} (95% interval {stretches.low:.1%}-{stretches.high:.1%}, approximate: the "
+                     f"stretches of one episode are not independent); {result.alarms:,} alarm"
+                     f"{'s' if result.alarms != 1 else ''} in {result.steps:,} steps")
         Console(soft_wrap=True).print(
-            f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule_text}: "
-            f"{result.alarmed} of {result.total} fresh ID {unit}{_noise(noise)}{_other_noise(threshold, noise)} "
-            f"alarmed, {result.rate:.1%} (95% interval {result.low:.1%}-{result.high:.1%}); target {result.far:g}"
+            said + f"; target {result.far:g}"
             + (f" with confidence {result.confidence:g}" if result.confidence is not None else " on average")
             + f": {verdict}")
     return 1 if result.verdict == "above" else 0
@@ -264,15 +288,21 @@ def _other_noise(threshold, obs_noise: float) -> str:
     return "" if calibrated == obs_noise else f" (calibrated with sensor noise {calibrated:g})"
 
 
-def _above_hint(threshold, unit: str, obs_noise: float) -> str:
+def _above_hint(threshold, unit: str, obs_noise: float, max_steps: int | None = None) -> str:
     """What to do about a threshold whose fresh rate lies above its target: calibrate in the world it
     watches, where validation played another sensor noise (0.1% noise put the demo's noiseless
     threshold above 100 of 100 fresh episodes, 2026-12-05: a draw of calibration episodes is not the
-    reason then); else how often calibration gives one, and how to get another."""
+    reason then) or longer episodes (the docs' own CartPole controller, calibrated on its 500-step
+    episodes: 29 of 314 stretches of 500 steps alarmed in episodes of up to 5,000, where its cart
+    wanders further than in 500 steps; 2026-12-05); else how often calibration gives one, and how to
+    get another."""
     calibrated = threshold.calibration_noise
     if calibrated != obs_noise:
         return (f" in a world of sensor noise {obs_noise:g}; its bound is for the world it was calibrated in, noise "
                 f"{calibrated:g}: calibrate in this one (`oodmon calibrate --obs-noise {obs_noise:g}`)")
+    if max_steps is not None and max_steps != threshold.max_steps:
+        return (f" in episodes of up to {max_steps:,} steps; its bound is for episodes like its calibration's: calibrate "
+                f"on episodes as long as these (`oodmon calibrate --max-steps {max_steps}`)")
     if threshold.mode != "episode":
         return (f" (per step the bound is only approximate: the {unit} of an episode are correlated; calibrate per "
                 "episode, the default)")

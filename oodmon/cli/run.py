@@ -38,6 +38,9 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
     world.add_argument("--obs-noise", type=_non_negative,
                        help="sensor noise in every episode, ID or shifted, a fraction of each reading's ID spread "
                             "(CartPole, Pendulum; default: --threshold's, `calibrate --obs-noise`, else 0)")
+    world.add_argument("--max-steps", type=_whole(1),
+                       help="each episode's time limit instead of the env's own, as long as your deployment's runs "
+                            "(default: --threshold's, `calibrate --max-steps`, else the env's own)")
     world.add_argument("--episodes", type=_whole(1), default=5, help="episodes (default 5)")
     world.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode and of an MC agent's samples "
                                                              "(default 0): the same command plays the same episodes")
@@ -119,6 +122,8 @@ def _run(args: argparse.Namespace) -> int:
                           + ": leave out --render")
     if args.obs_noise is None:  # the world the threshold was calibrated in
         args.obs_noise = threshold.calibration_noise if threshold is not None else 0.0
+    if args.max_steps is None and threshold is not None:  # and the length of its episodes
+        args.max_steps = threshold.max_steps
     env, label = _run_env(args, agent)
     detectors = _detectors(args, agent)
     if threshold is not None and (not args.variant or args.onset or label == args.task):  # ID steps: false alarms
@@ -171,6 +176,7 @@ def _run(args: argparse.Namespace) -> int:
     written = [str(p) for name, p in files.items() if p and name not in failures]
     console.print(rows.table(f"{args.task}/{agent.method} in {label}, onset {args.onset}"
                              + (f", sensor noise {args.obs_noise:g}" if args.obs_noise else "")
+                             + (f", episodes of up to {args.max_steps:,} steps" if args.max_steps else "")
                              + (f", {threshold.rule_text}" if threshold else ", no threshold")))
     if rows.left_out:
         console.print(f"{rows.left_out} episode{'s' if rows.left_out != 1 else ''} not shown"
@@ -258,7 +264,7 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
     """``oodmon run``'s env and its label: the ``--variant`` (a variant of the agent's task, or a
     shift of your own model's env, shifting at ``--onset``), else your own model's env as you
     deploy it, else the task's ID env; with ``--obs-noise``'s sensor noise (oodmon's CartPole
-    and Pendulum envs only)."""
+    and Pendulum envs only) and ``--max-steps``' time limit."""
     from oodmon.envs import Variant, own_variant, parse_variant
     from oodmon.envs.registration import TASK_OF_ENV
 
@@ -268,6 +274,7 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
                           f"{', '.join(sorted(TASK_OF_ENV))}; shift {args.task} itself with --variant "
                           f"{args.task}:NAME=VALUE (numeric attributes of its env), or leave out --variant")
     noise = args.obs_noise
+    limit = {} if args.max_steps is None else {"max_episode_steps": args.max_steps}  # (--max-steps)
     agent.check_noise(noise)  # a noise the env refuses, or an env without it: said before the run, as calibrate says it
     # A shift of your own env's attributes; also of gymnasium's id of a task, where your own policy
     # acts (CartPole-v1:theta_threshold_radians=0.1: parse_env_shift refuses the task's physics there)
@@ -278,16 +285,16 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
                               "--obs-noise" + (" (the threshold's is taken by default: give --obs-noise 0)"
                                                if args.threshold else ""))
         shift = own_variant(args.variant, agent.env_id)
-        return agent.wrap(shift.make(onset_step=args.onset)), shift.spec
+        return agent.wrap(shift.make(onset_step=args.onset, **limit)), shift.spec
     noisy = {"obs_noise": noise} if noise else {}
     if args.variant:
         variant = parse_variant(args.variant)
         if variant.task != args.task:
             raise ConfigError(f"variant {variant.spec!r} is not a {args.task} variant")
-        return agent.wrap(variant.make(onset_step=args.onset, **noisy)), variant.spec
+        return agent.wrap(variant.make(onset_step=args.onset, **noisy, **limit)), variant.spec
     if agent.env_id is not None:  # your own model in its own env, as you deploy it
-        return agent.make_env(noise), agent.env_id
-    return Variant(args.task).make(onset_step=args.onset, **noisy), args.task
+        return agent.make_env(noise, max_steps=args.max_steps), agent.env_id
+    return Variant(args.task).make(onset_step=args.onset, **noisy, **limit), args.task
 
 
 class _EpisodeRows:

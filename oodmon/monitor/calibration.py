@@ -26,7 +26,6 @@ from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, OffCalibrationNoiseWarning, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
-from oodmon.monitor.sinks.base import MemorySink
 from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson,
                                      conformal_rank, episodes_needed)
 from oodmon.progress import Progress
@@ -34,8 +33,8 @@ from oodmon.seeds import EPISODE_USES
 from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import is_step_count, is_whole
 
-__all__ = ["CALIBRATION_SEED", "EPISODE_USES", "Validation", "calibrate_agent", "check_fresh", "clopper_pearson",
-           "detectors_read", "id_episode_scores", "reused_episodes", "save_calibration", "seeds_used",
+__all__ = ["CALIBRATION_SEED", "EPISODE_USES", "Stretches", "Validation", "calibrate_agent", "check_fresh",
+           "clopper_pearson", "detectors_read", "id_episode_scores", "reused_episodes", "save_calibration", "seeds_used",
            "validate_threshold"]
 
 CALIBRATION_SEED = seeds.CALIBRATION
@@ -43,12 +42,40 @@ CALIBRATION_SEED = seeds.CALIBRATION
 DEFAULT_REFERENCE_EPISODES = 20
 
 
+class _ScoresAndAlarms:
+    """A sink keeping what calibration and validation read of each episode: the alarm detector's
+    per-step scores and the steps at which alarms were raised, not whole step records (validation's
+    episodes may be long: ``--max-steps``)."""
+
+    def __init__(self) -> None:
+        self.episodes: list[tuple[np.ndarray, list[int]]] = []
+        self._scores: list[float] = []
+        self._alarms: list[int] = []
+
+    def open(self, run: Any) -> None:
+        pass
+
+    def write_step(self, record: Any) -> None:
+        self._scores.append(record.score)
+
+    def write_alarm(self, event: Any) -> None:
+        self._alarms.append(event.step)
+
+    def end_episode(self, record: Any) -> None:
+        self.episodes.append((np.asarray(self._scores), self._alarms))
+        self._scores, self._alarms = [], []
+
+    def close(self) -> None:
+        pass
+
+
 def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
                       on_progress: Progress | None, stage: str = "ID episodes", workers: int = 1,
-                      **settings: Any) -> tuple[list[np.ndarray], list[bool]]:
+                      max_steps: int | None = None, **settings: Any) -> list[tuple[np.ndarray, list[int]]]:
     """Run ``episodes`` ID episodes of ``agent`` under a :class:`Monitor` made with ``settings``
-    (seeds ``seed`` on, sensor noise ``obs_noise``); the alarm detector's per-step scores of each,
-    and whether each raised an alarm. ``on_progress(stage, done, episodes)`` after each.
+    (seeds ``seed`` on, sensor noise ``obs_noise``); of each, the alarm detector's per-step scores
+    and the steps at which an alarm was raised. ``on_progress(stage, done, episodes)`` after each.
+    ``max_steps``: each episode's time limit (the env's own lifted or set: ``max_episode_steps``).
 
     ``workers``: processes that play them side by side (0: one per core; see
     :mod:`oodmon.side_by_side` for what an MC agent draws there)."""
@@ -56,36 +83,41 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
     workers = resolve_workers(workers, episodes)
     start = stream_per_episode(agent.estimator, workers)
 
-    def play(first: int, count: int, done) -> list[tuple[np.ndarray, bool]]:
-        sink = MemorySink()
-        env = agent.make_env(obs_noise)
+    def play(first: int, count: int, done) -> list[tuple[np.ndarray, list[int]]]:
+        sink = _ScoresAndAlarms()
+        env = agent.make_env(obs_noise, max_steps=max_steps)
+        endless = None if max_steps is not None else (lambda _, steps, __: warn_if_endless(env, steps))
         with warnings.catch_warnings(), Monitor(agent, sinks=[sink], log_observations=False, **settings) as monitor:
             # validate counts false alarms at another noise on purpose, and says which world it played
             warnings.simplefilter("ignore", OffCalibrationNoiseWarning)
             for episode in range(first, first + count):
                 start(seed + episode)
-                monitor.run_episode(env, seed=seed + episode, variant=agent.task,
-                                    on_progress=lambda _, steps, __: warn_if_endless(env, steps))
+                monitor.run_episode(env, seed=seed + episode, variant=agent.task, on_progress=endless)
                 done()
         env.close()
-        scores: list[list[float]] = [[] for _ in range(count)]
-        for record in sink.steps:
-            scores[record.episode].append(record.score)
-        return [(np.asarray(s), ended.alarms > 0) for s, ended in zip(scores, sink.episodes)]
+        return sink.episodes
 
-    played = play_side_by_side(play, episodes, workers, stage, on_progress)
-    return [scores for scores, _ in played], [alarmed for _, alarmed in played]
+    return play_side_by_side(play, episodes, workers, stage, on_progress)
 
 
 def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SEED, score: str = DEFAULT_SCORE,
                       on_progress: Progress | None = None, detectors: DetectorSet | None = None,
                       detector: str = "spread", obs_noise: float = 0.0, stage: str = "ID episodes",
-                      workers: int = 1) -> list[np.ndarray]:
+                      workers: int = 1, max_steps: int | None = None) -> list[np.ndarray]:
     """Per-step scores of ``detector`` in ``episodes`` ID episodes of ``agent``, seeded ``seed``,
-    ``seed + 1``, ... (with sensor noise ``obs_noise``, see the envs), played in ``workers``
-    processes (see :mod:`oodmon.side_by_side`)."""
-    return _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, score=score, detectors=detectors,
-                             detector=detector, stage=stage, workers=workers)[0]
+    ``seed + 1``, ... (with sensor noise ``obs_noise``, see the envs, and time limit ``max_steps``,
+    ``None``: the env's own), played in ``workers`` processes (see :mod:`oodmon.side_by_side`)."""
+    _check_max_steps(max_steps)
+    played = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, score=score, detectors=detectors,
+                               detector=detector, stage=stage, workers=workers, max_steps=max_steps)
+    return [scores for scores, _ in played]
+
+
+def _check_max_steps(max_steps: Any) -> None:
+    """``max_steps`` is an episode's time limit (a whole number >= 1) or ``None`` (the env's own)."""
+    if max_steps is not None and not is_whole(max_steps):
+        raise InvalidParameterError(f"max_steps={max_steps!r} is not allowed; give each episode's time limit, a whole "
+                                    "number >= 1 of steps (None: the env's own)")
 
 
 def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int | None = None,
@@ -94,7 +126,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                     detectors: DetectorSet | None = None, detector: str | None = None,
                     obs_noise: float = 0.0, confidence: float | None = DEFAULT_CONFIDENCE, rule: str = "consecutive",
                     reference_episodes: int = DEFAULT_REFERENCE_EPISODES, reference_by_age: bool = False,
-                    warmup: int = 0, workers: int = 1) -> Threshold:
+                    warmup: int = 0, workers: int = 1, max_steps: int | None = None) -> Threshold:
     """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``).
 
     ``detector`` names the detector whose score the alarm will read; a learned one comes from
@@ -117,6 +149,10 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     ``warmup``: the rule looks at no finite score of an episode's first ``warmup`` steps (see
     ``alarms``); the threshold is calibrated for that rule.
 
+    ``max_steps``: the episodes' time limit instead of the env's own, for a deployment whose runs are
+    longer (the bound is for episodes like the calibration's); recorded in the threshold, whose
+    validation plays episodes that long.
+
     ``workers``: processes that play the episodes side by side (0: one per core). An agent that
     draws nothing when it decides gets the same threshold from any number; an MC agent's episodes
     draw from streams of their own there, the same for any ``workers`` >= 2 and not those of one
@@ -132,6 +168,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     # placeholder scores raises what the real one would.
     if not is_whole(episodes):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
+    _check_max_steps(max_steps)
     seed = seeds.check_seed(seed)
     resolve_workers(workers, episodes)
     score_function(score)
@@ -180,9 +217,10 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     if rule != "consecutive":
         reference = Reference.from_episodes(id_episode_scores(
             agent, reference_episodes, seed=seeds.REFERENCE, score=score, detectors=needed, detector=detector,
-            obs_noise=obs_noise, workers=workers), by_age=reference_by_age)
+            obs_noise=obs_noise, workers=workers, max_steps=max_steps), by_age=reference_by_age)
     scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_progress=on_progress, detectors=needed,
-                               detector=detector, obs_noise=obs_noise, stage="calibration episodes", workers=workers)
+                               detector=detector, obs_noise=obs_noise, stage="calibration episodes", workers=workers,
+                               max_steps=max_steps)
     _check_steps_to_score(scores, detector, needed)
     threshold = calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
                           method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
@@ -194,7 +232,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     if reference is not None:
         used["reference"] = [seeds.REFERENCE, seeds.REFERENCE + reference_episodes]
     return replace(threshold, episode_seeds=used, workers=resolve_workers(workers, episodes),
-                   obs_noise=float(obs_noise))
+                   obs_noise=float(obs_noise), max_steps=max_steps)
 
 
 def _warn_of_other_noise(detectors: DetectorSet | None, obs_noise: float) -> None:
@@ -256,6 +294,48 @@ def save_calibration(threshold: Threshold, path: str | Path, detectors: Detector
 
 
 @dataclass(frozen=True)
+class Stretches:
+    """Long validation episodes (``max_steps``) cut into stretches as long as the threshold's
+    calibration episodes were on average: the per-episode bound is for episodes like those, so a
+    stretch is what it speaks of in a longer run. Each episode gives ``max(1, T // length)``
+    stretches of its T steps, the last taking the steps left over (so none is shorter than a
+    calibration episode, or than the episode); a stretch is alarmed where an alarm was raised in it.
+
+    Attributes:
+        length: steps of a stretch (the calibration episodes' mean length).
+        total, alarmed: stretches, and those in which an alarm was raised.
+        low, high: the 95% Clopper-Pearson interval of the alarmed share; approximate, since the
+            stretches of one episode are not independent.
+    """
+
+    length: int
+    total: int
+    alarmed: int
+    low: float
+    high: float
+
+    @property
+    def rate(self) -> float:
+        return self.alarmed / self.total
+
+    @classmethod
+    def of(cls, episodes: Sequence[tuple[int, Sequence[int]]], length: int) -> Stretches:
+        """The stretches of ``episodes``, each ``(steps, the steps where alarms were raised)``.
+
+        Example:
+            >>> s = Stretches.of([(1000, [3]), (1250, [999, 1100]), (300, [])], 500)
+            >>> s.total, s.alarmed
+            (5, 2)
+        """
+        total = alarmed = 0
+        for steps, alarms in episodes:
+            count = max(1, steps // length)
+            total += count
+            alarmed += len({min(step // length, count - 1) for step in alarms})
+        return cls(length, total, alarmed, *clopper_pearson(alarmed, total))
+
+
+@dataclass(frozen=True)
 class Validation:
     """A threshold checked on fresh ID episodes.
 
@@ -265,6 +345,11 @@ class Validation:
         far, confidence: the threshold's target and the confidence of its bound.
         low, high: the 95% Clopper-Pearson interval of the realised false-alarm rate.
         obs_noise: the sensor noise of the episodes played.
+        steps, alarms: ID steps played and alarms raised over them (every excursion above the
+            threshold, not only an episode's first).
+        max_steps: the episodes' time limit, where validation set one (else the env's own).
+        stretches: with ``max_steps``, in episode mode: the episodes cut into stretches as long as
+            the calibration's episodes (:class:`Stretches`), which the verdict then reads.
     """
 
     alarmed: int
@@ -274,6 +359,10 @@ class Validation:
     low: float
     high: float
     obs_noise: float = 0.0
+    steps: int = 0
+    alarms: int = 0
+    max_steps: int | None = None
+    stretches: Stretches | None = None
 
     @property
     def rate(self) -> float:
@@ -282,8 +371,10 @@ class Validation:
     @property
     def verdict(self) -> str:
         """``above`` (the whole interval exceeds the target), ``below`` (it is under), or
-        ``consistent`` (the target is inside it: more episodes would tell)."""
-        return "above" if self.low > self.far else "below" if self.high < self.far else "consistent"
+        ``consistent`` (the target is inside it: more episodes would tell); of the stretches where
+        the episodes were longer than calibration's (:attr:`stretches`)."""
+        low, high = (self.low, self.high) if self.stretches is None else (self.stretches.low, self.stretches.high)
+        return "above" if low > self.far else "below" if high < self.far else "consistent"
 
 
 def detectors_read(threshold: Threshold, detectors: DetectorSet | None) -> DetectorSet | None:
@@ -361,12 +452,17 @@ def check_fresh(threshold: Threshold, detectors: DetectorSet | None, seed: int, 
 
 def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, *, seed: int = seeds.VALIDATION,
                        detectors: DetectorSet | None = None, obs_noise: float | None = None, force: bool = False,
-                       on_progress: Progress | None = None, workers: int = 1) -> Validation:
+                       on_progress: Progress | None = None, workers: int = 1,
+                       max_steps: int | None = None) -> Validation:
     """Play ``episodes`` fresh ID episodes (seeds ``seed`` on, apart from calibration's) under a
     :class:`Monitor` with ``threshold`` and count those that raised an alarm (in step mode: the
     steps above it): the realised false-alarm rate beside the target. ``workers``: processes that
     play them side by side (0: one per core; see :func:`calibrate_agent`). ``obs_noise``: the
     episodes' sensor noise (``None``: the threshold's, ``Threshold.obs_noise``, 0 where it records none).
+    ``max_steps``: each episode's time limit instead of the env's own, to check the threshold on runs
+    as long as a deployment's (``None``: the threshold's, :attr:`Threshold.max_steps`, else the
+    env's own); in episode mode the episodes are then also counted by stretches as long as the
+    calibration's episodes (:class:`Stretches`), which the bound speaks of.
 
     Raises:
         InvalidParameterError: ``episodes`` is not a whole number >= 1.
@@ -380,19 +476,28 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
                                     "of a file `oodmon calibrate` or calibrate_agent wrote)")
     if not is_whole(episodes):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
+    _check_max_steps(max_steps)
     seed = seeds.check_seed(seed)
     resolve_workers(workers, episodes)
     if obs_noise is None:
         obs_noise = threshold.calibration_noise
+    if max_steps is None:
+        max_steps = threshold.max_steps
     agent.check_noise(obs_noise)  # as calibrate_agent: said before the first episode
     needed = detectors_read(threshold, detectors)
     check_fresh(threshold, needed, seed, episodes)
-    scores, episode_alarms = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, stage="validation episodes",
-                                               workers=workers, threshold=threshold, detectors=needed, force=force)
+    played = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, stage="validation episodes",
+                               workers=workers, threshold=threshold, detectors=needed, force=force, max_steps=max_steps)
+    steps = np.concatenate([scores for scores, _ in played])
     if threshold.mode == "episode":
-        alarmed, total = sum(episode_alarms), len(episode_alarms)
+        alarmed, total = sum(bool(alarms) for _, alarms in played), len(played)
     else:
-        steps = np.concatenate(scores)
         alarmed, total = int(np.sum(steps > threshold.value)), len(steps)
     low, high = clopper_pearson(int(alarmed), total)
-    return Validation(int(alarmed), total, threshold.far, threshold.confidence, low, high, float(obs_noise))
+    stretches = None
+    if max_steps is not None and max_steps != threshold.max_steps and threshold.mode == "episode":
+        length = max(1, round(threshold.n_steps / threshold.n_episodes))  # a calibration episode's, on average
+        stretches = Stretches.of([(len(scores), alarms) for scores, alarms in played], length)
+    return Validation(int(alarmed), total, threshold.far, threshold.confidence, low, high, float(obs_noise),
+                      steps=len(steps), alarms=sum(len(alarms) for _, alarms in played), max_steps=max_steps,
+                      stretches=stretches)

@@ -335,6 +335,10 @@ class Threshold:
             Pendulum envs' ``obs_noise``, a fraction of each reading's ID spread): ``oodmon
             validate`` and ``oodmon run`` play that world unless told otherwise. ``None``: not
             recorded (files written before 2026-12-05, or calibrated on scores alone); read as 0.
+        max_steps: the time limit of its calibration episodes, where calibration set one instead of
+            the env's own (``oodmon calibrate --max-steps``: a deployment's runs are longer than the
+            env's episodes); ``oodmon validate`` plays episodes that long unless told otherwise.
+            ``None``: the env's own limit.
     """
 
     value: float
@@ -361,6 +365,7 @@ class Threshold:
     episode_seeds: dict[str, list[int]] | None = None
     workers: int | None = None
     obs_noise: float | None = None
+    max_steps: int | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -517,6 +522,8 @@ def _check_fields(threshold: Threshold) -> None:
         raise bad("workers", "it must be a whole number >= 1, or null")
     if threshold.obs_noise is not None:
         check_obs_noise("a threshold file", threshold.obs_noise)  # the envs' own bounds
+    if threshold.max_steps is not None and not is_whole(threshold.max_steps):
+        raise bad("max_steps", "it must be a whole number >= 1 of steps, or null (the env's own time limit)")
     seeds = threshold.episode_seeds
     if seeds is not None and not (isinstance(seeds, dict) and all(
             isinstance(name, str) and isinstance(pair, (list, tuple)) and len(pair) == 2

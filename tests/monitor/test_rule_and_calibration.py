@@ -638,6 +638,6 @@ def test_a_calibration_in_a_noisy_world_records_its_noise_and_warns_of_detectors
     noisy, plain = [], []
     for found, noise in ((noisy, None), (plain, 0.0)):
         monkeypatch.setattr("oodmon.monitor.calibration._play_id_episodes",
-                            lambda _a, _e, _s, obs_noise, *_, found=found, **__: found.append(obs_noise) or ([], []))
+                            lambda _a, _e, _s, obs_noise, *_, found=found, **__: found.append(obs_noise) or [(np.zeros(3), [])])
         validate_threshold(agent, threshold, 1, obs_noise=noise)
     assert (noisy, plain) == ([0.01], [0.0])
