@@ -122,7 +122,7 @@ def cases() -> list[tuple[str, object, dict, list[str]]]:
         ("read_log", replay.read_log, dict(path=log), ["path"]),
         ("watch", oodmon.watch, dict(policy=agent, episodes=50),
          ["env_id", "far", "confidence", "episodes", "fit_episodes", "detector", "seed", "masks", "warmup", "workers",
-          "dynamics_updates", "threshold", "save"]),
+          "dynamics_updates", "threshold", "save", "max_steps"]),
         ("AlarmCommand", alarm_command, dict(command="true", wait=5.0), ["command", "env", "wait"]),
         ("ShiftAttributes", shifted_reset, dict(env=gymnasium.make("CartPole-v1"), changes={"length": 2.0}),
          ["changes", "onset_step", "env_id"]),

@@ -34,8 +34,8 @@ from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_e
 from oodmon.validation import is_step_count, is_whole
 
 __all__ = ["CALIBRATION_SEED", "EPISODE_USES", "Stretches", "Validation", "calibrate_agent", "check_fresh",
-           "clopper_pearson", "detectors_read", "id_episode_scores", "reused_episodes", "save_calibration", "seeds_used",
-           "validate_threshold"]
+           "check_max_steps", "clopper_pearson", "detectors_read", "id_episode_scores", "reused_episodes",
+           "save_calibration", "seeds_used", "validate_threshold"]
 
 CALIBRATION_SEED = seeds.CALIBRATION
 #: ID episodes a sequential rule's p-values are taken against.
@@ -107,13 +107,13 @@ def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SE
     """Per-step scores of ``detector`` in ``episodes`` ID episodes of ``agent``, seeded ``seed``,
     ``seed + 1``, ... (with sensor noise ``obs_noise``, see the envs, and time limit ``max_steps``,
     ``None``: the env's own), played in ``workers`` processes (see :mod:`oodmon.side_by_side`)."""
-    _check_max_steps(max_steps)
+    check_max_steps(max_steps)
     played = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, score=score, detectors=detectors,
                                detector=detector, stage=stage, workers=workers, max_steps=max_steps)
     return [scores for scores, _ in played]
 
 
-def _check_max_steps(max_steps: Any) -> None:
+def check_max_steps(max_steps: Any) -> None:
     """``max_steps`` is an episode's time limit (a whole number >= 1) or ``None`` (the env's own)."""
     if max_steps is not None and not is_whole(max_steps):
         raise InvalidParameterError(f"max_steps={max_steps!r} is not allowed; give each episode's time limit, a whole "
@@ -168,7 +168,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     # placeholder scores raises what the real one would.
     if not is_whole(episodes):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
-    _check_max_steps(max_steps)
+    check_max_steps(max_steps)
     seed = seeds.check_seed(seed)
     resolve_workers(workers, episodes)
     score_function(score)
@@ -476,7 +476,7 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
                                     "of a file `oodmon calibrate` or calibrate_agent wrote)")
     if not is_whole(episodes):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; give a whole number >= 1 of ID episodes")
-    _check_max_steps(max_steps)
+    check_max_steps(max_steps)
     seed = seeds.check_seed(seed)
     resolve_workers(workers, episodes)
     if obs_noise is None:

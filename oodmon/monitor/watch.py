@@ -103,7 +103,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
           on_progress: Progress | None = None, masks: str | None = None, vec_normalize: Any = None,
           frame_stack: int | None = None, threshold: str | Path | None = None, save: str | Path | None = None,
           warmup: int = 0, imports: Sequence[str] = (), unsafe_load_pickles: bool = False, workers: int = 1,
-          dynamics_updates: int | None = MAX_UPDATES) -> Any:
+          dynamics_updates: int | None = MAX_UPDATES, max_steps: int | None = None) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
     The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy (``None``:
@@ -122,6 +122,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     :mod:`oodmon.monitor.alarms`; the calibration says when one would lower the threshold much).
     ``dynamics_updates``: the dynamics model's fit stops after the whole epochs that hold at most
     this many Adam updates (``None``: every epoch; see :func:`~oodmon.monitor.detectors.fit_detectors`).
+    ``max_steps``: the calibration episodes' time limit instead of the env's own, for a deployment
+    whose runs are longer (see :func:`~oodmon.monitor.validate_threshold`'s, which checks it).
     ``workers``: processes that play the fitting and calibration episodes side by side (0: one per
     core; see :func:`~oodmon.monitor.calibrate_agent`: a policy that draws nothing gets the same
     detectors and threshold).
@@ -132,20 +134,21 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     ``threshold`` reads such a file and the detectors beside it (else the agent's shipped ones)
     instead of fitting and calibrating: no episode runs. The file must have been calibrated on this
     policy (the hash of its weights; its MC masks, which the policy is loaded with by default);
-    ``far``, ``confidence`` and ``episodes`` are then the file's, and ``warmup``, ``fit_episodes``
-    and ``dynamics_updates`` are refused (the file's warm-up and fitted detectors are what it was
-    calibrated with).
+    ``far``, ``confidence`` and ``episodes`` are then the file's, and ``warmup``, ``max_steps``,
+    ``fit_episodes`` and ``dynamics_updates`` are refused (the file's warm-up, episodes and fitted
+    detectors are what it was calibrated with).
 
     Raises:
         ConfigError, InvalidParameterError: as :func:`as_agent` and the calibration, before any
             episode runs where they can be told from the arguments; ``threshold`` and ``save``
-            both given; ``threshold`` with ``warmup``, ``fit_episodes`` or ``dynamics_updates``; a
+            both given; ``threshold`` with ``warmup``, ``max_steps``, ``fit_episodes`` or
+            ``dynamics_updates``; a
             ``threshold`` file of another policy, or whose detectors are missing; a ``save`` path
             that is one of the files it reads, or holds a file that is no threshold (a threshold
             there is replaced).
     """
     from oodmon.monitor.alarms import check_warmup
-    from oodmon.monitor.calibration import calibrate_agent, save_calibration
+    from oodmon.monitor.calibration import calibrate_agent, check_max_steps, save_calibration
     from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
     from oodmon.monitor.detectors.fitting import check_can_have, fitted_when_named
     from oodmon.monitor.monitor import Monitor
@@ -159,6 +162,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     if threshold is not None and warmup:
         raise ConfigError("a threshold file's warm-up is the one it was calibrated for: leave warmup= out, or "
                           "calibrate anew with it (save=)")
+    if threshold is not None and max_steps is not None:
+        raise ConfigError("a threshold file's episodes are those it was calibrated on (its max_steps): leave max_steps= "
+                          "out, or calibrate anew with it (save=)")
     fitting = [name for name, value, default in (("fit_episodes", fit_episodes, None),
                                                  ("dynamics_updates", dynamics_updates, MAX_UPDATES))
                if value != default]
@@ -179,6 +185,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
                                         "calibration episodes")
         conformal_rank(episodes, far, confidence)  # too few episodes: said before minutes of work
         check_warmup(warmup)
+        check_max_steps(max_steps)
         resolve_workers(workers, episodes)
         # (fit_agent_detectors would say "episodes=", after loading the models)
         if fit_episodes is not None and not is_whole(fit_episodes, 3):
@@ -204,7 +211,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
             warnings.warn(note, stacklevel=2)
         alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,
                                           confidence=confidence, on_progress=on_progress, warmup=warmup,
-                                          workers=workers)
+                                          workers=workers, max_steps=max_steps)
         if save is not None:  # the pair whole, or the earlier one (a full disk)
             save_calibration(alarm_threshold, save, detectors)
     monitor = Monitor(agent, alarm_threshold, detectors=detectors, detector=detector, sinks=sinks, callbacks=callbacks)

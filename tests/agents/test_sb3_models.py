@@ -435,14 +435,17 @@ def test_watch_saves_its_calibration_and_a_later_start_reads_it_running_no_episo
     assert [path.read_bytes() for path in (paths[1], folder / "runs/dqn.mcap")] == kept
     with pytest.raises(ConfigError, match="a threshold file's warm-up is the one it was calibrated for"):
         oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json", warmup=20)
+    with pytest.raises(ConfigError, match="a threshold file's episodes are those it was calibrated on"):
+        oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json", max_steps=5000)
     # options of a fit, which a threshold file's detectors (fitted beside it) never see: refused, not ignored
     with pytest.raises(ConfigError, match=r"^fit_episodes= shapes a fit of the detectors.*leave it out"):
         oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json", fit_episodes=30)
     with pytest.raises(ConfigError, match=r"^fit_episodes= and dynamics_updates= shape a fit.*leave them out"):
         oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json", fit_episodes=30, dynamics_updates=500)
     warm = oodmon.watch(paths, "CartPole-v1", episodes=10, far=0.2, confidence=None, fit_episodes=6, warmup=30,
-                        save=tmp_path / "warm.json")
-    assert warm.tracker.warmup == 30 and Threshold.load(tmp_path / "warm.json").warmup == 30
+                        save=tmp_path / "warm.json", max_steps=600)
+    saved = Threshold.load(tmp_path / "warm.json")
+    assert warm.tracker.warmup == 30 and saved.warmup == 30 and saved.max_steps == 600
     (tmp_path / "w.json.detectors").rename(tmp_path / "elsewhere")
     with pytest.raises(ConfigError, match="which is missing: copy that folder"):
         oodmon.watch(paths, "CartPole-v1", threshold=tmp_path / "w.json")

@@ -392,6 +392,8 @@ def test_watch_names_its_own_fit_episodes_argument_when_refusing_it(agent):
         oodmon.watch(agent, "CartPole-v1", fit_episodes=0)  # was "episodes=0 ...", the name of another argument
     with pytest.raises(ConfigError, match=r"^warmup=-5 is not allowed"):  # before any fitting
         oodmon.watch(agent, "CartPole-v1", warmup=-5)
+    with pytest.raises(ConfigError, match=r"^max_steps=0 is not allowed"):
+        oodmon.watch(agent, "CartPole-v1", max_steps=0)
     with pytest.raises(ConfigError, match=r"^workers=-1 is not allowed"):
         oodmon.watch(agent, "CartPole-v1", workers=-1)
     for bad in (0, 2.5, "all"):  # None trains every epoch; "all" is the command line's word for it
