@@ -86,7 +86,9 @@ def _run(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from oodmon.envs.shift import shifts_an_env
-    from oodmon.monitor import AlarmCommand, McapSink, Monitor, OffCalibrationNoiseWarning, Threshold
+    from oodmon.monitor import (
+        AlarmCommand, LongerThanCalibrationWarning, McapSink, Monitor, OffCalibrationNoiseWarning, Threshold,
+    )
     from oodmon.monitor.sinks.base import refuse_earlier_logs
     from oodmon.monitor.sinks.mcap import existing_parts, part_path
     from oodmon.monitor.sinks.rerun import RerunSink
@@ -149,11 +151,13 @@ def _run(args: argparse.Namespace) -> int:
         alarm_lines.append(event)
         progress.console.print(f"[bold red]ALARM[/bold red] {escape(event.text())}")
 
-    rows = _EpisodeRows()
+    rows = _EpisodeRows(calibrated=threshold.longest_episode if threshold is not None and threshold.mode == "episode"
+                        else None)
     with warnings.catch_warnings(), command or nullcontext(), Progress(console=console, transient=True) as progress, \
             Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show, *filter(None, [command])],
                     strict=args.strict, force=args.force, render=args.render) as monitor:
-        warnings.simplefilter("ignore", OffCalibrationNoiseWarning)  # said in a note at the end instead
+        warnings.simplefilter("ignore", OffCalibrationNoiseWarning)  # said in notes at the end instead
+        warnings.simplefilter("ignore", LongerThanCalibrationWarning)
         if args.serve:
             progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")
         elif args.spawn and sinks[-1].live_at:
@@ -192,6 +196,12 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"note: this run played sensor noise {args.obs_noise:g}, and {args.threshold} was calibrated "
                       f"with {threshold.calibration_noise:g}: its false-alarm bound is for that world (`oodmon validate "
                       f"{args.threshold} --obs-noise {args.obs_noise:g}` counts this one's)", markup=False)
+    if rows.longer:  # the bound is for episodes like the calibration's
+        console.print(f"note: {rows.longer} of {rows.episodes} episodes ran past {rows.calibrated:,} steps, the "
+                      f"longest of {args.threshold}'s calibration episodes: its false-alarm bound is for episodes like "
+                      f"those (`oodmon validate {args.threshold} --max-steps {rows.longest}` counts its false alarms "
+                      f"in runs this long, `oodmon calibrate ... --max-steps {rows.longest}` calibrates on them)",
+                      markup=False)
     if rows.before_onset:
         # (replay's detection rates leave them out; their alarms count as early ones)
         console.print(f"note: {rows.before_onset} of {rows.episodes} episodes ended before step {args.onset}, the "
@@ -303,11 +313,13 @@ class _EpisodeRows:
     weeks keeps no per-step data here (the records with their rewards took about 20 bytes a step)
     and prints a table of at most ``shown`` rows; ``oodmon replay LOG --episodes`` lists them all."""
 
-    def __init__(self, shown: int = 20) -> None:
+    def __init__(self, shown: int = 20, *, calibrated: int | None = None) -> None:
         self.first: list = []
         self.last = deque(maxlen=shown - shown // 2)
         self.shown, self.episodes, self.alarmed = shown, 0, 0
         self.before_onset = 0  # episodes of a shifted variant that ended before their onset: never shifted
+        # episodes longer than ``calibrated`` (the threshold's longest calibration episode), the longest
+        self.calibrated, self.longer, self.longest = calibrated, 0, 0
 
     def add(self, record) -> None:
         from oodmon.replay.metrics import ended_before_onset
@@ -315,6 +327,8 @@ class _EpisodeRows:
         self.episodes += 1
         self.alarmed += record.alarms > 0
         self.before_onset += ended_before_onset(record)
+        self.longer += self.calibrated is not None and record.length > self.calibrated
+        self.longest = max(self.longest, record.length)
         slim = dataclasses.replace(record, rewards=None)
         (self.first if len(self.first) < self.shown // 2 else self.last).append(slim)
 

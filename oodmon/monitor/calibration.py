@@ -23,7 +23,7 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.jsonfile import check_replaceable
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
-from oodmon.monitor.monitor import Monitor, OffCalibrationNoiseWarning, policy_hash
+from oodmon.monitor.monitor import LongerThanCalibrationWarning, Monitor, OffCalibrationNoiseWarning, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson,
@@ -88,8 +88,9 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
         env = agent.make_env(obs_noise, max_steps=max_steps)
         endless = None if max_steps is not None else (lambda _, steps, __: warn_if_endless(env, steps))
         with warnings.catch_warnings(), Monitor(agent, sinks=[sink], log_observations=False, **settings) as monitor:
-            # validate counts false alarms at another noise on purpose, and says which world it played
+            # validate counts false alarms at another noise, or in longer episodes, on purpose, and says so
             warnings.simplefilter("ignore", OffCalibrationNoiseWarning)
+            warnings.simplefilter("ignore", LongerThanCalibrationWarning)
             for episode in range(first, first + count):
                 start(seed + episode)
                 monitor.run_episode(env, seed=seed + episode, variant=agent.task, on_progress=endless)

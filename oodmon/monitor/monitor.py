@@ -237,6 +237,10 @@ class Monitor:
         # The world the threshold's bound is for: an episode played in another is warned of, once a noise.
         self._calibration_noise = threshold.calibration_noise if isinstance(threshold, Threshold) else None
         self._noises_warned: set[float] = set()
+        # and the episodes it is for: a step past the longest of them is warned of, once
+        self._longest = (threshold.longest_episode if isinstance(threshold, Threshold) and threshold.mode == "episode"
+                         else None)
+        self._longer_warned = False
         given = _given_detectors(detectors)
         # No score asked for: a spread detector among those given keeps its own.
         self.score_name = score or (given["spread"].score_name if "spread" in given else DEFAULT_SCORE)
@@ -483,6 +487,17 @@ class Monitor:
                       f"`oodmon validate THRESHOLD --obs-noise {obs_noise:g}` counts its false alarms here)",
                       OffCalibrationNoiseWarning, stacklevel=3)
 
+    def _warn_longer_than_calibration(self) -> None:
+        """Warn (:class:`LongerThanCalibrationWarning`, once) that an episode has run past the longest
+        of the threshold's calibration episodes: its bound is for episodes like those (the docs' own
+        CartPole controller, calibrated on 500 steps, alarmed in 29 of 314 stretches of 500 steps of
+        5,000-step runs, as its cart wandered further). ``oodmon run`` says it in a note instead."""
+        self._longer_warned = True
+        warnings.warn(f"episode {self.episode} has run past {self._longest:,} steps, the longest of the threshold's "
+                      "calibration episodes: its false-alarm bound is for episodes like those (`oodmon validate "
+                      "THRESHOLD --max-steps N` counts its false alarms in runs N steps long, `oodmon calibrate "
+                      "--max-steps N` calibrates on them)", LongerThanCalibrationWarning, stacklevel=3)
+
     @property
     def in_episode(self) -> bool:
         """Whether an episode has begun and not ended."""
@@ -591,6 +606,8 @@ class Monitor:
             self.sinks.begin_episode(EpisodeStart(self.episode, **self._episode_info))
         elif step - self._segment_start == self.segment_steps:  # a long episode: hand its segment on
             self._end_segment()
+        if step == self._longest and not self._longer_warned:  # the first step past every calibration episode
+            self._warn_longer_than_calibration()
         self.sinks.write_step(self.last_step)
         self._length += 1  # the step is logged: it counts, whatever a callback below does
         if event is not None:
@@ -719,6 +736,12 @@ class OffCalibrationNoiseWarning(UserWarning):
     """:meth:`Monitor.begin_episode`: the episode plays another sensor noise than the monitor's
     threshold was calibrated with (``Threshold.obs_noise``), so the threshold's false-alarm bound
     does not hold for it. Warned once for each such noise a monitor sees."""
+
+
+class LongerThanCalibrationWarning(UserWarning):
+    """:meth:`Monitor.step`: an episode has run past the longest of the monitor's threshold's
+    calibration episodes (``Threshold.longest_episode``), so the threshold's false-alarm bound does
+    not speak for its steps from there. Warned once per monitor."""
 
 
 class PolicyCannotAct(RuntimeError):

@@ -339,6 +339,9 @@ class Threshold:
             the env's own (``oodmon calibrate --max-steps``: a deployment's runs are longer than the
             env's episodes); ``oodmon validate`` plays episodes that long unless told otherwise.
             ``None``: the env's own limit.
+        longest_episode: the steps of its longest calibration episode: the :class:`Monitor` warns
+            when an episode runs past it, where the bound no longer speaks (``None``: not recorded,
+            files written before 2026-12-05).
     """
 
     value: float
@@ -366,6 +369,7 @@ class Threshold:
     workers: int | None = None
     obs_noise: float | None = None
     max_steps: int | None = None
+    longest_episode: int | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -524,6 +528,8 @@ def _check_fields(threshold: Threshold) -> None:
         check_obs_noise("a threshold file", threshold.obs_noise)  # the envs' own bounds
     if threshold.max_steps is not None and not is_whole(threshold.max_steps):
         raise bad("max_steps", "it must be a whole number >= 1 of steps, or null (the env's own time limit)")
+    if threshold.longest_episode is not None and not is_whole(threshold.longest_episode, minimum=0):
+        raise bad("longest_episode", "it must be a whole number >= 0 of steps, or null")
     seeds = threshold.episode_seeds
     if seeds is not None and not (isinstance(seeds, dict) and all(
             isinstance(name, str) and isinstance(pair, (list, tuple)) and len(pair) == 2
@@ -624,4 +630,5 @@ def calibrate(
                      quantiles, task, method, window, policy_hash, detector,
                      None if confidence is None else float(confidence), rank, rule,
                      None if reference is None else reference.to_dict(), masks, warmup, detectors_hash,
-                     None if samples is None else int(samples))
+                     None if samples is None else int(samples),
+                     longest_episode=max((len(s) for s in episodes), default=0))

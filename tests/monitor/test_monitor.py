@@ -4,6 +4,7 @@ the wrapper, and the false-alarm guarantee on fresh ID episodes."""
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 
 import gymnasium
 import numpy as np
@@ -191,6 +192,35 @@ def test_an_episode_in_another_sensor_noise_than_the_thresholds_is_warned_of_onc
     with pytest.warns(OffCalibrationNoiseWarning) as direct, Monitor(agent, noisy) as monitor:  # a loop of your own
         monitor.begin_episode(variant="cartpole", obs_noise=0.03)
     assert direct[0].filename == __file__  # the line that began the episode
+
+
+def test_an_episode_past_the_longest_calibration_episode_is_warned_of_once(agent):
+    # A run longer than the calibration's episodes is not what the bound speaks of: the docs' own
+    # CartPole controller, calibrated on 500 steps, alarmed in 9.2% of 500-step stretches of runs of
+    # 5,000 (2026-12-05).
+    from oodmon.monitor import LongerThanCalibrationWarning
+
+    def threshold(**fields):
+        return Threshold(1e9, "chosen_std", 1, "episode", 0.05, 20, 10_000, task="cartpole", method="ensemble",
+                         **fields)
+
+    def warned(threshold, steps: int, episodes: int = 2) -> list[str]:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with Monitor(agent, threshold) as monitor:
+                for seed in range(episodes):
+                    monitor.run_episode(gymnasium.make("oodmon/CartPole-v1", max_episode_steps=steps), seed=seed)
+        return [str(w.message) for w in caught if issubclass(w.category, LongerThanCalibrationWarning)]
+
+    said = warned(threshold(longest_episode=500), 520)
+    assert said == ["episode 0 has run past 500 steps, the longest of the threshold's calibration episodes: its "
+                    "false-alarm bound is for episodes like those (`oodmon validate THRESHOLD --max-steps N` counts its "
+                    "false alarms in runs N steps long, `oodmon calibrate --max-steps N` calibrates on them)"]  # once
+    assert warned(threshold(longest_episode=500), 500) == []  # as long as the longest: no word
+    assert warned(threshold(), 520) == []  # a file that records none (written before 2026-12-05)
+    assert warned(replace(threshold(longest_episode=500), mode="step"), 520) == []  # a bound on steps, not episodes
+    assert warned(1e9, 520) == []  # a bare number: no calibration
+    assert calibrate_agent(agent, 11, 0.2, detector="spread", confidence=None, max_steps=40).longest_episode == 40
 
 
 def test_a_monitored_env_stepped_with_no_episode_running_says_to_reset_it(agent):
