@@ -747,12 +747,16 @@ def test_validate_max_steps_plays_runs_longer_than_the_calibrations_and_counts_t
     assert read_log(log).episodes[0].length == 800 and threshold.longest_episode == 800
     # longer than every calibration episode: said in a note (the monitor's warning left out: said once)
     assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(path), "--episodes", "2",
-                 "--max-steps", "1000"]) == 0
+                 "--max-steps", "1000", "--mcap", str(log), "--overwrite"]) == 0
     captured = capsys.readouterr()
     assert (f"note: 2 of 2 episodes ran past 800 steps, the longest of {path}'s calibration episodes: its false-alarm "
             f"bound is for episodes like those (`oodmon validate {path} --max-steps 1000` counts") in \
         re.sub(r"\s+", " ", captured.out)
     assert "has run past" not in captured.err
+    assert read_log(log).metadata["about.threshold_longest_episode"] == "800"  # and replay says it of the log
+    assert main(["replay", str(log)]) == 0
+    assert ("the cartpole/ensemble logs hold ID episodes longer than their threshold's longest calibration episode "
+            f"(2 past 800 steps: {log})") in re.sub(r"\s+", " ", capsys.readouterr().err)
     assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(always), "--episodes", "1",
                  "--max-steps", "700", "--variant", "cartpole:length=2.0", "--onset", "600", "--mcap", str(log),
                  "--overwrite"]) == 0

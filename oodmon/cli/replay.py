@@ -136,7 +136,7 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 def _read_logs(paths: Sequence[str]):
     from oodmon.replay import (made_from_episodes, pooled_fits, pooled_noise, pooled_thresholds, pooled_weights,
                                read_logs)
-    from oodmon.replay.metrics import ended_before_onset, off_calibration_noise
+    from oodmon.replay.metrics import ended_before_onset, longer_than_calibration, off_calibration_noise
     from oodmon.seeds import EPISODE_USES
 
     logs = read_logs(paths)
@@ -165,6 +165,11 @@ def _read_logs(paths: Sequence[str]):
               f"was calibrated in ({_logs_by(by_world, 40)}): its false-alarm bound is for that world, and their false "
               "alarms say nothing of it (calibrate in the world played: `oodmon calibrate --obs-noise X`)",
               file=sys.stderr)
+    for (task, method), by_length in longer_than_calibration(logs).items():
+        print(f"oodmon: note: the {task}/{method} logs hold ID episodes longer than their threshold's longest "
+              f"calibration episode ({_logs_by(by_length, 40)}): its false-alarm bound is for episodes like those, "
+              "and their false alarms say nothing of it (`oodmon validate --max-steps N` counts them in runs N steps "
+              "long, by stretches as long as the calibration's)", file=sys.stderr)
     for (task, method), by_use in made_from_episodes(logs).items():
         uses = " and ".join(f"{count} of {EPISODE_USES.get(use, use)} episodes" for use, count in by_use.items())
         print(f"oodmon: note: the {task}/{method} logs played {uses} in the ID env (the same reset seeds): they "

@@ -398,15 +398,19 @@ class Monitor:
         alarms read low (:func:`~oodmon.replay.metrics.made_from_episodes`); and the sensor noise of
         the world it was calibrated in (``about.threshold_obs_noise``, where the file records it):
         replay says where the log's episodes played another
-        (:func:`~oodmon.replay.metrics.off_calibration_noise`)."""
+        (:func:`~oodmon.replay.metrics.off_calibration_noise`); and its longest calibration episode
+        (``about.threshold_longest_episode``): replay says where ID episodes ran longer
+        (:func:`~oodmon.replay.metrics.longer_than_calibration`)."""
         from oodmon.monitor.calibration import detectors_read, seeds_used
 
         threshold = self._made_with["threshold"]
         if not isinstance(threshold, Threshold):
             return {}
         used = seeds_used(threshold, detectors_read(threshold, self.detectors))
-        noise = {} if threshold.obs_noise is None else {"threshold_obs_noise": f"{threshold.obs_noise:g}"}
-        return noise | ({"threshold_seeds": json.dumps(used, separators=(",", ":"))} if used else {})
+        about = {} if threshold.obs_noise is None else {"threshold_obs_noise": f"{threshold.obs_noise:g}"}
+        if self._longest is not None:  # (episode mode, where the file records it)
+            about["threshold_longest_episode"] = str(self._longest)
+        return about | ({"threshold_seeds": json.dumps(used, separators=(",", ":"))} if used else {})
 
     def _states_about(self) -> dict[str, str]:
         """The values of each reading of a discrete observation (``about.states`` in the log: ``16``

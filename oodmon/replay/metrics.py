@@ -29,8 +29,8 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["EpisodeAlarms", "MonitorMetrics", "VariantMetrics", "alarm_events", "average_precision",
            "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "ended_before_onset", "detectors_in",
-           "env_of_variant", "failed_episodes", "fpr_at_tpr", "is_id_variant", "made_from_episodes", "monitor_row",
-           "off_calibration_noise", "pooled_fits", "pooled_noise", "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
+           "env_of_variant", "failed_episodes", "fpr_at_tpr", "is_id_variant", "longer_than_calibration",
+           "made_from_episodes", "monitor_row", "off_calibration_noise", "pooled_fits", "pooled_noise", "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
 
 
 @dataclass(frozen=True)
@@ -326,6 +326,33 @@ def off_calibration_noise(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[
             continue
         for noise in sorted(log.noises - {calibrated}):
             found[(log.task, log.method)][f"played {noise:g}, calibrated in {calibrated:g}"].append(log.path)
+    return {group: dict(by) for group, by in found.items()}
+
+
+def longer_than_calibration(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, list[Path]]]:
+    """The (task, method) groups with ID episodes longer than the longest of their threshold's
+    calibration episodes (``about.threshold_longest_episode``, logs since 2026-12-05 of thresholds
+    that record it): their logs by ``N past L steps``. The bound is for episodes like the
+    calibration's; a run of 5,000 steps put the docs' own CartPole controller's 500-step threshold
+    above its target (2026-12-05), so those episodes' false alarms say nothing of it.
+
+    Example:
+        >>> from oodmon.replay.reader import RunLog
+        >>> from oodmon.monitor.records import EpisodeRecord
+        >>> played = [EpisodeRecord(e, "CartPole-v1", "CartPole-v1", 0, 0, n, n, 0, None) for e, n in enumerate([600, 90])]
+        >>> log = RunLog(Path("a.mcap"), "cartpole", "plain", 1.0, {"about.threshold_longest_episode": "500"}, played, True)
+        >>> longer_than_calibration([log])
+        {('cartpole', 'plain'): {'1 past 500 steps': [PosixPath('a.mcap')]}}
+    """
+    found: dict[tuple[str, str], dict[str, list[Path]]] = defaultdict(lambda: defaultdict(list))
+    for log in logs:
+        try:
+            longest = int(log.metadata.get("about.threshold_longest_episode", ""))
+        except ValueError:  # not recorded, or a damaged record: says nothing
+            continue
+        longer = sum(episode.length > longest for episode in log.episodes if is_id_variant(episode.variant))
+        if longer:
+            found[(log.task, log.method)][f"{longer} past {longest:,} steps"].append(log.path)
     return {group: dict(by) for group, by in found.items()}
 
 
