@@ -15,7 +15,7 @@ the first such alarm; alarms before the onset are counted as early (false) alarm
 from __future__ import annotations
 
 from collections import Counter, defaultdict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -316,17 +316,8 @@ def off_calibration_noise(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[
         >>> off_calibration_noise([log])
         {('cartpole', 'ensemble'): {'played 0.01, calibrated in 0': [PosixPath('a.mcap')]}}
     """
-    found: dict[tuple[str, str], dict[str, list[Path]]] = defaultdict(lambda: defaultdict(list))
-    for log in logs:
-        try:
-            calibrated = float(log.metadata.get("about.threshold_obs_noise", "nan"))
-        except ValueError:  # a damaged record says nothing
-            continue
-        if calibrated != calibrated:  # NaN: the log records no calibration noise
-            continue
-        for noise in sorted(log.noises - {calibrated}):
-            found[(log.task, log.method)][f"played {noise:g}, calibrated in {calibrated:g}"].append(log.path)
-    return {group: dict(by) for group, by in found.items()}
+    return _logs_by_label(logs, "about.threshold_obs_noise", float, lambda log, calibrated: [
+        f"played {noise:g}, calibrated in {calibrated:g}" for noise in sorted(log.noises - {calibrated})])
 
 
 def longer_than_calibration(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, list[Path]]]:
@@ -344,15 +335,28 @@ def longer_than_calibration(logs: Iterable[RunLog]) -> dict[tuple[str, str], dic
         >>> longer_than_calibration([log])
         {('cartpole', 'plain'): {'1 past 500 steps': [PosixPath('a.mcap')]}}
     """
+    def past(log: RunLog, longest: int) -> list[str]:
+        longer = sum(episode.length > longest for episode in log.episodes if is_id_variant(episode.variant))
+        return [f"{longer} past {longest:,} steps"] if longer else []
+
+    return _logs_by_label(logs, "about.threshold_longest_episode", int, past)
+
+
+def _logs_by_label(logs: Iterable[RunLog], key: str, parse: Callable[[str], Any],
+                   labels: Callable[[RunLog, Any], list[str]]) -> dict[tuple[str, str], dict[str, list[Path]]]:
+    """The logs by (task, method), then by each label ``labels(log, value)`` gives them, where
+    ``value`` is their metadata's ``key`` read by ``parse``; a log that records none (or NaN), or a
+    damaged one, says nothing."""
     found: dict[tuple[str, str], dict[str, list[Path]]] = defaultdict(lambda: defaultdict(list))
     for log in logs:
         try:
-            longest = int(log.metadata.get("about.threshold_longest_episode", ""))
-        except ValueError:  # not recorded, or a damaged record: says nothing
+            value = parse(log.metadata[key])
+        except (KeyError, ValueError):
             continue
-        longer = sum(episode.length > longest for episode in log.episodes if is_id_variant(episode.variant))
-        if longer:
-            found[(log.task, log.method)][f"{longer} past {longest:,} steps"].append(log.path)
+        if value != value:  # NaN
+            continue
+        for label in labels(log, value):
+            found[(log.task, log.method)][label].append(log.path)
     return {group: dict(by) for group, by in found.items()}
 
 
