@@ -349,8 +349,9 @@ class Validation:
         steps, alarms: ID steps played and alarms raised over them (every excursion above the
             threshold, not only an episode's first).
         max_steps: the episodes' time limit, where validation set one (else the env's own).
-        stretches: with ``max_steps``, in episode mode: the episodes cut into stretches as long as
-            the calibration's episodes (:class:`Stretches`), which the verdict then reads.
+        stretches: in episode mode, where ``max_steps`` is not the threshold's own (its calibration
+            episodes were shorter): the episodes cut into stretches as long as the calibration's
+            episodes on average (:class:`Stretches`), which the verdict then reads; else ``None``.
     """
 
     alarmed: int
