@@ -334,8 +334,13 @@ def longer_than_calibration(logs: Iterable[RunLog]) -> dict[tuple[str, str], dic
         >>> log = RunLog(Path("a.mcap"), "cartpole", "plain", 1.0, {"about.threshold_longest_episode": "500"}, played, True)
         >>> longer_than_calibration([log])
         {('cartpole', 'plain'): {'1 past 500 steps': [PosixPath('a.mcap')]}}
+        >>> longer_than_calibration([RunLog(Path("b.mcap"), "cartpole", "plain", 1.0,
+        ...                                 {"about.threshold_longest_episode": "-5"}, played, True)])
+        {}
     """
     def past(log: RunLog, longest: int) -> list[str]:
+        if longest < 0:  # a damaged record says nothing
+            return []
         longer = sum(episode.length > longest for episode in log.episodes if is_id_variant(episode.variant))
         return [f"{longer} past {longest:,} steps"] if longer else []
 
