@@ -762,6 +762,12 @@ def test_validate_max_steps_plays_runs_longer_than_the_calibrations_and_counts_t
                  "--overwrite"]) == 0
     [episode] = read_log(log).episodes
     assert episode.length > 600 and episode.first_alarm_step == 0  # the episode went on past 500 steps
+    # the detectors fitted on such episodes too (calibrate fits them so where it fits them)
+    assert main(["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--only", "dynamics", "--episodes", "3",
+                 "--max-steps", "700", "--out", str(tmp_path / "det")]) == 0
+    assert "fitted spread, dynamics on 3 ID episodes of up to 700 steps" in capsys.readouterr().out
+    assert json.loads((tmp_path / "det" / "detectors.json").read_text())["fitted_for"]["max_steps"] == 700
+    assert load("cartpole", "ensemble").make_env(max_steps=700).spec.max_episode_steps == 700  # lifted, not only cut
     for bad in ("0", "-5", "1.5", "many"):
         assert main(["validate", str(path), "--max-steps", bad]) == 2
         assert "--max-steps" in capsys.readouterr().err

@@ -73,7 +73,7 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
     promise.add_argument("--max-steps", type=_whole(1),
                          help="the calibration episodes' time limit instead of the env's own, for a deployment whose "
                               "runs are longer (the bound is for episodes like the calibration's); recorded in the "
-                              "threshold for validate")
+                              "threshold for validate and run; detectors calibrate fits are fitted on such episodes too")
     promise.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
 
@@ -137,7 +137,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         with _progress() as report:
             detectors = fit_agent_detectors(agent, detectors=fitted_when_named(args.detector), score=args.score,
                                             episodes=args.fit_episodes, on_progress=report, workers=args.workers,
-                                            dynamics_updates=args.dynamics_updates, obs_noise=args.obs_noise)
+                                            dynamics_updates=args.dynamics_updates, obs_noise=args.obs_noise,
+                                            max_steps=args.max_steps)
     else:
         _refuse_fit_options(args)
     with _progress() as report:
@@ -329,7 +330,9 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
                           "vanishing, for pictures, when named)")
     fit.add_argument("--episodes", type=_whole(3),
                      help=f"ID episodes: two thirds fit, one third ranks for combined ({_FIT_DEFAULT})")
-    fit.add_argument("--max-steps", type=_whole(1), help="cut each episode after this many steps (Pong: try 300)")
+    fit.add_argument("--max-steps", type=_whole(1),
+                     help="each episode's time limit instead of the env's own: shorter cuts it (Pong: try 300), longer "
+                          "lifts it (a deployment's long runs, as `calibrate --max-steps` plays them)")
     fit.add_argument("--score", default="chosen_std", help="the spread score combined uses (default chosen_std)")
     fit.add_argument("--obs-noise", type=_non_negative, default=0.0,
                      help="sensor noise of the ID env, a fraction of each dimension's ID spread (default 0)")
@@ -387,7 +390,9 @@ def _fit_detectors(args: argparse.Namespace) -> int:
     replaced = "" if not replacing else f" (replacing the set it held{beside}: calibrate that threshold again)" if beside \
         else " (replacing the set it held)"
     console.print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
-                  f"{detectors.fitted_for['episodes']} ID episodes{_side_by_side(detectors.fitted_for.get('workers'))}; "
+                  f"{detectors.fitted_for['episodes']} ID episodes"
+                  f"{f' of up to {args.max_steps:,} steps' if args.max_steps else ''}"
+                  f"{_side_by_side(detectors.fitted_for.get('workers'))}; "
                   f"wrote {args.out}{replaced}")
     for note in fitting_notes(detectors):
         console.print(note, markup=False)

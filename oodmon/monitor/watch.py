@@ -206,7 +206,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
         check_can_have(detector, agent)  # (a plain policy's spread: said before the fit, not after it)
         detectors = fit_agent_detectors(agent, detectors=fitted_when_named(detector),  # as the CLI fits them
                                         episodes=fit_episodes, on_progress=on_progress, workers=workers,
-                                        dynamics_updates=dynamics_updates)
+                                        dynamics_updates=dynamics_updates, max_steps=max_steps)
         for note in fitting_notes(detectors):  # what the fit leaves unwatched, as calibrate prints it
             warnings.warn(note, stacklevel=2)
         alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,

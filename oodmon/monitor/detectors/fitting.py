@@ -449,6 +449,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
                   "masks": getattr(estimator, "masks", None), "machine": machine()}
     if workers > 1:  # (recorded only then: the sets fitted in one process before 2026-12-01 read the same)
         fitted_for["workers"] = workers
+    if max_steps is not None:  # each episode's limit (since 2026-12-05: it may lift the env's own)
+        fitted_for["max_steps"] = max_steps
     result = DetectorSet(parts, fitted_for=fitted_for)
     if "combined" in detectors:
         left_out = COMBINED_LEAVES_OUT.get(task or "", ())
@@ -548,10 +550,12 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
     """:func:`fit_detectors` for an oodmon agent in its task's ID env (with ``obs_noise``), on
     ``episodes`` episodes; ``None``: :data:`DEFAULT_FIT_EPISODES`, and for an env oodmon has no
     variants of as many more as hold :data:`DEFAULT_FIT_STEPS` steps (:func:`default_fit_steps`);
-    ``workers`` processes play them side by side; ``dynamics_updates`` as :func:`fit_detectors` takes it."""
+    ``workers`` processes play them side by side; ``dynamics_updates`` as :func:`fit_detectors` takes it.
+    ``max_steps``: each episode's time limit instead of the env's own, shorter (Pong's games) or
+    longer (a deployment's runs, as ``calibrate --max-steps`` plays them)."""
     from oodmon.monitor.monitor import policy_hash
 
-    env = agent.make_env(obs_noise)
+    env = agent.make_env(obs_noise, max_steps=max_steps)
     try:
         return fit_detectors(agent, env, detectors=detectors, episodes=episodes or DEFAULT_FIT_EPISODES, seed=seed,
                              score=score, task=agent.task, policy_hash=policy_hash(agent), obs_noise=obs_noise,
