@@ -270,16 +270,16 @@ def _validate(args: argparse.Namespace) -> int:
         said = (f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule_text}: "
                 f"{result.alarmed} of {result.total} {played}{_noise(noise)}{_other_noise(threshold, noise)} "
                 f"alarmed, {result.rate:.1%} (95% interval {result.low:.1%}-{result.high:.1%})")
-        if stretches is not None:
-            said += (f"; the bound is for episodes like the calibration's ({stretches.length:,} steps on average): of "
+        if stretches is not None:  # the figure the bound speaks of, on a line of its own
+            said += (f"; {result.alarms:,} alarm{'s' if result.alarms != 1 else ''} in {result.steps:,} steps\n"
+                     f"the bound is for episodes like the calibration's ({stretches.length:,} steps on average): of "
                      f"the {stretches.total:,} stretches of {stretches.length:,} steps, {stretches.alarmed:,} alarmed, "
                      f"{stretches.rate:.1%} (95% interval {stretches.low:.1%}-{stretches.high:.1%}, approximate: the "
-                     f"stretches of one episode are not independent); {result.alarms:,} alarm"
-                     f"{'s' if result.alarms != 1 else ''} in {result.steps:,} steps")
+                     "stretches of one episode are not independent)")
         Console(soft_wrap=True).print(
             said + f"; target {result.far:g}"
             + (f" with confidence {result.confidence:g}" if result.confidence is not None else " on average")
-            + f": {verdict}")
+            + f": {verdict}", markup=False)
     return 1 if result.verdict == "above" else 0
 
 
