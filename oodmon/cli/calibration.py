@@ -154,8 +154,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "
-        f"mode, {threshold.n_episodes} ID episodes{f' of up to {threshold.max_steps:,} steps' if threshold.max_steps else ''}"
-        f"{_side_by_side(threshold.workers)}{_noise(threshold.obs_noise)}, "
+        f"mode, {threshold.n_episodes} ID episodes{_up_to(threshold.max_steps)}{_side_by_side(threshold.workers)}"
+        f"{_noise(threshold.obs_noise)}, "
         f"{threshold.n_steps} steps, rank {threshold.rank} of "
         f"{threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score median "
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote {args.out}"
@@ -176,6 +176,11 @@ def _calibrate(args: argparse.Namespace) -> int:
             f"`--detector {best}` fits it first (about {DEFAULT_FIT_EPISODES} more ID episodes)"
             + (f"; the fitted one is left out: {left_out}" if left_out and best == "combined" else ""))
     return 0
+
+
+def _up_to(max_steps: int | None) -> str:
+    """The words ' of up to N steps' of episodes with time limit ``max_steps`` (none: the env's own)."""
+    return f" of up to {max_steps:,} steps" if max_steps else ""
 
 
 def _noise(obs_noise: float | None) -> str:
@@ -266,9 +271,9 @@ def _validate(args: argparse.Namespace) -> int:
                             + _above_hint(threshold, unit, noise, result.max_steps),
                    "below": "below the target",
                    "consistent": "consistent with the target (the interval holds it)"}[result.verdict]
-        played = f"fresh ID {unit}" if result.max_steps is None else f"fresh ID {unit} of up to {result.max_steps:,} steps"
         said = (f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule_text}: "
-                f"{result.alarmed} of {result.total} {played}{_noise(noise)}{_other_noise(threshold, noise)} "
+                f"{result.alarmed} of {result.total} fresh ID {unit}{_up_to(result.max_steps)}{_noise(noise)}"
+                f"{_other_noise(threshold, noise)} "
                 f"alarmed, {result.rate:.1%} (95% interval {result.low:.1%}-{result.high:.1%})")
         if stretches is not None:  # the figure the bound speaks of, on a line of its own
             said += (f"; {result.alarms:,} alarm{'s' if result.alarms != 1 else ''} in {result.steps:,} steps\n"
@@ -390,8 +395,7 @@ def _fit_detectors(args: argparse.Namespace) -> int:
     replaced = "" if not replacing else f" (replacing the set it held{beside}: calibrate that threshold again)" if beside \
         else " (replacing the set it held)"
     console.print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
-                  f"{detectors.fitted_for['episodes']} ID episodes"
-                  f"{f' of up to {args.max_steps:,} steps' if args.max_steps else ''}"
+                  f"{detectors.fitted_for['episodes']} ID episodes{_up_to(args.max_steps)}"
                   f"{_side_by_side(detectors.fitted_for.get('workers'))}; "
                   f"wrote {args.out}{replaced}")
     for note in fitting_notes(detectors):

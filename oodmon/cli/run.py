@@ -87,7 +87,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from oodmon.envs.shift import shifts_an_env
     from oodmon.monitor import (
-        AlarmCommand, LongerThanCalibrationWarning, McapSink, Monitor, OffCalibrationNoiseWarning, Threshold,
+        AlarmCommand, McapSink, Monitor, OffCalibrationWarning, Threshold,
     )
     from oodmon.monitor.sinks.base import refuse_earlier_logs
     from oodmon.monitor.sinks.mcap import existing_parts, part_path
@@ -151,13 +151,11 @@ def _run(args: argparse.Namespace) -> int:
         alarm_lines.append(event)
         progress.console.print(f"[bold red]ALARM[/bold red] {escape(event.text())}")
 
-    rows = _EpisodeRows(calibrated=threshold.longest_episode if threshold is not None and threshold.mode == "episode"
-                        else None)
+    rows = _EpisodeRows(calibrated=threshold.covered_steps if threshold is not None else None)
     with warnings.catch_warnings(), command or nullcontext(), Progress(console=console, transient=True) as progress, \
             Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show, *filter(None, [command])],
                     strict=args.strict, force=args.force, render=args.render) as monitor:
-        warnings.simplefilter("ignore", OffCalibrationNoiseWarning)  # said in notes at the end instead
-        warnings.simplefilter("ignore", LongerThanCalibrationWarning)
+        warnings.simplefilter("ignore", OffCalibrationWarning)  # another noise, longer episodes: notes at the end
         if args.serve:
             progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")
         elif args.spawn and sinks[-1].live_at:

@@ -23,7 +23,7 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.jsonfile import check_replaceable
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
-from oodmon.monitor.monitor import LongerThanCalibrationWarning, Monitor, OffCalibrationNoiseWarning, policy_hash
+from oodmon.monitor.monitor import Monitor, OffCalibrationWarning, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson,
@@ -89,8 +89,7 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
         endless = None if max_steps is not None else (lambda _, steps, __: warn_if_endless(env, steps))
         with warnings.catch_warnings(), Monitor(agent, sinks=[sink], log_observations=False, **settings) as monitor:
             # validate counts false alarms at another noise, or in longer episodes, on purpose, and says so
-            warnings.simplefilter("ignore", OffCalibrationNoiseWarning)
-            warnings.simplefilter("ignore", LongerThanCalibrationWarning)
+            warnings.simplefilter("ignore", OffCalibrationWarning)
             for episode in range(first, first + count):
                 start(seed + episode)
                 monitor.run_episode(env, seed=seed + episode, variant=agent.task, on_progress=endless)
@@ -490,10 +489,10 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
     check_fresh(threshold, needed, seed, episodes)
     played = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, stage="validation episodes",
                                workers=workers, threshold=threshold, detectors=needed, force=force, max_steps=max_steps)
-    steps = np.concatenate([scores for scores, _ in played])
     if threshold.mode == "episode":
         alarmed, total = sum(bool(alarms) for _, alarms in played), len(played)
     else:
+        steps = np.concatenate([scores for scores, _ in played])
         alarmed, total = int(np.sum(steps > threshold.value)), len(steps)
     low, high = clopper_pearson(int(alarmed), total)
     stretches = None
@@ -501,5 +500,6 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
         length = max(1, round(threshold.n_steps / threshold.n_episodes))  # a calibration episode's, on average
         stretches = Stretches.of([(len(scores), alarms) for scores, alarms in played], length)
     return Validation(int(alarmed), total, threshold.far, threshold.confidence, low, high, float(obs_noise),
-                      steps=len(steps), alarms=sum(len(alarms) for _, alarms in played), max_steps=max_steps,
+                      steps=sum(len(scores) for scores, _ in played), alarms=sum(len(alarms) for _, alarms in played),
+                      max_steps=max_steps,
                       stretches=stretches)

@@ -238,8 +238,7 @@ class Monitor:
         self._calibration_noise = threshold.calibration_noise if isinstance(threshold, Threshold) else None
         self._noises_warned: set[float] = set()
         # and the episodes it is for: a step past the longest of them is warned of, once
-        self._longest = (threshold.longest_episode if isinstance(threshold, Threshold) and threshold.mode == "episode"
-                         else None)
+        self._longest = threshold.covered_steps if isinstance(threshold, Threshold) else None
         self._longer_warned = False
         given = _given_detectors(detectors)
         # No score asked for: a spread detector among those given keeps its own.
@@ -736,13 +735,19 @@ class NonFiniteObservationWarning(RuntimeWarning):
     an episode whose env returned a NaN or infinite reading the policy could not act on."""
 
 
-class OffCalibrationNoiseWarning(UserWarning):
+class OffCalibrationWarning(UserWarning):
+    """An episode the monitor's threshold's false-alarm bound does not speak for: played at another
+    sensor noise (:class:`OffCalibrationNoiseWarning`) or longer (:class:`LongerThanCalibrationWarning`)
+    than its calibration episodes. ``oodmon run`` and ``validate`` silence both by this class."""
+
+
+class OffCalibrationNoiseWarning(OffCalibrationWarning):
     """:meth:`Monitor.begin_episode`: the episode plays another sensor noise than the monitor's
     threshold was calibrated with (``Threshold.obs_noise``), so the threshold's false-alarm bound
     does not hold for it. Warned once for each such noise a monitor sees."""
 
 
-class LongerThanCalibrationWarning(UserWarning):
+class LongerThanCalibrationWarning(OffCalibrationWarning):
     """:meth:`Monitor.step`: an episode has run past the longest of the monitor's threshold's
     calibration episodes (``Threshold.longest_episode``), so the threshold's false-alarm bound does
     not speak for its steps from there. Warned once per monitor."""

@@ -393,6 +393,13 @@ class Threshold:
                 f"threshold's false-alarm rate per {unit} is <= {self.far:g}")
 
     @property
+    def covered_steps(self) -> int | None:
+        """The steps of an episode its bound speaks for: its longest calibration episode's, in
+        episode mode (``None``: a bound on steps, or a file that records none). An episode longer
+        is warned of by the :class:`Monitor` and noted by ``oodmon run`` and replay."""
+        return self.longest_episode if self.mode == "episode" else None
+
+    @property
     def calibration_noise(self) -> float:
         """The sensor noise of the world the bound is for: :attr:`obs_noise`, 0 where not recorded."""
         return self.obs_noise or 0.0

@@ -30,7 +30,8 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 __all__ = ["EpisodeAlarms", "MonitorMetrics", "VariantMetrics", "alarm_events", "average_precision",
            "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "ended_before_onset", "detectors_in",
            "env_of_variant", "failed_episodes", "fpr_at_tpr", "is_id_variant", "longer_than_calibration",
-           "made_from_episodes", "monitor_row", "off_calibration_noise", "pooled_fits", "pooled_noise", "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
+           "made_from_episodes", "monitor_row", "off_calibration_noise", "pooled_fits", "pooled_noise",
+           "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
 
 
 @dataclass(frozen=True)
