@@ -591,6 +591,16 @@ def test_a_run_on_a_threshold_calibrated_per_step_says_most_id_episodes_will_ala
            "not of episodes, so most ID episodes will alarm" in err
     assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(episode), "--episodes", "1"]) == 0
     assert "calibrated per step" not in capsys.readouterr().err
+    # validate counts its steps above it, each episode's together: the steps of one episode are above
+    # or below together far more than independent ones, so the interval is wider than Clopper-Pearson's
+    # over the steps would be
+    from oodmon.monitor.threshold import clopper_pearson
+
+    assert main(["validate", str(step), "--episodes", "6", "--json"]) in (0, 1)
+    report = json.loads(capsys.readouterr().out)
+    assert report["unit"] == "steps" and report["total"] == 3000 and report["stretches"] is None
+    low, high = clopper_pearson(report["alarmed"], report["total"])
+    assert report["design_effect"] > 2 and report["interval95"][0] < low and report["interval95"][1] > high, report
     from oodmon import watch
     from oodmon.agents import load
 
@@ -710,21 +720,28 @@ def test_validate_max_steps_plays_runs_longer_than_the_calibrations_and_counts_t
     from oodmon.replay import read_log
 
     # A threshold below every score alarms at each episode's first step and holds: one alarm raised per
-    # episode, in its first stretch of 500 steps (the calibration episodes' length) of four.
+    # episode, in its first stretch of 500 steps (the calibration episodes' length) of two.
     always = tmp_path / "always.json"
     Threshold(-1e9, "chosen_std", 1, "episode", 0.05, 45, 22_500, task="cartpole", method="ensemble",
               confidence=0.9).save(always)
-    assert main(["validate", str(always), "--episodes", "3", "--max-steps", "2000", "--json"]) == 1
+    assert main(["validate", str(always), "--episodes", "6", "--max-steps", "1000", "--json"]) == 1
     report = json.loads(capsys.readouterr().out)
-    assert (report["alarmed"], report["total"], report["steps"], report["alarms"], report["max_steps"]) == (3, 3, 6000, 3,
-                                                                                                            2000)
-    assert report["stretches"]["length"] == 500 and report["stretches"]["total"] == 12
-    assert report["stretches"]["alarmed"] == 3 and report["verdict"] == "above"  # 25% (7.5%-53%) against 5%
-    assert main(["validate", str(always), "--episodes", "3", "--max-steps", "2000"]) == 1
+    assert (report["alarmed"], report["total"], report["steps"], report["alarms"], report["max_steps"]) == (6, 6, 6000, 6,
+                                                                                                            1000)
+    stretches = report["stretches"]
+    assert stretches["length"] == 500 and stretches["total"] == 12 and stretches["alarmed"] == 6
+    # every episode alike (1 of 2): no spread between them, so no design effect, but the interval has
+    # the 5 degrees of freedom of 6 episodes, not the 11 of 12 stretches: 50% (17.0%-83.0%), where
+    # Clopper-Pearson's of 12 stretches is 21.1%-78.9%
+    assert stretches["design_effect"] == 1.0 and report["design_effect"] is None
+    assert [round(x, 3) for x in stretches["interval95"]] == [0.17, 0.83]
+    assert report["verdict"] == "above"
+    assert main(["validate", str(always), "--episodes", "6", "--max-steps", "1000"]) == 1
     said = re.sub(r"\s+", " ", capsys.readouterr().out)
-    assert "3 of 3 fresh ID episodes of up to 2,000 steps alarmed" in said
-    assert "of the 12 stretches of 500 steps, 3 alarmed, 25.0%" in said and "3 alarms in 6,000 steps" in said
-    assert "calibrate on episodes as long as these (`oodmon calibrate --max-steps 2000`)" in said
+    assert "6 of 6 fresh ID episodes of up to 1,000 steps alarmed" in said
+    assert "of the 12 stretches of 500 steps, 6 alarmed, 50.0%" in said and "6 alarms in 6,000 steps" in said
+    assert "(95% interval 17.0%-83.0%, each episode's stretches counted as one cluster, design effect 1)" in said
+    assert "calibrate on episodes as long as these (`oodmon calibrate --max-steps 1000`)" in said
     assert main(["validate", str(always), "--episodes", "3", "--json"]) == 1  # the env's own limit: no stretches
     report = json.loads(capsys.readouterr().out)
     assert report["steps"] == 1500 and report["max_steps"] is None and report["stretches"] is None

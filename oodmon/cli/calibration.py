@@ -257,14 +257,16 @@ def _validate(args: argparse.Namespace) -> int:
         print(json.dumps({"threshold": str(args.threshold), "task": agent.task, "method": agent.method,
                           "detector": threshold.detector, "rule": threshold.rule_text, "unit": unit,
                           "alarmed": result.alarmed, "total": result.total, "rate": result.rate,
-                          "interval95": [result.low, result.high], "far": result.far,
+                          "interval95": [result.low, result.high], "design_effect": result.design_effect,
+                          "far": result.far,
                           "confidence": result.confidence, "seed": args.seed, "obs_noise": noise,
                           "calibrated_obs_noise": threshold.calibration_noise,  # the world the bound is for
                           "workers": resolve_workers(args.workers, args.episodes),  # those that played them
                           "steps": result.steps, "alarms": result.alarms, "max_steps": result.max_steps,
                           "stretches": None if stretches is None else {
                               "length": stretches.length, "alarmed": stretches.alarmed, "total": stretches.total,
-                              "rate": stretches.rate, "interval95": [stretches.low, stretches.high]},
+                              "rate": stretches.rate, "interval95": [stretches.low, stretches.high],
+                              "design_effect": stretches.design_effect},
                           "verdict": result.verdict}, indent=1))
     else:
         verdict = {"above": "ABOVE the target: this threshold alarms too often"
@@ -274,18 +276,27 @@ def _validate(args: argparse.Namespace) -> int:
         said = (f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule_text}: "
                 f"{result.alarmed} of {result.total} fresh ID {unit}{_up_to(result.max_steps)}{_noise(noise)}"
                 f"{_other_noise(threshold, noise)} "
-                f"alarmed, {result.rate:.1%} (95% interval {result.low:.1%}-{result.high:.1%})")
+                f"alarmed, {result.rate:.1%} (95% interval {result.low:.1%}-{result.high:.1%}"
+                f"{_clustered('steps', result.design_effect)})")
         if stretches is not None:  # the figure the bound speaks of, on a line of its own
             said += (f"; {result.alarms:,} alarm{'s' if result.alarms != 1 else ''} in {result.steps:,} steps\n"
                      f"the bound is for episodes like the calibration's ({stretches.length:,} steps on average): of "
                      f"the {stretches.total:,} stretches of {stretches.length:,} steps, {stretches.alarmed:,} alarmed, "
-                     f"{stretches.rate:.1%} (95% interval {stretches.low:.1%}-{stretches.high:.1%}, approximate: the "
-                     "stretches of one episode are not independent)")
+                     f"{stretches.rate:.1%} (95% interval {stretches.low:.1%}-{stretches.high:.1%}"
+                     f"{_clustered('stretches', stretches.design_effect)})")
         Console(soft_wrap=True).print(
             said + f"; target {result.far:g}"
             + (f" with confidence {result.confidence:g}" if result.confidence is not None else " on average")
             + f": {verdict}", markup=False)
     return 1 if result.verdict == "above" else 0
+
+
+def _clustered(units: str, design_effect: float | None) -> str:
+    """The words ', each episode's steps counted as one cluster, design effect 3.2' of an interval over
+    units that come in episodes (``None``: independent episodes, no words)."""
+    if design_effect is None:
+        return ""
+    return f", each episode's {units} counted as one cluster, design effect {design_effect:.3g}"
 
 
 def _other_noise(threshold, obs_noise: float) -> str:

@@ -27,7 +27,7 @@ from oodmon.monitor.monitor import Monitor, OffCalibrationWarning, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson,
-                                     conformal_rank, episodes_needed)
+                                     clustered_interval, conformal_rank, episodes_needed)
 from oodmon.progress import Progress
 from oodmon.seeds import EPISODE_USES
 from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
@@ -304,8 +304,10 @@ class Stretches:
     Attributes:
         length: steps of a stretch (the calibration episodes' mean length).
         total, alarmed: stretches, and those in which an alarm was raised.
-        low, high: the 95% Clopper-Pearson interval of the alarmed share; approximate, since the
-            stretches of one episode are not independent.
+        low, high: the 95% interval of the alarmed share with each episode's stretches counted as
+            a cluster (:func:`~oodmon.monitor.threshold.clustered_interval`): the stretches of one
+            episode alarm together more often than independent ones would.
+        design_effect: how much the episodes' clustering widened it (1: not at all).
     """
 
     length: int
@@ -313,6 +315,7 @@ class Stretches:
     alarmed: int
     low: float
     high: float
+    design_effect: float = 1.0
 
     @property
     def rate(self) -> float:
@@ -327,12 +330,12 @@ class Stretches:
             >>> s.total, s.alarmed
             (5, 2)
         """
-        total = alarmed = 0
+        counts = []  # per episode: (stretches alarmed, stretches)
         for steps, alarms in episodes:
             count = max(1, steps // length)
-            total += count
-            alarmed += len({min(step // length, count - 1) for step in alarms})
-        return cls(length, total, alarmed, *clopper_pearson(alarmed, total))
+            counts.append((len({min(step // length, count - 1) for step in alarms}), count))
+        interval = clustered_interval(counts)
+        return cls(length, interval.trials, interval.successes, interval.low, interval.high, interval.design_effect)
 
 
 @dataclass(frozen=True)
@@ -343,7 +346,10 @@ class Validation:
         alarmed: episodes (steps in step mode) that raised an alarm.
         total: episodes (steps) played.
         far, confidence: the threshold's target and the confidence of its bound.
-        low, high: the 95% Clopper-Pearson interval of the realised false-alarm rate.
+        low, high: the 95% interval of the realised false-alarm rate: Clopper-Pearson's over the
+            episodes; in step mode with each episode's steps counted as a cluster
+            (:func:`~oodmon.monitor.threshold.clustered_interval`), as the steps of one episode
+            alarm together.
         obs_noise: the sensor noise of the episodes played.
         steps, alarms: ID steps played and alarms raised over them (every excursion above the
             threshold, not only an episode's first).
@@ -351,6 +357,8 @@ class Validation:
         stretches: in episode mode, where ``max_steps`` is not the threshold's own (its calibration
             episodes were shorter): the episodes cut into stretches as long as the calibration's
             episodes on average (:class:`Stretches`), which the verdict then reads; else ``None``.
+        design_effect: in step mode, how much the episodes' clustering widened the interval (1:
+            not at all); ``None`` in episode mode.
     """
 
     alarmed: int
@@ -364,6 +372,7 @@ class Validation:
     alarms: int = 0
     max_steps: int | None = None
     stretches: Stretches | None = None
+    design_effect: float | None = None
 
     @property
     def rate(self) -> float:
@@ -489,17 +498,18 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
     check_fresh(threshold, needed, seed, episodes)
     played = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, stage="validation episodes",
                                workers=workers, threshold=threshold, detectors=needed, force=force, max_steps=max_steps)
+    design_effect = None
     if threshold.mode == "episode":
         alarmed, total = sum(bool(alarms) for _, alarms in played), len(played)
-    else:
-        steps = np.concatenate([scores for scores, _ in played])
-        alarmed, total = int(np.sum(steps > threshold.value)), len(steps)
-    low, high = clopper_pearson(int(alarmed), total)
+        low, high = clopper_pearson(int(alarmed), total)
+    else:  # the steps above the threshold, each episode's counted together
+        interval = clustered_interval([(int(np.sum(scores > threshold.value)), len(scores)) for scores, _ in played])
+        alarmed, total, low, high = interval.successes, interval.trials, interval.low, interval.high
+        design_effect = interval.design_effect
     stretches = None
     if max_steps is not None and max_steps != threshold.max_steps and threshold.mode == "episode":
         length = max(1, round(threshold.n_steps / threshold.n_episodes))  # a calibration episode's, on average
         stretches = Stretches.of([(len(scores), alarms) for scores, alarms in played], length)
     return Validation(int(alarmed), total, threshold.far, threshold.confidence, low, high, float(obs_noise),
                       steps=sum(len(scores) for scores, _ in played), alarms=sum(len(alarms) for _, alarms in played),
-                      max_steps=max_steps,
-                      stretches=stretches)
+                      max_steps=max_steps, stretches=stretches, design_effect=design_effect)

@@ -48,9 +48,9 @@ from oodmon.monitor.sequential import RULES, Reference
 from oodmon.names import MASKS
 from oodmon.validation import is_whole
 
-__all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "EarlyPeaksWarning",
+__all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "ClusteredInterval", "EarlyPeaksWarning",
            "OutlyingThresholdWarning", "Threshold", "calibrate",
-           "clopper_pearson", "conformal_rank", "episodes_needed"]
+           "clopper_pearson", "clustered_interval", "conformal_rank", "episodes_needed"]
 
 MODES = ("episode", "step")
 #: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
@@ -131,6 +131,86 @@ def clopper_pearson(successes: int, trials: int, level: float = 0.95) -> tuple[f
     low = 0.0 if successes == 0 else float(betaincinv(successes, trials - successes + 1, tail))
     high = 1.0 if successes == trials else float(betaincinv(successes + 1, trials - successes, 1 - tail))
     return low, high
+
+
+@dataclass(frozen=True)
+class ClusteredInterval:
+    """A proportion counted over clusters of units that are not independent of one another (the
+    steps or stretches of one episode), with its two-sided interval (:func:`clustered_interval`).
+
+    Attributes:
+        successes, trials: summed over the clusters.
+        clusters: how many clusters (episodes) they came in.
+        design_effect: the variance of the proportion between clusters over a binomial's of as many
+            independent units, at least 1 (1: the interval is Clopper-Pearson's of the units, but for
+            the degrees of freedom of the clusters).
+        low, high: the interval.
+    """
+
+    successes: int
+    trials: int
+    clusters: int
+    design_effect: float
+    low: float
+    high: float
+
+
+def clustered_interval(counts: Sequence[tuple[int, int]], level: float = 0.95) -> ClusteredInterval:
+    """The ``level`` interval of a proportion whose units come in clusters, ``counts`` holding each
+    cluster's ``(successes, units)``: Korn and Graubard's (1998) Clopper-Pearson interval on an
+    effective sample size, as survey statistics computes it for cluster samples (SAS SURVEYFREQ's
+    modified Clopper-Pearson limits, R survey's ``svyciprop(method="beta")`` with the degrees of
+    freedom of the clusters). The proportion's variance is the ratio estimator's between clusters,
+    m / (m - 1) * sum((s_i - p n_i)^2) / N^2 over m clusters of N units; the effective size is
+    p (1 - p) / variance (the units over the design effect, which is taken as at least 1, so that
+    the interval is never narrower than Clopper-Pearson's over the units), times (t_{N-1} /
+    t_{m-1})^2 at the interval's quantile; the limits are Clopper-Pearson's at that size and p
+    times it as the successes. Where no success or no failure was seen, the variance is 0 and the
+    effective size is N (Korn and Graubard's choice); one cluster alone is its own single unit.
+
+    Steps of one episode alarm together (the scores are means of the last 20 steps, and a policy
+    that has drifted stays drifted), so counted as independent their Clopper-Pearson interval is far
+    too narrow. Simulated (each episode's own rate drawn from a Beta of mean 0.08 and intra-episode
+    correlation 0.3, 1,000 draws; ``tests/monitor/test_rule_and_calibration.py``): over 40 episodes
+    of 10 stretches Clopper-Pearson's 95% interval covered the true rate in 71% of the draws and
+    this one in 94%; over the steps of 20 episodes of 500 steps (rate 0.05), 11% against 89%; with
+    independent units both cover it (95% and 96%, this one 7% wider). Its weak side: with no alarm
+    at all (or nothing but alarms) there is no spread to measure, and the interval is the units'
+    own, as narrow as if they were independent.
+
+    Example:
+        >>> kept = clustered_interval([(0, 10)] * 30 + [(10, 10)] * 10)  # 10 of 40 episodes alarm all through
+        >>> round(kept.design_effect, 2), [round(x, 3) for x in (kept.low, kept.high)]
+        (10.26, [0.122, 0.42])
+        >>> [round(x, 3) for x in clopper_pearson(100, 400)]  # the same 400 units as if independent
+        [0.208, 0.295]
+        >>> round(clustered_interval([(1, 1)] * 3 + [(0, 1)] * 37).design_effect, 3)  # one unit a cluster: 40 / 39
+        1.026
+    """
+    from scipy.special import betaincinv, stdtrit
+
+    successes = sum(int(s) for s, _ in counts)
+    trials = sum(int(n) for _, n in counts)
+    clusters = len(counts)
+    if trials == 0:
+        raise ValueError("no units to count")
+    tail = (1 - level) / 2
+    if clusters < 2:  # no spread between clusters to measure: the one cluster is one unit
+        low, high = clopper_pearson(int(successes > 0), 1, level)
+        return ClusteredInterval(successes, trials, clusters, float(trials), low, high)
+    if successes in (0, trials):
+        return ClusteredInterval(successes, trials, clusters, 1.0, *clopper_pearson(successes, trials, level))
+    rate = successes / trials
+    s = np.array([s for s, _ in counts], dtype=np.float64)
+    n = np.array([n for _, n in counts], dtype=np.float64)
+    variance = clusters / (clusters - 1) * float(np.sum((s - rate * n) ** 2)) / trials ** 2
+    design_effect = max(1.0, variance / (rate * (1 - rate) / trials))
+    degrees = (float(stdtrit(trials - 1, 1 - tail)) / float(stdtrit(clusters - 1, 1 - tail))) ** 2 if trials > 1 else 1.0
+    size = trials / design_effect * degrees
+    hits = rate * size
+    low = float(betaincinv(hits, size - hits + 1, tail))
+    high = float(betaincinv(hits + 1, size - hits, 1 - tail))
+    return ClusteredInterval(successes, trials, clusters, design_effect, low, high)
 
 
 #: Up to this many statistics :func:`conformal_rank` reads the CDF at every k; beyond, it bisects,
