@@ -40,8 +40,8 @@ from oodmon.errors import InvalidParameterError
 from oodmon.progress import Progress
 from oodmon.validation import is_whole
 
-__all__ = ["WorkerDied", "WorkerTraceback", "episode_streams", "forking", "play_side_by_side", "resolve_workers",
-           "runs_of", "stream_per_episode", "usable_cores", "worker_context"]
+__all__ = ["WorkerDied", "WorkerTraceback", "episode_streams", "finished_before", "forking", "play_side_by_side",
+           "resolve_workers", "runs_of", "stream_per_episode", "usable_cores", "worker_context"]
 
 #: ``play(first, count, done)``: play episodes ``first .. first + count - 1`` (indices from 0),
 #: calling ``done()`` after each; return their results in a list, one per episode.
@@ -67,6 +67,17 @@ def resolve_workers(workers: int, episodes: int) -> int:
         return 1
     cores = usable_cores()
     return max(1, min(workers or cores, cores, episodes))
+
+
+def finished_before(interrupt: BaseException) -> list:
+    """The results of the first episodes played whole before ``interrupt`` (a Ctrl-C or SIGTERM
+    out of :func:`play_side_by_side`), in the episodes' order: episodes 0 .. k - 1, the longest run
+    of them from the first whose results had come back (an episode that ended early among later
+    ones missing is left out with them, so that the shorter episodes are not the ones counted).
+    Side by side, a worker's results come back when its run ends, so ``run_size`` sets what an
+    interruption keeps; in one process a ``play`` that keeps its own sets them on the interrupt
+    (``interrupt.finished``). ``[]`` where it kept none."""
+    return list(getattr(interrupt, "finished", []))
 
 
 def usable_cores() -> int:
@@ -303,8 +314,14 @@ def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
                     _, error, text = message
                     raise error from WorkerTraceback(text)
         return [result for first, _ in runs for result in results[first]]
-    except BaseException:
+    except BaseException as error:
         _stop(processes.values())
+        if isinstance(error, KeyboardInterrupt):  # the runs that came back whole, from the first on
+            error.finished = []
+            for first, _ in runs:
+                if first not in results:
+                    break
+                error.finished += results[first]
         raise
     finally:
         for connection, process in processes.items():

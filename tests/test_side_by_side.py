@@ -297,6 +297,57 @@ def test_calibrate_and_validate_take_workers(four_cores, tmp_path, capsys):
     assert report["alarmed"] == validate_threshold(load("cartpole", "ensemble"), alone, 12, seed=700_100).alarmed
 
 
+def _interrupt_at(episodes: int):
+    """An ``on_progress`` that raises Ctrl-C's KeyboardInterrupt once ``episodes`` episodes are done."""
+    def report(stage, done, total, *_):
+        if done >= episodes:
+            raise KeyboardInterrupt
+
+    return report
+
+
+def test_an_interrupted_validation_counts_the_first_episodes_played_whole(four_cores, tmp_path, capsys, monkeypatch):
+    """Ctrl-C or SIGTERM in a long validation (hours of Pong games, or of --max-steps runs) kept
+    nothing before ("oodmon: interrupted"). Now the KeyboardInterrupt carries the count of the first
+    episodes played whole, in one process and side by side (each worker plays runs of about a tenth
+    of its share, so that the runs back by then are most of what was played), the same count as a
+    validation of just those episodes; and `validate` prints it, said to be interrupted, exit 130."""
+    import contextlib
+
+    agent = load("cartpole", "ensemble")
+    threshold = calibrate_agent(agent, 11, 0.2, detector="spread")
+    with pytest.raises(KeyboardInterrupt) as alone:
+        validate_threshold(agent, threshold, 12, seed=700_300, on_progress=_interrupt_at(5))
+    played = alone.value.validation
+    assert played.episodes == played.total == 5
+    assert played.alarmed == validate_threshold(agent, threshold, 5, seed=700_300).alarmed
+    with pytest.raises(KeyboardInterrupt) as side_by_side:
+        validate_threshold(agent, threshold, 20, seed=700_300, workers=2, on_progress=_interrupt_at(10))
+    played = side_by_side.value.validation  # runs of 1 episode: those back, from the first on
+    assert 1 <= played.episodes <= 10
+    assert played.alarmed == validate_threshold(agent, threshold, played.episodes, seed=700_300).alarmed
+    # the command
+    path = tmp_path / "t.json"
+    threshold.save(path)
+    for json_out in (False, True):
+        monkeypatch.setattr("oodmon.cli.calibration._progress", lambda: contextlib.nullcontext(_interrupt_at(4)))
+        assert main(["validate", str(path), "--episodes", "12", "--seed", "700100"] + ["--json"] * json_out) == 130
+        out, err = capsys.readouterr()
+        assert "oodmon: interrupted; the 4 of the 12 episodes played whole before it are counted above" in err
+        count = validate_threshold(agent, threshold, 4, seed=700_100).alarmed
+        if json_out:
+            report = json.loads(out)
+            assert (report["interrupted"], report["episodes"], report["total"], report["alarmed"]) == (True, 4, 4, count)
+        else:
+            assert "interrupted: of the 12 episodes asked for, the first 4 were played whole, and are counted here" in out
+            assert f"{count} of 4 fresh ID episodes alarmed" in out
+    # interrupted before an episode ended: nothing to count, nothing said of it
+    monkeypatch.setattr("oodmon.monitor.calibration.finished_before", lambda interrupt: [])
+    assert main(["validate", str(path), "--episodes", "12", "--seed", "700100"]) == 130
+    out, err = capsys.readouterr()
+    assert "interrupted:" not in out and err.strip().endswith("oodmon: interrupted")
+
+
 def test_runs_of_a_given_size_come_back_in_order_one_by_one(four_cores):
     """``run_size``: the workers take runs of at most that many episodes, the next when one ends,
     so that large results (the detectors' fitting: every frame of a game) come back a few at a time."""

@@ -237,7 +237,6 @@ def _add_validate(commands: argparse._SubParsersAction) -> None:
 
 def _validate(args: argparse.Namespace) -> int:
     from oodmon.monitor import Threshold, validate_threshold
-    from oodmon.side_by_side import resolve_workers
 
     threshold = Threshold.load(args.threshold)
     from_threshold = _agent_from_threshold(args, threshold, args.threshold)
@@ -246,10 +245,27 @@ def _validate(args: argparse.Namespace) -> int:
     if from_threshold:
         _check_agent_from_threshold(args, threshold, args.threshold, agent)
     detectors = _detectors(args, agent)
-    with _progress() as report:
-        result = validate_threshold(agent, threshold, args.episodes, seed=args.seed, detectors=detectors,
-                                    obs_noise=args.obs_noise, force=args.force, on_progress=report,
-                                    workers=args.workers, max_steps=args.max_steps)
+    try:
+        with _progress() as report:
+            result = validate_threshold(agent, threshold, args.episodes, seed=args.seed, detectors=detectors,
+                                        obs_noise=args.obs_noise, force=args.force, on_progress=report,
+                                        workers=args.workers, max_steps=args.max_steps)
+    except KeyboardInterrupt as interrupt:  # Ctrl-C, SIGTERM: the episodes played whole are still a count
+        played = getattr(interrupt, "validation", None)
+        if played is not None:
+            _print_validation(args, agent, threshold, played, interrupted=True)
+            args.kept_on_interrupt = (f"the {played.episodes:,} of the {args.episodes:,} episodes played whole before "
+                                      "it are counted above")
+        raise
+    _print_validation(args, agent, threshold, result)
+    return 1 if result.verdict == "above" else 0
+
+
+def _print_validation(args: argparse.Namespace, agent, threshold, result, *, interrupted: bool = False) -> None:
+    """``validate``'s answer: its JSON (``--json``) or its line(s), of ``result``; ``interrupted``: a
+    count of the episodes played whole before Ctrl-C or SIGTERM, said so first."""
+    from oodmon.side_by_side import resolve_workers
+
     unit = "episodes" if threshold.mode == "episode" else "steps"
     noise = result.obs_noise  # (the threshold's, unless --obs-noise)
     stretches = result.stretches
@@ -267,13 +283,16 @@ def _validate(args: argparse.Namespace) -> int:
                               "length": stretches.length, "alarmed": stretches.alarmed, "total": stretches.total,
                               "rate": stretches.rate, "interval95": [stretches.low, stretches.high],
                               "design_effect": stretches.design_effect},
-                          "verdict": result.verdict}, indent=1))
+                          "verdict": result.verdict, "interrupted": interrupted, "episodes": result.episodes},
+                         indent=1))
     else:
         verdict = {"above": "ABOVE the target: this threshold alarms too often"
                             + _above_hint(threshold, unit, noise, result.max_steps),
                    "below": "below the target",
                    "consistent": "consistent with the target (the interval holds it)"}[result.verdict]
-        said = (f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule_text}: "
+        said = (f"interrupted: of the {args.episodes:,} episodes asked for, the first {result.episodes:,} were played "
+                "whole, and are counted here\n" if interrupted else "")
+        said += (f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule_text}: "
                 f"{result.alarmed} of {result.total} fresh ID {unit}{_up_to(result.max_steps)}{_noise(noise)}"
                 f"{_other_noise(threshold, noise)} "
                 f"alarmed, {result.rate:.1%} (95% interval {result.low:.1%}-{result.high:.1%}"
@@ -288,7 +307,6 @@ def _validate(args: argparse.Namespace) -> int:
             said + f"; target {result.far:g}"
             + (f" with confidence {result.confidence:g}" if result.confidence is not None else " on average")
             + f": {verdict}", markup=False)
-    return 1 if result.verdict == "above" else 0
 
 
 def _clustered(units: str, design_effect: float | None) -> str:

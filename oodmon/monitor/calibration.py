@@ -30,7 +30,7 @@ from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Thresh
                                      clustered_interval, conformal_rank, episodes_needed)
 from oodmon.progress import Progress
 from oodmon.seeds import EPISODE_USES
-from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
+from oodmon.side_by_side import finished_before, play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import is_step_count, is_whole
 
 __all__ = ["CALIBRATION_SEED", "EPISODE_USES", "Stretches", "Validation", "calibrate_agent", "check_fresh",
@@ -62,7 +62,8 @@ class _ScoresAndAlarms:
         self._alarms.append(event.step)
 
     def end_episode(self, record: Any) -> None:
-        self.episodes.append((np.asarray(self._scores), self._alarms))
+        if not record.interrupted:  # an episode cut by Ctrl-C is not one of those asked for
+            self.episodes.append((np.asarray(self._scores), self._alarms))
         self._scores, self._alarms = [], []
 
     def close(self) -> None:
@@ -78,7 +79,11 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
     ``max_steps``: each episode's time limit (the env's own lifted or set: ``max_episode_steps``).
 
     ``workers``: processes that play them side by side (0: one per core; see
-    :mod:`oodmon.side_by_side` for what an MC agent draws there)."""
+    :mod:`oodmon.side_by_side` for what an MC agent draws there).
+
+    Interrupted (Ctrl-C, SIGTERM), the ``KeyboardInterrupt`` carries the results of the first
+    episodes played whole (:func:`~oodmon.side_by_side.finished_before`): side by side, each worker
+    plays runs of about a tenth of its share, so that one interrupted loses little."""
     seed = seeds.check_seed(seed)
     workers = resolve_workers(workers, episodes)
     start = stream_per_episode(agent.estimator, workers)
@@ -87,17 +92,21 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
         sink = _ScoresAndAlarms()
         env = agent.make_env(obs_noise, max_steps=max_steps)
         endless = None if max_steps is not None else (lambda _, steps, __: warn_if_endless(env, steps))
-        with warnings.catch_warnings(), Monitor(agent, sinks=[sink], log_observations=False, **settings) as monitor:
-            # validate counts false alarms at another noise, or in longer episodes, on purpose, and says so
-            warnings.simplefilter("ignore", OffCalibrationWarning)
-            for episode in range(first, first + count):
-                start(seed + episode)
-                monitor.run_episode(env, seed=seed + episode, variant=agent.task, on_progress=endless)
-                done()
+        try:
+            with warnings.catch_warnings(), Monitor(agent, sinks=[sink], log_observations=False, **settings) as monitor:
+                # validate counts false alarms at another noise, or in longer episodes, on purpose, and says so
+                warnings.simplefilter("ignore", OffCalibrationWarning)
+                for episode in range(first, first + count):
+                    start(seed + episode)
+                    monitor.run_episode(env, seed=seed + episode, variant=agent.task, on_progress=endless)
+                    done()
+        except KeyboardInterrupt as interrupt:  # (one process: those played whole, from ``first``)
+            interrupt.finished = list(sink.episodes)
+            raise
         env.close()
         return sink.episodes
 
-    return play_side_by_side(play, episodes, workers, stage, on_progress)
+    return play_side_by_side(play, episodes, workers, stage, on_progress, run_size=-(-episodes // (10 * workers)))
 
 
 def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SEED, score: str = DEFAULT_SCORE,
@@ -359,6 +368,7 @@ class Validation:
             episodes on average (:class:`Stretches`), which the verdict then reads; else ``None``.
         design_effect: in step mode, how much the episodes' clustering widened the interval (1:
             not at all); ``None`` in episode mode.
+        episodes: the episodes played (``total`` in episode mode).
     """
 
     alarmed: int
@@ -373,6 +383,7 @@ class Validation:
     max_steps: int | None = None
     stretches: Stretches | None = None
     design_effect: float | None = None
+    episodes: int | None = None
 
     @property
     def rate(self) -> float:
@@ -474,6 +485,9 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
     env's own); in episode mode the episodes are then also counted by stretches as long as the
     calibration's episodes (:class:`Stretches`), which the bound speaks of.
 
+    Interrupted (Ctrl-C, SIGTERM), the ``KeyboardInterrupt`` raised carries in ``.validation`` the
+    count of the first episodes played whole (``None``: none was).
+
     Raises:
         InvalidParameterError: ``episodes`` is not a whole number >= 1.
         ConfigError: the threshold was made for another policy (unless ``force``) or reads a
@@ -496,8 +510,20 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
     agent.check_noise(obs_noise)  # as calibrate_agent: said before the first episode
     needed = detectors_read(threshold, detectors)
     check_fresh(threshold, needed, seed, episodes)
-    played = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, stage="validation episodes",
-                               workers=workers, threshold=threshold, detectors=needed, force=force, max_steps=max_steps)
+    try:
+        played = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, stage="validation episodes",
+                                   workers=workers, threshold=threshold, detectors=needed, force=force,
+                                   max_steps=max_steps)
+    except KeyboardInterrupt as interrupt:  # what was played whole goes with it
+        finished = finished_before(interrupt)
+        interrupt.validation = _counted(finished, threshold, obs_noise, max_steps) if finished else None
+        raise
+    return _counted(played, threshold, obs_noise, max_steps)
+
+
+def _counted(played: list[tuple[np.ndarray, list[int]]], threshold: Threshold, obs_noise: float,
+             max_steps: int | None) -> Validation:
+    """The :class:`Validation` of the ID episodes ``played`` (each: its scores and alarm steps)."""
     design_effect = None
     if threshold.mode == "episode":
         alarmed, total = sum(bool(alarms) for _, alarms in played), len(played)
@@ -512,4 +538,4 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
         stretches = Stretches.of([(len(scores), alarms) for scores, alarms in played], length)
     return Validation(int(alarmed), total, threshold.far, threshold.confidence, low, high, float(obs_noise),
                       steps=sum(len(scores) for scores, _ in played), alarms=sum(len(alarms) for _, alarms in played),
-                      max_steps=max_steps, stretches=stretches, design_effect=design_effect)
+                      max_steps=max_steps, stretches=stretches, design_effect=design_effect, episodes=len(played))
