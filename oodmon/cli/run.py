@@ -15,7 +15,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
-from oodmon.cli.parsing import _KEPT, _SEED, _agent_arguments, _non_negative, _positive, _whole
+from oodmon.cli.parsing import _KEPT, _LOGGED, _SEED, _agent_arguments, _non_negative, _positive, _whole
 from oodmon.errors import ConfigError
 from oodmon.names import TASKS
 
@@ -152,6 +152,9 @@ def _run(args: argparse.Namespace) -> int:
         progress.console.print(f"[bold red]ALARM[/bold red] {escape(event.text())}")
 
     rows = _EpisodeRows(calibrated=threshold.covered_steps if threshold is not None else None)
+    interrupt = None
+    if not sinks:  # (the default said of an interrupted run is of its logs)
+        args.kept_on_interrupt = "no log was written (--mcap or --rrd keeps every step)"
     with warnings.catch_warnings(), command or nullcontext(), Progress(console=console, transient=True) as progress, \
             Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show, *filter(None, [command])],
                     strict=args.strict, force=args.force, render=args.render) as monitor:
@@ -168,15 +171,19 @@ def _run(args: argparse.Namespace) -> int:
         def count(stage: str, steps: int, total: int) -> None:
             if steps % 50 == 0:
                 progress.update(decisions, completed=steps)
-        for episode in range(args.episodes):
-            progress.reset(decisions, total=None, description=f"episode {episode}: decisions")
-            rows.add(monitor.run_episode(env, seed=args.seed + episode, on_progress=count))
-            progress.update(bar, advance=1)
+        try:
+            for episode in range(args.episodes):
+                progress.reset(decisions, total=None, description=f"episode {episode}: decisions")
+                rows.add(monitor.run_episode(env, seed=args.seed + episode, on_progress=count))
+                progress.update(bar, advance=1)
+        except KeyboardInterrupt as stop:  # Ctrl-C, SIGTERM: the files are finished as at the end (the cut
+            interrupt = stop  # episode marked), and the episodes played whole are said below
     failures = dict(monitor.sinks.failures)  # after the sinks closed: a file that could not be finished counts
     env.close()
     files = {"McapSink": _files_written(mcap), "RerunSink": args.rrd}
     written = [str(p) for name, p in files.items() if p and name not in failures]
-    console.print(rows.table(f"{args.task}/{agent.method} in {label}, onset {args.onset}"
+    console.print(rows.table(("interrupted: " if interrupt is not None else "")
+                             + f"{args.task}/{agent.method} in {label}, onset {args.onset}"
                              + (f", sensor noise {args.obs_noise:g}" if args.obs_noise else "")
                              + (f", episodes of up to {args.max_steps:,} steps" if args.max_steps else "")
                              + (f", {threshold.rule_text}" if threshold else ", no threshold")))
@@ -218,6 +225,12 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"--on-alarm: {command.summary}", markup=False)
     if failures:
         console.print(f"[yellow]sink failures: {failures}[/yellow]")
+    if interrupt is not None:
+        one = rows.episodes == 1
+        whole = f"the {rows.episodes:,} episode{'' if one else 's'} played whole {'is' if one else 'are'} in the table above"
+        args.kept_on_interrupt = (f"{_LOGGED}; {whole}" if written else
+                                  f"{whole}; no log was written (--mcap or --rrd keeps every step)")
+        raise interrupt
     return 0
 
 

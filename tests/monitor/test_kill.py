@@ -5,6 +5,7 @@ once and forks each monitored run from it, so thirteen kills take seconds."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -149,6 +150,10 @@ def test_a_script_that_never_closes_its_monitor_leaves_a_finished_log(tmp_path):
 
 
 def test_ctrl_c_in_oodmon_run_exits_130_and_marks_the_cut_episode(tmp_path, monkeypatch, capsys):
+    """The log is finished, the cut episode marked; the run's closing table of the episodes played
+    whole is printed as at its end (before 2026-12-05 it was not: 175 CartPole episodes of `run
+    --episodes 1000`, Ctrl-C after 10 s, and nothing said of them), and where no log was written,
+    Ctrl-C no longer says "every finished episode is in the logs"."""
     from oodmon.cli import main
     from oodmon.monitor import Monitor
 
@@ -164,12 +169,20 @@ def test_ctrl_c_in_oodmon_run_exits_130_and_marks_the_cut_episode(tmp_path, monk
     monkeypatch.setattr(Monitor, "step", interrupted_at_step_700)
     code = main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "5", "--mcap",
                  str(tmp_path / "cut.mcap")])
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
     assert code == 130 and err.strip().splitlines() == [
-        "oodmon: interrupted; every finished episode is in the logs, the cut one is marked interrupted"]
+        "oodmon: interrupted; every finished episode is in the logs, the cut one is marked interrupted; the 1 "
+        "episode played whole is in the table above"]
+    assert "interrupted: cartpole/ensemble in cartpole" in out and f"written to {tmp_path / 'cut.mcap'}" in out
     log = read_log(tmp_path / "cut.mcap")
     assert log.complete and [e.length for e in log.episodes] == [500] and len(log.interrupted) == 1
     assert log.interrupted[0].length == 199
+    calls[0] = 0  # no log: said so, not "in the logs"
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "5"]) == 130
+    out, err = capsys.readouterr()
+    assert err.strip().splitlines()[-1] == ("oodmon: interrupted; the 1 episode played whole is in the table above; no "
+                                            "log was written (--mcap or --rrd keeps every step)")
+    assert re.search(r"│\s+0 │\s+0 │\s+500\.0 │\s+500 │", out)  # its row
 
 
 def test_sigterm_stops_oodmon_run_as_ctrl_c_does_and_exits_143(tmp_path, monkeypatch, capsys):
@@ -200,7 +213,8 @@ def test_sigterm_stops_oodmon_run_as_ctrl_c_does_and_exits_143(tmp_path, monkeyp
                  str(tmp_path / "cut.mcap")])
     assert signal.getsignal(signal.SIGTERM) == before
     assert code == 143 and capsys.readouterr().err.strip().splitlines() == [
-        "oodmon: stopped by SIGTERM; every finished episode is in the logs, the cut one is marked interrupted"]
+        "oodmon: stopped by SIGTERM; every finished episode is in the logs, the cut one is marked interrupted; the 1 "
+        "episode played whole is in the table above"]
     log = read_log(tmp_path / "cut.mcap")
     assert log.complete and [e.length for e in log.episodes] == [500] and len(log.interrupted) == 1
     assert log.interrupted[0].length == 199  # the handler runs as os.kill returns: step 700 is not taken
