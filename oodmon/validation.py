@@ -7,7 +7,7 @@ import math
 import numbers
 from pathlib import Path
 
-__all__ = ["MOST_STEPS", "is_finite_real", "is_real", "is_step_count", "is_whole", "not_a_file"]
+__all__ = ["MOST_STEPS", "check_max_steps", "is_finite_real", "is_real", "is_step_count", "is_whole", "not_a_file"]
 
 #: The most steps a count may name where oodmon keeps that many scores, or plays that many in a
 #: dry run: an alarm rule's ``consecutive``, ``window`` and ``warmup``, a detector's ``window``.
@@ -24,6 +24,20 @@ def is_whole(value: object, minimum: int = 1) -> bool:
         (True, False, True, False, False)
     """
     return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= minimum
+
+
+def check_max_steps(max_steps: object) -> None:
+    """``max_steps`` is an episode's time limit (a whole number >= 1) or ``None`` (the env's own).
+
+    Raises:
+        InvalidParameterError: it is neither (said before an episode is played; 0 reached
+            gymnasium's ``TimeLimit`` from ``fit_agent_detectors`` until 2026-12-05, a ValueError).
+    """
+    from oodmon.errors import InvalidParameterError
+
+    if max_steps is not None and not is_whole(max_steps):
+        raise InvalidParameterError(f"max_steps={max_steps!r} is not allowed; give each episode's time limit, a whole "
+                                    "number >= 1 of steps (None: the env's own)")
 
 
 def is_step_count(value: object, minimum: int = 1) -> bool:

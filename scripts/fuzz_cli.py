@@ -45,7 +45,9 @@ Fixed: a name that is not a regular file is refused as an output, and a writer w
 file over one; the script now checks /dev/null and /dev/zero after every run and stops at once,
 naming the command, if either is no longer a device. Then seeds 182 and 183 (500 each): 497 and 498
 answered, the rest stopped while working, no traceback; with ``--max-steps`` of calibrate,
-validate and run, seed 184 (500): 496 answered, 4 stopped while working, no traceback.
+validate and run, seed 184 (500): 496 answered, 4 stopped while working, no traceback. The
+session after, seeds 185 and 186 (500 each): 498 and 497 answered, the rest stopped while working,
+no traceback.
 """
 
 from __future__ import annotations

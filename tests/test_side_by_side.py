@@ -348,6 +348,65 @@ def test_an_interrupted_validation_counts_the_first_episodes_played_whole(four_c
     assert "interrupted:" not in out and err.strip().endswith("oodmon: interrupted")
 
 
+def test_an_interrupt_keeps_the_runs_back_from_the_first_on(four_cores):
+    """Ctrl-C while workers play: the KeyboardInterrupt carries the results of the runs back by then,
+    from the first on and without a gap (a run back beyond a missing one is left out, so that the
+    quick episodes are not the ones counted); nothing where the first is not back."""
+    from oodmon.side_by_side import finished_before
+
+    def play(first, count, done):
+        time.sleep(0.05 if first == 0 else 1.0 if first == 1 else 0.1)  # episode 1 the slowest, by far
+        done()
+        return [first]
+
+    with pytest.raises(KeyboardInterrupt) as stopped:
+        play_side_by_side(play, 8, 2, "ID episodes", _interrupt_at(4), run_size=1)
+    assert finished_before(stopped.value) == [0]  # 0 back at 0.05 s, 2-4 by 0.35 s: beyond the gap 1 leaves
+
+    def slow_first(first, count, done):
+        time.sleep(0.5 if first == 0 else 0.02)
+        done()
+        return [first]
+
+    with pytest.raises(KeyboardInterrupt) as stopped:
+        play_side_by_side(slow_first, 8, 2, "ID episodes", _interrupt_at(4), run_size=1)
+    assert finished_before(stopped.value) == []
+    assert finished_before(KeyboardInterrupt()) == []
+
+
+def test_an_interrupted_evaluation_keeps_the_variants_evaluated_whole(four_cores, capsys, monkeypatch):
+    """`evaluate` of a whole grid takes hours on Pong; Ctrl-C kept nothing of it. Now the ID env and
+    the first variants evaluated whole come with the KeyboardInterrupt, in one process and side by
+    side (a variant at a time), as an evaluation of just those gives them, and the command prints
+    their table, said to be interrupted, exit 130."""
+    import contextlib
+
+    from oodmon.agents import evaluate_variants
+    from oodmon.envs.grid import select_variants
+
+    agent = load("cartpole", "ensemble")
+    specs = "cartpole:length=2.0,cartpole:masscart=9.0,cartpole:gravity=19.6,cartpole:force_mag=1.0"
+    variants = select_variants("cartpole", specs)
+    for workers in (1, 2):  # 2 episodes a variant: stopped in the first episode of the third variant
+        with pytest.raises(KeyboardInterrupt) as stopped:
+            evaluate_variants(agent.act, "cartpole", variants, 2, on_progress=_interrupt_at(7), workers=workers,
+                              sampler=agent.estimator)
+        if workers == 2 and stopped.value.evaluation is None:  # the ID env's 500-step episodes not back yet
+            continue  # (which runs are back side by side: test_an_interrupt_keeps_the_runs_back_from_the_first_on)
+        id_result, results = stopped.value.evaluation
+        assert len(results) == 2 if workers == 1 else len(results) <= 3
+        _, whole = evaluate_variants(agent.act, "cartpole", variants[:len(results)], 2)
+        assert [(r.spec, r.mean, r.fails) for r in results] == [(r.spec, r.mean, r.fails) for r in whole]
+        assert id_result.spec == "cartpole"
+    monkeypatch.setattr("oodmon.cli.training._progress", lambda: contextlib.nullcontext(_interrupt_at(7)))
+    assert main(["evaluate", "--task", "cartpole", "--method", "ensemble", "--episodes", "2", "--variants", specs]) == 130
+    out, err = capsys.readouterr()
+    assert "interrupted: cartpole/ensemble: mean return over 2 episodes" in re.sub(r"\s+", " ", out)
+    assert "cartpole:masscart=9.0" in out and "cartpole:gravity=19.6" not in out
+    assert "oodmon: interrupted; the ID env and the first 2 of the 4 variants, evaluated whole, are in the table " \
+           "above" in re.sub(r"\s+", " ", err)
+
+
 def test_runs_of_a_given_size_come_back_in_order_one_by_one(four_cores):
     """``run_size``: the workers take runs of at most that many episodes, the next when one ends,
     so that large results (the detectors' fitting: every frame of a game) come back a few at a time."""

@@ -18,7 +18,7 @@ import numpy as np
 from oodmon import seeds
 from oodmon.envs.grid import Variant
 from oodmon.progress import Progress
-from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
+from oodmon.side_by_side import finished_before, play_side_by_side, resolve_workers, stream_per_episode
 
 __all__ = ["RANDOM_RETURN", "SOLVED_RETURN", "VariantResult", "episode_returns", "evaluate_variants", "failure_line"]
 
@@ -126,6 +126,10 @@ def evaluate_variants(
 
     Returns:
         The ID result and one result per variant, in order.
+
+    Interrupted (Ctrl-C, SIGTERM), the ``KeyboardInterrupt`` carries in ``.evaluation`` the same of
+    the ID env and the first variants evaluated whole (``None``: not even the ID env was); side by
+    side, each worker takes one variant at a time.
     """
     variants = [Variant(task), *variants]
     workers = resolve_workers(workers, len(variants))
@@ -133,14 +137,26 @@ def evaluate_variants(
 
     def play(first: int, count: int, done: Callable[[], None]) -> list[np.ndarray]:
         played = []
-        for index in range(first, first + count):
-            start(index)
-            played.append(episode_returns(policy, variants[index], episodes, seed=seed,
-                                          on_progress=lambda *_: done(), wrap=wrap))
+        try:
+            for index in range(first, first + count):
+                start(index)
+                played.append(episode_returns(policy, variants[index], episodes, seed=seed,
+                                              on_progress=lambda *_: done(), wrap=wrap))
+        except KeyboardInterrupt as interrupt:  # (one process: those evaluated whole, from the ID env on)
+            interrupt.finished = played
+            raise
         return played
 
-    returns = play_side_by_side(play, len(variants), workers, "evaluation episodes", on_progress,
-                                total=len(variants) * episodes)
-    line = failure_line(task, float(np.mean(returns[0])), fail_fraction)
-    id_result = VariantResult(task, returns[0], False)
-    return id_result, [VariantResult(v.spec, r, float(np.mean(r)) < line) for v, r in zip(variants[1:], returns[1:])]
+    def results(returns: list[np.ndarray]) -> tuple[VariantResult, list[VariantResult]]:
+        line = failure_line(task, float(np.mean(returns[0])), fail_fraction)
+        return VariantResult(task, returns[0], False), [VariantResult(v.spec, r, float(np.mean(r)) < line)
+                                                        for v, r in zip(variants[1:], returns[1:])]
+
+    try:
+        returns = play_side_by_side(play, len(variants), workers, "evaluation episodes", on_progress,
+                                    total=len(variants) * episodes, run_size=1)
+    except KeyboardInterrupt as interrupt:
+        finished = finished_before(interrupt)
+        interrupt.evaluation = results(finished) if finished else None
+        raise
+    return results(returns)

@@ -82,7 +82,6 @@ def _add_evaluate(commands: argparse._SubParsersAction) -> None:
 
 def _evaluate(args: argparse.Namespace) -> int:
     from oodmon.agents import evaluate_variants
-    from oodmon.side_by_side import resolve_workers
 
     if args.episodes < 1:
         raise InvalidParameterError(f"--episodes {args.episodes} is not allowed; give at least 1")
@@ -92,19 +91,39 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.task not in TASKS:  # --sb3 in an env oodmon has no variants of
         raise _no_variants("evaluate", args.env)
     variants = select_variants(args.task, args.variants)
-    with _progress() as report:
-        id_result, results = evaluate_variants(agent.act, args.task, variants, args.episodes,
-                                               fail_fraction=args.fail_fraction, on_progress=report, wrap=agent.wrap,
-                                               workers=args.workers, sampler=agent.estimator)
+    try:
+        with _progress() as report:
+            id_result, results = evaluate_variants(agent.act, args.task, variants, args.episodes,
+                                                   fail_fraction=args.fail_fraction, on_progress=report,
+                                                   wrap=agent.wrap, workers=args.workers, sampler=agent.estimator)
+    except KeyboardInterrupt as interrupt:  # Ctrl-C, SIGTERM: the variants evaluated whole are still said
+        evaluated = getattr(interrupt, "evaluation", None)
+        if evaluated is not None:
+            _print_evaluation(args, agent, *evaluated, len(variants), interrupted=True)
+            args.kept_on_interrupt = (f"the ID env and the first {len(evaluated[1]):,} of the {len(variants):,} "
+                                      "variants, evaluated whole, are in the table above")
+        raise
+    _print_evaluation(args, agent, id_result, results, len(variants))
+    return 0
+
+
+def _print_evaluation(args: argparse.Namespace, agent, id_result, results, asked: int, *,
+                      interrupted: bool = False) -> None:
+    """``evaluate``'s answer, its JSON (``--json``) or its table, of the ID env and ``results`` of
+    the ``asked`` variants; ``interrupted``: those evaluated whole before Ctrl-C or SIGTERM."""
+    from oodmon.side_by_side import resolve_workers
+
     rows = [{"variant": r.spec, "return_mean": round(r.mean, 2), "return_std": round(float(r.returns.std()), 2),
              "fails": r.fails} for r in [id_result, *results]]
     if args.json:
         print(json.dumps({"task": args.task, "method": agent.method, "episodes": args.episodes,
-                          "workers": resolve_workers(args.workers, len(rows)),  # those that played them
-                          "id_return_mean": rows[0]["return_mean"], "variants": rows[1:]}, indent=1))
-        return 0
-    table = Table(title=f"{args.task}/{agent.method}: mean return over {args.episodes} episodes "
-                        f"(ID {id_result.mean:.1f}; fails below {args.fail_fraction:.0%} of the gain over random)")
+                          "workers": resolve_workers(args.workers, asked + 1),  # those that played them
+                          "id_return_mean": rows[0]["return_mean"], "variants": rows[1:],
+                          "interrupted": interrupted, "variants_asked": asked}, indent=1))
+        return
+    table = Table(title=("interrupted: " if interrupted else "")
+                  + f"{args.task}/{agent.method}: mean return over {args.episodes} episodes "
+                    f"(ID {id_result.mean:.1f}; fails below {args.fail_fraction:.0%} of the gain over random)")
     for column in ("variant", "return", "std", "fails"):
         table.add_column(column, justify="left" if column == "variant" else "right")
     for row in rows:
@@ -114,4 +133,3 @@ def _evaluate(args: argparse.Namespace) -> int:
     _table_console().print(table)
     failing = [r.spec for r in results if r.fails]
     Console(soft_wrap=True).print(f"{len(failing)} of {len(results)} variants fail the agent: {', '.join(failing)}")
-    return 0

@@ -31,7 +31,7 @@ from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Thresh
 from oodmon.progress import Progress
 from oodmon.seeds import EPISODE_USES
 from oodmon.side_by_side import finished_before, play_side_by_side, resolve_workers, stream_per_episode
-from oodmon.validation import is_step_count, is_whole
+from oodmon.validation import check_max_steps, is_step_count, is_whole
 
 __all__ = ["CALIBRATION_SEED", "EPISODE_USES", "Stretches", "Validation", "calibrate_agent", "check_fresh",
            "check_max_steps", "clopper_pearson", "detectors_read", "id_episode_scores", "reused_episodes",
@@ -120,13 +120,6 @@ def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SE
     played = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, score=score, detectors=detectors,
                                detector=detector, stage=stage, workers=workers, max_steps=max_steps)
     return [scores for scores, _ in played]
-
-
-def check_max_steps(max_steps: Any) -> None:
-    """``max_steps`` is an episode's time limit (a whole number >= 1) or ``None`` (the env's own)."""
-    if max_steps is not None and not is_whole(max_steps):
-        raise InvalidParameterError(f"max_steps={max_steps!r} is not allowed; give each episode's time limit, a whole "
-                                    "number >= 1 of steps (None: the env's own)")
 
 
 def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, consecutive: int | None = None,

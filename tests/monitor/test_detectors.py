@@ -734,9 +734,7 @@ def test_fit_detectors_passes_its_cap_of_updates_to_the_dynamics_model_and_refus
     """``fit_detectors(dynamics_updates=)``: the cap the dynamics model is fitted with (None: every
     epoch), a fit it ended early said in the fitting's notes, and a bad cap named as the caller
     gave it and refused before the fitting's episodes are played."""
-    from oodmon.monitor.detectors import fitting
-
-    from oodmon.monitor.detectors import fitting_notes
+    from oodmon.monitor.detectors import fit_agent_detectors, fitting, fitting_notes
 
     env = Variant("cartpole").make()
     fitted = fit_detectors(agent, env, detectors=["dynamics"], episodes=3, dynamics_updates=None)
@@ -754,6 +752,13 @@ def test_fit_detectors_passes_its_cap_of_updates_to_the_dynamics_model_and_refus
     monkeypatch.setattr(fitting, "collect", lambda *a, **k: pytest.fail("played the fitting's episodes"))
     with pytest.raises(InvalidParameterError, match=r"^dynamics_updates=0 is not allowed"):
         fit_detectors(agent, env, detectors=["dynamics"], episodes=3, dynamics_updates=0)
+    # a time limit of no steps (or False) too, by either door: it reached gymnasium's TimeLimit from
+    # fit_agent_detectors, a ValueError (scripts/fuzz_api.py, 2026-12-05)
+    for max_steps in (0, False, 2.5):
+        with pytest.raises(InvalidParameterError, match=rf"^max_steps={max_steps!r} is not allowed"):
+            fit_detectors(agent, env, detectors=["dynamics"], episodes=3, max_steps=max_steps)
+        with pytest.raises(InvalidParameterError, match=rf"^max_steps={max_steps!r} is not allowed"):
+            fit_agent_detectors(agent, detectors=["dynamics"], episodes=3, max_steps=max_steps)
 
 
 def test_standardised_early_means_lower_the_threshold_the_id_episodes_first_steps_set(agent):

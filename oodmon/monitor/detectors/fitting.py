@@ -38,7 +38,7 @@ from oodmon.names import fixed_masks
 from oodmon.progress import Progress
 from oodmon.seeds import DETECTOR_FIT, check_seed
 from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
-from oodmon.validation import is_whole
+from oodmon.validation import check_max_steps, is_whole
 from oodmon.versions import machine
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector",
@@ -407,6 +407,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
                                     "ID episodes (two thirds fit, one third ranks)")
     check_max_updates(dynamics_updates, "dynamics_updates")  # before the episodes are played
+    check_max_steps(max_steps)
     seed = check_seed(seed)
     workers = resolve_workers(workers, episodes)
     # (spread is not asked: it joins where the policy has samples)
@@ -555,6 +556,7 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
     longer (a deployment's runs, as ``calibrate --max-steps`` plays them)."""
     from oodmon.monitor.monitor import policy_hash
 
+    check_max_steps(max_steps)
     env = agent.make_env(obs_noise, max_steps=max_steps)
     try:
         return fit_detectors(agent, env, detectors=detectors, episodes=episodes or DEFAULT_FIT_EPISODES, seed=seed,
