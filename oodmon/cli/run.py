@@ -177,7 +177,9 @@ def _run(args: argparse.Namespace) -> int:
                 rows.add(monitor.run_episode(env, seed=args.seed + episode, on_progress=count))
                 progress.update(bar, advance=1)
         except KeyboardInterrupt as stop:  # Ctrl-C, SIGTERM: the files are finished as at the end (the cut
-            interrupt = stop  # episode marked), and the episodes played whole are said below
+            if not rows.episodes:  # episode marked), and the episodes played whole, if any, are said below
+                raise
+            interrupt = stop
     failures = dict(monitor.sinks.failures)  # after the sinks closed: a file that could not be finished counts
     env.close()
     files = {"McapSink": _files_written(mcap), "RerunSink": args.rrd}

@@ -183,6 +183,11 @@ def test_ctrl_c_in_oodmon_run_exits_130_and_marks_the_cut_episode(tmp_path, monk
     assert err.strip().splitlines()[-1] == ("oodmon: interrupted; the 1 episode played whole is in the table above; no "
                                             "log was written (--mcap or --rrd keeps every step)")
     assert re.search(r"│\s+0 │\s+0 │\s+500\.0 │\s+500 │", out)  # its row
+    calls[0] = 600  # cut in the first episode: no table, nothing played whole to say
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "5"]) == 130
+    out, err = capsys.readouterr()
+    assert "interrupted:" not in out and err.strip().splitlines()[-1] == (
+        "oodmon: interrupted; no log was written (--mcap or --rrd keeps every step)")
 
 
 def test_sigterm_stops_oodmon_run_as_ctrl_c_does_and_exits_143(tmp_path, monkeypatch, capsys):
