@@ -42,7 +42,7 @@ the same, 1,803 oodmon and 72 slow; with ``max_steps`` of ``Threshold``, ``calib
 slow of 2,760 calls, no finding, no leak. Later (the session after), 2 findings:
 ``fit_agent_detectors(max_steps=0)`` and ``max_steps=False`` reached gymnasium's ``TimeLimit`` (its
 ValueError; fixed: refused by name, as the other calls do), of 1,899 oodmon, 545 ok, 236 python and
-78 slow.
+78 slow; after the fix: 1,918 oodmon, 543 ok, 221 python, 78 slow of 2,760 calls, no finding, no leak.
 """
 
 from __future__ import annotations
