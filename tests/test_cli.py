@@ -718,6 +718,7 @@ def test_validate_max_steps_plays_runs_longer_than_the_calibrations_and_counts_t
     from oodmon.errors import InvalidParameterError
     from oodmon.monitor import Threshold, validate_threshold
     from oodmon.replay import read_log
+    from oodmon.replay.metrics import alarm_events
 
     # A threshold below every score alarms at each episode's first step and holds: one alarm raised per
     # episode, in its first stretch of 500 steps (the calibration episodes' length) of two.
@@ -770,10 +771,16 @@ def test_validate_max_steps_plays_runs_longer_than_the_calibrations_and_counts_t
             f"bound is for episodes like those (`oodmon validate {path} --max-steps 1000` counts") in \
         re.sub(r"\s+", " ", captured.out)
     assert "has run past" not in captured.err
-    assert read_log(log).metadata["about.threshold_longest_episode"] == "800"  # and replay says it of the log
+    about = read_log(log).metadata
+    assert about["about.threshold_longest_episode"] == "800"  # and replay says it of the log, counting its
+    assert (about["about.threshold_mean_episode"], about["about.threshold_far"]) == ("800", "0.3")  # stretches
     assert main(["replay", str(log)]) == 0
+    said = re.sub(r"\s+", " ", capsys.readouterr().err)
     assert ("the cartpole/ensemble logs hold ID episodes longer than their threshold's longest calibration episode "
-            f"(2 past 800 steps: {log})") in re.sub(r"\s+", " ", capsys.readouterr().err)
+            f"(2 past 800 steps: {log}): its false-alarm bound is for episodes like those; counted by stretches of 800 "
+            "steps (a calibration episode's on average), as `oodmon validate --max-steps` counts them: ") in said
+    alarmed = sum(len(alarm_events(e.alarm)) > 0 for e in read_log(log).episodes)  # one stretch an episode
+    assert f": {alarmed} of 2 alarmed, {alarmed / 2:.1%} (95% interval " in said and "target 0.3: " in said
     assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(always), "--episodes", "1",
                  "--max-steps", "700", "--variant", "cartpole:length=2.0", "--onset", "600", "--mcap", str(log),
                  "--overwrite"]) == 0

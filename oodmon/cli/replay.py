@@ -136,7 +136,8 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 def _read_logs(paths: Sequence[str]):
     from oodmon.replay import (made_from_episodes, pooled_fits, pooled_noise, pooled_thresholds, pooled_weights,
                                read_logs)
-    from oodmon.replay.metrics import ended_before_onset, longer_than_calibration, off_calibration_noise
+    from oodmon.monitor.threshold import verdict_of
+    from oodmon.replay.metrics import ended_before_onset, id_stretches, longer_than_calibration, off_calibration_noise
     from oodmon.seeds import EPISODE_USES
 
     logs = read_logs(paths)
@@ -165,11 +166,23 @@ def _read_logs(paths: Sequence[str]):
               f"was calibrated in ({_logs_by(by_world, 40)}): its false-alarm bound is for that world, and their false "
               "alarms say nothing of it (calibrate in the world played: `oodmon calibrate --obs-noise X`)",
               file=sys.stderr)
+    counted = id_stretches(logs)
     for (task, method), by_length in longer_than_calibration(logs).items():
+        if (task, method) in counted:  # what the bound speaks of, counted as `validate --max-steps` counts it
+            stretches, far = counted[(task, method)]
+            verdict = {"above": "ABOVE the target", "below": "below the target",
+                       "consistent": "consistent with the target"}[verdict_of(stretches.low, stretches.high, far)]
+            said = (f"; counted by stretches of {stretches.length:,} steps (a calibration episode's on average), as "
+                    f"`oodmon validate --max-steps` counts them: {stretches.alarmed:,} of {stretches.total:,} alarmed, "
+                    f"{stretches.rate:.1%} (95% interval {stretches.low:.1%}-{stretches.high:.1%}, each episode's "
+                    f"stretches counted as one cluster, design effect {stretches.design_effect:.3g}); target {far:g}: "
+                    f"{verdict}")
+        else:
+            said = (", and their false alarms say nothing of it (`oodmon validate --max-steps N` counts them in runs N "
+                    "steps long, by stretches as long as the calibration's)")
         print(f"oodmon: note: the {task}/{method} logs hold ID episodes longer than their threshold's longest "
-              f"calibration episode ({_logs_by(by_length, 40)}): its false-alarm bound is for episodes like those, "
-              "and their false alarms say nothing of it (`oodmon validate --max-steps N` counts them in runs N steps "
-              "long, by stretches as long as the calibration's)", file=sys.stderr)
+              f"calibration episode ({_logs_by(by_length, 40)}): its false-alarm bound is for episodes like those"
+              f"{said}", file=sys.stderr)
     for (task, method), by_use in made_from_episodes(logs).items():
         uses = " and ".join(f"{count} of {EPISODE_USES.get(use, use)} episodes" for use, count in by_use.items())
         print(f"oodmon: note: the {task}/{method} logs played {uses} in the ID env (the same reset seeds): they "

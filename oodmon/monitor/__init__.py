@@ -77,7 +77,7 @@ _LAZY = {
     "CALIBRATION_SEED": "oodmon.monitor.calibration",
     "calibrate_agent": "oodmon.monitor.calibration",
     "id_episode_scores": "oodmon.monitor.calibration",
-    "Stretches": "oodmon.monitor.calibration",
+    "Stretches": "oodmon.monitor.threshold",
     "Validation": "oodmon.monitor.calibration",
     "validate_threshold": "oodmon.monitor.calibration",
     "MonitorCallback": "oodmon.monitor.sb3_callback",

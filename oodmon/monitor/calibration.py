@@ -26,8 +26,9 @@ from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, OffCalibrationWarning, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
-from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, clopper_pearson,
-                                     clustered_interval, conformal_rank, episodes_needed)
+from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Stretches, Threshold, calibrate,
+                                     clopper_pearson, clustered_interval, conformal_rank, episodes_needed,
+                                     verdict_of)
 from oodmon.progress import Progress
 from oodmon.seeds import EPISODE_USES
 from oodmon.side_by_side import finished_before, play_side_by_side, resolve_workers, stream_per_episode
@@ -296,51 +297,6 @@ def save_calibration(threshold: Threshold, path: str | Path, detectors: Detector
 
 
 @dataclass(frozen=True)
-class Stretches:
-    """Long validation episodes (``max_steps``) cut into stretches as long as the threshold's
-    calibration episodes were on average: the per-episode bound is for episodes like those, so a
-    stretch is what it speaks of in a longer run. Each episode gives ``max(1, T // length)``
-    stretches of its T steps, the last taking the steps left over (so none is shorter than a
-    calibration episode, or than the episode); a stretch is alarmed where an alarm was raised in it.
-
-    Attributes:
-        length: steps of a stretch (the calibration episodes' mean length).
-        total, alarmed: stretches, and those in which an alarm was raised.
-        low, high: the 95% interval of the alarmed share with each episode's stretches counted as
-            a cluster (:func:`~oodmon.monitor.threshold.clustered_interval`): the stretches of one
-            episode alarm together more often than independent ones would.
-        design_effect: how much the episodes' clustering widened it (1: not at all).
-    """
-
-    length: int
-    total: int
-    alarmed: int
-    low: float
-    high: float
-    design_effect: float = 1.0
-
-    @property
-    def rate(self) -> float:
-        return self.alarmed / self.total
-
-    @classmethod
-    def of(cls, episodes: Sequence[tuple[int, Sequence[int]]], length: int) -> Stretches:
-        """The stretches of ``episodes``, each ``(steps, the steps where alarms were raised)``.
-
-        Example:
-            >>> s = Stretches.of([(1000, [3]), (1250, [999, 1100]), (300, [])], 500)
-            >>> s.total, s.alarmed
-            (5, 2)
-        """
-        counts = []  # per episode: (stretches alarmed, stretches)
-        for steps, alarms in episodes:
-            count = max(1, steps // length)
-            counts.append((len({min(step // length, count - 1) for step in alarms}), count))
-        interval = clustered_interval(counts)
-        return cls(length, interval.trials, interval.successes, interval.low, interval.high, interval.design_effect)
-
-
-@dataclass(frozen=True)
 class Validation:
     """A threshold checked on fresh ID episodes.
 
@@ -388,7 +344,7 @@ class Validation:
         ``consistent`` (the target is inside it: more episodes would tell); of the stretches where
         the episodes were longer than calibration's (:attr:`stretches`)."""
         low, high = (self.low, self.high) if self.stretches is None else (self.stretches.low, self.stretches.high)
-        return "above" if low > self.far else "below" if high < self.far else "consistent"
+        return verdict_of(low, high, self.far)
 
 
 def detectors_read(threshold: Threshold, detectors: DetectorSet | None) -> DetectorSet | None:
@@ -527,8 +483,7 @@ def _counted(played: list[tuple[np.ndarray, list[int]]], threshold: Threshold, o
         design_effect = interval.design_effect
     stretches = None
     if max_steps is not None and max_steps != threshold.max_steps and threshold.mode == "episode":
-        length = max(1, round(threshold.n_steps / threshold.n_episodes))  # a calibration episode's, on average
-        stretches = Stretches.of([(len(scores), alarms) for scores, alarms in played], length)
+        stretches = Stretches.of([(len(scores), alarms) for scores, alarms in played], threshold.mean_episode)
     return Validation(int(alarmed), total, threshold.far, threshold.confidence, low, high, float(obs_noise),
                       steps=sum(len(scores) for scores, _ in played), alarms=sum(len(alarms) for _, alarms in played),
                       max_steps=max_steps, stretches=stretches, design_effect=design_effect, episodes=len(played))

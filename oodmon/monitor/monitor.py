@@ -399,7 +399,10 @@ class Monitor:
         replay says where the log's episodes played another
         (:func:`~oodmon.replay.metrics.off_calibration_noise`); and its longest calibration episode
         (``about.threshold_longest_episode``): replay says where ID episodes ran longer
-        (:func:`~oodmon.replay.metrics.longer_than_calibration`)."""
+        (:func:`~oodmon.replay.metrics.longer_than_calibration`), and counts them by stretches as
+        long as a calibration episode on average (``about.threshold_mean_episode``) beside its
+        target (``about.threshold_far``), as ``validate --max-steps`` does
+        (:func:`~oodmon.replay.metrics.id_stretches`)."""
         from oodmon.monitor.calibration import detectors_read, seeds_used
 
         threshold = self._made_with["threshold"]
@@ -409,6 +412,8 @@ class Monitor:
         about = {} if threshold.obs_noise is None else {"threshold_obs_noise": f"{threshold.obs_noise:g}"}
         if self._longest is not None:  # (episode mode, where the file records it)
             about["threshold_longest_episode"] = str(self._longest)
+        if threshold.mean_episode is not None:
+            about |= {"threshold_mean_episode": str(threshold.mean_episode), "threshold_far": repr(threshold.far)}
         return about | ({"threshold_seeds": json.dumps(used, separators=(",", ":"))} if used else {})
 
     def _states_about(self) -> dict[str, str]:

@@ -49,8 +49,8 @@ from oodmon.names import MASKS
 from oodmon.validation import is_whole
 
 __all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "ClusteredInterval", "EarlyPeaksWarning",
-           "OutlyingThresholdWarning", "Threshold", "calibrate",
-           "clopper_pearson", "clustered_interval", "conformal_rank", "episodes_needed"]
+           "OutlyingThresholdWarning", "Stretches", "Threshold", "calibrate",
+           "clopper_pearson", "clustered_interval", "conformal_rank", "episodes_needed", "verdict_of"]
 
 MODES = ("episode", "step")
 #: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
@@ -211,6 +211,59 @@ def clustered_interval(counts: Sequence[tuple[int, int]], level: float = 0.95) -
     low = float(betaincinv(hits, size - hits + 1, tail))
     high = float(betaincinv(hits + 1, size - hits, 1 - tail))
     return ClusteredInterval(successes, trials, clusters, design_effect, low, high)
+
+
+def verdict_of(low: float, high: float, target: float) -> str:
+    """A realised rate's interval ``[low, high]`` beside its ``target``: ``above`` (the whole
+    interval exceeds it), ``below`` (it is under), or ``consistent`` (it holds the target: more
+    episodes would tell)."""
+    return "above" if low > target else "below" if high < target else "consistent"
+
+
+@dataclass(frozen=True)
+class Stretches:
+    """Long ID episodes (validation's ``max_steps``, or a logged run's: replay) cut into stretches
+    as long as the threshold's calibration episodes were on average: the per-episode bound is for
+    episodes like those, so a stretch is what it speaks of in a longer run. Each episode gives
+    ``max(1, T // length)`` stretches of its T steps, the last taking the steps left over (so none
+    is shorter than a calibration episode, or than the episode); a stretch is alarmed where an alarm
+    was raised in it.
+
+    Attributes:
+        length: steps of a stretch (the calibration episodes' mean length).
+        total, alarmed: stretches, and those in which an alarm was raised.
+        low, high: the 95% interval of the alarmed share with each episode's stretches counted as
+            a cluster (:func:`~oodmon.monitor.threshold.clustered_interval`): the stretches of one
+            episode alarm together more often than independent ones would.
+        design_effect: how much the episodes' clustering widened it (1: not at all).
+    """
+
+    length: int
+    total: int
+    alarmed: int
+    low: float
+    high: float
+    design_effect: float = 1.0
+
+    @property
+    def rate(self) -> float:
+        return self.alarmed / self.total
+
+    @classmethod
+    def of(cls, episodes: Sequence[tuple[int, Sequence[int]]], length: int) -> Stretches:
+        """The stretches of ``episodes``, each ``(steps, the steps where alarms were raised)``.
+
+        Example:
+            >>> s = Stretches.of([(1000, [3]), (1250, [999, 1100]), (300, [])], 500)
+            >>> s.total, s.alarmed
+            (5, 2)
+        """
+        counts = []  # per episode: (stretches alarmed, stretches)
+        for steps, alarms in episodes:
+            count = max(1, steps // length)
+            counts.append((len({min(step // length, count - 1) for step in alarms}), count))
+        interval = clustered_interval(counts)
+        return cls(length, interval.trials, interval.successes, interval.low, interval.high, interval.design_effect)
 
 
 #: Up to this many statistics :func:`conformal_rank` reads the CDF at every k; beyond, it bisects,
@@ -478,6 +531,15 @@ class Threshold:
         episode mode (``None``: a bound on steps, or a file that records none). An episode longer
         is warned of by the :class:`Monitor` and noted by ``oodmon run`` and replay."""
         return self.longest_episode if self.mode == "episode" else None
+
+    @property
+    def mean_episode(self) -> int | None:
+        """A calibration episode's steps on average, in episode mode (``None``: a bound on steps):
+        the stretches ``validate --max-steps`` and replay cut longer ID episodes into
+        (:class:`Stretches`), as what the per-episode bound speaks of."""
+        if self.mode != "episode" or not self.n_episodes:
+            return None
+        return max(1, round(self.n_steps / self.n_episodes))
 
     @property
     def calibration_noise(self) -> float:

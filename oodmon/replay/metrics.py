@@ -29,7 +29,7 @@ from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["EpisodeAlarms", "MonitorMetrics", "VariantMetrics", "alarm_events", "average_precision",
            "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "ended_before_onset", "detectors_in",
-           "env_of_variant", "failed_episodes", "fpr_at_tpr", "is_id_variant", "longer_than_calibration",
+           "env_of_variant", "failed_episodes", "fpr_at_tpr", "id_stretches", "is_id_variant", "longer_than_calibration",
            "made_from_episodes", "monitor_row", "off_calibration_noise", "pooled_fits", "pooled_noise",
            "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
 
@@ -346,6 +346,47 @@ def longer_than_calibration(logs: Iterable[RunLog]) -> dict[tuple[str, str], dic
         return [f"{longer} past {longest:,} steps"] if longer else []
 
     return _logs_by_label(logs, "about.threshold_longest_episode", int, past)
+
+
+def id_stretches(logs: Iterable[RunLog]) -> dict[tuple[str, str], tuple[Stretches, float]]:
+    """What ``validate --max-steps`` counts, of logged runs: for each (task, method) group whose ID
+    episodes ran longer than their threshold's longest calibration episode
+    (:func:`longer_than_calibration`), its ID episodes cut into stretches as long as a calibration
+    episode on average (``about.threshold_mean_episode``), each alarmed where an alarm was raised
+    in it, with each episode's stretches counted as a cluster (:class:`Stretches`), and the
+    threshold's target rate (``about.threshold_far``). A deployment runs for hours without a reset,
+    and its own log then says whether the per-episode bound held there. Logs that record neither
+    (before 2026-12-05), or a group whose logs record two thresholds' figures, say nothing.
+
+    Example:
+        >>> from oodmon.replay.reader import RunLog
+        >>> from oodmon.monitor.records import EpisodeRecord
+        >>> alarm = np.zeros(1200, bool); alarm[700:720] = True  # one alarm, raised at step 700
+        >>> played = [EpisodeLog(0, "CartPole-v1", "CartPole-v1", 0, 0, 1200.0, 1200, 1, 700, scores=np.zeros(1200),
+        ...                      shifted=np.zeros(1200, bool), alarm=alarm)]
+        >>> about = {"about.threshold_longest_episode": "500", "about.threshold_mean_episode": "500",
+        ...          "about.threshold_far": "0.05"}
+        >>> (stretches, far), = id_stretches([RunLog(Path("a.mcap"), "cartpole", "plain", 1.0, about, played, True)]).values()
+        >>> stretches.length, stretches.alarmed, stretches.total, far
+        (500, 1, 2, 0.05)
+    """
+    from oodmon.monitor.threshold import Stretches
+
+    longer = longer_than_calibration(logs := list(logs))
+    grouped: dict[tuple[str, str], dict[tuple[int, float], list]] = defaultdict(lambda: defaultdict(list))
+    for log in logs:
+        if (log.task, log.method) not in longer:
+            continue
+        try:
+            length, far = int(log.metadata["about.threshold_mean_episode"]), float(log.metadata["about.threshold_far"])
+        except (KeyError, ValueError):
+            continue
+        if length >= 1 and 0 < far < 1:
+            grouped[(log.task, log.method)][(length, far)] += [
+                (episode.length, alarm_events(episode.alarm).tolist()) for episode in log.episodes
+                if is_id_variant(episode.variant)]
+    return {group: (Stretches.of(episodes, length), far) for group, by_threshold in grouped.items()
+            if len(by_threshold) == 1 for (length, far), episodes in by_threshold.items() if episodes}
 
 
 def _logs_by_label(logs: Iterable[RunLog], key: str, parse: Callable[[str], Any],
