@@ -48,9 +48,9 @@ from oodmon.monitor.sequential import RULES, Reference
 from oodmon.names import MASKS
 from oodmon.validation import is_whole
 
-__all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "ClusteredInterval", "EarlyPeaksWarning",
-           "OutlyingThresholdWarning", "Stretches", "Threshold", "calibrate",
-           "clopper_pearson", "clustered_interval", "conformal_rank", "episodes_needed", "verdict_of"]
+__all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "ClusteredInterval",
+           "EarlyPeaksWarning", "OutlyingThresholdWarning", "Stretches", "Threshold", "calibrate", "clopper_pearson",
+           "clustered_interval", "conformal_rank", "episodes_needed", "verdict_of"]
 
 MODES = ("episode", "step")
 #: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
