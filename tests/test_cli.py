@@ -771,6 +771,9 @@ def test_validate_max_steps_plays_runs_longer_than_the_calibrations_and_counts_t
             f"bound is for episodes like those (`oodmon validate {path} --max-steps 1000` counts") in \
         re.sub(r"\s+", " ", captured.out)
     assert "has run past" not in captured.err
+    alarmed = sum(len(alarm_events(e.alarm)) > 0 for e in read_log(log).episodes)  # one stretch an episode
+    assert (f"calibrates on them); counted by stretches of 800 steps (a calibration episode's on average), this run's ID "
+            f"episodes: {alarmed} of 2 alarmed, {alarmed / 2:.1%} (95% interval ") in re.sub(r"\s+", " ", captured.out)
     about = read_log(log).metadata
     assert about["about.threshold_longest_episode"] == "800"  # and replay says it of the log, counting its
     assert (about["about.threshold_mean_episode"], about["about.threshold_far"]) == ("800", "0.3")  # stretches
@@ -779,8 +782,7 @@ def test_validate_max_steps_plays_runs_longer_than_the_calibrations_and_counts_t
     assert ("the cartpole/ensemble logs hold ID episodes longer than their threshold's longest calibration episode "
             f"(2 past 800 steps: {log}): its false-alarm bound is for episodes like those; counted by stretches of 800 "
             "steps (a calibration episode's on average), as `oodmon validate --max-steps` counts them: ") in said
-    alarmed = sum(len(alarm_events(e.alarm)) > 0 for e in read_log(log).episodes)  # one stretch an episode
-    assert f": {alarmed} of 2 alarmed, {alarmed / 2:.1%} (95% interval " in said and "target 0.3: " in said
+    assert f": {alarmed} of 2 alarmed, {alarmed / 2:.1%} (95% interval " in said and "target 0.3: " in said  # as run's
     assert main(["run", "--task", "cartpole", "--method", "ensemble", "--threshold", str(always), "--episodes", "1",
                  "--max-steps", "700", "--variant", "cartpole:length=2.0", "--onset", "600", "--mcap", str(log),
                  "--overwrite"]) == 0

@@ -116,3 +116,16 @@ def _held_at_forks(live) -> Iterator[None]:
     finally:
         if lock is not None:
             _DISPLAY_LOCKS.remove(lock)
+
+
+def _stretches_said(stretches, far: float) -> str:
+    """What a run's ID stretches say beside the threshold's target ``far``, as `run` and `replay`
+    say it: '7 of 102 alarmed, 6.9% (95% interval 2.3%-15.1%, each episode's stretches counted as
+    one cluster, design effect 1.1); target 0.05: consistent with the target'."""
+    from oodmon.monitor.threshold import verdict_of
+
+    verdict = {"above": "ABOVE the target", "below": "below the target",
+               "consistent": "consistent with the target"}[verdict_of(stretches.low, stretches.high, far)]
+    return (f"{stretches.alarmed:,} of {stretches.total:,} alarmed, {stretches.rate:.1%} (95% interval "
+            f"{stretches.low:.1%}-{stretches.high:.1%}, each episode's stretches counted as one cluster, design effect "
+            f"{stretches.design_effect:.3g}); target {far:g}: {verdict}")

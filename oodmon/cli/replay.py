@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 from rich.console import Console
 
-from oodmon.cli.display import _table_console
+from oodmon.cli.display import _stretches_said, _table_console
 from oodmon.cli.parsing import _FAILURES, _non_negative
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import write_json
@@ -136,7 +136,6 @@ def _replay_monitor(args: argparse.Namespace, logs) -> int:
 def _read_logs(paths: Sequence[str]):
     from oodmon.replay import (made_from_episodes, pooled_fits, pooled_noise, pooled_thresholds, pooled_weights,
                                read_logs)
-    from oodmon.monitor.threshold import verdict_of
     from oodmon.replay.metrics import ended_before_onset, id_stretches, longer_than_calibration, off_calibration_noise
     from oodmon.seeds import EPISODE_USES
 
@@ -170,13 +169,8 @@ def _read_logs(paths: Sequence[str]):
     for (task, method), by_length in longer_than_calibration(logs).items():
         if (task, method) in counted:  # what the bound speaks of, counted as `validate --max-steps` counts it
             stretches, far = counted[(task, method)]
-            verdict = {"above": "ABOVE the target", "below": "below the target",
-                       "consistent": "consistent with the target"}[verdict_of(stretches.low, stretches.high, far)]
             said = (f"; counted by stretches of {stretches.length:,} steps (a calibration episode's on average), as "
-                    f"`oodmon validate --max-steps` counts them: {stretches.alarmed:,} of {stretches.total:,} alarmed, "
-                    f"{stretches.rate:.1%} (95% interval {stretches.low:.1%}-{stretches.high:.1%}, each episode's "
-                    f"stretches counted as one cluster, design effect {stretches.design_effect:.3g}); target {far:g}: "
-                    f"{verdict}")
+                    f"`oodmon validate --max-steps` counts them: {_stretches_said(stretches, far)}")
         else:
             said = (", and their false alarms say nothing of it (`oodmon validate --max-steps N` counts them in runs N "
                     "steps long, by stretches as long as the calibration's)")

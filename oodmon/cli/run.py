@@ -14,6 +14,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from oodmon.cli.display import _stretches_said
 from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import _KEPT, _LOGGED, _SEED, _agent_arguments, _non_negative, _positive, _whole
 from oodmon.errors import ConfigError
@@ -87,7 +88,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from oodmon.envs.shift import shifts_an_env
     from oodmon.monitor import (
-        AlarmCommand, McapSink, Monitor, OffCalibrationWarning, Threshold,
+        AlarmCommand, McapSink, Monitor, OffCalibrationWarning, Stretches, Threshold,
     )
     from oodmon.monitor.sinks.base import refuse_earlier_logs
     from oodmon.monitor.sinks.mcap import existing_parts, part_path
@@ -145,13 +146,13 @@ def _run(args: argparse.Namespace) -> int:
         sinks.append(RerunSink(path=args.rrd, spawn=args.spawn, serve=args.serve, connect=args.connect,
                                bind=args.bind, port=args.port, overwrite=args.overwrite))
     console = Console(soft_wrap=True)
-    alarm_lines = []
+    rows = _EpisodeRows(calibrated=threshold.covered_steps if threshold is not None else None,
+                        stretch=threshold.mean_episode if threshold is not None else None)
 
     def show(event) -> None:
-        alarm_lines.append(event)
+        rows.alarm(event)
         progress.console.print(f"[bold red]ALARM[/bold red] {escape(event.text())}")
 
-    rows = _EpisodeRows(calibrated=threshold.covered_steps if threshold is not None else None)
     interrupt = None
     if not sinks:  # (the default said of an interrupted run is of its logs)
         args.kept_on_interrupt = "no log was written (--mcap or --rrd keeps every step)"
@@ -203,11 +204,14 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"note: this run played sensor noise {args.obs_noise:g}, and {args.threshold} was calibrated "
                       f"with {threshold.calibration_noise:g}: its false-alarm bound is for that world (`oodmon validate "
                       f"{args.threshold} --obs-noise {args.obs_noise:g}` counts this one's)", markup=False)
-    if rows.longer:  # the bound is for episodes like the calibration's
+    if rows.longer:  # the bound is for episodes like the calibration's: what it speaks of, counted
+        stretches = Stretches.of_counts(rows.stretches, rows.stretch) if rows.stretches else None
+        counted = (f"; counted by stretches of {rows.stretch:,} steps (a calibration episode's on average), this "
+                   f"run's ID episodes: {_stretches_said(stretches, threshold.far)}" if stretches else "")
         console.print(f"note: {rows.longer} of {rows.episodes} episodes ran past {rows.calibrated:,} steps, the "
                       f"longest of {args.threshold}'s calibration episodes: its false-alarm bound is for episodes like "
                       f"those (`oodmon validate {args.threshold} --max-steps {rows.longest}` counts its false alarms "
-                      f"in runs this long, `oodmon calibrate ... --max-steps {rows.longest}` calibrates on them)",
+                      f"in runs this long, `oodmon calibrate ... --max-steps {rows.longest}` calibrates on them){counted}",
                       markup=False)
     if rows.before_onset:
         # (replay's detection rates leave them out; their alarms count as early ones)
@@ -326,22 +330,32 @@ class _EpisodeRows:
     weeks keeps no per-step data here (the records with their rewards took about 20 bytes a step)
     and prints a table of at most ``shown`` rows; ``oodmon replay LOG --episodes`` lists them all."""
 
-    def __init__(self, shown: int = 20, *, calibrated: int | None = None) -> None:
+    def __init__(self, shown: int = 20, *, calibrated: int | None = None, stretch: int | None = None) -> None:
         self.first: list = []
         self.last = deque(maxlen=shown - shown // 2)
         self.shown, self.episodes, self.alarmed = shown, 0, 0
         self.before_onset = 0  # episodes of a shifted variant that ended before their onset: never shifted
         # episodes longer than ``calibrated`` (the threshold's longest calibration episode), the longest
         self.calibrated, self.longer, self.longest = calibrated, 0, 0
+        # each ID episode's (stretches alarmed, stretches) of ``stretch`` steps (Stretches.count)
+        self.stretch, self.stretches, self._alarm_steps = stretch, [], []
+
+    def alarm(self, event) -> None:
+        """An alarm raised in the running episode (a Monitor callback)."""
+        self._alarm_steps.append(event.step)
 
     def add(self, record) -> None:
-        from oodmon.replay.metrics import ended_before_onset
+        from oodmon.monitor.threshold import Stretches
+        from oodmon.replay.metrics import ended_before_onset, is_id_variant
 
         self.episodes += 1
         self.alarmed += record.alarms > 0
         self.before_onset += ended_before_onset(record)
         self.longer += self.calibrated is not None and record.length > self.calibrated
         self.longest = max(self.longest, record.length)
+        if self.stretch is not None and is_id_variant(record.variant):
+            self.stretches.append(Stretches.count(record.length, self._alarm_steps, self.stretch))
+        self._alarm_steps = []
         slim = dataclasses.replace(record, rewards=None)
         (self.first if len(self.first) < self.shown // 2 else self.last).append(slim)
 

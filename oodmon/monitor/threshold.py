@@ -258,10 +258,23 @@ class Stretches:
             >>> s.total, s.alarmed
             (5, 2)
         """
-        counts = []  # per episode: (stretches alarmed, stretches)
-        for steps, alarms in episodes:
-            count = max(1, steps // length)
-            counts.append((len({min(step // length, count - 1) for step in alarms}), count))
+        return cls.of_counts([cls.count(steps, alarms, length) for steps, alarms in episodes], length)
+
+    @staticmethod
+    def count(steps: int, alarms: Sequence[int], length: int) -> tuple[int, int]:
+        """One episode's ``(stretches alarmed, stretches)``: its ``steps`` cut into stretches of
+        ``length``, alarms raised at the steps ``alarms``.
+
+        Example:
+            >>> Stretches.count(1250, [999, 1100], 500)
+            (1, 2)
+        """
+        stretches = max(1, steps // length)
+        return len({min(step // length, stretches - 1) for step in alarms}), stretches
+
+    @classmethod
+    def of_counts(cls, counts: Sequence[tuple[int, int]], length: int) -> Stretches:
+        """The stretches of episodes counted one by one (:meth:`count`), each ``(alarmed, stretches)``."""
         interval = clustered_interval(counts)
         return cls(length, interval.trials, interval.successes, interval.low, interval.high, interval.design_effect)
 
