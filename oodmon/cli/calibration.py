@@ -9,7 +9,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from oodmon.cli.display import _progress
+from oodmon.cli.display import _clustered, _progress
 from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import (
     _FIT_DEFAULT, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
@@ -307,14 +307,6 @@ def _print_validation(args: argparse.Namespace, agent, threshold, result, *, int
             said + f"; target {result.far:g}"
             + (f" with confidence {result.confidence:g}" if result.confidence is not None else " on average")
             + f": {verdict}", markup=False)
-
-
-def _clustered(units: str, design_effect: float | None) -> str:
-    """The words ', each episode's steps counted as one cluster, design effect 3.2' of an interval over
-    units that come in episodes (``None``: independent episodes, no words)."""
-    if design_effect is None:
-        return ""
-    return f", each episode's {units} counted as one cluster, design effect {design_effect:.3g}"
 
 
 def _other_noise(threshold, obs_noise: float) -> str:

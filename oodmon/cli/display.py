@@ -127,5 +127,13 @@ def _stretches_said(stretches, far: float) -> str:
     verdict = {"above": "ABOVE the target", "below": "below the target",
                "consistent": "consistent with the target"}[verdict_of(stretches.low, stretches.high, far)]
     return (f"{stretches.alarmed:,} of {stretches.total:,} alarmed, {stretches.rate:.1%} (95% interval "
-            f"{stretches.low:.1%}-{stretches.high:.1%}, each episode's stretches counted as one cluster, design effect "
-            f"{stretches.design_effect:.3g}); target {far:g}: {verdict}")
+            f"{stretches.low:.1%}-{stretches.high:.1%}{_clustered('stretches', stretches.design_effect)}); target "
+            f"{far:g}: {verdict}")
+
+
+def _clustered(units: str, design_effect: float | None) -> str:
+    """The words ', each episode's steps counted as one cluster, design effect 3.2' of an interval over
+    units that come in episodes (``None``: independent episodes, no words)."""
+    if design_effect is None:
+        return ""
+    return f", each episode's {units} counted as one cluster, design effect {design_effect:.3g}"

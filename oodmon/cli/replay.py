@@ -165,8 +165,9 @@ def _read_logs(paths: Sequence[str]):
               f"was calibrated in ({_logs_by(by_world, 40)}): its false-alarm bound is for that world, and their false "
               "alarms say nothing of it (calibrate in the world played: `oodmon calibrate --obs-noise X`)",
               file=sys.stderr)
-    counted = id_stretches(logs)
-    for (task, method), by_length in longer_than_calibration(logs).items():
+    longer = longer_than_calibration(logs)
+    counted = id_stretches(logs, longer)
+    for (task, method), by_length in longer.items():
         if (task, method) in counted:  # what the bound speaks of, counted as `validate --max-steps` counts it
             stretches, far = counted[(task, method)]
             said = (f"; counted by stretches of {stretches.length:,} steps (a calibration episode's on average), as "

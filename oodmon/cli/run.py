@@ -205,7 +205,7 @@ def _run(args: argparse.Namespace) -> int:
                       f"with {threshold.calibration_noise:g}: its false-alarm bound is for that world (`oodmon validate "
                       f"{args.threshold} --obs-noise {args.obs_noise:g}` counts this one's)", markup=False)
     if rows.longer:  # the bound is for episodes like the calibration's: what it speaks of, counted
-        stretches = Stretches.of_counts(rows.stretches, rows.stretch) if rows.stretches else None
+        stretches = Stretches.of_sums(rows.stretches, rows.stretch) if rows.stretches.clusters else None
         counted = (f"; counted by stretches of {rows.stretch:,} steps (a calibration episode's on average), this "
                    f"run's ID episodes: {_stretches_said(stretches, threshold.far)}" if stretches else "")
         console.print(f"note: {rows.longer} of {rows.episodes} episodes ran past {rows.calibrated:,} steps, the "
@@ -337,12 +337,15 @@ class _EpisodeRows:
         self.before_onset = 0  # episodes of a shifted variant that ended before their onset: never shifted
         # episodes longer than ``calibrated`` (the threshold's longest calibration episode), the longest
         self.calibrated, self.longer, self.longest = calibrated, 0, 0
-        # each ID episode's (stretches alarmed, stretches) of ``stretch`` steps (Stretches.count)
-        self.stretch, self.stretches, self._alarm_steps = stretch, [], []
+        # the ID episodes' stretches of ``stretch`` steps, alarmed and in all, summed per episode
+        from oodmon.monitor.threshold import ClusterSums
+
+        self.stretch, self.stretches, self._alarm_steps = stretch, ClusterSums(), []
 
     def alarm(self, event) -> None:
-        """An alarm raised in the running episode (a Monitor callback)."""
-        self._alarm_steps.append(event.step)
+        """An alarm raised in the running episode (a Monitor callback): its step, where stretches are counted."""
+        if self.stretch is not None:
+            self._alarm_steps.append(event.step)
 
     def add(self, record) -> None:
         from oodmon.monitor.threshold import Stretches
@@ -354,7 +357,7 @@ class _EpisodeRows:
         self.longer += self.calibrated is not None and record.length > self.calibrated
         self.longest = max(self.longest, record.length)
         if self.stretch is not None and is_id_variant(record.variant):
-            self.stretches.append(Stretches.count(record.length, self._alarm_steps, self.stretch))
+            self.stretches.add(*Stretches.count(record.length, self._alarm_steps, self.stretch))
         self._alarm_steps = []
         slim = dataclasses.replace(record, rewards=None)
         (self.first if len(self.first) < self.shown // 2 else self.last).append(slim)

@@ -48,7 +48,7 @@ from oodmon.monitor.sequential import RULES, Reference
 from oodmon.names import MASKS
 from oodmon.validation import is_whole
 
-__all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "ClusteredInterval",
+__all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "ClusterSums", "ClusteredInterval",
            "EarlyPeaksWarning", "OutlyingThresholdWarning", "Stretches", "Threshold", "calibrate", "clopper_pearson",
            "clustered_interval", "conformal_rank", "episodes_needed", "verdict_of"]
 
@@ -187,30 +187,63 @@ def clustered_interval(counts: Sequence[tuple[int, int]], level: float = 0.95) -
         >>> round(clustered_interval([(1, 1)] * 3 + [(0, 1)] * 37).design_effect, 3)  # one unit a cluster: 40 / 39
         1.026
     """
-    from scipy.special import betaincinv, stdtrit
+    sums = ClusterSums()
+    for successes, units in counts:
+        sums.add(successes, units)
+    return sums.interval(level)
 
-    successes = sum(int(s) for s, _ in counts)
-    trials = sum(int(n) for _, n in counts)
-    clusters = len(counts)
-    if trials == 0:
-        raise ValueError("no units to count")
-    tail = (1 - level) / 2
-    if clusters < 2:  # no spread between clusters to measure: the one cluster is one unit
-        low, high = clopper_pearson(int(successes > 0), 1, level)
-        return ClusteredInterval(successes, trials, clusters, float(trials), low, high)
-    if successes in (0, trials):
-        return ClusteredInterval(successes, trials, clusters, 1.0, *clopper_pearson(successes, trials, level))
-    rate = successes / trials
-    s = np.array([s for s, _ in counts], dtype=np.float64)
-    n = np.array([n for _, n in counts], dtype=np.float64)
-    variance = clusters / (clusters - 1) * float(np.sum((s - rate * n) ** 2)) / trials ** 2
-    design_effect = max(1.0, variance / (rate * (1 - rate) / trials))
-    degrees = (float(stdtrit(trials - 1, 1 - tail)) / float(stdtrit(clusters - 1, 1 - tail))) ** 2 if trials > 1 else 1.0
-    size = trials / design_effect * degrees
-    hits = rate * size
-    low = float(betaincinv(hits, size - hits + 1, tail))
-    high = float(betaincinv(hits + 1, size - hits, 1 - tail))
-    return ClusteredInterval(successes, trials, clusters, design_effect, low, high)
+
+class ClusterSums:
+    """Running sums of clusters' ``(successes, units)``: what :func:`clustered_interval` needs of
+    them, in constant memory (``oodmon run`` counts each episode's stretches so over weeks), the
+    sums exact integers.
+
+    Example:
+        >>> sums = ClusterSums()
+        >>> for episode in [(0, 10)] * 30 + [(10, 10)] * 10:
+        ...     sums.add(*episode)
+        >>> sums.interval() == clustered_interval([(0, 10)] * 30 + [(10, 10)] * 10)
+        True
+    """
+
+    def __init__(self) -> None:
+        self.clusters = self.successes = self.trials = 0
+        self._ss = self._sn = self._nn = 0  # sums of s^2, s n and n^2 over the clusters
+
+    def add(self, successes: int, units: int) -> None:
+        s, n = int(successes), int(units)
+        self.clusters += 1
+        self.successes += s
+        self.trials += n
+        self._ss += s * s
+        self._sn += s * n
+        self._nn += n * n
+
+    def interval(self, level: float = 0.95) -> ClusteredInterval:
+        """:func:`clustered_interval` of the clusters added."""
+        from scipy.special import betaincinv, stdtrit
+
+        successes, trials, clusters = self.successes, self.trials, self.clusters
+        if trials == 0:
+            raise ValueError("no units to count")
+        tail = (1 - level) / 2
+        if clusters < 2:  # no spread between clusters to measure: the one cluster is one unit
+            low, high = clopper_pearson(int(successes > 0), 1, level)
+            return ClusteredInterval(successes, trials, clusters, float(trials), low, high)
+        if successes in (0, trials):
+            return ClusteredInterval(successes, trials, clusters, 1.0, *clopper_pearson(successes, trials, level))
+        rate = successes / trials
+        # sum((s_i - rate n_i)^2) * N^2, in integers: N^2 sum(s^2) - 2 S N sum(s n) + S^2 sum(n^2)
+        spread = trials * trials * self._ss - 2 * successes * trials * self._sn + successes * successes * self._nn
+        variance = clusters / (clusters - 1) * spread / trials ** 4
+        design_effect = max(1.0, variance / (rate * (1 - rate) / trials))
+        degrees = (float(stdtrit(trials - 1, 1 - tail)) / float(stdtrit(clusters - 1, 1 - tail))) ** 2 \
+            if trials > 1 else 1.0
+        size = trials / design_effect * degrees
+        hits = rate * size
+        low = float(betaincinv(hits, size - hits + 1, tail))
+        high = float(betaincinv(hits + 1, size - hits, 1 - tail))
+        return ClusteredInterval(successes, trials, clusters, design_effect, low, high)
 
 
 def verdict_of(low: float, high: float, target: float) -> str:
@@ -258,7 +291,10 @@ class Stretches:
             >>> s.total, s.alarmed
             (5, 2)
         """
-        return cls.of_counts([cls.count(steps, alarms, length) for steps, alarms in episodes], length)
+        sums = ClusterSums()
+        for steps, alarms in episodes:
+            sums.add(*cls.count(steps, alarms, length))
+        return cls.of_sums(sums, length)
 
     @staticmethod
     def count(steps: int, alarms: Sequence[int], length: int) -> tuple[int, int]:
@@ -273,9 +309,9 @@ class Stretches:
         return len({min(step // length, stretches - 1) for step in alarms}), stretches
 
     @classmethod
-    def of_counts(cls, counts: Sequence[tuple[int, int]], length: int) -> Stretches:
-        """The stretches of episodes counted one by one (:meth:`count`), each ``(alarmed, stretches)``."""
-        interval = clustered_interval(counts)
+    def of_sums(cls, sums: ClusterSums, length: int) -> Stretches:
+        """The stretches of episodes counted one by one (:meth:`count`) into ``sums``."""
+        interval = sums.interval()
         return cls(length, interval.trials, interval.successes, interval.low, interval.high, interval.design_effect)
 
 

@@ -31,7 +31,7 @@ from oodmon.monitor.detectors.dynamics import MAX_UPDATES, check_max_updates
 from oodmon.monitor.sinks.base import Sink
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, Threshold
 from oodmon.progress import Progress
-from oodmon.validation import is_whole
+from oodmon.validation import check_max_steps, is_whole
 
 __all__ = ["as_agent", "watch"]
 
@@ -148,7 +148,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
             there is replaced).
     """
     from oodmon.monitor.alarms import check_warmup
-    from oodmon.monitor.calibration import calibrate_agent, check_max_steps, save_calibration
+    from oodmon.monitor.calibration import calibrate_agent, save_calibration
     from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
     from oodmon.monitor.detectors.fitting import check_can_have, fitted_when_named
     from oodmon.monitor.monitor import Monitor

@@ -348,15 +348,18 @@ def longer_than_calibration(logs: Iterable[RunLog]) -> dict[tuple[str, str], dic
     return _logs_by_label(logs, "about.threshold_longest_episode", int, past)
 
 
-def id_stretches(logs: Iterable[RunLog]) -> dict[tuple[str, str], tuple[Stretches, float]]:
+def id_stretches(logs: Iterable[RunLog], longer: Mapping[tuple[str, str], Any] | None = None
+                 ) -> dict[tuple[str, str], tuple[Stretches, float]]:
     """What ``validate --max-steps`` counts, of logged runs: for each (task, method) group whose ID
     episodes ran longer than their threshold's longest calibration episode
     (:func:`longer_than_calibration`), its ID episodes cut into stretches as long as a calibration
     episode on average (``about.threshold_mean_episode``), each alarmed where an alarm was raised
     in it, with each episode's stretches counted as a cluster (:class:`Stretches`), and the
-    threshold's target rate (``about.threshold_far``). A deployment runs for hours without a reset,
-    and its own log then says whether the per-episode bound held there. Logs that record neither
-    (before 2026-12-05), or a group whose logs record two thresholds' figures, say nothing.
+    threshold's target rate (``about.threshold_far``); ``longer``: those groups, where the caller
+    has them already (:func:`longer_than_calibration` of ``logs``). A deployment runs for hours
+    without a reset, and its own log then says whether the per-episode bound held there. Logs that
+    record neither (before 2026-12-05), or a group whose logs record two thresholds' figures, say
+    nothing.
 
     Example:
         >>> from oodmon.replay.reader import RunLog
@@ -372,7 +375,9 @@ def id_stretches(logs: Iterable[RunLog]) -> dict[tuple[str, str], tuple[Stretche
     """
     from oodmon.monitor.threshold import Stretches
 
-    longer = longer_than_calibration(logs := list(logs))
+    logs = list(logs)
+    if longer is None:
+        longer = longer_than_calibration(logs)
     grouped: dict[tuple[str, str], dict[tuple[int, float], list]] = defaultdict(lambda: defaultdict(list))
     for log in logs:
         if (log.task, log.method) not in longer:
