@@ -581,7 +581,7 @@ def test_a_run_on_a_threshold_calibrated_per_step_says_most_id_episodes_will_ala
     an episode-mode one is run without it."""
     step, episode = tmp_path / "step.json", tmp_path / "episode.json"
     assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--mode", "step",
-                 "--episodes", "2", "--out", str(step)]) == 0  # (2 episodes: 1,000 steps, enough for 45)
+                 "--episodes", "45", "--out", str(step)]) == 0  # (its steps counted by episode: 45 at the least)
     assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--far", "0.2",
                  "--episodes", "11", "--out", str(episode)]) == 0
     capsys.readouterr()

@@ -287,7 +287,7 @@ def _print_validation(args: argparse.Namespace, agent, threshold, result, *, int
                          indent=1))
     else:
         verdict = {"above": "ABOVE the target: this threshold alarms too often"
-                            + _above_hint(threshold, unit, noise, result.max_steps),
+                            + _above_hint(threshold, noise, result.max_steps),
                    "below": "below the target",
                    "consistent": "consistent with the target (the interval holds it)"}[result.verdict]
         said = (f"interrupted: of the {args.episodes:,} episodes asked for, the first {result.episodes:,} were played "
@@ -315,7 +315,7 @@ def _other_noise(threshold, obs_noise: float) -> str:
     return "" if calibrated == obs_noise else f" (calibrated with sensor noise {calibrated:g})"
 
 
-def _above_hint(threshold, unit: str, obs_noise: float, max_steps: int | None = None) -> str:
+def _above_hint(threshold, obs_noise: float, max_steps: int | None = None) -> str:
     """What to do about a threshold whose fresh rate lies above its target: calibrate in the world it
     watches, where validation played another sensor noise (0.1% noise put the demo's noiseless
     threshold above 100 of 100 fresh episodes, 2026-12-05: a draw of calibration episodes is not the
@@ -330,13 +330,11 @@ def _above_hint(threshold, unit: str, obs_noise: float, max_steps: int | None = 
     if max_steps is not None and max_steps != threshold.max_steps:
         return (f" in episodes of up to {max_steps:,} steps; its bound is for episodes like its calibration's: calibrate "
                 f"on episodes as long as these (`oodmon calibrate --max-steps {max_steps}`)")
-    if threshold.mode != "episode":
-        return (f" (per step the bound is only approximate: the {unit} of an episode are correlated; calibrate per "
-                "episode, the default)")
     if threshold.confidence is None:
         return " (a threshold calibrated for the average rate often is: calibrate with --confidence 0.9)"
-    hint = (f" (calibration gives one this high with probability up to {1 - threshold.confidence:.2g}: calibrate again "
-            "on other episodes, --seed")
+    about = "" if threshold.mode == "episode" else "about "  # (a large-sample limit of the steps: step_threshold)
+    hint = (f" (calibration gives one this high with probability up to {about}{1 - threshold.confidence:.2g}: calibrate "
+            "again on other episodes, --seed")
     if threshold.confidence < 0.99:
         hint += f", or for a surer bound, --confidence 0.99 --episodes {episodes_needed(threshold.far, 0.99)}"
     return hint + ")"

@@ -27,8 +27,8 @@ from oodmon.monitor.monitor import Monitor, OffCalibrationWarning, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Stretches, Threshold, calibrate,
-                                     clopper_pearson, clustered_interval, conformal_rank, episodes_needed,
-                                     verdict_of)
+                                     check_step_episodes, clopper_pearson, clustered_interval, conformal_rank,
+                                     episodes_needed, verdict_of)
 from oodmon.progress import Progress
 from oodmon.seeds import EPISODE_USES
 from oodmon.side_by_side import finished_before, play_side_by_side, resolve_workers, stream_per_episode
@@ -199,6 +199,8 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     placeholder = Reference.from_episodes([np.zeros(1)]) if rule in SEQUENTIAL_RULES else None
     if mode == "episode":
         conformal_rank(episodes, far, confidence)  # too few episodes for far: said before the first is played
+    elif confidence is not None:
+        check_step_episodes(episodes, far, confidence)
     # As many placeholder episodes as the promise needs at the least, not ``episodes`` of them: 10**30
     # asked numpy for too much, and in step mode their few steps stood for the real episodes' many
     # (10 CartPole episodes, 5,000 steps, were refused as "30 steps", 2026-12-05). The steps are

@@ -234,9 +234,69 @@ def test_false_alarm_guarantee_holds_on_fresh_episodes(consecutive, window, warm
     assert np.mean(rates) >= far - 1 / (n + 1) - 0.02
 
 
+def _clustered_episodes(rng: np.random.Generator, episodes: int, steps: int, level: float) -> list[np.ndarray]:
+    """Episodes whose steps are above a threshold together, as a real agent's are: each its own
+    level, N(0, ``level``^2), plus AR(1) noise of unit variance (0.9 from one step to the next).
+    A step's score is then N(0, 1 + level^2), the share of steps above t exactly 1 - Phi(t / sd)."""
+    noise = rng.normal(size=(episodes, steps)) * math.sqrt(1 - 0.9 ** 2)
+    noise[:, 0] = rng.normal(size=episodes)
+    for t in range(1, steps):
+        noise[:, t] += 0.9 * noise[:, t - 1]
+    return list(noise + rng.normal(0, level, (episodes, 1)))
+
+
+def _above(value: float, level: float) -> float:
+    """The share of the steps of :func:`_clustered_episodes` above ``value``."""
+    return 0.5 * math.erfc(value / math.sqrt(2 * (1 + level ** 2)))
+
+
+def test_a_step_mode_threshold_keeps_its_rate_with_the_stated_confidence_though_an_episodes_steps_alarm_together():
+    """Step mode's steps are counted by episode (Korn and Graubard's clustered limit, read from the
+    top down). 400 seeded calibrations of 50 episodes of 200 steps, far 0.05 at confidence 0.9: the
+    share of thresholds whose true rate exceeds far is promised at most 0.1; 400 draws give it a
+    standard error of 0.015, and the limit is a large-sample one: at most 0.1 + 0.04 is asked. The
+    rank over the steps as if independent (before 2026-12-05) exceeds far in about 40% of them."""
+    rng = np.random.default_rng(3)
+    exceeded = independent = 0
+    rates = []
+    for _ in range(400):
+        level = 0.5
+        episodes = _clustered_episodes(rng, 50, 200, level)
+        rates.append(_above(calibrate(episodes, 0.05, mode="step").value, level))
+        exceeded += rates[-1] > 0.05
+        steps = np.sort(np.concatenate(episodes))
+        independent += _above(steps[conformal_rank(len(steps), 0.05, 0.9) - 1], level) > 0.05
+    assert exceeded / 400 <= 0.14 and independent / 400 >= 0.3, (exceeded, independent)
+    assert 0.03 <= np.mean(rates) < 0.05  # bounded, not at any cost
+
+
+def test_a_step_mode_threshold_is_the_lowest_score_whose_clustered_limit_holds_from_the_top_down():
+    """The vectorised scan gives what :func:`clustered_interval` of each candidate says, one at a time."""
+    from oodmon.monitor.threshold import clustered_interval, step_threshold
+
+    rng = np.random.default_rng(4)
+    episodes = [np.round(e, 1) for e in _clustered_episodes(rng, 45, 40, 1.0)]  # ties among the scores too
+    candidates = np.unique(np.concatenate(episodes))[::-1]
+    expected = candidates[0]
+    for value in candidates:
+        counts = [(int((e > value).sum()), len(e)) for e in episodes]
+        if sum(c for c, _ in counts) and clustered_interval(counts, level=0.8).high > 0.05:
+            break
+        expected = value
+    assert step_threshold(episodes, 0.05, 0.9) == expected
+    threshold = calibrate(episodes, 0.05, mode="step")
+    steps = np.sort(np.concatenate(episodes))
+    assert threshold.value == expected and steps[threshold.rank - 1] == expected and steps[threshold.rank] > expected
+    # the episodes are its units where no step is above: 44 episodes are refused, whatever their steps
+    with pytest.raises(ConfigError, match="needs at least 45 ID calibration episodes to bound its rate with "
+                                          "confidence 0.9 in step mode too, whose steps are counted by episode"):
+        calibrate(episodes[:44], 0.05, mode="step")
+
+
 def test_step_mode_and_file_round_trip(tmp_path):
     rng = np.random.default_rng(1)
-    threshold = calibrate([rng.random(100) for _ in range(10)], 0.01, mode="step", task="cartpole", method="dropout")
+    threshold = calibrate([rng.random(100) for _ in range(10)], 0.01, mode="step", task="cartpole", method="dropout",
+                          confidence=None)  # on average over calibrations: split conformal over the 1,000 steps
     assert threshold.consecutive == 1 and threshold.n_steps == 1000 and threshold.mode == "step"
     assert threshold.quantiles["q50"] == pytest.approx(0.5, abs=0.05)
     path = threshold.save(tmp_path / "thr.json")
@@ -317,8 +377,10 @@ def test_counts_beyond_memory_are_refused_by_name_and_a_step_mode_calibration_co
         calibrate_agent(agent, huge, detector="spread")
     assert played == ["calibration episodes"]
     monkeypatch.undo()
-    threshold = calibrate_agent(agent, 10, mode="step", detector="spread")  # refused before as "30 steps"
+    threshold = calibrate_agent(agent, 10, mode="step", detector="spread", confidence=None)  # refused before as "30 steps"
     assert (threshold.mode, threshold.n_episodes, threshold.n_steps) == ("step", 10, 5000)
+    with pytest.raises(ConfigError, match="needs at least 45 ID calibration episodes .* in step mode too"):
+        calibrate_agent(agent, 10, mode="step", detector="spread")  # with a confidence, counted by episode
     with pytest.raises(ConfigError, match="needs at least 45 ID calibration episodes .*; got 44"):
         calibrate_agent(agent, 44, detector="spread")  # episode mode: said before any episode, as before
 
