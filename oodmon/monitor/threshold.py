@@ -297,8 +297,10 @@ def step_threshold(episodes: Sequence[np.ndarray], far: float, confidence: float
     check_step_episodes(len(episodes), far, confidence)
     lengths = np.array([len(scores) for scores in episodes])
     trials, clusters = int(lengths.sum()), len(episodes)
-    ordered = [np.sort(scores) for scores in episodes]
-    candidates = np.unique(np.concatenate(episodes))[::-1]
+    ordered = [np.sort(scores[~np.isnan(scores)]) for scores in episodes]  # (a NaN score is above no threshold)
+    candidates = np.unique(np.concatenate(ordered))[::-1]
+    if not len(candidates):
+        return math.nan
     tail = 1 - confidence
     kept = candidates[0]  # no step above it: the episodes, as many as needed, are the units
     start, size = 0, max(64, math.ceil(1.5 * far * trials))  # (it stops about far * trials candidates down)

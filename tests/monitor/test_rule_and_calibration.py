@@ -274,16 +274,24 @@ def test_a_step_mode_threshold_is_the_lowest_score_whose_clustered_limit_holds_f
     """The vectorised scan gives what :func:`clustered_interval` of each candidate says, one at a time."""
     from oodmon.monitor.threshold import clustered_interval, step_threshold
 
+    def one_at_a_time(episodes: list[np.ndarray]) -> float:
+        candidates = np.unique(np.concatenate(episodes))[::-1]
+        candidates = candidates[~np.isnan(candidates)]
+        kept = candidates[0]
+        for value in candidates:
+            counts = [(int((e > value).sum()), len(e)) for e in episodes]
+            if sum(c for c, _ in counts) and clustered_interval(counts, level=0.8).high > 0.05:
+                break
+            kept = value
+        return kept
+
     rng = np.random.default_rng(4)
     episodes = [np.round(e, 1) for e in _clustered_episodes(rng, 45, 40, 1.0)]  # ties among the scores too
-    candidates = np.unique(np.concatenate(episodes))[::-1]
-    expected = candidates[0]
-    for value in candidates:
-        counts = [(int((e > value).sum()), len(e)) for e in episodes]
-        if sum(c for c, _ in counts) and clustered_interval(counts, level=0.8).high > 0.05:
-            break
-        expected = value
+    expected = one_at_a_time(episodes)
     assert step_threshold(episodes, 0.05, 0.9) == expected
+    # a step scored NaN (a detector with nothing to read yet) is above no threshold: a step below it
+    unread = [np.concatenate([[np.nan] * 10, e]) for e in episodes]
+    assert step_threshold(unread, 0.05, 0.9) == one_at_a_time(unread) < expected
     threshold = calibrate(episodes, 0.05, mode="step")
     steps = np.sort(np.concatenate(episodes))
     assert threshold.value == expected and steps[threshold.rank - 1] == expected and steps[threshold.rank] > expected
