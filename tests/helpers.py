@@ -57,6 +57,27 @@ def blas_threads() -> set[int]:
     return {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
 
 
+def once_per_run(tmp_path_factory, worker_id: str, name: str, make):
+    """``make(folder)``'s JSON-able result, computed once for the whole run: pytest-xdist's workers
+    each run a module-scoped fixture of the tests they take (``--dist worksteal`` splits a module's
+    tests among them), so a fixture of seconds ran twice in ``make test``. The first worker computes
+    it into a folder of the run's temporary directory, under a lock; the others wait and read it
+    (pytest-xdist's own recipe for a fixture run once). Without workers, ``make`` runs as a fixture."""
+    import json
+
+    if worker_id == "master":
+        return make(tmp_path_factory.mktemp(name))
+    from filelock import FileLock  # (torch's dependency)
+
+    root = tmp_path_factory.getbasetemp().parent  # this run's, shared by its workers
+    done = root / name / "result.json"
+    with FileLock(str(root / f"{name}.lock")):
+        if not done.is_file():
+            done.parent.mkdir()
+            done.write_text(json.dumps(make(done.parent)))
+    return json.loads(done.read_text())
+
+
 def load_script(name: str):
     """The repository's root and scripts/<name>.py loaded as a module (the scripts' own imports of
     each other need scripts/ on sys.path: pytest's ``monkeypatch.syspath_prepend``)."""

@@ -15,6 +15,7 @@ from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 
 from oodmon.replay import RecoveryWarning, read_log
+from tests.helpers import once_per_run
 
 DRIVER = r"""
 import json, os, select, signal, sys, time
@@ -63,20 +64,22 @@ print(json.dumps(results))
 """
 
 
-@pytest.fixture(scope="module")
-def killed(tmp_path_factory):
-    import numpy as np
-
+def _kill_runs(folder) -> list[dict]:
     rng = np.random.default_rng(20261123)
     # Kill times in seconds after the monitor opened: a run finishes about 2 CartPole episodes in its
     # first 0.1 s and a 25-step Pong episode in its first 0.3 s (2026-11-27), several at these.
     plan = [("cartpole", 0.0)] + [("cartpole", float(d)) for d in rng.uniform(0.2, 0.8, 9)] + [
         ("pong", float(d)) for d in rng.uniform(0.4, 1.0, 3)]
-    folder = tmp_path_factory.mktemp("killed")
     out = subprocess.run([sys.executable, "-c", DRIVER, str(folder), json.dumps(plan)], capture_output=True,
                          text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def killed(tmp_path_factory, worker_id):
+    """The thirteen killed runs, once for the whole run (9 s; its tests only read their logs)."""
+    return once_per_run(tmp_path_factory, worker_id, "killed", _kill_runs)
 
 
 def _topics(path) -> dict[str, int]:
