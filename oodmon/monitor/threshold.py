@@ -243,17 +243,19 @@ class ClusterSums:
         return ClusteredInterval(successes, trials, clusters, float(design_effect), float(low), float(high))
 
 
-def _korn_graubard(successes: Any, trials: int, clusters: int, spread: Any, tail: float) -> tuple[Any, Any, Any]:
+def _korn_graubard(successes: Any, trials: int, clusters: int, spread: Any, tail: float,
+                   freedom: float | None = None) -> tuple[Any, Any, Any]:
     """:func:`clustered_interval`'s design effect and limits (each tail ``tail``) of ``successes``
     of ``trials`` units in ``clusters`` clusters whose ``sum((s_i - rate n_i)^2)`` is ``spread``;
-    ``successes`` and ``spread`` numbers or arrays alike, none of the successes 0 or ``trials``."""
+    ``successes`` and ``spread`` numbers or arrays alike, none of the successes 0 or ``trials``;
+    ``freedom``: the degrees of freedom (default: ``clusters - 1``)."""
     from scipy.special import betaincinv, stdtrit
 
     rate = np.asarray(successes) / trials
     variance = clusters / (clusters - 1) * np.asarray(spread) / trials ** 2
     design_effect = np.maximum(1.0, variance / (rate * (1 - rate) / trials))
-    degrees = (float(stdtrit(trials - 1, 1 - tail)) / float(stdtrit(clusters - 1, 1 - tail))) ** 2 \
-        if trials > 1 else 1.0
+    freedom = clusters - 1 if freedom is None else freedom
+    degrees = (float(stdtrit(trials - 1, 1 - tail)) / float(stdtrit(freedom, 1 - tail))) ** 2 if trials > 1 else 1.0
     size = trials / design_effect * degrees
     hits = rate * size
     return design_effect, betaincinv(hits, size - hits + 1, tail), betaincinv(hits + 1, size - hits, 1 - tail)
@@ -277,6 +279,9 @@ def step_threshold(episodes: Sequence[np.ndarray], far: float, confidence: float
     2021: a bound that holds for each t' alone, read from the top down, holds for the t it stops
     at). With no step above t' there is no spread to measure, and the episodes are the units: the
     highest score is a threshold once ``episodes_needed(far, confidence)`` episodes lie under it.
+    The limit's degrees of freedom are Kish's effective number of episodes less one, (sum n)^2 /
+    sum n^2 - 1 over episodes of n steps: the episodes less one where they are alike, near none
+    where one episode is most of the steps.
 
     Steps of one episode are above a threshold together (CartPole's `combined`: design effect 16),
     so the rank over the steps as if each were independent, which this replaced on 2026-12-05, gave
@@ -297,6 +302,10 @@ def step_threshold(episodes: Sequence[np.ndarray], far: float, confidence: float
     check_step_episodes(len(episodes), far, confidence)
     lengths = np.array([len(scores) for scores in episodes])
     trials, clusters = int(lengths.sum()), len(episodes)
+    # Kish's effective number of clusters, (sum n)^2 / sum n^2 (the episodes where they are alike):
+    # one episode far longer than the rest is most of the steps, and alone their spread hardly
+    # measures (of one episode of 10,000 steps and 49 of one, its last 4.7% passed as bounded)
+    freedom = max(trials * trials / float(np.sum(lengths.astype(float) ** 2)) - 1, 1e-9)
     ordered = [np.sort(scores[~np.isnan(scores)]) for scores in episodes]  # (a NaN score is above no threshold)
     candidates = np.unique(np.concatenate(ordered))[::-1]
     if not len(candidates):
@@ -315,7 +324,7 @@ def step_threshold(episodes: Sequence[np.ndarray], far: float, confidence: float
             s = above[counted]
             spread = np.sum((s - (successes[counted] / trials)[:, None] * lengths) ** 2, axis=1)
             with np.errstate(divide="ignore", invalid="ignore"):
-                _, _, high[counted] = _korn_graubard(successes[counted], trials, clusters, spread, tail)
+                _, _, high[counted] = _korn_graubard(successes[counted], trials, clusters, spread, tail, freedom)
             high[successes == trials] = 1.0
         failing = np.flatnonzero(~(high <= far))
         if failing.size:

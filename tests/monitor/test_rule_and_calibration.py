@@ -295,6 +295,9 @@ def test_a_step_mode_threshold_is_the_lowest_score_whose_clustered_limit_holds_f
     threshold = calibrate(episodes, 0.05, mode="step")
     steps = np.sort(np.concatenate(episodes))
     assert threshold.value == expected and steps[threshold.rank - 1] == expected and steps[threshold.rank] > expected
+    # one episode far longer than the others is most of the steps: alone, their spread measures
+    # nothing (Kish's effective number of episodes, 1.01 here), and no step of it is let above
+    assert step_threshold([np.arange(10_000.0)] + [np.zeros(1)] * 49, 0.05, 0.9) == 9_999.0
     # the episodes are its units where no step is above: 44 episodes are refused, whatever their steps
     with pytest.raises(ConfigError, match="needs at least 45 ID calibration episodes to bound its rate with "
                                           "confidence 0.9 in step mode too, whose steps are counted by episode"):
