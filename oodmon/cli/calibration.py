@@ -141,16 +141,27 @@ def _calibrate(args: argparse.Namespace) -> int:
                                             max_steps=args.max_steps)
     else:
         _refuse_fit_options(args)
-    with _progress() as report:
-        threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
-                                    window=args.window, score=args.score, seed=args.seed, detectors=detectors,
-                                    detector=args.detector, confidence=args.confidence, rule=args.rule,
-                                    reference_episodes=args.reference_episodes, reference_by_age=args.reference_by_age,
-                                    warmup=args.warmup, on_progress=report, workers=args.workers,
-                                    obs_noise=args.obs_noise, max_steps=args.max_steps)
+    kept = Path(f"{args.out}.kept.npz")  # an interrupted calibration's episodes, which the same command goes on from
+    try:
+        with _progress() as report:
+            threshold = calibrate_agent(agent, args.episodes, args.far, consecutive=args.consecutive, mode=args.mode,
+                                        window=args.window, score=args.score, seed=args.seed, detectors=detectors,
+                                        detector=args.detector, confidence=args.confidence, rule=args.rule,
+                                        reference_episodes=args.reference_episodes,
+                                        reference_by_age=args.reference_by_age, warmup=args.warmup,
+                                        on_progress=report, workers=args.workers, obs_noise=args.obs_noise,
+                                        max_steps=args.max_steps, kept=kept)
+    except KeyboardInterrupt as interrupt:
+        if getattr(interrupt, "kept_episodes", 0):
+            args.kept_on_interrupt = (
+                f"no threshold file was written (those at --out are as they were); the {interrupt.kept_episodes:,} of "
+                f"the {args.episodes:,} calibration episodes played whole are kept in {kept}: the same command goes "
+                "on from them" + (" (and fits the detectors again first)" if fitted_to else ""))
+        raise
     # Written together once the calibration ends, each file beside its place first: an interrupted
     # calibration or a full disk leaves the earlier threshold with the detectors it was calibrated with.
     save_calibration(threshold, args.out, detectors if fitted_to else None)
+    kept.unlink(missing_ok=True)
     cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "

@@ -34,9 +34,9 @@ from oodmon.seeds import EPISODE_USES
 from oodmon.side_by_side import finished_before, play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import check_max_steps, is_step_count, is_whole
 
-__all__ = ["CALIBRATION_SEED", "EPISODE_USES", "Stretches", "Validation", "calibrate_agent", "check_fresh",
-           "check_max_steps", "clopper_pearson", "detectors_read", "id_episode_scores", "reused_episodes",
-           "save_calibration", "seeds_used", "validate_threshold"]
+__all__ = ["CALIBRATION_SEED", "EPISODE_USES", "KeptEpisodesWarning", "Stretches", "Validation", "calibrate_agent",
+           "check_fresh", "check_max_steps", "clopper_pearson", "detectors_read", "id_episode_scores",
+           "read_kept_episodes", "reused_episodes", "save_calibration", "seeds_used", "validate_threshold"]
 
 CALIBRATION_SEED = seeds.CALIBRATION
 #: ID episodes a sequential rule's p-values are taken against.
@@ -129,7 +129,8 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                     detectors: DetectorSet | None = None, detector: str | None = None,
                     obs_noise: float = 0.0, confidence: float | None = DEFAULT_CONFIDENCE, rule: str = "consecutive",
                     reference_episodes: int = DEFAULT_REFERENCE_EPISODES, reference_by_age: bool = False,
-                    warmup: int = 0, workers: int = 1, max_steps: int | None = None) -> Threshold:
+                    warmup: int = 0, workers: int = 1, max_steps: int | None = None,
+                    kept: str | Path | None = None) -> Threshold:
     """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``).
 
     ``detector`` names the detector whose score the alarm will read; a learned one comes from
@@ -160,6 +161,16 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     draws nothing when it decides gets the same threshold from any number; an MC agent's episodes
     draw from streams of their own there, the same for any ``workers`` >= 2 and not those of one
     process (:mod:`oodmon.side_by_side`).
+
+    ``kept``: a file (``.npz``) where an interrupted calibration (Ctrl-C, SIGTERM) keeps the scores
+    of its first calibration episodes played whole, and from which a calibration of the same policy,
+    detector, seed and world goes on: it plays only the episodes after them. The
+    ``KeyboardInterrupt`` then carries their number in ``.kept_episodes``. A file made otherwise is
+    not read (:class:`KeptEpisodesWarning`). The caller removes it once the threshold is saved.
+    The threshold is the uninterrupted calibration's where the agent draws nothing when it
+    decides, or plays side by side (its episodes' own streams); an MC agent in one process draws
+    on from where its resumed process starts, so the episodes after the kept ones are as fresh but
+    not the same draws.
 
     Raises:
         InvalidParameterError, ConfigError: a bad argument, too few episodes for ``far``, or
@@ -223,9 +234,26 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         reference = Reference.from_episodes(id_episode_scores(
             agent, reference_episodes, seed=seeds.REFERENCE, score=score, detectors=needed, detector=detector,
             obs_noise=obs_noise, workers=workers, max_steps=max_steps), by_age=reference_by_age)
-    scores = id_episode_scores(agent, episodes, seed=seed, score=score, on_progress=on_progress, detectors=needed,
-                               detector=detector, obs_noise=obs_noise, stage="calibration episodes", workers=workers,
-                               max_steps=max_steps)
+    made_by = {"policy": policy_hash(agent), "task": agent.task, "detector": detector, "score": score,
+               "detectors": None if needed is None else needed.fingerprint(detector), "seed": seed,
+               "obs_noise": float(obs_noise), "max_steps": max_steps, "masks": getattr(agent.estimator, "masks", None),
+               "samples": None if agent.estimator is None else agent.estimator.n_samples}
+    scores = [] if kept is None else read_kept_episodes(kept, made_by)[:episodes]
+    if scores and on_progress is not None:
+        on_progress("kept calibration episodes", len(scores), episodes)  # (an interrupted calibration's)
+    try:
+        if len(scores) < episodes:
+            scores += id_episode_scores(agent, episodes - len(scores), seed=seed + len(scores), score=score,
+                                        on_progress=on_progress, detectors=needed, detector=detector,
+                                        obs_noise=obs_noise, stage="calibration episodes", workers=workers,
+                                        max_steps=max_steps)
+    except KeyboardInterrupt as interrupt:
+        if kept is not None:
+            scores += [played for played, _ in finished_before(interrupt)]
+            if scores:
+                _keep_episodes(kept, made_by, scores)
+            interrupt.kept_episodes = len(scores)
+        raise
     _check_steps_to_score(scores, detector, needed)
     threshold = calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
                           method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
@@ -238,6 +266,50 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         used["reference"] = [seeds.REFERENCE, seeds.REFERENCE + reference_episodes]
     return replace(threshold, episode_seeds=used, workers=resolve_workers(workers, episodes),
                    obs_noise=float(obs_noise), max_steps=max_steps)
+
+
+class KeptEpisodesWarning(UserWarning):
+    """:func:`calibrate_agent`: a file of kept calibration episodes that another calibration made
+    (another policy, detector, seed or world) or that is no such file; it is not read."""
+
+
+def read_kept_episodes(path: str | Path, made_by: dict[str, Any]) -> list[np.ndarray]:
+    """The per-step scores of the calibration episodes an interrupted :func:`calibrate_agent` kept
+    in ``path`` (see its ``kept``), where a calibration ``made_by`` the same settings kept them;
+    ``[]`` where there is no such file, and with a :class:`KeptEpisodesWarning` where it is one of
+    another calibration's or unreadable. Nothing in it is unpickled."""
+    import json
+
+    path = Path(path)
+    if not path.is_file():
+        return []
+    try:
+        with np.load(path, allow_pickle=False) as kept:
+            theirs = json.loads(str(kept["made_by"]))
+            scores, lengths = kept["scores"].astype(np.float64), kept["lengths"].astype(np.int64)
+    except (OSError, ValueError, KeyError) as error:
+        warnings.warn(f"{path} holds no calibration episodes an interrupted calibration kept ({error}); it is not "
+                      "read, and is replaced", KeptEpisodesWarning, stacklevel=3)
+        return []
+    if theirs != json.loads(json.dumps(made_by)) or lengths.sum() != len(scores) or (lengths < 0).any():
+        other = sorted(k for k in made_by if theirs.get(k) != made_by[k]) if isinstance(theirs, dict) else ["all"]
+        differ = f"its {', '.join(other)} differ{'s' if len(other) == 1 else ''}" if other else "its steps do not add up"
+        warnings.warn(f"{path} holds the episodes of another calibration ({differ}); it is not read, and is replaced",
+                      KeptEpisodesWarning, stacklevel=3)
+        return []
+    return np.split(scores, np.cumsum(lengths)[:-1]) if len(lengths) else []
+
+
+def _keep_episodes(path: str | Path, made_by: dict[str, Any], scores: list[np.ndarray]) -> None:
+    """Write the calibration episodes' ``scores`` to ``path`` whole or not at all (see ``kept``)."""
+    import json
+
+    path = Path(path)
+    part = path.with_name(path.name + ".part")
+    with open(part, "wb") as out:  # (a name of our own: np.savez would add .npz to it)
+        np.savez(out, made_by=np.array(json.dumps(made_by)), scores=np.concatenate(scores),
+                 lengths=np.array([len(s) for s in scores], dtype=np.int64))
+    os.replace(part, path)
 
 
 def _warn_of_other_noise(detectors: DetectorSet | None, obs_noise: float) -> None:

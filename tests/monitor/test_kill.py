@@ -152,6 +152,21 @@ def test_a_script_that_never_closes_its_monitor_leaves_a_finished_log(tmp_path):
     assert log.complete and len(log.episodes) == 2
 
 
+def _interrupted_at(method, call: int):
+    """``method`` (a Monitor's) that raises KeyboardInterrupt at its ``call``-th call, as Ctrl-C
+    there would; ``.calls``: the count so far, in a list to reset."""
+    calls = [0]
+
+    def interrupted(self, *args, **kwargs):
+        calls[0] += 1
+        if calls[0] == call:
+            raise KeyboardInterrupt
+        return method(self, *args, **kwargs)
+
+    interrupted.calls = calls
+    return interrupted
+
+
 def test_ctrl_c_in_oodmon_run_exits_130_and_marks_the_cut_episode(tmp_path, monkeypatch, capsys):
     """The log is finished, the cut episode marked; the run's closing table of the episodes played
     whole is printed as at its end (before 2026-12-05 it was not: 175 CartPole episodes of `run
@@ -160,15 +175,8 @@ def test_ctrl_c_in_oodmon_run_exits_130_and_marks_the_cut_episode(tmp_path, monk
     from oodmon.cli import main
     from oodmon.monitor import Monitor
 
-    step = Monitor.step
-    calls = [0]
-
-    def interrupted_at_step_700(self, *args, **kwargs):
-        calls[0] += 1
-        if calls[0] == 700:
-            raise KeyboardInterrupt
-        return step(self, *args, **kwargs)
-
+    interrupted_at_step_700 = _interrupted_at(Monitor.step, 700)
+    calls = interrupted_at_step_700.calls
     monkeypatch.setattr(Monitor, "step", interrupted_at_step_700)
     code = main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "5", "--mcap",
                  str(tmp_path / "cut.mcap")])
@@ -436,3 +444,63 @@ def test_a_killed_runs_rrd_opens_and_holds_the_episodes_that_ended_before_the_ki
     printed = subprocess.run([rerun, "rrd", "print", "-vvv", str(path)], capture_output=True, text=True, timeout=120)
     logged = sorted({int(n) for n in re.findall(r"episode (\d+) \(cartpole", printed.stdout)})
     assert finished > 5 and logged == list(range(len(logged))) and 5 <= len(logged) <= finished
+
+
+def test_an_interrupted_calibration_keeps_its_episodes_and_the_same_command_goes_on_to_the_same_threshold(
+        tmp_path, monkeypatch, capsys):
+    """Ctrl-C in `calibrate` kept nothing before 2026-12-05: the calibration episodes played whole
+    are now kept beside --out, and the same command plays only the rest, to the threshold of an
+    uninterrupted calibration (an ensemble draws nothing: the same scores); the file is then removed.
+    Another calibration's file is not read, and said so."""
+    from oodmon.cli import main
+    from oodmon.monitor import Monitor, Threshold
+
+    command = ["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "combined", "--far", "0.1",
+               "--episodes", "22"]
+    assert main([*command, "--out", str(tmp_path / "whole.json")]) == 0
+    whole = Threshold.load(tmp_path / "whole.json")
+    out, kept = tmp_path / "thr.json", tmp_path / "thr.json.kept.npz"
+    run_episode = Monitor.run_episode
+    interrupted_in_episode_10 = _interrupted_at(run_episode, 10)
+    calls = interrupted_in_episode_10.calls
+    monkeypatch.setattr(Monitor, "run_episode", interrupted_in_episode_10)
+    capsys.readouterr()
+    assert main([*command, "--out", str(out)]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"oodmon: interrupted; no threshold file was written (those at --out are as they were); the 9 of the 22 "
+        f"calibration episodes played whole are kept in {kept}: the same command goes on from them")
+    assert not out.exists() and kept.is_file()
+    monkeypatch.undo()
+    played = []
+    monkeypatch.setattr(Monitor, "run_episode", lambda self, *a, **k: played.append(k["seed"]) or run_episode(self, *a, **k))
+    assert main([*command, "--out", str(out)]) == 0
+    assert "kept calibration episodes: 9/22 episodes" in capsys.readouterr().err
+    assert played == list(range(whole.episode_seeds["calibration"][0] + 9, whole.episode_seeds["calibration"][1]))
+    assert Threshold.load(out) == whole and not kept.exists()
+    # another calibration's episodes (another seed) are not read, and are replaced when it is interrupted
+    calls[0] = 0
+    monkeypatch.setattr(Monitor, "run_episode", interrupted_in_episode_10)
+    assert main([*command, "--out", str(out), "--seed", "123456"]) == 130
+    monkeypatch.undo()
+    capsys.readouterr()
+    assert main([*command, "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert (f"oodmon: warning: {kept} holds the episodes of another calibration (its seed differs); it is not read, "
+            "and is replaced") in err and "kept calibration episodes" not in err
+    assert Threshold.load(out) == whole and not kept.exists()
+
+
+def test_a_kept_episodes_file_that_is_no_such_file_is_not_read_and_runs_no_code(tmp_path):
+    """Read with numpy's allow_pickle=False: a pickled object in it is refused, not run."""
+    from oodmon.monitor.calibration import KeptEpisodesWarning, read_kept_episodes
+
+    made_by = {"seed": 1}
+    assert read_kept_episodes(tmp_path / "none.npz", made_by) == []
+    (tmp_path / "text.npz").write_text("not numpy")
+    np.savez(tmp_path / "object.npz", made_by=np.array([object()], dtype=object), scores=np.ones(3), lengths=[3])
+    np.savez(tmp_path / "short.npz", made_by=np.array(json.dumps(made_by)), scores=np.ones(3), lengths=[2])
+    for name in ("text", "object", "short"):
+        with pytest.warns(KeptEpisodesWarning, match="it is not read, and is replaced"):
+            assert read_kept_episodes(tmp_path / f"{name}.npz", made_by) == []
+    np.savez(tmp_path / "good.npz", made_by=np.array(json.dumps(made_by)), scores=np.arange(5.0), lengths=[2, 3])
+    assert [list(s) for s in read_kept_episodes(tmp_path / "good.npz", made_by)] == [[0.0, 1.0], [2.0, 3.0, 4.0]]
