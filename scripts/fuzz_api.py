@@ -46,7 +46,8 @@ ValueError; fixed: refused by name, as the other calls do), of 1,899 oodmon, 545
 The next session (the same again), with step mode's calibration by episode and ``calibrate_agent``'s
 ``kept`` among the calls: 1 finding, ``calibrate(mode="step", confidence=0.5)``'s
 ZeroDivisionError (both t quantiles of the clustered limit 0 at the median; fixed), of 1,968
-oodmon, 550 ok, 255 python and 78 slow of 2,852 calls.
+oodmon, 550 ok, 255 python and 78 slow of 2,852 calls; after the fix: 1,968 oodmon, 550 ok, 255
+python, 79 slow of 2,852 calls, no finding, no leak.
 """
 
 from __future__ import annotations
