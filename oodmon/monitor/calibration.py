@@ -234,10 +234,11 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         reference = Reference.from_episodes(id_episode_scores(
             agent, reference_episodes, seed=seeds.REFERENCE, score=score, detectors=needed, detector=detector,
             obs_noise=obs_noise, workers=workers, max_steps=max_steps), by_age=reference_by_age)
-    made_by = {"policy": policy_hash(agent), "task": agent.task, "detector": detector, "score": score,
-               "detectors": None if needed is None else needed.fingerprint(detector), "seed": seed,
-               "obs_noise": float(obs_noise), "max_steps": max_steps, "masks": getattr(agent.estimator, "masks", None),
-               "samples": None if agent.estimator is None else agent.estimator.n_samples}
+    made_by = None if kept is None else {  # what a kept file must have been made by to be gone on from
+        "policy": policy_hash(agent), "task": agent.task, "detector": detector, "score": score,
+        "detectors": None if needed is None else needed.fingerprint(detector), "seed": seed,
+        "obs_noise": float(obs_noise), "max_steps": max_steps, "masks": getattr(agent.estimator, "masks", None),
+        "samples": None if agent.estimator is None else agent.estimator.n_samples}
     scores = [] if kept is None else read_kept_episodes(kept, made_by)[:episodes]
     if scores and on_progress is not None:
         on_progress("kept calibration episodes", len(scores), episodes)  # (an interrupted calibration's)
