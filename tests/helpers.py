@@ -73,7 +73,7 @@ def once_per_run(tmp_path_factory, worker_id: str, name: str, make):
     done = root / name / "result.json"
     with FileLock(str(root / f"{name}.lock")):
         if not done.is_file():
-            done.parent.mkdir()
+            done.parent.mkdir(exist_ok=True)  # (a worker whose make failed left it)
             done.write_text(json.dumps(make(done.parent)))
     return json.loads(done.read_text())
 
