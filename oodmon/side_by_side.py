@@ -71,7 +71,8 @@ def resolve_workers(workers: int, episodes: int) -> int:
 
 def finished_before(interrupt: BaseException) -> list:
     """The results of the first episodes played whole before ``interrupt`` (a Ctrl-C or SIGTERM
-    out of :func:`play_side_by_side`), in the episodes' order: episodes 0 .. k - 1, the longest run
+    out of :func:`play_side_by_side`, or a worker's death there, :class:`WorkerDied`), in the
+    episodes' order: episodes 0 .. k - 1, the longest run
     of them from the first whose results had come back (an episode that ended early among later
     ones missing is left out with them, so that the shorter episodes are not the ones counted).
     Side by side, a worker's results come back when its run ends, so ``run_size`` sets what an
@@ -316,7 +317,8 @@ def play_side_by_side(play: Play, episodes: int, workers: int, stage: str,
         return [result for first, _ in runs for result in results[first]]
     except BaseException as error:
         _stop(processes.values())
-        if isinstance(error, KeyboardInterrupt):  # the runs that came back whole, from the first on
+        # Ctrl-C, SIGTERM, a worker's death: the runs that came back whole, from the first on
+        if isinstance(error, (KeyboardInterrupt, BrokenProcessPool)):
             error.finished = []
             for first, _ in runs:
                 if first not in results:

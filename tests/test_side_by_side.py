@@ -182,6 +182,42 @@ def test_a_workers_death_ends_a_command_in_one_line_with_what_it_kept(four_cores
                         r"written .*run the command again\n", err), err
 
 
+def test_a_calibration_whose_worker_died_keeps_the_episodes_played_whole_and_goes_on_with_fewer_workers(
+        four_cores, tmp_path, capsys, monkeypatch):
+    """A worker killed in its third episode (as the kernel kills one when memory runs out): the
+    calibration episodes that came back whole, from the first on, are kept beside --out, and the
+    same command with one worker plays the rest, to the threshold of one never stopped."""
+    import signal
+
+    from oodmon.envs.physics import ShiftedCartPole
+    from oodmon.monitor import Threshold
+
+    command = ["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--far", "0.2",
+               "--episodes", "11"]
+    assert main([*command, "--out", str(tmp_path / "whole.json")]) == 0
+    parent, step, steps = os.getpid(), ShiftedCartPole.step, []
+
+    def crashing_step(self, action):
+        steps.append(action)
+        if os.getpid() != parent and len(steps) == 1_200:  # (500 steps an episode)
+            os.kill(os.getpid(), signal.SIGKILL)
+        return step(self, action)
+
+    monkeypatch.setattr(ShiftedCartPole, "step", crashing_step)
+    path, kept = tmp_path / "t.json", tmp_path / "t.json.kept.npz"
+    assert main([*command, "--workers", "2", "--out", str(path)]) == 3
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    said = re.fullmatch(r"oodmon: stopped: a worker process \(pid \d+\) died while playing episodes \(killed by "
+                        r"SIGKILL\): .*; fewer --workers need less memory; no threshold file was written \(those at "
+                        r"--out are as they were\); the (\d) of the 11 calibration episodes played whole are kept in "
+                        rf"{re.escape(str(kept))}: the same command goes on from them", err)
+    assert said, err
+    assert 1 <= int(said.group(1)) <= 4 and kept.is_file() and not path.exists()  # (each worker: 2 whole)
+    monkeypatch.undo()
+    assert main([*command, "--workers", "1", "--out", str(path)]) == 0
+    assert Threshold.load(path).value == Threshold.load(tmp_path / "whole.json").value and not kept.exists()
+
+
 def _forks_warning_as_python_3_12_does(monkeypatch) -> None:
     """``os.fork`` warning in the parent as Python 3.12 and newer do where the process has other
     threads (a progress display's, numpy's BLAS pool): this suite runs on 3.11, which does not."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from rich.console import Console
@@ -151,7 +152,7 @@ def _calibrate(args: argparse.Namespace) -> int:
                                         reference_by_age=args.reference_by_age, warmup=args.warmup,
                                         on_progress=report, workers=args.workers, obs_noise=args.obs_noise,
                                         max_steps=args.max_steps, kept=kept)
-    except KeyboardInterrupt as interrupt:
+    except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (a worker's death too: killed for memory)
         if getattr(interrupt, "kept_episodes", 0):
             args.kept_on_interrupt = (
                 f"no threshold file was written (those at --out are as they were); the {interrupt.kept_episodes:,} of "

@@ -10,6 +10,7 @@ import os
 import shutil
 import warnings
 from collections.abc import Sequence
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -162,10 +163,11 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     draw from streams of their own there, the same for any ``workers`` >= 2 and not those of one
     process (:mod:`oodmon.side_by_side`).
 
-    ``kept``: a file (``.npz``) where an interrupted calibration (Ctrl-C, SIGTERM) keeps the scores
-    of its first calibration episodes played whole, and from which a calibration of the same policy,
-    detector, seed and world goes on: it plays only the episodes after them. The
-    ``KeyboardInterrupt`` then carries their number in ``.kept_episodes``. A file made otherwise is
+    ``kept``: a file (``.npz``) where an interrupted calibration (Ctrl-C, SIGTERM, or a worker's
+    death: killed when memory ran out) keeps the scores of its first calibration episodes played
+    whole, and from which a calibration of the same policy, detector, seed and world goes on: it
+    plays only the episodes after them. The ``KeyboardInterrupt`` (``BrokenProcessPool``) then
+    carries their number in ``.kept_episodes``. A file made otherwise is
     not read (:class:`KeptEpisodesWarning`). The caller removes it once the threshold is saved.
     The threshold is the uninterrupted calibration's where the agent draws nothing when it
     decides, or plays side by side (its episodes' own streams); an MC agent in one process draws
@@ -248,7 +250,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                                         on_progress=on_progress, detectors=needed, detector=detector,
                                         obs_noise=obs_noise, stage="calibration episodes", workers=workers,
                                         max_steps=max_steps)
-    except KeyboardInterrupt as interrupt:
+    except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (Ctrl-C, SIGTERM, a worker's death)
         if kept is not None:
             scores += [played for played, _ in finished_before(interrupt)]
             if scores:
