@@ -186,7 +186,8 @@ def test_a_calibration_whose_worker_died_keeps_the_episodes_played_whole_and_goe
         four_cores, tmp_path, capsys, monkeypatch):
     """A worker killed in its third episode (as the kernel kills one when memory runs out): the
     calibration episodes that came back whole, from the first on, are kept beside --out, and the
-    same command with one worker plays the rest, to the threshold of one never stopped."""
+    same command with one worker plays the rest, to the threshold of one never stopped; validate
+    counts the episodes played whole, as on Ctrl-C."""
     import signal
 
     from oodmon.envs.physics import ShiftedCartPole
@@ -216,6 +217,17 @@ def test_a_calibration_whose_worker_died_keeps_the_episodes_played_whole_and_goe
     monkeypatch.undo()
     assert main([*command, "--workers", "1", "--out", str(path)]) == 0
     assert Threshold.load(path).value == Threshold.load(tmp_path / "whole.json").value and not kept.exists()
+    # validate counts the episodes played whole then, as on Ctrl-C
+    steps.clear()
+    monkeypatch.setattr(ShiftedCartPole, "step", crashing_step)
+    capsys.readouterr()
+    assert main(["validate", str(path), "--episodes", "20", "--workers", "2"]) == 3
+    out, err = capsys.readouterr()
+    counted = re.search(r"interrupted: of the 20 episodes asked for, the first (\d+) were played", out)
+    assert counted and 1 <= int(counted.group(1)) <= 4, out
+    assert err.strip().splitlines()[-1].endswith(
+        f"fewer --workers need less memory; the {counted.group(1)} of the 20 episodes played whole before it are "
+        "counted above"), err
 
 
 def _forks_warning_as_python_3_12_does(monkeypatch) -> None:

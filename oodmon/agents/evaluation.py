@@ -9,6 +9,7 @@ and Pong's -21..21 as well as for CartPole's 0..500.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
@@ -155,7 +156,7 @@ def evaluate_variants(
     try:
         returns = play_side_by_side(play, len(variants), workers, "evaluation episodes", on_progress,
                                     total=len(variants) * episodes, run_size=1)
-    except KeyboardInterrupt as interrupt:
+    except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (Ctrl-C, SIGTERM, a worker's death)
         finished = finished_before(interrupt)
         interrupt.evaluation = results(finished) if finished else None
         raise

@@ -262,7 +262,8 @@ def _validate(args: argparse.Namespace) -> int:
             result = validate_threshold(agent, threshold, args.episodes, seed=args.seed, detectors=detectors,
                                         obs_noise=args.obs_noise, force=args.force, on_progress=report,
                                         workers=args.workers, max_steps=args.max_steps)
-    except KeyboardInterrupt as interrupt:  # Ctrl-C, SIGTERM: the episodes played whole are still a count
+    except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # Ctrl-C, SIGTERM, a worker's death: the episodes
+        # played whole are still a count
         played = getattr(interrupt, "validation", None)
         if played is not None:
             _print_validation(args, agent, threshold, played, interrupted=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from concurrent.futures.process import BrokenProcessPool
 
 from rich.console import Console
 from rich.table import Table
@@ -96,7 +97,8 @@ def _evaluate(args: argparse.Namespace) -> int:
             id_result, results = evaluate_variants(agent.act, args.task, variants, args.episodes,
                                                    fail_fraction=args.fail_fraction, on_progress=report,
                                                    wrap=agent.wrap, workers=args.workers, sampler=agent.estimator)
-    except KeyboardInterrupt as interrupt:  # Ctrl-C, SIGTERM: the variants evaluated whole are still said
+    except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # Ctrl-C, SIGTERM, a worker's death: the
+        # variants evaluated whole are still said
         evaluated = getattr(interrupt, "evaluation", None)
         if evaluated is not None:
             _print_evaluation(args, agent, *evaluated, len(variants), interrupted=True)

@@ -540,7 +540,7 @@ def validate_threshold(agent: Agent, threshold: Threshold, episodes: int = 200, 
         played = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, stage="validation episodes",
                                    workers=workers, threshold=threshold, detectors=needed, force=force,
                                    max_steps=max_steps)
-    except KeyboardInterrupt as interrupt:  # what was played whole goes with it
+    except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # what was played whole goes with it
         finished = finished_before(interrupt)
         interrupt.validation = _counted(finished, threshold, obs_noise, max_steps) if finished else None
         raise
