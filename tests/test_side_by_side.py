@@ -455,6 +455,35 @@ def test_an_interrupted_evaluation_keeps_the_variants_evaluated_whole(four_cores
            "above" in re.sub(r"\s+", " ", err)
 
 
+def test_an_evaluation_whose_worker_died_prints_the_variants_evaluated_whole(four_cores, capsys, monkeypatch):
+    """A worker killed past its first 1,000 steps (the ID env's two 500-step episodes, back by
+    then; a second first, so that the other worker's variant comes back too): the table of the
+    ID env and the first variants evaluated whole, as on Ctrl-C, and exit code 3."""
+    import signal
+    import time
+
+    from oodmon.envs.physics import ShiftedCartPole
+
+    parent, step, steps = os.getpid(), ShiftedCartPole.step, []
+
+    def crashing_step(self, action):
+        steps.append(action)
+        if os.getpid() != parent and len(steps) == 1_001:
+            time.sleep(1.0)
+            os.kill(os.getpid(), signal.SIGKILL)
+        return step(self, action)
+
+    monkeypatch.setattr(ShiftedCartPole, "step", crashing_step)
+    specs = "cartpole:length=2.0,cartpole:masscart=9.0,cartpole:gravity=19.6,cartpole:force_mag=1.0"
+    assert main(["evaluate", "--task", "cartpole", "--method", "ensemble", "--episodes", "2", "--variants", specs,
+                 "--workers", "2"]) == 3
+    out, err = capsys.readouterr()
+    assert "interrupted: cartpole/ensemble: mean return over 2 episodes" in re.sub(r"\s+", " ", out)
+    assert re.search(r"died while playing episodes \(killed by SIGKILL\): .*; fewer --workers need less memory; the "
+                     r"ID env and the first [1-4] of the 4 variants, evaluated whole, are in the table above",
+                     re.sub(r"\s+", " ", err)), err
+
+
 def test_runs_of_a_given_size_come_back_in_order_one_by_one(four_cores):
     """``run_size``: the workers take runs of at most that many episodes, the next when one ends,
     so that large results (the detectors' fitting: every frame of a game) come back a few at a time."""
