@@ -254,8 +254,9 @@ def test_a_step_mode_threshold_keeps_its_rate_with_the_stated_confidence_though_
     """Step mode's steps are counted by episode (Korn and Graubard's clustered limit, read from the
     top down). 400 seeded calibrations of 50 episodes of 200 steps, far 0.05 at confidence 0.9: the
     share of thresholds whose true rate exceeds far is promised at most 0.1; 400 draws give it a
-    standard error of 0.015, and the limit is a large-sample one: at most 0.1 + 0.04 is asked. The
-    rank over the steps as if independent (before 2026-12-05) exceeds far in about 40% of them."""
+    standard error of 0.015, and the limit is a large-sample one: at most 0.1 + 0.04 is asked (47 of
+    400 when written, 2026-12-05). The rank over the steps as if independent (before 2026-12-05)
+    exceeds far in 146 of them."""
     rng = np.random.default_rng(3)
     exceeded = independent = 0
     rates = []
