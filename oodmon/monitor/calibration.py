@@ -236,11 +236,13 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         reference = Reference.from_episodes(id_episode_scores(
             agent, reference_episodes, seed=seeds.REFERENCE, score=score, detectors=needed, detector=detector,
             obs_noise=obs_noise, workers=workers, max_steps=max_steps), by_age=reference_by_age)
-    made_by = None if kept is None else {  # what a kept file must have been made by to be gone on from
-        "policy": policy_hash(agent), "task": agent.task, "detector": detector, "score": score,
-        "detectors": None if needed is None else needed.fingerprint(detector), "seed": seed,
-        "obs_noise": float(obs_noise), "max_steps": max_steps, "masks": getattr(agent.estimator, "masks", None),
-        "samples": None if agent.estimator is None else agent.estimator.n_samples}
+    # what the threshold records of the policy and the detector, and what a kept file must have been made by
+    policy, fitted = policy_hash(agent), None if needed is None else needed.fingerprint(detector)
+    masks = getattr(agent.estimator, "masks", None)
+    samples = None if agent.estimator is None else agent.estimator.n_samples
+    made_by = None if kept is None else {
+        "policy": policy, "task": agent.task, "detector": detector, "score": score, "detectors": fitted, "seed": seed,
+        "obs_noise": float(obs_noise), "max_steps": max_steps, "masks": masks, "samples": samples}
     scores = [] if kept is None else read_kept_episodes(kept, made_by)[:episodes]
     if scores and on_progress is not None:
         on_progress("kept calibration episodes", len(scores), episodes)  # (an interrupted calibration's)
@@ -259,11 +261,9 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         raise
     _check_steps_to_score(scores, detector, needed)
     threshold = calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
-                          method=agent.method, window=window, policy_hash=policy_hash(agent), detector=detector,
-                          confidence=confidence, rule=rule, reference=reference,
-                          masks=getattr(agent.estimator, "masks", None), warmup=warmup,
-                          detectors_hash=None if needed is None else needed.fingerprint(detector),
-                          samples=None if agent.estimator is None else agent.estimator.n_samples)
+                          method=agent.method, window=window, policy_hash=policy, detector=detector,
+                          confidence=confidence, rule=rule, reference=reference, masks=masks, warmup=warmup,
+                          detectors_hash=fitted, samples=samples)
     used = {"calibration": [seed, seed + episodes]}
     if reference is not None:
         used["reference"] = [seeds.REFERENCE, seeds.REFERENCE + reference_episodes]
@@ -307,12 +307,14 @@ def _keep_episodes(path: str | Path, made_by: dict[str, Any], scores: list[np.nd
     """Write the calibration episodes' ``scores`` to ``path`` whole or not at all (see ``kept``)."""
     import json
 
-    path = Path(path)
-    part = path.with_name(path.name + ".part")
-    with open(part, "wb") as out:  # (a name of our own: np.savez would add .npz to it)
-        np.savez(out, made_by=np.array(json.dumps(made_by)), scores=np.concatenate(scores),
-                 lengths=np.array([len(s) for s in scores], dtype=np.int64))
-    os.replace(part, path)
+    from oodmon.outputs import write_whole
+
+    def write(part: Path) -> None:
+        with open(part, "wb") as out:  # (a file, not a name: np.savez would add .npz to the part's name)
+            np.savez(out, made_by=np.array(json.dumps(made_by)), scores=np.concatenate(scores),
+                     lengths=np.array([len(s) for s in scores], dtype=np.int64))
+
+    write_whole(Path(path), write)
 
 
 def _warn_of_other_noise(detectors: DetectorSet | None, obs_noise: float) -> None:
