@@ -153,24 +153,32 @@ def test_a_worker_that_ends_its_own_process_is_not_said_to_be_killed(four_cores,
     assert _wait_until_dead(int((tmp_path / "slow").read_text()))
 
 
+def _workers_killed_at_step(monkeypatch, at: int = 1_200, pause: float = 0.0) -> None:
+    """CartPole's steps, as the kernel kills a worker when memory runs out: SIGKILL at each worker's
+    ``at``-th step (default: in its third episode of 500), after ``pause`` seconds; in the command's
+    process never."""
+    import signal
+
+    from oodmon.envs.physics import ShiftedCartPole
+
+    parent, step, steps = os.getpid(), ShiftedCartPole.step, []
+
+    def crashing_step(self, action):
+        steps.append(action)
+        if os.getpid() != parent and len(steps) == at:
+            time.sleep(pause)
+            os.kill(os.getpid(), signal.SIGKILL)
+        return step(self, action)
+
+    monkeypatch.setattr(ShiftedCartPole, "step", crashing_step)
+
+
 def test_a_workers_death_ends_a_command_in_one_line_with_what_it_kept(four_cores, tmp_path, capsys, monkeypatch):
     """A worker killed (here by itself at its third step, as the kernel kills one when memory runs
     out; a crash in an env's C code dies alike) ended ``calibrate --workers 2`` with the command's
     own traceback, which shows where the command waited, not where or why the worker died. Now one
     line: which worker, its signal, what to try, and what the command kept; exit code 3."""
-    import signal
-
-    from oodmon.envs.physics import ShiftedCartPole
-
-    command, step, steps = os.getpid(), ShiftedCartPole.step, []
-
-    def crashing_step(self, action):
-        steps.append(action)
-        if os.getpid() != command and len(steps) == 3:
-            os.kill(os.getpid(), signal.SIGKILL)
-        return step(self, action)
-
-    monkeypatch.setattr(ShiftedCartPole, "step", crashing_step)
+    _workers_killed_at_step(monkeypatch, at=3)
     path = tmp_path / "t.json"
     assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread",
                  "--far", "0.2", "--episodes", "11", "--workers", "2", "--out", str(path)]) == 3
@@ -188,23 +196,12 @@ def test_a_calibration_whose_worker_died_keeps_the_episodes_played_whole_and_goe
     calibration episodes that came back whole, from the first on, are kept beside --out, and the
     same command with one worker plays the rest, to the threshold of one never stopped; validate
     counts the episodes played whole, as on Ctrl-C."""
-    import signal
-
-    from oodmon.envs.physics import ShiftedCartPole
     from oodmon.monitor import Threshold
 
     command = ["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "spread", "--far", "0.2",
                "--episodes", "11"]
     assert main([*command, "--out", str(tmp_path / "whole.json")]) == 0
-    parent, step, steps = os.getpid(), ShiftedCartPole.step, []
-
-    def crashing_step(self, action):
-        steps.append(action)
-        if os.getpid() != parent and len(steps) == 1_200:  # (500 steps an episode)
-            os.kill(os.getpid(), signal.SIGKILL)
-        return step(self, action)
-
-    monkeypatch.setattr(ShiftedCartPole, "step", crashing_step)
+    _workers_killed_at_step(monkeypatch)
     path, kept = tmp_path / "t.json", tmp_path / "t.json.kept.npz"
     assert main([*command, "--workers", "2", "--out", str(path)]) == 3
     err = capsys.readouterr().err.strip().splitlines()[-1]
@@ -218,8 +215,7 @@ def test_a_calibration_whose_worker_died_keeps_the_episodes_played_whole_and_goe
     assert main([*command, "--workers", "1", "--out", str(path)]) == 0
     assert Threshold.load(path).value == Threshold.load(tmp_path / "whole.json").value and not kept.exists()
     # validate counts the episodes played whole then, as on Ctrl-C
-    steps.clear()
-    monkeypatch.setattr(ShiftedCartPole, "step", crashing_step)
+    _workers_killed_at_step(monkeypatch)
     capsys.readouterr()
     assert main(["validate", str(path), "--episodes", "20", "--workers", "2"]) == 3
     out, err = capsys.readouterr()
@@ -228,6 +224,30 @@ def test_a_calibration_whose_worker_died_keeps_the_episodes_played_whole_and_goe
     assert err.strip().splitlines()[-1].endswith(
         f"fewer --workers need less memory; the {counted.group(1)} of the 20 episodes played whole before it are "
         "counted above"), err
+
+
+def test_a_fit_whose_worker_died_keeps_the_episodes_played_whole_and_goes_on_to_the_same_detectors(
+        four_cores, tmp_path, capsys, monkeypatch):
+    """A worker killed in the third episode of `fit-detectors --workers 2`: the fitting episodes
+    that came back whole, from the first on, are kept beside --out, and the same command plays the
+    rest side by side, to the bytes of a fit never stopped."""
+    command = ["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--episodes", "12",
+               "--dynamics-updates", "40", "--workers", "2"]
+    assert main([*command, "--out", str(tmp_path / "whole")]) == 0
+    _workers_killed_at_step(monkeypatch)
+    out, kept = tmp_path / "d", tmp_path / "d.kept.npz"
+    assert main([*command, "--out", str(out)]) == 3
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    said = re.fullmatch(r"oodmon: stopped: a worker process \(pid \d+\) died while playing episodes \(killed by "
+                        r"SIGKILL\): .*; no detectors were written \(those at --out are as they were\); the (\d) "
+                        rf"detector fitting episodes played whole are kept in {re.escape(str(kept))}: the same command "
+                        "goes on from them", err)
+    assert said, err
+    assert 1 <= int(said.group(1)) <= 4 and kept.is_file()  # (each worker: 2 whole, one at a time)
+    monkeypatch.undo()
+    assert main([*command, "--out", str(out)]) == 0
+    assert all((out / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
+               for name in ("detectors.json", "detectors.safetensors")) and not kept.exists()
 
 
 def _forks_warning_as_python_3_12_does(monkeypatch) -> None:
@@ -459,21 +479,7 @@ def test_an_evaluation_whose_worker_died_prints_the_variants_evaluated_whole(fou
     """A worker killed past its first 1,000 steps (the ID env's two 500-step episodes, back by
     then; a second first, so that the other worker's variant comes back too): the table of the
     ID env and the first variants evaluated whole, as on Ctrl-C, and exit code 3."""
-    import signal
-    import time
-
-    from oodmon.envs.physics import ShiftedCartPole
-
-    parent, step, steps = os.getpid(), ShiftedCartPole.step, []
-
-    def crashing_step(self, action):
-        steps.append(action)
-        if os.getpid() != parent and len(steps) == 1_001:
-            time.sleep(1.0)
-            os.kill(os.getpid(), signal.SIGKILL)
-        return step(self, action)
-
-    monkeypatch.setattr(ShiftedCartPole, "step", crashing_step)
+    _workers_killed_at_step(monkeypatch, at=1_001, pause=1.0)
     specs = "cartpole:length=2.0,cartpole:masscart=9.0,cartpole:gravity=19.6,cartpole:force_mag=1.0"
     assert main(["evaluate", "--task", "cartpole", "--method", "ensemble", "--episodes", "2", "--variants", specs,
                  "--workers", "2"]) == 3

@@ -135,11 +135,13 @@ def _calibrate(args: argparse.Namespace) -> int:
             or other_world):
         fitted_to = Path(f"{args.out}.detectors")
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
-        with _progress() as report:
+        fitting_kept = _fitting_kept(fitted_to)
+        with _progress() as report, _kept_fitting(args, fitting_kept, "no threshold file or detectors were written"):
             detectors = fit_agent_detectors(agent, detectors=fitted_when_named(args.detector), score=args.score,
                                             episodes=args.fit_episodes, on_progress=report, workers=args.workers,
                                             dynamics_updates=args.dynamics_updates, obs_noise=args.obs_noise,
-                                            max_steps=args.max_steps)
+                                            max_steps=args.max_steps, kept=fitting_kept)
+        fitting_kept.unlink(missing_ok=True)  # fitted: an interrupted calibration fits them again
     else:
         _refuse_fit_options(args)
     kept = Path(f"{args.out}.kept.npz")  # an interrupted calibration's episodes, which the same command goes on from
@@ -382,6 +384,25 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
     fit.set_defaults(handler=_fit_detectors, kept_on_interrupt=_KEPT["fit-detectors"])
 
 
+def _fitting_kept(folder: Path) -> Path:
+    """Where a fit of detectors into ``folder``, interrupted, keeps its episodes: beside it."""
+    return folder.with_name(folder.name + ".kept.npz")
+
+
+@contextlib.contextmanager
+def _kept_fitting(args: argparse.Namespace, kept: Path, written: str):
+    """Says, where the fit inside is interrupted (Ctrl-C, SIGTERM, a worker's death), the fitting
+    episodes it kept in ``kept`` (``args.kept_on_interrupt``), after ``written``: what it did not write."""
+    try:
+        yield
+    except (KeyboardInterrupt, BrokenProcessPool) as interrupt:
+        count = getattr(interrupt, "kept_episodes", 0)
+        if count:
+            args.kept_on_interrupt = (f"{written} (those at --out are as they were); the {count:,} detector fitting "
+                                      f"episodes played whole are kept in {kept}: the same command goes on from them")
+        raise
+
+
 def _detector_names(text: str) -> tuple[str, ...]:
     """An argparse type: comma-separated detector names, each one oodmon has (said before the agent
     loads, and with the name meant where one is misspelt).
@@ -417,11 +438,13 @@ def _fit_detectors(args: argparse.Namespace) -> int:
                           "folder, or --overwrite to replace them")
     agent = _load_agent(args, seed=DETECTOR_FIT)  # seeded MC sampling: the same command fits the same detectors
     only = list(args.only) if args.only else None
-    with _progress() as report:
+    kept = _fitting_kept(out)
+    with _progress() as report, _kept_fitting(args, kept, "no detectors were written"):
         detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
                                         obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report,
-                                        workers=args.workers, dynamics_updates=args.dynamics_updates)
+                                        workers=args.workers, dynamics_updates=args.dynamics_updates, kept=kept)
     detectors.save(args.out)
+    kept.unlink(missing_ok=True)
     console = Console(soft_wrap=True)
     beside = _calibrated_beside(out)  # after the fitting: the threshold beside as it is now
     replaced = "" if not replacing else f" (replacing the set it held{beside}: calibrate that threshold again)" if beside \

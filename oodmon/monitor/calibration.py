@@ -22,6 +22,7 @@ from oodmon.agents.agent import Agent
 from oodmon.envs.checks import warn_if_endless
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.jsonfile import check_replaceable
+from oodmon.kept import KeptEpisodesWarning, read_kept, unreadable, write_kept
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, OffCalibrationWarning, policy_hash
@@ -255,9 +256,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (Ctrl-C, SIGTERM, a worker's death)
         if kept is not None:
             scores += [played for played, _ in finished_before(interrupt)]
-            if scores:
-                _keep_episodes(kept, made_by, scores)
-            interrupt.kept_episodes = len(scores)
+            interrupt.kept_episodes = _keep_episodes(kept, made_by, scores) if scores else 0
         raise
     _check_steps_to_score(scores, detector, needed)
     threshold = calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
@@ -271,50 +270,33 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                    obs_noise=float(obs_noise), max_steps=max_steps)
 
 
-class KeptEpisodesWarning(UserWarning):
-    """:func:`calibrate_agent`: a file of kept calibration episodes that another calibration made
-    (another policy, detector, seed or world) or that is no such file; it is not read."""
-
-
 def read_kept_episodes(path: str | Path, made_by: dict[str, Any]) -> list[np.ndarray]:
     """The per-step scores of the calibration episodes an interrupted :func:`calibrate_agent` kept
     in ``path`` (see its ``kept``), where a calibration ``made_by`` the same settings kept them;
     ``[]`` where there is no such file, and with a :class:`KeptEpisodesWarning` where it is one of
-    another calibration's or unreadable. Nothing in it is unpickled."""
-    import json
-
-    path = Path(path)
-    if not path.is_file():
+    another calibration's or unreadable (:func:`oodmon.kept.read_kept`). Nothing in it is unpickled."""
+    kept = read_kept(path, made_by, "calibration", stacklevel=4)
+    if not kept:
         return []
     try:
-        with np.load(path, allow_pickle=False) as kept:
-            theirs = json.loads(str(kept["made_by"]))
-            scores, lengths = kept["scores"].astype(np.float64), kept["lengths"].astype(np.int64)
-    except (OSError, ValueError, KeyError) as error:
-        warnings.warn(f"{path} holds no calibration episodes an interrupted calibration kept ({error}); it is not "
-                      "read, and is replaced", KeptEpisodesWarning, stacklevel=3)
-        return []
-    if theirs != json.loads(json.dumps(made_by)) or lengths.sum() != len(scores) or (lengths < 0).any():
-        other = sorted(k for k in made_by if theirs.get(k) != made_by[k]) if isinstance(theirs, dict) else ["all"]
-        differ = f"its {', '.join(other)} differ{'s' if len(other) == 1 else ''}" if other else "its steps do not add up"
-        warnings.warn(f"{path} holds the episodes of another calibration ({differ}); it is not read, and is replaced",
-                      KeptEpisodesWarning, stacklevel=3)
-        return []
+        scores, lengths = kept["scores"].astype(np.float64), kept["lengths"].astype(np.int64)
+    except (KeyError, ValueError) as error:
+        return unreadable(path, "calibration", f"no {error}", stacklevel=4) or []
+    if lengths.ndim != 1 or scores.ndim != 1 or lengths.sum() != len(scores) or (lengths < 0).any():
+        return unreadable(path, "calibration", "its steps do not add up", stacklevel=4) or []
     return np.split(scores, np.cumsum(lengths)[:-1]) if len(lengths) else []
 
 
-def _keep_episodes(path: str | Path, made_by: dict[str, Any], scores: list[np.ndarray]) -> None:
-    """Write the calibration episodes' ``scores`` to ``path`` whole or not at all (see ``kept``)."""
-    import json
-
-    from oodmon.outputs import write_whole
-
-    def write(part: Path) -> None:
-        with open(part, "wb") as out:  # (a file, not a name: np.savez would add .npz to the part's name)
-            np.savez(out, made_by=np.array(json.dumps(made_by)), scores=np.concatenate(scores),
-                     lengths=np.array([len(s) for s in scores], dtype=np.int64))
-
-    write_whole(Path(path), write)
+def _keep_episodes(path: str | Path, made_by: dict[str, Any], scores: list[np.ndarray]) -> int:
+    """Write the calibration episodes' ``scores`` to ``path`` whole or not at all (see ``kept``);
+    how many were kept: 0 where the disk is full (said in a warning: the interrupt goes on as one)."""
+    try:
+        write_kept(path, made_by, {"scores": np.concatenate(scores),
+                                   "lengths": np.array([len(s) for s in scores], dtype=np.int64)})
+    except OSError as error:
+        warnings.warn(f"the {len(scores):,} calibration episodes played whole are not kept: {error}", stacklevel=4)
+        return 0
+    return len(scores)
 
 
 def _warn_of_other_noise(detectors: DetectorSet | None, obs_noise: float) -> None:

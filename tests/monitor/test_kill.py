@@ -504,3 +504,129 @@ def test_a_kept_episodes_file_that_is_no_such_file_is_not_read_and_runs_no_code(
             assert read_kept_episodes(tmp_path / f"{name}.npz", made_by) == []
     np.savez(tmp_path / "good.npz", made_by=np.array(json.dumps(made_by)), scores=np.arange(5.0), lengths=[2, 3])
     assert [list(s) for s in read_kept_episodes(tmp_path / "good.npz", made_by)] == [[0.0, 1.0], [2.0, 3.0, 4.0]]
+
+
+FIT = ["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--episodes", "12", "--dynamics-updates", "40"]
+
+
+def _fitted_files(folder) -> tuple[bytes, bytes]:
+    return (folder / "detectors.json").read_bytes(), (folder / "detectors.safetensors").read_bytes()
+
+
+def _counting_steps(monkeypatch, interrupt_at: int | None = None) -> list[int]:
+    """The fitting's env steps counted (by the seed of their episode), and Ctrl-C at step ``interrupt_at``."""
+    import oodmon.monitor.detectors.fitting as fitting
+
+    step, seeds = fitting.step_naming_refusal, []
+
+    def counted(env, action, **where):
+        seeds.append(where["seed"])
+        if len(seeds) == interrupt_at:
+            raise KeyboardInterrupt
+        return step(env, action, **where)
+
+    monkeypatch.setattr(fitting, "step_naming_refusal", counted)
+    return seeds
+
+
+def test_an_interrupted_fit_keeps_its_episodes_and_the_same_command_fits_the_same_detectors(
+        tmp_path, monkeypatch, capsys):
+    """Ctrl-C in `fit-detectors` (and in `calibrate`'s fitting) kept nothing before 2026-12-05:
+    the fitting episodes played whole are now kept beside --out, and the same command plays only
+    the rest, to the bytes of an uninterrupted fit; the file is then removed. Interrupted in the
+    fit itself, every episode is kept and none is played again."""
+    from oodmon.cli import main
+    from oodmon.monitor.detectors.dynamics import DynamicsDetector
+    from oodmon.seeds import DETECTOR_FIT
+
+    assert main([*FIT, "--out", str(tmp_path / "whole")]) == 0
+    whole = _fitted_files(tmp_path / "whole")
+    out, kept = tmp_path / "d", tmp_path / "d.kept.npz"
+    _counting_steps(monkeypatch, interrupt_at=5 * 500 + 40)  # (every ID episode lasts 500 steps): in episode 5
+    capsys.readouterr()
+    assert main([*FIT, "--out", str(out)]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"oodmon: interrupted; no detectors were written (those at --out are as they were); the 5 detector fitting "
+        f"episodes played whole are kept in {kept}: the same command goes on from them")
+    assert kept.is_file() and not (out / "detectors.json").exists()
+    monkeypatch.undo()
+    played = _counting_steps(monkeypatch)
+    assert main([*FIT, "--out", str(out)]) == 0
+    assert "kept detector fitting episodes: 5/5 episodes" in capsys.readouterr().err
+    assert sorted(set(played)) == [DETECTOR_FIT + episode for episode in range(5, 12)]  # the rest only
+    assert _fitted_files(out) == whole and not kept.exists()
+
+    # Ctrl-C in the dynamics model's fit: all 12 episodes kept, none played again
+    fit = DynamicsDetector.fit
+
+    def interrupted_fit(self, *args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(DynamicsDetector, "fit", interrupted_fit)
+    other = tmp_path / "e"
+    assert main([*FIT, "--out", str(other)]) == 130
+    assert "the 12 detector fitting episodes played whole are kept in" in capsys.readouterr().err
+    monkeypatch.setattr(DynamicsDetector, "fit", fit)
+    played.clear()
+    assert main([*FIT, "--out", str(other)]) == 0
+    assert played == [] and _fitted_files(other) == whole and not (tmp_path / "e.kept.npz").exists()
+
+
+def test_kept_fitting_episodes_read_back_field_for_field_and_another_fits_are_not_read(tmp_path, monkeypatch):
+    """Every field of the episodes (the estimates the held-out ones keep, an MC agent's samples and
+    features among them) reads back as it was kept; a file of another fit, a damaged one or one of
+    Python objects is not read, and episodes too large to keep are said, not written."""
+    import dataclasses
+
+    import oodmon.monitor.detectors.fitting as fitting
+    from oodmon.agents import load
+    from oodmon.kept import KeptEpisodesWarning
+
+    agent = load("cartpole", "dropout")
+    env = agent.make_env()
+    played = fitting.collect(agent, env, 3, max_steps=25, estimates_from=1, with_member_values=False)
+    made_by = {"policy": "p", "seed": 1}
+    path = tmp_path / "kept.npz"
+    assert fitting._keep_trajectories(path, made_by, played) == 3
+    back = fitting.read_kept_trajectories(path, made_by)
+    assert len(back) == 3 and back[0].estimates is None and len(back[2].estimates) == len(played[2]) == 25
+    for ours, theirs in zip(played, back):
+        for field in fitting._FIELDS:
+            mine, read = getattr(ours, field), getattr(theirs, field)
+            assert (mine is None and read is None) or (np.array_equal(mine, read) and mine.dtype == read.dtype), field
+        for mine, read in zip(ours.estimates or (), theirs.estimates or ()):
+            for field in dataclasses.fields(mine):
+                a, b = getattr(mine, field.name), getattr(read, field.name)
+                assert (a is None and b is None) or (np.array_equal(a, b) and a.shape == b.shape), field.name
+    assert back[2].estimates[3].features is not None  # (kept once, in the trajectory's features)
+
+    with pytest.warns(KeptEpisodesWarning, match=r"holds the episodes of another fitting \(its seed differs\)"):
+        assert fitting.read_kept_trajectories(path, {"policy": "p", "seed": 2}) == []
+    np.savez(tmp_path / "short.npz", made_by=np.array(json.dumps(made_by)), episodes=np.array(2),
+             **{"0.observations": np.zeros((3, 4)), "0.actions": np.zeros(2, dtype=np.int64)})
+    with pytest.warns(KeptEpisodesWarning, match=r"holds no fitting episodes an interrupted fitting kept \(KeyError"):
+        assert fitting.read_kept_trajectories(tmp_path / "short.npz", made_by) == []
+    odd = [dataclasses.replace(played[0], observations=np.array([{"x": 1}] * 26, dtype=object))]
+    with pytest.warns(UserWarning, match=r"the 1 detector fitting episodes played whole are not kept: 0.observations "
+                                         r"holds Python objects"):
+        assert fitting._keep_trajectories(tmp_path / "odd.npz", made_by, odd) == 0
+    monkeypatch.setattr(fitting, "KEEP_AT_MOST", 1000)
+    with pytest.warns(UserWarning, match=r"not kept: 0.0 GB, more than oodmon keeps on an interrupt"):
+        assert fitting._keep_trajectories(tmp_path / "big.npz", made_by, played) == 0
+    assert not (tmp_path / "odd.npz").exists() and not (tmp_path / "big.npz").exists()
+
+    # a full disk when Ctrl-C came: said, nothing kept, and the interrupt goes on as one (calibrate's too)
+    import oodmon.kept
+    import oodmon.monitor.calibration as calibration
+
+    monkeypatch.undo()  # (KEEP_AT_MOST)
+
+    def full(path, *_):
+        raise OSError(28, f"could not write {path}: No space left on device")
+
+    monkeypatch.setattr(oodmon.kept, "write_kept", full)
+    monkeypatch.setattr(calibration, "write_kept", full)
+    with pytest.warns(UserWarning, match=r"the 3 detector fitting episodes played whole are not kept: .*No space left"):
+        assert fitting._keep_trajectories(tmp_path / "full.npz", made_by, played) == 0
+    with pytest.warns(UserWarning, match=r"the 2 calibration episodes played whole are not kept: .*No space left"):
+        assert calibration._keep_episodes(tmp_path / "full.npz", made_by, [np.ones(3), np.ones(2)]) == 0

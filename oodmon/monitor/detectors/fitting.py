@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -37,13 +38,14 @@ from oodmon.monitor.scores import DEFAULT_SCORE
 from oodmon.names import fixed_masks
 from oodmon.progress import Progress
 from oodmon.seeds import DETECTOR_FIT, check_seed
-from oodmon.side_by_side import play_side_by_side, resolve_workers, stream_per_episode
+from oodmon.side_by_side import finished_before, play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import check_max_steps, is_whole
 from oodmon.versions import machine
 
-__all__ = ["BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "best_detector",
-           "collect", "default_detectors", "default_fit_steps", "detectors_for", "discrete_states", "fit_agent_detectors",
-           "fitting_notes", "fit_detectors", "policy_parts", "trajectory_scores"]
+__all__ = ["BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "KEEP_AT_MOST",
+           "best_detector", "collect", "default_detectors", "default_fit_steps", "detectors_for", "discrete_states",
+           "fit_agent_detectors", "fitting_notes", "fit_detectors", "policy_parts", "read_kept_trajectories",
+           "trajectory_scores"]
 
 #: ID episodes the learned detectors are fitted on by default: two thirds fit, one third ranks.
 #: 90 since 2026-11-24 (30 before): on the monitor's own benchmark (same agents and episodes) the
@@ -170,12 +172,16 @@ def policy_parts(policy: Any) -> tuple[Any, Callable[[np.ndarray], Any], dict]:
 def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETECTOR_FIT,
             on_progress: Progress | None = None, max_steps: int | None = None,
             with_member_values: bool = False, estimates_from: int | None = None,
-            min_steps: int = 0, workers: int = 1) -> list[Trajectory]:
+            min_steps: int = 0, workers: int = 1, done: Sequence[Trajectory] = ()) -> list[Trajectory]:
     """Play ``episodes`` episodes of ``env`` (seeds ``seed``, ``seed + 1``, ...) with ``policy``
     (each cut after ``max_steps`` steps if given), and more until they hold ``min_steps`` steps;
     ``with_member_values``: keep an ensemble's members' values too (what ``scaled_spread`` is
     fitted on); ``estimates_from``: keep each step's estimate (``Trajectory.estimates``) in the
-    episodes from this index on.
+    episodes from this index on. ``done``: the first episodes, played already (kept by an
+    interrupted collection): the episodes after them are played.
+
+    Interrupted (Ctrl-C, SIGTERM, a worker's death), the exception carries every episode played
+    whole from the first on, ``done`` among them (:func:`~oodmon.side_by_side.finished_before`).
 
     ``workers``: processes that play them side by side (0: one per core), each with its copy of
     ``policy`` and ``env`` (:mod:`oodmon.side_by_side`, which says what an MC policy draws there),
@@ -240,46 +246,138 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
                           acted_on, pictures, tuple(estimates) if keep else None)
 
     if workers > 1:
-        return _collect_side_by_side(play_episode, estimator, episodes, seed, workers, min_steps, on_progress)
-    trajectories, steps, episode = [], 0, 0
-    while episode < episodes or steps < min_steps:
-        trajectories.append(play_episode(episode))
-        steps += len(trajectories[-1])
-        episode += 1
-        if on_progress is not None and episode <= episodes:
-            on_progress("detector fitting episodes", episode, episodes)
-        elif on_progress is not None:  # on past the episodes asked, for the steps asked
-            on_progress("detector fitting steps", min(steps, min_steps), min_steps)
+        return _collect_side_by_side(play_episode, estimator, episodes, seed, workers, min_steps, on_progress, done)
+    trajectories = list(done)
+    steps, episode = sum(len(t) for t in trajectories), len(trajectories)
+    try:
+        while episode < episodes or steps < min_steps:
+            trajectories.append(play_episode(episode))
+            steps += len(trajectories[-1])
+            episode += 1
+            if on_progress is not None and episode <= episodes:
+                on_progress("detector fitting episodes", episode, episodes)
+            elif on_progress is not None:  # on past the episodes asked, for the steps asked
+                on_progress("detector fitting steps", min(steps, min_steps), min_steps)
+    except KeyboardInterrupt as interrupt:
+        interrupt.finished = trajectories
+        raise
     return trajectories
 
 
 def _collect_side_by_side(play_episode: Callable[[int], Trajectory], estimator: Any, episodes: int, seed: int,
-                          workers: int, min_steps: int, on_progress: Progress | None) -> list[Trajectory]:
-    """:func:`collect`'s episodes played by ``workers`` processes (``play_episode(i)``: episode ``i``)."""
+                          workers: int, min_steps: int, on_progress: Progress | None,
+                          done: Sequence[Trajectory] = ()) -> list[Trajectory]:
+    """:func:`collect`'s episodes played by ``workers`` processes (``play_episode(i)``: episode
+    ``i``), after those ``done`` already. Each episode draws from a stream of its own, so that those
+    after ``done`` are those an uninterrupted collection plays."""
     start = stream_per_episode(estimator, workers)
 
-    def play(first: int, count: int, done: Callable[[], None]) -> list[Trajectory]:
+    def play(first: int, count: int, finished: Callable[[], None]) -> list[Trajectory]:
         played = []
         for episode in range(first, first + count):
             start(seed + episode)
             played.append(play_episode(episode))
-            done()
+            finished()
         return played
 
-    # One episode a run: each comes back as it ends (a Pong game's frames: about 70 MB).
-    trajectories = play_side_by_side(play, episodes, workers, "detector fitting episodes", on_progress, run_size=1)
-    steps = sum(len(t) for t in trajectories)
-    while steps < min_steps:
-        more = max(workers, math.ceil((min_steps - steps) * len(trajectories) / max(steps, 1)))
+    def play_more(count: int, stage: str) -> list[Trajectory]:
         offset = len(trajectories)
-        trajectories += play_side_by_side(lambda first, count, done: play(offset + first, count, done), more, workers,
-                                          "detector fitting episodes, more for the steps", on_progress, run_size=1)
+        # One episode a run: each comes back as it ends (a Pong game's frames: about 70 MB).
+        return play_side_by_side(lambda first, n, finished: play(offset + first, n, finished), count, workers, stage,
+                                 on_progress, run_size=1)
+
+    trajectories = list(done)
+    try:
+        if len(trajectories) < episodes:
+            trajectories += play_more(episodes - len(trajectories), "detector fitting episodes")
         steps = sum(len(t) for t in trajectories)
-        if on_progress is not None:
-            on_progress("detector fitting steps", min(steps, min_steps), min_steps)
+        while steps < min_steps:
+            more = max(workers, math.ceil((min_steps - steps) * len(trajectories) / max(steps, 1)))
+            trajectories += play_more(more, "detector fitting episodes, more for the steps")
+            steps = sum(len(t) for t in trajectories)
+            if on_progress is not None:
+                on_progress("detector fitting steps", min(steps, min_steps), min_steps)
+    except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # those of the runs before, then this one's
+        interrupt.finished = trajectories + finished_before(interrupt)
+        raise
     if min_steps:  # as one process: on past the episodes asked only until they hold the steps
         held = np.cumsum([len(t) for t in trajectories])
         trajectories = trajectories[:max(episodes, int(np.searchsorted(held, min_steps)) + 1)]
+    return trajectories
+
+
+#: The most bytes of episodes an interrupted fit keeps (:func:`fit_detectors`' ``kept``): an Acrobot
+#: PPO's 409 episodes hold under 2 MB, the CartPole ensemble's 90 with its features 48 MB (written
+#: in a fraction of a second); a Pong game's frames about 70 MB, whose 90 games (6 GB) would take a
+#: while to write when Ctrl-C asks to stop.
+KEEP_AT_MOST = 1 << 30
+
+_FIELDS = ("observations", "actions", "features", "member_values", "acted_on", "pictures")
+
+
+def _keep_trajectories(path: str | Path, made_by: dict[str, Any], trajectories: Sequence[Trajectory]) -> int:
+    """Write the episodes ``trajectories`` to ``path`` (see :func:`fit_detectors`' ``kept``), each
+    field of each as an array of its own (``"3.observations"``, ``"3.estimates.samples"``: episode 3's),
+    whole or not at all; how many were kept: 0 where there were none, or they hold Python objects or
+    more than :data:`KEEP_AT_MOST` bytes, or the disk is full (said in a warning)."""
+    import warnings
+
+    from oodmon.agents.estimators import Estimate
+    from oodmon.kept import write_kept
+
+    if not trajectories:
+        return 0
+    arrays: dict[str, np.ndarray] = {"episodes": np.array(len(trajectories))}
+    for i, trajectory in enumerate(trajectories):
+        arrays |= {f"{i}.{name}": np.asarray(getattr(trajectory, name)) for name in _FIELDS
+                   if getattr(trajectory, name) is not None}
+        if trajectory.estimates is not None:
+            arrays[f"{i}.estimates"] = np.array(len(trajectory.estimates))
+            for name in Estimate.__dataclass_fields__:
+                values = [getattr(e, name) for e in trajectory.estimates]
+                if name == "features" and trajectory.features is not None:
+                    continue  # the trajectory's own, step for step (read back from them)
+                if values and values[0] is not None:
+                    arrays[f"{i}.estimates.{name}"] = np.stack(values)
+    size = sum(array.nbytes for array in arrays.values())
+    try:
+        if size > KEEP_AT_MOST:
+            raise ValueError(f"{size / 1e9:.1f} GB, more than oodmon keeps on an interrupt")
+        write_kept(path, made_by, arrays)
+    except (ValueError, OSError) as error:  # (a full disk: said, and the interrupt goes on as one)
+        warnings.warn(f"the {len(trajectories):,} detector fitting episodes played whole are not kept: {error}",
+                      stacklevel=4)
+        return 0
+    return len(trajectories)
+
+
+def read_kept_trajectories(path: str | Path, made_by: dict[str, Any]) -> list[Trajectory]:
+    """The episodes an interrupted :func:`fit_detectors` kept in ``path`` (see its ``kept``), where a
+    fit ``made_by`` the same settings kept them; ``[]`` where there is no such file, and with a
+    :class:`~oodmon.kept.KeptEpisodesWarning` where it is another fit's or unreadable. Nothing in
+    it is unpickled."""
+    from oodmon.agents.estimators import Estimate
+    from oodmon.kept import read_kept, unreadable
+
+    arrays = read_kept(path, made_by, "fitting", stacklevel=4)
+    if not arrays:
+        return []
+    trajectories = []
+    try:
+        for i in range(int(arrays["episodes"])):
+            estimates = None
+            if f"{i}.estimates" in arrays:
+                fields = {name: arrays.get(f"{i}.estimates.{name}") for name in Estimate.__dataclass_fields__}
+                if fields["features"] is None and f"{i}.features" in arrays:  # (kept once: see _keep_trajectories)
+                    fields["features"] = arrays[f"{i}.features"][:, None]
+                estimates = tuple(Estimate(**{name: None if values is None else values[t]
+                                              for name, values in fields.items()})
+                                  for t in range(int(arrays[f"{i}.estimates"])))
+            required = {name: arrays[f"{i}.{name}"] for name in ("observations", "actions")}
+            trajectories.append(Trajectory(**{name: arrays.get(f"{i}.{name}") for name in _FIELDS} | required,
+                                           estimates=estimates))
+    except (KeyError, ValueError, TypeError, IndexError, ConfigError) as error:
+        return unreadable(path, "fitting", f"{type(error).__name__}: {error}", stacklevel=4) or []
     return trajectories
 
 
@@ -362,7 +460,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
                   episodes: int = DEFAULT_FIT_EPISODES, seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE,
                   task: str | None = None, policy_hash: str | None = None, obs_noise: float = 0.0,
                   on_progress: Progress | None = None, max_steps: int | None = None,
-                  min_steps: int = 0, workers: int = 1, dynamics_updates: int | None = MAX_UPDATES) -> DetectorSet:
+                  min_steps: int = 0, workers: int = 1, dynamics_updates: int | None = MAX_UPDATES,
+                  kept: str | Path | None = None) -> DetectorSet:
     """Fit the named detectors (default: :func:`default_detectors`) for ``policy`` on
     ``episodes`` ID episodes of ``env`` (each cut after ``max_steps`` steps if given), and more
     until they hold ``min_steps`` steps (two thirds of them fit, one third ranks).
@@ -388,6 +487,17 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     the fitting itself runs here. A policy that draws nothing when it decides gets the same
     detectors from any number; an MC policy's episodes draw from streams of their own there
     (:mod:`oodmon.side_by_side`), and ``fitted_for["workers"]`` records how many played them.
+
+    ``kept``: a file (``.npz``) where an interrupted fit (Ctrl-C, SIGTERM, or a worker's death)
+    keeps the episodes it played whole, and from which a fit of the same policy, detectors, seed,
+    episodes and world goes on: it plays only the episodes after them (none where the fit itself
+    was interrupted). The ``KeyboardInterrupt`` (``BrokenProcessPool``) then carries their number
+    in ``.kept_episodes`` (0 where none could be kept: episodes of Python objects, more than
+    :data:`KEEP_AT_MOST` bytes, a dozen Pong games, or a full disk; a warning says why). A file
+    made otherwise is not read (:class:`~oodmon.kept.KeptEpisodesWarning`; give ``policy_hash``
+    for it to tell policies apart). The caller removes it once the detectors are saved. The detectors are the uninterrupted fit's where the policy draws nothing when it
+    decides, or plays side by side; an MC policy in one process draws on from where its resumed
+    process starts (the episodes after the kept ones as fresh, not the same draws).
 
     Raises:
         InvalidParameterError: an unknown detector name or fewer than 3 episodes.
@@ -420,10 +530,35 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     # Played on for min_steps, the episodes are not known beforehand: all keep theirs, the fit
     # part's dropped after.
     keep_from = max(1, (2 * episodes) // 3) if not min_steps else 0
-    trajectories = collect(policy, env, episodes, seed=seed, on_progress=on_progress, max_steps=max_steps,
-                           with_member_values="scaled_spread" in detectors,
-                           estimates_from=keep_from if "combined" in detectors else None, min_steps=min_steps,
-                           workers=workers)
+    made_by = None if kept is None else {
+        "policy": policy_hash, "task": task, "env": getattr(env.spec, "id", None), "detectors": list(detectors),
+        "episodes": episodes, "min_steps": min_steps, "seed": seed, "obs_noise": float(obs_noise),
+        "max_steps": max_steps, "masks": getattr(estimator, "masks", None),
+        "samples": None if estimator is None else estimator.n_samples}
+    done = [] if kept is None else read_kept_trajectories(kept, made_by)
+    if done and on_progress is not None:
+        on_progress("kept detector fitting episodes", len(done), len(done))  # (an interrupted fit's)
+    trajectories = done
+    try:
+        trajectories = collect(policy, env, episodes, seed=seed, on_progress=on_progress, max_steps=max_steps,
+                               with_member_values="scaled_spread" in detectors,
+                               estimates_from=keep_from if "combined" in detectors else None, min_steps=min_steps,
+                               workers=workers, done=done)
+        return _fitted(trajectories, detectors, policy, task, score, n_actions, seed, dynamics_updates, on_progress,
+                       policy_hash=policy_hash, obs_noise=obs_noise, workers=workers, max_steps=max_steps)
+    except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (Ctrl-C, SIGTERM, a worker's death)
+        if kept is not None:
+            # in the episodes: those played whole; in the fit itself: every one
+            played = finished_before(interrupt) if hasattr(interrupt, "finished") else trajectories
+            interrupt.kept_episodes = _keep_trajectories(kept, made_by, played)
+        raise
+
+
+def _fitted(trajectories: list[Trajectory], detectors: Sequence[str], policy: Any, task: str | None, score: str,
+            n_actions: int | None, seed: int, dynamics_updates: int | None, on_progress: Progress | None, *,
+            policy_hash: str | None, obs_noise: float, workers: int, max_steps: int | None) -> DetectorSet:
+    """:func:`fit_detectors`' set, fitted on the episodes ``trajectories`` it played."""
+    estimator = policy_parts(policy)[0]
     n_fit = max(1, (2 * len(trajectories)) // 3)
     fit, held_out = [replace(t, estimates=None) for t in trajectories[:n_fit]], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []
@@ -547,11 +682,13 @@ def has_members(estimator: Any) -> bool:
 def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, episodes: int | None = None,
                         seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE, obs_noise: float = 0.0,
                         max_steps: int | None = None, on_progress: Progress | None = None,
-                        workers: int = 1, dynamics_updates: int | None = MAX_UPDATES) -> DetectorSet:
+                        workers: int = 1, dynamics_updates: int | None = MAX_UPDATES,
+                        kept: str | Path | None = None) -> DetectorSet:
     """:func:`fit_detectors` for an oodmon agent in its task's ID env (with ``obs_noise``), on
     ``episodes`` episodes; ``None``: :data:`DEFAULT_FIT_EPISODES`, and for an env oodmon has no
     variants of as many more as hold :data:`DEFAULT_FIT_STEPS` steps (:func:`default_fit_steps`);
-    ``workers`` processes play them side by side; ``dynamics_updates`` as :func:`fit_detectors` takes it.
+    ``workers`` processes play them side by side; ``dynamics_updates`` and ``kept`` (the episodes
+    an interrupted fit keeps) as :func:`fit_detectors` takes them.
     ``max_steps``: each episode's time limit instead of the env's own, shorter (Pong's games) or
     longer (a deployment's runs, as ``calibrate --max-steps`` plays them)."""
     from oodmon.monitor.monitor import policy_hash
@@ -563,7 +700,7 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
                              score=score, task=agent.task, policy_hash=policy_hash(agent), obs_noise=obs_noise,
                              on_progress=on_progress, max_steps=max_steps,
                              min_steps=default_fit_steps(agent.task) if episodes is None else 0, workers=workers,
-                             dynamics_updates=dynamics_updates)
+                             dynamics_updates=dynamics_updates, kept=kept)
     finally:
         env.close()
 

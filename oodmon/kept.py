@@ -1,0 +1,77 @@
+"""The files where an interrupted command keeps the episodes it played whole, and from which the
+same command goes on.
+
+``calibrate`` keeps its calibration episodes' scores (:func:`oodmon.monitor.calibrate_agent`'s
+``kept``), the detectors' fitting its fitting episodes (:func:`oodmon.monitor.detectors.fit_detectors`'s
+``kept``). A file is a ``.npz`` of arrays beside ``made_by``, the settings that made them (as JSON):
+a command of other settings does not read it. Nothing in it is unpickled.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["KeptEpisodesWarning", "read_kept", "write_kept"]
+
+
+class KeptEpisodesWarning(UserWarning):
+    """A file of kept episodes that another command made (another policy, detector, seed or world),
+    or that is no such file: it is not read, and is replaced if this command is interrupted too."""
+
+
+def read_kept(path: str | Path, made_by: dict[str, Any], kind: str, *, stacklevel: int = 3) -> dict[str, np.ndarray]:
+    """The arrays an interrupted ``kind`` (``"calibration"``, ``"fitting"``) kept in ``path`` (all but
+    ``made_by``), where it was ``made_by`` the same settings; ``{}`` where there is no such file, and
+    with a :class:`KeptEpisodesWarning` where it is another's or unreadable (a pickled object in it:
+    numpy's ``allow_pickle=False`` refuses it)."""
+    path = Path(path)
+    if not path.is_file():
+        return {}
+    try:
+        with np.load(path, allow_pickle=False) as kept:
+            theirs = json.loads(str(kept["made_by"]))
+            arrays = {name: kept[name] for name in kept.files if name != "made_by"}
+    except (OSError, ValueError, KeyError, EOFError) as error:
+        warnings.warn(f"{path} holds no {kind} episodes an interrupted {kind} kept ({error}); it is not read, and is "
+                      "replaced", KeptEpisodesWarning, stacklevel=stacklevel)
+        return {}
+    if theirs != json.loads(json.dumps(made_by)):
+        other = sorted(k for k in made_by if theirs.get(k) != made_by[k]) if isinstance(theirs, dict) else ["all"]
+        differ = f"its {', '.join(other) or 'settings'} differ{'s' if len(other) == 1 else ''}"
+        warnings.warn(f"{path} holds the episodes of another {kind} ({differ}); it is not read, and is replaced",
+                      KeptEpisodesWarning, stacklevel=stacklevel)
+        return {}
+    return arrays
+
+
+def unreadable(path: str | Path, kind: str, why: str, *, stacklevel: int = 3) -> dict:
+    """``{}``, with the warning :func:`read_kept` gives a file that is no such file (``why``): for a
+    caller whose arrays do not add up."""
+    warnings.warn(f"{path} holds no {kind} episodes an interrupted {kind} kept ({why}); it is not read, and is "
+                  "replaced", KeptEpisodesWarning, stacklevel=stacklevel)
+    return {}
+
+
+def write_kept(path: str | Path, made_by: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+    """Write ``arrays`` and ``made_by`` to ``path`` whole or not at all
+    (:func:`oodmon.outputs.write_whole`), uncompressed: written in the moment Ctrl-C leaves.
+
+    Raises:
+        ValueError: an array of Python objects (numpy would pickle it, and it is not read back).
+    """
+    from oodmon.outputs import write_whole
+
+    objects = sorted(name for name, array in arrays.items() if np.asarray(array).dtype.hasobject)
+    if objects:
+        raise ValueError(f"{objects[0]} holds Python objects, which oodmon does not keep")
+
+    def write(part: Path) -> None:
+        with open(part, "wb") as out:  # (a file, not a name: np.savez would add .npz to the part's name)
+            np.savez(out, made_by=np.array(json.dumps(made_by)), **arrays)
+
+    write_whole(Path(path), write)
