@@ -2,9 +2,10 @@
 same command goes on.
 
 ``calibrate`` keeps its calibration episodes' scores (:func:`oodmon.monitor.calibrate_agent`'s
-``kept``), the detectors' fitting its fitting episodes (:func:`oodmon.monitor.detectors.fit_detectors`'s
-``kept``). A file is a ``.npz`` of arrays beside ``made_by``, the settings that made them (as JSON):
-a command of other settings does not read it. Nothing in it is unpickled.
+``kept``), and the detectors it fitted before them (:func:`keep_detectors`); the detectors' fitting
+its fitting episodes (:func:`oodmon.monitor.detectors.fit_detectors`'s ``kept``). A file is a
+``.npz`` of arrays beside ``made_by``, the settings that made them (as JSON): a command of other
+settings does not read it. Nothing in it is unpickled.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["KeptEpisodesWarning", "read_kept", "write_kept"]
+__all__ = ["KeptEpisodesWarning", "keep_detectors", "read_kept", "read_kept_detectors", "unreadable", "write_kept"]
 
 
 class KeptEpisodesWarning(UserWarning):
@@ -75,3 +76,47 @@ def write_kept(path: str | Path, made_by: dict[str, Any], arrays: dict[str, np.n
             np.savez(out, made_by=np.array(json.dumps(made_by)), **arrays)
 
     write_whole(Path(path), write)
+
+
+def keep_detectors(folder: str | Path, made_by: dict[str, Any], detectors: Any) -> bool:
+    """Write the fitted ``detectors`` (a :class:`~oodmon.monitor.detectors.DetectorSet`) into
+    ``folder`` beside ``kept.json`` (``made_by``): what ``calibrate`` fitted before its calibration
+    stopped, which the same command reads instead of fitting again. Whether they were written (a
+    full disk: said in a warning, the interrupt goes on as one)."""
+    from oodmon.outputs import write_whole
+
+    folder = Path(folder)
+    try:
+        detectors.save(folder)
+        write_whole(folder / "kept.json", lambda part: part.write_text(json.dumps(made_by)))
+    except OSError as error:
+        warnings.warn(f"the detectors fitted before the calibration are not kept: {error}", stacklevel=3)
+        return False
+    return True
+
+
+def read_kept_detectors(folder: str | Path, made_by: dict[str, Any]) -> Any:
+    """The detectors :func:`keep_detectors` kept in ``folder`` where the same settings ``made_by``
+    fitted them, else ``None``: no such folder, or (with a :class:`KeptEpisodesWarning`) another
+    fit's or a damaged one. Read as every fitted set is read: tensors and JSON."""
+    from oodmon.errors import ConfigError
+    from oodmon.jsonfile import read_json
+    from oodmon.monitor.detectors import DetectorSet
+
+    folder = Path(folder)
+    if not (folder / "kept.json").is_file():
+        return None
+    try:
+        theirs = read_json(folder / "kept.json")
+        detectors = DetectorSet.load(folder)
+    except (ConfigError, OSError) as error:
+        warnings.warn(f"{folder} holds no detectors an interrupted calibration kept ({error}); it is not read, and is "
+                      "replaced", KeptEpisodesWarning, stacklevel=3)
+        return None
+    if theirs != json.loads(json.dumps(made_by)):
+        other = sorted(k for k in made_by if theirs.get(k) != made_by[k]) if isinstance(theirs, dict) else ["all"]
+        warnings.warn(f"{folder} holds the detectors of another fit (its {', '.join(other) or 'settings'} "
+                      f"differ{'s' if len(other) == 1 else ''}); it is not read, and is replaced", KeptEpisodesWarning,
+                      stacklevel=3)
+        return None
+    return detectors

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import shutil
+import sys
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
@@ -105,6 +107,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     from oodmon.monitor.detectors import (
         BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors, fitting_notes,
     )
+    from oodmon.kept import keep_detectors, read_kept_detectors
     from oodmon.monitor.detectors.fitting import check_can_have, fitted_when_named
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file, replaced_file
@@ -135,13 +138,20 @@ def _calibrate(args: argparse.Namespace) -> int:
             or other_world):
         fitted_to = Path(f"{args.out}.detectors")
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
-        fitting_kept = _fitting_kept(fitted_to)
-        with _progress() as report, _kept_fitting(args, fitting_kept, "no threshold file or detectors were written"):
-            detectors = fit_agent_detectors(agent, detectors=fitted_when_named(args.detector), score=args.score,
-                                            episodes=args.fit_episodes, on_progress=report, workers=args.workers,
-                                            dynamics_updates=args.dynamics_updates, obs_noise=args.obs_noise,
-                                            max_steps=args.max_steps, kept=fitting_kept)
-        fitting_kept.unlink(missing_ok=True)  # fitted: an interrupted calibration fits them again
+        # the set fitted, kept where the calibration after it stopped: read instead of fitting again
+        fitted_kept, fit_key = fitted_to.with_name(fitted_to.name + ".kept"), _fit_key(args, agent)
+        detectors = read_kept_detectors(fitted_kept, fit_key)
+        if detectors is None:
+            fitting_kept, unwritten = _fitting_kept(fitted_to), "no threshold file or detectors were written"
+            with _progress() as report, _kept_fitting(args, fitting_kept, unwritten):
+                detectors = fit_agent_detectors(agent, detectors=fitted_when_named(args.detector), score=args.score,
+                                                episodes=args.fit_episodes, on_progress=report, workers=args.workers,
+                                                dynamics_updates=args.dynamics_updates, obs_noise=args.obs_noise,
+                                                max_steps=args.max_steps, kept=fitting_kept)
+            fitting_kept.unlink(missing_ok=True)
+        else:
+            print(f"kept detectors: {', '.join(detectors.names)}, fitted before an interrupted calibration "
+                  f"({fitted_kept})", file=sys.stderr)
     else:
         _refuse_fit_options(args)
     kept = Path(f"{args.out}.kept.npz")  # an interrupted calibration's episodes, which the same command goes on from
@@ -155,16 +165,22 @@ def _calibrate(args: argparse.Namespace) -> int:
                                         on_progress=report, workers=args.workers, obs_noise=args.obs_noise,
                                         max_steps=args.max_steps, kept=kept)
     except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (a worker's death too: killed for memory)
-        if getattr(interrupt, "kept_episodes", 0):
-            args.kept_on_interrupt = (
-                f"no threshold file was written (those at --out are as they were); the {interrupt.kept_episodes:,} of "
-                f"the {args.episodes:,} calibration episodes played whole are kept in {kept}: the same command goes "
-                "on from them" + (" (and fits the detectors again first)" if fitted_to else ""))
+        played = getattr(interrupt, "kept_episodes", 0)
+        what = [f"the {played:,} of the {args.episodes:,} calibration episodes played whole are kept in {kept}"
+                ] if played else []
+        if fitted_to is not None and keep_detectors(fitted_kept, fit_key, detectors):
+            what.append(f"the detectors it fitted are kept in {fitted_kept}")
+        if what:
+            args.kept_on_interrupt = (f"no threshold file {'or detectors were' if fitted_to else 'was'} written (those "
+                                      f"at --out are as they were); {', and '.join(what)}: the same command goes on "
+                                      "from them")
         raise
     # Written together once the calibration ends, each file beside its place first: an interrupted
     # calibration or a full disk leaves the earlier threshold with the detectors it was calibrated with.
     save_calibration(threshold, args.out, detectors if fitted_to else None)
     kept.unlink(missing_ok=True)
+    if fitted_to is not None:
+        shutil.rmtree(fitted_kept, ignore_errors=True)
     cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "
@@ -382,6 +398,20 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
                      help="replace the fitted detectors --out holds already; without it they are refused, since a "
                           "threshold calibrated with them is refused by `oodmon run` once they are replaced")
     fit.set_defaults(handler=_fit_detectors, kept_on_interrupt=_KEPT["fit-detectors"])
+
+
+def _fit_key(args: argparse.Namespace, agent) -> dict:
+    """What ``calibrate`` fits its detectors of and with: the settings of a set it kept
+    (:func:`oodmon.kept.keep_detectors`) that the same command reads again."""
+    from oodmon.monitor.detectors import FIT_VERSION
+    from oodmon.monitor.detectors.fitting import fitted_when_named
+    from oodmon.monitor.monitor import policy_hash
+
+    return {"policy": policy_hash(agent), "task": args.task, "detectors": fitted_when_named(args.detector),
+            "score": args.score, "episodes": args.fit_episodes, "dynamics_updates": args.dynamics_updates,
+            "obs_noise": args.obs_noise, "max_steps": args.max_steps, "workers": args.workers, "version": FIT_VERSION,
+            "masks": getattr(agent.estimator, "masks", None),
+            "samples": None if agent.estimator is None else agent.estimator.n_samples}
 
 
 def _fitting_kept(folder: Path) -> Path:

@@ -630,3 +630,74 @@ def test_kept_fitting_episodes_read_back_field_for_field_and_another_fits_are_no
         assert fitting._keep_trajectories(tmp_path / "full.npz", made_by, played) == 0
     with pytest.warns(UserWarning, match=r"the 2 calibration episodes played whole are not kept: .*No space left"):
         assert calibration._keep_episodes(tmp_path / "full.npz", made_by, [np.ones(3), np.ones(2)]) == 0
+
+
+def test_a_calibration_stopped_after_its_fit_keeps_the_detectors_and_goes_on_without_fitting_again(
+        tmp_path, monkeypatch, capsys):
+    """`calibrate` fits detectors first where it needs them (here for a noisy world); stopped in the
+    calibration episodes after that, it fitted them again when run again (2026-12-05: "and fits the
+    detectors again first"). Now the set is kept beside --out with the episodes, read instead of
+    fitting, and the threshold and its detectors are those of a calibration never stopped; another
+    fit's set (other fitting episodes) is not read."""
+    import oodmon.monitor.detectors.fitting as fitting
+    from oodmon.cli import main
+    from oodmon.monitor import Monitor, Threshold
+
+    command = ["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "combined", "--far", "0.1",
+               "--episodes", "22", "--obs-noise", "0.01", "--fit-episodes", "9", "--dynamics-updates", "40"]
+    assert main([*command, "--out", str(tmp_path / "whole.json")]) == 0
+    whole = Threshold.load(tmp_path / "whole.json")
+    out, folder = tmp_path / "thr.json", tmp_path / "thr.json.detectors.kept"
+    monkeypatch.setattr(Monitor, "run_episode", _interrupted_at(Monitor.run_episode, 6))
+    capsys.readouterr()
+    assert main([*command, "--out", str(out)]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"oodmon: interrupted; no threshold file or detectors were written (those at --out are as they were); the 5 "
+        f"of the 22 calibration episodes played whole are kept in {out}.kept.npz, and the detectors it fitted are "
+        f"kept in {folder}: the same command goes on from them")
+    monkeypatch.undo()
+
+    def no_fitting(*args, **kwargs):
+        raise AssertionError("fitted again")
+
+    monkeypatch.setattr(fitting, "collect", no_fitting)
+    assert main([*command, "--out", str(out)]) == 0
+    said = capsys.readouterr().err
+    assert f"kept detectors: spread, dynamics, features, combined, fitted before an interrupted calibration ({folder})" \
+        in said
+    assert Threshold.load(out) == whole and not folder.exists() and not (tmp_path / "thr.json.kept.npz").exists()
+    assert _fitted_files(tmp_path / "thr.json.detectors") == _fitted_files(tmp_path / "whole.json.detectors")
+    monkeypatch.undo()
+
+    # a set kept by another fit (9 fitting episodes, now 12) is not read, and is replaced
+    monkeypatch.setattr(Monitor, "run_episode", _interrupted_at(Monitor.run_episode, 6))
+    assert main([*command, "--out", str(out)]) == 130
+    monkeypatch.undo()
+    capsys.readouterr()
+    assert main([*command[:-4], "--fit-episodes", "12", *command[-2:], "--out", str(out)]) == 0
+    assert (f"oodmon: warning: {folder} holds the detectors of another fit (its episodes differs); it is not read, "
+            "and is replaced") in capsys.readouterr().err
+
+
+def test_a_kept_detectors_folder_that_is_damaged_or_unwritable_is_said_and_not_read(tmp_path, monkeypatch):
+    from oodmon.agents import load
+    from oodmon.kept import KeptEpisodesWarning, keep_detectors, read_kept_detectors
+    from oodmon.monitor.detectors import detectors_for
+
+    shipped = detectors_for(load("cartpole", "ensemble"))
+    made_by = {"policy": "p", "episodes": 9}
+    assert read_kept_detectors(tmp_path / "none", made_by) is None  # nothing kept: nothing said
+    assert keep_detectors(tmp_path / "kept", made_by, shipped)
+    assert read_kept_detectors(tmp_path / "kept", made_by).fingerprints() == shipped.fingerprints()
+    (tmp_path / "kept" / "detectors.safetensors").write_bytes(b"torn")
+    with pytest.warns(KeptEpisodesWarning,
+                      match=r"holds no detectors an interrupted calibration kept \(.*\); it is not read, and is "
+                            r"replaced"):
+        assert read_kept_detectors(tmp_path / "kept", made_by) is None
+
+    def full(*_):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(type(shipped), "save", full)
+    with pytest.warns(UserWarning, match=r"the detectors fitted before the calibration are not kept: .*No space left"):
+        assert not keep_detectors(tmp_path / "full", made_by, shipped)
