@@ -667,19 +667,9 @@ def test_a_calibration_stopped_after_its_fit_keeps_the_detectors_and_goes_on_wit
         in said
     assert Threshold.load(out) == whole and not folder.exists() and not (tmp_path / "thr.json.kept.npz").exists()
     assert _fitted_files(tmp_path / "thr.json.detectors") == _fitted_files(tmp_path / "whole.json.detectors")
-    monkeypatch.undo()
-
-    # a set kept by another fit (9 fitting episodes, now 12) is not read, and is replaced
-    monkeypatch.setattr(Monitor, "run_episode", _interrupted_at(Monitor.run_episode, 6))
-    assert main([*command, "--out", str(out)]) == 130
-    monkeypatch.undo()
-    capsys.readouterr()
-    assert main([*command[:-4], "--fit-episodes", "12", *command[-2:], "--out", str(out)]) == 0
-    assert (f"oodmon: warning: {folder} holds the detectors of another fit (its episodes differs); it is not read, "
-            "and is replaced") in capsys.readouterr().err
 
 
-def test_a_kept_detectors_folder_that_is_damaged_or_unwritable_is_said_and_not_read(tmp_path, monkeypatch):
+def test_a_kept_detectors_folder_of_another_fit_damaged_or_unwritable_is_said_and_not_read(tmp_path, monkeypatch):
     from oodmon.agents import load
     from oodmon.kept import KeptEpisodesWarning, keep_detectors, read_kept_detectors
     from oodmon.monitor.detectors import detectors_for
@@ -689,6 +679,9 @@ def test_a_kept_detectors_folder_that_is_damaged_or_unwritable_is_said_and_not_r
     assert read_kept_detectors(tmp_path / "none", made_by) is None  # nothing kept: nothing said
     assert keep_detectors(tmp_path / "kept", made_by, shipped)
     assert read_kept_detectors(tmp_path / "kept", made_by).fingerprints() == shipped.fingerprints()
+    with pytest.warns(KeptEpisodesWarning, match=r"holds the detectors of another fit \(its episodes differs\); it is "
+                                                 r"not read, and is replaced"):
+        assert read_kept_detectors(tmp_path / "kept", made_by | {"episodes": 12}) is None
     (tmp_path / "kept" / "detectors.safetensors").write_bytes(b"torn")
     with pytest.warns(KeptEpisodesWarning,
                       match=r"holds no detectors an interrupted calibration kept \(.*\); it is not read, and is "
