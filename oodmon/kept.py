@@ -37,7 +37,10 @@ def read_kept(path: str | Path, made_by: dict[str, Any], kind: str, *, stackleve
         with np.load(path, allow_pickle=False) as kept:
             theirs = json.loads(str(kept["made_by"]))
             arrays = {name: kept[name] for name in kept.files if name != "made_by"}
-    except (OSError, ValueError, KeyError, EOFError) as error:
+    # A damaged file makes zipfile and numpy's header parser raise errors of many kinds (measured by
+    # scripts/fuzz_readers.py: BadZipFile, a bad CRC, NotImplementedError for a flipped compression
+    # method, tokenize's TokenError); every one means the same: no episodes to go on from.
+    except Exception as error:  # noqa: BLE001
         warnings.warn(f"{path} holds no {kind} episodes an interrupted {kind} kept ({error}); it is not read, and is "
                       "replaced", KeptEpisodesWarning, stacklevel=stacklevel)
         return {}

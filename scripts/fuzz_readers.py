@@ -19,7 +19,13 @@ raising ``KeyError`` only when the bench compared, after its work. All are refus
 now; this prints no such line. The ``sb3`` reader, added on 2026-11-30 (``--only sb3 --seed 4
 --flips 1000``, 85 s): 13,367 damaged copies, 8,562 refused, 4,805 read, nothing else.
 ``pong_detectors``, added on 2026-12-01 (``--only pong_detectors --seed 7``, about a minute): 3,850
-damaged copies, 3,779 refused, 71 read and scored, nothing else.
+damaged copies, 3,779 refused, 71 read and scored, nothing else. ``kept_fitting`` and
+``kept_calibration``, added on 2026-12-05, found a torn or flipped file of kept episodes crashing
+`calibrate` (session 77's) and `fit-detectors` with zipfile's ``BadZipFile`` (3,704 of 3,841
+copies), ``NotImplementedError`` (a flipped compression method) and tokenize's ``TokenError`` (numpy's
+header); the readers now say every such file is none and go on without it: ``--only
+kept_fitting,kept_calibration --flips 2000 --seed 3``, 7,041 damaged copies, all read (none or
+warned), nothing else.
 
 The readers: ``log`` (replay's ``read_log`` of a small format-6 log, two CartPole episodes in
 segments of 4 steps: a cut or flip is a torn or damaged log, recovered), ``vecnorm`` (SB3
@@ -29,7 +35,9 @@ damaged one at a time and zipped again: its ``data`` read by oodmon's restricted
 (the zoo CartPole ensemble's fitted detectors), ``pong_detectors`` (the zoo Pong DropConnect's set,
 read and then its picture detectors, ``frames``, ``stillness``, ``vanishing`` and ``combined``,
 scoring three steps of random frames: a damaged setting that loads would show there),
-``threshold`` (a calibrated threshold), ``baseline`` (``oodmon check --update``'s baseline) and
+``threshold`` (a calibrated threshold), ``kept_fitting`` and ``kept_calibration`` (the episodes an
+interrupted fit or calibration keeps: a damaged file is read as none, with a warning),
+``baseline`` (``oodmon check --update``'s baseline) and
 ``bench`` (a committed bench result read as ``--baseline`` and compared with itself).
 """
 
@@ -131,6 +139,30 @@ def _score_pong_pictures(folder: Path) -> object:
     return pictures
 
 
+_MADE_BY = {"policy": "sha256:0", "seed": 1}
+
+
+def _make_kept_fitting(folder: Path) -> dict[str, Path]:
+    """The fitting episodes an interrupted `fit-detectors` keeps: three of a CartPole Dropout agent
+    (10 steps each), the last two with their estimates (samples, features), as the held-out third."""
+    from oodmon.agents import load
+    from oodmon.monitor.detectors.fitting import _keep_trajectories, collect
+
+    agent = load("cartpole", "dropout", seed=0)
+    _keep_trajectories(folder / "kept.npz", _MADE_BY, collect(agent, agent.make_env(), 3, max_steps=10,
+                                                              estimates_from=1))
+    return {"kept.npz": folder / "kept.npz"}
+
+
+def _make_kept_calibration(folder: Path) -> dict[str, Path]:
+    import numpy as np
+
+    from oodmon.monitor.calibration import _keep_episodes
+
+    _keep_episodes(folder / "kept.npz", _MADE_BY, [np.linspace(0, 1, 7), np.linspace(1, 2, 5)])
+    return {"kept.npz": folder / "kept.npz"}
+
+
 def _folder_files(folder: Path) -> dict[str, Path]:
     return {p.name: p for p in folder.iterdir() if p.is_file()}
 
@@ -140,6 +172,8 @@ def _readers() -> dict[str, tuple[Callable[[Path], dict[str, Path]], Callable[[P
     from oodmon.agents.agent import load_agent
     from oodmon.agents.vec_normalize import load_vec_normalize
     from oodmon.bench.baseline import bench_falls, load_bench_result
+    from oodmon.monitor.calibration import read_kept_episodes
+    from oodmon.monitor.detectors.fitting import read_kept_trajectories
     from oodmon.monitor.detectors.store import DetectorSet
     from oodmon.monitor.threshold import Threshold
     from oodmon.replay import read_log
@@ -156,6 +190,8 @@ def _readers() -> dict[str, tuple[Callable[[Path], dict[str, Path]], Callable[[P
         "pong_detectors": (lambda _: _folder_files(zoo / "pong-dropconnect" / "detectors"), _score_pong_pictures),
         "threshold": (_make_threshold, lambda d: Threshold.load(d / "threshold.json")),
         "baseline": (_make_baseline, lambda d: load_baseline(d / "baseline.json")),
+        "kept_fitting": (_make_kept_fitting, lambda d: read_kept_trajectories(d / "kept.npz", _MADE_BY)),
+        "kept_calibration": (_make_kept_calibration, lambda d: read_kept_episodes(d / "kept.npz", _MADE_BY)),
         "bench": (lambda _: {"cartpole.json": bench},
                   lambda d: bench_falls(load_bench_result(bench), load_bench_result(d / "cartpole.json"))),
     }
