@@ -81,45 +81,110 @@ def write_kept(path: str | Path, made_by: dict[str, Any], arrays: dict[str, np.n
     write_whole(Path(path), write)
 
 
-def keep_detectors(folder: str | Path, made_by: dict[str, Any], detectors: Any) -> bool:
+def keep_detectors(folder: str | Path, made_by: dict[str, Any], detectors: Any, state: dict | None = None) -> bool:
     """Write the fitted ``detectors`` (a :class:`~oodmon.monitor.detectors.DetectorSet`) into
-    ``folder`` beside ``kept.json`` (``made_by``): what ``calibrate`` fitted before its calibration
-    stopped, which the same command reads instead of fitting again. Whether they were written (a
-    full disk: said in a warning, the interrupt goes on as one)."""
+    ``folder`` beside ``kept.json`` (``made_by``, and ``state``: where an MC policy's draws stood
+    after the fit): what ``calibrate`` fitted before its calibration stopped, which the same command
+    reads instead of fitting again. Whether they were written (a full disk: said in a warning, the
+    interrupt goes on as one)."""
     from oodmon.outputs import write_whole
 
     folder = Path(folder)
     try:
         detectors.save(folder)
-        write_whole(folder / "kept.json", lambda part: part.write_text(json.dumps(made_by)))
+        write_whole(folder / "kept.json",
+                    lambda part: part.write_text(json.dumps({"made_by": made_by, "sampling_state": state})))
     except OSError as error:
         warnings.warn(f"the detectors fitted before the calibration are not kept: {error}", stacklevel=3)
         return False
     return True
 
 
-def read_kept_detectors(folder: str | Path, made_by: dict[str, Any]) -> Any:
+def read_kept_detectors(folder: str | Path, made_by: dict[str, Any]) -> tuple[Any, dict | None]:
     """The detectors :func:`keep_detectors` kept in ``folder`` where the same settings ``made_by``
-    fitted them, else ``None``: no such folder, or (with a :class:`KeptEpisodesWarning`) another
-    fit's or a damaged one. Read as every fitted set is read: tensors and JSON."""
+    fitted them, and where the policy's draws stood after the fit (``None``: it draws nothing);
+    ``(None, None)`` where there is no such folder, or (with a :class:`KeptEpisodesWarning`) it
+    is another fit's or a damaged one. Read as every fitted set is read: tensors and JSON."""
     from oodmon.errors import ConfigError
     from oodmon.jsonfile import read_json
     from oodmon.monitor.detectors import DetectorSet
 
     folder = Path(folder)
     if not (folder / "kept.json").is_file():
-        return None
+        return None, None
     try:
-        theirs = read_json(folder / "kept.json")
+        kept = read_json(folder / "kept.json")
+        theirs, state = kept["made_by"], kept["sampling_state"]
         detectors = DetectorSet.load(folder)
-    except (ConfigError, OSError) as error:
+    except (ConfigError, OSError, KeyError, TypeError) as error:
         warnings.warn(f"{folder} holds no detectors an interrupted calibration kept ({error}); it is not read, and is "
                       "replaced", KeptEpisodesWarning, stacklevel=3)
-        return None
+        return None, None
     if theirs != json.loads(json.dumps(made_by)):
         other = sorted(k for k in made_by if theirs.get(k) != made_by[k]) if isinstance(theirs, dict) else ["all"]
         warnings.warn(f"{folder} holds the detectors of another fit (its {', '.join(other) or 'settings'} "
                       f"differ{'s' if len(other) == 1 else ''}); it is not read, and is replaced", KeptEpisodesWarning,
                       stacklevel=3)
-        return None
-    return detectors
+        return None, None
+    return detectors, state
+
+
+class SamplingTrail:
+    """Where an MC estimator's draws stand after each episode played in this process: kept with the
+    episodes, so that a command that goes on from them draws on from there, as one never stopped
+    (side by side each episode draws from a stream of its own, :mod:`oodmon.side_by_side`, and
+    an estimator that draws nothing, an ensemble, needs none).
+
+    Example:
+        >>> import numpy as np, torch.nn as nn
+        >>> from oodmon.agents.estimators import MCEstimator
+        >>> from oodmon.agents.layers import add_dropout
+        >>> est = MCEstimator(add_dropout(nn.Sequential(nn.Linear(4, 8), nn.ReLU(), nn.Linear(8, 2)), 0.5), seed=0)
+        >>> trail, start = SamplingTrail(est, workers=1), est.sampling_state
+        >>> _ = est.estimate(np.ones(4, np.float32)); trail.after_episode()
+        >>> trail.state_after(0, start) == start, trail.state_after(1) == est.sampling_state != start
+        (True, True)
+        >>> SamplingTrail(est, workers=2).sampler is None  # side by side: each episode's own stream
+        True
+    """
+
+    def __init__(self, estimator: Any, workers: int) -> None:
+        self.sampler = estimator if workers == 1 and getattr(estimator, "draws", False) else None
+        self.states: list[dict] = []
+
+    def after_episode(self) -> None:
+        """Note the state after an episode played whole here (call it as each one ends)."""
+        if self.sampler is not None:
+            self.states.append(self.sampler.sampling_state)
+
+    def state_after(self, count: int, before: dict | None = None) -> dict | None:
+        """The state after the first ``count`` episodes noted (``before``: the state they began
+        from, for none), or ``None`` where nothing is noted."""
+        if self.sampler is None:
+            return None
+        return self.states[count - 1] if count else before
+
+    def resume(self, state: dict | None) -> None:
+        """Draw on from ``state`` (a kept one; ``None``: from where the estimator stands)."""
+        if state is not None and self.sampler is not None:
+            self.sampler.sampling_state = state
+
+    def progress(self, on_progress: Any) -> Any:
+        """``on_progress`` (or nothing) that notes the state first: a command's progress is told
+        once after each episode it plays in one process."""
+        def noted(stage: str, done: int, total: int) -> None:
+            self.after_episode()
+            if on_progress is not None:
+                on_progress(stage, done, total)
+
+        return noted
+
+
+def state_array(state: dict | None) -> dict[str, np.ndarray]:
+    """``state`` as a kept file's array (none for ``None``)."""
+    return {} if state is None else {"sampling_state": np.array(json.dumps(state))}
+
+
+def state_of(arrays: dict[str, np.ndarray]) -> dict | None:
+    """The sampling state a kept file holds, or ``None``."""
+    return json.loads(str(arrays["sampling_state"])) if "sampling_state" in arrays else None

@@ -140,7 +140,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
         # the set fitted, kept where the calibration after it stopped: read instead of fitting again
         fitted_kept, fit_key = fitted_to.with_name(fitted_to.name + ".kept"), _fit_key(args, agent)
-        detectors = read_kept_detectors(fitted_kept, fit_key)
+        detectors, drawn = read_kept_detectors(fitted_kept, fit_key)
         if detectors is None:
             fitting_kept, unwritten = _fitting_kept(fitted_to), "no threshold file or detectors were written"
             with _progress() as report, _kept_fitting(args, fitting_kept, unwritten):
@@ -149,9 +149,12 @@ def _calibrate(args: argparse.Namespace) -> int:
                                                 dynamics_updates=args.dynamics_updates, obs_noise=args.obs_noise,
                                                 max_steps=args.max_steps, kept=fitting_kept)
             fitting_kept.unlink(missing_ok=True)
+            drawn = _sampling_state(agent)  # where an MC agent's draws stand after the fit, kept with it
         else:
             print(f"kept detectors: {', '.join(detectors.names)}, fitted before an interrupted calibration "
                   f"({fitted_kept})", file=sys.stderr)
+            if drawn is not None:  # the calibration draws on from where the fit left the agent, as never stopped
+                agent.estimator.sampling_state = drawn
     else:
         _refuse_fit_options(args)
     kept = Path(f"{args.out}.kept.npz")  # an interrupted calibration's episodes, which the same command goes on from
@@ -168,7 +171,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         played = getattr(interrupt, "kept_episodes", 0)
         what = [f"the {played:,} of the {args.episodes:,} calibration episodes played whole are kept in {kept}"
                 ] if played else []
-        if fitted_to is not None and keep_detectors(fitted_kept, fit_key, detectors):
+        if fitted_to is not None and keep_detectors(fitted_kept, fit_key, detectors, drawn):
             what.append(f"the detectors it fitted are kept in {fitted_kept}")
         if what:
             args.kept_on_interrupt = (f"no threshold file {'or detectors were' if fitted_to else 'was'} written (those "
@@ -412,6 +415,11 @@ def _fit_key(args: argparse.Namespace, agent) -> dict:
             "obs_noise": args.obs_noise, "max_steps": args.max_steps, "workers": args.workers, "version": FIT_VERSION,
             "masks": getattr(agent.estimator, "masks", None),
             "samples": None if agent.estimator is None else agent.estimator.n_samples}
+
+
+def _sampling_state(agent) -> dict | None:
+    """Where ``agent``'s estimator's draws stand, or ``None`` where it draws nothing."""
+    return agent.estimator.sampling_state if getattr(agent.estimator, "draws", False) else None
 
 
 def _fitting_kept(folder: Path) -> Path:

@@ -22,7 +22,7 @@ from oodmon.agents.agent import Agent
 from oodmon.envs.checks import warn_if_endless
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.jsonfile import check_replaceable
-from oodmon.kept import KeptEpisodesWarning, read_kept, unreadable, write_kept
+from oodmon.kept import KeptEpisodesWarning, SamplingTrail, read_kept, state_array, state_of, unreadable, write_kept
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
 from oodmon.monitor.monitor import Monitor, OffCalibrationWarning, policy_hash
@@ -170,10 +170,10 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     plays only the episodes after them. The ``KeyboardInterrupt`` (``BrokenProcessPool``) then
     carries their number in ``.kept_episodes``. A file made otherwise is
     not read (:class:`KeptEpisodesWarning`). The caller removes it once the threshold is saved.
-    The threshold is the uninterrupted calibration's where the agent draws nothing when it
-    decides, or plays side by side (its episodes' own streams); an MC agent in one process draws
-    on from where its resumed process starts, so the episodes after the kept ones are as fresh but
-    not the same draws.
+    The threshold is the uninterrupted calibration's: side by side each episode draws from a
+    stream of its own, and in one process the file keeps where an MC agent's draws stood after the
+    episodes kept (:class:`~oodmon.kept.SamplingTrail`), which the calibration that goes on draws
+    on from.
 
     Raises:
         InvalidParameterError, ConfigError: a bad argument, too few episodes for ``far``, or
@@ -244,19 +244,25 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     made_by = None if kept is None else {
         "policy": policy, "task": agent.task, "detector": detector, "score": score, "detectors": fitted, "seed": seed,
         "obs_noise": float(obs_noise), "max_steps": max_steps, "masks": masks, "samples": samples}
-    scores = [] if kept is None else read_kept_episodes(kept, made_by)[:episodes]
+    scores, state = ([], None) if kept is None else _read_kept(kept, made_by)
+    scores = scores[:episodes]
     if scores and on_progress is not None:
         on_progress("kept calibration episodes", len(scores), episodes)  # (an interrupted calibration's)
+    # an MC agent in one process draws on from where the kept episodes left it
+    trail = SamplingTrail(agent.estimator, resolve_workers(workers, max(1, episodes - len(scores))))
+    trail.resume(state)
     try:
         if len(scores) < episodes:
             scores += id_episode_scores(agent, episodes - len(scores), seed=seed + len(scores), score=score,
-                                        on_progress=on_progress, detectors=needed, detector=detector,
+                                        on_progress=trail.progress(on_progress), detectors=needed, detector=detector,
                                         obs_noise=obs_noise, stage="calibration episodes", workers=workers,
                                         max_steps=max_steps)
     except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (Ctrl-C, SIGTERM, a worker's death)
         if kept is not None:
-            scores += [played for played, _ in finished_before(interrupt)]
-            interrupt.kept_episodes = _keep_episodes(kept, made_by, scores) if scores else 0
+            played = [scores for scores, _ in finished_before(interrupt)]
+            scores += played
+            interrupt.kept_episodes = _keep_episodes(kept, made_by, scores, trail.state_after(len(played), state)
+                                                     ) if scores else 0
         raise
     _check_steps_to_score(scores, detector, needed)
     threshold = calibrate(scores, far, consecutive=consecutive, mode=mode, score=score, task=agent.task,
@@ -275,23 +281,32 @@ def read_kept_episodes(path: str | Path, made_by: dict[str, Any]) -> list[np.nda
     in ``path`` (see its ``kept``), where a calibration ``made_by`` the same settings kept them;
     ``[]`` where there is no such file, and with a :class:`KeptEpisodesWarning` where it is one of
     another calibration's or unreadable (:func:`oodmon.kept.read_kept`). Nothing in it is unpickled."""
-    kept = read_kept(path, made_by, "calibration", stacklevel=4)
+    return _read_kept(path, made_by)[0]
+
+
+def _read_kept(path: str | Path, made_by: dict[str, Any]) -> tuple[list[np.ndarray], dict | None]:
+    """:func:`read_kept_episodes`' scores, and where an MC agent's draws stood after them in one
+    process (:class:`~oodmon.kept.SamplingTrail`), or ``None``."""
+    kept = read_kept(path, made_by, "calibration", stacklevel=4)  # (the caller of calibrate_agent, or of ours)
     if not kept:
-        return []
+        return [], None
     try:
         scores, lengths = kept["scores"].astype(np.float64), kept["lengths"].astype(np.int64)
-    except (KeyError, ValueError) as error:
-        return unreadable(path, "calibration", f"no {error}", stacklevel=4) or []
+        state = state_of(kept)
+    except (KeyError, ValueError) as error:  # (json's JSONDecodeError is a ValueError)
+        return unreadable(path, "calibration", f"no {error}", stacklevel=4) or [], None
     if lengths.ndim != 1 or scores.ndim != 1 or lengths.sum() != len(scores) or (lengths < 0).any():
-        return unreadable(path, "calibration", "its steps do not add up", stacklevel=4) or []
-    return np.split(scores, np.cumsum(lengths)[:-1]) if len(lengths) else []
+        return unreadable(path, "calibration", "its steps do not add up", stacklevel=4) or [], None
+    return (np.split(scores, np.cumsum(lengths)[:-1]) if len(lengths) else []), state
 
 
-def _keep_episodes(path: str | Path, made_by: dict[str, Any], scores: list[np.ndarray]) -> int:
-    """Write the calibration episodes' ``scores`` to ``path`` whole or not at all (see ``kept``);
-    how many were kept: 0 where the disk is full (said in a warning: the interrupt goes on as one)."""
+def _keep_episodes(path: str | Path, made_by: dict[str, Any], scores: list[np.ndarray],
+                   state: dict | None = None) -> int:
+    """Write the calibration episodes' ``scores`` (and ``state``, where an MC agent's draws stood
+    after them) to ``path`` whole or not at all (see ``kept``); how many were kept: 0 where the disk
+    is full (said in a warning: the interrupt goes on as one)."""
     try:
-        write_kept(path, made_by, {"scores": np.concatenate(scores),
+        write_kept(path, made_by, {"scores": np.concatenate(scores), **state_array(state),
                                    "lengths": np.array([len(s) for s in scores], dtype=np.int64)})
     except OSError as error:
         warnings.warn(f"the {len(scores):,} calibration episodes played whole are not kept: {error}", stacklevel=4)

@@ -685,17 +685,18 @@ def test_a_kept_detectors_folder_of_another_fit_damaged_or_unwritable_is_said_an
 
     shipped = detectors_for(load("cartpole", "ensemble"))
     made_by = {"policy": "p", "episodes": 9}
-    assert read_kept_detectors(tmp_path / "none", made_by) is None  # nothing kept: nothing said
-    assert keep_detectors(tmp_path / "kept", made_by, shipped)
-    assert read_kept_detectors(tmp_path / "kept", made_by).fingerprints() == shipped.fingerprints()
+    assert read_kept_detectors(tmp_path / "none", made_by) == (None, None)  # nothing kept: nothing said
+    assert keep_detectors(tmp_path / "kept", made_by, shipped, {"state": 7})
+    detectors, state = read_kept_detectors(tmp_path / "kept", made_by)
+    assert detectors.fingerprints() == shipped.fingerprints() and state == {"state": 7}
     with pytest.warns(KeptEpisodesWarning, match=r"holds the detectors of another fit \(its episodes differs\); it is "
                                                  r"not read, and is replaced"):
-        assert read_kept_detectors(tmp_path / "kept", made_by | {"episodes": 12}) is None
+        assert read_kept_detectors(tmp_path / "kept", made_by | {"episodes": 12}) == (None, None)
     (tmp_path / "kept" / "detectors.safetensors").write_bytes(b"torn")
     with pytest.warns(KeptEpisodesWarning,
                       match=r"holds no detectors an interrupted calibration kept \(.*\); it is not read, and is "
                             r"replaced"):
-        assert read_kept_detectors(tmp_path / "kept", made_by) is None
+        assert read_kept_detectors(tmp_path / "kept", made_by) == (None, None)
 
     def full(*_):
         raise OSError(28, "No space left on device")
@@ -703,3 +704,32 @@ def test_a_kept_detectors_folder_of_another_fit_damaged_or_unwritable_is_said_an
     monkeypatch.setattr(type(shipped), "save", full)
     with pytest.warns(UserWarning, match=r"the detectors fitted before the calibration are not kept: .*No space left"):
         assert not keep_detectors(tmp_path / "full", made_by, shipped)
+
+
+def test_an_mc_agent_stopped_twice_in_one_process_goes_on_to_the_threshold_and_detectors_of_one_never_stopped(
+        tmp_path, monkeypatch, capsys):
+    """An MC agent's masks are drawn from one stream in one process: kept episodes alone left the
+    episodes after them to other draws (as fresh, not the same; 2026-12-05). The kept files now hold
+    where the draws stood after the episodes kept, and after the fit: stopped in its fitting
+    episodes, then again in its calibration episodes, `calibrate` of the Dropout agent goes on to
+    the very threshold and detectors of a calibration never stopped."""
+    from oodmon.cli import main
+    from oodmon.monitor import Monitor, Threshold
+
+    command = ["calibrate", "--task", "cartpole", "--method", "dropout", "--detector", "combined", "--far", "0.1",
+               "--episodes", "22", "--obs-noise", "0.01", "--fit-episodes", "9", "--dynamics-updates", "40"]
+    assert main([*command, "--out", str(tmp_path / "whole.json")]) == 0
+    out = tmp_path / "thr.json"
+    steps = _counting_steps(monkeypatch, interrupt_at=4 * 500 + 40)  # in fitting episode 4 (of 500 steps each)
+    assert main([*command, "--out", str(out)]) == 130
+    assert len(set(steps)) == 5
+    monkeypatch.undo()
+    monkeypatch.setattr(Monitor, "run_episode", _interrupted_at(Monitor.run_episode, 6))  # in calibration episode 6
+    capsys.readouterr()
+    assert main([*command, "--out", str(out)]) == 130
+    err = capsys.readouterr().err
+    assert "kept detector fitting episodes: 4/4 episodes" in err and "the 5 of the 22 calibration episodes" in err
+    monkeypatch.undo()
+    assert main([*command, "--out", str(out)]) == 0
+    assert Threshold.load(out) == Threshold.load(tmp_path / "whole.json")
+    assert _fitted_files(tmp_path / "thr.json.detectors") == _fitted_files(tmp_path / "whole.json.detectors")

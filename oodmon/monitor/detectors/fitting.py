@@ -24,6 +24,7 @@ import numpy as np
 
 from oodmon.envs.checks import step_naming_refusal, warn_if_endless
 from oodmon.errors import ConfigError, InvalidParameterError, unknown
+from oodmon.kept import SamplingTrail
 from oodmon.monitor.detectors.base import StepContext, Trajectory
 from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.drift import DriftDetector
@@ -315,19 +316,21 @@ KEEP_AT_MOST = 1 << 30
 _FIELDS = ("observations", "actions", "features", "member_values", "acted_on", "pictures")
 
 
-def _keep_trajectories(path: str | Path, made_by: dict[str, Any], trajectories: Sequence[Trajectory]) -> int:
+def _keep_trajectories(path: str | Path, made_by: dict[str, Any], trajectories: Sequence[Trajectory],
+                       state: dict | None = None) -> int:
     """Write the episodes ``trajectories`` to ``path`` (see :func:`fit_detectors`' ``kept``), each
     field of each as an array of its own (``"3.observations"``, ``"3.estimates.samples"``: episode 3's),
-    whole or not at all; how many were kept: 0 where there were none, or they hold Python objects or
-    more than :data:`KEEP_AT_MOST` bytes, or the disk is full (said in a warning)."""
+    and ``state``, where an MC policy's draws stood after them in one process, whole or not at all;
+    how many were kept: 0 where there were none, or they hold Python objects or more than
+    :data:`KEEP_AT_MOST` bytes, or the disk is full (said in a warning)."""
     import warnings
 
     from oodmon.agents.estimators import Estimate
-    from oodmon.kept import write_kept
+    from oodmon.kept import state_array, write_kept
 
     if not trajectories:
         return 0
-    arrays: dict[str, np.ndarray] = {"episodes": np.array(len(trajectories))}
+    arrays: dict[str, np.ndarray] = {"episodes": np.array(len(trajectories)), **state_array(state)}
     for i, trajectory in enumerate(trajectories):
         arrays |= {f"{i}.{name}": np.asarray(getattr(trajectory, name)) for name in _FIELDS
                    if getattr(trajectory, name) is not None}
@@ -356,14 +359,21 @@ def read_kept_trajectories(path: str | Path, made_by: dict[str, Any]) -> list[Tr
     fit ``made_by`` the same settings kept them; ``[]`` where there is no such file, and with a
     :class:`~oodmon.kept.KeptEpisodesWarning` where it is another fit's or unreadable. Nothing in
     it is unpickled."""
-    from oodmon.agents.estimators import Estimate
-    from oodmon.kept import read_kept, unreadable
+    return _read_kept_trajectories(path, made_by)[0]
 
-    arrays = read_kept(path, made_by, "fitting", stacklevel=4)
+
+def _read_kept_trajectories(path: str | Path, made_by: dict[str, Any]) -> tuple[list[Trajectory], dict | None]:
+    """:func:`read_kept_trajectories`' episodes, and where an MC policy's draws stood after them in
+    one process (:class:`~oodmon.kept.SamplingTrail`), or ``None``."""
+    from oodmon.agents.estimators import Estimate
+    from oodmon.kept import read_kept, state_of, unreadable
+
+    arrays = read_kept(path, made_by, "fitting", stacklevel=4)  # (the caller of fit_detectors, or of ours)
     if not arrays:
-        return []
+        return [], None
     trajectories = []
     try:
+        state = state_of(arrays)
         for i in range(int(arrays["episodes"])):
             estimates = None
             if f"{i}.estimates" in arrays:
@@ -377,8 +387,8 @@ def read_kept_trajectories(path: str | Path, made_by: dict[str, Any]) -> list[Tr
             trajectories.append(Trajectory(**{name: arrays.get(f"{i}.{name}") for name in _FIELDS} | required,
                                            estimates=estimates))
     except (KeyError, ValueError, TypeError, IndexError, ConfigError) as error:
-        return unreadable(path, "fitting", f"{type(error).__name__}: {error}", stacklevel=4) or []
-    return trajectories
+        return unreadable(path, "fitting", f"{type(error).__name__}: {error}", stacklevel=4) or [], None
+    return trajectories, state
 
 
 def trajectory_scores(detectors: DetectorSet, trajectory: Trajectory, estimator: Any = None) -> dict[str, np.ndarray]:
@@ -495,9 +505,10 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     in ``.kept_episodes`` (0 where none could be kept: episodes of Python objects, more than
     :data:`KEEP_AT_MOST` bytes, a dozen Pong games, or a full disk; a warning says why). A file
     made otherwise is not read (:class:`~oodmon.kept.KeptEpisodesWarning`; give ``policy_hash``
-    for it to tell policies apart). The caller removes it once the detectors are saved. The detectors are the uninterrupted fit's where the policy draws nothing when it
-    decides, or plays side by side; an MC policy in one process draws on from where its resumed
-    process starts (the episodes after the kept ones as fresh, not the same draws).
+    for it to tell policies apart). The caller removes it once the detectors are saved. The
+    detectors are the uninterrupted fit's: side by side each episode draws from a stream of its
+    own, and in one process the file keeps where an MC policy's draws stood after the episodes
+    kept (:class:`~oodmon.kept.SamplingTrail`), which the fit that goes on draws on from.
 
     Raises:
         InvalidParameterError: an unknown detector name or fewer than 3 episodes.
@@ -535,13 +546,15 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         "episodes": episodes, "min_steps": min_steps, "seed": seed, "obs_noise": float(obs_noise),
         "max_steps": max_steps, "masks": getattr(estimator, "masks", None),
         "samples": None if estimator is None else estimator.n_samples}
-    done = [] if kept is None else read_kept_trajectories(kept, made_by)
+    done, state = ([], None) if kept is None else _read_kept_trajectories(kept, made_by)
     if done and on_progress is not None:
         on_progress("kept detector fitting episodes", len(done), len(done))  # (an interrupted fit's)
+    trail = SamplingTrail(estimator, workers)  # an MC policy in one process draws on from where they left it
+    trail.resume(state)
     trajectories = done
     try:
-        trajectories = collect(policy, env, episodes, seed=seed, on_progress=on_progress, max_steps=max_steps,
-                               with_member_values="scaled_spread" in detectors,
+        trajectories = collect(policy, env, episodes, seed=seed, on_progress=trail.progress(on_progress),
+                               max_steps=max_steps, with_member_values="scaled_spread" in detectors,
                                estimates_from=keep_from if "combined" in detectors else None, min_steps=min_steps,
                                workers=workers, done=done)
         return _fitted(trajectories, detectors, policy, task, score, n_actions, seed, dynamics_updates, on_progress,
@@ -550,7 +563,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         if kept is not None:
             # in the episodes: those played whole; in the fit itself: every one
             played = finished_before(interrupt) if hasattr(interrupt, "finished") else trajectories
-            interrupt.kept_episodes = _keep_trajectories(kept, made_by, played)
+            interrupt.kept_episodes = _keep_trajectories(kept, made_by, played,
+                                                         trail.state_after(len(played) - len(done), state))
         raise
 
 
