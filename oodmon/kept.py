@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["KeptEpisodesWarning", "keep_detectors", "read_kept", "read_kept_detectors", "unreadable", "write_kept"]
+__all__ = ["KeptEpisodesWarning", "KeptFit", "SamplingTrail", "keep_detectors", "read_kept", "read_kept_detectors",
+           "state_array", "state_of", "unreadable", "write_kept"]
 
 
 class KeptEpisodesWarning(UserWarning):
@@ -188,3 +189,48 @@ def state_array(state: dict | None) -> dict[str, np.ndarray]:
 def state_of(arrays: dict[str, np.ndarray]) -> dict | None:
     """The sampling state a kept file holds, or ``None``."""
     return json.loads(str(arrays["sampling_state"])) if "sampling_state" in arrays else None
+
+
+class KeptFit:
+    """The detectors a calibration fits first (into ``folder``, ``<threshold>.detectors``), fitted so
+    that nothing is lost when it stops: the fit's episodes played whole are kept in
+    ``<folder>.kept.npz`` (:func:`~oodmon.monitor.detectors.fit_detectors`' ``kept``), and the set,
+    once fitted, in ``<folder>.kept/`` when the calibration after it stops (:meth:`keep`), with where
+    an MC policy's draws stood after the fit; the same calibration reads it instead of fitting again,
+    and draws on from there. ``settings``: what the fit is of and with (the policy's hash, the
+    detectors asked for, episodes...): a set kept with others is not read. ``oodmon calibrate`` and
+    :func:`oodmon.watch` (with ``save=``) fit so.
+    """
+
+    def __init__(self, folder: str | Path, settings: dict[str, Any]) -> None:
+        self.folder, self.settings = Path(folder), settings
+        self.episodes_file = self.folder.with_name(self.folder.name + ".kept.npz")
+        self.detectors_folder = self.folder.with_name(self.folder.name + ".kept")
+        self.detectors: Any = None
+        self.drawn: dict | None = None
+        self.reused = False
+
+    def fit(self, estimator: Any, fit: Any) -> Any:
+        """The kept set where there is one of these settings (``estimator``, the policy's, then draws
+        on from where the fit left it), else ``fit(episodes_file)``'s, a fit that keeps its episodes
+        there when stopped (and reads them when going on)."""
+        self.detectors, self.drawn = read_kept_detectors(self.detectors_folder, self.settings)
+        self.reused = self.detectors is not None
+        if self.reused:
+            SamplingTrail(estimator, workers=1).resume(self.drawn)
+            return self.detectors
+        self.detectors = fit(self.episodes_file)
+        self.episodes_file.unlink(missing_ok=True)
+        self.drawn = estimator.sampling_state if getattr(estimator, "draws", False) else None
+        return self.detectors
+
+    def keep(self) -> bool:
+        """Keep the set fitted (the calibration after it stopped); whether it was written."""
+        return self.detectors is not None and keep_detectors(self.detectors_folder, self.settings, self.detectors,
+                                                             self.drawn)
+
+    def clear(self) -> None:
+        """Remove the kept set: the calibration ended, its set written beside the threshold."""
+        import shutil
+
+        shutil.rmtree(self.detectors_folder, ignore_errors=True)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import shutil
 import sys
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -107,8 +106,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     from oodmon.monitor.detectors import (
         BEST_DETECTOR, DEFAULT_FIT_EPISODES, detectors_for, fit_agent_detectors, fitting_notes,
     )
-    from oodmon.kept import keep_detectors, read_kept_detectors
-    from oodmon.monitor.detectors.fitting import check_can_have, fitted_when_named
+    from oodmon.kept import KeptFit
+    from oodmon.monitor.detectors.fitting import check_can_have, fit_settings, fitted_when_named
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file, replaced_file
 
@@ -138,23 +137,23 @@ def _calibrate(args: argparse.Namespace) -> int:
             or other_world):
         fitted_to = Path(f"{args.out}.detectors")
         check_output_dir(fitted_to, parameter="--out (its detectors folder)")
-        # the set fitted, kept where the calibration after it stopped: read instead of fitting again
-        fitted_kept, fit_key = fitted_to.with_name(fitted_to.name + ".kept"), _fit_key(args, agent)
-        detectors, drawn = read_kept_detectors(fitted_kept, fit_key)
-        if detectors is None:
-            fitting_kept, unwritten = _fitting_kept(fitted_to), "no threshold file or detectors were written"
-            with _progress() as report, _kept_fitting(args, fitting_kept, unwritten):
-                detectors = fit_agent_detectors(agent, detectors=fitted_when_named(args.detector), score=args.score,
-                                                episodes=args.fit_episodes, on_progress=report, workers=args.workers,
-                                                dynamics_updates=args.dynamics_updates, obs_noise=args.obs_noise,
-                                                max_steps=args.max_steps, kept=fitting_kept)
-            fitting_kept.unlink(missing_ok=True)
-            drawn = _sampling_state(agent)  # where an MC agent's draws stand after the fit, kept with it
-        else:
+        kept_fit = KeptFit(fitted_to, fit_settings(agent, fitted_when_named(args.detector), score=args.score,
+                                                   episodes=args.fit_episodes, dynamics_updates=args.dynamics_updates,
+                                                   obs_noise=args.obs_noise, max_steps=args.max_steps,
+                                                   workers=args.workers))
+
+        def fit(episodes_file: Path):
+            unwritten = "no threshold file or detectors were written"
+            with _progress() as report, _kept_fitting(args, episodes_file, unwritten):
+                return fit_agent_detectors(agent, detectors=fitted_when_named(args.detector), score=args.score,
+                                           episodes=args.fit_episodes, on_progress=report, workers=args.workers,
+                                           dynamics_updates=args.dynamics_updates, obs_noise=args.obs_noise,
+                                           max_steps=args.max_steps, kept=episodes_file)
+
+        detectors = kept_fit.fit(agent.estimator, fit)
+        if kept_fit.reused:
             print(f"kept detectors: {', '.join(detectors.names)}, fitted before an interrupted calibration "
-                  f"({fitted_kept})", file=sys.stderr)
-            if drawn is not None:  # the calibration draws on from where the fit left the agent, as never stopped
-                agent.estimator.sampling_state = drawn
+                  f"({kept_fit.detectors_folder})", file=sys.stderr)
     else:
         _refuse_fit_options(args)
     kept = Path(f"{args.out}.kept.npz")  # an interrupted calibration's episodes, which the same command goes on from
@@ -171,8 +170,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         played = getattr(interrupt, "kept_episodes", 0)
         what = [f"the {played:,} of the {args.episodes:,} calibration episodes played whole are kept in {kept}"
                 ] if played else []
-        if fitted_to is not None and keep_detectors(fitted_kept, fit_key, detectors, drawn):
-            what.append(f"the detectors it fitted are kept in {fitted_kept}")
+        if fitted_to is not None and kept_fit.keep():
+            what.append(f"the detectors it fitted are kept in {kept_fit.detectors_folder}")
         if what:
             args.kept_on_interrupt = (f"no threshold file {'or detectors were' if fitted_to else 'was'} written (those "
                                       f"at --out are as they were); {', and '.join(what)}: the same command goes on "
@@ -183,7 +182,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     save_calibration(threshold, args.out, detectors if fitted_to else None)
     kept.unlink(missing_ok=True)
     if fitted_to is not None:
-        shutil.rmtree(fitted_kept, ignore_errors=True)
+        kept_fit.clear()
     cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "
@@ -401,25 +400,6 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
                      help="replace the fitted detectors --out holds already; without it they are refused, since a "
                           "threshold calibrated with them is refused by `oodmon run` once they are replaced")
     fit.set_defaults(handler=_fit_detectors, kept_on_interrupt=_KEPT["fit-detectors"])
-
-
-def _fit_key(args: argparse.Namespace, agent) -> dict:
-    """What ``calibrate`` fits its detectors of and with: the settings of a set it kept
-    (:func:`oodmon.kept.keep_detectors`) that the same command reads again."""
-    from oodmon.monitor.detectors import FIT_VERSION
-    from oodmon.monitor.detectors.fitting import fitted_when_named
-    from oodmon.monitor.monitor import policy_hash
-
-    return {"policy": policy_hash(agent), "task": args.task, "detectors": fitted_when_named(args.detector),
-            "score": args.score, "episodes": args.fit_episodes, "dynamics_updates": args.dynamics_updates,
-            "obs_noise": args.obs_noise, "max_steps": args.max_steps, "workers": args.workers, "version": FIT_VERSION,
-            "masks": getattr(agent.estimator, "masks", None),
-            "samples": None if agent.estimator is None else agent.estimator.n_samples}
-
-
-def _sampling_state(agent) -> dict | None:
-    """Where ``agent``'s estimator's draws stand, or ``None`` where it draws nothing."""
-    return agent.estimator.sampling_state if getattr(agent.estimator, "draws", False) else None
 
 
 def _fitting_kept(folder: Path) -> Path:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -130,7 +131,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
 
     A calibration is minutes of ID episodes, which a deployed process cannot run at every start:
     ``save`` writes the threshold to that file and the fitted detectors to ``<save>.detectors/``
-    (as ``oodmon calibrate --out`` does, so ``oodmon run --threshold`` reads them too), and
+    (as ``oodmon calibrate --out`` does, so ``oodmon run --threshold`` reads them too; stopped by
+    Ctrl-C or a worker's death, it keeps beside that file what it did, as ``oodmon calibrate``
+    does, and the same call goes on from it to what one never stopped gives), and
     ``threshold`` reads such a file and the detectors beside it (else the agent's shipped ones)
     instead of fitting and calibrating: no episode runs. The file must have been calibrated on this
     policy (the hash of its weights; its MC masks, which the policy is loaded with by default);
@@ -149,8 +152,10 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     """
     from oodmon.monitor.alarms import check_warmup
     from oodmon.monitor.calibration import calibrate_agent, save_calibration
-    from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
-    from oodmon.monitor.detectors.fitting import check_can_have, fitted_when_named
+    from oodmon.kept import KeptFit
+    from oodmon.monitor.detectors import DetectorSet, fit_agent_detectors, fitting_notes
+    from oodmon.monitor.detectors.fitting import check_can_have, fit_settings, fitted_when_named
+    from oodmon.monitor.scores import DEFAULT_SCORE
     from oodmon.monitor.monitor import Monitor
     from oodmon.monitor.monitored_env import MonitoredEnv, check_env_of
     from oodmon.side_by_side import resolve_workers
@@ -204,16 +209,33 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
         check_env_of(agent, env)  # an env of another task: said now, not at its first step after the calibration
     if threshold is None:
         check_can_have(detector, agent)  # (a plain policy's spread: said before the fit, not after it)
-        detectors = fit_agent_detectors(agent, detectors=fitted_when_named(detector),  # as the CLI fits them
-                                        episodes=fit_episodes, on_progress=on_progress, workers=workers,
-                                        dynamics_updates=dynamics_updates, max_steps=max_steps)
+
+        def fit(episodes_file: Path | None) -> DetectorSet:
+            return fit_agent_detectors(agent, detectors=fitted_when_named(detector),  # as the CLI fits them
+                                       episodes=fit_episodes, on_progress=on_progress, workers=workers,
+                                       dynamics_updates=dynamics_updates, max_steps=max_steps, kept=episodes_file)
+
+        # With save=, stopped (Ctrl-C, a worker's death), it keeps what it did beside that file, as
+        # `oodmon calibrate` does beside --out, and the same call goes on from it.
+        kept_fit = None if save is None else KeptFit(f"{save}.detectors", fit_settings(
+            agent, fitted_when_named(detector), score=DEFAULT_SCORE, episodes=fit_episodes,
+            dynamics_updates=dynamics_updates, obs_noise=0.0, max_steps=max_steps, workers=workers))
+        detectors = fit(None) if kept_fit is None else kept_fit.fit(agent.estimator, fit)
         for note in fitting_notes(detectors):  # what the fit leaves unwatched, as calibrate prints it
             warnings.warn(note, stacklevel=2)
-        alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,
-                                          confidence=confidence, on_progress=on_progress, warmup=warmup,
-                                          workers=workers, max_steps=max_steps)
+        try:
+            alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,
+                                              confidence=confidence, on_progress=on_progress, warmup=warmup,
+                                              workers=workers, max_steps=max_steps,
+                                              kept=None if save is None else f"{save}.kept.npz")
+        except (KeyboardInterrupt, BrokenProcessPool):
+            if kept_fit is not None:
+                kept_fit.keep()
+            raise
         if save is not None:  # the pair whole, or the earlier one (a full disk)
             save_calibration(alarm_threshold, save, detectors)
+            Path(f"{save}.kept.npz").unlink(missing_ok=True)
+            kept_fit.clear()
     monitor = Monitor(agent, alarm_threshold, detectors=detectors, detector=detector, sinks=sinks, callbacks=callbacks)
     return monitor if env is None else MonitoredEnv(env, monitor)
 

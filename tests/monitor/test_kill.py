@@ -733,3 +733,30 @@ def test_an_mc_agent_stopped_twice_in_one_process_goes_on_to_the_threshold_and_d
     assert main([*command, "--out", str(out)]) == 0
     assert Threshold.load(out) == Threshold.load(tmp_path / "whole.json")
     assert _fitted_files(tmp_path / "thr.json.detectors") == _fitted_files(tmp_path / "whole.json.detectors")
+
+
+@pytest.mark.filterwarnings("ignore:dynamics. the model trained 6 of its 100 epochs")  # (a short fit, on purpose)
+def test_watch_with_save_stopped_in_its_calibration_goes_on_to_what_one_never_stopped_saves(tmp_path, monkeypatch):
+    """`oodmon.watch(..., save=)` is `oodmon calibrate` in Python: stopped (Ctrl-C) in its calibration
+    episodes, it keeps the episodes and the detectors it fitted beside `save`, and the same call goes
+    on from them (the Dropout agent: its draws too) to the files of a call never stopped."""
+    import oodmon
+    from oodmon.agents import load
+    from oodmon.monitor import Monitor
+
+    def watched(save):
+        return oodmon.watch(load("cartpole", "dropout", seed=0), episodes=22, far=0.1, fit_episodes=9,
+                            dynamics_updates=40, detector="combined", save=save)
+
+    watched(tmp_path / "whole.json")
+    monkeypatch.setattr(Monitor, "run_episode", _interrupted_at(Monitor.run_episode, 6))
+    with pytest.raises(KeyboardInterrupt):
+        watched(tmp_path / "thr.json")
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("thr")) == [
+        "thr.json.detectors", "thr.json.detectors.kept", "thr.json.kept.npz"]  # (an empty folder, made beforehand)
+    monkeypatch.undo()
+    monitor = watched(tmp_path / "thr.json")
+    assert (tmp_path / "thr.json").read_bytes() == (tmp_path / "whole.json").read_bytes()
+    assert _fitted_files(tmp_path / "thr.json.detectors") == _fitted_files(tmp_path / "whole.json.detectors")
+    assert monitor.threshold == json.loads((tmp_path / "whole.json").read_text())["value"]
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("thr")) == ["thr.json", "thr.json.detectors"]

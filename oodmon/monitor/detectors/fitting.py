@@ -45,8 +45,8 @@ from oodmon.versions import machine
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "KEEP_AT_MOST",
            "best_detector", "collect", "default_detectors", "default_fit_steps", "detectors_for", "discrete_states",
-           "fit_agent_detectors", "fitting_notes", "fit_detectors", "policy_parts", "read_kept_trajectories",
-           "trajectory_scores"]
+           "fit_agent_detectors", "fit_settings", "fitting_notes", "fit_detectors", "policy_parts",
+           "read_kept_trajectories", "trajectory_scores"]
 
 #: ID episodes the learned detectors are fitted on by default: two thirds fit, one third ranks.
 #: 90 since 2026-11-24 (30 before): on the monitor's own benchmark (same agents and episodes) the
@@ -717,6 +717,21 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
                              dynamics_updates=dynamics_updates, kept=kept)
     finally:
         env.close()
+
+
+def fit_settings(agent: Any, detectors: Sequence[str] | None, *, score: str, episodes: int | None,
+                 dynamics_updates: int | None, obs_noise: float, max_steps: int | None, workers: int) -> dict[str, Any]:
+    """What :func:`fit_agent_detectors` of these arguments fits of and with, as JSON-able data: the
+    policy's hash, the detectors asked for, the fitting's version and settings. A set kept by an
+    interrupted calibration (:class:`oodmon.kept.KeptFit`) is read again only where they agree."""
+    from oodmon.monitor.monitor import policy_hash
+
+    estimator = agent.estimator
+    return {"policy": policy_hash(agent), "task": agent.task,
+            "detectors": None if detectors is None else list(detectors), "score": score, "episodes": episodes,
+            "dynamics_updates": dynamics_updates, "obs_noise": float(obs_noise), "max_steps": max_steps,
+            "workers": workers, "version": FIT_VERSION, "masks": getattr(estimator, "masks", None),
+            "samples": None if estimator is None else estimator.n_samples}
 
 
 def detectors_for(agent: Any, directory: str | Path | None = None) -> DetectorSet | None:
