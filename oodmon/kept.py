@@ -42,8 +42,7 @@ def read_kept(path: str | Path, made_by: dict[str, Any], kind: str, *, stackleve
     # scripts/fuzz_readers.py: BadZipFile, a bad CRC, NotImplementedError for a flipped compression
     # method, tokenize's TokenError); every one means the same: no episodes to go on from.
     except Exception as error:  # noqa: BLE001
-        warnings.warn(f"{path} holds no {kind} episodes an interrupted {kind} kept ({error}); it is not read, and is "
-                      "replaced", KeptEpisodesWarning, stacklevel=stacklevel)
+        unreadable(path, kind, str(error), stacklevel=stacklevel + 1)
         return {}
     if theirs != json.loads(json.dumps(made_by)):
         other = sorted(k for k in made_by if theirs.get(k) != made_by[k]) if isinstance(theirs, dict) else ["all"]
@@ -54,12 +53,11 @@ def read_kept(path: str | Path, made_by: dict[str, Any], kind: str, *, stackleve
     return arrays
 
 
-def unreadable(path: str | Path, kind: str, why: str, *, stacklevel: int = 3) -> dict:
-    """``{}``, with the warning :func:`read_kept` gives a file that is no such file (``why``): for a
-    caller whose arrays do not add up."""
+def unreadable(path: str | Path, kind: str, why: str, *, stacklevel: int = 3) -> None:
+    """The warning :func:`read_kept` gives a file that is no such file (``why``): for a caller whose
+    arrays do not add up."""
     warnings.warn(f"{path} holds no {kind} episodes an interrupted {kind} kept ({why}); it is not read, and is "
                   "replaced", KeptEpisodesWarning, stacklevel=stacklevel)
-    return {}
 
 
 def write_kept(path: str | Path, made_by: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
@@ -216,7 +214,7 @@ class KeptFit:
         there when stopped (and reads them when going on)."""
         self.detectors, self.drawn = read_kept_detectors(self.detectors_folder, self.settings)
         self.reused = self.detectors is not None
-        if self.reused:
+        if self.reused:  # (side by side too: the episodes' own streams are drawn from where the fit left it)
             SamplingTrail(estimator, workers=1).resume(self.drawn)
             return self.detectors
         self.detectors = fit(self.episodes_file)

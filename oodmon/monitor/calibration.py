@@ -259,7 +259,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                                         max_steps=max_steps)
     except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (Ctrl-C, SIGTERM, a worker's death)
         if kept is not None:
-            played = [scores for scores, _ in finished_before(interrupt)]
+            played = [episode for episode, _ in finished_before(interrupt)]  # (each: its scores, its alarms)
             scores += played
             interrupt.kept_episodes = _keep_episodes(kept, made_by, scores, trail.state_after(len(played), state)
                                                      ) if scores else 0
@@ -294,9 +294,11 @@ def _read_kept(path: str | Path, made_by: dict[str, Any]) -> tuple[list[np.ndarr
         scores, lengths = kept["scores"].astype(np.float64), kept["lengths"].astype(np.int64)
         state = state_of(kept)
     except (KeyError, ValueError) as error:  # (json's JSONDecodeError is a ValueError)
-        return unreadable(path, "calibration", f"no {error}", stacklevel=4) or [], None
+        unreadable(path, "calibration", f"no {error}", stacklevel=4)
+        return [], None
     if lengths.ndim != 1 or scores.ndim != 1 or lengths.sum() != len(scores) or (lengths < 0).any():
-        return unreadable(path, "calibration", "its steps do not add up", stacklevel=4) or [], None
+        unreadable(path, "calibration", "its steps do not add up", stacklevel=4)
+        return [], None
     return (np.split(scores, np.cumsum(lengths)[:-1]) if len(lengths) else []), state
 
 

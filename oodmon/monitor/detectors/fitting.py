@@ -387,7 +387,8 @@ def _read_kept_trajectories(path: str | Path, made_by: dict[str, Any]) -> tuple[
             trajectories.append(Trajectory(**{name: arrays.get(f"{i}.{name}") for name in _FIELDS} | required,
                                            estimates=estimates))
     except (KeyError, ValueError, TypeError, IndexError, ConfigError) as error:
-        return unreadable(path, "fitting", f"{type(error).__name__}: {error}", stacklevel=4) or [], None
+        unreadable(path, "fitting", f"{type(error).__name__}: {error}", stacklevel=4)
+        return [], None
     return trajectories, state
 
 
