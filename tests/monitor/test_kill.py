@@ -515,7 +515,8 @@ def test_a_kept_episodes_file_that_is_no_such_file_is_not_read_and_runs_no_code(
             assert read_kept_episodes(tmp_path / f"{name}.npz", made_by) == []
 
 
-FIT = ["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--episodes", "12", "--dynamics-updates", "40"]
+FIT = ["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--episodes", "12", "--dynamics-updates", "40",
+       "--max-steps", "100"]
 
 
 def _fitted_files(folder) -> tuple[bytes, bytes]:
@@ -551,7 +552,7 @@ def test_an_interrupted_fit_keeps_its_episodes_and_the_same_command_fits_the_sam
     assert main([*FIT, "--out", str(tmp_path / "whole")]) == 0
     whole = _fitted_files(tmp_path / "whole")
     out, kept = tmp_path / "d", tmp_path / "d.kept.npz"
-    _counting_steps(monkeypatch, interrupt_at=5 * 500 + 40)  # (every ID episode lasts 500 steps): in episode 5
+    _counting_steps(monkeypatch, interrupt_at=5 * 100 + 40)  # (every ID episode lasts its 100 steps): in episode 5
     capsys.readouterr()
     assert main([*FIT, "--out", str(out)]) == 130
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
@@ -653,7 +654,8 @@ def test_a_calibration_stopped_after_its_fit_keeps_the_detectors_and_goes_on_wit
     from oodmon.monitor import Monitor, Threshold
 
     command = ["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "combined", "--far", "0.1",
-               "--episodes", "22", "--obs-noise", "0.01", "--fit-episodes", "9", "--dynamics-updates", "40"]
+               "--episodes", "22", "--obs-noise", "0.01", "--fit-episodes", "9", "--dynamics-updates", "40",
+               "--max-steps", "100"]
     assert main([*command, "--out", str(tmp_path / "whole.json")]) == 0
     whole = Threshold.load(tmp_path / "whole.json")
     out, folder = tmp_path / "thr.json", tmp_path / "thr.json.detectors.kept"
@@ -717,10 +719,11 @@ def test_an_mc_agent_stopped_twice_in_one_process_goes_on_to_the_threshold_and_d
     from oodmon.monitor import Monitor, Threshold
 
     command = ["calibrate", "--task", "cartpole", "--method", "dropout", "--detector", "combined", "--far", "0.1",
-               "--episodes", "22", "--obs-noise", "0.01", "--fit-episodes", "9", "--dynamics-updates", "40"]
+               "--episodes", "22", "--obs-noise", "0.01", "--fit-episodes", "9", "--dynamics-updates", "40",
+               "--max-steps", "100"]
     assert main([*command, "--out", str(tmp_path / "whole.json")]) == 0
     out = tmp_path / "thr.json"
-    steps = _counting_steps(monkeypatch, interrupt_at=4 * 500 + 40)  # in fitting episode 4 (of 500 steps each)
+    steps = _counting_steps(monkeypatch, interrupt_at=4 * 100 + 40)  # in fitting episode 4 (of 100 steps each)
     assert main([*command, "--out", str(out)]) == 130
     assert len(set(steps)) == 5
     monkeypatch.undo()
@@ -735,7 +738,8 @@ def test_an_mc_agent_stopped_twice_in_one_process_goes_on_to_the_threshold_and_d
     assert _fitted_files(tmp_path / "thr.json.detectors") == _fitted_files(tmp_path / "whole.json.detectors")
 
 
-@pytest.mark.filterwarnings("ignore:dynamics. the model trained 6 of its 100 epochs")  # (a short fit, on purpose)
+@pytest.mark.filterwarnings("ignore:dynamics. the model trained")  # (short episodes and fit, on purpose)
+@pytest.mark.filterwarnings("ignore::oodmon.monitor.threshold.EarlyPeaksWarning")
 def test_watch_with_save_stopped_in_its_calibration_goes_on_to_what_one_never_stopped_saves(tmp_path, monkeypatch):
     """`oodmon.watch(..., save=)` is `oodmon calibrate` in Python: stopped (Ctrl-C) in its calibration
     episodes, it keeps the episodes and the detectors it fitted beside `save`, and the same call goes
@@ -746,7 +750,7 @@ def test_watch_with_save_stopped_in_its_calibration_goes_on_to_what_one_never_st
 
     def watched(save):
         return oodmon.watch(load("cartpole", "dropout", seed=0), episodes=22, far=0.1, fit_episodes=9,
-                            dynamics_updates=40, detector="combined", save=save)
+                            dynamics_updates=40, detector="combined", save=save, max_steps=100)
 
     watched(tmp_path / "whole.json")
     monkeypatch.setattr(Monitor, "run_episode", _interrupted_at(Monitor.run_episode, 6))
