@@ -456,7 +456,7 @@ def test_an_interrupted_calibration_keeps_its_episodes_and_the_same_command_goes
     from oodmon.monitor import Monitor, Threshold
 
     command = ["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "combined", "--far", "0.1",
-               "--episodes", "22"]
+               "--episodes", "22", "--max-steps", "100"]
     assert main([*command, "--out", str(tmp_path / "whole.json")]) == 0
     whole = Threshold.load(tmp_path / "whole.json")
     out, kept = tmp_path / "thr.json", tmp_path / "thr.json.kept.npz"
