@@ -403,8 +403,15 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
 
 
 def _fitting_kept(folder: Path) -> Path:
-    """Where a fit of detectors into ``folder``, interrupted, keeps its episodes: beside it."""
-    return folder.with_name(folder.name + ".kept.npz")
+    """Where a fit of detectors into ``folder``, interrupted, keeps its episodes: beside it (inside
+    the file system's root, which has nothing beside it).
+
+    Example:
+        >>> _fitting_kept(Path("runs/det")).name, _fitting_kept(Path(".")).name == Path.cwd().name + ".kept.npz"
+        ('det.kept.npz', True)
+    """
+    folder = folder.resolve()  # (``--out .`` has no name of its own)
+    return folder / "kept.npz" if not folder.name else folder.with_name(folder.name + ".kept.npz")
 
 
 @contextlib.contextmanager
@@ -438,8 +445,11 @@ def _detector_names(text: str) -> tuple[str, ...]:
 
 def _calibrated_beside(folder: Path) -> str:
     """Words naming the threshold ``calibrate`` fitted ``folder`` for (``T.detectors`` beside ``T``), or ``""``."""
+    folder = folder.resolve()  # (``--out .`` has no name of its own: a ValueError after the fit, 2026-12-05)
+    if not folder.name.endswith(".detectors"):
+        return ""
     threshold = folder.with_name(folder.name.removesuffix(".detectors"))
-    if folder.name.endswith(".detectors") and threshold.is_file():
+    if threshold.is_file():
         return f", those `oodmon calibrate` fitted for {threshold}"
     return ""
 

@@ -764,3 +764,23 @@ def test_watch_with_save_stopped_in_its_calibration_goes_on_to_what_one_never_st
     assert _fitted_files(tmp_path / "thr.json.detectors") == _fitted_files(tmp_path / "whole.json.detectors")
     assert monitor.threshold == json.loads((tmp_path / "whole.json").read_text())["value"]
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("thr")) == ["thr.json", "thr.json.detectors"]
+
+
+def test_a_fit_into_the_current_folder_keeps_its_episodes_beside_it_and_ends_in_one_piece(tmp_path, monkeypatch,
+                                                                                        capsys):
+    """`fit-detectors --out .`: the folder has no name of its own, and the command fitted, wrote the
+    detectors, then stopped with a ValueError saying it had written none (2026-12-05, before)."""
+    from oodmon.cli import main
+
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    _counting_steps(monkeypatch, interrupt_at=2 * 100 + 40)
+    assert main([*FIT, "--out", "."]) == 130
+    said = capsys.readouterr().err.strip()
+    assert said.endswith(f"the 2 detector fitting episodes played whole are kept in {tmp_path / 'here.kept.npz'}: "
+                         "the same command goes on from them"), said
+    monkeypatch.undo()
+    monkeypatch.chdir(here)
+    assert main([*FIT, "--out", "."]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["here"] and (here / "detectors.json").is_file()
