@@ -44,13 +44,25 @@ def read_kept(path: str | Path, made_by: dict[str, Any], kind: str, *, stackleve
     except Exception as error:  # noqa: BLE001
         unreadable(path, kind, str(error), stacklevel=stacklevel + 1)
         return {}
-    if theirs != json.loads(json.dumps(made_by)):
-        other = sorted(k for k in made_by if theirs.get(k) != made_by[k]) if isinstance(theirs, dict) else ["all"]
-        differ = f"its {', '.join(other) or 'settings'} differ{'s' if len(other) == 1 else ''}"
+    differ = _differs(theirs, made_by)
+    if differ:
         warnings.warn(f"{path} holds the episodes of another {kind} ({differ}); it is not read, and is replaced",
                       KeptEpisodesWarning, stacklevel=stacklevel)
         return {}
     return arrays
+
+
+def _differs(theirs: Any, made_by: dict[str, Any]) -> str:
+    """What of ``made_by`` a kept file's own settings ``theirs`` differ in, in words (``""``: none).
+
+    Example:
+        >>> _differs({"seed": 1, "policy": "p"}, {"seed": 2, "policy": "p"}), _differs({"seed": 1}, {"seed": 1})
+        ('its seed differs', '')
+    """
+    if theirs == json.loads(json.dumps(made_by)):  # (as JSON holds them: tuples as lists)
+        return ""
+    other = sorted(k for k in made_by if theirs.get(k) != made_by[k]) if isinstance(theirs, dict) else ["all"]
+    return f"its {', '.join(other) or 'settings'} differ{'s' if len(other) == 1 else ''}"
 
 
 def unreadable(path: str | Path, kind: str, why: str, *, stacklevel: int = 3) -> None:
@@ -119,11 +131,10 @@ def read_kept_detectors(folder: str | Path, made_by: dict[str, Any]) -> tuple[An
         warnings.warn(f"{folder} holds no detectors an interrupted calibration kept ({error}); it is not read, and is "
                       "replaced", KeptEpisodesWarning, stacklevel=3)
         return None, None
-    if theirs != json.loads(json.dumps(made_by)):
-        other = sorted(k for k in made_by if theirs.get(k) != made_by[k]) if isinstance(theirs, dict) else ["all"]
-        warnings.warn(f"{folder} holds the detectors of another fit (its {', '.join(other) or 'settings'} "
-                      f"differ{'s' if len(other) == 1 else ''}); it is not read, and is replaced", KeptEpisodesWarning,
-                      stacklevel=3)
+    differ = _differs(theirs, made_by)
+    if differ:
+        warnings.warn(f"{folder} holds the detectors of another fit ({differ}); it is not read, and is replaced",
+                      KeptEpisodesWarning, stacklevel=3)
         return None, None
     return detectors, state
 
@@ -151,10 +162,15 @@ class SamplingTrail:
         self.sampler = estimator if workers == 1 and getattr(estimator, "draws", False) else None
         self.states: list[dict] = []
 
+    @property
+    def state(self) -> dict | None:
+        """Where the estimator's draws stand now (``None``: it draws nothing, or plays side by side)."""
+        return None if self.sampler is None else self.sampler.sampling_state
+
     def after_episode(self) -> None:
         """Note the state after an episode played whole here (call it as each one ends)."""
         if self.sampler is not None:
-            self.states.append(self.sampler.sampling_state)
+            self.states.append(self.state)
 
     def state_after(self, count: int, before: dict | None = None) -> dict | None:
         """The state after the first ``count`` episodes noted (``before``: the state they began
@@ -212,14 +228,16 @@ class KeptFit:
         """The kept set where there is one of these settings (``estimator``, the policy's, then draws
         on from where the fit left it), else ``fit(episodes_file)``'s, a fit that keeps its episodes
         there when stopped (and reads them when going on)."""
+        # (as in one process, side by side too: the episodes' own streams are drawn from where the fit left it)
+        trail = SamplingTrail(estimator, workers=1)
         self.detectors, self.drawn = read_kept_detectors(self.detectors_folder, self.settings)
         self.reused = self.detectors is not None
-        if self.reused:  # (side by side too: the episodes' own streams are drawn from where the fit left it)
-            SamplingTrail(estimator, workers=1).resume(self.drawn)
+        if self.reused:
+            trail.resume(self.drawn)
             return self.detectors
         self.detectors = fit(self.episodes_file)
         self.episodes_file.unlink(missing_ok=True)
-        self.drawn = estimator.sampling_state if getattr(estimator, "draws", False) else None
+        self.drawn = trail.state
         return self.detectors
 
     def keep(self) -> bool:

@@ -32,6 +32,7 @@ def play(args: argparse.Namespace) -> None:
     from oodmon.agents import load
     from oodmon.monitor.calibration import id_episode_scores
     from oodmon.monitor.detectors import detectors_for
+    from oodmon.outputs import write_whole
 
     agent = load(args.task, args.method, seed=args.seed)
     detectors = detectors_for(agent)
@@ -45,10 +46,13 @@ def play(args: argparse.Namespace) -> None:
         count = min(args.block, args.seed + args.episodes - first)
         scores = id_episode_scores(agent, count, seed=first, detectors=needed, detector=args.detector,
                                    workers=args.workers)
-        part = path.with_suffix(".part.npz")
-        np.savez_compressed(part, scores=np.concatenate(scores), lengths=np.array([len(s) for s in scores]))
-        part.replace(path)
+        write_whole(path, lambda part: _write_block(part, scores))
         print(f"{first + count - args.seed}/{args.episodes} episodes, {time.perf_counter() - started:.0f} s", flush=True)
+
+
+def _write_block(part: Path, scores: list[np.ndarray]) -> None:
+    with open(part, "wb") as out:  # (a file, not a name: np.savez_compressed would add .npz to the part's name)
+        np.savez_compressed(out, scores=np.concatenate(scores), lengths=np.array([len(s) for s in scores]))
 
 
 def episodes_of(folder: Path) -> list[np.ndarray]:

@@ -558,7 +558,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
                                max_steps=max_steps, with_member_values="scaled_spread" in detectors,
                                estimates_from=keep_from if "combined" in detectors else None, min_steps=min_steps,
                                workers=workers, done=done)
-        return _fitted(trajectories, detectors, policy, task, score, n_actions, seed, dynamics_updates, on_progress,
+        return _fitted(trajectories, detectors, estimator, task, score, n_actions, seed, dynamics_updates, on_progress,
                        policy_hash=policy_hash, obs_noise=obs_noise, workers=workers, max_steps=max_steps)
     except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (Ctrl-C, SIGTERM, a worker's death)
         if kept is not None:
@@ -569,11 +569,11 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         raise
 
 
-def _fitted(trajectories: list[Trajectory], detectors: Sequence[str], policy: Any, task: str | None, score: str,
+def _fitted(trajectories: list[Trajectory], detectors: Sequence[str], estimator: Any, task: str | None, score: str,
             n_actions: int | None, seed: int, dynamics_updates: int | None, on_progress: Progress | None, *,
             policy_hash: str | None, obs_noise: float, workers: int, max_steps: int | None) -> DetectorSet:
-    """:func:`fit_detectors`' set, fitted on the episodes ``trajectories`` it played."""
-    estimator = policy_parts(policy)[0]
+    """:func:`fit_detectors`' set, fitted on the episodes ``trajectories`` it played (``estimator``:
+    the policy's, or ``None``)."""
     n_fit = max(1, (2 * len(trajectories)) // 3)
     fit, held_out = [replace(t, estimates=None) for t in trajectories[:n_fit]], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []
