@@ -94,17 +94,20 @@ def write_kept(path: str | Path, made_by: dict[str, Any], arrays: dict[str, np.n
 
 def keep_detectors(folder: str | Path, made_by: dict[str, Any], detectors: Any, state: dict | None = None) -> bool:
     """Write the fitted ``detectors`` (a :class:`~oodmon.monitor.detectors.DetectorSet`) into
-    ``folder`` beside ``kept.json`` (``made_by``, and ``state``: where an MC policy's draws stood
-    after the fit): what ``calibrate`` fitted before its calibration stopped, which the same command
-    reads instead of fitting again. Whether they were written (a full disk: said in a warning, the
-    interrupt goes on as one)."""
+    ``folder`` beside ``kept.json`` (``made_by``; ``state``: where an MC policy's draws stood
+    after the fit; how many epochs each learned detector trained): what ``calibrate`` fitted
+    before its calibration stopped, which the same command reads instead of fitting again. Whether
+    they were written (a full disk: said in a warning, the interrupt goes on as one)."""
     from oodmon.outputs import write_whole
 
     folder = Path(folder)
+    # how many epochs each learned detector trained: a loaded set does not know it, and calibrate's
+    # note that a cap of updates ended a fit early (fitting_notes) reads it
+    trained = {d.name: d.epochs_trained for d in detectors if getattr(d, "epochs_trained", None) is not None}
     try:
         detectors.save(folder)
-        write_whole(folder / "kept.json",
-                    lambda part: part.write_text(json.dumps({"made_by": made_by, "sampling_state": state})))
+        write_whole(folder / "kept.json", lambda part: part.write_text(
+            json.dumps({"made_by": made_by, "sampling_state": state, "epochs_trained": trained})))
     except OSError as error:
         warnings.warn(f"the detectors fitted before the calibration are not kept: {error}", stacklevel=3)
         return False
@@ -127,7 +130,10 @@ def read_kept_detectors(folder: str | Path, made_by: dict[str, Any]) -> tuple[An
         kept = read_json(folder / "kept.json")
         theirs, state = kept["made_by"], kept["sampling_state"]
         detectors = DetectorSet.load(folder)
-    except (ConfigError, OSError, KeyError, TypeError) as error:
+        for name, epochs in kept.get("epochs_trained", {}).items():  # (a folder kept before 2026-12-06: none)
+            if name in detectors:
+                detectors[name].epochs_trained = int(epochs)
+    except (ConfigError, OSError, KeyError, TypeError, ValueError, AttributeError) as error:
         warnings.warn(f"{folder} holds no detectors an interrupted calibration kept ({error}); it is not read, and is "
                       "replaced", KeptEpisodesWarning, stacklevel=3)
         return None, None

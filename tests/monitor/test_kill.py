@@ -658,9 +658,11 @@ def test_a_calibration_stopped_after_its_fit_keeps_the_detectors_and_goes_on_wit
                "--max-steps", "100"]
     assert main([*command, "--out", str(tmp_path / "whole.json")]) == 0
     whole = Threshold.load(tmp_path / "whole.json")
+    # (9 episodes of at most 100 steps: 2 updates an epoch, so 40 updates end the fit at epoch 20)
+    capped = "dynamics: the model trained 20 of its 100 epochs, as many as hold the 40 Adam updates"
+    assert capped in capsys.readouterr().out
     out, folder = tmp_path / "thr.json", tmp_path / "thr.json.detectors.kept"
     monkeypatch.setattr(Monitor, "run_episode", _interrupted_at(Monitor.run_episode, 6))
-    capsys.readouterr()
     assert main([*command, "--out", str(out)]) == 130
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
         f"oodmon: interrupted; no threshold file or detectors were written (those at --out are as they were); the 5 "
@@ -673,9 +675,10 @@ def test_a_calibration_stopped_after_its_fit_keeps_the_detectors_and_goes_on_wit
 
     monkeypatch.setattr(fitting, "collect", no_fitting)
     assert main([*command, "--out", str(out)]) == 0
-    said = capsys.readouterr().err
+    said = capsys.readouterr()
     assert f"kept detectors: spread, dynamics, features, combined, fitted before an interrupted calibration ({folder})" \
-        in said
+        in said.err
+    assert capped in said.out  # the kept set says how far its fit trained, as the fit did (before: nothing)
     assert Threshold.load(out) == whole and not folder.exists() and not (tmp_path / "thr.json.kept.npz").exists()
     assert _fitted_files(tmp_path / "thr.json.detectors") == _fitted_files(tmp_path / "whole.json.detectors")
 
@@ -688,9 +691,18 @@ def test_a_kept_detectors_folder_of_another_fit_damaged_or_unwritable_is_said_an
     shipped = detectors_for(load("cartpole", "ensemble"))
     made_by = {"policy": "p", "episodes": 9}
     assert read_kept_detectors(tmp_path / "none", made_by) == (None, None)  # nothing kept: nothing said
+    shipped["dynamics"].epochs_trained = 7  # (as a fit leaves it; a loaded set does not know it)
     assert keep_detectors(tmp_path / "kept", made_by, shipped, {"state": 7})
+    shipped["dynamics"].epochs_trained = None
     detectors, state = read_kept_detectors(tmp_path / "kept", made_by)
     assert detectors.fingerprints() == shipped.fingerprints() and state == {"state": 7}
+    assert detectors["dynamics"].epochs_trained == 7
+    kept_json = tmp_path / "kept" / "kept.json"
+    assert json.loads(kept_json.read_text())["epochs_trained"] == {"dynamics": 7}  # the learned one that trained
+    older = {key: value for key, value in json.loads(kept_json.read_text()).items() if key != "epochs_trained"}
+    kept_json.write_text(json.dumps(older))
+    detectors, _ = read_kept_detectors(tmp_path / "kept", made_by)  # kept before the epochs were: read, none known
+    assert detectors["dynamics"].epochs_trained is None
     with pytest.warns(KeptEpisodesWarning, match=r"holds the detectors of another fit \(its episodes differs\); it is "
                                                  r"not read, and is replaced"):
         assert read_kept_detectors(tmp_path / "kept", made_by | {"episodes": 12}) == (None, None)
