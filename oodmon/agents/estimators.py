@@ -25,7 +25,7 @@ import copy
 from contextlib import nullcontext
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -111,6 +111,13 @@ class UncertaintyEstimator:
             low = np.asarray(action_low, dtype=np.float32)
             high = np.asarray(action_high, dtype=np.float32)
             self._scale, self._offset = (high - low) / 2, (high + low) / 2
+
+    def weights(self) -> dict[str, Any]:
+        """What the estimator decides with, names to tensors or arrays (its networks' weights, as
+        :func:`oodmon.hashing.state_sha256` hashes them): what tells one estimator's kept fitting
+        episodes from another's (:func:`~oodmon.monitor.detectors.fit_detectors`' ``kept``).
+        None here: each kind of estimator says its own."""
+        return {}
 
     def estimate(self, obs: np.ndarray | torch.Tensor) -> Estimate:
         """The deployed action and the K samples for a batch of observations (batch, *obs_shape).
@@ -369,6 +376,9 @@ class MCEstimator(UncertaintyEstimator):
                 f"got a {type(network).__name__}"
             )
 
+    def weights(self) -> dict[str, Any]:
+        return dict(self.network.state_dict())
+
     def _sample(self, batch: np.ndarray) -> np.ndarray:
         if self._suffix is None:
             return self._sample_torch(batch)
@@ -457,6 +467,12 @@ class EnsembleEstimator(UncertaintyEstimator):
     @property
     def draws(self) -> bool:
         return False  # its members decide: nothing drawn
+
+    def weights(self) -> dict[str, Any]:
+        # (the members live on as their layers' stacked arrays only)
+        stacked = {f"ops.{i}.{name}": value for i, op in enumerate(self._ops)
+                   for name, value in vars(op).items() if isinstance(value, np.ndarray)}
+        return {f"torso.{name}": value for name, value in self.torso.state_dict().items()} | stacked
 
     def _sample(self, batch: np.ndarray) -> np.ndarray:
         if self._torso_ops is not None:

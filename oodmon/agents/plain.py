@@ -34,7 +34,7 @@ from oodmon.errors import ConfigError
 from oodmon.hashing import state_sha256
 from oodmon.names import PLAIN_METHOD
 
-__all__ = ["plain_agent", "policy_by_name", "weights_sha256"]
+__all__ = ["plain_agent", "plain_policy_hash", "policy_by_name", "weights_sha256"]
 
 
 def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = None) -> Agent:
@@ -82,9 +82,8 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
         _check_first_action(policy(obs), name, env, env_id)
     finally:
         env.close()
-    digest = weights_sha256(weights if weights is not None else _own_weights(policy))
     metadata = {"task": task_of_env(env_id) or env_id, "method": PLAIN_METHOD, "env_id": env_id, "policy": name,
-                "policy_hash": f"name:{_qualname(policy)}" if digest is None else "sha256:" + digest}
+                "policy_hash": plain_policy_hash(policy, weights)}
     if dict_space is None:
         return Agent(None, metadata, None, policy)
     return Agent(None, metadata, None, _ReadsDicts(policy, dict_space), dict_space=dict_space,
@@ -155,6 +154,21 @@ def weights_sha256(weights: Any) -> str | None:
     if not isinstance(state, Mapping):
         raise ConfigError(f"weights={type(weights).__name__}: give a torch module or a dict of tensors or arrays")
     return state_sha256(state)
+
+
+def plain_policy_hash(policy: Callable[[Any], Any], weights: Any = None) -> str:
+    """What a threshold records of a plain policy (``policy_hash``): ``sha256:`` of ``weights``
+    (:func:`weights_sha256`), else of the torch module the policy is or whose method it is, else
+    ``name:<qualname>``.
+
+    Example:
+        >>> def act(obs):
+        ...     return 0
+        >>> plain_policy_hash(act), plain_policy_hash(act, {"w": np.ones(3)}).startswith("sha256:")
+        ('name:act', True)
+    """
+    digest = weights_sha256(weights if weights is not None else _own_weights(policy))
+    return f"name:{_qualname(policy)}" if digest is None else "sha256:" + digest
 
 
 def _own_weights(policy: Any) -> Any:

@@ -796,3 +796,55 @@ def test_a_fit_into_the_current_folder_keeps_its_episodes_beside_it_and_ends_in_
     monkeypatch.chdir(here)
     assert main([*FIT, "--out", "."]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["here"] and (here / "detectors.json").is_file()
+
+
+def _lean(obs):
+    return int(obs[2] + 0.5 * obs[3] > 0)
+
+
+def _lean_harder(obs):
+    return int(obs[2] + 0.9 * obs[3] > 0)
+
+
+def test_a_python_fit_without_policy_hash_reads_the_episodes_it_kept_and_not_another_policys(tmp_path, monkeypatch):
+    """`fit_detectors(policy, env, kept=...)` without ``policy_hash`` keyed its file with none
+    (2026-12-05): the episodes another policy kept there were read as this one's. The policy now
+    stands for itself: an agent by its weights' hash, an estimator by its weights, a plain policy by
+    its name (or its torch module's weights)."""
+    import gymnasium
+
+    from oodmon.agents import load
+    from oodmon.kept import KeptEpisodesWarning
+    from oodmon.monitor.detectors import fit_detectors
+    from oodmon.monitor.detectors.fitting import _policy_identity
+    from oodmon.seeds import DETECTOR_FIT
+
+    env, kept = gymnasium.make("CartPole-v1"), tmp_path / "fit.kept.npz"
+    common = dict(detectors=["dynamics"], episodes=6, max_steps=30, dynamics_updates=2, kept=kept)
+
+    def interrupted_in_episode_3():
+        _counting_steps(monkeypatch, interrupt_at=3 * 30 + 5)  # (the controller keeps the pole up)
+        with pytest.raises(KeyboardInterrupt):
+            fit_detectors(_lean, env, **common)
+        assert kept.is_file()
+        monkeypatch.undo()
+        return _counting_steps(monkeypatch)
+
+    played = interrupted_in_episode_3()
+    with pytest.warns(KeptEpisodesWarning, match=r"another fitting \(its policy differs\); it is not read"):
+        fit_detectors(_lean_harder, env, **common)
+    assert len(set(played)) == 6  # all played again: not the other policy's episodes
+    kept.unlink()  # (the caller's, once the detectors are saved)
+    played = interrupted_in_episode_3()
+    fit_detectors(_lean, env, **common)
+    assert sorted(set(played)) == [DETECTOR_FIT + episode for episode in (3, 4, 5)]  # its own kept: the rest only
+
+    # each kind of policy has its own; the same policy loaded twice the same
+    ensemble, dropout = load("cartpole", "ensemble"), load("cartpole", "dropout")
+    identities = [_policy_identity(_lean, None), _policy_identity(_lean_harder, None),
+                  _policy_identity(ensemble, ensemble.estimator), _policy_identity(dropout, dropout.estimator),
+                  _policy_identity(ensemble.estimator, ensemble.estimator),
+                  _policy_identity(dropout.estimator, dropout.estimator)]
+    assert identities[:2] == ["name:_lean", "name:_lean_harder"] and len(set(identities)) == 6
+    again = load("cartpole", "dropout").estimator
+    assert _policy_identity(again, again) == identities[5]

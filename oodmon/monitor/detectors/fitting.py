@@ -170,6 +170,25 @@ def policy_parts(policy: Any) -> tuple[Any, Callable[[np.ndarray], Any], dict]:
                       f"{type(policy).__name__}")
 
 
+def _policy_identity(policy: Any, estimator: Any) -> str | None:
+    """What tells the fitting episodes kept for ``policy`` from another's where the caller gave no
+    ``policy_hash``: an agent's own (:func:`~oodmon.monitor.monitor.policy_hash`), else the sha256
+    of its estimator's weights, else a plain policy's (:func:`~oodmon.agents.plain.plain_policy_hash`:
+    its torch module's weights or its name)."""
+    from oodmon.agents.agent import Agent
+    from oodmon.agents.plain import plain_policy_hash
+    from oodmon.hashing import state_sha256
+    from oodmon.monitor.monitor import policy_hash
+
+    own = policy_hash(policy) if isinstance(policy, Agent) else "unknown"
+    if own != "unknown":
+        return own
+    if estimator is not None:
+        weights = estimator.weights()
+        return "sha256:" + state_sha256(weights) if weights else None
+    return plain_policy_hash(policy)
+
+
 def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETECTOR_FIT,
             on_progress: Progress | None = None, max_steps: int | None = None,
             with_member_values: bool = False, estimates_from: int | None = None,
@@ -505,11 +524,13 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     was interrupted). The ``KeyboardInterrupt`` (``BrokenProcessPool``) then carries their number
     in ``.kept_episodes`` (0 where none could be kept: episodes of Python objects, more than
     :data:`KEEP_AT_MOST` bytes, a dozen Pong games, or a full disk; a warning says why). A file
-    made otherwise is not read (:class:`~oodmon.kept.KeptEpisodesWarning`; give ``policy_hash``
-    for it to tell policies apart). The caller removes it once the detectors are saved. The
-    detectors are the uninterrupted fit's: side by side each episode draws from a stream of its
-    own, and in one process the file keeps where an MC policy's draws stood after the episodes
-    kept (:class:`~oodmon.kept.SamplingTrail`), which the fit that goes on draws on from.
+    made otherwise is not read (:class:`~oodmon.kept.KeptEpisodesWarning`; the policy is told by
+    ``policy_hash``, else by its own: an agent's, its estimator's weights, a plain policy's weights
+    or name, :func:`~oodmon.agents.plain.plain_policy_hash`). The caller removes it once the
+    detectors are saved. The detectors are the uninterrupted fit's: side by side each episode
+    draws from a stream of its own, and in one process the file keeps where an MC policy's draws
+    stood after the episodes kept (:class:`~oodmon.kept.SamplingTrail`), which the fit that goes
+    on draws on from.
 
     Raises:
         InvalidParameterError: an unknown detector name or fewer than 3 episodes.
@@ -543,7 +564,8 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     # part's dropped after.
     keep_from = max(1, (2 * episodes) // 3) if not min_steps else 0
     made_by = None if kept is None else {
-        "policy": policy_hash, "task": task, "env": getattr(env.spec, "id", None), "detectors": list(detectors),
+        "policy": policy_hash or _policy_identity(policy, estimator), "task": task,
+        "env": getattr(env.spec, "id", None), "detectors": list(detectors),
         "episodes": episodes, "min_steps": min_steps, "seed": seed, "obs_noise": float(obs_noise),
         "max_steps": max_steps, "masks": getattr(estimator, "masks", None),
         "samples": None if estimator is None else estimator.n_samples}
