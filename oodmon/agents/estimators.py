@@ -116,7 +116,7 @@ class UncertaintyEstimator:
         """What the estimator decides with, names to tensors or arrays (its networks' weights, as
         :func:`oodmon.hashing.state_sha256` hashes them): what tells one estimator's kept fitting
         episodes from another's (:func:`~oodmon.monitor.detectors.fit_detectors`' ``kept``).
-        None here: each kind of estimator says its own."""
+        Empty here: each kind of estimator says its own."""
         return {}
 
     def estimate(self, obs: np.ndarray | torch.Tensor) -> Estimate:
@@ -470,8 +470,8 @@ class EnsembleEstimator(UncertaintyEstimator):
 
     def weights(self) -> dict[str, Any]:
         # (the members live on as their layers' stacked arrays only)
-        stacked = {f"ops.{i}.{name}": value for i, op in enumerate(self._ops)
-                   for name, value in vars(op).items() if isinstance(value, np.ndarray)}
+        stacked = {f"ops.{i}.{name}": getattr(op, name) for i, op in enumerate(self._ops)
+                   if isinstance(op, StackedAffine) for name in ("weight_t", "bias")}
         return {f"torso.{name}": value for name, value in self.torso.state_dict().items()} | stacked
 
     def _sample(self, batch: np.ndarray) -> np.ndarray:
