@@ -75,6 +75,7 @@ def files(tmp_path_factory) -> Path:
         (root / name).write_text(text)
     (root / "base-binary.json").write_bytes(bytes(range(256)))
     (root / "a-file").write_text("")
+    (root / "t2.json.detectors").write_text("")  # where calibrate --out t2.json would put its fitted detectors
     (root / "model.zip").write_bytes(b"PK\x03\x04 a user's model")  # read by nothing: refused before any load
     (root / "a-folder").mkdir()
     _log_with_a_broken_episode_record(root / "broken-episode.mcap")
@@ -250,6 +251,10 @@ CASES = [
     ("calibrate-on-the-detectors-fitting-episodes", ["calibrate", "--task", "cartpole", "--method", "ensemble", "--seed",
                                                      "600000", "--out", "{d}/t.json"], {},
      ["seeds 600,000-600,049", "the detectors' fitting episodes (seeds 600,000-600,089)", "e.g. 200000"]),
+    # the detectors folder beside --out is checked before any episode, and (since 2026-12-06) made only once written
+    ("calibrate-detectors-folder-is-a-file", [*CALIBRATE, "--detector", "dynamics", "--obs-noise", "0.01", "--out",
+                                              "{d}/t2.json"], {},
+     ["--out (its detectors folder)", "t2.json.detectors is a file; give a folder"]),
     ("fit-detectors-given-detectors", ["fit-detectors", "--task", "cartpole", "--method", "ensemble", "--detectors",
                                        "{d}", "--out", "{d}/det"], {}, ["unrecognized arguments: --detectors"]),
 ]

@@ -136,7 +136,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             or (args.detector == "combined" and left_out) or (named_only and args.detector not in (detectors or ()))
             or other_world):
         fitted_to = Path(f"{args.out}.detectors")
-        check_output_dir(fitted_to, parameter="--out (its detectors folder)")
+        check_output_dir(fitted_to, parameter="--out (its detectors folder)", create=False)
         kept_fit = KeptFit(fitted_to, fit_settings(agent, fitted_when_named(args.detector), score=args.score,
                                                    episodes=args.fit_episodes, dynamics_updates=args.dynamics_updates,
                                                    obs_noise=args.obs_noise, max_steps=args.max_steps,

@@ -202,7 +202,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
             check_output_file(save, parameter="save", inputs=[("a file it reads", path) for path in files
                                                               if isinstance(path, (str, Path))])
             replaced_file(save, parameter="save", holds="threshold", read=Threshold.load)
-            check_output_dir(f"{save}.detectors", parameter="save (its detectors folder)")
+            check_output_dir(f"{save}.detectors", parameter="save (its detectors folder)", create=False)
         agent = as_agent(policy, env_id, mean=mean, seed=seed, masks=masks, vec_normalize=vec_normalize,
                          frame_stack=frame_stack, imports=imports, unsafe_load_pickles=unsafe_load_pickles)
     if env is not None:

@@ -668,6 +668,7 @@ def test_a_calibration_stopped_after_its_fit_keeps_the_detectors_and_goes_on_wit
         f"oodmon: interrupted; no threshold file or detectors were written (those at --out are as they were); the 5 "
         f"of the 22 calibration episodes played whole are kept in {out}.kept.npz, and the detectors it fitted are "
         f"kept in {folder}: the same command goes on from them")
+    assert not (tmp_path / "thr.json.detectors").exists()  # (before 2026-12-06: made first, and left empty)
     monkeypatch.undo()
 
     def no_fitting(*args, **kwargs):
@@ -769,7 +770,7 @@ def test_watch_with_save_stopped_in_its_calibration_goes_on_to_what_one_never_st
     with pytest.raises(KeyboardInterrupt):
         watched(tmp_path / "thr.json")
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("thr")) == [
-        "thr.json.detectors", "thr.json.detectors.kept", "thr.json.kept.npz"]  # (an empty folder, made beforehand)
+        "thr.json.detectors.kept", "thr.json.kept.npz"]  # (before 2026-12-06 also thr.json.detectors, empty)
     monkeypatch.undo()
     monitor = watched(tmp_path / "thr.json")
     assert (tmp_path / "thr.json").read_bytes() == (tmp_path / "whole.json").read_bytes()
