@@ -135,18 +135,20 @@ def replaced_file(path: str | Path, *, parameter: str, holds: str, read: Callabl
 
 def check_output_dir(path: str | Path, *, parameter: str, create: bool = True) -> Path:
     """``path`` as a :class:`~pathlib.Path` if it is (or can be made) a writable folder, else
-    :class:`ConfigError`. Creates it; ``create=False``: only checks that it could be made (the
-    folder it would be made in can be written), for a folder that its writer makes once it has
-    something to put there (a calibration's detectors: made first, an interrupted calibration left
-    it empty beside the threshold it did not write, 2026-12-06).
+    :class:`ConfigError`. Creates it; ``create=False``: only checks that it can be (makes it, then
+    removes what it made), for a folder that its writer makes once it has something to put there
+    (a calibration's detectors: made first, an interrupted calibration left it empty beside the
+    threshold it did not write, 2026-12-06).
 
     Example:
         >>> import os, shutil, tempfile
         >>> folder = tempfile.mkdtemp()
         >>> check_output_dir(os.path.join(folder, "plots"), parameter="--plots").is_dir()
         True
-        >>> check_output_dir(os.path.join(folder, "later"), parameter="--out", create=False).exists()
+        >>> check_output_dir(os.path.join(folder, "a", "later"), parameter="--out", create=False).exists()
         False
+        >>> os.listdir(folder)
+        ['plots']
         >>> shutil.rmtree(folder)
     """
     path = Path(path)
@@ -154,18 +156,16 @@ def check_output_dir(path: str | Path, *, parameter: str, create: bool = True) -
         raise ConfigError(f"{parameter} {str(path)!r} is empty; give a folder")
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{parameter} {path} is a file; give a folder")
-    if not create and not path.exists():
-        within = next(ancestor for ancestor in path.absolute().parents if ancestor.exists())
-        if not within.is_dir():
-            raise ConfigError(f"{parameter} {path} cannot be made a folder: {within} is a file, not a folder")
-        if not os.access(within, os.W_OK | os.X_OK):
-            raise ConfigError(f"{parameter} {path} cannot be made a folder in {within} (permission denied)")
-        return path
+    missing = [folder for folder in (path, *path.parents) if not folder.exists()]  # deepest first
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise ConfigError(f"{parameter} {path} cannot be made a folder ({_reason(error)})") from None
-    if not os.access(path, os.W_OK | os.X_OK):
+    writable = os.access(path, os.W_OK | os.X_OK)
+    if not create:  # made to see that it can be, and removed again
+        for folder in missing:
+            folder.rmdir()
+    if not writable:
         raise ConfigError(f"{parameter} {path} cannot be written (permission denied)")
     return path
 

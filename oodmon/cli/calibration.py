@@ -458,7 +458,7 @@ def _fit_detectors(args: argparse.Namespace) -> int:
     from oodmon.monitor.detectors import fit_agent_detectors, fitting_notes
     from oodmon.outputs import check_output_dir
 
-    out = check_output_dir(args.out, parameter="--out")
+    out = check_output_dir(args.out, parameter="--out", create=False)  # (made by the save: none where stopped before)
     replacing = (out / "detectors.json").exists()
     if replacing and not args.overwrite:  # before minutes of fitting
         raise ConfigError(f"--out {out} holds fitted detectors already{_calibrated_beside(out)}: a threshold "
