@@ -48,17 +48,38 @@ def _train(args: argparse.Namespace) -> int:
         def evaluated(run: str, steps: int, mean: float) -> None:
             report(f"{label} {run} training steps", steps, total, f"last evaluation return {mean:.1f} at step {steps}")
 
-        agent = train(args.task, args.method, args.out, seed=args.seed, total_steps=args.steps,
-                      on_progress=lambda stage, done, of: report(f"{label} {stage}", done, of),
-                      on_evaluation=evaluated,
-                      export_only=args.export_only, load_pickles=args.unsafe_load_pickles,
-                      command=_command_line(args))
+        try:
+            agent = train(args.task, args.method, args.out, seed=args.seed, total_steps=args.steps,
+                          on_progress=lambda stage, done, of: report(f"{label} {stage}", done, of),
+                          on_evaluation=evaluated,
+                          export_only=args.export_only, load_pickles=args.unsafe_load_pickles,
+                          command=_command_line(args))
+        except (KeyboardInterrupt, BrokenProcessPool):
+            _say_what_training_kept(args)
+            raise
     meta = agent.metadata
     Console(soft_wrap=True).print(
         f"{args.task}/{args.method}: id_return_mean {meta['id_return_mean']} over {meta['id_episodes']} episodes; "
         f"{sum(meta['training_steps'])} steps in {meta['wall_time_s']} s; saved to {args.out}"
     )
     return 0
+
+
+def _say_what_training_kept(args: argparse.Namespace) -> None:
+    """The interrupt's words where no run of the training has written a checkpoint yet (before, it
+    said "the last checkpoint is kept: the same command resumes from it" of a training stopped in
+    its first steps, which kept none, 2026-12-06)."""
+    from pathlib import Path
+
+    from oodmon.agents.recipes import recipe_for
+
+    runs = Path(args.out) / "runs"
+    if any(runs.glob("*/checkpoint.pt")) or any(runs.glob("*/policy.safetensors")):
+        return  # (the default words)
+    recipe = recipe_for(args.task, args.method)
+    every = (recipe if args.steps is None else recipe.shortened(args.steps)).checkpoint_every  # (as train cuts it)
+    args.kept_on_interrupt = (f"no checkpoint was written yet (the first after {every:,} steps): the same command "
+                              "starts the training again")
 
 
 def _add_evaluate(commands: argparse._SubParsersAction) -> None:

@@ -282,6 +282,19 @@ def test_ctrl_c_says_what_each_command_leaves_behind(tmp_path, monkeypatch, caps
         "ends; those at --out are as they were): run the command again")
     assert not (tmp_path / "t.json").exists()
 
+    # train stopped before its first checkpoint said "the last checkpoint is kept" (2026-12-06)
+    import oodmon.agents.training as training
+
+    monkeypatch.setattr(training, "train", lambda *args, **kwargs: interrupted(None))
+    train = ["train", "--task", "cartpole", "--method", "dropout", "--out", str(tmp_path / "m")]
+    assert main([*train, "--steps", "3000"]) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
+        "oodmon: interrupted; no checkpoint was written yet (the first after 1,500 steps): the same command starts "
+        "the training again")  # (3,000 steps: a checkpoint every 1,500, as train cuts the recipe's 10,000)
+    (tmp_path / "m/runs/main").mkdir(parents=True)
+    (tmp_path / "m/runs/main/checkpoint.pt").write_bytes(b"")
+    assert main(train) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
+        "oodmon: interrupted; the last checkpoint is kept: the same command resumes from it")
+
 
 #: A monitored run writing to {sink} (at sys.argv[1]) that prints "e" as each episode ends, to be killed.
 UNTIL_KILLED = """
