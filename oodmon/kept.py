@@ -122,6 +122,7 @@ def read_kept_detectors(folder: str | Path, made_by: dict[str, Any]) -> tuple[An
     from oodmon.errors import ConfigError
     from oodmon.jsonfile import read_json
     from oodmon.monitor.detectors import DetectorSet
+    from oodmon.validation import is_whole
 
     folder = Path(folder)
     if not (folder / "kept.json").is_file():
@@ -132,7 +133,9 @@ def read_kept_detectors(folder: str | Path, made_by: dict[str, Any]) -> tuple[An
         detectors = DetectorSet.load(folder)
         for name, epochs in kept.get("epochs_trained", {}).items():  # (a folder kept before 2026-12-06: none)
             if name in detectors:
-                detectors[name].epochs_trained = int(epochs)
+                if not is_whole(epochs) or epochs > detectors[name].epochs:
+                    raise ValueError(f"{name} trained {epochs!r} of its {detectors[name].epochs} epochs")
+                detectors[name].epochs_trained = epochs
     except (ConfigError, OSError, KeyError, TypeError, ValueError, AttributeError) as error:
         warnings.warn(f"{folder} holds no detectors an interrupted calibration kept ({error}); it is not read, and is "
                       "replaced", KeptEpisodesWarning, stacklevel=3)

@@ -717,6 +717,12 @@ def test_a_kept_detectors_folder_of_another_fit_damaged_or_unwritable_is_said_an
     kept_json.write_text(json.dumps(older))
     detectors, _ = read_kept_detectors(tmp_path / "kept", made_by)  # kept before the epochs were: read, none known
     assert detectors["dynamics"].epochs_trained is None
+    for odd in (-5, 0, 101, 2.5, "7", True):  # (100 epochs: the dynamics model's)
+        kept_json.write_text(json.dumps(older | {"epochs_trained": {"dynamics": odd}}))
+        with pytest.warns(KeptEpisodesWarning, match=r"holds no detectors an interrupted calibration kept \(dynamics "
+                                                     r"trained .* of its 100 epochs\)"):
+            assert read_kept_detectors(tmp_path / "kept", made_by) == (None, None)
+    kept_json.write_text(json.dumps(older))
     with pytest.warns(KeptEpisodesWarning, match=r"holds the detectors of another fit \(its episodes differs\); it is "
                                                  r"not read, and is replaced"):
         assert read_kept_detectors(tmp_path / "kept", made_by | {"episodes": 12}) == (None, None)
