@@ -116,7 +116,14 @@ class UncertaintyEstimator:
         """What the estimator decides with, names to tensors or arrays (its networks' weights, as
         :func:`oodmon.hashing.state_sha256` hashes them): what tells one estimator's kept fitting
         episodes from another's (:func:`~oodmon.monitor.detectors.fit_detectors`' ``kept``).
-        Empty here: each kind of estimator says its own."""
+        Empty here: each kind of estimator says its own.
+
+        Example:
+            >>> from oodmon.agents.layers import add_dropout
+            >>> est = MCEstimator(add_dropout(nn.Sequential(nn.Linear(4, 8), nn.ReLU(), nn.Linear(8, 2)), 0.5))
+            >>> sorted(est.weights())
+            ['0.bias', '0.weight', '3.bias', '3.weight']
+        """
         return {}
 
     def estimate(self, obs: np.ndarray | torch.Tensor) -> Estimate:
