@@ -9,6 +9,7 @@ that is also one of the command's inputs (writing it would destroy the input).
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import re
@@ -164,7 +165,8 @@ def check_output_dir(path: str | Path, *, parameter: str, create: bool = True) -
     writable = os.access(path, os.W_OK | os.X_OK)
     if not create:  # made to see that it can be, and removed again
         for folder in missing:
-            folder.rmdir()
+            with contextlib.suppress(OSError):  # ('a/..' of 'a/../b', or another process's file in it since)
+                folder.rmdir()
     if not writable:
         raise ConfigError(f"{parameter} {path} cannot be written (permission denied)")
     return path
