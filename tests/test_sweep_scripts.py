@@ -496,6 +496,18 @@ def test_fuzz_readers_counts_what_each_reader_answers_and_names_what_is_not_oodm
     assert broken[0].startswith("broken: threshold.json, cut at 0: ValueError: invalid literal")
 
 
+def test_fuzz_readers_kept_detectors_reads_the_kept_set_back_and_a_damaged_one_as_none(monkeypatch, tmp_path):
+    script = _load(monkeypatch, tmp_path, "fuzz_readers")[0]
+    make, read = script._readers()["kept_detectors"]
+    (tmp_path / "k").mkdir()
+    assert sorted(make(tmp_path / "k")) == ["detectors.json", "detectors.safetensors", "kept.json"]
+    detectors, state = read(tmp_path / "k")
+    assert detectors["dynamics"].epochs_trained == 40 and state == {"state": 7}
+    (tmp_path / "k" / "detectors.safetensors").write_bytes(b"torn")
+    with pytest.warns(UserWarning, match="holds no detectors an interrupted calibration kept"):
+        assert read(tmp_path / "k") == (None, None)
+
+
 def test_fuzz_readers_uses_pong_detectors_after_reading_them(monkeypatch, tmp_path):
     """The Pong reader reads the zoo's set and scores three steps of frames with its picture
     detectors (where a damage that loads would show); a damaged setting is refused with oodmon's error."""
