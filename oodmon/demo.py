@@ -103,7 +103,11 @@ def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, 
     console.print(f"[bold]oodmon demo[/bold]: the shipped {agent.task}/{agent.method} agent "
                   f"(ID return {agent.metadata['id_return_mean']}) under the monitor, every step scored by "
                   f"{', '.join(detectors.names) if detectors else 'spread'}.")
-    threshold = calibrate_agent(agent, calibration_episodes, far=0.05, detectors=detectors, detector=detector)
+    try:
+        threshold = calibrate_agent(agent, calibration_episodes, far=0.05, detectors=detectors, detector=detector)
+    except KeyboardInterrupt as interrupt:
+        interrupt.calibrating = True  # (`oodmon demo` says that nothing was written yet)
+        raise
     threshold.save(out / "threshold.json")
     console.print(f"1. Calibrated on {threshold.n_episodes} held-out ID episodes: alarm when the {detector} "
                   f"{threshold.rule_text} ({threshold.promise}). -> {out / 'threshold.json'}")

@@ -185,6 +185,36 @@ def test_demo_says_which_logs_it_could_not_write(tmp_path, monkeypatch):
     assert f"-> {tmp_path / 'id.mcap'}" not in out and "Open the logs" not in out
 
 
+def test_demo_stopped_while_it_calibrates_says_that_nothing_was_written(tmp_path, monkeypatch, capsys):
+    """Ctrl-C in the demo's calibration said "every finished episode is in the logs", `oodmon run`'s
+    words, though no log was begun (2026-12-06); stopped in its runs, it says them still."""
+    import oodmon.monitor
+    from oodmon.cli import main
+    from oodmon.monitor import Monitor
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    out = tmp_path / "demo"
+    with monkeypatch.context() as patch:
+        patch.setattr(oodmon.monitor, "calibrate_agent", interrupted)
+        assert main(["demo", "--out", str(out)]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"oodmon: interrupted; nothing was written: the demo calibrates first, then writes its threshold and logs "
+        f"into {out}: run the command again")
+    assert not any(out.iterdir())
+    run_episode, calls = Monitor.run_episode, []
+
+    def interrupted_after_the_calibration(self, *args, **kwargs):  # (its 45 episodes are run_episode's too)
+        calls.append(1)
+        return run_episode(self, *args, **kwargs) if len(calls) <= 45 else interrupted()
+
+    monkeypatch.setattr(Monitor, "run_episode", interrupted_after_the_calibration)
+    assert main(["demo", "--out", str(out)]) == 130 and len(calls) == 46
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        "oodmon: interrupted; every finished episode is in the logs, the cut one is marked interrupted")
+
+
 def test_calibrate_then_run_with_logs(tmp_path):
     threshold = tmp_path / "thr.json"
     result = _run("calibrate", "--task", "cartpole", "--method", "dropout", "--episodes", "19", "--confidence", "none",

@@ -411,5 +411,11 @@ def _demo(args: argparse.Namespace) -> int:
     from oodmon.outputs import check_output_dir
 
     check_output_dir(args.out, parameter="--out")
-    run_demo(args.out)
+    try:
+        run_demo(args.out)
+    except KeyboardInterrupt as interrupt:
+        if getattr(interrupt, "calibrating", False):  # (the logs "every finished episode is in" are not begun)
+            args.kept_on_interrupt = (f"nothing was written: the demo calibrates first, then writes its threshold and "
+                                      f"logs into {args.out}: run the command again")
+        raise
     return 0
