@@ -271,6 +271,15 @@ def test_evaluate_marks_failing_variants_as_json(capsys):
     assert all(v["fails"] == (v["return_mean"] < line) for v in report["variants"])
 
 
+def test_evaluate_names_the_failing_variants_after_its_table_and_none_without_a_hanging_colon(capsys):
+    assert main(["evaluate", "--task", "cartpole", "--method", "ensemble", "--episodes", "2",
+                 "--variants", "cartpole:gravity=0.98,cartpole:length=0.05"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == "1 of 2 variants fail the agent: cartpole:length=0.05"
+    assert main(["evaluate", "--task", "cartpole", "--method", "ensemble", "--episodes", "2",
+                 "--variants", "cartpole:gravity=0.98"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == "0 of 1 variants fail the agent"  # (before: "...agent: ")
+
+
 @pytest.mark.parametrize(
     "args, words",
     [

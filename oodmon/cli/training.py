@@ -155,4 +155,5 @@ def _print_evaluation(args: argparse.Namespace, agent, id_result, results, asked
                       "FAILS" if row["fails"] else "", style=style)
     _table_console().print(table)
     failing = [r.spec for r in results if r.fails]
-    Console(soft_wrap=True).print(f"{len(failing)} of {len(results)} variants fail the agent: {', '.join(failing)}")
+    Console(soft_wrap=True).print(f"{len(failing)} of {len(results)} variants fail the agent"
+                                  + (f": {', '.join(failing)}" if failing else ""))  # (none: no colon left hanging)
