@@ -1009,3 +1009,29 @@ def test_a_bench_of_your_own_env_names_each_thing_it_lacks_and_only_those(given,
         BenchConfig(**config)
     parts = str(raised.value).split("bench it with ", 1)[1].split("; ")
     assert [part for part in parts if not part.startswith(tuple(said))] == [] and len(parts) == len(said)
+
+
+def test_an_interrupted_bench_says_how_far_it_got(tmp_path, monkeypatch, capsys):
+    """Ctrl-C said "trained models and finished cells are kept" of a bench stopped before either
+    (2026-12-06): it now says what its stages had reached."""
+    import oodmon.bench
+    from oodmon.cli import main
+
+    def stopped_at(*reports):
+        def run(config, *, on_progress):
+            for report in reports:
+                on_progress(*report)
+            raise KeyboardInterrupt
+        return run
+
+    command = ["bench", "--task", "cartpole", "--methods", "dropout", "--trials", "2", "--out", str(tmp_path)]
+    for reports, said in [
+        ([], "trained models and finished cells are kept: the same command resumes from them"),
+        ([("trained trial models", 0, 1)], "no trial model was trained yet (a training under way goes on from its "
+                                           "last checkpoint, if it wrote one): the same command goes on from them"),
+        ([("trained trial models", 1, 1), ("monitored cells", 3, 12)],
+         "the trial models, their thresholds and 3 of the 12 monitored cells are kept: the same command goes on from "
+         "them")]:
+        monkeypatch.setattr(oodmon.bench, "run_bench", stopped_at(*reports))
+        assert main(command) == 130
+        assert capsys.readouterr().err.strip().splitlines()[-1] == f"oodmon: interrupted; {said}"

@@ -6,6 +6,7 @@ import argparse
 import json
 import os
 import sys
+from concurrent.futures.process import BrokenProcessPool
 
 from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent
@@ -127,6 +128,30 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     bench.set_defaults(handler=_bench, kept_on_interrupt=_KEPT["bench"])
 
 
+def _bench_kept(reached: dict[str, tuple[int, int]]) -> str:
+    """What an interrupted bench keeps, by the latest counts of its stages (``reached``): before, it
+    said "trained models and finished cells are kept" of a bench stopped before either (2026-12-06).
+
+    Example:
+        >>> print(_bench_kept({"trained trial models": (2, 2), "monitored cells": (7, 30)}))
+        the trial models, their thresholds and 7 of the 30 monitored cells are kept: the same command
+        goes on from them
+        >>> print(_bench_kept({"trained trial models": (1, 4)}))
+        1 of the 4 trial models is trained and kept (a training under way goes on from its last
+        checkpoint, if it wrote one): the same command goes on from them
+    """
+    resume = ": the same command goes on from them"
+    if "monitored cells" in reached:
+        done, total = reached["monitored cells"]
+        return f"the trial models, their thresholds and {done:,} of the {total:,} monitored cells are kept{resume}"
+    if "trained trial models" in reached:
+        done, total = reached["trained trial models"]
+        trained = ("no trial model was trained yet" if not done
+                   else f"{done:,} of the {total:,} trial models {'is' if done == 1 else 'are'} trained and kept")
+        return f"{trained} (a training under way goes on from its last checkpoint, if it wrote one){resume}"
+    return _KEPT["bench"]
+
+
 def _bench(args: argparse.Namespace) -> int:
     from oodmon.bench import BenchConfig, run_bench
     from oodmon.monitor.alarms import default_window
@@ -188,7 +213,18 @@ def _bench(args: argparse.Namespace) -> int:
         check_output_file(args.results, parameter="--results", inputs=[("--baseline", args.baseline)])
         replaced_file(args.results, parameter="--results", holds="bench result", read=load_bench_result)
     with _progress() as report:
-        result = run_bench(config, on_progress=report)
+        reached: dict[str, tuple[int, int]] = {}  # what an interrupt keeps, by the stages' latest counts
+
+        def reporting(stage: str, done: int, total: int, *note) -> None:
+            if stage in ("trained trial models", "monitored cells"):
+                reached[stage] = (done, total)
+            report(stage, done, total, *note)
+
+        try:
+            result = run_bench(config, on_progress=reporting)
+        except (KeyboardInterrupt, BrokenProcessPool):
+            args.kept_on_interrupt = _bench_kept(reached)
+            raise
     data = result.to_json(config, command=_command_line(args))
     if args.results:
         write_json(args.results, data)
