@@ -130,7 +130,12 @@ def train(
     runs = [Run(recipe, root, name, 1000 * seed + k if independent else seed) for k, name in enumerate(names)]
     for run in runs:
         run.on_evaluation = on_evaluation
-    models = [run.train(report, export_only=export_only, load_pickles=load_pickles) for run in runs]
+    try:
+        models = [run.train(report, export_only=export_only, load_pickles=load_pickles) for run in runs]
+    except KeyboardInterrupt as interrupt:  # what a resume goes on from: each run's steps at its last checkpoint
+        interrupt.checkpoint_steps = [int(run.state["steps"]) for run in runs]
+        interrupt.checkpoint_every = recipe.checkpoint_every  # (0 steps everywhere: when the first falls due)
+        raise
 
     env = training_env(recipe)
     arch = architecture(recipe, env)

@@ -54,8 +54,13 @@ def _train(args: argparse.Namespace) -> int:
                           on_evaluation=evaluated,
                           export_only=args.export_only, load_pickles=args.unsafe_load_pickles,
                           command=_command_line(args))
-        except (KeyboardInterrupt, BrokenProcessPool):
-            _say_what_training_kept(args)
+        except KeyboardInterrupt as interrupt:
+            # (train notes each run's steps at its last checkpoint; none noted: stopped before its runs,
+            # the usual words)
+            if not any(getattr(interrupt, "checkpoint_steps", [1])):
+                args.kept_on_interrupt = (f"no checkpoint was written yet (the first after "
+                                          f"{interrupt.checkpoint_every:,} steps): the same command starts the "
+                                          "training again")
             raise
     meta = agent.metadata
     Console(soft_wrap=True).print(
@@ -63,23 +68,6 @@ def _train(args: argparse.Namespace) -> int:
         f"{sum(meta['training_steps'])} steps in {meta['wall_time_s']} s; saved to {args.out}"
     )
     return 0
-
-
-def _say_what_training_kept(args: argparse.Namespace) -> None:
-    """The interrupt's words where no run of the training has written a checkpoint yet (before, it
-    said "the last checkpoint is kept: the same command resumes from it" of a training stopped in
-    its first steps, which kept none, 2026-12-06)."""
-    from pathlib import Path
-
-    from oodmon.agents.recipes import recipe_for
-
-    runs = Path(args.out) / "runs"
-    if any(runs.glob("*/checkpoint.pt")) or any(runs.glob("*/policy.safetensors")):
-        return  # (the default words)
-    recipe = recipe_for(args.task, args.method)
-    every = (recipe if args.steps is None else recipe.shortened(args.steps)).checkpoint_every  # (as train cuts it)
-    args.kept_on_interrupt = (f"no checkpoint was written yet (the first after {every:,} steps): the same command "
-                              "starts the training again")
 
 
 def _add_evaluate(commands: argparse._SubParsersAction) -> None:

@@ -31,11 +31,13 @@ def test_an_interrupted_training_resumed_ends_with_the_weights_of_one_never_inte
         if done == steps:
             raise KeyboardInterrupt
 
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(KeyboardInterrupt) as stopped:
         train(task, method, tmp_path / "stopped", total_steps=steps, on_evaluation=interrupt, id_episodes=1,
               recipe=recipe)
     state = json.loads((tmp_path / "stopped" / "runs" / "main" / "state.json").read_text())
     assert not state["finished"] and 0 < state["steps"] < steps
+    # (what `oodmon train` says of it: the step of the last checkpoint, and how often they fall due)
+    assert stopped.value.checkpoint_steps == [state["steps"]] and stopped.value.checkpoint_every == steps // 2
     saved = torch.load(tmp_path / "stopped" / "runs" / "main" / "checkpoint.pt", weights_only=True)
     assert len(saved["stands"]["actions"]) > 0  # stopped inside an episode, which the resume plays again
     train(task, method, tmp_path / "stopped", total_steps=steps, id_episodes=1, recipe=recipe)

@@ -283,15 +283,20 @@ def test_ctrl_c_says_what_each_command_leaves_behind(tmp_path, monkeypatch, caps
     assert not (tmp_path / "t.json").exists()
 
     # train stopped before its first checkpoint said "the last checkpoint is kept" (2026-12-06)
-    import oodmon.agents.training as training
+    from oodmon.agents.checkpoints import Run
 
-    monkeypatch.setattr(training, "train", lambda *args, **kwargs: interrupted(None))
-    train = ["train", "--task", "cartpole", "--method", "dropout", "--out", str(tmp_path / "m")]
-    assert main([*train, "--steps", "3000"]) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
+    def stopped_at(steps):  # a run stopped as it starts, its last checkpoint at that step (0: none)
+        def load_or_create(self, *args, **kwargs):
+            self.state["steps"] = steps
+            raise KeyboardInterrupt
+        return load_or_create
+
+    monkeypatch.setattr(Run, "load_or_create", stopped_at(0))
+    train = ["train", "--task", "cartpole", "--method", "dropout", "--out", str(tmp_path / "m"), "--steps", "3000"]
+    assert main(train) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
         "oodmon: interrupted; no checkpoint was written yet (the first after 1,500 steps): the same command starts "
         "the training again")  # (3,000 steps: a checkpoint every 1,500, as train cuts the recipe's 10,000)
-    (tmp_path / "m/runs/main").mkdir(parents=True)
-    (tmp_path / "m/runs/main/checkpoint.pt").write_bytes(b"")
+    monkeypatch.setattr(Run, "load_or_create", stopped_at(1500))
     assert main(train) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
         "oodmon: interrupted; the last checkpoint is kept: the same command resumes from it")
 
