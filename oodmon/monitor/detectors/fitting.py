@@ -189,6 +189,12 @@ def _policy_identity(policy: Any, estimator: Any) -> str | None:
     return plain_policy_hash(policy)
 
 
+def _draws(estimator: Any) -> dict[str, Any]:
+    """How a policy's estimator draws its samples, as the keys of what kept fitting episodes and
+    kept detectors were made by: its masks' kind and its samples per decision (``None`` for none)."""
+    return {"masks": getattr(estimator, "masks", None), "samples": None if estimator is None else estimator.n_samples}
+
+
 def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETECTOR_FIT,
             on_progress: Progress | None = None, max_steps: int | None = None,
             with_member_values: bool = False, estimates_from: int | None = None,
@@ -567,8 +573,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         "policy": policy_hash or _policy_identity(policy, estimator), "task": task,
         "env": getattr(env.spec, "id", None), "detectors": list(detectors),
         "episodes": episodes, "min_steps": min_steps, "seed": seed, "obs_noise": float(obs_noise),
-        "max_steps": max_steps, "masks": getattr(estimator, "masks", None),
-        "samples": None if estimator is None else estimator.n_samples}
+        "max_steps": max_steps, **_draws(estimator)}
     done, state = ([], None) if kept is None else _read_kept_trajectories(kept, made_by)
     if done and on_progress is not None:
         on_progress("kept detector fitting episodes", len(done), len(done))  # (an interrupted fit's)
@@ -749,12 +754,10 @@ def fit_settings(agent: Any, detectors: Sequence[str] | None, *, score: str, epi
     interrupted calibration (:class:`oodmon.kept.KeptFit`) is read again only where they agree."""
     from oodmon.monitor.monitor import policy_hash
 
-    estimator = agent.estimator
     return {"policy": policy_hash(agent), "task": agent.task,
             "detectors": None if detectors is None else list(detectors), "score": score, "episodes": episodes,
             "dynamics_updates": dynamics_updates, "obs_noise": float(obs_noise), "max_steps": max_steps,
-            "workers": workers, "version": FIT_VERSION, "masks": getattr(estimator, "masks", None),
-            "samples": None if estimator is None else estimator.n_samples}
+            "workers": workers, "version": FIT_VERSION, **_draws(agent.estimator)}
 
 
 def detectors_for(agent: Any, directory: str | Path | None = None) -> DetectorSet | None:
