@@ -55,9 +55,10 @@ def _train(args: argparse.Namespace) -> int:
                           export_only=args.export_only, load_pickles=args.unsafe_load_pickles,
                           command=_command_line(args))
         except KeyboardInterrupt as interrupt:
-            # (train notes each run's steps at its last checkpoint; none noted: stopped before its runs,
-            # the usual words)
-            if not any(getattr(interrupt, "checkpoint_steps", [1])):
+            # train notes each run's steps at its last checkpoint (none noted: stopped before its runs,
+            # and the usual words stand)
+            steps = getattr(interrupt, "checkpoint_steps", None)
+            if steps is not None and not any(steps):
                 args.kept_on_interrupt = (f"no checkpoint was written yet (the first after "
                                           f"{interrupt.checkpoint_every:,} steps): the same command starts the "
                                           "training again")

@@ -180,8 +180,7 @@ def _policy_identity(policy: Any, estimator: Any) -> str | None:
     from oodmon.hashing import state_sha256
     from oodmon.monitor.monitor import policy_hash
 
-    own = policy_hash(policy) if isinstance(policy, Agent) else "unknown"
-    if own != "unknown":
+    if isinstance(policy, Agent) and (own := policy_hash(policy)) != "unknown":  # (a hash of its model's file)
         return own
     if estimator is not None:
         weights = estimator.weights()
