@@ -956,6 +956,33 @@ def _half_second_job(folder: Path, job: int) -> int:
     return job
 
 
+def _running_after(pids: set[int], seconds: float) -> set[int]:
+    """Those of ``pids`` still able to run code (alive and no zombie, as Linux's /proc says) when
+    all have stopped or ``seconds`` have passed."""
+    import time
+
+    def runs(pid: int) -> bool:
+        try:
+            return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+        except (FileNotFoundError, ProcessLookupError):
+            return False
+
+    deadline = time.monotonic() + seconds
+    while (running := {pid for pid in pids if runs(pid)}) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return running
+
+
+def _job_saying_its_start_and_end(folder: Path, job: int, seconds: float) -> int:
+    """Writes ``<job>.<its worker's pid>`` as it starts and ``<job>.end`` ``seconds`` later."""
+    import time
+
+    (folder / f"{job}.{os.getpid()}").touch()
+    time.sleep(seconds)
+    (folder / f"{job}.end").touch()
+    return job
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forked workers: Linux's")
 def test_the_bench_pools_workers_are_forked_from_the_bench_where_the_default_is_python_3_14s_forkserver(monkeypatch):
     """Python 3.14 made Linux's default start method "forkserver". The bench's pool took the
@@ -975,26 +1002,62 @@ def test_the_bench_pools_workers_are_forked_from_the_bench_where_the_default_is_
         assert pool.submit(os.getppid).result() == os.getpid()
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="its workers' states: Linux's /proc")
 def test_the_bench_pool_stops_its_queued_jobs_on_an_interrupt(tmp_path):
     """An interrupt while the bench's workers play (its trainings, preparations, cells) cancels the
     jobs not begun and kills the workers at once; `with ProcessPoolExecutor` waited for every
-    queued job (Ctrl-C at a CartPole bench's first cell ran 100 of its 102 cells). 20 jobs of half
-    a second on two workers: all would take 5 s; here one or two rounds ran, and none after."""
+    queued job (Ctrl-C at a CartPole bench's first cell ran 100 of its 102 cells). Two workers, job
+    0 at once and 19 jobs of 5 s: waiting for the queue would take 50 s, for the jobs begun 5 s.
+    Nothing here hangs on the machine's speed (this test counted half-second jobs finished before
+    the stop until 2026-12-06, and failed once on a loaded machine): up to the stop, which comes
+    when job 0 is done, the workers can have begun jobs 1 and 2 only, and finished none of them."""
     import time
 
     from oodmon.bench.cells import stopping_pool
 
     started = time.monotonic()
     with pytest.raises(KeyboardInterrupt), stopping_pool(2) as pool:
-        jobs = [pool.submit(_half_second_job, tmp_path, job) for job in range(20)]
+        jobs = [pool.submit(_job_saying_its_start_and_end, tmp_path, job, 0.0 if job == 0 else 5.0)
+                for job in range(20)]
         jobs[0].result()
         raise KeyboardInterrupt  # Ctrl-C here
-    assert time.monotonic() - started < 3
-    ran = len(list(tmp_path.iterdir()))
-    time.sleep(1.0)
-    assert 1 <= ran <= 4 and len(list(tmp_path.iterdir())) == ran  # none ran on after it
+    stopped = time.monotonic() - started
+    names = sorted(path.name for path in tmp_path.iterdir())
+    begun = {int(name.split(".")[0]): int(name.split(".")[1]) for name in names if not name.endswith(".end")}
+    assert [name for name in names if name.endswith(".end")] == ["0.end"], names  # no 5 s job ran out
+    assert 0 in begun and set(begun) <= {0, 1, 2} and stopped < 5, (names, stopped)
+    assert _running_after(set(begun.values()), 3.0) == set()  # killed: none to go on with a job
+    assert sorted(path.name for path in tmp_path.iterdir()) == names
     with stopping_pool(2) as pool:  # and without one, every job's result
         assert sorted(pool.map(_half_second_job, [tmp_path] * 4, range(20, 24))) == [20, 21, 22, 23]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="its workers' states: Linux's /proc")
+def test_the_bench_pool_kills_the_workers_still_starting_when_the_interrupt_comes(tmp_path, monkeypatch):
+    """Ctrl-C as the first jobs are queued, before the workers have begun (a bench's first moments;
+    here each worker takes half a second to start, as on a loaded machine): the pool killed the
+    workers that had said their pid as they started, none yet, and the rest took the queued jobs
+    and ran them out, and the bench at its exit waited for them (its trainings: hours). It now
+    kills every worker it forked."""
+    import time
+
+    import oodmon.side_by_side
+    from oodmon.bench.cells import stopping_pool
+
+    def slow_start(parent: int, die_with=oodmon.side_by_side.die_with) -> None:
+        time.sleep(0.5)
+        die_with(parent)
+
+    monkeypatch.setattr(oodmon.side_by_side, "die_with", slow_start)  # (the workers fork with it)
+    started = time.monotonic()
+    with pytest.raises(KeyboardInterrupt), stopping_pool(2) as pool:
+        for job in range(20):
+            pool.submit(_job_saying_its_start_and_end, tmp_path, job, 5.0)
+        raise KeyboardInterrupt  # Ctrl-C here
+    assert time.monotonic() - started < 4  # (the jobs begun would take 5 s)
+    time.sleep(1.5)  # a worker not killed has started by now, and begun a job
+    begun = {int(path.name.split(".")[1]) for path in tmp_path.iterdir() if not path.name.endswith(".end")}
+    assert _running_after(begun, 3.0) == set(), sorted(path.name for path in tmp_path.iterdir())
 
 
 @pytest.mark.parametrize("given, said", [

@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -94,38 +94,39 @@ def stopping_pool(workers: int, progress: Any = None) -> Iterator[ProcessPoolExe
 
     ``progress``: a ``multiprocessing`` queue the workers inherit, on which a job's
     :class:`Relay` ``()`` puts its reports (a queue cannot be sent with a job; a ``Manager``'s
-    could, but its server is a process more, which outlived a SIGKILLed bench)."""
-    import signal
+    could, but its server is a process more, which outlived a SIGKILLed bench).
 
+    The workers killed are every one the pool forked, read off its ``_processes`` (no public way
+    says them). Until 2026-12-06 they were those that had said their pid as they started: a worker
+    still starting (a loaded machine, or Ctrl-C in a bench's first moments) lived on, took the jobs
+    already handed to the workers and ran them out, and the bench waited for them at its exit."""
     from oodmon.side_by_side import forking, worker_context
 
-    context = worker_context()
-    pids = context.SimpleQueue()  # each worker's, said as it starts
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_say_pid,
-                               initargs=(pids, os.getpid(), progress))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=worker_context(), initializer=_start_worker,
+                               initargs=(os.getpid(), progress))
     try:
         with forking():  # (the pool forks its workers at its first job, in the caller's loop)
             yield pool
     except BaseException:
+        forked = list((getattr(pool, "_processes", None) or {}).values())  # (shutdown forgets them)
         pool.shutdown(wait=False, cancel_futures=True)
-        while not pids.empty():
-            with suppress(ProcessLookupError):
-                os.kill(pids.get(), signal.SIGKILL)
-        pool.shutdown(wait=True)
+        for worker in forked:
+            worker.kill()
+        for worker in forked:
+            worker.join(timeout=5)  # gone (or reaped by the pool's own thread) before the bench goes on
         raise
     pool.shutdown(wait=True)
 
 
-def _say_pid(pids: Any, bench: int, progress: Any = None) -> None:
-    """A worker's start: its pid said to the bench, and its death bound to the bench's (a SIGKILLed
-    bench, which has no time to kill its workers, left them to run their jobs out, orphaned); the
-    bench's progress queue kept for its jobs' :class:`Relay` ``()``."""
+def _start_worker(bench: int, progress: Any = None) -> None:
+    """A worker's start: its death bound to the bench's (a SIGKILLed bench, which has no time to
+    kill its workers, left them to run their jobs out, orphaned); the bench's progress queue kept
+    for its jobs' :class:`Relay` ``()``."""
     from oodmon.side_by_side import die_with
 
     global _PROGRESS
     die_with(bench)
     _PROGRESS = progress
-    pids.put(os.getpid())
 
 
 _PROGRESS: Any = None  # in a worker of a stopping_pool: the queue its progress goes to
