@@ -2,6 +2,6 @@
 
 import sys
 
-from oodmon.cli import main
+from oodmon.cli import console
 
-sys.exit(main())
+sys.exit(console())

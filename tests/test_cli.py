@@ -27,6 +27,17 @@ def test_python_dash_m_oodmon_is_the_cli():
     assert result.returncode == 2 and result.stderr.count("\n") == 1 and "--out" in result.stderr
 
 
+def test_a_ctrl_c_while_python_exits_after_a_command_prints_no_traceback():
+    """Ctrl-C in the half second of Python's exit after a command (its clean-up, run by atexit):
+    it printed the traceback of the clean-up it stopped, the exit code 0. Here the last clean-up
+    sends it, after `python -m oodmon envs` has printed its table."""
+    code = ("import atexit, os, runpy, signal, sys, time; "
+            "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(0.2))); "
+            "sys.argv = ['oodmon', 'envs', '--task', 'pong']; runpy.run_module('oodmon', run_name='__main__')")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert (done.returncode, done.stderr) == (0, "") and "pong:pixelate@5" in done.stdout
+
+
 def test_envs_lists_the_whole_grid_as_json(capsys):
     assert main(["envs", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)

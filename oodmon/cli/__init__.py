@@ -55,6 +55,19 @@ def _plays_a_policy(args: argparse.Namespace) -> bool:
     return bool(plays(args) if callable(plays) else plays)
 
 
+def console() -> int:
+    """The ``oodmon`` program (and ``python -m oodmon``): :func:`main`, then Python's exit with
+    Ctrl-C ignored. By then the command's work is done and its files written; Python's exit, torch's
+    and multiprocessing's clean-up, takes about half a second, and a Ctrl-C in it stopped the
+    clean-up it came in and printed that one's traceback ("Exception ignored in atexit callback",
+    2026-12-06, an interrupt fuzzing of the commands), the exit code still 0. SIGTERM still ends it."""
+    import signal
+
+    code = main()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return code
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI with ``argv`` (default: ``sys.argv[1:]``); return the exit code.
 

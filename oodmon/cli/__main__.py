@@ -3,6 +3,6 @@ CLI was one module)."""
 
 import sys
 
-from oodmon.cli import main
+from oodmon.cli import console
 
-sys.exit(main())
+sys.exit(console())
