@@ -544,6 +544,36 @@ def test_fuzz_cli_draws_quick_commands_and_tells_an_answer_from_a_traceback(monk
     assert "ZeroDivisionError" in script.run(["envs"], 5)
 
 
+def test_fuzz_interrupts_draws_seeded_stops_and_names_each_broken_promise(monkeypatch, tmp_path):
+    script = _load(monkeypatch, tmp_path, "fuzz_interrupts")[0]
+    stops = script.draws(60, 3)
+    assert [(s.name, s.signal, s.twice, s.delay) for s in stops] == [
+        (s.name, s.signal, s.twice, s.delay) for s in script.draws(60, 3)]  # seeded
+    assert {s.name for s in stops} == set(script.commands(tmp_path / "run0"))
+    assert {s.signal for s in stops} == {"SIGINT", "SIGTERM", "SIGKILL"} and 0 < sum(s.twice for s in stops) < 30
+    assert all(0.5 <= s.delay <= 12 for s in stops)
+    assert not any(s.twice for s in stops if s.signal == "SIGKILL")
+    kept = script.Stop("calibrate", "SIGINT", False, 3.0, sent=True, code=130, seconds=0.4, again_code=0,
+                       stderr="oodmon: interrupted; no threshold file or detectors were written")
+    assert script.findings(kept) == []
+    broken = script.Stop("bench", "SIGTERM", False, 3.0, sent=True, code=-15, seconds=9.5, again_code=2,
+                         stderr="oodmon: stopped by SIGTERM", left=["oodmon bench"],
+                         again_stderr="Traceback (most recent call last):\n  ...")
+    assert script.findings(broken) == ["run again: a traceback", "exit code -15", "gone 9.5 s after the signal",
+                                       "1 process(es) left: oodmon bench", "run again: exit code 2"]
+    # a second SIGTERM may end Python's exit after the command said it stopped, not before
+    twice = script.Stop("validate", "SIGTERM", True, 3.0, sent=True, code=-15, again_code=0)
+    assert script.findings(twice) == ["exit code -15"]
+    twice.stderr = "oodmon: stopped by SIGTERM; the 20 of the 200 episodes played whole before it are counted above"
+    assert script.findings(twice) == []
+    killed = script.Stop("run", "SIGKILL", False, 3.0, sent=True, code=-9, again_code=0, replay_code=2)
+    assert script.findings(killed) == []  # (its log had no step on the disk yet)
+    killed.replay_code, killed.replay_stderr = 3, "Traceback (most recent call last):"
+    assert script.findings(killed) == ["replay: a traceback", "replay: exit code 3"]
+    assert script.findings(script.Stop("run", "SIGINT", False, 3.0, sent=True, code=-9, again_code=0)) == [
+        "exit code -9"]
+
+
 def test_dynamics_training_reads_each_fit_as_epochs_schedule_and_cap_and_refuses_others():
     """scripts/dynamics_training.py --fits: EPOCHS:SCHEDULE (every epoch) or with :MAX_UPDATES, as
     the dynamics detector takes them; anything else is refused naming the form."""
