@@ -1078,7 +1078,9 @@ def test_an_interrupted_bench_says_how_far_it_got(tmp_path, monkeypatch, capsys)
     """Ctrl-C said "trained models and finished cells are kept" of a bench stopped before either
     (2026-12-06): it now says what its stages had reached."""
     import oodmon.bench
+    import oodmon.bench.run
     from oodmon.cli import main
+    from oodmon.cli.bench import PREPARING
 
     def stopped_at(*reports):
         def run(config, *, on_progress):
@@ -1094,7 +1096,15 @@ def test_an_interrupted_bench_says_how_far_it_got(tmp_path, monkeypatch, capsys)
                                            "last checkpoint, if it wrote one): the same command goes on from them"),
         ([("trained trial models", 1, 1), ("monitored cells", 3, 12)],
          "the trial models, their thresholds and 3 of the 12 monitored cells are kept: the same command goes on from "
-         "them")]:
+         "them"),
+        ([(PREPARING, 1, 2)], "the trial models and 1 of the 2 trials' fitted detectors, thresholds and failing "
+                              "variants are kept: the same command goes on from them")]:
         monkeypatch.setattr(oodmon.bench, "run_bench", stopped_at(*reports))
         assert main(command) == 130
         assert capsys.readouterr().err.strip().splitlines()[-1] == f"oodmon: interrupted; {said}"
+    # the stage's name as the bench reports it (a bench that trains nothing, stopped as it fits: 2026-12-06)
+    reported = []
+    monkeypatch.setattr(oodmon.bench.run, "_prepare_trial", lambda config, method, trial, report, workers: "parts")
+    config = BenchConfig(task="cartpole", methods=("dropout",), trials=1)
+    oodmon.bench.run._prepare_trials(config, [("dropout", 0)], 1, lambda *report: reported.append(report))
+    assert reported == [(PREPARING, 0, 1), (PREPARING, 1, 1)]

@@ -92,6 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     args.argv = words  # what a result records as its command
+    kept, args.kept_on_interrupt = getattr(args, "kept_on_interrupt", None), _NOT_BEGUN
     with warnings.catch_warnings():
         warnings.showwarning = _warning_shower()
         try:
@@ -100,6 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             # a command that plays no policy (replay, check, envs) leaves torch unimported
             limit_threads(torch=_plays_a_policy(args))
             with stop_on_sigterm():  # a service manager's stop ends a command as Ctrl-C does
+                args.kept_on_interrupt = kept  # (what the command keeps, once it has begun)
                 return args.handler(args) or 0
         except (OodmonError, OSError) as error:
             print(f"oodmon: error: {error}", file=sys.stderr)
@@ -129,6 +131,12 @@ def _worker_death(error: BrokenProcessPool) -> str:
     ended_itself = isinstance(error, WorkerDied) and error.signal is None
     return (str(error).rstrip(".") or "a worker process died") + ("" if ended_itself else
                                                                   "; fewer --workers need less memory")
+
+
+#: What a command stopped before its handler began says: Ctrl-C in torch's import (the first second)
+#: said "the last checkpoint is kept" of a train that had written none, "every finished episode is
+#: in the logs" of a run that had none (2026-12-06, scripts/fuzz_interrupts.py).
+_NOT_BEGUN = "it was stopped as it started: nothing was written"
 
 
 def _kept(args: argparse.Namespace) -> str:

@@ -128,6 +128,9 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     bench.set_defaults(handler=_bench, kept_on_interrupt=_KEPT["bench"])
 
 
+PREPARING = "models, detectors, thresholds and failing variants of trials"  # the bench's second stage, as it reports it
+
+
 def _bench_kept(reached: dict[str, tuple[int, int]]) -> str:
     """What an interrupted bench keeps, by the latest counts of its stages (``reached``): before, it
     said "trained models and finished cells are kept" of a bench stopped before either (2026-12-06).
@@ -139,11 +142,23 @@ def _bench_kept(reached: dict[str, tuple[int, int]]) -> str:
         >>> print(_bench_kept({"trained trial models": (1, 4)}))
         1 of the 4 trial models is trained and kept (a training under way goes on from its last
         checkpoint, if it wrote one): the same command goes on from them
+
+    A bench that trains nothing (trial 0, the shipped agent, or trained before) and was stopped as it
+    fitted its trials' detectors said "trained models and finished cells are kept" until 2026-12-06:
+    it now counts its trials prepared, each kept as it is done::
+
+        >>> print(_bench_kept({PREPARING: (1, 3)}))
+        the trial models and 1 of the 3 trials' fitted detectors, thresholds and failing variants are
+        kept: the same command goes on from them
     """
     resume = ": the same command goes on from them"
     if "monitored cells" in reached:
         done, total = reached["monitored cells"]
         return f"the trial models, their thresholds and {done:,} of the {total:,} monitored cells are kept{resume}"
+    if PREPARING in reached:
+        done, total = reached[PREPARING]
+        return (f"the trial models and {done:,} of the {total:,} trials' fitted detectors, thresholds and failing "
+                f"variants are kept{resume}")
     if "trained trial models" in reached:
         done, total = reached["trained trial models"]
         trained = ("no trial model was trained yet" if not done
@@ -216,7 +231,7 @@ def _bench(args: argparse.Namespace) -> int:
         reached: dict[str, tuple[int, int]] = {}  # what an interrupt keeps, by the stages' latest counts
 
         def reporting(stage: str, done: int, total: int, *note) -> None:
-            if stage in ("trained trial models", "monitored cells"):
+            if stage in ("trained trial models", PREPARING, "monitored cells"):
                 reached[stage] = (done, total)
             report(stage, done, total, *note)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
@@ -62,6 +63,10 @@ def _train(args: argparse.Namespace) -> int:
                 args.kept_on_interrupt = (f"no checkpoint was written yet (the first after "
                                           f"{interrupt.checkpoint_every:,} steps): the same command starts the "
                                           "training again")
+            elif steps is None and not any(Path(args.out).glob("runs/*/checkpoint.*")):
+                # stopped before its runs began (torch's import: its first second), and no earlier
+                # training's checkpoint there: "the last checkpoint is kept" said so of none (2026-12-06)
+                args.kept_on_interrupt = "nothing was trained yet: the same command starts the training"
             raise
     meta = agent.metadata
     Console(soft_wrap=True).print(

@@ -300,6 +300,31 @@ def test_ctrl_c_says_what_each_command_leaves_behind(tmp_path, monkeypatch, caps
     assert main(train) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
         "oodmon: interrupted; the last checkpoint is kept: the same command resumes from it")
 
+    # ... and so of a training stopped before its runs began (in torch's import, its first second; 2026-12-06),
+    # unless an earlier one had left a checkpoint there
+    import oodmon.agents.training
+
+    def stopped_before(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(oodmon.agents.training, "train", stopped_before)
+    train[train.index("--out") + 1] = str(tmp_path / "new")
+    assert main(train) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
+        "oodmon: interrupted; nothing was trained yet: the same command starts the training")
+    (tmp_path / "new" / "runs" / "main").mkdir(parents=True)
+    (tmp_path / "new" / "runs" / "main" / "checkpoint.pt").write_bytes(b"")
+    assert main(train) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
+        "oodmon: interrupted; the last checkpoint is kept: the same command resumes from it")
+
+    # a command stopped before it began (torch imported as the threads are set) says that nothing was written
+    import oodmon.cli
+
+    monkeypatch.setattr(oodmon.cli, "limit_threads", stopped_before)
+    run = ["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "2", "--mcap", str(tmp_path / "r.mcap")]
+    for argv in (train, run, ["validate", str(tmp_path / "t.json")]):
+        assert main(argv) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
+            "oodmon: interrupted; it was stopped as it started: nothing was written"), argv
+
 
 #: A monitored run writing to {sink} (at sys.argv[1]) that prints "e" as each episode ends, to be killed.
 UNTIL_KILLED = """
