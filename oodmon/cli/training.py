@@ -64,7 +64,7 @@ def _train(args: argparse.Namespace) -> int:
                                           f"{interrupt.checkpoint_every:,} steps): the same command starts the "
                                           "training again")
             elif steps is None and not any(Path(args.out).glob("runs/*/checkpoint.*")):
-                # stopped before its runs began (torch's import: its first second), and no earlier
+                # stopped before its runs began (importing SB3, checking --out), and no earlier
                 # training's checkpoint there: "the last checkpoint is kept" said so of none (2026-12-06)
                 args.kept_on_interrupt = "nothing was trained yet: the same command starts the training"
             raise
