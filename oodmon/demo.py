@@ -98,15 +98,17 @@ def run_demo(out_dir: str | Path = "runs/demo", console: Console | None = None, 
 
     console = console or Console(soft_wrap=True)
     out = Path(out_dir)
-    agent = load("cartpole", DEMO_METHOD)
-    detectors = detectors_for(agent)
-    console.print(f"[bold]oodmon demo[/bold]: the shipped {agent.task}/{agent.method} agent "
-                  f"(ID return {agent.metadata['id_return_mean']}) under the monitor, every step scored by "
-                  f"{', '.join(detectors.names) if detectors else 'spread'}.")
     try:
+        agent = load("cartpole", DEMO_METHOD)
+        detectors = detectors_for(agent)
+        console.print(f"[bold]oodmon demo[/bold]: the shipped {agent.task}/{agent.method} agent "
+                      f"(ID return {agent.metadata['id_return_mean']}) under the monitor, every step scored by "
+                      f"{', '.join(detectors.names) if detectors else 'spread'}.")
         threshold = calibrate_agent(agent, calibration_episodes, far=0.05, detectors=detectors, detector=detector)
     except KeyboardInterrupt as interrupt:
-        interrupt.calibrating = True  # (`oodmon demo` says that nothing was written yet)
+        # (`oodmon demo` says that nothing was written yet; stopped as it loaded the agent, it said
+        # "every finished episode is in the logs" until 2026-12-06)
+        interrupt.nothing_written = True
         raise
     threshold.save(out / "threshold.json")
     console.print(f"1. Calibrated on {threshold.n_episodes} held-out ID episodes: alarm when the {detector} "

@@ -207,13 +207,16 @@ def test_demo_stopped_while_it_calibrates_says_that_nothing_was_written(tmp_path
         raise KeyboardInterrupt
 
     out = tmp_path / "demo"
-    with monkeypatch.context() as patch:
-        patch.setattr(oodmon.monitor, "calibrate_agent", interrupted)
-        assert main(["demo", "--out", str(out)]) == 130
-    assert capsys.readouterr().err.strip().splitlines()[-1] == (
-        f"oodmon: interrupted; nothing was written: the demo calibrates first, then writes its threshold and logs "
-        f"into {out}: run the command again")
-    assert not any(out.iterdir())
+    import oodmon.agents
+
+    for module, name in ((oodmon.monitor, "calibrate_agent"), (oodmon.agents, "load")):  # (loading: 2026-12-06)
+        with monkeypatch.context() as patch:
+            patch.setattr(module, name, interrupted)
+            assert main(["demo", "--out", str(out)]) == 130
+        assert capsys.readouterr().err.strip().splitlines()[-1] == (
+            f"oodmon: interrupted; nothing was written: the demo calibrates first, then writes its threshold and logs "
+            f"into {out}: run the command again"), name
+        assert not any(out.iterdir())
     run_episode, calls = Monitor.run_episode, []
 
     def interrupted_after_the_calibration(self, *args, **kwargs):  # (its 45 episodes are run_episode's too)

@@ -84,6 +84,8 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    # (stopped as it loads, it said "every finished episode is in the logs" of none until 2026-12-06)
+    args.kept_on_interrupt = "nothing was written: it was stopped before its first episode"
     from rich.progress import Progress
 
     from oodmon.envs.shift import shifts_an_env
@@ -154,8 +156,7 @@ def _run(args: argparse.Namespace) -> int:
         progress.console.print(f"[bold red]ALARM[/bold red] {escape(event.text())}")
 
     interrupt = None
-    if not sinks:  # (the default said of an interrupted run is of its logs)
-        args.kept_on_interrupt = "no log was written (--mcap or --rrd keeps every step)"
+    args.kept_on_interrupt = _LOGGED if sinks else "no log was written (--mcap or --rrd keeps every step)"
     with warnings.catch_warnings(), command or nullcontext(), Progress(console=console, transient=True) as progress, \
             Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show, *filter(None, [command])],
                     strict=args.strict, force=args.force, render=args.render) as monitor:
@@ -406,6 +407,9 @@ def _add_demo(commands: argparse._SubParsersAction) -> None:
 
 
 def _demo(args: argparse.Namespace) -> int:
+    nothing = (f"nothing was written: the demo calibrates first, then writes its threshold and logs into "
+               f"{args.out}: run the command again")
+    args.kept_on_interrupt = nothing  # (until its logs begin: "every finished episode is in" them)
     from oodmon.demo import run_demo
 
     from oodmon.outputs import check_output_dir
@@ -414,8 +418,6 @@ def _demo(args: argparse.Namespace) -> int:
     try:
         run_demo(args.out)
     except KeyboardInterrupt as interrupt:
-        if getattr(interrupt, "calibrating", False):  # (the logs "every finished episode is in" are not begun)
-            args.kept_on_interrupt = (f"nothing was written: the demo calibrates first, then writes its threshold and "
-                                      f"logs into {args.out}: run the command again")
+        args.kept_on_interrupt = nothing if getattr(interrupt, "nothing_written", False) else _KEPT["demo"]
         raise
     return 0

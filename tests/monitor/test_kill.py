@@ -324,6 +324,13 @@ def test_ctrl_c_says_what_each_command_leaves_behind(tmp_path, monkeypatch, caps
     for argv in (train, run, ["validate", str(tmp_path / "t.json")]):
         assert main(argv) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
             "oodmon: interrupted; it was stopped as it started: nothing was written"), argv
+    monkeypatch.undo()  # ... and run, stopped as it loads its agent, that it wrote no log yet (2026-12-06)
+    import oodmon.cli.run
+
+    monkeypatch.setattr(oodmon.cli.run, "_load_agent", stopped_before)
+    assert main(run) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
+        "oodmon: interrupted; nothing was written: it was stopped before its first episode")
+    assert not (tmp_path / "r.mcap").exists()
 
 
 #: A monitored run writing to {sink} (at sys.argv[1]) that prints "e" as each episode ends, to be killed.
