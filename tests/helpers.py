@@ -6,6 +6,7 @@ import contextlib
 import io
 import subprocess
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -76,6 +77,26 @@ def once_per_run(tmp_path_factory, worker_id: str, name: str, make):
             done.parent.mkdir(exist_ok=True)  # (a worker whose make failed left it)
             done.write_text(json.dumps(make(done.parent)))
     return json.loads(done.read_text())
+
+
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, killed and not yet reaped, does not; Linux's /proc)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def wait_until_dead(pid: int, seconds: float = 10.0) -> bool:
+    """Whether process ``pid`` stops running within ``seconds`` (a signal acts at once: this waits
+    for it, not for a duration)."""
+    deadline = time.monotonic() + seconds
+    while alive(pid):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
 
 
 def load_script(name: str):

@@ -18,7 +18,7 @@ from oodmon.bench.report import unsolved_trials
 from oodmon.bench.run import _in_worker as _bench_in_worker
 from oodmon.errors import ConfigError
 from oodmon.replay import compute_metrics, read_log, read_logs
-from tests.helpers import load_script, run_cli
+from tests.helpers import load_script, run_cli, wait_until_dead
 
 SPECS = ("cartpole:length=2.0", "cartpole:gravity=98.0", "cartpole:gravity=0.98")
 # Detectors fitted on 3 episodes peak early in the 19 calibration episodes: the calibration says so
@@ -956,23 +956,6 @@ def _half_second_job(folder: Path, job: int) -> int:
     return job
 
 
-def _running_after(pids: set[int], seconds: float) -> set[int]:
-    """Those of ``pids`` still able to run code (alive and no zombie, as Linux's /proc says) when
-    all have stopped or ``seconds`` have passed."""
-    import time
-
-    def runs(pid: int) -> bool:
-        try:
-            return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-        except (FileNotFoundError, ProcessLookupError):
-            return False
-
-    deadline = time.monotonic() + seconds
-    while (running := {pid for pid in pids if runs(pid)}) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    return running
-
-
 def _job_saying_its_start_and_end(folder: Path, job: int, seconds: float) -> int:
     """Writes ``<job>.<its worker's pid>`` as it starts and ``<job>.end`` ``seconds`` later."""
     import time
@@ -1026,7 +1009,7 @@ def test_the_bench_pool_stops_its_queued_jobs_on_an_interrupt(tmp_path):
     begun = {int(name.split(".")[0]): int(name.split(".")[1]) for name in names if not name.endswith(".end")}
     assert [name for name in names if name.endswith(".end")] == ["0.end"], names  # no 5 s job ran out
     assert 0 in begun and set(begun) <= {0, 1, 2} and stopped < 5, (names, stopped)
-    assert _running_after(set(begun.values()), 3.0) == set()  # killed: none to go on with a job
+    assert [pid for pid in set(begun.values()) if not wait_until_dead(pid, 3.0)] == []  # killed: none to go on
     assert sorted(path.name for path in tmp_path.iterdir()) == names
     with stopping_pool(2) as pool:  # and without one, every job's result
         assert sorted(pool.map(_half_second_job, [tmp_path] * 4, range(20, 24))) == [20, 21, 22, 23]
@@ -1057,7 +1040,8 @@ def test_the_bench_pool_kills_the_workers_still_starting_when_the_interrupt_come
     assert time.monotonic() - started < 4  # (the jobs begun would take 5 s)
     time.sleep(1.5)  # a worker not killed has started by now, and begun a job
     begun = {int(path.name.split(".")[1]) for path in tmp_path.iterdir() if not path.name.endswith(".end")}
-    assert _running_after(begun, 3.0) == set(), sorted(path.name for path in tmp_path.iterdir())
+    still = [pid for pid in begun if not wait_until_dead(pid, 3.0)]
+    assert still == [], sorted(path.name for path in tmp_path.iterdir())
 
 
 @pytest.mark.parametrize("given, said", [

@@ -17,6 +17,7 @@ from oodmon.cli import main
 from oodmon.errors import InvalidParameterError
 from oodmon.monitor import Threshold, calibrate_agent, id_episode_scores, validate_threshold
 from oodmon.side_by_side import play_side_by_side, resolve_workers, runs_of
+from tests.helpers import alive, wait_until_dead
 
 
 @pytest.fixture
@@ -92,14 +93,6 @@ def _one_slow_one_failing(folder, fail):
     return play
 
 
-def _wait_until_dead(pid: int) -> bool:
-    for _ in range(200):  # a signal is at once; this waits for it, not for a duration
-        if not _alive(pid):
-            return True
-        time.sleep(0.05)
-    return False
-
-
 def test_a_workers_error_is_raised_here_and_the_other_worker_is_stopped(four_cores, tmp_path):
     def fail(first):
         raise InvalidParameterError(f"episode {first}: no such thing")
@@ -110,7 +103,7 @@ def test_a_workers_error_is_raised_here_and_the_other_worker_is_stopped(four_cor
         play_side_by_side(_one_slow_one_failing(tmp_path, fail), 4, 2, "ID episodes")
     cause = raised.value.__cause__  # where it was raised, in the worker
     assert isinstance(cause, WorkerTraceback) and "in fail" in str(cause) and "Traceback" in str(cause)
-    assert not _alive(int((tmp_path / "slow").read_text()))  # stopped, not left to sleep out its two minutes
+    assert not alive(int((tmp_path / "slow").read_text()))  # stopped, not left to sleep out its two minutes
 
 
 def test_a_worker_that_dies_is_said_here_and_the_other_worker_is_stopped(four_cores, tmp_path):
@@ -120,7 +113,7 @@ def test_a_worker_that_dies_is_said_here_and_the_other_worker_is_stopped(four_co
 
     with pytest.raises(BrokenProcessPool, match=r"died while playing episodes \(killed by SIGKILL\)"):
         play_side_by_side(_one_slow_one_failing(tmp_path, lambda _: os.kill(os.getpid(), 9)), 4, 2, "ID episodes")
-    assert _wait_until_dead(int((tmp_path / "slow").read_text()))  # the command kills the others
+    assert wait_until_dead(int((tmp_path / "slow").read_text()))  # the command kills the others
 
 
 def test_a_workers_error_outside_its_episodes_is_raised_here_not_read_as_its_death(four_cores, monkeypatch):
@@ -150,7 +143,7 @@ def test_a_worker_that_ends_its_own_process_is_not_said_to_be_killed(four_cores,
     with pytest.raises(BrokenProcessPool, match=r"died while playing episodes \(exit code 7\): an env or policy that "
                                                 r"ended its process \(os\._exit"):
         play_side_by_side(_one_slow_one_failing(tmp_path, lambda _: os._exit(7)), 4, 2, "ID episodes")
-    assert _wait_until_dead(int((tmp_path / "slow").read_text()))
+    assert wait_until_dead(int((tmp_path / "slow").read_text()))
 
 
 def _workers_killed_at_step(monkeypatch, at: int = 1_200, pause: float = 0.0) -> None:
@@ -567,15 +560,6 @@ play_side_by_side(play, 4, 2, "ID episodes")
 """
 
 
-def _alive(pid: int) -> bool:
-    """A process that runs (a zombie, killed and not yet reaped, does not)."""
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
-
-
 @pytest.mark.skipif(not os.path.exists("/proc/self/stat"), reason="reads /proc (Linux)")
 def test_the_workers_die_with_a_killed_command(four_cores, tmp_path):
     """SIGKILL leaves the command no time to stop its workers; they die with it (Linux's
@@ -597,11 +581,11 @@ def _workers_die_with_a_killed(script: str, folder) -> bool:
             assert command.poll() is None, "the command ended before its workers began"
             time.sleep(0.05)
         workers = {int(path.name) for path in folder.iterdir()} | _children(command.pid)
-        assert all(_alive(pid) for pid in workers)
+        assert all(alive(pid) for pid in workers)
     finally:
         command.send_signal(signal.SIGKILL)
         command.wait()
-    return all(_wait_until_dead(pid) for pid in workers)
+    return all(wait_until_dead(pid) for pid in workers)
 
 
 def _children(pid: int) -> set[int]:

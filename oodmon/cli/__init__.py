@@ -25,7 +25,7 @@ from concurrent.futures.process import BrokenProcessPool
 from oodmon.cli.bench import _add_bench
 from oodmon.cli.calibration import _add_calibrate, _add_fit_detectors, _add_validate
 from oodmon.cli.envs import _add_envs
-from oodmon.cli.parsing import _command_parser, _Parser, _unknown_arguments
+from oodmon.cli.parsing import _NOT_BEGUN, _command_parser, _Parser, _unknown_arguments
 from oodmon.cli.replay import _add_check, _add_replay
 from oodmon.cli.run import _add_demo, _add_run
 from oodmon.cli.training import _add_evaluate, _add_train
@@ -92,7 +92,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     args.argv = words  # what a result records as its command
-    kept, args.kept_on_interrupt = getattr(args, "kept_on_interrupt", None), _NOT_BEGUN
+    kept = getattr(args, "kept_on_interrupt", None)  # what the command says it keeps, once it has begun
+    args.kept_on_interrupt = _NOT_BEGUN  # until then (torch's import as the threads are set)
     with warnings.catch_warnings():
         warnings.showwarning = _warning_shower()
         try:
@@ -131,12 +132,6 @@ def _worker_death(error: BrokenProcessPool) -> str:
     ended_itself = isinstance(error, WorkerDied) and error.signal is None
     return (str(error).rstrip(".") or "a worker process died") + ("" if ended_itself else
                                                                   "; fewer --workers need less memory")
-
-
-#: What a command stopped before its handler began says: Ctrl-C in torch's import (the first second)
-#: said "the last checkpoint is kept" of a train that had written none, "every finished episode is
-#: in the logs" of a run that had none (2026-12-06, scripts/fuzz_interrupts.py).
-_NOT_BEGUN = "it was stopped as it started: nothing was written"
 
 
 def _kept(args: argparse.Namespace) -> str:

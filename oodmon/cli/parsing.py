@@ -20,6 +20,10 @@ _KEPT = {
                  "--out are as they were): run the command again",
     "fit-detectors": "no detectors were written (they are written when the fitting ends): run the command again",
 }
+#: What a command stopped before its handler began says: Ctrl-C in torch's import (the first second)
+#: said "the last checkpoint is kept" of a train that had written none, "every finished episode is
+#: in the logs" of a run that had none (2026-12-06, scripts/fuzz_interrupts.py).
+_NOT_BEGUN = "it was stopped as it started: nothing was written"
 
 
 def _command_line(args: argparse.Namespace) -> str:

@@ -65,7 +65,9 @@ def _train(args: argparse.Namespace) -> int:
                                           "training again")
             elif steps is None and not any(Path(args.out).glob("runs/*/checkpoint.*")):
                 # stopped before its runs began (importing SB3, checking --out), and no earlier
-                # training's checkpoint there: "the last checkpoint is kept" said so of none (2026-12-06)
+                # training's checkpoint there: "the last checkpoint is kept" said so of none (2026-12-06).
+                # The runs' layout (oodmon.agents.checkpoints.Run) is read here without importing it:
+                # the stop may have come in that very import
                 args.kept_on_interrupt = "nothing was trained yet: the same command starts the training"
             raise
     meta = agent.metadata
