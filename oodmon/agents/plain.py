@@ -12,9 +12,10 @@ insides::
 A threshold records the policy's weights (``policy_hash``), so that one calibrated for another policy
 is refused. Of a function oodmon knows no weights unless told: ``weights=`` (a torch module or a
 dict of tensors or arrays) names them; a torch module, or a method of one, is hashed by its own
-``state_dict()``; any other policy is bound by its name alone (``name:act``, its ``__qualname__``:
-the same whether it was imported as ``my_controller`` or run as ``__main__``), which tells one
-function from another but not an edit of one.
+``state_dict()``; any other policy is bound by its name (``name:act``, its ``__qualname__``: the
+same whether it was imported as ``my_controller`` or run as ``__main__``) and its code
+(``code:...``, the hash of its source and of the values it reads:
+:mod:`oodmon.agents.policy_code`), which tells an edit of its gains from the policy calibrated.
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
         weights: what the policy's decisions are made of, for the thresholds' ``policy_hash``: a
             torch module, or a mapping of names to tensors or arrays (default: the policy's own
             ``state_dict()`` when it is a torch module or a method of one, else none: the policy is
-            then bound by its name, ``name:<qualname>``).
+            then bound by its name and its code, ``name:<qualname> code:<hash>``).
 
     Raises:
         ConfigError: ``policy`` not callable, or an SB3 model or policy (give the model:
@@ -84,6 +85,8 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
         env.close()
     metadata = {"task": task_of_env(env_id) or env_id, "method": PLAIN_METHOD, "env_id": env_id, "policy": name,
                 "policy_hash": plain_policy_hash(policy, weights)}
+    if " code:" in metadata["policy_hash"]:
+        metadata["name_hash"] = _name_hash(policy)  # what a threshold of it recorded before its code was hashed
     if dict_space is None:
         return Agent(None, metadata, None, policy)
     return Agent(None, metadata, None, _ReadsDicts(policy, dict_space), dict_space=dict_space,
@@ -159,16 +162,30 @@ def weights_sha256(weights: Any) -> str | None:
 def plain_policy_hash(policy: Callable[[Any], Any], weights: Any = None) -> str:
     """What a threshold records of a plain policy (``policy_hash``): ``sha256:`` of ``weights``
     (:func:`weights_sha256`), else of the torch module the policy is or whose method it is, else
-    ``name:<qualname>``.
+    ``name:<qualname> code:<sha256>``, the hash of its source and of the values it reads
+    (:func:`~oodmon.agents.policy_code.code_sha256`, first 16 hex digits), else (Python keeps
+    no source of it) ``name:<qualname>``.
 
     Example:
         >>> def act(obs):
         ...     return 0
-        >>> plain_policy_hash(act), plain_policy_hash(act, {"w": np.ones(3)}).startswith("sha256:")
+        >>> plain_policy_hash(act).split()[0], plain_policy_hash(act, {"w": np.ones(3)}).startswith("sha256:")
         ('name:act', True)
     """
+    from oodmon.agents.policy_code import code_sha256
+
     digest = weights_sha256(weights if weights is not None else _own_weights(policy))
-    return f"name:{_qualname(policy)}" if digest is None else "sha256:" + digest
+    if digest is not None:
+        return "sha256:" + digest
+    code = code_sha256(policy)
+    return _name_hash(policy) if code is None else f"{_name_hash(policy)} code:{code[:16]}"
+
+
+def _name_hash(policy: Callable[[Any], Any]) -> str:
+    """``name:<qualname>``: what thresholds recorded of a plain policy without weights until
+    2026-12-06 (the name alone), which such a policy's agent still accepts
+    (:func:`~oodmon.monitor.monitor.policy_hash_aliases`)."""
+    return f"name:{_qualname(policy)}"
 
 
 def _own_weights(policy: Any) -> Any:

@@ -99,9 +99,10 @@ def policy_hash(agent: Agent | None) -> str:
 
 def policy_hash_aliases(agent: Agent | None) -> tuple[str, ...]:
     """Other hashes a threshold or a detector set may have recorded for the same weights: of SB3
-    models loaded from files, the hash of the files, which oodmon recorded until 2026-12-04."""
-    files_hash = None if agent is None else agent.metadata.get("files_hash")
-    return (files_hash,) if files_hash else ()
+    models loaded from files, the hash of the files, which oodmon recorded until 2026-12-04; of a
+    plain policy without weights, its name alone, recorded until 2026-12-06 (since, its code too)."""
+    metadata = {} if agent is None else agent.metadata
+    return tuple(metadata[key] for key in ("files_hash", "name_hash") if metadata.get(key))
 
 
 def run_about(metadata: dict[str, Any]) -> dict[str, str]:

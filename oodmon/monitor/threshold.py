@@ -785,12 +785,21 @@ class Threshold:
             found.append(f"it was calibrated with {self.samples} samples per decision, and this policy draws {samples}: "
                          "the spread's scale, and an MC policy's mean decision, are those of its samples")
         if other_weights(self.policy_hash, policy_hash, aliases):
-            if "name:" in (self.policy_hash[:5], policy_hash[:5]):  # a plain policy without weights (oodmon.agents.plain)
+            if _named_alike(self.policy_hash, policy_hash):  # a plain policy without weights, edited since
+                found.append(f"it was calibrated for another version of {policy_hash.split()[0][5:]}: its code, or a "
+                             f"value it reads, has changed since ({self.policy_hash}, this is {policy_hash})")
+            elif "name:" in (self.policy_hash[:5], policy_hash[:5]):  # a plain policy without weights (agents.plain)
                 found.append(f"it was calibrated for another policy ({self.policy_hash}, this is {policy_hash})")
             else:
                 found.append(f"it was calibrated on other weights ({self.policy_hash[:19]}..., these are "
                              f"{policy_hash[:19]}...; an SB3 model's VecNormalize statistics count as its weights)")
         return found
+
+
+def _named_alike(recorded: str, current: str) -> bool:
+    """Two hashes of plain policies of one name (``name:act code:...``,
+    :func:`oodmon.agents.plain.plain_policy_hash`)."""
+    return recorded.startswith("name:") and current.startswith("name:") and recorded.split()[0] == current.split()[0]
 
 
 def _check_fields(threshold: Threshold) -> None:

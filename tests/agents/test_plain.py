@@ -7,6 +7,7 @@ import copy
 import json
 import re
 import shlex
+import shutil
 from pathlib import Path
 
 import gymnasium
@@ -76,13 +77,30 @@ def test_the_docs_controller_is_calibrated_run_and_replayed_as_written_then_watc
 
     monitor = oodmon.watch(my_controller.act, "CartPole-v1", threshold="runs/controller.json")
     assert (monitor.agent.method, monitor.agent.task, monitor.detector) == ("plain", "cartpole", "combined")
-    assert monitor.agent.metadata["policy_hash"] == "name:act"  # a function without weights: bound by its name
+    # a function without weights: bound by its name and its code
+    assert re.fullmatch(r"name:act code:[0-9a-f]{16}", monitor.agent.metadata["policy_hash"])
 
     def act_v2(obs):
         return my_controller.act(obs)
 
-    with pytest.raises(ConfigError, match=r"calibrated for another policy \(name:act, this is name:.*act_v2\)"):
+    with pytest.raises(ConfigError, match=r"calibrated for another policy \(name:act code:\w+, this is name:.*act_v2 "):
         oodmon.watch(act_v2, "CartPole-v1", threshold="runs/controller.json")
+    # the same module with other gains (before 2026-12-06: the same name, so the same policy)
+    (tmp_path / "runs/my_controller_tuned.py").write_text(module.replace("0.5 * obs[3]", "0.6 * obs[3]"))
+    import my_controller_tuned
+
+    with pytest.raises(ConfigError, match=r"calibrated for another version of act: its code, or a value it reads, has "
+                                          r"changed since \(name:act code:\w+, this is name:act code:\w+\)"):
+        oodmon.watch(my_controller_tuned.act, "CartPole-v1", threshold="runs/controller.json")
+    capsys.readouterr()
+    assert main(["run", "--policy", "my_controller_tuned:act", "--env", "CartPole-v1", "--threshold",
+                 "runs/controller.json", "--episodes", "1"]) == 2
+    assert "calibrated for another version of act" in capsys.readouterr().err
+    # a threshold recorded by name alone (made before 2026-12-06) fits the policy of that name, as it did
+    older = json.loads((tmp_path / "runs/controller.json").read_text()) | {"policy_hash": "name:act"}
+    (tmp_path / "runs/older.json").write_text(json.dumps(older))
+    shutil.copytree(tmp_path / "runs/controller.json.detectors", tmp_path / "runs/older.json.detectors")
+    assert oodmon.watch(my_controller.act, "CartPole-v1", threshold="runs/older.json").threshold == older["value"]
     records = [monitor.run_episode(gymnasium.make("CartPole-v1"), seed=900_000 + i) for i in range(20)]
     assert all(r.length == 500 for r in records)  # it balances the pole
     # The threshold promises <= 5% false alarms per episode (confidence 0.9); 5 or more of 20 has

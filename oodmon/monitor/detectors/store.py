@@ -185,7 +185,7 @@ class DetectorSet:
                          f"not {tuple(obs_shape)}")
         if other_weights(mine.get("policy_hash"), policy_hash, aliases):
             found.append("the detectors were fitted on another policy's episodes (its weights, or a plain policy's "
-                         "name, differ)")
+                         "name or code, differ)")
         return found
 
     # -- files ---------------------------------------------------------------------------------------

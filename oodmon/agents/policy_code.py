@@ -1,0 +1,224 @@
+"""What a plain policy without weights computes with, hashed: an edit of it is another policy.
+
+A threshold is bound to the policy it was calibrated for (``policy_hash``). A function with no
+weights (a hand-written controller) was bound by its name alone until 2026-12-06, so an edit of
+its gains kept the old threshold, whose false-alarm rate belongs to the controller before the edit.
+:func:`code_sha256` hashes what the function's decisions are made of, read without running it:
+
+- its source text (``inspect.getsource``: the same whether the module was imported or run as a
+  script, and on any Python version, which bytecode is not);
+- the values of the names it reads from its module and its closure, and its default arguments:
+  numbers, strings, arrays and tensors (their bytes), containers of those, a torch module's
+  weights; of a function or class of the same module it calls, its source and what that reads in
+  turn. Modules and what other packages define count by name only (their code is theirs to
+  version);
+- of a callable object, its class's source and the attributes of the object itself (not of one
+  with a memory of the episode, a ``begin_episode()`` method: its attributes change as it acts);
+  of a bound method, the object's; of a ``functools.partial``, its function and its arguments.
+
+An edit elsewhere in the file (a comment, another function, the script's monitoring code below
+the policy) does not count: a threshold saved by ``oodmon.watch(act, ..., save=...)`` still fits
+after the script is changed to read it back. An edit of a module the policy imports from another
+file, or a value it reads through an attribute of such a module (``config.K``), is not seen.
+
+Example:
+    >>> quoted = code_sha256(functools.partial(textwrap.indent, prefix="> "))
+    >>> len(quoted), quoted == code_sha256(functools.partial(textwrap.indent, prefix="# "))
+    (64, False)
+    >>> code_sha256(len) is None  # a builtin: Python keeps no source of it
+    True
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import inspect
+import sys
+import textwrap
+import types
+from typing import Any
+
+__all__ = ["code_sha256"]
+
+#: How deep containers of values are read (a list of dicts of arrays is three): deeper, by type only.
+_DEPTH = 6
+#: Containers of more items than this (a list the policy appends to, a replay buffer) count by type and length.
+_ITEMS = 10_000
+
+
+def code_sha256(policy: Any) -> str | None:
+    """The hex sha256 of the source of ``policy`` and of the values it reads (see the module's
+    docstring); ``None`` where Python keeps no source of it (defined in ``python -c``, a doctest, an
+    interactive session, a builtin)."""
+    digest = _Digest()
+    try:
+        digest.policy(policy)
+    except _NoSource:
+        return None
+    except Exception:  # noqa: BLE001 (a value of the user's whose repr fails, say): bound by its name, as before
+        return None
+    return digest.hexdigest()
+
+
+class _NoSource(Exception):
+    """The policy itself has no source Python can read."""
+
+
+class _Digest:
+    def __init__(self) -> None:
+        self._hash = hashlib.sha256()
+        self._seen: set[int] = set()  # functions and classes hashed already (recursion, shared helpers)
+
+    def hexdigest(self) -> str:
+        return self._hash.hexdigest()
+
+    def _add(self, tag: str, data: bytes | str = b"") -> None:
+        raw = data.encode() if isinstance(data, str) else data
+        self._hash.update(f"{tag}:{len(raw)}:".encode())
+        self._hash.update(raw)
+
+    def policy(self, policy: Any) -> None:
+        if isinstance(policy, functools.partial):
+            self.policy(policy.func)
+            self.value(policy.args, 0)
+            self.value(dict(policy.keywords), 0)
+        elif isinstance(policy, types.MethodType):
+            self._function(policy.__func__, required=True)
+            self._attributes(policy.__self__)
+        elif isinstance(policy, types.FunctionType):
+            self._function(policy, required=True)
+        elif isinstance(policy, type) or not callable(policy):
+            raise _NoSource
+        else:  # a callable object: its class, and what it holds
+            self._class(type(policy), required=True)
+            self._attributes(policy)
+
+    def _source(self, thing: Any, required: bool) -> str | None:
+        try:
+            return textwrap.dedent(inspect.getsource(thing))
+        except (OSError, TypeError):
+            if required:
+                raise _NoSource from None
+            return None
+
+    def _function(self, function: types.FunctionType, required: bool = False) -> None:
+        if id(function) in self._seen:
+            return
+        self._seen.add(id(function))
+        source = self._source(function, required)
+        self._add("function", function.__qualname__)
+        if source is None:
+            return
+        self._add("source", source)
+        code = function.__code__
+        self.value(function.__defaults__, 0)
+        self.value(function.__kwdefaults__, 0)
+        for name, cell in zip(code.co_freevars, function.__closure__ or ()):
+            self._add("closure", name)
+            try:
+                self._named_value(cell.cell_contents, function.__module__)
+            except ValueError:  # a cell not yet filled
+                self._add("empty")
+        module_globals = function.__globals__
+        for name in sorted(_names_read(code)):
+            if name in module_globals:
+                self._add("global", name)
+                self._named_value(module_globals[name], function.__module__)
+
+    def _class(self, cls: type, required: bool = False) -> None:
+        if id(cls) in self._seen:
+            return
+        self._seen.add(id(cls))
+        source = self._source(cls, required)
+        self._add("class", cls.__qualname__)
+        if source is not None:
+            self._add("source", source)
+            for function in vars(cls).values():  # what its methods read of their module
+                if isinstance(function, (staticmethod, classmethod)):
+                    function = function.__func__
+                if isinstance(function, types.FunctionType):
+                    self._function(function)
+
+    def _attributes(self, owner: Any) -> None:
+        state = getattr(owner, "__dict__", None)
+        if hasattr(owner, "begin_episode"):  # a memory of the episode: its attributes change as it acts
+            return
+        if isinstance(state, dict):
+            self._add("attributes")
+            self.value({k: v for k, v in state.items() if not k.startswith("__")}, 0)
+
+    def _named_value(self, value: Any, module: str) -> None:
+        """A name the code reads: a function or class of the same module is followed, data is hashed."""
+        if isinstance(value, types.FunctionType) and value.__module__ == module:
+            self._function(value)
+        elif isinstance(value, type) and value.__module__ == module:
+            self._class(value)
+        elif isinstance(value, functools.partial):
+            self._add("partial")
+            self._named_value(value.func, module)
+            self.value(value.args, 0)
+            self.value(dict(value.keywords), 0)
+        else:
+            self.value(value, 0)
+
+    def value(self, value: Any, depth: int) -> None:
+        """Data's type and bytes; of anything else (a module, another package's function) the type's name."""
+        kind = type(value)
+        self._add("type", f"{kind.__module__}.{kind.__qualname__}")
+        if value is None or isinstance(value, (bool, int, float, complex, str, bytes)):
+            self._add("repr", repr(value))
+        elif depth >= _DEPTH:
+            return
+        elif isinstance(value, (tuple, list, set, frozenset, dict)) and len(value) > _ITEMS:
+            self._add("items", str(len(value)))
+        elif isinstance(value, (tuple, list)):
+            self._add("items", str(len(value)))
+            for item in value:
+                self.value(item, depth + 1)
+        elif isinstance(value, (set, frozenset)):
+            self._add("items", str(len(value)))
+            for item in sorted(value, key=repr):
+                self.value(item, depth + 1)
+        elif isinstance(value, dict):
+            self._add("items", str(len(value)))
+            for key in sorted(value, key=repr):
+                self.value(key, depth + 1)
+                self.value(value[key], depth + 1)
+        elif _is_array(value):
+            import numpy as np
+
+            array = np.ascontiguousarray(value)
+            self._add("array", f"{array.dtype.str}{array.shape}")
+            if array.dtype != object:
+                self._add("bytes", array.tobytes())
+        elif _is_tensor(value):
+            self.value(value.detach().cpu().numpy(), depth)
+        elif _is_torch_module(value):
+            from oodmon.hashing import state_sha256
+
+            self._add("weights", state_sha256(value.state_dict()))
+
+
+def _names_read(code: types.CodeType) -> set[str]:
+    """The global names a function's code and the code nested in it (lambdas, comprehensions) read."""
+    names = set(code.co_names)
+    for constant in code.co_consts:
+        if isinstance(constant, types.CodeType):
+            names |= _names_read(constant)
+    return names
+
+
+def _is_array(value: Any) -> bool:
+    numpy = sys.modules.get("numpy")
+    return numpy is not None and isinstance(value, (numpy.ndarray, numpy.generic))
+
+
+def _is_tensor(value: Any) -> bool:
+    torch = sys.modules.get("torch")  # (never imported here: a value of torch's exists only once it is)
+    return torch is not None and isinstance(value, torch.Tensor)
+
+
+def _is_torch_module(value: Any) -> bool:
+    torch = sys.modules.get("torch")
+    return torch is not None and isinstance(value, torch.nn.Module)
