@@ -905,3 +905,10 @@ def test_a_python_fit_without_policy_hash_reads_the_episodes_it_kept_and_not_ano
     assert [i.split()[0] for i in identities[:2]] == ["name:_lean", "name:_lean_harder"] and len(set(identities)) == 6
     again = load("cartpole", "dropout").estimator
     assert _policy_identity(again, again) == identities[5]
+    # the same weights reading their observations through VecNormalize statistics: another policy
+    from oodmon.agents.vec_normalize import ObservationNormalizer
+
+    again.observation_transform = ObservationNormalizer(np.zeros(4), np.ones(4), numbers_sha256="a" * 64)
+    normalised = _policy_identity(again, again)
+    again.observation_transform = ObservationNormalizer(np.zeros(4), np.full(4, 2.0), numbers_sha256="b" * 64)
+    assert len({normalised, _policy_identity(again, again), identities[5]}) == 3

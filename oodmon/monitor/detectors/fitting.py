@@ -173,8 +173,9 @@ def policy_parts(policy: Any) -> tuple[Any, Callable[[np.ndarray], Any], dict]:
 def _policy_identity(policy: Any, estimator: Any) -> str | None:
     """What tells the fitting episodes kept for ``policy`` from another's where the caller gave no
     ``policy_hash``: an agent's own (:func:`~oodmon.monitor.monitor.policy_hash`), else the sha256
-    of its estimator's weights, else a plain policy's (:func:`~oodmon.agents.plain.plain_policy_hash`:
-    its torch module's weights or its name)."""
+    of its estimator's weights and of the VecNormalize statistics it reads its observations through
+    (``observation_transform``), else a plain policy's (:func:`~oodmon.agents.plain.plain_policy_hash`:
+    its torch module's weights, or its name and code)."""
     from oodmon.agents.agent import Agent
     from oodmon.agents.plain import plain_policy_hash
     from oodmon.hashing import state_sha256
@@ -184,7 +185,14 @@ def _policy_identity(policy: Any, estimator: Any) -> str | None:
         return own
     if estimator is not None:
         weights = estimator.weights()
-        return "sha256:" + state_sha256(weights) if weights else None
+        if not weights:
+            return None
+        # an SB3 model's VecNormalize statistics count as its weights (oodmon.agents.sb3's policy_hash)
+        transform = getattr(estimator, "observation_transform", None)
+        statistics = getattr(transform, "numbers_sha256", "") or getattr(transform, "sha256", "")
+        if statistics:
+            weights = weights | {"observation_transform": np.frombuffer(statistics.encode(), np.uint8)}
+        return "sha256:" + state_sha256(weights)
     return plain_policy_hash(policy)
 
 
