@@ -110,9 +110,10 @@ def run_about(metadata: dict[str, Any]) -> dict[str, str]:
     machine's CPU kind (:func:`~oodmon.versions.machine`), and the env id, model files,
     VecNormalize statistics and VecFrameStack depth of a model from elsewhere (:mod:`oodmon.agents.sb3`)
     and the hash of its files (what its logs recorded as ``policy_hash`` before 2026-12-04), or the
-    name of a plain policy (:mod:`oodmon.agents.plain`)."""
+    name of a plain policy (:mod:`oodmon.agents.plain`) and, of one bound to its code, the
+    ``policy_hash`` of its name alone (what its logs recorded before 2026-12-06)."""
     about = {"command": shlex.join(sys.argv), "machine": machine()}
-    for key in ("env_id", "policy", "files_hash"):
+    for key in ("env_id", "policy", "files_hash", "name_hash"):
         if metadata.get(key):
             about[key] = str(metadata[key])
     for key in ("models", "vec_normalize", "frame_stack"):

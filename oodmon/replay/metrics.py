@@ -186,7 +186,8 @@ def pooled_weights(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, li
     policy's ID steps against another's shifted ones (the bench's trials, or a model retrained
     into the same folder of logs). An SB3 model's logs before 2026-12-04 recorded the hash of its
     files, which later logs of the same files record beside their weights' (``about.files_hash``):
-    both count as one policy's.
+    both count as one policy's. So do a plain policy's logs before 2026-12-06, which recorded its
+    name alone, and later ones, which record its code too and the name beside (``about.name_hash``).
 
     Example:
         >>> from oodmon.replay.reader import RunLog
@@ -198,10 +199,16 @@ def pooled_weights(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str, li
         ...                                                          "about.files_hash": "sha256:bb"}, [], True)
         >>> pooled_weights([run("b.mcap", "sha256:bb"), later])  # b.mcap's files, logged before 2026-12-04
         {}
+        >>> named = RunLog(Path("e.mcap"), "cartpole", "plain", 1.0, {"policy_hash": "name:act"}, [], True)
+        >>> coded = RunLog(Path("f.mcap"), "cartpole", "plain", 1.0, {"policy_hash": "name:act code:0f1e",
+        ...                                                           "about.name_hash": "name:act"}, [], True)
+        >>> pooled_weights([named, coded])  # a plain policy's, logged before 2026-12-06 and after
+        {}
     """
     logs = list(logs)
-    weights_of = {log.metadata["about.files_hash"]: log.metadata.get("policy_hash") for log in logs
-                  if log.metadata.get("about.files_hash")}  # an earlier log's hash -> the same files' weights
+    # an earlier log's hash -> the same files' weights, or the same plain policy's name and code
+    weights_of = {log.metadata[key]: log.metadata.get("policy_hash") for log in logs
+                  for key in ("about.files_hash", "about.name_hash") if log.metadata.get(key)}
 
     def weights(log: RunLog) -> str | None:
         recorded = log.metadata.get("policy_hash")

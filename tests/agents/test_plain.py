@@ -61,6 +61,8 @@ def test_the_docs_controller_is_calibrated_run_and_replayed_as_written_then_watc
     assert row["detection_rate"] + row["early_alarm_rate"] == 1.0 and row["delay_median"] <= 5
     log = read_log("runs/controller.mcap")
     assert (log.metadata["about.policy"], log.metadata["about.env_id"]) == ("my_controller.act", "CartPole-v1")
+    # its name and code, and its name alone (what its logs recorded before 2026-12-06: replay pools the two)
+    assert log.metadata["policy_hash"].startswith("name:act code:") and log.metadata["about.name_hash"] == "name:act"
     assert main(["validate", "runs/controller.json", "--episodes", "5"]) == 2  # which policy: said, not guessed
     assert "--policy MODULE:NAME --env CartPole-v1" in capsys.readouterr().err
     # an attribute of CartPole-v1 that is not oodmon's physics, shifted for your own policy (refused
