@@ -10,8 +10,8 @@ its gains kept the old threshold, whose false-alarm rate belongs to the controll
 - the values of the names it reads from its module and its closure, and its default arguments:
   numbers, strings, arrays and tensors (their bytes), containers of those, a torch module's
   weights; of a function or class of the same module it calls, its source and what that reads in
-  turn. Modules and what other packages define count by name only (their code is theirs to
-  version);
+  turn. Any other object (a module, another package's function, an object of a class of yours
+  held as a value) counts by its type's name only: its insides may change as the policy acts;
 - of a callable object, its class's source and the attributes of the object itself (not of one
   with a memory of the episode, a ``begin_episode()`` method: its attributes change as it acts);
   of a bound method, the object's; of a ``functools.partial``, its function and its arguments.
@@ -164,8 +164,7 @@ class _Digest:
 
     def value(self, value: Any, depth: int) -> None:
         """Data's type and bytes; of anything else (a module, another package's function) the type's name."""
-        kind = type(value)
-        self._add("type", f"{kind.__module__}.{kind.__qualname__}")
+        self._add("type", type(value).__qualname__)  # (not its module: __main__ in a script, its name imported)
         if value is None or isinstance(value, (bool, int, float, complex, str, bytes)):
             self._add("repr", repr(value))
         elif depth >= _DEPTH:

@@ -133,16 +133,17 @@ def test_a_network_the_policy_reads_counts_by_its_weights(modules):
 
 
 def test_the_hash_is_the_same_in_another_process_imported_or_run_as_a_script(tmp_path, modules):
-    here = code_sha256(modules(CONTROLLER).act)
-    (tmp_path / "controller.py").write_text(CONTROLLER + textwrap.dedent("""
+    module = modules(CONTROLLER + "\n\nclass Gain(float):\n    pass\n")
+    here = [code_sha256(module.act), code_sha256(module.Controller(module.Gain(0.5)))]
+    (tmp_path / "controller.py").write_text(CONTROLLER + "\n\nclass Gain(float):\n    pass\n" + textwrap.dedent("""
         if __name__ == "__main__":
             from oodmon.agents.policy_code import code_sha256
-            print(code_sha256(act))
+            print(code_sha256(act), code_sha256(Controller(Gain(0.5))))
         """))
     script = subprocess.run([sys.executable, "controller.py"], cwd=tmp_path, capture_output=True, text=True,
                             timeout=120)
     assert script.returncode == 0, script.stderr[-2000:]
-    assert script.stdout.strip() == here
+    assert script.stdout.split() == here
 
 
 def test_what_hashing_cannot_read_is_left_to_the_name(modules):
