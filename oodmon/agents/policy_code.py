@@ -9,7 +9,8 @@ its gains kept the old threshold, whose false-alarm rate belongs to the controll
   script, and on any Python version, which bytecode is not);
 - the values of the names it reads from its module and its closure, and its default arguments:
   numbers, strings, arrays and tensors (their bytes), containers of those, a torch module's
-  weights; of a function or class of the same module it calls, its source and what that reads in
+  weights, an SB3 model's (``model.predict`` in a function of yours); of a function or class of the
+  same module it calls, its source and what that reads in
   turn. Any other object (a module, another package's function, an object of a class of yours
   held as a value) counts by its type's name only: its insides may change as the policy acts;
 - of a callable object, its class's source and the attributes of the object itself (not of one
@@ -197,6 +198,9 @@ class _Digest:
             from oodmon.hashing import state_sha256
 
             self._add("weights", state_sha256(value.state_dict()))
+        elif type(value).__module__.startswith(("stable_baselines3.", "sb3_contrib.")) and \
+                _is_torch_module(getattr(value, "policy", None)):  # an SB3 model the function asks for its action
+            self.value(value.policy, depth)
 
 
 def _names_read(code: types.CodeType) -> set[str]:

@@ -132,6 +132,16 @@ def test_a_network_the_policy_reads_counts_by_its_weights(modules):
     assert code_sha256(module.act) != before
 
 
+def test_an_sb3_model_the_policy_asks_counts_by_its_weights(modules):
+    module = modules("from stable_baselines3 import PPO\n\nMODEL = PPO('MlpPolicy', 'CartPole-v1', seed=0)\n\n\n"
+                     "def act(obs):\n    return int(MODEL.predict(obs, deterministic=True)[0])\n")
+    before = code_sha256(module.act)
+    assert code_sha256(module.act) == before
+    with torch.no_grad():
+        next(module.MODEL.policy.parameters()).add_(0.01)  # trained on, or another model.zip loaded
+    assert code_sha256(module.act) != before
+
+
 def test_the_hash_is_the_same_in_another_process_imported_or_run_as_a_script(tmp_path, modules):
     module = modules(CONTROLLER + "\n\nclass Gain(float):\n    pass\n")
     here = [code_sha256(module.act), code_sha256(module.Controller(module.Gain(0.5)))]
