@@ -30,6 +30,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.agents.agent import Agent, flattened
+from oodmon.agents.policy_code import code_sha256
 from oodmon.envs.checks import tensor_hint
 from oodmon.errors import ConfigError
 from oodmon.hashing import state_sha256
@@ -172,8 +173,6 @@ def plain_policy_hash(policy: Callable[[Any], Any], weights: Any = None) -> str:
         >>> plain_policy_hash(act).split()[0], plain_policy_hash(act, {"w": np.ones(3)}).startswith("sha256:")
         ('name:act', True)
     """
-    from oodmon.agents.policy_code import code_sha256
-
     digest = weights_sha256(weights if weights is not None else _own_weights(policy))
     if digest is not None:
         return "sha256:" + digest
