@@ -566,6 +566,11 @@ def test_fuzz_interrupts_draws_seeded_stops_and_names_each_broken_promise(monkey
     assert script.findings(twice) == ["exit code -15"]
     twice.stderr = "oodmon: stopped by SIGTERM; the 20 of the 200 episodes played whole before it are counted above"
     assert script.findings(twice) == []
+    # ... and a SIGTERM in Python's start, before oodmon's handler, where nothing began and nothing was said
+    first = script.Stop("bench", "SIGTERM", False, 0.6, sent=True, code=-15, again_code=0)
+    assert script.findings(first) == []
+    first.stderr = "2026-12-06 08:30:41 calibration episodes: 1/6 episodes"
+    assert script.findings(first) == ["exit code -15"]
     killed = script.Stop("run", "SIGKILL", False, 3.0, sent=True, code=-9, again_code=0, replay_code=2)
     assert script.findings(killed) == []  # (its log had no step on the disk yet)
     killed.replay_code, killed.replay_stderr = 3, "Traceback (most recent call last):"

@@ -97,11 +97,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     with warnings.catch_warnings():
         warnings.showwarning = _warning_shower()
         try:
-            _sb3_files(args)
-            # OODMON_TORCH_THREADS in every command, one thread where it is not set (limit_threads);
-            # a command that plays no policy (replay, check, envs) leaves torch unimported
-            limit_threads(torch=_plays_a_policy(args))
-            with stop_on_sigterm():  # a service manager's stop ends a command as Ctrl-C does
+            # a service manager's stop ends a command as Ctrl-C does, from torch's import on (before
+            # 2026-12-06 from the handler's start: a SIGTERM in the second of torch's import ended the
+            # process by signal, saying nothing)
+            with stop_on_sigterm():
+                _sb3_files(args)
+                # OODMON_TORCH_THREADS in every command, one thread where it is not set (limit_threads);
+                # a command that plays no policy (replay, check, envs) leaves torch unimported
+                limit_threads(torch=_plays_a_policy(args))
                 args.kept_on_interrupt = kept  # (what the command keeps, once it has begun)
                 return args.handler(args) or 0
         except (OodmonError, OSError) as error:

@@ -5,9 +5,12 @@ once and forks each monitored run from it, so thirteen kills take seconds."""
 from __future__ import annotations
 
 import json
+import os
 import re
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -324,6 +327,22 @@ def test_ctrl_c_says_what_each_command_leaves_behind(tmp_path, monkeypatch, caps
     for argv in (train, run, ["validate", str(tmp_path / "t.json")]):
         assert main(argv) == 130 and capsys.readouterr().err.strip().splitlines()[-1] == (
             "oodmon: interrupted; it was stopped as it started: nothing was written"), argv
+
+    def terminated_in_torchs_import(*args, **kwargs):  # (a service manager's stop in the command's first second)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # (the signal's handler runs before this ends)
+
+    monkeypatch.setattr(oodmon.cli, "limit_threads", terminated_in_torchs_import)
+
+    def default(signum, frame):  # what SIGTERM did here before oodmon's handler: the process ended, saying nothing
+        raise RuntimeError("SIGTERM reached the process before oodmon's handler")
+
+    before = signal.signal(signal.SIGTERM, default)
+    try:
+        assert main(run) == 143 and capsys.readouterr().err.strip().splitlines()[-1] == (
+            "oodmon: stopped by SIGTERM; it was stopped as it started: nothing was written")
+    finally:
+        signal.signal(signal.SIGTERM, before)
     monkeypatch.undo()  # ... and run, stopped as it loads its agent, that it wrote no log yet (2026-12-06)
     import oodmon.cli.run
 
