@@ -323,6 +323,8 @@ def _excess_skew_factor(skew: float, clusters: int, rate: float, size: float, ta
     from scipy.special import ndtri
 
     z = float(ndtri(1 - tail))
+    if z <= 0:  # (a limit at or below the median: no tail to correct)
+        return 1.0
     excess = skew / math.sqrt(clusters) - (1 - 2 * rate) / math.sqrt(size * rate * (1 - rate))
     return max(1.0, (z + max(excess, 0.0) * (2 * z * z + 1) / 6) / z) ** 2
 
