@@ -9,18 +9,20 @@ its gains kept the old threshold, whose false-alarm rate belongs to the controll
   script, and on any Python version, which bytecode is not);
 - the values of the names it reads from its module and its closure, and its default arguments:
   numbers, strings, arrays and tensors (their bytes), containers of those, a torch module's
-  weights, an SB3 model's (``model.predict`` in a function of yours); of a function or class of the
-  same module it calls, its source and what that reads in
-  turn. Any other object (a module, another package's function, an object of a class of yours
-  held as a value) counts by its type's name only: its insides may change as the policy acts;
+  weights, an SB3 model's (``model.predict`` in a function of yours); of a function or class it
+  calls, of its file or another file of yours (not the standard library's, not an installed
+  package's, not oodmon's), its source and what that reads in turn; of a module of yours, the
+  values it holds of the names the code reads (``config.K``). Any other object (another package's
+  function or module, an object of a class of yours held as a value) counts by its type's name
+  only: its insides may change as the policy acts;
 - of a callable object, its class's source and the attributes of the object itself (not of one
   with a memory of the episode, a ``begin_episode()`` method: its attributes change as it acts);
   of a bound method, the object's; of a ``functools.partial``, its function and its arguments.
 
 An edit elsewhere in the file (a comment, another function, the script's monitoring code below
 the policy) does not count: a threshold saved by ``oodmon.watch(act, ..., save=...)`` still fits
-after the script is changed to read it back. An edit of a module the policy imports from another
-file, or a value it reads through an attribute of such a module (``config.K``), is not seen.
+after the script is changed to read it back. An installed package's code (``pip install``) counts
+by name only: its version is its own to say.
 
 Example:
     >>> quoted = code_sha256(functools.partial(textwrap.indent, prefix="> "))
@@ -35,9 +37,12 @@ from __future__ import annotations
 import functools
 import hashlib
 import inspect
+import os
 import sys
+import sysconfig
 import textwrap
 import types
+from collections.abc import Sequence
 from typing import Any
 
 __all__ = ["code_sha256"]
@@ -70,6 +75,7 @@ class _Digest:
     def __init__(self) -> None:
         self._hash = hashlib.sha256()
         self._seen: set[int] = set()  # functions and classes hashed already (recursion, shared helpers)
+        self._read: set[tuple[int, str]] = set()  # (module, name) read already (modules that import each other)
 
     def hexdigest(self) -> str:
         return self._hash.hexdigest()
@@ -115,17 +121,18 @@ class _Digest:
         code = function.__code__
         self.value(function.__defaults__, 0)
         self.value(function.__kwdefaults__, 0)
+        names = sorted(_names_read(code))
         for name, cell in zip(code.co_freevars, function.__closure__ or ()):
             self._add("closure", name)
             try:
-                self._named_value(cell.cell_contents, function.__module__)
+                self._named_value(cell.cell_contents, function.__module__, names)
             except ValueError:  # a cell not yet filled
                 self._add("empty")
         module_globals = function.__globals__
-        for name in sorted(_names_read(code)):
+        for name in names:
             if name in module_globals:
                 self._add("global", name)
-                self._named_value(module_globals[name], function.__module__)
+                self._named_value(module_globals[name], function.__module__, names)
 
     def _class(self, cls: type, required: bool = False) -> None:
         if id(cls) in self._seen:
@@ -149,15 +156,24 @@ class _Digest:
             self._add("attributes")
             self.value({k: v for k, v in state.items() if not k.startswith("__")}, 0)
 
-    def _named_value(self, value: Any, module: str) -> None:
-        """A name the code reads: a function or class of the same module is followed, data is hashed."""
-        if isinstance(value, types.FunctionType) and value.__module__ == module:
+    def _named_value(self, value: Any, module: str, names: Sequence[str] = ()) -> None:
+        """A value the code reads by ``name``: a function or class of its module or of another file
+        of yours is followed, so is what it reads of a module of yours (``config.K``: the values of
+        the ``names`` the code reads that the module holds); data is hashed."""
+        if isinstance(value, types.FunctionType) and (value.__module__ == module or _yours(value.__module__)):
             self._function(value)
-        elif isinstance(value, type) and value.__module__ == module:
+        elif isinstance(value, type) and (value.__module__ == module or _yours(value.__module__)):
             self._class(value)
+        elif isinstance(value, types.ModuleType) and _yours(value.__name__):
+            held = vars(value)
+            for name in names:
+                if name in held and (id(value), name) not in self._read:
+                    self._read.add((id(value), name))
+                    self._add("attribute", f"{value.__name__}.{name}")
+                    self._named_value(held[name], value.__name__, names)
         elif isinstance(value, functools.partial):
             self._add("partial")
-            self._named_value(value.func, module)
+            self._named_value(value.func, module, names)
             self.value(value.args, 0)
             self.value(dict(value.keywords), 0)
         else:
@@ -201,6 +217,24 @@ class _Digest:
         elif type(value).__module__.startswith(("stable_baselines3.", "sb3_contrib.")) and \
                 _is_torch_module(getattr(value, "policy", None)):  # an SB3 model the function asks for its action
             self.value(value.policy, depth)
+
+
+def _yours(module_name: str) -> bool:
+    """Whether a module is one of your own files: not the standard library's, not an installed
+    package's (site-packages), not oodmon's, and a file (not ``__main__`` of a notebook)."""
+    if module_name.split(".")[0] == "oodmon":
+        return False
+    file = getattr(sys.modules.get(module_name), "__file__", None)
+    if not file:
+        return False
+    path = os.path.realpath(file)
+    return not path.startswith(_LIBRARIES) and not any(part in path for part in _INSTALLED)
+
+
+#: Where the standard library and installed packages live (sysconfig's paths of this interpreter).
+_LIBRARIES = tuple({os.path.realpath(path) + os.sep for key in ("stdlib", "platstdlib", "purelib", "platlib")
+                    if (path := sysconfig.get_paths().get(key))})
+_INSTALLED = (f"{os.sep}site-packages{os.sep}", f"{os.sep}dist-packages{os.sep}")
 
 
 def _names_read(code: types.CodeType) -> set[str]:

@@ -123,6 +123,39 @@ def test_an_edit_of_what_the_policy_computes_with_is_another_policy(modules):
     assert code_sha256(module.functools.partial(module.nudged, by=0.2)) != base["partial"]
 
 
+def test_what_the_policy_reads_of_other_files_of_yours_counts_and_installed_packages_do_not(tmp_path, monkeypatch):
+    """``config.K`` and a helper imported from another file of yours are the policy's; numpy's code,
+    the standard library's and oodmon's are not (an installed package's version is its own)."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+    (tmp_path / "policy_code_config.py").write_text("K = 0.5\nUNREAD = 1\n")
+    (tmp_path / "policy_code_helpers.py").write_text("def leans(x):\n    return x > 0\n")
+    (tmp_path / "policy_code_policy.py").write_text(
+        "import numpy as np\n\nimport policy_code_config as config\nfrom policy_code_helpers import leans\n\n\n"
+        "def act(obs):\n    return int(leans(np.clip(obs[2] + config.K * obs[3], -1, 1)))\n")
+    import policy_code_config
+    import policy_code_helpers
+    import policy_code_policy
+
+    try:
+        before = code_sha256(policy_code_policy.act)
+        policy_code_config.UNREAD = 2  # a name the policy does not read
+        assert code_sha256(policy_code_policy.act) == before
+        policy_code_config.K = 0.6
+        assert code_sha256(policy_code_policy.act) != before
+        policy_code_config.K = 0.5
+        assert code_sha256(policy_code_policy.act) == before
+        (tmp_path / "policy_code_helpers.py").write_text("def leans(x):\n    return x >= 0\n")
+        importlib.reload(policy_code_helpers)
+        importlib.reload(policy_code_policy)  # (which imported the helper before its edit)
+        assert code_sha256(policy_code_policy.act) != before
+    finally:
+        for name in ("policy_code_config", "policy_code_helpers", "policy_code_policy"):
+            sys.modules.pop(name, None)
+    from oodmon.agents.policy_code import _yours
+
+    assert not any(_yours(name) for name in ("numpy", "json", "oodmon.agents.plain", "stable_baselines3"))
+
+
 def test_a_network_the_policy_reads_counts_by_its_weights(modules):
     module = modules("import torch\n\nNET = torch.nn.Linear(4, 2)\n\n\n"
                      "def act(obs):\n    return int(NET(torch.as_tensor(obs)).argmax())\n")
