@@ -38,6 +38,17 @@ def test_a_ctrl_c_while_python_exits_after_a_command_prints_no_traceback():
     assert (done.returncode, done.stderr) == (0, "") and "pong:pixelate@5" in done.stdout
 
 
+def test_a_sigterm_while_python_exits_after_a_command_ends_it_with_the_commands_exit_code():
+    """SIGTERM in Python's exit after a command (its files written): it ended the process by the
+    signal (-15) where the promise is 143 or the command's own code; now at once, with the command's
+    code, what it printed flushed. Here the last clean-up sends it, then sleeps (a slow clean-up)."""
+    code = ("import atexit, os, runpy, signal, sys, time; "
+            "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGTERM), time.sleep(30))); "
+            "sys.argv = ['oodmon', 'envs', '--task', 'pong']; runpy.run_module('oodmon', run_name='__main__')")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=25)
+    assert (done.returncode, done.stderr) == (0, "") and "pong:pixelate@5" in done.stdout
+
+
 def test_envs_lists_the_whole_grid_as_json(capsys):
     assert main(["envs", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)

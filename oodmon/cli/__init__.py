@@ -57,14 +57,27 @@ def _plays_a_policy(args: argparse.Namespace) -> bool:
 
 def console() -> int:
     """The ``oodmon`` program (and ``python -m oodmon``): :func:`main`, then Python's exit with
-    Ctrl-C ignored. By then the command's work is done and its files written; Python's exit, torch's
-    and multiprocessing's clean-up, takes about half a second, and a Ctrl-C in it stopped the
-    clean-up it came in and printed that one's traceback ("Exception ignored in atexit callback",
-    2026-12-06, an interrupt fuzzing of the commands), the exit code still 0. SIGTERM still ends it."""
+    Ctrl-C ignored and SIGTERM ending it at once with the command's exit code. By then the
+    command's work is done and its files written; Python's exit, torch's and multiprocessing's
+    clean-up, takes about half a second, and a Ctrl-C in it stopped the clean-up it came in and
+    printed that one's traceback ("Exception ignored in atexit callback", 2026-12-06, an interrupt
+    fuzzing of the commands), the exit code still 0; a SIGTERM there ended the process by the
+    signal (-15, found by the same fuzzing: a calibrate that had written its threshold)."""
+    import os
     import signal
 
     code = main()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def done(signum, frame) -> None:  # (a service manager's stop: the clean-up is all that is left)
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # a closed pipe: nothing more can reach it
+                pass
+        os._exit(code if isinstance(code, int) else 1)
+
+    signal.signal(signal.SIGTERM, done)
     return code
 
 
