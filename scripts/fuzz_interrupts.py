@@ -12,7 +12,7 @@ SIGKILL. It then reads the answer as docs/monitor.md ("Interruptions") promises 
 - no traceback on stderr;
 - an exit code of 0 (the command had ended), 130 or 143, -9 for SIGKILL; a second SIGTERM after the
   command said it was stopped may end Python's exit with it (-15), and so may a SIGTERM in the
-  command's first second that came before oodmon's handler (Python's start and oodmon's import),
+  command's first second that came before any handler of oodmon's (the interpreter's own start),
   where nothing began and it prints nothing;
 - gone within 8 s of the signal, and no process of its session left behind (its workers, which
   die with it even when it is SIGKILLed);
@@ -42,7 +42,9 @@ s ended by the signal (-15), saying nothing: oodmon's handler was set after torc
 command's first second. Since, it is set before; the half second before that (Python's start,
 oodmon's import) is accepted as above. ``--runs 16 --seed 6`` (a fresh clone with that fix): 15 of
 16, and a calibrate sent SIGTERM at 9.75 s, just after its last episode, ended by the signal in
-Python's exit (-15), its work done. Since, SIGTERM there ends it at once with the command's code.
+Python's exit (-15), its work done. Since, SIGTERM there ends it at once with the command's code;
+and the ``oodmon`` program's entry point (``oodmon_console``) answers a stop in oodmon's import in
+one line too, so that only the interpreter's own start (some 30 ms) ends by the signal, silent.
 """
 
 # (no `from __future__ import annotations`: tests load this file outside sys.modules, where a
@@ -60,7 +62,7 @@ from pathlib import Path
 
 OODMON = str(Path(sys.executable).with_name("oodmon"))
 EXIT_SECONDS = 8.0  # a stopped command is gone within this long
-START_SECONDS = 1.0  # Python's start and `import oodmon.cli` (0.3-0.5 s alone): SIGTERM ends it by the signal
+START_SECONDS = 1.0  # the interpreter's start, before oodmon_console's handler: SIGTERM ends it by the signal
 THRESHOLD = "threshold.json"  # in --out: what validate and run read
 
 

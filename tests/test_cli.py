@@ -49,6 +49,47 @@ def test_a_sigterm_while_python_exits_after_a_command_ends_it_with_the_commands_
     assert (done.returncode, done.stderr) == (0, "") and "pong:pixelate@5" in done.stdout
 
 
+def test_a_stop_as_python_imports_oodmon_is_one_line(monkeypatch, capsys):
+    """Ctrl-C or SIGTERM in Python's first half second, as the `oodmon` program imports oodmon:
+    Python's traceback of the import (about 40 lines), or the process ended by the signal, saying
+    nothing, before 2026-12-06; now one line, as a command stopped as it starts says it."""
+    import builtins
+    import importlib.metadata
+    import os
+    import signal
+    import time
+
+    import oodmon_console
+    from oodmon.cli.parsing import _NOT_BEGUN
+
+    assert oodmon_console.NOT_BEGUN == _NOT_BEGUN  # (it cannot import oodmon's: it runs before it)
+    scripts = importlib.metadata.entry_points(group="console_scripts")
+    assert next(e.value for e in scripts if e.name == "oodmon") == "oodmon_console:main"
+    importing = builtins.__import__
+
+    def stopped_in(stop):
+        def imports(name, *args, **kwargs):
+            if name == "oodmon.cli":
+                stop()
+            return importing(name, *args, **kwargs)
+        return imports
+
+    def ctrl_c():
+        raise KeyboardInterrupt
+
+    def sigterm():
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # (the signal's handler runs before this ends)
+
+    before = signal.getsignal(signal.SIGTERM)
+    for stop, code, said in ((ctrl_c, 130, "interrupted"), (sigterm, 143, "stopped by SIGTERM")):
+        with monkeypatch.context() as patch:
+            patch.setattr(builtins, "__import__", stopped_in(stop))
+            assert oodmon_console.main() == code
+        assert capsys.readouterr().err == f"oodmon: {said}; it was stopped as it started: nothing was written\n"
+        assert signal.getsignal(signal.SIGTERM) is before  # (put back for the command's own)
+
+
 def test_envs_lists_the_whole_grid_as_json(capsys):
     assert main(["envs", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)
