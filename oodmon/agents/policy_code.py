@@ -60,9 +60,7 @@ def code_sha256(policy: Any) -> str | None:
     digest = _Digest()
     try:
         digest.policy(policy)
-    except _NoSource:
-        return None
-    except Exception:  # noqa: BLE001 (a value of the user's whose repr fails, say): bound by its name, as before
+    except Exception:  # noqa: BLE001 (_NoSource, or a value of yours whose repr fails): bound by its name, as before
         return None
     return digest.hexdigest()
 
