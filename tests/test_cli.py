@@ -27,23 +27,17 @@ def test_python_dash_m_oodmon_is_the_cli():
     assert result.returncode == 2 and result.stderr.count("\n") == 1 and "--out" in result.stderr
 
 
-def test_a_ctrl_c_while_python_exits_after_a_command_prints_no_traceback():
-    """Ctrl-C in the half second of Python's exit after a command (its clean-up, run by atexit):
-    it printed the traceback of the clean-up it stopped, the exit code 0. Here the last clean-up
-    sends it, after `python -m oodmon envs` has printed its table."""
+@pytest.mark.parametrize("signal_name, clean_up_seconds", [("SIGINT", 0.2), ("SIGTERM", 30)])
+def test_a_stop_while_python_exits_after_a_command_keeps_its_exit_code_and_prints_nothing(signal_name,
+                                                                                         clean_up_seconds):
+    """A stop in the half second of Python's exit after a command (its clean-up, run by atexit),
+    its files written. Ctrl-C printed the traceback of the clean-up it stopped, the exit code 0;
+    SIGTERM ended the process by the signal (-15) where the promise is 143 or the command's own
+    code. Now Ctrl-C is ignored, and SIGTERM ends it at once with the command's code, what it
+    printed flushed. Here the last clean-up sends it after `python -m oodmon envs` has printed its
+    table, then sleeps (SIGTERM: a clean-up of 30 s, which it does not wait for)."""
     code = ("import atexit, os, runpy, signal, sys, time; "
-            "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(0.2))); "
-            "sys.argv = ['oodmon', 'envs', '--task', 'pong']; runpy.run_module('oodmon', run_name='__main__')")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert (done.returncode, done.stderr) == (0, "") and "pong:pixelate@5" in done.stdout
-
-
-def test_a_sigterm_while_python_exits_after_a_command_ends_it_with_the_commands_exit_code():
-    """SIGTERM in Python's exit after a command (its files written): it ended the process by the
-    signal (-15) where the promise is 143 or the command's own code; now at once, with the command's
-    code, what it printed flushed. Here the last clean-up sends it, then sleeps (a slow clean-up)."""
-    code = ("import atexit, os, runpy, signal, sys, time; "
-            "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGTERM), time.sleep(30))); "
+            f"atexit.register(lambda: (os.kill(os.getpid(), signal.{signal_name}), time.sleep({clean_up_seconds}))); "
             "sys.argv = ['oodmon', 'envs', '--task', 'pong']; runpy.run_module('oodmon', run_name='__main__')")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=25)
     assert (done.returncode, done.stderr) == (0, "") and "pong:pixelate@5" in done.stdout

@@ -9,6 +9,7 @@ from collections.abc import Callable, Sequence
 from oodmon.names import MASKS, METHODS, TASKS
 from oodmon.seeds import MOST_SEED
 from oodmon.validation import MOST_STEPS
+from oodmon_console import NOT_BEGUN  # (the program's entry point, beside the package: it imports nothing of it)
 
 #: What Ctrl-C leaves behind, said by the commands that write as they go or only at their end.
 _LOGGED = "every finished episode is in the logs, the cut one is marked interrupted"
@@ -22,8 +23,9 @@ _KEPT = {
 }
 #: What a command stopped before its handler began says: Ctrl-C in torch's import (the first second)
 #: said "the last checkpoint is kept" of a train that had written none, "every finished episode is
-#: in the logs" of a run that had none (2026-12-06, scripts/fuzz_interrupts.py).
-_NOT_BEGUN = "it was stopped as it started: nothing was written"
+#: in the logs" of a run that had none (2026-12-06, scripts/fuzz_interrupts.py). The words the
+#: program's entry point says of a stop in oodmon's own import, one step earlier.
+_NOT_BEGUN = NOT_BEGUN
 
 
 def _command_line(args: argparse.Namespace) -> str:

@@ -310,23 +310,30 @@ def _skew_factor(residuals: np.ndarray, confidence: float, episodes: float) -> n
     second = np.mean(residuals ** 2, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         skew = np.where(second > 0, np.mean(residuals ** 3, axis=1) / second ** 1.5, 0.0)
-    return np.maximum(1.0, (z + np.maximum(skew, 0.0) * (2 * z * z + 1) / (6 * math.sqrt(episodes))) / z) ** 2
+    return _hall(z, skew, episodes)
+
+
+def _hall(z: float, skew: Any, terms: float) -> Any:
+    """Hall's (1992) correction of a one-sided limit z of a mean over ``terms`` terms of skewness
+    ``skew``, z + g (2 z^2 + 1) / (6 sqrt(m)), as a factor of the limit's variance, never below 1
+    (a skew to the left leaves it); ``skew`` a number or an array."""
+    return np.maximum(1.0, (z + np.maximum(skew, 0.0) * (2 * z * z + 1) / (6 * math.sqrt(terms))) / z) ** 2
 
 
 def _excess_skew_factor(skew: float, clusters: int, rate: float, size: float, tail: float) -> float:
     """How much to widen the variance of :func:`clustered_interval`'s upper limit (one-sided, the
     ``tail`` above it) where the clusters' shares are skewed to the right beyond what its
-    Clopper-Pearson form carries already: Hall's (1992) correction z + γ (2 z^2 + 1) / 6 of a mean
-    whose skewness is γ, here the mean's over ``clusters`` of residual skewness ``skew`` (γ =
-    skew / sqrt(m)) less a binomial's of ``size`` units at ``rate`` ((1 - 2 p) / sqrt(n p (1 - p))),
-    which the Beta limits hold; never below 1. ``scripts/interval_coverage.py`` measures it."""
+    Clopper-Pearson form carries already: :func:`_hall` of the clusters' residual skewness ``skew``
+    less what a binomial's of ``size`` units at ``rate`` would give their mean ((1 - 2 p) / sqrt(n p
+    (1 - p)), which the Beta limits hold), as the skewness of ``clusters`` terms.
+    ``scripts/interval_coverage.py`` measures it."""
     from scipy.special import ndtri
 
     z = float(ndtri(1 - tail))
     if z <= 0:  # (a limit at or below the median: no tail to correct)
         return 1.0
-    excess = skew / math.sqrt(clusters) - (1 - 2 * rate) / math.sqrt(size * rate * (1 - rate))
-    return max(1.0, (z + max(excess, 0.0) * (2 * z * z + 1) / 6) / z) ** 2
+    binomial = (1 - 2 * rate) / math.sqrt(size * rate * (1 - rate)) * math.sqrt(clusters)
+    return float(_hall(z, skew - binomial, clusters))
 
 
 def step_threshold(episodes: Sequence[np.ndarray], far: float, confidence: float) -> float:
