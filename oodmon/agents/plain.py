@@ -62,7 +62,8 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
     Raises:
         ConfigError: ``policy`` not callable, or an SB3 model or policy (give the model:
             :func:`~oodmon.agents.sb3.sb3_agent`); an env whose observations are neither arrays
-            nor a dict of vectors and discrete values (pictures beside them too), as SB3 models'
+            nor a dict of vectors and discrete values (pictures beside them too), as SB3 models',
+            nor a tuple of vectors and discrete values
             (:func:`~oodmon.agents.sb3_spaces.dict_space_of`); an action the env refuses, or of another
             shape than its Box actions.
 

@@ -95,12 +95,12 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
     which concatenates them flattened, discrete ones one-hot, as ``gymnasium.spaces.flatten``
     does), with pictures beside them or not (:mod:`oodmon.agents.dict_pictures`), or discrete
     values alone (``Discrete`` counted from 0, ``MultiDiscrete``, ``MultiBinary``: FrozenLake's
-    cell, which SB3 reads one-hot too; a ``Tuple`` of them, Blackjack's hand, for a plain policy);
-    ``None`` for an array space.
+    cell, which SB3 reads one-hot too; a ``Tuple`` of them, Blackjack's hand, or of them and
+    vectors, for a plain policy); ``None`` for an array space.
 
     Raises:
-        ConfigError: any other space (nested spaces inside a dict, a dict of pictures alone, a
-            tuple, text), saying to flatten the env's observations, ``retrain``.
+        ConfigError: any other space (nested spaces inside a dict or a tuple, a dict of pictures
+            alone, a tuple with a picture, text), saying to flatten the env's observations, ``retrain``.
 
     Example:
         >>> from gymnasium.spaces import Box, Discrete
@@ -114,8 +114,8 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
     if _flat_as_sb3(space, is_image_space):  # discrete values: read flattened, one-hot
         return space
     if isinstance(space, gymnasium.spaces.Tuple) and space.spaces and all(
-            not isinstance(sub, gymnasium.spaces.Box) and _flat_as_sb3(sub, is_image_space) for sub in space.spaces):
-        return space  # a tuple of them (Blackjack's hand): SB3 trains on none, a plain policy gets it back
+            _flat_as_sb3(sub, is_image_space) for sub in space.spaces):
+        return space  # a tuple of them and vectors (Blackjack's hand): SB3 trains on none, a plain policy gets it back
     if isinstance(space, gymnasium.spaces.Dict):
         vectors = [sub for sub in space.spaces.values() if not is_picture_space(sub)]  # and discrete values
         if vectors and all(_flat_as_sb3(sub, is_image_space) for sub in vectors):

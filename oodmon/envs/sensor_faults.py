@@ -44,7 +44,8 @@ class SensorFaults:
 
     Made by :class:`ShiftAttributes` from the ``obs.`` names of its changes (``obs.`` is kept for
     them: an env attribute called ``obs`` cannot be shifted); a ``Dict`` observation's, one of these
-    per key, by :class:`DictSensorFaults`.
+    per key, and a ``Tuple``'s of other parts than ``Discrete`` ones, one per part, by
+    :class:`DictSensorFaults`.
 
     Example:
         >>> faults = SensorFaults.of("X", gymnasium.spaces.Box(-1, 1, (3,)), {"obs.bias[0]": 0.5, "obs.stuck[2]": 1})
@@ -98,13 +99,13 @@ class SensorFaults:
         """
         if not changes:
             return None
-        if isinstance(space, gymnasium.spaces.Dict):
-            return DictSensorFaults.of(owner, space, changes)
         values = _discrete_values(space)
+        if isinstance(space, gymnasium.spaces.Dict) or isinstance(space, gymnasium.spaces.Tuple) and values is None:
+            return DictSensorFaults.of(owner, space, changes)
         if not isinstance(space, gymnasium.spaces.Box) and values is None:
             raise UnknownParameterError(f"{owner}: sensor faults ({', '.join(changes)}) read the readings of a Box "
                                         f"observation or of discrete values (Discrete, MultiDiscrete, MultiBinary, a "
-                                        f"Tuple of Discrete), or of a dict of them; {owner}'s is {space}")
+                                        f"Tuple of Discrete), or of a dict or tuple of them; {owner}'s is {space}")
         kinds = cls.KINDS if values is None else tuple(kind for kind in cls.KINDS if kind != "scale")
         size, kept, faults = int(np.prod(space.shape)) if values is None else len(values[0]), {}, []
         for name, value in changes.items():
@@ -185,7 +186,9 @@ class DictSensorFaults:
     is :class:`SensorFaults`' ``obs.KIND[i]=VALUE`` of the observation under ``KEY`` (a ``Box`` or
     discrete values), e.g. ``obs.joints.stuck[2]=1`` or ``obs.camera.noise=30``; the other keys are
     read as the env gives them. Each key's noise draws from a generator of its own, seeded by the
-    episode's seed and the key's place in the dict.
+    episode's seed and the key's place in the dict. A ``Tuple`` observation's parts are named by
+    their place, from 0 (``obs.1.bias[0]=0.5``: the second part's first reading), and read back as
+    a tuple (a ``Tuple`` of ``Discrete`` values alone is :class:`SensorFaults`' own: one reading each).
 
     Example:
         >>> space = gymnasium.spaces.Dict({"pole": gymnasium.spaces.Box(-1, 1, (2,)), "cell": gymnasium.spaces.Discrete(4)})
@@ -194,50 +197,71 @@ class DictSensorFaults:
         >>> read = faults.read({"pole": np.ones(2, np.float32), "cell": 3}, faulty=True)
         >>> read["pole"].tolist(), read["cell"]
         ([1.0, 1.5], 2)
+        >>> pair = gymnasium.spaces.Tuple((gymnasium.spaces.Box(-1, 1, (2,)), gymnasium.spaces.Discrete(4)))
+        >>> faults = SensorFaults.of("X", pair, {"obs.0.bias[1]": 0.5})
+        >>> faults.begin_episode(0, (np.zeros(2, np.float32), 2))
+        >>> read = faults.read((np.ones(2, np.float32), 3), faulty=True)
+        >>> read[0].tolist(), read[1]
+        ([1.0, 1.5], 3)
     """
 
-    def __init__(self, changes: dict[str, float], faults: dict[str, SensorFaults], keys: list[str]) -> None:
-        """``changes`` as the spec names them; ``faults`` each faulty key's; ``keys`` the dict's, in its order."""
+    def __init__(self, changes: dict[str, float], faults: dict[str, SensorFaults], keys: list[str], *,
+                 parts: bool = False) -> None:
+        """``changes`` as the spec names them; ``faults`` each faulty key's; ``keys`` the dict's, in its order
+        (a tuple's places, ``"0"``, ``"1"``..., if ``parts``)."""
         self.changes, self._faults = changes, faults
         self._streams = {key: keys.index(key) for key in faults}
+        self._index = {key: int(key) if parts else key for key in faults}  # where obs holds each key's reading
+        self._parts = parts
 
     @classmethod
-    def of(cls, owner: str, space: gymnasium.spaces.Dict, changes: dict[str, float]) -> DictSensorFaults:
-        """The faults of ``changes`` (names ``obs.KEY.KIND[i]``) for observations of ``space``.
+    def of(cls, owner: str, space: gymnasium.spaces.Dict | gymnasium.spaces.Tuple,
+           changes: dict[str, float]) -> DictSensorFaults:
+        """The faults of ``changes`` (names ``obs.KEY.KIND[i]``; a tuple's ``obs.N.KIND[i]``, N its
+        part's place from 0) for observations of ``space``.
 
         Raises:
-            UnknownParameterError: a name without a key of the dict, or what :meth:`SensorFaults.of`
-                refuses for that key's observation.
+            UnknownParameterError: a name without a key of the dict (a place of the tuple), one of a
+                dict or tuple inside it, or what :meth:`SensorFaults.of` refuses for that key's observation.
             InvalidParameterError: what :meth:`SensorFaults.of` refuses for that key's observation.
         """
-        keys, named = list(space.spaces), {}
+        parts = isinstance(space, gymnasium.spaces.Tuple)
+        keys = [str(place) for place in range(len(space.spaces))] if parts else list(space.spaces)
+        whose, key_word, named = ("tuple", "N", {}) if parts else ("dict", "KEY", {})
         for name, value in changes.items():
             match = re.fullmatch(r"obs\.(\w+)\.(\w+(?:\[\d+\])?)", name)
-            if match is None or match.group(1) not in space.spaces:
-                raise UnknownParameterError(f"{owner}: {name!r} names no key of its dict observation; give "
-                                            f"obs.KEY.KIND[i]=VALUE, KEY one of {', '.join(keys)}")
-            if isinstance(space[match.group(1)], gymnasium.spaces.Dict):
-                raise UnknownParameterError(f"{owner}: {name!r} names a dict in its dict observation; sensor faults "
-                                            "read the readings of a Box or of discrete values under one of its keys")
+            if match is None or match.group(1) not in keys:
+                raise UnknownParameterError(f"{owner}: {name!r} names no {'part' if parts else 'key'} of its {whose} "
+                                            f"observation; give obs.{key_word}.KIND[i]=VALUE, {key_word} one of "
+                                            f"{', '.join(keys)}")
+            if isinstance(space[int(match.group(1)) if parts else match.group(1)],
+                          (gymnasium.spaces.Dict, gymnasium.spaces.Tuple)):
+                raise UnknownParameterError(f"{owner}: {name!r} names a dict or a tuple in its {whose} observation; "
+                                            f"sensor faults read the readings of a Box or of discrete values "
+                                            f"{'in one of its parts' if parts else 'under one of its keys'}")
             named.setdefault(match.group(1), {})[f"obs.{match.group(2)}"] = value
-        faults = {key: SensorFaults.of(f"{owner} (key {key!r})", space[key], key_changes)
+        faults = {key: SensorFaults.of(f"{owner} ({'part' if parts else 'key'} {key if parts else repr(key)})",
+                                       space[int(key) if parts else key], key_changes)
                   for key, key_changes in named.items()}
         kept = {f"obs.{key}.{name[len('obs.'):]}": value for key, key_faults in faults.items()
                 for name, value in key_faults.changes.items()}
-        return cls(kept, faults, keys)
+        return cls(kept, faults, keys, parts=parts)
 
     def begin_episode(self, seed: int | None, obs) -> None:
         """A new episode: each faulty key's (:meth:`SensorFaults.begin_episode`)."""
         for key, faults in self._faults.items():
-            faults.begin_episode(seed, obs[key], stream=self._streams[key])
+            faults.begin_episode(seed, obs[self._index[key]], stream=self._streams[key])
 
     def read(self, obs, *, faulty: bool):
         """``obs`` as the sensors report it: itself before the fault (each faulty key's reading kept
         for a stuck sensor), each faulty key's readings through its faults after."""
         if not faulty:
             for key, faults in self._faults.items():
-                faults.read(obs[key], faulty=False)
+                faults.read(obs[self._index[key]], faulty=False)
             return obs
+        if self._parts:
+            return tuple(self._faults[str(place)].read(value, faulty=True) if str(place) in self._faults else value
+                         for place, value in enumerate(obs))
         return {key: self._faults[key].read(value, faulty=True) if key in self._faults else value
                 for key, value in obs.items()}
 

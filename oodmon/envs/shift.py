@@ -57,6 +57,9 @@ _SPEC_HELP = "expected ENV_ID:NAME=VALUE[,NAME=VALUE...], e.g. 'Acrobot-v1:LINK_
 #: A name a shift sets: an attribute, through attributes (``model.opt.gravity``), and an element of
 #: an array there (``model.body_mass[1]``, ``model.geom_friction[0][0]``).
 _NAME = re.compile(r"([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)((?:\[\d+\])*)")
+#: A sensor fault of a part of a tuple observation, named by its place: ``obs.1.bias[0]``
+#: (:class:`~oodmon.envs.sensor_faults.DictSensorFaults`).
+_TUPLE_FAULT = re.compile(r"obs\.\d+\.[A-Za-z_]\w*(?:\[\d+\])?")
 
 
 def _settable(holder: object, name: str) -> bool:
@@ -402,7 +405,7 @@ def parse_env_shift(spec: str) -> EnvShift:
             number = float(value)
         except ValueError:
             number = None
-        if not equals or not _NAME.fullmatch(name) or number is None:
+        if not equals or not (_NAME.fullmatch(name) or _TUPLE_FAULT.fullmatch(name)) or number is None:
             raise SpecError(f"malformed shift {spec!r} at {item!r}: {_SPEC_HELP}")
         if name in params:
             raise SpecError(f"shift {spec!r} sets {name!r} twice")

@@ -769,13 +769,14 @@ class PolicyCannotAct(RuntimeError):
 
 def _shown(obs: Any) -> str:
     """``obs`` in a line: its values, or its shape when it is large."""
-    values = np.asarray(obs) if not isinstance(obs, dict) else None
+    values = np.asarray(obs) if not isinstance(obs, (dict, tuple)) else None
     if values is None or values.size > 8:
-        return "shape " + ("a dict" if values is None else str(values.shape))
+        return "shape " + (f"a {type(obs).__name__}" if values is None else str(values.shape))
     return np.array2string(values.reshape(-1), precision=3)
 
 
 def _frame(obs: np.ndarray) -> np.ndarray | None:
     """The picture to log of an image observation (uint8, three dimensions): its newest frame (see
-    :func:`~oodmon.monitor.detectors.frames.newest_frame`), else None."""
-    return newest_frame(obs) if np.ndim(obs) == 3 and obs.dtype == np.uint8 else None
+    :func:`~oodmon.monitor.detectors.frames.newest_frame`), else None (a dict's or a tuple's
+    observation too, whose numpy shape a tuple of parts of other shapes does not have)."""
+    return newest_frame(obs) if isinstance(obs, np.ndarray) and obs.ndim == 3 and obs.dtype == np.uint8 else None

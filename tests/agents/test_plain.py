@@ -143,34 +143,20 @@ def test_a_torch_policys_threshold_is_bound_to_its_weights():
                                                                    score="chosen_std", policy_hash=other)[0]
 
 
-class _TupleWithVector(gymnasium.Env):
-    """Observations of a cell and a vector in a tuple: nothing oodmon's detectors read."""
-
-    observation_space = gymnasium.spaces.Tuple((gymnasium.spaces.Discrete(3), gymnasium.spaces.Box(-1, 1, (2,))))
-    action_space = gymnasium.spaces.Discrete(2)
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        return (0, np.zeros(2, np.float32)), {}
-
-    def step(self, action):
-        return (0, np.zeros(2, np.float32)), 0.0, True, False, {}
-
-
 @pytest.mark.parametrize(("policy", "env_id", "kwargs", "said"), [
     (lambda obs: 3, "CartPole-v1", {}, "returned 3 for CartPole-v1's first observation, which the env refused"),
     (lambda obs: np.zeros(2), "Pendulum-v1", {}, "shape (2,)) for Pendulum-v1's first observation"),
     (lambda obs: torch.tensor(1), "CartPole-v1", {}, "Discrete(2) (a torch tensor: return a number, .item(), or an array"),
     (lambda obs: 0, "CartPole-v1", {"mean": True}, "are for SB3 models; a plain policy acts on the env's observations"),
     (lambda obs: 0, None, {}, "give the gymnasium env id your policy acts in"),
-    # a tuple of discrete values (Blackjack's hand) is watched (tests/monitor/test_transitions.py); one with a vector is not
-    (lambda obs: 0, "plain_tests/TupleWithVector-v0", {}, "plain_tests/TupleWithVector-v0's observations are Tuple"),
-], ids=["action-refused", "box-shape", "torch-tensor", "sb3-option", "no-env", "tuple-observations"])
+    # a tuple of vectors and discrete values is watched (below); one with a tuple inside it is not
+    (lambda obs: 0, "plain_tests/NestedTuple-v0", {}, "plain_tests/NestedTuple-v0's observations are Tuple"),
+], ids=["action-refused", "box-shape", "torch-tensor", "sb3-option", "no-env", "nested-tuple-observations"])
 def test_a_policy_oodmon_cannot_run_is_said_before_any_episode(policy, env_id, kwargs, said):
     from oodmon.monitor.watch import as_agent
 
-    if "plain_tests/TupleWithVector-v0" not in gymnasium.registry:
-        gymnasium.register("plain_tests/TupleWithVector-v0", entry_point=_TupleWithVector)
+    if "plain_tests/NestedTuple-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/NestedTuple-v0", entry_point=_NestedTuple)
 
     with pytest.raises(ConfigError) as error:
         as_agent(policy, env_id, **kwargs)
@@ -292,6 +278,66 @@ class MultiCart(gymnasium.Wrapper):
     def step(self, action):
         self.env.unwrapped.force_mag = self.force * (1 + int(action[1])) / 2
         return self.env.step(int(action[0]))
+
+
+class TupleCartPole(gymnasium.ObservationWrapper):
+    """oodmon's CartPole (a shift can begin mid-episode) with tuple observations: the cart's two
+    readings, the pole's two, and which side the pole leans to (a Discrete value)."""
+
+    def __init__(self, **physics) -> None:
+        super().__init__(gymnasium.make("oodmon/CartPole-v1", **physics))
+        low, high = self.env.observation_space.low, self.env.observation_space.high
+        self.observation_space = gymnasium.spaces.Tuple((gymnasium.spaces.Box(low[:2], high[:2]),
+                                                         gymnasium.spaces.Box(low[2:], high[2:]),
+                                                         gymnasium.spaces.Discrete(2)))
+
+    def observation(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        return obs[:2], obs[2:], int(obs[2] > 0)
+
+
+class _NestedTuple(TupleCartPole):
+    """A tuple inside the tuple: what gymnasium flattens, but no sensor fault or SB3 model reads."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.observation_space = gymnasium.spaces.Tuple((self.observation_space,))
+
+    def observation(self, obs: np.ndarray) -> tuple:
+        return (super().observation(obs),)
+
+
+def test_a_plain_policy_of_tuple_observations_gets_tuples_and_a_sensor_fault_of_one_part_alarms():
+    """A Tuple of vectors and a discrete value, as a Dict's (above): the policy gets the env's tuples,
+    the detectors read them flattened, and ``obs.N.KIND[i]`` names a sensor fault of part N."""
+    if "plain_tests/TupleCartPole-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/TupleCartPole-v0", entry_point=TupleCartPole, max_episode_steps=200)
+    seen = set()
+
+    def act(obs):
+        seen.add((type(obs), len(obs), type(obs[0]), str(obs[0].dtype), int(obs[2])))
+        cart, pole, _ = obs
+        return int(pole[0] + 0.5 * pole[1] + 0.01 * cart[0] + 0.1 * cart[1] > 0)
+
+    # the discrete part is read one-hot (readings 4 and 5 flattened): inputs of the dynamics model
+    with pytest.warns(UserWarning, match="readings 4, 5 of the observation .flattened. jump between a few values"):
+        monitor = oodmon.watch(act, "plain_tests/TupleCartPole-v0", fit_episodes=12, episodes=20, confidence=None)
+    assert {kind[:4] for kind in seen} == {(tuple, 3, np.ndarray, "float32")} and {kind[4] for kind in seen} == {0, 1}
+    assert monitor.agent.view(((1.0, 2.0), (3.0, 4.0), 1)).tolist() == [1.0, 2.0, 3.0, 4.0, 0.0, 1.0]
+    ids = [monitor.run_episode(gymnasium.make("plain_tests/TupleCartPole-v0"), seed=940_000 + i) for i in range(10)]
+    # on average over calibrations <= 1/21 false alarms per episode (rank 20 of 20): 4 or more of 10
+    # has probability 0.001 at 5% (0.013 at twice that)
+    assert all(r.length == 200 for r in ids) and sum(r.first_alarm_step is not None for r in ids) <= 3
+    # the pole's angular velocity (part 1, reading 1) off by 0.5 from step 30: when written, 5 of 5
+    # alarmed at step 31
+    biased = parse_env_shift("plain_tests/TupleCartPole-v0:obs.1.bias[1]=0.5")
+    assert biased.params == (("obs.1.bias[1]", 0.5),)
+    shifted = [monitor.run_episode(biased.make(onset_step=30), seed=950_000 + i) for i in range(5)]
+    assert all(r.first_alarm_step is not None and 30 < r.first_alarm_step <= 35 for r in shifted)
+    with pytest.raises(ConfigError, match=r"'obs.3.bias' names no part of its tuple observation; give "
+                                          r"obs.N.KIND\[i\]=VALUE, N one of 0, 1, 2"):
+        parse_env_shift("plain_tests/TupleCartPole-v0:obs.3.bias=1").make()
+    with pytest.raises(ConfigError, match=r"\(part 2\): 'obs.scale' is no sensor fault of discrete values"):
+        parse_env_shift("plain_tests/TupleCartPole-v0:obs.2.scale=2").make()
 
 
 def test_a_plain_policy_of_multi_discrete_actions_is_watched_with_every_part_of_its_action_read():

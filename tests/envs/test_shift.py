@@ -258,14 +258,44 @@ def test_a_fault_without_an_index_is_every_readings_and_bytes_saturate_instead_o
         (("obs.noise", 30.0), ("obs.noise[3]", 0.0))
 
 
-def test_sensor_faults_need_a_box_discrete_values_or_a_dict_of_them_and_a_dicts_key():
-    class TupleBodies(_FallingBodies):
-        observation_space = gymnasium.spaces.Tuple((_FallingBodies.observation_space,))
+def test_sensor_faults_need_a_box_discrete_values_or_a_dict_or_tuple_of_them_and_its_key_or_part():
+    class TextBodies(_FallingBodies):
+        observation_space = gymnasium.spaces.Text(8)
 
     with pytest.raises(UnknownParameterError, match=r"read the readings of a Box observation or of discrete values "
                                                     r"\(Discrete, MultiDiscrete, MultiBinary, a Tuple of Discrete\), "
-                                                    r"or of a dict of them; .*Tuple\(Box"):
+                                                    r"or of a dict or tuple of them; .*Text\("):
+        ShiftAttributes(TextBodies(), {"obs.bias[0]": 1.0})
+
+    class TupleBodies(_FallingBodies):
+        """The velocities, and the same again in a tuple inside the tuple (refused as a dict in a dict is)."""
+
+        observation_space = gymnasium.spaces.Tuple((_FallingBodies.observation_space,
+                                                    gymnasium.spaces.Tuple((_FallingBodies.observation_space,))))
+
+        def reset(self, *, seed=None, options=None):
+            obs, info = super().reset(seed=seed)
+            return (obs, (obs,)), info
+
+        def step(self, action):
+            obs, *rest = super().step(action)
+            return (obs, (obs,)), *rest
+
+    env = ShiftAttributes(TupleBodies(), {"obs.0.bias[1]": 1.0}, onset_step=1)
+    obs, _ = env.reset(seed=0)
+    before, *_ = env.step(1)
+    shifted, *_ = env.step(1)
+    assert obs[0][1] == obs[1][0][1] and before[0][1] == before[1][0][1]  # (the fault's first observation is step 2's)
+    assert isinstance(shifted, tuple) and shifted[0][1] == shifted[1][0][1] + 1 and shifted[0][0] == shifted[1][0][0]
+    assert env.shift.spec == "TupleBodies:obs.0.bias[1]=1.0" and parse_env_shift(env.shift.spec).params == \
+        (("obs.0.bias[1]", 1.0),)
+    with pytest.raises(UnknownParameterError, match=r"'obs.bias\[0\]' names no part of its tuple observation; give "
+                                                    r"obs.N.KIND\[i\]=VALUE, N one of 0, 1"):
         ShiftAttributes(TupleBodies(), {"obs.bias[0]": 1.0})
+    with pytest.raises(UnknownParameterError, match=r"'obs.1.bias' names a dict or a tuple in its tuple observation"):
+        ShiftAttributes(TupleBodies(), {"obs.1.bias": 1.0})
+    with pytest.raises(UnknownParameterError, match=r"TupleBodies \(part 0\): obs.bias\[2\] is outside the "):
+        ShiftAttributes(TupleBodies(), {"obs.0.bias[2]": 1.0})
 
     class DictBodies(_FallingBodies):
         observation_space = gymnasium.spaces.Dict({"v": _FallingBodies.observation_space,
@@ -276,7 +306,7 @@ def test_sensor_faults_need_a_box_discrete_values_or_a_dict_of_them_and_a_dicts_
         ShiftAttributes(DictBodies(), {"obs.bias[0]": 1.0})
     with pytest.raises(UnknownParameterError, match=r"'obs.w.bias' names no key"):
         ShiftAttributes(DictBodies(), {"obs.w.bias": 1.0})
-    with pytest.raises(UnknownParameterError, match=r"DictBodies: 'obs.deep.bias' names a dict in its dict observation"):
+    with pytest.raises(UnknownParameterError, match=r"DictBodies: 'obs.deep.bias' names a dict or a tuple in its "):
         ShiftAttributes(DictBodies(), {"obs.deep.bias": 1.0})
     with pytest.raises(UnknownParameterError, match=r"DictBodies \(key 'v'\): obs.bias\[9\] is outside the observation"):
         ShiftAttributes(DictBodies(), {"obs.v.bias[9]": 1.0})
