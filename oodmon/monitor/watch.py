@@ -116,7 +116,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     (``masks="fixed"`` or ``"fixed-decisions"``), is then fitted too, as ``oodmon calibrate --detector scaled_spread`` fits
     it). ``env``: wrap this env (the one you step) and return the
     :class:`~oodmon.monitor.MonitoredEnv` instead of the bare monitor; its ``info["oodmon"]``
-    says what the monitor saw at every step. ``on_progress(stage, done, total)`` reports progress
+    says what the monitor saw at every step. Given ``env`` without ``env_id``, the ID episodes are
+    of the id gymnasium made ``env`` by (``watch(act, env=gymnasium.make("CartPole-v1"))``),
+    where it was made with that id's own arguments. ``on_progress(stage, done, total)`` reports progress
     (see :mod:`oodmon.progress`). ``masks``, ``vec_normalize``, ``frame_stack``, ``imports``,
     ``unsafe_load_pickles``: see :func:`as_agent`.
     ``warmup``: the alarm looks at no finite score of an episode's first ``warmup`` steps (see
@@ -143,8 +145,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
 
     Raises:
         ConfigError, InvalidParameterError: as :func:`as_agent` and the calibration, before any
-            episode runs where they can be told from the arguments; ``threshold`` and ``save``
-            both given; ``threshold`` with ``warmup``, ``max_steps``, ``fit_episodes`` or
+            episode runs where they can be told from the arguments; ``env`` without ``env_id``
+            made without gymnasium's registry or with other arguments than its id's;
+            ``threshold`` and ``save`` both given; ``threshold`` with ``warmup``, ``max_steps``, ``fit_episodes`` or
             ``dynamics_updates``; a
             ``threshold`` file of another policy, or whose detectors are missing; a ``save`` path
             that is one of the files it reads, or holds a file that is no threshold (a threshold
@@ -164,6 +167,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
 
     if threshold is not None and save is not None:
         raise ConfigError("give threshold= (read a calibration made before) or save= (write the one made now), not both")
+    if env_id is None and env is not None and not isinstance(policy, Agent):
+        env_id = _id_of(env)  # watch(policy, env=gymnasium.make("CartPole-v1")): the id it was made by
     if threshold is not None and warmup:
         raise ConfigError("a threshold file's warm-up is the one it was calibrated for: leave warmup= out, or "
                           "calibrate anew with it (save=)")
@@ -238,6 +243,38 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
             kept_fit.clear()
     monitor = Monitor(agent, alarm_threshold, detectors=detectors, detector=detector, sinks=sinks, callbacks=callbacks)
     return monitor if env is None else MonitoredEnv(env, monitor)
+
+
+def _id_of(env: gymnasium.Env) -> str:
+    """The env id to play fresh ID episodes of, for ``watch(policy, env=env)`` without one: the id
+    gymnasium made ``env`` by, where it was made with that id's own arguments (a ``render_mode``
+    aside), since fitting and calibration play ``gymnasium.make(id)``.
+
+    Raises:
+        ConfigError: an env made without the registry, or with other arguments (another time
+            limit): they may be the deployed world's or the ID world's, which only the caller knows.
+    """
+    spec = env.spec
+    name = type(env.unwrapped).__name__
+    if spec is None:
+        raise ConfigError(f"give the gymnasium env id your policy acts in: this {name} was made without gymnasium's "
+                          "registry, and oodmon plays fresh ID episodes of the env to fit its detectors and calibrate "
+                          f"(gymnasium.make(id)); register it, gymnasium.register('my_envs/{name}-v0', "
+                          f"entry_point={name}, max_episode_steps=N), and give watch(policy, 'my_envs/{name}-v0', "
+                          "env=env)")
+    own = gymnasium.spec(spec.id)
+    given = {key: value for key, value in spec.kwargs.items() if key != "render_mode"}
+    if given != {key: value for key, value in own.kwargs.items() if key != "render_mode"} \
+            or spec.max_episode_steps != own.max_episode_steps:
+        made = ", ".join([*(f"{key}={value!r}" for key, value in given.items()),
+                          *([f"max_episode_steps={spec.max_episode_steps}"]
+                            if spec.max_episode_steps != own.max_episode_steps else [])])
+        raise ConfigError(f"give the gymnasium env id your policy acts in: this env was made as "
+                          f"gymnasium.make({spec.id!r}, {made}), and fitting and calibration play the in-distribution "
+                          f"world, gymnasium.make(id): watch(policy, {spec.id!r}, env=env) if that is {spec.id!r} as "
+                          "registered (these arguments the deployed world's), else register an id with them "
+                          "(gymnasium.register(..., kwargs=...)) and give it")
+    return spec.id
 
 
 def _calibrated(policy: Any, env_id: str | None, path: str | Path, *, masks: str | None, **loading: Any) -> tuple:

@@ -163,6 +163,51 @@ def test_a_policy_oodmon_cannot_run_is_said_before_any_episode(policy, env_id, k
     assert said in str(error.value)
 
 
+class _Walk(gymnasium.Env):
+    """A random walk of two readings, pulled up or down by the action; 30 steps an episode."""
+
+    metadata = {"render_modes": ["rgb_array"]}
+    observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (2,), np.float32)
+    action_space = gymnasium.spaces.Discrete(2)
+
+    def __init__(self, render_mode=None) -> None:
+        self.render_mode = render_mode
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x = np.zeros(2, np.float32)
+        return self.x.copy(), {}
+
+    def step(self, action):
+        self.x = (0.9 * self.x + self.np_random.normal(0, 0.1, 2) + (0.05 if action else -0.05)).astype(np.float32)
+        return self.x.copy(), 1.0, False, False, {}
+
+
+def test_watch_of_an_env_without_its_id_plays_the_id_gymnasium_made_it_by_and_says_when_it_cannot():
+    if "plain_tests/Walk-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/Walk-v0", entry_point=_Walk, max_episode_steps=30)
+    env = gymnasium.make("plain_tests/Walk-v0", render_mode="rgb_array")  # (rendering is not another world)
+    watched = oodmon.watch(lambda obs: int(obs[0] < 0), env=env, fit_episodes=3, episodes=20, confidence=None)
+    assert watched.monitor.agent.env_id == "plain_tests/Walk-v0"
+    obs, _ = watched.reset(seed=0)
+    for _ in range(30):
+        obs, _, terminated, truncated, info = watched.step()
+    assert truncated and "alarm" in info["oodmon"]
+    for made, said in [(_Walk(), r"this _Walk was made without gymnasium's registry, .* gymnasium.register\("
+                                 r"'my_envs/_Walk-v0', entry_point=_Walk, max_episode_steps=N\)"),
+                       (gymnasium.make("plain_tests/Walk-v0", max_episode_steps=10),
+                        r"made as gymnasium.make\('plain_tests/Walk-v0', max_episode_steps=10\), and fitting and "
+                        r"calibration play the in-distribution world"),
+                       (gymnasium.make("oodmon/CartPole-v1", length=2.0), r"gymnasium.make\('oodmon/CartPole-v1', "
+                                                                         r"length=2.0\)")]:
+        with pytest.raises(ConfigError, match=said):
+            oodmon.watch(lambda obs: 0, env=made)
+    # given the id, the env made with other arguments is the deployed world (here the longer pole)
+    assert oodmon.watch(lambda obs: 0, "oodmon/CartPole-v1", env=gymnasium.make("oodmon/CartPole-v1", length=2.0),
+                        threshold=None, fit_episodes=3, episodes=20, confidence=None).monitor.agent.env_id == \
+        "oodmon/CartPole-v1"
+
+
 def test_what_is_no_function_of_an_observation_is_said():
     with pytest.raises(ConfigError, match="policy is an SB3 ActorCriticPolicy: oodmon reads an SB3 model.s networks, "
                                           "given the model itself"):
