@@ -118,7 +118,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     :class:`~oodmon.monitor.MonitoredEnv` instead of the bare monitor; its ``info["oodmon"]``
     says what the monitor saw at every step. Given ``env`` without ``env_id``, the ID episodes are
     of the id gymnasium made ``env`` by (``watch(act, env=gymnasium.make("CartPole-v1"))``),
-    where it was made with that id's own arguments. ``on_progress(stage, done, total)`` reports progress
+    where it was made with that id's own arguments; of SB3 models in memory without either, the id
+    of the env they learned in (``watch(model)`` after ``model.learn``), alike.
+    ``on_progress(stage, done, total)`` reports progress
     (see :mod:`oodmon.progress`). ``masks``, ``vec_normalize``, ``frame_stack``, ``imports``,
     ``unsafe_load_pickles``: see :func:`as_agent`.
     ``warmup``: the alarm looks at no finite score of an episode's first ``warmup`` steps (see
@@ -168,7 +170,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     if threshold is not None and save is not None:
         raise ConfigError("give threshold= (read a calibration made before) or save= (write the one made now), not both")
     if env_id is None and env is not None and not isinstance(policy, Agent):
-        env_id = _id_of(env)  # watch(policy, env=gymnasium.make("CartPole-v1")): the id it was made by
+        env_id = _id_of(env.spec, type(env.unwrapped).__name__)  # watch(act, env=gymnasium.make("CartPole-v1"))
+    elif env_id is None and env is None and not isinstance(policy, Agent) and not callable(policy):
+        env_id = _trained_in(policy)  # watch(model) of an SB3 model in memory: the id of the env it learned in
     if threshold is not None and warmup:
         raise ConfigError("a threshold file's warm-up is the one it was calibrated for: leave warmup= out, or "
                           "calibrate anew with it (save=)")
@@ -245,23 +249,36 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     return monitor if env is None else MonitoredEnv(env, monitor)
 
 
-def _id_of(env: gymnasium.Env) -> str:
-    """The env id to play fresh ID episodes of, for ``watch(policy, env=env)`` without one: the id
-    gymnasium made ``env`` by, where it was made with that id's own arguments (a ``render_mode``
-    aside), since fitting and calibration play ``gymnasium.make(id)``.
+def _trained_in(policy: Any) -> str | None:
+    """The env id of SB3 models in memory, for ``watch(model)`` without one: the id of the env the
+    first one holds (``model.get_env()``, the env it learned in, through VecNormalize and the
+    like; see :func:`_id_of`); ``None`` for models without an env (loaded from files) and what is
+    no SB3 model (file names: their env id is needed, as before)."""
+    first = policy[0] if isinstance(policy, (list, tuple)) and policy else policy
+    get_env = getattr(first, "get_env", None)
+    venv = get_env() if callable(get_env) else None
+    if venv is None:
+        return None
+    return _id_of(venv.get_attr("spec", [0])[0], type(venv.get_attr("unwrapped", [0])[0]).__name__, models=True)
+
+
+def _id_of(spec: Any, name: str, *, models: bool = False) -> str:
+    """The env id to play fresh ID episodes of, for ``watch`` without one: the id gymnasium made the
+    env (of ``spec``, its ``name``; the ``models``' own env, else the one given) by, where it was
+    made with that id's own arguments (a ``render_mode`` aside), since fitting and calibration play
+    ``gymnasium.make(id)``.
 
     Raises:
         ConfigError: an env made without the registry, or with other arguments (another time
             limit): they may be the deployed world's or the ID world's, which only the caller knows.
     """
-    spec = env.spec
-    name = type(env.unwrapped).__name__
+    what, call = ("the env your model learned in", "watch(model, {!r})") if models else (
+        "this env", "watch(policy, {!r}, env=env)")
     if spec is None:
-        raise ConfigError(f"give the gymnasium env id your policy acts in: this {name} was made without gymnasium's "
-                          "registry, and oodmon plays fresh ID episodes of the env to fit its detectors and calibrate "
-                          f"(gymnasium.make(id)); register it, gymnasium.register('my_envs/{name}-v0', "
-                          f"entry_point={name}, max_episode_steps=N), and give watch(policy, 'my_envs/{name}-v0', "
-                          "env=env)")
+        raise ConfigError(f"give the gymnasium env id your policy acts in: {what}, a {name}, was made without "
+                          "gymnasium's registry, and oodmon plays fresh ID episodes of the env to fit its detectors "
+                          f"and calibrate (gymnasium.make(id)); register it, gymnasium.register('my_envs/{name}-v0', "
+                          f"entry_point={name}, max_episode_steps=N), and give {call.format(f'my_envs/{name}-v0')}")
     own = gymnasium.spec(spec.id)
     given = {key: value for key, value in spec.kwargs.items() if key != "render_mode"}
     if given != {key: value for key, value in own.kwargs.items() if key != "render_mode"} \
@@ -269,10 +286,10 @@ def _id_of(env: gymnasium.Env) -> str:
         made = ", ".join([*(f"{key}={value!r}" for key, value in given.items()),
                           *([f"max_episode_steps={spec.max_episode_steps}"]
                             if spec.max_episode_steps != own.max_episode_steps else [])])
-        raise ConfigError(f"give the gymnasium env id your policy acts in: this env was made as "
+        raise ConfigError(f"give the gymnasium env id your policy acts in: {what} was made as "
                           f"gymnasium.make({spec.id!r}, {made}), and fitting and calibration play the in-distribution "
-                          f"world, gymnasium.make(id): watch(policy, {spec.id!r}, env=env) if that is {spec.id!r} as "
-                          "registered (these arguments the deployed world's), else register an id with them "
+                          f"world, gymnasium.make(id): {call.format(spec.id)} if that is {spec.id!r} as registered "
+                          "(these arguments the deployed world's), else register an id with them "
                           "(gymnasium.register(..., kwargs=...)) and give it")
     return spec.id
 

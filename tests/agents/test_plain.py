@@ -193,7 +193,7 @@ def test_watch_of_an_env_without_its_id_plays_the_id_gymnasium_made_it_by_and_sa
     for _ in range(30):
         obs, _, terminated, truncated, info = watched.step()
     assert truncated and "alarm" in info["oodmon"]
-    for made, said in [(_Walk(), r"this _Walk was made without gymnasium's registry, .* gymnasium.register\("
+    for made, said in [(_Walk(), r"this env, a _Walk, was made without gymnasium's registry, .* gymnasium.register\("
                                  r"'my_envs/_Walk-v0', entry_point=_Walk, max_episode_steps=N\)"),
                        (gymnasium.make("plain_tests/Walk-v0", max_episode_steps=10),
                         r"made as gymnasium.make\('plain_tests/Walk-v0', max_episode_steps=10\), and fitting and "
@@ -206,6 +206,16 @@ def test_watch_of_an_env_without_its_id_plays_the_id_gymnasium_made_it_by_and_sa
     assert oodmon.watch(lambda obs: 0, "oodmon/CartPole-v1", env=gymnasium.make("oodmon/CartPole-v1", length=2.0),
                         threshold=None, fit_episodes=3, episodes=20, confidence=None).monitor.agent.env_id == \
         "oodmon/CartPole-v1"
+    # an SB3 model in memory: the env it learned in (through SB3's Monitor wrapper and DummyVecEnv)
+    model = PPO("MlpPolicy", "CartPole-v1", seed=0, device="cpu")
+    assert oodmon.watch(model, fit_episodes=3, episodes=20, confidence=None).agent.env_id == "CartPole-v1"
+    shorter = PPO("MlpPolicy", gymnasium.make("CartPole-v1", max_episode_steps=50), seed=0, device="cpu")
+    with pytest.raises(ConfigError, match=r"the env your model learned in was made as gymnasium.make\('CartPole-v1', "
+                                          r"max_episode_steps=50\), .*: watch\(model, 'CartPole-v1'\) if that is"):
+        oodmon.watch(shorter)
+    model.env = None  # (as a model loaded from its file without an env: get_env() is None)
+    with pytest.raises(ConfigError, match="give the gymnasium env id your models act in"):
+        oodmon.watch(model)
 
 
 def test_what_is_no_function_of_an_observation_is_said():

@@ -384,6 +384,8 @@ def test_watch_fits_calibrates_and_wraps_an_env_in_one_call():
     env.close()
     assert sink.episodes[0].variant == "cartpole"  # recorded from the env: replay needs no variant=
     assert [s.action for s in sink.steps[1:]] == [0] * (len(sink.steps) - 1)
+    for model in models:  # (as models loaded from their files without an env: else the id of theirs is taken)
+        model.env = None
     with pytest.raises(ConfigError, match="env id"):
         oodmon.watch(models)
 
