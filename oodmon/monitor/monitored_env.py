@@ -21,15 +21,23 @@ from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, 
 from oodmon.errors import ConfigError
 from oodmon.monitor.monitor import Monitor, NonFiniteObservationWarning, PolicyCannotAct, _frame
 
-__all__ = ["MonitoredEnv", "check_env_of"]
+__all__ = ["MonitoredEnv", "check_env_of", "check_one_env"]
 
 
-def _check_one_env(env: Any) -> None:
+def check_one_env(env: Any) -> None:
+    """Refuse what is not one gymnasium env (a vector env; an env id given where the env goes).
+
+    Raises:
+        ConfigError: saying what to give instead.
+    """
     if not isinstance(env, gymnasium.Env):
         vector = hasattr(env, "num_envs")
         raise ConfigError(f"the env to monitor is one gymnasium env, the one you step; got a {type(env).__name__}"
                           + (" (a vector env): wrap each of its envs in a MonitoredEnv with a Monitor of its own "
-                             "(monitor.twin() makes one like a monitor you have)" if vector else ""))
+                             "(monitor.twin() makes one like a monitor you have)" if vector else "")
+                          + (f" ({env!r} is an env id: give the env itself, gymnasium.make({env!r}); oodmon.watch "
+                             f"takes the id as its second argument, watch(policy, {env!r}))" if isinstance(env, str)
+                             else ""))
 
 
 def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
@@ -40,7 +48,7 @@ def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
         ConfigError: something that is not one gymnasium env (a vector env), or naming the space,
             the env's and the agent's.
     """
-    _check_one_env(env)
+    check_one_env(env)
     own = agent.make_env()
     if agent.dict_space is not None and not isinstance(env.observation_space, gymnasium.spaces.Box):
         env = gymnasium.wrappers.FlattenObservation(env)  # its spaces as the agent reads them (nothing stepped)
@@ -98,7 +106,7 @@ class MonitoredEnv(gymnasium.Wrapper):
         if monitor.agent is not None:
             check_env_of(monitor.agent, env)  # its kind, then its spaces
         else:
-            _check_one_env(env)
+            check_one_env(env)
         super().__init__(env)
         self.monitor = monitor
         self.variant = variant

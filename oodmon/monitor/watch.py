@@ -162,13 +162,15 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     from oodmon.monitor.detectors.fitting import check_can_have, fit_settings, fitted_when_named
     from oodmon.monitor.scores import DEFAULT_SCORE
     from oodmon.monitor.monitor import Monitor
-    from oodmon.monitor.monitored_env import MonitoredEnv, check_env_of
+    from oodmon.monitor.monitored_env import MonitoredEnv, check_env_of, check_one_env
     from oodmon.side_by_side import resolve_workers
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file, replaced_file
 
     if threshold is not None and save is not None:
         raise ConfigError("give threshold= (read a calibration made before) or save= (write the one made now), not both")
+    if env is not None:
+        check_one_env(env)  # (an id given as env=, a vector env: said before any fit)
     if env_id is None and env is not None and not isinstance(policy, Agent):
         env_id = _id_of(env.spec, type(env.unwrapped).__name__)  # watch(act, env=gymnasium.make("CartPole-v1"))
     elif env_id is None and env is None and not isinstance(policy, Agent) and not callable(policy):

@@ -202,6 +202,13 @@ def test_watch_of_an_env_without_its_id_plays_the_id_gymnasium_made_it_by_and_sa
                                                                          r"length=2.0\)")]:
         with pytest.raises(ConfigError, match=said):
             oodmon.watch(lambda obs: 0, env=made)
+    # the id given where the env goes (before, an AttributeError of the str once the id was read off env=)
+    for given in (None, "CartPole-v1"):
+        with pytest.raises(ConfigError, match=r"got a str \('CartPole-v1' is an env id: give the env itself, "
+                                              r"gymnasium.make\('CartPole-v1'\); oodmon.watch takes the id"):
+            oodmon.watch(lambda obs: 0, given, env="CartPole-v1")
+    with pytest.raises(ConfigError, match="the env to monitor is one gymnasium env, the one you step; got a int$"):
+        oodmon.watch(lambda obs: 0, env=5)
     # given the id, the env made with other arguments is the deployed world (here the longer pole)
     assert oodmon.watch(lambda obs: 0, "oodmon/CartPole-v1", env=gymnasium.make("oodmon/CartPole-v1", length=2.0),
                         threshold=None, fit_episodes=3, episodes=20, confidence=None).monitor.agent.env_id == \
