@@ -81,6 +81,7 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
     env = make_env(env_id)
     try:
         dict_space = dict_space_of(env.observation_space, env_id, retrain="as your policy then sees them")  # None: a Box
+        _check_action_space(env.action_space, env_id)
         obs, _ = env.reset(seed=0)
         _check_first_action(policy(obs), name, env, env_id)
     finally:
@@ -219,6 +220,27 @@ def _qualname(policy: Any) -> str:
 def _name_of(policy: Any) -> str:
     """How a policy is named in its errors and its logs' ``about.policy``: ``module.qualname``."""
     return f"{getattr(_named(policy), '__module__', '?')}.{_qualname(policy)}"
+
+
+#: The action spaces whose actions oodmon's detectors and logs read: a number or a vector of them.
+_ACTION_SPACES = (gymnasium.spaces.Box, gymnasium.spaces.Discrete, gymnasium.spaces.MultiDiscrete,
+                  gymnasium.spaces.MultiBinary)
+
+
+def _check_action_space(space: gymnasium.spaces.Space, env_id: str) -> None:
+    """Refuse, before any episode, actions the detectors cannot read: a ``Tuple`` or ``Dict`` of
+    actions (a parameterised action: which one, and how hard), which the dynamics model's fit
+    stopped at after the fitting episodes were played (numpy's "inhomogeneous shape", 2026-12-06).
+
+    Raises:
+        ConfigError: saying how to flatten them.
+    """
+    if not isinstance(space, _ACTION_SPACES):
+        raise ConfigError(f"{env_id}'s actions are {space}; oodmon's detectors and logs read an action of a Box, "
+                          "Discrete, MultiDiscrete or MultiBinary space (a number or a vector of them): give oodmon an "
+                          "env whose actions are one vector (a gymnasium.ActionWrapper whose action_space is "
+                          "gymnasium.spaces.flatten_space(space) and whose action(a) returns "
+                          "gymnasium.spaces.unflatten(space, a)) and a policy that returns that vector")
 
 
 def _check_first_action(action: Any, name: str, env: gymnasium.Env, env_id: str) -> None:

@@ -151,12 +151,19 @@ def test_a_torch_policys_threshold_is_bound_to_its_weights():
     (lambda obs: 0, None, {}, "give the gymnasium env id your policy acts in"),
     # a tuple of vectors and discrete values is watched (below); one with a tuple inside it is not
     (lambda obs: 0, "plain_tests/NestedTuple-v0", {}, "plain_tests/NestedTuple-v0's observations are Tuple"),
-], ids=["action-refused", "box-shape", "torch-tensor", "sb3-option", "no-env", "nested-tuple-observations"])
+    # a parameterised action (which, how hard): before, numpy's "inhomogeneous shape" once the
+    # fitting episodes were played
+    (lambda obs: (0, np.ones(1, np.float32)), "plain_tests/TupleActions-v0", {},
+     "plain_tests/TupleActions-v0's actions are Tuple(Discrete(2), Box(0.0, 1.0, (1,), float32)); oodmon's detectors "
+     "and logs read an action of a Box, Discrete, MultiDiscrete or MultiBinary space"),
+], ids=["action-refused", "box-shape", "torch-tensor", "sb3-option", "no-env", "nested-tuple-observations",
+        "tuple-actions"])
 def test_a_policy_oodmon_cannot_run_is_said_before_any_episode(policy, env_id, kwargs, said):
     from oodmon.monitor.watch import as_agent
 
     if "plain_tests/NestedTuple-v0" not in gymnasium.registry:
         gymnasium.register("plain_tests/NestedTuple-v0", entry_point=_NestedTuple)
+        gymnasium.register("plain_tests/TupleActions-v0", entry_point=_TupleActions)
 
     with pytest.raises(ConfigError) as error:
         as_agent(policy, env_id, **kwargs)
@@ -355,6 +362,18 @@ class TupleCartPole(gymnasium.ObservationWrapper):
 
     def observation(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         return obs[:2], obs[2:], int(obs[2] > 0)
+
+
+class _TupleActions(gymnasium.Wrapper):
+    """CartPole pushed to a side with a strength: a parameterised action, Tuple(Discrete, Box)."""
+
+    def __init__(self) -> None:
+        super().__init__(gymnasium.make("CartPole-v1"))
+        self.action_space = gymnasium.spaces.Tuple((gymnasium.spaces.Discrete(2),
+                                                    gymnasium.spaces.Box(0.0, 1.0, (1,), np.float32)))
+
+    def step(self, action):
+        return self.env.step(int(action[0]))
 
 
 class _NestedTuple(TupleCartPole):
