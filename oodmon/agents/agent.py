@@ -52,6 +52,10 @@ class Agent:
             (:class:`~oodmon.agents.dict_pictures.DictPictures`): the policy gets the whole dict,
             the detectors and the logs read the vector keys (:meth:`own_observation`), and the
             frames detector and the logs the first picture.
+        action_parts: the env's action space when its actions are a ``Tuple`` or ``Dict`` of
+            vectors and discrete values (a plain policy's parameterised action: which push, and
+            how hard): the env and the policy deal in those, the detectors and the logs read each
+            one flattened (:meth:`read_action`).
     """
 
     estimator: UncertaintyEstimator | None
@@ -61,6 +65,7 @@ class Agent:
     dict_space: gymnasium.spaces.Space | None = None
     stacking: Stacking | None = None
     pictures: DictPictures | None = None
+    action_parts: gymnasium.spaces.Space | None = None
 
     @property
     def task(self) -> str:
@@ -141,6 +146,20 @@ class Agent:
         if self.dict_space is not None and not flattened(self.dict_space, obs):
             return gymnasium.spaces.flatten(self.dict_space, obs)
         return obs
+
+    def read_action(self, action: Any) -> Any:
+        """The action as the detectors and the logs read it: one of :attr:`action_parts` flattened
+        (``gymnasium.spaces.flatten``: a ``Discrete`` part one-hot, a ``Box`` part's numbers), any
+        other as it is.
+
+        Example:
+            >>> space = gymnasium.spaces.Tuple((gymnasium.spaces.Discrete(2), gymnasium.spaces.Box(0, 1, (1,))))
+            >>> Agent(None, {}, action_parts=space).read_action((1, np.array([0.5], np.float32))).tolist()
+            [0.0, 1.0, 0.5]
+        """
+        if self.action_parts is None:
+            return action
+        return gymnasium.spaces.flatten(self.action_parts, action).astype(np.float32)
 
     @property
     def frame_stack(self) -> int | None:

@@ -81,7 +81,7 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
     env = make_env(env_id)
     try:
         dict_space = dict_space_of(env.observation_space, env_id, retrain="as your policy then sees them")  # None: a Box
-        _check_action_space(env.action_space, env_id)
+        action_parts = _action_parts(env.action_space, env_id)  # None: one number or vector an action
         obs, _ = env.reset(seed=0)
         _check_first_action(policy(obs), name, env, env_id)
     finally:
@@ -91,9 +91,9 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
     if " code:" in metadata["policy_hash"]:
         metadata["name_hash"] = _name_hash(policy)  # what a threshold of it recorded before its code was hashed
     if dict_space is None:
-        return Agent(None, metadata, None, policy)
+        return Agent(None, metadata, None, policy, action_parts=action_parts)
     return Agent(None, metadata, None, _ReadsDicts(policy, dict_space), dict_space=dict_space,
-                 pictures=dict_pictures(dict_space))
+                 pictures=dict_pictures(dict_space), action_parts=action_parts)
 
 
 class _ReadsDicts:
@@ -222,25 +222,32 @@ def _name_of(policy: Any) -> str:
     return f"{getattr(_named(policy), '__module__', '?')}.{_qualname(policy)}"
 
 
-#: The action spaces whose actions oodmon's detectors and logs read: a number or a vector of them.
+#: The action spaces whose actions oodmon's detectors and logs read as they are: a number or a vector of them.
 _ACTION_SPACES = (gymnasium.spaces.Box, gymnasium.spaces.Discrete, gymnasium.spaces.MultiDiscrete,
                   gymnasium.spaces.MultiBinary)
 
 
-def _check_action_space(space: gymnasium.spaces.Space, env_id: str) -> None:
-    """Refuse, before any episode, actions the detectors cannot read: a ``Tuple`` or ``Dict`` of
-    actions (a parameterised action: which one, and how hard), which the dynamics model's fit
-    stopped at after the fitting episodes were played (numpy's "inhomogeneous shape", 2026-12-06).
+def _action_parts(space: gymnasium.spaces.Space, env_id: str) -> gymnasium.spaces.Space | None:
+    """``space`` when its actions are a ``Tuple`` or ``Dict`` of such (a parameterised action:
+    which push, and how hard), which the detectors and the logs read flattened
+    (:attr:`~oodmon.agents.Agent.action_parts`); ``None`` for one of ``_ACTION_SPACES``.
 
     Raises:
-        ConfigError: saying how to flatten them.
+        ConfigError: any other (a tuple inside the tuple, text), before any episode, saying how to
+            flatten it. Before 2026-12-06 a tuple of actions was played through the fitting
+            episodes and stopped at the fit (numpy's "inhomogeneous shape").
     """
-    if not isinstance(space, _ACTION_SPACES):
-        raise ConfigError(f"{env_id}'s actions are {space}; oodmon's detectors and logs read an action of a Box, "
-                          "Discrete, MultiDiscrete or MultiBinary space (a number or a vector of them): give oodmon an "
-                          "env whose actions are one vector (a gymnasium.ActionWrapper whose action_space is "
-                          "gymnasium.spaces.flatten_space(space) and whose action(a) returns "
-                          "gymnasium.spaces.unflatten(space, a)) and a policy that returns that vector")
+    if isinstance(space, _ACTION_SPACES):
+        return None
+    parts = space.spaces.values() if isinstance(space, gymnasium.spaces.Dict) else space.spaces if isinstance(
+        space, gymnasium.spaces.Tuple) else ()
+    if parts and all(isinstance(part, _ACTION_SPACES) for part in parts):
+        return space
+    raise ConfigError(f"{env_id}'s actions are {space}; oodmon's detectors and logs read an action of a Box, "
+                      "Discrete, MultiDiscrete or MultiBinary space, or a tuple or dict of them: give oodmon an env "
+                      "whose actions are one vector (a gymnasium.ActionWrapper whose action_space is "
+                      "gymnasium.spaces.flatten_space(space) and whose action(a) returns "
+                      "gymnasium.spaces.unflatten(space, a)) and a policy that returns that vector")
 
 
 def _check_first_action(action: Any, name: str, env: gymnasium.Env, env_id: str) -> None:

@@ -211,6 +211,7 @@ class Monitor:
         self._dicts = self.agent is not None and self.agent.dict_space is not None  # see step()
         self._masked = self.agent is not None and self.agent.reads_masks  # see _tell_masks()
         self._own = self.agent is not None and self.agent.reads_own  # a stack, or a dict with pictures: see step()
+        self._action_parts = self.agent is not None and self.agent.action_parts is not None  # see step()
         self.policy_hash = policy_hash(self.agent)
         self._aliases = policy_hash_aliases(self.agent)
         if isinstance(threshold, Threshold):
@@ -566,7 +567,8 @@ class Monitor:
         detectors that model transitions use it. A dict observation (an env of an SB3
         ``MultiInputPolicy``) is read flattened, as the agent reads it (:meth:`Agent.view`); of a
         stack (a model trained inside VecFrameStack) the detectors and the log read the newest
-        observation (:meth:`Agent.own_observation`).
+        observation (:meth:`Agent.own_observation`). A tuple or dict of actions (:attr:`Agent.action_parts`)
+        is returned as the policy gave it, and read flattened (:meth:`Agent.read_action`).
         """
         if not self._in_episode:
             raise ConfigError("Monitor.step before begin_episode: start an episode first (or use run_episode)")
@@ -585,11 +587,12 @@ class Monitor:
                 frame = _frame(picture)
             elif frame is not None:
                 frame = _frame(obs)  # an RGB stack's newest picture, not its last channel
+        read = self.agent.read_action(action) if self._action_parts else action  # a tuple of actions: flattened
         finite = _finite(obs)
         if finite:
-            context = StepContext(obs, action, estimate, self._prev_obs, self._prev_action, {}, picture)
+            context = StepContext(obs, read, estimate, self._prev_obs, self._prev_action, {}, picture)
             scores = self.detectors.score(context)
-            self._prev_obs, self._prev_action = obs, action
+            self._prev_obs, self._prev_action = obs, read
         else:
             # A NaN or infinite observation (a failed sensor) lies outside any ID data: every detector
             # scores it +inf, so the alarm rule counts it, and none is fed it (a NaN in a detector's
@@ -605,7 +608,7 @@ class Monitor:
         if event is not None:
             event = replace(event, cause=self.last_cause)
         observation, frame = self._logged(obs, frame)
-        logged_action = int(action) if isinstance(action, (int, np.integer)) else np.asarray(action).tolist()
+        logged_action = int(read) if isinstance(read, (int, np.integer)) else np.asarray(read).tolist()
         self.last_step = StepRecord(
             episode=self.episode, step=step, action=logged_action,
             mean=estimate.mean[0].tolist() if estimate is not None else [],

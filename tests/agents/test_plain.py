@@ -151,19 +151,19 @@ def test_a_torch_policys_threshold_is_bound_to_its_weights():
     (lambda obs: 0, None, {}, "give the gymnasium env id your policy acts in"),
     # a tuple of vectors and discrete values is watched (below); one with a tuple inside it is not
     (lambda obs: 0, "plain_tests/NestedTuple-v0", {}, "plain_tests/NestedTuple-v0's observations are Tuple"),
-    # a parameterised action (which, how hard): before, numpy's "inhomogeneous shape" once the
-    # fitting episodes were played
-    (lambda obs: (0, np.ones(1, np.float32)), "plain_tests/TupleActions-v0", {},
-     "plain_tests/TupleActions-v0's actions are Tuple(Discrete(2), Box(0.0, 1.0, (1,), float32)); oodmon's detectors "
-     "and logs read an action of a Box, Discrete, MultiDiscrete or MultiBinary space"),
+    # a tuple of actions is watched (below); one with a tuple inside it is not
+    (lambda obs: ((0, np.ones(1, np.float32)),), "plain_tests/NestedActions-v0", {},
+     "plain_tests/NestedActions-v0's actions are Tuple(Tuple(Discrete(2), Box(0.0, 1.0, (1,), float32))); oodmon's "
+     "detectors and logs read an action of a Box, Discrete, MultiDiscrete or MultiBinary space, or a tuple or dict "
+     "of them"),
 ], ids=["action-refused", "box-shape", "torch-tensor", "sb3-option", "no-env", "nested-tuple-observations",
-        "tuple-actions"])
+        "nested-tuple-actions"])
 def test_a_policy_oodmon_cannot_run_is_said_before_any_episode(policy, env_id, kwargs, said):
     from oodmon.monitor.watch import as_agent
 
     if "plain_tests/NestedTuple-v0" not in gymnasium.registry:
         gymnasium.register("plain_tests/NestedTuple-v0", entry_point=_NestedTuple)
-        gymnasium.register("plain_tests/TupleActions-v0", entry_point=_TupleActions)
+        gymnasium.register("plain_tests/NestedActions-v0", entry_point=_NestedActions)
 
     with pytest.raises(ConfigError) as error:
         as_agent(policy, env_id, **kwargs)
@@ -364,16 +364,65 @@ class TupleCartPole(gymnasium.ObservationWrapper):
         return obs[:2], obs[2:], int(obs[2] > 0)
 
 
-class _TupleActions(gymnasium.Wrapper):
-    """CartPole pushed to a side with a strength: a parameterised action, Tuple(Discrete, Box)."""
+class TupleActionsCartPole(gymnasium.Wrapper):
+    """oodmon's CartPole (a shift can begin mid-episode) pushed to a side with a strength: a
+    parameterised action, Tuple(Discrete(2), Box(0, 1)), the force from half to one and a half
+    times its own."""
 
-    def __init__(self) -> None:
-        super().__init__(gymnasium.make("CartPole-v1"))
+    def __init__(self, **physics) -> None:
+        super().__init__(gymnasium.make("oodmon/CartPole-v1", **physics))
         self.action_space = gymnasium.spaces.Tuple((gymnasium.spaces.Discrete(2),
                                                     gymnasium.spaces.Box(0.0, 1.0, (1,), np.float32)))
+        self.force = self.env.unwrapped.force_mag
 
     def step(self, action):
-        return self.env.step(int(action[0]))
+        side, strength = action
+        self.env.unwrapped.force_mag = self.force * (0.5 + float(strength[0]))
+        return self.env.step(int(side))
+
+
+class _NestedActions(TupleActionsCartPole):
+    """A tuple inside the tuple of actions: what no detector reads as it is."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.action_space = gymnasium.spaces.Tuple((self.action_space,))
+
+    def step(self, action):
+        return super().step(action[0])
+
+
+def test_a_plain_policy_of_a_tuple_of_actions_gives_the_env_tuples_and_the_detectors_read_them_flattened():
+    """A parameterised action (which side, how hard): the env and the policy deal in tuples, the
+    dynamics model and the log read each one flattened (the side one-hot, then the strength).
+    Before, refused (2026-12-06 morning), and before that numpy's "inhomogeneous shape" after the
+    fitting episodes."""
+    if "plain_tests/TupleActionsCartPole-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/TupleActionsCartPole-v0", entry_point=TupleActionsCartPole,
+                           max_episode_steps=200)
+
+    def act(obs):
+        lean = obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1]
+        return int(lean > 0), np.array([min(1.0, 10 * abs(lean))], np.float32)
+
+    sink = MemorySink()
+    monitor = oodmon.watch(act, "plain_tests/TupleActionsCartPole-v0", fit_episodes=12, episodes=20, confidence=None,
+                           sinks=[sink])
+    assert monitor.agent.action_parts is not None and monitor.detectors["dynamics"].n_actions is None
+    ids = [monitor.run_episode(gymnasium.make("plain_tests/TupleActionsCartPole-v0"), seed=960_000 + i)
+           for i in range(10)]
+    # on average over calibrations <= 1/21 false alarms per episode (rank 20 of 20): 4 or more of 10
+    # has probability 0.001 at 5% (0.013 at twice that)
+    assert all(r.length == 200 for r in ids) and sum(r.first_alarm_step is not None for r in ids) <= 3
+    first, _ = gymnasium.make("plain_tests/TupleActionsCartPole-v0").reset(seed=960_000)
+    side, strength = act(first)
+    # the log holds the side one-hot, then the strength
+    assert sink.steps[0].action == [float(side == 0), float(side == 1), pytest.approx(float(strength[0]))]
+    assert all(len(step.action) == 3 and step.action[0] + step.action[1] == 1.0 for step in sink.steps)
+    longer = gymnasium.make("plain_tests/TupleActionsCartPole-v0", length=2.0, onset_step=30)
+    shifted = [monitor.run_episode(longer, seed=970_000 + i) for i in range(5)]
+    # when written: 5 of 5 alarmed, at steps 31, 31, 35, 31, 34 (and 1 of the 10 ID episodes above)
+    assert all(r.first_alarm_step is not None and 30 < r.first_alarm_step <= 40 for r in shifted)
 
 
 class _NestedTuple(TupleCartPole):
@@ -409,7 +458,7 @@ def test_a_plain_policy_of_tuple_observations_gets_tuples_and_a_sensor_fault_of_
     # has probability 0.001 at 5% (0.013 at twice that)
     assert all(r.length == 200 for r in ids) and sum(r.first_alarm_step is not None for r in ids) <= 3
     # the pole's angular velocity (part 1, reading 1) off by 0.5 from step 30: when written, 5 of 5
-    # alarmed at step 31
+    # alarmed at step 31 (and none of the 10 ID episodes above)
     biased = parse_env_shift("plain_tests/TupleCartPole-v0:obs.1.bias[1]=0.5")
     assert biased.params == (("obs.1.bias[1]", 0.5),)
     shifted = [monitor.run_episode(biased.make(onset_step=30), seed=950_000 + i) for i in range(5)]

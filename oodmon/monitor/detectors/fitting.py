@@ -231,6 +231,8 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     # stack, the dict's vectors (Agent.own_observation).
     own = policy.own_observation if getattr(policy, "reads_own", False) else None
     pictures_of = getattr(policy, "pictures", None)  # a dict's picture, which the frames detector reads
+    # an Agent of a tuple or dict of actions: the env gets them, the detectors read them flattened
+    read_action = policy.read_action if getattr(policy, "action_parts", None) is not None else None
     # An Agent whose policy needs the env beside the observation (a memory forgotten at each reset,
     # the action masks of each step), told as the monitor tells it, in an env of yours too.
     begin = policy.begin_episode if getattr(policy, "remembers", False) else None
@@ -263,7 +265,7 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
             if tell is not None:
                 tell(env)
             observations.append(obs)
-            actions.append(action)
+            actions.append(action if read_action is None else read_action(action))
             warn_if_endless(env, len(actions))
             if terminated or truncated or (max_steps is not None and len(actions) >= max_steps):
                 break
