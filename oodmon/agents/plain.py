@@ -229,14 +229,17 @@ _ACTION_SPACES = (gymnasium.spaces.Box, gymnasium.spaces.Discrete, gymnasium.spa
 
 def _action_parts(space: gymnasium.spaces.Space, env_id: str) -> gymnasium.spaces.Space | None:
     """``space`` when its actions are a ``Tuple`` or ``Dict`` of such (a parameterised action:
-    which push, and how hard), which the detectors and the logs read flattened
-    (:attr:`~oodmon.agents.Agent.action_parts`); ``None`` for one of ``_ACTION_SPACES``.
+    which push, and how hard), or a ``Discrete`` counted from another start than 0, which the
+    detectors and the logs read flattened (:attr:`~oodmon.agents.Agent.action_parts`; one-hot);
+    ``None`` for any other of ``_ACTION_SPACES``.
 
     Raises:
         ConfigError: any other (a tuple inside the tuple, text), before any episode, saying how to
             flatten it. Before 2026-12-06 a tuple of actions was played through the fitting
             episodes and stopped at the fit (numpy's "inhomogeneous shape").
     """
+    if isinstance(space, gymnasium.spaces.Discrete) and space.start:
+        return space  # read one-hot (-1 of Discrete(3, start=-1) the first), not as an index from 0
     if isinstance(space, _ACTION_SPACES):
         return None
     parts = space.spaces.values() if isinstance(space, gymnasium.spaces.Dict) else space.spaces if isinstance(

@@ -8,6 +8,7 @@ import json
 import re
 import shlex
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import gymnasium
@@ -528,27 +529,35 @@ class LakeFromOne(gymnasium.ObservationWrapper):
         return int(obs) + 1
 
 
-def test_discrete_spaces_not_counted_from_zero_are_refused_before_any_episode_is_played():
-    """The dynamics and features detectors index a discrete action's one-hot row (or class) by the
-    action: those of ``Discrete(2, start=1)`` were refused only after the fitting episodes, as
-    "actions outside 0..1". Now the sentence names the space and the wrapper, before any play.
-    Discrete observations not counted from 0 were refused already; the sentence now says why."""
+def test_discrete_actions_not_counted_from_zero_are_read_one_hot_and_observations_so_are_refused():
+    """The dynamics and drift detectors index a discrete action's one-hot row by the action: a plain
+    policy's actions of ``Discrete(2, start=1)`` are read one-hot instead (``Agent.read_action``;
+    refused before any play from 2026-12-02, after the fitting episodes before that, as "actions
+    outside 0..1"). An agent that reads them as they are (an SB3 model, which ignores start) is
+    still refused, saying which wrapper counts them from 0; so are discrete observations not
+    counted from 0."""
     if "plain_tests/CountedFromOne-v0" not in gymnasium.registry:
-        gymnasium.register("plain_tests/CountedFromOne-v0", entry_point=CountedFromOne, max_episode_steps=500)
+        gymnasium.register("plain_tests/CountedFromOne-v0", entry_point=CountedFromOne, max_episode_steps=200)
         gymnasium.register("plain_tests/LakeFromOne-v0", entry_point=LakeFromOne, max_episode_steps=100)
 
     def act(obs):
         return 1 + int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)
 
+    monitor = oodmon.watch(act, "plain_tests/CountedFromOne-v0", fit_episodes=12, episodes=20, confidence=None)
+    assert monitor.agent.read_action(1).tolist() == [1.0, 0.0] and monitor.agent.read_action(2).tolist() == [0.0, 1.0]
+    assert monitor.detectors["dynamics"].n_actions is None  # (the one-hot rows as numbers)
+    ids = [monitor.run_episode(gymnasium.make("plain_tests/CountedFromOne-v0"), seed=980_000 + i) for i in range(10)]
+    # <= 1/21 false alarms per episode on average over calibrations: 4 or more of 10 has probability 0.001
+    assert all(r.length == 200 for r in ids) and sum(r.first_alarm_step is not None for r in ids) <= 3
+    longer = gymnasium.make("plain_tests/CountedFromOne-v0", length=2.0, onset_step=30)
+    shifted = [monitor.run_episode(longer, seed=990_000 + i) for i in range(5)]
+    # when written: 5 of 5 alarmed, at steps 31, 31, 33, 33, 31 (and 1 of the 10 ID episodes above)
+    assert all(r.first_alarm_step is not None and 30 < r.first_alarm_step <= 40 for r in shifted)
+    as_they_are = replace(monitor.agent, action_parts=None)
     for detector in ("dynamics", "drift"):  # (and features, which a plain policy cannot have anyway)
-        assert "start=1" in cannot_have(detector, plain_agent(act, "plain_tests/CountedFromOne-v0"),
-                                        gymnasium.make("plain_tests/CountedFromOne-v0"))
-    before = CountedFromOne.steps
-    with pytest.raises(ConfigError, match=r"the dynamics detector reads a discrete action as one of its n actions "
-                                          r"counted from 0, and this env's are Discrete\(2, start=1\): .*returns a \+ 1"):
-        oodmon.watch(act, "plain_tests/CountedFromOne-v0", fit_episodes=12, episodes=20, confidence=None)
-    # no episode played: one step, the check that the env takes the policy's first action
-    assert CountedFromOne.steps - before == 1
+        assert re.search(r"the \w+ detector reads a discrete action as one of its n actions counted from 0, and this "
+                         r"env's are Discrete\(2, start=1\): .*returns a \+ 1",
+                         cannot_have(detector, as_they_are, gymnasium.make("plain_tests/CountedFromOne-v0")))
     # discrete observations not counted from 0 were refused before, as what oodmon reads: "discrete values"
     with pytest.raises(ConfigError, match=r"observations are Discrete\(16, start=1\); .*discrete values \(counted from "
                                           r"0\).*FlattenObservation"):

@@ -572,7 +572,11 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     reason = cannot_have_any([name for name in detectors if name != "spread"], policy, env)
     if reason is not None:
         raise ConfigError(reason)
-    n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) else None
+    # (an Agent whose actions are read flattened, Agent.read_action, hands the model numbers: one-hot
+    # rows of a Discrete counted from another start than 0 among them)
+    read_flat = getattr(policy, "action_parts", None) is not None
+    n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) and not read_flat \
+        else None
     # The held-out third keeps its estimates: combined ranks the spread of the samples each action
     # was chosen from, as the monitor reads it (asked again, a sampled MC policy would draw others).
     # Played on for min_steps, the episodes are not known beforehand: all keep theirs, the fit
@@ -667,7 +671,8 @@ def cannot_have(detector: str, policy: Any, env: gymnasium.Env) -> str | None:
         return ("the transitions detector counts states that repeat (discrete observations); this env's are pictures "
                 "(the frames detector reads those)")
     actions = env.action_space
-    if detector in ("dynamics", "drift", "features") and isinstance(actions, gymnasium.spaces.Discrete) and actions.start:
+    if detector in ("dynamics", "drift", "features") and isinstance(actions, gymnasium.spaces.Discrete) \
+            and actions.start and getattr(policy, "action_parts", None) is None:
         # (one-hot rows, or one class each, indexed by the action itself: 1 of Discrete(2, start=1)
         # read as the second, 2 past the end, an error after the fitting episodes were played)
         return (f"the {detector} detector reads a discrete action as one of its n actions counted from 0, and this "
