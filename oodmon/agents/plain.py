@@ -80,7 +80,9 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
     name = _name_of(policy)
     env = make_env(env_id)
     try:
-        dict_space = dict_space_of(env.observation_space, env_id, retrain="as your policy then sees them")  # None: a Box
+        # None: a Box; discrete values counted from any start (gymnasium's one-hot reads it; SB3's does not)
+        dict_space = dict_space_of(env.observation_space, env_id, retrain="as your policy then sees them",
+                                   any_start=True)
         action_parts = _action_parts(env.action_space, env_id)  # None: one number or vector an action
         obs, _ = env.reset(seed=0)
         _check_first_action(policy(obs), name, env, env_id)

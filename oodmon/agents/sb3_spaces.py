@@ -90,13 +90,15 @@ def _transposed_image(env_space: Any, model_space: Any) -> bool:
             and model_space.shape == (shape[2], shape[0], shape[1]))
 
 
-def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the model on that") -> gymnasium.spaces.Space | None:
+def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the model on that",
+                  any_start: bool = False) -> gymnasium.spaces.Space | None:
     """``space`` when it is a dict of vectors and discrete values (an SB3 ``MultiInputPolicy``'s,
     which concatenates them flattened, discrete ones one-hot, as ``gymnasium.spaces.flatten``
     does), with pictures beside them or not (:mod:`oodmon.agents.dict_pictures`), or discrete
     values alone (``Discrete`` counted from 0, ``MultiDiscrete``, ``MultiBinary``: FrozenLake's
     cell, which SB3 reads one-hot too; a ``Tuple`` of them, Blackjack's hand, or of them and
-    vectors, for a plain policy); ``None`` for an array space.
+    vectors, for a plain policy); ``None`` for an array space. ``any_start`` (a plain policy's):
+    discrete values counted from any start too, which gymnasium's one-hot reads and SB3's does not.
 
     Raises:
         ConfigError: any other space (nested spaces inside a dict or a tuple, a dict of pictures
@@ -111,33 +113,36 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
 
     if isinstance(space, gymnasium.spaces.Box):
         return None
-    if _flat_as_sb3(space, is_image_space):  # discrete values: read flattened, one-hot
+    if _flat_as_sb3(space, is_image_space, any_start):  # discrete values: read flattened, one-hot
         return space
     if isinstance(space, gymnasium.spaces.Tuple) and space.spaces and all(
-            _flat_as_sb3(sub, is_image_space) for sub in space.spaces):
+            _flat_as_sb3(sub, is_image_space, any_start) for sub in space.spaces):
         return space  # a tuple of them and vectors (Blackjack's hand): SB3 trains on none, a plain policy gets it back
     if isinstance(space, gymnasium.spaces.Dict):
         vectors = [sub for sub in space.spaces.values() if not is_picture_space(sub)]  # and discrete values
-        if vectors and all(_flat_as_sb3(sub, is_image_space) for sub in vectors):
+        if vectors and all(_flat_as_sb3(sub, is_image_space, any_start) for sub in vectors):
             return space
         if not vectors:
             raise ConfigError(f"{env_id}'s observations are {space}: pictures alone, in a dict. oodmon's detectors read "
                               "a dict's vectors (dynamics) and its first picture beside them (frames); for pictures "
                               "alone, give the env's picture as its observation (a Box), which the frames detector reads")
     raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
-                      "Box: a vector, or stacked image frames), discrete values (counted from 0), or a dict of vectors "
+                      "Box: a vector, or stacked image frames), discrete values"
+                      f"{'' if any_start else ' (counted from 0)'}, or a dict of vectors "
                       "and discrete values (pictures beside them too): wrap the env in "
                       f"gymnasium.wrappers.FlattenObservation, {retrain}, to watch it")
 
 
-def _flat_as_sb3(space: Any, is_image_space: Any) -> bool:
+def _flat_as_sb3(space: Any, is_image_space: Any, any_start: bool = False) -> bool:
     """Whether gymnasium flattens a dict's ``space`` into the numbers SB3's ``CombinedExtractor``
-    reads of it: a vector (not an image), a binary vector, or discrete values counted from 0 (one-hot)."""
+    reads of it: a vector (not an image), a binary vector, or discrete values counted from 0
+    (one-hot; SB3 ignores ``start``, gymnasium does not: ``any_start``, for a policy of any kind,
+    takes them counted from any start)."""
     spaces = gymnasium.spaces
     if isinstance(space, spaces.Box):
         return not is_image_space(space, check_channels=False)
     if isinstance(space, spaces.Discrete):
-        return int(space.start) == 0
+        return any_start or int(space.start) == 0
     if isinstance(space, spaces.MultiDiscrete):
-        return np.ndim(space.nvec) == 1 and not np.any(space.start)
+        return np.ndim(space.nvec) == 1 and (any_start or not np.any(space.start))
     return isinstance(space, spaces.MultiBinary) and np.ndim(space.n) == 0

@@ -19,6 +19,7 @@ from stable_baselines3 import PPO
 
 import oodmon
 from oodmon.agents.plain import plain_agent, policy_by_name, weights_sha256
+from oodmon.agents.sb3_spaces import dict_space_of
 from oodmon.cli import main
 from oodmon.envs import parse_env_shift
 from oodmon.envs.probe import probe_shift
@@ -529,13 +530,13 @@ class LakeFromOne(gymnasium.ObservationWrapper):
         return int(obs) + 1
 
 
-def test_discrete_actions_not_counted_from_zero_are_read_one_hot_and_observations_so_are_refused():
+def test_discrete_actions_and_observations_not_counted_from_zero_are_read_one_hot_for_a_plain_policy():
     """The dynamics and drift detectors index a discrete action's one-hot row by the action: a plain
     policy's actions of ``Discrete(2, start=1)`` are read one-hot instead (``Agent.read_action``;
     refused before any play from 2026-12-02, after the fitting episodes before that, as "actions
     outside 0..1"). An agent that reads them as they are (an SB3 model, which ignores start) is
-    still refused, saying which wrapper counts them from 0; so are discrete observations not
-    counted from 0."""
+    still refused, saying which wrapper counts them from 0. Discrete observations not counted from
+    0 are a plain policy's too (refused before 2026-12-06), and an SB3 model's are refused."""
     if "plain_tests/CountedFromOne-v0" not in gymnasium.registry:
         gymnasium.register("plain_tests/CountedFromOne-v0", entry_point=CountedFromOne, max_episode_steps=200)
         gymnasium.register("plain_tests/LakeFromOne-v0", entry_point=LakeFromOne, max_episode_steps=100)
@@ -558,10 +559,13 @@ def test_discrete_actions_not_counted_from_zero_are_read_one_hot_and_observation
         assert re.search(r"the \w+ detector reads a discrete action as one of its n actions counted from 0, and this "
                          r"env's are Discrete\(2, start=1\): .*returns a \+ 1",
                          cannot_have(detector, as_they_are, gymnasium.make("plain_tests/CountedFromOne-v0")))
-    # discrete observations not counted from 0 were refused before, as what oodmon reads: "discrete values"
+    # discrete observations not counted from 0: a policy of any kind gets them as they are, the
+    # detectors read them one-hot from their start (cell 1 the first); an SB3 model's are refused
+    lake = plain_agent(lambda obs: 2 if int(obs) in (1, 2, 3) else 1, "plain_tests/LakeFromOne-v0")
+    assert lake.view(1).tolist() == [1.0] + [0.0] * 15 and lake.view(16).tolist() == [0.0] * 15 + [1.0]
     with pytest.raises(ConfigError, match=r"observations are Discrete\(16, start=1\); .*discrete values \(counted from "
                                           r"0\).*FlattenObservation"):
-        plain_agent(lambda obs: 0, "plain_tests/LakeFromOne-v0")
+        dict_space_of(gymnasium.spaces.Discrete(16, start=1), "plain_tests/LakeFromOne-v0")
 
 
 class BreaksAtStep(gymnasium.Wrapper):
