@@ -159,8 +159,10 @@ def _detectors(args: argparse.Namespace, agent):
     return detectors_for(agent, args.detectors)
 
 
-def _no_variants(command: str, env_id: str) -> ConfigError:
-    """The refusal of a command that plays oodmon's variants, for an --sb3 model of an env that has none."""
+def _no_variants(command: str, env_id: str, flag: str = "--sb3") -> ConfigError:
+    """The refusal of a command that plays oodmon's variants, for an --sb3 model (``flag``: or a
+    --policy) of an env that has none."""
+    what = "policy" if flag == "--policy" else "model"
     return ConfigError(f"{command} plays oodmon's shifted variants of CartPole, Pendulum and Pong; --env {env_id} is "
-                       f"none of them: monitor the model in it with `oodmon run --sb3 ... --env {env_id}` instead (a shift of "
-                       f"your own: --variant {env_id}:NAME=VALUE, other numbers in its env's attributes)")
+                       f"none of them: monitor the {what} in it with `oodmon run {flag} ... --env {env_id}` instead (a "
+                       f"shift of your own: --variant {env_id}:NAME=VALUE, other numbers in its env's attributes)")

@@ -12,7 +12,8 @@ from rich.table import Table
 
 from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent, _no_variants
-from oodmon.cli.parsing import _KEPT, _SEED, _add_workers, _command_line, _fraction, _sb3_arguments, _whole
+from oodmon.cli.parsing import (_KEPT, _SEED, _add_workers, _command_line, _fraction, _policy_argument, _sb3_arguments,
+                                _whole)
 from oodmon.errors import InvalidParameterError
 from oodmon.names import METHODS, TASKS
 
@@ -88,6 +89,7 @@ def _add_evaluate(commands: argparse._SubParsersAction) -> None:
                           help="a shipped agent (or give --model)")
     evaluate.add_argument("--model", help="a trained model directory instead of a shipped agent")
     _sb3_arguments(evaluate)
+    _policy_argument(evaluate)
     evaluate.add_argument("--variants", default="paper",
                           help="'paper' (the paper's grid) or comma-separated specs (default paper)")
     evaluate.add_argument("--episodes", type=_whole(1), default=5, help="episodes per variant (default 5)")
@@ -107,7 +109,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from oodmon.envs.grid import select_variants
 
     if args.task not in TASKS:  # --sb3 in an env oodmon has no variants of
-        raise _no_variants("evaluate", args.env)
+        raise _no_variants("evaluate", args.env, "--policy" if args.policy else "--sb3")
     variants = select_variants(args.task, args.variants)
     try:
         with _progress() as report:

@@ -242,6 +242,27 @@ def test_what_is_no_function_of_an_observation_is_said():
         plain_agent("act", "CartPole-v1")
 
 
+def test_evaluate_takes_a_policy_of_any_kind_and_says_where_it_has_no_variants(tmp_path, monkeypatch, capsys):
+    """`oodmon evaluate --policy` (before: "unrecognized arguments"): where the docs controller fails
+    among a task's variants; an env of no task's is refused naming --policy."""
+    (tmp_path / "evaluated_controller.py").write_text(_readme_block()[0])
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert main(["evaluate", "--policy", "evaluated_controller:act", "--env", "CartPole-v1", "--variants",
+                 "cartpole:length=2.0,cartpole:length=4.0", "--episodes", "2", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["task"] == "cartpole" and result["method"] == "plain" and result["id_return_mean"] == 500.0
+    rows = {row["variant"]: row for row in result["variants"]}
+    # the controller balances a pole twice as long, not one four times as long (when written: 500.0
+    # and 72.0 over these two episodes)
+    assert not rows["cartpole:length=2.0"]["fails"] and rows["cartpole:length=4.0"]["fails"]
+    if "plain_tests/OwnCart-v0" not in gymnasium.registry:  # (CartPole under an id of no task's)
+        gymnasium.register("plain_tests/OwnCart-v0", entry_point="gymnasium.envs.classic_control.cartpole:CartPoleEnv",
+                           max_episode_steps=500)
+    assert main(["evaluate", "--policy", "evaluated_controller:act", "--env", "plain_tests/OwnCart-v0"]) == 2
+    assert "monitor the policy in it with `oodmon run --policy ... --env plain_tests/OwnCart-v0`" in \
+        capsys.readouterr().err
+
+
 def test_policy_by_name_finds_the_function_and_says_what_is_wrong_with_a_name(tmp_path, monkeypatch):
     (tmp_path / "named_controller.py").write_text(_readme_block()[0] + "class Controller:\n    pass\n")
     monkeypatch.chdir(tmp_path)  # the module in the current folder, not on sys.path: as the oodmon command runs
