@@ -80,9 +80,10 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
     name = _name_of(policy)
     env = make_env(env_id)
     try:
-        # None: a Box; discrete values counted from any start (gymnasium's one-hot reads it; SB3's does not)
+        # None: a Box; discrete values counted from any start, and dicts in dicts (gymnasium's flatten
+        # reads them; SB3's extractor does not)
         dict_space = dict_space_of(env.observation_space, env_id, retrain="as your policy then sees them",
-                                   any_start=True)
+                                   plain=True)
         action_parts = _action_parts(env.action_space, env_id)  # None: one number or vector an action
         obs, _ = env.reset(seed=0)
         _check_first_action(policy(obs), name, env, env_id)

@@ -91,14 +91,15 @@ def _transposed_image(env_space: Any, model_space: Any) -> bool:
 
 
 def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the model on that",
-                  any_start: bool = False) -> gymnasium.spaces.Space | None:
+                  plain: bool = False) -> gymnasium.spaces.Space | None:
     """``space`` when it is a dict of vectors and discrete values (an SB3 ``MultiInputPolicy``'s,
     which concatenates them flattened, discrete ones one-hot, as ``gymnasium.spaces.flatten``
     does), with pictures beside them or not (:mod:`oodmon.agents.dict_pictures`), or discrete
     values alone (``Discrete`` counted from 0, ``MultiDiscrete``, ``MultiBinary``: FrozenLake's
     cell, which SB3 reads one-hot too; a ``Tuple`` of them, Blackjack's hand, or of them and
-    vectors, for a plain policy); ``None`` for an array space. ``any_start`` (a plain policy's):
-    discrete values counted from any start too, which gymnasium's one-hot reads and SB3's does not.
+    vectors, for a plain policy); ``None`` for an array space. ``plain`` (a plain policy's):
+    discrete values counted from any start too, which gymnasium's one-hot reads and SB3's does not,
+    and dicts and tuples of vectors and discrete values inside the dict or tuple.
 
     Raises:
         ConfigError: any other space (nested spaces inside a dict or a tuple, a dict of pictures
@@ -113,14 +114,14 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
 
     if isinstance(space, gymnasium.spaces.Box):
         return None
-    if _flat_as_sb3(space, is_image_space, any_start):  # discrete values: read flattened, one-hot
+    if _flat_as_sb3(space, is_image_space, plain):  # discrete values: read flattened, one-hot
         return space
     if isinstance(space, gymnasium.spaces.Tuple) and space.spaces and all(
-            _flat_as_sb3(sub, is_image_space, any_start) for sub in space.spaces):
+            _flat_as_sb3(sub, is_image_space, plain) for sub in space.spaces):
         return space  # a tuple of them and vectors (Blackjack's hand): SB3 trains on none, a plain policy gets it back
     if isinstance(space, gymnasium.spaces.Dict):
         vectors = [sub for sub in space.spaces.values() if not is_picture_space(sub)]  # and discrete values
-        if vectors and all(_flat_as_sb3(sub, is_image_space, any_start) for sub in vectors):
+        if vectors and all(_flat_as_sb3(sub, is_image_space, plain) for sub in vectors):
             return space
         if not vectors:
             raise ConfigError(f"{env_id}'s observations are {space}: pictures alone, in a dict. oodmon's detectors read "
@@ -128,21 +129,25 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
                               "alone, give the env's picture as its observation (a Box), which the frames detector reads")
     raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
                       "Box: a vector, or stacked image frames), discrete values"
-                      f"{'' if any_start else ' (counted from 0)'}, or a dict of vectors "
+                      f"{'' if plain else ' (counted from 0)'}, or a dict of vectors "
                       "and discrete values (pictures beside them too): wrap the env in "
                       f"gymnasium.wrappers.FlattenObservation, {retrain}, to watch it")
 
 
-def _flat_as_sb3(space: Any, is_image_space: Any, any_start: bool = False) -> bool:
+def _flat_as_sb3(space: Any, is_image_space: Any, plain: bool = False) -> bool:
     """Whether gymnasium flattens a dict's ``space`` into the numbers SB3's ``CombinedExtractor``
     reads of it: a vector (not an image), a binary vector, or discrete values counted from 0
-    (one-hot; SB3 ignores ``start``, gymnasium does not: ``any_start``, for a policy of any kind,
-    takes them counted from any start)."""
+    (one-hot; SB3 ignores ``start``, gymnasium does not). ``plain``, for a policy of any kind,
+    which gymnasium's flattening alone reads: counted from any start too, and dicts and tuples of
+    such inside (SB3's extractor takes none)."""
     spaces = gymnasium.spaces
+    if plain and isinstance(space, (spaces.Dict, spaces.Tuple)):
+        parts = list(space.spaces.values()) if isinstance(space, spaces.Dict) else list(space.spaces)
+        return bool(parts) and all(_flat_as_sb3(part, is_image_space, plain) for part in parts)
     if isinstance(space, spaces.Box):
         return not is_image_space(space, check_channels=False)
     if isinstance(space, spaces.Discrete):
-        return any_start or int(space.start) == 0
+        return plain or int(space.start) == 0
     if isinstance(space, spaces.MultiDiscrete):
-        return np.ndim(space.nvec) == 1 and (any_start or not np.any(space.start))
+        return np.ndim(space.nvec) == 1 and (plain or not np.any(space.start))
     return isinstance(space, spaces.MultiBinary) and np.ndim(space.n) == 0

@@ -151,20 +151,20 @@ def test_a_torch_policys_threshold_is_bound_to_its_weights():
     (lambda obs: torch.tensor(1), "CartPole-v1", {}, "Discrete(2) (a torch tensor: return a number, .item(), or an array"),
     (lambda obs: 0, "CartPole-v1", {"mean": True}, "are for SB3 models; a plain policy acts on the env's observations"),
     (lambda obs: 0, None, {}, "give the gymnasium env id your policy acts in"),
-    # a tuple of vectors and discrete values is watched (below); one with a tuple inside it is not
-    (lambda obs: 0, "plain_tests/NestedTuple-v0", {}, "plain_tests/NestedTuple-v0's observations are Tuple"),
+    # a tuple of vectors and discrete values is watched (below), tuples inside it too; one with a picture is not
+    (lambda obs: 0, "plain_tests/TupleWithPicture-v0", {}, "plain_tests/TupleWithPicture-v0's observations are Tuple"),
     # a tuple of actions is watched (below); one with a tuple inside it is not
     (lambda obs: ((0, np.ones(1, np.float32)),), "plain_tests/NestedActions-v0", {},
      "plain_tests/NestedActions-v0's actions are Tuple(Tuple(Discrete(2), Box(0.0, 1.0, (1,), float32))); oodmon's "
      "detectors and logs read an action of a Box, Discrete, MultiDiscrete or MultiBinary space, or a tuple or dict "
      "of them"),
-], ids=["action-refused", "box-shape", "torch-tensor", "sb3-option", "no-env", "nested-tuple-observations",
+], ids=["action-refused", "box-shape", "torch-tensor", "sb3-option", "no-env", "tuple-observations-with-a-picture",
         "nested-tuple-actions"])
 def test_a_policy_oodmon_cannot_run_is_said_before_any_episode(policy, env_id, kwargs, said):
     from oodmon.monitor.watch import as_agent
 
-    if "plain_tests/NestedTuple-v0" not in gymnasium.registry:
-        gymnasium.register("plain_tests/NestedTuple-v0", entry_point=_NestedTuple)
+    if "plain_tests/TupleWithPicture-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/TupleWithPicture-v0", entry_point=_TupleWithPicture)
         gymnasium.register("plain_tests/NestedActions-v0", entry_point=_NestedActions)
 
     with pytest.raises(ConfigError) as error:
@@ -449,14 +449,52 @@ def test_a_plain_policy_of_a_tuple_of_actions_gives_the_env_tuples_and_the_detec
 
 
 class _NestedTuple(TupleCartPole):
-    """A tuple inside the tuple: what gymnasium flattens, but no sensor fault or SB3 model reads."""
+    """The tuple and a dict of the pole's readings inside a tuple: what gymnasium flattens, and a
+    plain policy gets back as it is (no sensor fault names a part inside a part)."""
 
     def __init__(self) -> None:
         super().__init__()
-        self.observation_space = gymnasium.spaces.Tuple((self.observation_space,))
+        self.observation_space = gymnasium.spaces.Tuple((self.observation_space, gymnasium.spaces.Dict(
+            {"angle": gymnasium.spaces.Box(-1, 1, (1,)), "speed": gymnasium.spaces.Box(-np.inf, np.inf, (1,))})))
 
     def observation(self, obs: np.ndarray) -> tuple:
-        return (super().observation(obs),)
+        return super().observation(obs), {"angle": obs[2:3], "speed": obs[3:4]}
+
+
+class _TupleWithPicture(TupleCartPole):
+    """A camera's picture beside the readings, in a tuple: a dict's picture is read (dict_pictures),
+    a tuple's is not."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.observation_space = gymnasium.spaces.Tuple((gymnasium.spaces.Box(0, 255, (8, 8, 3), np.uint8),
+                                                         self.observation_space))
+
+    def observation(self, obs: np.ndarray) -> tuple:
+        return np.zeros((8, 8, 3), np.uint8), super().observation(obs)
+
+
+def test_a_plain_policy_of_nested_observations_gets_them_as_the_env_gives_them_and_its_detectors_flat():
+    from oodmon.monitor.detectors import fit_agent_detectors
+
+    if "plain_tests/NestedTuple-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/NestedTuple-v0", entry_point=_NestedTuple, max_episode_steps=200)
+    seen = []
+
+    def act(obs):
+        (cart, pole, side), inner = obs
+        seen.append(float(inner["angle"][0]) == float(pole[0]) and int(side) in (0, 1))
+        return int(pole[0] + 0.5 * pole[1] + 0.01 * cart[0] + 0.1 * cart[1] > 0)
+
+    agent = plain_agent(act, "plain_tests/NestedTuple-v0")
+    assert agent.dict_space is not None and all(seen)
+    # gymnasium's order: the tuple's parts, the side one-hot, then the dict's keys
+    assert agent.view((((1.0, 2.0), (3.0, 4.0), 1), {"angle": [3.0], "speed": [4.0]})).tolist() == [
+        1.0, 2.0, 3.0, 4.0, 0.0, 1.0, 3.0, 4.0]
+    detectors = fit_agent_detectors(agent, episodes=3)
+    with Monitor(agent, None, detectors=detectors) as monitor:
+        record = monitor.run_episode(gymnasium.make("plain_tests/NestedTuple-v0"), seed=0)
+    assert record.length == 200 and all(seen) and len(seen) > 800  # (the fit's three episodes, then this one)
 
 
 def test_a_plain_policy_of_tuple_observations_gets_tuples_and_a_sensor_fault_of_one_part_alarms():
