@@ -54,8 +54,9 @@ class Agent:
             frames detector and the logs the first picture.
         action_parts: the env's action space when its actions are a ``Tuple`` or ``Dict`` of
             vectors and discrete values (a plain policy's parameterised action: which push, and
-            how hard): the env and the policy deal in those, the detectors and the logs read each
-            one flattened (:meth:`read_action`).
+            how hard), or a ``Discrete`` counted from another start than 0: the env and the policy
+            deal in those, the detectors and the logs read each one flattened (:meth:`read_action`;
+            a ``Discrete`` one-hot).
     """
 
     estimator: UncertaintyEstimator | None

@@ -31,6 +31,7 @@ import numpy as np
 
 from oodmon.agents.agent import Agent, flattened
 from oodmon.agents.policy_code import code_sha256
+from oodmon.agents.sb3_spaces import space_parts
 from oodmon.envs.checks import tensor_hint
 from oodmon.errors import ConfigError
 from oodmon.hashing import state_sha256
@@ -245,8 +246,7 @@ def _action_parts(space: gymnasium.spaces.Space, env_id: str) -> gymnasium.space
         return space  # read one-hot (-1 of Discrete(3, start=-1) the first), not as an index from 0
     if isinstance(space, _ACTION_SPACES):
         return None
-    parts = space.spaces.values() if isinstance(space, gymnasium.spaces.Dict) else space.spaces if isinstance(
-        space, gymnasium.spaces.Tuple) else ()
+    parts = space_parts(space)
     if parts and all(isinstance(part, _ACTION_SPACES) for part in parts):
         return space
     raise ConfigError(f"{env_id}'s actions are {space}; oodmon's detectors and logs read an action of a Box, "

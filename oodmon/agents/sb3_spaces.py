@@ -24,7 +24,7 @@ from oodmon.agents.dict_pictures import is_picture_space
 from oodmon.envs.checks import space_mismatch
 from oodmon.errors import ConfigError
 
-__all__ = ["check_model_spaces", "dict_space_of"]
+__all__ = ["check_model_spaces", "dict_space_of", "space_parts"]
 
 
 def check_model_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str, frame_stack: int | None = None) -> None:
@@ -114,7 +114,7 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
 
     if isinstance(space, gymnasium.spaces.Box):
         return None
-    if _flat_as_sb3(space, is_image_space, plain):  # discrete values: read flattened, one-hot
+    if space_parts(space) is None and _flat_as_sb3(space, is_image_space, plain):  # discrete values, one-hot
         return space
     if isinstance(space, gymnasium.spaces.Tuple) and space.spaces and all(
             _flat_as_sb3(sub, is_image_space, plain) for sub in space.spaces):
@@ -134,6 +134,21 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
                       f"gymnasium.wrappers.FlattenObservation, {retrain}, to watch it")
 
 
+def space_parts(space: Any) -> list | None:
+    """The spaces inside a ``Dict`` (in its keys' order) or a ``Tuple``; ``None`` for any other space.
+
+    Example:
+        >>> from gymnasium.spaces import Box, Dict, Discrete, Tuple
+        >>> space_parts(Tuple((Discrete(2), Box(0, 1)))), space_parts(Dict(a=Discrete(3))), space_parts(Discrete(2))
+        ([Discrete(2), Box(0.0, 1.0, (1,), float32)], [Discrete(3)], None)
+    """
+    if isinstance(space, gymnasium.spaces.Dict):
+        return list(space.spaces.values())
+    if isinstance(space, gymnasium.spaces.Tuple):
+        return list(space.spaces)
+    return None
+
+
 def _flat_as_sb3(space: Any, is_image_space: Any, plain: bool = False) -> bool:
     """Whether gymnasium flattens a dict's ``space`` into the numbers SB3's ``CombinedExtractor``
     reads of it: a vector (not an image), a binary vector, or discrete values counted from 0
@@ -141,8 +156,8 @@ def _flat_as_sb3(space: Any, is_image_space: Any, plain: bool = False) -> bool:
     which gymnasium's flattening alone reads: counted from any start too, and dicts and tuples of
     such inside (SB3's extractor takes none)."""
     spaces = gymnasium.spaces
-    if plain and isinstance(space, (spaces.Dict, spaces.Tuple)):
-        parts = list(space.spaces.values()) if isinstance(space, spaces.Dict) else list(space.spaces)
+    parts = space_parts(space)
+    if plain and parts is not None:
         return bool(parts) and all(_flat_as_sb3(part, is_image_space, plain) for part in parts)
     if isinstance(space, spaces.Box):
         return not is_image_space(space, check_channels=False)

@@ -108,7 +108,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     agent = _load_agent(args, seed=0)  # seeded MC sampling: the same command, the same table
     from oodmon.envs.grid import select_variants
 
-    if args.task not in TASKS:  # --sb3 in an env oodmon has no variants of
+    if args.task not in TASKS:  # --sb3 or --policy in an env oodmon has no variants of
         raise _no_variants("evaluate", args.env, "--policy" if args.policy else "--sb3")
     variants = select_variants(args.task, args.variants)
     try:

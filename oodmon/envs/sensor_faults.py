@@ -205,14 +205,12 @@ class DictSensorFaults:
         ([1.0, 1.5], 3)
     """
 
-    def __init__(self, changes: dict[str, float], faults: dict[str, SensorFaults], keys: list[str], *,
+    def __init__(self, changes: dict[str, float], faults: dict[Any, SensorFaults], keys: list, *,
                  parts: bool = False) -> None:
-        """``changes`` as the spec names them; ``faults`` each faulty key's; ``keys`` the dict's, in its order
-        (a tuple's places, ``"0"``, ``"1"``..., if ``parts``)."""
-        self.changes, self._faults = changes, faults
-        self._streams = {key: keys.index(key) for key in faults}
-        self._index = {key: int(key) if parts else key for key in faults}  # where obs holds each key's reading
-        self._parts = parts
+        """``changes`` as the spec names them; ``faults`` each faulty key's, by where the observation
+        holds it; ``keys`` the dict's, in its order (a tuple's places, 0, 1..., if ``parts``)."""
+        self.changes, self._parts = changes, parts
+        self._faults = {at: (key_faults, keys.index(at)) for at, key_faults in faults.items()}  # and its noise stream
 
     @classmethod
     def of(cls, owner: str, space: gymnasium.spaces.Dict | gymnasium.spaces.Tuple,
@@ -226,44 +224,42 @@ class DictSensorFaults:
             InvalidParameterError: what :meth:`SensorFaults.of` refuses for that key's observation.
         """
         parts = isinstance(space, gymnasium.spaces.Tuple)
-        keys = [str(place) for place in range(len(space.spaces))] if parts else list(space.spaces)
-        whose, key_word, named = ("tuple", "N", {}) if parts else ("dict", "KEY", {})
+        keys = list(range(len(space.spaces))) if parts else list(space.spaces)
+        named = [str(key) for key in keys]  # as a spec names them
+        word, whose, key_word = ("part", "tuple", "N") if parts else ("key", "dict", "KEY")
+        changed: dict[Any, dict[str, float]] = {}
         for name, value in changes.items():
             match = re.fullmatch(r"obs\.(\w+)\.(\w+(?:\[\d+\])?)", name)
-            if match is None or match.group(1) not in keys:
-                raise UnknownParameterError(f"{owner}: {name!r} names no {'part' if parts else 'key'} of its {whose} "
-                                            f"observation; give obs.{key_word}.KIND[i]=VALUE, {key_word} one of "
-                                            f"{', '.join(keys)}")
-            if isinstance(space[int(match.group(1)) if parts else match.group(1)],
-                          (gymnasium.spaces.Dict, gymnasium.spaces.Tuple)):
+            if match is None or match.group(1) not in named:
+                raise UnknownParameterError(f"{owner}: {name!r} names no {word} of its {whose} observation; give "
+                                            f"obs.{key_word}.KIND[i]=VALUE, {key_word} one of {', '.join(named)}")
+            at = keys[named.index(match.group(1))]
+            if isinstance(space[at], (gymnasium.spaces.Dict, gymnasium.spaces.Tuple)):
                 raise UnknownParameterError(f"{owner}: {name!r} names a dict or a tuple in its {whose} observation; "
                                             f"sensor faults read the readings of a Box or of discrete values "
                                             f"{'in one of its parts' if parts else 'under one of its keys'}")
-            named.setdefault(match.group(1), {})[f"obs.{match.group(2)}"] = value
-        faults = {key: SensorFaults.of(f"{owner} ({'part' if parts else 'key'} {key if parts else repr(key)})",
-                                       space[int(key) if parts else key], key_changes)
-                  for key, key_changes in named.items()}
-        kept = {f"obs.{key}.{name[len('obs.'):]}": value for key, key_faults in faults.items()
+            changed.setdefault(at, {})[f"obs.{match.group(2)}"] = value
+        faults = {at: SensorFaults.of(f"{owner} ({word} {at if parts else repr(at)})", space[at], key_changes)
+                  for at, key_changes in changed.items()}
+        kept = {f"obs.{at}.{name[len('obs.'):]}": value for at, key_faults in faults.items()
                 for name, value in key_faults.changes.items()}
         return cls(kept, faults, keys, parts=parts)
 
     def begin_episode(self, seed: int | None, obs) -> None:
         """A new episode: each faulty key's (:meth:`SensorFaults.begin_episode`)."""
-        for key, faults in self._faults.items():
-            faults.begin_episode(seed, obs[self._index[key]], stream=self._streams[key])
+        for at, (faults, stream) in self._faults.items():
+            faults.begin_episode(seed, obs[at], stream=stream)
 
     def read(self, obs, *, faulty: bool):
         """``obs`` as the sensors report it: itself before the fault (each faulty key's reading kept
         for a stuck sensor), each faulty key's readings through its faults after."""
         if not faulty:
-            for key, faults in self._faults.items():
-                faults.read(obs[self._index[key]], faulty=False)
+            for at, (faults, _) in self._faults.items():
+                faults.read(obs[at], faulty=False)
             return obs
-        if self._parts:
-            return tuple(self._faults[str(place)].read(value, faulty=True) if str(place) in self._faults else value
-                         for place, value in enumerate(obs))
-        return {key: self._faults[key].read(value, faulty=True) if key in self._faults else value
-                for key, value in obs.items()}
+        read = [(at, self._faults[at][0].read(value, faulty=True) if at in self._faults else value)
+                for at, value in (enumerate(obs) if self._parts else obs.items())]
+        return tuple(value for _, value in read) if self._parts else dict(read)
 
 
 def _fault_value_problem(kind: str, value: Any, *, discrete: bool) -> str | None:

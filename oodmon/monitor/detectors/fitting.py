@@ -22,6 +22,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from oodmon.agents.sb3_spaces import space_parts
 from oodmon.envs.checks import step_naming_refusal, warn_if_endless
 from oodmon.errors import ConfigError, InvalidParameterError, unknown
 from oodmon.kept import SamplingTrail
@@ -496,9 +497,9 @@ def discrete_states(policy: Any, env: gymnasium.Env) -> bool:
     spaces = gymnasium.spaces
     space = getattr(policy, "dict_space", None)
     space = env.observation_space if space is None else space
-    parts = space.spaces.values() if isinstance(space, spaces.Dict) else space.spaces if isinstance(
-        space, spaces.Tuple) else [space]
-    return all(isinstance(part, (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)) for part in parts)
+    parts = space_parts(space)
+    return all(isinstance(part, (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary))
+               for part in ([space] if parts is None else parts))
 
 
 def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] | None = None,
