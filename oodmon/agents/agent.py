@@ -43,7 +43,8 @@ class Agent:
         dict_space: the env's observation space when its observations are dicts (an SB3
             ``MultiInputPolicy``) or discrete values (``Discrete``, ``MultiDiscrete``,
             ``MultiBinary``): the agent, the detectors and the logs see each one flattened (one-hot),
-            as :meth:`view` makes it (the policy gets the env's back, see :mod:`oodmon.agents.sb3`).
+            as :meth:`view` makes it (the policy gets the env's back, see :mod:`oodmon.agents.sb3`);
+            of a dict with text that a plain policy reads (:attr:`reads_words`), the other keys.
         stacking: the model was trained inside SB3's ``VecFrameStack``: it acts on observations
             stacked as that stacks them (:class:`~oodmon.agents.frame_stack.Stacking`), in the envs
             :meth:`wrap` makes so; the detectors and the logs read the env's own, the newest of
@@ -118,8 +119,9 @@ class Agent:
     def twin(self) -> Agent:
         """This agent for another env stepped beside its own (a vector env's): the same networks and
         metadata, and for a policy that reads its env beside the observation (:attr:`remembers`,
-        :attr:`reads_masks`) a memory and masks of its own; the agent itself for any other."""
-        if not (self.remembers or self.reads_masks):
+        :attr:`reads_masks`, :attr:`reads_words`) a memory, masks and text of its own; the agent
+        itself for any other."""
+        if not (self.remembers or self.reads_masks or self.reads_words):
             return self
         return dataclasses.replace(self, deploy=copy.copy(self.deploy))
 
@@ -145,8 +147,17 @@ class Agent:
         flattened (``gymnasium.spaces.flatten`` over :attr:`dict_space`, the order the policy's
         ``CombinedExtractor`` concatenates its keys in), a discrete one one-hot; any other as it is."""
         if self.dict_space is not None and not flattened(self.dict_space, obs):
+            if self.reads_words:
+                self.deploy.tell_words(obs)
             return gymnasium.spaces.flatten(self.dict_space, obs)
         return obs
+
+    @property
+    def reads_words(self) -> bool:
+        """Whether the deployed policy reads text of its dict observations that the detectors do not
+        (a plain policy's, MiniGrid's mission: :func:`~oodmon.agents.sb3_spaces.words_of`): each
+        observation :meth:`view` flattens tells it the text, which it reads beside the numbers."""
+        return hasattr(self.deploy, "tell_words")
 
     def read_action(self, action: Any) -> Any:
         """The action as the detectors and the logs read it: one of :attr:`action_parts` flattened
@@ -191,7 +202,8 @@ class Agent:
         """``env`` (the gymnasium env of the agent's env id, or an oodmon variant of it) giving the
         observations the agent acts on: stacked :attr:`frame_stack` deep as SB3's VecFrameStack
         stacks them (:class:`~oodmon.agents.frame_stack.FrameStack`; a dict key by key), and dict
-        and discrete ones flattened (``FlattenObservation``, as :meth:`view`), and for a policy with a memory
+        and discrete ones flattened (``FlattenObservation``, as :meth:`view`; their text told to a
+        policy that reads it, :attr:`reads_words`), and for a policy with a memory
         (:attr:`remembers`) or one that reads action masks (:attr:`reads_masks`) telling it of each
         reset (:meth:`begin_episode`) and each step's masks (:meth:`tell_masks`); ``env`` itself for
         any other agent."""
@@ -201,7 +213,10 @@ class Agent:
             from oodmon.agents.frame_stack import FrameStack
 
             env = FrameStack(env, self.stacking.n, "first" if self.stacking.channels_first else "last", self.stacking.pad)
-        if self.dict_space is not None:
+        if self.reads_words:  # the numbers flattened, the text told to the policy (view)
+            flat = gymnasium.spaces.flatten_space(self.dict_space)
+            env = gymnasium.wrappers.TransformObservation(env, self.view, flat)
+        elif self.dict_space is not None:
             env = gymnasium.wrappers.FlattenObservation(env)
         return env
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from oodmon.agents.agent import Agent, flattened
 from oodmon.agents.policy_code import code_sha256
-from oodmon.agents.sb3_spaces import space_parts
+from oodmon.agents.sb3_spaces import space_parts, words_of
 from oodmon.envs.checks import tensor_hint
 from oodmon.errors import ConfigError
 from oodmon.hashing import state_sha256
@@ -44,7 +44,8 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
     """An :class:`~oodmon.agents.Agent` that acts by ``policy(obs)`` in the gymnasium env ``env_id``
     (its observations as the env gives them, its action as the env takes it). Dict observations
     reach the policy as dicts; the detectors and the logs read them flattened, as of an SB3
-    ``MultiInputPolicy`` (:meth:`Agent.view`), a picture among them by the frames detector.
+    ``MultiInputPolicy`` (:meth:`Agent.view`), a picture among them by the frames detector; text
+    among them (MiniGrid's mission) the policy alone reads.
 
     The policy acts once on the env's first observation (seed 0), and the env takes that action,
     before any episode of a calibration runs: an action the env refuses is said now. A policy with
@@ -96,8 +97,10 @@ def plain_agent(policy: Callable[[Any], Any], env_id: str, *, weights: Any = Non
         metadata["name_hash"] = _name_hash(policy)  # what a threshold of it recorded before its code was hashed
     if dict_space is None:
         return Agent(None, metadata, None, policy, action_parts=action_parts)
-    return Agent(None, metadata, None, _ReadsDicts(policy, dict_space), dict_space=dict_space,
-                 pictures=dict_pictures(dict_space), action_parts=action_parts)
+    reads = (_ReadsWords(policy, dict_space, list(env.observation_space.spaces), name)
+             if words_of(env.observation_space) else _ReadsDicts(policy, dict_space))
+    return Agent(None, metadata, None, reads, dict_space=dict_space, pictures=dict_pictures(dict_space),
+                 action_parts=action_parts)
 
 
 class _ReadsDicts:
@@ -111,7 +114,34 @@ class _ReadsDicts:
             self.begin_episode = policy.begin_episode
 
     def __call__(self, obs: Any) -> Any:
-        return self.policy(gymnasium.spaces.unflatten(self.space, np.asarray(obs)) if flattened(self.space, obs) else obs)
+        return self.policy(self.unflatten(obs) if flattened(self.space, obs) else obs)
+
+    def unflatten(self, obs: Any) -> Any:
+        """A flattened observation as the env gave it."""
+        return gymnasium.spaces.unflatten(self.space, np.asarray(obs))
+
+
+class _ReadsWords(_ReadsDicts):
+    """A plain policy of dict observations with text beside the numbers (MiniGrid's mission): the
+    detectors read the numbers flattened (``space``, the dict of the other keys), and each
+    observation :meth:`Agent.view` flattens tells the policy its text (:meth:`tell_words`), which
+    it gets back in the dict, in the env's order of ``keys``."""
+
+    def __init__(self, policy: Callable[[Any], Any], space: gymnasium.spaces.Dict, keys: list[str], name: str) -> None:
+        super().__init__(policy, space)
+        self.keys, self.name = keys, name
+        self.words: dict[str, Any] | None = None  # the text of the observation last flattened
+
+    def tell_words(self, obs: Mapping[str, Any]) -> None:
+        """The text of the observation that is flattened now (the next the policy acts on)."""
+        self.words = {key: obs[key] for key in self.keys if key not in self.space.spaces}
+
+    def unflatten(self, obs: Any) -> Any:
+        if self.words is None:
+            raise ConfigError(f"{self.name} reads the text of its observations, and this one came flattened: step the "
+                              "env agent.wrap(env) gives, or hand the monitor the env's own dicts")
+        numbers = super().unflatten(obs)
+        return {key: numbers[key] if key in numbers else self.words[key] for key in self.keys}
 
 
 #: What a module :func:`policy_by_name` does not find may want (the bench on a Ray cluster says otherwise).

@@ -24,7 +24,7 @@ from oodmon.agents.dict_pictures import is_picture_space
 from oodmon.envs.checks import space_mismatch
 from oodmon.errors import ConfigError
 
-__all__ = ["check_model_spaces", "dict_space_of", "space_parts"]
+__all__ = ["check_model_spaces", "dict_space_of", "space_parts", "words_of"]
 
 
 def check_model_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str, frame_stack: int | None = None) -> None:
@@ -99,11 +99,14 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
     cell, which SB3 reads one-hot too; a ``Tuple`` of them, Blackjack's hand, or of them and
     vectors, for a plain policy); ``None`` for an array space. ``plain`` (a plain policy's):
     discrete values counted from any start too, which gymnasium's one-hot reads and SB3's does not,
-    and dicts and tuples of vectors and discrete values inside the dict or tuple.
+    dicts and tuples of vectors and discrete values inside the dict or tuple, and text beside them
+    in a dict (:func:`words_of`: MiniGrid's mission), which the policy reads and the detectors do
+    not: the dict of the other keys is returned.
 
     Raises:
         ConfigError: any other space (nested spaces inside a dict or a tuple, a dict of pictures
-            alone, a tuple with a picture, text), saying to flatten the env's observations, ``retrain``.
+            alone, a tuple with a picture, text but for a plain policy's in a dict), saying to
+            flatten the env's observations (to leave text out), ``retrain``.
 
     Example:
         >>> from gymnasium.spaces import Box, Discrete
@@ -119,19 +122,47 @@ def dict_space_of(space: Any, env_id: str, *, retrain: str = "and train the mode
     if isinstance(space, gymnasium.spaces.Tuple) and space.spaces and all(
             _flat_as_sb3(sub, is_image_space, plain) for sub in space.spaces):
         return space  # a tuple of them and vectors (Blackjack's hand): SB3 trains on none, a plain policy gets it back
+    words = words_of(space)
     if isinstance(space, gymnasium.spaces.Dict):
-        vectors = [sub for sub in space.spaces.values() if not is_picture_space(sub)]  # and discrete values
+        # a plain policy gets the text, the detectors read the rest (the dict dict_space_of returns)
+        numbers = {key: sub for key, sub in space.spaces.items() if not (plain and key in words)}
+        vectors = [sub for sub in numbers.values() if not is_picture_space(sub)]  # and discrete values
         if vectors and all(_flat_as_sb3(sub, is_image_space, plain) for sub in vectors):
-            return space
-        if not vectors:
+            return gymnasium.spaces.Dict(numbers) if len(numbers) < len(space.spaces) else space
+        if numbers and not vectors:
             raise ConfigError(f"{env_id}'s observations are {space}: pictures alone, in a dict. oodmon's detectors read "
                               "a dict's vectors (dynamics) and its first picture beside them (frames); for pictures "
                               "alone, give the env's picture as its observation (a Box), which the frames detector reads")
+    kept = [key for key in space.spaces if key not in words] if words else None
+    if kept == []:
+        raise ConfigError(f"{env_id}'s observations are {space}: text alone, which oodmon's detectors do not read "
+                          "(they read numbers: vectors, discrete values, pictures)")
+    if kept and not plain:
+        raise ConfigError(f"{env_id}'s observations are {space}; its text ({', '.join(map(repr, words))}) is no number "
+                          "SB3 or oodmon's detectors read: leave it out, gymnasium.wrappers.FilterObservation(env, "
+                          f"{kept!r}), {retrain}, to watch it (a policy of any kind, --policy or oodmon.watch(policy, "
+                          "env_id), gets the text, and the detectors read the rest)")
+    flatten = "FlattenObservation" if not kept else f"FlattenObservation(FilterObservation(env, {kept!r}))"
     raise ConfigError(f"{env_id}'s observations are {space}; oodmon's detectors read array observations (a gymnasium "
                       "Box: a vector, or stacked image frames), discrete values"
                       f"{'' if plain else ' (counted from 0)'}, or a dict of vectors "
-                      "and discrete values (pictures beside them too): wrap the env in "
-                      f"gymnasium.wrappers.FlattenObservation, {retrain}, to watch it")
+                      f"and discrete values (pictures{' and text' if plain else ''} beside them too): wrap the env in "
+                      f"gymnasium.wrappers.{flatten}, {retrain}, to watch it")
+
+
+def words_of(space: Any) -> tuple[str, ...]:
+    """The keys of a ``Dict`` space whose values are text (``gymnasium.spaces.Text``, MiniGrid's
+    ``MissionSpace``: any space of strings), in the dict's order; ``()`` for any other space.
+
+    Example:
+        >>> from gymnasium.spaces import Box, Dict, Text
+        >>> words_of(Dict(mission=Text(40), position=Box(0, 1))), words_of(Box(0, 1))
+        (('mission',), ())
+    """
+    if not isinstance(space, gymnasium.spaces.Dict):
+        return ()
+    return tuple(key for key, sub in space.spaces.items()
+                 if sub.dtype is not None and np.dtype(sub.dtype).kind == "U")
 
 
 def space_parts(space: Any) -> list | None:

@@ -16,6 +16,7 @@ from typing import Any
 import gymnasium
 
 from oodmon.agents.agent import Agent
+from oodmon.agents.sb3_spaces import words_of
 from oodmon.envs.checks import space_mismatch, step_naming_refusal
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env, wrappers_of
 from oodmon.errors import ConfigError
@@ -51,7 +52,7 @@ def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
     check_one_env(env)
     own = agent.make_env()
     if agent.dict_space is not None and not isinstance(env.observation_space, gymnasium.spaces.Box):
-        env = gymnasium.wrappers.FlattenObservation(env)  # its spaces as the agent reads them (nothing stepped)
+        env = _read_as(agent, env)
     try:
         what = space_mismatch(own, env)
     finally:
@@ -67,6 +68,21 @@ def check_env_of(agent: Agent, env: gymnasium.Env) -> None:
         raise ConfigError(f"{agent.task}/{agent.method} was trained inside VecFrameStack(VecNormalize(env), "
                           f"{agent.frame_stack}): before an episode's first observation its stack holds the "
                           f"statistics' mean, not zeros; step the env agent.wrap(env) gives ({_WRAP_FOR_WATCH})")
+
+
+def _read_as(agent: Agent, env: gymnasium.Env) -> gymnasium.Env:
+    """``env`` with its spaces as ``agent`` reads them (nothing stepped): its dicts or discrete
+    values flattened, the text of its dicts left out for a policy that reads it (the agent's
+    :attr:`~oodmon.agents.Agent.reads_words`); ``env`` itself where they do not flatten (text
+    another agent does not read: MiniGrid's mission, which gymnasium cannot flatten)."""
+    space = env.observation_space
+    words = words_of(space) if agent.reads_words else ()
+    if words:
+        space = gymnasium.spaces.Dict({key: sub for key, sub in space.spaces.items() if key not in words})
+    try:
+        return gymnasium.wrappers.TransformObservation(env, lambda obs: obs, gymnasium.spaces.flatten_space(space))
+    except NotImplementedError:
+        return env
 
 
 #: Where a user of :func:`oodmon.watch` finds the agent whose ``wrap`` stacks their env.

@@ -372,6 +372,78 @@ class MultiCart(gymnasium.Wrapper):
         return self.env.step(int(action[0]))
 
 
+class MissionCartPole(DictCartPole):
+    """DictCartPole with a mission beside the readings, as MiniGrid's observations have one (text,
+    which gymnasium's FlattenObservation of MiniGrid cannot flatten): a new one each episode, drawn
+    from the env's own random numbers, which says how hard to lean against the pole's swing."""
+
+    MISSIONS = ("keep the pole up", "keep the pole up gently")
+
+    def __init__(self, **physics) -> None:
+        super().__init__(**physics)
+        mission = gymnasium.spaces.Text(40, charset=" abcdefghijklmnopqrstuvwxyz")
+        self.observation_space = gymnasium.spaces.Dict({**self.observation_space.spaces, "mission": mission})
+        self.said: set[tuple[str, float]] = set()  # every mission given, with the pole's angle beside it
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self.mission = self.MISSIONS[int(self.env.unwrapped.np_random.integers(2))]
+        return self.observation(obs), info
+
+    def observation(self, obs: np.ndarray) -> dict:
+        self.said.add((self.mission, float(obs[2])))
+        return {**super().observation(obs), "mission": self.mission}
+
+
+def _leans_by_its_mission(heard: list):
+    """The DictCartPole controller, leaning against the pole's swing less on a gentle mission."""
+    def act(obs):
+        heard.append((obs["mission"], float(obs["pole"][0])))
+        swing = 0.3 if obs["mission"].endswith("gently") else 0.5
+        return int(obs["pole"][0] + swing * obs["pole"][1] + 0.01 * obs["cart"][0] + 0.1 * obs["cart"][1] > 0)
+    return act
+
+
+def test_a_plain_policy_gets_the_text_of_its_dict_observations_and_the_detectors_read_the_rest():
+    """MiniGrid's observations hold the mission as text beside the numbers: the policy reads it,
+    the detectors cannot. The policy gets the env's whole dicts (in fitting, calibration, runs, and
+    through a MonitoredEnv), the detectors read the other keys, and a changed world alarms."""
+    if "plain_tests/MissionCartPole-v0" not in gymnasium.registry:
+        gymnasium.register("plain_tests/MissionCartPole-v0", entry_point=MissionCartPole, max_episode_steps=200)
+    heard: list[tuple[str, float]] = []
+    monitor = oodmon.watch(_leans_by_its_mission(heard), "plain_tests/MissionCartPole-v0", fit_episodes=12,
+                           episodes=20, confidence=None)
+    assert {said for said, _ in heard} == set(MissionCartPole.MISSIONS) and len(heard) > 6000  # (32 episodes and more)
+    assert list(monitor.agent.dict_space.spaces) == ["cart", "pole"] and monitor.agent.reads_words
+    assert monitor.detectors["dynamics"].obs_dim == 4  # the readings alone
+    env = gymnasium.make("plain_tests/MissionCartPole-v0")
+    heard.clear()
+    ids = [monitor.run_episode(env, seed=960_000 + i) for i in range(10)]
+    # each step, the policy heard the mission the env gave with that step's angle (the env's own draw)
+    assert set(heard) <= env.get_wrapper_attr("said") and len({said for said, _ in heard}) == 2 and len(heard) == 2000
+    # on average over calibrations <= 1/21 false alarms per episode (rank 20 of 20): 4 or more of 10
+    # has probability 0.001 at 5% (0.013 at twice that)
+    assert all(r.length == 200 for r in ids) and sum(r.first_alarm_step is not None for r in ids) <= 3
+    # a pole twice as long from step 30: when written, 5 of 5 alarmed at steps 33, 33, 31, 31, 32 (and
+    # none of the 10 ID episodes above)
+    longer = gymnasium.make("plain_tests/MissionCartPole-v0", length=2.0, onset_step=30)
+    shifted = [monitor.run_episode(longer, seed=970_000 + i) for i in range(5)]
+    assert all(r.first_alarm_step is not None and 30 < r.first_alarm_step <= 35 for r in shifted)
+    # stepped by the user, the env's own dicts: the policy decides on the mission of each
+    heard.clear()
+    watched = MonitoredEnv(gymnasium.make("plain_tests/MissionCartPole-v0"), monitor.twin())
+    obs, _ = watched.reset(seed=980_000)
+    for _ in range(50):
+        obs, *_ = watched.step()
+    assert set(heard) <= watched.get_wrapper_attr("said") and len(heard) == 50
+    # a sensor fault of the text is refused, naming the key; an SB3 model cannot read text at all
+    with pytest.raises(ConfigError, match=r"\(key 'mission'\): sensor faults \(obs.noise\) read the readings of a Box"):
+        parse_env_shift("plain_tests/MissionCartPole-v0:obs.mission.noise=0.1").make()
+    with pytest.raises(ConfigError, match=r"its text \('mission'\) is no number SB3 or oodmon's detectors read: leave "
+                                          r"it out, gymnasium.wrappers.FilterObservation\(env, \['cart', 'pole'\]\)"):
+        dict_space_of(gymnasium.make("plain_tests/MissionCartPole-v0").observation_space, "x")
+
+
 class TupleCartPole(gymnasium.ObservationWrapper):
     """oodmon's CartPole (a shift can begin mid-episode) with tuple observations: the cart's two
     readings, the pole's two, and which side the pole leans to (a Discrete value)."""
