@@ -28,7 +28,8 @@ def _add_envs(commands: argparse._SubParsersAction) -> None:
         "hand-written reference controller's returns in the ID env and the variant, and its pole "
         "angle over an episode. A shift of your own env (ENV_ID:NAME=VALUE): the env as it is and "
         "shifted, from the same seed with the same random actions, and the step from which what it "
-        "returned differs, if it does (an attribute the env reads only when made or reset changes nothing). "
+        "returned differs, if it does (an attribute the env reads only when made or reset changes nothing "
+        "after the onset; at --onset 0 the env resets in the shifted world). "
         "With --sb3 or --policy your policy acts instead, in a CartPole or Pendulum variant too (beside the "
         "task's ID env): whether the shift changes anything in the states your policy visits.",
     )

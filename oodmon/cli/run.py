@@ -222,8 +222,9 @@ def _run(args: argparse.Namespace) -> int:
     own_env = shifts_an_env(label)
     own_policy = bool(args.sb3 or args.policy) and args.task in ("cartpole", "pendulum")  # your policy, not an oodmon agent
     if args.variant and (own_env or own_policy) and threshold is not None and rows.episodes and not rows.alarmed:
-        why = ("an attribute the env reads only when it is made or reset changes nothing, nor does one where your "
-               "policy never goes" if own_env else
+        reset = " after the onset (at --onset 0 the env resets in the shifted world)" if args.onset else ""
+        why = (f"an attribute the env reads only when it is made or reset changes nothing{reset}, nor does one "
+               "where your policy never goes" if own_env else
                "a change of physics or of a sensor acts only in some states: gravity hardly acts on a pendulum your "
                "policy holds upright, and a stuck reading of a still one reads as before")
         console.print(f"does the shift change anything the env returns? `{_show_command(args, label)}` plays the env "

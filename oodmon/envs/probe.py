@@ -3,7 +3,8 @@
 A shift sets numbers in the env (``ENV_ID:NAME=VALUE``, :mod:`oodmon.envs.shift`); an attribute
 the env reads only when it is made or reset (LunarLander builds its Box2D world from ``gravity``
 at reset; MuJoCo derives a body's inertia from its geometry when it compiles) changes nothing
-after the onset, and the monitor can only stay silent. :func:`probe_shift` plays the env as it
+after the onset, and the monitor can only stay silent (at onset 0 the env resets in the shifted
+world, so one read at reset takes effect). :func:`probe_shift` plays the env as it
 is and the shifted env from the same seed with the same actions (drawn at random from the action
 space, seeded) and says from which step what the env returned (observation, reward, the episode's
 end) first differed, if it did. ``oodmon envs show ENV_ID:NAME=VALUE`` prints it (and plots the
@@ -112,7 +113,8 @@ class ShiftProbe:
                     "(observations, rewards, the episode's end): the shift changed nothing there. An attribute "
                     "the env reads only when it is made or reset, or one a switch turns off, changes nothing after "
                     "the onset (LunarLander builds its world from gravity at reset, and blows wind_power only when "
-                    "made with enable_wind=True); pick one its step() reads, or a sensor fault (obs.KIND[i]=VALUE); "
+                    "made with enable_wind=True); pick one its step() reads, or a sensor fault (obs.KIND[i]=VALUE), "
+                    "or shift it from onset 0 (the env then resets in the shifted world); "
                     "or the states where it matters were not reached (try --steps, --seed)")
         readings = np.flatnonzero(self.largest > 0)
         shown = ", ".join(f"{i}: {self.largest[i]:.3g}" for i in readings[np.argsort(-self.largest[readings])][:6])

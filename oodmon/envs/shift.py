@@ -256,12 +256,13 @@ class ShiftAttributes(gymnasium.Wrapper):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self.onset_step, rest = episode_onset(self.shift.env_id, self._configured_onset, options)
         options = options if self._forward_onset else rest  # (the task env beneath reads it too)
-        self._set(shifted=False)  # the env's own world while it resets: its start states are ID's
+        # the env's own world while it resets, its start states ID's; but at onset 0 the shifted one:
+        # the whole episode is, and an attribute the env reads at reset (MiniGrid's layout) is seen
+        self._set(shifted=self.onset_step == 0)
         obs, info = self.env.reset(seed=seed, options=options)
         self._steps = 0
         if self._sensors is not None:
             self._sensors.begin_episode(seed, obs)
-        self._set(shifted=self.onset_step == 0)
         return self._sensed(obs), {**info, "shifted": self._active}
 
     def step(self, action: Any):

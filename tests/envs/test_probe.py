@@ -49,12 +49,17 @@ def test_a_shift_that_acts_differs_from_the_step_after_its_onset_and_names_the_r
     assert "4: 0.5" in sensor.summary()
 
 
-def test_an_attribute_read_only_at_reset_changes_nothing_and_is_said_so():
+def test_an_attribute_read_only_at_reset_changes_nothing_after_the_onset_and_is_said_so():
     """What a user of LunarLander meets with gravity: a shift that sets it after the reset that
-    built the world changes nothing, and the monitor could only stay silent."""
-    probe = probe_shift(parse_env_shift("ResetOnlyGainForTests-v0:gain=5.0"), steps=50)
+    built the world changes nothing, and the monitor could only stay silent. At onset 0 the env
+    resets in the shifted world (before 2026-12-06 in its own: such a shift changed nothing at all,
+    MiniGrid's DistShift layout row included)."""
+    probe = probe_shift(parse_env_shift("ResetOnlyGainForTests-v0:gain=5.0"), onset=5, steps=50)
     assert not probe.changed and probe.steps == 50 and probe.largest.max() == 0
     assert "changed nothing" in probe.summary() and "reads only when it is made or reset" in probe.summary()
+    whole = probe_shift(parse_env_shift("ResetOnlyGainForTests-v0:gain=5.0"), steps=50)
+    assert whole.changed and whole.first_difference == 1  # the first push, five times as strong
+    np.testing.assert_array_equal(whole.own[0], whole.shifted[0])  # (the same start state: the seed's)
     acting = probe_shift(parse_env_shift("ResetOnlyGainForTests-v0:drag=0.5"), onset=5, steps=50)
     assert acting.first_difference == 6 and acting.own_return == acting.shifted_return == 50.0
 
@@ -86,7 +91,7 @@ def test_envs_show_probes_a_shift_of_your_own_env_and_plots_it(tmp_path, capsys)
     said = capsys.readouterr().out
     assert "differs from the env's own from step 6 on" in said and out.stat().st_size > 10_000
     # nothing changed: exit code 1, and obs.KIND[i] printed as written (not read as markup)
-    assert main(["envs", "show", "ResetOnlyGainForTests-v0:gain=5.0", "--steps", "20"]) == 1
+    assert main(["envs", "show", "ResetOnlyGainForTests-v0:gain=5.0", "--onset", "1", "--steps", "20"]) == 1
     assert "obs.KIND[i]=VALUE" in capsys.readouterr().out
     assert main(["envs", "show", "Acrobot-v1"]) == 2
     assert "malformed shift" in capsys.readouterr().err
