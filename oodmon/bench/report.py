@@ -321,7 +321,7 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
     from oodmon.envs.probe import probe_shift
     from oodmon.envs.shift import parse_any_variant
 
-    low, _ = config.onset_range()
+    first, high = config.onset_range()
     unalarmed = [(row, parse_any_variant(row.variant)) for row in result.alarms
                  if not (row.is_id or row.alarmed) and row.shifted_episodes]
     unalarmed = [(row, shift) for row, shift in unalarmed
@@ -329,6 +329,9 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
     if unalarmed and agent is None:
         agent = own_policy_agent(config)
     for row, shift in unalarmed:
+        # a shift of your env's attributes from step 0 resets the env shifted (ShiftAttributes), from
+        # a later step after its reset: probed as most episodes shifted, where not all onsets are 0
+        low = first if isinstance(shift, Variant) or high <= first + 1 else max(first, 1)
         probe = probe_shift(shift, onset=low, steps=steps, policy=agent.act, wrap=agent.wrap)
         moved = probe.largest_share() if probe.changed and isinstance(shift, Variant) else None
         if not probe.changed and not probe.reached_onset:
@@ -339,7 +342,8 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
         elif not probe.changed:
             console.print(f"{row.variant}: no episode alarmed, and nothing the env returned differed from its own over "
                           f"{probe.steps} steps of your policy's actions, shifted from step {low}: does the env read it "
-                          "only after a reset, or where your policy never goes (a bound it keeps well within)?",
+                          "only at a reset (a shift from onset 0 resets the env shifted: --onsets 0,1), or where your "
+                          "policy never goes (a bound it keeps well within)?",
                           markup=False)
         elif moved is not None:
             console.print(f"{row.variant}: no episode alarmed; where your policy goes, over {probe.steps} steps shifted "

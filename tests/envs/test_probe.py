@@ -208,6 +208,18 @@ def test_the_bench_says_a_shift_no_episode_alarmed_on_was_not_seen_where_the_pol
     assert "only after a reset" not in said
 
 
+def test_the_bench_says_an_attribute_read_at_reset_changes_nothing_where_its_episodes_shifted_after_the_reset():
+    """The episodes shift at a random step of the bench's --onsets; one from step 0 resets in the
+    shifted world, the others after their reset. Onsets in [0, 20): the probe shifts from step 1, as
+    most episodes did, and says what to try (before 2026-12-06 it probed from step 0, which did the
+    same then, the reset too being in the env's own world)."""
+    said = " ".join(_unfelt_said("ResetOnlyGainForTests-v0:gain=5.0", "ResetOnlyGainForTests-v0", lambda obs: 1,
+                                 (0, 20)).split())
+    assert ("nothing the env returned differed from its own over 100 steps of your policy's actions, shifted from step "
+            "1: does the env read it only at a reset (a shift from onset 0 resets the env shifted: --onsets 0,1)") in said
+    assert _unfelt_said("ResetOnlyGainForTests-v0:gain=5.0", "ResetOnlyGainForTests-v0", lambda obs: 1, (0, 1)) == ""
+
+
 def test_the_bench_probes_an_unalarmed_shift_where_the_users_policy_goes_not_where_random_actions_go():
     """A judge's bound set tighter, `CartPole-v1:theta_threshold_radians=0.1` from step 150: random
     actions drop the pole within about 20 steps, so a probe of them saw nothing of it (what the bench
