@@ -34,7 +34,10 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
                                          "set to other values from --onset on, e.g. Acrobot-v1:LINK_MASS_2=3.0, "
                                          "or sensor faults, e.g. 'Acrobot-v1:obs.bias[4]=0.5' (obs.bias, obs.scale, "
                                          "obs.noise, obs.stuck; of discrete values: a misread's probability "
-                                         "'Taxi-v4:obs.noise=0.1'; of a dict, by key: 'ENV_ID:obs.KEY.stuck=1')")
+                                         "'Taxi-v4:obs.noise=0.1'; of a dict, by key: 'ENV_ID:obs.KEY.stuck=1'); or "
+                                         "another registered env's id, of the same spaces, deployed in from its "
+                                         "reset, each step shifted, e.g. MiniGrid-DistShift2-v0 for --env "
+                                         "MiniGrid-DistShift1-v0")
     world.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (default 0)")
     world.add_argument("--obs-noise", type=_non_negative,
                        help="sensor noise in every episode, ID or shifted, a fraction of each reading's ID spread "
@@ -149,7 +152,7 @@ def _run(args: argparse.Namespace) -> int:
                                bind=args.bind, port=args.port, overwrite=args.overwrite))
     console = Console(soft_wrap=True)
     rows = _EpisodeRows(calibrated=threshold.covered_steps if threshold is not None else None,
-                        stretch=threshold.mean_episode if threshold is not None else None)
+                        stretch=threshold.mean_episode if threshold is not None else None, task=agent.task)
 
     def show(event) -> None:
         rows.alarm(event)
@@ -219,7 +222,7 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"note: {rows.before_onset} of {rows.episodes} episodes ended before step {args.onset}, the "
                       "onset: the shift never began in them (an --onset later than this env's episodes last?)",
                       markup=False)
-    own_env = shifts_an_env(label)
+    own_env = shifts_an_env(label) and "=" in label  # (not your env itself, nor another env: AnotherEnv)
     own_policy = bool(args.sb3 or args.policy) and args.task in ("cartpole", "pendulum")  # your policy, not an oodmon agent
     if args.variant and (own_env or own_policy) and threshold is not None and rows.episodes and not rows.alarmed:
         reset = " after the onset (at --onset 0 the env resets in the shifted world)" if args.onset else ""
@@ -290,12 +293,14 @@ def _warn_if_reused(threshold, detectors, seed: int, episodes: int) -> None:
 
 
 def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
-    """``oodmon run``'s env and its label: the ``--variant`` (a variant of the agent's task, or a
-    shift of your own model's env, shifting at ``--onset``), else your own model's env as you
+    """``oodmon run``'s env and its label: the ``--variant`` (a variant of the agent's task, a
+    shift of your own model's env, shifting at ``--onset``, or another env of the same spaces,
+    :class:`~oodmon.envs.AnotherEnv`), else your own model's env as you
     deploy it, else the task's ID env; with ``--obs-noise``'s sensor noise (oodmon's CartPole
     and Pendulum envs only) and ``--max-steps``' time limit."""
-    from oodmon.envs import Variant, own_variant, parse_variant
-    from oodmon.envs.registration import TASK_OF_ENV
+    from oodmon.envs import AnotherEnv, Variant, own_variant, parse_variant
+    from oodmon.envs.registration import TASK_OF_ENV, make_env
+    from oodmon.envs.shift import another_env_id
 
     named_task = bool(args.variant) and args.variant.partition(":")[0] in TASKS
     if args.variant and args.task not in TASKS and named_task:
@@ -313,6 +318,17 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
                               "env: give its sensor faults in --variant (e.g. ENV_ID:obs.noise=0.1), or leave out "
                               "--obs-noise" + (" (the threshold's is taken by default: give --obs-noise 0)"
                                                if args.threshold else ""))
+        other = another_env_id(args.variant, agent.env_id)
+        if other is not None:  # another registered env, every step of it the shifted world
+            from oodmon.monitor.monitored_env import check_env_of
+
+            if args.onset:
+                raise ConfigError(f"--variant {other} is another env than {agent.env_id}, deployed from its reset: "
+                                  "each of its steps is the shifted world; leave out --onset (a shift from a step on "
+                                  f"is {agent.env_id}:NAME=VALUE, numeric attributes of its env)")
+            env = make_env(other, **limit)
+            check_env_of(agent, env)  # spaces your policy acts in
+            return agent.wrap(AnotherEnv(env)), other
         shift = own_variant(args.variant, agent.env_id)
         return agent.wrap(shift.make(onset_step=args.onset, **limit)), shift.spec
     noisy = {"obs_noise": noise} if noise else {}
@@ -332,8 +348,10 @@ class _EpisodeRows:
     weeks keeps no per-step data here (the records with their rewards took about 20 bytes a step)
     and prints a table of at most ``shown`` rows; ``oodmon replay LOG --episodes`` lists them all."""
 
-    def __init__(self, shown: int = 20, *, calibrated: int | None = None, stretch: int | None = None) -> None:
+    def __init__(self, shown: int = 20, *, calibrated: int | None = None, stretch: int | None = None,
+                 task: str | None = None) -> None:
         self.first: list = []
+        self.task = task  # the policy's task or env id: another env's episodes are shifted ones
         self.last = deque(maxlen=shown - shown // 2)
         self.shown, self.episodes, self.alarmed = shown, 0, 0
         self.before_onset = 0  # episodes of a shifted variant that ended before their onset: never shifted
@@ -358,7 +376,7 @@ class _EpisodeRows:
         self.before_onset += ended_before_onset(record)
         self.longer += self.calibrated is not None and record.length > self.calibrated
         self.longest = max(self.longest, record.length)
-        if self.stretch is not None and is_id_variant(record.variant):
+        if self.stretch is not None and is_id_variant(record.variant, self.task):
             self.stretches.add(*Stretches.count(record.length, self._alarm_steps, self.stretch))
         self._alarm_steps = []
         slim = dataclasses.replace(record, rewards=None)
@@ -381,7 +399,7 @@ class _EpisodeRows:
         for index, record in enumerate([*self.first, *self.last]):
             if index == len(self.first) and left_out:
                 table.add_row("...", *[""] * 7)
-            if record.first_alarm_step is None or is_id_variant(record.variant):
+            if record.first_alarm_step is None or is_id_variant(record.variant, self.task):
                 delay = ""
             else:
                 delay = "before onset" if record.alarmed_early else str(record.delay)

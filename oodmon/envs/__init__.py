@@ -4,7 +4,8 @@
 ``oodmon/Pong-v5`` with gymnasium. Physics shifts and frame corruptions take an
 ``onset_step`` so that a shift can begin mid-episode; ``info["shifted"]`` marks it.
 Your own env is shifted by :class:`ShiftAttributes` (other numbers in its attributes, from an
-onset on), named by a spec such as ``Acrobot-v1:LINK_MASS_2=3.0`` (:func:`parse_env_shift`);
+onset on), named by a spec such as ``Acrobot-v1:LINK_MASS_2=3.0`` (:func:`parse_env_shift`), or
+deployed as another registered env (:class:`AnotherEnv`: each of its steps shifted);
 :func:`probe_shift` tells whether such a shift changes anything the env returns.
 """
 
@@ -26,7 +27,8 @@ from oodmon.envs.pong import CorruptedPong, to_agent_view
 from oodmon.envs.probe import ShiftProbe, probe_shift
 from oodmon.envs.registration import register_envs
 from oodmon.envs.sensor_faults import DictSensorFaults, SensorFaults
-from oodmon.envs.shift import EnvShift, ShiftAttributes, own_variant, parse_any_variant, parse_env_shift
+from oodmon.envs.shift import (AnotherEnv, EnvShift, ShiftAttributes, own_variant, parse_any_variant,
+                               parse_env_shift)
 
 __all__ = [
     "CARTPOLE_DEFAULTS",
@@ -34,6 +36,7 @@ __all__ = [
     "ENV_IDS",
     "PENDULUM_DEFAULTS",
     "TASKS",
+    "AnotherEnv",
     "CorruptedPong",
     "Corruption",
     "DictSensorFaults",

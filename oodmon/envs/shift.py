@@ -43,13 +43,14 @@ import numpy as np
 
 from oodmon.envs.checks import check_onset_step, episode_onset
 from oodmon.envs.physics import PHYSICS_DEFAULTS
-from oodmon.envs.registration import wrappers_of
+from oodmon.envs.registration import task_of_env, wrappers_of
 from oodmon.envs.sensor_faults import SensorFaults
 from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterError
 from oodmon.names import TASKS
 from oodmon.validation import is_finite_real, is_real
 
-__all__ = ["EnvShift", "ShiftAttributes", "own_variant", "parse_any_variant", "parse_env_shift", "shifts_an_env"]
+__all__ = ["AnotherEnv", "EnvShift", "ShiftAttributes", "another_env_id", "own_variant", "parse_any_variant",
+           "parse_env_shift", "same_env", "shifts_an_env"]
 
 _SPEC_HELP = "expected ENV_ID:NAME=VALUE[,NAME=VALUE...], e.g. 'Acrobot-v1:LINK_MASS_2=3.0'"
 
@@ -348,6 +349,62 @@ def own_variant(spec: str, env_id: str) -> EnvShift:
         raise SpecError(f"{spec!r} shifts {shift.env_id}, not {env_id}: give {env_id}:NAME=VALUE, a numeric "
                         "attribute of its env and its shifted value")
     return shift
+
+
+class AnotherEnv(gymnasium.Wrapper):
+    """Another registered env than the policy's own, deployed as its shifted world (MiniGrid's
+    DistShift2 for a policy of DistShift1; your cart registered heavier under an id of its own): each
+    of its steps, from its reset on, is a shifted one (``info["shifted"]``, the onset 0), so that
+    the log and replay count its alarms as detections, and its steps as the shifted ones AUROC ranks.
+    ``oodmon run --variant OTHER_ID`` plays it, and a :class:`~oodmon.monitor.MonitoredEnv` of such
+    an env wraps it so itself.
+
+    Example:
+        >>> env = AnotherEnv(gymnasium.make("CartPole-v1"))
+        >>> env.reset(seed=0)[1]["shifted"], env.step(0)[-1]["shifted"]
+        (True, True)
+    """
+
+    def reset(self, **kwargs: Any):
+        obs, info = self.env.reset(**kwargs)
+        return obs, {**info, "shifted": True}
+
+    def step(self, action: Any):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, terminated, truncated, {**info, "shifted": True}
+
+
+def same_env(env_id: str, own: str) -> bool:
+    """Whether the env ``env_id`` (an id, as a spec or the log names it) is the one ``own`` names (a
+    policy's env id, ``module:Id`` too, or oodmon's task, which gymnasium's id of it is).
+
+    Example:
+        >>> same_env("MyEnv-v0", "my_envs:MyEnv-v0"), same_env("CartPole-v1", "cartpole")
+        (True, True)
+        >>> same_env("MiniGrid-DistShift2-v0", "MiniGrid-DistShift1-v0")
+        False
+    """
+    ours, theirs = env_id.strip().rpartition(":")[2], own.strip().rpartition(":")[2]
+    return ours == theirs or (task_of_env(ours) or ours) == (task_of_env(theirs) or theirs)
+
+
+def another_env_id(spec: str, own: str | None) -> str | None:
+    """``spec`` when it is an env's id alone (no ``NAME=VALUE``) and another env than ``own`` (the
+    policy's env id or task: :func:`same_env`), the world :class:`AnotherEnv` deploys the policy
+    in; else ``None`` (a shift of the policy's env, or the env itself).
+
+    Example:
+        >>> another_env_id("MiniGrid-DistShift2-v0", "MiniGrid-DistShift1-v0")
+        'MiniGrid-DistShift2-v0'
+        >>> another_env_id("Acrobot-v1", "Acrobot-v1") is None
+        True
+        >>> another_env_id("Acrobot-v1:LINK_MASS_2=3", "Acrobot-v1"), another_env_id("Acrobot-v1:dt", "Acrobot-v1")
+        (None, None)
+    """
+    if not isinstance(spec, str) or not spec.strip() or "=" in spec or own is None or same_env(spec, own):
+        return None
+    head, colon, _ = spec.strip().rpartition(":")
+    return None if colon and same_env(head, own) else spec.strip()  # (OWN_ID:NAME, a shift without its value)
 
 
 def parse_any_variant(spec: str):

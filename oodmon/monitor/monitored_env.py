@@ -18,6 +18,7 @@ import gymnasium
 from oodmon.agents.agent import Agent
 from oodmon.agents.sb3_spaces import words_of
 from oodmon.envs.checks import space_mismatch, step_naming_refusal
+from oodmon.envs.shift import AnotherEnv, another_env_id
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env, wrappers_of
 from oodmon.errors import ConfigError
 from oodmon.monitor.monitor import Monitor, NonFiniteObservationWarning, PolicyCannotAct, _frame
@@ -85,6 +86,14 @@ def _read_as(agent: Agent, env: gymnasium.Env) -> gymnasium.Env:
         return env
 
 
+def _another_env(agent: Agent, env: gymnasium.Env) -> bool:
+    """Whether ``env`` is another registered env than the one ``agent``'s policy acts in (its
+    ``env_id``), with no shift of its own: MiniGrid's DistShift2 for a policy of DistShift1."""
+    if env.spec is None or agent.env_id is None or variant_of_env(env) != env_id_of(env):
+        return False
+    return another_env_id(env_id_of(env), agent.env_id) is not None
+
+
 #: Where a user of :func:`oodmon.watch` finds the agent whose ``wrap`` stacks their env.
 _WRAP_FOR_WATCH = "with oodmon.watch, call it without env= and step MonitoredEnv(monitor.agent.wrap(env), monitor)"
 
@@ -107,7 +116,10 @@ class MonitoredEnv(gymnasium.Wrapper):
     alarm. A reset that no step follows logs no episode. A policy that cannot act on a NaN or
     infinite observation (SB3's raise) does not step the env: that step is logged and alarmed, the
     episode ends there (``truncated``, reward 0, ``info["oodmon"]["policy_could_not_act"]`` says
-    why) with a :class:`NonFiniteObservationWarning`, as ``oodmon run`` ends it.
+    why) with a :class:`NonFiniteObservationWarning`, as ``oodmon run`` ends it. An env of another
+    registered id than the policy's (MiniGrid's DistShift2 for a policy of DistShift1) is its
+    shifted world, each step from its reset on (:class:`~oodmon.envs.AnotherEnv`), in the log and
+    in replay.
 
     Example:
         >>> from oodmon.agents import load
@@ -123,6 +135,8 @@ class MonitoredEnv(gymnasium.Wrapper):
             check_env_of(monitor.agent, env)  # its kind, then its spaces
         else:
             check_one_env(env)
+        if variant is None and monitor.agent is not None and _another_env(monitor.agent, env):
+            env = AnotherEnv(env)  # each of its steps shifted, in the log and in replay
         super().__init__(env)
         self.monitor = monitor
         self.variant = variant

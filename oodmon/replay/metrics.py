@@ -22,16 +22,16 @@ from typing import Any
 
 import numpy as np
 
-from oodmon.envs.shift import parse_any_variant
+from oodmon.envs.shift import parse_any_variant, same_env
 from oodmon.errors import OodmonError
 from oodmon.replay.failures import failure_known, failure_step, id_failures
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["EpisodeAlarms", "MonitorMetrics", "VariantMetrics", "alarm_events", "average_precision",
            "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "ended_before_onset", "detectors_in",
-           "env_of_variant", "failed_episodes", "fpr_at_tpr", "id_stretches", "is_id_variant", "longer_than_calibration",
-           "made_from_episodes", "monitor_row", "off_calibration_noise", "pooled_fits", "pooled_noise",
-           "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
+           "env_of_variant", "failed_episodes", "fpr_at_tpr", "id_stretches", "is_id_episode", "is_id_variant",
+           "longer_than_calibration", "made_from_episodes", "monitor_row", "off_calibration_noise", "pooled_fits",
+           "pooled_noise", "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
 
 
 @dataclass(frozen=True)
@@ -301,7 +301,7 @@ def made_from_episodes(logs: Iterable[RunLog]) -> dict[tuple[str, str], dict[str
     for log in logs:
         used = _threshold_seeds(log)
         for episode in log.episodes if used else ():
-            if episode.seed is None or not (episode.onset > 0 or is_id_variant(episode.variant)):
+            if episode.seed is None or not (episode.onset > 0 or is_id_episode(episode, log.task)):
                 continue
             for use, (first, end) in used.items():
                 if first <= episode.seed < end:
@@ -349,7 +349,7 @@ def longer_than_calibration(logs: Iterable[RunLog]) -> dict[tuple[str, str], dic
     def past(log: RunLog, longest: int) -> list[str]:
         if longest < 0:  # a damaged record says nothing
             return []
-        longer = sum(episode.length > longest for episode in log.episodes if is_id_variant(episode.variant))
+        longer = sum(episode.length > longest for episode in log.episodes if is_id_episode(episode, log.task))
         return [f"{longer} past {longest:,} steps"] if longer else []
 
     return _logs_by_label(logs, "about.threshold_longest_episode", int, past)
@@ -396,7 +396,7 @@ def id_stretches(logs: Iterable[RunLog], longer: Mapping[tuple[str, str], Any] |
         if length >= 1 and 0 < far < 1:
             grouped[(log.task, log.method)][(length, far)] += [
                 (episode.length, alarm_events(episode.alarm).tolist()) for episode in log.episodes
-                if is_id_variant(episode.variant)]
+                if is_id_episode(episode, log.task)]
     return {group: (Stretches.of(episodes, length), far) for group, by_threshold in grouped.items()
             if len(by_threshold) == 1 for (length, far), episodes in by_threshold.items() if episodes}
 
@@ -529,7 +529,7 @@ def shifted_alarms(logs: Iterable[RunLog], failure: str | None = None
     what fails in an env oodmon has no variants of (:data:`FAILURES`)."""
     return {key: [EpisodeAlarms.of(e, key[0], failure) for _, e in pairs]
             for key, pairs in sorted(_episodes_by_variant(logs).items())
-            if not is_id_variant(key[2]) and _thresholded(pairs)}
+            if not _is_id_group(key[0], key[2], [e for _, e in pairs]) and _thresholded(pairs)}
 
 
 def env_of_variant(variant: str) -> str:
@@ -542,21 +542,57 @@ def env_of_variant(variant: str) -> str:
     return variant if is_id_variant(variant) else variant.rpartition(":")[0]
 
 
-def is_id_variant(variant: str) -> bool:
+def is_id_variant(variant: str, task: str | None = None) -> bool:
     """Whether a logged variant is in-distribution: an oodmon task's default env, or an env
     oodmon has no variants of as it is (a user's own env id); not a shift of that env
-    (``Acrobot-v1:LINK_MASS_2=3.0``, :mod:`oodmon.envs.shift`).
+    (``Acrobot-v1:LINK_MASS_2=3.0``, :mod:`oodmon.envs.shift`). ``task``: the policy's task or env
+    id, where a variant may be another env than the policy's, which is a shifted world from its
+    first step (:class:`~oodmon.envs.shift.AnotherEnv`: DistShift2 for a policy of DistShift1;
+    ``oodmon run`` names its env so); without it, an env's id alone is taken for the policy's own.
+    A log's episodes: :func:`is_id_episode`, which asks their steps too.
 
     Example:
         >>> is_id_variant("cartpole"), is_id_variant("cartpole:length=2.0"), is_id_variant("Acrobot-v1")
         (True, False, True)
         >>> is_id_variant("Acrobot-v1:LINK_MASS_2=3.0")
         False
+        >>> is_id_variant("MiniGrid-DistShift2-v0", "MiniGrid-DistShift1-v0")  # another env than the policy's
+        False
     """
     try:
         return parse_any_variant(variant).is_id
     except OodmonError:
-        return True
+        return task is None or same_env(variant, task)
+
+
+def is_id_episode(episode: EpisodeLog, task: str) -> bool:
+    """Whether a logged episode of a log of ``task`` (its policy's task or env id) is of the
+    policy's own world as it is (:func:`is_id_variant`): not a shift, nor another env deployed as
+    its shifted world (:class:`~oodmon.envs.shift.AnotherEnv`: named by that env's id alone, each of
+    its steps logged shifted). Both are asked: an env made without gymnasium's registry is named
+    by its class, which is not the task, and its ID steps are not shifted; an episode of another
+    env logged before 2026-12-06 had no shifted step, and is an ID one still. An episode read
+    without its steps (a monitor's :class:`~oodmon.monitor.records.EpisodeRecord`): by its variant.
+
+    Example:
+        >>> def e(variant, shifted):
+        ...     return EpisodeLog(episode=0, env_id="", variant=variant, onset=0, seed=0, total_return=3.0, length=3,
+        ...                       alarms=0, first_alarm_step=None, scores=np.zeros(3), shifted=np.full(3, shifted),
+        ...                       alarm=np.zeros(3, bool))
+        >>> own = "MiniGrid-DistShift1-v0"
+        >>> is_id_episode(e(own, False), own), is_id_episode(e("MiniGrid-DistShift2-v0", True), own)
+        (True, False)
+        >>> is_id_episode(e("DistShiftEnv", False), own)  # an env made without the registry, named by its class
+        True
+    """
+    shifted = getattr(episode, "shifted", None)
+    another = shifted is not None and bool(shifted.any()) and not same_env(episode.variant, task)
+    return is_id_variant(episode.variant) and not another
+
+
+def _is_id_group(task: str, variant: str, episodes: Iterable[EpisodeLog]) -> bool:
+    """Whether a (task, method, variant)'s episodes are ID ones (:func:`is_id_episode`)."""
+    return is_id_variant(variant) and all(is_id_episode(episode, task) for episode in episodes)
 
 
 def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list[VariantMetrics]:
@@ -584,7 +620,7 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
     thresholded = {key: _thresholded(pairs) for key, pairs in grouped.items()}
     id_scores: dict[tuple[str, str], np.ndarray] = {}
     for (task, method, variant), episodes in groups.items():
-        if is_id_variant(variant):
+        if _is_id_group(task, variant, episodes):
             id_scores[(task, method)] = np.concatenate([scores_of[id(e)] for e in episodes])
     results = []
     for (task, method, variant), episodes in sorted(groups.items()):
@@ -593,7 +629,7 @@ def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list
         # (a run without one raised none: the group's alarms are then not told)
         alarmed = [e for log, e in grouped[(task, method, variant)] if log.detector == name]
         alarms = bool(alarmed) and thresholded[(task, method, variant)]
-        is_id = is_id_variant(variant)
+        is_id = _is_id_group(task, variant, episodes)
         steps = sum(e.length for e in episodes)
         if is_id:
             far = float(np.mean([len(alarm_events(e.alarm)) > 0 for e in alarmed])) if alarms else None
@@ -668,7 +704,7 @@ def failed_episodes(logs: Iterable[RunLog]) -> dict[str, int]:
     """
     return {variant: sum(failure_step(e, task) is not None for _, e in pairs)
             for (task, _, variant), pairs in _episodes_by_variant(logs).items()
-            if failure_known(task) and not is_id_variant(variant)}
+            if failure_known(task) and not _is_id_group(task, variant, [e for _, e in pairs])}
 
 
 @dataclass(frozen=True)
@@ -748,7 +784,7 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
     for (task, method, variant), pairs in sorted(_episodes_by_variant(logs).items()):
         if not _thresholded(pairs):
             continue
-        if is_id_variant(variant):
+        if _is_id_group(task, variant, [e for _, e in pairs]):
             alarmed = sum(len(alarm_events(e.alarm)) > 0 for _, e in pairs)
             low, high = clopper_pearson(alarmed, len(pairs))
             results.append(MonitorMetrics(task, method, variant, len(pairs), false_alarms=alarmed,

@@ -21,8 +21,8 @@ from oodmon.envs.physics import PHYSICS_DEFAULTS
 from oodmon.envs.shift import parse_any_variant
 from oodmon.outputs import safe_filename, save_figure
 from oodmon.replay.failures import failure_known
-from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, is_id_variant, rankable,
-                                   roc_points, shifted_alarms)
+from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, is_id_episode,
+                                   is_id_variant, rankable, roc_points, shifted_alarms)
 from oodmon.replay.reader import EpisodeLog, RunLog
 
 __all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_monitor_plots", "write_plots"]
@@ -58,7 +58,7 @@ def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str, detect
     for log in _runs_of(logs, method, variant):
         for episode in log.episodes:
             scores = episode.scores_of(detector)
-            if is_id_variant(episode.variant):
+            if is_id_episode(episode, log.task):
                 negatives.append(scores)
             elif episode.variant == variant:
                 negatives.append(scores[~episode.shifted])
@@ -107,7 +107,7 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
     threshold = float("nan")
     for log in _runs_of(logs, method, variant):
         for episode in log.episodes:
-            if id_episode is None and is_id_variant(episode.variant):
+            if id_episode is None and is_id_episode(episode, log.task):
                 id_episode, threshold = episode, log.threshold
             if shifted_episode is None and episode.variant == variant:
                 shifted_episode, threshold = episode, log.threshold

@@ -13,7 +13,7 @@ from rich.table import Table
 from rich.text import Text
 
 from oodmon.replay.failures import failure_step
-from oodmon.replay.metrics import MonitorMetrics, VariantMetrics, env_of_variant, is_id_variant, monitor_row
+from oodmon.replay.metrics import MonitorMetrics, VariantMetrics, env_of_variant, is_id_episode, monitor_row
 from oodmon.replay.reader import RunLog
 
 __all__ = ["COLUMNS", "EPISODE_COLUMNS", "episode_rows", "episodes_csv", "episodes_markdown", "episodes_table",
@@ -305,7 +305,7 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
     rows = []
     for log in logs:
         for e in sorted([*log.episodes, *log.interrupted], key=lambda e: e.episode):
-            shifted = not is_id_variant(e.variant)
+            shifted = not is_id_episode(e, log.task)
             ended = how_it_ended(e.interrupted, e.terminated)
             rows.append({
                 "log": str(log.path), "episode": e.episode, "variant": e.variant, "obs_noise": e.obs_noise,

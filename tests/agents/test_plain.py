@@ -444,6 +444,59 @@ def test_a_plain_policy_gets_the_text_of_its_dict_observations_and_the_detectors
         dict_space_of(gymnasium.make("plain_tests/MissionCartPole-v0").observation_space, "x")
 
 
+def test_another_env_of_the_same_spaces_is_the_policys_shifted_world_from_its_reset(tmp_path, monkeypatch, capsys):
+    """Trained in one env, deployed in another registered one (MiniGrid's DistShift1 and DistShift2;
+    here a CartPole and one whose pole is twice as long, each an id of its own): `run --variant
+    OTHER_ID` and a MonitoredEnv of the other env log each of its steps as shifted (AnotherEnv), and
+    replay counts its alarms as detections. Before 2026-12-06 run refused the id as a malformed
+    shift, and a MonitoredEnv logged the other env's episodes as its ID ones (every alarm false)."""
+    for name, physics in [("Cart", {}), ("LongCart", {"length": 2.0})]:
+        if f"plain_tests/{name}-v0" not in gymnasium.registry:
+            gymnasium.register(f"plain_tests/{name}-v0", entry_point="oodmon.envs.physics:ShiftedCartPole",
+                               kwargs=physics, max_episode_steps=200)
+    (tmp_path / "upright.py").write_text(_readme_block()[0])
+    monkeypatch.syspath_prepend(str(tmp_path))
+    threshold = str(tmp_path / "t.json")
+    assert main(["calibrate", "--policy", "upright:act", "--env", "plain_tests/Cart-v0", "--episodes", "20",
+                 "--confidence", "none", "--fit-episodes", "12", "--out", threshold]) == 0
+    run = ["run", "--policy", "upright:act", "--env", "plain_tests/Cart-v0", "--threshold", threshold,
+           "--episodes", "10"]
+    assert main([*run, "--seed", "990000", "--mcap", str(tmp_path / "id.mcap")]) == 0
+    assert main([*run, "--variant", "plain_tests/LongCart-v0", "--mcap", str(tmp_path / "long.mcap")]) == 0
+    said = " ".join(capsys.readouterr().out.split())
+    assert "does the shift change anything" not in said  # (a shift of attributes' hint: `envs show` takes none)
+    # in Python: a MonitoredEnv of the other env, its id alone
+    from oodmon.monitor import McapSink
+
+    monitor = oodmon.watch(policy_by_name("upright:act"), "plain_tests/Cart-v0", fit_episodes=12, episodes=20,
+                           confidence=None)
+    with MonitoredEnv(gymnasium.make("plain_tests/LongCart-v0"),
+                      monitor.twin(sinks=[McapSink(tmp_path / "watched.mcap")])) as watched:
+        for episode in range(5):
+            watched.reset(seed=995_000 + episode)
+            while not any(watched.step()[2:4]):
+                pass
+    for logs, episodes in [(["id.mcap", "long.mcap"], 10), (["watched.mcap"], 5)]:
+        assert main(["replay", "--json", *[str(tmp_path / log) for log in logs]]) == 0
+        rows = {r["variant"]: r for r in json.loads(capsys.readouterr().out) if r["detector"] == "combined"}
+        longer = rows["plain_tests/LongCart-v0"]
+        # when written: every episode alarmed at its second step (delay 1: a pole twice as long, from
+        # the reset), the CLI's run's steps ranked against its ID run's at AUROC 0.995
+        assert longer["episodes"] == episodes and longer["detection_rate"] == 1.0 and longer["early_alarm_rate"] == 0
+        assert longer["delay_median"] <= 5 and (longer["auroc"] > 0.9 if "id.mcap" in logs else longer["auroc"] is None)
+    # on average over calibrations <= 1/21 false alarms per episode (rank 20 of 20): 4 or more of 10
+    # has probability 0.001 at 5% (0.013 at twice that)
+    assert main(["replay", "--json", str(tmp_path / "id.mcap")]) == 0
+    ids = [r for r in json.loads(capsys.readouterr().out) if r["detector"] == "combined"]
+    assert [r["variant"] for r in ids] == ["plain_tests/Cart-v0"] and ids[0]["false_alarm_rate"] <= 3 / 10
+    # another env is the shifted world from its reset; one of other spaces is no world of the policy's
+    capsys.readouterr()
+    assert main([*run, "--variant", "plain_tests/LongCart-v0", "--onset", "5"]) == 2
+    assert "is another env than plain_tests/Cart-v0, deployed from its reset" in capsys.readouterr().err
+    assert main([*run, "--variant", "Pendulum-v1"]) == 2
+    assert "this env's observation_space is Box" in capsys.readouterr().err
+
+
 class TupleCartPole(gymnasium.ObservationWrapper):
     """oodmon's CartPole (a shift can begin mid-episode) with tuple observations: the cart's two
     readings, the pole's two, and which side the pole leans to (a Discrete value)."""

@@ -215,8 +215,9 @@ def test_the_bench_says_an_attribute_read_at_reset_changes_nothing_where_its_epi
     same then, the reset too being in the env's own world)."""
     said = " ".join(_unfelt_said("ResetOnlyGainForTests-v0:gain=5.0", "ResetOnlyGainForTests-v0", lambda obs: 1,
                                  (0, 20)).split())
-    assert ("nothing the env returned differed from its own over 100 steps of your policy's actions, shifted from step "
-            "1: does the env read it only at a reset (a shift from onset 0 resets the env shifted: --onsets 0,1)") in said
+    assert ("nothing the env returned differed from its own over 100 steps of your policy's actions, shifted from "
+            "step 1: does the env read it only at a reset (a shift from onset 0 resets the env shifted: --onsets "
+            "0,1)") in said
     assert _unfelt_said("ResetOnlyGainForTests-v0:gain=5.0", "ResetOnlyGainForTests-v0", lambda obs: 1, (0, 1)) == ""
 
 
