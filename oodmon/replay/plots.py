@@ -19,6 +19,7 @@ import numpy as np
 
 from oodmon.envs.physics import PHYSICS_DEFAULTS
 from oodmon.envs.shift import parse_any_variant
+from oodmon.errors import OodmonError
 from oodmon.outputs import safe_filename, save_figure
 from oodmon.replay.failures import failure_known
 from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, is_id_episode,
@@ -193,7 +194,10 @@ def plot_auroc_vs_shift(metrics: Sequence[VariantMetrics], task: str, path: str 
     for m in metrics:
         if m.task != task or m.auroc is None:
             continue
-        variant = parse_any_variant(m.variant)  # oodmon's, or a shift of your own env
+        try:
+            variant = parse_any_variant(m.variant)  # oodmon's, or a shift of your own env
+        except OodmonError:  # another env than the policy's (AnotherEnv): no value to draw it at
+            continue
         if variant.corruption is not None and variant.severity is not None:
             series[(variant.corruption, f"{m.method}, {m.detector}")].append((variant.severity, m.auroc))
         elif len(changes := (*variant.params, *getattr(variant, "faults", ()))) == 1:  # a task's sensor fault too

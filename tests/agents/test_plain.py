@@ -477,6 +477,10 @@ def test_another_env_of_the_same_spaces_is_the_policys_shifted_world_from_its_re
             while not any(watched.step()[2:4]):
                 pass
     for logs, episodes in [(["id.mcap", "long.mcap"], 10), (["watched.mcap"], 5)]:
+        plots = tmp_path / f"plots-{episodes}"
+        assert main(["replay", "--plots", str(plots), *[str(tmp_path / log) for log in logs]]) == 0
+        assert "roc_plain_tests_LongCart-v0.png" in {p.name for p in plots.iterdir()} or episodes == 5
+        capsys.readouterr()
         assert main(["replay", "--json", *[str(tmp_path / log) for log in logs]]) == 0
         rows = {r["variant"]: r for r in json.loads(capsys.readouterr().out) if r["detector"] == "combined"}
         longer = rows["plain_tests/LongCart-v0"]
