@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from oodmon.envs.grid import Variant, parse_variant, select_variants
-from oodmon.envs.shift import EnvShift, own_variant, shifts_an_env
+from oodmon.envs.shift import EnvShift, OtherEnv, own_variant, shifts_an_env
 from oodmon.errors import ConfigError, unknown
 from oodmon.names import PLAIN_METHOD, TASKS
 from oodmon.paper import paper_auc_per_trial
@@ -304,13 +304,14 @@ class BenchConfig:
         """The [low, high) the monitor's protocol draws each shifted episode's onset from."""
         return self.onsets or ONSETS[self.task]
 
-    def variant_list(self) -> list[Variant | EnvShift]:
+    def variant_list(self) -> list[Variant | EnvShift | OtherEnv]:
         """The shifted variants the bench plays: oodmon's variants of its task (``"paper"``: the
         paper's grid); in your own env, shifts of its attributes; and where your own policy acts in
         gymnasium's env of one of oodmon's tasks (``env_id`` ``CartPole-v1``), shifts of that env's
         other attributes too (``CartPole-v1:theta_threshold_radians=0.1``), as ``oodmon run`` takes
         them (:func:`~oodmon.envs.own_variant`, which refuses the task's physics there: those are
-        ``cartpole:...``).
+        ``cartpole:...``); and another registered env's id (:class:`~oodmon.envs.shift.OtherEnv`,
+        shifted from each reset: the onsets are none of its).
 
         Raises:
             SpecError, UnknownParameterError: a spec that does not parse.
@@ -337,7 +338,7 @@ class BenchConfig:
             UnknownParameterError, InvalidParameterError, ConfigError: as :meth:`EnvShift.make`.
         """
         for variant in self.variant_list():
-            if isinstance(variant, EnvShift):
+            if isinstance(variant, (EnvShift, OtherEnv)):  # (another env: one gymnasium makes)
                 variant.make().close()
 
 

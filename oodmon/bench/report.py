@@ -320,10 +320,17 @@ def print_unfelt(config: BenchConfig, result: BenchResult, console: Console, *, 
     from oodmon.envs.grid import Variant
     from oodmon.envs.probe import probe_shift
     from oodmon.envs.shift import parse_any_variant
+    from oodmon.errors import OodmonError
 
     first, high = config.onset_range()
-    unalarmed = [(row, parse_any_variant(row.variant)) for row in result.alarms
-                 if not (row.is_id or row.alarmed) and row.shifted_episodes]
+    unalarmed = []
+    for row in result.alarms:
+        if row.is_id or row.alarmed or not row.shifted_episodes:
+            continue
+        try:
+            unalarmed.append((row, parse_any_variant(row.variant)))
+        except OodmonError:  # another env than the policy's (OtherEnv): no shift of it to probe
+            continue
     unalarmed = [(row, shift) for row, shift in unalarmed
                  if not (isinstance(shift, Variant) and shift.task == "pong")]  # (Pong's frames: nothing to probe)
     if unalarmed and agent is None:

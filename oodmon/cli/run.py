@@ -298,9 +298,9 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
     :class:`~oodmon.envs.AnotherEnv`), else your own model's env as you
     deploy it, else the task's ID env; with ``--obs-noise``'s sensor noise (oodmon's CartPole
     and Pendulum envs only) and ``--max-steps``' time limit."""
-    from oodmon.envs import AnotherEnv, Variant, own_variant, parse_variant
-    from oodmon.envs.registration import TASK_OF_ENV, make_env
-    from oodmon.envs.shift import another_env_id
+    from oodmon.envs import Variant, own_variant, parse_variant
+    from oodmon.envs.registration import TASK_OF_ENV
+    from oodmon.envs.shift import OtherEnv
 
     named_task = bool(args.variant) and args.variant.partition(":")[0] in TASKS
     if args.variant and args.task not in TASKS and named_task:
@@ -318,18 +318,17 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
                               "env: give its sensor faults in --variant (e.g. ENV_ID:obs.noise=0.1), or leave out "
                               "--obs-noise" + (" (the threshold's is taken by default: give --obs-noise 0)"
                                                if args.threshold else ""))
-        other = another_env_id(args.variant, agent.env_id)
-        if other is not None:  # another registered env, every step of it the shifted world
+        shift = own_variant(args.variant, agent.env_id)
+        if isinstance(shift, OtherEnv):  # another registered env, every step of it the shifted world
             from oodmon.monitor.monitored_env import check_env_of
 
             if args.onset:
-                raise ConfigError(f"--variant {other} is another env than {agent.env_id}, deployed from its reset: "
-                                  "each of its steps is the shifted world; leave out --onset (a shift from a step on "
-                                  f"is {agent.env_id}:NAME=VALUE, numeric attributes of its env)")
-            env = make_env(other, **limit)
+                raise ConfigError(f"--variant {shift.spec} is another env than {agent.env_id}, deployed from its "
+                                  "reset: each of its steps is the shifted world; leave out --onset (a shift from a "
+                                  f"step on is {agent.env_id}:NAME=VALUE, numeric attributes of its env)")
+            env = shift.make(**limit)
             check_env_of(agent, env)  # spaces your policy acts in
-            return agent.wrap(AnotherEnv(env)), other
-        shift = own_variant(args.variant, agent.env_id)
+            return agent.wrap(env), shift.spec
         return agent.wrap(shift.make(onset_step=args.onset, **limit)), shift.spec
     noisy = {"obs_noise": noise} if noise else {}
     if args.variant:

@@ -49,8 +49,8 @@ from oodmon.errors import InvalidParameterError, SpecError, UnknownParameterErro
 from oodmon.names import TASKS
 from oodmon.validation import is_finite_real, is_real
 
-__all__ = ["AnotherEnv", "EnvShift", "ShiftAttributes", "another_env_id", "own_variant", "parse_any_variant",
-           "parse_env_shift", "same_env", "shifts_an_env"]
+__all__ = ["AnotherEnv", "EnvShift", "OtherEnv", "ShiftAttributes", "another_env_id", "own_variant",
+           "parse_any_variant", "parse_env_shift", "same_env", "shifts_an_env"]
 
 _SPEC_HELP = "expected ENV_ID:NAME=VALUE[,NAME=VALUE...], e.g. 'Acrobot-v1:LINK_MASS_2=3.0'"
 
@@ -331,9 +331,10 @@ class EnvShift:
         return ShiftAttributes(env, dict(self.params), onset_step=onset_step, env_id=self.env_id)
 
 
-def own_variant(spec: str, env_id: str) -> EnvShift:
-    """A variant of your own env ``env_id``: the env itself (``spec == env_id``) or a shift of it
-    (``ENV_ID:NAME=VALUE[,...]``, :func:`parse_env_shift`).
+def own_variant(spec: str, env_id: str) -> EnvShift | OtherEnv:
+    """A variant of your own env ``env_id``: the env itself (``spec == env_id``), a shift of it
+    (``ENV_ID:NAME=VALUE[,...]``, :func:`parse_env_shift`), or another env's id alone
+    (:class:`OtherEnv`, deployed in from each reset).
 
     Raises:
         SpecError: a malformed spec, or a shift of another env.
@@ -341,9 +342,14 @@ def own_variant(spec: str, env_id: str) -> EnvShift:
     Example:
         >>> own_variant("Acrobot-v1", "Acrobot-v1").is_id, own_variant("Acrobot-v1:dt=0.1", "Acrobot-v1").is_id
         (True, False)
+        >>> own_variant("MountainCar-v0", "Acrobot-v1")
+        OtherEnv(env_id='MountainCar-v0')
     """
     if isinstance(spec, str) and spec.strip() == env_id:
         return EnvShift(env_id, ())
+    other = another_env_id(spec, env_id)
+    if other is not None:
+        return OtherEnv(other)
     shift = parse_env_shift(spec)
     if shift.env_id != env_id:
         raise SpecError(f"{spec!r} shifts {shift.env_id}, not {env_id}: give {env_id}:NAME=VALUE, a numeric "
@@ -365,13 +371,49 @@ class AnotherEnv(gymnasium.Wrapper):
         (True, True)
     """
 
-    def reset(self, **kwargs: Any):
-        obs, info = self.env.reset(**kwargs)
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        # (an onset the bench draws is none of this env's: it is shifted from its reset)
+        rest = None if options is None else {key: value for key, value in options.items() if key != "onset_step"}
+        obs, info = self.env.reset(seed=seed, options=rest or None)
         return obs, {**info, "shifted": True}
 
     def step(self, action: Any):
         obs, reward, terminated, truncated, info = self.env.step(action)
         return obs, reward, terminated, truncated, {**info, "shifted": True}
+
+
+@dataclass(frozen=True)
+class OtherEnv:
+    """Another registered env than the policy's, as a variant of it (:func:`own_variant`): what
+    ``oodmon run --variant OTHER_ID`` and the bench's ``--variants`` play, each episode from its
+    reset in :class:`AnotherEnv`. ``spec`` is its id; it has no onset of its own (one given is none
+    of it: the whole episode is shifted).
+
+    Example:
+        >>> OtherEnv("CartPole-v1").make().reset(seed=0, options={"onset_step": 30})[1]["shifted"]
+        True
+    """
+
+    env_id: str
+
+    @property
+    def spec(self) -> str:
+        return self.env_id
+
+    @property
+    def params(self) -> tuple:
+        """No attribute changed: the whole env is another."""
+        return ()
+
+    @property
+    def is_id(self) -> bool:
+        return False
+
+    def make(self, *, onset_step: int = 0, **kwargs: Any) -> AnotherEnv:
+        """The env, ``gymnasium.make(env_id, **kwargs)``, shifted from its reset (``onset_step`` is none of it)."""
+        from oodmon.envs.registration import make_env
+
+        return AnotherEnv(make_env(self.env_id, **kwargs))
 
 
 def same_env(env_id: str, own: str) -> bool:

@@ -493,8 +493,17 @@ def test_another_env_of_the_same_spaces_is_the_policys_shifted_world_from_its_re
     assert main(["replay", "--json", str(tmp_path / "id.mcap")]) == 0
     ids = [r for r in json.loads(capsys.readouterr().out) if r["detector"] == "combined"]
     assert [r["variant"] for r in ids] == ["plain_tests/Cart-v0"] and ids[0]["false_alarm_rate"] <= 3 / 10
-    # another env is the shifted world from its reset; one of other spaces is no world of the policy's
+    # the monitor's benchmark of it (the onsets it draws are none of that env's: each episode shifted
+    # from its reset); when written, 5 of 5 alarmed at delay 1
     capsys.readouterr()
+    assert main(["bench", "--policy", "upright:act", "--env", "plain_tests/Cart-v0", "--protocol", "monitor",
+                 "--variants", "plain_tests/LongCart-v0", "--onsets", "10,20", "--episodes", "5", "--id-episodes",
+                 "10", "--calibration-episodes", "19", "--confidence", "none", "--fit-episodes", "12",
+                 "--workers", "1", "--out", str(tmp_path / "bench"), "--json"]) == 0
+    benched = {r["variant"]: r for r in json.loads(capsys.readouterr().out)["alarms"] if r["method"] == "plain"}
+    assert benched["plain_tests/LongCart-v0"]["alarmed"] == 5 and benched["plain_tests/LongCart-v0"]["early"] == 0
+    assert max(benched["plain_tests/LongCart-v0"]["delays"]) <= 5  # from the reset (onset 0), not from 10-19
+    # another env is the shifted world from its reset; one of other spaces is no world of the policy's
     assert main([*run, "--variant", "plain_tests/LongCart-v0", "--onset", "5"]) == 2
     assert "is another env than plain_tests/Cart-v0, deployed from its reset" in capsys.readouterr().err
     assert main([*run, "--variant", "Pendulum-v1"]) == 2
