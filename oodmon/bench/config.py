@@ -332,13 +332,26 @@ class BenchConfig:
 
     def check_env_shifts(self) -> None:
         """Make the env of each shift of an env's attributes once: an attribute it lacks (a misspelt
-        name), said before the fitting and calibration, not when its cell comes (minutes later).
+        name), said before the fitting and calibration, not when its cell comes (minutes later); and
+        of another env (:class:`~oodmon.envs.shift.OtherEnv`): one gymnasium makes, of the spaces of
+        the env the policy acts in.
 
         Raises:
-            UnknownParameterError, InvalidParameterError, ConfigError: as :meth:`EnvShift.make`.
+            UnknownParameterError, InvalidParameterError, ConfigError: as :meth:`EnvShift.make`; an
+                env of other spaces.
         """
+        from oodmon.envs.checks import space_mismatch
+        from oodmon.envs.registration import make_env
+
         for variant in self.variant_list():
-            if isinstance(variant, (EnvShift, OtherEnv)):  # (another env: one gymnasium makes)
+            if isinstance(variant, OtherEnv):
+                own, other = make_env(self.env_id or self.task), variant.make()
+                what = space_mismatch(own, other)
+                own.close(), other.close()
+                if what is not None:
+                    raise ConfigError(f"--variants {variant.spec}: its {what} is {getattr(other, what)}, and "
+                                      f"{self.env_id or self.task}'s, which the policy acts in, {getattr(own, what)}")
+            elif isinstance(variant, EnvShift):
                 variant.make().close()
 
 

@@ -327,7 +327,11 @@ def _run_env(args: argparse.Namespace, agent) -> tuple[object, str]:
                                   "reset: each of its steps is the shifted world; leave out --onset (a shift from a "
                                   f"step on is {agent.env_id}:NAME=VALUE, numeric attributes of its env)")
             env = shift.make(**limit)
-            check_env_of(agent, env)  # spaces your policy acts in
+            try:
+                check_env_of(agent, env)  # spaces your policy acts in
+            except ConfigError:
+                env.close()
+                raise
             return agent.wrap(env), shift.spec
         return agent.wrap(shift.make(onset_step=args.onset, **limit)), shift.spec
     noisy = {"obs_noise": noise} if noise else {}

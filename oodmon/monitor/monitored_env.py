@@ -18,8 +18,8 @@ import gymnasium
 from oodmon.agents.agent import Agent
 from oodmon.agents.sb3_spaces import words_of
 from oodmon.envs.checks import space_mismatch, step_naming_refusal
-from oodmon.envs.shift import AnotherEnv, another_env_id
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env, wrappers_of
+from oodmon.envs.shift import AnotherEnv, another_env_id
 from oodmon.errors import ConfigError
 from oodmon.monitor.monitor import Monitor, NonFiniteObservationWarning, PolicyCannotAct, _frame
 

@@ -503,6 +503,9 @@ def test_another_env_of_the_same_spaces_is_the_policys_shifted_world_from_its_re
     benched = {r["variant"]: r for r in json.loads(capsys.readouterr().out)["alarms"] if r["method"] == "plain"}
     assert benched["plain_tests/LongCart-v0"]["alarmed"] == 5 and benched["plain_tests/LongCart-v0"]["early"] == 0
     assert max(benched["plain_tests/LongCart-v0"]["delays"]) <= 5  # from the reset (onset 0), not from 10-19
+    assert main(["bench", "--policy", "upright:act", "--env", "plain_tests/Cart-v0", "--protocol", "monitor",
+                 "--variants", "Pendulum-v1", "--onsets", "10,20", "--out", str(tmp_path / "bench")]) == 2
+    assert "--variants Pendulum-v1: its observation_space is Box" in capsys.readouterr().err
     # another env is the shifted world from its reset; one of other spaces is no world of the policy's
     assert main([*run, "--variant", "plain_tests/LongCart-v0", "--onset", "5"]) == 2
     assert "is another env than plain_tests/Cart-v0, deployed from its reset" in capsys.readouterr().err
