@@ -585,14 +585,20 @@ def is_id_episode(episode: EpisodeLog, task: str) -> bool:
         >>> is_id_episode(e("DistShiftEnv", False), own)  # an env made without the registry, named by its class
         True
     """
-    shifted = getattr(episode, "shifted", None)
-    another = shifted is not None and bool(shifted.any()) and not same_env(episode.variant, task)
-    return is_id_variant(episode.variant) and not another
+    return is_id_variant(episode.variant) and not _another_env(episode.variant, task, [episode])
 
 
 def _is_id_group(task: str, variant: str, episodes: Iterable[EpisodeLog]) -> bool:
-    """Whether a (task, method, variant)'s episodes are ID ones (:func:`is_id_episode`)."""
-    return is_id_variant(variant) and all(is_id_episode(episode, task) for episode in episodes)
+    """Whether a (task, method, variant)'s episodes are ID ones (:func:`is_id_episode`), the
+    variant parsed once."""
+    return is_id_variant(variant) and not _another_env(variant, task, episodes)
+
+
+def _another_env(variant: str, task: str, episodes: Iterable[EpisodeLog]) -> bool:
+    """Whether episodes named ``variant``, an env's id alone, are of another env than ``task``'s
+    deployed as its shifted world: their steps say so."""
+    return not same_env(variant, task) and any(
+        (shifted := getattr(episode, "shifted", None)) is not None and shifted.any() for episode in episodes)
 
 
 def compute_metrics(logs: Iterable[RunLog], detector: str | None = None) -> list[VariantMetrics]:
