@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 
 from rich.console import Console
 from rich.table import Table
@@ -81,6 +82,13 @@ def _envs_show(args: argparse.Namespace) -> int:
     from oodmon.envs.grid import Variant
     from oodmon.envs.preview import compare_physics, pong_preview, save_physics_plot, save_rgb
 
+    spec = args.spec.strip()
+    last = spec.rpartition(":")[2]  # (ENV_ID:NAME, a shift without its value, is said malformed below)
+    if spec.partition(":")[0] not in TASKS and "=" not in spec and (last == spec or re.search(r"-v\d+$", last)):
+        raise ConfigError(f"{spec} is an env's id alone: `envs show` plays an env beside a shift of it "
+                          f"(ENV_ID:NAME=VALUE, e.g. {spec}:NAME=VALUE) or an oodmon variant; another env as your "
+                          f"policy's deployed world is `oodmon run --variant {spec}`'s and the bench's, whose replay "
+                          "ranks its steps against your ID runs'")
     variant = parse_any_variant(args.spec)  # oodmon's variant, else a shift of your own env
     out = None
     if args.out:

@@ -93,7 +93,9 @@ def test_envs_show_probes_a_shift_of_your_own_env_and_plots_it(tmp_path, capsys)
     # nothing changed: exit code 1, and obs.KIND[i] printed as written (not read as markup)
     assert main(["envs", "show", "ResetOnlyGainForTests-v0:gain=5.0", "--onset", "1", "--steps", "20"]) == 1
     assert "obs.KIND[i]=VALUE" in capsys.readouterr().out
-    assert main(["envs", "show", "Acrobot-v1"]) == 2
+    assert main(["envs", "show", "Acrobot-v1"]) == 2  # (before 2026-12-06: "malformed shift")
+    assert "Acrobot-v1 is an env's id alone: `envs show` plays an env beside a shift of it" in capsys.readouterr().err
+    assert main(["envs", "show", "Acrobot-v1:LINK_MASS_2"]) == 2
     assert "malformed shift" in capsys.readouterr().err
 
 
