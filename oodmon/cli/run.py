@@ -91,7 +91,7 @@ def _run(args: argparse.Namespace) -> int:
     args.kept_on_interrupt = "nothing was written: it was stopped before its first episode"
     from rich.progress import Progress
 
-    from oodmon.envs.shift import shifts_an_env
+    from oodmon.envs.shift import same_env, shifts_an_env
     from oodmon.monitor import (
         AlarmCommand, McapSink, Monitor, OffCalibrationWarning, Stretches, Threshold,
     )
@@ -99,6 +99,7 @@ def _run(args: argparse.Namespace) -> int:
     from oodmon.monitor.sinks.mcap import existing_parts, part_path
     from oodmon.monitor.sinks.rerun import RerunSink
     from oodmon.outputs import check_output_file
+    from oodmon.replay.metrics import is_id_variant
 
     inputs = _input_files(args)
     started = _start_time()  # {start} in the logs' names
@@ -152,7 +153,8 @@ def _run(args: argparse.Namespace) -> int:
                                bind=args.bind, port=args.port, overwrite=args.overwrite))
     console = Console(soft_wrap=True)
     rows = _EpisodeRows(calibrated=threshold.covered_steps if threshold is not None else None,
-                        stretch=threshold.mean_episode if threshold is not None else None, task=agent.task)
+                        stretch=threshold.mean_episode if threshold is not None else None,
+                        id_run=is_id_variant(label) and same_env(label, agent.task))
 
     def show(event) -> None:
         rows.alarm(event)
@@ -352,9 +354,11 @@ class _EpisodeRows:
     and prints a table of at most ``shown`` rows; ``oodmon replay LOG --episodes`` lists them all."""
 
     def __init__(self, shown: int = 20, *, calibrated: int | None = None, stretch: int | None = None,
-                 task: str | None = None) -> None:
+                 id_run: bool | None = None) -> None:
         self.first: list = []
-        self.task = task  # the policy's task or env id: another env's episodes are shifted ones
+        # the run's episodes are of the policy's own world as it is (not a shift, nor another env:
+        # their alarms false ones); None: by each episode's variant
+        self.id_run = id_run
         self.last = deque(maxlen=shown - shown // 2)
         self.shown, self.episodes, self.alarmed = shown, 0, 0
         self.before_onset = 0  # episodes of a shifted variant that ended before their onset: never shifted
@@ -372,18 +376,23 @@ class _EpisodeRows:
 
     def add(self, record) -> None:
         from oodmon.monitor.threshold import Stretches
-        from oodmon.replay.metrics import ended_before_onset, is_id_variant
+        from oodmon.replay.metrics import ended_before_onset
 
         self.episodes += 1
         self.alarmed += record.alarms > 0
         self.before_onset += ended_before_onset(record)
         self.longer += self.calibrated is not None and record.length > self.calibrated
         self.longest = max(self.longest, record.length)
-        if self.stretch is not None and is_id_variant(record.variant, self.task):
+        if self.stretch is not None and self._is_id(record):
             self.stretches.add(*Stretches.count(record.length, self._alarm_steps, self.stretch))
         self._alarm_steps = []
         slim = dataclasses.replace(record, rewards=None)
         (self.first if len(self.first) < self.shown // 2 else self.last).append(slim)
+
+    def _is_id(self, record) -> bool:
+        from oodmon.replay.metrics import is_id_variant
+
+        return is_id_variant(record.variant) if self.id_run is None else self.id_run
 
     @property
     def left_out(self) -> int:
@@ -392,7 +401,6 @@ class _EpisodeRows:
 
     def table(self, title: str) -> Table:
         """A row per episode kept, with its alarms and their delay, and a row "..." for those left out."""
-        from oodmon.replay.metrics import is_id_variant
         from oodmon.replay.report import how_it_ended
 
         left_out = self.left_out
@@ -402,7 +410,7 @@ class _EpisodeRows:
         for index, record in enumerate([*self.first, *self.last]):
             if index == len(self.first) and left_out:
                 table.add_row("...", *[""] * 7)
-            if record.first_alarm_step is None or is_id_variant(record.variant, self.task):
+            if record.first_alarm_step is None or self._is_id(record):
                 delay = ""
             else:
                 delay = "before onset" if record.alarmed_early else str(record.delay)

@@ -542,27 +542,23 @@ def env_of_variant(variant: str) -> str:
     return variant if is_id_variant(variant) else variant.rpartition(":")[0]
 
 
-def is_id_variant(variant: str, task: str | None = None) -> bool:
+def is_id_variant(variant: str) -> bool:
     """Whether a logged variant is in-distribution: an oodmon task's default env, or an env
     oodmon has no variants of as it is (a user's own env id); not a shift of that env
-    (``Acrobot-v1:LINK_MASS_2=3.0``, :mod:`oodmon.envs.shift`). ``task``: the policy's task or env
-    id, where a variant may be another env than the policy's, which is a shifted world from its
-    first step (:class:`~oodmon.envs.shift.AnotherEnv`: DistShift2 for a policy of DistShift1;
-    ``oodmon run`` names its env so); without it, an env's id alone is taken for the policy's own.
-    A log's episodes: :func:`is_id_episode`, which asks their steps too.
+    (``Acrobot-v1:LINK_MASS_2=3.0``, :mod:`oodmon.envs.shift`). An env's id alone is taken for the
+    policy's own: whether it is another env (:class:`~oodmon.envs.shift.AnotherEnv`) a log's
+    episodes say (:func:`is_id_episode`).
 
     Example:
         >>> is_id_variant("cartpole"), is_id_variant("cartpole:length=2.0"), is_id_variant("Acrobot-v1")
         (True, False, True)
         >>> is_id_variant("Acrobot-v1:LINK_MASS_2=3.0")
         False
-        >>> is_id_variant("MiniGrid-DistShift2-v0", "MiniGrid-DistShift1-v0")  # another env than the policy's
-        False
     """
     try:
         return parse_any_variant(variant).is_id
     except OodmonError:
-        return task is None or same_env(variant, task)
+        return True
 
 
 def is_id_episode(episode: EpisodeLog, task: str) -> bool:
