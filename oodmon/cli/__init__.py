@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from concurrent.futures.process import BrokenProcessPool
 
 from oodmon.cli.bench import _add_bench
-from oodmon.cli.calibration import _add_calibrate, _add_fit_detectors, _add_validate
+from oodmon.cli.calibration import _add_calibrate, _add_fit_detectors, _add_recalibrate, _add_validate
 from oodmon.cli.envs import _add_envs
 from oodmon.cli.parsing import _NOT_BEGUN, _command_parser, _Parser, _unknown_arguments
 from oodmon.cli.replay import _add_check, _add_replay
@@ -195,6 +195,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_evaluate(commands)
     _add_calibrate(commands)
     _add_validate(commands)
+    _add_recalibrate(commands)
     _add_fit_detectors(commands)
     _add_run(commands)
     _add_replay(commands)

@@ -38,14 +38,7 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
     promise.add_argument("--episodes", type=_whole(1), default=50, help="ID calibration episodes (default 50)")
     promise.add_argument("--far", type=_fraction, default=0.05, help="target false-alarm rate (default 0.05)")
     _add_confidence(promise)
-    rule.add_argument("--consecutive", type=_STEP_COUNT,
-                      help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
-    rule.add_argument("--window", type=_STEP_COUNT,
-                      help="compare the mean score of the last N steps (default 1: each step's; Pong 200 "
-                           "unless the frames detector)")
-    rule.add_argument("--warmup", type=_WARMUP, default=0,
-                      help="the alarm looks at no score of an episode's first N steps (but a NaN reading's): where "
-                           "the learned detectors' means cover few transitions since the reset (default 0)")
+    _add_rule_counts(rule)
     _add_rule(rule)
     rule.add_argument("--reference-episodes", type=_whole(1), default=20,
                       help="ID episodes a sequential rule's p-values are taken against (default 20; seeds apart)")
@@ -78,6 +71,18 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
                               "threshold for validate and run; detectors calibrate fits are fitted on such episodes too")
     promise.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
+
+
+def _add_rule_counts(rule: argparse._ArgumentGroup) -> None:
+    """The alarm rule's counts, which `calibrate` and `recalibrate` take alike."""
+    rule.add_argument("--consecutive", type=_STEP_COUNT,
+                      help="m of the alarm rule (default 3 for the spread detector, 1 for a learned one)")
+    rule.add_argument("--window", type=_STEP_COUNT,
+                      help="compare the mean score of the last N steps (default 1: each step's; Pong 200 "
+                           "unless the frames detector)")
+    rule.add_argument("--warmup", type=_WARMUP, default=0,
+                      help="the alarm looks at no score of an episode's first N steps (but a NaN reading's): where "
+                           "the learned detectors' means cover few transitions since the reset (default 0)")
 
 
 def _refuse_fit_options(args: argparse.Namespace) -> None:
@@ -240,6 +245,84 @@ def _clear_earlier_detectors(out: str, given: str | None) -> Path | None:
     with contextlib.suppress(OSError):  # it holds other files: kept
         folder.rmdir()
     return folder
+
+
+def _add_recalibrate(commands: argparse._SubParsersAction) -> None:
+    """`oodmon recalibrate`."""
+    recalibrate = commands.add_parser(
+        "recalibrate", help="calibrate a threshold on the ID episodes of logged runs: your deployment's own world, "
+                            "where no simulator plays it"
+    )
+    recalibrate.add_argument("logs", nargs="+", help="MCAP logs of runs of the deployed policy in its own world, ID "
+                                                     "(files, or folders holding them; `oodmon run --mcap`, a "
+                                                     "MonitoredEnv with an McapSink)")
+    promise = recalibrate.add_argument_group("the threshold and its promise")
+    rule = recalibrate.add_argument_group("the alarm rule")
+    promise.add_argument("--far", type=_fraction, default=0.05, help="target false-alarm rate (default 0.05)")
+    _add_confidence(promise)
+    promise.add_argument("--mode", choices=["episode", "step"], default="episode",
+                         help="guarantee per episode (default) or per step")
+    rule.add_argument("--detector", choices=list(DETECTOR_NAMES),
+                      help="the detector whose logged scores the alarm reads (default: the one the logs' runs "
+                           "alarmed on)")
+    _add_rule_counts(rule)
+    recalibrate.add_argument("--detectors", help="the fitted detectors the logs' runs read (their threshold's "
+                                                 "<threshold>.detectors, or --detectors): checked against the logs and "
+                                                 "copied to <--out>.detectors, where `oodmon run` finds them")
+    recalibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
+    recalibrate.set_defaults(handler=_recalibrate, plays=False, kept_on_interrupt=_KEPT["recalibrate"])
+
+
+def _recalibrate(args: argparse.Namespace) -> int:
+    from oodmon.monitor import Threshold
+    from oodmon.monitor.calibration import save_calibration
+    from oodmon.monitor.detectors import DetectorSet
+    from oodmon.outputs import check_output_file, replaced_file
+    from oodmon.replay.recalibrate import calibrate_from_logs, log_episodes
+
+    check_output_file(args.out, parameter="--out", inputs=[("--detectors", args.detectors),
+                                                            *(("a log", log) for log in args.logs)])
+    replaced = replaced_file(args.out, parameter="--out", holds="threshold", read=Threshold.load)
+    detectors = DetectorSet.load(args.detectors) if args.detectors else None
+    found = log_episodes(args.logs)
+    threshold = calibrate_from_logs(found.logs, args.far, confidence=args.confidence, detector=args.detector,
+                                    consecutive=args.consecutive, window=args.window, warmup=args.warmup,
+                                    mode=args.mode)
+    if detectors is not None and threshold.detector != "spread":
+        if threshold.detector not in detectors:
+            raise ConfigError(f"--detectors {args.detectors} holds no fitted {threshold.detector} detector (it has "
+                              f"{', '.join(detectors.names)}), whose scores the logs hold")
+        if detectors.fingerprint(threshold.detector) != threshold.detectors_hash:
+            raise ConfigError(f"--detectors {args.detectors} is another fit than the one that scored the logs "
+                              f"({detectors.fingerprint(threshold.detector)}, the logs' {threshold.detectors_hash}): "
+                              "give the detectors the logs' runs read")
+    save_calibration(threshold, args.out, detectors)
+    cleared = None if detectors is not None else _clear_earlier_detectors(args.out, None)
+    left_out = [f"{found.shifted} shifted" if found.shifted else "",
+                f"{found.interrupted} the run was stopped inside" if found.interrupted else ""]
+    Console(soft_wrap=True).print(
+        f"{threshold.task}/{threshold.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, "
+        f"{threshold.mode} mode, {threshold.n_episodes} ID episodes of {len(found.logs)} log"
+        f"{'s' if len(found.logs) > 1 else ''}{_noise(threshold.obs_noise)}, {threshold.n_steps} steps, rank "
+        f"{threshold.rank} of {threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score "
+        f"median {threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote "
+        f"{args.out}"
+        + (f" (replacing the threshold it held: alarm when {replaced.rule_text})" if replaced else "")
+        + (f"; the detectors it reads copied to {args.out}.detectors (`oodmon run` finds them there)"
+           if detectors is not None else "")
+        + (f"; removed the detectors an earlier calibration fitted into {cleared}" if cleared else ""),
+        markup=False)
+    notes = [f"left out {' and '.join(filter(None, left_out))} episodes"] if any(left_out) else []
+    if found.cut:
+        notes.append(f"{found.cut} episodes ended at the step an alarm began, their env not ending them: an alarm may "
+                     "have cut them short, so they count as above any threshold")
+    if threshold.detector != "spread" and detectors is None:
+        notes.append(f"`oodmon run --threshold {args.out}` must read the fitted {threshold.detector} detector the "
+                     "logs' runs read (it refuses another fit): a shipped agent's own, or give run --detectors DIR "
+                     "(their threshold's <threshold>.detectors), or give --detectors DIR here to copy it beside")
+    for note in notes:
+        Console(stderr=True, soft_wrap=True).print(f"note: {note}", markup=False)
+    return 0
 
 
 def _add_validate(commands: argparse._SubParsersAction) -> None:

@@ -20,6 +20,8 @@ _KEPT = {
     "calibrate": "no threshold file or detectors were written (they are written when the calibration ends; those at "
                  "--out are as they were): run the command again",
     "fit-detectors": "no detectors were written (they are written when the fitting ends): run the command again",
+    "recalibrate": "no threshold file was written (it is written when the calibration ends; a file at --out is as it "
+                   "was): run the command again",
 }
 #: What a command stopped before its handler began says: Ctrl-C in torch's import (the first second)
 #: said "the last checkpoint is kept" of a train that had written none, "every finished episode is

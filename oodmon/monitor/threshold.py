@@ -679,6 +679,9 @@ class Threshold:
         longest_episode: the steps of its longest calibration episode: the :class:`Monitor` warns
             when an episode runs past it, where the bound no longer speaks (``None``: not recorded,
             files written before 2026-12-05).
+        logs: the logs whose ID episodes it was calibrated on (``oodmon recalibrate``,
+            :func:`oodmon.replay.calibrate_from_logs`), each ``{"path", "run_id", "episodes"}``;
+            ``None``: calibrated on episodes it played.
     """
 
     value: float
@@ -707,6 +710,7 @@ class Threshold:
     obs_noise: float | None = None
     max_steps: int | None = None
     longest_episode: int | None = None
+    logs: list[dict[str, Any]] | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -897,6 +901,11 @@ def _check_fields(threshold: Threshold) -> None:
             isinstance(name, str) and isinstance(pair, (list, tuple)) and len(pair) == 2
             and all(is_whole(seed, minimum=0) for seed in pair) and pair[0] <= pair[1] for name, pair in seeds.items())):
         raise bad("episode_seeds", "it must be an object of [first, end) seed pairs by use, or null")
+    logs = threshold.logs
+    if logs is not None and not (isinstance(logs, list) and all(
+            isinstance(log, dict) and isinstance(log.get("path"), str) and is_whole(log.get("episodes"), minimum=0)
+            for log in logs)):
+        raise bad("logs", "it must be a list of the logs it was calibrated on ({path, run_id, episodes}), or null")
 
 
 def calibrate(
@@ -918,6 +927,7 @@ def calibrate(
     warmup: int = 0,
     detectors_hash: str | None = None,
     samples: int | None = None,
+    above: int = 0,
 ) -> Threshold:
     """Calibrate a threshold on the per-step scores of held-out ID episodes.
 
@@ -939,6 +949,10 @@ def calibrate(
         detectors_hash: the fingerprint of the fitted detector whose scores these are (see
             :class:`Threshold`).
         samples: the samples per decision of the policy the scores are of (see :class:`Threshold`).
+        above: further calibration episodes (episode mode) whose statistics are known to lie
+            above any threshold, or whose scores are not all known (a log's episode an alarm may
+            have cut short: :func:`oodmon.replay.calibrate_from_logs`); counted as +inf, which can
+            only raise the threshold, so its bound holds.
 
     Raises:
         InvalidParameterError: ``far`` or ``confidence`` outside (0, 1), an unknown mode, a bad
@@ -964,9 +978,14 @@ def calibrate(
     if warmup and mode != "episode":
         raise InvalidParameterError("a warm-up is calibrated per episode; use mode='episode'")
     episodes = _episode_arrays(episode_scores)
+    if not is_whole(above, minimum=0):
+        raise InvalidParameterError(f"above={above!r} is not allowed; give a whole number >= 0 of episodes")
+    if above and mode != "episode":
+        raise InvalidParameterError("episodes whose scores are not all known (above=) are counted per episode; use "
+                                    "mode='episode'")
     if mode == "episode":
         values = np.array([episode_statistic(s, consecutive, window, rule=rule, reference=reference, warmup=warmup)
-                           for s in episodes])
+                           for s in episodes] + [math.inf] * above)
         unit = "episodes"
     else:
         values = np.concatenate(episodes) if episodes else np.array([])
@@ -978,6 +997,10 @@ def calibrate(
     else:
         rank = conformal_rank(len(values), far, confidence, unit=unit)
         value = float(ordered[rank - 1])
+    if not math.isfinite(value) and above and rank > len(values) - above:
+        raise ConfigError(f"the calibration gives no threshold: its rank {rank} of {len(values)} episodes falls among "
+                          f"the {above} whose scores are not all known (an alarm may have cut them short); give "
+                          f"more ID episodes, or a larger far")
     if not math.isfinite(value):
         shortest = min((len(s) for s in episodes), default=0)
         raise ConfigError(
@@ -990,9 +1013,10 @@ def calibrate(
     quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
     if mode == "episode":
         _warn_if_outlying(ordered, rank, detector)
-        if rule == "consecutive" and not warmup:
+        if rule == "consecutive" and not warmup and not above:  # (episodes cut short: no late statistics)
             _warn_if_early(episodes, values, value, rank, quantiles["q50"], detector, consecutive, window)
-    return Threshold(value, score, consecutive, mode, float(far), len(episodes), int(sum(len(s) for s in episodes)),
+    return Threshold(value, score, consecutive, mode, float(far), len(values) if mode == "episode" else len(episodes),
+                     int(sum(len(s) for s in episodes)),
                      quantiles, task, method, window, policy_hash, detector,
                      None if confidence is None else float(confidence), rank, rule,
                      None if reference is None else reference.to_dict(), masks, warmup, detectors_hash,

@@ -15,10 +15,12 @@ from oodmon.replay.failures import failure_step
 from oodmon.replay.parts import MissingParts, missing_parts
 from oodmon.replay.reader import (EpisodeLog, MissingPartWarning, NewerFormatWarning, RecoveryWarning, RunLog,
                                   SkippedLogWarning, read_log, read_logs)
+from oodmon.replay.recalibrate import LogEpisodes, calibrate_from_logs, log_episodes
 from oodmon.replay.report import monitor_markdown, monitor_summary, monitor_table, to_csv, to_json, to_markdown, to_table
 
 __all__ = [
     "EpisodeLog",
+    "LogEpisodes",
     "MissingPartWarning",
     "MissingParts",
     "MonitorMetrics",
@@ -29,6 +31,7 @@ __all__ = [
     "VariantMetrics",
     "alarm_events",
     "baseline_of",
+    "calibrate_from_logs",
     "check_tolerance",
     "compute_all_metrics",
     "compute_metrics",
@@ -39,6 +42,7 @@ __all__ = [
     "find_falls",
     "fpr_at_tpr",
     "load_baseline",
+    "log_episodes",
     "made_from_episodes",
     "missing_parts",
     "monitor_markdown",

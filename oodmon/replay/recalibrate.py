@@ -1,0 +1,203 @@
+"""A threshold calibrated on the ID episodes of recorded logs: your deployment's own.
+
+``oodmon calibrate`` plays ID episodes in a simulator. A deployment's own ID world often differs
+from it (real sensors are noisier, a real cart heavier), and a threshold calibrated in the
+simulator then alarms in much of the deployment's normal running: on 2026-12-06 the CartPole
+ensemble's combined threshold, calibrated without sensor noise, alarmed 100 of 100 fresh ID
+episodes with noise 0.01. Where no simulator plays the deployment's world, its own logs do: runs
+of the deployed policy in a state known to be in distribution, logged by a :class:`Monitor`
+(``oodmon run --mcap``, a ``MonitoredEnv`` with an ``McapSink``), hold every detector's score at
+every step. :func:`calibrate_from_logs` calibrates the alarm on those scores with the same rule and
+the same promise as ``oodmon calibrate``: the episodes are the calibration episodes, the logs' run
+the deployed policy, detectors and world (all checked alike across the logs).
+
+Only whole ID episodes count: not a shifted one, nor one the run was stopped inside. An episode
+that ended at the step an alarm began (the step a callback hears of it), without its env ending it,
+may have been cut short by a callback that stops the episode: its scores after it are unknown, so
+it counts as above any threshold (which can only raise the threshold; its promise holds).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.monitor.alarms import default_consecutive, default_window
+from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, conformal_rank
+from oodmon.replay.metrics import is_id_episode
+from oodmon.replay.reader import EpisodeLog, RunLog, read_logs
+
+__all__ = ["LogEpisodes", "calibrate_from_logs", "log_episodes"]
+
+#: What every log a threshold is calibrated on must share, with the words that name it: the scores
+#: of two policies, score functions, sample counts or mask kinds are on two scales.
+_SHARED = (("policy_hash", "policy (weights)"), ("task", "task"), ("method", "method"), ("score", "spread score"),
+           ("about.samples", "samples per decision"), ("about.masks", "MC masks"))
+
+
+@dataclass(frozen=True)
+class LogEpisodes:
+    """The episodes of some logs that a threshold can be calibrated on.
+
+    Attributes:
+        logs: the logs read.
+        episodes: each whole ID episode, with its log.
+        shifted: episodes left out as shifted (a variant, another env, or a step logged shifted).
+        interrupted: episodes left out because the run was stopped inside them.
+        cut: of ``episodes``, those that ended at the step an alarm began, without their env ending
+            them: an alarm's callback may have stopped them (:func:`calibrate_from_logs` counts them as above any
+            threshold).
+    """
+
+    logs: list[RunLog]
+    episodes: list[tuple[RunLog, EpisodeLog]]
+    shifted: int
+    interrupted: int
+    cut: int
+
+
+def log_episodes(logs: Sequence[str | Path | RunLog]) -> LogEpisodes:
+    """The whole ID episodes of ``logs`` (paths of MCAP files or folders, as ``oodmon replay``
+    reads them, or logs read already), checked to be of one policy.
+
+    Raises:
+        ConfigError: no logs, or logs of two policies (or spread scores, samples, masks).
+        LogFormatError: a file that is not an oodmon log (see :func:`~oodmon.replay.read_logs`).
+    """
+    if isinstance(logs, (str, Path, RunLog)):
+        logs = [logs]
+    if not logs:
+        raise ConfigError("no logs given: name the MCAP files (or folders) of ID runs of the deployed policy")
+    paths = [log for log in logs if not isinstance(log, RunLog)]
+    read = [log for log in logs if isinstance(log, RunLog)] + (read_logs(paths) if paths else [])
+    first = read[0]
+    for key, words in _SHARED:
+        values = {_field(log, key) for log in read}
+        if len(values) > 1:
+            other = next(log for log in read if _field(log, key) != _field(first, key))
+            raise ConfigError(f"the logs are of two {words}s: {first.path} has {_field(first, key)!r}, "
+                              f"{other.path} {_field(other, key)!r}; a threshold is calibrated on one policy's scores: "
+                              "give the logs of one")
+    episodes, shifted, cut = [], 0, 0
+    for log in read:
+        for episode in log.episodes:
+            if not is_id_episode(episode, log.task) or episode.shifted.any():
+                shifted += 1
+                continue
+            episodes.append((log, episode))
+            cut += _cut(episode)
+    return LogEpisodes(read, episodes, shifted, sum(len(log.interrupted) for log in read), cut)
+
+
+def _cut(episode: EpisodeLog) -> bool:
+    """Whether ``episode`` ended at the step an alarm began (the monitor's alarm event, which a
+    callback that stops the episode hears), its env not ending it: it may have been cut short."""
+    alarm = episode.alarm
+    return bool(len(alarm) and alarm[-1] and (len(alarm) == 1 or not alarm[-2]) and not episode.terminated)
+
+
+def _field(log: RunLog, key: str) -> str | None:
+    """A log's ``task``, ``method`` or metadata ``key`` (``None``: not recorded)."""
+    return getattr(log, key) if key in ("task", "method") else log.metadata.get(key)
+
+
+def calibrate_from_logs(logs: Sequence[str | Path | RunLog], far: float = 0.05, *,
+                        confidence: float | None = DEFAULT_CONFIDENCE, detector: str | None = None,
+                        consecutive: int | None = None, window: int | None = None, warmup: int = 0,
+                        mode: str = "episode") -> Threshold:
+    """A threshold calibrated on the whole ID episodes of ``logs`` (see the module's words).
+
+    ``detector``: the detector whose logged scores the alarm reads (default: the one the logs' run
+    alarmed on); the other arguments as :func:`~oodmon.monitor.calibrate_agent`'s, whose defaults
+    they share. The threshold records the policy, the fitted detector (its fingerprint: the monitor
+    refuses others), the samples and masks, and the sensor noise of the logged world, as one
+    calibrated by playing; ``logs`` names the logs and ``episode_seeds`` their episodes' reset seeds
+    where they had any, which ``oodmon validate`` then refuses to count again.
+
+    Raises:
+        ConfigError: logs of two policies, fitted detectors or worlds; a detector the logs have no
+            scores of; too few ID episodes for ``far`` at ``confidence``.
+        InvalidParameterError: a bad argument (as :func:`~oodmon.monitor.threshold.calibrate`'s).
+
+    Example::
+
+        threshold = calibrate_from_logs(["runs/real/"], far=0.05)  # every log below runs/real
+        threshold.save("runs/real.json")
+    """
+    found = log_episodes(logs)
+    first = found.logs[0]
+    if detector is None:
+        alarmed_on = {log.metadata.get("detector", "spread") for log in found.logs}
+        if len(alarmed_on) > 1:
+            raise ConfigError(f"the logs' runs alarmed on {' and '.join(sorted(alarmed_on))}: name the detector whose "
+                              "scores the threshold is for (detector=, --detector)")
+        detector = alarmed_on.pop()
+    if detector not in DETECTOR_NAMES:
+        raise InvalidParameterError(f"detector={detector!r} is not allowed; choose one of {', '.join(DETECTOR_NAMES)}")
+    for log in found.logs:
+        logged = log.metadata.get("detectors", "spread").split(",")
+        if detector not in logged:
+            raise ConfigError(f"{log.path} holds no {detector} scores (its run scored {', '.join(logged)}): calibrate "
+                              f"on one of those, or log runs whose monitor reads fitted {detector} detectors")
+    fitted = {log.metadata.get(f"fitted.{detector}") for log in found.logs}
+    if len(fitted) > 1:
+        raise ConfigError(f"the logs' {detector} scores come from two fits of the detectors "
+                          f"({', '.join(map(str, fitted))}): each fit scores on a scale of its own; give the logs of "
+                          "runs of one")
+    detectors_hash = fitted.pop()
+    if detector != "spread" and detectors_hash is None:
+        raise ConfigError(f"{first.path} does not record which fit of the {detector} detector scored it (a log written "
+                          "before 2026-11-29): the monitor could not check it reads the same; log new runs")
+    noise = {float(episode.obs_noise or 0.0) for _, episode in found.episodes}
+    if len(noise) > 1:
+        worlds = " and ".join(f"{n:g}" for n in sorted(noise))
+        raise ConfigError(f"the logs' ID episodes were played with sensor noise {worlds}: a threshold is calibrated in "
+                          "one world; give the logs of one")
+    if not found.episodes:
+        raise ConfigError(f"the logs hold no whole ID episode ({found.shifted} shifted, {found.interrupted} "
+                          "interrupted): give logs of runs of the deployed policy in its own world")
+    if mode == "episode":
+        try:
+            conformal_rank(len(found.episodes), far, confidence)
+        except ConfigError as error:  # (which says how many it needs)
+            raise ConfigError(f"the logs hold {len(found.episodes)} whole ID episodes ({found.shifted} shifted and "
+                              f"{found.interrupted} interrupted left out): {error}; log more ID runs") from None
+    whole = [(log, episode) for log, episode in found.episodes if not _cut(episode)]
+    scores = [episode.scores_of(detector) for _, episode in whole]
+    threshold = calibrate(
+        scores, far, consecutive=default_consecutive(detector) if consecutive is None else consecutive, mode=mode,
+        score=first.metadata.get("score", "chosen_std"), task=first.task, method=first.method,
+        window=default_window(first.task, detector) if window is None else window, policy_hash=first.metadata.get(
+            "policy_hash"), detector=detector, confidence=confidence, masks=first.metadata.get("about.masks"),
+        warmup=warmup, detectors_hash=detectors_hash, samples=_samples(first), above=len(found.episodes) - len(whole))
+    return replace(threshold, obs_noise=noise.pop() if noise else 0.0, episode_seeds=_seed_runs(found.episodes),
+                   logs=[{"path": str(log.path), "run_id": log.metadata.get("run_id"),
+                          "episodes": sum(1 for owner, _ in found.episodes if owner is log)} for log in found.logs])
+
+
+def _samples(log: RunLog) -> int | None:
+    """The samples per decision a log's policy drew (``None``: not recorded)."""
+    samples = log.metadata.get("about.samples")
+    return int(samples) if samples is not None and samples.isdigit() else None
+
+
+def _seed_runs(episodes: Sequence[tuple[RunLog, EpisodeLog]]) -> dict[str, list[int]] | None:
+    """The episodes' reset seeds as ``[first, end)`` runs of consecutive seeds, by use
+    (``calibration``, then ``calibration 2``, ...), as :attr:`Threshold.episode_seeds` holds them;
+    ``None`` where no episode had a seed (a deployment that does not seed its resets).
+
+    Example:
+        >>> from types import SimpleNamespace as E
+        >>> _seed_runs([(None, E(seed=s)) for s in (5, 6, 7, 20, None)])
+        {'calibration': [5, 8], 'calibration 2': [20, 21]}
+    """
+    seeds = sorted({episode.seed for _, episode in episodes if episode.seed is not None})
+    runs: list[list[int]] = []
+    for seed in seeds:
+        if runs and runs[-1][1] == seed:
+            runs[-1][1] = seed + 1
+        else:
+            runs.append([seed, seed + 1])
+    return {("calibration" if i == 0 else f"calibration {i + 1}"): run for i, run in enumerate(runs)} or None

@@ -1,0 +1,146 @@
+"""A threshold calibrated on the ID episodes of recorded logs (``oodmon recalibrate``,
+``calibrate_from_logs``): a deployment's own world, where no simulator plays it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from oodmon.errors import ConfigError
+from oodmon.monitor import Threshold
+from oodmon.monitor.threshold import calibrate, conformal_rank
+from oodmon.replay import EpisodeLog, RunLog, calibrate_from_logs, log_episodes
+from tests.helpers import run_cli
+
+ZOO = Path(__file__).resolve().parents[2] / "oodmon" / "zoo"
+FIT = "sha256:" + "1" * 64
+
+
+def _episode(index: int, scores: np.ndarray, *, variant: str = "cartpole", alarm: np.ndarray | None = None,
+             terminated: bool = False, seed: int | None = None, obs_noise: float = 0.0) -> EpisodeLog:
+    alarm = np.zeros(len(scores), bool) if alarm is None else alarm
+    return EpisodeLog(episode=index, env_id="oodmon/CartPole-v1", variant=variant, onset=0, seed=seed,
+                      total_return=float(len(scores)), length=len(scores), alarms=int(alarm.sum()),
+                      first_alarm_step=int(np.argmax(alarm)) if alarm.any() else None, terminated=terminated,
+                      obs_noise=obs_noise, scores=scores, shifted=np.full(len(scores), variant != "cartpole"),
+                      alarm=alarm, detector_scores={"spread": scores / 2, "dynamics": scores})
+
+
+def _log(episodes: list[EpisodeLog], *, path: str = "a.mcap", policy: str = "sha256:" + "a" * 64,
+         fit: str = FIT, interrupted: int = 0) -> RunLog:
+    metadata = {"policy_hash": policy, "score": "chosen_std", "detector": "dynamics", "detectors": "spread,dynamics",
+                "fitted.dynamics": fit, "about.samples": "5", "run_id": path}
+    stopped = [_episode(99, np.ones(3))] * interrupted
+    return RunLog(Path(path), "cartpole", "ensemble", 1.0, metadata, episodes, True, stopped)
+
+
+def test_a_logs_id_episodes_give_the_threshold_their_scores_give_and_record_where_they_came_from():
+    rng = np.random.default_rng(0)
+    scores = [rng.random(30) for _ in range(50)]
+    ids = [_episode(i, s, seed=100 + i) for i, s in enumerate(scores)]
+    shifted = [_episode(50, rng.random(30) + 5, variant="cartpole:length=2.0", seed=150)]
+    log = _log(ids[:30] + shifted, interrupted=2)
+    other = _log(ids[30:], path="b.mcap")
+    found = log_episodes([log, other])
+    assert (len(found.episodes), found.shifted, found.interrupted, found.cut) == (50, 1, 2, 0)
+    threshold = calibrate_from_logs([log, other], 0.05)
+    expected = calibrate(scores, 0.05, consecutive=1, detector="dynamics")
+    assert (threshold.value, threshold.rank, threshold.n_episodes) == (expected.value, expected.rank, 50)
+    assert threshold.detector == "dynamics" and threshold.detectors_hash == FIT and threshold.samples == 5
+    assert threshold.policy_hash == "sha256:" + "a" * 64 and threshold.obs_noise == 0.0
+    assert threshold.episode_seeds == {"calibration": [100, 150]}  # the shifted episode's seed is not one
+    assert threshold.logs == [{"path": "a.mcap", "run_id": "a.mcap", "episodes": 30},
+                              {"path": "b.mcap", "run_id": "b.mcap", "episodes": 20}]
+    # another detector's logged scores, and the rule's arguments as calibrate's
+    spread = calibrate_from_logs([log, other], 0.1, detector="spread", confidence=None, window=2)
+    assert spread.value == calibrate([s / 2 for s in scores], 0.1, consecutive=3, window=2, confidence=None).value
+    assert spread.detectors_hash is None
+
+
+def test_an_episode_an_alarm_may_have_cut_short_counts_above_any_threshold():
+    """An episode that ended at the step an alarm began, its env not ending it (a callback that
+    stops the episode hears the alarm there), has unknown scores after it: counted +inf. One whose
+    alarm held for steps before its end (a time limit inside a long alarm), or whose env ended it,
+    is whole."""
+    rng = np.random.default_rng(1)
+    scores = [rng.random(20) for _ in range(60)]
+    rising = np.zeros(20, bool)
+    rising[-1] = True
+    holding = np.zeros(20, bool)
+    holding[-4:] = True
+    episodes = [_episode(i, s) for i, s in enumerate(scores)]
+    episodes[0] = _episode(0, scores[0], alarm=rising)  # cut: counted above
+    episodes[1] = _episode(1, scores[1], alarm=rising, terminated=True)  # the pole fell at the alarm: whole
+    episodes[2] = _episode(2, scores[2], alarm=holding)  # an alarm that held to the time limit: whole
+    found = log_episodes([_log(episodes)])
+    assert found.cut == 1
+    threshold = calibrate_from_logs([_log(episodes)], 0.1, confidence=None)
+    rank = conformal_rank(60, 0.1, None)
+    assert threshold.n_episodes == 60 and threshold.rank == rank == 55
+    assert threshold.value == sorted(s.max() for s in scores[1:])[rank - 1]  # the cut one's place is above them all
+    left_out = calibrate(scores[1:], 0.1, consecutive=1, confidence=None)
+    assert threshold.value > left_out.value  # not as low as leaving it out (rank 54 of 59)
+    # where the rank falls among the cut episodes, there is no threshold, and it says why
+    with pytest.raises(ConfigError, match="falls among the 1 whose scores are not all known"):
+        calibrate_from_logs([_log(episodes[:45])], 0.05)
+
+
+def test_logs_that_cannot_make_one_threshold_are_refused_with_what_differs():
+    rng = np.random.default_rng(2)
+    ids = [_episode(i, rng.random(10)) for i in range(50)]
+    with pytest.raises(ConfigError, match=r"two policy \(weights\)s: a.mcap has 'sha256:a+', b.mcap 'sha256:b+'"):
+        calibrate_from_logs([_log(ids), _log(ids, path="b.mcap", policy="sha256:" + "b" * 64)])
+    with pytest.raises(ConfigError, match="from two fits of the detectors"):
+        calibrate_from_logs([_log(ids), _log(ids, path="b.mcap", fit="sha256:" + "2" * 64)])
+    with pytest.raises(ConfigError, match="holds no features scores .its run scored spread, dynamics"):
+        calibrate_from_logs([_log(ids)], detector="features")
+    noisy = [_episode(i, rng.random(10), obs_noise=0.01) for i in range(50)]
+    with pytest.raises(ConfigError, match="sensor noise 0 and 0.01"):
+        calibrate_from_logs([_log(ids), _log(noisy, path="b.mcap")])
+    with pytest.raises(ConfigError, match=r"hold 44 whole ID episodes \(0 shifted and 3 interrupted left out\): "
+                                          r"far=0.05 needs at least 45"):
+        calibrate_from_logs([_log(ids[:44], interrupted=3)])
+    shifted = [_episode(i, rng.random(10), variant="cartpole:length=2.0") for i in range(5)]
+    with pytest.raises(ConfigError, match=r"no whole ID episode \(5 shifted, 0 interrupted\)"):
+        calibrate_from_logs([_log(shifted)])
+    with pytest.raises(ConfigError, match="no logs given"):
+        calibrate_from_logs([])
+
+
+def test_recalibrate_on_a_noisier_worlds_logs_keeps_the_promise_there_where_the_simulators_threshold_always_alarms(
+        tmp_path, capsys):
+    """The deployment's world has sensor noise 0.01 the simulator lacks. The threshold calibrated
+    in the simulator (22 episodes, far 0.1 at confidence 0.9) alarmed in all 22 logged episodes of
+    the noisy world; `oodmon recalibrate` of that log alarmed 2 of 100 fresh noisy ones when
+    written (2026-12-06), 100 of 100 with the simulator's. Its promise: with probability >= 0.9,
+    a rate <= 0.1; at 0.1, 20 or more of 100 alarm with probability 0.002 (binomial), so the bound
+    below fails by chance far less often than the promise itself may."""
+    sim, real, log = tmp_path / "sim.json", tmp_path / "real.json", tmp_path / "real.mcap"
+    steps = ["--max-steps", "200"]
+    assert run_cli("calibrate", "--task", "cartpole", "--method", "ensemble", "--episodes", "22", "--far", "0.1",
+                   *steps, "--out", str(sim)).returncode == 0
+    done = run_cli("run", "--threshold", str(sim), "--obs-noise", "0.01", "--episodes", "22", *steps, "--mcap",
+                   str(log))
+    assert done.returncode == 0 and "22 of 22 episodes raised an alarm" in done.stdout
+    detectors = ZOO / "cartpole-ensemble" / "detectors"
+    done = run_cli("recalibrate", str(log), "--far", "0.1", "--detectors", str(detectors), "--out", str(real))
+    assert done.returncode == 0, done.stderr
+    assert "22 ID episodes of 1 log with sensor noise 0.01" in done.stdout and "copied to" in done.stdout
+    threshold = Threshold.load(real)
+    assert threshold.obs_noise == 0.01 and threshold.n_episodes == 22 and threshold.detector == "combined"
+    assert threshold.episode_seeds == {"calibration": [0, 22]} and threshold.logs[0]["episodes"] == 22
+    assert threshold.value > 100 * Threshold.load(sim).value
+    assert (real.parent / "real.json.detectors" / "detectors.json").is_file()
+    done = run_cli("validate", str(real), "--episodes", "100", *steps, "--json")
+    validation = json.loads(done.stdout)
+    assert validation["obs_noise"] == 0.01 and validation["alarmed"] < 20, validation  # (2 when written)
+    # the logged episodes are not fresh ones; another fit of the detectors is refused
+    refused = run_cli("validate", str(real), "--episodes", "5", "--seed", "3")
+    assert refused.returncode == 2 and "not fresh" in refused.stderr
+    other = run_cli("recalibrate", str(log), "--far", "0.1", "--out", str(tmp_path / "other.json"), "--detectors",
+                    str(ZOO / "cartpole-dropout" / "detectors"))
+    assert other.returncode == 2 and "another fit than the one that scored the logs" in other.stderr
+    assert not (tmp_path / "other.json").exists()
