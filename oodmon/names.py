@@ -6,13 +6,17 @@ without loading torch or gymnasium. ``oodmon.envs.TASKS`` and ``oodmon.agents.ME
 
 from __future__ import annotations
 
-__all__ = ["FIXED_MASKS", "MASKS", "METHODS", "PLAIN_METHOD", "TASKS", "fixed_masks"]
+__all__ = ["BEST_DETECTOR", "FIXED_MASKS", "MASKS", "METHODS", "PLAIN_METHOD", "TASKS", "fixed_masks"]
 
 #: The tasks, each one env of the paper (CartPole, Pendulum: physics shifts; Pong: corrupted frames).
 TASKS: tuple[str, ...] = ("cartpole", "pendulum", "pong")
 
 #: The uncertainty methods, for every task.
 METHODS: tuple[str, ...] = ("dropout", "dropconnect", "ensemble")
+
+#: The detector an alarm reads by default where it is fitted, by task (measured: the reasons are
+#: beside its use, ``oodmon.monitor.detectors.fitting``; an env oodmon has not measured: ``combined``).
+BEST_DETECTOR: dict[str, str] = {"cartpole": "combined", "pendulum": "dynamics", "pong": "combined"}
 
 #: The method of a policy of any kind, a function obs -> action (``oodmon.agents.plain``): its
 #: agent's, its thresholds' and its logs'.

@@ -302,7 +302,7 @@ def _recalibrate(args: argparse.Namespace) -> int:
                 f"{found.interrupted} the run was stopped inside" if found.interrupted else ""]
     Console(soft_wrap=True).print(
         f"{threshold.task}/{threshold.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, "
-        f"{threshold.mode} mode, {threshold.n_episodes} ID episodes of {len(found.logs)} log"
+        f"{threshold.mode} mode, {threshold.n_episodes} ID episodes of {len(found.logs)} log file"
         f"{'s' if len(found.logs) > 1 else ''}{_noise(threshold.obs_noise)}, {threshold.n_steps} steps, rank "
         f"{threshold.rank} of {threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score "
         f"median {threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote "

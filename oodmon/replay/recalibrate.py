@@ -19,6 +19,7 @@ it counts as above any threshold (which can only raise the threshold; its promis
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -26,6 +27,7 @@ from pathlib import Path
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, conformal_rank
+from oodmon.names import BEST_DETECTOR
 from oodmon.replay.metrics import is_id_episode
 from oodmon.replay.reader import EpisodeLog, RunLog, read_logs
 
@@ -109,8 +111,9 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog], far: float = 0.05, 
                         mode: str = "episode") -> Threshold:
     """A threshold calibrated on the whole ID episodes of ``logs`` (see the module's words).
 
-    ``detector``: the detector whose logged scores the alarm reads (default: the one the logs' run
-    alarmed on); the other arguments as :func:`~oodmon.monitor.calibrate_agent`'s, whose defaults
+    ``detector``: the detector whose logged scores the alarm reads (default: the one the logs' runs
+    alarmed on; of runs without a threshold, the task's best they scored, as ``oodmon calibrate``
+    chooses); the other arguments as :func:`~oodmon.monitor.calibrate_agent`'s, whose defaults
     they share. The threshold records the policy, the fitted detector (its fingerprint: the monitor
     refuses others), the samples and masks, and the sensor noise of the logged world, as one
     calibrated by playing; ``logs`` names the logs and ``episode_seeds`` their episodes' reset seeds
@@ -129,11 +132,7 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog], far: float = 0.05, 
     found = log_episodes(logs)
     first = found.logs[0]
     if detector is None:
-        alarmed_on = {log.metadata.get("detector", "spread") for log in found.logs}
-        if len(alarmed_on) > 1:
-            raise ConfigError(f"the logs' runs alarmed on {' and '.join(sorted(alarmed_on))}: name the detector whose "
-                              "scores the threshold is for (detector=, --detector)")
-        detector = alarmed_on.pop()
+        detector = _default_detector(found.logs)
     if detector not in DETECTOR_NAMES:
         raise InvalidParameterError(f"detector={detector!r} is not allowed; choose one of {', '.join(DETECTOR_NAMES)}")
     for log in found.logs:
@@ -175,6 +174,23 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog], far: float = 0.05, 
     return replace(threshold, obs_noise=noise.pop() if noise else 0.0, episode_seeds=_seed_runs(found.episodes),
                    logs=[{"path": str(log.path), "run_id": log.metadata.get("run_id"),
                           "episodes": sum(1 for owner, _ in found.episodes if owner is log)} for log in found.logs])
+
+
+def _default_detector(logs: Sequence[RunLog]) -> str:
+    """The detector the logs' runs alarmed on; of runs without a threshold (which raised no alarm),
+    the one ``oodmon calibrate`` would choose among those they scored: the task's best
+    (:data:`~oodmon.names.BEST_DETECTOR`), else ``spread``, else (a plain policy's) the last."""
+    alarmed_on = {log.metadata.get("detector", "spread") for log in logs if math.isfinite(log.threshold)}
+    if len(alarmed_on) > 1:
+        raise ConfigError(f"the logs' runs alarmed on {' and '.join(sorted(alarmed_on))}: name the detector whose "
+                          "scores the threshold is for (detector=, --detector)")
+    if alarmed_on:
+        return alarmed_on.pop()
+    scored = [log.metadata.get("detectors", "spread").split(",") for log in logs]
+    best = BEST_DETECTOR.get(logs[0].task, "combined")
+    if all(best in names for names in scored):
+        return best
+    return "spread" if all("spread" in names for names in scored) else scored[0][-1]
 
 
 def _samples(log: RunLog) -> int | None:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -30,11 +31,13 @@ def _episode(index: int, scores: np.ndarray, *, variant: str = "cartpole", alarm
 
 
 def _log(episodes: list[EpisodeLog], *, path: str = "a.mcap", policy: str = "sha256:" + "a" * 64,
-         fit: str = FIT, interrupted: int = 0) -> RunLog:
-    metadata = {"policy_hash": policy, "score": "chosen_std", "detector": "dynamics", "detectors": "spread,dynamics",
-                "fitted.dynamics": fit, "about.samples": "5", "run_id": path}
+         fit: str = FIT, interrupted: int = 0, threshold: float = 1.0, detectors: str = "spread,dynamics") -> RunLog:
+    """A log of ``episodes`` whose run alarmed on dynamics above ``threshold`` (NaN: a run without
+    one, which records its detector as spread), scoring ``detectors``."""
+    metadata = {"policy_hash": policy, "score": "chosen_std", "detector": "spread" if math.isnan(threshold) else
+                "dynamics", "detectors": detectors, "fitted.dynamics": fit, "about.samples": "5", "run_id": path}
     stopped = [_episode(99, np.ones(3))] * interrupted
-    return RunLog(Path(path), "cartpole", "ensemble", 1.0, metadata, episodes, True, stopped)
+    return RunLog(Path(path), "cartpole", "ensemble", threshold, metadata, episodes, True, stopped)
 
 
 def test_a_logs_id_episodes_give_the_threshold_their_scores_give_and_record_where_they_came_from():
@@ -58,6 +61,12 @@ def test_a_logs_id_episodes_give_the_threshold_their_scores_give_and_record_wher
     spread = calibrate_from_logs([log, other], 0.1, detector="spread", confidence=None, window=2)
     assert spread.value == calibrate([s / 2 for s in scores], 0.1, consecutive=3, window=2, confidence=None).value
     assert spread.detectors_hash is None
+    # a run without a threshold alarmed on nothing: the detector is the one calibrate would choose
+    # among those it scored (CartPole's best, combined, where logged; else spread; else the last)
+    unalarmed = calibrate_from_logs([_log(ids, threshold=math.nan)], 0.1, confidence=None)
+    assert unalarmed.detector == "spread" and unalarmed.value == calibrate(
+        [s / 2 for s in scores], 0.1, consecutive=3, confidence=None).value
+    assert calibrate_from_logs([_log(ids, threshold=math.nan, detectors="dynamics")], 0.1).detector == "dynamics"
 
 
 def test_an_episode_an_alarm_may_have_cut_short_counts_above_any_threshold():
@@ -128,7 +137,7 @@ def test_recalibrate_on_a_noisier_worlds_logs_keeps_the_promise_there_where_the_
     detectors = ZOO / "cartpole-ensemble" / "detectors"
     done = run_cli("recalibrate", str(log), "--far", "0.1", "--detectors", str(detectors), "--out", str(real))
     assert done.returncode == 0, done.stderr
-    assert "22 ID episodes of 1 log with sensor noise 0.01" in done.stdout and "copied to" in done.stdout
+    assert "22 ID episodes of 1 log file with sensor noise 0.01" in done.stdout and "copied to" in done.stdout
     threshold = Threshold.load(real)
     assert threshold.obs_noise == 0.01 and threshold.n_episodes == 22 and threshold.detector == "combined"
     assert threshold.episode_seeds == {"calibration": [0, 22]} and threshold.logs[0]["episodes"] == 22

@@ -37,7 +37,7 @@ from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
 from oodmon.monitor.detectors.transitions import TransitionsDetector
 from oodmon.monitor.scores import DEFAULT_SCORE
-from oodmon.names import fixed_masks
+from oodmon.names import BEST_DETECTOR, fixed_masks
 from oodmon.progress import Progress
 from oodmon.seeds import DETECTOR_FIT, check_seed
 from oodmon.side_by_side import finished_before, play_side_by_side, resolve_workers, stream_per_episode
@@ -112,7 +112,7 @@ FIT_VERSION = 9
 # (the monitor's benchmark with `--detectors spread,combined --alarm-detector combined`,
 # 2026-11-24) it alarmed the same episodes, 0-1 step later on 5 variants, with 9 false alarms of
 # 400 for Dropout against dynamics' 4: dynamics stays.
-BEST_DETECTOR = {"cartpole": "combined", "pendulum": "dynamics", "pong": "combined"}
+# (the dict itself in oodmon.names, which replay reads without loading the detectors)
 
 #: What a task's ``combined`` leaves out of the detectors it has, measured as adding nothing there
 #: but false alarms. Pong's spread and features: frames separates every corruption (per-step AUROC
