@@ -35,8 +35,9 @@ __all__ = ["LogEpisodes", "calibrate_from_logs", "log_episodes"]
 
 #: What every log a threshold is calibrated on must share, with the words that name it: the scores
 #: of two policies, score functions, sample counts or mask kinds are on two scales.
-_SHARED = (("policy_hash", "policy (weights)"), ("task", "task"), ("method", "method"), ("score", "spread score"),
-           ("about.samples", "samples per decision"), ("about.masks", "MC masks"))
+_SHARED = (("policy_hash", "policies (their weights' hashes)"), ("task", "tasks"), ("method", "methods"),
+           ("score", "spread scores"), ("about.samples", "counts of samples per decision"),
+           ("about.masks", "kinds of MC masks"))
 
 
 @dataclass(frozen=True)
@@ -49,8 +50,8 @@ class LogEpisodes:
         shifted: episodes left out as shifted (a variant, another env, or a step logged shifted).
         interrupted: episodes left out because the run was stopped inside them.
         cut: of ``episodes``, those that ended at the step an alarm began, without their env ending
-            them: an alarm's callback may have stopped them (:func:`calibrate_from_logs` counts them as above any
-            threshold).
+            them: an alarm's callback may have stopped them (:func:`calibrate_from_logs` counts them
+            as above any threshold).
     """
 
     logs: list[RunLog]
@@ -79,7 +80,7 @@ def log_episodes(logs: Sequence[str | Path | RunLog]) -> LogEpisodes:
         values = {_field(log, key) for log in read}
         if len(values) > 1:
             other = next(log for log in read if _field(log, key) != _field(first, key))
-            raise ConfigError(f"the logs are of two {words}s: {first.path} has {_field(first, key)!r}, "
+            raise ConfigError(f"the logs are of two {words}: {first.path} has {_field(first, key)!r}, "
                               f"{other.path} {_field(other, key)!r}; a threshold is calibrated on one policy's scores: "
                               "give the logs of one")
     episodes, shifted, cut = [], 0, 0

@@ -100,7 +100,7 @@ def test_an_episode_an_alarm_may_have_cut_short_counts_above_any_threshold():
 def test_logs_that_cannot_make_one_threshold_are_refused_with_what_differs():
     rng = np.random.default_rng(2)
     ids = [_episode(i, rng.random(10)) for i in range(50)]
-    with pytest.raises(ConfigError, match=r"two policy \(weights\)s: a.mcap has 'sha256:a+', b.mcap 'sha256:b+'"):
+    with pytest.raises(ConfigError, match=r"two policies \(their weights' hashes\): a.mcap has 'sha256:a+', b.mcap 'sha256:b+'"):
         calibrate_from_logs([_log(ids), _log(ids, path="b.mcap", policy="sha256:" + "b" * 64)])
     with pytest.raises(ConfigError, match="from two fits of the detectors"):
         calibrate_from_logs([_log(ids), _log(ids, path="b.mcap", fit="sha256:" + "2" * 64)])
