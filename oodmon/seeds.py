@@ -18,7 +18,7 @@ from oodmon.validation import is_whole
 
 __all__ = ["BENCH_ID", "BENCH_SHIFTED", "CALIBRATION", "DEMO", "DETECTOR_FIT", "EPISODE_USES", "ID_RETURN", "MOST_SEED",
            "RANGES", "REFERENCE", "SNAPSHOT_SELECTION", "TRAINING_EVALUATION", "VALIDATION", "VARIANT_EVALUATION",
-           "check_seed", "range_of"]
+           "check_seed", "range_of", "use_words"]
 
 #: Training's periodic evaluations: 10,000 + steps (see above: not a range).
 TRAINING_EVALUATION = 10_000
@@ -68,6 +68,18 @@ RANGES: dict[str, tuple[int, int]] = {
 #: plays no policy).
 EPISODE_USES = {"calibration": "the threshold's calibration", "reference": "the sequential rule's reference",
                 "detector fitting": "the detectors' fitting"}
+
+
+def use_words(use: str) -> str:
+    """A use of :data:`EPISODE_USES` in words, a numbered one too (``calibration 2``: the second run
+    of consecutive seeds of a threshold calibrated on logs, ``oodmon recalibrate``); another, as it is.
+
+    Example:
+        >>> use_words("calibration 2"), use_words("detector fitting"), use_words("bench")
+        ("the threshold's calibration", "the detectors' fitting", 'bench')
+    """
+    base, _, number = use.rpartition(" ")
+    return EPISODE_USES.get(use) or EPISODE_USES.get(base if number.isdigit() else use, use)
 
 
 def range_of(seed: int) -> str | None:

@@ -137,7 +137,7 @@ def _read_logs(paths: Sequence[str]):
     from oodmon.replay import (made_from_episodes, pooled_fits, pooled_noise, pooled_thresholds, pooled_weights,
                                read_logs)
     from oodmon.replay.metrics import ended_before_onset, id_stretches, longer_than_calibration, off_calibration_noise
-    from oodmon.seeds import EPISODE_USES
+    from oodmon.seeds import use_words
 
     logs = read_logs(paths)
     interrupted = sum(len(log.interrupted) for log in logs)
@@ -179,7 +179,10 @@ def _read_logs(paths: Sequence[str]):
               f"calibration episode ({_logs_by(by_length, 40)}): its false-alarm bound is for episodes like those"
               f"{said}", file=sys.stderr)
     for (task, method), by_use in made_from_episodes(logs).items():
-        uses = " and ".join(f"{count} of {EPISODE_USES.get(use, use)} episodes" for use, count in by_use.items())
+        counts: dict[str, int] = {}  # (a threshold calibrated on logs has runs of seeds: "calibration 2", ...)
+        for use, count in by_use.items():
+            counts[use_words(use)] = counts.get(use_words(use), 0) + count
+        uses = " and ".join(f"{count} of {words} episodes" for words, count in counts.items())
         print(f"oodmon: note: the {task}/{method} logs played {uses} in the ID env (the same reset seeds): they "
               "alarm less often than fresh episodes, so their false alarms read low; run fresh ones (`oodmon run "
               "--seed` apart from them)", file=sys.stderr)

@@ -32,7 +32,7 @@ from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Stretc
                                      check_step_episodes, clopper_pearson, clustered_interval, conformal_rank,
                                      episodes_needed, verdict_of)
 from oodmon.progress import Progress
-from oodmon.seeds import EPISODE_USES
+from oodmon.seeds import EPISODE_USES, use_words
 from oodmon.side_by_side import finished_before, play_side_by_side, resolve_workers, stream_per_episode
 from oodmon.validation import check_max_steps, is_step_count, is_whole
 
@@ -471,7 +471,7 @@ def _overlaps(used: dict[str, list[int]], seed: int, episodes: int, start: int) 
     """Which of the ranges ``used`` (by use, each ``[first, end)``) the episodes ``seed`` .. ``seed +
     episodes - 1`` fall in, in words (``""``: none), and a first seed from ``start`` on whose
     ``episodes`` episodes miss them all."""
-    clashes = [f"{EPISODE_USES.get(name, name)} episodes (seeds {first:,}-{end - 1:,})" for name, (first, end) in used.items()
+    clashes = [f"{use_words(name)} episodes (seeds {first:,}-{end - 1:,})" for name, (first, end) in used.items()
                if first < seed + episodes and seed < end]
     free = start
     while any(first < free + episodes and free < end for first, end in used.values()):

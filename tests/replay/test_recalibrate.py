@@ -12,6 +12,7 @@ import pytest
 
 from oodmon.errors import ConfigError
 from oodmon.monitor import Threshold
+from oodmon.monitor.calibration import check_fresh
 from oodmon.monitor.threshold import calibrate, conformal_rank
 from oodmon.replay import EpisodeLog, RunLog, calibrate_from_logs, log_episodes
 from tests.helpers import run_cli
@@ -43,7 +44,7 @@ def _log(episodes: list[EpisodeLog], *, path: str = "a.mcap", policy: str = "sha
 def test_a_logs_id_episodes_give_the_threshold_their_scores_give_and_record_where_they_came_from():
     rng = np.random.default_rng(0)
     scores = [rng.random(30) for _ in range(50)]
-    ids = [_episode(i, s, seed=100 + i) for i, s in enumerate(scores)]
+    ids = [_episode(i, s, seed=100 + i if i < 30 else 270 + i) for i, s in enumerate(scores)]  # 100-129, 300-319
     shifted = [_episode(50, rng.random(30) + 5, variant="cartpole:length=2.0", seed=150)]
     log = _log(ids[:30] + shifted, interrupted=2)
     other = _log(ids[30:], path="b.mcap")
@@ -54,7 +55,10 @@ def test_a_logs_id_episodes_give_the_threshold_their_scores_give_and_record_wher
     assert (threshold.value, threshold.rank, threshold.n_episodes) == (expected.value, expected.rank, 50)
     assert threshold.detector == "dynamics" and threshold.detectors_hash == FIT and threshold.samples == 5
     assert threshold.policy_hash == "sha256:" + "a" * 64 and threshold.obs_noise == 0.0
-    assert threshold.episode_seeds == {"calibration": [100, 150]}  # the shifted episode's seed is not one
+    # the seeds as runs (the shifted episode's, 150, is not one), each refused by validate in words
+    assert threshold.episode_seeds == {"calibration": [100, 130], "calibration 2": [300, 320]}
+    with pytest.raises(ConfigError, match=r"include the threshold's calibration episodes \(seeds 300-319\)"):
+        check_fresh(threshold, None, 310, 5)
     assert threshold.logs == [{"path": "a.mcap", "run_id": "a.mcap", "episodes": 30},
                               {"path": "b.mcap", "run_id": "b.mcap", "episodes": 20}]
     # another detector's logged scores, and the rule's arguments as calibrate's
