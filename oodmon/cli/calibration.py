@@ -264,7 +264,8 @@ def _add_recalibrate(commands: argparse._SubParsersAction) -> None:
                          help="guarantee per episode (default) or per step")
     rule.add_argument("--detector", choices=list(DETECTOR_NAMES),
                       help="the detector whose logged scores the alarm reads (default: the one the logs' runs "
-                           "alarmed on)")
+                           "alarmed on; of runs without a threshold, the one calibrate would choose among those they "
+                           "scored)")
     _add_rule_counts(rule)
     recalibrate.add_argument("--detectors", help="the fitted detectors the logs' runs read (their threshold's "
                                                  "<threshold>.detectors, or --detectors): checked against the logs and "
@@ -478,11 +479,33 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
                      help="sensor noise of the ID env, a fraction of each dimension's ID spread (default 0)")
     _add_dynamics_updates(fit, "fitted on the episodes' two thirds")
     _add_workers(fit, "the fitting episodes")
+    fit.add_argument("--from-logs", nargs="+", metavar="LOG",
+                     help="fit on the whole ID episodes of these logs of the policy (MCAP files or folders: its "
+                          "deployment's own world, `oodmon run --mcap`) instead of playing episodes; then calibrate "
+                          "with `oodmon recalibrate` on other logs scored by these detectors")
     fit.add_argument("--out", required=True, help="folder for detectors.json and detectors.safetensors")
     fit.add_argument("--overwrite", action="store_true",
                      help="replace the fitted detectors --out holds already; without it they are refused, since a "
                           "threshold calibrated with them is refused by `oodmon run` once they are replaced")
     fit.set_defaults(handler=_fit_detectors, kept_on_interrupt=_KEPT["fit-detectors"])
+
+
+def _refuse_playing_options(args: argparse.Namespace) -> None:
+    """Refuse fit-detectors' options of the episodes it plays where it fits on logs (--from-logs),
+    which hold episodes played already: said, not ignored.
+
+    Raises:
+        ConfigError: naming the options given.
+    """
+    given = [flag for flag, value, default in (
+        ("--episodes", args.episodes, None), ("--max-steps", args.max_steps, None),
+        ("--obs-noise", args.obs_noise, 0.0), ("--workers", args.workers, 1), ("--score", args.score, "chosen_std"))
+        if value != default]
+    if given:
+        raise ConfigError(f"{' and '.join(given)} shape{'' if len(given) > 1 else 's'} the episodes fit-detectors "
+                          "plays, and --from-logs fits on the logs' episodes as they were played (their number, "
+                          "length, sensor noise and spread score): leave them out, or fit on played episodes without "
+                          "--from-logs")
 
 
 def _fitting_kept(folder: Path) -> Path:
@@ -547,21 +570,33 @@ def _fit_detectors(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {out} holds fitted detectors already{_calibrated_beside(out)}: a threshold "
                           "calibrated with them would be refused by `oodmon run` once they are replaced; give another "
                           "folder, or --overwrite to replace them")
+    if args.from_logs:
+        _refuse_playing_options(args)
     agent = _load_agent(args, seed=DETECTOR_FIT)  # seeded MC sampling: the same command fits the same detectors
     only = list(args.only) if args.only else None
     kept = _fitting_kept(out)
-    with _progress() as report, _kept_fitting(args, kept, "no detectors were written"):
-        detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
-                                        obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report,
-                                        workers=args.workers, dynamics_updates=args.dynamics_updates, kept=kept)
+    if args.from_logs:
+        from oodmon.replay import fit_detectors_from_logs
+
+        with _progress() as report:
+            detectors = fit_detectors_from_logs(agent, args.from_logs, detectors=only,
+                                                dynamics_updates=args.dynamics_updates, on_progress=report)
+    else:
+        with _progress() as report, _kept_fitting(args, kept, "no detectors were written"):
+            detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
+                                            obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report,
+                                            workers=args.workers, dynamics_updates=args.dynamics_updates, kept=kept)
     detectors.save(args.out)
     kept.unlink(missing_ok=True)
     console = Console(soft_wrap=True)
     beside = _calibrated_beside(out)  # after the fitting: the threshold beside as it is now
     replaced = "" if not replacing else f" (replacing the set it held{beside}: calibrate that threshold again)" if beside \
         else " (replacing the set it held)"
+    logs = detectors.fitted_for.get("logs")
+    of_logs = f" of {len(logs)} log file{'s' if len(logs) > 1 else ''}" if logs else ""
     console.print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
-                  f"{detectors.fitted_for['episodes']} ID episodes{_up_to(args.max_steps)}"
+                  f"{detectors.fitted_for['episodes']} ID episodes{_up_to(args.max_steps)}{of_logs}"
+                  f"{_noise(detectors.fitted_for['obs_noise']) if logs else ''}"
                   f"{_side_by_side(detectors.fitted_for.get('workers'))}; "
                   f"wrote {args.out}{replaced}")
     for note in fitting_notes(detectors):

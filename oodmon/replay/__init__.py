@@ -15,7 +15,7 @@ from oodmon.replay.failures import failure_step
 from oodmon.replay.parts import MissingParts, missing_parts
 from oodmon.replay.reader import (EpisodeLog, MissingPartWarning, NewerFormatWarning, RecoveryWarning, RunLog,
                                   SkippedLogWarning, read_log, read_logs)
-from oodmon.replay.recalibrate import LogEpisodes, calibrate_from_logs, log_episodes
+from oodmon.replay.recalibrate import LogEpisodes, calibrate_from_logs, fit_detectors_from_logs, log_episodes
 from oodmon.replay.report import monitor_markdown, monitor_summary, monitor_table, to_csv, to_json, to_markdown, to_table
 
 __all__ = [
@@ -40,6 +40,7 @@ __all__ = [
     "failed_episodes",
     "failure_step",
     "find_falls",
+    "fit_detectors_from_logs",
     "fpr_at_tpr",
     "load_baseline",
     "log_episodes",

@@ -14,6 +14,7 @@ files.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import warnings
@@ -31,7 +32,7 @@ from oodmon.replay.parts import missing_parts, without_copies
 from oodmon.validation import is_finite_real
 
 __all__ = ["EpisodeLog", "MissingPartWarning", "NewerFormatWarning", "RecoveryWarning", "RunLog", "SkippedLogWarning",
-           "read_log", "read_logs"]
+           "read_log", "read_logs", "read_steps"]
 
 _MAGIC = logformat.MCAP_MAGIC
 _EPISODE, _SCORES, _STEP = logformat.EPISODE, logformat.EPISODE_SCORES, logformat.STEP
@@ -450,6 +451,48 @@ def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str
         return _episode(path, row, arrays, alarm_detector)  # the row's fields checked as every episode's
     except LogFormatError:
         return None  # a start message oodmon did not write: the running episode stays lost
+
+
+def read_steps(path: str | Path, episodes: Sequence[int]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """The observations and actions a log's step messages hold, ``(T, ...)`` each, of each of
+    ``episodes`` (indices of whole episodes :func:`read_log` returned), in step order (a reading
+    that was not finite: NaN): what the learned detectors are fitted on
+    (:func:`oodmon.replay.fit_detectors_from_logs`). The file is streamed, a torn one up to its
+    tear (a whole episode's steps come before its end).
+
+    Raises:
+        LogFormatError: a step of those episodes without its observation (a picture's is logged as
+            a frame), or that ``read_log`` would not have read.
+    """
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+
+    path, wanted = Path(path), set(episodes)
+    steps: dict[int, list[tuple[int, list, object]]] = {k: [] for k in wanted}
+    channels: dict[int, str] = {}
+    with open(path, "rb") as f:
+        with contextlib.suppress(Exception):  # (a torn record ends the readable part: see _recover)
+            for record in StreamReader(f, skip_magic=False, validate_crcs=True).records:
+                if isinstance(record, Channel):
+                    channels[record.id] = record.topic
+                elif isinstance(record, Message) and channels.get(record.channel_id) == _STEP:
+                    row = json.loads(record.data)
+                    if row.get("episode") in wanted:
+                        steps[row["episode"]].append((row.get("step"), row.get("observation"), row.get("action")))
+    found = {}
+    for k in sorted(wanted):
+        rows = sorted(steps[k], key=lambda r: r[0] if isinstance(r[0], int) else -1)
+        if not rows or [r[0] for r in rows] != list(range(len(rows))):
+            raise LogFormatError(f"{path}: the steps of episode {k} are not all there")
+        if any(r[1] is None for r in rows):
+            raise LogFormatError(f"{path}: episode {k}'s steps hold no observation (a picture is logged as a frame, "
+                                 "not as numbers): its detectors cannot be fitted from the log")
+        try:  # (a reading that was not finite is logged as null)
+            found[k] = (np.asarray([[math.nan if v is None else v for v in r[1]] for r in rows], np.float64),
+                        np.asarray([r[2] for r in rows]))
+        except (ValueError, TypeError) as error:
+            raise LogFormatError(f"{path}: episode {k}'s observations or actions are damaged ({error})") from None
+    return found
 
 
 def read_logs(paths: Sequence[str | Path]) -> list[RunLog]:

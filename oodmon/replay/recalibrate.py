@@ -1,4 +1,4 @@
-"""A threshold calibrated on the ID episodes of recorded logs: your deployment's own.
+"""A threshold, and detectors, fitted on the ID episodes of recorded logs: your deployment's own.
 
 ``oodmon calibrate`` plays ID episodes in a simulator. A deployment's own ID world often differs
 from it (real sensors are noisier, a real cart heavier), and a threshold calibrated in the
@@ -10,6 +10,13 @@ of the deployed policy in a state known to be in distribution, logged by a :clas
 every step. :func:`calibrate_from_logs` calibrates the alarm on those scores with the same rule and
 the same promise as ``oodmon calibrate``: the episodes are the calibration episodes, the logs' run
 the deployed policy, detectors and world (all checked alike across the logs).
+
+The detectors stay those that scored the logs, fitted in the simulator, on their scale. Where the
+deployment's world is far from the simulator's, :func:`fit_detectors_from_logs` fits them on its
+logs too (the observations and actions of each step); the alarm is then calibrated on other logs,
+of runs scored by them (2026-12-06, the same noise: the simulator's fit recalibrated read
+combined > 132,828 and caught a pole twice as long at delay median 65.5; fitted and calibrated on
+the deployment's logs, > 6.04518 and delay 1).
 
 Only whole ID episodes count: not a shifted one, nor one the run was stopped inside. An episode
 that ended at the step an alarm began (the step a callback hears of it), without its env ending it,
@@ -23,15 +30,20 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, conformal_rank
 from oodmon.names import BEST_DETECTOR
 from oodmon.replay.metrics import is_id_episode
-from oodmon.replay.reader import EpisodeLog, RunLog, read_logs
+from oodmon.replay.reader import EpisodeLog, RunLog, read_logs, read_steps
 
-__all__ = ["LogEpisodes", "calibrate_from_logs", "log_episodes"]
+if TYPE_CHECKING:  # (the detectors load torch: replay reads logs without it)
+    from oodmon.monitor.detectors.store import DetectorSet
+    from oodmon.progress import Progress
+
+__all__ = ["LogEpisodes", "calibrate_from_logs", "fit_detectors_from_logs", "log_episodes"]
 
 #: What every log a threshold is calibrated on must share, with the words that name it: the scores
 #: of two policies, score functions, sample counts or mask kinds are on two scales.
@@ -59,6 +71,20 @@ class LogEpisodes:
     shifted: int
     interrupted: int
     cut: int
+
+    def noise(self, what: str) -> float:
+        """The sensor noise the episodes were played with (0: none, or none recorded).
+
+        Raises:
+            ConfigError: episodes of two noises, where ``what`` (``"a threshold is calibrated"``)
+                is done in one world.
+        """
+        noise = {float(episode.obs_noise or 0.0) for _, episode in self.episodes}
+        if len(noise) > 1:
+            worlds = " and ".join(f"{n:g}" for n in sorted(noise))
+            raise ConfigError(f"the logs' ID episodes were played with sensor noise {worlds}: {what} in one world; "
+                              "give the logs of one")
+        return noise.pop() if noise else 0.0
 
 
 def log_episodes(logs: Sequence[str | Path | RunLog]) -> LogEpisodes:
@@ -92,6 +118,45 @@ def log_episodes(logs: Sequence[str | Path | RunLog]) -> LogEpisodes:
             episodes.append((log, episode))
             cut += _cut(episode)
     return LogEpisodes(read, episodes, shifted, sum(len(log.interrupted) for log in read), cut)
+
+
+def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, detectors: Sequence[str] | None = None,
+                            seed: int = 0, dynamics_updates: int | None = None,
+                            on_progress: Progress | None = None) -> DetectorSet:
+    """``agent``'s learned detectors fitted on the whole ID episodes of ``logs``, its deployment's
+    own (:func:`~oodmon.monitor.detectors.fitting.fit_recorded_detectors`; the observations and
+    actions of each step, :func:`~oodmon.replay.reader.read_steps`): where the deployment's world
+    is not the simulator's, the detectors learn its own. The logs must be of ``agent`` (its
+    weights' hash) and of one sensor noise, which the set records; ``detectors`` and
+    ``dynamics_updates`` as :func:`~oodmon.monitor.detectors.fit_detectors` takes them (default:
+    the agent's set, every epoch); the spread score the logs' runs read. Calibrate the alarm on
+    other ID logs, scored by these detectors (:func:`calibrate_from_logs`): the episodes a
+    detector learned read low.
+
+    Raises:
+        ConfigError: logs of another policy, of two sensor noises, without observations (pictures),
+            or too few usable episodes (see ``fit_recorded_detectors``).
+    """
+    from oodmon.monitor.detectors.fitting import fit_recorded_detectors
+    from oodmon.monitor.monitor import policy_hash, policy_hash_aliases
+
+    found = log_episodes(logs)
+    first = found.logs[0]
+    recorded = first.metadata.get("policy_hash")
+    mine = policy_hash(agent)
+    if recorded is not None and recorded != mine and recorded not in policy_hash_aliases(agent):
+        raise ConfigError(f"the logs are of another policy ({recorded[:19]}..., this one is {mine[:19]}...): fit on "
+                          "logs of the policy the detectors will watch")
+    noise = found.noise("detectors are fitted")
+    episodes = []
+    for log in found.logs:
+        mine_here = [episode.episode for owner, episode in found.episodes if owner is log]
+        steps = read_steps(log.path, mine_here) if mine_here else {}
+        episodes += [steps[k] for k in mine_here]
+    return fit_recorded_detectors(agent, episodes, detectors=detectors, score=first.metadata.get("score", "chosen_std"),
+                                  obs_noise=noise, seed=seed, dynamics_updates=dynamics_updates,
+                                  on_progress=on_progress, recorded={"episodes": len(episodes), "logs": [
+                                      str(log.path) for log in found.logs]})
 
 
 def _cut(episode: EpisodeLog) -> bool:
@@ -150,11 +215,7 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog], far: float = 0.05, 
     if detector != "spread" and detectors_hash is None:
         raise ConfigError(f"{first.path} does not record which fit of the {detector} detector scored it (a log written "
                           "before 2026-11-29): the monitor could not check it reads the same; log new runs")
-    noise = {float(episode.obs_noise or 0.0) for _, episode in found.episodes}
-    if len(noise) > 1:
-        worlds = " and ".join(f"{n:g}" for n in sorted(noise))
-        raise ConfigError(f"the logs' ID episodes were played with sensor noise {worlds}: a threshold is calibrated in "
-                          "one world; give the logs of one")
+    noise = found.noise("a threshold is calibrated")
     if not found.episodes:
         raise ConfigError(f"the logs hold no whole ID episode ({found.shifted} shifted, {found.interrupted} "
                           "interrupted): give logs of runs of the deployed policy in its own world")
@@ -172,7 +233,7 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog], far: float = 0.05, 
         window=default_window(first.task, detector) if window is None else window, policy_hash=first.metadata.get(
             "policy_hash"), detector=detector, confidence=confidence, masks=first.metadata.get("about.masks"),
         warmup=warmup, detectors_hash=detectors_hash, samples=_samples(first), above=len(found.episodes) - len(whole))
-    return replace(threshold, obs_noise=noise.pop() if noise else 0.0, episode_seeds=_seed_runs(found.episodes),
+    return replace(threshold, obs_noise=noise, episode_seeds=_seed_runs(found.episodes),
                    logs=[{"path": str(log.path), "run_id": log.metadata.get("run_id"),
                           "episodes": sum(1 for owner, _ in found.episodes if owner is log)} for log in found.logs])
 

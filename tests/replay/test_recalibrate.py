@@ -1,5 +1,6 @@
 """A threshold calibrated on the ID episodes of recorded logs (``oodmon recalibrate``,
-``calibrate_from_logs``): a deployment's own world, where no simulator plays it."""
+``calibrate_from_logs``), and detectors fitted on them (``oodmon fit-detectors --from-logs``,
+``fit_detectors_from_logs``): a deployment's own world, where no simulator plays it."""
 
 from __future__ import annotations
 
@@ -10,11 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from oodmon.errors import ConfigError
+from oodmon.errors import ConfigError, LogFormatError
 from oodmon.monitor import Threshold
 from oodmon.monitor.calibration import check_fresh
 from oodmon.monitor.threshold import calibrate, conformal_rank
-from oodmon.replay import EpisodeLog, RunLog, calibrate_from_logs, log_episodes
+from oodmon.replay import EpisodeLog, RunLog, calibrate_from_logs, compute_monitor_metrics, log_episodes, read_log
+from oodmon.replay.reader import read_steps
 from tests.helpers import run_cli
 
 ZOO = Path(__file__).resolve().parents[2] / "oodmon" / "zoo"
@@ -104,7 +106,8 @@ def test_an_episode_an_alarm_may_have_cut_short_counts_above_any_threshold():
 def test_logs_that_cannot_make_one_threshold_are_refused_with_what_differs():
     rng = np.random.default_rng(2)
     ids = [_episode(i, rng.random(10)) for i in range(50)]
-    with pytest.raises(ConfigError, match=r"two policies \(their weights' hashes\): a.mcap has 'sha256:a+', b.mcap 'sha256:b+'"):
+    two = r"two policies \(their weights' hashes\): a.mcap has 'sha256:a+', b.mcap 'sha256:b+'"
+    with pytest.raises(ConfigError, match=two):
         calibrate_from_logs([_log(ids), _log(ids, path="b.mcap", policy="sha256:" + "b" * 64)])
     with pytest.raises(ConfigError, match="from two fits of the detectors"):
         calibrate_from_logs([_log(ids), _log(ids, path="b.mcap", fit="sha256:" + "2" * 64)])
@@ -157,3 +160,60 @@ def test_recalibrate_on_a_noisier_worlds_logs_keeps_the_promise_there_where_the_
                     str(ZOO / "cartpole-dropout" / "detectors"))
     assert other.returncode == 2 and "another fit than the one that scored the logs" in other.stderr
     assert not (tmp_path / "other.json").exists()
+
+
+def test_detectors_fitted_on_the_noisier_worlds_logs_then_recalibrated_on_others_alarm_as_in_the_simulator(tmp_path):
+    """The deployment's world (sensor noise 0.01) logged: the detectors fitted on 30 of its ID
+    episodes (`fit-detectors --from-logs`), the alarm calibrated on 22 others scored by them
+    (`recalibrate`), far 0.1 at confidence 0.9. When written (2026-12-06): combined > 4.37871
+    (the simulator's fit recalibrated there: > 132,828), 0 of 60 fresh noisy ID episodes alarmed,
+    and a pole twice as long from step 50 alarmed 5 of 5 at delay 1 (the simulator's fit: 18 of 20
+    at delay median 65.5). At the promised rate 0.1, 13 or more of 60 alarm with probability 0.01."""
+    world = ["--max-steps", "200", "--obs-noise", "0.01"]
+    agent = ["--task", "cartpole", "--method", "ensemble"]
+    fit_log, cal_log, folder = tmp_path / "fit.mcap", tmp_path / "cal.mcap", tmp_path / "det"
+    assert run_cli("run", *agent, "--episodes", "30", *world, "--mcap", str(fit_log)).returncode == 0
+    done = run_cli("fit-detectors", *agent, "--from-logs", str(fit_log), "--dynamics-updates", "300", "--out",
+                   str(folder))
+    assert done.returncode == 0, done.stderr
+    assert "on 30 ID episodes of 1 log file with sensor noise 0.01" in done.stdout
+    fitted = json.loads((folder / "detectors.json").read_text())["fitted_for"]
+    assert fitted["obs_noise"] == 0.01 and fitted["seed"] is None and fitted["logs"] == [str(fit_log)]
+    assert run_cli("run", *agent, "--detectors", str(folder), "--episodes", "22", *world, "--seed", "1000", "--mcap",
+                   str(cal_log)).returncode == 0
+    threshold = tmp_path / "real.json"
+    assert run_cli("recalibrate", str(cal_log), "--far", "0.1", "--detectors", str(folder), "--out",
+                   str(threshold)).returncode == 0
+    assert Threshold.load(threshold).value < 50  # on the scale of a fit in its own world (the simulator's: 132,828)
+    validation = json.loads(run_cli("validate", str(threshold), "--episodes", "60", "--max-steps", "200",
+                                    "--json").stdout)
+    assert validation["obs_noise"] == 0.01 and validation["alarmed"] < 13, validation  # (0 when written)
+    shifted = tmp_path / "shifted.mcap"
+    assert run_cli("run", "--threshold", str(threshold), "--variant", "cartpole:length=2.0", "--onset", "50",
+                   "--episodes", "5", "--max-steps", "200", "--seed", "5000", "--mcap", str(shifted)).returncode == 0
+    (row,) = [r for r in compute_monitor_metrics([read_log(shifted)]) if r.variant == "cartpole:length=2.0"]
+    assert row.alarmed == 5 and row.early == 0 and row.delay_median <= 5  # (delay 1 when written)
+    # the logs of another policy, and the options of played episodes, are refused
+    other = run_cli("fit-detectors", "--task", "cartpole", "--method", "dropout", "--from-logs", str(fit_log), "--out",
+                    str(tmp_path / "other"))
+    assert other.returncode == 2 and "the logs are of another policy" in other.stderr
+    played = run_cli("fit-detectors", *agent, "--from-logs", str(fit_log), "--episodes", "9", "--obs-noise", "0.01",
+                     "--out", str(tmp_path / "other"))
+    assert played.returncode == 2 and "--episodes and --obs-noise shape the episodes" in played.stderr
+
+
+def test_the_steps_a_log_holds_are_read_in_order_and_episodes_that_cannot_be_fitted_on_are_said():
+    log = Path(__file__).resolve().parents[1] / "data" / "cartpole-ensemble-id.mcap"
+    steps = read_steps(log, [0, 2])
+    assert set(steps) == {0, 2} and steps[0][0].shape == (500, 4) and steps[2][1].shape == (500,)
+    assert set(np.unique(steps[0][1])) <= {0, 1} and np.isfinite(steps[0][0]).all()
+    assert not np.array_equal(steps[0][0], steps[2][0])  # two episodes, not one read twice
+    with pytest.raises(LogFormatError, match="the steps of episode 7 are not all there"):
+        read_steps(log, [7])
+    from oodmon.agents import load
+    from oodmon.monitor.detectors.fitting import fit_recorded_detectors
+
+    broken = steps[0][0].copy()
+    broken[10, 2] = np.nan  # a reading that was not finite: the monitor feeds no detector that step
+    with pytest.raises(ConfigError, match="2 of the 3 recorded episodes can be fitted on"):
+        fit_recorded_detectors(load("cartpole", "ensemble"), [steps[0], steps[2], (broken, steps[0][1])])

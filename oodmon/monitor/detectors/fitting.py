@@ -46,8 +46,8 @@ from oodmon.versions import machine
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "KEEP_AT_MOST",
            "best_detector", "collect", "default_detectors", "default_fit_steps", "detectors_for", "discrete_states",
-           "fit_agent_detectors", "fit_settings", "fitting_notes", "fit_detectors", "policy_parts",
-           "read_kept_trajectories", "trajectory_scores"]
+           "fit_agent_detectors", "fit_recorded_detectors", "fit_settings", "fitting_notes", "fit_detectors",
+           "policy_parts", "read_kept_trajectories", "trajectory_scores"]
 
 #: ID episodes the learned detectors are fitted on by default: two thirds fit, one third ranks.
 #: 90 since 2026-11-24 (30 before): on the monitor's own benchmark (same agents and episodes) the
@@ -612,9 +612,11 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
 
 def _fitted(trajectories: list[Trajectory], detectors: Sequence[str], estimator: Any, task: str | None, score: str,
             n_actions: int | None, seed: int, dynamics_updates: int | None, on_progress: Progress | None, *,
-            policy_hash: str | None, obs_noise: float, workers: int, max_steps: int | None) -> DetectorSet:
+            policy_hash: str | None, obs_noise: float, workers: int, max_steps: int | None,
+            recorded: dict[str, Any] | None = None) -> DetectorSet:
     """:func:`fit_detectors`' set, fitted on the episodes ``trajectories`` it played (``estimator``:
-    the policy's, or ``None``)."""
+    the policy's, or ``None``); ``recorded``: what ``fitted_for`` says instead of how they were
+    played (episodes from logs: no reset seeds of this fit's)."""
     n_fit = max(1, (2 * len(trajectories)) // 3)
     fit, held_out = [replace(t, estimates=None) for t in trajectories[:n_fit]], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []
@@ -643,7 +645,7 @@ def _fitted(trajectories: list[Trajectory], detectors: Sequence[str], estimator:
         fitted_for["workers"] = workers
     if max_steps is not None:  # each episode's limit (since 2026-12-05: it may lift the env's own)
         fitted_for["max_steps"] = max_steps
-    result = DetectorSet(parts, fitted_for=fitted_for)
+    result = DetectorSet(parts, fitted_for=fitted_for | (recorded or {}))
     if "combined" in detectors:
         left_out = COMBINED_LEAVES_OUT.get(task or "", ())
         members = [d.name for d in parts if d.name not in left_out] or [d.name for d in parts]
@@ -760,6 +762,74 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
                              dynamics_updates=dynamics_updates, kept=kept)
     finally:
         env.close()
+
+
+def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.ndarray]], *,
+                           detectors: Sequence[str] | None = None, score: str = DEFAULT_SCORE, obs_noise: float = 0.0,
+                           seed: int = DETECTOR_FIT, dynamics_updates: int | None = MAX_UPDATES,
+                           on_progress: Progress | None = None, recorded: dict[str, Any] | None = None) -> DetectorSet:
+    """:func:`fit_agent_detectors`' set, fitted on recorded ID episodes of ``agent`` instead of
+    episodes it plays: each ``(observations, actions)``, ``(T, ...)`` each, as a monitor's log holds
+    them (the observations the detectors read, the actions read flattened; :func:`oodmon.replay.
+    fit_detectors_from_logs` reads them). The first two thirds fit, the last third ranks, as in a
+    played fit; the features and an ensemble's member values are the agent's at each observation.
+    ``seed`` seeds the models' fits; ``recorded`` is what ``fitted_for`` says of the episodes (no
+    reset seeds: validate then refuses none of them). Episodes with a reading that is not finite
+    are left out, as the monitor feeds no detector such a step.
+
+    Raises:
+        ConfigError: an agent whose detectors read more than its log holds (a stack, a dict's
+            picture or text, a memory of the episode), fewer than 3 usable episodes, or a detector
+            it cannot have (as :func:`fit_detectors`).
+    """
+    from oodmon.monitor.monitor import policy_hash
+
+    if getattr(agent, "reads_own", False) or agent.remembers or agent.reads_words:
+        raise ConfigError("its log holds what the detectors read of each step, not all that this policy acts on (a "
+                          "stack of observations, a dict's picture or text, or a memory of the episode): fit its "
+                          "detectors on played episodes (`oodmon fit-detectors` without --from-logs)")
+    usable = [(np.asarray(obs, np.float64), np.asarray(actions)) for obs, actions in episodes
+              if len(obs) >= 2 and np.isfinite(np.asarray(obs, np.float64)).all()]
+    if len(usable) < 3:
+        raise ConfigError(f"{len(usable)} of the {len(episodes)} recorded episodes can be fitted on (two steps or "
+                          "more, every reading finite); fitting needs at least 3 (two thirds fit, one third ranks)")
+    check_max_updates(dynamics_updates, "dynamics_updates")
+    seed = check_seed(seed)
+    env = agent.make_env(obs_noise)  # its spaces: which detectors the agent can have
+    try:
+        names = default_detectors(agent, env, agent.task) if detectors is None else tuple(detectors)
+        strangers = [name for name in names if name not in DETECTORS]
+        if strangers:
+            raise InvalidParameterError(unknown("detector", strangers[0], DETECTORS))
+        if brings_default_set(names):
+            names = tuple(dict.fromkeys((*default_detectors(agent, env, agent.task), *names)))
+        if "drift" in names and "dynamics" not in names:
+            names = ("dynamics", *names)
+        reason = cannot_have_any([name for name in names if name != "spread"], agent, env)
+        read_flat = getattr(agent, "action_parts", None) is not None
+        n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) \
+            and not read_flat else None
+    finally:
+        env.close()
+    if reason is not None:
+        raise ConfigError(reason)
+    estimator = agent.estimator
+    ensemble = "scaled_spread" in names and has_members(estimator)
+    trajectories = []
+    for observations, actions in usable:
+        features, values = [], []
+        for obs in observations[:-1] if estimator is not None else ():
+            estimate = estimator.estimate(obs)
+            if estimate.features is not None:
+                features.append(estimate.features[0])
+            if ensemble:
+                values.append(member_values(estimate))
+        steps = len(observations) - 1
+        trajectories.append(Trajectory(observations, actions[:steps], np.asarray(features) if len(features) == steps
+                                       else None, np.asarray(values) if ensemble else None))
+    return _fitted(trajectories, names, estimator, agent.task, score, n_actions, seed, dynamics_updates, on_progress,
+                   policy_hash=policy_hash(agent), obs_noise=obs_noise, workers=1, max_steps=None,
+                   recorded={"seed": None, **(recorded or {})})
 
 
 def fit_settings(agent: Any, detectors: Sequence[str] | None, *, score: str, episodes: int | None,
