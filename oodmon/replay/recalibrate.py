@@ -107,8 +107,8 @@ def log_episodes(logs: Sequence[str | Path | RunLog]) -> LogEpisodes:
         if len(values) > 1:
             other = next(log for log in read if _field(log, key) != _field(first, key))
             raise ConfigError(f"the logs are of two {words}: {first.path} has {_field(first, key)!r}, "
-                              f"{other.path} {_field(other, key)!r}; a threshold is calibrated on one policy's scores: "
-                              "give the logs of one")
+                              f"{other.path} {_field(other, key)!r}; their scores are on two scales, read here as one "
+                              "policy's: give the logs of one")
     episodes, shifted, cut = [], 0, 0
     for log in read:
         for episode in log.episodes:
@@ -225,6 +225,11 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog], far: float = 0.05, 
         except ConfigError as error:  # (which says how many it needs)
             raise ConfigError(f"the logs hold {len(found.episodes)} whole ID episodes ({found.shifted} shifted and "
                               f"{found.interrupted} interrupted left out): {error}; log more ID runs") from None
+    if mode != "episode" and found.cut:
+        raise ConfigError(f"{found.cut} of the logs' ID episodes ended at the step an alarm began, their env not "
+                          "ending them: an alarm may have cut them short, and their steps after it are unknown; "
+                          "calibrate per episode (mode='episode', --mode episode), which counts them above any "
+                          "threshold")
     whole = [(log, episode) for log, episode in found.episodes if not _cut(episode)]
     scores = [episode.scores_of(detector) for _, episode in whole]
     threshold = calibrate(

@@ -101,6 +101,8 @@ def test_an_episode_an_alarm_may_have_cut_short_counts_above_any_threshold():
     # where the rank falls among the cut episodes, there is no threshold, and it says why
     with pytest.raises(ConfigError, match="falls among the 1 whose scores are not all known"):
         calibrate_from_logs([_log(episodes[:45])], 0.05)
+    with pytest.raises(ConfigError, match="1 of the logs' ID episodes ended at the step an alarm began"):
+        calibrate_from_logs([_log(episodes)], 0.05, mode="step", confidence=None)
 
 
 def test_logs_that_cannot_make_one_threshold_are_refused_with_what_differs():
