@@ -35,6 +35,7 @@ from pathlib import Path
 
 from oodmon.cli import main
 from oodmon.jsonfile import write_json
+from oodmon.threads import limit_threads
 
 AGENT = ["--task", "cartpole", "--method", "ensemble"]
 SHIFTS = ("cartpole:length=2.0", "cartpole:masscart=3.0", "cartpole:force_mag=5.0")
@@ -123,6 +124,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def run(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
+    limit_threads()  # OODMON_TORCH_THREADS, one thread where it is not set (each command sets it so too)
     command = ["OODMON_TORCH_THREADS=1", ".venv/bin/python", "scripts/deployment_world.py",
                *(sys.argv[1:] if argv is None else argv)]
     results = {"command": " ".join(command), "worlds": {}}
