@@ -286,7 +286,7 @@ def _recalibrate(args: argparse.Namespace) -> int:
     replaced = replaced_file(args.out, parameter="--out", holds="threshold", read=Threshold.load)
     detectors = DetectorSet.load(args.detectors) if args.detectors else None
     found = log_episodes(args.logs)
-    threshold = calibrate_from_logs(found.logs, args.far, confidence=args.confidence, detector=args.detector,
+    threshold = calibrate_from_logs(found, args.far, confidence=args.confidence, detector=args.detector,
                                     consecutive=args.consecutive, window=args.window, warmup=args.warmup,
                                     mode=args.mode)
     if detectors is not None and threshold.detector != "spread":

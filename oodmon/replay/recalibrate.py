@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from oodmon.errors import ConfigError, InvalidParameterError
+from oodmon.hashing import other_weights
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, conformal_rank
 from oodmon.names import BEST_DETECTOR
@@ -142,9 +143,8 @@ def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, 
 
     found = log_episodes(logs)
     first = found.logs[0]
-    recorded = first.metadata.get("policy_hash")
-    mine = policy_hash(agent)
-    if recorded is not None and recorded != mine and recorded not in policy_hash_aliases(agent):
+    recorded, mine = first.metadata.get("policy_hash"), policy_hash(agent)
+    if other_weights(recorded, mine, policy_hash_aliases(agent)):
         raise ConfigError(f"the logs are of another policy ({recorded[:19]}..., this one is {mine[:19]}...): fit on "
                           "logs of the policy the detectors will watch")
     noise = found.noise("detectors are fitted")
@@ -171,11 +171,12 @@ def _field(log: RunLog, key: str) -> str | None:
     return getattr(log, key) if key in ("task", "method") else log.metadata.get(key)
 
 
-def calibrate_from_logs(logs: Sequence[str | Path | RunLog], far: float = 0.05, *,
+def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: float = 0.05, *,
                         confidence: float | None = DEFAULT_CONFIDENCE, detector: str | None = None,
                         consecutive: int | None = None, window: int | None = None, warmup: int = 0,
                         mode: str = "episode") -> Threshold:
-    """A threshold calibrated on the whole ID episodes of ``logs`` (see the module's words).
+    """A threshold calibrated on the whole ID episodes of ``logs`` (see the module's words; or
+    their episodes read already, :func:`log_episodes`).
 
     ``detector``: the detector whose logged scores the alarm reads (default: the one the logs' runs
     alarmed on; of runs without a threshold, the task's best they scored, as ``oodmon calibrate``
@@ -195,7 +196,7 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog], far: float = 0.05, 
         threshold = calibrate_from_logs(["runs/real/"], far=0.05)  # every log below runs/real
         threshold.save("runs/real.json")
     """
-    found = log_episodes(logs)
+    found = logs if isinstance(logs, LogEpisodes) else log_episodes(logs)
     first = found.logs[0]
     if detector is None:
         detector = _default_detector(found.logs)

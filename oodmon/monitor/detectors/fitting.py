@@ -554,14 +554,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     """
     estimator, _, metadata = policy_parts(policy)
     task = task or metadata.get("task")
-    detectors = default_detectors(policy, env, task) if detectors is None else tuple(detectors)
-    strangers = [name for name in detectors if name not in DETECTORS]
-    if strangers:
-        raise InvalidParameterError(unknown("detector", strangers[0], DETECTORS))
-    if brings_default_set(detectors):
-        detectors = tuple(dict.fromkeys((*default_detectors(policy, env, task), *detectors)))
-    if "drift" in detectors and "dynamics" not in detectors:  # it reads the dynamics model's residuals
-        detectors = ("dynamics", *detectors)
+    detectors = _named(policy, env, task, detectors)
     if not is_whole(episodes, 3):
         raise InvalidParameterError(f"episodes={episodes!r} is not allowed; fitting needs a whole number >= 3 of "
                                     "ID episodes (two thirds fit, one third ranks)")
@@ -569,15 +562,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     check_max_steps(max_steps)
     seed = check_seed(seed)
     workers = resolve_workers(workers, episodes)
-    # (spread is not asked: it joins where the policy has samples)
-    reason = cannot_have_any([name for name in detectors if name != "spread"], policy, env)
-    if reason is not None:
-        raise ConfigError(reason)
-    # (an Agent whose actions are read flattened, Agent.read_action, hands the model numbers: one-hot
-    # rows of a Discrete counted from another start than 0 among them)
-    read_flat = getattr(policy, "action_parts", None) is not None
-    n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) and not read_flat \
-        else None
+    n_actions = _checked_actions(detectors, policy, env)
     # The held-out third keeps its estimates: combined ranks the spread of the samples each action
     # was chosen from, as the monitor reads it (asked again, a sampled MC policy would draw others).
     # Played on for min_steps, the episodes are not known beforehand: all keep theirs, the fit
@@ -608,6 +593,42 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
             interrupt.kept_episodes = _keep_trajectories(kept, made_by, played,
                                                          trail.state_after(len(played) - len(done), state))
         raise
+
+
+def _named(policy: Any, env: gymnasium.Env, task: str | None, detectors: Sequence[str] | None) -> tuple[str, ...]:
+    """The detectors a fit of ``policy`` in ``env`` fits: ``detectors`` (default: :func:`default_detectors`),
+    with the default set where one of them brings it and ``dynamics`` where ``drift`` reads its residuals.
+
+    Raises:
+        InvalidParameterError: an unknown detector name.
+    """
+    detectors = default_detectors(policy, env, task) if detectors is None else tuple(detectors)
+    strangers = [name for name in detectors if name not in DETECTORS]
+    if strangers:
+        raise InvalidParameterError(unknown("detector", strangers[0], DETECTORS))
+    if brings_default_set(detectors):
+        detectors = tuple(dict.fromkeys((*default_detectors(policy, env, task), *detectors)))
+    if "drift" in detectors and "dynamics" not in detectors:  # it reads the dynamics model's residuals
+        detectors = ("dynamics", *detectors)
+    return detectors
+
+
+def _checked_actions(detectors: Sequence[str], policy: Any, env: gymnasium.Env) -> int | None:
+    """The discrete actions the dynamics model reads one-hot (``None``: the actions are numbers),
+    once ``policy`` in ``env`` is checked to have each of ``detectors``.
+
+    Raises:
+        ConfigError: a detector it cannot have (:func:`cannot_have`).
+    """
+    # (spread is not asked: it joins where the policy has samples)
+    reason = cannot_have_any([name for name in detectors if name != "spread"], policy, env)
+    if reason is not None:
+        raise ConfigError(reason)
+    # (an Agent whose actions are read flattened, Agent.read_action, hands the model numbers: one-hot
+    # rows of a Discrete counted from another start than 0 among them)
+    read_flat = getattr(policy, "action_parts", None) is not None
+    return int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) and not read_flat \
+        else None
 
 
 def _fitted(trajectories: list[Trajectory], detectors: Sequence[str], estimator: Any, task: str | None, score: str,
@@ -788,8 +809,8 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
         raise ConfigError("its log holds what the detectors read of each step, not all that this policy acts on (a "
                           "stack of observations, a dict's picture or text, or a memory of the episode): fit its "
                           "detectors on played episodes (`oodmon fit-detectors` without --from-logs)")
-    usable = [(np.asarray(obs, np.float64), np.asarray(actions)) for obs, actions in episodes
-              if len(obs) >= 2 and np.isfinite(np.asarray(obs, np.float64)).all()]
+    usable = [(obs, np.asarray(actions)) for obs, actions in ((np.asarray(o, np.float64), a) for o, a in episodes)
+              if len(obs) >= 2 and np.isfinite(obs).all()]
     if len(usable) < 3:
         raise ConfigError(f"{len(usable)} of the {len(episodes)} recorded episodes can be fitted on (two steps or "
                           "more, every reading finite); fitting needs at least 3 (two thirds fit, one third ranks)")
@@ -797,22 +818,10 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
     seed = check_seed(seed)
     env = agent.make_env(obs_noise)  # its spaces: which detectors the agent can have
     try:
-        names = default_detectors(agent, env, agent.task) if detectors is None else tuple(detectors)
-        strangers = [name for name in names if name not in DETECTORS]
-        if strangers:
-            raise InvalidParameterError(unknown("detector", strangers[0], DETECTORS))
-        if brings_default_set(names):
-            names = tuple(dict.fromkeys((*default_detectors(agent, env, agent.task), *names)))
-        if "drift" in names and "dynamics" not in names:
-            names = ("dynamics", *names)
-        reason = cannot_have_any([name for name in names if name != "spread"], agent, env)
-        read_flat = getattr(agent, "action_parts", None) is not None
-        n_actions = int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) \
-            and not read_flat else None
+        names = _named(agent, env, agent.task, detectors)
+        n_actions = _checked_actions(names, agent, env)
     finally:
         env.close()
-    if reason is not None:
-        raise ConfigError(reason)
     estimator = agent.estimator
     ensemble = "scaled_spread" in names and has_members(estimator)
     trajectories = []
