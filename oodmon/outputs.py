@@ -64,7 +64,8 @@ def check_output_file(path: str | Path, *, parameter: str,
 PICTURE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
-def check_picture_file(path: str | Path, *, parameter: str) -> Path:
+def check_picture_file(path: str | Path, *, parameter: str,
+                       inputs: Iterable[tuple[str, str | Path | None]] = ()) -> Path:
     """:func:`check_output_file` for a picture: a name without a suffix gets ``.png`` (the name
     returned is the file that will be written), a suffix of another format is a :class:`ConfigError`.
 
@@ -81,7 +82,7 @@ def check_picture_file(path: str | Path, *, parameter: str) -> Path:
     elif path.suffix.lower() not in PICTURE_SUFFIXES:
         raise ConfigError(f"{parameter} {path}: write a picture as {', '.join(PICTURE_SUFFIXES)}, not "
                           f"{path.suffix or 'an empty name'}")
-    return check_output_file(path, parameter=parameter)
+    return check_output_file(path, parameter=parameter, inputs=inputs)
 
 
 def _check_file(path: Path, parameter: str, inputs: Iterable[tuple[str, str | Path | None]]) -> Path:

@@ -271,6 +271,9 @@ def _add_recalibrate(commands: argparse._SubParsersAction) -> None:
                                                  "<threshold>.detectors, or --detectors): checked against the logs and "
                                                  "copied to <--out>.detectors, where `oodmon run` finds them")
     recalibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
+    recalibrate.add_argument("--plot", metavar="FILE", help="draw each calibration episode's statistic in the logs' "
+                                                            "order, the threshold and any change among them (Pettitt's "
+                                                            "test, which warns of one) to FILE (.png, .jpg)")
     recalibrate.set_defaults(handler=_recalibrate, plays=False, kept_on_interrupt=_KEPT["recalibrate"])
 
 
@@ -278,11 +281,14 @@ def _recalibrate(args: argparse.Namespace) -> int:
     from oodmon.monitor import Threshold
     from oodmon.monitor.calibration import save_calibration
     from oodmon.monitor.detectors import DetectorSet
-    from oodmon.outputs import check_output_file, replaced_file
-    from oodmon.replay.recalibrate import calibrate_from_logs, log_episodes
+    from oodmon.outputs import check_output_file, check_picture_file, replaced_file
+    from oodmon.replay.plots import plot_log_statistics
+    from oodmon.replay.recalibrate import calibrate_from_logs, change_in_logs, log_episodes
 
-    check_output_file(args.out, parameter="--out", inputs=[("--detectors", args.detectors),
-                                                            *(("a log", log) for log in args.logs)])
+    inputs = [("--detectors", args.detectors), *(("a log", log) for log in args.logs)]
+    check_output_file(args.out, parameter="--out", inputs=inputs)
+    plot = None if args.plot is None else check_picture_file(args.plot, parameter="--plot",
+                                                             inputs=[*inputs, ("--out", args.out)])
     replaced = replaced_file(args.out, parameter="--out", holds="threshold", read=Threshold.load)
     detectors = DetectorSet.load(args.detectors) if args.detectors else None
     found = log_episodes(args.logs)
@@ -299,6 +305,8 @@ def _recalibrate(args: argparse.Namespace) -> int:
                               "give the detectors the logs' runs read")
     save_calibration(threshold, args.out, detectors)
     cleared = None if detectors is not None else _clear_earlier_detectors(args.out, None)
+    if plot is not None:
+        plot_log_statistics(change_in_logs(found, threshold), threshold, plot)
     left_out = [f"{found.shifted} shifted" if found.shifted else "",
                 f"{found.interrupted} the run was stopped inside" if found.interrupted else ""]
     Console(soft_wrap=True).print(
@@ -311,7 +319,8 @@ def _recalibrate(args: argparse.Namespace) -> int:
         + (f" (replacing the threshold it held: alarm when {replaced.rule_text})" if replaced else "")
         + (f"; the detectors it reads copied to {args.out}.detectors (`oodmon run` finds them there)"
            if detectors is not None else "")
-        + (f"; removed the detectors an earlier calibration fitted into {cleared}" if cleared else ""),
+        + (f"; removed the detectors an earlier calibration fitted into {cleared}" if cleared else "")
+        + (f"; drew its episodes' statistics in {plot}" if plot is not None else ""),
         markup=False)
     notes = [f"left out {' and '.join(filter(None, left_out))} episodes"] if any(left_out) else []
     if found.cut:

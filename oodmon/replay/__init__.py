@@ -15,12 +15,15 @@ from oodmon.replay.failures import failure_step
 from oodmon.replay.parts import MissingParts, missing_parts
 from oodmon.replay.reader import (EpisodeLog, MissingPartWarning, NewerFormatWarning, RecoveryWarning, RunLog,
                                   SkippedLogWarning, read_log, read_logs)
-from oodmon.replay.recalibrate import LogEpisodes, calibrate_from_logs, fit_detectors_from_logs, log_episodes
+from oodmon.replay.recalibrate import (ChangeInLogsWarning, LogEpisodes, LogStatistics, calibrate_from_logs,
+                                      change_in_logs, fit_detectors_from_logs, log_episodes)
 from oodmon.replay.report import monitor_markdown, monitor_summary, monitor_table, to_csv, to_json, to_markdown, to_table
 
 __all__ = [
+    "ChangeInLogsWarning",
     "EpisodeLog",
     "LogEpisodes",
+    "LogStatistics",
     "MissingPartWarning",
     "MissingParts",
     "MonitorMetrics",
@@ -32,6 +35,7 @@ __all__ = [
     "alarm_events",
     "baseline_of",
     "calibrate_from_logs",
+    "change_in_logs",
     "check_tolerance",
     "compute_all_metrics",
     "compute_metrics",

@@ -6,14 +6,18 @@
 - :func:`plot_auroc_vs_shift`: per method, AUROC against the parameter's value (or severity).
 - :func:`plot_alarm_timeline` (``replay --monitor --plots``): per agent and shifted variant, each
   episode from its onset to its end, its first alarm and its failure: alarmed before the failure?
+- :func:`plot_log_statistics` (``recalibrate --plot``): each calibration episode's statistic in the
+  logs' order, the threshold, the logged runs' own, and the most likely change among them.
 """
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from itertools import cycle
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,7 +30,12 @@ from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, 
                                    is_id_variant, rankable, roc_points, shifted_alarms)
 from oodmon.replay.reader import EpisodeLog, RunLog
 
-__all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_roc", "plot_trace", "write_monitor_plots", "write_plots"]
+if TYPE_CHECKING:
+    from oodmon.monitor.threshold import Threshold
+    from oodmon.replay.recalibrate import LogStatistics
+
+__all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_log_statistics", "plot_roc", "plot_trace",
+           "write_monitor_plots", "write_plots"]
 
 
 def _pyplot():
@@ -356,3 +365,64 @@ def write_monitor_plots(logs: Sequence[RunLog], folder: str | Path, failure: str
                                    failures=failure_known(task, failure))
                for (task, method), variants in sorted(by_agent.items())]
     return [p for p in written if p is not None]
+
+
+def plot_log_statistics(statistics: LogStatistics, threshold: Threshold, path: str | Path) -> Path:
+    """``oodmon recalibrate --plot``: each calibration episode's statistic under ``threshold``'s
+    rule in the logs' order (:func:`~oodmon.replay.recalibrate.change_in_logs`), each log's start
+    marked, the threshold, the logged runs' own where they alarmed on the same detector, and
+    Pettitt's most likely change with each side's median (dashed where the test does not find it).
+    The bound asks for one world: points that rise or fall over the logs are two."""
+    from oodmon.replay.recalibrate import CHANGE_LEVEL
+
+    values, n = statistics.values, len(statistics.values)
+    x = np.arange(n)
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8, 3.6), dpi=110)
+    finite = np.isfinite(values)
+    ax.scatter(x[finite], values[finite], s=10, color="tab:blue", label="an episode's statistic")
+    if (~finite).any():  # an episode an alarm may have cut short (+inf), or one too short for the rule (-inf)
+        ax.scatter(x[~finite], np.where(values[~finite] > 0, 0.97, 0.03), transform=ax.get_xaxis_transform(),
+                   marker="^", s=14, color="tab:red", clip_on=False, label="+inf or -inf (cut short, or too short)")
+    ax.axhline(threshold.value, color="black", linewidth=1, label=f"threshold {threshold.value:.4g}")
+    earlier = {log.threshold for log, _ in statistics.episodes
+               if log.has_threshold and log.detector == threshold.detector}
+    for value in sorted(earlier):
+        ax.axhline(value, color="grey", linewidth=1, linestyle=":", label=f"the runs' threshold {value:.4g}")
+    starts = [i for i in range(1, n) if statistics.episodes[i][0] is not statistics.episodes[i - 1][0]]
+    for i in starts:
+        ax.axvline(i - 0.5, color="grey", linewidth=0.5, alpha=0.5)
+    change = statistics.change
+    if change is not None:
+        found = change.p_value < CHANGE_LEVEL
+        style = {"color": "tab:orange" if found else "tab:grey", "linewidth": 1.5 if found else 1,
+                 "linestyle": "-" if found else "--"}
+        for low, high, median in ((0, change.at, change.before), (change.at, n, change.after)):
+            if math.isfinite(median):
+                ax.hlines(median, low - 0.5, high - 0.5, **style)
+        ax.axvline(change.at - 0.5, **style, label=(
+            f"{'a change' if found else 'no change found'} (Pettitt p = {change.p_value:.2g}): each side's median"))
+    ax.set_xlabel(f"calibration episode, in the logs' order ({len({id(log) for log, _ in statistics.episodes})} "
+                  "log(s); grey lines: a log's start)")
+    scale = _statistic_scale(values[finite])
+    if scale is not None:
+        ax.set_yscale("symlog", linthresh=scale)
+    ax.set_ylabel(f"{threshold.detector} statistic" + (" (symlog)" if scale is not None else ""))
+    ax.legend(loc="best", fontsize=7)
+    ax.set_title(f"{threshold.task}/{threshold.method}: {n} ID episodes of the logs, alarm when {threshold.rule_text}",
+                 fontsize=9)
+    return save_figure(fig, path)
+
+
+def _statistic_scale(values: np.ndarray) -> float | None:
+    """A symlog axis' linear range for episode statistics of which some are far larger than a
+    quarter of them (``WIDE_RANGE`` times their lower quartile's size: a world that changed among
+    the logs, whose threshold is thousands of times the other world's statistics), ``None`` for a
+    linear axis."""
+    if not len(values):
+        return None
+    sizes = np.abs(values)
+    scale = float(np.percentile(sizes, 25))
+    if scale <= 0.0 or float(sizes.max()) <= WIDE_RANGE * scale:
+        return None
+    return float(10.0 ** np.ceil(np.log10(scale)))

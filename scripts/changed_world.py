@@ -1,0 +1,122 @@
+"""A deployment whose world changed while its "ID" runs were logged, recalibrated with and without
+the change: what `recalibrate`'s change warning (Pettitt's test) saves a user from.
+
+Run (about a minute on one core):
+    OODMON_TORCH_THREADS=1 .venv/bin/python scripts/changed_world.py [--longer 0.6] \
+        [--out results/deployment/changed-world.json]
+
+Your own policy, as docs/your-policy.md's first example makes it: two small SB3 DQNs trained on
+gymnasium's ``CartPole-v1`` (seeds 0 and 1), watched by ``oodmon.watch`` (its detectors fitted and
+its threshold calibrated in that env). The deployment then logs 60 ID episodes, and 40 more after
+its pole has grown from 0.5 to ``--longer`` (half-length, m) without anything saying so (the env's
+``info`` has no ``shifted``): the 100 episodes are all "ID" to the logs. Recalibrated on both logs
+(``calibrate_from_logs``: it warns of the change, and where it begins) and on the first alone, each
+threshold (far 0.05, confidence 0.9) is then judged on fresh logged episodes of both worlds (100
+with the first pole, 40 with the longer, other seeds): how many alarm. Writes the figures as JSON
+and prints them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import warnings
+from pathlib import Path
+
+import gymnasium
+
+import oodmon
+from oodmon.jsonfile import write_json
+from oodmon.monitor import LongerThanCalibrationWarning, McapSink
+from oodmon.monitor.alarms import episode_statistic
+from oodmon.replay import ChangeInLogsWarning, calibrate_from_logs, change_in_logs, log_episodes
+from oodmon.threads import limit_threads
+
+LENGTH = 0.5  # CartPole-v1's pole half-length
+
+
+def train(folder: Path) -> list[str]:
+    """docs/your-policy.md's two DQNs (a few seconds each)."""
+    from stable_baselines3 import DQN
+
+    paths = []
+    for seed in (0, 1):
+        model = DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=seed, learning_starts=500, learning_rate=2.3e-3,
+                    batch_size=64, train_freq=8, gradient_steps=2, target_update_interval=100,
+                    exploration_fraction=0.3, exploration_final_eps=0.04, policy_kwargs={"net_arch": [64, 64]})
+        model.learn(4000)
+        paths.append(str(folder / f"dqn{seed}.zip"))
+        model.save(paths[-1])
+    return paths
+
+
+def logged(models: list[str], threshold: Path, length: float, episodes: int, seed: int, path: Path) -> Path:
+    """``episodes`` episodes of the watched policy in CartPole-v1 with pole half-length ``length``,
+    unflagged, logged to ``path``."""
+    env = gymnasium.make("CartPole-v1")
+    env.unwrapped.length, env.unwrapped.polemass_length = length, env.unwrapped.masspole * length
+    watched = oodmon.watch(models, "CartPole-v1", threshold=threshold, env=env, sinks=[McapSink(path)])
+    for k in range(episodes):
+        watched.reset(seed=seed + k)
+        done = False
+        while not done:
+            _, _, terminated, truncated, _ = watched.step()
+            done = terminated or truncated
+    watched.close()
+    return path
+
+
+def alarmed(threshold, log: Path) -> int:
+    """How many of ``log``'s episodes ``threshold``'s rule alarms in (its statistic above it)."""
+    return sum(episode_statistic(episode.scores_of(threshold.detector), threshold.consecutive, threshold.window,
+                                 warmup=threshold.warmup) > threshold.value
+               for _, episode in log_episodes([log]).episodes)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--longer", type=float, default=0.6, help="the pole's half-length after the change")
+    parser.add_argument("--out", default="results/deployment/changed-world.json")
+    args = parser.parse_args()
+    limit_threads()
+    # the simulator's threshold, which the logged runs read, was calibrated on shorter episodes than
+    # some of the policy's: its warning of each is beside the point here
+    warnings.filterwarnings("ignore", category=LongerThanCalibrationWarning)
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        models = train(folder)
+        oodmon.watch(models, "CartPole-v1", save=folder / "sim.json", seed=0)
+        first = logged(models, folder / "sim.json", LENGTH, 60, 5000, folder / "logs" / "log-1.mcap")
+        second = logged(models, folder / "sim.json", args.longer, 40, 6000, folder / "logs" / "log-2.mcap")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ChangeInLogsWarning)
+            both = calibrate_from_logs([first, second])
+        said = [str(w.message) for w in caught if issubclass(w.category, ChangeInLogsWarning)]
+        change = change_in_logs(log_episodes([first, second]), both).change
+        alone = calibrate_from_logs([first])
+        fresh_id = logged(models, folder / "sim.json", LENGTH, 100, 70000, folder / "fresh-id.mcap")
+        fresh_longer = logged(models, folder / "sim.json", args.longer, 40, 80000, folder / "fresh-longer.mcap")
+        rows = {}
+        for name, threshold in (("both logs", both), ("the first log", alone)):
+            rows[name] = {"detector": threshold.detector, "value": threshold.value,
+                          "n_episodes": threshold.n_episodes, "fresh_id_alarmed": alarmed(threshold, fresh_id),
+                          "fresh_id": 100, "fresh_longer_alarmed": alarmed(threshold, fresh_longer), "fresh_longer": 40}
+    result = {"longer": args.longer, "change": {"p_value": change.p_value, "at": change.at, "before": change.before,
+                                                "after": change.after, "warned": bool(said)}, "thresholds": rows,
+              "command": "OODMON_TORCH_THREADS=1 .venv/bin/python scripts/changed_world.py"
+                         + (f" --longer {args.longer}" if args.longer != 0.6 else "")}
+    write_json(args.out, result)
+    print(f"pole half-length {LENGTH} for 60 logged episodes, then {args.longer} for 40, unflagged")
+    print(f"Pettitt's test on both logs: p = {change.p_value:.2g}, the change at episode {change.at + 1} of 100 "
+          f"(medians {change.before:.4g} before, {change.after:.4g} after); warned: {bool(said)}")
+    print("| calibrated on | threshold | fresh ID episodes alarmed | fresh longer-pole episodes alarmed |")
+    print("|---|---|---|---|")
+    for name, row in rows.items():
+        print(f"| {name} ({row['n_episodes']} episodes) | {row['detector']} > {row['value']:.6g} | "
+              f"{row['fresh_id_alarmed']} of {row['fresh_id']} | {row['fresh_longer_alarmed']} of "
+              f"{row['fresh_longer']} |")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
