@@ -1,5 +1,6 @@
 """scripts/deployment_world.py: the table docs/monitor.md shows is the one its committed results
-make (the script writes results/deployment/cartpole-ensemble.json and prints that table)."""
+make (the script writes results/deployment/cartpole-ensemble.json and prints that table); and
+scripts/changed_world.py's figures there are those of results/deployment/changed-world.json."""
 
 from __future__ import annotations
 
@@ -32,3 +33,20 @@ def test_the_docs_table_is_the_committed_results():
         assert rows["fitted on logs"]["false_alarms"] == 0
         assert all(r["alarmed"] == r["episodes"] == 20 and r["delay_median"] == 1
                    for r in rows["fitted on logs"]["shifts"].values())
+
+
+def test_the_changed_worlds_figures_in_the_docs_are_the_committed_results():
+    """scripts/changed_world.py's results (results/deployment/changed-world.json), as docs/monitor.md
+    says them: the change found where the second log begins, the threshold of both logs missing
+    most of the longer pole's episodes, that of the first log catching each, neither alarming on ID."""
+    results = json.loads((ROOT / "results" / "deployment" / "changed-world.json").read_text())
+    docs = " ".join((ROOT / "docs" / "monitor.md").read_text().split())
+    change, both, first = results["change"], results["thresholds"]["both logs"], results["thresholds"]["the first log"]
+    assert change["warned"] and change["at"] == 60 and change["p_value"] < 0.01
+    assert f"p = {change['p_value']:.2g}, at episode {change['at'] + 1} of 100" in docs
+    assert f"medians {change['before']:.4g} before, {change['after']:,.0f} after" in docs
+    assert f"combined > {both['value']:,.1f}: {both['fresh_id_alarmed']} of 100 fresh ID episodes alarmed, and " \
+           f"{both['fresh_longer_alarmed']} of 40 fresh longer-pole ones" in docs
+    assert f"combined > {first['value']:.6g}: {first['fresh_id_alarmed']} of 100, and " \
+           f"{first['fresh_longer_alarmed']} of 40" in docs
+    assert both["fresh_longer_alarmed"] < 10 and first["fresh_longer_alarmed"] == 40

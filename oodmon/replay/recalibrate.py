@@ -168,6 +168,7 @@ def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, 
         raise ConfigError(f"the logs are of another policy ({recorded[:19]}..., this one is {mine[:19]}...): fit on "
                           "logs of the policy the detectors will watch")
     noise = found.noise("detectors are fitted")
+    _warn_if_changed(change_in_logs(found), "fitting")
     episodes = []
     for log in found.logs:
         mine_here = [episode.episode for owner, episode in found.episodes if owner is log]
@@ -315,11 +316,13 @@ class LogStatistics:
     """Each calibration episode of some logs with its statistic under a threshold's rule, in the
     logs' order (the order they were given, a folder's files by name; each log's episodes in
     theirs), and Pettitt's most likely change in them (:func:`pettitt`; ``None`` for fewer than
-    :data:`CHANGE_EPISODES` episodes). An episode an alarm may have cut short reads +inf."""
+    :data:`CHANGE_EPISODES` episodes), of the scores of ``detector``. An episode an alarm may have
+    cut short reads +inf."""
 
     episodes: list[tuple[RunLog, EpisodeLog]]
     values: np.ndarray
     change: Change | None
+    detector: str = "spread"
 
     def where(self, index: int) -> str:
         """The ``index``-th episode in words: its log and its number there."""
@@ -327,36 +330,53 @@ class LogStatistics:
         return f"{log.path} episode {episode.episode}"
 
 
-def change_in_logs(found: LogEpisodes, threshold: Threshold) -> LogStatistics:
+def change_in_logs(found: LogEpisodes, threshold: Threshold | None = None) -> LogStatistics:
     """The statistics of the whole ID episodes ``found`` (:func:`log_episodes`) under
     ``threshold``'s rule (its detector's logged scores; an episode an alarm may have cut short:
     +inf, as calibration counts it), in the logs' order, tested for a change (:func:`pettitt`).
+    ``None``: the rule calibration would choose by default (the detector the logs' runs alarmed on,
+    else the task's best they scored; its default ``consecutive`` and ``window``).
 
     The threshold's promise speaks for episodes like its calibration episodes taken together: a
     change among them (a world drifting while it was logged, a shift nobody flagged among runs
     taken for ID) means they may not be one world, and the promise not the one for the world to
-    come."""
+    come. Detectors fitted on them learn both worlds."""
+    if threshold is None:
+        try:
+            detector = _default_detector(found.logs)
+        except ConfigError:  # runs that alarmed on two detectors: the spread, which every log holds
+            detector = "spread"
+        consecutive, window, warmup = default_consecutive(detector), default_window(found.logs[0].task, detector), 0
+    else:
+        detector, consecutive, window, warmup = (threshold.detector, threshold.consecutive, threshold.window,
+                                                 threshold.warmup)
     values = np.array([math.inf if _cut(episode) else episode_statistic(
-        episode.scores_of(threshold.detector), threshold.consecutive, threshold.window, warmup=threshold.warmup)
-        for _, episode in found.episodes], dtype=np.float64)
+        episode.scores_of(detector), consecutive, window, warmup=warmup) for _, episode in found.episodes],
+        dtype=np.float64)
     change = pettitt(values) if len(values) >= CHANGE_EPISODES else None
-    return LogStatistics(list(found.episodes), values, change)
+    return LogStatistics(list(found.episodes), values, change, detector)
 
 
-def _warn_if_changed(statistics: LogStatistics) -> None:
-    """Warn (:class:`ChangeInLogsWarning`) where the statistics change (:data:`CHANGE_LEVEL`)."""
+def _warn_if_changed(statistics: LogStatistics, use: str = "calibration") -> None:
+    """Warn (:class:`ChangeInLogsWarning`) where the statistics change (:data:`CHANGE_LEVEL`), of
+    episodes a threshold is calibrated on (``use``: ``"calibration"``) or detectors fitted on
+    (``"fitting"``)."""
     change = statistics.change
     if change is None or change.p_value >= CHANGE_LEVEL:
         return
     n = len(statistics.values)
     later = "higher" if change.after > change.before else "lower"
+    what = (f"The promise holds for episodes like the {n} taken together, not for either world alone"
+            if use == "calibration" else
+            "Detectors fitted on both worlds take both for ID: a change from one to the other goes unseen")
+    again = "calibrate" if use == "calibration" else "fit the detectors"
     warnings.warn(ChangeInLogsWarning(
-        f"the calibration episodes' statistics change over the logs (Pettitt's test, p = {change.p_value:.2g}): from "
-        f"{statistics.where(change.at)} on ({change.at + 1} of {n} in the logs' order, the order given, a folder's "
-        f"files by name) they read {later}, median {change.after:.4g} against {change.before:.4g} before. The promise "
-        f"holds for episodes like the {n} taken together, not for either world alone: if the later runs were not in "
-        "distribution, leave their logs out; if the world has moved on, calibrate on its latest logs (`oodmon "
-        "recalibrate --plot FILE` draws each episode's statistic in order)"), stacklevel=3)
+        f"the {use} episodes' {statistics.detector} statistics change over the logs (Pettitt's test, p = "
+        f"{change.p_value:.2g}): from {statistics.where(change.at)} on ({change.at + 1} of {n} in the logs' order, the "
+        f"order given, a folder's files by name) they read {later}, median {change.after:.4g} against "
+        f"{change.before:.4g} before. {what}: if the later runs were not in distribution, leave their logs out; if the "
+        f"world has moved on, {again} on its latest logs (`oodmon recalibrate --plot FILE` draws each episode's "
+        "statistic in order)"), stacklevel=3)
 
 
 def _default_detector(logs: Sequence[RunLog]) -> str:

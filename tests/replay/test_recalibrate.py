@@ -155,6 +155,26 @@ def test_a_change_among_the_logged_episodes_is_warned_of_with_where_it_begins(tm
     assert few.change is None and len(few.values) == 19
 
 
+def test_detectors_are_not_fitted_on_logs_whose_world_changed_without_a_warning():
+    """fit_detectors_from_logs tests the logs' episodes as recalibrate does, under the rule a
+    calibration would choose (the detector the runs alarmed on), before it reads their steps."""
+    from oodmon.agents import load
+    from oodmon.monitor.monitor import policy_hash
+    from oodmon.replay import fit_detectors_from_logs
+
+    agent = load("cartpole", "ensemble")
+    rng = np.random.default_rng(4)
+    before = [_episode(i, rng.random(30)) for i in range(40)]
+    after = [_episode(i, rng.random(30) + 0.5) for i in range(30)]
+    logs = [_log(before, policy=policy_hash(agent)), _log(after, path="missing/b.mcap", policy=policy_hash(agent))]
+    default = change_in_logs(log_episodes(logs))
+    assert default.detector == "dynamics" and default.change.at == 40
+    with pytest.warns(ChangeInLogsWarning, match=r"the fitting episodes' dynamics statistics change .* Detectors "
+                                                 r"fitted on both worlds take both for ID"):
+        with pytest.raises(OSError):  # (the logs are made here, in memory: their steps are not on disk)
+            fit_detectors_from_logs(agent, logs)
+
+
 def test_logs_that_cannot_make_one_threshold_are_refused_with_what_differs():
     rng = np.random.default_rng(2)
     ids = [_episode(i, rng.random(10)) for i in range(50)]
