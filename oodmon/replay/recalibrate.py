@@ -292,12 +292,23 @@ def pettitt(values: Sequence[float]) -> Change:
     for ``K = max |U_t|`` (capped at 1; it errs high, as the test needs). A rise or fall that
     lasts, a drift as well as a step, moves ``K``; NaN counts as the highest value.
 
+    Raises:
+        InvalidParameterError: ``values`` that are not a one-dimensional sequence of numbers.
+
     Example:
         >>> change = pettitt([1, 2, 1, 3, 2, 1, 2, 9, 8, 9, 7, 8, 9, 8])
         >>> change.at, round(change.p_value, 4), change.before, change.after
         (7, 0.0149, 2.0, 8.0)
     """
-    x = np.asarray(values, dtype=np.float64)
+    if isinstance(values, (str, bytes)):
+        raise InvalidParameterError("values is text; give a sequence of numbers, in their order")
+    try:
+        x = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(f"values={values!r:.40} is not a sequence of numbers; give one, in their order") \
+            from None
+    if x.ndim != 1:
+        raise InvalidParameterError(f"values has shape {x.shape}; give a sequence of numbers (one dimension)")
     n = len(x)
     if n < 2:
         return Change(0, 1.0, math.nan, math.nan)

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from oodmon.errors import ConfigError, LogFormatError
+from oodmon.errors import ConfigError, InvalidParameterError, LogFormatError
 from oodmon.monitor import Threshold
 from oodmon.monitor.calibration import check_fresh
 from oodmon.monitor.threshold import calibrate, conformal_rank
@@ -133,6 +133,9 @@ def test_pettitts_test_rarely_finds_a_change_in_one_worlds_statistics_and_finds_
     step = pettitt([*rng.random(30), *([math.inf] * 10)])  # ten cut episodes at the end
     assert step.at == 30 and step.after == math.inf and step.p_value < CHANGE_LEVEL
     assert pettitt([1.0]).p_value == 1.0
+    for odd in ("abc", 3.0, [[1.0, 2.0]], [object()]):
+        with pytest.raises(InvalidParameterError, match="values"):
+            pettitt(odd)
 
 
 def test_a_change_among_the_logged_episodes_is_warned_of_with_where_it_begins(tmp_path):
