@@ -37,6 +37,7 @@ __all__ = ["EpisodeLog", "MissingPartWarning", "NewerFormatWarning", "RecoveryWa
 _MAGIC = logformat.MCAP_MAGIC
 _EPISODE, _SCORES, _STEP = logformat.EPISODE, logformat.EPISODE_SCORES, logformat.STEP
 _START = logformat.EPISODE_START
+_FRAME = logformat.FRAME
 
 
 class RecoveryWarning(UserWarning):
@@ -457,19 +458,23 @@ def read_steps(path: str | Path, episodes: Sequence[int]) -> dict[int, tuple[np.
     """The observations and actions a log's step messages hold, ``(T, ...)`` each, of each of
     ``episodes`` (indices of whole episodes :func:`read_log` returned), in step order (a reading
     that was not finite: NaN): what the learned detectors are fitted on
-    (:func:`oodmon.replay.fit_detectors_from_logs`). The file is streamed, a torn one up to its
-    tear (a whole episode's steps come before its end).
+    (:func:`oodmon.replay.fit_detectors_from_logs`). A picture's observation is logged as its
+    frame (the newest of a stack, what the camera's detectors read): an episode whose steps hold
+    frames and no readings gives its frames, ``(T, H, W)`` or ``(T, H, W, 3)`` bytes. The file is
+    streamed, a torn one up to its tear (a whole episode's steps come before its end).
 
     Raises:
-        LogFormatError: a step of those episodes without its observation (a picture's is logged as
-            a frame), or that ``read_log`` would not have read.
+        LogFormatError: a step of those episodes with neither its observation nor a frame, or
+            that ``read_log`` would not have read.
     """
     from mcap.records import Channel, Message
     from mcap.stream_reader import StreamReader
 
     path, wanted = Path(path), set(episodes)
     steps: dict[int, list[tuple[int, list, object]]] = {k: [] for k in wanted}
+    frames: dict[tuple[int, object], bytes] = {}  # (episode, step) -> the frame logged right after its step
     channels: dict[int, str] = {}
+    last = None
     with open(path, "rb") as f:
         with contextlib.suppress(Exception):  # (a torn record ends the readable part: see _recover)
             for record in StreamReader(f, skip_magic=False, validate_crcs=True).records:
@@ -477,22 +482,64 @@ def read_steps(path: str | Path, episodes: Sequence[int]) -> dict[int, tuple[np.
                     channels[record.id] = record.topic
                 elif isinstance(record, Message) and channels.get(record.channel_id) == _STEP:
                     row = json.loads(record.data)
+                    last = None
                     if row.get("episode") in wanted:
                         steps[row["episode"]].append((row.get("step"), row.get("observation"), row.get("action")))
+                        last = (row["episode"], row.get("step"))
+                elif isinstance(record, Message) and channels.get(record.channel_id) == _FRAME and last is not None:
+                    frames[last], last = record.data, None
     found = {}
     for k in sorted(wanted):
         rows = sorted(steps[k], key=lambda r: r[0] if isinstance(r[0], int) else -1)
         if not rows or [r[0] for r in rows] != list(range(len(rows))):
             raise LogFormatError(f"{path}: the steps of episode {k} are not all there")
         if any(r[1] is None for r in rows):
-            raise LogFormatError(f"{path}: episode {k}'s steps hold no observation (a picture is logged as a frame, "
-                                 "not as numbers): its detectors cannot be fitted from the log")
+            if all((k, r[0]) in frames for r in rows):
+                found[k] = (_pictures(path, k, [frames[k, r[0]] for r in rows]), _actions(path, k, rows))
+                continue
+            raise LogFormatError(f"{path}: episode {k}'s steps hold no observation, nor a frame at every step: its "
+                                 "detectors cannot be fitted from the log")
         try:  # (a reading that was not finite is logged as null)
             found[k] = (np.asarray([[math.nan if v is None else v for v in r[1]] for r in rows], np.float64),
-                        np.asarray([r[2] for r in rows]))
+                        _actions(path, k, rows))
         except (ValueError, TypeError) as error:
             raise LogFormatError(f"{path}: episode {k}'s observations or actions are damaged ({error})") from None
     return found
+
+
+def _actions(path: Path, episode: int, rows: list[tuple[int, list, object]]) -> np.ndarray:
+    """An episode's logged actions, one per step row."""
+    try:
+        return np.asarray([r[2] for r in rows])
+    except (ValueError, TypeError) as error:
+        raise LogFormatError(f"{path}: episode {episode}'s actions are damaged ({error})") from None
+
+
+def _pictures(path: Path, episode: int, messages: list[bytes]) -> np.ndarray:
+    """An episode's logged frames (``foxglove.RawImage``, mono8 or rgb8) as one array of bytes,
+    ``(T, H, W)`` or ``(T, H, W, 3)``.
+
+    Raises:
+        LogFormatError: a frame that is not one of those, or frames of two shapes.
+    """
+    from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+
+    pictures = []
+    for data in messages:
+        image = RawImage()
+        try:
+            image.ParseFromString(data)
+        except Exception as error:  # (protobuf's DecodeError)
+            raise LogFormatError(f"{path}: a frame of episode {episode} is damaged ({error})") from None
+        channels = {"mono8": 1, "rgb8": 3}.get(image.encoding)
+        if channels is None or image.step != image.width * channels or len(image.data) != image.height * image.step:
+            raise LogFormatError(f"{path}: a frame of episode {episode} is not a mono8 or rgb8 picture oodmon wrote "
+                                 f"({image.encoding!r}, {image.width} x {image.height})")
+        shape = (image.height, image.width) + ((3,) if channels == 3 else ())
+        pictures.append(np.frombuffer(image.data, np.uint8).reshape(shape))
+    if len({p.shape for p in pictures}) > 1:
+        raise LogFormatError(f"{path}: the frames of episode {episode} are of two shapes")
+    return np.stack(pictures)
 
 
 def read_logs(paths: Sequence[str | Path]) -> list[RunLog]:

@@ -152,11 +152,14 @@ def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, 
     ``dynamics_updates`` as :func:`~oodmon.monitor.detectors.fit_detectors` takes them (default:
     the agent's set, every epoch); the spread score the logs' runs read. Calibrate the alarm on
     other ID logs, scored by these detectors (:func:`calibrate_from_logs`): the episodes a
-    detector learned read low.
+    detector learned read low. A policy acting on pictures (Pong) is fitted on the frames its logs
+    hold: the camera's detectors and their combined, not ``features`` (see
+    ``fit_recorded_detectors``).
 
     Raises:
-        ConfigError: logs of another policy, of two sensor noises, without observations (pictures),
-            or too few usable episodes (see ``fit_recorded_detectors``).
+        ConfigError: logs of another policy or of two sensor noises, steps with neither readings
+            nor frames, too few usable episodes, a detector the logs cannot fit (see
+            ``fit_recorded_detectors``).
     """
     from oodmon.monitor.detectors.fitting import fit_recorded_detectors
     from oodmon.monitor.monitor import policy_hash, policy_hash_aliases

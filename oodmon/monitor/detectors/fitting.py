@@ -785,6 +785,11 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
         env.close()
 
 
+#: What fitting on a log's frames leaves out: what reads the policy at each observation, which a
+#: log of pictures holds only the newest frame of (a stack's other frames are not logged).
+NOT_FROM_FRAMES = ("features", "scaled_spread")
+
+
 def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.ndarray]], *,
                            detectors: Sequence[str] | None = None, score: str = DEFAULT_SCORE, obs_noise: float = 0.0,
                            seed: int = DETECTOR_FIT, dynamics_updates: int | None = MAX_UPDATES,
@@ -798,10 +803,16 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
     reset seeds: validate then refuses none of them). Episodes with a reading that is not finite
     are left out, as the monitor feeds no detector such a step.
 
+    A policy that acts on pictures is fitted on the frames its log holds (the newest of each
+    observation: ``observations`` of ``(T, H, W)`` or ``(T, H, W, 3)`` bytes), which is what the
+    camera's detectors (``frames``, ``stillness``, ``motion``, ``vanishing``, and a ``combined`` of
+    them) read of each step; the detectors that read the policy at each observation
+    (:data:`NOT_FROM_FRAMES`) are left out, and the spread, which needs no fit, kept.
+
     Raises:
         ConfigError: an agent whose detectors read more than its log holds (a stack, a dict's
             picture or text, a memory of the episode), fewer than 3 usable episodes, or a detector
-            it cannot have (as :func:`fit_detectors`).
+            it cannot have (as :func:`fit_detectors`), or one a log's frames cannot fit.
     """
     from oodmon.monitor.monitor import policy_hash
 
@@ -809,8 +820,10 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
         raise ConfigError("its log holds what the detectors read of each step, not all that this policy acts on (a "
                           "stack of observations, a dict's picture or text, or a memory of the episode): fit its "
                           "detectors on played episodes (`oodmon fit-detectors` without --from-logs)")
-    usable = [(obs, np.asarray(actions)) for obs, actions in ((np.asarray(o, np.float64), a) for o, a in episodes)
-              if len(obs) >= 2 and np.isfinite(obs).all()]
+    pictures = any(np.asarray(o).dtype == np.uint8 and np.ndim(o) >= 3 for o, _ in episodes)
+    usable = [(obs, np.asarray(actions)) for obs, actions in ((np.asarray(o) if pictures else np.asarray(o, np.float64),
+                                                               a) for o, a in episodes)
+              if len(obs) >= 2 and (pictures or np.isfinite(obs).all())]
     if len(usable) < 3:
         raise ConfigError(f"{len(usable)} of the {len(episodes)} recorded episodes can be fitted on (two steps or "
                           "more, every reading finite); fitting needs at least 3 (two thirds fit, one third ranks)")
@@ -820,9 +833,14 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
     try:
         names = _named(agent, env, agent.task, detectors)
         n_actions = _checked_actions(names, agent, env)
+        obs_shape = list(env.observation_space.shape or ())
     finally:
         env.close()
     estimator = agent.estimator
+    if pictures:
+        return _fitted_on_frames(usable, names, detectors, estimator, score, seed, on_progress, obs_shape,
+                                 policy_hash=policy_hash(agent), task=agent.task, obs_noise=obs_noise,
+                                 recorded=recorded)
     ensemble = "scaled_spread" in names and has_members(estimator)
     trajectories = []
     for observations, actions in usable:
@@ -839,6 +857,32 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
     return _fitted(trajectories, names, estimator, agent.task, score, n_actions, seed, dynamics_updates, on_progress,
                    policy_hash=policy_hash(agent), obs_noise=obs_noise, workers=1, max_steps=None,
                    recorded={"seed": None, **(recorded or {})})
+
+
+def _fitted_on_frames(episodes: list[tuple[np.ndarray, np.ndarray]], names: Sequence[str],
+                      asked: Sequence[str] | None, estimator: Any, score: str, seed: int,
+                      on_progress: Progress | None, obs_shape: list[int], **settings: Any) -> DetectorSet:
+    """:func:`fit_recorded_detectors`' set of a policy acting on pictures, fitted on the frames of
+    ``episodes``: the camera's detectors of ``names`` (those :data:`NOT_FROM_FRAMES` left out; named
+    in ``asked``, refused), their ``combined``, and the spread where the policy has samples. The
+    set records the policy's own observation shape and MC masks, which the monitor checks."""
+    cannot = [name for name in NOT_FROM_FRAMES if name in (asked or ())]
+    if cannot:
+        raise ConfigError(f"the {cannot[0]} detector reads the policy at each observation, of which a log of pictures "
+                          "holds the newest frame only: fit it on played episodes (`oodmon fit-detectors` without "
+                          "--from-logs), or leave it out")
+    kept = [name for name in names if name not in NOT_FROM_FRAMES and name != "spread"]
+    if not [name for name in kept if name != "combined"]:
+        raise ConfigError(f"of {', '.join(names)}, a log's frames fit none (the camera's detectors, frames, "
+                          "stillness, motion and vanishing, read them)")
+    trajectories = [Trajectory(frames, actions[:len(frames) - 1]) for frames, actions in episodes]
+    fitted = _fitted(trajectories, kept, None, settings["task"], score, None, seed, None, on_progress,
+                     policy_hash=settings["policy_hash"], obs_noise=settings["obs_noise"], workers=1, max_steps=None,
+                     recorded={"seed": None, "obs_shape": obs_shape, "masks": getattr(estimator, "masks", None),
+                               **(settings["recorded"] or {})})
+    if estimator is None:  # (as a played fit: the spread where the policy has samples)
+        return fitted
+    return DetectorSet([SpreadDetector(score), *fitted], fitted_for=fitted.fitted_for)
 
 
 def fit_settings(agent: Any, detectors: Sequence[str] | None, *, score: str, episodes: int | None,
