@@ -28,10 +28,14 @@ kept_fitting,kept_calibration --flips 2000 --seed 3``, 7,041 damaged copies, all
 warned), nothing else. ``kept_detectors``, added on 2026-12-06 with the epochs a kept set holds
 (``--only kept_detectors --seed 5``, 9 s): 4,681 damaged copies, all read, nothing else; of 300
 flips per file, the set was read back where the flip left ``detectors.json`` (59) or ``kept.json``
-(67) valid, never where it hit the tensors (their hash).
+(67) valid, never where it hit the tensors (their hash). ``steps``, added on 2026-12-06 with the
+frames of a picture policy's log (``--only steps``): 2,504 damaged copies, 2,204 read (a cut
+is a torn log: its whole episodes before the tear), 300 refused, nothing else.
 
 The readers: ``log`` (replay's ``read_log`` of a small format-6 log, two CartPole episodes in
-segments of 4 steps: a cut or flip is a torn or damaged log, recovered), ``vecnorm`` (SB3
+segments of 4 steps: a cut or flip is a torn or damaged log, recovered), ``steps`` (``read_steps``
+of a Pong log's whole episodes, two games of 5 decisions: the actions and frames
+``fit-detectors --from-logs`` fits on), ``vecnorm`` (SB3
 VecNormalize statistics, read without unpickling), ``sb3`` (a user's SB3 model file, its parts
 damaged one at a time and zipped again: its ``data`` read by oodmon's restricted unpickler),
 ``model`` (a zoo agent's folder), ``detectors``
@@ -72,6 +76,29 @@ def _make_log(folder: Path) -> dict[str, Path]:
         for seed in range(2):
             monitor.run_episode(parse_variant(spec).make(onset_step=3), seed=seed, max_steps=10, variant=spec)
     return {"log.mcap": path}
+
+
+def _make_steps(folder: Path) -> dict[str, Path]:
+    """A Pong log of two games of 5 decisions: what fit-detectors --from-logs reads of each step
+    (its action, and the frame a picture's observation is logged as)."""
+    from oodmon.agents import load
+    from oodmon.envs import parse_variant
+    from oodmon.monitor import McapSink, Monitor
+
+    path = folder / "pong.mcap"
+    with Monitor(load("pong", "dropconnect"), sinks=[McapSink(path)]) as monitor:
+        for seed in range(2):
+            monitor.run_episode(parse_variant("pong").make(), seed=seed, max_steps=5)
+    return {"pong.mcap": path}
+
+
+def _read_steps(folder: Path) -> object:
+    """read_log, then read_steps of every whole episode it read (as fit-detectors --from-logs)."""
+    from oodmon.replay import read_log
+    from oodmon.replay.reader import read_steps
+
+    log = read_log(folder / "pong.mcap")
+    return read_steps(log.path, [episode.episode for episode in log.episodes])
 
 
 def _make_vecnorm(folder: Path) -> dict[str, Path]:
@@ -201,6 +228,7 @@ def _readers() -> dict[str, tuple[Callable[[Path], dict[str, Path]], Callable[[P
     bench = ROOT / "results" / "bench" / "cartpole.json"
     return {
         "log": (_make_log, lambda d: read_log(d / "log.mcap")),
+        "steps": (_make_steps, _read_steps),
         "vecnorm": (_make_vecnorm, lambda d: load_vec_normalize(d / "vecnormalize.pkl")),
         "sb3": (_make_sb3, _read_sb3),
         "model": (lambda _: _folder_files(zoo / "cartpole-dropout"), load_agent),

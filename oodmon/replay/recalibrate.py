@@ -60,8 +60,9 @@ __all__ = ["Change", "ChangeInLogsWarning", "LogEpisodes", "LogStatistics", "cal
 
 #: :func:`calibrate_from_logs` warns of a change in the logs (:class:`ChangeInLogsWarning`) where
 #: Pettitt's test gives a p-value below this: one calibration in a hundred or fewer warns of logs
-#: of an unchanging world (its approximate p-value errs high: 0.6% of 4,000 draws of 45 to 200
-#: exchangeable statistics read below 0.01, ``tests/replay/test_recalibrate.py``).
+#: of an unchanging world (its approximate p-value errs high: of 1,000 seeded draws each of 22, 45,
+#: 100 and 200 exchangeable statistics, 2, 4, 10 and 6 read below 0.01,
+#: ``tests/replay/test_recalibrate.py``).
 CHANGE_LEVEL = 0.01
 #: The fewest episodes the test is made on (a calibration needs 22 at far 0.1, 45 at 0.05).
 CHANGE_EPISODES = 20
@@ -272,8 +273,8 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: 
 
 
 class ChangeInLogsWarning(UserWarning):
-    """:func:`calibrate_from_logs`: the calibration episodes' statistics change over the logs
-    (:func:`change_in_logs`), so that they may not be one world's."""
+    """:func:`calibrate_from_logs`, :func:`fit_detectors_from_logs`: the logged episodes'
+    statistics change over the logs (:func:`change_in_logs`), so that they may not be one world's."""
 
 
 @dataclass(frozen=True)
