@@ -50,3 +50,22 @@ def test_the_changed_worlds_figures_in_the_docs_are_the_committed_results():
     assert f"combined > {first['value']:.6g}: {first['fresh_id_alarmed']} of 100, and " \
            f"{first['fresh_longer_alarmed']} of 40" in docs
     assert both["fresh_longer_alarmed"] < 10 and first["fresh_longer_alarmed"] == 40
+
+
+def test_the_camera_worlds_table_in_the_docs_is_the_committed_results():
+    """scripts/camera_world.py's table (results/deployment/pong-camera.json) as docs/monitor.md
+    shows it, and what the page says of it: the simulator's threshold alarms every deployment
+    game, the recalibrated one sees no corruption, the set fitted on the logged frames sees both
+    in every game."""
+    spec = importlib.util.spec_from_file_location("camera_world", ROOT / "scripts" / "camera_world.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    results = json.loads((ROOT / "results" / "deployment" / "pong-camera.json").read_text())
+    table = module.markdown(results).splitlines()
+    docs = [line.strip() for line in (ROOT / "docs" / "monitor.md").read_text().splitlines()]
+    start = docs.index(table[0])
+    assert docs[start:start + len(table)] == table and len(table) == 5
+    rows = results["thresholds"]
+    assert rows["the simulator's"]["false_alarms"] == rows["the simulator's"]["games"]
+    assert all(shift["alarmed"] == 0 for shift in rows["recalibrated"]["shifts"].values())
+    assert all(shift["alarmed"] == shift["games"] for shift in rows["fitted on logs"]["shifts"].values())
