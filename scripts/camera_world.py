@@ -1,6 +1,6 @@
 """Pong watched through a deployment's camera that is not the simulator's: three ways to watch it.
 
-Run (about eight minutes on one core):
+Run (about a quarter of an hour on one core):
     OODMON_TORCH_THREADS=1 .venv/bin/python scripts/camera_world.py [--gain 0.8] \
         [--out results/deployment/pong-camera.json]
 
@@ -17,7 +17,7 @@ decisions, with the Python calls the CLI's commands make:
   (``fit_detectors_from_logs``: the frames its logs hold), the alarm calibrated on 22 others they
   scored.
 
-Each threshold: how many of 30 fresh deployment games alarm, and of 10 deployment games whose
+Each threshold: how many of 100 fresh deployment games alarm, and of 10 deployment games whose
 camera also corrupts its frames from decision 150 (``gaussian_noise@3``, ``motion_blur@3``), how
 many alarm after the onset (and how many before it), with the median delay. Writes the rows as
 JSON and prints them as a Markdown table.
@@ -40,6 +40,7 @@ from oodmon.envs import parse_variant
 from oodmon.jsonfile import write_json
 from oodmon.monitor import LongerThanCalibrationWarning, McapSink, Monitor, calibrate_agent
 from oodmon.monitor.detectors import detectors_for
+from oodmon.monitor.threshold import clopper_pearson
 from oodmon.replay import calibrate_from_logs, fit_detectors_from_logs
 from oodmon.threads import limit_threads
 
@@ -72,10 +73,12 @@ def games(agent, detectors, gain: float, seeds: range, *, spec: str = "pong", th
 
 
 def judged(agent, detectors, threshold, gain: float) -> dict:
-    """``threshold``'s false alarms in 30 fresh deployment games and its alarms on the shifts."""
-    fresh = games(agent, detectors, gain, range(70_000, 70_030), threshold=threshold)
-    row = {"value": threshold.value, "detector": threshold.detector, "false_alarms": sum(r.alarms > 0 for r in fresh),
-           "games": len(fresh), "shifts": {}}
+    """``threshold``'s false alarms in 100 fresh deployment games (with their 95% interval) and its
+    alarms on the shifts."""
+    fresh = games(agent, detectors, gain, range(70_000, 70_100), threshold=threshold)
+    alarmed = sum(r.alarms > 0 for r in fresh)
+    row = {"value": threshold.value, "detector": threshold.detector, "false_alarms": alarmed, "games": len(fresh),
+           "interval95": list(clopper_pearson(alarmed, len(fresh))), "shifts": {}}
     for spec in SHIFTS:
         shifted = games(agent, detectors, gain, range(80_000, 80_010), spec=spec, threshold=threshold)
         early = sum(r.first_alarm_step is not None and r.first_alarm_step < ONSET for r in shifted)
@@ -99,8 +102,9 @@ def markdown(result: dict) -> str:
             cell += f", {shift['delay_median']:g}" if shift["delay_median"] is not None else ""
             cell += f" ({shift['early']} early)" if shift["early"] else ""
             cells.append(cell)
-        lines.append(f"| {name} | {row['value']:.6g} | {row['false_alarms']} of {row['games']} | "
-                     + " | ".join(cells) + " |")
+        low, high = row["interval95"]
+        lines.append(f"| {name} | {row['value']:.6g} | {row['false_alarms']} of {row['games']} "
+                     f"({100 * low:.1f}-{100 * high:.1f}%) | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -111,7 +115,7 @@ def main() -> None:
     args = parser.parse_args()
     limit_threads()
     warnings.filterwarnings("ignore", category=LongerThanCalibrationWarning)  # (every game is cut at STEPS)
-    agent = load("pong", "dropconnect")
+    agent = load("pong", "dropconnect", seed=0)  # its MC masks drawn from one seeded stream: the same figures again
     shipped = detectors_for(agent)
     result = {"gain": args.gain, "steps": STEPS, "onset": ONSET, "far": FAR, "thresholds": {},
               "command": "OODMON_TORCH_THREADS=1 .venv/bin/python scripts/camera_world.py"
