@@ -230,12 +230,15 @@ def test_a_fit_whose_worker_died_keeps_the_episodes_played_whole_and_goes_on_to_
     _workers_killed_at_step(monkeypatch)
     out, kept = tmp_path / "d", tmp_path / "d.kept.npz"
     assert main([*command, "--out", str(out)]) == 3
-    err = capsys.readouterr().err.strip().splitlines()[-1]
+    everything = capsys.readouterr().err.strip()
+    err = everything.splitlines()[-1]
     said = re.fullmatch(r"oodmon: stopped: a worker process \(pid \d+\) died while playing episodes \(killed by "
                         r"SIGKILL\): .*; no detectors were written \(those at --out are as they were\); the (\d) "
                         rf"detector fitting episodes played whole are kept in {re.escape(str(kept))}: the same command "
                         "goes on from them", err)
-    assert said, err
+    # (once, in a fresh clone's CI of 2026-12-06, nothing was kept, not seen again in 7 runs of this test alone,
+    # 4 of them beside two busy loops: the whole stderr says what came before, a warning among it)
+    assert said, everything
     assert 1 <= int(said.group(1)) <= 4 and kept.is_file()  # (each worker: 2 whole, one at a time)
     monkeypatch.undo()
     assert main([*command, "--out", str(out)]) == 0
