@@ -272,8 +272,8 @@ def _add_recalibrate(commands: argparse._SubParsersAction) -> None:
                                                  "copied to <--out>.detectors, where `oodmon run` finds them")
     recalibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     recalibrate.add_argument("--plot", metavar="FILE", help="draw each calibration episode's statistic in the logs' "
-                                                            "order, the threshold and any change among them (Pettitt's "
-                                                            "test, which warns of one) to FILE (.png, .jpg)")
+                                                            "order, the threshold, and any change or burst among them "
+                                                            "(of which it warns) to FILE (.png, .jpg)")
     recalibrate.set_defaults(handler=_recalibrate, plays=False, kept_on_interrupt=_KEPT["recalibrate"])
 
 

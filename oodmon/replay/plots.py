@@ -370,8 +370,9 @@ def write_monitor_plots(logs: Sequence[RunLog], folder: str | Path, failure: str
 def plot_log_statistics(statistics: LogStatistics, threshold: Threshold, path: str | Path) -> Path:
     """``oodmon recalibrate --plot``: each calibration episode's statistic under ``threshold``'s
     rule in the logs' order (:func:`~oodmon.replay.recalibrate.change_in_logs`), each log's start
-    marked, the threshold, the logged runs' own where they alarmed on the same detector, and
-    Pettitt's most likely change with each side's median (dashed where the test does not find it).
+    marked, the threshold, the logged runs' own where they alarmed on the same detector,
+    Pettitt's most likely change with each side's median (dashed where the test does not find it)
+    and, shaded, a stretch where the highest crowd (:func:`~oodmon.replay.recalibrate.burst`).
     The bound asks for one world: points that rise or fall over the logs are two."""
     from oodmon.replay.recalibrate import CHANGE_LEVEL
 
@@ -392,9 +393,13 @@ def plot_log_statistics(statistics: LogStatistics, threshold: Threshold, path: s
     starts = [i for i in range(1, n) if statistics.episodes[i][0] is not statistics.episodes[i - 1][0]]
     for i in starts:
         ax.axvline(i - 0.5, color="grey", linewidth=0.5, alpha=0.5)
+    crowd = statistics.burst
+    if crowd is not None and crowd.p_value < CHANGE_LEVEL / 2:
+        ax.axvspan(crowd.first - 0.5, crowd.last + 0.5, color="tab:red", alpha=0.12, label=(
+            f"{crowd.count} of the {crowd.size} highest crowd here (p = {crowd.p_value:.2g})"))
     change = statistics.change
     if change is not None:
-        found = change.p_value < CHANGE_LEVEL
+        found = change.p_value < CHANGE_LEVEL / 2
         style = {"color": "tab:orange" if found else "tab:grey", "linewidth": 1.5 if found else 1,
                  "linestyle": "-" if found else "--"}
         for low, high, median in ((0, change.at, change.before), (change.at, n, change.after)):

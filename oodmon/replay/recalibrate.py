@@ -27,8 +27,9 @@ The promise rests on the episodes to come being like the calibration episodes ta
 (exchangeable with them). Played episodes are, by their seeds; a deployment's logs need not be: its
 world may drift while it is logged, or a shift nobody flagged may lie among its "ID" runs, and the
 threshold then speaks for a mixture of two worlds. :func:`change_in_logs` tests the episodes'
-statistics, in the logs' order, for a change (Pettitt's test), and :func:`calibrate_from_logs` warns
-of one (:class:`ChangeInLogsWarning`) with where it begins.
+statistics, in the logs' order, for a lasting change (Pettitt's test, :func:`pettitt`) and for a
+burst of high ones (:func:`burst`), and :func:`calibrate_from_logs` warns of either
+(:class:`ChangeInLogsWarning`) with where it is.
 """
 
 from __future__ import annotations
@@ -55,15 +56,16 @@ if TYPE_CHECKING:  # (the detectors load torch: replay reads logs without it)
     from oodmon.monitor.detectors.store import DetectorSet
     from oodmon.progress import Progress
 
-__all__ = ["Change", "ChangeInLogsWarning", "LogEpisodes", "LogStatistics", "calibrate_from_logs", "change_in_logs",
-           "fit_detectors_from_logs", "log_episodes", "pettitt"]
+__all__ = ["Burst", "Change", "ChangeInLogsWarning", "LogEpisodes", "LogStatistics", "burst", "calibrate_from_logs",
+           "change_in_logs", "fit_detectors_from_logs", "log_episodes", "pettitt"]
 
 #: :func:`calibrate_from_logs` warns of a change in the logs (:class:`ChangeInLogsWarning`) where
-#: Pettitt's test gives a p-value below this: one calibration in a hundred or fewer warns of logs
-#: of an unchanging world (its approximate p-value errs high: of 1,000 seeded draws each of 22, 45,
-#: 100 and 200 exchangeable statistics, 2, 4, 10 and 6 read below 0.01,
-#: ``tests/replay/test_recalibrate.py``).
+#: either of its two tests (Pettitt's, :func:`pettitt`, and the burst scan, :func:`burst`) gives a
+#: p-value below half of this: one calibration in a hundred or fewer warns of logs of an unchanging
+#: world (seeded draws of exchangeable statistics, ``tests/replay/test_recalibrate.py``).
 CHANGE_LEVEL = 0.01
+#: The share of the episodes, the highest, whose crowding in time :func:`burst` tests (5 at least).
+BURST_SHARE = 0.1
 #: The fewest episodes the test is made on (a calibration needs 22 at far 0.1, 45 at 0.05).
 CHANGE_EPISODES = 20
 
@@ -304,19 +306,10 @@ def pettitt(values: Sequence[float]) -> Change:
         >>> change.at, round(change.p_value, 4), change.before, change.after
         (7, 0.0149, 2.0, 8.0)
     """
-    if isinstance(values, (str, bytes)):
-        raise InvalidParameterError("values is text; give a sequence of numbers, in their order")
-    try:
-        x = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InvalidParameterError(f"values={values!r:.40} is not a sequence of numbers; give one, in their order") \
-            from None
-    if x.ndim != 1:
-        raise InvalidParameterError(f"values has shape {x.shape}; give a sequence of numbers (one dimension)")
+    x = _ordered_values(values)
     n = len(x)
     if n < 2:
         return Change(0, 1.0, math.nan, math.nan)
-    x = np.where(np.isnan(x), math.inf, x)
     ranks, _ = mid_ranks(x.tolist())
     t = np.arange(1, n)
     u = 2 * np.cumsum(ranks)[:-1] - t * (n + 1)
@@ -326,18 +319,93 @@ def pettitt(values: Sequence[float]) -> Change:
     return Change(split + 1, p_value, float(np.median(x[:split + 1])), float(np.median(x[split + 1:])))
 
 
+def _ordered_values(values: Sequence[float]) -> np.ndarray:
+    """``values`` as the tests of :func:`pettitt` and :func:`burst` read them: floats in their
+    order, NaN as +inf (the highest).
+
+    Raises:
+        InvalidParameterError: ``values`` that are not a one-dimensional sequence of numbers.
+    """
+    if isinstance(values, (str, bytes)):
+        raise InvalidParameterError("values is text; give a sequence of numbers, in their order")
+    try:
+        x = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(f"values={values!r:.40} is not a sequence of numbers; give one, in their order") \
+            from None
+    if x.ndim != 1:
+        raise InvalidParameterError(f"values has shape {x.shape}; give a sequence of numbers (one dimension)")
+    return np.where(np.isnan(x), math.inf, x)
+
+
+@dataclass(frozen=True)
+class Burst:
+    """The most crowded stretch of the highest values in their order (:func:`burst`): ``first``
+    and ``last`` (counted from 0) bound the window of ``size`` consecutive values holding ``count``
+    of the ``size`` highest; ``p_value``, the share of random orders as crowded (permutations)."""
+
+    first: int
+    last: int
+    count: int
+    size: int
+    p_value: float
+
+
+def burst(values: Sequence[float], *, share: float = BURST_SHARE, permutations: int = 1000, seed: int = 0
+          ) -> Burst | None:
+    """Whether the highest values of ``values`` (the ``share`` highest, 5 at least, ties broken at
+    random) crowd into a stretch of their order: a burst of runs unlike the others, such as a
+    fault or a shift nobody flagged for a while, which a test of one lasting change
+    (:func:`pettitt`) hardly sees. The statistic is the most of them in any window as long as
+    their number; its p-value the share of ``permutations`` random orders (seeded by ``seed``) with
+    as many, counting the order itself. ``None`` where the highest would be half the values or
+    more (too few to tell a crowd). NaN counts as the highest value.
+
+    Example:
+        >>> values = [0.1 * (k % 7) for k in range(60)]
+        >>> values[30:36] = [9.0] * 6  # six runs of another world among sixty
+        >>> found = burst(values)
+        >>> found.first, found.last, found.count, found.size, found.p_value < 0.005
+        (30, 35, 6, 6, True)
+    """
+    x = _ordered_values(values)
+    n, size = len(x), max(5, math.ceil(share * len(x)))
+    if 2 * size > n:
+        return None
+    rng = np.random.default_rng(seed)
+    highest = np.lexsort((rng.random(n), -x))[:size]  # (the highest first; ties in a random order)
+    mask = np.zeros(n, np.int32)
+    mask[highest] = 1
+
+    def crowds(masks: np.ndarray) -> np.ndarray:
+        """Each row's most highest values in a window of ``size``."""
+        sums = np.concatenate([np.zeros((len(masks), 1), np.int32), np.cumsum(masks, axis=1, dtype=np.int32)], axis=1)
+        return sums[:, size:] - sums[:, :-size]
+
+    windows = crowds(mask[None])[0]
+    at = int(np.argmax(windows))
+    count = int(windows[at])
+    as_crowded = 0
+    for done in range(0, permutations, 100):  # (a hundred orders at a time: bounded memory)
+        orders = rng.permuted(np.tile(mask, (min(100, permutations - done), 1)), axis=1)
+        as_crowded += int((crowds(orders).max(axis=1) >= count).sum())
+    inside = np.flatnonzero(mask[at:at + size]) + at
+    return Burst(int(inside[0]), int(inside[-1]), count, size, (1 + as_crowded) / (1 + permutations))
+
+
 @dataclass(frozen=True)
 class LogStatistics:
     """Each calibration episode of some logs with its statistic under a threshold's rule, in the
     logs' order (the order they were given, a folder's files by name; each log's episodes in
-    theirs), and Pettitt's most likely change in them (:func:`pettitt`; ``None`` for fewer than
-    :data:`CHANGE_EPISODES` episodes), of the scores of ``detector``. An episode an alarm may have
-    cut short reads +inf."""
+    theirs), Pettitt's most likely change in them (:func:`pettitt`) and the most crowded stretch of
+    the highest (:func:`burst`; each ``None`` for fewer than :data:`CHANGE_EPISODES` episodes), of
+    the scores of ``detector``. An episode an alarm may have cut short reads +inf."""
 
     episodes: list[tuple[RunLog, EpisodeLog]]
     values: np.ndarray
     change: Change | None
     detector: str = "spread"
+    burst: Burst | None = None
 
     def where(self, index: int) -> str:
         """The ``index``-th episode in words: its log and its number there."""
@@ -368,30 +436,39 @@ def change_in_logs(found: LogEpisodes, threshold: Threshold | None = None) -> Lo
     values = np.array([math.inf if _cut(episode) else episode_statistic(
         episode.scores_of(detector), consecutive, window, warmup=warmup) for _, episode in found.episodes],
         dtype=np.float64)
-    change = pettitt(values) if len(values) >= CHANGE_EPISODES else None
-    return LogStatistics(list(found.episodes), values, change, detector)
+    enough = len(values) >= CHANGE_EPISODES
+    return LogStatistics(list(found.episodes), values, pettitt(values) if enough else None, detector,
+                         burst(values) if enough else None)
 
 
 def _warn_if_changed(statistics: LogStatistics, use: str = "calibration") -> None:
-    """Warn (:class:`ChangeInLogsWarning`) where the statistics change (:data:`CHANGE_LEVEL`), of
-    episodes a threshold is calibrated on (``use``: ``"calibration"``) or detectors fitted on
-    (``"fitting"``)."""
-    change = statistics.change
-    if change is None or change.p_value >= CHANGE_LEVEL:
-        return
-    n = len(statistics.values)
-    later = "higher" if change.after > change.before else "lower"
+    """Warn (:class:`ChangeInLogsWarning`) where the statistics change, or where their highest
+    crowd into a stretch (each test at half :data:`CHANGE_LEVEL`), of episodes a threshold is
+    calibrated on (``use``: ``"calibration"``) or detectors fitted on (``"fitting"``)."""
+    n, level = len(statistics.values), CHANGE_LEVEL / 2
+    change, crowd = statistics.change, statistics.burst
     what = (f"The promise holds for episodes like the {n} taken together, not for either world alone"
             if use == "calibration" else
             "Detectors fitted on both worlds take both for ID: a change from one to the other goes unseen")
     again = "calibrate" if use == "calibration" else "fit the detectors"
-    warnings.warn(ChangeInLogsWarning(
-        f"the {use} episodes' {statistics.detector} statistics change over the logs (Pettitt's test, p = "
-        f"{change.p_value:.2g}): from {statistics.where(change.at)} on ({change.at + 1} of {n} in the logs' order, the "
-        f"order given, a folder's files by name) they read {later}, median {change.after:.4g} against "
-        f"{change.before:.4g} before. {what}: if the later runs were not in distribution, leave their logs out; if the "
-        f"world has moved on, {again} on its latest logs (`oodmon recalibrate --plot FILE` draws each episode's "
-        "statistic in order)"), stacklevel=3)
+    plot = "(`oodmon recalibrate --plot FILE` draws each episode's statistic in order)"
+    if change is not None and change.p_value < level:
+        later = "higher" if change.after > change.before else "lower"
+        warnings.warn(ChangeInLogsWarning(
+            f"the {use} episodes' {statistics.detector} statistics change over the logs (Pettitt's test, p = "
+            f"{change.p_value:.2g}): from {statistics.where(change.at)} on ({change.at + 1} of {n} in the logs' order, "
+            f"the order given, a folder's files by name) they read {later}, median {change.after:.4g} against "
+            f"{change.before:.4g} before. {what}: if the later runs were not in distribution, leave their logs out; if "
+            f"the world has moved on, {again} on its latest logs {plot}"), stacklevel=3)
+    elif crowd is not None and crowd.p_value < level:
+        warnings.warn(ChangeInLogsWarning(
+            f"the {crowd.size} highest {statistics.detector} statistics of the {n} {use} episodes crowd into a stretch "
+            f"of the logs: {crowd.count} of them from {statistics.where(crowd.first)} to "
+            f"{statistics.where(crowd.last)} ({crowd.first + 1}-{crowd.last + 1} in the logs' order; p = "
+            f"{crowd.p_value:.2g} over random orders). Runs unlike the others for a while (a fault, a shift nobody "
+            f"flagged) {'set a threshold above them' if use == 'calibration' else 'teach detectors to read them as ID'}"
+            f": if they were not in distribution, leave them out (their logs, or the runs of that time) {plot}"),
+            stacklevel=3)
 
 
 def _default_detector(logs: Sequence[RunLog]) -> str:
