@@ -51,6 +51,8 @@ from oodmon.names import BEST_DETECTOR
 from oodmon.replay.check import mid_ranks
 from oodmon.replay.metrics import is_id_episode
 from oodmon.replay.reader import EpisodeLog, RunLog, read_logs, read_steps
+from oodmon.seeds import check_seed
+from oodmon.validation import is_finite_real, is_whole
 
 if TYPE_CHECKING:  # (the detectors load torch: replay reads logs without it)
     from oodmon.monitor.detectors.store import DetectorSet
@@ -361,6 +363,10 @@ def burst(values: Sequence[float], *, share: float = BURST_SHARE, permutations: 
     as many, counting the order itself. ``None`` where the highest would be half the values or
     more (too few to tell a crowd). NaN counts as the highest value.
 
+    Raises:
+        InvalidParameterError: ``values`` that are not a one-dimensional sequence of numbers, a
+            ``share`` outside (0, 0.5), a count of ``permutations`` or a ``seed`` that is not one.
+
     Example:
         >>> values = [0.1 * (k % 7) for k in range(60)]
         >>> values[30:36] = [9.0] * 6  # six runs of another world among sixty
@@ -368,6 +374,12 @@ def burst(values: Sequence[float], *, share: float = BURST_SHARE, permutations: 
         >>> found.first, found.last, found.count, found.size, found.p_value < 0.005
         (30, 35, 6, 6, True)
     """
+    if not (is_finite_real(share) and 0 < share < 0.5):
+        raise InvalidParameterError(f"share={share!r} is not allowed; give the share of the highest values, "
+                                    "0 < share < 0.5")
+    if not is_whole(permutations) or permutations > 10**6:
+        raise InvalidParameterError(f"permutations={permutations!r} is not allowed; give a whole number 1-1,000,000")
+    seed = check_seed(seed)
     x = _ordered_values(values)
     n, size = len(x), max(5, math.ceil(share * len(x)))
     if 2 * size > n:

@@ -165,6 +165,9 @@ def test_the_burst_scan_finds_a_short_stretch_of_runs_unlike_the_others_which_pe
     assert found >= 85 and covered == found and pettitts <= 15
     assert burst(rng.random(9)) is None  # the highest five would be half of them or more
     assert burst([1.0] * 40).p_value > 0.05  # all tied: no crowd
+    for odd in (dict(share=0.5), dict(share=math.nan), dict(permutations=0), dict(seed=-1), dict(values="abc")):
+        with pytest.raises(InvalidParameterError, match=next(iter(odd))):
+            burst(**({"values": list(range(40))} | odd))
 
 
 def test_a_change_among_the_logged_episodes_is_warned_of_with_where_it_begins(tmp_path):
