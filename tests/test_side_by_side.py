@@ -213,7 +213,7 @@ def test_a_calibration_whose_worker_died_keeps_the_episodes_played_whole_and_goe
     assert main(["validate", str(path), "--episodes", "20", "--workers", "2"]) == 3
     out, err = capsys.readouterr()
     counted = re.search(r"interrupted: of the 20 episodes asked for, the first (\d+) were played", out)
-    assert counted and 1 <= int(counted.group(1)) <= 4, out
+    assert counted and 1 <= int(counted.group(1)) <= 4, out + err
     assert err.strip().splitlines()[-1].endswith(
         f"fewer --workers need less memory; the {counted.group(1)} of the 20 episodes played whole before it are "
         "counted above"), err
