@@ -112,6 +112,12 @@ class LogEpisodes:
                               "give the logs of one")
         return noise.pop() if noise else 0.0
 
+    def check_some(self) -> None:
+        """Raise :class:`ConfigError` where the logs hold no whole ID episode, saying what they hold."""
+        if not self.episodes:
+            raise ConfigError(f"the logs hold no whole ID episode ({self.shifted} shifted, {self.interrupted} "
+                              "interrupted): give logs of runs of the deployed policy in its own world")
+
 
 def log_episodes(logs: Sequence[str | Path | RunLog]) -> LogEpisodes:
     """The whole ID episodes of ``logs`` (paths of MCAP files or folders, as ``oodmon replay``
@@ -175,6 +181,7 @@ def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, 
     if other_weights(recorded, mine, policy_hash_aliases(agent)):
         raise ConfigError(f"the logs are of another policy ({recorded[:19]}..., this one is {mine[:19]}...): fit on "
                           "logs of the policy the detectors will watch")
+    found.check_some()
     noise = found.noise("detectors are fitted")
     _warn_if_changed(change_in_logs(found), "fitting")
     episodes = []
@@ -246,9 +253,7 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: 
         raise ConfigError(f"{first.path} does not record which fit of the {detector} detector scored it (a log written "
                           "before 2026-11-29): the monitor could not check it reads the same; log new runs")
     noise = found.noise("a threshold is calibrated")
-    if not found.episodes:
-        raise ConfigError(f"the logs hold no whole ID episode ({found.shifted} shifted, {found.interrupted} "
-                          "interrupted): give logs of runs of the deployed policy in its own world")
+    found.check_some()
     if mode == "episode":
         try:
             conformal_rank(len(found.episodes), far, confidence)

@@ -215,6 +215,11 @@ def test_detectors_are_not_fitted_on_logs_whose_world_changed_without_a_warning(
                                                  r"fitted on both worlds take both for ID"):
         with pytest.raises(OSError):  # (the logs are made here, in memory: their steps are not on disk)
             fit_detectors_from_logs(agent, logs)
+    # logs of shifted runs alone (a killed run's while it alarmed on a shift): said as recalibrate says it;
+    # it was "0 of the 0 recorded episodes can be fitted on" (found on 2026-12-06, a killed run's log)
+    shifted = [_episode(i, rng.random(30), variant="cartpole:length=2.0") for i in range(5)]
+    with pytest.raises(ConfigError, match=r"no whole ID episode \(5 shifted, 2 interrupted\)"):
+        fit_detectors_from_logs(agent, [_log(shifted, policy=policy_hash(agent), interrupted=2)])
 
 
 def test_logs_that_cannot_make_one_threshold_are_refused_with_what_differs():
