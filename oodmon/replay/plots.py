@@ -182,7 +182,13 @@ def score_scale(episodes: Sequence[EpisodeLog], threshold: float) -> float | Non
     scale = max(abs(threshold) if np.isfinite(threshold) else 0.0, float(np.percentile(calm, 99)) if len(calm) else 0.0)
     if scale <= 0.0 or not len(every) or every.max() <= WIDE_RANGE * scale:
         return None
-    return float(10.0 ** np.ceil(np.log10(scale)))  # a decade: the axis' ticks stay 0 and powers of ten
+    return _decade(scale)
+
+
+def _decade(scale: float) -> float:
+    """``scale`` rounded up to a power of ten: a symlog axis' linear range, whose ticks then stay
+    0 and powers of ten."""
+    return float(10.0 ** np.ceil(np.log10(scale)))
 
 
 def episode_name(episode) -> str:
@@ -430,4 +436,4 @@ def _statistic_scale(values: np.ndarray) -> float | None:
     scale = float(np.percentile(sizes, 25))
     if scale <= 0.0 or float(sizes.max()) <= WIDE_RANGE * scale:
         return None
-    return float(10.0 ** np.ceil(np.log10(scale)))
+    return _decade(scale)

@@ -861,7 +861,8 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
 
 def _fitted_on_frames(episodes: list[tuple[np.ndarray, np.ndarray]], names: Sequence[str],
                       asked: Sequence[str] | None, estimator: Any, score: str, seed: int,
-                      on_progress: Progress | None, obs_shape: list[int], **settings: Any) -> DetectorSet:
+                      on_progress: Progress | None, obs_shape: list[int], *, policy_hash: str | None,
+                      task: str | None, obs_noise: float, recorded: dict[str, Any] | None) -> DetectorSet:
     """:func:`fit_recorded_detectors`' set of a policy acting on pictures, fitted on the frames of
     ``episodes``: the camera's detectors of ``names`` (those :data:`NOT_FROM_FRAMES` left out; named
     in ``asked``, refused), their ``combined``, and the spread where the policy has samples. The
@@ -876,10 +877,10 @@ def _fitted_on_frames(episodes: list[tuple[np.ndarray, np.ndarray]], names: Sequ
         raise ConfigError(f"of {', '.join(names)}, a log's frames fit none (the camera's detectors, frames, "
                           "stillness, motion and vanishing, read them)")
     trajectories = [Trajectory(frames, actions[:len(frames) - 1]) for frames, actions in episodes]
-    fitted = _fitted(trajectories, kept, None, settings["task"], score, None, seed, None, on_progress,
-                     policy_hash=settings["policy_hash"], obs_noise=settings["obs_noise"], workers=1, max_steps=None,
+    fitted = _fitted(trajectories, kept, None, task, score, None, seed, None, on_progress, policy_hash=policy_hash,
+                     obs_noise=obs_noise, workers=1, max_steps=None,
                      recorded={"seed": None, "obs_shape": obs_shape, "masks": getattr(estimator, "masks", None),
-                               **(settings["recorded"] or {})})
+                               **(recorded or {})})
     if estimator is None:  # (as a played fit: the spread where the policy has samples)
         return fitted
     return DetectorSet([SpreadDetector(score), *fitted], fitted_for=fitted.fitted_for)
