@@ -14,6 +14,13 @@ its pole has grown from 0.5 to ``--longer`` (half-length, m) without anything sa
 threshold (far 0.05, confidence 0.9) is then judged on fresh logged episodes of both worlds (100
 with the first pole, 40 with the longer, other seeds): how many alarm. Writes the figures as JSON
 and prints them.
+
+Then a fault for a while (``burst``): 200 logged "ID" episodes, of which ``--burst`` (8) in their
+middle (episodes 97-104) have the longer pole, unflagged, among 96 of the first pole before and 96
+after (three logs, in that order). A threshold of far 0.05 on 200 episodes is their sixth highest
+statistic: eight unlike the others set it. Recalibrated on all three logs (it warns of the crowd
+of high statistics, :func:`oodmon.replay.burst`, and where) and on the two ID logs alone (the
+burst's left out, as the warning says to), judged on the same fresh episodes.
 """
 
 from __future__ import annotations
@@ -76,6 +83,7 @@ def alarmed(threshold, log: Path) -> int:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--longer", type=float, default=0.6, help="the pole's half-length after the change")
+    parser.add_argument("--burst", type=int, default=8, help="longer-pole episodes among 200 (the burst case)")
     parser.add_argument("--out", default="results/deployment/changed-world.json")
     args = parser.parse_args()
     limit_threads()
@@ -96,15 +104,35 @@ def main() -> None:
         alone = calibrate_from_logs([first])
         fresh_id = logged(models, folder / "sim.json", LENGTH, 100, 70000, folder / "fresh-id.mcap")
         fresh_longer = logged(models, folder / "sim.json", args.longer, 40, 80000, folder / "fresh-longer.mcap")
-        rows = {}
-        for name, threshold in (("both logs", both), ("the first log", alone)):
-            rows[name] = {"detector": threshold.detector, "value": threshold.value,
-                          "n_episodes": threshold.n_episodes, "fresh_id_alarmed": alarmed(threshold, fresh_id),
-                          "fresh_id": 100, "fresh_longer_alarmed": alarmed(threshold, fresh_longer), "fresh_longer": 40}
+        def judged(threshold) -> dict:
+            return {"detector": threshold.detector, "value": threshold.value, "n_episodes": threshold.n_episodes,
+                    "fresh_id_alarmed": alarmed(threshold, fresh_id), "fresh_id": 100,
+                    "fresh_longer_alarmed": alarmed(threshold, fresh_longer), "fresh_longer": 40}
+
+        rows = {"both logs": judged(both), "the first log": judged(alone)}
+        ids = (200 - args.burst) // 2
+        around = [logged(models, folder / "sim.json", LENGTH, ids, 9000, folder / "burst" / "log-1.mcap"),
+                  logged(models, folder / "sim.json", args.longer, args.burst, 9500, folder / "burst" / "log-2.mcap"),
+                  logged(models, folder / "sim.json", LENGTH, 200 - ids - args.burst, 10000,
+                         folder / "burst" / "log-3.mcap")]
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ChangeInLogsWarning)
+            with_burst = calibrate_from_logs(around)
+        statistics = change_in_logs(log_episodes(around), with_burst)
+        crowd = statistics.burst
+        burst = {"episodes": 200, "longer": args.burst, "first_longer": ids,
+                 "warned": any(issubclass(w.category, ChangeInLogsWarning) for w in caught),
+                 "pettitt_p_value": statistics.change.p_value,
+                 "burst": {"p_value": crowd.p_value, "first": crowd.first, "last": crowd.last, "count": crowd.count,
+                           "size": crowd.size},
+                 "thresholds": {"all three logs": judged(with_burst),
+                                "the ID logs alone": judged(calibrate_from_logs([around[0], around[2]]))}}
     result = {"longer": args.longer, "change": {"p_value": change.p_value, "at": change.at, "before": change.before,
                                                 "after": change.after, "warned": bool(said)}, "thresholds": rows,
+              "burst": burst,
               "command": "OODMON_TORCH_THREADS=1 .venv/bin/python scripts/changed_world.py"
-                         + (f" --longer {args.longer}" if args.longer != 0.6 else "")}
+                         + (f" --longer {args.longer}" if args.longer != 0.6 else "")
+                         + (f" --burst {args.burst}" if args.burst != 8 else "")}
     write_json(args.out, result)
     print(f"pole half-length {LENGTH} for 60 logged episodes, then {args.longer} for 40, unflagged")
     print(f"Pettitt's test on both logs: p = {change.p_value:.2g}, the change at episode {change.at + 1} of 100 "
@@ -112,6 +140,15 @@ def main() -> None:
     print("| calibrated on | threshold | fresh ID episodes alarmed | fresh longer-pole episodes alarmed |")
     print("|---|---|---|---|")
     for name, row in rows.items():
+        print(f"| {name} ({row['n_episodes']} episodes) | {row['detector']} > {row['value']:.6g} | "
+              f"{row['fresh_id_alarmed']} of {row['fresh_id']} | {row['fresh_longer_alarmed']} of "
+              f"{row['fresh_longer']} |")
+    crowd = burst["burst"]
+    print(f"\na burst: {args.burst} longer-pole episodes among 200 (episodes {ids + 1}-{ids + args.burst}), unflagged")
+    print(f"the burst scan: {crowd['count']} of the {crowd['size']} highest in episodes {crowd['first'] + 1}-"
+          f"{crowd['last'] + 1}, p = {crowd['p_value']:.2g}; Pettitt's test p = {burst['pettitt_p_value']:.2g}; "
+          f"warned: {burst['warned']}")
+    for name, row in burst["thresholds"].items():
         print(f"| {name} ({row['n_episodes']} episodes) | {row['detector']} > {row['value']:.6g} | "
               f"{row['fresh_id_alarmed']} of {row['fresh_id']} | {row['fresh_longer_alarmed']} of "
               f"{row['fresh_longer']} |")

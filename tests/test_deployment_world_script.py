@@ -50,6 +50,18 @@ def test_the_changed_worlds_figures_in_the_docs_are_the_committed_results():
     assert f"combined > {first['value']:.6g}: {first['fresh_id_alarmed']} of 100, and " \
            f"{first['fresh_longer_alarmed']} of 40" in docs
     assert both["fresh_longer_alarmed"] < 10 and first["fresh_longer_alarmed"] == 40
+    # a burst: eight longer-pole episodes among 200, found by the burst scan where Pettitt's test does not
+    burst, crowd = results["burst"], results["burst"]["burst"]
+    every, ids = burst["thresholds"]["all three logs"], burst["thresholds"]["the ID logs alone"]
+    assert burst["warned"] and crowd["p_value"] < 0.005 and burst["pettitt_p_value"] > 0.005
+    assert (crowd["first"], crowd["last"]) == (burst["first_longer"], burst["first_longer"] + burst["longer"] - 1)
+    assert f"{crowd['count']} of the {crowd['size']} highest, episodes {crowd['first'] + 1}-{crowd['last'] + 1} " \
+           f"(p = {crowd['p_value']:.2g}; Pettitt's test p = {burst['pettitt_p_value']:.2g})" in docs
+    assert f"combined > {every['value']:,.1f}: {every['fresh_id_alarmed']} of 100 fresh ID episodes and " \
+           f"{every['fresh_longer_alarmed']} of 40 longer-pole ones alarmed" in docs
+    assert f"combined > {ids['value']:.6g}: {ids['fresh_id_alarmed']} of 100 and {ids['fresh_longer_alarmed']} " \
+           "of 40" in docs
+    assert ids["fresh_longer_alarmed"] == 40 > every["fresh_longer_alarmed"] and every["value"] > 100 * ids["value"]
 
 
 def test_the_camera_worlds_table_in_the_docs_is_the_committed_results():
