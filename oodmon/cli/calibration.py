@@ -312,7 +312,9 @@ def _recalibrate(args: argparse.Namespace) -> int:
     Console(soft_wrap=True).print(
         f"{threshold.task}/{threshold.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, "
         f"{threshold.mode} mode, {threshold.n_episodes} ID episodes of {len(found.logs)} log file"
-        f"{'s' if len(found.logs) > 1 else ''}{_noise(threshold.obs_noise)}, {threshold.n_steps} steps, rank "
+        f"{'s' if len(found.logs) > 1 else ''}{_noise(threshold.obs_noise)}, {threshold.n_steps} steps"
+        + (f" (their runs' time limit: {threshold.max_steps:,})" if threshold.max_steps else "")
+        + f", rank "
         f"{threshold.rank} of {threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score "
         f"median {threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote "
         f"{args.out}"

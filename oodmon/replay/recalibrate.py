@@ -203,6 +203,25 @@ def _cut(episode: EpisodeLog) -> bool:
     return bool(len(alarm) and alarm[-1] and (len(alarm) == 1 or not alarm[-2]) and not episode.terminated)
 
 
+def _time_limit(episodes: Sequence[tuple[RunLog, EpisodeLog]]) -> int | None:
+    """The logged runs' time limit (``oodmon run --max-steps``, the env's own): the one length at
+    which each episode ended that its env did not end (``terminated`` false) and no alarm may have
+    cut, none of the episodes longer. ``None`` where none ran into it, where a log does not say how
+    its episodes ended (before format 4) or where they ended at several lengths (runs of two
+    limits, or a loop of the user's own that ended them).
+
+    A threshold calibrated on them records it as its ``max_steps``: ``oodmon validate`` then plays
+    episodes as long as those, and ``oodmon run`` runs them, as with ``calibrate --max-steps``. It
+    played the env's own (500 steps of CartPole) against a bound for the logged runs' 200 before.
+    """
+    if any(episode.terminated is None for _, episode in episodes):
+        return None
+    limits = {len(episode.scores) for _, episode in episodes if not episode.terminated and not _cut(episode)}
+    if len(limits) != 1 or max(len(episode.scores) for _, episode in episodes) > min(limits):
+        return None
+    return limits.pop()
+
+
 def _field(log: RunLog, key: str) -> str | None:
     """A log's ``task``, ``method`` or metadata ``key`` (``None``: not recorded)."""
     return getattr(log, key) if key in ("task", "method") else log.metadata.get(key)
@@ -221,7 +240,8 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: 
     they share. The threshold records the policy, the fitted detector (its fingerprint: the monitor
     refuses others), the samples and masks, and the sensor noise of the logged world, as one
     calibrated by playing; ``logs`` names the logs and ``episode_seeds`` their episodes' reset seeds
-    where they had any, which ``oodmon validate`` then refuses to count again.
+    where they had any, which ``oodmon validate`` then refuses to count again; ``max_steps`` the
+    runs' time limit where the logs show one (:func:`_time_limit`), which validate and run then keep.
 
     Raises:
         ConfigError: logs of two policies, fitted detectors or worlds; a detector the logs have no
@@ -274,7 +294,8 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: 
         window=default_window(first.task, detector) if window is None else window, policy_hash=first.metadata.get(
             "policy_hash"), detector=detector, confidence=confidence, masks=first.metadata.get("about.masks"),
         warmup=warmup, detectors_hash=detectors_hash, samples=_samples(first), above=len(found.episodes) - len(whole))
-    threshold = replace(threshold, obs_noise=noise, episode_seeds=_seed_runs(found.episodes),
+    threshold = replace(threshold, obs_noise=noise, max_steps=_time_limit(found.episodes),
+                        episode_seeds=_seed_runs(found.episodes),
                         logs=[{"path": str(log.path), "run_id": log.metadata.get("run_id"),
                                "episodes": sum(1 for owner, _ in found.episodes if owner is log)}
                               for log in found.logs])

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -106,6 +107,30 @@ def test_an_episode_an_alarm_may_have_cut_short_counts_above_any_threshold():
         calibrate_from_logs([_log(episodes[:45])], 0.05)
     with pytest.raises(ConfigError, match="1 of the logs' ID episodes ended at the step an alarm began"):
         calibrate_from_logs([_log(episodes)], 0.05, mode="step", confidence=None)
+
+
+def test_the_logged_runs_time_limit_is_the_thresholds_where_the_logs_show_one():
+    """The one length at which every episode its env did not end (nor an alarm may have cut) ended,
+    none longer: the threshold's max_steps, which validate and run then keep. Not where the logs
+    show two such lengths, do not say how episodes ended, or every episode fell."""
+    rng = np.random.default_rng(4)
+
+    def limit(lengths_and_ends, **log):
+        episodes = [_episode(i, rng.random(n), terminated=ended) for i, (n, ended) in enumerate(lengths_and_ends)]
+        return calibrate_from_logs([_log(episodes, **log)], 0.1).max_steps
+
+    ran_out = [(60, False)] * 22
+    assert limit(ran_out + [(20, True), (35, True)]) == 60
+    assert limit(ran_out + [(45, False)]) is None  # two lengths: two limits, or a loop that ended some itself
+    assert limit(ran_out + [(61, True)]) is None  # one ran longer: 60 was not a limit
+    assert limit([(n, True) for n in range(30, 52)]) is None  # every one fell
+    unsaid = [_episode(i, rng.random(60), terminated=False) for i in range(22)]
+    unsaid[0] = replace(unsaid[0], terminated=None)  # a log before format 4
+    assert calibrate_from_logs([_log(unsaid)], 0.1).max_steps is None
+    cut = np.zeros(40, bool)
+    cut[-1] = True  # ended at the step an alarm began: not the limit
+    episodes = [_episode(i, rng.random(60)) for i in range(40)] + [_episode(40, rng.random(40) + 9, alarm=cut)]
+    assert calibrate_from_logs([_log(episodes)], 0.1).max_steps == 60
 
 
 def test_pettitts_test_rarely_finds_a_change_in_one_worlds_statistics_and_finds_a_lasting_rise_where_it_begins():
@@ -275,17 +300,19 @@ def test_recalibrate_on_a_noisier_worlds_logs_keeps_the_promise_there_where_the_
     done = run_cli("recalibrate", str(log), "--far", "0.1", "--detectors", str(detectors), "--out", str(real),
                    "--plot", str(tmp_path / "statistics"))
     assert done.returncode == 0, done.stderr
-    assert "22 ID episodes of 1 log file with sensor noise 0.01" in done.stdout and "copied to" in done.stdout
+    assert "22 ID episodes of 1 log file with sensor noise 0.01, 4400 steps (their runs' time limit: 200)" \
+           in done.stdout and "copied to" in done.stdout
     assert "drew its episodes' statistics in" in done.stdout and "change over the logs" not in done.stderr
     assert (tmp_path / "statistics.png").read_bytes()[:4] == b"\x89PNG"
     threshold = Threshold.load(real)
     assert threshold.obs_noise == 0.01 and threshold.n_episodes == 22 and threshold.detector == "combined"
     assert threshold.episode_seeds == {"calibration": [0, 22]} and threshold.logs[0]["episodes"] == 22
-    assert threshold.value > 100 * Threshold.load(sim).value
+    assert threshold.value > 100 * Threshold.load(sim).value and threshold.max_steps == 200  # (the logs' limit)
     assert (real.parent / "real.json.detectors" / "detectors.json").is_file()
-    done = run_cli("validate", str(real), "--episodes", "100", *steps, "--json")
+    done = run_cli("validate", str(real), "--episodes", "100", "--json")  # as long as the logged runs
     validation = json.loads(done.stdout)
-    assert validation["obs_noise"] == 0.01 and validation["alarmed"] < 20, validation  # (2 when written)
+    assert validation["obs_noise"] == 0.01 and validation["max_steps"] == 200 and validation["steps"] == 100 * 200
+    assert validation["stretches"] is None and validation["alarmed"] < 20, validation  # (2 when written)
     # the logged episodes are not fresh ones; another fit of the detectors is refused
     refused = run_cli("validate", str(real), "--episodes", "5", "--seed", "3")
     assert refused.returncode == 2 and "not fresh" in refused.stderr
