@@ -80,12 +80,43 @@ def alarmed(threshold, log: Path) -> int:
                for _, episode in log_episodes([log]).episodes)
 
 
+def burst_case(models: list[str], folder: Path, longer: float, count: int, judged) -> dict:
+    """The burst: 200 logged "ID" episodes, ``count`` of them in the middle with pole half-length
+    ``longer``, unflagged (three logs); the warning, the two tests' figures, and the thresholds
+    calibrated on all three logs and on the two ID logs alone, ``judged``."""
+    ids = (200 - count) // 2
+    around = [logged(models, folder / "sim.json", LENGTH, ids, 9000, folder / "burst" / "log-1.mcap"),
+              logged(models, folder / "sim.json", longer, count, 9500, folder / "burst" / "log-2.mcap"),
+              logged(models, folder / "sim.json", LENGTH, 200 - ids - count, 10000, folder / "burst" / "log-3.mcap")]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ChangeInLogsWarning)
+        with_burst = calibrate_from_logs(around)
+    statistics = change_in_logs(log_episodes(around), with_burst)
+    crowd = statistics.burst
+    return {"episodes": 200, "longer": count, "first_longer": ids,
+            "warned": any(issubclass(w.category, ChangeInLogsWarning) for w in caught),
+            "pettitt_p_value": statistics.change.p_value,
+            "burst": {"p_value": crowd.p_value, "first": crowd.first, "last": crowd.last, "count": crowd.count,
+                      "size": crowd.size},
+            "thresholds": {"all three logs": judged(with_burst),
+                           "the ID logs alone": judged(calibrate_from_logs([around[0], around[2]]))}}
+
+
+def row_line(name: str, row: dict) -> str:
+    """A threshold's row of the printed tables."""
+    return (f"| {name} ({row['n_episodes']} episodes) | {row['detector']} > {row['value']:.6g} | "
+            f"{row['fresh_id_alarmed']} of {row['fresh_id']} | {row['fresh_longer_alarmed']} of "
+            f"{row['fresh_longer']} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--longer", type=float, default=0.6, help="the pole's half-length after the change")
-    parser.add_argument("--burst", type=int, default=8, help="longer-pole episodes among 200 (the burst case)")
+    parser.add_argument("--burst", type=int, default=8, help="longer-pole episodes among 200 (the burst case, 1-100)")
     parser.add_argument("--out", default="results/deployment/changed-world.json")
     args = parser.parse_args()
+    if not 1 <= args.burst <= 100:
+        parser.error(f"--burst {args.burst}: give 1-100 longer-pole episodes among the 200")
     limit_threads()
     # the simulator's threshold, which the logged runs read, was calibrated on shorter episodes than
     # some of the policy's: its warning of each is beside the point here
@@ -104,29 +135,14 @@ def main() -> None:
         alone = calibrate_from_logs([first])
         fresh_id = logged(models, folder / "sim.json", LENGTH, 100, 70000, folder / "fresh-id.mcap")
         fresh_longer = logged(models, folder / "sim.json", args.longer, 40, 80000, folder / "fresh-longer.mcap")
+
         def judged(threshold) -> dict:
             return {"detector": threshold.detector, "value": threshold.value, "n_episodes": threshold.n_episodes,
                     "fresh_id_alarmed": alarmed(threshold, fresh_id), "fresh_id": 100,
                     "fresh_longer_alarmed": alarmed(threshold, fresh_longer), "fresh_longer": 40}
 
         rows = {"both logs": judged(both), "the first log": judged(alone)}
-        ids = (200 - args.burst) // 2
-        around = [logged(models, folder / "sim.json", LENGTH, ids, 9000, folder / "burst" / "log-1.mcap"),
-                  logged(models, folder / "sim.json", args.longer, args.burst, 9500, folder / "burst" / "log-2.mcap"),
-                  logged(models, folder / "sim.json", LENGTH, 200 - ids - args.burst, 10000,
-                         folder / "burst" / "log-3.mcap")]
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", ChangeInLogsWarning)
-            with_burst = calibrate_from_logs(around)
-        statistics = change_in_logs(log_episodes(around), with_burst)
-        crowd = statistics.burst
-        burst = {"episodes": 200, "longer": args.burst, "first_longer": ids,
-                 "warned": any(issubclass(w.category, ChangeInLogsWarning) for w in caught),
-                 "pettitt_p_value": statistics.change.p_value,
-                 "burst": {"p_value": crowd.p_value, "first": crowd.first, "last": crowd.last, "count": crowd.count,
-                           "size": crowd.size},
-                 "thresholds": {"all three logs": judged(with_burst),
-                                "the ID logs alone": judged(calibrate_from_logs([around[0], around[2]]))}}
+        burst = burst_case(models, folder, args.longer, args.burst, judged)
     result = {"longer": args.longer, "change": {"p_value": change.p_value, "at": change.at, "before": change.before,
                                                 "after": change.after, "warned": bool(said)}, "thresholds": rows,
               "burst": burst,
@@ -140,18 +156,14 @@ def main() -> None:
     print("| calibrated on | threshold | fresh ID episodes alarmed | fresh longer-pole episodes alarmed |")
     print("|---|---|---|---|")
     for name, row in rows.items():
-        print(f"| {name} ({row['n_episodes']} episodes) | {row['detector']} > {row['value']:.6g} | "
-              f"{row['fresh_id_alarmed']} of {row['fresh_id']} | {row['fresh_longer_alarmed']} of "
-              f"{row['fresh_longer']} |")
-    crowd = burst["burst"]
+        print(row_line(name, row))
+    crowd, ids = burst["burst"], burst["first_longer"]
     print(f"\na burst: {args.burst} longer-pole episodes among 200 (episodes {ids + 1}-{ids + args.burst}), unflagged")
     print(f"the burst scan: {crowd['count']} of the {crowd['size']} highest in episodes {crowd['first'] + 1}-"
           f"{crowd['last'] + 1}, p = {crowd['p_value']:.2g}; Pettitt's test p = {burst['pettitt_p_value']:.2g}; "
           f"warned: {burst['warned']}")
     for name, row in burst["thresholds"].items():
-        print(f"| {name} ({row['n_episodes']} episodes) | {row['detector']} > {row['value']:.6g} | "
-              f"{row['fresh_id_alarmed']} of {row['fresh_id']} | {row['fresh_longer_alarmed']} of "
-              f"{row['fresh_longer']} |")
+        print(row_line(name, row))
     print(f"wrote {args.out}")
 
 

@@ -187,6 +187,33 @@ def _workers_killed_at_step(monkeypatch, at: int = 1_200, pause: float = 0.0, to
     monkeypatch.setattr(ShiftedCartPole, "step", crashing_step)
 
 
+def _workers_in_step(monkeypatch, workers: int = 2) -> None:
+    """CartPole's steps in workers kept in step: none begins its third episode of 500 (its 1,001st
+    step) before each of the ``workers`` began its second (its 501st: the command has read its
+    first), at most a minute on. Where a test stops the command after some episodes, the first is
+    then back whatever each worker's pace (a 500-step episode takes about 50 ms; a slow worker's
+    first may outlast the other's fifth: :func:`_workers_killed_at_step`)."""
+    import multiprocessing
+
+    from oodmon.envs.physics import ShiftedCartPole
+
+    parent, step, steps = os.getpid(), ShiftedCartPole.step, []
+    second = multiprocessing.get_context("fork").Value("i", 0)  # workers that began their second episode
+
+    def kept_step(self, action):
+        steps.append(action)
+        if os.getpid() != parent and len(steps) == 501:
+            with second.get_lock():
+                second.value += 1
+        if os.getpid() != parent and len(steps) == 1_001:
+            waited = time.monotonic() + 60
+            while second.value < workers and time.monotonic() < waited:
+                time.sleep(0.005)
+        return step(self, action)
+
+    monkeypatch.setattr(ShiftedCartPole, "step", kept_step)
+
+
 def _trace_workers(monkeypatch, folder: Path):
     """Each worker writes to ``folder`` when it was forked and, until it said its first step, its
     Python stack every 2 s (``faulthandler``); the command each message it read of a worker. One of
@@ -449,7 +476,8 @@ def test_an_interrupted_validation_counts_the_first_episodes_played_whole(four_c
     played = alone.value.validation
     assert played.episodes == played.total == 5
     assert played.alarmed == validate_threshold(agent, threshold, 5, seed=700_300).alarmed
-    with pytest.raises(KeyboardInterrupt) as side_by_side:
+    with pytest.MonkeyPatch.context() as in_step, pytest.raises(KeyboardInterrupt) as side_by_side:
+        _workers_in_step(in_step)  # (so that the first is back by the tenth)
         validate_threshold(agent, threshold, 20, seed=700_300, workers=2, on_progress=_interrupt_at(10))
     played = side_by_side.value.validation  # runs of 1 episode: those back, from the first on
     assert 1 <= played.episodes <= 10

@@ -211,9 +211,9 @@ def _time_limit(episodes: Sequence[tuple[RunLog, EpisodeLog]]) -> int | None:
     limits, or a loop of the user's own that ended them).
 
     A threshold calibrated on them records it as its ``max_steps``: ``oodmon validate`` then plays
-    episodes as long as those, and ``oodmon run`` runs them, as with ``calibrate --max-steps``. It
-    played the env's own (500 steps of CartPole) against a bound for the logged runs' 200 before.
-    """
+    episodes as long as those, and ``oodmon run`` runs them, as with ``calibrate --max-steps``
+    (before 2026-12-06 validate played CartPole's own 500 steps against a bound for logged runs of
+    200)."""
     if any(episode.terminated is None for _, episode in episodes):
         return None
     limits = {len(episode.scores) for _, episode in episodes if not episode.terminated and not _cut(episode)}
