@@ -270,6 +270,10 @@ def _add_recalibrate(commands: argparse._SubParsersAction) -> None:
     recalibrate.add_argument("--detectors", help="the fitted detectors the logs' runs read (their threshold's "
                                                  "<threshold>.detectors, or --detectors): checked against the logs and "
                                                  "copied to <--out>.detectors, where `oodmon run` finds them")
+    recalibrate.add_argument("--last", type=_whole(1), metavar="N",
+                             help="calibrate on the latest N whole ID episodes only, in the logs' order (the order "
+                                  "given, a folder's files by name): a deployment logging on, after a change in its "
+                                  "world those since (default: all)")
     recalibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
     recalibrate.add_argument("--plot", metavar="FILE", help="draw each calibration episode's statistic in the logs' "
                                                             "order, the threshold, and any change or burst among them "
@@ -291,7 +295,7 @@ def _recalibrate(args: argparse.Namespace) -> int:
                                                              inputs=[*inputs, ("--out", args.out)])
     replaced = replaced_file(args.out, parameter="--out", holds="threshold", read=Threshold.load)
     detectors = DetectorSet.load(args.detectors) if args.detectors else None
-    found = log_episodes(args.logs)
+    found = log_episodes(args.logs, last=args.last)
     threshold = calibrate_from_logs(found, args.far, confidence=args.confidence, detector=args.detector,
                                     consecutive=args.consecutive, window=args.window, warmup=args.warmup,
                                     mode=args.mode)
@@ -307,7 +311,8 @@ def _recalibrate(args: argparse.Namespace) -> int:
     cleared = None if detectors is not None else _clear_earlier_detectors(args.out, None)
     if plot is not None:
         plot_log_statistics(change_in_logs(found, threshold), threshold, plot)
-    left_out = [f"{found.shifted} shifted" if found.shifted else "",
+    left_out = [f"{found.earlier} earlier ID" if found.earlier else "",
+                f"{found.shifted} shifted" if found.shifted else "",
                 f"{found.interrupted} the run was stopped inside" if found.interrupted else ""]
     Console(soft_wrap=True).print(
         f"{threshold.task}/{threshold.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, "
@@ -494,6 +499,9 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
                      help="fit on the whole ID episodes of these logs of the policy (MCAP files or folders: its "
                           "deployment's own world, `oodmon run --mcap`) instead of playing episodes; then calibrate "
                           "with `oodmon recalibrate` on other logs scored by these detectors")
+    fit.add_argument("--last", type=_whole(1), metavar="N",
+                     help="with --from-logs: fit on the latest N whole ID episodes only, in the logs' order (after a "
+                          "change in the deployment's world, those since; default: all)")
     fit.add_argument("--out", required=True, help="folder for detectors.json and detectors.safetensors")
     fit.add_argument("--overwrite", action="store_true",
                      help="replace the fitted detectors --out holds already; without it they are refused, since a "
@@ -583,6 +591,9 @@ def _fit_detectors(args: argparse.Namespace) -> int:
                           "folder, or --overwrite to replace them")
     if args.from_logs:
         _refuse_playing_options(args)
+    elif args.last is not None:
+        raise ConfigError("--last N chooses the latest of the logs' episodes (--from-logs LOG...); the episodes "
+                          "fit-detectors plays are --episodes")
     agent = _load_agent(args, seed=DETECTOR_FIT)  # seeded MC sampling: the same command fits the same detectors
     only = list(args.only) if args.only else None
     kept = _fitting_kept(out)
@@ -590,7 +601,7 @@ def _fit_detectors(args: argparse.Namespace) -> int:
         from oodmon.replay import fit_detectors_from_logs
 
         with _progress() as report:
-            detectors = fit_detectors_from_logs(agent, args.from_logs, detectors=only,
+            detectors = fit_detectors_from_logs(agent, args.from_logs, detectors=only, last=args.last,
                                                 dynamics_updates=args.dynamics_updates, on_progress=report)
     else:
         with _progress() as report, _kept_fitting(args, kept, "no detectors were written"):

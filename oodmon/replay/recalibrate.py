@@ -91,6 +91,7 @@ class LogEpisodes:
         cut: of ``episodes``, those that ended at the step an alarm began, without their env ending
             them: an alarm's callback may have stopped them (:func:`calibrate_from_logs` counts them
             as above any threshold).
+        earlier: whole ID episodes left out as older than the latest ``last`` (:func:`log_episodes`).
     """
 
     logs: list[RunLog]
@@ -98,6 +99,7 @@ class LogEpisodes:
     shifted: int
     interrupted: int
     cut: int
+    earlier: int = 0
 
     def noise(self, what: str) -> float:
         """The sensor noise the episodes were played with (0: none, or none recorded).
@@ -120,20 +122,42 @@ class LogEpisodes:
                               "interrupted): give logs of runs of the deployed policy in its own world")
 
 
-def log_episodes(logs: Sequence[str | Path | RunLog]) -> LogEpisodes:
+def log_episodes(logs: Sequence[str | Path | RunLog], *, last: int | None = None) -> LogEpisodes:
     """The whole ID episodes of ``logs`` (paths of MCAP files or folders, as ``oodmon replay``
     reads them, or logs read already), checked to be of one policy.
 
+    ``last``: the latest ``last`` of them only, in the logs' order (the order given, a folder's
+    files by name; all where there are fewer): a deployment that logs on, recalibrated on its
+    latest runs (after a change in its world, those since; ``oodmon recalibrate --last N``). Only
+    the logs holding them are kept and checked: older logs of a policy since retrained are left
+    out with their episodes.
+
     Raises:
         ConfigError: no logs, or logs of two policies (or spread scores, samples, masks).
+        InvalidParameterError: ``last`` is not a whole number >= 1.
         LogFormatError: a file that is not an oodmon log (see :func:`~oodmon.replay.read_logs`).
     """
+    if last is not None and not is_whole(last):
+        raise InvalidParameterError(f"last={last!r} is not allowed; give a whole number >= 1 of episodes, the latest "
+                                    "to calibrate on (None: all)")
     if isinstance(logs, (str, Path, RunLog)):
         logs = [logs]
     if not logs:
         raise ConfigError("no logs given: name the MCAP files (or folders) of ID runs of the deployed policy")
     paths = [log for log in logs if not isinstance(log, RunLog)]
     read = [log for log in logs if isinstance(log, RunLog)] + (read_logs(paths) if paths else [])
+    episodes, shifted = [], 0
+    for log in read:
+        for episode in log.episodes:
+            if not is_id_episode(episode, log.task) or episode.shifted.any():
+                shifted += 1
+                continue
+            episodes.append((log, episode))
+    earlier, interrupted = 0, sum(len(log.interrupted) for log in read)
+    if last is not None and len(episodes) > last:
+        earlier, episodes = len(episodes) - last, episodes[-last:]
+        kept = {id(log) for log, _ in episodes}
+        read = [log for log in read if id(log) in kept]
     first = read[0]
     for key, words in _SHARED:
         values = {_field(log, key) for log in read}
@@ -142,27 +166,20 @@ def log_episodes(logs: Sequence[str | Path | RunLog]) -> LogEpisodes:
             raise ConfigError(f"the logs are of two {words}: {first.path} has {_field(first, key)!r}, "
                               f"{other.path} {_field(other, key)!r}; their scores are on two scales, read here as one "
                               "policy's: give the logs of one")
-    episodes, shifted, cut = [], 0, 0
-    for log in read:
-        for episode in log.episodes:
-            if not is_id_episode(episode, log.task) or episode.shifted.any():
-                shifted += 1
-                continue
-            episodes.append((log, episode))
-            cut += _cut(episode)
-    return LogEpisodes(read, episodes, shifted, sum(len(log.interrupted) for log in read), cut)
+    return LogEpisodes(read, episodes, shifted, interrupted, sum(_cut(episode) for _, episode in episodes), earlier)
 
 
 def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, detectors: Sequence[str] | None = None,
                             seed: int = 0, dynamics_updates: int | None = None,
-                            on_progress: Progress | None = None) -> DetectorSet:
+                            on_progress: Progress | None = None, last: int | None = None) -> DetectorSet:
     """``agent``'s learned detectors fitted on the whole ID episodes of ``logs``, its deployment's
     own (:func:`~oodmon.monitor.detectors.fitting.fit_recorded_detectors`; the observations and
     actions of each step, :func:`~oodmon.replay.reader.read_steps`): where the deployment's world
     is not the simulator's, the detectors learn its own. The logs must be of ``agent`` (its
     weights' hash) and of one sensor noise, which the set records; ``detectors`` and
     ``dynamics_updates`` as :func:`~oodmon.monitor.detectors.fit_detectors` takes them (default:
-    the agent's set, every epoch); the spread score the logs' runs read. Calibrate the alarm on
+    the agent's set, every epoch); the spread score the logs' runs read; ``last``: the latest
+    episodes only (:func:`log_episodes`). Calibrate the alarm on
     other ID logs, scored by these detectors (:func:`calibrate_from_logs`): the episodes a
     detector learned read low. A policy acting on pictures (Pong) is fitted on the frames its logs
     hold: the camera's detectors and their combined, not ``features`` (see
@@ -176,7 +193,7 @@ def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, 
     from oodmon.monitor.detectors.fitting import fit_recorded_detectors
     from oodmon.monitor.monitor import policy_hash, policy_hash_aliases
 
-    found = log_episodes(logs)
+    found = log_episodes(logs, last=last)
     first = found.logs[0]
     recorded, mine = first.metadata.get("policy_hash"), policy_hash(agent)
     if other_weights(recorded, mine, policy_hash_aliases(agent)):
@@ -230,9 +247,10 @@ def _field(log: RunLog, key: str) -> str | None:
 def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: float = 0.05, *,
                         confidence: float | None = DEFAULT_CONFIDENCE, detector: str | None = None,
                         consecutive: int | None = None, window: int | None = None, warmup: int = 0,
-                        mode: str = "episode") -> Threshold:
+                        mode: str = "episode", last: int | None = None) -> Threshold:
     """A threshold calibrated on the whole ID episodes of ``logs`` (see the module's words; or
-    their episodes read already, :func:`log_episodes`).
+    their episodes read already, :func:`log_episodes`); ``last``: the latest episodes only
+    (:func:`log_episodes`).
 
     ``detector``: the detector whose logged scores the alarm reads (default: the one the logs' runs
     alarmed on; of runs without a threshold, the task's best they scored, as ``oodmon calibrate``
@@ -253,7 +271,10 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: 
         threshold = calibrate_from_logs(["runs/real/"], far=0.05)  # every log below runs/real
         threshold.save("runs/real.json")
     """
-    found = logs if isinstance(logs, LogEpisodes) else log_episodes(logs)
+    if isinstance(logs, LogEpisodes) and last is not None:
+        raise InvalidParameterError("last= is for logs to read; episodes read already were chosen: give "
+                                    "log_episodes(logs, last=...) instead")
+    found = logs if isinstance(logs, LogEpisodes) else log_episodes(logs, last=last)
     first = found.logs[0]
     if detector is None:
         detector = _default_detector(found.logs)
@@ -532,7 +553,8 @@ def _warn_if_changed(statistics: LogStatistics, use: str = "calibration") -> Non
             f"{change.p_value:.2g}): from {statistics.where(change.at)} on ({change.at + 1} of {n} in the logs' order, "
             f"the order given, a folder's files by name) they read {later}, median {change.after:.4g} against "
             f"{change.before:.4g} before. {what}: if the later runs were not in distribution, leave their logs out; if "
-            f"the world has moved on, {again} on its latest logs {plot}"), stacklevel=3)
+            f"the world has moved on, {again} on its latest episodes (`--last {n - change.at}`: those since) {plot}"),
+            stacklevel=3)
     elif crowd is not None and crowd.p_value < level:
         warnings.warn(ChangeInLogsWarning(
             f"the {crowd.size} highest {statistics.detector} statistics of the {n} {use} episodes crowd into a stretch "

@@ -231,6 +231,35 @@ def test_a_change_among_the_logged_episodes_is_warned_of_with_where_it_begins(tm
         calibrate_from_logs([_log(runs)], 0.05)
 
 
+def test_the_latest_episodes_alone_calibrate_on_the_world_since_a_change():
+    """`--last N` (``last=``): the latest N whole ID episodes in the logs' order; the change warning
+    says how many came since it. Older logs of a policy since retrained are left out with them."""
+    rng = np.random.default_rng(3)
+    before = [_episode(i, rng.random(30)) for i in range(40)]
+    after = [_episode(i, rng.random(30) + 0.5) for i in range(30)]
+    logs = [_log(before), _log(after, path="b.mcap")]
+    with pytest.warns(ChangeInLogsWarning, match=r"calibrate on its latest episodes \(`--last 30`: those since\)"):
+        calibrate_from_logs(logs, 0.1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ChangeInLogsWarning)
+        since = calibrate_from_logs(logs, 0.1, last=30)
+    assert since.n_episodes == 30 and [log["path"] for log in since.logs] == ["b.mcap"]
+    assert since.value == calibrate_from_logs([logs[1]], 0.1).value
+    found = log_episodes(logs, last=35)
+    assert (len(found.episodes), found.earlier, [str(log.path) for log in found.logs]) == (35, 35, ["a.mcap", "b.mcap"])
+    assert found.episodes[0][1] is before[35] and found.episodes[-1][1] is after[-1]
+    older = _log(before, policy="sha256:" + "b" * 64)  # of the policy before it was retrained
+    with pytest.raises(ConfigError, match="the logs are of two policies"):
+        log_episodes([older, logs[1]])
+    assert log_episodes([older, logs[1]], last=30).logs == [logs[1]]
+    assert len(log_episodes(logs, last=1000).episodes) == 70 and log_episodes(logs, last=1000).earlier == 0
+    for bad in (0, -1, 1.5, True, "3"):
+        with pytest.raises(InvalidParameterError, match="last="):
+            log_episodes(logs, last=bad)
+    with pytest.raises(InvalidParameterError, match="last= is for logs to read"):
+        calibrate_from_logs(log_episodes(logs), last=5)
+
+
 def test_detectors_are_not_fitted_on_logs_whose_world_changed_without_a_warning():
     """fit_detectors_from_logs tests the logs' episodes as recalibrate does, under the rule a
     calibration would choose (the detector the runs alarmed on), before it reads their steps."""
@@ -316,6 +345,10 @@ def test_recalibrate_on_a_noisier_worlds_logs_keeps_the_promise_there_where_the_
     # the logged episodes are not fresh ones; another fit of the detectors is refused
     refused = run_cli("validate", str(real), "--episodes", "5", "--seed", "3")
     assert refused.returncode == 2 and "not fresh" in refused.stderr
+    latest = run_cli("recalibrate", str(log), "--far", "0.2", "--last", "12", "--out", str(tmp_path / "latest.json"))
+    assert latest.returncode == 0 and "12 ID episodes of 1 log file" in latest.stdout, latest.stderr
+    assert "note: left out 10 earlier ID episodes" in latest.stderr
+    assert Threshold.load(tmp_path / "latest.json").episode_seeds == {"calibration": [10, 22]}
     other = run_cli("recalibrate", str(log), "--far", "0.1", "--out", str(tmp_path / "other.json"), "--detectors",
                     str(ZOO / "cartpole-dropout" / "detectors"))
     assert other.returncode == 2 and "another fit than the one that scored the logs" in other.stderr
@@ -360,6 +393,8 @@ def test_detectors_fitted_on_the_noisier_worlds_logs_then_recalibrated_on_others
     played = run_cli("fit-detectors", *agent, "--from-logs", str(fit_log), "--episodes", "9", "--obs-noise", "0.01",
                      "--out", str(tmp_path / "other"))
     assert played.returncode == 2 and "--episodes and --obs-noise shape the episodes" in played.stderr
+    played = run_cli("fit-detectors", *agent, "--last", "20", "--out", str(tmp_path / "other"))
+    assert played.returncode == 2 and "--last N chooses the latest of the logs' episodes" in played.stderr
 
 
 def test_the_steps_a_log_holds_are_read_in_order_and_episodes_that_cannot_be_fitted_on_are_said():
