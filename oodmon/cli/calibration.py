@@ -271,13 +271,12 @@ def _add_recalibrate(commands: argparse._SubParsersAction) -> None:
                                                  "<threshold>.detectors, or --detectors): checked against the logs and "
                                                  "copied to <--out>.detectors, where `oodmon run` finds them")
     recalibrate.add_argument("--last", type=_whole(1), metavar="N",
-                             help="calibrate on the latest N whole ID episodes only, in the logs' order (the order "
-                                  "given, a folder's files by name): a deployment logging on, after a change in its "
-                                  "world those since (default: all)")
+                             help="calibrate on the latest N whole ID episodes only (by when they ended): a "
+                                  "deployment logging on; after a change in its world, those since (default: all)")
     recalibrate.add_argument("--out", required=True, help="the threshold file to write (JSON)")
-    recalibrate.add_argument("--plot", metavar="FILE", help="draw each calibration episode's statistic in the logs' "
-                                                            "order, the threshold, and any change or burst among them "
-                                                            "(of which it warns) to FILE (.png, .jpg)")
+    recalibrate.add_argument("--plot", metavar="FILE", help="draw each calibration episode's statistic in the order "
+                                                            "they ended, the threshold, and any change or burst among "
+                                                            "them (of which it warns) to FILE (.png, .jpg)")
     recalibrate.set_defaults(handler=_recalibrate, plays=False, kept_on_interrupt=_KEPT["recalibrate"])
 
 
@@ -500,7 +499,7 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
                           "deployment's own world, `oodmon run --mcap`) instead of playing episodes; then calibrate "
                           "with `oodmon recalibrate` on other logs scored by these detectors")
     fit.add_argument("--last", type=_whole(1), metavar="N",
-                     help="with --from-logs: fit on the latest N whole ID episodes only, in the logs' order (after a "
+                     help="with --from-logs: fit on the latest N whole ID episodes only, by when they ended (after a "
                           "change in the deployment's world, those since; default: all)")
     fit.add_argument("--out", required=True, help="folder for detectors.json and detectors.safetensors")
     fit.add_argument("--overwrite", action="store_true",

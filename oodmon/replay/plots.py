@@ -7,7 +7,7 @@
 - :func:`plot_alarm_timeline` (``replay --monitor --plots``): per agent and shifted variant, each
   episode from its onset to its end, its first alarm and its failure: alarmed before the failure?
 - :func:`plot_log_statistics` (``recalibrate --plot``): each calibration episode's statistic in the
-  logs' order, the threshold, the logged runs' own, and the most likely change among them.
+  order they ended, the threshold, the logged runs' own, and the most likely change among them.
 """
 
 from __future__ import annotations
@@ -375,8 +375,8 @@ def write_monitor_plots(logs: Sequence[RunLog], folder: str | Path, failure: str
 
 def plot_log_statistics(statistics: LogStatistics, threshold: Threshold, path: str | Path) -> Path:
     """``oodmon recalibrate --plot``: each calibration episode's statistic under ``threshold``'s
-    rule in the logs' order (:func:`~oodmon.replay.recalibrate.change_in_logs`), each log's start
-    marked, the threshold, the logged runs' own where they alarmed on the same detector,
+    rule in the order they ended (:func:`~oodmon.replay.recalibrate.change_in_logs`), where
+    another log's episodes follow marked, the threshold, the logged runs' own where they alarmed on the same detector,
     Pettitt's most likely change with each side's median (dashed where the test does not find it)
     and, shaded, a stretch where the highest crowd (:func:`~oodmon.replay.recalibrate.burst`).
     The bound asks for one world: points that rise or fall over the logs are two."""
@@ -413,8 +413,8 @@ def plot_log_statistics(statistics: LogStatistics, threshold: Threshold, path: s
                 ax.hlines(median, low - 0.5, high - 0.5, **style)
         ax.axvline(change.at - 0.5, **style, label=(
             f"{'a change' if found else 'no change found'} (Pettitt p = {change.p_value:.2g}): each side's median"))
-    ax.set_xlabel(f"calibration episode, in the logs' order ({len({id(log) for log, _ in statistics.episodes})} "
-                  "log(s); grey lines: a log's start)")
+    ax.set_xlabel(f"calibration episode, in the order they ended ({len({id(log) for log, _ in statistics.episodes})} "
+                  "log(s); grey lines: another log's episodes follow)")
     scale = _statistic_scale(values[finite])
     if scale is not None:
         ax.set_yscale("symlog", linthresh=scale)

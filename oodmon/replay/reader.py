@@ -67,6 +67,8 @@ class EpisodeLog(EpisodeRecord):
         detector_scores: every detector's (length,) scores by name; a log older than format 3
             has one, the alarm's (``spread``), equal to ``scores``.
         rewards: (length,) each step's reward, or ``None`` (logs older than format 4).
+        ended_ns: when its record was logged, as it ended (the MCAP message's log time: the
+            writing machine's clock, ns since 1970), or ``None`` (a log read from elsewhere).
     """
 
     scores: np.ndarray = field(repr=False, kw_only=True)
@@ -74,6 +76,7 @@ class EpisodeLog(EpisodeRecord):
     alarm: np.ndarray = field(repr=False, kw_only=True)
     detector_scores: dict[str, np.ndarray] = field(default_factory=dict, repr=False, kw_only=True)
     rewards: np.ndarray | None = field(default=None, repr=False, kw_only=True)
+    ended_ns: int | None = field(default=None, repr=False, kw_only=True)
 
     def scores_of(self, detector: str | None) -> np.ndarray:
         """The per-step scores of ``detector`` (``None``: the alarm's).
@@ -137,8 +140,10 @@ _ROW_FIELDS = {"episode": int, "env_id": str, "variant": str, "onset": int, "ret
                "alarms": int}
 
 
-def _episode(path: Path, row: dict, arrays: dict, alarm_detector: str = "spread") -> EpisodeLog:
-    """An episode from its record and its arrays (:func:`_decoded`'s keys), both checked."""
+def _episode(path: Path, row: dict, arrays: dict, alarm_detector: str = "spread",
+             ended_ns: int | None = None) -> EpisodeLog:
+    """An episode from its record and its arrays (:func:`_decoded`'s keys), both checked;
+    ``ended_ns``: its record's log time."""
     for name, kind in _ROW_FIELDS.items():
         if not isinstance(row.get(name), kind) or isinstance(row.get(name), bool):
             raise LogFormatError(f"{path}: episode record {row.get('episode', '?')!r} has {name}={row.get(name)!r}; "
@@ -160,6 +165,7 @@ def _episode(path: Path, row: dict, arrays: dict, alarm_detector: str = "spread"
         terminated=row.get("terminated") if isinstance(row.get("terminated"), bool) else None,
         first_alarm_cause=row.get("first_alarm_cause") if isinstance(row.get("first_alarm_cause"), str) else None,
         obs_noise=float(noise), scores=scores, shifted=shifted, alarm=alarm, detector_scores=detectors, rewards=rewards,
+        ended_ns=ended_ns,
     )
 
 
@@ -172,10 +178,11 @@ class _Collector:
         self.scores: dict[int, list[dict]] = {}  # an episode's score messages: one, or its segments (format 6)
         self.steps: dict[int, list[dict]] = {}
         self.starts: dict[int, dict] = {}  # format 5: where each episode ran, from its first step
+        self.ended: dict[int, int] = {}  # each episode record's log time
 
-    def add(self, topic: str, data: bytes) -> None:
-        """Keep one message of ``topic``; messages of topics replay does not read are ignored
-        without being decoded (alarms and frames are protobuf, not JSON)."""
+    def add(self, topic: str, data: bytes, log_time: int | None = None) -> None:
+        """Keep one message of ``topic`` (logged at ``log_time``); messages of topics replay does
+        not read are ignored without being decoded (alarms and frames are protobuf, not JSON)."""
         if topic not in (_EPISODE, _SCORES, _STEP, _START):
             return
         try:
@@ -187,6 +194,8 @@ class _Collector:
             raise LogFormatError(f"{self.path}: a {topic} message has no episode number; not a log oodmon wrote")
         if topic == _EPISODE:
             self.rows[row["episode"]] = row
+            if log_time is not None:
+                self.ended[row["episode"]] = int(log_time)
         elif topic == _SCORES:
             self.scores.setdefault(row["episode"], []).append(row)
         elif topic == _STEP:
@@ -282,7 +291,7 @@ def _assemble(path: Path, metadata: dict[str, str] | None, found: _Collector, co
     for k in sorted(found.rows):
         arrays = found.arrays_of(k)
         if arrays is not None:
-            episode = _episode(path, found.rows[k], arrays, metadata.get("detector", "spread"))
+            episode = _episode(path, found.rows[k], arrays, metadata.get("detector", "spread"), found.ended.get(k))
             (interrupted if episode.interrupted else episodes).append(episode)
     try:
         threshold = float(metadata.get("threshold", "nan"))
@@ -348,7 +357,7 @@ def _read_indexed(path: Path) -> tuple[dict[str, str] | None, _Collector] | None
             # Logs since the episode_scores channel: read it alone; older ones: the step messages.
             wanted = [_EPISODE, _SCORES] if _SCORES in topics else [_EPISODE, _STEP]
             for _, channel, message in reader.iter_messages(topics=wanted):
-                found.add(channel.topic, message.data)
+                found.add(channel.topic, message.data, message.log_time)
         except LogFormatError:
             raise
         except Exception:  # noqa: BLE001  (streaming the file keeps what is readable: see the docstring)
@@ -385,7 +394,7 @@ def _recover(path: Path) -> RunLog:
                         continue
                     if topic == _SCORES:
                         since_scores.clear()
-                    found.add(topic, record.data)
+                    found.add(topic, record.data, record.log_time)
         except LogFormatError:
             raise
         except Exception as error:  # noqa: BLE001  (a torn record ends the readable part)

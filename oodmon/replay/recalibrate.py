@@ -27,7 +27,7 @@ The promise rests on the episodes to come being like the calibration episodes ta
 (exchangeable with them). Played episodes are, by their seeds; a deployment's logs need not be: its
 world may drift while it is logged, or a shift nobody flagged may lie among its "ID" runs, and the
 threshold then speaks for a mixture of two worlds. :func:`change_in_logs` tests the episodes'
-statistics, in the logs' order, for a lasting change (Pettitt's test, :func:`pettitt`) and for a
+statistics, in the order they ended, for a lasting change (Pettitt's test, :func:`pettitt`) and for a
 burst of high ones (:func:`burst`), and :func:`calibrate_from_logs` warns of either
 (:class:`ChangeInLogsWarning`) with where it is.
 """
@@ -126,8 +126,13 @@ def log_episodes(logs: Sequence[str | Path | RunLog], *, last: int | None = None
     """The whole ID episodes of ``logs`` (paths of MCAP files or folders, as ``oodmon replay``
     reads them, or logs read already), checked to be of one policy.
 
-    ``last``: the latest ``last`` of them only, in the logs' order (the order given, a folder's
-    files by name; all where there are fewer): a deployment that logs on, recalibrated on its
+    The episodes are in the order they ended (each record's log time, the writing machine's clock),
+    whatever order the logs are given in: a deployment's logs need not be named by their start, and
+    several machines' logs interleave. Logs read already that hold no times (built in memory) keep
+    the order given, each log's episodes in theirs.
+
+    ``last``: the latest ``last`` of them only (all where there are fewer): a deployment that logs
+    on, recalibrated on its
     latest runs (after a change in its world, those since; ``oodmon recalibrate --last N``). Only
     the logs holding them are kept and checked: older logs of a policy since retrained are left
     out with their episodes.
@@ -153,6 +158,9 @@ def log_episodes(logs: Sequence[str | Path | RunLog], *, last: int | None = None
                 shifted += 1
                 continue
             episodes.append((log, episode))
+    if all(episode.ended_ns is not None for _, episode in episodes):
+        episodes.sort(key=lambda owned: owned[1].ended_ns)  # (stable: ties keep the order given)
+        read.sort(key=lambda log: min((e.ended_ns for e in log.episodes if e.ended_ns is not None), default=0))
     earlier, interrupted = 0, sum(len(log.interrupted) for log in read)
     if last is not None and len(episodes) > last:
         earlier, episodes = len(episodes) - last, episodes[-last:]
@@ -489,10 +497,10 @@ def _log_crowd_chance(n: int, size: int, count: int) -> float:
 @dataclass(frozen=True)
 class LogStatistics:
     """Each calibration episode of some logs with its statistic under a threshold's rule, in the
-    logs' order (the order they were given, a folder's files by name; each log's episodes in
-    theirs), Pettitt's most likely change in them (:func:`pettitt`) and the most crowded stretch of
-    the highest (:func:`burst`; each ``None`` for fewer than :data:`CHANGE_EPISODES` episodes), of
-    the scores of ``detector``. An episode an alarm may have cut short reads +inf."""
+    order they ended (:func:`log_episodes`), Pettitt's most likely change in them (:func:`pettitt`)
+    and the most crowded stretch of the highest (:func:`burst`; each ``None`` for fewer than
+    :data:`CHANGE_EPISODES` episodes), of the scores of ``detector``. An episode an alarm may have
+    cut short reads +inf."""
 
     episodes: list[tuple[RunLog, EpisodeLog]]
     values: np.ndarray
@@ -509,7 +517,7 @@ class LogStatistics:
 def change_in_logs(found: LogEpisodes, threshold: Threshold | None = None) -> LogStatistics:
     """The statistics of the whole ID episodes ``found`` (:func:`log_episodes`) under
     ``threshold``'s rule (its detector's logged scores; an episode an alarm may have cut short:
-    +inf, as calibration counts it), in the logs' order, tested for a change (:func:`pettitt`).
+    +inf, as calibration counts it), in the order they ended, tested for a change (:func:`pettitt`).
     ``None``: the rule calibration would choose by default (the detector the logs' runs alarmed on,
     else the task's best they scored; its default ``consecutive`` and ``window``).
 
@@ -550,8 +558,8 @@ def _warn_if_changed(statistics: LogStatistics, use: str = "calibration") -> Non
         later = "higher" if change.after > change.before else "lower"
         warnings.warn(ChangeInLogsWarning(
             f"the {use} episodes' {statistics.detector} statistics change over the logs (Pettitt's test, p = "
-            f"{change.p_value:.2g}): from {statistics.where(change.at)} on ({change.at + 1} of {n} in the logs' order, "
-            f"the order given, a folder's files by name) they read {later}, median {change.after:.4g} against "
+            f"{change.p_value:.2g}): from {statistics.where(change.at)} on ({change.at + 1} of {n} in the order they "
+            f"ended) they read {later}, median {change.after:.4g} against "
             f"{change.before:.4g} before. {what}: if the later runs were not in distribution, leave their logs out; if "
             f"the world has moved on, {again} on its latest episodes (`--last {n - change.at}`: those since) {plot}"),
             stacklevel=3)
@@ -559,7 +567,7 @@ def _warn_if_changed(statistics: LogStatistics, use: str = "calibration") -> Non
         warnings.warn(ChangeInLogsWarning(
             f"the {crowd.size} highest {statistics.detector} statistics of the {n} {use} episodes crowd into a stretch "
             f"of the logs: {crowd.count} of them from {statistics.where(crowd.first)} to "
-            f"{statistics.where(crowd.last)} ({crowd.first + 1}-{crowd.last + 1} in the logs' order; p = "
+            f"{statistics.where(crowd.last)} ({crowd.first + 1}-{crowd.last + 1} in the order they ended; p = "
             f"{crowd.p_value:.2g} over random orders). Runs unlike the others for a while (a fault, a shift nobody "
             f"flagged) {harm}: if they were not in distribution, leave them out (their logs, or the runs of that "
             f"time) {plot}"), stacklevel=3)

@@ -210,7 +210,7 @@ def test_a_change_among_the_logged_episodes_is_warned_of_with_where_it_begins(tm
     rng = np.random.default_rng(3)
     before = [_episode(i, rng.random(30)) for i in range(40)]
     after = [_episode(i, rng.random(30) + 0.5) for i in range(30)]
-    with pytest.warns(ChangeInLogsWarning, match=r"from b.mcap episode 0 on \(41 of 70 in the logs' order"):
+    with pytest.warns(ChangeInLogsWarning, match=r"from b.mcap episode 0 on \(41 of 70 in the order they ended"):
         threshold = calibrate_from_logs([_log(before), _log(after, path="b.mcap")], 0.05)
     statistics = change_in_logs(log_episodes([_log(before), _log(after, path="b.mcap")]), threshold)
     assert statistics.change.at == 40 and statistics.change.after > statistics.change.before
@@ -232,8 +232,9 @@ def test_a_change_among_the_logged_episodes_is_warned_of_with_where_it_begins(tm
 
 
 def test_the_latest_episodes_alone_calibrate_on_the_world_since_a_change():
-    """`--last N` (``last=``): the latest N whole ID episodes in the logs' order; the change warning
-    says how many came since it. Older logs of a policy since retrained are left out with them."""
+    """`--last N` (``last=``): the latest N whole ID episodes (of logs without times, as these, in
+    the order given); the change warning says how many came since it. Older logs of a policy since
+    retrained are left out with them."""
     rng = np.random.default_rng(3)
     before = [_episode(i, rng.random(30)) for i in range(40)]
     after = [_episode(i, rng.random(30) + 0.5) for i in range(30)]
@@ -258,6 +259,30 @@ def test_the_latest_episodes_alone_calibrate_on_the_world_since_a_change():
             log_episodes(logs, last=bad)
     with pytest.raises(InvalidParameterError, match="last= is for logs to read"):
         calibrate_from_logs(log_episodes(logs), last=5)
+
+
+def test_the_episodes_are_in_the_order_they_ended_whatever_the_logs_names(tmp_path):
+    """Two runs' logs whose names sort the other way round (a folder's files are read by name): the
+    episodes, the logs and `--last` go by when each episode ended (its record's time in the log),
+    which a torn log's recovered episodes keep too."""
+    from oodmon.cli import main
+    from oodmon.replay import RecoveryWarning
+
+    first, second = tmp_path / "logs" / "z-first.mcap", tmp_path / "logs" / "a-second.mcap"
+    for path, seed in ((first, 100), (second, 200)):
+        assert main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "3", "--max-steps", "30",
+                     "--seed", str(seed), "--mcap", str(path)]) == 0
+    found = log_episodes([tmp_path / "logs"])
+    assert [episode.seed for _, episode in found.episodes] == [100, 101, 102, 200, 201, 202]
+    assert [log.path.name for log in found.logs] == ["z-first.mcap", "a-second.mcap"]
+    assert [episode.seed for _, episode in log_episodes([second, first], last=4).episodes] == [102, 200, 201, 202]
+    torn = tmp_path / "torn.mcap"
+    torn.write_bytes(first.read_bytes()[:-600])  # its summary and index lost
+    with pytest.warns(RecoveryWarning):
+        recovered = read_log(torn)
+    ended = [episode.ended_ns for episode in read_log(first).episodes]
+    assert [episode.ended_ns for episode in recovered.episodes] == ended[:len(recovered.episodes)]
+    assert len(recovered.episodes) >= 2 and ended == sorted(ended) and ended[0] > 1.7e18  # (ns: after 2023)
 
 
 def test_detectors_are_not_fitted_on_logs_whose_world_changed_without_a_warning():
