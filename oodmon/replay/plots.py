@@ -418,6 +418,11 @@ def plot_log_statistics(statistics: LogStatistics, threshold: Threshold, path: s
     scale = _statistic_scale(values[finite])
     if scale is not None:
         ax.set_yscale("symlog", linthresh=scale)
+        # (its own limits clipped the highest points at the top edge and reached down to -100 for
+        # statistics all above 0: half a decade of room above, and 0 below where none is negative)
+        shown = np.append(values[finite], threshold.value)
+        high, low = float(shown.max()), float(shown.min())
+        ax.set_ylim(min(0.0, 3 * low), 3 * high if high > 0 else high / 3 if high < 0 else scale)
     ax.set_ylabel(f"{threshold.detector} statistic" + (" (symlog)" if scale is not None else ""))
     ax.legend(loc="best", fontsize=7)
     ax.set_title(f"{threshold.task}/{threshold.method}: {n} ID episodes of the logs, alarm when {threshold.rule_text}",
