@@ -310,9 +310,6 @@ def _recalibrate(args: argparse.Namespace) -> int:
     cleared = None if detectors is not None else _clear_earlier_detectors(args.out, None)
     if plot is not None:
         plot_log_statistics(change_in_logs(found, threshold), threshold, plot)
-    left_out = [f"{found.earlier} earlier ID" if found.earlier else "",
-                f"{found.shifted} shifted" if found.shifted else "",
-                f"{found.interrupted} the run was stopped inside" if found.interrupted else ""]
     Console(soft_wrap=True).print(
         f"{threshold.task}/{threshold.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, "
         f"{threshold.mode} mode, {threshold.n_episodes} ID episodes of {len(found.logs)} log file"
@@ -328,7 +325,7 @@ def _recalibrate(args: argparse.Namespace) -> int:
         + (f"; removed the detectors an earlier calibration fitted into {cleared}" if cleared else "")
         + (f"; drew its episodes' statistics in {plot}" if plot is not None else ""),
         markup=False)
-    notes = [f"left out {' and '.join(filter(None, left_out))} episodes"] if any(left_out) else []
+    notes = [said] if (said := _left_out_said(found.left_out())) else []
     if found.cut:
         notes.append(f"{found.cut} episodes ended at the step an alarm began, their env not ending them: an alarm may "
                      "have cut them short, so they count as above any threshold")
@@ -339,6 +336,13 @@ def _recalibrate(args: argparse.Namespace) -> int:
     for note in notes:
         Console(stderr=True, soft_wrap=True).print(f"note: {note}", markup=False)
     return 0
+
+
+def _left_out_said(left_out: dict[str, int]) -> str | None:
+    """What a calibration or fit on logs left out (``LogEpisodes.left_out``), in words; ``None``: nothing."""
+    words = {"earlier": "earlier ID", "shifted": "shifted", "interrupted": "the run was stopped inside"}
+    said = [f"{count:,} {words[why]}" for why, count in left_out.items() if count]
+    return f"left out {' and '.join(said)} episodes" if said else None
 
 
 def _add_validate(commands: argparse._SubParsersAction) -> None:
@@ -620,6 +624,8 @@ def _fit_detectors(args: argparse.Namespace) -> int:
                   f"{_noise(detectors.fitted_for['obs_noise']) if logs else ''}"
                   f"{_side_by_side(detectors.fitted_for.get('workers'))}; "
                   f"wrote {args.out}{replaced}")
+    if logs and (said := _left_out_said(detectors.fitted_for.get("left_out", {}))):
+        Console(stderr=True, soft_wrap=True).print(f"note: {said}", markup=False)
     for note in fitting_notes(detectors):
         console.print(note, markup=False)
     return 0

@@ -115,6 +115,11 @@ class LogEpisodes:
                               "give the logs of one")
         return noise.pop() if noise else 0.0
 
+    def left_out(self) -> dict[str, int]:
+        """How many episodes were left out, and why: ``earlier`` (older than the latest ``last``),
+        ``shifted`` and ``interrupted`` (see the attributes)."""
+        return {"earlier": self.earlier, "shifted": self.shifted, "interrupted": self.interrupted}
+
     def check_some(self) -> None:
         """Raise :class:`ConfigError` where the logs hold no whole ID episode, saying what they hold."""
         if not self.episodes:
@@ -218,7 +223,7 @@ def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, 
     return fit_recorded_detectors(agent, episodes, detectors=detectors, score=first.metadata.get("score", "chosen_std"),
                                   obs_noise=noise, seed=seed, dynamics_updates=dynamics_updates,
                                   on_progress=on_progress, recorded={"episodes": len(episodes), "logs": [
-                                      str(log.path) for log in found.logs]})
+                                      str(log.path) for log in found.logs], "left_out": found.left_out()})
 
 
 def _cut(episode: EpisodeLog) -> bool:

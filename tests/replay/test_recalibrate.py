@@ -234,7 +234,9 @@ def test_a_change_among_the_logged_episodes_is_warned_of_with_where_it_begins(tm
 def test_the_latest_episodes_alone_calibrate_on_the_world_since_a_change():
     """`--last N` (``last=``): the latest N whole ID episodes (of logs without times, as these, in
     the order given); the change warning says how many came since it. Older logs of a policy since
-    retrained are left out with them."""
+    retrained are left out with them, and said."""
+    from oodmon.cli.calibration import _left_out_said
+
     rng = np.random.default_rng(3)
     before = [_episode(i, rng.random(30)) for i in range(40)]
     after = [_episode(i, rng.random(30) + 0.5) for i in range(30)]
@@ -249,6 +251,11 @@ def test_the_latest_episodes_alone_calibrate_on_the_world_since_a_change():
     found = log_episodes(logs, last=35)
     assert (len(found.episodes), found.earlier, [str(log.path) for log in found.logs]) == (35, 35, ["a.mcap", "b.mcap"])
     assert found.episodes[0][1] is before[35] and found.episodes[-1][1] is after[-1]
+    assert found.left_out() == {"earlier": 35, "shifted": 0, "interrupted": 0}
+    assert _left_out_said(found.left_out()) == "left out 35 earlier ID episodes"
+    assert _left_out_said({"earlier": 0, "shifted": 2, "interrupted": 1}) == \
+           "left out 2 shifted and 1 the run was stopped inside episodes"
+    assert _left_out_said({"earlier": 0, "shifted": 0, "interrupted": 0}) is None
     older = _log(before, policy="sha256:" + "b" * 64)  # of the policy before it was retrained
     with pytest.raises(ConfigError, match="the logs are of two policies"):
         log_episodes([older, logs[1]])
@@ -303,6 +310,10 @@ def test_detectors_are_not_fitted_on_logs_whose_world_changed_without_a_warning(
                                                  r"fitted on both worlds take both for ID"):
         with pytest.raises(OSError):  # (the logs are made here, in memory: their steps are not on disk)
             fit_detectors_from_logs(agent, logs)
+    with warnings.catch_warnings():  # the episodes since the change alone: one world, no warning
+        warnings.simplefilter("error", ChangeInLogsWarning)
+        with pytest.raises(OSError, match="missing/b.mcap"):
+            fit_detectors_from_logs(agent, logs, last=30)
     # logs of shifted runs alone (a killed run's while it alarmed on a shift): said as recalibrate says it;
     # it was "0 of the 0 recorded episodes can be fitted on" (found on 2026-12-06, a killed run's log)
     shifted = [_episode(i, rng.random(30), variant="cartpole:length=2.0") for i in range(5)]
