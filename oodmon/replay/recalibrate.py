@@ -214,7 +214,7 @@ def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, 
                           "logs of the policy the detectors will watch")
     found.check_some()
     noise = found.noise("detectors are fitted")
-    _warn_if_changed(change_in_logs(found), "fitting")
+    _warn_if_changed(change_in_logs(found))
     episodes = []
     for log in found.logs:
         mine_here = [episode.episode for owner, episode in found.episodes if owner is log]
@@ -333,7 +333,7 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: 
                         logs=[{"path": str(log.path), "run_id": log.metadata.get("run_id"),
                                "episodes": sum(1 for owner, _ in found.episodes if owner is log)}
                               for log in found.logs])
-    _warn_if_changed(change_in_logs(found, threshold))
+    _warn_if_changed(change_in_logs(found, threshold), threshold)
     return threshold
 
 
@@ -547,35 +547,55 @@ def change_in_logs(found: LogEpisodes, threshold: Threshold | None = None) -> Lo
                          burst(values) if enough else None)
 
 
-def _warn_if_changed(statistics: LogStatistics, use: str = "calibration") -> None:
+def _warn_if_changed(statistics: LogStatistics, threshold: Threshold | None = None) -> None:
     """Warn (:class:`ChangeInLogsWarning`) where the statistics change, or where their highest
-    crowd into a stretch (each test at half :data:`CHANGE_LEVEL`), of episodes a threshold is
-    calibrated on (``use``: ``"calibration"``) or detectors fitted on (``"fitting"``)."""
+    crowd into a stretch (each test at half :data:`CHANGE_LEVEL`), of episodes ``threshold`` is
+    calibrated on (``None``: detectors are fitted on them). A calibration's warning says how often
+    the threshold alarms on each side of the change (or in the stretch and elsewhere) beside its
+    target: a change that matters leaves one side far from it, one too small to matter neither."""
     n, level = len(statistics.values), CHANGE_LEVEL / 2
     change, crowd = statistics.change, statistics.burst
-    what = (f"The promise holds for episodes like the {n} taken together, not for either world alone"
-            if use == "calibration" else
-            "Detectors fitted on both worlds take both for ID: a change from one to the other goes unseen")
-    again = "calibrate" if use == "calibration" else "fit the detectors"
+    use = "fitting" if threshold is None else "calibration"
+    what = ("Detectors fitted on both worlds take both for ID: a change from one to the other goes unseen"
+            if threshold is None else f"The promise holds for episodes like the {n} taken together, not for either "
+                                      "world alone")
+    again = "fit the detectors" if threshold is None else "calibrate"
     plot = "(`oodmon recalibrate --plot FILE` draws each episode's statistic in order)"
-    harm = "raise a threshold to their level" if use == "calibration" else "teach detectors to read them as ID"
+    harm = "teach detectors to read them as ID" if threshold is None else "raise a threshold to their level"
     if change is not None and change.p_value < level:
         later = "higher" if change.after > change.before else "lower"
+        sides = _alarmed_on_sides(statistics.values, threshold, range(change.at), "before",
+                                  range(change.at, n), "since")
         warnings.warn(ChangeInLogsWarning(
             f"the {use} episodes' {statistics.detector} statistics change over the logs (Pettitt's test, p = "
             f"{change.p_value:.2g}): from {statistics.where(change.at)} on ({change.at + 1} of {n} in the order they "
-            f"ended) they read {later}, median {change.after:.4g} against "
-            f"{change.before:.4g} before. {what}: if the later runs were not in distribution, leave their logs out; if "
-            f"the world has moved on, {again} on its latest episodes (`--last {n - change.at}`: those since) {plot}"),
-            stacklevel=3)
+            f"ended) they read {later}, median {change.after:.4g} against {change.before:.4g} before{sides}. {what}: "
+            f"if the later runs were not in distribution, leave their logs out; if the world has moved on, {again} "
+            f"on its latest episodes (`--last {n - change.at}`: those since) {plot}"), stacklevel=3)
     elif crowd is not None and crowd.p_value < level:
+        inside = range(crowd.first, crowd.last + 1)
+        sides = _alarmed_on_sides(statistics.values, threshold, inside, "in the stretch",
+                                  [i for i in range(n) if i not in inside], "elsewhere")
         warnings.warn(ChangeInLogsWarning(
             f"the {crowd.size} highest {statistics.detector} statistics of the {n} {use} episodes crowd into a stretch "
             f"of the logs: {crowd.count} of them from {statistics.where(crowd.first)} to "
             f"{statistics.where(crowd.last)} ({crowd.first + 1}-{crowd.last + 1} in the order they ended; p = "
-            f"{crowd.p_value:.2g} over random orders). Runs unlike the others for a while (a fault, a shift nobody "
-            f"flagged) {harm}: if they were not in distribution, leave them out (their logs, or the runs of that "
-            f"time) {plot}"), stacklevel=3)
+            f"{crowd.p_value:.2g} over random orders){sides}. Runs unlike the others for a while (a fault, a shift "
+            f"nobody flagged) {harm}: if they were not in distribution, leave them out (their logs, or the runs of "
+            f"that time) {plot}"), stacklevel=3)
+
+
+def _alarmed_on_sides(values: np.ndarray, threshold: Threshold | None, one: Sequence[int], one_said: str,
+                      other: Sequence[int], other_said: str) -> str:
+    """``; this threshold alarms in a of the N before and b of the M since (target far)``: how
+    often ``threshold``'s rule alarms among the calibration episodes of two parts (their
+    statistics above its value); ``""`` without a threshold (a fit)."""
+    if threshold is None:
+        return ""
+    counts = [(int(np.sum(values[list(part)] > threshold.value)), len(part)) for part in (one, other)]
+    (a, n_a), (b, n_b) = counts
+    return (f"; this threshold alarms in {a} of the {n_a} {one_said} and {b} of the {n_b} {other_said} (its target: "
+            f"{threshold.far:g} of the episodes)")
 
 
 def _default_detector(logs: Sequence[RunLog]) -> str:

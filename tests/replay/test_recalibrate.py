@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -210,8 +211,12 @@ def test_a_change_among_the_logged_episodes_is_warned_of_with_where_it_begins(tm
     rng = np.random.default_rng(3)
     before = [_episode(i, rng.random(30)) for i in range(40)]
     after = [_episode(i, rng.random(30) + 0.5) for i in range(30)]
-    with pytest.warns(ChangeInLogsWarning, match=r"from b.mcap episode 0 on \(41 of 70 in the order they ended"):
+    with pytest.warns(ChangeInLogsWarning, match=r"from b.mcap episode 0 on \(41 of 70 in the order they ended\) "
+                                                 r".*; this threshold alarms in 0 of the 40 before and (\d) of the 30 "
+                                                 r"since \(its target: 0.05 of the episodes\)") as said:
         threshold = calibrate_from_logs([_log(before), _log(after, path="b.mcap")], 0.05)
+    since = int(re.search(r"and (\d) of the 30 since", str(said[0].message)).group(1))
+    assert since == sum(e.detector_scores["dynamics"].max() > threshold.value for e in after) <= 3
     statistics = change_in_logs(log_episodes([_log(before), _log(after, path="b.mcap")]), threshold)
     assert statistics.change.at == 40 and statistics.change.after > statistics.change.before
     assert statistics.values.tolist() == [e.detector_scores["dynamics"].max() for e in before + after]
@@ -227,7 +232,8 @@ def test_a_change_among_the_logged_episodes_is_warned_of_with_where_it_begins(tm
     runs = [_episode(i, rng.random(30) + (3.0 if 50 <= i < 58 else 0.0)) for i in range(100)]
     with pytest.warns(ChangeInLogsWarning, match=r"the 10 highest dynamics statistics of the 100 calibration "
                                                  r"episodes crowd into a stretch of the logs: 8 of them from a.mcap "
-                                                 r"episode 5\d to a.mcap episode 5\d"):
+                                                 r"episode 5\d to a.mcap episode 5\d .*; this threshold alarms in "
+                                                 r"\d of the \d+ in the stretch and 0 of the \d+ elsewhere"):
         calibrate_from_logs([_log(runs)], 0.05)
 
 
