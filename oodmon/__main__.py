@@ -2,6 +2,10 @@
 
 import sys
 
-from oodmon.cli import console
+from oodmon_console import hold_stops_at_exit
+
+hold_stops_at_exit()  # (first: the last of the exit's clean-ups)
+
+from oodmon.cli import console  # noqa: E402
 
 sys.exit(console())

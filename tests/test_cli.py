@@ -35,12 +35,34 @@ def test_a_stop_while_python_exits_after_a_command_keeps_its_exit_code_and_print
     SIGTERM ended the process by the signal (-15) where the promise is 143 or the command's own
     code. Now Ctrl-C is ignored, and SIGTERM ends it at once with the command's code, what it
     printed flushed. Here the last clean-up sends it after `python -m oodmon envs` has printed its
-    table, then sleeps (SIGTERM: a clean-up of 30 s, which it does not wait for)."""
-    code = ("import atexit, os, runpy, signal, sys, time; "
+    table, then sleeps (SIGTERM: a clean-up of 30 s, which it does not wait for); registered after
+    oodmon's last one, as the libraries' clean-ups are (they are imported after it)."""
+    code = ("import atexit, os, runpy, signal, sys, time, oodmon_console; oodmon_console.hold_stops_at_exit(); "
             f"atexit.register(lambda: (os.kill(os.getpid(), signal.{signal_name}), time.sleep({clean_up_seconds}))); "
             "sys.argv = ['oodmon', 'envs', '--task', 'pong']; runpy.run_module('oodmon', run_name='__main__')")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=25)
     assert (done.returncode, done.stderr) == (0, "") and "pong:pixelate@5" in done.stdout
+
+
+def test_a_sigterm_as_python_tears_down_the_modules_after_a_command_keeps_its_exit_code():
+    """After the clean-ups of the test above, Python's exit gives each signal with a handler of
+    Python's its default action and then tears down the modules (torch's: most of the 0.75 s a
+    calibrate's exit took). A SIGTERM there ended the process by the signal (-15): 21 of 21 sent
+    0.05-0.5 s after a calibrate's last line (2026-12-06). Now Ctrl-C and SIGTERM are ignored from
+    the last clean-up on (``oodmon_console.hold_stops_at_exit``). Here an object of ``__main__``,
+    torn down with it, sends SIGTERM and waits for it."""
+    code = ("import os, runpy, signal, sys, time\n"
+            "class Late:\n"
+            "    def __del__(self):\n"
+            "        os.kill(os.getpid(), signal.SIGTERM)\n"
+            "        time.sleep(0.5)\n"
+            "        os.write(1, b'torn down\\n')\n"
+            "late = Late()\n"
+            "sys.argv = ['oodmon', 'envs', '--task', 'pong']\n"
+            "runpy.run_module('oodmon', run_name='__main__')\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=25)
+    assert (done.returncode, done.stderr) == (0, "") and done.stdout.endswith("torn down\n"), done
+    assert "pong:pixelate@5" in done.stdout
 
 
 def test_a_stop_as_python_imports_oodmon_is_one_line(monkeypatch, capsys):

@@ -62,7 +62,9 @@ def console() -> int:
     clean-up, takes about half a second, and a Ctrl-C in it stopped the clean-up it came in and
     printed that one's traceback ("Exception ignored in atexit callback", 2026-12-06, an interrupt
     fuzzing of the commands), the exit code still 0; a SIGTERM there ended the process by the
-    signal (-15, found by the same fuzzing: a calibrate that had written its threshold)."""
+    signal (-15, found by the same fuzzing: a calibrate that had written its threshold). After the
+    last clean-up both are ignored (``oodmon_console.hold_stops_at_exit``): Python's teardown of the
+    modules, most of the exit, gives a handler of Python's its default action back first."""
     import os
     import signal
 
