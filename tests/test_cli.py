@@ -65,6 +65,54 @@ def test_a_sigterm_as_python_tears_down_the_modules_after_a_command_keeps_its_ex
     assert "pong:pixelate@5" in done.stdout
 
 
+def test_a_stop_as_a_calibration_writes_its_threshold_waits_for_it_and_says_it_was_written(tmp_path):
+    """SIGTERM just after `calibrate` wrote its threshold, before it had said so: the command said
+    "no threshold file or detectors were written" of the file it had written (2026-12-06: three of
+    three sent as its last line came). Now a stop waits while the threshold and the clean-up of
+    what it replaces are written (``stops_held``), then says what was: exit code 143, the file
+    whole. Here the writing itself sends the signal."""
+    out = tmp_path / "t.json"
+    code = ("import os, runpy, signal, sys\n"
+            "import oodmon.monitor.calibration as calibration\n"
+            "real = calibration.save_calibration\n"
+            "def save(*args, **kwargs):\n"
+            "    os.kill(os.getpid(), signal.SIGTERM)\n"
+            "    real(*args, **kwargs)\n"
+            "calibration.save_calibration = save\n"
+            "sys.argv = ['oodmon', 'calibrate', '--task', 'cartpole', '--method', 'ensemble', '--detector', 'spread', "
+            f"'--episodes', '11', '--far', '0.2', '--out', {str(out)!r}]\n"
+            "runpy.run_module('oodmon', run_name='__main__')\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 143, done.stderr
+    assert done.stderr.strip().splitlines()[-1] == (f"oodmon: stopped by SIGTERM; the calibration had ended: its "
+                                                    f"threshold is written to {out}")
+    from oodmon.monitor import Threshold
+
+    assert Threshold.load(out).n_episodes == 11 and "alarm when" not in done.stdout
+
+
+def test_a_stop_in_a_held_block_is_answered_as_it_ends():
+    """``stops_held``: Ctrl-C, and SIGTERM inside ``stop_on_sigterm``, wait for the block's end,
+    then raise what they would have raised; the block runs whole."""
+    import os
+    import signal
+
+    from oodmon.monitor import Terminated, stop_on_sigterm
+    from oodmon.monitor.stopping import stops_held
+
+    for signum, raised in ((signal.SIGINT, KeyboardInterrupt), (signal.SIGTERM, Terminated)):
+        ran = []
+        with pytest.raises(raised), stop_on_sigterm():
+            with stops_held():
+                os.kill(os.getpid(), signum)
+                ran.append("after the signal")
+            ran.append("after the block")
+        assert ran == ["after the signal"]
+    with stops_held():  # nothing came: nothing raised
+        ran.append("alone")
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
 def test_a_stop_as_python_imports_oodmon_is_one_line(monkeypatch, capsys):
     """Ctrl-C or SIGTERM in Python's first half second, as the `oodmon` program imports oodmon:
     Python's traceback of the import (about 40 lines), or the process ended by the signal, saying

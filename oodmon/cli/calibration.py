@@ -18,6 +18,7 @@ from oodmon.cli.parsing import (
     _STEP_COUNT, _WARMUP, _agent_arguments, _fraction, _non_negative, _whole,
 )
 from oodmon.errors import ConfigError, unknown
+from oodmon.monitor.stopping import stops_held
 from oodmon.monitor.threshold import DETECTOR_NAMES, episodes_needed
 from oodmon.seeds import CALIBRATION, DETECTOR_FIT, VALIDATION
 
@@ -184,11 +185,16 @@ def _calibrate(args: argparse.Namespace) -> int:
         raise
     # Written together once the calibration ends, each file beside its place first: an interrupted
     # calibration or a full disk leaves the earlier threshold with the detectors it was calibrated with.
-    save_calibration(threshold, args.out, detectors if fitted_to else None)
-    kept.unlink(missing_ok=True)
-    if fitted_to is not None:
-        kept_fit.clear()
-    cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
+    # A stop here waits for the clean-up (the earlier calibration's detectors, which run would read)
+    # and then says what was written: it said "no threshold file was written" of one written.
+    with stops_held():
+        save_calibration(threshold, args.out, detectors if fitted_to else None)
+        kept.unlink(missing_ok=True)
+        if fitted_to is not None:
+            kept_fit.clear()
+        cleared = None if fitted_to else _clear_earlier_detectors(args.out, args.detectors)
+        args.kept_on_interrupt = _ended("calibration", f"its threshold is written to {args.out}"
+                                        + (f", the detectors it fitted to {fitted_to}" if fitted_to else ""))
     Console(soft_wrap=True).print(
         f"{args.task}/{agent.method}: alarm when {threshold.rule_text} ({threshold.detector} detector, {threshold.mode} "
         f"mode, {threshold.n_episodes} ID episodes{_up_to(threshold.max_steps)}{_side_by_side(threshold.workers)}"
@@ -213,6 +219,11 @@ def _calibrate(args: argparse.Namespace) -> int:
             f"`--detector {best}` fits it first (about {DEFAULT_FIT_EPISODES} more ID episodes)"
             + (f"; the fitted one is left out: {left_out}" if left_out and best == "combined" else ""))
     return 0
+
+
+def _ended(work: str, written: str) -> str:
+    """What a command stopped after its work says it kept: ``the calibration had ended: <written>``."""
+    return f"the {work} had ended: {written}"
 
 
 def _up_to(max_steps: int | None) -> str:
@@ -306,8 +317,10 @@ def _recalibrate(args: argparse.Namespace) -> int:
             raise ConfigError(f"--detectors {args.detectors} is another fit than the one that scored the logs "
                               f"({detectors.fingerprint(threshold.detector)}, the logs' {threshold.detectors_hash}): "
                               "give the detectors the logs' runs read")
-    save_calibration(threshold, args.out, detectors)
-    cleared = None if detectors is not None else _clear_earlier_detectors(args.out, None)
+    with stops_held():  # (as calibrate's)
+        save_calibration(threshold, args.out, detectors)
+        cleared = None if detectors is not None else _clear_earlier_detectors(args.out, None)
+        args.kept_on_interrupt = _ended("calibration", f"its threshold is written to {args.out}")
     if plot is not None:
         plot_log_statistics(change_in_logs(found, threshold), threshold, plot)
     Console(soft_wrap=True).print(
@@ -611,8 +624,10 @@ def _fit_detectors(args: argparse.Namespace) -> int:
             detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
                                             obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report,
                                             workers=args.workers, dynamics_updates=args.dynamics_updates, kept=kept)
-    detectors.save(args.out)
-    kept.unlink(missing_ok=True)
+    with stops_held():  # (as calibrate's)
+        detectors.save(args.out)
+        kept.unlink(missing_ok=True)
+        args.kept_on_interrupt = _ended("fitting", f"the detectors are written to {args.out}")
     console = Console(soft_wrap=True)
     beside = _calibrated_beside(out)  # after the fitting: the threshold beside as it is now
     replaced = "" if not replacing else f" (replacing the set it held{beside}: calibrate that threshold again)" if beside \

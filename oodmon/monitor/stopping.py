@@ -21,7 +21,7 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["Terminated", "stop_on_sigterm"]
+__all__ = ["Terminated", "stop_on_sigterm", "stops_held"]
 
 
 class Terminated(KeyboardInterrupt):
@@ -53,3 +53,29 @@ def stop_on_sigterm() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, before)
+
+
+@contextmanager
+def stops_held() -> Iterator[None]:
+    """Within the block, Ctrl-C and SIGTERM wait: one that comes is answered as the block ends, by
+    the handler it would have met (``KeyboardInterrupt``; :class:`Terminated` inside
+    :func:`stop_on_sigterm`). For files written together that a stop must not part: a command's
+    threshold and the clean-up of what it replaces. In another thread than the main one, where no
+    handler runs, this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    came: list[int] = []
+    stops = (signal.SIGINT, signal.SIGTERM)
+    before = {signum: signal.signal(signum, lambda signum, frame: came.append(signum)) for signum in stops}
+    try:
+        yield
+    finally:
+        for signum, handler in before.items():
+            signal.signal(signum, handler)
+    if came:
+        handler = before[came[0]]
+        if callable(handler):
+            handler(came[0], None)
+        elif handler == signal.SIG_DFL:
+            os.kill(os.getpid(), came[0])
