@@ -160,31 +160,21 @@ def _workers_killed_at_step(monkeypatch, at: int = 1_200, pause: float = 0.0, to
     clones' CI runs and one run of the suite here (2026-12-06; traced in the last) the
     first-forked worker had stepped 200 times when the other died at its 1,200th, so that nothing
     was kept: episode 0 had not come back."""
-    import multiprocessing
     import signal
 
-    from oodmon.envs.physics import ShiftedCartPole
-
-    parent, step, steps = os.getpid(), ShiftedCartPole.step, []
-    third = multiprocessing.get_context("fork").Value("i", 0)  # workers that began their third episode
+    third = _Passed(1_001)  # workers that began their third episode
     said = _trace_workers(monkeypatch, trace) if trace is not None else lambda what: None
 
-    def crashing_step(self, action):
-        steps.append(action)
-        if os.getpid() != parent and (len(steps) == 1 or len(steps) % 100 == 0):
-            said(f"step {len(steps)}")
-        if os.getpid() != parent and len(steps) == 1_001:
-            with third.get_lock():
-                third.value += 1
-        if os.getpid() != parent and len(steps) == at:
-            waited = time.monotonic() + 60
-            while third.value < together and time.monotonic() < waited:
-                time.sleep(0.005)
+    def at_step(taken: int) -> None:
+        if taken == 1 or taken % 100 == 0:
+            said(f"step {taken}")
+        third.seen(taken)
+        if taken == at:
+            third.wait_for(together)
             time.sleep(pause)
             os.kill(os.getpid(), signal.SIGKILL)
-        return step(self, action)
 
-    monkeypatch.setattr(ShiftedCartPole, "step", crashing_step)
+    _in_workers(monkeypatch, at_step)
 
 
 def _workers_in_step(monkeypatch, workers: int = 2) -> None:
@@ -193,25 +183,52 @@ def _workers_in_step(monkeypatch, workers: int = 2) -> None:
     first), at most a minute on. Where a test stops the command after some episodes, the first is
     then back whatever each worker's pace (a 500-step episode takes about 50 ms; a slow worker's
     first may outlast the other's fifth: :func:`_workers_killed_at_step`)."""
-    import multiprocessing
+    second = _Passed(501)  # workers that began their second episode
 
+    def at_step(taken: int) -> None:
+        second.seen(taken)
+        if taken == 1_001:
+            second.wait_for(workers)
+
+    _in_workers(monkeypatch, at_step)
+
+
+def _in_workers(monkeypatch, at_step) -> None:
+    """CartPole's steps, each calling ``at_step(n)`` before a worker's ``n``-th step (counted in each
+    process from its fork on; in the command's process never)."""
     from oodmon.envs.physics import ShiftedCartPole
 
-    parent, step, steps = os.getpid(), ShiftedCartPole.step, []
-    second = multiprocessing.get_context("fork").Value("i", 0)  # workers that began their second episode
+    parent, step, taken = os.getpid(), ShiftedCartPole.step, [0]
 
-    def kept_step(self, action):
-        steps.append(action)
-        if os.getpid() != parent and len(steps) == 501:
-            with second.get_lock():
-                second.value += 1
-        if os.getpid() != parent and len(steps) == 1_001:
-            waited = time.monotonic() + 60
-            while second.value < workers and time.monotonic() < waited:
-                time.sleep(0.005)
+    def counted_step(self, action):
+        taken[0] += 1
+        if os.getpid() != parent:
+            at_step(taken[0])
         return step(self, action)
 
-    monkeypatch.setattr(ShiftedCartPole, "step", kept_step)
+    monkeypatch.setattr(ShiftedCartPole, "step", counted_step)
+
+
+class _Passed:
+    """How many workers have taken their ``step``-th step: a counter the command's process makes and
+    its forked workers share."""
+
+    def __init__(self, step: int) -> None:
+        import multiprocessing
+
+        self.step, self.count = step, multiprocessing.get_context("fork").Value("i", 0)
+
+    def seen(self, taken: int) -> None:
+        """In a worker, at its ``taken``-th step: counted if it is ``step``."""
+        if taken == self.step:
+            with self.count.get_lock():
+                self.count.value += 1
+
+    def wait_for(self, workers: int) -> None:
+        """Until ``workers`` have passed ``step`` (at most a minute)."""
+        waited = time.monotonic() + 60
+        while self.count.value < workers and time.monotonic() < waited:
+            time.sleep(0.005)
 
 
 def _trace_workers(monkeypatch, folder: Path):

@@ -217,7 +217,9 @@ def test_a_change_among_the_logged_episodes_is_warned_of_with_where_it_begins(tm
         threshold = calibrate_from_logs([_log(before), _log(after, path="b.mcap")], 0.05)
     since = int(re.search(r"and (\d) of the 30 since", str(said[0].message)).group(1))
     assert since == sum(e.detector_scores["dynamics"].max() > threshold.value for e in after) <= 3
-    statistics = change_in_logs(log_episodes([_log(before), _log(after, path="b.mcap")]), threshold)
+    found = log_episodes([_log(before), _log(after, path="b.mcap")])
+    statistics = change_in_logs(found, threshold)
+    assert change_in_logs(found, threshold) is statistics  # (asked again for the plot: not computed again)
     assert statistics.change.at == 40 and statistics.change.after > statistics.change.before
     assert statistics.values.tolist() == [e.detector_scores["dynamics"].max() for e in before + after]
     drawn = plot_log_statistics(statistics, threshold, tmp_path / "statistics.png")
