@@ -296,6 +296,8 @@ def _start_ray(config: BenchConfig, workers: int, modules: Sequence[str] = ()) -
         raise ConfigError(_NO_RAY) from None
     if ray.is_initialized():
         return False
+    from oodmon.monitor.stopping import sigterm_handler_kept
+
     if loopback:
         ray_constants.ENABLE_RAY_CLUSTER = False  # where ray was imported before the setting
     options = {} if config.address or loopback else {"_node_ip_address": config.bind}
@@ -304,8 +306,9 @@ def _start_ray(config: BenchConfig, workers: int, modules: Sequence[str] = ()) -
     try:
         # "local": a cluster of its own even where one runs already on this machine (`ray start`),
         # which Ray would join otherwise, refusing num_cpus (measured with Ray 2.60).
-        ray.init(address=config.address or "local", num_cpus=None if config.address else workers,
-                 include_dashboard=False, logging_level="ERROR", log_to_driver=False, **options)
+        with sigterm_handler_kept():  # (Ray's would end the bench without saying what it kept)
+            ray.init(address=config.address or "local", num_cpus=None if config.address else workers,
+                     include_dashboard=False, logging_level="ERROR", log_to_driver=False, **options)
     except ConnectionError as error:
         if not config.address:
             raise
@@ -315,4 +318,7 @@ def _start_ray(config: BenchConfig, workers: int, modules: Sequence[str] = ()) -
             "; a cluster started by `ray start` (Ray 2.59 on) asks for its token: set RAY_AUTH_MODE=token in this "
             "shell (Ray then reads the token from ~/.ray/auth_token, or from RAY_AUTH_TOKEN)")
         raise ConfigError(f"--address {config.address}: {error}{hint}") from None
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM as Ray started: what it started, ended here
+        ray.shutdown()
+        raise
     return True

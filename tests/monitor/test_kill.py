@@ -239,6 +239,59 @@ def test_sigterm_stops_oodmon_run_as_ctrl_c_does_and_exits_143(tmp_path, monkeyp
     assert log.interrupted[0].length == 199  # the handler runs as os.kill returns: step 700 is not taken
 
 
+def test_a_sigterm_that_library_code_raised_again_as_its_own_keyboard_interrupt_is_still_terminated():
+    """Ray's ray.wait, a SIGTERM coming in it, raised a KeyboardInterrupt of its own in place of
+    Terminated (`oodmon bench --executor ray` said "interrupted", 130): stop_on_sigterm raises
+    Terminated from it. A Ctrl-C, no SIGTERM having come, stays a KeyboardInterrupt."""
+    import os
+    import signal
+
+    from oodmon.monitor import Terminated, stop_on_sigterm
+
+    def library_wait():  # as Ray's: whatever came in it, a KeyboardInterrupt of its own
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+        except KeyboardInterrupt:
+            raise KeyboardInterrupt("interrupted in the library") from None
+
+    with pytest.raises(Terminated) as stopped, stop_on_sigterm():
+        library_wait()
+    assert type(stopped.value.__cause__) is KeyboardInterrupt and stopped.value.args == ("interrupted in the library",)
+    with pytest.raises(KeyboardInterrupt) as interrupted, stop_on_sigterm():
+        raise KeyboardInterrupt
+    assert type(interrupted.value) is KeyboardInterrupt
+
+
+def test_a_sigterm_handler_a_library_sets_for_good_is_put_back_and_its_exit_taken_as_sigterm():
+    """ray.init sets a SIGTERM handler of its own for the rest of the process (``sys.exit(15)``):
+    sigterm_handler_kept puts back the one before it, and turns the SystemExit(15) of a SIGTERM in
+    the block into what that one raises (Terminated, inside stop_on_sigterm). Another exit stays."""
+    import os
+    import signal
+    import sys
+
+    from oodmon.monitor import Terminated, stop_on_sigterm
+    from oodmon.monitor.stopping import sigterm_handler_kept
+
+    def library_init(send: bool):  # as ray.init: its own handler for good, which exits
+        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(signum))
+        if send:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    before = signal.getsignal(signal.SIGTERM)
+    with stop_on_sigterm():
+        inside = signal.getsignal(signal.SIGTERM)
+        with sigterm_handler_kept():
+            library_init(send=False)
+        assert signal.getsignal(signal.SIGTERM) is inside
+        with pytest.raises(Terminated) as stopped, sigterm_handler_kept():
+            library_init(send=True)
+        assert type(stopped.value.__context__) is SystemExit
+        with pytest.raises(SystemExit), sigterm_handler_kept():
+            sys.exit(3)  # not a SIGTERM: as it was
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
 def test_stop_on_sigterm_lets_a_deployed_loop_of_your_own_finish_its_log(tmp_path):
     """docs/your-policy.md's deployed process, stopped by its service manager: inside stop_on_sigterm, SIGTERM
     raises Terminated in the loop, and closing the env finishes the log with the cut episode marked
