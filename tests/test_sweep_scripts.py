@@ -553,6 +553,9 @@ def test_fuzz_interrupts_draws_seeded_stops_and_names_each_broken_promise(monkey
     assert {s.signal for s in stops} == {"SIGINT", "SIGTERM", "SIGKILL"} and 0 < sum(s.twice for s in stops) < 30
     assert all(0.5 <= s.delay <= 12 for s in stops)
     assert not any(s.twice for s in stops if s.signal == "SIGKILL")
+    with_ray = script.draws(60, 3, ray=True)  # drawn among the others; without it, earlier seeds' draws stay
+    assert "bench-ray" in {s.name for s in with_ray} and "bench-ray" not in {s.name for s in stops}
+    assert script.RAY[script.RAY.index("--executor") + 1] == "ray"
     kept = script.Stop("calibrate", "SIGINT", False, 3.0, sent=True, code=130, seconds=0.4, again_code=0,
                        stderr="oodmon: interrupted; no threshold file or detectors were written")
     assert script.findings(kept) == []

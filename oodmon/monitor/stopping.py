@@ -110,15 +110,16 @@ def sigterm_handler_kept() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    before = signal.getsignal(signal.SIGTERM)
+    before, answered = signal.getsignal(signal.SIGTERM), False
     try:
         yield
     except SystemExit as exit:
         if exit.code != signal.SIGTERM or before is None:
             raise
         signal.signal(signal.SIGTERM, before)
+        answered = True  # (what answering set stays: stop_on_sigterm's ignores a second SIGTERM)
         _answer(signal.SIGTERM, before)
         raise
     finally:
-        if before is not None:  # (None: set outside Python, which cannot set it back)
+        if before is not None and not answered:  # (None: set outside Python, which cannot set it back)
             signal.signal(signal.SIGTERM, before)

@@ -287,6 +287,8 @@ def test_a_sigterm_handler_a_library_sets_for_good_is_put_back_and_its_exit_take
         with pytest.raises(Terminated) as stopped, sigterm_handler_kept():
             library_init(send=True)
         assert type(stopped.value.__context__) is SystemExit
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN  # once: a second SIGTERM as the process cleans up
+        signal.signal(signal.SIGTERM, inside)
         with pytest.raises(SystemExit), sigterm_handler_kept():
             sys.exit(3)  # not a SIGTERM: as it was
     assert signal.getsignal(signal.SIGTERM) is before
