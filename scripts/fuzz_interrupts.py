@@ -7,7 +7,8 @@ Each run starts one command (``calibrate`` of CartPole with the combined detecto
 ``validate``, ``fit-detectors``, ``evaluate``, ``run`` with a log, ``train``, a monitor's ``bench``,
 ``demo``; with ``--ray``, a bench on a local Ray cluster too; those that can, with ``--workers 2``)
 as a new process in a session of its own, and after a random 0.5-12 s sends it SIGINT (what
-Ctrl-C sends), SIGTERM (a quarter of the time twice) or SIGKILL. It then reads the answer as docs/monitor.md ("Interruptions") promises it:
+Ctrl-C sends), SIGTERM (a quarter of the time twice) or SIGKILL. It then reads the answer as
+docs/monitor.md ("Interruptions") promises it:
 
 - no traceback on stderr;
 - an exit code of 0 (the command had ended), 130 or 143, -9 for SIGKILL; a second SIGTERM after the
