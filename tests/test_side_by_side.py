@@ -581,10 +581,31 @@ def test_an_interrupted_evaluation_keeps_the_variants_evaluated_whole(four_cores
 
 
 def test_an_evaluation_whose_worker_died_prints_the_variants_evaluated_whole(four_cores, capsys, monkeypatch):
-    """A worker killed past its first 1,000 steps (the ID env's two 500-step episodes, back by
-    then; a second first, so that the other worker's variant comes back too): the table of the
-    ID env and the first variants evaluated whole, as on Ctrl-C, and exit code 3."""
-    _workers_killed_at_step(monkeypatch, at=1_001, pause=1.0)
+    """Each worker killed as it begins its second variant of two episodes (its third episode's first
+    step), once both began theirs, so that the command holds the ID env and the first variant: the
+    table of those evaluated whole, as on Ctrl-C, and exit code 3. (Until 2026-12-07 the worker of
+    the ID env died at its 1,001st step a second on, the other's variant trusted to be back by then.)"""
+    import signal
+
+    from oodmon.envs.physics import ShiftedCartPole
+
+    parent, reset, step, resets = os.getpid(), ShiftedCartPole.reset, ShiftedCartPole.step, [0]
+    second_runs = _Passed(3)  # workers that began their third episode: the command read their first variant
+
+    def counted_reset(self, *args, **kwargs):
+        resets[0] += 1
+        if os.getpid() != parent:
+            second_runs.seen(resets[0])
+        return reset(self, *args, **kwargs)
+
+    def killing_step(self, action):
+        if os.getpid() != parent and resets[0] == 3:
+            second_runs.wait_for(2)
+            os.kill(os.getpid(), signal.SIGKILL)
+        return step(self, action)
+
+    monkeypatch.setattr(ShiftedCartPole, "reset", counted_reset)
+    monkeypatch.setattr(ShiftedCartPole, "step", killing_step)
     specs = "cartpole:length=2.0,cartpole:masscart=9.0,cartpole:gravity=19.6,cartpole:force_mag=1.0"
     assert main(["evaluate", "--task", "cartpole", "--method", "ensemble", "--episodes", "2", "--variants", specs,
                  "--workers", "2"]) == 3
