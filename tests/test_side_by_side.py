@@ -146,12 +146,12 @@ def test_a_worker_that_ends_its_own_process_is_not_said_to_be_killed(four_cores,
     assert wait_until_dead(int((tmp_path / "slow").read_text()))
 
 
-def _workers_killed_at_step(monkeypatch, at: int = 1_200, pause: float = 0.0, together: int = 0,
+def _workers_killed_at_step(monkeypatch, at: int = 1_200, together: int = 0,
                             trace: Path | None = None) -> None:
     """CartPole's steps, as the kernel kills a worker when memory runs out: SIGKILL at each worker's
-    ``at``-th step (default: in its third episode of 500), after ``pause`` seconds; in the command's
-    process never. ``trace``: a folder where the workers and the command write what they did and
-    when, for a failure to print (:func:`_traced`).
+    ``at``-th step (default: in its third episode of 500); in the command's process never.
+    ``trace``: a folder where the workers and the command write what they did and when, for a
+    failure to print (:func:`_traced`).
 
     ``together``: a worker dies only once that many workers have begun their third episode (their
     1,001st step: a worker gets its next run only after the command read its last, so by then the
@@ -171,7 +171,6 @@ def _workers_killed_at_step(monkeypatch, at: int = 1_200, pause: float = 0.0, to
         third.seen(taken)
         if taken == at:
             third.wait_for(together)
-            time.sleep(pause)
             os.kill(os.getpid(), signal.SIGKILL)
 
     _in_workers(monkeypatch, at_step)
