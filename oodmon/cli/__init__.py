@@ -24,6 +24,7 @@ from concurrent.futures.process import BrokenProcessPool
 
 from oodmon.cli.bench import _add_bench
 from oodmon.cli.calibration import _add_calibrate, _add_fit_detectors, _add_recalibrate, _add_validate
+from oodmon.cli.display import OutputClosed
 from oodmon.cli.envs import _add_envs
 from oodmon.cli.parsing import _NOT_BEGUN, _command_parser, _Parser, _unknown_arguments
 from oodmon.cli.replay import _add_check, _add_replay
@@ -68,7 +69,14 @@ def console() -> int:
     import os
     import signal
 
+    from oodmon.cli.display import StopsWhenOutputCloses
+
+    sys.stdout = StopsWhenOutputCloses(sys.stdout)
     code = main()
+    try:  # (here, not in Python's exit, where a closed pipe's error would be printed)
+        sys.stdout.flush()
+    except OutputClosed:  # the command's work was done: its code stands
+        pass
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     def done(signum, frame) -> None:  # (a service manager's stop: the clean-up is all that is left)
@@ -93,7 +101,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     died, out of memory or in an env's C code, is said in one line, the command's traceback would
     not find it), 130 interrupted
     (Ctrl-C; the logs keep every finished episode), 143 stopped by SIGTERM (a service manager's
-    stop, ``kill``), which is taken as Ctrl-C is.
+    stop, ``kill``), which is taken as Ctrl-C is, 141 its output closed (``oodmon run | head``: the
+    reader ended; taken as Ctrl-C is, in the ``oodmon`` program).
     """
     parser = _parser()
     words = list(sys.argv[1:] if argv is None else argv)
@@ -125,6 +134,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         except (OodmonError, OSError) as error:
             print(f"oodmon: error: {error}", file=sys.stderr)
             return 2
+        except OutputClosed:  # (`oodmon run | head`: the reader is gone; stderr says it)
+            print("oodmon: stopped: its output was closed (the reader of its pipe ended; what it printed since went "
+                  "nowhere)" + _kept(args), file=sys.stderr)
+            return 141
         except KeyboardInterrupt as interrupt:
             stopped = isinstance(interrupt, Terminated)
             print(("oodmon: stopped by SIGTERM" if stopped else "oodmon: interrupted") + _kept(args), file=sys.stderr)

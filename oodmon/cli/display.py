@@ -32,6 +32,44 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(before=_hold_displays, after_in_parent=_release_displays, after_in_child=_release_displays)
 
 
+class OutputClosed(KeyboardInterrupt):
+    """The reader of the command's output went away (``oodmon run | head -3``: ``head`` ended):
+    taken as Ctrl-C is (a run's logs finished, its cut episode marked interrupted), said on stderr,
+    exit code 141 (a shell's for a process ended by SIGPIPE). Before (2026-12-06), rich's console
+    ended the command with ``SystemExit(1)``, saying nothing, an exit code that reads as a
+    regression check's fall, and ``print`` raised ``BrokenPipeError`` ("error", 2)."""
+
+
+class StopsWhenOutputCloses:
+    """The program's standard output (``sys.stdout``), raising :class:`OutputClosed` the first time a
+    write or flush meets a closed pipe; its descriptor then reads to ``/dev/null``, so that what is
+    still written, and the flush at Python's exit, goes nowhere quietly."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._closed()
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._closed()
+
+    def _closed(self) -> None:
+        nowhere = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(nowhere, self._stream.fileno())
+        os.close(nowhere)
+        raise OutputClosed
+
+    def __getattr__(self, name: str):  # isatty, fileno, encoding, ... as the stream's
+        return getattr(self._stream, name)
+
+
 def _table_console() -> Console:
     """A console for tables: the terminal's width, or a wide one when output goes to a file or pipe
     (rich would otherwise cut columns to 80 characters)."""

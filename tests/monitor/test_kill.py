@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -237,6 +238,31 @@ def test_sigterm_stops_oodmon_run_as_ctrl_c_does_and_exits_143(tmp_path, monkeyp
     log = read_log(tmp_path / "cut.mcap")
     assert log.complete and [e.length for e in log.episodes] == [500] and len(log.interrupted) == 1
     assert log.interrupted[0].length == 199  # the handler runs as os.kill returns: step 700 is not taken
+
+
+def test_a_run_whose_output_is_closed_stops_as_on_ctrl_c_and_says_so_on_stderr(tmp_path):
+    """`oodmon run ... | head -2`: the reader of its output gone, the program stops as on Ctrl-C
+    (its log finished, the cut episode marked interrupted), says so on stderr, and ends with 141
+    (a shell's code for SIGPIPE). Before (2026-12-06): exit 1, which reads as a regression check's
+    fall, and nothing said (rich's console raised SystemExit(1) at its next print)."""
+    from oodmon.monitor.threshold import Threshold
+
+    threshold, log = tmp_path / "t.json", tmp_path / "run.mcap"
+    Threshold(0.0, "chosen_std", 1, "episode", 0.05, 45, 9_000, task="cartpole", method="ensemble",
+              detector="spread").save(threshold)  # (an alarm in every episode: a line each)
+    program = subprocess.Popen([str(Path(sys.executable).with_name("oodmon")), "run", "--threshold", str(threshold),
+                                "--max-steps", "30", "--episodes", "100000", "--mcap", str(log)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    read = [program.stdout.readline() for _ in range(2)]
+    program.stdout.close()  # as head does, having read its lines
+    err = program.stderr.read()
+    assert program.wait(timeout=60) == 141, err
+    assert all(line.startswith("ALARM episode ") for line in read), read
+    assert err.strip().splitlines()[-1].startswith(
+        "oodmon: stopped: its output was closed (the reader of its pipe ended; what it printed since went nowhere); "
+        "every finished episode is in the logs, the cut one is marked interrupted"), err
+    recorded = read_log(log)
+    assert recorded.complete and len(recorded.episodes) >= 2 and len(recorded.interrupted) == 1
 
 
 def test_a_sigterm_that_library_code_raised_again_as_its_own_keyboard_interrupt_is_still_terminated():
