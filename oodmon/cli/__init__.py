@@ -73,21 +73,21 @@ def console() -> int:
 
     sys.stdout = StopsWhenOutputCloses(sys.stdout)
     code = main()
-    try:  # (here, not in Python's exit, where a closed pipe's error would be printed)
-        sys.stdout.flush()
-    except OutputClosed:  # the command's work was done: its code stands
-        pass
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     def done(signum, frame) -> None:  # (a service manager's stop: the clean-up is all that is left)
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()
-            except (OSError, ValueError):  # a closed pipe: nothing more can reach it
+            except (OSError, ValueError, OutputClosed):  # a closed pipe: nothing more can reach it
                 pass
         os._exit(code if isinstance(code, int) else 1)
 
     signal.signal(signal.SIGTERM, done)
+    try:  # (here, not in Python's exit, where a closed pipe's error would be printed)
+        sys.stdout.flush()
+    except OutputClosed:  # the command's work was done: its code stands
+        pass
     return code
 
 
