@@ -112,8 +112,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             _unknown_arguments(_command_parser(parser, words), unknown)
     except SystemExit as exit:  # --help, --version, or a bad flag (one line, from _Parser.error)
         return exit.code if isinstance(exit.code, int) else 2
+    except OutputClosed:  # (`oodmon run --help | true`: the help met a closed pipe; nothing began)
+        print("oodmon: stopped: its output was closed (the reader of its pipe ended)", file=sys.stderr)
+        return 141
     if not hasattr(args, "handler"):
-        parser.print_help()
+        try:
+            parser.print_help()
+        except OutputClosed:  # (as above)
+            pass
         return 2
     args.argv = words  # what a result records as its command
     kept = getattr(args, "kept_on_interrupt", None)  # what the command says it keeps, once it has begun

@@ -263,6 +263,16 @@ def test_a_run_whose_output_is_closed_stops_as_on_ctrl_c_and_says_so_on_stderr(t
         "every finished episode is in the logs, the cut one is marked interrupted"), err
     recorded = read_log(log)
     assert recorded.complete and len(recorded.episodes) >= 2 and len(recorded.interrupted) == 1
+    # its help to a pipe already closed: one line, 141 (before this was handled there: a traceback)
+    reading, writing = os.pipe()
+    os.close(reading)
+    try:
+        helped = subprocess.run([str(Path(sys.executable).with_name("oodmon")), "run", "--help"], stdout=writing,
+                                stderr=subprocess.PIPE, text=True, timeout=60)
+    finally:
+        os.close(writing)
+    assert (helped.returncode, helped.stderr) == (
+        141, "oodmon: stopped: its output was closed (the reader of its pipe ended)\n")
 
 
 def test_a_sigterm_that_library_code_raised_again_as_its_own_keyboard_interrupt_is_still_terminated():
