@@ -71,7 +71,8 @@ def console() -> int:
 
     from oodmon.cli.display import StopsWhenOutputCloses
 
-    sys.stdout = StopsWhenOutputCloses(sys.stdout)
+    if sys.stdout is not None:  # (None: started with no standard output, `oodmon ... >&-`; print then writes nothing)
+        sys.stdout = StopsWhenOutputCloses(sys.stdout)
     code = main()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
@@ -85,7 +86,8 @@ def console() -> int:
 
     signal.signal(signal.SIGTERM, done)
     try:  # (here, not in Python's exit, where a closed pipe's error would be printed)
-        sys.stdout.flush()
+        if sys.stdout is not None:
+            sys.stdout.flush()
     except OutputClosed:  # the command's work was done: its code stands
         pass
     return code

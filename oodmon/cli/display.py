@@ -37,7 +37,8 @@ class OutputClosed(KeyboardInterrupt):
     taken as Ctrl-C is (a run's logs finished, its cut episode marked interrupted), said on stderr,
     exit code 141 (a shell's for a process ended by SIGPIPE). Before (2026-12-06), rich's console
     ended the command with ``SystemExit(1)``, saying nothing, an exit code that reads as a
-    regression check's fall, and ``print`` raised ``BrokenPipeError`` ("error", 2)."""
+    regression check's fall (and a ``print``'s ``BrokenPipeError`` would have been said as an
+    error, 2)."""
 
 
 class StopsWhenOutputCloses:
@@ -61,9 +62,12 @@ class StopsWhenOutputCloses:
             self._closed()
 
     def _closed(self) -> None:
-        nowhere = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(nowhere, self._stream.fileno())
-        os.close(nowhere)
+        try:
+            nowhere = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(nowhere, self._stream.fileno())
+            os.close(nowhere)
+        except (OSError, ValueError):  # (a stream without a descriptor: each write meets the pipe again)
+            pass
         raise OutputClosed
 
     def __getattr__(self, name: str):  # isatty, fileno, encoding, ... as the stream's

@@ -273,6 +273,10 @@ def test_a_run_whose_output_is_closed_stops_as_on_ctrl_c_and_says_so_on_stderr(t
         os.close(writing)
     assert (helped.returncode, helped.stderr) == (
         141, "oodmon: stopped: its output was closed (the reader of its pipe ended)\n")
+    # started with no standard output at all (`>&-`: Python's sys.stdout is None): as before, quietly
+    listed = subprocess.run([str(Path(sys.executable).with_name("oodmon")), "envs", "--task", "pong"],
+                            preexec_fn=lambda: os.close(1), stderr=subprocess.PIPE, text=True, timeout=60)
+    assert (listed.returncode, listed.stderr) == (0, "")
 
 
 def test_a_sigterm_that_library_code_raised_again_as_its_own_keyboard_interrupt_is_still_terminated():
