@@ -255,8 +255,13 @@ def test_a_run_whose_output_is_closed_stops_as_on_ctrl_c_and_says_so_on_stderr(t
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     read = [program.stdout.readline() for _ in range(2)]
     program.stdout.close()  # as head does, having read its lines
+    try:
+        code = program.wait(timeout=120)  # (not stopped, it would play on for many minutes)
+    finally:
+        program.kill()
     err = program.stderr.read()
-    assert program.wait(timeout=60) == 141, err
+    program.stderr.close()
+    assert code == 141, err
     assert all(line.startswith("ALARM episode ") for line in read), read
     assert err.strip().splitlines()[-1].startswith(
         "oodmon: stopped: its output was closed (the reader of its pipe ended; what it printed since went nowhere); "
