@@ -200,8 +200,8 @@ def _in_workers(monkeypatch, at_step) -> None:
     parent, step, taken = os.getpid(), ShiftedCartPole.step, [0]
 
     def counted_step(self, action):
-        taken[0] += 1
-        if os.getpid() != parent:
+        if os.getpid() != parent:  # (counted here only: a worker's count starts at its fork)
+            taken[0] += 1
             at_step(taken[0])
         return step(self, action)
 
@@ -588,23 +588,22 @@ def test_an_evaluation_whose_worker_died_prints_the_variants_evaluated_whole(fou
 
     from oodmon.envs.physics import ShiftedCartPole
 
-    parent, reset, step, resets = os.getpid(), ShiftedCartPole.reset, ShiftedCartPole.step, [0]
+    parent, reset, resets = os.getpid(), ShiftedCartPole.reset, [0]
     second_runs = _Passed(3)  # workers that began their third episode: the command read their first variant
 
     def counted_reset(self, *args, **kwargs):
-        resets[0] += 1
-        if os.getpid() != parent:
+        if os.getpid() != parent:  # (each worker counts its own, from its fork on)
+            resets[0] += 1
             second_runs.seen(resets[0])
         return reset(self, *args, **kwargs)
 
-    def killing_step(self, action):
-        if os.getpid() != parent and resets[0] == 3:
+    def at_step(taken: int) -> None:
+        if resets[0] == 3:
             second_runs.wait_for(2)
             os.kill(os.getpid(), signal.SIGKILL)
-        return step(self, action)
 
     monkeypatch.setattr(ShiftedCartPole, "reset", counted_reset)
-    monkeypatch.setattr(ShiftedCartPole, "step", killing_step)
+    _in_workers(monkeypatch, at_step)
     specs = "cartpole:length=2.0,cartpole:masscart=9.0,cartpole:gravity=19.6,cartpole:force_mag=1.0"
     assert main(["evaluate", "--task", "cartpole", "--method", "ensemble", "--episodes", "2", "--variants", specs,
                  "--workers", "2"]) == 3

@@ -36,6 +36,9 @@ from oodmon.threads import limit_threads
 
 __all__ = ["main"]
 
+#: What a command whose output closed says (``{}``: after a command began, that its later output was lost).
+_OUTPUT_CLOSED = "oodmon: stopped: its output was closed (the reader of its pipe ended{})"
+
 
 def _sb3_files(args: argparse.Namespace) -> None:
     """``--sb3 runs/dqn`` names ``runs/dqn.zip`` where only that is there, as SB3's own ``load``
@@ -115,7 +118,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exit:  # --help, --version, or a bad flag (one line, from _Parser.error)
         return exit.code if isinstance(exit.code, int) else 2
     except OutputClosed:  # (`oodmon run --help | true`: the help met a closed pipe; nothing began)
-        print("oodmon: stopped: its output was closed (the reader of its pipe ended)", file=sys.stderr)
+        print(_OUTPUT_CLOSED.format(""), file=sys.stderr)
         return 141
     if not hasattr(args, "handler"):
         try:
@@ -143,8 +146,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"oodmon: error: {error}", file=sys.stderr)
             return 2
         except OutputClosed:  # (`oodmon run | head`: the reader is gone; stderr says it)
-            print("oodmon: stopped: its output was closed (the reader of its pipe ended; what it printed since went "
-                  "nowhere)" + _kept(args), file=sys.stderr)
+            print(_OUTPUT_CLOSED.format("; what it printed since went nowhere") + _kept(args), file=sys.stderr)
             return 141
         except KeyboardInterrupt as interrupt:
             stopped = isinstance(interrupt, Terminated)

@@ -375,9 +375,9 @@ def write_monitor_plots(logs: Sequence[RunLog], folder: str | Path, failure: str
 
 def plot_log_statistics(statistics: LogStatistics, threshold: Threshold, path: str | Path) -> Path:
     """``oodmon recalibrate --plot``: each calibration episode's statistic under ``threshold``'s
-    rule in the order they ended (:func:`~oodmon.replay.recalibrate.change_in_logs`), where
-    another log's episodes follow marked, the threshold, the logged runs' own where they alarmed on the same detector,
-    Pettitt's most likely change with each side's median (dashed where the test does not find it)
+    rule in the order they ended (:func:`~oodmon.replay.recalibrate.change_in_logs`), a line where
+    another log's episodes follow, the threshold, the logged runs' own where they alarmed on the
+    same detector, Pettitt's most likely change with each side's median (dashed where the test does not find it)
     and, shaded, a stretch where the highest crowd (:func:`~oodmon.replay.recalibrate.burst`).
     The bound asks for one world: points that rise or fall over the logs are two."""
     from oodmon.replay.recalibrate import CHANGE_LEVEL
