@@ -68,8 +68,13 @@ def console() -> int:
     fuzzing of the commands), the exit code still 0; a SIGTERM there ended the process by the
     signal (-15, found by the same fuzzing: a calibrate that had written its threshold). After the
     last clean-up both are ignored (``oodmon_console.hold_stops_at_exit``): Python's teardown of the
-    modules, most of the exit, gives a handler of Python's its default action back first."""
-    import os
+    modules, most of the exit, gives a handler of Python's its default action back first.
+
+    A command that was stopped (130, 141, 143) with Ray loaded (``bench --executor ray``) leaves at
+    once, without Python's exit: a stop as ``ray.init`` built Ray's core in this process let Ray
+    abort in that exit (SIGABRT, -6, after the line saying what was kept: 5 of 5 such stops on
+    2026-12-07; ``scripts/ray_start_stops.py``), where the command had shut Ray down and closed
+    its files already."""
     import signal
 
     from oodmon.cli.display import StopsWhenOutputCloses
@@ -77,15 +82,12 @@ def console() -> int:
     if sys.stdout is not None:  # (None: started with no standard output, `oodmon ... >&-`; print then writes nothing)
         sys.stdout = StopsWhenOutputCloses(sys.stdout)
     code = main()
+    if code in _STOPPED and "ray" in sys.modules:
+        _leave_now(code)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     def done(signum, frame) -> None:  # (a service manager's stop: the clean-up is all that is left)
-        for stream in (sys.stdout, sys.stderr):
-            try:
-                stream.flush()
-            except (OSError, ValueError, OutputClosed):  # a closed pipe: nothing more can reach it
-                pass
-        os._exit(code if isinstance(code, int) else 1)
+        _leave_now(code if isinstance(code, int) else 1)
 
     signal.signal(signal.SIGTERM, done)
     try:  # (here, not in Python's exit, where a closed pipe's error would be printed)
@@ -94,6 +96,22 @@ def console() -> int:
     except OutputClosed:  # the command's work was done: its code stands
         pass
     return code
+
+
+_STOPPED = (130, 141, 143)  # main's exit codes of a stopped command: Ctrl-C, its output closed, SIGTERM
+
+
+def _leave_now(code: int) -> None:
+    """End the process with ``code`` at once, what it printed flushed, no clean-up of Python's exit run."""
+    import os
+
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            if stream is not None:
+                stream.flush()
+        except (OSError, ValueError, OutputClosed):  # a closed pipe: nothing more can reach it
+            pass
+    os._exit(code)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
