@@ -69,8 +69,8 @@ def test_a_sigterm_as_python_tears_down_the_modules_after_a_command_keeps_its_ex
 @pytest.mark.parametrize("ray_loaded", [True, False])
 def test_a_stopped_command_with_ray_loaded_leaves_before_an_exit_that_would_abort(tmp_path, ray_loaded):
     """A bench on Ray stopped by SIGTERM as ``ray.init`` built Ray's core in the process said what
-    it kept, then Ray aborted in Python's exit (-6 where the promise is 143: 5 of 5 such stops on
-    2026-12-07, ``scripts/ray_start_stops.py``). Now a stopped command with Ray loaded leaves
+    it kept, then Ray aborted in Python's exit (-6 where the promise is 143: 5 of 5 such stops by
+    hand on 2026-12-07; ``scripts/ray_start_stops.py`` sends them). Now a stopped command with Ray loaded leaves
     without Python's exit. Here a policy module loads a stand-in for Ray whose clean-up at exit
     aborts, and stops the fitting of its detectors by SIGTERM at its fifth decision; without the
     stand-in, Python's exit runs its clean-ups as before (the module's own one writes a file)."""
