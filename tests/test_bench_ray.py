@@ -3,6 +3,7 @@ it cannot be reached, a local cluster started beside one that runs already."""
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import socket
@@ -13,7 +14,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from oodmon.bench import BenchConfig, run_bench
+from oodmon.bench import BenchConfig, cells, run_bench
 from oodmon.bench.cells import _said_by_a_worker, _start_ray, check_ray_address, own_module_paths, sent_modules
 from oodmon.errors import ConfigError
 
@@ -103,6 +104,48 @@ def test_a_local_cluster_is_the_benchs_own_even_where_ray_start_left_one_running
     assert asked[0]["runtime_env"] == {"py_modules": ["/home/me/ctl.py"]}
     assert _start_ray(BenchConfig(task="cartpole", executor="ray", address="10.0.0.5:6379"), 2)
     assert asked[1]["address"] == "10.0.0.5:6379" and asked[1]["num_cpus"] is None and "runtime_env" not in asked[1]
+
+
+def test_a_start_of_ray_cut_by_a_stop_ends_the_processes_it_began_and_no_other(monkeypatch):
+    """Ctrl-C or SIGTERM inside ``ray.init``: its ``ray.shutdown()`` left Ray's dashboard and
+    runtime-env agents (children of its raylet) alive for a minute or so after the bench ended
+    (2026-12-07, Ray 2.60: a scan of SIGTERMs across Ray's start, ``scripts/ray_start_stops.py``).
+    Here ``ray.init`` begins a process that ignores SIGTERM and a child of that one, then is
+    stopped; the stand-in shutdown ends neither. A process begun before Ray's start stays."""
+    ray = pytest.importorskip("ray")
+    import psutil
+    import ray._private.ray_constants as constants
+
+    monkeypatch.setenv("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", os.environ.get("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "1"))
+    monkeypatch.setattr(constants, "ENABLE_RAY_CLUSTER", constants.ENABLE_RAY_CLUSTER)
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "shutdown", lambda: None)
+    sleep = [sys.executable, "-c", "import time; time.sleep(60)"]
+    earlier = subprocess.Popen(sleep)
+    begun = []
+
+    def cut(**_):
+        agent = ("import signal, subprocess, sys, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); "
+                 f"print(subprocess.Popen({sleep!r}).pid, flush=True); time.sleep(60)")
+        begun.append(subprocess.Popen([sys.executable, "-c", agent], stdout=subprocess.PIPE, text=True))
+        begun.append(psutil.Process(int(begun[0].stdout.readline())))  # its child, begun
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ray, "init", cut)
+    monkeypatch.setattr(cells, "_end", functools.partial(cells._end, seconds=0.5))  # (3 s in the bench)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            _start_ray(BenchConfig(task="cartpole", executor="ray"), 2)
+        assert begun[0].wait(timeout=10) == -9  # SIGTERM ignored: killed 0.5 s later
+        assert not begun[1].is_running() or begun[1].status() == psutil.STATUS_ZOMBIE
+        assert earlier.poll() is None
+    finally:
+        for process in (earlier, *begun):
+            try:
+                process.kill()
+            except psutil.Error:
+                pass
+        earlier.wait()
 
 
 def test_a_workers_error_is_said_in_one_line_naming_the_cluster_where_a_module_was_missing():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import sys
 from pathlib import Path
@@ -582,32 +583,32 @@ def test_fuzz_interrupts_draws_seeded_stops_and_names_each_broken_promise(monkey
         "exit code -9"]
 
 
-def test_ray_start_stops_scans_its_delays_and_fails_where_a_stop_that_met_rays_handler_did_not_end_143(
-        monkeypatch, tmp_path, capsys):
-    """scripts/ray_start_stops.py, its bench and the clock replaced: every delay of the scan, each
-    round; exit 1 where a stop that met Ray's handler ended otherwise than 143 (as before 2026-12-07)."""
+def test_ray_start_stops_scans_its_delays_and_fails_where_a_stop_broke_a_promise(monkeypatch, tmp_path, capsys):
+    """scripts/ray_start_stops.py, its bench replaced: every delay of the scan, each round; exit 1
+    where a stop that met Ray's handler ended otherwise than 143, or a stop left processes (as
+    before 2026-12-07)."""
     script = _load(monkeypatch, tmp_path, "ray_start_stops")[0]
     assert script.RAY[script.RAY.index("--executor") + 1] == "ray"
-    monkeypatch.setattr(script.time, "sleep", lambda seconds: None)
-    monkeypatch.setattr(script, "ray_processes", lambda: 0)
-    for aborted, expected in ((False, 0), (True, 1)):
+    for aborted, leaving in ((False, False), (True, False), (False, True)):
         delays = []
 
         def stop_at(delay, folder):
             delays.append(round(delay, 2))
             caught = 6.2 <= delay <= 6.4
-            return (-6 if caught and aborted else 143), caught, "oodmon: stopped by SIGTERM; ..."
+            return (-6 if caught and aborted else 143), caught, "oodmon: stopped by SIGTERM; ...", 2 * leaving
 
         monkeypatch.setattr(script, "stop_at", stop_at)
         monkeypatch.setattr(sys, "argv", ["ray_start_stops", "--start", "6.0", "--end", "6.5", "--step", "0.1",
                                           "--rounds", "2"])
-        assert script.main() == expected
+        assert script.main() == int(aborted or leaving)
         assert delays == [6.0, 6.1, 6.2, 6.3, 6.4, 6.5] * 2
-        last = capsys.readouterr().out.splitlines()[-1]
-        assert last == f"{0 if aborted else 6} of the 6 stops that met Ray's handler ended 143"
+        assert capsys.readouterr().out.splitlines()[-1] == (
+            f"{0 if aborted else 6} of the 6 stops that met Ray's handler ended 143; "
+            f"{12 if leaving else 0} of the 12 stops left processes")
     monkeypatch.setattr(sys, "argv", ["ray_start_stops", "--step", "0"])
     with pytest.raises(SystemExit):
         script.main()
+    assert script.processes_of_session(os.getsid(0)) >= 1  # this test's own process among them
 
 
 def test_dynamics_training_reads_each_fit_as_epochs_schedule_and_cap_and_refuses_others():

@@ -303,6 +303,7 @@ def _start_ray(config: BenchConfig, workers: int, modules: Sequence[str] = ()) -
     options = {} if config.address or loopback else {"_node_ip_address": config.bind}
     if modules:
         options["runtime_env"] = {"py_modules": list(modules)}
+    before = _children()
     try:
         # "local": a cluster of its own even where one runs already on this machine (`ray start`),
         # which Ray would join otherwise, refusing num_cpus (measured with Ray 2.60).
@@ -319,6 +320,41 @@ def _start_ray(config: BenchConfig, workers: int, modules: Sequence[str] = ()) -
             "shell (Ray then reads the token from ~/.ray/auth_token, or from RAY_AUTH_TOKEN)")
         raise ConfigError(f"--address {config.address}: {error}{hint}") from None
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM as Ray started: what it started, ended here
+        begun = [process for process in _children() if process not in before]
         ray.shutdown()
+        _end(begun)
         raise
     return True
+
+
+def _children() -> list[Any]:
+    """This process's descendants (``psutil.Process``), every generation."""
+    import psutil
+
+    try:
+        return psutil.Process().children(recursive=True)
+    except psutil.Error:
+        return []
+
+
+def _end(processes: Sequence[Any], seconds: float = 3.0) -> None:
+    """SIGTERM to each of ``processes`` still alive, SIGKILL to those alive ``seconds`` later.
+
+    Where ``ray.init`` is stopped, its ``ray.shutdown()`` may leave Ray's dashboard and runtime-env
+    agents, children of its raylet, alive for a minute or so (2026-12-07, Ray 2.60: 6 of 17
+    SIGTERMs sent 4.6-6.6 s after a bench's start, as Ray started, left both; none after a stop once
+    Ray ran; with this, none of 22): the processes that start began are ended here, none that ran
+    before it."""
+    import psutil
+
+    for process in processes:
+        try:
+            process.terminate()
+        except psutil.Error:  # gone already (ray.shutdown ended it), or not ours to end
+            pass
+    _, alive = psutil.wait_procs(processes, timeout=seconds)
+    for process in alive:
+        try:
+            process.kill()
+        except psutil.Error:
+            pass
