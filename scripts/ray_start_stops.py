@@ -32,14 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from fuzz_interrupts import OODMON, RAY  # scripts/fuzz_interrupts.py, beside this script
-
-
-def processes_of_session(session: int) -> int:
-    """The processes alive in the session ``session`` (a command started as its leader: what it
-    started, Ray's processes among them, unless they left it)."""
-    rows = subprocess.run(["ps", "-eo", "sid="], capture_output=True, text=True).stdout.split()
-    return sum(int(row) == session for row in rows)
+from fuzz_interrupts import OODMON, RAY, session_left  # scripts/fuzz_interrupts.py, beside this script
 
 
 def stop_at(delay: float, folder: Path) -> tuple[int, bool, str, int]:
@@ -56,7 +49,7 @@ def stop_at(delay: float, folder: Path) -> tuple[int, bool, str, int]:
         _, stderr = command.communicate()
     time.sleep(3.0)
     said = (stderr.strip().splitlines() or [""])[-1][:90]
-    return command.returncode, "SIGTERM received" in stderr, said, processes_of_session(command.pid)
+    return command.returncode, "SIGTERM received" in stderr, said, len(session_left(command.pid))
 
 
 def main() -> int:
