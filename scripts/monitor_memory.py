@@ -6,6 +6,7 @@ Run (a few minutes; Linux, it reads /proc/self/status):
     .venv/bin/python scripts/monitor_memory.py --sinks mcap-split
     .venv/bin/python scripts/monitor_memory.py --sinks rerun
     .venv/bin/python scripts/monitor_memory.py --sinks rerun --rerun-alone
+    .venv/bin/python scripts/monitor_memory.py --sinks rerun-no-footer
     .venv/bin/python scripts/monitor_memory.py --sinks mcap --endless 200000
 
 A monitor runs next to a deployed policy for days, so what it keeps per step must not pile up.
@@ -14,13 +15,16 @@ writing to the chosen sinks under ``--out``, prints the resident set size at a f
 last the growth in bytes per step from episode 50 (everything loaded and warm) to the end.
 ``--rerun-alone`` instead sends the same number of steps' series (six scalar series in batches of
 200, as ``RerunSink`` sends them) through a bare ``rerun.RecordingStream`` to a file: whether a
-growth is Rerun's own. ``--endless STEPS`` plays one episode that never ends (Pendulum without its
-time limit, the shipped Pendulum ensemble's four detectors). Until log format 6 the monitor kept
-such an episode's per-step rewards, and ``McapSink`` its score arrays, to its end: 32 bytes per step
-with no sink and 110-121 with ``McapSink`` over 200,000 steps (2026-11-27). Since, they leave memory
-every ``Monitor(segment_steps=)`` steps (100,000): with ``--sinks mcap --endless 1200000`` the RSS
-stayed between 298 and 304 MB from step 120,000 to 1,200,000 (the printed bytes per step, 5.2, is
-that wobble over the steps, not a growth).
+growth is Rerun's own. It is: the file's footer, whose index of chunks Rerun keeps in memory until
+the file ends; ``--sinks rerun-no-footer`` (``RerunSink(footer=False)``) writes none. On 2026-12-07
+with ``--episodes 800``: ``rerun`` 35.7 bytes per step, ``rerun-no-footer`` 0.5.
+``--endless STEPS`` plays one episode that never ends (Pendulum without its time limit, the shipped
+Pendulum ensemble's four detectors). Until log format 6 the monitor kept such an episode's per-step
+rewards, and ``McapSink`` its score arrays, to its end: 32 bytes per step with no sink and 110-121
+with ``McapSink`` over 200,000 steps (2026-11-27). Since, they leave memory every
+``Monitor(segment_steps=)`` steps (100,000): with ``--sinks mcap --endless 1200000`` the RSS stayed
+between 298 and 304 MB from step 120,000 to 1,200,000 (the printed bytes per step, 5.2, is that
+wobble over the steps, not a growth).
 """
 
 from __future__ import annotations
@@ -56,6 +60,7 @@ def monitored(episodes: int, sinks: str, out: Path) -> list[tuple[int, int]]:
 
     mcap, rerun = out / "memory.mcap", out / "memory.rrd"  # the measurement's own files, made again each time
     chosen = {"none": [], "mcap": [McapSink(mcap, overwrite=True)], "rerun": [RerunSink(rerun, overwrite=True)],
+              "rerun-no-footer": [RerunSink(rerun, overwrite=True, footer=False)],
               "mcap-split": [McapSink(mcap, split_episodes=100, overwrite=True)],
               "all": [McapSink(mcap, overwrite=True), RerunSink(rerun, overwrite=True)]}[sinks]
     monitor = Monitor(load("cartpole", "ensemble"), sinks=chosen)
@@ -138,8 +143,9 @@ def checkpoints(episodes: int) -> list[int]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sinks", choices=["none", "mcap", "mcap-split", "rerun", "all"], default="all",
-                        help="mcap-split: an MCAP log in files of 100 episodes (McapSink(split_episodes=100))")
+    parser.add_argument("--sinks", choices=["none", "mcap", "mcap-split", "rerun", "rerun-no-footer", "all"],
+                        default="all", help="mcap-split: an MCAP log in files of 100 episodes (McapSink("
+                                            "split_episodes=100)); rerun-no-footer: RerunSink(footer=False)")
     parser.add_argument("--episodes", type=int, default=400, help=f"episodes (more than {WARM}; default 400)")
     parser.add_argument("--rerun-alone", action="store_true", help="a bare Rerun stream instead of the monitor")
     parser.add_argument("--endless", type=int, metavar="STEPS",

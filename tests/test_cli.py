@@ -417,6 +417,16 @@ def test_calibrate_then_run_with_logs(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "cartpole/dropout in cartpole:length=2.0, onset 50" in result.stdout
     assert (tmp_path / "x.mcap").stat().st_size > 1000 and (tmp_path / "x.rrd").stat().st_size > 1000
+    # --rrd-no-footer: the same file but for Rerun's footer (RerunSink(footer=False): a long run's memory stays flat)
+    long = _run("run", "--task", "cartpole", "--method", "dropout", "--variant", "cartpole:length=2.0", "--onset", "50",
+                "--episodes", "2", "--threshold", str(threshold), "--rrd", str(tmp_path / "long.rrd"),
+                "--rrd-no-footer")
+    assert long.returncode == 0, long.stderr
+    rerun = [os.path.join(os.path.dirname(sys.executable), "rerun"), "rrd", "verify"]
+    assert subprocess.run([*rerun, str(tmp_path / "x.rrd")], capture_output=True).returncode == 0
+    assert subprocess.run([*rerun, str(tmp_path / "long.rrd")], capture_output=True).returncode != 0  # no footer
+    assert subprocess.run([*rerun, "--check-footers", "false", str(tmp_path / "long.rrd")],
+                          capture_output=True).returncode == 0
     # Without --threshold the run raises no alarms, and replay says so instead of "detected 0".
     assert _run("run", "--task", "cartpole", "--method", "dropout", "--variant", "cartpole:length=2.0", "--onset", "50",
                 "--episodes", "1", "--mcap", str(tmp_path / "bare.mcap")).returncode == 0

@@ -19,7 +19,7 @@ from oodmon.monitor.alarm_command import AlarmCommand, AlarmCommandWarning
 from oodmon.monitor.alarms import DEFAULT_CONSECUTIVE, AlarmEvent, AlarmTracker, episode_statistic
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.scores import DEFAULT_SCORE, SCORES, score_function
-from oodmon.monitor.sinks import McapSink, MemorySink, RerunSink, Sink, SinkGroup, SinkWarning
+from oodmon.monitor.sinks import FooterMemoryWarning, McapSink, MemorySink, RerunSink, Sink, SinkGroup, SinkWarning
 from oodmon.monitor.stopping import Terminated, stop_on_sigterm
 from oodmon.monitor.threshold import Threshold, calibrate
 
@@ -34,6 +34,7 @@ __all__ = [
     "AlarmEvent",
     "AlarmTracker",
     "EpisodeRecord",
+    "FooterMemoryWarning",
     "LongerThanCalibrationWarning",
     "McapSink",
     "MemorySink",

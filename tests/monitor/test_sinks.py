@@ -18,6 +18,7 @@ from mcap.reader import make_reader
 
 from oodmon.agents import load
 from oodmon.envs import parse_variant
+from oodmon.errors import InvalidParameterError
 from oodmon.monitor import McapSink, MemorySink, Monitor, RerunSink, SinkWarning
 
 
@@ -151,6 +152,50 @@ def test_rrd_passes_rerun_verify(agent, tmp_path):
     rerun = os.path.join(os.path.dirname(sys.executable), "rerun")
     result = subprocess.run([rerun, "rrd", "verify", str(tmp_path / "run.rrd")], capture_output=True, text=True)
     assert result.returncode == 0 and "verified without error" in result.stdout + result.stderr
+
+
+def _verify(path, *flags):
+    rerun = os.path.join(os.path.dirname(sys.executable), "rerun")
+    result = subprocess.run([rerun, "rrd", "verify", *flags, str(path)], capture_output=True, text=True)
+    return result.returncode, result.stdout + result.stderr
+
+
+def test_an_rrd_without_a_footer_holds_every_step_and_reads_as_a_killed_runs(agent, tmp_path):
+    """``footer=False`` (a long run: Rerun keeps the footer's index of chunks in memory until the
+    end, scripts/monitor_memory.py): the file has no footer, which Rerun's check says, and every
+    step is in it all the same."""
+    import rerun.chunk as rc
+
+    memory = MemorySink()
+    _run(agent, [memory, RerunSink(tmp_path / "long.rrd", footer=False)], episodes=2)
+    code, said = _verify(tmp_path / "long.rrd")
+    assert code != 0 and "Missing RRD footer" in said
+    code, said = _verify(tmp_path / "long.rrd", "--check-footers", "false")
+    assert code == 0 and "verified without error" in said
+    with pytest.warns(match="RRD file has no footer"):  # Rerun's reader says so, and streams it whole
+        frame = rc.RrdReader(tmp_path / "long.rrd").stream().collect().reader("step").to_pandas()
+    scores = [v[0] for v in frame["/score:Scalars:scalars"].dropna()]
+    np.testing.assert_allclose(scores, [s.score for s in memory.steps], rtol=1e-6)
+    assert len(frame["/episode/return:Scalars:scalars"].dropna()) == 2
+    with pytest.raises(InvalidParameterError, match=r"footer='no' is not allowed; give True .* or False"):
+        RerunSink(tmp_path / "other.rrd", footer="no")
+
+
+def test_a_file_with_a_footer_warns_once_when_its_index_grows_large_and_one_without_never(agent, tmp_path, monkeypatch):
+    import oodmon.monitor.sinks.rerun as rerun_sink
+
+    monkeypatch.setattr(rerun_sink, "FOOTER_WARN_CHUNKS", 25)  # a CartPole episode sends 10 columns per flush
+    for footer in (True, False):
+        sink = RerunSink(tmp_path / f"footer-{footer}.rrd", footer=footer)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            _run(agent, [sink], episodes=3)
+        said = [str(w.message) for w in caught if issubclass(w.category, rerun_sink.FooterMemoryWarning)]
+        assert sink.chunks > 2 * 25
+        if footer:
+            assert len(said) == 1 and "25 chunks so far" in said[0] and "--rrd-no-footer" in said[0]
+        else:
+            assert said == []
 
 
 class BrokenSink(MemorySink):

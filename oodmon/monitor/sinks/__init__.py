@@ -4,6 +4,6 @@ from __future__ import annotations
 
 from oodmon.monitor.sinks.base import MemorySink, Sink, SinkGroup, SinkWarning
 from oodmon.monitor.sinks.mcap import McapSink
-from oodmon.monitor.sinks.rerun import RerunSink
+from oodmon.monitor.sinks.rerun import FooterMemoryWarning, RerunSink
 
-__all__ = ["McapSink", "MemorySink", "RerunSink", "Sink", "SinkGroup", "SinkWarning"]
+__all__ = ["FooterMemoryWarning", "McapSink", "MemorySink", "RerunSink", "Sink", "SinkGroup", "SinkWarning"]

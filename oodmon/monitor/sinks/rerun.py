@@ -11,6 +11,13 @@ A default blueprint lays these out, so opening the file shows a useful layout.
 
 Per-step values are buffered and sent as columns every :data:`FLUSH_EVERY` steps and at every
 episode end: a ``log`` call per value costs 25-40 us, a column of thousands about 10 ms.
+
+The file's footer (Rerun's manifest of its chunks, which lets a reader reach any part of the file
+without reading it all) is written when the run ends, and until then Rerun's file sink keeps an
+entry per chunk in memory: 0.6-1.3 KB each (rerun-sdk 0.41), and the sink sends a chunk per series
+at every flush: 36 bytes a step in CartPole's ID episodes (``scripts/monitor_memory.py``). A
+long run writes the file without it (``footer=False``): the process keeps flat, and the file reads
+as a killed run's does (``rerun rrd optimize`` writes it again with a footer).
 """
 
 from __future__ import annotations
@@ -26,9 +33,18 @@ from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.sinks.base import check_existing, claim_file
 
-__all__ = ["FLUSH_EVERY", "RerunSink", "default_blueprint", "viewer_command"]
+__all__ = ["FLUSH_EVERY", "FOOTER_WARN_CHUNKS", "FooterMemoryWarning", "RerunSink", "default_blueprint",
+           "viewer_command"]
 
 FLUSH_EVERY = 200
+
+#: Chunks sent to a file with a footer after which the sink warns, once, of the memory its index
+#: holds (60-130 MB at 0.6-1.3 KB a chunk; some 3,300 CartPole episodes of 500 steps).
+FOOTER_WARN_CHUNKS = 100_000
+
+
+class FooterMemoryWarning(UserWarning):
+    """A Rerun file's footer index has grown large in memory: a long run should write none."""
 
 #: The bytes a Rerun recording (.rrd) begins with (then the version of its encoding: RRF2 in rerun-sdk 0.41).
 RRD_MAGIC = b"RRF"
@@ -72,6 +88,9 @@ class RerunSink:
         overwrite: replace a file already at ``path``; without it that file (the log of an earlier
             run) is refused with :class:`~oodmon.errors.ConfigError` when the sink is made. A file
             there that is no Rerun recording is refused either way.
+        footer: end the file with Rerun's footer (the default), whose index of chunks Rerun keeps
+            in memory until the run ends (see above; a :class:`FooterMemoryWarning` once past
+            :data:`FOOTER_WARN_CHUNKS` chunks); ``False`` for a long run: no footer, memory flat.
 
     A live viewer (``connect``, ``spawn``) has a recording stream of its own, apart from the file's:
     a viewer that cannot be reached at open, or stops taking data (a flush that times out, checked
@@ -83,9 +102,14 @@ class RerunSink:
     def __init__(self, path: str | Path | None = None, *, spawn: bool = False, serve: bool = False,
                  connect: str | None = None, bind: str = "127.0.0.1", port: int = 9876,
                  recording_id: str | None = None, flush_timeout: float = 2.0, connect_timeout: float = 0.5,
-                 overwrite: bool = False) -> None:
+                 overwrite: bool = False, footer: bool = True) -> None:
+        if not isinstance(footer, bool):
+            from oodmon.errors import InvalidParameterError
+
+            raise InvalidParameterError(f"footer={footer!r} is not allowed; give True (Rerun's footer, the default) "
+                                        "or False (none: a long run's memory stays flat)")
         self.path = Path(path) if path is not None else None
-        self.overwrite = overwrite
+        self.overwrite, self.footer = overwrite, footer
         self._check_existing()
         self.spawn, self.serve, self.connect = spawn, serve, connect
         self.bind, self.port = bind, port
@@ -110,6 +134,7 @@ class RerunSink:
         self._steps: list[int] = []
         self._last = (0, 0)  # (episode, step in it) of the last step written
         self._states: list[int] = []  # a discrete observation's values per reading (see open())
+        self.chunks = 0  # columns sent, a chunk each (the footer's index holds these and the logs' few)
 
     def existing_paths(self) -> list[Path]:
         """The file an earlier run left at ``path``, if any (the live streams leave none)."""
@@ -136,7 +161,7 @@ class RerunSink:
             if self.overwrite:
                 self.path.unlink(missing_ok=True)
             claim_file(self.path).close()  # the name is this run's (Rerun's file sink writes it from the start)
-            local.append(rr.FileSink(str(self.path)))
+            local.append(rr.FileSink(str(self.path), write_footer=self.footer))
         if self.serve:
             server = rr.GrpcServerSink(bind_ip=self.bind, port=self.port, server_memory_limit="512MiB")
             self.served_at = server.uri
@@ -215,6 +240,16 @@ class RerunSink:
     def _each(self, method: str, *args, **kwargs) -> None:
         for rec in self._streams:
             getattr(rec, method)(*args, **kwargs)
+        if method == "send_columns":
+            self.chunks += 1
+            if self.chunks == FOOTER_WARN_CHUNKS and self.footer and self.path is not None:
+                import warnings
+
+                warnings.warn(f"{self.path}: Rerun keeps an index entry of each chunk of the file in memory to write "
+                              f"its footer when the run ends: {self.chunks:,} chunks so far (0.6-1.3 KB each, "
+                              "measured with rerun-sdk 0.41), and more as the run goes on. For a long run write "
+                              "the file without a footer (oodmon run --rrd-no-footer; RerunSink(..., footer=False)): "
+                              "its memory stays flat", FooterMemoryWarning, stacklevel=2)
 
     def _drop_live(self, why: str) -> None:
         self._streams.remove(self._live)
