@@ -17,7 +17,8 @@ last the growth in bytes per step from episode 50 (everything loaded and warm) t
 200, as ``RerunSink`` sends them) through a bare ``rerun.RecordingStream`` to a file: whether a
 growth is Rerun's own. It is: the file's footer, whose index of chunks Rerun keeps in memory until
 the file ends; ``--sinks rerun-no-footer`` (``RerunSink(footer=False)``) writes none. On 2026-12-07
-with ``--episodes 800``: ``rerun`` 35.7 bytes per step, ``rerun-no-footer`` 0.5.
+with ``--episodes 800``: ``rerun`` 35.7 bytes per step (34.8 once the sink sent its steps by the
+clock, not at every episode's end), ``rerun-no-footer`` 0.5.
 ``--endless STEPS`` plays one episode that never ends (Pendulum without its time limit, the shipped
 Pendulum ensemble's four detectors). Until log format 6 the monitor kept such an episode's per-step
 rewards, and ``McapSink`` its score arrays, to its end: 32 bytes per step with no sink and 110-121

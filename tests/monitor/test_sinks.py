@@ -184,18 +184,60 @@ def test_an_rrd_without_a_footer_holds_every_step_and_reads_as_a_killed_runs(age
 def test_a_file_with_a_footer_warns_once_when_its_index_grows_large_and_one_without_never(agent, tmp_path, monkeypatch):
     import oodmon.monitor.sinks.rerun as rerun_sink
 
-    monkeypatch.setattr(rerun_sink, "FOOTER_WARN_CHUNKS", 25)  # a CartPole episode sends 10 columns per flush
+    monkeypatch.setattr(rerun_sink, "FOOTER_WARN_CHUNKS", 5)  # a flush here sends 7 columns (7 series)
+    monkeypatch.setattr(rerun_sink, "FLUSH_SECONDS", 3600.0)  # flushed by the steps alone
+    monkeypatch.setattr(rerun_sink, "END_FLUSH_SECONDS", 3600.0)
     for footer in (True, False):
         sink = RerunSink(tmp_path / f"footer-{footer}.rrd", footer=footer)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            _run(agent, [sink], episodes=3)
+            records = _run(agent, [sink], episodes=6)  # some 450 steps: three flushes
         said = [str(w.message) for w in caught if issubclass(w.category, rerun_sink.FooterMemoryWarning)]
-        assert sink.chunks > 2 * 25
+        assert sink.chunks == 7 * -(-sum(r.length for r in records) // rerun_sink.FLUSH_EVERY) >= 2 * 7
         if footer:
-            assert len(said) == 1 and "25 chunks so far" in said[0] and "--rrd-no-footer" in said[0]
+            assert len(said) == 1 and "5 chunks so far" in said[0] and "--rrd-no-footer" in said[0]
         else:
             assert said == []
+
+
+def test_a_slow_policys_steps_are_sent_within_a_flush_period_and_short_episodes_share_columns(agent, tmp_path,
+                                                                                              monkeypatch):
+    """Sent every FLUSH_EVERY steps or FLUSH_SECONDS, and at an episode's end only END_FLUSH_SECONDS
+    after the last send: until 2026-12-07, at every episode's end and never by the clock, a live
+    viewer of a policy deciding 10 times a second saw its steps up to 20 s late (every 200), and
+    each short episode cost a chunk per series (an entry each of the footer's index, in memory)."""
+    import oodmon.monitor.sinks.rerun as rerun_sink
+
+    monkeypatch.setattr(rerun_sink, "FLUSH_SECONDS", 0.5)
+    monkeypatch.setattr(rerun_sink, "END_FLUSH_SECONDS", 0.3)  # (0.1: room for a busy machine)
+    sink = RerunSink(tmp_path / "slow.rrd")
+    env = parse_variant("cartpole").make()
+    with Monitor(agent, threshold=3.0, sinks=[sink]) as monitor:
+        obs, _ = env.reset(seed=0)
+        monitor.begin_episode(env_id="oodmon/CartPole-v1", variant="cartpole", seed=0)
+        for _ in range(3):  # fast: buffered
+            obs, reward, *_ = env.step(monitor.step(obs))
+            monitor.add_reward(reward)
+        assert sink.chunks == 0 and len(sink._buffer) == 3
+        time.sleep(0.55)  # a slow policy's next decision: the four steps go out with it
+        obs, reward, *_ = env.step(monitor.step(obs))
+        monitor.add_reward(reward)
+        assert sink.chunks == 7 and sink._buffer == []
+        monitor.end_episode(interrupted=True)
+        assert sink.chunks == 7  # an episode's end just after a send sends nothing
+        monitor.begin_episode(env_id="oodmon/CartPole-v1", variant="cartpole", seed=1)
+        obs, _ = env.reset(seed=1)
+        obs, reward, *_ = env.step(monitor.step(obs))
+        monitor.add_reward(reward)
+        time.sleep(0.35)
+        monitor.end_episode(interrupted=True)  # a slow policy's episode ends: it is whole in the viewer
+        assert sink.chunks == 14 and sink._buffer == []
+    assert sink.chunks == 14  # nothing left to send at close
+    monkeypatch.setattr(rerun_sink, "FLUSH_SECONDS", 3600.0)
+    monkeypatch.setattr(rerun_sink, "END_FLUSH_SECONDS", 3600.0)
+    short = RerunSink(tmp_path / "short.rrd")
+    records = _run(agent, [short], episodes=6)  # some 450 steps: flushed at 200, 400 and the close (56 columns before)
+    assert short.chunks == 7 * -(-sum(r.length for r in records) // rerun_sink.FLUSH_EVERY) < 7 * len(records)
 
 
 class BrokenSink(MemorySink):

@@ -9,8 +9,13 @@ the 84x84 frame the agent saw);
 ``/shifted`` (1 while the shift is active); ``/alarms`` (warnings); ``/episode/return``.
 A default blueprint lays these out, so opening the file shows a useful layout.
 
-Per-step values are buffered and sent as columns every :data:`FLUSH_EVERY` steps and at every
-episode end: a ``log`` call per value costs 25-40 us, a column of thousands about 10 ms.
+Per-step values are buffered and sent as columns every :data:`FLUSH_EVERY` steps, or sooner once
+:data:`FLUSH_SECONDS` have passed since the last, and at an episode's end once
+:data:`END_FLUSH_SECONDS` have: a ``log`` call per value costs 25-40 us, a column of thousands
+about 10 ms. (Until 2026-12-07 at every episode's end, and never by the clock: a live viewer of a
+policy deciding 10 times a second saw its steps up to 20 s late, and runs of short episodes sent a
+chunk per series per episode, each an entry of the footer's index below: 10 series of a 20-step
+episode, a chunk every 2 steps.)
 
 The file's footer (Rerun's manifest of its chunks, which lets a reader reach any part of the file
 without reading it all) is written when the run ends, and until then Rerun's file sink keeps an
@@ -24,6 +29,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 import uuid
 from pathlib import Path
 
@@ -33,10 +39,19 @@ from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.sinks.base import check_existing, claim_file
 
-__all__ = ["FLUSH_EVERY", "FOOTER_WARN_CHUNKS", "FooterMemoryWarning", "RerunSink", "default_blueprint",
-           "viewer_command"]
+__all__ = ["END_FLUSH_SECONDS", "FLUSH_EVERY", "FLUSH_SECONDS", "FOOTER_WARN_CHUNKS", "FooterMemoryWarning",
+           "RerunSink", "default_blueprint", "viewer_command"]
 
 FLUSH_EVERY = 200
+
+#: ... and at least this often (seconds), checked at each step: what a live viewer lags at most
+#: behind a slow policy, and about what a killed run's file lacks of its last steps.
+FLUSH_SECONDS = 1.0
+
+#: An episode's end sends the buffer when this many seconds have passed since the last send: a slow
+#: policy's episode is whole in the viewer as it ends (whatever the pause before the next), while
+#: short episodes played fast share their columns.
+END_FLUSH_SECONDS = 0.1
 
 #: Chunks sent to a file with a footer after which the sink warns, once, of the memory its index
 #: holds (60-130 MB at 0.6-1.3 KB a chunk; some 3,300 CartPole episodes of 500 steps).
@@ -94,8 +109,8 @@ class RerunSink:
 
     A live viewer (``connect``, ``spawn``) has a recording stream of its own, apart from the file's:
     a viewer that cannot be reached at open, or stops taking data (a flush that times out, checked
-    every :data:`FLUSH_EVERY` steps), is dropped with one warning, and what would have gone to it is
-    counted in :attr:`dropped` instead of queueing in memory; the file goes on. So a dead URL costs
+    at each send of the buffer and each episode end), is dropped with one warning, and what would
+    have gone to it is counted in :attr:`dropped` instead of queueing in memory; the file goes on. So a dead URL costs
     a run about ``connect_timeout`` and no memory.
     """
 
@@ -133,6 +148,7 @@ class RerunSink:
         self._buffer: list[StepRecord] = []
         self._steps: list[int] = []
         self._last = (0, 0)  # (episode, step in it) of the last step written
+        self._flushed_at = time.monotonic()  # when the buffer was last sent (FLUSH_SECONDS)
         self._states: list[int] = []  # a discrete observation's values per reading (see open())
         self.chunks = 0  # columns sent, a chunk each (the footer's index holds these and the logs' few)
 
@@ -150,6 +166,7 @@ class RerunSink:
         self._check_existing()  # checked again: a file may have come since (this sink's own, opened again)
 
         self._rr = rr
+        self._flushed_at = time.monotonic()
         self._task = run.task
         # A discrete observation's values per reading (the monitor's about.states), whose one-hot
         # blocks /observation draws as each reading's value
@@ -275,7 +292,7 @@ class RerunSink:
             self._set_time(self._global_step)
             self._each("log", "/frame", self._rr.Image(record.frame))
         self._global_step += 1
-        if len(self._buffer) >= FLUSH_EVERY:
+        if len(self._buffer) >= FLUSH_EVERY or time.monotonic() - self._flushed_at >= FLUSH_SECONDS:
             self._flush()
             self._check_live()
 
@@ -344,11 +361,11 @@ class RerunSink:
                        columns=rr.Scalars.columns(scalars=_decoded([r.observation for r in self._buffer], self._states)))
         self._buffer.clear()
         self._steps.clear()
+        self._flushed_at = time.monotonic()
 
     def write_alarm(self, event: AlarmEvent) -> None:
         if not self._streams:
             return
-        self._flush()
         self._set_time(self._global_step - 1, event.episode, event.step)
         self._each("log", "/alarms", self._rr.TextLog(
             event.text(),
@@ -357,7 +374,8 @@ class RerunSink:
     def end_episode(self, record: EpisodeRecord) -> None:
         if not self._streams:
             return
-        self._flush()
+        if time.monotonic() - self._flushed_at >= END_FLUSH_SECONDS:
+            self._flush()
         self._set_time(max(self._global_step - 1, 0), record.episode, max(record.length - 1, 0))
         self._each("log", "/episode/return", self._rr.Scalars(record.total_return))
         self._each("log", "/episodes", self._rr.TextLog(
