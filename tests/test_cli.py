@@ -422,11 +422,17 @@ def test_calibrate_then_run_with_logs(tmp_path):
                 "--episodes", "2", "--threshold", str(threshold), "--rrd", str(tmp_path / "long.rrd"),
                 "--rrd-no-footer")
     assert long.returncode == 0, long.stderr
+    whole = tmp_path / "long-footer.rrd"
+    assert (f"note: {tmp_path / 'long.rrd'} has no footer (--rrd-no-footer): Rerun reads it from its start; "
+            f"`rerun rrd optimize {tmp_path / 'long.rrd'} -o {whole}` writes it again with one") in long.stdout
     rerun = [os.path.join(os.path.dirname(sys.executable), "rerun"), "rrd", "verify"]
     assert subprocess.run([*rerun, str(tmp_path / "x.rrd")], capture_output=True).returncode == 0
     assert subprocess.run([*rerun, str(tmp_path / "long.rrd")], capture_output=True).returncode != 0  # no footer
     assert subprocess.run([*rerun, "--check-footers", "false", str(tmp_path / "long.rrd")],
                           capture_output=True).returncode == 0
+    optimize = [rerun[0], "rrd", "optimize", str(tmp_path / "long.rrd"), "-o", str(whole)]  # as the note says
+    assert subprocess.run(optimize, capture_output=True).returncode == 0
+    assert subprocess.run([*rerun, str(whole)], capture_output=True).returncode == 0  # a footer now
     # Without --threshold the run raises no alarms, and replay says so instead of "detected 0".
     assert _run("run", "--task", "cartpole", "--method", "dropout", "--variant", "cartpole:length=2.0", "--onset", "50",
                 "--episodes", "1", "--mcap", str(tmp_path / "bare.mcap")).returncode == 0

@@ -215,6 +215,10 @@ def _run(args: argparse.Namespace) -> int:
         said = ("no threshold, so no alarm (for alarms give --threshold, a file `oodmon calibrate` writes for this "
                 "agent)" + (f"; every step's scores written to {', '.join(written)}" if written else ""))
     console.print(said, markup=False)
+    if args.rrd_no_footer and "RerunSink" not in failures:
+        whole = Path(args.rrd).with_name(Path(args.rrd).stem + "-footer.rrd")
+        console.print(f"note: {args.rrd} has no footer (--rrd-no-footer): Rerun reads it from its start; `rerun rrd "
+                      f"optimize {args.rrd} -o {whole}` writes it again with one", markup=False)
     if threshold is not None and threshold.calibration_noise != args.obs_noise:  # the bound is for another world
         console.print(f"note: this run played sensor noise {args.obs_noise:g}, and {args.threshold} was calibrated "
                       f"with {threshold.calibration_noise:g}: its false-alarm bound is for that world (`oodmon validate "
