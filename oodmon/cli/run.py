@@ -66,7 +66,7 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
     logs.add_argument("--rrd", help="write the run to this Rerun file ({start}: as in --mcap)")
     logs.add_argument("--rrd-no-footer", action="store_true",
                       help="write the --rrd file without Rerun's footer, whose index of chunks Rerun keeps in memory "
-                           "until the run ends (36 bytes a step in CartPole's ID episodes, some 150 MB a day at 50 "
+                           "until the run ends (35 bytes a step in CartPole's ID episodes, some 150 MB a day at 50 "
                            "decisions a second): a long run's memory stays flat; the file opens as a killed run's "
                            "does, and `rerun rrd optimize` adds a footer")
     logs.add_argument("--overwrite", action="store_true",

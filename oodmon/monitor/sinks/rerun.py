@@ -20,9 +20,9 @@ episode, a chunk every 2 steps.)
 The file's footer (Rerun's manifest of its chunks, which lets a reader reach any part of the file
 without reading it all) is written when the run ends, and until then Rerun's file sink keeps an
 entry per chunk in memory: 0.6-1.3 KB each (rerun-sdk 0.41), and the sink sends a chunk per series
-at every flush: 36 bytes a step in CartPole's ID episodes (``scripts/monitor_memory.py``). A
-long run writes the file without it (``footer=False``): the process keeps flat, and the file reads
-as a killed run's does (``rerun rrd optimize`` writes it again with a footer).
+at every send: 35 bytes a step in CartPole's ID episodes (``scripts/monitor_memory.py``). A long
+run writes the file without it (``footer=False``): its memory stays flat, and the file reads as a
+killed run's does (``rerun rrd optimize`` writes it again with a footer).
 """
 
 from __future__ import annotations
@@ -60,6 +60,7 @@ FOOTER_WARN_CHUNKS = 100_000
 
 class FooterMemoryWarning(UserWarning):
     """A Rerun file's footer index has grown large in memory: a long run should write none."""
+
 
 #: The bytes a Rerun recording (.rrd) begins with (then the version of its encoding: RRF2 in rerun-sdk 0.41).
 RRD_MAGIC = b"RRF"
@@ -110,8 +111,8 @@ class RerunSink:
     A live viewer (``connect``, ``spawn``) has a recording stream of its own, apart from the file's:
     a viewer that cannot be reached at open, or stops taking data (a flush that times out, checked
     at each send of the buffer and each episode end), is dropped with one warning, and what would
-    have gone to it is counted in :attr:`dropped` instead of queueing in memory; the file goes on. So a dead URL costs
-    a run about ``connect_timeout`` and no memory.
+    have gone to it is counted in :attr:`dropped` instead of queueing in memory; the file goes on.
+    So a dead URL costs a run about ``connect_timeout`` and no memory.
     """
 
     def __init__(self, path: str | Path | None = None, *, spawn: bool = False, serve: bool = False,
