@@ -147,17 +147,17 @@ def test_rrd_holds_the_scalars(agent, tmp_path):
     assert "versions: " in run and "torch" in run and "command: " in run
 
 
-def test_rrd_passes_rerun_verify(agent, tmp_path):
-    _run(agent, [RerunSink(tmp_path / "run.rrd")], episodes=1)
-    rerun = os.path.join(os.path.dirname(sys.executable), "rerun")
-    result = subprocess.run([rerun, "rrd", "verify", str(tmp_path / "run.rrd")], capture_output=True, text=True)
-    assert result.returncode == 0 and "verified without error" in result.stdout + result.stderr
-
-
 def _verify(path, *flags):
+    """``rerun rrd verify [flags] path``: its exit code and what it said."""
     rerun = os.path.join(os.path.dirname(sys.executable), "rerun")
     result = subprocess.run([rerun, "rrd", "verify", *flags, str(path)], capture_output=True, text=True)
     return result.returncode, result.stdout + result.stderr
+
+
+def test_rrd_passes_rerun_verify(agent, tmp_path):
+    _run(agent, [RerunSink(tmp_path / "run.rrd")], episodes=1)
+    code, said = _verify(tmp_path / "run.rrd")
+    assert code == 0 and "verified without error" in said
 
 
 def test_an_rrd_without_a_footer_holds_every_step_and_reads_as_a_killed_runs(agent, tmp_path):
@@ -236,7 +236,7 @@ def test_a_slow_policys_steps_are_sent_within_a_flush_period_and_short_episodes_
     monkeypatch.setattr(rerun_sink, "FLUSH_SECONDS", 3600.0)
     monkeypatch.setattr(rerun_sink, "END_FLUSH_SECONDS", 3600.0)
     short = RerunSink(tmp_path / "short.rrd")
-    records = _run(agent, [short], episodes=6)  # some 450 steps: flushed at 200, 400 and the close (56 columns before)
+    records = _run(agent, [short], episodes=6)  # some 450 steps: sent at 200, 400 and the close (and each end, before)
     assert short.chunks == 7 * -(-sum(r.length for r in records) // rerun_sink.FLUSH_EVERY) < 7 * len(records)
 
 
