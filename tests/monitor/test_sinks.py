@@ -240,6 +240,51 @@ def test_a_slow_policys_steps_are_sent_within_a_flush_period_and_short_episodes_
     assert short.chunks == 7 * -(-sum(r.length for r in records) // rerun_sink.FLUSH_EVERY) < 7 * len(records)
 
 
+FILE_STOPS = """
+import resource, signal, sys, time, warnings
+import oodmon.monitor.sinks.rerun as rerun_sink
+from oodmon.agents import load
+from oodmon.envs import parse_variant
+from oodmon.monitor import Monitor, RerunSink
+
+rerun_sink.FILE_CHECK_SECONDS = 0.0  # looked at after every send (a second look a second later)
+agent, env = load("cartpole", "dropout"), parse_variant("cartpole").make()
+for name in sys.argv[1:]:
+    if name.endswith("full.rrd"):  # a write past the limit fails (EFBIG), as one on a full disk does
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (100_000, 100_000))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with Monitor(agent, threshold=3.0, sinks=[RerunSink(name)]) as monitor:
+            start = time.monotonic()
+            while time.monotonic() - start < 1.6:  # several looks, and second looks a second later
+                monitor.run_episode(env, seed=0)
+                print(name, round(time.monotonic() - start, 2), [str(w.message) for w in caught], flush=True)
+    print(name, "failures", monitor.sinks.failures, flush=True)
+"""
+
+
+def test_a_file_rerun_stops_writing_is_warned_of_while_the_run_goes_on_not_only_at_its_end(tmp_path):
+    """Rerun writes the file from a thread of its own: when that writer failed (a full disk; here a
+    limit on the file's size) the sink said so only at the run's end, as its close failed: a
+    deployment learned of it days late. Now a file that stops growing though steps are sent to it is
+    a failure said at once (FILE_CHECK_SECONDS, patched to every send here), and a file written
+    well never is, looked at as often."""
+    healthy, full = tmp_path / "healthy.rrd", tmp_path / "full.rrd"
+    run = subprocess.run([sys.executable, "-c", FILE_STOPS, str(healthy), str(full)], capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr
+    lines = run.stdout.splitlines()
+    wrote = [line for line in lines if line.startswith(str(healthy))]
+    assert len(wrote) > 5 and all(line.endswith(" []") for line in wrote[:-1])
+    assert wrote[-1] == f"{healthy} failures {{}}"
+    ran = [line for line in lines if line.startswith(str(full))]
+    said = [n for n, line in enumerate(ran) if f"Rerun has written nothing more to {full}" in line]
+    assert said and said[0] < len(ran) - 2, run.stdout  # while the run went on, not at its close
+    assert "its writer stopped (a full disk?" in ran[said[0]] and ran[-1].startswith(f"{full} failures {{'RerunSink': ")
+    assert 0 < full.stat().st_size <= 100_000
+
+
 class BrokenSink(MemorySink):
     def write_step(self, record):
         raise OSError("No space left on device")

@@ -39,8 +39,8 @@ from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.sinks.base import check_existing, claim_file
 
-__all__ = ["END_FLUSH_SECONDS", "FLUSH_EVERY", "FLUSH_SECONDS", "FOOTER_WARN_CHUNKS", "FooterMemoryWarning",
-           "RerunSink", "default_blueprint", "viewer_command"]
+__all__ = ["END_FLUSH_SECONDS", "FILE_CHECK_SECONDS", "FLUSH_EVERY", "FLUSH_SECONDS", "FOOTER_WARN_CHUNKS",
+           "FooterMemoryWarning", "RerunSink", "default_blueprint", "viewer_command"]
 
 FLUSH_EVERY = 200
 
@@ -52,6 +52,10 @@ FLUSH_SECONDS = 1.0
 #: policy's episode is whole in the viewer as it ends (whatever the pause before the next), while
 #: short episodes played fast share their columns.
 END_FLUSH_SECONDS = 0.1
+
+#: How often (seconds) the sink looks whether the file grows as it sends steps: Rerun writes it from
+#: a thread of its own, and a writer that failed (a full disk) showed only when the run ended.
+FILE_CHECK_SECONDS = 10.0
 
 #: Chunks sent to a file with a footer after which the sink warns, once, of the memory its index
 #: holds (60-130 MB at 0.6-1.3 KB a chunk; some 3,300 CartPole episodes of 500 steps).
@@ -152,6 +156,8 @@ class RerunSink:
         self._flushed_at = time.monotonic()  # when the buffer was last sent (FLUSH_SECONDS)
         self._states: list[int] = []  # a discrete observation's values per reading (see open())
         self.chunks = 0  # columns sent, a chunk each (the footer's index holds these and the logs' few)
+        self._watch: tuple[float, int, int] | None = None  # the file: (looked at, its size, chunks sent then)
+        self._stalled = False  # the last look found sends that had not reached the file
 
     def existing_paths(self) -> list[Path]:
         """The file an earlier run left at ``path``, if any (the live streams leave none)."""
@@ -179,6 +185,7 @@ class RerunSink:
             if self.overwrite:
                 self.path.unlink(missing_ok=True)
             claim_file(self.path).close()  # the name is this run's (Rerun's file sink writes it from the start)
+            self._watch, self._stalled = (time.monotonic(), 0, self.chunks), False
             local.append(rr.FileSink(str(self.path), write_footer=self.footer))
         if self.serve:
             server = rr.GrpcServerSink(bind_ip=self.bind, port=self.port, server_memory_limit="512MiB")
@@ -296,6 +303,7 @@ class RerunSink:
         if len(self._buffer) >= FLUSH_EVERY or time.monotonic() - self._flushed_at >= FLUSH_SECONDS:
             self._flush()
             self._check_live()
+            self._check_file()
 
     def _set_time(self, step: int, episode: int | None = None, in_episode: int | None = None) -> None:
         """Set the three timelines (episode and step in it default to the last step written's)."""
@@ -384,6 +392,36 @@ class RerunSink:
             + (f", sensor noise {record.obs_noise:g}" if record.obs_noise else "") + "): return "
             f"{record.total_return:.1f}, {record.length} steps, {record.alarms} alarms", level=self._rr.TextLogLevel.INFO))
         self._check_live()
+        self._check_file()
+
+    def _check_file(self) -> None:
+        """Whether Rerun still writes the file, looked at every :data:`FILE_CHECK_SECONDS` after a
+        send: a file that did not grow though steps were sent since the last look, and still has
+        not as long again later (a send of the last moment is on its way; a disk that stalls for
+        seconds is not a failure), has lost its writer (a full disk: Rerun's thread stops at its
+        first failed write, and logs why). Raised once, an ``OSError``: the monitor warns of it and
+        counts it, and the run goes on without the file. Only the file's size is read: asking Rerun
+        (a flush of the stream) made its close hang once the writer had failed (2026-12-07)."""
+        if self._watch is None:
+            return
+        looked, size, chunks = self._watch
+        now = time.monotonic()
+        if now - looked < (max(1.0, FILE_CHECK_SECONDS) if self._stalled else FILE_CHECK_SECONDS):
+            return
+        try:
+            grown = self.path.stat().st_size
+        except OSError:  # moved or removed by someone else: Rerun writes on where it is; not ours to tell
+            self._watch = None
+            return
+        if grown != size or self.chunks == chunks:  # written, or nothing sent since
+            self._watch, self._stalled = (now, grown, self.chunks), False
+        elif not self._stalled:  # sent, not yet written: look again as long after (a second at least)
+            self._watch, self._stalled = (now, size, chunks), True
+        else:
+            self._watch = None
+            raise OSError(f"Rerun has written nothing more to {self.path} though {self.chunks - chunks:,} columns of "
+                          "steps were sent to it since it last grew: its writer stopped (a full disk? Rerun's log "
+                          "says why); the file holds what was written before, and the run goes on without it")
 
     def close(self) -> None:
         if not self._streams:
