@@ -265,16 +265,20 @@ class RerunSink:
     def _each(self, method: str, *args, **kwargs) -> None:
         for rec in self._streams:
             getattr(rec, method)(*args, **kwargs)
-        if method == "send_columns":
-            self.chunks += 1
-            if self.chunks == FOOTER_WARN_CHUNKS and self.footer and self.path is not None:
-                import warnings
 
-                warnings.warn(f"{self.path}: Rerun keeps an index entry of each chunk of the file in memory to write "
-                              f"its footer when the run ends: {self.chunks:,} chunks so far (0.6-1.3 KB each, "
-                              "measured with rerun-sdk 0.41), and more as the run goes on. For a long run write "
-                              "the file without a footer (oodmon run --rrd-no-footer; RerunSink(..., footer=False)): "
-                              "its memory stays flat", FooterMemoryWarning, stacklevel=2)
+    def _send(self, entity: str, index: list, scalars) -> None:
+        """One series' buffered values, a column (a chunk) to every stream; counted in :attr:`chunks`,
+        with one :class:`FooterMemoryWarning` at :data:`FOOTER_WARN_CHUNKS` to a file with a footer."""
+        self._each("send_columns", entity, indexes=index, columns=self._rr.Scalars.columns(scalars=scalars))
+        self.chunks += 1
+        if self.chunks == FOOTER_WARN_CHUNKS and self.footer and self.path is not None:
+            import warnings
+
+            warnings.warn(f"{self.path}: Rerun keeps an index entry of each chunk of the file in memory to write its "
+                          f"footer when the run ends: {self.chunks:,} chunks so far (0.6-1.3 KB each, measured with "
+                          "rerun-sdk 0.41), and more as the run goes on. For a long run write the file without a "
+                          "footer (oodmon run --rrd-no-footer; RerunSink(..., footer=False)): its memory stays flat",
+                          FooterMemoryWarning, stacklevel=2)
 
     def _drop_live(self, why: str) -> None:
         self._streams.remove(self._live)
@@ -353,21 +357,16 @@ class RerunSink:
         std = np.array([r.std for r in self._buffer])
         for a in range(mean.shape[1]):
             band = np.stack([mean[:, a], mean[:, a] - std[:, a], mean[:, a] + std[:, a]], axis=1)
-            self._each("send_columns", f"/uncertainty/{self._label}{a}", indexes=index,
-                       columns=rr.Scalars.columns(scalars=band))
-        self._each("send_columns", "/score", indexes=index,
-                   columns=rr.Scalars.columns(scalars=[r.score for r in self._buffer]))
-        self._each("send_columns", "/shifted", indexes=index,
-                   columns=rr.Scalars.columns(scalars=[float(r.shifted) for r in self._buffer]))
+            self._send(f"/uncertainty/{self._label}{a}", index, band)
+        self._send("/score", index, [r.score for r in self._buffer])
+        self._send("/shifted", index, [float(r.shifted) for r in self._buffer])
         for name in self._buffer[0].scores:  # every detector's score, on a series of its own
-            self._each("send_columns", f"/detectors/{name}", indexes=index,
-                       columns=rr.Scalars.columns(scalars=[r.scores.get(name, np.nan) for r in self._buffer]))
+            self._send(f"/detectors/{name}", index, [r.scores.get(name, np.nan) for r in self._buffer])
         thresholds = np.array([r.threshold for r in self._buffer])
         if not np.isnan(thresholds).all():
-            self._each("send_columns", "/threshold", indexes=index, columns=rr.Scalars.columns(scalars=thresholds))
+            self._send("/threshold", index, thresholds)
         if self._buffer[0].observation is not None:
-            self._each("send_columns", "/observation", indexes=index,
-                       columns=rr.Scalars.columns(scalars=_decoded([r.observation for r in self._buffer], self._states)))
+            self._send("/observation", index, _decoded([r.observation for r in self._buffer], self._states))
         self._buffer.clear()
         self._steps.clear()
         self._flushed_at = time.monotonic()
