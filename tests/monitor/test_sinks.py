@@ -185,7 +185,8 @@ def test_a_file_with_a_footer_warns_once_when_its_index_grows_large_and_one_with
     import oodmon.monitor.sinks.rerun as rerun_sink
 
     monkeypatch.setattr(rerun_sink, "FOOTER_WARN_CHUNKS", 5)  # a flush here sends 7 columns (7 series)
-    monkeypatch.setattr(rerun_sink, "FLUSH_SECONDS", 3600.0)  # flushed by the steps alone
+    monkeypatch.setattr(rerun_sink, "FLUSH_EVERY", 200)  # (2,000 by default: these short runs send more often)
+    monkeypatch.setattr(rerun_sink, "FILE_FLUSH_SECONDS", 3600.0)  # flushed by the steps alone
     monkeypatch.setattr(rerun_sink, "END_FLUSH_SECONDS", 3600.0)
     for footer in (True, False):
         sink = RerunSink(tmp_path / f"footer-{footer}.rrd", footer=footer)
@@ -208,7 +209,7 @@ def test_a_slow_policys_steps_are_sent_within_a_flush_period_and_short_episodes_
     each short episode cost a chunk per series (an entry each of the footer's index, in memory)."""
     import oodmon.monitor.sinks.rerun as rerun_sink
 
-    monkeypatch.setattr(rerun_sink, "FLUSH_SECONDS", 0.5)
+    monkeypatch.setattr(rerun_sink, "FILE_FLUSH_SECONDS", 0.5)  # (a file alone: 10 s by default, see below)
     monkeypatch.setattr(rerun_sink, "END_FLUSH_SECONDS", 0.3)  # (0.1: room for a busy machine)
     sink = RerunSink(tmp_path / "slow.rrd")
     env = parse_variant("cartpole").make()
@@ -233,11 +234,49 @@ def test_a_slow_policys_steps_are_sent_within_a_flush_period_and_short_episodes_
         monitor.end_episode(interrupted=True)  # a slow policy's episode ends: it is whole in the viewer
         assert sink.chunks == 14 and sink._buffer == []
     assert sink.chunks == 14  # nothing left to send at close
-    monkeypatch.setattr(rerun_sink, "FLUSH_SECONDS", 3600.0)
+    monkeypatch.setattr(rerun_sink, "FILE_FLUSH_SECONDS", 3600.0)
     monkeypatch.setattr(rerun_sink, "END_FLUSH_SECONDS", 3600.0)
+    monkeypatch.setattr(rerun_sink, "FLUSH_EVERY", 200)
     short = RerunSink(tmp_path / "short.rrd")
     records = _run(agent, [short], episodes=6)  # some 450 steps: sent at 200, 400 and the close (and each end, before)
     assert short.chunks == 7 * -(-sum(r.length for r in records) // rerun_sink.FLUSH_EVERY) < 7 * len(records)
+
+
+
+def test_a_file_alone_is_sent_every_ten_seconds_and_a_served_stream_every_second(agent, tmp_path, monkeypatch):
+    """A policy deciding 32 times a second, on a clock of the test's: the file alone gets its steps
+    every FILE_FLUSH_SECONDS (10 s, as an MCAP log's flush), a stream a viewer reads each second.
+    From 2026-12-07 until later that day a file alone was sent each second as well: a chunk per
+    series each time, an entry each of the footer's index in memory, some 600 MB a day at 50 Hz."""
+    import types
+
+    import rerun.chunk as rc
+
+    import oodmon.monitor.sinks.rerun as rerun_sink
+
+    memory = MemorySink()
+    _run(agent, [memory], episodes=12)  # the records a sink is given
+    records = memory.steps[:600]
+    clock = [1000.0]
+    monkeypatch.setattr(rerun_sink, "time", types.SimpleNamespace(monotonic=lambda: clock[0]))
+    alone, served = RerunSink(tmp_path / "alone.rrd"), RerunSink(serve=True, port=_free_port())
+    for sink in (alone, served):
+        sink.open(memory.run)
+    sends = {"alone": [], "served": []}  # the steps after which each sent (7 series, 7 chunks a send)
+    for n, record in enumerate(records, start=1):
+        clock[0] = 1000.0 + n / 32  # (exact in binary: no rounding moves a send by a step)
+        for name, sink in (("alone", alone), ("served", served)):
+            before = sink.chunks
+            sink.write_step(record)
+            if sink.chunks > before:
+                sends[name].append(n)
+    for sink in (alone, served):
+        sink.close()
+    assert len(records) == 600 and (rerun_sink.FILE_FLUSH_SECONDS, rerun_sink.FLUSH_SECONDS) == (10.0, 1.0)
+    assert sends == {"alone": [320], "served": list(range(32, 600, 32))}
+    assert alone.chunks == 2 * 7 and served.chunks == 19 * 7  # the close sent what was left
+    frame = rc.RrdReader(tmp_path / "alone.rrd").stream().collect().reader("step").to_pandas()
+    assert len(frame["/score:Scalars:scalars"].dropna()) == 600
 
 
 FILE_STOPS = """

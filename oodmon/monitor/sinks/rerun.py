@@ -10,19 +10,21 @@ the 84x84 frame the agent saw);
 A default blueprint lays these out, so opening the file shows a useful layout.
 
 Per-step values are buffered and sent as columns every :data:`FLUSH_EVERY` steps, or sooner once
-:data:`FLUSH_SECONDS` have passed since the last, and at an episode's end once
-:data:`END_FLUSH_SECONDS` have: a ``log`` call per value costs 25-40 us, a column of thousands
-about 10 ms. (Until 2026-12-07 at every episode's end, and never by the clock: a live viewer of a
-policy deciding 10 times a second saw its steps up to 20 s late, and runs of short episodes sent a
-chunk per series per episode, each an entry of the footer's index below: 10 series of a 20-step
-episode, a chunk every 2 steps.)
+:data:`FLUSH_SECONDS` have passed since the last (:data:`FILE_FLUSH_SECONDS` to a file alone), and
+at an episode's end once :data:`END_FLUSH_SECONDS` have: a ``log`` call per value costs 25-40 us, a
+column of thousands about 10 ms. (Until 2026-12-07 at every episode's end, and never by the clock:
+a live viewer of a policy deciding 10 times a second saw its steps up to 20 s late, and runs of
+short episodes sent a chunk per series per episode, each an entry of the footer's index below: 10
+series of a 20-step episode, a chunk every 2 steps.)
 
 The file's footer (Rerun's manifest of its chunks, which lets a reader reach any part of the file
 without reading it all) is written when the run ends, and until then Rerun's file sink keeps an
 entry per chunk in memory: 0.6-1.3 KB each (rerun-sdk 0.41), and the sink sends a chunk per series
-at every send: 35 bytes a step in CartPole's ID episodes (``scripts/monitor_memory.py``). A long
-run writes the file without it (``footer=False``): its memory stays flat, and the file reads as a
-killed run's does (``rerun rrd optimize`` writes it again with a footer).
+at every send: 8 bytes a step in CartPole's ID episodes played at full speed (35 when it sent every
+200 steps; ``scripts/monitor_memory.py``); a policy deciding 50 times a second, sending to a file
+alone every :data:`FILE_FLUSH_SECONDS`, some 0.7 KB a second (60 MB a day). A long run writes the
+file without it (``footer=False``): its memory stays flat, and the file reads as a killed run's
+does (``rerun rrd optimize`` writes it again with a footer).
 """
 
 from __future__ import annotations
@@ -39,14 +41,24 @@ from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.sinks.base import check_existing, claim_file
 
-__all__ = ["END_FLUSH_SECONDS", "FILE_CHECK_SECONDS", "FLUSH_EVERY", "FLUSH_SECONDS", "FOOTER_WARN_CHUNKS",
-           "FooterMemoryWarning", "RerunSink", "default_blueprint", "viewer_command"]
+__all__ = ["END_FLUSH_SECONDS", "FILE_CHECK_SECONDS", "FILE_FLUSH_SECONDS", "FLUSH_EVERY", "FLUSH_SECONDS",
+           "FOOTER_WARN_CHUNKS", "FooterMemoryWarning", "RerunSink", "default_blueprint", "viewer_command"]
 
-FLUSH_EVERY = 200
+#: Steps buffered at most before the sink sends them, a column (a chunk) per series. Each chunk is an
+#: entry of the footer's index in memory: at 200, the value until 2026-12-07, a run at full speed grew
+#: 35 bytes a step, at 2,000 7-8 (``scripts/monitor_memory.py --sinks rerun``; a fast run's sends
+#: then come by the clock below, at its episodes' ends), and it ran no slower.
+FLUSH_EVERY = 2000
 
-#: ... and at least this often (seconds), checked at each step: what a live viewer lags at most
-#: behind a slow policy, and about what a killed run's file lacks of its last steps.
+#: ... and at least this often (seconds), checked at each step, while a viewer takes them as they
+#: come (``spawn``, ``connect``, ``serve``): what a live viewer lags at most behind a slow policy.
 FLUSH_SECONDS = 1.0
+
+#: ... and at least this often (seconds) to a file alone, as ``McapSink(flush_seconds=)``: about what
+#: a killed run's file lacks of its last steps. Each send is a chunk per series, an entry each of the
+#: footer's index in memory: sent each second, a policy deciding 50 times a second grew the process
+#: some 7 KB a second (600 MB a day; from 2026-12-07 until this period later that day).
+FILE_FLUSH_SECONDS = 10.0
 
 #: An episode's end sends the buffer when this many seconds have passed since the last send: a slow
 #: policy's episode is whole in the viewer as it ends (whatever the pause before the next), while
@@ -58,7 +70,9 @@ END_FLUSH_SECONDS = 0.1
 FILE_CHECK_SECONDS = 10.0
 
 #: Chunks sent to a file with a footer after which the sink warns, once, of the memory its index
-#: holds (60-130 MB at 0.6-1.3 KB a chunk; some 3,300 CartPole episodes of 500 steps).
+#: holds (60-130 MB at 0.6-1.3 KB a chunk): some 50,000 CartPole episodes of 500 steps played at
+#: full speed (4 chunks per 1,000 steps); a slow policy's 7 series, sent every 10 s to a file alone,
+#: 40 hours (4 with a viewer, each second).
 FOOTER_WARN_CHUNKS = 100_000
 
 
@@ -304,7 +318,8 @@ class RerunSink:
             self._set_time(self._global_step)
             self._each("log", "/frame", self._rr.Image(record.frame))
         self._global_step += 1
-        if len(self._buffer) >= FLUSH_EVERY or time.monotonic() - self._flushed_at >= FLUSH_SECONDS:
+        period = FLUSH_SECONDS if self.serve or self._live is not None else FILE_FLUSH_SECONDS
+        if len(self._buffer) >= FLUSH_EVERY or time.monotonic() - self._flushed_at >= period:
             self._flush()
             self._check_live()
             self._check_file()
