@@ -22,7 +22,7 @@ without reading it all) is written when the run ends, and until then Rerun's fil
 entry per chunk in memory: 0.6-1.3 KB each (rerun-sdk 0.41), and the sink sends a chunk per series
 at every send: 8 bytes a step in CartPole's ID episodes played at full speed (35 when it sent every
 200 steps; ``scripts/monitor_memory.py``); a policy deciding 50 times a second, sending to a file
-alone every :data:`FILE_FLUSH_SECONDS`, some 0.7 KB a second (60 MB a day). A long run writes the
+alone every :data:`FILE_FLUSH_SECONDS`, 0.4-0.9 KB a second (36-79 MB a day). A long run writes the
 file without it (``footer=False``): its memory stays flat, and the file reads as a killed run's
 does (``rerun rrd optimize`` writes it again with a footer).
 """
@@ -46,7 +46,7 @@ __all__ = ["END_FLUSH_SECONDS", "FILE_CHECK_SECONDS", "FILE_FLUSH_SECONDS", "FLU
 
 #: Steps buffered at most before the sink sends them, a column (a chunk) per series. Each chunk is an
 #: entry of the footer's index in memory: at 200, the value until 2026-12-07, a run at full speed grew
-#: 35 bytes a step, at 2,000 7-8 (``scripts/monitor_memory.py --sinks rerun``; a fast run's sends
+#: 35 bytes a step, at 2,000 7-11 (``scripts/monitor_memory.py --sinks rerun``; a fast run's sends
 #: then come by the clock below, at its episodes' ends), and it ran no slower.
 FLUSH_EVERY = 2000
 
@@ -56,8 +56,8 @@ FLUSH_SECONDS = 1.0
 
 #: ... and at least this often (seconds) to a file alone, as ``McapSink(flush_seconds=)``: about what
 #: a killed run's file lacks of its last steps. Each send is a chunk per series, an entry each of the
-#: footer's index in memory: sent each second, a policy deciding 50 times a second grew the process
-#: some 7 KB a second (600 MB a day; from 2026-12-07 until this period later that day).
+#: footer's index in memory: sent each second (from 2026-12-07 until this period later that day), a
+#: policy's 7 series grew the process 4-9 KB a second at 0.6-1.3 KB a chunk, 360-790 MB a day.
 FILE_FLUSH_SECONDS = 10.0
 
 #: An episode's end sends the buffer when this many seconds have passed since the last send: a slow
