@@ -7,6 +7,7 @@ Run (a few minutes; Linux, it reads /proc/self/status):
     .venv/bin/python scripts/monitor_memory.py --sinks rerun
     .venv/bin/python scripts/monitor_memory.py --sinks rerun --rerun-alone
     .venv/bin/python scripts/monitor_memory.py --sinks rerun-no-footer
+    .venv/bin/python scripts/monitor_memory.py --sinks rerun --hz 50
     .venv/bin/python scripts/monitor_memory.py --sinks mcap --endless 200000
 
 A monitor runs next to a deployed policy for days, so what it keeps per step must not pile up.
@@ -20,7 +21,11 @@ the file ends; ``--sinks rerun-no-footer`` (``RerunSink(footer=False)``) writes 
 with ``--episodes 800``: ``rerun`` 35.7 bytes per step (34.8 once the sink sent its steps by the
 clock, not at every episode's end), ``rerun-no-footer`` 0.5; later that day ``rerun`` 8.2, the
 sink sending every 2,000 steps instead of 200 (it prints the chunks it sent: 4.0 per 1,000 steps,
-against 30.0).
+against 30.0). ``--hz 50`` moves the Rerun sink's clock 1/50 s a step, so that it sends as for a
+policy deciding 50 times a second (the text lines of the episodes, which Rerun batches by its own
+clock, still come at full speed): with ``--episodes 800``, sending a file alone every 10 s, 0.60
+chunks a second and 16.8 bytes a step, 72 MB a day; each second (as for most of 2026-12-07) 6.0
+and 121.6, 525 MB a day.
 ``--endless STEPS`` plays one episode that never ends (Pendulum without its time limit, the shipped
 Pendulum ensemble's four detectors). Until log format 6 the monitor kept such an episode's per-step
 rewards, and ``McapSink`` its score arrays, to its end: 32 bytes per step with no sink and 110-121
@@ -53,13 +58,22 @@ def rss_bytes() -> int:
     return int(kib) * 1024
 
 
-def monitored(episodes: int, sinks: str, out: Path) -> list[tuple[int, int]]:
-    """(steps so far, RSS) at the checkpoints of a monitored run writing to ``sinks``."""
+def monitored(episodes: int, sinks: str, out: Path, hz: float | None = None) -> list[tuple[int, int]]:
+    """(steps so far, RSS) at the checkpoints of a monitored run writing to ``sinks``; with ``hz``,
+    the Rerun sink's clock (when it sends) moves ``1 / hz`` seconds a step, a policy deciding ``hz``
+    times a second, while the run plays at full speed."""
+    import types
+
     import gymnasium
 
     import oodmon  # noqa: F401  (registers the envs)
+    import oodmon.monitor.sinks.rerun as rerun_sink
     from oodmon.agents import load
     from oodmon.monitor import McapSink, Monitor, MonitoredEnv, RerunSink
+
+    clock = [0.0]  # the sink's seconds, with hz
+    if hz is not None:
+        rerun_sink.time = types.SimpleNamespace(monotonic=lambda: clock[0])
 
     mcap, rerun = out / "memory.mcap", out / "memory.rrd"  # the measurement's own files, made again each time
     chosen = {"none": [], "mcap": [McapSink(mcap, overwrite=True)], "rerun": [RerunSink(rerun, overwrite=True)],
@@ -74,6 +88,7 @@ def monitored(episodes: int, sinks: str, out: Path) -> list[tuple[int, int]]:
         while True:
             _, _, terminated, truncated, _ = env.step()
             steps += 1
+            clock[0] = steps / hz if hz is not None else 0.0
             if terminated or truncated:
                 break
         if episode + 1 in checkpoints(episodes):
@@ -82,7 +97,8 @@ def monitored(episodes: int, sinks: str, out: Path) -> list[tuple[int, int]]:
     monitor.close()
     for sink in chosen:
         if isinstance(sink, RerunSink):  # each chunk an entry of the footer's index, while the file is written
-            print(f"RerunSink sent {sink.chunks:,} chunks of steps ({1000 * sink.chunks / steps:.1f} per 1,000 steps)")
+            print(f"RerunSink sent {sink.chunks:,} chunks of steps ({1000 * sink.chunks / steps:.1f} per 1,000 steps"
+                  + (f", {sink.chunks / clock[0]:.2f} per second at {hz:g} decisions a second)" if hz else ")"))
     return points
 
 
@@ -158,7 +174,14 @@ def main() -> None:
                         help="one episode of STEPS steps instead (Pendulum without a time limit; sinks none, mcap or "
                              "mcap-split): what a policy whose env never ends an episode costs")
     parser.add_argument("--out", type=Path, default=None, help="folder for the files written (default: a temporary one)")
+    parser.add_argument("--hz", type=float, default=None,
+                        help="the Rerun sink's clock moves 1/HZ seconds a step (a policy deciding HZ times a "
+                             "second; the run itself plays at full speed): it sends, and so makes chunks, as for "
+                             "such a policy")
     args = parser.parse_args()
+    if args.hz is not None and not (args.hz > 0 and args.sinks in ("rerun", "rerun-no-footer", "all")
+                                    and not args.rerun_alone and args.endless is None):
+        parser.error("--hz takes a number > 0 and the monitor's Rerun sink (--sinks rerun, rerun-no-footer or all)")
     if args.episodes <= WARM:
         parser.error(f"--episodes must be more than {WARM}")
     if args.endless is not None and (args.endless < 100 or args.sinks not in ("none", "mcap", "mcap-split")):
@@ -169,12 +192,14 @@ def main() -> None:
         if args.endless is not None:
             points = endless(args.endless, args.sinks, out)
         else:
-            points = rerun_alone(args.episodes, out) if args.rerun_alone else monitored(args.episodes, args.sinks, out)
+            points = (rerun_alone(args.episodes, out) if args.rerun_alone
+                      else monitored(args.episodes, args.sinks, out, args.hz))
     (first_steps, first_rss), (last_steps, last_rss) = points[0], points[-1]
     what = "a bare Rerun stream" if args.rerun_alone else f"sinks {args.sinks}" + (
         ", one endless episode" if args.endless is not None else "")
-    print(f"{what}: {(last_rss - first_rss) / (last_steps - first_steps):.1f} bytes of RSS per step "
-          f"from step {first_steps} to {last_steps}")
+    per_step = (last_rss - first_rss) / (last_steps - first_steps)
+    print(f"{what}: {per_step:.1f} bytes of RSS per step from step {first_steps} to {last_steps}"
+          + (f"; at {args.hz:g} decisions a second {per_step * args.hz * 86400 / 1e6:.0f} MB a day" if args.hz else ""))
 
 
 if __name__ == "__main__":

@@ -247,8 +247,8 @@ def test_a_file_alone_is_sent_every_ten_seconds_and_a_served_stream_every_second
     """A policy deciding 32 times a second, on a clock of the test's: the file alone gets its steps
     every FILE_FLUSH_SECONDS (10 s, as an MCAP log's flush), a stream a viewer reads each second.
     From 2026-12-07 until later that day a file alone was sent each second as well: a chunk per
-    series each time, an entry each of the footer's index in memory (0.6-1.3 KB each: at 50 Hz,
-    7 chunks a second, 360-790 MB a day)."""
+    series each time, an entry each of the footer's index in memory (at 50 Hz, 525 MB a day against
+    72 now: scripts/monitor_memory.py --hz 50)."""
     import types
 
     import rerun.chunk as rc

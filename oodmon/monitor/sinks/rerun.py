@@ -22,8 +22,8 @@ without reading it all) is written when the run ends, and until then Rerun's fil
 entry per chunk in memory: 0.6-1.3 KB each (rerun-sdk 0.41), and the sink sends a chunk per series
 at every send: 8 bytes a step in CartPole's ID episodes played at full speed (35 when it sent every
 200 steps; ``scripts/monitor_memory.py``); a policy deciding 50 times a second, sending to a file
-alone every :data:`FILE_FLUSH_SECONDS`, 0.4-0.9 KB a second (36-79 MB a day). A long run writes the
-file without it (``footer=False``): its memory stays flat, and the file reads as a killed run's
+alone every :data:`FILE_FLUSH_SECONDS`, 72 MB a day (``--hz 50``). A long run writes the file
+without it (``footer=False``): its memory stays flat, and the file reads as a killed run's
 does (``rerun rrd optimize`` writes it again with a footer).
 """
 
@@ -57,7 +57,8 @@ FLUSH_SECONDS = 1.0
 #: ... and at least this often (seconds) to a file alone, as ``McapSink(flush_seconds=)``: about what
 #: a killed run's file lacks of its last steps. Each send is a chunk per series, an entry each of the
 #: footer's index in memory: sent each second (from 2026-12-07 until this period later that day), a
-#: policy's 7 series grew the process 4-9 KB a second at 0.6-1.3 KB a chunk, 360-790 MB a day.
+#: policy deciding 50 times a second grew the process 525 MB a day, at 10 s 72
+#: (``scripts/monitor_memory.py --sinks rerun --episodes 800 --hz 50``: 6.0 chunks a second, 0.6).
 FILE_FLUSH_SECONDS = 10.0
 
 #: An episode's end sends the buffer when this many seconds have passed since the last send: a slow
