@@ -8,6 +8,7 @@ Run (a few minutes; Linux, it reads /proc/self/status):
     .venv/bin/python scripts/monitor_memory.py --sinks rerun --rerun-alone
     .venv/bin/python scripts/monitor_memory.py --sinks rerun-no-footer
     .venv/bin/python scripts/monitor_memory.py --sinks rerun --hz 50
+    .venv/bin/python scripts/monitor_memory.py --sinks rerun-serve --episodes 20000
     .venv/bin/python scripts/monitor_memory.py --sinks mcap --endless 200000
 
 A monitor runs next to a deployed policy for days, so what it keeps per step must not pile up.
@@ -25,7 +26,10 @@ against 30.0). ``--hz 50`` moves the Rerun sink's clock 1/50 s a step, so that i
 policy deciding 50 times a second (the text lines of the episodes, which Rerun batches by its own
 clock, still come at full speed): with ``--episodes 800``, sending a file alone every 10 s, 0.60
 chunks a second and 16.8 bytes a step, 72 MB a day; each second (as for most of 2026-12-07) 6.0
-and 121.6, 525 MB a day.
+and 121.6, 525 MB a day. ``--sinks rerun-serve`` serves the stream (``RerunSink(serve=True)``), no
+viewer connecting: Rerun's server keeps it up to its memory limit (512 MiB of data): with
+``--episodes 20000`` the RSS grew 166 bytes a step to step 3.2 million (408 to 939 MB), then 27
+to 6.4 million (1,026 MB) and 3 to 10 million (1,038 MB).
 ``--endless STEPS`` plays one episode that never ends (Pendulum without its time limit, the shipped
 Pendulum ensemble's four detectors). Until log format 6 the monitor kept such an episode's per-step
 rewards, and ``McapSink`` its score arrays, to its end: 32 bytes per step with no sink and 110-121
@@ -76,10 +80,12 @@ def monitored(episodes: int, sinks: str, out: Path, hz: float | None = None) -> 
         rerun_sink.time = types.SimpleNamespace(monotonic=lambda: clock[0])
 
     mcap, rerun = out / "memory.mcap", out / "memory.rrd"  # the measurement's own files, made again each time
-    chosen = {"none": [], "mcap": [McapSink(mcap, overwrite=True)], "rerun": [RerunSink(rerun, overwrite=True)],
-              "rerun-no-footer": [RerunSink(rerun, overwrite=True, footer=False)],
-              "mcap-split": [McapSink(mcap, split_episodes=100, overwrite=True)],
-              "all": [McapSink(mcap, overwrite=True), RerunSink(rerun, overwrite=True)]}[sinks]
+    chosen = {"none": lambda: [], "mcap": lambda: [McapSink(mcap, overwrite=True)],
+              "rerun": lambda: [RerunSink(rerun, overwrite=True)],
+              "rerun-no-footer": lambda: [RerunSink(rerun, overwrite=True, footer=False)],
+              "rerun-serve": lambda: [RerunSink(serve=True, port=free_port())],
+              "mcap-split": lambda: [McapSink(mcap, split_episodes=100, overwrite=True)],
+              "all": lambda: [McapSink(mcap, overwrite=True), RerunSink(rerun, overwrite=True)]}[sinks]()
     monitor = Monitor(load("cartpole", "ensemble"), sinks=chosen)
     env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"), monitor)
     points, steps = [], 0
@@ -154,6 +160,15 @@ def rerun_alone(episodes: int, out: Path) -> list[tuple[int, int]]:
     return points
 
 
+def free_port() -> int:
+    """A port of this machine no program listens on (for ``--sinks rerun-serve``)."""
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
 def checkpoints(episodes: int) -> list[int]:
     """Episodes after which the RSS is read: the warm-up's end, a few doublings, the last."""
     marks, n = [WARM], WARM * 2
@@ -165,9 +180,11 @@ def checkpoints(episodes: int) -> list[int]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sinks", choices=["none", "mcap", "mcap-split", "rerun", "rerun-no-footer", "all"],
+    parser.add_argument("--sinks", choices=["none", "mcap", "mcap-split", "rerun", "rerun-no-footer", "rerun-serve",
+                                            "all"],
                         default="all", help="mcap-split: an MCAP log in files of 100 episodes (McapSink("
-                                            "split_episodes=100)); rerun-no-footer: RerunSink(footer=False)")
+                                            "split_episodes=100)); rerun-no-footer: RerunSink(footer=False); "
+                                            "rerun-serve: RerunSink(serve=True), no viewer connecting")
     parser.add_argument("--episodes", type=int, default=400, help=f"episodes (more than {WARM}; default 400)")
     parser.add_argument("--rerun-alone", action="store_true", help="a bare Rerun stream instead of the monitor")
     parser.add_argument("--endless", type=int, metavar="STEPS",
@@ -179,9 +196,10 @@ def main() -> None:
                              "second; the run itself plays at full speed): it sends, and so makes chunks, as for "
                              "such a policy")
     args = parser.parse_args()
-    if args.hz is not None and not (args.hz > 0 and args.sinks in ("rerun", "rerun-no-footer", "all")
+    if args.hz is not None and not (args.hz > 0 and args.sinks in ("rerun", "rerun-no-footer", "rerun-serve", "all")
                                     and not args.rerun_alone and args.endless is None):
-        parser.error("--hz takes a number > 0 and the monitor's Rerun sink (--sinks rerun, rerun-no-footer or all)")
+        parser.error("--hz takes a number > 0 and the monitor's Rerun sink (--sinks rerun, rerun-no-footer, "
+                     "rerun-serve or all)")
     if args.episodes <= WARM:
         parser.error(f"--episodes must be more than {WARM}")
     if args.endless is not None and (args.endless < 100 or args.sinks not in ("none", "mcap", "mcap-split")):

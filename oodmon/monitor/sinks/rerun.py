@@ -112,7 +112,10 @@ class RerunSink:
         path: write an ``.rrd`` file here.
         spawn: start a Rerun viewer listening on ``bind``:``port`` and stream to it (needs a display and
             the ``rerun`` binary; a viewer already listening there takes the stream instead).
-        serve: serve the stream over gRPC for a viewer to connect to, on ``bind``:``port``.
+        serve: serve the stream over gRPC for a viewer to connect to, on ``bind``:``port``; the
+            server keeps up to 512 MiB of it for viewers that connect later (some 630 MB of the
+            process, reached after 3-5 million CartPole steps; docs/monitor.md, "Memory over a
+            long run").
         connect: stream to a viewer listening at this URL.
         bind: the address a served stream, or a spawned viewer, listens on; ``127.0.0.1`` (the
             default) keeps it on this machine, ``0.0.0.0`` opens it to the network on purpose.
