@@ -220,11 +220,11 @@ def test_a_slow_policys_steps_are_sent_within_a_flush_period_and_short_episodes_
         for _ in range(3):  # fast: buffered
             obs, reward, *_ = env.step(monitor.step(obs))
             monitor.add_reward(reward)
-        assert sink.chunks == 0 and len(sink._buffer) == 3
+        assert sink.chunks == 0 and len(sink._outboxes[0].records) == 3
         time.sleep(0.55)  # a slow policy's next decision: the four steps go out with it
         obs, reward, *_ = env.step(monitor.step(obs))
         monitor.add_reward(reward)
-        assert sink.chunks == 7 and sink._buffer == []
+        assert sink.chunks == 7 and sink._outboxes[0].records == []
         monitor.end_episode(interrupted=True)
         assert sink.chunks == 7  # an episode's end just after a send sends nothing
         monitor.begin_episode(env_id="oodmon/CartPole-v1", variant="cartpole", seed=1)
@@ -233,7 +233,7 @@ def test_a_slow_policys_steps_are_sent_within_a_flush_period_and_short_episodes_
         monitor.add_reward(reward)
         time.sleep(0.35)
         monitor.end_episode(interrupted=True)  # a slow policy's episode ends: it is whole in the viewer
-        assert sink.chunks == 14 and sink._buffer == []
+        assert sink.chunks == 14 and sink._outboxes[0].records == []
     assert sink.chunks == 14  # nothing left to send at close
     monkeypatch.setattr(rerun_sink, "FILE_FLUSH_SECONDS", 3600.0)
     monkeypatch.setattr(rerun_sink, "END_FLUSH_SECONDS", 3600.0)
@@ -243,10 +243,12 @@ def test_a_slow_policys_steps_are_sent_within_a_flush_period_and_short_episodes_
     assert short.chunks == 7 * -(-sum(r.length for r in records) // rerun_sink.FLUSH_EVERY) < 7 * len(records)
 
 
-def test_a_file_alone_is_sent_every_ten_seconds_and_a_served_stream_every_second(agent, tmp_path, monkeypatch):
-    """A policy deciding 32 times a second, on a clock of the test's: the file alone gets its steps
-    every FILE_FLUSH_SECONDS (10 s, as an MCAP log's flush), a stream a viewer reads each second.
-    From 2026-12-07 until later that day a file alone was sent each second as well: a chunk per
+def test_a_file_is_sent_every_ten_seconds_and_a_served_stream_every_second_beside_it_or_alone(agent, tmp_path,
+                                                                                             monkeypatch):
+    """A policy deciding 32 times a second, on a clock of the test's: the file gets its steps every
+    FILE_FLUSH_SECONDS (10 s, as an MCAP log's flush), a stream a viewer reads each second, also
+    when one sink writes both. From 2026-12-07 until later that day a file alone was sent each
+    second as well, and a file beside a served stream or a viewer until later still: a chunk per
     series each time, an entry each of the footer's index in memory (at 50 Hz, 525 MB a day against
     72 now: scripts/monitor_memory.py --hz 50)."""
     import types
@@ -260,24 +262,31 @@ def test_a_file_alone_is_sent_every_ten_seconds_and_a_served_stream_every_second
     records = memory.steps[:600]
     clock = [1000.0]
     monkeypatch.setattr(rerun_sink, "time", types.SimpleNamespace(monotonic=lambda: clock[0]))
-    alone, served = RerunSink(tmp_path / "alone.rrd"), RerunSink(serve=True, port=_free_port())
-    for sink in (alone, served):
+    sinks = {"alone": RerunSink(tmp_path / "alone.rrd"), "served": RerunSink(serve=True, port=_free_port()),
+             "both": RerunSink(tmp_path / "both.rrd", serve=True, port=_free_port())}
+    for sink in sinks.values():
         sink.open(memory.run)
-    sends = {"alone": [], "served": []}  # the steps after which each sent (7 series, 7 chunks a send)
+    sends = {name: [] for name in sinks}  # the steps after which each sent (7 series, 7 chunks a send)
+    file_sends = []  # the steps after which "both" sent to its file
     for n, record in enumerate(records, start=1):
         clock[0] = 1000.0 + n / 32  # (exact in binary: no rounding moves a send by a step)
-        for name, sink in (("alone", alone), ("served", served)):
-            before = sink.chunks
+        for name, sink in sinks.items():
+            before, before_file = sink.chunks, sink._file_chunks
             sink.write_step(record)
             if sink.chunks > before:
                 sends[name].append(n)
-    for sink in (alone, served):
+            if name == "both" and sink._file_chunks > before_file:
+                file_sends.append(n)
+    for sink in sinks.values():
         sink.close()
     assert len(records) == 600 and (rerun_sink.FILE_FLUSH_SECONDS, rerun_sink.FLUSH_SECONDS) == (10.0, 1.0)
-    assert sends == {"alone": [320], "served": list(range(32, 600, 32))}
-    assert alone.chunks == 2 * 7 and served.chunks == 19 * 7  # the close sent what was left
-    frame = rc.RrdReader(tmp_path / "alone.rrd").stream().collect().reader("step").to_pandas()
-    assert len(frame["/score:Scalars:scalars"].dropna()) == 600
+    each_second = list(range(32, 600, 32))
+    assert sends == {"alone": [320], "served": each_second, "both": each_second} and file_sends == [320]
+    # the close sent what was left: to the file 2 sends in all, to the served stream 19
+    assert [sink.chunks for sink in sinks.values()] == [2 * 7, 19 * 7, 21 * 7] and sinks["both"]._file_chunks == 2 * 7
+    for name in ("alone", "both"):
+        frame = rc.RrdReader(tmp_path / f"{name}.rrd").stream().collect().reader("step").to_pandas()
+        assert len(frame["/score:Scalars:scalars"].dropna()) == 600
 
 
 FILE_STOPS = """
@@ -288,6 +297,7 @@ from oodmon.envs import parse_variant
 from oodmon.monitor import Monitor, RerunSink
 
 rerun_sink.FILE_CHECK_SECONDS = 0.0  # looked at after every send (a second look a second later)
+rerun_sink.FLUSH_EVERY = 200  # sends every 200 steps: many in the 1.6 s, however busy the machine
 agent, env = load("cartpole", "dropout"), parse_variant("cartpole").make()
 for name in sys.argv[1:]:
     if name.endswith("full.rrd"):  # a write past the limit fails (EFBIG), as one on a full disk does

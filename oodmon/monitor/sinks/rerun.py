@@ -10,21 +10,22 @@ the 84x84 frame the agent saw);
 A default blueprint lays these out, so opening the file shows a useful layout.
 
 Per-step values are buffered and sent as columns every :data:`FLUSH_EVERY` steps, or sooner once
-:data:`FLUSH_SECONDS` have passed since the last (:data:`FILE_FLUSH_SECONDS` to a file alone), and
-at an episode's end once :data:`END_FLUSH_SECONDS` have: a ``log`` call per value costs 25-40 us, a
-column of thousands about 10 ms. (Until 2026-12-07 at every episode's end, and never by the clock:
-a live viewer of a policy deciding 10 times a second saw its steps up to 20 s late, and runs of
-short episodes sent a chunk per series per episode, each an entry of the footer's index below: 10
-series of a 20-step episode, a chunk every 2 steps.)
+:data:`FLUSH_SECONDS` have passed since the last (:data:`FILE_FLUSH_SECONDS` to the file, which
+has a buffer of its own beside a viewer's), and at an episode's end once :data:`END_FLUSH_SECONDS`
+have: a ``log`` call per value costs 25-40 us, a column of thousands about 10 ms. (Until
+2026-12-07 at every episode's end, and never by the clock: a live viewer of a policy deciding 10
+times a second saw its steps up to 20 s late, and runs of short episodes sent a chunk per series
+per episode, each an entry of the footer's index below: 10 series of a 20-step episode, a chunk
+every 2 steps.)
 
 The file's footer (Rerun's manifest of its chunks, which lets a reader reach any part of the file
 without reading it all) is written when the run ends, and until then Rerun's file sink keeps an
 entry per chunk in memory: 0.6-1.3 KB each (rerun-sdk 0.41), and the sink sends a chunk per series
 at every send: 8 bytes a step in CartPole's ID episodes played at full speed (35 when it sent every
-200 steps; ``scripts/monitor_memory.py``); a policy deciding 50 times a second, sending to a file
-alone every :data:`FILE_FLUSH_SECONDS`, 72 MB a day (``--hz 50``). A long run writes the file
-without it (``footer=False``): its memory stays flat, and the file reads as a killed run's
-does (``rerun rrd optimize`` writes it again with a footer).
+200 steps; ``scripts/monitor_memory.py``); a policy deciding 50 times a second, sending to the
+file every :data:`FILE_FLUSH_SECONDS`, 72 MB a day (``--hz 50``). A long run writes the file
+without it (``footer=False``): its memory stays flat, and the file reads as a killed run's does
+(``rerun rrd optimize`` writes it again with a footer).
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ FLUSH_EVERY = 2000
 #: come (``spawn``, ``connect``, ``serve``): what a live viewer lags at most behind a slow policy.
 FLUSH_SECONDS = 1.0
 
-#: ... and at least this often (seconds) to a file alone, as ``McapSink(flush_seconds=)``: about what
+#: ... and at least this often (seconds) to the file, as ``McapSink(flush_seconds=)``: about what
 #: a killed run's file lacks of its last steps. Each send is a chunk per series, an entry each of the
 #: footer's index in memory: sent each second (from 2026-12-07 until this period later that day), a
 #: policy deciding 50 times a second grew the process 525 MB a day, at 10 s 72
@@ -72,8 +73,8 @@ FILE_CHECK_SECONDS = 10.0
 
 #: Chunks sent to a file with a footer after which the sink warns, once, of the memory its index
 #: holds (60-130 MB at 0.6-1.3 KB a chunk): some 50,000 CartPole episodes of 500 steps played at
-#: full speed (4 chunks per 1,000 steps); a slow policy's 7 series, sent every 10 s to a file alone,
-#: 40 hours (4 with a viewer, each second).
+#: full speed (4 chunks per 1,000 steps); a slow policy's 7 series, sent to the file every 10 s,
+#: some 40 hours.
 FOOTER_WARN_CHUNKS = 100_000
 
 
@@ -103,6 +104,25 @@ def default_blueprint(task: str, n_outputs: int):
         ),
         collapse_panels=True,
     )
+
+
+class _Outbox:
+    """Steps not yet sent to some of the sink's recording streams: the file's (sent every
+    :data:`FILE_FLUSH_SECONDS`), or those a viewer reads as they come (every :data:`FLUSH_SECONDS`).
+    Until later on 2026-12-07 one buffer went to every stream, and a file beside a viewer was sent
+    each second: at 50 decisions a second, 525 MB a day of the footer's index against 72."""
+
+    __slots__ = ("streams", "file", "records", "steps", "sent_at")
+
+    def __init__(self, streams: list, file: bool) -> None:
+        self.streams, self.file = streams, file
+        self.records: list[StepRecord] = []
+        self.steps: list[int] = []  # the run's global step of each record
+        self.sent_at = time.monotonic()
+
+    def due(self, now: float) -> bool:
+        return len(self.records) >= FLUSH_EVERY or now - self.sent_at >= (
+            FILE_FLUSH_SECONDS if self.file else FLUSH_SECONDS)
 
 
 class RerunSink:
@@ -168,12 +188,11 @@ class RerunSink:
         self._streams: list = []
         self._live = None
         self._global_step = 0
-        self._buffer: list[StepRecord] = []
-        self._steps: list[int] = []
+        self._outboxes: list[_Outbox] = []  # the file's, and the live streams' (a served one, a viewer's)
         self._last = (0, 0)  # (episode, step in it) of the last step written
-        self._flushed_at = time.monotonic()  # when the buffer was last sent (FLUSH_SECONDS)
         self._states: list[int] = []  # a discrete observation's values per reading (see open())
         self.chunks = 0  # columns sent, a chunk each (the footer's index holds these and the logs' few)
+        self._file_chunks = 0  # of which to the file
         self._watch: tuple[float, int, int] | None = None  # the file: (looked at, its size, chunks sent then)
         self._stalled = False  # the last look found sends that had not reached the file
 
@@ -191,26 +210,25 @@ class RerunSink:
         self._check_existing()  # checked again: a file may have come since (this sink's own, opened again)
 
         self._rr = rr
-        self._flushed_at = time.monotonic()
         self._task = run.task
         # A discrete observation's values per reading (the monitor's about.states), whose one-hot
         # blocks /observation draws as each reading's value
         self._states = [int(n) for n in run.about.get("states", "").split(",") if n.strip().isdigit()]
         self._names_sent = False
-        local = []
+        self._outboxes, live = [], []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             if self.overwrite:
                 self.path.unlink(missing_ok=True)
             claim_file(self.path).close()  # the name is this run's (Rerun's file sink writes it from the start)
-            self._watch, self._stalled = (time.monotonic(), 0, self.chunks), False
-            local.append(rr.FileSink(str(self.path), write_footer=self.footer))
+            self._watch, self._stalled = (time.monotonic(), 0, self._file_chunks), False
+            self._streams.append(self._stream(run, [rr.FileSink(str(self.path), write_footer=self.footer)]))
+            self._outboxes.append(_Outbox([self._streams[-1]], file=True))
         if self.serve:
             server = rr.GrpcServerSink(bind_ip=self.bind, port=self.port, server_memory_limit="512MiB")
             self.served_at = server.uri
-            local.append(server)
-        if local:
-            self._streams.append(self._stream(run, local))
+            self._streams.append(self._stream(run, [server]))
+            live.append(self._streams[-1])
         if self.connect or self.spawn:
             url = self.connect or f"rerun+http://{_reach(self.bind)}:{self.port}/proxy"
             # a spawned viewer is waited for until it takes connections; a URL given is tried once
@@ -219,9 +237,12 @@ class RerunSink:
                 self._live = self._stream(run, [rr.GrpcSink(url)])
                 self.live_at = url
                 self._streams.append(self._live)
+                live.append(self._live)
             else:
                 _warn(f"no Rerun viewer at {url} ({unreachable}); the run goes on without it"
                       + (f", logging to {self.path}" if self.path else ""))
+        if live:
+            self._outboxes.append(_Outbox(live, file=False))
 
     def _spawn_viewer(self, url: str) -> str | None:
         """Start a Rerun viewer (``spawn``) listening on ``bind``:``port`` and wait until it takes
@@ -284,22 +305,32 @@ class RerunSink:
         for rec in self._streams:
             getattr(rec, method)(*args, **kwargs)
 
-    def _send(self, entity: str, index: list, scalars) -> None:
-        """One series' buffered values, a column (a chunk) to every stream; counted in :attr:`chunks`,
-        with one :class:`FooterMemoryWarning` at :data:`FOOTER_WARN_CHUNKS` to a file with a footer."""
-        self._each("send_columns", entity, indexes=index, columns=self._rr.Scalars.columns(scalars=scalars))
+    def _send(self, box: _Outbox, entity: str, index: list, scalars) -> None:
+        """One series' buffered values, a column (a chunk) to each of ``box``'s streams; counted in
+        :attr:`chunks`, with one :class:`FooterMemoryWarning` at :data:`FOOTER_WARN_CHUNKS` to a file
+        with a footer."""
+        columns = self._rr.Scalars.columns(scalars=scalars)
+        for rec in box.streams:
+            rec.send_columns(entity, indexes=index, columns=columns)
         self.chunks += 1
-        if self.chunks == FOOTER_WARN_CHUNKS and self.footer and self.path is not None:
+        if not box.file:
+            return
+        self._file_chunks += 1
+        if self._file_chunks == FOOTER_WARN_CHUNKS and self.footer:
             import warnings
 
             warnings.warn(f"{self.path}: Rerun keeps an index entry of each chunk of the file in memory to write its "
-                          f"footer when the run ends: {self.chunks:,} chunks so far (0.6-1.3 KB each, measured with "
-                          "rerun-sdk 0.41), and more as the run goes on. For a long run write the file without a "
+                          f"footer when the run ends: {self._file_chunks:,} chunks so far (0.6-1.3 KB each, measured "
+                          "with rerun-sdk 0.41), and more as the run goes on. For a long run write the file without a "
                           "footer (oodmon run --rrd-no-footer; RerunSink(..., footer=False)): its memory stays flat",
                           FooterMemoryWarning, stacklevel=2)
 
     def _drop_live(self, why: str) -> None:
         self._streams.remove(self._live)
+        for box in self._outboxes:
+            if self._live in box.streams:
+                box.streams.remove(self._live)
+        self._outboxes = [box for box in self._outboxes if box.streams]  # (a served stream stays)
         try:
             self._live.disconnect()
         finally:
@@ -315,18 +346,23 @@ class RerunSink:
             return
         if not self._names_sent:
             self._send_layout(len(record.mean))
-        self._buffer.append(record)
-        self._steps.append(self._global_step)
+        for box in self._outboxes:
+            box.records.append(record)
+            box.steps.append(self._global_step)
         self._last = (record.episode, record.step)
         if record.frame is not None:
             self._set_time(self._global_step)
             self._each("log", "/frame", self._rr.Image(record.frame))
         self._global_step += 1
-        period = FLUSH_SECONDS if self.serve or self._live is not None else FILE_FLUSH_SECONDS
-        if len(self._buffer) >= FLUSH_EVERY or time.monotonic() - self._flushed_at >= period:
-            self._flush()
-            self._check_live()
-            self._check_file()
+        now = time.monotonic()
+        for box in self._outboxes:
+            if not box.due(now):
+                continue
+            self._flush(box)
+            if box.file:
+                self._check_file()
+            else:
+                self._check_live()
 
     def _set_time(self, step: int, episode: int | None = None, in_episode: int | None = None) -> None:
         """Set the three timelines (episode and step in it default to the last step written's)."""
@@ -363,32 +399,32 @@ class RerunSink:
         rec.send_blueprint(default_blueprint(self._task, n_outputs))
         self._label = label
 
-    def _flush(self) -> None:
-        if not self._buffer:
+    def _flush(self, box: _Outbox) -> None:
+        """``box``'s buffered steps, a column per series to each of its streams."""
+        records = box.records
+        if not records:
             return
         rr = self._rr
         # Three timelines: the run's global step, the episode, the step within the episode (an alarm
         # at "step 103" of an episode is at step_in_episode 103 whatever the global step).
-        index = [rr.TimeColumn("step", sequence=self._steps),
-                 rr.TimeColumn("episode", sequence=[r.episode for r in self._buffer]),
-                 rr.TimeColumn("step_in_episode", sequence=[r.step for r in self._buffer])]
-        mean = np.array([r.mean for r in self._buffer])
-        std = np.array([r.std for r in self._buffer])
+        index = [rr.TimeColumn("step", sequence=box.steps),
+                 rr.TimeColumn("episode", sequence=[r.episode for r in records]),
+                 rr.TimeColumn("step_in_episode", sequence=[r.step for r in records])]
+        mean = np.array([r.mean for r in records])
+        std = np.array([r.std for r in records])
         for a in range(mean.shape[1]):
             band = np.stack([mean[:, a], mean[:, a] - std[:, a], mean[:, a] + std[:, a]], axis=1)
-            self._send(f"/uncertainty/{self._label}{a}", index, band)
-        self._send("/score", index, [r.score for r in self._buffer])
-        self._send("/shifted", index, [float(r.shifted) for r in self._buffer])
-        for name in self._buffer[0].scores:  # every detector's score, on a series of its own
-            self._send(f"/detectors/{name}", index, [r.scores.get(name, np.nan) for r in self._buffer])
-        thresholds = np.array([r.threshold for r in self._buffer])
+            self._send(box, f"/uncertainty/{self._label}{a}", index, band)
+        self._send(box, "/score", index, [r.score for r in records])
+        self._send(box, "/shifted", index, [float(r.shifted) for r in records])
+        for name in records[0].scores:  # every detector's score, on a series of its own
+            self._send(box, f"/detectors/{name}", index, [r.scores.get(name, np.nan) for r in records])
+        thresholds = np.array([r.threshold for r in records])
         if not np.isnan(thresholds).all():
-            self._send("/threshold", index, thresholds)
-        if self._buffer[0].observation is not None:
-            self._send("/observation", index, _decoded([r.observation for r in self._buffer], self._states))
-        self._buffer.clear()
-        self._steps.clear()
-        self._flushed_at = time.monotonic()
+            self._send(box, "/threshold", index, thresholds)
+        if records[0].observation is not None:
+            self._send(box, "/observation", index, _decoded([r.observation for r in records], self._states))
+        box.records, box.steps, box.sent_at = [], [], time.monotonic()
 
     def write_alarm(self, event: AlarmEvent) -> None:
         if not self._streams:
@@ -401,8 +437,10 @@ class RerunSink:
     def end_episode(self, record: EpisodeRecord) -> None:
         if not self._streams:
             return
-        if time.monotonic() - self._flushed_at >= END_FLUSH_SECONDS:
-            self._flush()
+        now = time.monotonic()
+        for box in self._outboxes:
+            if now - box.sent_at >= END_FLUSH_SECONDS:
+                self._flush(box)
         self._set_time(max(self._global_step - 1, 0), record.episode, max(record.length - 1, 0))
         self._each("log", "/episode/return", self._rr.Scalars(record.total_return))
         self._each("log", "/episodes", self._rr.TextLog(
@@ -431,21 +469,23 @@ class RerunSink:
         except OSError:  # moved or removed by someone else: Rerun writes on where it is; not ours to tell
             self._watch = None
             return
-        if grown != size or self.chunks == chunks:  # written, or nothing sent since
-            self._watch, self._stalled = (now, grown, self.chunks), False
+        if grown != size or self._file_chunks == chunks:  # written, or nothing sent since
+            self._watch, self._stalled = (now, grown, self._file_chunks), False
         elif not self._stalled:  # sent, not yet written: look again as long after (a second at least)
             self._watch, self._stalled = (now, size, chunks), True
         else:
             self._watch = None
-            raise OSError(f"Rerun has written nothing more to {self.path} though {self.chunks - chunks:,} columns of "
-                          "steps were sent to it since it last grew: its writer stopped (a full disk? Rerun's log "
-                          "says why); the file holds what was written before, and the run goes on without it")
+            raise OSError(f"Rerun has written nothing more to {self.path} though {self._file_chunks - chunks:,} "
+                          "columns of steps were sent to it since it last grew: its writer stopped (a full disk? "
+                          "Rerun's log says why); the file holds what was written before, and the run goes on "
+                          "without it")
 
     def close(self) -> None:
         if not self._streams:
             return
         try:
-            self._flush()
+            for box in self._outboxes:
+                self._flush(box)
             self._check_live()
             for rec in self._streams:
                 if rec is not self._live:
