@@ -29,7 +29,8 @@ chunks a second and 16.8 bytes a step, 72 MB a day; each second (as for most of 
 and 121.6, 525 MB a day. ``--sinks rerun-serve`` serves the stream (``RerunSink(serve=True)``), no
 viewer connecting: Rerun's server keeps it up to its memory limit (512 MiB of data): with
 ``--episodes 20000`` the RSS grew 166 bytes a step to step 3.2 million (408 to 939 MB), then 27
-to 6.4 million (1,026 MB) and 3 to 10 million (1,038 MB).
+to 6.4 million (1,026 MB) and 3 to 10 million (1,038 MB); with ``--serve-memory 32`` (``RerunSink(
+serve_memory=32)``) it held at 445 MB after 250,000 steps, with 0 it stayed flat (406 MB).
 ``--endless STEPS`` plays one episode that never ends (Pendulum without its time limit, the shipped
 Pendulum ensemble's four detectors). Until log format 6 the monitor kept such an episode's per-step
 rewards, and ``McapSink`` its score arrays, to its end: 32 bytes per step with no sink and 110-121
@@ -62,7 +63,8 @@ def rss_bytes() -> int:
     return int(kib) * 1024
 
 
-def monitored(episodes: int, sinks: str, out: Path, hz: float | None = None) -> list[tuple[int, int]]:
+def monitored(episodes: int, sinks: str, out: Path, hz: float | None = None,
+              serve_memory: int | None = None) -> list[tuple[int, int]]:
     """(steps so far, RSS) at the checkpoints of a monitored run writing to ``sinks``; with ``hz``,
     the Rerun sink's clock (when it sends) moves ``1 / hz`` seconds a step, a policy deciding ``hz``
     times a second, while the run plays at full speed."""
@@ -83,7 +85,8 @@ def monitored(episodes: int, sinks: str, out: Path, hz: float | None = None) -> 
     chosen = {"none": lambda: [], "mcap": lambda: [McapSink(mcap, overwrite=True)],
               "rerun": lambda: [RerunSink(rerun, overwrite=True)],
               "rerun-no-footer": lambda: [RerunSink(rerun, overwrite=True, footer=False)],
-              "rerun-serve": lambda: [RerunSink(serve=True, port=free_port())],
+              "rerun-serve": lambda: [RerunSink(serve=True, port=free_port(), **(
+                  {} if serve_memory is None else {"serve_memory": serve_memory}))],
               "mcap-split": lambda: [McapSink(mcap, split_episodes=100, overwrite=True)],
               "all": lambda: [McapSink(mcap, overwrite=True), RerunSink(rerun, overwrite=True)]}[sinks]()
     monitor = Monitor(load("cartpole", "ensemble"), sinks=chosen)
@@ -195,7 +198,11 @@ def main() -> None:
                         help="the Rerun sink's clock moves 1/HZ seconds a step (a policy deciding HZ times a "
                              "second; the run itself plays at full speed): it sends, and so makes chunks, as for "
                              "such a policy")
+    parser.add_argument("--serve-memory", type=int, default=None, metavar="MIB",
+                        help="with --sinks rerun-serve: RerunSink(serve_memory=MIB), the MiB the server keeps")
     args = parser.parse_args()
+    if args.serve_memory is not None and (args.sinks != "rerun-serve" or args.serve_memory < 0):
+        parser.error("--serve-memory takes a whole number >= 0 and --sinks rerun-serve")
     if args.hz is not None and not (args.hz > 0 and args.sinks in ("rerun", "rerun-no-footer", "rerun-serve", "all")
                                     and not args.rerun_alone and args.endless is None):
         parser.error("--hz takes a number > 0 and the monitor's Rerun sink (--sinks rerun, rerun-no-footer, "
@@ -211,7 +218,7 @@ def main() -> None:
             points = endless(args.endless, args.sinks, out)
         else:
             points = (rerun_alone(args.episodes, out) if args.rerun_alone
-                      else monitored(args.episodes, args.sinks, out, args.hz))
+                      else monitored(args.episodes, args.sinks, out, args.hz, args.serve_memory))
     (first_steps, first_rss), (last_steps, last_rss) = points[0], points[-1]
     what = "a bare Rerun stream" if args.rerun_alone else f"sinks {args.sinks}" + (
         ", one endless episode" if args.endless is not None else "")

@@ -95,6 +95,8 @@ CASES = [
     ("run-split-mb-0", [*RUN, "--mcap", "{d}/x.mcap", "--mcap-split-mb", "0"], {}, ["--mcap-split-mb", "0"]),
     ("run-split-without-mcap", [*RUN, "--mcap-split-episodes", "10"], {}, ["--mcap-split-episodes", "give --mcap"]),
     ("run-no-footer-without-rrd", [*RUN, "--rrd-no-footer"], {}, ["--rrd-no-footer", "give --rrd too"]),
+    ("run-serve-memory-without-serve", [*RUN, "--serve-memory", "64"], {}, ["--serve-memory", "give --serve too"]),
+    ("run-serve-memory-negative", [*RUN, "--serve", "--serve-memory", "-1"], {}, ["--serve-memory", "-1"]),
     ("run-render-pong", ["run", "--task", "pong", "--method", "ensemble", "--render"], {}, ["--render", "pong"]),
     ("run-port-0", [*RUN, "--port", "0"], {}, ["--port", "0"]),
     ("run-port-too-big", [*RUN, "--port", "70000"], {}, ["--port", "70000"]),

@@ -43,7 +43,8 @@ from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.sinks.base import check_existing, claim_file
 
 __all__ = ["END_FLUSH_SECONDS", "FILE_CHECK_SECONDS", "FILE_FLUSH_SECONDS", "FLUSH_EVERY", "FLUSH_SECONDS",
-           "FOOTER_WARN_CHUNKS", "FooterMemoryWarning", "RerunSink", "default_blueprint", "viewer_command"]
+           "FOOTER_WARN_CHUNKS", "SERVE_MEMORY_MIB", "FooterMemoryWarning", "RerunSink", "default_blueprint",
+           "viewer_command"]
 
 #: Steps buffered at most before the sink sends them, a column (a chunk) per series. Each chunk is an
 #: entry of the footer's index in memory: at 200, the value until 2026-12-07, a run at full speed grew
@@ -70,6 +71,10 @@ END_FLUSH_SECONDS = 0.1
 #: How often (seconds) the sink looks whether the file grows as it sends steps: Rerun writes it from
 #: a thread of its own, and a writer that failed (a full disk) showed only when the run ended.
 FILE_CHECK_SECONDS = 10.0
+
+#: MiB of a served stream (``serve``) that Rerun's server keeps for viewers that connect later, by
+#: default (``RerunSink(serve_memory=)``, ``oodmon run --serve-memory``).
+SERVE_MEMORY_MIB = 512
 
 #: Chunks sent to a file with a footer after which the sink warns, once, of the memory its index
 #: holds (60-130 MB at 0.6-1.3 KB a chunk): some 50,000 CartPole episodes of 500 steps played at
@@ -133,9 +138,9 @@ class RerunSink:
         spawn: start a Rerun viewer listening on ``bind``:``port`` and stream to it (needs a display and
             the ``rerun`` binary; a viewer already listening there takes the stream instead).
         serve: serve the stream over gRPC for a viewer to connect to, on ``bind``:``port``; the
-            server keeps up to 512 MiB of it for viewers that connect later (some 630 MB of the
-            process, reached after 3-5 million CartPole steps; docs/monitor.md, "Memory over a
-            long run").
+            server keeps up to ``serve_memory`` MiB of it for viewers that connect later (at the
+            default 512, some 630 MB of the process, reached after 3-5 million CartPole steps;
+            docs/monitor.md, "Memory over a long run"), the earliest dropped beyond.
         connect: stream to a viewer listening at this URL.
         bind: the address a served stream, or a spawned viewer, listens on; ``127.0.0.1`` (the
             default) keeps it on this machine, ``0.0.0.0`` opens it to the network on purpose.
@@ -146,6 +151,9 @@ class RerunSink:
         overwrite: replace a file already at ``path``; without it that file (the log of an earlier
             run) is refused with :class:`~oodmon.errors.ConfigError` when the sink is made. A file
             there that is no Rerun recording is refused either way.
+        serve_memory: MiB of the served stream its server keeps for viewers that connect later
+            (Rerun's ``server_memory_limit``; default :data:`SERVE_MEMORY_MIB`); 0 keeps none: a
+            viewer then sees the steps from when it connects.
         footer: end the file with Rerun's footer (the default), whose index of chunks Rerun keeps
             in memory until the run ends (see above; a :class:`FooterMemoryWarning` once past
             :data:`FOOTER_WARN_CHUNKS` chunks); ``False`` for a long run: no footer, memory flat.
@@ -160,12 +168,17 @@ class RerunSink:
     def __init__(self, path: str | Path | None = None, *, spawn: bool = False, serve: bool = False,
                  connect: str | None = None, bind: str = "127.0.0.1", port: int = 9876,
                  recording_id: str | None = None, flush_timeout: float = 2.0, connect_timeout: float = 0.5,
-                 overwrite: bool = False, footer: bool = True) -> None:
-        if not isinstance(footer, bool):
-            from oodmon.errors import InvalidParameterError
+                 overwrite: bool = False, footer: bool = True, serve_memory: int = SERVE_MEMORY_MIB) -> None:
+        from oodmon.errors import InvalidParameterError
+        from oodmon.validation import is_whole
 
+        if not isinstance(footer, bool):
             raise InvalidParameterError(f"footer={footer!r} is not allowed; give True (Rerun's footer, the default) "
                                         "or False (none: a long run's memory stays flat)")
+        if not is_whole(serve_memory, 0):
+            raise InvalidParameterError(f"serve_memory={serve_memory!r} is not allowed; give the MiB a served stream "
+                                        "keeps for viewers that connect later, a whole number >= 0 (0: none)")
+        self.serve_memory = int(serve_memory)
         self.path = Path(path) if path is not None else None
         self.overwrite, self.footer = overwrite, footer
         self._check_existing()
@@ -225,7 +238,8 @@ class RerunSink:
             self._streams.append(self._stream(run, [rr.FileSink(str(self.path), write_footer=self.footer)]))
             self._outboxes.append(_Outbox([self._streams[-1]], file=True))
         if self.serve:
-            server = rr.GrpcServerSink(bind_ip=self.bind, port=self.port, server_memory_limit="512MiB")
+            server = rr.GrpcServerSink(bind_ip=self.bind, port=self.port,
+                                       server_memory_limit=f"{self.serve_memory}MiB")
             self.served_at = server.uri
             self._streams.append(self._stream(run, [server]))
             live.append(self._streams[-1])
