@@ -123,11 +123,9 @@ def test_alarms_are_foxglove_logs(agent, tmp_path):
 
 
 def test_rrd_holds_the_scalars(agent, tmp_path):
-    import rerun.chunk as rc
-
     memory = MemorySink()
     _run(agent, [memory, RerunSink(tmp_path / "run.rrd")], episodes=2)
-    frame = rc.RrdReader(tmp_path / "run.rrd").stream().collect().reader("step").to_pandas()
+    frame = _rrd_table(tmp_path / "run.rrd")
     scores = frame[["step", "/score:Scalars:scalars"]].dropna()
     assert len(scores) == len(memory.steps)
     np.testing.assert_allclose([v[0] for v in scores["/score:Scalars:scalars"]], [s.score for s in memory.steps], rtol=1e-6)
@@ -147,6 +145,23 @@ def test_rrd_holds_the_scalars(agent, tmp_path):
     assert "versions: " in run and "torch" in run and "command: " in run
 
 
+def _rrd_table(path):
+    """A Rerun file's rows by the run's step, a pandas frame (one column per entity and component)."""
+    import rerun.chunk as rc
+
+    return rc.RrdReader(path).stream().collect().reader("step").to_pandas()
+
+
+def _sent_by_steps_alone(monkeypatch) -> None:
+    """The Rerun sink sends every 200 steps and never by the clock (its default: every 2,000 steps,
+    the file every 10 s, and at an episode's end a tenth of a second after the last send)."""
+    import oodmon.monitor.sinks.rerun as rerun_sink
+
+    monkeypatch.setattr(rerun_sink, "FLUSH_EVERY", 200)
+    monkeypatch.setattr(rerun_sink, "FILE_FLUSH_SECONDS", 3600.0)
+    monkeypatch.setattr(rerun_sink, "END_FLUSH_SECONDS", 3600.0)
+
+
 def _verify(path, *flags):
     """``rerun rrd verify [flags] path``: its exit code and what it said."""
     rerun = os.path.join(os.path.dirname(sys.executable), "rerun")
@@ -164,8 +179,6 @@ def test_an_rrd_without_a_footer_holds_every_step_and_reads_as_a_killed_runs(age
     """``footer=False`` (a long run: Rerun keeps the footer's index of chunks in memory until the
     end, scripts/monitor_memory.py): the file has no footer, which Rerun's check says, and every
     step is in it all the same."""
-    import rerun.chunk as rc
-
     memory = MemorySink()
     _run(agent, [memory, RerunSink(tmp_path / "long.rrd", footer=False)], episodes=2)
     code, said = _verify(tmp_path / "long.rrd")
@@ -173,7 +186,7 @@ def test_an_rrd_without_a_footer_holds_every_step_and_reads_as_a_killed_runs(age
     code, said = _verify(tmp_path / "long.rrd", "--check-footers", "false")
     assert code == 0 and "verified without error" in said
     with pytest.warns(match="RRD file has no footer"):  # Rerun's reader says so, and streams it whole
-        frame = rc.RrdReader(tmp_path / "long.rrd").stream().collect().reader("step").to_pandas()
+        frame = _rrd_table(tmp_path / "long.rrd")
     scores = [v[0] for v in frame["/score:Scalars:scalars"].dropna()]
     np.testing.assert_allclose(scores, [s.score for s in memory.steps], rtol=1e-6)
     assert len(frame["/episode/return:Scalars:scalars"].dropna()) == 2
@@ -185,9 +198,7 @@ def test_a_file_with_a_footer_warns_once_when_its_index_grows_large_and_one_with
     import oodmon.monitor.sinks.rerun as rerun_sink
 
     monkeypatch.setattr(rerun_sink, "FOOTER_WARN_CHUNKS", 5)  # a flush here sends 7 columns (7 series)
-    monkeypatch.setattr(rerun_sink, "FLUSH_EVERY", 200)  # (2,000 by default: these short runs send more often)
-    monkeypatch.setattr(rerun_sink, "FILE_FLUSH_SECONDS", 3600.0)  # flushed by the steps alone
-    monkeypatch.setattr(rerun_sink, "END_FLUSH_SECONDS", 3600.0)
+    _sent_by_steps_alone(monkeypatch)  # (these short runs: a send every 200 steps)
     for footer in (True, False):
         sink = RerunSink(tmp_path / f"footer-{footer}.rrd", footer=footer)
         with warnings.catch_warnings(record=True) as caught:
@@ -235,9 +246,7 @@ def test_a_slow_policys_steps_are_sent_within_a_flush_period_and_short_episodes_
         monitor.end_episode(interrupted=True)  # a slow policy's episode ends: it is whole in the viewer
         assert sink.chunks == 14 and sink._outboxes[0].records == []
     assert sink.chunks == 14  # nothing left to send at close
-    monkeypatch.setattr(rerun_sink, "FILE_FLUSH_SECONDS", 3600.0)
-    monkeypatch.setattr(rerun_sink, "END_FLUSH_SECONDS", 3600.0)
-    monkeypatch.setattr(rerun_sink, "FLUSH_EVERY", 200)
+    _sent_by_steps_alone(monkeypatch)
     short = RerunSink(tmp_path / "short.rrd")
     records = _run(agent, [short], episodes=6)  # some 450 steps: sent at 200, 400 and the close (and each end, before)
     assert short.chunks == 7 * -(-sum(r.length for r in records) // rerun_sink.FLUSH_EVERY) < 7 * len(records)
@@ -252,8 +261,6 @@ def test_a_file_is_sent_every_ten_seconds_and_a_served_stream_every_second_besid
     series each time, an entry each of the footer's index in memory (at 50 Hz, 525 MB a day against
     72 now: scripts/monitor_memory.py --hz 50)."""
     import types
-
-    import rerun.chunk as rc
 
     import oodmon.monitor.sinks.rerun as rerun_sink
 
@@ -285,7 +292,7 @@ def test_a_file_is_sent_every_ten_seconds_and_a_served_stream_every_second_besid
     # the close sent what was left: to the file 2 sends in all, to the served stream 19
     assert [sink.chunks for sink in sinks.values()] == [2 * 7, 19 * 7, 21 * 7] and sinks["both"]._file_chunks == 2 * 7
     for name in ("alone", "both"):
-        frame = rc.RrdReader(tmp_path / f"{name}.rrd").stream().collect().reader("step").to_pandas()
+        frame = _rrd_table(tmp_path / f"{name}.rrd")
         assert len(frame["/score:Scalars:scalars"].dropna()) == 600
 
 
@@ -467,7 +474,6 @@ def test_mcap_passes_rerun_mcap_check(agent, tmp_path):
 
 
 def test_pong_frames_reach_both_logs_as_the_agent_saw_them(tmp_path):
-    import rerun.chunk as rc
     from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
     from oodmon.agents.agent import Agent
@@ -485,7 +491,7 @@ def test_pong_frames_reach_both_logs_as_the_agent_saw_them(tmp_path):
         frames = [RawImage.FromString(msg.data) for _, _, msg in make_reader(f).iter_messages(topics=["/oodmon/frame"])]
     assert len(frames) == 6 and (frames[0].width, frames[0].height, frames[0].encoding) == (84, 84, "mono8")
     np.testing.assert_array_equal(np.frombuffer(frames[-1].data, np.uint8).reshape(84, 84), memory.steps[-1].frame)
-    table = rc.RrdReader(tmp_path / "p.rrd").stream().collect().reader("step").to_pandas()
+    table = _rrd_table(tmp_path / "p.rrd")
     assert table.filter(like="/frame").dropna(how="all").shape[0] == 6
 
 
@@ -687,9 +693,7 @@ def test_a_viewer_that_goes_away_mid_run_is_dropped_with_one_warning_and_the_fil
     after = len(memory.steps) - before
     assert sink._live is None and 0 < sink.dropped <= after  # dropped from the flush that failed on
     assert len(memory.episodes) == 6 and sum(e.length for e in memory.episodes) == len(memory.steps)
-    import rerun.chunk as rc
-
-    frame = rc.RrdReader(tmp_path / "kept.rrd").stream().collect().reader("step").to_pandas()
+    frame = _rrd_table(tmp_path / "kept.rrd")
     scores = frame["/score:Scalars:scalars"].dropna()  # every step in the file, the viewer gone or not
     np.testing.assert_allclose([v[0] for v in scores], [s.score for s in memory.steps], rtol=1e-6)
 

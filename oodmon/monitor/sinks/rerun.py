@@ -34,13 +34,16 @@ import os
 import sys
 import time
 import uuid
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
-from oodmon.monitor.sinks.base import check_existing, claim_file
+from oodmon.monitor.sinks.base import SinkWarning, check_existing, claim_file
+from oodmon.validation import is_whole
 
 __all__ = ["END_FLUSH_SECONDS", "FILE_CHECK_SECONDS", "FILE_FLUSH_SECONDS", "FLUSH_EVERY", "FLUSH_SECONDS",
            "FOOTER_WARN_CHUNKS", "SERVE_MEMORY_MIB", "FooterMemoryWarning", "RerunSink", "default_blueprint",
@@ -169,9 +172,6 @@ class RerunSink:
                  connect: str | None = None, bind: str = "127.0.0.1", port: int = 9876,
                  recording_id: str | None = None, flush_timeout: float = 2.0, connect_timeout: float = 0.5,
                  overwrite: bool = False, footer: bool = True, serve_memory: int = SERVE_MEMORY_MIB) -> None:
-        from oodmon.errors import InvalidParameterError
-        from oodmon.validation import is_whole
-
         if not isinstance(footer, bool):
             raise InvalidParameterError(f"footer={footer!r} is not allowed; give True (Rerun's footer, the default) "
                                         "or False (none: a long run's memory stays flat)")
@@ -187,8 +187,6 @@ class RerunSink:
         if serve and (taken := _cannot_listen(bind, port)) is not None:
             # Rerun's server fails on its own thread with a log line only, and the run went on serving
             # nothing (measured: the port of another listener; "serving the Rerun stream at ..." said).
-            from oodmon.errors import ConfigError
-
             raise ConfigError(f"cannot serve the Rerun stream on {bind}:{port} ({taken}): another oodmon run or a "
                               "Rerun viewer listening there? Choose another port (--port, RerunSink(port=...))")
         self.recording_id = recording_id or str(uuid.uuid4())
@@ -272,7 +270,6 @@ class RerunSink:
         import shutil
         import subprocess
         import tempfile
-        import time
 
         if _unreachable(url, 0.2) is None:
             return None
@@ -331,8 +328,6 @@ class RerunSink:
             return
         self._file_chunks += 1
         if self._file_chunks == FOOTER_WARN_CHUNKS and self.footer:
-            import warnings
-
             warnings.warn(f"{self.path}: Rerun keeps an index entry of each chunk of the file in memory to write its "
                           f"footer when the run ends: {self._file_chunks:,} chunks so far (0.6-1.3 KB each, measured "
                           "with rerun-sdk 0.41), and more as the run goes on. For a long run write the file without a "
@@ -570,10 +565,6 @@ def _unreachable(url: str, timeout: float) -> str | None:
 
 
 def _warn(message: str) -> None:
-    import warnings
-
-    from oodmon.monitor.sinks.base import SinkWarning
-
     warnings.warn(message, SinkWarning, stacklevel=4)
 
 
