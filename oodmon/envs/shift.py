@@ -129,7 +129,8 @@ def _target(owner: str, base: object, name: object) -> _Target:
     """
     match = _NAME.fullmatch(name) if isinstance(name, str) else None
     if match is None:
-        raise UnknownParameterError(f"{owner}: {name!r} is not an attribute name; {_SPEC_HELP}")
+        hint = _index_hint(name) if isinstance(name, str) else ""
+        raise UnknownParameterError(f"{owner}: {name!r} is not an attribute name; {_SPEC_HELP}{hint}")
     path, indices = match.group(1).split("."), tuple(int(i) for i in re.findall(r"\d+", match.group(2)))
     holder, walked = base, []
     for part in path[:-1]:
@@ -141,9 +142,17 @@ def _target(owner: str, base: object, name: object) -> _Target:
     if indices:
         if not isinstance(value, np.ndarray) or value.dtype.kind not in "fiu":
             raise UnknownParameterError(f"{owner}: {match.group(1)} is not a numeric array to index")
-        if len(indices) != value.ndim or any(i >= n for i, n in zip(indices, value.shape)):
-            raise UnknownParameterError(f"{owner}: {name} is outside {match.group(1)}, an array of shape "
-                                        f"{list(value.shape)}")
+        array, shape = match.group(1), list(value.shape)
+        if any(i >= n for i, n in zip(indices, value.shape)):
+            raise UnknownParameterError(f"{owner}: {name} is outside {array}, an array of shape {shape}")
+        if len(indices) > value.ndim:
+            raise UnknownParameterError(f"{owner}: {name} has {len(indices)} indices; {array}, an array of shape "
+                                        f"{shape}, takes {value.ndim}")
+        if len(indices) < value.ndim:
+            raise UnknownParameterError(
+                f"{owner}: {name} is a part of shape {list(value.shape[len(indices):])} of {array}, an array of shape "
+                f"{shape}: shift an element, an index for each axis, e.g. "
+                f"{name}{''.join('[0]' for _ in value.shape[len(indices):])}")
         return _Target(holder, last, indices)
     if isinstance(value, np.ndarray) and value.dtype.kind in "fiu" and value.size:
         raise UnknownParameterError(f"{owner}: {name} is an array of shape {list(value.shape)}: shift an element, "
@@ -477,6 +486,17 @@ def shifts_an_env(spec: str) -> bool:
     return spec.strip().partition(":")[0] not in TASKS
 
 
+def _index_hint(item: str) -> str:
+    """What a malformed item that indexes an array did wrong, if that is it: numpy's ``[0,0]``
+    (whose comma splits the spec) or an index from the end."""
+    name = item.partition("=")[0]
+    if "[" not in name and "]" not in name:
+        return ""
+    array = name.partition("[")[0].strip() or "NAME"
+    return (f"; an element of an array takes an index for each axis, each in brackets of its own and counted from 0 "
+            f"({array}[0][0] for an array of two axes, not {array}[0,0] nor {array}[-1])")
+
+
 def parse_env_shift(spec: str) -> EnvShift:
     """Parse ``ENV_ID:NAME=VALUE[,NAME=VALUE...]`` into an :class:`EnvShift` (the env is not made:
     its attributes are checked by :meth:`EnvShift.make`).
@@ -506,7 +526,7 @@ def parse_env_shift(spec: str) -> EnvShift:
         except ValueError:
             number = None
         if not equals or not (_NAME.fullmatch(name) or _TUPLE_FAULT.fullmatch(name)) or number is None:
-            raise SpecError(f"malformed shift {spec!r} at {item!r}: {_SPEC_HELP}")
+            raise SpecError(f"malformed shift {spec!r} at {item!r}: {_SPEC_HELP}{_index_hint(item)}")
         if name in params:
             raise SpecError(f"shift {spec!r} sets {name!r} twice")
         params[name] = number

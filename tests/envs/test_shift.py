@@ -61,6 +61,11 @@ def test_a_shift_names_itself_in_the_spec_the_logs_record_and_replay_reads_back(
     ("Acrobot-v1:LINK_MASS_2", SpecError, "expected ENV_ID:NAME=VALUE"),
     ("Acrobot-v1:LINK_MASS_2=heavy", SpecError, "at 'LINK_MASS_2=heavy'"),
     ("Acrobot-v1:2x=3", SpecError, "at '2x=3'"),
+    ("Reacher-v5:model.actuator_gear[0,0]=100", SpecError, (
+        r"at 'model.actuator_gear\[0'.*an index for each axis, each in brackets of its own and counted from 0 "
+        r"\(model.actuator_gear\[0\]\[0\] for an array of two axes, not model.actuator_gear\[0,0\] nor "
+        r"model.actuator_gear\[-1\]\)")),
+    ("Reacher-v5:model.actuator_gear[-1]=100", SpecError, r"\(model.actuator_gear\[0\]\[0\] for an array of two axes"),
     (":LINK_MASS_2=3", SpecError, "expected ENV_ID"),
     ("Acrobot-v1:a=1,a=2", SpecError, "sets 'a' twice"),
     ("Acrobot-v1::a=1", SpecError, "expected ENV_ID"),
@@ -70,8 +75,8 @@ def test_a_shift_names_itself_in_the_spec_the_logs_record_and_replay_reads_back(
     ("CartPole-v1:x_threshold=1.0,length=2.0", SpecError, r"mixes cartpole's physics \(length\).*\(x_threshold\), which "
      "a shift of CartPole-v1 sets: one spec cannot hold both"),
     ("cartpole:length=2.0", SpecError, "is a variant of oodmon's cartpole"),
-], ids=["no-assignment", "no-value", "not-a-number", "not-a-name", "no-env", "twice", "double-colon", "oodmon-env",
-        "oodmon-env-fault", "oodmon-env-mixed", "oodmon-spec"])
+], ids=["no-assignment", "no-value", "not-a-number", "not-a-name", "numpy-index", "index-from-the-end", "no-env",
+        "twice", "double-colon", "oodmon-env", "oodmon-env-fault", "oodmon-env-mixed", "oodmon-spec"])
 def test_a_malformed_shift_is_refused_saying_the_form(spec, error, words):
     with pytest.raises(error, match=words):
         parse_env_shift(spec)
@@ -115,6 +120,7 @@ class _Model:
 
     def __init__(self) -> None:
         self.body_mass = np.array([0.0, 1.0, 2.0])
+        self.geom_friction = np.ones((2, 3))  # an array of two axes
         self.opt = _Option()
 
 
@@ -159,13 +165,20 @@ def test_a_shift_sets_elements_of_arrays_through_attributes_as_mujocos_model_hol
 @pytest.mark.parametrize("name, words", [
     ("model.body_mass", r"model.body_mass is an array of shape \[3\]: shift an element, e.g. model.body_mass\[0\]"),
     ("model.body_mass[3]", r"model.body_mass\[3\] is outside model.body_mass, an array of shape \[3\]"),
-    ("model.body_mass[1][0]", r"outside model.body_mass, an array of shape \[3\]"),
+    ("model.body_mass[1][0]", r"model.body_mass\[1\]\[0\] has 2 indices; model.body_mass, an array of shape \[3\], "
+                              r"takes 1"),
+    ("model.geom_friction[1]", (r"model.geom_friction\[1\] is a part of shape \[3\] of model.geom_friction, an array "
+                                r"of shape \[2, 3\]: shift an element, an index for each axis, e.g. "
+                                r"model.geom_friction\[1\]\[0\]")),
+    ("model.geom_friction[0][3]", r"model.geom_friction\[0\]\[3\] is outside model.geom_friction, an array of shape "
+                                  r"\[2, 3\]"),
     ("model.opt.gravty[2]", "model.opt.gravty is not a numeric array to index"),
     ("modle.body_mass[1]", "no attribute 'modle' to shift through"),
     ("model.opt", (r"no numeric attribute 'model.opt' to shift; the numeric attributes of model: none; arrays \(shift "
                    r"an element, NAME\[i\]\): body_mass\[3\]")),
-    ("model.opt.gravity[-1]", "is not an attribute name"),
-], ids=["array-whole", "index-outside", "too-many-indices", "misspelt-array", "misspelt-path", "a-struct", "negative"])
+    ("model.opt.gravity[-1]", r"is not an attribute name.*counted from 0 \(model.opt.gravity\[0\]\[0\] for an array"),
+], ids=["array-whole", "index-outside", "too-many-indices", "a-row", "column-outside", "misspelt-array",
+        "misspelt-path", "a-struct", "negative"])
 def test_a_path_that_leads_to_no_number_is_refused_saying_what_is_there(name, words):
     with pytest.raises(UnknownParameterError, match=words):
         ShiftAttributes(_FallingBodies(), {name: 1.0})
