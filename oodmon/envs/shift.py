@@ -493,6 +493,8 @@ def _index_hint(item: str) -> str:
     if "[" not in name and "]" not in name:
         return ""
     array = name.partition("[")[0].strip() or "NAME"
+    if array.startswith("obs."):  # a sensor fault's reading: one index, in the flattened observation
+        return f"; a reading is counted from 0 in the flattened observation ({array}[0], not {array}[-1])"
     return (f"; an element of an array takes an index for each axis, each in brackets of its own and counted from 0 "
             f"({array}[0][0] for an array of two axes, not {array}[0,0] nor {array}[-1])")
 

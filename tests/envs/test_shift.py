@@ -66,6 +66,8 @@ def test_a_shift_names_itself_in_the_spec_the_logs_record_and_replay_reads_back(
         r"\(model.actuator_gear\[0\]\[0\] for an array of two axes, not model.actuator_gear\[0,0\] nor "
         r"model.actuator_gear\[-1\]\)")),
     ("Reacher-v5:model.actuator_gear[-1]=100", SpecError, r"\(model.actuator_gear\[0\]\[0\] for an array of two axes"),
+    ("Reacher-v5:obs.bias[-1]=1", SpecError,
+     r"a reading is counted from 0 in the flattened observation \(obs.bias\[0\], not obs.bias\[-1\]\)"),
     (":LINK_MASS_2=3", SpecError, "expected ENV_ID"),
     ("Acrobot-v1:a=1,a=2", SpecError, "sets 'a' twice"),
     ("Acrobot-v1::a=1", SpecError, "expected ENV_ID"),
@@ -75,8 +77,9 @@ def test_a_shift_names_itself_in_the_spec_the_logs_record_and_replay_reads_back(
     ("CartPole-v1:x_threshold=1.0,length=2.0", SpecError, r"mixes cartpole's physics \(length\).*\(x_threshold\), which "
      "a shift of CartPole-v1 sets: one spec cannot hold both"),
     ("cartpole:length=2.0", SpecError, "is a variant of oodmon's cartpole"),
-], ids=["no-assignment", "no-value", "not-a-number", "not-a-name", "numpy-index", "index-from-the-end", "no-env",
-        "twice", "double-colon", "oodmon-env", "oodmon-env-fault", "oodmon-env-mixed", "oodmon-spec"])
+], ids=["no-assignment", "no-value", "not-a-number", "not-a-name", "numpy-index", "index-from-the-end",
+        "reading-from-the-end", "no-env", "twice", "double-colon", "oodmon-env", "oodmon-env-fault", "oodmon-env-mixed",
+        "oodmon-spec"])
 def test_a_malformed_shift_is_refused_saying_the_form(spec, error, words):
     with pytest.raises(error, match=words):
         parse_env_shift(spec)
