@@ -246,6 +246,11 @@ def _check(args: argparse.Namespace) -> int:
               "world's, not the policy's or the code's", file=sys.stderr)
     within: list[str] = []
     falls = find_falls(metrics, baseline, args.tolerance, within=within)
+    if baseline["metrics"] and not {m.key for m in metrics} & set(baseline["metrics"]):
+        print(f"oodmon: note: none of {args.baseline}'s {len(baseline['metrics'])} rows is in these logs: theirs are "
+              f"of {_agents_of(m.key for m in metrics)}, the baseline's of {_agents_of(baseline['metrics'])} (a "
+              "baseline of other logs? `oodmon check LOGS --baseline FILE --update` writes one of these)",
+              file=sys.stderr)
     for line in within:
         print(f"within chance: {line}", file=sys.stderr)
     if falls:
@@ -256,6 +261,11 @@ def _check(args: argparse.Namespace) -> int:
     chance = f"; {len(within)} move(s) beyond the tolerance were within chance" if within else ""
     console.print(f"ok: {len(metrics)} rows at or above {args.baseline}{chance}{partial}")
     return 0
+
+
+def _agents_of(keys) -> str:
+    """The task/method of metric row keys (``CartPole-v1/sb3/CartPole-v1:length=2.0@combined``), each once."""
+    return ", ".join(sorted({"/".join(key.split("/")[:2]) for key in keys})) or "none"
 
 
 def _torn_note(logs) -> str:

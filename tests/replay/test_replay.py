@@ -222,6 +222,22 @@ def test_check_exit_codes_and_what_fell(tmp_path):
     assert missing.returncode == 2 and "does not exist" in missing.stderr
 
 
+def test_check_against_a_baseline_of_other_logs_says_whose_rows_each_holds(tmp_path):
+    """Logs of another agent or env than the baseline's printed a FELL line per row, "missing from
+    the logs", and nothing more (2026-12-07): a note now names the agents of each."""
+    baseline = tmp_path / "baseline.json"
+    assert _cli("check", str(DATA), "--baseline", str(baseline), "--update").returncode == 0
+    data = json.loads(baseline.read_text())
+    fell = _cli("check", str(DATA), "--baseline", str(baseline))
+    assert fell.returncode == 0 and "none of" not in fell.stderr
+    other = {key.replace("cartpole/ensemble/", "Reacher-v5/sb3/"): row for key, row in data["metrics"].items()}
+    baseline.write_text(json.dumps(dict(data, metrics=other)))
+    fell = _cli("check", str(DATA), "--baseline", str(baseline))
+    assert fell.returncode == 1 and fell.stderr.count("FELL Reacher-v5/sb3/") == 2
+    assert (f"oodmon: note: none of {baseline}'s 2 rows is in these logs: theirs are of cartpole/ensemble, the "
+            "baseline's of Reacher-v5/sb3 (a baseline of other logs?") in fell.stderr
+
+
 def test_check_over_a_torn_log_says_its_rows_were_read_in_part(tmp_path):
     """A regression check over a killed run's log compared its recovered episodes alone and printed
     FELL lines as if the agent had got worse; the summary now says a log was torn (2026-11-27)."""
