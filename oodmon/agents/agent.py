@@ -242,7 +242,9 @@ class Agent:
             return None
         task = self.task if self.env_id is None else task_of_env(self.env_id)  # oodmon's env of that task
         if task is None:
-            raise ConfigError(f"obs_noise is an option of oodmon's envs; {self.env_id} has no such option")
+            raise ConfigError(f"obs_noise (--obs-noise) is an option of oodmon's envs; {self.env_id} has no such "
+                              f"option: a noisy sensor of your own env is the sensor fault {self.env_id}:obs.noise=STD "
+                              "(--variant, --onset 0), whose episodes count as shifted ones")
         if task not in PHYSICS_DEFAULTS:
             raise ConfigError(f"obs_noise (--obs-noise) is sensor noise of oodmon's {' and '.join(PHYSICS_DEFAULTS)} "
                               f"envs; {task} has none: its variants corrupt the frames instead "

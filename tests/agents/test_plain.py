@@ -444,6 +444,14 @@ def test_a_plain_policy_gets_the_text_of_its_dict_observations_and_the_detectors
         dict_space_of(gymnasium.make("plain_tests/MissionCartPole-v0").observation_space, "x")
 
 
+def test_sensor_noise_in_every_episode_of_an_env_oodmon_has_no_variants_of_is_refused_pointing_to_the_fault():
+    agent = plain_agent(lambda obs: 0, "Acrobot-v1")
+    assert agent.check_noise(0.0) is None
+    words = r"Acrobot-v1 has no such option: a noisy sensor of your own env is the sensor fault Acrobot-v1:obs.noise"
+    with pytest.raises(ConfigError, match=words + r"=STD \(--variant, --onset 0\)"):
+        agent.check_noise(0.01)
+
+
 def test_another_env_of_the_same_spaces_is_the_policys_shifted_world_from_its_reset(tmp_path, monkeypatch, capsys):
     """Trained in one env, deployed in another registered one (MiniGrid's DistShift1 and DistShift2;
     here a CartPole and one whose pole is twice as long, each an id of its own): `run --variant
