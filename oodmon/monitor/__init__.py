@@ -34,6 +34,7 @@ __all__ = [
     "AlarmEvent",
     "AlarmTracker",
     "EpisodeRecord",
+    "ExplorationWarning",
     "FooterMemoryWarning",
     "LongerThanCalibrationWarning",
     "McapSink",
@@ -82,6 +83,7 @@ _LAZY = {
     "Validation": "oodmon.monitor.calibration",
     "validate_threshold": "oodmon.monitor.calibration",
     "MonitorCallback": "oodmon.monitor.sb3_callback",
+    "ExplorationWarning": "oodmon.monitor.sb3_callback",
 }
 
 

@@ -10,6 +10,18 @@ stdout, whichever the model has):
 - ``oodmon/alarm_share``: the share of those steps where the alarm rule held;
 - ``oodmon/alarms``: alarms raised so far; ``oodmon/threshold``.
 
+**Exploration reads as a shift.** The detectors were fitted on the deployed policy's own actions
+(its deterministic ones, as ``predict(obs, deterministic=True)`` gives them), and a model that
+learns explores: a DQN's random actions, a PPO's or SAC's sampled ones. The dynamics model, which
+never saw another action in those states, is surprised by their outcomes, so a training run's alarms
+are mostly its exploration, not a shift of the world (``scripts/exploration_alarms.py``, 2026-12-07,
+with the deployed policy's detectors and threshold: a DQN on CartPole-v1 taking a random action at
+5% of its steps alarmed in 5 of 20 ID episodes, a PPO so in 20 of 20 and with its sampled actions in
+20 of 20, a SAC's sampled actions on Reacher-v5 in 10 of 10; each deterministic in none). The
+callback compares the first :data:`EXPLORATION_CHECKED` training steps' actions with the model's
+deterministic one at the same observation and, where some differ, says how many
+(:class:`ExplorationWarning`), once.
+
 The monitor's sinks (MCAP, Rerun) log every step as in any run. For evaluation rollouts, wrap the
 evaluation env instead: ``evaluate_policy(model, MonitoredEnv(env, monitor))`` or
 ``EvalCallback(MonitoredEnv(env, monitor))``; the wrapper takes SB3's actions as the deployed
@@ -26,6 +38,7 @@ Example::
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import gymnasium
@@ -35,7 +48,16 @@ from stable_baselines3.common.callbacks import BaseCallback
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, task_of_env, variant_of_env
 from oodmon.monitor.monitor import Monitor, _frame
 
-__all__ = ["MonitorCallback"]
+__all__ = ["EXPLORATION_CHECKED", "ExplorationWarning", "MonitorCallback"]
+
+#: The first training steps whose action the callback compares with the model's deterministic one.
+EXPLORATION_CHECKED = 100
+
+
+class ExplorationWarning(UserWarning):
+    """:class:`MonitorCallback`: some of the first training steps took another action than the
+    model's deterministic one (exploration), which the detectors, fitted on the deployed policy's
+    own actions, read as a shift. Warned once per callback."""
 
 
 class MonitorCallback(BaseCallback):
@@ -46,6 +68,8 @@ class MonitorCallback(BaseCallback):
         super().__init__(verbose)
         self.monitor = monitor
         self._obs: np.ndarray | None = None  # the first env's raw observation the model acts on next
+        self._model_obs: Any = None  # that observation as the model reads it (normalised, channels first)
+        self._checked = self._explored = 0  # training steps compared with the deterministic action, and differing
 
     @property
     def alarms(self) -> int:
@@ -83,16 +107,20 @@ class MonitorCallback(BaseCallback):
         # Not the model's _last_original_obs: DQN, SAC and TD3 hold there the observation of the step
         # before (without VecNormalize), PPO and A2C the one learn() began with (with it).
         self._obs = self._raw(self.model._last_obs)
+        self._model_obs = _first(self.model._last_obs)
 
     def _on_step(self) -> bool:
         monitor = self.monitor
         if not monitor.in_episode:
             env_id, variant, obs_noise = self._variant()
             monitor.begin_episode(env_id=env_id, variant=variant, obs_noise=obs_noise)
-        obs = self._obs
+        obs, model_obs = self._obs, self._model_obs
         self._obs = self._raw(self.locals["new_obs"])  # after an episode's end, the next one's first
+        self._model_obs = _first(self.locals["new_obs"])
         actions = self.locals.get("clipped_actions", self.locals["actions"])  # what the env got (PPO clips)
         action = actions[0]
+        if self._checked < EXPLORATION_CHECKED:
+            self._check_exploration(model_obs, action)
         action = int(action) if np.ndim(action) == 0 else np.asarray(action)
         monitor.step(obs, action=action, frame=_frame(obs))
         record = monitor.last_step
@@ -112,6 +140,41 @@ class MonitorCallback(BaseCallback):
     def _on_training_end(self) -> None:
         if self.monitor.in_episode and not self.monitor.abandon_empty_episode():
             self.monitor.end_episode(interrupted=True)  # cut by the end of learn(): not a whole episode
+        if 0 < self._checked < EXPLORATION_CHECKED:  # a learn() shorter than the steps checked
+            self._warn_exploration()
+
+    def _check_exploration(self, model_obs: Any, action: Any) -> None:
+        """Compare a training step's action with the model's deterministic one at its observation;
+        after :data:`EXPLORATION_CHECKED` steps, warn if some differed. A recurrent policy (whose
+        action needs its memory of the episode) is not compared."""
+        if "lstm_states" in self.locals:
+            self._checked = EXPLORATION_CHECKED
+            return
+        masks = self.locals.get("action_masks")  # a MaskablePPO's: its deterministic action among the allowed
+        masked = {} if masks is None else {"action_masks": masks[0]}
+        deployed, _ = self.model.predict(model_obs, deterministic=True, **masked)
+        self._checked += 1
+        self._explored += not np.allclose(np.asarray(deployed, np.float64), np.asarray(action, np.float64),
+                                          rtol=1e-5, atol=1e-6)
+        if self._checked == EXPLORATION_CHECKED:
+            self._warn_exploration()
+
+    def _warn_exploration(self) -> None:
+        if self._explored:
+            warnings.warn(ExplorationWarning(
+                f"{self._explored} of the first {self._checked} training steps took another action than the model's "
+                "deterministic one (its exploration): the detectors, fitted on the deployed policy's own actions, "
+                "read such steps as a shift, so alarms while it learns are mostly its exploration (a PPO's sampled "
+                "actions on CartPole-v1 alarmed 20 of 20 episodes, its deterministic ones none); the deployed "
+                "policy's alarms are those of oodmon run, or of evaluate_policy(model, MonitoredEnv(...))"),
+                stacklevel=2)
+
+
+def _first(observations: Any) -> Any:
+    """The first env's observation of a vector env's batch (a dict's, key by key), as the model reads it."""
+    if isinstance(observations, dict):
+        return {key: value[0] for key, value in observations.items()}
+    return observations[0]
 
 
 def _as_the_env_gave_it(value: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

@@ -590,12 +590,55 @@ def _learn_monitored(model, env_id: str, steps: int) -> list:
     from oodmon.monitor.sb3_callback import MonitorCallback
 
     env = gymnasium.wrappers.FlattenObservation(gymnasium.make(env_id))
-    env.action_space.seed(0)
-    detectors = fit_detectors(lambda obs: int(env.action_space.sample()), env, detectors=["dynamics"], episodes=3)
+    space = env.action_space
+    space.seed(0)
+    discrete = isinstance(space, gymnasium.spaces.Discrete)
+    act = (lambda obs: int(space.sample())) if discrete else lambda obs: space.sample()
+    detectors = fit_detectors(act, env, detectors=["dynamics"], episodes=3)
     sink = MemorySink()
     with Monitor(None, 2.0, detectors=detectors, detector="dynamics", sinks=[sink]) as monitor:
         model.learn(steps, callback=MonitorCallback(monitor))
     return sink.steps
+
+
+@pytest.mark.parametrize("algorithm, normalized, explored", [
+    ("PPO", False, 100),  # samples every action while it learns
+    ("TD3", False, 0),  # no action noise, past learning_starts: its actions are the deployed ones
+    ("TD3", True, 0),  # so too read through VecNormalize (the observation compared is the one acted on)
+], ids=["PPO", "TD3", "TD3-VecNormalize"])
+def test_the_callback_says_how_many_training_steps_explored_and_leaves_learning_as_it_was(
+        algorithm, normalized, explored, monkeypatch):
+    """The detectors, fitted on the deployed policy's own actions, read exploration as a shift: a
+    training run's alarms were mostly its exploration, unsaid (2026-12-07). The check asks the model
+    for its deterministic action, which draws nothing: the model learns the same weights."""
+    import warnings
+
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from oodmon.monitor import ExplorationWarning, sb3_callback
+
+    def learned(checked: int) -> tuple[list[str], list[torch.Tensor]]:
+        monkeypatch.setattr(sb3_callback, "EXPLORATION_CHECKED", checked)
+        venv = DummyVecEnv([lambda: gymnasium.make("Pendulum-v1")])
+        venv = VecNormalize(venv) if normalized else venv
+        kwargs = {"seed": 0, "policy_kwargs": {"net_arch": [16]}}
+        model = (PPO("MlpPolicy", venv, n_steps=64, batch_size=32, n_epochs=1, **kwargs) if algorithm == "PPO"
+                 else TD3("MlpPolicy", venv, learning_starts=0, train_freq=25, gradient_steps=1, **kwargs))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            assert len(_learn_monitored(model, "Pendulum-v1", 150)) >= 150  # (a PPO's rollouts of 64 steps: 192)
+        return ([str(w.message) for w in caught if issubclass(w.category, ExplorationWarning)],
+                [p.detach().clone() for p in model.policy.parameters()])
+
+    said, weights = learned(checked=100)
+    if explored:
+        assert len(said) == 1 and said[0].startswith(f"{explored} of the first 100 training steps took another action "
+                                                     "than the model's deterministic one (its exploration)")
+    else:
+        assert said == []
+    unchecked, same = learned(checked=0)
+    assert unchecked == [] and all(torch.equal(a, b) for a, b in zip(weights, same))
 
 
 def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monkeypatch, capsys):
