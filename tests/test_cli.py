@@ -647,6 +647,9 @@ def test_fit_detectors_writes_a_set_that_calibrate_and_run_read(tmp_path, capsys
     assert main(["calibrate", *common, "--detectors", str(tmp_path / "det"), "--detector", "dynamics", "--episodes", "10",
                  "--far", "0.2", "--confidence", "none", "--out", str(threshold)]) == 0
     assert json.loads(threshold.read_text())["detector"] == "dynamics" and not (tmp_path / "thr.json.detectors").exists()
+    det = tmp_path / "det"  # (run and validate look beside the threshold, not there: said)
+    assert (f"; it reads the detectors in {det}: give `oodmon validate` and `oodmon run` --detectors {det} too\n"
+            in capsys.readouterr().out)
     assert main(["run", *common, "--detectors", str(tmp_path / "det"), "--threshold", str(threshold), "--variant",
                  "pendulum:m=5.0", "--onset", "50", "--episodes", "2", "--mcap", str(tmp_path / "x.mcap")]) == 0
     capsys.readouterr()

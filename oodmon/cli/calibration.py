@@ -208,6 +208,8 @@ def _calibrate(args: argparse.Namespace) -> int:
            f"fitting them, give --detectors {fitted_to})" if fitted_to else "")
         + (f"; removed the detectors an earlier calibration fitted into {cleared} (`oodmon run` would read them "
            "before those this threshold was calibrated with)" if cleared else "")
+        + (f"; it reads the detectors in {args.detectors}: give `oodmon validate` and `oodmon run` --detectors "
+           f"{args.detectors} too" if _read_elsewhere(args) else "")
     )
     if fitted_to:
         for note in fitting_notes(detectors):
@@ -240,6 +242,12 @@ def _side_by_side(played_by: int | None) -> str:
     """The words ' played by N processes side by side' where more than one played the episodes (an
     MC agent's draws are then not one process's), else nothing."""
     return f" played by {played_by} processes side by side" if played_by and played_by > 1 else ""
+
+
+def _read_elsewhere(args: argparse.Namespace) -> bool:
+    """Whether calibrate read fitted detectors (``--detectors``) from another folder than the one
+    beside its threshold (``<--out>.detectors``), where validate and run do not look."""
+    return bool(args.detectors) and Path(args.detectors).resolve() != Path(f"{args.out}.detectors").resolve()
 
 
 def _clear_earlier_detectors(out: str, given: str | None) -> Path | None:
