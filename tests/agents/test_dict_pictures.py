@@ -156,6 +156,7 @@ def test_pictures_alone_or_an_ensemble_of_cnns_are_refused_with_what_to_do(model
         load_sb3([model_path], ENV_ID, masks="fixed")
 
 
+@pytest.mark.filterwarnings("ignore::oodmon.monitor.sb3_callback.ExplorationWarning")  # (test_sb3_models.py tests it)
 def test_the_training_callback_logs_the_pictures_as_the_env_gave_them():
     """Inside ``model.learn``, SB3 hands the callback pictures with their channels first; the
     monitor's agent knows the env's dicts, and the log keeps each picture as the env gave it."""

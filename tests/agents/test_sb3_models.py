@@ -521,6 +521,7 @@ def test_watch_reads_one_dropout_models_fixed_sub_networks_when_asked(tmp_path):
         oodmon.watch(sb3_agent([model], "CartPole-v1"), masks="fixed")
 
 
+@pytest.mark.filterwarnings("ignore::oodmon.monitor.sb3_callback.ExplorationWarning")  # (its own test below)
 def test_the_callback_scores_training_rollouts_and_writes_tensorboard(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -553,6 +554,7 @@ def test_the_callback_scores_training_rollouts_and_writes_tensorboard(tmp_path):
     assert events.Scalars("oodmon/alarms")[-1].value <= monitor.alarms_raised
 
 
+@pytest.mark.filterwarnings("ignore::oodmon.monitor.sb3_callback.ExplorationWarning")  # (its own test below)
 @pytest.mark.parametrize("algorithm", ["DQN", "PPO"])
 @pytest.mark.parametrize("normalized", [False, True], ids=["raw", "VecNormalize"])
 def test_the_callback_scores_the_observation_each_action_was_taken_on(algorithm, normalized):
@@ -572,6 +574,7 @@ def test_the_callback_scores_the_observation_each_action_was_taken_on(algorithm,
     assert np.allclose(logged, np.array(acted), atol=1e-6)
 
 
+@pytest.mark.filterwarnings("ignore::oodmon.monitor.sb3_callback.ExplorationWarning")  # (its own test below)
 def test_the_callback_scores_a_dict_observation_flattened_in_its_keys_order():
     acted: list = []
     venv = DummyVecEnv([lambda: ActedOn(gymnasium.make("HalvesCartPole-v1"), acted)])
