@@ -527,8 +527,10 @@ def parse_env_shift(spec: str) -> EnvShift:
             number = float(value)
         except ValueError:
             number = None
-        if not equals or not (_NAME.fullmatch(name) or _TUPLE_FAULT.fullmatch(name)) or number is None:
-            raise SpecError(f"malformed shift {spec!r} at {item!r}: {_SPEC_HELP}{_index_hint(item)}")
+        named = bool(_NAME.fullmatch(name) or _TUPLE_FAULT.fullmatch(name))
+        if not equals or not named or number is None:
+            hint = "" if named else _index_hint(item)  # (a name of the form, its value not a number: no hint)
+            raise SpecError(f"malformed shift {spec!r} at {item!r}: {_SPEC_HELP}{hint}")
         if name in params:
             raise SpecError(f"shift {spec!r} sets {name!r} twice")
         params[name] = number

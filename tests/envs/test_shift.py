@@ -60,6 +60,7 @@ def test_a_shift_names_itself_in_the_spec_the_logs_record_and_replay_reads_back(
     ("Acrobot-v1", SpecError, "expected ENV_ID:NAME=VALUE"),
     ("Acrobot-v1:LINK_MASS_2", SpecError, "expected ENV_ID:NAME=VALUE"),
     ("Acrobot-v1:LINK_MASS_2=heavy", SpecError, "at 'LINK_MASS_2=heavy'"),
+    ("Reacher-v5:model.body_mass[1]=heavy", SpecError, r"at 'model.body_mass\[1\]=heavy': expected [^;]*$"),
     ("Acrobot-v1:2x=3", SpecError, "at '2x=3'"),
     ("Reacher-v5:model.actuator_gear[0,0]=100", SpecError, (
         r"at 'model.actuator_gear\[0'.*an index for each axis, each in brackets of its own and counted from 0 "
@@ -77,9 +78,9 @@ def test_a_shift_names_itself_in_the_spec_the_logs_record_and_replay_reads_back(
     ("CartPole-v1:x_threshold=1.0,length=2.0", SpecError, r"mixes cartpole's physics \(length\).*\(x_threshold\), which "
      "a shift of CartPole-v1 sets: one spec cannot hold both"),
     ("cartpole:length=2.0", SpecError, "is a variant of oodmon's cartpole"),
-], ids=["no-assignment", "no-value", "not-a-number", "not-a-name", "numpy-index", "index-from-the-end",
-        "reading-from-the-end", "no-env", "twice", "double-colon", "oodmon-env", "oodmon-env-fault", "oodmon-env-mixed",
-        "oodmon-spec"])
+], ids=["no-assignment", "no-value", "not-a-number", "element-not-a-number", "not-a-name", "numpy-index",
+        "index-from-the-end", "reading-from-the-end", "no-env", "twice", "double-colon", "oodmon-env", "oodmon-env-fault",
+        "oodmon-env-mixed", "oodmon-spec"])
 def test_a_malformed_shift_is_refused_saying_the_form(spec, error, words):
     with pytest.raises(error, match=words):
         parse_env_shift(spec)
