@@ -79,8 +79,8 @@ def test_a_shift_names_itself_in_the_spec_the_logs_record_and_replay_reads_back(
      "a shift of CartPole-v1 sets: one spec cannot hold both"),
     ("cartpole:length=2.0", SpecError, "is a variant of oodmon's cartpole"),
 ], ids=["no-assignment", "no-value", "not-a-number", "element-not-a-number", "not-a-name", "numpy-index",
-        "index-from-the-end", "reading-from-the-end", "no-env", "twice", "double-colon", "oodmon-env", "oodmon-env-fault",
-        "oodmon-env-mixed", "oodmon-spec"])
+        "index-from-the-end", "reading-from-the-end", "no-env", "twice", "double-colon", "oodmon-env",
+        "oodmon-env-fault", "oodmon-env-mixed", "oodmon-spec"])
 def test_a_malformed_shift_is_refused_saying_the_form(spec, error, words):
     with pytest.raises(error, match=words):
         parse_env_shift(spec)
