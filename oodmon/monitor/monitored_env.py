@@ -4,7 +4,11 @@ an env is one the monitored policy can act in.
 ``MonitoredEnv(env, monitor)`` is a gymnasium wrapper: ``step()`` without an action lets the
 monitored policy act, ``step(action)`` takes yours, and every step's ``info["oodmon"]`` says what
 the monitor made of it. Use it where a loop expects an env (SB3's ``evaluate_policy``, a vector env
-of them, a Monitor each).
+of them, a Monitor each). Actions you give are the deployed ones, which the detectors learned: an
+SB3 model's ``predict(obs, deterministic=True)`` (``evaluate_policy``'s default; ``predict``'s own
+default samples, and a policy's sampled or random actions lead where the dynamics model never saw
+its actions lead: a PPO on CartPole-v1 stepped with its sampled actions alarmed in 20 of 20 ID
+episodes, ``scripts/exploration_alarms.py``).
 """
 
 from __future__ import annotations
