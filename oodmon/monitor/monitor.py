@@ -226,7 +226,8 @@ class Monitor:
                                                   aliases=self._aliases,
                                                   masks=getattr(self.estimator, "masks", None),
                                                   samples=getattr(self.estimator, "n_samples", None))
-            self._refuse_or_warn("the threshold", differences + self._in_memory_note(threshold.policy_hash), force)
+            notes = self._in_memory_note(threshold.policy_hash) + self._models_note(threshold)
+            self._refuse_or_warn("the threshold", differences + notes, force)
             score, consecutive, value = threshold.score, threshold.consecutive, threshold.value
             window, detector = threshold.window, threshold.detector
             rule, reference, warmup = threshold.rule, threshold.reference_scores(), threshold.warmup
@@ -322,6 +323,22 @@ class Monitor:
             return []
         return ["if it was made from these models' files before 2026-12-04, it recorded the files' bytes, which "
                 "models in memory do not have: give the files (oodmon.watch(['model.zip', ...]), load_sb3)"]
+
+    def _models_note(self, threshold: Threshold) -> list[str]:
+        """What to add where a threshold calibrated on SB3 model files is refused for other weights:
+        which files it was calibrated on, and, where these are the same files, that their order differs
+        (the first model acts; the policy's hash counts the order)."""
+        if not threshold.models or not other_weights(threshold.policy_hash, self.policy_hash, self._aliases):
+            return []
+        recorded = [model["sha256"] for model in threshold.models]
+        given = [model.get("sha256") for model in (self.agent.metadata.get("models") or [])] if self.agent else []
+        files = " ".join(shlex.quote(model["path"]) for model in threshold.models)
+        if given != recorded and sorted(map(str, given)) == sorted(recorded):
+            return [f"these are its model files in another order (the first acts): give them in its order, --sb3 "
+                    f"{files}"]
+        if given == recorded:  # the same files: what differs is beside them (VecNormalize statistics)
+            return []
+        return [f"it was calibrated on {len(recorded)} model file{'s' if len(recorded) > 1 else ''}: --sb3 {files}"]
 
     def _refuse_or_warn(self, what: str, differences: list[str], force: bool, *, plural: bool = False) -> None:
         """Refuse ``what`` (the threshold; the fitted detectors, ``plural``) made for another policy, or

@@ -682,6 +682,10 @@ class Threshold:
         logs: the logs whose ID episodes it was calibrated on (``oodmon recalibrate``,
             :func:`oodmon.replay.calibrate_from_logs`), each ``{"path", "run_id", "episodes"}``;
             ``None``: calibrated on episodes it played.
+        models: the SB3 model files of the policy it was calibrated on, in their order (the first
+            acts), each ``{"path", "sha256"}`` (the file's bytes): where other models are refused,
+            the monitor says which these were (the same in another order, some of them).
+            ``None``: not models from files, or not recorded (files written before 2026-12-07).
     """
 
     value: float
@@ -711,6 +715,7 @@ class Threshold:
     max_steps: int | None = None
     longest_episode: int | None = None
     logs: list[dict[str, Any]] | None = None
+    models: list[dict[str, str]] | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -906,6 +911,11 @@ def _check_fields(threshold: Threshold) -> None:
             isinstance(log, dict) and isinstance(log.get("path"), str) and is_whole(log.get("episodes"), minimum=0)
             for log in logs)):
         raise bad("logs", "it must be a list of the logs it was calibrated on ({path, run_id, episodes}), or null")
+    models = threshold.models
+    if models is not None and not (isinstance(models, list) and all(
+            isinstance(model, dict) and isinstance(model.get("path"), str) and isinstance(model.get("sha256"), str)
+            for model in models)):
+        raise bad("models", "it must be a list of the model files it was calibrated on ({path, sha256}), or null")
 
 
 def calibrate(

@@ -78,6 +78,27 @@ def test_the_docs_section_runs_as_written_and_replay_shows_the_detection(readme_
     assert rows[("cartpole:length=2.0", "combined")]["detection_rate"] >= 0.8  # 5 of 5 when written
 
 
+def test_a_threshold_names_its_model_files_where_other_models_or_none_are_given(readme_run, capsys):
+    """Models given in another order, or some of them, were refused as "other weights" by hash
+    alone, and a validate without --sb3 said "--sb3 ZIP" (2026-12-07): the threshold records its
+    model files, in order, and the refusals name them."""
+    from oodmon.hashing import file_sha256
+
+    folder, _, _ = readme_run
+    first, second = (str((folder / f"runs/dqn{seed}.zip").resolve()) for seed in (0, 1))
+    threshold = str(folder / "runs/dqn.json")
+    assert json.loads(Path(threshold).read_text())["models"] == [
+        {"path": path, "sha256": file_sha256(path)} for path in (first, second)]
+    run = ["run", "--env", "CartPole-v1", "--threshold", threshold, "--episodes", "1"]
+    assert main([*run, "--sb3", second, first]) == 2
+    assert (f"these are its model files in another order (the first acts): give them in its order, --sb3 {first} "
+            f"{second}") in capsys.readouterr().err
+    assert main([*run, "--sb3", first]) == 2
+    assert f"it was calibrated on 2 model files: --sb3 {first} {second}" in capsys.readouterr().err
+    assert main(["validate", threshold]) == 2
+    assert f"give them again, --sb3 {first} {second} --env CartPole-v1" in capsys.readouterr().err
+
+
 def test_the_docs_deployed_process_reads_the_calibration_and_logs_split(readme_run, monkeypatch, capsys):
     """The page's deployed-process block, run as written after the section's commands: no
     episode of calibration, one monitored episode, a split log that replays."""

@@ -765,7 +765,8 @@ def test_a_calibration_refuses_its_detectors_fitting_episodes_and_its_reference_
                                           ("episode_seeds", {"calibration": [-1, 3]}),
                                           ("episode_seeds", [200_000, 200_050]), ("workers", 0), ("workers", 1.5),
                                           ("obs_noise", -0.1), ("obs_noise", 11), ("obs_noise", "0.1"),
-                                          ("obs_noise", True)])
+                                          ("obs_noise", True), ("models", {"path": "a.zip", "sha256": "00"}),
+                                          ("models", [{"path": "a.zip"}]), ("models", [{"path": 1, "sha256": "00"}])])
 def test_a_threshold_file_with_bad_seeds_workers_or_noise_is_refused(tmp_path, field, value):
     path = calibrate([np.zeros(5)] * 45, 0.05, consecutive=1).save(tmp_path / "t.json")
     data = json.loads(path.read_text())
