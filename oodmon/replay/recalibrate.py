@@ -34,6 +34,7 @@ burst of high ones (:func:`burst`), and :func:`calibrate_from_logs` warns of eit
 
 from __future__ import annotations
 
+import json
 import math
 import warnings
 from collections.abc import Sequence
@@ -335,7 +336,7 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: 
                         episode_seeds=_seed_runs(found.episodes),
                         logs=[{"path": str(log.path), "run_id": log.metadata.get("run_id"),
                                "episodes": sum(1 for owner, _ in found.episodes if owner is log)}
-                              for log in found.logs])
+                              for log in found.logs], models=_logged_models(first))
     _warn_if_changed(change_in_logs(found, threshold), threshold)
     return threshold
 
@@ -619,6 +620,29 @@ def _default_detector(logs: Sequence[RunLog]) -> str:
     if all(best in names for names in scored):
         return best
     return "spread" if all("spread" in names for names in scored) else scored[0][-1]
+
+
+def _logged_models(log: RunLog) -> list[dict[str, str]] | None:
+    """The SB3 model files a log's policy was loaded from (``about.models``), in order, each
+    ``{"path", "sha256"}`` as :attr:`Threshold.models` holds them; ``None``: none recorded, models
+    in memory, or a record not of that form.
+
+    Example:
+        >>> from types import SimpleNamespace as Log
+        >>> _logged_models(Log(metadata={"about.models": '[{"path": "a.zip", "sha256": "ab", "algorithm": "DQN"}]'}))
+        [{'path': 'a.zip', 'sha256': 'ab'}]
+        >>> _logged_models(Log(metadata={"about.models": '[{"path": "(in memory)", "sha256": "ab"}]'})) is None
+        True
+    """
+    try:
+        models = json.loads(log.metadata.get("about.models") or "null")
+    except ValueError:
+        return None
+    if not isinstance(models, list) or not models or not all(
+            isinstance(m, dict) and isinstance(m.get("path"), str) and isinstance(m.get("sha256"), str)
+            and m["path"] != "(in memory)" for m in models):
+        return None
+    return [{"path": m["path"], "sha256": m["sha256"]} for m in models]
 
 
 def _samples(log: RunLog) -> int | None:
