@@ -723,7 +723,8 @@ class Threshold:
     @property
     def rule_text(self) -> str:
         """The rule in words, with this threshold's value."""
-        return rule_text(f"{self.value:.6g}", self.consecutive, self.window, self.rule, self.warmup)
+        value = self.value + 0.0  # (-0.0, all ID scores 0 and negated, reads 0)
+        return rule_text(f"{value:.6g}", self.consecutive, self.window, self.rule, self.warmup)
 
     def reference_scores(self) -> Reference | None:
         """The sequential rule's :class:`~oodmon.monitor.sequential.Reference` (``None``: consecutive)."""

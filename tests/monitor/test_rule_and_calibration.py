@@ -760,6 +760,13 @@ def test_a_calibration_refuses_its_detectors_fitting_episodes_and_its_reference_
     assert played == [599_950, 600_090, 600_000, 800_000]
 
 
+def test_a_threshold_of_negative_zero_reads_zero():
+    """A deterministic policy in a deterministic env (FrozenLake without slipping) scored every ID
+    step 0, negated: the rule read "score > -0" (2026-12-07)."""
+    threshold = calibrate([np.full(6, -0.0)] * 45, 0.05, consecutive=1)
+    assert math.copysign(1.0, threshold.value) == -1.0 and threshold.rule_text == "score > 0"
+
+
 @pytest.mark.parametrize("field, value", [("episode_seeds", {"calibration": [5]}),
                                           ("episode_seeds", {"calibration": [9, 3]}),
                                           ("episode_seeds", {"calibration": [-1, 3]}),
