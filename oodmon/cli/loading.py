@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import shlex
 from pathlib import Path
 
 from oodmon.errors import ConfigError
@@ -69,7 +68,7 @@ def _agent_from_threshold(args: argparse.Namespace, threshold, name: str) -> boo
     # a threshold records the task, which names the env oodmon has variants of (cartpole: CartPole-v1)
     env_id = next((env for env, task in TASK_OF_ENV.items() if task == threshold.task), threshold.task)
     if threshold.method == "sb3" and args.method is None:  # no shipped agent of that name
-        files = " ".join(shlex.quote(model["path"]) for model in threshold.models) if threshold.models else "ZIP"
+        files = threshold.sb3_files or "ZIP"
         raise ConfigError(f"{name} was calibrated on your own SB3 model(s) in {env_id}: give them again, --sb3 {files} "
                           f"--env {env_id} (with --vec-normalize and --frame-stack as when calibrating)")
     if threshold.method == PLAIN_METHOD and args.method is None:

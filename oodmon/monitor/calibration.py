@@ -30,7 +30,7 @@ from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Stretches, Threshold, calibrate,
                                      check_step_episodes, clopper_pearson, clustered_interval, conformal_rank,
-                                     episodes_needed, verdict_of)
+                                     episodes_needed, model_files, verdict_of)
 from oodmon.progress import Progress
 from oodmon.seeds import EPISODE_USES, use_words
 from oodmon.side_by_side import finished_before, play_side_by_side, resolve_workers, stream_per_episode
@@ -273,16 +273,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     if reference is not None:
         used["reference"] = [seeds.REFERENCE, seeds.REFERENCE + reference_episodes]
     return replace(threshold, episode_seeds=used, workers=resolve_workers(workers, episodes),
-                   obs_noise=float(obs_noise), max_steps=max_steps, models=_model_files(agent))
-
-
-def _model_files(agent: Agent) -> list[dict[str, str]] | None:
-    """The SB3 model files ``agent`` was loaded from, in order, each ``{"path", "sha256"}``
-    (:attr:`Threshold.models`); ``None`` for any other agent, or models in memory."""
-    models = agent.metadata.get("models") or []
-    files = [{"path": str(model["path"]), "sha256": str(model["sha256"])} for model in models
-             if isinstance(model, dict) and model.get("sha256") and model.get("path") != "(in memory)"]
-    return files if files and len(files) == len(models) else None
+                   obs_noise=float(obs_noise), max_steps=max_steps, models=model_files(agent.metadata.get("models")))
 
 
 def read_kept_episodes(path: str | Path, made_by: dict[str, Any]) -> list[np.ndarray]:

@@ -332,7 +332,7 @@ class Monitor:
             return []
         recorded = [model["sha256"] for model in threshold.models]
         given = [model.get("sha256") for model in (self.agent.metadata.get("models") or [])] if self.agent else []
-        files = " ".join(shlex.quote(model["path"]) for model in threshold.models)
+        files = threshold.sb3_files
         if given != recorded and sorted(map(str, given)) == sorted(recorded):
             return [f"these are its model files in another order (the first acts): give them in its order, --sb3 "
                     f"{files}"]

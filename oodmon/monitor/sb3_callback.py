@@ -116,11 +116,11 @@ class MonitorCallback(BaseCallback):
             monitor.begin_episode(env_id=env_id, variant=variant, obs_noise=obs_noise)
         obs, model_obs = self._obs, self._model_obs
         self._obs = self._raw(self.locals["new_obs"])  # after an episode's end, the next one's first
-        self._model_obs = _first(self.locals["new_obs"])
         actions = self.locals.get("clipped_actions", self.locals["actions"])  # what the env got (PPO clips)
         action = actions[0]
         if self._checked < EXPLORATION_CHECKED:
             self._check_exploration(model_obs, action)
+            self._model_obs = _first(self.locals["new_obs"])  # (kept only while the check goes on)
         action = int(action) if np.ndim(action) == 0 else np.asarray(action)
         monitor.step(obs, action=action, frame=_frame(obs))
         record = monitor.last_step

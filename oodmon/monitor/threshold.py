@@ -38,6 +38,7 @@ calibrations only.
 from __future__ import annotations
 
 import math
+import shlex
 import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -59,7 +60,7 @@ from oodmon.validation import is_whole
 __all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "ClusterSums",
            "ClusteredInterval", "EarlyPeaksWarning", "OutlyingThresholdWarning", "Stretches", "Threshold",
            "calibrate", "check_step_episodes", "clopper_pearson", "clustered_interval", "conformal_rank",
-           "episodes_needed", "step_threshold", "verdict_of"]
+           "episodes_needed", "model_files", "step_threshold", "verdict_of"]
 
 MODES = ("episode", "step")
 #: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
@@ -747,6 +748,12 @@ class Threshold:
         return self.longest_episode if self.mode == "episode" else None
 
     @property
+    def sb3_files(self) -> str | None:
+        """Its SB3 model files (:attr:`models`) as ``--sb3`` takes them, quoted for a shell; ``None``
+        where not recorded."""
+        return " ".join(shlex.quote(model["path"]) for model in self.models) if self.models else None
+
+    @property
     def mean_episode(self) -> int | None:
         """A calibration episode's steps on average, in episode mode (``None``: a bound on steps):
         the stretches ``validate --max-steps`` and replay cut longer ID episodes into
@@ -917,6 +924,25 @@ def _check_fields(threshold: Threshold) -> None:
             isinstance(model, dict) and isinstance(model.get("path"), str) and isinstance(model.get("sha256"), str)
             for model in models)):
         raise bad("models", "it must be a list of the model files it was calibrated on ({path, sha256}), or null")
+
+
+def model_files(models: object) -> list[dict[str, str]] | None:
+    """:attr:`Threshold.models` of a policy's SB3 models as an agent's metadata (``models``) and a
+    log's ``about.models`` record them (each a dict with at least ``path`` and ``sha256``): each
+    ``{"path", "sha256"}``, in order; ``None`` where there are none, one is in memory, or the record
+    is not of that form.
+
+    Example:
+        >>> model_files([{"path": "a.zip", "sha256": "ab", "algorithm": "DQN"}])
+        [{'path': 'a.zip', 'sha256': 'ab'}]
+        >>> model_files([{"path": "(in memory)", "sha256": "ab"}]) is None, model_files(None) is None
+        (True, True)
+    """
+    if not isinstance(models, list) or not models or not all(
+            isinstance(m, dict) and isinstance(m.get("path"), str) and isinstance(m.get("sha256"), str)
+            and m["sha256"] and m["path"] != "(in memory)" for m in models):
+        return None
+    return [{"path": m["path"], "sha256": m["sha256"]} for m in models]
 
 
 def calibrate(

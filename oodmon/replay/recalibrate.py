@@ -47,7 +47,8 @@ import numpy as np
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.hashing import other_weights
 from oodmon.monitor.alarms import default_consecutive, default_window, episode_statistic
-from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, conformal_rank
+from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, conformal_rank,
+                                      model_files)
 from oodmon.names import BEST_DETECTOR
 from oodmon.replay.check import mid_ranks
 from oodmon.replay.metrics import is_id_episode
@@ -623,26 +624,20 @@ def _default_detector(logs: Sequence[RunLog]) -> str:
 
 
 def _logged_models(log: RunLog) -> list[dict[str, str]] | None:
-    """The SB3 model files a log's policy was loaded from (``about.models``), in order, each
-    ``{"path", "sha256"}`` as :attr:`Threshold.models` holds them; ``None``: none recorded, models
-    in memory, or a record not of that form.
+    """The SB3 model files a log's policy was loaded from (``about.models``), as
+    :attr:`Threshold.models` holds them (:func:`~oodmon.monitor.threshold.model_files`).
 
     Example:
         >>> from types import SimpleNamespace as Log
         >>> _logged_models(Log(metadata={"about.models": '[{"path": "a.zip", "sha256": "ab", "algorithm": "DQN"}]'}))
         [{'path': 'a.zip', 'sha256': 'ab'}]
-        >>> _logged_models(Log(metadata={"about.models": '[{"path": "(in memory)", "sha256": "ab"}]'})) is None
+        >>> _logged_models(Log(metadata={"about.models": "not JSON"})) is None
         True
     """
     try:
-        models = json.loads(log.metadata.get("about.models") or "null")
+        return model_files(json.loads(log.metadata.get("about.models") or "null"))
     except ValueError:
         return None
-    if not isinstance(models, list) or not models or not all(
-            isinstance(m, dict) and isinstance(m.get("path"), str) and isinstance(m.get("sha256"), str)
-            and m["path"] != "(in memory)" for m in models):
-        return None
-    return [{"path": m["path"], "sha256": m["sha256"]} for m in models]
 
 
 def _samples(log: RunLog) -> int | None:
