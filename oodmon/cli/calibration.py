@@ -15,7 +15,7 @@ from oodmon.cli.display import _clustered, _progress
 from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import (
     _FIT_DEFAULT, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
-    _STEP_COUNT, _WARMUP, _agent_arguments, _fraction, _non_negative, _whole,
+    _STEP_COUNT, _WARMUP, _agent_arguments, _explore_share, _fraction, _non_negative, _whole,
 )
 from oodmon.errors import ConfigError, unknown
 from oodmon.monitor.stopping import stops_held
@@ -58,6 +58,7 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
     detector.add_argument("--fit-episodes", type=_whole(3),
                           help=f"ID episodes the learned detectors are fitted on when calibrate fits them ({_FIT_DEFAULT})")
     _add_dynamics_updates(detector, "when calibrate fits the detectors")
+    _add_explore(detector, "--fit-explore", "when calibrate fits the detectors")
     promise.add_argument("--seed", type=_SEED, default=CALIBRATION,
                          help=f"seed of the first calibration episode and of MC sampling (default {CALIBRATION})")
     _add_workers(promise, "the calibration episodes (and those of a fit of detectors before it)")
@@ -86,6 +87,20 @@ def _add_rule_counts(rule: argparse._ArgumentGroup) -> None:
                            "the learned detectors' means cover few transitions since the reset (default 0)")
 
 
+#: fit-detectors' flag of each of calibrate's options of a fit.
+_FIT_DETECTORS_FLAG = {"--fit-episodes": "--episodes", "--fit-explore": "--explore"}
+
+
+def _add_explore(parser: argparse._ActionsContainer, flag: str, when: str) -> None:
+    """A fit's share of random actions: calibrate's --fit-explore, fit-detectors' --explore."""
+    parser.add_argument(flag, type=_explore_share, default=0.0, metavar="P",
+                        help=f"take a random action instead of the policy's at this share of the fitting steps, {when} "
+                             "(default 0): for a policy whose actions will not all be its own deterministic ones (a "
+                             "model that goes on learning, one deployed as it samples, a fallback), whose other "
+                             "actions the dynamics model would otherwise read as a shift; the threshold is calibrated "
+                             "on the policy's own actions (docs/your-policy.md)")
+
+
 def _refuse_fit_options(args: argparse.Namespace) -> None:
     """Refuse calibrate's options of a fit where it fits no detectors (it reads fitted ones): said
     before the calibration's minutes, not ignored.
@@ -94,12 +109,12 @@ def _refuse_fit_options(args: argparse.Namespace) -> None:
         ConfigError: naming the options given and how to fit with them.
     """
     given = [(flag, value) for flag, value, default in (
-        ("--fit-episodes", args.fit_episodes, None), ("--dynamics-updates", args.dynamics_updates, _MAX_UPDATES))
-        if value != default]
+        ("--fit-episodes", args.fit_episodes, None), ("--dynamics-updates", args.dynamics_updates, _MAX_UPDATES),
+        ("--fit-explore", args.fit_explore, 0.0)) if value != default]
     if not given:
         return
     flags = " and ".join(flag for flag, _ in given)
-    settings = " ".join(f"{'--episodes' if flag == '--fit-episodes' else flag} {value}" for flag, value in given)
+    settings = " ".join(f"{_FIT_DETECTORS_FLAG.get(flag, flag)} {value}" for flag, value in given)
     raise ConfigError(f"{flags} shape{'' if len(given) > 1 else 's'} a fit of the detectors, and calibrate fits none "
                       "here: it reads " + (f"those in {args.detectors}" if args.detectors else "the agent's shipped ones")
                       + f"; fit them with `oodmon fit-detectors ... {settings} --out DIR`, then calibrate with "
@@ -146,7 +161,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         kept_fit = KeptFit(fitted_to, fit_settings(agent, fitted_when_named(args.detector), score=args.score,
                                                    episodes=args.fit_episodes, dynamics_updates=args.dynamics_updates,
                                                    obs_noise=args.obs_noise, max_steps=args.max_steps,
-                                                   workers=args.workers))
+                                                   workers=args.workers, explore=args.fit_explore))
 
         def fit(episodes_file: Path):
             unwritten = "no threshold file or detectors were written"
@@ -154,7 +169,7 @@ def _calibrate(args: argparse.Namespace) -> int:
                 return fit_agent_detectors(agent, detectors=fitted_when_named(args.detector), score=args.score,
                                            episodes=args.fit_episodes, on_progress=report, workers=args.workers,
                                            dynamics_updates=args.dynamics_updates, obs_noise=args.obs_noise,
-                                           max_steps=args.max_steps, kept=episodes_file)
+                                           max_steps=args.max_steps, kept=episodes_file, explore=args.fit_explore)
 
         detectors = kept_fit.fit(agent.estimator, fit)
         if kept_fit.reused:
@@ -204,7 +219,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote {args.out}"
         + (f" (replacing the threshold it held: alarm when {replaced.rule_text}, {replaced.detector} detector, "
            f"{replaced.n_episodes} ID episodes)" if replaced else "")
-        + (f"; fitted the detectors into {fitted_to} (`oodmon run` finds them there; to calibrate again without "
+        + (f"; fitted the detectors into {fitted_to}{_explored(detectors.fitted_for.get('explore'))} (`oodmon run` "
+           "finds them there; to calibrate again without "
            f"fitting them, give --detectors {fitted_to})" if fitted_to else "")
         + (f"; removed the detectors an earlier calibration fitted into {cleared} (`oodmon run` would read them "
            "before those this threshold was calibrated with)" if cleared else "")
@@ -236,6 +252,16 @@ def _up_to(max_steps: int | None) -> str:
 def _noise(obs_noise: float | None) -> str:
     """The words ' with sensor noise X' where the episodes had some, else nothing."""
     return f" with sensor noise {obs_noise:g}" if obs_noise else ""
+
+
+def _explored(explore: float | None, steps: str = "the fitting steps") -> str:
+    """The words ', a random action at P% of <steps>' of a fit that explored, else nothing.
+
+    Example:
+        >>> _explored(0.1, "their steps"), _explored(None)
+        (', a random action at 10% of their steps', '')
+    """
+    return f", a random action at {100 * explore:.3g}% of {steps}" if explore else ""
 
 
 def _side_by_side(played_by: int | None) -> str:
@@ -518,6 +544,7 @@ def _add_fit_detectors(commands: argparse._SubParsersAction) -> None:
     fit.add_argument("--obs-noise", type=_non_negative, default=0.0,
                      help="sensor noise of the ID env, a fraction of each dimension's ID spread (default 0)")
     _add_dynamics_updates(fit, "fitted on the episodes' two thirds")
+    _add_explore(fit, "--explore", "in the episodes it plays")
     _add_workers(fit, "the fitting episodes")
     fit.add_argument("--from-logs", nargs="+", metavar="LOG",
                      help="fit on the whole ID episodes of these logs of the policy (MCAP files or folders: its "
@@ -542,8 +569,8 @@ def _refuse_playing_options(args: argparse.Namespace) -> None:
     """
     given = [flag for flag, value, default in (
         ("--episodes", args.episodes, None), ("--max-steps", args.max_steps, None),
-        ("--obs-noise", args.obs_noise, 0.0), ("--workers", args.workers, 1), ("--score", args.score, "chosen_std"))
-        if value != default]
+        ("--obs-noise", args.obs_noise, 0.0), ("--workers", args.workers, 1), ("--score", args.score, "chosen_std"),
+        ("--explore", args.explore, 0.0)) if value != default]
     if given:
         raise ConfigError(f"{' and '.join(given)} shape{'' if len(given) > 1 else 's'} the episodes fit-detectors "
                           "plays, and --from-logs fits on the logs' episodes as they were played (their number, "
@@ -631,7 +658,8 @@ def _fit_detectors(args: argparse.Namespace) -> int:
         with _progress() as report, _kept_fitting(args, kept, "no detectors were written"):
             detectors = fit_agent_detectors(agent, detectors=only, episodes=args.episodes, score=args.score,
                                             obs_noise=args.obs_noise, max_steps=args.max_steps, on_progress=report,
-                                            workers=args.workers, dynamics_updates=args.dynamics_updates, kept=kept)
+                                            workers=args.workers, dynamics_updates=args.dynamics_updates, kept=kept,
+                                            explore=args.explore)
     with stops_held():  # (as calibrate's)
         detectors.save(args.out)
         kept.unlink(missing_ok=True)
@@ -645,8 +673,8 @@ def _fit_detectors(args: argparse.Namespace) -> int:
     console.print(f"{args.task}/{agent.method}: fitted {', '.join(detectors.names)} on "
                   f"{detectors.fitted_for['episodes']} ID episodes{_up_to(args.max_steps)}{of_logs}"
                   f"{_noise(detectors.fitted_for['obs_noise']) if logs else ''}"
-                  f"{_side_by_side(detectors.fitted_for.get('workers'))}; "
-                  f"wrote {args.out}{replaced}")
+                  f"{_side_by_side(detectors.fitted_for.get('workers'))}"
+                  f"{_explored(detectors.fitted_for.get('explore'), 'their steps')}; wrote {args.out}{replaced}")
     if logs and (said := _left_out_said(detectors.fitted_for.get("left_out", {}))):
         Console(stderr=True, soft_wrap=True).print(f"note: {said}", markup=False)
     for note in fitting_notes(detectors):

@@ -118,6 +118,10 @@ _fraction = _number(lambda x: 0.0 < x < 1.0, "a number between 0 and 1 (exclusiv
 _non_negative = _number(lambda x: 0.0 <= x < float("inf"), "a finite number >= 0")
 
 
+#: A fit's share of random actions (--explore, --fit-explore): 1 would fit on a random policy alone.
+_explore_share = _number(lambda x: 0.0 <= x < 1.0, "a number >= 0 and < 1 (the share of the fitting steps)")
+
+
 _positive = _number(lambda x: 0.0 < x < float("inf"), "a finite number > 0")
 
 

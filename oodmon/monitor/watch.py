@@ -104,7 +104,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
           on_progress: Progress | None = None, masks: str | None = None, vec_normalize: Any = None,
           frame_stack: int | None = None, threshold: str | Path | None = None, save: str | Path | None = None,
           warmup: int = 0, imports: Sequence[str] = (), unsafe_load_pickles: bool = False, workers: int = 1,
-          dynamics_updates: int | None = MAX_UPDATES, max_steps: int | None = None) -> Any:
+          dynamics_updates: int | None = MAX_UPDATES, max_steps: int | None = None, fit_explore: float = 0.0) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
     The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy (``None``:
@@ -127,6 +127,11 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     :mod:`oodmon.monitor.alarms`; the calibration says when one would lower the threshold much).
     ``dynamics_updates``: the dynamics model's fit stops after the whole epochs that hold at most
     this many Adam updates (``None``: every epoch; see :func:`~oodmon.monitor.detectors.fit_detectors`).
+    ``fit_explore``: the share of the fitting steps that take a random action instead of the
+    policy's (its ``explore``), for a policy whose actions will not all be its own deterministic
+    ones: a model that goes on learning (:class:`~oodmon.monitor.sb3_callback.MonitorCallback`), one
+    deployed as it samples, a fallback's (docs/your-policy.md, "Inside SB3"); the threshold is
+    calibrated on the policy's own actions.
     ``max_steps``: the calibration episodes' time limit instead of the env's own, for a deployment
     whose runs are longer (see :func:`~oodmon.monitor.validate_threshold`'s, which checks it).
     ``workers``: processes that play the fitting and calibration episodes side by side (0: one per
@@ -142,15 +147,15 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     instead of fitting and calibrating: no episode runs. The file must have been calibrated on this
     policy (the hash of its weights; its MC masks, which the policy is loaded with by default);
     ``far``, ``confidence`` and ``episodes`` are then the file's, and ``warmup``, ``max_steps``,
-    ``fit_episodes`` and ``dynamics_updates`` are refused (the file's warm-up, episodes and fitted
+    ``fit_episodes``, ``dynamics_updates`` and ``fit_explore`` are refused (the file's warm-up, episodes and fitted
     detectors are what it was calibrated with).
 
     Raises:
         ConfigError, InvalidParameterError: as :func:`as_agent` and the calibration, before any
             episode runs where they can be told from the arguments; ``env`` without ``env_id``
             made without gymnasium's registry or with other arguments than its id's;
-            ``threshold`` and ``save`` both given; ``threshold`` with ``warmup``, ``max_steps``, ``fit_episodes`` or
-            ``dynamics_updates``; a
+            ``threshold`` and ``save`` both given; ``threshold`` with ``warmup``, ``max_steps``, ``fit_episodes``,
+            ``dynamics_updates`` or ``fit_explore``; a
             ``threshold`` file of another policy, or whose detectors are missing; a ``save`` path
             that is one of the files it reads, or holds a file that is no threshold (a threshold
             there is replaced).
@@ -159,7 +164,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     from oodmon.monitor.calibration import calibrate_agent, save_calibration
     from oodmon.kept import KeptFit
     from oodmon.monitor.detectors import DetectorSet, fit_agent_detectors, fitting_notes
-    from oodmon.monitor.detectors.fitting import check_can_have, fit_settings, fitted_when_named
+    from oodmon.monitor.detectors.fitting import check_can_have, check_explore, fit_settings, fitted_when_named
     from oodmon.monitor.scores import DEFAULT_SCORE
     from oodmon.monitor.monitor import Monitor
     from oodmon.monitor.monitored_env import MonitoredEnv, check_env_of, check_one_env
@@ -182,7 +187,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
         raise ConfigError("a threshold file's episodes are those it was calibrated on (its max_steps): leave max_steps= "
                           "out, or calibrate anew with it (save=)")
     fitting = [name for name, value, default in (("fit_episodes", fit_episodes, None),
-                                                 ("dynamics_updates", dynamics_updates, MAX_UPDATES))
+                                                 ("dynamics_updates", dynamics_updates, MAX_UPDATES),
+                                                 ("fit_explore", fit_explore, 0.0))
                if value != default]
     if threshold is not None and fitting:  # (oodmon calibrate refuses its options of a fit where it fits none)
         names, many = " and ".join(f"{name}=" for name in fitting), len(fitting) > 1
@@ -208,6 +214,7 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
             raise InvalidParameterError(f"fit_episodes={fit_episodes!r} is not allowed; fitting the detectors needs a "
                                         "whole number >= 3 of ID episodes (two thirds fit, one third ranks)")
         check_max_updates(dynamics_updates, "dynamics_updates")
+        fit_explore = check_explore(fit_explore, "fit_explore")
         if save is not None:  # an unwritable path, or one that holds a model or a log: said now, not after the calibration
             files = [*(policy if isinstance(policy, (list, tuple)) else [policy]), vec_normalize]
             check_output_file(save, parameter="save", inputs=[("a file it reads", path) for path in files
@@ -224,13 +231,15 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
         def fit(episodes_file: Path | None) -> DetectorSet:
             return fit_agent_detectors(agent, detectors=fitted_when_named(detector),  # as the CLI fits them
                                        episodes=fit_episodes, on_progress=on_progress, workers=workers,
-                                       dynamics_updates=dynamics_updates, max_steps=max_steps, kept=episodes_file)
+                                       dynamics_updates=dynamics_updates, max_steps=max_steps, kept=episodes_file,
+                                       explore=fit_explore)
 
         # With save=, stopped (Ctrl-C, a worker's death), it keeps what it did beside that file, as
         # `oodmon calibrate` does beside --out, and the same call goes on from it.
         kept_fit = None if save is None else KeptFit(f"{save}.detectors", fit_settings(
             agent, fitted_when_named(detector), score=DEFAULT_SCORE, episodes=fit_episodes,
-            dynamics_updates=dynamics_updates, obs_noise=0.0, max_steps=max_steps, workers=workers))
+            dynamics_updates=dynamics_updates, obs_noise=0.0, max_steps=max_steps, workers=workers,
+            explore=fit_explore))
         detectors = fit(None) if kept_fit is None else kept_fit.fit(agent.estimator, fit)
         for note in fitting_notes(detectors):  # what the fit leaves unwatched, as calibrate prints it
             warnings.warn(note, stacklevel=2)

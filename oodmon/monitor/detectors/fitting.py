@@ -12,6 +12,7 @@ afterwards on other episodes, so its guarantee holds for the fitted detectors as
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable, Sequence
 from concurrent.futures.process import BrokenProcessPool
@@ -45,9 +46,9 @@ from oodmon.validation import check_max_steps, is_whole
 from oodmon.versions import machine
 
 __all__ = ["BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "KEEP_AT_MOST",
-           "best_detector", "collect", "default_detectors", "default_fit_steps", "detectors_for", "discrete_states",
-           "fit_agent_detectors", "fit_recorded_detectors", "fit_settings", "fitting_notes", "fit_detectors",
-           "policy_parts", "read_kept_trajectories", "trajectory_scores"]
+           "Explorer", "best_detector", "check_explore", "collect", "default_detectors", "default_fit_steps",
+           "detectors_for", "discrete_states", "fit_agent_detectors", "fit_recorded_detectors", "fit_settings",
+           "fitting_notes", "fit_detectors", "policy_parts", "read_kept_trajectories", "trajectory_scores"]
 
 #: ID episodes the learned detectors are fitted on by default: two thirds fit, one third ranks.
 #: 90 since 2026-11-24 (30 before): on the monitor's own benchmark (same agents and episodes) the
@@ -206,13 +207,20 @@ def _draws(estimator: Any) -> dict[str, Any]:
 def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETECTOR_FIT,
             on_progress: Progress | None = None, max_steps: int | None = None,
             with_member_values: bool = False, estimates_from: int | None = None,
-            min_steps: int = 0, workers: int = 1, done: Sequence[Trajectory] = ()) -> list[Trajectory]:
+            min_steps: int = 0, workers: int = 1, done: Sequence[Trajectory] = (),
+            explore: float = 0.0) -> list[Trajectory]:
     """Play ``episodes`` episodes of ``env`` (seeds ``seed``, ``seed + 1``, ...) with ``policy``
     (each cut after ``max_steps`` steps if given), and more until they hold ``min_steps`` steps;
     ``with_member_values``: keep an ensemble's members' values too (what ``scaled_spread`` is
     fitted on); ``estimates_from``: keep each step's estimate (``Trajectory.estimates``) in the
     episodes from this index on. ``done``: the first episodes, played already (kept by an
     interrupted collection): the episodes after them are played.
+
+    ``explore``: at this share of the steps (each drawn on its own) the env gets a random action of
+    its action space (among those its action masks allow, for a policy that reads them) instead of
+    the policy's, and the episode keeps the action taken (:class:`Explorer`: seeded per episode,
+    the same in any process). The policy is asked at every step all the same (its estimate is kept,
+    and an MC policy draws as it would).
 
     Interrupted (Ctrl-C, SIGTERM, a worker's death), the exception carries every episode played
     whole from the first on, ``done`` among them (:func:`~oodmon.side_by_side.finished_before`).
@@ -238,9 +246,12 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
     # the action masks of each step), told as the monitor tells it, in an env of yours too.
     begin = policy.begin_episode if getattr(policy, "remembers", False) else None
     tell = policy.tell_masks if getattr(policy, "reads_masks", False) else None
+    explorer = Explorer(env, explore, masked=tell is not None) if explore else None
 
     def play_episode(episode: int) -> Trajectory:
         obs, _ = env.reset(seed=seed + episode)
+        if explorer is not None:
+            explorer.begin(seed + episode)
         if begin is not None:
             begin()
         if tell is not None:
@@ -261,6 +272,8 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
                     values.append(member_values(estimate))
             else:
                 action = act(obs)
+            if explorer is not None:
+                action = explorer.action(action)
             obs, _, terminated, truncated, _ = step_naming_refusal(env, action, step=len(actions) + 1, episode=label,
                                                                    seed=seed + episode)
             if tell is not None:
@@ -298,6 +311,61 @@ def collect(policy: Any, env: gymnasium.Env, episodes: int, *, seed: int = DETEC
         interrupt.finished = trajectories
         raise
     return trajectories
+
+
+#: Seeds the random actions of a fit that explores (:class:`Explorer`), apart from the env's resets.
+EXPLORE_STREAM = 4_771
+
+
+class Explorer:
+    """A fit's random actions (``fit_detectors(..., explore=P)``): at each step, with probability
+    ``explore``, an action drawn from ``env``'s action space instead of the policy's (among those
+    its ``action_masks()`` allow now where ``masked``). The draws of episode ``i`` come from a
+    stream of its own, ``begin(seed + i)``: the same whichever process plays it, and in an
+    episode played again after an interruption.
+
+    Example:
+        >>> explorer = Explorer(gymnasium.make("CartPole-v1"), 0.5)
+        >>> explorer.begin(0)
+        >>> [int(explorer.action(7)) for _ in range(6)]
+        [7, 0, 1, 7, 0, 1]
+    """
+
+    def __init__(self, env: gymnasium.Env, explore: float, *, masked: bool = False) -> None:
+        if masked and not isinstance(env.action_space, gymnasium.spaces.Discrete):
+            raise ConfigError(f"a fit that explores draws a masked policy's random actions among those its action "
+                              f"masks allow, for a Discrete action space; this env's is {env.action_space}: fit "
+                              "without exploring")
+        self.env, self.explore, self.masked = env, explore, masked
+        self.space = copy.deepcopy(env.action_space)  # (seeded here: the env's own draws stay the env's)
+        self._rng = np.random.default_rng()
+
+    def begin(self, episode_seed: int) -> None:
+        """Draw episode ``episode_seed``'s actions from its own stream."""
+        self._rng = np.random.default_rng([EXPLORE_STREAM, episode_seed])
+        self.space.seed(int(self._rng.integers(2**31)))
+
+    def action(self, chosen: Any) -> Any:
+        """The action the env gets: ``chosen`` (the policy's), or at a share ``explore`` of the steps a random one."""
+        if self._rng.random() >= self.explore:
+            return chosen
+        if self.masked:
+            allowed = np.asarray(self.env.get_wrapper_attr("action_masks")(), dtype=np.int8)
+            return self.space.sample(mask=allowed)
+        return self.space.sample()
+
+
+def check_explore(explore: Any, parameter: str = "explore") -> float:
+    """``explore`` as a float, a share of the steps in [0, 1).
+
+    Raises:
+        InvalidParameterError: anything else (1 would fit on a random policy's episodes alone).
+    """
+    if isinstance(explore, bool) or not isinstance(explore, (int, float)) or not 0 <= explore < 1:
+        raise InvalidParameterError(f"{parameter}={explore!r} is not allowed; it is the share of the fitting steps "
+                                    "that take a random action instead of the policy's, a number >= 0 and < 1 "
+                                    "(e.g. 0.1)")
+    return float(explore)
 
 
 def _collect_side_by_side(play_episode: Callable[[int], Trajectory], estimator: Any, episodes: int, seed: int,
@@ -507,10 +575,18 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
                   task: str | None = None, policy_hash: str | None = None, obs_noise: float = 0.0,
                   on_progress: Progress | None = None, max_steps: int | None = None,
                   min_steps: int = 0, workers: int = 1, dynamics_updates: int | None = MAX_UPDATES,
-                  kept: str | Path | None = None) -> DetectorSet:
+                  kept: str | Path | None = None, explore: float = 0.0) -> DetectorSet:
     """Fit the named detectors (default: :func:`default_detectors`) for ``policy`` on
     ``episodes`` ID episodes of ``env`` (each cut after ``max_steps`` steps if given), and more
     until they hold ``min_steps`` steps (two thirds of them fit, one third ranks).
+
+    ``explore``: the share of the fitting steps that take a random action instead of the policy's
+    (:func:`collect`; recorded in ``fitted_for["explore"]``). Fitted on its actions alone (0, the
+    default), the dynamics model has seen one action in each state, and reads another action there
+    (a learning model's exploration, a policy deployed as it samples, a fallback) as a shift:
+    fitted with 0.1, a DQN on CartPole-v1 taking a random action at 5% of its steps alarmed 2 of 40
+    ID episodes, not 14, and the four shifts measured as often (``scripts/exploration_alarms.py``,
+    docs/your-policy.md). The threshold is calibrated on the policy's own actions as before.
 
     ``spread`` (with ``score``) joins the set whenever the policy has samples; ``combined``
     combines every other detector of the set (but what :data:`COMBINED_LEAVES_OUT` leaves out for
@@ -561,6 +637,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     check_max_updates(dynamics_updates, "dynamics_updates")  # before the episodes are played
     check_max_steps(max_steps)
     seed = check_seed(seed)
+    explore = check_explore(explore)
     workers = resolve_workers(workers, episodes)
     n_actions = _checked_actions(detectors, policy, env)
     # The held-out third keeps its estimates: combined ranks the spread of the samples each action
@@ -572,7 +649,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         "policy": policy_hash or _policy_identity(policy, estimator), "task": task,
         "env": getattr(env.spec, "id", None), "detectors": list(detectors),
         "episodes": episodes, "min_steps": min_steps, "seed": seed, "obs_noise": float(obs_noise),
-        "max_steps": max_steps, **_draws(estimator)}
+        "max_steps": max_steps, **_draws(estimator), **({"explore": explore} if explore else {})}
     done, state = ([], None) if kept is None else _read_kept_trajectories(kept, made_by)
     if done and on_progress is not None:
         on_progress("kept detector fitting episodes", len(done), len(done))  # (an interrupted fit's)
@@ -583,9 +660,10 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
         trajectories = collect(policy, env, episodes, seed=seed, on_progress=trail.progress(on_progress),
                                max_steps=max_steps, with_member_values="scaled_spread" in detectors,
                                estimates_from=keep_from if "combined" in detectors else None, min_steps=min_steps,
-                               workers=workers, done=done)
+                               workers=workers, done=done, explore=explore)
         return _fitted(trajectories, detectors, estimator, task, score, n_actions, seed, dynamics_updates, on_progress,
-                       policy_hash=policy_hash, obs_noise=obs_noise, workers=workers, max_steps=max_steps)
+                       policy_hash=policy_hash, obs_noise=obs_noise, workers=workers, max_steps=max_steps,
+                       recorded={"explore": explore} if explore else None)
     except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (Ctrl-C, SIGTERM, a worker's death)
         if kept is not None:
             # in the episodes: those played whole; in the fit itself: every one
@@ -763,12 +841,12 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
                         seed: int = DETECTOR_FIT, score: str = DEFAULT_SCORE, obs_noise: float = 0.0,
                         max_steps: int | None = None, on_progress: Progress | None = None,
                         workers: int = 1, dynamics_updates: int | None = MAX_UPDATES,
-                        kept: str | Path | None = None) -> DetectorSet:
+                        kept: str | Path | None = None, explore: float = 0.0) -> DetectorSet:
     """:func:`fit_detectors` for an oodmon agent in its task's ID env (with ``obs_noise``), on
     ``episodes`` episodes; ``None``: :data:`DEFAULT_FIT_EPISODES`, and for an env oodmon has no
     variants of as many more as hold :data:`DEFAULT_FIT_STEPS` steps (:func:`default_fit_steps`);
-    ``workers`` processes play them side by side; ``dynamics_updates`` and ``kept`` (the episodes
-    an interrupted fit keeps) as :func:`fit_detectors` takes them.
+    ``workers`` processes play them side by side; ``dynamics_updates``, ``kept`` (the episodes
+    an interrupted fit keeps) and ``explore`` (random actions) as :func:`fit_detectors` takes them.
     ``max_steps``: each episode's time limit instead of the env's own, shorter (Pong's games) or
     longer (a deployment's runs, as ``calibrate --max-steps`` plays them)."""
     from oodmon.monitor.monitor import policy_hash
@@ -780,7 +858,7 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
                              score=score, task=agent.task, policy_hash=policy_hash(agent), obs_noise=obs_noise,
                              on_progress=on_progress, max_steps=max_steps,
                              min_steps=default_fit_steps(agent.task) if episodes is None else 0, workers=workers,
-                             dynamics_updates=dynamics_updates, kept=kept)
+                             dynamics_updates=dynamics_updates, kept=kept, explore=explore)
     finally:
         env.close()
 
@@ -887,7 +965,8 @@ def _fitted_on_frames(episodes: list[tuple[np.ndarray, np.ndarray]], names: Sequ
 
 
 def fit_settings(agent: Any, detectors: Sequence[str] | None, *, score: str, episodes: int | None,
-                 dynamics_updates: int | None, obs_noise: float, max_steps: int | None, workers: int) -> dict[str, Any]:
+                 dynamics_updates: int | None, obs_noise: float, max_steps: int | None, workers: int,
+                 explore: float = 0.0) -> dict[str, Any]:
     """What :func:`fit_agent_detectors` of these arguments fits of and with, as JSON-able data: the
     policy's hash, the detectors asked for, the fitting's version and settings. A set kept by an
     interrupted calibration (:class:`oodmon.kept.KeptFit`) is read again only where they agree."""
@@ -896,7 +975,8 @@ def fit_settings(agent: Any, detectors: Sequence[str] | None, *, score: str, epi
     return {"policy": policy_hash(agent), "task": agent.task,
             "detectors": None if detectors is None else list(detectors), "score": score, "episodes": episodes,
             "dynamics_updates": dynamics_updates, "obs_noise": float(obs_noise), "max_steps": max_steps,
-            "workers": workers, "version": FIT_VERSION, **_draws(agent.estimator)}
+            "workers": workers, "version": FIT_VERSION, **_draws(agent.estimator),
+            **({"explore": explore} if explore else {})}
 
 
 def detectors_for(agent: Any, directory: str | Path | None = None) -> DetectorSet | None:
