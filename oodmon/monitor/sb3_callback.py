@@ -20,7 +20,11 @@ with the deployed policy's detectors and threshold: a DQN on CartPole-v1 taking 
 20 of 20, a SAC's sampled actions on Reacher-v5 in 10 of 10; each deterministic in none). The
 callback compares the first :data:`EXPLORATION_CHECKED` training steps' actions with the model's
 deterministic one at the same observation and, where some differ, says how many
-(:class:`ExplorationWarning`), once.
+(:class:`ExplorationWarning`), once. Detectors fitted on episodes with some random actions
+(``oodmon.watch(..., fit_explore=0.1)``, ``oodmon calibrate --fit-explore 0.1``) have seen other
+actions' outcomes: the PPO's 5% random actions then alarmed 0 of 20, its sampled ones 8 of 20, the
+DQN's 1 and 0 of 20, and the pole twice as long still 20 of 20 each at delay 1; the callback then
+warns only where more steps explored than that share.
 
 The monitor's sinks (MCAP, Rerun) log every step as in any run. For evaluation rollouts, wrap the
 evaluation env instead: ``evaluate_policy(model, MonitoredEnv(env, monitor))`` or
@@ -160,14 +164,27 @@ class MonitorCallback(BaseCallback):
             self._warn_exploration()
 
     def _warn_exploration(self) -> None:
-        if self._explored:
+        """Say how many checked steps explored, unless the detectors were fitted on at least as
+        large a share of random actions (``fitted_for["explore"]``)."""
+        explore = float(self.monitor.detectors.fitted_for.get("explore") or 0.0)
+        if not self._explored or self._explored <= explore * self._checked:
+            return
+        said = f"{self._explored} of the first {self._checked} training steps took another action than the model's " \
+               "deterministic one (its exploration)"
+        if explore:
             warnings.warn(ExplorationWarning(
-                f"{self._explored} of the first {self._checked} training steps took another action than the model's "
-                "deterministic one (its exploration): the detectors, fitted on the deployed policy's own actions, "
-                "read such steps as a shift, so alarms while it learns are mostly its exploration (a PPO's sampled "
-                "actions on CartPole-v1 alarmed 20 of 20 episodes, its deterministic ones none); the deployed "
-                "policy's alarms are those of oodmon run, or of evaluate_policy(model, MonitoredEnv(...))"),
-                stacklevel=2)
+                f"{said}, more than the {100 * explore:.3g}% of random actions the detectors were fitted with: some "
+                "alarms while it learns may be its exploration (a PPO's sampled actions on CartPole-v1 alarmed 8 of "
+                "20 ID episodes with detectors fitted on 10% of random actions, its deterministic ones 1); a larger "
+                "fit_explore (--fit-explore) reads more of them as ID"), stacklevel=2)
+            return
+        warnings.warn(ExplorationWarning(
+            f"{said}: the detectors, fitted on the deployed policy's own actions, read such steps as a shift, so "
+            "alarms while it learns are mostly its exploration (a PPO's sampled actions on CartPole-v1 alarmed 20 of 20 ID "
+            "episodes, its deterministic ones none); detectors fitted with some random actions read them as ID "
+            "(oodmon.watch(..., fit_explore=0.1), `oodmon calibrate --fit-explore 0.1`: the PPO's 5% random actions "
+            "then alarmed 0 of 20, its sampled ones 8); the deployed policy's alarms are those of oodmon run, or of "
+            "evaluate_policy(model, MonitoredEnv(...))"), stacklevel=2)
 
 
 def _first(observations: Any) -> Any:

@@ -606,9 +606,10 @@ def test_the_callback_scores_a_dict_observation_flattened_in_its_keys_order():
     assert np.allclose(logged, [np.r_[obs["a"], obs["b"]] for obs in acted], atol=1e-6)
 
 
-def _learn_monitored(model, env_id: str, steps: int) -> list:
+def _learn_monitored(model, env_id: str, steps: int, explore: float = 0.0) -> list:
     """``model.learn(steps)`` with a MonitorCallback whose monitor's dynamics detector was fitted on
-    3 random-policy episodes of ``env_id`` (flattened); the steps it logged."""
+    3 random-policy episodes of ``env_id`` (flattened; ``explore``: as a fit that explores records
+    it); the steps it logged."""
     from oodmon.monitor import MemorySink
     from oodmon.monitor.detectors import fit_detectors
     from oodmon.monitor.sb3_callback import MonitorCallback
@@ -618,7 +619,7 @@ def _learn_monitored(model, env_id: str, steps: int) -> list:
     space.seed(0)
     discrete = isinstance(space, gymnasium.spaces.Discrete)
     act = (lambda obs: int(space.sample())) if discrete else lambda obs: space.sample()
-    detectors = fit_detectors(act, env, detectors=["dynamics"], episodes=3)
+    detectors = fit_detectors(act, env, detectors=["dynamics"], episodes=3, explore=explore)
     sink = MemorySink()
     with Monitor(None, 2.0, detectors=detectors, detector="dynamics", sinks=[sink]) as monitor:
         model.learn(steps, callback=MonitorCallback(monitor))
@@ -663,6 +664,33 @@ def test_the_callback_says_how_many_training_steps_explored_and_leaves_learning_
         assert said == []
     unchecked, same = learned(checked=0)
     assert unchecked == [] and all(torch.equal(a, b) for a, b in zip(weights, same))
+
+
+@pytest.mark.parametrize("explore", [0.05, 0.5])
+def test_the_callback_warns_of_exploration_beyond_the_share_of_random_actions_the_detectors_were_fitted_on(explore):
+    """Detectors fitted on episodes with random actions at a share P of their steps (``fit_explore``)
+    have seen other actions' outcomes: the callback warns only where more of the first 100 training
+    steps explored. A DQN taking a random action at 30% of its steps: half of those are its own on
+    CartPole, so about 15 of 100 differ (binomial: 6-24 at four standard deviations; measured 10),
+    more than 5%, fewer than 50%."""
+    import warnings
+
+    from oodmon.monitor import ExplorationWarning
+
+    model = DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0, learning_starts=0, exploration_initial_eps=0.3,
+                exploration_final_eps=0.3, policy_kwargs={"net_arch": [16]})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _learn_monitored(model, "CartPole-v1", 150, explore=explore)
+    said = [str(w.message) for w in caught if issubclass(w.category, ExplorationWarning)]
+    if explore == 0.5:
+        assert said == []
+    else:
+        explored = int(said[0].split()[0])
+        assert len(said) == 1 and 6 <= explored <= 24 and said[0].startswith(
+            f"{explored} of the first 100 training steps took another action than the model's deterministic one (its "
+            "exploration), more than the 5% of random actions the detectors were fitted with: some alarms while it "
+            "learns may be its exploration")
 
 
 def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monkeypatch, capsys):
