@@ -151,6 +151,15 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
         BenchConfig("cartpole", ("dropout",), 1, fit_episodes=30, dynamics_updates=5000)
     with pytest.raises(ConfigError, match="dynamics_updates=0 is not allowed"):
         BenchConfig("cartpole", ("dropout",), 1, dynamics_updates=0, **learned)
+    # nor detectors fitted on some random actions (2026-12-07: --fit-explore), alike
+    explored = BenchConfig("cartpole", ("dropout",), 1, fit_explore=0.1, **learned)
+    plain = BenchConfig("cartpole", ("dropout",), 1, **learned)
+    assert explored.cache_key() == f"{plain.cache_key()}-explore0.1"
+    assert explored.what_made_the_numbers()["fit_explore"] == 0.1 and "fit_explore" not in plain.what_made_the_numbers()
+    with pytest.raises(ConfigError, match="^fit_explore shapes the fit of the learned detectors, and this bench fits"):
+        BenchConfig("cartpole", ("dropout",), 1, fit_explore=0.1)
+    with pytest.raises(ConfigError, match="^fit_explore=1.0 is not allowed"):
+        BenchConfig("cartpole", ("dropout",), 1, fit_explore=1.0, **learned)
     with pytest.raises(ConfigError, match="unknown detector 'sonar'"):
         BenchConfig("cartpole", detectors=("spread", "sonar"))
     # Too few calibration episodes for the bound is said before any work.

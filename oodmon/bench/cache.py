@@ -373,7 +373,7 @@ def _fit_trial_detectors(config: BenchConfig, agent, folder: Path, label: str,
         fitted = fit_agent_detectors(agent, detectors=config.learned, score=config.score, obs_noise=config.obs_noise,
                                      on_progress=lambda stage, done, total: report(f"{label}: {stage}", done, total),
                                      episodes=config.fit_episodes or None, workers=workers,
-                                     dynamics_updates=config.dynamics_updates)
+                                     dynamics_updates=config.dynamics_updates, explore=config.fit_explore)
         _continue_sampling(agent, state_file, made_now=True)
         fitted.save(path)  # after the state: fitted detectors on disk always have their state beside them
     else:

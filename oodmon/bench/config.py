@@ -96,6 +96,7 @@ class BenchConfig:
     onsets: tuple[int, int] | None = None  # [low, high) of the monitor protocol's onsets (None: the task's, ONSETS)
     failure: str | None = None  # what fails in your own env (oodmon.replay.failures.FAILURES; None: not told)
     warmup: int = 0  # the alarm looks at no finite score of an episode's first N steps (oodmon.monitor.alarms)
+    fit_explore: float = 0.0  # the share of the fitting steps that take a random action (fit_detectors' explore)
 
     def __post_init__(self) -> None:
         from oodmon.monitor.threshold import DETECTOR_NAMES
@@ -119,8 +120,12 @@ class BenchConfig:
         from oodmon.monitor.detectors.dynamics import MAX_UPDATES, check_max_updates
 
         check_max_updates(self.dynamics_updates, "dynamics_updates")
+        from oodmon.monitor.detectors.fitting import check_explore
+
+        check_explore(self.fit_explore, "fit_explore")
         fitting = [name for name, given in (("fit_episodes", self.fit_episodes),
-                                            ("dynamics_updates", self.dynamics_updates != MAX_UPDATES)) if given]
+                                            ("dynamics_updates", self.dynamics_updates != MAX_UPDATES),
+                                            ("fit_explore", self.fit_explore)) if given]
         if fitting and not self.learned:  # (the fit_episodes were ignored so before 2026-12-02)
             raise ConfigError(f"{' and '.join(fitting)} shape{'' if len(fitting) > 1 else 's'} the fit of the learned "
                               f"detectors, and this bench fits none (detectors: {', '.join(self.detectors)}): add "
@@ -271,7 +276,8 @@ class BenchConfig:
                          + (f"-steps{steps}" if steps else "") + (f"-jump{JUMP_VALUES}-drift" if self.own_env else "")
                          + ("-still" if defaults and (self.own_env or self.task == "pong") else "")
                          + ("-vanish" if self.task == "pong" else "")
-                         + ("" if self.dynamics_updates == MAX_UPDATES else f"-updates{self.dynamics_updates}"))
+                         + ("" if self.dynamics_updates == MAX_UPDATES else f"-updates{self.dynamics_updates}")
+                         + (f"-explore{self.fit_explore:g}" if self.fit_explore else ""))
         if self.obs_noise:
             parts.append(f"noise{self.obs_noise:g}")
         if self.samples is not None:
@@ -286,7 +292,7 @@ class BenchConfig:
 
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()
                 if k not in ("out", "workers", "executor", "address", "bind", "imports", "unsafe_load_pickles")
-                and not (k in ("warmup", "policy") and not v)  # none: as results from before it existed say (baselines)
+                and not (k in ("warmup", "policy", "fit_explore") and not v)  # none: as results from before it say
                 and not (k == "dynamics_updates" and v == MAX_UPDATES)}  # the default: as results from before it say
 
     @property

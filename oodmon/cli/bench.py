@@ -11,8 +11,8 @@ from concurrent.futures.process import BrokenProcessPool
 from oodmon.cli.display import _progress, _table_console
 from oodmon.cli.loading import _load_agent
 from oodmon.cli.parsing import (
-    _FAILURES, _FIT_DEFAULT, _KEPT, _STEP_COUNT, _UNSET, _WARMUP, _add_confidence, _add_dynamics_updates, _add_rule,
-    _command_line, _fraction, _non_negative, _sb3_arguments, _policy_argument, _whole, _widths,
+    _FAILURES, _FIT_DEFAULT, _KEPT, _STEP_COUNT, _UNSET, _WARMUP, _add_confidence, _add_dynamics_updates, _add_explore,
+    _add_rule, _command_line, _fraction, _non_negative, _sb3_arguments, _policy_argument, _whole, _widths,
 )
 from oodmon.errors import ConfigError
 from oodmon.jsonfile import write_json
@@ -99,6 +99,7 @@ def _add_bench(commands: argparse._SubParsersAction) -> None:
     alarm.add_argument("--fit-episodes", type=_whole(3), default=0,
                        help=f"ID episodes the learned detectors are fitted on, per trial ({_FIT_DEFAULT})")
     _add_dynamics_updates(alarm, "fitted per trial")
+    _add_explore(alarm, "--fit-explore", "per trial")
     alarm.add_argument("--alarm-detector", choices=list(DETECTOR_NAMES),
                        help="the detector the monitor's alarm reads, one of --detectors (default spread; monitor "
                             "protocol: the task's best)")
@@ -211,7 +212,7 @@ def _bench(args: argparse.Namespace) -> int:
                          imports=tuple(args.imports), unsafe_load_pickles=args.unsafe_load_pickles, policy=args.policy,
                          samples=args.samples, members=args.members,
                          net_arch=args.net_arch, fit_episodes=args.fit_episodes,
-                         dynamics_updates=args.dynamics_updates,
+                         dynamics_updates=args.dynamics_updates, fit_explore=args.fit_explore,
                          masks=args.masks, onsets=args.onsets, failure=args.failure, warmup=args.warmup)
     config.variant_list()  # refuse bad specs before any work
     from oodmon.bench.baseline import (BASELINE_TOLERANCE, bench_falls, check_same_settings, load_bench_result,

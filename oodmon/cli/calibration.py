@@ -15,7 +15,7 @@ from oodmon.cli.display import _clustered, _progress
 from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import (
     _FIT_DEFAULT, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
-    _STEP_COUNT, _WARMUP, _agent_arguments, _explore_share, _fraction, _non_negative, _whole,
+    _STEP_COUNT, _WARMUP, _add_explore, _agent_arguments, _fraction, _non_negative, _whole,
 )
 from oodmon.errors import ConfigError, unknown
 from oodmon.monitor.stopping import stops_held
@@ -89,16 +89,6 @@ def _add_rule_counts(rule: argparse._ArgumentGroup) -> None:
 
 #: fit-detectors' flag of each of calibrate's options of a fit.
 _FIT_DETECTORS_FLAG = {"--fit-episodes": "--episodes", "--fit-explore": "--explore"}
-
-
-def _add_explore(parser: argparse._ActionsContainer, flag: str, when: str) -> None:
-    """A fit's share of random actions: calibrate's --fit-explore, fit-detectors' --explore."""
-    parser.add_argument(flag, type=_explore_share, default=0.0, metavar="P",
-                        help=f"take a random action instead of the policy's at this share of the fitting steps, {when} "
-                             "(default 0): for a policy whose actions will not all be its own deterministic ones (a "
-                             "model that goes on learning, one deployed as it samples, a fallback), whose other "
-                             "actions the dynamics model would otherwise read as a shift; the threshold is calibrated "
-                             "on the policy's own actions (docs/your-policy.md)")
 
 
 def _refuse_fit_options(args: argparse.Namespace) -> None:

@@ -167,6 +167,16 @@ def _add_dynamics_updates(parser: argparse.ArgumentParser, when: str) -> None:
                              "transitions; a PPO's InvertedPendulum read a heavy pole as ID; see docs/detectors.md)")
 
 
+def _add_explore(parser: argparse._ActionsContainer, flag: str, when: str) -> None:
+    """A fit's share of random actions: calibrate's and bench's --fit-explore, fit-detectors' --explore."""
+    parser.add_argument(flag, type=_explore_share, default=0.0, metavar="P",
+                        help=f"take a random action instead of the policy's at this share of the fitting steps, {when} "
+                             "(default 0): for a policy whose actions will not all be its own deterministic ones (a "
+                             "model that goes on learning, one deployed as it samples, a fallback), whose other "
+                             "actions the dynamics model would otherwise read as a shift; the threshold is calibrated "
+                             "on the policy's own actions (docs/your-policy.md)")
+
+
 def _add_confidence(parser: argparse.ArgumentParser, default: str | None = None) -> None:
     from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
 
