@@ -15,6 +15,8 @@ shifted episodes with its deterministic actions (CartPole's pole twice as long, 
 motor at half its strength, gear 100 not 200, from step 30), where it should alarm. Each line: the
 episodes alarmed (shifted: at or after the onset, with the median delay), and the median and 99th
 percentile of the dynamics detector's per-step score (its log-density surprise at the transition).
+Then each model learns on for 4,096 steps and plays 20 (10) ID episodes deterministically under
+both monitors, and under a third fitted and calibrated anew on its new policy.
 
 Why (docs/your-policy.md, "Inside SB3"): the detectors learn the world from the deployed policy's
 own transitions, in which each state has one action. An action the policy would not take there
@@ -39,6 +41,9 @@ from oodmon.threads import limit_threads
 
 #: The shifted episodes' onset step.
 ONSET = 30
+
+#: The training steps each model learns on after its monitors are made (its policy changes).
+LEARNING_ON = 4096
 
 
 def models(reacher: bool):
@@ -85,17 +90,31 @@ def main() -> None:
     args = parser.parse_args()
     limit_threads()
     for name, env_id, model, episodes, shift in models(reacher=not args.no_reacher):
+        monitors = {}
         for fit_explore in (0.0, 0.1):
-            monitor = oodmon.watch(model, env_id, fit_explore=fit_explore)
+            monitor = monitors[fit_explore] = oodmon.watch(model, env_id, fit_explore=fit_explore)
             for way in ("deterministic", "random 5%", "sampled", "shifted"):
                 world = shift.make(onset_step=ONSET) if way == "shifted" else gymnasium.make(env_id)
-                env = MonitoredEnv(world, monitor.twin())
-                env.action_space.seed(0)
-                alarmed, scores, delays = played(model, env, episodes, way)
-                delay = f"  delay median {np.median(delays):g}" if delays else ""
-                print(f"{name} {env_id} fit_explore={fit_explore:g} {way:13s} alarmed {alarmed:2d}/{episodes}  "
-                      f"dynamics median {np.median(scores):9.2f}  p99 {np.percentile(scores, 99):9.2f}  (threshold "
-                      f"{monitor.threshold:.4g}, {monitor.detector}){delay}", flush=True)
+                report(f"{name} {env_id} fit_explore={fit_explore:g} {way:13s}", model, world, monitor, episodes, way)
+        # A model that learns on changes what it does: the states it visits move from those the
+        # detectors were fitted on, whatever their fit saw of other actions.
+        model.learn(LEARNING_ON, reset_num_timesteps=False)
+        monitors["refitted"] = oodmon.watch(model, env_id)
+        for fitted, monitor in monitors.items():
+            label = "refitted" if fitted == "refitted" else f"fit_explore={fitted:g}"
+            report(f"{name} {env_id} {LEARNING_ON:,} steps later, {label:15s}", model, gymnasium.make(env_id),
+                   monitor, episodes, "deterministic")
+
+
+def report(label: str, model, world: gymnasium.Env, monitor, episodes: int, way: str) -> None:
+    """Play ``episodes`` episodes of ``world`` acted ``way`` under ``monitor`` and print a line."""
+    env = MonitoredEnv(world, monitor.twin())
+    env.action_space.seed(0)
+    alarmed, scores, delays = played(model, env, episodes, way)
+    delay = f"  delay median {np.median(delays):g}" if delays else ""
+    print(f"{label} alarmed {alarmed:2d}/{episodes}  dynamics median {np.median(scores):9.2f}  p99 "
+          f"{np.percentile(scores, 99):9.2f}  (threshold {monitor.threshold:.4g}, {monitor.detector}){delay}",
+          flush=True)
 
 
 if __name__ == "__main__":

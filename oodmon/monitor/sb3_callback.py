@@ -26,6 +26,13 @@ actions' outcomes: the PPO's 5% random actions then alarmed 0 of 20, its sampled
 DQN's 1 and 0 of 20, and the pole twice as long still 20 of 20 each at delay 1; the callback then
 warns only where more steps explored than that share.
 
+**So does learning.** A model that learns on changes what it does, and the states it comes to
+visit move from those the detectors were fitted on, whatever their fit saw of other actions: after
+4,096 more training steps, deciding deterministically, the DQN alarmed 17 of 20 ID episodes under
+either monitor, the SAC 10 and 7 of 10, the PPO 4 and 0 of 20, and monitors fitted and calibrated
+anew on each new policy none (the same script). A training run's alarms read its exploration and
+its learning besides the world; the policy you deploy gets its own fit and calibration.
+
 The monitor's sinks (MCAP, Rerun) log every step as in any run. For evaluation rollouts, wrap the
 evaluation env instead: ``evaluate_policy(model, MonitoredEnv(env, monitor))`` or
 ``EvalCallback(MonitoredEnv(env, monitor))``; the wrapper takes SB3's actions as the deployed
@@ -180,11 +187,12 @@ class MonitorCallback(BaseCallback):
             return
         warnings.warn(ExplorationWarning(
             f"{said}: the detectors, fitted on the deployed policy's own actions, read such steps as a shift, so "
-            "alarms while it learns are mostly its exploration (a PPO's sampled actions on CartPole-v1 alarmed 20 of 20 ID "
-            "episodes, its deterministic ones none); detectors fitted with some random actions read them as ID "
+            "many alarms while it learns are its exploration (a PPO's sampled actions on CartPole-v1 alarmed 20 of 20 "
+            "ID episodes, its deterministic ones none); detectors fitted with some random actions read them as ID "
             "(oodmon.watch(..., fit_explore=0.1), `oodmon calibrate --fit-explore 0.1`: the PPO's 5% random actions "
-            "then alarmed 0 of 20, its sampled ones 8); the deployed policy's alarms are those of oodmon run, or of "
-            "evaluate_policy(model, MonitoredEnv(...))"), stacklevel=2)
+            "then alarmed 0 of 20, its sampled ones 8), though not the states a policy that learns on comes to "
+            "visit; the deployed policy's alarms are those of oodmon run, or of evaluate_policy(model, "
+            "MonitoredEnv(...)), with detectors fitted on it"), stacklevel=2)
 
 
 def _first(observations: Any) -> Any:

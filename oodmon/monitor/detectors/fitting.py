@@ -584,9 +584,10 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
     (:func:`collect`; recorded in ``fitted_for["explore"]``). Fitted on its actions alone (0, the
     default), the dynamics model has seen one action in each state, and reads another action there
     (a learning model's exploration, a policy deployed as it samples, a fallback) as a shift:
-    fitted with 0.1, a DQN on CartPole-v1 taking a random action at 5% of its steps alarmed 2 of 40
-    ID episodes, not 14, and the four shifts measured as often (``scripts/exploration_alarms.py``,
-    docs/your-policy.md). The threshold is calibrated on the policy's own actions as before.
+    fitted with 0.1, a DQN on CartPole-v1 taking a random action at 5% of its steps alarmed 1 of 20
+    ID episodes, not 5, a PPO 0, not 20, and a pole twice as long 20 of 20 either way, at delay 1
+    (``scripts/exploration_alarms.py``, docs/your-policy.md). The threshold is calibrated on the
+    policy's own actions as before.
 
     ``spread`` (with ``score``) joins the set whenever the policy has samples; ``combined``
     combines every other detector of the set (but what :data:`COMBINED_LEAVES_OUT` leaves out for
