@@ -212,6 +212,10 @@ def test_a_maskable_ppo_decides_among_the_actions_each_steps_masks_allow(tmp_pat
         agent.wrap(gymnasium.make("CartPole-v1")).reset(seed=0)
     played = collect(agent, gymnasium.make(env_id), 2, seed=0)  # an env of yours: told the masks as the monitor tells them
     assert all(masks_allow(t.actions) for t in played)
+    # a fit that explores takes random actions among those the masks allow, too (fit_explore)
+    explored = collect(agent, gymnasium.make(env_id), 2, seed=0, explore=0.5)
+    assert all(masks_allow(t.actions) for t in explored)
+    assert not np.array_equal(explored[0].actions[:20], played[0].actions[:20])
     dynamics = DynamicsDetector(3, epochs=2, seed=0).fit(played)
     sink = MemorySink()  # the monitor gives the masks of the env it steps, wrapped or not
     with Monitor(agent, detectors=[dynamics], sinks=[sink]) as monitor:

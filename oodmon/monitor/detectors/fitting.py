@@ -358,10 +358,15 @@ class Explorer:
 def check_explore(explore: Any, parameter: str = "explore") -> float:
     """``explore`` as a float, a share of the steps in [0, 1).
 
+    Example:
+        >>> check_explore(np.float32(0.25)), check_explore(0)
+        (0.25, 0.0)
+
     Raises:
         InvalidParameterError: anything else (1 would fit on a random policy's episodes alone).
     """
-    if isinstance(explore, bool) or not isinstance(explore, (int, float)) or not 0 <= explore < 1:
+    if isinstance(explore, (bool, np.bool_)) or not isinstance(explore, (int, float, np.integer, np.floating)) \
+            or not 0 <= explore < 1:
         raise InvalidParameterError(f"{parameter}={explore!r} is not allowed; it is the share of the fitting steps "
                                     "that take a random action instead of the policy's, a number >= 0 and < 1 "
                                     "(e.g. 0.1)")
