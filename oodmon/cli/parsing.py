@@ -172,9 +172,9 @@ def _add_explore(parser: argparse._ActionsContainer, flag: str, when: str) -> No
     parser.add_argument(flag, type=_explore_share, default=0.0, metavar="P",
                         help=f"take a random action instead of the policy's at this share of the fitting steps, {when} "
                              "(default 0): for a policy whose actions will not all be its own deterministic ones (a "
-                             "learning model's exploration, one deployed as it samples, a fallback), whose other "
-                             "actions the dynamics model would otherwise read as a shift; the threshold is calibrated "
-                             "on the policy's own actions (docs/your-policy.md)")
+                             "learning model's exploration, one deployed as it samples), whose other actions the "
+                             "dynamics model would otherwise read as a shift; the threshold is calibrated on the "
+                             "policy's own actions (docs/your-policy.md)")
 
 
 def _add_confidence(parser: argparse.ArgumentParser, default: str | None = None) -> None:

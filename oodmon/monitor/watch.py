@@ -130,8 +130,8 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     ``fit_explore``: the share of the fitting steps that take a random action instead of the
     policy's (its ``explore``), for a policy whose actions will not all be its own deterministic
     ones: a learning model's exploration (:class:`~oodmon.monitor.sb3_callback.MonitorCallback`;
-    not the states it comes to visit as it learns), one deployed as it samples, a fallback's
-    (docs/your-policy.md, "Inside SB3"); the threshold is calibrated on the policy's own actions.
+    not the states it comes to visit as it learns), one deployed as it samples (docs/your-policy.md,
+    "Inside SB3"); the threshold is calibrated on the policy's own actions.
     ``max_steps``: the calibration episodes' time limit instead of the env's own, for a deployment
     whose runs are longer (see :func:`~oodmon.monitor.validate_threshold`'s, which checks it).
     ``workers``: processes that play the fitting and calibration episodes side by side (0: one per
