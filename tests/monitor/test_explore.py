@@ -66,18 +66,19 @@ def test_the_explorer_draws_among_the_actions_a_masked_policy_may_take():
 
 
 def test_detectors_fitted_on_some_random_actions_read_a_policy_that_explores_as_id(agent):
-    """The controller watched by its dynamics model (fitted on 15 episodes, the threshold on 20
-    others at 10% false alarms, on average over calibrations) plays 30 fresh ID episodes taking a
-    random action at 5% of its steps. Fitted on its own actions, the model reads those as a shift:
+    """The controller watched by its dynamics model (fitted on 15 episodes, its fit capped at 500
+    Adam updates: 50 of its 100 epochs, half the time; the threshold on 20 others at 10% false
+    alarms, on average over calibrations) plays 30 fresh ID episodes taking a random action at 5%
+    of its steps. Fitted on its own actions, the model reads those as a shift:
     at least 24 of 30 alarmed (measured 30). Fitted with explore=0.1, it reads them as it reads the
     controller's own episodes: at most 8 of 30 each, the 10% target's binomial 99th percentile of 30
-    episodes (measured 1 and 2). The threshold is calibrated on the controller's own actions both
-    times. (Fitted on 10 episodes, the model without exploring alarmed 9 of 30: one this unsure
-    reads little as a shift.)"""
+    episodes (measured 1 and 4; uncapped, 30, 1 and 2). The threshold is calibrated on the
+    controller's own actions both times. (Fitted uncapped on 10 episodes, the model without
+    exploring alarmed 9 of 30: one this unsure reads little as a shift.)"""
     env = gymnasium.make("CartPole-v1")
     alarmed = {}
     for explore in (0.0, 0.1):
-        detectors = fit_detectors(agent, env, episodes=15, detectors=["dynamics"], explore=explore)
+        detectors = fit_detectors(agent, env, episodes=15, detectors=["dynamics"], explore=explore, dynamics_updates=500)
         assert detectors.fitted_for.get("explore") == (explore or None)
         threshold = calibrate_agent(agent, 20, 0.1, detectors=detectors, detector="dynamics", confidence=None)
         monitor = Monitor(agent, threshold, detectors=detectors, detector="dynamics")
