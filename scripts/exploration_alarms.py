@@ -28,6 +28,7 @@ model has seen other actions' outcomes.
 from __future__ import annotations
 
 import argparse
+import warnings
 
 import gymnasium
 import numpy as np
@@ -36,7 +37,7 @@ from stable_baselines3 import DQN, PPO, SAC
 import oodmon
 from oodmon.envs import parse_variant
 from oodmon.envs.shift import parse_env_shift
-from oodmon.monitor import MonitoredEnv
+from oodmon.monitor import MonitoredEnv, OtherActionsWarning
 from oodmon.threads import limit_threads
 
 #: The shifted episodes' onset step.
@@ -89,6 +90,7 @@ def main() -> None:
     parser.add_argument("--no-reacher", action="store_true", help="leave out the SAC on Reacher-v5 (MuJoCo)")
     args = parser.parse_args()
     limit_threads()
+    warnings.filterwarnings("ignore", category=OtherActionsWarning)  # (the actions are others on purpose here)
     for name, env_id, model, episodes, shift in models(reacher=not args.no_reacher):
         monitors = {}
         for fit_explore in (0.0, 0.1):

@@ -26,12 +26,13 @@ it with an alarm, as here.
 from __future__ import annotations
 
 import argparse
+import warnings
 
 import numpy as np
 
 from oodmon.agents import load
 from oodmon.envs import parse_variant
-from oodmon.monitor import Monitor, MonitoredEnv, calibrate_agent
+from oodmon.monitor import Monitor, MonitoredEnv, OtherActionsWarning, calibrate_agent
 from oodmon.monitor.detectors import detectors_for, fit_agent_detectors
 from oodmon.threads import limit_threads
 
@@ -75,6 +76,8 @@ def main() -> None:
                              "instead of reading its shipped ones (fit_agent_detectors' explore; 30 s more)")
     args = parser.parse_args()
     limit_threads()
+    # The fallback alone acts otherwise than the agent from the first step: said once, known here.
+    warnings.filterwarnings("ignore", category=OtherActionsWarning)
     agent = load("cartpole", "ensemble")
     detectors = fit_agent_detectors(agent, explore=args.fit_explore) if args.fit_explore else detectors_for(agent)
     threshold = calibrate_agent(agent, 50, 0.05, detectors=detectors)

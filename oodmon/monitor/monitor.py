@@ -34,7 +34,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.agents.agent import Agent
-from oodmon.agents.estimators import Estimate, UncertaintyEstimator
+from oodmon.agents.estimators import EnsembleEstimator, Estimate, UncertaintyEstimator
 from oodmon.envs.checks import step_naming_refusal
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
@@ -50,11 +50,16 @@ from oodmon.versions import library_versions, machine
 from oodmon.hashing import file_sha256, other_weights
 from oodmon.validation import is_finite_real, is_real, is_whole
 
-__all__ = ["SEGMENT_STEPS", "AlarmCallback", "Monitor", "NonFiniteObservationWarning", "PolicyCannotAct"]
+__all__ = ["GIVEN_CHECKED", "SEGMENT_STEPS", "AlarmCallback", "Monitor", "NonFiniteObservationWarning",
+           "OtherActionsWarning", "PolicyCannotAct", "same_action"]
 
 #: Steps of an episode after which the monitor hands its segment on (see ``Monitor(segment_steps=)``):
 #: about 10 MB of score arrays in ``McapSink`` with four detectors, 17 minutes at 100 decisions a second.
 SEGMENT_STEPS = 100_000
+
+#: The first actions given to a monitor (``step(obs, action=...)``) it compares with the policy's own
+#: decision at their observation, where that decision draws nothing (:class:`OtherActionsWarning`).
+GIVEN_CHECKED = 100
 
 #: Called with each alarm; returning True asks ``run_episode`` / ``MonitoredEnv`` to end the
 #: episode (the default is to let the policy go on).
@@ -292,6 +297,11 @@ class Monitor:
         self.last_cause: str | None = None  # what raised the last step's score, while the alarm rule held there
         self.stop_event: AlarmEvent | None = None  # the alarm a callback ended the episode with
         self.alarms_raised = 0  # alarms of the whole run
+        # Actions given (step(obs, action=...)) before an episode's first alarm, compared with the
+        # policy's own decision, and those that differed (OtherActionsWarning); MonitorCallback,
+        # which checks its training steps itself, turns it off.
+        self.compares_given_actions = True
+        self._given_checked = self._given_differed = 0
 
     def twin(self, *, sinks: Sequence[Sink] = (), callbacks: Sequence[AlarmCallback] = ()) -> Monitor:
         """A monitor of the same policy, threshold and alarm rule, with copies of the fitted detectors
@@ -449,6 +459,9 @@ class Monitor:
 
     def close(self) -> None:
         """End a running episode (as interrupted) and finish the sinks' files. Idempotent."""
+        if 0 < self._given_checked < GIVEN_CHECKED:  # fewer given than the check counts: said all the same
+            self._warn_of_other_actions()
+            self._given_checked = GIVEN_CHECKED
         if self._opened:
             atexit.unregister(self.close)
             try:
@@ -595,6 +608,8 @@ class Monitor:
         cannot_act = None  # the policy's error on a reading that is not finite, when it raised one
         if action is None:
             action, cannot_act = self._decide(obs, estimate)
+        elif self.compares_given_actions and self._given_checked < GIVEN_CHECKED and self._first_alarm is None:
+            self._compare_given(obs, action, estimate)  # (not a fallback's, after an alarm)
         picture = None  # a dict's picture beside the vectors the detectors read: the frames detector's
         if self._own:  # the policy acted on a stack, or a dict with pictures; the detectors and the log read less
             if self.agent.pictures is not None:
@@ -657,6 +672,35 @@ class Monitor:
                 f"is not finite ({_shown(obs)}; {type(cannot_act).__name__}): it is scored (+inf) and logged with "
                 "the action before it (a failed sensor, a shift that blew the env's physics up?)") from cannot_act
         return action
+
+    def _compare_given(self, obs: Any, action: Any, estimate: Estimate | None) -> None:
+        """Compare an action given to :meth:`step` with the policy's own decision at ``obs``, where
+        that decision draws nothing and remembers nothing (an SB3 model's deterministic ``predict``,
+        an ensemble's mean); after :data:`GIVEN_CHECKED` of them, warn if some differed."""
+        from oodmon.agents.sb3_deployed import DeployedModel
+
+        if type(self._act) is DeployedModel and not self._action_parts:
+            own = self._act(obs)
+        elif self._act is None and isinstance(self.estimator, EnsembleEstimator) and estimate is not None:
+            own = self._decide(obs, estimate)[0]
+        else:  # a function of yours, a policy that samples, remembers or reads masks: not asked twice
+            self._given_checked = GIVEN_CHECKED
+            return
+        self._given_checked += 1
+        self._given_differed += not same_action(own, action)
+        if self._given_checked == GIVEN_CHECKED:
+            self._warn_of_other_actions()
+
+    def _warn_of_other_actions(self) -> None:
+        if self._given_differed:
+            warnings.warn(OtherActionsWarning(
+                f"{self._given_differed} of the first {self._given_checked} actions given to the monitor (before any "
+                "alarm) were not the policy's own decision at their observation: SB3's predict(obs) samples unless "
+                "deterministic=True (a DQN's takes a random action at its exploration rate), and the detectors, "
+                "fitted on the policy's own actions, read other actions as a shift (a PPO's sampled actions on "
+                "CartPole-v1 alarmed 20 of 20 ID episodes, its deterministic ones none): give predict(obs, "
+                "deterministic=True); a policy deployed as it samples is watched as a function of any kind, or "
+                "with detectors fitted on some random actions (fit_explore; docs/your-policy.md)"), stacklevel=3)
 
     def _cause(self, finite: bool) -> str:
         """What raised the alarm's score at this step (:attr:`AlarmEvent.cause`): the alarm's
@@ -778,6 +822,23 @@ class LongerThanCalibrationWarning(OffCalibrationWarning):
     """:meth:`Monitor.step`: an episode has run past the longest of the monitor's threshold's
     calibration episodes (``Threshold.longest_episode``), so the threshold's false-alarm bound does
     not speak for its steps from there. Warned once per monitor."""
+
+
+class OtherActionsWarning(UserWarning):
+    """:meth:`Monitor.step`: some of the first :data:`GIVEN_CHECKED` actions given to it before an
+    alarm were not the policy's own decision at their observation (SB3's ``predict`` samples by
+    default), which the detectors, fitted on its own actions, read as a shift. Warned once per
+    monitor; compared only where the decision draws nothing (an SB3 model's deterministic one)."""
+
+
+def same_action(own: Any, given: Any) -> bool:
+    """Whether ``given`` is the action ``own`` (a float32 network's action and its float64 copy alike).
+
+    Example:
+        >>> same_action(1, np.int64(1)), same_action(np.float32([0.3]), [0.30000001]), same_action(0, 1)
+        (True, True, False)
+    """
+    return bool(np.allclose(np.asarray(own, np.float64), np.asarray(given, np.float64), rtol=1e-5, atol=1e-6))
 
 
 class PolicyCannotAct(RuntimeError):

@@ -57,7 +57,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, task_of_env, variant_of_env
-from oodmon.monitor.monitor import Monitor, _frame
+from oodmon.monitor.monitor import Monitor, _frame, same_action
 
 __all__ = ["EXPLORATION_CHECKED", "ExplorationWarning", "MonitorCallback"]
 
@@ -78,6 +78,7 @@ class MonitorCallback(BaseCallback):
     def __init__(self, monitor: Monitor, verbose: int = 0) -> None:
         super().__init__(verbose)
         self.monitor = monitor
+        monitor.compares_given_actions = False  # (the training steps' actions are checked here, in the model's terms)
         self._obs: np.ndarray | None = None  # the first env's raw observation the model acts on next
         self._model_obs: Any = None  # that observation as the model reads it (normalised, channels first)
         self._checked = self._explored = 0  # training steps compared with the deterministic action, and differing
@@ -165,8 +166,7 @@ class MonitorCallback(BaseCallback):
         masked = {} if masks is None else {"action_masks": masks[0]}
         deployed, _ = self.model.predict(model_obs, deterministic=True, **masked)
         self._checked += 1
-        self._explored += not np.allclose(np.asarray(deployed, np.float64), np.asarray(action, np.float64),
-                                          rtol=1e-5, atol=1e-6)
+        self._explored += not same_action(deployed, action)
         if self._checked == EXPLORATION_CHECKED:
             self._warn_exploration()
 

@@ -385,6 +385,7 @@ def test_a_model_named_without_its_zip_is_read_as_sb3s_load_reads_it(tmp_path, c
         "there either)"]
 
 
+@pytest.mark.filterwarnings("ignore::oodmon.monitor.monitor.OtherActionsWarning")  # (action 0 on purpose; tested below)
 def test_watch_fits_calibrates_and_wraps_an_env_in_one_call():
     import oodmon
     from oodmon.monitor import MemorySink
@@ -691,6 +692,49 @@ def test_the_callback_warns_of_exploration_beyond_the_share_of_random_actions_th
             f"{explored} of the first 100 training steps took another action than the model's deterministic one (its "
             "exploration), more than the 5% of random actions the detectors were fitted with: some alarms while it "
             "learns may be its exploration")
+
+
+@pytest.mark.parametrize("way, differing, checked", [
+    ("deterministic", (0, 0), 100),  # predict(obs, deterministic=True): the policy's own decision
+    ("exploring", (6, 24), 100),  # predict(obs): a random action at 30% of the steps, half its own: about 15
+    ("after an alarm", (0, 6), 12),  # every step alarms: only each episode's first is compared (a fallback's after)
+])
+def test_actions_given_to_a_monitor_that_are_not_the_policys_own_are_counted_and_said(way, differing, checked):
+    """SB3's predict(obs) samples unless deterministic=True (a DQN's takes a random action at its
+    exploration rate), and a loop of your own stepping a MonitoredEnv with it reads as a shift,
+    unsaid before 2026-12-07. The monitor compares the first 100 actions given to it before an
+    episode's first alarm with the policy's own decision, and warns once how many differed (at
+    its close where fewer were given). Bounds: binomial, four standard deviations."""
+    import warnings
+
+    from oodmon.monitor import OtherActionsWarning
+    from oodmon.monitor.detectors import fit_detectors
+
+    model = DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0, policy_kwargs={"net_arch": [16]})
+    model.exploration_rate = 0.3
+    agent = sb3_agent([model], "CartPole-v1")
+    detectors = fit_detectors(agent, gymnasium.make("CartPole-v1"), detectors=["dynamics"], episodes=3,
+                              dynamics_updates=5)
+    threshold = -1e9 if way == "after an alarm" else None  # (every step alarms; None: none does)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with Monitor(agent, threshold, detectors=detectors, detector="dynamics") as monitor:
+            env = MonitoredEnv(gymnasium.make("CartPole-v1"), monitor)
+            for episode in range(12):  # (an untrained DQN's episodes last about 10 steps)
+                obs, _ = env.reset(seed=episode)
+                done = False
+                while not done:
+                    action, _ = model.predict(obs, deterministic=way == "deterministic")
+                    obs, _, terminated, truncated, _ = env.step(action)
+                    done = terminated or truncated
+            compared = monitor._given_checked  # (before the close, which says what it counted)
+    said = [str(w.message) for w in caught if issubclass(w.category, OtherActionsWarning)]
+    count = int(said[0].split()[0]) if said else 0
+    assert len(said) <= 1 and differing[0] <= count <= differing[1]
+    assert not said or said[0].startswith(
+        f"{count} of the first {checked} actions given to the monitor (before any alarm) were not the policy's own "
+        "decision at their observation: SB3's predict(obs) samples unless deterministic=True")
+    assert compared == checked
 
 
 def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monkeypatch, capsys):
