@@ -60,7 +60,7 @@ from oodmon.validation import is_whole
 __all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "ClusterSums",
            "ClusteredInterval", "EarlyPeaksWarning", "OutlyingThresholdWarning", "Stretches", "Threshold",
            "calibrate", "check_step_episodes", "clopper_pearson", "clustered_interval", "conformal_rank",
-           "episodes_needed", "model_files", "step_threshold", "verdict_of"]
+           "episodes_needed", "model_files", "sb3_arguments", "step_threshold", "verdict_of"]
 
 MODES = ("episode", "step")
 #: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
@@ -751,7 +751,7 @@ class Threshold:
     def sb3_files(self) -> str | None:
         """Its SB3 model files (:attr:`models`) as ``--sb3`` takes them, quoted for a shell; ``None``
         where not recorded."""
-        return " ".join(shlex.quote(model["path"]) for model in self.models) if self.models else None
+        return sb3_arguments(self.models) if self.models else None
 
     @property
     def mean_episode(self) -> int | None:
@@ -943,6 +943,16 @@ def model_files(models: object) -> list[dict[str, str]] | None:
             and m["sha256"] and m["path"] != "(in memory)" for m in models):
         return None
     return [{"path": m["path"], "sha256": m["sha256"]} for m in models]
+
+
+def sb3_arguments(models: Sequence[dict[str, str]]) -> str:
+    """SB3 model files (:func:`model_files`) as ``--sb3`` takes them, each path quoted for a shell.
+
+    Example:
+        >>> sb3_arguments([{"path": "runs/a.zip", "sha256": "ab"}, {"path": "my b.zip", "sha256": "cd"}])
+        "runs/a.zip 'my b.zip'"
+    """
+    return " ".join(shlex.quote(model["path"]) for model in models)
 
 
 def calibrate(

@@ -97,6 +97,13 @@ def test_a_threshold_names_its_model_files_where_other_models_or_none_are_given(
     assert f"it was calibrated on 2 model files: --sb3 {first} {second}" in capsys.readouterr().err
     assert main(["validate", threshold]) == 2
     assert f"give them again, --sb3 {first} {second} --env CartPole-v1" in capsys.readouterr().err
+    # so do the detectors calibrate fitted beside it (their refusal named no file before)
+    assert DetectorSet.load(f"{threshold}.detectors").fitted_for["models"] == json.loads(
+        Path(threshold).read_text())["models"]
+    assert main(["calibrate", "--sb3", second, first, "--env", "CartPole-v1", "--detectors", f"{threshold}.detectors",
+                 "--out", str(folder / "runs/other.json")]) == 2
+    assert (f"the detectors were fitted on another policy's episodes (its weights, or a plain policy's name or code, "
+            f"differ): on those of 2 model files, --sb3 {first} {second}") in capsys.readouterr().err
 
 
 def test_the_docs_deployed_process_reads_the_calibration_and_logs_split(readme_run, monkeypatch, capsys):

@@ -669,7 +669,7 @@ def fit_detectors(policy: Any, env: gymnasium.Env, *, detectors: Sequence[str] |
                                workers=workers, done=done, explore=explore)
         return _fitted(trajectories, detectors, estimator, task, score, n_actions, seed, dynamics_updates, on_progress,
                        policy_hash=policy_hash, obs_noise=obs_noise, workers=workers, max_steps=max_steps,
-                       recorded={"explore": explore} if explore else None)
+                       recorded={**({"explore": explore} if explore else {}), **_models_of(metadata)} or None)
     except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (Ctrl-C, SIGTERM, a worker's death)
         if kept is not None:
             # in the episodes: those played whole; in the fit itself: every one
@@ -713,6 +713,16 @@ def _checked_actions(detectors: Sequence[str], policy: Any, env: gymnasium.Env) 
     read_flat = getattr(policy, "action_parts", None) is not None
     return int(env.action_space.n) if isinstance(env.action_space, gymnasium.spaces.Discrete) and not read_flat \
         else None
+
+
+def _models_of(metadata: dict[str, Any]) -> dict[str, Any]:
+    """``{"models": [...]}``: the SB3 model files a policy's metadata names, which a fitted set
+    records as a threshold does (:func:`~oodmon.monitor.threshold.model_files`), so that a refusal
+    can name them; nothing for a policy of no such files."""
+    from oodmon.monitor.threshold import model_files
+
+    models = model_files(metadata.get("models"))
+    return {} if models is None else {"models": models}
 
 
 def _fitted(trajectories: list[Trajectory], detectors: Sequence[str], estimator: Any, task: str | None, score: str,
@@ -940,7 +950,7 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
                                        else None, np.asarray(values) if ensemble else None))
     return _fitted(trajectories, names, estimator, agent.task, score, n_actions, seed, dynamics_updates, on_progress,
                    policy_hash=policy_hash(agent), obs_noise=obs_noise, workers=1, max_steps=None,
-                   recorded={"seed": None, **(recorded or {})})
+                   recorded={"seed": None, **_models_of(agent.metadata), **(recorded or {})})
 
 
 def _fitted_on_frames(episodes: list[tuple[np.ndarray, np.ndarray]], names: Sequence[str],

@@ -184,8 +184,13 @@ class DetectorSet:
             found.append(f"the detectors were fitted on observations of shape {tuple(mine['obs_shape'])}, "
                          f"not {tuple(obs_shape)}")
         if other_weights(mine.get("policy_hash"), policy_hash, aliases):
+            from oodmon.monitor.threshold import model_files, sb3_arguments
+
+            files = model_files(mine.get("models"))
+            named = "" if not files else \
+                f": on those of {len(files)} model file{'s' if len(files) > 1 else ''}, --sb3 {sb3_arguments(files)}"
             found.append("the detectors were fitted on another policy's episodes (its weights, or a plain policy's "
-                         "name or code, differ)")
+                         f"name or code, differ){named}")
         return found
 
     # -- files ---------------------------------------------------------------------------------------
