@@ -459,17 +459,21 @@ class Monitor:
 
     def close(self) -> None:
         """End a running episode (as interrupted) and finish the sinks' files. Idempotent."""
-        if 0 < self._given_checked < GIVEN_CHECKED:  # fewer given than the check counts: said all the same
-            self._warn_of_other_actions()
-            self._given_checked = GIVEN_CHECKED
-        if self._opened:
-            atexit.unregister(self.close)
-            try:
-                if self._in_episode and not self.abandon_empty_episode():
-                    self.end_episode(interrupted=True)
-            finally:
-                self.sinks.close()
-                self._opened = False
+        try:
+            if self._opened:
+                atexit.unregister(self.close)
+                try:
+                    if self._in_episode and not self.abandon_empty_episode():
+                        self.end_episode(interrupted=True)
+                finally:
+                    self.sinks.close()
+                    self._opened = False
+        finally:  # (after the files: a warning made an error, -W error, must not leave them unfinished)
+            if 0 < self._given_checked < GIVEN_CHECKED:  # fewer given than the check counts: said all the same
+                try:
+                    self._warn_of_other_actions()
+                finally:
+                    self._given_checked = GIVEN_CHECKED  # (once)
 
     def __enter__(self) -> Monitor:
         return self.open()

@@ -744,6 +744,34 @@ def test_actions_given_to_a_monitor_that_are_not_the_policys_own_are_counted_and
     assert compared == checked
 
 
+def test_a_warning_of_other_actions_made_an_error_leaves_the_log_whole(tmp_path):
+    """Said at the close where fewer than 100 actions were given, after the log is finished: under
+    ``-W error`` the warning raises, and the log is whole all the same."""
+    import warnings
+
+    from oodmon.monitor import McapSink, OtherActionsWarning
+    from oodmon.monitor.detectors import fit_detectors
+
+    model = DQN("MlpPolicy", gymnasium.make("CartPole-v1"), seed=0, policy_kwargs={"net_arch": [16]})
+    model.exploration_rate = 1.0  # every action random: about half differ from its own
+    agent = sb3_agent([model], "CartPole-v1")
+    detectors = fit_detectors(agent, gymnasium.make("CartPole-v1"), detectors=["dynamics"], episodes=3,
+                              dynamics_updates=5)
+    monitor = Monitor(agent, None, detectors=detectors, detector="dynamics", sinks=[McapSink(tmp_path / "r.mcap")])
+    env = MonitoredEnv(gymnasium.make("CartPole-v1"), monitor)
+    obs, _ = env.reset(seed=0)
+    done = False
+    while not done:
+        obs, _, terminated, truncated, _ = env.step(model.predict(obs)[0])
+        done = terminated or truncated
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", OtherActionsWarning)
+        with pytest.raises(OtherActionsWarning, match=r"^\d+ of the first \d+ actions given to the monitor"):
+            monitor.close()
+    log = read_log(tmp_path / "r.mcap")
+    assert log.complete and len(log.episodes) == 1
+
+
 def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monkeypatch, capsys):
     # The page's "module:EnvId": gymnasium imports the module (registering the env) before making it.
     (tmp_path / "users_envs_for_tests.py").write_text(
