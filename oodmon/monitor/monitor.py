@@ -302,6 +302,7 @@ class Monitor:
         # which checks its training steps itself, turns it off.
         self.compares_given_actions = True
         self._given_checked = self._given_differed = 0
+        self._given_said = False  # (said once: after the 100th, or at the close)
 
     def twin(self, *, sinks: Sequence[Sink] = (), callbacks: Sequence[AlarmCallback] = ()) -> Monitor:
         """A monitor of the same policy, threshold and alarm rule, with copies of the fitted detectors
@@ -469,11 +470,8 @@ class Monitor:
                     self.sinks.close()
                     self._opened = False
         finally:  # (after the files: a warning made an error, -W error, must not leave them unfinished)
-            if 0 < self._given_checked < GIVEN_CHECKED:  # fewer given than the check counts: said all the same
-                try:
-                    self._warn_of_other_actions()
-                finally:
-                    self._given_checked = GIVEN_CHECKED  # (once)
+            if self._given_checked and not self._given_said:  # fewer given than the check counts: said all the same
+                self._say_other_actions()
 
     def __enter__(self) -> Monitor:
         return self.open()
@@ -659,6 +657,8 @@ class Monitor:
             self._warn_longer_than_calibration()
         self.sinks.write_step(self.last_step)
         self._length += 1  # the step is logged: it counts, whatever a callback below does
+        if self._given_checked == GIVEN_CHECKED and not self._given_said:  # (after the step is logged)
+            self._say_other_actions()
         if event is not None:
             self._alarms += 1
             self.alarms_raised += 1
@@ -680,7 +680,7 @@ class Monitor:
     def _compare_given(self, obs: Any, action: Any, estimate: Estimate | None) -> None:
         """Compare an action given to :meth:`step` with the policy's own decision at ``obs``, where
         that decision draws nothing and remembers nothing (an SB3 model's deterministic ``predict``,
-        an ensemble's mean); after :data:`GIVEN_CHECKED` of them, warn if some differed."""
+        an ensemble's mean); after :data:`GIVEN_CHECKED` of them, :meth:`step` warns if some differed."""
         from oodmon.agents.sb3_deployed import DeployedModel
 
         if type(self._act) is DeployedModel and not self._action_parts:
@@ -688,14 +688,14 @@ class Monitor:
         elif self._act is None and isinstance(self.estimator, EnsembleEstimator) and estimate is not None:
             own = self._decide(obs, estimate)[0]
         else:  # a function of yours, a policy that samples, remembers or reads masks: not asked twice
-            self._given_checked = GIVEN_CHECKED
+            self._given_checked, self._given_said = GIVEN_CHECKED, True
             return
         self._given_checked += 1
         self._given_differed += not same_action(own, action)
-        if self._given_checked == GIVEN_CHECKED:
-            self._warn_of_other_actions()
 
-    def _warn_of_other_actions(self) -> None:
+    def _say_other_actions(self) -> None:
+        """Warn, once, of the given actions that were not the policy's (:meth:`_compare_given`)."""
+        self._given_said = True
         if self._given_differed:
             warnings.warn(OtherActionsWarning(
                 f"{self._given_differed} of the first {self._given_checked} actions given to the monitor (before any "

@@ -745,8 +745,9 @@ def test_actions_given_to_a_monitor_that_are_not_the_policys_own_are_counted_and
 
 
 def test_a_warning_of_other_actions_made_an_error_leaves_the_log_whole(tmp_path):
-    """Said at the close where fewer than 100 actions were given, after the log is finished: under
-    ``-W error`` the warning raises, and the log is whole all the same."""
+    """Said at the close where fewer than 100 actions were given, after the log is finished, and at
+    the 100th after that step is logged: under ``-W error`` the warning raises, and the log is whole
+    all the same."""
     import warnings
 
     from oodmon.monitor import McapSink, OtherActionsWarning
@@ -770,6 +771,20 @@ def test_a_warning_of_other_actions_made_an_error_leaves_the_log_whole(tmp_path)
             monitor.close()
     log = read_log(tmp_path / "r.mcap")
     assert log.complete and len(log.episodes) == 1
+    sink = MemorySink()  # the 100th given step: logged before the warning raises
+    monitor = Monitor(agent, None, detectors=detectors, detector="dynamics", sinks=[sink])
+    env = MonitoredEnv(gymnasium.make("CartPole-v1"), monitor)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", OtherActionsWarning)
+        with pytest.raises(OtherActionsWarning, match=r"^\d+ of the first 100 actions given to the monitor"):
+            for episode in range(100):
+                obs, _ = env.reset(seed=episode)
+                done = False
+                while not done:
+                    obs, _, terminated, truncated, _ = env.step(model.predict(obs)[0])
+                    done = terminated or truncated
+    assert len(sink.steps) == 100
+    monitor.close()  # (said once)
 
 
 def test_an_env_of_the_users_own_module_is_made_by_module_and_id(tmp_path, monkeypatch, capsys):
