@@ -27,7 +27,7 @@ import sys
 import warnings
 import weakref
 from collections.abc import Callable, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import gymnasium
@@ -50,7 +50,7 @@ from oodmon.versions import library_versions, machine
 from oodmon.hashing import file_sha256, other_weights
 from oodmon.validation import is_finite_real, is_real, is_whole
 
-__all__ = ["GIVEN_CHECKED", "SEGMENT_STEPS", "AlarmCallback", "Monitor", "NonFiniteObservationWarning",
+__all__ = ["GIVEN_CHECKED", "SEGMENT_STEPS", "ActionTally", "AlarmCallback", "Monitor", "NonFiniteObservationWarning",
            "OtherActionsWarning", "PolicyCannotAct", "same_action"]
 
 #: Steps of an episode after which the monitor hands its segment on (see ``Monitor(segment_steps=)``):
@@ -301,8 +301,7 @@ class Monitor:
         # policy's own decision, and those that differed (OtherActionsWarning); MonitorCallback,
         # which checks its training steps itself, turns it off.
         self.compares_given_actions = True
-        self._given_checked = self._given_differed = 0
-        self._given_said = False  # (said once: after the 100th, or at the close)
+        self._given = ActionTally(GIVEN_CHECKED)  # (said once: at the last it counts, or at the close)
 
     def twin(self, *, sinks: Sequence[Sink] = (), callbacks: Sequence[AlarmCallback] = ()) -> Monitor:
         """A monitor of the same policy, threshold and alarm rule, with copies of the fitted detectors
@@ -470,8 +469,11 @@ class Monitor:
                     self.sinks.close()
                     self._opened = False
         finally:  # (after the files: a warning made an error, -W error, must not leave them unfinished)
-            if self._given_checked and not self._given_said:  # fewer given than the check counts: said all the same
-                self._say_other_actions()
+            if self._given.partial:  # fewer given than the check counts: said all the same, once
+                try:
+                    self._say_other_actions()
+                finally:
+                    self._given.cut()
 
     def __enter__(self) -> Monitor:
         return self.open()
@@ -608,10 +610,11 @@ class Monitor:
             obs = self.agent.view(obs)
         estimate = self.estimator.estimate(obs) if self.estimator is not None else None
         cannot_act = None  # the policy's error on a reading that is not finite, when it raised one
+        tallied = False  # whether this step's given action was the last the tally of given actions counts
         if action is None:
             action, cannot_act = self._decide(obs, estimate)
-        elif self.compares_given_actions and self._given_checked < GIVEN_CHECKED and self._first_alarm is None:
-            self._compare_given(obs, action, estimate)  # (not a fallback's, after an alarm)
+        elif self.compares_given_actions and self._given.counting and self._first_alarm is None:
+            tallied = self._compare_given(obs, action, estimate)  # (not a fallback's, after an alarm)
         picture = None  # a dict's picture beside the vectors the detectors read: the frames detector's
         if self._own:  # the policy acted on a stack, or a dict with pictures; the detectors and the log read less
             if self.agent.pictures is not None:
@@ -657,7 +660,7 @@ class Monitor:
             self._warn_longer_than_calibration()
         self.sinks.write_step(self.last_step)
         self._length += 1  # the step is logged: it counts, whatever a callback below does
-        if self._given_checked == GIVEN_CHECKED and not self._given_said:  # (after the step is logged)
+        if tallied:  # (after the step is logged)
             self._say_other_actions()
         if event is not None:
             self._alarms += 1
@@ -677,10 +680,11 @@ class Monitor:
                 "the action before it (a failed sensor, a shift that blew the env's physics up?)") from cannot_act
         return action
 
-    def _compare_given(self, obs: Any, action: Any, estimate: Estimate | None) -> None:
+    def _compare_given(self, obs: Any, action: Any, estimate: Estimate | None) -> bool:
         """Compare an action given to :meth:`step` with the policy's own decision at ``obs``, where
         that decision draws nothing and remembers nothing (an SB3 model's deterministic ``predict``,
-        an ensemble's mean); after :data:`GIVEN_CHECKED` of them, :meth:`step` warns if some differed."""
+        an ensemble's mean); whether it was the last of the :data:`GIVEN_CHECKED` compared, after
+        which :meth:`step` warns if some differed."""
         from oodmon.agents.sb3_deployed import DeployedModel
 
         if type(self._act) is DeployedModel and not self._action_parts:
@@ -688,17 +692,15 @@ class Monitor:
         elif self._act is None and isinstance(self.estimator, EnsembleEstimator) and estimate is not None:
             own = self._decide(obs, estimate)[0]
         else:  # a function of yours, a policy that samples, remembers or reads masks: not asked twice
-            self._given_checked, self._given_said = GIVEN_CHECKED, True
-            return
-        self._given_checked += 1
-        self._given_differed += not same_action(own, action)
+            self._given.cut()
+            return False
+        return self._given.add(own, action)
 
     def _say_other_actions(self) -> None:
-        """Warn, once, of the given actions that were not the policy's (:meth:`_compare_given`)."""
-        self._given_said = True
-        if self._given_differed:
+        """Warn of the given actions that were not the policy's (:meth:`_compare_given`), if any."""
+        if self._given.differed:
             warnings.warn(OtherActionsWarning(
-                f"{self._given_differed} of the first {self._given_checked} actions given to the monitor (before any "
+                f"{self._given.differed} of the first {self._given.checked} actions given to the monitor (before any "
                 "alarm) were not the policy's own decision at their observation: SB3's predict(obs) samples unless "
                 "deterministic=True (a DQN's takes a random action at its exploration rate), and the detectors, "
                 "fitted on the policy's own actions, read other actions as a shift (a PPO's sampled actions on "
@@ -833,6 +835,43 @@ class OtherActionsWarning(UserWarning):
     alarm were not the policy's own decision at their observation (SB3's ``predict`` samples by
     default), which the detectors, fitted on its own actions, read as a shift. Warned once per
     monitor; compared only where the decision draws nothing (an SB3 model's deterministic one)."""
+
+
+@dataclass
+class ActionTally:
+    """The first ``limit`` actions taken that are compared with the policy's own decision (given
+    to a :class:`Monitor`, or a learning model's, :class:`~oodmon.monitor.sb3_callback.MonitorCallback`):
+    how many were, and how many differed.
+
+    Example:
+        >>> tally = ActionTally(2)
+        >>> tally.add(1, 1), tally.partial, tally.add(0, 1), tally.counting, tally.differed
+        (False, True, True, False, 1)
+    """
+
+    limit: int
+    checked: int = 0
+    differed: int = 0
+
+    @property
+    def counting(self) -> bool:
+        """Whether it takes more."""
+        return self.checked < self.limit
+
+    @property
+    def partial(self) -> bool:
+        """Whether some were counted, fewer than ``limit``."""
+        return 0 < self.checked < self.limit
+
+    def add(self, own: Any, given: Any) -> bool:
+        """Count ``given`` against the policy's ``own``; whether that was the last it takes."""
+        self.checked += 1
+        self.differed += not same_action(own, given)
+        return self.checked == self.limit
+
+    def cut(self) -> None:
+        """Take no more (a policy whose actions cannot be compared, or one told of those counted)."""
+        self.checked = max(self.checked, self.limit)
 
 
 def same_action(own: Any, given: Any) -> bool:

@@ -57,7 +57,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, task_of_env, variant_of_env
-from oodmon.monitor.monitor import Monitor, _frame, same_action
+from oodmon.monitor.monitor import ActionTally, Monitor, _frame
 
 __all__ = ["EXPLORATION_CHECKED", "ExplorationWarning", "MonitorCallback"]
 
@@ -81,7 +81,7 @@ class MonitorCallback(BaseCallback):
         monitor.compares_given_actions = False  # (the training steps' actions are checked here, in the model's terms)
         self._obs: np.ndarray | None = None  # the first env's raw observation the model acts on next
         self._model_obs: Any = None  # that observation as the model reads it (normalised, channels first)
-        self._checked = self._explored = 0  # training steps compared with the deterministic action, and differing
+        self._tally = ActionTally(EXPLORATION_CHECKED)  # training steps compared with the deterministic action
 
     @property
     def alarms(self) -> int:
@@ -130,7 +130,7 @@ class MonitorCallback(BaseCallback):
         self._obs = self._raw(self.locals["new_obs"])  # after an episode's end, the next one's first
         actions = self.locals.get("clipped_actions", self.locals["actions"])  # what the env got (PPO clips)
         action = actions[0]
-        if self._checked < EXPLORATION_CHECKED:
+        if self._tally.counting:
             self._check_exploration(model_obs, action)
             self._model_obs = _first(self.locals["new_obs"])  # (kept only while the check goes on)
         action = int(action) if np.ndim(action) == 0 else np.asarray(action)
@@ -152,7 +152,7 @@ class MonitorCallback(BaseCallback):
     def _on_training_end(self) -> None:
         if self.monitor.in_episode and not self.monitor.abandon_empty_episode():
             self.monitor.end_episode(interrupted=True)  # cut by the end of learn(): not a whole episode
-        if 0 < self._checked < EXPLORATION_CHECKED:  # a learn() shorter than the steps checked
+        if self._tally.partial:  # a learn() shorter than the steps checked
             self._warn_exploration()
 
     def _check_exploration(self, model_obs: Any, action: Any) -> None:
@@ -160,23 +160,22 @@ class MonitorCallback(BaseCallback):
         after :data:`EXPLORATION_CHECKED` steps, warn if some differed. A recurrent policy (whose
         action needs its memory of the episode) is not compared."""
         if "lstm_states" in self.locals:
-            self._checked = EXPLORATION_CHECKED
+            self._tally.cut()
             return
         masks = self.locals.get("action_masks")  # a MaskablePPO's: its deterministic action among the allowed
         masked = {} if masks is None else {"action_masks": masks[0]}
         deployed, _ = self.model.predict(model_obs, deterministic=True, **masked)
-        self._checked += 1
-        self._explored += not same_action(deployed, action)
-        if self._checked == EXPLORATION_CHECKED:
+        if self._tally.add(deployed, action):
             self._warn_exploration()
 
     def _warn_exploration(self) -> None:
         """Say how many checked steps explored, unless the detectors were fitted on at least as
         large a share of random actions (``fitted_for["explore"]``)."""
         explore = float(self.monitor.detectors.fitted_for.get("explore") or 0.0)
-        if not self._explored or self._explored <= explore * self._checked:
+        explored, checked = self._tally.differed, self._tally.checked
+        if not explored or explored <= explore * checked:
             return
-        said = f"{self._explored} of the first {self._checked} training steps took another action than the model's " \
+        said = f"{explored} of the first {checked} training steps took another action than the model's " \
                "deterministic one (its exploration)"
         if explore:
             warnings.warn(ExplorationWarning(

@@ -734,7 +734,7 @@ def test_actions_given_to_a_monitor_that_are_not_the_policys_own_are_counted_and
                     action, _ = model.predict(obs, deterministic=way == "deterministic")
                     obs, _, terminated, truncated, _ = env.step(action)
                     done = terminated or truncated
-            compared = monitor._given_checked  # (before the close, which says what it counted)
+            compared = monitor._given.checked  # (before the close, which says what it counted)
     said = [str(w.message) for w in caught if issubclass(w.category, OtherActionsWarning)]
     count = int(said[0].split()[0]) if said else 0
     assert len(said) <= 1 and differing[0] <= count <= differing[1]
