@@ -488,6 +488,14 @@ def test_a_picture_policys_camera_detectors_are_fitted_on_the_frames_its_log_hol
         assert np.array_equal(again[name], logged.detector_scores[name][:59]), name
     with pytest.raises(ConfigError, match="the features detector reads the policy at each observation"):
         fit_detectors_from_logs(agent, [log], detectors=["features", "frames"])
+    # a policy loaded from SB3 model files: the set records them, as one fitted on played episodes
+    # does, so that a refusal names them (before 2026-12-07 a fit on frames recorded none)
+    files = [{"path": "/models/pong.zip", "sha256": "ab" * 32, "algorithm": "DQN"}]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(agent.metadata, "models", files)
+        own = fit_detectors_from_logs(agent, [log], detectors=["stillness"])
+    assert own.fitted_for["models"] == [{"path": "/models/pong.zip", "sha256": "ab" * 32}]
+    assert "models" not in fit_detectors_from_logs(agent, [log], detectors=["stillness"]).fitted_for
     done = run_cli("fit-detectors", *agent_args, "--from-logs", str(log), "--out", str(folder))
     assert done.returncode == 0, done.stderr
     assert "fitted spread, frames, stillness, vanishing, combined on 4 ID episodes of 1 log file" in done.stdout

@@ -934,7 +934,7 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
     if pictures:
         return _fitted_on_frames(usable, names, detectors, estimator, score, seed, on_progress, obs_shape,
                                  policy_hash=policy_hash(agent), task=agent.task, obs_noise=obs_noise,
-                                 recorded=recorded)
+                                 recorded={**_models_of(agent.metadata), **(recorded or {})})
     ensemble = "scaled_spread" in names and has_members(estimator)
     trajectories = []
     for observations, actions in usable:
@@ -960,7 +960,8 @@ def _fitted_on_frames(episodes: list[tuple[np.ndarray, np.ndarray]], names: Sequ
     """:func:`fit_recorded_detectors`' set of a policy acting on pictures, fitted on the frames of
     ``episodes``: the camera's detectors of ``names`` (those :data:`NOT_FROM_FRAMES` left out; named
     in ``asked``, refused), their ``combined``, and the spread where the policy has samples. The
-    set records the policy's own observation shape and MC masks, which the monitor checks."""
+    set records the policy's own observation shape and MC masks, which the monitor checks, and
+    ``recorded`` (the episodes' logs, the policy's SB3 model files, which a refusal names)."""
     cannot = [name for name in NOT_FROM_FRAMES if name in (asked or ())]
     if cannot:
         raise ConfigError(f"the {cannot[0]} detector reads the policy at each observation, of which a log of pictures "
