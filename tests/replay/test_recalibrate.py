@@ -462,11 +462,13 @@ def test_a_picture_policys_camera_detectors_are_fitted_on_the_frames_its_log_hol
     """Pong, whose observations are stacks of frames: its log holds each step's newest frame, which
     is what the camera's detectors read; read back, they score each step exactly as they did in
     the run (the shipped fit's frames, stillness and vanishing, to the bit). Fitted on them:
-    spread, frames, stillness, vanishing and their combined, for the agent's own (4, 84, 84) and
-    masks; features, which reads the network at each stack, is left out, and refused by name.
-    Monitored with that set, a corrupted camera (gaussian_noise@3 from step 30) lifts the frames
-    score far above every ID step's (four short games: the fit speaks for little; the jump is
-    large)."""
+    spread, features, frames, stillness, vanishing and their combined, for the agent's own
+    (4, 84, 84) and masks; features reads the network at each stack, which the frames rebuild
+    (oodmon's Pong fills its stack with an episode's first frame; an env that does not say so
+    leaves features out, and refuses it by name). Monitored with that set, a corrupted camera
+    (gaussian_noise@3 from step 30) lifts the frames score far above every ID step's, and the
+    features score far above the last ID steps' (four short games: the fit speaks for little; the
+    jump is large)."""
     from oodmon.agents import load
     from oodmon.monitor.detectors import DetectorSet, detectors_for
     from oodmon.monitor.detectors.base import Trajectory
@@ -486,8 +488,11 @@ def test_a_picture_policys_camera_detectors_are_fitted_on_the_frames_its_log_hol
     again = trajectory_scores(camera, Trajectory(frames, actions[:-1]))
     for name in camera.names:
         assert np.array_equal(again[name], logged.detector_scores[name][:59]), name
-    with pytest.raises(ConfigError, match="the features detector reads the policy at each observation"):
-        fit_detectors_from_logs(agent, [log], detectors=["features", "frames"])
+    with pytest.MonkeyPatch.context() as patch:  # an env whose stack is not its first frame's at the reset
+        patch.setattr("oodmon.envs.pong.CorruptedPong.STACK_FILLED_BY_FIRST_FRAME", False)
+        with pytest.raises(ConfigError, match="the features detector reads the policy at each observation"):
+            fit_detectors_from_logs(agent, [log], detectors=["features", "frames"])
+        assert fit_detectors_from_logs(agent, [log]).names == ["spread", "frames", "stillness", "vanishing", "combined"]
     # a policy loaded from SB3 model files: the set records them, as one fitted on played episodes
     # does, so that a refusal names them (before 2026-12-07 a fit on frames recorded none)
     files = [{"path": "/models/pong.zip", "sha256": "ab" * 32, "algorithm": "DQN"}]
@@ -498,7 +503,8 @@ def test_a_picture_policys_camera_detectors_are_fitted_on_the_frames_its_log_hol
     assert "models" not in fit_detectors_from_logs(agent, [log], detectors=["stillness"]).fitted_for
     done = run_cli("fit-detectors", *agent_args, "--from-logs", str(log), "--out", str(folder))
     assert done.returncode == 0, done.stderr
-    assert "fitted spread, frames, stillness, vanishing, combined on 4 ID episodes of 1 log file" in done.stdout
+    fitted_line = "fitted spread, features, frames, stillness, vanishing, combined on 4 ID episodes of 1 log file"
+    assert fitted_line in done.stdout
     fitted = DetectorSet.load(folder)
     assert fitted.fitted_for["obs_shape"] == [4, 84, 84] and fitted.fitted_for["masks"] == "sampled"
     assert fitted.fitted_for["logs"] == [str(log)] and fitted.fitted_for["seed"] is None
@@ -510,3 +516,31 @@ def test_a_picture_policys_camera_detectors_are_fitted_on_the_frames_its_log_hol
     # a mean over the last 20 steps: from the 20th corrupted step on, all of them (14.2 against at
     # most 2.25 before the onset when written; each step's value is log(1 + d^2))
     assert scores[episode.shifted][20:].min() > 4 * scores[~episode.shifted].max()
+    # features, fitted on 118 steps of 512 features, reads high for a game's first 22 steps (its
+    # first two, the stack filled by one frame, seen at four starts only, held by the window's
+    # mean); the 8 ID steps before the onset read 51-59 and each corrupted step past the window
+    # 8,864 or more when written
+    features = episode.detector_scores["features"]
+    assert features[episode.shifted][20:].min() > 20 * features[~episode.shifted][-8:].max(), features.tolist()
+
+
+def test_a_pong_stack_is_rebuilt_from_the_newest_frames_a_log_holds():
+    """What fitting on a Pong log's frames asks the policy at: each step's stack of four frames,
+    rebuilt from the newest frame of each step (the first frame filling the stack at the reset),
+    equals the observation the env gave, over a game's first 40 steps, after a reset, and in an
+    env with sticky actions."""
+    import gymnasium
+
+    from oodmon.monitor.detectors.fitting import stack_depth, stacks_from_frames
+
+    for kwargs in ({}, {"repeat_action_probability": 0.25}):
+        env = gymnasium.make("oodmon/Pong-v5", **kwargs)
+        assert stack_depth(env) == 4
+        actions = np.random.default_rng(5).integers(0, env.action_space.n, 40)
+        for seed in (3, 4):  # the second game after a reset of the same env
+            observations = [env.reset(seed=seed)[0]]
+            observations += [env.step(int(action))[0] for action in actions]
+            rebuilt = list(stacks_from_frames(np.stack([obs[-1] for obs in observations]), 4))
+            assert len(rebuilt) == 41 and all(np.array_equal(a, b) for a, b in zip(rebuilt, observations))
+        env.close()
+    assert stack_depth(gymnasium.make("CartPole-v1")) is None

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import replace
 from pathlib import Path
@@ -880,7 +880,8 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
 
 
 #: What fitting on a log's frames leaves out: what reads the policy at each observation, which a
-#: log of pictures holds only the newest frame of (a stack's other frames are not logged).
+#: log of pictures holds only the newest frame of (a stack's other frames are not logged), unless
+#: the env's stack is rebuilt from those (:func:`stack_depth`).
 NOT_FROM_FRAMES = ("features", "scaled_spread")
 
 
@@ -900,8 +901,10 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
     A policy that acts on pictures is fitted on the frames its log holds (the newest of each
     observation: ``observations`` of ``(T, H, W)`` or ``(T, H, W, 3)`` bytes), which is what the
     camera's detectors (``frames``, ``stillness``, ``motion``, ``vanishing``, and a ``combined`` of
-    them) read of each step; the detectors that read the policy at each observation
-    (:data:`NOT_FROM_FRAMES`) are left out, and the spread, which needs no fit, kept.
+    them) read of each step; the spread, which needs no fit, is kept. The detectors that read the
+    policy at each observation (:data:`NOT_FROM_FRAMES`) are fitted on the policy's estimates at
+    its observations rebuilt from the frames where its env's stack can be (:func:`stack_depth`:
+    oodmon's Pong, since 2026-12-07), else left out.
 
     Raises:
         ConfigError: an agent whose detectors read more than its log holds (a stack, a dict's
@@ -928,51 +931,103 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
         names = _named(agent, env, agent.task, detectors)
         n_actions = _checked_actions(names, agent, env)
         obs_shape = list(env.observation_space.shape or ())
+        depth = stack_depth(env)
     finally:
         env.close()
     estimator = agent.estimator
     if pictures:
         return _fitted_on_frames(usable, names, detectors, estimator, score, seed, on_progress, obs_shape,
-                                 policy_hash=policy_hash(agent), task=agent.task, obs_noise=obs_noise,
+                                 None if estimator is None else depth, n_actions, policy_hash=policy_hash(agent),
+                                 task=agent.task, obs_noise=obs_noise,
                                  recorded={**_models_of(agent.metadata), **(recorded or {})})
     ensemble = "scaled_spread" in names and has_members(estimator)
     trajectories = []
-    for observations, actions in usable:
-        features, values = [], []
-        for obs in observations[:-1] if estimator is not None else ():
-            estimate = estimator.estimate(obs)
-            if estimate.features is not None:
-                features.append(estimate.features[0])
-            if ensemble:
-                values.append(member_values(estimate))
+    for episode, (observations, actions) in enumerate(usable):
         steps = len(observations) - 1
-        trajectories.append(Trajectory(observations, actions[:steps], np.asarray(features) if len(features) == steps
-                                       else None, np.asarray(values) if ensemble else None))
+        estimates = [] if estimator is None else [estimator.estimate(obs) for obs in observations[:-1]]
+        features, values = _policy_reads(estimates, steps, ensemble)
+        trajectories.append(Trajectory(observations, actions[:steps], features, values))
+        _said_asked(on_progress, estimator, episode + 1, len(usable))
     return _fitted(trajectories, names, estimator, agent.task, score, n_actions, seed, dynamics_updates, on_progress,
                    policy_hash=policy_hash(agent), obs_noise=obs_noise, workers=1, max_steps=None,
                    recorded={"seed": None, **_models_of(agent.metadata), **(recorded or {})})
 
 
+def _policy_reads(estimates: Sequence[Any], steps: int, members: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The policy's features at each of the ``steps`` observations it acted on, from its
+    ``estimates`` there, and an ensemble's member values (``members``), as a played fit keeps them
+    (:class:`Trajectory`); ``None`` for what it has not (no estimates: a plain policy)."""
+    features = [estimate.features[0] for estimate in estimates if estimate.features is not None]
+    return (np.asarray(features) if len(features) == steps else None,
+            np.asarray([member_values(estimate) for estimate in estimates]) if members else None)
+
+
+def _said_asked(on_progress: Progress | None, estimator: Any, done: int, episodes: int) -> None:
+    """The progress of asking the policy at each logged step (a game of Pong's, a thousand of them,
+    some seconds), where it is asked."""
+    if on_progress is not None and estimator is not None:
+        on_progress("logged episodes read by the policy", done, episodes)
+
+
+def stack_depth(env: gymnasium.Env) -> int | None:
+    """How many of a log's newest frames make one of ``env``'s observations, where the stack is
+    rebuilt from them (:func:`stacks_from_frames`): for an env whose observation is a stack of its
+    last frames that an episode's first frame fills at the reset (``STACK_FILLED_BY_FIRST_FRAME``:
+    oodmon's Pong); ``None`` for any other (SB3's ``VecFrameStack`` fills it with zeros, a
+    wrapper may change what the env stacks)."""
+    unwrapped = env.unwrapped
+    shape = tuple(env.observation_space.shape or ())
+    if not getattr(unwrapped, "STACK_FILLED_BY_FIRST_FRAME", False) or shape != unwrapped.observation_space.shape:
+        return None
+    return int(shape[0])
+
+
+def stacks_from_frames(frames: np.ndarray, depth: int) -> Iterator[np.ndarray]:
+    """Each step's observation, a stack of ``depth`` frames (oldest first) that the episode's first
+    frame fills at its start, rebuilt from ``frames``, each step's newest as a monitor logs them.
+
+    Example:
+        >>> frames = np.arange(3).reshape(3, 1, 1)
+        >>> [stack.ravel().tolist() for stack in stacks_from_frames(frames, 2)]
+        [[0, 0], [0, 1], [1, 2]]
+    """
+    for step in range(len(frames)):
+        yield frames[np.maximum(np.arange(step - depth + 1, step + 1), 0)]
+
+
 def _fitted_on_frames(episodes: list[tuple[np.ndarray, np.ndarray]], names: Sequence[str],
                       asked: Sequence[str] | None, estimator: Any, score: str, seed: int,
-                      on_progress: Progress | None, obs_shape: list[int], *, policy_hash: str | None,
-                      task: str | None, obs_noise: float, recorded: dict[str, Any] | None) -> DetectorSet:
+                      on_progress: Progress | None, obs_shape: list[int], depth: int | None, n_actions: int | None,
+                      *, policy_hash: str | None, task: str | None, obs_noise: float,
+                      recorded: dict[str, Any] | None) -> DetectorSet:
     """:func:`fit_recorded_detectors`' set of a policy acting on pictures, fitted on the frames of
-    ``episodes``: the camera's detectors of ``names`` (those :data:`NOT_FROM_FRAMES` left out; named
-    in ``asked``, refused), their ``combined``, and the spread where the policy has samples. The
-    set records the policy's own observation shape and MC masks, which the monitor checks, and
-    ``recorded`` (the episodes' logs, the policy's SB3 model files, which a refusal names)."""
-    cannot = [name for name in NOT_FROM_FRAMES if name in (asked or ())]
+    ``episodes``: the camera's detectors of ``names``, their ``combined``, and the spread where the
+    policy has samples. The detectors that read the policy at each observation
+    (:data:`NOT_FROM_FRAMES`) are fitted too where its env's stack of ``depth`` frames is rebuilt
+    from the log's newest ones (:func:`stack_depth`; the policy asked at each rebuilt observation);
+    else left out, and refused where ``asked`` names them. The set records the policy's own
+    observation shape and MC masks, which the monitor checks, and ``recorded`` (the episodes'
+    logs, the policy's SB3 model files, which a refusal names)."""
+    cannot = [] if depth is not None else [name for name in NOT_FROM_FRAMES if name in (asked or ())]
     if cannot:
         raise ConfigError(f"the {cannot[0]} detector reads the policy at each observation, of which a log of pictures "
-                          "holds the newest frame only: fit it on played episodes (`oodmon fit-detectors` without "
-                          "--from-logs), or leave it out")
-    kept = [name for name in names if name not in NOT_FROM_FRAMES and name != "spread"]
+                          "holds the newest frame only (and this policy's stack cannot be rebuilt from them): fit it "
+                          "on played episodes (`oodmon fit-detectors` without --from-logs), or leave it out")
+    kept = [name for name in names if (depth is not None or name not in NOT_FROM_FRAMES) and name != "spread"]
     if not [name for name in kept if name != "combined"]:
         raise ConfigError(f"of {', '.join(names)}, a log's frames fit none (the camera's detectors, frames, "
                           "stillness, motion and vanishing, read them)")
-    trajectories = [Trajectory(frames, actions[:len(frames) - 1]) for frames, actions in episodes]
-    fitted = _fitted(trajectories, kept, None, task, score, None, seed, None, on_progress, policy_hash=policy_hash,
+    reads = depth is not None and any(name in kept for name in NOT_FROM_FRAMES)
+    members = "scaled_spread" in kept and has_members(estimator)
+    trajectories = []
+    for episode, (frames, actions) in enumerate(episodes):
+        steps = len(frames) - 1
+        # the estimates kept: the combined's reference scores the held-out episodes off them
+        estimates = [estimator.estimate(stack) for stack in stacks_from_frames(frames[:-1], depth)] if reads else None
+        features, values = _policy_reads(estimates, steps, members) if reads else (None, None)
+        trajectories.append(Trajectory(frames, actions[:steps], features, values, estimates=estimates))
+        _said_asked(on_progress, estimator if reads else None, episode + 1, len(episodes))
+    fitted = _fitted(trajectories, kept, None, task, score, n_actions, seed, None, on_progress, policy_hash=policy_hash,
                      obs_noise=obs_noise, workers=1, max_steps=None,
                      recorded={"seed": None, "obs_shape": obs_shape, "masks": getattr(estimator, "masks", None),
                                **(recorded or {})})
