@@ -17,6 +17,7 @@ wrap the env they step::
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,7 +27,7 @@ import numpy as np
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.validation import is_whole
 
-__all__ = ["FrameStack", "Stacking", "check_frame_stack"]
+__all__ = ["FrameStack", "Stacking", "check_frame_stack", "restacked"]
 
 
 def check_frame_stack(n_stack: Any, parameter: str = "frame_stack=") -> int:
@@ -140,6 +141,41 @@ class FrameStack(gymnasium.ObservationWrapper):
         stacked, _ = self._stack.update(self._batch(observation), np.zeros(1, bool), [{}])
         self._filled = min(self._filled + 1, self.n_stack)
         return self._padded(self._one(stacked))
+
+
+def restacked(observations: np.ndarray, space: gymnasium.spaces.Box, stacking: Stacking) -> Iterator[np.ndarray]:
+    """Each step's stack a model trained inside VecFrameStack acted on, rebuilt from
+    ``observations``, the env's own (of ``space``) from an episode's reset on, as a log keeps them
+    (:meth:`Stacking.newest`): through :class:`FrameStack` itself, so zeros (or ``pad``) before the
+    first, as in the run.
+
+    Example:
+        >>> space = gymnasium.spaces.Box(-1, 1, (1,), np.float32)
+        >>> own = np.array([[0.5], [0.25], [0.75]], np.float32)
+        >>> [stack.tolist() for stack in restacked(own, space, Stacking(2, (1,), False))]
+        [[0.0, 0.5], [0.5, 0.25], [0.25, 0.75]]
+    """
+    stacker = FrameStack(_Replay(observations, space), stacking.n, "first" if stacking.channels_first else "last",
+                         stacking.pad)
+    yield stacker.reset()[0]
+    for _ in range(1, len(observations)):
+        yield stacker.step(0)[0]
+
+
+class _Replay(gymnasium.Env):
+    """An env that gives ``observations`` again, one a step from its reset, whatever the action."""
+
+    def __init__(self, observations: np.ndarray, space: gymnasium.spaces.Box) -> None:
+        self.observation_space, self.action_space = space, gymnasium.spaces.Discrete(1)
+        self._observations, self._step = observations, 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        self._step = 0
+        return self._observations[0], {}
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        self._step += 1
+        return self._observations[self._step], 0.0, False, False, {}
 
 
 def _newest_positions(stacked: gymnasium.spaces.Dict, own: gymnasium.spaces.Dict) -> np.ndarray:

@@ -198,6 +198,11 @@ def test_dicts_are_stacked_key_by_key_as_vecframestack_stacks_them_and_read_flat
         for seed in range(3):
             steps += monitor.run_episode(agent.make_env(), seed=seed).length
     assert steps >= 12 and len(monitor.last_step.observation) == 4  # the own dict, flattened
+    # its log's flattened newest dicts do not rebuild a stack of dicts: fitting on them is refused
+    from oodmon.monitor.detectors.fitting import fit_recorded_detectors
+
+    with pytest.raises(ConfigError, match=r"not all that this policy acts on \(a stack of dict observations"):
+        fit_recorded_detectors(agent, [])
 
 
 def test_a_model_trained_normalised_then_stacked_sees_what_vecframestack_of_vecnormalize_gave_it(tmp_path, capsys):
@@ -304,3 +309,50 @@ def test_a_model_trained_stacked_then_normalised_has_statistics_of_the_stack_and
         b, _, terminated, truncated, _ = ours.step(action)
         if terminated or truncated:
             b, _ = ours.reset()
+
+
+def test_a_stacked_ensembles_detectors_are_fitted_on_its_logs_asking_it_at_the_stacks_rebuilt(tmp_path):
+    """Two DQNs made inside VecFrameStack(4), watched as an ensemble: their log holds each step's
+    newest observation, what the detectors read, so their detectors are fitted on it (before
+    2026-12-07 refused), and the stacks the models acted on are rebuilt from it, zeros before an
+    episode's first observation, as VecFrameStack stacks them: the models' spread at each rebuilt
+    stack is the one the run logged, to the bit; at the logged observations repeated (a stack
+    filled by its first, as oodmon's Pong fills its own) it is not."""
+    from oodmon.monitor.detectors import DetectorSet
+    from oodmon.monitor.detectors.base import Trajectory
+    from oodmon.monitor.detectors.fitting import acted_on_rebuilt, stacks_from_frames, trajectory_scores
+    from oodmon.monitor.detectors.spread import SpreadDetector
+    from oodmon.replay import fit_detectors_from_logs, read_log
+    from oodmon.replay.reader import read_steps
+    from tests.helpers import run_cli
+
+    files = [str(tmp_path / f"dqn{seed}.zip") for seed in (0, 1)]
+    for seed, path in enumerate(files):  # (untrained: the stacks are what this is about)
+        DQN("MlpPolicy", VecFrameStack(DummyVecEnv([lambda: gymnasium.make("CartPole-v1")]), 4), seed=seed,
+            policy_kwargs={"net_arch": [16]}).save(path)
+    log = tmp_path / "id.mcap"
+    done = run_cli("run", "--sb3", *files, "--env", "CartPole-v1", "--frame-stack", "4", "--episodes", "9",
+                   "--seed", "3", "--mcap", str(log))
+    assert done.returncode == 0, done.stderr
+    agent = load_sb3(files, "CartPole-v1", frame_stack=4)
+    fitted = fit_detectors_from_logs(agent, [log])
+    assert fitted.names == ["spread", "dynamics", "features", "combined"] and fitted.fitted_for["obs_shape"] == [4]
+    episodes = read_log(log).episodes
+    steps = read_steps(log, range(len(episodes)))
+    env = agent.make_env(0.0)
+    rebuild = acted_on_rebuilt(agent, env)
+    env.close()
+    spread = DetectorSet([SpreadDetector(read_log(log).metadata["score"])])
+    same = filled = 0
+    for k, episode in enumerate(episodes):
+        observations, actions = steps[k]
+        logged = episode.detector_scores["spread"]
+        # (the log holds the observations acted on, not the one after the last action)
+        rebuilt = trajectory_scores(spread, Trajectory(observations, actions[:-1], acted_on=np.stack(list(
+            rebuild(observations)))), agent.estimator)["spread"]
+        assert len(observations) == len(logged) >= 8 and np.array_equal(rebuilt, logged[:-1]), k
+        first_filled = np.stack([s.reshape(-1) for s in stacks_from_frames(observations[:, None], 4)])
+        other = trajectory_scores(spread, Trajectory(observations, actions[:-1], acted_on=first_filled),
+                                  agent.estimator)["spread"]
+        same, filled = same + 1, filled + (not np.array_equal(other[:3], logged[:3]))
+    assert same == 9 and filled == 9

@@ -32,7 +32,7 @@ from oodmon.monitor.detectors.combined import CombinedDetector
 from oodmon.monitor.detectors.drift import DriftDetector
 from oodmon.monitor.detectors.dynamics import MAX_UPDATES, DynamicsDetector, check_max_updates, min_logvar_for
 from oodmon.monitor.detectors.features import FeaturesDetector
-from oodmon.monitor.detectors.frames import is_picture
+from oodmon.monitor.detectors.frames import is_picture, newest_frame
 from oodmon.monitor.detectors.scaled_spread import ScaledSpreadDetector, member_values
 from oodmon.monitor.detectors.spread import SpreadDetector
 from oodmon.monitor.detectors.store import DETECTORS, DetectorSet
@@ -881,7 +881,7 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
 
 #: What fitting on a log's frames leaves out: what reads the policy at each observation, which a
 #: log of pictures holds only the newest frame of (a stack's other frames are not logged), unless
-#: the env's stack is rebuilt from those (:func:`stack_depth`).
+#: the observations the policy acted on are rebuilt from those (:func:`acted_on_rebuilt`).
 NOT_FROM_FRAMES = ("features", "scaled_spread")
 
 
@@ -903,19 +903,26 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
     camera's detectors (``frames``, ``stillness``, ``motion``, ``vanishing``, and a ``combined`` of
     them) read of each step; the spread, which needs no fit, is kept. The detectors that read the
     policy at each observation (:data:`NOT_FROM_FRAMES`) are fitted on the policy's estimates at
-    its observations rebuilt from the frames where its env's stack can be (:func:`stack_depth`:
-    oodmon's Pong, since 2026-12-07), else left out.
+    its observations rebuilt from the frames where they can be (:func:`acted_on_rebuilt`: oodmon's
+    Pong, a VecFrameStack's, since 2026-12-07), else left out.
+
+    A policy trained inside SB3's ``VecFrameStack`` acts on a stack of the observations its log
+    holds (the newest of each, what its detectors read): each step's stack is rebuilt from them
+    (:func:`~oodmon.agents.frame_stack.restacked`, since 2026-12-07) where the policy is asked.
 
     Raises:
-        ConfigError: an agent whose detectors read more than its log holds (a stack, a dict's
-            picture or text, a memory of the episode), fewer than 3 usable episodes, or a detector
-            it cannot have (as :func:`fit_detectors`), or one a log's frames cannot fit.
+        ConfigError: an agent whose detectors read less than it acts on in a way its log cannot
+            rebuild (a stack of dicts, a dict's picture or text, a memory of the episode), fewer
+            than 3 usable episodes, or a detector it cannot have (as :func:`fit_detectors`), or one
+            a log's frames cannot fit.
     """
     from oodmon.monitor.monitor import policy_hash
 
-    if getattr(agent, "reads_own", False) or agent.remembers or agent.reads_words:
+    stacking = getattr(agent, "stacking", None)
+    if (getattr(agent, "pictures", None) is not None or agent.remembers or agent.reads_words
+            or stacking is not None and stacking.positions is not None):
         raise ConfigError("its log holds what the detectors read of each step, not all that this policy acts on (a "
-                          "stack of observations, a dict's picture or text, or a memory of the episode): fit its "
+                          "stack of dict observations, a dict's picture or text, or a memory of the episode): fit its "
                           "detectors on played episodes (`oodmon fit-detectors` without --from-logs)")
     pictures = any(np.asarray(o).dtype == np.uint8 and np.ndim(o) >= 3 for o, _ in episodes)
     usable = [(obs, np.asarray(actions)) for obs, actions in ((np.asarray(o) if pictures else np.asarray(o, np.float64),
@@ -930,23 +937,27 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
     try:
         names = _named(agent, env, agent.task, detectors)
         n_actions = _checked_actions(names, agent, env)
-        obs_shape = list(env.observation_space.shape or ())
-        depth = stack_depth(env)
+        # the shape the detectors read (of a stack: the newest observation's), which the monitor checks
+        obs_shape = list(agent.own_shape if stacking is not None else env.observation_space.shape or ())
+        acted_on = acted_on_rebuilt(agent, env)
     finally:
         env.close()
     estimator = agent.estimator
     if pictures:
         return _fitted_on_frames(usable, names, detectors, estimator, score, seed, on_progress, obs_shape,
-                                 None if estimator is None else depth, n_actions, policy_hash=policy_hash(agent),
+                                 None if estimator is None else acted_on, n_actions, policy_hash=policy_hash(agent),
                                  task=agent.task, obs_noise=obs_noise,
                                  recorded={**_models_of(agent.metadata), **(recorded or {})})
     ensemble = "scaled_spread" in names and has_members(estimator)
     trajectories = []
     for episode, (observations, actions) in enumerate(usable):
         steps = len(observations) - 1
-        estimates = [] if estimator is None else [estimator.estimate(obs) for obs in observations[:-1]]
+        # a stack the policy acted on, rebuilt (a played fit's Trajectory.acted_on), else the logged ones
+        stacks = None if acted_on is iter else np.stack(list(acted_on(observations)))
+        estimates = [] if estimator is None else [
+            estimator.estimate(obs) for obs in (observations if stacks is None else stacks)[:-1]]
         features, values = _policy_reads(estimates, steps, ensemble)
-        trajectories.append(Trajectory(observations, actions[:steps], features, values))
+        trajectories.append(Trajectory(observations, actions[:steps], features, values, acted_on=stacks))
         _said_asked(on_progress, estimator, episode + 1, len(usable))
     return _fitted(trajectories, names, estimator, agent.task, score, n_actions, seed, dynamics_updates, on_progress,
                    policy_hash=policy_hash(agent), obs_noise=obs_noise, workers=1, max_steps=None,
@@ -967,6 +978,35 @@ def _said_asked(on_progress: Progress | None, estimator: Any, done: int, episode
     some seconds), where it is asked."""
     if on_progress is not None and estimator is not None:
         on_progress("logged episodes read by the policy", done, episodes)
+
+
+#: Each step's observation the policy acted on, rebuilt from an episode's logged ones (from its reset).
+Rebuild = Callable[[np.ndarray], Iterator[np.ndarray]]
+
+
+def acted_on_rebuilt(agent: Any, env: gymnasium.Env) -> Rebuild | None:
+    """How the observations ``agent`` acted on in ``env`` (its :meth:`~oodmon.agents.Agent.make_env`)
+    are rebuilt from those its log holds, each step's newest: a stack its env builds from them
+    (:func:`stack_depth`: oodmon's Pong), or one SB3's ``VecFrameStack`` built (the agent's
+    ``stacking``, :func:`~oodmon.agents.frame_stack.restacked`); the logged ones as they are where the
+    policy acts on those; ``None`` where they cannot be (the newest frames of another env's stack)."""
+    from oodmon.agents.frame_stack import FrameStack, restacked
+
+    depth = stack_depth(env)
+    if depth is not None:
+        return lambda frames: stacks_from_frames(frames, depth)
+    stacking = getattr(agent, "stacking", None)
+    if stacking is not None:
+        while not isinstance(env, FrameStack):  # (Agent.wrap puts it around the env's own)
+            env = env.env
+        space, shape = env.env.observation_space, tuple(env.env.observation_space.shape)
+        # a log's picture of one channel is kept without its axis: (84, 84) of an Atari (84, 84, 1)
+        return lambda own: restacked(np.reshape(own, (len(own), *shape)).astype(space.dtype), space, stacking)
+    space = env.observation_space
+    shape = tuple(space.shape or ())
+    if is_picture(shape, space.dtype) and newest_frame(np.zeros(shape, space.dtype)).shape != shape:
+        return None  # a stack of pictures of the env's own making: the log holds its newest only
+    return iter
 
 
 def stack_depth(env: gymnasium.Env) -> int | None:
@@ -997,33 +1037,33 @@ def stacks_from_frames(frames: np.ndarray, depth: int) -> Iterator[np.ndarray]:
 
 def _fitted_on_frames(episodes: list[tuple[np.ndarray, np.ndarray]], names: Sequence[str],
                       asked: Sequence[str] | None, estimator: Any, score: str, seed: int,
-                      on_progress: Progress | None, obs_shape: list[int], depth: int | None, n_actions: int | None,
-                      *, policy_hash: str | None, task: str | None, obs_noise: float,
+                      on_progress: Progress | None, obs_shape: list[int], acted_on: Rebuild | None,
+                      n_actions: int | None, *, policy_hash: str | None, task: str | None, obs_noise: float,
                       recorded: dict[str, Any] | None) -> DetectorSet:
     """:func:`fit_recorded_detectors`' set of a policy acting on pictures, fitted on the frames of
     ``episodes``: the camera's detectors of ``names``, their ``combined``, and the spread where the
     policy has samples. The detectors that read the policy at each observation
-    (:data:`NOT_FROM_FRAMES`) are fitted too where its env's stack of ``depth`` frames is rebuilt
-    from the log's newest ones (:func:`stack_depth`; the policy asked at each rebuilt observation);
-    else left out, and refused where ``asked`` names them. The set records the policy's own
+    (:data:`NOT_FROM_FRAMES`) are fitted too where the observations it acted on are rebuilt from
+    the log's frames (``acted_on``, :func:`acted_on_rebuilt`; the policy asked at each); else left
+    out, and refused where ``asked`` names them. The set records the policy's own
     observation shape and MC masks, which the monitor checks, and ``recorded`` (the episodes'
     logs, the policy's SB3 model files, which a refusal names)."""
-    cannot = [] if depth is not None else [name for name in NOT_FROM_FRAMES if name in (asked or ())]
+    cannot = [] if acted_on is not None else [name for name in NOT_FROM_FRAMES if name in (asked or ())]
     if cannot:
         raise ConfigError(f"the {cannot[0]} detector reads the policy at each observation, of which a log of pictures "
                           "holds the newest frame only (and this policy's stack cannot be rebuilt from them): fit it "
                           "on played episodes (`oodmon fit-detectors` without --from-logs), or leave it out")
-    kept = [name for name in names if (depth is not None or name not in NOT_FROM_FRAMES) and name != "spread"]
+    kept = [name for name in names if (acted_on is not None or name not in NOT_FROM_FRAMES) and name != "spread"]
     if not [name for name in kept if name != "combined"]:
         raise ConfigError(f"of {', '.join(names)}, a log's frames fit none (the camera's detectors, frames, "
                           "stillness, motion and vanishing, read them)")
-    reads = depth is not None and any(name in kept for name in NOT_FROM_FRAMES)
+    reads = acted_on is not None and any(name in kept for name in NOT_FROM_FRAMES)
     members = "scaled_spread" in kept and has_members(estimator)
     trajectories = []
     for episode, (frames, actions) in enumerate(episodes):
         steps = len(frames) - 1
         # the estimates kept: the combined's reference scores the held-out episodes off them
-        estimates = [estimator.estimate(stack) for stack in stacks_from_frames(frames[:-1], depth)] if reads else None
+        estimates = [estimator.estimate(obs) for obs in acted_on(frames[:-1])] if reads else None
         features, values = _policy_reads(estimates, steps, members) if reads else (None, None)
         trajectories.append(Trajectory(frames, actions[:steps], features, values, estimates=estimates))
         _said_asked(on_progress, estimator if reads else None, episode + 1, len(episodes))
