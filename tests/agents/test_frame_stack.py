@@ -273,6 +273,11 @@ def test_a_model_trained_normalised_then_stacked_sees_what_vecframestack_of_vecn
                  str(tmp_path / "x.mcap")]) == 0
     log = read_log(tmp_path / "x.mcap")
     assert len(log.episodes) == 2 and json.loads(log.metadata["about.vec_normalize"])["normalised_then_stacked"] == 3
+    # their log's observations rebuild the stacks the two DQNs acted on, the mean before the first:
+    # their spread there is the one the run logged, to the bit
+    ensemble = ["--sb3", *map(str, paths), *common[2:]]
+    for observations, logged, at in _spreads_at_rebuilt_stacks(agent, _logged_run(ensemble, tmp_path / "e.mcap", 3)):
+        assert len(logged) >= 8 and np.array_equal(at(None), logged[:-1])
     capsys.readouterr()
     with pytest.raises(ConfigError, match="stacks normalised observations .* of vector envs only"):
         ObservationNormalizer(None, None, keys={"state": (np.zeros(4), np.ones(4))}).stacked(3)
@@ -318,41 +323,56 @@ def test_a_stacked_ensembles_detectors_are_fitted_on_its_logs_asking_it_at_the_s
     episode's first observation, as VecFrameStack stacks them: the models' spread at each rebuilt
     stack is the one the run logged, to the bit; at the logged observations repeated (a stack
     filled by its first, as oodmon's Pong fills its own) it is not."""
-    from oodmon.monitor.detectors import DetectorSet
-    from oodmon.monitor.detectors.base import Trajectory
-    from oodmon.monitor.detectors.fitting import acted_on_rebuilt, stacks_from_frames, trajectory_scores
-    from oodmon.monitor.detectors.spread import SpreadDetector
-    from oodmon.replay import fit_detectors_from_logs, read_log
-    from oodmon.replay.reader import read_steps
-    from tests.helpers import run_cli
+    from oodmon.monitor.detectors.fitting import stacks_from_frames
+    from oodmon.replay import fit_detectors_from_logs
 
     files = [str(tmp_path / f"dqn{seed}.zip") for seed in (0, 1)]
     for seed, path in enumerate(files):  # (untrained: the stacks are what this is about)
         DQN("MlpPolicy", VecFrameStack(DummyVecEnv([lambda: gymnasium.make("CartPole-v1")]), 4), seed=seed,
             policy_kwargs={"net_arch": [16]}).save(path)
-    log = tmp_path / "id.mcap"
-    done = run_cli("run", "--sb3", *files, "--env", "CartPole-v1", "--frame-stack", "4", "--episodes", "9",
-                   "--seed", "3", "--mcap", str(log))
-    assert done.returncode == 0, done.stderr
-    agent = load_sb3(files, "CartPole-v1", frame_stack=4)
-    fitted = fit_detectors_from_logs(agent, [log])
+    args = ["--sb3", *files, "--env", "CartPole-v1", "--frame-stack", "4"]
+    agent, log = load_sb3(files, "CartPole-v1", frame_stack=4), tmp_path / "id.mcap"
+    fitted = fit_detectors_from_logs(agent, [_logged_run(args, log, 9)])
     assert fitted.names == ["spread", "dynamics", "features", "combined"] and fitted.fitted_for["obs_shape"] == [4]
-    episodes = read_log(log).episodes
-    steps = read_steps(log, range(len(episodes)))
+    filled = 0
+    for observations, logged, at in _spreads_at_rebuilt_stacks(agent, log):
+        assert len(observations) == len(logged) >= 8 and np.array_equal(at(None), logged[:-1])
+        first_filled = np.stack([s.reshape(-1) for s in stacks_from_frames(observations[:, None], 4)])
+        filled += not np.array_equal(at(first_filled)[:3], logged[:3])
+    assert filled == 9
+
+
+def _logged_run(args: list[str], log, episodes: int):
+    """``log``, written by ``oodmon run ARGS`` of ``episodes`` ID episodes."""
+    from tests.helpers import run_cli
+
+    done = run_cli("run", *args, "--episodes", str(episodes), "--seed", "3", "--mcap", str(log))
+    assert done.returncode == 0, done.stderr
+    return log
+
+
+def _spreads_at_rebuilt_stacks(agent, log):
+    """Each episode of ``log``: its logged observations, its logged spread, and the spread of
+    ``agent`` at each step's stack (those given, else those rebuilt from the observations), but the
+    last (the log holds the observations acted on, not the one after the last action)."""
+    from oodmon.monitor.detectors import DetectorSet
+    from oodmon.monitor.detectors.base import Trajectory
+    from oodmon.monitor.detectors.fitting import acted_on_rebuilt, trajectory_scores
+    from oodmon.monitor.detectors.spread import SpreadDetector
+    from oodmon.replay import read_log
+    from oodmon.replay.reader import read_steps
+
+    read = read_log(log)
+    steps = read_steps(log, range(len(read.episodes)))
     env = agent.make_env(0.0)
     rebuild = acted_on_rebuilt(agent, env)
     env.close()
-    spread = DetectorSet([SpreadDetector(read_log(log).metadata["score"])])
-    same = filled = 0
-    for k, episode in enumerate(episodes):
+    spread = DetectorSet([SpreadDetector(read.metadata["score"])])
+    for k, episode in enumerate(read.episodes):
         observations, actions = steps[k]
-        logged = episode.detector_scores["spread"]
-        # (the log holds the observations acted on, not the one after the last action)
-        rebuilt = trajectory_scores(spread, Trajectory(observations, actions[:-1], acted_on=np.stack(list(
-            rebuild(observations)))), agent.estimator)["spread"]
-        assert len(observations) == len(logged) >= 8 and np.array_equal(rebuilt, logged[:-1]), k
-        first_filled = np.stack([s.reshape(-1) for s in stacks_from_frames(observations[:, None], 4)])
-        other = trajectory_scores(spread, Trajectory(observations, actions[:-1], acted_on=first_filled),
-                                  agent.estimator)["spread"]
-        same, filled = same + 1, filled + (not np.array_equal(other[:3], logged[:3]))
-    assert same == 9 and filled == 9
+
+        def at(stacks, observations=observations, actions=actions):
+            stacks = np.stack(list(rebuild(observations))) if stacks is None else stacks
+            trajectory = Trajectory(observations, actions[:-1], acted_on=stacks)
+            return trajectory_scores(spread, trajectory, agent.estimator)["spread"]
+        yield observations, episode.detector_scores["spread"], at

@@ -45,10 +45,11 @@ from oodmon.side_by_side import finished_before, play_side_by_side, resolve_work
 from oodmon.validation import check_max_steps, is_whole
 from oodmon.versions import machine
 
-__all__ = ["BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION", "KEEP_AT_MOST",
-           "Explorer", "best_detector", "check_explore", "collect", "default_detectors", "default_fit_steps",
-           "detectors_for", "discrete_states", "fit_agent_detectors", "fit_recorded_detectors", "fit_settings",
-           "fitting_notes", "fit_detectors", "policy_parts", "read_kept_trajectories", "trajectory_scores"]
+__all__ = ["AS_LOGGED", "BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION",
+           "KEEP_AT_MOST", "Explorer", "acted_on_rebuilt", "best_detector", "check_explore", "collect",
+           "default_detectors", "default_fit_steps", "detectors_for", "discrete_states", "fit_agent_detectors",
+           "fit_recorded_detectors", "fit_settings", "fitting_notes", "fit_detectors", "policy_parts",
+           "read_kept_trajectories", "stack_depth", "stacks_from_frames", "trajectory_scores"]
 
 #: ID episodes the learned detectors are fitted on by default: two thirds fit, one third ranks.
 #: 90 since 2026-11-24 (30 before): on the monitor's own benchmark (same agents and episodes) the
@@ -953,7 +954,7 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
     for episode, (observations, actions) in enumerate(usable):
         steps = len(observations) - 1
         # a stack the policy acted on, rebuilt (a played fit's Trajectory.acted_on), else the logged ones
-        stacks = None if acted_on is iter else np.stack(list(acted_on(observations)))
+        stacks = None if acted_on is AS_LOGGED or estimator is None else np.stack(list(acted_on(observations)))
         estimates = [] if estimator is None else [
             estimator.estimate(obs) for obs in (observations if stacks is None else stacks)[:-1]]
         features, values = _policy_reads(estimates, steps, ensemble)
@@ -983,6 +984,9 @@ def _said_asked(on_progress: Progress | None, estimator: Any, done: int, episode
 #: Each step's observation the policy acted on, rebuilt from an episode's logged ones (from its reset).
 Rebuild = Callable[[np.ndarray], Iterator[np.ndarray]]
 
+#: The :data:`Rebuild` of a policy that acted on the observations its log holds: they, as they are.
+AS_LOGGED: Rebuild = iter
+
 
 def acted_on_rebuilt(agent: Any, env: gymnasium.Env) -> Rebuild | None:
     """How the observations ``agent`` acted on in ``env`` (its :meth:`~oodmon.agents.Agent.make_env`)
@@ -1006,7 +1010,7 @@ def acted_on_rebuilt(agent: Any, env: gymnasium.Env) -> Rebuild | None:
     shape = tuple(space.shape or ())
     if is_picture(shape, space.dtype) and newest_frame(np.zeros(shape, space.dtype)).shape != shape:
         return None  # a stack of pictures of the env's own making: the log holds its newest only
-    return iter
+    return AS_LOGGED
 
 
 def stack_depth(env: gymnasium.Env) -> int | None:
