@@ -332,8 +332,11 @@ def test_a_stacked_ensembles_detectors_are_fitted_on_its_logs_asking_it_at_the_s
             policy_kwargs={"net_arch": [16]}).save(path)
     args = ["--sb3", *files, "--env", "CartPole-v1", "--frame-stack", "4"]
     agent, log = load_sb3(files, "CartPole-v1", frame_stack=4), tmp_path / "id.mcap"
-    fitted = fit_detectors_from_logs(agent, [_logged_run(args, log, 9)])
+    reports = []
+    fitted = fit_detectors_from_logs(agent, [_logged_run(args, log, 9)], on_progress=lambda *r: reports.append(r))
     assert fitted.names == ["spread", "dynamics", "features", "combined"] and fitted.fitted_for["obs_shape"] == [4]
+    asked = [r for r in reports if r[0] == "the policy asked at each step: logged episodes"]  # (unit: episodes)
+    assert asked == [(asked[0][0], k, 9) for k in range(1, 10)]
     filled = 0
     for observations, logged, at in _spreads_at_rebuilt_stacks(agent, log):
         assert len(observations) == len(logged) >= 8 and np.array_equal(at(None), logged[:-1])

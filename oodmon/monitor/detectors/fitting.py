@@ -978,7 +978,7 @@ def _said_asked(on_progress: Progress | None, estimator: Any, done: int, episode
     """The progress of asking the policy at each logged step (a game of Pong's, a thousand of them,
     some seconds), where it is asked."""
     if on_progress is not None and estimator is not None:
-        on_progress("logged episodes read by the policy", done, episodes)
+        on_progress("the policy asked at each step: logged episodes", done, episodes)
 
 
 #: Each step's observation the policy acted on, rebuilt from an episode's logged ones (from its reset).
