@@ -927,9 +927,11 @@ class Remembering:
 
 
 @pytest.mark.parametrize("env_id", ["CartPole-v1", "plain_tests/DictCartPole-v0"])
-def test_a_plain_policy_with_a_memory_is_told_of_each_episodes_start(env_id):
+def test_a_plain_policy_with_a_memory_is_told_of_each_episodes_start(env_id, tmp_path):
     from oodmon.monitor import Monitor
     from oodmon.monitor.detectors import fit_agent_detectors
+    from oodmon.monitor.sinks import McapSink
+    from oodmon.replay import fit_detectors_from_logs
 
     _register_dict_cartpole()
     policy = Remembering()
@@ -937,9 +939,15 @@ def test_a_plain_policy_with_a_memory_is_told_of_each_episodes_start(env_id):
     assert agent.remembers
     detectors = fit_agent_detectors(agent, episodes=3)
     assert policy.begun >= 3  # the fit's episodes each began anew
-    with Monitor(agent, None, detectors=detectors) as monitor:
-        lengths = [monitor.run_episode(gymnasium.make(env_id), seed=seed).length for seed in (1, 2)]
-        assert policy.steps == lengths[1]  # its memory is of the last episode alone
+    with Monitor(agent, None, detectors=detectors, sinks=[McapSink(tmp_path / "id.mcap")]) as monitor:
+        lengths = [monitor.run_episode(gymnasium.make(env_id), seed=seed).length for seed in (1, 2, 3)]
+        assert policy.steps == lengths[2]  # its memory is of the last episode alone
+    # its detectors fitted on that log (refused before 2026-12-07): they read the numbers the log
+    # holds, and the policy, which has no samples, is not asked (its memory stays as it was)
+    begun = policy.begun
+    fitted = fit_detectors_from_logs(agent, [tmp_path / "id.mcap"], dynamics_updates=50)
+    assert fitted.names == detectors.names and "dynamics" in fitted.names and fitted.fitted_for["episodes"] == 3
+    assert (policy.steps, policy.begun) == (lengths[2], begun)
 
 
 class _OneDecision(gymnasium.Env):

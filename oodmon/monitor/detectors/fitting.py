@@ -911,20 +911,27 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
     holds (the newest of each, what its detectors read): each step's stack is rebuilt from them
     (:func:`~oodmon.agents.frame_stack.restacked`, since 2026-12-07) where the policy is asked.
 
+    A policy with a memory of the episode, or one that reads a dict's text beside its numbers, is
+    fitted where it has no samples (a plain policy, one SB3 model; since 2026-12-07): its
+    detectors read what the log holds, and it is not asked.
+
     Raises:
         ConfigError: an agent whose detectors read less than it acts on in a way its log cannot
-            rebuild (a stack of dicts, a dict's picture or text, a memory of the episode), fewer
-            than 3 usable episodes, or a detector it cannot have (as :func:`fit_detectors`), or one
-            a log's frames cannot fit.
+            rebuild (a stack of dicts, a dict's picture; the memory or text of the episode where it
+            is asked for its samples), fewer than 3 usable episodes, or a detector it cannot have
+            (as :func:`fit_detectors`), or one a log's frames cannot fit.
     """
     from oodmon.monitor.monitor import policy_hash
 
     stacking = getattr(agent, "stacking", None)
-    if (getattr(agent, "pictures", None) is not None or agent.remembers or agent.reads_words
-            or stacking is not None and stacking.positions is not None):
+    # a memory of the episode and a dict's text matter only where the policy is asked (its samples);
+    # the detectors read what the log holds
+    asked = agent.estimator is not None and (agent.remembers or agent.reads_words)
+    if getattr(agent, "pictures", None) is not None or asked or stacking is not None and stacking.positions is not None:
         raise ConfigError("its log holds what the detectors read of each step, not all that this policy acts on (a "
-                          "stack of dict observations, a dict's picture or text, or a memory of the episode): fit its "
-                          "detectors on played episodes (`oodmon fit-detectors` without --from-logs)")
+                          "stack of dict observations, a dict's picture, or the text or memory of the episode that its "
+                          "samples read): fit its detectors on played episodes (`oodmon fit-detectors` without "
+                          "--from-logs)")
     pictures = any(np.asarray(o).dtype == np.uint8 and np.ndim(o) >= 3 for o, _ in episodes)
     usable = [(obs, np.asarray(actions)) for obs, actions in ((np.asarray(o) if pictures else np.asarray(o, np.float64),
                                                                a) for o, a in episodes)
