@@ -463,14 +463,16 @@ def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str
         return None  # a start message oodmon did not write: the running episode stays lost
 
 
-def read_steps(path: str | Path, episodes: Sequence[int]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def read_steps(path: str | Path, episodes: Sequence[int], *, pictures: bool = False) -> dict[int, tuple]:
     """The observations and actions a log's step messages hold, ``(T, ...)`` each, of each of
     ``episodes`` (indices of whole episodes :func:`read_log` returned), in step order (a reading
     that was not finite: NaN): what the learned detectors are fitted on
     (:func:`oodmon.replay.fit_detectors_from_logs`). A picture's observation is logged as its
     frame (the newest of a stack, what the camera's detectors read): an episode whose steps hold
-    frames and no readings gives its frames, ``(T, H, W)`` or ``(T, H, W, 3)`` bytes. The file is
-    streamed, a torn one up to its tear (a whole episode's steps come before its end).
+    frames and no readings gives its frames, ``(T, H, W)`` or ``(T, H, W, 3)`` bytes. With
+    ``pictures``, each episode's frames come third beside its readings (a dict's picture beside
+    its vectors), ``None`` where a step has none. The file is streamed, a torn one up to its tear
+    (a whole episode's steps come before its end).
 
     Raises:
         LogFormatError: a step of those episodes with neither its observation nor a frame, or
@@ -502,15 +504,18 @@ def read_steps(path: str | Path, episodes: Sequence[int]) -> dict[int, tuple[np.
         rows = sorted(steps[k], key=lambda r: r[0] if isinstance(r[0], int) else -1)
         if not rows or [r[0] for r in rows] != list(range(len(rows))):
             raise LogFormatError(f"{path}: the steps of episode {k} are not all there")
+        framed = all((k, r[0]) in frames for r in rows)
+        seen = _pictures(path, k, [frames[k, r[0]] for r in rows]) if framed and (
+            pictures or any(r[1] is None for r in rows)) else None
         if any(r[1] is None for r in rows):
-            if all((k, r[0]) in frames for r in rows):
-                found[k] = (_pictures(path, k, [frames[k, r[0]] for r in rows]), _actions(path, k, rows))
+            if framed:
+                found[k] = (seen, _actions(path, k, rows)) + ((seen,) if pictures else ())
                 continue
             raise LogFormatError(f"{path}: episode {k}'s steps hold no observation, nor a frame at every step: its "
                                  "detectors cannot be fitted from the log")
         try:  # (a reading that was not finite is logged as null)
             found[k] = (np.asarray([[math.nan if v is None else v for v in r[1]] for r in rows], np.float64),
-                        _actions(path, k, rows))
+                        _actions(path, k, rows)) + ((seen,) if pictures else ())
         except (ValueError, TypeError) as error:
             raise LogFormatError(f"{path}: episode {k}'s observations or actions are damaged ({error})") from None
     return found

@@ -886,7 +886,7 @@ def fit_agent_detectors(agent: Any, *, detectors: Sequence[str] | None = None, e
 NOT_FROM_FRAMES = ("features", "scaled_spread")
 
 
-def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.ndarray]], *,
+def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, ...]], *,
                            detectors: Sequence[str] | None = None, score: str = DEFAULT_SCORE, obs_noise: float = 0.0,
                            seed: int = DETECTOR_FIT, dynamics_updates: int | None = MAX_UPDATES,
                            on_progress: Progress | None = None, recorded: dict[str, Any] | None = None) -> DetectorSet:
@@ -913,7 +913,10 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
 
     A policy with a memory of the episode, or one that reads a dict's text beside its numbers, is
     fitted where it has no samples (a plain policy, one SB3 model; since 2026-12-07): its
-    detectors read what the log holds, and it is not asked.
+    detectors read what the log holds, and it is not asked. So is one whose dicts hold a picture
+    beside their vectors (an SB3 ``MultiInputPolicy``'s camera): each episode then comes with its
+    frames third, ``(observations, actions, frames)`` (:func:`~oodmon.replay.reader.read_steps`
+    with ``pictures``), which the camera's detectors read beside the vectors.
 
     Raises:
         ConfigError: an agent whose detectors read less than it acts on in a way its log cannot
@@ -923,19 +926,18 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
     """
     from oodmon.monitor.monitor import policy_hash
 
-    stacking = getattr(agent, "stacking", None)
-    # a memory of the episode and a dict's text matter only where the policy is asked (its samples);
-    # the detectors read what the log holds
-    asked = agent.estimator is not None and (agent.remembers or agent.reads_words)
-    if getattr(agent, "pictures", None) is not None or asked or stacking is not None and stacking.positions is not None:
+    stacking, in_dict = getattr(agent, "stacking", None), getattr(agent, "pictures", None)
+    # a memory of the episode, a dict's text or its picture matter only where the policy is asked
+    # (its samples); the detectors read what the log holds: the numbers, a dict's picture as the frame
+    asked = agent.estimator is not None and (agent.remembers or agent.reads_words or in_dict is not None)
+    if asked or stacking is not None and stacking.positions is not None:
         raise ConfigError("its log holds what the detectors read of each step, not all that this policy acts on (a "
-                          "stack of dict observations, a dict's picture, or the text or memory of the episode that its "
-                          "samples read): fit its detectors on played episodes (`oodmon fit-detectors` without "
-                          "--from-logs)")
-    pictures = any(np.asarray(o).dtype == np.uint8 and np.ndim(o) >= 3 for o, _ in episodes)
-    usable = [(obs, np.asarray(actions)) for obs, actions in ((np.asarray(o) if pictures else np.asarray(o, np.float64),
-                                                               a) for o, a in episodes)
-              if len(obs) >= 2 and (pictures or np.isfinite(obs).all())]
+                          "stack of dict observations, or the picture, text or memory of the episode that its samples "
+                          "read): fit its detectors on played episodes (`oodmon fit-detectors` without --from-logs)")
+    pictures = any(np.asarray(e[0]).dtype == np.uint8 and np.ndim(e[0]) >= 3 for e in episodes)
+    usable = [(obs, np.asarray(e[1]), _dict_pictures(in_dict, e)) for obs, e in (
+        (np.asarray(e[0]) if pictures else np.asarray(e[0], np.float64), e) for e in episodes)
+        if len(obs) >= 2 and (pictures or np.isfinite(obs).all())]
     if len(usable) < 3:
         raise ConfigError(f"{len(usable)} of the {len(episodes)} recorded episodes can be fitted on (two steps or "
                           "more, every reading finite); fitting needs at least 3 (two thirds fit, one third ranks)")
@@ -952,24 +954,49 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, np.n
         env.close()
     estimator = agent.estimator
     if pictures:
-        return _fitted_on_frames(usable, names, detectors, estimator, score, seed, on_progress, obs_shape,
+        return _fitted_on_frames([e[:2] for e in usable], names, detectors, estimator, score, seed, on_progress,
+                                 obs_shape,
                                  None if estimator is None else acted_on, n_actions, policy_hash=policy_hash(agent),
                                  task=agent.task, obs_noise=obs_noise,
                                  recorded={**_models_of(agent.metadata), **(recorded or {})})
     ensemble = "scaled_spread" in names and has_members(estimator)
     trajectories = []
-    for episode, (observations, actions) in enumerate(usable):
+    for episode, (observations, actions, camera) in enumerate(usable):
         steps = len(observations) - 1
         # a stack the policy acted on, rebuilt (a played fit's Trajectory.acted_on), else the logged ones
         stacks = None if acted_on is AS_LOGGED or estimator is None else np.stack(list(acted_on(observations)))
         estimates = [] if estimator is None else [
             estimator.estimate(obs) for obs in (observations if stacks is None else stacks)[:-1]]
         features, values = _policy_reads(estimates, steps, ensemble)
-        trajectories.append(Trajectory(observations, actions[:steps], features, values, acted_on=stacks))
+        trajectories.append(Trajectory(observations, actions[:steps], features, values, acted_on=stacks,
+                                       pictures=camera))
         _said_asked(on_progress, estimator, episode + 1, len(usable))
     return _fitted(trajectories, names, estimator, agent.task, score, n_actions, seed, dynamics_updates, on_progress,
                    policy_hash=policy_hash(agent), obs_noise=obs_noise, workers=1, max_steps=None,
                    recorded={"seed": None, **_models_of(agent.metadata), **(recorded or {})})
+
+
+def _dict_pictures(in_dict: Any, episode: tuple) -> np.ndarray | None:
+    """An episode's pictures where the policy's observations are dicts with a picture beside their
+    vectors (:class:`~oodmon.agents.dict_pictures.DictPictures`): its log's frames (a recorded
+    episode's third part), in the picture's own shape (a frame of one channel is logged without its
+    axis); ``None`` for other policies.
+
+    Raises:
+        ConfigError: an episode without a frame at each step (logged without pictures).
+    """
+    if in_dict is None:
+        return None
+    if len(episode) < 3 or episode[2] is None:
+        raise ConfigError("this policy reads a picture beside the numbers of its dict observations, and a recorded "
+                          "episode holds no frame at each step to fit the camera's detectors on: log its runs with "
+                          "their frames, or fit on played episodes (`oodmon fit-detectors` without --from-logs)")
+    frames = np.asarray(episode[2])
+    if frames[0].size != math.prod(in_dict.picture_shape):  # (a stack's newest frame: not the picture)
+        raise ConfigError(f"the log's frames are {frames.shape[1:]}, the newest of this policy's pictures of "
+                          f"{in_dict.picture_shape}: fit on played episodes (`oodmon fit-detectors` without "
+                          "--from-logs)")
+    return frames.reshape(len(frames), *in_dict.picture_shape)
 
 
 def _policy_reads(estimates: Sequence[Any], steps: int, members: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
