@@ -205,6 +205,12 @@ def test_its_detectors_are_fitted_on_its_logs_vectors_and_pictures(model_path, t
             monitor.run_episode(_CameraCartPole(), seed=seed)
     vectors, actions, frames = read_steps(tmp_path / "id.mcap", [0], pictures=True)[0]
     assert vectors.shape[1:] == (4,) and frames.shape[1:] == (36, 36) and len(frames) == len(vectors) == len(actions)
+    from oodmon.monitor.detectors.fitting import fit_recorded_detectors
+
+    with pytest.raises(ConfigError, match="a recorded episode holds no frame at each step"):
+        fit_recorded_detectors(agent, [(vectors, actions)] * 3)  # (episodes read without their pictures)
+    with pytest.raises(ConfigError, match=r"the log's frames are \(9, 9\), the newest of this policy's pictures"):
+        fit_recorded_detectors(agent, [(vectors, actions, frames[:, :9, :9])] * 3)
     fitted = fit_detectors_from_logs(agent, [tmp_path / "id.mcap"])
     assert fitted.names == played.names == ["dynamics", "drift", "frames", "stillness", "combined"]
     assert fitted.fitted_for["episodes"] == 30 and fitted.fitted_for["obs_shape"] == [4]

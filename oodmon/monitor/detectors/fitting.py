@@ -920,9 +920,9 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, ...]
 
     Raises:
         ConfigError: an agent whose detectors read less than it acts on in a way its log cannot
-            rebuild (a stack of dicts, a dict's picture; the memory or text of the episode where it
-            is asked for its samples), fewer than 3 usable episodes, or a detector it cannot have
-            (as :func:`fit_detectors`), or one a log's frames cannot fit.
+            rebuild (a stack of dicts; the picture, memory or text of the episode where it is asked
+            for its samples), a dict's pictures the episodes lack, fewer than 3 usable episodes, or
+            a detector it cannot have (as :func:`fit_detectors`), or one a log's frames cannot fit.
     """
     from oodmon.monitor.monitor import policy_hash
 
@@ -935,9 +935,11 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, ...]
                           "stack of dict observations, or the picture, text or memory of the episode that its samples "
                           "read): fit its detectors on played episodes (`oodmon fit-detectors` without --from-logs)")
     pictures = any(np.asarray(e[0]).dtype == np.uint8 and np.ndim(e[0]) >= 3 for e in episodes)
-    usable = [(obs, np.asarray(e[1]), _dict_pictures(in_dict, e)) for obs, e in (
-        (np.asarray(e[0]) if pictures else np.asarray(e[0], np.float64), e) for e in episodes)
-        if len(obs) >= 2 and (pictures or np.isfinite(obs).all())]
+    usable = []  # (observations, actions, a dict's pictures or None) of each episode that can be fitted on
+    for episode in episodes:
+        observations = np.asarray(episode[0]) if pictures else np.asarray(episode[0], np.float64)
+        if len(observations) >= 2 and (pictures or np.isfinite(observations).all()):
+            usable.append((observations, np.asarray(episode[1]), _dict_pictures(in_dict, episode)))
     if len(usable) < 3:
         raise ConfigError(f"{len(usable)} of the {len(episodes)} recorded episodes can be fitted on (two steps or "
                           "more, every reading finite); fitting needs at least 3 (two thirds fit, one third ranks)")
@@ -947,7 +949,8 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, ...]
     try:
         names = _named(agent, env, agent.task, detectors)
         n_actions = _checked_actions(names, agent, env)
-        # the shape the detectors read (of a stack: the newest observation's), which the monitor checks
+        # what a set fitted on frames records as the shape the detectors read (of a stack: the newest
+        # observation's), which the monitor checks
         obs_shape = list(agent.own_shape if stacking is not None else env.observation_space.shape or ())
         acted_on = acted_on_rebuilt(agent, env)
     finally:
