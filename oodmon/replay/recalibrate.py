@@ -200,8 +200,9 @@ def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, 
     episodes only (:func:`log_episodes`). Calibrate the alarm on
     other ID logs, scored by these detectors (:func:`calibrate_from_logs`): the episodes a
     detector learned read low. A policy acting on pictures (Pong) is fitted on the frames its logs
-    hold: the camera's detectors and their combined, not ``features`` (see
-    ``fit_recorded_detectors``).
+    hold: the camera's detectors and their combined, and ``features`` where the observations it
+    acted on are rebuilt from them (Pong's stacks, a VecFrameStack's; see
+    ``fit_recorded_detectors``); a dict's picture beside its vectors is read from the frames too.
 
     Raises:
         ConfigError: logs of another policy or of two sensor noises, steps with neither readings
