@@ -107,7 +107,7 @@ def test_a_td3_trained_inside_vecframestack_is_refused_without_it_then_watched_w
     assert env.monitor.detectors.fitted_for["obs_shape"] == [3]
 
 
-def test_a_cnn_policy_on_stacked_rgb_pictures_logs_the_newest_picture():
+def test_a_cnn_policy_on_stacked_rgb_pictures_logs_the_newest_picture(tmp_path):
     """VecFrameStack(2) of RGB pictures gives 6 channels, which SB3 moves first ((6, 36, 36)): it was
     refused as "a model of another env?" (only 1, 3 or 4 channels were recognised as moved). The
     frames detector and the log read the newest RGB picture, not the stack's last channel."""
@@ -130,6 +130,19 @@ def test_a_cnn_policy_on_stacked_rgb_pictures_logs_the_newest_picture():
         monitor.run_episode(env, seed=1)
     obs, _ = env.reset(seed=1)  # the same episode's first stack: zeros, then the first picture
     assert sink.steps[0].frame.shape == (36, 36, 3) and np.array_equal(sink.steps[0].frame, obs[..., 3:])
+    # its log's pictures, the newest of each stack, fit its frames detector (refused before
+    # 2026-12-07), for the shape the monitor checks, which then watches with it
+    from oodmon.monitor import McapSink
+    from oodmon.replay import fit_detectors_from_logs
+
+    logging = McapSink(tmp_path / "x.mcap")
+    with Monitor(agent, 100.0, detectors=detectors, detector="frames", sinks=[logging]) as monitor:
+        for seed in range(4):
+            monitor.run_episode(env, seed=seed)
+    logged = fit_detectors_from_logs(agent, [tmp_path / "x.mcap"], detectors=["frames"])
+    assert logged.names == ["frames"] and logged.fitted_for["obs_shape"] == [36, 36, 3]
+    with Monitor(agent, 100.0, detectors=logged, detector="frames") as monitor:
+        assert monitor.run_episode(env, seed=9).length == 6
 
 
 class _Parts(gymnasium.ObservationWrapper):
