@@ -17,7 +17,7 @@ wrap the env they step::
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -143,11 +143,11 @@ class FrameStack(gymnasium.ObservationWrapper):
         return self._padded(self._one(stacked))
 
 
-def restacked(observations: np.ndarray, space: gymnasium.spaces.Box, stacking: Stacking) -> Iterator[np.ndarray]:
+def restacked(observations: Sequence[Any], space: gymnasium.spaces.Space, stacking: Stacking) -> Iterator[Any]:
     """Each step's stack a model trained inside VecFrameStack acted on, rebuilt from
-    ``observations``, the env's own (of ``space``) from an episode's reset on, as a log keeps them
-    (:meth:`Stacking.newest`): through :class:`FrameStack` itself, so zeros (or ``pad``) before the
-    first, as in the run.
+    ``observations``, the env's own (of ``space``: arrays, or dicts of vectors stacked key by key)
+    from an episode's reset on, as a log keeps them (:meth:`Stacking.newest`): through
+    :class:`FrameStack` itself, so zeros (or ``pad``) before the first, as in the run.
 
     Example:
         >>> space = gymnasium.spaces.Box(-1, 1, (1,), np.float32)
@@ -165,7 +165,7 @@ def restacked(observations: np.ndarray, space: gymnasium.spaces.Box, stacking: S
 class _Replay(gymnasium.Env):
     """An env that gives ``observations`` again, one a step from its reset, whatever the action."""
 
-    def __init__(self, observations: np.ndarray, space: gymnasium.spaces.Box) -> None:
+    def __init__(self, observations: Sequence[Any], space: gymnasium.spaces.Space) -> None:
         self.observation_space, self.action_space = space, gymnasium.spaces.Discrete(1)
         self._observations, self._step = observations, 0
 

@@ -207,15 +207,19 @@ def test_dicts_are_stacked_key_by_key_as_vecframestack_stacks_them_and_read_flat
         load_sb3([tmp_path / "dqn.zip"], env_id)
     assert load_sb3([tmp_path / "dqn.zip"], env_id, frame_stack=3).stacking.own_shape == (4,)
     steps = 0
-    with Monitor(agent) as monitor:
+    from oodmon.monitor import McapSink
+    from oodmon.replay import fit_detectors_from_logs
+
+    with Monitor(agent, sinks=[McapSink(tmp_path / "x.mcap")]) as monitor:
         for seed in range(3):
             steps += monitor.run_episode(agent.make_env(), seed=seed).length
     assert steps >= 12 and len(monitor.last_step.observation) == 4  # the own dict, flattened
-    # its log's flattened newest dicts do not rebuild a stack of dicts: fitting on them is refused
-    from oodmon.monitor.detectors.fitting import fit_recorded_detectors
-
-    with pytest.raises(ConfigError, match=r"not all that this policy acts on \(a stack of dict observations"):
-        fit_recorded_detectors(agent, [])
+    # its log's newest dicts, flattened, rebuild the stacks of dicts the DQNs acted on (refused
+    # before 2026-12-07): their spread there is the one the run logged, to the bit; fitted on them
+    for _, logged, at in _spreads_at_rebuilt_stacks(agent, tmp_path / "x.mcap"):
+        assert np.array_equal(at(None), logged[:-1])
+    fitted = fit_detectors_from_logs(agent, [tmp_path / "x.mcap"], dynamics_updates=20)
+    assert "features" in fitted.names and fitted.fitted_for["obs_shape"] == [4]
 
 
 def test_a_model_trained_normalised_then_stacked_sees_what_vecframestack_of_vecnormalize_gave_it(tmp_path, capsys):

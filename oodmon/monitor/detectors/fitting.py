@@ -920,8 +920,8 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, ...]
 
     Raises:
         ConfigError: an agent whose detectors read less than it acts on in a way its log cannot
-            rebuild (a stack of dicts; the picture, memory or text of the episode where it is asked
-            for its samples), a dict's pictures the episodes lack, fewer than 3 usable episodes, or
+            rebuild (the picture, memory or text of the episode where it is asked for its samples),
+            a dict's pictures the episodes lack, fewer than 3 usable episodes, or
             a detector it cannot have (as :func:`fit_detectors`), or one a log's frames cannot fit.
     """
     from oodmon.monitor.monitor import policy_hash
@@ -930,10 +930,10 @@ def fit_recorded_detectors(agent: Any, episodes: Sequence[tuple[np.ndarray, ...]
     # a memory of the episode, a dict's text or its picture matter only where the policy is asked
     # (its samples); the detectors read what the log holds: the numbers, a dict's picture as the frame
     asked = agent.estimator is not None and (agent.remembers or agent.reads_words or in_dict is not None)
-    if asked or stacking is not None and stacking.positions is not None:
-        raise ConfigError("its log holds what the detectors read of each step, not all that this policy acts on (a "
-                          "stack of dict observations, or the picture, text or memory of the episode that its samples "
-                          "read): fit its detectors on played episodes (`oodmon fit-detectors` without --from-logs)")
+    if asked:
+        raise ConfigError("its log holds what the detectors read of each step, not all that this policy acts on (the "
+                          "picture, text or memory of the episode that its samples read): fit its detectors on played "
+                          "episodes (`oodmon fit-detectors` without --from-logs)")
     pictures = any(np.asarray(e[0]).dtype == np.uint8 and np.ndim(e[0]) >= 3 for e in episodes)
     usable = []  # (observations, actions, a dict's pictures or None) of each episode that can be fitted on
     for episode in episodes:
@@ -1040,7 +1040,11 @@ def acted_on_rebuilt(agent: Any, env: gymnasium.Env) -> Rebuild | None:
     if stacking is not None:
         while not isinstance(env, FrameStack):  # (Agent.wrap puts it around the env's own)
             env = env.env
-        space, shape = env.env.observation_space, tuple(env.env.observation_space.shape)
+        space, stacked = env.env.observation_space, env.observation_space
+        if stacking.positions is not None:  # dicts of vectors: logged flattened, stacked key by key, read flattened
+            return lambda own: (gymnasium.spaces.flatten(stacked, stack) for stack in restacked(
+                [gymnasium.spaces.unflatten(space, np.asarray(v, np.float32)) for v in own], space, stacking))
+        shape = tuple(space.shape)
         # a log's picture of one channel is kept without its axis: (84, 84) of an Atari (84, 84, 1)
         return lambda own: restacked(np.reshape(own, (len(own), *shape)).astype(space.dtype), space, stacking)
     space = env.observation_space
