@@ -195,6 +195,7 @@ def test_its_detectors_are_fitted_on_its_logs_vectors_and_pictures(model_path, t
     """Its log holds each step's vector and picture (the camera's frame), what its detectors read:
     they are fitted on it (refused before 2026-12-07), the vector's and the picture's, and the
     frames detector of the log's set tells a snowing camera from fresh ID episodes."""
+    from oodmon.monitor.detectors.fitting import fit_recorded_detectors
     from oodmon.replay import fit_detectors_from_logs
     from oodmon.replay.reader import read_steps
 
@@ -205,8 +206,6 @@ def test_its_detectors_are_fitted_on_its_logs_vectors_and_pictures(model_path, t
             monitor.run_episode(_CameraCartPole(), seed=seed)
     vectors, actions, frames = read_steps(tmp_path / "id.mcap", [0], pictures=True)[0]
     assert vectors.shape[1:] == (4,) and frames.shape[1:] == (36, 36) and len(frames) == len(vectors) == len(actions)
-    from oodmon.monitor.detectors.fitting import fit_recorded_detectors
-
     with pytest.raises(ConfigError, match="a recorded episode holds no frame at each step"):
         fit_recorded_detectors(agent, [(vectors, actions)] * 3)  # (episodes read without their pictures)
     with pytest.raises(ConfigError, match=r"the log's frames are \(9, 9\), the newest of this policy's pictures"):

@@ -206,10 +206,10 @@ def test_dicts_are_stacked_key_by_key_as_vecframestack_stacks_them_and_read_flat
     with pytest.raises(ConfigError, match=r"Or trained inside VecFrameStack\(3\)\? Give --frame-stack 3"):
         load_sb3([tmp_path / "dqn.zip"], env_id)
     assert load_sb3([tmp_path / "dqn.zip"], env_id, frame_stack=3).stacking.own_shape == (4,)
-    steps = 0
     from oodmon.monitor import McapSink
     from oodmon.replay import fit_detectors_from_logs
 
+    steps = 0
     with Monitor(agent, sinks=[McapSink(tmp_path / "x.mcap")]) as monitor:
         for seed in range(3):
             steps += monitor.run_episode(agent.make_env(), seed=seed).length

@@ -928,8 +928,12 @@ class Remembering:
 
 @pytest.mark.parametrize("env_id", ["CartPole-v1", "plain_tests/DictCartPole-v0"])
 def test_a_plain_policy_with_a_memory_is_told_of_each_episodes_start(env_id, tmp_path):
+    import dataclasses
+
+    from oodmon.agents import load
     from oodmon.monitor import Monitor
     from oodmon.monitor.detectors import fit_agent_detectors
+    from oodmon.monitor.detectors.fitting import fit_recorded_detectors
     from oodmon.monitor.sinks import McapSink
     from oodmon.replay import fit_detectors_from_logs
 
@@ -949,11 +953,6 @@ def test_a_plain_policy_with_a_memory_is_told_of_each_episodes_start(env_id, tmp
     assert fitted.names == detectors.names and "dynamics" in fitted.names and fitted.fitted_for["episodes"] == 3
     assert (policy.steps, policy.begun) == (lengths[2], begun)
     # where its samples would read the memory (an ensemble's, deciding with one), the log cannot serve
-    import dataclasses
-
-    from oodmon.agents import load
-    from oodmon.monitor.detectors.fitting import fit_recorded_detectors
-
     sampled = dataclasses.replace(load("cartpole", "ensemble"), deploy=policy)
     with pytest.raises(ConfigError, match="the picture, text or memory of the episode that its samples read"):
         fit_recorded_detectors(sampled, [])
