@@ -80,9 +80,10 @@ class CorruptedPong(gymnasium.Env):
         ((4, 84, 84), 'uint8', True)
     """
 
-    #: Its observation is a stack of its last frames, oldest first, the first frame of an episode
-    #: filling the stack at the reset: what the newest frames a monitor logs rebuild, step by step
-    #: (:func:`oodmon.monitor.detectors.fitting.stacks_from_frames`).
+    #: Its observation is a stack of its last frames along its first axis, oldest first, the first
+    #: frame of an episode filling the stack at the reset: what the newest frames a monitor logs
+    #: rebuild, step by step (:func:`oodmon.monitor.detectors.fitting.stacks_from_frames`; an env
+    #: of yours stacking so may say it too).
     STACK_FILLED_BY_FIRST_FRAME = True
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 15}

@@ -544,3 +544,10 @@ def test_a_pong_stack_is_rebuilt_from_the_newest_frames_a_log_holds():
             assert len(rebuilt) == 41 and all(np.array_equal(a, b) for a, b in zip(rebuilt, observations))
         env.close()
     assert stack_depth(gymnasium.make("CartPole-v1")) is None
+
+    class ChannelsLast(gymnasium.Env):  # says so, but stacks along its last axis: the log's frame is not its plane
+        STACK_FILLED_BY_FIRST_FRAME = True
+        observation_space = gymnasium.spaces.Box(0, 255, (84, 84, 4), np.uint8)
+        action_space = gymnasium.spaces.Discrete(2)
+
+    assert stack_depth(ChannelsLast()) is None

@@ -1057,12 +1057,16 @@ def acted_on_rebuilt(agent: Any, env: gymnasium.Env) -> Rebuild | None:
 def stack_depth(env: gymnasium.Env) -> int | None:
     """How many of a log's newest frames make one of ``env``'s observations, where the stack is
     rebuilt from them (:func:`stacks_from_frames`): for an env whose observation is a stack of its
-    last frames that an episode's first frame fills at the reset (``STACK_FILLED_BY_FIRST_FRAME``:
-    oodmon's Pong); ``None`` for any other (SB3's ``VecFrameStack`` fills it with zeros, a
-    wrapper may change what the env stacks)."""
-    unwrapped = env.unwrapped
-    shape = tuple(env.observation_space.shape or ())
+    last frames along its first axis, ``(N, H, W)``, that an episode's first frame fills at the
+    reset (``STACK_FILLED_BY_FIRST_FRAME``: oodmon's Pong; an env of yours may say so too);
+    ``None`` for any other (SB3's ``VecFrameStack`` fills it with zeros, a wrapper may change what
+    the env stacks)."""
+    unwrapped, space = env.unwrapped, env.observation_space
+    shape = tuple(space.shape or ())
     if not getattr(unwrapped, "STACK_FILLED_BY_FIRST_FRAME", False) or shape != unwrapped.observation_space.shape:
+        return None
+    # a stack along the first axis, (N, H, W), whose last plane the monitor logs (not channels last)
+    if len(shape) != 3 or newest_frame(np.zeros(shape, space.dtype)).shape != shape[1:]:
         return None
     return int(shape[0])
 
