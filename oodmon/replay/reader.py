@@ -505,7 +505,8 @@ def read_steps(path: str | Path, episodes: Sequence[int], *, pictures: bool = Fa
         if not rows or [r[0] for r in rows] != list(range(len(rows))):
             raise LogFormatError(f"{path}: the steps of episode {k} are not all there")
         framed = all((k, r[0]) in frames for r in rows)
-        seen = _pictures(path, k, [frames[k, r[0]] for r in rows]) if framed and (
+        # (each message dropped as it is decoded: a long log's frames are in memory once, not thrice)
+        seen = _pictures(path, k, [frames.pop((k, r[0])) for r in rows]) if framed and (
             pictures or any(r[1] is None for r in rows)) else None
         if any(r[1] is None for r in rows):
             if framed:
@@ -531,29 +532,33 @@ def _actions(path: Path, episode: int, rows: list[tuple[int, list, object]]) -> 
 
 def _pictures(path: Path, episode: int, messages: list[bytes]) -> np.ndarray:
     """An episode's logged frames (``foxglove.RawImage``, mono8 or rgb8) as one array of bytes,
-    ``(T, H, W)`` or ``(T, H, W, 3)``.
+    ``(T, H, W)`` or ``(T, H, W, 3)``; each of ``messages`` (at least one) is dropped from the list
+    as it is decoded.
 
     Raises:
         LogFormatError: a frame that is not one of those, or frames of two shapes.
     """
     from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
-    pictures = []
-    for data in messages:
+    pictures = None  # filled in place, one frame at a time (np.stack of a list held each frame twice)
+    for step in range(len(messages)):
         image = RawImage()
         try:
-            image.ParseFromString(data)
+            image.ParseFromString(messages[step])
         except Exception as error:  # (protobuf's DecodeError)
             raise LogFormatError(f"{path}: a frame of episode {episode} is damaged ({error})") from None
+        messages[step] = None
         channels = {"mono8": 1, "rgb8": 3}.get(image.encoding)
         if channels is None or image.step != image.width * channels or len(image.data) != image.height * image.step:
             raise LogFormatError(f"{path}: a frame of episode {episode} is not a mono8 or rgb8 picture oodmon wrote "
                                  f"({image.encoding!r}, {image.width} x {image.height})")
         shape = (image.height, image.width) + ((3,) if channels == 3 else ())
-        pictures.append(np.frombuffer(image.data, np.uint8).reshape(shape))
-    if len({p.shape for p in pictures}) > 1:
-        raise LogFormatError(f"{path}: the frames of episode {episode} are of two shapes")
-    return np.stack(pictures)
+        if pictures is None:
+            pictures = np.empty((len(messages), *shape), np.uint8)
+        elif pictures.shape[1:] != shape:
+            raise LogFormatError(f"{path}: the frames of episode {episode} are of two shapes")
+        pictures[step] = np.frombuffer(image.data, np.uint8).reshape(shape)
+    return pictures
 
 
 def read_logs(paths: Sequence[str | Path]) -> list[RunLog]:
