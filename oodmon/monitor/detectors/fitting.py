@@ -48,7 +48,7 @@ from oodmon.versions import machine
 __all__ = ["AS_LOGGED", "BEST_DETECTOR", "DEFAULT_ADDS", "DEFAULT_FIT_EPISODES", "DEFAULT_FIT_STEPS", "FIT_VERSION",
            "KEEP_AT_MOST", "Explorer", "acted_on_rebuilt", "best_detector", "check_explore", "collect",
            "default_detectors", "default_fit_steps", "detectors_for", "discrete_states", "fit_agent_detectors",
-           "fit_recorded_detectors", "fit_settings", "fitting_notes", "fit_detectors", "policy_parts",
+           "fit_recorded_detectors", "fit_settings", "fitting_notes", "fitting_share", "fit_detectors", "policy_parts",
            "read_kept_trajectories", "stack_depth", "stacks_from_frames", "trajectory_scores"]
 
 #: ID episodes the learned detectors are fitted on by default: two thirds fit, one third ranks.
@@ -726,6 +726,17 @@ def _models_of(metadata: dict[str, Any]) -> dict[str, Any]:
     return {} if models is None else {"models": models}
 
 
+def fitting_share(episodes: int) -> int:
+    """How many of a fit's ``episodes`` fit the detectors, the first ones: two thirds, at least
+    one; the rest rank them for ``combined``.
+
+    Example:
+        >>> fitting_share(90), fitting_share(4), fitting_share(1)
+        (60, 2, 1)
+    """
+    return max(1, (2 * episodes) // 3)
+
+
 def _fitted(trajectories: list[Trajectory], detectors: Sequence[str], estimator: Any, task: str | None, score: str,
             n_actions: int | None, seed: int, dynamics_updates: int | None, on_progress: Progress | None, *,
             policy_hash: str | None, obs_noise: float, workers: int, max_steps: int | None,
@@ -733,7 +744,7 @@ def _fitted(trajectories: list[Trajectory], detectors: Sequence[str], estimator:
     """:func:`fit_detectors`' set, fitted on the episodes ``trajectories`` it played (``estimator``:
     the policy's, or ``None``); ``recorded``: what ``fitted_for`` says instead of how they were
     played (episodes from logs: no reset seeds of this fit's)."""
-    n_fit = max(1, (2 * len(trajectories)) // 3)
+    n_fit = fitting_share(len(trajectories))
     fit, held_out = [replace(t, estimates=None) for t in trajectories[:n_fit]], trajectories[n_fit:]
     parts = [SpreadDetector(score)] if estimator is not None else []
     if "dynamics" in detectors:
@@ -1111,10 +1122,12 @@ def _fitted_on_frames(episodes: list[tuple[np.ndarray, np.ndarray]], names: Sequ
     trajectories = []
     for episode, (frames, actions) in enumerate(episodes):
         steps = len(frames) - 1
-        # the estimates kept: the combined's reference scores the held-out episodes off them
         estimates = [estimator.estimate(obs) for obs in acted_on(frames[:-1])] if reads else None
         features, values = _policy_reads(estimates, steps, members) if reads else (None, None)
-        trajectories.append(Trajectory(frames, actions[:steps], features, values, estimates=estimates))
+        # the held-out episodes' estimates kept: the combined's reference scores them off those
+        held_out = episode >= fitting_share(len(episodes))
+        trajectories.append(Trajectory(frames, actions[:steps], features, values,
+                                       estimates=estimates if held_out else None))
         _said_asked(on_progress, estimator if reads else None, episode + 1, len(episodes))
     fitted = _fitted(trajectories, kept, None, task, score, n_actions, seed, None, on_progress, policy_hash=policy_hash,
                      obs_noise=obs_noise, workers=1, max_steps=None,
