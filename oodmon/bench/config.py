@@ -118,10 +118,9 @@ class BenchConfig:
         if self.alarm_detector not in self.detectors:
             raise ConfigError(f"the alarm reads the {self.alarm_detector} detector: add it to the detectors")
         from oodmon.monitor.detectors.dynamics import MAX_UPDATES, check_max_updates
-
-        check_max_updates(self.dynamics_updates, "dynamics_updates")
         from oodmon.monitor.detectors.fitting import check_explore
 
+        check_max_updates(self.dynamics_updates, "dynamics_updates")
         check_explore(self.fit_explore, "fit_explore")
         fitting = [name for name, given in (("fit_episodes", self.fit_episodes),
                                             ("dynamics_updates", self.dynamics_updates != MAX_UPDATES),

@@ -504,11 +504,10 @@ def read_steps(path: str | Path, episodes: Sequence[int], *, pictures: bool = Fa
         rows = sorted(steps[k], key=lambda r: r[0] if isinstance(r[0], int) else -1)
         if not rows or [r[0] for r in rows] != list(range(len(rows))):
             raise LogFormatError(f"{path}: the steps of episode {k} are not all there")
-        framed = all((k, r[0]) in frames for r in rows)
+        framed, unread = all((k, r[0]) in frames for r in rows), any(r[1] is None for r in rows)
         # (each message dropped as it is decoded: a long log's frames are in memory once, not thrice)
-        seen = _pictures(path, k, [frames.pop((k, r[0])) for r in rows]) if framed and (
-            pictures or any(r[1] is None for r in rows)) else None
-        if any(r[1] is None for r in rows):
+        seen = _pictures(path, k, [frames.pop((k, r[0])) for r in rows]) if framed and (pictures or unread) else None
+        if unread:
             if framed:
                 found[k] = (seen, _actions(path, k, rows)) + ((seen,) if pictures else ())
                 continue

@@ -222,10 +222,9 @@ def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, 
     noise = found.noise("detectors are fitted")
     _warn_if_changed(change_in_logs(found))
     episodes = []
+    camera = getattr(agent, "pictures", None) is not None  # a dict's picture beside its vectors: its frames too
     for log in found.logs:
         mine_here = [episode.episode for owner, episode in found.episodes if owner is log]
-        # (a dict's picture beside its vectors: the frames too, which the camera's detectors read)
-        camera = getattr(agent, "pictures", None) is not None
         steps = read_steps(log.path, mine_here, pictures=camera) if mine_here else {}
         episodes += [steps[k] for k in mine_here]
     return fit_recorded_detectors(agent, episodes, detectors=detectors, score=first.metadata.get("score", "chosen_std"),
