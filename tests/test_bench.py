@@ -160,6 +160,11 @@ def test_the_threshold_cache_is_keyed_on_everything_that_makes_the_threshold(mon
         BenchConfig("cartpole", ("dropout",), 1, fit_explore=0.1)
     with pytest.raises(ConfigError, match="^fit_explore=1.0 is not allowed"):
         BenchConfig("cartpole", ("dropout",), 1, fit_explore=1.0, **learned)
+    # numpy's numbers from a Python caller are written as plain ones (a results file is JSON: before
+    # 2026-12-07 it failed to write, after the bench's work)
+    numbers = BenchConfig("cartpole", ("dropout",), 1, fit_explore=np.float32(0.5), dynamics_updates=np.int64(500),
+                          warmup=np.int64(2), **learned).what_made_the_numbers()
+    assert json.loads(json.dumps(numbers))["dynamics_updates"] == 500 and numbers["fit_explore"] == 0.5
     with pytest.raises(ConfigError, match="unknown detector 'sonar'"):
         BenchConfig("cartpole", detectors=("spread", "sonar"))
     # Too few calibration episodes for the bound is said before any work.

@@ -289,7 +289,9 @@ class BenchConfig:
         """The settings a result depends on (not where it ran: out, workers, executor)."""
         from oodmon.monitor.detectors.dynamics import MAX_UPDATES
 
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()
+        # (numpy's numbers a Python caller gave as plain ones: the results file is JSON)
+        return {k: list(v) if isinstance(v, tuple) else v.item() if isinstance(v, np.generic) else v
+                for k, v in asdict(self).items()
                 if k not in ("out", "workers", "executor", "address", "bind", "imports", "unsafe_load_pickles")
                 and not (k in ("warmup", "policy", "fit_explore") and not v)  # none: as results from before it say
                 and not (k == "dynamics_updates" and v == MAX_UPDATES)}  # the default: as results from before it say
