@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import shlex
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -35,6 +36,9 @@ __all__ = ["EpisodeLog", "MissingPartWarning", "NewerFormatWarning", "RecoveryWa
            "read_log", "read_logs", "read_steps"]
 
 _MAGIC = logformat.MCAP_MAGIC
+#: How a Rerun recording (.rrd) begins ("RRF2" today; earlier formats "RRF0", "RRF1"): a file a
+#: run wrote beside its MCAP log, and the one a user may hand replay by mistake.
+_RERUN_MAGIC = b"RRF"
 _EPISODE, _SCORES, _STEP = logformat.EPISODE, logformat.EPISODE_SCORES, logformat.STEP
 _START = logformat.EPISODE_START
 _FRAME = logformat.FRAME
@@ -320,6 +324,10 @@ def read_log(path: str | Path) -> RunLog:
         raise LogFormatError(f"{path} is a folder; give the .mcap files in it") from None
     except OSError as error:
         raise LogFormatError(f"{path} cannot be read ({error.strerror or error})") from None
+    if head.startswith(_RERUN_MAGIC):
+        viewer = f"rerun {shlex.quote(str(path))}"
+        raise LogFormatError(f"{path} is a Rerun recording, which the Rerun viewer shows ({viewer}); oodmon reads the "
+                             "run's MCAP log (written with --mcap, McapSink)")
     if head != _MAGIC:
         raise LogFormatError(f"{path} is not an MCAP file (it does not start with the MCAP magic bytes)")
     indexed = _read_indexed(path)
@@ -580,7 +588,10 @@ def read_logs(paths: Sequence[str | Path]) -> list[RunLog]:
         named = not path.is_dir()
         found = [path] if named else sorted(path.rglob("*.mcap"))
         if not named and not found:
-            raise LogFormatError(f"{path} holds no .mcap files")
+            recordings = "" if next(path.rglob("*.rrd"), None) is None else (
+                " (its .rrd files are Rerun recordings, which the Rerun viewer shows; oodmon reads a run's MCAP log, "
+                "written with --mcap)")
+            raise LogFormatError(f"{path} holds no .mcap files{recordings}")
         for file in found:
             key = file.resolve()
             if key in seen:

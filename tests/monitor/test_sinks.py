@@ -18,8 +18,9 @@ from mcap.reader import make_reader
 
 from oodmon.agents import load
 from oodmon.envs import parse_variant
-from oodmon.errors import InvalidParameterError
+from oodmon.errors import InvalidParameterError, LogFormatError
 from oodmon.monitor import McapSink, MemorySink, Monitor, RerunSink, SinkWarning
+from oodmon.replay import read_log, read_logs
 
 
 @pytest.fixture(scope="module")
@@ -114,7 +115,7 @@ def test_alarms_are_foxglove_logs(agent, tmp_path):
     message = Log.FromString(logs[0].data)
     assert message.level == Log.WARNING and message.message.startswith("OOD alarm: episode 0 step 0: score ")
     assert message.message.endswith("; cause: spread")  # the monitor's alarm read the spread alone
-    from oodmon.replay import read_log
+    from oodmon.replay import read_log, read_logs
 
     episode = read_log(tmp_path / "a.mcap").episodes[0]  # and the episode's record keeps the first one's (format 7)
     assert episode.first_alarm_step == 0 and episode.first_alarm_cause == "spread"
@@ -169,10 +170,15 @@ def _verify(path, *flags):
     return result.returncode, result.stdout + result.stderr
 
 
-def test_rrd_passes_rerun_verify(agent, tmp_path):
+def test_rrd_passes_rerun_verify_and_replay_given_it_says_what_it_is(agent, tmp_path):
     _run(agent, [RerunSink(tmp_path / "run.rrd")], episodes=1)
     code, said = _verify(tmp_path / "run.rrd")
     assert code == 0 and "verified without error" in said
+    # the file a run wrote beside its MCAP log, handed to replay by mistake: once "not an MCAP file"
+    with pytest.raises(LogFormatError, match=r"run\.rrd is a Rerun recording, which the Rerun viewer shows .*--mcap"):
+        read_log(tmp_path / "run.rrd")
+    with pytest.raises(LogFormatError, match="holds no .mcap files .its .rrd files are Rerun recordings"):
+        read_logs([tmp_path])
 
 
 def test_an_rrd_without_a_footer_holds_every_step_and_reads_as_a_killed_runs(agent, tmp_path):
@@ -388,7 +394,7 @@ def test_overwrite_replaces_only_logs_not_a_model_or_a_threshold_at_the_path(age
     (a name typed wrong: a model, a threshold, an MCAP path given to the Rerun sink) is refused either
     way, when the sink is made and again at open; an empty file (a log torn at its start) is replaced."""
     from oodmon.errors import ConfigError
-    from oodmon.replay import read_log
+    from oodmon.replay import read_log, read_logs
 
     model, threshold = tmp_path / "policy.zip", tmp_path / "threshold.json"
     model.write_bytes(b"PK\x03\x04" + bytes(100))
