@@ -92,6 +92,7 @@ CASES = [
     ("run-episodes-negative", [*RUN, "--episodes", "-3"], {}, ["--episodes", "-3"]),
     ("run-episodes-text", [*RUN, "--episodes", "many"], {}, ["--episodes", "many"]),
     ("run-onset-negative", [*RUN, "--onset", "-5"], {}, ["--onset", "-5"]),
+    ("run-onset-without-variant", [*RUN, "--onset", "10"], {}, ["--onset 10", "no --variant"]),
     ("run-split-mb-0", [*RUN, "--mcap", "{d}/x.mcap", "--mcap-split-mb", "0"], {}, ["--mcap-split-mb", "0"]),
     ("run-split-without-mcap", [*RUN, "--mcap-split-episodes", "10"], {}, ["--mcap-split-episodes", "give --mcap"]),
     ("run-no-footer-without-rrd", [*RUN, "--rrd-no-footer"], {}, ["--rrd-no-footer", "give --rrd too"]),

@@ -120,6 +120,10 @@ def _run(args: argparse.Namespace) -> int:
                           "give --rrd too")
     if args.serve_memory is not None and not args.serve:
         raise ConfigError("--serve-memory is the memory of the stream --serve serves: give --serve too")
+    if args.onset and not args.variant:  # the run played the ID world, its table headed "onset N"
+        raise ConfigError(f"--onset {args.onset} is the step a shift begins at, and no --variant names one: give the "
+                          "shifted world (--variant cartpole:length=2.0, or ENV_ID:NAME=VALUE of your own env), or "
+                          "leave out --onset for an ID run")
     splits = bool(args.mcap_split_episodes or args.mcap_split_mb)
     if args.mcap:  # said in the CLI's words before the sinks are made
         check_output_file(part_path(args.mcap, 0, splits=splits), parameter="--mcap", inputs=inputs)
