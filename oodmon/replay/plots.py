@@ -3,6 +3,8 @@
 - :func:`plot_roc`: per method and detector, the ROC curve of one variant's per-step scores.
 - :func:`plot_trace`: the paper's Figures 4 and 5: one ID episode beside one shifted episode,
   the score over the steps with the threshold, the shifted steps shaded, alarms marked.
+- :func:`plot_id_alarms`: per method and task, what the alarm made of the ID episodes (all a
+  deployment's logs hold): the first alarmed one beside the calm one whose score came highest.
 - :func:`plot_auroc_vs_shift`: per method, AUROC against the parameter's value (or severity).
 - :func:`plot_alarm_timeline` (``replay --monitor --plots``): per agent and shifted variant, each
   episode from its onset to its end, its first alarm and its failure: alarmed before the failure?
@@ -34,8 +36,8 @@ if TYPE_CHECKING:
     from oodmon.monitor.threshold import Threshold
     from oodmon.replay.recalibrate import LogStatistics
 
-__all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_log_statistics", "plot_roc", "plot_trace",
-           "write_monitor_plots", "write_plots"]
+__all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_id_alarms", "plot_log_statistics", "plot_roc",
+           "plot_trace", "write_monitor_plots", "write_plots"]
 
 
 def _pyplot():
@@ -125,10 +127,51 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
         return None
     panels = [] if id_episode is None else [(id_episode, f"ID: {episode_name(id_episode)}")]
     panels.append((shifted_episode, f"shifted: {episode_name(shifted_episode)}"))
+    title = f"{method}, {_alarm_detectors(logs, method, variant)} detector: alarms as vertical lines"
+    return _draw_traces(panels, threshold, title, path)
+
+
+def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | Path) -> Path | None:
+    """What the alarm made of ``method``'s ID episodes of ``task`` (a deployment's logs, where every
+    episode is one): the first that alarmed beside the calm one whose score came highest under the
+    same threshold, each drawn as :func:`plot_trace` draws one, or the calm one alone where none
+    alarmed; ``None`` where the logs hold no ID episode of a run with a threshold."""
+    episodes = [(episode, log.threshold, log.path.name) for log in logs
+                if log.method == method and log.task == task and np.isfinite(log.threshold)
+                for episode in log.episodes if is_id_episode(episode, log.task)]
+    if not episodes:
+        return None
+    alarmed = [(episode, name) for episode, _, name in episodes if episode.alarm.any()]
+    threshold = next((other for episode, other, _ in episodes if episode.alarm.any()), episodes[0][1])
+
+    def margin(episode: EpisodeLog) -> float:  # how close its score came to the threshold
+        finite = episode.scores[np.isfinite(episode.scores)]
+        return float(finite.max()) - threshold if len(finite) else -math.inf
+
+    calm = [(episode, name) for episode, other, name in episodes if other == threshold and not episode.alarm.any()]
+    panels = []
+    if alarmed:
+        first, log_name = alarmed[0]
+        panels.append((first, f"alarmed at step {alarm_events(first.alarm)[0]}: episode {first.episode} of {log_name}, "
+                              f"{episode_name(first)}"))
+    if calm:
+        highest, log_name = max(calm, key=lambda pair: margin(pair[0]))
+        panels.append((highest, f"no alarm, its score the highest: episode {highest.episode} of {log_name}, "
+                                f"{episode_name(highest)}"))
+    detectors = "/".join(sorted({log.detector for log in logs if log.method == method and log.task == task}))
+    title = (f"{method}, {detectors} detector, {task}: {len(alarmed)} of {len(episodes)} ID episode(s) alarmed "
+             "(alarms as vertical lines)")
+    return _draw_traces(panels, threshold, title, path)
+
+
+def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, title: str, path: str | Path) -> Path:
+    """Each episode's score over its steps in a panel of its own (titled), sharing the score axis:
+    the threshold dashed, the shifted steps shaded, each alarm's start a vertical line, a NaN or
+    infinite score marked at the panel's edge; a symlog axis where :func:`score_scale` says."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.4), dpi=110, sharey=True, squeeze=False)
     axes = axes[0]
-    for ax, (episode, title) in zip(axes, panels):
+    for ax, (episode, name) in zip(axes, panels):
         steps = np.arange(episode.length)
         ax.plot(steps, episode.scores, color="tab:red", linewidth=1, label="score")
         for infinite, height, side in ((episode.scores == np.inf, 0.97, "top"),
@@ -144,7 +187,7 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
                             color="tab:orange", alpha=0.15, label="shift active")
         for event in alarm_events(episode.alarm):
             ax.axvline(event, color="tab:purple", linewidth=1)
-        ax.set_title(title, fontsize=9)
+        ax.set_title(name, fontsize=9)
         ax.set_xlabel("step")
     scale = score_scale([episode for episode, _ in panels], threshold)
     if scale is not None:  # the axes share y: these calls set every panel's
@@ -156,7 +199,7 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
     # the score the alarm reads: the spread, an uncertainty, or a learned detector's (a surprise, a distance)
     axes[0].set_ylabel("alarm's score" if scale is None else "alarm's score (symlog)")
     axes[-1].legend(loc="upper left", fontsize=8)
-    fig.suptitle(f"{method}, {_alarm_detectors(logs, method, variant)} detector: alarms as vertical lines", fontsize=9)
+    fig.suptitle(title, fontsize=9)
     return save_figure(fig, path)
 
 
@@ -289,6 +332,10 @@ def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folde
             written.append(plot_trace(logs, method, variant, folder / name))
     for task in sorted({m.task for m in metrics}):
         written.append(plot_auroc_vs_shift(metrics, task, folder / f"auroc_vs_shift_{safe_filename(task)}.png"))
+    # what the alarm made of the ID episodes (a deployment's logs hold nothing else)
+    for method, task in sorted({(log.method, log.task) for log in logs}):
+        name = f"trace_{safe_filename(method)}_{safe_filename(task)}.png"
+        written.append(plot_id_alarms(logs, method, task, folder / name))
     return [p for p in written if p is not None]
 
 

@@ -1255,7 +1255,7 @@ def test_a_shift_of_your_own_env_runs_from_its_onset_and_replay_counts_it_shifte
                                "episode itself); the ID row's failed: ") and "CartPole" not in footnote
     assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == [
         "alarms_MountainCar-v0_sb3.png", "auroc_vs_shift_MountainCar-v0.png", "roc_MountainCar-v0_gravity_0.005.png",
-        "trace_sb3_MountainCar-v0_gravity_0.005.png"]
+        "trace_sb3_MountainCar-v0.png", "trace_sb3_MountainCar-v0_gravity_0.005.png"]
     # told what fails (here, to see the plumbing: the env ending an episode, which this untrained
     # DQN never makes MountainCar do), the failure columns count it; --failure alone is refused
     assert main(["replay", "--monitor", "--json", "--failure", "terminated", *logs_named]) == 0

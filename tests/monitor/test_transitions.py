@@ -277,4 +277,4 @@ def test_the_docs_taxi_runs_as_written_and_every_taxi_that_slipped_or_misread_al
     # disk): the AUROC-against-shift one was runs/plots/auroc_vs_shift_slippery_taxi:SlipperyTaxi-v0.png
     assert sorted(p.name for p in Path("runs/plots").iterdir()) == [
         "auroc_vs_shift_slippery_taxi_SlipperyTaxi-v0.png", "roc_slippery_taxi_SlipperyTaxi-v0_slip_0.2.png",
-        "trace_plain_slippery_taxi_SlipperyTaxi-v0_slip_0.2.png"]
+        "trace_plain_slippery_taxi_SlipperyTaxi-v0.png", "trace_plain_slippery_taxi_SlipperyTaxi-v0_slip_0.2.png"]

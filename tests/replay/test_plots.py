@@ -15,10 +15,10 @@ DATA = Path(__file__).parent.parent / "data"
 
 def test_replay_plots_writes_roc_trace_and_auroc_vs_shift(tmp_path):
     result = run_cli("replay", str(DATA), "--plots", str(tmp_path))
-    assert result.returncode == 0 and "wrote 3 plot(s)" in result.stderr
+    assert result.returncode == 0 and "wrote 4 plot(s)" in result.stderr
     names = sorted(p.name for p in tmp_path.iterdir())
     assert names == ["auroc_vs_shift_cartpole.png", "roc_cartpole_length_2.0.png",
-                     "trace_ensemble_cartpole_length_2.0.png"]
+                     "trace_ensemble_cartpole.png", "trace_ensemble_cartpole_length_2.0.png"]
     for name in names:
         image = cv2.imread(str(tmp_path / name))
         assert image is not None and image.shape[0] > 300 and image.shape[1] > 350
@@ -34,10 +34,50 @@ def test_a_trace_panel_names_the_onset_of_a_shifted_episode_only():
 
 
 def test_plots_that_the_logs_cannot_support_are_skipped(tmp_path):
+    import dataclasses
+
     logs = [read_log(DATA / "cartpole-ensemble-id.mcap")]  # ID only: no shifted steps
     assert plot_roc(logs, "cartpole:length=2.0", tmp_path / "roc.png") is None
     assert plot_trace(logs, "ensemble", "cartpole:length=2.0", tmp_path / "trace.png") is None
-    assert write_plots(logs, compute_metrics(logs), tmp_path) == []
+    # what the alarm made of the ID episodes is all such logs give (until 2026-12-07: nothing)
+    assert write_plots(logs, compute_metrics(logs), tmp_path) == [tmp_path / "trace_ensemble_cartpole.png"]
+    unthresholded = [dataclasses.replace(logs[0], threshold=float("nan"))]  # a run without --threshold
+    assert write_plots(unthresholded, compute_metrics(unthresholded), tmp_path / "none") == []
+
+
+def test_the_id_trace_shows_the_first_alarmed_episode_beside_the_calm_one_that_came_closest(tmp_path, monkeypatch):
+    """A deployment's logs hold ID episodes only, and `replay --plots` of them wrote no picture. Now
+    it draws the first episode that alarmed and, under the same threshold, the calm episode whose
+    score came highest: how far the alarm stood above what the world usually scores."""
+    import numpy as np
+
+    from oodmon.replay import EpisodeLog, RunLog
+    from oodmon.replay import plots
+
+    def episode(k, peak, alarm_at=None):
+        scores = np.r_[np.zeros(10), peak, np.zeros(9)]
+        return EpisodeLog(episode=k, env_id="", variant="cartpole", onset=0, seed=k, total_return=20.0, length=20,
+                          alarms=int(alarm_at is not None), first_alarm_step=alarm_at, scores=scores,
+                          shifted=np.zeros(20, bool), alarm=np.arange(20) == (alarm_at if alarm_at is not None else -1))
+
+    other = RunLog(Path("older.mcap"), "cartpole", "sb3", 9.0, {"detector": "combined"}, [episode(0, 8.5)], True)
+    logs = [other, RunLog(Path("deployed.mcap"), "cartpole", "sb3", 2.0, {"detector": "combined"},
+                          [episode(0, 1.2), episode(1, 3.0, alarm_at=10), episode(2, 1.7), episode(3, 4.0, 10)], True)]
+    drawn = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
+    assert plots.plot_id_alarms(logs, "sb3", "cartpole", tmp_path / "id.png") is not None
+    titles = [ax.get_title() for ax in drawn[0].axes]
+    # older.mcap's 8.5 came closer than 1.7 to its own threshold, not to this one: not drawn beside it
+    assert titles[0].startswith("alarmed at step 10: episode 1 of deployed.mcap")
+    assert titles[1].startswith("no alarm, its score the highest: episode 2 of deployed.mcap")
+    assert "sb3, combined detector, cartpole: 2 of 5 ID episode(s) alarmed" in drawn[0].texts[0].get_text()
+    dashed = [line.get_ydata()[0] for ax in drawn[0].axes for line in ax.get_lines() if line.get_linestyle() == "--"]
+    assert dashed == [2.0, 2.0]
+    quiet = [RunLog(Path("a.mcap"), "cartpole", "sb3", 2.0, {}, [episode(0, 1.2), episode(1, 1.5)], True)]
+    assert plots.plot_id_alarms(quiet, "sb3", "cartpole", tmp_path / "q.png") is not None
+    assert [ax.get_title().split(":")[0] for ax in drawn[1].axes] == ["no alarm, its score the highest"]
+    assert "episode 1 of a.mcap" in drawn[1].axes[0].get_title()
+    assert plots.plot_id_alarms(quiet, "dropout", "cartpole", tmp_path / "n.png") is None  # no such method
 
 
 def test_roc_and_trace_read_the_variants_own_task(tmp_path):
