@@ -172,6 +172,7 @@ CASES = [
     ("replay-episode-record-lacks-fields", ["replay", "{d}/broken-episode.mcap"], {}, ["broken-episode.mcap", "env_id"]),
     ("replay-plots-is-a-file", ["replay", str(ID_LOG), "--plots", "{d}/a-file"], {}, ["--plots", "a-file"]),
     ("replay-plots-takes-the-log", ["replay", "--plots", str(ID_LOG)], {}, ["--plots", "is a log", "LOGS --plots DIR"]),
+    ("replay-plots-a-picture", ["replay", str(ID_LOG), "--plots", "{d}/plot.png"], {}, ["plot.png names a picture"]),
     ("threads-huge", ["envs", "--task", "cartpole"], {"OODMON_TORCH_THREADS": "99999999999"},
      ["OODMON_TORCH_THREADS", "99999999999"]),
     ("threads-text", ["envs", "--task", "cartpole"], {"OODMON_TORCH_THREADS": "two"}, ["OODMON_TORCH_THREADS", "two"]),

@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from rich.console import Console
 
@@ -48,7 +49,13 @@ def _plots_folder(text: str) -> str:
     if text.endswith(".mcap"):
         raise argparse.ArgumentTypeError(f"{text} is a log, not the folder the plots go to: give the folder after "
                                          "--plots, the logs before it (oodmon replay LOGS --plots DIR)")
+    if Path(text).suffix.lower() in _PICTURES and not Path(text).is_dir():  # it made a folder of that name
+        raise argparse.ArgumentTypeError(f"{text} names a picture; --plots takes the folder the pictures go to (one "
+                                         "per variant and method), e.g. --plots runs/plots")
     return text
+
+
+_PICTURES = {".png", ".jpg", ".jpeg", ".svg", ".pdf"}
 
 
 def _replay(args: argparse.Namespace) -> int:
