@@ -13,6 +13,7 @@ from oodmon.cli import main
 
 DATA = Path(__file__).parent / "data"
 ID_LOG = DATA / "cartpole-ensemble-id.mcap"
+BENCH_RESULTS = Path(__file__).parents[1] / "results" / "bench" / "cartpole.json"
 
 
 def _threshold(**changes) -> dict:
@@ -161,6 +162,8 @@ CASES = [
     ("check-baseline-unknown-metric", ["check", str(ID_LOG), "--baseline", "{d}/base-unknown.json"], {}, ["'speed'"]),
     ("check-baseline-tolerance-x", ["check", str(ID_LOG), "--baseline", "{d}/base-tolerance.json"], {}, ["tolerance='x'"]),
     ("check-baseline-a-list", ["check", str(ID_LOG), "--baseline", "{d}/base-list.json"], {}, ["base-list.json", "[1, 2]"]),
+    ("check-baseline-a-benchs-results", ["check", str(ID_LOG), "--baseline", str(BENCH_RESULTS)], {},
+     ["cartpole.json is the results of `oodmon bench`", "bench ... --baseline"]),
     ("check-tolerance-flag-x", ["check", str(ID_LOG), "--baseline", "{d}/b.json", "--tolerance", "x"], {},
      ["--tolerance", "'x'"]),
     ("check-update-over-a-threshold", ["check", "{d}/../log.mcap", "--baseline", "{d}/thr.json", "--update"], {},

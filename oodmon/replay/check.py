@@ -111,6 +111,10 @@ def load_baseline(path: str | Path) -> dict:
     path = Path(path)
     data = read_json(path, name="baseline", missing=f"write one with `oodmon check LOGS --baseline {path} --update`",
                      folder="give the JSON file `oodmon check --update` wrote")
+    if isinstance(data, dict) and "metrics" not in data and {"config", "rows"} <= set(data):  # results/bench/*.json
+        raise ConfigError(f"{path} is the results of `oodmon bench`, not a baseline of logs: compare a bench with it "
+                          f"(oodmon bench ... --baseline {path}), or logs with a baseline `oodmon check LOGS --baseline "
+                          "FILE --update` writes")
     if not isinstance(data, dict) or not isinstance(data.get("metrics"), dict):
         got = data.get("metrics") if isinstance(data, dict) else data
         raise ConfigError(f"{path} is not an oodmon baseline: 'metrics' must be an object of rows, not {got!r:.40}")
