@@ -70,6 +70,10 @@ def load_bench_result(path: str | Path) -> dict:
     """
     data = read_json(path, name="bench result", missing="write one with `oodmon bench ... --json > FILE`",
                      folder="give the JSON file `oodmon bench --json` printed")
+    if isinstance(data, dict) and isinstance(data.get("metrics"), dict) and "rows" not in data:
+        raise ConfigError(f"{path} is a baseline of logs (`oodmon check --update` writes them), not a bench's results: "
+                          f"check logs against it (oodmon check LOGS --baseline {path}), or a bench against the file "
+                          "`oodmon bench --json` (or --results) wrote")
     if not isinstance(data, dict) or not isinstance(data.get("rows"), list) or not isinstance(data.get("config"), dict):
         raise ConfigError(f"{path} is not an oodmon bench result: it needs 'config' and 'rows' (`oodmon bench --json` "
                           "writes them; results from before the bench recorded its config need one run again)")
