@@ -332,11 +332,14 @@ def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folde
             written.append(plot_trace(logs, method, variant, folder / name))
     for task in sorted({m.task for m in metrics}):
         written.append(plot_auroc_vs_shift(metrics, task, folder / f"auroc_vs_shift_{safe_filename(task)}.png"))
-    # what the alarm made of the ID episodes (a deployment's logs hold nothing else)
-    for method, task in sorted({(log.method, log.task) for log in logs}):
-        name = f"trace_{safe_filename(method)}_{safe_filename(task)}.png"
-        written.append(plot_id_alarms(logs, method, task, folder / name))
+    written += _id_alarm_plots(logs, folder)  # what the alarm made of the ID episodes: all a deployment's logs hold
     return [p for p in written if p is not None]
+
+
+def _id_alarm_plots(logs: Sequence[RunLog], folder: Path) -> list[Path | None]:
+    """:func:`plot_id_alarms` of each method and task the logs hold, as ``trace_<method>_<task>.png``."""
+    return [plot_id_alarms(logs, method, task, folder / f"trace_{safe_filename(method)}_{safe_filename(task)}.png")
+            for method, task in sorted({(log.method, log.task) for log in logs})]
 
 
 #: Episodes drawn per variant by :func:`plot_alarm_timeline` (the first ones; its title says of how many).
@@ -408,7 +411,8 @@ def plot_alarm_timeline(variants: dict[str, Sequence[EpisodeAlarms]], title: str
 
 
 def write_monitor_plots(logs: Sequence[RunLog], folder: str | Path, failure: str | None = None) -> list[Path]:
-    """``replay --monitor --plots``: an alarm timeline per agent (task and method), into ``folder``
+    """``replay --monitor --plots``: an alarm timeline per agent (task and method), and what the
+    alarm made of its ID episodes (:func:`plot_id_alarms`, the false alarms), into ``folder``
     (``failure``: what fails in an env oodmon has no variants of)."""
     by_agent: dict[tuple[str, str], dict[str, list[EpisodeAlarms]]] = defaultdict(dict)
     for (task, method, variant), episodes in shifted_alarms(logs, failure).items():
@@ -417,6 +421,7 @@ def write_monitor_plots(logs: Sequence[RunLog], folder: str | Path, failure: str
                                    Path(folder) / f"alarms_{safe_filename(task)}_{safe_filename(method)}.png",
                                    failures=failure_known(task, failure))
                for (task, method), variants in sorted(by_agent.items())]
+    written += _id_alarm_plots(logs, Path(folder))
     return [p for p in written if p is not None]
 
 

@@ -197,10 +197,11 @@ def test_a_trace_whose_shifted_scores_dwarf_the_id_ones_draws_them_on_a_symlog_a
     assert low < min(calm[:300]) < -1.47 < 27_000 <= high  # the ID trace, the threshold and the peak all drawn
 
 
-def test_replay_monitor_plots_write_each_agents_alarm_timeline(tmp_path):
-    # --plots was accepted with --monitor and wrote nothing.
+def test_replay_monitor_plots_write_each_agents_alarm_timeline_and_its_id_alarms(tmp_path):
+    # --plots was accepted with --monitor and wrote nothing; the ID episodes' trace since 2026-12-07
     result = run_cli("replay", str(DATA), "--monitor", "--plots", str(tmp_path))
-    assert result.returncode == 0 and "wrote 1 plot(s)" in result.stderr
+    assert result.returncode == 0 and "wrote 2 plot(s)" in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["alarms_cartpole_ensemble.png", "trace_ensemble_cartpole.png"]
     image = cv2.imread(str(tmp_path / "alarms_cartpole_ensemble.png"))
     assert image is not None and image.shape[0] > 150 and image.shape[1] > 800
 
