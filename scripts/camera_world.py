@@ -26,7 +26,6 @@ JSON and prints them as a Markdown table.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import tempfile
 import warnings

@@ -18,7 +18,7 @@ from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from oodmon.envs.shift import parse_any_variant, same_env
 from oodmon.errors import OodmonError
 from oodmon.replay.failures import failure_known, failure_step, id_failures
 from oodmon.replay.reader import EpisodeLog, RunLog
+
+if TYPE_CHECKING:
+    from oodmon.monitor.threshold import Stretches
 
 __all__ = ["EpisodeAlarms", "MonitorMetrics", "VariantMetrics", "alarm_events", "average_precision",
            "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "ended_before_onset", "detectors_in",

@@ -81,7 +81,7 @@ def test_a_split_log_replays_as_the_one_file_of_the_same_run(agent, tmp_path):
     whose folder replays to the metrics of the same run in one file; split_mb starts a file after
     the episode that takes one past the size."""
     from oodmon.errors import InvalidParameterError
-    from oodmon.replay import compute_metrics, read_log, read_logs
+    from oodmon.replay import compute_metrics
 
     split = McapSink(tmp_path / "split" / "run.mcap", split_episodes=2)
     _run(agent, [split, McapSink(tmp_path / "one.mcap")], episodes=5)
@@ -115,7 +115,6 @@ def test_alarms_are_foxglove_logs(agent, tmp_path):
     message = Log.FromString(logs[0].data)
     assert message.level == Log.WARNING and message.message.startswith("OOD alarm: episode 0 step 0: score ")
     assert message.message.endswith("; cause: spread")  # the monitor's alarm read the spread alone
-    from oodmon.replay import read_log, read_logs
 
     episode = read_log(tmp_path / "a.mcap").episodes[0]  # and the episode's record keeps the first one's (format 7)
     assert episode.first_alarm_step == 0 and episode.first_alarm_cause == "spread"
@@ -358,7 +357,6 @@ def test_a_sink_refuses_the_log_of_an_earlier_run_unless_told_to_overwrite(agent
     and all, is refused when the sinks are made (before any step), whole or split; overwrite=True
     replaces it and removes the earlier split log's parts, which would join the new run's in replay."""
     from oodmon.errors import ConfigError
-    from oodmon.replay import read_log, read_logs
 
     crashed = McapSink(tmp_path / "deploy.mcap")
     _run(agent, [crashed, RerunSink(tmp_path / "deploy.rrd")], episodes=2)
@@ -394,7 +392,6 @@ def test_overwrite_replaces_only_logs_not_a_model_or_a_threshold_at_the_path(age
     (a name typed wrong: a model, a threshold, an MCAP path given to the Rerun sink) is refused either
     way, when the sink is made and again at open; an empty file (a log torn at its start) is replaced."""
     from oodmon.errors import ConfigError
-    from oodmon.replay import read_log, read_logs
 
     model, threshold = tmp_path / "policy.zip", tmp_path / "threshold.json"
     model.write_bytes(b"PK\x03\x04" + bytes(100))
