@@ -78,7 +78,9 @@ def _replay(args: argparse.Namespace) -> int:
         from oodmon.replay.plots import write_plots
 
         written = write_plots(logs, metrics, args.plots)  # AUROC against the shift: a line per detector replayed
-        print(f"wrote {len(written)} plot(s) to {args.plots}", file=sys.stderr)
+        why = "" if written else (": nothing to draw, the logs hold no shifted steps to rank against ID ones, and "
+                                  "their runs had no threshold whose alarms a trace of their ID episodes would show")
+        print(f"wrote {len(written)} plot(s) to {args.plots}{why}", file=sys.stderr)
     if args.json:
         print(to_json(metrics))
     elif args.csv:

@@ -45,6 +45,18 @@ def test_plots_that_the_logs_cannot_support_are_skipped(tmp_path):
     assert write_plots(unthresholded, compute_metrics(unthresholded), tmp_path / "none") == []
 
 
+def test_replay_says_why_it_drew_nothing(tmp_path, capsys):
+    from oodmon.cli import main
+
+    log = tmp_path / "plain.mcap"  # an ID run without a threshold: nothing to rank, no alarm to show
+    assert main(["run", "--task", "cartpole", "--method", "ensemble", "--episodes", "1", "--max-steps", "30",
+                 "--mcap", str(log)]) == 0
+    capsys.readouterr()
+    assert main(["replay", str(log), "--plots", str(tmp_path / "plots")]) == 0
+    assert "wrote 0 plot(s) to " + str(tmp_path / "plots") + ": nothing to draw, the logs hold no shifted steps" in (
+        capsys.readouterr().err)
+
+
 def test_the_id_trace_shows_the_first_alarmed_episode_beside_the_calm_one_that_came_closest(tmp_path, monkeypatch):
     """A deployment's logs hold ID episodes only, and `replay --plots` of them wrote no picture. Now
     it draws the first episode that alarmed and, under the same threshold, the calm episode whose
