@@ -36,8 +36,8 @@ __all__ = ["EpisodeLog", "MissingPartWarning", "NewerFormatWarning", "RecoveryWa
            "read_log", "read_logs", "read_steps"]
 
 _MAGIC = logformat.MCAP_MAGIC
-#: How a Rerun recording (.rrd) begins ("RRF2" today; earlier formats "RRF0", "RRF1"): a file a
-#: run wrote beside its MCAP log, and the one a user may hand replay by mistake.
+#: How a Rerun recording (.rrd) begins ("RRF2" from rerun-sdk 0.41; the digit left out, so that
+#: another version's is told too): a file a run wrote beside its MCAP log, handed to replay by mistake.
 _RERUN_MAGIC = b"RRF"
 _EPISODE, _SCORES, _STEP = logformat.EPISODE, logformat.EPISODE_SCORES, logformat.STEP
 _START = logformat.EPISODE_START
