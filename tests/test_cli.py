@@ -228,8 +228,12 @@ def test_envs_show_physics_reports_returns_and_plots(tmp_path, capsys):
     out = tmp_path / "trace.png"
     assert main(["envs", "show", "cartpole:length=2.0", "--onset", "100", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "against 500.0 in the ID env" in text
+    assert "against 500.0 in the ID env" in text and "note:" not in text
     assert cv2.imread(str(out)) is not None
+    # a shift from step 600 of CartPole's 500-step episodes: the same returns, which said nothing of why
+    assert main(["envs", "show", "cartpole:length=2.0", "--onset", "600"]) == 0
+    assert "note: 5 of 5 episodes ended before step 600, the onset: the shift never began in them" in (
+        capsys.readouterr().out)
 
 
 LIST_ENV = '''

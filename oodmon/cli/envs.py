@@ -119,6 +119,11 @@ def _envs_show(args: argparse.Namespace) -> int:
         f"{variant.spec} (onset {args.onset}): reference controller's mean return over 5 seeds "
         f"{comparison.shifted_return:.1f}, against {comparison.id_return:.1f} in the ID env"
     )
+    never = sum(not rollout.shifted.any() for rollout in comparison.shifted_rollouts)
+    if never:  # the same returns, as if the shift changed nothing
+        played = len(comparison.shifted_rollouts)
+        console.print(f"note: {never} of {played} episodes ended before step {args.onset}, the onset: the shift never "
+                      "began in them")
     if out:
         console.print(f"wrote {save_physics_plot(comparison, out)}")
     return 0
