@@ -203,6 +203,13 @@ def test_check_exit_codes_and_what_fell(tmp_path):
     again = _cli("check", str(DATA), "--baseline", str(baseline), "--update")  # a baseline replaced: said so
     assert again.returncode == 0 and "(replacing the baseline it held: 2 rows)" in again.stdout
     assert json.loads(baseline.read_text()) == data
+    # logs with a row the baseline lacks: that row was counted among those "at or above" it
+    only_id = tmp_path / "id-only.json"
+    written = _cli("check", str(DATA / "cartpole-ensemble-id.mcap"), "--baseline", str(only_id), "--update")
+    assert written.returncode == 0
+    both = _cli("check", str(DATA), "--baseline", str(only_id))
+    assert both.returncode == 0 and (f"ok: 1 rows at or above {only_id}; 1 row(s) of the logs the baseline lacks, "
+                                     "compared with nothing (--update writes them in)") in both.stdout.replace("\n", "")
     # one false alarm fewer of the same 3 episodes: beyond the tolerance, within chance (said, no fall)
     baseline.write_text(json.dumps(dict(data, metrics=dict(data["metrics"], **{"cartpole/ensemble/cartpole": {
         "false_alarm_rate": 2 / 3, "alarm_episodes": 3}}))))
