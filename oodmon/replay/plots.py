@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import math
+import textwrap
 from collections import defaultdict
 from itertools import cycle
 from collections.abc import Mapping, Sequence
@@ -199,7 +200,7 @@ def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, tit
     # the score the alarm reads: the spread, an uncertainty, or a learned detector's (a surprise, a distance)
     axes[0].set_ylabel("alarm's score" if scale is None else "alarm's score (symlog)")
     axes[-1].legend(loc="upper left", fontsize=8)
-    fig.suptitle(title, fontsize=9)
+    fig.suptitle(textwrap.fill(title, 75 * len(panels)), fontsize=9)  # (one panel's width holds about 75 characters)
     return save_figure(fig, path)
 
 

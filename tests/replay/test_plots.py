@@ -89,6 +89,8 @@ def test_the_id_trace_shows_the_first_alarmed_episode_beside_the_calm_one_that_c
     assert plots.plot_id_alarms(quiet, "sb3", "cartpole", tmp_path / "q.png") is not None
     assert [ax.get_title().split(":")[0] for ax in drawn[1].axes] == ["no alarm, its score the highest"]
     assert "episode 1 of a.mcap" in drawn[1].axes[0].get_title()
+    # one panel's title wrapped to its width (it ran off both sides of the picture)
+    assert [len(line) <= 75 for line in drawn[1].texts[0].get_text().split("\n")] == [True, True]
     assert plots.plot_id_alarms(quiet, "dropout", "cartpole", tmp_path / "n.png") is None  # no such method
 
 
