@@ -79,6 +79,7 @@ def files(tmp_path_factory) -> Path:
     (root / "t2.json.detectors").write_text("")  # where calibrate --out t2.json would put its fitted detectors
     (root / "model.zip").write_bytes(b"PK\x03\x04 a user's model")  # read by nothing: refused before any load
     (root / "a-folder").mkdir()
+    (root / "thr.json.detectors").mkdir()  # a threshold's fitted detectors, where calibrate --out thr.json puts them
     _log_with_a_broken_episode_record(root / "broken-episode.mcap")
     return root
 
@@ -94,6 +95,10 @@ CASES = [
     ("run-episodes-text", [*RUN, "--episodes", "many"], {}, ["--episodes", "many"]),
     ("run-onset-negative", [*RUN, "--onset", "-5"], {}, ["--onset", "-5"]),
     ("run-onset-without-variant", [*RUN, "--onset", "10"], {}, ["--onset 10", "no --variant"]),
+    ("run-detectors-missing", [*RUN, "--detectors", "{d}/nope"], {},
+     ["nope does not exist: fitted detectors are a folder"]),
+    ("run-detectors-a-threshold", [*RUN, "--detectors", "{d}/thr.json"], {},
+     ["thr.json is a file, not a folder", "beside it: ", "thr.json.detectors"]),
     ("run-split-mb-0", [*RUN, "--mcap", "{d}/x.mcap", "--mcap-split-mb", "0"], {}, ["--mcap-split-mb", "0"]),
     ("run-split-without-mcap", [*RUN, "--mcap-split-episodes", "10"], {}, ["--mcap-split-episodes", "give --mcap"]),
     ("run-no-footer-without-rrd", [*RUN, "--rrd-no-footer"], {}, ["--rrd-no-footer", "give --rrd too"]),

@@ -224,6 +224,12 @@ class DetectorSet:
 
         directory = Path(directory)
         meta_path, tensor_path = directory / "detectors.json", directory / "detectors.safetensors"
+        if not directory.is_dir():  # (it said "<it>/detectors.json does not exist" of a threshold's JSON given)
+            what = "does not exist" if not directory.exists() else "is a file, not a folder"
+            beside = Path(f"{directory}.detectors")
+            hint = f"; those a threshold's calibration fitted are beside it: {beside}" if beside.is_dir() else ""
+            raise ConfigError(f"{directory} {what}: fitted detectors are a folder with detectors.json and "
+                              f"detectors.safetensors (`oodmon fit-detectors` writes them){hint}")
         for path in (meta_path, tensor_path):
             if not path.is_file():
                 raise ConfigError(f"{path} {not_a_file(path)}: fitted detectors are a folder with detectors.json and "
