@@ -774,9 +774,9 @@ def test_calibrate_a_learned_detector_fits_it_first_and_run_uses_it(tmp_path, ca
     assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold), *shipped,
                  "--episodes", "1", "--force"]) == 0
     assert "warning: using the threshold, which does not fit" in capsys.readouterr().err
-    # Without them, a threshold that reads dynamics is refused in one line.
+    # Without them, a threshold that reads dynamics is refused in one line, which says where they were looked for
     assert main(["run", "--task", "cartpole", "--model", str(model), "--threshold", str(threshold)]) == 2
-    assert "does not have" in capsys.readouterr().err
+    assert f"and none are beside it ({threshold}.detectors, where calibrate writes them" in capsys.readouterr().err
     # Without --detector and without fitted detectors, the alarm reads spread and says what is better.
     # Calibrated into the same file: the detectors fitted beside the threshold it replaces go with it
     # (`run` would read them first).
@@ -1421,3 +1421,22 @@ def test_envs_without_a_policy_leaves_torch_unimported(tmp_path):
                           cwd=tmp_path, timeout=120)
     assert json.loads(done.stderr.strip().splitlines()[-1]) == [[0, 0], False], done.stderr[-2000:]
     assert (tmp_path / "pole.png").exists()
+
+
+def test_a_threshold_moved_without_its_fitted_detectors_says_where_they_were_looked_for(tmp_path, monkeypatch, capsys):
+    """A threshold copied elsewhere without its ``<threshold>.detectors`` folder: run and validate
+    said only "nothing to score: a policy without samples needs fitted detectors" (2026-12-07)."""
+    from oodmon.monitor import Threshold
+
+    (tmp_path / "lean.py").write_text("def act(obs):\n    return int(obs[2] > 0)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    moved = tmp_path / "moved.json"
+    Threshold(value=1.0, score="chosen_std", consecutive=1, mode="episode", far=0.05, n_episodes=45, n_steps=900,
+              task="cartpole", method="plain", detector="dynamics", detectors_hash="sha256:" + "ab" * 32).save(moved)
+    policy = ["--policy", "lean:act", "--env", "CartPole-v1"]
+    for argv in (["run", *policy, "--threshold", str(moved), "--episodes", "1"],
+                 ["validate", str(moved), *policy, "--episodes", "1"]):
+        assert main(argv) == 2
+        assert (f"{moved} was calibrated with fitted detectors (dynamics, sha256:abababababab...), and none are beside "
+                f"it ({moved}.detectors, where calibrate writes them; moved without them?): give them with --detectors "
+                "DIR") in capsys.readouterr().err

@@ -157,7 +157,17 @@ def _detectors(args: argparse.Namespace, agent):
     beside = Path(f"{args.threshold}.detectors") if getattr(args, "threshold", None) else None
     if args.detectors is None and beside is not None and (beside / "detectors.json").is_file():
         return detectors_for(agent, beside)
-    return detectors_for(agent, args.detectors)
+    chosen = detectors_for(agent, args.detectors)
+    if chosen is None and args.detectors is None and beside is not None:  # a threshold moved without its folder
+        from oodmon.monitor import Threshold
+
+        threshold = Threshold.load(args.threshold)
+        if threshold.detectors_hash:  # (the monitor said only "nothing to score")
+            raise ConfigError(f"{args.threshold} was calibrated with fitted detectors ({threshold.detector}, "
+                              f"{threshold.detectors_hash[:19]}...), and none are beside it ({beside}, where calibrate "
+                              "writes them; moved without them?): give them with --detectors DIR, the folder they "
+                              "were fitted into")
+    return chosen
 
 
 def _no_variants(command: str, env_id: str, flag: str = "--sb3") -> ConfigError:
