@@ -38,7 +38,7 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
                                          "another registered env's id, of the same spaces, deployed in from its "
                                          "reset, each step shifted, e.g. MiniGrid-DistShift2-v0 for --env "
                                          "MiniGrid-DistShift1-v0")
-    world.add_argument("--onset", type=_whole(0), default=0, help="step at which the shift begins (default 0)")
+    world.add_argument("--onset", type=_whole(0), default=0, help="step at which the --variant's shift begins (default 0)")
     world.add_argument("--obs-noise", type=_non_negative,
                        help="sensor noise in every episode, ID or shifted, a fraction of each reading's ID spread "
                             "(CartPole, Pendulum; default: --threshold's, `calibrate --obs-noise`, else 0)")
