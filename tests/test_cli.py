@@ -875,7 +875,7 @@ def test_sensor_noise_given_to_calibrate_is_the_world_validate_and_run_play_unle
         captured = capsys.readouterr()
         said = re.sub(r"\s+", " ", captured.out)
         assert "this episode plays sensor noise" not in captured.err  # the monitor's warning: the note says it once
-        assert ("in cartpole, onset 0, sensor noise 0.02, score >" in said) == (noise != "0"), said
+        assert ("in cartpole, sensor noise 0.02, score >" in said) == (noise != "0"), said  # (an ID run: no onset)
         assert (f"note: this run played sensor noise 0, and {path} was calibrated with 0.02: its false-alarm bound is "
                 "for that world" in said) == (noise == "0"), said
     np.testing.assert_array_equal(scores[None], scores["0.02"])  # the threshold's world, by default

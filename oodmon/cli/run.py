@@ -172,6 +172,7 @@ def _run(args: argparse.Namespace) -> int:
                                footer=not args.rrd_no_footer,
                                **({} if args.serve_memory is None else {"serve_memory": args.serve_memory})))
     console = Console(soft_wrap=True)
+    onset = f", onset {args.onset}" if args.variant else ""  # (an ID run has none)
     rows = _EpisodeRows(calibrated=threshold.covered_steps if threshold is not None else None,
                         stretch=threshold.mean_episode if threshold is not None else None,
                         id_run=is_id_variant(label) and same_env(label, agent.task))
@@ -192,7 +193,7 @@ def _run(args: argparse.Namespace) -> int:
             ours = f"started for this run, listening on {args.bind}:{args.port}"  # a viewer found there: its own
             progress.console.print(f"streaming to the Rerun viewer at {sinks[-1].live_at} ("
                                    + (ours if sinks[-1].viewer is not None else "one already running there") + ")")
-        bar = progress.add_task(f"{label} (onset {args.onset})", total=args.episodes)
+        bar = progress.add_task(f"{label}{onset}", total=args.episodes)
         decisions = progress.add_task("decisions in this episode", total=None)  # a Pong game is thousands
 
         def count(stage: str, steps: int, total: int) -> None:
@@ -212,7 +213,7 @@ def _run(args: argparse.Namespace) -> int:
     files = {"McapSink": _files_written(mcap), "RerunSink": args.rrd}
     written = [str(p) for name, p in files.items() if p and name not in failures]
     console.print(rows.table(("interrupted: " if interrupt is not None else "")
-                             + f"{args.task}/{agent.method} in {label}, onset {args.onset}"
+                             + f"{args.task}/{agent.method} in {label}{onset}"
                              + (f", sensor noise {args.obs_noise:g}" if args.obs_noise else "")
                              + (f", episodes of up to {args.max_steps:,} steps" if args.max_steps else "")
                              + (f", {threshold.rule_text}" if threshold else ", no threshold")))
