@@ -161,7 +161,8 @@ def trailing_mean(scores: np.ndarray, window: int) -> np.ndarray:
         return scores
     if len(scores) < window:
         return scores[:0]
-    return sliding_window_view(scores, window).mean(axis=1)
+    with np.errstate(invalid="ignore"):  # +inf and -inf in one window: NaN, said by the callers, not numpy
+        return sliding_window_view(scores, window).mean(axis=1)
 
 
 def episode_statistic(scores: np.ndarray, consecutive: int, window: int = 1, *, rule: str = "consecutive",
@@ -194,6 +195,9 @@ def episode_statistic(scores: np.ndarray, consecutive: int, window: int = 1, *, 
     values = trailing_mean(scores, window)
     if len(values) < consecutive:
         return float("-inf")
+    # A window holding +inf and -inf means NaN, which AlarmTracker finds above no threshold: so does the
+    # statistic (numpy's min and max would carry the NaN to it, and the calibration refused it)
+    values = np.where(np.isnan(values), -np.inf, values)
     return float(sliding_window_view(values, consecutive).min(axis=1).max())
 
 

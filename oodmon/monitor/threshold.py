@@ -1048,6 +1048,13 @@ def calibrate(
         raise ConfigError(f"the calibration gives no threshold: its rank {rank} of {len(values)} episodes falls among "
                           f"the {above} whose scores are not all known (an alarm may have cut them short); give "
                           f"more ID episodes, or a larger far")
+    if value == math.inf:  # (it said the episodes were too short for the rule)
+        infinite = int(np.sum(values == math.inf))
+        raise ConfigError(
+            f"the calibration gives threshold inf (never alarm): {infinite} of its {len(values)} calibration {unit} "
+            f"scored +inf, at or above its rank {rank}: a reading that is not finite (NaN or infinite: a failed "
+            "sensor, which the monitor counts as the most shifted) in ID; calibrate on ID episodes whose readings "
+            "are finite, or with a larger far")
     if not math.isfinite(value):
         shortest = min((len(s) for s in episodes), default=0)
         raise ConfigError(

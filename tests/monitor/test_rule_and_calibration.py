@@ -50,6 +50,32 @@ def test_episode_statistic_decides_the_rule(seed, window):
     assert episode_statistic(scores[: window + 2], 4, window) == -math.inf  # too short for the rule
 
 
+def test_the_statistic_and_the_tracker_agree_on_odd_scores_at_every_threshold_near_them():
+    """500 seeded episodes of 1-39 scores, some NaN, +inf or -inf, some tied, under random rules
+    (m 1-4, window 1-4, warm-up 0-4): the tracker alarms exactly where the statistic exceeds the
+    threshold, at each score, at the statistic and a float either side. Until 2026-12-07 a window
+    holding +inf and -inf made the statistic NaN (numpy's min and max carry it), which the tracker
+    reads as below: 6,651 thresholds of 20,000 such episodes disagreed, and a calibration refused the NaN."""
+    rng = np.random.default_rng(95)
+    for _ in range(500):
+        scores = rng.normal(0.0, 1.0, int(rng.integers(1, 40)))
+        if rng.random() < 0.3:
+            odd = rng.integers(0, len(scores), size=int(rng.integers(1, 3)))
+            scores[odd] = rng.choice([np.nan, np.inf, -np.inf], size=len(odd))
+        if rng.random() < 0.3:
+            scores = np.round(scores, 1)
+        m, window, warmup = (int(v) for v in rng.integers([1, 1, 0], [5, 5, 5]))
+        stat = episode_statistic(scores, m, window, warmup=warmup)
+        assert not math.isnan(stat)
+        for near in [stat, *scores[np.isfinite(scores)], -10.0, 10.0]:
+            if not math.isfinite(near):
+                continue
+            for threshold in (np.nextafter(near, -np.inf), near, np.nextafter(near, np.inf)):
+                tracker = AlarmTracker(threshold, m, window, warmup=warmup)
+                alarmed = any([tracker.update(0, i, float(s))[0] for i, s in enumerate(scores)])
+                assert alarmed == (stat > threshold), (scores.tolist(), m, window, warmup, threshold, stat)
+
+
 def test_window_rule_compares_the_mean_of_the_last_steps():
     tracker = AlarmTracker(threshold=1.0, consecutive=2, window=3)
     scores = [5.0, 0.0, 0.0, 3.0, 0.3, 0.3, 0.0, 3.0, 3.0]
@@ -62,6 +88,16 @@ def test_window_rule_compares_the_mean_of_the_last_steps():
     # Episodes shorter than the window give no statistic: a threshold of -inf (always alarm) is refused.
     with pytest.raises(ConfigError, match="needs 102 steps per episode .* shortest calibration episode has 10"):
         calibrate([np.ones(10)] * 45, 0.05, window=100)
+    # An ID episode with a reading that is not finite scores +inf: that, not the episodes' length, is said
+    # (a window of +inf and -inf too, which gave NaN and the message of episodes too short, until 2026-12-07)
+    failed = [np.ones(50) for _ in range(45)]
+    failed[3][10] = np.nan
+    with pytest.raises(ConfigError, match=r"threshold inf \(never alarm\): 1 of its 45 calibration episodes scored "
+                                          r"\+inf, at or above its rank 45: a reading that is not finite"):
+        calibrate(failed, 0.05, window=3)
+    failed[3][10:12] = [np.inf, -np.inf]
+    with pytest.raises(ConfigError, match="1 of its 45 calibration episodes scored"):
+        calibrate(failed, 0.05, consecutive=1, window=2)
     with pytest.raises(InvalidParameterError, match=r"window=0 is not allowed"):
         AlarmTracker(1.0, 3, 0)
 
