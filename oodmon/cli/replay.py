@@ -43,9 +43,14 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:
     replay.set_defaults(handler=_replay, plays=False)  # logs only: no policy, torch not imported
 
 
+#: Endings of a picture's name, which --plots (a folder) refuses.
+_PICTURES = {".png", ".jpg", ".jpeg", ".svg", ".pdf"}
+
+
 def _plots_folder(text: str) -> str:
     """--plots DIR, refused where it names a log: ``oodmon replay --plots a.mcap`` took the log for the
-    folder and said only that no log was given."""
+    folder and said only that no log was given; or a picture (``--plots plot.png`` made a folder of
+    that name), unless a folder of that name is there."""
     if text.endswith(".mcap"):
         raise argparse.ArgumentTypeError(f"{text} is a log, not the folder the plots go to: give the folder after "
                                          "--plots, the logs before it (oodmon replay LOGS --plots DIR)")
@@ -53,9 +58,6 @@ def _plots_folder(text: str) -> str:
         raise argparse.ArgumentTypeError(f"{text} names a picture; --plots takes the folder the pictures go to (one "
                                          "per variant and method), e.g. --plots runs/plots")
     return text
-
-
-_PICTURES = {".png", ".jpg", ".jpeg", ".svg", ".pdf"}
 
 
 def _replay(args: argparse.Namespace) -> int:
