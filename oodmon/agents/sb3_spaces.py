@@ -46,7 +46,8 @@ def check_model_spaces(model: Any, path: Path, env: gymnasium.Env, env_id: str, 
             depth = _stack_depth(env.observation_space, model.observation_space)
             hint = (f" Or trained inside VecFrameStack({depth})? Give --frame-stack {depth} (frame_stack={depth})"
                     if depth else "")
-        raise ConfigError(f"{path} was trained with the {what} {getattr(model, what)}; {ours} "
+        name = "the model in memory" if str(path) == "(in memory)" else str(path)  # (it read "(in memory) was ...")
+        raise ConfigError(f"{name} was trained with the {what} {getattr(model, what)}; {ours} "
                           f"{getattr(env, what)}: a model of another env?{hint}")
 
 

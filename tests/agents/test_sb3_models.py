@@ -417,6 +417,8 @@ def test_watch_fits_calibrates_and_wraps_an_env_in_one_call():
         model.env = None
     with pytest.raises(ConfigError, match="env id"):
         oodmon.watch(models)
+    with pytest.raises(ConfigError, match=r"^the model in memory was trained with the observation_space Box"):
+        oodmon.watch(models, "Pendulum-v1")  # (it read "(in memory) was trained ...")
 
 
 def test_watch_saves_its_calibration_and_a_later_start_reads_it_running_no_episode(readme_run, tmp_path, capsys):
