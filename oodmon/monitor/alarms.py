@@ -30,6 +30,7 @@ episodes; they need a :class:`~oodmon.monitor.sequential.Reference` and ignore m
 from __future__ import annotations
 
 import math
+import re
 from collections import deque
 from dataclasses import dataclass
 
@@ -44,7 +45,7 @@ __all__ = [
     "DEFAULT_CONSECUTIVE", "AlarmEvent", "AlarmTracker", "check_consecutive", "check_warmup", "check_window",
     "default_consecutive",
     "episode_statistic",
-    "rule_text", "trailing_mean",
+    "rule_text", "rule_window", "trailing_mean",
 ]
 
 DEFAULT_CONSECUTIVE = 3
@@ -145,6 +146,17 @@ def rule_text(threshold: str, consecutive: int, window: int = 1, rule: str = "co
     what = "score" if window == 1 else f"mean score over {window} steps"
     text = f"{what} > {threshold}" if consecutive == 1 else f"{what} > {threshold} for {consecutive} consecutive steps"
     return text + (f" from step {warmup} of each episode" if warmup else "")
+
+
+def rule_window(text: str) -> int:
+    """The window of a rule in words as :func:`rule_text` writes it (a log's ``rule``), or 1.
+
+    Example:
+        >>> rule_window("mean score over 200 steps > threshold"), rule_window("score > threshold")
+        (200, 1)
+    """
+    found = re.match(r"mean score over (\d+) steps > ", text)
+    return int(found.group(1)) if found else 1
 
 
 def trailing_mean(scores: np.ndarray, window: int) -> np.ndarray:

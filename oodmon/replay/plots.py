@@ -4,7 +4,7 @@
 - :func:`plot_trace`: the paper's Figures 4 and 5: one ID episode beside one shifted episode,
   the score over the steps with the threshold, the shifted steps shaded, alarms marked.
 - :func:`plot_id_alarms`: per method and task, what the alarm made of the ID episodes (all a
-  deployment's logs hold): the first alarmed one beside the calm one whose score came highest.
+  deployment's logs hold): the first alarmed one beside the calm one that came closest to the threshold.
 - :func:`plot_auroc_vs_shift`: per method, AUROC against the parameter's value (or severity).
 - :func:`plot_alarm_timeline` (``replay --monitor --plots``): per agent and shifted variant, each
   episode from its onset to its end, its first alarm and its failure: alarmed before the failure?
@@ -27,6 +27,7 @@ import numpy as np
 from oodmon.envs.physics import PHYSICS_DEFAULTS
 from oodmon.envs.shift import parse_any_variant
 from oodmon.errors import OodmonError
+from oodmon.monitor.alarms import rule_window, trailing_mean
 from oodmon.outputs import safe_filename, save_figure
 from oodmon.replay.failures import failure_known
 from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, is_id_episode,
@@ -117,39 +118,42 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
     the episode of ``variant`` alone when the logs hold no ID episode (a run whose shift begins
     mid-episode: its steps before the onset are the ID ones)."""
     id_episode = shifted_episode = None
-    threshold = float("nan")
+    threshold, window = float("nan"), 1
     for log in _runs_of(logs, method, variant):
         for episode in log.episodes:
             if id_episode is None and is_id_episode(episode, log.task):
                 id_episode, threshold = episode, log.threshold
             if shifted_episode is None and episode.variant == variant:
-                shifted_episode, threshold = episode, log.threshold
+                shifted_episode, threshold, window = episode, log.threshold, rule_window(log.metadata.get("rule", ""))
     if shifted_episode is None:
         return None
     panels = [] if id_episode is None else [(id_episode, f"ID: {episode_name(id_episode)}")]
     panels.append((shifted_episode, f"shifted: {episode_name(shifted_episode)}"))
     title = f"{method}, {_alarm_detectors(logs, method, variant)} detector: alarms as vertical lines"
-    return _draw_traces(panels, threshold, title, path)
+    return _draw_traces(panels, threshold, title, path, window)
 
 
 def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | Path) -> Path | None:
     """What the alarm made of ``method``'s ID episodes of ``task`` (a deployment's logs, where every
-    episode is one): the first that alarmed beside the calm one whose score came highest under the
-    same threshold, each drawn as :func:`plot_trace` draws one, or the calm one alone where none
-    alarmed; ``None`` where the logs hold no ID episode of a run with a threshold."""
-    episodes = [(episode, log.threshold, log.path.name) for log in logs
+    episode is one): the first that alarmed beside the calm one that came closest to the same
+    threshold (its score, or with a rule's window the mean the alarm compares), each drawn as
+    :func:`plot_trace` draws one, or the calm one alone where none alarmed; ``None`` where the logs
+    hold no ID episode of a run with a threshold."""
+    episodes = [(episode, (log.threshold, rule_window(log.metadata.get("rule", ""))), log.path.name) for log in logs
                 if log.method == method and log.task == task and np.isfinite(log.threshold)
                 for episode in log.episodes if is_id_episode(episode, log.task)]
     if not episodes:
         return None
     alarmed = [(episode, name) for episode, _, name in episodes if episode.alarm.any()]
-    threshold = next((other for episode, other, _ in episodes if episode.alarm.any()), episodes[0][1])
+    rule = next((other for episode, other, _ in episodes if episode.alarm.any()), episodes[0][1])
+    threshold, window = rule
 
-    def margin(episode: EpisodeLog) -> float:  # how close its score came to the threshold
-        finite = episode.scores[np.isfinite(episode.scores)]
+    def margin(episode: EpisodeLog) -> float:  # how close what the alarm compares came to the threshold
+        compared = trailing_mean(episode.scores, window)
+        finite = compared[np.isfinite(compared)]
         return float(finite.max()) - threshold if len(finite) else -math.inf
 
-    calm = [(episode, name) for episode, other, name in episodes if other == threshold and not episode.alarm.any()]
+    calm = [(episode, name) for episode, other, name in episodes if other == rule and not episode.alarm.any()]
     panels = []
     if alarmed:
         first, log_name = alarmed[0]
@@ -157,24 +161,32 @@ def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | P
                               f"{episode_name(first)}"))
     if calm:
         highest, log_name = max(calm, key=lambda pair: margin(pair[0]))
-        panels.append((highest, f"no alarm, its score the highest: episode {highest.episode} of {log_name}, "
+        panels.append((highest, f"no alarm, the closest to the threshold: episode {highest.episode} of {log_name}, "
                                 f"{episode_name(highest)}"))
     detectors = "/".join(sorted({log.detector for log in logs if log.method == method and log.task == task}))
     title = (f"{method}, {detectors} detector, {task}: {len(alarmed)} of {len(episodes)} ID episode(s) alarmed "
              "(alarms as vertical lines)")
-    return _draw_traces(panels, threshold, title, path)
+    return _draw_traces(panels, threshold, title, path, window)
 
 
-def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, title: str, path: str | Path) -> Path:
+def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, title: str, path: str | Path,
+                 window: int = 1) -> Path:
     """Each episode's score over its steps in a panel of its own (titled), sharing the score axis:
     the threshold dashed, the shifted steps shaded, each alarm's start a vertical line, a NaN or
-    infinite score marked at the panel's edge; a symlog axis where :func:`score_scale` says."""
+    infinite score marked at the panel's edge; a symlog axis where :func:`score_scale` says. With a
+    rule's ``window`` over 1 the score is drawn faint, and the mean over the window, which the alarm
+    compares with the threshold, over it (the score alone crossed the threshold where no alarm came:
+    Pong's features, 2026-12-07)."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.4), dpi=110, sharey=True, squeeze=False)
     axes = axes[0]
     for ax, (episode, name) in zip(axes, panels):
         steps = np.arange(episode.length)
-        ax.plot(steps, episode.scores, color="tab:red", linewidth=1, label="score")
+        ax.plot(steps, episode.scores, color="tab:red", linewidth=1, label="score", alpha=0.35 if window > 1 else 1.0)
+        if window > 1:
+            compared = trailing_mean(episode.scores, window)
+            ax.plot(steps[window - 1:], compared, color="tab:red", linewidth=1.5,
+                    label=f"mean over {window} steps (the alarm's)")
         for infinite, height, side in ((episode.scores == np.inf, 0.97, "top"),
                                        (episode.scores == -np.inf, 0.03, "bottom")):
             if infinite.any():  # (a NaN or infinite input: no line reaches them; replay keeps +inf, the most shifted)

@@ -60,7 +60,7 @@ def test_replay_says_why_it_drew_nothing(tmp_path, capsys):
 def test_the_id_trace_shows_the_first_alarmed_episode_beside_the_calm_one_that_came_closest(tmp_path, monkeypatch):
     """A deployment's logs hold ID episodes only, and `replay --plots` of them wrote no picture. Now
     it draws the first episode that alarmed and, under the same threshold, the calm episode whose
-    score came highest: how far the alarm stood above what the world usually scores."""
+    score came closest to the threshold: how far the alarm stood above what the world usually scores."""
     import numpy as np
 
     from oodmon.replay import EpisodeLog, RunLog
@@ -81,17 +81,54 @@ def test_the_id_trace_shows_the_first_alarmed_episode_beside_the_calm_one_that_c
     titles = [ax.get_title() for ax in drawn[0].axes]
     # older.mcap's 8.5 came closer than 1.7 to its own threshold, not to this one: not drawn beside it
     assert titles[0].startswith("alarmed at step 10: episode 1 of deployed.mcap")
-    assert titles[1].startswith("no alarm, its score the highest: episode 2 of deployed.mcap")
+    assert titles[1].startswith("no alarm, the closest to the threshold: episode 2 of deployed.mcap")
     assert "sb3, combined detector, cartpole: 2 of 5 ID episode(s) alarmed" in drawn[0].texts[0].get_text()
     dashed = [line.get_ydata()[0] for ax in drawn[0].axes for line in ax.get_lines() if line.get_linestyle() == "--"]
     assert dashed == [2.0, 2.0]
     quiet = [RunLog(Path("a.mcap"), "cartpole", "sb3", 2.0, {}, [episode(0, 1.2), episode(1, 1.5)], True)]
     assert plots.plot_id_alarms(quiet, "sb3", "cartpole", tmp_path / "q.png") is not None
-    assert [ax.get_title().split(":")[0] for ax in drawn[1].axes] == ["no alarm, its score the highest"]
+    assert [ax.get_title().split(":")[0] for ax in drawn[1].axes] == ["no alarm, the closest to the threshold"]
     assert "episode 1 of a.mcap" in drawn[1].axes[0].get_title()
     # one panel's title wrapped to its width (it ran off both sides of the picture)
     assert [len(line) <= 75 for line in drawn[1].texts[0].get_text().split("\n")] == [True, True]
     assert plots.plot_id_alarms(quiet, "dropout", "cartpole", tmp_path / "n.png") is None  # no such method
+
+
+def test_a_windowed_rules_traces_draw_the_mean_the_alarm_compares(tmp_path, monkeypatch):
+    """Pong's features alarm on their mean over 200 steps: the trace drew the score alone, which
+    crossed the threshold in a calm game again and again where no alarm came, and the calm episode
+    "closest" was that of the highest single score. Now the window's mean is drawn over the faint
+    score, and the closest episode is the one whose mean came highest."""
+    import numpy as np
+
+    from oodmon.replay import EpisodeLog, RunLog
+    from oodmon.replay import plots
+
+    def episode(k, scores):
+        n = len(scores)
+        return EpisodeLog(episode=k, env_id="", variant="pong", onset=0, seed=k, total_return=0.0, length=n,
+                          alarms=0, first_alarm_step=None, scores=np.asarray(scores, float), shifted=np.zeros(n, bool),
+                          alarm=np.zeros(n, bool))
+
+    # the spike crosses the threshold, 2.5, alone (its mean over 3 steps 1.33); the sustained stays below it (mean 2.0)
+    spike, sustained = [0.0] * 10 + [4.0] + [0.0] * 9, [0.0] * 5 + [2.0] * 6 + [0.0] * 9
+    logs = [RunLog(Path("w.mcap"), "pong", "dropconnect", 2.5, {"detector": "features",
+                                                                 "rule": "mean score over 3 steps > threshold"},
+                   [episode(0, spike), episode(1, sustained)], True)]
+    drawn = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
+    assert plots.plot_id_alarms(logs, "dropconnect", "pong", tmp_path / "w.png") is not None
+    ax = drawn[0].axes[0]
+    assert "episode 1 of w.mcap" in ax.get_title()  # its mean, 2.0, came closer than the spike's 1.33
+    lines = {line.get_label(): line for line in ax.get_lines()}
+    mean = lines["mean over 3 steps (the alarm's)"]
+    assert mean.get_xdata().tolist() == list(range(2, 20)) and max(mean.get_ydata()) == 2.0
+    assert lines["score"].get_alpha() < 1
+    logs[0].metadata["rule"] = "score > threshold"  # each step's own: as before, the score alone
+    assert plots.plot_id_alarms(logs, "dropconnect", "pong", tmp_path / "s.png") is not None
+    assert "episode 0 of w.mcap" in drawn[1].axes[0].get_title()  # the highest score, 4.0
+    assert [line.get_label() for line in drawn[1].axes[0].get_lines()][:1] == ["score"]
+    assert not any("mean over" in line.get_label() for line in drawn[1].axes[0].get_lines())
 
 
 def test_roc_and_trace_read_the_variants_own_task(tmp_path):
