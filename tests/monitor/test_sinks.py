@@ -145,6 +145,34 @@ def test_rrd_holds_the_scalars(agent, tmp_path):
     assert "versions: " in run and "torch" in run and "command: " in run
 
 
+def test_an_rrd_of_a_rule_with_a_window_holds_the_mean_the_alarm_compares(agent, tmp_path):
+    """A rule with a window compares the mean of its last w scores with the threshold; the viewer
+    showed the raw score alone against it, crossing where no alarm came (Pong's features, 200
+    steps). ``/score_mean`` holds that mean, NaN until the window fills, episode by episode."""
+    from oodmon.monitor.alarms import trailing_mean
+
+    memory = MemorySink()
+    env = parse_variant("cartpole:length=2.0").make(onset_step=30)
+    with Monitor(agent, threshold=3.0, window=5, sinks=[memory, RerunSink(tmp_path / "w.rrd")]) as monitor:
+        for seed in range(2):
+            monitor.run_episode(env, seed=seed, variant="cartpole:length=2.0")
+    frame = _rrd_table(tmp_path / "w.rrd")
+    means = frame.dropna(subset=["/score_mean:Scalars:scalars"])
+    expected = []
+    for episode in (0, 1):  # (the window starts again with each episode)
+        steps = [s for s in memory.steps if s.episode == episode]
+        means_of = [np.nan] * 4 + trailing_mean(np.array([s.score for s in steps]), 5).tolist()  # NaN until full
+        expected += [(episode, step.step, mean) for step, mean in zip(steps, means_of)]
+    mean_values = [v[0] for v in means["/score_mean:Scalars:scalars"]]
+    assert list(zip(means["episode"], means["step_in_episode"])) == [(e, s) for e, s, _ in expected]
+    assert np.all(np.isnan(mean_values) == np.isnan([m for _, _, m in expected]))
+    np.testing.assert_allclose(mean_values, [m for _, _, m in expected], rtol=1e-6)
+    alarmed = [s.step for s in memory.steps if s.episode == 0 and s.alarm]
+    assert alarmed and all(m > 3.0 for e, s, m in expected if e == 0 and s in alarmed)  # what the alarm compared
+    _run(agent, [RerunSink(tmp_path / "each.rrd")], episodes=1)  # each step's own score: no such series
+    assert "/score_mean:Scalars:scalars" not in _rrd_table(tmp_path / "each.rrd").columns
+
+
 def _rrd_table(path):
     """A Rerun file's rows by the run's step, a pandas frame (one column per entity and component)."""
     import rerun.chunk as rc
