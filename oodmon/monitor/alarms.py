@@ -148,15 +148,19 @@ def rule_text(threshold: str, consecutive: int, window: int = 1, rule: str = "co
     return text + (f" from step {warmup} of each episode" if warmup else "")
 
 
-def rule_window(text: str) -> int:
-    """The window of a rule in words as :func:`rule_text` writes it (a log's ``rule``), or 1.
+def rule_window(text: str) -> tuple[int, int]:
+    """The window and the warm-up of a rule in words as :func:`rule_text` writes it (a log's
+    ``rule``): 1 and 0 where it says none.
 
     Example:
         >>> rule_window("mean score over 200 steps > threshold"), rule_window("score > threshold")
-        (200, 1)
+        ((200, 0), (1, 0))
+        >>> rule_window("mean score over 5 steps > threshold for 3 consecutive steps from step 20 of each episode")
+        (5, 20)
     """
-    found = re.match(r"mean score over (\d+) steps > ", text)
-    return int(found.group(1)) if found else 1
+    window = re.match(r"mean score over (\d+) steps > ", text)
+    warmup = re.search(r" from step (\d+) of each episode$", text)
+    return int(window.group(1)) if window else 1, int(warmup.group(1)) if warmup else 0
 
 
 def trailing_mean(scores: np.ndarray, window: int) -> np.ndarray:

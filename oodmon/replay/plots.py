@@ -118,19 +118,19 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
     the episode of ``variant`` alone when the logs hold no ID episode (a run whose shift begins
     mid-episode: its steps before the onset are the ID ones)."""
     id_episode = shifted_episode = None
-    threshold, window = float("nan"), 1
+    threshold, rule = float("nan"), (1, 0)
     for log in _runs_of(logs, method, variant):
         for episode in log.episodes:
             if id_episode is None and is_id_episode(episode, log.task):
                 id_episode, threshold = episode, log.threshold
             if shifted_episode is None and episode.variant == variant:
-                shifted_episode, threshold, window = episode, log.threshold, rule_window(log.metadata.get("rule", ""))
+                shifted_episode, threshold, rule = episode, log.threshold, rule_window(log.metadata.get("rule", ""))
     if shifted_episode is None:
         return None
     panels = [] if id_episode is None else [(id_episode, f"ID: {episode_name(id_episode)}")]
     panels.append((shifted_episode, f"shifted: {episode_name(shifted_episode)}"))
     title = f"{method}, {_alarm_detectors(logs, method, variant)} detector: alarms as vertical lines"
-    return _draw_traces(panels, threshold, title, path, window)
+    return _draw_traces(panels, threshold, title, path, rule)
 
 
 def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | Path) -> Path | None:
@@ -145,15 +145,15 @@ def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | P
     if not episodes:
         return None
     alarmed = [(episode, name) for episode, _, name in episodes if episode.alarm.any()]
-    rule = next((other for episode, other, _ in episodes if episode.alarm.any()), episodes[0][1])
-    threshold, window = rule
+    threshold, rule = next((other for episode, other, _ in episodes if episode.alarm.any()), episodes[0][1])
 
     def margin(episode: EpisodeLog) -> float:  # how close what the alarm compares came to the threshold
-        compared = trailing_mean(episode.scores, window)
+        compared = _compared(episode.scores, rule)[1]
         finite = compared[np.isfinite(compared)]
         return float(finite.max()) - threshold if len(finite) else -math.inf
 
-    calm = [(episode, name) for episode, other, name in episodes if other == rule and not episode.alarm.any()]
+    calm = [(episode, name) for episode, other, name in episodes
+            if other == (threshold, rule) and not episode.alarm.any()]
     panels = []
     if alarmed:
         first, log_name = alarmed[0]
@@ -166,26 +166,36 @@ def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | P
     detectors = "/".join(sorted({log.detector for log in logs if log.method == method and log.task == task}))
     title = (f"{method}, {detectors} detector, {task}: {len(alarmed)} of {len(episodes)} ID episode(s) alarmed "
              "(alarms as vertical lines)")
-    return _draw_traces(panels, threshold, title, path, window)
+    return _draw_traces(panels, threshold, title, path, rule)
+
+
+def _compared(scores: np.ndarray, rule: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The steps at which a rule of (window, warm-up) compares a mean with the threshold, and those
+    means (:func:`~oodmon.monitor.alarms.trailing_mean` of the scores after the warm-up); each step's
+    own score where the window is 1 and there is no warm-up."""
+    window, warmup = rule
+    means = trailing_mean(scores[warmup:], window)
+    return np.arange(warmup + window - 1, warmup + window - 1 + len(means)), means
 
 
 def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, title: str, path: str | Path,
-                 window: int = 1) -> Path:
+                 rule: tuple[int, int] = (1, 0)) -> Path:
     """Each episode's score over its steps in a panel of its own (titled), sharing the score axis:
     the threshold dashed, the shifted steps shaded, each alarm's start a vertical line, a NaN or
     infinite score marked at the panel's edge; a symlog axis where :func:`score_scale` says. With a
-    rule's ``window`` over 1 the score is drawn faint, and the mean over the window, which the alarm
-    compares with the threshold, over it (the score alone crossed the threshold where no alarm came:
+    ``rule``'s window (:func:`~oodmon.monitor.alarms.rule_window`) over 1 the score is drawn faint,
+    and the mean over the window (after the rule's warm-up), which the alarm compares with the
+    threshold, over it (the score alone crossed the threshold where no alarm came:
     Pong's features, 2026-12-07)."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.4), dpi=110, sharey=True, squeeze=False)
     axes = axes[0]
     for ax, (episode, name) in zip(axes, panels):
         steps = np.arange(episode.length)
+        window = rule[0]
         ax.plot(steps, episode.scores, color="tab:red", linewidth=1, label="score", alpha=0.35 if window > 1 else 1.0)
         if window > 1:
-            compared = trailing_mean(episode.scores, window)
-            ax.plot(steps[window - 1:], compared, color="tab:red", linewidth=1.5,
+            ax.plot(*_compared(episode.scores, rule), color="tab:red", linewidth=1.5,
                     label=f"mean over {window} steps (the alarm's)")
         for infinite, height, side in ((episode.scores == np.inf, 0.97, "top"),
                                        (episode.scores == -np.inf, 0.03, "bottom")):

@@ -171,6 +171,18 @@ def test_an_rrd_of_a_rule_with_a_window_holds_the_mean_the_alarm_compares(agent,
     assert alarmed and all(m > 3.0 for e, s, m in expected if e == 0 and s in alarmed)  # what the alarm compared
     _run(agent, [RerunSink(tmp_path / "each.rrd")], episodes=1)  # each step's own score: no such series
     assert "/score_mean:Scalars:scalars" not in _rrd_table(tmp_path / "each.rrd").columns
+    # with a warm-up the alarm's window fills from the warm-up's end (AlarmTracker keeps no score before it)
+    from oodmon.monitor import Threshold
+
+    warm = Threshold(value=3.0, score="chosen_std", consecutive=1, mode="episode", far=0.05, n_episodes=45,
+                     n_steps=900, window=5, warmup=10)
+    memory = MemorySink()
+    with Monitor(agent, threshold=warm, sinks=[memory, RerunSink(tmp_path / "warm.rrd")]) as monitor:
+        monitor.run_episode(env, seed=0, variant="cartpole:length=2.0")
+    frame = _rrd_table(tmp_path / "warm.rrd")
+    got = [v[0] for v in frame.dropna(subset=["/score_mean:Scalars:scalars"])["/score_mean:Scalars:scalars"]]
+    scores = np.array([s.score for s in memory.steps])
+    np.testing.assert_allclose(got, [np.nan] * 14 + trailing_mean(scores[10:], 5).tolist(), rtol=1e-6)
 
 
 def _rrd_table(path):

@@ -124,6 +124,11 @@ def test_a_windowed_rules_traces_draw_the_mean_the_alarm_compares(tmp_path, monk
     mean = lines["mean over 3 steps (the alarm's)"]
     assert mean.get_xdata().tolist() == list(range(2, 20)) and max(mean.get_ydata()) == 2.0
     assert lines["score"].get_alpha() < 1
+    logs[0].metadata["rule"] = "mean score over 3 steps > threshold from step 4 of each episode"  # with a warm-up
+    assert plots.plot_id_alarms(logs, "dropconnect", "pong", tmp_path / "u.png") is not None
+    warm = {line.get_label(): line for line in drawn[-1].axes[0].get_lines()}["mean over 3 steps (the alarm's)"]
+    assert warm.get_xdata().tolist() == list(range(6, 20))  # the window fills from the warm-up's end
+    drawn.pop()
     logs[0].metadata["rule"] = "score > threshold"  # each step's own: as before, the score alone
     assert plots.plot_id_alarms(logs, "dropconnect", "pong", tmp_path / "s.png") is not None
     assert "episode 0 of w.mcap" in drawn[1].axes[0].get_title()  # the highest score, 4.0

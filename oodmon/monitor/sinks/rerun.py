@@ -230,7 +230,7 @@ class RerunSink:
         self._task = run.task
         # The alarm's rule with a window compares the mean of its last w scores, which the raw score
         # alone crossed again and again where no alarm came (Pong's features, 2026-12-07)
-        self._window = rule_window(run.rule)
+        self._window, self._warmup = rule_window(run.rule)
         self._recent: deque[float] = deque(maxlen=self._window)
         self._recent_episode: int | None = None
         # A discrete observation's values per reading (the monitor's about.states), whose one-hot
@@ -388,10 +388,13 @@ class RerunSink:
 
     def _window_mean(self, record: StepRecord) -> float:
         """The mean of the episode's last ``window`` scores at ``record`` (a NaN score as +inf, as the
-        alarm counts it), or NaN while fewer have come: what the alarm compares with the threshold."""
+        alarm counts it), or NaN while fewer have come since the rule's warm-up: what the alarm
+        compares with the threshold (:class:`~oodmon.monitor.alarms.AlarmTracker`)."""
         if record.episode != self._recent_episode:
             self._recent.clear()
             self._recent_episode = record.episode
+        if record.step < self._warmup:
+            return math.nan
         self._recent.append(math.inf if record.score != record.score else float(record.score))
         return sum(self._recent) / self._window if len(self._recent) == self._window else math.nan
 
