@@ -416,7 +416,7 @@ def _validate(args: argparse.Namespace) -> int:
     agent = _load_agent(args, seed=args.seed)  # the same --seed, the same count, for MC agents too
     if from_threshold:
         _check_agent_from_threshold(args, threshold, args.threshold, agent)
-    detectors = _detectors(args, agent)
+    detectors = _detectors(args, agent, threshold)
     try:
         with _progress() as report:
             result = validate_threshold(agent, threshold, args.episodes, seed=args.seed, detectors=detectors,

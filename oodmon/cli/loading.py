@@ -149,24 +149,25 @@ def _check_frame_stack(frame_stack: int | None) -> None:
         check_frame_stack(frame_stack, parameter="--frame-stack ")
 
 
-def _detectors(args: argparse.Namespace, agent):
+def _detectors(args: argparse.Namespace, agent, threshold=None):
     """The fitted detectors: ``--detectors``, else those `calibrate` fitted beside the threshold
-    file (``<threshold>.detectors/``), else the agent's own, else ``None``."""
+    file (``<threshold>.detectors/``), else the agent's own, else ``None``; ``threshold``: that
+    file's :class:`~oodmon.monitor.Threshold`, which says whether it was calibrated with fitted ones.
+
+    Raises:
+        ConfigError: none found where ``threshold`` was calibrated with fitted detectors."""
     from oodmon.monitor.detectors import detectors_for
 
     beside = Path(f"{args.threshold}.detectors") if getattr(args, "threshold", None) else None
     if args.detectors is None and beside is not None and (beside / "detectors.json").is_file():
         return detectors_for(agent, beside)
     chosen = detectors_for(agent, args.detectors)
-    if chosen is None and args.detectors is None and beside is not None:  # a threshold moved without its folder
-        from oodmon.monitor import Threshold
-
-        threshold = Threshold.load(args.threshold)
-        if threshold.detectors_hash:  # (the monitor said only "nothing to score")
-            raise ConfigError(f"{args.threshold} was calibrated with fitted detectors ({threshold.detector}, "
-                              f"{threshold.detectors_hash[:19]}...), and none are beside it ({beside}, where calibrate "
-                              "writes them; moved without them?): give them with --detectors DIR, the folder they "
-                              "were fitted into")
+    # a threshold moved without its folder (the monitor said only "nothing to score")
+    if chosen is None and args.detectors is None and threshold is not None and threshold.detectors_hash:
+        raise ConfigError(f"{args.threshold} was calibrated with fitted detectors ({threshold.detector}, "
+                          f"{threshold.detectors_hash[:19]}...), and none are beside it ({beside}, where calibrate "
+                          "writes them; moved without them?): give them with --detectors DIR, the folder they were "
+                          "fitted into")
     return chosen
 
 

@@ -152,7 +152,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.max_steps is None and threshold is not None:  # and the length of its episodes
         args.max_steps = threshold.max_steps
     env, label = _run_env(args, agent)
-    detectors = _detectors(args, agent)
+    detectors = _detectors(args, agent, threshold)
     if threshold is not None and (not args.variant or args.onset or label == args.task):  # ID steps: false alarms
         _warn_if_reused(threshold, detectors, args.seed, args.episodes)
     if threshold is not None and threshold.step_mode_warning:

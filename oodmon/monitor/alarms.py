@@ -281,6 +281,9 @@ class AlarmTracker:
         """Start a new episode."""
         self._run = 0
         self._recent: deque[float] = deque(maxlen=self.window)
+        #: Under a window, the mean the rule compared at the last step (NaN until the window fills
+        #: after the warm-up): what a sink draws beside the score (the Rerun sink's ``/score_mean``).
+        self.window_mean = math.nan
         self._holding = False
         if self._sequential is not None:
             self._sequential.reset()
@@ -303,7 +306,7 @@ class AlarmTracker:
                 return False, None
             # Summed afresh (w additions) rather than as a running sum, which drifts over
             # thousands of steps; equal to trailing_mean up to rounding.
-            score = sum(self._recent) / self.window
+            score = self.window_mean = sum(self._recent) / self.window
         self._run = self._run + 1 if score > self.threshold else 0
         if self._run < self.consecutive:
             return False, None

@@ -4,6 +4,7 @@ them back from the logs."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -29,6 +30,9 @@ class StepRecord:
         observation: the observation (vector tasks; stacked vectors flattened), or ``None``.
         frame: the observed image (Pong: the newest 84x84 frame the agent saw), or ``None``.
         scores: every detector's score at this step, by detector name (``spread``, ``dynamics``, ...).
+        window_mean: under a rule with a window, the mean of the last scores the rule compared with
+            the threshold (:attr:`~oodmon.monitor.alarms.AlarmTracker.window_mean`; NaN until the
+            window fills); not logged to MCAP, drawn by the Rerun sink.
     """
 
     episode: int
@@ -43,6 +47,7 @@ class StepRecord:
     observation: list[float] | None = None
     frame: np.ndarray | None = field(default=None, repr=False, compare=False)
     scores: dict[str, float] = field(default_factory=dict)
+    window_mean: float = field(default=math.nan, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
         """The fields logged as JSON (the frame goes to an image channel instead)."""

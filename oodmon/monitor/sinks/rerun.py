@@ -32,13 +32,11 @@ without it (``footer=False``): its memory stays flat, and the file reads as a ki
 
 from __future__ import annotations
 
-import math
 import os
 import sys
 import time
 import uuid
 import warnings
-from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -125,13 +123,12 @@ class _Outbox:
     Until later on 2026-12-07 one buffer went to every stream, and a file beside a viewer was sent
     each second: at 50 decisions a second, 525 MB a day of the footer's index against 72."""
 
-    __slots__ = ("streams", "file", "records", "steps", "means", "sent_at")
+    __slots__ = ("streams", "file", "records", "steps", "sent_at")
 
     def __init__(self, streams: list, file: bool) -> None:
         self.streams, self.file = streams, file
         self.records: list[StepRecord] = []
         self.steps: list[int] = []  # the run's global step of each record
-        self.means: list[float] = []  # under a rule with a window, each record's mean over it (NaN until full)
         self.sent_at = time.monotonic()
 
     def due(self, now: float) -> bool:
@@ -228,11 +225,10 @@ class RerunSink:
 
         self._rr = rr
         self._task = run.task
-        # The alarm's rule with a window compares the mean of its last w scores, which the raw score
-        # alone crossed again and again where no alarm came (Pong's features, 2026-12-07)
-        self._window, self._warmup = rule_window(run.rule)
-        self._recent: deque[float] = deque(maxlen=self._window)
-        self._recent_episode: int | None = None
+        # The alarm's rule with a window compares the mean of its last w scores (the tracker's, each
+        # record's window_mean), which the raw score alone crossed again and again where no alarm
+        # came (Pong's features, 2026-12-07)
+        self._window = rule_window(run.rule)[0]
         # A discrete observation's values per reading (the monitor's about.states), whose one-hot
         # blocks /observation draws as each reading's value
         self._states = [int(n) for n in run.about.get("states", "").split(",") if n.strip().isdigit()]
@@ -366,11 +362,9 @@ class RerunSink:
             return
         if not self._names_sent:
             self._send_layout(len(record.mean))
-        mean = self._window_mean(record) if self._window > 1 else math.nan
         for box in self._outboxes:
             box.records.append(record)
             box.steps.append(self._global_step)
-            box.means.append(mean)
         self._last = (record.episode, record.step)
         if record.frame is not None:
             self._set_time(self._global_step)
@@ -385,18 +379,6 @@ class RerunSink:
                 self._check_file()
             else:
                 self._check_live()
-
-    def _window_mean(self, record: StepRecord) -> float:
-        """The mean of the episode's last ``window`` scores at ``record`` (a NaN score as +inf, as the
-        alarm counts it), or NaN while fewer have come since the rule's warm-up: what the alarm
-        compares with the threshold (:class:`~oodmon.monitor.alarms.AlarmTracker`)."""
-        if record.episode != self._recent_episode:
-            self._recent.clear()
-            self._recent_episode = record.episode
-        if record.step < self._warmup:
-            return math.nan
-        self._recent.append(math.inf if record.score != record.score else float(record.score))
-        return sum(self._recent) / self._window if len(self._recent) == self._window else math.nan
 
     def _set_time(self, step: int, episode: int | None = None, in_episode: int | None = None) -> None:
         """Set the three timelines (episode and step in it default to the last step written's)."""
@@ -454,7 +436,7 @@ class RerunSink:
             self._send(box, f"/uncertainty/{self._label}{a}", index, band)
         self._send(box, "/score", index, [r.score for r in records])
         if self._window > 1:
-            self._send(box, "/score_mean", index, box.means)
+            self._send(box, "/score_mean", index, [r.window_mean for r in records])
         self._send(box, "/shifted", index, [float(r.shifted) for r in records])
         for name in records[0].scores:  # every detector's score, on a series of its own
             self._send(box, f"/detectors/{name}", index, [r.scores.get(name, np.nan) for r in records])
@@ -463,7 +445,7 @@ class RerunSink:
             self._send(box, "/threshold", index, thresholds)
         if records[0].observation is not None:
             self._send(box, "/observation", index, _decoded([r.observation for r in records], self._states))
-        box.records, box.steps, box.means, box.sent_at = [], [], [], time.monotonic()
+        box.records, box.steps, box.sent_at = [], [], time.monotonic()
 
     def write_alarm(self, event: AlarmEvent) -> None:
         if not self._streams:
