@@ -282,7 +282,7 @@ class AlarmTracker:
         self._run = 0
         self._recent: deque[float] = deque(maxlen=self.window)
         #: Under a window, the mean the rule compared at the last step (NaN until the window fills
-        #: after the warm-up): what a sink draws beside the score (the Rerun sink's ``/score_mean``).
+        #: after the warm-up): what a sink draws beside the score (Rerun's ``/score_mean``, MCAP's ``score_mean``).
         self.window_mean = math.nan
         self._holding = False
         if self._sequential is not None:

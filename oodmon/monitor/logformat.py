@@ -23,7 +23,12 @@ metadata, absent before 3):
    detector, or the member ``combined`` ranked highest; ``AlarmEvent.cause``);
 8. ``obs_noise`` in episode and episode start messages: the env's sensor noise (oodmon's CartPole
    and Pendulum ``obs_noise``; 0 for any other env). Replay reads an older log's episodes as
-   noiseless, which they were unless played in a noisy env with ``oodmon bench`` or your own code.
+   noiseless, which they were unless played in a noisy env with ``oodmon bench`` or your own code;
+9. ``score_mean`` in step messages of a run whose alarm rule has a window (``window`` > 1: Pong's
+   default, the mean over 200 steps): the mean of the last scores the rule compared with the
+   threshold (``null`` until the window fills, in each episode), which Foxglove plots beside the
+   score (the raw score alone crossed the threshold again and again where no alarm came). Replay
+   computes the same mean from the score arrays, as it did for older logs.
 
 A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
@@ -57,7 +62,7 @@ __all__ = [
     "RUN_METADATA", "STEP", "STEP_SCHEMA", "decode_array", "encode_episode_scores",
 ]
 
-FORMAT_VERSION = 8
+FORMAT_VERSION = 9
 STEP, EPISODE, EPISODE_SCORES = "/oodmon/step", "/oodmon/episode", "/oodmon/episode_scores"
 EPISODE_START = "/oodmon/episode_start"
 ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
@@ -90,6 +95,8 @@ STEP_SCHEMA: dict[str, Any] = _object("oodmon.Step", {
     "observation": {"type": "array", "items": _NUMBER},
     "scores": {"type": "object", "additionalProperties": _NUMBER,
                "description": "every detector's score, by detector name (since format 3)"},
+    "score_mean": _NUMBER | {"description": "under a rule with a window, the mean of the last scores it compared with "
+                                            "the threshold; null until the window fills (since format 9)"},
 }, required=["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"])
 
 EPISODE_SCHEMA: dict[str, Any] = _object("oodmon.Episode", {

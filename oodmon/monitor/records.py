@@ -32,7 +32,8 @@ class StepRecord:
         scores: every detector's score at this step, by detector name (``spread``, ``dynamics``, ...).
         window_mean: under a rule with a window, the mean of the last scores the rule compared with
             the threshold (:attr:`~oodmon.monitor.alarms.AlarmTracker.window_mean`; NaN until the
-            window fills); not logged to MCAP, drawn by the Rerun sink.
+            window fills); the MCAP sink logs it as ``score_mean`` (format 9), the Rerun sink draws
+            it as ``/score_mean``.
     """
 
     episode: int

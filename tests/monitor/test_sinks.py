@@ -145,15 +145,18 @@ def test_rrd_holds_the_scalars(agent, tmp_path):
     assert "versions: " in run and "torch" in run and "command: " in run
 
 
-def test_an_rrd_of_a_rule_with_a_window_holds_the_mean_the_alarm_compares(agent, tmp_path):
-    """A rule with a window compares the mean of its last w scores with the threshold; the viewer
+def test_the_logs_of_a_rule_with_a_window_hold_the_mean_the_alarm_compares(agent, tmp_path):
+    """A rule with a window compares the mean of its last w scores with the threshold; the viewers
     showed the raw score alone against it, crossing where no alarm came (Pong's features, 200
-    steps). ``/score_mean`` holds that mean, NaN until the window fills, episode by episode."""
+    steps). The ``.rrd``'s ``/score_mean`` holds that mean, NaN until the window fills, episode by
+    episode; the MCAP log's step messages hold it as ``score_mean`` (format 9), ``null`` until then,
+    which the Foxglove layout plots."""
     from oodmon.monitor.alarms import trailing_mean
 
     memory = MemorySink()
     env = parse_variant("cartpole:length=2.0").make(onset_step=30)
-    with Monitor(agent, threshold=3.0, window=5, sinks=[memory, RerunSink(tmp_path / "w.rrd")]) as monitor:
+    sinks = [memory, RerunSink(tmp_path / "w.rrd"), McapSink(tmp_path / "w.mcap")]
+    with Monitor(agent, threshold=3.0, window=5, sinks=sinks) as monitor:
         for seed in range(2):
             monitor.run_episode(env, seed=seed, variant="cartpole:length=2.0")
     frame = _rrd_table(tmp_path / "w.rrd")
@@ -169,8 +172,16 @@ def test_an_rrd_of_a_rule_with_a_window_holds_the_mean_the_alarm_compares(agent,
     np.testing.assert_allclose(mean_values, [m for _, _, m in expected], rtol=1e-6)
     alarmed = [s.step for s in memory.steps if s.episode == 0 and s.alarm]
     assert alarmed and all(m > 3.0 for e, s, m in expected if e == 0 and s in alarmed)  # what the alarm compared
+    with open(tmp_path / "w.mcap", "rb") as f:
+        logged = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages() if c.topic == "/oodmon/step"]
+    assert [(m["episode"], m["step"]) for m in logged] == [(e, s) for e, s, _ in expected]
+    assert [m["score_mean"] is None for m in logged] == [bool(np.isnan(m)) for _, _, m in expected]
+    np.testing.assert_allclose([np.nan if m["score_mean"] is None else m["score_mean"] for m in logged],
+                               [m for _, _, m in expected], rtol=1e-12)
+    assert [{k: v for k, v in m.items() if k != "score_mean"} for m in logged] == [s.to_json() for s in memory.steps]
     _run(agent, [RerunSink(tmp_path / "each.rrd")], episodes=1)  # each step's own score: no such series
     assert "/score_mean:Scalars:scalars" not in _rrd_table(tmp_path / "each.rrd").columns
+    # (an MCAP log of such a rule holds no score_mean: test_mcap_holds_every_step_of_every_episode_and_the_run_metadata)
     # with a warm-up the alarm's window fills from the warm-up's end (AlarmTracker keeps no score before it)
     from oodmon.monitor import Threshold
 
@@ -851,10 +862,11 @@ def test_the_shipped_foxglove_layout_shows_what_the_logs_hold(agent, tmp_path):
     def leaves(node):
         return [node] if isinstance(node, str) else [*leaves(node["first"]), *leaves(node["second"])]
     assert sorted(leaves(layout["layout"])) == sorted(layout["configById"])
-    with Monitor(agent, threshold=0.0, consecutive=1, sinks=[McapSink(tmp_path / "x.mcap")], render=True) as monitor:
+    # (a rule with a window: its step messages hold the mean the alarm compares, which the layout plots)
+    with Monitor(agent, threshold=0.0, window=2, sinks=[McapSink(tmp_path / "x.mcap")], render=True) as monitor:
         monitor.run_episode(parse_variant("cartpole:length=2.0").make(), seed=0, max_steps=20)
     with open(tmp_path / "x.mcap", "rb") as f:
-        messages = {c.topic: m for _, c, m in make_reader(f).iter_messages()}
+        messages = {c.topic: m for _, c, m in make_reader(f).iter_messages()}  # (each topic's last)
     step = json.loads(messages["/oodmon/step"].data)
     config = layout["configById"]
     for panel, settings in config.items():
@@ -872,6 +884,7 @@ def test_the_shipped_foxglove_layout_shows_what_the_logs_hold(agent, tmp_path):
         elif kind == "Image":
             assert settings["imageMode"]["imageTopic"] in messages
     assert {"score", "threshold", "shifted"} <= set(step) and "spread" in step["scores"]
+    assert isinstance(step["score_mean"], float)  # the last step's: the window full
 
 
 def _outcome(write, record):
@@ -885,13 +898,15 @@ def test_a_step_message_is_the_bytes_json_dumps_writes_for_every_kind_of_value(m
     """The MCAP sink writes the usual step's JSON itself (a quarter less time than json.dumps): for
     steps of every kind of value a monitor or a user's sink hands it (ints, floats, np.float64,
     NaN and infinities, lists of ints, np.float32, bools, numpy bools, names of any characters),
-    the same text as json.dumps with its nulls, or the same error."""
+    the same text as json.dumps with its nulls, or the same error; under a rule with a window, with
+    the window's mean last."""
     from oodmon.monitor.records import StepRecord
     from oodmon.monitor.sinks import mcap
     from oodmon.monitor.sinks.mcap import _step_json, _step_json_dumps
 
     slow = []  # the steps the sink's own writing handed to json.dumps
-    monkeypatch.setattr(mcap, "_step_json_dumps", lambda record: slow.append(record) or _step_json_dumps(record))
+    monkeypatch.setattr(mcap, "_step_json_dumps", lambda record, windowed=False: slow.append(record) or
+                        _step_json_dumps(record, windowed))
     rng = np.random.default_rng(20261130)
     floats = [0.0, -0.0, 1.5, -2.25e-7, 1e300, 12.345678901234567, np.float64(0.1), float("nan"), float("inf"),
               -float("inf"), np.float32(0.5), 3, True, None]
@@ -919,9 +934,11 @@ def test_a_step_message_is_the_bytes_json_dumps_writes_for_every_kind_of_value(m
             else actions[0](), mean=numbers(int(rng.integers(0, 4))), std=numbers(int(rng.integers(0, 4))),
             score=pick(floats), threshold=pick(floats, 0.7) if rng.random() < 0.8 else float("nan"),
             alarm=bool(rng.random() < 0.5) if rng.random() < 0.97 else np.bool_(True), shifted=bool(rng.random() < 0.5),
-            observation=None if rng.random() < 0.3 else numbers(int(rng.integers(1, 6))), scores=scores)
-        expected = _outcome(_step_json_dumps, record)
-        assert _outcome(_step_json, record) == expected, record
+            observation=None if rng.random() < 0.3 else numbers(int(rng.integers(1, 6))), scores=scores,
+            window_mean=pick(floats, 0.7) if rng.random() < 0.8 else float("nan"))
+        windowed = bool(rng.random() < 0.5)  # a rule with a window: its mean too (format 9)
+        expected = _outcome(lambda r: _step_json_dumps(r, windowed), record)
+        assert _outcome(lambda r: _step_json(r, windowed), record) == expected, record
         if isinstance(expected, str):
             json.loads(expected)  # JSON that any parser reads: the nulls, no NaN
         outcomes.add("text" if isinstance(expected, str) else expected.__name__)
