@@ -67,6 +67,9 @@ def _agent_from_threshold(args: argparse.Namespace, threshold, name: str) -> boo
         raise ConfigError(f"{name} does not record its task; give --task")
     # a threshold records the task, which names the env oodmon has variants of (cartpole: CartPole-v1)
     env_id = next((env for env, task in TASK_OF_ENV.items() if task == threshold.task), threshold.task)
+    if threshold.method == "sb3" and args.method is None and threshold.models and threshold.sb3 is not None:
+        _sb3_from_threshold(args, threshold, name)  # the models it records, loaded as when calibrating
+        return False
     if threshold.method == "sb3" and args.method is None:  # no shipped agent of that name
         files = threshold.sb3_files or "ZIP"
         raise ConfigError(f"{name} was calibrated on your own SB3 model(s) in {env_id}: give them again, --sb3 {files} "
@@ -76,6 +79,45 @@ def _agent_from_threshold(args: argparse.Namespace, threshold, name: str) -> boo
                           f"MODULE:NAME --env {env_id}")
     args.method = args.method or threshold.method
     return whole
+
+
+def _sb3_from_threshold(args: argparse.Namespace, threshold, name: str) -> None:
+    """``args`` that load the SB3 models ``threshold`` was calibrated on (:attr:`~oodmon.monitor.
+    Threshold.models`) as they were loaded then (:attr:`~oodmon.monitor.Threshold.sb3`): ``--sb3``,
+    ``--env``, and ``--vec-normalize``, ``--frame-stack`` and ``--mean`` where not given; said on
+    stderr. The policy's hash, which the monitor checks, still decides: a file changed since is
+    refused there. ``--import`` and ``--unsafe-load-pickles`` are never read from a file (they run
+    code): give them again where the models need them.
+
+    Raises:
+        ConfigError: an ``--env`` other than the threshold's, or a file it names that is gone.
+    """
+    from rich.console import Console
+
+    loaded, files = threshold.sb3, threshold.sb3_files
+    env_id = loaded["env_id"]
+    if args.env and args.env != env_id:
+        raise ConfigError(f"{name} was calibrated on SB3 models in {env_id}, not --env {args.env}: leave out --env, or "
+                          f"give the models and the threshold calibrated in {args.env}")
+    gone = [model["path"] for model in threshold.models if not Path(model["path"]).is_file()]
+    statistics = loaded["vec_normalize"]
+    if statistics is not None and args.vec_normalize is None and not Path(statistics).is_file():
+        gone.append(statistics)
+    if gone:
+        raise ConfigError(f"{name} was calibrated on your own SB3 model(s) in {env_id}, loaded from files that are no "
+                          f"longer there: {', '.join(gone)}; give them where they are now, --sb3 ZIP... --env {env_id}"
+                          f"{' --vec-normalize PKL' if loaded['vec_normalize'] else ''}"
+                          f"{' --frame-stack ' + str(loaded['frame_stack']) if loaded['frame_stack'] else ''}"
+                          f"{' --mean' if loaded['mean'] else ''}")
+    args.sb3, args.env = [model["path"] for model in threshold.models], env_id
+    if args.vec_normalize is None:
+        args.vec_normalize = loaded["vec_normalize"]
+    if args.frame_stack is None:
+        args.frame_stack = loaded["frame_stack"]
+    args.mean = args.mean or loaded["mean"]
+    words = (f"--sb3 {files} --env {env_id}" + (f" --vec-normalize {args.vec_normalize}" if args.vec_normalize else "")
+             + (f" --frame-stack {args.frame_stack}" if args.frame_stack else "") + (" --mean" if args.mean else ""))
+    Console(stderr=True, soft_wrap=True).print(f"note: the policy {name} was calibrated on: {words}", markup=False)
 
 
 def _check_agent_from_threshold(args: argparse.Namespace, threshold, name: str, agent) -> None:

@@ -30,7 +30,7 @@ from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Stretches, Threshold, calibrate,
                                      check_step_episodes, clopper_pearson, clustered_interval, conformal_rank,
-                                     episodes_needed, model_files, verdict_of)
+                                     episodes_needed, model_files, sb3_loading, verdict_of)
 from oodmon.progress import Progress
 from oodmon.seeds import EPISODE_USES, use_words
 from oodmon.side_by_side import finished_before, play_side_by_side, resolve_workers, stream_per_episode
@@ -273,7 +273,8 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     if reference is not None:
         used["reference"] = [seeds.REFERENCE, seeds.REFERENCE + reference_episodes]
     return replace(threshold, episode_seeds=used, workers=resolve_workers(workers, episodes),
-                   obs_noise=float(obs_noise), max_steps=max_steps, models=model_files(agent.metadata.get("models")))
+                   obs_noise=float(obs_noise), max_steps=max_steps, models=model_files(agent.metadata.get("models")),
+                   sb3=sb3_loading(agent.metadata))
 
 
 def read_kept_episodes(path: str | Path, made_by: dict[str, Any]) -> list[np.ndarray]:

@@ -113,12 +113,13 @@ def policy_hash_aliases(agent: Agent | None) -> tuple[str, ...]:
 def run_about(metadata: dict[str, Any]) -> dict[str, str]:
     """:attr:`RunInfo.about` of a run of the agent with ``metadata``: the command line, the
     machine's CPU kind (:func:`~oodmon.versions.machine`), and the env id, model files,
-    VecNormalize statistics and VecFrameStack depth of a model from elsewhere (:mod:`oodmon.agents.sb3`)
-    and the hash of its files (what its logs recorded as ``policy_hash`` before 2026-12-04), or the
-    name of a plain policy (:mod:`oodmon.agents.plain`) and, of one bound to its code, the
-    ``policy_hash`` of its name alone (what its logs recorded before 2026-12-06)."""
+    VecNormalize statistics, VecFrameStack depth and deployed model (or the ensemble's mean) of a
+    model from elsewhere (:mod:`oodmon.agents.sb3`) and the hash of its files (what its logs
+    recorded as ``policy_hash`` before 2026-12-04), or the name of a plain policy
+    (:mod:`oodmon.agents.plain`) and, of one bound to its code, the ``policy_hash`` of its name
+    alone (what its logs recorded before 2026-12-06)."""
     about = {"command": shlex.join(sys.argv), "machine": machine()}
-    for key in ("env_id", "policy", "files_hash", "name_hash"):
+    for key in ("env_id", "policy", "files_hash", "name_hash", "deployed"):
         if metadata.get(key):
             about[key] = str(metadata[key])
     for key in ("models", "vec_normalize", "frame_stack"):
@@ -348,6 +349,10 @@ class Monitor:
                     f"{files}"]
         if given == recorded:  # the same files: what differs is beside them (VecNormalize statistics)
             return []
+        paths = [model.get("path") for model in (self.agent.metadata.get("models") or [])] if self.agent else []
+        if paths == [model["path"] for model in threshold.models]:  # (a model trained again into its file)
+            return [f"its model file{'s' if len(paths) > 1 else ''} ({files}) changed since it was calibrated: "
+                    "other bytes at the same path"]
         return [f"it was calibrated on {len(recorded)} model file{'s' if len(recorded) > 1 else ''}: --sb3 {files}"]
 
     def _refuse_or_warn(self, what: str, differences: list[str], force: bool, *, plural: bool = False) -> None:

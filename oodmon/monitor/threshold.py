@@ -37,10 +37,11 @@ calibrations only.
 
 from __future__ import annotations
 
+import json
 import math
 import shlex
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -60,7 +61,7 @@ from oodmon.validation import is_whole
 __all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "ClusterSums",
            "ClusteredInterval", "EarlyPeaksWarning", "OutlyingThresholdWarning", "Stretches", "Threshold",
            "calibrate", "check_step_episodes", "clopper_pearson", "clustered_interval", "conformal_rank",
-           "episodes_needed", "model_files", "sb3_arguments", "step_threshold", "verdict_of"]
+           "episodes_needed", "model_files", "sb3_arguments", "sb3_loading", "step_threshold", "verdict_of"]
 
 MODES = ("episode", "step")
 #: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
@@ -687,6 +688,13 @@ class Threshold:
             acts), each ``{"path", "sha256"}`` (the file's bytes): where other models are refused,
             the monitor says which these were (the same in another order, some of them).
             ``None``: not models from files, or not recorded (files written before 2026-12-07).
+        sb3: what else that SB3 policy was loaded with, as ``--env``, ``--vec-normalize``,
+            ``--frame-stack`` and ``--mean`` give it (:func:`sb3_loading`): ``{"env_id",
+            "vec_normalize", "frame_stack", "mean"}``, the statistics' file and the stack's depth
+            ``None`` where it had none. ``oodmon run`` and ``validate`` given the threshold alone
+            load that policy again from :attr:`models` and these (before, they asked for ``--sb3
+            ... --env ...`` again). ``None``: not models from files (the statistics in memory
+            too), or not recorded (files written before 2026-12-07).
     """
 
     value: float
@@ -717,6 +725,7 @@ class Threshold:
     longest_episode: int | None = None
     logs: list[dict[str, Any]] | None = None
     models: list[dict[str, str]] | None = None
+    sb3: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -924,6 +933,15 @@ def _check_fields(threshold: Threshold) -> None:
             isinstance(model, dict) and isinstance(model.get("path"), str) and isinstance(model.get("sha256"), str)
             for model in models)):
         raise bad("models", "it must be a list of the model files it was calibrated on ({path, sha256}), or null")
+    loaded = threshold.sb3
+    if loaded is not None and not (
+            isinstance(loaded, dict) and set(loaded) == {"env_id", "vec_normalize", "frame_stack", "mean"}
+            and isinstance(loaded["env_id"], str) and loaded["env_id"]
+            and (loaded["vec_normalize"] is None or isinstance(loaded["vec_normalize"], str))
+            and (loaded["frame_stack"] is None or is_whole(loaded["frame_stack"]))
+            and isinstance(loaded["mean"], bool)):
+        raise bad("sb3", "it must be an object of what its SB3 models were loaded with ({env_id, vec_normalize, "
+                         "frame_stack, mean}), or null")
 
 
 def model_files(models: object) -> list[dict[str, str]] | None:
@@ -943,6 +961,39 @@ def model_files(models: object) -> list[dict[str, str]] | None:
             and m["sha256"] and m["path"] != "(in memory)" for m in models):
         return None
     return [{"path": m["path"], "sha256": m["sha256"]} for m in models]
+
+
+def sb3_loading(metadata: Mapping[str, Any]) -> dict[str, Any] | None:
+    """:attr:`Threshold.sb3` of a policy of SB3 models loaded from files, from what its agent's
+    metadata (:func:`oodmon.agents.sb3.load_sb3`) or its log's ``about`` (each value as text, the
+    records as JSON) says of it: the env id, the VecNormalize statistics' file, the VecFrameStack
+    depth and whether the ensemble's mean acts. ``None`` where its models are not files
+    (:func:`model_files`), its statistics were in memory, or a record is not of that form.
+
+    Example:
+        >>> sb3_loading({"models": [{"path": "a.zip", "sha256": "ab"}], "env_id": "CartPole-v1",
+        ...              "frame_stack": 4, "deployed": "a.zip (the first model)"})
+        {'env_id': 'CartPole-v1', 'vec_normalize': None, 'frame_stack': 4, 'mean': False}
+        >>> sb3_loading({"models": '[{"path": "a.zip", "sha256": "ab"}]', "env_id": "Pendulum-v1",
+        ...              "vec_normalize": '{"path": "vn.pkl", "sha256": "cd"}', "deployed": "ensemble mean"})
+        {'env_id': 'Pendulum-v1', 'vec_normalize': 'vn.pkl', 'frame_stack': None, 'mean': True}
+    """
+    def record(key: str) -> Any:  # an agent's metadata holds the records, a log's about their JSON
+        value = metadata.get(key)
+        try:
+            return json.loads(value) if isinstance(value, str) else value
+        except ValueError:
+            return None
+
+    env_id, normalizer, depth = metadata.get("env_id"), record("vec_normalize"), record("frame_stack")
+    if model_files(record("models")) is None or not isinstance(env_id, str) or not env_id:
+        return None
+    path = normalizer.get("path") if isinstance(normalizer, dict) else None
+    if (normalizer is not None and (not isinstance(path, str) or path == "(in memory)")) \
+            or (depth is not None and not is_whole(depth)):
+        return None
+    return {"env_id": env_id, "vec_normalize": path, "frame_stack": depth,
+            "mean": metadata.get("deployed") == "ensemble mean"}
 
 
 def sb3_arguments(models: Sequence[dict[str, str]]) -> str:

@@ -48,7 +48,7 @@ from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.hashing import other_weights
 from oodmon.monitor.alarms import default_consecutive, default_window, episode_statistic
 from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Threshold, calibrate, conformal_rank,
-                                      model_files)
+                                      model_files, sb3_loading)
 from oodmon.names import BEST_DETECTOR
 from oodmon.replay.check import mid_ranks
 from oodmon.replay.metrics import is_id_episode
@@ -339,7 +339,9 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: 
                         episode_seeds=_seed_runs(found.episodes),
                         logs=[{"path": str(log.path), "run_id": log.metadata.get("run_id"),
                                "episodes": sum(1 for owner, _ in found.episodes if owner is log)}
-                              for log in found.logs], models=_logged_models(first))
+                              for log in found.logs], models=_logged_models(first),
+                        sb3=sb3_loading({key.removeprefix("about."): value for key, value in first.metadata.items()
+                                         if key.startswith("about.")}))
     _warn_if_changed(change_in_logs(found, threshold), threshold)
     return threshold
 

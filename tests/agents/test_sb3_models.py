@@ -95,8 +95,13 @@ def test_a_threshold_names_its_model_files_where_other_models_or_none_are_given(
             f"{second}") in capsys.readouterr().err
     assert main([*run, "--sb3", first]) == 2
     assert f"it was calibrated on 2 model files: --sb3 {first} {second}" in capsys.readouterr().err
-    assert main(["validate", threshold]) == 2
-    assert f"give them again, --sb3 {first} {second} --env CartPole-v1" in capsys.readouterr().err
+    # an old threshold, which records no models, asks for them again
+    old = folder / "runs/old.json"
+    old.write_text(json.dumps({k: v for k, v in json.loads(Path(threshold).read_text()).items()
+                               if k not in ("models", "sb3")}))
+    assert main(["validate", str(old)]) == 2
+    assert f"{old} was calibrated on your own SB3 model(s) in CartPole-v1: give them again, --sb3 ZIP --env " \
+           "CartPole-v1" in capsys.readouterr().err.replace("\n", " ")
     # so do the detectors calibrate fitted beside it (their refusal named no file before)
     assert DetectorSet.load(f"{threshold}.detectors").fitted_for["models"] == json.loads(
         Path(threshold).read_text())["models"]
@@ -104,6 +109,52 @@ def test_a_threshold_names_its_model_files_where_other_models_or_none_are_given(
                  "--out", str(folder / "runs/other.json")]) == 2
     assert (f"the detectors were fitted on another policy's episodes (its weights, or a plain policy's name or code, "
             f"differ): on those of 2 model files, --sb3 {first} {second}") in capsys.readouterr().err
+
+
+def test_a_threshold_alone_loads_the_models_it_was_calibrated_on_as_they_were_loaded(readme_run, tmp_path, capsys):
+    """`oodmon run --threshold T` and `validate T` of a threshold calibrated on SB3 models asked
+    for `--sb3 ... --env ...` again (2026-12-07): the threshold records the files and how they were
+    loaded, and the two load them again and say so (the docs section's validate and run do: the
+    first test). A file gone, a contradicting --env and a model trained again into its file are
+    refused in words that say which."""
+    import shutil
+
+    from oodmon.monitor import Threshold
+    from oodmon.replay import calibrate_from_logs
+
+    folder, _, _ = readme_run
+    first, second = (str((folder / f"runs/dqn{seed}.zip").resolve()) for seed in (0, 1))
+    threshold = str(folder / "runs/dqn.json")
+    assert Threshold.load(threshold).sb3 == {"env_id": "CartPole-v1", "vec_normalize": None, "frame_stack": None,
+                                             "mean": False}
+    log = tmp_path / "id.mcap"
+    assert main(["run", "--threshold", threshold, "--episodes", "4", "--seed", "5000", "--max-steps", "60",
+                 "--mcap", str(log)]) == 0
+    out = capsys.readouterr()
+    assert f"note: the policy {threshold} was calibrated on: --sb3 {first} {second} --env CartPole-v1" in \
+           out.err.replace("\n", " ")
+    assert "cartpole/sb3" in out.out
+    # a threshold recalibrated on the logs of that run records the same (the log's about)
+    assert calibrate_from_logs([log], far=0.5, confidence=None).sb3 == Threshold.load(threshold).sb3
+    assert main(["run", "--threshold", threshold, "--env", "Pendulum-v1"]) == 2
+    assert f"{threshold} was calibrated on SB3 models in CartPole-v1, not --env Pendulum-v1" in capsys.readouterr().err
+    # moved: the files it names are gone
+    moved = tmp_path / "moved"
+    shutil.copytree(folder / "runs", moved, ignore=shutil.ignore_patterns("*.mcap", "deployed"))
+    data = json.loads((moved / "dqn.json").read_text())
+    data["models"] = [{**model, "path": str(tmp_path / "gone" / Path(model["path"]).name)} for model in data["models"]]
+    (moved / "dqn.json").write_text(json.dumps(data))
+    assert main(["validate", str(moved / "dqn.json"), "--episodes", "1"]) == 2
+    assert f"loaded from files that are no longer there: {tmp_path / 'gone' / 'dqn0.zip'}, " \
+           f"{tmp_path / 'gone' / 'dqn1.zip'}; give them where they are now, --sb3 ZIP... --env CartPole-v1" in \
+           capsys.readouterr().err.replace("\n", " ")
+    # another model saved into the first file since
+    data["models"] = [{**model, "path": str(moved / Path(model["path"]).name)} for model in data["models"]]
+    (moved / "dqn.json").write_text(json.dumps(data))
+    shutil.copy(moved / "dqn1.zip", moved / "dqn0.zip")
+    assert main(["validate", str(moved / "dqn.json"), "--episodes", "1", "--detectors", f"{threshold}.detectors"]) == 2
+    assert f"its model files ({moved / 'dqn0.zip'} {moved / 'dqn1.zip'}) changed since it was calibrated: other " \
+           "bytes at the same path" in capsys.readouterr().err.replace("\n", " ")
 
 
 def test_the_docs_deployed_process_reads_the_calibration_and_logs_split(readme_run, monkeypatch, capsys):

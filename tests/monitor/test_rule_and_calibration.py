@@ -803,19 +803,30 @@ def test_a_threshold_of_negative_zero_reads_zero():
     assert math.copysign(1.0, threshold.value) == -1.0 and threshold.rule_text == "score > 0"
 
 
+#: What a threshold of SB3 models records of how they were loaded (Threshold.sb3).
+_LOADED = {"env_id": "CartPole-v1", "vec_normalize": "vn.pkl", "frame_stack": 4, "mean": False}
+
+
 @pytest.mark.parametrize("field, value", [("episode_seeds", {"calibration": [5]}),
                                           ("episode_seeds", {"calibration": [9, 3]}),
                                           ("episode_seeds", {"calibration": [-1, 3]}),
                                           ("episode_seeds", [200_000, 200_050]), ("workers", 0), ("workers", 1.5),
                                           ("obs_noise", -0.1), ("obs_noise", 11), ("obs_noise", "0.1"),
                                           ("obs_noise", True), ("models", {"path": "a.zip", "sha256": "00"}),
-                                          ("models", [{"path": "a.zip"}]), ("models", [{"path": 1, "sha256": "00"}])])
+                                          ("models", [{"path": "a.zip"}]), ("models", [{"path": 1, "sha256": "00"}]),
+                                          ("sb3", "CartPole-v1"), ("sb3", {"env_id": "CartPole-v1"}),
+                                          ("sb3", {**_LOADED, "env_id": ""}), ("sb3", {**_LOADED, "mean": 1}),
+                                          ("sb3", {**_LOADED, "frame_stack": 0}),
+                                          ("sb3", {**_LOADED, "vec_normalize": ["vn.pkl"]}),
+                                          ("sb3", {**_LOADED, "import": "my_policy"})])
 def test_a_threshold_file_with_bad_seeds_workers_or_noise_is_refused(tmp_path, field, value):
     path = calibrate([np.zeros(5)] * 45, 0.05, consecutive=1).save(tmp_path / "t.json")
     data = json.loads(path.read_text())
     path.write_text(json.dumps({**data, field: value}))
     with pytest.raises(ConfigError, match=f"{field}=.* is not allowed"):
         Threshold.load(path)
+    path.write_text(json.dumps({**data, "models": [{"path": "a.zip", "sha256": "00"}], "sb3": _LOADED}))
+    assert Threshold.load(path).sb3 == _LOADED  # (what those refused miss)
 
 
 def test_a_calibration_in_a_noisy_world_records_its_noise_and_warns_of_detectors_fitted_without_it(monkeypatch):
