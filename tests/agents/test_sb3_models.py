@@ -115,8 +115,8 @@ def test_a_threshold_alone_loads_the_models_it_was_calibrated_on_as_they_were_lo
     """`oodmon run --threshold T` and `validate T` of a threshold calibrated on SB3 models asked
     for `--sb3 ... --env ...` again (2026-12-07): the threshold records the files and how they were
     loaded, and the two load them again and say so (the docs section's validate and run do: the
-    first test). A file gone, a contradicting --env and a model trained again into its file are
-    refused in words that say which."""
+    first test), from beside the threshold where they moved with it. A file gone, a contradicting
+    --env and a model trained again into its file are refused in words that say which."""
     import shutil
 
     from oodmon.monitor import Threshold
@@ -138,21 +138,24 @@ def test_a_threshold_alone_loads_the_models_it_was_calibrated_on_as_they_were_lo
     assert calibrate_from_logs([log], far=0.5, confidence=None).sb3 == Threshold.load(threshold).sb3
     assert main(["run", "--threshold", threshold, "--env", "Pendulum-v1"]) == 2
     assert f"{threshold} was calibrated on SB3 models in CartPole-v1, not --env Pendulum-v1" in capsys.readouterr().err
-    # moved: the files it names are gone
+    # moved with its models: they are found beside it (of the recorded bytes), and said
     moved = tmp_path / "moved"
     shutil.copytree(folder / "runs", moved, ignore=shutil.ignore_patterns("*.mcap", "deployed"))
     data = json.loads((moved / "dqn.json").read_text())
     data["models"] = [{**model, "path": str(tmp_path / "gone" / Path(model["path"]).name)} for model in data["models"]]
     (moved / "dqn.json").write_text(json.dumps(data))
+    assert main(["validate", str(moved / "dqn.json"), "--episodes", "2"]) == 0
+    said = capsys.readouterr()
+    assert f"--sb3 {moved / 'dqn0.zip'} {moved / 'dqn1.zip'} --env CartPole-v1" in said.err.replace("\n", " ")
+    assert re.search(r"cartpole/sb3, combined detector, .*: \d of 2 fresh ID episodes alarmed", said.out)
+    shutil.copy(moved / "dqn1.zip", moved / "dqn0.zip")  # a file of that name beside it, of other bytes: not it
     assert main(["validate", str(moved / "dqn.json"), "--episodes", "1"]) == 2
-    assert f"loaded from files that are no longer there: {tmp_path / 'gone' / 'dqn0.zip'}, " \
-           f"{tmp_path / 'gone' / 'dqn1.zip'}; give them where they are now, --sb3 ZIP... --env CartPole-v1" in \
-           capsys.readouterr().err.replace("\n", " ")
-    # another model saved into the first file since
+    assert f"loaded from files that are neither there nor beside it: {tmp_path / 'gone' / 'dqn0.zip'}; give them " \
+           "where they are now, --sb3 ZIP... --env CartPole-v1" in capsys.readouterr().err.replace("\n", " ")
+    # another model saved into the first file since, where the threshold names it
     data["models"] = [{**model, "path": str(moved / Path(model["path"]).name)} for model in data["models"]]
     (moved / "dqn.json").write_text(json.dumps(data))
-    shutil.copy(moved / "dqn1.zip", moved / "dqn0.zip")
-    assert main(["validate", str(moved / "dqn.json"), "--episodes", "1", "--detectors", f"{threshold}.detectors"]) == 2
+    assert main(["validate", str(moved / "dqn.json"), "--episodes", "1"]) == 2
     assert f"its model files ({moved / 'dqn0.zip'} {moved / 'dqn1.zip'}) changed since it was calibrated: other " \
            "bytes at the same path" in capsys.readouterr().err.replace("\n", " ")
 
