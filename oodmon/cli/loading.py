@@ -85,9 +85,9 @@ def _sb3_from_threshold(args: argparse.Namespace, threshold, name: str) -> None:
     """``args`` that load the SB3 models ``threshold`` was calibrated on (:attr:`~oodmon.monitor.
     Threshold.models`) as they were loaded then (:attr:`~oodmon.monitor.Threshold.sb3`): ``--sb3``,
     ``--env``, and ``--vec-normalize``, ``--frame-stack`` and ``--mean`` where not given; said on
-    stderr. A file no longer where it was is looked for beside the threshold (the two moved
-    together), a model there only where its bytes are the recorded ones. The policy's hash, which
-    the monitor checks, still decides: a file changed since is refused there. ``--import`` and
+    stderr. A file no longer where it was is looked for beside the threshold
+    (:func:`~oodmon.monitor.threshold.recorded_sb3_files`). The policy's hash, which the monitor
+    checks, still decides: a file changed since is refused there. ``--import`` and
     ``--unsafe-load-pickles`` are never read from a file (they run code): give them again where the
     models need them.
 
@@ -96,37 +96,23 @@ def _sb3_from_threshold(args: argparse.Namespace, threshold, name: str) -> None:
     """
     from rich.console import Console
 
-    from oodmon.hashing import file_sha256
-    from oodmon.monitor.threshold import sb3_arguments
+    from oodmon.monitor.threshold import recorded_sb3_files, sb3_arguments
 
     loaded = threshold.sb3
     env_id = loaded["env_id"]
     if args.env and args.env != env_id:
         raise ConfigError(f"{name} was calibrated on SB3 models in {env_id}, not --env {args.env}: leave out --env, or "
                           f"give the models and the threshold calibrated in {args.env}")
-    beside = Path(name).parent
-
-    def found(path: str, sha256: str | None = None) -> str | None:
-        """``path``, or the file of its name beside the threshold (of those bytes, where given)."""
-        if Path(path).is_file():
-            return path
-        moved = beside / Path(path).name
-        return str(moved) if moved.is_file() and (sha256 is None or file_sha256(moved) == sha256) else None
-
-    models = [found(model["path"], model["sha256"]) for model in threshold.models]
-    gone = [model["path"] for model, path in zip(threshold.models, models) if path is None]
-    statistics = loaded["vec_normalize"]
-    if statistics is not None and args.vec_normalize is None:
-        args.vec_normalize = found(statistics)
-        if args.vec_normalize is None:
-            gone.append(statistics)
+    models, statistics, gone = recorded_sb3_files(threshold, name)
+    if args.vec_normalize is not None:  # given: the recorded one is not looked for
+        gone, statistics = [path for path in gone if path != loaded["vec_normalize"]], args.vec_normalize
     if gone:
         raise ConfigError(f"{name} was calibrated on your own SB3 model(s) in {env_id}, loaded from files that are "
                           f"neither there nor beside it: {', '.join(gone)}; give them where they are now, --sb3 ZIP... "
-                          f"--env {env_id}{' --vec-normalize PKL' if statistics else ''}"
+                          f"--env {env_id}{' --vec-normalize PKL' if loaded['vec_normalize'] else ''}"
                           f"{' --frame-stack ' + str(loaded['frame_stack']) if loaded['frame_stack'] else ''}"
                           f"{' --mean' if loaded['mean'] else ''}")
-    args.sb3, args.env = models, env_id
+    args.sb3, args.env, args.vec_normalize = models, env_id, statistics
     if args.frame_stack is None:
         args.frame_stack = loaded["frame_stack"]
     args.mean = args.mean or loaded["mean"]

@@ -61,7 +61,8 @@ from oodmon.validation import is_whole
 __all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "ClusterSums",
            "ClusteredInterval", "EarlyPeaksWarning", "OutlyingThresholdWarning", "Stretches", "Threshold",
            "calibrate", "check_step_episodes", "clopper_pearson", "clustered_interval", "conformal_rank",
-           "episodes_needed", "model_files", "sb3_arguments", "sb3_loading", "step_threshold", "verdict_of"]
+           "episodes_needed", "model_files", "recorded_sb3_files", "sb3_arguments", "sb3_loading", "step_threshold",
+           "verdict_of"]
 
 MODES = ("episode", "step")
 #: The detectors a threshold may name (``oodmon.monitor.detectors.DETECTORS``; spelled here so
@@ -994,6 +995,33 @@ def sb3_loading(metadata: Mapping[str, Any]) -> dict[str, Any] | None:
         return None
     return {"env_id": env_id, "vec_normalize": path, "frame_stack": depth,
             "mean": metadata.get("deployed") == "ensemble mean"}
+
+
+def recorded_sb3_files(threshold: Threshold, path: str | Path) -> tuple[list[str], str | None, list[str]]:
+    """The SB3 model files and the VecNormalize statistics' file of the policy ``threshold`` (read
+    from ``path``) was calibrated on (:attr:`Threshold.models`, :attr:`Threshold.sb3`), each where it
+    was, else the file of its name beside ``path`` (the two moved together; a model there only of
+    the recorded bytes): ``(models, statistics, gone)``, ``gone`` the recorded paths found in
+    neither place (``models`` keeps those as recorded). The policy's hash, which the monitor
+    checks, decides whether the files found are the weights it was calibrated on."""
+    from oodmon.hashing import file_sha256
+
+    beside = Path(path).parent
+
+    def found(recorded: str, sha256: str | None = None) -> str | None:
+        if Path(recorded).is_file():
+            return recorded
+        moved = beside / Path(recorded).name
+        return str(moved) if moved.is_file() and (sha256 is None or file_sha256(moved) == sha256) else None
+
+    recorded = threshold.models or []
+    models = [found(model["path"], model["sha256"]) for model in recorded]
+    gone = [model["path"] for model, at in zip(recorded, models) if at is None]
+    statistics = (threshold.sb3 or {}).get("vec_normalize")
+    statistics_at = None if statistics is None else found(statistics)
+    if statistics is not None and statistics_at is None:
+        gone.append(statistics)
+    return [at or model["path"] for model, at in zip(recorded, models)], statistics_at, gone
 
 
 def sb3_arguments(models: Sequence[dict[str, str]]) -> str:

@@ -10,7 +10,8 @@ others, and returns a :class:`~oodmon.monitor.Monitor` (or, given ``env``, that 
 
 ``save="dqn.json"`` keeps the calibration (the threshold, and the detectors in ``dqn.json.detectors/``,
 as ``oodmon calibrate --out dqn.json`` writes them); ``threshold="dqn.json"`` at a later start reads
-it and runs no episode.
+it and runs no episode, and loads the SB3 models it names where no policy is given
+(``oodmon.watch(threshold="dqn.json", env=gymnasium.make("CartPole-v1"))``).
 """
 
 from __future__ import annotations
@@ -97,7 +98,7 @@ def as_agent(policy: Any, env_id: str | None = None, *, mean: bool = False, seed
                      frame_stack=frame_stack)
 
 
-def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None = None, far: float = 0.05,
+def watch(policy: Any = None, env_id: str | None = None, *, env: gymnasium.Env | None = None, far: float = 0.05,
           confidence: float | None = DEFAULT_CONFIDENCE, episodes: int = 50, fit_episodes: int | None = None,
           detector: str | None = None, mean: bool = False, sinks: Sequence[Sink] = (),
           callbacks: Sequence[Callable[[AlarmEvent], Any]] = (), seed: int | None = None,
@@ -146,6 +147,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
     ``threshold`` reads such a file and the detectors beside it (else the agent's shipped ones)
     instead of fitting and calibrating: no episode runs. The file must have been calibrated on this
     policy (the hash of its weights; its MC masks, which the policy is loaded with by default);
+    ``policy`` may then be left out where the file names it: the SB3 model files it records, loaded
+    as they were when it was calibrated (see :func:`_recorded_policy`; as ``oodmon run --threshold``
+    alone loads them), or the shipped agent of its task and method;
     ``far``, ``confidence`` and ``episodes`` are then the file's, and ``warmup``, ``max_steps``,
     ``fit_episodes``, ``dynamics_updates`` and ``fit_explore`` are refused (the file's warm-up, episodes and fitted
     detectors are what it was calibrated with).
@@ -174,6 +178,9 @@ def watch(policy: Any, env_id: str | None = None, *, env: gymnasium.Env | None =
 
     if threshold is not None and save is not None:
         raise ConfigError("give threshold= (read a calibration made before) or save= (write the one made now), not both")
+    if policy is None and threshold is None:
+        raise ConfigError("give the policy to watch (SB3 model files or models, an oodmon Agent, a function obs -> "
+                          "action), or threshold= a calibration of it, which names SB3 models or a shipped agent")
     if env is not None:
         check_one_env(env)  # (an id given as env=, a vector env: said before any fit)
     if env_id is None and env is not None and not isinstance(policy, Agent):
@@ -305,6 +312,48 @@ def _id_of(spec: Any, name: str, *, models: bool = False) -> str:
     return spec.id
 
 
+def _recorded_policy(threshold: Threshold, path: str | Path, env_id: str | None, *, masks: str | None,
+                     **loading: Any) -> tuple[Any, str | None, dict[str, Any]]:
+    """``(policy, env_id, loading)`` for :func:`as_agent` of the policy the threshold at ``path``
+    was calibrated on, where :func:`watch` was given none: the SB3 model files it records
+    (:func:`~oodmon.monitor.threshold.recorded_sb3_files`: where they were, else beside it) in its
+    env, with its VecNormalize statistics, VecFrameStack depth and ``mean`` unless given; or the
+    shipped agent of its task and method. ``imports`` and ``unsafe_load_pickles`` are never read
+    from the file (they run code): give them where the models need them.
+
+    Raises:
+        ConfigError: a threshold of your own policy, a plain one or SB3 models it does not record
+            (written before 2026-12-07), an ``env_id`` other than its own, or files it names that
+            are gone.
+    """
+    from oodmon.agents.agent import load, zoo_names
+    from oodmon.monitor.threshold import recorded_sb3_files
+    from oodmon.names import PLAIN_METHOD
+
+    recorded = threshold.sb3
+    if threshold.models and recorded is not None:
+        if env_id is not None and env_id != recorded["env_id"]:
+            raise ConfigError(f"{path} was calibrated on SB3 models in {recorded['env_id']}, not {env_id}: leave the "
+                              "env id out, or give the models and the threshold calibrated there")
+        models, statistics, gone = recorded_sb3_files(threshold, path)
+        if loading.get("vec_normalize") is not None:  # given: the recorded one is not looked for
+            gone, statistics = [p for p in gone if p != recorded["vec_normalize"]], loading["vec_normalize"]
+        if gone:
+            raise ConfigError(f"{path} was calibrated on SB3 models loaded from files that are neither there nor "
+                              f"beside it: {', '.join(gone)}; give them where they are now: watch(['model.zip', ...], "
+                              f"{recorded['env_id']!r}, threshold=..., vec_normalize=...)")
+        frame_stack = loading.get("frame_stack")
+        return models, recorded["env_id"], loading | {
+            "vec_normalize": statistics, "frame_stack": recorded["frame_stack"] if frame_stack is None else frame_stack,
+            "mean": loading.get("mean") or recorded["mean"]}
+    if f"{threshold.task}-{threshold.method}" in zoo_names():  # (weights of its own are refused by their hash)
+        return load(threshold.task, threshold.method, seed=loading.get("seed"), masks=masks), env_id, loading
+    kind = "your own SB3 models, and does not record how they were loaded (written before 2026-12-07)" \
+        if threshold.method == "sb3" else "your own policy, which it cannot load (a function's code)" \
+        if threshold.method == PLAIN_METHOD else f"a {threshold.task}/{threshold.method} agent oodmon does not ship"
+    raise ConfigError(f"{path} was calibrated on {kind}: give the policy, watch(policy, env_id, threshold=...)")
+
+
 def _calibrated(policy: Any, env_id: str | None, path: str | Path, *, masks: str | None, **loading: Any) -> tuple:
     """``(agent, threshold, detectors)`` of a calibration made before: the threshold file at
     ``path`` and the detectors beside it (``<path>.detectors/``), else the agent's shipped ones."""
@@ -314,6 +363,8 @@ def _calibrated(policy: Any, env_id: str | None, path: str | Path, *, masks: str
     found = Threshold.load(path)
     if masks is None and not isinstance(policy, Agent):
         masks = found.masks  # an SB3 model with dropout, loaded with the masks it was calibrated with
+    if policy is None:
+        policy, env_id, loading = _recorded_policy(found, path, env_id, masks=masks, **loading)
     agent = as_agent(policy, env_id, masks=masks, **loading)
     beside = Path(f"{path}.detectors")
     detectors = detectors_for(agent, beside if (beside / "detectors.json").is_file() else None)

@@ -138,6 +138,20 @@ def test_a_threshold_alone_loads_the_models_it_was_calibrated_on_as_they_were_lo
     assert calibrate_from_logs([log], far=0.5, confidence=None).sb3 == Threshold.load(threshold).sb3
     assert main(["run", "--threshold", threshold, "--env", "Pendulum-v1"]) == 2
     assert f"{threshold} was calibrated on SB3 models in CartPole-v1, not --env Pendulum-v1" in capsys.readouterr().err
+    # in Python too: oodmon.watch(threshold=...) without the policy
+    import gymnasium
+
+    import oodmon
+
+    env = oodmon.watch(threshold=threshold, env=gymnasium.make("CartPole-v1"))
+    assert [model["path"] for model in env.monitor.agent.metadata["models"]] == [first, second]
+    env.reset(seed=5000)
+    assert env.step()[4]["oodmon"]["threshold"] == Threshold.load(threshold).value
+    env.close()
+    with pytest.raises(ConfigError, match="calibrated on SB3 models in CartPole-v1, not Pendulum-v1"):
+        oodmon.watch(threshold=threshold, env_id="Pendulum-v1")
+    with pytest.raises(ConfigError, match="give the policy to watch"):
+        oodmon.watch()
     # moved with its models: they are found beside it (of the recorded bytes), and said
     moved = tmp_path / "moved"
     shutil.copytree(folder / "runs", moved, ignore=shutil.ignore_patterns("*.mcap", "deployed"))
@@ -152,6 +166,8 @@ def test_a_threshold_alone_loads_the_models_it_was_calibrated_on_as_they_were_lo
     assert main(["validate", str(moved / "dqn.json"), "--episodes", "1"]) == 2
     assert f"loaded from files that are neither there nor beside it: {tmp_path / 'gone' / 'dqn0.zip'}; give them " \
            "where they are now, --sb3 ZIP... --env CartPole-v1" in capsys.readouterr().err.replace("\n", " ")
+    with pytest.raises(ConfigError, match=f"neither there nor beside it: {tmp_path / 'gone' / 'dqn0.zip'}; give them"):
+        oodmon.watch(threshold=moved / "dqn.json")
     # another model saved into the first file since, where the threshold names it
     data["models"] = [{**model, "path": str(moved / Path(model["path"]).name)} for model in data["models"]]
     (moved / "dqn.json").write_text(json.dumps(data))

@@ -3,6 +3,7 @@ the wrapper, and the false-alarm guarantee on fresh ID episodes."""
 
 from __future__ import annotations
 
+import re
 import warnings
 from dataclasses import replace
 
@@ -413,6 +414,30 @@ def test_watch_takes_a_shipped_agent_with_its_own_env_id_and_refuses_another(age
     for other in ("Pendulum-v1", "NoSuchEnv-v0"):
         with pytest.raises(ConfigError, match=f"the cartpole agent acts in oodmon/CartPole-v1, not {other}"):
             as_agent(agent, other)
+
+
+def test_watch_given_a_threshold_alone_loads_the_shipped_agent_it_names_or_says_what_to_give(tmp_path):
+    """``oodmon.watch(threshold=...)`` without the policy (as ``oodmon run --threshold`` alone): the
+    shipped agent of the threshold's task and method, with its masks; a threshold of a policy it
+    cannot load asks for it (SB3 models it names: tests/agents/test_sb3_models.py)."""
+    import oodmon
+    from oodmon.monitor import Threshold
+
+    path = tmp_path / "t.json"
+    Threshold(1e9, "chosen_std", 1, "episode", 0.05, 45, 9_000, task="cartpole", method="dropconnect",
+              detector="spread", masks="fixed").save(path)
+    monitor = oodmon.watch(threshold=path)
+    assert (monitor.agent.task, monitor.agent.method, monitor.agent.estimator.masks) == ("cartpole", "dropconnect",
+                                                                                         "fixed")
+    assert monitor.run_episode(Variant("cartpole").make(), seed=0, max_steps=20).length == 20
+    for method, words in (("plain", "your own policy, which it cannot load"),
+                          ("sb3", "your own SB3 models, and does not record how they were loaded"),
+                          ("dropout", "a pong-x/dropout agent oodmon does not ship")):
+        task = "pong-x" if method == "dropout" else "cartpole"
+        Threshold(1.0, "chosen_std", 1, "episode", 0.05, 45, 9_000, task=task, method=method,
+                  detector="dynamics").save(path)
+        with pytest.raises(ConfigError, match=re.escape(f"calibrated on {words}") + r".*give the policy, watch\("):
+            oodmon.watch(threshold=path)
 
 
 def test_watch_names_its_own_fit_episodes_argument_when_refusing_it(agent):
