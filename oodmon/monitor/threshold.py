@@ -969,7 +969,8 @@ def sb3_loading(metadata: Mapping[str, Any]) -> dict[str, Any] | None:
     metadata (:func:`oodmon.agents.sb3.load_sb3`) or its log's ``about`` (each value as text, the
     records as JSON) says of it: the env id, the VecNormalize statistics' file, the VecFrameStack
     depth and whether the ensemble's mean acts. ``None`` where its models are not files
-    (:func:`model_files`), its statistics were in memory, or a record is not of that form.
+    (:func:`model_files`), its statistics were in memory, a record is not of that form, or it
+    does not say which model acts (a log written before 2026-12-07: the mean or the first model).
 
     Example:
         >>> sb3_loading({"models": [{"path": "a.zip", "sha256": "ab"}], "env_id": "CartPole-v1",
@@ -978,6 +979,8 @@ def sb3_loading(metadata: Mapping[str, Any]) -> dict[str, Any] | None:
         >>> sb3_loading({"models": '[{"path": "a.zip", "sha256": "ab"}]', "env_id": "Pendulum-v1",
         ...              "vec_normalize": '{"path": "vn.pkl", "sha256": "cd"}', "deployed": "ensemble mean"})
         {'env_id': 'Pendulum-v1', 'vec_normalize': 'vn.pkl', 'frame_stack': None, 'mean': True}
+        >>> sb3_loading({"models": '[{"path": "a.zip", "sha256": "ab"}]', "env_id": "Pendulum-v1"}) is None
+        True
     """
     def record(key: str) -> Any:  # an agent's metadata holds the records, a log's about their JSON
         value = metadata.get(key)
@@ -987,7 +990,8 @@ def sb3_loading(metadata: Mapping[str, Any]) -> dict[str, Any] | None:
             return None
 
     env_id, normalizer, depth = metadata.get("env_id"), record("vec_normalize"), record("frame_stack")
-    if model_files(record("models")) is None or not isinstance(env_id, str) or not env_id:
+    if model_files(record("models")) is None or not isinstance(env_id, str) or not env_id \
+            or not isinstance(metadata.get("deployed"), str):
         return None
     path = normalizer.get("path") if isinstance(normalizer, dict) else None
     if (normalizer is not None and (not isinstance(path, str) or path == "(in memory)")) \
