@@ -226,7 +226,7 @@ def _agent_arguments(parser: argparse.ArgumentParser, *, defaults_from: str | No
                              "sub-networks (the decision is still the mean of sampled masks); fixed-decisions: the "
                              "fixed sub-networks decide too, by their mean, in the same pass. Default: the threshold "
                              "file's, if it records them, else the model's (sampled)")
-    _sb3_arguments(parser)
+    _sb3_arguments(parser, from_threshold=defaults_from is not None)
     _policy_argument(parser)
     if detectors is not None:
         parser.add_argument("--detectors", metavar="DIR", help=detectors)
@@ -240,15 +240,18 @@ def _policy_argument(parser: argparse.ArgumentParser) -> None:
                              "it (e.g. --policy my_controller:act, with its folder on PYTHONPATH)")
 
 
-def _sb3_arguments(parser: argparse.ArgumentParser) -> None:
-    """--sb3, --env, --mean: your own stable-baselines3 models instead of an oodmon agent."""
+def _sb3_arguments(parser: argparse.ArgumentParser, *, from_threshold: bool = False) -> None:
+    """--sb3, --env, --mean: your own stable-baselines3 models instead of an oodmon agent
+    (``from_threshold``: a command whose threshold file names them by default)."""
     parser.add_argument("--sb3", nargs="+", metavar="ZIP",
                         help="your own stable-baselines3 model file(s) (DQN, DDPG, TD3, SAC, PPO, A2C; sb3-contrib's "
                              "QR-DQN, TQC, TRPO, ARS, CrossQ, RecurrentPPO, MaskablePPO), with --env; the first is the "
                              "deployed policy, several DQN, DDPG/TD3, SAC, TQC or QR-DQN models (of one algorithm) also "
                              "form an ensemble detector (runs/dqn reads runs/dqn.zip, as SB3's load does). Read without "
                              "running code from them: a file whose policy class, "
-                             "its arguments or spaces name anything else is refused (see --unsafe-load-pickles)")
+                             "its arguments or spaces name anything else is refused (see --unsafe-load-pickles)"
+                             + ("; default: the models a threshold calibrated on them records, with its --env, "
+                                "--vec-normalize, --frame-stack and --mean" if from_threshold else ""))
     parser.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
                         help="import this module of yours first (repeatable), whose classes the --sb3 files name (a "
                              "policy class of your own, say; oodmon imports no module a file names)")
