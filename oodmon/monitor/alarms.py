@@ -43,7 +43,7 @@ from oodmon.validation import MOST_STEPS, is_step_count
 
 __all__ = [
     "DEFAULT_CONSECUTIVE", "AlarmEvent", "AlarmTracker", "check_consecutive", "check_warmup", "check_window",
-    "default_consecutive",
+    "compared_name", "default_consecutive",
     "episode_statistic",
     "rule_text", "rule_window", "trailing_mean",
 ]
@@ -161,6 +161,28 @@ def rule_window(text: str) -> tuple[int, int]:
     window = re.match(r"mean score over (\d+) steps > ", text)
     warmup = re.search(r" from step (\d+) of each episode$", text)
     return int(window.group(1)) if window else 1, int(warmup.group(1)) if warmup else 0
+
+
+def compared_name(text: str) -> str | None:
+    """What a rule in words as :func:`rule_text` writes it (a log's ``rule``) compares with the
+    threshold where that is not each step's score: a window's mean, a CUSUM or a martingale's
+    statistic (which :attr:`AlarmTracker.compared` holds at each step, and the sinks log beside
+    the score); ``None`` for a rule that compares each step's score.
+
+    Example:
+        >>> compared_name("mean score over 200 steps > 0.5"), compared_name("score > 0.5 for 3 consecutive steps")
+        ('mean over 200 steps', None)
+        >>> compared_name(rule_text("threshold", 1, rule="cusum"))
+        'CUSUM'
+    """
+    window = rule_window(text)[0]
+    if window > 1:
+        return f"mean over {window} steps"
+    if text.startswith("CUSUM of "):
+        return "CUSUM"
+    if text.startswith("log10 of the conformal test martingale "):
+        return "log10 martingale"
+    return None
 
 
 def trailing_mean(scores: np.ndarray, window: int) -> np.ndarray:
@@ -281,9 +303,11 @@ class AlarmTracker:
         """Start a new episode."""
         self._run = 0
         self._recent: deque[float] = deque(maxlen=self.window)
-        #: Under a window, the mean the rule compared at the last step (NaN until the window fills
-        #: after the warm-up): what a sink draws beside the score (Rerun's ``/score_mean``, MCAP's ``score_mean``).
-        self.window_mean = math.nan
+        #: What the rule compared with the threshold at the last step where that is not the score
+        #: (:func:`compared_name`): the window's mean (NaN until the window fills after the
+        #: warm-up), a sequential rule's statistic; NaN under a rule that compares each score.
+        #: What the sinks log beside the score (Rerun's ``/compared``, MCAP's ``compared``).
+        self.compared = math.nan
         self._holding = False
         if self._sequential is not None:
             self._sequential.reset()
@@ -296,7 +320,7 @@ class AlarmTracker:
             rising, self._holding = holds and not self._holding, holds
             return holds, AlarmEvent(episode, step, score, self.threshold, self.rule) if rising else None
         if self._sequential is not None:
-            value = self._sequential.update(step, score)
+            value = self.compared = self._sequential.update(step, score)
             holds, rising = value > self.threshold, value > self.threshold and not self._holding
             self._holding = holds
             return holds, AlarmEvent(episode, step, value, self.threshold, self.rule) if rising else None
@@ -306,7 +330,7 @@ class AlarmTracker:
                 return False, None
             # Summed afresh (w additions) rather than as a running sum, which drifts over
             # thousands of steps; equal to trailing_mean up to rounding.
-            score = self.window_mean = sum(self._recent) / self.window
+            score = self.compared = sum(self._recent) / self.window
         self._run = self._run + 1 if score > self.threshold else 0
         if self._run < self.consecutive:
             return False, None

@@ -24,11 +24,13 @@ metadata, absent before 3):
 8. ``obs_noise`` in episode and episode start messages: the env's sensor noise (oodmon's CartPole
    and Pendulum ``obs_noise``; 0 for any other env). Replay reads an older log's episodes as
    noiseless, which they were unless played in a noisy env with ``oodmon bench`` or your own code;
-9. ``score_mean`` in step messages of a run whose alarm rule has a window (``window`` > 1: Pong's
-   default, the mean over 200 steps): the mean of the last scores the rule compared with the
-   threshold (``null`` until the window fills, in each episode), which Foxglove plots beside the
-   score (the raw score alone crossed the threshold again and again where no alarm came). Replay
-   computes the same mean from the score arrays, as it did for older logs.
+9. ``compared`` in step messages of a run whose alarm rule compares something other than each
+   step's score with the threshold (:func:`~oodmon.monitor.alarms.compared_name`): the mean of
+   the last scores under a window (``window`` > 1: Pong's default, 200 steps; ``null`` until the
+   window fills, in each episode), the statistic of a sequential rule (CUSUM, martingale), which
+   Foxglove plots beside the score (the raw score alone crossed the threshold again and again
+   where no alarm came). Replay computes a window's mean from the score arrays, as it did for
+   older logs.
 
 A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
@@ -95,8 +97,9 @@ STEP_SCHEMA: dict[str, Any] = _object("oodmon.Step", {
     "observation": {"type": "array", "items": _NUMBER},
     "scores": {"type": "object", "additionalProperties": _NUMBER,
                "description": "every detector's score, by detector name (since format 3)"},
-    "score_mean": _NUMBER | {"description": "under a rule with a window, the mean of the last scores it compared with "
-                                            "the threshold; null until the window fills (since format 9)"},
+    "compared": _NUMBER | {"description": "what the alarm rule compared with the threshold where that is not the "
+                                          "score: a window's mean (null until it fills), a CUSUM or martingale "
+                                          "statistic (since format 9)"},
 }, required=["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"])
 
 EPISODE_SCHEMA: dict[str, Any] = _object("oodmon.Episode", {

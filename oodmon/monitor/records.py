@@ -30,10 +30,11 @@ class StepRecord:
         observation: the observation (vector tasks; stacked vectors flattened), or ``None``.
         frame: the observed image (Pong: the newest 84x84 frame the agent saw), or ``None``.
         scores: every detector's score at this step, by detector name (``spread``, ``dynamics``, ...).
-        window_mean: under a rule with a window, the mean of the last scores the rule compared with
-            the threshold (:attr:`~oodmon.monitor.alarms.AlarmTracker.window_mean`; NaN until the
-            window fills); the MCAP sink logs it as ``score_mean`` (format 9), the Rerun sink draws
-            it as ``/score_mean``.
+        compared: what the alarm rule compared with the threshold where that is not the score
+            (:attr:`~oodmon.monitor.alarms.AlarmTracker.compared`): a window's mean (NaN until
+            the window fills), a CUSUM or martingale statistic; NaN under a rule that compares
+            each score. The MCAP sink logs it as ``compared`` (format 9), the Rerun sink draws it
+            as ``/compared``.
     """
 
     episode: int
@@ -48,7 +49,7 @@ class StepRecord:
     observation: list[float] | None = None
     frame: np.ndarray | None = field(default=None, repr=False, compare=False)
     scores: dict[str, float] = field(default_factory=dict)
-    window_mean: float = field(default=math.nan, repr=False, compare=False)
+    compared: float = field(default=math.nan, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
         """The fields logged as JSON (the frame goes to an image channel instead)."""

@@ -27,7 +27,7 @@ import numpy as np
 from oodmon.envs.physics import PHYSICS_DEFAULTS
 from oodmon.envs.shift import parse_any_variant
 from oodmon.errors import OodmonError
-from oodmon.monitor.alarms import rule_window, trailing_mean
+from oodmon.monitor.alarms import compared_name, rule_window, trailing_mean
 from oodmon.outputs import safe_filename, save_figure
 from oodmon.replay.failures import failure_known
 from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, is_id_episode,
@@ -118,19 +118,21 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
     the episode of ``variant`` alone when the logs hold no ID episode (a run whose shift begins
     mid-episode: its steps before the onset are the ID ones)."""
     id_episode = shifted_episode = None
-    threshold, rule = float("nan"), (1, 0)
+    threshold, rule, text = float("nan"), (1, 0), ""
     for log in _runs_of(logs, method, variant):
         for episode in log.episodes:
             if id_episode is None and is_id_episode(episode, log.task):
                 id_episode, threshold = episode, log.threshold
             if shifted_episode is None and episode.variant == variant:
-                shifted_episode, threshold, rule = episode, log.threshold, rule_window(log.metadata.get("rule", ""))
+                text = log.metadata.get("rule", "")
+                shifted_episode, threshold, rule = episode, log.threshold, rule_window(text)
     if shifted_episode is None:
         return None
     panels = [] if id_episode is None else [(id_episode, f"ID: {episode_name(id_episode)}")]
     panels.append((shifted_episode, f"shifted: {episode_name(shifted_episode)}"))
     title = f"{method}, {_alarm_detectors(logs, method, variant)} detector: alarms as vertical lines"
-    return _draw_traces(panels, threshold, title, path, rule)
+    words = _sequential_words(text, threshold)
+    return _draw_traces(panels, threshold, title + words, path, rule, threshold_drawn=not words)
 
 
 def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | Path) -> Path | None:
@@ -154,6 +156,8 @@ def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | P
 
     calm = [(episode, name) for episode, other, name in episodes
             if other == (threshold, rule) and not episode.alarm.any()]
+    text = next((log.metadata.get("rule", "") for log in logs if log.method == method and log.task == task
+                 and log.threshold == threshold), "")
     panels = []
     if alarmed:
         first, log_name = alarmed[0]
@@ -166,7 +170,20 @@ def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | P
     detectors = "/".join(sorted({log.detector for log in logs if log.method == method and log.task == task}))
     title = (f"{method}, {detectors} detector, {task}: {len(alarmed)} of {len(episodes)} ID episode(s) alarmed "
              "(alarms as vertical lines)")
-    return _draw_traces(panels, threshold, title, path, rule)
+    words = _sequential_words(text, threshold)
+    return _draw_traces(panels, threshold, title + words, path, rule, threshold_drawn=not words)
+
+
+def _sequential_words(text: str, threshold: float) -> str:
+    """What a trace's title adds under a sequential rule (a log's ``rule``, in words): the alarm
+    compares a statistic of the scores with the threshold, on a scale of its own, so the threshold
+    is not drawn on the score's axis (Rerun and Foxglove draw the statistic from logs since format
+    9); ``""`` under any other rule."""
+    name = compared_name(text)
+    if name is None or name.startswith("mean over"):
+        return ""
+    return (f"; the alarm compares a {name} statistic of the scores with its threshold, {threshold:.4g}, on a scale "
+            "of its own: not drawn here (Rerun's /compared and Foxglove draw it, from logs since format 9)")
 
 
 def _compared(scores: np.ndarray, rule: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -179,15 +196,18 @@ def _compared(scores: np.ndarray, rule: tuple[int, int]) -> tuple[np.ndarray, np
 
 
 def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, title: str, path: str | Path,
-                 rule: tuple[int, int] = (1, 0)) -> Path:
+                 rule: tuple[int, int] = (1, 0), *, threshold_drawn: bool = True) -> Path:
     """Each episode's score over its steps in a panel of its own (titled), sharing the score axis:
     the threshold dashed, the shifted steps shaded, each alarm's start a vertical line, a NaN or
     infinite score marked at the panel's edge; a symlog axis where :func:`score_scale` says. With a
     ``rule``'s window (:func:`~oodmon.monitor.alarms.rule_window`) over 1 the score is drawn faint,
     and the mean over the window (after the rule's warm-up), which the alarm compares with the
     threshold, over it (the score alone crossed the threshold where no alarm came:
-    Pong's features, 2026-12-07)."""
+    Pong's features, 2026-12-07). ``threshold_drawn`` false: a threshold on another scale than the
+    score's (a sequential rule's), not drawn."""
     plt = _pyplot()
+    if not threshold_drawn:
+        threshold = float("nan")
     fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.4), dpi=110, sharey=True, squeeze=False)
     axes = axes[0]
     for ax, (episode, name) in zip(axes, panels):

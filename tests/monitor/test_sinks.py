@@ -145,11 +145,22 @@ def test_rrd_holds_the_scalars(agent, tmp_path):
     assert "versions: " in run and "torch" in run and "command: " in run
 
 
+def _logged_compared(rrd, mcap):
+    """``/compared`` of an ``.rrd`` (episode, step in episode, value) and the ``compared`` of an
+    MCAP log's step messages (``null`` read as NaN), with the messages."""
+    frame = _rrd_table(rrd).dropna(subset=["/compared:Scalars:scalars"])
+    drawn = [(e, s, v[0]) for e, s, v in zip(frame["episode"], frame["step_in_episode"],
+                                             frame["/compared:Scalars:scalars"])]
+    with open(mcap, "rb") as f:
+        messages = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages() if c.topic == "/oodmon/step"]
+    return drawn, [np.nan if m["compared"] is None else m["compared"] for m in messages], messages
+
+
 def test_the_logs_of_a_rule_with_a_window_hold_the_mean_the_alarm_compares(agent, tmp_path):
     """A rule with a window compares the mean of its last w scores with the threshold; the viewers
     showed the raw score alone against it, crossing where no alarm came (Pong's features, 200
-    steps). The ``.rrd``'s ``/score_mean`` holds that mean, NaN until the window fills, episode by
-    episode; the MCAP log's step messages hold it as ``score_mean`` (format 9), ``null`` until then,
+    steps). The ``.rrd``'s ``/compared`` holds that mean, NaN until the window fills, episode by
+    episode; the MCAP log's step messages hold it as ``compared`` (format 9), ``null`` until then,
     which the Foxglove layout plots."""
     from oodmon.monitor.alarms import trailing_mean
 
@@ -159,29 +170,22 @@ def test_the_logs_of_a_rule_with_a_window_hold_the_mean_the_alarm_compares(agent
     with Monitor(agent, threshold=3.0, window=5, sinks=sinks) as monitor:
         for seed in range(2):
             monitor.run_episode(env, seed=seed, variant="cartpole:length=2.0")
-    frame = _rrd_table(tmp_path / "w.rrd")
-    means = frame.dropna(subset=["/score_mean:Scalars:scalars"])
     expected = []
     for episode in (0, 1):  # (the window starts again with each episode)
         steps = [s for s in memory.steps if s.episode == episode]
         means_of = [np.nan] * 4 + trailing_mean(np.array([s.score for s in steps]), 5).tolist()  # NaN until full
         expected += [(episode, step.step, mean) for step, mean in zip(steps, means_of)]
-    mean_values = [v[0] for v in means["/score_mean:Scalars:scalars"]]
-    assert list(zip(means["episode"], means["step_in_episode"])) == [(e, s) for e, s, _ in expected]
-    assert np.all(np.isnan(mean_values) == np.isnan([m for _, _, m in expected]))
-    np.testing.assert_allclose(mean_values, [m for _, _, m in expected], rtol=1e-6)
+    drawn, logged, messages = _logged_compared(tmp_path / "w.rrd", tmp_path / "w.mcap")
+    assert [(e, s) for e, s, _ in drawn] == [(e, s) for e, s, _ in expected]
+    np.testing.assert_allclose([v for _, _, v in drawn], [m for _, _, m in expected], rtol=1e-6)  # NaN where NaN
     alarmed = [s.step for s in memory.steps if s.episode == 0 and s.alarm]
     assert alarmed and all(m > 3.0 for e, s, m in expected if e == 0 and s in alarmed)  # what the alarm compared
-    with open(tmp_path / "w.mcap", "rb") as f:
-        logged = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages() if c.topic == "/oodmon/step"]
-    assert [(m["episode"], m["step"]) for m in logged] == [(e, s) for e, s, _ in expected]
-    assert [m["score_mean"] is None for m in logged] == [bool(np.isnan(m)) for _, _, m in expected]
-    np.testing.assert_allclose([np.nan if m["score_mean"] is None else m["score_mean"] for m in logged],
-                               [m for _, _, m in expected], rtol=1e-12)
-    assert [{k: v for k, v in m.items() if k != "score_mean"} for m in logged] == [s.to_json() for s in memory.steps]
+    assert [(m["episode"], m["step"]) for m in messages] == [(e, s) for e, s, _ in expected]
+    np.testing.assert_allclose(logged, [m for _, _, m in expected], rtol=1e-12)
+    assert [{k: v for k, v in m.items() if k != "compared"} for m in messages] == [s.to_json() for s in memory.steps]
     _run(agent, [RerunSink(tmp_path / "each.rrd")], episodes=1)  # each step's own score: no such series
-    assert "/score_mean:Scalars:scalars" not in _rrd_table(tmp_path / "each.rrd").columns
-    # (an MCAP log of such a rule holds no score_mean: test_mcap_holds_every_step_of_every_episode_and_the_run_metadata)
+    assert "/compared:Scalars:scalars" not in _rrd_table(tmp_path / "each.rrd").columns
+    # (an MCAP log of such a rule holds no compared: test_mcap_holds_every_step_of_every_episode_and_the_run_metadata)
     # with a warm-up the alarm's window fills from the warm-up's end (AlarmTracker keeps no score before it)
     from oodmon.monitor import Threshold
 
@@ -191,9 +195,40 @@ def test_the_logs_of_a_rule_with_a_window_hold_the_mean_the_alarm_compares(agent
     with Monitor(agent, threshold=warm, sinks=[memory, RerunSink(tmp_path / "warm.rrd")]) as monitor:
         monitor.run_episode(env, seed=0, variant="cartpole:length=2.0")
     frame = _rrd_table(tmp_path / "warm.rrd")
-    got = [v[0] for v in frame.dropna(subset=["/score_mean:Scalars:scalars"])["/score_mean:Scalars:scalars"]]
+    got = [v[0] for v in frame.dropna(subset=["/compared:Scalars:scalars"])["/compared:Scalars:scalars"]]
     scores = np.array([s.score for s in memory.steps])
     np.testing.assert_allclose(got, [np.nan] * 14 + trailing_mean(scores[10:], 5).tolist(), rtol=1e-6)
+
+
+def test_the_logs_of_a_sequential_rule_hold_the_statistic_the_alarm_compares(tmp_path):
+    """A CUSUM or martingale rule compares its statistic with the threshold, on a scale of its own:
+    the viewers drew the raw score against that threshold. Both logs hold the statistic at every
+    step (``/compared``, ``compared``), the path ``sequential_path`` computes from the scores, and
+    each first alarm is where it first exceeds the threshold."""
+    from oodmon.monitor.detectors import detectors_for
+    from oodmon.monitor.sequential import Reference, sequential_path
+    from oodmon.monitor.threshold import calibrate
+
+    ensemble = load("cartpole", "ensemble")  # its dynamics detector sees the longer pole (the spread barely)
+    watched = {"detectors": detectors_for(ensemble), "detector": "dynamics"}
+    memory = MemorySink()
+    with Monitor(ensemble, threshold=None, sinks=[memory], **watched) as monitor:  # ID scores: reference, calibration
+        for seed in range(6):
+            monitor.run_episode(parse_variant("cartpole").make(), seed=100 + seed, max_steps=150)
+    id_scores = [np.array([s.score for s in memory.steps if s.episode == e]) for e in range(6)]
+    reference = Reference.from_episodes(id_scores[:3])
+    env = parse_variant("cartpole:length=2.0").make(onset_step=30)
+    for rule in ("cusum", "martingale"):
+        threshold = calibrate(id_scores[3:], 0.5, confidence=None, rule=rule, reference=reference, detector="dynamics")
+        memory = MemorySink()
+        sinks = [memory, RerunSink(tmp_path / f"{rule}.rrd"), McapSink(tmp_path / f"{rule}.mcap")]
+        with Monitor(ensemble, threshold=threshold, sinks=sinks, **watched) as monitor:
+            record = monitor.run_episode(env, seed=0, variant="cartpole:length=2.0")
+        path = sequential_path(rule, reference, np.array([s.score for s in memory.steps]))
+        drawn, logged, _ = _logged_compared(tmp_path / f"{rule}.rrd", tmp_path / f"{rule}.mcap")
+        np.testing.assert_allclose([v for _, _, v in drawn], path, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(logged, path, rtol=1e-9, atol=1e-12)
+        assert record.first_alarm_step is not None and record.first_alarm_step == int(np.argmax(path > threshold.value))
 
 
 def _rrd_table(path):
@@ -884,7 +919,7 @@ def test_the_shipped_foxglove_layout_shows_what_the_logs_hold(agent, tmp_path):
         elif kind == "Image":
             assert settings["imageMode"]["imageTopic"] in messages
     assert {"score", "threshold", "shifted"} <= set(step) and "spread" in step["scores"]
-    assert isinstance(step["score_mean"], float)  # the last step's: the window full
+    assert isinstance(step["compared"], float)  # the last step's: the window full
 
 
 def _outcome(write, record):
@@ -898,15 +933,15 @@ def test_a_step_message_is_the_bytes_json_dumps_writes_for_every_kind_of_value(m
     """The MCAP sink writes the usual step's JSON itself (a quarter less time than json.dumps): for
     steps of every kind of value a monitor or a user's sink hands it (ints, floats, np.float64,
     NaN and infinities, lists of ints, np.float32, bools, numpy bools, names of any characters),
-    the same text as json.dumps with its nulls, or the same error; under a rule with a window, with
-    the window's mean last."""
+    the same text as json.dumps with its nulls, or the same error; under a rule with a window or a
+    sequential one, with what it compares last."""
     from oodmon.monitor.records import StepRecord
     from oodmon.monitor.sinks import mcap
     from oodmon.monitor.sinks.mcap import _step_json, _step_json_dumps
 
     slow = []  # the steps the sink's own writing handed to json.dumps
-    monkeypatch.setattr(mcap, "_step_json_dumps", lambda record, windowed=False: slow.append(record) or
-                        _step_json_dumps(record, windowed))
+    monkeypatch.setattr(mcap, "_step_json_dumps", lambda record, compares=False: slow.append(record) or
+                        _step_json_dumps(record, compares))
     rng = np.random.default_rng(20261130)
     floats = [0.0, -0.0, 1.5, -2.25e-7, 1e300, 12.345678901234567, np.float64(0.1), float("nan"), float("inf"),
               -float("inf"), np.float32(0.5), 3, True, None]
@@ -935,10 +970,10 @@ def test_a_step_message_is_the_bytes_json_dumps_writes_for_every_kind_of_value(m
             score=pick(floats), threshold=pick(floats, 0.7) if rng.random() < 0.8 else float("nan"),
             alarm=bool(rng.random() < 0.5) if rng.random() < 0.97 else np.bool_(True), shifted=bool(rng.random() < 0.5),
             observation=None if rng.random() < 0.3 else numbers(int(rng.integers(1, 6))), scores=scores,
-            window_mean=pick(floats, 0.7) if rng.random() < 0.8 else float("nan"))
-        windowed = bool(rng.random() < 0.5)  # a rule with a window: its mean too (format 9)
-        expected = _outcome(lambda r: _step_json_dumps(r, windowed), record)
-        assert _outcome(lambda r: _step_json(r, windowed), record) == expected, record
+            compared=pick(floats, 0.7) if rng.random() < 0.8 else float("nan"))
+        compares = bool(rng.random() < 0.5)  # a rule with a window or a sequential one: what it compares (format 9)
+        expected = _outcome(lambda r: _step_json_dumps(r, compares), record)
+        assert _outcome(lambda r: _step_json(r, compares), record) == expected, record
         if isinstance(expected, str):
             json.loads(expected)  # JSON that any parser reads: the nulls, no NaN
         outcomes.add("text" if isinstance(expected, str) else expected.__name__)

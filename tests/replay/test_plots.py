@@ -134,6 +134,15 @@ def test_a_windowed_rules_traces_draw_the_mean_the_alarm_compares(tmp_path, monk
     assert "episode 0 of w.mcap" in drawn[1].axes[0].get_title()  # the highest score, 4.0
     assert [line.get_label() for line in drawn[1].axes[0].get_lines()][:1] == ["score"]
     assert not any("mean over" in line.get_label() for line in drawn[1].axes[0].get_lines())
+    # a CUSUM compares its statistic with a threshold on a scale of its own: the threshold was drawn on
+    # the score's axis; now it is not, and the title says why
+    from oodmon.monitor.alarms import rule_text
+
+    logs[0].metadata["rule"] = rule_text("2.5", 1, rule="cusum")
+    assert plots.plot_id_alarms(logs, "dropconnect", "pong", tmp_path / "c.png") is not None
+    assert not [line for line in drawn[2].axes[0].get_lines() if line.get_linestyle() == "--"]
+    assert "the alarm compares a CUSUM statistic of the scores with its threshold, 2.5, on a scale of its own: not " \
+           "drawn here" in drawn[2].texts[0].get_text().replace("\n", " ")
 
 
 def test_roc_and_trace_read_the_variants_own_task(tmp_path):

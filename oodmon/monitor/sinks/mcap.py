@@ -41,7 +41,7 @@ from oodmon.monitor import logformat
 #: A Foxglove (or Lichtblick) layout for these logs: score, threshold and every detector plotted,
 #: the frames, the alarms. Layouts -> Import from file.
 FOXGLOVE_LAYOUT = Path(__file__).with_name("foxglove_layout.json")
-from oodmon.monitor.alarms import AlarmEvent, rule_window
+from oodmon.monitor.alarms import AlarmEvent, compared_name
 from oodmon.monitor.logformat import (
     EPISODE_SCHEMA, EPISODE_SCORES_SCHEMA, EPISODE_START_SCHEMA, MCAP_MAGIC, STEP_SCHEMA,
 )
@@ -85,11 +85,11 @@ def _floats(values) -> str:
     return ", ".join(map(_FLOAT, values))
 
 
-def _step_json(record: StepRecord, windowed: bool = False) -> str:
+def _step_json(record: StepRecord, compares: bool = False) -> str:
     """A step's message, every non-finite number written as ``null`` (the score arrays keep them):
     the bytes of ``json.dumps(record.to_json())`` with those nulls (:func:`_step_json_dumps`), and
-    the window's mean the alarm compared (``score_mean``, format 9) last where the rule has a
-    window (``windowed``).
+    last what the alarm rule compared with the threshold (``compared``, format 9) where that is
+    not the score (``compares``: a window's mean, a sequential rule's statistic).
 
     Written out for the usual step (whole numbers that are ints, the rest floats in lists or alone,
     all finite), without json.dumps's walk over a dict: at every step this is the MCAP sink's
@@ -102,13 +102,13 @@ def _step_json(record: StepRecord, windowed: bool = False) -> str:
         mean, std, observation = record.mean, record.std, record.observation
         if type(episode) is not int or type(step) is not int or type(alarm) is not bool or type(shifted) is not bool \
                 or type(mean) is not list or type(std) is not list or (observation is not None and type(observation) is not list):
-            return _step_json_dumps(record, windowed)
+            return _step_json_dumps(record, compares)
         if type(action) is int:
             action_text = int.__repr__(action)
         elif type(action) is list:
             action_text = f"[{_floats(action)}]"
         else:
-            return _step_json_dumps(record, windowed)
+            return _step_json_dumps(record, compares)
         mean_text, std_text, score_text = _floats(mean), _floats(std), _FLOAT(record.score)
         threshold = record.threshold
         text = (f'{{"episode": {int.__repr__(episode)}, "step": {int.__repr__(step)}, "action": {action_text}, '
@@ -126,28 +126,28 @@ def _step_json(record: StepRecord, windowed: bool = False) -> str:
                 key = _KEYS.get(name)
                 if key is None:
                     if type(name) is not str:  # json.dumps writes a number's key in quotes
-                        return _step_json_dumps(record, windowed)
+                        return _step_json_dumps(record, compares)
                     key = _KEYS[name] = json.dumps(name)
                 value_text = _FLOAT(value)
                 numbers.append(value_text)
                 parts.append(f"{key}: {value_text}")
             text += f', "scores": {{{", ".join(parts)}}}'
-        if windowed:  # NaN until the window fills: null, as the threshold's
-            mean = record.window_mean
-            text += f', "score_mean": {_FLOAT(mean) if math.isfinite(mean) else "null"}'
+        if compares:  # NaN until a window fills: null, as the threshold's
+            compared = record.compared
+            text += f', "compared": {_FLOAT(compared) if math.isfinite(compared) else "null"}'
     except TypeError:  # a number that is not a float where one is expected: json.dumps says what it makes of it
-        return _step_json_dumps(record, windowed)
+        return _step_json_dumps(record, compares)
     if "n" in "".join(numbers):  # nan, inf: nulls
-        return _step_json_dumps(record, windowed)
+        return _step_json_dumps(record, compares)
     return text + "}"
 
 
-def _step_json_dumps(record: StepRecord, windowed: bool = False) -> str:
+def _step_json_dumps(record: StepRecord, compares: bool = False) -> str:
     """:func:`_step_json` by json.dumps, for any step."""
     data = record.to_json()
     data["threshold"] = _json_number(data["threshold"])  # NaN in every run without a threshold
-    if windowed:
-        data["score_mean"] = _json_number(record.window_mean)
+    if compares:
+        data["compared"] = _json_number(record.compared)
     text = json.dumps(data)
     if "NaN" not in text and "Infinity" not in text:  # json.dumps's words for them; no key holds them
         return text
@@ -246,8 +246,8 @@ class McapSink:
         for path in earlier:
             path.unlink()
         self._run = run
-        # a rule with a window compares the mean of its last scores: each step message holds it (format 9)
-        self._windowed = rule_window(run.rule)[0] > 1
+        # a rule that compares a window's mean or a sequential statistic: each step message holds it (format 9)
+        self._compares = compared_name(run.rule) is not None
         self.paths = []
         # the run's id in its log (each part's): replay tells one run's parts, and copies, by it
         self._run_id = uuid.uuid4().hex
@@ -312,7 +312,7 @@ class McapSink:
     def write_step(self, record: StepRecord) -> None:
         self._next_part_if_due()
         now = time.time_ns()
-        self._add(self._step_channel, _step_json(record, self._windowed).encode(), now)
+        self._add(self._step_channel, _step_json(record, self._compares).encode(), now)
         self._scores.append(record.score)
         self._shifted.append(record.shifted)
         self._alarm.append(record.alarm)

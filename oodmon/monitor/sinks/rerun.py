@@ -1,8 +1,8 @@
 """Log a monitored run to Rerun: an ``.rrd`` file, a spawned viewer, a served stream, or a URL.
 
 Timeline ``step`` counts the run's steps. Entities: ``/score`` (the alarm's) and ``/threshold``;
-under a rule with a window (its mean over the last w steps against the threshold), ``/score_mean``,
-that mean, which the alarm compares;
+under a rule that compares something else with the threshold (the mean over the last w steps, a
+CUSUM or martingale statistic), ``/compared``, that value;
 ``/detectors/<name>`` (every detector's score);
 ``/uncertainty/<action>`` with the samples' mean and the band mean - std .. mean + std;
 ``/observation`` (vector tasks; a discrete observation as each reading's value, not the one-hot
@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.alarms import AlarmEvent, rule_window
+from oodmon.monitor.alarms import AlarmEvent, compared_name
 from oodmon.monitor.records import EpisodeRecord, RunInfo, StepRecord
 from oodmon.monitor.sinks.base import SinkWarning, check_existing, claim_file
 from oodmon.validation import is_whole
@@ -105,7 +105,7 @@ def default_blueprint(task: str, n_outputs: int):
         origin="/observation", name="observation")
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.TimeSeriesView(origin="/", contents=["/score", "/score_mean", "/threshold", "/shifted"],
+            rrb.TimeSeriesView(origin="/", contents=["/score", "/compared", "/threshold", "/shifted"],
                                name="alarm's score and threshold"),
             rrb.TimeSeriesView(origin="/uncertainty", name="samples: mean and mean ± std per action"),
             rrb.TimeSeriesView(origin="/detectors", name="every detector's score"),
@@ -225,10 +225,10 @@ class RerunSink:
 
         self._rr = rr
         self._task = run.task
-        # The alarm's rule with a window compares the mean of its last w scores (the tracker's, each
-        # record's window_mean), which the raw score alone crossed again and again where no alarm
-        # came (Pong's features, 2026-12-07)
-        self._window = rule_window(run.rule)[0]
+        # A rule with a window compares the mean of its last w scores, a sequential rule its
+        # statistic (the tracker's, each record's compared), where the raw score alone crossed the
+        # threshold again and again without an alarm (Pong's features, 2026-12-07)
+        self._compared = compared_name(run.rule)
         # A discrete observation's values per reading (the monitor's about.states), whose one-hot
         # blocks /observation draws as each reading's value
         self._states = [int(n) for n in run.about.get("states", "").split(",") if n.strip().isdigit()]
@@ -410,9 +410,9 @@ class RerunSink:
                                                             colors=[[31, 119, 180], [160, 190, 230], [160, 190, 230]]),
                     static=True)
         rec.log("/score", rr.SeriesLines(names=["score"], colors=[[214, 39, 40]]), static=True)
-        if self._window > 1:
-            rec.log("/score_mean", rr.SeriesLines(names=[f"mean over {self._window} steps (the alarm's)"],
-                                                  colors=[[120, 0, 0]], widths=[2.0]), static=True)
+        if self._compared is not None:
+            rec.log("/compared", rr.SeriesLines(names=[f"{self._compared} (what the alarm compares)"],
+                                                colors=[[120, 0, 0]], widths=[2.0]), static=True)
         rec.log("/threshold", rr.SeriesLines(names=["threshold"], colors=[[60, 60, 60]]), static=True)
         rec.log("/shifted", rr.SeriesLines(names=["shift active"], colors=[[255, 160, 0]]), static=True)
         rec.send_blueprint(default_blueprint(self._task, n_outputs))
@@ -435,8 +435,8 @@ class RerunSink:
             band = np.stack([mean[:, a], mean[:, a] - std[:, a], mean[:, a] + std[:, a]], axis=1)
             self._send(box, f"/uncertainty/{self._label}{a}", index, band)
         self._send(box, "/score", index, [r.score for r in records])
-        if self._window > 1:
-            self._send(box, "/score_mean", index, [r.window_mean for r in records])
+        if self._compared is not None:
+            self._send(box, "/compared", index, [r.compared for r in records])
         self._send(box, "/shifted", index, [float(r.shifted) for r in records])
         for name in records[0].scores:  # every detector's score, on a series of its own
             self._send(box, f"/detectors/{name}", index, [r.scores.get(name, np.nan) for r in records])
