@@ -25,6 +25,7 @@ from oodmon.envs.checks import space_mismatch, step_naming_refusal
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env, wrappers_of
 from oodmon.envs.shift import AnotherEnv, another_env_id
 from oodmon.errors import ConfigError
+from oodmon.monitor.alarms import compared_name
 from oodmon.monitor.monitor import Monitor, NonFiniteObservationWarning, PolicyCannotAct, _frame
 
 __all__ = ["MonitoredEnv", "check_env_of", "check_one_env"]
@@ -144,6 +145,7 @@ class MonitoredEnv(gymnasium.Wrapper):
         super().__init__(env)
         self.monitor = monitor
         self.variant = variant
+        self._compares = compared_name(monitor.tracker.rule) is not None  # info["oodmon"]["compared"]
         self._obs: Any = None
         self._info: dict = {}
 
@@ -195,6 +197,8 @@ class MonitoredEnv(gymnasium.Wrapper):
         record, monitor = self.monitor.last_step, self.monitor
         telemetry = {"step": record.step, "scores": dict(record.scores), "score": record.score,
                      "detector": monitor.detector, "threshold": record.threshold, "alarm": record.alarm}
+        if self._compares:  # a window's mean, a sequential statistic: what the threshold is compared with
+            telemetry["compared"] = record.compared
         if record.alarm:  # what raised the score at this step (AlarmEvent.cause), while the alarm holds
             telemetry["cause"] = monitor.last_cause
         if monitor.stop_event is not None:

@@ -135,6 +135,23 @@ def test_monitored_env_wrapper_lets_the_policy_act_or_takes_yours(agent):
     assert np.isnan(sink.steps[0].threshold) and not any(s.alarm for s in sink.steps)
 
 
+def test_a_deployed_envs_info_says_what_a_windowed_rule_compares_and_nothing_more_under_each_score(agent):
+    """Under a rule with a window the alarm compares the mean of the last scores with the threshold,
+    which ``info["oodmon"]["score"]`` is not: ``compared`` holds it (NaN until the window fills);
+    a rule that compares each score adds nothing (the sequential rules' statistic: test_sinks)."""
+    sink = MemorySink()
+    env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"), Monitor(agent, threshold=1e9, window=3, sinks=[sink]))
+    env.reset(seed=1)
+    compared = [env.step()[-1]["oodmon"]["compared"] for _ in range(6)]
+    env.close()
+    scores = [s.score for s in sink.steps]
+    np.testing.assert_allclose(compared, [np.nan, np.nan, *[np.mean(scores[k - 2:k + 1]) for k in range(2, 6)]])
+    env = MonitoredEnv(gymnasium.make("oodmon/CartPole-v1"), Monitor(agent, threshold=1e9))
+    env.reset(seed=1)
+    assert "compared" not in env.step()[-1]["oodmon"]
+    env.close()
+
+
 def test_an_episode_begun_before_the_last_one_ended_ends_it_and_is_logged(agent, tmp_path):
     # A loop of your own that never called end_episode: each begin_episode dropped the running
     # episode's record, and the log held 10 steps under no episode (replay: none) (2026-12-01)
