@@ -242,7 +242,8 @@ def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, tit
     # the score the alarm reads: the spread, an uncertainty, or a learned detector's (a surprise, a distance)
     axes[0].set_ylabel("alarm's score" if scale is None else "alarm's score (symlog)")
     axes[-1].legend(loc="upper left", fontsize=8)
-    fig.suptitle(textwrap.fill(title, 75 * len(panels)), fontsize=9)  # (one panel's width holds about 75 characters)
+    # (one panel's width holds about 70 characters: 75 ran past its edges by a letter, 2026-12-07)
+    fig.suptitle(textwrap.fill(title, 70 * len(panels)), fontsize=9)
     return save_figure(fig, path)
 
 
