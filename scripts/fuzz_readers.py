@@ -35,7 +35,8 @@ is a torn log: its whole episodes before the tear), 300 refused, nothing else.
 The readers: ``log`` (replay's ``read_log`` of a small format-6 log, two CartPole episodes in
 segments of 4 steps: a cut or flip is a torn or damaged log, recovered), ``steps`` (``read_steps``
 of a Pong log's whole episodes, two games of 5 decisions: the actions and frames
-``fit-detectors --from-logs`` fits on), ``vecnorm`` (SB3
+``fit-detectors --from-logs`` fits on), ``compared`` (``read_compared`` of a CartPole log under a
+rule with a window, format 9: what replay's traces draw of a sequential rule), ``vecnorm`` (SB3
 VecNormalize statistics, read without unpickling), ``sb3`` (a user's SB3 model file, its parts
 damaged one at a time and zipped again: its ``data`` read by oodmon's restricted unpickler),
 ``model`` (a zoo agent's folder), ``detectors``
@@ -75,6 +76,20 @@ def _make_log(folder: Path) -> dict[str, Path]:
     with Monitor(load("cartpole", "dropout", seed=0), threshold=0.5, sinks=[McapSink(path)], segment_steps=4) as monitor:
         for seed in range(2):
             monitor.run_episode(parse_variant(spec).make(onset_step=3), seed=seed, max_steps=10, variant=spec)
+    return {"log.mcap": path}
+
+
+def _make_compared(folder: Path) -> dict[str, Path]:
+    """A CartPole log of two episodes under a rule with a window: each step message holds what the
+    alarm compares (``compared``, format 9), which replay's traces read of a sequential rule."""
+    from oodmon.agents import load
+    from oodmon.envs import parse_variant
+    from oodmon.monitor import McapSink, Monitor
+
+    path = folder / "log.mcap"
+    with Monitor(load("cartpole", "dropout", seed=0), threshold=0.5, window=3, sinks=[McapSink(path)]) as monitor:
+        for seed in range(2):
+            monitor.run_episode(parse_variant("cartpole").make(), seed=seed, max_steps=10)
     return {"log.mcap": path}
 
 
@@ -223,12 +238,14 @@ def _readers() -> dict[str, tuple[Callable[[Path], dict[str, Path]], Callable[[P
     from oodmon.monitor.threshold import Threshold
     from oodmon.replay import read_log
     from oodmon.replay.check import load_baseline
+    from oodmon.replay.reader import read_compared
 
     zoo = ROOT / "oodmon" / "zoo"
     bench = ROOT / "results" / "bench" / "cartpole.json"
     return {
         "log": (_make_log, lambda d: read_log(d / "log.mcap")),
         "steps": (_make_steps, _read_steps),
+        "compared": (_make_compared, lambda d: read_compared(d / "log.mcap", [0, 1])),
         "vecnorm": (_make_vecnorm, lambda d: load_vec_normalize(d / "vecnormalize.pkl")),
         "sb3": (_make_sb3, _read_sb3),
         "model": (lambda _: _folder_files(zoo / "cartpole-dropout"), load_agent),

@@ -32,7 +32,7 @@ from oodmon.outputs import safe_filename, save_figure
 from oodmon.replay.failures import failure_known
 from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, is_id_episode,
                                    is_id_variant, rankable, roc_points, shifted_alarms)
-from oodmon.replay.reader import EpisodeLog, RunLog
+from oodmon.replay.reader import EpisodeLog, RunLog, read_compared
 
 if TYPE_CHECKING:
     from oodmon.monitor.threshold import Threshold
@@ -117,22 +117,21 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
     """The score over one ID episode beside one episode of ``variant`` (the paper's Figures 4, 5);
     the episode of ``variant`` alone when the logs hold no ID episode (a run whose shift begins
     mid-episode: its steps before the onset are the ID ones)."""
-    id_episode = shifted_episode = None
+    id_episode = shifted_episode = id_log = shifted_log = None
     threshold, rule, text = float("nan"), (1, 0), ""
     for log in _runs_of(logs, method, variant):
         for episode in log.episodes:
             if id_episode is None and is_id_episode(episode, log.task):
-                id_episode, threshold = episode, log.threshold
+                id_episode, id_log, threshold = episode, log, log.threshold
             if shifted_episode is None and episode.variant == variant:
                 text = log.metadata.get("rule", "")
-                shifted_episode, threshold, rule = episode, log.threshold, rule_window(text)
+                shifted_episode, shifted_log, threshold, rule = episode, log, log.threshold, rule_window(text)
     if shifted_episode is None:
         return None
     panels = [] if id_episode is None else [(id_episode, f"ID: {episode_name(id_episode)}")]
     panels.append((shifted_episode, f"shifted: {episode_name(shifted_episode)}"))
     title = f"{method}, {_alarm_detectors(logs, method, variant)} detector: alarms as vertical lines"
-    words = _sequential_words(text, threshold)
-    return _draw_traces(panels, threshold, title + words, path, rule, threshold_drawn=not words)
+    return _draw_with_rule(panels, [id_log, shifted_log][-len(panels):], threshold, title, path, rule, text)
 
 
 def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | Path) -> Path | None:
@@ -141,49 +140,85 @@ def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | P
     threshold (its score, or with a rule's window the mean the alarm compares), each drawn as
     :func:`plot_trace` draws one, or the calm one alone where none alarmed; ``None`` where the logs
     hold no ID episode of a run with a threshold."""
-    episodes = [(episode, (log.threshold, rule_window(log.metadata.get("rule", ""))), log.path.name) for log in logs
+    episodes = [(episode, (log.threshold, rule_window(log.metadata.get("rule", ""))), log) for log in logs
                 if log.method == method and log.task == task and np.isfinite(log.threshold)
                 for episode in log.episodes if is_id_episode(episode, log.task)]
     if not episodes:
         return None
-    alarmed = [(episode, name) for episode, _, name in episodes if episode.alarm.any()]
+    alarmed = [(episode, log) for episode, _, log in episodes if episode.alarm.any()]
     threshold, rule = next((other for episode, other, _ in episodes if episode.alarm.any()), episodes[0][1])
-
-    def margin(episode: EpisodeLog) -> float:  # how close what the alarm compares came to the threshold
-        compared = _compared(episode.scores, rule)[1]
-        finite = compared[np.isfinite(compared)]
-        return float(finite.max()) - threshold if len(finite) else -math.inf
-
-    calm = [(episode, name) for episode, other, name in episodes
+    calm = [(episode, log) for episode, other, log in episodes
             if other == (threshold, rule) and not episode.alarm.any()]
     text = next((log.metadata.get("rule", "") for log in logs if log.method == method and log.task == task
                  and log.threshold == threshold), "")
-    panels = []
+    logged = _logged_statistics(text, calm + alarmed[:1])  # a sequential rule's, as its logs hold it
+
+    def margin(episode: EpisodeLog, log: RunLog) -> float:  # how close what the alarm compares came to the threshold
+        compared = logged.get((log.path, episode.episode))
+        if compared is None:
+            compared = _compared(episode.scores, rule)[1]
+        finite = compared[np.isfinite(compared)]
+        return float(finite.max()) - threshold if len(finite) else -math.inf
+
+    panels, sources = [], []
     if alarmed:
-        first, log_name = alarmed[0]
-        panels.append((first, f"alarmed at step {alarm_events(first.alarm)[0]}: episode {first.episode} of {log_name}, "
-                              f"{episode_name(first)}"))
+        first, log = alarmed[0]
+        panels.append((first, f"alarmed at step {alarm_events(first.alarm)[0]}: episode {first.episode} of "
+                              f"{log.path.name}, {episode_name(first)}"))
+        sources.append(log)
     if calm:
-        highest, log_name = max(calm, key=lambda pair: margin(pair[0]))
-        panels.append((highest, f"no alarm, the closest to the threshold: episode {highest.episode} of {log_name}, "
-                                f"{episode_name(highest)}"))
+        highest, log = max(calm, key=lambda pair: margin(*pair))
+        panels.append((highest, f"no alarm, the closest to the threshold: episode {highest.episode} of "
+                                f"{log.path.name}, {episode_name(highest)}"))
+        sources.append(log)
     detectors = "/".join(sorted({log.detector for log in logs if log.method == method and log.task == task}))
     title = (f"{method}, {detectors} detector, {task}: {len(alarmed)} of {len(episodes)} ID episode(s) alarmed "
              "(alarms as vertical lines)")
-    words = _sequential_words(text, threshold)
-    return _draw_traces(panels, threshold, title + words, path, rule, threshold_drawn=not words)
+    return _draw_with_rule(panels, sources, threshold, title, path, rule, text, logged)
 
 
-def _sequential_words(text: str, threshold: float) -> str:
-    """What a trace's title adds under a sequential rule (a log's ``rule``, in words): the alarm
-    compares a statistic of the scores with the threshold, on a scale of its own, so the threshold
-    is not drawn on the score's axis (Rerun and Foxglove draw the statistic from logs since format
-    9); ``""`` under any other rule."""
+def _logged_statistics(text: str, episodes: Sequence[tuple[EpisodeLog, RunLog]]) -> dict[tuple[Path, int], np.ndarray]:
+    """Under a sequential rule (``text``, a log's ``rule`` in words), the statistic each step
+    message of ``episodes`` holds (format 9, :func:`~oodmon.replay.reader.read_compared`; one
+    pass over each log), by (log path, episode), of the episodes whose every step holds it; ``{}``
+    under any other rule."""
     name = compared_name(text)
     if name is None or name.startswith("mean over"):
-        return ""
-    return (f"; the alarm compares a {name} statistic of the scores with its threshold, {threshold:.4g}, on a scale "
-            "of its own: not drawn here (Rerun's /compared and Foxglove draw it, from logs since format 9)")
+        return {}
+    wanted: dict[Path, dict[int, int]] = defaultdict(dict)
+    for episode, log in episodes:
+        wanted[log.path][episode.episode] = episode.length
+    found = {}
+    for path, lengths in wanted.items():
+        try:
+            read = read_compared(path, list(lengths))
+        except OSError:  # (a log gone since it was read: drawn as an older one's)
+            continue
+        found.update({(path, k): values for k, values in read.items() if len(values) == lengths[k]})
+    return found
+
+
+def _draw_with_rule(panels: Sequence[tuple[EpisodeLog, str]], sources: Sequence[RunLog], threshold: float, title: str,
+                    path: str | Path, rule: tuple[int, int], text: str,
+                    logged: Mapping[tuple[Path, int], np.ndarray] | None = None) -> Path:
+    """:func:`_draw_traces` of ``panels`` (each episode's log in ``sources``) under the rule ``text``
+    (a log's ``rule``, in words). A sequential rule compares a statistic of the scores with its
+    threshold, on a scale of its own: the statistic each step message holds (format 9,
+    :func:`~oodmon.replay.reader.read_compared`) is drawn on a right axis with the threshold, and
+    where the logs are older neither is drawn, which the title says. ``logged``: the statistics
+    :func:`_logged_statistics` read already."""
+    name = compared_name(text)
+    if name is None or name.startswith("mean over"):
+        return _draw_traces(panels, threshold, title, path, rule)
+    if logged is None:
+        logged = _logged_statistics(text, [(episode, log) for (episode, _), log in zip(panels, sources)])
+    statistics = [logged.get((log.path, episode.episode)) for (episode, _), log in zip(panels, sources)]
+    if all(statistic is not None for statistic in statistics):
+        words = f"; the alarm compares the {name} statistic (right axis, as logged) with its threshold"
+        return _draw_traces(panels, threshold, title + words, path, rule, statistics=(name, statistics))
+    words = (f"; the alarm compares a {name} statistic of the scores with its threshold, {threshold:.4g}, on a scale "
+             "of its own: not drawn here (the logs are older than format 9, whose steps hold it)")
+    return _draw_traces(panels, float("nan"), title + words, path, rule)
 
 
 def _compared(scores: np.ndarray, rule: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -196,18 +231,19 @@ def _compared(scores: np.ndarray, rule: tuple[int, int]) -> tuple[np.ndarray, np
 
 
 def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, title: str, path: str | Path,
-                 rule: tuple[int, int] = (1, 0), *, threshold_drawn: bool = True) -> Path:
+                 rule: tuple[int, int] = (1, 0), *,
+                 statistics: tuple[str, Sequence[np.ndarray]] | None = None) -> Path:
     """Each episode's score over its steps in a panel of its own (titled), sharing the score axis:
     the threshold dashed, the shifted steps shaded, each alarm's start a vertical line, a NaN or
     infinite score marked at the panel's edge; a symlog axis where :func:`score_scale` says. With a
     ``rule``'s window (:func:`~oodmon.monitor.alarms.rule_window`) over 1 the score is drawn faint,
     and the mean over the window (after the rule's warm-up), which the alarm compares with the
     threshold, over it (the score alone crossed the threshold where no alarm came:
-    Pong's features, 2026-12-07). ``threshold_drawn`` false: a threshold on another scale than the
-    score's (a sequential rule's), not drawn."""
+    Pong's features, 2026-12-07). ``statistics``: a sequential rule's name and its statistic at
+    each step of each panel's episode, drawn on a right axis with the threshold, which is on its
+    scale (not the score's)."""
     plt = _pyplot()
-    if not threshold_drawn:
-        threshold = float("nan")
+    on_score_axis = threshold if statistics is None else float("nan")
     fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.4), dpi=110, sharey=True, squeeze=False)
     axes = axes[0]
     for ax, (episode, name) in zip(axes, panels):
@@ -223,8 +259,8 @@ def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, tit
                 ax.scatter(steps[infinite], np.full(int(infinite.sum()), height), transform=ax.get_xaxis_transform(),
                            marker="^" if side == "top" else "v", s=12, color="tab:red", clip_on=False,
                            label=f"score {'+' if side == 'top' else '-'}inf (at the {side})")
-        if np.isfinite(threshold):
-            ax.axhline(threshold, color="black", linewidth=1, linestyle="--", label="threshold")
+        if np.isfinite(on_score_axis):
+            ax.axhline(on_score_axis, color="black", linewidth=1, linestyle="--", label="threshold")
         if episode.shifted.any():
             ax.fill_between(steps, 0, 1, where=episode.shifted, transform=ax.get_xaxis_transform(),
                             color="tab:orange", alpha=0.15, label="shift active")
@@ -232,9 +268,23 @@ def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, tit
             ax.axvline(event, color="tab:purple", linewidth=1)
         ax.set_title(name, fontsize=9)
         ax.set_xlabel("step")
-    scale = score_scale([episode for episode, _ in panels], threshold)
+    twins = []
+    for ax, statistic in zip(axes, [] if statistics is None else statistics[1]):
+        twin = ax.twinx()  # the statistic's own scale, the threshold's too
+        twin.plot(np.arange(len(statistic)), statistic, color="tab:blue", linewidth=1.5,
+                  label=f"{statistics[0]} (the alarm's; right axis)")
+        if np.isfinite(threshold):
+            twin.axhline(threshold, color="black", linewidth=1, linestyle="--", label="threshold (right axis)")
+        twins.append(twin)
+    if twins:  # one scale for every panel's statistic, as the scores share theirs
+        top = max([threshold] + [float(np.nanmax(t.get_lines()[0].get_ydata(), initial=0.0)) for t in twins])
+        for twin in twins:
+            twin.set_ylim(0 if statistics[0] == "CUSUM" else None, top * 1.05 if top > 0 else None)
+        twins[-1].set_ylabel(f"{statistics[0]} statistic")
+        twins[-1].legend(loc="lower right", fontsize=8)
+    scale = score_scale([episode for episode, _ in panels], on_score_axis)
     if scale is not None:  # the axes share y: these calls set every panel's
-        drawn = np.concatenate([episode.scores for episode, _ in panels] + [[threshold]])
+        drawn = np.concatenate([episode.scores for episode, _ in panels] + [[on_score_axis]])
         drawn = drawn[np.isfinite(drawn)]
         low, high = float(drawn.min()), float(drawn.max())
         axes[0].set_yscale("symlog", linthresh=scale)

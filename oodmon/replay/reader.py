@@ -33,7 +33,7 @@ from oodmon.replay.parts import missing_parts, without_copies
 from oodmon.validation import is_finite_real
 
 __all__ = ["EpisodeLog", "MissingPartWarning", "NewerFormatWarning", "RecoveryWarning", "RunLog", "SkippedLogWarning",
-           "read_log", "read_logs", "read_steps"]
+           "read_compared", "read_log", "read_logs", "read_steps"]
 
 _MAGIC = logformat.MCAP_MAGIC
 #: How a Rerun recording (.rrd) begins ("RRF2" from rerun-sdk 0.41; the digit left out, so that
@@ -527,6 +527,33 @@ def read_steps(path: str | Path, episodes: Sequence[int], *, pictures: bool = Fa
         except (ValueError, TypeError) as error:
             raise LogFormatError(f"{path}: episode {k}'s observations or actions are damaged ({error})") from None
     return found
+
+
+def read_compared(path: str | Path, episodes: Sequence[int]) -> dict[int, np.ndarray]:
+    """What the alarm rule compared with the threshold at each step of each of ``episodes`` (a
+    log's step messages' ``compared``, format 9: a window's mean, a CUSUM or martingale
+    statistic; ``null`` read as NaN), in step order; an episode whose steps do not all hold it
+    (a log before format 9, a rule that compares each score, a step missing) is left out. The file
+    is streamed, a torn one up to its tear."""
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+
+    wanted = set(episodes)
+    rows: dict[int, dict[int, float]] = {k: {} for k in wanted}
+    channels: dict[int, str] = {}
+    with open(path, "rb") as f:
+        with contextlib.suppress(Exception):  # (a torn record ends the readable part, as read_steps reads it)
+            for record in StreamReader(f, skip_magic=False, validate_crcs=True).records:
+                if isinstance(record, Channel):
+                    channels[record.id] = record.topic
+                elif isinstance(record, Message) and channels.get(record.channel_id) == _STEP:
+                    row = json.loads(record.data)
+                    value = row.get("compared", "absent")
+                    if row.get("episode") in wanted and isinstance(row.get("step"), int) and (value is None or (
+                            isinstance(value, (int, float)) and not isinstance(value, bool))):
+                        rows[row["episode"]][row["step"]] = math.nan if value is None else float(value)
+    return {k: np.array([steps[t] for t in range(len(steps))]) for k, steps in rows.items()
+            if steps and sorted(steps) == list(range(len(steps)))}
 
 
 def _actions(path: Path, episode: int, rows: list[tuple[int, list, object]]) -> np.ndarray:

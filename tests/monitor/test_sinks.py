@@ -21,6 +21,7 @@ from oodmon.envs import parse_variant
 from oodmon.errors import InvalidParameterError, LogFormatError
 from oodmon.monitor import McapSink, MemorySink, Monitor, RerunSink, SinkWarning
 from oodmon.replay import read_log, read_logs
+from oodmon.replay.reader import read_compared
 
 
 @pytest.fixture(scope="module")
@@ -229,6 +230,23 @@ def test_the_logs_of_a_sequential_rule_hold_the_statistic_the_alarm_compares(tmp
         np.testing.assert_allclose([v for _, _, v in drawn], path, rtol=1e-6, atol=1e-9)
         np.testing.assert_allclose(logged, path, rtol=1e-9, atol=1e-12)
         assert record.first_alarm_step is not None and record.first_alarm_step == int(np.argmax(path > threshold.value))
+        np.testing.assert_array_equal(read_compared(tmp_path / f"{rule}.mcap", [0, 7])[0], logged)  # (7: none)
+        assert list(read_compared(tmp_path / f"{rule}.mcap", [0, 7])) == [0]
+    # replay's trace draws it, as logged, on an axis of its own with the threshold (the scores' axis has neither)
+    from oodmon.replay import plots
+
+    drawn = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
+        assert plots.plot_trace(read_logs([tmp_path / "cusum.mcap"]), "ensemble", "cartpole:length=2.0",
+                                tmp_path / "trace.png") is not None
+    score_axis, twin = drawn[0].axes
+    assert not [line for line in score_axis.get_lines() if line.get_linestyle() == "--"]
+    statistic, dashed = twin.get_lines()
+    np.testing.assert_array_equal(statistic.get_ydata(), read_compared(tmp_path / "cusum.mcap", [0])[0])
+    assert dashed.get_linestyle() == "--" and dashed.get_ydata()[0] == read_logs([tmp_path / "cusum.mcap"])[0].threshold
+    assert "the alarm compares the CUSUM statistic (right axis, as logged) with its threshold" in \
+           drawn[0].texts[0].get_text().replace("\n", " ")
 
 
 def _rrd_table(path):
