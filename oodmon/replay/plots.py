@@ -137,7 +137,8 @@ def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Pa
 def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | Path) -> Path | None:
     """What the alarm made of ``method``'s ID episodes of ``task`` (a deployment's logs, where every
     episode is one): the first that alarmed beside the calm one that came closest to the same
-    threshold (its score, or with a rule's window the mean the alarm compares), each drawn as
+    threshold (its score, or with a rule's window the mean the alarm compares, or a sequential
+    rule's statistic as its log holds it), each drawn as
     :func:`plot_trace` draws one, or the calm one alone where none alarmed; ``None`` where the logs
     hold no ID episode of a run with a threshold."""
     episodes = [(episode, (log.threshold, rule_window(log.metadata.get("rule", ""))), log) for log in logs
