@@ -206,7 +206,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         f"{_noise(threshold.obs_noise)}, "
         f"{threshold.n_steps} steps, rank {threshold.rank} of "
         f"{threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score median "
-        f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote {args.out}"
+        f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}{_statistic_words(threshold)}); "
+        f"{threshold.promise}; wrote {args.out}"
         + (f" (replacing the threshold it held: alarm when {replaced.rule_text}, {replaced.detector} detector, "
            f"{replaced.n_episodes} ID episodes)" if replaced else "")
         + (f"; fitted the detectors into {fitted_to}{_explored(detectors.fitted_for.get('explore'))} (`oodmon run` "
@@ -618,6 +619,16 @@ def _calibrated_beside(folder: Path) -> str:
     if threshold.is_file():
         return f", those `oodmon calibrate` fitted for {threshold}"
     return ""
+
+
+def _statistic_words(threshold) -> str:
+    """What calibrate's line adds under a sequential rule, whose threshold is on its statistic's
+    scale, not the score's: that statistic per calibration episode, its median and largest."""
+    quantiles = threshold.quantiles
+    if "statistic_max" not in quantiles:
+        return ""
+    name = "CUSUM" if threshold.rule == "cusum" else "log10 martingale"
+    return f"; the {name} per episode median {quantiles['statistic_q50']:.4g}, max {quantiles['statistic_max']:.4g}"
 
 
 def _fit_detectors(args: argparse.Namespace) -> int:

@@ -633,7 +633,9 @@ class Threshold:
         far: the target false-alarm rate (per episode, or per step in step mode).
         n_episodes: ID calibration episodes.
         n_steps: ID calibration steps.
-        quantiles: quantiles (and max) of the ID per-step scores, for orientation.
+        quantiles: quantiles (and max) of the ID per-step scores, for orientation; under a
+            sequential rule also the median and the largest of its statistic per calibration
+            episode (``statistic_q50``, ``statistic_max``; since 2026-12-07), the threshold's scale.
         task, method: the agent it was calibrated for.
         window: the rule compares the mean of the last ``window`` scores (1: each score).
         policy_hash: ``sha256:...`` of the weights it was calibrated on (``None``: not recorded).
@@ -1148,6 +1150,8 @@ def calibrate(
         )
     steps = np.concatenate(episodes) if episodes else np.array([0.0])
     quantiles = {f"q{int(q * 100)}": float(np.quantile(steps, q)) for q in _QUANTILES} | {"max": float(steps.max())}
+    if rule != "consecutive" and mode == "episode":  # its statistic is on a scale of its own: said beside the threshold
+        quantiles |= {"statistic_q50": float(np.quantile(ordered, 0.5)), "statistic_max": float(ordered[-1])}
     if mode == "episode":
         _warn_if_outlying(ordered, rank, detector)
         if rule == "consecutive" and not warmup and not above:  # (episodes cut short: no late statistics)

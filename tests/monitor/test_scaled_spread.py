@@ -134,6 +134,10 @@ def test_calibrate_fits_it_when_asked_and_run_alarms_on_it(tmp_path):
                      "--fit-episodes", "30", "--out", str(out))
     assert result.returncode == 0, result.stderr
     assert "scaled_spread detector" in result.stdout
+    # its threshold is on the CUSUM's scale, which the line says beside the scores' (it said the scores' alone)
+    statistic = json.loads(out.read_text())["quantiles"]
+    assert f"; the CUSUM per episode median {statistic['statistic_q50']:.4g}, max {statistic['statistic_max']:.4g})" \
+        in result.stdout.replace("\n", " ")
     assert DetectorSet.load(f"{out}.detectors").names == ["spread", "scaled_spread"]
     assert json.loads(out.read_text())["detector"] == "scaled_spread"
     # the episodes it was made from, recorded (validate refuses them): 45 calibration, 20 reference

@@ -135,7 +135,12 @@ def test_time_normalised_rules_see_a_late_shift_the_burst_hides_from_the_raw_thr
 def test_a_sequential_threshold_file_round_trips_and_old_files_still_load(tmp_path):
     rng = np.random.default_rng(4)
     reference = Reference.from_episodes(_episodes(rng, 5))
-    threshold = calibrate(_episodes(rng, 45), 0.05, rule="cusum", reference=reference)
+    calibration = _episodes(rng, 45)
+    threshold = calibrate(calibration, 0.05, rule="cusum", reference=reference)
+    statistics = [episode_statistic(s, 1, rule="cusum", reference=reference) for s in calibration]
+    assert (threshold.quantiles["statistic_q50"], threshold.quantiles["statistic_max"]) == (
+        float(np.median(statistics)), max(statistics))  # its own scale, beside the scores' quantiles
+    assert "statistic_max" not in calibrate(calibration, 0.05).quantiles
     again = Threshold.load(threshold.save(tmp_path / "t.json"))
     assert again == threshold and again.rule == "cusum" and "CUSUM" in again.rule_text
     np.testing.assert_array_equal(again.reference_scores().p_values(np.arange(5.0)), reference.p_values(np.arange(5.0)))
