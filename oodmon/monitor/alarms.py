@@ -266,14 +266,19 @@ class AlarmEvent:
     cause: str = ""
 
     def text(self) -> str:
-        """One line for a person: where, the value against the threshold, the rule and the cause.
+        """One line for a person: where, the value against the threshold (named by the rule: the
+        score, a window's mean, a sequential statistic; :func:`compared_name`), the rule and the cause.
 
         Example:
             >>> AlarmEvent(0, 41, 7.25, 4.5, "score > threshold", "dynamics").text()
             'episode 0 step 41: score 7.25 > 4.5 (score > threshold); cause: dynamics'
+            >>> AlarmEvent(0, 90, 2.5, 2.0, "mean score over 50 steps > threshold").text()
+            'episode 0 step 90: mean over 50 steps 2.5 > 2 (mean score over 50 steps > threshold)'
         """
         cause = f"; cause: {self.cause}" if self.cause else ""
-        return f"episode {self.episode} step {self.step}: score {self.score:.4g} > {self.threshold:.4g} ({self.rule}){cause}"
+        value = compared_name(self.rule) or "score"
+        return (f"episode {self.episode} step {self.step}: {value} {self.score:.4g} > {self.threshold:.4g} "
+                f"({self.rule}){cause}")
 
 
 class AlarmTracker:
