@@ -624,11 +624,13 @@ def _calibrated_beside(folder: Path) -> str:
 def _statistic_words(threshold) -> str:
     """What calibrate's line adds under a sequential rule, whose threshold is on its statistic's
     scale, not the score's: that statistic per calibration episode, its median and largest."""
+    from oodmon.monitor.alarms import compared_name
+
     quantiles = threshold.quantiles
     if "statistic_max" not in quantiles:
         return ""
-    name = "CUSUM" if threshold.rule == "cusum" else "log10 martingale"
-    return f"; the {name} per episode median {quantiles['statistic_q50']:.4g}, max {quantiles['statistic_max']:.4g}"
+    return (f"; the {compared_name(threshold.rule_text)} per episode median {quantiles['statistic_q50']:.4g}, max "
+            f"{quantiles['statistic_max']:.4g}")
 
 
 def _fit_detectors(args: argparse.Namespace) -> int:
