@@ -1014,10 +1014,10 @@ def recorded_sb3_files(threshold: Threshold, path: str | Path) -> tuple[list[str
 
     beside = Path(path).parent
 
-    def found(recorded: str, sha256: str | None = None) -> str | None:
-        if Path(recorded).is_file():
-            return recorded
-        moved = beside / Path(recorded).name
+    def found(was: str, sha256: str | None = None) -> str | None:  # where the file at ``was`` is now
+        if Path(was).is_file():
+            return was
+        moved = beside / Path(was).name
         return str(moved) if moved.is_file() and (sha256 is None or file_sha256(moved) == sha256) else None
 
     recorded = threshold.models or []
