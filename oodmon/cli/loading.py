@@ -86,7 +86,7 @@ def _sb3_from_threshold(args: argparse.Namespace, threshold, name: str) -> None:
     Threshold.models`) as they were loaded then (:attr:`~oodmon.monitor.Threshold.sb3`): ``--sb3``,
     ``--env``, and ``--vec-normalize``, ``--frame-stack`` and ``--mean`` where not given; said on
     stderr. A file no longer where it was is looked for beside the threshold
-    (:func:`~oodmon.monitor.threshold.recorded_sb3_files`). The policy's hash, which the monitor
+    (:func:`~oodmon.monitor.threshold.recorded_sb3`). The policy's hash, which the monitor
     checks, still decides: a file changed since is refused there. ``--import`` and
     ``--unsafe-load-pickles`` are never read from a file (they run code): give them again where the
     models need them.
@@ -96,27 +96,24 @@ def _sb3_from_threshold(args: argparse.Namespace, threshold, name: str) -> None:
     """
     from rich.console import Console
 
-    from oodmon.monitor.threshold import recorded_sb3_files, sb3_arguments
+    from oodmon.monitor.threshold import recorded_sb3, sb3_arguments
 
     loaded = threshold.sb3
     env_id = loaded["env_id"]
     if args.env and args.env != env_id:
         raise ConfigError(f"{name} was calibrated on SB3 models in {env_id}, not --env {args.env}: leave out --env, or "
                           f"give the models and the threshold calibrated in {args.env}")
-    models, statistics, gone = recorded_sb3_files(threshold, name)
-    if args.vec_normalize is not None:  # given: the recorded one is not looked for
-        gone, statistics = [path for path in gone if path != loaded["vec_normalize"]], args.vec_normalize
+    loading, gone = recorded_sb3(threshold, name, vec_normalize=args.vec_normalize, frame_stack=args.frame_stack,
+                                 mean=args.mean)
     if gone:
         raise ConfigError(f"{name} was calibrated on your own SB3 model(s) in {env_id}, loaded from files that are "
                           f"neither there nor beside it: {', '.join(gone)}; give them where they are now, --sb3 ZIP... "
                           f"--env {env_id}{' --vec-normalize PKL' if loaded['vec_normalize'] else ''}"
                           f"{' --frame-stack ' + str(loaded['frame_stack']) if loaded['frame_stack'] else ''}"
                           f"{' --mean' if loaded['mean'] else ''}")
-    args.sb3, args.env, args.vec_normalize = models, env_id, statistics
-    if args.frame_stack is None:
-        args.frame_stack = loaded["frame_stack"]
-    args.mean = args.mean or loaded["mean"]
-    words = (f"--sb3 {sb3_arguments([{'path': path} for path in models])} --env {env_id}"
+    args.sb3, args.env, args.vec_normalize, args.frame_stack, args.mean = (
+        loading[key] for key in ("models", "env_id", "vec_normalize", "frame_stack", "mean"))
+    words = (f"--sb3 {sb3_arguments([{'path': path} for path in args.sb3])} --env {env_id}"
              + (f" --vec-normalize {args.vec_normalize}" if args.vec_normalize else "")
              + (f" --frame-stack {args.frame_stack}" if args.frame_stack else "") + (" --mean" if args.mean else ""))
     Console(stderr=True, soft_wrap=True).print(f"note: the policy {name} was calibrated on: {words}", markup=False)

@@ -61,7 +61,7 @@ from oodmon.validation import is_whole
 __all__ = ["DEFAULT_CONFIDENCE", "EARLY_GAIN", "MODES", "OUTLYING", "WARMUP_HINT", "ClusterSums",
            "ClusteredInterval", "EarlyPeaksWarning", "OutlyingThresholdWarning", "Stretches", "Threshold",
            "calibrate", "check_step_episodes", "clopper_pearson", "clustered_interval", "conformal_rank",
-           "episodes_needed", "model_files", "recorded_sb3_files", "sb3_arguments", "sb3_loading", "step_threshold",
+           "episodes_needed", "model_files", "recorded_sb3", "sb3_arguments", "sb3_loading", "step_threshold",
            "verdict_of"]
 
 MODES = ("episode", "step")
@@ -1003,16 +1003,21 @@ def sb3_loading(metadata: Mapping[str, Any]) -> dict[str, Any] | None:
             "mean": metadata.get("deployed") == "ensemble mean"}
 
 
-def recorded_sb3_files(threshold: Threshold, path: str | Path) -> tuple[list[str], str | None, list[str]]:
-    """The SB3 model files and the VecNormalize statistics' file of the policy ``threshold`` (read
-    from ``path``) was calibrated on (:attr:`Threshold.models`, :attr:`Threshold.sb3`), each where it
-    was, else the file of its name beside ``path`` (the two moved together; a model there only of
-    the recorded bytes): ``(models, statistics, gone)``, ``gone`` the recorded paths found in
-    neither place (``models`` keeps those as recorded). The policy's hash, which the monitor
-    checks, decides whether the files found are the weights it was calibrated on."""
+def recorded_sb3(threshold: Threshold, path: str | Path, *, vec_normalize: Any = None, frame_stack: int | None = None,
+                 mean: bool = False) -> tuple[dict[str, Any], list[str]]:
+    """How to load the SB3 models ``threshold`` (read from ``path``) was calibrated on again
+    (:attr:`Threshold.models`, :attr:`Threshold.sb3`): ``{"models", "env_id", "vec_normalize",
+    "frame_stack", "mean"}``, where ``vec_normalize`` and ``frame_stack`` given replace the
+    recorded ones and ``mean`` given or recorded deploys the mean; each file where it was, else
+    the file of its name beside ``path`` (the two moved together; a model there only of the
+    recorded bytes). With it, ``gone``: the recorded paths found in neither place (``models``
+    keeps those as recorded). The policy's hash, which the monitor checks, decides whether the
+    files found are the weights it was calibrated on. ``oodmon run``/``validate`` and
+    :func:`oodmon.watch` given the threshold alone load them so; ``--import`` and
+    ``--unsafe-load-pickles`` are never read from a file (they run code)."""
     from oodmon.hashing import file_sha256
 
-    beside = Path(path).parent
+    beside, recorded = Path(path).parent, threshold.sb3 or {}
 
     def found(was: str, sha256: str | None = None) -> str | None:  # where the file at ``was`` is now
         if Path(was).is_file():
@@ -1020,14 +1025,18 @@ def recorded_sb3_files(threshold: Threshold, path: str | Path) -> tuple[list[str
         moved = beside / Path(was).name
         return str(moved) if moved.is_file() and (sha256 is None or file_sha256(moved) == sha256) else None
 
-    recorded = threshold.models or []
-    models = [found(model["path"], model["sha256"]) for model in recorded]
-    gone = [model["path"] for model, at in zip(recorded, models) if at is None]
-    statistics = (threshold.sb3 or {}).get("vec_normalize")
-    statistics_at = None if statistics is None else found(statistics)
-    if statistics is not None and statistics_at is None:
-        gone.append(statistics)
-    return [at or model["path"] for model, at in zip(recorded, models)], statistics_at, gone
+    files = threshold.models or []
+    models = [found(model["path"], model["sha256"]) for model in files]
+    gone = [model["path"] for model, at in zip(files, models) if at is None]
+    statistics = recorded.get("vec_normalize")
+    if vec_normalize is None and statistics is not None:  # (given: the recorded one is not looked for)
+        vec_normalize = found(statistics)
+        if vec_normalize is None:
+            gone.append(statistics)
+    return {"models": [at or model["path"] for model, at in zip(files, models)], "env_id": recorded.get("env_id"),
+            "vec_normalize": vec_normalize,
+            "frame_stack": recorded.get("frame_stack") if frame_stack is None else frame_stack,
+            "mean": bool(mean or recorded.get("mean"))}, gone
 
 
 def sb3_arguments(models: Sequence[dict[str, str]]) -> str:

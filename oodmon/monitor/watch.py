@@ -316,7 +316,7 @@ def _recorded_policy(threshold: Threshold, path: str | Path, env_id: str | None,
                      **loading: Any) -> tuple[Any, str | None, dict[str, Any]]:
     """``(policy, env_id, loading)`` for :func:`as_agent` of the policy the threshold at ``path``
     was calibrated on, where :func:`watch` was given none: the SB3 model files it records
-    (:func:`~oodmon.monitor.threshold.recorded_sb3_files`: where they were, else beside it) in its
+    (:func:`~oodmon.monitor.threshold.recorded_sb3`: where they were, else beside it) in its
     env, with its VecNormalize statistics, VecFrameStack depth and ``mean`` unless given; or the
     shipped agent of its task and method. ``imports`` and ``unsafe_load_pickles`` are never read
     from the file (they run code): give them where the models need them.
@@ -327,7 +327,7 @@ def _recorded_policy(threshold: Threshold, path: str | Path, env_id: str | None,
             are gone.
     """
     from oodmon.agents.agent import load, zoo_names
-    from oodmon.monitor.threshold import recorded_sb3_files
+    from oodmon.monitor.threshold import recorded_sb3
     from oodmon.names import PLAIN_METHOD
 
     recorded = threshold.sb3
@@ -335,17 +335,14 @@ def _recorded_policy(threshold: Threshold, path: str | Path, env_id: str | None,
         if env_id is not None and env_id != recorded["env_id"]:
             raise ConfigError(f"{path} was calibrated on SB3 models in {recorded['env_id']}, not {env_id}: leave the "
                               "env id out, or give the models and the threshold calibrated there")
-        models, statistics, gone = recorded_sb3_files(threshold, path)
-        if loading.get("vec_normalize") is not None:  # given: the recorded one is not looked for
-            gone, statistics = [p for p in gone if p != recorded["vec_normalize"]], loading["vec_normalize"]
+        sb3, gone = recorded_sb3(threshold, path, vec_normalize=loading.get("vec_normalize"),
+                                 frame_stack=loading.get("frame_stack"), mean=loading.get("mean", False))
         if gone:
             raise ConfigError(f"{path} was calibrated on SB3 models loaded from files that are neither there nor "
                               f"beside it: {', '.join(gone)}; give them where they are now: watch(['model.zip', ...], "
                               f"{recorded['env_id']!r}, threshold=..., vec_normalize=...)")
-        frame_stack = loading.get("frame_stack")
-        return models, recorded["env_id"], loading | {
-            "vec_normalize": statistics, "frame_stack": recorded["frame_stack"] if frame_stack is None else frame_stack,
-            "mean": loading.get("mean") or recorded["mean"]}
+        given = {key: sb3[key] for key in ("vec_normalize", "frame_stack", "mean")}
+        return sb3["models"], sb3["env_id"], loading | given
     if f"{threshold.task}-{threshold.method}" in zoo_names():  # (weights of its own are refused by their hash)
         return load(threshold.task, threshold.method, seed=loading.get("seed"), masks=masks), env_id, loading
     kind = "your own SB3 models, and does not record how they were loaded (written before 2026-12-07)" \

@@ -178,13 +178,19 @@ def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | P
     return _draw_with_rule(panels, sources, threshold, title, path, rule, text, logged)
 
 
+def _statistic_name(text: str) -> str | None:
+    """The name of the statistic a sequential rule (``text``, a log's ``rule`` in words) compares
+    with its threshold (:func:`~oodmon.monitor.alarms.compared_name`); ``None`` under a rule that
+    compares the scores or their mean over a window."""
+    return compared_name(text) if rule_window(text)[0] == 1 else None
+
+
 def _logged_statistics(text: str, episodes: Sequence[tuple[EpisodeLog, RunLog]]) -> dict[tuple[Path, int], np.ndarray]:
     """Under a sequential rule (``text``, a log's ``rule`` in words), the statistic each step
     message of ``episodes`` holds (format 9, :func:`~oodmon.replay.reader.read_compared`; one
     pass over each log), by (log path, episode), of the episodes whose every step holds it; ``{}``
     under any other rule."""
-    name = compared_name(text)
-    if name is None or name.startswith("mean over"):
+    if _statistic_name(text) is None:
         return {}
     wanted: dict[Path, dict[int, int]] = defaultdict(dict)
     for episode, log in episodes:
@@ -208,8 +214,8 @@ def _draw_with_rule(panels: Sequence[tuple[EpisodeLog, str]], sources: Sequence[
     :func:`~oodmon.replay.reader.read_compared`) is drawn on a right axis with the threshold, and
     where the logs are older neither is drawn, which the title says. ``logged``: the statistics
     :func:`_logged_statistics` read already."""
-    name = compared_name(text)
-    if name is None or name.startswith("mean over"):
+    name = _statistic_name(text)
+    if name is None:
         return _draw_traces(panels, threshold, title, path, rule)
     if logged is None:
         logged = _logged_statistics(text, [(episode, log) for (episode, _), log in zip(panels, sources)])
@@ -278,7 +284,7 @@ def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, tit
             twin.axhline(threshold, color="black", linewidth=1, linestyle="--", label="threshold (right axis)")
         twins.append(twin)
     if twins:  # one scale for every panel's statistic, as the scores share theirs
-        top = max([threshold] + [float(np.nanmax(t.get_lines()[0].get_ydata(), initial=0.0)) for t in twins])
+        top = max([threshold] + [float(np.nanmax(statistic, initial=0.0)) for statistic in statistics[1]])
         for twin in twins:
             twin.set_ylim(0 if statistics[0] == "CUSUM" else None, top * 1.05 if top > 0 else None)
         twins[-1].set_ylabel(f"{statistics[0]} statistic")
