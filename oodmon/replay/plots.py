@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import textwrap
 from collections import defaultdict
+from dataclasses import replace
 from itertools import cycle
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -116,22 +117,52 @@ def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path,
 def plot_trace(logs: Sequence[RunLog], method: str, variant: str, path: str | Path) -> Path | None:
     """The score over one ID episode beside one episode of ``variant`` (the paper's Figures 4, 5);
     the episode of ``variant`` alone when the logs hold no ID episode (a run whose shift begins
-    mid-episode: its steps before the onset are the ID ones)."""
-    id_episode = shifted_episode = id_log = shifted_log = None
-    threshold, rule, text = float("nan"), (1, 0), ""
-    for log in _runs_of(logs, method, variant):
-        for episode in log.episodes:
-            if id_episode is None and is_id_episode(episode, log.task):
-                id_episode, id_log, threshold = episode, log, log.threshold
-            if shifted_episode is None and episode.variant == variant:
-                text = log.metadata.get("rule", "")
-                shifted_episode, shifted_log, threshold, rule = episode, log, log.threshold, rule_window(text)
-    if shifted_episode is None:
+    mid-episode: its steps before the onset are the ID ones). The threshold and the rule drawn are
+    those of the shifted episode's run, and the ID episode's scores the same detector's (see
+    :func:`_id_beside`)."""
+    runs = _runs_of(logs, method, variant)
+    found = next(((episode, log) for log in runs for episode in log.episodes if episode.variant == variant), None)
+    if found is None:
         return None
-    panels = [] if id_episode is None else [(id_episode, f"ID: {episode_name(id_episode)}")]
+    shifted_episode, shifted_log = found
+    text = shifted_log.metadata.get("rule", "")
+    panels, sources, words = [], [], ""
+    beside = _id_beside(runs, shifted_log)
+    if beside is not None:
+        id_episode, id_log, words = beside
+        panels, sources = [(id_episode, f"ID: {episode_name(id_episode)}")], [id_log]
     panels.append((shifted_episode, f"shifted: {episode_name(shifted_episode)}"))
-    title = f"{method}, {_alarm_detectors(logs, method, variant)} detector: alarms as vertical lines"
-    return _draw_with_rule(panels, [id_log, shifted_log][-len(panels):], threshold, title, path, rule, text)
+    sources.append(shifted_log)
+    title = f"{method}, {shifted_log.detector} detector: alarms as vertical lines{words}"
+    return _draw_with_rule(panels, sources, shifted_log.threshold, title, path, rule_window(text), text)
+
+
+def _id_beside(runs: Sequence[RunLog], shifted: RunLog) -> tuple[EpisodeLog, RunLog, str] | None:
+    """The ID episode :func:`plot_trace` draws beside an episode of the run ``shifted``, its log and
+    the words the title then adds: the first ID episode of a run whose alarm compared the same
+    detector's scores (of the same fit, where both logs name theirs) with the same threshold by the
+    same rule, as it is; else, but under a sequential rule (whose statistic each log holds of its
+    own rule), the first whose log holds that detector's scores of the same fit, drawn with those
+    scores and without its own alarms, which another detector or threshold raised (the title's
+    words say so where it had any). ``None`` where there is neither. Until 2026-12-07 the first ID
+    episode of any run was drawn with its own run's alarm scores: a Pendulum spread of 0-1.6
+    against the shifted run's dynamics threshold of -1.19, above it at every step."""
+    detector, rule = shifted.detector, shifted.metadata.get("rule", "")
+    fit = shifted.metadata.get(f"fitted.{detector}")
+    ids = [(episode, log) for log in runs for episode in log.episodes if is_id_episode(episode, log.task)
+           and fit in (None, log.metadata.get(f"fitted.{detector}", fit))]
+    for episode, log in ids:
+        if (log.detector, log.metadata.get("rule", "")) == (detector, rule) and (
+                log.threshold == shifted.threshold or not (log.has_threshold or shifted.has_threshold)):
+            return episode, log, ""
+    if _statistic_name(rule) is not None:
+        return None
+    for episode, log in ids:
+        if detector in episode.detector_scores:
+            drawn = replace(episode, scores=episode.detector_scores[detector], alarm=np.zeros(episode.length, bool))
+            dropped = f" (the ID episode's alarms, by {log.detector} > {log.threshold:.6g}, not drawn)"
+            return drawn, log, dropped if episode.alarm.any() else ""
+    return None
 
 
 def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | Path) -> Path | None:

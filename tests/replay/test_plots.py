@@ -262,6 +262,57 @@ def test_a_trace_whose_shifted_scores_dwarf_the_id_ones_draws_them_on_a_symlog_a
     assert low < min(calm[:300]) < -1.47 < 27_000 <= high  # the ID trace, the threshold and the peak all drawn
 
 
+def test_the_id_panel_beside_a_shifted_run_draws_that_runs_detector_and_prefers_a_run_of_its_threshold(
+        tmp_path, monkeypatch):
+    """An ID run whose alarm read the spread (0-1.6, threshold 1.37) replayed beside a shifted run
+    whose alarm read the dynamics score (threshold -1.19): the ID panel drew the spread against the
+    dynamics threshold, as if the calm episode were above it at every step (2026-12-07, by hand with
+    Pendulum's Dropout agent). It now draws the ID episode's dynamics scores, without the alarms its
+    own threshold raised (the title says so), and takes an ID episode of a run of the shifted run's
+    threshold where one is there; under a sequential rule, whose statistic each log holds of its own
+    rule, only that one."""
+    import dataclasses
+
+    import numpy as np
+
+    from oodmon.replay import RunLog
+    from oodmon.replay import plots
+
+    rng = np.random.default_rng(0)
+    spread, dynamics = rng.uniform(0.0, 1.6, 200), -2.0 + 0.05 * rng.standard_normal(200)
+    alarmed = dataclasses.replace(_episode(spread, None), alarms=1, first_alarm_step=9, alarm=np.arange(200) >= 9,
+                                  detector_scores={"spread": spread, "dynamics": dynamics})
+    shifted = dataclasses.replace(_episode(np.r_[dynamics[:50], np.full(150, 80.0)], 50), alarms=1,
+                                  first_alarm_step=52, alarm=np.arange(200) >= 52)
+    spread_run = RunLog(Path("id-spread.mcap"), "cartpole", "dropout", 1.37,
+                        {"detector": "spread", "rule": "score > threshold for 3 consecutive steps"}, [alarmed], True)
+    rule = {"detector": "dynamics", "rule": "score > threshold"}
+    shifted_run = RunLog(Path("shifted.mcap"), "cartpole", "dropout", -1.19, rule, [shifted], True)
+    drawn = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
+
+    def id_panel(logs):
+        assert plots.plot_trace(logs, "dropout", "cartpole:length=2.0", tmp_path / "trace.png") is not None
+        figure = drawn[-1]
+        if len(figure.axes) == 1:
+            return None, figure._suptitle.get_text()
+        line = next(line for line in figure.axes[0].get_lines() if line.get_label() == "score")
+        alarms = [line for line in figure.axes[0].get_lines() if line.get_color() == "tab:purple"]
+        return (line.get_ydata(), len(alarms)), figure._suptitle.get_text()
+
+    (scores, alarms), title = id_panel([spread_run, shifted_run])
+    assert np.array_equal(scores, dynamics) and alarms == 0
+    assert "dropout, dynamics detector" in title and "the ID episode's alarms, by spread > 1.37, not drawn" in title
+    calm = dataclasses.replace(_episode(dynamics - 0.5, None), detector_scores={"dynamics": dynamics - 0.5})
+    same = RunLog(Path("id-dynamics.mcap"), "cartpole", "dropout", -1.19, rule, [calm], True)
+    (scores, alarms), title = id_panel([spread_run, shifted_run, same])
+    assert np.array_equal(scores, dynamics - 0.5) and "not drawn" not in title
+    cusum = {"detector": "dynamics", "rule": "CUSUM of the scores' p-values > threshold"}
+    assert plots._statistic_name(cusum["rule"]) is not None
+    sequential = dataclasses.replace(shifted_run, threshold=103.0, metadata=cusum)
+    assert id_panel([spread_run, same, sequential])[0] is None  # drawn alone, not beside another rule's episode
+
+
 def test_replay_monitor_plots_write_each_agents_alarm_timeline_and_its_id_alarms(tmp_path):
     # --plots was accepted with --monitor and wrote nothing; the ID episodes' trace since 2026-12-07
     result = run_cli("replay", str(DATA), "--monitor", "--plots", str(tmp_path))
