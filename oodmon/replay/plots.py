@@ -171,18 +171,24 @@ def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | P
     threshold (its score, or with a rule's window the mean the alarm compares, or a sequential
     rule's statistic as its log holds it), each drawn as
     :func:`plot_trace` draws one, or the calm one alone where none alarmed; ``None`` where the logs
-    hold no ID episode of a run with a threshold."""
-    episodes = [(episode, (log.threshold, rule_window(log.metadata.get("rule", ""))), log) for log in logs
-                if log.method == method and log.task == task and np.isfinite(log.threshold)
-                for episode in log.episodes if is_id_episode(episode, log.task)]
+    hold no ID episode of a run with a threshold. The title counts the ID episodes of the runs of
+    that one alarm (detector, threshold and rule), and says how many others' it left out (until
+    2026-12-07 it counted them among them, and named every detector of the logs)."""
+    episodes = [(episode, log) for log in logs if log.method == method and log.task == task
+                and np.isfinite(log.threshold) for episode in log.episodes if is_id_episode(episode, log.task)]
     if not episodes:
         return None
-    alarmed = [(episode, log) for episode, _, log in episodes if episode.alarm.any()]
-    threshold, rule = next((other for episode, other, _ in episodes if episode.alarm.any()), episodes[0][1])
-    calm = [(episode, log) for episode, other, log in episodes
-            if other == (threshold, rule) and not episode.alarm.any()]
-    text = next((log.metadata.get("rule", "") for log in logs if log.method == method and log.task == task
-                 and log.threshold == threshold), "")
+
+    def alarm_of(log: RunLog) -> tuple[str, float, str]:  # the detector, threshold and rule a run's alarm had
+        return log.detector, log.threshold, log.metadata.get("rule", "")
+
+    # the runs of one alarm: the first alarmed episode's, else the first episode's
+    first = next((log for episode, log in episodes if episode.alarm.any()), episodes[0][1])
+    detector, threshold, text = alarm_of(first)
+    rule = rule_window(text)
+    mine = [(episode, log) for episode, log in episodes if alarm_of(log) == (detector, threshold, text)]
+    alarmed = [(episode, log) for episode, log in mine if episode.alarm.any()]
+    calm = [(episode, log) for episode, log in mine if not episode.alarm.any()]
     logged = _logged_statistics(text, calm + alarmed[:1])  # a sequential rule's, as its logs hold it
 
     def margin(episode: EpisodeLog, log: RunLog) -> float:  # how close what the alarm compares came to the threshold
@@ -203,9 +209,10 @@ def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | P
         panels.append((highest, f"no alarm, the closest to the threshold: episode {highest.episode} of "
                                 f"{log.path.name}, {episode_name(highest)}"))
         sources.append(log)
-    detectors = "/".join(sorted({log.detector for log in logs if log.method == method and log.task == task}))
-    title = (f"{method}, {detectors} detector, {task}: {len(alarmed)} of {len(episodes)} ID episode(s) alarmed "
-             "(alarms as vertical lines)")
+    others = len(episodes) - len(mine)
+    title = (f"{method}, {detector} detector, {task}: {len(alarmed)} of {len(mine)} ID episode(s) alarmed "
+             + (f"({others} more of runs by another alarm not counted; " if others else "(")
+             + "alarms as vertical lines)")
     return _draw_with_rule(panels, sources, threshold, title, path, rule, text, logged)
 
 
@@ -304,7 +311,8 @@ def _draw_traces(panels: Sequence[tuple[EpisodeLog, str]], threshold: float, tit
                             color="tab:orange", alpha=0.15, label="shift active")
         for event in alarm_events(episode.alarm):
             ax.axvline(event, color="tab:purple", linewidth=1)
-        ax.set_title(name, fontsize=9)
+        # (a panel's axes are narrower than its share of the figure: 69 characters ran past their edges)
+        ax.set_title("\n".join(textwrap.fill(line, 60) for line in name.split("\n")), fontsize=9)
         ax.set_xlabel("step")
     twins = []
     for ax, statistic in zip(axes, [] if statistics is None else statistics[1]):

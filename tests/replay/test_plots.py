@@ -78,19 +78,27 @@ def test_the_id_trace_shows_the_first_alarmed_episode_beside_the_calm_one_that_c
     drawn = []
     monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
     assert plots.plot_id_alarms(logs, "sb3", "cartpole", tmp_path / "id.png") is not None
-    titles = [ax.get_title() for ax in drawn[0].axes]
+    titles = [ax.get_title().replace("\n", " ") for ax in drawn[0].axes]
     # older.mcap's 8.5 came closer than 1.7 to its own threshold, not to this one: not drawn beside it
     assert titles[0].startswith("alarmed at step 10: episode 1 of deployed.mcap")
     assert titles[1].startswith("no alarm, the closest to the threshold: episode 2 of deployed.mcap")
-    assert "sb3, combined detector, cartpole: 2 of 5 ID episode(s) alarmed" in drawn[0].texts[0].get_text()
+    # the alarms of deployed.mcap's threshold counted, older.mcap's episode apart (it was "2 of 5")
+    assert ("sb3, combined detector, cartpole: 2 of 4 ID episode(s) alarmed (1 more of runs by another alarm not "
+            "counted; alarms as vertical lines)") == drawn[0].texts[0].get_text().replace("\n", " ")
     dashed = [line.get_ydata()[0] for ax in drawn[0].axes for line in ax.get_lines() if line.get_linestyle() == "--"]
     assert dashed == [2.0, 2.0]
     quiet = [RunLog(Path("a.mcap"), "cartpole", "sb3", 2.0, {}, [episode(0, 1.2), episode(1, 1.5)], True)]
     assert plots.plot_id_alarms(quiet, "sb3", "cartpole", tmp_path / "q.png") is not None
     assert [ax.get_title().split(":")[0] for ax in drawn[1].axes] == ["no alarm, the closest to the threshold"]
     assert "episode 1 of a.mcap" in drawn[1].axes[0].get_title()
-    # one panel's title wrapped to its width (it ran off both sides of the picture)
+    # one panel's title wrapped to its width (it ran off both sides of the picture), and the
+    # panel's own lines too ("no alarm, the closest to the threshold: episode 0 of idspread.mcap,
+    # pendulum": 76 characters, cut at both edges)
     assert [len(line) <= 75 for line in drawn[1].texts[0].get_text().split("\n")] == [True, True]
+    long = [RunLog(Path("a-log-of-a-deployment-whose-name-is-long.mcap"), "cartpole", "sb3", 2.0, {}, [episode(0, 1.2)],
+                   True)]
+    plots.plot_id_alarms(long, "sb3", "cartpole", tmp_path / "l.png")
+    assert [len(line) <= 60 for line in drawn[2].axes[0].get_title().split("\n")] == [True, True, True]
     assert plots.plot_id_alarms(quiet, "dropout", "cartpole", tmp_path / "n.png") is None  # no such method
 
 
