@@ -56,6 +56,17 @@ def forget_modules_imported_from_temporary_folders(tmp_path_factory):
             _NOT_TEMPORARY[name] = module
 
 
+@pytest.fixture(autouse=True)
+def close_figures_left_open():
+    """The figures a test kept to read them (``save_figure`` patched to hand them over) stayed open
+    in its worker: past 20 of them matplotlib warned at whichever test opened the next (a sweep
+    script's, in a fresh clone's run, 2026-12-07). Closed after each test."""
+    yield
+    pyplot = sys.modules.get("matplotlib.pyplot")
+    if pyplot is not None and pyplot.get_fignums():
+        pyplot.close("all")
+
+
 def pytest_unconfigure(config) -> None:
     if _SB3_LOGDIR is not None:
         shutil.rmtree(_SB3_LOGDIR, ignore_errors=True)
