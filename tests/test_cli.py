@@ -875,7 +875,8 @@ def test_sensor_noise_given_to_calibrate_is_the_world_validate_and_run_play_unle
         captured = capsys.readouterr()
         said = re.sub(r"\s+", " ", captured.out)
         assert "this episode plays sensor noise" not in captured.err  # the monitor's warning: the note says it once
-        assert ("in cartpole, sensor noise 0.02, score >" in said) == (noise != "0"), said  # (an ID run: no onset)
+        said_noise = "in cartpole, sensor noise 0.02, spread detector: score >" in said  # (an ID run: no onset)
+        assert said_noise == (noise != "0"), said
         assert (f"note: this run played sensor noise 0, and {path} was calibrated with 0.02: its false-alarm bound is "
                 "for that world" in said) == (noise == "0"), said
     np.testing.assert_array_equal(scores[None], scores["0.02"])  # the threshold's world, by default
@@ -1078,7 +1079,8 @@ def test_run_and_validate_play_the_shipped_agent_their_threshold_was_calibrated_
     Threshold(1e9, "chosen_std", 1, "episode", 0.05, 45, 9_000, task="cartpole", method="ensemble",
               detector="spread").save(path)
     assert main(["run", "--threshold", str(path), "--variant", "cartpole:length=2.0", "--episodes", "1"]) == 0
-    assert "cartpole/ensemble in cartpole:length=2.0, onset 0, score > 1e+09" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "cartpole/ensemble in cartpole:length=2.0, onset 0, spread detector: score > 1e+09" in said
     assert main(["run", "--threshold", str(path), "--method", "dropout", "--episodes", "1"]) == 2  # the task still T's
     assert "it was calibrated for method 'ensemble', not 'dropout'" in capsys.readouterr().err
     assert main(["run", "--threshold", str(path), "--task", "pendulum", "--episodes", "1"]) == 2

@@ -216,7 +216,8 @@ def _run(args: argparse.Namespace) -> int:
                              + f"{args.task}/{agent.method} in {label}{onset}"
                              + (f", sensor noise {args.obs_noise:g}" if args.obs_noise else "")
                              + (f", episodes of up to {args.max_steps:,} steps" if args.max_steps else "")
-                             + (f", {threshold.rule_text}" if threshold else ", no threshold")))
+                             + (f", {threshold.detector} detector: {threshold.rule_text}" if threshold
+                                else ", no threshold")))
     if rows.left_out:
         console.print(f"{rows.left_out} episode{'s' if rows.left_out != 1 else ''} not shown"
                       + _listed_by(mcap, args.mcap, failed="McapSink" in failures))
