@@ -53,7 +53,8 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
                        help="a shell command run at each episode's first alarm, not waited for (the policy acts on; "
                             "at the end the run waits 10 s at most for those still running and says how they "
                             "ended): a page, a message, a hand-over. Its environment holds OODMON_EPISODE, "
-                            "OODMON_STEP, OODMON_SCORE, OODMON_THRESHOLD, OODMON_RULE, OODMON_CAUSE, OODMON_ALARM "
+                            "OODMON_STEP, OODMON_SCORE, OODMON_THRESHOLD, OODMON_RULE, OODMON_CAUSE, "
+                            "OODMON_READINGS (the readings the dynamics model predicted worst), OODMON_ALARM "
                             "(the alarm's line), OODMON_VARIANT and OODMON_LOG (--mcap as given), e.g. "
                             "--on-alarm 'notify-send \"$OODMON_ALARM\"'")
     logs.add_argument("--mcap", help="write the run to this MCAP file; {start} in it is the run's start time "

@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 import re
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,7 +44,7 @@ from oodmon.validation import MOST_STEPS, is_step_count
 
 __all__ = [
     "DEFAULT_CONSECUTIVE", "AlarmEvent", "AlarmTracker", "check_consecutive", "check_warmup", "check_window",
-    "compared_name", "default_consecutive",
+    "compared_name", "default_consecutive", "readings_text",
     "episode_statistic",
     "rule_text", "rule_window", "trailing_mean",
 ]
@@ -256,6 +257,13 @@ class AlarmEvent:
             camera stands still; ``dynamics (mean since the episode began)``: a shift too slight for
             single steps); ``a reading that is not finite`` for a NaN or infinite observation.
             Empty where nothing says (an :class:`AlarmTracker` on its own).
+        readings: the readings whose change at that step the dynamics model predicted worst, as
+            (flattened index, standardised residual: the change's distance from the model's
+            prediction in its predicted standard deviations, signed), the larger first, at most
+            two, each at least 3 off (the :class:`~oodmon.monitor.Monitor` sets them where its
+            detectors hold a fitted ``dynamics`` model): which sensor to look at, a stuck one or
+            the reading a changed physics moves first. Empty where none is that far off (no
+            ``dynamics`` detector, the episode's first step, a reading that is not finite).
     """
 
     episode: int
@@ -264,6 +272,7 @@ class AlarmEvent:
     threshold: float
     rule: str
     cause: str = ""
+    readings: tuple[tuple[int, float], ...] = ()
 
     def text(self) -> str:
         """One line for a person: where, the value against the threshold (named by the rule: the
@@ -274,11 +283,24 @@ class AlarmEvent:
             'episode 0 step 41: score 7.25 > 4.5 (score > threshold); cause: dynamics'
             >>> AlarmEvent(0, 90, 2.5, 2.0, "mean score over 50 steps > threshold").text()
             'episode 0 step 90: mean over 50 steps 2.5 > 2 (mean score over 50 steps > threshold)'
+            >>> AlarmEvent(0, 51, 9.5, 5.9, "score > threshold", "dynamics", ((3, 293.7),)).text().split("; ")[-1]
+            "reading [3] off the dynamics model's prediction by +294 sd"
+            >>> AlarmEvent(0, 51, 9.5, 5.9, "score > threshold", "dynamics", ((1, -311.3), (3, 310.8))).text()[-73:]
+            "readings [1] and [3] off the dynamics model's prediction by -311, +311 sd"
         """
         cause = f"; cause: {self.cause}" if self.cause else ""
         value = compared_name(self.rule) or "score"
         return (f"episode {self.episode} step {self.step}: {value} {self.score:.4g} > {self.threshold:.4g} "
-                f"({self.rule}){cause}")
+                f"({self.rule}){cause}{readings_text(self.readings)}")
+
+
+def readings_text(readings: Sequence[tuple[int, float]]) -> str:
+    """:attr:`AlarmEvent.readings` in words, after a ``"; "``; empty where there are none."""
+    if not readings:
+        return ""
+    indices = " and ".join(f"[{index}]" for index, _ in readings)
+    return (f"; reading{'s' if len(readings) > 1 else ''} {indices} off the dynamics model's prediction by "
+            + ", ".join(f"{residual:+.3g}" for _, residual in readings) + " sd")
 
 
 class AlarmTracker:

@@ -57,6 +57,14 @@ __all__ = ["GIVEN_CHECKED", "SEGMENT_STEPS", "ActionTally", "AlarmCallback", "Mo
 #: about 10 MB of score arrays in ``McapSink`` with four detectors, 17 minutes at 100 decisions a second.
 SEGMENT_STEPS = 100_000
 
+#: An alarm names the readings whose change the dynamics model predicted at least this many of its
+#: standard deviations off (:attr:`AlarmEvent.readings`), at most ``MOST_READINGS`` of them. On ID
+#: transitions the worst reading stays well below it: 1.43 at most over 10 episodes of the shipped
+#: CartPole ensemble, 1.45 of the Pendulum Dropout agent; at the first alarm of a shifted episode it
+#: read 9-1,680 (``scripts/alarm_readings.py``, 2026-12-07; docs/monitor.md, "Which reading").
+READING_SD = 3.0
+MOST_READINGS = 2
+
 #: The first actions given to a monitor (``step(obs, action=...)``) it compares with the policy's own
 #: decision at their observation, where that decision draws nothing (:class:`OtherActionsWarning`).
 GIVEN_CHECKED = 100
@@ -631,6 +639,7 @@ class Monitor:
                 frame = _frame(obs)  # an RGB stack's newest picture, not its last channel
         read = self.agent.read_action(action) if self._action_parts else action  # a tuple of actions: flattened
         finite = _finite(obs)
+        context = None
         if finite:
             context = StepContext(obs, read, estimate, self._prev_obs, self._prev_action, {}, picture)
             scores = self.detectors.score(context)
@@ -648,7 +657,7 @@ class Monitor:
         alarm, event = self.tracker.update(self.episode, step, score)
         self.last_cause = self._cause(finite) if alarm else None
         if event is not None:
-            event = replace(event, cause=self.last_cause)
+            event = replace(event, cause=self.last_cause, readings=self._readings(context))
         observation, frame = self._logged(obs, frame)
         logged_action = int(read) if isinstance(read, (int, np.integer)) else np.asarray(read).tolist()
         self.last_step = StepRecord(
@@ -720,6 +729,20 @@ class Monitor:
         if not finite:
             return "a reading that is not finite"
         return getattr(self.detectors[self.detector], "leader", None) or self.detector
+
+    def _readings(self, context: StepContext | None) -> tuple[tuple[int, float], ...]:
+        """:attr:`AlarmEvent.readings` of the step ``context`` (``None``: a reading not finite): the
+        readings whose change the set's ``dynamics`` model predicted worst, at least
+        :data:`READING_SD` off, at most :data:`MOST_READINGS`; none without a fitted model or a
+        step before. One batch pass of the model, at each alarm (not each step)."""
+        model = self.detectors["dynamics"] if "dynamics" in self.detectors else None
+        if context is None or context.prev_obs is None or model is None or not model.fitted:
+            return ()
+        residuals = model.standardized_residuals(np.asarray(context.prev_obs)[None], np.asarray([context.prev_action]),
+                                                 np.asarray(context.obs)[None])[0]
+        indices = np.arange(len(residuals)) if model.predicted is None else model.predicted
+        worst = np.argsort(-np.abs(residuals), kind="stable")[:MOST_READINGS]
+        return tuple((int(indices[k]), float(residuals[k])) for k in worst if abs(residuals[k]) >= READING_SD)
 
     def _picture(self, obs: np.ndarray) -> np.ndarray | None:
         """A picture of a CartPole or Pendulum state (``render``); ``None`` for another env."""

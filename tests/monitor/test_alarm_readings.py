@@ -1,0 +1,110 @@
+"""An alarm names the readings whose change the dynamics model predicted worst (``AlarmEvent.readings``):
+which sensor to look at. Measured on the shipped CartPole ensemble: scripts/alarm_readings.py."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from oodmon.agents import load
+from oodmon.envs import parse_variant
+from oodmon.monitor import AlarmCommand, MemorySink, Monitor
+from oodmon.monitor.detectors import detectors_for
+from oodmon.monitor.monitor import READING_SD
+
+#: The shipped ensemble's dynamics threshold (`oodmon calibrate --task cartpole --method ensemble
+#: --detector dynamics`, the demo's): deterministic, the shipped detectors' scale.
+THRESHOLD = -3.54762
+EPISODES = 5
+
+
+@pytest.fixture(scope="module")
+def agent():
+    return load("cartpole", "ensemble")
+
+
+def first_alarms(agent, spec: str) -> list:
+    """The first alarm from the onset (step 50) of each of ``EPISODES`` episodes of ``spec``."""
+    found = []
+    for seed in range(EPISODES):
+        sink = MemorySink()
+        with Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics",
+                     sinks=[sink]) as monitor:
+            monitor.run_episode(parse_variant(spec).make(onset_step=50), seed=seed, max_steps=120)
+        found.append(next(alarm for alarm in sink.alarms if alarm.step >= 50))
+    return found
+
+
+@pytest.mark.parametrize("spec, reading", [("cartpole:obs.stuck[0]=1", 0), ("cartpole:obs.stuck[2]=1", 2),
+                                           ("cartpole:length=2.0", 3)])
+def test_a_stuck_sensor_or_a_longer_pole_is_named_by_its_reading_far_above_any_other(agent, spec, reading):
+    # a stuck sensor [k] named [k] at 16.9-1,180 sd in 10 of 10 episodes each, every other reading
+    # within 0.75; a longer pole [3] (the pole's angular velocity) at 205-289 (scripts/alarm_readings.py)
+    for alarm in first_alarms(agent, spec):
+        assert len(alarm.readings) == 1 and alarm.readings[0][0] == reading, alarm.text()
+        assert abs(alarm.readings[0][1]) > 10 and f"reading [{reading}] off the dynamics model's prediction by" in (
+            alarm.text())
+
+
+def test_a_weaker_push_names_both_readings_it_moves(agent):
+    for alarm in first_alarms(agent, "cartpole:force_mag=2.0"):  # 242-309 sd, the other 304 at most
+        assert sorted(index for index, _ in alarm.readings) == [1, 3], alarm.text()
+        assert "readings [" in alarm.text() and abs(alarm.readings[0][1]) >= abs(alarm.readings[1][1])
+
+
+def test_id_transitions_keep_every_reading_well_within_the_line_so_a_false_alarm_seldom_names_one(agent):
+    """The worst reading of any step of 10 ID episodes (4,990 transitions) read 1.43 sd at most,
+    against the 3 an alarm needs to name a reading: a bound with room to spare, not a rate."""
+    model = detectors_for(agent)["dynamics"]
+    worst = []
+    for seed in range(10):
+        sink = MemorySink()
+        with Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics",
+                     sinks=[sink]) as monitor:
+            monitor.run_episode(parse_variant("cartpole").make(), seed=800_000 + seed)
+        obs = np.array([step.observation for step in sink.steps], dtype=np.float32)
+        actions = np.array([step.action for step in sink.steps])
+        worst.append(np.abs(model.standardized_residuals(obs[:-1], actions[:-1], obs[1:])).max())
+    assert max(worst) < READING_SD / 1.5, worst
+
+
+def test_the_alarm_command_gets_the_readings(agent, tmp_path):
+    out = tmp_path / "readings.txt"
+    command, sink = AlarmCommand(f'echo "$OODMON_READINGS" >> {out}'), MemorySink()
+    with Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics", sinks=[sink],
+                 callbacks=[command]) as monitor:
+        for seed in range(3):
+            monitor.run_episode(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50), seed=seed, max_steps=80)
+    assert command.close() == "ran 3 times (episodes 0, 1, 2), each exited 0"
+    firsts = [next(alarm for alarm in sink.alarms if alarm.episode == episode) for episode in range(3)]
+    assert all(alarm.step >= 50 for alarm in firsts)  # (each episode's first alarm: the command's)
+    assert sorted(out.read_text().splitlines()) == sorted(f"2:{alarm.readings[0][1]!r}" for alarm in firsts)
+
+
+def test_no_reading_is_named_without_a_dynamics_model_or_a_step_before(agent):
+    sink = MemorySink()
+    with Monitor(agent, threshold=0.0, sinks=[sink]) as monitor:  # the spread alone: no model to ask
+        monitor.run_episode(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=5), seed=0, max_steps=30)
+    assert sink.alarms and all(alarm.readings == () for alarm in sink.alarms)
+    sink = MemorySink()
+    with Monitor(agent, threshold=-1e9, detectors=detectors_for(agent), detector="dynamics", sinks=[sink]) as monitor:
+        monitor.run_episode(parse_variant("cartpole").make(), seed=0, max_steps=30)
+    assert [(alarm.step, alarm.readings) for alarm in sink.alarms] == [(0, ())]  # its first step: no transition yet
+
+
+def test_the_script_prints_what_each_variant_named_and_the_id_worst(monkeypatch, capsys):
+    from tests.helpers import load_script
+
+    script = load_script("alarm_readings")[1]
+    monkeypatch.setattr("sys.argv", ["alarm_readings", "--episodes", "2", "cartpole:obs.stuck[2]=1",
+                                     "cartpole:force_mag=2.0"])
+    script.main()
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "cartpole/ensemble: dynamics > -3.54762; reading_sd 3.0"
+    assert lines[1].startswith("cartpole:obs.stuck[2]=1      named first: [2] 2 of 2 (0 alarmed naming none, 0 not")
+    assert lines[2].startswith("cartpole:force_mag=2.0       named first: [3] 1, [1] 1 of 2")  # the push moves both
+    assert re.fullmatch(r"ID, 2 episodes, \d+ transitions: the worst reading's residual at a step: median \S+, 99.9th "
+                        r"percentile \S+, largest (\S+) sd", lines[3])
+    assert float(lines[3].split()[-2]) < READING_SD
