@@ -304,6 +304,7 @@ class Monitor:
         self.stop_requested = False
         self.last_step: StepRecord | None = None  # the record of the last step scored
         self.last_cause: str | None = None  # what raised the last step's score, while the alarm rule held there
+        self.last_alarm: AlarmEvent | None = None  # the alarm raised at the last step (None: none began there)
         self.stop_event: AlarmEvent | None = None  # the alarm a callback ended the episode with
         self.alarms_raised = 0  # alarms of the whole run
         # Actions given (step(obs, action=...)) before an episode's first alarm, compared with the
@@ -526,7 +527,7 @@ class Monitor:
         self._segment_start = 0  # the step the current segment starts at
         self._in_episode = True
         self.stop_requested = False
-        self.last_step, self.last_cause = None, None
+        self.last_step, self.last_cause, self.last_alarm = None, None, None
         self.stop_event = None
         self._episode_owner = None  # the MonitoredEnv whose reset began it sets itself here (weakly)
 
@@ -658,6 +659,7 @@ class Monitor:
         self.last_cause = self._cause(finite) if alarm else None
         if event is not None:
             event = replace(event, cause=self.last_cause, readings=self._readings(context))
+        self.last_alarm = event
         observation, frame = self._logged(obs, frame)
         logged_action = int(read) if isinstance(read, (int, np.integer)) else np.asarray(read).tolist()
         self.last_step = StepRecord(

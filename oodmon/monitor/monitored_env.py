@@ -201,6 +201,8 @@ class MonitoredEnv(gymnasium.Wrapper):
             telemetry["compared"] = record.compared
         if record.alarm:  # what raised the score at this step (AlarmEvent.cause), while the alarm holds
             telemetry["cause"] = monitor.last_cause
+        if monitor.last_alarm is not None and monitor.last_alarm.readings:  # at the step an alarm is raised
+            telemetry["readings"] = [list(pair) for pair in monitor.last_alarm.readings]
         if monitor.stop_event is not None:
             event = monitor.stop_event
             telemetry["ended_by_alarm"] = f"an alarm callback ended the episode: {event.text()}"  # the alarm log's line

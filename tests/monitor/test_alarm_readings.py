@@ -108,3 +108,23 @@ def test_the_script_prints_what_each_variant_named_and_the_id_worst(monkeypatch,
     assert re.fullmatch(r"ID, 2 episodes, \d+ transitions: the worst reading's residual at a step: median \S+, 99.9th "
                         r"percentile \S+, largest (\S+) sd", lines[3])
     assert float(lines[3].split()[-2]) < READING_SD
+
+
+def test_a_monitored_envs_info_holds_the_readings_at_the_step_each_alarm_is_raised(agent):
+    from oodmon.monitor import MonitoredEnv
+
+    sink = MemorySink()
+    env = MonitoredEnv(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50),
+                       Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics",
+                               sinks=[sink]))
+    env.reset(seed=0)
+    said = {}
+    for _ in range(80):
+        *_, terminated, truncated, info = env.step()
+        if "readings" in info["oodmon"]:
+            said[info["oodmon"]["step"]] = info["oodmon"]["readings"]
+        if terminated or truncated:
+            break
+    env.close()
+    raised = {alarm.step: [list(pair) for pair in alarm.readings] for alarm in sink.alarms if alarm.readings}
+    assert said == raised and min(said) >= 50 and said[min(said)][0][0] == 2  # the stuck reading, where it began
