@@ -5,8 +5,8 @@ alarm callback (``Monitor(callbacks=[...])``; ``oodmon run --on-alarm CMD``) tha
 of yours the moment an episode's first alarm is raised, with what the alarm says in its
 environment (``OODMON_EPISODE``, ``OODMON_STEP``, ``OODMON_SCORE``, ``OODMON_THRESHOLD``,
 ``OODMON_RULE``, ``OODMON_CAUSE``, ``OODMON_READINGS``: the readings the dynamics model predicted
-worst, ``index:residual`` each, space-separated, ``AlarmEvent.readings``; ``OODMON_ALARM``: the
-alarm's line). It does not wait for the
+worst, ``index:residual`` each, space-separated, ``AlarmEvent.readings``, over
+``OODMON_READINGS_STEPS`` steps; ``OODMON_ALARM``: the alarm's line). It does not wait for the
 command: the policy acts on while it runs, as a sink's failure does not stop the loop
 (``docs/monitor.md``). :meth:`AlarmCommand.close` waits for the commands still running (for at most
 ``wait`` seconds) and says how they ended; a command that cannot start, or exits other than 0, is
@@ -95,6 +95,7 @@ class AlarmCommand:
                      "OODMON_SCORE": repr(float(event.score)), "OODMON_THRESHOLD": repr(float(event.threshold)),
                      "OODMON_RULE": event.rule, "OODMON_CAUSE": event.cause,
                      "OODMON_READINGS": " ".join(f"{index}:{residual!r}" for index, residual in event.readings),
+                     "OODMON_READINGS_STEPS": str(event.readings_steps),
                      "OODMON_ALARM": event.text()}
         try:
             # a session of its own: a Ctrl-C meant for the monitor does not cut a page half sent

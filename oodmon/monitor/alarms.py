@@ -263,7 +263,11 @@ class AlarmEvent:
             two, each at least 3 off (the :class:`~oodmon.monitor.Monitor` sets them where its
             detectors hold a fitted ``dynamics`` model): which sensor to look at, a stuck one or
             the reading a changed physics moves first. Empty where none is that far off (no
-            ``dynamics`` detector, the episode's first step, a reading that is not finite).
+            ``dynamics`` detector, the episode's first step, a reading that is not finite). Where
+            the ``drift`` detector raised the alarm and no step's reading is that far off, its own
+            reading: the residuals summed over its last ``readings_steps`` steps, over their root.
+        readings_steps: the steps the residuals of ``readings`` cover: 1, the alarm's step; more,
+            the drift detector's window.
     """
 
     episode: int
@@ -273,6 +277,7 @@ class AlarmEvent:
     rule: str
     cause: str = ""
     readings: tuple[tuple[int, float], ...] = ()
+    readings_steps: int = 1
 
     def text(self) -> str:
         """One line for a person: where, the value against the threshold (named by the rule: the
@@ -291,16 +296,25 @@ class AlarmEvent:
         cause = f"; cause: {self.cause}" if self.cause else ""
         value = compared_name(self.rule) or "score"
         return (f"episode {self.episode} step {self.step}: {value} {self.score:.4g} > {self.threshold:.4g} "
-                f"({self.rule}){cause}{readings_text(self.readings)}")
+                f"({self.rule}){cause}{readings_text(self.readings, self.readings_steps)}")
 
 
-def readings_text(readings: Sequence[tuple[int, float]]) -> str:
-    """:attr:`AlarmEvent.readings` in words, after a ``"; "``; empty where there are none."""
+def readings_text(readings: Sequence[tuple[int, float]], steps: int = 1) -> str:
+    """:attr:`AlarmEvent.readings` in words, after a ``"; "``; empty where there are none.
+
+    Example:
+        >>> readings_text([(4, 4.51)], steps=20)
+        "; reading [4] drifting from the dynamics model's predictions: +4.51 sd summed over its last 20 steps"
+    """
     if not readings:
         return ""
     indices = " and ".join(f"[{index}]" for index, _ in readings)
-    return (f"; reading{'s' if len(readings) > 1 else ''} {indices} off the dynamics model's prediction by "
-            + ", ".join(f"{residual:+.3g}" for _, residual in readings) + " sd")
+    values = ", ".join(f"{residual:+.3g}" for _, residual in readings)
+    plural = "s" if len(readings) > 1 else ""
+    if steps > 1:
+        return (f"; reading{plural} {indices} drifting from the dynamics model's predictions: {values} sd summed over "
+                f"{'their' if plural else 'its'} last {steps} steps")
+    return f"; reading{plural} {indices} off the dynamics model's prediction by {values} sd"
 
 
 class AlarmTracker:

@@ -658,7 +658,8 @@ class Monitor:
         alarm, event = self.tracker.update(self.episode, step, score)
         self.last_cause = self._cause(finite) if alarm else None
         if event is not None:
-            event = replace(event, cause=self.last_cause, readings=self._readings(context))
+            readings, steps = self._readings(context)
+            event = replace(event, cause=self.last_cause, readings=readings, readings_steps=steps)
         self.last_alarm = event
         observation, frame = self._logged(obs, frame)
         logged_action = int(read) if isinstance(read, (int, np.integer)) else np.asarray(read).tolist()
@@ -732,19 +733,30 @@ class Monitor:
             return "a reading that is not finite"
         return getattr(self.detectors[self.detector], "leader", None) or self.detector
 
-    def _readings(self, context: StepContext | None) -> tuple[tuple[int, float], ...]:
-        """:attr:`AlarmEvent.readings` of the step ``context`` (``None``: a reading not finite): the
-        readings whose change the set's ``dynamics`` model predicted worst, at least
-        :data:`READING_SD` off, at most :data:`MOST_READINGS`; none without a fitted model or a
-        step before. One batch pass of the model, at each alarm (not each step)."""
+    def _readings(self, context: StepContext | None) -> tuple[tuple[tuple[int, float], ...], int]:
+        """:attr:`AlarmEvent.readings` of the step ``context`` (``None``: a reading not finite), and
+        the steps they cover: the readings whose change the set's ``dynamics`` model predicted
+        worst, at least :data:`READING_SD` off, at most :data:`MOST_READINGS`; none without a fitted
+        model or a step before. Where none is and ``drift`` raised the alarm, its own reading
+        (:meth:`~oodmon.monitor.detectors.DriftDetector.largest_bias`), over its window. One batch
+        pass of the model, at each alarm (not each step)."""
         model = self.detectors["dynamics"] if "dynamics" in self.detectors else None
-        if context is None or context.prev_obs is None or model is None or not model.fitted:
-            return ()
-        residuals = model.standardized_residuals(np.asarray(context.prev_obs)[None], np.asarray([context.prev_action]),
-                                                 np.asarray(context.obs)[None])[0]
-        indices = np.arange(len(residuals)) if model.predicted is None else model.predicted
-        worst = np.argsort(-np.abs(residuals), kind="stable")[:MOST_READINGS]
-        return tuple((int(indices[k]), float(residuals[k])) for k in worst if abs(residuals[k]) >= READING_SD)
+        if context is None or context.prev_obs is None:
+            return (), 1
+        if model is not None and model.fitted:
+            before, action = np.asarray(context.prev_obs)[None], np.asarray([context.prev_action])
+            residuals = model.standardized_residuals(before, action, np.asarray(context.obs)[None])[0]
+            indices = np.arange(len(residuals)) if model.predicted is None else model.predicted
+            worst = np.argsort(-np.abs(residuals), kind="stable")[:MOST_READINGS]
+            named = tuple((int(indices[k]), float(residuals[k])) for k in worst if abs(residuals[k]) >= READING_SD)
+            if named:
+                return named, 1
+        drift = self.detectors["drift"] if "drift" in self.detectors and self.last_cause == "drift" else None
+        bias = None if drift is None else drift.largest_bias()
+        if bias is None or abs(bias[1]) < READING_SD:
+            return (), 1
+        index, value, steps = bias
+        return ((index, value),), steps
 
     def _picture(self, obs: np.ndarray) -> np.ndarray | None:
         """A picture of a CartPole or Pendulum state (``render``); ``None`` for another env."""

@@ -11,7 +11,7 @@ import pytest
 from oodmon.agents import load
 from oodmon.envs import parse_variant
 from oodmon.monitor import AlarmCommand, MemorySink, Monitor
-from oodmon.monitor.detectors import detectors_for
+from oodmon.monitor.detectors import DetectorSet, DriftDetector, detectors_for
 from oodmon.monitor.monitor import READING_SD
 
 #: The shipped ensemble's dynamics threshold (`oodmon calibrate --task cartpole --method ensemble
@@ -128,3 +128,21 @@ def test_a_monitored_envs_info_holds_the_readings_at_the_step_each_alarm_is_rais
     env.close()
     raised = {alarm.step: [list(pair) for pair in alarm.readings] for alarm in sink.alarms if alarm.readings}
     assert said == raised and min(said) >= 50 and said[min(said)][0][0] == 2  # the stuck reading, where it began
+
+
+def test_a_drift_alarm_with_no_step_far_off_names_the_drifting_reading_over_its_window(agent):
+    """Gravity 13 (ID 9.8) moves no single step's reading 3 off the dynamics prediction: the drift
+    detector's alarm named nothing. It now names the drift's own reading, its residuals summed over
+    the window (over their root), as the detector scored it: the pole's angular velocity [3]."""
+    shipped = detectors_for(agent)
+    drift = DriftDetector.of(shipped["dynamics"])
+    detectors = DetectorSet([shipped["spread"], shipped["dynamics"], drift])
+    for seed in (0, 1):
+        sink = MemorySink()
+        with Monitor(agent, threshold=4.0, detectors=detectors, detector="drift", sinks=[sink]) as monitor:
+            monitor.run_episode(parse_variant("cartpole:gravity=13.0").make(onset_step=50), seed=seed, max_steps=200)
+        first = sink.alarms[0]
+        assert first.step > 50 and first.readings_steps == 20 and [i for i, _ in first.readings] == [3], first.text()
+        assert abs(first.readings[0][1]) == pytest.approx(first.score) and first.text().endswith(
+            f"; cause: drift; reading [3] drifting from the dynamics model's predictions: {first.readings[0][1]:+.3g} "
+            "sd summed over its last 20 steps")

@@ -146,6 +146,35 @@ class DriftDetector(Detector):
         total = np.matmul(self._ones, self._ring, out=self._total)  # summed afresh: no running sum to drift
         return float(np.maximum.reduce(total)) / math.sqrt(min(self._seen, self.window))  # each sum, and its negative
 
+    def largest_bias(self) -> tuple[int, float, int] | None:
+        """The reading whose residuals summed over the window are the largest in size at the last
+        step scored, as (flattened index, the sum over sqrt(n), signed, n: the steps summed): the
+        score's own reading (:attr:`~oodmon.monitor.alarms.AlarmEvent.readings` of an alarm it
+        raised). ``None`` before a step's residuals (an episode's first step).
+
+        Example:
+            >>> import gymnasium
+            >>> from oodmon.monitor.detectors.fitting import collect
+            >>> episodes = collect(lambda obs: int(obs[2] > 0), gymnasium.make("CartPole-v1"), 6, seed=0)
+            >>> drift = DriftDetector.of(DynamicsDetector(2, epochs=5).fit(episodes))
+            >>> obs = np.zeros(4, np.float32)
+            >>> drift.score(StepContext(obs, 0)), drift.largest_bias()
+            (0.0, None)
+            >>> before = obs - np.array([0, 0, 0, 1], np.float32)  # the pole turning 1 faster
+            >>> score = drift.score(StepContext(obs, 0, prev_obs=before, prev_action=0))
+            >>> index, bias, steps = drift.largest_bias()
+            >>> index, abs(bias) == score, steps
+            (3, True, 1)
+        """
+        total = getattr(self, "_total", None)
+        if self._seen == 0 or total is None:
+            return None
+        readings = len(total) // 2  # each reading's sum, then its negative
+        k = int(np.argmax(total))
+        j, sign = (k, 1.0) if k < readings else (k - readings, -1.0)
+        predicted, steps = self.model.predicted, min(self._seen, self.window)
+        return int(j if predicted is None else predicted[j]), sign * float(total[k]) / math.sqrt(steps), steps
+
     def _pass(self, context: StepContext) -> _FastNll:
         """The model's fast forward pass of the step's transition (:class:`_FastNll`, equal to the
         batch path up to float32 rounding; ``benchmarks/drift_step.py`` times it): the pass the
