@@ -30,7 +30,11 @@ metadata, absent before 3):
    window fills, in each episode), the statistic of a sequential rule (CUSUM, martingale), which
    Foxglove plots beside the score (the raw score alone crossed the threshold again and again
    where no alarm came). Replay computes a window's mean from the score arrays, as it did for
-   older logs.
+   older logs;
+10. ``first_alarm_readings`` and ``first_alarm_readings_steps`` in episode messages: the readings
+   the first alarm named (``AlarmEvent.readings``: ``[index, residual]`` pairs, ``[]`` for none)
+   and the steps their residuals cover (``AlarmEvent.readings_steps``); replay reads an older
+   log's episodes as naming none.
 
 A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
@@ -64,7 +68,7 @@ __all__ = [
     "RUN_METADATA", "STEP", "STEP_SCHEMA", "decode_array", "encode_episode_scores",
 ]
 
-FORMAT_VERSION = 9
+FORMAT_VERSION = 10
 STEP, EPISODE, EPISODE_SCORES = "/oodmon/step", "/oodmon/episode", "/oodmon/episode_scores"
 EPISODE_START = "/oodmon/episode_start"
 ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
@@ -119,6 +123,13 @@ EPISODE_SCHEMA: dict[str, Any] = _object("oodmon.Episode", {
                           "description": "what raised the first alarm's score (since format 7)"},
     "obs_noise": {"type": "number", "description": "the env's sensor noise: its std as a fraction of each observation "
                                                    "dimension's ID spread (since format 8; absent: 0)"},
+    "first_alarm_readings": {"type": "array", "items": {"type": "array", "items": {"type": "number"}},
+                             "description": "the readings the first alarm named, [index, residual] each: their "
+                                            "change's distance from the dynamics model's prediction in its "
+                                            "standard deviations (since format 10; absent: none)"},
+    "first_alarm_readings_steps": {"type": "integer", "description": "the steps the residuals of first_alarm_readings "
+                                                                     "cover: 1, the alarm's; more, the drift "
+                                                                     "detector's window (since format 10)"},
 }, required=["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"])
 
 

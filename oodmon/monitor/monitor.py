@@ -523,6 +523,7 @@ class Monitor:
         self._episode_info = dict(env_id=env_id, variant=variant, onset=onset, seed=seed, obs_noise=float(obs_noise))
         self._episode_task = self.agent.task if self.agent is not None else variant.split(":")[0]  # render's
         self._return, self._length, self._alarms, self._first_alarm, self._first_cause = 0.0, 0, 0, None, None
+        self._first_readings: tuple[tuple[tuple[int, float], ...], int] = ((), 1)  # the first alarm's, and their steps
         self._rewards: list[float] = []  # the current segment's
         self._segment_start = 0  # the step the current segment starts at
         self._in_episode = True
@@ -685,6 +686,7 @@ class Monitor:
             self.alarms_raised += 1
             if self._first_alarm is None:
                 self._first_alarm, self._first_cause = step, event.cause
+                self._first_readings = event.readings, event.readings_steps
             self.sinks.write_alarm(event)
             for callback in self.callbacks:
                 if callback(event):
@@ -782,7 +784,8 @@ class Monitor:
             rewards = tuple(self._rewards) if len(self._rewards) == self._length else None
         record = EpisodeRecord(self.episode, total_return=self._return, length=self._length, alarms=self._alarms,
                                first_alarm_step=self._first_alarm, interrupted=interrupted, terminated=terminated,
-                               first_alarm_cause=self._first_cause,
+                               first_alarm_cause=self._first_cause, first_alarm_readings=self._first_readings[0],
+                               first_alarm_readings_steps=self._first_readings[1],
                                rewards=rewards, **self._episode_info)
         self.sinks.end_episode(record)
         self._in_episode = False

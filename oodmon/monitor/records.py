@@ -120,6 +120,10 @@ class EpisodeRecord:
         obs_noise: the env's sensor noise (``obs_noise`` of oodmon's CartPole and Pendulum: its std
             as a fraction of each observation dimension's ID spread); 0 for any other env, and in
             logs older than format 8.
+        first_alarm_readings: the readings the first alarm named (:attr:`AlarmEvent.readings
+            <oodmon.monitor.alarms.AlarmEvent.readings>`), and ``first_alarm_readings_steps`` the
+            steps their residuals cover; empty (and 1) without an alarm, where it named none, and in
+            logs older than format 10.
         rewards: the reward of each step (what ``add_reward`` received), logged in the episode's
             score arrays; ``None`` where they were not given step by step, or the episode was
             longer than a segment (``Monitor(segment_steps=)``: the log holds them by segment).
@@ -138,6 +142,8 @@ class EpisodeRecord:
     terminated: bool | None = None
     first_alarm_cause: str | None = None
     obs_noise: float = 0.0
+    first_alarm_readings: tuple[tuple[int, float], ...] = ()
+    first_alarm_readings_steps: int = 1
     rewards: tuple[float, ...] | None = field(default=None, repr=False, compare=False)
 
     @property
@@ -166,7 +172,9 @@ class EpisodeRecord:
         return {"episode": self.episode, "env_id": self.env_id, "variant": self.variant, "onset": self.onset,
                 "seed": self.seed, "return": self.total_return, "length": self.length, "alarms": self.alarms,
                 "first_alarm_step": self.first_alarm_step, "interrupted": self.interrupted,
-                "terminated": self.terminated, "first_alarm_cause": self.first_alarm_cause, "obs_noise": self.obs_noise}
+                "terminated": self.terminated, "first_alarm_cause": self.first_alarm_cause, "obs_noise": self.obs_noise,
+                "first_alarm_readings": [[index, residual] for index, residual in self.first_alarm_readings],
+                "first_alarm_readings_steps": self.first_alarm_readings_steps}
 
 
 @dataclass(frozen=True)

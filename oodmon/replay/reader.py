@@ -30,7 +30,7 @@ from oodmon.monitor import logformat
 from oodmon.monitor.logformat import decode_array
 from oodmon.monitor.records import EpisodeRecord
 from oodmon.replay.parts import missing_parts, without_copies
-from oodmon.validation import is_finite_real
+from oodmon.validation import is_finite_real, is_whole
 
 __all__ = ["EpisodeLog", "MissingPartWarning", "NewerFormatWarning", "RecoveryWarning", "RunLog", "SkippedLogWarning",
            "read_compared", "read_log", "read_logs", "read_steps"]
@@ -156,6 +156,7 @@ def _episode(path: Path, row: dict, arrays: dict, alarm_detector: str = "spread"
     if not is_finite_real(noise) or noise < 0:
         raise LogFormatError(f"{path}: episode record {row['episode']!r} has obs_noise={noise!r}; not a log oodmon "
                              "wrote (or a damaged one)")
+    readings, readings_steps = _first_alarm_readings(path, row)
     scores, shifted, alarm, rewards = arrays["score"], arrays["shifted"], arrays["alarm"], arrays["rewards"]
     detectors = arrays["detectors"] or {alarm_detector: scores}
     if any(len(a) != row["length"] for a in (scores, shifted, alarm, *detectors.values(),
@@ -168,9 +169,21 @@ def _episode(path: Path, row: dict, arrays: dict, alarm_detector: str = "spread"
         first_alarm_step=row.get("first_alarm_step"), interrupted=bool(row.get("interrupted", False)),
         terminated=row.get("terminated") if isinstance(row.get("terminated"), bool) else None,
         first_alarm_cause=row.get("first_alarm_cause") if isinstance(row.get("first_alarm_cause"), str) else None,
-        obs_noise=float(noise), scores=scores, shifted=shifted, alarm=alarm, detector_scores=detectors, rewards=rewards,
-        ended_ns=ended_ns,
+        obs_noise=float(noise), first_alarm_readings=readings, first_alarm_readings_steps=readings_steps,
+        scores=scores, shifted=shifted, alarm=alarm, detector_scores=detectors, rewards=rewards, ended_ns=ended_ns,
     )
+
+
+def _first_alarm_readings(path: Path, row: dict) -> tuple[tuple[tuple[int, float], ...], int]:
+    """An episode record's ``first_alarm_readings`` and ``first_alarm_readings_steps`` (format 10;
+    none, over 1 step, in older logs), checked: pairs of a whole index and a finite residual."""
+    readings, steps = row.get("first_alarm_readings", []), row.get("first_alarm_readings_steps", 1)
+    pairs = readings if isinstance(readings, list) else [None]
+    if not all(isinstance(pair, list) and len(pair) == 2 and is_whole(pair[0], 0) and is_finite_real(pair[1])
+               for pair in pairs) or not is_whole(steps, 1):
+        raise LogFormatError(f"{path}: episode record {row['episode']!r} has first_alarm_readings={readings!r} over "
+                             f"{steps!r} steps; not a log oodmon wrote (or a damaged one)")
+    return tuple((int(index), float(residual)) for index, residual in pairs), int(steps)
 
 
 class _Collector:

@@ -278,8 +278,23 @@ EPISODE_COLUMNS = [
     ("log", "log"), ("episode", "episode"), ("variant", "variant"), ("seed", "seed"), ("onset", "onset"),
     ("length", "steps"), ("return", "return"), ("alarms", "alarms"), ("first_alarm_step", "first alarm"),
     ("delay", "delay"), ("first_alarm_cause", "cause"), ("failure_step", "failed at"), ("ended", "ended"),
-    ("obs_noise", "noise"),  # last: the CSV's columns before format 8 keep their places
+    ("obs_noise", "noise"),  # after the others: the CSV's columns before format 8 keep their places
+    ("first_alarm_readings", "readings"),  # (format 10) after those of format 8
 ]
+
+
+def readings_cell(readings: Sequence[tuple[int, float]], steps: int = 1) -> str | None:
+    """The readings an alarm named (:attr:`~oodmon.monitor.alarms.AlarmEvent.readings`) in a
+    table's cell; ``None`` for none.
+
+    Example:
+        >>> readings_cell([(1, -263.2), (3, 209.4)]), readings_cell([(4, -4.75)], 20), readings_cell([])
+        ('[1] -263, [3] +209 sd', '[4] -4.75 sd over 20 steps', None)
+    """
+    if not readings:
+        return None
+    return ", ".join(f"[{index}] {residual:+.3g}" for index, residual in readings) + " sd" + (
+        f" over {steps} steps" if steps > 1 else "")
 
 
 def how_it_ended(interrupted: bool, terminated: bool | None) -> str:
@@ -298,7 +313,9 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
     oodmon has no variants of) are ``None`` for ID episodes;
     ``obs_noise`` is the env's sensor noise (0: none, or a log older than format 8);
     ``first_alarm_cause`` is what raised the first alarm's score (``None``: no alarm, or a log
-    older than format 7); ``return`` is ``None`` where the log does not have it (an episode cut at a tear); ``ended``
+    older than format 7); ``first_alarm_readings`` the readings it named (:func:`readings_cell`;
+    ``None``: none named, or a log older than format 10); ``return`` is ``None`` where the log does
+    not have it (an episode cut at a tear); ``ended``
     is ``terminated`` (the env ended it), ``time limit`` (or an alarm callback), ``interrupted``, or
     ``""`` (logs older than format 4).
     """
@@ -315,6 +332,7 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
                 "alarms": e.alarms, "first_alarm_step": e.first_alarm_step,
                 "delay": e.first_alarm_step - e.onset if shifted and e.first_alarm_step is not None else None,
                 "first_alarm_cause": e.first_alarm_cause,
+                "first_alarm_readings": readings_cell(e.first_alarm_readings, e.first_alarm_readings_steps),
                 "failure_step": failure_step(e, log.task, failure) if shifted and not e.interrupted else None,
                 "ended": ended,
             })
@@ -377,10 +395,13 @@ def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -
                    ("ended", "ended")]  # (several noises: each in its variant's cell, as no column fits)
     else:
         columns = list(EPISODE_COLUMNS)
+    named_readings = any(row["first_alarm_readings"] for row in rows)
     columns = [(name, heading) for name, heading in columns
-               if (name != "log" or len(logs) > 1) and (name != "obs_noise" or len(noises) > 1)]
+               if (name != "log" or len(logs) > 1) and (name != "obs_noise" or len(noises) > 1)
+               and (name != "first_alarm_readings" or named_readings)]
     for name, heading in columns:
-        table.add_column(heading, justify="left" if name in ("log", "variant", "ended") else "right",
+        left = name in ("log", "variant", "ended", "first_alarm_readings")
+        table.add_column(heading, justify="left" if left else "right",
                          overflow="fold" if name in ("log", "variant") else "ellipsis",
                          ratio=1 if narrow and name == "variant" else None, no_wrap=narrow and name != "variant")
     for row in rows:

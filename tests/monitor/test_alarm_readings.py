@@ -146,3 +146,34 @@ def test_a_drift_alarm_with_no_step_far_off_names_the_drifting_reading_over_its_
         assert abs(first.readings[0][1]) == pytest.approx(first.score) and first.text().endswith(
             f"; cause: drift; reading [3] drifting from the dynamics model's predictions: {first.readings[0][1]:+.3g} "
             "sd summed over its last 20 steps")
+
+
+def test_the_log_keeps_each_episodes_first_alarm_readings_and_replay_lists_them(agent, tmp_path):
+    """Format 10: the episode message holds the first alarm's readings, which `replay --episodes`
+    lists; a record whose readings are no such pairs is refused as a damaged log."""
+    import json
+
+    from oodmon.errors import LogFormatError
+    from oodmon.monitor import McapSink
+    from oodmon.replay import read_log
+    from oodmon.replay.reader import _first_alarm_readings
+    from tests.helpers import run_cli
+
+    log, sink = tmp_path / "stuck.mcap", MemorySink()
+    with Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics",
+                 sinks=[sink, McapSink(log)]) as monitor:
+        for seed in range(2):
+            monitor.run_episode(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50), seed=seed, max_steps=80)
+        monitor.run_episode(parse_variant("cartpole").make(), seed=5, max_steps=30)  # no alarm: none named
+    firsts = [next(alarm for alarm in sink.alarms if alarm.episode == episode) for episode in range(2)]
+    episodes = read_log(log).episodes
+    assert [e.first_alarm_readings for e in episodes] == [alarm.readings for alarm in firsts] + [()]
+    assert [e.first_alarm_readings_steps for e in episodes] == [1, 1, 1]
+    listed = run_cli("replay", "--episodes", "--json", str(log))
+    assert [row["first_alarm_readings"] for row in json.loads(listed.stdout)] == [
+        f"[2] {alarm.readings[0][1]:+.3g} sd" for alarm in firsts] + [None]
+    for damaged in ({"first_alarm_readings": "[2]"}, {"first_alarm_readings": [[2.5, 1.0]]},
+                    {"first_alarm_readings": [[2, float("nan")]]}, {"first_alarm_readings_steps": 0}):
+        with pytest.raises(LogFormatError, match="not a log oodmon wrote"):
+            _first_alarm_readings(log, {"episode": 0, **damaged})
+    assert _first_alarm_readings(log, {"episode": 0}) == ((), 1)  # a log older than format 10
