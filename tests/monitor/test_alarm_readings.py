@@ -25,14 +25,19 @@ def agent():
     return load("cartpole", "ensemble")
 
 
+def monitor(agent, sinks, callbacks=()) -> Monitor:
+    """The shipped ensemble under its dynamics threshold, with its shipped detectors."""
+    return Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics", sinks=sinks,
+                   callbacks=callbacks)
+
+
 def first_alarms(agent, spec: str) -> list:
     """The first alarm from the onset (step 50) of each of ``EPISODES`` episodes of ``spec``."""
     found = []
     for seed in range(EPISODES):
         sink = MemorySink()
-        with Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics",
-                     sinks=[sink]) as monitor:
-            monitor.run_episode(parse_variant(spec).make(onset_step=50), seed=seed, max_steps=120)
+        with monitor(agent, [sink]) as watching:
+            watching.run_episode(parse_variant(spec).make(onset_step=50), seed=seed, max_steps=120)
         found.append(next(alarm for alarm in sink.alarms if alarm.step >= 50))
     return found
 
@@ -61,9 +66,8 @@ def test_id_transitions_keep_every_reading_well_within_the_line_so_a_false_alarm
     worst = []
     for seed in range(10):
         sink = MemorySink()
-        with Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics",
-                     sinks=[sink]) as monitor:
-            monitor.run_episode(parse_variant("cartpole").make(), seed=800_000 + seed)
+        with monitor(agent, [sink]) as watching:
+            watching.run_episode(parse_variant("cartpole").make(), seed=800_000 + seed)
         obs = np.array([step.observation for step in sink.steps], dtype=np.float32)
         actions = np.array([step.action for step in sink.steps])
         worst.append(np.abs(model.standardized_residuals(obs[:-1], actions[:-1], obs[1:])).max())
@@ -73,10 +77,9 @@ def test_id_transitions_keep_every_reading_well_within_the_line_so_a_false_alarm
 def test_the_alarm_command_gets_the_readings(agent, tmp_path):
     out = tmp_path / "readings.txt"
     command, sink = AlarmCommand(f'echo "$OODMON_READINGS" >> {out}'), MemorySink()
-    with Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics", sinks=[sink],
-                 callbacks=[command]) as monitor:
+    with monitor(agent, [sink], [command]) as watching:
         for seed in range(3):
-            monitor.run_episode(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50), seed=seed, max_steps=80)
+            watching.run_episode(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50), seed=seed, max_steps=80)
     assert command.close() == "ran 3 times (episodes 0, 1, 2), each exited 0"
     firsts = [next(alarm for alarm in sink.alarms if alarm.episode == episode) for episode in range(3)]
     assert all(alarm.step >= 50 for alarm in firsts)  # (each episode's first alarm: the command's)
@@ -114,9 +117,7 @@ def test_a_monitored_envs_info_holds_the_readings_at_the_step_each_alarm_is_rais
     from oodmon.monitor import MonitoredEnv
 
     sink = MemorySink()
-    env = MonitoredEnv(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50),
-                       Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics",
-                               sinks=[sink]))
+    env = MonitoredEnv(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50), monitor(agent, [sink]))
     env.reset(seed=0)
     said = {}
     for _ in range(80):
@@ -160,11 +161,10 @@ def test_the_log_keeps_each_episodes_first_alarm_readings_and_replay_lists_them(
     from tests.helpers import run_cli
 
     log, sink = tmp_path / "stuck.mcap", MemorySink()
-    with Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics",
-                 sinks=[sink, McapSink(log)]) as monitor:
+    with monitor(agent, [sink, McapSink(log)]) as watching:
         for seed in range(2):
-            monitor.run_episode(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50), seed=seed, max_steps=80)
-        monitor.run_episode(parse_variant("cartpole").make(), seed=5, max_steps=30)  # no alarm: none named
+            watching.run_episode(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50), seed=seed, max_steps=80)
+        watching.run_episode(parse_variant("cartpole").make(), seed=5, max_steps=30)  # no alarm: none named
     firsts = [next(alarm for alarm in sink.alarms if alarm.episode == episode) for episode in range(2)]
     episodes = read_log(log).episodes
     assert [e.first_alarm_readings for e in episodes] == [alarm.readings for alarm in firsts] + [()]
