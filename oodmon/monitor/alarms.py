@@ -268,6 +268,8 @@ class AlarmEvent:
             reading: the residuals summed over its last ``readings_steps`` steps, over their root.
         readings_steps: the steps the residuals of ``readings`` cover: 1, the alarm's step; more,
             the drift detector's window.
+        reading_names: the names of ``readings``, in their order, where the env's layout is known
+            (:func:`~oodmon.envs.readings.reading_names`: ``pole angle``); empty otherwise.
     """
 
     episode: int
@@ -278,6 +280,7 @@ class AlarmEvent:
     cause: str = ""
     readings: tuple[tuple[int, float], ...] = ()
     readings_steps: int = 1
+    reading_names: tuple[str, ...] = ()
 
     def text(self) -> str:
         """One line for a person: where, the value against the threshold (named by the rule: the
@@ -296,19 +299,24 @@ class AlarmEvent:
         cause = f"; cause: {self.cause}" if self.cause else ""
         value = compared_name(self.rule) or "score"
         return (f"episode {self.episode} step {self.step}: {value} {self.score:.4g} > {self.threshold:.4g} "
-                f"({self.rule}){cause}{readings_text(self.readings, self.readings_steps)}")
+                f"({self.rule}){cause}{readings_text(self.readings, self.readings_steps, self.reading_names)}")
 
 
-def readings_text(readings: Sequence[tuple[int, float]], steps: int = 1) -> str:
-    """:attr:`AlarmEvent.readings` in words, after a ``"; "``; empty where there are none.
+def readings_text(readings: Sequence[tuple[int, float]], steps: int = 1, names: Sequence[str] = ()) -> str:
+    """:attr:`AlarmEvent.readings` in words, after a ``"; "``, each named where ``names`` (in their
+    order) says; empty where there are none.
 
     Example:
         >>> readings_text([(4, 4.51)], steps=20)
         "; reading [4] drifting from the dynamics model's predictions: +4.51 sd summed over its last 20 steps"
+        >>> readings_text([(2, -269.0)], names=["pole angle"])
+        "; reading [2] (pole angle) off the dynamics model's prediction by -269 sd"
     """
     if not readings:
         return ""
-    indices = " and ".join(f"[{index}]" for index, _ in readings)
+    named = list(names) + [""] * (len(readings) - len(names))
+    indices = " and ".join(f"[{index}]" + (f" ({name})" if name else "")
+                           for (index, _), name in zip(readings, named))
     values = ", ".join(f"{residual:+.3g}" for _, residual in readings)
     plural = "s" if len(readings) > 1 else ""
     if steps > 1:

@@ -36,6 +36,7 @@ import numpy as np
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import EnsembleEstimator, Estimate, UncertaintyEstimator
 from oodmon.envs.checks import step_naming_refusal
+from oodmon.envs.readings import reading_names
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
@@ -660,7 +661,9 @@ class Monitor:
         self.last_cause = self._cause(finite) if alarm else None
         if event is not None:
             readings, steps = self._readings(context)
-            event = replace(event, cause=self.last_cause, readings=readings, readings_steps=steps)
+            names = () if self._dicts else reading_names(self._episode_info.get("env_id"))  # (a dict: flattened)
+            event = replace(event, cause=self.last_cause, readings=readings, readings_steps=steps,
+                            reading_names=tuple(names[index] if index < len(names) else "" for index, _ in readings))
         self.last_alarm = event
         observation, frame = self._logged(obs, frame)
         logged_action = int(read) if isinstance(read, (int, np.integer)) else np.asarray(read).tolist()

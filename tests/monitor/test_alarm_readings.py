@@ -42,15 +42,16 @@ def first_alarms(agent, spec: str) -> list:
     return found
 
 
-@pytest.mark.parametrize("spec, reading", [("cartpole:obs.stuck[0]=1", 0), ("cartpole:obs.stuck[2]=1", 2),
-                                           ("cartpole:length=2.0", 3)])
-def test_a_stuck_sensor_or_a_longer_pole_is_named_by_its_reading_far_above_any_other(agent, spec, reading):
+@pytest.mark.parametrize("spec, reading, name", [("cartpole:obs.stuck[0]=1", 0, "cart position"),
+                                                 ("cartpole:obs.stuck[2]=1", 2, "pole angle"),
+                                                 ("cartpole:length=2.0", 3, "pole angular velocity")])
+def test_a_stuck_sensor_or_a_longer_pole_is_named_by_its_reading_far_above_any_other(agent, spec, reading, name):
     # a stuck sensor [k] named [k] at 16.9-1,180 sd in 10 of 10 episodes each, every other reading
     # within 0.75; a longer pole [3] (the pole's angular velocity) at 205-289 (scripts/alarm_readings.py)
     for alarm in first_alarms(agent, spec):
         assert len(alarm.readings) == 1 and alarm.readings[0][0] == reading, alarm.text()
-        assert abs(alarm.readings[0][1]) > 10 and f"reading [{reading}] off the dynamics model's prediction by" in (
-            alarm.text())
+        assert abs(alarm.readings[0][1]) > 10 and alarm.reading_names == (name,)
+        assert f"reading [{reading}] ({name}) off the dynamics model's prediction by" in alarm.text()
 
 
 def test_a_weaker_push_names_both_readings_it_moves(agent):
@@ -84,6 +85,17 @@ def test_the_alarm_command_gets_the_readings(agent, tmp_path):
     firsts = [next(alarm for alarm in sink.alarms if alarm.episode == episode) for episode in range(3)]
     assert all(alarm.step >= 50 for alarm in firsts)  # (each episode's first alarm: the command's)
     assert sorted(out.read_text().splitlines()) == sorted(f"2:{alarm.readings[0][1]!r}" for alarm in firsts)
+
+
+def test_an_env_whose_layout_is_not_known_names_its_readings_by_index_alone():
+    from oodmon.monitor.alarms import AlarmEvent
+
+    event = AlarmEvent(0, 51, 9.5, 5.9, "score > threshold", "dynamics", ((1, -311.3), (3, 310.8)),
+                       reading_names=("cart velocity", ""))
+    assert event.text().endswith("readings [1] (cart velocity) and [3] off the dynamics model's prediction by "
+                                 "-311, +311 sd")
+    assert AlarmEvent(0, 5, 9.5, 5.9, "score > threshold", "dynamics", ((2, 4.0),)).text().endswith(
+        "; reading [2] off the dynamics model's prediction by +4 sd")
 
 
 def test_no_reading_is_named_without_a_dynamics_model_or_a_step_before(agent):
@@ -145,8 +157,8 @@ def test_a_drift_alarm_with_no_step_far_off_names_the_drifting_reading_over_its_
         first = sink.alarms[0]
         assert first.step > 50 and first.readings_steps == 20 and [i for i, _ in first.readings] == [3], first.text()
         assert abs(first.readings[0][1]) == pytest.approx(first.score) and first.text().endswith(
-            f"; cause: drift; reading [3] drifting from the dynamics model's predictions: {first.readings[0][1]:+.3g} "
-            "sd summed over its last 20 steps")
+            f"; cause: drift; reading [3] (pole angular velocity) drifting from the dynamics model's predictions: "
+            f"{first.readings[0][1]:+.3g} sd summed over its last 20 steps")
 
 
 def test_the_log_keeps_each_episodes_first_alarm_readings_and_replay_lists_them(agent, tmp_path):
