@@ -660,10 +660,7 @@ class Monitor:
         alarm, event = self.tracker.update(self.episode, step, score)
         self.last_cause = self._cause(finite) if alarm else None
         if event is not None:
-            readings, steps = self._readings(context)
-            names = () if self._dicts else reading_names(self._episode_info.get("env_id"))  # (a dict: flattened)
-            event = replace(event, cause=self.last_cause, readings=readings, readings_steps=steps,
-                            reading_names=tuple(names[index] if index < len(names) else "" for index, _ in readings))
+            event = replace(event, cause=self.last_cause, **self._readings(context))
         self.last_alarm = event
         observation, frame = self._logged(obs, frame)
         logged_action = int(read) if isinstance(read, (int, np.integer)) else np.asarray(read).tolist()
@@ -738,30 +735,31 @@ class Monitor:
             return "a reading that is not finite"
         return getattr(self.detectors[self.detector], "leader", None) or self.detector
 
-    def _readings(self, context: StepContext | None) -> tuple[tuple[tuple[int, float], ...], int]:
-        """:attr:`AlarmEvent.readings` of the step ``context`` (``None``: a reading not finite), and
-        the steps they cover: the readings whose change the set's ``dynamics`` model predicted
-        worst, at least :data:`READING_SD` off, at most :data:`MOST_READINGS`; none without a fitted
-        model or a step before. Where none is and ``drift`` raised the alarm, its own reading
-        (:meth:`~oodmon.monitor.detectors.DriftDetector.largest_bias`), over its window. One batch
-        pass of the model, at each alarm (not each step)."""
+    def _readings(self, context: StepContext | None) -> dict[str, Any]:
+        """:attr:`AlarmEvent.readings` of the step ``context`` (``None``: a reading not finite), the
+        steps they cover and their names (``readings``, ``readings_steps``, ``reading_names``): the
+        readings whose change the set's ``dynamics`` model predicted worst, at least
+        :data:`READING_SD` off, at most :data:`MOST_READINGS`; none without a fitted model or a
+        step before. Where none is and ``drift`` raised the alarm, its own reading
+        (:meth:`~oodmon.monitor.detectors.DriftDetector.largest_bias`), over its window. Named
+        where the env's layout is known (not a dict's, read flattened). One batch pass of the
+        model, at each alarm (not each step)."""
         model = self.detectors["dynamics"] if "dynamics" in self.detectors else None
-        if context is None or context.prev_obs is None:
-            return (), 1
-        if model is not None and model.fitted:
+        readings, steps = (), 1
+        if context is not None and context.prev_obs is not None and model is not None and model.fitted:
             before, action = np.asarray(context.prev_obs)[None], np.asarray([context.prev_action])
             residuals = model.standardized_residuals(before, action, np.asarray(context.obs)[None])[0]
             indices = np.arange(len(residuals)) if model.predicted is None else model.predicted
             worst = np.argsort(-np.abs(residuals), kind="stable")[:MOST_READINGS]
-            named = tuple((int(indices[k]), float(residuals[k])) for k in worst if abs(residuals[k]) >= READING_SD)
-            if named:
-                return named, 1
+            readings = tuple((int(indices[k]), float(residuals[k])) for k in worst if abs(residuals[k]) >= READING_SD)
         drift = self.detectors["drift"] if "drift" in self.detectors and self.last_cause == "drift" else None
-        bias = None if drift is None else drift.largest_bias()
-        if bias is None or abs(bias[1]) < READING_SD:
-            return (), 1
-        index, value, steps = bias
-        return ((index, value),), steps
+        if not readings and context is not None and context.prev_obs is not None and drift is not None:
+            bias = drift.largest_bias()
+            if bias is not None and abs(bias[1]) >= READING_SD:
+                readings, steps = (bias[:2],), bias[2]
+        names = () if self._dicts else reading_names(self._episode_info.get("env_id"))
+        return {"readings": readings, "readings_steps": steps,
+                "reading_names": tuple(names[index] if index < len(names) else "" for index, _ in readings)}
 
     def _picture(self, obs: np.ndarray) -> np.ndarray | None:
         """A picture of a CartPole or Pendulum state (``render``); ``None`` for another env."""

@@ -19,9 +19,10 @@ import json
 import math
 import shlex
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -484,6 +485,22 @@ def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str
         return None  # a start message oodmon did not write: the running episode stays lost
 
 
+def _streamed(f: BinaryIO, topics: Sequence[str]) -> Iterator[tuple[str, bytes]]:
+    """The messages of ``topics`` in the log open as ``f``, as (topic, data) in file order, streamed
+    (what :func:`read_steps` and :func:`read_compared` read of a log, torn or whole). A torn or
+    damaged record raises from the stream: the callers end their reading there (see
+    :func:`_recover`)."""
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+
+    channels: dict[int, str] = {}
+    for record in StreamReader(f, skip_magic=False, validate_crcs=True).records:
+        if isinstance(record, Channel):
+            channels[record.id] = record.topic
+        elif isinstance(record, Message) and channels.get(record.channel_id) in topics:
+            yield channels[record.channel_id], record.data
+
+
 def read_steps(path: str | Path, episodes: Sequence[int], *, pictures: bool = False) -> dict[int, tuple]:
     """The observations and actions a log's step messages hold, ``(T, ...)`` each, of each of
     ``episodes`` (indices of whole episodes :func:`read_log` returned), in step order (a reading
@@ -499,27 +516,20 @@ def read_steps(path: str | Path, episodes: Sequence[int], *, pictures: bool = Fa
         LogFormatError: a step of those episodes with neither its observation nor a frame, or
             that ``read_log`` would not have read.
     """
-    from mcap.records import Channel, Message
-    from mcap.stream_reader import StreamReader
-
     path, wanted = Path(path), set(episodes)
     steps: dict[int, list[tuple[int, list, object]]] = {k: [] for k in wanted}
     frames: dict[tuple[int, object], bytes] = {}  # (episode, step) -> the frame logged right after its step
-    channels: dict[int, str] = {}
     last = None
-    with open(path, "rb") as f:
-        with contextlib.suppress(Exception):  # (a torn record ends the readable part: see _recover)
-            for record in StreamReader(f, skip_magic=False, validate_crcs=True).records:
-                if isinstance(record, Channel):
-                    channels[record.id] = record.topic
-                elif isinstance(record, Message) and channels.get(record.channel_id) == _STEP:
-                    row = json.loads(record.data)
-                    last = None
-                    if row.get("episode") in wanted:
-                        steps[row["episode"]].append((row.get("step"), row.get("observation"), row.get("action")))
-                        last = (row["episode"], row.get("step"))
-                elif isinstance(record, Message) and channels.get(record.channel_id) == _FRAME and last is not None:
-                    frames[last], last = record.data, None
+    with open(path, "rb") as f, contextlib.suppress(Exception):  # (a torn record, a damaged message: the end)
+        for topic, data in _streamed(f, (_STEP, _FRAME)):
+            if topic == _STEP:
+                row = json.loads(data)
+                last = None
+                if row.get("episode") in wanted:
+                    steps[row["episode"]].append((row.get("step"), row.get("observation"), row.get("action")))
+                    last = (row["episode"], row.get("step"))
+            elif last is not None:
+                frames[last], last = data, None
     found = {}
     for k in sorted(wanted):
         rows = sorted(steps[k], key=lambda r: r[0] if isinstance(r[0], int) else -1)
@@ -548,23 +558,15 @@ def read_compared(path: str | Path, episodes: Sequence[int]) -> dict[int, np.nda
     statistic; ``null`` read as NaN), in step order; an episode whose steps do not all hold it
     (a log before format 9, a rule that compares each score, a step missing) is left out. The file
     is streamed, a torn one up to its tear."""
-    from mcap.records import Channel, Message
-    from mcap.stream_reader import StreamReader
-
     wanted = set(episodes)
     rows: dict[int, dict[int, float]] = {k: {} for k in wanted}
-    channels: dict[int, str] = {}
-    with open(path, "rb") as f:
-        with contextlib.suppress(Exception):  # (a torn record ends the readable part, as read_steps reads it)
-            for record in StreamReader(f, skip_magic=False, validate_crcs=True).records:
-                if isinstance(record, Channel):
-                    channels[record.id] = record.topic
-                elif isinstance(record, Message) and channels.get(record.channel_id) == _STEP:
-                    row = json.loads(record.data)
-                    value = row.get("compared", "absent")
-                    if row.get("episode") in wanted and isinstance(row.get("step"), int) and (value is None or (
-                            isinstance(value, (int, float)) and not isinstance(value, bool))):
-                        rows[row["episode"]][row["step"]] = math.nan if value is None else float(value)
+    with open(path, "rb") as f, contextlib.suppress(Exception):  # (a torn record, a damaged message: the end)
+        for _, data in _streamed(f, (_STEP,)):
+            row = json.loads(data)
+            value = row.get("compared", "absent")
+            if row.get("episode") in wanted and isinstance(row.get("step"), int) and (value is None or (
+                    isinstance(value, (int, float)) and not isinstance(value, bool))):
+                rows[row["episode"]][row["step"]] = math.nan if value is None else float(value)
     return {k: np.array([steps[t] for t in range(len(steps))]) for k, steps in rows.items()
             if steps and sorted(steps) == list(range(len(steps)))}
 
