@@ -57,7 +57,8 @@ def failure_definition(tasks: Iterable[str], failure: str | None = None) -> str:
     return "; ".join([f"failed: {'; '.join(said)}" if said else "failed: not told", id_row,
                       "delays in steps from the onset", "lead: steps from the first alarm to the failure, over the "
                       "episodes alarmed before it", "first alarms by: what raised each episode's first alarm after "
-                      "the onset (logs since format 7)"])
+                      "the onset (logs since format 7), and the reading it named first, the one the dynamics model "
+                      "predicted worst (format 10 on)"])
 
 
 #: What may count as a failure of an env oodmon has no variants of (replay's and bench's

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from oodmon.envs.readings import reading_names
 from oodmon.envs.shift import parse_any_variant, same_env
 from oodmon.errors import OodmonError
 from oodmon.replay.failures import failure_known, failure_step, id_failures
@@ -32,9 +33,10 @@ if TYPE_CHECKING:
 
 __all__ = ["EpisodeAlarms", "MonitorMetrics", "VariantMetrics", "alarm_events", "average_precision",
            "compute_all_metrics", "compute_metrics", "compute_monitor_metrics", "ended_before_onset", "detectors_in",
-           "env_of_variant", "failed_episodes", "fpr_at_tpr", "id_stretches", "is_id_episode", "is_id_variant",
-           "longer_than_calibration", "made_from_episodes", "monitor_row", "off_calibration_noise", "pooled_fits",
-           "pooled_noise", "pooled_thresholds", "pooled_weights", "rankable", "roc_points", "shifted_alarms"]
+           "env_of_variant", "failed_episodes", "first_reading", "fpr_at_tpr", "id_stretches", "is_id_episode",
+           "is_id_variant", "longer_than_calibration", "made_from_episodes", "monitor_row", "off_calibration_noise",
+           "pooled_fits", "pooled_noise", "pooled_thresholds", "pooled_weights", "rankable", "roc_points",
+           "shifted_alarms"]
 
 
 @dataclass(frozen=True)
@@ -728,7 +730,11 @@ class MonitorMetrics:
     episodes alarmed before the failure. ``causes``: what raised the first alarm
     (:attr:`~oodmon.monitor.alarms.AlarmEvent.cause`), counted over the alarmed episodes with no
     alarm before the onset, whose logs say it (format 7 on), the most frequent first.
-    ``early_starts``: the ID starts of the ``early`` episodes, ``seed@step`` of each one's first
+    ``readings``: over the same first alarms, the reading each named first (the one the dynamics
+    model predicted worst, :attr:`~oodmon.monitor.alarms.AlarmEvent.readings`; format 10 on), as
+    ``[2] (pole angle)`` where the env's layout is known (:mod:`oodmon.envs.readings`), the most
+    frequent first: which sensor the shift moved, across episodes. A first alarm naming none is not
+    counted. ``early_starts``: the ID starts of the ``early`` episodes, ``seed@step`` of each one's first
     alarm, sorted and each once: the bench's variants play the same seeds, so their steps before
     the onset are the same ID steps, and a pooled row's ``early`` counts one start once per variant.
     """
@@ -752,6 +758,7 @@ class MonitorMetrics:
     causes: dict[str, int] = field(default_factory=dict)
     never_shifted: int = 0
     early_starts: tuple[str, ...] = ()
+    readings: dict[str, int] = field(default_factory=dict)
 
     @property
     def is_id(self) -> bool:
@@ -798,8 +805,9 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
             continue
         episodes = [EpisodeAlarms.of(e, task, failure) for _, e in pairs]
         known = failure_known(task, failure)  # else failed and alarmed before failure are None: blank, not "0 failed"
-        causes = Counter(logged.first_alarm_cause for (_, logged), e in zip(pairs, episodes)
-                         if e.early is None and e.first is not None and logged.first_alarm_cause)
+        first_alarms = [logged for (_, logged), e in zip(pairs, episodes) if e.early is None and e.first is not None]
+        causes = Counter(logged.first_alarm_cause for logged in first_alarms if logged.first_alarm_cause)
+        readings = Counter(first_reading(logged) for logged in first_alarms if logged.first_alarm_readings)
         results.append(monitor_row(task, method, variant, len(episodes), sum(e.early is not None for e in episodes),
                                    sum(e.failure is not None for e in episodes) if known else None,
                                    sum(e.before_failure for e in episodes) if known else None,
@@ -807,25 +815,45 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
                                    [e.lead for e in episodes if e.lead is not None], causes,
                                    sum(ended_before_onset(e) for _, e in pairs),
                                    [f"{logged.seed}@{logged.onset + e.early}" for (_, logged), e in zip(pairs, episodes)
-                                    if e.early is not None]))
+                                    if e.early is not None], readings))
     return results
+
+
+def first_reading(episode: EpisodeLog) -> str:
+    """The reading an episode's first alarm named first (:attr:`EpisodeLog.first_alarm_readings`),
+    with its name where its env's layout is known, for :attr:`MonitorMetrics.readings`.
+
+    Example:
+        >>> from oodmon.replay.reader import EpisodeLog
+        >>> def e(env_id):
+        ...     return EpisodeLog(episode=0, env_id=env_id, variant="cartpole:obs.stuck[2]=1", onset=5, seed=0,
+        ...                       total_return=9.0, length=9, alarms=1, first_alarm_step=6, scores=np.zeros(9),
+        ...                       shifted=np.zeros(9, bool), alarm=np.zeros(9, bool),
+        ...                       first_alarm_readings=((2, -269.0), (3, 4.0)))
+        >>> first_reading(e("oodmon/CartPole-v1")), first_reading(e("my_envs:MyEnv-v0"))
+        ('[2] (pole angle)', '[2]')
+    """
+    index = episode.first_alarm_readings[0][0]
+    names = reading_names(episode.env_id)
+    return f"[{index}]" + (f" ({names[index]})" if index < len(names) else "")
 
 
 def monitor_row(task: str, method: str, variant: str, episodes: int, early: int, failed: int | None,
                 before_failure: int | None, delays: Sequence[int], leads: Sequence[int] = (),
                 causes: Mapping[str, int] | None = None, never_shifted: int = 0,
-                early_starts: Iterable[str] = ()) -> MonitorMetrics:
+                early_starts: Iterable[str] = (), readings: Mapping[str, int] | None = None) -> MonitorMetrics:
     """The :class:`MonitorMetrics` of shifted episodes from their counts, the delays of the
     alarmed ones and the leads of those alarmed before their failure (medians and the delays' 90th
     percentile computed here, for one variant or several pooled); ``failed`` and
     ``before_failure`` are ``None`` where no failure is defined (:func:`failure_known`);
     ``causes``: how many first alarms each cause raised; ``never_shifted``: how many of the
     ``episodes`` ended before their onset; ``early_starts``: the ID starts of the early alarms
-    (kept each once)."""
+    (kept each once); ``readings``: how many first alarms named each reading first."""
     return MonitorMetrics(task, method, variant, episodes, early=early, alarmed=len(delays), failed=failed,
                           before_failure=before_failure,
                           delay_median=float(np.median(delays)) if len(delays) else None,
                           delay_p90=float(np.quantile(delays, 0.9)) if len(delays) else None, delays=tuple(delays),
                           lead_median=float(np.median(leads)) if len(leads) else None, leads=tuple(leads),
                           causes=dict(Counter(causes or {}).most_common()), never_shifted=never_shifted,
-                          early_starts=tuple(sorted(set(early_starts))))
+                          early_starts=tuple(sorted(set(early_starts))),
+                          readings=dict(Counter(readings or {}).most_common()))

@@ -177,7 +177,8 @@ def monitor_summary(metrics: Sequence[MonitorMetrics]) -> list[MonitorMetrics]:
                         total([m.failed for m in group]), total([m.before_failure for m in group]),
                         [d for m in group for d in m.delays], [lead for m in group for lead in m.leads],
                         sum((Counter(m.causes) for m in group), Counter()), sum(m.never_shifted for m in group),
-                        [start for m in group for start in m.early_starts])
+                        [start for m in group for start in m.early_starts],
+                        sum((Counter(m.readings) for m in group), Counter()))
             for (task, method), group in sorted(pooled.items())]
 
 
@@ -191,17 +192,23 @@ def monitor_cells(m: MonitorMetrics, *, name_task: bool = False) -> list[str]:
     variant = f"{m.variant} ({m.task})" if name_task and m.variant == POOLED else m.variant
     return [m.method, variant, str(m.episodes), _early_cell(m, _share(m.early, m.episodes)),
             _share(m.alarmed, m.shifted_episodes), _share(m.failed, m.episodes), _share(m.before_failure, m.failed),
-            delay(m.lead_median), delay(m.delay_median), delay(m.delay_p90), causes_cell(m.causes)]
+            delay(m.lead_median), delay(m.delay_median), delay(m.delay_p90), causes_cell(m.causes, m.readings)]
 
 
-def causes_cell(causes: Mapping[str, int]) -> str:
-    """``stillness 9, frames 1``: how many first alarms each cause raised, the most frequent first.
+def causes_cell(causes: Mapping[str, int], readings: Mapping[str, int] | None = None) -> str:
+    """``stillness 9, frames 1``: how many first alarms each cause raised, the most frequent first;
+    then, where some named one, how many named each reading first (:attr:`MonitorMetrics.readings`).
 
     Example:
         >>> causes_cell({"dynamics": 8, "features": 2}), causes_cell({})
         ('dynamics 8, features 2', '')
+        >>> causes_cell({"dynamics": 9}, {"[2] (pole angle)": 8, "[3] (pole angular velocity)": 1})
+        'dynamics 9; reading [2] (pole angle) 8, [3] (pole angular velocity) 1'
     """
-    return ", ".join(f"{cause} {count}" for cause, count in causes.items())
+    said = ", ".join(f"{cause} {count}" for cause, count in causes.items())
+    if readings:
+        said += "; reading " + ", ".join(f"{reading} {count}" for reading, count in readings.items())
+    return said
 
 
 def _monitor_rows(metrics: Sequence[MonitorMetrics]) -> list[tuple[bool, list[str]]]:
@@ -226,7 +233,7 @@ def _narrow_monitor_table(metrics: Sequence[MonitorMetrics], title: str) -> Tabl
         + (", (n): from n ID starts the variants share" if any(map(shared_starts, rows)) else "")
         + "; before: failing episodes alarmed before the failure (-: none "
         "failed); lead: median steps from that alarm to the failure; delay: median/p90 steps from the onset; "
-        "by: what raised the first alarms after the onset"))
+        "by: what raised the first alarms after the onset (and the reading each named first)"))
     table.add_column("variant" if len(methods) == 1 else "method variant", overflow="fold", ratio=1)
     for heading in ("FA/early", "alarmed", "before", "lead", "delay"):
         table.add_column(heading, justify="right", no_wrap=True)
@@ -241,7 +248,7 @@ def _narrow_monitor_table(metrics: Sequence[MonitorMetrics], title: str) -> Tabl
             table.add_row(name, count(m.false_alarms, m.episodes), "", "", "", "")
             continue
         if m.causes:  # what raised the first alarms, on a line of its own under the variant
-            name = Text(name).append(f"\nby {causes_cell(m.causes)}", style="dim")
+            name = Text(name).append(f"\nby {causes_cell(m.causes, m.readings)}", style="dim")
         starts = shared_starts(m)
         early = count(m.early, m.episodes) + ("" if starts is None else f" ({starts})")
         table.add_row(name, early, count(m.alarmed, m.shifted_episodes), count(m.before_failure, m.failed),

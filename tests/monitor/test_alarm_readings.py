@@ -184,6 +184,10 @@ def test_the_log_keeps_each_episodes_first_alarm_readings_and_replay_lists_them(
     listed = run_cli("replay", "--episodes", "--json", str(log))
     assert [row["first_alarm_readings"] for row in json.loads(listed.stdout)] == [
         f"[2] {alarm.readings[0][1]:+.3g} sd" for alarm in firsts] + [None]
+    # `replay --monitor` counts, per variant, the reading each first alarm after the onset named first.
+    (stuck,) = [row for row in json.loads(run_cli("replay", "--monitor", "--json", str(log)).stdout)
+                if row["variant"] == "cartpole:obs.stuck[2]=1.0"]
+    assert stuck["readings"] == {"[2] (pole angle)": 2} and stuck["causes"] == {"dynamics": 2}
     for damaged in ({"first_alarm_readings": "[2]"}, {"first_alarm_readings": [[2.5, 1.0]]},
                     {"first_alarm_readings": [[2, float("nan")]]}, {"first_alarm_readings_steps": 0}):
         with pytest.raises(LogFormatError, match="not a log oodmon wrote"):

@@ -259,6 +259,45 @@ def test_the_monitor_counts_what_raised_each_first_alarm_after_the_onset():
     assert "by: what raised the first alarms" in " ".join(buffer.getvalue().split())
 
 
+def test_the_monitor_counts_the_reading_each_first_alarm_after_the_onset_named_first():
+    """``readings``: over the first alarms ``causes`` counts, the reading each named first (the
+    worst), named where the env's layout is known; a first alarm before the onset or naming none is
+    not counted, a pooled row adds its variants', and the cell says them after the causes."""
+    from dataclasses import replace
+
+    from oodmon.replay import compute_monitor_metrics, monitor_markdown, monitor_summary
+    from oodmon.replay.report import monitor_cells
+
+    def named(episode, readings, env_id="oodmon/CartPole-v1"):
+        first = int(np.flatnonzero(episode.alarm)[0]) if episode.alarm.any() else None
+        return replace(episode, env_id=env_id, first_alarm_step=first, first_alarm_cause="dynamics",
+                       first_alarm_readings=readings)
+
+    stuck = _log([named(_run(0, "cartpole:obs.stuck[2]=1", 2, [0] * 3 + [1] * 5), ((2, -269.0), (3, 4.1))),
+                  named(_run(1, "cartpole:obs.stuck[2]=1", 2, [0] * 4 + [1] * 4), ((2, 35.0),)),
+                  named(_run(2, "cartpole:obs.stuck[2]=1", 2, [1] + [0] * 7), ((3, 5.0),)),  # early: not counted
+                  named(_run(3, "cartpole:obs.stuck[2]=1", 2, [0] * 3 + [1] * 5), ())])  # named none
+    heavier = _log([named(_run(0, "cartpole:masscart=9.0", 2, [0] * 3 + [1] * 5), ((1, 300.0), (3, 250.0))),
+                    named(_run(1, "cartpole:masscart=9.0", 2, [0] * 3 + [1] * 5), ((3, 260.0), (1, 240.0)))])
+    rows = {m.variant: m for m in compute_monitor_metrics([stuck, heavier])}
+    assert rows["cartpole:obs.stuck[2]=1"].readings == {"[2] (pole angle)": 2}
+    assert rows["cartpole:obs.stuck[2]=1"].causes == {"dynamics": 3}  # the one naming none has its cause
+    assert rows["cartpole:masscart=9.0"].readings == {"[1] (cart velocity)": 1, "[3] (pole angular velocity)": 1}
+    (pooled,) = monitor_summary(list(rows.values()))
+    assert pooled.readings == {"[2] (pole angle)": 2, "[1] (cart velocity)": 1, "[3] (pole angular velocity)": 1}
+    assert list(pooled.readings)[0] == "[2] (pole angle)"  # the most frequent first
+    assert pooled.to_dict()["readings"] == pooled.readings
+    assert monitor_cells(rows["cartpole:obs.stuck[2]=1"])[-1] == "dynamics 3; reading [2] (pole angle) 2"
+    assert "| dynamics 5; reading [2] (pole angle) 2, [1] (cart velocity) 1, [3] (pole angular velocity) 1 |" in (
+        monitor_markdown(list(rows.values())))
+    # An env whose layout oodmon does not know: the index alone; a log before format 10: no reading, no words.
+    own = _log([named(_run(0, "MyEnv-v0", 2, [0] * 3 + [1] * 5), ((5, 9.0),), env_id="my_envs:MyEnv-v0")])
+    old = _log([named(_run(0, "cartpole:length=2.0", 2, [0] * 3 + [1] * 5), ())])
+    assert [m.readings for m in compute_monitor_metrics([own, old])] == [{"[5]": 1}, {}]
+    assert [monitor_cells(m)[-1] for m in compute_monitor_metrics([own, old])] == [
+        "dynamics 1; reading [5] 1", "dynamics 1"]
+
+
 def test_the_monitor_table_names_the_task_of_each_pooled_row_when_there_are_several():
     from oodmon.replay import compute_monitor_metrics, monitor_markdown
 
