@@ -36,7 +36,7 @@ import numpy as np
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import EnsembleEstimator, Estimate, UncertaintyEstimator
 from oodmon.envs.checks import step_naming_refusal
-from oodmon.envs.readings import reading_names
+from oodmon.envs.readings import flat_names, reading_names
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
@@ -742,7 +742,7 @@ class Monitor:
         :data:`READING_SD` off, at most :data:`MOST_READINGS`; none without a fitted model or a
         step before. Where none is and ``drift`` raised the alarm, its own reading
         (:meth:`~oodmon.monitor.detectors.DriftDetector.largest_bias`), over its window. Named
-        where the env's layout is known (not a dict's, read flattened). One batch pass of the
+        where the env's layout is known, a dict's by its keys (read flattened). One batch pass of the
         model, at each alarm (not each step)."""
         model = self.detectors["dynamics"] if "dynamics" in self.detectors else None
         readings, steps = (), 1
@@ -757,7 +757,7 @@ class Monitor:
             bias = drift.largest_bias()
             if bias is not None and abs(bias[1]) >= READING_SD:
                 readings, steps = (bias[:2],), bias[2]
-        names = () if self._dicts else reading_names(self._episode_info.get("env_id"))
+        names = flat_names(self.agent.dict_space) if self._dicts else reading_names(self._episode_info.get("env_id"))
         return {"readings": readings, "readings_steps": steps,
                 "reading_names": tuple(names[index] if index < len(names) else "" for index, _ in readings)}
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 
+import gymnasium
 import numpy as np
 import pytest
 
@@ -193,3 +194,68 @@ def test_the_log_keeps_each_episodes_first_alarm_readings_and_replay_lists_them(
         with pytest.raises(LogFormatError, match="not a log oodmon wrote"):
             _first_alarm_readings(log, {"episode": 0, **damaged})
     assert _first_alarm_readings(log, {"episode": 0}) == ((), 1)  # a log older than format 10
+
+
+class _DictCartPole(gymnasium.ObservationWrapper):
+    """CartPole whose observation is a dict, {"cart": [position, velocity], "pole": [angle, angular
+    velocity]} (flattened in that order: CartPole's own); with ``stuck_from``, the pole's angle reads
+    what it read at that step on (a stuck sensor)."""
+
+    def __init__(self, stuck_from: int | None = None) -> None:
+        super().__init__(gymnasium.make("CartPole-v1"))
+        half = gymnasium.spaces.Box(-np.inf, np.inf, (2,), np.float32)
+        self.observation_space = gymnasium.spaces.Dict({"cart": half, "pole": half})
+        self.stuck_from, self.steps, self.angle = stuck_from, 0, None
+
+    def reset(self, **kwargs):
+        self.steps, self.angle = 0, None
+        return super().reset(**kwargs)
+
+    def step(self, action):
+        self.steps += 1
+        return super().step(action)
+
+    def observation(self, obs):
+        if self.stuck_from is not None and self.steps >= self.stuck_from:
+            self.angle = obs[2] if self.angle is None else self.angle
+            obs = np.array([obs[0], obs[1], self.angle, obs[3]], np.float32)
+        return {"cart": obs[:2].astype(np.float32), "pole": obs[2:].astype(np.float32)}
+
+
+def test_a_dict_observations_readings_are_named_by_its_keys():
+    """A dict observation is read flattened (gymnasium's order, its keys sorted): an alarm names
+    the readings by key and position, ``[2] (pole[0])`` (it named them by index alone); names that
+    match its flattening in every space gymnasium flattens, nested too."""
+    from gymnasium.spaces import Box, Dict, Discrete, MultiBinary, MultiDiscrete, Tuple
+
+    from oodmon.agents import plain_agent
+    from oodmon.envs.readings import flat_names
+    from oodmon.monitor.detectors import fit_detectors
+
+    if "readings_tests/DictCartPole-v0" not in gymnasium.registry:
+        gymnasium.register("readings_tests/DictCartPole-v0", entry_point=_DictCartPole, max_episode_steps=200)
+    balance = plain_agent(lambda obs: int(obs["pole"][0] + 0.5 * obs["pole"][1] > 0), "readings_tests/DictCartPole-v0")
+    detectors = fit_detectors(balance, balance.wrap(_DictCartPole()), detectors=["dynamics"], episodes=20)
+    sink = MemorySink()
+    # 100: this model's ID scores stay below -2.7, a stuck angle's steps score above 1,000 (by hand)
+    with Monitor(balance, threshold=100.0, detectors=detectors, detector="dynamics", sinks=[sink]) as watching:
+        for seed in range(3):
+            watching.run_episode(_DictCartPole(stuck_from=50), seed=100 + seed, max_steps=80)
+    firsts = [next(alarm for alarm in sink.alarms if alarm.episode == episode) for episode in range(3)]
+    assert all(51 <= alarm.step <= 53 for alarm in firsts), [alarm.step for alarm in firsts]
+    assert [(alarm.readings[0][0], alarm.reading_names[0]) for alarm in firsts] == [(2, "pole[0]")] * 3
+    assert "; reading [2] (pole[0]) off the dynamics model's prediction by" in firsts[0].text()
+
+    space = Dict({"v": Box(-1, 1, (2, 2)), "m": Discrete(2, start=1), "md": MultiDiscrete([2, 3]), "s": Box(0, 1, ()),
+                  "t": Tuple((MultiBinary(2), Box(0, 1, (1,)))), "n": Dict({"a": Box(0, 1, (1,))})})
+    names = flat_names(space)
+    assert names == ("m=1", "m=2", "md[0]=0", "md[0]=1", "md[1]=0", "md[1]=1", "md[1]=2", "n.a", "s", "t.0[0]",
+                     "t.0[1]", "t.1", "v[0,0]", "v[0,1]", "v[1,0]", "v[1,1]")
+    # Each name's number is where flatten puts it: a sample with one number changed moves that name's alone.
+    sample = {"v": np.zeros((2, 2), np.float32), "m": 1, "md": np.array([0, 0]), "s": np.float32(0),
+              "t": (np.zeros(2, np.int8), np.zeros(1, np.float32)), "n": {"a": np.zeros(1, np.float32)}}
+    base = gymnasium.spaces.flatten(space, sample)
+    moved = dict(sample, v=np.array([[0, 0], [0.5, 0]], np.float32), m=2)
+    changed = np.flatnonzero(gymnasium.spaces.flatten(space, moved) != base)
+    assert [names[k] for k in changed] == ["m=1", "m=2", "v[1,0]"]
+    assert flat_names(gymnasium.spaces.Text(5)) == () and flat_names(Dict({"a": gymnasium.spaces.Text(5)})) == ()
