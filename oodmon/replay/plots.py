@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from oodmon.replay.recalibrate import LogStatistics
 
 __all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_id_alarms", "plot_log_statistics", "plot_roc",
-           "plot_trace", "write_monitor_plots", "write_plots"]
+           "plot_trace", "roc_curves", "write_monitor_plots", "write_plots"]
 
 
 def _pyplot():
@@ -60,19 +60,27 @@ def _runs_of(logs: Sequence[RunLog], method: str, variant: str) -> list[RunLog]:
     return [log for log in logs if log.method == method and log.task in tasks]
 
 
-def _alarm_detectors(logs: Sequence[RunLog], method: str, variant: str) -> str:
-    """The detector(s) whose scores the alarm of ``method``'s runs read, the scores these plots draw."""
-    return "/".join(sorted({log.detector for log in _runs_of(logs, method, variant)}))
+def _alarm_detectors(logs: Sequence[RunLog], method: str, variant: str) -> list[str]:
+    """The detectors whose scores the alarms of ``method``'s runs read, each once."""
+    return sorted({log.detector for log in _runs_of(logs, method, variant)})
 
 
-def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str, detector: str | None = None
-                       ) -> tuple[np.ndarray, np.ndarray] | None:
+def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str, detector: str | None = None, *,
+                       alarm: str | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """``method``'s steps of ``variant``'s task as labels (1: shifted) and the scores of ``detector``
-    (``None``: the alarm's), as replay's AUROC ranks them; ``None`` without both kinds of step."""
+    (``None``: the alarm's), as replay's AUROC ranks them; ``None`` without both kinds of step.
+    ``alarm``: the scores of the runs whose alarm read that detector, and of the others that logged
+    its scores beside their alarm's (a run that logged none left out), never one run's alarm scores
+    beside another's of another detector."""
     negatives, positives = [], []
     for log in _runs_of(logs, method, variant):
         for episode in log.episodes:
-            scores = episode.scores_of(detector)
+            if alarm is None:
+                scores = episode.scores_of(detector)
+            elif log.detector == alarm or alarm in episode.detector_scores:
+                scores = episode.scores if log.detector == alarm else episode.detector_scores[alarm]
+            else:
+                continue
             if is_id_episode(episode, log.task):
                 negatives.append(scores)
             elif episode.variant == variant:
@@ -86,28 +94,42 @@ def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str, detect
     return np.concatenate([np.zeros(len(neg)), np.ones(len(pos))]), np.concatenate([neg, pos])
 
 
+def roc_curves(logs: Sequence[RunLog], variant: str, detectors: Mapping[str, Sequence[str]] | None = None
+               ) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """What :func:`plot_roc` draws: per method (sorted) and detector, ``(method, detector, labels,
+    scores)`` of ``variant``'s task's steps. ``detectors`` names each method's; ``None``: those its
+    runs' alarms read, each ranked over the runs that hold its scores (a run whose alarm read
+    ``spread`` ranks with the others' ``spread`` scores, not their ``dynamics`` alarm scores)."""
+    curves = []
+    for method in sorted({log.method for log in logs}):
+        if detectors is None:
+            wanted = [(name, {"alarm": name}) for name in _alarm_detectors(logs, method, variant)]
+        else:
+            wanted = [(name, {"detector": name}) for name in detectors.get(method, [])]
+        for name, which in wanted:
+            data = _labels_and_scores(logs, method, variant, **which)
+            if data is not None:
+                curves.append((method, name, *data))
+    return curves
+
+
 def plot_roc(logs: Sequence[RunLog], variant: str, path: str | Path,
              detectors: Mapping[str, Sequence[str]] | None = None) -> Path | None:
-    """ROC curves of ``variant``, one per method and detector: ``detectors`` names each method's
-    (``None``: the one its alarm read); ``None`` when no method has both ID and OOD steps."""
+    """ROC curves of ``variant``, one per method and detector (:func:`roc_curves`): ``detectors``
+    names each method's (``None``: the ones its alarms read); ``None`` when no method has both ID
+    and OOD steps."""
+    curves = roc_curves(logs, variant, detectors)
+    if not curves:
+        return None
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(4.5, 4.5), dpi=110)
-    drawn = False
     colours: dict[str, str] = {}  # a detector's colour, the same for every method; a method's line style
-    for method, style in zip(sorted({log.method for log in logs}), cycle(["-", "--", ":", "-."])):
-        for detector in [None] if detectors is None else detectors.get(method, []):
-            data = _labels_and_scores(logs, method, variant, detector)
-            if data is None:
-                continue
-            labels, scores = data
-            fpr, tpr = roc_points(labels, rankable(scores))
-            name = detector or _alarm_detectors(logs, method, variant)
-            colour = colours.setdefault(name, f"C{len(colours) % 10}")
-            ax.plot(fpr, tpr, color=colour, linestyle=style, label=f"{method}, {name} (AUROC {np.trapezoid(tpr, fpr):.3f})")
-            drawn = True
-    if not drawn:
-        plt.close(fig)
-        return None
+    styles = dict(zip(sorted({method for method, *_ in curves}), cycle(["-", "--", ":", "-."])))
+    for method, name, labels, scores in curves:
+        fpr, tpr = roc_points(labels, rankable(scores))
+        colour = colours.setdefault(name, f"C{len(colours) % 10}")
+        ax.plot(fpr, tpr, color=colour, linestyle=styles[method],
+                label=f"{method}, {name} (AUROC {np.trapezoid(tpr, fpr):.3f})")
     ax.plot([0, 1], [0, 1], color="grey", linestyle=":", linewidth=1)
     ax.set(xlabel="false-positive rate (ID steps)", ylabel="true-positive rate (OOD steps)", title=f"ROC: {variant}")
     ax.legend(loc="lower right", fontsize=8)

@@ -45,6 +45,45 @@ def test_plots_that_the_logs_cannot_support_are_skipped(tmp_path):
     assert write_plots(unthresholded, compute_metrics(unthresholded), tmp_path / "none") == []
 
 
+def test_roc_curves_without_detectors_named_rank_each_alarms_detector_over_the_runs_holding_its_scores(tmp_path):
+    """Called from Python without ``detectors``, ``plot_roc`` ranked every run's alarm scores
+    together: a ``spread`` ID run's beside a ``dynamics`` shifted run's, two scales on one axis. Now
+    a curve per detector the alarms read, each over the scores of that detector (its own alarm's, or
+    logged beside another's); a run holding none of them is left out of its curve."""
+    import dataclasses
+
+    import numpy as np
+
+    from oodmon.replay.metrics import roc_points
+    from oodmon.replay.plots import roc_curves
+
+    id_log = read_log(DATA / "cartpole-ensemble-id.mcap")
+    shifted_log = read_log(DATA / "cartpole-ensemble-length2.mcap")
+    rng = np.random.default_rng(0)
+
+    def dynamics_of(episode):  # a dynamics detector's scores on another scale: -5 ID, +50 shifted
+        return np.where(episode.shifted, 50.0, -5.0) + rng.normal(0, 1, episode.length)
+
+    id_run = dataclasses.replace(id_log, episodes=[  # its alarm read spread; dynamics logged beside
+        dataclasses.replace(e, detector_scores={"spread": e.scores, "dynamics": dynamics_of(e)})
+        for e in id_log.episodes])
+    dynamics_run = dataclasses.replace(shifted_log, metadata=shifted_log.metadata | {"detector": "dynamics"}, episodes=[
+        dataclasses.replace(e, scores=(d := dynamics_of(e)), detector_scores={"dynamics": d})
+        for e in shifted_log.episodes])
+    variant = "cartpole:length=2.0"
+    curves = {name: (labels, scores) for _, name, labels, scores in roc_curves([id_run, dynamics_run], variant)}
+    assert list(curves) == ["dynamics"]  # spread: no shifted run holds its scores
+    labels, scores = curves["dynamics"]
+    id_steps = sum(e.length for e in id_run.episodes) + sum(int((~e.shifted).sum()) for e in dynamics_run.episodes)
+    assert (labels == 0).sum() == id_steps and np.all(scores[labels == 0] < 10)  # the ID run's dynamics scores
+    fpr, tpr = roc_points(labels, scores)
+    assert np.trapezoid(tpr, fpr) == 1.0
+    # Named, as replay names them, each detector is read where logged (unchanged).
+    named = roc_curves([id_run, dynamics_run], variant, {"ensemble": ["dynamics"]})
+    assert [(name, len(labels)) for _, name, labels, _ in named] == [("dynamics", len(curves["dynamics"][0]))]
+    assert plot_roc([id_run, dynamics_run], variant, tmp_path / "roc.png") == tmp_path / "roc.png"
+
+
 def test_replay_says_why_it_drew_nothing(tmp_path, capsys):
     from oodmon.cli import main
 
