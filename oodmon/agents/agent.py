@@ -198,6 +198,28 @@ class Agent:
             obs = self.stacking.newest(obs)
         return obs if self.pictures is None else self.pictures.vectors(obs)
 
+    def dict_reading_names(self) -> tuple[str, ...]:
+        """The name of each number the detectors read of a dict observation, by its index there
+        (an alarm's readings name them): the dict's keys and positions as it flattens
+        (:func:`~oodmon.envs.readings.flat_names`), of its vector keys alone where it holds pictures
+        (:meth:`own_observation`); none of a stack of dicts, nor of an observation not a dict.
+
+        Example:
+            >>> space = gymnasium.spaces.Dict({"camera": gymnasium.spaces.Box(0, 255, (2, 2, 1), np.uint8),
+            ...                                "speed": gymnasium.spaces.Box(-1, 1, (2,))})
+            >>> from oodmon.agents.dict_pictures import dict_pictures
+            >>> Agent(None, {}, dict_space=space, pictures=dict_pictures(space)).dict_reading_names()
+            ('speed[0]', 'speed[1]')
+        """
+        from oodmon.envs.readings import flat_names
+
+        if self.dict_space is None or self.stacking is not None:
+            return ()
+        names = flat_names(self.dict_space)
+        if self.pictures is None or not names:
+            return names
+        return tuple(names[k] for k in self.pictures.positions)
+
     def wrap(self, env: gymnasium.Env) -> gymnasium.Env:
         """``env`` (the gymnasium env of the agent's env id, or an oodmon variant of it) giving the
         observations the agent acts on: stacked :attr:`frame_stack` deep as SB3's VecFrameStack

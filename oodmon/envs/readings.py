@@ -45,20 +45,24 @@ def flat_names(space: gymnasium.spaces.Space, name: str = "") -> tuple[str, ...]
     """The name of each number of ``space``'s observations flattened (``gymnasium.spaces.flatten``, as
     an agent reads a dict observation), in that order: a dict's by its keys (``velocity[1]``; a
     nested one's ``arm.velocity[1]``), a ``Discrete`` one-hot by the value each number stands for
-    (``mode=2``), a tuple's by position (``.0``); empty where the space does not flatten so.
+    (``mode=2``; ``value=2`` of a ``Discrete`` observation), a tuple's by position (``0[1]``,
+    ``arm.0``); empty where the space does not flatten so.
 
     Example:
         >>> from gymnasium.spaces import Box, Dict, Discrete
         >>> flat_names(Dict({"velocity": Box(-1, 1, (2,)), "mode": Discrete(2, start=1), "speed": Box(0, 1, (1,))}))
         ('mode=1', 'mode=2', 'speed', 'velocity[0]', 'velocity[1]')
+        >>> from gymnasium.spaces import Tuple
+        >>> flat_names(Tuple((Box(-1, 1, (2,)), Discrete(2))))
+        ('0[0]', '0[1]', '1=0', '1=1')
     """
     spaces = gymnasium.spaces
     if isinstance(space, spaces.Dict):
         parts = [flat_names(child, f"{name}.{key}" if name else str(key)) for key, child in space.spaces.items()]
     elif isinstance(space, spaces.Tuple):
-        parts = [flat_names(child, f"{name}.{k}") for k, child in enumerate(space.spaces)]
+        parts = [flat_names(child, f"{name}.{k}" if name else str(k)) for k, child in enumerate(space.spaces)]
     elif isinstance(space, spaces.Discrete):
-        parts = [tuple(f"{name}={int(space.start) + k}" for k in range(int(space.n)))]
+        parts = [tuple(f"{name or 'value'}={int(space.start) + k}" for k in range(int(space.n)))]
     elif isinstance(space, spaces.MultiDiscrete) and space.nvec.ndim == 1:
         parts = [tuple(f"{name}[{i}]={int(start) + k}" for k in range(int(n)))
                  for i, (n, start) in enumerate(zip(space.nvec, space.start))]

@@ -36,7 +36,7 @@ import numpy as np
 from oodmon.agents.agent import Agent
 from oodmon.agents.estimators import EnsembleEstimator, Estimate, UncertaintyEstimator
 from oodmon.envs.checks import step_naming_refusal
-from oodmon.envs.readings import flat_names, reading_names
+from oodmon.envs.readings import reading_names
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
@@ -224,6 +224,7 @@ class Monitor:
             raise ConfigError(f"the monitor watches an oodmon Agent, an uncertainty estimator, a callable obs -> "
                               f"action, or None (you pass each action to step()); got {type(policy).__name__}")
         self._dicts = self.agent is not None and self.agent.dict_space is not None  # see step()
+        self._dict_names: tuple[str, ...] | None = None  # what an alarm names a dict's readings (_readings)
         self._masked = self.agent is not None and self.agent.reads_masks  # see _tell_masks()
         self._own = self.agent is not None and self.agent.reads_own  # a stack, or a dict with pictures: see step()
         self._action_parts = self.agent is not None and self.agent.action_parts is not None  # see step()
@@ -757,7 +758,9 @@ class Monitor:
             bias = drift.largest_bias()
             if bias is not None and abs(bias[1]) >= READING_SD:
                 readings, steps = (bias[:2],), bias[2]
-        names = flat_names(self.agent.dict_space) if self._dicts else reading_names(self._episode_info.get("env_id"))
+        if self._dicts and self._dict_names is None:  # (a camera's thousands of numbers named once)
+            self._dict_names = self.agent.dict_reading_names()
+        names = self._dict_names if self._dicts else reading_names(self._episode_info.get("env_id"))
         return {"readings": readings, "readings_steps": steps,
                 "reading_names": tuple(names[index] if index < len(names) else "" for index, _ in readings)}
 

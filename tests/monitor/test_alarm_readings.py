@@ -259,3 +259,13 @@ def test_a_dict_observations_readings_are_named_by_its_keys():
     changed = np.flatnonzero(gymnasium.spaces.flatten(space, moved) != base)
     assert [names[k] for k in changed] == ["m=1", "m=2", "v[1,0]"]
     assert flat_names(gymnasium.spaces.Text(5)) == () and flat_names(Dict({"a": gymnasium.spaces.Text(5)})) == ()
+    # What the detectors read of it: a dict with a picture, its vectors alone; a stack of dicts, no names.
+    from oodmon.agents.agent import Agent
+    from oodmon.agents.dict_pictures import dict_pictures
+    from oodmon.agents.frame_stack import Stacking
+
+    pictured = Dict({"camera": Box(0, 255, (4, 4, 1), np.uint8), "arm": Box(-1, 1, (2,)), "z": Discrete(2)})
+    assert Agent(None, {}, dict_space=pictured, pictures=dict_pictures(pictured)).dict_reading_names() == (
+        "arm[0]", "arm[1]", "z=0", "z=1")
+    assert Agent(None, {}, dict_space=space).dict_reading_names() == names
+    assert Agent(None, {}, dict_space=space, stacking=Stacking(2, (16,), False)).dict_reading_names() == ()
