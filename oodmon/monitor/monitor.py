@@ -421,7 +421,8 @@ class Monitor:
                 task=meta.get("task", "unknown"), method=meta.get("method", "unknown"), score=self.score_name,
                 threshold=self.threshold, rule=self.tracker.rule, policy_hash=self.policy_hash,
                 versions=library_versions(), detector=self.detector, detectors=tuple(self.detectors.names),
-                about=run_about(meta) | self._samples_about() | self._states_about() | self._threshold_about(),
+                about=(run_about(meta) | self._samples_about() | self._states_about() | self._threshold_about()
+                       | self._names_about()),
                 fitted=self._fitted,
             ))
             self._opened = True
@@ -461,6 +462,20 @@ class Monitor:
         if threshold.mean_episode is not None:
             about |= {"threshold_mean_episode": str(threshold.mean_episode), "threshold_far": repr(threshold.far)}
         return about | ({"threshold_seeds": json.dumps(used, separators=(",", ":"))} if used else {})
+
+    def _names_about(self) -> dict[str, str]:
+        """The names of a dict observation's readings as the detectors read it
+        (:meth:`~oodmon.agents.agent.Agent.dict_reading_names`; ``about.reading_names`` in the log, a
+        JSON list): replay names the readings of its alarms by them, as the alarms' lines do."""
+        names = self._reading_names_of_dicts()
+        return {"reading_names": json.dumps(list(names))} if names else {}
+
+    def _reading_names_of_dicts(self) -> tuple[str, ...]:
+        """:meth:`~oodmon.agents.agent.Agent.dict_reading_names`, worked out once (a camera's
+        thousands of numbers); none where the observations are not dicts."""
+        if self._dicts and self._dict_names is None:
+            self._dict_names = self.agent.dict_reading_names()
+        return self._dict_names or ()
 
     def _states_about(self) -> dict[str, str]:
         """The values of each reading of a discrete observation (``about.states`` in the log: ``16``
@@ -758,9 +773,7 @@ class Monitor:
             bias = drift.largest_bias()
             if bias is not None and abs(bias[1]) >= READING_SD:
                 readings, steps = (bias[:2],), bias[2]
-        if self._dicts and self._dict_names is None:  # (a camera's thousands of numbers named once)
-            self._dict_names = self.agent.dict_reading_names()
-        names = self._dict_names if self._dicts else reading_names(self._episode_info.get("env_id"))
+        names = self._reading_names_of_dicts() if self._dicts else reading_names(self._episode_info.get("env_id"))
         return {"readings": readings, "readings_steps": steps,
                 "reading_names": tuple(names[index] if index < len(names) else "" for index, _ in readings)}
 

@@ -805,9 +805,10 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
             continue
         episodes = [EpisodeAlarms.of(e, task, failure) for _, e in pairs]
         known = failure_known(task, failure)  # else failed and alarmed before failure are None: blank, not "0 failed"
-        first_alarms = [logged for (_, logged), e in zip(pairs, episodes) if e.early is None and e.first is not None]
-        causes = Counter(logged.first_alarm_cause for logged in first_alarms if logged.first_alarm_cause)
-        readings = Counter(first_reading(logged) for logged in first_alarms if logged.first_alarm_readings)
+        first_alarms = [pair for pair, e in zip(pairs, episodes) if e.early is None and e.first is not None]
+        causes = Counter(logged.first_alarm_cause for _, logged in first_alarms if logged.first_alarm_cause)
+        readings = Counter(first_reading(logged, log.reading_names) for log, logged in first_alarms
+                           if logged.first_alarm_readings)
         results.append(monitor_row(task, method, variant, len(episodes), sum(e.early is not None for e in episodes),
                                    sum(e.failure is not None for e in episodes) if known else None,
                                    sum(e.before_failure for e in episodes) if known else None,
@@ -819,9 +820,10 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
     return results
 
 
-def first_reading(episode: EpisodeLog) -> str:
+def first_reading(episode: EpisodeLog, names: Sequence[str] = ()) -> str:
     """The reading an episode's first alarm named first (:attr:`EpisodeLog.first_alarm_readings`),
-    with its name where its env's layout is known, for :attr:`MonitorMetrics.readings`.
+    for :attr:`MonitorMetrics.readings`: with its name in ``names`` (a dict observation's,
+    :attr:`RunLog.reading_names`), else where its env's layout is known.
 
     Example:
         >>> from oodmon.replay.reader import EpisodeLog
@@ -832,9 +834,11 @@ def first_reading(episode: EpisodeLog) -> str:
         ...                       first_alarm_readings=((2, -269.0), (3, 4.0)))
         >>> first_reading(e("oodmon/CartPole-v1")), first_reading(e("my_envs:MyEnv-v0"))
         ('[2] (pole angle)', '[2]')
+        >>> first_reading(e("my_envs:MyDictEnv-v0"), ["cart[0]", "cart[1]", "pole[0]", "pole[1]"])
+        '[2] (pole[0])'
     """
     index = episode.first_alarm_readings[0][0]
-    names = reading_names(episode.env_id)
+    names = names or reading_names(episode.env_id)
     return f"[{index}]" + (f" ({names[index]})" if index < len(names) else "")
 
 

@@ -130,6 +130,17 @@ class RunLog:
         return self.metadata.get("detector", "spread")
 
     @property
+    def reading_names(self) -> tuple[str, ...]:
+        """The names of a dict observation's readings, by index, as the run's detectors read it
+        (``about.reading_names``, logs since 2026-12-07 of dict observations); none where the log
+        records none, or a damaged record (what cannot be read says nothing)."""
+        try:
+            names = json.loads(self.metadata.get("about.reading_names", "[]"))
+        except (ValueError, RecursionError):
+            return ()
+        return tuple(names) if isinstance(names, list) and all(isinstance(n, str) for n in names) else ()
+
+    @property
     def noises(self) -> set[float]:
         """The sensor noises its complete episodes were played at (``obs_noise``; 0 before format 8)."""
         return {e.obs_noise for e in self.episodes}

@@ -222,15 +222,18 @@ class _DictCartPole(gymnasium.ObservationWrapper):
         return {"cart": obs[:2].astype(np.float32), "pole": obs[2:].astype(np.float32)}
 
 
-def test_a_dict_observations_readings_are_named_by_its_keys():
+def test_a_dict_observations_readings_are_named_by_its_keys(tmp_path):
     """A dict observation is read flattened (gymnasium's order, its keys sorted): an alarm names
-    the readings by key and position, ``[2] (pole[0])`` (it named them by index alone); names that
-    match its flattening in every space gymnasium flattens, nested too."""
+    the readings by key and position, ``[2] (pole[0])`` (it named them by index alone), and the log
+    keeps the names for replay; names that match its flattening in every space gymnasium flattens,
+    nested too."""
     from gymnasium.spaces import Box, Dict, Discrete, MultiBinary, MultiDiscrete, Tuple
 
     from oodmon.agents import plain_agent
     from oodmon.envs.readings import flat_names
+    from oodmon.monitor import McapSink
     from oodmon.monitor.detectors import fit_detectors
+    from oodmon.replay import read_log
 
     if "readings_tests/DictCartPole-v0" not in gymnasium.registry:
         gymnasium.register("readings_tests/DictCartPole-v0", entry_point=_DictCartPole, max_episode_steps=200)
@@ -238,13 +241,20 @@ def test_a_dict_observations_readings_are_named_by_its_keys():
     detectors = fit_detectors(balance, balance.wrap(_DictCartPole()), detectors=["dynamics"], episodes=20)
     sink = MemorySink()
     # 100: this model's ID scores stay below -2.7, a stuck angle's steps score above 1,000 (by hand)
-    with Monitor(balance, threshold=100.0, detectors=detectors, detector="dynamics", sinks=[sink]) as watching:
+    with Monitor(balance, threshold=100.0, detectors=detectors, detector="dynamics",
+                 sinks=[sink, McapSink(tmp_path / "dict.mcap")]) as watching:
         for seed in range(3):
             watching.run_episode(_DictCartPole(stuck_from=50), seed=100 + seed, max_steps=80)
     firsts = [next(alarm for alarm in sink.alarms if alarm.episode == episode) for episode in range(3)]
     assert all(51 <= alarm.step <= 53 for alarm in firsts), [alarm.step for alarm in firsts]
     assert [(alarm.readings[0][0], alarm.reading_names[0]) for alarm in firsts] == [(2, "pole[0]")] * 3
     assert "; reading [2] (pole[0]) off the dynamics model's prediction by" in firsts[0].text()
+    logged = read_log(tmp_path / "dict.mcap")
+    assert logged.reading_names == ("cart[0]", "cart[1]", "pole[0]", "pole[1]")
+    assert [e.first_alarm_readings for e in logged.episodes] == [alarm.readings for alarm in firsts]
+    with Monitor(load("cartpole", "ensemble"), threshold=THRESHOLD, sinks=[McapSink(tmp_path / "box.mcap")]) as box:
+        box.run_episode(parse_variant("cartpole").make(), seed=0, max_steps=5)
+    assert "about.reading_names" not in read_log(tmp_path / "box.mcap").metadata  # a Box's env names them
 
     space = Dict({"v": Box(-1, 1, (2, 2)), "m": Discrete(2, start=1), "md": MultiDiscrete([2, 3]), "s": Box(0, 1, ()),
                   "t": Tuple((MultiBinary(2), Box(0, 1, (1,)))), "n": Dict({"a": Box(0, 1, (1,))})})

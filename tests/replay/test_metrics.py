@@ -296,6 +296,12 @@ def test_the_monitor_counts_the_reading_each_first_alarm_after_the_onset_named_f
     assert [m.readings for m in compute_monitor_metrics([own, old])] == [{"[5]": 1}, {}]
     assert [monitor_cells(m)[-1] for m in compute_monitor_metrics([own, old])] == [
         "dynamics 1; reading [5] 1", "dynamics 1"]
+    # A log of dict observations names them as its run's detectors read them (about.reading_names);
+    # names that are no list of text say nothing.
+    names = '["arm[0]", "arm[1]", "arm[2]", "arm[3]", "arm[4]", "grip=0"]'
+    for about, said in ((names, "[5] (grip=0)"), ('["a", 3]', "[5]"), ("[", "[5]"), ('{"a": 1}', "[5]")):
+        dict_log = replace(own, metadata={"about.reading_names": about})
+        assert [m.readings for m in compute_monitor_metrics([dict_log])] == [{said: 1}]
 
 
 def test_the_monitor_table_names_the_task_of_each_pooled_row_when_there_are_several():
