@@ -35,6 +35,11 @@ metadata, absent before 3):
    the first alarm named (``AlarmEvent.readings``: ``[index, residual]`` pairs, ``[]`` for none)
    and the steps their residuals cover (``AlarmEvent.readings_steps``); replay reads an older
    log's episodes as naming none.
+11. ``raised`` in the step message of each step that raised an alarm: its cause and readings
+   (``{"cause", "readings", "readings_steps"}``, as the episode message's first ones), so that the
+   running episode of a torn log, whose episode message was never written, replays what raised
+   its first alarm and which readings it named where that step's message reached the disk (of a
+   long episode's steps, those after its last segment: the reader keeps no earlier ones).
 
 A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
@@ -68,7 +73,7 @@ __all__ = [
     "RUN_METADATA", "STEP", "STEP_SCHEMA", "decode_array", "encode_episode_scores",
 ]
 
-FORMAT_VERSION = 10
+FORMAT_VERSION = 11
 STEP, EPISODE, EPISODE_SCORES = "/oodmon/step", "/oodmon/episode", "/oodmon/episode_scores"
 EPISODE_START = "/oodmon/episode_start"
 ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
@@ -104,6 +109,11 @@ STEP_SCHEMA: dict[str, Any] = _object("oodmon.Step", {
     "compared": _NUMBER | {"description": "what the alarm rule compared with the threshold where that is not the "
                                           "score: a window's mean (null until it fills), a CUSUM or martingale "
                                           "statistic (since format 9)"},
+    "raised": {"type": "object", "description": "the alarm raised at this step: its cause, the readings it named "
+                                                "([index, residual] each) and the steps they cover (since format 11)",
+               "properties": {"cause": {"type": ["string", "null"]},
+                              "readings": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
+                              "readings_steps": {"type": "integer"}}},
 }, required=["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"])
 
 EPISODE_SCHEMA: dict[str, Any] = _object("oodmon.Episode", {

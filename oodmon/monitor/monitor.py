@@ -685,7 +685,7 @@ class Monitor:
             mean=estimate.mean[0].tolist() if estimate is not None else [],
             std=estimate.std[0].tolist() if estimate is not None else [], score=score, threshold=self.threshold,
             alarm=alarm, shifted=bool(shifted), observation=observation, frame=frame, scores=scores,
-            compared=self.tracker.compared,
+            compared=self.tracker.compared, raised=event,
         )
         if step == 0:  # the episode has a step: where it runs goes to the log before it
             self.sinks.begin_episode(EpisodeStart(self.episode, **self._episode_info))

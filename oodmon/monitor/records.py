@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from oodmon.monitor.alarms import AlarmEvent
 
 __all__ = ["EpisodeRecord", "EpisodeSegment", "EpisodeStart", "RunInfo", "StepRecord"]
 
@@ -35,6 +38,9 @@ class StepRecord:
             the window fills), a CUSUM or martingale statistic; NaN under a rule that compares
             each score. The MCAP sink logs it as ``compared`` (format 9), the Rerun sink draws it
             as ``/compared``.
+        raised: the alarm raised at this step (:class:`~oodmon.monitor.alarms.AlarmEvent`), or
+            ``None``: the MCAP sink logs its cause and readings with the step (``raised``, format
+            11), so that a killed run's running episode replays them too.
     """
 
     episode: int
@@ -50,6 +56,7 @@ class StepRecord:
     frame: np.ndarray | None = field(default=None, repr=False, compare=False)
     scores: dict[str, float] = field(default_factory=dict)
     compared: float = field(default=math.nan, repr=False, compare=False)
+    raised: AlarmEvent | None = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
         """The fields logged as JSON (the frame goes to an image channel instead)."""
@@ -59,6 +66,10 @@ class StepRecord:
             data["observation"] = self.observation
         if self.scores:
             data["scores"] = self.scores
+        if self.raised is not None:
+            data["raised"] = {"cause": self.raised.cause or None,
+                              "readings": [[index, residual] for index, residual in self.raised.readings],
+                              "readings_steps": self.raised.readings_steps}
         return data
 
 

@@ -490,10 +490,31 @@ def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str
     rises = np.flatnonzero(alarm & ~np.concatenate([[False], alarm[:-1]]))
     row = {**start, "return": math.nan, "length": len(alarm), "alarms": len(rises),
            "first_alarm_step": int(rises[0]) if len(rises) else None, "interrupted": True}
+    if len(rises):
+        row |= _raised(path, episode, steps, int(rises[0]))
     try:
         return _episode(path, row, arrays, alarm_detector)  # the row's fields checked as every episode's
     except LogFormatError:
         return None  # a start message oodmon did not write: the running episode stays lost
+
+
+def _raised(path: Path, episode: object, steps: list[dict], first: int) -> dict:
+    """What a torn log's running episode's first alarm, at step ``first``, was raised by and
+    which readings it named, as its episode message would have said (``first_alarm_cause``,
+    ``first_alarm_readings``, ``first_alarm_readings_steps``), from that step's message (``raised``,
+    format 11); nothing where that message is not among ``steps`` on disk, is of an older log, or
+    is damaged (the episode is kept without them)."""
+    raised = next((r.get("raised") for r in steps if r.get("step") == first), None)
+    if not isinstance(raised, dict):
+        return {}
+    found = {"first_alarm_readings": raised.get("readings", []),
+             "first_alarm_readings_steps": raised.get("readings_steps", 1)}
+    try:
+        _first_alarm_readings(path, {"episode": episode, **found})
+    except LogFormatError:
+        found = {}
+    cause = raised.get("cause")
+    return found | ({"first_alarm_cause": cause} if isinstance(cause, str) else {})
 
 
 def _streamed(f: BinaryIO, topics: Sequence[str]) -> Iterator[tuple[str, bytes]]:

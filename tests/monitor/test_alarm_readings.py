@@ -279,3 +279,34 @@ def test_a_dict_observations_readings_are_named_by_its_keys(tmp_path):
         "arm[0]", "arm[1]", "z=0", "z=1")
     assert Agent(None, {}, dict_space=space).dict_reading_names() == names
     assert Agent(None, {}, dict_space=space, stacking=Stacking(2, (16,), False)).dict_reading_names() == ()
+
+
+def test_a_killed_runs_running_episode_replays_what_raised_its_first_alarm_and_which_reading(agent, tmp_path):
+    """Format 11: the step that raised an alarm logs its cause and readings (``raised``), so the
+    running episode of a log torn by a kill, whose episode message was never written, replays them
+    (before: no cause, no reading, though its alarm's line was in the log); a damaged ``raised``
+    leaves the episode without them."""
+    import json
+
+    from oodmon.monitor import McapSink
+    from oodmon.replay.reader import _raised
+    from tests.helpers import run_cli, tear_inside_episode_one
+
+    memory = MemorySink()
+    watching = monitor(agent, [McapSink(tmp_path / "run.mcap", flush_seconds=0), memory]).open()
+    env = parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=20)
+    watching.run_episode(env, seed=0, variant="cartpole:obs.stuck[2]=1")
+    log, _ = tear_inside_episode_one(watching, env, "cartpole:obs.stuck[2]=1", tmp_path, memory)
+    (cut,) = log.interrupted
+    (raised,) = [alarm for alarm in memory.alarms if alarm.episode == 1]
+    assert (cut.first_alarm_step, cut.first_alarm_cause) == (raised.step, "dynamics") and raised.step > 20
+    assert cut.first_alarm_readings == raised.readings and raised.readings[0][0] == 2
+    rows = json.loads(run_cli("replay", "--episodes", "--json", str(tmp_path / "torn.mcap")).stdout)
+    assert rows[1]["ended"] == "interrupted" and rows[1]["first_alarm_cause"] == "dynamics"
+    assert rows[1]["first_alarm_readings"] == f"[2] {raised.readings[0][1]:+.3g} sd"
+    steps = [{"step": 21, "raised": {"cause": "dynamics", "readings": [[2, -9.5]], "readings_steps": 1}}]
+    assert _raised(tmp_path, 1, steps, 21) == {"first_alarm_cause": "dynamics", "first_alarm_readings": [[2, -9.5]],
+                                               "first_alarm_readings_steps": 1}
+    assert _raised(tmp_path, 1, steps, 22) == {}  # that step's message not on disk
+    damaged = [{"step": 21, "raised": {"cause": 7, "readings": [[2.5, "x"]], "readings_steps": 0}}]
+    assert _raised(tmp_path, 1, damaged, 21) == {} and _raised(tmp_path, 1, [{"step": 21, "raised": "x"}], 21) == {}
