@@ -39,7 +39,7 @@ metadata, absent before 3):
    (``{"cause", "readings", "readings_steps"}``, as the episode message's first ones), so that the
    running episode of a torn log, whose episode message was never written, replays what raised
    its first alarm and which readings it named where that step's message reached the disk (of a
-   long episode's steps, those after its last segment: the reader keeps no earlier ones).
+   long episode's step messages before its last segment, the reader keeps those that hold it).
 
 A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.

@@ -208,6 +208,21 @@ class _Collector:
         self.steps: dict[int, list[dict]] = {}
         self.starts: dict[int, dict] = {}  # format 5: where each episode ran, from its first step
         self.ended: dict[int, int] = {}  # each episode record's log time
+        # format 11: the step messages that raised an alarm, of episodes whose record has not come
+        # (a torn log's running episode replays its first alarm's cause from one before its last segment)
+        self.raised: dict[int, list[dict]] = {}
+
+    def keep_raised(self, steps: list[bytes]) -> None:
+        """Of step messages about to be dropped undecoded (:func:`_recover`), keep those that
+        raised an alarm (``raised``, format 11; rare), for an episode whose record has not come."""
+        for data in steps:
+            if b'"raised"' in data:
+                try:
+                    row = json.loads(data)
+                except (ValueError, UnicodeDecodeError):
+                    continue
+                if isinstance(row, dict) and isinstance(row.get("episode"), int) and row["episode"] not in self.rows:
+                    self.raised.setdefault(row["episode"], []).append(row)
 
     def add(self, topic: str, data: bytes, log_time: int | None = None) -> None:
         """Keep one message of ``topic`` (logged at ``log_time``); messages of topics replay does
@@ -223,6 +238,7 @@ class _Collector:
             raise LogFormatError(f"{self.path}: a {topic} message has no episode number; not a log oodmon wrote")
         if topic == _EPISODE:
             self.rows[row["episode"]] = row
+            self.raised.pop(row["episode"], None)
             if log_time is not None:
                 self.ended[row["episode"]] = int(log_time)
         elif topic == _SCORES:
@@ -426,6 +442,7 @@ def _recover(path: Path) -> RunLog:
                         since_scores.append(record.data)
                         continue
                     if topic == _SCORES:
+                        found.keep_raised(since_scores)
                         since_scores.clear()
                     found.add(topic, record.data, record.log_time)
         except LogFormatError:
@@ -437,7 +454,7 @@ def _recover(path: Path) -> RunLog:
     log = _assemble(path, metadata, found, complete=False)
     cut = [episode for k in sorted(found.starts) if k not in found.rows
            and (episode := _cut_episode(path, found.starts[k], found.steps.get(k, []), log.detector,
-                                        found.scores.get(k, []))) is not None]
+                                        found.scores.get(k, []), found.raised.get(k, []))) is not None]
     log.interrupted.extend(cut)
     lost = ("; no step of a running episode had reached the disk (since format 5 they do every few seconds, "
             "McapSink(flush_seconds=...))" if (_format_version(metadata) or 0) >= 5
@@ -454,13 +471,14 @@ def _recover(path: Path) -> RunLog:
 
 
 def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str,
-                 segments: list[dict] = ()) -> EpisodeLog | None:
+                 segments: list[dict] = (), raised: list[dict] = ()) -> EpisodeLog | None:
     """The running episode of a torn log (format 5, whose start message says where it ran), from
     its segments' arrays on disk (format 6) and its step messages after them that reached the
     disk, up to a gap: interrupted (so out of the metrics), its return unknown (NaN: rewards come
     with the episode's end), its alarms the rises of the alarm flag, a step's ``null`` score +inf
-    (what it stands for). ``None`` where no step of it is on disk or its start message is not one
-    oodmon wrote."""
+    (what it stands for), its first alarm's cause and readings from the step message that raised
+    it (``raised``: among ``steps``, or the ones of ``raised`` kept from before its last segment).
+    ``None`` where no step of it is on disk or its start message is not one oodmon wrote."""
     episode = start.get("episode")
     try:
         done = _segments(path, episode, list(segments)) if segments else None
@@ -491,7 +509,7 @@ def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str
     row = {**start, "return": math.nan, "length": len(alarm), "alarms": len(rises),
            "first_alarm_step": int(rises[0]) if len(rises) else None, "interrupted": True}
     if len(rises):
-        row |= _raised(path, episode, steps, int(rises[0]))
+        row |= _raised(path, episode, [*raised, *steps], int(rises[0]))
     try:
         return _episode(path, row, arrays, alarm_detector)  # the row's fields checked as every episode's
     except LogFormatError:
@@ -502,8 +520,8 @@ def _raised(path: Path, episode: object, steps: list[dict], first: int) -> dict:
     """What a torn log's running episode's first alarm, at step ``first``, was raised by and
     which readings it named, as its episode message would have said (``first_alarm_cause``,
     ``first_alarm_readings``, ``first_alarm_readings_steps``), from that step's message (``raised``,
-    format 11); nothing where that message is not among ``steps`` on disk, is of an older log, or
-    is damaged (the episode is kept without them)."""
+    format 11); nothing where that message is not among ``steps`` (it had not reached the disk),
+    is of an older log, or is damaged (the episode is kept without them)."""
     raised = next((r.get("raised") for r in steps if r.get("step") == first), None)
     if not isinstance(raised, dict):
         return {}
