@@ -81,4 +81,3 @@ def flat_names(space: gymnasium.spaces.Space, name: str = "") -> tuple[str, ...]
         return names if len(names) == spaces.flatdim(space) else ()
     except (NotImplementedError, ValueError):
         return ()
-
