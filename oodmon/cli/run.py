@@ -6,7 +6,7 @@ import argparse
 import dataclasses
 import time
 import warnings
-from collections import deque
+from collections import Counter, deque
 from contextlib import nullcontext
 from pathlib import Path
 
@@ -224,6 +224,7 @@ def _run(args: argparse.Namespace) -> int:
                       + _listed_by(mcap, args.mcap, failed="McapSink" in failures))
     if threshold is not None:
         said = f"{rows.alarmed} of {rows.episodes} episodes raised an alarm" + (
+            f"; {rows.first_alarms()}" if rows.first_alarms() else "") + (
             f"; written to {', '.join(written)}" if written else "")
     else:  # "0 of 3 episodes raised an alarm" read as if the shift had gone unseen
         said = ("no threshold, so no alarm (for alarms give --threshold, a file `oodmon calibrate` writes for this "
@@ -395,13 +396,28 @@ class _EpisodeRows:
         from oodmon.monitor.threshold import ClusterSums
 
         self.stretch, self.stretches, self._alarm_steps = stretch, ClusterSums(), []
+        # what raised each episode's first alarm (none before its onset) and the reading it named first
+        self.causes: Counter[str] = Counter()
+        self.readings: Counter[str] = Counter()
+        self._first_event = None
 
     def alarm(self, event) -> None:
-        """An alarm raised in the running episode (a Monitor callback): its step, where stretches are counted."""
+        """An alarm raised in the running episode (a Monitor callback): its step, where stretches are
+        counted; the episode's first, whose cause and first reading :meth:`add` counts."""
         if self.stretch is not None:
             self._alarm_steps.append(event.step)
+        if self._first_event is None:
+            self._first_event = event
+
+    def first_alarms(self) -> str:
+        """``first alarms by dynamics 3; reading [2] (pole angle) 3``: what raised the episodes'
+        first alarms (those before an onset left out) and the reading each named first; ``""`` for none."""
+        from oodmon.replay.report import causes_cell
+
+        return f"first alarms by {causes_cell(self.causes, self.readings)}" if self.causes else ""
 
     def add(self, record) -> None:
+        from oodmon.envs.readings import reading_label
         from oodmon.monitor.threshold import Stretches
         from oodmon.replay.metrics import ended_before_onset
 
@@ -413,6 +429,11 @@ class _EpisodeRows:
         if self.stretch is not None and self._is_id(record):
             self.stretches.add(*Stretches.count(record.length, self._alarm_steps, self.stretch))
         self._alarm_steps = []
+        first, self._first_event = self._first_event, None
+        if first is not None and record.first_alarm_step == first.step and not record.alarmed_early:
+            self.causes[first.cause or "unknown"] += 1
+            if first.readings:
+                self.readings[reading_label(first.readings[0][0], (first.reading_names or ("",))[0])] += 1
         slim = dataclasses.replace(record, rewards=None)
         (self.first if len(self.first) < self.shown // 2 else self.last).append(slim)
 

@@ -14,7 +14,7 @@ import math
 
 import gymnasium
 
-__all__ = ["READING_NAMES", "flat_names", "reading_names"]
+__all__ = ["READING_NAMES", "flat_names", "reading_label", "reading_names"]
 
 #: Each env's readings by index (gymnasium 1.x's classic-control docs), by id without a namespace.
 READING_NAMES: dict[str, tuple[str, ...]] = {
@@ -81,3 +81,13 @@ def flat_names(space: gymnasium.spaces.Space, name: str = "") -> tuple[str, ...]
         return names if len(names) == spaces.flatdim(space) else ()
     except (NotImplementedError, ValueError):
         return ()
+
+
+def reading_label(index: int, name: str = "") -> str:
+    """A reading as an alarm names it: its index, and its name where one is known.
+
+    Example:
+        >>> reading_label(2, "pole angle"), reading_label(5)
+        ('[2] (pole angle)', '[5]')
+    """
+    return f"[{index}]" + (f" ({name})" if name else "")

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from oodmon.envs.readings import reading_label
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.sequential import Reference, SequentialStatistic, sequential_path
 from oodmon.validation import MOST_STEPS, is_step_count
@@ -315,8 +316,7 @@ def readings_text(readings: Sequence[tuple[int, float]], steps: int = 1, names: 
     if not readings:
         return ""
     named = list(names) + [""] * (len(readings) - len(names))
-    indices = " and ".join(f"[{index}]" + (f" ({name})" if name else "")
-                           for (index, _), name in zip(readings, named))
+    indices = " and ".join(reading_label(index, name) for (index, _), name in zip(readings, named))
     values = ", ".join(f"{residual:+.3g}" for _, residual in readings)
     plural = "s" if len(readings) > 1 else ""
     if steps > 1:

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from oodmon.envs.readings import reading_names
+from oodmon.envs.readings import reading_label, reading_names
 from oodmon.envs.shift import parse_any_variant, same_env
 from oodmon.errors import OodmonError
 from oodmon.replay.failures import failure_known, failure_step, id_failures
@@ -839,7 +839,7 @@ def first_reading(episode: EpisodeLog, names: Sequence[str] = ()) -> str:
     """
     index = episode.first_alarm_readings[0][0]
     names = names or reading_names(episode.env_id)
-    return f"[{index}]" + (f" ({names[index]})" if index < len(names) else "")
+    return reading_label(index, names[index] if index < len(names) else "")
 
 
 def monitor_row(task: str, method: str, variant: str, episodes: int, early: int, failed: int | None,

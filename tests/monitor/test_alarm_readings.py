@@ -317,3 +317,22 @@ def test_a_killed_runs_running_episode_replays_what_raised_its_first_alarm_and_w
     assert _raised(tmp_path, 1, steps, 22) == {}  # that step's message not on disk
     damaged = [{"step": 21, "raised": {"cause": 7, "readings": [[2.5, "x"]], "readings_steps": 0}}]
     assert _raised(tmp_path, 1, damaged, 21) == {} and _raised(tmp_path, 1, [{"step": 21, "raised": "x"}], 21) == {}
+
+
+def test_runs_closing_line_counts_what_raised_the_first_alarms_and_the_reading_each_named(tmp_path, capsys):
+    """`oodmon run` ends with each episode's first alarm tallied by cause and first reading (its
+    table shows at most 20 episodes); an alarm before the onset, a false one, is not counted."""
+    from oodmon.cli import main
+    from oodmon.monitor import Threshold
+
+    def closing(threshold: float) -> str:
+        path = tmp_path / f"{threshold}.json"
+        Threshold(threshold, "chosen_std", 1, "episode", 0.05, 45, 9_000, task="cartpole", method="ensemble",
+                  detector="dynamics").save(path)
+        assert main(["run", "--threshold", str(path), "--variant", "cartpole:obs.stuck[2]=1", "--onset", "50",
+                     "--episodes", "3", "--max-steps", "80"]) == 0
+        return capsys.readouterr().out.strip().splitlines()[-1]
+
+    assert closing(THRESHOLD) == ("3 of 3 episodes raised an alarm; first alarms by dynamics 3; reading [2] (pole "
+                                  "angle) 3")
+    assert closing(-1e9) == "3 of 3 episodes raised an alarm"  # at step 0: before the onset
