@@ -12,6 +12,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from rich.table import Table
 from rich.text import Text
 
+from oodmon.envs.readings import reading_label, reading_names
 from oodmon.replay.failures import failure_step
 from oodmon.replay.metrics import MonitorMetrics, VariantMetrics, env_of_variant, is_id_episode, monitor_row
 from oodmon.replay.reader import RunLog
@@ -290,18 +291,20 @@ EPISODE_COLUMNS = [
 ]
 
 
-def readings_cell(readings: Sequence[tuple[int, float]], steps: int = 1) -> str | None:
+def readings_cell(readings: Sequence[tuple[int, float]], steps: int = 1, names: Sequence[str] = ()) -> str | None:
     """The readings an alarm named (:attr:`~oodmon.monitor.alarms.AlarmEvent.readings`) in a
-    table's cell; ``None`` for none.
+    table's cell, each with its name in ``names`` (by index) where there is one; ``None`` for none.
 
     Example:
         >>> readings_cell([(1, -263.2), (3, 209.4)]), readings_cell([(4, -4.75)], 20), readings_cell([])
         ('[1] -263, [3] +209 sd', '[4] -4.75 sd over 20 steps', None)
+        >>> readings_cell([(2, -269.0)], names=["cart position", "cart velocity", "pole angle"])
+        '[2] (pole angle) -269 sd'
     """
     if not readings:
         return None
-    return ", ".join(f"[{index}] {residual:+.3g}" for index, residual in readings) + " sd" + (
-        f" over {steps} steps" if steps > 1 else "")
+    return ", ".join(f"{reading_label(index, names[index] if index < len(names) else '')} {residual:+.3g}"
+                     for index, residual in readings) + " sd" + (f" over {steps} steps" if steps > 1 else "")
 
 
 def how_it_ended(interrupted: bool, terminated: bool | None) -> str:
@@ -339,7 +342,8 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
                 "alarms": e.alarms, "first_alarm_step": e.first_alarm_step,
                 "delay": e.first_alarm_step - e.onset if shifted and e.first_alarm_step is not None else None,
                 "first_alarm_cause": e.first_alarm_cause,
-                "first_alarm_readings": readings_cell(e.first_alarm_readings, e.first_alarm_readings_steps),
+                "first_alarm_readings": readings_cell(e.first_alarm_readings, e.first_alarm_readings_steps,
+                                                      log.reading_names or reading_names(e.env_id)),
                 "failure_step": failure_step(e, log.task, failure) if shifted and not e.interrupted else None,
                 "ended": ended,
             })
@@ -409,7 +413,7 @@ def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -
     for name, heading in columns:
         left = name in ("log", "variant", "ended", "first_alarm_readings")
         table.add_column(heading, justify="left" if left else "right",
-                         overflow="fold" if name in ("log", "variant") else "ellipsis",
+                         overflow="fold" if name in ("log", "variant", "first_alarm_readings") else "ellipsis",
                          ratio=1 if narrow and name == "variant" else None, no_wrap=narrow and name != "variant")
     for row in rows:
         shown = dict(row, log=named[row["log"]])

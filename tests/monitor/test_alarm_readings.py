@@ -184,7 +184,7 @@ def test_the_log_keeps_each_episodes_first_alarm_readings_and_replay_lists_them(
     assert [e.first_alarm_readings_steps for e in episodes] == [1, 1, 1]
     listed = run_cli("replay", "--episodes", "--json", str(log))
     assert [row["first_alarm_readings"] for row in json.loads(listed.stdout)] == [
-        f"[2] {alarm.readings[0][1]:+.3g} sd" for alarm in firsts] + [None]
+        f"[2] (pole angle) {alarm.readings[0][1]:+.3g} sd" for alarm in firsts] + [None]
     # `replay --monitor` counts, per variant, the reading each first alarm after the onset named first.
     (stuck,) = [row for row in json.loads(run_cli("replay", "--monitor", "--json", str(log)).stdout)
                 if row["variant"] == "cartpole:obs.stuck[2]=1.0"]
@@ -310,7 +310,7 @@ def test_a_killed_runs_running_episode_replays_what_raised_its_first_alarm_and_w
         return
     rows = json.loads(run_cli("replay", "--episodes", "--json", str(tmp_path / "torn.mcap")).stdout)
     assert rows[1]["ended"] == "interrupted" and rows[1]["first_alarm_cause"] == "dynamics"
-    assert rows[1]["first_alarm_readings"] == f"[2] {raised.readings[0][1]:+.3g} sd"
+    assert rows[1]["first_alarm_readings"] == f"[2] (pole angle) {raised.readings[0][1]:+.3g} sd"
     steps = [{"step": 21, "raised": {"cause": "dynamics", "readings": [[2, -9.5]], "readings_steps": 1}}]
     assert _raised(tmp_path, 1, steps, 21) == {"first_alarm_cause": "dynamics", "first_alarm_readings": [[2, -9.5]],
                                                "first_alarm_readings_steps": 1}
