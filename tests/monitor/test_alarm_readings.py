@@ -136,12 +136,14 @@ def test_a_monitored_envs_info_holds_the_readings_at_the_step_each_alarm_is_rais
     for _ in range(80):
         *_, terminated, truncated, info = env.step()
         if "readings" in info["oodmon"]:
-            said[info["oodmon"]["step"]] = info["oodmon"]["readings"]
+            said[info["oodmon"]["step"]] = info["oodmon"]["readings"], info["oodmon"]["reading_names"]
         if terminated or truncated:
             break
     env.close()
-    raised = {alarm.step: [list(pair) for pair in alarm.readings] for alarm in sink.alarms if alarm.readings}
-    assert said == raised and min(said) >= 50 and said[min(said)][0][0] == 2  # the stuck reading, where it began
+    raised = {alarm.step: ([list(pair) for pair in alarm.readings], list(alarm.reading_names))
+              for alarm in sink.alarms if alarm.readings}
+    assert said == raised and min(said) >= 50 and said[min(said)][0][0][0] == 2  # the stuck reading, where it began
+    assert said[min(said)][1][0] == "pole angle"
 
 
 def test_a_drift_alarm_with_no_step_far_off_names_the_drifting_reading_over_its_window(agent):
