@@ -223,9 +223,9 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"{rows.left_out} episode{'s' if rows.left_out != 1 else ''} not shown"
                       + _listed_by(mcap, args.mcap, failed="McapSink" in failures))
     if threshold is not None:
+        first_alarms = rows.first_alarms()
         said = f"{rows.alarmed} of {rows.episodes} episodes raised an alarm" + (
-            f"; {rows.first_alarms()}" if rows.first_alarms() else "") + (
-            f"; written to {', '.join(written)}" if written else "")
+            f"; {first_alarms}" if first_alarms else "") + (f"; written to {', '.join(written)}" if written else "")
     else:  # "0 of 3 episodes raised an alarm" read as if the shift had gone unseen
         said = ("no threshold, so no alarm (for alarms give --threshold, a file `oodmon calibrate` writes for this "
                 "agent)" + (f"; every step's scores written to {', '.join(written)}" if written else ""))
