@@ -173,6 +173,12 @@ class Monitor:
             segment and dropped: an episode that never ends (a policy deployed in an env that
             does not reset) keeps bounded memory. Such an episode's record has ``rewards=None``
             (the log holds them, segment by segment). Default 100,000.
+        reading_names: the name of each number of the observations the detectors read, by index
+            (a robot's ``("knee angle", "knee velocity", ...)``): an alarm names its readings by
+            them (``[5] (knee velocity)``), and the log keeps them for replay. Default: the names
+            of an env whose layout is known (:mod:`oodmon.envs.readings`), a dict observation's
+            keys; none of any other (its readings by index alone). As many names as the
+            observations have numbers (checked at the first step).
 
     Raises:
         ConfigError: the threshold or the detectors were made for another policy or score (see
@@ -206,13 +212,20 @@ class Monitor:
         force: bool = False,
         render: bool = False,
         segment_steps: int = SEGMENT_STEPS,
+        reading_names: Sequence[str] | None = None,
     ) -> None:
         self._made_with = {"policy": policy, "threshold": threshold, "score": score, "detectors": detectors,
                            "detector": detector, "consecutive": consecutive, "window": window, "strict": strict,
                            "log_observations": log_observations, "force": force, "render": render,
-                           "segment_steps": segment_steps}  # see twin()
+                           "segment_steps": segment_steps, "reading_names": reading_names}  # see twin()
         if not is_whole(segment_steps):
             raise InvalidParameterError(f"segment_steps={segment_steps!r} is not allowed; it must be an integer >= 1")
+        if reading_names is not None and (isinstance(reading_names, (str, bytes)) or not isinstance(
+                reading_names, Sequence) or not all(isinstance(name, str) for name in reading_names)):
+            raise InvalidParameterError(f"reading_names={reading_names!r} is not allowed; give a list of texts, the "
+                                        "name of each number of the observations by index")
+        self._given_names = None if reading_names is None else tuple(reading_names)
+        self._names_checked = reading_names is None  # against the first observation (step())
         self.segment_steps = segment_steps
         if isinstance(policy, Agent):
             self.agent, self.estimator, self._act = policy, policy.estimator, policy.deploy
@@ -463,11 +476,24 @@ class Monitor:
             about |= {"threshold_mean_episode": str(threshold.mean_episode), "threshold_far": repr(threshold.far)}
         return about | ({"threshold_seeds": json.dumps(used, separators=(",", ":"))} if used else {})
 
+    def _check_names(self, obs: Any) -> None:
+        """``reading_names`` against the first observation the detectors read: one name a number.
+
+        Raises:
+            ConfigError: as many names as the observation has numbers they are not.
+        """
+        numbers = np.asarray(obs).size
+        if len(self._given_names) != numbers:
+            raise ConfigError(f"reading_names (--reading-names) has {len(self._given_names)} name(s); the observations "
+                              f"the detectors read have {numbers} number(s) (give one name for each, by index)")
+        self._names_checked = True
+
     def _names_about(self) -> dict[str, str]:
-        """The names of a dict observation's readings as the detectors read it
-        (:meth:`~oodmon.agents.agent.Agent.dict_reading_names`; ``about.reading_names`` in the log, a
-        JSON list): replay names the readings of its alarms by them, as the alarms' lines do."""
-        names = self._reading_names_of_dicts()
+        """The names of the readings given (``reading_names``), or of a dict observation's as the
+        detectors read it (:meth:`~oodmon.agents.agent.Agent.dict_reading_names`;
+        ``about.reading_names`` in the log, a JSON list): replay names the readings of its alarms
+        by them, as the alarms' lines do."""
+        names = self._given_names or self._reading_names_of_dicts()
         return {"reading_names": json.dumps(list(names))} if names else {}
 
     def _reading_names_of_dicts(self) -> tuple[str, ...]:
@@ -657,6 +683,8 @@ class Monitor:
             elif frame is not None:
                 frame = _frame(obs)  # an RGB stack's newest picture, not its last channel
         read = self.agent.read_action(action) if self._action_parts else action  # a tuple of actions: flattened
+        if not self._names_checked:
+            self._check_names(obs)
         finite = _finite(obs)
         context = None
         if finite:
@@ -773,7 +801,12 @@ class Monitor:
             bias = drift.largest_bias()
             if bias is not None and abs(bias[1]) >= READING_SD:
                 readings, steps = (bias[:2],), bias[2]
-        names = self._reading_names_of_dicts() if self._dicts else reading_names(self._episode_info.get("env_id"))
+        if self._given_names is not None:
+            names = self._given_names
+        elif self._dicts:
+            names = self._reading_names_of_dicts()
+        else:
+            names = reading_names(self._episode_info.get("env_id"))
         return {"readings": readings, "readings_steps": steps,
                 "reading_names": tuple(names[index] if index < len(names) else "" for index, _ in readings)}
 

@@ -32,6 +32,15 @@ def monitor(agent, sinks, callbacks=()) -> Monitor:
                    callbacks=callbacks)
 
 
+def saved_threshold(path, value: float = THRESHOLD):
+    """A threshold file of the shipped ensemble's dynamics alarm at ``value``, for `oodmon run`."""
+    from oodmon.monitor import Threshold
+
+    Threshold(value, "chosen_std", 1, "episode", 0.05, 45, 9_000, task="cartpole", method="ensemble",
+              detector="dynamics").save(path)
+    return path
+
+
 def first_alarms(agent, spec: str) -> list:
     """The first alarm from the onset (step 50) of each of ``EPISODES`` episodes of ``spec``."""
     found = []
@@ -325,12 +334,9 @@ def test_runs_closing_line_counts_what_raised_the_first_alarms_and_the_reading_e
     """`oodmon run` ends with each episode's first alarm tallied by cause and first reading (its
     table shows at most 20 episodes); an alarm before the onset, a false one, is not counted."""
     from oodmon.cli import main
-    from oodmon.monitor import Threshold
 
     def closing(threshold: float) -> str:
-        path = tmp_path / f"{threshold}.json"
-        Threshold(threshold, "chosen_std", 1, "episode", 0.05, 45, 9_000, task="cartpole", method="ensemble",
-                  detector="dynamics").save(path)
+        path = saved_threshold(tmp_path / f"{threshold}.json", threshold)
         assert main(["run", "--threshold", str(path), "--variant", "cartpole:obs.stuck[2]=1", "--onset", "50",
                      "--episodes", "3", "--max-steps", "80"]) == 0
         return capsys.readouterr().out.strip().splitlines()[-1]
@@ -338,3 +344,47 @@ def test_runs_closing_line_counts_what_raised_the_first_alarms_and_the_reading_e
     assert closing(THRESHOLD) == ("3 of 3 episodes raised an alarm; first alarms by dynamics 3; reading [2] (pole "
                                   "angle) 3")
     assert closing(-1e9) == "3 of 3 episodes raised an alarm"  # at step 0: before the onset
+
+
+def test_names_you_give_name_an_alarms_readings_in_its_line_the_log_and_replay(agent, tmp_path, capsys):
+    """``Monitor(reading_names=...)`` (``run --reading-names``): an env of yours whose layout oodmon
+    does not know names its readings as you say, ahead of any it knows; a twin keeps them; a count
+    other than the observation's is refused at the first step, a text alone at once."""
+    import json
+
+    from oodmon.cli import main
+    from oodmon.errors import ConfigError, InvalidParameterError
+    from oodmon.monitor import McapSink
+    from oodmon.replay import read_log
+    from tests.helpers import run_cli
+
+    names = ["x", "v", "theta", "omega"]
+    sink = MemorySink()
+    with Monitor(agent, threshold=THRESHOLD, detectors=detectors_for(agent), detector="dynamics",
+                 sinks=[sink, McapSink(tmp_path / "named.mcap")], reading_names=names) as watching:
+        watching.run_episode(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50), seed=0, max_steps=80)
+        twin_sink = MemorySink()
+        twin = watching.twin(sinks=[twin_sink])
+    (alarm,) = sink.alarms
+    assert alarm.reading_names[0] == "theta" and "; reading [2] (theta) off the dynamics model's" in alarm.text()
+    assert read_log(tmp_path / "named.mcap").reading_names == tuple(names)
+    (row,) = [r for r in json.loads(run_cli("replay", "--monitor", "--json", str(tmp_path / "named.mcap")).stdout)
+              if r["variant"] == "cartpole:obs.stuck[2]=1.0"]
+    assert row["readings"] == {"[2] (theta)": 1}
+    with twin:
+        twin.run_episode(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50), seed=0, max_steps=80)
+    assert [a.reading_names[0] for a in twin_sink.alarms] == ["theta"]
+
+    with pytest.raises(ConfigError, match=r"reading_names \(--reading-names\) has 3 name\(s\); the observations the "
+                                          r"detectors read have 4 number\(s\)"):
+        with Monitor(agent, threshold=THRESHOLD, reading_names=names[:3]) as short:
+            short.run_episode(parse_variant("cartpole").make(), seed=0, max_steps=5)
+    for bad in ("x,v,theta,omega", [1, 2, 3, 4], 4):
+        with pytest.raises(InvalidParameterError, match="give a list of texts"):
+            Monitor(agent, threshold=THRESHOLD, reading_names=bad)
+    capsys.readouterr()
+    assert main(["run", "--threshold", str(saved_threshold(tmp_path / "t.json")), "--variant",
+                 "cartpole:obs.stuck[2]=1", "--onset", "50", "--episodes", "2", "--max-steps", "80",
+                 "--reading-names", "x, v, theta, omega"]) == 0
+    closing = capsys.readouterr().out.strip().splitlines()[-1]
+    assert closing.endswith("first alarms by dynamics 2; reading [2] (theta) 2")
