@@ -54,7 +54,8 @@ among the calls (``--only`` them): 4 findings, ``pettitt`` of text (numpy's "cou
 string to float"; fixed: refused by name, as are a number alone and arrays of two dimensions);
 then 232 oodmon, 41 python, 26 ok of 299 calls, no finding, no leak. With ``burst`` (``--only
 burst,pettitt``, after its share, permutations and seed were checked by name): 106 oodmon, 9 ok of
-115 calls, no finding.
+115 calls, no finding. With ``Monitor``'s ``reading_names`` (2026-12-07, ``--only Monitor``, 7 s): 134
+oodmon, 87 ok, 32 python of 253 calls, no finding, no leak.
 """
 
 from __future__ import annotations
@@ -110,7 +111,7 @@ def cases() -> list[tuple[str, object, dict, list[str]]]:
     return [
         ("Monitor", monitored_episode, dict(threshold=1.0),
          ["threshold", "score", "detector", "consecutive", "window", "sinks", "callbacks", "segment_steps", "strict",
-          "log_observations"]),
+          "log_observations", "reading_names"]),
         ("Threshold", monitor.Threshold, dict(threshold.__dict__),
          ["value", "score", "consecutive", "mode", "far", "n_episodes", "n_steps", "window", "detector", "confidence",
           "rule", "warmup", "max_steps"]),
