@@ -493,12 +493,15 @@ class Monitor:
         detectors read it (:meth:`~oodmon.agents.agent.Agent.dict_reading_names`;
         ``about.reading_names`` in the log, a JSON list): replay names the readings of its alarms
         by them, as the alarms' lines do."""
-        names = self._given_names or self._reading_names_of_dicts()
+        names = self._own_names()
         return {"reading_names": json.dumps(list(names))} if names else {}
 
-    def _reading_names_of_dicts(self) -> tuple[str, ...]:
-        """:meth:`~oodmon.agents.agent.Agent.dict_reading_names`, worked out once (a camera's
-        thousands of numbers); none where the observations are not dicts."""
+    def _own_names(self) -> tuple[str, ...]:
+        """The names of the readings given (``reading_names``), else of a dict observation's
+        (:meth:`~oodmon.agents.agent.Agent.dict_reading_names`, worked out once: a camera's
+        thousands of numbers); none where neither is (an env's known layout is named by its id)."""
+        if self._given_names is not None:
+            return self._given_names
         if self._dicts and self._dict_names is None:
             self._dict_names = self.agent.dict_reading_names()
         return self._dict_names or ()
@@ -801,12 +804,8 @@ class Monitor:
             bias = drift.largest_bias()
             if bias is not None and abs(bias[1]) >= READING_SD:
                 readings, steps = (bias[:2],), bias[2]
-        if self._given_names is not None:
-            names = self._given_names
-        elif self._dicts:
-            names = self._reading_names_of_dicts()
-        else:
-            names = reading_names(self._episode_info.get("env_id"))
+        names = (self._own_names() if self._given_names is not None or self._dicts
+                 else reading_names(self._episode_info.get("env_id")))
         return {"readings": readings, "readings_steps": steps,
                 "reading_names": tuple(names[index] if index < len(names) else "" for index, _ in readings)}
 

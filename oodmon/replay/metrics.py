@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from oodmon.envs.readings import reading_label, reading_names
+from oodmon.envs.readings import reading_label
 from oodmon.envs.shift import parse_any_variant, same_env
 from oodmon.errors import OodmonError
 from oodmon.replay.failures import failure_known, failure_step, id_failures
@@ -807,7 +807,7 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
         known = failure_known(task, failure)  # else failed and alarmed before failure are None: blank, not "0 failed"
         first_alarms = [pair for pair, e in zip(pairs, episodes) if e.early is None and e.first is not None]
         causes = Counter(logged.first_alarm_cause for _, logged in first_alarms if logged.first_alarm_cause)
-        readings = Counter(first_reading(logged, log.reading_names) for log, logged in first_alarms
+        readings = Counter(first_reading(logged, log.reading_names_of(logged)) for log, logged in first_alarms
                            if logged.first_alarm_readings)
         results.append(monitor_row(task, method, variant, len(episodes), sum(e.early is not None for e in episodes),
                                    sum(e.failure is not None for e in episodes) if known else None,
@@ -822,23 +822,19 @@ def compute_monitor_metrics(logs: Iterable[RunLog], failure: str | None = None) 
 
 def first_reading(episode: EpisodeLog, names: Sequence[str] = ()) -> str:
     """The reading an episode's first alarm named first (:attr:`EpisodeLog.first_alarm_readings`),
-    for :attr:`MonitorMetrics.readings`: with its name in ``names`` (a dict observation's,
-    :attr:`RunLog.reading_names`), else where its env's layout is known.
+    for :attr:`MonitorMetrics.readings`, with its name in ``names`` (by index:
+    :meth:`RunLog.reading_names_of`) where there is one.
 
     Example:
         >>> from oodmon.replay.reader import EpisodeLog
-        >>> def e(env_id):
-        ...     return EpisodeLog(episode=0, env_id=env_id, variant="cartpole:obs.stuck[2]=1", onset=5, seed=0,
-        ...                       total_return=9.0, length=9, alarms=1, first_alarm_step=6, scores=np.zeros(9),
-        ...                       shifted=np.zeros(9, bool), alarm=np.zeros(9, bool),
-        ...                       first_alarm_readings=((2, -269.0), (3, 4.0)))
-        >>> first_reading(e("oodmon/CartPole-v1")), first_reading(e("my_envs:MyEnv-v0"))
+        >>> e = EpisodeLog(episode=0, env_id="oodmon/CartPole-v1", variant="cartpole:obs.stuck[2]=1", onset=5,
+        ...                seed=0, total_return=9.0, length=9, alarms=1, first_alarm_step=6, scores=np.zeros(9),
+        ...                shifted=np.zeros(9, bool), alarm=np.zeros(9, bool),
+        ...                first_alarm_readings=((2, -269.0), (3, 4.0)))
+        >>> first_reading(e, ["cart position", "cart velocity", "pole angle"]), first_reading(e)
         ('[2] (pole angle)', '[2]')
-        >>> first_reading(e("my_envs:MyDictEnv-v0"), ["cart[0]", "cart[1]", "pole[0]", "pole[1]"])
-        '[2] (pole[0])'
     """
     index = episode.first_alarm_readings[0][0]
-    names = names or reading_names(episode.env_id)
     return reading_label(index, names[index] if index < len(names) else "")
 
 

@@ -66,21 +66,18 @@ def _alarm_detectors(logs: Sequence[RunLog], method: str, variant: str) -> list[
 
 
 def _labels_and_scores(logs: Sequence[RunLog], method: str, variant: str, detector: str | None = None, *,
-                       alarm: str | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+                       held_only: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
     """``method``'s steps of ``variant``'s task as labels (1: shifted) and the scores of ``detector``
     (``None``: the alarm's), as replay's AUROC ranks them; ``None`` without both kinds of step.
-    ``alarm``: the scores of the runs whose alarm read that detector, and of the others that logged
-    its scores beside their alarm's (a run that logged none left out), never one run's alarm scores
-    beside another's of another detector."""
+    ``held_only``: the episodes whose log holds none of ``detector``'s scores are left out (every
+    log holds its alarm's detector's), never one run's alarm scores ranked beside another's of
+    another detector."""
     negatives, positives = [], []
     for log in _runs_of(logs, method, variant):
         for episode in log.episodes:
-            if alarm is None:
-                scores = episode.scores_of(detector)
-            elif log.detector == alarm or alarm in episode.detector_scores:
-                scores = episode.scores if log.detector == alarm else episode.detector_scores[alarm]
-            else:
+            if held_only and detector not in episode.detector_scores:
                 continue
+            scores = episode.scores_of(detector)
             if is_id_episode(episode, log.task):
                 negatives.append(scores)
             elif episode.variant == variant:
@@ -102,12 +99,9 @@ def roc_curves(logs: Sequence[RunLog], variant: str, detectors: Mapping[str, Seq
     ``spread`` ranks with the others' ``spread`` scores, not their ``dynamics`` alarm scores)."""
     curves = []
     for method in sorted({log.method for log in logs}):
-        if detectors is None:
-            wanted = [(name, {"alarm": name}) for name in _alarm_detectors(logs, method, variant)]
-        else:
-            wanted = [(name, {"detector": name}) for name in detectors.get(method, [])]
-        for name, which in wanted:
-            data = _labels_and_scores(logs, method, variant, **which)
+        named = _alarm_detectors(logs, method, variant) if detectors is None else detectors.get(method, [])
+        for name in named:
+            data = _labels_and_scores(logs, method, variant, name, held_only=detectors is None)
             if data is not None:
                 curves.append((method, name, *data))
     return curves

@@ -21,11 +21,13 @@ import shlex
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
 
+from oodmon.envs.readings import reading_names as layout_names
 from oodmon.errors import LogFormatError
 from oodmon.monitor import logformat
 from oodmon.monitor.logformat import decode_array
@@ -129,16 +131,21 @@ class RunLog:
         """The detector the run's alarm read (``spread`` in logs older than format 3)."""
         return self.metadata.get("detector", "spread")
 
-    @property
+    @cached_property
     def reading_names(self) -> tuple[str, ...]:
-        """The names of a dict observation's readings, by index, as the run's detectors read it
-        (``about.reading_names``, logs since 2026-12-07 of dict observations); none where the log
-        records none, or a damaged record (what cannot be read says nothing)."""
+        """The names of a dict observation's readings, or of those its run was given, by index, as
+        the run's detectors read them (``about.reading_names``, logs since 2026-12-07); none where
+        the log records none, or a damaged record (what cannot be read says nothing). Read once."""
         try:
             names = json.loads(self.metadata.get("about.reading_names", "[]"))
         except (ValueError, RecursionError):
             return ()
         return tuple(names) if isinstance(names, list) and all(isinstance(n, str) for n in names) else ()
+
+    def reading_names_of(self, episode: EpisodeLog) -> tuple[str, ...]:
+        """The names of ``episode``'s readings by index: the log's own (:attr:`reading_names`), else
+        those of its env's known layout (:func:`~oodmon.envs.readings.reading_names`)."""
+        return self.reading_names or layout_names(episode.env_id)
 
     @property
     def noises(self) -> set[float]:

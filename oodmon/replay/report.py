@@ -12,7 +12,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from rich.table import Table
 from rich.text import Text
 
-from oodmon.envs.readings import reading_label, reading_names
+from oodmon.envs.readings import reading_label
 from oodmon.replay.failures import failure_step
 from oodmon.replay.metrics import MonitorMetrics, VariantMetrics, env_of_variant, is_id_episode, monitor_row
 from oodmon.replay.reader import RunLog
@@ -343,7 +343,7 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
                 "delay": e.first_alarm_step - e.onset if shifted and e.first_alarm_step is not None else None,
                 "first_alarm_cause": e.first_alarm_cause,
                 "first_alarm_readings": readings_cell(e.first_alarm_readings, e.first_alarm_readings_steps,
-                                                      log.reading_names or reading_names(e.env_id)),
+                                                      log.reading_names_of(e)),
                 "failure_step": failure_step(e, log.task, failure) if shifted and not e.interrupted else None,
                 "ended": ended,
             })
