@@ -10,12 +10,13 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from rich.console import Console
+from rich.markup import escape
 
 from oodmon.cli.display import _clustered, _progress
 from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import (
     _FIT_DEFAULT, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
-    _STEP_COUNT, _WARMUP, _add_explore, _agent_arguments, _fraction, _non_negative, _whole,
+    _STEP_COUNT, _WARMUP, _add_explore, _add_reading_names, _agent_arguments, _fraction, _non_negative, _whole,
 )
 from oodmon.errors import ConfigError, unknown
 from oodmon.monitor.stopping import stops_held
@@ -72,6 +73,9 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
                               "runs are longer (the bound is for episodes like the calibration's); recorded in the "
                               "threshold for validate and run; detectors calibrate fits are fitted on such episodes too")
     promise.add_argument("--out", required=True, help="the threshold file to write (JSON)")
+    _add_reading_names(calibrate, default="none recorded: an env whose layout is known, a dict observation's keys, "
+                                          "are named without", then="; the threshold keeps them, and `oodmon run` "
+                                          "with it names its alarms' readings by them")
     calibrate.set_defaults(handler=_calibrate, kept_on_interrupt=_KEPT["calibrate"])
 
 
@@ -176,7 +180,7 @@ def _calibrate(args: argparse.Namespace) -> int:
                                         reference_episodes=args.reference_episodes,
                                         reference_by_age=args.reference_by_age, warmup=args.warmup,
                                         on_progress=report, workers=args.workers, obs_noise=args.obs_noise,
-                                        max_steps=args.max_steps, kept=kept)
+                                        max_steps=args.max_steps, kept=kept, reading_names=args.reading_names)
     except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (a worker's death too: killed for memory)
         played = getattr(interrupt, "kept_episodes", 0)
         what = [f"the {played:,} of the {args.episodes:,} calibration episodes played whole are kept in {kept}"
@@ -207,7 +211,10 @@ def _calibrate(args: argparse.Namespace) -> int:
         f"{threshold.n_steps} steps, rank {threshold.rank} of "
         f"{threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score median "
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}{_statistic_words(threshold)}); "
-        f"{threshold.promise}; wrote {args.out}"
+        f"{threshold.promise}"
+        + (f"; its alarms name the readings {escape(', '.join(threshold.reading_names))}"
+           if threshold.reading_names else "")
+        + f"; wrote {args.out}"
         + (f" (replacing the threshold it held: alarm when {replaced.rule_text}, {replaced.detector} detector, "
            f"{replaced.n_episodes} ID episodes)" if replaced else "")
         + (f"; fitted the detectors into {fitted_to}{_explored(detectors.fitted_for.get('explore'))} (`oodmon run` "

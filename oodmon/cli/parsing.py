@@ -177,6 +177,19 @@ def _add_explore(parser: argparse._ActionsContainer, flag: str, when: str) -> No
                              "policy's own actions (docs/your-policy.md)")
 
 
+def _reading_names(text: str) -> list[str]:
+    """``--reading-names``: comma-separated names, each stripped (``'x, v'``: ``['x', 'v']``)."""
+    return [name.strip() for name in text.split(",")]
+
+
+def _add_reading_names(parser: argparse._ActionsContainer, *, default: str, then: str = "") -> None:
+    """run's and calibrate's --reading-names."""
+    parser.add_argument("--reading-names", type=_reading_names, metavar="NAMES",
+                        help="the name of each number of the observations, comma-separated, by index (your own "
+                             "env's: 'knee angle,knee velocity,...'): an alarm names its readings by them, and the "
+                             f"log keeps them for replay{then} (default: {default})")
+
+
 def _add_confidence(parser: argparse.ArgumentParser, default: str | None = None) -> None:
     from oodmon.monitor.threshold import DEFAULT_CONFIDENCE
 

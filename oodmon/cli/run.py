@@ -16,7 +16,9 @@ from rich.table import Table
 
 from oodmon.cli.display import _stretches_said
 from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
-from oodmon.cli.parsing import _KEPT, _LOGGED, _SEED, _agent_arguments, _non_negative, _positive, _whole
+from oodmon.cli.parsing import (
+    _KEPT, _LOGGED, _SEED, _add_reading_names, _agent_arguments, _non_negative, _positive, _whole,
+)
 from oodmon.errors import ConfigError
 from oodmon.names import TASKS
 
@@ -90,11 +92,8 @@ def _add_run(commands: argparse._SubParsersAction) -> None:
                              "0 keeps none")
     alarm.add_argument("--force", action="store_true",
                        help="use a threshold calibrated for another task, method, score or weights (with a warning)")
-    alarm.add_argument("--reading-names", metavar="NAMES",
-                       help="the name of each number of the observations, comma-separated, by index (your own "
-                            "env's: 'knee angle,knee velocity,...'): an alarm names its readings by them, and the "
-                            "log keeps them for replay (default: the names of an env whose layout is known, a dict "
-                            "observation's keys)")
+    _add_reading_names(alarm, default="the threshold's, from `oodmon calibrate --reading-names`; the names of an "
+                                      "env whose layout is known, a dict observation's keys")
     logs.add_argument("--strict", action="store_true", help="a failing sink stops the run instead of warning")
     logs.add_argument("--render", action="store_true",
                       help="log a picture of each CartPole or Pendulum state beside the scores (Rerun, Foxglove)")
@@ -192,8 +191,7 @@ def _run(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(), command or nullcontext(), Progress(console=console, transient=True) as progress, \
             Monitor(agent, threshold, detectors=detectors, sinks=sinks, callbacks=[show, *filter(None, [command])],
                     strict=args.strict, force=args.force, render=args.render,
-                    reading_names=None if args.reading_names is None else [
-                        name.strip() for name in args.reading_names.split(",")]) as monitor:
+                    reading_names=args.reading_names) as monitor:
         warnings.simplefilter("ignore", OffCalibrationWarning)  # another noise, longer episodes: notes at the end
         if args.serve:
             progress.console.print(f"serving the Rerun stream at {sinks[-1].served_at}")

@@ -6,7 +6,9 @@ of yours the moment an episode's first alarm is raised, with what the alarm says
 environment (``OODMON_EPISODE``, ``OODMON_STEP``, ``OODMON_SCORE``, ``OODMON_THRESHOLD``,
 ``OODMON_RULE``, ``OODMON_CAUSE``, ``OODMON_READINGS``: the readings the dynamics model predicted
 worst, ``index:residual`` each, space-separated, ``AlarmEvent.readings``, over
-``OODMON_READINGS_STEPS`` steps; ``OODMON_ALARM``: the alarm's line). It does not wait for the
+``OODMON_READINGS_STEPS`` steps, and ``OODMON_READING_NAMES`` their names, a JSON list in their
+order, ``""`` where one has none, ``AlarmEvent.reading_names``; ``OODMON_ALARM``: the alarm's
+line). It does not wait for the
 command: the policy acts on while it runs, as a sink's failure does not stop the loop
 (``docs/monitor.md``). :meth:`AlarmCommand.close` waits for the commands still running (for at most
 ``wait`` seconds) and says how they ended; a command that cannot start, or exits other than 0, is
@@ -19,6 +21,7 @@ rise would bury the first.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import time
@@ -96,6 +99,8 @@ class AlarmCommand:
                      "OODMON_RULE": event.rule, "OODMON_CAUSE": event.cause,
                      "OODMON_READINGS": " ".join(f"{index}:{residual!r}" for index, residual in event.readings),
                      "OODMON_READINGS_STEPS": str(event.readings_steps),
+                     "OODMON_READING_NAMES": json.dumps([event.reading_names[k] if k < len(event.reading_names) else ""
+                                                         for k in range(len(event.readings))]),
                      "OODMON_ALARM": event.text()}
         try:
             # a session of its own: a Ctrl-C meant for the monitor does not cut a page half sent

@@ -25,7 +25,7 @@ from oodmon.jsonfile import check_replaceable
 from oodmon.kept import KeptEpisodesWarning, SamplingTrail, read_kept, state_array, state_of, unreadable, write_kept
 from oodmon.monitor.alarms import default_consecutive, default_window
 from oodmon.monitor.detectors import DetectorSet, best_detector
-from oodmon.monitor.monitor import Monitor, OffCalibrationWarning, policy_hash
+from oodmon.monitor.monitor import Monitor, OffCalibrationWarning, check_reading_names, policy_hash
 from oodmon.monitor.scores import DEFAULT_SCORE, score_function
 from oodmon.monitor.sequential import SEQUENTIAL_RULES, Reference
 from oodmon.monitor.threshold import (DEFAULT_CONFIDENCE, DETECTOR_NAMES, Stretches, Threshold, calibrate,
@@ -115,13 +115,16 @@ def _play_id_episodes(agent: Agent, episodes: int, seed: int, obs_noise: float,
 def id_episode_scores(agent: Agent, episodes: int, *, seed: int = CALIBRATION_SEED, score: str = DEFAULT_SCORE,
                       on_progress: Progress | None = None, detectors: DetectorSet | None = None,
                       detector: str = "spread", obs_noise: float = 0.0, stage: str = "ID episodes",
-                      workers: int = 1, max_steps: int | None = None) -> list[np.ndarray]:
+                      workers: int = 1, max_steps: int | None = None,
+                      reading_names: Sequence[str] | None = None) -> list[np.ndarray]:
     """Per-step scores of ``detector`` in ``episodes`` ID episodes of ``agent``, seeded ``seed``,
     ``seed + 1``, ... (with sensor noise ``obs_noise``, see the envs, and time limit ``max_steps``,
-    ``None``: the env's own), played in ``workers`` processes (see :mod:`oodmon.side_by_side`)."""
+    ``None``: the env's own), played in ``workers`` processes (see :mod:`oodmon.side_by_side`).
+    ``reading_names``: as the :class:`Monitor`'s (their count checked at the first step)."""
     check_max_steps(max_steps)
     played = _play_id_episodes(agent, episodes, seed, obs_noise, on_progress, score=score, detectors=detectors,
-                               detector=detector, stage=stage, workers=workers, max_steps=max_steps)
+                               detector=detector, stage=stage, workers=workers, max_steps=max_steps,
+                               reading_names=reading_names)
     return [scores for scores, _ in played]
 
 
@@ -132,7 +135,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
                     obs_noise: float = 0.0, confidence: float | None = DEFAULT_CONFIDENCE, rule: str = "consecutive",
                     reference_episodes: int = DEFAULT_REFERENCE_EPISODES, reference_by_age: bool = False,
                     warmup: int = 0, workers: int = 1, max_steps: int | None = None,
-                    kept: str | Path | None = None) -> Threshold:
+                    kept: str | Path | None = None, reading_names: Sequence[str] | None = None) -> Threshold:
     """Calibrate ``agent``'s threshold on ``episodes`` held-out ID episodes (see ``threshold``).
 
     ``detector`` names the detector whose score the alarm will read; a learned one comes from
@@ -175,11 +178,15 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     episodes kept (:class:`~oodmon.kept.SamplingTrail`), which the calibration that goes on draws
     on from.
 
+    ``reading_names``: the name of each number of the observations the detectors read, by index
+    (as the :class:`Monitor`'s): the threshold records them, and a monitor with it names its
+    alarms' readings by them (``oodmon run`` without ``--reading-names``).
+
     Raises:
         InvalidParameterError, ConfigError: a bad argument, too few episodes for ``far``, or
             calibration episodes that are not held out: ``detectors``' fitting episodes (the
             detectors learned them) or the sequential rule's reference episodes; all checked before
-            the first episode runs.
+            the first episode runs, but ``reading_names``' count (at its first step).
     """
     # Every argument is checked before minutes of episodes: a dry run of the calibration on
     # placeholder scores raises what the real one would.
@@ -189,6 +196,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     seed = seeds.check_seed(seed)
     resolve_workers(workers, episodes)
     score_function(score)
+    names = check_reading_names(reading_names)
     if detector is None:
         detector = best_detector(agent.task, detectors, score)
     if detector not in DETECTOR_NAMES:
@@ -236,7 +244,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
     if rule != "consecutive":
         reference = Reference.from_episodes(id_episode_scores(
             agent, reference_episodes, seed=seeds.REFERENCE, score=score, detectors=needed, detector=detector,
-            obs_noise=obs_noise, workers=workers, max_steps=max_steps), by_age=reference_by_age)
+            obs_noise=obs_noise, workers=workers, max_steps=max_steps, reading_names=names), by_age=reference_by_age)
     # what the threshold records of the policy and the detector, and what a kept file must have been made by
     policy, fitted = policy_hash(agent), None if needed is None else needed.fingerprint(detector)
     masks = getattr(agent.estimator, "masks", None)
@@ -256,7 +264,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
             scores += id_episode_scores(agent, episodes - len(scores), seed=seed + len(scores), score=score,
                                         on_progress=trail.progress(on_progress), detectors=needed, detector=detector,
                                         obs_noise=obs_noise, stage="calibration episodes", workers=workers,
-                                        max_steps=max_steps)
+                                        max_steps=max_steps, reading_names=names)
     except (KeyboardInterrupt, BrokenProcessPool) as interrupt:  # (Ctrl-C, SIGTERM, a worker's death)
         if kept is not None:
             played = [episode for episode, _ in finished_before(interrupt)]  # (each: its scores, its alarms)
@@ -274,7 +282,7 @@ def calibrate_agent(agent: Agent, episodes: int = 50, far: float = 0.05, *, cons
         used["reference"] = [seeds.REFERENCE, seeds.REFERENCE + reference_episodes]
     return replace(threshold, episode_seeds=used, workers=resolve_workers(workers, episodes),
                    obs_noise=float(obs_noise), max_steps=max_steps, models=model_files(agent.metadata.get("models")),
-                   sb3=sb3_loading(agent.metadata))
+                   sb3=sb3_loading(agent.metadata), reading_names=None if names is None else list(names))
 
 
 def read_kept_episodes(path: str | Path, made_by: dict[str, Any]) -> list[np.ndarray]:

@@ -137,6 +137,22 @@ def run_about(metadata: dict[str, Any]) -> dict[str, str]:
     return about
 
 
+
+def check_reading_names(reading_names: Sequence[str] | None) -> tuple[str, ...] | None:
+    """``reading_names`` (the :class:`Monitor`'s, :func:`~oodmon.monitor.calibrate_agent`'s) as a
+    tuple, or :class:`~oodmon.errors.InvalidParameterError` where it is not a list of texts (their
+    count is checked against the first observation, :meth:`Monitor.step`).
+
+    Example:
+        >>> check_reading_names(["x", "theta"]), check_reading_names(None)
+        (('x', 'theta'), None)
+    """
+    if reading_names is not None and (isinstance(reading_names, (str, bytes)) or not isinstance(
+            reading_names, Sequence) or not all(isinstance(name, str) for name in reading_names)):
+        raise InvalidParameterError(f"reading_names={reading_names!r} is not allowed; give a list of texts, the "
+                                    "name of each number of the observations by index")
+    return None if reading_names is None else tuple(reading_names)
+
 class Monitor:
     """Wraps a deployed policy; scores every step against a calibrated threshold.
 
@@ -178,7 +194,8 @@ class Monitor:
             them (``[5] (knee velocity)``), and the log keeps them for replay. Default: the names
             of an env whose layout is known (:mod:`oodmon.envs.readings`), a dict observation's
             keys; none of any other (its readings by index alone). As many names as the
-            observations have numbers (checked at the first step).
+            observations have numbers (checked at the first step). A :class:`Threshold` that
+            records names (``oodmon calibrate --reading-names``) gives them where these are not given.
 
     Raises:
         ConfigError: the threshold or the detectors were made for another policy or score (see
@@ -220,12 +237,12 @@ class Monitor:
                            "segment_steps": segment_steps, "reading_names": reading_names}  # see twin()
         if not is_whole(segment_steps):
             raise InvalidParameterError(f"segment_steps={segment_steps!r} is not allowed; it must be an integer >= 1")
-        if reading_names is not None and (isinstance(reading_names, (str, bytes)) or not isinstance(
-                reading_names, Sequence) or not all(isinstance(name, str) for name in reading_names)):
-            raise InvalidParameterError(f"reading_names={reading_names!r} is not allowed; give a list of texts, the "
-                                        "name of each number of the observations by index")
-        self._given_names = None if reading_names is None else tuple(reading_names)
-        self._names_checked = reading_names is None  # against the first observation (step())
+        self._given_names = check_reading_names(reading_names)
+        self._names_from = "reading_names (--reading-names)"
+        if reading_names is None and isinstance(threshold, Threshold) and threshold.reading_names is not None:
+            self._given_names = tuple(threshold.reading_names)
+            self._names_from = "the threshold's reading_names (calibrate --reading-names)"
+        self._names_checked = self._given_names is None  # against the first observation (step())
         self.segment_steps = segment_steps
         if isinstance(policy, Agent):
             self.agent, self.estimator, self._act = policy, policy.estimator, policy.deploy
@@ -484,8 +501,8 @@ class Monitor:
         """
         numbers = np.asarray(obs).size
         if len(self._given_names) != numbers:
-            raise ConfigError(f"reading_names (--reading-names) has {len(self._given_names)} name(s); the observations "
-                              f"the detectors read have {numbers} number(s) (give one name for each, by index)")
+            raise ConfigError(f"{self._names_from} has {len(self._given_names)} name(s); the observations the "
+                              f"detectors read have {numbers} number(s) (give one name for each, by index)")
         self._names_checked = True
 
     def _names_about(self) -> dict[str, str]:

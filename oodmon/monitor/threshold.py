@@ -698,6 +698,11 @@ class Threshold:
             load that policy again from :attr:`models` and these (before, they asked for ``--sb3
             ... --env ...`` again). ``None``: not models from files (the statistics in memory
             too), or not recorded (files written before 2026-12-07).
+        reading_names: the name of each number of the observations the detectors read, by index,
+            as ``oodmon calibrate --reading-names`` gave them (a robot's ``["knee angle", ...]``),
+            or as the logs it was calibrated on kept them: a :class:`Monitor` with this threshold
+            names its alarms' readings by them unless given others. ``None``: none given (an env
+            whose layout oodmon knows, or a dict observation's keys, are named without).
     """
 
     value: float
@@ -729,6 +734,7 @@ class Threshold:
     logs: list[dict[str, Any]] | None = None
     models: list[dict[str, str]] | None = None
     sb3: dict[str, Any] | None = None
+    reading_names: list[str] | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -945,6 +951,10 @@ def _check_fields(threshold: Threshold) -> None:
             and isinstance(loaded["mean"], bool)):
         raise bad("sb3", "it must be an object of what its SB3 models were loaded with ({env_id, vec_normalize, "
                          "frame_stack, mean}), or null")
+    names = threshold.reading_names
+    if names is not None and not (isinstance(names, list) and names and all(isinstance(name, str) for name in names)):
+        raise bad("reading_names", "it must be a list of texts, the name of each number of the observations by "
+                                   "index, or null")
 
 
 def model_files(models: object) -> list[dict[str, str]] | None:

@@ -105,7 +105,8 @@ def watch(policy: Any = None, env_id: str | None = None, *, env: gymnasium.Env |
           on_progress: Progress | None = None, masks: str | None = None, vec_normalize: Any = None,
           frame_stack: int | None = None, threshold: str | Path | None = None, save: str | Path | None = None,
           warmup: int = 0, imports: Sequence[str] = (), unsafe_load_pickles: bool = False, workers: int = 1,
-          dynamics_updates: int | None = MAX_UPDATES, max_steps: int | None = None, fit_explore: float = 0.0) -> Any:
+          dynamics_updates: int | None = MAX_UPDATES, max_steps: int | None = None, fit_explore: float = 0.0,
+          reading_names: Sequence[str] | None = None) -> Any:
     """Fit, calibrate and return the monitor of ``policy`` (see :func:`as_agent` for what it takes).
 
     The learned detectors are fitted on ``fit_episodes`` ID episodes of the deployed policy (``None``:
@@ -138,6 +139,10 @@ def watch(policy: Any = None, env_id: str | None = None, *, env: gymnasium.Env |
     ``workers``: processes that play the fitting and calibration episodes side by side (0: one per
     core; see :func:`~oodmon.monitor.calibrate_agent`: a policy that draws nothing gets the same
     detectors and threshold).
+    ``reading_names``: the name of each number of your env's observations, by index (a robot's
+    ``["knee angle", "knee velocity", ...]``): an alarm names its readings by them (see
+    :class:`~oodmon.monitor.Monitor`'s), and the threshold ``save`` writes keeps them; with
+    ``threshold``, they come before the file's.
 
     A calibration is minutes of ID episodes, which a deployed process cannot run at every start:
     ``save`` writes the threshold to that file and the fitted detectors to ``<save>.detectors/``
@@ -170,7 +175,7 @@ def watch(policy: Any = None, env_id: str | None = None, *, env: gymnasium.Env |
     from oodmon.monitor.detectors import DetectorSet, fit_agent_detectors, fitting_notes
     from oodmon.monitor.detectors.fitting import check_can_have, check_explore, fit_settings, fitted_when_named
     from oodmon.monitor.scores import DEFAULT_SCORE
-    from oodmon.monitor.monitor import Monitor
+    from oodmon.monitor.monitor import Monitor, check_reading_names
     from oodmon.monitor.monitored_env import MonitoredEnv, check_env_of, check_one_env
     from oodmon.side_by_side import resolve_workers
     from oodmon.monitor.threshold import conformal_rank
@@ -178,6 +183,7 @@ def watch(policy: Any = None, env_id: str | None = None, *, env: gymnasium.Env |
 
     if threshold is not None and save is not None:
         raise ConfigError("give threshold= (read a calibration made before) or save= (write the one made now), not both")
+    check_reading_names(reading_names)
     if policy is None and threshold is None:
         raise ConfigError("give the policy to watch (SB3 model files or models, an oodmon Agent, a function obs -> "
                           "action), or threshold= a calibration of it, which names SB3 models or a shipped agent")
@@ -253,7 +259,7 @@ def watch(policy: Any = None, env_id: str | None = None, *, env: gymnasium.Env |
         try:
             alarm_threshold = calibrate_agent(agent, episodes, far, detectors=detectors, detector=detector,
                                               confidence=confidence, on_progress=on_progress, warmup=warmup,
-                                              workers=workers, max_steps=max_steps,
+                                              workers=workers, max_steps=max_steps, reading_names=reading_names,
                                               kept=None if save is None else f"{save}.kept.npz")
         except (KeyboardInterrupt, BrokenProcessPool):
             if kept_fit is not None:
@@ -263,7 +269,8 @@ def watch(policy: Any = None, env_id: str | None = None, *, env: gymnasium.Env |
             save_calibration(alarm_threshold, save, detectors)
             Path(f"{save}.kept.npz").unlink(missing_ok=True)
             kept_fit.clear()
-    monitor = Monitor(agent, alarm_threshold, detectors=detectors, detector=detector, sinks=sinks, callbacks=callbacks)
+    monitor = Monitor(agent, alarm_threshold, detectors=detectors, detector=detector, sinks=sinks, callbacks=callbacks,
+                      reading_names=reading_names)
     return monitor if env is None else MonitoredEnv(env, monitor)
 
 

@@ -279,7 +279,8 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: 
     refuses others), the samples and masks, and the sensor noise of the logged world, as one
     calibrated by playing; ``logs`` names the logs and ``episode_seeds`` their episodes' reset seeds
     where they had any, which ``oodmon validate`` then refuses to count again; ``max_steps`` the
-    runs' time limit where the logs show one (:func:`_time_limit`), which validate and run then keep.
+    runs' time limit where the logs show one (:func:`_time_limit`), which validate and run then keep;
+    ``reading_names`` the names the runs gave their readings, where every log holds the same.
 
     Raises:
         ConfigError: logs of two policies, fitted detectors or worlds; a detector the logs have no
@@ -341,7 +342,7 @@ def calibrate_from_logs(logs: Sequence[str | Path | RunLog] | LogEpisodes, far: 
                                "episodes": sum(1 for owner, _ in found.episodes if owner is log)}
                               for log in found.logs], models=_logged_models(first),
                         sb3=sb3_loading({key.removeprefix("about."): value for key, value in first.metadata.items()
-                                         if key.startswith("about.")}))
+                                         if key.startswith("about.")}), reading_names=_logged_names(found.logs))
     _warn_if_changed(change_in_logs(found, threshold), threshold)
     return threshold
 
@@ -642,6 +643,21 @@ def _logged_models(log: RunLog) -> list[dict[str, str]] | None:
         return model_files(json.loads(log.metadata.get("about.models") or "null"))
     except ValueError:
         return None
+
+
+def _logged_names(logs: Sequence[RunLog]) -> list[str] | None:
+    """The reading names the logs' runs were given, or read from a dict observation's keys
+    (``about.reading_names``), where every log holds the same (``None``: none, or logs that differ).
+
+    Example:
+        >>> from types import SimpleNamespace as Log
+        >>> _logged_names([Log(reading_names=("x", "v")), Log(reading_names=("x", "v"))])
+        ['x', 'v']
+        >>> _logged_names([Log(reading_names=("x", "v")), Log(reading_names=())]) is None
+        True
+    """
+    names = {log.reading_names for log in logs}
+    return list(names.pop()) if len(names) == 1 and () not in names else None
 
 
 def _samples(log: RunLog) -> int | None:

@@ -87,14 +87,16 @@ def test_id_transitions_keep_every_reading_well_within_the_line_so_a_false_alarm
 
 def test_the_alarm_command_gets_the_readings(agent, tmp_path):
     out = tmp_path / "readings.txt"
-    command, sink = AlarmCommand(f'echo "$OODMON_READINGS" >> {out}'), MemorySink()
+    command, sink = AlarmCommand(f'echo "$OODMON_READINGS $OODMON_READING_NAMES" >> {out}'), MemorySink()
     with monitor(agent, [sink], [command]) as watching:
         for seed in range(3):
             watching.run_episode(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50), seed=seed, max_steps=80)
     assert command.close() == "ran 3 times (episodes 0, 1, 2), each exited 0"
     firsts = [next(alarm for alarm in sink.alarms if alarm.episode == episode) for episode in range(3)]
     assert all(alarm.step >= 50 for alarm in firsts)  # (each episode's first alarm: the command's)
-    assert sorted(out.read_text().splitlines()) == sorted(f"2:{alarm.readings[0][1]!r}" for alarm in firsts)
+    assert all(len(alarm.readings) == 1 for alarm in firsts)  # (a stuck angle: that reading alone)
+    assert sorted(out.read_text().splitlines()) == sorted(f'2:{alarm.readings[0][1]!r} ["pole angle"]'
+                                                          for alarm in firsts)
 
 
 def test_an_env_whose_layout_is_not_known_names_its_readings_by_index_alone():
@@ -388,3 +390,69 @@ def test_names_you_give_name_an_alarms_readings_in_its_line_the_log_and_replay(a
                  "--reading-names", "x, v, theta, omega"]) == 0
     closing = capsys.readouterr().out.strip().splitlines()[-1]
     assert closing.endswith("first alarms by dynamics 2; reading [2] (theta) 2")
+
+
+def test_names_given_at_calibration_go_with_the_threshold_to_every_monitor_of_it(agent, tmp_path, capsys):
+    """``calibrate_agent(reading_names=...)`` (``calibrate --reading-names``) records the names in
+    the threshold: a monitor of it (``oodmon run`` without ``--reading-names``) names its alarms'
+    readings by them, unless given others; a threshold calibrated on logs of a run given names
+    records them too; a count other than the observation's is refused at the first step, as the
+    threshold's."""
+    import json
+    from dataclasses import replace
+
+    import oodmon
+    from oodmon.cli import main
+    from oodmon.errors import ConfigError
+    from oodmon.monitor import McapSink, Threshold, calibrate_agent
+    from oodmon.replay import calibrate_from_logs
+
+    names = ["x", "v", "theta", "omega"]
+    detectors = detectors_for(agent)
+    # (far 0.2 on average over calibrations: 5 episodes are enough; 80 steps each, fast)
+    threshold = calibrate_agent(agent, 5, 0.2, confidence=None, detectors=detectors, detector="dynamics",
+                                max_steps=80, reading_names=names)
+    assert threshold.reading_names == names
+    loaded = Threshold.load(threshold.save(tmp_path / "named.json"))
+    assert loaded.reading_names == names
+
+    def first_names(threshold, watch=False, **given) -> list[str]:
+        sink = MemorySink()
+        with (oodmon.watch(agent, threshold=threshold, sinks=[sink], **given) if watch else
+              Monitor(agent, threshold=threshold, detectors=detectors, sinks=[sink], **given)) as watching:
+            watching.run_episode(parse_variant("cartpole:obs.stuck[2]=1").make(onset_step=50), seed=0, max_steps=80)
+        return [alarm.reading_names[0] for alarm in sink.alarms if alarm.step >= 50][:1]
+
+    assert first_names(loaded) == ["theta"]
+    assert first_names(loaded, reading_names=["a", "b", "c", "d"]) == ["c"]  # given ones come first
+    assert first_names(tmp_path / "named.json", watch=True) == ["theta"]  # oodmon.watch(threshold=FILE)
+    assert first_names(tmp_path / "named.json", watch=True, reading_names=["a", "b", "c", "d"]) == ["c"]
+    assert first_names(replace(loaded, reading_names=None)) == ["pole angle"]  # the env's known layout
+    with pytest.raises(ConfigError, match=r"the threshold's reading_names \(calibrate --reading-names\) has 3 "
+                                          r"name\(s\); the observations the detectors read have 4"):
+        first_names(replace(loaded, reading_names=names[:3]))
+    for bad in ("x, v", [], ["x", 2]):
+        (tmp_path / "bad.json").write_text(json.dumps(loaded.to_dict() | {"reading_names": bad}))
+        with pytest.raises(ConfigError, match=r"reading_names=.* is not allowed; it must be a list of texts"):
+            Threshold.load(tmp_path / "bad.json")
+
+    # calibrated on the logs of ID runs given names: the threshold records them
+    with Monitor(agent, threshold=loaded, detectors=detectors, sinks=[McapSink(tmp_path / "id.mcap")]) as watching:
+        for seed in range(5):
+            watching.run_episode(parse_variant("cartpole").make(), seed=900_000 + seed, max_steps=30)
+    assert calibrate_from_logs([tmp_path / "id.mcap"], 0.2, confidence=None).reading_names == names
+
+    # the command line: calibrate --reading-names, then run with the threshold alone
+    capsys.readouterr()
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--detector", "dynamics", "--episodes",
+                 "5", "--far", "0.2", "--confidence", "none", "--max-steps", "80", "--reading-names",
+                 "x, v, theta, omega", "--out", str(tmp_path / "cli.json")]) == 0
+    assert "; its alarms name the readings x, v, theta, omega;" in capsys.readouterr().out
+    written = Threshold.load(tmp_path / "cli.json")
+    assert written.reading_names == names
+    # at the shipped calibration's value (5 episodes of 80 steps give -4.25, which alarms before the onset)
+    replace(written, value=THRESHOLD).save(tmp_path / "cli.json")
+    assert main(["run", "--threshold", str(tmp_path / "cli.json"), "--variant", "cartpole:obs.stuck[2]=1",
+                 "--onset", "50", "--episodes", "2", "--max-steps", "80"]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1].endswith(
+        "first alarms by dynamics 2; reading [2] (theta) 2")
