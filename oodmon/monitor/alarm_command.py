@@ -7,8 +7,10 @@ environment (``OODMON_EPISODE``, ``OODMON_STEP``, ``OODMON_SCORE``, ``OODMON_THR
 ``OODMON_RULE``, ``OODMON_CAUSE``, ``OODMON_READINGS``: the readings the dynamics model predicted
 worst, ``index:residual`` each, space-separated, ``AlarmEvent.readings``, over
 ``OODMON_READINGS_STEPS`` steps, and ``OODMON_READING_NAMES`` their names, a JSON list in their
-order, ``""`` where one has none, ``AlarmEvent.reading_names``; ``OODMON_ALARM``: the alarm's
-line). It does not wait for the
+order, ``""`` where one has none, ``AlarmEvent.reading_names``; ``OODMON_REGION``: where in the
+picture, a JSON object of ``AlarmEvent.region``'s fields, ``top``, ``left``, ``height``,
+``width``, ``rows``, ``columns``, empty where it has none; ``OODMON_ALARM``: the alarm's line).
+It does not wait for the
 command: the policy acts on while it runs, as a sink's failure does not stop the loop
 (``docs/monitor.md``). :meth:`AlarmCommand.close` waits for the commands still running (for at most
 ``wait`` seconds) and says how they ended; a command that cannot start, or exits other than 0, is
@@ -101,6 +103,7 @@ class AlarmCommand:
                      "OODMON_READINGS_STEPS": str(event.readings_steps),
                      "OODMON_READING_NAMES": json.dumps([event.reading_names[k] if k < len(event.reading_names) else ""
                                                          for k in range(len(event.readings))]),
+                     "OODMON_REGION": "" if event.region is None else json.dumps(event.region._asdict()),
                      "OODMON_ALARM": event.text()}
         try:
             # a session of its own: a Ctrl-C meant for the monitor does not cut a page half sent

@@ -34,6 +34,7 @@ import re
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -44,7 +45,7 @@ from oodmon.monitor.sequential import Reference, SequentialStatistic, sequential
 from oodmon.validation import MOST_STEPS, is_step_count
 
 __all__ = [
-    "DEFAULT_CONSECUTIVE", "AlarmEvent", "AlarmTracker", "check_consecutive", "check_warmup", "check_window",
+    "DEFAULT_CONSECUTIVE", "AlarmEvent", "AlarmTracker", "Region", "check_consecutive", "check_warmup", "check_window",
     "compared_name", "default_consecutive", "readings_text",
     "episode_statistic",
     "rule_text", "rule_window", "trailing_mean",
@@ -241,6 +242,29 @@ def episode_statistic(scores: np.ndarray, consecutive: int, window: int = 1, *, 
     return float(sliding_window_view(values, consecutive).min(axis=1).max())
 
 
+class Region(NamedTuple):
+    """A part of the picture a detector reads, in its pixels: rows ``top`` to ``top + height - 1``
+    and columns ``left`` to ``left + width - 1`` of a picture of ``rows`` x ``columns``
+    (:attr:`AlarmEvent.region`).
+
+    Example:
+        >>> Region(28, 21, 14, 14, 84, 84).text()
+        'rows 28-41, columns 21-34 of the 84x84 picture'
+    """
+
+    top: int
+    left: int
+    height: int
+    width: int
+    rows: int
+    columns: int
+
+    def text(self) -> str:
+        """The region in words."""
+        return (f"rows {self.top}-{self.top + self.height - 1}, columns {self.left}-{self.left + self.width - 1} of "
+                f"the {self.rows}x{self.columns} picture")
+
+
 @dataclass(frozen=True)
 class AlarmEvent:
     """An alarm: the score stayed above the threshold for ``consecutive`` steps.
@@ -271,6 +295,12 @@ class AlarmEvent:
             the drift detector's window.
         reading_names: the names of ``readings``, in their order, where the env's layout is known
             (:func:`~oodmon.envs.readings.reading_names`: ``pole angle``); empty otherwise.
+        region: where in the picture, for a picture policy's alarm raised by the ``vanishing``
+            detector (alone or as ``combined``'s leader): the tiles where things vanished or
+            appeared in the episode where they never did in its ID fitting episodes, their bounding
+            box in the pixels of the picture it reads
+            (:meth:`~oodmon.monitor.detectors.VanishingDetector.where`): of a frozen part of the
+            camera, its border, where the ball goes in and comes out. ``None`` otherwise.
     """
 
     episode: int
@@ -282,6 +312,7 @@ class AlarmEvent:
     readings: tuple[tuple[int, float], ...] = ()
     readings_steps: int = 1
     reading_names: tuple[str, ...] = ()
+    region: Region | None = None
 
     def text(self) -> str:
         """One line for a person: where, the value against the threshold (named by the rule: the
@@ -299,8 +330,9 @@ class AlarmEvent:
         """
         cause = f"; cause: {self.cause}" if self.cause else ""
         value = compared_name(self.rule) or "score"
+        where = f"; where: {self.region.text()}" if self.region is not None else ""
         return (f"episode {self.episode} step {self.step}: {value} {self.score:.4g} > {self.threshold:.4g} "
-                f"({self.rule}){cause}{readings_text(self.readings, self.readings_steps, self.reading_names)}")
+                f"({self.rule}){cause}{readings_text(self.readings, self.readings_steps, self.reading_names)}{where}")
 
 
 def readings_text(readings: Sequence[tuple[int, float]], steps: int = 1, names: Sequence[str] = ()) -> str:

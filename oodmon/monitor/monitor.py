@@ -805,7 +805,8 @@ class Monitor:
         readings whose change the set's ``dynamics`` model predicted worst, at least
         :data:`READING_SD` off, at most :data:`MOST_READINGS`; none without a fitted model or a
         step before. Where none is and ``drift`` raised the alarm, its own reading
-        (:meth:`~oodmon.monitor.detectors.DriftDetector.largest_bias`), over its window. Named
+        (:meth:`~oodmon.monitor.detectors.DriftDetector.largest_bias`), over its window. Where
+        ``vanishing`` raised it, where in the picture (``region``). Named
         where the env's layout is known, a dict's by its keys (read flattened). One batch pass of the
         model, at each alarm (not each step)."""
         model = self.detectors["dynamics"] if "dynamics" in self.detectors else None
@@ -823,7 +824,10 @@ class Monitor:
                 readings, steps = (bias[:2],), bias[2]
         names = (self._own_names() if self._given_names is not None or self._dicts
                  else reading_names(self._episode_info.get("env_id")))
-        return {"readings": readings, "readings_steps": steps,
+        # a picture's: where things vanished or appeared (the vanishing detector's tiles), where it raised the alarm
+        vanishing = self.last_cause == "vanishing" and "vanishing" in self.detectors
+        region = self.detectors["vanishing"].where() if vanishing else None
+        return {"readings": readings, "readings_steps": steps, "region": region,
                 "reading_names": tuple(names[index] if index < len(names) else "" for index, _ in readings)}
 
     def _picture(self, obs: np.ndarray) -> np.ndarray | None:

@@ -206,6 +206,8 @@ class MonitoredEnv(gymnasium.Wrapper):
             telemetry["readings_steps"] = monitor.last_alarm.readings_steps
             if any(monitor.last_alarm.reading_names):  # ("" where a reading has none)
                 telemetry["reading_names"] = list(monitor.last_alarm.reading_names)
+        if monitor.last_alarm is not None and monitor.last_alarm.region is not None:  # a picture's part (vanishing)
+            telemetry["region"] = monitor.last_alarm.region._asdict()
         if monitor.stop_event is not None:
             event = monitor.stop_event
             telemetry["ended_by_alarm"] = f"an alarm callback ended the episode: {event.text()}"  # the alarm log's line
