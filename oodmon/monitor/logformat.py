@@ -40,6 +40,10 @@ metadata, absent before 3):
    running episode of a torn log, whose episode message was never written, replays what raised
    its first alarm and which readings it named where that step's message reached the disk (of a
    long episode's step messages before its last segment, the reader keeps those that hold it).
+12. ``first_alarm_region`` in episode messages and ``region`` in ``raised``: where in the picture
+   the alarm's events fell (``AlarmEvent.region``, the ``vanishing`` detector's: ``{"top", "left",
+   "height", "width", "rows", "columns"}`` in the pixels of the picture it reads; ``null`` or
+   absent for none); replay reads an older log's episodes as naming none.
 
 A step message's number that is not finite (the +inf score of a NaN observation, its NaN samples,
 a run without threshold) is ``null``: JSON has no NaN; the score arrays keep the values.
@@ -73,7 +77,7 @@ __all__ = [
     "RUN_METADATA", "STEP", "STEP_SCHEMA", "decode_array", "encode_episode_scores",
 ]
 
-FORMAT_VERSION = 11
+FORMAT_VERSION = 12
 STEP, EPISODE, EPISODE_SCORES = "/oodmon/step", "/oodmon/episode", "/oodmon/episode_scores"
 EPISODE_START = "/oodmon/episode_start"
 ALARM, FRAME = "/oodmon/alarm", "/oodmon/frame"
@@ -92,6 +96,11 @@ def _object(title: str, properties: dict[str, Any], required: list[str]) -> dict
 #: A number of a step message: ``null`` where it is not finite (NaN or infinity are not JSON; the
 #: episode's score arrays keep them).
 _NUMBER: dict[str, Any] = {"type": ["number", "null"]}
+#: A part of the picture (``AlarmEvent.region``, format 12), in its pixels.
+_REGION: dict[str, Any] = {"type": ["object", "null"], "description": "where in the picture the alarm's events fell, "
+                           "in the pixels of the picture the detector reads (since format 12)",
+                           "properties": {name: {"type": "integer"} for name in
+                                          ("top", "left", "height", "width", "rows", "columns")}}
 
 STEP_SCHEMA: dict[str, Any] = _object("oodmon.Step", {
     "episode": {"type": "integer"},
@@ -113,7 +122,7 @@ STEP_SCHEMA: dict[str, Any] = _object("oodmon.Step", {
                                                 "([index, residual] each) and the steps they cover (since format 11)",
                "properties": {"cause": {"type": ["string", "null"]},
                               "readings": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
-                              "readings_steps": {"type": "integer"}}},
+                              "readings_steps": {"type": "integer"}, "region": _REGION}},
 }, required=["episode", "step", "action", "mean", "std", "score", "threshold", "alarm", "shifted"])
 
 EPISODE_SCHEMA: dict[str, Any] = _object("oodmon.Episode", {
@@ -140,6 +149,7 @@ EPISODE_SCHEMA: dict[str, Any] = _object("oodmon.Episode", {
     "first_alarm_readings_steps": {"type": "integer", "description": "the steps the residuals of first_alarm_readings "
                                                                      "cover: 1, the alarm's; more, the drift "
                                                                      "detector's window (since format 10)"},
+    "first_alarm_region": _REGION,
 }, required=["episode", "env_id", "variant", "onset", "seed", "return", "length", "alarms", "first_alarm_step"])
 
 

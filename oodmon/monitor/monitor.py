@@ -39,7 +39,7 @@ from oodmon.envs.checks import step_naming_refusal
 from oodmon.envs.readings import reading_names
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
+from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, Region, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
 from oodmon.monitor.detectors.frames import is_picture, newest_frame
 from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
@@ -587,6 +587,7 @@ class Monitor:
         self._episode_task = self.agent.task if self.agent is not None else variant.split(":")[0]  # render's
         self._return, self._length, self._alarms, self._first_alarm, self._first_cause = 0.0, 0, 0, None, None
         self._first_readings: tuple[tuple[tuple[int, float], ...], int] = ((), 1)  # the first alarm's, and their steps
+        self._first_region: Region | None = None  # where in the picture the first alarm's events fell
         self._rewards: list[float] = []  # the current segment's
         self._segment_start = 0  # the step the current segment starts at
         self._in_episode = True
@@ -750,7 +751,7 @@ class Monitor:
             self.alarms_raised += 1
             if self._first_alarm is None:
                 self._first_alarm, self._first_cause = step, event.cause
-                self._first_readings = event.readings, event.readings_steps
+                self._first_readings, self._first_region = (event.readings, event.readings_steps), event.region
             self.sinks.write_alarm(event)
             for callback in self.callbacks:
                 if callback(event):
@@ -856,6 +857,7 @@ class Monitor:
                                first_alarm_step=self._first_alarm, interrupted=interrupted, terminated=terminated,
                                first_alarm_cause=self._first_cause, first_alarm_readings=self._first_readings[0],
                                first_alarm_readings_steps=self._first_readings[1],
+                               first_alarm_region=self._first_region,
                                rewards=rewards, **self._episode_info)
         self.sinks.end_episode(record)
         self._in_episode = False

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from oodmon.monitor.alarms import AlarmEvent
+    from oodmon.monitor.alarms import AlarmEvent, Region
 
 __all__ = ["EpisodeRecord", "EpisodeSegment", "EpisodeStart", "RunInfo", "StepRecord"]
 
@@ -70,6 +70,8 @@ class StepRecord:
             data["raised"] = {"cause": self.raised.cause or None,
                               "readings": [[index, residual] for index, residual in self.raised.readings],
                               "readings_steps": self.raised.readings_steps}
+            if self.raised.region is not None:  # (format 12)
+                data["raised"]["region"] = self.raised.region._asdict()
         return data
 
 
@@ -135,6 +137,9 @@ class EpisodeRecord:
             <oodmon.monitor.alarms.AlarmEvent.readings>`), and ``first_alarm_readings_steps`` the
             steps their residuals cover; empty (and 1) without an alarm, where it named none, and in
             logs older than format 10.
+        first_alarm_region: where in the picture the first alarm's events fell
+            (:attr:`AlarmEvent.region <oodmon.monitor.alarms.AlarmEvent.region>`); ``None`` without
+            one, and in logs older than format 12.
         rewards: the reward of each step (what ``add_reward`` received), logged in the episode's
             score arrays; ``None`` where they were not given step by step, or the episode was
             longer than a segment (``Monitor(segment_steps=)``: the log holds them by segment).
@@ -155,6 +160,7 @@ class EpisodeRecord:
     obs_noise: float = 0.0
     first_alarm_readings: tuple[tuple[int, float], ...] = ()
     first_alarm_readings_steps: int = 1
+    first_alarm_region: Region | None = None
     rewards: tuple[float, ...] | None = field(default=None, repr=False, compare=False)
 
     @property
@@ -185,7 +191,8 @@ class EpisodeRecord:
                 "first_alarm_step": self.first_alarm_step, "interrupted": self.interrupted,
                 "terminated": self.terminated, "first_alarm_cause": self.first_alarm_cause, "obs_noise": self.obs_noise,
                 "first_alarm_readings": [[index, residual] for index, residual in self.first_alarm_readings],
-                "first_alarm_readings_steps": self.first_alarm_readings_steps}
+                "first_alarm_readings_steps": self.first_alarm_readings_steps,
+                "first_alarm_region": None if self.first_alarm_region is None else self.first_alarm_region._asdict()}
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ import numpy as np
 from oodmon.envs.readings import reading_names as layout_names
 from oodmon.errors import LogFormatError
 from oodmon.monitor import logformat
+from oodmon.monitor.alarms import Region
 from oodmon.monitor.logformat import decode_array
 from oodmon.monitor.records import EpisodeRecord
 from oodmon.replay.parts import missing_parts, without_copies
@@ -176,6 +177,7 @@ def _episode(path: Path, row: dict, arrays: dict, alarm_detector: str = "spread"
         raise LogFormatError(f"{path}: episode record {row['episode']!r} has obs_noise={noise!r}; not a log oodmon "
                              "wrote (or a damaged one)")
     readings, readings_steps = _first_alarm_readings(path, row)
+    region = _first_alarm_region(path, row)
     scores, shifted, alarm, rewards = arrays["score"], arrays["shifted"], arrays["alarm"], arrays["rewards"]
     detectors = arrays["detectors"] or {alarm_detector: scores}
     if any(len(a) != row["length"] for a in (scores, shifted, alarm, *detectors.values(),
@@ -189,7 +191,8 @@ def _episode(path: Path, row: dict, arrays: dict, alarm_detector: str = "spread"
         terminated=row.get("terminated") if isinstance(row.get("terminated"), bool) else None,
         first_alarm_cause=row.get("first_alarm_cause") if isinstance(row.get("first_alarm_cause"), str) else None,
         obs_noise=float(noise), first_alarm_readings=readings, first_alarm_readings_steps=readings_steps,
-        scores=scores, shifted=shifted, alarm=alarm, detector_scores=detectors, rewards=rewards, ended_ns=ended_ns,
+        first_alarm_region=region, scores=scores, shifted=shifted, alarm=alarm, detector_scores=detectors,
+        rewards=rewards, ended_ns=ended_ns,
     )
 
 
@@ -203,6 +206,29 @@ def _first_alarm_readings(path: Path, row: dict) -> tuple[tuple[tuple[int, float
         raise LogFormatError(f"{path}: episode record {row['episode']!r} has first_alarm_readings={readings!r} over "
                              f"{steps!r} steps; not a log oodmon wrote (or a damaged one)")
     return tuple((int(index), float(residual)) for index, residual in pairs), int(steps)
+
+
+def _first_alarm_region(path: Path, row: dict) -> Region | None:
+    """An episode record's ``first_alarm_region`` (format 12; ``None`` in older logs, and for
+    none), checked: whole pixels inside a picture of at least one.
+
+    Example:
+        >>> _first_alarm_region(Path("x.mcap"), {"first_alarm_region": {"top": 28, "left": 21, "height": 7,
+        ...                                      "width": 14, "rows": 84, "columns": 84}}).text()
+        'rows 28-34, columns 21-34 of the 84x84 picture'
+    """
+    region = row.get("first_alarm_region")
+    if region is None:
+        return None
+    fields = Region._fields
+    if not (isinstance(region, dict) and set(region) == set(fields)
+            and all(is_whole(region[name], 0) for name in fields)
+            and all(is_whole(region[name], 1) for name in ("height", "width", "rows", "columns"))
+            and region["top"] + region["height"] <= region["rows"]
+            and region["left"] + region["width"] <= region["columns"]):
+        raise LogFormatError(f"{path}: episode record {row.get('episode', '?')!r} has first_alarm_region={region!r}; "
+                             "not a log oodmon wrote (or a damaged one)")
+    return Region(*(int(region[name]) for name in fields))
 
 
 class _Collector:
@@ -526,16 +552,19 @@ def _cut_episode(path: Path, start: dict, steps: list[dict], alarm_detector: str
 def _raised(path: Path, episode: object, steps: list[dict], first: int) -> dict:
     """What a torn log's running episode's first alarm, at step ``first``, was raised by and
     which readings it named, as its episode message would have said (``first_alarm_cause``,
-    ``first_alarm_readings``, ``first_alarm_readings_steps``), from that step's message (``raised``,
-    format 11); nothing where that message is not among ``steps`` (it had not reached the disk),
-    is of an older log, or is damaged (the episode is kept without them)."""
+    ``first_alarm_readings``, ``first_alarm_readings_steps``, and where in the picture,
+    ``first_alarm_region``, format 12), from that step's message (``raised``, format 11); nothing
+    where that message is not among ``steps`` (it had not reached the disk), is of an older log, or
+    is damaged (the episode is kept without them)."""
     raised = next((r.get("raised") for r in steps if r.get("step") == first), None)
     if not isinstance(raised, dict):
         return {}
     found = {"first_alarm_readings": raised.get("readings", []),
-             "first_alarm_readings_steps": raised.get("readings_steps", 1)}
+             "first_alarm_readings_steps": raised.get("readings_steps", 1),
+             "first_alarm_region": raised.get("region")}
     try:
         _first_alarm_readings(path, {"episode": episode, **found})
+        _first_alarm_region(path, {"episode": episode, **found})
     except LogFormatError:
         found = {}
     cause = raised.get("cause")

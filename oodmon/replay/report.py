@@ -288,6 +288,7 @@ EPISODE_COLUMNS = [
     ("delay", "delay"), ("first_alarm_cause", "cause"), ("failure_step", "failed at"), ("ended", "ended"),
     ("obs_noise", "noise"),  # after the others: the CSV's columns before format 8 keep their places
     ("first_alarm_readings", "readings"),  # (format 10) after those of format 8
+    ("first_alarm_region", "where"),  # (format 12) after those of format 10
 ]
 
 
@@ -324,7 +325,9 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
     ``obs_noise`` is the env's sensor noise (0: none, or a log older than format 8);
     ``first_alarm_cause`` is what raised the first alarm's score (``None``: no alarm, or a log
     older than format 7); ``first_alarm_readings`` the readings it named (:func:`readings_cell`;
-    ``None``: none named, or a log older than format 10); ``return`` is ``None`` where the log does
+    ``None``: none named, or a log older than format 10) and ``first_alarm_region`` where in the
+    picture (``rows 28-34, columns 21-34 of the 84x84 picture``, :class:`~oodmon.monitor.alarms.Region`;
+    ``None``: none, or a log older than format 12); ``return`` is ``None`` where the log does
     not have it (an episode cut at a tear); ``ended``
     is ``terminated`` (the env ended it), ``time limit`` (or an alarm callback), ``interrupted``, or
     ``""`` (logs older than format 4).
@@ -344,6 +347,7 @@ def episode_rows(logs: Sequence[RunLog], failure: str | None = None) -> list[dic
                 "first_alarm_cause": e.first_alarm_cause,
                 "first_alarm_readings": readings_cell(e.first_alarm_readings, e.first_alarm_readings_steps,
                                                       log.reading_names_of(e)),
+                "first_alarm_region": None if e.first_alarm_region is None else e.first_alarm_region.text(),
                 "failure_step": failure_step(e, log.task, failure) if shifted and not e.interrupted else None,
                 "ended": ended,
             })
@@ -406,14 +410,15 @@ def episodes_table(rows: Sequence[dict], title: str, width: int | None = None) -
                    ("ended", "ended")]  # (several noises: each in its variant's cell, as no column fits)
     else:
         columns = list(EPISODE_COLUMNS)
-    named_readings = any(row["first_alarm_readings"] for row in rows)
+    said = ("first_alarm_readings", "first_alarm_region")  # what the first alarm named: a column where any row has it
+    filled = {name for name in said if any(row[name] for row in rows)}
     columns = [(name, heading) for name, heading in columns
                if (name != "log" or len(logs) > 1) and (name != "obs_noise" or len(noises) > 1)
-               and (name != "first_alarm_readings" or named_readings)]
+               and (name not in said or name in filled)]
     for name, heading in columns:
-        left = name in ("log", "variant", "ended", "first_alarm_readings")
+        left = name in ("log", "variant", "ended", *said)
         table.add_column(heading, justify="left" if left else "right",
-                         overflow="fold" if name in ("log", "variant", "first_alarm_readings") else "ellipsis",
+                         overflow="fold" if name in ("log", "variant", *said) else "ellipsis",
                          ratio=1 if narrow and name == "variant" else None, no_wrap=narrow and name != "variant")
     for row in rows:
         shown = dict(row, log=named[row["log"]])

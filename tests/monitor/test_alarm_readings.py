@@ -326,7 +326,7 @@ def test_a_killed_runs_running_episode_replays_what_raised_its_first_alarm_and_w
     assert rows[1]["first_alarm_readings"] == f"[2] (pole angle) {raised.readings[0][1]:+.3g} sd"
     steps = [{"step": 21, "raised": {"cause": "dynamics", "readings": [[2, -9.5]], "readings_steps": 1}}]
     assert _raised(tmp_path, 1, steps, 21) == {"first_alarm_cause": "dynamics", "first_alarm_readings": [[2, -9.5]],
-                                               "first_alarm_readings_steps": 1}
+                                               "first_alarm_readings_steps": 1, "first_alarm_region": None}
     assert _raised(tmp_path, 1, steps, 22) == {}  # that step's message not on disk
     damaged = [{"step": 21, "raised": {"cause": 7, "readings": [[2.5, "x"]], "readings_steps": 0}}]
     assert _raised(tmp_path, 1, damaged, 21) == {} and _raised(tmp_path, 1, [{"step": 21, "raised": "x"}], 21) == {}

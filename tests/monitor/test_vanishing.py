@@ -176,21 +176,25 @@ def test_a_vanishing_alarm_of_the_shipped_pong_ensemble_says_where_in_the_pictur
     games) names the box of its tiles, in the 84x84 picture the agent reads, at the frozen part:
     the ball vanishes as it enters it and appears as it leaves. Measured when written: the first
     events' tiles lay in the frozen part or within a tile of its border in 12 of 12 games (seeds
-    800,000-800,002 of four parts, /tmp script); in the alarm's line, ``info["oodmon"]["region"]``
-    and the alarm command's ``OODMON_REGION``."""
+    800,000-800,002 of four parts, /tmp script); in the alarm's line, ``info["oodmon"]["region"]``,
+    the alarm command's ``OODMON_REGION`` and the log (format 12), which replay lists."""
     import json
 
     from oodmon.agents import load
-    from oodmon.monitor import AlarmCommand, MemorySink, Monitor, MonitoredEnv
+    from oodmon.errors import LogFormatError
+    from oodmon.monitor import AlarmCommand, McapSink, MemorySink, Monitor, MonitoredEnv
     from oodmon.monitor.detectors import detectors_for
     from oodmon.monitor.detectors.vanishing import REACH
+    from oodmon.replay import read_log
+    from oodmon.replay.reader import _first_alarm_region, _raised
+    from tests.helpers import run_cli
 
     agent = load("pong", "ensemble")
     for top, left, height, width in ((80, 50, 70, 60), (0, 107, 210, 53)):
         out, sink = tmp_path / f"{left}.txt", MemorySink()
         command = AlarmCommand(f'echo "$OODMON_REGION" >> {out}')
-        monitor = Monitor(agent, 0.5, detectors=detectors_for(agent), detector="vanishing", sinks=[sink],
-                          callbacks=[command])
+        monitor = Monitor(agent, 0.5, detectors=detectors_for(agent), detector="vanishing",
+                          sinks=[sink, McapSink(tmp_path / f"{left}.mcap")], callbacks=[command])
         env = MonitoredEnv(parse_variant(f"pong:frozen_region:top={top},left={left},height={height},width={width}")
                            .make(onset_step=200), monitor)
         env.reset(seed=800_000)
@@ -211,3 +215,18 @@ def test_a_vanishing_alarm_of_the_shipped_pong_ensemble_says_where_in_the_pictur
         assert rows[0] <= region.top and region.top + region.height <= rows[1], (region, rows)
         assert columns[0] <= region.left and region.left + region.width <= columns[1], (region, columns)
         assert region.height * region.width <= 14 * 14  # (one or a few tiles, not the whole picture)
+        (logged,) = read_log(tmp_path / f"{left}.mcap").interrupted  # (closed at the alarm, inside the game)
+        assert logged.first_alarm_region == region
+        (row,) = json.loads(run_cli("replay", "--episodes", "--json", str(tmp_path / f"{left}.mcap")).stdout)
+        assert row["first_alarm_region"] == region.text() and row["first_alarm_cause"] == "vanishing"
+    # a torn log's running episode: from the step message that raised it (format 11's ``raised``)
+    steps = [{"step": 230, "raised": {"cause": "vanishing", "readings": [], "readings_steps": 1,
+                                      "region": region._asdict()}}]
+    assert _raised(tmp_path, 0, steps, 230)["first_alarm_region"] == region._asdict()
+    for damaged in ("x", {**region._asdict(), "top": -1}, {**region._asdict(), "height": 0},
+                    {**region._asdict(), "top": 80}, {"top": 1}):
+        with pytest.raises(LogFormatError, match="first_alarm_region="):
+            _first_alarm_region(tmp_path, {"episode": 0, "first_alarm_region": damaged})
+        assert _raised(tmp_path, 0, [{"step": 230, "raised": {"cause": "vanishing", "region": damaged}}], 230) == {
+            "first_alarm_cause": "vanishing"}
+    assert _first_alarm_region(tmp_path, {"episode": 0}) is None  # a log older than format 12

@@ -431,9 +431,10 @@ def test_each_episode_logs_its_sensor_noise_and_replay_says_when_a_row_pools_two
     rows = json.loads(_cli("replay", "--episodes", "--json", str(tmp_path)).stdout)
     assert sorted(row["obs_noise"] for row in rows) == [0.0, 0.05, 0.05]
     csv = _cli("replay", "--episodes", "--csv", str(tmp_path)).stdout.splitlines()
-    # the noise where format 8 put it (last then), the first alarm's readings after it (format 10)
-    assert csv[0].endswith(",ended,obs_noise,first_alarm_readings") and sorted(
-        line.split(",")[-2] for line in csv[1:]) == ["0.0", "0.05", "0.05"]
+    # the noise where format 8 put it (last then), the first alarm's readings after it (format 10), and
+    # where in the picture after those (format 12)
+    assert csv[0].endswith(",ended,obs_noise,first_alarm_readings,first_alarm_region") and sorted(
+        line.split(",")[-3] for line in csv[1:]) == ["0.0", "0.05", "0.05"]
     assert "noise" in _cli("replay", "--episodes", str(tmp_path)).stdout  # a column where they differ
     import io
 
