@@ -177,12 +177,15 @@ def test_a_vanishing_alarm_of_the_shipped_pong_ensemble_says_where_in_the_pictur
     the ball vanishes as it enters it and appears as it leaves. Measured when written: the first
     events' tiles lay in the frozen part or within a tile of its border in 12 of 12 games (seeds
     800,000-800,002 of four parts, /tmp script); in the alarm's line, ``info["oodmon"]["region"]``,
-    the alarm command's ``OODMON_REGION`` and the log (format 12), which replay lists."""
+    the alarm command's ``OODMON_REGION``, the log (format 12), which replay lists, and the Rerun
+    file, a box over the frame from the alarm to the episode's end."""
     import json
+
+    import rerun.chunk as rc
 
     from oodmon.agents import load
     from oodmon.errors import LogFormatError
-    from oodmon.monitor import AlarmCommand, McapSink, MemorySink, Monitor, MonitoredEnv
+    from oodmon.monitor import AlarmCommand, McapSink, MemorySink, Monitor, MonitoredEnv, RerunSink
     from oodmon.monitor.detectors import detectors_for
     from oodmon.monitor.detectors.vanishing import REACH
     from oodmon.replay import read_log
@@ -194,7 +197,8 @@ def test_a_vanishing_alarm_of_the_shipped_pong_ensemble_says_where_in_the_pictur
         out, sink = tmp_path / f"{left}.txt", MemorySink()
         command = AlarmCommand(f'echo "$OODMON_REGION" >> {out}')
         monitor = Monitor(agent, 0.5, detectors=detectors_for(agent), detector="vanishing",
-                          sinks=[sink, McapSink(tmp_path / f"{left}.mcap")], callbacks=[command])
+                          sinks=[sink, McapSink(tmp_path / f"{left}.mcap"), RerunSink(tmp_path / f"{left}.rrd")],
+                          callbacks=[command])
         env = MonitoredEnv(parse_variant(f"pong:frozen_region:top={top},left={left},height={height},width={width}")
                            .make(onset_step=200), monitor)
         env.reset(seed=800_000)
@@ -219,6 +223,16 @@ def test_a_vanishing_alarm_of_the_shipped_pong_ensemble_says_where_in_the_pictur
         assert logged.first_alarm_region == region
         (row,) = json.loads(run_cli("replay", "--episodes", "--json", str(tmp_path / f"{left}.mcap")).stdout)
         assert row["first_alarm_region"] == region.text() and row["first_alarm_cause"] == "vanishing"
+        drawn = rc.RrdReader(tmp_path / f"{left}.rrd").stream().collect().reader("step").to_pandas()
+        boxes = drawn.dropna(subset=["/frame/alarm_region:Boxes2D:labels"])
+        assert list(boxes["step"]) == [alarm.step, logged.length]  # drawn at the alarm, cleared at the episode's end
+        first = boxes.iloc[0]
+        assert list(first["/frame/alarm_region:Boxes2D:labels"]) == ["alarm: vanishing"]
+        assert [list(v) for v in first["/frame/alarm_region:Boxes2D:centers"]] == [
+            [region.left + region.width / 2, region.top + region.height / 2]]
+        assert [list(v) for v in first["/frame/alarm_region:Boxes2D:half_sizes"]] == [
+            [region.width / 2, region.height / 2]]
+        assert len(boxes.iloc[1]["/frame/alarm_region:Boxes2D:labels"]) == 0
     # a torn log's running episode: from the step message that raised it (format 11's ``raised``)
     steps = [{"step": 230, "raised": {"cause": "vanishing", "readings": [], "readings_steps": 1,
                                       "region": region._asdict()}}]

@@ -7,7 +7,9 @@ CUSUM or martingale statistic), ``/compared``, that value;
 ``/uncertainty/<action>`` with the samples' mean and the band mean - std .. mean + std;
 ``/observation`` (vector tasks; a discrete observation as each reading's value, not the one-hot
 vector the steps hold: Taxi's one series of its 500 states instead of 500) or ``/frame`` (Pong:
-the 84x84 frame the agent saw);
+the 84x84 frame the agent saw), and over it ``/frame/alarm_region``, a box where an alarm said in
+the picture its events fell (``AlarmEvent.region``: the vanishing detector's), from the alarm to
+the episode's end;
 ``/shifted`` (1 while the shift is active); ``/alarms`` (warnings); ``/episode/return``.
 A default blueprint lays these out, so opening the file shows a useful layout.
 
@@ -209,6 +211,7 @@ class RerunSink:
         self._file_chunks = 0  # of which to the file
         self._watch: tuple[float, int, int] | None = None  # the file: (looked at, its size, chunks sent then)
         self._stalled = False  # the last look found sends that had not reached the file
+        self._boxed = False  # an alarm's region is drawn over the frame (cleared at the episode's end)
 
     def existing_paths(self) -> list[Path]:
         """The file an earlier run left at ``path``, if any (the live streams leave none)."""
@@ -454,6 +457,12 @@ class RerunSink:
         self._each("log", "/alarms", self._rr.TextLog(
             event.text(),
             level=self._rr.TextLogLevel.WARN))
+        if event.region is not None:  # where in the picture: a box over the agent's view
+            region = event.region
+            self._each("log", "/frame/alarm_region", self._rr.Boxes2D(
+                mins=[[region.left, region.top]], sizes=[[region.width, region.height]],
+                labels=[f"alarm: {event.cause}"], colors=[[255, 40, 40]]))
+            self._boxed = True
 
     def end_episode(self, record: EpisodeRecord) -> None:
         if not self._streams:
@@ -468,6 +477,10 @@ class RerunSink:
             f"episode {record.episode} ({record.variant}, onset {record.onset}, seed {record.seed}"
             + (f", sensor noise {record.obs_noise:g}" if record.obs_noise else "") + "): return "
             f"{record.total_return:.1f}, {record.length} steps, {record.alarms} alarms", level=self._rr.TextLogLevel.INFO))
+        if self._boxed:  # an alarm's box belongs to its episode's pictures
+            self._set_time(self._global_step, record.episode, record.length)
+            self._each("log", "/frame/alarm_region", self._rr.Clear(recursive=False))
+            self._boxed = False
         self._check_live()
         self._check_file()
 
