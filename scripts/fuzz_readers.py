@@ -30,7 +30,9 @@ warned), nothing else. ``kept_detectors``, added on 2026-12-06 with the epochs a
 flips per file, the set was read back where the flip left ``detectors.json`` (59) or ``kept.json``
 (67) valid, never where it hit the tensors (their hash). ``steps``, added on 2026-12-06 with the
 frames of a picture policy's log (``--only steps``): 2,504 damaged copies, 2,204 read (a cut
-is a torn log: its whole episodes before the tear), 300 refused, nothing else.
+is a torn log: its whole episodes before the tear), 300 refused, nothing else. ``region``, added on
+2026-12-08 with log format 12 (``--only region --seed 99``): 2,446 damaged copies, 2,335 read, 111
+refused, nothing else.
 
 The readers: ``log`` (replay's ``read_log`` of a small format-6 log, two CartPole episodes in
 segments of 4 steps: a cut or flip is a torn or damaged log, recovered), ``steps`` (``read_steps``
@@ -46,7 +48,9 @@ scoring three steps of random frames: a damaged setting that loads would show th
 ``threshold`` (a calibrated threshold), ``kept_fitting`` and ``kept_calibration`` (the episodes an
 interrupted fit or calibration keeps: a damaged file is read as none, with a warning),
 ``kept_detectors`` (the fitted set an interrupted calibration keeps, with its ``kept.json``),
-``baseline`` (``oodmon check --update``'s baseline) and
+``region`` (a log whose first alarms say where in the picture, format 12: the episode records'
+``first_alarm_region`` and the raising steps' ``raised.region``, read and listed as ``replay
+--episodes`` lists them), ``baseline`` (``oodmon check --update``'s baseline) and
 ``bench`` (a committed bench result read as ``--baseline`` and compared with itself).
 """
 
@@ -77,6 +81,42 @@ def _make_log(folder: Path) -> dict[str, Path]:
         for seed in range(2):
             monitor.run_episode(parse_variant(spec).make(onset_step=3), seed=seed, max_steps=10, variant=spec)
     return {"log.mcap": path}
+
+
+def _make_region(folder: Path) -> dict[str, Path]:
+    """A log of two episodes of 20x40 pictures in which a ball vanishes mid-field, under the
+    vanishing detector fitted on its rally: each first alarm names a region of the picture (log
+    format 12), 16 KB (a Pong game reaches its first such alarm after hundreds of decisions)."""
+    import numpy as np
+
+    from oodmon.monitor import McapSink, Monitor
+    from oodmon.monitor.detectors import Trajectory, VanishingDetector
+
+    def rally(hidden=range(0)) -> np.ndarray:
+        frames = np.full((26, 20, 40), 50, np.uint8)
+        frames[:, 0] = 200
+        for frame, x in zip(frames, [*range(0, 38, 3), *range(37, -1, -3)]):
+            if x not in hidden:
+                frame[6:8, x:x + 2] = 255
+        return frames
+
+    detector = VanishingDetector(grid=4, reach=4).fit([Trajectory(np.concatenate([rally()] * 3), np.zeros(77))])
+    path = folder / "region.mcap"
+    with Monitor(None, threshold=0.5, detectors=[detector], detector="vanishing", sinks=[McapSink(path)]) as monitor:
+        for _ in range(2):
+            monitor.begin_episode(env_id="Balls-v0", variant="Balls-v0:hidden", onset=3)
+            for frame in rally(hidden=range(15, 25)):
+                monitor.step(frame, action=0, frame=frame)
+            monitor.end_episode(terminated=False)
+    return {"region.mcap": path}
+
+
+def _read_region(folder: Path) -> object:
+    """read_log, then its episodes as ``replay --episodes`` lists them (the region in words)."""
+    from oodmon.replay import read_log
+    from oodmon.replay.report import episode_rows
+
+    return episode_rows([read_log(folder / "region.mcap")])
 
 
 def _make_compared(folder: Path) -> dict[str, Path]:
@@ -244,6 +284,7 @@ def _readers() -> dict[str, tuple[Callable[[Path], dict[str, Path]], Callable[[P
     bench = ROOT / "results" / "bench" / "cartpole.json"
     return {
         "log": (_make_log, lambda d: read_log(d / "log.mcap")),
+        "region": (_make_region, _read_region),
         "steps": (_make_steps, _read_steps),
         "compared": (_make_compared, lambda d: read_compared(d / "log.mcap", [0, 1])),
         "vecnorm": (_make_vecnorm, lambda d: load_vec_normalize(d / "vecnormalize.pkl")),

@@ -509,6 +509,16 @@ def test_fuzz_readers_kept_detectors_reads_the_kept_set_back_and_a_damaged_one_a
         assert read(tmp_path / "k") == (None, None)
 
 
+def test_fuzz_readers_region_log_names_each_first_alarms_region_and_a_torn_copy_reads(monkeypatch, tmp_path):
+    script = _load(monkeypatch, tmp_path, "fuzz_readers")[0]
+    make, read = script._readers()["region"]
+    (tmp_path / "r").mkdir()
+    (log,) = make(tmp_path / "r").values()
+    assert [row["first_alarm_region"] for row in read(tmp_path / "r")] == [
+        "rows 5-9, columns 10-19 of the 20x40 picture"] * 2  # (the ball vanishes from tile column 1 of 4)
+    assert script.fuzz("region", {"region.mcap": log}, read, cuts=20, flips=20, seed=1) == []
+
+
 def test_fuzz_readers_uses_pong_detectors_after_reading_them(monkeypatch, tmp_path):
     """The Pong reader reads the zoo's set and scores three steps of frames with its picture
     detectors (where a damage that loads would show); a damaged setting is refused with oodmon's error."""
