@@ -125,6 +125,26 @@ class RandomButtons:
         return int(self.rng.integers(6))
 
 
+def ball_pictures(xs, *, hidden=range(0), size=(20, 40)):
+    """A ``Trajectory`` of a 2x2 ball on a grey picture with a bright wall along its top row, at
+    columns ``xs`` of rows 6-7 (tile row 1 of 4), not drawn at the columns in ``hidden``: what the
+    vanishing detector's tests fit and score."""
+    from oodmon.monitor.detectors import Trajectory
+
+    frames = []
+    for x in xs:
+        frame = np.full(size, 50, np.uint8)
+        frame[0] = 200
+        if x not in hidden:
+            frame[6:8, x:x + 2] = 255
+        frames.append(frame)
+    return Trajectory(np.array(frames), np.zeros(len(frames) - 1, np.int64))
+
+
+#: A ball across a 40-pixel picture and back, 3 columns a step, three times (:func:`ball_pictures`).
+RALLY = [*range(0, 38, 3), *range(37, -1, -3)] * 3
+
+
 def scores_along(detector, trajectory) -> list[float]:
     """A detector's score at each acted-on step of ``trajectory`` (a ``Trajectory``), from a reset,
     each step with its action and the one before, as the monitor gives them."""

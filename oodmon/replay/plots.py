@@ -33,14 +33,14 @@ from oodmon.outputs import safe_filename, save_figure
 from oodmon.replay.failures import failure_known
 from oodmon.replay.metrics import (EpisodeAlarms, VariantMetrics, alarm_events, env_of_variant, is_id_episode,
                                    is_id_variant, rankable, roc_points, shifted_alarms)
-from oodmon.replay.reader import EpisodeLog, RunLog, read_compared
+from oodmon.replay.reader import EpisodeLog, RunLog, read_compared, read_frames
 
 if TYPE_CHECKING:
     from oodmon.monitor.threshold import Threshold
     from oodmon.replay.recalibrate import LogStatistics
 
 __all__ = ["plot_alarm_timeline", "plot_auroc_vs_shift", "plot_id_alarms", "plot_log_statistics", "plot_roc",
-           "plot_trace", "roc_curves", "write_monitor_plots", "write_plots"]
+           "plot_trace", "plot_where", "roc_curves", "write_monitor_plots", "write_plots"]
 
 
 def _pyplot():
@@ -230,6 +230,62 @@ def plot_id_alarms(logs: Sequence[RunLog], method: str, task: str, path: str | P
              + (f"({others} more of runs by another alarm not counted; " if others else "(")
              + "alarms as vertical lines)")
     return _draw_with_rule(panels, sources, threshold, title, path, rule, text, logged)
+
+
+#: First alarms drawn by :func:`plot_where` (the first ones; its title says of how many).
+WHERE_PANELS = 12
+
+
+def plot_where(logs: Sequence[RunLog], task: str, method: str, path: str | Path) -> Path | None:
+    """Where in the picture ``method``'s first alarms of ``task`` said their events fell
+    (:attr:`EpisodeLog.first_alarm_region`, log format 12: a picture policy's alarm the
+    ``vanishing`` detector raised): the frame the policy acted on at each first alarm, its region
+    boxed, at most :data:`WHERE_PANELS` of them, the episodes in the logs' order; ``None`` where no
+    episode's first alarm names one, or the logs hold none of those frames (a run that logged no
+    pictures). The frames alone are read (:func:`~oodmon.replay.reader.read_frames`)."""
+    named = [(log, episode) for log in logs if (log.task, log.method) == (task, method)
+             for episode in sorted([*log.episodes, *log.interrupted], key=lambda e: e.episode)
+             if episode.first_alarm_region is not None and episode.first_alarm_step is not None]
+    frames = {}
+    for source in dict.fromkeys(log.path for log, _ in named[:WHERE_PANELS]):
+        for (k, step), frame in read_frames(source, [(e.episode, e.first_alarm_step) for log, e in
+                                                     named[:WHERE_PANELS] if log.path == source]).items():
+            frames[(source, k, step)] = frame
+    drawn = [(log, episode) for log, episode in named[:WHERE_PANELS]
+             if (log.path, episode.episode, episode.first_alarm_step) in frames]
+    if not drawn:
+        return None
+    plt = _pyplot()
+    from matplotlib.patches import Rectangle
+
+    columns = min(4, len(drawn))
+    rows = -(-len(drawn) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(3 * columns, 3.3 * rows), squeeze=False)
+    for ax in axes.flat[len(drawn):]:
+        ax.axis("off")
+    variants = {episode.variant for _, episode in drawn}
+    for ax, (log, episode) in zip(axes.flat, drawn):
+        frame, region = frames[(log.path, episode.episode, episode.first_alarm_step)], episode.first_alarm_region
+        ax.imshow(frame, cmap="gray" if frame.ndim == 2 else None, vmin=0, vmax=255, interpolation="nearest")
+        ax.add_patch(Rectangle((region.left - 0.5, region.top - 0.5), region.width, region.height, fill=False,
+                               edgecolor="red", linewidth=2))
+        onset = f" ({episode.first_alarm_step - episode.onset:+d})" if not is_id_episode(episode, log.task) else ""
+        variant = "" if len(variants) == 1 else "\n" + episode.variant.removeprefix(f"{task}:")
+        ax.set_title(f"episode {episode.episode}, step {episode.first_alarm_step}{onset}{variant}", fontsize=8,
+                     wrap=True)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    shared = f" of {variants.pop()}" if len(variants) == 1 else ""
+    fig.suptitle(f"{task}/{method}: where the first alarms{shared} said their events fell, boxed on the frame "
+                 f"at each alarm (steps from the onset in brackets); {len(drawn)} of {len(named)} such first "
+                 "alarm(s)", fontsize=9, wrap=True)
+    return save_figure(fig, path)
+
+
+def _where_plots(logs: Sequence[RunLog], folder: Path) -> list[Path | None]:
+    """:func:`plot_where` of each task and method the logs hold, as ``where_<task>_<method>.png``."""
+    return [plot_where(logs, task, method, folder / f"where_{safe_filename(task)}_{safe_filename(method)}.png")
+            for task, method in sorted({(log.task, log.method) for log in logs})]
 
 
 def _statistic_name(text: str) -> str | None:
@@ -489,6 +545,7 @@ def write_plots(logs: Sequence[RunLog], metrics: Sequence[VariantMetrics], folde
     for task in sorted({m.task for m in metrics}):
         written.append(plot_auroc_vs_shift(metrics, task, folder / f"auroc_vs_shift_{safe_filename(task)}.png"))
     written += _id_alarm_plots(logs, folder)  # what the alarm made of the ID episodes: all a deployment's logs hold
+    written += _where_plots(logs, folder)  # a camera's first alarms: where in the picture
     return [p for p in written if p is not None]
 
 
@@ -578,6 +635,7 @@ def write_monitor_plots(logs: Sequence[RunLog], folder: str | Path, failure: str
                                    failures=failure_known(task, failure))
                for (task, method), variants in sorted(by_agent.items())]
     written += _id_alarm_plots(logs, Path(folder))
+    written += _where_plots(logs, Path(folder))
     return [p for p in written if p is not None]
 
 

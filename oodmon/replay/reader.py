@@ -37,7 +37,7 @@ from oodmon.replay.parts import missing_parts, without_copies
 from oodmon.validation import is_finite_real, is_whole
 
 __all__ = ["EpisodeLog", "MissingPartWarning", "NewerFormatWarning", "RecoveryWarning", "RunLog", "SkippedLogWarning",
-           "read_compared", "read_log", "read_logs", "read_steps"]
+           "read_compared", "read_frames", "read_log", "read_logs", "read_steps"]
 
 _MAGIC = logformat.MCAP_MAGIC
 #: How a Rerun recording (.rrd) begins ("RRF2" from rerun-sdk 0.41; the digit left out, so that
@@ -635,6 +635,25 @@ def read_steps(path: str | Path, episodes: Sequence[int], *, pictures: bool = Fa
                         _actions(path, k, rows)) + ((seen,) if pictures else ())
         except (ValueError, TypeError) as error:
             raise LogFormatError(f"{path}: episode {k}'s observations or actions are damaged ({error})") from None
+    return found
+
+
+def read_frames(path: str | Path, steps: Sequence[tuple[int, int]]) -> dict[tuple[int, int], np.ndarray]:
+    """The frames a log holds of ``steps`` (``(episode, step)`` pairs: the picture the policy acted
+    on there, ``(H, W)`` or ``(H, W, 3)`` bytes, as :func:`read_steps` gives them), those alone in
+    memory; a step whose frame is not in the log (no picture logged, a tear before it, a damaged
+    frame) is left out. The file is streamed, a torn one up to its tear."""
+    wanted, found = set(steps), {}
+    last = None
+    with open(path, "rb") as f, contextlib.suppress(Exception):  # (a torn record, a damaged message: the end)
+        for topic, data in _streamed(f, (_STEP, _FRAME)):
+            if topic == _STEP:
+                row = json.loads(data)
+                last = (row.get("episode"), row.get("step")) if isinstance(row, dict) else None
+            elif last in wanted:
+                with contextlib.suppress(LogFormatError):
+                    found[last] = _pictures(Path(path), last[0], [data])[0]
+                last = None
     return found
 
 

@@ -8,42 +8,26 @@ import pytest
 from oodmon.envs import Variant, parse_variant
 from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.detectors import DetectorSet, StepContext, Trajectory, VanishingDetector, collect, fit_detectors
-from tests.helpers import RandomButtons, scores_along
-
-
-def _ball(xs, *, hidden=range(0), size=(20, 40)) -> Trajectory:
-    """A 2x2 ball on a grey picture with a bright wall along its top row, at columns ``xs`` of rows
-    6-7 (tile row 1 of 4), not drawn at the columns in ``hidden``."""
-    frames = []
-    for x in xs:
-        frame = np.full(size, 50, np.uint8)
-        frame[0] = 200
-        if x not in hidden:
-            frame[6:8, x:x + 2] = 255
-        frames.append(frame)
-    return Trajectory(np.array(frames), np.zeros(len(frames) - 1, np.int64))
-
-
-RALLY = [*range(0, 38, 3), *range(37, -1, -3)] * 3  # across and back, 3 columns a step
+from tests.helpers import RALLY, RandomButtons, ball_pictures, scores_along
 
 
 def test_a_ball_hidden_mid_field_vanishes_and_appears_where_it_never_did():
-    detector = VanishingDetector(grid=4, reach=4).fit([_ball(RALLY)])
+    detector = VanishingDetector(grid=4, reach=4).fit([ball_pictures(RALLY)])
     # The background is the grey and the wall (the ball is at any pixel a few steps of 78).
     assert (detector.background[0] == 200).all() and (detector.background[1:] == 50).all()
     assert detector.events.sum() == 0  # an ID ball that moves 3 columns a step never vanishes
-    assert scores_along(detector, _ball(RALLY)) == [0.0] * (len(RALLY) - 1)
+    assert scores_along(detector, ball_pictures(RALLY)) == [0.0] * (len(RALLY) - 1)
     # Hidden at columns 15-24 (tile columns 1 and 2 of 4, 10 pixels each): it vanishes from tile
     # column 1 on the way out and appears in tile column 2; back, the other way round: 2 a pass.
-    scores = scores_along(detector, _ball(RALLY, hidden=range(15, 25)))
+    scores = scores_along(detector, ball_pictures(RALLY, hidden=range(15, 25)))
     rises = [step for step in range(1, len(scores)) if scores[step] > scores[step - 1]]
     assert scores[-1] == 4 * 3 and len(rises) == 12
     assert rises[:2] == [5, 9]  # x = 15 is hidden at step 5; x = 27 (step 9) is the first seen again
 
 
 def test_where_is_the_box_of_the_tiles_of_the_episodes_unseen_events_until_a_reset():
-    detector = VanishingDetector(grid=4, reach=4).fit([_ball(RALLY)])
-    hidden = _ball(RALLY, hidden=range(15, 25))
+    detector = VanishingDetector(grid=4, reach=4).fit([ball_pictures(RALLY)])
+    hidden = ball_pictures(RALLY, hidden=range(15, 25))
     scores_along(detector, Trajectory(hidden.observations[:6], hidden.actions[:5]))
     assert detector.where() is None  # (no event yet: the ball is seen at steps 0-4)
     scores_along(detector, Trajectory(hidden.observations[:7], hidden.actions[:6]))
@@ -59,13 +43,13 @@ def test_where_is_the_box_of_the_tiles_of_the_episodes_unseen_events_until_a_res
 def test_events_seen_in_id_episodes_and_other_scenes_are_not_counted():
     # Fitted on a ball that vanishes at the right edge and comes back at the left (a goal).
     goal = [*range(0, 38, 3)] * 4
-    detector = VanishingDetector(grid=4, reach=4).fit([_ball(goal)])
+    detector = VanishingDetector(grid=4, reach=4).fit([ball_pictures(goal)])
     assert detector.events[0].reshape(4, 4)[1, 3] == 3 and detector.events[1].reshape(4, 4)[1, 0] == 3
     assert detector.events.sum() == 6
-    assert scores_along(detector, _ball(goal)) == [0.0] * (len(goal) - 1)
+    assert scores_along(detector, ball_pictures(goal)) == [0.0] * (len(goal) - 1)
     # A picture unlike the background at over half its pixels (a reset screen) is another scene:
     # the ball that seems to vanish into it and appear out of it is not counted.
-    frames = _ball([4, 7, 10, 13]).observations.copy()
+    frames = ball_pictures([4, 7, 10, 13]).observations.copy()
     frames[2] = 0
     assert scores_along(detector, Trajectory(frames, np.zeros(3, np.int64))) == [0.0] * 3
     # Half its pixels unlike the background: read (the ball vanished, things appeared); one more: not.
@@ -128,10 +112,10 @@ def test_bad_settings_pictures_and_short_episodes_are_refused():
     with pytest.raises(ConfigError, match="episodes of two steps or more"):
         VanishingDetector().fit([Trajectory(np.zeros((1, 84, 84), np.uint8), np.zeros(0, np.int64))])
     with pytest.raises(ConfigError, match="pictures of one shape"):
-        VanishingDetector().fit([_ball(RALLY), _ball(RALLY, size=(20, 44))])
+        VanishingDetector().fit([ball_pictures(RALLY), ball_pictures(RALLY, size=(20, 44))])
     with pytest.raises(ConfigError, match="12 x 12 tiles need pictures.* of at least 12 pixels a side"):
-        VanishingDetector().fit([_ball(RALLY, size=(11, 40))])
-    detector = VanishingDetector(grid=4, reach=4).fit([_ball(RALLY)])
+        VanishingDetector().fit([ball_pictures(RALLY, size=(11, 40))])
+    detector = VanishingDetector(grid=4, reach=4).fit([ball_pictures(RALLY)])
     with pytest.raises(ConfigError, match="fitted on pictures of shape \\(20, 40\\)"):
         detector.score(StepContext(np.zeros((20, 44), np.uint8), 0))
     controller = lambda obs: int(obs[2] + obs[3] > 0)  # noqa: E731 (CartPole: a vector, no picture)

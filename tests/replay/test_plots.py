@@ -433,3 +433,55 @@ def test_the_alarm_timeline_of_an_env_without_a_failure_names_no_failure(tmp_pat
     assert ax.get_title() == "LINK_MASS_2=3.0: 2 of 2 episodes alarmed; delay median 1.5"
     plots.plot_alarm_timeline({"Acrobot-v1:LINK_MASS_2=3.0": episodes}, "t", tmp_path / "b.png")  # told: none failed
     assert drawn[1].axes[0].get_title() == "LINK_MASS_2=3.0: 2 of 2 episodes alarmed; none failed; delay median 1.5"
+
+
+def _hidden_ball_log(path: Path):
+    """A log of two episodes of 20x40 pictures in which a ball vanishes mid-field from step 5 on,
+    under the vanishing detector fitted on its rally: each first alarm names a region (format 12).
+    Returns an episode's pictures."""
+    from oodmon.monitor import McapSink, Monitor
+    from oodmon.monitor.detectors import VanishingDetector
+    from tests.helpers import RALLY, ball_pictures
+
+    detector = VanishingDetector(grid=4, reach=4).fit([ball_pictures(RALLY)])
+    pictures = ball_pictures(RALLY[:26], hidden=range(15, 25)).observations
+    with Monitor(None, threshold=0.5, detectors=[detector], detector="vanishing", sinks=[McapSink(path)]) as monitor:
+        for _ in range(2):
+            monitor.begin_episode(env_id="Balls-v0", variant="Balls-v0:hidden", onset=3)
+            for step, frame in enumerate(pictures):
+                monitor.step(frame, action=0, frame=frame, shifted=step >= 3)
+            monitor.end_episode(terminated=False)
+    return pictures
+
+
+def test_where_draws_the_frame_at_each_first_alarm_with_its_region_boxed(tmp_path, monkeypatch):
+    """``replay --plots`` of a picture policy's logs: the frame the policy acted on at each first
+    alarm that named a region (the vanishing detector's, format 12), the region boxed; the frames
+    alone are read (``read_frames``)."""
+    from matplotlib.patches import Rectangle
+
+    from oodmon.replay import plots
+    from oodmon.replay.reader import read_frames
+
+    frames = _hidden_ball_log(tmp_path / "balls.mcap")
+    log = read_log(tmp_path / "balls.mcap")
+    regions = [(e.first_alarm_step, tuple(e.first_alarm_region)) for e in log.episodes]
+    assert regions == [(5, (5, 10, 5, 10, 20, 40))] * 2  # rows 5-9, columns 10-19 of the 20x40 picture
+    found = read_frames(tmp_path / "balls.mcap", [(0, 5), (1, 7), (1, 99), (5, 5)])
+    assert sorted(found) == [(0, 5), (1, 7)]  # (no step 99, no episode 5)
+    assert (found[(0, 5)] == frames[5]).all() and (found[(1, 7)] == frames[7]).all()
+    drawn = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
+    assert plots.plot_where([log], log.task, log.method, tmp_path / "where.png") is not None
+    panels = [ax for ax in drawn[0].axes if ax.images]
+    assert [ax.get_title() for ax in panels] == ["episode 0, step 5 (+2)", "episode 1, step 5 (+2)"]
+    (box,) = [patch for patch in panels[0].patches if isinstance(patch, Rectangle)]
+    assert (box.get_xy(), box.get_width(), box.get_height()) == ((9.5, 4.5), 10, 5)  # columns 10-19, rows 5-9
+    assert (panels[0].images[0].get_array() == frames[5]).all()
+    assert "where the first alarms of Balls-v0:hidden said their events fell" in drawn[0].texts[0].get_text()
+    assert "2 of 2 such first alarm(s)" in drawn[0].texts[0].get_text().replace("\n", " ")
+    assert plots.plot_where([log], log.task, "other", tmp_path / "none.png") is None  # no such method
+    monkeypatch.undo()
+    run_cli("replay", str(tmp_path / "balls.mcap"), "--monitor", "--plots", str(tmp_path / "plots"))
+    assert [p.name for p in (tmp_path / "plots").glob("where_*.png")] == [
+        f"where_{plots.safe_filename(log.task)}_{plots.safe_filename(log.method)}.png"]
