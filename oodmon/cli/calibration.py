@@ -211,10 +211,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         f"{threshold.n_steps} steps, rank {threshold.rank} of "
         f"{threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score median "
         f"{threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}{_statistic_words(threshold)}); "
-        f"{threshold.promise}"
-        + (f"; its alarms name the readings {escape(', '.join(threshold.reading_names))}"
-           if threshold.reading_names else "")
-        + f"; wrote {args.out}"
+        f"{threshold.promise}{escape(_names_said(threshold))}; wrote {args.out}"
         + (f" (replacing the threshold it held: alarm when {replaced.rule_text}, {replaced.detector} detector, "
            f"{replaced.n_episodes} ID episodes)" if replaced else "")
         + (f"; fitted the detectors into {fitted_to}{_explored(detectors.fitted_for.get('explore'))} (`oodmon run` "
@@ -235,6 +232,12 @@ def _calibrate(args: argparse.Namespace) -> int:
             f"`--detector {best}` fits it first (about {DEFAULT_FIT_EPISODES} more ID episodes)"
             + (f"; the fitted one is left out: {left_out}" if left_out and best == "combined" else ""))
     return 0
+
+
+def _names_said(threshold) -> str:
+    """The names a threshold gives its alarms' readings (``--reading-names``, or the logs'), after a
+    ``"; "``; empty where it records none."""
+    return f"; its alarms name the readings {', '.join(threshold.reading_names)}" if threshold.reading_names else ""
 
 
 def _ended(work: str, written: str) -> str:
@@ -362,8 +365,8 @@ def _recalibrate(args: argparse.Namespace) -> int:
         + (f" (their runs' time limit: {threshold.max_steps:,})" if threshold.max_steps else "")
         + f", rank "
         f"{threshold.rank} of {threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score "
-        f"median {threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}; wrote "
-        f"{args.out}"
+        f"median {threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}"
+        f"{_names_said(threshold)}; wrote {args.out}"
         + (f" (replacing the threshold it held: alarm when {replaced.rule_text})" if replaced else "")
         + (f"; the detectors it reads copied to {args.out}.detectors (`oodmon run` finds them there)"
            if detectors is not None else "")

@@ -441,6 +441,11 @@ def test_names_given_at_calibration_go_with_the_threshold_to_every_monitor_of_it
         for seed in range(5):
             watching.run_episode(parse_variant("cartpole").make(), seed=900_000 + seed, max_steps=30)
     assert calibrate_from_logs([tmp_path / "id.mcap"], 0.2, confidence=None).reading_names == names
+    capsys.readouterr()
+    assert main(["recalibrate", str(tmp_path / "id.mcap"), "--far", "0.2", "--confidence", "none", "--out",
+                 str(tmp_path / "re.json")]) == 0
+    assert "; its alarms name the readings x, v, theta, omega; wrote" in capsys.readouterr().out
+    assert Threshold.load(tmp_path / "re.json").reading_names == names
 
     # the command line: calibrate --reading-names, then run with the threshold alone
     capsys.readouterr()
