@@ -137,7 +137,6 @@ def run_about(metadata: dict[str, Any]) -> dict[str, str]:
     return about
 
 
-
 def check_reading_names(reading_names: Sequence[str] | None) -> tuple[str, ...] | None:
     """``reading_names`` (the :class:`Monitor`'s, :func:`~oodmon.monitor.calibrate_agent`'s) as a
     tuple, or :class:`~oodmon.errors.InvalidParameterError` where it is not a list of texts (their
@@ -152,6 +151,7 @@ def check_reading_names(reading_names: Sequence[str] | None) -> tuple[str, ...] 
         raise InvalidParameterError(f"reading_names={reading_names!r} is not allowed; give a list of texts, the "
                                     "name of each number of the observations by index")
     return None if reading_names is None else tuple(reading_names)
+
 
 class Monitor:
     """Wraps a deployed policy; scores every step against a calibrated threshold.

@@ -191,8 +191,9 @@ class VanishingDetector(Detector):
         """Where in the picture the episode's events so far fell (:meth:`score`'s): the bounding
         box of their tiles, in the pixels of the picture it reads; ``None`` before the first. A
         frozen part of the camera shows as its border, where the ball vanishes and appears (the
-        shipped Pong ensemble, a part frozen from decision 200: the first events' tiles lay in or at
-        the border of the frozen part in 12 of 12 games, docs/detectors.md)."""
+        shipped Pong ensemble under its default alarm, a part frozen from decision 200: each of the
+        22 first alarms it raised in 25 games named a box within 10 pixels of the frozen part,
+        docs/detectors.md)."""
         if self.background is None or not self._where.any():
             return None
         rows, columns = self.background.shape[:2]
