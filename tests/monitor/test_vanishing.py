@@ -228,3 +228,19 @@ def test_a_vanishing_alarm_of_the_shipped_pong_ensemble_says_where_in_the_pictur
         assert _raised(tmp_path, 0, [{"step": 230, "raised": {"cause": "vanishing", "region": damaged}}], 230) == {
             "first_alarm_cause": "vanishing"}
     assert _first_alarm_region(tmp_path, {"episode": 0}) is None  # a log older than format 12
+
+
+def test_the_regions_script_says_each_first_alarms_cause_and_box_and_whether_it_lies_at_the_frozen_part(
+        monkeypatch, capsys):
+    """``scripts/alarm_regions.py``, whose figures docs/detectors.md gives (one game of the frozen
+    centre here: the ensemble under its default alarm, combined > 3.95619)."""
+    from tests.helpers import load_script
+
+    script = load_script("alarm_regions")[1]
+    monkeypatch.setattr("sys.argv", ["alarm_regions", "--games", "1", "--parts", "centre", "--max-steps", "260"])
+    script.main()
+    assert capsys.readouterr().out.splitlines() == [
+        "pong/ensemble: combined > 3.95619, frozen from decision 200, at most 260",
+        "centre         game 0: +12 decisions, vanishing, rows 28-34, columns 21-34 of the 84x84 picture, within "
+        "10 pixels of the part",
+        "first alarms by vanishing 1; 1 named a region, 1 of them within 10 pixels of the frozen part"]
