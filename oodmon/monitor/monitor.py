@@ -39,7 +39,7 @@ from oodmon.envs.checks import step_naming_refusal
 from oodmon.envs.readings import reading_names
 from oodmon.envs.registration import env_id_of, obs_noise_of_env, onset_of_env, variant_of_env
 from oodmon.errors import ConfigError, InvalidParameterError
-from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, Region, check_consecutive, check_window, default_consecutive
+from oodmon.monitor.alarms import AlarmEvent, AlarmTracker, check_consecutive, check_window, default_consecutive
 from oodmon.monitor.detectors import Detector, DetectorSet, SpreadDetector, StepContext
 from oodmon.monitor.detectors.frames import is_picture, newest_frame
 from oodmon.monitor.records import EpisodeRecord, EpisodeSegment, EpisodeStart, RunInfo, StepRecord
@@ -585,9 +585,8 @@ class Monitor:
             variant = own  # named by the id you gave (my_envs:MyEnv-v0), as calibration names it; the env knows MyEnv-v0
         self._episode_info = dict(env_id=env_id, variant=variant, onset=onset, seed=seed, obs_noise=float(obs_noise))
         self._episode_task = self.agent.task if self.agent is not None else variant.split(":")[0]  # render's
-        self._return, self._length, self._alarms, self._first_alarm, self._first_cause = 0.0, 0, 0, None, None
-        self._first_readings: tuple[tuple[tuple[int, float], ...], int] = ((), 1)  # the first alarm's, and their steps
-        self._first_region: Region | None = None  # where in the picture the first alarm's events fell
+        self._return, self._length, self._alarms = 0.0, 0, 0
+        self._first_alarm: AlarmEvent | None = None  # the episode's first (its step, cause, readings, region)
         self._rewards: list[float] = []  # the current segment's
         self._segment_start = 0  # the step the current segment starts at
         self._in_episode = True
@@ -750,8 +749,7 @@ class Monitor:
             self._alarms += 1
             self.alarms_raised += 1
             if self._first_alarm is None:
-                self._first_alarm, self._first_cause = step, event.cause
-                self._first_readings, self._first_region = (event.readings, event.readings_steps), event.region
+                self._first_alarm = event
             self.sinks.write_alarm(event)
             for callback in self.callbacks:
                 if callback(event):
@@ -854,10 +852,7 @@ class Monitor:
         else:
             rewards = tuple(self._rewards) if len(self._rewards) == self._length else None
         record = EpisodeRecord(self.episode, total_return=self._return, length=self._length, alarms=self._alarms,
-                               first_alarm_step=self._first_alarm, interrupted=interrupted, terminated=terminated,
-                               first_alarm_cause=self._first_cause, first_alarm_readings=self._first_readings[0],
-                               first_alarm_readings_steps=self._first_readings[1],
-                               first_alarm_region=self._first_region,
+                               interrupted=interrupted, terminated=terminated, **_first_alarm_fields(self._first_alarm),
                                rewards=rewards, **self._episode_info)
         self.sinks.end_episode(record)
         self._in_episode = False
@@ -914,6 +909,15 @@ class Monitor:
             self.end_episode(interrupted=True)
             raise
         return self.end_episode(terminated=bool(terminated))
+
+
+def _first_alarm_fields(event: AlarmEvent | None) -> dict[str, Any]:
+    """An :class:`EpisodeRecord`'s fields of its first alarm (none: no alarm)."""
+    if event is None:
+        return {"first_alarm_step": None}
+    return {"first_alarm_step": event.step, "first_alarm_cause": event.cause,
+            "first_alarm_readings": event.readings, "first_alarm_readings_steps": event.readings_steps,
+            "first_alarm_region": event.region}
 
 
 def _finite(obs: Any) -> bool:
