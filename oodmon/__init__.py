@@ -13,7 +13,8 @@ The package has four parts, in the direction data flows:
     >>> env = gymnasium.make("oodmon/CartPole-v1", length=2.0)
 
 ``oodmon.watch(models, env_id)`` fits, calibrates and returns the monitor of any policy
-(:mod:`oodmon.monitor.watch`).
+(:mod:`oodmon.monitor.watch`); ``oodmon.watch_recorded(fit, calibration, action_space=...)`` that
+of a deployment oodmon cannot play, from its recorded episodes (:mod:`oodmon.monitor.recorded`).
 """
 
 from __future__ import annotations
@@ -27,14 +28,19 @@ try:
 except PackageNotFoundError:  # running from a source tree that was not installed
     __version__ = "0+unknown"
 
-__all__ = ["__version__", "envs", "watch"]
+__all__ = ["__version__", "envs", "watch", "watch_recorded"]
 
 
 def __getattr__(name: str):
-    """``oodmon.watch`` (:func:`oodmon.monitor.watch.watch`), imported when first used: ``import
-    oodmon`` stays light."""
+    """``oodmon.watch`` (:func:`oodmon.monitor.watch.watch`) and ``oodmon.watch_recorded``
+    (:func:`oodmon.monitor.recorded.watch_recorded`), imported when first used: ``import oodmon``
+    stays light."""
     if name == "watch":
         from oodmon.monitor.watch import watch
 
         return watch
+    if name == "watch_recorded":
+        from oodmon.monitor.recorded import watch_recorded
+
+        return watch_recorded
     raise AttributeError(f"module 'oodmon' has no attribute {name!r}")

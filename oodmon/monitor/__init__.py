@@ -5,6 +5,8 @@
 - :func:`calibrate` turns held-out ID episodes into a :class:`Threshold` with a per-episode
   false-alarm bound; :func:`calibrate_agent` runs those episodes; :func:`validate_threshold`
   checks a threshold on fresh ones.
+- :func:`watch_recorded` makes the monitor of a deployment oodmon cannot play from its recorded ID
+  episodes (:func:`fit_on_episodes`, :func:`calibrate_on_episodes`).
 - Sinks: :class:`MemorySink`, :class:`McapSink`; a failing sink warns and the loop goes on.
 - :class:`AlarmCommand` runs a shell command of yours at each episode's first alarm.
 - :class:`MonitorCallback` scores an SB3 model's training steps and logs them through SB3's logger.
@@ -59,11 +61,14 @@ __all__ = [
     "Validation",
     "calibrate",
     "calibrate_agent",
+    "calibrate_on_episodes",
     "episode_statistic",
+    "fit_on_episodes",
     "id_episode_scores",
     "score_function",
     "stop_on_sigterm",
     "validate_threshold",
+    "watch_recorded",
 ]
 
 # The parts that run a policy load torch and stable-baselines3; replay, which only reads logs and
@@ -86,6 +91,9 @@ _LAZY = {
     "validate_threshold": "oodmon.monitor.calibration",
     "MonitorCallback": "oodmon.monitor.sb3_callback",
     "ExplorationWarning": "oodmon.monitor.sb3_callback",
+    "calibrate_on_episodes": "oodmon.monitor.recorded",
+    "fit_on_episodes": "oodmon.monitor.recorded",
+    "watch_recorded": "oodmon.monitor.recorded",
 }
 
 

@@ -344,6 +344,12 @@ class Monitor:
         # which checks its training steps itself, turns it off.
         self.compares_given_actions = True
         self._given = ActionTally(GIVEN_CHECKED)  # (said once: at the last it counts, or at the close)
+        # A monitor that runs no policy has no env to tell it the observations' shape, nor a policy's
+        # actions: what it is given is checked against the fit (see _check_given)
+        shape = self.detectors.fitted_for.get("obs_shape")
+        self._watched_shape = tuple(shape) if self.agent is None and self.estimator is None and shape else None
+        dynamics = self.detectors["dynamics"] if self._watched_shape and "dynamics" in self.detectors else None
+        self._watched_actions = dynamics.action_refusal if dynamics is not None else None
 
     def twin(self, *, sinks: Sequence[Sink] = (), callbacks: Sequence[AlarmCallback] = ()) -> Monitor:
         """A monitor of the same policy, threshold and alarm rule, with copies of the fitted detectors
@@ -703,6 +709,8 @@ class Monitor:
             elif frame is not None:
                 frame = _frame(obs)  # an RGB stack's newest picture, not its last channel
         read = self.agent.read_action(action) if self._action_parts else action  # a tuple of actions: flattened
+        if self._watched_shape is not None:
+            self._check_given(obs, read)
         if not self._names_checked:
             self._check_names(obs)
         finite = _finite(obs)
@@ -835,6 +843,19 @@ class Monitor:
 
         task = self._episode_task
         return draw_state(task, obs) if task in ("cartpole", "pendulum") else None
+
+    def _check_given(self, obs: Any, action: Any) -> None:
+        """Refuse an observation of another shape than the detectors were fitted on, or an action
+        the dynamics model cannot read, given to a monitor that runs no policy (``Monitor(None)``):
+        said naming the step, not as numpy's error deep in a detector, nor scored as something else
+        (a discrete action past the last read as another)."""
+        where = f"at step {self._length} of episode {self.episode}"
+        if np.shape(obs) != self._watched_shape:
+            raise ConfigError(f"the observation {where} is of shape {np.shape(obs)}; the detectors were fitted on "
+                              f"observations of shape {self._watched_shape}")
+        refusal = None if self._watched_actions is None else self._watched_actions(action)
+        if refusal is not None:
+            raise ConfigError(f"the action given {where}, {_shown(action)}, {refusal}")
 
     def add_reward(self, reward: float) -> None:
         """The reward of the step just taken (one call per step: replay reads the rewards per step)."""

@@ -220,6 +220,31 @@ class DynamicsDetector(Detector):
         return None if not self.fitted else len(self._norm["obs_mean"])
 
     # -- inputs ------------------------------------------------------------------------------------
+    def action_refusal(self, action: Any) -> str | None:
+        """Why the model cannot read ``action`` (the end of a sentence), or ``None``: of discrete
+        actions, one whole number from 0 to n - 1; of continuous ones, as many finite numbers as it
+        was fitted on.
+
+        Example:
+            >>> DynamicsDetector(2).action_refusal(2)
+            'is not one of the 2 discrete actions (0 to 1) the dynamics model was fitted on'
+        """
+        try:
+            value = np.asarray(action)
+        except ValueError:  # (ragged lists)
+            value = np.full(0, np.nan)
+        value = value.astype(np.float64) if value.dtype.kind in "biuf" else np.full(0, np.nan)  # (not text, not None)
+        if self.n_actions is not None:
+            number = value.reshape(-1)[0] if value.size == 1 else math.nan
+            whole = math.isfinite(number) and number == round(number) and 0 <= number < self.n_actions
+            return None if whole else (f"is not one of the {self.n_actions} discrete actions (0 to "
+                                       f"{self.n_actions - 1}) the dynamics model was fitted on")
+        size = len(self._norm["act_mean"]) if self.fitted else value.size
+        if value.size != size or not np.isfinite(value).all():
+            return (f"is not {size} finite number{'s' if size > 1 else ''}, as the actions the dynamics model was "
+                    "fitted on were")
+        return None
+
     def _action_features(self, actions: np.ndarray) -> np.ndarray:
         if self.n_actions is not None:
             actions = np.asarray(actions).astype(np.int64).reshape(-1)

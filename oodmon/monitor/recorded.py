@@ -1,0 +1,364 @@
+"""A deployment oodmon cannot play: its detectors fitted, and its alarm calibrated, on episodes you recorded.
+
+Every other way to a threshold plays ID episodes in a gymnasium env (``oodmon calibrate``,
+:func:`oodmon.watch`), or reads oodmon's own logs of them (``oodmon recalibrate``). A robot, a
+plant or a trading system has no such env: what it has is its own records of normal running.
+Given them as arrays, each episode ``(observations, actions)`` (``(T, ...)`` each, or the
+observations one longer, the last after the last action), this module fits the learned detectors
+on some (:func:`fit_on_episodes`), calibrates the alarm on others (:func:`calibrate_on_episodes`),
+and :func:`watch_recorded` does both and returns the :class:`~oodmon.monitor.Monitor` that watches
+the deployment step by step, the policy never run by oodmon::
+
+    monitor = oodmon.watch_recorded(fit, calibration, action_space=gymnasium.spaces.Discrete(2),
+                                    save="runs/robot.json")
+    with monitor:
+        monitor.begin_episode()
+        for ...:                               # your control loop
+            monitor.step(obs, action=a)        # the action your policy took
+            if monitor.last_step.alarm: ...    # (or callbacks=[...], called at each alarm)
+        monitor.end_episode()
+
+The detectors read the observations and the actions (the ``dynamics`` model, its ``drift``, and
+``combined`` of them), of vector observations: what a policy's samples give
+(``spread``, ``features``) needs the policy, which oodmon does not have here. The threshold's promise
+is the usual one (:mod:`oodmon.monitor.threshold`), over episodes like the calibration ones: they
+must be others than the fitting ones (the detectors learned those, and read them low), which the
+fitted set records by a hash of each and :func:`calibrate_on_episodes` checks.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from oodmon.errors import ConfigError
+from oodmon.monitor.alarms import AlarmEvent
+from oodmon.monitor.detectors.dynamics import MAX_UPDATES, check_max_updates
+from oodmon.monitor.detectors.store import DetectorSet
+from oodmon.monitor.sinks.base import Sink
+from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, Threshold
+from oodmon.progress import Progress
+from oodmon.seeds import DETECTOR_FIT, check_seed
+
+__all__ = ["calibrate_on_episodes", "fit_on_episodes", "watch_recorded"]
+
+#: The detectors that read the policy at each step, which oodmon does not run here.
+POLICY_READ = ("spread", "features", "scaled_spread")
+
+#: What ``fitted_for`` calls the hashes of the episodes a set was fitted on (:func:`episode_hash`).
+FITTED_EPISODES = "episode_hashes"
+
+
+class _Spaces(gymnasium.Env):
+    """An env of which oodmon knows the spaces only: what deciding which detectors a policy can have
+    reads of one (:func:`~oodmon.monitor.detectors.fitting.default_detectors`). It never steps."""
+
+    def __init__(self, observation_space: gymnasium.Space, action_space: gymnasium.Space) -> None:
+        self.observation_space, self.action_space = observation_space, action_space
+
+
+def _no_policy(obs: Any) -> None:
+    """The policy oodmon does not run: it stands for the deployment's in choosing the detectors."""
+
+
+def episode_hash(observations: np.ndarray, actions: np.ndarray) -> str:
+    """The first 16 hex digits of the sha256 of an episode's observations and actions (as float64,
+    with their shapes): what tells a calibration episode from one the detectors were fitted on.
+
+    Example:
+        >>> episode_hash(np.zeros((3, 2)), np.zeros(3)) == episode_hash(np.zeros((3, 2), np.float32), np.zeros(3, int))
+        True
+    """
+    digest = hashlib.sha256()
+    for array in (observations, actions):
+        array = np.ascontiguousarray(array, np.float64)
+        digest.update(repr(array.shape).encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()[:16]
+
+
+def _checked_episodes(episodes: Any, action_space: gymnasium.Space, what: str,
+                      shape: tuple[int, ...] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``episodes`` as ``(observations, actions)`` arrays, each action checked against
+    ``action_space`` and the observations of one shape (``shape``, where given); ``what`` names
+    them in an error (``fit_episodes``).
+
+    Raises:
+        ConfigError: no episodes; an episode that is not a pair of arrays; observations of no step or
+            of two shapes; as many actions as neither the observations nor one fewer; an action that
+            is not of ``action_space``.
+    """
+    if isinstance(episodes, (str, bytes, Path, np.ndarray)) or not isinstance(episodes, Sequence) or not episodes:
+        raise ConfigError(f"{what} is a list of episodes, each (observations, actions) as arrays; got "
+                          f"{type(episodes).__name__}{'' if episodes is None or len(episodes) else ' (empty)'}")
+    checked = []
+    for index, episode in enumerate(episodes):
+        where = f"episode {index} of {what}"
+        if not isinstance(episode, (tuple, list)) or len(episode) != 2:
+            raise ConfigError(f"{where} is a pair (observations, actions); got {type(episode).__name__}"
+                              f"{f' of {len(episode)}' if isinstance(episode, (tuple, list)) else ''}")
+        try:
+            observations, actions = np.asarray(episode[0]), np.asarray(episode[1])
+        except ValueError as error:  # (ragged lists)
+            raise ConfigError(f"{where}: its observations and actions must be arrays ({error})") from None
+        if observations.dtype.kind not in "biuf" or actions.dtype.kind not in "biuf":
+            raise ConfigError(f"{where}: its observations and actions must be numbers; got arrays of "
+                              f"{observations.dtype} and {actions.dtype}")
+        if observations.ndim < 2 or len(observations) < 2:
+            raise ConfigError(f"{where}: its observations are of shape {observations.shape}; give one row per step, "
+                              "two steps at least ((T, ...), T >= 2)")
+        shape = shape if shape is not None else observations.shape[1:]
+        if observations.shape[1:] != shape:
+            raise ConfigError(f"{where}: its observations are of shape {observations.shape[1:]}, the first episode's "
+                              f"of {shape}")
+        if len(actions) not in (len(observations), len(observations) - 1):
+            raise ConfigError(f"{where} has {len(observations)} observations and {len(actions)} actions: give the "
+                              "action taken at each observation (as many, or one fewer where the last observation "
+                              "came after the last action)")
+        refusal = _action_refusal(actions, action_space)
+        if refusal is not None:
+            raise ConfigError(f"{where}: {refusal}")
+        checked.append((observations, actions))
+    return checked
+
+
+def _action_refusal(actions: np.ndarray, action_space: gymnasium.Space) -> str | None:
+    """Why ``actions``, one per step, are not of ``action_space`` (a sentence), or ``None``. A
+    ``Box``'s are any finite numbers of its shape (an env clips those past its bounds)."""
+    if isinstance(action_space, gymnasium.spaces.Discrete):
+        bad = np.flatnonzero((actions != np.round(actions)) | (actions < 0) | (actions >= action_space.n)) \
+            if actions.ndim == 1 else [0]
+        if len(bad):
+            return (f"its actions are of shape {actions.shape}; give one whole number per step of {action_space}"
+                    if actions.ndim != 1 else
+                    f"the action at step {bad[0]}, {actions[bad[0]].tolist()!r}, is not of the action space "
+                    f"{action_space}")
+        return None
+    shape = tuple(action_space.shape)
+    if actions.shape[1:] != shape:
+        return f"its actions are of shape {actions.shape[1:]} each, and the action space {action_space} of {shape}"
+    bad = np.flatnonzero(~np.isfinite(actions.reshape(len(actions), -1)).all(axis=1))
+    return None if not len(bad) else f"the action at step {bad[0]}, {actions[bad[0]].tolist()!r}, is not finite"
+
+
+def _space_of(detectors: DetectorSet) -> gymnasium.Space:
+    """The action space ``detectors`` were fitted for (:func:`fit_on_episodes` records it).
+
+    Raises:
+        ConfigError: a set fitted otherwise (on episodes oodmon played, or its own logs).
+    """
+    recorded = detectors.fitted_for.get("action_space")
+    if not isinstance(recorded, dict):
+        raise ConfigError("these detectors were not fitted on recorded episodes (fit_on_episodes()): calibrate them on "
+                          "episodes of their policy (oodmon calibrate, calibrate_agent)")
+    if "discrete" in recorded:
+        return gymnasium.spaces.Discrete(int(recorded["discrete"]))
+    return gymnasium.spaces.Box(-np.inf, np.inf, tuple(recorded["box"]), np.float32)
+
+
+def _recorded_space(action_space: gymnasium.Space) -> dict[str, Any]:
+    """What a fitted set records of ``action_space`` (:func:`_space_of` reads it)."""
+    if isinstance(action_space, gymnasium.spaces.Discrete):
+        return {"discrete": int(action_space.n)}
+    return {"box": list(action_space.shape)}
+
+
+def _check_action_space(action_space: Any) -> gymnasium.Space:
+    """``action_space`` where the detectors can read its actions: a ``Discrete`` counted from 0, or a
+    ``Box``."""
+    if isinstance(action_space, gymnasium.spaces.Discrete) and not action_space.start:
+        return action_space
+    if isinstance(action_space, gymnasium.spaces.Box):
+        return action_space
+    raise ConfigError(f"action_space is the deployment's gymnasium space of actions, a Discrete counted from 0 or a "
+                      f"Box (a vector of numbers); got {action_space!r}: give your actions as one of those (flattened "
+                      "into one vector, or a Discrete's counted from 0)")
+
+
+def fit_on_episodes(episodes: Sequence[tuple[Any, Any]], action_space: gymnasium.Space, *,
+                    detectors: Sequence[str] | None = None,
+                    seed: int = DETECTOR_FIT, dynamics_updates: int | None = MAX_UPDATES,
+                    on_progress: Progress | None = None) -> DetectorSet:
+    """The learned detectors of a deployment oodmon cannot play, fitted on ``episodes`` of its normal
+    running, each ``(observations, actions)``: the first two thirds fit, the last third ranks them
+    for ``combined``, as a played fit does (:func:`~oodmon.monitor.detectors.fit_detectors`).
+
+    Args:
+        episodes: the recorded ID episodes, each ``(observations, actions)``: the observations the
+            policy acted on, vectors ``(T, n)`` (or ``(T + 1, n)``: the last after the last action),
+            and the action it took at each, ``(T,)`` integers of a ``Discrete`` or ``(T, n)``
+            numbers of a ``Box``. Episodes with a reading that is not finite are left out.
+        action_space: the actions' gymnasium space: ``Discrete(n)``, read one-hot, or a ``Box``.
+        detectors: the detectors to fit (default: ``dynamics``, ``drift`` and ``combined``, as in
+            an env oodmon has no variants of).
+        seed: seeds the models' fits.
+        dynamics_updates: as :func:`~oodmon.monitor.detectors.fit_detectors` takes it.
+        on_progress: ``on_progress(stage, done, total)`` (see :mod:`oodmon.progress`).
+
+    Raises:
+        ConfigError: episodes that are not as above (said naming the episode), an action space of
+            another kind, fewer than 3 episodes that can be fitted on, or a detector that needs the
+            policy's samples or features (``spread``, ``features``, ``scaled_spread``).
+    """
+    from oodmon.monitor.detectors.base import Trajectory
+    from oodmon.monitor.detectors.fitting import _checked_actions, _fitted, _named
+    from oodmon.monitor.detectors.frames import is_picture
+
+    action_space = _check_action_space(action_space)
+    checked = _checked_episodes(episodes, action_space, "episodes")
+    check_max_updates(dynamics_updates, "dynamics_updates")
+    seed = check_seed(seed)
+    shape = checked[0][0].shape[1:]
+    if is_picture(shape, checked[0][0].dtype):
+        raise ConfigError("the episodes' observations are pictures; oodmon fits the camera's detectors on recorded "
+                          "pictures from its own logs (`oodmon fit-detectors --from-logs`), not yet from arrays")
+    spaces = _Spaces(gymnasium.spaces.Box(-np.inf, np.inf, shape, np.float32), action_space)
+    # task "": a deployment oodmon has no variants of (drift fitted beside dynamics by default)
+    names = _named(_no_policy, spaces, "", detectors)
+    policy_read = [name for name in names if name in POLICY_READ]
+    if policy_read:
+        raise ConfigError(f"the {policy_read[0]} detector reads the policy's samples or features, which recorded "
+                          "episodes do not hold (oodmon does not run the policy here): fit dynamics, drift or combined")
+    n_actions = _checked_actions(names, _no_policy, spaces)
+
+    usable = [(observations.astype(np.float64), actions) for observations, actions in checked
+              if np.isfinite(observations).all()]
+    if len(usable) < 3:
+        raise ConfigError(f"{len(usable)} of the {len(checked)} episodes can be fitted on (every reading finite); "
+                          "fitting needs at least 3 (two thirds fit, one third ranks)")
+    trajectories = [Trajectory(observations, actions[:len(observations) - 1]) for observations, actions in usable]
+    recorded = {"seed": None, "action_space": _recorded_space(action_space),
+                FITTED_EPISODES: [episode_hash(*pair) for pair in checked]}
+    return _fitted(trajectories, names, None, None, "chosen_std", n_actions, seed, dynamics_updates, on_progress,
+                   policy_hash=None, obs_noise=0.0, workers=1, max_steps=None, recorded=recorded)
+
+
+def calibrate_on_episodes(detectors: DetectorSet, episodes: Sequence[tuple[Any, Any]], far: float = 0.05, *,
+                          detector: str | None = None,
+                          confidence: float | None = DEFAULT_CONFIDENCE, consecutive: int | None = None,
+                          window: int | None = None, warmup: int = 0, reading_names: Sequence[str] | None = None,
+                          on_progress: Progress | None = None) -> Threshold:
+    """The alarm threshold of a deployment oodmon cannot play, calibrated on recorded ID
+    ``episodes`` (each ``(observations, actions)``, as :func:`fit_on_episodes` takes them) that
+    ``detectors`` were not fitted on: each is scored step by step by a :class:`Monitor` of those
+    detectors, as the deployment's steps will be, and the threshold is the one
+    :func:`~oodmon.monitor.calibrate` makes of those scores (``far``, ``confidence``,
+    ``consecutive``, ``window``, ``warmup`` as there; with probability ``confidence`` its
+    false-alarm rate over episodes like these is at most ``far``).
+
+    ``detector``: the one the alarm reads (default ``combined`` where fitted, else the set's last).
+    ``reading_names``: the name of each number of the observations, recorded in the threshold (see
+    :class:`~oodmon.monitor.Monitor`).
+
+    Raises:
+        ConfigError, InvalidParameterError: episodes as :func:`fit_on_episodes` refuses them, or of
+            another observation shape than the detectors', an episode the detectors were fitted on,
+            too few episodes for ``far`` and ``confidence``, a detector the set does not have.
+    """
+    from oodmon.monitor.alarms import default_consecutive, default_window
+    from oodmon.monitor.calibration import _ScoresAndAlarms
+    from oodmon.monitor.monitor import Monitor, check_reading_names
+    from oodmon.monitor.threshold import calibrate, conformal_rank
+
+    if not isinstance(detectors, DetectorSet):
+        raise ConfigError(f"detectors is the set fit_on_episodes() returned (or DetectorSet.load); got "
+                          f"{type(detectors).__name__}")
+    shape = detectors.fitted_for.get("obs_shape")
+    checked = _checked_episodes(episodes, _space_of(detectors), "episodes", None if shape is None else tuple(shape))
+    names = check_reading_names(reading_names)
+    if detector is None:
+        detector = "combined" if "combined" in detectors else detectors.names[-1]
+    if detector not in detectors:
+        raise ConfigError(f"the alarm reads the {detector} detector, which the set does not have (it has "
+                          f"{', '.join(detectors.names)})")
+    fitted = set(detectors.fitted_for.get(FITTED_EPISODES) or ())
+    learned = [index for index, pair in enumerate(checked) if episode_hash(*pair) in fitted]
+    if learned:
+        raise ConfigError(f"episode {learned[0]} of the calibration episodes ({len(learned)} in all) is one the "
+                          "detectors were fitted on: they learned it and read it low, so the threshold's promise would "
+                          "not hold; calibrate on other recorded episodes")
+    conformal_rank(len(checked), far, confidence)  # too few episodes for far: said before they are scored
+    consecutive = default_consecutive(detector) if consecutive is None else consecutive
+    window = default_window(None, detector) if window is None else window
+    sink = _ScoresAndAlarms()
+    with Monitor(None, detectors=detectors, detector=detector, sinks=[sink], log_observations=False,
+                 reading_names=names) as monitor:
+        for done, (observations, actions) in enumerate(checked):
+            monitor.begin_episode()
+            for obs, action in zip(observations, actions):
+                monitor.step(obs, action=action)
+            monitor.end_episode()
+            if on_progress is not None:
+                on_progress("calibration episodes", done + 1, len(checked))
+    threshold = calibrate([scores for scores, _ in sink.episodes], far, consecutive=consecutive, window=window,
+                          detector=detector, confidence=confidence, warmup=warmup,
+                          detectors_hash=detectors.fingerprint(detector))
+    return replace(threshold, reading_names=None if names is None else list(names))
+
+
+def watch_recorded(fit_episodes: Sequence[tuple[Any, Any]] | None = None,
+                   calibration_episodes: Sequence[tuple[Any, Any]] | None = None, *,
+                   action_space: gymnasium.Space | None = None,
+                   far: float = 0.05, confidence: float | None = DEFAULT_CONFIDENCE, detector: str | None = None,
+                   sinks: Sequence[Sink] = (), callbacks: Sequence[Callable[[AlarmEvent], Any]] = (),
+                   save: str | Path | None = None, threshold: str | Path | None = None,
+                   reading_names: Sequence[str] | None = None, on_progress: Progress | None = None) -> Any:
+    """The :class:`~oodmon.monitor.Monitor` of a deployment oodmon cannot play, made from its
+    recorded ID episodes: the detectors fitted on ``fit_episodes`` (:func:`fit_on_episodes`), the
+    threshold calibrated on ``calibration_episodes`` (:func:`calibrate_on_episodes`; ``far``,
+    ``confidence``, ``detector``, ``reading_names`` as there). It runs no policy: give it each step's
+    observation and the action taken (``monitor.step(obs, action=a)`` between
+    ``monitor.begin_episode()`` and ``monitor.end_episode()``). ``sinks``, ``callbacks``: as the
+    Monitor's.
+
+    ``save`` writes the threshold there and the detectors to ``<save>.detectors/`` (as ``oodmon
+    calibrate --out`` does); ``threshold`` reads such a pair at a later start instead of fitting and
+    calibrating (the episodes and the spaces are then left out).
+
+    Raises:
+        ConfigError: ``threshold`` with episodes, neither, or ``save`` beside it; what the two
+            functions refuse; a ``save`` path that holds a file that is no threshold; a
+            ``threshold`` whose detectors are missing.
+    """
+    from oodmon.monitor.calibration import save_calibration
+    from oodmon.monitor.monitor import Monitor, check_reading_names
+    from oodmon.outputs import check_output_file, replaced_file
+
+    check_reading_names(reading_names)
+    if threshold is not None:
+        given = [name for name, value in (("fit_episodes", fit_episodes), ("calibration_episodes",
+                                                                             calibration_episodes),
+                                          ("action_space", action_space), ("save", save)) if value is not None]
+        if given:
+            raise ConfigError(f"threshold= reads a calibration made before; leave out {', '.join(given)} (or leave out "
+                              "threshold= to fit and calibrate anew)")
+        calibration = Threshold.load(threshold)
+        beside = Path(f"{threshold}.detectors")
+        if not (beside / "detectors.json").is_file():
+            raise ConfigError(f"{threshold}'s detectors, fitted beside it in {beside}, are missing: copy that folder "
+                              "along with the file, or fit and calibrate again (save=)")
+        detectors = DetectorSet.load(beside)
+    else:
+        missing = [name for name, value in (("fit_episodes", fit_episodes), ("calibration_episodes",
+                                                                               calibration_episodes),
+                                            ("action_space", action_space)) if value is None]
+        if missing:
+            raise ConfigError(f"give {', '.join(missing)} (recorded ID episodes, each (observations, actions), and "
+                              "their action space), or threshold= a calibration saved before")
+        if save is not None:  # said now, not after the fit
+            check_output_file(save, parameter="save")
+            replaced_file(save, parameter="save", holds="threshold", read=Threshold.load)
+        detectors = fit_on_episodes(fit_episodes, action_space, on_progress=on_progress)
+        calibration = calibrate_on_episodes(detectors, calibration_episodes, far, detector=detector,
+                                            confidence=confidence, reading_names=reading_names,
+                                            on_progress=on_progress)
+        if save is not None:
+            save_calibration(calibration, save, detectors)
+    return Monitor(None, calibration, detectors=detectors, sinks=sinks, callbacks=callbacks,
+                   reading_names=reading_names)

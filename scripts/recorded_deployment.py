@@ -1,0 +1,124 @@
+"""A deployment oodmon cannot play, watched from its recorded episodes (``oodmon.watch_recorded``).
+
+Run: OODMON_TORCH_THREADS=1 .venv/bin/python scripts/recorded_deployment.py [--fit 90] [--calibration 50]
+         [--fresh 300] [--shifted 20] [--onset 50] [--steps 500] [--far 0.05] [--detectors dynamics,combined]
+         [--variants cartpole:length=2.0,cartpole:masscart=3.0,cartpole:force_mag=5.0]
+
+The "robot" is a hand-written CartPole controller (docs/your-policy.md's) in oodmon's CartPole env,
+stepped by a loop of this script's own, which records each episode as ``(observations, actions)``:
+oodmon is told neither the env nor the policy. The detectors are fitted on ``--fit`` recorded ID
+episodes (reset seeds 0 on) and the alarm calibrated on ``--calibration`` others (seeds 10,000 on,
+``--far`` at confidence 0.9); then ``--fresh`` fresh recorded ID episodes (seeds 50,000 on) are fed
+to the monitor step by step, as a deployment feeds it, and ``--shifted`` episodes of each variant
+shifted from step ``--onset`` (seeds 90,000 on). It prints the threshold, the fresh episodes
+alarmed with their 95% interval, and per variant the episodes alarmed, those alarmed before the
+onset, the delays, and the causes and readings the first alarms named. About a minute on one core
+with the defaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections import Counter
+
+import gymnasium
+import numpy as np
+
+from oodmon.envs import parse_variant
+from oodmon.monitor import MemorySink, Monitor, calibrate_on_episodes, fit_on_episodes
+from oodmon.monitor.threshold import clopper_pearson
+from oodmon.threads import limit_threads
+
+ACTIONS = gymnasium.spaces.Discrete(2)
+NAMES = ["x", "v", "theta", "omega"]
+
+
+def controller(obs: np.ndarray) -> int:
+    """The robot's own policy, which oodmon never runs: push toward where the pole falls."""
+    return int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)
+
+
+def record(count: int, seed: int, steps: int, spec: str = "cartpole", onset: int = 0
+           ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``count`` episodes of the controller in ``spec`` (shifted from step ``onset``), at most
+    ``steps`` long, each as the robot's own records: (observations, actions), one row per step."""
+    env = parse_variant(spec).make(onset_step=onset, max_episode_steps=steps)
+    episodes = []
+    for index in range(count):
+        obs, _ = env.reset(seed=seed + index)
+        observations, actions, done = [], [], False
+        while not done:
+            action = controller(obs)
+            observations.append(obs)
+            actions.append(action)
+            obs, _, terminated, truncated, _ = env.step(action)
+            done = terminated or truncated
+        episodes.append((np.array(observations), np.array(actions)))
+    env.close()
+    return episodes
+
+
+def watched(monitor, episodes: list[tuple[np.ndarray, np.ndarray]], sink: MemorySink) -> list[int | None]:
+    """Each episode's first alarmed step, ``monitor`` fed step by step (``sink`` among its sinks)."""
+    firsts = []
+    with monitor:
+        for observations, actions in episodes:
+            monitor.begin_episode()
+            for obs, action in zip(observations, actions):
+                monitor.step(obs, action=action)
+            record = monitor.end_episode()
+            firsts.append(record.first_alarm_step)
+    return firsts
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--fit", type=int, default=90)
+    parser.add_argument("--calibration", type=int, default=50)
+    parser.add_argument("--fresh", type=int, default=300)
+    parser.add_argument("--shifted", type=int, default=20)
+    parser.add_argument("--onset", type=int, default=50)
+    parser.add_argument("--steps", type=int, default=500)
+    parser.add_argument("--far", type=float, default=0.05)
+    parser.add_argument("--detectors", help="the detectors to fit (default: fit_on_episodes's)")
+    parser.add_argument("--variants", default="cartpole:length=2.0,cartpole:masscart=3.0,cartpole:force_mag=5.0")
+    args = parser.parse_args()
+    limit_threads()
+    start = time.perf_counter()
+    # (what watch_recorded does, in its two parts: the threshold and the detectors are kept here)
+    detectors = fit_on_episodes(record(args.fit, 0, args.steps), ACTIONS,
+                                detectors=None if args.detectors is None else args.detectors.split(","))
+    threshold = calibrate_on_episodes(detectors, record(args.calibration, 10_000, args.steps), args.far,
+                                      reading_names=NAMES)
+    print(f"fitted {', '.join(detectors.names)} on {args.fit} and calibrated on {args.calibration} recorded episodes "
+          f"in {time.perf_counter() - start:.0f} s: {threshold.detector} > {threshold.value:.6g}")
+    sink = MemorySink()
+    fresh = watched(monitor_of(threshold, detectors, sink), record(args.fresh, 50_000, args.steps), sink)
+    alarmed = sum(first is not None for first in fresh)
+    low, high = clopper_pearson(alarmed, len(fresh))
+    print(f"fresh ID: {alarmed} of {len(fresh)} alarmed ({alarmed / len(fresh):.1%}, 95% interval "
+          f"{low:.1%}-{high:.1%}; target {args.far:.0%} at confidence 0.9)")
+    for spec in args.variants.split(","):
+        sink = MemorySink()
+        firsts = watched(monitor_of(threshold, detectors, sink),
+                         record(args.shifted, 90_000, args.steps, spec, args.onset), sink)
+        early = sum(first is not None and first < args.onset for first in firsts)
+        delays = sorted(first - args.onset for first in firsts if first is not None and first >= args.onset)
+        events = [event for event in sink.alarms if event.step >= args.onset]
+        firsts_named = {event.episode: event for event in reversed(events)}.values()  # each episode's first
+        causes = Counter(event.cause for event in firsts_named)
+        readings = Counter(f"[{event.readings[0][0]}] ({NAMES[event.readings[0][0]]})" for event in firsts_named
+                           if event.readings)
+        print(f"{spec} from step {args.onset}: {len(delays)} of {len(firsts)} alarmed after the onset, {early} before; "
+              f"delays {delays}; causes {dict(causes)}; first readings {dict(readings)}")
+
+
+def monitor_of(threshold, detectors, sink: MemorySink) -> Monitor:
+    """The monitor of the calibration made, logging to ``sink``: what a deployed process's
+    ``watch_recorded(threshold=...)`` reads back."""
+    return Monitor(None, threshold, detectors=detectors, sinks=[sink])
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,274 @@
+"""A deployment oodmon cannot play: detectors fitted and the alarm calibrated on recorded episodes."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+
+import oodmon
+from oodmon.envs import parse_variant
+from oodmon.errors import ConfigError
+from oodmon.monitor import MemorySink, Threshold, calibrate_on_episodes, fit_on_episodes, watch_recorded
+from oodmon.monitor.detectors import DetectorSet
+from tests.helpers import load_script, once_per_run
+
+DISCRETE = gymnasium.spaces.Discrete(2)
+STEPS = 200  # each recorded episode's limit: the robot's runs
+
+
+#: scripts/recorded_deployment.py: the "robot" (a hand-tuned CartPole controller, which oodmon never
+#: runs) and its own loop, which records each episode as (observations, actions)
+_SCRIPT = load_script("recorded_deployment")[1]
+_controller = _SCRIPT.controller
+
+
+def _record(count: int, seed: int, spec: str = "cartpole", onset: int = 0):
+    """``count`` recorded episodes of the robot, at most :data:`STEPS` long."""
+    return _SCRIPT.record(count, seed, STEPS, spec, onset)
+
+
+def _first_alarms(monitor, episodes) -> list[int | None]:
+    """Each episode's first alarmed step, the monitor fed step by step as a deployment feeds it."""
+    firsts = []
+    with monitor:
+        for observations, actions in episodes:
+            monitor.begin_episode()
+            first = None
+            for step, (obs, action) in enumerate(zip(observations, actions)):
+                monitor.step(obs, action=action)
+                if monitor.last_step.alarm and first is None:
+                    first = step
+            monitor.end_episode()
+            firsts.append(first)
+    return firsts
+
+
+@pytest.fixture(scope="module")
+def calibration(tmp_path_factory, worker_id):
+    """A threshold (far 0.1, confidence 0.9) saved with its detectors: fitted on 60 recorded ID
+    episodes, calibrated on 45 others (reset seeds 0-59 and 1,000-1,044)."""
+    def make(folder):
+        path = folder / "robot.json"
+        watch_recorded(_record(60, 0), _record(45, 1000), action_space=DISCRETE, far=0.1, save=path,
+                       reading_names=["x", "v", "theta", "omega"])
+        return str(path)
+
+    return once_per_run(tmp_path_factory, worker_id, "recorded_calibration", make)
+
+
+def test_the_threshold_keeps_its_promise_on_fresh_episodes_and_alarms_at_a_shift(calibration):
+    """Fresh recorded ID episodes (seeds no fit or calibration saw) alarm at the rate the threshold
+    promises, and a pole four times as long from step 50 is alarmed at once. With confidence 0.9
+    the false-alarm rate is at most 0.1: of 100 fresh episodes, more than 20 alarmed would have
+    probability under 0.002 at that rate (binomial). When written: the threshold 7.07, 4 of 100
+    alarmed; each of 10 shifted episodes alarmed at step 51, the first transition of the new physics
+    that the monitor scored."""
+    threshold = Threshold.load(calibration)
+    assert (threshold.detector, threshold.n_episodes, threshold.far, threshold.confidence) == ("combined", 45, 0.1, 0.9)
+    assert threshold.reading_names == ["x", "v", "theta", "omega"] and threshold.longest_episode == STEPS
+    fresh = _first_alarms(watch_recorded(threshold=calibration), _record(100, 50_000))
+    assert sum(first is not None for first in fresh) <= 20
+    shifted = _first_alarms(watch_recorded(threshold=calibration), _record(10, 60_000, "cartpole:length=2.0", 50))
+    assert all(first is not None and 50 <= first <= 55 for first in shifted), shifted
+
+
+def test_the_alarm_names_its_readings_and_the_log_keeps_the_episodes(calibration):
+    """The monitor of recorded episodes logs like any other: its alarm names the reading the
+    dynamics model predicted worst, by the threshold's names."""
+    sink = MemorySink()
+    _first_alarms(watch_recorded(threshold=calibration, sinks=[sink]), _record(1, 61_000, "cartpole:length=2.0", 50))
+    assert len(sink.episodes) == 1 and sink.alarms and sink.alarms[0].cause in ("dynamics", "drift")
+    assert sink.alarms[0].readings and "(" in sink.alarms[0].text()
+
+
+def test_a_calibration_on_the_fitting_episodes_is_refused():
+    fit = _record(6, 0)
+    detectors = fit_on_episodes(fit, DISCRETE, dynamics_updates=20)
+    assert list(detectors.names) == ["dynamics", "drift", "combined"]
+    assert detectors.fitted_for["action_space"] == {"discrete": 2} and len(detectors.fitted_for["episode_hashes"]) == 6
+    with pytest.raises(ConfigError, match="episode 20 of the calibration episodes .2 in all. is one the detectors"):
+        calibrate_on_episodes(detectors, [*_record(20, 100), fit[2], fit[4]], far=0.1)
+
+
+def test_box_actions_and_a_saved_set_read_back(tmp_path):
+    """A deployment of continuous actions (a Pendulum torque); the set saved and loaded scores alike."""
+    env = gymnasium.make("Pendulum-v1", max_episode_steps=60)
+    episodes = []
+    for seed in range(6):
+        obs, _ = env.reset(seed=seed)
+        observations, actions = [obs], []
+        for _ in range(60):
+            action = np.clip(-2.0 * obs[2:3] - 1.0 * obs[1:2], -2, 2).astype(np.float32)
+            obs, *_ = env.step(action)
+            observations.append(obs)
+            actions.append(action)
+        episodes.append((np.array(observations), np.array(actions)))  # the last observation too
+    detectors = fit_on_episodes(episodes, env.action_space, dynamics_updates=20)
+    assert detectors.fitted_for["action_space"] == {"box": [1]}
+    detectors.save(tmp_path / "set")
+    again = DetectorSet.load(tmp_path / "set")
+    assert again.fingerprint("combined") == detectors.fingerprint("combined")
+    with pytest.raises(ConfigError, match="actions are of shape \\(2,\\) each"):
+        fit_on_episodes([(o, np.c_[a, a]) for o, a in episodes], env.action_space)
+
+
+@pytest.mark.parametrize("episodes, words", [
+    (None, "a list of episodes"),
+    ([], "a list of episodes.*empty"),
+    ([(np.zeros((5, 4)),)], "episode 0 of episodes is a pair"),
+    ([(np.zeros((5, 4)), np.zeros(3))], "5 observations and 3 actions"),
+    ([(np.zeros(5), np.zeros(5))], "of shape \\(5,\\); give one row per step"),
+    ([(np.zeros((5, 4)), np.zeros(5)), (np.zeros((5, 3)), np.zeros(5))], "episode 1 .* of shape \\(3,\\), the first"),
+    ([(np.zeros((5, 4)), np.array([0, 1, 2, 0, 1]))], "the action at step 2, 2, is not of the action space Discrete"),
+    ([(np.zeros((5, 4)), np.full(5, 0.5))], "the action at step 0"),
+    ([(np.zeros((5, 4)), np.zeros((5, 2)))], "one whole number per step"),
+    ([(np.array([["a"] * 4] * 5), np.zeros(5))], "must be numbers"),
+    ([(np.zeros((5, 84, 84), np.uint8), np.zeros(5))] * 3, "pictures"),
+])
+def test_recorded_episodes_that_are_not_episodes_are_refused_naming_what(episodes, words):
+    with pytest.raises(ConfigError, match=words):
+        fit_on_episodes(episodes, DISCRETE)
+
+
+def test_what_the_detectors_cannot_read_is_refused():
+    with pytest.raises(ConfigError, match="Discrete counted from 0 or a Box"):
+        fit_on_episodes(_record(3, 0), gymnasium.spaces.MultiDiscrete([2, 2]))
+    with pytest.raises(ConfigError, match="the spread detector reads the policy's samples or features, which recorded"):
+        fit_on_episodes(_record(3, 0), DISCRETE, detectors=["spread"])
+    with pytest.raises(ConfigError, match="3 at least|at least 3"):
+        fit_on_episodes([(np.full((5, 4), np.nan), np.zeros(5))] * 2 + _record(1, 0), DISCRETE)
+
+
+def test_watch_recorded_says_what_it_needs(calibration, tmp_path):
+    with pytest.raises(ConfigError, match="give fit_episodes, calibration_episodes, action_space"):
+        watch_recorded()
+    with pytest.raises(ConfigError, match="leave out fit_episodes, save"):
+        watch_recorded(_record(3, 0), threshold=calibration, save=tmp_path / "t.json")
+    alone = tmp_path / "alone.json"
+    shutil.copy(calibration, alone)
+    with pytest.raises(ConfigError, match="detectors, fitted beside it in .*alone.json.detectors, are missing"):
+        watch_recorded(threshold=alone)
+    with pytest.raises(ConfigError, match="not fitted on recorded episodes"):
+        calibrate_on_episodes(DetectorSet([], fitted_for={}), _record(22, 0))
+    with pytest.raises(ConfigError, match="too few|episodes"):  # far 0.01 at confidence 0.9 needs 230
+        calibrate_on_episodes(DetectorSet.load(f"{calibration}.detectors"), _record(5, 7000), far=0.01)
+    assert oodmon.watch_recorded is watch_recorded
+    assert json.loads((tmp_path / "alone.json").read_text())["detector"] == "combined"
+
+
+def test_the_same_episodes_recorded_or_played_fit_the_same_detectors():
+    """Recorded with the observation after each episode's last action, the episodes a played fit
+    collects give the very detectors that fit gives (their fingerprints: every tensor alike)."""
+    from oodmon.monitor.detectors import fit_detectors
+    from oodmon.monitor.detectors.fitting import collect
+
+    env = gymnasium.make("CartPole-v1", max_episode_steps=100)
+    played = collect(_controller, env, 6, seed=600_000)  # fit_detectors' default seed
+    recorded = fit_on_episodes([(t.observations, t.actions) for t in played], DISCRETE,
+                               detectors=["dynamics", "combined"], dynamics_updates=30)
+    fitted = fit_detectors(_controller, env, detectors=["dynamics", "combined"], episodes=6, dynamics_updates=30)
+    assert recorded.fingerprint("combined") == fitted.fingerprint("combined")
+    assert played[0].observations.shape == (101, 4) and recorded.fitted_for["seed"] is None  # no reset seeds known
+
+
+class _StandInRobot:
+    """What the docs' block calls ``robot``: CartPole under the controller, its pole four times as
+    long from step 50."""
+
+    def __init__(self) -> None:
+        self.env = parse_variant("cartpole:length=2.0").make(onset_step=50, max_episode_steps=STEPS)
+        self.obs, _ = self.env.reset(seed=70_000)
+        self.over = False
+
+    def observe(self):
+        return self.obs
+
+    def done(self) -> bool:
+        return self.over
+
+    def policy(self, obs) -> int:
+        return _controller(obs)
+
+    def act(self, action):
+        self.obs, _, terminated, truncated, _ = self.env.step(action)
+        self.over = terminated or truncated
+        return self.obs
+
+
+def test_the_docs_block_runs_as_written(tmp_path, monkeypatch, capsys):
+    """docs/your-policy.md's "A deployment oodmon cannot play": its records (60 fitting and 30
+    calibration episodes of 200 steps) made here, a stand-in robot in its loop; its monitor alarms
+    at the first step of the longer pole's physics and logs the episode."""
+    from oodmon.replay import read_log
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "your-policy.md").read_text()
+    block = re.search(r"```python\n(.*?)```", text[text.index("## A deployment oodmon cannot play"):], re.S).group(1)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs").mkdir()
+    arrays = {}
+    for index, (observations, actions) in enumerate(_record(90, 0)):
+        arrays[f"obs_{index}"], arrays[f"act_{index}"] = observations, actions
+    np.savez("runs/robot_records.npz", **arrays)
+    exec(compile(block, "docs/your-policy.md's block", "exec"), {"robot": _StandInRobot()})
+    assert Threshold.load("runs/robot.json").n_episodes == 30
+    printed = capsys.readouterr().out
+    assert printed.startswith("episode 0 step 51: score "), printed
+    assert "cause: dynamics; reading [3] (omega)" in printed
+    episodes = read_log("runs/robot.mcap").episodes
+    assert len(episodes) == 1 and episodes[0].first_alarm_step == 51
+
+
+def test_a_monitor_that_runs_no_policy_refuses_what_its_detectors_cannot_read(calibration):
+    """Given an observation of another shape, or an action the dynamics model was not fitted on,
+    the step is refused naming it (before: numpy's broadcast error deep in the detector; a
+    discrete action past the last was kept and failed at the next step as an IndexError)."""
+    monitor = watch_recorded(threshold=calibration)
+    with monitor:
+        monitor.begin_episode()
+        with pytest.raises(ConfigError, match="observation at step 0 of episode 0 is of shape \\(3,\\); the detectors "
+                                              "were fitted on observations of shape \\(4,\\)"):
+            monitor.step(np.zeros(3), action=0)
+        monitor.step(np.zeros(4, np.float32), action=np.int64(1))
+        for bad in (2, -1, 0.5, np.nan, [0, 1], "1"):
+            with pytest.raises(ConfigError, match="given at step 1 of episode 0, .*is not one of the 2 discrete"):
+                monitor.step(np.zeros(4), action=bad)
+        assert monitor.last_step.step == 0  # nothing refused was scored
+
+
+@pytest.mark.parametrize("bad", [np.zeros(2), np.array([np.inf]), "a"])
+def test_a_box_action_of_another_size_or_not_finite_is_refused(bad):
+    from oodmon.monitor import Monitor
+    from oodmon.monitor.detectors import DynamicsDetector
+    from oodmon.monitor.detectors.base import Trajectory
+
+    rng = np.random.default_rng(0)
+    trajectories = [Trajectory(rng.normal(size=(21, 3)), rng.normal(size=(20, 1))) for _ in range(3)]
+    dynamics = DynamicsDetector(None, seed=0, max_updates=5).fit(trajectories)
+    with Monitor(None, detectors=DetectorSet([dynamics], fitted_for={"obs_shape": [3]})) as monitor:
+        monitor.begin_episode()
+        monitor.step(np.zeros(3), action=np.array([0.5]))
+        monitor.step(np.zeros(3), action=7.0)  # one number: past the bounds is the env's to clip
+        with pytest.raises(ConfigError, match="is not 1 finite number, as the actions"):
+            monitor.step(np.zeros(3), action=bad)
+
+
+def test_the_measuring_script_prints_its_counts(monkeypatch, capsys):
+    """scripts/recorded_deployment.py, small: its lines name the threshold, the fresh episodes'
+    count with its interval, and each variant's alarms, delays and readings."""
+    monkeypatch.setattr("sys.argv", ["recorded_deployment.py", "--fit", "6", "--calibration", "22", "--fresh", "4",
+                                     "--shifted", "2", "--steps", "80", "--far", "0.1",
+                                     "--variants", "cartpole:length=2.0"])
+    monkeypatch.setattr(_SCRIPT, "limit_threads", lambda: None)
+    _SCRIPT.main()
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("fitted dynamics, drift, combined on 6 and calibrated on 22 recorded episodes in ")
+    assert re.fullmatch(r"fresh ID: \d of 4 alarmed \(.*; target 10% at confidence 0.9\)", lines[1])
+    # (fitted on 6 episodes of 80 steps, the detectors are weak: the counts are the main test's)
+    assert re.fullmatch(r"cartpole:length=2.0 from step 50: \d of 2 alarmed after the onset, \d before; delays \[.*\]; "
+                        r"causes \{.*\}; first readings \{.*\}", lines[2]), lines[2]
