@@ -6,7 +6,8 @@
   false-alarm bound; :func:`calibrate_agent` runs those episodes; :func:`validate_threshold`
   checks a threshold on fresh ones.
 - :func:`watch_recorded` makes the monitor of a deployment oodmon cannot play from its recorded ID
-  episodes (:func:`fit_on_episodes`, :func:`calibrate_on_episodes`).
+  episodes (:func:`fit_on_episodes`, :func:`calibrate_on_episodes`; :func:`validate_on_episodes`
+  checks it on fresh ones).
 - Sinks: :class:`MemorySink`, :class:`McapSink`; a failing sink warns and the loop goes on.
 - :class:`AlarmCommand` runs a shell command of yours at each episode's first alarm.
 - :class:`MonitorCallback` scores an SB3 model's training steps and logs them through SB3's logger.
@@ -67,6 +68,7 @@ __all__ = [
     "id_episode_scores",
     "score_function",
     "stop_on_sigterm",
+    "validate_on_episodes",
     "validate_threshold",
     "watch_recorded",
 ]
@@ -93,6 +95,7 @@ _LAZY = {
     "ExplorationWarning": "oodmon.monitor.sb3_callback",
     "calibrate_on_episodes": "oodmon.monitor.recorded",
     "fit_on_episodes": "oodmon.monitor.recorded",
+    "validate_on_episodes": "oodmon.monitor.recorded",
     "watch_recorded": "oodmon.monitor.recorded",
 }
 

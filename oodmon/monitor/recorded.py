@@ -5,9 +5,10 @@ Every other way to a threshold plays ID episodes in a gymnasium env (``oodmon ca
 plant or a trading system has no such env: what it has is its own records of normal running.
 Given them as arrays, each episode ``(observations, actions)`` (``(T, ...)`` each, or the
 observations one longer, the last after the last action), this module fits the learned detectors
-on some (:func:`fit_on_episodes`), calibrates the alarm on others (:func:`calibrate_on_episodes`),
-and :func:`watch_recorded` does both and returns the :class:`~oodmon.monitor.Monitor` that watches
-the deployment step by step, the policy never run by oodmon::
+on some (:func:`fit_on_episodes`), calibrates the alarm on others (:func:`calibrate_on_episodes`)
+and checks it on fresh ones (:func:`validate_on_episodes`). :func:`watch_recorded` fits and
+calibrates, and returns the :class:`~oodmon.monitor.Monitor` that watches the deployment step by
+step, the policy never run by oodmon::
 
     monitor = oodmon.watch_recorded(fit, calibration, action_space=gymnasium.spaces.Discrete(2),
                                     save="runs/robot.json")
@@ -18,17 +19,19 @@ the deployment step by step, the policy never run by oodmon::
             if monitor.last_step.alarm: ...    # (or callbacks=[...], called at each alarm)
         monitor.end_episode()
 
-The detectors read the observations and the actions (the ``dynamics`` model, its ``drift``, and
-``combined`` of them), of vector observations: what a policy's samples give
-(``spread``, ``features``) needs the policy, which oodmon does not have here. The threshold's promise
+The detectors read the observations (vectors) and the actions: the ``dynamics`` model, its
+``drift``, and ``combined`` of them. What a policy's samples give (``spread``, ``features``) needs
+the policy, which oodmon does not have here. The threshold's promise
 is the usual one (:mod:`oodmon.monitor.threshold`), over episodes like the calibration ones: they
 must be others than the fitting ones (the detectors learned those, and read them low), which the
-fitted set records by a hash of each and :func:`calibrate_on_episodes` checks.
+fitted set records by a hash of each and :func:`calibrate_on_episodes` checks; the threshold records
+its own episodes' hashes, and :func:`validate_on_episodes` counts neither.
 """
 
 from __future__ import annotations
 
 import hashlib
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -39,6 +42,7 @@ import numpy as np
 
 from oodmon.errors import ConfigError
 from oodmon.monitor.alarms import AlarmEvent
+from oodmon.monitor.calibration import Validation, _counted
 from oodmon.monitor.detectors.dynamics import MAX_UPDATES, check_max_updates
 from oodmon.monitor.detectors.store import DetectorSet
 from oodmon.monitor.sinks.base import Sink
@@ -46,7 +50,7 @@ from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, Threshold
 from oodmon.progress import Progress
 from oodmon.seeds import DETECTOR_FIT, check_seed
 
-__all__ = ["calibrate_on_episodes", "fit_on_episodes", "watch_recorded"]
+__all__ = ["calibrate_on_episodes", "episode_hash", "fit_on_episodes", "validate_on_episodes", "watch_recorded"]
 
 #: The detectors that read the policy at each step, which oodmon does not run here.
 POLICY_READ = ("spread", "features", "scaled_spread")
@@ -262,8 +266,7 @@ def calibrate_on_episodes(detectors: DetectorSet, episodes: Sequence[tuple[Any, 
             too few episodes for ``far`` and ``confidence``, a detector the set does not have.
     """
     from oodmon.monitor.alarms import default_consecutive, default_window
-    from oodmon.monitor.calibration import _ScoresAndAlarms
-    from oodmon.monitor.monitor import Monitor, check_reading_names
+    from oodmon.monitor.monitor import check_reading_names
     from oodmon.monitor.threshold import calibrate, conformal_rank
 
     if not isinstance(detectors, DetectorSet):
@@ -277,29 +280,97 @@ def calibrate_on_episodes(detectors: DetectorSet, episodes: Sequence[tuple[Any, 
     if detector not in detectors:
         raise ConfigError(f"the alarm reads the {detector} detector, which the set does not have (it has "
                           f"{', '.join(detectors.names)})")
-    fitted = set(detectors.fitted_for.get(FITTED_EPISODES) or ())
-    learned = [index for index, pair in enumerate(checked) if episode_hash(*pair) in fitted]
-    if learned:
-        raise ConfigError(f"episode {learned[0]} of the calibration episodes ({len(learned)} in all) is one the "
-                          "detectors were fitted on: they learned it and read it low, so the threshold's promise would "
-                          "not hold; calibrate on other recorded episodes")
+    _check_fresh(checked, "calibration", {"the detectors were fitted on": detectors.fitted_for.get(FITTED_EPISODES)},
+                 "they learned it and read it low, so the threshold's promise would not hold; calibrate on other "
+                 "recorded episodes")
     conformal_rank(len(checked), far, confidence)  # too few episodes for far: said before they are scored
     consecutive = default_consecutive(detector) if consecutive is None else consecutive
     window = default_window(None, detector) if window is None else window
-    sink = _ScoresAndAlarms()
-    with Monitor(None, detectors=detectors, detector=detector, sinks=[sink], log_observations=False,
-                 reading_names=names) as monitor:
-        for done, (observations, actions) in enumerate(checked):
-            monitor.begin_episode()
-            for obs, action in zip(observations, actions):
-                monitor.step(obs, action=action)
-            monitor.end_episode()
-            if on_progress is not None:
-                on_progress("calibration episodes", done + 1, len(checked))
-    threshold = calibrate([scores for scores, _ in sink.episodes], far, consecutive=consecutive, window=window,
+    scored = _scored(detectors, checked, "calibration episodes", on_progress, detector=detector, reading_names=names)
+    threshold = calibrate([scores for scores, _ in scored], far, consecutive=consecutive, window=window,
                           detector=detector, confidence=confidence, warmup=warmup,
                           detectors_hash=detectors.fingerprint(detector))
-    return replace(threshold, reading_names=None if names is None else list(names))
+    return replace(threshold, reading_names=None if names is None else list(names),
+                   episode_hashes=[episode_hash(*pair) for pair in checked])
+
+
+def validate_on_episodes(threshold: Threshold | str | Path, episodes: Sequence[tuple[Any, Any]], *,
+                         detectors: DetectorSet | None = None, on_progress: Progress | None = None) -> Validation:
+    """The threshold of a deployment oodmon cannot play, checked on fresh recorded ID ``episodes``
+    (each ``(observations, actions)``, as :func:`fit_on_episodes` takes them): each is fed to the
+    monitor step by step, and those that alarmed are counted beside the target, with their 95%
+    interval (a :class:`~oodmon.monitor.Validation`, as ``oodmon validate`` gives it: ``alarmed``,
+    ``total``, ``low``, ``high``, ``verdict``). ``threshold``: a :class:`Threshold` with
+    ``detectors``, the set it was calibrated with, or the path of one saved beside its detectors
+    (``watch_recorded(save=...)``).
+
+    Raises:
+        ConfigError: episodes as :func:`fit_on_episodes` refuses them; one the detectors were fitted
+            on or the threshold calibrated on (not fresh: the count would read low); a threshold
+            without its detectors, or of other ones (the monitor's check).
+    """
+    if isinstance(threshold, (str, Path)):
+        if detectors is not None:
+            raise ConfigError("give the threshold's path (its detectors are read from beside it), or a Threshold with "
+                              "detectors=, not a path with detectors=")
+        threshold, detectors = _saved(threshold)
+    if not isinstance(threshold, Threshold) or not isinstance(detectors, DetectorSet):
+        raise ConfigError("give the threshold's path, or a Threshold with detectors= the set it was calibrated with "
+                          f"(got {type(threshold).__name__} and {type(detectors).__name__})")
+    shape = detectors.fitted_for.get("obs_shape")
+    checked = _checked_episodes(episodes, _space_of(detectors), "episodes", None if shape is None else tuple(shape))
+    _check_fresh(checked, "validation", {"the detectors were fitted on": detectors.fitted_for.get(FITTED_EPISODES),
+                                         "the threshold was calibrated on": threshold.episode_hashes},
+                 "it is not fresh, and would read low; validate on episodes neither saw")
+    scored = _scored(detectors, checked, "validation episodes", on_progress, threshold=threshold)
+    return _counted(scored, threshold, 0.0, None)
+
+
+def _check_fresh(episodes: list[tuple[np.ndarray, np.ndarray]], use: str, made_from: dict[str, Any],
+                 why: str) -> None:
+    """Refuse, naming the first, ``episodes`` for ``use`` among those whose hashes ``made_from``
+    holds by what was made from them (``{"the detectors were fitted on": [...]}``), saying ``why``."""
+    for what, hashes in made_from.items():
+        known = set(hashes or ())
+        found = [index for index, pair in enumerate(episodes) if episode_hash(*pair) in known]
+        if found:
+            raise ConfigError(f"episode {found[0]} of the {use} episodes ({len(found)} in all) is one {what}: {why}")
+
+
+def _scored(detectors: DetectorSet, episodes: list[tuple[np.ndarray, np.ndarray]], stage: str,
+            on_progress: Progress | None, **monitor: Any) -> list[tuple[np.ndarray, list[int]]]:
+    """Each of ``episodes`` fed step by step to a :class:`~oodmon.monitor.Monitor` of ``detectors``
+    made with ``monitor`` (as the deployment's steps will be): of each, the alarm detector's per-step
+    scores and the steps at which an alarm was raised. ``on_progress(stage, done, total)``."""
+    from oodmon.monitor.calibration import _ScoresAndAlarms
+    from oodmon.monitor.monitor import Monitor, OffCalibrationWarning
+
+    sink = _ScoresAndAlarms()
+    with warnings.catch_warnings(), Monitor(None, detectors=detectors, sinks=[sink], log_observations=False,
+                                            **monitor) as watching:
+        warnings.simplefilter("ignore", OffCalibrationWarning)  # (episodes longer than calibration's: counted)
+        for done, (observations, actions) in enumerate(episodes):
+            watching.begin_episode()
+            for obs, action in zip(observations, actions):
+                watching.step(obs, action=action)
+            watching.end_episode()
+            if on_progress is not None:
+                on_progress(stage, done + 1, len(episodes))
+    return sink.episodes
+
+
+def _saved(path: str | Path) -> tuple[Threshold, DetectorSet]:
+    """The threshold at ``path`` and the detectors beside it (``<path>.detectors/``).
+
+    Raises:
+        ConfigError: the file is no threshold, or its detectors are missing.
+    """
+    threshold = Threshold.load(path)
+    beside = Path(f"{path}.detectors")
+    if not (beside / "detectors.json").is_file():
+        raise ConfigError(f"{path}'s detectors, fitted beside it in {beside}, are missing: copy that folder along "
+                          "with the file, or fit and calibrate again (save=)")
+    return threshold, DetectorSet.load(beside)
 
 
 def watch_recorded(fit_episodes: Sequence[tuple[Any, Any]] | None = None,
@@ -338,12 +409,7 @@ def watch_recorded(fit_episodes: Sequence[tuple[Any, Any]] | None = None,
         if given:
             raise ConfigError(f"threshold= reads a calibration made before; leave out {', '.join(given)} (or leave out "
                               "threshold= to fit and calibrate anew)")
-        calibration = Threshold.load(threshold)
-        beside = Path(f"{threshold}.detectors")
-        if not (beside / "detectors.json").is_file():
-            raise ConfigError(f"{threshold}'s detectors, fitted beside it in {beside}, are missing: copy that folder "
-                              "along with the file, or fit and calibrate again (save=)")
-        detectors = DetectorSet.load(beside)
+        calibration, detectors = _saved(threshold)
     else:
         missing = [name for name, value in (("fit_episodes", fit_episodes), ("calibration_episodes",
                                                                                calibration_episodes),

@@ -703,6 +703,11 @@ class Threshold:
             or as the logs it was calibrated on kept them: a :class:`Monitor` with this threshold
             names its alarms' readings by them unless given others. ``None``: none given (an env
             whose layout oodmon knows, or a dict observation's keys, are named without).
+        episode_hashes: of a threshold calibrated on recorded episodes
+            (:func:`~oodmon.monitor.recorded.calibrate_on_episodes`), the hash of each
+            (:func:`~oodmon.monitor.recorded.episode_hash`), which
+            :func:`~oodmon.monitor.recorded.validate_on_episodes` refuses to count again (they are
+            not fresh). ``None``: calibrated on episodes it played, or on logs.
     """
 
     value: float
@@ -735,6 +740,7 @@ class Threshold:
     models: list[dict[str, str]] | None = None
     sb3: dict[str, Any] | None = None
     reading_names: list[str] | None = None
+    episode_hashes: list[str] | None = None
 
     def __post_init__(self) -> None:
         _check_fields(self)
@@ -955,6 +961,10 @@ def _check_fields(threshold: Threshold) -> None:
     if names is not None and not (isinstance(names, list) and names and all(isinstance(name, str) for name in names)):
         raise bad("reading_names", "it must be a list of texts, the name of each number of the observations by "
                                    "index, or null")
+    hashes = threshold.episode_hashes
+    if hashes is not None and not (isinstance(hashes, list) and all(isinstance(text, str) for text in hashes)):
+        raise bad("episode_hashes", "it must be a list of the hashes of the recorded episodes it was calibrated on, "
+                                    "or null")
 
 
 def model_files(models: object) -> list[dict[str, str]] | None:

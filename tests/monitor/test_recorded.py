@@ -14,7 +14,8 @@ import pytest
 import oodmon
 from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
-from oodmon.monitor import MemorySink, Threshold, calibrate_on_episodes, fit_on_episodes, watch_recorded
+from oodmon.monitor import (MemorySink, Threshold, calibrate_on_episodes, fit_on_episodes, validate_on_episodes,
+                            watch_recorded)
 from oodmon.monitor.detectors import DetectorSet
 from tests.helpers import load_script, once_per_run
 
@@ -72,8 +73,12 @@ def test_the_threshold_keeps_its_promise_on_fresh_episodes_and_alarms_at_a_shift
     threshold = Threshold.load(calibration)
     assert (threshold.detector, threshold.n_episodes, threshold.far, threshold.confidence) == ("combined", 45, 0.1, 0.9)
     assert threshold.reading_names == ["x", "v", "theta", "omega"] and threshold.longest_episode == STEPS
-    fresh = _first_alarms(watch_recorded(threshold=calibration), _record(100, 50_000))
-    assert sum(first is not None for first in fresh) <= 20
+    assert len(threshold.episode_hashes) == 45
+    validation = validate_on_episodes(calibration, _record(100, 50_000))
+    assert (validation.total, validation.far, validation.verdict) == (100, 0.1, "below")
+    assert validation.alarmed <= 20 and validation.low <= validation.alarmed / 100 <= validation.high
+    fresh = _first_alarms(watch_recorded(threshold=calibration), _record(100, 50_000))  # the deployed loop counts alike
+    assert sum(first is not None for first in fresh) == validation.alarmed
     shifted = _first_alarms(watch_recorded(threshold=calibration), _record(10, 60_000, "cartpole:length=2.0", 50))
     assert all(first is not None and 50 <= first <= 55 for first in shifted), shifted
 
@@ -202,9 +207,10 @@ class _StandInRobot:
 
 
 def test_the_docs_block_runs_as_written(tmp_path, monkeypatch, capsys):
-    """docs/your-policy.md's "A deployment oodmon cannot play": its records (60 fitting and 30
-    calibration episodes of 200 steps) made here, a stand-in robot in its loop; its monitor alarms
-    at the first step of the longer pole's physics and logs the episode."""
+    """docs/your-policy.md's "A deployment oodmon cannot play": its records (60 fitting, 30
+    calibration and 30 fresh episodes of 200 steps) made here, a stand-in robot in its loop; the
+    validation prints its count, and the monitor alarms at the first step of the longer pole's
+    physics and logs the episode."""
     from oodmon.replay import read_log
 
     text = (Path(__file__).resolve().parents[2] / "docs" / "your-policy.md").read_text()
@@ -212,14 +218,15 @@ def test_the_docs_block_runs_as_written(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "runs").mkdir()
     arrays = {}
-    for index, (observations, actions) in enumerate(_record(90, 0)):
+    for index, (observations, actions) in enumerate(_record(120, 0)):
         arrays[f"obs_{index}"], arrays[f"act_{index}"] = observations, actions
     np.savez("runs/robot_records.npz", **arrays)
     exec(compile(block, "docs/your-policy.md's block", "exec"), {"robot": _StandInRobot()})
     assert Threshold.load("runs/robot.json").n_episodes == 30
-    printed = capsys.readouterr().out
-    assert printed.startswith("episode 0 step 51: score "), printed
-    assert "cause: dynamics; reading [3] (omega)" in printed
+    checked, alarm = capsys.readouterr().out.splitlines()
+    assert re.fullmatch(r"\d of 30 fresh episodes alarmed \(95% interval .*\); the target 0.1: (below|consistent)",
+                        checked), checked
+    assert alarm.startswith("episode 0 step 51: score ") and "cause: dynamics; reading [3] (omega)" in alarm, alarm
     episodes = read_log("runs/robot.mcap").episodes
     assert len(episodes) == 1 and episodes[0].first_alarm_step == 51
 
@@ -272,3 +279,20 @@ def test_the_measuring_script_prints_its_counts(monkeypatch, capsys):
     # (fitted on 6 episodes of 80 steps, the detectors are weak: the counts are the main test's)
     assert re.fullmatch(r"cartpole:length=2.0 from step 50: \d of 2 alarmed after the onset, \d before; delays \[.*\]; "
                         r"causes \{.*\}; first readings \{.*\}", lines[2]), lines[2]
+
+
+def test_validation_counts_fresh_episodes_only(calibration):
+    """Neither the calibration's episodes nor the fit's are counted: both would read low."""
+    threshold, detectors = Threshold.load(calibration), DetectorSet.load(f"{calibration}.detectors")
+    with pytest.raises(ConfigError, match="episode 2 of the validation episodes .1 in all. is one the threshold was "
+                                          "calibrated on: it is not fresh"):
+        validate_on_episodes(threshold, [*_record(2, 80_000), *_record(1, 1003)], detectors=detectors)
+    with pytest.raises(ConfigError, match="episode 0 of the validation episodes .1 in all. is one the detectors were "
+                                          "fitted on"):
+        validate_on_episodes(calibration, _record(1, 59))
+    with pytest.raises(ConfigError, match="not a path with detectors="):
+        validate_on_episodes(calibration, _record(1, 80_000), detectors=detectors)
+    with pytest.raises(ConfigError, match="a Threshold with detectors="):
+        validate_on_episodes(threshold, _record(1, 80_000))
+    validation = validate_on_episodes(threshold, _record(3, 80_000), detectors=detectors)
+    assert validation.total == 3 and validation.steps == sum(len(o) for o, _ in _record(3, 80_000))
