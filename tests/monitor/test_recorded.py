@@ -296,3 +296,21 @@ def test_validation_counts_fresh_episodes_only(calibration):
         validate_on_episodes(threshold, _record(1, 80_000))
     validation = validate_on_episodes(threshold, _record(3, 80_000), detectors=detectors)
     assert validation.total == 3 and validation.steps == sum(len(o) for o, _ in _record(3, 80_000))
+
+
+def test_the_commands_say_where_a_recorded_threshold_is_checked(calibration, capsys, tmp_path, monkeypatch):
+    """`oodmon validate` and `oodmon run` of a threshold made from recorded episodes have no env
+    nor policy to play (before: "does not record its task; give --task"); given a policy and an env
+    that do play the world, they run as for any threshold."""
+    from oodmon.cli import main
+
+    for argv in (["validate", calibration, "--episodes", "5"], ["run", "--threshold", calibration, "--episodes", "1"]):
+        assert main(argv) == 2
+        error = capsys.readouterr().err
+        assert "was calibrated on episodes you recorded" in error and "validate_on_episodes(" in error, error
+    (tmp_path / "robot_policy.py").write_text("def act(obs):\n"
+                                              "    return int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert main(["validate", calibration, "--policy", "robot_policy:act", "--env", "CartPole-v1", "--episodes", "3",
+                 "--max-steps", str(STEPS)]) == 0
+    assert "3 fresh ID episodes" in capsys.readouterr().out
