@@ -16,7 +16,7 @@ from oodmon.replay.parts import MissingParts, missing_parts
 from oodmon.replay.reader import (EpisodeLog, MissingPartWarning, NewerFormatWarning, RecoveryWarning, RunLog,
                                   SkippedLogWarning, read_log, read_logs)
 from oodmon.replay.recalibrate import (ChangeInLogsWarning, LogEpisodes, LogStatistics, calibrate_from_logs,
-                                      change_in_logs, fit_detectors_from_logs, log_episodes)
+                                      change_in_logs, episodes_from_logs, fit_detectors_from_logs, log_episodes)
 from oodmon.replay.report import monitor_markdown, monitor_summary, monitor_table, to_csv, to_json, to_markdown, to_table
 
 __all__ = [
@@ -41,6 +41,7 @@ __all__ = [
     "compute_metrics",
     "compute_monitor_metrics",
     "detectors_in",
+    "episodes_from_logs",
     "failed_episodes",
     "failure_step",
     "find_falls",

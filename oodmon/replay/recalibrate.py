@@ -221,16 +221,48 @@ def fit_detectors_from_logs(agent: Any, logs: Sequence[str | Path | RunLog], *, 
     found.check_some()
     noise = found.noise("detectors are fitted")
     _warn_if_changed(change_in_logs(found))
-    episodes = []
     camera = getattr(agent, "pictures", None) is not None  # a dict's picture beside its vectors: its frames too
-    for log in found.logs:
-        mine_here = [episode.episode for owner, episode in found.episodes if owner is log]
-        steps = read_steps(log.path, mine_here, pictures=camera) if mine_here else {}
-        episodes += [steps[k] for k in mine_here]
+    episodes = _steps_of(found, pictures=camera)
     return fit_recorded_detectors(agent, episodes, detectors=detectors, score=first.metadata.get("score", "chosen_std"),
                                   obs_noise=noise, seed=seed, dynamics_updates=dynamics_updates,
                                   on_progress=on_progress, recorded={"episodes": len(episodes), "logs": [
                                       str(log.path) for log in found.logs], "left_out": found.left_out()})
+
+
+def _steps_of(found: LogEpisodes, *, pictures: bool = False) -> list[tuple]:
+    """The observations and actions of each of ``found``'s episodes, in their order
+    (:func:`~oodmon.replay.reader.read_steps`; with ``pictures``, each episode's frames third)."""
+    episodes = []
+    for log in found.logs:
+        mine_here = [episode.episode for owner, episode in found.episodes if owner is log]
+        steps = read_steps(log.path, mine_here, pictures=pictures) if mine_here else {}
+        episodes += [steps[k] for k in mine_here]
+    return episodes
+
+
+def episodes_from_logs(logs: Sequence[str | Path | RunLog], *, last: int | None = None
+                       ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every whole ID episode of ``logs`` (:func:`log_episodes`: the order they ended, ``last``
+    the latest only) as ``(observations, actions)``, ``(T, ...)`` each, the records
+    :func:`oodmon.monitor.fit_on_episodes`, :func:`~oodmon.monitor.calibrate_on_episodes` and
+    :func:`~oodmon.monitor.validate_on_episodes` take: a deployment no env plays, watched by
+    ``oodmon.watch_recorded`` with an :class:`~oodmon.monitor.McapSink`, fitted and calibrated again
+    on its own logs (its hashes are those of the arrays it was given: a logged episode the
+    detectors were fitted on is refused for calibration as the array was). A reading that was not
+    finite reads NaN (fitting leaves such an episode out).
+
+    Raises:
+        ConfigError: no logs, or logs of two policies (:func:`log_episodes`); logs whose steps hold
+            pictures, not readings (fitted by ``oodmon fit-detectors --from-logs``).
+        LogFormatError: a file that is not an oodmon log.
+    """
+    found = log_episodes(logs, last=last)
+    found.check_some()
+    episodes = [(np.asarray(steps[0]), np.asarray(steps[1])) for steps in _steps_of(found)]
+    if any(observations.dtype == np.uint8 for observations, _ in episodes):
+        raise ConfigError("these logs' steps hold pictures, not readings: fit their detectors with `oodmon "
+                          "fit-detectors --from-logs` (oodmon.replay.fit_detectors_from_logs)")
+    return episodes
 
 
 def _cut(episode: EpisodeLog) -> bool:

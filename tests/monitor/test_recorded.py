@@ -308,9 +308,28 @@ def test_the_commands_say_where_a_recorded_threshold_is_checked(calibration, cap
         assert main(argv) == 2
         error = capsys.readouterr().err
         assert "was calibrated on episodes you recorded" in error and "validate_on_episodes(" in error, error
-    (tmp_path / "robot_policy.py").write_text("def act(obs):\n"
-                                              "    return int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)\n")
+    (tmp_path / "robot_policy.py").write_text(
+        "def act(obs):\n    return int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     assert main(["validate", calibration, "--policy", "robot_policy:act", "--env", "CartPole-v1", "--episodes", "3",
                  "--max-steps", str(STEPS)]) == 0
     assert "3 fresh ID episodes" in capsys.readouterr().out
+
+
+def test_the_monitors_logs_give_back_the_records(calibration, tmp_path):
+    """A recorded deployment's own logs (its monitor with an McapSink) read back as the arrays it
+    was given (oodmon.replay.episodes_from_logs): they calibrate to the same threshold, and a logged
+    episode the detectors were fitted on is refused as the array was."""
+    from oodmon.monitor import McapSink
+    from oodmon.replay import episodes_from_logs
+
+    records = [*_record(22, 3000), *_record(1, 7)]  # the last: one of the fitting episodes (seeds 0-59)
+    _first_alarms(watch_recorded(threshold=calibration, sinks=[McapSink(tmp_path / "robot.mcap")]), records)
+    logged = episodes_from_logs([tmp_path / "robot.mcap"])
+    assert len(logged) == 23 and all(np.array_equal(o, r[0]) and np.array_equal(a, r[1])
+                                     for (o, a), r in zip(logged, records))
+    detectors = DetectorSet.load(f"{calibration}.detectors")
+    with pytest.raises(ConfigError, match="episode 22 of the calibration episodes .1 in all. is one the detectors"):
+        calibrate_on_episodes(detectors, logged, far=0.1)
+    assert calibrate_on_episodes(detectors, logged[:22], far=0.1).value == \
+        calibrate_on_episodes(detectors, records[:22], far=0.1).value
