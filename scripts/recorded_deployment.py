@@ -1,19 +1,21 @@
 """A deployment oodmon cannot play, watched from its recorded episodes (``oodmon.watch_recorded``).
 
-Run: OODMON_TORCH_THREADS=1 .venv/bin/python scripts/recorded_deployment.py [--fit 90] [--calibration 50]
-         [--fresh 300] [--shifted 20] [--onset 50] [--steps 500] [--far 0.05] [--detectors dynamics,combined]
-         [--variants cartpole:length=2.0,cartpole:masscart=3.0,cartpole:force_mag=5.0]
+Run: OODMON_TORCH_THREADS=1 .venv/bin/python scripts/recorded_deployment.py [--task cartpole|pendulum]
+         [--fit 90] [--calibration 50] [--fresh 300] [--shifted 20] [--onset 50] [--steps N] [--far 0.05]
+         [--detectors dynamics,combined] [--variants cartpole:length=2.0,cartpole:masscart=3.0,...]
 
-The "robot" is a hand-written CartPole controller (docs/your-policy.md's) in oodmon's CartPole env,
-stepped by a loop of this script's own, which records each episode as ``(observations, actions)``:
-oodmon is told neither the env nor the policy. The detectors are fitted on ``--fit`` recorded ID
-episodes (reset seeds 0 on) and the alarm calibrated on ``--calibration`` others (seeds 10,000 on,
-``--far`` at confidence 0.9); then ``--fresh`` fresh recorded ID episodes (seeds 50,000 on) are fed
-to the monitor step by step, as a deployment feeds it, and ``--shifted`` episodes of each variant
-shifted from step ``--onset`` (seeds 90,000 on). It prints the threshold, the fresh episodes
-alarmed with their 95% interval, and per variant the episodes alarmed, those alarmed before the
-onset, the delays, and the causes and readings the first alarms named. About a minute on one core
-with the defaults.
+The "robot" is a hand-written controller in oodmon's env of ``--task``, stepped by a loop of this
+script's own, which records each episode as ``(observations, actions)``: oodmon is told neither the
+env nor the policy. CartPole's (docs/your-policy.md's) pushes toward where the pole falls (two
+discrete actions); Pendulum's brakes the swing and pushes toward the top (a torque, a ``Box``).
+
+The detectors are fitted on ``--fit`` recorded ID episodes (reset seeds 0 on) and the alarm
+calibrated on ``--calibration`` others (seeds 10,000 on, ``--far`` at confidence 0.9); then
+``--fresh`` fresh recorded ID episodes (seeds 50,000 on) are fed to the monitor step by step, as a
+deployment feeds it, and ``--shifted`` episodes of each variant shifted from step ``--onset`` (seeds
+90,000 on). It prints the threshold, the fresh episodes alarmed with their 95% interval, and per
+variant the episodes alarmed, those alarmed before the onset, the delays, and the causes and
+readings the first alarms named. About a minute on one core with the defaults.
 """
 
 from __future__ import annotations
@@ -32,6 +34,10 @@ from oodmon.threads import limit_threads
 
 ACTIONS = gymnasium.spaces.Discrete(2)
 NAMES = ["x", "v", "theta", "omega"]
+#: Each task's action space, reading names and shifts measured by default.
+TASKS = {"cartpole": (ACTIONS, NAMES, "cartpole:length=2.0,cartpole:masscart=3.0,cartpole:force_mag=5.0"),
+         "pendulum": (gymnasium.spaces.Box(-2.0, 2.0, (1,), np.float32), ["cos theta", "sin theta", "omega"],
+                      "pendulum:m=1.5,pendulum:g=14.0,pendulum:l=1.5")}
 
 
 def controller(obs: np.ndarray) -> int:
@@ -39,17 +45,24 @@ def controller(obs: np.ndarray) -> int:
     return int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)
 
 
+def pendulum_controller(obs: np.ndarray) -> np.ndarray:
+    """Pendulum's: brake the swing, and push toward the top (a torque in [-2, 2])."""
+    cos, sin, omega = obs
+    return np.clip([-2.0 * sin - 0.5 * omega], -2.0, 2.0).astype(np.float32)
+
+
 def record(count: int, seed: int, steps: int, spec: str = "cartpole", onset: int = 0
            ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``count`` episodes of the controller in ``spec`` (shifted from step ``onset``), at most
-    ``steps`` long, each as the robot's own records: (observations, actions), one row per step."""
+    """``count`` episodes of the task's controller in ``spec`` (shifted from step ``onset``), at
+    most ``steps`` long, each as the robot's own records: (observations, actions), one row per step."""
     env = parse_variant(spec).make(onset_step=onset, max_episode_steps=steps)
+    act = pendulum_controller if spec.startswith("pendulum") else controller
     episodes = []
     for index in range(count):
         obs, _ = env.reset(seed=seed + index)
         observations, actions, done = [], [], False
         while not done:
-            action = controller(obs)
+            action = act(obs)
             observations.append(obs)
             actions.append(action)
             obs, _, terminated, truncated, _ = env.step(action)
@@ -74,32 +87,35 @@ def watched(monitor, episodes: list[tuple[np.ndarray, np.ndarray]], sink: Memory
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", choices=sorted(TASKS), default="cartpole")
     parser.add_argument("--fit", type=int, default=90)
     parser.add_argument("--calibration", type=int, default=50)
     parser.add_argument("--fresh", type=int, default=300)
     parser.add_argument("--shifted", type=int, default=20)
     parser.add_argument("--onset", type=int, default=50)
-    parser.add_argument("--steps", type=int, default=500)
+    parser.add_argument("--steps", type=int, help="each episode's limit (default: the env's, 500 and 200)")
     parser.add_argument("--far", type=float, default=0.05)
     parser.add_argument("--detectors", help="the detectors to fit (default: fit_on_episodes's)")
-    parser.add_argument("--variants", default="cartpole:length=2.0,cartpole:masscart=3.0,cartpole:force_mag=5.0")
+    parser.add_argument("--variants", help="the shifts, comma-separated (default: the task's in TASKS)")
     args = parser.parse_args()
+    actions, names, variants = TASKS[args.task]
+    args.steps = args.steps or {"cartpole": 500, "pendulum": 200}[args.task]
     limit_threads()
     start = time.perf_counter()
     # (what watch_recorded does, in its two parts: the threshold and the detectors are kept here)
-    detectors = fit_on_episodes(record(args.fit, 0, args.steps), ACTIONS,
+    detectors = fit_on_episodes(record(args.fit, 0, args.steps, args.task), actions,
                                 detectors=None if args.detectors is None else args.detectors.split(","))
-    threshold = calibrate_on_episodes(detectors, record(args.calibration, 10_000, args.steps), args.far,
-                                      reading_names=NAMES)
+    threshold = calibrate_on_episodes(detectors, record(args.calibration, 10_000, args.steps, args.task), args.far,
+                                      reading_names=names)
     print(f"fitted {', '.join(detectors.names)} on {args.fit} and calibrated on {args.calibration} recorded episodes "
           f"in {time.perf_counter() - start:.0f} s: {threshold.detector} > {threshold.value:.6g}")
     sink = MemorySink()
-    fresh = watched(monitor_of(threshold, detectors, sink), record(args.fresh, 50_000, args.steps), sink)
+    fresh = watched(monitor_of(threshold, detectors, sink), record(args.fresh, 50_000, args.steps, args.task), sink)
     alarmed = sum(first is not None for first in fresh)
     low, high = clopper_pearson(alarmed, len(fresh))
     print(f"fresh ID: {alarmed} of {len(fresh)} alarmed ({alarmed / len(fresh):.1%}, 95% interval "
           f"{low:.1%}-{high:.1%}; target {args.far:.0%} at confidence 0.9)")
-    for spec in args.variants.split(","):
+    for spec in (args.variants or variants).split(","):
         sink = MemorySink()
         firsts = watched(monitor_of(threshold, detectors, sink),
                          record(args.shifted, 90_000, args.steps, spec, args.onset), sink)
@@ -108,7 +124,7 @@ def main() -> None:
         events = [event for event in sink.alarms if event.step >= args.onset]
         firsts_named = {event.episode: event for event in reversed(events)}.values()  # each episode's first
         causes = Counter(event.cause for event in firsts_named)
-        readings = Counter(f"[{event.readings[0][0]}] ({NAMES[event.readings[0][0]]})" for event in firsts_named
+        readings = Counter(f"[{event.readings[0][0]}] ({names[event.readings[0][0]]})" for event in firsts_named
                            if event.readings)
         print(f"{spec} from step {args.onset}: {len(delays)} of {len(firsts)} alarmed after the onset, {early} before; "
               f"delays {delays}; causes {dict(causes)}; first readings {dict(readings)}")

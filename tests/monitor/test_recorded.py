@@ -265,19 +265,21 @@ def test_a_box_action_of_another_size_or_not_finite_is_refused(bad):
             monitor.step(np.zeros(3), action=bad)
 
 
-def test_the_measuring_script_prints_its_counts(monkeypatch, capsys):
+@pytest.mark.parametrize("task, variant", [("cartpole", "cartpole:length=2.0"), ("pendulum", "pendulum:m=1.5")])
+def test_the_measuring_script_prints_its_counts(task, variant, monkeypatch, capsys):
     """scripts/recorded_deployment.py, small: its lines name the threshold, the fresh episodes'
-    count with its interval, and each variant's alarms, delays and readings."""
-    monkeypatch.setattr("sys.argv", ["recorded_deployment.py", "--fit", "6", "--calibration", "22", "--fresh", "4",
-                                     "--shifted", "2", "--steps", "80", "--far", "0.1",
-                                     "--variants", "cartpole:length=2.0"])
+    count with its interval, and each variant's alarms, delays and readings; of discrete actions
+    (CartPole's) and of a torque (Pendulum's)."""
+    monkeypatch.setattr("sys.argv", ["recorded_deployment.py", "--task", task, "--fit", "6", "--calibration", "22",
+                                     "--fresh", "4", "--shifted", "2", "--steps", "80", "--far", "0.1",
+                                     "--variants", variant])
     monkeypatch.setattr(_SCRIPT, "limit_threads", lambda: None)
     _SCRIPT.main()
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("fitted dynamics, drift, combined on 6 and calibrated on 22 recorded episodes in ")
     assert re.fullmatch(r"fresh ID: \d of 4 alarmed \(.*; target 10% at confidence 0.9\)", lines[1])
     # (fitted on 6 episodes of 80 steps, the detectors are weak: the counts are the main test's)
-    assert re.fullmatch(r"cartpole:length=2.0 from step 50: \d of 2 alarmed after the onset, \d before; delays \[.*\]; "
+    assert re.fullmatch(rf"{variant} from step 50: \d of 2 alarmed after the onset, \d before; delays \[.*\]; "
                         r"causes \{.*\}; first readings \{.*\}", lines[2]), lines[2]
 
 
