@@ -57,7 +57,12 @@ burst,pettitt``, after its share, permutations and seed were checked by name): 1
 115 calls, no finding. With ``Monitor``'s ``reading_names`` (2026-12-07, ``--only Monitor``, 7 s): 134
 oodmon, 87 ok, 32 python of 253 calls, no finding, no leak. With ``reading_names`` of ``Threshold``,
 ``calibrate_agent`` and ``watch`` (2026-12-08, ``--only Threshold,calibrate_agent,watch``, 8 minutes):
-852 oodmon, 88 ok, 79 slow, 62 python of 1,081 calls, no finding, no leak.
+852 oodmon, 88 ok, 79 slow, 62 python of 1,081 calls, no finding, no leak. With the calls of a
+deployment oodmon cannot play (later that day, ``--only fit_on_episodes,calibrate_on_episodes,
+validate_on_episodes,watch_recorded``, 9 s): 426 oodmon, 112 python, 106 ok of 644 calls, no finding;
+among the python answers an error message of its own that took ``len()`` of a number, a detector
+name that was a list, and ``threshold=`` not a path (each now oodmon's error); then 508 oodmon,
+104 ok, 32 python (sinks and callbacks that are no lists, as for ``watch``) of 644.
 """
 
 from __future__ import annotations
@@ -104,6 +109,26 @@ def cases() -> list[tuple[str, object, dict, list[str]]]:
 
     def shifted_reset(**arguments):
         envs.ShiftAttributes(**arguments).reset(seed=0)
+
+    # a deployment oodmon cannot play: recorded CartPole episodes of a controller, 60 steps each
+    def recorded(count: int, seed: int) -> list:
+        env, episodes = gymnasium.make("CartPole-v1", max_episode_steps=60), []
+        for index in range(count):
+            obs, _ = env.reset(seed=seed + index)
+            observations, actions, done = [], [], False
+            while not done:
+                observations.append(obs)
+                actions.append(int(obs[2] + 0.5 * obs[3] > 0))
+                obs, _, terminated, truncated, _ = env.step(actions[-1])
+                done = terminated or truncated
+            episodes.append((np.array(observations), np.array(actions)))
+        return episodes
+
+    discrete = gymnasium.spaces.Discrete(2)
+    fit, calibration, fresh = recorded(6, 0), recorded(22, 100), recorded(3, 200)
+    fitted = monitor.fit_on_episodes(fit, discrete, dynamics_updates=20)
+    saved = Path(tempfile.mkdtemp(prefix="oodmon-fuzz-recorded-")) / "robot.json"
+    monitor.watch_recorded(fit, calibration, action_space=discrete, far=0.1, save=saved)
 
     def alarm_command(**arguments):
         command = monitor.AlarmCommand(**arguments)
@@ -154,6 +179,16 @@ def cases() -> list[tuple[str, object, dict, list[str]]]:
          ["env_id", "far", "confidence", "episodes", "fit_episodes", "detector", "seed", "masks", "warmup", "workers",
           "dynamics_updates", "threshold", "save", "max_steps", "fit_explore", "reading_names"]),
         ("AlarmCommand", alarm_command, dict(command="true", wait=5.0), ["command", "env", "wait"]),
+        ("fit_on_episodes", monitor.fit_on_episodes, dict(episodes=fit, action_space=discrete, dynamics_updates=20),
+         ["episodes", "action_space", "detectors", "seed", "dynamics_updates"]),
+        ("calibrate_on_episodes", monitor.calibrate_on_episodes, dict(detectors=fitted, episodes=calibration, far=0.1),
+         ["detectors", "episodes", "far", "detector", "confidence", "consecutive", "window", "warmup",
+          "reading_names"]),
+        ("validate_on_episodes", monitor.validate_on_episodes, dict(threshold=saved, episodes=fresh),
+         ["threshold", "episodes", "detectors"]),
+        ("watch_recorded", monitor.watch_recorded, dict(threshold=saved),
+         ["fit_episodes", "calibration_episodes", "action_space", "far", "confidence", "detector", "sinks",
+          "callbacks", "save", "threshold", "reading_names"]),
         ("ShiftAttributes", shifted_reset, dict(env=gymnasium.make("CartPole-v1"), changes={"length": 2.0}),
          ["changes", "onset_step", "env_id"]),
     ]

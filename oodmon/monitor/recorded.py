@@ -99,8 +99,9 @@ def _checked_episodes(episodes: Any, action_space: gymnasium.Space, what: str,
             is not of ``action_space``.
     """
     if isinstance(episodes, (str, bytes, Path, np.ndarray)) or not isinstance(episodes, Sequence) or not episodes:
+        empty = isinstance(episodes, Sequence) and not episodes
         raise ConfigError(f"{what} is a list of episodes, each (observations, actions) as arrays; got "
-                          f"{type(episodes).__name__}{'' if episodes is None or len(episodes) else ' (empty)'}")
+                          f"{type(episodes).__name__}{' (empty)' if empty else ''}")
     checked = []
     for index, episode in enumerate(episodes):
         where = f"episode {index} of {what}"
@@ -224,6 +225,9 @@ def fit_on_episodes(episodes: Sequence[tuple[Any, Any]], action_space: gymnasium
                           "pictures from its own logs (`oodmon fit-detectors --from-logs`), not yet from arrays")
     spaces = _Spaces(gymnasium.spaces.Box(-np.inf, np.inf, shape, np.float32), action_space)
     # task "": a deployment oodmon has no variants of (drift fitted beside dynamics by default)
+    if detectors is not None and (isinstance(detectors, str) or not isinstance(detectors, Sequence)):
+        raise ConfigError(f"detectors is a list of the detectors' names (['dynamics', 'combined']); got "
+                          f"{detectors!r:.40}")
     names = _named(_no_policy, spaces, "", detectors)
     policy_read = [name for name in names if name in POLICY_READ]
     if policy_read:
@@ -277,7 +281,7 @@ def calibrate_on_episodes(detectors: DetectorSet, episodes: Sequence[tuple[Any, 
     names = check_reading_names(reading_names)
     if detector is None:
         detector = "combined" if "combined" in detectors else detectors.names[-1]
-    if detector not in detectors:
+    if not isinstance(detector, str) or detector not in detectors:
         raise ConfigError(f"the alarm reads the {detector} detector, which the set does not have (it has "
                           f"{', '.join(detectors.names)})")
     _check_fresh(checked, "calibration", {"the detectors were fitted on": detectors.fitted_for.get(FITTED_EPISODES)},
@@ -365,6 +369,9 @@ def _saved(path: str | Path) -> tuple[Threshold, DetectorSet]:
     Raises:
         ConfigError: the file is no threshold, or its detectors are missing.
     """
+    if not isinstance(path, (str, Path)):
+        raise ConfigError(f"threshold= is the path of a calibration saved before (watch_recorded(save=...)); got "
+                          f"{type(path).__name__}")
     threshold = Threshold.load(path)
     beside = Path(f"{path}.detectors")
     if not (beside / "detectors.json").is_file():

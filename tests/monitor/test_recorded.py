@@ -125,6 +125,7 @@ def test_box_actions_and_a_saved_set_read_back(tmp_path):
 
 @pytest.mark.parametrize("episodes, words", [
     (None, "a list of episodes"),
+    (5, "a list of episodes, each .observations, actions. as arrays; got int$"),
     ([], "a list of episodes.*empty"),
     ([(np.zeros((5, 4)),)], "episode 0 of episodes is a pair"),
     ([(np.zeros((5, 4)), np.zeros(3))], "5 observations and 3 actions"),
@@ -146,6 +147,8 @@ def test_what_the_detectors_cannot_read_is_refused():
         fit_on_episodes(_record(3, 0), gymnasium.spaces.MultiDiscrete([2, 2]))
     with pytest.raises(ConfigError, match="the spread detector reads the policy's samples or features, which recorded"):
         fit_on_episodes(_record(3, 0), DISCRETE, detectors=["spread"])
+    with pytest.raises(ConfigError, match="detectors is a list of the detectors' names"):
+        fit_on_episodes(_record(3, 0), DISCRETE, detectors="dynamics")
     with pytest.raises(ConfigError, match="3 at least|at least 3"):
         fit_on_episodes([(np.full((5, 4), np.nan), np.zeros(5))] * 2 + _record(1, 0), DISCRETE)
 
@@ -163,6 +166,10 @@ def test_watch_recorded_says_what_it_needs(calibration, tmp_path):
         calibrate_on_episodes(DetectorSet([], fitted_for={}), _record(22, 0))
     with pytest.raises(ConfigError, match="too few|episodes"):  # far 0.01 at confidence 0.9 needs 230
         calibrate_on_episodes(DetectorSet.load(f"{calibration}.detectors"), _record(5, 7000), far=0.01)
+    with pytest.raises(ConfigError, match="threshold= is the path of a calibration saved before"):
+        watch_recorded(threshold=Threshold.load(calibration))
+    with pytest.raises(ConfigError, match="the alarm reads the \\['combined'\\] detector, which the set does not have"):
+        calibrate_on_episodes(DetectorSet.load(f"{calibration}.detectors"), _record(22, 7000), detector=["combined"])
     assert oodmon.watch_recorded is watch_recorded
     assert json.loads((tmp_path / "alone.json").read_text())["detector"] == "combined"
 
