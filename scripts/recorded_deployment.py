@@ -1,13 +1,16 @@
 """A deployment oodmon cannot play, watched from its recorded episodes (``oodmon.watch_recorded``).
 
-Run: OODMON_TORCH_THREADS=1 .venv/bin/python scripts/recorded_deployment.py [--task cartpole|pendulum]
+Run: OODMON_TORCH_THREADS=1 .venv/bin/python scripts/recorded_deployment.py [--task cartpole|pendulum|pong]
          [--fit 90] [--calibration 50] [--fresh 300] [--shifted 20] [--onset 50] [--steps N] [--far 0.05]
-         [--detectors dynamics,combined] [--variants cartpole:length=2.0,cartpole:masscart=3.0,...]
+         [--detectors dynamics,combined] [--variants 'cartpole:length=2.0;cartpole:masscart=3.0;...']
 
 The "robot" is a hand-written controller in oodmon's env of ``--task``, stepped by a loop of this
 script's own, which records each episode as ``(observations, actions)``: oodmon is told neither the
 env nor the policy. CartPole's (docs/your-policy.md's) pushes toward where the pole falls (two
-discrete actions); Pendulum's brakes the swing and pushes toward the top (a torque, a ``Box``).
+discrete actions); Pendulum's brakes the swing and pushes toward the top (a torque, a ``Box``);
+Pong's presses its six buttons at random, and its records are the (4, 84, 84) pictures it sees (a
+camera: the camera's detectors read them; ``--detectors frames,stillness,vanishing,combined``
+names the one that sees a part of the picture freeze, and the alarms' regions are printed).
 
 The detectors are fitted on ``--fit`` recorded ID episodes (reset seeds 0 on) and the alarm
 calibrated on ``--calibration`` others (seeds 10,000 on, ``--far`` at confidence 0.9); then
@@ -35,9 +38,13 @@ from oodmon.threads import limit_threads
 ACTIONS = gymnasium.spaces.Discrete(2)
 NAMES = ["x", "v", "theta", "omega"]
 #: Each task's action space, reading names and shifts measured by default.
-TASKS = {"cartpole": (ACTIONS, NAMES, "cartpole:length=2.0,cartpole:masscart=3.0,cartpole:force_mag=5.0"),
+TASKS = {"cartpole": (ACTIONS, NAMES, "cartpole:length=2.0;cartpole:masscart=3.0;cartpole:force_mag=5.0"),
          "pendulum": (gymnasium.spaces.Box(-2.0, 2.0, (1,), np.float32), ["cos theta", "sin theta", "omega"],
-                      "pendulum:m=1.5,pendulum:g=14.0,pendulum:l=1.5")}
+                      "pendulum:m=1.5;pendulum:g=14.0;pendulum:l=1.5"),
+         "pong": (gymnasium.spaces.Discrete(6), None,
+                  "pong:gaussian_noise@3;pong:frozen_region:top=80,left=50,height=70,width=60;pong:obs.stuck=1")}
+#: Each task's episode limit by default.
+STEPS = {"cartpole": 500, "pendulum": 200, "pong": 300}
 
 
 def controller(obs: np.ndarray) -> int:
@@ -51,14 +58,26 @@ def pendulum_controller(obs: np.ndarray) -> np.ndarray:
     return np.clip([-2.0 * sin - 0.5 * omega], -2.0, 2.0).astype(np.float32)
 
 
+class RandomButtons:
+    """Pong's "robot": it presses the six buttons at random (seeded per episode); the camera's
+    detectors read the picture, not the policy."""
+
+    def __init__(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def __call__(self, obs: np.ndarray) -> int:
+        return int(self.rng.integers(6))
+
+
 def record(count: int, seed: int, steps: int, spec: str = "cartpole", onset: int = 0
            ) -> list[tuple[np.ndarray, np.ndarray]]:
     """``count`` episodes of the task's controller in ``spec`` (shifted from step ``onset``), at
     most ``steps`` long, each as the robot's own records: (observations, actions), one row per step."""
     env = parse_variant(spec).make(onset_step=onset, max_episode_steps=steps)
-    act = pendulum_controller if spec.startswith("pendulum") else controller
+    task = spec.split(":")[0]
     episodes = []
     for index in range(count):
+        act = {"pendulum": pendulum_controller, "pong": RandomButtons(seed + index)}.get(task, controller)
         obs, _ = env.reset(seed=seed + index)
         observations, actions, done = [], [], False
         while not done:
@@ -93,13 +112,13 @@ def main() -> None:
     parser.add_argument("--fresh", type=int, default=300)
     parser.add_argument("--shifted", type=int, default=20)
     parser.add_argument("--onset", type=int, default=50)
-    parser.add_argument("--steps", type=int, help="each episode's limit (default: the env's, 500 and 200)")
+    parser.add_argument("--steps", type=int, help="each episode's limit (default: STEPS, the task's)")
     parser.add_argument("--far", type=float, default=0.05)
     parser.add_argument("--detectors", help="the detectors to fit (default: fit_on_episodes's)")
-    parser.add_argument("--variants", help="the shifts, comma-separated (default: the task's in TASKS)")
+    parser.add_argument("--variants", help="the shifts, separated by ';' (default: the task's in TASKS)")
     args = parser.parse_args()
     actions, names, variants = TASKS[args.task]
-    args.steps = args.steps or {"cartpole": 500, "pendulum": 200}[args.task]
+    args.steps = args.steps or STEPS[args.task]
     limit_threads()
     start = time.perf_counter()
     # (what watch_recorded does, in its two parts: the threshold and the detectors are kept here)
@@ -115,7 +134,7 @@ def main() -> None:
     low, high = clopper_pearson(alarmed, len(fresh))
     print(f"fresh ID: {alarmed} of {len(fresh)} alarmed ({alarmed / len(fresh):.1%}, 95% interval "
           f"{low:.1%}-{high:.1%}; target {args.far:.0%} at confidence 0.9)")
-    for spec in (args.variants or variants).split(","):
+    for spec in (args.variants or variants).split(";"):
         sink = MemorySink()
         firsts = watched(monitor_of(threshold, detectors, sink),
                          record(args.shifted, 90_000, args.steps, spec, args.onset), sink)
@@ -124,10 +143,12 @@ def main() -> None:
         events = [event for event in sink.alarms if event.step >= args.onset]
         firsts_named = {event.episode: event for event in reversed(events)}.values()  # each episode's first
         causes = Counter(event.cause for event in firsts_named)
-        readings = Counter(f"[{event.readings[0][0]}] ({names[event.readings[0][0]]})" for event in firsts_named
-                           if event.readings)
+        readings = Counter(f"[{event.readings[0][0]}]" + (f" ({names[event.readings[0][0]]})" if names else "")
+                           for event in firsts_named if event.readings)
+        regions = Counter(event.region.text() for event in firsts_named if event.region is not None)
         print(f"{spec} from step {args.onset}: {len(delays)} of {len(firsts)} alarmed after the onset, {early} before; "
-              f"delays {delays}; causes {dict(causes)}; first readings {dict(readings)}")
+              f"delays {delays}; causes {dict(causes)}" + (f"; first readings {dict(readings)}" if readings else "")
+              + (f"; regions {dict(regions)}" if regions else ""))
 
 
 def monitor_of(threshold, detectors, sink: MemorySink) -> Monitor:

@@ -19,9 +19,10 @@ step, the policy never run by oodmon::
             if monitor.last_step.alarm: ...    # (or callbacks=[...], called at each alarm)
         monitor.end_episode()
 
-The detectors read the observations (vectors) and the actions: the ``dynamics`` model, its
-``drift``, and ``combined`` of them. What a policy's samples give (``spread``, ``features``) needs
-the policy, which oodmon does not have here. The threshold's promise
+The detectors read the observations and the actions: of vectors, the ``dynamics`` model, its
+``drift``, and ``combined`` of them; of a camera's pictures, the camera's detectors (``frames``,
+``stillness``, their ``combined``; ``vanishing`` and ``motion`` where named). What a policy's
+samples give (``spread``, ``features``) needs the policy, which oodmon does not have here. The threshold's promise
 is the usual one (:mod:`oodmon.monitor.threshold`), over episodes like the calibration ones: they
 must be others than the fitting ones (the detectors learned those, and read them low), which the
 fitted set records by a hash of each and :func:`calibrate_on_episodes` checks; the threshold records
@@ -196,12 +197,15 @@ def fit_on_episodes(episodes: Sequence[tuple[Any, Any]], action_space: gymnasium
 
     Args:
         episodes: the recorded ID episodes, each ``(observations, actions)``: the observations the
-            policy acted on, vectors ``(T, n)`` (or ``(T + 1, n)``: the last after the last action),
-            and the action it took at each, ``(T,)`` integers of a ``Discrete`` or ``(T, n)``
-            numbers of a ``Box``. Episodes with a reading that is not finite are left out.
+            policy acted on, vectors ``(T, n)`` (or ``(T + 1, n)``: the last after the last action)
+            or a camera's pictures (bytes ``(T, H, W)``, ``(T, H, W, 3)``, or stacks ``(T, k, H,
+            W)`` whose newest frame is the last; floats of 16 pixels or more each way), and the
+            action it took at each, ``(T,)`` integers of a ``Discrete`` or ``(T, n)`` numbers of a
+            ``Box``. Episodes with a reading that is not finite are left out.
         action_space: the actions' gymnasium space: ``Discrete(n)``, read one-hot, or a ``Box``.
         detectors: the detectors to fit (default: ``dynamics``, ``drift`` and ``combined``, as in
-            an env oodmon has no variants of).
+            an env oodmon has no variants of; of pictures ``frames``, ``stillness`` and
+            ``combined``, and ``vanishing`` or ``motion`` where named).
         seed: seeds the models' fits.
         dynamics_updates: as :func:`~oodmon.monitor.detectors.fit_detectors` takes it.
         on_progress: ``on_progress(stage, done, total)`` (see :mod:`oodmon.progress`).
@@ -219,11 +223,11 @@ def fit_on_episodes(episodes: Sequence[tuple[Any, Any]], action_space: gymnasium
     checked = _checked_episodes(episodes, action_space, "episodes")
     check_max_updates(dynamics_updates, "dynamics_updates")
     seed = check_seed(seed)
-    shape = checked[0][0].shape[1:]
-    if is_picture(shape, checked[0][0].dtype):
-        raise ConfigError("the episodes' observations are pictures; oodmon fits the camera's detectors on recorded "
-                          "pictures from its own logs (`oodmon fit-detectors --from-logs`), not yet from arrays")
-    spaces = _Spaces(gymnasium.spaces.Box(-np.inf, np.inf, shape, np.float32), action_space)
+    shape, dtype = checked[0][0].shape[1:], checked[0][0].dtype
+    picture = is_picture(shape, dtype)  # a camera's: the camera's detectors read it
+    seen = gymnasium.spaces.Box(0, 255, shape, np.uint8) if picture and dtype == np.uint8 else \
+        gymnasium.spaces.Box(-np.inf, np.inf, shape, np.float32)
+    spaces = _Spaces(seen, action_space)
     # task "": a deployment oodmon has no variants of (drift fitted beside dynamics by default)
     if detectors is not None and (isinstance(detectors, str) or not isinstance(detectors, Sequence)):
         raise ConfigError(f"detectors is a list of the detectors' names (['dynamics', 'combined']); got "
@@ -235,8 +239,8 @@ def fit_on_episodes(episodes: Sequence[tuple[Any, Any]], action_space: gymnasium
                           "episodes do not hold (oodmon does not run the policy here): fit dynamics, drift or combined")
     n_actions = _checked_actions(names, _no_policy, spaces)
 
-    usable = [(observations.astype(np.float64), actions) for observations, actions in checked
-              if np.isfinite(observations).all()]
+    usable = [(observations if picture else observations.astype(np.float64), actions)
+              for observations, actions in checked if np.isfinite(observations).all()]
     if len(usable) < 3:
         raise ConfigError(f"{len(usable)} of the {len(checked)} episodes can be fitted on (every reading finite); "
                           "fitting needs at least 3 (two thirds fit, one third ranks)")

@@ -14,10 +14,10 @@ import pytest
 import oodmon
 from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
-from oodmon.monitor import (MemorySink, Threshold, calibrate_on_episodes, fit_on_episodes, validate_on_episodes,
+from oodmon.monitor import (MemorySink, Monitor, Threshold, calibrate_on_episodes, fit_on_episodes, validate_on_episodes,
                             watch_recorded)
 from oodmon.monitor.detectors import DetectorSet
-from tests.helpers import load_script, once_per_run
+from tests.helpers import RALLY, ball_pictures, load_script, once_per_run
 
 DISCRETE = gymnasium.spaces.Discrete(2)
 STEPS = 200  # each recorded episode's limit: the robot's runs
@@ -135,7 +135,6 @@ def test_box_actions_and_a_saved_set_read_back(tmp_path):
     ([(np.zeros((5, 4)), np.full(5, 0.5))], "the action at step 0"),
     ([(np.zeros((5, 4)), np.zeros((5, 2)))], "one whole number per step"),
     ([(np.array([["a"] * 4] * 5), np.zeros(5))], "must be numbers"),
-    ([(np.zeros((5, 84, 84), np.uint8), np.zeros(5))] * 3, "pictures"),
 ])
 def test_recorded_episodes_that_are_not_episodes_are_refused_naming_what(episodes, words):
     with pytest.raises(ConfigError, match=words):
@@ -257,7 +256,6 @@ def test_a_monitor_that_runs_no_policy_refuses_what_its_detectors_cannot_read(ca
 
 @pytest.mark.parametrize("bad", [np.zeros(2), np.array([np.inf]), "a"])
 def test_a_box_action_of_another_size_or_not_finite_is_refused(bad):
-    from oodmon.monitor import Monitor
     from oodmon.monitor.detectors import DynamicsDetector
     from oodmon.monitor.detectors.base import Trajectory
 
@@ -272,7 +270,8 @@ def test_a_box_action_of_another_size_or_not_finite_is_refused(bad):
             monitor.step(np.zeros(3), action=bad)
 
 
-@pytest.mark.parametrize("task, variant", [("cartpole", "cartpole:length=2.0"), ("pendulum", "pendulum:m=1.5")])
+@pytest.mark.parametrize("task, variant", [("cartpole", "cartpole:length=2.0"), ("pendulum", "pendulum:m=1.5"),
+                                           ("pong", "pong:obs.stuck=1")])
 def test_the_measuring_script_prints_its_counts(task, variant, monkeypatch, capsys):
     """scripts/recorded_deployment.py, small: its lines name the threshold, the fresh episodes'
     count with its interval, and each variant's alarms, delays and readings; of discrete actions
@@ -283,11 +282,12 @@ def test_the_measuring_script_prints_its_counts(task, variant, monkeypatch, caps
     monkeypatch.setattr(_SCRIPT, "limit_threads", lambda: None)
     _SCRIPT.main()
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0].startswith("fitted dynamics, drift, combined on 6 and calibrated on 22 recorded episodes in ")
+    fitted = "frames, stillness, combined" if task == "pong" else "dynamics, drift, combined"
+    assert lines[0].startswith(f"fitted {fitted} on 6 and calibrated on 22 recorded episodes in ")
     assert re.fullmatch(r"fresh ID: \d of 4 alarmed \(.*; target 10% at confidence 0.9\)", lines[1])
     # (fitted on 6 episodes of 80 steps, the detectors are weak: the counts are the main test's)
     assert re.fullmatch(rf"{variant} from step 50: \d of 2 alarmed after the onset, \d before; delays \[.*\]; "
-                        r"causes \{.*\}; first readings \{.*\}", lines[2]), lines[2]
+                        r"causes \{.*\}(; first readings \{.*\})?(; regions \{.*\})?", lines[2]), lines[2]
 
 
 def test_validation_counts_fresh_episodes_only(calibration):
@@ -342,3 +342,38 @@ def test_the_monitors_logs_give_back_the_records(calibration, tmp_path):
         calibrate_on_episodes(detectors, logged, far=0.1)
     assert calibrate_on_episodes(detectors, logged[:22], far=0.1).value == \
         calibrate_on_episodes(detectors, records[:22], far=0.1).value
+
+
+def _rallies(count: int, seed: int, *, noise: float = 0.0, hidden=range(0)):
+    """``count`` recorded episodes of a camera: a ball's rally (tests.helpers.ball_pictures), each
+    starting at its own column, one action of two a step; ``noise``: the pictures' pixels moved by
+    Gaussian noise of that spread; ``hidden``: columns where the ball is not seen."""
+    rng = np.random.default_rng(seed)
+    episodes = []
+    for _ in range(count):
+        start = int(rng.integers(len(RALLY)))
+        frames = ball_pictures(RALLY[start:] + RALLY[:start], hidden=hidden).observations
+        if noise:
+            frames = np.clip(frames + rng.normal(0, noise, frames.shape), 0, 255).astype(np.uint8)
+        episodes.append((frames, rng.integers(2, size=len(frames))))
+    return episodes
+
+
+def test_a_camera_is_watched_by_the_cameras_detectors():
+    """Pictures (bytes) are fitted by the camera's detectors (frames, stillness and their combined;
+    vanishing where named); a noisy camera and a frozen one alarm, fresh pictures do not. When
+    written: 0 of 20 fresh episodes alarmed (with far 0.1 at confidence 0.9, more than 6 of 20 has
+    probability under 0.003); the noisy ones at step 0, the frozen ones at step 1."""
+    fit = _rallies(9, 0)
+    detectors = fit_on_episodes(fit, DISCRETE)
+    assert list(detectors.names) == ["frames", "stillness", "combined"]
+    assert detectors.fitted_for["obs_shape"] == [20, 40]
+    threshold = calibrate_on_episodes(detectors, _rallies(22, 1), far=0.1)
+    assert validate_on_episodes(threshold, _rallies(20, 2), detectors=detectors).alarmed <= 6
+    noisy = _first_alarms(Monitor(None, threshold, detectors=detectors), _rallies(3, 3, noise=40.0))
+    frozen = [(np.repeat(frames[:1], len(frames), axis=0), actions) for frames, actions in _rallies(3, 4)]
+    still = _first_alarms(Monitor(None, threshold, detectors=detectors), frozen)
+    assert all(first is not None and first <= 5 for first in noisy), noisy
+    assert all(first is not None and first <= 5 for first in still), still
+    named = fit_on_episodes(fit, DISCRETE, detectors=["frames", "stillness", "vanishing", "combined"])
+    assert "vanishing" in named.names
