@@ -14,8 +14,8 @@ import pytest
 import oodmon
 from oodmon.envs import parse_variant
 from oodmon.errors import ConfigError
-from oodmon.monitor import (MemorySink, Monitor, Threshold, calibrate_on_episodes, fit_on_episodes, validate_on_episodes,
-                            watch_recorded)
+from oodmon.monitor import (MemorySink, Monitor, Threshold, calibrate_on_episodes, fit_on_episodes,
+                            validate_on_episodes, watch_recorded)
 from oodmon.monitor.detectors import DetectorSet
 from tests.helpers import RALLY, ball_pictures, load_script, once_per_run
 
