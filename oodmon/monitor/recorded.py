@@ -22,11 +22,13 @@ step, the policy never run by oodmon::
 The detectors read the observations and the actions: of vectors, the ``dynamics`` model, its
 ``drift``, and ``combined`` of them; of a camera's pictures, the camera's detectors (``frames``,
 ``stillness``, their ``combined``; ``vanishing`` and ``motion`` where named). What a policy's
-samples give (``spread``, ``features``) needs the policy, which oodmon does not have here. The threshold's promise
-is the usual one (:mod:`oodmon.monitor.threshold`), over episodes like the calibration ones: they
-must be others than the fitting ones (the detectors learned those, and read them low), which the
-fitted set records by a hash of each and :func:`calibrate_on_episodes` checks; the threshold records
-its own episodes' hashes, and :func:`validate_on_episodes` counts neither.
+samples give (``spread``, ``features``) needs the policy, which oodmon does not have here.
+
+The threshold's promise is the usual one (:mod:`oodmon.monitor.threshold`), over episodes like the
+calibration ones: they must be others than the fitting ones (the detectors learned those, and read
+them low), which the fitted set records by a hash of each and :func:`calibrate_on_episodes`
+checks; the threshold records its own episodes' hashes, and :func:`validate_on_episodes` counts
+neither.
 """
 
 from __future__ import annotations
@@ -127,6 +129,8 @@ def _checked_episodes(episodes: Any, action_space: gymnasium.Space, what: str,
             raise ConfigError(f"{where} has {len(observations)} observations and {len(actions)} actions: give the "
                               "action taken at each observation (as many, or one fewer where the last observation "
                               "came after the last action)")
+        if isinstance(action_space, gymnasium.spaces.Box) and action_space.shape == (1,) and actions.ndim == 1:
+            actions = actions[:, None]  # one number a step, recorded without its axis
         refusal = _action_refusal(actions, action_space)
         if refusal is not None:
             raise ConfigError(f"{where}: {refusal}")

@@ -253,15 +253,18 @@ def episodes_from_logs(logs: Sequence[str | Path | RunLog], *, last: int | None 
 
     Raises:
         ConfigError: no logs, or logs of two policies (:func:`log_episodes`); logs whose steps hold
-            pictures, not readings (fitted by ``oodmon fit-detectors --from-logs``).
+            pictures, not readings (a step's newest frame, where the policy may have observed a
+            stack of them).
         LogFormatError: a file that is not an oodmon log.
     """
     found = log_episodes(logs, last=last)
     found.check_some()
     episodes = [(np.asarray(steps[0]), np.asarray(steps[1])) for steps in _steps_of(found)]
     if any(observations.dtype == np.uint8 for observations, _ in episodes):
-        raise ConfigError("these logs' steps hold pictures, not readings: fit their detectors with `oodmon "
-                          "fit-detectors --from-logs` (oodmon.replay.fit_detectors_from_logs)")
+        raise ConfigError("these logs' steps hold pictures: a log keeps each step's newest frame, not always what "
+                          "the policy observed (a stack of frames); fit on the pictures you recorded "
+                          "(oodmon.monitor.fit_on_episodes), or, for a policy oodmon runs, `oodmon fit-detectors "
+                          "--from-logs` (oodmon.replay.fit_detectors_from_logs)")
     return episodes
 
 

@@ -121,6 +121,8 @@ def test_box_actions_and_a_saved_set_read_back(tmp_path):
     assert again.fingerprint("combined") == detectors.fingerprint("combined")
     with pytest.raises(ConfigError, match="actions are of shape \\(2,\\) each"):
         fit_on_episodes([(o, np.c_[a, a]) for o, a in episodes], env.action_space)
+    flat = fit_on_episodes([(o, a[:, 0]) for o, a in episodes], env.action_space, dynamics_updates=20)  # (T,) torques
+    assert flat.fingerprint("combined") == detectors.fingerprint("combined")
 
 
 @pytest.mark.parametrize("episodes, words", [
