@@ -414,6 +414,10 @@ def _add_validate(commands: argparse._SubParsersAction) -> None:
                                "episodes, which the bound is for)")
     validate.add_argument("--force", action="store_true", help="validate even if the threshold was made for other weights")
     _add_workers(validate, "the validation episodes")
+    validate.add_argument("--records", metavar="FILE",
+                          help="count these recorded ID episodes (an .npz, oodmon.monitor.save_records) instead of "
+                               "playing any: a threshold made from recorded episodes (oodmon.watch_recorded), of a "
+                               "deployment no env plays")
     validate.add_argument("--json", action="store_true", help="print JSON instead of a sentence")
     validate.set_defaults(handler=_validate)
 
@@ -421,6 +425,8 @@ def _add_validate(commands: argparse._SubParsersAction) -> None:
 def _validate(args: argparse.Namespace) -> int:
     from oodmon.monitor import Threshold, validate_threshold
 
+    if args.records is not None:
+        return _validate_records(args)
     threshold = Threshold.load(args.threshold)
     from_threshold = _agent_from_threshold(args, threshold, args.threshold)
     args.masks = args.masks or threshold.masks
@@ -445,23 +451,43 @@ def _validate(args: argparse.Namespace) -> int:
     return 1 if result.verdict == "above" else 0
 
 
+def _validate_records(args: argparse.Namespace) -> int:
+    """`oodmon validate THRESHOLD --records FILE`: the recorded episodes counted, none played."""
+    from oodmon.monitor import Threshold, load_records, validate_on_episodes
+
+    given = [option for option, value in (("--model", args.model), ("--sb3", args.sb3), ("--policy", args.policy),
+                                          ("--task", args.task), ("--method", args.method)) if value]
+    if given:
+        raise ConfigError(f"--records counts recorded episodes of the threshold's deployment, which oodmon does not "
+                          f"run: leave out {', '.join(given)}")
+    threshold = Threshold.load(args.threshold)
+    with _progress() as report:
+        result = validate_on_episodes(args.threshold, load_records(args.records), on_progress=report)
+    _print_validation(args, None, threshold, result)
+    return 1 if result.verdict == "above" else 0
+
+
 def _print_validation(args: argparse.Namespace, agent, threshold, result, *, interrupted: bool = False) -> None:
     """``validate``'s answer: its JSON (``--json``) or its line(s), of ``result``; ``interrupted``: a
     count of the episodes played whole before Ctrl-C or SIGTERM, said so first."""
     from oodmon.side_by_side import resolve_workers
 
     unit = "episodes" if threshold.mode == "episode" else "steps"
+    # (agent None: the recorded episodes of a deployment oodmon does not run, `--records`)
+    task, method = (agent.task, agent.method) if agent is not None else (None, None)
+    label = f"{task}/{method}" if agent is not None else f"the recorded episodes of {args.records}"
+    seed = args.seed if agent is not None else None
     noise = result.obs_noise  # (the threshold's, unless --obs-noise)
     stretches = result.stretches
     if args.json:
-        print(json.dumps({"threshold": str(args.threshold), "task": agent.task, "method": agent.method,
+        print(json.dumps({"threshold": str(args.threshold), "task": task, "method": method,
                           "detector": threshold.detector, "rule": threshold.rule_text, "unit": unit,
                           "alarmed": result.alarmed, "total": result.total, "rate": result.rate,
                           "interval95": [result.low, result.high], "design_effect": result.design_effect,
                           "far": result.far,
-                          "confidence": result.confidence, "seed": args.seed, "obs_noise": noise,
+                          "confidence": result.confidence, "seed": seed, "obs_noise": noise,
                           "calibrated_obs_noise": threshold.calibration_noise,  # the world the bound is for
-                          "workers": resolve_workers(args.workers, args.episodes),  # those that played them
+                          "workers": resolve_workers(args.workers, args.episodes) if agent is not None else None,
                           "steps": result.steps, "alarms": result.alarms, "max_steps": result.max_steps,
                           "stretches": None if stretches is None else {
                               "length": stretches.length, "alarmed": stretches.alarmed, "total": stretches.total,
@@ -476,7 +502,7 @@ def _print_validation(args: argparse.Namespace, agent, threshold, result, *, int
                    "consistent": "consistent with the target (the interval holds it)"}[result.verdict]
         said = (f"interrupted: of the {args.episodes:,} episodes asked for, the first {result.episodes:,} were played "
                 "whole, and are counted here\n" if interrupted else "")
-        said += (f"{agent.task}/{agent.method}, {threshold.detector} detector, alarm when {threshold.rule_text}: "
+        said += (f"{label}, {threshold.detector} detector, alarm when {threshold.rule_text}: "
                 f"{result.alarmed} of {result.total} fresh ID {unit}{_up_to(result.max_steps)}{_noise(noise)}"
                 f"{_other_noise(threshold, noise)} "
                 f"alarmed, {result.rate:.1%} (95% interval {result.low:.1%}-{result.high:.1%}"

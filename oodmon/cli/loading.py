@@ -66,9 +66,9 @@ def _agent_from_threshold(args: argparse.Namespace, threshold, name: str) -> boo
     if args.task is None and threshold.episode_hashes is not None:  # (oodmon.watch_recorded's)
         raise ConfigError(f"{name} was calibrated on episodes you recorded, of a deployment no env plays "
                           "(oodmon.watch_recorded): there is no env to play here, nor the policy; check it on fresh "
-                          f"records with oodmon.monitor.validate_on_episodes({str(name)!r}, episodes), and watch with "
-                          f"oodmon.watch_recorded(threshold={str(name)!r}) in your own loop (or give --policy "
-                          "MODULE:NAME --env ID where an env does play it)")
+                          f"records with `oodmon validate {name} --records FILE` (oodmon.monitor.validate_on_episodes), "
+                          f"and watch with oodmon.watch_recorded(threshold={str(name)!r}) in your own loop (or give "
+                          "--policy MODULE:NAME --env ID where an env does play it)")
     if args.task is None:
         raise ConfigError(f"{name} does not record its task; give --task")
     # a threshold records the task, which names the env oodmon has variants of (cartpole: CartPole-v1)

@@ -66,6 +66,8 @@ __all__ = [
     "episode_statistic",
     "fit_on_episodes",
     "id_episode_scores",
+    "load_records",
+    "save_records",
     "score_function",
     "stop_on_sigterm",
     "validate_on_episodes",
@@ -95,6 +97,8 @@ _LAZY = {
     "ExplorationWarning": "oodmon.monitor.sb3_callback",
     "calibrate_on_episodes": "oodmon.monitor.recorded",
     "fit_on_episodes": "oodmon.monitor.recorded",
+    "load_records": "oodmon.monitor.recorded",
+    "save_records": "oodmon.monitor.recorded",
     "validate_on_episodes": "oodmon.monitor.recorded",
     "watch_recorded": "oodmon.monitor.recorded",
 }

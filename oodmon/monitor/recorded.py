@@ -53,7 +53,8 @@ from oodmon.monitor.threshold import DEFAULT_CONFIDENCE, Threshold
 from oodmon.progress import Progress
 from oodmon.seeds import DETECTOR_FIT, check_seed
 
-__all__ = ["calibrate_on_episodes", "episode_hash", "fit_on_episodes", "validate_on_episodes", "watch_recorded"]
+__all__ = ["calibrate_on_episodes", "episode_hash", "fit_on_episodes", "load_records", "save_records",
+           "validate_on_episodes", "watch_recorded"]
 
 #: The detectors that read the policy at each step, which oodmon does not run here.
 POLICY_READ = ("spread", "features", "scaled_spread")
@@ -90,22 +91,17 @@ def episode_hash(observations: np.ndarray, actions: np.ndarray) -> str:
     return digest.hexdigest()[:16]
 
 
-def _checked_episodes(episodes: Any, action_space: gymnasium.Space, what: str,
-                      shape: tuple[int, ...] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``episodes`` as ``(observations, actions)`` arrays, each action checked against
-    ``action_space`` and the observations of one shape (``shape``, where given); ``what`` names
-    them in an error (``fit_episodes``).
+def _checked_pairs(episodes: Any, what: str) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``episodes`` as ``(observations, actions)`` arrays of numbers; ``what`` names them in an error.
 
     Raises:
-        ConfigError: no episodes; an episode that is not a pair of arrays; observations of no step or
-            of two shapes; as many actions as neither the observations nor one fewer; an action that
-            is not of ``action_space``.
+        ConfigError: no episodes, or an episode that is not a pair of arrays of numbers.
     """
     if isinstance(episodes, (str, bytes, Path, np.ndarray)) or not isinstance(episodes, Sequence) or not episodes:
         empty = isinstance(episodes, Sequence) and not episodes
         raise ConfigError(f"{what} is a list of episodes, each (observations, actions) as arrays; got "
                           f"{type(episodes).__name__}{' (empty)' if empty else ''}")
-    checked = []
+    pairs = []
     for index, episode in enumerate(episodes):
         where = f"episode {index} of {what}"
         if not isinstance(episode, (tuple, list)) or len(episode) != 2:
@@ -118,6 +114,24 @@ def _checked_episodes(episodes: Any, action_space: gymnasium.Space, what: str,
         if observations.dtype.kind not in "biuf" or actions.dtype.kind not in "biuf":
             raise ConfigError(f"{where}: its observations and actions must be numbers; got arrays of "
                               f"{observations.dtype} and {actions.dtype}")
+        pairs.append((observations, actions))
+    return pairs
+
+
+def _checked_episodes(episodes: Any, action_space: gymnasium.Space, what: str,
+                      shape: tuple[int, ...] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``episodes`` as ``(observations, actions)`` arrays, each action checked against
+    ``action_space`` and the observations of one shape (``shape``, where given); ``what`` names
+    them in an error (``fit_episodes``).
+
+    Raises:
+        ConfigError: no episodes; an episode that is not a pair of arrays; observations of no step or
+            of two shapes; as many actions as neither the observations nor one fewer; an action that
+            is not of ``action_space``.
+    """
+    checked = []
+    for index, (observations, actions) in enumerate(_checked_pairs(episodes, what)):
+        where = f"episode {index} of {what}"
         if observations.ndim < 2 or len(observations) < 2:
             raise ConfigError(f"{where}: its observations are of shape {observations.shape}; give one row per step, "
                               "two steps at least ((T, ...), T >= 2)")
@@ -336,6 +350,56 @@ def validate_on_episodes(threshold: Threshold | str | Path, episodes: Sequence[t
                  "it is not fresh, and would read low; validate on episodes neither saw")
     scored = _scored(detectors, checked, "validation episodes", on_progress, threshold=threshold)
     return _counted(scored, threshold, 0.0, None)
+
+
+def save_records(path: str | Path, episodes: Sequence[tuple[Any, Any]]) -> Path:
+    """Write recorded episodes, each ``(observations, actions)``, to ``path`` (an ``.npz`` of arrays
+    ``observations_<i>`` and ``actions_<i>``, no pickles): what :func:`load_records` and the
+    commands' ``--records`` read.
+
+    Raises:
+        ConfigError: episodes that are not pairs of arrays of numbers (see :func:`fit_on_episodes`).
+    """
+    checked = _checked_pairs(episodes, "episodes")
+    arrays = {}
+    for index, (observations, actions) in enumerate(checked):
+        arrays[f"observations_{index}"], arrays[f"actions_{index}"] = observations, actions
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as file:  # (np.savez adds .npz to a name without it)
+        np.savez(file, **arrays)
+    return path
+
+
+def load_records(path: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The recorded episodes :func:`save_records` wrote to ``path``, in their order (read without
+    unpickling: an array of Python objects is refused).
+
+    Raises:
+        ConfigError: a missing or unreadable file, or one that is not such records.
+    """
+    import zipfile
+
+    try:
+        data = np.load(path, allow_pickle=False)
+        if not isinstance(data, np.lib.npyio.NpzFile):  # (one array, an .npy)
+            raise ValueError("it holds one array")
+        with data:
+            arrays = {name: data[name] for name in data.files}
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file of recorded episodes (oodmon.monitor.save_records writes "
+                          "one)") from None
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+        raise ConfigError(f"{path} is not a file of recorded episodes (an .npz of observations_<i> and "
+                          f"actions_<i>, as oodmon.monitor.save_records writes): {error}") from None
+    count = sum(name.startswith("observations_") for name in arrays)
+    expected = {f"{part}_{index}" for index in range(count) for part in ("observations", "actions")}
+    if not count or set(arrays) != expected:
+        held = ", ".join(sorted(arrays)[:4]) + (", ..." if len(arrays) > 4 else "")
+        raise ConfigError(f"{path} is not a file of recorded episodes: it holds {held or 'nothing'}, not "
+                          "observations_<i> and actions_<i> of each episode i from 0 (oodmon.monitor.save_records "
+                          "writes them)")
+    return [(arrays[f"observations_{index}"], arrays[f"actions_{index}"]) for index in range(count)]
 
 
 def _check_fresh(episodes: list[tuple[np.ndarray, np.ndarray]], use: str, made_from: dict[str, Any],

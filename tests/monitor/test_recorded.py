@@ -318,7 +318,7 @@ def test_the_commands_say_where_a_recorded_threshold_is_checked(calibration, cap
     for argv in (["validate", calibration, "--episodes", "5"], ["run", "--threshold", calibration, "--episodes", "1"]):
         assert main(argv) == 2
         error = capsys.readouterr().err
-        assert "was calibrated on episodes you recorded" in error and "validate_on_episodes(" in error, error
+        assert "was calibrated on episodes you recorded" in error and "--records FILE" in error, error
     (tmp_path / "robot_policy.py").write_text(
         "def act(obs):\n    return int(obs[2] + 0.5 * obs[3] + 0.01 * obs[0] + 0.1 * obs[1] > 0)\n")
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -379,3 +379,33 @@ def test_a_camera_is_watched_by_the_cameras_detectors():
     assert all(first is not None and first <= 5 for first in still), still
     named = fit_on_episodes(fit, DISCRETE, detectors=["frames", "stillness", "vanishing", "combined"])
     assert "vanishing" in named.names
+
+
+def test_records_saved_read_back_and_validated_by_the_command(calibration, tmp_path, capsys):
+    """save_records / load_records round-trip the arrays (no pickles); `oodmon validate THRESHOLD
+    --records FILE` counts them as validate_on_episodes does, its JSON too; files that are not
+    records, and a policy beside --records, are refused."""
+    from oodmon.cli import main
+    from oodmon.monitor import load_records, save_records
+
+    fresh = _record(12, 80_000)
+    path = save_records(tmp_path / "fresh", fresh)  # (the name kept as given, no .npz added)
+    assert path == tmp_path / "fresh" and all(np.array_equal(o, p) and np.array_equal(a, q)
+                                              for (o, a), (p, q) in zip(fresh, load_records(path)))
+    expected = validate_on_episodes(calibration, fresh)
+    assert main(["validate", calibration, "--records", str(path), "--json"]) in (0, 1)
+    said = json.loads(capsys.readouterr().out)
+    assert (said["alarmed"], said["total"], said["verdict"]) == (expected.alarmed, 12, expected.verdict)
+    assert main(["validate", calibration, "--records", str(path)]) == (1 if expected.verdict == "above" else 0)
+    assert f"the recorded episodes of {path}, combined detector" in capsys.readouterr().out
+    np.savez(tmp_path / "other.npz", x=np.zeros(3))
+    np.save(tmp_path / "objects.npy", np.array([object()]), allow_pickle=True)
+    np.save(tmp_path / "numbers.npy", np.zeros(3))
+    (tmp_path / "text.npz").write_text("observations_0")
+    for bad, words in ((tmp_path / "other.npz", "holds x, not observations_<i>"), (tmp_path / "objects.npy", "not"),
+                       (tmp_path / "numbers.npy", "it holds one array"), (tmp_path / "text.npz", "not a file of"),
+                       (tmp_path / "missing.npz", "no such file")):
+        with pytest.raises(ConfigError, match=words):
+            load_records(bad)
+    assert main(["validate", calibration, "--records", str(path), "--task", "cartpole"]) == 2
+    assert "leave out --task" in capsys.readouterr().err
