@@ -15,8 +15,9 @@ from rich.markup import escape
 from oodmon.cli.display import _clustered, _progress
 from oodmon.cli.loading import _agent_from_threshold, _check_agent_from_threshold, _detectors, _input_files, _load_agent
 from oodmon.cli.parsing import (
-    _FIT_DEFAULT, _KEPT, _MAX_UPDATES, _SEED, _add_confidence, _add_dynamics_updates, _add_rule, _add_workers,
-    _STEP_COUNT, _WARMUP, _add_explore, _add_reading_names, _agent_arguments, _fraction, _non_negative, _whole,
+    _FIT_DEFAULT, _KEPT, _MAX_UPDATES, _SEED, _STEP_COUNT, _WARMUP, _action_space, _add_confidence,
+    _add_dynamics_updates, _add_explore, _add_reading_names, _add_rule, _add_workers, _agent_arguments, _fraction,
+    _non_negative, _whole,
 )
 from oodmon.errors import ConfigError, unknown
 from oodmon.monitor.stopping import stops_held
@@ -73,6 +74,14 @@ def _add_calibrate(commands: argparse._SubParsersAction) -> None:
                               "runs are longer (the bound is for episodes like the calibration's); recorded in the "
                               "threshold for validate and run; detectors calibrate fits are fitted on such episodes too")
     promise.add_argument("--out", required=True, help="the threshold file to write (JSON)")
+    records = calibrate.add_argument_group(
+        "a deployment no env plays (oodmon.watch_recorded): its recorded episodes, none played")
+    records.add_argument("--records", metavar="FILE",
+                         help="the ID episodes to fit the detectors on (an .npz, oodmon.monitor.save_records)")
+    records.add_argument("--calibration-records", metavar="FILE",
+                         help="other ID episodes, to calibrate the alarm on (with --records)")
+    records.add_argument("--action-space", type=_action_space, metavar="SPACE",
+                         help="their actions: discrete:N (N actions, 0 to N - 1) or box:N (N numbers a step)")
     _add_reading_names(calibrate, default="none recorded: an env whose layout is known, a dict observation's keys, "
                                           "are named without", then="; the threshold keeps them, and `oodmon run` "
                                           "with it names its alarms' readings by them")
@@ -115,6 +124,57 @@ def _refuse_fit_options(args: argparse.Namespace) -> None:
                       "--detectors DIR")
 
 
+def _calibrate_records(args: argparse.Namespace) -> int:
+    """`oodmon calibrate --records FIT --calibration-records CAL --action-space SPACE`: a deployment
+    no env plays, its detectors fitted on recorded episodes and its alarm calibrated on others
+    (:func:`oodmon.monitor.recorded.watch_recorded`'s parts), no episode played."""
+    from oodmon.monitor import Threshold, calibrate_on_episodes, fit_on_episodes, load_records
+    from oodmon.monitor.calibration import save_calibration
+    from oodmon.monitor.threshold import conformal_rank
+    from oodmon.outputs import check_output_dir, check_output_file, replaced_file
+
+    played = [flag for flag, value, default in (
+        ("--model", args.model, None), ("--sb3", args.sb3, None), ("--policy", args.policy, None),
+        ("--task", args.task, None), ("--method", args.method, None), ("--detectors", args.detectors, None),
+        ("--episodes", args.episodes, 50), ("--seed", args.seed, CALIBRATION), ("--workers", args.workers, 1),
+        ("--obs-noise", args.obs_noise, 0.0), ("--max-steps", args.max_steps, None),
+        ("--score", args.score, "chosen_std"), ("--mode", args.mode, "episode"), ("--rule", args.rule, "consecutive"),
+        ("--fit-episodes", args.fit_episodes, None), ("--fit-explore", args.fit_explore, 0.0))
+        if value != default]
+    if played:
+        raise ConfigError(f"--records fits and calibrates on recorded episodes of a deployment oodmon does not run: "
+                          f"leave out {', '.join(played)} (they shape played episodes, or the policy)")
+    if args.calibration_records is None or args.action_space is None:
+        raise ConfigError("--records (the fitting episodes) goes with --calibration-records (other episodes, the "
+                          "alarm's) and --action-space (discrete:N or box:N)")
+    check_output_file(args.out, parameter="--out", inputs=[("a file it reads", args.records),
+                                                          ("a file it reads", args.calibration_records)])
+    replaced = replaced_file(args.out, parameter="--out", holds="threshold", read=Threshold.load)
+    folder = Path(f"{args.out}.detectors")
+    check_output_dir(folder, parameter="--out (its detectors folder)", create=False)
+    fit, calibration = load_records(args.records), load_records(args.calibration_records)
+    conformal_rank(len(calibration), args.far, args.confidence)  # too few: said before the fit
+    with _progress() as report:
+        detectors = fit_on_episodes(fit, args.action_space, dynamics_updates=args.dynamics_updates,
+                                    on_progress=report)
+        threshold = calibrate_on_episodes(detectors, calibration, args.far, detector=args.detector,
+                                          confidence=args.confidence, consecutive=args.consecutive,
+                                          window=args.window, warmup=args.warmup, reading_names=args.reading_names,
+                                          on_progress=report)
+    with stops_held():
+        save_calibration(threshold, args.out, detectors)
+    Console(soft_wrap=True).print(
+        f"recorded episodes: alarm when {threshold.rule_text} ({threshold.detector} detector of "
+        f"{', '.join(detectors.names)}, fitted on the {len(fit)} episodes of {args.records} and calibrated on the "
+        f"{threshold.n_episodes} of {args.calibration_records}, {threshold.n_steps} steps, rank {threshold.rank} of "
+        f"{threshold.n_episodes}; ID score median {threshold.quantiles['q50']:.4g}, max "
+        f"{threshold.quantiles['max']:.4g}); {threshold.promise}{escape(_names_said(threshold))}; wrote {args.out}"
+        + (f" (replacing the threshold it held: alarm when {replaced.rule_text})" if replaced else "")
+        + f" and the detectors into {folder}; `oodmon validate {args.out} --records FILE` counts fresh records, "
+        f"and oodmon.watch_recorded(threshold={str(args.out)!r}) watches in your own loop")
+    return 0
+
+
 def _calibrate(args: argparse.Namespace) -> int:
     from oodmon.monitor import Threshold, calibrate_agent
     from oodmon.monitor.calibration import save_calibration
@@ -126,6 +186,10 @@ def _calibrate(args: argparse.Namespace) -> int:
     from oodmon.monitor.threshold import conformal_rank
     from oodmon.outputs import check_output_dir, check_output_file, replaced_file
 
+    if args.records is not None:
+        return _calibrate_records(args)
+    if args.calibration_records is not None or args.action_space is not None:
+        raise ConfigError("--calibration-records and --action-space go with --records (recorded episodes to fit on)")
     check_output_file(args.out, parameter="--out", inputs=_input_files(args))
     replaced = replaced_file(args.out, parameter="--out", holds="threshold", read=Threshold.load)  # before any episode
     if args.mode == "episode":

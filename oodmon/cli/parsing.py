@@ -177,6 +177,25 @@ def _add_explore(parser: argparse._ActionsContainer, flag: str, when: str) -> No
                              "policy's own actions (docs/your-policy.md)")
 
 
+def _action_space(text: str):
+    """``--action-space``: ``discrete:N`` (N actions, 0 to N - 1) or ``box:N`` (N numbers a step), a
+    gymnasium space.
+
+    Example:
+        >>> _action_space("discrete:2"), _action_space("box:1").shape
+        (Discrete(2), (1,))
+    """
+    import gymnasium
+    import numpy as np
+
+    kind, _, size = text.partition(":")
+    if kind in ("discrete", "box") and size.isdigit() and int(size) >= (2 if kind == "discrete" else 1):
+        return gymnasium.spaces.Discrete(int(size)) if kind == "discrete" else \
+            gymnasium.spaces.Box(-np.inf, np.inf, (int(size),), np.float32)
+    raise argparse.ArgumentTypeError(f"{text!r} is no action space: give discrete:N (N >= 2 actions, 0 to N - 1) or "
+                                     "box:N (N >= 1 numbers a step)")
+
+
 def _reading_names(text: str) -> list[str]:
     """``--reading-names``: comma-separated names, each stripped (``'x, v'``: ``['x', 'v']``)."""
     return [name.strip() for name in text.split(",")]

@@ -409,3 +409,33 @@ def test_records_saved_read_back_and_validated_by_the_command(calibration, tmp_p
             load_records(bad)
     assert main(["validate", calibration, "--records", str(path), "--task", "cartpole"]) == 2
     assert "leave out --task" in capsys.readouterr().err
+
+
+def test_the_command_fits_and_calibrates_on_records(tmp_path, capsys):
+    """`oodmon calibrate --records FIT --calibration-records CAL --action-space discrete:2` writes the
+    threshold and its detectors as watch_recorded(save=...) does (the same threshold and fit, the
+    same episodes); options that shape played episodes or name a policy are refused beside it."""
+    from oodmon.cli import main
+    from oodmon.monitor import save_records
+
+    fit, calibration = save_records(tmp_path / "fit.npz", _record(9, 0)), save_records(tmp_path / "cal.npz",
+                                                                                         _record(22, 1000))
+    argv = ["calibrate", "--records", str(fit), "--calibration-records", str(calibration), "--action-space",
+            "discrete:2", "--far", "0.1", "--dynamics-updates", "50", "--out", str(tmp_path / "cli.json")]
+    assert main(argv) == 0
+    said = capsys.readouterr().out
+    assert said.startswith("recorded episodes: alarm when score > ") and "fitted on the 9 episodes of" in said
+    made = Threshold.load(tmp_path / "cli.json")
+    detectors = fit_on_episodes(_record(9, 0), DISCRETE, dynamics_updates=50)
+    expected = calibrate_on_episodes(detectors, _record(22, 1000), far=0.1)
+    assert (made.value, made.detectors_hash) == (expected.value, expected.detectors_hash)
+    assert DetectorSet.load(tmp_path / "cli.json.detectors").fingerprint("combined") == detectors.fingerprint("combined")
+    for extra, words in ((["--task", "cartpole"], "leave out --task"), (["--episodes", "30"], "leave out --episodes"),
+                         (["--far", "0.01"], "needs at least 230 ID calibration episodes")):
+        assert main(argv + extra) == 2
+        assert words in capsys.readouterr().err
+    assert main(["calibrate", "--records", str(fit), "--out", str(tmp_path / "x.json")]) == 2
+    assert "goes with --calibration-records" in capsys.readouterr().err
+    assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--action-space", "box:1",
+                 "--out", str(tmp_path / "x.json")]) == 2
+    assert "go with --records" in capsys.readouterr().err and not (tmp_path / "x.json").exists()
