@@ -225,10 +225,9 @@ def test_the_docs_block_runs_as_written(tmp_path, monkeypatch, capsys):
     block = re.search(r"```python\n(.*?)```", text[text.index("## A deployment oodmon cannot play"):], re.S).group(1)
     monkeypatch.chdir(tmp_path)
     (tmp_path / "runs").mkdir()
-    arrays = {}
-    for index, (observations, actions) in enumerate(_record(120, 0)):
-        arrays[f"obs_{index}"], arrays[f"act_{index}"] = observations, actions
-    np.savez("runs/robot_records.npz", **arrays)
+    from oodmon.monitor import save_records
+
+    save_records("runs/robot_records.npz", _record(120, 0))
     exec(compile(block, "docs/your-policy.md's block", "exec"), {"robot": _StandInRobot()})
     assert Threshold.load("runs/robot.json").n_episodes == 30
     checked, alarm = capsys.readouterr().out.splitlines()
