@@ -116,6 +116,15 @@ def check_max_updates(max_updates: Any, name: str = "max_updates") -> None:
                                     "(every epoch)")
 
 
+def _numbers(value: Any) -> np.ndarray:
+    """``value`` as float64 numbers, or an empty array where it is none (text, ``None``, ragged lists)."""
+    try:
+        array = np.asarray(value)
+    except ValueError:  # (ragged lists)
+        return np.empty(0)
+    return array.astype(np.float64) if array.dtype.kind in "biuf" else np.empty(0)
+
+
 def min_logvar_for(task: str | None) -> float:
     """The floor of the predicted log-variance for ``task``'s dynamics detector.
 
@@ -229,16 +238,16 @@ class DynamicsDetector(Detector):
             >>> DynamicsDetector(2).action_refusal(2)
             'is not one of the 2 discrete actions (0 to 1) the dynamics model was fitted on'
         """
-        try:
-            value = np.asarray(action)
-        except ValueError:  # (ragged lists)
-            value = np.full(0, np.nan)
-        value = value.astype(np.float64) if value.dtype.kind in "biuf" else np.full(0, np.nan)  # (not text, not None)
         if self.n_actions is not None:
-            number = value.reshape(-1)[0] if value.size == 1 else math.nan
-            whole = math.isfinite(number) and number == round(number) and 0 <= number < self.n_actions
+            if isinstance(action, (int, np.integer)):  # (the common case, at every step: 5 us less than below)
+                whole = 0 <= action < self.n_actions
+            else:
+                value = _numbers(action)
+                number = value.reshape(-1)[0] if value.size == 1 else math.nan
+                whole = math.isfinite(number) and number == round(number) and 0 <= number < self.n_actions
             return None if whole else (f"is not one of the {self.n_actions} discrete actions (0 to "
                                        f"{self.n_actions - 1}) the dynamics model was fitted on")
+        value = _numbers(action)
         size = len(self._norm["act_mean"]) if self.fitted else value.size
         if value.size != size or not np.isfinite(value).all():
             return (f"is not {size} finite number{'s' if size > 1 else ''}, as the actions the dynamics model was "
