@@ -849,13 +849,14 @@ class Monitor:
         the dynamics model cannot read, given to a monitor that runs no policy (``Monitor(None)``):
         said naming the step, not as numpy's error deep in a detector, nor scored as something else
         (a discrete action past the last read as another)."""
-        where = f"at step {self._length} of episode {self.episode}"
-        if np.shape(obs) != self._watched_shape:
-            raise ConfigError(f"the observation {where} is of shape {np.shape(obs)}; the detectors were fitted on "
-                              f"observations of shape {self._watched_shape}")
+        shape = obs.shape if type(obs) is np.ndarray else np.shape(obs)
+        if shape != self._watched_shape:
+            raise ConfigError(f"the observation at step {self._length} of episode {self.episode} is of shape {shape}; "
+                              f"the detectors were fitted on observations of shape {self._watched_shape}")
         refusal = None if self._watched_actions is None else self._watched_actions(action)
         if refusal is not None:
-            raise ConfigError(f"the action given {where}, {_shown(action)}, {refusal}")
+            raise ConfigError(f"the action given at step {self._length} of episode {self.episode}, {_shown(action)}, "
+                              f"{refusal}")
 
     def add_reward(self, reward: float) -> None:
         """The reward of the step just taken (one call per step: replay reads the rewards per step)."""
