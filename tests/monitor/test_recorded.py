@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import warnings
 from pathlib import Path
 
 import gymnasium
@@ -17,7 +18,11 @@ from oodmon.errors import ConfigError
 from oodmon.monitor import (MemorySink, Monitor, Threshold, calibrate_on_episodes, fit_on_episodes,
                             validate_on_episodes, watch_recorded)
 from oodmon.monitor.detectors import DetectorSet
+from oodmon.monitor.recorded import FewRecordedStepsWarning
 from tests.helpers import RALLY, ball_pictures, load_script, once_per_run
+
+# (the tests fit on few recorded steps on purpose: the warning of it is tested once, below)
+pytestmark = pytest.mark.filterwarnings("ignore::oodmon.monitor.recorded.FewRecordedStepsWarning")
 
 DISCRETE = gymnasium.spaces.Discrete(2)
 STEPS = 200  # each recorded episode's limit: the robot's runs
@@ -94,7 +99,9 @@ def test_the_alarm_names_its_readings_and_the_log_keeps_the_episodes(calibration
 
 def test_a_calibration_on_the_fitting_episodes_is_refused():
     fit = _record(6, 0)
-    detectors = fit_on_episodes(fit, DISCRETE, dynamics_updates=20)
+    with pytest.warns(FewRecordedStepsWarning, match="fitted on 1,200 recorded steps .6 episodes., fewer than the "
+                                                     "45,000"):
+        detectors = fit_on_episodes(fit, DISCRETE, dynamics_updates=20)
     assert list(detectors.names) == ["dynamics", "drift", "combined"]
     assert detectors.fitted_for["action_space"] == {"discrete": 2} and len(detectors.fitted_for["episode_hashes"]) == 6
     with pytest.raises(ConfigError, match="episode 20 of the calibration episodes .2 in all. is one the detectors"):
@@ -366,7 +373,9 @@ def test_a_camera_is_watched_by_the_cameras_detectors():
     written: 0 of 20 fresh episodes alarmed (with far 0.1 at confidence 0.9, more than 6 of 20 has
     probability under 0.003); the noisy ones at step 0, the frozen ones at step 1."""
     fit = _rallies(9, 0)
-    detectors = fit_on_episodes(fit, DISCRETE)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FewRecordedStepsWarning)  # (no dynamics model: none said)
+        detectors = fit_on_episodes(fit, DISCRETE)
     assert list(detectors.names) == ["frames", "stillness", "combined"]
     assert detectors.fitted_for["obs_shape"] == [20, 40]
     threshold = calibrate_on_episodes(detectors, _rallies(22, 1), far=0.1)
