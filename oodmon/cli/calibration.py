@@ -138,7 +138,7 @@ def _calibrate_records(args: argparse.Namespace) -> int:
         ("--task", args.task, None), ("--method", args.method, None), ("--detectors", args.detectors, None),
         ("--episodes", args.episodes, 50), ("--seed", args.seed, CALIBRATION), ("--workers", args.workers, 1),
         ("--obs-noise", args.obs_noise, 0.0), ("--max-steps", args.max_steps, None),
-        ("--score", args.score, "chosen_std"), ("--mode", args.mode, "episode"), ("--rule", args.rule, "consecutive"),
+        ("--score", args.score, "chosen_std"), ("--rule", args.rule, "consecutive"),
         ("--fit-episodes", args.fit_episodes, None), ("--fit-explore", args.fit_explore, 0.0))
         if value != default]
     if played:
@@ -153,22 +153,23 @@ def _calibrate_records(args: argparse.Namespace) -> int:
     folder = Path(f"{args.out}.detectors")
     check_output_dir(folder, parameter="--out (its detectors folder)", create=False)
     fit, calibration = load_records(args.records), load_records(args.calibration_records)
-    conformal_rank(len(calibration), args.far, args.confidence)  # too few: said before the fit
+    if args.mode == "episode":  # too few: said before the fit
+        conformal_rank(len(calibration), args.far, args.confidence)
     with _progress() as report:
         detectors = fit_on_episodes(fit, args.action_space, dynamics_updates=args.dynamics_updates,
                                     on_progress=report)
         threshold = calibrate_on_episodes(detectors, calibration, args.far, detector=args.detector,
                                           confidence=args.confidence, consecutive=args.consecutive,
-                                          window=args.window, warmup=args.warmup, reading_names=args.reading_names,
-                                          on_progress=report)
+                                          window=args.window, warmup=args.warmup, mode=args.mode,
+                                          reading_names=args.reading_names, on_progress=report)
     with stops_held():
         save_calibration(threshold, args.out, detectors)
     Console(soft_wrap=True).print(
         f"recorded episodes: alarm when {threshold.rule_text} ({threshold.detector} detector of "
-        f"{', '.join(detectors.names)}, fitted on the {len(fit)} episodes of {args.records} and calibrated on the "
-        f"{threshold.n_episodes} of {args.calibration_records}, {threshold.n_steps} steps, rank {threshold.rank} of "
-        f"{threshold.n_episodes}; ID score median {threshold.quantiles['q50']:.4g}, max "
-        f"{threshold.quantiles['max']:.4g}); {threshold.promise}{escape(_names_said(threshold))}; wrote {args.out}"
+        f"{', '.join(detectors.names)}, {threshold.mode} mode, fitted on the {len(fit)} episodes of {args.records} "
+        f"and calibrated on the {threshold.n_episodes} of {args.calibration_records}, {threshold.n_steps} steps, rank "
+        f"{threshold.rank} of {threshold.n_episodes if threshold.mode == 'episode' else threshold.n_steps}; ID score "
+        f"median {threshold.quantiles['q50']:.4g}, max {threshold.quantiles['max']:.4g}); {threshold.promise}{escape(_names_said(threshold))}; wrote {args.out}"
         + (f" (replacing the threshold it held: alarm when {replaced.rule_text})" if replaced else "")
         + f" and the detectors into {folder}; `oodmon validate {args.out} --records FILE` counts fresh records, "
         f"and oodmon.watch_recorded(threshold={str(args.out)!r}) watches in your own loop")

@@ -43,7 +43,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from oodmon.errors import ConfigError
+from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor.alarms import AlarmEvent
 from oodmon.monitor.calibration import Validation, _counted
 from oodmon.monitor.detectors.dynamics import MAX_UPDATES, check_max_updates
@@ -285,15 +285,18 @@ def fit_on_episodes(episodes: Sequence[tuple[Any, Any]], action_space: gymnasium
 def calibrate_on_episodes(detectors: DetectorSet, episodes: Sequence[tuple[Any, Any]], far: float = 0.05, *,
                           detector: str | None = None,
                           confidence: float | None = DEFAULT_CONFIDENCE, consecutive: int | None = None,
-                          window: int | None = None, warmup: int = 0, reading_names: Sequence[str] | None = None,
+                          window: int | None = None, warmup: int = 0, mode: str = "episode",
+                          reading_names: Sequence[str] | None = None,
                           on_progress: Progress | None = None) -> Threshold:
     """The alarm threshold of a deployment oodmon cannot play, calibrated on recorded ID
     ``episodes`` (each ``(observations, actions)``, as :func:`fit_on_episodes` takes them) that
     ``detectors`` were not fitted on: each is scored step by step by a :class:`Monitor` of those
     detectors, as the deployment's steps will be, and the threshold is the one
     :func:`~oodmon.monitor.calibrate` makes of those scores (``far``, ``confidence``,
-    ``consecutive``, ``window``, ``warmup`` as there; with probability ``confidence`` its
-    false-alarm rate over episodes like these is at most ``far``).
+    ``consecutive``, ``window``, ``warmup`` and ``mode`` as there; with probability ``confidence``
+    its false-alarm rate over episodes like these is at most ``far``). ``mode="step"`` bounds the
+    share of steps above it instead (each episode a cluster of steps): a deployment that runs on
+    without episodes, its record cut into stretches.
 
     ``detector``: the one the alarm reads (default ``combined`` where fitted, else the set's last).
     ``reading_names``: the name of each number of the observations, recorded in the threshold (see
@@ -306,7 +309,7 @@ def calibrate_on_episodes(detectors: DetectorSet, episodes: Sequence[tuple[Any, 
     """
     from oodmon.monitor.alarms import default_consecutive, default_window
     from oodmon.monitor.monitor import check_reading_names
-    from oodmon.monitor.threshold import calibrate, conformal_rank
+    from oodmon.monitor.threshold import calibrate, check_step_episodes, conformal_rank
 
     if not isinstance(detectors, DetectorSet):
         raise ConfigError(f"detectors is the set fit_on_episodes() returned (or DetectorSet.load); got "
@@ -322,12 +325,17 @@ def calibrate_on_episodes(detectors: DetectorSet, episodes: Sequence[tuple[Any, 
     _check_fresh(checked, "calibration", {"the detectors were fitted on": detectors.fitted_for.get(FITTED_EPISODES)},
                  "they learned it and read it low, so the threshold's promise would not hold; calibrate on other "
                  "recorded episodes")
-    conformal_rank(len(checked), far, confidence)  # too few episodes for far: said before they are scored
+    if mode not in ("episode", "step"):
+        raise InvalidParameterError(f"mode={mode!r} is not allowed; use 'episode' or 'step'")
+    if mode == "episode":  # too few episodes for far: said before they are scored
+        conformal_rank(len(checked), far, confidence)
+    elif mode == "step" and confidence is not None:
+        check_step_episodes(len(checked), far, confidence)
     consecutive = default_consecutive(detector) if consecutive is None else consecutive
     window = default_window(None, detector) if window is None else window
     scored = _scored(detectors, checked, "calibration episodes", on_progress, detector=detector, reading_names=names)
     threshold = calibrate([scores for scores, _ in scored], far, consecutive=consecutive, window=window,
-                          detector=detector, confidence=confidence, warmup=warmup,
+                          detector=detector, confidence=confidence, warmup=warmup, mode=mode,
                           detectors_hash=detectors.fingerprint(detector))
     return replace(threshold, reading_names=None if names is None else list(names),
                    episode_hashes=[episode_hash(*pair) for pair in checked])
@@ -470,13 +478,13 @@ def watch_recorded(fit_episodes: Sequence[tuple[Any, Any]] | None = None,
                    action_space: gymnasium.Space | None = None,
                    far: float = 0.05, confidence: float | None = DEFAULT_CONFIDENCE, detector: str | None = None,
                    sinks: Sequence[Sink] = (), callbacks: Sequence[Callable[[AlarmEvent], Any]] = (),
-                   save: str | Path | None = None, threshold: str | Path | None = None,
+                   save: str | Path | None = None, threshold: str | Path | None = None, mode: str = "episode",
                    reading_names: Sequence[str] | None = None, on_progress: Progress | None = None) -> Any:
     """The :class:`~oodmon.monitor.Monitor` of a deployment oodmon cannot play, made from its
     recorded ID episodes: the detectors fitted on ``fit_episodes`` (:func:`fit_on_episodes`), the
     threshold calibrated on ``calibration_episodes`` (:func:`calibrate_on_episodes`; ``far``,
-    ``confidence``, ``detector``, ``reading_names`` as there). It runs no policy: give it each step's
-    observation and the action taken (``monitor.step(obs, action=a)`` between
+    ``confidence``, ``detector``, ``mode``, ``reading_names`` as there). It runs no policy: give it
+    each step's observation and the action taken (``monitor.step(obs, action=a)`` between
     ``monitor.begin_episode()`` and ``monitor.end_episode()``). ``sinks``, ``callbacks``: as the
     Monitor's.
 
@@ -514,7 +522,7 @@ def watch_recorded(fit_episodes: Sequence[tuple[Any, Any]] | None = None,
             replaced_file(save, parameter="save", holds="threshold", read=Threshold.load)
         detectors = fit_on_episodes(fit_episodes, action_space, on_progress=on_progress)
         calibration = calibrate_on_episodes(detectors, calibration_episodes, far, detector=detector,
-                                            confidence=confidence, reading_names=reading_names,
+                                            confidence=confidence, mode=mode, reading_names=reading_names,
                                             on_progress=on_progress)
         if save is not None:
             save_calibration(calibration, save, detectors)

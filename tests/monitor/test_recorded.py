@@ -14,7 +14,7 @@ import pytest
 
 import oodmon
 from oodmon.envs import parse_variant
-from oodmon.errors import ConfigError
+from oodmon.errors import ConfigError, InvalidParameterError
 from oodmon.monitor import (MemorySink, Monitor, Threshold, calibrate_on_episodes, fit_on_episodes,
                             validate_on_episodes, watch_recorded)
 from oodmon.monitor.detectors import DetectorSet
@@ -437,7 +437,10 @@ def test_the_command_fits_and_calibrates_on_records(tmp_path, capsys):
     detectors = fit_on_episodes(_record(9, 0), DISCRETE, dynamics_updates=50)
     expected = calibrate_on_episodes(detectors, _record(22, 1000), far=0.1)
     assert (made.value, made.detectors_hash) == (expected.value, expected.detectors_hash)
-    assert DetectorSet.load(tmp_path / "cli.json.detectors").fingerprint("combined") == detectors.fingerprint("combined")
+    saved = DetectorSet.load(tmp_path / "cli.json.detectors")
+    assert saved.fingerprint("combined") == detectors.fingerprint("combined")
+    assert main(argv + ["--mode", "step", "--out", str(tmp_path / "step.json")]) == 0
+    assert Threshold.load(tmp_path / "step.json").mode == "step" and ", step mode, " in capsys.readouterr().out
     for extra, words in ((["--task", "cartpole"], "leave out --task"), (["--episodes", "30"], "leave out --episodes"),
                          (["--far", "0.01"], "needs at least 230 ID calibration episodes")):
         assert main(argv + extra) == 2
@@ -447,3 +450,17 @@ def test_the_command_fits_and_calibrates_on_records(tmp_path, capsys):
     assert main(["calibrate", "--task", "cartpole", "--method", "ensemble", "--action-space", "box:1",
                  "--out", str(tmp_path / "x.json")]) == 2
     assert "go with --records" in capsys.readouterr().err and not (tmp_path / "x.json").exists()
+
+
+def test_a_record_without_episodes_is_calibrated_by_step():
+    """Step mode: the threshold bounds the share of steps above it, each stretch a cluster; of
+    fresh stretches, validation counts steps with their clustered interval. When written: 29 of
+    the 4,000 fresh steps above it (0.7%, interval 0.0-4.4%, design effect 29; target 10%)."""
+    detectors = fit_on_episodes(_record(9, 0), DISCRETE, dynamics_updates=100)
+    threshold = calibrate_on_episodes(detectors, _record(22, 1000), far=0.1, mode="step")
+    assert (threshold.mode, threshold.n_episodes) == ("step", 22)
+    validation = validate_on_episodes(threshold, _record(20, 90_000), detectors=detectors)
+    assert validation.total == 20 * STEPS and validation.design_effect is not None
+    assert validation.alarmed / validation.total <= 0.15 and validation.verdict != "above"
+    with pytest.raises(InvalidParameterError, match="mode='stretch' is not allowed"):
+        calibrate_on_episodes(detectors, _record(22, 1000), far=0.1, mode="stretch")
