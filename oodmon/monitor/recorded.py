@@ -381,14 +381,21 @@ def save_records(path: str | Path, episodes: Sequence[tuple[Any, Any]]) -> Path:
     Raises:
         ConfigError: episodes that are not pairs of arrays of numbers (see :func:`fit_on_episodes`).
     """
+    from oodmon.outputs import check_output_file, write_whole
+
+    if not isinstance(path, (str, Path)):
+        raise ConfigError(f"path is the file to write the records to; got {type(path).__name__}")
     checked = _checked_pairs(episodes, "episodes")
+    path = check_output_file(path, parameter="path")  # (empty, a folder, a device: said)
     arrays = {}
     for index, (observations, actions) in enumerate(checked):
         arrays[f"observations_{index}"], arrays[f"actions_{index}"] = observations, actions
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as file:  # (np.savez adds .npz to a name without it)
-        np.savez(file, **arrays)
+
+    def write(part: Path) -> None:
+        with open(part, "wb") as file:  # (np.savez adds .npz to a name without it)
+            np.savez(file, **arrays)
+
+    write_whole(path, write)  # (whole or not at all: a kill mid-write leaves the file before)
     return path
 
 
@@ -401,6 +408,13 @@ def load_records(path: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
     """
     import zipfile
 
+    from oodmon.jsonfile import special_file
+
+    if not isinstance(path, (str, Path)):
+        raise ConfigError(f"path is a file of recorded episodes; got {type(path).__name__}")
+    special = special_file(path)
+    if special is not None:  # (/dev/zero would be read for ever)
+        raise ConfigError(f"{path} is {special}, not a file of recorded episodes")
     try:
         data = np.load(path, allow_pickle=False)
         if not isinstance(data, np.lib.npyio.NpzFile):  # (one array, an .npy)
@@ -410,6 +424,8 @@ def load_records(path: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file of recorded episodes (oodmon.monitor.save_records writes "
                           "one)") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path} is a folder, not a file of recorded episodes") from None
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
         raise ConfigError(f"{path} is not a file of recorded episodes (an .npz of observations_<i> and "
                           f"actions_<i>, as oodmon.monitor.save_records writes): {error}") from None

@@ -464,3 +464,22 @@ def test_a_record_without_episodes_is_calibrated_by_step():
     assert validation.alarmed / validation.total <= 0.15 and validation.verdict != "above"
     with pytest.raises(InvalidParameterError, match="mode='stretch' is not allowed"):
         calibrate_on_episodes(detectors, _record(22, 1000), far=0.1, mode="stretch")
+
+
+def test_records_are_written_whole_and_odd_paths_are_refused(tmp_path):
+    """save_records writes beside the file and moves it in (a kill mid-write leaves the file before,
+    no part); a folder, an empty name, /dev/zero and a number are refused by name (scripts/fuzz_api.py
+    found the first three as Python's errors)."""
+    from oodmon.monitor import load_records, save_records
+
+    path = save_records(tmp_path / "r.npz", _record(2, 0))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.npz"] and len(load_records(path)) == 2
+    (tmp_path / "folder").mkdir()
+    for bad, words in ((tmp_path / "folder", "is a folder"), ("", "is a folder"), ("/dev/zero", "dev/zero"),
+                       (5, "got int")):
+        with pytest.raises(ConfigError, match=words):
+            save_records(bad, _record(1, 0))
+    for bad, words in ((tmp_path / "folder", "is a folder"), ("/dev/zero", "not a file of recorded episodes"),
+                       (5, "got int")):
+        with pytest.raises(ConfigError, match=words):
+            load_records(bad)
