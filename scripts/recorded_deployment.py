@@ -2,7 +2,7 @@
 
 Run: OODMON_TORCH_THREADS=1 .venv/bin/python scripts/recorded_deployment.py [--task cartpole|pendulum|pong]
          [--fit 90] [--calibration 50] [--fresh 300] [--shifted 20] [--onset 50] [--steps N] [--far 0.05]
-         [--detectors dynamics,combined] [--variants 'cartpole:length=2.0;cartpole:masscart=3.0;...']
+         [--detectors dynamics,combined] [--variants 'cartpole:length=2.0;cartpole:masscart=3.0;...'] [--calibrations K]
 
 The "robot" is a hand-written controller in oodmon's env of ``--task``, stepped by a loop of this
 script's own, which records each episode as ``(observations, actions)``: oodmon is told neither the
@@ -19,6 +19,11 @@ deployment feeds it, and ``--shifted`` episodes of each variant shifted from ste
 90,000 on). It prints the threshold, the fresh episodes alarmed with their 95% interval, and per
 variant the episodes alarmed, those alarmed before the onset, the delays, and the causes and
 readings the first alarms named. About a minute on one core with the defaults.
+
+``--calibrations K``: K thresholds, each calibrated on a set of ``--calibration`` episodes of its own,
+and the share of the fresh episodes each alarms (from the fresh episodes' scores, once): how the
+false-alarm rate of the threshold you get varies from one calibration to another, which the
+promise bounds (with probability 0.9 it is at most ``--far``).
 """
 
 from __future__ import annotations
@@ -31,7 +36,7 @@ import gymnasium
 import numpy as np
 
 from oodmon.envs import parse_variant
-from oodmon.monitor import MemorySink, Monitor, calibrate_on_episodes, fit_on_episodes
+from oodmon.monitor import MemorySink, Monitor, calibrate_on_episodes, episode_statistic, fit_on_episodes
 from oodmon.monitor.threshold import clopper_pearson
 from oodmon.threads import limit_threads
 
@@ -116,6 +121,9 @@ def main() -> None:
     parser.add_argument("--far", type=float, default=0.05)
     parser.add_argument("--detectors", help="the detectors to fit (default: fit_on_episodes's)")
     parser.add_argument("--variants", help="the shifts, separated by ';' (default: the task's in TASKS)")
+    parser.add_argument("--calibrations", type=int, default=1,
+                        help="calibrate this many thresholds on sets of their own and count each one's false alarms "
+                             "on the fresh episodes (default 1: the one)")
     args = parser.parse_args()
     actions, names, variants = TASKS[args.task]
     args.steps = args.steps or STEPS[args.task]
@@ -134,6 +142,8 @@ def main() -> None:
     low, high = clopper_pearson(alarmed, len(fresh))
     print(f"fresh ID: {alarmed} of {len(fresh)} alarmed ({alarmed / len(fresh):.1%}, 95% interval "
           f"{low:.1%}-{high:.1%}; target {args.far:.0%} at confidence 0.9)")
+    if args.calibrations > 1:
+        other_calibrations(args, detectors, threshold, statistics(sink, threshold))
     for spec in (args.variants or variants).split(";"):
         sink = MemorySink()
         firsts = watched(monitor_of(threshold, detectors, sink),
@@ -149,6 +159,34 @@ def main() -> None:
         print(f"{spec} from step {args.onset}: {len(delays)} of {len(firsts)} alarmed after the onset, {early} before; "
               f"delays {delays}; causes {dict(causes)}" + (f"; first readings {dict(readings)}" if readings else "")
               + (f"; regions {dict(regions)}" if regions else ""))
+
+
+def statistics(sink: MemorySink, threshold) -> np.ndarray:
+    """Each episode's statistic under ``threshold``'s rule (:func:`~oodmon.monitor.alarms.episode_statistic`),
+    from the scores of the alarm's detector ``sink`` kept: an episode alarms exactly where it
+    exceeds a threshold's value."""
+    scores: dict[int, list[float]] = {}
+    for step in sink.steps:
+        scores.setdefault(step.episode, []).append(step.score)
+    return np.array([episode_statistic(np.asarray(values), threshold.consecutive, threshold.window,
+                                       warmup=threshold.warmup) for _, values in sorted(scores.items())])
+
+
+def other_calibrations(args: argparse.Namespace, detectors, first, fresh: np.ndarray) -> None:
+    """``--calibrations``: as many thresholds, each calibrated on ``--calibration`` episodes of its
+    own (seeds 10,000 on, one set after the other; the first is the threshold above), and the share
+    of the fresh episodes (their statistics ``fresh``) each would have alarmed: the promise is that
+    at most about 1 - confidence of such thresholds exceed the target."""
+    values = [first.value]
+    for index in range(1, args.calibrations):
+        episodes = record(args.calibration, 10_000 + index * args.calibration, args.steps, args.task)
+        values.append(calibrate_on_episodes(detectors, episodes, args.far).value)
+    rates = np.array([np.mean(fresh > value) for value in values])
+    above = int(np.sum(rates > args.far))
+    print(f"{args.calibrations} calibrations of {args.calibration} episodes each: thresholds "
+          f"{min(values):.4g}-{max(values):.4g}; their false-alarm rates on the {len(fresh)} fresh episodes "
+          f"{rates.min():.1%}-{rates.max():.1%} (median {np.median(rates):.1%}); {above} of {args.calibrations} above "
+          f"the target {args.far:g} (the promise: with probability 0.9 each is not)")
 
 
 def monitor_of(threshold, detectors, sink: MemorySink) -> Monitor:

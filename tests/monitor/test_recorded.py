@@ -483,3 +483,25 @@ def test_records_are_written_whole_and_odd_paths_are_refused(tmp_path):
                        (5, "got int")):
         with pytest.raises(ConfigError, match=words):
             load_records(bad)
+
+
+def test_the_script_compares_calibrations(monkeypatch, capsys):
+    """scripts/recorded_deployment.py --calibrations: each threshold's share of the fresh episodes
+    it alarms is read off the episodes' statistics, which alarm exactly where the monitor does."""
+    detectors = fit_on_episodes(_record(6, 0), DISCRETE, dynamics_updates=50)
+    threshold = calibrate_on_episodes(detectors, _record(22, 1000), far=0.1)
+    sink = MemorySink()
+    # a longer pole from step 20 in half of them: some alarm
+    episodes = [*_record(4, 40_000), *_record(4, 41_000, "cartpole:length=2.0", 20)]
+    firsts = _SCRIPT.watched(_SCRIPT.monitor_of(threshold, detectors, sink), episodes, sink)
+    statistics = _SCRIPT.statistics(sink, threshold)
+    assert len(statistics) == 8 and list(statistics > threshold.value) == [first is not None for first in firsts]
+    assert any(statistics > threshold.value) and not all(statistics > threshold.value)  # (both kinds compared)
+    monkeypatch.setattr("sys.argv", ["recorded_deployment.py", "--fit", "6", "--calibration", "22", "--fresh", "6",
+                                     "--shifted", "1", "--steps", "60", "--far", "0.1", "--calibrations", "2",
+                                     "--variants", "cartpole:length=2.0"])
+    monkeypatch.setattr(_SCRIPT, "limit_threads", lambda: None)
+    _SCRIPT.main()
+    line = capsys.readouterr().out.splitlines()[2]
+    assert re.fullmatch(r"2 calibrations of 22 episodes each: thresholds \S+-\S+; their false-alarm rates on the 6 "
+                        r"fresh episodes \S+%-\S+% \(median \S+%\); [012] of 2 above the target 0.1 .*", line), line
