@@ -23,10 +23,14 @@ without the checks (this script since): 1.02, 1.01 and 1.03 (34.7-35.6 us agains
 
 from __future__ import annotations
 
+import argparse
+import warnings
+
 import gymnasium
 import numpy as np
 
 from oodmon.monitor import Monitor, calibrate_on_episodes, fit_on_episodes
+from oodmon.monitor.recorded import FewRecordedStepsWarning
 from oodmon.threads import limit_threads
 from timing import paired_us  # benchmarks/timing.py, beside this script
 
@@ -55,8 +59,11 @@ def recorded(count: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 def main() -> None:
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     limit_threads()
-    detectors = fit_on_episodes(recorded(6, 0), gymnasium.spaces.Discrete(2), dynamics_updates=200)
+    with warnings.catch_warnings():  # (few steps on purpose: a step's time does not depend on them)
+        warnings.simplefilter("ignore", FewRecordedStepsWarning)
+        detectors = fit_on_episodes(recorded(6, 0), gymnasium.spaces.Discrete(2), dynamics_updates=200)
     threshold = calibrate_on_episodes(detectors, recorded(22, 100), far=0.1)
     observations, actions = recorded(1, 200)[0]
     steps = list(zip(observations, actions.tolist()))  # (Python ints: a deployment's loop gives those)
