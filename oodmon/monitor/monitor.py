@@ -26,7 +26,7 @@ import shlex
 import sys
 import warnings
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -350,6 +350,8 @@ class Monitor:
         self._watched_shape = tuple(shape) if self.agent is None and self.estimator is None and shape else None
         dynamics = self.detectors["dynamics"] if self._watched_shape and "dynamics" in self.detectors else None
         self._watched_actions = dynamics.action_refusal if dynamics is not None else None
+        # a dict of named readings, which the detectors were fitted on flattened (oodmon.watch_recorded)
+        self._watched_layout = self.detectors.fitted_for.get("observation_layout") if self._watched_shape else None
 
     def twin(self, *, sinks: Sequence[Sink] = (), callbacks: Sequence[AlarmCallback] = ()) -> Monitor:
         """A monitor of the same policy, threshold and alarm rule, with copies of the fitted detectors
@@ -692,6 +694,10 @@ class Monitor:
             raise ConfigError("Monitor.step before begin_episode: start an episode first (or use run_episode)")
         if self._dicts:
             obs = self.agent.view(obs)
+        elif self._watched_layout is not None and isinstance(obs, Mapping):
+            from oodmon.monitor.recorded import flattened
+
+            obs = flattened(obs, self._watched_layout)
         estimate = self.estimator.estimate(obs) if self.estimator is not None else None
         cannot_act = None  # the policy's error on a reading that is not finite, when it raised one
         tallied = False  # whether this step's given action was the last the tally of given actions counts

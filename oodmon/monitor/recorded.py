@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import hashlib
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -98,6 +98,101 @@ def episode_hash(observations: np.ndarray, actions: np.ndarray) -> str:
     return digest.hexdigest()[:16]
 
 
+#: What ``fitted_for`` calls the layout of dict observations (:func:`layout_of`): ``[[key, shape], ...]``.
+LAYOUT = "observation_layout"
+
+
+def layout_of(observations: Mapping[str, Any], *, steps: bool = False) -> list[list]:
+    """The layout of a dict observation (a robot's named sensors): each key, in sorted order, with
+    the shape of its value at one step (of an episode's, ``steps``: each value's first axis its
+    steps); :func:`flattened` puts the values side by side in that order.
+
+    Example:
+        >>> layout_of({"velocity": np.zeros((10, 2)), "angle": np.zeros(10)}, steps=True)
+        [['angle', []], ['velocity', [2]]]
+
+    Raises:
+        ConfigError: no keys, or a key that is not a text.
+    """
+    if not observations or not all(isinstance(key, str) for key in observations):
+        raise ConfigError(f"a dict observation's keys are the names of its readings, texts; got "
+                          f"{list(observations)!r:.60}")
+    return [[key, list(np.shape(observations[key])[1 if steps else 0:])] for key in sorted(observations)]
+
+
+def layout_names(layout: Sequence[Sequence]) -> list[str]:
+    """The name of each number of a dict observation flattened by ``layout``: a key whose value is
+    one number by itself, the others by index (``velocity[1]``).
+
+    Example:
+        >>> layout_names([["angle", []], ["velocity", [2]]])
+        ['angle', 'velocity[0]', 'velocity[1]']
+    """
+    names = []
+    for key, shape in layout:
+        size = int(np.prod(shape))
+        names += [key] if size == 1 else [f"{key}[{index}]" for index in range(size)]
+    return names
+
+
+def flattened(observation: Mapping[str, Any], layout: Sequence[Sequence], *, steps: bool = False) -> np.ndarray:
+    """A dict observation as one vector of float64 in ``layout``'s order (of an episode's,
+    ``steps``: each value ``(T, ...)``, a ``(T, n)`` array).
+
+    Example:
+        >>> flattened({"velocity": [0.5, 2.0], "angle": 0.1}, [["angle", []], ["velocity", [2]]])
+        array([0.1, 0.5, 2. ])
+
+    Raises:
+        ConfigError: keys other than the layout's, a value of another shape, not numbers, or (of an
+            episode's) of another number of steps.
+    """
+    keys = [key for key, _ in layout]
+    if sorted(map(str, observation)) != sorted(keys):
+        raise ConfigError(f"the observation's keys are {sorted(map(str, observation))}; the detectors were fitted on "
+                          f"dicts of {keys}")
+    parts = []
+    for key, shape in layout:
+        value = np.asarray(observation[key])
+        if value.dtype.kind not in "biuf":
+            raise ConfigError(f"the observation's {key!r} must be numbers; got {value.dtype}")
+        if value.shape[1 if steps else 0:] != tuple(shape) or (steps and value.ndim == 0):
+            raise ConfigError(f"the observation's {key!r} is of shape {value.shape[1 if steps else 0:]} a step; the "
+                              f"detectors were fitted on {tuple(shape)}")
+        parts.append(value.reshape(len(value), -1) if steps else value.reshape(-1))
+    if steps and len({len(part) for part in parts}) > 1:
+        raise ConfigError(f"the observation's values have {sorted({len(part) for part in parts})} steps; give each "
+                          "as many as the episode has")
+    return np.concatenate(parts, axis=-1).astype(np.float64)
+
+
+def _flat_episodes(episodes: Any, layout: Sequence[Sequence] | None, what: str) -> Any:
+    """``episodes`` with each dict of observations (``{key: (T, ...)}``) flattened by ``layout``
+    (:func:`flattened`); others as given, which must then be no dicts.
+
+    Raises:
+        ConfigError: a dict where the detectors were fitted on arrays, an array where on dicts, or a
+            dict that is not of ``layout``.
+    """
+    if isinstance(episodes, (str, bytes, Path, np.ndarray)) or not isinstance(episodes, Sequence):
+        return episodes  # (refused by _checked_pairs, saying what it is)
+    flat = []
+    for index, episode in enumerate(episodes):
+        observations = episode[0] if isinstance(episode, (tuple, list)) and episode else None
+        if isinstance(observations, Mapping) != (layout is not None):
+            said = ("dicts of named readings" if layout is not None else "arrays")
+            raise ConfigError(f"episode {index} of {what}: its observations are "
+                              f"{'a dict' if isinstance(observations, Mapping) else 'no dict'}, and the detectors were "
+                              f"fitted on {said}")
+        if layout is not None:
+            try:
+                episode = (flattened(observations, layout, steps=True), *episode[1:])
+            except ConfigError as error:
+                raise ConfigError(f"episode {index} of {what}: {error}") from None
+        flat.append(episode)
+    return flat
+
+
 def _checked_pairs(episodes: Any, what: str) -> list[tuple[np.ndarray, np.ndarray]]:
     """``episodes`` as ``(observations, actions)`` arrays of numbers; ``what`` names them in an error.
 
@@ -114,6 +209,10 @@ def _checked_pairs(episodes: Any, what: str) -> list[tuple[np.ndarray, np.ndarra
         if not isinstance(episode, (tuple, list)) or len(episode) != 2:
             raise ConfigError(f"{where} is a pair (observations, actions); got {type(episode).__name__}"
                               f"{f' of {len(episode)}' if isinstance(episode, (tuple, list)) else ''}")
+        if isinstance(episode[0], Mapping):  # (fitting, calibration and validation flatten them first)
+            raise ConfigError(f"{where}: its observations are a dict of named readings; records are kept as arrays: "
+                              "flatten each episode's first (oodmon.monitor.recorded.flattened(observations, "
+                              "layout_of(observations, steps=True), steps=True))")
         try:
             observations, actions = np.asarray(episode[0]), np.asarray(episode[1])
         except ValueError as error:  # (ragged lists)
@@ -224,7 +323,10 @@ def fit_on_episodes(episodes: Sequence[tuple[Any, Any]], action_space: gymnasium
         episodes: the recorded ID episodes, each ``(observations, actions)``: the observations the
             policy acted on, vectors ``(T, n)`` (or ``(T + 1, n)``: the last after the last action)
             or a camera's pictures (bytes ``(T, H, W)``, ``(T, H, W, 3)``, or stacks ``(T, k, H,
-            W)`` whose newest frame is the last; floats of 16 pixels or more each way), and the
+            W)`` whose newest frame is the last; floats of 16 pixels or more each way) or a dict of
+            named readings (``{"angle": (T,), "velocity": (T, 2)}``, flattened by
+            :func:`layout_of`, which the set records: the monitor flattens each step's dict alike,
+            and the alarms name its readings ``velocity[1]``), and the
             action it took at each, ``(T,)`` integers of a ``Discrete`` or ``(T, n)`` numbers of a
             ``Box``. Episodes with a reading that is not finite are left out.
         action_space: the actions' gymnasium space: ``Discrete(n)``, read one-hot, or a ``Box``.
@@ -245,7 +347,10 @@ def fit_on_episodes(episodes: Sequence[tuple[Any, Any]], action_space: gymnasium
     from oodmon.monitor.detectors.frames import is_picture
 
     action_space = _check_action_space(action_space)
-    checked = _checked_episodes(episodes, action_space, "episodes")
+    first = episodes[0][0] if isinstance(episodes, Sequence) and episodes and isinstance(episodes[0], (tuple, list)) \
+        and episodes[0] else None
+    layout = layout_of(first, steps=True) if isinstance(first, Mapping) else None  # named sensors: flattened
+    checked = _checked_episodes(_flat_episodes(episodes, layout, "episodes"), action_space, "episodes")
     check_max_updates(dynamics_updates, "dynamics_updates")
     seed = check_seed(seed)
     shape, dtype = checked[0][0].shape[1:], checked[0][0].dtype
@@ -278,6 +383,8 @@ def fit_on_episodes(episodes: Sequence[tuple[Any, Any]], action_space: gymnasium
                       "49 of 70; record more normal running where you can", FewRecordedStepsWarning, stacklevel=2)
     recorded = {"seed": None, "action_space": _recorded_space(action_space),
                 FITTED_EPISODES: [episode_hash(*pair) for pair in checked]}
+    if layout is not None:
+        recorded[LAYOUT] = layout
     return _fitted(trajectories, names, None, None, "chosen_std", n_actions, seed, dynamics_updates, on_progress,
                    policy_hash=None, obs_noise=0.0, workers=1, max_steps=None, recorded=recorded)
 
@@ -314,9 +421,12 @@ def calibrate_on_episodes(detectors: DetectorSet, episodes: Sequence[tuple[Any, 
     if not isinstance(detectors, DetectorSet):
         raise ConfigError(f"detectors is the set fit_on_episodes() returned (or DetectorSet.load); got "
                           f"{type(detectors).__name__}")
-    shape = detectors.fitted_for.get("obs_shape")
-    checked = _checked_episodes(episodes, _space_of(detectors), "episodes", None if shape is None else tuple(shape))
+    shape, layout = detectors.fitted_for.get("obs_shape"), detectors.fitted_for.get(LAYOUT)
+    checked = _checked_episodes(_flat_episodes(episodes, layout, "episodes"), _space_of(detectors), "episodes",
+                                None if shape is None else tuple(shape))
     names = check_reading_names(reading_names)
+    if names is None and layout is not None:  # a dict's readings named by its keys
+        names = tuple(layout_names(layout))
     if detector is None:
         detector = "combined" if "combined" in detectors else detectors.names[-1]
     if not isinstance(detector, str) or detector not in detectors:
@@ -364,8 +474,9 @@ def validate_on_episodes(threshold: Threshold | str | Path, episodes: Sequence[t
     if not isinstance(threshold, Threshold) or not isinstance(detectors, DetectorSet):
         raise ConfigError("give the threshold's path, or a Threshold with detectors= the set it was calibrated with "
                           f"(got {type(threshold).__name__} and {type(detectors).__name__})")
-    shape = detectors.fitted_for.get("obs_shape")
-    checked = _checked_episodes(episodes, _space_of(detectors), "episodes", None if shape is None else tuple(shape))
+    shape, layout = detectors.fitted_for.get("obs_shape"), detectors.fitted_for.get(LAYOUT)
+    checked = _checked_episodes(_flat_episodes(episodes, layout, "episodes"), _space_of(detectors), "episodes",
+                                None if shape is None else tuple(shape))
     _check_fresh(checked, "validation", {"the detectors were fitted on": detectors.fitted_for.get(FITTED_EPISODES),
                                          "the threshold was calibrated on": threshold.episode_hashes},
                  "it is not fresh, and would read low; validate on episodes neither saw")

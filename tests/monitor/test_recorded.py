@@ -505,3 +505,51 @@ def test_the_script_compares_calibrations(monkeypatch, capsys):
     line = capsys.readouterr().out.splitlines()[2]
     assert re.fullmatch(r"2 calibrations of 22 episodes each: thresholds \S+-\S+; their false-alarm rates on the 6 "
                         r"fresh episodes \S+%-\S+% \(median \S+%\); [012] of 2 above the target 0.1 .*", line), line
+
+
+def _named_sensors(episodes):
+    """CartPole's records as a robot's named sensors: the cart's two readings, the pole's two."""
+    return [({"pole_speed": o[:, 3], "cart": o[:, :2], "pole_angle": o[:, 2]}, a) for o, a in episodes]
+
+
+def test_named_sensors_are_flattened_by_their_keys(tmp_path):
+    """Dict observations ({key: (T, ...)}) are fitted flattened in their keys' sorted order, which
+    here is CartPole's own: the same detectors and threshold as of the arrays. The monitor
+    flattens each step's dict alike (the same scores), names the readings by the keys, and refuses
+    a dict of other keys, or an array where it was fitted on dicts; records of dicts are not
+    saved (they are kept as arrays)."""
+    from oodmon.monitor import save_records
+
+    fit, calibration = _record(6, 0), _record(22, 1000)
+    arrays = fit_on_episodes(fit, DISCRETE, dynamics_updates=50)
+    dicts = fit_on_episodes(_named_sensors(fit), DISCRETE, dynamics_updates=50)
+    assert dicts.fitted_for["observation_layout"] == [["cart", [2]], ["pole_angle", []], ["pole_speed", []]]
+    assert dicts.fingerprint("combined") == arrays.fingerprint("combined")
+    threshold = calibrate_on_episodes(dicts, _named_sensors(calibration), far=0.1)
+    assert threshold.value == calibrate_on_episodes(arrays, calibration, far=0.1).value
+    assert threshold.reading_names == ["cart[0]", "cart[1]", "pole_angle", "pole_speed"]
+    (observations, actions), = _record(1, 9000, "cartpole:length=2.0", 50)
+    scores = {}
+    for kind, detectors in (("arrays", arrays), ("dicts", dicts)):
+        with Monitor(None, threshold if kind == "dicts" else threshold.value, detectors=detectors) as monitor:
+            monitor.begin_episode()
+            scores[kind] = []
+            for step, action in enumerate(actions.tolist()):
+                obs = observations[step] if kind == "arrays" else {
+                    "cart": observations[step, :2], "pole_angle": observations[step, 2],
+                    "pole_speed": observations[step, 3]}
+                monitor.step(obs, action=action)
+                scores[kind].append(monitor.last_step.score)
+    assert scores["dicts"] == scores["arrays"]
+    with Monitor(None, threshold, detectors=dicts) as monitor:
+        monitor.begin_episode()
+        with pytest.raises(ConfigError, match="keys are .'cart', 'pole_angle'.; the detectors were fitted on dicts of"):
+            monitor.step({"cart": np.zeros(2), "pole_angle": 0.0}, action=0)
+    with pytest.raises(ConfigError, match="episode 0 of episodes: its observations are no dict, and the detectors "
+                                          "were fitted on dicts of named readings"):
+        validate_on_episodes(threshold, _record(1, 9100), detectors=dicts)
+    with pytest.raises(ConfigError, match="its observations are a dict of named readings; records are kept as arrays"):
+        save_records(tmp_path / "r.npz", _named_sensors(fit))
+    with pytest.raises(ConfigError, match="its observations are a dict, and the detectors were fitted on arrays"):
+        validate_on_episodes(calibrate_on_episodes(arrays, calibration, far=0.1), _named_sensors(_record(1, 9100)),
+                             detectors=arrays)
