@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import atexit
 import copy
+import functools
 import json
 import math
 import shlex
@@ -351,7 +352,12 @@ class Monitor:
         dynamics = self.detectors["dynamics"] if self._watched_shape and "dynamics" in self.detectors else None
         self._watched_actions = dynamics.action_refusal if dynamics is not None else None
         # a dict of named readings, which the detectors were fitted on flattened (oodmon.watch_recorded)
-        self._watched_layout = self.detectors.fitted_for.get("observation_layout") if self._watched_shape else None
+        layout = self.detectors.fitted_for.get("observation_layout") if self._watched_shape else None
+        self._flatten: Callable[[Mapping], np.ndarray] | None = None
+        if layout is not None:
+            from oodmon.monitor.recorded import flattened
+
+            self._flatten = functools.partial(flattened, layout=layout)
 
     def twin(self, *, sinks: Sequence[Sink] = (), callbacks: Sequence[AlarmCallback] = ()) -> Monitor:
         """A monitor of the same policy, threshold and alarm rule, with copies of the fitted detectors
@@ -694,10 +700,8 @@ class Monitor:
             raise ConfigError("Monitor.step before begin_episode: start an episode first (or use run_episode)")
         if self._dicts:
             obs = self.agent.view(obs)
-        elif self._watched_layout is not None and isinstance(obs, Mapping):
-            from oodmon.monitor.recorded import flattened
-
-            obs = flattened(obs, self._watched_layout)
+        elif self._flatten is not None and isinstance(obs, Mapping):
+            obs = self._flatten(obs)
         estimate = self.estimator.estimate(obs) if self.estimator is not None else None
         cannot_act = None  # the policy's error on a reading that is not finite, when it raised one
         tallied = False  # whether this step's given action was the last the tally of given actions counts

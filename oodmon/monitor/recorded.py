@@ -432,7 +432,8 @@ def calibrate_on_episodes(detectors: DetectorSet, episodes: Sequence[tuple[Any, 
     if not isinstance(detector, str) or detector not in detectors:
         raise ConfigError(f"the alarm reads the {detector} detector, which the set does not have (it has "
                           f"{', '.join(detectors.names)})")
-    _check_fresh(checked, "calibration", {"the detectors were fitted on": detectors.fitted_for.get(FITTED_EPISODES)},
+    hashes = [episode_hash(*pair) for pair in checked]
+    _check_fresh(hashes, "calibration", {"the detectors were fitted on": detectors.fitted_for.get(FITTED_EPISODES)},
                  "they learned it and read it low, so the threshold's promise would not hold; calibrate on other "
                  "recorded episodes")
     if mode not in ("episode", "step"):
@@ -448,7 +449,7 @@ def calibrate_on_episodes(detectors: DetectorSet, episodes: Sequence[tuple[Any, 
                           detector=detector, confidence=confidence, warmup=warmup, mode=mode,
                           detectors_hash=detectors.fingerprint(detector))
     return replace(threshold, reading_names=None if names is None else list(names),
-                   episode_hashes=[episode_hash(*pair) for pair in checked])
+                   episode_hashes=hashes)
 
 
 def validate_on_episodes(threshold: Threshold | str | Path, episodes: Sequence[tuple[Any, Any]], *,
@@ -477,8 +478,9 @@ def validate_on_episodes(threshold: Threshold | str | Path, episodes: Sequence[t
     shape, layout = detectors.fitted_for.get("obs_shape"), detectors.fitted_for.get(LAYOUT)
     checked = _checked_episodes(_flat_episodes(episodes, layout, "episodes"), _space_of(detectors), "episodes",
                                 None if shape is None else tuple(shape))
-    _check_fresh(checked, "validation", {"the detectors were fitted on": detectors.fitted_for.get(FITTED_EPISODES),
-                                         "the threshold was calibrated on": threshold.episode_hashes},
+    _check_fresh([episode_hash(*pair) for pair in checked], "validation",
+                 {"the detectors were fitted on": detectors.fitted_for.get(FITTED_EPISODES),
+                  "the threshold was calibrated on": threshold.episode_hashes},
                  "it is not fresh, and would read low; validate on episodes neither saw")
     scored = _scored(detectors, checked, "validation episodes", on_progress, threshold=threshold)
     return _counted(scored, threshold, 0.0, None)
@@ -550,13 +552,13 @@ def load_records(path: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
     return [(arrays[f"observations_{index}"], arrays[f"actions_{index}"]) for index in range(count)]
 
 
-def _check_fresh(episodes: list[tuple[np.ndarray, np.ndarray]], use: str, made_from: dict[str, Any],
-                 why: str) -> None:
-    """Refuse, naming the first, ``episodes`` for ``use`` among those whose hashes ``made_from``
-    holds by what was made from them (``{"the detectors were fitted on": [...]}``), saying ``why``."""
-    for what, hashes in made_from.items():
-        known = set(hashes or ())
-        found = [index for index, pair in enumerate(episodes) if episode_hash(*pair) in known]
+def _check_fresh(hashes: list[str], use: str, made_from: dict[str, Any], why: str) -> None:
+    """Refuse, naming the first, the episodes of ``hashes`` (:func:`episode_hash`, each computed
+    once) for ``use`` among those whose hashes ``made_from`` holds by what was made from them
+    (``{"the detectors were fitted on": [...]}``), saying ``why``."""
+    for what, made in made_from.items():
+        known = set(made or ())
+        found = [index for index, hashed in enumerate(hashes) if hashed in known]
         if found:
             raise ConfigError(f"episode {found[0]} of the {use} episodes ({len(found)} in all) is one {what}: {why}")
 

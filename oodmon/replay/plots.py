@@ -246,12 +246,11 @@ def plot_where(logs: Sequence[RunLog], task: str, method: str, path: str | Path)
     named = [(log, episode) for log in logs if (log.task, log.method) == (task, method)
              for episode in sorted([*log.episodes, *log.interrupted], key=lambda e: e.episode)
              if episode.first_alarm_region is not None and episode.first_alarm_step is not None]
-    frames = {}
-    for source in dict.fromkeys(log.path for log, _ in named[:WHERE_PANELS]):
-        for (k, step), frame in read_frames(source, [(e.episode, e.first_alarm_step) for log, e in
-                                                     named[:WHERE_PANELS] if log.path == source]).items():
-            frames[(source, k, step)] = frame
-    drawn = [(log, episode) for log, episode in named[:WHERE_PANELS]
+    shown, frames = named[:WHERE_PANELS], {}
+    for source in dict.fromkeys(log.path for log, _ in shown):  # each log read once, for its frames alone
+        steps = [(episode.episode, episode.first_alarm_step) for log, episode in shown if log.path == source]
+        frames |= {(source, *step): frame for step, frame in read_frames(source, steps).items()}
+    drawn = [(log, episode) for log, episode in shown
              if (log.path, episode.episode, episode.first_alarm_step) in frames]
     if not drawn:
         return None
